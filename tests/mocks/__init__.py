@@ -1,0 +1,1 @@
+"""Protocol-accurate device emulators and fault injectors used by the tests."""
