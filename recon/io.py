@@ -1,0 +1,359 @@
+"""Image file input/output and Bayer demosaicing for the reconstruction layer.
+
+Readers return arrays in the file's native dtype with channels last, so the
+preprocessing step (:mod:`recon.preprocess`) sees exactly what the sensor
+recorded. Writers produce either the 32-bit float data product (TIFF), a
+viewing image (8-bit PNG) or a NumPy ``.npy`` file.
+
+Every refusal raises :class:`recon.errors.ReconInputError` with a one-line
+message that names the file, the problem and the fix.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import tifffile
+
+from recon.errors import ReconInputError
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "BAYER_PATTERNS",
+    "LOAD_EXTENSIONS",
+    "SAVE_EXTENSIONS",
+    "demosaic_bayer",
+    "load_image",
+    "save_image",
+]
+
+_TIFF_EXTENSIONS = (".tif", ".tiff")
+_CV2_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp")
+_NPY_EXTENSIONS = (".npy",)
+
+#: File extensions :func:`load_image` accepts (lower case; matching is case-insensitive).
+LOAD_EXTENSIONS: tuple[str, ...] = _TIFF_EXTENSIONS + _CV2_EXTENSIONS + _NPY_EXTENSIONS
+#: File extensions :func:`save_image` accepts (lower case; matching is case-insensitive).
+SAVE_EXTENSIONS: tuple[str, ...] = _TIFF_EXTENSIONS + (".png",) + _NPY_EXTENSIONS
+
+# Sensor colour-filter layout (top-left 2x2 block, row by row) -> OpenCV code.
+# OpenCV's historical Bayer names describe the 2nd and 3rd pixels of the 2nd
+# row, so an RGGB sensor (R at (0, 0), B at (1, 1)) is OpenCV's "BG" pattern.
+# tests/recon/test_io.py pins this mapping with a synthetic mosaic.
+_BAYER_CODES: dict[str, int] = {
+    "RGGB": cv2.COLOR_BayerBG2RGB,
+    "BGGR": cv2.COLOR_BayerRG2RGB,
+    "GRBG": cv2.COLOR_BayerGB2RGB,
+    "GBRG": cv2.COLOR_BayerGR2RGB,
+}
+#: Bayer patterns :func:`demosaic_bayer` accepts, named by the sensor's top-left 2x2 block.
+BAYER_PATTERNS: tuple[str, ...] = tuple(_BAYER_CODES)
+
+# Largest channel count treated as colour channels (gray, gray+alpha, RGB, RGBA).
+_MAX_CHANNELS = 4
+
+
+def _suffix(path: Path) -> str:
+    return path.suffix.lower()
+
+
+def _shape_str(shape: tuple[int, ...]) -> str:
+    return "x".join(str(s) for s in shape) if shape else "scalar"
+
+
+def _read_tiff(path: Path) -> np.ndarray:
+    try:
+        return np.asarray(tifffile.imread(path))
+    except Exception as exc:  # tifffile raises TiffFileError, ValueError, OSError, ...
+        raise ReconInputError(
+            f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
+            "check that the file is a complete, uncorrupted TIFF or re-export it"
+        ) from exc
+
+
+def _read_cv2(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ReconInputError(
+            f"{path}: OpenCV could not decode the image (corrupt, truncated or not really "
+            f"a {_suffix(path)} file); re-export it, or save it as TIFF"
+        )
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
+    return image
+
+
+def _read_npy(path: Path) -> np.ndarray:
+    try:
+        data = np.load(path, allow_pickle=False)
+    except Exception as exc:  # ValueError (pickled/corrupt), OSError, EOFError, ...
+        raise ReconInputError(
+            f"{path}: cannot read as .npy ({type(exc).__name__}: {exc}); "
+            "save the image with numpy.save from a plain numeric array"
+        ) from exc
+    if not isinstance(data, np.ndarray):
+        # np.load returns an NpzFile for .npz content behind a .npy name.
+        if hasattr(data, "close"):
+            data.close()
+        raise ReconInputError(
+            f"{path}: file holds an .npz archive, not a single array; "
+            "save one image per file with numpy.save"
+        )
+    return data
+
+
+def _to_channels_last(path: Path, image: np.ndarray, is_tiff: bool) -> np.ndarray:
+    """Check the dimensionality and return (H, W) or (H, W, C) with C <= 4."""
+    shape = image.shape
+    if image.ndim == 4:
+        raise ReconInputError(
+            f"{path}: file holds a stack of {shape[0]} images ({_shape_str(shape)}) where "
+            "one image was expected; pass a single frame (e.g. export one plane) "
+            "or load the stack with the stack reader"
+        )
+    if image.ndim not in (2, 3):
+        raise ReconInputError(
+            f"{path}: array has {image.ndim} dimension(s) ({_shape_str(shape)}), an image "
+            "must be 2D (H, W) or 3D (H, W, C); save the image itself, not a slice or a stack"
+        )
+    if image.ndim == 2:
+        return image
+    first, _, last = shape
+    if is_tiff and first in (3, 4) and shape[1] > _MAX_CHANNELS and shape[2] > _MAX_CHANNELS:
+        logger.debug("%s: moving leading channel axis of %s to the end", path, shape)
+        image = np.moveaxis(image, 0, -1)
+    elif last <= _MAX_CHANNELS:
+        pass
+    elif first == 1:
+        image = image[0]
+    else:
+        raise ReconInputError(
+            f"{path}: file holds a stack of {first} images of {shape[1]}x{shape[2]} where one "
+            "image was expected; pass a single frame (e.g. export one plane) or load the "
+            "stack with the stack reader"
+        )
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    return image
+
+
+def load_image(path: str | os.PathLike) -> np.ndarray:
+    """Load one image from a TIFF, PNG, JPEG, BMP or ``.npy`` file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File to read. The reader is chosen by the (case-insensitive) extension:
+        ``.tif``/``.tiff`` via :func:`tifffile.imread`; ``.png``, ``.jpg``,
+        ``.jpeg``, ``.bmp`` via ``cv2.imread(..., cv2.IMREAD_UNCHANGED)``;
+        ``.npy`` via ``numpy.load(allow_pickle=False)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The image in the file's native dtype (e.g. uint8, uint16 sensor counts,
+        float32), shape (H, W) or (H, W, C) with channels last and C <= 4.
+        Colour images read through OpenCV are returned in RGB(A) order (OpenCV
+        reads BGR(A)). A TIFF with a leading channel axis of size 3 or 4 (planar
+        RGB, shape (C, H, W) with H, W > 4) is returned as (H, W, C). A singleton
+        channel axis, (H, W, 1) or (1, H, W), is dropped to give (H, W).
+
+    Raises
+    ------
+    ReconInputError
+        If the file does not exist, the extension is not supported, the file
+        cannot be decoded (corrupt or truncated), the array is not 2D/3D, or the
+        file holds a stack of images where one image was expected.
+
+    Notes
+    -----
+    The DiffuserCam tutorial data (``psf_sample.tif``, ``rawdata_hand_sample.tif``)
+    are 1200 x 1600 uint16 TIFFs and load as such.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if suffix not in LOAD_EXTENSIONS:
+        raise ReconInputError(
+            f"{path}: unsupported file extension {suffix or '(none)'!r}; "
+            f"convert the image to one of {', '.join(LOAD_EXTENSIONS)}"
+        )
+    if not path.exists():
+        raise ReconInputError(f"{path}: file not found; check the path and the working directory")
+    if not path.is_file():
+        raise ReconInputError(f"{path}: is not a regular file (a directory?); pass an image file")
+
+    if suffix in _TIFF_EXTENSIONS:
+        image = _read_tiff(path)
+    elif suffix in _CV2_EXTENSIONS:
+        image = _read_cv2(path)
+    else:
+        image = _read_npy(path)
+
+    if image.dtype.kind not in "biuf":
+        raise ReconInputError(
+            f"{path}: array dtype {image.dtype} is not a numeric image type; "
+            "save the image as integer or float data"
+        )
+    image = _to_channels_last(path, image, is_tiff=suffix in _TIFF_EXTENSIONS)
+    logger.debug("loaded %s: shape %s, dtype %s", path, image.shape, image.dtype)
+    return image
+
+
+def _viewing_image(image: np.ndarray) -> np.ndarray:
+    """Scale to 8 bits: 0 -> 0, 99.9th percentile -> 255, negatives and non-finite -> 0."""
+    data = np.nan_to_num(image.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    np.clip(data, 0.0, None, out=data)
+    top = float(np.percentile(data, 99.9)) if data.size else 0.0
+    if top <= 0.0:
+        top = float(data.max()) if data.size else 0.0
+    if top <= 0.0:
+        return np.zeros(data.shape, dtype=np.uint8)
+    data *= 255.0 / top
+    np.clip(data, 0.0, 255.0, out=data)
+    return np.rint(data).astype(np.uint8)
+
+
+def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
+    """Save an image as a float32 TIFF data product, an 8-bit PNG view, or ``.npy``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination; the format follows the (case-insensitive) extension.
+        Missing parent directories are created.
+
+        * ``.tif``/``.tiff``: the 32-bit data product. The image is written as
+          float32 (values unchanged, no scaling) with :func:`tifffile.imwrite`;
+          3/4-channel images as contiguous RGB(A), others as min-is-black.
+        * ``.png``: a viewing image, not data. Values are scaled linearly so
+          that 0 maps to 0 and the 99.9th percentile (over all channels) maps to
+          255, clipped; negatives and NaN/inf become 0. RGB(A) is converted to
+          OpenCV's BGR(A) order before ``cv2.imwrite``.
+        * ``.npy``: :func:`numpy.save` of the array in its own dtype.
+    image : numpy.ndarray
+        Shape (H, W) or (H, W, C), channels last, any real numeric dtype.
+        PNG output needs C in {1, 3, 4}.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    ReconInputError
+        If the extension is not supported, the array is not 2D/3D or not
+        numeric, a PNG is asked for with an unsupported channel count, or the
+        file cannot be written.
+    """
+    path = Path(path)
+    suffix = _suffix(path)
+    if suffix not in SAVE_EXTENSIONS:
+        raise ReconInputError(
+            f"{path}: cannot save with extension {suffix or '(none)'!r}; "
+            f"use one of {', '.join(SAVE_EXTENSIONS)}"
+        )
+    image = np.asarray(image)
+    if image.ndim not in (2, 3) or image.size == 0:
+        raise ReconInputError(
+            f"{path}: cannot save an array of shape {image.shape}; "
+            "pass a non-empty 2D (H, W) or 3D (H, W, C) image"
+        )
+    if image.dtype.kind not in "biuf":
+        raise ReconInputError(
+            f"{path}: cannot save dtype {image.dtype} as an image; pass real numeric data"
+        )
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if suffix == ".png" and channels not in (1, 3, 4):
+        raise ReconInputError(
+            f"{path}: a PNG needs 1, 3 or 4 channels, the image has {channels}; "
+            "save it as .tif or .npy instead"
+        )
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if suffix in _TIFF_EXTENSIONS:
+            data = np.ascontiguousarray(image, dtype=np.float32)
+            photometric = "rgb" if channels in (3, 4) and image.ndim == 3 else "minisblack"
+            planar = "contig" if image.ndim == 3 else None
+            tifffile.imwrite(path, data, photometric=photometric, planarconfig=planar)
+        elif suffix == ".png":
+            view = _viewing_image(image)
+            if view.ndim == 3 and channels == 1:
+                view = view[:, :, 0]
+            elif channels == 3:
+                view = cv2.cvtColor(view, cv2.COLOR_RGB2BGR)
+            elif channels == 4:
+                view = cv2.cvtColor(view, cv2.COLOR_RGBA2BGRA)
+            if not cv2.imwrite(str(path), view):
+                raise ReconInputError(
+                    f"{path}: OpenCV failed to write the PNG; check the directory is writable"
+                )
+        else:
+            np.save(path, image, allow_pickle=False)
+    except OSError as exc:
+        raise ReconInputError(
+            f"{path}: cannot write file ({exc}); check the directory exists and is writable"
+        ) from exc
+    logger.debug("saved %s: shape %s, dtype %s", path, image.shape, image.dtype)
+
+
+def demosaic_bayer(raw: np.ndarray, pattern: str) -> np.ndarray:
+    """Demosaic a raw Bayer sensor image to RGB with OpenCV's bilinear method.
+
+    Parameters
+    ----------
+    raw : numpy.ndarray
+        Raw colour-filter-array image, shape (H, W), dtype uint8 or uint16
+        (sensor counts), H, W >= 2.
+    pattern : str
+        Colour-filter layout of the sensor's top-left 2x2 block, read row by
+        row: one of ``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (case-insensitive).
+        For example ``"RGGB"`` means R at (0, 0), G at (0, 1) and (1, 0), B at (1, 1).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (H, W, 3), channels in R, G, B order, same dtype as `raw`.
+
+    Raises
+    ------
+    ReconInputError
+        If `pattern` is not one of the four patterns, `raw` is not 2D, is
+        smaller than 2x2, or its dtype is not uint8/uint16.
+
+    Notes
+    -----
+    OpenCV names its Bayer conversion codes after the 2nd and 3rd pixels of the
+    2nd row, so the sensor pattern ``"RGGB"`` uses ``cv2.COLOR_BayerBG2RGB``,
+    ``"BGGR"`` uses ``COLOR_BayerRG2RGB``, ``"GRBG"`` uses ``COLOR_BayerGB2RGB``
+    and ``"GBRG"`` uses ``COLOR_BayerGR2RGB``.
+    """
+    key = pattern.upper() if isinstance(pattern, str) else pattern
+    if key not in _BAYER_CODES:
+        raise ReconInputError(
+            f"unknown Bayer pattern {pattern!r}; use one of {', '.join(BAYER_PATTERNS)} "
+            "(the sensor's top-left 2x2 block read row by row)"
+        )
+    raw = np.asarray(raw)
+    if raw.ndim != 2:
+        raise ReconInputError(
+            f"Bayer demosaicing needs a 2D raw mosaic, got shape {raw.shape}; "
+            "pass the undemosaiced sensor image (or skip demosaicing for RGB input)"
+        )
+    if raw.shape[0] < 2 or raw.shape[1] < 2:
+        raise ReconInputError(
+            f"Bayer mosaic of shape {raw.shape} is smaller than one 2x2 block; "
+            "pass the full sensor image"
+        )
+    if raw.dtype not in (np.uint8, np.uint16):
+        raise ReconInputError(
+            f"Bayer demosaicing needs uint8 or uint16 sensor counts, got {raw.dtype}; "
+            "demosaic before converting to float"
+        )
+    return cv2.cvtColor(np.ascontiguousarray(raw), _BAYER_CODES[key])
