@@ -1,0 +1,75 @@
+"""FFT helpers shared by the forward models, solvers and benchmarks.
+
+All transforms go through :mod:`scipy.fft` with ``workers=os.cpu_count()`` (see
+ARCHITECTURE.md); the FFT floor used to state speed as a ratio is measured here.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import scipy.fft as sfft
+
+WORKERS = os.cpu_count() or 1
+
+
+def fast_padded_shape(shape: tuple[int, ...], factor: int = 2) -> tuple[int, ...]:
+    """Smallest fast real-FFT lengths of at least ``factor`` times each axis.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Sensor shape (rows, cols) or any n-d shape.
+    factor : int
+        Padding factor; 2 removes the circular wrap of Eq. 3.4 (Kuo 2020, Sec. 3.1).
+
+    Returns
+    -------
+    tuple of int
+        Padded shape whose every length is a 5-smooth number (fast for pocketfft).
+    """
+    return tuple(int(sfft.next_fast_len(factor * int(n), real=True)) for n in shape)
+
+
+def rfftn(x: np.ndarray, axes=(-2, -1)) -> np.ndarray:
+    """Real FFT over ``axes`` with all workers; float32 in gives complex64 out."""
+    return sfft.rfftn(x, axes=axes, workers=WORKERS)
+
+
+def irfftn(x: np.ndarray, shape: tuple[int, ...], axes=(-2, -1)) -> np.ndarray:
+    """Inverse real FFT over ``axes`` to real lengths ``shape``, all workers."""
+    return sfft.irfftn(x, s=shape, axes=axes, workers=WORKERS)
+
+
+def fft_pair_seconds(shape: tuple[int, ...], repeats: int = 15) -> float:
+    """Median wall time of one rfft2 + irfft2 pair at ``shape`` in float32.
+
+    This is the "FFT floor": every solver iteration needs at least this, so speed
+    is stated as ``seconds_per_iteration / fft_pair_seconds``, measured in the
+    same process (the machine is shared and noisy).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Padded 2D shape (rows, cols).
+    repeats : int
+        Number of timed pairs; the median is returned (after two warm-up pairs).
+
+    Returns
+    -------
+    float
+        Seconds per pair.
+    """
+    rng = np.random.default_rng(0)
+    x = rng.random(shape, dtype=np.float32)
+    axes = tuple(range(-len(shape), 0))
+    for _ in range(2):
+        irfftn(rfftn(x, axes), shape, axes)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        irfftn(rfftn(x, axes), shape, axes)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
