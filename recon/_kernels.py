@@ -9,8 +9,14 @@ neighbours wrap circularly, matching the circular convolution of Eq. 3.4.
 
 from __future__ import annotations
 
-import numpy as np
-from numba import njit, prange
+import os
+
+# numba's OpenMP workers must sleep, not spin, between parallel regions: spinning
+# threads steal both cores from scipy.fft's workers and double the FFT time.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+from numba import njit, prange  # noqa: E402
 
 # reassociation lets LLVM vectorise the reductions; NaN/inf semantics are kept so
 # divergence (NaN) still propagates to the objective.
@@ -62,7 +68,7 @@ def _prox_px(y, grad, x, y_next, i, j, im, ip, jm, jp, step, thr, beta, lo):
     zj_m = y[i, jm] - step * grad[i, jm]
     corr = (_clip(0.5 * (zi_p - zc), thr) - _clip(0.5 * (zc - zi_m), thr)
             + _clip(0.5 * (zj_p - zc), thr) - _clip(0.5 * (zc - zj_m), thr))
-    xn = max(zc - 0.25 * corr, lo)
+    xn = max(zc + 0.25 * corr, lo)
     xo = x[i, j]
     x[i, j] = xn
     y_next[i, j] = xn + beta * (xn - xo)
