@@ -56,7 +56,8 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     tv : float
         TV weight tau; 0 removes the TV split.
     mu : (mu1, mu2, mu3), optional
-        Initial penalties; default (0.5, 5 tau_eff, 0.5) where tau_eff = max(tau, 1e-4).
+        Initial penalties; default (2e-3, 2e-3, 2e-3) for the scaled problem (unit-sum
+        PSF, |b| <= 1); balancing adapts them, so the start matters little.
     balance, balance_every, balance_until, balance_ratio, balance_factor
         Residual balancing settings (see above).
 
@@ -83,7 +84,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
         raise ReconInputError("balance_every must be >= 2")
     use_tv = tv > 0
     if mu is None:
-        mu = (0.5, 5.0 * max(tv, 1e-4), 0.5)
+        mu = (2e-3, 2e-3, 2e-3)
     mu1, mu2, mu3 = (float(m) for m in mu)
     if min(mu1, mu2, mu3) <= 0 or not all(map(math.isfinite, (mu1, mu2, mu3))):
         raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")

@@ -1,0 +1,210 @@
+"""The notebook API: ``recon.reconstruct(psf, raw, method="admm", iterations=100)``.
+
+Preprocesses (dark level, binning, colour), scales the data so the automatic
+defaults hold for any camera, builds the forward model of Eq. 3.4 (with the
+erasure mask of Eq. 3.10 if asked), solves each colour channel independently
+(Sec. 3.1, "Extension to Color") and crops the sensor field of view.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ReconInputError
+from .fft import fft_pair_seconds
+from .operators import ConvolutionOperator, PixelErasure
+from .preprocess import prepare_pair
+from .solvers import METHODS, SolveResult, admm, fista, gradient_descent, wiener
+
+#: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
+#: measurement divided by its maximum). Chosen on simulated scenes with the real
+#: PSF (``diffuserlab benchmark recon``); gd is the plain non-negative baseline.
+DEFAULT_TV = {"wiener": 0.0, "gd": 0.0, "fista": 1e-4, "admm": 1e-4}
+
+
+@dataclass
+class Reconstruction:
+    """Result of :func:`reconstruct`.
+
+    Attributes
+    ----------
+    image : ndarray, float32, shape (rows, cols) or (rows, cols, C)
+        The sensor field of view of the estimate, in measurement units (counts per
+        unit PSF sum), non-negative for the iterative methods.
+    estimate : ndarray, float32, shape (P0, P1) or (P0, P1, C)
+        The whole object domain (twice the sensor, Sec. 3.1), same units.
+    results : list of SolveResult
+        One per channel (histories, parameters).
+    operator : ConvolutionOperator
+        The forward model of the first channel (with erasure weights if any).
+    info : dict
+        Preprocessing record, scale factors, method, timings.
+    """
+
+    image: np.ndarray
+    estimate: np.ndarray
+    results: list[SolveResult]
+    operator: ConvolutionOperator
+    info: dict = field(default_factory=dict)
+
+    def metrics(self, fft_pair_s: float | None = None) -> dict:
+        """The metrics record of the CLI's ``--metrics-json`` (see README).
+
+        Parameters
+        ----------
+        fft_pair_s : float, optional
+            FFT floor; measured now at the padded shape if not given.
+        """
+        if fft_pair_s is None:
+            fft_pair_s = fft_pair_seconds(self.operator.padded_shape)
+        per_iter = [s for r in self.results for s in r.history.seconds]
+        med = float(np.median(per_iter))
+        return {
+            "method": self.info["method"],
+            "iterations": self.info["iterations"],
+            "tv": self.info["tv"],
+            "shape": list(self.image.shape),
+            "padded_shape": list(self.operator.padded_shape),
+            "channels": len(self.results),
+            "bin_factor": self.info["bin_factor"],
+            "erased_fraction": self.info["erased_fraction"],
+            "seconds_total": self.info["seconds_total"],
+            "seconds_per_iteration": med,
+            "fft_pair_seconds": fft_pair_s,
+            "ratio_to_fft_floor": med / fft_pair_s,
+            "final_relative_residual": max(r.final_relative_residual for r in self.results),
+            "initial_relative_residual": 1.0,
+            "final_objective": [r.final_objective for r in self.results],
+            "objective": [list(r.history.objective) for r in self.results],
+            "data_residual": [list(r.history.data_residual) for r in self.results],
+            "params": [_jsonable(r.params) for r in self.results],
+        }
+
+
+def _jsonable(d: dict) -> dict:
+    return {k: (float(v) if isinstance(v, np.floating) else v) for k, v in d.items()}
+
+
+def solve(op: ConvolutionOperator, b: np.ndarray, method: str, iterations: int,
+          tv: float, **options) -> SolveResult:
+    """Dispatch to one solver by name (``wiener``, ``gd``, ``fista``, ``admm``).
+
+    Raises
+    ------
+    ReconInputError
+        Unknown method.
+    """
+    if method == "wiener":
+        return wiener(op, b, **options)
+    if method == "gd":
+        return gradient_descent(op, b, iterations, tv=tv, **options)
+    if method == "fista":
+        return fista(op, b, iterations, tv=tv, **options)
+    if method == "admm":
+        return admm(op, b, iterations, tv=tv, **options)
+    raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+
+
+def reconstruct(psf: np.ndarray, raw: np.ndarray, method: str = "admm", iterations: int = 100,
+                *, tv: float | None = None, bin_factor: int = 1, dark=None, bayer=None,
+                erase: float = 0.0, erasure_mask: np.ndarray | None = None, seed: int = 0,
+                preprocess: bool = True, **solver_options) -> Reconstruction:
+    """Reconstruct an image from a DiffuserCam measurement and its PSF.
+
+    Parameters
+    ----------
+    psf : ndarray, (rows, cols) or (rows, cols, C), any real dtype
+        Calibration PSF (image of a point source), same spatial shape as ``raw``.
+        One PSF for all channels, or one per channel.
+    raw : ndarray, (rows, cols) or (rows, cols, C)
+        Raw measurement (sensor counts).
+    method : {"wiener", "gd", "fista", "admm"}
+    iterations : int
+        Iterations of the iterative methods (ignored by Wiener).
+    tv : float, optional
+        TV weight in the scaled problem; default :data:`DEFAULT_TV` for the method.
+    bin_factor : int
+        Box binning before reconstruction (4 gives the tutorial's 300 x 400).
+    dark, bayer
+        Passed to :func:`recon.preprocess.prepare_pair` (dark level from the PSF
+        corner by default; Bayer pattern for a raw mosaic).
+    erase : float
+        Fraction of sensor pixels to erase at random (compressed sensing, Eq. 3.10).
+    erasure_mask : ndarray, optional
+        Explicit mask at the binned sensor shape (1 measured, 0 erased); overrides
+        ``erase``.
+    seed : int
+        Seed of the random erasure mask.
+    preprocess : bool
+        False when psf and raw are already dark-subtracted float arrays of equal
+        shape (binning still applies through prepare_pair when True only).
+    **solver_options
+        Passed to the solver (e.g. ``step_scale``, ``mu``, ``balance``,
+        ``regularization``).
+
+    Returns
+    -------
+    Reconstruction
+
+    Raises
+    ------
+    ReconInputError
+        Bad input (see :mod:`recon.preprocess`) or parameters.
+    DivergenceError
+        The solver diverged (history and last good estimate attached).
+    """
+    if method not in METHODS:
+        raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if iterations < 1:
+        raise ReconInputError(f"iterations must be >= 1, got {iterations}")
+    tv = DEFAULT_TV[method] if tv is None else float(tv)
+    t_start = time.perf_counter()
+    if preprocess:
+        prepared = prepare_pair(psf, raw, bin_factor=bin_factor, dark=dark, bayer=bayer)
+        p, b, info = prepared.psf, prepared.raw, dict(prepared.info)
+    else:
+        p, b, info = np.asarray(psf, np.float32), np.asarray(raw, np.float32), {}
+        if p.shape[:2] != b.shape[:2]:
+            raise ReconInputError(f"PSF shape {p.shape} and raw shape {b.shape} differ")
+    channels = 1 if b.ndim == 2 else b.shape[2]
+    sensor_shape = b.shape[:2]
+    if erasure_mask is not None:
+        mask = PixelErasure(erasure_mask)
+        if mask.shape_in != sensor_shape:
+            raise ReconInputError(
+                f"erasure mask shape {mask.shape_in} differs from the (binned) sensor "
+                f"shape {sensor_shape}"
+            )
+    elif erase > 0:
+        mask = PixelErasure.random(sensor_shape, erase, seed)
+    else:
+        mask = None
+    raw_scale = float(np.max(np.abs(b)))
+    if not raw_scale > 0:
+        raise ReconInputError("measurement is zero after dark subtraction; check the exposure")
+    results, estimates, op0 = [], [], None
+    for c in range(channels):
+        pc = p if p.ndim == 2 else p[..., c]
+        bc = b if b.ndim == 2 else b[..., c]
+        psf_sum = float(pc.sum())
+        if not psf_sum > 0:
+            raise ReconInputError(f"PSF channel {c} has no positive energy")
+        op = ConvolutionOperator(pc / psf_sum)
+        if mask is not None:
+            op = mask @ op
+        scaled = (op.sensor_weights * (bc / raw_scale)).astype(np.float32)
+        res = solve(op, scaled, method, iterations, tv, **solver_options)
+        results.append(res)
+        estimates.append(res.x * raw_scale)
+        op0 = op0 or op
+    estimate = estimates[0] if channels == 1 else np.stack(estimates, axis=-1)
+    image = np.ascontiguousarray(estimate[op0.crop])
+    info.update(method=method, iterations=1 if method == "wiener" else iterations, tv=tv,
+                bin_factor=bin_factor, raw_scale=raw_scale,
+                erased_fraction=0.0 if mask is None else float(1 - op0.sensor_weights.mean()),
+                seconds_total=time.perf_counter() - t_start)
+    return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results,
+                          op0, info)
