@@ -40,9 +40,19 @@ def _output_paths(out: str) -> tuple[Path, Path]:
     return stem.with_suffix(".png"), stem.with_suffix(".tif")
 
 
-def run_recon(psf_path: str, raw_path: str, *, method: str, iterations: int, bin_factor: int,
-              tv: float | None, erase: float, seed: int, out: str,
-              metrics_json: str | None) -> dict:
+def run_recon(
+    psf_path: str,
+    raw_path: str,
+    *,
+    method: str,
+    iterations: int,
+    bin_factor: int,
+    tv: float | None,
+    erase: float,
+    seed: int,
+    out: str,
+    metrics_json: str | None,
+) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
     Raises
@@ -58,10 +68,10 @@ def run_recon(psf_path: str, raw_path: str, *, method: str, iterations: int, bin
 
     psf = load_image(psf_path)
     raw = load_image(raw_path)
-    result = reconstruct(psf, raw, method, iterations, tv=tv, bin_factor=bin_factor,
-                         erase=erase, seed=seed)
-    floor = float(np.median([fft_pair_seconds(result.operator.padded_shape)
-                             for _ in range(3)]))
+    result = reconstruct(
+        psf, raw, method, iterations, tv=tv, bin_factor=bin_factor, erase=erase, seed=seed
+    )
+    floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed)
     png, tif = _output_paths(out)
@@ -75,11 +85,13 @@ def run_recon(psf_path: str, raw_path: str, *, method: str, iterations: int, bin
 
 
 def _summary(m: dict) -> str:
-    return (f"{m['method']}: {m['iterations']} it, {m['shape']} (padded {m['padded_shape']}), "
-            f"{m['seconds_total']:.2f} s total, {m['seconds_per_iteration'] * 1e3:.2f} ms/it = "
-            f"{m['ratio_to_fft_floor']:.2f}x FFT floor ({m['fft_pair_seconds'] * 1e3:.2f} ms), "
-            f"final relative residual {m['final_relative_residual']:.4f} -> "
-            f"{m['output_png']}")
+    return (
+        f"{m['method']}: {m['iterations']} it, {m['shape']} (padded {m['padded_shape']}), "
+        f"{m['seconds_total']:.2f} s total, {m['seconds_per_iteration'] * 1e3:.2f} ms/it = "
+        f"{m['ratio_to_fft_floor']:.2f}x FFT floor ({m['fft_pair_seconds'] * 1e3:.2f} ms), "
+        f"final relative residual {m['final_relative_residual']:.4f} -> "
+        f"{m['output_png']}"
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -95,15 +107,31 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
     rp.add_argument("--method", choices=METHODS, default="admm")
     rp.add_argument("--iterations", type=int, default=100)
-    rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="box-binning factor (4: 1200x1600 -> 300x400)")
-    rp.add_argument("--tv", type=float, default=None,
-                    help="TV weight in the scaled problem (default per method)")
-    rp.add_argument("--erase", type=float, default=0.0,
-                    help="fraction of raw pixels to erase at random (compressed sensing)")
+    rp.add_argument(
+        "--bin",
+        type=int,
+        default=1,
+        dest="bin_factor",
+        help="box-binning factor (4: 1200x1600 -> 300x400)",
+    )
+    rp.add_argument(
+        "--tv",
+        type=float,
+        default=None,
+        help="TV weight in the scaled problem (default per method)",
+    )
+    rp.add_argument(
+        "--erase",
+        type=float,
+        default=0.0,
+        help="fraction of raw pixels to erase at random (compressed sensing)",
+    )
     rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
-    rp.add_argument("--out", default="out/recon.png",
-                    help="output image; writes OUT.png (viewing) and OUT.tif (float32)")
+    rp.add_argument(
+        "--out",
+        default="out/recon.png",
+        help="output image; writes OUT.png (viewing) and OUT.tif (float32)",
+    )
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
 
     dp = sub.add_parser("demo", help="main job: reconstruct the real DiffuserCam sample")
@@ -113,8 +141,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     bp = sub.add_parser("benchmark", help="benchmarks (speed vs FFT floor, accuracy, ...)")
     bp.add_argument("suite", choices=["recon"])
-    bp.add_argument("rest", nargs=argparse.REMAINDER,
-                    help="options of the suite (--quick, --out DIR, --only ...)")
+    bp.add_argument(
+        "rest",
+        nargs=argparse.REMAINDER,
+        help="options of the suite (--quick, --out DIR, --only ...)",
+    )
     return parser
 
 
@@ -123,21 +154,40 @@ def main(argv: list[str] | None = None) -> int:
     from recon.errors import DivergenceError, ReconInputError
 
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
     try:
         if args.command == "recon":
-            m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
-                          bin_factor=args.bin_factor, tv=args.tv, erase=args.erase,
-                          seed=args.seed, out=args.out, metrics_json=args.metrics_json)
+            m = run_recon(
+                args.psf,
+                args.raw,
+                method=args.method,
+                iterations=args.iterations,
+                bin_factor=args.bin_factor,
+                tv=args.tv,
+                erase=args.erase,
+                seed=args.seed,
+                out=args.out,
+                metrics_json=args.metrics_json,
+            )
             print(_summary(m))
         elif args.command == "demo":
             data = sample_data_dir()
             out = Path(args.out)
-            m = run_recon(str(data / "psf_sample.tif"), str(data / "rawdata_hand_sample.tif"),
-                          method=args.method, iterations=args.iterations, bin_factor=4,
-                          tv=None, erase=0.0, seed=0, out=str(out / "hand.png"),
-                          metrics_json=str(out / "metrics.json"))
+            m = run_recon(
+                str(data / "psf_sample.tif"),
+                str(data / "rawdata_hand_sample.tif"),
+                method=args.method,
+                iterations=args.iterations,
+                bin_factor=4,
+                tv=None,
+                erase=0.0,
+                seed=0,
+                out=str(out / "hand.png"),
+                metrics_json=str(out / "metrics.json"),
+            )
             print(_summary(m))
         elif args.command == "benchmark":
             from recon.benchmarks.run import main as bench_main

@@ -88,8 +88,9 @@ def _jsonable(d: dict) -> dict:
     return {k: (float(v) if isinstance(v, np.floating) else v) for k, v in d.items()}
 
 
-def solve(op: ConvolutionOperator, b: np.ndarray, method: str, iterations: int,
-          tv: float, **options) -> SolveResult:
+def solve(
+    op: ConvolutionOperator, b: np.ndarray, method: str, iterations: int, tv: float, **options
+) -> SolveResult:
     """Dispatch to one solver by name (``wiener``, ``gd``, ``fista``, ``admm``).
 
     Raises
@@ -108,10 +109,22 @@ def solve(op: ConvolutionOperator, b: np.ndarray, method: str, iterations: int,
     raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
-def reconstruct(psf: np.ndarray, raw: np.ndarray, method: str = "admm", iterations: int = 100,
-                *, tv: float | None = None, bin_factor: int = 1, dark=None, bayer=None,
-                erase: float = 0.0, erasure_mask: np.ndarray | None = None, seed: int = 0,
-                preprocess: bool = True, **solver_options) -> Reconstruction:
+def reconstruct(
+    psf: np.ndarray,
+    raw: np.ndarray,
+    method: str = "admm",
+    iterations: int = 100,
+    *,
+    tv: float | None = None,
+    bin_factor: int = 1,
+    dark=None,
+    bayer=None,
+    erase: float = 0.0,
+    erasure_mask: np.ndarray | None = None,
+    seed: int = 0,
+    preprocess: bool = True,
+    **solver_options,
+) -> Reconstruction:
     """Reconstruct an image from a DiffuserCam measurement and its PSF.
 
     Parameters
@@ -202,9 +215,13 @@ def reconstruct(psf: np.ndarray, raw: np.ndarray, method: str = "admm", iteratio
         op0 = op0 or op
     estimate = estimates[0] if channels == 1 else np.stack(estimates, axis=-1)
     image = np.ascontiguousarray(estimate[op0.crop])
-    info.update(method=method, iterations=1 if method == "wiener" else iterations, tv=tv,
-                bin_factor=bin_factor, raw_scale=raw_scale,
-                erased_fraction=0.0 if mask is None else float(1 - op0.sensor_weights.mean()),
-                seconds_total=time.perf_counter() - t_start)
-    return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results,
-                          op0, info)
+    info.update(
+        method=method,
+        iterations=1 if method == "wiener" else iterations,
+        tv=tv,
+        bin_factor=bin_factor,
+        raw_scale=raw_scale,
+        erased_fraction=0.0 if mask is None else float(1 - op0.sensor_weights.mean()),
+        seconds_total=time.perf_counter() - t_start,
+    )
+    return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results, op0, info)

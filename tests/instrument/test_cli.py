@@ -1,0 +1,189 @@
+"""The diffuserlab CLI: the real-data run, its outputs, and exit code 2 on bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from instrument.cli import main
+from tests.real_data import check_hand_image, sample_paths
+
+ARTIFACTS = Path(__file__).resolve().parents[2] / "out" / "test-artifacts"
+
+
+def test_cli_recon_real_sample(tmp_path, capsys):
+    psf, raw = sample_paths()
+    out = tmp_path / "hand.png"
+    js = tmp_path / "m.json"
+    rc = main(
+        [
+            "recon",
+            "--psf",
+            str(psf),
+            "--raw",
+            str(raw),
+            "--method",
+            "admm",
+            "--iterations",
+            "60",
+            "--bin",
+            "4",
+            "--out",
+            str(out),
+            "--metrics-json",
+            str(js),
+        ]
+    )
+    assert rc == 0
+    m = json.loads(js.read_text())
+    for key in (
+        "method",
+        "iterations",
+        "shape",
+        "padded_shape",
+        "seconds_total",
+        "seconds_per_iteration",
+        "fft_pair_seconds",
+        "ratio_to_fft_floor",
+        "final_relative_residual",
+        "objective",
+    ):
+        assert key in m
+    assert m["shape"] == [300, 400] and m["padded_shape"] == [600, 800]
+    assert m["ratio_to_fft_floor"] == pytest.approx(
+        m["seconds_per_iteration"] / m["fft_pair_seconds"]
+    )
+    assert len(m["objective"][0]) == 60
+    assert m["objective"][0][-1] < 0.01 * m["objective"][0][0]
+    assert m["final_relative_residual"] < 0.05
+    image = tifffile.imread(tmp_path / "hand.tif")
+    assert image.dtype == np.float32
+    check_hand_image(image)
+    assert out.exists() and out.stat().st_size > 1000
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    shutil.copy(out, ARTIFACTS / "cli_admm_hand.png")
+    assert "x FFT floor" in capsys.readouterr().out
+
+
+def test_cli_erase(tmp_path):
+    psf, raw = sample_paths()
+    js = tmp_path / "m.json"
+    rc = main(
+        [
+            "recon",
+            "--psf",
+            str(psf),
+            "--raw",
+            str(raw),
+            "--method",
+            "fista",
+            "--iterations",
+            "10",
+            "--bin",
+            "8",
+            "--erase",
+            "0.8",
+            "--seed",
+            "2",
+            "--out",
+            str(tmp_path / "e"),
+            "--metrics-json",
+            str(js),
+        ]
+    )
+    assert rc == 0
+    assert abs(json.loads(js.read_text())["erased_fraction"] - 0.8) < 0.02
+    assert (tmp_path / "e.png").exists() and (tmp_path / "e.tif").exists()
+
+
+def _npy(tmp_path, name, array):
+    p = tmp_path / name
+    np.save(p, array)
+    return str(p)
+
+
+def _bad_cases(tmp_path):
+    rng = np.random.default_rng(0)
+    good = rng.random((40, 48)).astype(np.float32)
+    nan = good.copy()
+    nan[3, 4] = np.nan
+    text = tmp_path / "junk.tif"
+    text.write_text("not a tiff")
+    return {
+        "missing file": (
+            ["--psf", str(tmp_path / "none.tif"), "--raw", _npy(tmp_path, "r.npy", good)],
+            "not found",
+        ),
+        "unreadable": (["--psf", str(text), "--raw", _npy(tmp_path, "r.npy", good)], "junk.tif"),
+        "shape mismatch": (
+            ["--psf", _npy(tmp_path, "p.npy", good), "--raw", _npy(tmp_path, "r2.npy", good[:30])],
+            "shape",
+        ),
+        "nan": (
+            ["--psf", _npy(tmp_path, "pn.npy", nan), "--raw", _npy(tmp_path, "r.npy", good)],
+            "NaN",
+        ),
+        "zero psf": (
+            [
+                "--psf",
+                _npy(tmp_path, "pz.npy", np.zeros_like(good)),
+                "--raw",
+                _npy(tmp_path, "r.npy", good),
+            ],
+            "zero",
+        ),
+        "negative psf": (
+            ["--psf", _npy(tmp_path, "pneg.npy", -good), "--raw", _npy(tmp_path, "r.npy", good)],
+            "no positive values",
+        ),
+        "bad erase": (
+            [
+                "--psf",
+                _npy(tmp_path, "p.npy", good),
+                "--raw",
+                _npy(tmp_path, "r.npy", good),
+                "--erase",
+                "1.2",
+            ],
+            "erased fraction",
+        ),
+        "bad iterations": (
+            [
+                "--psf",
+                _npy(tmp_path, "p.npy", good),
+                "--raw",
+                _npy(tmp_path, "r.npy", good),
+                "--iterations",
+                "0",
+            ],
+            "iterations",
+        ),
+    }
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing file",
+        "unreadable",
+        "shape mismatch",
+        "nan",
+        "zero psf",
+        "negative psf",
+        "bad erase",
+        "bad iterations",
+    ],
+)
+def test_cli_bad_input_exits_2(tmp_path, capsys, case):
+    args, fragment = _bad_cases(tmp_path)[case]
+    rc = main(["recon", *args, "--out", str(tmp_path / "o.png")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and err.startswith("diffuserlab: error:")
+    assert fragment.lower() in err.lower()
+    assert not (tmp_path / "o.png").exists()
