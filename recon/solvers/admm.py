@@ -150,7 +150,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
         _kernels.admm_fourier_2d(qv_hat, rhs_hat, spec, spec_conj, inv_den, mu1)
         x = irfftn(rhs_hat, shape)
         mx = irfftn(qv_hat, shape)
-        mon.record(0.5 * s[0] + tv * s[1], s[0],
+        mon.record(0.5 * s[0] + tv * s[1], s[0], x=x,
                    hint="try --method fista or a smaller TV weight")
     r = op.sensor_weights * mx[op.crop] - b
     data_sq = float(np.vdot(r, r))

@@ -80,6 +80,8 @@ class Monitor:
         Divergence threshold, in units of the zero-image objective.
     """
 
+    snapshot_every = 10
+
     def __init__(self, b_norm_sq: float, method: str, growth_limit: float = 100.0):
         if not b_norm_sq > 0 or not math.isfinite(b_norm_sq):
             raise ReconInputError(
@@ -91,13 +93,18 @@ class Monitor:
         self.method = method
         self.history = History()
         self._t0 = time.perf_counter()
+        self._last_good = None
 
     def start(self) -> None:
         """Mark the start of an iteration."""
         self._t0 = time.perf_counter()
 
-    def record(self, objective: float, data_sq: float, x_last_good=None, hint: str = "") -> None:
+    def record(self, objective: float, data_sq: float, x=None, hint: str = "") -> None:
         """Close an iteration: store its figures and raise on divergence.
+
+        Every ``snapshot_every`` healthy iterations a copy of ``x`` is kept, so a
+        divergence error carries the last good estimate (amortised cost: one copy
+        per ten iterations).
 
         Raises
         ------
@@ -107,11 +114,14 @@ class Monitor:
         self.history.seconds.append(time.perf_counter() - self._t0)
         self.history.objective.append(float(objective))
         self.history.data_residual.append(math.sqrt(max(data_sq, 0.0)) / self.b_norm)
+        k = len(self.history.objective)
         if not math.isfinite(objective) or objective > self.limit:
-            k = len(self.history.objective)
             raise DivergenceError(
                 f"{self.method} diverged at iteration {k}: objective {objective:.3g} "
                 f"(zero image gives {self.limit / 100:.3g}). {hint}".strip(),
                 history=self.history.as_dict(),
-                last_good=None if x_last_good is None else np.array(x_last_good),
+                last_good=self._last_good,
             )
+        if x is not None and (k - 1) % self.snapshot_every == 0:
+            self._last_good = np.array(x, copy=True)
+            self.history.seconds[-1] = time.perf_counter() - self._t0  # copy included

@@ -69,7 +69,7 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
         if momentum is None:
             t = t_next
         y, y_next = y_next, y
-        mon.record(loss + tv * tv_y, 2.0 * loss, x_last_good=None, hint=hint)
+        mon.record(loss + tv * tv_y, 2.0 * loss, x=x, hint=hint)
     r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
     final = 0.5 * data_sq + tv * _anisotropic_tv(x)
