@@ -50,6 +50,7 @@ def run_recon(
     tv: float | None,
     erase: float,
     seed: int,
+    full_scale: float | None = None,
     out: str,
     metrics_json: str | None,
 ) -> dict:
@@ -69,7 +70,15 @@ def run_recon(
     psf = load_image(psf_path)
     raw = load_image(raw_path)
     result = reconstruct(
-        psf, raw, method, iterations, tv=tv, bin_factor=bin_factor, erase=erase, seed=seed
+        psf,
+        raw,
+        method,
+        iterations,
+        tv=tv,
+        bin_factor=bin_factor,
+        erase=erase,
+        seed=seed,
+        full_scale=full_scale,
     )
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
@@ -128,6 +137,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
     rp.add_argument(
+        "--full-scale",
+        type=float,
+        default=None,
+        help="saturation level if below the dtype max (65520: 12-bit in uint16)",
+    )
+    rp.add_argument(
         "--out",
         default="out/recon.png",
         help="output image; writes OUT.png (viewing) and OUT.tif (float32)",
@@ -169,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
                 tv=args.tv,
                 erase=args.erase,
                 seed=args.seed,
+                full_scale=args.full_scale,
                 out=args.out,
                 metrics_json=args.metrics_json,
             )
@@ -185,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
                 tv=None,
                 erase=0.0,
                 seed=0,
+                full_scale=65520.0,
                 out=str(out / "hand.png"),
                 metrics_json=str(out / "metrics.json"),
             )

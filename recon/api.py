@@ -123,6 +123,7 @@ def reconstruct(
     erasure_mask: np.ndarray | None = None,
     seed: int = 0,
     preprocess: bool = True,
+    full_scale: float | None = None,
     **solver_options,
 ) -> Reconstruction:
     """Reconstruct an image from a DiffuserCam measurement and its PSF.
@@ -151,6 +152,9 @@ def reconstruct(
         ``erase``.
     seed : int
         Seed of the random erasure mask.
+    full_scale : float, optional
+        Saturation level of the input when below the dtype maximum (e.g. 65520 for
+        12-bit data shifted into uint16); used for the saturation warning.
     preprocess : bool
         False when psf and raw are already dark-subtracted float arrays of equal
         shape (binning still applies through prepare_pair when True only).
@@ -176,7 +180,9 @@ def reconstruct(
     tv = DEFAULT_TV[method] if tv is None else float(tv)
     t_start = time.perf_counter()
     if preprocess:
-        prepared = prepare_pair(psf, raw, bin_factor=bin_factor, dark=dark, bayer=bayer)
+        prepared = prepare_pair(
+            psf, raw, bin_factor=bin_factor, dark=dark, bayer=bayer, full_scale=full_scale
+        )
         p, b, info = prepared.psf, prepared.raw, dict(prepared.info)
     else:
         p, b, info = np.asarray(psf, np.float32), np.asarray(raw, np.float32), {}

@@ -424,10 +424,12 @@ def validate_measurement(raw: np.ndarray) -> None:
         logger.warning("measurement is all zero; the reconstruction will be zero")
 
 
-def _check_saturation(image: np.ndarray, name: str, threshold: float | None) -> float:
-    fraction = saturation_fraction(image)
+def _check_saturation(
+    image: np.ndarray, name: str, threshold: float | None, full_scale: float | None = None
+) -> float:
+    fraction = saturation_fraction(image, full_scale)
     if threshold is not None and fraction > threshold:
-        full = _full_scale_of(image.dtype)
+        full = full_scale if full_scale is not None else _full_scale_of(image.dtype)
         message = (
             f"{name}: {fraction:.4%} of samples are at full scale ({full:g}), above the "
             f"{threshold:.4%} limit; saturation breaks the linear model, "
@@ -484,6 +486,7 @@ def prepare_pair(
     dark_region: tuple[slice, slice] = DEFAULT_DARK_REGION,
     bayer: str | None = None,
     warn_saturation: float | None = 0.001,
+    full_scale: float | None = None,
 ) -> Prepared:
     """Validate and preprocess a PSF and a raw measurement for reconstruction.
 
@@ -522,6 +525,10 @@ def prepare_pair(
         fraction of samples of `psf` or `raw` at the input dtype's full scale
         exceeds this value. Default 0.001 (0.1 %). None disables the check.
         Float inputs have no known full scale and never warn.
+    full_scale : float or None, optional
+        The sensor's saturation level in input units when it is not the dtype's
+        maximum, e.g. 65520 for 12-bit data shifted into uint16 (the tutorial
+        sample) or 4095 for unshifted 12-bit data. Default: the dtype maximum.
 
     Returns
     -------
@@ -583,8 +590,10 @@ def prepare_pair(
         "raw_dtype_in": str(raw.dtype),
         "bayer": bayer,
     }
-    info["saturated_fraction_psf"] = _check_saturation(psf, "PSF", warn_saturation)
-    info["saturated_fraction_raw"] = _check_saturation(raw, "measurement", warn_saturation)
+    info["saturated_fraction_psf"] = _check_saturation(psf, "PSF", warn_saturation, full_scale)
+    info["saturated_fraction_raw"] = _check_saturation(
+        raw, "measurement", warn_saturation, full_scale
+    )
 
     if psf.shape[:2] != raw.shape[:2]:
         raise ReconInputError(

@@ -542,3 +542,19 @@ def test_normalise_refusals():
         normalise(np.array([[1.0, -3.0]]), "sum")
     with pytest.raises(ReconInputError, match="1 NaN/inf"):
         normalise(np.array([[1.0, np.nan]]), "max")
+
+
+def test_full_scale_below_dtype_max_detects_shifted_12bit_saturation():
+    """12-bit data shifted into uint16 saturates at 65520, not 65535."""
+    raw = np.full((20, 20), 1000, np.uint16)
+    raw[:4, :4] = 65520  # 4 % saturated
+    psf = np.full((20, 20), 10, np.uint16)
+    psf[10, 10] = 3000
+    import warnings as _w
+
+    with _w.catch_warnings():
+        _w.simplefilter("error")
+        prepare_pair(psf, raw)  # 65535 full scale: nothing saturated, no warning
+    with pytest.warns(SaturationWarning, match="65520"):
+        out = prepare_pair(psf, raw, full_scale=65520)
+    assert out.info["saturated_fraction_raw"] == pytest.approx(0.04)
