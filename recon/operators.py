@@ -204,6 +204,8 @@ class ConvolutionOperator(LinearOperator):
             raise ReconInputError(f"PSF must be 2D (rows, cols), got shape {h.shape}")
         if not np.all(np.isfinite(h)):
             raise ReconInputError("PSF contains NaN or inf; fix the calibration frame")
+        if not np.any(h):
+            raise ReconInputError("PSF is all zero; recapture it with the point source on")
         self.sensor_shape = h.shape
         self.padded_shape = tuple(padded_shape or fast_padded_shape(h.shape))
         if any(p < 2 * s - 1 for p, s in zip(self.padded_shape, h.shape, strict=True)):
@@ -230,6 +232,8 @@ class ConvolutionOperator(LinearOperator):
             raise ReconInputError(
                 f"sensor weights shape {w.shape} differs from the PSF shape {h.shape}"
             )
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise ReconInputError("sensor weights must be finite and non-negative")
         self.sensor_weights = w
         self._pad_buf = np.zeros(self.padded_shape, np.float32)
 
@@ -267,6 +271,8 @@ class ConvolutionOperator(LinearOperator):
     def data_term(self, x, b):
         """Fused loss and gradient: 4 FFTs, the crop, weights and residual in one
         pass, no large temporaries beyond the FFT outputs (see base class)."""
+        x = self._check(x, self.shape_in, "object")
+        b = self._check(b, self.shape_out, "measurement")
         spec = rfftn(x)
         np.multiply(spec, self.spectrum, out=spec)
         full = irfftn(spec, self.padded_shape)

@@ -17,7 +17,7 @@ from .. import _kernels
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
-from .common import Monitor, SolveResult
+from .common import Monitor, SolveResult, check_measurement
 
 
 def _difference_power(shape: tuple[int, int]) -> np.ndarray:
@@ -88,7 +88,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     mu1, mu2, mu3 = (float(m) for m in mu)
     if min(mu1, mu2, mu3) <= 0 or not all(map(math.isfinite, (mu1, mu2, mu3))):
         raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")
-    b = np.ascontiguousarray(b, dtype=np.float32)
+    b = check_measurement(b, op.shape_out)
     wp = np.zeros(op.padded_shape, np.float32)
     wp[op.crop] = op.sensor_weights
     bp = np.zeros(op.padded_shape, np.float32)
@@ -152,11 +152,12 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
         mx = irfftn(qv_hat, shape)
         mon.record(0.5 * s[0] + tv * s[1], s[0], x=x,
                    hint="try --method fista or a smaller TV weight")
-    r = op.sensor_weights * mx[op.crop] - b
+    x = np.maximum(x, 0)  # the estimate is the non-negative split w
+    r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
     tv_x = float(np.abs(np.roll(x, -1, 0) - x).sum() + np.abs(np.roll(x, -1, 1) - x).sum())
     final = 0.5 * data_sq + tv * tv_x
     mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(np.maximum(x, 0), mon.history, final, math.sqrt(data_sq) / mon.b_norm,
+    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"tv": tv, "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
                         "balance": balance})

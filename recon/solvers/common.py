@@ -63,6 +63,33 @@ class SolveResult:
     params: dict
 
 
+def check_measurement(b, shape: tuple[int, ...]) -> np.ndarray:
+    """Validate a (scaled) measurement for a solver; returns it as C-contiguous float32.
+
+    Raises
+    ------
+    ReconInputError
+        Wrong shape, NaN/inf values, or all zero.
+    """
+    b = np.ascontiguousarray(b, dtype=np.float32)
+    if b.shape != tuple(shape):
+        raise ReconInputError(
+            f"measurement has shape {b.shape}, the forward model expects {tuple(shape)}; "
+            "bin or crop the raw image like the PSF"
+        )
+    bad = b.size - int(np.count_nonzero(np.isfinite(b)))
+    if bad:
+        raise ReconInputError(
+            f"measurement contains {bad} NaN/inf values; fix or mask those pixels "
+            "(erasure mask) before reconstructing"
+        )
+    if not np.any(b):
+        raise ReconInputError(
+            "measurement is all zero after preprocessing; check the exposure and the dark level"
+        )
+    return b
+
+
 class Monitor:
     """Times iterations, records the history and stops a diverging run.
 

@@ -15,7 +15,7 @@ import numpy as np
 from .. import _kernels
 from ..errors import ReconInputError
 from ..operators import LinearOperator
-from .common import Monitor, SolveResult
+from .common import Monitor, SolveResult, check_measurement
 
 
 def _prox_threshold(step: float, tau: float, ndim: int) -> float:
@@ -39,7 +39,7 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
         raise ReconInputError(f"step scale must be positive, got {step_scale}")
     if len(op.shape_in) != 2:
         raise ReconInputError(f"{method} supports 2D objects here, got {op.shape_in}")
-    b = np.ascontiguousarray(b, dtype=np.float32)
+    b = check_measurement(b, op.shape_out)
     lip = op.lipschitz() if lipschitz is None else float(lipschitz)
     if not lip > 0:
         raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSF")

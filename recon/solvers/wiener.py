@@ -10,7 +10,7 @@ import numpy as np
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
-from .common import History, SolveResult
+from .common import History, SolveResult, check_measurement
 
 
 def auto_regularization(b: np.ndarray) -> float:
@@ -61,17 +61,19 @@ def wiener(op: ConvolutionOperator, b: np.ndarray, regularization: float | None 
     Raises
     ------
     ReconInputError
-        If the operator is not a convolution or lambda is not positive.
+        If the operator is not a convolution, lambda is not positive, or b is
+        misshapen, not finite or all zero.
     """
     if not isinstance(op, ConvolutionOperator):
         raise ReconInputError("Wiener deconvolution needs a ConvolutionOperator forward model")
+    b = check_measurement(b, op.shape_out)
     lam = auto_regularization(b) if regularization is None else float(regularization)
     if not lam > 0 or not math.isfinite(lam):
         raise ReconInputError(f"Wiener regularization must be positive, got {lam}")
     spec = op.spectrum
     filt = (op.spectrum_conj / (spec.real**2 + spec.imag**2 + lam)).astype(np.complex64)
     padded = np.zeros(op.padded_shape, np.float32)
-    b32 = np.asarray(b, np.float32)
+    b32 = b
     t0 = time.perf_counter()
     padded[op.crop] = b32
     spectrum = rfftn(padded)

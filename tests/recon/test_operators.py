@@ -223,6 +223,15 @@ def test_generic_data_term_rejects_wrong_shapes(which):
         LinearOperator.data_term(op, x, b)
 
 
+# The fused data_term validates shapes like forward() (a larger b would otherwise make
+# the numba kernel read past the weights array).
+@pytest.mark.parametrize("which", ["x", "b"])
+def test_generic_data_term_rejects_wrong_shapes(which):
+    op, x, b, expected = _wrong_shape_case(which)
+    with pytest.raises(expected):
+        LinearOperator.data_term(op, x, b)
+
+
 # BUG: the fused ConvolutionOperator.data_term skips forward()'s shape check. A wrong x
 # fails only in numpy broadcasting (plain ValueError, not ReconInputError); a b with
 # fewer rows than the sensor is silently accepted (crop_residual loops over b.shape and

@@ -233,27 +233,19 @@ def test_over_large_step_raises_divergence(conv_problem, solver, step_scale):
                for v in obj[:-1])
 
 
-_WIENER_NAN = ("wiener does not check b: NaN/inf in b gives a NaN image and no error "
-               "(recon/solvers/wiener.py, no finiteness check before line 74)")
-_WIENER_ZERO = ("wiener divides by ||b|| = 0 (recon/solvers/wiener.py lines 84 and 86): "
-                "ZeroDivisionError instead of ReconInputError")
-
-
-def _all_solvers(reason_wiener):
+def _all_solvers():
     return [
         pytest.param(lambda op, b: fista(op, b, 10), id="fista"),
         pytest.param(lambda op, b: gradient_descent(op, b, 10), id="gd"),
         pytest.param(lambda op, b: admm(op, b, 10), id="admm"),
-        pytest.param(lambda op, b: wiener(op, b, 1e-3), id="wiener",
-                     marks=pytest.mark.xfail(strict=True, reason=reason_wiener)),
-        pytest.param(lambda op, b: wiener(op, b), id="wiener-auto",
-                     marks=pytest.mark.xfail(strict=True, reason=reason_wiener)),
+        pytest.param(lambda op, b: wiener(op, b, 1e-3), id="wiener"),
+        pytest.param(lambda op, b: wiener(op, b), id="wiener-auto"),
     ]
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 @pytest.mark.parametrize("bad", [np.nan, np.inf])
-@pytest.mark.parametrize("run", _all_solvers(_WIENER_NAN))
+@pytest.mark.parametrize("run", _all_solvers())
 def test_non_finite_measurement_is_caught(conv_problem, run, bad):
     b = conv_problem.b_noisy.copy()
     b[5, 7] = bad
@@ -262,7 +254,7 @@ def test_non_finite_measurement_is_caught(conv_problem, run, bad):
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
-@pytest.mark.parametrize("run", _all_solvers(_WIENER_ZERO))
+@pytest.mark.parametrize("run", _all_solvers())
 def test_all_zero_measurement_is_refused(conv_problem, run):
     with pytest.raises(ReconInputError, match="zero"):
         run(conv_problem.op, np.zeros(conv_problem.op.shape_out, np.float32))
