@@ -121,64 +121,70 @@ def proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg):
 
 @njit(inline="always")
 def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
-             av, aux, auy, aw, acc):
+             av, aux, auy, aw):
+    """One pixel of :func:`admm_split_updates_2d`; returns its 8 reduction terms."""
+    zero = np.float32(0.0)
+    rv = sv = ru = su = rw = sw = zero
     # v split (crop / data): bp, wp are the weights and measurement padded with zeros
     g = mx[i, j]
     ww = wp[i, j]
     bb = bp[i, j]
-    a = g - qv[i, j]
+    q = qv[i, j]
+    a = g - q
     t = g + a
     z = (ww * bb + mu1 * t) / (ww * ww + mu1)
     r = ww * g - bb
-    acc[0] += r * r
     if mode == 2:
         d = a - av[i, j]
-        acc[2] += d * d
-        d = z - qv[i, j] - av[i, j]
-        acc[3] += d * d
+        rv = d * d
+        d = z - q - av[i, j]
+        sv = d * d
     if mode != 0:
         av[i, j] = a
     qv[i, j] = z - a
     # w split (non-negativity)
     g = x[i, j]
-    a = g - qw[i, j]
+    q = qw[i, j]
+    a = g - q
     t = g + a
-    z = max(t, np.float32(0.0))
+    z = max(t, zero)
     if mode == 2:
         d = a - aw[i, j]
-        acc[6] += d * d
-        d = z - qw[i, j] - aw[i, j]
-        acc[7] += d * d
+        rw = d * d
+        d = z - q - aw[i, j]
+        sw = d * d
     if mode != 0:
         aw[i, j] = a
     qw[i, j] = z - a
     # u split (anisotropic TV)
     gx = x[i, jp] - g
     gy = x[ip, j] - g
-    acc[1] += abs(gx) + abs(gy)
     if use_tv:
-        a = gx - qux[i, j]
+        q = qux[i, j]
+        a = gx - q
         t = gx + a
         z = t - _clip(t, thr)
         if mode == 2:
             d = a - aux[i, j]
-            acc[4] += d * d
-            d = z - qux[i, j] - aux[i, j]
-            acc[5] += d * d
+            ru = d * d
+            d = z - q - aux[i, j]
+            su = d * d
         if mode != 0:
             aux[i, j] = a
         qux[i, j] = z - a
-        a = gy - quy[i, j]
+        q = quy[i, j]
+        a = gy - q
         t = gy + a
         z = t - _clip(t, thr)
         if mode == 2:
             d = a - auy[i, j]
-            acc[4] += d * d
-            d = z - quy[i, j] - auy[i, j]
-            acc[5] += d * d
+            ru += d * d
+            d = z - q - auy[i, j]
+            su += d * d
         if mode != 0:
             auy[i, j] = a
         quy[i, j] = z - a
+    return r * r, abs(gx) + abs(gy), rv, sv, ru, su, rw, sw
 
 
 @njit(**_JIT)
@@ -205,16 +211,32 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
     n0, n1 = x.shape
     thr = np.float32(tau / mu2 if use_tv else 0.0)
     mu1 = np.float32(mu1)
-    out = np.zeros(8)
-    rows = np.zeros((n0, 8), np.float32)
+    rows = np.zeros((n0, 8))
     for i in prange(n0):
         ip = i + 1 if i < n0 - 1 else 0
-        acc = rows[i]
-        for j in range(n1 - 1):
-            _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, j + 1, mu1, thr, use_tv,
-                     mode, av, aux, auy, aw, acc)
-        _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, n1 - 1, ip, 0, mu1, thr, use_tv,
-                 mode, av, aux, auy, aw, acc)
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = np.float32(0.0)
+        for j in range(n1):
+            jp = j + 1 if j < n1 - 1 else 0
+            c0, c1, c2, c3, c4, c5, c6, c7 = _admm_px(
+                x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
+                av, aux, auy, aw)
+            s0 += c0
+            s1 += c1
+            s2 += c2
+            s3 += c3
+            s4 += c4
+            s5 += c5
+            s6 += c6
+            s7 += c7
+        rows[i, 0] = s0
+        rows[i, 1] = s1
+        rows[i, 2] = s2
+        rows[i, 3] = s3
+        rows[i, 4] = s4
+        rows[i, 5] = s5
+        rows[i, 6] = s6
+        rows[i, 7] = s7
+    out = np.zeros(8)
     for i in range(n0):
         for k in range(8):
             out[k] += rows[i, k]
