@@ -37,8 +37,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     Per iteration, in scaled-dual form with q_i = z_i - a_i kept between iterations:
     u = soft(Psi x + a_u, tau/mu2); v = (D^T b + mu1 (M x + a_v)) / (D^T D + mu1);
     w = max(x + a_w, 0); x = F^-1[(mu1 conj(H) F q_v + F(mu2 Psi^T q_u + mu3 q_w))
-    / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3)]; a_i += G_i x - z_i. That is 2 rfft + 2 irfft (batched in pairs)
-    per iteration (M x is reused from the x-update) plus three fused passes.
+    / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3)]; a_i += G_i x - z_i. That is 2 rfft + 2 irfft
+    per iteration, batched in pairs (M x is reused from the x-update), plus three
+    fused passes.
 
     Residual balancing (on by default): every ``balance_every`` iterations, for each
     split, r_i = ||G_i x - z_i|| and s_i = mu_i ||z_i - z_i^prev|| (G_i^T dropped:
