@@ -122,9 +122,11 @@ def proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg):
 @njit(inline="always")
 def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
              av, aux, auy, aw):
-    """One pixel of :func:`admm_split_updates_2d`; returns its 8 reduction terms."""
+    """One pixel of :func:`admm_split_updates_2d`; returns its reduction terms."""
     zero = np.float32(0.0)
     rv = sv = ru = su = rw = sw = zero
+    nv = nu = nw = zero  # mode 2: max(|G x|^2, |z|^2) proxies and |a|^2 per split
+    dv = du = dw = zero
     # v split (crop / data): bp, wp are the weights and measurement padded with zeros
     g = mx[i, j]
     ww = wp[i, j]
@@ -139,6 +141,8 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
         rv = d * d
         d = z - q - av[i, j]
         sv = d * d
+        nv = max(g * g, z * z)
+        dv = a * a
     if mode != 0:
         av[i, j] = a
     qv[i, j] = z - a
@@ -153,6 +157,8 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
         rw = d * d
         d = z - q - aw[i, j]
         sw = d * d
+        nw = max(g * g, z * z)
+        dw = a * a
     if mode != 0:
         aw[i, j] = a
     qw[i, j] = z - a
@@ -169,6 +175,8 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
             ru = d * d
             d = z - q - aux[i, j]
             su = d * d
+            nu = max(gx * gx, z * z)
+            du = a * a
         if mode != 0:
             aux[i, j] = a
         qux[i, j] = z - a
@@ -181,10 +189,12 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
             ru += d * d
             d = z - q - auy[i, j]
             su += d * d
+            nu += max(gy * gy, z * z)
+            du += a * a
         if mode != 0:
             auy[i, j] = a
         quy[i, j] = z - a
-    return r * r, abs(gx) + abs(gy), rv, sv, ru, su, rw, sw
+    return (r * r, abs(gx) + abs(gy), rv, sv, ru, su, rw, sw, nv, dv, nu, du, nw, dw)
 
 
 @njit(**_JIT)
@@ -205,42 +215,37 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
 
     Returns
     -------
-    out : ndarray, shape (8,), float64
-        [||w C M x - b||^2, TV(x), r_v^2, s_v^2, r_u^2, s_u^2, r_w^2, s_w^2].
+    out : ndarray, shape (14,), float64
+        [||w C M x - b||^2, TV(x), r_v^2, s_v^2, r_u^2, s_u^2, r_w^2, s_w^2, then per
+        split (v, u, w) sum max(|G x|^2, |z|^2) and ||a||^2] (the last 11 in mode 2).
     """
     n0, n1 = x.shape
     thr = np.float32(tau / mu2 if use_tv else 0.0)
     mu1 = np.float32(mu1)
-    rows = np.zeros((n0, 8))
+    rows = np.zeros((n0, 14))
     for i in prange(n0):
         ip = i + 1 if i < n0 - 1 else 0
-        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = np.float32(0.0)
+        z0 = np.float32(0.0)
+        acc = (z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0)
         for j in range(n1):
             jp = j + 1 if j < n1 - 1 else 0
-            c0, c1, c2, c3, c4, c5, c6, c7 = _admm_px(
-                x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
-                av, aux, auy, aw)
-            s0 += c0
-            s1 += c1
-            s2 += c2
-            s3 += c3
-            s4 += c4
-            s5 += c5
-            s6 += c6
-            s7 += c7
-        rows[i, 0] = s0
-        rows[i, 1] = s1
-        rows[i, 2] = s2
-        rows[i, 3] = s3
-        rows[i, 4] = s4
-        rows[i, 5] = s5
-        rows[i, 6] = s6
-        rows[i, 7] = s7
-    out = np.zeros(8)
+            c = _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
+                         av, aux, auy, aw)
+            acc = _add14(acc, c)
+        for k in range(14):
+            rows[i, k] = acc[k]
+    out = np.zeros(14)
     for i in range(n0):
-        for k in range(8):
+        for k in range(14):
             out[k] += rows[i, k]
     return out
+
+
+@njit(inline="always")
+def _add14(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3], a[4] + b[4], a[5] + b[5],
+            a[6] + b[6], a[7] + b[7], a[8] + b[8], a[9] + b[9], a[10] + b[10],
+            a[11] + b[11], a[12] + b[12], a[13] + b[13])
 
 
 @njit(**_JIT)

@@ -19,6 +19,12 @@ from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
 from .common import Monitor, SolveResult, check_measurement
 
+#: Balancing moves penalties only within this range (scaled problem: unit-sum PSF,
+#: |b| <= 1). The normalised dual residual of an inactive constraint (e.g. x >= 0
+#: where x is positive anyway) has a dual near zero and would push its penalty
+#: down without bound.
+MU_RANGE = (1e-5, 1e2)
+
 
 def _difference_power(shape: tuple[int, int]) -> np.ndarray:
     """|F Psi|^2 summed over axes on the rfft grid: sum_a (2 - 2 cos(2 pi k_a / N_a))."""
@@ -41,11 +47,15 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     per iteration, batched in pairs (M x is reused from the x-update), plus three
     fused passes.
 
-    Residual balancing (on by default): every ``balance_every`` iterations, for each
-    split, r_i = ||G_i x - z_i|| and s_i = mu_i ||z_i - z_i^prev|| (G_i^T dropped:
-    ||M|| <= 1 for a unit-sum PSF); mu_i is multiplied by ``balance_factor`` when
-    r_i > ratio s_i and divided when s_i > ratio r_i, scaled duals rescaled. It
-    stops after ``balance_until`` of the iterations so the final penalties are fixed.
+    Residual balancing (on by default; Boyd et al. 2011, Sec. 3.4.1, with the
+    normalised residuals of Wohlberg 2017 so the three splits' different scales do
+    not matter): every ``balance_every`` iterations, for each split,
+    r_i = ||G_i x - z_i|| / max(||G_i x||, ||z_i||) and
+    s_i = mu_i ||z_i - z_i^prev|| / ||y_i|| with y_i = mu_i a_i the dual variable
+    (G_i^T dropped: ||M|| <= 1 for a unit-sum PSF); mu_i is multiplied by
+    ``balance_factor`` when r_i > ratio s_i and divided when s_i > ratio r_i, scaled
+    duals rescaled. It stops after ``balance_until`` of the iterations so the final
+    penalties are fixed.
 
     Parameters
     ----------
@@ -129,12 +139,17 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
                                            mu3, tv, use_tv, mode, *scratch)
         if mode == 2:
             new = []
-            for mu_i, r2, s2 in ((mu1, s[2], s[3]), (mu2, s[4], s[5]), (mu3, s[6], s[7])):
-                r_i, s_i = math.sqrt(r2), mu_i * math.sqrt(s2)
-                if r_i > balance_ratio * s_i:
-                    mu_i *= balance_factor
-                elif s_i > balance_ratio * r_i:
-                    mu_i /= balance_factor
+            for mu_i, r2, s2, n2, d2 in ((mu1, s[2], s[3], s[8], s[9]),
+                                         (mu2, s[4], s[5], s[10], s[11]),
+                                         (mu3, s[6], s[7], s[12], s[13])):
+                # normalised residuals (Wohlberg 2017): primal over max(|Gx|, |z|),
+                # dual mu ||dz|| over the dual variable's norm mu ||a||
+                if n2 > 0 and d2 > 0:
+                    r_i, s_i = math.sqrt(r2 / n2), math.sqrt(s2 / d2)
+                    if r_i > balance_ratio * s_i and mu_i < MU_RANGE[1]:
+                        mu_i *= balance_factor
+                    elif s_i > balance_ratio * r_i and mu_i > MU_RANGE[0]:
+                        mu_i /= balance_factor
                 new.append(mu_i)
             if not use_tv:
                 new[1] = mu2

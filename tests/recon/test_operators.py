@@ -383,26 +383,29 @@ def test_proximal_step_shrinks_tv():
 def _admm_split_reference(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2, tau, use_tv, mode,
                           av, aux, auy, aw):
     """numpy version of the admm_split_updates_2d docstring (float64, returns copies)."""
-    out = np.zeros(8)
+    out = np.zeros(14)
     thr = tau / mu2 if use_tv else 0.0
     gx = np.roll(x, -1, axis=1) - x
     gy = np.roll(x, -1, axis=0) - x
     out[0] = np.sum((wp * mx - bp) ** 2)
     out[1] = np.abs(gx).sum() + np.abs(gy).sum()
+    # (G x, q, a, prox, index of r^2 / s^2, index of max(|Gx|^2,|z|^2) / |a|^2)
     splits = {
-        "v": (mx, qv, av, lambda t: (wp * bp + mu1 * t) / (wp * wp + mu1), 2),
-        "w": (x, qw, aw, lambda t: np.maximum(t, 0.0), 6),
+        "v": (mx, qv, av, lambda t: (wp * bp + mu1 * t) / (wp * wp + mu1), 2, 8),
+        "w": (x, qw, aw, lambda t: np.maximum(t, 0.0), 6, 12),
     }
     if use_tv:
-        splits["ux"] = (gx, qux, aux, lambda t: _soft(t, thr), 4)
-        splits["uy"] = (gy, quy, auy, lambda t: _soft(t, thr), 4)
+        splits["ux"] = (gx, qux, aux, lambda t: _soft(t, thr), 4, 10)
+        splits["uy"] = (gy, quy, auy, lambda t: _soft(t, thr), 4, 10)
     new_q, new_a = {}, {}
-    for name, (g, q_old, a_old, prox, k) in splits.items():
+    for name, (g, q_old, a_old, prox, k, n) in splits.items():
         a_new = g - q_old
         z_new = prox(g + a_new)
         if mode == 2:
             out[k] += np.sum((a_new - a_old) ** 2)
             out[k + 1] += np.sum((z_new - (q_old + a_old)) ** 2)
+            out[n] += np.sum(np.maximum(g * g, z_new * z_new))
+            out[n + 1] += np.sum(a_new**2)
         new_q[name] = z_new - a_new
         new_a[name] = a_new if mode != 0 else a_old
     return out, new_q, new_a
@@ -429,7 +432,7 @@ def test_admm_split_updates_match_reference(mode, use_tv):
     ref, new_q, new_a = _admm_split_reference(*f64, mu1, mu2, tau, use_tv, mode, *a64)
     out = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2, mu3,
                                          tau, use_tv, mode, av, aux, auy, aw)
-    assert out.shape == (8,)
+    assert out.shape == (14,)
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-4)
     tol = dict(rtol=0, atol=2e-5)
     np.testing.assert_allclose(qv, new_q["v"], **tol)
