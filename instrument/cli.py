@@ -12,25 +12,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
 log = logging.getLogger("diffuserlab")
-
-
-def sample_data_dir() -> Path:
-    """Where the real DiffuserCam tutorial sample lives.
-
-    ``$DIFFUSERLAB_DATA`` if set, else ``../shared/data/diffusercam-tutorial``
-    beside the repository.
-    """
-    env = os.environ.get("DIFFUSERLAB_DATA")
-    if env:
-        return Path(env)
-    return Path(__file__).resolve().parents[1].parent / "shared" / "data" / "diffusercam-tutorial"
 
 
 def _output_paths(out: str) -> tuple[Path, Path]:
@@ -190,7 +177,9 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(_summary(m))
         elif args.command == "demo":
-            data = sample_data_dir()
+            from recon.sample import data_dir
+
+            data = data_dir()
             out = Path(args.out)
             m = run_recon(
                 str(data / "psf_sample.tif"),

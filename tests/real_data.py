@@ -4,17 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from instrument.cli import sample_data_dir
+from recon.sample import data_dir
 
 
 def sample_paths():
-    d = sample_data_dir()
-    psf, raw = d / "psf_sample.tif", d / "rawdata_hand_sample.tif"
-    assert psf.exists() and raw.exists(), (
-        f"real DiffuserCam sample missing in {d}: the tests need ../shared/data "
-        "beside the repository (or DIFFUSERLAB_DATA)"
-    )
-    return psf, raw
+    d = data_dir()  # raises, naming the missing files and DIFFUSERLAB_DATA
+    return d / "psf_sample.tif", d / "rawdata_hand_sample.tif"
 
 
 def check_hand_image(image: np.ndarray) -> None:

@@ -20,12 +20,11 @@ between the data term and the prior matches the full-data problem.
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import time
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..metrics import fit_gain, psnr, ssim
 from ..operators import PixelErasure
@@ -51,38 +50,6 @@ SIM_PHOTONS = 5000.0
 SIM_READ_NOISE_E = 2.0
 
 
-@contextlib.contextmanager
-def _blas_single_thread():
-    """Run scipy's bundled OpenBLAS single-threaded inside the block (best effort).
-
-    ``griddata`` computes one tiny LAPACK solve per Delaunay simplex; with OpenBLAS
-    threads on a busy 2-core machine that was measured 10-50x slower (0.06 s vs
-    1-6 s at 300 x 400) than with one thread. No-op when the library is not found.
-    """
-    restore = []
-    try:
-        import scipy
-
-        libs = Path(scipy.__file__).resolve().parent.parent / "scipy.libs"
-        for path in sorted(libs.glob("libscipy_openblas*.so*")):
-            lib = ctypes.CDLL(str(path))
-            get = getattr(lib, "scipy_openblas_get_num_threads", None)
-            put = getattr(lib, "scipy_openblas_set_num_threads", None)
-            if get is None or put is None:
-                continue
-            get.restype = ctypes.c_int
-            put.argtypes = [ctypes.c_int]
-            restore.append((put, int(get())))
-            put(1)
-    except OSError:
-        pass
-    try:
-        yield
-    finally:
-        for put, n in restore:
-            put(n)
-
-
 def interpolate_erased(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Fill the erased pixels of an image by linear interpolation of the kept ones.
 
@@ -104,7 +71,9 @@ def interpolate_erased(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
     pts = np.column_stack([rows, cols]).astype(np.float64)
     vals = np.asarray(image, np.float64)[rows, cols]
     gr, gc = np.mgrid[0:image.shape[0], 0:image.shape[1]]
-    with _blas_single_thread():
+    # griddata does one tiny LAPACK solve per Delaunay simplex; OpenBLAS threads on a
+    # busy 2-core machine made it 10-50x slower (1-6 s instead of 0.06 s here).
+    with threadpool_limits(limits=1, user_api="blas"):
         out = griddata(pts, vals, (gr, gc), method="linear")
     hole = np.isnan(out)
     if hole.any():

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,8 +23,7 @@ from recon.preprocess import (
     validate_measurement,
     validate_psf,
 )
-
-DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "diffusercam-tutorial"
+from tests.real_data import sample_paths
 
 
 def _psf_and_raw(shape=(32, 40), dark=100, dtype=np.uint16):
@@ -493,11 +491,7 @@ def test_prepare_pair_bad_warn_saturation():
 
 
 def test_prepare_pair_real_tutorial_data():
-    psf_path = DATA_DIR / "psf_sample.tif"
-    raw_path = DATA_DIR / "rawdata_hand_sample.tif"
-    missing = [str(p) for p in (psf_path, raw_path) if not p.is_file()]
-    if missing:
-        pytest.fail(f"DiffuserCam tutorial data missing: {missing}; expected under {DATA_DIR}")
+    psf_path, raw_path = sample_paths()  # fails (not skips) when the data is missing
     psf = load_image(psf_path)
     raw = load_image(raw_path)
     assert psf.shape == (1200, 1600) and psf.dtype == np.uint16
