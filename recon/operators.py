@@ -264,8 +264,8 @@ class ConvolutionOperator(LinearOperator):
 
     def adjoint(self, y):
         y = self._check(y, self.shape_out, "sensor image")
-        buf = np.zeros(self.padded_shape, np.float32)
-        buf[self.crop] = self.sensor_weights * y
+        buf = self.pad_buffer()
+        np.multiply(self.sensor_weights, y, out=buf[self.crop])
         return irfftn(rfftn(buf) * self.spectrum_conj, self.padded_shape)
 
     def data_term(self, x, b):
@@ -280,6 +280,14 @@ class ConvolutionOperator(LinearOperator):
         spec = rfftn(full)
         np.multiply(spec, self.spectrum_conj, out=spec)
         return 0.5 * loss, irfftn(spec, self.padded_shape)
+
+    def pad_buffer(self) -> np.ndarray:
+        """The operator's reusable padded buffer, zero outside the sensor crop.
+
+        Callers write only ``buf[self.crop]`` and consume the buffer before the next
+        call (it saves a page-faulting allocation per apply).
+        """
+        return self._pad_buf
 
     @staticmethod
     def _check(a, shape, what):

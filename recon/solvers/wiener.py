@@ -72,7 +72,7 @@ def wiener(op: ConvolutionOperator, b: np.ndarray, regularization: float | None 
         raise ReconInputError(f"Wiener regularization must be positive, got {lam}")
     spec = op.spectrum
     filt = (op.spectrum_conj / (spec.real**2 + spec.imag**2 + lam)).astype(np.complex64)
-    padded = np.zeros(op.padded_shape, np.float32)
+    padded = op.pad_buffer()
     b32 = b
     t0 = time.perf_counter()
     padded[op.crop] = b32
