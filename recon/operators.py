@@ -200,8 +200,11 @@ class ConvolutionOperator(LinearOperator):
     def __init__(self, psf: np.ndarray, sensor_weights: np.ndarray | None = None,
                  padded_shape: tuple[int, int] | None = None, *, _spectrum=None):
         h = np.asarray(psf, dtype=np.float32)
-        if h.ndim != 2:
-            raise ReconInputError(f"PSF must be 2D (rows, cols), got shape {h.shape}")
+        if h.ndim != 2 or min(h.shape) < 2:
+            raise ReconInputError(
+                f"PSF must be 2D (rows, cols) with at least 2 pixels per axis, got shape "
+                f"{h.shape}"
+            )
         if not np.all(np.isfinite(h)):
             raise ReconInputError("PSF contains NaN or inf; fix the calibration frame")
         if not np.any(h):

@@ -100,22 +100,15 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     if min(mu1, mu2, mu3) <= 0 or not all(map(math.isfinite, (mu1, mu2, mu3))):
         raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")
     b = check_measurement(b, op.shape_out)
-    wp = np.zeros(op.padded_shape, np.float32)
-    wp[op.crop] = op.sensor_weights
-    bp = np.zeros(op.padded_shape, np.float32)
-    bp[op.crop] = b
+    w = op.sensor_weights
+    top, left = op.offset
     shape = op.padded_shape
-    spec, spec_conj = op.spectrum, op.spectrum_conj
+    spec = op.spectrum
     h_pow = (spec.real**2 + spec.imag**2).astype(np.float32)
     d_pow = _difference_power(shape)
 
-    def inverse_denominator():
-        den = mu1 * h_pow + mu3
-        if use_tv:
-            den = den + mu2 * d_pow
-        return (1.0 / den).astype(np.float32)
-
-    inv_den = inverse_denominator()
+    inv_den = np.empty(h_pow.shape, np.float32)
+    _kernels.admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv, inv_den)
     x = np.zeros(shape, np.float32)
     mx = np.zeros(shape, np.float32)
     # q_v and the rhs share one buffer so both forward FFTs run as one batched call
@@ -135,8 +128,8 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
                 mode = 1
             elif k % balance_every == 0 and k > 0:
                 mode = 2
-        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2,
-                                           mu3, tv, use_tv, mode, *scratch)
+        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, b, w, top, left,
+                                           mu1, mu2, mu3, tv, use_tv, mode, *scratch)
         if mode == 2:
             new = []
             for mu_i, r2, s2, n2, d2 in ((mu1, s[2], s[3], s[8], s[9]),
@@ -159,14 +152,16 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
                                       (qux, scratch[1], mu2, new[1]),
                                       (quy, scratch[2], mu2, new[1]),
                                       (qw, scratch[3], mu3, new[2])):
-                    if old != nw:
-                        q += a * np.float32(1.0 - old / nw)
+                    if old != nw:  # a is rewritten (mode 1) before it is read again
+                        a *= np.float32(1.0 - old / nw)
+                        q += a
                 mu1, mu2, mu3 = new
-                inv_den = inverse_denominator()
+                _kernels.admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv,
+                                                  inv_den)
                 mus.append((mu1, mu2, mu3))
         _kernels.admm_rhs_2d(qux, quy, qw, rhs, mu2, mu3, use_tv)
         spectra = rfftn(stacked)
-        _kernels.admm_fourier_2d(spectra[0], spectra[1], spec, spec_conj, inv_den, mu1)
+        _kernels.admm_fourier_2d(spectra[0], spectra[1], spec, inv_den, mu1)
         mx, x = irfftn(spectra, shape)
         mon.record(0.5 * s[0] + tv * s[1], s[0], x=x,
                    hint="try --method fista or a smaller TV weight")

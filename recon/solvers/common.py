@@ -147,8 +147,11 @@ class Monitor:
                 f"{self.method} diverged at iteration {k}: objective {objective:.3g} "
                 f"(zero image gives {self.limit / 100:.3g}). {hint}".strip(),
                 history=self.history.as_dict(),
-                last_good=self._last_good,
+                last_good=None if self._last_good is None else self._last_good.copy(),
             )
         if x is not None and (k - 1) % self.snapshot_every == 0:
-            self._last_good = np.array(x, copy=True)
+            if self._last_good is None or self._last_good.shape != x.shape:
+                self._last_good = np.array(x, copy=True)
+            else:
+                np.copyto(self._last_good, x)  # no allocation in the loop
             self.history.seconds[-1] = time.perf_counter() - self._t0  # copy included
