@@ -53,6 +53,16 @@ def crop_residual(full, b, w, top, left):
     return acc
 
 
+@njit(**_JIT)
+def multiply_spectrum(spec, h, conjugate):
+    """In place: spec *= h, or spec *= conj(h) if ``conjugate`` (both threads)."""
+    n0, n1 = spec.shape
+    for i in prange(n0):
+        for j in range(n1):
+            hh = h[i, j]
+            spec[i, j] *= hh.conjugate() if conjugate else hh
+
+
 @njit(inline="always")
 def _clip(d, t):
     return min(max(d, -t), t)

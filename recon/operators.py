@@ -277,11 +277,11 @@ class ConvolutionOperator(LinearOperator):
         x = self._check(x, self.shape_in, "object")
         b = self._check(b, self.shape_out, "measurement")
         spec = rfftn(x)
-        np.multiply(spec, self.spectrum, out=spec)
+        _kernels.multiply_spectrum(spec, self.spectrum, False)
         full = irfftn(spec, self.padded_shape)
         loss = _kernels.crop_residual(full, b, self.sensor_weights, *self.offset)
         spec = rfftn(full)
-        np.multiply(spec, self.spectrum_conj, out=spec)
+        _kernels.multiply_spectrum(spec, self.spectrum, True)
         return 0.5 * loss, irfftn(spec, self.padded_shape)
 
     def pad_buffer(self) -> np.ndarray:
