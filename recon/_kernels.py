@@ -130,15 +130,17 @@ def proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg):
 
 
 @njit(inline="always")
-def _admm_px(x, mx, qv, qux, quy, qw, ww, bb, i, j, ip, jp, mu1, thr, use_tv, mode,
+def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
              av, aux, auy, aw):
     """One pixel of :func:`admm_split_updates_2d`; returns its reduction terms."""
     zero = np.float32(0.0)
     rv = sv = ru = su = rw = sw = zero
     nv = nu = nw = zero  # mode 2: max(|G x|^2, |z|^2) proxies and |a|^2 per split
     dv = du = dw = zero
-    # v split (crop / data): ww, bb are the weight and measurement, 0 off the sensor
+    # v split (crop / data): bp, wp are the weights and measurement padded with zeros
     g = mx[i, j]
+    ww = wp[i, j]
+    bb = bp[i, j]
     q = qv[i, j]
     a = g - q
     t = g + a
@@ -206,17 +208,16 @@ def _admm_px(x, mx, qv, qux, quy, qw, ww, bb, i, j, ip, jp, mu1, thr, use_tv, mo
 
 
 @njit(**_JIT)
-def admm_split_updates_2d(x, mx, qv, qux, quy, qw, b, w, top, left,
+def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
                           mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw):
     """ADMM z- and dual updates of Eq. 4.5 / App. A.3 in 2D, fused, in q-form.
 
     For each split with G x = g (v: M x, u: Psi x as forward differences, w: x),
     keeping only q = z - a (a = scaled dual) between iterations:
     a_new = g - q_old; z_new = prox(g + a_new); q_new = z_new - a_new, where the
-    proxes are v: (w b + mu1 t) / (w^2 + mu1) on the sensor (b, w of shape S at
-    offset (top, left) in the padded grid) and t off it; u: soft threshold tau/mu2;
-    w: max(t, 0). This is the textbook scaled-dual ADMM with the dual step of
-    iteration k fused into the z-step of k+1.
+    proxes are v: (w b + mu1 t) / (w^2 + mu1) (w, b zero-padded off the sensor);
+    u: soft threshold tau/mu2; w: max(t, 0). This is the textbook scaled-dual
+    ADMM with the dual step of iteration k fused into the z-step of k+1.
 
     mode 0: plain; 1: store a_new in (av, aux, auy, aw); 2: also compute the
     residual norms r = ||a_new - a_old|| (primal) and ||z_new - z_old|| (for the
@@ -229,35 +230,18 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, b, w, top, left,
         split (v, u, w) sum max(|G x|^2, |z|^2) and ||a||^2] (the last 11 in mode 2).
     """
     n0, n1 = x.shape
-    s0, s1 = b.shape
     thr = np.float32(tau / mu2 if use_tv else 0.0)
     mu1 = np.float32(mu1)
-    zero = np.float32(0.0)
     rows = np.zeros((n0, 14))
     for i in prange(n0):
         ip = i + 1 if i < n0 - 1 else 0
-        si = i - top
-        on_sensor = 0 <= si < s0
-        acc = (zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero, zero,
-               zero, zero)
-        # three segments per row so the sensor arrays are read only where they exist
-        lo = left if on_sensor else n1 - 1
-        hi = left + s1 if on_sensor else n1 - 1
-        for j in range(lo):
-            c = _admm_px(x, mx, qv, qux, quy, qw, zero, zero, i, j, ip, j + 1, mu1, thr,
-                         use_tv, mode, av, aux, auy, aw)
+        z0 = np.float32(0.0)
+        acc = (z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0, z0)
+        for j in range(n1):
+            jp = j + 1 if j < n1 - 1 else 0
+            c = _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
+                         av, aux, auy, aw)
             acc = _add14(acc, c)
-        for j in range(lo, hi):
-            c = _admm_px(x, mx, qv, qux, quy, qw, w[si, j - left], b[si, j - left], i, j,
-                         ip, j + 1, mu1, thr, use_tv, mode, av, aux, auy, aw)
-            acc = _add14(acc, c)
-        for j in range(hi, n1 - 1):
-            c = _admm_px(x, mx, qv, qux, quy, qw, zero, zero, i, j, ip, j + 1, mu1, thr,
-                         use_tv, mode, av, aux, auy, aw)
-            acc = _add14(acc, c)
-        c = _admm_px(x, mx, qv, qux, quy, qw, zero, zero, i, n1 - 1, ip, 0, mu1, thr,
-                     use_tv, mode, av, aux, auy, aw)
-        acc = _add14(acc, c)
         for k in range(14):
             rows[i, k] = acc[k]
     out = np.zeros(14)

@@ -100,8 +100,12 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     if min(mu1, mu2, mu3) <= 0 or not all(map(math.isfinite, (mu1, mu2, mu3))):
         raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")
     b = check_measurement(b, op.shape_out)
-    w = op.sensor_weights
-    top, left = op.offset
+    # weights and data as zero-padded planes keep the fused pass branch-free (and
+    # vectorised); reading only the crop per row segment measured 3.7x slower
+    wp = np.zeros(op.padded_shape, np.float32)
+    wp[op.crop] = op.sensor_weights
+    bp = np.zeros(op.padded_shape, np.float32)
+    bp[op.crop] = b
     shape = op.padded_shape
     spec = op.spectrum
     h_pow = (spec.real**2 + spec.imag**2).astype(np.float32)
@@ -117,6 +121,12 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
     qv, rhs = stacked[0], stacked[1]
     qux, quy, qw = (np.zeros(shape, np.float32) for _ in range(3))
     scratch = [np.zeros(shape, np.float32) for _ in range(4)]  # a_v, a_ux, a_uy, a_w
+    for buf in scratch:
+        # Write once so the pages are mapped writable: the vectorised split kernel
+        # issues masked stores to these buffers even in mode 0 (all lanes off), and
+        # a masked store to a not-yet-written calloc page takes a microcode assist:
+        # measured 3.8 ms instead of 0.65 ms per pass at 600 x 800.
+        buf.fill(0.0)
     mon = Monitor(float(np.vdot(b, b)), "ADMM")
     mus = [(mu1, mu2, mu3)]
     last_balance = int(balance_until * iterations)
@@ -128,8 +138,8 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
                 mode = 1
             elif k % balance_every == 0 and k > 0:
                 mode = 2
-        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, b, w, top, left,
-                                           mu1, mu2, mu3, tv, use_tv, mode, *scratch)
+        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2,
+                                           mu3, tv, use_tv, mode, *scratch)
         if mode == 2:
             new = []
             for mu_i, r2, s2, n2, d2 in ((mu1, s[2], s[3], s[8], s[9]),

@@ -430,9 +430,7 @@ def test_admm_split_updates_match_reference(mode, use_tv):
     f64 = [a.astype(np.float64) for a in (x, mx, qv, qux, quy, qw, bp, wp)]
     a64 = [a.astype(np.float64) for a in (av, aux, auy, aw)]
     ref, new_q, new_a = _admm_split_reference(*f64, mu1, mu2, tau, use_tv, mode, *a64)
-    out = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, np.ascontiguousarray(
-                                         bp[2:8, 3:11]), np.ascontiguousarray(wp[2:8, 3:11]),
-                                         2, 3, mu1, mu2, mu3,
+    out = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2, mu3,
                                          tau, use_tv, mode, av, aux, auy, aw)
     assert out.shape == (14,)
     np.testing.assert_allclose(out, ref, rtol=1e-5, atol=1e-4)
