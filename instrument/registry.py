@@ -1,0 +1,357 @@
+"""Driver registry and device lifecycle.
+
+Drivers are found by name through the entry-point group ``diffuserlab.drivers``, so a
+third-party driver is a pip plugin declaring, in its own ``pyproject.toml``::
+
+    [project.entry-points."diffuserlab.drivers"]
+    my-camera = "my_package.camera:MyCamera"
+
+The target is a device class (a subclass of ``drivers.base.Device``) with a class
+attribute ``kind`` (one of :data:`instrument.config.KINDS`) and the constructor
+``(device_id, **params)``. Entry points are read on each lookup and modules are
+imported only when a driver is resolved. :func:`register` adds drivers in-process
+(notebooks, tests); those take precedence over entry points of the same name.
+
+:func:`open_bench` constructs and opens every device of a bench, and closes the
+already-opened ones if any fails, so nothing is left half-open.
+"""
+
+from __future__ import annotations
+
+import logging
+from importlib.metadata import entry_points
+from typing import Any
+
+from instrument.config import KINDS, SIMULATED_DRIVERS, BenchConfig, Problem, with_simulated_drivers
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "BenchOpenError",
+    "DriverKindError",
+    "DriverLoadError",
+    "OpenBench",
+    "RegistryError",
+    "UnknownDriverError",
+    "available",
+    "driver_problems",
+    "names",
+    "open_bench",
+    "register",
+    "resolve",
+    "unregister",
+]
+
+log = logging.getLogger(__name__)
+
+#: The entry-point group drivers are declared in.
+ENTRY_POINT_GROUP = "diffuserlab.drivers"
+
+_local: dict[str, type] = {}
+
+
+class RegistryError(LookupError):
+    """A driver name that cannot be used; the message names the fix."""
+
+
+class UnknownDriverError(RegistryError):
+    """No driver of that name is installed or registered."""
+
+    def __init__(self, name: str, known: list[str]):
+        self.name = name
+        self.known = known
+        super().__init__(
+            f"unknown driver {name!r}; available: {', '.join(known) or 'none'}"
+            " (install the package that provides it, or use a simulated-* driver)"
+        )
+
+
+class DriverLoadError(RegistryError):
+    """A driver is declared but its module or class cannot be loaded.
+
+    ``reason`` says what failed, ``fix`` what to do about it.
+    """
+
+    def __init__(self, name: str, reason: str, fix: str):
+        self.name, self.reason, self.fix = name, reason, fix
+        super().__init__(f"driver {name!r}: {reason}; {fix}")
+
+
+class DriverKindError(RegistryError):
+    """A driver whose kind differs from the device's configured kind."""
+
+    def __init__(self, name: str, driver_kind: str, kind: str):
+        self.name, self.driver_kind, self.kind = name, driver_kind, kind
+        super().__init__(
+            f"driver {name!r} drives a {driver_kind}, not a {kind}: use a {kind} driver "
+            f"(e.g. {SIMULATED_DRIVERS.get(kind, '?')!r}) or set kind = {driver_kind!r}"
+        )
+
+
+class BenchOpenError(RuntimeError):
+    """A device failed to construct or open; every device opened before it was closed.
+
+    Attributes
+    ----------
+    device_id : str
+        The device that failed.
+    closed : list[str]
+        Ids of the devices opened before it and closed again.
+    close_errors : dict[str, BaseException]
+        Devices whose close failed during that cleanup.
+    """
+
+    def __init__(
+        self,
+        device_id: str,
+        driver: str,
+        cause: BaseException,
+        closed: list[str],
+        close_errors: dict[str, BaseException],
+    ):
+        self.device_id = device_id
+        self.driver = driver
+        self.closed = closed
+        self.close_errors = close_errors
+        text = (
+            f"opening device {device_id!r} (driver {driver!r}) failed: "
+            f"{type(cause).__name__}: {cause}; closed again: {', '.join(closed) or 'none'}"
+        )
+        if close_errors:
+            text += "; close failed for: " + ", ".join(
+                f"{k} ({type(e).__name__}: {e})" for k, e in close_errors.items()
+            )
+        super().__init__(text)
+
+
+def _entry_points() -> dict[str, list[Any]]:
+    """Entry points of the group by name, duplicates with the same target merged."""
+    out: dict[str, list[Any]] = {}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        same = out.setdefault(ep.name, [])
+        if all(e.value != ep.value for e in same):
+            same.append(ep)
+    return out
+
+
+def register(name: str, cls: type) -> None:
+    """Register a driver class in this process (takes precedence over entry points)."""
+    _check_class(name, cls)
+    _local[name] = cls
+
+
+def unregister(name: str) -> None:
+    """Remove a driver registered with :func:`register` (no error if absent)."""
+    _local.pop(name, None)
+
+
+def names() -> list[str]:
+    """Every driver name known here, sorted (imports nothing)."""
+    return sorted(set(_local) | set(_entry_points()))
+
+
+def _check_class(name: str, cls: Any) -> None:
+    if not isinstance(cls, type):
+        raise DriverLoadError(
+            name, f"{cls!r} is not a device class", "point the entry point at the class"
+        )
+    kind = getattr(cls, "kind", None)
+    if kind not in KINDS:
+        raise DriverLoadError(
+            name,
+            f"{cls.__module__}.{cls.__qualname__} declares kind {kind!r}",
+            f"a driver class sets kind to one of {', '.join(KINDS)}",
+        )
+
+
+def resolve(name: str, kind: str | None = None) -> type:
+    """The device class registered under ``name``.
+
+    Parameters
+    ----------
+    name : str
+        Driver name (entry point name in ``diffuserlab.drivers``).
+    kind : str, optional
+        The kind the caller expects; a driver of another kind raises
+        :class:`DriverKindError`.
+
+    Raises
+    ------
+    UnknownDriverError, DriverLoadError, DriverKindError
+    """
+    if name in _local:
+        cls = _local[name]
+    else:
+        eps = _entry_points().get(name)
+        if not eps:
+            raise UnknownDriverError(name, names())
+        if len(eps) > 1:
+            targets = ", ".join(f"{e.value} ({_dist_name(e)})" for e in eps)
+            raise DriverLoadError(
+                name, f"declared by more than one package: {targets}", "uninstall one of them"
+            )
+        try:
+            cls = eps[0].load()
+        except Exception as exc:
+            raise DriverLoadError(
+                name,
+                f"{eps[0].value} failed to load: {type(exc).__name__}: {exc}",
+                f"reinstall {_dist_name(eps[0])} (or the dependencies it needs)",
+            ) from exc
+        _check_class(name, cls)
+    if kind is not None and cls.kind != kind:
+        raise DriverKindError(name, cls.kind, kind)
+    return cls
+
+
+def _dist_name(ep: Any) -> str:
+    dist = getattr(ep, "dist", None)
+    return getattr(dist, "name", None) or "unknown package"
+
+
+def available() -> dict[str, str | None]:
+    """``{driver name: kind}`` for every driver, the kind read from its class on call.
+
+    A driver that is declared but cannot be loaded here maps to ``None``
+    (:func:`resolve` gives the reason).
+    """
+    out: dict[str, str | None] = {}
+    for name in names():
+        try:
+            out[name] = resolve(name).kind
+        except RegistryError as exc:
+            log.debug("driver %s unavailable: %s", name, exc)
+            out[name] = None
+    return out
+
+
+def driver_problems(devices: Any) -> list[Problem]:
+    """Problems with the drivers of raw ``[[devices]]`` tables (unknown name, wrong kind).
+
+    Used by :func:`instrument.config.load_bench`; tolerates malformed entries (those are
+    reported by the model validation).
+    """
+    if not isinstance(devices, list):
+        return []
+    problems = []
+    for i, dev in enumerate(devices):
+        if not isinstance(dev, dict) or not isinstance(dev.get("driver"), str):
+            continue
+        name = dev["driver"]
+        kind = dev.get("kind") if dev.get("kind") in KINDS else None
+        label = f" of device {dev['id']!r}" if isinstance(dev.get("id"), str) else ""
+        try:
+            resolve(name, kind)
+        except UnknownDriverError as exc:
+            same_kind = [n for n, k in available().items() if kind is None or k == kind]
+            problems.append(
+                Problem(
+                    f"devices[{i}].driver",
+                    f"unknown driver {name!r}{label}",
+                    f"use one of: {', '.join(same_kind) or ', '.join(exc.known) or 'none'} "
+                    "(or install the plugin that provides it; `diffuserlab validate "
+                    "--simulate` checks the file with simulated twins)",
+                )
+            )
+        except DriverKindError as exc:
+            same_kind = [n for n, k in available().items() if k == kind]
+            problems.append(
+                Problem(
+                    f"devices[{i}].driver",
+                    f"driver {name!r}{label} drives a {exc.driver_kind}, but kind = {kind!r}",
+                    f"use a {kind} driver ({', '.join(same_kind) or 'none installed'}) "
+                    f"or set kind = {exc.driver_kind!r}",
+                )
+            )
+        except DriverLoadError as exc:
+            problems.append(
+                Problem(
+                    f"devices[{i}].driver",
+                    f"driver {name!r}{label} cannot be loaded: {exc.reason}",
+                    exc.fix,
+                )
+            )
+    return problems
+
+
+class OpenBench(dict[str, Any]):
+    """``{device id: opened device}``, in bench order; a context manager that closes them.
+
+    ``close()`` closes every device in reverse order (each close is attempted even if
+    another fails; failures are logged and returned), then empties the mapping.
+    """
+
+    def close(self) -> dict[str, BaseException]:
+        """Close every device, last opened first; returns ``{id: error}`` of failed closes."""
+        errors = _close_all(list(self.items()))
+        self.clear()
+        return errors
+
+    def __enter__(self) -> OpenBench:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def _close_all(devices: list[tuple[str, Any]]) -> dict[str, BaseException]:
+    errors: dict[str, BaseException] = {}
+    for dev_id, dev in reversed(devices):
+        try:
+            dev.close()
+        except Exception as exc:  # keep closing the others
+            log.warning("closing device %s failed: %s: %s", dev_id, type(exc).__name__, exc)
+            errors[dev_id] = exc
+    return errors
+
+
+def open_bench(
+    config: BenchConfig, *, simulate: bool = False, timeout_s: float = 10.0
+) -> OpenBench:
+    """Construct and open every device of ``config``; usable as a context manager.
+
+    Every driver is resolved (and its kind checked) before any device is opened. Each
+    device is constructed as ``cls(device_id, **params)`` and opened with
+    ``open(timeout_s)``. If one fails (or the process is interrupted), the devices
+    already opened are closed again, last first, before the error propagates: nothing
+    is left half-open.
+
+    Parameters
+    ----------
+    config : BenchConfig
+    simulate : bool
+        Swap every device for its simulated twin first (:func:`with_simulated_drivers`).
+    timeout_s : float
+        Passed to each device's ``open``.
+
+    Raises
+    ------
+    RegistryError
+        A driver is unknown, cannot load, or is of another kind (nothing opened).
+    BenchOpenError
+        A device failed to construct or open (the others are closed again).
+    """
+    if not (timeout_s > 0):
+        raise ValueError(f"timeout_s must be > 0, got {timeout_s!r}")
+    if simulate:
+        config = with_simulated_drivers(config)
+    classes = [(d, resolve(d.driver, d.kind)) for d in config.devices]
+    bench = OpenBench()
+    for dev_cfg, cls in classes:
+        device = None
+        try:
+            device = cls(dev_cfg.id, **dev_cfg.params)
+            log.debug("opening %s (%s)", dev_cfg.id, dev_cfg.driver)
+            device.open(timeout_s)
+        except BaseException as exc:
+            pending = list(bench.items())
+            if device is not None:  # a failed open may have acquired something
+                pending.append((dev_cfg.id, device))
+            errors = _close_all(pending)
+            bench.clear()
+            if not isinstance(exc, Exception):
+                raise
+            closed = [i for i, _ in pending if i != dev_cfg.id and i not in errors]
+            errors.pop(dev_cfg.id, None)
+            raise BenchOpenError(dev_cfg.id, dev_cfg.driver, exc, closed, errors) from exc
+        bench[dev_cfg.id] = device
+    return bench
