@@ -148,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
         nargs=argparse.REMAINDER,
         help="options of the suite (--quick, --out DIR, --only ...)",
     )
+    from instrument import bench_cli
+
+    bench_cli.add_subcommands(sub)
     return parser
 
 
@@ -199,6 +202,10 @@ def main(argv: list[str] | None = None) -> int:
             from recon.benchmarks.run import main as bench_main
 
             return int(bench_main(args.rest) or 0)
+        elif args.command in {"validate", "devices"}:
+            from instrument import bench_cli
+
+            return bench_cli.run(args)
     except ReconInputError as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2

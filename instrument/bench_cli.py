@@ -1,0 +1,175 @@
+"""The bench subcommands of ``diffuserlab``: ``validate`` and ``devices``.
+
+``diffuserlab validate BENCH.toml [--simulate]``
+    Check a bench file. Prints ``ok: N devices ...`` (exit 0), or every problem on
+    its own line, ``diffuserlab: error: FILE:LINE: LOCATION: MESSAGE; fix: FIX``
+    (exit 2). With ``--simulate`` the drivers are not looked up as written: every
+    device is checked with its simulated twin, so a lab file validates on a machine
+    without the hardware drivers; the swaps are listed.
+
+``diffuserlab devices [BENCH.toml] [--simulate] [--timeout S]``
+    Open every device of the bench (without a file: the built-in simulated bench),
+    print one line per device (id, kind, driver, status) and close them again.
+    Exit 2 on a bad bench file or driver, 1 if a device fails to open (the ones
+    opened before it are closed again).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import Counter
+from typing import Any
+
+from instrument.config import (
+    BenchConfig,
+    BenchConfigError,
+    default_bench,
+    load_bench,
+    with_simulated_drivers,
+)
+
+__all__ = ["add_subcommands", "run"]
+
+_PLURAL = {"camera": "cameras", "stage": "stages", "led_array": "led_arrays", "slm": "slms"}
+
+
+def add_subcommands(sub: argparse._SubParsersAction) -> None:
+    """Add ``validate`` and ``devices`` to the ``diffuserlab`` subparsers."""
+    vp = sub.add_parser(
+        "validate",
+        help="check a bench TOML file (every problem with its location and fix)",
+        description="Check a bench TOML file; exit 2 listing every problem.",
+    )
+    vp.add_argument("bench", help="bench TOML file (see examples/bench-*.toml)")
+    vp.add_argument(
+        "--simulate",
+        action="store_true",
+        help="check with every device swapped for its simulated twin "
+        "(a lab file on a machine without the hardware drivers)",
+    )
+    dp = sub.add_parser(
+        "devices",
+        help="open every device of a bench and print its kind, driver and status",
+        description="Open every device, print its status, close them again. Without a "
+        "file: the built-in simulated bench.",
+    )
+    dp.add_argument("bench", nargs="?", default=None, help="bench TOML file (default: built-in)")
+    dp.add_argument(
+        "--simulate", action="store_true", help="use the simulated twin of every device"
+    )
+    dp.add_argument(
+        "--timeout",
+        type=float,
+        default=10.0,
+        dest="timeout_s",
+        help="seconds each device may take to open (default 10)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``validate`` or ``devices``; returns the exit status."""
+    if args.command == "validate":
+        return _validate(args.bench, simulate=args.simulate)
+    if args.command == "devices":
+        return _devices(args.bench, simulate=args.simulate, timeout_s=args.timeout_s)
+    raise ValueError(f"not a bench subcommand: {args.command!r}")
+
+
+def _error(line: str) -> None:
+    print(f"diffuserlab: error: {line}", file=sys.stderr)
+
+
+def _report(exc: BenchConfigError) -> int:
+    for line in exc.lines():
+        _error(line)
+    return 2
+
+
+def _summary(config: BenchConfig) -> str:
+    counts = Counter(d.kind for d in config.devices)
+    parts = ", ".join(
+        f"{n} {kind if n == 1 else _PLURAL[kind]}" for kind, n in sorted(counts.items())
+    )
+    n = len(config.devices)
+    return (
+        f"{n} device{'s' if n != 1 else ''} ({parts}), bench {config.name!r} "
+        f"({', '.join(config.branches)})"
+    )
+
+
+def _load(path: str, simulate: bool) -> tuple[BenchConfig, BenchConfig]:
+    """(as written, as it will be driven); raises BenchConfigError."""
+    from instrument.registry import driver_problems
+
+    config = load_bench(path, check_drivers=not simulate)
+    if not simulate:
+        return config, config
+    twin = with_simulated_drivers(config)
+    problems = driver_problems([d.model_dump() for d in twin.devices])
+    if problems:
+        raise BenchConfigError(problems, path)
+    return config, twin
+
+
+def _validate(path: str, *, simulate: bool) -> int:
+    try:
+        config, driven = _load(path, simulate)
+    except BenchConfigError as exc:
+        return _report(exc)
+    print(f"ok: {_summary(config)} in {path}")
+    if simulate:
+        for orig, twin in zip(config.devices, driven.devices, strict=True):
+            dropped = sorted(set(orig.params) - set(twin.params))
+            note = f" (params dropped: {', '.join(dropped)})" if dropped else ""
+            print(f"  {orig.id}: {orig.driver} -> {twin.driver}{note}")
+    return 0
+
+
+def _value(v: Any, limit: int = 40) -> str:
+    text = v if isinstance(v, str) else json.dumps(v, separators=(",", ":"), default=str)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _status_text(status: dict[str, Any]) -> str:
+    state = "disconnected" if status.get("disconnected") else (
+        "open" if status.get("is_open") else "closed"
+    )
+    skip = {"device_id", "kind", "driver", "is_open", "disconnected"}
+    rest = " ".join(f"{k}={_value(v)}" for k, v in status.items() if k not in skip)
+    return f"{state} {rest}".rstrip()
+
+
+def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
+    from instrument.registry import BenchOpenError, RegistryError, open_bench
+
+    if not (timeout_s > 0):
+        _error(f"--timeout must be a positive number of seconds, got {timeout_s}")
+        return 2
+    try:
+        config, driven = _load(path, simulate) if path else (default_bench(),) * 2
+    except BenchConfigError as exc:
+        return _report(exc)
+    source = path or "built-in simulated bench"
+    try:
+        bench = open_bench(driven, timeout_s=timeout_s)
+    except RegistryError as exc:
+        _error(str(exc))
+        return 2
+    except BenchOpenError as exc:
+        _error(str(exc))
+        return 1
+    failed = 0
+    with bench:
+        print(f"{_summary(config)} from {source}{' (simulated twins)' if simulate else ''}:")
+        w_id = max(len(d.id) for d in driven.devices)
+        w_drv = max(len(d.driver) for d in driven.devices)
+        for dev in driven.devices:
+            try:
+                status = _status_text(bench[dev.id].status())
+            except Exception as exc:  # report it, keep listing the others
+                status = f"status failed: {type(exc).__name__}: {exc}"
+                failed += 1
+            print(f"  {dev.id:<{w_id}}  {dev.kind:<9}  {dev.driver:<{w_drv}}  {status}")
+    return 1 if failed else 0
