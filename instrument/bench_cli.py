@@ -22,13 +22,7 @@ import sys
 from collections import Counter
 from typing import Any
 
-from instrument.config import (
-    BenchConfig,
-    BenchConfigError,
-    default_bench,
-    load_bench,
-    with_simulated_drivers,
-)
+from instrument.config import BenchConfig, BenchConfigError, default_bench, load_bench
 
 __all__ = ["add_subcommands", "run"]
 
@@ -101,16 +95,8 @@ def _summary(config: BenchConfig) -> str:
 
 def _load(path: str, simulate: bool) -> tuple[BenchConfig, BenchConfig]:
     """(as written, as it will be driven); raises BenchConfigError."""
-    from instrument.registry import driver_problems
-
-    config = load_bench(path, check_drivers=not simulate)
-    if not simulate:
-        return config, config
-    twin = with_simulated_drivers(config)
-    problems = driver_problems([d.model_dump() for d in twin.devices])
-    if problems:
-        raise BenchConfigError(problems, path)
-    return config, twin
+    driven = load_bench(path, simulate=simulate)
+    return (load_bench(path, check_drivers=False) if simulate else driven), driven
 
 
 def _validate(path: str, *, simulate: bool) -> int:
@@ -133,8 +119,10 @@ def _value(v: Any, limit: int = 40) -> str:
 
 
 def _status_text(status: dict[str, Any]) -> str:
-    state = "disconnected" if status.get("disconnected") else (
-        "open" if status.get("is_open") else "closed"
+    state = (
+        "disconnected"
+        if status.get("disconnected")
+        else ("open" if status.get("is_open") else "closed")
     )
     skip = {"device_id", "kind", "driver", "is_open", "disconnected"}
     rest = " ".join(f"{k}={_value(v)}" for k, v in status.items() if k not in skip)

@@ -187,21 +187,30 @@ def _check_number(key: str, value: Any, *, integer: bool = False) -> None:
             raise PydanticCustomError(
                 "unit",
                 "expected {unit_word} as a number, got {got}",
-                {"unit_word": _UNIT_WORDS[unit], "got": repr(value),
-                 "fix": _unit_fix(key, unit, value)},
+                {
+                    "unit_word": _UNIT_WORDS[unit],
+                    "got": repr(value),
+                    "fix": _unit_fix(key, unit, value),
+                },
             )
         raise PydanticCustomError(
             "number",
             "expected {what}, got {got}",
-            {"what": what, "got": repr(value),
-             "fix": f"write {key} = <{what[2:].strip()}> without quotes"},
+            {
+                "what": what,
+                "got": repr(value),
+                "fix": f"write {key} = <{what[2:].strip()}> without quotes",
+            },
         )
     if isinstance(value, bool):
         raise PydanticCustomError(
             "number",
             "expected {what}, got {got}",
-            {"what": what, "got": str(value).lower(),
-             "fix": f"write {key} as {what}, not true/false"},
+            {
+                "what": what,
+                "got": str(value).lower(),
+                "fix": f"write {key} as {what}, not true/false",
+            },
         )
 
 
@@ -272,9 +281,7 @@ class _Section(BaseModel):
         return value
 
 
-def _pair_ordered(
-    model: _Section, name: str, *, strict: bool
-) -> None:
+def _pair_ordered(model: _Section, name: str, *, strict: bool) -> None:
     lo, hi = getattr(model, name)
     if lo < hi or (not strict and lo == hi):
         return
@@ -409,8 +416,10 @@ class DeviceConfig(_Section):
             raise PydanticCustomError(
                 "bench_rules",
                 "{summary}",
-                {"summary": "; ".join(f"{'.'.join(p[0])}: {p[1]}" for p in problems),
-                 "problems": problems},
+                {
+                    "summary": "; ".join(f"{'.'.join(p[0])}: {p[1]}" for p in problems),
+                    "problems": problems,
+                },
             )
         return value
 
@@ -537,8 +546,11 @@ class BenchConfig(_Section):
             raise PydanticCustomError(
                 "bench_rules",
                 "{summary}",
-                {"summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
-                 "problems": problems, "absolute": True},
+                {
+                    "summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
+                    "problems": problems,
+                    "absolute": True,
+                },
             )
         return self
 
@@ -727,7 +739,9 @@ def _problems_from_validation(exc: ValidationError) -> list[Problem]:
 # ------------------------------------------------------------- TOML line locator
 
 _HEADER_RE = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
-_KEY_RE = re.compile(r"""^\s*((?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*'))*)\s*=""")  # noqa: E501
+_KEY_RE = re.compile(
+    r"""^\s*((?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*')(?:\s*\.\s*(?:[A-Za-z0-9_-]+|"[^"]*"|'[^']*'))*)\s*="""
+)  # noqa: E501
 
 
 def _split_key(text: str) -> list[str]:
@@ -819,19 +833,28 @@ def _syntax_problem(exc: tomllib.TOMLDecodeError, text: str) -> Problem:
     if m:
         line, col = int(m.group(1)), int(m.group(2))
         msg = msg[: m.start()].strip()
+    elif msg.endswith("(at end of document)"):
+        line = max(1, len(text.splitlines()))
+        msg = msg[: -len("(at end of document)")].strip() + " (at the end of the file)"
     snippet = line_text = ""
     lines = text.splitlines()
     if line is not None and 1 <= line <= len(lines):
         line_text = lines[line - 1]
         snippet = f": {line_text.strip()!r}"
-    where = f"line {line}, column {col}" if line is not None else "unknown position"
+    where = f"line {line}" + (f", column {col}" if col is not None else "")
+    if line is None:
+        where = "unknown position"
     return Problem(
         "(TOML syntax)", f"{msg} at {where}{snippet}", _syntax_fix(msg, line_text), line, col
     )
 
 
 def parse_bench(
-    text: str, *, source: str | None = None, check_drivers: bool = True
+    text: str,
+    *,
+    source: str | None = None,
+    check_drivers: bool = True,
+    simulate: bool = False,
 ) -> BenchConfig:
     """Validate TOML text as a bench; raises :class:`BenchConfigError` with every problem.
 
@@ -843,7 +866,11 @@ def parse_bench(
         Name used in messages (a file path).
     check_drivers : bool
         Also check every driver name in the registry and its kind (imports the
-        drivers). Off for files meant for another machine (see ``validate --simulate``).
+        drivers).
+    simulate : bool
+        Return the bench with every device swapped for its simulated twin
+        (:func:`with_simulated_drivers`); the drivers checked are then the twins, so a
+        lab file validates on a machine without its hardware drivers.
     """
     try:
         raw = tomllib.loads(text)
@@ -868,18 +895,28 @@ def parse_bench(
     if check_drivers:
         from instrument.registry import driver_problems
 
-        problems += driver_problems(raw.get("devices"))
+        devices = raw.get("devices")
+        if simulate and isinstance(devices, list):
+            devices = [
+                {**d, "driver": SIMULATED_DRIVERS[d["kind"]]}
+                if isinstance(d, dict) and d.get("kind") in SIMULATED_DRIVERS
+                else d
+                for d in devices
+            ]
+        problems += driver_problems(devices)
     if problems:
         index = _line_index(text)
         located = [_locate(p, index) for p in problems]
         located.sort(key=lambda p: (p.line is None, p.line or 0))
         raise BenchConfigError(located, source)
     assert config is not None
-    return config
+    return with_simulated_drivers(config) if simulate else config
 
 
-def load_bench(path: str | Path, *, check_drivers: bool = True) -> BenchConfig:
-    """Read and validate a bench TOML file.
+def load_bench(
+    path: str | Path, *, check_drivers: bool = True, simulate: bool = False
+) -> BenchConfig:
+    """Read and validate a bench TOML file (options as in :func:`parse_bench`).
 
     Raises
     ------
@@ -907,7 +944,7 @@ def load_bench(path: str | Path, *, check_drivers: bool = True) -> BenchConfig:
         raise BenchConfigError(
             [Problem("(file)", "not UTF-8 text", "save the file as UTF-8 TOML", line)], str(path)
         ) from None
-    return parse_bench(text, source=str(path), check_drivers=check_drivers)
+    return parse_bench(text, source=str(path), check_drivers=check_drivers, simulate=simulate)
 
 
 # ------------------------------------------------------------------- default bench
@@ -1061,9 +1098,7 @@ def to_toml(config: BenchConfig, *, comments: bool = True) -> str:
         out += _toml_table(getattr(config, section), data[section], comments=comments)
     for dev, raw in zip(config.devices, data["devices"], strict=True):
         out += ["", "[[devices]]"]
-        out += _toml_table(
-            dev, {k: raw[k] for k in ("id", "kind", "driver")}, comments=False
-        )
+        out += _toml_table(dev, {k: raw[k] for k in ("id", "kind", "driver")}, comments=False)
         params = {k: v for k, v in raw["params"].items() if v is not None}
         if params:
             out += ["", "[devices.params]"]

@@ -242,14 +242,16 @@ def driver_problems(devices: Any) -> list[Problem]:
         try:
             resolve(name, kind)
         except UnknownDriverError as exc:
-            same_kind = [n for n, k in available().items() if kind is None or k == kind]
+            usable = [n for n, k in available().items() if kind is None or k == kind]
+            what = f"{kind} drivers" if kind else "drivers"
             problems.append(
                 Problem(
                     f"devices[{i}].driver",
                     f"unknown driver {name!r}{label}",
-                    f"use one of: {', '.join(same_kind) or ', '.join(exc.known) or 'none'} "
-                    "(or install the plugin that provides it; `diffuserlab validate "
-                    "--simulate` checks the file with simulated twins)",
+                    f"install the plugin that provides {name!r} (entry-point group "
+                    f"{ENTRY_POINT_GROUP}) or use one of the {what} installed here: "
+                    f"{', '.join(usable or exc.known) or 'none'}; `diffuserlab validate "
+                    "--simulate` checks the file with simulated twins",
                 )
             )
         except DriverKindError as exc:

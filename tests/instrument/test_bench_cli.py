@@ -1,0 +1,168 @@
+"""``diffuserlab validate`` and ``diffuserlab devices``: exit codes and output."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from instrument.cli import build_parser, main
+from instrument.config import default_bench, to_toml
+from tests.instrument.test_registry import EVENTS, OPENED, use_fakes
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+SIM = str(EXAMPLES / "bench-simulated.toml")
+LAB = str(EXAMPLES / "bench-lab.toml")
+
+
+@pytest.fixture
+def fakes(monkeypatch):
+    use_fakes(monkeypatch)  # simulated-* are the recording fakes here
+
+
+def write(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "bench.toml"
+    path.write_text(text)
+    return str(path)
+
+
+def test_validate_ok(fakes, capsys):
+    assert main(["validate", SIM]) == 0
+    out, err = capsys.readouterr()
+    assert out == (
+        "ok: 5 devices (1 camera, 1 led_array, 1 slm, 2 stages), bench 'simulated' "
+        f"(lensless, holography) in {SIM}\n"
+    )
+    assert err == ""
+
+
+def test_validate_reports_every_problem_with_location_and_fix(fakes, capsys, tmp_path):
+    text = (
+        to_toml(default_bench())
+        .replace("diffuser_sensor_distance_mm = 8.9", 'diffuser_sensor_distance_mm = "5 cm"')
+        .replace('id = "slm"', 'id = "camera"')
+        .replace('driver = "simulated-led-array"', 'driver = "illuminate"')
+    )
+    path = write(tmp_path, text)
+    assert main(["validate", path]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.splitlines()
+    assert len(lines) == 3
+    assert all(line.startswith(f"diffuserlab: error: {path}:") for line in lines)
+    assert all("; fix: " in line for line in lines)
+    assert lines[0] == (
+        f"diffuserlab: error: {path}:14: geometry.diffuser_sensor_distance_mm: expected "
+        "millimetres as a number, got '5 cm'; fix: '5 cm' is 50 mm: write "
+        "diffuser_sensor_distance_mm = 50"
+    )
+    numbered = text.splitlines()
+    illuminate = numbered.index('driver = "illuminate"') + 1
+    second_camera = [n for n, t in enumerate(numbered, 1) if t == 'id = "camera"'][1]
+    assert f":{illuminate}: devices[2].driver: unknown driver 'illuminate'" in lines[1]
+    assert f":{second_camera}: devices[3].id: duplicate device id 'camera'" in lines[2]
+
+
+def test_validate_syntax_error_and_missing_file(fakes, capsys, tmp_path):
+    path = write(tmp_path, 'name = "x"\n\n[geometry]\naperture_mm = [5, 4\n')
+    assert main(["validate", path]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"diffuserlab: error: {path}:4: (TOML syntax): Unclosed array")
+    assert len(err.splitlines()) == 1
+
+    assert main(["validate", str(tmp_path / "nope.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "nope.toml: (file): cannot read: No such file or directory; fix: check the path" in err
+
+
+def test_validate_lab_bench_unknown_drivers_then_simulated(fakes, capsys):
+    assert main(["validate", LAB]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert [line.split(": ")[4] for line in err] == [
+        f"unknown driver {name!r} of device {dev!r}; fix"
+        for name, dev in [
+            ("aravis", "camera"),
+            ("thorlabs-apt", "source_stage"),
+            ("illuminate", "led_array"),
+            ("fullscreen-slm", "slm"),
+            ("zaber-ascii", "mask_stage"),
+        ]
+    ]
+    assert all("--simulate" in line for line in err)
+
+    assert main(["validate", LAB, "--simulate"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("ok: 5 devices") and "'lab-diffusercam'" in out[0]
+    assert out[1] == (
+        "  camera: aravis -> simulated-camera (params dropped: camera_name, packet_size, "
+        "pixel_format)"
+    )
+    assert out[5] == (
+        "  mask_stage: zaber-ascii -> simulated-stage (params dropped: baudrate, "
+        "device_numbers, port)"
+    )
+
+
+def test_devices_default_bench(fakes, capsys):
+    assert main(["devices"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == (
+        "5 devices (1 camera, 1 led_array, 1 slm, 2 stages), bench 'simulated' "
+        "(lensless, holography) from built-in simulated bench:"
+    )
+    rows = [line.split() for line in out[1:]]
+    assert [r[:4] for r in rows] == [
+        ["camera", "camera", "simulated-camera", "open"],
+        ["source_stage", "stage", "simulated-stage", "open"],
+        ["led_array", "led_array", "simulated-led-array", "open"],
+        ["slm", "slm", "simulated-slm", "open"],
+        ["mask_stage", "stage", "simulated-stage", "open"],
+    ]
+    assert rows[0][4:] == ["frames=0", "params=[]"]
+    assert not any(d.is_open for d in OPENED.values()) and len(OPENED) == 5
+
+
+def test_devices_lab_file_needs_simulate(fakes, capsys):
+    assert main(["devices", LAB]) == 2
+    assert "unknown driver 'aravis'" in capsys.readouterr().err
+    assert OPENED == {}
+    assert main(["devices", LAB, "--simulate", "--timeout", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "from " + LAB + " (simulated twins):" in out
+    assert 'params=["exposure_s"]' in out
+    assert {d.timeout_s for d in OPENED.values()} == {3.0}
+
+
+def test_devices_open_failure_exits_1_and_closes_the_others(fakes, capsys, tmp_path):
+    text = to_toml(default_bench()).replace(
+        'driver = "simulated-slm"', 'driver = "simulated-slm"\n\n[devices.params]\nfail_open = true'
+    )
+    assert main(["devices", write(tmp_path, text)]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith(
+        "diffuserlab: error: opening device 'slm' (driver 'simulated-slm') failed: TimeoutError"
+    )
+    assert "closed again: camera, source_stage, led_array" in captured.err
+    assert not any(d.is_open for d in OPENED.values())
+    assert EVENTS[-3:] == [("close", "led_array"), ("close", "source_stage"), ("close", "camera")]
+
+
+def test_devices_bad_input_exits_2(fakes, capsys, tmp_path):
+    assert main(["devices", str(tmp_path / "missing.toml")]) == 2
+    assert capsys.readouterr().err.startswith("diffuserlab: error: ")
+    assert main(["devices", "--timeout", "0"]) == 2
+    assert "--timeout must be a positive number" in capsys.readouterr().err
+    assert OPENED == {}
+
+
+def test_existing_subcommands_still_parse():
+    parser = build_parser()
+    assert parser.parse_args(["recon", "--psf", "p", "--raw", "r"]).command == "recon"
+    assert parser.parse_args(["demo"]).command == "demo"
+    assert parser.parse_args(["benchmark", "recon", "--quick"]).rest == ["--quick"]
+    args = parser.parse_args(["devices", "b.toml", "--simulate"])
+    assert (args.bench, args.simulate, args.timeout_s) == ("b.toml", True, 10.0)
+    with pytest.raises(SystemExit) as info:
+        parser.parse_args(["validate"])
+    assert info.value.code == 2

@@ -1,0 +1,374 @@
+"""Bench configuration: the default bench, TOML round trip, and one clear message
+(location, TOML line, fix) for every kind of invalid file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from instrument.config import (
+    SIMULATED_DRIVERS,
+    BenchConfig,
+    BenchConfigError,
+    DeviceConfig,
+    GeometryConfig,
+    Problem,
+    default_bench,
+    load_bench,
+    parse_bench,
+    to_toml,
+    with_simulated_drivers,
+)
+from tests.instrument.test_registry import use_fakes
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+DEFAULT_TOML = to_toml(default_bench())
+
+
+@pytest.fixture(autouse=True)
+def _fake_drivers(monkeypatch):
+    use_fakes(monkeypatch)  # simulated-* and fake-* names, without drivers.simulated
+
+
+def line_of(text: str, fragment: str, nth: int = 0) -> int:
+    """1-based number of the line holding the nth occurrence of ``fragment``."""
+    hits = [n for n, line in enumerate(text.splitlines(), 1) if fragment in line]
+    return hits[nth]
+
+
+def problems(text: str, **kw) -> list[Problem]:
+    with pytest.raises(BenchConfigError) as info:
+        parse_bench(text, source="bench.toml", **kw)
+    return info.value.problems
+
+
+def only(text: str, location: str, **kw) -> Problem:
+    found = problems(text, **kw)
+    assert [p.location for p in found] == [location], [str(p) for p in found]
+    return found[0]
+
+
+def edit(old: str, new: str, nth: int = 0) -> str:
+    """DEFAULT_TOML with the nth occurrence of ``old`` replaced."""
+    parts = DEFAULT_TOML.split(old)
+    assert len(parts) > nth + 1, old
+    return old.join(parts[: nth + 1]) + new + old.join(parts[nth + 1 :])
+
+
+# ---------------------------------------------------------------- valid benches
+
+
+def test_default_bench_has_the_simulated_devices():
+    bench = default_bench()
+    kinds = {d.id: (d.kind, d.driver) for d in bench.devices}
+    assert kinds == {
+        "camera": ("camera", "simulated-camera"),
+        "source_stage": ("stage", "simulated-stage"),
+        "led_array": ("led_array", "simulated-led-array"),
+        "slm": ("slm", "simulated-slm"),
+        "mask_stage": ("stage", "simulated-stage"),
+    }
+    assert bench.device("source_stage").params["axes"] == ["x", "y", "z"]
+    assert bench.device("mask_stage").params["axes"] == ["x", "y", "z", "tip", "tilt", "rotation"]
+    assert bench.device("led_array").params["shape"] == [32, 32]
+    assert bench.branches == ["lensless", "holography"]
+    with pytest.raises(KeyError, match="no device 'nope'"):
+        bench.device("nope")
+
+
+def test_default_bench_round_trips_through_toml(tmp_path):
+    bench = default_bench()
+    assert parse_bench(DEFAULT_TOML) == bench
+    path = tmp_path / "bench.toml"
+    path.write_text(DEFAULT_TOML)
+    assert load_bench(path) == bench
+    assert to_toml(load_bench(path)) == DEFAULT_TOML
+    assert "# distance from the diffuser to the sensor, millimetres" in DEFAULT_TOML
+    assert parse_bench(to_toml(bench, comments=False)) == bench
+
+
+def test_to_toml_escapes_strings_and_writes_nested_params():
+    bench = default_bench()
+    cam = bench.devices[0].model_copy(
+        update={
+            "params": {
+                "label": 'say "hi"\\\n\tok \x7f é',
+                "roi": {"x": 0, "w": 1.5},
+                "flags": [True, False],
+                "weird key": 1,
+            }
+        }
+    )
+    odd = bench.model_copy(
+        update={"name": "odd 'name' \"quoted\"", "devices": [cam, *bench.devices[1:]]}
+    )
+    assert parse_bench(to_toml(odd)) == odd
+
+
+def test_example_files_are_valid():
+    assert load_bench(EXAMPLES / "bench-simulated.toml") == default_bench()
+    lab = load_bench(EXAMPLES / "bench-lab.toml", check_drivers=False)
+    assert [d.driver for d in lab.devices] == [
+        "aravis",
+        "thorlabs-apt",
+        "illuminate",
+        "fullscreen-slm",
+        "zaber-ascii",
+    ]
+    sim = load_bench(EXAMPLES / "bench-lab.toml", simulate=True)
+    assert [d.driver for d in sim.devices] == [SIMULATED_DRIVERS[d.kind] for d in lab.devices]
+
+
+def test_with_simulated_drivers_keeps_ids_and_shared_params():
+    lab = load_bench(EXAMPLES / "bench-lab.toml", check_drivers=False)
+    sim = with_simulated_drivers(lab)
+    assert [(d.id, d.kind) for d in sim.devices] == [(d.id, d.kind) for d in lab.devices]
+    assert sim.geometry == lab.geometry and sim.calibration == lab.calibration
+    cam, stage, leds, slm, mask = sim.devices
+    assert cam.params == {"exposure_s": 0.02}
+    assert stage.params == {
+        "axes": ["x", "y", "z"],
+        "limits_mm": lab.devices[1].params["limits_mm"],
+        "speed_mm_s": 2.0,
+    }
+    assert leds.params == {"shape": [32, 32], "pitch_mm": 4.0}
+    assert slm.params == {"shape_px": [1080, 1920], "pixel_pitch_um": 8.0, "bit_depth": 8}
+    assert mask.params == {"axes": ["x", "y", "z", "tip", "tilt", "rotation"]}
+    assert lab.devices[0].driver == "aravis"  # the original is untouched
+
+
+# ------------------------------------------------------------- invalid benches
+
+
+def test_unknown_driver():
+    text = edit('driver = "simulated-slm"', 'driver = "fullscreen-slm"')
+    p = only(text, "devices[3].driver")
+    assert "unknown driver 'fullscreen-slm' of device 'slm'" in p.message
+    assert "simulated-slm" in p.fix and "--simulate" in p.fix
+    assert p.line == line_of(text, "fullscreen-slm")
+    assert parse_bench(text, check_drivers=False).devices[3].driver == "fullscreen-slm"
+    assert parse_bench(text, simulate=True).devices[3].driver == "simulated-slm"
+
+
+def test_driver_of_the_wrong_kind():
+    text = edit('driver = "simulated-led-array"', 'driver = "simulated-stage"')
+    p = only(text, "devices[2].driver")
+    assert "driver 'simulated-stage' of device 'led_array' drives a stage" in p.message
+    assert "kind = 'led_array'" in p.message
+    assert "use a led_array driver (fake-led-array, simulated-led-array)" in p.fix
+    assert p.line == line_of(text, 'driver = "simulated-stage"', 1)
+
+
+def test_duplicate_device_id():
+    text = edit('id = "slm"', 'id = "camera"')
+    p = only(text, "devices[3].id")
+    assert "duplicate device id 'camera' (already used by devices[0])" in p.message
+    assert 'id = "camera_2"' in p.fix
+    assert p.line == line_of(text, 'id = "camera"', 1)
+
+
+def test_missing_fields():
+    text = edit("sensor_pixel_pitch_um = 3.45\n", "")
+    p = only(text, "geometry.sensor_pixel_pitch_um")
+    assert p.message == "missing required key"
+    assert p.fix == "add sensor_pixel_pitch_um = 3.45 under [geometry]"
+    assert p.line == line_of(text, "[geometry]")
+
+    text = edit('driver = "simulated-camera"\n', "")
+    p = only(text, "devices[0].driver")
+    assert 'add driver = "simulated-camera" in the [[devices]] table number 1' in p.fix
+
+    text = DEFAULT_TOML.split("[geometry]")[0]
+    found = problems(text)
+    assert {p.location for p in found} == {"devices", "geometry"}
+    assert any("missing required table [geometry]" in p.message for p in found)
+
+
+def test_wrong_units_are_refused_naming_the_unit():
+    text = edit("diffuser_sensor_distance_mm = 8.9", 'diffuser_sensor_distance_mm = "5 cm"')
+    p = only(text, "geometry.diffuser_sensor_distance_mm")
+    assert str(p) == (
+        "line 14: geometry.diffuser_sensor_distance_mm: expected millimetres as a number, "
+        "got '5 cm'; fix: '5 cm' is 50 mm: write diffuser_sensor_distance_mm = 50"
+    )
+    assert p.line == line_of(text, "5 cm") == 14
+
+    p = only(edit("settle_s = 0.2", 'settle_s = "10 ms"'), "calibration.settle_s")
+    assert "expected seconds as a number, got '10 ms'" in p.message
+    assert "write settle_s = 0.01" in p.fix
+
+    p = only(
+        edit("sensor_pixel_pitch_um = 3.45", 'sensor_pixel_pitch_um = "3.45 um"'),
+        "geometry.sensor_pixel_pitch_um",
+    )
+    assert "expected micrometres" in p.message and "write sensor_pixel_pitch_um = 3.45" in p.fix
+
+    p = only(
+        edit("aperture_mm = [5.5, 4.1]", 'aperture_mm = [5.5, "4 in"]'), "geometry.aperture_mm"
+    )
+    assert "expected millimetres as a number, got '4 in'" in p.message
+    assert "plain number in millimetres" in p.fix
+
+    p = only(edit("n_depths = 32", 'n_depths = "32"'), "calibration.n_depths")
+    assert p.message == "expected an integer, got '32'"
+
+    p = only(edit("settle_s = 0.2", "settle_s = true"), "calibration.settle_s")
+    assert "expected a number, got true" in p.message
+
+
+def test_driver_params_with_units_in_their_names_are_checked_too():
+    text = edit(
+        'axes = ["x", "y", "z"]', 'axes = ["x", "y", "z"]\nspeed_mm_s = 2\nlimit_mm = "2 cm"'
+    )
+    p = only(text, "devices[1].params.limit_mm")
+    assert "expected millimetres as a number, got '2 cm'" in p.message
+    assert "write limit_mm = 20" in p.fix
+    assert p.line == line_of(text, "limit_mm")
+
+
+def test_out_of_range_values():
+    p = only(
+        edit("diffuser_sensor_distance_mm = 8.9", "diffuser_sensor_distance_mm = -1"),
+        "geometry.diffuser_sensor_distance_mm",
+    )
+    assert p.message == "out of range: expected a value in (0, 500] mm, got -1.0"
+    assert p.fix == "set diffuser_sensor_distance_mm within (0, 500] mm"
+
+    p = only(
+        edit("sensor_shape_px = [1200, 1600]", "sensor_shape_px = [1200, 4]"),
+        "geometry.sensor_shape_px",
+    )
+    assert "expected each value in [8, 32768], got [1200, 4]" in p.message
+
+    p = only(
+        edit("z_range_mm = [20.0, 200.0]", "z_range_mm = [200.0, 20.0]"), "calibration.z_range_mm"
+    )
+    assert "minimum" in p.message and p.fix == "write z_range_mm = [20, 200]"
+
+    p = only(edit("wavelength_nm = 532.0", "wavelength_nm = nan"), "geometry.wavelength_nm")
+    assert "expected a value in [200, 2000] nm, got nan" in p.message
+
+
+def test_toml_syntax_error_has_line_and_column():
+    text = edit("aperture_mm = [5.5, 4.1]", "aperture_mm = 5.5 mm")
+    p = only(text, "(TOML syntax)")
+    assert p.line == line_of(text, "aperture_mm = 5.5 mm") and p.column is not None
+    assert f"at line {p.line}, column {p.column}: 'aperture_mm = 5.5 mm'" in p.message
+    assert "without its unit" in p.fix
+
+    p = only('name = "x"\n[geometry\n', "(TOML syntax)")
+    assert p.line == 2 and "line 2" in p.message
+
+    p = only('name = "x"\nname = "y"\n', "(TOML syntax)")
+    assert p.line == 2 and "defined twice" in p.fix
+
+
+def test_unknown_keys_suggest_the_spelling():
+    p = only(edit("settle_s = 0.2", "settle_s = 0.2\nsetle_s = 1"), "calibration.setle_s")
+    assert p.message == "unknown key 'setle_s'"
+    assert p.fix.startswith("did you mean 'settle_s'?")
+
+    p = only(
+        edit('driver = "simulated-camera"', 'driver = "simulated-camera"\nport = "/dev/x"'),
+        "devices[0].port",
+    )
+    assert "driver parameters go under [devices.params]" in p.fix
+
+
+def test_bad_kind_id_axes_and_diffuser():
+    p = only(edit('kind = "led_array"', 'kind = "lamp"'), "devices[2].kind")
+    assert "expected 'camera', 'stage', 'led_array' or 'slm', got 'lamp'" in p.message
+
+    p = only(edit('id = "slm"', 'id = "My SLM"'), "devices[3].id")
+    assert "invalid device id 'My SLM'" in p.message and p.fix == 'write id = "my_slm"'
+
+    p = only(edit('"tilt"', '"tlit"'), "devices[4].params.axes")
+    assert "unknown stage axis name(s) ['tlit']" in p.message and "'tlit' -> 'tilt'" in p.fix
+
+    p = only(edit('axes = ["x", "y", "z"]', 'axes = ["x", "x"]'), "devices[1].params.axes")
+    assert "duplicate stage axis name(s) ['x']" in p.message
+
+    text = edit('axes = ["x", "y", "z"]\n', "")
+    p = only(text, "devices[1].params.axes")
+    assert "a stage lists its axes in params.axes" in p.message
+    assert p.line == line_of(text, "[devices.params]")  # the table to add it to
+
+    p = only(edit('diffuser_kind = "smooth"', 'diffuser_kind = "rough"'), "geometry.diffuser_kind")
+    assert "expected 'smooth' or 'microlens', got 'rough'" in p.message
+
+
+def test_bench_rules_one_camera_and_an_slm():
+    text = edit(
+        'kind = "slm"\ndriver = "simulated-slm"', 'kind = "camera"\ndriver = "simulated-camera"'
+    )
+    found = problems(text)
+    locs = {p.location: p for p in found}
+    assert set(locs) == {"devices[3].kind", "devices"}
+    assert "a lensless bench has exactly one camera" in locs["devices[3].kind"].message
+    assert "found 2: devices[0] 'camera', devices[3] 'slm'" in locs["devices[3].kind"].message
+    assert "a holography bench needs at least one SLM" in locs["devices"].message
+
+    text = edit('branches = ["lensless", "holography"]', 'branches = ["holography"]')
+    assert parse_bench(text).branches == ["holography"]
+    no_cam = text.replace(
+        'kind = "camera"\ndriver = "simulated-camera"',
+        'kind = "led_array"\ndriver = "simulated-led-array"',
+    )
+    assert len(parse_bench(no_cam).devices) == 5  # the camera rule is for lensless benches
+    p = only(
+        edit('branches = ["lensless", "holography"]', 'branches = ["lensless"]').replace(
+            'kind = "camera"\ndriver = "simulated-camera"',
+            'kind = "led_array"\ndriver = "simulated-led-array"',
+        ),
+        "devices",
+    )
+    assert "found none" in p.message and 'kind = "camera"' in p.fix
+
+
+def test_every_problem_is_reported_at_once():
+    text = (
+        edit('id = "slm"', 'id = "camera"')
+        .replace("diffuser_sensor_distance_mm = 8.9", 'diffuser_sensor_distance_mm = "9 mm"')
+        .replace('driver = "simulated-led-array"', 'driver = "illuminate"')
+        .replace("n_depths = 32", "n_depths = 0")
+    )
+    with pytest.raises(BenchConfigError) as info:
+        parse_bench(text, source="lab.toml")
+    err = info.value
+    assert [p.location for p in err.problems] == [
+        "geometry.diffuser_sensor_distance_mm",
+        "calibration.n_depths",
+        "devices[2].driver",
+        "devices[3].id",
+    ]
+    assert str(err).startswith("lab.toml: 4 problems in the bench configuration:\n")
+    assert err.lines()[0].startswith("lab.toml:14: geometry.diffuser_sensor_distance_mm: ")
+    assert all("; fix: " in line for line in err.lines())
+
+
+def test_unreadable_files(tmp_path):
+    with pytest.raises(BenchConfigError, match=r"missing\.toml: \(file\): cannot read: No such"):
+        load_bench(tmp_path / "missing.toml")
+    with pytest.raises(BenchConfigError, match="not a directory"):
+        load_bench(tmp_path)
+    bad = tmp_path / "latin1.toml"
+    bad.write_bytes(b'name = "x"\ndescription = "caf\xe9"\n')
+    with pytest.raises(BenchConfigError) as info:
+        load_bench(bad)
+    assert info.value.problems[0].line == 2 and "UTF-8" in str(info.value)
+
+
+def test_models_refuse_bad_values_from_python_too():
+    with pytest.raises(ValidationError, match="expected millimetres as a number"):
+        GeometryConfig(
+            sensor_pixel_pitch_um=3.45,
+            sensor_shape_px=(10, 10),
+            diffuser_sensor_distance_mm="5 cm",
+            aperture_mm=(1, 1),
+            diffuser_kind="smooth",
+        )
+    cam = DeviceConfig(id="cam", kind="camera", driver="simulated-camera")
+    with pytest.raises(ValidationError, match="duplicate device id 'cam'"):
+        BenchConfig(name="b", devices=[cam, cam], geometry=default_bench().geometry)
