@@ -1,0 +1,406 @@
+"""The device lifecycle shared by every interface: :class:`Device`.
+
+The public methods of a device validate their arguments, keep state, log, and
+call private ``_do_*`` hooks that a driver implements (the pattern of
+python-microscope's ``microscope.abc``). A driver therefore never re-implements
+argument checks, the open/close bookkeeping or the settings cache.
+
+Hooks every driver implements (called only while open, except ``_do_open``):
+
+``_do_open(timeout_s)``
+    Connect; raise :class:`~drivers.errors.DeviceDisconnectedError` when the
+    device is absent or the kind's timeout error when it does not answer.
+``_do_close()``
+    Release the connection; must tolerate a device that has gone away.
+``_do_get_info() -> Mapping``
+    Fixed properties read once per open (sensor shape, axes, geometry, ...).
+``_do_get_settings() -> Mapping``
+    The device's current value of every name in ``_SETTINGS``.
+``_do_apply(name, value) -> value | None``
+    Send one validated setting; return the value the device actually took
+    (read back) or None when it took ``value`` as given.
+
+Optional hooks: ``_do_check_connection()``, ``_do_status()``, ``_before_close()``,
+``_on_open()``, ``_save_state()`` / ``_restore_state()`` (non-setting state such as
+a displayed pattern, re-established after a reconnect),
+``_now_s()`` and ``_sleep_s()`` (a simulated device runs them on its clock).
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Iterator, Mapping
+from typing import Any, ClassVar
+
+import numpy as np
+
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceError,
+    DeviceStateError,
+    DeviceTimeoutError,
+    DeviceValueError,
+)
+
+__all__ = ["Device", "jsonable"]
+
+
+def jsonable(obj: Any) -> Any:
+    """Return a copy of ``obj`` made of JSON types (dict, list, str, float, int, bool, None).
+
+    Tuples and arrays become lists, numpy scalars Python scalars, mapping keys strings.
+    """
+    if isinstance(obj, Mapping):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, list | tuple):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+class Device(abc.ABC):
+    """A device with one lifecycle: open -> use -> close.
+
+    Parameters
+    ----------
+    device_id : str
+        Name of this device instance, used in every log line and error message.
+    **params
+        Driver-specific connection parameters (port, serial number, ...), kept in
+        :attr:`params`.
+
+    Notes
+    -----
+    ``close()`` is idempotent and never raises for a vanished device; ``open()`` on
+    an open device does nothing. The device is a context manager (opens on entry,
+    closes on exit). Every public method other than ``open``, ``close``,
+    ``reconnect``, ``status`` and ``is_open`` raises
+    :class:`~drivers.errors.DeviceStateError` when the device is not open and
+    :class:`~drivers.errors.DeviceDisconnectedError` once a disconnection has been
+    seen, until :meth:`reconnect` succeeds.
+    """
+
+    #: Kind of device: "camera", "stage", "led_array" or "slm".
+    kind: ClassVar[str] = "device"
+    #: Exception raised when a blocking call of this kind times out.
+    timeout_error: ClassVar[type[DeviceTimeoutError]] = DeviceTimeoutError
+    #: Settable properties, in the order :meth:`apply_settings` applies them.
+    _SETTINGS: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, device_id: str, **params: Any) -> None:
+        if not isinstance(device_id, str) or not device_id.strip():
+            raise DeviceValueError(
+                repr(device_id), "device_id must be a non-empty string", "pass a name like 'cam0'"
+            )
+        self.device_id = device_id
+        self.params = dict(params)
+        self._is_open = False
+        self._disconnected = False
+        self._info: dict[str, Any] = {}
+        self._values: dict[str, Any] = {}
+        self._log = logging.getLogger(f"drivers.{self.kind}")
+
+    def __repr__(self) -> str:
+        state = "open" if self._is_open else "closed"
+        return f"<{type(self).__name__} {self.device_id!r} ({state})>"
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def is_open(self) -> bool:
+        """True between a successful :meth:`open` and :meth:`close`."""
+        return self._is_open
+
+    def open(self, timeout_s: float = 5.0) -> None:
+        """Connect to the device and read its fixed properties and current settings.
+
+        Parameters
+        ----------
+        timeout_s : float
+            Longest time to wait for the device to answer, in seconds.
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The device is absent.
+        DeviceTimeoutError
+            The kind's timeout error: the device did not answer in time.
+        """
+        timeout_s = self._check_timeout(timeout_s)
+        if self._is_open:
+            return
+        with self._io():
+            self._do_open(timeout_s)
+            try:
+                self._info = dict(self._do_get_info())
+                self._values = dict(self._do_get_settings())
+            except BaseException:
+                with contextlib.suppress(DeviceError):
+                    self._do_close()
+                raise
+        self._is_open = True
+        self._disconnected = False
+        self._on_open()
+        self._log.info("%s: opened (%s)", self.device_id, type(self).__name__)
+
+    def close(self) -> None:
+        """Release the device. Idempotent; a vanished device is logged, not raised."""
+        if not self._is_open:
+            return
+        try:
+            self._before_close()
+            self._do_close()
+        except DeviceError as exc:
+            self._log.warning("%s: error while closing, ignored: %s", self.device_id, exc)
+        finally:
+            self._is_open = False
+        self._log.info("%s: closed", self.device_id)
+
+    def reconnect(self, timeout_s: float = 5.0) -> None:
+        """Close, open again and re-apply the last settings.
+
+        The settings are the ones in effect before the reconnect (the cache the
+        device kept), so a device that lost power comes back configured. Motion is
+        never replayed: a stage's position is not part of its settings.
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The device is still absent; try again later.
+        """
+        last = dict(self._values)
+        state = self._save_state()
+        self.close()
+        self.open(timeout_s)
+        if last:
+            self.apply_settings(last)
+        with self._io():
+            self._restore_state(state)
+        self._log.info("%s: reconnected, %d settings re-applied", self.device_id, len(last))
+
+    def __enter__(self) -> Device:
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ settings
+    def settings(self) -> dict[str, Any]:
+        """Return a JSON-able snapshot of every settable property.
+
+        Returns
+        -------
+        dict
+            ``{name: value}`` for every name in the order of application; feeding it
+            to :meth:`apply_settings` restores the device's configuration.
+        """
+        self._require_open()
+        return jsonable({name: self._values[name] for name in self._SETTINGS})
+
+    def apply_settings(self, settings: Mapping[str, Any]) -> None:
+        """Validate all of ``settings``, then apply them in the defined order.
+
+        Parameters
+        ----------
+        settings : Mapping
+            A subset of :meth:`settings` (JSON types are accepted).
+
+        Raises
+        ------
+        DeviceValueError
+            An unknown name or a bad value; nothing is applied then.
+        """
+        self._require_open()
+        if not isinstance(settings, Mapping):
+            raise self._error(
+                DeviceValueError, f"settings must be a mapping, got {type(settings).__name__}",
+                "pass a dict such as the one settings() returns",
+            )
+        unknown = sorted(set(settings) - set(self._SETTINGS))
+        if unknown:
+            raise self._error(
+                DeviceValueError, f"unknown settings {unknown}",
+                f"use only {list(self._SETTINGS)}",
+            )
+        pending = dict(self._values)
+        validated: dict[str, Any] = {}
+        for name in self._SETTINGS:
+            if name in settings:
+                value = self._validate_setting(name, settings[name], pending)
+                pending[name] = validated[name] = value
+        self._check_settings(pending)
+        for name, value in validated.items():
+            with self._io():
+                applied = self._do_apply(name, value)
+            self._values[name] = value if applied is None else applied
+            self._log.debug("%s: %s = %r", self.device_id, name, self._values[name])
+
+    def _set(self, name: str, value: Any) -> None:
+        """Property setters go through :meth:`apply_settings`."""
+        self.apply_settings({name: value})
+
+    def _get(self, name: str) -> Any:
+        self._require_open()
+        return self._values[name]
+
+    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
+        """Return ``value`` normalised, or raise DeviceValueError. ``pending`` holds the
+        settings as they will be once the names before ``name`` are applied."""
+        return value
+
+    def _check_settings(self, pending: dict[str, Any]) -> None:  # noqa: B027 (optional hook)
+        """Check constraints between settings (raise DeviceValueError)."""
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> dict[str, Any]:
+        """Return a JSON-able status summary; works on a closed device too.
+
+        Returns
+        -------
+        dict
+            ``device_id``, ``kind``, ``driver``, ``is_open``, ``disconnected`` and,
+            when open, the driver's details (counters, motion state, ...).
+        """
+        out: dict[str, Any] = {
+            "device_id": self.device_id,
+            "kind": self.kind,
+            "driver": type(self).__name__,
+            "is_open": self._is_open,
+            "disconnected": self._disconnected,
+        }
+        if self._is_open and not self._disconnected:
+            with self._io():
+                out.update(self._do_status())
+        return jsonable(out)
+
+    # ------------------------------------------------------------------ helpers
+    def _require_open(self) -> None:
+        if self._disconnected:
+            raise self._error(
+                DeviceDisconnectedError, "the device stopped answering",
+                "check cable and power, then call reconnect()",
+            )
+        if not self._is_open:
+            raise self._error(
+                DeviceStateError, "the device is not open",
+                "call open() first or use the device as a context manager",
+            )
+        with self._io():
+            self._do_check_connection()
+
+    @contextlib.contextmanager
+    def _io(self) -> Iterator[None]:
+        """Wrap hook calls: a disconnection seen here is remembered."""
+        try:
+            yield
+        except DeviceDisconnectedError as exc:
+            if not self._disconnected:
+                self._log.error("%s: disconnected: %s", self.device_id, exc)
+            self._disconnected = True
+            raise
+
+    def _error(self, cls: type[DeviceError], problem: str, fix: str) -> DeviceError:
+        return cls(self.device_id, problem, fix)
+
+    def _timeout(self, problem: str, fix: str) -> DeviceTimeoutError:
+        exc = self.timeout_error(self.device_id, problem, fix)
+        self._log.warning("%s: %s", self.device_id, problem)
+        return exc
+
+    def _check_timeout(self, timeout_s: Any) -> float:
+        return self._float("timeout_s", timeout_s, low=0.0, low_open=True)
+
+    def _float(
+        self, name: str, value: Any, *, low: float | None = None, high: float | None = None,
+        low_open: bool = False,
+    ) -> float:
+        """Return ``value`` as a finite float within [low, high] or raise DeviceValueError."""
+        ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+            value, bool
+        )
+        v = float(value) if ok else math.nan
+        bad = not math.isfinite(v)
+        bad = bad or (low is not None and (v <= low if low_open else v < low))
+        bad = bad or (high is not None and v > high)
+        if bad:
+            lo = "-inf" if low is None else f"{low:g}"
+            hi = "inf" if high is None else f"{high:g}"
+            op = "<" if low_open else "<="
+            raise self._error(
+                DeviceValueError, f"{name}={value!r} is not a number in range",
+                f"use a finite number with {lo} {op} {name} <= {hi}",
+            )
+        return v
+
+    def _int(
+        self, name: str, value: Any, *, low: int | None = None, high: int | None = None
+    ) -> int:
+        """Return ``value`` as an int within [low, high] or raise DeviceValueError."""
+        ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
+        if not ok and isinstance(value, float | np.floating) and float(value).is_integer():
+            ok = True
+        if ok and (low is None or value >= low) and (high is None or value <= high):
+            return int(value)
+        raise self._error(
+            DeviceValueError, f"{name}={value!r} is not an integer in range",
+            f"use an integer with {low if low is not None else '-inf'} <= {name} <= "
+            f"{high if high is not None else 'inf'}",
+        )
+
+    def _choice(self, name: str, value: Any, choices: Any) -> Any:
+        if isinstance(value, str) and value in choices:
+            return value
+        raise self._error(
+            DeviceValueError, f"{name}={value!r} is not supported", f"use one of {sorted(choices)}"
+        )
+
+    # ------------------------------------------------------------------ hooks
+    @abc.abstractmethod
+    def _do_open(self, timeout_s: float) -> None: ...
+
+    @abc.abstractmethod
+    def _do_close(self) -> None: ...
+
+    @abc.abstractmethod
+    def _do_get_info(self) -> Mapping[str, Any]: ...
+
+    @abc.abstractmethod
+    def _do_get_settings(self) -> Mapping[str, Any]: ...
+
+    @abc.abstractmethod
+    def _do_apply(self, name: str, value: Any) -> Any: ...
+
+    def _do_check_connection(self) -> None:  # noqa: B027 (optional hook)
+        """Raise DeviceDisconnectedError if the device is known to be gone (cheap)."""
+
+    def _do_status(self) -> dict[str, Any]:
+        return {}
+
+    def _on_open(self) -> None:  # noqa: B027 (optional hook)
+        """Reset the interface's state caches after a successful open."""
+
+    def _save_state(self) -> Any:
+        """Non-setting state to re-establish after a reconnect (e.g. a displayed pattern)."""
+        return None
+
+    def _restore_state(self, state: Any) -> None:  # noqa: B027 (optional hook)
+        """Re-establish what :meth:`_save_state` returned, after a reconnect."""
+
+    def _before_close(self) -> None:  # noqa: B027 (optional hook)
+        """Called by close() before _do_close (e.g. to stop a stream)."""
+
+    def _now_s(self) -> float:
+        """Monotonic time in seconds used for timeout budgets."""
+        return time.monotonic()
+
+    def _sleep_s(self, seconds: float) -> None:
+        """Wait ``seconds``; a simulated device advances its clock instead."""
+        if seconds > 0:
+            time.sleep(seconds)

@@ -1,0 +1,496 @@
+"""Camera interface: :class:`Camera`, :class:`Frame` and the bounded :class:`FrameRing`.
+
+Conventions
+-----------
+- ``gain`` is the analog gain in dB (>= 0; 0 dB is the sensor's native conversion
+  gain, +6.02 dB doubles the digital numbers per electron).
+- ``roi`` is ``(x, y, width, height)`` in unbinned sensor pixels, x along columns.
+- ``binning`` averages ``binning x binning`` blocks of the ROI (values stay on the
+  pixel-format scale); a partial block at the right/bottom edge is dropped, so the
+  image shape is ``(height // binning, width // binning)``.
+- ``pixel_format``: "mono8" -> uint8; "mono12" -> uint16 holding 0..4095;
+  "mono16" -> uint16 on the full 16-bit scale (a 12-bit sensor's data shifted up
+  by 4 bits, full scale 65520).
+- Frame indices count every frame the camera produced since open, including
+  dropped ones, so a gap in indices shows a loss; losses are also counted.
+"""
+
+from __future__ import annotations
+
+import abc
+import collections
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from drivers.base import Device
+from drivers.errors import CameraTimeoutError, DeviceError, DeviceStateError, DeviceValueError
+
+__all__ = ["PIXEL_FORMATS", "TRIGGER_MODES", "Camera", "Frame", "FrameRing"]
+
+#: Pixel formats and their bit depth.
+PIXEL_FORMATS: dict[str, int] = {"mono8": 8, "mono12": 12, "mono16": 16}
+#: Trigger modes: continuous, on :meth:`Camera.trigger`, on an external pulse.
+TRIGGER_MODES: tuple[str, ...] = ("free_run", "software", "hardware")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One camera frame with its metadata.
+
+    Attributes
+    ----------
+    image : ndarray
+        ``(rows, cols)`` uint8 (mono8) or uint16 (mono12, mono16), after ROI and binning.
+    index : int
+        Frame number since the camera was opened (dropped frames use up numbers).
+    device_timestamp_s : float
+        Start of the exposure on the camera's clock, in seconds.
+    host_timestamp_s : float
+        Host wall-clock time (``time.time()``) when the frame was delivered, in seconds.
+    exposure_s : float
+        Exposure time, in seconds.
+    gain : float
+        Analog gain, in dB.
+    saturated_pixels : int
+        Number of unbinned sensor pixels inside the ROI that hit full well or the ADC
+        full scale.
+    """
+
+    image: np.ndarray
+    index: int
+    device_timestamp_s: float
+    host_timestamp_s: float
+    exposure_s: float
+    gain: float
+    saturated_pixels: int
+
+
+class FrameRing:
+    """Bounded, thread-safe frame buffer with loss counters (never drops silently).
+
+    Parameters
+    ----------
+    capacity : int
+        Number of frames held; when full, a new frame overwrites the oldest one.
+
+    Attributes
+    ----------
+    acquired : int
+        Frames the camera produced into this ring (including dropped ones).
+    read : int
+        Frames returned by :meth:`get` / :meth:`get_latest`.
+    skipped : int
+        Frames never read: overwritten when full, discarded by ``get_latest`` or
+        ``clear``, or dropped before delivery. ``acquired == read + skipped + len(ring)``.
+    dropped : int
+        The part of ``skipped`` lost before reaching the ring (transport, camera).
+    """
+
+    def __init__(self, capacity: int) -> None:
+        ok = isinstance(capacity, int | np.integer) and not isinstance(capacity, bool)
+        if not ok or capacity < 1:
+            raise DeviceValueError(
+                "frame_ring", f"capacity={capacity!r} is invalid", "use an integer >= 1"
+            )
+        self._capacity = int(capacity)
+        self._buf: collections.deque[Frame] = collections.deque()
+        self._cond = threading.Condition()
+        self.device_id = "frame_ring"
+        self.acquired = 0
+        self.read = 0
+        self.skipped = 0
+        self.dropped = 0
+        self._pump: Callable[[float], float] | None = None
+
+    @property
+    def capacity(self) -> int:
+        """Number of frames the ring holds."""
+        return self._capacity
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._buf)
+
+    def counters(self) -> dict[str, int]:
+        """Return ``acquired``, ``read``, ``skipped``, ``dropped``, ``buffered``, ``capacity``."""
+        with self._cond:
+            return {
+                "acquired": self.acquired, "read": self.read, "skipped": self.skipped,
+                "dropped": self.dropped, "buffered": len(self._buf), "capacity": self._capacity,
+            }
+
+    def put(self, frame: Frame) -> None:
+        """Add a frame (producer side); overwrites and counts the oldest when full."""
+        with self._cond:
+            self.acquired += 1
+            if len(self._buf) >= self._capacity:
+                self._buf.popleft()
+                self.skipped += 1
+            self._buf.append(frame)
+            self._cond.notify_all()
+
+    def mark_dropped(self, n: int = 1) -> None:
+        """Count ``n`` frames the camera produced but lost before delivery."""
+        with self._cond:
+            self.acquired += n
+            self.skipped += n
+            self.dropped += n
+
+    def clear(self) -> None:
+        """Discard buffered frames (counted as skipped)."""
+        with self._cond:
+            self.skipped += len(self._buf)
+            self._buf.clear()
+
+    def get(self, timeout_s: float = 1.0) -> Frame:
+        """Return the oldest buffered frame, waiting up to ``timeout_s`` seconds.
+
+        Raises
+        ------
+        CameraTimeoutError
+            No frame arrived in time.
+        """
+        return self._take(timeout_s, latest=False)
+
+    def get_latest(self, timeout_s: float = 1.0) -> Frame:
+        """Return the newest frame; older buffered frames are counted as skipped.
+
+        Raises
+        ------
+        CameraTimeoutError
+            No frame arrived in time.
+        """
+        return self._take(timeout_s, latest=True)
+
+    def _take(self, timeout_s: float, latest: bool) -> Frame:
+        budget = float(timeout_s)
+        if not budget >= 0:
+            raise DeviceValueError(self.device_id, f"timeout_s={timeout_s!r}", "use >= 0")
+        deadline = time.monotonic() + budget
+        with self._cond:
+            while not self._buf:
+                if budget <= 0:
+                    raise CameraTimeoutError(
+                        self.device_id,
+                        f"no frame within {timeout_s:g} s (acquired={self.acquired}, "
+                        f"read={self.read}, skipped={self.skipped})",
+                        "check that the stream is running, the trigger mode and source, "
+                        "and that timeout_s exceeds the frame period",
+                    )
+                if self._pump is not None:  # a simulated camera advances its clock
+                    budget -= max(self._pump(budget), 1e-12)
+                else:
+                    self._cond.wait(budget)
+                    budget = deadline - time.monotonic()
+            if latest:
+                self.skipped += len(self._buf) - 1
+                frame = self._buf.pop()
+                self._buf.clear()
+            else:
+                frame = self._buf.popleft()
+            self.read += 1
+            return frame
+
+    def _attach(self, device_id: str, pump: Callable[[float], float] | None) -> None:
+        with self._cond:
+            self.device_id = device_id
+            self._pump = pump
+
+
+class Camera(Device):
+    """Abstract camera: validated settings, snap, streaming into a :class:`FrameRing`.
+
+    Settable properties (applied in this order): ``pixel_format``, ``roi``,
+    ``binning``, ``exposure_s``, ``gain`` (dB), ``trigger_mode``. While streaming,
+    only ``exposure_s`` and ``gain`` may change.
+
+    Driver hooks, besides :class:`~drivers.base.Device`'s: ``_do_snap(timeout_s) ->
+    Frame``, ``_do_start_stream(ring)``, ``_do_stop_stream()``, ``_do_trigger()``.
+    ``_do_get_info()`` returns ``sensor_shape``, ``pixel_pitch_um``,
+    ``exposure_range_s``, ``gain_range_db``, ``pixel_formats``, ``max_binning``.
+    """
+
+    kind: ClassVar[str] = "camera"
+    timeout_error = CameraTimeoutError
+    _SETTINGS = ("pixel_format", "roi", "binning", "exposure_s", "gain", "trigger_mode")
+    _STREAM_LOCKED = frozenset({"pixel_format", "roi", "binning", "trigger_mode"})
+
+    def __init__(self, device_id: str, **params: Any) -> None:
+        super().__init__(device_id, **params)
+        self._ring: FrameRing | None = None
+        self._streaming = False
+        self._dropped_frames = 0
+
+    # ----------------------------------------------------------- fixed properties
+    @property
+    def sensor_shape(self) -> tuple[int, int]:
+        """Full sensor size ``(rows, cols)`` in pixels (read-only)."""
+        self._require_open()
+        return tuple(self._info["sensor_shape"])
+
+    @property
+    def pixel_pitch_um(self) -> float:
+        """Sensor pixel pitch in micrometres (read-only)."""
+        self._require_open()
+        return float(self._info["pixel_pitch_um"])
+
+    # ----------------------------------------------------------- settings
+    @property
+    def exposure_s(self) -> float:
+        """Exposure time in seconds (> 0, within the driver's range)."""
+        return self._get("exposure_s")
+
+    @exposure_s.setter
+    def exposure_s(self, value: float) -> None:
+        self._set("exposure_s", value)
+
+    @property
+    def gain(self) -> float:
+        """Analog gain in dB (>= 0)."""
+        return self._get("gain")
+
+    @gain.setter
+    def gain(self, value: float) -> None:
+        self._set("gain", value)
+
+    @property
+    def pixel_format(self) -> str:
+        """"mono8", "mono12" or "mono16" (see the module notes)."""
+        return self._get("pixel_format")
+
+    @pixel_format.setter
+    def pixel_format(self, value: str) -> None:
+        self._set("pixel_format", value)
+
+    @property
+    def bit_depth(self) -> int:
+        """Bits per pixel of the current pixel format (8, 12 or 16)."""
+        return PIXEL_FORMATS[self.pixel_format]
+
+    @property
+    def dtype(self) -> np.dtype:
+        """Image dtype: uint8 for mono8, uint16 otherwise."""
+        return np.dtype(np.uint8 if self.bit_depth == 8 else np.uint16)
+
+    @property
+    def roi(self) -> tuple[int, int, int, int]:
+        """``(x, y, width, height)`` in unbinned sensor pixels; None sets the full sensor."""
+        return self._get("roi")
+
+    @roi.setter
+    def roi(self, value: Sequence[int] | None) -> None:
+        self._set("roi", value)
+
+    @property
+    def binning(self) -> int:
+        """Binning factor (>= 1), the same along rows and columns."""
+        return self._get("binning")
+
+    @binning.setter
+    def binning(self, value: int) -> None:
+        self._set("binning", value)
+
+    @property
+    def trigger_mode(self) -> str:
+        """"free_run", "software" or "hardware"."""
+        return self._get("trigger_mode")
+
+    @trigger_mode.setter
+    def trigger_mode(self, value: str) -> None:
+        self._set("trigger_mode", value)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """Shape ``(rows, cols)`` of the images delivered with the current ROI and binning."""
+        _, _, w, h = self.roi
+        b = self.binning
+        return (h // b, w // b)
+
+    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
+        info = self._info
+        if name == "exposure_s":
+            lo, hi = info["exposure_range_s"]
+            v = self._float(name, value, low=0.0, low_open=True)
+            v = self._float(name, v, low=lo, high=hi)
+        elif name == "gain":
+            v = self._float(name, value, low=0.0, high=float(info["gain_range_db"][1]))
+        elif name == "pixel_format":
+            v = self._choice(name, value, [p for p in info["pixel_formats"] if p in PIXEL_FORMATS])
+        elif name == "trigger_mode":
+            v = self._choice(name, value, TRIGGER_MODES)
+        elif name == "binning":
+            v = self._int(name, value, low=1, high=int(info["max_binning"]))
+        else:
+            v = self._validate_roi(value)
+        if self._streaming and name in self._STREAM_LOCKED and v != self._values[name]:
+            raise self._error(
+                DeviceStateError, f"cannot change {name} while streaming",
+                "call stop_stream() first",
+            )
+        return v
+
+    def _validate_roi(self, value: Any) -> tuple[int, int, int, int]:
+        rows, cols = self._info["sensor_shape"]
+        if value is None:
+            return (0, 0, int(cols), int(rows))
+        if isinstance(value, str | bytes) or not isinstance(value, Sequence | np.ndarray) or (
+            len(value) != 4
+        ):
+            raise self._error(
+                DeviceValueError, f"roi={value!r} is not (x, y, width, height)",
+                "pass four integers in sensor pixels, or None for the full sensor",
+            )
+        x = self._int("roi x", value[0], low=0, high=cols - 1)
+        y = self._int("roi y", value[1], low=0, high=rows - 1)
+        w = self._int("roi width", value[2], low=1, high=cols - x)
+        h = self._int("roi height", value[3], low=1, high=rows - y)
+        return (x, y, w, h)
+
+    def _check_settings(self, pending: dict[str, Any]) -> None:
+        _, _, w, h = pending["roi"]
+        if min(w, h) < pending["binning"]:
+            raise self._error(
+                DeviceValueError,
+                f"binning={pending['binning']} exceeds the roi size {w}x{h}",
+                "use a larger roi or a smaller binning",
+            )
+
+    # ----------------------------------------------------------- acquisition
+    @property
+    def is_streaming(self) -> bool:
+        """True between :meth:`start_stream` and :meth:`stop_stream`."""
+        return self._streaming
+
+    @property
+    def dropped_frames(self) -> int:
+        """Frames the camera produced but lost (snap and stream) since open."""
+        return self._dropped_frames
+
+    def snap(self, timeout_s: float | None = None) -> Frame:
+        """Acquire one frame with the current settings.
+
+        In "software" mode the camera triggers itself; in "hardware" mode it waits
+        for the external trigger.
+
+        Parameters
+        ----------
+        timeout_s : float, optional
+            Longest wait in seconds; default ``max(5, 2 * exposure_s + 1)``.
+
+        Raises
+        ------
+        CameraTimeoutError
+            No frame within ``timeout_s``.
+        DeviceStateError
+            The camera is streaming.
+        """
+        self._require_open()
+        if timeout_s is None:
+            timeout_s = max(5.0, 2.0 * self.exposure_s + 1.0)
+        timeout_s = self._check_timeout(timeout_s)
+        if self._streaming:
+            raise self._error(
+                DeviceStateError, "snap() while streaming", "call stop_stream() first"
+            )
+        with self._io():
+            frame = self._do_snap(timeout_s)
+        if frame.image.shape != self.image_shape or frame.image.dtype != self.dtype:
+            raise self._error(
+                DeviceError,
+                f"driver returned {frame.image.shape} {frame.image.dtype}, expected "
+                f"{self.image_shape} {self.dtype}",
+                "report this driver bug; re-open the camera",
+            )
+        self._log.debug("%s: snap index=%d", self.device_id, frame.index)
+        return frame
+
+    def start_stream(self, ring: FrameRing) -> None:
+        """Start continuous acquisition into ``ring`` (per the trigger mode).
+
+        Raises
+        ------
+        DeviceStateError
+            Already streaming.
+        """
+        self._require_open()
+        if not isinstance(ring, FrameRing):
+            raise self._error(
+                DeviceValueError, f"ring must be a FrameRing, got {type(ring).__name__}",
+                "pass FrameRing(capacity)",
+            )
+        if self._streaming:
+            raise self._error(
+                DeviceStateError, "already streaming", "call stop_stream() before a new stream"
+            )
+        ring._attach(self.device_id, None)
+        with self._io():
+            self._do_start_stream(ring)
+        self._ring, self._streaming = ring, True
+        self._log.info("%s: stream started (ring capacity %d)", self.device_id, ring.capacity)
+
+    def stop_stream(self) -> None:
+        """Stop acquisition; idempotent. The ring keeps its frames and counters."""
+        if not self._streaming:
+            return
+        try:
+            with self._io():
+                self._do_stop_stream()
+        finally:
+            self._streaming = False
+            ring = self._ring
+            self._log.info(
+                "%s: stream stopped (%s)", self.device_id, ring.counters() if ring else {}
+            )
+
+    def trigger(self) -> None:
+        """Send a software trigger (trigger_mode "software", while streaming).
+
+        Raises
+        ------
+        DeviceStateError
+            Not streaming, or another trigger mode.
+        """
+        self._require_open()
+        if not self._streaming or self.trigger_mode != "software":
+            raise self._error(
+                DeviceStateError,
+                f"trigger() needs a stream in software mode (streaming={self._streaming}, "
+                f"trigger_mode={self.trigger_mode!r})",
+                "set trigger_mode='software' and start_stream(ring) first",
+            )
+        with self._io():
+            self._do_trigger()
+
+    def _count_dropped(self, n: int = 1) -> None:
+        """Drivers call this for every frame lost; it is logged, never silent."""
+        self._dropped_frames += n
+        self._log.warning("%s: %d frame(s) dropped (total %d)", self.device_id, n,
+                          self._dropped_frames)
+
+    def _before_close(self) -> None:
+        self.stop_stream()
+
+    def _do_status(self) -> dict[str, Any]:
+        return {
+            "streaming": self._streaming,
+            "dropped_frames": self._dropped_frames,
+            "ring": self._ring.counters() if self._ring is not None else None,
+        }
+
+    # ----------------------------------------------------------- hooks
+    @abc.abstractmethod
+    def _do_snap(self, timeout_s: float) -> Frame: ...
+
+    @abc.abstractmethod
+    def _do_start_stream(self, ring: FrameRing) -> None: ...
+
+    @abc.abstractmethod
+    def _do_stop_stream(self) -> None: ...
+
+    @abc.abstractmethod
+    def _do_trigger(self) -> None: ...

@@ -1,0 +1,102 @@
+"""Exceptions raised by device interfaces and drivers.
+
+Every error names the device, the problem and the fix, so that a message read in
+a log or a GUI dialog is enough to act on::
+
+    cam0: exposure_s=-1 is out of range. Fix: use 1e-06 <= exposure_s <= 60.
+
+Hierarchy::
+
+    DeviceError
+    +-- DeviceTimeoutError (also TimeoutError)
+    |   +-- CameraTimeoutError, StageTimeoutError, LedArrayTimeoutError, SlmTimeoutError
+    +-- DeviceDisconnectedError (also ConnectionError)
+    +-- DeviceStateError            (used before open, snap while streaming, ...)
+    +-- DeviceValueError (also ValueError): a bad argument or setting
+        +-- StageLimitError         (a target outside the axis limits)
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CameraTimeoutError",
+    "DeviceDisconnectedError",
+    "DeviceError",
+    "DeviceStateError",
+    "DeviceTimeoutError",
+    "DeviceValueError",
+    "LedArrayTimeoutError",
+    "SlmTimeoutError",
+    "StageLimitError",
+    "StageTimeoutError",
+]
+
+
+class DeviceError(Exception):
+    """Base class of every device error.
+
+    Parameters
+    ----------
+    device_id : str
+        Identifier of the device that failed (as given to its constructor).
+    problem : str
+        What went wrong, with the offending values.
+    fix : str
+        What the operator or the calling code should do about it.
+
+    Attributes
+    ----------
+    device_id, problem, fix : str
+        The parts of the message, for programmatic use.
+    """
+
+    def __init__(self, device_id: str, problem: str, fix: str) -> None:
+        self.device_id = device_id
+        self.problem = problem
+        self.fix = fix
+        super().__init__(f"{device_id}: {problem}. Fix: {fix}")
+
+    def __reduce__(self):  # keep the three-part constructor picklable (dask, processes)
+        return (type(self), (self.device_id, self.problem, self.fix))
+
+
+class DeviceTimeoutError(DeviceError, TimeoutError):
+    """A blocking device operation did not complete within its ``timeout_s``."""
+
+
+class DeviceDisconnectedError(DeviceError, ConnectionError):
+    """The device stopped answering (unplugged, powered off, port lost).
+
+    Every further call raises this error until :meth:`Device.reconnect` succeeds.
+    """
+
+
+class DeviceStateError(DeviceError):
+    """The call is not allowed in the device's current state (e.g. not open)."""
+
+
+class DeviceValueError(DeviceError, ValueError):
+    """A bad argument or setting value; nothing was sent to the device."""
+
+
+class CameraTimeoutError(DeviceTimeoutError):
+    """No frame arrived within the timeout."""
+
+
+class StageTimeoutError(DeviceTimeoutError):
+    """A stage motion or homing did not finish within the timeout."""
+
+
+class LedArrayTimeoutError(DeviceTimeoutError):
+    """The LED array did not acknowledge a command within the timeout."""
+
+
+class SlmTimeoutError(DeviceTimeoutError):
+    """The SLM did not display a pattern within the timeout."""
+
+
+class StageLimitError(DeviceValueError):
+    """A stage target lies outside the axis limits; nothing moved.
+
+    A subclass of :class:`DeviceValueError`, hence of ``DeviceError`` and ``ValueError``.
+    """

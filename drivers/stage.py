@@ -1,0 +1,328 @@
+"""Motion stage interface: :class:`Stage` with named axes.
+
+Axes are chosen per instance from ``x``, ``y``, ``z`` (millimetres) and ``tip``,
+``tilt``, ``rotation`` (degrees); positions, limits, velocities and backlash are
+all in the axis unit (velocity in unit per second).
+
+Backlash compensation
+---------------------
+``backlash[axis] = b`` (0 disables) makes every move *end* travelling in the
+direction of ``sign(b)``: when a target lies on the other side of the current
+position, the stage first goes to ``target - b`` (overshoot by ``|b|``) and then to
+the target. The overshoot point must lie within the limits. With ``wait=False`` the
+overshoot leg is still waited for; only the final leg returns immediately.
+:attr:`Stage.last_path` lists the commanded legs of the last move.
+
+Settings are ``limits``, ``velocity`` and ``backlash``; the position is state, not
+a setting, and :meth:`~drivers.base.Device.reconnect` never replays motion.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+from collections.abc import Iterable, Mapping
+from typing import Any, ClassVar
+
+from drivers.base import Device
+from drivers.errors import DeviceError, DeviceValueError, StageLimitError, StageTimeoutError
+
+__all__ = ["AXIS_UNITS", "Stage"]
+
+#: Allowed axis names and their units.
+AXIS_UNITS: dict[str, str] = {
+    "x": "mm", "y": "mm", "z": "mm", "tip": "deg", "tilt": "deg", "rotation": "deg",
+}
+
+
+class Stage(Device):
+    """Abstract multi-axis stage.
+
+    Driver hooks, besides :class:`~drivers.base.Device`'s: ``_do_move(targets)``
+    (start an absolute move, do not wait), ``_do_home(axes)`` (start homing),
+    ``_do_wait(timeout_s) -> bool`` (True once idle, False on timeout),
+    ``_do_is_moving() -> bool``, ``_do_positions() -> dict`` and ``_do_stop()``.
+    ``_do_get_info()`` returns ``{"axes": {name: {"travel": (lo, hi),
+    "max_velocity": v}}}``.
+    """
+
+    kind: ClassVar[str] = "stage"
+    timeout_error = StageTimeoutError
+    _SETTINGS = ("limits", "velocity", "backlash")
+
+    def __init__(self, device_id: str, **params: Any) -> None:
+        super().__init__(device_id, **params)
+        self._last_path: list[dict[str, float]] = []
+
+    # ----------------------------------------------------------- geometry
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """Names of this stage's axes."""
+        self._require_open()
+        return tuple(self._info["axes"])
+
+    def units(self, axis: str) -> str:
+        """Unit of ``axis``: "mm" or "deg"."""
+        return AXIS_UNITS[self._axis(axis)]
+
+    @property
+    def travel(self) -> dict[str, tuple[float, float]]:
+        """Mechanical range per axis ``{axis: (low, high)}`` (read-only)."""
+        self._require_open()
+        return {a: tuple(v["travel"]) for a, v in self._info["axes"].items()}
+
+    @property
+    def limits(self) -> dict[str, tuple[float, float]]:
+        """Soft limits ``{axis: (low, high)}`` within the travel; set with a partial dict."""
+        return dict(self._get("limits"))
+
+    @limits.setter
+    def limits(self, value: Mapping[str, Any]) -> None:
+        self._set("limits", value)
+
+    @property
+    def velocity(self) -> dict[str, float]:
+        """Velocity per axis in unit/s (0 < v <= max); set with a partial dict."""
+        return dict(self._get("velocity"))
+
+    @velocity.setter
+    def velocity(self, value: Mapping[str, Any]) -> None:
+        self._set("velocity", value)
+
+    @property
+    def backlash(self) -> dict[str, float]:
+        """Signed backlash overshoot per axis in the axis unit (0 = off); partial dict."""
+        return dict(self._get("backlash"))
+
+    @backlash.setter
+    def backlash(self, value: Mapping[str, Any]) -> None:
+        self._set("backlash", value)
+
+    @property
+    def last_path(self) -> list[dict[str, float]]:
+        """Commanded legs of the last move: absolute targets, in order."""
+        return [dict(leg) for leg in self._last_path]
+
+    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
+        if not isinstance(value, Mapping):
+            raise self._error(
+                DeviceValueError, f"{name}={value!r} is not a mapping of axis -> value",
+                f"pass e.g. {{'{next(iter(self._info['axes']))}': ...}}",
+            )
+        out = dict(pending[name])
+        for axis, v in value.items():
+            axis = self._axis(axis)
+            info = self._info["axes"][axis]
+            if name == "velocity":
+                out[axis] = self._float(
+                    f"velocity[{axis}]", v, low=0.0, low_open=True, high=info["max_velocity"]
+                )
+            elif name == "backlash":
+                lo, hi = info["travel"]
+                out[axis] = self._float(f"backlash[{axis}]", v, low=lo - hi, high=hi - lo)
+            else:
+                lo, hi = info["travel"]
+                if isinstance(v, str | bytes) or not hasattr(v, "__len__") or len(v) != 2:
+                    raise self._error(
+                        DeviceValueError, f"limits[{axis}]={v!r} is not (low, high)",
+                        f"pass two numbers within the travel [{lo}, {hi}]",
+                    )
+                a = self._float(f"limits[{axis}] low", v[0], low=lo, high=hi)
+                b = self._float(f"limits[{axis}] high", v[1], low=lo, high=hi)
+                if not a < b:
+                    raise self._error(
+                        DeviceValueError, f"limits[{axis}]=({a}, {b}) has low >= high",
+                        "give low < high",
+                    )
+                out[axis] = (a, b)
+        return out
+
+    # ----------------------------------------------------------- state
+    def position(self, axis: str) -> float:
+        """Current position of ``axis`` in its unit (interpolated while moving)."""
+        axis = self._axis(axis)
+        return self.positions()[axis]
+
+    def positions(self) -> dict[str, float]:
+        """Current positions ``{axis: value}``."""
+        self._require_open()
+        with self._io():
+            pos = self._do_positions()
+        return {a: float(pos[a]) for a in self._info["axes"]}
+
+    def is_moving(self) -> bool:
+        """True while any axis moves or homes."""
+        self._require_open()
+        with self._io():
+            return bool(self._do_is_moving())
+
+    # ----------------------------------------------------------- motion
+    def move_to(
+        self, targets: Mapping[str, float], *, wait: bool = True, timeout_s: float = 30.0
+    ) -> None:
+        """Move axes to absolute positions (all axes start together).
+
+        Parameters
+        ----------
+        targets : Mapping[str, float]
+            ``{axis: position}`` in the axis unit; axes not named do not move.
+        wait : bool
+            Wait until the motion ends.
+        timeout_s : float
+            Longest wait, in seconds, for the whole move (both backlash legs).
+
+        Raises
+        ------
+        StageLimitError
+            A target (or its backlash overshoot point) is outside the limits;
+            raised before anything moves.
+        StageTimeoutError
+            The motion did not end in time; the stage is stopped before raising.
+        """
+        self._require_open()
+        timeout_s = self._check_timeout(timeout_s)
+        targets = self._check_targets(targets)
+        current = self.positions()
+        backlash, limits = self._values["backlash"], self._values["limits"]
+        pre: dict[str, float] = {}
+        for axis, t in targets.items():
+            b = backlash[axis]
+            if b != 0.0 and (t - current[axis]) * b < 0.0:
+                pre[axis] = t - b
+                lo, hi = limits[axis]
+                if not lo <= pre[axis] <= hi:
+                    raise self._error(
+                        StageLimitError,
+                        f"backlash overshoot point {axis}={pre[axis]:g} is outside the limits "
+                        f"[{lo:g}, {hi:g}] (target {t:g}, backlash {b:g})",
+                        "approach from the other side, reduce the backlash or widen the limits",
+                    )
+        self._last_path = ([{**targets, **pre}] if pre else []) + [dict(targets)]
+        self._log.debug("%s: move_to %s (path %s)", self.device_id, targets, self._last_path)
+        start = self._now_s()
+        if pre:
+            with self._io():
+                self._do_move(self._last_path[0])
+            self._wait(timeout_s, targets)
+        with self._io():
+            self._do_move(targets)
+        if wait:
+            self._wait(timeout_s - (self._now_s() - start), targets)
+
+    def move_by(
+        self, deltas: Mapping[str, float], *, wait: bool = True, timeout_s: float = 30.0
+    ) -> None:
+        """Move axes by relative amounts from their current positions (see :meth:`move_to`)."""
+        self._require_open()
+        if not isinstance(deltas, Mapping):
+            raise self._error(
+                DeviceValueError, f"deltas={deltas!r} is not a mapping", "pass {axis: delta}"
+            )
+        current = self.positions()
+        targets = {}
+        for axis, d in deltas.items():
+            axis = self._axis(axis)
+            targets[axis] = current[axis] + self._float(f"delta[{axis}]", d)
+        self.move_to(targets, wait=wait, timeout_s=timeout_s)
+
+    def home(self, axes: Iterable[str] | None = None, *, timeout_s: float = 60.0) -> None:
+        """Home ``axes`` (default all) and wait until done.
+
+        Raises
+        ------
+        StageTimeoutError
+            Homing did not finish in time; the stage is stopped before raising.
+        """
+        self._require_open()
+        timeout_s = self._check_timeout(timeout_s)
+        names = tuple(self._info["axes"]) if axes is None else tuple(
+            self._axis(a) for a in ([axes] if isinstance(axes, str) else axes)
+        )
+        self._last_path = []
+        self._log.info("%s: homing %s", self.device_id, names)
+        with self._io():
+            self._do_home(names)
+        self._wait(timeout_s, {})
+
+    def wait_until_idle(self, timeout_s: float = 30.0) -> None:
+        """Block until no axis moves.
+
+        Raises
+        ------
+        StageTimeoutError
+            Still moving after ``timeout_s`` seconds; the stage is stopped.
+        """
+        self._require_open()
+        self._wait(self._check_timeout(timeout_s), {})
+
+    def stop(self) -> None:
+        """Stop all axes now (decelerating)."""
+        self._require_open()
+        with self._io():
+            self._do_stop()
+
+    # ----------------------------------------------------------- helpers
+    def _wait(self, timeout_s: float, targets: Mapping[str, float]) -> None:
+        with self._io():
+            done = timeout_s > 0 and self._do_wait(timeout_s)
+        if done:
+            return
+        with contextlib.suppress(DeviceError), self._io():
+            self._do_stop()
+        pos = self.positions()
+        raise self._timeout(
+            f"motion not finished within {timeout_s:g} s (positions {pos}, targets "
+            f"{dict(targets)}); the stage was stopped",
+            "check for an obstruction or a stalled axis, or raise timeout_s",
+        )
+
+    def _axis(self, axis: Any) -> str:
+        self._require_open()
+        if isinstance(axis, str) and axis in self._info["axes"]:
+            return axis
+        raise self._error(
+            DeviceValueError, f"unknown axis {axis!r}", f"use one of {list(self._info['axes'])}"
+        )
+
+    def _check_targets(self, targets: Any) -> dict[str, float]:
+        if not isinstance(targets, Mapping) or not targets:
+            raise self._error(
+                DeviceValueError, f"targets={targets!r} is not a non-empty mapping",
+                "pass {axis: position}",
+            )
+        out = {}
+        for axis, t in targets.items():
+            axis = self._axis(axis)
+            v = self._float(f"target[{axis}]", t)
+            lo, hi = self._values["limits"][axis]
+            if not lo <= v <= hi:
+                raise self._error(
+                    StageLimitError,
+                    f"target {axis}={v:g} {AXIS_UNITS[axis]} is outside the limits "
+                    f"[{lo:g}, {hi:g}]",
+                    "choose a target within the limits or widen them (stage.limits)",
+                )
+            out[axis] = v
+        return out
+
+    def _do_status(self) -> dict[str, Any]:
+        return {"positions": self.positions(), "moving": self.is_moving()}
+
+    # ----------------------------------------------------------- hooks
+    @abc.abstractmethod
+    def _do_move(self, targets: dict[str, float]) -> None: ...
+
+    @abc.abstractmethod
+    def _do_home(self, axes: tuple[str, ...]) -> None: ...
+
+    @abc.abstractmethod
+    def _do_wait(self, timeout_s: float) -> bool: ...
+
+    @abc.abstractmethod
+    def _do_is_moving(self) -> bool: ...
+
+    @abc.abstractmethod
+    def _do_positions(self) -> dict[str, float]: ...
+
+    @abc.abstractmethod
+    def _do_stop(self) -> None: ...
