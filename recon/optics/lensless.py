@@ -1,0 +1,708 @@
+"""Ray-traced lensless (DiffuserCam) PSFs and sensor images (Kuo 2020, Ch. 3-6).
+
+Geometry (all lengths in mm unless a name says ``_um``)::
+
+    source (x, y, -z)        diffuser (Z = 0)          sensor (Z = d)
+         *  ---- z ---->  |flat | textured|  ---- d ---->  |
+                          aperture w x h, centred on the axis
+
+The optical axis passes through the centres of the aperture and the sensor. The
+diffuser (:class:`recon.optics.diffuser.DiffuserSurface`) has its flat face towards
+the scene and its textured face towards the sensor (Sec. 4.3); it is treated as a
+thin element. ``x`` runs along sensor columns and ``y`` along sensor rows
+(increasing index); pixel ``(r, c)`` of a ``(rows, cols)`` sensor of pitch ``p`` is
+centred at ``u = ((c - (cols - 1)/2) p, (r - (rows - 1)/2) p)``. No image flip is
+applied: a source displaced by ``+dx`` moves its PSF by ``-dx d / z`` (Eq. 3.1,
+``m = d / z``).
+
+Physical PSF (:meth:`LenslessModel.psf`). The aperture is sampled by a regular
+grid of rays (at least as fine as the diffuser samples and fine enough that
+neighbouring rays land at most ``1 / rays_per_pixel`` of a fine pixel apart). Each
+ray starts at the source with the exact (non-paraxial) direction towards its
+aperture point and carries the photon fraction it subtends,
+``dA cos(theta_s) / (4 pi r^2)`` of an isotropic source of unit power (inverse
+square law and obliquity). It is refracted by the flat face and by the local slope
+of the textured face (vector Snell's law, index ``n`` inside, air outside; Fresnel
+losses are neglected), propagates to the sensor plane, is weighted by the pixel
+angular response ``f(theta) = exp(-theta^2 / (2 sigma^2))`` (Eq. 5.1; ``theta`` is
+the angle of incidence on the sensor) and is splatted bilinearly onto a grid
+``oversample`` times finer than the sensor, which is then box-binned
+(:func:`recon.preprocess.box_bin`) to sensor pixels. PSF values are the fraction of
+the source's emitted power detected per pixel: the sum over the sensor is at most the
+aperture's solid angle over ``4 pi``, and it falls off physically (about
+``cos^3`` of the field angle, times ``f``) for oblique sources.
+
+Scenes (:meth:`LenslessModel.render`). The local convolution model of Ch. 5
+(Eq. 5.4-5.5): the scene is split into ``patches x patches`` regions, each region
+(weighted by bilinear partition-of-unity weights) is convolved with the registered
+PSF of its centre with :class:`recon.operators.ConvolutionOperator` on the fine
+grid, and the sum is binned. Scene values are radiances of a Lambertian object
+plane facing the camera; the output is the photon rate per pixel per unit radiance.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import numbers
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ReconInputError
+from ..fft import fast_padded_shape
+from ..operators import ConvolutionOperator
+from ..preprocess import box_bin
+from .diffuser import DiffuserSurface
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "LenslessGeometry",
+    "LenslessModel",
+    "default_geometry",
+    "usaf_target",
+]
+
+_MAX_RAYS = 60_000_000
+
+
+# ----------------------------------------------------------------------------- checks
+def _finite_positive(value, name: str, example: str) -> float:
+    if isinstance(value, bool):
+        raise ReconInputError(f"{name} must be a number, got {value!r}; e.g. {example}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise ReconInputError(f"{name} must be a number, got {value!r}; e.g. {example}") from exc
+    if not (math.isfinite(v) and v > 0):
+        raise ReconInputError(f"{name} must be finite and positive, got {value!r}; e.g. {example}")
+    return v
+
+
+def _pair_mm(value, name: str, example: str) -> tuple[float, float]:
+    try:
+        a, b = value
+    except (TypeError, ValueError) as exc:
+        raise ReconInputError(f"{name} must be a pair (width_mm, height_mm), e.g. "
+                              f"{example}; got {value!r}") from exc
+    a = _finite_positive(a, f"{name} width", example)
+    b = _finite_positive(b, f"{name} height", example)
+    return a, b
+
+
+def _oversample(value) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ReconInputError(
+            f"oversample must be an integer >= 1, got {value!r}; e.g. 2 (render on a grid "
+            "twice as fine as the sensor, then bin)"
+        )
+    return int(value)
+
+
+def _source(xyz) -> tuple[float, float, float]:
+    try:
+        arr = np.asarray(xyz, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ReconInputError(f"source position {xyz!r} must be (x, y, z) in mm") from exc
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ReconInputError(
+            f"source position must be three finite numbers (x, y, z) in mm, got {xyz!r}"
+        )
+    x, y, z = (float(v) for v in arr)
+    if z <= 0:
+        raise ReconInputError(
+            f"source z = {z} mm is not in front of the diffuser; z is the distance from the "
+            "diffuser towards the scene and must be positive (e.g. 30.0)"
+        )
+    return x, y, z
+
+
+# ----------------------------------------------------------------------------- geometry
+@dataclass(frozen=True, eq=False)
+class LenslessGeometry:
+    """A DiffuserCam bench: diffuser, aperture, sensor and pixel angular response.
+
+    Parameters
+    ----------
+    surface : DiffuserSurface
+        Textured face of the diffuser; must cover the aperture.
+    d_mm : float
+        Diffuser-to-sensor distance, mm (> 0).
+    aperture_mm : (width_mm, height_mm)
+        Rectangular aperture on the diffuser, centred on the axis (width along x /
+        sensor columns, height along y / rows), mm.
+    sensor_shape : (rows, cols)
+        Sensor pixels.
+    sensor_pitch_um : float
+        Pixel pitch, um.
+    falloff_sigma_deg : float or None
+        Standard deviation ``sigma`` of the pixel angular response
+        ``f(theta) = exp(-theta^2 / (2 sigma^2))`` (Eq. 5.1), degrees; None disables
+        the fall-off. Default 20 deg: ``f`` falls to 20 % (the cut-off of Fig. 3.5)
+        at ``sigma sqrt(2 ln 5) = 36 deg``, between the PCO prototype's measured 30.5
+        and 42 deg (Sec. 3.3).
+
+    Raises
+    ------
+    ReconInputError
+        Non-positive or non-finite distances, sizes or pitch, an empty aperture, an
+        aperture the surface does not cover, a bad sensor shape or fall-off.
+    """
+
+    surface: DiffuserSurface
+    d_mm: float
+    aperture_mm: tuple[float, float]
+    sensor_shape: tuple[int, int]
+    sensor_pitch_um: float
+    falloff_sigma_deg: float | None = 20.0
+
+    def __post_init__(self):
+        if not isinstance(self.surface, DiffuserSurface):
+            raise ReconInputError(
+                "surface must be a DiffuserSurface, e.g. DiffuserSurface.smooth_random(4.0)"
+            )
+        set_ = object.__setattr__
+        set_(self, "d_mm", _finite_positive(self.d_mm, "diffuser-to-sensor distance d_mm",
+                                            "8.9"))
+        try:
+            aw, ah = self.aperture_mm
+        except (TypeError, ValueError) as exc:
+            raise ReconInputError(
+                f"aperture must be (width_mm, height_mm), got {self.aperture_mm!r}") from exc
+        aw, ah = float(aw), float(ah)
+        if not (math.isfinite(aw) and math.isfinite(ah)) or aw <= 0 or ah <= 0:
+            raise ReconInputError(
+                f"aperture ({aw}, {ah}) mm is empty or invalid; give a positive (width_mm, "
+                "height_mm) such as (2.2, 2.8)"
+            )
+        set_(self, "aperture_mm", (aw, ah))
+        try:
+            rows, cols = (int(v) for v in self.sensor_shape)
+            ok = all(float(v) == int(v) for v in self.sensor_shape)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok or rows < 2 or cols < 2:
+            raise ReconInputError(
+                f"sensor_shape must be (rows, cols) integers >= 2, got {self.sensor_shape!r}"
+            )
+        set_(self, "sensor_shape", (rows, cols))
+        set_(self, "sensor_pitch_um", _finite_positive(self.sensor_pitch_um, "sensor pitch",
+                                                       "13.0 um"))
+        if self.falloff_sigma_deg is not None:
+            set_(self, "falloff_sigma_deg", _finite_positive(
+                self.falloff_sigma_deg, "fall-off sigma", "20.0 deg, or None for no fall-off"))
+        sw, sh = self.surface.extent_mm
+        if aw > sw + 1e-9 or ah > sh + 1e-9:
+            raise ReconInputError(
+                f"aperture {aw:g} x {ah:g} mm is larger than the diffuser surface "
+                f"{sw:g} x {sh:g} mm; make a larger surface or a smaller aperture"
+            )
+
+    @property
+    def sensor_size_mm(self) -> tuple[float, float]:
+        """(width_mm, height_mm) of the sensor."""
+        rows, cols = self.sensor_shape
+        return cols * self.sensor_pitch_um * 1e-3, rows * self.sensor_pitch_um * 1e-3
+
+    def max_deflection_deg(self) -> float:
+        """Largest deflection ``beta`` of the diffuser inside the aperture, degrees."""
+        return self.surface.max_deflection_deg(self.aperture_mm)
+
+    def min_z_mm(self) -> float:
+        """Closest on-axis source distance whose PSF still fits on the sensor (App. A.2).
+
+        The PSF of an on-axis source at ``z`` lies inside the aperture's shadow,
+        magnified by ``(z + d) / z``, widened on each side by at most
+        ``d tan(beta)`` (``beta``: :meth:`max_deflection_deg`). It fits when
+        ``a (1 + d / z) + 2 d tan(beta) <= s`` on both axes (``a`` aperture and ``s``
+        sensor size), i.e.
+
+            z_min = max over axes of d a / (s - a - 2 d tan(beta)).
+
+        Returns
+        -------
+        float
+            mm; ``math.inf`` if the aperture plus the deflection margin never fits.
+        """
+        margin = 2.0 * self.d_mm * math.tan(math.radians(self.max_deflection_deg()))
+        z = 0.0
+        for a, s in zip(self.aperture_mm, self.sensor_size_mm, strict=True):
+            room = s - a - margin
+            if room <= 0:
+                return math.inf
+            z = max(z, self.d_mm * a / room)
+        return z
+
+
+# ----------------------------------------------------------------------------- model
+class LenslessModel:
+    """Physical PSFs and sensor images of a :class:`LenslessGeometry`.
+
+    Parameters
+    ----------
+    geometry : LenslessGeometry
+    rays_per_pixel : float
+        Ray density: neighbouring rays land at most ``1 / rays_per_pixel`` fine
+        pixels apart (paraxially), i.e. at least ``rays_per_pixel^2`` rays per fine
+        pixel under uniform illumination. Default 2.
+
+    Notes
+    -----
+    Ray tracing is deterministic (a regular ray grid, a fixed split of the work
+    into chunks). The numba kernel compiles on first use (cached on disk).
+    """
+
+    def __init__(self, geometry: LenslessGeometry, rays_per_pixel: float = 2.0):
+        if not isinstance(geometry, LenslessGeometry):
+            raise ReconInputError("geometry must be a LenslessGeometry (see default_geometry)")
+        self.geometry = geometry
+        self.rays_per_pixel = _finite_positive(rays_per_pixel, "rays_per_pixel", "2.0")
+        g = geometry.surface.slopes()
+        self._gx = np.ascontiguousarray(g[0])
+        self._gy = np.ascontiguousarray(g[1])
+
+    # ------------------------------------------------------------------ geometry helpers
+    def magnification(self, z_mm: float) -> float:
+        """Paraxial magnification ``m = d / z`` (Eq. 3.1)."""
+        z = _finite_positive(z_mm, "z_mm", "30.0")
+        return self.geometry.d_mm / z
+
+    def sensor_shift_mm(self, source_xyz_mm) -> tuple[float, float]:
+        """Lateral PSF shift ``-(x, y) d / z`` (mm) of a source, relative to on-axis."""
+        x, y, z = _source(source_xyz_mm)
+        m = self.geometry.d_mm / z
+        return -x * m, -y * m
+
+    def min_z_mm(self) -> float:
+        """See :meth:`LenslessGeometry.min_z_mm`."""
+        return self.geometry.min_z_mm()
+
+    def ray_grid(self, z_mm: float, oversample: int = 2) -> tuple[int, int]:
+        """Rays (nx, ny) across the aperture for sources at depth ``z_mm``."""
+        geo = self.geometry
+        z = _finite_positive(z_mm, "z_mm", "30.0")
+        ov = _oversample(oversample)
+        fine_pitch = geo.sensor_pitch_um * 1e-3 / ov
+        pitch = min(geo.surface.pitch_um * 1e-3,
+                    fine_pitch / (self.rays_per_pixel * (1.0 + geo.d_mm / z)))
+        aw, ah = geo.aperture_mm
+        nx, ny = int(math.ceil(aw / pitch - 1e-9)), int(math.ceil(ah / pitch - 1e-9))
+        if nx * ny > _MAX_RAYS:
+            raise ReconInputError(
+                f"{nx} x {ny} rays are too many; lower oversample or rays_per_pixel, or use a "
+                "coarser diffuser pitch"
+            )
+        return nx, ny
+
+    # ------------------------------------------------------------------ tracing
+    def _trace(self, sources, powers, ov: int, offset_mm=(0.0, 0.0)) -> np.ndarray:
+        """Fine-grid image (rows * ov, cols * ov) float64 of point sources."""
+        from . import _raytrace
+
+        geo = self.geometry
+        rows, cols = geo.sensor_shape
+        fine_pitch = geo.sensor_pitch_um * 1e-3 / ov
+        out = np.zeros((_raytrace.CHUNKS, rows * ov, cols * ov), np.float64)
+        if geo.falloff_sigma_deg is None:
+            inv2s2 = 0.0
+        else:
+            inv2s2 = 1.0 / (2.0 * math.radians(geo.falloff_sigma_deg) ** 2)
+        aw, ah = geo.aperture_mm
+        for (x, y, z), p in zip(sources, powers, strict=True):
+            if p == 0.0:
+                continue
+            nx, ny = self.ray_grid(z, ov)
+            _raytrace.trace(self._gx, self._gy, geo.surface.pitch_um * 1e-3,
+                            geo.surface.refractive_index, x, y, z, float(p), geo.d_mm,
+                            aw / 2, ah / 2, nx, ny, inv2s2, fine_pitch,
+                            float(offset_mm[0]), float(offset_mm[1]), out)
+        return out.sum(axis=0)
+
+    @staticmethod
+    def _bin(fine: np.ndarray, ov: int) -> np.ndarray:
+        """Sum ``ov x ov`` blocks (box_bin averages, times ov^2), float64."""
+        if ov == 1:
+            return np.asarray(fine, np.float64)
+        return box_bin(fine, ov).astype(np.float64) * float(ov * ov)
+
+    def psf(self, source_xyz_mm, oversample: int = 2, *, registered: bool = False
+            ) -> np.ndarray:
+        """Physical PSF of a point source by ray tracing (see the module docstring).
+
+        Parameters
+        ----------
+        source_xyz_mm : (x, y, z)
+            Source position, mm: ``z`` > 0 is the distance in front of the diffuser
+            along the axis, ``x`` (along sensor columns) and ``y`` (rows) lateral.
+        oversample : int
+            Render on a grid this many times finer than the sensor, then box-bin.
+        registered : bool
+            If True, render on a sensor grid translated by the paraxial shift
+            ``-(x, y) d / z`` (Eq. 5.2 with ``s = 1``), so the pattern stays centred as
+            for an on-axis source: the registered PSF of the local convolution model
+            (nothing is clipped by the real sensor edge).
+
+        Returns
+        -------
+        ndarray, float64, shape (rows, cols)
+            Fraction of the source's emitted power (isotropic, unit power) detected
+            in each pixel, including the pixel fall-off ``f`` (dimensionless;
+            float32 rounding from the binning, relative 6e-8).
+
+        Raises
+        ------
+        ReconInputError
+            A source not in front of the diffuser (z <= 0), non-finite coordinates,
+            a bad oversample.
+        """
+        src = _source(source_xyz_mm)
+        ov = _oversample(oversample)
+        off = self.sensor_shift_mm(src) if registered else (0.0, 0.0)
+        return self._bin(self._trace([src], [1.0], ov, off), ov)
+
+    def render_points(self, points_xyz_mm, intensities, oversample: int = 2) -> np.ndarray:
+        """Sensor image of incoherent point sources (beads) in 3D: ``sum_k P_k h_k``.
+
+        Parameters
+        ----------
+        points_xyz_mm : array_like, shape (N, 3)
+            Source positions (x, y, z) in mm, each with z > 0.
+        intensities : array_like, shape (N,)
+            Emitted power of each source (any unit, >= 0); the image is in that unit
+            per pixel (see :meth:`psf`).
+        oversample : int
+
+        Returns
+        -------
+        ndarray, float64, shape (rows, cols)
+        """
+        pts = np.asarray(points_xyz_mm, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ReconInputError(
+                f"points must have shape (N, 3) of (x, y, z) in mm, got {pts.shape}")
+        power = np.asarray(intensities, dtype=np.float64).reshape(-1)
+        if power.shape[0] != pts.shape[0]:
+            raise ReconInputError(
+                f"{power.shape[0]} intensities for {pts.shape[0]} points; give one per point")
+        if not np.all(np.isfinite(power)) or np.any(power < 0):
+            raise ReconInputError("intensities must be finite and non-negative")
+        sources = [_source(p) for p in pts]
+        ov = _oversample(oversample)
+        return self._bin(self._trace(sources, power, ov), ov)
+
+    # ------------------------------------------------------------------ brightness
+    def brightness(self, x_mm, y_mm, z_mm: float, samples: int = 48) -> np.ndarray:
+        """Detected power fraction of point sources, ignoring the diffuser's deflection.
+
+        ``b(x, y, z) = 1/(4 pi) int_aperture f(theta) z / r^3 dA`` with ``r`` the
+        distance from the source to the aperture point and ``theta`` the angle of
+        that undeflected ray to the axis (midpoint rule on ``samples^2`` points):
+        the total of the registered PSF up to the small redistribution of the
+        fall-off by the deflections, i.e. the two-part model's brightness term
+        (Eq. 5.1, ``cos^3``-like times ``f``).
+
+        Parameters
+        ----------
+        x_mm, y_mm : array_like, same shape
+            Lateral source positions, mm.
+        z_mm : float
+            Source depth, mm (> 0).
+        samples : int
+            Aperture samples per axis.
+
+        Returns
+        -------
+        ndarray, float64, shape of ``x_mm``
+        """
+        geo = self.geometry
+        z = _finite_positive(z_mm, "z_mm", "30.0")
+        x = np.asarray(x_mm, np.float64)
+        y = np.asarray(y_mm, np.float64)
+        aw, ah = geo.aperture_mm
+        ax = ((np.arange(samples) + 0.5) / samples - 0.5) * aw
+        ay = ((np.arange(samples) + 0.5) / samples - 0.5) * ah
+        da = aw * ah / samples**2
+        out = np.empty(x.shape, np.float64)
+        xf, yf, of = x.reshape(-1), y.reshape(-1), out.reshape(-1)
+        step = max(1, 2_000_000 // samples**2)
+        for k in range(0, xf.size, step):
+            dx = ax[None, None, :] - xf[k:k + step, None, None]
+            dy = ay[None, :, None] - yf[k:k + step, None, None]
+            r2 = dx * dx + dy * dy + z * z
+            w = z / (r2 * np.sqrt(r2))
+            if geo.falloff_sigma_deg is not None:
+                th = np.arccos(z / np.sqrt(r2))
+                w = w * np.exp(-th * th / (2.0 * math.radians(geo.falloff_sigma_deg) ** 2))
+            of[k:k + step] = w.sum(axis=(1, 2)) * da / (4.0 * math.pi)
+        return out
+
+    def _brightness_map(self, pos_x, pos_y, fov, z, nodes: int = 33) -> np.ndarray:
+        """:meth:`brightness` on the object grid: exact on a ``nodes x nodes`` grid over
+        the field of view, bilinear in between, constant beyond it (zero scene)."""
+        from scipy.ndimage import map_coordinates
+
+        gx = np.linspace(-fov[0] / 2, fov[0] / 2, nodes)
+        gy = np.linspace(-fov[1] / 2, fov[1] / 2, nodes)
+        xx, yy = np.meshgrid(gx, gy)
+        coarse = self.brightness(xx, yy, z)
+        fx = np.clip((pos_x + fov[0] / 2) / fov[0] * (nodes - 1), 0, nodes - 1)
+        fy = np.clip((pos_y + fov[1] / 2) / fov[1] * (nodes - 1), 0, nodes - 1)
+        yy, xx = np.meshgrid(fy, fx, indexing="ij")
+        return map_coordinates(coarse, [yy, xx], order=1, mode="nearest")
+
+    # ------------------------------------------------------------------ scenes
+    def render(self, scene, z_mm: float, field_of_view_mm, oversample: int = 2,
+               patches: int = 3) -> np.ndarray:
+        """Sensor image of a planar scene with spatial variance (local convolution).
+
+        The scene is a Lambertian object plane at depth ``z_mm`` facing the camera,
+        centred on the axis, pixel ``(i, j)`` covering a rectangle of the lateral
+        extent (rows along y, columns along x; constant radiance over the pixel). An
+        element of area ``A`` and radiance ``L`` sends intensity ``L A cos(theta)``
+        towards the diffuser, the same as an isotropic point source of power
+        ``4 pi L A cos(theta)`` (``theta``: its field angle), so the image is
+
+            b = bin( sum_i C F^-1 diag(F P h~_i / B_i) F diag(alpha_i B) y ),  (Eq. 5.5)
+
+        where ``y`` is the scene resampled (exact area overlap) onto the fine object
+        grid of spacing ``fine_pitch z / d`` (Eq. 3.3, flipped: ``u = -m x``) times
+        ``4 pi cos(theta)``, ``alpha_i`` are bilinear partition-of-unity weights of
+        the ``patches x patches`` region centres (tents in each axis, constant
+        beyond the outer centres), ``h~_i`` is the registered ray-traced PSF of
+        region centre ``i`` (``psf(..., registered=True)`` on the fine grid), and
+        ``B`` is the smooth brightness term of the two-part model (Eq. 5.1,
+        :meth:`brightness`: inverse square, obliquity and pixel fall-off) evaluated
+        per object point (``B_i`` at the region centres). Only the normalised caustic
+        pattern is interpolated between regions, so brightness is right everywhere
+        and a point at a region centre images exactly to its ray-traced PSF. The
+        convolutions are :class:`recon.operators.ConvolutionOperator` forward passes
+        on the fine grid (padded twice the fine sensor, so nothing wraps and every
+        object point whose PSF can reach the sensor is represented); the operator
+        is built per region because each region has its own PSF.
+
+        Parameters
+        ----------
+        scene : ndarray, shape (rows_s, cols_s)
+            Non-negative radiance (any unit, e.g. photons / s / mm^2 / sr).
+        z_mm : float
+            Depth of the scene plane in front of the diffuser, mm (> 0).
+        field_of_view_mm : float or (width_mm, height_mm)
+            Lateral extent covered by the scene; a scalar is the width, the height
+            following from square scene pixels.
+        oversample : int
+            Fine grid factor (render finer, then bin).
+        patches : int
+            Regions per axis of the local convolution model; 1 is the shift-invariant
+            convolution model (Eq. 3.3) with the on-axis PSF.
+
+        Returns
+        -------
+        ndarray, float64, shape (rows, cols)
+            Photon rate per pixel per unit scene radiance (scene unit times mm^2 sr).
+        """
+        geo = self.geometry
+        y = np.asarray(scene, dtype=np.float64)
+        if y.ndim != 2 or min(y.shape) < 1:
+            raise ReconInputError(f"scene must be a 2D image (rows, cols), got shape {y.shape}")
+        if not np.all(np.isfinite(y)) or np.any(y < 0):
+            raise ReconInputError("scene radiance must be finite and non-negative")
+        z = _finite_positive(z_mm, "scene depth z_mm", "30.0")
+        if isinstance(field_of_view_mm, numbers.Real) and not isinstance(field_of_view_mm,
+                                                                          bool):
+            fw = _finite_positive(field_of_view_mm, "field of view", "10.0")
+            fov = (fw, fw * y.shape[0] / y.shape[1])
+        else:
+            fov = _pair_mm(field_of_view_mm, "field of view", "(12.0, 10.0)")
+        ov = _oversample(oversample)
+        if isinstance(patches, bool) or not isinstance(patches, numbers.Integral) or patches < 1:
+            raise ReconInputError(f"patches must be an integer >= 1, got {patches!r}; e.g. 3")
+        patches = int(patches)
+        rows, cols = geo.sensor_shape
+        fine_shape = (rows * ov, cols * ov)
+        padded = fast_padded_shape(fine_shape)
+        q = geo.sensor_pitch_um * 1e-3 / ov * z / geo.d_mm  # object cell, mm
+        pos_y = -(np.arange(padded[0]) - padded[0] // 2) * q
+        pos_x = -(np.arange(padded[1]) - padded[1] // 2) * q
+        ry = _overlap(np.linspace(-fov[1] / 2, fov[1] / 2, y.shape[0] + 1), pos_y, q)
+        rx = _overlap(np.linspace(-fov[0] / 2, fov[0] / 2, y.shape[1] + 1), pos_x, q)
+        obj = ry @ y @ rx.T  # radiance x area, mm^2
+        cos_t = z / np.sqrt(pos_y[:, None] ** 2 + pos_x[None, :] ** 2 + z * z)
+        obj *= 4.0 * math.pi * cos_t
+        if not np.any(obj):
+            return np.zeros(geo.sensor_shape, np.float64)
+        cx = (np.arange(patches) + 0.5) / patches * fov[0] - fov[0] / 2
+        cy = (np.arange(patches) + 0.5) / patches * fov[1] - fov[1] / 2
+        # the slowly varying brightness (1/r^2, obliquity, pixel fall-off) is applied
+        # per object point; only the normalised caustic pattern is interpolated
+        obj *= self._brightness_map(pos_x, pos_y, fov, z)
+        wx, wy = _tents(pos_x, cx), _tents(pos_y, cy)
+        out = np.zeros(fine_shape, np.float64)
+        for a in range(patches):
+            if not np.any(wy[a][:, None] * obj):
+                continue
+            for b in range(patches):
+                part = (wy[a][:, None] * wx[b][None, :]) * obj
+                if not np.any(part):
+                    continue
+                src = (float(cx[b]), float(cy[a]), z)
+                kernel = self._trace([src], [1.0], ov, self.sensor_shift_mm(src))
+                norm = float(self.brightness(np.array([cx[b]]), np.array([cy[a]]), z)[0])
+                if not np.any(kernel) or norm <= 0:
+                    continue
+                scale = float(kernel.max())
+                op = ConvolutionOperator((kernel / scale).astype(np.float32),
+                                         padded_shape=padded)
+                out += (scale / norm) * op.forward(part.astype(np.float32)).astype(np.float64)
+        np.maximum(out, 0.0, out=out)  # FFT round-off below zero
+        return self._bin(out, ov)
+
+    def render_tilted_target(self, z_near_mm: float, z_far_mm: float, field_of_view_mm,
+                             target: np.ndarray | None = None, slices: int = 4,
+                             oversample: int = 2, patches: int = 1) -> np.ndarray:
+        """Sensor image of a resolution target tilted in depth about the x axis.
+
+        The target's top row (row 0) is at ``z_near_mm`` and its bottom row at
+        ``z_far_mm``, depth varying linearly with the row; ``field_of_view_mm`` is the
+        lateral (projected) extent. It is rendered as ``slices`` depth slices at
+        equally spaced depths: each row is shared between its two nearest slice
+        depths with linear weights (a partition of unity), and each slice is
+        :meth:`render`-ed at its depth.
+
+        Parameters
+        ----------
+        z_near_mm, z_far_mm : float
+            Depths (mm, > 0) of the top and bottom rows.
+        field_of_view_mm : float or (width_mm, height_mm)
+        target : ndarray (rows_t, cols_t), optional
+            Radiance pattern; default :func:`usaf_target` ``((256, 256))``.
+        slices : int
+            Depth slices (>= 1; 1 renders everything at the mean depth).
+        oversample, patches : int
+            As in :meth:`render`.
+
+        Returns
+        -------
+        ndarray, float64, shape (rows, cols)
+        """
+        z0 = _finite_positive(z_near_mm, "z_near_mm", "25.0")
+        z1 = _finite_positive(z_far_mm, "z_far_mm", "40.0")
+        if isinstance(slices, bool) or not isinstance(slices, numbers.Integral) or slices < 1:
+            raise ReconInputError(f"slices must be an integer >= 1, got {slices!r}; e.g. 4")
+        t = usaf_target((256, 256)) if target is None else np.asarray(target, np.float64)
+        if t.ndim != 2:
+            raise ReconInputError(f"target must be 2D, got shape {t.shape}")
+        depth = z0 + (z1 - z0) * (np.arange(t.shape[0]) + 0.5) / t.shape[0]
+        if slices == 1:
+            zs = np.array([(z0 + z1) / 2])
+        else:
+            zs = np.linspace(min(z0, z1), max(z0, z1), int(slices))
+        weights = _tents(depth, zs)
+        out = np.zeros(self.geometry.sensor_shape, np.float64)
+        for k, zk in enumerate(zs):
+            part = t * weights[k][:, None]
+            if np.any(part):
+                out += self.render(part, float(zk), field_of_view_mm, oversample, patches)
+        return out
+
+
+# ----------------------------------------------------------------------------- helpers
+def _overlap(edges: np.ndarray, centres: np.ndarray, q: float) -> np.ndarray:
+    """Overlap lengths (len(centres), len(edges) - 1) of cells [c - q/2, c + q/2]
+    with the intervals [edges[j], edges[j + 1]]."""
+    lo = np.maximum(centres[:, None] - q / 2, edges[None, :-1])
+    hi = np.minimum(centres[:, None] + q / 2, edges[None, 1:])
+    return np.clip(hi - lo, 0.0, None)
+
+
+def _tents(pos: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Piecewise-linear partition of unity: weights (len(centres), len(pos))."""
+    eye = np.eye(len(centres))
+    return np.stack([np.interp(pos, centres, eye[k]) for k in range(len(centres))])
+
+
+def usaf_target(shape: tuple[int, int] = (256, 256)) -> np.ndarray:
+    """A USAF-1951-like bar target: elements of three horizontal and three vertical
+    bars (bar length five widths), bar widths shrinking by ``2^(1/2)`` per element
+    from ``min(shape) / 16`` to 1 pixel, packed in rows.
+
+    Parameters
+    ----------
+    shape : (rows, cols)
+        At least 32 x 32.
+
+    Returns
+    -------
+    ndarray, float64, shape ``shape``
+        1 on the bars, 0 elsewhere.
+    """
+    try:
+        rows, cols = (int(v) for v in shape)
+    except (TypeError, ValueError) as exc:
+        raise ReconInputError(f"target shape must be (rows, cols), got {shape!r}") from exc
+    if rows < 32 or cols < 32:
+        raise ReconInputError(f"target shape {shape} is too small; use at least (32, 32)")
+    img = np.zeros((rows, cols), np.float64)
+    widths = []
+    w = min(rows, cols) / 16
+    while round(w) >= 1:
+        if not widths or round(w) != widths[-1]:
+            widths.append(int(round(w)))
+        w /= math.sqrt(2.0)
+    r0, c0, shelf = 2, 2, 0
+    for w in widths:
+        ew, eh = 11 * w, 5 * w  # horizontal-bar block, gap w, vertical-bar block
+        if c0 + ew > cols - 2:
+            r0, c0, shelf = r0 + shelf + 2 * w, 2, 0
+        if r0 + eh > rows - 2:
+            break
+        for k in range(3):  # three horizontal bars (5w long, w thick)
+            img[r0 + 2 * k * w:r0 + 2 * k * w + w, c0:c0 + 5 * w] = 1.0
+        for k in range(3):  # three vertical bars
+            img[r0:r0 + 5 * w, c0 + 6 * w + 2 * k * w:c0 + 6 * w + 2 * k * w + w] = 1.0
+        c0 += ew + 2 * w
+        shelf = max(shelf, eh)
+    return img
+
+
+def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
+    """A small bench geometry for tests and demos.
+
+    Both kinds: sensor 256 x 320 px at 13 um (3.33 x 4.16 mm; the PCO.edge 6.5 um
+    pixels binned 2 x 2 as in Ch. 4), pixel fall-off sigma 20 deg, aperture sized
+    so that :meth:`LenslessGeometry.min_z_mm` is at most 20 mm (the PSF of an
+    on-axis source at 20 mm just fills the sensor, App. A.2):
+    ``a = (s - 2 d tan(beta)) / (1 + d / 20 mm)`` per axis, ``beta`` the surface's
+    largest deflection.
+
+    * ``"smooth"``: :meth:`DiffuserSurface.smooth_random` (140 um features, mean
+      slope 0.7 deg, n = 1.58, 5 um pitch), ``d = 8.9`` mm (the Ch. 4 prototype).
+    * ``"microlens"``: :meth:`DiffuserSurface.random_microlens` (250 um lenslets,
+      f = 1.5 mm, n = 1.5, 2.5 um pitch), ``d = 1.6`` mm (lenslets focus a source at
+      ~24 mm onto the sensor: ``1/d = 1/f - 1/z``).
+
+    Parameters
+    ----------
+    kind : {"smooth", "microlens"}
+    seed : int
+        Seed of the diffuser surface.
+
+    Returns
+    -------
+    LenslessGeometry
+    """
+    sensor, pitch_um, z_fill = (256, 320), 13.0, 20.0
+    sw, sh = sensor[1] * pitch_um * 1e-3, sensor[0] * pitch_um * 1e-3
+    if kind == "smooth":
+        d = 8.9
+        surface = DiffuserSurface.smooth_random((sw + 0.1, sh + 0.1), pitch_um=5.0,
+                                                seed=seed)
+    elif kind == "microlens":
+        d = 1.6
+        surface = DiffuserSurface.random_microlens((sw + 0.1, sh + 0.1), 2.5, seed=seed)
+    else:
+        raise ReconInputError(f"unknown diffuser kind {kind!r}; use 'smooth' or 'microlens'")
+    margin = 2.0 * d * math.tan(math.radians(surface.max_deflection_deg()))
+    aperture = tuple(math.floor((s - margin) / (1.0 + d / z_fill) * 1e3) * 1e-3
+                     for s in (sw, sh))
+    return LenslessGeometry(surface, d, aperture, sensor, pitch_um, 20.0)
