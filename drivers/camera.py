@@ -368,7 +368,7 @@ class Camera(Device):
 
     @property
     def dropped_frames(self) -> int:
-        """Frames the camera produced but lost (snap and stream) since open."""
+        """Frames the camera produced but lost (snap and stream), since the object was made."""
         return self._dropped_frames
 
     def snap(self, timeout_s: float | None = None) -> Frame:
