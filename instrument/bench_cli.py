@@ -22,7 +22,13 @@ import sys
 from collections import Counter
 from typing import Any
 
-from instrument.config import BenchConfig, BenchConfigError, default_bench, load_bench
+from instrument.config import (
+    BenchConfig,
+    BenchConfigError,
+    default_bench,
+    load_bench,
+    simulated_twin,
+)
 
 __all__ = ["add_subcommands", "run"]
 
@@ -106,14 +112,14 @@ def _validate(path: str, *, simulate: bool) -> int:
         return _report(exc)
     print(f"ok: {_summary(config)} in {path}")
     if simulate:
-        for orig, twin in zip(config.devices, driven.devices, strict=True):
-            dropped = sorted(set(orig.params) - set(twin.params))
-            note = f" (params dropped: {', '.join(dropped)})" if dropped else ""
+        for orig in config.devices:
+            twin, dropped = simulated_twin(orig, config.geometry)
+            note = f" (params dropped: {', '.join(sorted(dropped))})" if dropped else ""
             print(f"  {orig.id}: {orig.driver} -> {twin.driver}{note}")
     return 0
 
 
-def _value(v: Any, limit: int = 40) -> str:
+def _value(v: Any, limit: int = 60) -> str:
     text = v if isinstance(v, str) else json.dumps(v, separators=(",", ":"), default=str)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 

@@ -65,6 +65,7 @@ __all__ = [
     "KINDS",
     "SIMULATED_DRIVERS",
     "STAGE_AXES",
+    "TWIN_PARAM_ALIASES",
     "BenchConfig",
     "BenchConfigError",
     "CalibrationDefaults",
@@ -74,6 +75,7 @@ __all__ = [
     "default_bench",
     "load_bench",
     "parse_bench",
+    "simulated_twin",
     "to_toml",
     "with_simulated_drivers",
 ]
@@ -91,13 +93,16 @@ SIMULATED_DRIVERS: dict[str, str] = {
     "led_array": "simulated-led-array",
     "slm": "simulated-slm",
 }
-#: Driver parameters a simulated twin keeps from the real device, per kind (the
-#: ones that mean the same for both: shapes, pitches, axes, exposure, ...).
-SHARED_PARAMS: dict[str, tuple[str, ...]] = {
-    "camera": ("shape_px", "pixel_pitch_um", "bit_depth", "exposure_s", "gain"),
-    "stage": ("axes", "limits_mm", "limits_deg", "speed_mm_s"),
-    "led_array": ("shape", "pitch_mm"),
-    "slm": ("shape_px", "pixel_pitch_um", "bit_depth", "wavelength_nm"),
+#: Parameter names a simulated twin takes under another name, per kind:
+#: ``{twin name: (names in a bench file, first found wins)}``.
+TWIN_PARAM_ALIASES: dict[str, dict[str, tuple[str, ...]]] = {
+    "camera": {
+        "sensor_shape": ("sensor_shape", "sensor_shape_px", "shape_px"),
+        "adc_bits": ("adc_bits", "bit_depth"),
+    },
+    "stage": {},
+    "led_array": {"shape": ("shape", "shape_px")},
+    "slm": {"resolution": ("resolution", "resolution_px", "shape_px")},
 }
 
 _ID_RE = re.compile(r"^[a-z0-9_-]{1,64}$")
@@ -148,11 +153,23 @@ _QUANTITY_RE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([
 
 
 def _unit_of(key: str) -> str | None:
-    """The unit suffix of a key name (``distance_mm`` -> ``mm``), or None."""
-    if "_" not in key:
+    """The unit suffix of a key name (``distance_mm`` -> ``mm``, ``speed_mm_s`` ->
+    ``mm/s``), or None (also for ``..._per_s`` rates of unnamed quantities)."""
+    parts = key.lower().split("_")
+    if len(parts) < 2 or parts[-1] not in _UNIT_WORDS:
         return None
-    suffix = key.rsplit("_", 1)[1].lower()
-    return suffix if suffix in _UNIT_WORDS else None
+    if parts[-1] == "s" and len(parts) >= 3:
+        if parts[-2] == "per":
+            return None
+        if parts[-2] in _UNIT_WORDS and parts[-2] not in ("s", "px"):
+            return f"{parts[-2]}/s"
+    return parts[-1]
+
+
+def _unit_word(unit: str) -> str:
+    if unit.endswith("/s"):
+        return f"{_UNIT_WORDS[unit[:-2]]} per second"
+    return _UNIT_WORDS[unit]
 
 
 def _fmt_number(x: float) -> str:
@@ -175,7 +192,7 @@ def _unit_fix(key: str, unit: str, got: str) -> str:
             return f"{got!r} is {_fmt_number(converted)} {unit}: write {key} = " + _fmt_number(
                 converted
             )
-    return f"write {key} as a plain number in {_UNIT_WORDS[unit]}"
+    return f"write {key} as a plain number in {_unit_word(unit)}"
 
 
 def _check_number(key: str, value: Any, *, integer: bool = False) -> None:
@@ -188,7 +205,7 @@ def _check_number(key: str, value: Any, *, integer: bool = False) -> None:
                 "unit",
                 "expected {unit_word} as a number, got {got}",
                 {
-                    "unit_word": _UNIT_WORDS[unit],
+                    "unit_word": _unit_word(unit),
                     "got": repr(value),
                     "fix": _unit_fix(key, unit, value),
                 },
@@ -406,7 +423,7 @@ class DeviceConfig(_Section):
                     problems.append(
                         (
                             (*loc, key),
-                            f"expected {_UNIT_WORDS[unit]} as a number, got {bad!r}",
+                            f"expected {_unit_word(unit)} as a number, got {bad!r}",
                             _unit_fix(key, unit, bad),
                         )
                     )
@@ -427,33 +444,107 @@ class DeviceConfig(_Section):
     def _stage_axes(self) -> DeviceConfig:
         if self.kind != "stage":
             return self
-        axes = self.params.get("axes")
-        valid = ", ".join(f'"{a}"' for a in STAGE_AXES)
-        msg = None
-        if axes is None:
-            msg = "a stage lists its axes in params.axes"
-            fix = 'add axes = ["x", "y", "z"] under [devices.params] (names from ' + valid + ")"
-        elif not isinstance(axes, list) or not axes or not all(isinstance(a, str) for a in axes):
-            msg = f"axes must be a non-empty array of axis names, got {axes!r}"
-            fix = 'write axes = ["x", "y", "z"] (names from ' + valid + ")"
-        else:
-            bad = [a for a in axes if a not in STAGE_AXES]
-            dup = sorted({a for a in axes if axes.count(a) > 1})
-            if bad:
-                close = {a: difflib.get_close_matches(a, STAGE_AXES, 1) for a in bad}
-                hint = ", ".join(f"{a!r} -> {c[0]!r}" for a, c in close.items() if c)
-                msg = f"unknown stage axis name(s) {bad}"
-                fix = f"use names from {valid}" + (f" ({hint})" if hint else "")
-            elif dup:
-                msg = f"duplicate stage axis name(s) {dup}"
-                fix = "list each axis once"
-        if msg:
+        problems = _axes_problems(self.params.get("axes"))
+        if problems:
             raise PydanticCustomError(
                 "bench_rules",
                 "{summary}",
-                {"summary": f"params.axes: {msg}", "problems": [(("params", "axes"), msg, fix)]},
+                {
+                    "summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
+                    "problems": problems,
+                },
             )
         return self
+
+
+def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
+    """Problems of a stage's ``params.axes``: a table ``{name = [low, high]}`` of travel
+    ranges (mm for x, y, z; degrees for tip, tilt, rotation) or an array of names."""
+    valid = ", ".join(STAGE_AXES)
+    example = "axes = { x = [-25, 25], y = [-25, 25], z = [0, 50] }"
+    loc = ("params", "axes")
+    if axes is None:
+        return [
+            (
+                loc,
+                "a stage lists its axes in params.axes",
+                f"add {example} under [devices.params] (travel in mm for x, y, z, degrees for "
+                f"tip, tilt, rotation; names from {valid})",
+            )
+        ]
+    if isinstance(axes, dict):
+        names = list(axes)
+    elif isinstance(axes, list) and all(isinstance(a, str) for a in axes):
+        names = axes
+    else:
+        names = []
+    if not names:
+        return [
+            (
+                loc,
+                f"expected a table of axis travel ranges or an array of axis names, got {axes!r}",
+                f'write {example} (or axes = ["x", "y", "z"])',
+            )
+        ]
+    bad = [a for a in names if a not in STAGE_AXES]
+    if bad:
+        close = {a: difflib.get_close_matches(a, STAGE_AXES, 1) for a in bad}
+        hint = ", ".join(f"{a!r} -> {c[0]!r}" for a, c in close.items() if c)
+        return [
+            (
+                loc,
+                f"unknown stage axis name(s) {bad}",
+                f"use names from {valid}" + (f" ({hint})" if hint else ""),
+            )
+        ]
+    dup = sorted({a for a in names if names.count(a) > 1})
+    if dup:
+        return [(loc, f"duplicate stage axis name(s) {dup}", "list each axis once")]
+    out = []
+    if isinstance(axes, dict):
+        for name, travel in axes.items():
+            unit = "mm" if name in ("x", "y", "z") else "deg"
+            items = travel if isinstance(travel, list) else [travel]
+            text = next((t for t in items if isinstance(t, str)), None)
+            if text is not None:
+                out.append(
+                    (
+                        (*loc, name),
+                        f"expected {_unit_word(unit)} as a number, got {text!r}",
+                        f"travel of {name} is [low, high] in {_unit_word(unit)}: "
+                        + _unit_fix(name + "_" + unit, unit, text).replace(f"{name}_{unit} = ", ""),
+                    )
+                )
+                continue
+            ok = (
+                isinstance(travel, list)
+                and len(travel) == 2
+                and all(isinstance(t, int | float) and not isinstance(t, bool) for t in travel)
+                and all(math.isfinite(t) for t in travel)
+                and travel[0] < travel[1]
+            )
+            if not ok:
+                out.append(
+                    (
+                        (*loc, name),
+                        f"travel of axis {name!r} must be [low, high] with low < high, "
+                        f"got {travel!r}",
+                        f"write {name} = [low, high] in {_unit_word(unit)}, e.g. "
+                        f"{name} = {list(_DEFAULT_TRAVEL[name])}",
+                    )
+                )
+    return out
+
+
+#: Travel given to a simulated twin's axis when the bench file lists only names.
+_DEFAULT_TRAVEL: dict[str, tuple[float, float]] = {
+    "x": (-25.0, 25.0),
+    "y": (-25.0, 25.0),
+    "z": (0.0, 50.0),
+    "tip": (-5.0, 5.0),
+    "tilt": (-5.0, 5.0),
+    "rotation": (-180.0, 180.0),
+}
 
 
 def bench_rule_problems(devices: list[Any], branches: Any) -> list[tuple[tuple, str, str]]:
@@ -724,7 +815,7 @@ def _problems_from_validation(exc: ValidationError) -> list[Problem]:
             fix = f'write {key} = "..." (in quotes)'
         elif typ.startswith(("int_", "float_")) or typ in ("tuple_type", "list_type"):
             unit = _unit_of(key)
-            in_unit = f" in {_UNIT_WORDS[unit]}" if unit else ""
+            in_unit = f" in {_unit_word(unit)}" if unit else ""
             msg = f"{err['msg'].lower()}, got {got!r}"
             fix = f"write {key} as {'numbers' if 'tuple' in typ else 'a number'}{in_unit}"
             ex = _example(loc)
@@ -896,9 +987,11 @@ def parse_bench(
         from instrument.registry import driver_problems
 
         devices = raw.get("devices")
-        if simulate and isinstance(devices, list):
+        if simulate and config is not None:  # the twins, with their translated params
+            devices = [d.model_dump() for d in with_simulated_drivers(config).devices]
+        elif simulate and isinstance(devices, list):  # invalid file: check the twins' names
             devices = [
-                {**d, "driver": SIMULATED_DRIVERS[d["kind"]]}
+                {"id": d.get("id"), "kind": d["kind"], "driver": SIMULATED_DRIVERS[d["kind"]]}
                 if isinstance(d, dict) and d.get("kind") in SIMULATED_DRIVERS
                 else d
                 for d in devices
@@ -953,9 +1046,11 @@ def load_bench(
 def default_bench() -> BenchConfig:
     """The built-in simulated bench (what ``examples/bench-simulated.toml`` holds).
 
-    A simulated camera, a 3-axis stage (x, y, z) carrying the point source, a 32x32
-    LED array, an SLM and a 6-axis mask stage (x, y, z, tip, tilt, rotation) for the
-    holography branch.
+    A simulated camera (480 x 640 pixels of 3.45 um, as in the geometry), a 3-axis
+    stage (x, y, z; z travel covers the calibration z range) carrying the point
+    source, a 32x32 LED array, a 96 x 120 SLM and a 6-axis mask stage (x, y, z, tip,
+    tilt, rotation) for the holography branch. Parameters are the simulated drivers'
+    constructor arguments.
     """
     return BenchConfig(
         name="simulated",
@@ -966,32 +1061,51 @@ def default_bench() -> BenchConfig:
         ),
         branches=["lensless", "holography"],
         devices=[
-            DeviceConfig(id="camera", kind="camera", driver="simulated-camera", params={}),
+            DeviceConfig(
+                id="camera",
+                kind="camera",
+                driver="simulated-camera",
+                params={"sensor_shape": [480, 640], "pixel_pitch_um": 3.45, "adc_bits": 12},
+            ),
             DeviceConfig(
                 id="source_stage",
                 kind="stage",
                 driver="simulated-stage",
-                params={"axes": ["x", "y", "z"]},
+                params={"axes": {"x": [-25.0, 25.0], "y": [-25.0, 25.0], "z": [0.0, 250.0]}},
             ),
             DeviceConfig(
                 id="led_array",
                 kind="led_array",
                 driver="simulated-led-array",
-                params={"shape": [32, 32]},
+                params={"shape": [32, 32], "pitch_mm": 4.0, "distance_mm": 50.0},
             ),
-            DeviceConfig(id="slm", kind="slm", driver="simulated-slm", params={}),
+            DeviceConfig(
+                id="slm",
+                kind="slm",
+                driver="simulated-slm",
+                params={"resolution": [96, 120], "pixel_pitch_um": 8.0, "wavelength_nm": 532.0},
+            ),
             DeviceConfig(
                 id="mask_stage",
                 kind="stage",
                 driver="simulated-stage",
-                params={"axes": ["x", "y", "z", "tip", "tilt", "rotation"]},
+                params={
+                    "axes": {
+                        "x": [-5.0, 5.0],
+                        "y": [-5.0, 5.0],
+                        "z": [0.0, 10.0],
+                        "tip": [-2.0, 2.0],
+                        "tilt": [-2.0, 2.0],
+                        "rotation": [-180.0, 180.0],
+                    }
+                },
             ),
         ],
         geometry=GeometryConfig(
             sensor_pixel_pitch_um=3.45,
-            sensor_shape_px=(1200, 1600),
+            sensor_shape_px=(480, 640),
             diffuser_sensor_distance_mm=8.9,
-            aperture_mm=(5.5, 4.1),
+            aperture_mm=(2.2, 1.66),
             diffuser_kind="smooth",
             wavelength_nm=532.0,
         ),
@@ -999,23 +1113,72 @@ def default_bench() -> BenchConfig:
     )
 
 
+def simulated_twin(
+    device: DeviceConfig, geometry: GeometryConfig | None = None
+) -> tuple[DeviceConfig, list[str]]:
+    """The simulated twin of one device, and the names of the parameters it dropped.
+
+    The twin keeps the id and kind and takes the driver :data:`SIMULATED_DRIVERS`
+    names for the kind. Parameters are translated where they mean the same thing:
+
+    * names in :data:`TWIN_PARAM_ALIASES` are renamed (``bit_depth`` -> ``adc_bits``,
+      an SLM's ``shape_px`` -> ``resolution``, ...);
+    * a camera without ``sensor_shape``/``pixel_pitch_um`` takes them from the
+      geometry, an SLM without ``wavelength_nm`` the geometry's wavelength;
+    * a stage whose ``axes`` is an array of names gets travel ranges from
+      ``limits_mm``/``limits_deg`` (``{axis = [low, high]}``) or defaults;
+    * any other parameter is kept if the twin's constructor takes it by that name,
+      otherwise dropped (ports, serial numbers, ...). If the twin cannot be imported,
+      only the translated parameters are kept.
+    """
+    from instrument.registry import RegistryError, accepted_params, resolve
+
+    kind = device.kind
+    driver = SIMULATED_DRIVERS[kind]
+    rest = dict(device.params)
+    out: dict[str, Any] = {}
+    for name, sources in TWIN_PARAM_ALIASES[kind].items():
+        found = [src for src in sources if src in rest]
+        if found:
+            out[name] = rest[found[0]]
+            for src in found:
+                rest.pop(src)
+    if kind == "camera" and geometry is not None:
+        out.setdefault("sensor_shape", list(geometry.sensor_shape_px))
+        out.setdefault("pixel_pitch_um", rest.pop("pixel_pitch_um", geometry.sensor_pixel_pitch_um))
+    if kind == "slm" and geometry is not None:
+        out.setdefault("wavelength_nm", rest.pop("wavelength_nm", geometry.wavelength_nm))
+    if kind == "stage" and isinstance(rest.get("axes"), list):
+        limits = {**_as_dict(rest.pop("limits_mm", {})), **_as_dict(rest.pop("limits_deg", {}))}
+        out["axes"] = {
+            a: list(limits.get(a, _DEFAULT_TRAVEL.get(a, (-1.0, 1.0)))) for a in rest.pop("axes")
+        }
+    try:
+        accepted = accepted_params(resolve(driver, kind))
+    except RegistryError:
+        accepted = set()
+    dropped = []
+    for key, value in rest.items():
+        if accepted is None or key in accepted:
+            out.setdefault(key, value)
+        else:
+            dropped.append(key)
+    twin = device.model_copy(update={"driver": driver, "params": out})
+    return twin, dropped
+
+
+def _as_dict(value: Any) -> dict[str, Any]:
+    return value if isinstance(value, dict) else {}
+
+
 def with_simulated_drivers(config: BenchConfig) -> BenchConfig:
     """The same bench with every device driven by its simulated twin.
 
-    Ids, kinds, geometry and calibration are kept; of the driver parameters only the
-    ones that mean the same for a simulated device are kept (:data:`SHARED_PARAMS`:
-    shapes, pitches, stage axes, exposure, ...); ports, serial numbers and other
-    hardware addresses are dropped.
+    Ids, kinds, geometry and calibration are kept; parameters are translated as in
+    :func:`simulated_twin` (shapes, pitches, stage travel kept; ports, serial numbers
+    and other hardware addresses dropped).
     """
-    devices = [
-        d.model_copy(
-            update={
-                "driver": SIMULATED_DRIVERS[d.kind],
-                "params": {k: v for k, v in d.params.items() if k in SHARED_PARAMS[d.kind]},
-            }
-        )
-        for d in config.devices
-    ]
+    devices = [simulated_twin(d, config.geometry)[0] for d in config.devices]
     return config.model_copy(update={"devices": devices})
 
 

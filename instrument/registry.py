@@ -18,6 +18,8 @@ already-opened ones if any fails, so nothing is left half-open.
 
 from __future__ import annotations
 
+import difflib
+import inspect
 import logging
 from importlib.metadata import entry_points
 from typing import Any
@@ -32,6 +34,7 @@ __all__ = [
     "OpenBench",
     "RegistryError",
     "UnknownDriverError",
+    "accepted_params",
     "available",
     "driver_problems",
     "names",
@@ -208,6 +211,26 @@ def _dist_name(ep: Any) -> str:
     return getattr(dist, "name", None) or "unknown package"
 
 
+def accepted_params(cls: type) -> set[str] | None:
+    """Parameter names a driver's constructor takes after ``device_id`` (None: any).
+
+    Python-only arguments (``clock``, ``irradiance``) are included; a bench file
+    cannot give them values of the right type anyway.
+    """
+    try:
+        sig = inspect.signature(cls.__init__)
+    except (TypeError, ValueError):
+        return None
+    names = set()
+    for i, p in enumerate(sig.parameters.values()):
+        if p.kind is p.VAR_KEYWORD:
+            return None
+        if i < 2 or p.kind in (p.VAR_POSITIONAL, p.POSITIONAL_ONLY):  # self, device_id
+            continue
+        names.add(p.name)
+    return names
+
+
 def available() -> dict[str, str | None]:
     """``{driver name: kind}`` for every driver, the kind read from its class on call.
 
@@ -225,7 +248,8 @@ def available() -> dict[str, str | None]:
 
 
 def driver_problems(devices: Any) -> list[Problem]:
-    """Problems with the drivers of raw ``[[devices]]`` tables (unknown name, wrong kind).
+    """Problems with the drivers of raw ``[[devices]]`` tables: unknown name, a driver
+    of another kind, a parameter the driver's constructor does not take.
 
     Used by :func:`instrument.config.load_bench`; tolerates malformed entries (those are
     reported by the model validation).
@@ -240,7 +264,7 @@ def driver_problems(devices: Any) -> list[Problem]:
         kind = dev.get("kind") if dev.get("kind") in KINDS else None
         label = f" of device {dev['id']!r}" if isinstance(dev.get("id"), str) else ""
         try:
-            resolve(name, kind)
+            cls = resolve(name, kind)
         except UnknownDriverError as exc:
             usable = [n for n, k in available().items() if kind is None or k == kind]
             what = f"{kind} drivers" if kind else "drivers"
@@ -272,6 +296,23 @@ def driver_problems(devices: Any) -> list[Problem]:
                     exc.fix,
                 )
             )
+        else:
+            params = dev.get("params")
+            accepted = accepted_params(cls)
+            if accepted is None or not isinstance(params, dict):
+                continue
+            for key in params:
+                if key in accepted:
+                    continue
+                close = difflib.get_close_matches(key, sorted(accepted), 1)
+                hint = f"did you mean {close[0]!r}? " if close else ""
+                problems.append(
+                    Problem(
+                        f"devices[{i}].params.{key}",
+                        f"driver {name!r}{label} takes no parameter {key!r}",
+                        f"{hint}remove it or use one of: {', '.join(sorted(accepted))}",
+                    )
+                )
     return problems
 
 

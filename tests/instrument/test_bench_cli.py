@@ -26,7 +26,7 @@ def write(tmp_path: Path, text: str) -> str:
     return str(path)
 
 
-def test_validate_ok(fakes, capsys):
+def test_validate_ok(capsys):
     assert main(["validate", SIM]) == 0
     out, err = capsys.readouterr()
     assert out == (
@@ -36,7 +36,7 @@ def test_validate_ok(fakes, capsys):
     assert err == ""
 
 
-def test_validate_reports_every_problem_with_location_and_fix(fakes, capsys, tmp_path):
+def test_validate_reports_every_problem_with_location_and_fix(capsys, tmp_path):
     text = (
         to_toml(default_bench())
         .replace("diffuser_sensor_distance_mm = 8.9", 'diffuser_sensor_distance_mm = "5 cm"')
@@ -75,7 +75,7 @@ def test_validate_syntax_error_and_missing_file(fakes, capsys, tmp_path):
     assert "nope.toml: (file): cannot read: No such file or directory; fix: check the path" in err
 
 
-def test_validate_lab_bench_unknown_drivers_then_simulated(fakes, capsys):
+def test_validate_lab_bench_unknown_drivers_then_simulated(capsys):
     assert main(["validate", LAB]) == 2
     err = capsys.readouterr().err.splitlines()
     assert [line.split(": ")[4] for line in err] == [
@@ -94,8 +94,12 @@ def test_validate_lab_bench_unknown_drivers_then_simulated(fakes, capsys):
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith("ok: 5 devices") and "'lab-diffusercam'" in out[0]
     assert out[1] == (
-        "  camera: aravis -> simulated-camera (params dropped: camera_name, packet_size, "
-        "pixel_format)"
+        "  camera: aravis -> simulated-camera (params dropped: camera_name, exposure_s, "
+        "packet_size, pixel_format)"
+    )
+    assert out[2] == (
+        "  source_stage: thorlabs-apt -> simulated-stage (params dropped: port, "
+        "serial_numbers, speed_mm_s)"
     )
     assert out[5] == (
         "  mask_stage: zaber-ascii -> simulated-stage (params dropped: baudrate, "
@@ -103,7 +107,7 @@ def test_validate_lab_bench_unknown_drivers_then_simulated(fakes, capsys):
     )
 
 
-def test_devices_default_bench(fakes, capsys):
+def test_devices_default_bench(capsys):
     assert main(["devices"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0] == (
@@ -118,24 +122,37 @@ def test_devices_default_bench(fakes, capsys):
         ["slm", "slm", "simulated-slm", "open"],
         ["mask_stage", "stage", "simulated-stage", "open"],
     ]
-    assert rows[0][4:] == ["frames=0", "params=[]"]
-    assert not any(d.is_open for d in OPENED.values()) and len(OPENED) == 5
+    assert 'positions={"x":0.0,"y":0.0,"z":0.0}' in rows[1]
 
 
-def test_devices_lab_file_needs_simulate(fakes, capsys):
+def test_devices_opens_and_closes_every_device(fakes, capsys):
+    assert main(["devices", "--timeout", "3"]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines()[1:]]
+    assert [r[4] for r in rows] == ["frames=0"] * 5
+    assert rows[0][5] == 'params=["adc_bits","pixel_pitch_um","sensor_shape"]'
+    assert len(OPENED) == 5 and not any(d.is_open for d in OPENED.values())
+    assert {d.timeout_s for d in OPENED.values()} == {3.0}
+    assert [e for e, _ in EVENTS] == ["open"] * 5 + ["close"] * 5
+
+
+def test_devices_lab_file_needs_simulate(capsys):
     assert main(["devices", LAB]) == 2
     assert "unknown driver 'aravis'" in capsys.readouterr().err
-    assert OPENED == {}
-    assert main(["devices", LAB, "--simulate", "--timeout", "3"]) == 0
-    out = capsys.readouterr().out
-    assert "from " + LAB + " (simulated twins):" in out
-    assert 'params=["exposure_s"]' in out
-    assert {d.timeout_s for d in OPENED.values()} == {3.0}
+    assert main(["devices", LAB, "--simulate"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].endswith(f"from {LAB} (simulated twins):")
+    assert [line.split()[:4] for line in out[1:]] == [
+        ["camera", "camera", "simulated-camera", "open"],
+        ["source_stage", "stage", "simulated-stage", "open"],
+        ["led_array", "led_array", "simulated-led-array", "open"],
+        ["slm", "slm", "simulated-slm", "open"],
+        ["mask_stage", "stage", "simulated-stage", "open"],
+    ]
 
 
 def test_devices_open_failure_exits_1_and_closes_the_others(fakes, capsys, tmp_path):
     text = to_toml(default_bench()).replace(
-        'driver = "simulated-slm"', 'driver = "simulated-slm"\n\n[devices.params]\nfail_open = true'
+        "resolution = [96, 120]", "resolution = [96, 120]\nfail_open = true"
     )
     assert main(["devices", write(tmp_path, text)]) == 1
     captured = capsys.readouterr()

@@ -18,18 +18,14 @@ from instrument.config import (
     default_bench,
     load_bench,
     parse_bench,
+    simulated_twin,
     to_toml,
     with_simulated_drivers,
 )
-from tests.instrument.test_registry import use_fakes
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 DEFAULT_TOML = to_toml(default_bench())
-
-
-@pytest.fixture(autouse=True)
-def _fake_drivers(monkeypatch):
-    use_fakes(monkeypatch)  # simulated-* and fake-* names, without drivers.simulated
+XYZ = "axes = {x = [-25.0, 25.0], y = [-25.0, 25.0], z = [0.0, 250.0]}"
 
 
 def line_of(text: str, fragment: str, nth: int = 0) -> int:
@@ -70,9 +66,27 @@ def test_default_bench_has_the_simulated_devices():
         "slm": ("slm", "simulated-slm"),
         "mask_stage": ("stage", "simulated-stage"),
     }
-    assert bench.device("source_stage").params["axes"] == ["x", "y", "z"]
-    assert bench.device("mask_stage").params["axes"] == ["x", "y", "z", "tip", "tilt", "rotation"]
+    assert list(bench.device("source_stage").params["axes"]) == ["x", "y", "z"]
+    assert list(bench.device("mask_stage").params["axes"]) == [
+        "x",
+        "y",
+        "z",
+        "tip",
+        "tilt",
+        "rotation",
+    ]
     assert bench.device("led_array").params["shape"] == [32, 32]
+    camera = bench.device("camera").params
+    assert camera["sensor_shape"] == list(bench.geometry.sensor_shape_px)
+    assert camera["pixel_pitch_um"] == bench.geometry.sensor_pixel_pitch_um
+    z_travel = bench.device("source_stage").params["axes"]["z"]
+    assert (
+        z_travel[0]
+        <= bench.calibration.z_range_mm[0]
+        < bench.calibration.z_range_mm[1]
+        <= (z_travel[1])
+    )
+    assert with_simulated_drivers(bench) == bench  # already its own twin
     assert bench.branches == ["lensless", "holography"]
     with pytest.raises(KeyError, match="no device 'nope'"):
         bench.device("nope")
@@ -104,7 +118,7 @@ def test_to_toml_escapes_strings_and_writes_nested_params():
     odd = bench.model_copy(
         update={"name": "odd 'name' \"quoted\"", "devices": [cam, *bench.devices[1:]]}
     )
-    assert parse_bench(to_toml(odd)) == odd
+    assert parse_bench(to_toml(odd), check_drivers=False) == odd
 
 
 def test_example_files_are_valid():
@@ -121,22 +135,30 @@ def test_example_files_are_valid():
     assert [d.driver for d in sim.devices] == [SIMULATED_DRIVERS[d.kind] for d in lab.devices]
 
 
-def test_with_simulated_drivers_keeps_ids_and_shared_params():
+def test_with_simulated_drivers_translates_shared_params():
     lab = load_bench(EXAMPLES / "bench-lab.toml", check_drivers=False)
     sim = with_simulated_drivers(lab)
     assert [(d.id, d.kind) for d in sim.devices] == [(d.id, d.kind) for d in lab.devices]
     assert sim.geometry == lab.geometry and sim.calibration == lab.calibration
     cam, stage, leds, slm, mask = sim.devices
-    assert cam.params == {"exposure_s": 0.02}
-    assert stage.params == {
-        "axes": ["x", "y", "z"],
-        "limits_mm": lab.devices[1].params["limits_mm"],
-        "speed_mm_s": 2.0,
-    }
+    # camera: shape and pitch from the geometry; Aravis settings and address dropped
+    assert cam.params == {"sensor_shape": [2048, 2448], "pixel_pitch_um": 3.45}
+    # stage: axis names + limits_mm become the twin's travel table
+    assert stage.params == {"axes": {"x": [0, 25], "y": [0, 25], "z": [0, 50]}}
+    assert mask.params["axes"]["rotation"] == [-180.0, 180.0]  # default travel
     assert leds.params == {"shape": [32, 32], "pitch_mm": 4.0}
-    assert slm.params == {"shape_px": [1080, 1920], "pixel_pitch_um": 8.0, "bit_depth": 8}
-    assert mask.params == {"axes": ["x", "y", "z", "tip", "tilt", "rotation"]}
+    # SLM: shape_px -> resolution, wavelength from the geometry, bit_depth/screen dropped
+    assert slm.params == {"resolution": [1080, 1920], "pixel_pitch_um": 8.0, "wavelength_nm": 532}
     assert lab.devices[0].driver == "aravis"  # the original is untouched
+    twin, dropped = simulated_twin(lab.devices[0], lab.geometry)
+    assert twin == cam and sorted(dropped) == [
+        "camera_name",
+        "exposure_s",
+        "packet_size",
+        "pixel_format",
+    ]
+    twin, dropped = simulated_twin(lab.devices[3])  # no geometry: nothing filled in
+    assert twin.params == {"resolution": [1080, 1920], "pixel_pitch_um": 8.0}
 
 
 # ------------------------------------------------------------- invalid benches
@@ -157,7 +179,7 @@ def test_driver_of_the_wrong_kind():
     p = only(text, "devices[2].driver")
     assert "driver 'simulated-stage' of device 'led_array' drives a stage" in p.message
     assert "kind = 'led_array'" in p.message
-    assert "use a led_array driver (fake-led-array, simulated-led-array)" in p.fix
+    assert "use a led_array driver (simulated-led-array)" in p.fix
     assert p.line == line_of(text, 'driver = "simulated-stage"', 1)
 
 
@@ -206,7 +228,7 @@ def test_wrong_units_are_refused_naming_the_unit():
     assert "expected micrometres" in p.message and "write sensor_pixel_pitch_um = 3.45" in p.fix
 
     p = only(
-        edit("aperture_mm = [5.5, 4.1]", 'aperture_mm = [5.5, "4 in"]'), "geometry.aperture_mm"
+        edit("aperture_mm = [2.2, 1.66]", 'aperture_mm = [2.2, "4 in"]'), "geometry.aperture_mm"
     )
     assert "expected millimetres as a number, got '4 in'" in p.message
     assert "plain number in millimetres" in p.fix
@@ -219,13 +241,30 @@ def test_wrong_units_are_refused_naming_the_unit():
 
 
 def test_driver_params_with_units_in_their_names_are_checked_too():
-    text = edit(
-        'axes = ["x", "y", "z"]', 'axes = ["x", "y", "z"]\nspeed_mm_s = 2\nlimit_mm = "2 cm"'
-    )
-    p = only(text, "devices[1].params.limit_mm")
+    text = edit(XYZ, XYZ + '\nspeed_mm_s = 2\nlimit_mm = "2 cm"')
+    p = only(text, "devices[1].params.limit_mm", check_drivers=False)
     assert "expected millimetres as a number, got '2 cm'" in p.message
     assert "write limit_mm = 20" in p.fix
     assert p.line == line_of(text, "limit_mm")
+
+    text = edit(XYZ, XYZ + '\nspeed_mm_s = "2 mm/s"')
+    p = only(text, "devices[1].params.speed_mm_s", check_drivers=False)
+    assert "expected millimetres per second as a number, got '2 mm/s'" in p.message
+
+    p = only(edit("z = [0.0, 250.0]", 'z = [0.0, "25 cm"]'), "devices[1].params.axes.z")
+    assert "expected millimetres as a number, got '25 cm'" in p.message
+    assert "'25 cm' is 250 mm: write 250" in p.fix
+
+
+def test_parameters_the_driver_does_not_take():
+    text = edit("pitch_mm = 4.0", "pich_mm = 4.0")
+    p = only(text, "devices[2].params.pich_mm")
+    assert "driver 'simulated-led-array' of device 'led_array' takes no parameter 'pich_mm'" in (
+        p.message
+    )
+    assert p.fix.startswith("did you mean 'pitch_mm'? remove it or use one of: ")
+    assert p.line == line_of(text, "pich_mm")
+    assert parse_bench(text, check_drivers=False).devices[2].params["pich_mm"] == 4.0
 
 
 def test_out_of_range_values():
@@ -237,10 +276,10 @@ def test_out_of_range_values():
     assert p.fix == "set diffuser_sensor_distance_mm within (0, 500] mm"
 
     p = only(
-        edit("sensor_shape_px = [1200, 1600]", "sensor_shape_px = [1200, 4]"),
+        edit("sensor_shape_px = [480, 640]", "sensor_shape_px = [480, 4]"),
         "geometry.sensor_shape_px",
     )
-    assert "expected each value in [8, 32768], got [1200, 4]" in p.message
+    assert "expected each value in [8, 32768], got [480, 4]" in p.message
 
     p = only(
         edit("z_range_mm = [20.0, 200.0]", "z_range_mm = [200.0, 20.0]"), "calibration.z_range_mm"
@@ -252,10 +291,10 @@ def test_out_of_range_values():
 
 
 def test_toml_syntax_error_has_line_and_column():
-    text = edit("aperture_mm = [5.5, 4.1]", "aperture_mm = 5.5 mm")
+    text = edit("aperture_mm = [2.2, 1.66]", "aperture_mm = 2.2 mm")
     p = only(text, "(TOML syntax)")
-    assert p.line == line_of(text, "aperture_mm = 5.5 mm") and p.column is not None
-    assert f"at line {p.line}, column {p.column}: 'aperture_mm = 5.5 mm'" in p.message
+    assert p.line == line_of(text, "aperture_mm = 2.2 mm") and p.column is not None
+    assert f"at line {p.line}, column {p.column}: 'aperture_mm = 2.2 mm'" in p.message
     assert "without its unit" in p.fix
 
     p = only('name = "x"\n[geometry\n', "(TOML syntax)")
@@ -284,16 +323,24 @@ def test_bad_kind_id_axes_and_diffuser():
     p = only(edit('id = "slm"', 'id = "My SLM"'), "devices[3].id")
     assert "invalid device id 'My SLM'" in p.message and p.fix == 'write id = "my_slm"'
 
-    p = only(edit('"tilt"', '"tlit"'), "devices[4].params.axes")
+    p = only(edit("tilt = [", "tlit = ["), "devices[4].params.axes")
     assert "unknown stage axis name(s) ['tlit']" in p.message and "'tlit' -> 'tilt'" in p.fix
 
-    p = only(edit('axes = ["x", "y", "z"]', 'axes = ["x", "x"]'), "devices[1].params.axes")
+    p = only(edit(XYZ, 'axes = ["x", "x"]'), "devices[1].params.axes", check_drivers=False)
     assert "duplicate stage axis name(s) ['x']" in p.message
+    assert parse_bench(edit(XYZ, 'axes = ["x", "z"]'), check_drivers=False)  # names only: ok
 
-    text = edit('axes = ["x", "y", "z"]\n', "")
+    p = only(edit("z = [0.0, 250.0]", "z = [250.0, 0.0]"), "devices[1].params.axes.z")
+    assert "travel of axis 'z' must be [low, high] with low < high, got [250.0, 0.0]" in p.message
+    assert p.fix == "write z = [low, high] in millimetres, e.g. z = [0.0, 50.0]"
+
+    p = only(edit(XYZ, "axes = 3"), "devices[1].params.axes")
+    assert "expected a table of axis travel ranges or an array of axis names" in p.message
+
+    text = edit(XYZ + "\n", "")
     p = only(text, "devices[1].params.axes")
     assert "a stage lists its axes in params.axes" in p.message
-    assert p.line == line_of(text, "[devices.params]")  # the table to add it to
+    assert p.line == line_of(text, "[devices.params]", 1)  # the table to add it to
 
     p = only(edit('diffuser_kind = "smooth"', 'diffuser_kind = "rough"'), "geometry.diffuser_kind")
     assert "expected 'smooth' or 'microlens', got 'rough'" in p.message
@@ -303,7 +350,7 @@ def test_bench_rules_one_camera_and_an_slm():
     text = edit(
         'kind = "slm"\ndriver = "simulated-slm"', 'kind = "camera"\ndriver = "simulated-camera"'
     )
-    found = problems(text)
+    found = problems(text, check_drivers=False)
     locs = {p.location: p for p in found}
     assert set(locs) == {"devices[3].kind", "devices"}
     assert "a lensless bench has exactly one camera" in locs["devices[3].kind"].message
@@ -311,18 +358,20 @@ def test_bench_rules_one_camera_and_an_slm():
     assert "a holography bench needs at least one SLM" in locs["devices"].message
 
     text = edit('branches = ["lensless", "holography"]', 'branches = ["holography"]')
-    assert parse_bench(text).branches == ["holography"]
+    assert parse_bench(text, check_drivers=False).branches == ["holography"]
     no_cam = text.replace(
         'kind = "camera"\ndriver = "simulated-camera"',
         'kind = "led_array"\ndriver = "simulated-led-array"',
     )
-    assert len(parse_bench(no_cam).devices) == 5  # the camera rule is for lensless benches
+    # the camera rule is for lensless benches
+    assert len(parse_bench(no_cam, check_drivers=False).devices) == 5
     p = only(
         edit('branches = ["lensless", "holography"]', 'branches = ["lensless"]').replace(
             'kind = "camera"\ndriver = "simulated-camera"',
             'kind = "led_array"\ndriver = "simulated-led-array"',
         ),
         "devices",
+        check_drivers=False,
     )
     assert "found none" in p.message and 'kind = "camera"' in p.fix
 

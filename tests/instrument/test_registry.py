@@ -292,5 +292,20 @@ def test_open_bench_simulate_swaps_to_the_twins(fakes):
     )
     with open_bench(bench, simulate=True) as devices:
         assert type(devices["cam"]) is FakeCamera and type(devices["st"]) is FakeStage
-        assert devices["cam"].params == {"exposure_s": 0.01}
-        assert devices["st"].params == {"axes": ["x"]}
+        # fakes take **params, so nothing is dropped; the camera gets the geometry
+        assert devices["cam"].params == {
+            "sensor_shape": [480, 640],
+            "pixel_pitch_um": 3.45,
+            "port": "x",
+            "exposure_s": 0.01,
+        }
+        assert devices["st"].params == {"axes": {"x": [-25.0, 25.0]}, "serial_numbers": {"x": "1"}}
+
+
+def test_accepted_params_reads_the_constructor():
+    class Explicit(FakeCamera):
+        def __init__(self, device_id, *, port="", exposure_s=0.1, clock=None):
+            super().__init__(device_id)
+
+    assert registry.accepted_params(Explicit) == {"port", "exposure_s", "clock"}
+    assert registry.accepted_params(FakeCamera) is None
