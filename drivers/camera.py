@@ -106,6 +106,7 @@ class FrameRing:
         self.skipped = 0
         self.dropped = 0
         self._pump: Callable[[float], float] | None = None
+        self._error: BaseException | None = None
 
     @property
     def capacity(self) -> int:
@@ -141,11 +142,19 @@ class FrameRing:
             self.skipped += n
             self.dropped += n
 
+    def fail(self, error: BaseException) -> None:
+        """Report a producer error (e.g. a lost camera): once the buffered frames are
+        read, :meth:`get` raises ``error`` instead of waiting. :meth:`clear` resets it."""
+        with self._cond:
+            self._error = error
+            self._cond.notify_all()
+
     def clear(self) -> None:
         """Discard buffered frames (counted as skipped)."""
         with self._cond:
             self.skipped += len(self._buf)
             self._buf.clear()
+            self._error = None
 
     def get(self, timeout_s: float = 1.0) -> Frame:
         """Return the oldest buffered frame, waiting up to ``timeout_s`` seconds.
@@ -154,6 +163,8 @@ class FrameRing:
         ------
         CameraTimeoutError
             No frame arrived in time.
+        DeviceError
+            The error a producer reported with :meth:`fail` (e.g. disconnected).
         """
         return self._take(timeout_s, latest=False)
 
@@ -174,6 +185,8 @@ class FrameRing:
         deadline = time.monotonic() + budget
         with self._cond:
             while not self._buf:
+                if self._error is not None:
+                    raise self._error
                 if budget <= 0:
                     raise CameraTimeoutError(
                         self.device_id,

@@ -253,6 +253,9 @@ class SimulatedCamera(SimulatedMixin, Camera):
 
     def _pump(self, budget_s: float) -> float:
         """Ring wait on simulated time: run the clock to the next frame or the budget."""
+        if self._timer is not None and not self.faults.connected:
+            with self._io():  # the camera is flagged as disconnected, the reader told
+                self.faults._check_connected()
         now = self.clock.now_s
         nxt = self._next_event() if self._timer is not None else None
         if nxt is not None and nxt - now <= budget_s:
