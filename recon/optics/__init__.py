@@ -1,0 +1,1 @@
+"""Optics models (layer 1, numerics only): propagation, PSF synthesis and holography."""
