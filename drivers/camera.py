@@ -38,7 +38,7 @@ PIXEL_FORMATS: dict[str, int] = {"mono8": 8, "mono12": 12, "mono16": 16}
 TRIGGER_MODES: tuple[str, ...] = ("free_run", "software", "hardware")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Frame:
     """One camera frame with its metadata.
 
