@@ -1,5 +1,10 @@
 """Device interfaces and drivers (layer 2): camera, stage, LED array, SLM.
 
-Imports nothing of ours (see ARCHITECTURE.md). The device interfaces arrive with
-the device/virtual-bench issue.
+Imports nothing of ours (see ARCHITECTURE.md).
+
+- :mod:`drivers.errors`: the exception hierarchy (every message names device, problem, fix);
+- :mod:`drivers.base`: :class:`~drivers.base.Device`, the shared lifecycle and settings;
+- :mod:`drivers.camera`, :mod:`drivers.stage`, :mod:`drivers.led_array`,
+  :mod:`drivers.slm`: the interfaces (public methods validate; drivers implement ``_do_*``);
+- :mod:`drivers.simulated`: simulated drivers on a shared simulated clock, with faults.
 """
