@@ -1,11 +1,13 @@
 """The bench subcommands of ``diffuserlab``: ``validate`` and ``devices``.
 
 ``diffuserlab validate BENCH.toml [--simulate]``
-    Check a bench file. Prints ``ok: N devices ...`` (exit 0), or every problem on
-    its own line, ``diffuserlab: error: FILE:LINE: LOCATION: MESSAGE; fix: FIX``
-    (exit 2). With ``--simulate`` the drivers are not looked up as written: every
-    device is checked with its simulated twin, so a lab file validates on a machine
-    without the hardware drivers; the swaps are listed.
+    Check a bench file, constructing (not opening) every device so that parameter
+    values a driver refuses are reported too. Prints ``ok: N devices ...`` (exit 0),
+    or every problem on its own line,
+    ``diffuserlab: error: FILE:LINE: LOCATION: MESSAGE; fix: FIX`` (exit 2). With
+    ``--simulate`` the drivers are not looked up as written: every device is checked
+    with its simulated twin, so a lab file validates on a machine without the
+    hardware drivers; the swaps are listed.
 
 ``diffuserlab devices [BENCH.toml] [--simulate] [--timeout S]``
     Open every device of the bench (without a file: the built-in simulated bench),
@@ -101,7 +103,7 @@ def _summary(config: BenchConfig) -> str:
 
 def _load(path: str, simulate: bool) -> tuple[BenchConfig, BenchConfig]:
     """(as written, as it will be driven); raises BenchConfigError."""
-    driven = load_bench(path, simulate=simulate)
+    driven = load_bench(path, simulate=simulate, construct=True)
     return (load_bench(path, check_drivers=False) if simulate else driven), driven
 
 

@@ -946,6 +946,7 @@ def parse_bench(
     source: str | None = None,
     check_drivers: bool = True,
     simulate: bool = False,
+    construct: bool = False,
 ) -> BenchConfig:
     """Validate TOML text as a bench; raises :class:`BenchConfigError` with every problem.
 
@@ -962,6 +963,9 @@ def parse_bench(
         Return the bench with every device swapped for its simulated twin
         (:func:`with_simulated_drivers`); the drivers checked are then the twins, so a
         lab file validates on a machine without its hardware drivers.
+    construct : bool
+        Also construct every device (without opening it), so parameter values the
+        driver refuses are reported here rather than at open (``validate`` does).
     """
     try:
         raw = tomllib.loads(text)
@@ -997,6 +1001,10 @@ def parse_bench(
                 for d in devices
             ]
         problems += driver_problems(devices)
+    if construct and config is not None and not problems:
+        from instrument.registry import construction_problems
+
+        problems += construction_problems(with_simulated_drivers(config) if simulate else config)
     if problems:
         index = _line_index(text)
         located = [_locate(p, index) for p in problems]
@@ -1007,7 +1015,11 @@ def parse_bench(
 
 
 def load_bench(
-    path: str | Path, *, check_drivers: bool = True, simulate: bool = False
+    path: str | Path,
+    *,
+    check_drivers: bool = True,
+    simulate: bool = False,
+    construct: bool = False,
 ) -> BenchConfig:
     """Read and validate a bench TOML file (options as in :func:`parse_bench`).
 
@@ -1037,7 +1049,13 @@ def load_bench(
         raise BenchConfigError(
             [Problem("(file)", "not UTF-8 text", "save the file as UTF-8 TOML", line)], str(path)
         ) from None
-    return parse_bench(text, source=str(path), check_drivers=check_drivers, simulate=simulate)
+    return parse_bench(
+        text,
+        source=str(path),
+        check_drivers=check_drivers,
+        simulate=simulate,
+        construct=construct,
+    )
 
 
 # ------------------------------------------------------------------- default bench

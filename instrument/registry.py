@@ -36,6 +36,7 @@ __all__ = [
     "UnknownDriverError",
     "accepted_params",
     "available",
+    "construction_problems",
     "driver_problems",
     "names",
     "open_bench",
@@ -313,6 +314,42 @@ def driver_problems(devices: Any) -> list[Problem]:
                         f"{hint}remove it or use one of: {', '.join(sorted(accepted))}",
                     )
                 )
+    return problems
+
+
+def construction_problems(config: BenchConfig) -> list[Problem]:
+    """Construct every device of ``config`` without opening it; report the refusals.
+
+    A driver's constructor validates its parameters and touches no hardware (the
+    device lifecycle connects in ``open``), so this finds bad parameter values (an
+    SLM resolution of 0, axes the driver cannot use, ...) before anything is opened.
+    Errors carrying ``problem``/``fix`` (``drivers.errors.DeviceError``) keep them.
+    """
+    problems = []
+    for i, dev in enumerate(config.devices):
+        try:
+            cls = resolve(dev.driver, dev.kind)
+            device = cls(dev.id, **dev.params)
+        except RegistryError as exc:
+            problems.append(Problem(f"devices[{i}].driver", str(exc), "see the message"))
+            continue
+        except Exception as exc:
+            problem = getattr(exc, "problem", None) or f"{type(exc).__name__}: {exc}"
+            fix = getattr(exc, "fix", None) or f"check the parameters {dev.driver!r} takes"
+            problems.append(
+                Problem(
+                    f"devices[{i}].params",
+                    f"driver {dev.driver!r} refused the parameters of device {dev.id!r}: {problem}",
+                    fix,
+                )
+            )
+            continue
+        close = getattr(device, "close", None)
+        if callable(close):
+            try:
+                close()  # not open: a no-op for a Device, releases anything a driver took
+            except Exception as exc:  # never fail validation on this
+                log.debug("close after construction of %s failed: %s", dev.id, exc)
     return problems
 
 

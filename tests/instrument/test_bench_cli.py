@@ -63,6 +63,19 @@ def test_validate_reports_every_problem_with_location_and_fix(capsys, tmp_path):
     assert f":{second_camera}: devices[3].id: duplicate device id 'camera'" in lines[2]
 
 
+def test_validate_constructs_devices_to_check_parameter_values(capsys, tmp_path):
+    text = to_toml(default_bench()).replace("adc_bits = 12", "adc_bits = 20")
+    path = write(tmp_path, text)
+    assert main(["validate", path]) == 2
+    err = capsys.readouterr().err.splitlines()
+    table = text.splitlines().index("adc_bits = 20") - 2  # its [devices.params] line, 1-based
+    assert len(err) == 1 and err[0].startswith(f"diffuserlab: error: {path}:{table}: ")
+    assert (
+        "devices[0].params: driver 'simulated-camera' refused the parameters of device " in (err[0])
+    )
+    assert "adc_bits" in err[0].split("; fix: ")[1]
+
+
 def test_validate_syntax_error_and_missing_file(fakes, capsys, tmp_path):
     path = write(tmp_path, 'name = "x"\n\n[geometry]\naperture_mm = [5, 4\n')
     assert main(["validate", path]) == 2

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 from drivers.base import Device
+from drivers.errors import DeviceValueError
 from instrument import registry
 from instrument.config import DeviceConfig, default_bench
 from instrument.registry import (
@@ -210,6 +211,33 @@ def test_register_takes_precedence_and_unregister_removes(fakes):
     with pytest.raises(DriverLoadError, match="not a device class"):
         registry.register("x", object())
     assert registry.available()["fake-led-array"] == "led_array"
+
+
+def test_construction_problems_without_opening(fakes):
+    class Picky(FakeCamera):
+        def __init__(self, device_id, **params):
+            super().__init__(device_id, **params)
+            if params.get("gain", 0) > 10:
+                raise DeviceValueError(device_id, f"gain={params['gain']} is too high", "use <= 10")
+
+    registry.register("picky", Picky)
+    bench = _bench(_dev("a", driver="picky", gain=20), _dev("b", fail_init=True), _dev("c"))
+    found = registry.construction_problems(bench)
+    assert [(p.location, p.message, p.fix) for p in found] == [
+        (
+            "devices[0].params",
+            "driver 'picky' refused the parameters of device 'a': gain=20 is too high",
+            "use <= 10",
+        ),
+        (
+            "devices[1].params",
+            "driver 'fake-camera' refused the parameters of device 'b': RuntimeError: "
+            "constructor refused",
+            "check the parameters 'fake-camera' takes",
+        ),
+    ]
+    assert EVENTS == []  # nothing opened
+    assert registry.construction_problems(_bench(_dev("a"), _dev("c"))) == []
 
 
 # -------------------------------------------------------------------- open_bench
