@@ -17,7 +17,7 @@ calibration defaults::
     driver = "simulated-camera"
 
     [devices.params]
-    exposure_s = 0.01
+    sensor_shape = [480, 640]
 
 Units are in the key names (``_um``, ``_mm``, ``_nm``, ``_s``, ``_px``): a value is a
 plain number in that unit. Strings such as ``"5 cm"`` are refused with a message
@@ -30,10 +30,12 @@ Bench rules (checked across fields):
 * a bench with the ``"lensless"`` branch has exactly one camera: the diffuser camera
   the geometry describes, which plans take their frames from without naming it;
 * a bench with the ``"holography"`` branch has at least one SLM;
-* every stage lists its axes in ``params.axes``, unique names from
-  :data:`STAGE_AXES`;
-* every driver is known to the registry and drives the device's kind (checked by
-  :func:`load_bench`, which can skip it with ``check_drivers=False``).
+* every stage lists its axes in ``params.axes``: a table of travel ranges
+  ``{x = [low, high], ...}`` (mm for x, y, z; degrees for tip, tilt, rotation) or an
+  array of names, names from :data:`STAGE_AXES`;
+* every driver is known to the registry, drives the device's kind and takes the
+  parameters given (checked by :func:`load_bench` unless ``check_drivers=False``;
+  ``construct=True`` also constructs each device, unopened, to check the values).
 
 Every problem found is reported at once in one :class:`BenchConfigError`, each with
 its location (dotted path, TOML line where known) and a fix.
@@ -640,7 +642,6 @@ class BenchConfig(_Section):
                 {
                     "summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
                     "problems": problems,
-                    "absolute": True,
                 },
             )
         return self
@@ -767,7 +768,7 @@ def _problems_from_validation(exc: ValidationError) -> list[Problem]:
         key = next((p for p in reversed(loc) if isinstance(p, str)), "")
         got = err.get("input")
         if "problems" in ctx:
-            base = () if ctx.get("absolute") else loc
+            base = loc  # () for the bench-level rules
             for sub, msg, fix in ctx["problems"]:
                 problems.append(Problem(_dotted(base + tuple(sub)), msg, fix))
             continue
