@@ -212,27 +212,45 @@ class LenslessGeometry:
     def min_z_mm(self) -> float:
         """Closest on-axis source distance whose PSF still fits on the sensor (App. A.2).
 
-        The PSF of an on-axis source at ``z`` lies inside the aperture's shadow,
-        magnified by ``(z + d) / z``, widened on each side by at most
-        ``d tan(beta)`` (``beta``: :meth:`max_deflection_deg`). It fits when
-        ``a (1 + d / z) + 2 d tan(beta) <= s`` on both axes (``a`` aperture and ``s``
-        sensor size), i.e.
-
-            z_min = max over axes of d a / (s - a - 2 d tan(beta)).
+        A ray from an on-axis source at ``z`` through aperture point ``x`` lands at
+        ``x (1 + d / z) + d tan(delta(x))`` (paraxially in the incidence, ``delta``
+        the thin-prism deflection :meth:`DiffuserSurface.deflection_rad`). The
+        PSF fits when, on both axes and both sides, the extreme landing point over
+        the surface samples inside the aperture stays within the sensor half-size;
+        each of the four conditions is monotone in ``z`` and solved by bisection
+        (Brent), and ``z_min`` is the largest of the four solutions. At ``z_min`` the
+        caustic pattern just fills the sensor along its limiting axis.
 
         Returns
         -------
         float
-            mm; ``math.inf`` if the aperture plus the deflection margin never fits.
+            mm; ``math.inf`` if even a distant source's PSF (the aperture plus the
+            deflections) is larger than the sensor.
         """
-        margin = 2.0 * self.d_mm * math.tan(math.radians(self.max_deflection_deg()))
-        z = 0.0
-        for a, s in zip(self.aperture_mm, self.sensor_size_mm, strict=True):
-            room = s - a - margin
-            if room <= 0:
-                return math.inf
-            z = max(z, self.d_mm * a / room)
-        return z
+        from scipy.optimize import brentq
+
+        x, y = self.surface.coordinates_mm()
+        aw, ah = self.aperture_mm
+        cols = np.abs(x) <= aw / 2 + 1e-12
+        rows = np.abs(y) <= ah / 2 + 1e-12
+        tan_dev = np.tan(self.surface.deflection_rad()[:, rows][:, :, cols])
+        d = self.d_mm
+        sw, sh = self.sensor_size_mm
+        z_min = 0.0
+        # per position along an axis only the extreme deflection across the other
+        # axis matters: (positions, largest tan, smallest tan, sensor half-size)
+        for pos, hi, lo, half in ((x[cols], tan_dev[0].max(0), tan_dev[0].min(0), sw / 2),
+                                  (y[rows], tan_dev[1].max(1), tan_dev[1].min(1), sh / 2)):
+            for p, t in ((pos, hi), (-pos, -lo)):
+                def excess(z, p=p, t=t, half=half):
+                    return float(np.max(p * (1.0 + d / z) + d * t)) - half
+
+                if excess(1e12) >= 0:
+                    return math.inf
+                if excess(1e-6 * d) <= 0:
+                    continue
+                z_min = max(z_min, brentq(excess, 1e-6 * d, 1e12, xtol=1e-9, rtol=1e-12))
+        return z_min
 
 
 # ----------------------------------------------------------------------------- model
@@ -665,15 +683,34 @@ def usaf_target(shape: tuple[int, int] = (256, 256)) -> np.ndarray:
     return img
 
 
+def _fit_half_aperture(pos, tan_dev, axis, half, d, z0) -> float:
+    """Largest half-width A (mm, on the surface grid) such that no ray through
+    ``|p| <= A`` from an on-axis source at ``z0`` lands beyond ``half`` on the sensor
+    (see :meth:`LenslessGeometry.min_z_mm`); ``tan_dev`` (rows, cols) is tan of the
+    deflection along ``axis`` (0: x along columns, 1: y along rows), its extremes
+    taken across the other axis (reducing over ``axis`` of the array; a superset of
+    the final aperture, so conservative)."""
+    reach = np.maximum(pos * (1 + d / z0) + d * tan_dev.max(axis=axis),
+                       -(pos * (1 + d / z0) + d * tan_dev.min(axis=axis)))
+    bad = reach > half
+    if not np.any(bad):
+        return float(np.abs(pos).max())
+    ok = np.abs(pos) < np.abs(pos[bad]).min() - 1e-12
+    if not np.any(ok):
+        raise ReconInputError("the diffuser deflects too much for this sensor")
+    return float(np.abs(pos[ok]).max())
+
+
 def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
     """A small bench geometry for tests and demos.
 
     Both kinds: sensor 256 x 320 px at 13 um (3.33 x 4.16 mm; the PCO.edge 6.5 um
     pixels binned 2 x 2 as in Ch. 4), pixel fall-off sigma 20 deg, aperture sized
-    so that :meth:`LenslessGeometry.min_z_mm` is at most 20 mm (the PSF of an
-    on-axis source at 20 mm just fills the sensor, App. A.2):
-    ``a = (s - 2 d tan(beta)) / (1 + d / 20 mm)`` per axis, ``beta`` the surface's
-    largest deflection.
+    per axis so that the PSF of an on-axis source at 20 mm just fits on the sensor
+    (App. A.2): the largest centred rectangle, on the surface grid, for which no
+    ray lands off the sensor (the criterion of :meth:`LenslessGeometry.min_z_mm`,
+    with deflections taken over the whole sensor-sized surface, so
+    ``min_z_mm()`` comes out at or just below 20 mm).
 
     * ``"smooth"``: :meth:`DiffuserSurface.smooth_random` (140 um features, mean
       slope 0.7 deg, n = 1.58, 5 um pitch), ``d = 8.9`` mm (the Ch. 4 prototype).
@@ -702,7 +739,11 @@ def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
         surface = DiffuserSurface.random_microlens((sw + 0.1, sh + 0.1), 2.5, seed=seed)
     else:
         raise ReconInputError(f"unknown diffuser kind {kind!r}; use 'smooth' or 'microlens'")
-    margin = 2.0 * d * math.tan(math.radians(surface.max_deflection_deg()))
-    aperture = tuple(math.floor((s - margin) / (1.0 + d / z_fill) * 1e3) * 1e-3
-                     for s in (sw, sh))
+    x, y = surface.coordinates_mm()
+    tan_dev = np.tan(surface.deflection_rad())
+    in_x, in_y = np.abs(x) <= sw / 2, np.abs(y) <= sh / 2
+    aperture = tuple(round(v, 9) for v in (
+        2 * _fit_half_aperture(x[in_x], tan_dev[0][in_y][:, in_x], 0, sw / 2, d, z_fill),
+        2 * _fit_half_aperture(y[in_y], tan_dev[1][in_y][:, in_x], 1, sh / 2, d, z_fill),
+    ))
     return LenslessGeometry(surface, d, aperture, sensor, pitch_um, 20.0)
