@@ -368,6 +368,11 @@ class StagePose:
         Rotation about the optical axis (rad, counter-clockwise from +x to +y); adds
         to :attr:`MaskTransform.theta`. The stage's z-rotation axis is taken to pass
         through the optical axis.
+
+    Notes
+    -----
+    Tip/tilt act only through the local defocus; the lateral foreshortening of a
+    tilted mask (``1 - cos``, 2e-5 at 6 mrad) is neglected.
     """
 
     x_mm: float = 0.0
@@ -966,6 +971,18 @@ class RelayModel:
         ``1/Delta``).
     max_levels : int
         Cap on the number of planes (>= 2).
+
+    Notes
+    -----
+    Behaviour of the spot metric (16 um SLM pixels, k = 4, 0.66 um): with ideal
+    sharp-edged pixels and no pupil the response to defocus has a cusp at focus (the
+    pixel edges carry ~20 % of the phase-conjugation overlap: 0.80 of the peak at
+    25 um, 0.51 at 0.2 mm) and a Talbot-like partial revival near 0.3 mm; with a pupil
+    (``na = 0.05``) or SLM crosstalk (0.5 px) it is smooth and monotonic out to
+    0.8 mm, as a parabola fit expects. The default plane spacing reproduces a 3x finer
+    spacing to ~1 % of the spot power. Cost: one plane (defocus only) adds two fine
+    FFTs (~+50 ms at 1536 x 1920); a tilt adds one inverse FFT and a weight pass per
+    plane (e.g. 0.2 rad over 1.9 mm: 14 planes, 0.45-0.6 s per render).
     """
 
     wavelength_um: float = 0.66
