@@ -1065,7 +1065,8 @@ def load_bench(
 def default_bench() -> BenchConfig:
     """The built-in simulated bench (what ``examples/bench-simulated.toml`` holds).
 
-    A simulated camera (480 x 640 pixels of 3.45 um, as in the geometry), a 3-axis
+    A simulated camera (256 x 320 pixels of 13 um: a PCO.edge's 6.5 um pixels binned
+    2 x 2 as in Ch. 4; the aperture lets the PSF of a source at 20 mm just fill it), a 3-axis
     stage (x, y, z; z travel covers the calibration z range) carrying the point
     source, a 32x32 LED array, a 96 x 120 SLM and a 6-axis mask stage (x, y, z, tip,
     tilt, rotation) for the holography branch. Parameters are the simulated drivers'
@@ -1084,7 +1085,7 @@ def default_bench() -> BenchConfig:
                 id="camera",
                 kind="camera",
                 driver="simulated-camera",
-                params={"sensor_shape": [480, 640], "pixel_pitch_um": 3.45, "adc_bits": 12},
+                params={"sensor_shape": [256, 320], "pixel_pitch_um": 13.0, "adc_bits": 12},
             ),
             DeviceConfig(
                 id="source_stage",
@@ -1121,10 +1122,10 @@ def default_bench() -> BenchConfig:
             ),
         ],
         geometry=GeometryConfig(
-            sensor_pixel_pitch_um=3.45,
-            sensor_shape_px=(480, 640),
+            sensor_pixel_pitch_um=13.0,
+            sensor_shape_px=(256, 320),
             diffuser_sensor_distance_mm=8.9,
-            aperture_mm=(2.2, 1.66),
+            aperture_mm=(2.67, 2.11),
             diffuser_kind="smooth",
             wavelength_nm=532.0,
         ),

@@ -192,10 +192,10 @@ def test_duplicate_device_id():
 
 
 def test_missing_fields():
-    text = edit("sensor_pixel_pitch_um = 3.45\n", "")
+    text = edit("sensor_pixel_pitch_um = 13.0\n", "")
     p = only(text, "geometry.sensor_pixel_pitch_um")
     assert p.message == "missing required key"
-    assert p.fix == "add sensor_pixel_pitch_um = 3.45 under [geometry]"
+    assert p.fix == "add sensor_pixel_pitch_um = 13.0 under [geometry]"
     assert p.line == line_of(text, "[geometry]")
 
     text = edit('driver = "simulated-camera"\n', "")
@@ -222,13 +222,13 @@ def test_wrong_units_are_refused_naming_the_unit():
     assert "write settle_s = 0.01" in p.fix
 
     p = only(
-        edit("sensor_pixel_pitch_um = 3.45", 'sensor_pixel_pitch_um = "3.45 um"'),
+        edit("sensor_pixel_pitch_um = 13.0", 'sensor_pixel_pitch_um = "13 um"'),
         "geometry.sensor_pixel_pitch_um",
     )
-    assert "expected micrometres" in p.message and "write sensor_pixel_pitch_um = 3.45" in p.fix
+    assert "expected micrometres" in p.message and "write sensor_pixel_pitch_um = 13" in p.fix
 
     p = only(
-        edit("aperture_mm = [2.2, 1.66]", 'aperture_mm = [2.2, "4 in"]'), "geometry.aperture_mm"
+        edit("aperture_mm = [2.67, 2.11]", 'aperture_mm = [2.67, "4 in"]'), "geometry.aperture_mm"
     )
     assert "expected millimetres as a number, got '4 in'" in p.message
     assert "plain number in millimetres" in p.fix
@@ -276,7 +276,7 @@ def test_out_of_range_values():
     assert p.fix == "set diffuser_sensor_distance_mm within (0, 500] mm"
 
     p = only(
-        edit("sensor_shape_px = [480, 640]", "sensor_shape_px = [480, 4]"),
+        edit("sensor_shape_px = [256, 320]", "sensor_shape_px = [480, 4]"),
         "geometry.sensor_shape_px",
     )
     assert "expected each value in [8, 32768], got [480, 4]" in p.message
@@ -291,7 +291,7 @@ def test_out_of_range_values():
 
 
 def test_toml_syntax_error_has_line_and_column():
-    text = edit("aperture_mm = [2.2, 1.66]", "aperture_mm = 2.2 mm")
+    text = edit("aperture_mm = [2.67, 2.11]", "aperture_mm = 2.2 mm")
     p = only(text, "(TOML syntax)")
     assert p.line == line_of(text, "aperture_mm = 2.2 mm") and p.column is not None
     assert f"at line {p.line}, column {p.column}: 'aperture_mm = 2.2 mm'" in p.message

@@ -322,8 +322,8 @@ def test_open_bench_simulate_swaps_to_the_twins(fakes):
         assert type(devices["cam"]) is FakeCamera and type(devices["st"]) is FakeStage
         # fakes take **params, so nothing is dropped; the camera gets the geometry
         assert devices["cam"].params == {
-            "sensor_shape": [480, 640],
-            "pixel_pitch_um": 3.45,
+            "sensor_shape": [256, 320],
+            "pixel_pitch_um": 13.0,
             "port": "x",
             "exposure_s": 0.01,
         }

@@ -1,0 +1,338 @@
+"""The virtual bench: simulated devices coupled through one optical model.
+
+What the simulated camera sees follows what the simulated stages, LED array and
+SLM do (ARCHITECTURE.md, "A simulated device is a driver like any other"):
+
+* lensless branch: a pinhole on the source stage, lit from behind by the LED array,
+  is a point source at the stage position; its image is the ray-traced PSF of the
+  diffuser camera (:class:`recon.optics.lensless.LenslessModel`, shifting with
+  lateral position by m = d/z, Eq. 3.1, and scaling with depth, Fig. 4.2); a scene
+  (a plane at a depth, beads in 3D) adds its rendered image (local convolution
+  model with spatial variance, Ch. 5). Stage ``z`` is the source's distance from
+  the diffuser, mm.
+* holography branch: the SLM's displayed image through the relay, the random mask
+  on the 6-axis mask stage and the Fourier lens
+  (:class:`recon.optics.holography.HolographicDisplayModel`).
+
+Rendering happens on a grid finer than the sensor (the optics models bin), the
+sensor noise is the simulated camera's own, so nothing relies on the inverse crime.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.simulated import SimClock
+from recon.errors import ReconInputError
+from recon.optics.diffuser import DiffuserSurface
+from recon.optics.lensless import LenslessGeometry, LenslessModel
+
+from .config import BenchConfig, GeometryConfig, default_bench, with_simulated_drivers
+from .registry import accepted_params, resolve
+
+log = logging.getLogger(__name__)
+
+BRANCHES = ("lensless", "holography")
+
+
+@dataclass(frozen=True)
+class PlanarScene:
+    """A Lambertian plane facing the camera at depth ``z_mm``.
+
+    Attributes
+    ----------
+    image : ndarray, float, (rows, cols)
+        Relative radiance in [0, 1] (scaled by ``radiance``).
+    z_mm : float
+        Distance in front of the diffuser, mm.
+    width_mm : float
+        Lateral extent of the image (height from square pixels), mm.
+    radiance : float
+        Radiance of a pixel of value 1, photons / s / mm^2 / sr.
+    """
+
+    image: np.ndarray
+    z_mm: float
+    width_mm: float
+    radiance: float = 2e9
+
+
+@dataclass(frozen=True)
+class BeadScene:
+    """Point-like beads in 3D: positions (N, 3) in mm (x, y, z) and powers (N,)
+    in photons / s emitted isotropically."""
+
+    points_xyz_mm: np.ndarray
+    powers_photons_per_s: np.ndarray
+
+
+def lensless_geometry(geometry: GeometryConfig, seed: int = 0) -> LenslessGeometry:
+    """The optics model's geometry for a bench config's ``[geometry]`` table.
+
+    The diffuser surface is seeded (smooth: 140 um features, 0.7 deg mean slope;
+    microlens: 250 um lenslets, f = 1.5 mm) and covers the sensor plus a margin.
+    """
+    rows, cols = geometry.sensor_shape_px
+    pitch_mm = geometry.sensor_pixel_pitch_um * 1e-3
+    size = (cols * pitch_mm + 0.1, rows * pitch_mm + 0.1)
+    if geometry.diffuser_kind == "smooth":
+        surface = DiffuserSurface.smooth_random(size, pitch_um=5.0, seed=seed)
+    else:
+        surface = DiffuserSurface.random_microlens(size, 2.5, seed=seed)
+    return LenslessGeometry(surface, geometry.diffuser_sensor_distance_mm,
+                            tuple(geometry.aperture_mm), (rows, cols),
+                            geometry.sensor_pixel_pitch_um)
+
+
+class VirtualBench:
+    """Simulated devices of a bench config, coupled through the optics models.
+
+    Parameters
+    ----------
+    config : BenchConfig, optional
+        The bench; every device is swapped for its simulated twin. Default
+        :func:`instrument.config.default_bench`.
+    seed : int
+        Seeds the diffuser, the mask and every device's noise.
+    source_power_photons_per_s : float
+        Photons per second the pinhole emits with one LED at full brightness right
+        behind it.
+    hologram : HolographicDisplayModel, optional
+        Model of the holography branch; default built lazily from the SLM and the
+        camera shape (96 x 120 SLM, k = 4, q = 4).
+
+    Attributes
+    ----------
+    devices : dict[str, drivers.base.Device]
+    clock : drivers.simulated.SimClock
+    model : recon.optics.lensless.LenslessModel
+    branch : {"lensless", "holography"}
+        Which optical path the camera looks through.
+    scene : PlanarScene or BeadScene or None
+    """
+
+    def __init__(self, config: BenchConfig | None = None, *, seed: int = 0,
+                 source_power_photons_per_s: float = 2e11, hologram=None):
+        self.config = with_simulated_drivers(config or default_bench())
+        self.seed = int(seed)
+        self.clock = SimClock()
+        self.geometry = lensless_geometry(self.config.geometry, seed)
+        self.model = LenslessModel(self.geometry)
+        self.source_power = float(source_power_photons_per_s)
+        self._hologram = hologram
+        self.branch = "lensless"
+        self.scene: PlanarScene | BeadScene | None = None
+        self._scene_version = 0
+        self._cache_key = None
+        self._cache_value: np.ndarray | None = None
+        self._psf_cache: dict = {}
+        self.devices = {}
+        for i, dev in enumerate(self.config.devices):
+            cls = resolve(dev.driver, dev.kind)
+            params = dict(dev.params)
+            accepted = accepted_params(cls)
+            extra = {"clock": self.clock, "seed": self.seed + i}
+            if dev.kind == "camera":
+                params["sensor_shape"] = tuple(self.geometry.sensor_shape)
+                params["pixel_pitch_um"] = self.geometry.sensor_pitch_um
+                extra["irradiance"] = self.irradiance
+            params.update({k: v for k, v in extra.items() if accepted is None or k in accepted})
+            self.devices[dev.id] = cls(dev.id, **params)
+
+    # -- devices -----------------------------------------------------------------------
+    def _one(self, kind: str, want=None):
+        found = [d for d in self.devices.values() if d.kind == kind and (want is None or want(d))]
+        if not found:
+            raise ReconInputError(f"the bench has no {kind} for this role; add one to the config")
+        return found[0]
+
+    @property
+    def camera(self):
+        """The (single) camera."""
+        return self._one("camera")
+
+    @property
+    def source_stage(self):
+        """The stage carrying the pinhole point source (has z, no rotation axes)."""
+        return self._one("stage", lambda d: "z" in d.axes and "rotation" not in d.axes)
+
+    @property
+    def mask_stage(self):
+        """The 6-axis stage of the holography mask mount (has a rotation axis)."""
+        return self._one("stage", lambda d: "rotation" in d.axes)
+
+    @property
+    def led_array(self):
+        """The LED array behind the pinhole."""
+        return self._one("led_array")
+
+    @property
+    def slm(self):
+        """The SLM of the holography branch."""
+        return self._one("slm")
+
+    def open(self, timeout_s: float = 5.0) -> VirtualBench:
+        """Open every device (closing the opened ones again if one fails)."""
+        opened = []
+        try:
+            for dev in self.devices.values():
+                dev.open(timeout_s)
+                opened.append(dev)
+        except BaseException:
+            for dev in reversed(opened):
+                dev.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Close every device (idempotent)."""
+        for dev in reversed(list(self.devices.values())):
+            dev.close()
+
+    def __enter__(self) -> VirtualBench:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- the world ---------------------------------------------------------------------
+    def set_scene(self, scene: PlanarScene | BeadScene | None) -> None:
+        """Put a scene in front of the camera (None removes it)."""
+        if scene is not None and not isinstance(scene, PlanarScene | BeadScene):
+            raise ReconInputError("scene must be a PlanarScene, a BeadScene or None")
+        self.scene = scene
+        self._scene_version += 1
+
+    def set_branch(self, branch: str) -> None:
+        """Route the camera to the ``lensless`` or ``holography`` optical path."""
+        if branch not in BRANCHES:
+            raise ReconInputError(f"unknown branch {branch!r}; use one of {BRANCHES}")
+        self.branch = branch
+
+    def source_position_mm(self) -> tuple[float, float, float]:
+        """(x, y, z) of the pinhole, mm (z = distance from the diffuser)."""
+        pos = self.source_stage.positions()
+        return (float(pos.get("x", 0.0)), float(pos.get("y", 0.0)), float(pos["z"]))
+
+    def source_power_photons_per_s(self) -> float:
+        """Power of the pinhole source from the lit LEDs.
+
+        The pinhole sits on the source stage in front of the array (behind an 80 deg
+        diffuser, App. A.2); an LED at lateral distance r from the pinhole couples
+        with weight exp(-r^2 / (2 (2 pitch)^2)) times its brightness.
+        """
+        leds = self.led_array
+        lit = leds.lit()
+        if not lit:
+            return 0.0
+        x, y, _ = self.source_position_mm()
+        pos = np.asarray(leds.positions_mm)
+        sigma = 2.0 * float(leds.pitch_mm)
+        total = 0.0
+        for index, (_, brightness) in lit.items():
+            r2 = (pos[index, 0] - x) ** 2 + (pos[index, 1] - y) ** 2
+            total += float(brightness) * np.exp(-r2 / (2 * sigma**2))
+        return self.source_power * total
+
+    def psf(self, xyz_mm) -> np.ndarray:
+        """Ray-traced PSF (fraction of emitted power per pixel), cached per position."""
+        key = tuple(round(float(v), 4) for v in xyz_mm)
+        if key not in self._psf_cache:
+            if len(self._psf_cache) > 64:
+                self._psf_cache.clear()
+            self._psf_cache[key] = self.model.psf(key)
+        return self._psf_cache[key]
+
+    def irradiance(self, camera) -> np.ndarray:
+        """Photo-electrons per second per sensor pixel (noise-free), for the camera.
+
+        Cached on everything it depends on (branch, source pose and power, scene,
+        SLM pattern and mask pose), so streaming a static bench costs nothing.
+        """
+        if self.branch == "holography":
+            gray = self.slm.current_image()
+            pose = self._mask_pose()
+            key = ("holo", self.slm.pattern_id, pose)
+        else:
+            gray = pose = None
+            power = self.source_power_photons_per_s()
+            pos = self.source_position_mm()
+            key = ("lensless", pos, round(power, 3), self._scene_version)
+        if key == self._cache_key and self._cache_value is not None:
+            return self._cache_value
+        if self.branch == "holography":
+            value = self.hologram.render(gray, pose)
+        else:
+            value = np.zeros(self.geometry.sensor_shape)
+            if power > 0:
+                value += power * self.psf(pos)
+            value += self._scene_image()
+        self._cache_key, self._cache_value = key, value
+        return value
+
+    def _scene_image(self) -> np.ndarray:
+        s = self.scene
+        if s is None:
+            return 0.0
+        if isinstance(s, PlanarScene):
+            return s.radiance * self.model.render(np.asarray(s.image, float), s.z_mm,
+                                                  s.width_mm)
+        return self.model.render_points(np.asarray(s.points_xyz_mm, float),
+                                        np.asarray(s.powers_photons_per_s, float))
+
+    # -- holography branch --------------------------------------------------------------
+    @property
+    def hologram(self):
+        """The holography model (built on first use)."""
+        if self._hologram is None:
+            from recon.optics.holography import (
+                CameraMapping,
+                HolographicDisplayModel,
+                MaskModel,
+            )
+
+            slm = self.slm
+            mask = MaskModel(slm_shape=slm.resolution, slm_pitch_um=slm.pixel_pitch_um,
+                             k=4, q=4, seed=self.seed)
+            cam = CameraMapping.from_params(shape=tuple(self.geometry.sensor_shape))
+            self._hologram = HolographicDisplayModel(mask, camera=cam)
+        return self._hologram
+
+    def _mask_pose(self) -> tuple[float, ...]:
+        p = self.mask_stage.positions()
+        rad = np.pi / 180.0
+        return (p.get("x", 0.0), p.get("y", 0.0), p.get("z", 0.0), p.get("tip", 0.0) * rad,
+                p.get("tilt", 0.0) * rad, p.get("rotation", 0.0) * rad)
+
+    # -- ground truth for evaluation -----------------------------------------------------
+    def scene_truth(self, sensor_shape: tuple[int, int] | None = None) -> np.ndarray:
+        """The planar scene as a reconstruction of the convolution model should show it.
+
+        The object grid of Eq. 3.3 samples the plane at ``pitch z / d`` with the image
+        inverted (u = -m x); the scene is area-resampled onto that grid, flipped and
+        centred in the sensor field of view.
+
+        Returns
+        -------
+        ndarray, float64, ``sensor_shape`` (default the camera's)
+        """
+        from skimage.transform import resize
+
+        s = self.scene
+        if not isinstance(s, PlanarScene):
+            raise ReconInputError("scene_truth needs a PlanarScene in front of the camera")
+        rows, cols = sensor_shape or self.geometry.sensor_shape
+        spacing_mm = self.geometry.sensor_pitch_um * 1e-3 * s.z_mm / self.geometry.d_mm
+        img = np.asarray(s.image, float)
+        h_mm = s.width_mm * img.shape[0] / img.shape[1]
+        shape = (max(1, round(h_mm / spacing_mm)), max(1, round(s.width_mm / spacing_mm)))
+        small = resize(img, shape, anti_aliasing=True)[::-1, ::-1]
+        out = np.zeros((rows, cols))
+        r0, c0 = (rows - shape[0]) // 2, (cols - shape[1]) // 2
+        rs = slice(max(r0, 0), min(r0 + shape[0], rows))
+        cs = slice(max(c0, 0), min(c0 + shape[1], cols))
+        out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+        return out
