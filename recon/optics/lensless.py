@@ -166,11 +166,10 @@ class LenslessGeometry:
         set_(self, "d_mm", _finite_positive(self.d_mm, "diffuser-to-sensor distance d_mm",
                                             "8.9"))
         try:
-            aw, ah = self.aperture_mm
+            aw, ah = (float(v) for v in self.aperture_mm)
         except (TypeError, ValueError) as exc:
             raise ReconInputError(
                 f"aperture must be (width_mm, height_mm), got {self.aperture_mm!r}") from exc
-        aw, ah = float(aw), float(ah)
         if not (math.isfinite(aw) and math.isfinite(ah)) or aw <= 0 or ah <= 0:
             raise ReconInputError(
                 f"aperture ({aw}, {ah}) mm is empty or invalid; give a positive (width_mm, "

@@ -167,6 +167,22 @@ def test_psf_is_deterministic_and_fast(smooth):
     assert elapsed < 1.0, f"psf took {elapsed:.2f} s"
 
 
+def test_a_converging_lenslet_obeys_the_thin_lens_law():
+    """One spherical cap (f = 5 mm, n = 1.5): paraxially a ray through aperture point
+    x lands at x (1 + d/z - d/f), so a uniformly lit square aperture of side a gives
+    a uniform square of side a |1 + d/z - d/f| (before and after the focus)."""
+    f, n, z, a = 5.0, 1.5, 20.0, 0.4
+    radius = f * (n - 1) * 1e3
+    y, x = (np.mgrid[0:301, 0:301] - 150) * 2.0
+    cap = DiffuserSurface(np.sqrt(radius**2 - x * x - y * y) - radius, 2.0, n)
+    for d in (3.0, 12.0):
+        geo = LenslessGeometry(cap, d, (a, a), (96, 96), 5.0, None)
+        h = LenslessModel(geo).psf((0.0, 0.0, z))
+        cols = np.arange(96) - 47.5
+        side = math.sqrt(12 * np.sum(h.sum(0) * cols**2) / h.sum()) * 5e-3  # uniform square
+        assert abs(side / (a * abs(1 + d / z - d / f)) - 1) < 0.03
+
+
 @pytest.mark.parametrize("z", [20.0, 60.0])
 def test_lateral_shift_is_minus_dx_d_over_z(smooth, z):
     geo = smooth.geometry
