@@ -1,1 +1,10 @@
-"""Optics models (layer 1, numerics only): propagation, PSF synthesis and holography."""
+"""Optics models (layer 1, numerics only): propagation, PSF synthesis and holography.
+
+Import the submodules directly (this package imports nothing, so ``import
+recon.optics`` stays light and compiles no numba kernels):
+
+* :mod:`recon.optics.diffuser` - diffuser surfaces (smooth random, random microlens).
+* :mod:`recon.optics.lensless` - ray-traced lensless PSFs, local-convolution scene
+  rendering and the default bench geometries.
+* :mod:`recon.optics.holography` - holography.
+"""
