@@ -215,10 +215,11 @@ class LenslessGeometry:
         ``x (1 + d / z) + d tan(delta(x))`` (paraxially in the incidence, ``delta``
         the thin-prism deflection :meth:`DiffuserSurface.deflection_rad`). The
         PSF fits when, on both axes and both sides, the extreme landing point over
-        the surface samples inside the aperture stays within the sensor half-size;
-        each of the four conditions is monotone in ``z`` and solved by bisection
-        (Brent), and ``z_min`` is the largest of the four solutions. At ``z_min`` the
-        caustic pattern just fills the sensor along its limiting axis.
+        the surface samples inside the aperture stays within the sensor half-size.
+        Each of the four conditions is solved for ``z`` with Brent's method (the
+        extreme landing point comes from the aperture's far edge, so it decreases
+        with ``z``), and ``z_min`` is the largest of the four solutions. At ``z_min``
+        the caustic pattern just fills the sensor along its limiting axis.
 
         Returns
         -------
