@@ -69,6 +69,19 @@ class BeadScene:
     powers_photons_per_s: np.ndarray
 
 
+@dataclass(frozen=True)
+class TiltedTargetScene:
+    """A resolution target tilted in depth: top row at ``z_near_mm``, bottom row at
+    ``z_far_mm`` (mm), ``width_mm`` wide; ``target`` (rows, cols) in [0, 1] or None
+    for the USAF-like default; ``radiance`` as in :class:`PlanarScene`."""
+
+    z_near_mm: float
+    z_far_mm: float
+    width_mm: float
+    target: np.ndarray | None = None
+    radiance: float = 2e9
+
+
 def lensless_geometry(geometry: GeometryConfig, seed: int = 0) -> LenslessGeometry:
     """The optics model's geometry for a bench config's ``[geometry]`` table.
 
@@ -111,7 +124,7 @@ class VirtualBench:
     model : recon.optics.lensless.LenslessModel
     branch : {"lensless", "holography"}
         Which optical path the camera looks through.
-    scene : PlanarScene or BeadScene or None
+    scene : PlanarScene or BeadScene or TiltedTargetScene or None
     """
 
     def __init__(self, config: BenchConfig | None = None, *, seed: int = 0,
@@ -124,7 +137,7 @@ class VirtualBench:
         self.source_power = float(source_power_photons_per_s)
         self._hologram = hologram
         self.branch = "lensless"
-        self.scene: PlanarScene | BeadScene | None = None
+        self.scene: PlanarScene | BeadScene | TiltedTargetScene | None = None
         self._scene_version = 0
         self._cache_key = None
         self._cache_value: np.ndarray | None = None
@@ -199,10 +212,12 @@ class VirtualBench:
         self.close()
 
     # -- the world ---------------------------------------------------------------------
-    def set_scene(self, scene: PlanarScene | BeadScene | None) -> None:
+    def set_scene(self, scene: PlanarScene | BeadScene | TiltedTargetScene | None) -> None:
         """Put a scene in front of the camera (None removes it)."""
-        if scene is not None and not isinstance(scene, PlanarScene | BeadScene):
-            raise ReconInputError("scene must be a PlanarScene, a BeadScene or None")
+        if scene is not None and not isinstance(scene, PlanarScene | BeadScene
+                                                | TiltedTargetScene):
+            raise ReconInputError(
+                "scene must be a PlanarScene, a BeadScene, a TiltedTargetScene or None")
         self.scene = scene
         self._scene_version += 1
 
@@ -280,6 +295,9 @@ class VirtualBench:
         if isinstance(s, PlanarScene):
             return s.radiance * self.model.render(np.asarray(s.image, float), s.z_mm,
                                                   s.width_mm)
+        if isinstance(s, TiltedTargetScene):
+            return s.radiance * self.model.render_tilted_target(
+                s.z_near_mm, s.z_far_mm, s.width_mm, target=s.target)
         return self.model.render_points(np.asarray(s.points_xyz_mm, float),
                                         np.asarray(s.powers_photons_per_s, float))
 

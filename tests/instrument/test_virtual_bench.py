@@ -130,3 +130,19 @@ def test_holography_branch_misaligned_mask_lowers_the_spot(bench):
     bench.mask_stage.move_to({"x": mask_px_mm}, timeout_s=60)
     shifted = peak()
     assert 0.4 < shifted / aligned < 0.7, shifted / aligned
+
+
+def test_scenes_reach_the_camera(bench):
+    """Beads in 3D and a tilted target both light the sensor; nothing without a scene."""
+    from instrument.virtual_bench import BeadScene, TiltedTargetScene
+
+    assert not np.any(bench.irradiance(bench.camera))
+    bench.set_scene(BeadScene(np.array([[0.0, 0.0, 40.0], [1.0, -0.5, 60.0]]),
+                              np.array([1e11, 1e11])))
+    beads = bench.irradiance(bench.camera)
+    bench.set_scene(TiltedTargetScene(30.0, 60.0, 8.0))
+    target = bench.irradiance(bench.camera)
+    assert beads.sum() > 0 and target.sum() > 0
+    assert not np.allclose(beads / beads.sum(), target / target.sum())
+    with pytest.raises(ReconInputError):
+        bench.set_scene("a photo")
