@@ -21,10 +21,18 @@ from __future__ import annotations
 import difflib
 import inspect
 import logging
+from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import Any
 
-from instrument.config import KINDS, SIMULATED_DRIVERS, BenchConfig, Problem, with_simulated_drivers
+from instrument.config import (
+    KINDS,
+    SIMULATED_DRIVERS,
+    BenchConfig,
+    DeviceConfig,
+    Problem,
+    with_simulated_drivers,
+)
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -385,7 +393,11 @@ def _close_all(devices: list[tuple[str, Any]]) -> dict[str, BaseException]:
 
 
 def open_bench(
-    config: BenchConfig, *, simulate: bool = False, timeout_s: float = 10.0
+    config: BenchConfig,
+    *,
+    simulate: bool = False,
+    timeout_s: float = 10.0,
+    construct: Callable[[DeviceConfig, type], Any] | None = None,
 ) -> OpenBench:
     """Construct and open every device of ``config``; usable as a context manager.
 
@@ -402,6 +414,10 @@ def open_bench(
         Swap every device for its simulated twin first (:func:`with_simulated_drivers`).
     timeout_s : float
         Passed to each device's ``open``.
+    construct : callable, optional
+        ``construct(device_config, cls) -> device`` replaces the plain
+        ``cls(device_id, **params)``, e.g. to couple simulated devices to a virtual
+        bench; the open/close-on-failure semantics stay the same.
 
     Raises
     ------
@@ -419,7 +435,10 @@ def open_bench(
     for dev_cfg, cls in classes:
         device = None
         try:
-            device = cls(dev_cfg.id, **dev_cfg.params)
+            if construct is None:
+                device = cls(dev_cfg.id, **dev_cfg.params)
+            else:
+                device = construct(dev_cfg, cls)
             log.debug("opening %s (%s)", dev_cfg.id, dev_cfg.driver)
             device.open(timeout_s)
         except BaseException as exc:

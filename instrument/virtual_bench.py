@@ -27,11 +27,10 @@ import numpy as np
 
 from drivers.simulated import SimClock
 from recon.errors import ReconInputError
-from recon.optics.diffuser import DiffuserSurface
-from recon.optics.lensless import LenslessGeometry, LenslessModel
+from recon.optics.lensless import LenslessGeometry, LenslessModel, diffuser_for_sensor
 
 from .config import BenchConfig, GeometryConfig, default_bench, with_simulated_drivers
-from .registry import accepted_params, resolve
+from .registry import OpenBench, accepted_params, open_bench
 
 log = logging.getLogger(__name__)
 
@@ -85,16 +84,12 @@ class TiltedTargetScene:
 def lensless_geometry(geometry: GeometryConfig, seed: int = 0) -> LenslessGeometry:
     """The optics model's geometry for a bench config's ``[geometry]`` table.
 
-    The diffuser surface is seeded (smooth: 140 um features, 0.7 deg mean slope;
-    microlens: 250 um lenslets, f = 1.5 mm) and covers the sensor plus a margin.
+    The diffuser surface is :func:`recon.optics.lensless.diffuser_for_sensor` (seeded).
     """
     rows, cols = geometry.sensor_shape_px
     pitch_mm = geometry.sensor_pixel_pitch_um * 1e-3
-    size = (cols * pitch_mm + 0.1, rows * pitch_mm + 0.1)
-    if geometry.diffuser_kind == "smooth":
-        surface = DiffuserSurface.smooth_random(size, pitch_um=5.0, seed=seed)
-    else:
-        surface = DiffuserSurface.random_microlens(size, 2.5, seed=seed)
+    surface = diffuser_for_sensor(geometry.diffuser_kind, (cols * pitch_mm, rows * pitch_mm),
+                                  seed)
     return LenslessGeometry(surface, geometry.diffuser_sensor_distance_mm,
                             tuple(geometry.aperture_mm), (rows, cols),
                             geometry.sensor_pixel_pitch_um)
@@ -120,6 +115,7 @@ class VirtualBench:
     Attributes
     ----------
     devices : dict[str, drivers.base.Device]
+        The opened devices (empty until :meth:`open`).
     clock : drivers.simulated.SimClock
     model : recon.optics.lensless.LenslessModel
     branch : {"lensless", "holography"}
@@ -142,21 +138,26 @@ class VirtualBench:
         self._cache_key = None
         self._cache_value: np.ndarray | None = None
         self._psf_cache: dict = {}
-        self.devices = {}
-        for i, dev in enumerate(self.config.devices):
-            cls = resolve(dev.driver, dev.kind)
-            params = dict(dev.params)
-            accepted = accepted_params(cls)
-            extra = {"clock": self.clock, "seed": self.seed + i}
-            if dev.kind == "camera":
-                params["sensor_shape"] = tuple(self.geometry.sensor_shape)
-                params["pixel_pitch_um"] = self.geometry.sensor_pitch_um
-                extra["irradiance"] = self.irradiance
-            params.update({k: v for k, v in extra.items() if accepted is None or k in accepted})
-            self.devices[dev.id] = cls(dev.id, **params)
+        self.devices: dict = {}
+
+    def _construct(self, dev, cls):
+        """Build one simulated device on the shared clock, the camera seeing
+        :meth:`irradiance` (the ``construct`` hook of :func:`open_bench`)."""
+        params = dict(dev.params)
+        accepted = accepted_params(cls)
+        index = [d.id for d in self.config.devices].index(dev.id)
+        extra = {"clock": self.clock, "seed": self.seed + index}
+        if dev.kind == "camera":
+            params["sensor_shape"] = tuple(self.geometry.sensor_shape)
+            params["pixel_pitch_um"] = self.geometry.sensor_pitch_um
+            extra["irradiance"] = self.irradiance
+        params.update({k: v for k, v in extra.items() if accepted is None or k in accepted})
+        return cls(dev.id, **params)
 
     # -- devices -----------------------------------------------------------------------
     def _one(self, kind: str, want=None):
+        if not self.devices:
+            raise ReconInputError("the virtual bench is not open; use `with VirtualBench() as vb`")
         found = [d for d in self.devices.values() if d.kind == kind and (want is None or want(d))]
         if not found:
             raise ReconInputError(f"the bench has no {kind} for this role; add one to the config")
@@ -188,22 +189,16 @@ class VirtualBench:
         return self._one("slm")
 
     def open(self, timeout_s: float = 5.0) -> VirtualBench:
-        """Open every device (closing the opened ones again if one fails)."""
-        opened = []
-        try:
-            for dev in self.devices.values():
-                dev.open(timeout_s)
-                opened.append(dev)
-        except BaseException:
-            for dev in reversed(opened):
-                dev.close()
-            raise
+        """Construct and open every device through :func:`instrument.registry.open_bench`
+        (nothing is left half-open if one fails); reopening builds fresh devices."""
+        self.devices = open_bench(self.config, timeout_s=timeout_s, construct=self._construct)
         return self
 
     def close(self) -> None:
-        """Close every device (idempotent)."""
-        for dev in reversed(list(self.devices.values())):
-            dev.close()
+        """Close every device, last opened first (idempotent)."""
+        if isinstance(self.devices, OpenBench):
+            self.devices.close()
+        self.devices = {}
 
     def __enter__(self) -> VirtualBench:
         return self.open()

@@ -77,7 +77,6 @@ class Reconstruction:
             "fft_pair_seconds": fft_pair_s,
             "ratio_to_fft_floor": med / fft_pair_s,
             "final_relative_residual": max(r.final_relative_residual for r in self.results),
-            "initial_relative_residual": 1.0,
             "final_objective": [r.final_objective for r in self.results],
             "objective": [list(r.history.objective) for r in self.results],
             "data_residual": [list(r.history.data_residual) for r in self.results],

@@ -32,6 +32,16 @@ from .base import (
 # ------------------------------------------------------------------------- models
 
 
+def _rules_error(problems: list[tuple[tuple, str, str]]) -> PydanticCustomError:
+    """The validation error carrying bench-rule problems (location, message, fix)."""
+    return PydanticCustomError(
+        "bench_rules",
+        "{summary}",
+        {"summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
+         "problems": problems},
+    )
+
+
 class GeometryConfig(_Section):
     """Optical geometry of the lensless camera (SI-prefixed units in the names)."""
 
@@ -139,14 +149,7 @@ class DeviceConfig(_Section):
 
         walk(value, ())
         if problems:
-            raise PydanticCustomError(
-                "bench_rules",
-                "{summary}",
-                {
-                    "summary": "; ".join(f"{'.'.join(p[0])}: {p[1]}" for p in problems),
-                    "problems": problems,
-                },
-            )
+            raise _rules_error(problems)
         return value
 
     @model_validator(mode="after")
@@ -155,14 +158,7 @@ class DeviceConfig(_Section):
             return self
         problems = _axes_problems(self.params.get("axes"))
         if problems:
-            raise PydanticCustomError(
-                "bench_rules",
-                "{summary}",
-                {
-                    "summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
-                    "problems": problems,
-                },
-            )
+            raise _rules_error(problems)
         return self
 
 
@@ -343,14 +339,7 @@ class BenchConfig(_Section):
             [{"id": d.id, "kind": d.kind} for d in self.devices], list(self.branches)
         )
         if problems:
-            raise PydanticCustomError(
-                "bench_rules",
-                "{summary}",
-                {
-                    "summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
-                    "problems": problems,
-                },
-            )
+            raise _rules_error(problems)
         return self
 
     def device(self, device_id: str) -> DeviceConfig:

@@ -701,6 +701,37 @@ def _fit_half_aperture(pos, tan_dev, axis, half, d, z0) -> float:
     return float(np.abs(pos[ok]).max())
 
 
+def diffuser_for_sensor(kind: str, sensor_size_mm: tuple[float, float],
+                        seed: int = 0) -> DiffuserSurface:
+    """The default diffuser surface of a kind, covering a sensor plus 0.1 mm.
+
+    ``"smooth"``: :meth:`DiffuserSurface.smooth_random` (140 um features, mean slope
+    0.7 deg, n = 1.58) sampled at 5 um; ``"microlens"``:
+    :meth:`DiffuserSurface.random_microlens` (250 um lenslets, f = 1.5 mm) at 2.5 um.
+
+    Parameters
+    ----------
+    kind : {"smooth", "microlens"}
+    sensor_size_mm : (width_mm, height_mm)
+    seed : int
+
+    Returns
+    -------
+    DiffuserSurface
+
+    Raises
+    ------
+    ReconInputError
+        Unknown kind.
+    """
+    size = (sensor_size_mm[0] + 0.1, sensor_size_mm[1] + 0.1)
+    if kind == "smooth":
+        return DiffuserSurface.smooth_random(size, pitch_um=5.0, seed=seed)
+    if kind == "microlens":
+        return DiffuserSurface.random_microlens(size, 2.5, seed=seed)
+    raise ReconInputError(f"unknown diffuser kind {kind!r}; use 'smooth' or 'microlens'")
+
+
 def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
     """A small bench geometry for tests and demos.
 
@@ -730,15 +761,8 @@ def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
     """
     sensor, pitch_um, z_fill = (256, 320), 13.0, 20.0
     sw, sh = sensor[1] * pitch_um * 1e-3, sensor[0] * pitch_um * 1e-3
-    if kind == "smooth":
-        d = 8.9
-        surface = DiffuserSurface.smooth_random((sw + 0.1, sh + 0.1), pitch_um=5.0,
-                                                seed=seed)
-    elif kind == "microlens":
-        d = 1.6
-        surface = DiffuserSurface.random_microlens((sw + 0.1, sh + 0.1), 2.5, seed=seed)
-    else:
-        raise ReconInputError(f"unknown diffuser kind {kind!r}; use 'smooth' or 'microlens'")
+    surface = diffuser_for_sensor(kind, (sw, sh), seed)
+    d = 8.9 if kind == "smooth" else 1.6
     x, y = surface.coordinates_mm()
     tan_dev = np.tan(surface.deflection_rad())
     in_x, in_y = np.abs(x) <= sw / 2, np.abs(y) <= sh / 2

@@ -90,6 +90,16 @@ def check_measurement(b, shape: tuple[int, ...]) -> np.ndarray:
     return b
 
 
+def anisotropic_tv(x: np.ndarray) -> float:
+    """Anisotropic TV: sum of |circular forward differences| over all axes.
+
+    The TV term of Eq. 2.5 with Psi the finite-difference operator (Sec. 2.2),
+    circular as in the padded domain of Eq. 3.4. float64 accumulation.
+    """
+    return float(sum(np.abs(np.roll(x, -1, axis=a) - x).sum(dtype=np.float64)
+                     for a in range(x.ndim)))
+
+
 class Monitor:
     """Times iterations, records the history and stops a diverging run.
 

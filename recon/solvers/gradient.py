@@ -15,7 +15,7 @@ import numpy as np
 from .. import _kernels
 from ..errors import ReconInputError
 from ..operators import LinearOperator
-from .common import Monitor, SolveResult, check_measurement
+from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 
 
 def _prox_threshold(step: float, tau: float, ndim: int) -> float:
@@ -72,17 +72,11 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
         mon.record(loss + tv * tv_y, 2.0 * loss, x=x, hint=hint)
     r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq + tv * _anisotropic_tv(x)
+    final = 0.5 * data_sq + tv * anisotropic_tv(x)
     mon.history.extra["restarts"] = restarts
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"step": step, "lipschitz": lip, "tv": tv, "threshold": thr,
                         "nonneg": nonneg, "momentum": momentum, "restart": restart})
-
-
-def _anisotropic_tv(x: np.ndarray) -> float:
-    """Sum of |circular forward differences| over all axes."""
-    return float(sum(np.abs(np.roll(x, -1, axis=a) - x).sum(dtype=np.float64)
-                     for a in range(x.ndim)))
 
 
 def fista(op: LinearOperator, b: np.ndarray, iterations: int = 100, *, tv: float = 0.0,
