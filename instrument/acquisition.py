@@ -7,6 +7,7 @@ wait on the camera has a timeout (the camera's ``snap(timeout_s)``).
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,12 +79,19 @@ class ExposureResult:
 
 def autoexpose(camera, *, target: float = 0.5, tolerance: float = 0.1,
                bounds_s: tuple[float, float] = (1e-5, 2.0), dark_level: float = 0.0,
-               max_trials: int = 10, timeout_s: float = 5.0) -> ExposureResult:
+               max_trials: int = 12, timeout_s: float = 5.0) -> ExposureResult:
     """Set the exposure so the brightest pixels sit at ``target`` of full scale.
 
     The peak is the 99.99th percentile of the frame minus ``dark_level`` (robust to
-    hot pixels); the exposure is scaled proportionally (by at most 8x per step, or
-    /8 from a saturated frame) until the peak is within ``tolerance`` of the target.
+    hot pixels). The search keeps a bracket: the longest exposure seen unsaturated
+    and the shortest seen saturated. An unsaturated frame scales the exposure
+    proportionally (at most 8x, and never beyond the saturated bound: then the
+    geometric mean of the bracket); a saturated frame bisects the bracket in log
+    exposure (or divides by 8 without a lower bound). It stops when the peak is
+    within ``tolerance`` of the target with no saturated pixel, or when the bracket
+    is closed (the two bounds within 5 %): a sharp peak that saturates a few pixels
+    before the percentile reaches the target then ends at the longest unsaturated
+    exposure, with ``peak_fraction`` below the target.
 
     Parameters
     ----------
@@ -108,19 +116,36 @@ def autoexpose(camera, *, target: float = 0.5, tolerance: float = 0.1,
     ExposureError
         The target needs an exposure outside ``bounds_s`` (scene too dark or too
         bright) or was not reached in ``max_trials`` frames; the exposure is left at
-        the last value tried.
+        the last unsaturated value tried (or the last value if none).
     """
     full = full_scale(camera) - dark_level
     lo, hi = bounds_s
+    best_ok: tuple[float, float] | None = None  # (exposure, peak) longest unsaturated
+    sat_at = math.inf  # shortest saturated exposure
     for trial in range(1, max_trials + 1):
+        exposure = camera.exposure_s
         frame = camera.snap(timeout_s=timeout_s)
         peak = (float(np.percentile(frame.image, 99.99)) - dark_level) / full
-        if abs(peak - target) <= tolerance and frame.saturated_pixels == 0:
-            return ExposureResult(camera.exposure_s, peak, trial)
-        factor = 0.125 if frame.saturated_pixels else min(8.0, target / max(peak, 1e-3))
-        new = camera.exposure_s * factor
+        if frame.saturated_pixels:
+            sat_at = min(sat_at, exposure)
+        else:
+            if best_ok is None or exposure > best_ok[0]:
+                best_ok = (exposure, peak)
+            if abs(peak - target) <= tolerance:
+                return ExposureResult(exposure, peak, trial)
+        if best_ok is not None and sat_at <= best_ok[0] * 1.05:
+            camera.exposure_s = best_ok[0]
+            return ExposureResult(best_ok[0], best_ok[1], trial)
+        if frame.saturated_pixels:
+            new = math.sqrt(best_ok[0] * sat_at) if best_ok is not None else exposure / 8
+        else:
+            new = exposure * min(8.0, target / max(peak, 1e-3))
+            if new >= sat_at:
+                new = math.sqrt(exposure * sat_at)
         if not lo <= new <= hi:
-            if (new > hi and camera.exposure_s >= hi) or (new < lo and camera.exposure_s <= lo):
+            if (new > hi and exposure >= hi) or (new < lo and exposure <= lo):
+                if best_ok is not None:
+                    camera.exposure_s = best_ok[0]
                 raise ExposureError(
                     camera.device_id,
                     f"peak {peak:.2f} of full scale needs exposure {new:.3g} s, outside "
@@ -130,5 +155,7 @@ def autoexpose(camera, *, target: float = 0.5, tolerance: float = 0.1,
             new = min(max(new, lo), hi)
         camera.exposure_s = new
         log.debug("autoexpose trial %d: peak %.3f -> exposure %.4g s", trial, peak, new)
+    if best_ok is not None:
+        camera.exposure_s = best_ok[0]
     raise ExposureError(camera.device_id, f"target not reached in {max_trials} frames",
                         "check for flicker or a moving scene, or raise max_trials")

@@ -29,12 +29,23 @@ from drivers.simulated import SimClock
 from recon.errors import ReconInputError
 from recon.optics.lensless import LenslessGeometry, LenslessModel, diffuser_for_sensor
 
+from .bench import Bench, PromptRefused
 from .config import BenchConfig, GeometryConfig, default_bench, with_simulated_drivers
-from .registry import OpenBench, accepted_params, open_bench
+from .registry import accepted_params, open_bench
 
 log = logging.getLogger(__name__)
 
 BRANCHES = ("lensless", "holography")
+
+#: Operator actions the virtual bench carries out: action -> (state flag, value).
+ACTIONS = {
+    "cap_camera": ("camera_capped", True),
+    "uncap_camera": ("camera_capped", False),
+    "remove_diffuser": ("diffuser_installed", False),
+    "install_diffuser": ("diffuser_installed", True),
+    "remove_pinhole": ("pinhole_installed", False),
+    "install_pinhole": ("pinhole_installed", True),
+}
 
 
 @dataclass(frozen=True)
@@ -95,8 +106,13 @@ def lensless_geometry(geometry: GeometryConfig, seed: int = 0) -> LenslessGeomet
                             geometry.sensor_pixel_pitch_um)
 
 
-class VirtualBench:
+class VirtualBench(Bench):
     """Simulated devices of a bench config, coupled through the optics models.
+
+    A :class:`~instrument.bench.Bench` whose time is the simulated clock (settle
+    times and waits cost nothing), whose noise is reseeded per plan point (so a
+    resumed run equals an uninterrupted one) and which carries out the operator
+    actions of :data:`ACTIONS` itself.
 
     Parameters
     ----------
@@ -107,7 +123,13 @@ class VirtualBench:
         Seeds the diffuser, the mask and every device's noise.
     source_power_photons_per_s : float
         Photons per second the pinhole emits with one LED at full brightness right
-        behind it.
+        behind it (also the power of one LED seen directly once the pinhole is out).
+    stray_light_fraction : float
+        Stray light of the point source: a smooth glow over the sensor carrying this
+        fraction of the PSF's collected power (what the background removal of
+        Sec. 6.4 takes out).
+    prnu_fraction : float
+        The camera's photo-response non-uniformity (what a flat field measures).
     hologram : HolographicDisplayModel, optional
         Model of the holography branch; default built lazily from the SLM and the
         camera shape (96 x 120 SLM, k = 4, q = 4).
@@ -121,24 +143,32 @@ class VirtualBench:
     branch : {"lensless", "holography"}
         Which optical path the camera looks through.
     scene : PlanarScene or BeadScene or TiltedTargetScene or None
+    state : dict[str, bool]
+        Operator-controlled state: ``camera_capped``, ``diffuser_installed``,
+        ``pinhole_installed``.
     """
 
     def __init__(self, config: BenchConfig | None = None, *, seed: int = 0,
-                 source_power_photons_per_s: float = 2e11, hologram=None):
-        self.config = with_simulated_drivers(config or default_bench())
+                 source_power_photons_per_s: float = 2e11, stray_light_fraction: float = 0.02,
+                 prnu_fraction: float = 0.01, hologram=None):
+        super().__init__({}, config=with_simulated_drivers(config or default_bench()))
         self.seed = int(seed)
         self.clock = SimClock()
         self.geometry = lensless_geometry(self.config.geometry, seed)
         self.model = LenslessModel(self.geometry)
         self.source_power = float(source_power_photons_per_s)
+        self.stray_light_fraction = float(stray_light_fraction)
+        self.prnu_fraction = float(prnu_fraction)
         self._hologram = hologram
         self.branch = "lensless"
         self.scene: PlanarScene | BeadScene | TiltedTargetScene | None = None
+        self.state = {"camera_capped": False, "diffuser_installed": True,
+                      "pinhole_installed": True}
         self._scene_version = 0
         self._cache_key = None
         self._cache_value: np.ndarray | None = None
         self._psf_cache: dict = {}
-        self.devices: dict = {}
+        self._stray_map: np.ndarray | None = None
 
     def _construct(self, dev, cls):
         """Build one simulated device on the shared clock, the camera seeing
@@ -151,42 +181,9 @@ class VirtualBench:
             params["sensor_shape"] = tuple(self.geometry.sensor_shape)
             params["pixel_pitch_um"] = self.geometry.sensor_pitch_um
             extra["irradiance"] = self.irradiance
+            extra["prnu_fraction"] = self.prnu_fraction
         params.update({k: v for k, v in extra.items() if accepted is None or k in accepted})
         return cls(dev.id, **params)
-
-    # -- devices -----------------------------------------------------------------------
-    def _one(self, kind: str, want=None):
-        if not self.devices:
-            raise ReconInputError("the virtual bench is not open; use `with VirtualBench() as vb`")
-        found = [d for d in self.devices.values() if d.kind == kind and (want is None or want(d))]
-        if not found:
-            raise ReconInputError(f"the bench has no {kind} for this role; add one to the config")
-        return found[0]
-
-    @property
-    def camera(self):
-        """The (single) camera."""
-        return self._one("camera")
-
-    @property
-    def source_stage(self):
-        """The stage carrying the pinhole point source (has z, no rotation axes)."""
-        return self._one("stage", lambda d: "z" in d.axes and "rotation" not in d.axes)
-
-    @property
-    def mask_stage(self):
-        """The 6-axis stage of the holography mask mount (has a rotation axis)."""
-        return self._one("stage", lambda d: "rotation" in d.axes)
-
-    @property
-    def led_array(self):
-        """The LED array behind the pinhole."""
-        return self._one("led_array")
-
-    @property
-    def slm(self):
-        """The SLM of the holography branch."""
-        return self._one("slm")
 
     def open(self, timeout_s: float = 5.0) -> VirtualBench:
         """Construct and open every device through :func:`instrument.registry.open_bench`
@@ -194,17 +191,41 @@ class VirtualBench:
         self.devices = open_bench(self.config, timeout_s=timeout_s, construct=self._construct)
         return self
 
-    def close(self) -> None:
-        """Close every device, last opened first (idempotent)."""
-        if isinstance(self.devices, OpenBench):
-            self.devices.close()
-        self.devices = {}
-
     def __enter__(self) -> VirtualBench:
         return self.open()
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    # -- Bench hooks: simulated time, per-point noise, operator actions -------------------
+    def sleep(self, seconds: float) -> None:
+        """Advance the simulated clock by ``seconds`` (no real wait)."""
+        if seconds > 0:
+            self.clock.advance(seconds)
+
+    def now_s(self) -> float:
+        """Simulated time, s."""
+        return self.clock.now_s
+
+    def on_point(self, key: tuple[int, ...]) -> None:
+        """Reseed every simulated camera's noise from ``key`` (see
+        :meth:`drivers.simulated.SimulatedCamera.reseed_noise`)."""
+        for dev in self.devices.values():
+            if hasattr(dev, "reseed_noise"):
+                dev.reseed_noise(key)
+
+    def prompt(self, action: str, message: str) -> None:
+        """Carry out operator ``action`` (one of :data:`ACTIONS`) on the simulated optics.
+
+        Raises
+        ------
+        PromptRefused
+            An action the virtual bench cannot perform.
+        """
+        if action not in ACTIONS:
+            raise PromptRefused(f"the virtual bench cannot {message!r} (action {action!r}); "
+                                f"it knows {sorted(ACTIONS)}")
+        name, value = ACTIONS[action]
+        self.state[name] = value
+        self._scene_version += 1
+        log.info("virtual bench: %s", message)
 
     # -- the world ---------------------------------------------------------------------
     def set_scene(self, scene: PlanarScene | BeadScene | TiltedTargetScene | None) -> None:
@@ -239,12 +260,12 @@ class VirtualBench:
         if not lit:
             return 0.0
         x, y, _ = self.source_position_mm()
-        pos = np.asarray(leds.positions_mm)
+        index = np.fromiter(lit, int, len(lit))
+        brightness = np.array([b for _, b in lit.values()], float)
+        pos = np.asarray(leds.positions_mm)[index]
         sigma = 2.0 * float(leds.pitch_mm)
-        total = 0.0
-        for index, (_, brightness) in lit.items():
-            r2 = (pos[index, 0] - x) ** 2 + (pos[index, 1] - y) ** 2
-            total += float(brightness) * np.exp(-r2 / (2 * sigma**2))
+        r2 = (pos[:, 0] - x) ** 2 + (pos[:, 1] - y) ** 2
+        total = float(np.sum(brightness * np.exp(-r2 / (2 * sigma**2))))
         return self.source_power * total
 
     def psf(self, xyz_mm) -> np.ndarray:
@@ -256,30 +277,99 @@ class VirtualBench:
             self._psf_cache[key] = self.model.psf(key)
         return self._psf_cache[key]
 
+    def point_sources(self) -> tuple[tuple[tuple[float, float, float], float], ...]:
+        """The point sources lit now: ``((x, y, z) mm, power photons/s)`` each.
+
+        With the pinhole installed: the pinhole at the source stage position, with the
+        power of :meth:`source_power_photons_per_s` (nothing if dark). With it
+        removed: every lit LED at ``(x_i, y_i, distance_mm)`` with power
+        ``source_power * brightness`` (the LED array seen directly).
+        """
+        if self.state["pinhole_installed"]:
+            power = self.source_power_photons_per_s()
+            if power <= 0:
+                return ()
+            pos = tuple(round(v, 6) for v in self.source_position_mm())
+            return ((pos, round(power, 3)),)
+        leds = self.led_array
+        xy = np.asarray(leds.positions_mm)
+        z = float(leds.distance_mm)
+        return tuple(((round(float(xy[i, 0]), 6), round(float(xy[i, 1]), 6), z),
+                      self.source_power * float(b)) for i, (_, b) in sorted(leds.lit().items()))
+
+    def bare_sensor_irradiance(self, xyz_mm) -> np.ndarray:
+        """Fraction of a point source's power per pixel with the diffuser and aperture
+        removed: ``cos(theta) / (4 pi r^2) * pixel area * f(theta)`` per pixel, with
+        ``r`` the source-pixel distance, ``theta`` the incidence angle and ``f`` the
+        pixel angular response (Eq. 5.1's fall-off). The source's distance from the
+        sensor is ``z + d``.
+
+        Returns
+        -------
+        ndarray, float64, (rows, cols)
+        """
+        x, y, z = (float(v) for v in xyz_mm)
+        rows, cols = self.geometry.sensor_shape
+        pitch = self.geometry.sensor_pitch_um * 1e-3
+        u = (np.arange(cols) - (cols - 1) / 2) * pitch - x
+        v = (np.arange(rows) - (rows - 1) / 2) * pitch - y
+        depth = z + self.geometry.d_mm
+        r2 = v[:, None] ** 2 + u[None, :] ** 2 + depth**2
+        value = depth / (4 * np.pi * r2 * np.sqrt(r2)) * pitch**2
+        sigma = self.geometry.falloff_sigma_deg
+        if sigma is not None:
+            theta = np.arccos(depth / np.sqrt(r2))
+            value *= np.exp(-theta**2 / (2 * np.radians(sigma) ** 2))
+        return value
+
+    def stray_light_map(self) -> np.ndarray:
+        """The stray-light glow's shape: smooth, sums to 1 over the sensor."""
+        if self._stray_map is None:
+            rows, cols = self.geometry.sensor_shape
+            rng = np.random.default_rng([self.seed, 0x57])
+            r0, c0 = rng.uniform(0.2, 0.8, 2)
+            yy, xx = np.meshgrid(np.linspace(0, 1, rows), np.linspace(0, 1, cols),
+                                 indexing="ij")
+            glow = np.exp(-((yy - r0) ** 2 + (xx - c0) ** 2) / (2 * 0.35**2)) + 0.3 * xx
+            self._stray_map = glow / glow.sum()
+        return self._stray_map
+
     def irradiance(self, camera) -> np.ndarray:
         """Photo-electrons per second per sensor pixel (noise-free), for the camera.
 
-        Cached on everything it depends on (branch, source pose and power, scene,
-        SLM pattern and mask pose), so streaming a static bench costs nothing.
+        Lensless branch: each point source's ray-traced PSF plus its stray light
+        (diffuser installed) or its bare-sensor irradiance (diffuser removed), plus
+        the scene's image (diffuser installed only); nothing when the camera is
+        capped. Cached on everything it depends on (branch, sources, operator state,
+        scene, SLM pattern and mask pose), so streaming a static bench costs nothing.
         """
+        state = tuple(sorted(self.state.items()))
         if self.branch == "holography":
             gray = self.slm.current_image()
             pose = self._mask_pose()
-            key = ("holo", self.slm.pattern_id, pose)
+            key = ("holo", self.slm.pattern_id, pose, state)
         else:
             gray = pose = None
-            power = self.source_power_photons_per_s()
-            pos = self.source_position_mm()
-            key = ("lensless", pos, round(power, 3), self._scene_version)
+            sources = () if self.state["camera_capped"] else self.point_sources()
+            key = ("lensless", sources, state, self._scene_version)
         if key == self._cache_key and self._cache_value is not None:
             return self._cache_value
-        if self.branch == "holography":
+        value = np.zeros(self.geometry.sensor_shape)
+        if self.state["camera_capped"]:
+            pass
+        elif self.branch == "holography":
             value = self.hologram.render(gray, pose)
-        else:
-            value = np.zeros(self.geometry.sensor_shape)
-            if power > 0:
-                value += power * self.psf(pos)
+        elif self.state["diffuser_installed"]:
+            for pos, power in sources:
+                psf = self.psf(pos)
+                value += power * psf
+                if self.stray_light_fraction > 0:
+                    value += (self.stray_light_fraction * power * float(psf.sum())
+                              * self.stray_light_map())
             value += self._scene_image()
+        else:
+            for pos, power in sources:
+                value += power * self.bare_sensor_irradiance(pos)
         self._cache_key, self._cache_value = key, value
         return value
 

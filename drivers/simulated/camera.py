@@ -69,8 +69,11 @@ class SimulatedCamera(SimulatedMixin, Camera):
         Readout limit: the frame period is ``max(exposure_s, 1 / max_frame_rate_hz)``.
     max_gain_db : float
         Largest allowed gain.
+    prnu_fraction : float
+        Photo-response non-uniformity: each pixel's gain is ``1 + prnu_fraction * g``
+        with ``g`` standard normal, fixed by ``seed`` (what a flat field measures).
     seed : int
-        Seeds the noise, the hot pixel map and the faults.
+        Seeds the noise, the hot pixel map, the PRNU map and the faults.
     clock : SimClock, optional
         Shared simulated time (a private clock if None).
     """
@@ -82,8 +85,8 @@ class SimulatedCamera(SimulatedMixin, Camera):
         read_noise_e: float = 2.5, dark_current_e_per_s: float = 5.0,
         dark_offset_dn: float = 64.0, hot_pixel_fraction: float = 1e-4,
         hot_pixel_e_per_s: float = 2000.0, adc_bits: int = 12,
-        max_frame_rate_hz: float = 30.0, max_gain_db: float = 24.0, seed: int = 0,
-        clock: SimClock | None = None,
+        max_frame_rate_hz: float = 30.0, max_gain_db: float = 24.0,
+        prnu_fraction: float = 0.0, seed: int = 0, clock: SimClock | None = None,
     ) -> None:
         super().__init__(device_id)
         self._sim_setup(clock, CameraFaults(self, seed))
@@ -109,8 +112,12 @@ class SimulatedCamera(SimulatedMixin, Camera):
         self._max_fps = self._float("max_frame_rate_hz", max_frame_rate_hz, low=0,
                                     low_open=True)
         self._max_gain = self._float("max_gain_db", max_gain_db, low=0.0)
+        prnu = self._float("prnu_fraction", prnu_fraction, low=0.0, high=0.5)
         seed = self._int("seed", seed, low=0)
+        self._seed = seed
         self._hot = np.random.default_rng([seed, 1]).random(self._shape) < frac
+        self._prnu = np.clip(1.0 + prnu * np.random.default_rng([seed, 3]).standard_normal(
+            self._shape), 0.0, None) if prnu > 0 else None
         self._rng = np.random.default_rng([seed, 2])
         self._hw: dict[str, Any] = {}
         self._index = 0
@@ -125,6 +132,17 @@ class SimulatedCamera(SimulatedMixin, Camera):
     def hot_pixel_mask(self) -> np.ndarray:
         """Full-sensor boolean map of hot pixels (fixed by the seed)."""
         return self._hot.copy()
+
+    @property
+    def prnu_map(self) -> np.ndarray:
+        """Full-sensor per-pixel gain (mean ~1; all ones without PRNU)."""
+        return np.ones(self._shape) if self._prnu is None else self._prnu.copy()
+
+    def reseed_noise(self, key: tuple[int, ...]) -> None:
+        """Restart the noise stream from ``(seed, key)``: frames after this call are a
+        function of the seed, the key and what the sensor sees (the virtual bench calls
+        it before each plan point so a resumed run reproduces an uninterrupted one)."""
+        self._rng = np.random.default_rng([self._seed, 2, *(int(k) for k in key)])
 
     @property
     def conversion_gain_dn_per_e(self) -> float:
@@ -302,7 +320,8 @@ class SimulatedCamera(SimulatedMixin, Camera):
                     f"irradiance returned shape {e_flux.shape} (or negative/non-finite values)",
                     f"return finite values >= 0 of shape {self._shape} (e-/s per pixel)",
                 )
-            rate = rate + self.quantum_efficiency * e_flux[win]
+            flux = self.quantum_efficiency * e_flux[win]
+            rate = rate + (flux if self._prnu is None else flux * self._prnu[win])
         electrons = self._rng.poisson(rate * t).astype(np.float64)
         saturated = electrons >= self.full_well_e
         np.minimum(electrons, self.full_well_e, out=electrons)

@@ -1,0 +1,193 @@
+"""Plans: what a calibration or acquisition does, as points made of steps.
+
+A plan declares all of its points up front (:meth:`Plan.points`: a JSON-able
+description and the tags of the frames each point captures), then yields, per
+point, a generator of steps (:meth:`Plan.steps`). The runner
+(:mod:`instrument.runner`) executes the steps, stores each captured frame, and can
+resume a run at the first point the store does not hold completely; a point is the
+unit of resumption, so a point's steps must bring the bench into the state they
+need from any starting state (move, light, expose before capturing).
+
+Steps
+-----
+:class:`Move`, :class:`Light`, :class:`Expose`, :class:`Capture`, :class:`Check`
+and :class:`Prompt` (an operator action such as removing the diffuser).
+
+Plans register by name (:func:`register_plan`) so a stored run can rebuild its
+plan from the name and parameters it recorded (:func:`plan_from_record`).
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+__all__ = [
+    "PLAN_TYPES", "AutoExposure", "Capture", "Check", "CheckFailed", "Expose", "Light", "Move",
+    "Plan", "PlanError", "PlanPoint", "Prompt", "Step", "plan_from_record", "register_plan",
+]
+
+
+class PlanError(ValueError):
+    """A plan is malformed or its parameters are invalid (the message names the fix)."""
+
+
+class CheckFailed(RuntimeError):
+    """A :class:`Check` step found the bench unfit to continue; ``fix`` says what to do."""
+
+    def __init__(self, problem: str, fix: str) -> None:
+        super().__init__(f"{problem}; {fix}")
+        self.problem, self.fix = problem, fix
+
+
+@dataclass(frozen=True)
+class Move:
+    """Move a stage (``stage``: device id or role) to absolute ``targets`` {axis: value}
+    and wait for it, then wait ``settle_s`` (None: the bench config's default)."""
+
+    stage: str
+    targets: Mapping[str, float]
+    settle_s: float | None = None
+    timeout_s: float = 60.0
+
+
+@dataclass(frozen=True)
+class Light:
+    """Set the LED array: ``leds`` = indices to light (empty: all off; ``"all"``: every
+    LED), at ``brightness`` in ``colour``."""
+
+    leds: Sequence[int] | str = ()
+    brightness: float = 1.0
+    colour: str = "white"
+    device: str = "led_array"
+
+
+@dataclass(frozen=True)
+class AutoExposure:
+    """Auto-exposure target: the peak (99.99th percentile minus ``dark_level_dn``) in
+    ``[target - tolerance, target + tolerance]`` of full scale with no saturated
+    pixel; ``bounds_s`` the allowed exposures. ``required=False`` accepts the bound
+    (with a warning in the run) when the target is out of reach."""
+
+    target: float = 0.6
+    tolerance: float = 0.2
+    bounds_s: tuple[float, float] | None = None
+    dark_level_dn: float = 0.0
+    required: bool = False
+
+
+@dataclass(frozen=True)
+class Expose:
+    """Set the camera exposure: a fixed ``exposure_s``, or ``auto``; neither keeps the
+    current one."""
+
+    exposure_s: float | None = None
+    auto: AutoExposure | None = None
+
+
+@dataclass(frozen=True)
+class Capture:
+    """Snap ``n`` frames and store each with tag ``tag``."""
+
+    n: int
+    tag: str
+
+
+@dataclass(frozen=True)
+class Check:
+    """Call ``func(bench, store, point)``; it raises :class:`CheckFailed` to stop the run."""
+
+    name: str
+    func: Callable[..., None] = field(compare=False)
+
+
+@dataclass(frozen=True)
+class Prompt:
+    """An operator action (``action`` key, human ``message``), e.g. remove the diffuser."""
+
+    action: str
+    message: str
+
+
+Step = Move | Light | Expose | Capture | Check | Prompt
+
+
+@dataclass(frozen=True)
+class PlanPoint:
+    """One point of a plan: JSON-able ``coords`` and the ``tags`` of its frames."""
+
+    coords: Mapping[str, Any]
+    tags: tuple[str, ...]
+
+
+#: Registered plan classes by name.
+PLAN_TYPES: dict[str, type[Plan]] = {}
+
+
+def register_plan(cls: type[Plan]) -> type[Plan]:
+    """Class decorator: make ``cls`` rebuildable from a stored run by its ``name``."""
+    if not getattr(cls, "name", None):
+        raise PlanError(f"{cls.__name__} needs a class attribute `name`")
+    PLAN_TYPES[cls.name] = cls
+    return cls
+
+
+def plan_from_record(name: str, params: Mapping[str, Any]) -> Plan:
+    """Rebuild a plan from the name and parameters a run store recorded.
+
+    Raises
+    ------
+    PlanError
+        No plan of that name is registered (import the package defining it, e.g.
+        ``calibration_routines``).
+    """
+    if name not in PLAN_TYPES:
+        raise PlanError(f"no plan named {name!r} is registered ({sorted(PLAN_TYPES)}); "
+                        "import the package that defines it (e.g. calibration_routines)")
+    return PLAN_TYPES[name].from_params(params)
+
+
+class Plan(abc.ABC):
+    """A plan: points declared up front, steps per point, products at the end.
+
+    Subclasses set ``name``, implement :meth:`points` and :meth:`steps`, and may
+    override :meth:`setup` / :meth:`teardown` (steps before the first and after the
+    last point, run again on resume) and :meth:`reduce` (products from the stored
+    frames). ``params`` must be JSON-able and rebuild the plan through
+    :meth:`from_params`.
+    """
+
+    name: ClassVar[str] = ""
+
+    def __init__(self, **params: Any) -> None:
+        self.params = dict(params)
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> Plan:
+        """Rebuild from stored parameters (default: ``cls(**params)``)."""
+        return cls(**dict(params))
+
+    @abc.abstractmethod
+    def points(self) -> list[PlanPoint]:
+        """Every point of the plan, in order."""
+
+    @abc.abstractmethod
+    def steps(self, index: int, point: PlanPoint) -> Iterator[Step]:
+        """The steps of point ``index``; its :class:`Capture` steps must add up to
+        ``point.tags`` in order."""
+
+    def setup(self) -> Iterator[Step]:
+        """Steps before the first point (also on resume)."""
+        return iter(())
+
+    def teardown(self) -> Iterator[Step]:
+        """Steps after the last point (not after an abort: the bench then goes to its
+        safe state and the store is kept for resuming)."""
+        return iter(())
+
+    def reduce(self, store) -> dict[str, Any]:
+        """Derive products from a complete run's frames (write them with
+        ``store.write_product``); return a JSON-able summary."""
+        return {}

@@ -1,0 +1,407 @@
+"""Run storage: one Zarr v3 store per run (ARCHITECTURE.md, "Storage").
+
+Layout of ``RUN.zarr``::
+
+    zarr.json            attributes: schema and software versions, plan (name, params,
+                         points, frame tags), bench config and device settings
+                         snapshots, operator note, status, start/end times, resumes,
+                         warnings
+    frames               (n_frames, rows, cols) camera dtype, one frame per chunk
+    coords               (n_frames, n_coords) float64, one row per chunk; column names
+                         in its attribute ``names`` (stage positions, LED, SLM pattern
+                         id, exposure, gain, timestamps, saturation count, ...)
+    done                 (n_frames,) uint8, one element per chunk: 1 once the frame and
+                         its coordinates are written
+    point                (n_frames,) int32: the plan point of each frame (fixed)
+    tag                  (n_frames,) int16: index into the ``tags`` attribute (fixed)
+    products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...)
+
+The whole layout is fixed when the run is created (the plan declares every point
+and frame up front), so the metadata never changes while frames are written. Each
+chunk is written atomically (zarr's local store writes a temporary file and renames
+it) in the order frame, coordinates, done flag: a reader that trusts only frames
+flagged done never sees a partial one, and a crash loses at most the frame in
+flight.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.base import jsonable
+
+__all__ = ["SCHEMA_VERSION", "RunStore", "RunStoreError", "software_version", "utc_now"]
+
+log = logging.getLogger(__name__)
+
+#: Version of the layout above; bumped on any incompatible change.
+SCHEMA_VERSION = 1
+
+
+class RunStoreError(ValueError):
+    """A run store is missing, of another schema, or asked for something it lacks."""
+
+
+def software_version() -> str:
+    """The installed diffuserlab version (``"unknown"`` when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("diffuserlab")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def utc_now() -> str:
+    """Current UTC time, ISO 8601."""
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One stored frame: ``image`` (rows, cols) camera dtype, its plan ``point`` and
+    ``tag``, and ``coords`` {name: float}."""
+
+    index: int
+    point: int
+    tag: str
+    image: np.ndarray
+    coords: dict[str, float]
+
+
+class RunStore:
+    """A run's Zarr v3 store: create, write frames, read (also while being written).
+
+    Use :meth:`create` for a new run and :meth:`open` for an existing one.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    attrs : dict
+        The run's attributes (a snapshot; :meth:`refresh` re-reads them).
+    """
+
+    def __init__(self, path: Path, group, writable: bool) -> None:
+        self.path = Path(path)
+        self._group = group
+        self.writable = writable
+        self.attrs = dict(group.attrs)
+        if self.attrs.get("schema") != "diffuserlab-run":
+            raise RunStoreError(f"{self.path} is a Zarr store but not a diffuserlab run")
+        if self.attrs.get("schema_version") != SCHEMA_VERSION:
+            raise RunStoreError(
+                f"{self.path} has run schema {self.attrs.get('schema_version')}, this "
+                f"diffuserlab reads {SCHEMA_VERSION}; open it with the version that wrote "
+                f"it ({self.attrs.get('software_version')})")
+        self._coord_names = list(self._group["coords"].attrs["names"])
+        self._point = np.asarray(self._group["point"][:])
+        self._tag = np.asarray(self._group["tag"][:])
+
+    # ------------------------------------------------------------------ create / open
+    @classmethod
+    def create(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[str, Any],
+               points: Sequence[Mapping[str, Any]], frame_tags: Sequence[Sequence[str]],
+               frame_shape: tuple[int, int], frame_dtype, coord_names: Sequence[str],
+               bench_config: Mapping[str, Any] | None = None,
+               device_settings: Mapping[str, Any] | None = None, note: str = "",
+               overwrite: bool = False) -> RunStore:
+        """Create the store of a new run with its whole layout.
+
+        Parameters
+        ----------
+        path : str or Path
+            Directory to create (conventionally ``NAME.zarr``).
+        plan_name : str
+        plan_params : Mapping
+            JSON-able parameters that rebuild the plan (stored for resume).
+        points : sequence of Mapping
+            One JSON-able description per plan point (e.g. ``{"z_mm": 20.0}``).
+        frame_tags : sequence of sequence of str
+            Per point, the tag of each frame it captures, in order (its length is
+            the point's frame count).
+        frame_shape : (rows, cols)
+        frame_dtype : numpy dtype
+            The camera's frame dtype.
+        coord_names : sequence of str
+            Names of the per-frame coordinates.
+        bench_config, device_settings : Mapping, optional
+            Snapshots stored with the run.
+        note : str
+            The operator's note.
+        overwrite : bool
+            Replace an existing store at ``path``.
+
+        Raises
+        ------
+        RunStoreError
+            ``path`` exists (and ``overwrite`` is False), or the layout is empty.
+        """
+        import zarr
+
+        path = Path(path)
+        if path.exists() and not overwrite:
+            raise RunStoreError(
+                f"{path} already exists; resume it, choose another name or pass overwrite")
+        if len(points) != len(frame_tags) or not points:
+            raise RunStoreError("a run needs at least one point and one tag list per point")
+        tags = sorted({t for per in frame_tags for t in per})
+        point_of = np.concatenate([np.full(len(per), i, np.int32)
+                                   for i, per in enumerate(frame_tags)])
+        tag_of = np.array([tags.index(t) for per in frame_tags for t in per], np.int16)
+        n = int(point_of.size)
+        if n == 0:
+            raise RunStoreError("the plan captures no frames")
+        rows, cols = (int(v) for v in frame_shape)
+        group = zarr.open_group(str(path), mode="w", zarr_format=3)
+        group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
+                           dtype=np.dtype(frame_dtype), fill_value=0)
+        coords = group.create_array("coords", shape=(n, len(coord_names)),
+                                    chunks=(1, len(coord_names)), dtype="float64",
+                                    fill_value=np.nan)
+        coords.attrs["names"] = list(coord_names)
+        group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0)
+        group.create_array("point", shape=(n,), chunks=(n,), dtype="int32")[:] = point_of
+        group.create_array("tag", shape=(n,), chunks=(n,), dtype="int16")[:] = tag_of
+        group.create_group("products")
+        group.attrs.update(jsonable({
+            "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
+            "software_version": software_version(), "created_utc": utc_now(),
+            "started_utc": None, "ended_utc": None, "status": "created",
+            "plan": {"name": plan_name, "params": dict(plan_params), "points": list(points),
+                     "frames_per_point": [len(per) for per in frame_tags]},
+            "tags": tags, "bench_config": dict(bench_config or {}),
+            "device_settings": dict(device_settings or {}), "note": note,
+            "resumes": [], "warnings": [], "error": None, "summary": {},
+        }))
+        return cls(path, group, writable=True)
+
+    @classmethod
+    def open(cls, path: str | Path, mode: str = "r") -> RunStore:
+        """Open an existing run, read-only (``"r"``, safe while another process writes)
+        or for writing (``"r+"``, to resume or add products).
+
+        Raises
+        ------
+        RunStoreError
+            No run at ``path``, or of another schema version.
+        """
+        import zarr
+
+        path = Path(path)
+        if mode not in ("r", "r+"):
+            raise RunStoreError(f"mode must be 'r' or 'r+', got {mode!r}")
+        if not (path / "zarr.json").is_file():
+            raise RunStoreError(f"no run store at {path} (expected a directory with zarr.json)")
+        group = zarr.open_group(str(path), mode=mode, zarr_format=3)
+        return cls(path, group, writable=mode == "r+")
+
+    def refresh(self) -> dict:
+        """Re-read the attributes (another process may have changed them)."""
+        import zarr
+
+        self._group = zarr.open_group(str(self.path), mode="r+" if self.writable else "r",
+                                      zarr_format=3)
+        self.attrs = dict(self._group.attrs)
+        return self.attrs
+
+    # ------------------------------------------------------------------ layout
+    @property
+    def n_frames(self) -> int:
+        return int(self._point.size)
+
+    @property
+    def n_points(self) -> int:
+        return len(self.attrs["plan"]["points"])
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        return tuple(self._group["frames"].shape[1:])
+
+    @property
+    def coord_names(self) -> list[str]:
+        return list(self._coord_names)
+
+    @property
+    def tags(self) -> list[str]:
+        return list(self.attrs["tags"])
+
+    @property
+    def status(self) -> str:
+        return str(self.attrs["status"])
+
+    def frame_range(self, point: int) -> range:
+        """Frame indices of plan point ``point``."""
+        idx = np.flatnonzero(self._point == point)
+        if idx.size == 0:
+            raise RunStoreError(f"the run has no point {point} (0..{self.n_points - 1})")
+        return range(int(idx[0]), int(idx[-1]) + 1)
+
+    # ------------------------------------------------------------------ progress
+    def done(self) -> np.ndarray:
+        """(n_frames,) bool: frames fully written."""
+        return np.asarray(self._group["done"][:]).astype(bool)
+
+    def points_done(self) -> np.ndarray:
+        """(n_points,) bool: points whose frames are all written."""
+        done = self.done()
+        out = np.ones(self.n_points, bool)
+        np.logical_and.at(out, self._point, done)
+        return out
+
+    def first_incomplete_point(self) -> int | None:
+        """Index of the first point not fully written, None if all are."""
+        missing = np.flatnonzero(~self.points_done())
+        return int(missing[0]) if missing.size else None
+
+    # ------------------------------------------------------------------ writing
+    def _require_writable(self) -> None:
+        if not self.writable:
+            raise RunStoreError(f"{self.path} is open read-only; open it with mode='r+'")
+
+    def write_frame(self, index: int, image: np.ndarray, coords: Mapping[str, float]) -> None:
+        """Store frame ``index``: image, then coordinates, then its done flag.
+
+        Raises
+        ------
+        RunStoreError
+            Read-only store, index out of range, wrong image shape, unknown coordinate.
+        """
+        self._require_writable()
+        if not 0 <= index < self.n_frames:
+            raise RunStoreError(f"frame {index} is outside the run's 0..{self.n_frames - 1}")
+        image = np.asarray(image)
+        if image.shape != self.frame_shape:
+            raise RunStoreError(f"frame shape {image.shape} differs from the run's "
+                                f"{self.frame_shape}; keep the camera ROI/binning fixed")
+        unknown = sorted(set(coords) - set(self._coord_names))
+        if unknown:
+            raise RunStoreError(f"unknown coordinates {unknown}; the run has "
+                                f"{self._coord_names}")
+        row = np.array([float(coords.get(n, np.nan)) for n in self._coord_names])
+        self._group["frames"][index] = image
+        self._group["coords"][index] = row
+        self._group["done"][index] = 1
+
+    def clear_point(self, point: int) -> None:
+        """Mark a point's frames not done (before it is captured again)."""
+        self._require_writable()
+        r = self.frame_range(point)
+        self._group["done"][r.start:r.stop] = 0
+
+    def update_attrs(self, **values: Any) -> None:
+        """Set run attributes (status, times, summary, ...)."""
+        self._require_writable()
+        values = jsonable(values)
+        self._group.attrs.update(values)
+        self.attrs.update(values)
+
+    def add_warning(self, text: str) -> None:
+        """Append a warning to the run's ``warnings`` attribute."""
+        self.update_attrs(warnings=[*self.attrs.get("warnings", []), text])
+
+    # ------------------------------------------------------------------ reading
+    def frame(self, index: int) -> FrameRecord:
+        """Frame ``index`` with its point, tag and coordinates.
+
+        Raises
+        ------
+        RunStoreError
+            The frame is not written yet.
+        """
+        if not bool(self._group["done"][index]):
+            raise RunStoreError(f"frame {index} of {self.path} is not written yet")
+        row = np.asarray(self._group["coords"][index])
+        return FrameRecord(int(index), int(self._point[index]),
+                           self.tags[int(self._tag[index])],
+                           np.asarray(self._group["frames"][index]),
+                           dict(zip(self._coord_names, row.tolist(), strict=True)))
+
+    def point_frames(self, point: int, tag: str | None = None) -> tuple[np.ndarray, list[dict]]:
+        """Frames (n, rows, cols) and coordinates of one point (optionally one tag).
+
+        Raises
+        ------
+        RunStoreError
+            The point (or one of its frames) is not written yet, or has no such tag.
+        """
+        r = self.frame_range(point)
+        idx = [i for i in r if tag is None or self.tags[int(self._tag[i])] == tag]
+        if not idx:
+            raise RunStoreError(f"point {point} has no frames tagged {tag!r}")
+        done = self.done()
+        if not done[idx].all():
+            raise RunStoreError(f"point {point} of {self.path} is not complete")
+        frames = np.asarray(self._group["frames"][idx[0]:idx[-1] + 1])
+        frames = frames[[i - idx[0] for i in idx]]
+        coords = np.asarray(self._group["coords"][idx[0]:idx[-1] + 1])[
+            [i - idx[0] for i in idx]]
+        return frames, [dict(zip(self._coord_names, c.tolist(), strict=True)) for c in coords]
+
+    def coords_table(self) -> dict[str, np.ndarray]:
+        """Every per-frame coordinate as ``{name: (n_frames,) float64}`` (NaN if unwritten)."""
+        c = np.asarray(self._group["coords"][:])
+        return {n: c[:, k] for k, n in enumerate(self._coord_names)}
+
+    # ------------------------------------------------------------------ products
+    def write_product(self, name: str, array: np.ndarray, **attrs: Any) -> None:
+        """Store a derived array ``products/name`` (replacing it) with attributes."""
+        self._require_writable()
+        array = np.asarray(array)
+        products = self._group["products"]
+        if name in products:
+            del products[name]
+        chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
+        arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
+        arr[...] = array
+        arr.attrs.update(jsonable(attrs))
+
+    def products(self) -> list[str]:
+        """Names of the stored products."""
+        return sorted(self._group["products"].array_keys())
+
+    def product(self, name: str) -> tuple[np.ndarray, dict]:
+        """A product's array and attributes.
+
+        Raises
+        ------
+        RunStoreError
+            No such product (the run is incomplete or the plan makes none).
+        """
+        products = self._group["products"]
+        if name not in products:
+            raise RunStoreError(
+                f"{self.path} has no product {name!r} (it has {self.products()}); finish "
+                "or resume the run first")
+        arr = products[name]
+        return np.asarray(arr[...]), dict(arr.attrs)
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> dict[str, Any]:
+        """A JSON-able overview: plan, status, progress, times, products, warnings."""
+        a = self.refresh()
+        done = self.done()
+        return jsonable({
+            "path": str(self.path), "plan": a["plan"]["name"], "status": a["status"],
+            "params": a["plan"]["params"], "points_done": int(self.points_done().sum()),
+            "points": self.n_points, "frames_done": int(done.sum()), "frames": self.n_frames,
+            "frame_shape": self.frame_shape, "created_utc": a["created_utc"],
+            "started_utc": a["started_utc"], "ended_utc": a["ended_utc"],
+            "software_version": a["software_version"], "schema_version": a["schema_version"],
+            "note": a["note"], "resumes": a["resumes"], "warnings": a["warnings"],
+            "error": a["error"], "summary": a.get("summary", {}),
+            "products": {n: {"shape": list(self._group["products"][n].shape),
+                             "dtype": str(self._group["products"][n].dtype)}
+                         for n in self.products()},
+        })
+
+    def to_json(self) -> str:
+        """:meth:`summary` as indented JSON."""
+        return json.dumps(self.summary(), indent=1)

@@ -1,0 +1,229 @@
+"""The plan runner on the virtual bench: progress, pause/resume, abort/resume,
+disconnects, timeouts, prompts and malformed plans."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from instrument.bench import Bench
+from instrument.plan import Capture, Expose, Light, Move, Plan, PlanPoint, Prompt, register_plan
+from instrument.runner import RunControl, Runner
+from instrument.runstore import RunStore, RunStoreError
+from instrument.virtual_bench import VirtualBench
+
+
+@register_plan
+class ZStepPlan(Plan):
+    """Test plan: pinhole at a few depths, backlit, fixed exposure, 2 lit + 1 dark."""
+
+    name = "test-zstep"
+
+    def __init__(self, depths=(30.0, 40.0, 50.0, 60.0), settle_s=0.5, prompt=None,
+                 wrong_count=False):
+        super().__init__(depths=list(depths), settle_s=settle_s, prompt=prompt,
+                         wrong_count=wrong_count)
+
+    def points(self):
+        return [PlanPoint({"z_mm": z}, ("psf", "psf", "dark")) for z in self.params["depths"]]
+
+    def setup(self):
+        if self.params["prompt"]:
+            yield Prompt(self.params["prompt"], "do the thing")
+
+    def steps(self, index, point):
+        yield Move("source_stage", {"x": 0.0, "y": 0.0, "z": point.coords["z_mm"]},
+                   settle_s=self.params["settle_s"])
+        yield Light("all")
+        yield Expose(exposure_s=0.002)
+        yield Capture(1 if self.params["wrong_count"] else 2, "psf")
+        yield Light(())
+        yield Capture(1, "dark")
+
+
+def _frames(path):
+    store = RunStore.open(path)
+    return np.stack([store.frame(i).image for i in range(store.n_frames)])
+
+
+@pytest.fixture
+def reference(tmp_path):
+    """An uninterrupted run of ZStepPlan (seed 3)."""
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb).run(ZStepPlan(), tmp_path / "ref.zarr")
+    assert result.status == "complete"
+    return _frames(tmp_path / "ref.zarr")
+
+
+def test_run_stores_every_frame_with_coordinates_and_emits_progress(tmp_path):
+    events = []
+    with VirtualBench(seed=3) as vb:
+        t0 = vb.clock.now_s
+        result = Runner(vb, on_event=events.append).run(ZStepPlan(), tmp_path / "r.zarr",
+                                                        note="first sweep")
+        assert vb.led_array.lit() == {}
+        assert vb.clock.now_s - t0 >= 4 * 0.5  # settle after each move on the sim clock
+    assert result.status == "complete" and result.points_done == 4
+    kinds = [e.kind for e in events]
+    assert kinds[0] == "started" and kinds[-1] == "completed"
+    assert kinds.count("frame") == 12 and kinds.count("point_done") == 4
+    frames = [e for e in events if e.kind == "frame"]
+    assert frames[0].last_frame is not None and frames[-1].eta_s == pytest.approx(0.0)
+    assert all(e.eta_s is not None for e in frames)
+    assert [e.frames_done for e in frames] == list(range(1, 13))
+    store = RunStore.open(tmp_path / "r.zarr")
+    assert store.status == "complete" and store.attrs["note"] == "first sweep"
+    assert store.attrs["bench_config"]["name"] == "simulated"
+    assert store.attrs["device_settings"]["camera"]["settings"]["exposure_s"] > 0
+    coords = store.coords_table()
+    np.testing.assert_allclose(coords["source_stage.z"], np.repeat([30, 40, 50, 60], 3))
+    np.testing.assert_allclose(coords["exposure_s"], 0.002)
+    assert list(coords["led_array.n_lit"]) == [1024, 1024, 0] * 4
+    psf, _ = store.point_frames(0, "psf")
+    dark, _ = store.point_frames(0, "dark")
+    assert psf.mean() > dark.mean() + 10
+
+
+def test_pause_holds_the_run_until_resumed(tmp_path):
+    control = RunControl()
+    events, paused = [], threading.Event()
+
+    def on_event(e):
+        events.append(e.kind)
+        if e.kind == "frame" and e.frames_done == 4:
+            control.pause()
+        if e.kind == "paused":
+            paused.set()
+
+    def resume_later():
+        assert paused.wait(30)
+        control.resume()
+
+    thread = threading.Thread(target=resume_later)
+    thread.start()
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb, on_event=on_event, control=control).run(ZStepPlan(),
+                                                                    tmp_path / "p.zarr")
+    thread.join()
+    assert result.status == "complete"
+    i = events.index("paused")
+    assert events[i + 1] == "resumed" and events[:i].count("frame") == 4
+
+
+def test_abort_makes_the_bench_safe_keeps_data_and_resume_equals_uninterrupted(
+        tmp_path, reference):
+    control = RunControl()
+
+    def on_event(e):
+        if e.kind == "frame" and e.frames_done == 5:
+            control.abort("operator pressed stop")
+
+    path = tmp_path / "a.zarr"
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb, on_event=on_event, control=control).run(ZStepPlan(), path)
+        assert vb.led_array.lit() == {}  # LEDs off after the abort
+        assert not vb.source_stage.is_moving()
+    assert result.status == "aborted" and "operator pressed stop" in result.error
+    assert result.points_done == 1 and "resume" in result.resume_hint
+    store = RunStore.open(path)
+    assert store.status == "aborted" and store.done().sum() == 5
+    assert store.first_incomplete_point() == 1
+    with VirtualBench(seed=3) as vb:  # a fresh process's view of the bench
+        resumed = Runner(vb).resume(path)
+    assert resumed.status == "complete"
+    np.testing.assert_array_equal(_frames(path), reference)
+    assert RunStore.open(path).attrs["resumes"][0]["point"] == 1
+
+
+def test_ctrl_c_aborts_cleanly(tmp_path):
+    def on_event(e):
+        if e.kind == "frame" and e.frames_done == 2:
+            raise KeyboardInterrupt
+
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb, on_event=on_event).run(ZStepPlan(), tmp_path / "k.zarr")
+        assert vb.led_array.lit() == {}
+    assert result.status == "aborted" and "Ctrl-C" in result.error
+
+
+def test_disconnect_mid_run_is_survived_without_losing_a_point(tmp_path, reference):
+    events = []
+
+    def on_event(e):
+        events.append(e)
+        if e.kind == "frame" and e.frames_done == 7 and "reconnecting" not in kinds():
+            vb.camera.faults.disconnect()
+            vb.camera.faults.allow_reconnect(after_attempts=2)
+
+    def kinds():
+        return [e.kind for e in events]
+
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb, on_event=on_event, reconnect_interval_s=0.5).run(
+            ZStepPlan(), tmp_path / "d.zarr")
+    assert result.status == "complete"
+    assert "reconnecting" in kinds() and "reconnected" in kinds()
+    assert "3 attempt" in next(e.message for e in events if e.kind == "reconnected")
+    np.testing.assert_array_equal(_frames(tmp_path / "d.zarr"), reference)
+
+
+def test_device_that_stays_away_fails_the_run_cleanly(tmp_path):
+    def on_event(e):
+        if e.kind == "frame" and e.frames_done == 4:
+            vb.camera.faults.disconnect()
+
+    with VirtualBench(seed=3) as vb:
+        t0 = vb.clock.now_s
+        result = Runner(vb, on_event=on_event, reconnect_timeout_s=5.0,
+                        reconnect_interval_s=1.0).run(ZStepPlan(), tmp_path / "f.zarr")
+        assert vb.led_array.lit() == {}
+        assert vb.clock.now_s - t0 < 60  # gave up after the reconnect timeout
+    assert result.status == "failed" and "still disconnected" in result.error
+    store = RunStore.open(tmp_path / "f.zarr")
+    # every frame captured is kept (point 1's first one too); resume redoes point 1
+    assert store.status == "failed" and store.done().sum() == 4
+    assert store.first_incomplete_point() == 1
+
+
+def test_timeout_redoes_the_point(tmp_path, reference):
+    events = []
+
+    def on_event(e):
+        events.append(e.kind)
+        if e.kind == "frame" and e.frames_done == 2 and "retrying" not in events:
+            vb.camera.faults.timeout_next(1)
+
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb, on_event=on_event).run(ZStepPlan(), tmp_path / "t.zarr")
+    assert result.status == "complete" and "retrying" in events
+    np.testing.assert_array_equal(_frames(tmp_path / "t.zarr"), reference)
+
+
+def test_prompts_go_to_the_operator_or_fail_the_run(tmp_path):
+    with VirtualBench(seed=3) as vb:
+        Runner(vb).run(ZStepPlan(depths=(30.0,), prompt="remove_diffuser"), tmp_path / "v.zarr")
+        assert vb.state["diffuser_installed"] is False
+        plain = Bench(vb.devices, config=vb.config)  # no operator callback
+        result = Runner(plain).run(ZStepPlan(depths=(30.0,), prompt="remove_diffuser"),
+                                   tmp_path / "n.zarr")
+        assert result.status == "failed" and "remove" in result.error.lower() or \
+            "do the thing" in result.error
+        asked = []
+        ok = Bench(vb.devices, config=vb.config,
+                   on_prompt=lambda action, msg: asked.append(action) or True)
+        assert Runner(ok).run(ZStepPlan(depths=(30.0,), prompt="x"),
+                              tmp_path / "o.zarr").status == "complete"
+        assert asked == ["x"]
+
+
+def test_malformed_plan_and_wrong_resume_are_refused(tmp_path):
+    with VirtualBench(seed=3) as vb:
+        result = Runner(vb).run(ZStepPlan(wrong_count=True), tmp_path / "w.zarr")
+        assert result.status == "failed" and "declared" in result.error
+        Runner(vb).run(ZStepPlan(depths=(30.0,)), tmp_path / "s.zarr")
+        with pytest.raises(RunStoreError, match="other points"):
+            Runner(vb).resume(tmp_path / "s.zarr", ZStepPlan(depths=(31.0,)))
+        with pytest.raises(RunStoreError, match="already exists"):
+            Runner(vb).run(ZStepPlan(depths=(30.0,)), tmp_path / "s.zarr")
