@@ -1,4 +1,11 @@
 """Calibration plans the bench operator runs (layer 4): dark/flat, PSF sweeps, ...
 
-May import ``instrument`` and ``recon`` (see ARCHITECTURE.md).
+May import ``instrument`` and ``recon`` (see ARCHITECTURE.md). Importing the package
+registers every plan (:func:`instrument.plan.register_plan`), so a stored run can be
+resumed from its recorded plan name.
 """
+
+from .psf_grid import PsfGridPlan
+from .psf_sweep import PsfSweepPlan, probe_inverse_depth_step, sweep_depths
+
+__all__ = ["PsfGridPlan", "PsfSweepPlan", "probe_inverse_depth_step", "sweep_depths"]

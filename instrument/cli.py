@@ -1,11 +1,13 @@
 """The ``diffuserlab`` command line.
 
-Subcommands: ``recon`` (one reconstruction from files), ``demo`` (the main job: a
-bench session on the built-in simulated bench; ``--real-sample`` reconstructs the
-real DiffuserCam sample instead), ``validate`` / ``devices`` (bench files) and
-``benchmark recon`` (speed vs FFT floor, accuracy,
-stability, compressed sensing). Bad input exits with status 2 and a one-line
-reason; a diverging solver exits with status 3.
+Subcommands: ``recon`` (one reconstruction from files; the PSF may be one depth of
+a run's PSF stack or of a TIFF stack), ``demo`` (the main job: a bench session on
+the built-in simulated bench; ``--real-sample`` reconstructs the real DiffuserCam
+sample instead), ``validate`` / ``devices`` (bench files), ``runs`` (show, export,
+import run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
+compressed sensing), plus the commands other layers register under the entry-point
+group ``diffuserlab.commands`` (``calibrate`` from calibration_routines). Bad input
+exits with status 2 and a one-line reason; a diverging solver exits with status 3.
 """
 
 from __future__ import annotations
@@ -28,6 +30,31 @@ def _output_paths(out: str) -> tuple[Path, Path]:
     return stem.with_suffix(".png"), stem.with_suffix(".tif")
 
 
+def _load_psf(psf_path: str, depth_mm: float | None) -> tuple[np.ndarray, float | None]:
+    """A 2D PSF from an image, or one depth of a stack (run store, TIFF or .npy stack).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Unreadable input, or a stack without a matching depth.
+    """
+    from recon.errors import ReconInputError
+    from recon.io import load_image
+
+    from .runstore import RunStoreError
+    from .stacks import load_psf_stack, pick_depth
+
+    path = Path(psf_path)
+    if not path.is_dir() and depth_mm is None:
+        return load_image(psf_path), None
+    try:
+        stack, depths, _ = load_psf_stack(path)
+        psf, depth = pick_depth(stack, depths, depth_mm)
+    except RunStoreError as exc:
+        raise ReconInputError(str(exc)) from exc
+    return psf, depth
+
+
 def run_recon(
     psf_path: str,
     raw_path: str,
@@ -41,6 +68,7 @@ def run_recon(
     full_scale: float | None = None,
     out: str,
     metrics_json: str | None,
+    depth_mm: float | None = None,
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
@@ -55,7 +83,7 @@ def run_recon(
     from recon.fft import fft_pair_seconds
     from recon.io import load_image, save_image
 
-    psf = load_image(psf_path)
+    psf, depth = _load_psf(psf_path, depth_mm)
     raw = load_image(raw_path)
     result = reconstruct(
         psf,
@@ -70,7 +98,7 @@ def run_recon(
     )
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
-    metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed)
+    metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
     png, tif = _output_paths(out)
     save_image(png, result.image)
     save_image(tif, result.image)
@@ -100,7 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
-    rp.add_argument("--psf", required=True, help="PSF image (TIFF, PNG/JPEG or .npy)")
+    rp.add_argument("--psf", required=True,
+                    help="PSF image (TIFF, PNG/JPEG or .npy), or a PSF stack: a run store "
+                    "(RUN.zarr from `calibrate psf-sweep`) or a TIFF stack, with --depth")
+    rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
+                    help="depth (mm) of the stack's PSF to use (nearest plane within 5%%)")
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
     rp.add_argument("--method", choices=METHODS, default="admm")
     rp.add_argument("--iterations", type=int, default=100)
@@ -157,10 +189,25 @@ def build_parser() -> argparse.ArgumentParser:
         nargs=argparse.REMAINDER,
         help="options of the suite (--quick, --out DIR, --only ...)",
     )
-    from instrument import bench_cli
+    from instrument import bench_cli, runs_cli
 
     bench_cli.add_subcommands(sub)
+    runs_cli.add_subcommands(sub)
+    for add in _plugin_commands():
+        add(sub)
     return parser
+
+
+def _plugin_commands():
+    """``add_subcommands(sub)`` functions registered under ``diffuserlab.commands``
+    (packages above this layer, e.g. calibration_routines, add their commands so)."""
+    from importlib.metadata import entry_points
+
+    for ep in sorted(entry_points(group="diffuserlab.commands"), key=lambda e: e.name):
+        try:
+            yield ep.load()
+        except ImportError as exc:  # a broken plugin must not take the CLI down
+            log.warning("command plugin %s not loaded: %s", ep.name, exc)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -186,8 +233,15 @@ def main(argv: list[str] | None = None) -> int:
                 full_scale=args.full_scale,
                 out=args.out,
                 metrics_json=args.metrics_json,
+                depth_mm=args.depth_mm,
             )
             print(_summary(m))
+        elif getattr(args, "handler", None) is not None:
+            return int(args.handler(args) or 0)
+        elif args.command == "runs":
+            from instrument import runs_cli
+
+            return runs_cli.run(args)
         elif args.command == "demo" and not args.real_sample:
             from .demo import run_demo
 

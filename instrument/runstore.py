@@ -151,14 +151,13 @@ class RunStore:
             raise RunStoreError(
                 f"{path} already exists; resume it, choose another name or pass overwrite")
         if len(points) != len(frame_tags) or not points:
-            raise RunStoreError("a run needs at least one point and one tag list per point")
+            raise RunStoreError("a run needs at least one point and one tag list per point "
+                                "(an empty list for a point without frames)")
         tags = sorted({t for per in frame_tags for t in per})
         point_of = np.concatenate([np.full(len(per), i, np.int32)
-                                   for i, per in enumerate(frame_tags)])
+                                   for i, per in enumerate(frame_tags)]).astype(np.int32)
         tag_of = np.array([tags.index(t) for per in frame_tags for t in per], np.int16)
         n = int(point_of.size)
-        if n == 0:
-            raise RunStoreError("the plan captures no frames")
         rows, cols = (int(v) for v in frame_shape)
         group = zarr.open_group(str(path), mode="w", zarr_format=3)
         group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
@@ -168,8 +167,8 @@ class RunStore:
                                     fill_value=np.nan)
         coords.attrs["names"] = list(coord_names)
         group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0)
-        group.create_array("point", shape=(n,), chunks=(n,), dtype="int32")[:] = point_of
-        group.create_array("tag", shape=(n,), chunks=(n,), dtype="int16")[:] = tag_of
+        group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32")[:] = point_of
+        group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16")[:] = tag_of
         group.create_group("products")
         group.attrs.update(jsonable({
             "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,

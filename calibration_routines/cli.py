@@ -1,0 +1,221 @@
+"""``diffuserlab calibrate {dark,psf-sweep,psf-grid,angular-response,resume}``.
+
+Registered with the ``diffuserlab`` command through the entry-point group
+``diffuserlab.commands`` (so the instrument layer never imports this one). Each
+routine opens the bench (``--simulate``: the virtual bench, which carries out the
+operator's actions itself; otherwise the real devices, and the operator is asked
+at each prompt), runs the plan into a run store with a progress bar and ETA, and
+prints the result. Ctrl-C aborts cleanly (LEDs off, stages stopped, data kept) and
+prints the command that resumes the run; exit status 0 done, 1 failed, 2 bad
+input, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import logging
+import sys
+from pathlib import Path
+
+__all__ = ["add_subcommands", "run"]
+
+ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response")
+
+
+def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
+    if resume:
+        p.add_argument("run", help="the run store to continue (RUN.zarr)")
+    p.add_argument("bench", help="bench TOML file (e.g. examples/bench-simulated.toml)")
+    p.add_argument("--simulate", action="store_true",
+                   help="run on the virtual bench built from the file (no hardware)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
+    p.add_argument("--reconnect-timeout", type=float, default=30.0, dest="reconnect_timeout_s",
+                   help="seconds to keep reconnecting a device that disconnected (default 30)")
+    if not resume:
+        p.add_argument("--out", default=None, help="run store to create (default "
+                       "out/runs/ROUTINE-TIME.zarr)")
+        p.add_argument("--note", default="", help="operator's note stored with the run")
+        p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+        p.add_argument("--frames", type=int, default=None,
+                       help="frames per point (default from the bench file)")
+
+
+def add_subcommands(sub: argparse._SubParsersAction) -> None:
+    """Add ``calibrate`` and its routines to the ``diffuserlab`` subparsers."""
+    cp = sub.add_parser("calibrate", help="calibration routines (dark/flat, PSF sweep, "
+                        "PSF grid, angular response) and resuming them")
+    csub = cp.add_subparsers(dest="routine", required=True)
+    dp = csub.add_parser("dark", help="dark frames, hot-pixel map and flat field")
+    _common(dp)
+    dp.add_argument("--exposure-s", type=float, default=None,
+                    help="dark exposure (default: the camera's current one)")
+    sp = csub.add_parser("psf-sweep", help="axial PSF sweep (Sec. 4.3)")
+    _common(sp)
+    sp.add_argument("--z-min", type=float, default=None, help="nearest depth, mm")
+    sp.add_argument("--z-max", type=float, default=None, help="farthest depth, mm")
+    sp.add_argument("--spacing", choices=("inverse", "uniform"), default="inverse",
+                    help="constant step in 1/z (Eq. 4.7, default) or in z")
+    sp.add_argument("--n-depths", type=int, default=None)
+    sp.add_argument("--c-per-mm", type=float, default=None, help="step in 1/z, 1/mm")
+    sp.add_argument("--probe-step", action="store_true",
+                    help="derive the 1/z step from the depth sensitivity of a PSF measured "
+                    "at z-min (Nyquist: half the distinguishable step)")
+    sp.add_argument("--x-mm", type=float, default=0.0)
+    sp.add_argument("--y-mm", type=float, default=0.0)
+    gp = csub.add_parser("psf-grid", help="lateral PSF grid (Sec. 5.2-5.3)")
+    _common(gp)
+    gp.add_argument("--mode", choices=("leds", "stage"), default="leds")
+    gp.add_argument("--n", type=int, default=3, help="n x n positions")
+    gp.add_argument("--spacing-mm", type=float, default=None, help="stage raster spacing")
+    gp.add_argument("--z-mm", type=float, default=40.0, help="stage mode depth, mm")
+    gp.add_argument("--led-step", type=int, default=2, help="leds mode: every k-th LED")
+    fall = gp.add_mutually_exclusive_group()
+    fall.add_argument("--falloff-sigma-deg", type=float, default=None,
+                      help="measured sensor fall-off sigma for the Nyquist check")
+    fall.add_argument("--falloff-run", default=None,
+                      help="angular-response run to take the fall-off sigma from")
+    ap = csub.add_parser("angular-response", help="sensor angular response (Fig. 3.5)")
+    _common(ap)
+    ap.add_argument("--z-mm", type=float, default=None, help="source depth, mm")
+    ap.add_argument("--max-angle-deg", type=float, default=None)
+    ap.add_argument("--n-angles", type=int, default=None, help="angles per axis")
+    ap.add_argument("--beta-deg", type=float, default=None,
+                    help="diffuser's maximum deflection for the FoV (Eq. 3.12)")
+    rp = csub.add_parser("resume", help="continue an aborted, failed or killed run")
+    _common(rp, resume=True)
+    cp.set_defaults(handler=run)
+
+
+def _ask(action: str, message: str) -> bool:
+    print(f"\n>>> {message}")
+    try:
+        answer = input("    press Enter when done, or type 'no' to stop: ")
+    except EOFError:
+        return False
+    return answer.strip().lower() not in ("no", "n", "q")
+
+
+def _open_bench(args):
+    from instrument.bench import Bench
+    from instrument.config import load_bench
+    from instrument.virtual_bench import VirtualBench
+
+    config = load_bench(args.bench, simulate=args.simulate)
+    if args.simulate:
+        return VirtualBench(config, seed=args.seed).open()
+    return Bench.open(config, on_prompt=_ask)
+
+
+def _plan(args, bench):
+    frames = {} if args.frames is None else {"frames_per_point": args.frames}
+    given = {k: v for k, v in vars(args).items() if v is not None}
+    if args.routine == "dark":
+        from .dark_flat import DarkFlatPlan
+
+        params = {} if args.frames is None else {"frames": args.frames}
+        if args.exposure_s is not None:
+            params["exposure_s"] = args.exposure_s
+        return DarkFlatPlan.for_bench(bench, **params)
+    if args.routine == "psf-sweep":
+        from .psf_sweep import PsfSweepPlan, probe_inverse_depth_step
+
+        cal = bench.config.calibration
+        z_min = given.get("z_min", cal.z_range_mm[0])
+        params = dict(z_min_mm=z_min, z_max_mm=given.get("z_max", cal.z_range_mm[1]),
+                      spacing=args.spacing, x_mm=args.x_mm, y_mm=args.y_mm, **frames)
+        if args.probe_step:
+            step = probe_inverse_depth_step(bench, z_min, x_mm=args.x_mm, y_mm=args.y_mm)
+            print(f"depth step from the measured depth sensitivity at {z_min:g} mm: "
+                  f"{step:.4g} /mm in 1/z")
+            params.update(spacing="inverse", c_per_mm=step,
+                          depth_step_source=f"probed at {z_min:g} mm (threshold 0.8, /2)")
+        elif args.c_per_mm is not None:
+            params["c_per_mm"] = args.c_per_mm
+        elif args.n_depths is not None:
+            params["n_depths"] = args.n_depths
+        return PsfSweepPlan.for_bench(bench, **params)
+    if args.routine == "psf-grid":
+        from .psf_grid import PsfGridPlan
+
+        sigma = args.falloff_sigma_deg
+        if args.falloff_run:
+            from instrument.runstore import RunStore
+
+            axes = RunStore.open(args.falloff_run).attrs["summary"]["axes"]
+            sigma = max(a["sigma_deg"] for a in axes.values())
+        return PsfGridPlan.for_bench(bench, mode=args.mode, n=args.n, spacing_mm=args.spacing_mm,
+                                     z_mm=args.z_mm, led_step=args.led_step,
+                                     falloff_sigma_deg=sigma, **frames)
+    from .angular_response import AngularResponsePlan
+
+    params = {k: given[k] for k in ("z_mm", "max_angle_deg", "n_angles", "beta_deg")
+              if k in given}
+    return AngularResponsePlan.for_bench(bench, **params, **frames)
+
+
+def _progress(total: int, initial: int):
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, initial=initial, unit="frame", dynamic_ncols=True)
+
+    def on_event(e) -> None:
+        if e.kind == "frame":
+            bar.update(e.frames_done - bar.n)
+            bar.set_postfix_str(f"point {e.point + 1}/{e.points_total}")
+        elif e.kind in ("reconnecting", "reconnected", "retrying", "paused", "resumed"):
+            bar.write(f"{e.kind}: {e.message}")
+        elif e.kind in ("completed", "aborted", "failed"):
+            bar.close()
+    return on_event
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
+    import calibration_routines  # noqa: F401  (registers the plans for resume)
+    from drivers.errors import DeviceError
+    from instrument.config import BenchConfigError
+    from instrument.plan import PlanError
+    from instrument.runner import Runner
+    from instrument.runs_cli import format_summary
+    from instrument.runstore import RunStore, RunStoreError
+
+    if not getattr(args, "verbose", False):  # device chatter would break the progress bar
+        logging.getLogger("drivers").setLevel(logging.WARNING)
+        logging.getLogger("instrument").setLevel(logging.WARNING)
+    try:
+        bench = _open_bench(args)
+    except BenchConfigError as exc:
+        for line in exc.lines():
+            print(f"diffuserlab: error: {line}", file=sys.stderr)
+        return 2
+    except DeviceError as exc:
+        print(f"diffuserlab: error: {exc}", file=sys.stderr)
+        return 1
+    try:
+        with bench:
+            if args.routine == "resume":
+                store = RunStore.open(args.run)
+                events = _progress(store.n_frames, int(store.done().sum()))
+                runner = Runner(bench, on_event=events,
+                                reconnect_timeout_s=args.reconnect_timeout_s)
+                result = runner.resume(args.run)
+            else:
+                plan = _plan(args, bench)
+                stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+                out = Path(args.out or f"out/runs/{args.routine}-{stamp}.zarr")
+                total = sum(len(p.tags) for p in plan.points())
+                runner = Runner(bench, on_event=_progress(total, 0),
+                                reconnect_timeout_s=args.reconnect_timeout_s)
+                result = runner.run(plan, out, note=args.note, overwrite=args.overwrite)
+    except (PlanError, RunStoreError, ValueError) as exc:
+        print(f"diffuserlab: error: {exc}", file=sys.stderr)
+        return 2
+    print(format_summary(RunStore.open(result.path).summary()))
+    if result.status == "complete":
+        return 0
+    sim = " --simulate" if args.simulate else ""
+    print(f"\n{result.status} at point {result.points_done + 1} of {result.points_total}: "
+          f"{result.error}\nthe data so far is kept; resume with:\n  diffuserlab calibrate "
+          f"resume {result.path} {args.bench}{sim}", file=sys.stderr)
+    return 130 if result.status == "aborted" else 1

@@ -1,0 +1,85 @@
+"""``diffuserlab runs {show,export,import-psf}``: look into and convert run stores."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from .runstore import RunStore, RunStoreError
+from .stacks import export_tiff, import_psf_stack
+
+__all__ = ["add_subcommands", "format_summary", "run"]
+
+
+def add_subcommands(sub: argparse._SubParsersAction) -> None:
+    """Add ``runs`` (with ``show``, ``export``, ``import-psf``) to the subparsers."""
+    rp = sub.add_parser("runs", help="show, export or import runs (Zarr stores)")
+    rsub = rp.add_subparsers(dest="runs_command", required=True)
+    sp = rsub.add_parser("show", help="plan, status, progress, times, products of a run")
+    sp.add_argument("run", help="run store directory (RUN.zarr)")
+    sp.add_argument("--json", action="store_true", help="print the full summary as JSON")
+    ep = rsub.add_parser("export", help="write a product (default psf_stack) or the frames "
+                         "as TIFF")
+    ep.add_argument("run")
+    ep.add_argument("--out", required=True, help="TIFF file to write")
+    group = ep.add_mutually_exclusive_group()
+    group.add_argument("--product", default="psf_stack", help="product name (default "
+                       "psf_stack)")
+    group.add_argument("--frames", action="store_true", help="export the raw frames instead")
+    ip = rsub.add_parser("import-psf", help="store a PSF stack (TIFF or .npy) as a run")
+    ip.add_argument("stack", help="TIFF or .npy, (depths, rows, cols) or one 2D PSF")
+    ip.add_argument("--depths", default=None,
+                    help="comma-separated depths in mm, one per plane (unless recorded)")
+    ip.add_argument("--out", required=True, help="run store to create (RUN.zarr)")
+    ip.add_argument("--note", default="")
+    ip.add_argument("--overwrite", action="store_true")
+
+
+def format_summary(s: dict) -> str:
+    """Human-readable lines of :meth:`RunStore.summary`."""
+    lines = [
+        f"run      {s['path']}",
+        f"plan     {s['plan']}  ({s['status']})",
+        f"progress {s['points_done']}/{s['points']} points, {s['frames_done']}/{s['frames']} "
+        f"frames of {s['frame_shape'][0]}x{s['frame_shape'][1]}",
+        f"times    created {s['created_utc']}, started {s['started_utc']}, "
+        f"ended {s['ended_utc']}",
+        f"software diffuserlab {s['software_version']} (run schema {s['schema_version']})",
+    ]
+    if s["note"]:
+        lines.append(f"note     {s['note']}")
+    for r in s["resumes"]:
+        lines.append(f"resumed  {r['utc']} at point {r['point']}")
+    if s["error"]:
+        lines.append(f"error    {s['error']}")
+    for w in s["warnings"]:
+        lines.append(f"warning  {w}")
+    for name, info in s["products"].items():
+        lines.append(f"product  {name}: {'x'.join(map(str, info['shape']))} {info['dtype']}")
+    for key, value in s["summary"].items():
+        text = json.dumps(value)
+        lines.append(f"result   {key} = {text if len(text) < 100 else text[:97] + '...'}")
+    if s["status"] in ("aborted", "failed", "running"):
+        lines.append(f"resume   diffuserlab calibrate resume {s['path']} BENCH.toml [--simulate]")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run a ``runs`` subcommand; 0 on success, 2 on bad input."""
+    try:
+        if args.runs_command == "show":
+            summary = RunStore.open(args.run).summary()
+            print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
+        elif args.runs_command == "export":
+            out = export_tiff(args.run, args.out, product=None if args.frames else args.product)
+            print(f"wrote {out}")
+        elif args.runs_command == "import-psf":
+            depths = None if args.depths is None else [float(v) for v in args.depths.split(",")]
+            store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
+                                     overwrite=args.overwrite)
+            print(f"stored {store.n_points} depths in {store.path}")
+    except (RunStoreError, ValueError) as exc:
+        print(f"diffuserlab: error: {exc}", file=sys.stderr)
+        return 2
+    return 0

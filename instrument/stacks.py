@@ -1,0 +1,187 @@
+"""PSF stacks and frames in and out of run stores: TIFF/.npy import and export.
+
+* :func:`load_psf_stack` reads a PSF stack with its depths from a run store
+  (``products/psf_stack``), a TIFF written by :func:`export_tiff` (depths in its
+  metadata) or any TIFF/.npy with the depths given;
+* :func:`pick_depth` chooses the PSF of one depth for a 2D reconstruction;
+* :func:`export_tiff` writes a product or the raw frames as TIFF (tifffile) with
+  their coordinates as JSON metadata, for other tools;
+* :func:`import_psf_stack` stores a stack from elsewhere as a run, so every tool
+  reads PSFs one way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .runstore import RunStore, RunStoreError
+
+__all__ = ["export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
+
+
+def _depths(depths_mm, n: int, source: str) -> list[float]:
+    if depths_mm is None:
+        raise RunStoreError(f"{source} carries no depths; pass depths_mm (one per plane, mm)")
+    depths = [float(z) for z in np.atleast_1d(np.asarray(depths_mm, float))]
+    if len(depths) != n:
+        raise RunStoreError(f"{source} has {n} planes but {len(depths)} depths were given")
+    if not all(np.isfinite(depths)) or min(depths) <= 0:
+        raise RunStoreError(f"depths {depths} must be finite and > 0 mm")
+    return depths
+
+
+def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
+                   product: str = "psf_stack") -> tuple[np.ndarray, list[float], dict]:
+    """A PSF stack, its depths and its attributes.
+
+    Parameters
+    ----------
+    path : str or Path
+        A run store directory (``*.zarr``), a TIFF (3D, or 2D for one plane) or a
+        ``.npy`` file.
+    depths_mm : sequence of float, optional
+        Depth of each plane, mm; needed unless the file records them (a run store,
+        or a TIFF from :func:`export_tiff`); if both, they must agree.
+    product : str
+        Which product of a run store (default ``psf_stack``).
+
+    Returns
+    -------
+    stack : ndarray, float32, (n_depths, rows, cols)
+    depths_mm : list of float
+    attrs : dict
+        The stored attributes (empty for plain files).
+
+    Raises
+    ------
+    RunStoreError
+        Unreadable or unsupported file, a run without the product, missing or
+        mismatched depths.
+    """
+    import tifffile
+
+    path = Path(path)
+    attrs: dict = {}
+    if path.is_dir():
+        stack, attrs = RunStore.open(path).product(product)
+        recorded = attrs.get("depths_mm")
+    elif path.suffix.lower() in (".tif", ".tiff"):
+        try:
+            with tifffile.TiffFile(path) as tif:
+                stack = tif.asarray()
+                meta = tif.shaped_metadata[0] if tif.shaped_metadata else {}
+        except (OSError, ValueError) as exc:
+            raise RunStoreError(f"cannot read TIFF {path}: {exc}") from exc
+        attrs = dict(meta or {})
+        recorded = attrs.get("depths_mm")
+    elif path.suffix.lower() == ".npy":
+        try:
+            stack = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise RunStoreError(f"cannot read {path}: {exc}") from exc
+        recorded = None
+    else:
+        raise RunStoreError(f"{path}: use a run store (.zarr directory), a TIFF or a .npy file")
+    stack = np.asarray(stack, np.float32)
+    if stack.ndim == 2:
+        stack = stack[None]
+    if stack.ndim != 3:
+        raise RunStoreError(f"{path} holds a {stack.ndim}-D array; a PSF stack is "
+                            "(depths, rows, cols)")
+    if recorded is not None and depths_mm is not None and not np.allclose(recorded, depths_mm):
+        raise RunStoreError(f"{path} records depths {recorded} mm, not {list(depths_mm)}")
+    depths = _depths(recorded if recorded is not None else depths_mm, len(stack), str(path))
+    return stack, depths, attrs
+
+
+def pick_depth(stack: np.ndarray, depths_mm: Sequence[float], depth_mm: float | None,
+               rel_tol: float = 0.05) -> tuple[np.ndarray, float]:
+    """The PSF of the plane nearest ``depth_mm`` (None: the only plane).
+
+    Raises
+    ------
+    RunStoreError
+        No depth given for a multi-plane stack, or the nearest plane is more than
+        ``rel_tol`` (relative) away.
+    """
+    if depth_mm is None:
+        if len(stack) != 1:
+            raise RunStoreError(
+                f"the PSF stack has {len(stack)} depths ({_fmt(depths_mm)} mm); choose one "
+                "with --depth")
+        return stack[0], float(depths_mm[0])
+    k = int(np.argmin(np.abs(np.asarray(depths_mm) - depth_mm)))
+    if abs(depths_mm[k] - depth_mm) > rel_tol * depth_mm:
+        raise RunStoreError(f"no PSF within {rel_tol:.0%} of {depth_mm:g} mm (nearest "
+                            f"{depths_mm[k]:g} mm); the stack has {_fmt(depths_mm)} mm")
+    return stack[k], float(depths_mm[k])
+
+
+def _fmt(depths) -> str:
+    return ", ".join(f"{z:.4g}" for z in depths)
+
+
+def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_stack") -> Path:
+    """Write a run's product (or, with ``product=None``, its frames) as a TIFF.
+
+    The product's attributes (depths, exposures, units, ...), or the frames' plan
+    points, tags and coordinates, go into the TIFF's JSON metadata, which
+    :func:`load_psf_stack` reads back.
+
+    Raises
+    ------
+    RunStoreError
+        No such run or product, or frames not all written.
+    """
+    import tifffile
+
+    store = RunStore.open(run)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if product is not None:
+        array, attrs = store.product(product)
+        meta = {**attrs, "run": str(store.path), "product": product}
+    else:
+        done = store.done()
+        if not done.all():
+            raise RunStoreError(f"{run}: {int((~done).sum())} frames are not written; resume "
+                                "the run first (or export a product)")
+        array = np.stack([store.frame(i).image for i in range(store.n_frames)])
+        coords = store.coords_table()
+        meta = {"run": str(store.path), "points": [store.frame(i).point
+                                                   for i in range(store.n_frames)],
+                "tags": [store.frame(i).tag for i in range(store.n_frames)],
+                "coords": {k: v.tolist() for k, v in coords.items()}}
+    tifffile.imwrite(out, array, metadata=meta, photometric="minisblack")
+    return out
+
+
+def import_psf_stack(source: str | Path, out: str | Path, *,
+                     depths_mm: Sequence[float] | None = None, note: str = "",
+                     overwrite: bool = False) -> RunStore:
+    """Store a PSF stack from a TIFF or .npy file (with its depths) as a run.
+
+    The run has no frames, only the ``psf_stack`` product with ``depths_mm``
+    ascending, and ``source`` in its attributes.
+
+    Raises
+    ------
+    RunStoreError
+        Unreadable file, missing depths, or ``out`` exists.
+    """
+    stack, depths, attrs = load_psf_stack(source, depths_mm)
+    order = np.argsort(depths)
+    stack, depths = stack[order], [depths[i] for i in order]
+    store = RunStore.create(out, plan_name="imported-psf-stack",
+                            plan_params={"source": str(source)},
+                            points=[{"z_mm": z} for z in depths],
+                            frame_tags=[[] for _ in depths], frame_shape=stack.shape[1:],
+                            frame_dtype=np.float32, coord_names=["exposure_s"], note=note,
+                            overwrite=overwrite)
+    store.write_product("psf_stack", stack, depths_mm=depths, source=str(source),
+                        units=attrs.get("units", "as imported"))
+    store.update_attrs(status="complete", summary={"depths_mm": depths, "source": str(source)})
+    return store

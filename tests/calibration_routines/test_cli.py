@@ -1,0 +1,125 @@
+"""`diffuserlab calibrate`, `runs` and `recon --psf RUN --depth` end to end on the
+simulated bench, including Ctrl-C and resume."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from instrument.cli import main
+from instrument.runstore import RunStore
+from instrument.stacks import load_psf_stack
+from instrument.virtual_bench import PlanarScene, VirtualBench
+
+ROOT = Path(__file__).resolve().parents[2]
+BENCH = str(ROOT / "examples" / "bench-simulated.toml")
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "sweep.zarr"
+    status = main(["calibrate", "psf-sweep", BENCH, "--simulate", "--z-min", "30",
+                   "--z-max", "60", "--n-depths", "3", "--frames", "2", "--out", str(path),
+                   "--note", "cli test"])
+    assert status == 0
+    return path
+
+
+def test_calibrate_writes_a_complete_run_and_runs_show_reports_it(sweep, capsys):
+    store = RunStore.open(sweep)
+    assert store.status == "complete" and store.attrs["note"] == "cli test"
+    assert main(["runs", "show", str(sweep)]) == 0
+    out = capsys.readouterr().out
+    assert "psf-sweep  (complete)" in out and "psf_stack: 3x256x320 float32" in out
+    assert main(["runs", "show", str(sweep), "--json"]) == 0
+    assert '"frames_done": 12' in capsys.readouterr().out
+
+
+def test_export_import_roundtrip(sweep, tmp_path, capsys):
+    tif = tmp_path / "stack.tif"
+    assert main(["runs", "export", str(sweep), "--out", str(tif)]) == 0
+    stack, depths, attrs = load_psf_stack(tif)
+    ref, ref_depths, _ = load_psf_stack(sweep)
+    np.testing.assert_array_equal(stack, ref)
+    assert depths == ref_depths and attrs["units"] == "DN/s"
+    frames_tif = tmp_path / "frames.tif"
+    assert main(["runs", "export", str(sweep), "--frames", "--out", str(frames_tif)]) == 0
+    np.save(tmp_path / "stack.npy", ref[::-1])
+    imported = tmp_path / "imported.zarr"
+    assert main(["runs", "import-psf", str(tmp_path / "stack.npy"), "--depths",
+                 ",".join(str(z) for z in ref_depths[::-1]), "--out", str(imported)]) == 0
+    stack2, depths2, _ = load_psf_stack(imported)
+    np.testing.assert_array_equal(stack2, ref)  # sorted back to ascending depth
+    assert depths2 == ref_depths
+    capsys.readouterr()
+    assert main(["runs", "import-psf", str(tmp_path / "stack.npy"), "--out",
+                 str(tmp_path / "x.zarr")]) == 2
+    assert "depths" in capsys.readouterr().err
+    assert main(["runs", "show", str(tmp_path / "nothing.zarr")]) == 2
+
+
+def test_recon_takes_one_depth_of_a_run(sweep, tmp_path, capsys):
+    import tifffile
+
+    with VirtualBench(seed=0) as vb:  # a scene at 45 mm, the stack has 30, 40, 60 mm
+        vb.set_scene(PlanarScene(np.ones((16, 16)), 40.0, 6.0))
+        vb.camera.exposure_s = 0.05
+        raw = vb.camera.snap().image
+    tifffile.imwrite(tmp_path / "raw.tif", raw)
+    out = tmp_path / "recon"
+    assert main(["recon", "--psf", str(sweep), "--depth", "40", "--raw",
+                 str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out),
+                 "--metrics-json", str(tmp_path / "m.json")]) == 0
+    assert '"psf_depth_mm": 40.0' in (tmp_path / "m.json").read_text()
+    capsys.readouterr()
+    assert main(["recon", "--psf", str(sweep), "--raw", str(tmp_path / "raw.tif"),
+                 "--out", str(out)]) == 2
+    assert "--depth" in capsys.readouterr().err
+    assert main(["recon", "--psf", str(sweep), "--depth", "100", "--raw",
+                 str(tmp_path / "raw.tif"), "--out", str(out)]) == 2
+    assert "nearest 60 mm" in capsys.readouterr().err
+
+
+def test_ctrl_c_aborts_and_prints_how_to_resume(tmp_path):
+    path = tmp_path / "long.zarr"
+    cmd = [sys.executable, "-m", "instrument.cli", "calibrate", "psf-sweep", BENCH,
+           "--simulate", "--z-min", "30", "--z-max", "120", "--n-depths", "12", "--frames",
+           "8", "--out", str(path)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            try:
+                if RunStore.open(path).done().sum() >= 20:
+                    break
+            except Exception:
+                pass
+            time.sleep(0.05)
+        assert proc.poll() is None, "finished before the interrupt"
+        os.kill(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err[-2000:]
+    assert "aborted" in err and f"diffuserlab calibrate resume {path}" in err
+    store = RunStore.open(path)
+    assert store.status == "aborted" and 20 <= store.done().sum() < store.n_frames
+    assert main(["calibrate", "resume", str(path), BENCH, "--simulate"]) == 0
+    assert RunStore.open(path).status == "complete"
+
+
+def test_bad_input_exits_2(tmp_path, capsys):
+    assert main(["calibrate", "psf-sweep", str(tmp_path / "missing.toml"), "--simulate"]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    assert main(["calibrate", "psf-sweep", BENCH, "--simulate", "--z-min", "50", "--z-max",
+                 "20", "--n-depths", "3", "--out", str(tmp_path / "x.zarr")]) == 2
+    assert "z_min < z_max" in capsys.readouterr().err
