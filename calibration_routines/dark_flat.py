@@ -149,7 +149,13 @@ class DarkFlatPlan(Plan):
     @classmethod
     def for_bench(cls, bench, **params) -> DarkFlatPlan:
         """The plan at the camera's current exposure with the bench config's
-        ``calibration.dark_frames`` frames per series, unless ``params`` say otherwise."""
+        ``calibration.dark_frames`` frames per series, unless ``params`` say otherwise
+        (``frames`` is accepted for ``n_frames``, as ``diffuserlab calibrate dark
+        --frames`` passes it)."""
+        if "frames" in params:
+            frames = params.pop("frames")
+            if params.setdefault("n_frames", frames) != frames:
+                raise PlanError("give n_frames or frames, not both")
         params.setdefault("exposure_s", float(bench.camera.exposure_s))
         if bench.config is not None:
             params.setdefault("n_frames", bench.config.calibration.dark_frames)

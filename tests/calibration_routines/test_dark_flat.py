@@ -114,6 +114,8 @@ def test_for_bench_defaults_and_record():
     assert PLAN_TYPES["dark-flat"] is DarkFlatPlan
     again = plan_from_record("dark-flat", json.loads(json.dumps(plan.params)))
     assert again.params == plan.params
+    with VirtualBench(seed=1) as vb:
+        assert DarkFlatPlan.for_bench(vb, frames=4).params["n_frames"] == 4
 
 
 @pytest.mark.parametrize("bad, match", [
