@@ -5,7 +5,10 @@ registers every plan (:func:`instrument.plan.register_plan`), so a stored run ca
 resumed from its recorded plan name.
 """
 
+from .angular_response import AngularResponsePlan
+from .dark_flat import DarkFlatPlan
 from .psf_grid import PsfGridPlan
 from .psf_sweep import PsfSweepPlan, probe_inverse_depth_step, sweep_depths
 
-__all__ = ["PsfGridPlan", "PsfSweepPlan", "probe_inverse_depth_step", "sweep_depths"]
+__all__ = ["AngularResponsePlan", "DarkFlatPlan", "PsfGridPlan", "PsfSweepPlan",
+           "probe_inverse_depth_step", "sweep_depths"]

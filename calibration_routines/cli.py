@@ -113,7 +113,7 @@ def _plan(args, bench):
     if args.routine == "dark":
         from .dark_flat import DarkFlatPlan
 
-        params = {} if args.frames is None else {"frames": args.frames}
+        params = {} if args.frames is None else {"n_frames": args.frames}
         if args.exposure_s is not None:
             params["exposure_s"] = args.exposure_s
         return DarkFlatPlan.for_bench(bench, **params)
@@ -214,6 +214,8 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(RunStore.open(result.path).summary()))
     if result.status == "complete":
         return 0
+    for action in result.pending_actions:
+        print(f"not resuming? then first: {action}", file=sys.stderr)
     sim = " --simulate" if args.simulate else ""
     print(f"\n{result.status} at point {result.points_done + 1} of {result.points_total}: "
           f"{result.error}\nthe data so far is kept; resume with:\n  diffuserlab calibrate "

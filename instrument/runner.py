@@ -127,7 +127,9 @@ class RunEvent:
 @dataclass
 class RunResult:
     """How a run ended: ``status`` (complete, aborted, failed), the store path, points
-    done, the error text (if any) and the plan's summary (complete runs)."""
+    done, the error text (if any), the plan's summary (complete runs) and, for a run
+    that did not complete, the operator actions its teardown would have asked for
+    (e.g. "put the diffuser back") - needed unless the run is resumed."""
 
     status: str
     path: Path
@@ -135,6 +137,7 @@ class RunResult:
     points_total: int
     error: str | None = None
     summary: dict[str, Any] = field(default_factory=dict)
+    pending_actions: list[str] = field(default_factory=list)
 
     @property
     def resume_hint(self) -> str:
@@ -310,7 +313,9 @@ class Runner:
                            summary=summary)
         self._emit({"complete": "completed"}.get(status, status), None, error or "")
         done = int(store.points_done().sum())
-        result = RunResult(status, store.path, done, len(points), error, summary)
+        pending = [] if status == "complete" else [
+            s.message for s in plan.teardown() if isinstance(s, Prompt)]
+        result = RunResult(status, store.path, done, len(points), error, summary, pending)
         if status != "complete":
             log.warning("run %s %s at point %d/%d: %s; %s", store.path, status, done,
                         len(points), error, result.resume_hint)
@@ -319,10 +324,11 @@ class Runner:
     def _run_point(self, plan: Plan, store: RunStore, index: int, point) -> None:
         retries = 0
         deadline = None
+        frames = store.frame_range(index)
         while True:
             self.bench.on_point((index,))
+            self._frames_done -= int(store.done(frames).sum())
             store.clear_point(index)
-            self._frames_done = int(store.done().sum())
             try:
                 written = 0
                 for step in plan.steps(index, point):

@@ -244,9 +244,15 @@ class RunStore:
         return range(int(idx[0]), int(idx[-1]) + 1)
 
     # ------------------------------------------------------------------ progress
-    def done(self) -> np.ndarray:
-        """(n_frames,) bool: frames fully written."""
-        return np.asarray(self._group["done"][:]).astype(bool)
+    def done(self, frames: range | None = None) -> np.ndarray:
+        """Bool flags of the frames fully written: all (n_frames,), or a ``range``.
+
+        Each flag is its own chunk (one file): read a range when only a point's frames
+        matter.
+        """
+        if frames is None:
+            return np.asarray(self._group["done"][:]).astype(bool)
+        return np.asarray(self._group["done"][frames.start:frames.stop]).astype(bool)
 
     def points_done(self) -> np.ndarray:
         """(n_points,) bool: points whose frames are all written."""
@@ -315,7 +321,7 @@ class RunStore:
         RunStoreError
             The frame is not written yet.
         """
-        if not bool(self._group["done"][index]):
+        if not bool(self._group["done"][index]):  # one chunk
             raise RunStoreError(f"frame {index} of {self.path} is not written yet")
         row = np.asarray(self._group["coords"][index])
         return FrameRecord(int(index), int(self._point[index]),
@@ -335,8 +341,7 @@ class RunStore:
         idx = [i for i in r if tag is None or self.tags[int(self._tag[i])] == tag]
         if not idx:
             raise RunStoreError(f"point {point} has no frames tagged {tag!r}")
-        done = self.done()
-        if not done[idx].all():
+        if not self.done(range(idx[0], idx[-1] + 1))[[i - idx[0] for i in idx]].all():
             raise RunStoreError(f"point {point} of {self.path} is not complete")
         frames = np.asarray(self._group["frames"][idx[0]:idx[-1] + 1])
         frames = frames[[i - idx[0] for i in idx]]

@@ -92,10 +92,12 @@ class TiltedTargetScene:
     radiance: float = 2e9
 
 
-def lensless_geometry(geometry: GeometryConfig, seed: int = 0) -> LenslessGeometry:
+def lensless_geometry(geometry: GeometryConfig, seed: int = 0,
+                      falloff_sigma_deg: float | None = 20.0) -> LenslessGeometry:
     """The optics model's geometry for a bench config's ``[geometry]`` table.
 
-    The diffuser surface is :func:`recon.optics.lensless.diffuser_for_sensor` (seeded).
+    The diffuser surface is :func:`recon.optics.lensless.diffuser_for_sensor` (seeded);
+    ``falloff_sigma_deg`` is the pixels' angular response (None: none).
     """
     rows, cols = geometry.sensor_shape_px
     pitch_mm = geometry.sensor_pixel_pitch_um * 1e-3
@@ -103,7 +105,7 @@ def lensless_geometry(geometry: GeometryConfig, seed: int = 0) -> LenslessGeomet
                                   seed)
     return LenslessGeometry(surface, geometry.diffuser_sensor_distance_mm,
                             tuple(geometry.aperture_mm), (rows, cols),
-                            geometry.sensor_pixel_pitch_um)
+                            geometry.sensor_pixel_pitch_um, falloff_sigma_deg)
 
 
 class VirtualBench(Bench):
@@ -130,6 +132,9 @@ class VirtualBench(Bench):
         Sec. 6.4 takes out).
     prnu_fraction : float
         The camera's photo-response non-uniformity (what a flat field measures).
+    falloff_sigma_deg : float or None
+        Sigma of the pixels' Gaussian angular response (Eq. 5.1), degrees (what the
+        angular-response calibration measures); None: no fall-off.
     hologram : HolographicDisplayModel, optional
         Model of the holography branch; default built lazily from the SLM and the
         camera shape (96 x 120 SLM, k = 4, q = 4).
@@ -150,11 +155,12 @@ class VirtualBench(Bench):
 
     def __init__(self, config: BenchConfig | None = None, *, seed: int = 0,
                  source_power_photons_per_s: float = 2e11, stray_light_fraction: float = 0.02,
-                 prnu_fraction: float = 0.01, hologram=None):
+                 prnu_fraction: float = 0.01, falloff_sigma_deg: float | None = 20.0,
+                 hologram=None):
         super().__init__({}, config=with_simulated_drivers(config or default_bench()))
         self.seed = int(seed)
         self.clock = SimClock()
-        self.geometry = lensless_geometry(self.config.geometry, seed)
+        self.geometry = lensless_geometry(self.config.geometry, seed, falloff_sigma_deg)
         self.model = LenslessModel(self.geometry)
         self.source_power = float(source_power_photons_per_s)
         self.stray_light_fraction = float(stray_light_fraction)

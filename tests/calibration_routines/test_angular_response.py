@@ -11,7 +11,6 @@ the crossing of the convex Gaussian tail by about 0.7 deg).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 
@@ -28,20 +27,14 @@ from instrument.runner import Runner
 from instrument.runstore import RunStore
 from instrument.virtual_bench import VirtualBench
 from recon.analysis import fov_half_angle_deg
-from recon.optics.lensless import LenslessModel
 
 CUTOFF_FACTOR = math.sqrt(2.0 * math.log(5.0))
 FAST = {"n_angles": 11, "frames_per_point": 2}
 
 
-def _bench(falloff_sigma_deg: float | None = None, seed: int = 1) -> VirtualBench:
-    """A virtual bench, optionally with another pixel fall-off (the geometry is the
-    optics model's, not the bench config's, so it is replaced before opening)."""
-    vb = VirtualBench(seed=seed)
-    if falloff_sigma_deg is not None:
-        vb.geometry = dataclasses.replace(vb.geometry, falloff_sigma_deg=falloff_sigma_deg)
-        vb.model = LenslessModel(vb.geometry)
-    return vb
+def _bench(falloff_sigma_deg: float = 20.0, seed: int = 1) -> VirtualBench:
+    """A virtual bench with the given pixel fall-off."""
+    return VirtualBench(seed=seed, falloff_sigma_deg=falloff_sigma_deg)
 
 
 def _run(vb: VirtualBench, path, **params):
