@@ -78,6 +78,10 @@ def test_recon_takes_one_depth_of_a_run(sweep, tmp_path, capsys):
                  str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out),
                  "--metrics-json", str(tmp_path / "m.json")]) == 0
     assert '"psf_depth_mm": 40.0' in (tmp_path / "m.json").read_text()
+    stack_tif = tmp_path / "stack.tif"  # the same from an exported TIFF stack
+    assert main(["runs", "export", str(sweep), "--out", str(stack_tif)]) == 0
+    assert main(["recon", "--psf", str(stack_tif), "--depth", "41", "--raw",
+                 str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out)]) == 0
     capsys.readouterr()
     assert main(["recon", "--psf", str(sweep), "--raw", str(tmp_path / "raw.tif"),
                  "--out", str(out)]) == 2
@@ -123,3 +127,26 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert main(["calibrate", "psf-sweep", BENCH, "--simulate", "--z-min", "50", "--z-max",
                  "20", "--n-depths", "3", "--out", str(tmp_path / "x.zarr")]) == 2
     assert "z_min < z_max" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("routine, extra", [
+    ("dark", ["--frames", "2"]),
+    ("angular-response", ["--frames", "1", "--n-angles", "5"]),
+    ("psf-grid", ["--frames", "1", "--n", "2", "--falloff-sigma-deg", "20"]),
+])
+def test_every_routine_runs_from_the_cli(tmp_path, routine, extra, capsys):
+    path = tmp_path / f"{routine}.zarr"
+    assert main(["calibrate", routine, BENCH, "--simulate", "--out", str(path), *extra]) == 0
+    assert RunStore.open(path).status == "complete"
+    assert "(complete)" in capsys.readouterr().out
+
+
+def test_grid_takes_the_falloff_from_an_angular_run(tmp_path):
+    angle = tmp_path / "angle.zarr"
+    assert main(["calibrate", "angular-response", BENCH, "--simulate", "--out", str(angle),
+                 "--frames", "1", "--n-angles", "7"]) == 0
+    grid = tmp_path / "grid.zarr"
+    assert main(["calibrate", "psf-grid", BENCH, "--simulate", "--out", str(grid), "--frames",
+                 "1", "--n", "2", "--falloff-run", str(angle)]) == 0
+    nyquist = RunStore.open(grid).attrs["summary"]["nyquist"]
+    assert nyquist["checked"] and nyquist["falloff_sigma_deg"] == pytest.approx(20.0, rel=0.03)
