@@ -30,7 +30,8 @@ def _output_paths(out: str) -> tuple[Path, Path]:
     return stem.with_suffix(".png"), stem.with_suffix(".tif")
 
 
-def _load_psf(psf_path: str, depth_mm: float | None) -> tuple[np.ndarray, float | None]:
+def _load_psf(psf_path: str, depth_mm: float | None,
+              product: str = "psf_stack") -> tuple[np.ndarray, float | None]:
     """A 2D PSF from an image, or one depth of a stack (run store, TIFF or .npy stack).
 
     Raises
@@ -48,7 +49,7 @@ def _load_psf(psf_path: str, depth_mm: float | None) -> tuple[np.ndarray, float 
     if not path.is_dir() and depth_mm is None:
         return load_image(psf_path), None
     try:
-        stack, depths, _ = load_psf_stack(path)
+        stack, depths, _ = load_psf_stack(path, product=product)
         psf, depth = pick_depth(stack, depths, depth_mm)
     except RunStoreError as exc:
         raise ReconInputError(str(exc)) from exc
@@ -69,6 +70,7 @@ def run_recon(
     out: str,
     metrics_json: str | None,
     depth_mm: float | None = None,
+    psf_product: str = "psf_stack",
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
@@ -83,7 +85,7 @@ def run_recon(
     from recon.fft import fft_pair_seconds
     from recon.io import load_image, save_image
 
-    psf, depth = _load_psf(psf_path, depth_mm)
+    psf, depth = _load_psf(psf_path, depth_mm, psf_product)
     raw = load_image(raw_path)
     result = reconstruct(
         psf,
@@ -133,6 +135,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "(RUN.zarr from `calibrate psf-sweep`) or a TIFF stack, with --depth")
     rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
                     help="depth (mm) of the stack's PSF to use (nearest plane within 5%%)")
+    rp.add_argument("--psf-product", default="psf_stack",
+                    help="which stack of a run: psf_stack (background removed, Sec. 6.4; "
+                    "default) or psf_stack_raw (dark-subtracted only: better for extended "
+                    "scenes when stray light is low, see the README)")
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
     rp.add_argument("--method", choices=METHODS, default="admm")
     rp.add_argument("--iterations", type=int, default=100)
@@ -234,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
                 out=args.out,
                 metrics_json=args.metrics_json,
                 depth_mm=args.depth_mm,
+                psf_product=args.psf_product,
             )
             print(_summary(m))
         elif getattr(args, "handler", None) is not None:

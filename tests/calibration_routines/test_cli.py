@@ -82,6 +82,9 @@ def test_recon_takes_one_depth_of_a_run(sweep, tmp_path, capsys):
     assert main(["runs", "export", str(sweep), "--out", str(stack_tif)]) == 0
     assert main(["recon", "--psf", str(stack_tif), "--depth", "41", "--raw",
                  str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out)]) == 0
+    assert main(["recon", "--psf", str(sweep), "--psf-product", "psf_stack_raw", "--depth",
+                 "40", "--raw", str(tmp_path / "raw.tif"), "--iterations", "5", "--out",
+                 str(out)]) == 0
     capsys.readouterr()
     assert main(["recon", "--psf", str(sweep), "--raw", str(tmp_path / "raw.tif"),
                  "--out", str(out)]) == 2
