@@ -14,6 +14,13 @@ SLM do (ARCHITECTURE.md, "A simulated device is a driver like any other"):
   on the 6-axis mask stage and the Fourier lens
   (:class:`recon.optics.holography.HolographicDisplayModel`).
 
+Operator actions a plan prompts for (:data:`ACTIONS`: cap the camera, remove the
+diffuser for the bare-sensor angular response and flat field, remove the pinhole so
+single LEDs are the sources) are carried out by the virtual bench itself. Stray
+light (a smooth glow carrying a fraction of each point source's collected power),
+the camera's PRNU and hot pixels give the calibration routines something real to
+remove and to find.
+
 Rendering happens on a grid finer than the sensor (the optics models bin), the
 sensor noise is the simulated camera's own, so nothing relies on the inverse crime.
 """
