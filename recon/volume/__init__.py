@@ -1,0 +1,22 @@
+"""3D DiffuserCam: volume reconstruction from one image (Kuo 2020, Ch. 4, App. A.1-A.3).
+
+:class:`VolumeConvolutionOperator` is the forward model b = C sum_z h_z * v_z
+(Eq. 4.4) with its adjoint; :func:`fista3d` solves the regularised inverse problem
+(3D TV by Haar shifts, l1, non-negativity).
+"""
+
+from .operator import (
+    VolumeConvolutionOperator,
+    bin_stack,
+    estimate_memory_bytes,
+    fft_floor_seconds,
+    normalize_psf_stack,
+)
+
+__all__ = [
+    "VolumeConvolutionOperator",
+    "bin_stack",
+    "estimate_memory_bytes",
+    "fft_floor_seconds",
+    "normalize_psf_stack",
+]
