@@ -5,6 +5,7 @@
 (3D TV by Haar shifts, l1, non-negativity).
 """
 
+from .fista import fista3d, volume_tv
 from .operator import (
     VolumeConvolutionOperator,
     bin_stack,
@@ -17,6 +18,8 @@ __all__ = [
     "VolumeConvolutionOperator",
     "bin_stack",
     "estimate_memory_bytes",
+    "fista3d",
     "fft_floor_seconds",
     "normalize_psf_stack",
+    "volume_tv",
 ]
