@@ -31,9 +31,13 @@ def volume_tv(v: np.ndarray) -> float:
     float64 accumulation.
     """
     v = np.asarray(v, np.float32)
-    tv = np.abs(np.diff(v, axis=0)).sum(dtype=np.float64)
-    for axis in (1, 2):
-        tv += np.abs(np.roll(v, -1, axis=axis) - v).sum(dtype=np.float64)
+    tv = 0.0
+    for k in range(v.shape[0]):  # plane by plane: temporaries of one plane, not a volume
+        p = v[k]
+        if k + 1 < v.shape[0]:
+            tv += np.abs(v[k + 1] - p).sum(dtype=np.float64)
+        for axis in (0, 1):
+            tv += np.abs(np.roll(p, -1, axis=axis) - p).sum(dtype=np.float64)
     return float(tv)
 
 
