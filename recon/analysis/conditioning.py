@@ -144,8 +144,7 @@ def point_source_columns(psf: Any, positions_px: Any, *, order: int = 3) -> np.n
         pos = pos[None, :]
     if pos.shape[1] != 2:
         raise ReconInputError(
-            f"positions_px must have shape (k, 2) of (dy, dx) shifts in pixels, got "
-            f"{pos.shape}"
+            f"positions_px must have shape (k, 2) of (dy, dx) shifts in pixels, got {pos.shape}"
         )
     if isinstance(order, bool) or not isinstance(order, numbers.Integral) or not 0 <= order <= 5:
         raise ReconInputError(f"order must be an integer in 0..5, got {order!r}")

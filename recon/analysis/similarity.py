@@ -148,8 +148,7 @@ def cross_correlation(a: Any, b: Any) -> np.ndarray:
     b_ = a_ if b is a else _check_image(b, "b")
     if a_.shape != b_.shape:
         raise ReconInputError(
-            f"a has shape {a_.shape} but b has shape {b_.shape}; crop or pad them to the "
-            "same shape"
+            f"a has shape {a_.shape} but b has shape {b_.shape}; crop or pad them to the same shape"
         )
     norm = float(np.linalg.norm(a_)) * float(np.linalg.norm(b_))
     return _full_xcorr(a_, b_) / norm

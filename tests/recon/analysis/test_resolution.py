@@ -52,8 +52,9 @@ def test_autocorrelation_of_gaussian_is_gaussian_sigma_sqrt2():
     s = 5.0
     ac = autocorrelation(gaussian(s))
     lags = np.arange(-(N - 1), N)
-    np.testing.assert_allclose(ac[N - 1], np.exp(-(lags**2) / (2 * (s * math.sqrt(2)) ** 2)),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        ac[N - 1], np.exp(-(lags**2) / (2 * (s * math.sqrt(2)) ** 2)), atol=1e-9
+    )
 
 
 @pytest.mark.parametrize("sigma", [2.0, 5.0, 8.0])
