@@ -12,17 +12,39 @@ UC Berkeley, 2020):
   calibration spacing set by the sensor fall-off (Sec. 5.3, Eq. 5.9).
 - :mod:`recon.analysis.angular` -- Gaussian fit of the pixel angular response
   (Fig. 5.3a) and the angular field of view (Eq. 3.12 / Eq. 4.6).
+- :mod:`recon.analysis.resolution` -- autocorrelation and its 70 % half width
+  (Sec. 3.2), the inner-product predictor for shifts and scales (Sec. 6.4),
+  object-space resolution (m = d/z), hyperfocal distance and depth of field.
+- :mod:`recon.analysis.similarity` -- PSF similarity across a stack (App. A.2,
+  Fig. A.3).
+- :mod:`recon.analysis.conditioning` -- local condition number of neighbouring
+  point sources (Sec. 4.4, Fig. 4.5).
+- :mod:`recon.analysis.grid` -- reconstruction-grid recommendation (Nyquist planes
+  in 1/z and lateral binning, only over the depths a scene spans).
 
 Bad input raises :class:`recon.errors.ReconInputError` naming the problem and the fix.
 """
 
 from .angular import FalloffFit, fit_gaussian_falloff, fov_half_angle_deg
+from .conditioning import condition_vs_k, local_condition_number, point_source_columns
+from .grid import GridRecommendation, recommend_grid
 from .psf import (
     border_energy_fraction,
     inner_product,
     normalized_correlation,
     register_shift,
     remove_background_dct,
+)
+from .resolution import (
+    LateralResolution,
+    autocorrelation,
+    axial_inner_product_scale,
+    depth_of_field_mm,
+    hyperfocal_distance_mm,
+    lateral_inner_product_resolution_px,
+    lateral_resolution_deg,
+    lateral_resolution_object_mm,
+    lateral_resolution_px,
 )
 from .sampling import (
     axial_step_eq510_per_mm,
@@ -33,6 +55,7 @@ from .sampling import (
     scale_at_threshold,
     uniform_depths,
 )
+from .similarity import cross_correlation, inner_products_with, stack_similarity
 
 __all__ = [
     "FalloffFit",
@@ -50,4 +73,21 @@ __all__ = [
     "remove_background_dct",
     "scale_at_threshold",
     "uniform_depths",
+    "GridRecommendation",
+    "LateralResolution",
+    "autocorrelation",
+    "axial_inner_product_scale",
+    "condition_vs_k",
+    "cross_correlation",
+    "depth_of_field_mm",
+    "hyperfocal_distance_mm",
+    "inner_products_with",
+    "lateral_inner_product_resolution_px",
+    "lateral_resolution_deg",
+    "lateral_resolution_object_mm",
+    "lateral_resolution_px",
+    "local_condition_number",
+    "point_source_columns",
+    "recommend_grid",
+    "stack_similarity",
 ]
