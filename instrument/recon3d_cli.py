@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["METHODS", "add_subcommands", "run", "run_recon3d", "summary_line"]
+__all__ = ["METHODS", "add_subcommands", "jsonable", "run", "run_recon3d", "summary_line"]
 
 log = logging.getLogger(__name__)
 
@@ -222,14 +222,26 @@ def _write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     arr.attrs.update(attrs)
 
 
-def _jsonable(value):
-    """Plain Python for JSON (numpy scalars and arrays; non-finite floats as None)."""
+def jsonable(value):
+    """A copy of `value` that :func:`json.dumps` writes as standard JSON.
+
+    Parameters
+    ----------
+    value : object
+        Nested dicts, lists, tuples, numpy arrays and scalars, plain Python values.
+
+    Returns
+    -------
+    object
+        Dicts (string keys), lists and plain Python scalars; non-finite floats
+        (inf, NaN) become None.
+    """
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
+        return jsonable(value.tolist())
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -368,7 +380,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
         "output_volume": str(vol_path),
         "output_mips": {k: str(v) for k, v in mip_paths.items()},
     }
-    metrics = _jsonable(metrics)
+    metrics = jsonable(metrics)
     if metrics_json:
         Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
         Path(metrics_json).write_text(json.dumps(metrics, indent=1))
