@@ -170,20 +170,26 @@ def _prepare(stack: np.ndarray, raw: np.ndarray, dark: str | float,
     return stack, raw, info
 
 
-def _solve(method: str, op, b: np.ndarray, iterations: int, tv: float, l1: float):
-    """Run fista3d or admm3d (imported lazily: it may not be installed yet)."""
+def _solver(method: str):
+    """The 3D solver of ``method``: fista3d, or admm3d imported lazily (it may be missing).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        admm3d is not available in this recon.volume.
+    """
     from recon.errors import ReconInputError
 
     if method == "fista":
         from recon.volume import fista3d
 
-        return fista3d(op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+        return fista3d
     try:
         from recon.volume import admm3d
     except ImportError as exc:
         raise ReconInputError(
             "admm3d not available in this recon.volume; use --method fista") from exc
-    return admm3d(op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+    return admm3d
 
 
 def _projections(volume: np.ndarray) -> dict[str, np.ndarray]:
@@ -316,6 +322,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
         if not (math.isfinite(w) and w >= 0):
             raise ReconInputError(f"--{name} must be a finite number >= 0, got {w}")
     vol_path, mip_paths = _out_paths(out)
+    solver = _solver(method)
     t_start = time.perf_counter()
     stack, depths, _ = load_psf_stack(psf_stack, depths_mm, product=psf_product)
     stack_shape_in = list(stack.shape)
@@ -335,7 +342,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
-    result = _solve(method, op, b, iterations, tv, l1)
+    result = solver(op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
                                   dtype=np.float32)
     seconds_total = time.perf_counter() - t_start

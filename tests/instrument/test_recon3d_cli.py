@@ -141,6 +141,18 @@ def test_recon3d_npy_with_depths_to_zarr_with_binning_and_dark(problem, tmp_path
                "--out", other) == 2
 
 
+def test_recon3d_reads_a_run_store(problem, tmp_path):
+    from instrument.stacks import import_psf_stack
+
+    run = tmp_path / "RUN.zarr"
+    import_psf_stack(problem / "stack.npy", run, depths_mm=DEPTHS)
+    assert cli("--psf-stack", run, "--raw", problem / "raw.npy", "--method", "fista",
+               "--iterations", 5, "--out", tmp_path / "v.tif", "--metrics-json",
+               tmp_path / "m.json") == 0
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert np.allclose(m["depths_mm"], DEPTHS) and m["psf_stack"] == str(run)
+
+
 def _bad(problem, tmp_path, **over) -> list[str]:
     args = {"--psf-stack": problem / "stack.tif", "--raw": problem / "raw.npy",
             "--method": "fista", "--iterations": 2, "--dark": "none",
@@ -181,3 +193,17 @@ def test_admm_missing_gives_a_clear_error(problem, tmp_path, capsys, monkeypatch
     status = cli(*_bad(problem, tmp_path, **{"--method": "admm"}))
     assert status == 2
     assert "admm3d not available" in capsys.readouterr().err
+
+
+def test_admm_is_called_with_the_documented_signature(problem, tmp_path, monkeypatch):
+    calls = []
+
+    def fake_admm3d(op, b, *, iterations, tv=None, l1=None, nonneg=True):
+        calls.append({"iterations": iterations, "tv": tv, "l1": l1, "nonneg": nonneg})
+        return recon.volume.fista3d(op, b, iterations=iterations, tv=tv, l1=l1, nonneg=nonneg)
+
+    monkeypatch.setattr(recon.volume, "admm3d", fake_admm3d, raising=False)
+    assert cli(*_bad(problem, tmp_path, **{"--method": "admm", "--tv": 2e-4, "--l1": 1e-3,
+                                           "--metrics-json": tmp_path / "m.json"})) == 0
+    assert calls == [{"iterations": 2, "tv": 2e-4, "l1": 1e-3, "nonneg": True}]
+    assert json.loads((tmp_path / "m.json").read_text())["method"] == "admm"
