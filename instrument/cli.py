@@ -3,8 +3,10 @@
 Subcommands: ``recon`` (one reconstruction from files; the PSF may be one depth of
 a run's PSF stack or of a TIFF stack), ``demo`` (the main job: a bench session on
 the built-in simulated bench; ``--real-sample`` reconstructs the real DiffuserCam
-sample instead), ``validate`` / ``devices`` (bench files), ``runs`` (show, export,
-import run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
+sample instead), ``recon3d`` (a volume from one image and a PSF stack),
+``analyze`` (resolution, similarity, conditioning, grid, field of view of a PSF
+stack), ``validate`` / ``devices`` (bench files), ``runs`` (show, export, import
+run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
 compressed sensing), plus the commands other layers register under the entry-point
 group ``diffuserlab.commands`` (``calibrate`` from calibration_routines). Bad input
 exits with status 2 and a one-line reason; a diverging solver exits with status 3.
@@ -195,10 +197,12 @@ def build_parser() -> argparse.ArgumentParser:
         nargs=argparse.REMAINDER,
         help="options of the suite (--quick, --out DIR, --only ...)",
     )
-    from instrument import bench_cli, runs_cli
+    from instrument import analysis_cli, bench_cli, recon3d_cli, runs_cli
 
     bench_cli.add_subcommands(sub)
     runs_cli.add_subcommands(sub)
+    recon3d_cli.add_subcommands(sub)
+    analysis_cli.add_subcommands(sub)
     for add in _plugin_commands():
         add(sub)
     return parser
