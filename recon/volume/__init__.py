@@ -5,6 +5,7 @@
 (3D TV by Haar shifts, l1, non-negativity).
 """
 
+from .admm import admm3d
 from .fista import fista3d, volume_tv
 from .operator import (
     VolumeConvolutionOperator,
@@ -16,6 +17,7 @@ from .operator import (
 
 __all__ = [
     "VolumeConvolutionOperator",
+    "admm3d",
     "bin_stack",
     "estimate_memory_bytes",
     "fista3d",

@@ -1,0 +1,288 @@
+r"""3D ADMM for volume reconstruction from one image (Kuo 2020, Eq. 4.5, App. A.3).
+
+Minimises ``1/2 ||D M x - b||^2 + tv TV3(x) + l1 ||x||_1`` subject to ``x >= 0``
+(Eq. A.3/A.4 with Psi the 3D finite differences, the identity "native sparsity",
+or both), with ``A = D M`` the 3D model of Eq. 4.4: ``M x = F^-1 sum_z H_z F x_z`` the
+uncropped sum over depth of 2D circular convolutions on the padded grid (one
+plane) and ``D = diag(w) C`` the (weighted) crop, which is diagonal.
+
+Splitting (Eq. 4.5): ``v = M x`` (one padded plane; the crop is handled by the
+per-pixel v-update), ``u = Psi x`` (3D TV), ``w = x`` (non-negativity). The l1
+term rides on the identity split ``w``: Eq. 4.5 with Psi = I would add a second
+split ``u = x`` identical to ``w = x``; merged, the w-update is the exact prox of
+``l1 ||w||_1 + 1_+(w)``, ``w = max(t - l1 / mu3, 0)``, with one volume less. TV and
+l1 together therefore use both splits.
+
+Depth boundary: the z differences do not wrap (as :func:`~recon.volume.fista3d`
+and :func:`~recon.volume.volume_tv`), and the x-update is still exact: at each
+lateral frequency the n_z x n_z system is ``mu1 conj(h) h^T + mu2 (L_z + d_lat I) +
+mu3 I`` with ``L_z`` tridiagonal, solved by one Thomas sweep plus Sherman-Morrison
+for the rank-one data term (``M^H M`` at one lateral frequency is ``conj(h) h^T``,
+``h = (H_z(f))_z``): O(n_z) per frequency, no 3D FFT along z needed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.fft as sfft
+from numba import get_num_threads
+
+from ..errors import ReconInputError
+from ..fft import WORKERS, rfftn
+from ..solvers.admm import MU_RANGE
+from ..solvers.common import Monitor, SolveResult, check_measurement
+from . import _admm_kernels3d as _k
+from .fista import _check_weight, volume_tv
+from .operator import VolumeConvolutionOperator
+
+#: Default initial penalties (mu1, mu2, mu3) for the scaled problem (stack
+#: normalised by :func:`~recon.volume.normalize_psf_stack`, |b| <= 1).
+DEFAULT_MU = (2e-3, 2e-3, 2e-3)
+
+
+def lateral_difference_power(padded_shape: tuple[int, int]) -> np.ndarray:
+    """``|F Psi_lat|^2`` on the rfft grid: ``sum_a (2 - 2 cos(2 pi k_a / N_a))``, float32.
+
+    The lateral part of ``Psi^T Psi`` for circular forward differences along y and x.
+    """
+    k0 = np.fft.fftfreq(padded_shape[0])[:, None]
+    k1 = np.fft.rfftfreq(padded_shape[1])[None, :]
+    return ((2 - 2 * np.cos(2 * np.pi * k0)) + (2 - 2 * np.cos(2 * np.pi * k1))).astype(
+        np.float32)
+
+
+def solve_x_update(spec: np.ndarray, psf_spectra: np.ndarray, d_lat: np.ndarray,
+                   mu: tuple[float, float, float], use_tv: bool) -> np.ndarray:
+    """Solve the x-update of App. A.3 at every lateral frequency, in place.
+
+    ``(mu1 conj(h) h^T + mu2 (L_z + d_lat I) + mu3 I) X = R + mu1 conj(h) Qv`` per
+    frequency (see :func:`recon.volume._admm_kernels3d.admm_xupdate_3d`; ``mu2``
+    is dropped when ``use_tv`` is False).
+
+    Parameters
+    ----------
+    spec : ndarray, complex64, shape (n_z + 1, F0, F1), C-contiguous
+        In: R (planes 0..n_z-1) and Qv (plane n_z); out: X and ``h^T X``.
+    psf_spectra : ndarray, complex64, shape (n_z, F0, F1)
+    d_lat : ndarray, float32, shape (F0, F1)
+    mu : (mu1, mu2, mu3)
+    use_tv : bool
+
+    Returns
+    -------
+    ndarray
+        ``spec``.
+    """
+    mu1, mu2, mu3 = (float(m) for m in mu)
+    _k.admm_xupdate_3d(spec, psf_spectra, d_lat, mu1, mu2 if use_tv else 0.0, mu3,
+                       4 * get_num_threads())
+    return spec
+
+
+def _balanced(mu_i, r2, s2, n2, d2, ratio, factor):
+    """Wohlberg-normalised residual balancing of one penalty (as the 2D ADMM)."""
+    if n2 > 0 and d2 > 0:
+        r_i, s_i = math.sqrt(r2 / n2), math.sqrt(s2 / d2)
+        if r_i > ratio * s_i and mu_i < MU_RANGE[1]:
+            return mu_i * factor
+        if s_i > ratio * r_i and mu_i > MU_RANGE[0]:
+            return mu_i / factor
+    return mu_i
+
+
+def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
+           tv: float | None = None, l1: float | None = None, nonneg: bool = True,
+           mu: tuple[float, float, float] | None = None, balance: bool = True,
+           balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
+           balance_factor: float = 2.0) -> SolveResult:
+    r"""ADMM on a volume with 3D TV, l1 and non-negativity (Eq. 4.5, App. A.3).
+
+    Per iteration, in scaled-dual q-form (q_i = z_i - a_i kept between
+    iterations, as :func:`recon.solvers.admm`), with G_v = M, G_u = Psi, G_w = I:
+
+    1. splits (fused passes): a_i = G_i x - q_i; z_i = prox_i(G_i x + a_i);
+       q_i = z_i - a_i, with prox_v(t) = (w b + mu1 t) / (w^2 + mu1) per pixel of
+       the padded plane (w, b zero off the sensor), prox_u = soft(., tv / mu2) on the
+       z, y, x forward differences, prox_w = max(soft(., l1 / mu3), 0);
+    2. ``R = mu2 Psi^T q_u + mu3 q_w`` (fused pass, written over x);
+    3. one batched rfft2 of the ``n_z + 1`` planes [R, q_v];
+    4. per lateral frequency, ``X = (mu1 conj(h) h^T + mu2 Psi^H Psi + mu3 I)^{-1}
+       (R + mu1 conj(h) Qv)`` exactly (tridiagonal Thomas solve across depth +
+       Sherman-Morrison, :func:`solve_x_update`), and ``h^T X``, the spectrum of M x;
+    5. one batched irfft2 of the ``n_z + 1`` planes gives x and M x.
+
+    FFTs per iteration: ``n_z + 1`` rfft2 and ``n_z + 1`` irfft2 at the padded
+    shape -- the same as one FISTA data term and exactly what
+    :func:`~recon.volume.fft_floor_seconds` times.
+
+    Residual balancing (Boyd et al. 2011, Sec. 3.4.1, with the normalised residuals
+    of Wohlberg 2017, as the 2D ADMM): every ``balance_every`` iterations, for each
+    split, r_i = ||G_i x - z_i|| / max(||G_i x||, ||z_i||), s_i = ||z_i - z_i^prev||
+    / ||a_i||; mu_i is multiplied by ``balance_factor`` when r_i > ratio s_i and
+    divided when s_i > ratio r_i, within :data:`recon.solvers.admm.MU_RANGE`, the
+    scaled duals rescaled; it stops after ``balance_until`` of the iterations.
+
+    Memory (float32 volumes of ``op.shape_in``): the stacked [x, M x] buffer and the
+    complex spectrum stack (about one volume each), q_w, and with TV q_uz, q_uy,
+    q_ux; with balancing one stored dual per split volume (released when balancing
+    ends); plus one snapshot (:class:`~recon.solvers.common.Monitor`). With TV and
+    balancing: 11 volumes + the operator. The FFT outputs are new arrays each
+    iteration (scipy.fft has no ``out=``); the heap recycles them
+    (:func:`recon.fft.retain_freed_memory`).
+
+    Parameters
+    ----------
+    op : VolumeConvolutionOperator
+        3D forward model, ``shape_in = (n_z, P0, P1)``; sensor weights (erasure
+        masks) enter the v-update.
+    b : ndarray, shape ``op.shape_out``, float32
+        Measurement (pre-weighted), scaled to O(1), with the stack normalised by
+        :func:`~recon.volume.normalize_psf_stack`.
+    iterations : int
+    tv : float, optional
+        3D TV weight (None or 0 removes the u split).
+    l1 : float, optional
+        l1 weight (native sparsity, on the w split).
+    nonneg : bool
+        Constrain x >= 0 (the w split).
+    mu : (mu1, mu2, mu3), optional
+        Initial penalties of the v, u and w splits; default :data:`DEFAULT_MU`.
+    balance, balance_every, balance_until, balance_ratio, balance_factor
+        Residual balancing settings (see above).
+
+    Returns
+    -------
+    SolveResult
+        ``x``: the volume (n_z, P0, P1) float32 (max(x, 0) with ``nonneg``);
+        ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tv TV(x_k) + l1 ||x_k||_1
+        for the iterate entering iteration k (x_0 = 0); ``final_objective`` exact
+        at the returned x; ``history.extra['mu']`` the penalties used.
+
+    Raises
+    ------
+    DivergenceError
+        NaN/inf or an objective 100x that of the zero volume.
+    ReconInputError
+        Not a volume operator, a bad measurement or invalid parameters.
+    """
+    if not isinstance(op, VolumeConvolutionOperator):
+        raise ReconInputError(
+            "admm3d needs a VolumeConvolutionOperator (its PSF spectra give the "
+            "per-frequency x-update); use fista3d for other volume operators"
+        )
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
+    tv_w = _check_weight(tv, "TV")
+    l1_w = _check_weight(l1, "l1")
+    if isinstance(balance_every, bool) or not isinstance(balance_every, int) \
+            or balance_every < 2:
+        raise ReconInputError(f"balance_every must be an integer >= 2, got {balance_every!r}")
+    if not (balance_ratio > 1 and balance_factor > 1 and 0 <= balance_until <= 1):
+        raise ReconInputError("balance_ratio and balance_factor must be > 1 and "
+                              "balance_until in [0, 1]")
+    mu = DEFAULT_MU if mu is None else mu
+    try:
+        mu1, mu2, mu3 = (float(m) for m in mu)
+    except (TypeError, ValueError) as exc:
+        raise ReconInputError(f"mu must be three penalties (mu1, mu2, mu3), got {mu!r}") \
+            from exc
+    if not all(m > 0 and math.isfinite(m) for m in (mu1, mu2, mu3)):
+        raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")
+    b = check_measurement(b, op.shape_out)
+    use_tv = tv_w > 0
+    nz = op.n_z
+    shape = op.padded_shape
+    wp = np.zeros(shape, np.float32)
+    wp[op.crop] = op.sensor_weights
+    bp = np.zeros(shape, np.float32)
+    bp[op.crop] = b
+    d_lat = lateral_difference_power(shape)
+    spectra = op.spectra
+
+    # [x (n_z planes), M x]: one array, so one batched rfft2 / irfft2 per iteration
+    stack = np.zeros((nz + 1, *shape), np.float32)
+    qv = np.zeros(shape, np.float32)
+    qw = np.zeros(op.shape_in, np.float32)
+    if use_tv:
+        quz, quy, qux = (np.zeros(op.shape_in, np.float32) for _ in range(3))
+    else:
+        quz = quy = qux = np.zeros((1, 1, 1), np.float32)  # never indexed
+    dummy3 = np.zeros((1, 1, 1), np.float32)
+    last_balance = int(balance_until * iterations) if balance else 0
+    if last_balance > 0:
+        av = np.zeros(shape, np.float32)
+        aw = np.zeros(op.shape_in, np.float32)
+        auz, auy, aux = ((np.zeros(op.shape_in, np.float32) for _ in range(3))
+                         if use_tv else (dummy3, dummy3, dummy3))
+    else:
+        av = np.zeros((1, 1), np.float32)
+        aw = auz = auy = aux = dummy3
+
+    rows = np.zeros((nz * shape[0], 10))  # per-row sums of the volume split pass
+    mon = Monitor(float(np.vdot(b, b)), "3D ADMM")
+    hint = "try method fista3d or smaller TV / l1 weights"
+    mus = [(mu1, mu2, mu3)]
+    for k in range(iterations):
+        mon.start()
+        if k == last_balance and k > 0:  # balancing over: drop the stored duals
+            av = np.zeros((1, 1), np.float32)
+            aw = auz = auy = aux = dummy3
+        mode = 0
+        if k < last_balance:
+            if k % balance_every == balance_every - 1:
+                mode = 1
+            elif k % balance_every == 0 and k > 0:
+                mode = 2
+        x, mx = stack[:nz], stack[nz]
+        sv = _k.admm_split_plane(mx, qv, bp, wp, mu1, mode, av)
+        su = _k.admm_split_volume(x, quz, quy, qux, qw, l1_w / mu3,
+                                  tv_w / mu2 if use_tv else 0.0, use_tv, nonneg, mode,
+                                  auz, auy, aux, aw, rows)
+        data_sq, tv_x, l1_x = sv[0], su[0], su[1]
+        if mode == 2:
+            new = [_balanced(mu1, *sv[1:], balance_ratio, balance_factor),
+                   _balanced(mu2, *su[2:6], balance_ratio, balance_factor) if use_tv
+                   else mu2,
+                   _balanced(mu3, *su[6:10], balance_ratio, balance_factor)]
+            if tuple(new) != (mu1, mu2, mu3):
+                # scaled duals a = y / mu: q = z - a becomes z - a mu / mu'
+                pairs = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
+                if use_tv:
+                    pairs += [(q, a, mu2, new[1]) for q, a in ((quz, auz), (quy, auy),
+                                                               (qux, aux))]
+                for q, a, old, nw in pairs:
+                    if old != nw:  # a is rewritten (mode 1) before it is read again
+                        a *= np.float32(1.0 - old / nw)
+                        q += a
+                mu1, mu2, mu3 = new
+                mus.append((mu1, mu2, mu3))
+        # objective of the iterate entering this iteration (before x is overwritten)
+        objective = 0.5 * data_sq + tv_w * tv_x + l1_w * l1_x
+        _k.admm_rhs_3d(quz, quy, qux, qw, x, mu2, mu3, use_tv)  # R over x
+        np.copyto(mx, qv)
+        spec = rfftn(stack)
+        del x, mx
+        stack = None  # let the allocator recycle it for the inverse transform
+        solve_x_update(spec, spectra, d_lat, (mu1, mu2, mu3), use_tv)
+        stack = sfft.irfftn(spec, s=shape, axes=(-2, -1), workers=WORKERS, overwrite_x=True)
+        spec = None
+        mon.record(objective, data_sq, x=stack[:nz], hint=hint)
+    x = stack[:nz]
+    if nonneg:
+        np.maximum(x, 0, out=x)  # the estimate is the non-negative split
+    x = np.ascontiguousarray(x)
+    r = op.forward(x) - b
+    data_sq = float(np.vdot(r, r))
+    final = 0.5 * data_sq
+    if tv_w:
+        final += tv_w * volume_tv(x)
+    if l1_w:
+        final += l1_w * float(np.abs(x).sum(dtype=np.float64))
+    mon.history.extra["mu"] = [list(m) for m in mus]
+    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
+                       {"tv": tv_w, "l1": l1_w, "nonneg": nonneg,
+                        "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
+                        "balance": balance, "iterations": iterations,
+                        "ffts_per_iteration": {"rfft2": nz + 1, "irfft2": nz + 1}})
