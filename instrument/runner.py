@@ -433,7 +433,7 @@ class Runner:
         for _ in range(step.n):
             if written >= len(frames):
                 raise PlanError(f"point {index} captures more than its {len(frames)} frames")
-            expected = store.tags[int(store._tag[frames.start + written])]
+            expected = store.tag_of(frames.start + written)
             if expected != step.tag:
                 raise PlanError(f"point {index} frame {written} captured as {step.tag!r} but "
                                 f"declared {expected!r}")

@@ -236,6 +236,10 @@ class RunStore:
     def status(self) -> str:
         return str(self.attrs["status"])
 
+    def tag_of(self, index: int) -> str:
+        """The tag the plan declared for frame ``index``."""
+        return self.tags[int(self._tag[index])]
+
     def frame_range(self, point: int) -> range:
         """Frame indices of plan point ``point``."""
         idx = np.flatnonzero(self._point == point)
@@ -325,7 +329,7 @@ class RunStore:
             raise RunStoreError(f"frame {index} of {self.path} is not written yet")
         row = np.asarray(self._group["coords"][index])
         return FrameRecord(int(index), int(self._point[index]),
-                           self.tags[int(self._tag[index])],
+                           self.tag_of(index),
                            np.asarray(self._group["frames"][index]),
                            dict(zip(self._coord_names, row.tolist(), strict=True)))
 
@@ -338,7 +342,7 @@ class RunStore:
             The point (or one of its frames) is not written yet, or has no such tag.
         """
         r = self.frame_range(point)
-        idx = [i for i in r if tag is None or self.tags[int(self._tag[i])] == tag]
+        idx = [i for i in r if tag is None or self.tag_of(i) == tag]
         if not idx:
             raise RunStoreError(f"point {point} has no frames tagged {tag!r}")
         if not self.done(range(idx[0], idx[-1] + 1))[[i - idx[0] for i in idx]].all():
