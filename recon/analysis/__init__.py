@@ -19,6 +19,8 @@ UC Berkeley, 2020):
   Fig. A.3).
 - :mod:`recon.analysis.conditioning` -- local condition number of neighbouring
   point sources (Sec. 4.4, Fig. 4.5).
+- :mod:`recon.analysis.distinguishability` -- two-point and 16-point
+  distinguishability by reconstruction with the 20 % dip criterion (Sec. 4.4).
 - :mod:`recon.analysis.grid` -- reconstruction-grid recommendation (Nyquist planes
   in 1/z and lateral binning, only over the depths a scene spans).
 
@@ -27,6 +29,12 @@ Bad input raises :class:`recon.errors.ReconInputError` naming the problem and th
 
 from .angular import FalloffFit, fit_gaussian_falloff, fov_half_angle_deg
 from .conditioning import condition_vs_k, local_condition_number, point_source_columns
+from .distinguishability import (
+    TwoPointResult,
+    dip_between,
+    distinguishability_limit,
+    points_resolved,
+)
 from .grid import GridRecommendation, recommend_grid
 from .psf import (
     border_energy_fraction,
@@ -90,4 +98,8 @@ __all__ = [
     "point_source_columns",
     "recommend_grid",
     "stack_similarity",
+    "TwoPointResult",
+    "dip_between",
+    "distinguishability_limit",
+    "points_resolved",
 ]
