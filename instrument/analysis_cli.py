@@ -1,4 +1,4 @@
-"""``diffuserlab analyze {resolution,similarity,condition,grid,fov}``: analysis of a PSF stack.
+"""``diffuserlab analyze {resolution,similarity,condition,distinguish,grid,fov}``: a PSF stack.
 
 Each analysis reads a PSF stack (a run store, a TIFF stack with its depths or a
 TIFF / ``.npy`` stack with ``--depths``; sorted by depth), runs the
@@ -13,6 +13,8 @@ TIFF / ``.npy`` stack with ``--depths``; sorted by depth), runs the
   one PSF (default the middle) with all others;
 * ``condition``: Fig. 4.5: local condition number of k neighbouring point sources
   (k = 2 .. --k-max) at given separations;
+* ``distinguish``: Sec. 4.4 / Fig. 4.3-4.4: two-point and 16-point (4 x 4)
+  distinguishability by reconstruction with the regulariser off (20 % dip);
 * ``grid``: the reconstruction grid (depth planes uniform in 1/z and lateral
   binning) that Nyquist-samples the measured resolution, with the reasons;
 * ``fov``: the angular field of view of Eq. 3.12 / Eq. 4.6 from the sensor's
@@ -42,7 +44,7 @@ __all__ = ["ANALYSES", "add_subcommands", "run", "run_analysis"]
 log = logging.getLogger(__name__)
 
 #: The analyses of ``diffuserlab analyze``.
-ANALYSES = ("resolution", "similarity", "condition", "grid", "fov")
+ANALYSES = ("resolution", "similarity", "condition", "distinguish", "grid", "fov")
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -96,6 +98,16 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--k-max", type=int, default=16, help="largest number of sources")
     cp.add_argument("--layout", choices=("line", "grid"), default="line")
     cp.add_argument("--axis", choices=("x", "y"), default="x")
+    dp = asub.add_parser("distinguish", parents=[common],
+                         help="two-point and 16-point distinguishability by reconstruction "
+                         "(Sec. 4.4, 20%% dip)")
+    dp.add_argument("--depth", type=float, default=None, dest="depth_mm",
+                    help="depth (mm) of the PSF to use; default the middle plane")
+    dp.add_argument("--separations-px", default="1,2,3,4,6,8",
+                    help="comma-separated source separations on the sensor, px")
+    dp.add_argument("--iterations", type=int, default=300,
+                    help="FISTA iterations, regulariser off (default 300)")
+    dp.add_argument("--axis", choices=("x", "y"), default="x")
     gp = asub.add_parser("grid", parents=[common],
                          help="recommended depth planes and lateral binning")
     gp.add_argument("--scene-range", default=None, metavar="ZMIN,ZMAX",
@@ -387,6 +399,46 @@ def _condition(args, stack, z, header):
     return result, fig, lines
 
 
+def _distinguish(args, stack, z, header):
+    from recon.analysis import distinguishability_limit, lateral_resolution_object_mm
+
+    from .stacks import pick_depth
+
+    seps = _floats(args.separations_px, "--separations-px")
+    if args.depth_mm is None:
+        k = len(z) // 2
+        psf, depth = stack[k], float(z[k])
+    else:
+        psf, depth = pick_depth(stack, list(z), args.depth_mm)
+    psf = np.clip(psf, 0.0, None)
+    out = {}
+    for n in (2, 16):
+        limit, results = distinguishability_limit(psf, seps, n_points=n, axis=args.axis,
+                                                  iterations=args.iterations)
+        out[n] = (limit, results)
+    obj = None
+    if args.pitch_um is not None and args.d_mm is not None:
+        obj = {n: (None if lim is None else lateral_resolution_object_mm(
+            lim, header["pitch_um"] * 1e-3, args.d_mm, depth)) for n, (lim, _) in out.items()}
+    result = {**header, "depth_mm": depth, "axis": args.axis, "iterations": args.iterations,
+              "criterion": "dip of at least 20 % between neighbouring sources (Sec. 4.4)",
+              "separations_px": seps,
+              "two_point": {"limit_px": out[2][0], "dips": [r.dip for r in out[2][1]]},
+              "sixteen_point": {"limit_px": out[16][0], "dips": [r.dip for r in out[16][1]]},
+              "limits_object_mm": obj}
+    fig, (a0,) = _figure(1)
+    for n, label in ((2, "two points"), (16, "16 points (4 x 4)")):
+        a0.plot(seps, [r.dip for r in out[n][1]], "o-", label=label)
+    a0.axhline(0.2, color="k", lw=0.8, ls="--")
+    a0.set(xlabel="separation on the sensor, px", ylabel="dip between sources",
+           title=f"Sec. 4.4 distinguishability at z = {depth:g} mm")
+    a0.legend(fontsize=8)
+    lines = [f"{name}: resolved from {lim:g} px" if lim is not None else
+             f"{name}: not resolved at any tested separation"
+             for name, (lim, _) in (("two-point", out[2]), ("16-point", out[16]))]
+    return result, fig, lines
+
+
 def _grid(args, stack, z, header):
     from recon.analysis import recommend_grid
 
@@ -477,7 +529,7 @@ def _fov(args, stack, z, header):
 
 
 _RUNNERS = {"resolution": _resolution, "similarity": _similarity, "condition": _condition,
-            "grid": _grid, "fov": _fov}
+            "grid": _grid, "fov": _fov, "distinguish": _distinguish}
 
 
 def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:

@@ -120,6 +120,18 @@ def test_condition(stack_file, tmp_path):
     assert "keeps" in outputs(tmp_path / "wide", "condition")["warnings"][0]
 
 
+def test_distinguish(stack_file, tmp_path, capsys):
+    assert analyze("distinguish", stack_file, tmp_path, "--separations-px", "1,3,6",
+                   "--iterations", 80, "--depth", 45) == 0
+    d = outputs(tmp_path, "distinguish")
+    assert d["depth_mm"] == 45.0 and len(d["two_point"]["dips"]) == 3
+    assert d["two_point"]["dips"][0] < 0.2  # 1 px: the same pixel neighbourhood
+    lim = d["two_point"]["limit_px"]
+    assert lim is not None and lim in (3.0, 6.0)
+    assert d["limits_object_mm"]["2"] == pytest.approx(lim * PITCH_UM * 1e-3 * 45 / D_MM)
+    assert "two-point: resolved from" in capsys.readouterr().out
+
+
 def test_grid_fewer_planes_for_a_narrower_scene(stack_file, tmp_path, capsys):
     assert analyze("grid", stack_file, tmp_path / "all") == 0
     assert "lateral bin" in capsys.readouterr().out
