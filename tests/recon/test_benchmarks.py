@@ -121,3 +121,18 @@ def test_summary_and_only_flag(quick_run, tmp_path, capsys):
     with pytest.raises(SystemExit):
         run.main(["--only", "nonsense"])
     capsys.readouterr()
+
+
+def test_volume_benchmark_quick_writes_ratios(tmp_path, capsys):
+    import json
+
+    from recon.benchmarks.volume import main as volume_main
+
+    assert volume_main(["--quick", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "volume_speed.json").read_text())
+    size = data["sizes"][0]
+    assert size["ffts_per_iteration"] == {"rfft2": 5, "irfft2": 5}
+    for m in ("fista3d", "admm3d"):
+        assert size["methods"][m]["ratio"] > 0 and len(size["methods"][m]["paired_ratios"]) == 2
+    assert size["peak_traced_bytes"] > 0
+    assert "3D speed" in capsys.readouterr().out
