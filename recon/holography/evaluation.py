@@ -57,7 +57,22 @@ PHASE_SEED_OFFSET = 10_000
 
 
 def factor_to_k(factor: int) -> int:
-    """``k = sqrt(q)`` for an étendue factor ``q`` that is a perfect square (Eq. 7.10)."""
+    """Mask pixels per SLM pixel ``k = sqrt(q)`` for an étendue factor ``q`` (Eq. 7.10).
+
+    Parameters
+    ----------
+    factor : int
+        Expansion factor, a perfect square (4, 16, 36, ...).
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ReconInputError
+        If ``factor`` is not a positive perfect square.
+    """
     k = math.isqrt(int(factor))
     if factor < 1 or k * k != factor:
         raise ReconInputError(f"expansion factor {factor} is not a perfect square (4, 16, 36...)")
