@@ -197,6 +197,11 @@ def build_parser() -> argparse.ArgumentParser:
         nargs=argparse.REMAINDER,
         help="options of the suite (--quick, --out DIR, --only ...)",
     )
+    hp = sub.add_parser("holo", help="holographic display: Table 7.1 evaluation, speed "
+                        "benchmark (options after the action, e.g. --size 480)")
+    hp.add_argument("action", choices=["evaluate", "benchmark"])
+    hp.add_argument("rest", nargs=argparse.REMAINDER,
+                    help="options of the action (--quick, --size N, --images DIR, --out DIR)")
     from instrument import analysis_cli, bench_cli, recon3d_cli, runs_cli
 
     bench_cli.add_subcommands(sub)
@@ -280,6 +285,14 @@ def main(argv: list[str] | None = None) -> int:
             from recon.benchmarks.run import main as bench_main
 
             return int(bench_main(args.rest) or 0)
+        elif args.command == "holo" and args.action == "evaluate":
+            from recon.holography.evaluate import main as holo_evaluate
+
+            return int(holo_evaluate(args.rest) or 0)
+        elif args.command == "holo":
+            from recon.holography.benchmark import main as holo_benchmark
+
+            return int(holo_benchmark(args.rest) or 0)
         elif args.command in {"validate", "devices"}:
             from instrument import bench_cli
 

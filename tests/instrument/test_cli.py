@@ -187,3 +187,11 @@ def test_cli_bad_input_exits_2(tmp_path, capsys, case):
     assert len(err.splitlines()) == 1 and err.startswith("diffuserlab: error:")
     assert fragment.lower() in err.lower()
     assert not (tmp_path / "o.png").exists()
+
+
+def test_holo_evaluate_is_wired(tmp_path, capsys):
+    from instrument.cli import main
+
+    assert main(["holo", "evaluate", "--quick", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "table.md").is_file() and (tmp_path / "summary.json").is_file()
+    assert "wrote" in capsys.readouterr().out
