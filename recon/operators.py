@@ -168,6 +168,64 @@ class PixelErasure(LinearOperator):
         return PixelErasure((rng.random(shape) >= erased_fraction).astype(np.float32))
 
 
+def padded_grid(sensor_shape: tuple[int, int], padded_shape=None) -> tuple[
+        tuple[int, int], tuple[int, int], tuple[slice, slice]]:
+    """The object-domain grid of the cropped convolution model (Eq. 3.4, 4.4).
+
+    Parameters
+    ----------
+    sensor_shape : (rows, cols)
+    padded_shape : (P0, P1), optional
+        Default :func:`recon.fft.fast_padded_shape` (at least twice the sensor).
+
+    Returns
+    -------
+    padded_shape : (P0, P1)
+    offset : (top, left)
+        Position of the sensor window in the padded grid (centred).
+    crop : (slice, slice)
+        The sensor window (the crop C).
+
+    Raises
+    ------
+    ReconInputError
+        A padded shape smaller than ``2 * sensor - 1`` (circular wrap-around).
+    """
+    padded = tuple(int(p) for p in (padded_shape or fast_padded_shape(sensor_shape)))
+    if len(padded) != 2 or any(p < 2 * s - 1 for p, s in zip(padded, sensor_shape,
+                                                              strict=True)):
+        raise ReconInputError(
+            f"padded shape {padded} is smaller than twice the sensor {tuple(sensor_shape)}: "
+            "circular wrap-around would corrupt the model"
+        )
+    top = (padded[0] - sensor_shape[0]) // 2
+    left = (padded[1] - sensor_shape[1]) // 2
+    crop = (slice(top, top + sensor_shape[0]), slice(left, left + sensor_shape[1]))
+    return padded, (top, left), crop
+
+
+def checked_sensor_weights(weights, sensor_shape: tuple[int, int]) -> np.ndarray:
+    """Sensor weights (Eq. 3.10: 1 measured, 0 erased) as C-contiguous float32.
+
+    ``None`` gives all ones.
+
+    Raises
+    ------
+    ReconInputError
+        Shape other than ``sensor_shape``, non-finite or negative weights.
+    """
+    if weights is None:
+        return np.ones(sensor_shape, np.float32)
+    w = np.ascontiguousarray(weights, dtype=np.float32)
+    if w.shape != tuple(sensor_shape):
+        raise ReconInputError(
+            f"sensor weights shape {w.shape} differs from the PSF shape {tuple(sensor_shape)}"
+        )
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ReconInputError("sensor weights must be finite and non-negative")
+    return w
+
+
 class ConvolutionOperator(LinearOperator):
     """Cropped 2D convolution with a shift-invariant PSF (Kuo 2020, Eq. 3.4).
 
@@ -210,17 +268,8 @@ class ConvolutionOperator(LinearOperator):
         if not np.any(h):
             raise ReconInputError("PSF is all zero; recapture it with the point source on")
         self.sensor_shape = h.shape
-        self.padded_shape = tuple(padded_shape or fast_padded_shape(h.shape))
-        if any(p < 2 * s - 1 for p, s in zip(self.padded_shape, h.shape, strict=True)):
-            raise ReconInputError(
-                f"padded shape {self.padded_shape} is smaller than twice the sensor "
-                f"{h.shape}: circular wrap-around would corrupt the model"
-            )
+        self.padded_shape, self.offset, self.crop = padded_grid(h.shape, padded_shape)
         self.shape_in, self.shape_out = self.padded_shape, self.sensor_shape
-        top = (self.padded_shape[0] - h.shape[0]) // 2
-        left = (self.padded_shape[1] - h.shape[1]) // 2
-        self.offset = (top, left)
-        self.crop = (slice(top, top + h.shape[0]), slice(left, left + h.shape[1]))
         self.psf = h
         if _spectrum is None:
             padded = np.zeros(self.padded_shape, np.float32)
@@ -228,16 +277,7 @@ class ConvolutionOperator(LinearOperator):
             _spectrum = rfftn(np.fft.ifftshift(padded)).astype(np.complex64)
         self.spectrum = _spectrum
         self.spectrum_conj = np.conj(_spectrum)
-        if sensor_weights is None:
-            sensor_weights = np.ones(h.shape, np.float32)
-        w = np.asarray(sensor_weights, dtype=np.float32)
-        if w.shape != h.shape:
-            raise ReconInputError(
-                f"sensor weights shape {w.shape} differs from the PSF shape {h.shape}"
-            )
-        if not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise ReconInputError("sensor weights must be finite and non-negative")
-        self.sensor_weights = w
+        self.sensor_weights = checked_sensor_weights(sensor_weights, h.shape)
         self._pad_buf = np.zeros(self.padded_shape, np.float32)
 
     # -- composition -----------------------------------------------------------------

@@ -18,7 +18,13 @@ import scipy.fft as sfft
 from .. import _kernels
 from ..errors import ReconInputError
 from ..fft import WORKERS, fast_padded_shape, irfftn, rfftn
-from ..operators import ConvolutionOperator, LinearOperator, PixelErasure
+from ..operators import (
+    ConvolutionOperator,
+    LinearOperator,
+    PixelErasure,
+    checked_sensor_weights,
+    padded_grid,
+)
 from ..preprocess import box_bin
 from . import _kernels3d
 
@@ -114,23 +120,11 @@ class VolumeConvolutionOperator(LinearOperator):
             )
         self.n_z = h.shape[0]
         self.sensor_shape = h.shape[1:]
-        self.padded_shape = tuple(int(p) for p in (padded_shape
-                                                   or fast_padded_shape(self.sensor_shape)))
-        if len(self.padded_shape) != 2 or any(
-                p < 2 * s - 1 for p, s in zip(self.padded_shape, self.sensor_shape, strict=True)):
-            raise ReconInputError(
-                f"padded shape {self.padded_shape} is smaller than twice the sensor "
-                f"{self.sensor_shape}: circular wrap-around would corrupt the model"
-            )
+        self.padded_shape, self.offset, self.crop = padded_grid(self.sensor_shape, padded_shape)
         self.depths = _check_depths(depths, self.n_z)
         self.shape_in = (self.n_z, *self.padded_shape)
         self.shape_out = self.sensor_shape
         self.ffts_per_apply = self.n_z + 1
-        top = (self.padded_shape[0] - self.sensor_shape[0]) // 2
-        left = (self.padded_shape[1] - self.sensor_shape[1]) // 2
-        self.offset = (top, left)
-        self.crop = (slice(top, top + self.sensor_shape[0]),
-                     slice(left, left + self.sensor_shape[1]))
         self.psf_stack = h
         self.spectrum_shape = (self.padded_shape[0], self.padded_shape[1] // 2 + 1)
         plane_bytes = 8 * self.spectrum_shape[0] * self.spectrum_shape[1]
@@ -138,16 +132,7 @@ class VolumeConvolutionOperator(LinearOperator):
         self._chunks = [slice(k, min(k + self.planes_per_chunk, self.n_z))
                         for k in range(0, self.n_z, self.planes_per_chunk)]
         self.spectra = self._psf_spectra() if _spectra is None else _spectra
-        if sensor_weights is None:
-            sensor_weights = np.ones(self.sensor_shape, np.float32)
-        w = np.ascontiguousarray(sensor_weights, dtype=np.float32)
-        if w.shape != self.sensor_shape:
-            raise ReconInputError(
-                f"sensor weights shape {w.shape} differs from the PSF shape {self.sensor_shape}"
-            )
-        if not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise ReconInputError("sensor weights must be finite and non-negative")
-        self.sensor_weights = w
+        self.sensor_weights = checked_sensor_weights(sensor_weights, self.sensor_shape)
         self._pad_buf = np.zeros(self.padded_shape, np.float32)
         self._sum_spec = np.empty(self.spectrum_shape, np.complex64)
         self._plane_spec = np.empty((self.planes_per_chunk, *self.spectrum_shape), np.complex64)
