@@ -301,7 +301,7 @@ class Runner:
         except (DeviceError, CheckFailed, PromptRefused, PlanError, RunStoreError) as exc:
             status, error = "failed", f"{type(exc).__name__}: {exc}"
         except Exception as exc:  # a bug or a callback's error: record it, then re-raise
-            self.bench.safe_state()
+            # (the finally below makes the bench safe)
             store.update_attrs(status="failed", error=f"{type(exc).__name__}: {exc}",
                                ended_utc=utc_now())
             raise
