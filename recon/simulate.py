@@ -37,7 +37,8 @@ from .preprocess import box_bin
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SCENES", "Simulation", "load_scene", "simulate_measurement"]
+__all__ = ["SCENES", "Simulation", "add_camera_noise", "load_scene",
+           "simulate_measurement"]
 
 #: Natural test images shipped inside scikit-image's package data (no network fetch).
 SCENES: tuple[str, ...] = ("camera", "astronaut", "coffee", "chelsea")
@@ -164,6 +165,70 @@ def _coarse_geometry(coarse_sensor: tuple[int, int]) -> tuple[tuple[int, int],
     return padded, offset
 
 
+def _check_noise(photons: float, read_noise_e: float) -> None:
+    if not (math.isfinite(photons) and photons > 0):
+        raise ReconInputError(f"photons must be positive and finite, got {photons}")
+    if not (math.isfinite(read_noise_e) and read_noise_e >= 0):
+        raise ReconInputError(f"read noise must be >= 0 and finite, got {read_noise_e}")
+
+
+def add_camera_noise(image: np.ndarray, photons: float, read_noise_e: float,
+                     seed: int | np.random.Generator = 0
+                     ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Scale a noise-free image to photo-electrons and add shot and read noise.
+
+    The image is scaled so its brightest pixel collects ``photons`` electrons, then
+    Poisson counts are drawn and Gaussian read noise is added (in that order, from
+    one generator).
+
+    Parameters
+    ----------
+    image : ndarray, 2D, non-negative, finite
+        Noise-free sensor image in any unit (e.g. photons / s per pixel).
+    photons : float
+        Photo-electrons of the brightest pixel (> 0).
+    read_noise_e : float
+        Standard deviation of the read noise, electrons (>= 0).
+    seed : int or numpy.random.Generator
+        Seed of :func:`numpy.random.default_rng` (or a generator to draw from).
+
+    Returns
+    -------
+    noisy : ndarray, float64
+        Electrons (Poisson counts plus read noise; can be slightly negative).
+    clean : ndarray, float64
+        The scaled noise-free image, electrons.
+    gain : float
+        Electrons per unit of ``image``.
+    snr_db : float
+        ``10 log10(mean(clean^2) / mean((noisy - clean)^2))`` (inf without noise).
+
+    Raises
+    ------
+    ReconInputError
+        Invalid noise parameters, a negative or non-finite image, or an all-zero one.
+    """
+    _check_noise(photons, read_noise_e)
+    img = np.asarray(image, dtype=np.float64)
+    if not np.all(np.isfinite(img)) or np.any(img < 0):
+        raise ReconInputError("the noise-free image must be finite and non-negative")
+    peak = float(img.max()) if img.size else 0.0
+    if not peak > 0:
+        raise ReconInputError("the scene renders to an all-zero measurement; use a "
+                              "scene with some light in the field of view")
+    gain = photons / peak
+    clean = img * gain
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    noisy = rng.poisson(clean).astype(np.float64)
+    if read_noise_e > 0:
+        noisy += rng.normal(0.0, read_noise_e, clean.shape)
+    noise = noisy - clean
+    noise_power = float(np.mean(noise**2))
+    signal_power = float(np.mean(clean**2))
+    snr_db = 10.0 * math.log10(signal_power / noise_power) if noise_power > 0 else math.inf
+    return noisy, clean, gain, snr_db
+
+
 def simulate_measurement(psf_fine: np.ndarray, scene_fine: np.ndarray, *,
                          bin_factor: int = 2, photons: float = 5000.0,
                          read_noise_e: float = 2.0, seed: int = 0) -> Simulation:
@@ -221,10 +286,7 @@ def simulate_measurement(psf_fine: np.ndarray, scene_fine: np.ndarray, *,
             or bin_factor < 1:
         raise ReconInputError(f"bin factor must be an integer >= 1, got {bin_factor!r}")
     bf = int(bin_factor)
-    if not (math.isfinite(photons) and photons > 0):
-        raise ReconInputError(f"photons must be positive and finite, got {photons}")
-    if not (math.isfinite(read_noise_e) and read_noise_e >= 0):
-        raise ReconInputError(f"read noise must be >= 0 and finite, got {read_noise_e}")
+    _check_noise(photons, read_noise_e)
     psf = np.asarray(psf_fine, dtype=np.float64)
     scene = np.asarray(scene_fine, dtype=np.float64)
     if psf.ndim != 2 or scene.ndim != 2:
@@ -263,20 +325,7 @@ def simulate_measurement(psf_fine: np.ndarray, scene_fine: np.ndarray, *,
     obj[start[0]:start[0] + rows, start[1]:start[1] + cols] = scene
     sensor = box_bin(op.forward(obj), bf).astype(np.float64)
     np.maximum(sensor, 0.0, out=sensor)  # FFT round-off around zero
-    peak = float(sensor.max())
-    if not peak > 0:
-        raise ReconInputError("the scene renders to an all-zero measurement; use a "
-                              "scene with some light in the field of view")
-    gain = photons / peak
-    clean = sensor * gain
-    rng = np.random.default_rng(seed)
-    noisy = rng.poisson(clean).astype(np.float64)
-    if read_noise_e > 0:
-        noisy += rng.normal(0.0, read_noise_e, clean.shape)
-    noise = noisy - clean
-    noise_power = float(np.mean(noise**2))
-    signal_power = float(np.mean(clean**2))
-    snr_db = 10.0 * math.log10(signal_power / noise_power) if noise_power > 0 else math.inf
+    noisy, clean, gain, snr_db = add_camera_noise(sensor, photons, read_noise_e, seed)
 
     truth = np.zeros(coarse_padded, np.float32)
     truth[coarse_offset[0]:coarse_offset[0] + coarse_sensor[0],

@@ -12,7 +12,13 @@ from recon.errors import ReconInputError
 from recon.metrics import fit_gain, psnr, ssim
 from recon.operators import ConvolutionOperator
 from recon.preprocess import box_bin
-from recon.simulate import SCENES, Simulation, load_scene, simulate_measurement
+from recon.simulate import (
+    SCENES,
+    Simulation,
+    add_camera_noise,
+    load_scene,
+    simulate_measurement,
+)
 
 FINE = (48, 64)  # coarse 24 x 32 at bin 2
 
@@ -153,6 +159,24 @@ def test_pure_poisson_variance_equals_mean_and_seed_reproducible():
     again = simulate_measurement(_delta_psf(shape), np.ones(shape, np.float32),
                                  photons=400.0, read_noise_e=0.0, seed=7)
     np.testing.assert_array_equal(again.b, sim.b)
+
+
+def test_add_camera_noise_scales_and_draws_from_one_generator():
+    img = np.array([[0.0, 1.0], [2.0, 4.0]])
+    noisy, clean, gain, snr_db = add_camera_noise(img, 1000.0, 0.0, seed=5)
+    assert gain == 250.0 and clean.max() == 1000.0
+    np.testing.assert_array_equal(noisy, np.random.default_rng(5).poisson(clean))
+    assert noisy[0, 0] == 0.0 and math.isfinite(snr_db)
+    rng = np.random.default_rng(7)
+    again = add_camera_noise(img, 1000.0, 2.0, rng)[0]
+    ref = np.random.default_rng(7)
+    np.testing.assert_array_equal(again, ref.poisson(clean) + ref.normal(0.0, 2.0, img.shape))
+    with pytest.raises(ReconInputError, match="all-zero"):
+        add_camera_noise(np.zeros((2, 2)), 10.0, 1.0)
+    with pytest.raises(ReconInputError, match="non-negative"):
+        add_camera_noise(-img, 10.0, 1.0)
+    with pytest.raises(ReconInputError, match="photons"):
+        add_camera_noise(img, 0.0, 1.0)
 
 
 def test_unpacks_as_b_truth():
