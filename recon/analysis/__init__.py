@@ -18,7 +18,7 @@ UC Berkeley, 2020):
 - :mod:`recon.analysis.similarity` -- PSF similarity across a stack (App. A.2,
   Fig. A.3).
 - :mod:`recon.analysis.conditioning` -- local condition number of neighbouring
-  point sources (Sec. 4.4, Fig. 4.5).
+  point sources, laterally and across depth planes (Sec. 4.4, Fig. 4.5).
 - :mod:`recon.analysis.distinguishability` -- two-point and 16-point
   distinguishability by reconstruction with the 20 % dip criterion (Sec. 4.4).
 - :mod:`recon.analysis.grid` -- reconstruction-grid recommendation (Nyquist planes
@@ -28,7 +28,14 @@ Bad input raises :class:`recon.errors.ReconInputError` naming the problem and th
 """
 
 from .angular import FalloffFit, fit_gaussian_falloff, fov_half_angle_deg
-from .conditioning import condition_vs_k, local_condition_number, point_source_columns
+from .conditioning import (
+    axial_layout,
+    condition_vs_k,
+    condition_vs_k_axial,
+    local_condition_number,
+    point_source_columns,
+    stack_source_columns,
+)
 from .distinguishability import (
     TwoPointResult,
     dip_between,
@@ -85,7 +92,9 @@ __all__ = [
     "LateralResolution",
     "autocorrelation",
     "axial_inner_product_scale",
+    "axial_layout",
     "condition_vs_k",
+    "condition_vs_k_axial",
     "cross_correlation",
     "depth_of_field_mm",
     "hyperfocal_distance_mm",
@@ -97,6 +106,7 @@ __all__ = [
     "local_condition_number",
     "point_source_columns",
     "recommend_grid",
+    "stack_source_columns",
     "stack_similarity",
     "TwoPointResult",
     "dip_between",

@@ -13,6 +13,12 @@ neighbouring sources at a given separation and lets k grow.
   sources at lateral shifts of a PSF, cropped to the sensor.
 - :func:`condition_vs_k` -- the condition number for k = 2 .. 16 neighbouring
   sources on a line or a grid at one separation (it approaches a limit).
+- :func:`stack_source_columns`, :func:`axial_layout` and :func:`condition_vs_k_axial`
+  -- the same across depth (Fig. 4.5 takes neighbours laterally *and* axially):
+  columns of the 3D ``A`` (Eq. 4.4) are PSFs of a stack's planes, so k sources at
+  consecutive depth planes (every ``s``-th plane of a stack uniform in 1/z, i.e. a
+  1/z separation of ``s`` steps, Eq. 4.7), optionally also spread laterally on an
+  x-z grid (Fig. 4.4's 4 x 4 sources).
 
 Shifts are in sensor pixels, ``(dy, dx)`` = (rows, cols). Every refusal raises
 :class:`recon.errors.ReconInputError` whose message says what is wrong and how to
@@ -30,10 +36,17 @@ import numpy as np
 import scipy.ndimage
 
 from recon.analysis.psf import _as_float
-from recon.analysis.similarity import _check_image
+from recon.analysis.similarity import _check_image, _check_stack
 from recon.errors import ReconInputError
 
-__all__ = ["condition_vs_k", "local_condition_number", "point_source_columns"]
+__all__ = [
+    "axial_layout",
+    "condition_vs_k",
+    "condition_vs_k_axial",
+    "local_condition_number",
+    "point_source_columns",
+    "stack_source_columns",
+]
 
 
 def local_condition_number(columns: Any) -> float:
@@ -158,6 +171,31 @@ def point_source_columns(psf: Any, positions_px: Any, *, order: int = 3) -> np.n
     return out
 
 
+def _separation(value: Any, name: str, example: str, allow_zero: bool = False) -> float:
+    """A finite separation > 0 (or >= 0 with ``allow_zero``), as float."""
+    bad = (isinstance(value, bool) or not isinstance(value, numbers.Real)
+           or not math.isfinite(float(value)))
+    if bad or float(value) < 0 or (float(value) == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ReconInputError(f"{name} must be finite and {bound}, got {value!r}; e.g. {example}")
+    return float(value)
+
+
+def _check_axis(axis: str) -> None:
+    if axis not in ("x", "y"):
+        raise ReconInputError(f"axis must be 'x' or 'y', got {axis!r}")
+
+
+def _check_ks(ks: Iterable[int]) -> list[int]:
+    k_list = list(ks)
+    if not k_list:
+        raise ReconInputError("ks is empty; pass numbers of sources, e.g. range(2, 17)")
+    for k in k_list:
+        if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
+            raise ReconInputError(f"ks must hold integers >= 1, got {k!r}")
+    return [int(k) for k in k_list]
+
+
 def _layout_positions(k_max: int, separation: float, layout: str, axis: str) -> np.ndarray:
     """Nested positions: the first k of them are the k-source arrangement for every k."""
     j = np.arange(k_max)
@@ -225,31 +263,190 @@ def condition_vs_k(
     sources; the limit, not the two-point value, governs complex scenes.
     """
     h = _check_image(psf, "psf")
-    if (
-        isinstance(separation_px, bool)
-        or not isinstance(separation_px, numbers.Real)
-        or not math.isfinite(float(separation_px))
-        or float(separation_px) <= 0
-    ):
-        raise ReconInputError(
-            f"separation_px must be finite and > 0, got {separation_px!r}; e.g. 2 (pixels)"
-        )
+    sep = _separation(separation_px, "separation_px", "2 (pixels)")
     if layout not in ("line", "grid"):
         raise ReconInputError(f"layout must be 'line' or 'grid', got {layout!r}")
-    if axis not in ("x", "y"):
-        raise ReconInputError(f"axis must be 'x' or 'y', got {axis!r}")
-    k_list = list(ks)
-    if not k_list:
-        raise ReconInputError("ks is empty; pass numbers of sources, e.g. range(2, 17)")
-    for k in k_list:
-        if isinstance(k, bool) or not isinstance(k, numbers.Integral) or k < 1:
-            raise ReconInputError(f"ks must hold integers >= 1, got {k!r}")
+    _check_axis(axis)
+    k_list = _check_ks(ks)
     k_max = int(max(k_list))
     if k_max > h.size:
         raise ReconInputError(
             f"{k_max} sources need more columns than the PSF's {h.size} pixels; use fewer"
         )
-    sep = float(separation_px)
     positions = _layout_positions(k_max, sep, layout, axis)
     cols = point_source_columns(h, positions, order=order)
     return np.array([local_condition_number(cols[:, : int(k)]) for k in k_list], dtype=np.float64)
+
+
+def stack_source_columns(stack: Any, sources: Any, *, order: int = 3) -> np.ndarray:
+    """Columns of the 3D system matrix (Eq. 4.4) for point sources at planes of a stack.
+
+    Parameters
+    ----------
+    stack : array_like
+        Shape (n_z, rows, cols): the on-axis PSF of every depth plane (e.g. a
+        calibration sweep's ``psf_stack``), real, finite, no all-zero plane.
+    sources : array_like
+        Shape (k, 3): ``(plane, dy, dx)`` per source -- the plane index (an
+        integer, 0 <= plane < n_z) and the sensor-plane shift in pixels of its PSF
+        (an object-space shift ``Delta x`` at depth ``z`` is ``Delta x d / z``).
+    order : int, optional
+        Spline order for sub-pixel shifts, as in :func:`point_source_columns`.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, shape (rows * cols, k): column j is ``stack[plane_j]`` translated
+        by ``(dy_j, dx_j)`` and cropped to the sensor (the crop ``C`` of Eq. 4.4),
+        flattened in C order.
+
+    Raises
+    ------
+    ReconInputError
+        An invalid stack, ``sources`` not finite of shape (k, 3), a plane index that
+        is not an integer inside the stack, or a bad ``order``.
+    """
+    h = _check_stack(stack)
+    src = _as_float(sources, "sources", ndims=(1, 2))
+    if src.ndim == 1:
+        src = src[None, :]
+    if src.shape[1] != 3:
+        raise ReconInputError(
+            f"sources must have shape (k, 3) of (plane, dy, dx), got {src.shape}")
+    planes = src[:, 0]
+    if not np.all(planes == np.round(planes)) or planes.min() < 0 or planes.max() >= h.shape[0]:
+        raise ReconInputError(
+            f"source planes must be integers in 0..{h.shape[0] - 1} (the stack's planes), "
+            f"got {planes.tolist()}")
+    out = np.empty((h[0].size, src.shape[0]), dtype=np.float64)
+    for k in np.unique(planes).astype(int):
+        sel = np.flatnonzero(planes == k)
+        out[:, sel] = point_source_columns(h[k], src[sel, 1:], order=order)
+    return out
+
+
+def axial_layout(n_z: int, k_max: int, separation_planes: int, *, separation_px: float = 0.0,
+                 axis: str = "x", start_plane: int | None = None) -> np.ndarray:
+    """Nested positions of up to ``k_max`` neighbouring sources across depth planes.
+
+    With ``separation_px = 0`` the sources stand on a line along z at one lateral
+    position: source j in plane ``start + j s`` (``s = separation_planes``). With
+    ``separation_px > 0`` they fill an x-z grid (Fig. 4.4: 16 sources as 4 x 4) of
+    ``w = ceil(sqrt(k_max))`` sources along ``axis``, ``separation_px`` apart and
+    centred, in raster order: source j in plane ``start + (j // w) s`` at lateral
+    offset ``(j % w - (w - 1) // 2) separation_px``. The first k positions are the
+    k-source arrangement for every k <= ``k_max``.
+
+    Parameters
+    ----------
+    n_z : int
+        Planes in the stack (>= 1).
+    k_max : int
+        Largest number of sources (>= 1).
+    separation_planes : int
+        Plane step between neighbouring depths (>= 1); for a stack uniform in 1/z
+        with step ``c`` (Eq. 4.7) the sources are ``s c`` apart in 1/z.
+    separation_px : float, optional
+        Lateral spacing on the sensor, pixels (>= 0; 0: one line along z).
+    axis : {"x", "y"}, optional
+        Lateral direction of the x-z grid.
+    start_plane : int, optional
+        Plane of the first source; default centres the sources in the stack.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, shape (k_max, 3): ``(plane, dy, dx)`` per source.
+
+    Raises
+    ------
+    ReconInputError
+        Invalid numbers, or the sources need more planes than the stack holds
+        (``(depths - 1) s + 1 > n_z - start``).
+    """
+    for name, v, lo in (("n_z", n_z, 1), ("k_max", k_max, 1),
+                        ("separation_planes", separation_planes, 1)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < lo:
+            raise ReconInputError(f"{name} must be an integer >= {lo}, got {v!r}")
+    lat = _separation(separation_px, "separation_px", "0 (a line along z) or 2 (pixels)",
+                      allow_zero=True)
+    _check_axis(axis)
+    width = math.ceil(math.sqrt(k_max)) if lat > 0 else 1
+    depths = math.ceil(k_max / width)
+    span = (depths - 1) * int(separation_planes)
+    if start_plane is None:
+        start = max(0, (int(n_z) - 1 - span) // 2)
+    elif isinstance(start_plane, bool) or not isinstance(start_plane, numbers.Integral) \
+            or not 0 <= start_plane < n_z:
+        raise ReconInputError(f"start_plane must be an integer in 0..{n_z - 1}, got "
+                              f"{start_plane!r}")
+    else:
+        start = int(start_plane)
+    if start + span >= n_z:
+        raise ReconInputError(
+            f"{k_max} sources on {depths} depth(s) {separation_planes} plane(s) apart need "
+            f"{span + 1} planes from plane {start}, the stack has {n_z}; use fewer sources "
+            "or a smaller separation")
+    j = np.arange(k_max)
+    along = (j % width - (width - 1) // 2) * lat
+    zeros = np.zeros(k_max)
+    dy, dx = (zeros, along) if axis == "x" else (along, zeros)
+    return np.stack([start + (j // width) * int(separation_planes), dy, dx], axis=1)
+
+
+def condition_vs_k_axial(
+    stack: Any,
+    separation_planes: int,
+    ks: Iterable[int] = range(2, 17),
+    *,
+    separation_px: float = 0.0,
+    axis: str = "x",
+    start_plane: int | None = None,
+    order: int = 3,
+) -> np.ndarray:
+    """Local condition number for k neighbouring sources across depth (Fig. 4.5).
+
+    The axial counterpart of :func:`condition_vs_k`: the sources of
+    :func:`axial_layout` (k consecutive depths ``separation_planes`` planes apart,
+    optionally an x-z grid with lateral spacing ``separation_px``), their columns
+    from :func:`stack_source_columns`, and :func:`local_condition_number` of the
+    first k for each k.
+
+    Parameters
+    ----------
+    stack : array_like
+        Shape (n_z, rows, cols), the PSF of each plane, sorted by depth
+        (background-removed).
+    separation_planes : int
+        Plane step between neighbouring sources (>= 1).
+    ks : iterable of int, optional
+        Numbers of sources (each >= 1); default 2 .. 16.
+    separation_px, axis, start_plane
+        See :func:`axial_layout`.
+    order : int, optional
+        Spline order for sub-pixel lateral shifts.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64, shape (len(ks),): condition number of the first k sources for each
+        k in ``ks`` (``inf`` where rank deficient).
+
+    Raises
+    ------
+    ReconInputError
+        An invalid stack or parameters, or more sources than the stack's planes hold.
+
+    Notes
+    -----
+    The columns of Eq. 4.4 for sources at different depths differ by the PSF's
+    scale (its support grows as ``1 + d / z``, Sec. 3.2) rather than by a shift,
+    so two sources one 1/z step apart (Eq. 4.7) are about as alike as two sources
+    one lateral resolution apart. Nested positions: never decreases with k.
+    """
+    h = _check_stack(stack)
+    k_list = _check_ks(ks)
+    positions = axial_layout(h.shape[0], max(k_list), separation_planes,
+                             separation_px=separation_px, axis=axis, start_plane=start_plane)
+    cols = stack_source_columns(h, positions, order=order)
+    return np.array([local_condition_number(cols[:, :k]) for k in k_list], dtype=np.float64)

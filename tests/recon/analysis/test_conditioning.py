@@ -1,4 +1,5 @@
-"""Tests of recon.analysis.conditioning: local condition number (Sec. 4.4, Fig. 4.5)."""
+"""Tests of recon.analysis.conditioning: local condition number (Sec. 4.4, Fig. 4.5),
+laterally and across depth."""
 
 from __future__ import annotations
 
@@ -9,9 +10,12 @@ import pytest
 from scipy import ndimage
 
 from recon.analysis.conditioning import (
+    axial_layout,
     condition_vs_k,
+    condition_vs_k_axial,
     local_condition_number,
     point_source_columns,
+    stack_source_columns,
 )
 from recon.errors import ReconInputError
 
@@ -138,3 +142,93 @@ def test_refusals():
         condition_vs_k(h, 1, layout="ring")
     with pytest.raises(ReconInputError, match="axis"):
         condition_vs_k(h, 1, axis="z")
+
+
+# ----------------------------------------------------------------------------- across depth
+
+
+def _unit(n: int, i: int) -> np.ndarray:
+    e = np.zeros(n)
+    e[i] = 1.0
+    return e
+
+
+def known_stack(c: float = 0.6) -> np.ndarray:
+    """Four 4 x 4 planes with hand-computable inner products: plane 0 = e0, plane 1 =
+    c e0 + s e1 (so <p0, p1> = c), plane 2 = e5, plane 3 = e10 (unit vectors)."""
+    s = math.sqrt(1 - c * c)
+    planes = [_unit(16, 0), c * _unit(16, 0) + s * _unit(16, 1), _unit(16, 5), _unit(16, 10)]
+    return np.stack(planes).reshape(4, 4, 4)
+
+
+def test_axial_condition_on_a_known_matrix():
+    c = 0.6
+    st = known_stack(c)
+    two = math.sqrt((1 + c) / (1 - c))  # Gram [[1, c], [c, 1]]: eigenvalues 1 +- c; = 2
+    # k sources at consecutive planes from plane 0: {0, 1}, {0, 1, 2}, {0, 1, 2, 3}; the
+    # Gram matrix is block diagonal with that 2 x 2 block and ones: same extremes
+    got = condition_vs_k_axial(st, 1, ks=[1, 2, 3, 4], start_plane=0)
+    np.testing.assert_allclose(got, [1.0, two, two, two], rtol=1e-12)
+    assert two == pytest.approx(2.0)
+    # two planes apart: planes 0, 2 (and 0, 2 only fit): orthogonal unit columns
+    assert condition_vs_k_axial(st, 2, ks=[2], start_plane=0)[0] == pytest.approx(1.0)
+    # starting at plane 1: planes 1, 2, 3 are orthonormal
+    assert condition_vs_k_axial(st, 1, ks=[3], start_plane=1)[0] == pytest.approx(1.0)
+    # the same source twice is rank deficient
+    cols = stack_source_columns(st, [(0, 0, 0), (0, 0, 0)])
+    assert local_condition_number(cols) == math.inf
+
+
+def test_stack_source_columns_shift_each_plane():
+    rng = np.random.default_rng(0)
+    st = rng.random((3, 12, 14))
+    cols = stack_source_columns(st, [(2, 0, 0), (0, 1, -2), (1, 0.5, 0)])
+    assert cols.shape == (12 * 14, 3) and cols.dtype == np.float64
+    np.testing.assert_array_equal(cols[:, 0], st[2].ravel())
+    np.testing.assert_array_equal(cols[:, 1], point_source_columns(st[0], (1, -2))[:, 0])
+    np.testing.assert_allclose(cols[:, 2], point_source_columns(st[1], (0.5, 0))[:, 0])
+
+
+def test_axial_layout_line_and_xz_grid():
+    line = axial_layout(10, 4, 2)
+    # centred: span 6 planes in a 10-plane stack starts at plane 1
+    np.testing.assert_array_equal(line, [[1, 0, 0], [3, 0, 0], [5, 0, 0], [7, 0, 0]])
+    grid = axial_layout(8, 16, 1, separation_px=3.0, start_plane=2)
+    assert grid.shape == (16, 3)
+    np.testing.assert_array_equal(grid[:4], [[2, 0, -3], [2, 0, 0], [2, 0, 3], [2, 0, 6]])
+    np.testing.assert_array_equal(grid[:, 0], np.repeat([2, 3, 4, 5], 4))
+    assert np.all(axial_layout(8, 4, 1, separation_px=2.0, axis="y")[:, 2] == 0)
+
+
+def test_axial_condition_of_a_scaled_caustic_stack():
+    # PSF support growing with 1/z (Sec. 3.2): closer depths are worse conditioned,
+    # and the condition number never decreases with k
+    h = caustic(64)
+    centre = np.array([31.5, 31.5])
+    stack = np.stack([ndimage.affine_transform(h, np.eye(2) / s, centre - centre / s, order=1)
+                      for s in 1.0 + 0.03 * np.arange(12)])
+    near = condition_vs_k_axial(stack, 1, ks=range(2, 7))
+    far = condition_vs_k_axial(stack, 2, ks=range(2, 7))
+    assert np.all(np.diff(near) >= -1e-9) and np.all(near > far)
+    xz = condition_vs_k_axial(stack, 1, ks=[4, 9], separation_px=2.0)
+    assert xz.shape == (2,) and np.all(xz >= 1.0)
+
+
+def test_axial_refusals():
+    st = known_stack()
+    with pytest.raises(ReconInputError, match="need 5 planes from plane 0, the stack has 4"):
+        condition_vs_k_axial(st, 1, ks=[5])  # 5 sources, 4 planes
+    with pytest.raises(ReconInputError, match="separation_planes"):
+        condition_vs_k_axial(st, 0)
+    with pytest.raises(ReconInputError, match="separation_px"):
+        condition_vs_k_axial(st, 1, ks=[2], separation_px=-1.0)
+    with pytest.raises(ReconInputError, match="start_plane"):
+        condition_vs_k_axial(st, 1, ks=[2], start_plane=4)
+    with pytest.raises(ReconInputError, match="integers in 0..3"):
+        stack_source_columns(st, [(1.5, 0, 0)])
+    with pytest.raises(ReconInputError, match=r"\(k, 3\)"):
+        stack_source_columns(st, [(1, 0)])
+    with pytest.raises(ReconInputError, match="all zero"):
+        condition_vs_k_axial(np.zeros((3, 4, 4)), 1, ks=[2])
+    with pytest.raises(ReconInputError, match="axis"):
+        axial_layout(4, 2, 1, axis="z")
