@@ -12,7 +12,9 @@ TIFF / ``.npy`` stack with ``--depths``; sorted by depth), runs the
   nearest and farthest PSF, their cross-correlation, and the inner products of
   one PSF (default the middle) with all others;
 * ``condition``: Fig. 4.5: local condition number of k neighbouring point sources
-  (k = 2 .. --k-max) at given separations;
+  (k = 2 .. --k-max) at given separations, laterally (``--separations-px``) or,
+  with ``--axial``, across depth planes (``--separations-planes``; optionally an
+  x-z grid with ``--xz-px``);
 * ``distinguish``: Sec. 4.4 / Fig. 4.3-4.4: two-point and 16-point (4 x 4)
   distinguishability by reconstruction with the regulariser off (20 % dip);
 * ``grid``: the reconstruction grid (depth planes uniform in 1/z and lateral
@@ -98,6 +100,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("--k-max", type=int, default=16, help="largest number of sources")
     cp.add_argument("--layout", choices=("line", "grid"), default="line")
     cp.add_argument("--axis", choices=("x", "y"), default="x")
+    cp.add_argument("--axial", action="store_true",
+                    help="sources at consecutive depth planes instead of side by side (the "
+                    "first at --depth, default centred in the stack)")
+    cp.add_argument("--separations-planes", default="1,2,3",
+                    help="with --axial: comma-separated plane steps between neighbouring "
+                    "sources (a stack uniform in 1/z: steps of its 1/z spacing)")
+    cp.add_argument("--xz-px", type=float, default=0.0,
+                    help="with --axial: lateral spacing (px, along --axis) of an x-z grid of "
+                    "sources (Fig. 4.4's 4 x 4); 0 (default): one line along z")
     dp = asub.add_parser("distinguish", parents=[common],
                          help="two-point and 16-point distinguishability by reconstruction "
                          "(Sec. 4.4, 20%% dip)")
@@ -354,6 +365,66 @@ def _energy_kept(h: np.ndarray, k_max: int, sep: float, layout: str, axis: str) 
     return float(e[: h.shape[0] - dy, : h.shape[1] - dx].sum() / e.sum())
 
 
+def _condition_axial(args, stack, z, header):
+    """``analyze condition --axial``: sources across depth planes (Fig. 4.5 axially)."""
+    from recon.analysis import axial_layout, condition_vs_k_axial
+    from recon.errors import ReconInputError
+
+    steps = _floats(args.separations_planes, "--separations-planes")
+    if not all(s >= 1 and float(s).is_integer() for s in steps):
+        raise ValueError(f"--separations-planes {args.separations_planes!r}: use whole "
+                         "numbers of planes >= 1")
+    start = None
+    if args.depth_mm is not None:
+        start = int(np.argmin(np.abs(z - args.depth_mm)))
+        if abs(z[start] - args.depth_mm) > 0.05 * args.depth_mm:
+            raise ValueError(f"no plane within 5% of --depth {args.depth_mm:g} mm")
+    n_z = len(z)
+    per_step, warnings = [], []
+    for s in (int(v) for v in steps):
+        k_top, planes = args.k_max, None
+        while k_top >= 2 and planes is None:  # the most sources that fit in the stack
+            try:
+                planes = axial_layout(n_z, k_top, s, separation_px=args.xz_px,
+                                      axis=args.axis, start_plane=start)[:, 0].astype(int)
+            except ReconInputError:
+                k_top -= 1
+        if planes is None:
+            warnings.append(f"{s} plane(s) apart: fewer than 2 sources fit in {n_z} planes")
+            continue
+        if k_top < args.k_max:
+            warnings.append(f"{s} plane(s) apart: only {k_top} of {args.k_max} sources fit "
+                            f"in the stack's {n_z} planes")
+        ks = list(range(2, k_top + 1))
+        cond = condition_vs_k_axial(stack, s, ks, separation_px=args.xz_px, axis=args.axis,
+                                    start_plane=start)
+        used = np.unique(planes)
+        per_step.append({"separation_planes": s, "ks": ks, "condition_numbers": cond,
+                         "source_depths_mm": z[used],
+                         "separation_inverse_mm": float(np.mean(np.abs(np.diff(1.0 / z[used]))))
+                         if used.size > 1 else None,
+                         "two_point": float(cond[0]), "limit": float(cond[-1])})
+    if not per_step:
+        raise ValueError(f"no separation fits two sources in the stack's {n_z} planes")
+    result = {**header, "mode": "axial", "xz_px": args.xz_px, "axis": args.axis,
+              "k_max": args.k_max, "per_separation": per_step, "warnings": warnings}
+    fig, (a0,) = _figure(1)
+    for r in per_step:
+        c = np.asarray(r["condition_numbers"])
+        a0.semilogy(r["ks"], np.where(np.isfinite(c), c, np.nan), "o-", ms=3,
+                    label=f"{r['separation_planes']} plane(s), "
+                    f"{r['separation_inverse_mm'] or 0:.3g} 1/mm")
+    layout = f"x-z grid, {args.xz_px:g} px along {args.axis}" if args.xz_px > 0 else "along z"
+    a0.set(xlabel="number of neighbouring sources k", ylabel="local condition number",
+           title=f"Fig. 4.5 across depth ({layout})")
+    a0.legend(title="separation in 1/z", fontsize=8)
+    lines = [f"{r['separation_planes']} plane(s) apart ({r['separation_inverse_mm'] or 0:.3g} "
+             f"1/mm in 1/z, from {r['source_depths_mm'][0]:g} mm): condition "
+             f"{r['two_point']:.3g} (k = 2) -> {r['limit']:.3g} (k = {r['ks'][-1]})"
+             for r in per_step]
+    return result, fig, lines + [f"warning: {w}" for w in warnings]
+
+
 def _condition(args, stack, z, header):
     from recon.analysis import condition_vs_k, lateral_resolution_object_mm
 
@@ -361,6 +432,8 @@ def _condition(args, stack, z, header):
 
     if args.k_max < 2:
         raise ValueError(f"--k-max must be >= 2, got {args.k_max}")
+    if args.axial:
+        return _condition_axial(args, stack, z, header)
     seps = _floats(args.separations_px, "--separations-px")
     if args.depth_mm is None:
         k = len(z) // 2

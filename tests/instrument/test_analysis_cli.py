@@ -120,6 +120,35 @@ def test_condition(stack_file, tmp_path):
     assert "keeps" in outputs(tmp_path / "wide", "condition")["warnings"][0]
 
 
+def test_condition_axial(stack_file, tmp_path, capsys):
+    from recon.analysis import condition_vs_k_axial
+
+    assert analyze("condition", stack_file, tmp_path, "--axial", "--separations-planes", "1,2",
+                   "--k-max", 4) == 0
+    out = capsys.readouterr().out
+    assert "plane(s) apart" in out
+    c = outputs(tmp_path, "condition")
+    assert c["mode"] == "axial"
+    one, two = c["per_separation"]
+    # 5 planes: 4 sources fit one plane apart (centred: planes 0..3), 3 fit two apart
+    assert one["ks"] == [2, 3, 4] and two["ks"] == [2, 3]
+    assert one["source_depths_mm"] == DEPTHS[:4] and two["source_depths_mm"] == DEPTHS[::2]
+    assert "only 3 of 4" in c["warnings"][0]
+    inv = 1 / np.array(DEPTHS)
+    assert one["separation_inverse_mm"] == pytest.approx(np.mean(-np.diff(inv[:4])))
+    np.testing.assert_allclose(one["condition_numbers"],
+                               condition_vs_k_axial(caustic_stack(), 1, [2, 3, 4]), rtol=1e-6)
+    assert np.all(np.diff(one["condition_numbers"]) >= -1e-9)
+    # from a given depth, and as an x-z grid (Fig. 4.4)
+    assert analyze("condition", stack_file, tmp_path / "xz", "--axial", "--depth", 30,
+                   "--separations-planes", "1", "--xz-px", 3, "--k-max", 9) == 0
+    xz = outputs(tmp_path / "xz", "condition")["per_separation"][0]
+    assert xz["ks"] == list(range(2, 10)) and xz["source_depths_mm"] == [30.0, 45.0, 65.0]
+    assert analyze("condition", stack_file, tmp_path / "bad", "--axial",
+                   "--separations-planes", "1.5") == 2
+    assert "whole numbers" in capsys.readouterr().err
+
+
 def test_distinguish(stack_file, tmp_path, capsys):
     assert analyze("distinguish", stack_file, tmp_path, "--separations-px", "1,3,6",
                    "--iterations", 80, "--depth", 45) == 0
