@@ -12,6 +12,7 @@ helpers.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
@@ -27,6 +28,7 @@ from ..solvers import METHODS, SolveResult
 
 __all__ = [
     "DATA_ENV",
+    "benchmark_parser",
     "DEFAULT_WEIGHTS",
     "METHODS",
     "data_dir",
@@ -115,6 +117,30 @@ def format_table(headers: list[str], rows: list[list[Any]]) -> str:
         if k == 0:
             lines.append("  ".join("-" * w for w in widths))
     return "\n".join(lines)
+
+
+def benchmark_parser(prog: str, doc: str, quick_help: str) -> argparse.ArgumentParser:
+    """A command-line parser with the benchmarks' ``--quick`` and ``--out DIR`` options.
+
+    Parameters
+    ----------
+    prog : str
+        Program name shown in the usage, e.g. ``python -m recon.benchmarks.volume``.
+    doc : str
+        The module docstring; its first line is the description.
+    quick_help : str
+        Help text of ``--quick``.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        ``--out`` defaults to ``out/benchmark``.
+    """
+    p = argparse.ArgumentParser(prog=prog, description=(doc or "").split("\n")[0])
+    p.add_argument("--quick", action="store_true", help=quick_help)
+    p.add_argument("--out", type=Path, default=Path("out/benchmark"),
+                   help="output directory (default out/benchmark)")
+    return p
 
 
 def fmt(value: float | None, spec: str = ".2f") -> str:
