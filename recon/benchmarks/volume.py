@@ -11,14 +11,20 @@ by two floor samples (paired, the host is shared and drifts), is its overhead. G
 at most 2.5x (issue 5). The problem is synthetic (a caustic-like pattern magnified
 by ``1 + d/z`` per depth, a few beads); speed does not depend on the content. For
 scale: the published C++/Halide implementation did 512 x 512 x 128 at about 1 s per
-iteration on a 4-core laptop (not run here). Peak traced memory (tracemalloc) is
-reported for each size.
+iteration on a 4-core laptop (not run here).
+
+Memory: peak traced memory (tracemalloc: numpy and Python allocations, not numba's)
+per method and size, and each method alone at 512 x 512 x 64 (quick: the small
+size) in a fresh process, for a clean maximum resident set size (``ru_maxrss``:
+everything, interpreter and numba included); the issue's budget is 4 GB
+(:data:`MEMORY_GOAL_BYTES`).
 """
 
 from __future__ import annotations
 
-import argparse
 import json
+import multiprocessing
+import resource
 import sys
 import tracemalloc
 from pathlib import Path
@@ -26,9 +32,13 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from . import benchmark_parser
+
 GOAL = 2.5
 SIZES_FULL = ((256, 256, 16), (512, 512, 64))
 SIZES_QUICK = ((64, 64, 4),)
+#: Memory budget of a 512 x 512 x 64 solve (issue 5), bytes.
+MEMORY_GOAL_BYTES = 4 * 10**9
 
 
 def synthetic_problem(rows: int, cols: int, n_z: int, seed: int = 0):
@@ -67,6 +77,7 @@ def measure(rows: int, cols: int, n_z: int, *, iterations: int, runs: int) -> di
            "ffts_per_iteration": {"rfft2": n_z + 1, "irfft2": n_z + 1}, "methods": {}}
     floors = []
     for name, solver, kw in (("fista3d", fista3d, {"lipschitz": lip}), ("admm3d", admm3d, {})):
+        tracemalloc.reset_peak()
         paired, times = [], []
         for _ in range(runs):
             f0 = fft_floor_seconds(op.shape_in[1:], n_z, repeats=3)
@@ -77,33 +88,116 @@ def measure(rows: int, cols: int, n_z: int, *, iterations: int, runs: int) -> di
             paired.append(float(np.median(t)) / (0.5 * (f0 + f1)))
         out["methods"][name] = {"seconds_per_iteration": float(np.median(times)),
                                 "ratio": float(np.median(paired)), "paired_ratios": paired,
-                                "meets_goal": bool(np.median(paired) <= GOAL)}
+                                "meets_goal": bool(np.median(paired) <= GOAL),
+                                "peak_traced_bytes": int(tracemalloc.get_traced_memory()[1])}
     out["fft_floor_seconds"] = float(np.median(floors))
     out["peak_traced_bytes"] = int(tracemalloc.get_traced_memory()[1])
     tracemalloc.stop()
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the benchmark, print a table, write ``volume_speed.json``; returns 0."""
-    p = argparse.ArgumentParser(prog="python -m recon.benchmarks.volume",
-                                description=__doc__.split("\n")[0])
-    p.add_argument("--quick", action="store_true", help="one tiny size (tests)")
-    p.add_argument("--out", type=Path, default=Path("out/benchmark"))
-    args = p.parse_args(argv)
-    sizes = SIZES_QUICK if args.quick else SIZES_FULL
-    iterations, runs = (4, 2) if args.quick else (8, 3)
+def _memory_child(method: str, rows: int, cols: int, n_z: int, iterations: int) -> dict:
+    """In a fresh process: build the problem, run ``method``, report peak memory."""
+    from recon.volume import admm3d, fista3d
+
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    tracemalloc.start()
+    op, b = synthetic_problem(rows, cols, n_z)
+    solver = {"admm3d": admm3d, "fista3d": fista3d}[method]
+    solver(op, b, iterations=iterations, tv=1e-4)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return {"method": method, "shape": [rows, cols, n_z], "iterations": iterations,
+            "peak_traced_bytes": int(peak),
+            "max_rss_bytes": int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024),
+            "rss_before_problem_bytes": int(before)}
+
+
+def memory_alone(method: str, rows: int, cols: int, n_z: int, iterations: int = 3) -> dict:
+    """Peak memory of one 3D solve (TV on) run alone in a fresh (spawned) process.
+
+    Parameters
+    ----------
+    method : {"admm3d", "fista3d"}
+    rows, cols, n_z : int
+        Sensor shape and planes of :func:`synthetic_problem`.
+    iterations : int
+
+    Returns
+    -------
+    dict
+        ``peak_traced_bytes`` (tracemalloc: numpy and Python allocations from the
+        problem set-up on), ``max_rss_bytes`` (the process's maximum resident set,
+        interpreter, libraries and numba included), ``rss_before_problem_bytes`` (after
+        the imports), ``meets_goal`` (max RSS under :data:`MEMORY_GOAL_BYTES`).
+    """
+    with multiprocessing.get_context("spawn").Pool(1) as pool:
+        out = pool.apply(_memory_child, (method, rows, cols, n_z, iterations))
+    out["meets_goal"] = bool(out["max_rss_bytes"] < MEMORY_GOAL_BYTES)
+    return out
+
+
+def run_volume_speed(quick: bool = False, out: Path | None = None,
+                     verbose: bool = True) -> dict:
+    """Speed of fista3d and admm3d against the FFT floor, and their peak memory.
+
+    Parameters
+    ----------
+    quick : bool
+        One tiny size (64 x 64 x 4), 2 runs of 4 iterations (tests); otherwise
+        256 x 256 x 16 and 512 x 512 x 64, 3 runs of 8 iterations.
+    out : Path, optional
+        Directory for ``volume_speed.json``.
+    verbose : bool
+        Print the table.
+
+    Returns
+    -------
+    dict
+        ``goal``, ``memory_goal_bytes``, ``sizes`` (per size: ``fft_floor_seconds``,
+        ``ffts_per_iteration``, per method ``ratio``, ``seconds_per_iteration``,
+        ``peak_traced_bytes``), ``memory`` (each method alone at the largest size,
+        :func:`memory_alone`).
+    """
+    sizes = SIZES_QUICK if quick else SIZES_FULL
+    iterations, runs = (4, 2) if quick else (8, 3)
     results = [measure(*s, iterations=iterations, runs=runs) for s in sizes]
-    print(f"3D speed: seconds per iteration / FFT floor (n_z + 1 rfft2 + irfft2), goal {GOAL}")
-    for r in results:
+    memory = [memory_alone(m, *sizes[-1]) for m in ("admm3d", "fista3d")]
+    result = {"quick": quick, "goal": GOAL, "memory_goal_bytes": MEMORY_GOAL_BYTES,
+              "sizes": results, "memory": memory}
+    if verbose:
+        print(volume_speed_table(result))
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "volume_speed.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def volume_speed_table(result: dict) -> str:
+    """Text summary of a :func:`run_volume_speed` result."""
+    lines = [f"3D speed: seconds per iteration / FFT floor (n_z + 1 rfft2 + irfft2), goal "
+             f"{result['goal']}"]
+    for r in result["sizes"]:
         rows, cols, n_z = r["shape"]
         cells = ", ".join(f"{m} {d['ratio']:.2f}x ({d['seconds_per_iteration']:.3g} s/it)"
                           for m, d in r["methods"].items())
-        print(f"  {rows}x{cols}x{n_z} (floor {r['fft_floor_seconds']:.3g} s): {cells}; "
-              f"peak traced {r['peak_traced_bytes'] / 2**30:.2f} GiB")
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "volume_speed.json").write_text(json.dumps({"goal": GOAL, "sizes": results},
-                                                           indent=1))
+        lines.append(f"  {rows}x{cols}x{n_z} (floor {r['fft_floor_seconds']:.3g} s): {cells}; "
+                     f"peak traced {r['peak_traced_bytes'] / 2**30:.2f} GiB")
+    for m in result["memory"]:
+        rows, cols, n_z = m["shape"]
+        lines.append(f"  memory, {m['method']} alone at {rows}x{cols}x{n_z}: peak traced "
+                     f"{m['peak_traced_bytes'] / 2**30:.2f} GiB, max RSS "
+                     f"{m['max_rss_bytes'] / 2**30:.2f} GiB (budget "
+                     f"{result['memory_goal_bytes'] / 1e9:g} GB: "
+                     f"{'ok' if m['meets_goal'] else 'EXCEEDED'})")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run :func:`run_volume_speed` from the command line; returns 0."""
+    args = benchmark_parser("python -m recon.benchmarks.volume", __doc__,
+                            "one tiny size (tests)").parse_args(argv)
+    run_volume_speed(args.quick, args.out)
     return 0
 
 

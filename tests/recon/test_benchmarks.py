@@ -135,4 +135,12 @@ def test_volume_benchmark_quick_writes_ratios(tmp_path, capsys):
     for m in ("fista3d", "admm3d"):
         assert size["methods"][m]["ratio"] > 0 and len(size["methods"][m]["paired_ratios"]) == 2
     assert size["peak_traced_bytes"] > 0
-    assert "3D speed" in capsys.readouterr().out
+    for m in ("fista3d", "admm3d"):
+        assert 0 < size["methods"][m]["peak_traced_bytes"] <= size["peak_traced_bytes"]
+    # each method alone in a fresh process: traced peak and maximum resident set
+    assert [m["method"] for m in data["memory"]] == ["admm3d", "fista3d"]
+    for m in data["memory"]:
+        assert m["shape"] == [64, 64, 4] and m["meets_goal"]
+        assert 0 < m["peak_traced_bytes"] < m["max_rss_bytes"] < data["memory_goal_bytes"]
+    out = capsys.readouterr().out
+    assert "3D speed" in out and "memory, admm3d alone" in out
