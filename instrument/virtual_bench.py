@@ -12,11 +12,16 @@ SLM do (ARCHITECTURE.md, "A simulated device is a driver like any other"):
   the diffuser, mm.
 * holography branch: the SLM's displayed image through the relay, the random mask
   on the 6-axis mask stage and the Fourier lens
-  (:class:`recon.optics.holography.HolographicDisplayModel`).
+  (:class:`recon.optics.holography.HolographicDisplayModel`). The SLM's physical
+  gray -> phase response (:class:`~instrument.slm_response.SlmPhaseResponse`, by
+  default smooth and nonlinear, 2.1 pi at 532 nm) is unknown to the software, whose
+  SLM driver believes a linear LUT until the SLM phase-LUT routine calibrates it; the
+  laser is at the SLM's configured ``wavelength_nm``.
 
 Operator actions a plan prompts for (:data:`ACTIONS`: cap the camera, remove the
 diffuser for the bare-sensor angular response and flat field, remove the pinhole so
-single LEDs are the sources) are carried out by the virtual bench itself. Stray
+single LEDs are the sources, put an ND filter in front of the camera for the
+unscattered far field of the SLM) are carried out by the virtual bench itself. Stray
 light (a smooth glow carrying a fraction of each point source's collected power),
 the camera's PRNU and hot pixels give the calibration routines something real to
 remove and to find.
@@ -39,6 +44,7 @@ from recon.optics.lensless import LenslessGeometry, LenslessModel, diffuser_for_
 from .bench import Bench, PromptRefused
 from .config import BenchConfig, GeometryConfig, default_bench, with_simulated_drivers
 from .registry import accepted_params, open_bench
+from .slm_response import SlmPhaseResponse
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +58,8 @@ ACTIONS = {
     "install_diffuser": ("diffuser_installed", True),
     "remove_pinhole": ("pinhole_installed", False),
     "install_pinhole": ("pinhole_installed", True),
+    "insert_nd_filter": ("nd_filter_installed", True),
+    "remove_nd_filter": ("nd_filter_installed", False),
 }
 
 
@@ -143,8 +151,17 @@ class VirtualBench(Bench):
         Sigma of the pixels' Gaussian angular response (Eq. 5.1), degrees (what the
         angular-response calibration measures); None: no fall-off.
     hologram : HolographicDisplayModel, optional
-        Model of the holography branch; default built lazily from the SLM and the
-        camera shape (96 x 120 SLM, k = 4, q = 4).
+        Model of the holography branch (its ``SlmModel`` holds the SLM's response);
+        default built lazily from the SLM, ``slm_response`` and the camera shape
+        (96 x 120 SLM, k = 4, q = 4).
+    slm_response : SlmPhaseResponse, optional
+        The SLM's true gray -> phase response; default
+        :meth:`SlmPhaseResponse.nonlinear` (2.1 pi at gray 255 at 532 nm, scaled by
+        532 nm / wavelength). :meth:`SlmPhaseResponse.linear` gives the ideal SLM the
+        uncalibrated software assumes.
+    nd_filter_transmission : float
+        Transmission of the ND filter the ``insert_nd_filter`` action puts in front of
+        the camera (default 0.01, OD 2).
 
     Attributes
     ----------
@@ -157,13 +174,22 @@ class VirtualBench(Bench):
     scene : PlanarScene or BeadScene or TiltedTargetScene or None
     state : dict[str, bool]
         Operator-controlled state: ``camera_capped``, ``diffuser_installed``,
-        ``pinhole_installed``.
+        ``pinhole_installed``, ``nd_filter_installed``.
+    slm_response : SlmPhaseResponse or None
+        The SLM's true response (None when ``hologram`` was given).
+
+    Raises
+    ------
+    ValueError
+        Both ``hologram`` and ``slm_response`` given, or an ND transmission outside
+        (0, 1].
     """
 
     def __init__(self, config: BenchConfig | None = None, *, seed: int = 0,
                  source_power_photons_per_s: float = 2e11, stray_light_fraction: float = 0.02,
                  prnu_fraction: float = 0.01, falloff_sigma_deg: float | None = 20.0,
-                 hologram=None):
+                 hologram=None, slm_response: SlmPhaseResponse | None = None,
+                 nd_filter_transmission: float = 0.01):
         super().__init__({}, config=with_simulated_drivers(config or default_bench()))
         self.seed = int(seed)
         self.clock = SimClock()
@@ -172,11 +198,20 @@ class VirtualBench(Bench):
         self.source_power = float(source_power_photons_per_s)
         self.stray_light_fraction = float(stray_light_fraction)
         self.prnu_fraction = float(prnu_fraction)
+        if hologram is not None and slm_response is not None:
+            raise ValueError("give slm_response or hologram (whose SlmModel holds the SLM's "
+                             "response), not both")
+        if not 0 < nd_filter_transmission <= 1:
+            raise ValueError(f"nd_filter_transmission={nd_filter_transmission!r}: give a "
+                             "transmission in (0, 1]")
         self._hologram = hologram
+        self.slm_response = None if hologram is not None else (
+            slm_response or SlmPhaseResponse.nonlinear())
+        self.nd_filter_transmission = float(nd_filter_transmission)
         self.branch = "lensless"
         self.scene: PlanarScene | BeadScene | TiltedTargetScene | None = None
         self.state = {"camera_capped": False, "diffuser_installed": True,
-                      "pinhole_installed": True}
+                      "pinhole_installed": True, "nd_filter_installed": False}
         self._scene_version = 0
         self._cache_key = None
         self._cache_value: np.ndarray | None = None
@@ -352,9 +387,11 @@ class VirtualBench(Bench):
 
         Lensless branch: each point source's ray-traced PSF plus its stray light
         (diffuser installed) or its bare-sensor irradiance (diffuser removed), plus
-        the scene's image (diffuser installed only); nothing when the camera is
-        capped. Cached on everything it depends on (branch, sources, operator state,
-        scene, SLM pattern and mask pose), so streaming a static bench costs nothing.
+        the scene's image (diffuser installed only). Holography branch: the display
+        model's rendering of the SLM image at the mask stage's pose. Nothing when the
+        camera is capped; times ``nd_filter_transmission`` with the ND filter in. Cached
+        on everything it depends on (branch, sources, operator state, scene, SLM
+        pattern and mask pose), so streaming a static bench costs nothing.
         """
         state = tuple(sorted(self.state.items()))
         if self.branch == "holography":
@@ -383,6 +420,8 @@ class VirtualBench(Bench):
         else:
             for pos, power in sources:
                 value += power * self.bare_sensor_irradiance(pos)
+        if self.state["nd_filter_installed"]:
+            value = value * self.nd_filter_transmission
         self._cache_key, self._cache_value = key, value
         return value
 
@@ -402,19 +441,24 @@ class VirtualBench(Bench):
     # -- holography branch --------------------------------------------------------------
     @property
     def hologram(self):
-        """The holography model (built on first use)."""
+        """The holography model (built on first use; its SLM response is
+        :attr:`slm_response` at the SLM's ``wavelength_nm``)."""
         if self._hologram is None:
             from recon.optics.holography import (
                 CameraMapping,
                 HolographicDisplayModel,
                 MaskModel,
+                SlmModel,
             )
 
             slm = self.slm
+            # supersample 4: stage moves of 1/16 mask px show (point sampling snaps the
+            # mask edges to the fine grid, hiding sub-pixel alignment moves)
             mask = MaskModel(slm_shape=slm.resolution, slm_pitch_um=slm.pixel_pitch_um,
-                             k=4, q=4, seed=self.seed)
+                             k=4, q=4, seed=self.seed, supersample=4)
             cam = CameraMapping.from_params(shape=tuple(self.geometry.sensor_shape))
-            self._hologram = HolographicDisplayModel(mask, camera=cam)
+            response = SlmModel(lut=self.slm_response.lut_rad(slm.wavelength_nm))
+            self._hologram = HolographicDisplayModel(mask, slm=response, camera=cam)
         return self._hologram
 
     def _mask_pose(self) -> tuple[float, ...]:
