@@ -10,8 +10,12 @@ need from any starting state (move, light, expose before capturing).
 
 Steps
 -----
-:class:`Move`, :class:`Light`, :class:`Expose`, :class:`Capture`, :class:`Check`
-and :class:`Prompt` (an operator action such as removing the diffuser).
+:class:`Move`, :class:`Light`, :class:`ShowSlm`, :class:`Expose`, :class:`Capture`,
+:class:`Check` and :class:`Prompt` (an operator action such as removing the diffuser).
+
+A plan may also hold a context open around its whole execution
+(:meth:`Plan.session`, e.g. the holography mask retracted and put back whatever
+happens), entered on every run and resume.
 
 Plans register by name (:func:`register_plan`) so a stored run can rebuild its
 plan from the name and parameters it recorded (:func:`plan_from_record`).
@@ -20,13 +24,17 @@ plan from the name and parameters it recorded (:func:`plan_from_record`).
 from __future__ import annotations
 
 import abc
+import contextlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+import numpy as np
+
 __all__ = [
     "PLAN_TYPES", "AutoExposure", "Capture", "Check", "CheckFailed", "Expose", "Light", "Move",
-    "Plan", "PlanError", "PlanPoint", "Prompt", "Step", "plan_from_record", "register_plan",
+    "Plan", "PlanError", "PlanPoint", "Prompt", "ShowSlm", "Step", "plan_from_record",
+    "register_plan",
 ]
 
 
@@ -69,13 +77,22 @@ class AutoExposure:
     """Auto-exposure target: the peak (99.99th percentile minus ``dark_level_dn``) in
     ``[target - tolerance, target + tolerance]`` of full scale with no saturated
     pixel; ``bounds_s`` the allowed exposures. ``required=False`` accepts the bound
-    (with a warning in the run) when the target is out of reach."""
+    (with a warning in the run) when the target is out of reach. ``headroom`` (in
+    (0, 1]) then scales the exposure reached (not below the lower bound): a spot
+    covering fewer pixels than the percentile's 1e-4 of the frame ends just below
+    saturation (the longest unsaturated exposure), and e.g. 0.5 keeps its noise and
+    any sensor non-linearity away from full scale."""
 
     target: float = 0.6
     tolerance: float = 0.2
     bounds_s: tuple[float, float] | None = None
     dark_level_dn: float = 0.0
     required: bool = False
+    headroom: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.headroom <= 1:
+            raise PlanError(f"AutoExposure(headroom={self.headroom!r}): use a factor in (0, 1]")
 
 
 @dataclass(frozen=True)
@@ -104,6 +121,31 @@ class Check:
 
 
 @dataclass(frozen=True)
+class ShowSlm:
+    """Display an SLM pattern and wait for the panel (the SLM's settle time included).
+
+    Exactly one of ``gray`` (uint8 ``(rows, cols)``, shown as is) or ``phase_rad``
+    (float ``(rows, cols)``, radians, converted by the SLM's LUT inverse) is given.
+    ``label`` names the pattern in the run's events; every frame records the SLM's
+    pattern id (``<slm id>.pattern_id``). ``device``: SLM id or role; ``timeout_s``:
+    longest wait for the panel update, s.
+    """
+
+    gray: np.ndarray | None = field(default=None, compare=False, repr=False)
+    phase_rad: np.ndarray | None = field(default=None, compare=False, repr=False)
+    label: str = ""
+    device: str = "slm"
+    timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        if (self.gray is None) == (self.phase_rad is None):
+            raise PlanError(f"ShowSlm({self.label!r}): give exactly one of gray (uint8 image) "
+                            "or phase_rad (radians)")
+        if not self.timeout_s > 0:
+            raise PlanError(f"ShowSlm({self.label!r}): timeout_s must be > 0 s")
+
+
+@dataclass(frozen=True)
 class Prompt:
     """An operator action (``action`` key, human ``message``), e.g. remove the diffuser."""
 
@@ -111,7 +153,7 @@ class Prompt:
     message: str
 
 
-Step = Move | Light | Expose | Capture | Check | Prompt
+Step = Move | Light | ShowSlm | Expose | Capture | Check | Prompt
 
 
 @dataclass(frozen=True)
@@ -181,6 +223,13 @@ class Plan(abc.ABC):
     def setup(self) -> Iterator[Step]:
         """Steps before the first point (also on resume)."""
         return iter(())
+
+    def session(self, bench) -> contextlib.AbstractContextManager:
+        """A context the runner holds open around setup, points and teardown, on every
+        run and resume, and exits whatever happens (abort, error), before the bench is
+        made safe; e.g. take the holography mask out of the beam and put it back.
+        Errors on entering or leaving fail the run like a step's. Default: nothing."""
+        return contextlib.nullcontext()
 
     def teardown(self) -> Iterator[Step]:
         """Steps after the last point (not after an abort: the bench then goes to its

@@ -13,7 +13,11 @@
   point is redone. A device timeout redoes the point up to ``max_point_retries``
   times. Otherwise the run fails cleanly, data kept.
 * Settle: after each move, the step's ``settle_s`` or the bench config's
-  ``calibration.settle_s``, on the bench's clock.
+  ``calibration.settle_s``, on the bench's clock; after each SLM pattern, the
+  SLM's own ``settle_s`` (in :meth:`drivers.slm.Slm.show_image`).
+* Session: the plan's :meth:`~instrument.plan.Plan.session` context is held around
+  setup, points and teardown (entered again on resume) and left before the bench
+  is made safe and before the products are computed.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from .plan import (
     Plan,
     PlanError,
     Prompt,
+    ShowSlm,
     plan_from_record,
 )
 from .runstore import RunStore, RunStoreError, utc_now
@@ -287,13 +292,14 @@ class Runner:
         self._emit("started", None, f"{plan.name}: point {start + 1} of {len(points)}")
         status, error, summary = "complete", None, {}
         try:
-            for step in plan.setup():
-                self._do_step(step, None)
-            for index in range(start, len(points)):
-                self._run_point(plan, store, index, points[index])
-                self._emit("point_done", index)
-            for step in plan.teardown():
-                self._do_step(step, None)
+            with plan.session(self.bench):
+                for step in plan.setup():
+                    self._do_step(step, None)
+                for index in range(start, len(points)):
+                    self._run_point(plan, store, index, points[index])
+                    self._emit("point_done", index)
+                for step in plan.teardown():
+                    self._do_step(step, None)
             summary = plan.reduce(store) or {}
         except (RunAborted, KeyboardInterrupt) as exc:
             status = "aborted"
@@ -392,6 +398,12 @@ class Runner:
                 leds.all_off()
             else:
                 leds.set_leds(list(step.leds), step.colour, step.brightness)
+        elif isinstance(step, ShowSlm):
+            slm = bench.device(step.device)
+            if step.gray is not None:
+                slm.show_image(step.gray, timeout_s=step.timeout_s)
+            else:
+                slm.show_phase(step.phase_rad, timeout_s=step.timeout_s)
         elif isinstance(step, Expose):
             self._expose(step, index)
         elif isinstance(step, Capture):
@@ -402,7 +414,7 @@ class Runner:
             bench.prompt(step.action, step.message)
         else:
             raise PlanError(f"unknown step {step!r}")
-        self._emit("step", index, step=name)
+        self._emit("step", index, getattr(step, "label", ""), step=name)
         return written
 
     def _expose(self, step: Expose, index: int | None) -> None:
@@ -423,6 +435,8 @@ class Runner:
             text = f"point {index}: {exc.problem}; kept exposure {cam.exposure_s:.4g} s"
             self._store.add_warning(text)
             log.warning(text)
+        if a.headroom != 1.0:
+            cam.exposure_s = max(cam.exposure_s * a.headroom, float(bounds[0]))
 
     def _capture(self, step: Capture, index: int | None, written: int) -> int:
         if index is None:
