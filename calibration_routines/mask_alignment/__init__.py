@@ -1,0 +1,17 @@
+"""SLM-mask alignment with spot feedback (Kuo 2020 Sec. 7.4; holography-evaluation.md 8(c)).
+
+:class:`MaskAligner` runs the procedure on a bench (SLM, camera, 6-axis mask stage)
+and writes an alignment record (:class:`AlignmentRecord`, read back with
+:func:`load_alignment`) whose corrected mask later holograms use;
+``diffuserlab align mask BENCH.toml [--simulate]`` is its command line.
+"""
+
+from .fitting import best_subpixel_offset, fit_similarity, fit_triangle
+from .procedure import AlignmentConfig, AlignmentFailed, MaskAligner, MaskNotFound
+from .record import AlignmentRecord, corrected_mask, load_alignment, section_bounds
+from .spotmeter import SpotMeter, SpotReading, blazed_phase
+
+__all__ = ["AlignmentConfig", "AlignmentFailed", "AlignmentRecord", "MaskAligner",
+           "MaskNotFound", "SpotMeter", "SpotReading", "blazed_phase", "corrected_mask",
+           "best_subpixel_offset", "fit_similarity", "fit_triangle", "load_alignment",
+           "section_bounds"]
