@@ -36,15 +36,20 @@ def _volume(v) -> np.ndarray:
 
 
 def detect_peaks(volume, *, threshold: float = 0.25, radius_px: int = 2,
-                 radius_planes: int = 1, max_peaks: int = 1000) -> np.ndarray:
+                 radius_planes: int = 1, max_peaks: int = 1000,
+                 local_mass: bool = False) -> np.ndarray:
     """Local maxima of a volume above a fraction of its maximum, at sub-voxel precision.
 
     A voxel is a peak when it is the maximum of its ``(2 radius_planes + 1) x
     (2 radius_px + 1)^2`` neighbourhood (:func:`scipy.ndimage.maximum_filter`,
     constant 0 outside; ties: the first in C order) and at least ``threshold`` times
-    the volume's maximum. Each peak is refined by the intensity-weighted centroid
-    of the non-negative values in its 3 x 3 x 3 neighbourhood (clipped at the
-    volume's border), so a bead spread over two planes lands between them.
+    the volume's maximum. With ``local_mass`` the detection runs on the local mass
+    instead, the sum of the non-negative values over each voxel's 3 x 3 x 3
+    neighbourhood: a source whose reconstruction is split over two planes and four
+    pixels (it sits between voxels) then scores its whole mass, not a quarter of it
+    in one voxel. Each peak is refined by the intensity-weighted centroid of the
+    non-negative values of ``volume`` in its 3 x 3 x 3 neighbourhood (clipped at
+    the volume's border), so a bead spread over two planes lands between them.
 
     Parameters
     ----------
@@ -58,12 +63,16 @@ def detect_peaks(volume, *, threshold: float = 0.25, radius_px: int = 2,
         than this merge.
     max_peaks : int
         At most this many peaks, brightest first (>= 1).
+    local_mass : bool
+        Detect on the 3 x 3 x 3 local mass (see above) rather than on voxel values.
 
     Returns
     -------
     ndarray, float64, shape (n_peaks, 3)
         ``(plane, row, col)`` of each peak, brightest first; empty (0, 3) when the
-        volume has no positive value.
+        volume has no positive value. Candidates whose refined positions fall within
+        ``radius_planes`` planes and ``radius_px`` pixels of a brighter peak (ties,
+        plateaus) are dropped.
 
     Raises
     ------
@@ -78,34 +87,39 @@ def detect_peaks(volume, *, threshold: float = 0.25, radius_px: int = 2,
             raise ReconInputError(f"{name} must be an integer >= 0, got {r!r}")
     if isinstance(max_peaks, bool) or not isinstance(max_peaks, int) or max_peaks < 1:
         raise ReconInputError(f"max_peaks must be an integer >= 1, got {max_peaks!r}")
-    top = float(v.max())
+    score = ndimage.uniform_filter(np.clip(v, 0.0, None), 3, mode="constant") * 27.0 \
+        if local_mass else v
+    top = float(score.max())
     if not top > 0:
         return np.zeros((0, 3), np.float64)
     size = (2 * radius_planes + 1, 2 * radius_px + 1, 2 * radius_px + 1)
-    local = ndimage.maximum_filter(v, size=size, mode="constant", cval=0.0)
-    cand = np.argwhere((v == local) & (v >= threshold * top))
-    order = np.argsort(-v[tuple(cand.T)], kind="stable")
+    local = ndimage.maximum_filter(score, size=size, mode="constant", cval=0.0)
+    cand = np.argwhere((score == local) & (score >= threshold * top))
+    order = np.argsort(-score[tuple(cand.T)], kind="stable")
     kept: list[np.ndarray] = []
-    taken = np.zeros(v.shape, bool)  # plateaus: keep the first voxel of equal maxima
     for idx in cand[order]:
-        lo = np.maximum(idx - np.array(size) // 2, 0)
-        hi = idx + np.array(size) // 2 + 1
-        box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
-        if taken[box].any():
+        pos = _centroid(v, idx)
+        # a plateau of equal maxima (or a tie) gives several candidates: keep the first
+        if any(abs(pos[0] - q[0]) <= radius_planes and math.hypot(*(pos[1:] - q[1:]))
+               <= radius_px for q in kept):
             continue
-        taken[tuple(idx)] = True
-        kept.append(idx)
+        kept.append(pos)
         if len(kept) == max_peaks:
             break
-    out = np.empty((len(kept), 3), np.float64)
-    for k, idx in enumerate(kept):
-        lo = np.maximum(idx - 1, 0)
-        hi = np.minimum(idx + 2, v.shape)
-        w = np.clip(v[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], 0.0, None)
-        grids = np.meshgrid(*(np.arange(a, b) for a, b in zip(lo, hi, strict=True)),
-                            indexing="ij")
-        out[k] = [float((g * w).sum() / w.sum()) for g in grids]
+    out = np.asarray(kept, np.float64).reshape(-1, 3)
     return out
+
+
+def _centroid(v: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Weighted centroid of the non-negative values in the 3 x 3 x 3 box around ``idx``."""
+    lo = np.maximum(idx - 1, 0)
+    hi = np.minimum(idx + 2, v.shape)
+    w = np.clip(v[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]], 0.0, None)
+    grids = np.meshgrid(*(np.arange(a, b) for a, b in zip(lo, hi, strict=True)), indexing="ij")
+    total = float(w.sum())
+    if not total > 0:  # only possible for a local-mass peak without positive values
+        return idx.astype(np.float64)
+    return np.array([float((g * w).sum()) / total for g in grids])
 
 
 def match_peaks(detected, truth, *, max_lateral_px: float = 3.0,

@@ -44,6 +44,15 @@ def test_detects_points_brightest_first_at_subvoxel_positions():
     assert detect_peaks(v, max_peaks=1).shape == (1, 3)
 
 
+def test_local_mass_finds_a_source_split_between_voxels():
+    v = np.zeros((6, 20, 20))
+    split_point(v, (1.0, 5.0, 5.0), 1.0)       # on a voxel
+    split_point(v, (3.5, 12.5, 12.5), 0.8)     # split equally over 8 voxels: 0.1 each
+    assert detect_peaks(v, threshold=0.25).shape == (1, 3)
+    peaks = detect_peaks(v, threshold=0.25, local_mass=True)
+    np.testing.assert_allclose(peaks, [(1.0, 5.0, 5.0), (3.5, 12.5, 12.5)], atol=1e-9)
+
+
 def test_blurred_blobs_within_a_fifth_of_a_voxel():
     centres = [(2.0, 10.0, 12.0), (5.5, 20.0, 8.0), (4.0, 25.3, 24.0)]
     peaks = detect_peaks(blob_volume(centres, [0.6, 1.0, 0.8]))
