@@ -207,3 +207,10 @@ def test_admm_is_called_with_the_documented_signature(problem, tmp_path, monkeyp
                                            "--metrics-json": tmp_path / "m.json"})) == 0
     assert calls == [{"iterations": 2, "tv": 2e-4, "l1": 1e-3, "nonneg": True}]
     assert json.loads((tmp_path / "m.json").read_text())["method"] == "admm"
+
+
+def test_tv_default_is_the_benchmarked_weight():
+    from recon.volume import DEFAULT_TV
+
+    args = parser().parse_args(["recon3d", "--psf-stack", "s.tif", "--raw", "r.tif"])
+    assert args.tv == DEFAULT_TV == 1e-5 and args.l1 == 0.0 and args.method == "admm"
