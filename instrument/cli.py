@@ -7,9 +7,10 @@ sample instead), ``recon3d`` (a volume from one image and a PSF stack),
 ``analyze`` (resolution, similarity, conditioning, grid, field of view of a PSF
 stack), ``validate`` / ``devices`` (bench files), ``runs`` (show, export, import
 run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
-compressed sensing), plus the commands other layers register under the entry-point
-group ``diffuserlab.commands`` (``calibrate`` from calibration_routines). Bad input
-exits with status 2 and a one-line reason; a diverging solver exits with status 3.
+compressed sensing; 3D speed, memory and accuracy), plus the commands other layers
+register under the entry-point group ``diffuserlab.commands`` (``calibrate`` from
+calibration_routines). Bad input exits with status 2 and a one-line reason; a
+diverging solver exits with status 3.
 """
 
 from __future__ import annotations

@@ -219,14 +219,35 @@ def accuracy_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_accuracy(result: dict, path: Path) -> Path:
-    """PSNR against cumulative seconds, one panel per scene, one line per method."""
+def plot_accuracy(result: dict, path: Path, volume: dict | None = None) -> Path:
+    """PSNR against cumulative seconds, one panel per scene, one line per method.
+
+    Parameters
+    ----------
+    result : dict
+        A :func:`run_accuracy` result.
+    path : Path
+        PNG to write.
+    volume : dict, optional
+        A :func:`recon.benchmarks.volume_accuracy.run_volume_accuracy` result: adds a
+        last panel with the 3D methods (tilted-target volume PSNR against seconds,
+        :func:`recon.benchmarks.volume_plots.plot_volume_panel`).
+
+    Returns
+    -------
+    Path
+    """
     from matplotlib.figure import Figure
 
     scenes = list(result["curves"])
-    fig = Figure(figsize=(4.2 * len(scenes), 3.6))
-    axes = fig.subplots(1, len(scenes), squeeze=False)[0]
-    for ax, name in zip(axes, scenes, strict=True):
+    panels = len(scenes) + (volume is not None)
+    fig = Figure(figsize=(4.2 * panels, 3.6))
+    axes = fig.subplots(1, panels, squeeze=False)[0]
+    if volume is not None:
+        from .volume_plots import plot_volume_panel
+
+        plot_volume_panel(axes[-1], volume)
+    for ax, name in zip(axes, scenes, strict=False):
         for m, pts in result["curves"][name].items():
             pts = [p for p in pts if p["psnr"] is not None]
             if not pts:

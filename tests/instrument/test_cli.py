@@ -195,3 +195,16 @@ def test_holo_evaluate_is_wired(tmp_path, capsys):
     assert main(["holo", "evaluate", "--quick", "--out", str(tmp_path)]) == 0
     assert (tmp_path / "table.md").is_file() and (tmp_path / "summary.json").is_file()
     assert "wrote" in capsys.readouterr().out
+
+
+def test_benchmark_recon_runs_the_3d_benchmarks(tmp_path, capsys):
+    from recon.benchmarks.run import BENCHMARKS
+
+    assert {"volume_speed", "volume_accuracy"} <= set(BENCHMARKS)
+    assert main(["benchmark", "recon", "--quick", "--only", "volume_speed",
+                 "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "volume_speed.json").read_text())
+    assert data["memory"][0]["method"] == "admm3d"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert set(summary["volume_speed_ratio"]["64x64x4"]) == {"fista3d", "admm3d"}
+    assert "3D speed 64x64x4" in capsys.readouterr().out

@@ -49,7 +49,8 @@ def test_run_succeeds_and_writes_files(quick_run):
     assert status == 0
     for name in ("speed.json", "accuracy.json", "stability.json", "erasure.json",
                  "summary.json", "accuracy_psnr_vs_seconds.png", "stability.png",
-                 "erasure.png"):
+                 "erasure.png", "volume_speed.json", "volume_accuracy.json",
+                 "volume_accuracy.png"):
         path = out / name
         assert path.is_file() and path.stat().st_size > 0, name
     for png in out.glob("*.png"):
@@ -112,10 +113,29 @@ def test_erasure_psnrs_finite(quick_run):
     assert _finite(er["simulated"]["vs_truth"]["interpolated_truth"]["psnr"])
 
 
+def _png_width(path) -> int:
+    return int.from_bytes(path.read_bytes()[16:20], "big")  # IHDR width
+
+
+def test_chart_has_a_3d_panel(quick_run, tmp_path):
+    from recon.benchmarks.accuracy import plot_accuracy
+
+    _, out = quick_run
+    acc = _load(out, "accuracy.json")
+    only_2d = plot_accuracy(acc, tmp_path / "2d.png")
+    # one panel per 2D scene plus the 3D methods' panel
+    assert _png_width(out / "accuracy_psnr_vs_seconds.png") > 1.3 * _png_width(only_2d)
+
+
 def test_summary_and_only_flag(quick_run, tmp_path, capsys):
     _, out = quick_run
     summary = _load(out, "summary.json")
     assert set(summary["speed_ratio"]["4"]) == set(METHODS)
+    assert set(summary["volume_accuracy"]) == {"fista3d", "admm3d"}
+    for v in summary["volume_accuracy"].values():
+        assert _finite(v["target_psnr"]) and _finite(v["ratio_to_fft_floor"])
+        assert v["beads_missed"] == 0
+    assert set(summary["volume_speed_ratio"]["64x64x4"]) == {"fista3d", "admm3d"}
     from recon.benchmarks import run
 
     with pytest.raises(SystemExit):
