@@ -101,7 +101,7 @@ def test_devices_safe_and_optics_restored(run):
     plan, result, store, exposure, after = run
     assert after["lit"] == {}
     assert after["state"] == {"camera_capped": False, "diffuser_installed": True,
-                              "pinhole_installed": True}
+                              "pinhole_installed": True, "nd_filter_installed": False}
     assert after["exposure_s"] == exposure
 
 
