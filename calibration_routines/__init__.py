@@ -9,6 +9,8 @@ from .angular_response import AngularResponsePlan
 from .dark_flat import DarkFlatPlan
 from .psf_grid import PsfGridPlan
 from .psf_sweep import PsfSweepPlan, probe_inverse_depth_step, sweep_depths
+from .slm_lut import SlmLutPlan
+from .slm_lut_io import apply_lut, load_lut
 
 __all__ = ["AngularResponsePlan", "DarkFlatPlan", "PsfGridPlan", "PsfSweepPlan",
-           "probe_inverse_depth_step", "sweep_depths"]
+           "SlmLutPlan", "apply_lut", "load_lut", "probe_inverse_depth_step", "sweep_depths"]

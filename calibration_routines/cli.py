@@ -1,4 +1,4 @@
-"""``diffuserlab calibrate {dark,psf-sweep,psf-grid,angular-response,resume}``.
+"""``diffuserlab calibrate {dark,psf-sweep,psf-grid,angular-response,slm-lut,resume}``.
 
 Registered with the ``diffuserlab`` command through the entry-point group
 ``diffuserlab.commands`` (so the instrument layer never imports this one). Each
@@ -8,6 +8,11 @@ at each prompt), runs the plan into a run store with a progress bar and ETA, and
 prints the result. Ctrl-C aborts cleanly (LEDs off, stages stopped, data kept) and
 prints the command that resumes the run; exit status 0 done, 1 failed, 2 bad
 input, 130 interrupted.
+
+``slm-lut --apply`` also loads the fitted LUT onto the SLM at the end and prints a
+blazed grating's first-order efficiency with the previous and the new LUT (mask
+retracted); the LUT lasts for that session: load it later with
+:func:`calibration_routines.slm_lut_io.apply_lut`.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from pathlib import Path
 
 __all__ = ["add_subcommands", "run"]
 
-ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response")
+ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
 
 
 def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
@@ -43,7 +48,7 @@ def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``calibrate`` and its routines to the ``diffuserlab`` subparsers."""
-    cp = sub.add_parser("calibrate", help="calibration routines (dark/flat, PSF sweep, "
+    cp = sub.add_parser("calibrate", help="calibration routines (dark/flat, PSF sweep, SLM LUT, "
                         "PSF grid, angular response) and resuming them")
     csub = cp.add_subparsers(dest="routine", required=True)
     dp = csub.add_parser("dark", help="dark frames, hot-pixel map and flat field")
@@ -82,6 +87,18 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ap.add_argument("--n-angles", type=int, default=None, help="angles per axis")
     ap.add_argument("--beta-deg", type=float, default=None,
                     help="diffuser's maximum deflection for the FoV (Eq. 3.12)")
+    lp = csub.add_parser("slm-lut", help="SLM phase look-up table (gray -> phase) from "
+                         "binary gratings, mask retracted")
+    _common(lp)
+    lp.add_argument("--levels", type=int, default=None, dest="n_levels",
+                    help="gray levels measured, 8-256 (default 48)")
+    lp.add_argument("--period-px", type=int, default=None,
+                    help="grating period in SLM pixels, even (default 8)")
+    lp.add_argument("--no-nd-filter", action="store_true",
+                    help="do not ask for an ND filter in front of the camera")
+    lp.add_argument("--apply", action="store_true",
+                    help="load the new LUT onto the SLM and compare a blazed grating's "
+                    "first-order efficiency with the previous LUT")
     rp = csub.add_parser("resume", help="continue an aborted, failed or killed run")
     _common(rp, resume=True)
     cp.set_defaults(handler=run)
@@ -147,6 +164,13 @@ def _plan(args, bench):
         return PsfGridPlan.for_bench(bench, mode=args.mode, n=args.n, spacing_mm=args.spacing_mm,
                                      z_mm=args.z_mm, led_step=args.led_step,
                                      falloff_sigma_deg=sigma, **frames)
+    if args.routine == "slm-lut":
+        from .slm_lut import SlmLutPlan
+
+        params = {k: given[k] for k in ("n_levels", "period_px") if k in given}
+        if args.frames is not None:
+            params["frames_per_point"] = args.frames
+        return SlmLutPlan.for_bench(bench, attenuate=not args.no_nd_filter, **params)
     from .angular_response import AngularResponsePlan
 
     params = {k: given[k] for k in ("z_mm", "max_angle_deg", "n_angles", "beta_deg")
@@ -168,6 +192,21 @@ def _progress(total: int, initial: int):
         elif e.kind in ("completed", "aborted", "failed"):
             bar.close()
     return on_event
+
+
+def _apply_lut(bench, plan, path) -> None:
+    """Blazed-grating efficiency with the SLM's LUT, apply the new one, again."""
+    from .slm_lut_io import apply_lut, blazed_efficiency, load_lut
+
+    lut = load_lut(path)
+    with plan.session(bench):
+        before = blazed_efficiency(bench, lut)
+        apply_lut(bench.slm, lut)
+        after = blazed_efficiency(bench, lut)
+    print(f"blazed grating (period {lut.attrs['period_px']} px) first-order efficiency: "
+          f"{before:.3f} with the previous LUT, {after:.3f} with the calibrated one; the "
+          f"LUT is on {bench.slm.device_id} for this session - load it later with "
+          f"calibration_routines.slm_lut_io.apply_lut(bench.slm, '{path}')")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -208,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
                 runner = Runner(bench, on_event=_progress(total, 0),
                                 reconnect_timeout_s=args.reconnect_timeout_s)
                 result = runner.run(plan, out, note=args.note, overwrite=args.overwrite)
+                if getattr(args, "apply", False) and result.status == "complete":
+                    _apply_lut(bench, plan, result.path)
     except (PlanError, RunStoreError, ValueError) as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
