@@ -194,19 +194,28 @@ def _progress(total: int, initial: int):
     return on_event
 
 
-def _apply_lut(bench, plan, path) -> None:
-    """Blazed-grating efficiency with the SLM's LUT, apply the new one, again."""
+def _apply_lut(bench, plan, path) -> bool:
+    """Blazed-grating efficiency with the SLM's LUT, apply the new one, again; False
+    (reason on stderr) if a device failed."""
+    from drivers.errors import DeviceError
+
     from .slm_lut_io import apply_lut, blazed_efficiency, load_lut
 
     lut = load_lut(path)
-    with plan.session(bench):
-        before = blazed_efficiency(bench, lut)
-        apply_lut(bench.slm, lut)
-        after = blazed_efficiency(bench, lut)
+    try:
+        with plan.session(bench):
+            before = blazed_efficiency(bench, lut)
+            apply_lut(bench.slm, lut)
+            after = blazed_efficiency(bench, lut)
+    except DeviceError as exc:
+        print(f"diffuserlab: error: the LUT was calibrated ({path}) but --apply failed: "
+              f"{exc}", file=sys.stderr)
+        return False
     print(f"blazed grating (period {lut.attrs['period_px']} px) first-order efficiency: "
           f"{before:.3f} with the previous LUT, {after:.3f} with the calibrated one; the "
           f"LUT is on {bench.slm.device_id} for this session - load it later with "
           f"calibration_routines.slm_lut_io.apply_lut(bench.slm, '{path}')")
+    return True
 
 
 def run(args: argparse.Namespace) -> int:
@@ -231,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
     except DeviceError as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 1
+    applied = True  # slm-lut --apply: False if loading the LUT onto the SLM failed
     try:
         with bench:
             if args.routine == "resume":
@@ -248,13 +258,13 @@ def run(args: argparse.Namespace) -> int:
                                 reconnect_timeout_s=args.reconnect_timeout_s)
                 result = runner.run(plan, out, note=args.note, overwrite=args.overwrite)
                 if getattr(args, "apply", False) and result.status == "complete":
-                    _apply_lut(bench, plan, result.path)
+                    applied = _apply_lut(bench, plan, result.path)
     except (PlanError, RunStoreError, ValueError) as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
     print(format_summary(RunStore.open(result.path).summary()))
     if result.status == "complete":
-        return 0
+        return 0 if applied else 1
     for action in result.pending_actions:
         print(f"not resuming? then first: {action}", file=sys.stderr)
     sim = " --simulate" if args.simulate else ""
