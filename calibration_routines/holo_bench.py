@@ -34,7 +34,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from drivers.errors import DeviceError
-from instrument.bench import PromptRefused
+from instrument.bench import BenchRoleError, PromptRefused
 from instrument.plan import PlanError
 from instrument.virtual_bench import VirtualBench
 
@@ -127,12 +127,15 @@ def retracted_mask(bench, *, axis: str = "x", distance_mm: float | None = None,
     Raises
     ------
     PlanError
-        Bad ``axis`` or ``distance_mm``, or no shift of that size fits the stage limits
-        on either side (the message says how far the stage reaches).
+        No such stage, bad ``axis`` or ``distance_mm``, or no shift of that size fits
+        the stage limits on either side (the message says how far the stage reaches).
     drivers.errors.DeviceError
         A stage move failed or timed out.
     """
-    dev = bench.device(stage)
+    try:
+        dev = bench.device(stage)
+    except BenchRoleError as exc:
+        raise PlanError(f"cannot retract the mask: {exc}") from exc
     if axis not in dev.axes:
         raise PlanError(f"the mask stage {dev.device_id!r} has no axis {axis!r} "
                         f"(axes {list(dev.axes)}); retract along 'x' or 'y'")

@@ -238,8 +238,9 @@ class SlmLutPlan(Plan):
             if exposure <= lo * (1 + 1e-9):
                 raise CheckFailed(
                     f"the SLM's zero order saturates the camera even at the shortest "
-                    f"exposure {lo:g} s", "attenuate the beam (ND filter in front of the "
-                    "camera, attenuate=True) or lower the laser power")
+                    f"exposure {lo:g} s", "attenuate the beam: an ND filter in front of the "
+                    "camera (asked for unless attenuate=False / --no-nd-filter) or a lower "
+                    "laser power")
             raise CheckFailed(f"point {index}: saturated pixels at {exposure:.3g} s",
                               "check for a flickering or unstable laser, then resume")
         mean = frames.astype(np.float64).mean(axis=0)

@@ -69,6 +69,9 @@ def test_retraction_goes_the_other_way_near_the_limit_or_refuses(holo):
     assert holo.mask_stage.position("x") == 4.0
     with pytest.raises(PlanError, match="distance_mm"), retracted_mask(holo, distance_mm=-1):
         pass
+    with pytest.raises(PlanError, match="cannot retract the mask"), \
+            retracted_mask(holo, stage="no_such_stage"):
+        pass
 
 
 def test_failed_return_is_noted_on_the_original_error(holo, monkeypatch):
