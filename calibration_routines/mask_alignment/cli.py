@@ -8,8 +8,9 @@ the verification bound (the record says which), 2 on bad input and 130 when
 interrupted (Ctrl-C aborts between readings; the record keeps what was measured).
 
 With ``--simulate`` the virtual bench is given a known misalignment (the
-``--sim-*`` options; default 5.3 / -3.6 mask px, 2 mrad and a 1 px quadratic
-distortion) and the recovered values are printed next to the truth.
+``--sim-*`` options; default 5.3 / -3.6 mask px and 2 mrad; ``--sim-distortion-px 1``
+adds a quadratic distortion the 3 x 5 integer sections can only partly follow)
+and the recovered values are printed next to the truth.
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     metavar=("TX", "TY"), help="--simulate: true mask offset, mask px")
     mp.add_argument("--sim-rotation-mrad", type=float, default=2.0,
                     help="--simulate: true mask rotation, mrad")
-    mp.add_argument("--sim-distortion-px", type=float, default=1.0,
+    mp.add_argument("--sim-distortion-px", type=float, default=0.0,
                     help="--simulate: quadratic distortion at the footprint edge, mask px")
     mp.set_defaults(handler=run)
 
