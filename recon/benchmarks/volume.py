@@ -15,7 +15,7 @@ iteration on a 4-core laptop (not run here).
 
 Memory: peak traced memory (tracemalloc: numpy and Python allocations, not numba's)
 per method and size, and each method alone at 512 x 512 x 64 (quick: the small
-size) in a fresh process, for a clean maximum resident set size (``ru_maxrss``:
+size) in a fresh process, for a clean peak resident set size (``VmHWM``:
 everything, interpreter and numba included); the issue's budget is 4 GB
 (:data:`MEMORY_GOAL_BYTES`).
 """
@@ -96,20 +96,41 @@ def measure(rows: int, cols: int, n_z: int, *, iterations: int, runs: int) -> di
     return out
 
 
+def peak_rss_bytes() -> tuple[int, str]:
+    """This process's peak resident set size and where it came from.
+
+    ``VmHWM`` of ``/proc/self/status`` (Linux: the high-water mark of this process
+    image, reset by exec) when available; otherwise ``ru_maxrss``, which on Linux a
+    spawned child inherits from its parent's high-water mark (an upper bound only).
+
+    Returns
+    -------
+    bytes : int
+    source : {"VmHWM", "ru_maxrss"}
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024, "VmHWM"
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, "ru_maxrss"
+
+
 def _memory_child(method: str, rows: int, cols: int, n_z: int, iterations: int) -> dict:
     """In a fresh process: build the problem, run ``method``, report peak memory."""
     from recon.volume import admm3d, fista3d
 
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    before = peak_rss_bytes()[0]
     tracemalloc.start()
     op, b = synthetic_problem(rows, cols, n_z)
     solver = {"admm3d": admm3d, "fista3d": fista3d}[method]
     solver(op, b, iterations=iterations, tv=1e-4)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
+    rss, source = peak_rss_bytes()
     return {"method": method, "shape": [rows, cols, n_z], "iterations": iterations,
-            "peak_traced_bytes": int(peak),
-            "max_rss_bytes": int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024),
+            "peak_traced_bytes": int(peak), "max_rss_bytes": int(rss), "rss_source": source,
             "rss_before_problem_bytes": int(before)}
 
 
@@ -127,9 +148,11 @@ def memory_alone(method: str, rows: int, cols: int, n_z: int, iterations: int = 
     -------
     dict
         ``peak_traced_bytes`` (tracemalloc: numpy and Python allocations from the
-        problem set-up on), ``max_rss_bytes`` (the process's maximum resident set,
-        interpreter, libraries and numba included), ``rss_before_problem_bytes`` (after
-        the imports), ``meets_goal`` (max RSS under :data:`MEMORY_GOAL_BYTES`).
+        problem set-up on, including allocated pages never touched),
+        ``max_rss_bytes`` (the process's peak resident set, interpreter, libraries
+        and numba included, :func:`peak_rss_bytes`), ``rss_source``,
+        ``rss_before_problem_bytes`` (after the imports), ``meets_goal`` (max RSS
+        under :data:`MEMORY_GOAL_BYTES`).
     """
     with multiprocessing.get_context("spawn").Pool(1) as pool:
         out = pool.apply(_memory_child, (method, rows, cols, n_z, iterations))

@@ -162,5 +162,6 @@ def test_volume_benchmark_quick_writes_ratios(tmp_path, capsys):
     for m in data["memory"]:
         assert m["shape"] == [64, 64, 4] and m["meets_goal"]
         assert 0 < m["peak_traced_bytes"] < m["max_rss_bytes"] < data["memory_goal_bytes"]
+        assert 0 < m["rss_before_problem_bytes"] <= m["max_rss_bytes"]
     out = capsys.readouterr().out
     assert "3D speed" in out and "memory, admm3d alone" in out
