@@ -35,6 +35,7 @@ __all__ = [
     "format_table",
     "jsonable",
     "load_sample",
+    "log_x_axis",
     "save_figure",
     "scaled_problem",
     "solve",
@@ -103,6 +104,15 @@ def save_figure(fig, path: Path) -> Path:
     FigureCanvasAgg(fig)
     fig.savefig(path, dpi=110, bbox_inches="tight")
     return path
+
+
+def log_x_axis(ax) -> None:
+    """Log-scaled x axis of a matplotlib ``Axes``, labelled on the decades only (the
+    default minor-tick labels overlap on short ranges)."""
+    from matplotlib.ticker import NullFormatter
+
+    ax.set_xscale("log")
+    ax.xaxis.set_minor_formatter(NullFormatter())
 
 
 def format_table(headers: list[str], rows: list[list[Any]]) -> str:

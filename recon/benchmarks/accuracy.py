@@ -26,6 +26,7 @@ from . import (
     fmt,
     format_table,
     load_sample,
+    log_x_axis,
     save_figure,
     scaled_problem,
     solve,
@@ -256,7 +257,7 @@ def plot_accuracy(result: dict, path: Path, volume: dict | None = None) -> Path:
             y = [p["psnr"] for p in pts]
             label = f"{m} ({result['chosen_weights'][m]:g})"
             ax.plot(x, y, marker="o", ms=4, label=label)
-        ax.set_xscale("log")
+        log_x_axis(ax)
         ax.set_xlabel("seconds (solver iterations only)")
         ax.set_ylabel("PSNR (dB, gain-fitted)")
         ax.set_title(f"{name}, SNR {result['snr'][name]['snr_db']:.1f} dB")

@@ -12,15 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import save_figure
-
-
-def _log_x(ax) -> None:
-    """Log x axis with labels on the decades only (minor labels overlap)."""
-    from matplotlib.ticker import NullFormatter
-
-    ax.set_xscale("log")
-    ax.xaxis.set_minor_formatter(NullFormatter())
+from . import log_x_axis, save_figure
 
 
 def _xy(points: list[dict], key: str) -> tuple[list[float], list[float]]:
@@ -46,7 +38,7 @@ def plot_volume_panel(ax, result: dict) -> None:
     ax.axhline(bl["back_projection"]["psnr"], color="0.3", ls="--", lw=1,
                label="back-projection")
     s = result["setup"]
-    _log_x(ax)
+    log_x_axis(ax)
     ax.set_xlabel("seconds (solver iterations only)")
     ax.set_ylabel("volume PSNR (dB, gain-fitted)")
     ax.set_title(f"3D tilted target, {len(s['depths_mm'])} planes of "
@@ -97,7 +89,7 @@ def plot_volume_accuracy(result: dict, path: Path, volumes: dict,
         ax.plot(x, np.asarray(lat) / 100.0, marker="^", ms=4, ls="--", color=f"C{k}",
                 label=f"{m}: mean lateral (100 um)")
     ax.axhline(1.0, color="k", lw=0.8)
-    _log_x(ax)
+    log_x_axis(ax)
     ax.set(xlabel="seconds (solver iterations only)", ylabel="error",
            title=f"{result['setup']['beads']} beads: localisation error")
     ax.grid(True, which="both", alpha=0.3)
@@ -114,7 +106,7 @@ def plot_volume_accuracy(result: dict, path: Path, volumes: dict,
         none = [r["psnr"] for r in recs if r["tv"] == 0 and r["l1"] == 0]
         if none:
             ax.axhline(none[0], color=f"C{k}", ls=":", lw=1, label=f"{m} unregularised")
-    _log_x(ax)
+    log_x_axis(ax)
     ax.set(xlabel="weight (scaled problem)", ylabel="volume PSNR (dB)",
            title=f"target sweep, {result['setup']['sweep_iterations']} iterations")
     ax.grid(True, which="both", alpha=0.3)
