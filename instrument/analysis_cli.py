@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .recon3d_cli import jsonable
+from drivers.base import jsonable
 
 __all__ = ["ANALYSES", "add_subcommands", "run", "run_analysis"]
 
@@ -637,7 +637,8 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
     out.mkdir(parents=True, exist_ok=True)
     png, js = out / f"{args.analysis}.png", out / f"{args.analysis}.json"
     fig.savefig(png, dpi=100)
-    result = jsonable({**result, "output_png": str(png), "output_json": str(js)})
+    result = jsonable({**result, "output_png": str(png), "output_json": str(js)},
+                      nonfinite_to_none=True)
     js.write_text(json.dumps(result, indent=1))
     log.debug("analyze %s: wrote %s and %s", args.analysis, png, js)
     return result, [*lines, f"wrote {png} and {js}"]

@@ -26,7 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["METHODS", "add_subcommands", "jsonable", "run", "run_recon3d", "summary_line"]
+from drivers.base import jsonable
+
+__all__ = ["METHODS", "add_subcommands", "run", "run_recon3d", "summary_line"]
 
 log = logging.getLogger(__name__)
 
@@ -231,33 +233,6 @@ def _write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     arr.attrs.update(attrs)
 
 
-def jsonable(value):
-    """A copy of `value` that :func:`json.dumps` writes as standard JSON.
-
-    Parameters
-    ----------
-    value : object
-        Nested dicts, lists, tuples, numpy arrays and scalars, plain Python values.
-
-    Returns
-    -------
-    object
-        Dicts (string keys), lists and plain Python scalars; non-finite floats
-        (inf, NaN) become None.
-    """
-    if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, tv: float,
                 l1: float, out: str, depths_mm: list[float] | None = None,
                 bin_factor: int = 1, dark: str | float = "auto",
@@ -390,7 +365,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
         "output_volume": str(vol_path),
         "output_mips": {k: str(v) for k, v in mip_paths.items()},
     }
-    metrics = jsonable(metrics)
+    metrics = jsonable(metrics, nonfinite_to_none=True)
     if metrics_json:
         Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
         Path(metrics_json).write_text(json.dumps(metrics, indent=1))

@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from instrument.plan import PlanError
-from instrument.runner import RunControl
+from instrument.runner import RunAborted, RunControl
 from recon.optics.holography import CameraMapping, HolographicDisplayModel, MaskModel, efficiency
 from recon.optics.holography import spot_phase as _spot_phase
 
@@ -604,8 +604,7 @@ class MaskAligner:
             }
             return self.state
         except BaseException as exc:
-            status = "aborted" if type(exc).__name__ in ("RunAborted", "KeyboardInterrupt") \
-                else "failed"
+            status = "aborted" if isinstance(exc, RunAborted | KeyboardInterrupt) else "failed"
             error = f"{type(exc).__name__}: {exc}"
             try:
                 self.bench.mask_stage.stop()

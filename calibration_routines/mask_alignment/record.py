@@ -124,13 +124,13 @@ class AlignmentRecord:
 
     def log(self, entry: dict) -> None:
         """Append one capture entry (flushed to disk)."""
-        self._log.write(json.dumps(jsonable(entry)) + "\n")
+        self._log.write(json.dumps(jsonable(entry, nonfinite_to_none=True)) + "\n")
         self._log.flush()
 
     def save(self) -> None:
         """Write ``alignment.json`` atomically."""
         tmp = self.path / "alignment.json.tmp"
-        tmp.write_text(json.dumps(jsonable(self.state), indent=1))
+        tmp.write_text(json.dumps(jsonable(self.state, nonfinite_to_none=True), indent=1))
         os.replace(tmp, self.path / "alignment.json")
 
     def save_mask(self, mask: np.ndarray, seam_weight: np.ndarray) -> None:

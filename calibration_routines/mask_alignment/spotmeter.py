@@ -100,6 +100,9 @@ class SpotMeter:
         Odd metric window (camera px).
     target : float
         Auto-exposure target of the brightest pixel (fraction of full scale).
+    tolerance : float
+        Accepted deviation from ``target`` (eta is a ratio, so a loose tolerance only
+        saves frames).
     exposure_bounds_s : (float, float)
     budget_s : float
         Bench-time budget of one reading's auto-exposure (timeout).
@@ -119,7 +122,8 @@ class SpotMeter:
     """
 
     def __init__(self, bench, *, frames: int = 3, window: int = 5, target: float = 0.5,
-                 exposure_bounds_s: tuple[float, float] = (1e-5, 1.0), budget_s: float = 5.0,
+                 tolerance: float = 0.1, exposure_bounds_s: tuple[float, float] = (1e-5, 1.0),
+                 budget_s: float = 5.0,
                  timeout_s: float = 5.0, on_reading: Callable | None = None,
                  check: Callable | None = None):
         if frames < 1:
@@ -129,7 +133,10 @@ class SpotMeter:
         if not 0.05 <= target <= 0.9:
             raise PlanError(f"auto-exposure target {target} must be in [0.05, 0.9]")
         self.bench = bench
+        if not 0 < tolerance < target:
+            raise PlanError(f"auto-exposure tolerance {tolerance} must be in (0, target)")
         self.frames, self.window, self.target = int(frames), int(window), float(target)
+        self.tolerance = float(tolerance)
         self.exposure_bounds_s = (float(exposure_bounds_s[0]), float(exposure_bounds_s[1]))
         self.budget_s, self.timeout_s = float(budget_s), float(timeout_s)
         self.on_reading, self.check = on_reading, check
@@ -188,8 +195,30 @@ class SpotMeter:
             raise PlanError("measure_dark() must run before the first spot reading")
         cam = self.camera
         full = full_scale(cam) - self.dark_dn
-        lo, hi = self.exposure_bounds_s
+        hi = self.exposure_bounds_s[1]
         start = self.bench.now_s()
+        n = 0
+        while True:
+            img, exposure, peak, tries = self._expose(full, start)
+            n += tries
+            if self.frames == 1:
+                break
+            mean, meta = average_frames(cam, self.frames, self.timeout_s)
+            n += self.frames
+            if not any(m["saturated_pixels"] for m in meta):
+                img = self._clean(mean)
+                break
+            # a frame of the average saturated (noise or drift): search again
+        railed = peak < self.target - self.tolerance and exposure >= hi
+        self.captures += n
+        return img / exposure, exposure, peak, railed, n
+
+    def _expose(self, full: float, start: float) -> tuple[np.ndarray, float, float, int]:
+        """Single frames until the peak is within ``tolerance`` of the target (or the
+        upper bound is reached below it): the last frame, its exposure and peak, and
+        the frames taken."""
+        cam = self.camera
+        lo, hi = self.exposure_bounds_s
         n = 0
         while True:
             if self.check is not None:
@@ -204,8 +233,9 @@ class SpotMeter:
                     raise ExposureError(cam.device_id, "spot saturates at the shortest exposure "
                                         f"{lo:g} s", "lower the laser power or add an ND filter")
                 new = max(exposure * 0.5, lo)
-            elif abs(peak - self.target) <= 0.05 * 2 or (peak < self.target and exposure >= hi):
-                break
+            elif abs(peak - self.target) <= self.tolerance or (peak < self.target
+                                                                and exposure >= hi):
+                return img, exposure, peak, n
             else:
                 new = min(max(exposure * min(2.0, max(0.5, self.target / max(peak, 1e-6))), lo),
                           hi)
@@ -213,15 +243,6 @@ class SpotMeter:
                 raise ExposureError(cam.device_id, f"no stable exposure within {self.budget_s} s",
                                     "check for flicker or laser instability")
             cam.exposure_s = new
-        railed = peak < self.target - 0.1 and exposure >= hi
-        if self.frames > 1:
-            mean, meta = average_frames(cam, self.frames, self.timeout_s)
-            if any(m["saturated_pixels"] for m in meta):
-                return self.frame()
-            img = self._clean(mean)
-            n += self.frames
-        self.captures += n
-        return img / exposure, exposure, peak, railed, n
 
     def read(self, phase: np.ndarray | None, spot_px) -> SpotReading:
         """Show ``phase`` (None: keep the current pattern) and measure the spot at ``spot_px``.
