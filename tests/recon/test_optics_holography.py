@@ -360,6 +360,58 @@ def test_determinism_per_seed():
     assert fe != fa and np.allclose(e / fe, a / fa, rtol=1e-12)
 
 
+def test_explicit_bits_round_trip_and_render_like_the_seeded_mask():
+    """bits= replaces the seeded pattern: 0/1 and +1/-1 inputs give the same model, and
+    a model built from another's bits renders exactly like it (fine field and camera),
+    while the seed still drives the defects."""
+    ref = MaskModel((32, 40), 16.0, k=K, q=4, seed=3, margin=5, defect_fraction=0.05,
+                    truth=MaskTransform(translation=(0.3, -1.2), theta=2e-3))
+    shape = (32 * K + 10, 40 * K + 10)
+    src = ref.bits.copy()
+    m = MaskModel((32, 40), 16.0, k=K, q=4, seed=3, margin=5, defect_fraction=0.05,
+                  truth=ref.truth, bits=src)
+    src[0, 0] ^= 1  # the model keeps its own read-only copy
+    assert m.bits.dtype == np.uint8 and m.bits.shape == shape and not m.bits.flags.writeable
+    np.testing.assert_array_equal(m.bits, ref.bits)
+    np.testing.assert_array_equal(m.model, ref.model)
+    np.testing.assert_array_equal(m.true_bits, ref.true_bits)  # seed -> same defects
+    # +1/-1 (float or signed int) and bool inputs name the same pattern
+    for alt in (ref.model, ref.model.astype(np.int8), ref.bits.astype(bool)):
+        other = MaskModel((32, 40), 16.0, k=K, q=4, seed=9, margin=5, bits=alt)
+        np.testing.assert_array_equal(other.bits, ref.bits)
+        np.testing.assert_array_equal(other.model, ref.model)
+    # rendering: same fine fields and the same camera frame for a pattern
+    np.testing.assert_array_equal(m.true_fine(), ref.true_fine())
+    np.testing.assert_array_equal(m.model_fine((1.0, -2.0)), ref.model_fine((1.0, -2.0)))
+    phase = np.random.default_rng(5).uniform(-np.pi, np.pi, (32, 40))
+    relay = RelayModel(na=0.05)
+    a = HolographicDisplayModel(ref, relay=relay).render_phase(phase, StagePose(z_mm=0.02))
+    b = HolographicDisplayModel(m, relay=relay).render_phase(phase, StagePose(z_mm=0.02))
+    assert a.sum() > 0
+    np.testing.assert_array_equal(a, b)
+    # and another explicit pattern renders differently from the seed's (the seed no
+    # longer draws it; a global flip 1 - bits would not do: it only changes the sign)
+    moved = MaskModel((32, 40), 16.0, k=K, q=4, seed=3, margin=5,
+                      bits=np.roll(ref.bits, 1, axis=1))
+    assert not np.allclose(
+        HolographicDisplayModel(moved).render_phase(phase),
+        HolographicDisplayModel(MaskModel((32, 40), 16.0, k=K, q=4, seed=3,
+                                          margin=5)).render_phase(phase))
+
+
+@pytest.mark.parametrize("bits,match", [
+    (np.zeros((4 * K, 5 * K), np.uint8),  # the footprint without the margin
+     r"shape \(16, 20\), the mask model needs \(20, 24\).*slm_shape \(4, 5\), k 4, margin 2"),
+    (np.full((20, 24), 2, np.uint8), r"0/1 bits.*found other values, e.g. \[2\]"),
+    (np.zeros((20, 24)), r"\+1/-1.*e.g. \[0.0\].*astype\(np.uint8\)"),
+    (np.full((20, 24), np.nan), "NaN"),
+    (np.ones((20, 24), np.complex64), "numeric"),
+])
+def test_bad_explicit_bits(bits, match):
+    with pytest.raises(ReconInputError, match=match):
+        MaskModel((4, 5), 16.0, k=K, q=1, margin=2, bits=bits)
+
+
 def test_laser_drift_is_a_slow_reproducible_walk():
     d1 = LaserDrift(seed=7, sigma_per_sqrt_s=2e-3, tau_s=600.0)
     f1 = [d1.advance(1.0) for _ in range(600)]

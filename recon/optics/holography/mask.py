@@ -165,6 +165,42 @@ class MaskTransform:
         return (self.translation, self.theta, self.magnification, self.radial_px, self.poly)
 
 
+def _explicit_bits(bits, shape: tuple[int, int], slm_shape, k: int, margin: int) -> np.ndarray:
+    """uint8 0/1 bits (a new array) from an explicit pattern of 0/1 bits or +1/-1 values.
+
+    uint8 and bool arrays are bits (1 = phase pi); signed-integer and float arrays are
+    the model ``M = 1 - 2 bits`` (+1/-1).
+    """
+    a = np.asarray(bits)
+    if a.dtype.kind not in "biuf":
+        raise ReconInputError(f"bits must be a numeric array (uint8/bool 0/1 or +1/-1), got "
+                              f"dtype {a.dtype}")
+    if a.shape != shape:
+        r, c = slm_shape
+        raise ReconInputError(
+            f"bits has shape {a.shape}, the mask model needs {shape} = (R k + 2 margin, "
+            f"C k + 2 margin) for slm_shape ({r}, {c}), k {k}, margin {margin}; pass the "
+            "pattern of that size (crop or pad it) or set slm_shape, k and margin to match it")
+    if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+        raise ReconInputError("bits contains NaN or inf; pass a finite 0/1 or +1/-1 pattern")
+    if a.dtype.kind == "b" or a.dtype == np.uint8:
+        bad = (a != 0) & (a != 1)
+        expected = "0/1 bits (1 = phase pi) for uint8/bool"
+        fix = ("threshold the pattern to 0/1 (e.g. (pattern > 0).astype(np.uint8)) or pass "
+               "+1/-1 values as a float array")
+        out = a.astype(np.uint8)
+    else:
+        bad = (a != 1) & (a != -1)
+        expected = f"+1/-1 (M = 1 - 2 bits) for dtype {a.dtype}"
+        fix = "pass 0/1 bits as uint8 (bits.astype(np.uint8))"
+        out = (a == -1).astype(np.uint8)
+    if np.any(bad):
+        found = np.unique(a[bad])[:5].tolist()
+        raise ReconInputError(f"bits must be {expected}; found other values, e.g. {found}: "
+                              f"{fix}")
+    return out
+
+
 def _freeze(arr: np.ndarray) -> tuple:
     """Nested tuples (hashable) of a float array."""
     if arr.ndim == 1:
@@ -178,12 +214,14 @@ def _freeze(arr: np.ndarray) -> tuple:
 class MaskModel:
     """Random binary-phase mask: the software's model ``M`` and the true mask.
 
-    The model mask is a seeded random array of bits (phase 0 or pi, i.e.
-    ``M = +1 / -1``, Sec. 7.3) covering the SLM footprint (``R k x C k`` mask pixels)
-    plus ``margin`` mask pixels on every side. The true mask is the model after the
-    ground-truth transform (:class:`MaskTransform`) and the stage pose, with optional
-    fabrication errors: phase depth ``pi (1 + phase_error)`` and a fraction of
-    defective (flipped) pixels. It is rendered on the fine grid by nearest-neighbour
+    The model mask is an array of bits (phase 0 or pi, i.e. ``M = +1 / -1``,
+    Sec. 7.3) covering the SLM footprint (``R k x C k`` mask pixels) plus ``margin``
+    mask pixels on every side: seeded random bits by default, or an explicit pattern
+    (``bits=``), e.g. the fabricated mask's pattern file on a real bench, or a
+    corrected (stitched) mask from an alignment record. The true mask is the model
+    after the ground-truth transform (:class:`MaskTransform`) and the stage pose,
+    with optional fabrication errors: phase depth ``pi (1 + phase_error)`` and a
+    fraction of defective (flipped) pixels. It is rendered on the fine grid by nearest-neighbour
     lookup of the bits at inverse-mapped fine-sample positions (exact for a binary
     mask); beyond the physical mask the substrate is clear (transmission 1).
 
@@ -199,9 +237,17 @@ class MaskModel:
         Fine samples per mask pixel along each axis (>= 1; >= 4 needed for sub-pixel
         shifts and rotation).
     seed : int
-        Seed of the mask pattern (and, through a separate stream, the defects).
+        Seed of the mask pattern (and, through a separate stream, the defects). With
+        explicit ``bits`` it seeds the defects only.
     margin : int
         Extra mask pixels on each side of the SLM footprint (>= 0).
+    bits : numpy.ndarray, optional
+        Explicit model pattern (keyword only) of shape
+        ``(R k + 2 margin, C k + 2 margin)``, finite, either uint8 / bool bits 0/1
+        (1 = phase pi) or a signed-integer / float array of +1/-1 (the :attr:`model`
+        convention ``M = 1 - 2 bits``). Copied; default None draws the bits from
+        ``seed``. A real bench loads its fabricated mask's pattern this way
+        (``MaskModel(..., bits=np.load("mask_pattern.npy"))``).
     truth : MaskTransform, optional
         Ground-truth misalignment (default: perfectly aligned).
     phase_error : float
@@ -219,7 +265,8 @@ class MaskModel:
     Attributes
     ----------
     bits : numpy.ndarray
-        uint8 (R k + 2 margin, C k + 2 margin): the model's bits (1 = phase pi).
+        uint8 (R k + 2 margin, C k + 2 margin), read-only: the model's bits
+        (1 = phase pi), drawn from ``seed`` or given.
     true_bits : numpy.ndarray
         uint8, same shape: the bits of the physical mask (with defects).
     fine_shape : (int, int)
@@ -228,12 +275,19 @@ class MaskModel:
         ``slm_pitch_um / k`` and ``slm_pitch_um / (k q)``.
     version : int
         Incremented whenever :attr:`truth` changes (invalidates caches).
+
+    Raises
+    ------
+    ReconInputError
+        A parameter out of range, a fine grid above ``MAX_FINE_SAMPLES``, or ``bits``
+        of the wrong shape, with values other than 0/1 (uint8/bool) or +1/-1 (other
+        numbers), or not finite.
     """
 
     def __init__(self, slm_shape=(96, 120), slm_pitch_um: float = 16.0, k: int = 4,
                  q: int = 4, seed: int = 0, *, margin: int = 16,
                  truth: MaskTransform | None = None, phase_error: float = 0.0,
-                 defect_fraction: float = 0.0, supersample: int = 1):
+                 defect_fraction: float = 0.0, supersample: int = 1, bits=None):
         self.slm_shape = _shape2("slm_shape", slm_shape)
         self.slm_pitch_um = _float_param("slm_pitch_um", slm_pitch_um, lo=0.0, lo_open=True)
         self.k = _int_param("k", k, 1)
@@ -252,7 +306,10 @@ class MaskModel:
         self.mask_pitch_um = self.slm_pitch_um / self.k
         self.fine_pitch_um = self.mask_pitch_um / self.q
         shape = (r * self.k + 2 * self.margin, c * self.k + 2 * self.margin)
-        self.bits = np.random.default_rng(self.seed).integers(0, 2, shape, dtype=np.uint8)
+        if bits is None:
+            self.bits = np.random.default_rng(self.seed).integers(0, 2, shape, dtype=np.uint8)
+        else:
+            self.bits = _explicit_bits(bits, shape, self.slm_shape, self.k, self.margin)
         self.bits.setflags(write=False)
         flips = np.random.default_rng([self.seed, 1]).random(shape) < self.defect_fraction
         self.true_bits = self.bits ^ flips.astype(np.uint8)
