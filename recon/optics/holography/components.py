@@ -114,8 +114,8 @@ class RelayModel:
         Fresnel (separable, faster) or exact angular-spectrum transfer function.
     level_step_um : float or None
         Largest spacing of the blended planes for tilt; default
-        ``0.25 Delta^2 / (pi lambda)`` (quarter-radian phase at the SLM pixel frequency
-        ``1/Delta``).
+        ``0.25 / (pi lambda f^2)``, a quarter-radian phase at ``f``, the SLM pixel
+        frequency ``1/Delta`` or the pupil's cut-off ``NA / lambda`` if lower.
     max_levels : int
         Cap on the number of planes (>= 2).
 
