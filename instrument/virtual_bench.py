@@ -162,6 +162,17 @@ class VirtualBench(Bench):
     nd_filter_transmission : float
         Transmission of the ND filter the ``insert_nd_filter`` action puts in front of
         the camera (default 0.01, OD 2).
+    relay_na : float or None
+        Image-side numerical aperture of the SLM -> mask relay (default 0.05: depth
+        of field ``lambda / NA^2`` = 0.21 mm at 532 nm). The pupil rounds the SLM
+        pixels' edges, which makes the spot's response to defocus smooth with one
+        maximum, as on a real relay (sharp-edged pixels and no pupil give a cusp at
+        focus); it costs two fine-grid FFTs per rendered frame. None: no pupil.
+    laser_drift_per_sqrt_s : float
+        Diffusion of the holography laser's log-power per sqrt(second) of bench time
+        (mean-reverting over 600 s; :class:`recon.optics.holography.LaserDrift`,
+        seeded by ``seed``); 0: a steady laser (a resumed run then reproduces an
+        uninterrupted one exactly).
 
     Attributes
     ----------
@@ -189,7 +200,8 @@ class VirtualBench(Bench):
                  source_power_photons_per_s: float = 2e11, stray_light_fraction: float = 0.02,
                  prnu_fraction: float = 0.01, falloff_sigma_deg: float | None = 20.0,
                  hologram=None, slm_response: SlmPhaseResponse | None = None,
-                 nd_filter_transmission: float = 0.01):
+                 nd_filter_transmission: float = 0.01, relay_na: float | None = 0.05,
+                 laser_drift_per_sqrt_s: float = 1e-3):
         super().__init__({}, config=with_simulated_drivers(config or default_bench()))
         self.seed = int(seed)
         self.clock = SimClock()
@@ -208,6 +220,8 @@ class VirtualBench(Bench):
         self.slm_response = None if hologram is not None else (
             slm_response or SlmPhaseResponse.nonlinear())
         self.nd_filter_transmission = float(nd_filter_transmission)
+        self.relay_na = None if relay_na is None else float(relay_na)
+        self.laser_drift_per_sqrt_s = float(laser_drift_per_sqrt_s)
         self.branch = "lensless"
         self.scene: PlanarScene | BeadScene | TiltedTargetScene | None = None
         self.state = {"camera_capped": False, "diffuser_installed": True,
@@ -388,7 +402,9 @@ class VirtualBench(Bench):
         Lensless branch: each point source's ray-traced PSF plus its stray light
         (diffuser installed) or its bare-sensor irradiance (diffuser removed), plus
         the scene's image (diffuser installed only). Holography branch: the display
-        model's rendering of the SLM image at the mask stage's pose. Nothing when the
+        model's rendering of the SLM image at the mask stage's pose, times the laser's
+        power drift (:class:`recon.optics.holography.LaserDrift`, advanced to the bench
+        clock: a slow multiplicative walk, 1e-3 per sqrt(s) by default). Nothing when the
         camera is capped; times ``nd_filter_transmission`` with the ND filter in. Cached
         on everything it depends on (branch, sources, operator state, scene, SLM
         pattern and mask pose), so streaming a static bench costs nothing.
@@ -402,13 +418,20 @@ class VirtualBench(Bench):
             gray = pose = None
             sources = () if self.state["camera_capped"] else self.point_sources()
             key = ("lensless", sources, state, self._scene_version)
+        drift = 1.0
+        if self.branch == "holography":  # the laser's power walks with bench time
+            d = self.hologram.drift
+            if self.now_s() > d.time_s:
+                d.advance(self.now_s() - d.time_s)
+            drift = d.factor
         if key == self._cache_key and self._cache_value is not None:
-            return self._cache_value
+            return self._cache_value * drift if self.branch == "holography" else \
+                self._cache_value
         value = np.zeros(self.geometry.sensor_shape)
         if self.state["camera_capped"]:
             pass
-        elif self.branch == "holography":
-            value = self.hologram.render(gray, pose)
+        elif self.branch == "holography":  # cached at unit power, scaled per call
+            value = self.hologram.render(gray, pose) / drift
         elif self.state["diffuser_installed"]:
             for pos, power in sources:
                 psf = self.psf(pos)
@@ -423,7 +446,7 @@ class VirtualBench(Bench):
         if self.state["nd_filter_installed"]:
             value = value * self.nd_filter_transmission
         self._cache_key, self._cache_value = key, value
-        return value
+        return value * drift if self.branch == "holography" else value
 
     def _scene_image(self) -> np.ndarray:
         s = self.scene
@@ -447,7 +470,9 @@ class VirtualBench(Bench):
             from recon.optics.holography import (
                 CameraMapping,
                 HolographicDisplayModel,
+                LaserDrift,
                 MaskModel,
+                RelayModel,
                 SlmModel,
             )
 
@@ -458,7 +483,10 @@ class VirtualBench(Bench):
                              k=4, q=4, seed=self.seed, supersample=4)
             cam = CameraMapping.from_params(shape=tuple(self.geometry.sensor_shape))
             response = SlmModel(lut=self.slm_response.lut_rad(slm.wavelength_nm))
-            self._hologram = HolographicDisplayModel(mask, slm=response, camera=cam)
+            relay = RelayModel(wavelength_um=slm.wavelength_nm / 1000.0, na=self.relay_na)
+            drift = LaserDrift(seed=self.seed, sigma_per_sqrt_s=self.laser_drift_per_sqrt_s)
+            self._hologram = HolographicDisplayModel(mask, slm=response, relay=relay,
+                                                     camera=cam, drift=drift)
         return self._hologram
 
     def _mask_pose(self) -> tuple[float, ...]:

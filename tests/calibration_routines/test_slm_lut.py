@@ -41,9 +41,9 @@ def _config(wavelength_nm: float):
 
 
 @contextlib.contextmanager
-def _bench(wavelength_nm=532.0):
+def _bench(wavelength_nm=532.0, **kwargs):
     """The virtual bench (seed 1) with its SLM at ``wavelength_nm`` and the mask at POSE."""
-    with VirtualBench(_config(wavelength_nm), seed=1) as vb:
+    with VirtualBench(_config(wavelength_nm), seed=1, **kwargs) as vb:
         vb.mask_stage.move_to(POSE)
         yield vb
 
@@ -111,14 +111,18 @@ def test_lut_at_a_second_wavelength(run532, tmp_path):
             apply_lut(vb.slm, run532["path"])  # the 532 nm LUT
 
 
-def test_abort_in_pass_two_then_resume_equals_the_uninterrupted_run(run532, tmp_path):
+def test_abort_in_pass_two_then_resume_equals_the_uninterrupted_run(tmp_path):
+    """Exact equality needs a steady laser: with the default power drift a resumed run
+    sees other powers at other bench times (the LUT then agrees to ~0.01 rad only)."""
     control = RunControl()
 
     def abort_in_pass_two(event):
         if event.kind == "frame" and event.point == 32 + 5:
             control.abort("test abort")
 
-    with _bench() as vb:
+    with _bench(laser_drift_per_sqrt_s=0.0) as vb:
+        Runner(vb).run(SlmLutPlan.for_bench(vb, n_levels=32), tmp_path / "whole.zarr")
+    with _bench(laser_drift_per_sqrt_s=0.0) as vb:
         plan = SlmLutPlan.for_bench(vb, n_levels=32)
         result = Runner(vb, on_event=abort_in_pass_two, control=control).run(
             plan, tmp_path / "a.zarr")
@@ -127,7 +131,8 @@ def test_abort_in_pass_two_then_resume_equals_the_uninterrupted_run(run532, tmp_
         assert not vb.state["nd_filter_installed"]
         resumed = Runner(vb).resume(tmp_path / "a.zarr")
     assert resumed.status == "complete", resumed.error
-    np.testing.assert_array_equal(load_lut(tmp_path / "a.zarr").lut_rad, run532["lut"].lut_rad)
+    np.testing.assert_array_equal(load_lut(tmp_path / "a.zarr").lut_rad,
+                                  load_lut(tmp_path / "whole.zarr").lut_rad)
 
 
 def test_saturated_at_the_shortest_exposure_is_a_clear_error(tmp_path):
