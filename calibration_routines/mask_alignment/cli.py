@@ -8,9 +8,10 @@ the verification bound (the record says which), 2 on bad input and 130 when
 interrupted (Ctrl-C aborts between readings; the record keeps what was measured).
 
 With ``--simulate`` the virtual bench is given a known misalignment (the
-``--sim-*`` options; default 5.3 / -3.6 mask px and 2 mrad; ``--sim-distortion-px 1``
-adds a quadratic distortion the 3 x 5 integer sections can only partly follow)
-and the recovered values are printed next to the truth.
+``--sim-*`` options; default 5.3 / -3.6 mask px, 2 mrad and 0.08 mm of defocus;
+``--sim-distortion-px 1`` adds a quadratic distortion the 3 x 5 integer sections can
+only partly follow; ``--sim-tip-mrad`` / ``--sim-tilt-mrad`` tilt the mount) and the
+recovered values are printed next to the truth.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import logging
+import math
 import sys
 from pathlib import Path
 
@@ -36,6 +38,11 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "out/align/mask-TIME.align)")
     mp.add_argument("--mask-seed", type=int, default=None,
                     help="seed of the installed mask's pattern (default: the virtual bench's)")
+    mp.add_argument("--mask-pattern", default=None,
+                    help="the installed mask's pattern, .npy: uint8 0/1 bits (1 = phase pi) "
+                    "or +1/-1, shape (R k + 2 margin, C k + 2 margin); instead of --mask-seed")
+    mp.add_argument("--mask-margin", type=int, default=16,
+                    help="mask pixels of --mask-pattern beyond the SLM footprint on each side")
     mp.add_argument("--k", type=int, default=4, help="mask pixels per SLM pixel (default 4)")
     mp.add_argument("--lut", default=None, help="SLM LUT to load first: a `calibrate "
                     "slm-lut` run store (RUN.zarr) or its exported LUT file")
@@ -43,12 +50,26 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="half-width of the coarse software search, mask px (widened x2 once)")
     mp.add_argument("--frames", type=int, default=3, help="frames averaged per reading")
     mp.add_argument("--no-rotation", action="store_true", help="do not rotate the stage")
+    mp.add_argument("--no-focus", action="store_true",
+                    help="do not adjust the stage's z, tip and tilt (step 5)")
+    mp.add_argument("--relay-na", type=float, default=None,
+                    help="image-side NA of the SLM -> mask relay (sets the simulated ceiling "
+                    "and the first focus sweep, lambda/NA^2; default: the virtual bench's with "
+                    "--simulate, else no pupil)")
+    mp.add_argument("--focus-range-mm", type=float, default=None,
+                    help="half-range of the first z sweep, mm (default from --relay-na)")
     mp.add_argument("--sim-translation-px", type=float, nargs=2, default=(5.3, -3.6),
                     metavar=("TX", "TY"), help="--simulate: true mask offset, mask px")
     mp.add_argument("--sim-rotation-mrad", type=float, default=2.0,
                     help="--simulate: true mask rotation, mrad")
     mp.add_argument("--sim-distortion-px", type=float, default=0.0,
                     help="--simulate: quadratic distortion at the footprint edge, mask px")
+    mp.add_argument("--sim-defocus-mm", type=float, default=0.08,
+                    help="--simulate: mask distance from the SLM image at stage z = 0, mm")
+    mp.add_argument("--sim-tip-mrad", type=float, default=0.0,
+                    help="--simulate: mount rotation about x, mrad")
+    mp.add_argument("--sim-tilt-mrad", type=float, default=0.0,
+                    help="--simulate: mount rotation about y, mrad")
     mp.set_defaults(handler=run)
 
 
@@ -61,7 +82,9 @@ def _truth(args):
     poly[0, 0, 2] = args.sim_distortion_px
     poly[1, 2, 0] = -0.8 * args.sim_distortion_px
     return MaskTransform(translation=tuple(args.sim_translation_px),
-                         theta=args.sim_rotation_mrad * 1e-3, poly=poly)
+                         theta=args.sim_rotation_mrad * 1e-3, poly=poly,
+                         defocus_mm=args.sim_defocus_mm, tip_rad=args.sim_tip_mrad * 1e-3,
+                         tilt_rad=args.sim_tilt_mrad * 1e-3)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl
     from instrument.virtual_bench import VirtualBench
+    from recon.errors import ReconInputError
     from recon.optics.holography import MaskModel
 
     from ..holo_bench import holography_branch
@@ -84,13 +108,25 @@ def run(args: argparse.Namespace) -> int:
         f"mask-{_dt.datetime.now():%Y%m%d-%H%M%S}.align"))
     try:
         config = load_bench(args.bench, simulate=args.simulate)
-        cfg = AlignmentConfig(coarse_range_px=args.coarse_range_px, frames=args.frames,
-                              rotation=not args.no_rotation)
-        if not args.simulate and args.mask_seed is None:
-            raise PlanError("on a real bench, pass --mask-seed (the installed mask's pattern)")
-        bench = (VirtualBench(config, seed=args.seed).open() if args.simulate
+        if not args.simulate and args.mask_seed is None and args.mask_pattern is None:
+            raise PlanError("on a real bench, pass --mask-pattern FILE.npy or --mask-seed "
+                            "(the installed mask's pattern)")
+        pattern = None
+        if args.mask_pattern is not None:
+            import numpy as np
+
+            pattern = np.load(args.mask_pattern, allow_pickle=False)
+        bench = (VirtualBench(config, seed=args.seed) if args.simulate
                  else Bench.open(config, on_prompt=_ask))
-    except (OSError, ValueError, PlanError, DeviceError) as exc:
+        relay_na = args.relay_na
+        if relay_na is None and args.simulate:
+            relay_na = bench.relay_na
+        cfg = AlignmentConfig(coarse_range_px=args.coarse_range_px, frames=args.frames,
+                              rotation=not args.no_rotation, focus=not args.no_focus,
+                              relay_na=relay_na, focus_range_mm=args.focus_range_mm)
+        if args.simulate:
+            bench.open()
+    except (OSError, ValueError, PlanError, DeviceError, ReconInputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     control = RunControl()
@@ -109,7 +145,13 @@ def run(args: argparse.Namespace) -> int:
                 seed = bench.hologram.mask.seed if args.mask_seed is None else args.mask_seed
             else:
                 seed = args.mask_seed
-            model = MaskModel(slm.resolution, slm.pixel_pitch_um, args.k, 4, seed)
+            try:
+                model = MaskModel(slm.resolution, slm.pixel_pitch_um, args.k, 4,
+                                  0 if seed is None else seed, margin=args.mask_margin,
+                                  bits=pattern)
+            except ReconInputError as exc:
+                print(f"error: --mask-pattern {args.mask_pattern}: {exc}", file=sys.stderr)
+                return 2
             record = AlignmentRecord(out)
             print(f"alignment record: {out}")
             aligner = MaskAligner(bench, model, cfg, record=record, control=control,
@@ -130,9 +172,15 @@ def run(args: argparse.Namespace) -> int:
     v = report["steps"]["verify"]
     print(f"translation {s['translation_px'][0]:+.3f}, {s['translation_px'][1]:+.3f} mask px; "
           f"rotation {s['theta_rad'] * 1e3:+.3f} mrad; {s['captures']} frames")
+    focus = report["steps"].get("focus", {})
+    if "z_mm" in focus:
+        tilt = ", ".join(f"{a} {v:+.3f} deg" for a, v in focus["tilt_applied_deg"].items())
+        print(f"focus: stage z {focus['z_mm']:+.4f} mm ({focus['stop']}); {tilt}")
     if args.simulate:
         print(f"truth       {truth.translation[0]:+.3f}, {truth.translation[1]:+.3f} mask px; "
-              f"rotation {truth.theta * 1e3:+.3f} mrad")
+              f"rotation {truth.theta * 1e3:+.3f} mrad; focus at stage z "
+              f"{-truth.defocus_mm:+.4f} mm; tip {-math.degrees(truth.tip_rad):+.3f} deg, "
+              f"tilt {-math.degrees(truth.tilt_rad):+.3f} deg")
     print("section eta / aligned simulation: " + " ".join(f"{r:.2f}" for r in v["eta_ratio"]))
     for w in v["warnings"]:
         print(f"warning: {w}")

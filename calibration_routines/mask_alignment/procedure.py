@@ -26,11 +26,15 @@ range is one SLM pixel; the search therefore shifts the *model* in software
    metric of a patch is itself random). Stops when ``|theta|`` is below ``0.05 k / half-diagonal``
    or 2 sigma and the translation residual below 0.05 px or 2 sigma, or after 5
    rounds; the scale error stays as distortion.
-5. Focus and tip/tilt (stage z, rx, ry) are NOT adjusted yet.
+5. Focus and tip/tilt (stage z, tip, tilt): per-section z sweeps, parabola vertices,
+   a plane through them gives z and the tilts (:mod:`.focus`); then step 3 again,
+   differentially, in case z and tilt moved the image.
 6. Piecewise integer correction per section (search radius 2, accepted only if eta
    improves by more than 3 sigma of repeated captures); at most 3 passes.
 7. Verify: each section's eta against the simulated perfectly aligned eta (>= 0.8),
-   residual sub-pixel offsets reported; the corrected mask is written.
+   residual sub-pixel offsets reported; the corrected mask is written; a test
+   hologram computed for it is captured and compared with its simulation (PSNR,
+   SSIM, correlation recorded; a correlation below 0.9 is a warning).
 """
 
 from __future__ import annotations
@@ -43,10 +47,18 @@ import numpy as np
 
 from instrument.plan import PlanError
 from instrument.runner import RunAborted, RunControl
-from recon.optics.holography import CameraMapping, HolographicDisplayModel, MaskModel, efficiency
+from recon.optics.holography import (
+    CameraMapping,
+    HolographicDisplayModel,
+    MaskModel,
+    RelayModel,
+    efficiency,
+)
 from recon.optics.holography import spot_phase as _spot_phase
 
 from .fitting import best_subpixel_offset, fit_similarity, fit_triangle
+from .focus import FocusStep
+from .hologram_check import hologram_check
 from .record import AlignmentRecord, corrected_mask, section_bounds
 from .spotmeter import SpotMeter, blazed_phase
 
@@ -106,6 +118,24 @@ class AlignmentConfig:
         Wait after each stage move (bench time).
     timeout_s : float
         Per-device-operation timeout.
+    relay_na : float or None
+        Image-side NA of the SLM -> mask relay as designed: the simulation that sets
+        each section's ceiling includes its pupil, and the first focus sweep spans
+        its depth of field ``lambda / NA^2``. None: no pupil.
+    focus : bool
+        Run step 5 (stage z, tip, tilt).
+    focus_range_mm : float or None
+        Half-range of the first z sweep (default from ``relay_na``, see
+        :meth:`.focus.FocusStep.default_focus_range_mm`); doubled at most twice.
+    focus_steps : int
+        Positions per sweep (the notes' 7-11).
+    max_focus_rounds : int
+    focus_min_fraction : float
+        Fraction of the sections that must show a maximum inside the sweep.
+    hologram_min_correlation : float
+        Step 7's test hologram (:func:`.hologram_check.hologram_check`): a correlation
+        with its simulation below this is reported as a warning (measured on the
+        virtual bench: 0.999 aligned, 0.96 at 0.5 mask px, 0.85 at 1 px, 0.47 at 2 px).
     """
 
     sections: tuple[int, int] = (3, 5)
@@ -129,6 +159,13 @@ class AlignmentConfig:
     fourier_tol_px: float = 0.3
     settle_s: float = 0.05
     timeout_s: float = 10.0
+    relay_na: float | None = None
+    focus: bool = True
+    focus_range_mm: float | None = None
+    focus_steps: int = 9
+    max_focus_rounds: int = 3
+    focus_min_fraction: float = 0.5
+    hologram_min_correlation: float = 0.9
 
     def __post_init__(self):
         if self.repeats < 2:
@@ -137,9 +174,18 @@ class AlignmentConfig:
             raise PlanError("central_fraction must be in (0, 1]")
         if self.coarse_range_px < 1 or self.piecewise_radius_px < 0:
             raise PlanError("coarse_range_px must be >= 1 and piecewise_radius_px >= 0")
+        if self.relay_na is not None and not 0 < self.relay_na < 1:
+            raise PlanError(f"relay_na must be in (0, 1) or None, got {self.relay_na}")
+        if self.focus_range_mm is not None and not self.focus_range_mm > 0:
+            raise PlanError(f"focus_range_mm must be > 0, got {self.focus_range_mm}")
+        if self.focus_steps < 5 or self.max_focus_rounds < 1:
+            raise PlanError("focus_steps must be >= 5 (a parabola and its error) and "
+                            "max_focus_rounds >= 1")
+        if not 0 < self.focus_min_fraction <= 1:
+            raise PlanError("focus_min_fraction must be in (0, 1]")
 
 
-class MaskAligner:
+class MaskAligner(FocusStep):
     """Align the SLM's random mask with camera feedback (see the module docstring).
 
     Parameters
@@ -183,6 +229,12 @@ class MaskAligner:
         self.sections = section_bounds(mask_model.slm_shape, self.cfg.sections)
         self.stage_px_total = np.zeros(2)  # stage translation applied, mask px
         self.rotation_applied = 0.0  # rad
+        wavelength_nm = getattr(bench.slm, "wavelength_nm", None)
+        if wavelength_nm is None:
+            raise PlanError("the SLM does not state its wavelength_nm; set it in the bench "
+                            "config (the relay model and the focus sweep need it)")
+        self.relay = RelayModel(wavelength_um=float(wavelength_nm) / 1000.0,
+                                na=self.cfg.relay_na)
 
     # -- bookkeeping -------------------------------------------------------------------
 
@@ -309,8 +361,9 @@ class MaskAligner:
     def _model_efficiencies(self) -> dict:
         """eta of each pattern on a perfectly aligned simulation of the model (the ceiling)."""
         mm = self.mm
-        ideal = MaskModel(mm.slm_shape, mm.slm_pitch_um, mm.k, mm.q, mm.seed, margin=mm.margin)
-        sim = HolographicDisplayModel(ideal, camera=self.camera_map)
+        ideal = MaskModel(mm.slm_shape, mm.slm_pitch_um, mm.k, mm.q, mm.seed, margin=mm.margin,
+                          bits=mm.bits)
+        sim = HolographicDisplayModel(ideal, relay=self.relay, camera=self.camera_map)
         out = {}
         for name, patch in [("central", self.central)] + list(enumerate(self.sections)):
             frame = sim.render_phase(_spot_phase(mm, self.u0, patch))
@@ -576,9 +629,20 @@ class MaskAligner:
         warnings += [f"section {j}: residual offset {v:.2f} px > {self.cfg.residual_tol_px} px "
                      "(sub-pixel distortion the integer correction cannot remove)"
                      for j, v in enumerate(resid) if v > self.cfg.residual_tol_px]
+        focus_error = self.state["steps"].get("focus", {}).get("error")
+        if focus_error:
+            warnings.append(f"focus: {focus_error}")
+        self._context = {"step": "verify_hologram"}
+        holo = hologram_check(self.meter, self.mm, mask, self.camera_map, self.relay)
+        if holo["correlation"] < self.cfg.hologram_min_correlation:
+            warnings.append(f"test hologram: correlation {holo['correlation']:.2f} with its "
+                            f"simulation (< {self.cfg.hologram_min_correlation}); PSNR "
+                            f"{holo['psnr_db']:.1f} dB")
         res = {"eta_sections": etas, "eta_model_sections": self.eta_model["sections"],
-               "eta_ratio": ratio, "passed": bool(all(ok)), "residual_px": resid,
-               "warnings": warnings, "seam_fraction": float(1.0 - seam.mean())}
+               "eta_ratio": ratio, "passed": bool(all(ok)) and not focus_error,
+               "residual_px": resid,
+               "warnings": warnings, "seam_fraction": float(1.0 - seam.mean()),
+               "test_hologram": holo}
         self._save_step("verify", res)
         self.corrected = mask
         return res
@@ -593,6 +657,7 @@ class MaskAligner:
             self.coarse()
             self.translate()
             self.rigid()
+            focus = self.focus()
             self.piecewise()
             verify = self.verify()
             status = "completed"
@@ -600,6 +665,8 @@ class MaskAligner:
                 "translation_px": self.state["steps"]["rigid"]["translation_px"],
                 "theta_rad": self.state["steps"]["rigid"]["theta_recovered_rad"],
                 "section_shifts": self.section_shifts, "passed": verify["passed"],
+                "focus_z_mm": focus.get("z_mm"), "focus_stop": focus.get("stop",
+                                                                        focus.get("skipped")),
                 "captures": self.meter.captures, "stage_pose": self.bench.mask_stage.positions(),
             }
             return self.state

@@ -14,7 +14,7 @@ from calibration_routines.mask_alignment import (
     fit_triangle,
     section_bounds,
 )
-from calibration_routines.mask_alignment.fitting import triangle
+from calibration_routines.mask_alignment.fitting import fit_parabola, fit_plane, triangle
 from instrument.plan import PlanError
 from recon.optics.holography import MaskModel
 
@@ -116,3 +116,57 @@ def test_corrected_mask_stitches_shifted_sections():
 def test_triangle_law_half_width_is_k():
     """The fit's model: spot amplitude halves at half an SLM pixel (k / 2 mask px)."""
     assert math.isclose(float(triangle(np.array([2.0 / 4]))[0]), 0.5)
+
+
+def test_fit_parabola_recovers_vertex_width_and_rejects_edges():
+    z = np.linspace(-0.2, 0.2, 9)
+    f = fit_parabola(z, 2.0 - 50.0 * (z - 0.03) ** 2)
+    assert f.accepted and f.vertex == pytest.approx(0.03, abs=1e-12)
+    assert f.curvature == pytest.approx(-50.0) and f.peak == pytest.approx(2.0)
+    # 0.8 of the peak: 50 dz^2 = 0.4 -> full width 2 sqrt(0.008)
+    assert f.width_80 == pytest.approx(2 * math.sqrt(0.008))
+    # a Gaussian: only the top enters; vertex exact by symmetry of the samples used
+    g = fit_parabola(z, np.exp(-0.5 * ((z - 0.05) / 0.1) ** 2))
+    assert g.accepted and abs(g.vertex - 0.05) < 0.005 and g.used < 9
+    edge = fit_parabola(z, np.exp(-0.5 * ((z - 0.35) / 0.1) ** 2))
+    assert not edge.accepted
+    dip = fit_parabola(z, 1.0 + z**2)
+    assert not dip.accepted and "curvature" in dip.reason
+
+
+def test_fit_plane_slopes_and_errors():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-1, 1, (15, 2))
+    z = 0.1 + 0.02 * xy[:, 0] - 0.03 * xy[:, 1]
+    p = fit_plane(xy, z)
+    assert (p.z0, p.slope_x, p.slope_y) == pytest.approx((0.1, 0.02, -0.03))
+    noisy = fit_plane(xy, z + rng.normal(0, 1e-3, 15), np.full(15, 1e-3))
+    assert abs(noisy.slope_x - 0.02) < 4 * noisy.sigmas[1]
+    with pytest.raises(PlanError, match="line"):
+        fit_plane(np.stack([np.arange(5.0), 2 * np.arange(5.0)], 1), np.arange(5.0))
+
+
+def test_smoothed_triangle_is_the_gaussian_convolution():
+    from calibration_routines.mask_alignment.fitting import smoothed_triangle
+
+    x = np.linspace(-2, 2, 41)
+    np.testing.assert_array_equal(smoothed_triangle(x, 0.0), triangle(x))
+    t = np.linspace(-3, 3, 60001)  # numerical convolution with a sigma-0.2 Gaussian
+    g = np.exp(-0.5 * (t / 0.2) ** 2) / (0.2 * math.sqrt(2 * math.pi))
+    num = [np.trapezoid(triangle(xi - t) * g, t) for xi in x]
+    np.testing.assert_allclose(smoothed_triangle(x, 0.2), num, atol=1e-6)
+
+
+@pytest.mark.parametrize("d", [0.1, 0.3, -1.45])
+def test_fit_triangle_on_a_rounded_apex(d):
+    """A blurred apex (relay pupil, defocus): the rounded model recovers d; the sharp
+    triangle is pushed away from the nearest integer."""
+    from calibration_routines.mask_alignment.fitting import smoothed_triangle
+
+    k, s = 4, np.arange(-5, 6) + round(d)
+    eta = (0.1 * smoothed_triangle((s - d) / k, 0.12) + 0.002) ** 2
+    fit = fit_triangle(s, eta, k)
+    assert fit.offset == pytest.approx(d, abs=1e-4)
+    assert fit.rounding == pytest.approx(0.12, abs=1e-3)
+    sharp = fit_triangle(s, eta, k, rounded=False)
+    assert abs(sharp.offset - d) > 10 * abs(fit.offset - d)

@@ -1,0 +1,217 @@
+"""Step 5 of the mask alignment: focus and tip/tilt of the mask (stage z, tip, tilt).
+
+holography-evaluation.md 8(c), step 5 (slmsuite's Zernike-sweep style): sweep the
+stage z over ``+-range`` in ``focus_steps`` steps; at every z show each section's
+spot pattern and read eta; fit a parabola to each section's eta(z) near its top
+(:func:`.fitting.fit_parabola`). A fit counts only if it has a maximum inside the
+sweep. If fewer than ``focus_min_fraction`` of the sections give one, the range is
+doubled (at most twice, centred on the best z seen) and then the focus axis fails
+(the lateral alignment is kept; the record says what to check). Otherwise:
+
+* per-section optima ``z_j`` are fitted by a plane ``z0 + b_x x + b_y y`` over the
+  section centres (mm from the optical axis; :func:`.fitting.fit_plane`); ``z0`` is
+  the best stage z on the axis;
+* with the stage's convention (:class:`recon.optics.holography.StagePose`: the local
+  defocus is ``dz + rx y - ry x``) the optima lie on ``z0 - rx y + ry x``, so the
+  stage's tip (rx) moves by ``b_y`` and its tilt (ry) by ``-b_x``. A tilt is
+  corrected only when it is at least 2 sigma and defocuses the footprint's corner by
+  at least 0.1 of the sweep step; if a correction makes the slope on that axis grow
+  (about doubled, same sign) the axis runs the other way on this stage and its
+  direction is reversed for the next moves (recorded);
+* stop when the move of z0 is below DOF/10 (DOF: the median full width of the
+  sections' parabolas at 0.8 of their peak) and no tilt needs correcting, or after
+  ``max_focus_rounds``; a round that needed a widened sweep never ends the step
+  (its coarse sampling; the next round sweeps the first range around the new z).
+
+Afterwards step 3 is repeated as a differential measurement: the central patch's
+offset measured before the focus step and after it; an image motion of at least the
+translation tolerance and 2 sigma is taken out by the stage (the central patch's
+absolute offset carries a bias of its own random metric, which the difference
+cancels).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .fitting import fit_parabola, fit_plane
+
+
+class FocusStep:
+    """Mixin of :class:`.procedure.MaskAligner` holding step 5 (see the module docstring).
+
+    Uses the aligner's ``cfg``, ``bench``, ``mm``, ``sections``, ``shift``,
+    ``section_fits``, ``_read``, ``_cross``, ``_move``, ``_event`` and ``_save_step``.
+    """
+
+    def default_focus_range_mm(self) -> float:
+        """Half-range of the first z sweep (mm): the relay's depth of field
+        ``lambda / NA^2`` when its NA is configured, else ``2 Delta^2 / lambda`` (the
+        defocus over which an SLM pixel of pitch ``Delta`` blurs by about its size)."""
+        lam_mm = self.relay.wavelength_um / 1000.0
+        if self.cfg.relay_na is not None:
+            return lam_mm / self.cfg.relay_na**2
+        pitch_mm = self.mm.slm_pitch_um / 1000.0
+        return 2.0 * pitch_mm**2 / lam_mm
+
+    def _section_shifts(self) -> list[np.ndarray]:
+        fits = getattr(self, "section_fits", None)
+        if fits is None:
+            return [np.asarray(self.shift, np.int64)] * len(self.sections)
+        return [np.round(np.asarray(f["offset"])).astype(np.int64) for f in fits]
+
+    def _sweep(self, zs, shifts, rnd: int, widen: int) -> np.ndarray:
+        """eta of every section at every z (stage moved in ascending z): (sections, z)."""
+        st = self.bench.mask_stage
+        out = np.empty((len(self.sections), len(zs)))
+        for i, z in enumerate(zs):
+            self._move(z_mm=float(z) - st.position("z"))
+            for j, patch in enumerate(self.sections):
+                out[j, i] = self._read(patch, shifts[j], step="focus", round=rnd, widen=widen,
+                                       section=j, z_mm=float(z)).eta
+        return out
+
+    def _check_travel(self, zs) -> None:
+        from .procedure import AlignmentFailed
+
+        lo, hi = self.bench.mask_stage.limits["z"]
+        if zs[0] < lo or zs[-1] > hi:
+            raise AlignmentFailed(
+                f"focus sweep z {zs[0]:.3f}..{zs[-1]:.3f} mm leaves the mask stage's z travel "
+                f"[{lo:g}, {hi:g}] mm; centre the stage's z near focus before aligning, or "
+                "lower focus_range_mm")
+
+    def focus(self) -> dict:
+        """Step 5: z sweeps per section, parabola vertices, plane fit -> z, tip, tilt."""
+        cfg, st = self.cfg, self.bench.mask_stage
+        if not cfg.focus:
+            res = {"skipped": "focus step turned off (focus = false)"}
+            self._save_step("focus", res)
+            return res
+        if "z" not in st.axes:
+            res = {"skipped": f"the mask stage has no z axis (axes {list(st.axes)})"}
+            self._save_step("focus", res)
+            self._event("focus", res["skipped"])
+            return res
+        half = base_half = float(cfg.focus_range_mm or self.default_focus_range_mm())
+        shifts = self._section_shifts()
+        pitch_mm = self.mm.mask_pitch_um / 1000.0
+        centres = np.array([self._patch_centre(p) for p in self.sections]) * pitch_mm
+        hx, hy = (h * pitch_mm for h in self.mm.half_size)
+        need = max(3, math.ceil(cfg.focus_min_fraction * len(self.sections)))
+        can_tilt = {"rx": "tip" in st.axes, "ry": "tilt" in st.axes}
+        sign = {"rx": 1.0, "ry": 1.0}
+        reversed_axes: list[str] = []
+        ref = self._cross(self.central, self.shift, "focus_reference", 0)
+        z_start = z_centre = st.position("z")
+        rounds: list[dict] = []
+        reason, failed, widen, rnd = "max rounds", None, 0, 0
+        last_slopes: dict[str, float] = {}
+        applied_tilt = {"rx": 0.0, "ry": 0.0}
+        while rnd < cfg.max_focus_rounds:
+            zs = z_centre + np.linspace(-half, half, cfg.focus_steps)
+            self._check_travel(zs)
+            etas = self._sweep(zs, shifts, rnd + 1, widen)
+            fits = [fit_parabola(zs, e) for e in etas]
+            ok = np.array([f.accepted for f in fits])
+            if ok.sum() < need:
+                peak_z = float(zs[int(np.argmax((etas / np.maximum(
+                    etas.max(axis=1, keepdims=True), 1e-30)).mean(axis=0)))])
+                self._event("focus", f"{int(ok.sum())}/{len(fits)} sections peak inside "
+                            f"+-{half:.3f} mm" + (", widening" if widen < 2 else ""))
+                rounds.append({"round": rnd + 1, "z_mm": zs, "eta": etas, "accepted": ok,
+                               "widened": widen < 2, "reasons": [f.reason for f in fits]})
+                if widen >= 2:
+                    failed = (f"no focus maximum for {len(fits) - int(ok.sum())} of "
+                              f"{len(fits)} sections over +-{half:.3f} mm around z = "
+                              f"{z_centre:.3f} mm; check the relay focus and the stage's z "
+                              "travel, or set focus_range_mm")
+                    break
+                widen += 1
+                half *= 2.0
+                z_centre = peak_z
+                continue
+            rnd += 1
+            swept = half
+            half = base_half  # a widened sweep found the focus: back to the fine range
+            zv = np.array([f.vertex for f in fits])[ok]
+            sv = np.array([max(f.vertex_sigma, 1e-9) for f in fits])[ok]
+            dof = float(np.median([f.width_80 for f in np.asarray(fits, object)[ok]]))
+            try:
+                plane = fit_plane(centres[ok], zv, sv)
+            except Exception:  # noqa: BLE001 (collinear sections: z from the mean only)
+                plane = None
+            z_star = plane.z0 if plane is not None else float(np.mean(zv))
+            step = 2.0 * swept / (cfg.focus_steps - 1)
+            move_tilt = {"rx": 0.0, "ry": 0.0}
+            slopes = {}
+            if plane is not None:
+                slopes = {"rx": plane.slope_y, "ry": -plane.slope_x}
+                sig = {"rx": plane.sigmas[2], "ry": plane.sigmas[1]}
+                edge = {"rx": hy, "ry": hx}
+                for ax in ("rx", "ry"):
+                    prev = last_slopes.get(ax)
+                    if (prev is not None and applied_tilt[ax] != 0.0 and slopes[ax] * prev > 0
+                            and abs(slopes[ax]) > 1.5 * abs(prev)):
+                        sign[ax] = -sign[ax]
+                        reversed_axes.append(ax)
+                        self._event("focus", f"{ax}: the correction made the tilt worse; the "
+                                    "stage axis runs the other way, reversed")
+                    wanted = abs(slopes[ax]) >= 2 * sig[ax] and \
+                        abs(slopes[ax]) * edge[ax] >= 0.1 * step
+                    if wanted and can_tilt[ax]:
+                        move_tilt[ax] = sign[ax] * slopes[ax]
+                last_slopes = slopes
+            dz = z_star - z_centre
+            rounds.append({"round": rnd, "z_mm": zs, "eta": etas, "accepted": ok,
+                           "range_mm": swept, "vertices_mm": [f.vertex for f in fits],
+                           "vertex_sigmas_mm": [f.vertex_sigma for f in fits],
+                           "dof_mm": dof, "z_star_mm": z_star, "dz_mm": dz,
+                           "plane": None if plane is None else {
+                               "z0_mm": plane.z0, "slope_x": plane.slope_x,
+                               "slope_y": plane.slope_y, "sigmas": plane.sigmas,
+                               "residual_rms_mm": plane.residual_rms},
+                           "tilt_correction_rad": move_tilt})
+            self._event("focus", f"round {rnd}: best z {z_star:+.4f} mm (move {dz * 1e3:+.1f} "
+                        f"um, DOF {dof * 1e3:.0f} um), tilt slopes "
+                        + ", ".join(f"{a} {v * 1e3:+.2f} mrad" for a, v in slopes.items()))
+            self._move(z_mm=z_star - st.position("z"), rx=move_tilt["rx"], ry=move_tilt["ry"])
+            for ax in ("rx", "ry"):
+                applied_tilt[ax] = move_tilt[ax]
+            z_centre = z_star
+            if swept == base_half and abs(dz) < dof / 10.0 and not any(move_tilt.values()):
+                reason = "converged"
+                break
+        if failed is not None:
+            self._move(z_mm=z_start - st.position("z"))
+            reason = "failed"
+        motion = self._image_motion(ref)
+        res = {"rounds": rounds, "stop": reason, "error": failed, "range_mm": base_half,
+               "z_start_mm": z_start, "z_mm": st.position("z"),
+               "tilt_applied_deg": {a: st.position(a) for a in ("tip", "tilt") if a in st.axes},
+               "reversed_axes": reversed_axes, "dof_mm": rounds[-1].get("dof_mm") if rounds
+               else None, "image_motion": motion}
+        self._save_step("focus", res)
+        return res
+
+    def _image_motion(self, ref) -> dict:
+        """Step 3 again, differentially: the central patch's offset before vs after."""
+        fx0, fy0, _ = ref
+        fx, fy, _ = self._cross(self.central, self.shift, "focus_check", 0)
+        d = np.array([fx.offset - fx0.offset, fy.offset - fy0.offset])
+        sig = np.hypot([fx.offset_sigma, fy.offset_sigma], [fx0.offset_sigma, fy0.offset_sigma])
+        move = np.where((np.abs(d) >= self.cfg.translation_tol_px) & (np.abs(d) >= 2 * sig),
+                        d, 0.0)
+        whole = np.round(move).astype(np.int64)
+        frac = move - whole
+        if np.any(frac != 0.0):
+            self._move(x_px=-frac[0], y_px=-frac[1])
+            self.stage_px_total -= frac
+        if np.any(whole != 0):  # whole pixels stay in the model's shifts
+            self.shift = np.asarray(self.shift) + whole
+            for f in getattr(self, "section_fits", None) or []:
+                f["offset"] = tuple(np.asarray(f["offset"]) + whole)
+        return {"offset_change_px": d, "sigma_px": sig, "stage_move_px": -frac,
+                "shift_change_px": whole}
