@@ -36,6 +36,8 @@ import math
 
 import numpy as np
 
+from instrument.plan import PlanError
+
 from .fitting import fit_parabola, fit_plane
 
 
@@ -84,7 +86,28 @@ class FocusStep:
                 "lower focus_range_mm")
 
     def focus(self) -> dict:
-        """Step 5: z sweeps per section, parabola vertices, plane fit -> z, tip, tilt."""
+        """Step 5: z sweeps per section, parabola vertices, plane fit -> z, tip, tilt.
+
+        Returns
+        -------
+        dict
+            The step's record (also saved as ``steps["focus"]``): ``rounds`` (per
+            round the sweep ``z_mm`` (n,), ``eta`` (sections, n), accepted fits,
+            vertices and their sigmas in mm, ``dof_mm``, the plane and the tilt
+            correction in rad), ``stop`` ("converged", "max rounds" or "failed"),
+            ``error`` (why the axis failed, or None), ``z_mm`` and
+            ``tilt_applied_deg`` (stage pose after the step), ``reversed_axes``,
+            ``image_motion`` (the differential step 3); or ``skipped`` with the reason.
+
+        Raises
+        ------
+        AlignmentFailed
+            A sweep would leave the stage's z travel (the message names the fix).
+        drivers.errors.DeviceError
+            A stage move fails (e.g. a tilt correction beyond the stage's limits).
+        instrument.runner.RunAborted
+            The operator aborted between readings.
+        """
         cfg, st = self.cfg, self.bench.mask_stage
         if not cfg.focus:
             res = {"skipped": "focus step turned off (focus = false)"}
@@ -138,10 +161,10 @@ class FocusStep:
             half = base_half  # a widened sweep found the focus: back to the fine range
             zv = np.array([f.vertex for f in fits])[ok]
             sv = np.array([max(f.vertex_sigma, 1e-9) for f in fits])[ok]
-            dof = float(np.median([f.width_80 for f in np.asarray(fits, object)[ok]]))
+            dof = float(np.median([f.width_80 for f, a in zip(fits, ok, strict=True) if a]))
             try:
                 plane = fit_plane(centres[ok], zv, sv)
-            except Exception:  # noqa: BLE001 (collinear sections: z from the mean only)
+            except PlanError:  # the accepted sections lie on a line: z from their mean only
                 plane = None
             z_star = plane.z0 if plane is not None else float(np.mean(zv))
             step = 2.0 * swept / (cfg.focus_steps - 1)

@@ -632,7 +632,6 @@ class MaskAligner(FocusStep):
         focus_error = self.state["steps"].get("focus", {}).get("error")
         if focus_error:
             warnings.append(f"focus: {focus_error}")
-        self._context = {"step": "verify_hologram"}
         holo = hologram_check(self.meter, self.mm, mask, self.camera_map, self.relay)
         if holo["correlation"] < self.cfg.hologram_min_correlation:
             warnings.append(f"test hologram: correlation {holo['correlation']:.2f} with its "

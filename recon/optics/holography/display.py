@@ -92,6 +92,7 @@ class HolographicDisplayModel:
         self._cache: OrderedDict = OrderedDict()
         self._lock = threading.Lock()
         self._band_cache = None
+        self._pupil_cache = None
         # pupil-limited relay of a pixel-wise constant SLM field: spectrum from the
         # SLM-resolution FFT, inverse FFT pruned to the pupil's rows (see _relay_band)
         self._band_ok = (self._relay.na is not None and self._slm.crosstalk_px == 0.0
@@ -176,7 +177,7 @@ class HolographicDisplayModel:
     def _pupil(self) -> np.ndarray | None:
         if self._relay.na is None:
             return None
-        if getattr(self, "_pupil_cache", None) is None:
+        if self._pupil_cache is None:
             mm = self._mask
             ny, nx = mm.fine_shape
             fy = sfft.fftfreq(ny, d=mm.fine_pitch_um)
