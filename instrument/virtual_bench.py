@@ -425,8 +425,7 @@ class VirtualBench(Bench):
                 d.advance(self.now_s() - d.time_s)
             drift = d.factor
         if key == self._cache_key and self._cache_value is not None:
-            return self._cache_value * drift if self.branch == "holography" else \
-                self._cache_value
+            return self._cache_value * drift if drift != 1.0 else self._cache_value
         value = np.zeros(self.geometry.sensor_shape)
         if self.state["camera_capped"]:
             pass
@@ -446,7 +445,7 @@ class VirtualBench(Bench):
         if self.state["nd_filter_installed"]:
             value = value * self.nd_filter_transmission
         self._cache_key, self._cache_value = key, value
-        return value * drift if self.branch == "holography" else value
+        return value * drift if drift != 1.0 else value
 
     def _scene_image(self) -> np.ndarray:
         s = self.scene

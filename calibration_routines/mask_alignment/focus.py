@@ -33,12 +33,49 @@ cancels).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from instrument.plan import PlanError
 
 from .fitting import fit_parabola, fit_plane
+
+
+@dataclass
+class _TiltState:
+    """Tip/tilt decisions across focus rounds: axis directions and the last slopes."""
+
+    can: dict
+    sign: dict = field(default_factory=lambda: {"rx": 1.0, "ry": 1.0})
+    last: dict = field(default_factory=dict)
+    applied: dict = field(default_factory=lambda: {"rx": 0.0, "ry": 0.0})
+    reversed: list = field(default_factory=list)
+
+    def moves(self, plane, edge_mm: dict, min_corner_mm: float, on_reverse) -> dict:
+        """Stage rotations (rad) for this round's plane (None: no tilt information).
+
+        An axis moves when its slope is at least 2 sigma and defocuses the footprint's
+        edge by ``min_corner_mm``; a slope that about doubled with the same sign after
+        a correction reverses that axis's direction (``on_reverse(axis)``).
+        """
+        move = {"rx": 0.0, "ry": 0.0}
+        if plane is not None:
+            slopes = {"rx": plane.slope_y, "ry": -plane.slope_x}
+            sig = {"rx": plane.sigmas[2], "ry": plane.sigmas[1]}
+            for ax, slope in slopes.items():
+                prev = self.last.get(ax)
+                if (prev is not None and self.applied[ax] != 0.0 and slope * prev > 0
+                        and abs(slope) > 1.5 * abs(prev)):
+                    self.sign[ax] = -self.sign[ax]
+                    self.reversed.append(ax)
+                    on_reverse(ax)
+                if (self.can[ax] and abs(slope) >= 2 * sig[ax]
+                        and abs(slope) * edge_mm[ax] >= min_corner_mm):
+                    move[ax] = self.sign[ax] * slope
+            self.last = slopes
+        self.applied = dict(move)
+        return move
 
 
 class FocusStep:
@@ -109,30 +146,23 @@ class FocusStep:
             The operator aborted between readings.
         """
         cfg, st = self.cfg, self.bench.mask_stage
-        if not cfg.focus:
-            res = {"skipped": "focus step turned off (focus = false)"}
-            self._save_step("focus", res)
-            return res
-        if "z" not in st.axes:
-            res = {"skipped": f"the mask stage has no z axis (axes {list(st.axes)})"}
-            self._save_step("focus", res)
-            self._event("focus", res["skipped"])
-            return res
+        skip = ("focus step turned off (focus = false)" if not cfg.focus else
+                None if "z" in st.axes else f"the mask stage has no z axis (axes {list(st.axes)})")
+        if skip is not None:
+            self._save_step("focus", {"skipped": skip})
+            self._event("focus", skip)
+            return {"skipped": skip}
         half = base_half = float(cfg.focus_range_mm or self.default_focus_range_mm())
         shifts = self._section_shifts()
         pitch_mm = self.mm.mask_pitch_um / 1000.0
         centres = np.array([self._patch_centre(p) for p in self.sections]) * pitch_mm
         hx, hy = (h * pitch_mm for h in self.mm.half_size)
         need = max(3, math.ceil(cfg.focus_min_fraction * len(self.sections)))
-        can_tilt = {"rx": "tip" in st.axes, "ry": "tilt" in st.axes}
-        sign = {"rx": 1.0, "ry": 1.0}
-        reversed_axes: list[str] = []
+        tilt = _TiltState(can={"rx": "tip" in st.axes, "ry": "tilt" in st.axes})
         ref = self._cross(self.central, self.shift, "focus_reference", 0)
         z_start = z_centre = st.position("z")
         rounds: list[dict] = []
         reason, failed, widen, rnd = "max rounds", None, 0, 0
-        last_slopes: dict[str, float] = {}
-        applied_tilt = {"rx": 0.0, "ry": 0.0}
         while rnd < cfg.max_focus_rounds:
             zs = z_centre + np.linspace(-half, half, cfg.focus_steps)
             self._check_travel(zs)
@@ -168,25 +198,11 @@ class FocusStep:
                 plane = None
             z_star = plane.z0 if plane is not None else float(np.mean(zv))
             step = 2.0 * swept / (cfg.focus_steps - 1)
-            move_tilt = {"rx": 0.0, "ry": 0.0}
-            slopes = {}
-            if plane is not None:
-                slopes = {"rx": plane.slope_y, "ry": -plane.slope_x}
-                sig = {"rx": plane.sigmas[2], "ry": plane.sigmas[1]}
-                edge = {"rx": hy, "ry": hx}
-                for ax in ("rx", "ry"):
-                    prev = last_slopes.get(ax)
-                    if (prev is not None and applied_tilt[ax] != 0.0 and slopes[ax] * prev > 0
-                            and abs(slopes[ax]) > 1.5 * abs(prev)):
-                        sign[ax] = -sign[ax]
-                        reversed_axes.append(ax)
-                        self._event("focus", f"{ax}: the correction made the tilt worse; the "
-                                    "stage axis runs the other way, reversed")
-                    wanted = abs(slopes[ax]) >= 2 * sig[ax] and \
-                        abs(slopes[ax]) * edge[ax] >= 0.1 * step
-                    if wanted and can_tilt[ax]:
-                        move_tilt[ax] = sign[ax] * slopes[ax]
-                last_slopes = slopes
+            move_tilt = tilt.moves(plane, {"rx": hy, "ry": hx}, 0.1 * step,
+                                   lambda ax: self._event(
+                                       "focus", f"{ax}: the correction made the tilt worse; "
+                                       "the stage axis runs the other way, reversed"))
+            slopes = {} if plane is None else tilt.last
             dz = z_star - z_centre
             rounds.append({"round": rnd, "z_mm": zs, "eta": etas, "accepted": ok,
                            "range_mm": swept, "vertices_mm": [f.vertex for f in fits],
@@ -201,8 +217,6 @@ class FocusStep:
                         f"um, DOF {dof * 1e3:.0f} um), tilt slopes "
                         + ", ".join(f"{a} {v * 1e3:+.2f} mrad" for a, v in slopes.items()))
             self._move(z_mm=z_star - st.position("z"), rx=move_tilt["rx"], ry=move_tilt["ry"])
-            for ax in ("rx", "ry"):
-                applied_tilt[ax] = move_tilt[ax]
             z_centre = z_star
             if swept == base_half and abs(dz) < dof / 10.0 and not any(move_tilt.values()):
                 reason = "converged"
@@ -214,7 +228,7 @@ class FocusStep:
         res = {"rounds": rounds, "stop": reason, "error": failed, "range_mm": base_half,
                "z_start_mm": z_start, "z_mm": st.position("z"),
                "tilt_applied_deg": {a: st.position(a) for a in ("tip", "tilt") if a in st.axes},
-               "reversed_axes": reversed_axes, "dof_mm": rounds[-1].get("dof_mm") if rounds
+               "reversed_axes": tilt.reversed, "dof_mm": rounds[-1].get("dof_mm") if rounds
                else None, "image_motion": motion}
         self._save_step("focus", res)
         return res

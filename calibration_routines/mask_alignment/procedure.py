@@ -633,7 +633,9 @@ class MaskAligner(FocusStep):
         if focus_error:
             warnings.append(f"focus: {focus_error}")
         holo = hologram_check(self.meter, self.mm, mask, self.camera_map, self.relay)
-        if holo["correlation"] < self.cfg.hologram_min_correlation:
+        if holo["correlation"] is None:  # no light where the target should be
+            warnings.append("test hologram: no light on the target region of the camera")
+        elif holo["correlation"] < self.cfg.hologram_min_correlation:
             warnings.append(f"test hologram: correlation {holo['correlation']:.2f} with its "
                             f"simulation (< {self.cfg.hologram_min_correlation}); PSNR "
                             f"{holo['psnr_db']:.1f} dB")

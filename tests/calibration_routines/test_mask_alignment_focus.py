@@ -59,10 +59,7 @@ class _SyntheticAligner(FocusStep):
         self.rng = np.random.default_rng(1)
         self.events, self.saved, self.reads = [], {}, 0
 
-    def _patch_centre(self, patch):
-        r0, r1, c0, c1 = patch
-        x, y = self.mm.slm_to_plane((r0 + r1) / 2.0, (c0 + c1) / 2.0)
-        return float(x), float(y)
+    _patch_centre = MaskAligner._patch_centre
 
     def _read(self, patch, shift, **ctx):
         self.reads += 1

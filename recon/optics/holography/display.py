@@ -224,6 +224,7 @@ class HolographicDisplayModel:
         spec0 *= ay[:, None]
         spec0 *= ax[None, :]
         spec0 *= pup
+        full = np.zeros((ny, nx), np.complex64)  # one buffer for every plane
 
         def level(z_l: float) -> np.ndarray:
             spec = spec0.copy()
@@ -236,10 +237,8 @@ class HolographicDisplayModel:
                     spec *= h[np.ix_(iy, ix)]
             part = np.zeros((iy.size, nx), np.complex64)
             part[:, ix] = spec
-            part = sfft.ifft(part, axis=1, workers=WORKERS, overwrite_x=True)
-            full = np.zeros((ny, nx), np.complex64)
-            full[iy] = part
-            return sfft.ifft(full, axis=0, workers=WORKERS, overwrite_x=True)
+            full[iy] = sfft.ifft(part, axis=1, workers=WORKERS, overwrite_x=True)
+            return sfft.ifft(full, axis=0, workers=WORKERS)  # rows outside iy stay zero
 
         levels, spacing = self._levels(rel)
         if spacing is None:
