@@ -35,7 +35,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.optimize import isotonic_regression
 
 from instrument.plan import PlanError
-from recon.optics.holography import efficiency
+from recon.optics.holo_display import efficiency
 
 __all__ = ["WEIGHT_FLOOR", "binary_grating", "branch_values", "combine_passes",
            "diffracted_share", "find_order_offset", "fit_lut", "folded_phase",
@@ -105,7 +105,7 @@ def order_energies(frame: np.ndarray, zero_xy, offset_xy, orders, window_px: int
 
     Order ``m`` sits at ``zero_xy + m * offset_xy``; its energy is the sum over the
     ``window_px`` square minus the window's area times the mean of the surrounding
-    ring of width ``ring_px`` (:func:`recon.optics.holography.efficiency`).
+    ring of width ``ring_px`` (:func:`recon.optics.holo_display.efficiency`).
 
     Parameters
     ----------

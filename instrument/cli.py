@@ -287,11 +287,11 @@ def main(argv: list[str] | None = None) -> int:
 
             return int(bench_main(args.rest) or 0)
         elif args.command == "holo" and args.action == "evaluate":
-            from recon.holography.evaluate import main as holo_evaluate
+            from recon.cgh.evaluate import main as holo_evaluate
 
             return int(holo_evaluate(args.rest) or 0)
         elif args.command == "holo":
-            from recon.holography.benchmark import main as holo_benchmark
+            from recon.cgh.benchmark import main as holo_benchmark
 
             return int(holo_benchmark(args.rest) or 0)
         elif args.command in {"validate", "devices"}:

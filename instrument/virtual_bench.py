@@ -12,7 +12,7 @@ SLM do (ARCHITECTURE.md, "A simulated device is a driver like any other"):
   the diffuser, mm.
 * holography branch: the SLM's displayed image through the relay, the random mask
   on the 6-axis mask stage and the Fourier lens
-  (:class:`recon.optics.holography.HolographicDisplayModel`). The SLM's physical
+  (:class:`recon.optics.holo_display.HolographicDisplayModel`). The SLM's physical
   gray -> phase response (:class:`~instrument.slm_response.SlmPhaseResponse`, by
   default smooth and nonlinear, 2.1 pi at 532 nm) is unknown to the software, whose
   SLM driver believes a linear LUT until the SLM phase-LUT routine calibrates it; the
@@ -170,7 +170,7 @@ class VirtualBench(Bench):
         focus); it costs two fine-grid FFTs per rendered frame. None: no pupil.
     laser_drift_per_sqrt_s : float
         Diffusion of the holography laser's log-power per sqrt(second) of bench time
-        (mean-reverting over 600 s; :class:`recon.optics.holography.LaserDrift`,
+        (mean-reverting over 600 s; :class:`recon.optics.holo_display.LaserDrift`,
         seeded by ``seed``); 0: a steady laser (a resumed run then reproduces an
         uninterrupted one exactly).
 
@@ -403,7 +403,7 @@ class VirtualBench(Bench):
         (diffuser installed) or its bare-sensor irradiance (diffuser removed), plus
         the scene's image (diffuser installed only). Holography branch: the display
         model's rendering of the SLM image at the mask stage's pose, times the laser's
-        power drift (:class:`recon.optics.holography.LaserDrift`, advanced to the bench
+        power drift (:class:`recon.optics.holo_display.LaserDrift`, advanced to the bench
         clock: a slow multiplicative walk, 1e-3 per sqrt(s) by default). Nothing when the
         camera is capped; times ``nd_filter_transmission`` with the ND filter in. Cached
         on everything it depends on (branch, sources, operator state, scene, SLM
@@ -466,7 +466,7 @@ class VirtualBench(Bench):
         """The holography model (built on first use; its SLM response is
         :attr:`slm_response` at the SLM's ``wavelength_nm``)."""
         if self._hologram is None:
-            from recon.optics.holography import (
+            from recon.optics.holo_display import (
                 CameraMapping,
                 HolographicDisplayModel,
                 LaserDrift,

@@ -76,7 +76,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 def _truth(args):
     import numpy as np
 
-    from recon.optics.holography import MaskTransform
+    from recon.optics.holo_display import MaskTransform
 
     poly = np.zeros((2, 3, 3))
     poly[0, 0, 2] = args.sim_distortion_px
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from instrument.runner import RunAborted, RunControl
     from instrument.virtual_bench import VirtualBench
     from recon.errors import ReconInputError
-    from recon.optics.holography import MaskModel
+    from recon.optics.holo_display import MaskModel
 
     from ..holo_bench import holography_branch
     from ..slm_lut_io import apply_lut

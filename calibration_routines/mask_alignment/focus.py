@@ -11,7 +11,7 @@ doubled (at most twice, centred on the best z seen) and then the focus axis fail
 * per-section optima ``z_j`` are fitted by a plane ``z0 + b_x x + b_y y`` over the
   section centres (mm from the optical axis; :func:`.fitting.fit_plane`); ``z0`` is
   the best stage z on the axis;
-* with the stage's convention (:class:`recon.optics.holography.StagePose`: the local
+* with the stage's convention (:class:`recon.optics.holo_display.StagePose`: the local
   defocus is ``dz + rx y - ry x``) the optima lie on ``z0 - rx y + ry x``, so the
   stage's tip (rx) moves by ``b_y`` and its tilt (ry) by ``-b_x``. A tilt is
   corrected only when it is at least 2 sigma and defocuses the footprint's corner by

@@ -10,10 +10,10 @@ pixel for pixel (high PSNR and correlation); a mask off by a mask pixel or more
 scrambles it.
 
 Conventions (checked by ``tests/calibration_routines/test_hologram_check.py``):
-the hologram grid of :class:`recon.holography.ScatteringDisplay` is centred, grid
+the hologram grid of :class:`recon.cgh.ScatteringDisplay` is centred, grid
 sample ``[i, j]`` is the far-field frequency ``u = (j - G_x // 2, i - G_y // 2)``
 (x, y; far-field samples, cycles per SLM aperture) of
-:mod:`recon.optics.holography`, and the camera sees it at
+:mod:`recon.optics.holo_display`, and the camera sees it at
 ``camera_map.to_camera(u)``. Both models use the forward FFT of the field
 ``exp(i phase)`` (a blazed ramp ``2 pi (ux c / C + uy r / R)`` lands at ``+u``), so
 there is no flip between them; the mask-pixel box of the fine model only dims the
@@ -29,8 +29,8 @@ import numpy as np
 
 from instrument.plan import PlanError
 from recon.errors import ReconInputError
-from recon.holography import ScatteringDisplay, optimize_hologram
-from recon.optics.holography import (
+from recon.cgh import ScatteringDisplay, optimize_hologram
+from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,
     MaskModel,
@@ -90,7 +90,7 @@ def place_target(image, camera_map: CameraMapping, grid_shape) -> tuple[np.ndarr
     image : numpy.ndarray
         2-D real intensities (>= 0, finite, not all zero), any size >= 2 x 2; grey
         levels are taken as intensities.
-    camera_map : recon.optics.holography.CameraMapping
+    camera_map : recon.optics.holo_display.CameraMapping
         Far field -> camera pixels (the alignment's pre-flight affine).
     grid_shape : (int, int)
         Hologram grid ``(G_y, G_x) = (R k, C k)``, centred (zero order at
@@ -151,7 +151,7 @@ def target_region(camera_map: CameraMapping, grid_shape, rect) -> np.ndarray:
 
     Parameters
     ----------
-    camera_map : recon.optics.holography.CameraMapping
+    camera_map : recon.optics.holo_display.CameraMapping
     grid_shape : (int, int)
         ``(G_y, G_x)`` of the centred hologram grid.
     rect : (int, int, int, int)
@@ -257,12 +257,12 @@ def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
        the centred ``R k x C k`` hologram grid where the camera sees it
        (:func:`place_target`);
     2. a phase hologram is optimised for the corrected mask
-       (:class:`recon.holography.ScatteringDisplay` with ``mask=corrected_mask``,
-       :func:`recon.holography.optimize_hologram`, frequency loss);
+       (:class:`recon.cgh.ScatteringDisplay` with ``mask=corrected_mask``,
+       :func:`recon.cgh.optimize_hologram`, frequency loss);
     3. it is shown on the SLM and captured (``meter.show``, ``meter.frame``:
        auto-exposed, averaged, dark-subtracted);
     4. the expected frame is simulated for a perfectly aligned corrected mask
-       (:class:`recon.optics.holography.HolographicDisplayModel` with
+       (:class:`recon.optics.holo_display.HolographicDisplayModel` with
        ``MaskModel(..., bits=corrected_mask, margin=0, supersample=1)``, the design
        ``relay`` and ``camera_map``; ideal SLM: linear phase, fill factor 1);
     5. both are compared over the camera pixels that see the target
@@ -272,17 +272,17 @@ def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
     ----------
     meter : calibration_routines.mask_alignment.SpotMeter
         Set up on the bench (:meth:`~SpotMeter.measure_dark` has run).
-    mask_model : recon.optics.holography.MaskModel
+    mask_model : recon.optics.holo_display.MaskModel
         The software's mask model: only ``slm_shape``, ``slm_pitch_um``, ``k`` and
         ``q`` are used (never its ground truth).
     corrected_mask : numpy.ndarray
         float32 +1/-1 ``(R k, C k)``, the SLM footprint at mask resolution, as made
         by :func:`~calibration_routines.mask_alignment.corrected_mask` (the model
         with each section's integer shift applied); uint8 0/1 bits are accepted too.
-    camera_map : recon.optics.holography.CameraMapping
+    camera_map : recon.optics.holo_display.CameraMapping
         Far-field samples -> camera pixels, measured in the alignment's pre-flight;
         its shape must be the camera frame's.
-    relay : recon.optics.holography.RelayModel
+    relay : recon.optics.holo_display.RelayModel
         The design relay (wavelength, NA).
     target : numpy.ndarray, optional
         2-D test image (intensities >= 0, any size; placed and resized by

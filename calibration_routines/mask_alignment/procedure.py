@@ -1,7 +1,7 @@
 """SLM-mask alignment with spot feedback (Kuo 2020 Sec. 7.4; holography-evaluation.md 8(c)).
 
 The bench shows, on the SLM, a pattern that focuses one far-field spot through the
-mask *as the model believes it is placed* (:func:`recon.optics.holography.spot_phase`)
+mask *as the model believes it is placed* (:func:`recon.optics.holo_display.spot_phase`)
 and measures the spot on the camera (:class:`.SpotMeter`). A true mask offset of
 ``d`` mask px dims the spot as ``(1 - |d_x|/k)^2 (1 - |d_y|/k)^2``, so the capture
 range is one SLM pixel; the search therefore shifts the *model* in software
@@ -47,14 +47,14 @@ import numpy as np
 
 from instrument.plan import PlanError
 from instrument.runner import RunAborted, RunControl
-from recon.optics.holography import (
+from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,
     MaskModel,
     RelayModel,
     efficiency,
 )
-from recon.optics.holography import spot_phase as _spot_phase
+from recon.optics.holo_display import spot_phase as _spot_phase
 
 from .fitting import best_subpixel_offset, fit_similarity, fit_triangle
 from .focus import FocusStep
@@ -193,7 +193,7 @@ class MaskAligner(FocusStep):
     bench : instrument.bench.Bench
         Open bench with ``camera``, ``slm`` and ``mask_stage`` (axes x, y in mm;
         rotation, tip, tilt in deg; z in mm), the holography branch in the beam.
-    mask_model : recon.optics.holography.MaskModel
+    mask_model : recon.optics.holo_display.MaskModel
         The software's model of the mask (its bits; its ground truth is ignored).
     config : AlignmentConfig
     record : AlignmentRecord, optional

@@ -54,7 +54,7 @@ def corrected_mask(mask_model, shifts, sections, radius: int = 2) -> tuple[np.nd
 
     Parameters
     ----------
-    mask_model : recon.optics.holography.MaskModel
+    mask_model : recon.optics.holo_display.MaskModel
         The software's mask model (its ``bits`` are used, never its ground truth).
     shifts : array_like, int (n_sections, 2)
         ``(sx, sy)`` per section, mask px; ``|s| <= margin``.

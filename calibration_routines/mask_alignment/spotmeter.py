@@ -2,7 +2,7 @@
 
 The alignment metric (holography-evaluation.md 8(c), steps 0-1) is the spot
 efficiency ``eta = (E_W - n_W b) / E_total`` of a dark-subtracted frame
-(:func:`recon.optics.holography.efficiency`): window energy above the local
+(:func:`recon.optics.holo_display.efficiency`): window energy above the local
 background over the whole frame's energy, so laser drift and exposure cancel.
 Each reading auto-exposes first (peak near half of full scale, never saturated,
 exposure steps of x0.5-2, a bench-time budget), then averages frames.
@@ -19,7 +19,7 @@ import numpy as np
 
 from instrument.acquisition import ExposureError, average_frames, full_scale
 from instrument.plan import PlanError
-from recon.optics.holography import efficiency
+from recon.optics.holo_display import efficiency
 
 __all__ = ["SpotMeter", "SpotReading", "blazed_phase"]
 
@@ -66,7 +66,7 @@ def blazed_phase(shape, u) -> np.ndarray:
     """Linear phase ramp that sends an SLM's light to far-field frequency ``u``.
 
     ``phi[r, c] = 2 pi (ux c / C + uy r / R)``: with the FFT convention of
-    :mod:`recon.optics.holography` the field ``exp(i phi)`` focuses at ``u`` (in
+    :mod:`recon.optics.holo_display` the field ``exp(i phi)`` focuses at ``u`` (in
     far-field samples, cycles per SLM aperture).
 
     Parameters

@@ -24,8 +24,8 @@ from calibration_routines.mask_alignment.record import corrected_mask
 from calibration_routines.mask_alignment.spotmeter import SpotMeter
 from instrument.plan import PlanError
 from instrument.virtual_bench import VirtualBench
-from recon.holography import ScatteringDisplay, optimize_hologram, random_binary_mask
-from recon.optics.holography import (
+from recon.cgh import ScatteringDisplay, optimize_hologram, random_binary_mask
+from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,
     MaskModel,

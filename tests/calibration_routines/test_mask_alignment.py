@@ -20,7 +20,7 @@ from calibration_routines.mask_alignment import (
 from drivers.errors import DeviceError
 from instrument.runner import RunAborted, RunControl
 from instrument.virtual_bench import VirtualBench
-from recon.optics.holography import MaskModel, MaskTransform, efficiency, spot_phase
+from recon.optics.holo_display import MaskModel, MaskTransform, efficiency, spot_phase
 
 
 def _bench(truth: MaskTransform) -> VirtualBench:

@@ -16,7 +16,7 @@ from calibration_routines.mask_alignment import (
 )
 from calibration_routines.mask_alignment.fitting import fit_parabola, fit_plane, triangle
 from instrument.plan import PlanError
-from recon.optics.holography import MaskModel
+from recon.optics.holo_display import MaskModel
 
 
 def test_triangle_values():

@@ -18,7 +18,7 @@ from calibration_routines.mask_alignment import (
 )
 from calibration_routines.mask_alignment.focus import FocusStep
 from calibration_routines.mask_alignment.record import section_bounds
-from recon.optics.holography import MaskModel, MaskTransform
+from recon.optics.holo_display import MaskModel, MaskTransform
 
 from .test_mask_alignment import _bench, _model
 

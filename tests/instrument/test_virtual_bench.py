@@ -114,7 +114,7 @@ def test_holography_branch_misaligned_mask_lowers_the_spot(relay_na, bounds):
     stage moves the true mask by one mask pixel: the triangle law ~ (1 - 1/k)^2 with
     an ideal relay; less with the default relay pupil, which rounds the SLM pixels
     (the apex of the triangle)."""
-    from recon.optics.holography import phase_to_gray, spot_phase
+    from recon.optics.holo_display import phase_to_gray, spot_phase
 
     bench = VirtualBench(seed=0, relay_na=relay_na).open()
     bench.set_branch("holography")
@@ -155,7 +155,7 @@ def test_scenes_reach_the_camera(bench):
 def test_holography_laser_power_drifts_with_bench_time_and_eta_does_not(bench):
     """The laser's power walks slowly with the bench clock (the camera sees it); the
     spot efficiency eta, a ratio to the frame's energy, does not."""
-    from recon.optics.holography import efficiency, phase_to_gray, spot_phase
+    from recon.optics.holo_display import efficiency, phase_to_gray, spot_phase
 
     bench.set_branch("holography")
     holo = bench.hologram

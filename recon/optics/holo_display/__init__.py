@@ -54,14 +54,14 @@ Physics checks (holography-evaluation.md, Sec. 8(c)): with the spot pattern of t
 model mask, a true-mask shift ``d`` scales the spot by ``(1-|dx|/k)^2 (1-|dy|/k)^2``
 (triangle law), a random SLM phase gives a background of about ``4/(pi N_SLM)`` of
 the spot peak, and rotation lowers the spot; these are tested in
-``tests/recon/test_optics_holography.py``.
+``tests/recon/test_optics_holo_display.py``.
 """
 
 from __future__ import annotations
 
-from ._common import gray_to_phase, linear_lut, phase_to_gray
+from .basics import gray_to_phase, linear_lut, phase_to_gray
 from .components import CameraMapping, LaserDrift, RelayModel, SlmModel
-from .display import HolographicDisplayModel, efficiency
+from .model import HolographicDisplayModel, efficiency
 from .mask import MaskModel, MaskTransform, StagePose
 from .spot import spot_phase
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from recon.errors import ReconInputError
-from recon.holography import (
+from recon.cgh import (
     IntensityLoss,
     ScatteringDisplay,
     butterworth_lowpass,

@@ -1,6 +1,6 @@
 """Constants, parameter checks, the LUT and the numba kernels of the holography model.
 
-Part of :mod:`recon.optics.holography` (see its docstring for the model).
+Part of :mod:`recon.optics.holo_display` (see its docstring for the model).
 """
 
 from __future__ import annotations

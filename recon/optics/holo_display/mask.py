@@ -1,6 +1,6 @@
 """Stage pose, ground-truth mask transform and the random binary-phase mask (fine grid).
 
-Part of :mod:`recon.optics.holography` (see its docstring for the model).
+Part of :mod:`recon.optics.holo_display` (see its docstring for the model).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ReconInputError
-from ._common import MAX_FINE_SAMPLES, _float_param, _int_param, _render_mask_kernel, _shape2, _vec2
+from .basics import MAX_FINE_SAMPLES, _float_param, _int_param, _render_mask_kernel, _shape2, _vec2
 
 
 @dataclass(frozen=True)

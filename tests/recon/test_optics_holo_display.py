@@ -1,4 +1,4 @@
-"""Holographic display model (recon.optics.holography): physics, mapping, determinism.
+"""Holographic display model (recon.optics.holo_display): physics, mapping, determinism.
 
 Reference numbers are from holography-evaluation.md Sec. 8(c) (k = 4): the triangle
 law ``(1 - |dx|/k)^2 (1 - |dy|/k)^2`` under a mask shift, a background of
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from recon.errors import ReconInputError
-from recon.optics.holography import (
+from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,
     LaserDrift,

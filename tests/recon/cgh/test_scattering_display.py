@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from recon.errors import ReconInputError
-from recon.holography import ScatteringDisplay, field_from_phase, random_binary_mask
-from recon.optics.holography import MaskModel
+from recon.cgh import ScatteringDisplay, field_from_phase, random_binary_mask
+from recon.optics.holo_display import MaskModel
 
 
 def _rand_c(rng, shape):

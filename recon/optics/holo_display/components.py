@@ -1,6 +1,6 @@
 """SLM response, relay optics, far-field-to-camera mapping and laser drift.
 
-Part of :mod:`recon.optics.holography` (see its docstring for the model).
+Part of :mod:`recon.optics.holo_display` (see its docstring for the model).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ReconInputError
-from ._common import (
+from .basics import (
     _check_lut,
     _float_param,
     _int_param,

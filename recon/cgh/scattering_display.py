@@ -34,7 +34,7 @@ def _shape2(name: str, value) -> tuple[int, int]:
 def random_binary_mask(slm_shape, k: int, seed: int = 0, slm_pitch_um: float = 16.0) -> np.ndarray:
     """Random binary 0/pi phase mask ``m = +-1`` at mask-pixel resolution (Sec. 7.3).
 
-    The bits are those of :class:`recon.optics.holography.MaskModel` (the virtual
+    The bits are those of :class:`recon.optics.holo_display.MaskModel` (the virtual
     bench's mask) with no margin, so a hologram computed here and the bench's model
     mask agree pixel for pixel for the same seed.
 
@@ -54,7 +54,7 @@ def random_binary_mask(slm_shape, k: int, seed: int = 0, slm_pitch_um: float = 1
     numpy.ndarray
         float32 ``(N_y k, N_x k)`` of +1 (phase 0) and -1 (phase pi), read-only.
     """
-    from ..optics.holography import MaskModel
+    from ..optics.holo_display import MaskModel
 
     mm = MaskModel(_shape2("slm_shape", slm_shape), slm_pitch_um, k=k, q=1, seed=seed, margin=0)
     out = mm.model

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from recon.errors import ReconInputError
-from recon.holography import benchmark, evaluate
-from recon.holography.evaluation import (
+from recon.cgh import benchmark, evaluate
+from recon.cgh.evaluation import (
     METHODS,
     TABLE_7_1,
     acceptance,
@@ -26,7 +26,7 @@ from recon.holography.evaluation import (
     factor_to_k,
     summarise,
 )
-from recon.holography.protocol import (
+from recon.cgh.protocol import (
     BUNDLED_IMAGES,
     centre_quarter,
     image_metrics,

@@ -16,8 +16,8 @@ import numpy as np
 
 from ..errors import ReconInputError
 from ..solvers.common import History
-from ._common import HologramResult, check_slm_kind, check_targets, project
-from .display import ScatteringDisplay
+from .hologram import HologramResult, check_slm_kind, check_targets, project
+from .scattering_display import ScatteringDisplay
 
 __all__ = ["no_mask_hologram", "one_step_hologram", "random_phase_field"]
 
@@ -111,7 +111,7 @@ def no_mask_hologram(target, loss=None, *, slm_pitch_um: float = 16.0, **kwargs)
     slm_pitch_um : float
         SLM pitch (um).
     **kwargs
-        Passed to :func:`recon.holography.optimize.optimize_hologram`.
+        Passed to :func:`recon.cgh.optimize.optimize_hologram`.
 
     Returns
     -------

@@ -8,8 +8,8 @@ measured in the same run (median of several), the measured FFTs per iteration,
 the FFT share of the time and the peak memory (Python/numpy allocations traced by
 :mod:`tracemalloc`, and the process' peak RSS)::
 
-    python -m recon.holography.benchmark            # full size
-    python -m recon.holography.benchmark --quick    # tiny smoke run
+    python -m recon.cgh.benchmark            # full size
+    python -m recon.cgh.benchmark --quick    # tiny smoke run
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import scipy.fft as sfft
 
 from ..errors import ReconInputError
 from ..fft import WORKERS
-from .display import ScatteringDisplay
+from .scattering_display import ScatteringDisplay
 from .losses import IntensityLoss
 from .optimize import optimize_hologram
 from .protocol import load_bundled, prepare_target
@@ -131,7 +131,7 @@ def run_benchmark(slm_shape=(540, 960), k: int = 4, iterations: int = 200,
 
 def main(argv=None) -> int:
     """Run the benchmark and print the report; returns 0 (2 on bad input)."""
-    p = argparse.ArgumentParser(prog="python -m recon.holography.benchmark",
+    p = argparse.ArgumentParser(prog="python -m recon.cgh.benchmark",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--slm", type=int, nargs=2, default=(540, 960), metavar=("ROWS", "COLS"))
     p.add_argument("--factor", type=int, default=16, help="expansion factor k^2 (16)")

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recon.optics.holography import (
+from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,
     MaskModel,

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from recon.errors import ReconInputError
-from recon.holography import (
+from recon.cgh import (
     etendue_mm2,
     expansion_factor,
     eyebox_for_fov,

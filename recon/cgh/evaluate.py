@@ -2,9 +2,9 @@
 
 Usage (N = 480 is the benchmark, N = 240 the test-suite variant)::
 
-    python -m recon.holography.evaluate --size 480 --factors 4,16,36 --seeds 0,1,2 \
+    python -m recon.cgh.evaluate --size 480 --factors 4,16,36 --seeds 0,1,2 \
         --out holo_eval
-    python -m recon.holography.evaluate --images my_photos/ --size 240 --out eval_mine
+    python -m recon.cgh.evaluate --images my_photos/ --size 240 --out eval_mine
 
 Writes ``records.csv`` (one row per image, factor, method, seed), ``summary.json``
 (means, spreads, acceptance rules, settings), ``table.md`` (ours next to the

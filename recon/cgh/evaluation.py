@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import ReconInputError
 from .baselines import one_step_hologram
-from .display import ScatteringDisplay
+from .scattering_display import ScatteringDisplay
 from .losses import IntensityLoss
 from .optimize import optimize_hologram
 from .protocol import image_metrics, prepare_target

@@ -1,6 +1,6 @@
 """Focused-spot patterns by phase conjugation through the model mask.
 
-Part of :mod:`recon.optics.holography` (see its docstring for the model).
+Part of :mod:`recon.optics.holo_display` (see its docstring for the model).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from ...errors import ReconInputError
-from ._common import _block_reduce_kernel, _float_param, _vec2
+from .basics import _block_reduce_kernel, _float_param, _vec2
 from .mask import MaskModel
 
 

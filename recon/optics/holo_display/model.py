@@ -1,6 +1,6 @@
 """The SLM -> relay -> mask -> Fourier lens -> camera model, and the spot metric.
 
-Part of :mod:`recon.optics.holography` (see its docstring for the model).
+Part of :mod:`recon.optics.holo_display` (see its docstring for the model).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from ...errors import ReconInputError
-from ._common import (
+from .basics import (
     WORKERS,
     _check_gray,
     _check_phase,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from recon.errors import ReconInputError
-from recon.holography import (
+from recon.cgh import (
     IntensityLoss,
     ScatteringDisplay,
     no_mask_hologram,
@@ -22,7 +22,7 @@ from recon.holography import (
     optimize_hologram,
     project,
 )
-from recon.holography.protocol import image_metrics, load_bundled, prepare_target
+from recon.cgh.protocol import image_metrics, load_bundled, prepare_target
 
 
 def _wrap(a):

@@ -1,7 +1,7 @@
 """Étendue-expanded holograms through a random scattering mask (Kuo 2020, Ch. 7, App. A.4).
 
 Hologram *computation* (layer 1, numerics only). The physical bench model with
-relay, camera mapping and laser drift is :mod:`recon.optics.holography`; this
+relay, camera mapping and laser drift is :mod:`recon.optics.holo_display`; this
 package reuses its random binary mask so that both agree for the same seed.
 
 Model (:class:`ScatteringDisplay`, Eq. 7.8, 7.15, 7.20-7.22): a phase-only SLM
@@ -13,7 +13,7 @@ the viewer sees ``I = |y|^2``. ``forward``/``adjoint`` are exact adjoints.
 
 Modules
 -------
-display
+scattering_display
     :class:`ScatteringDisplay` (operator; ``no_mask`` for the native étendue),
     :func:`random_binary_mask`, :func:`field_from_phase`.
 etendue
@@ -30,9 +30,9 @@ baselines
     :func:`one_step_hologram` (Eq. 7.11-7.13), :func:`no_mask_hologram`.
 protocol, evaluation, evaluate
     The pre-registered Table 7.1 protocol, its runner and acceptance rules, and
-    the command line (``python -m recon.holography.evaluate``).
+    the command line (``python -m recon.cgh.evaluate``).
 benchmark
-    Full-size speed benchmark (``python -m recon.holography.benchmark``).
+    Full-size speed benchmark (``python -m recon.cgh.benchmark``).
 
 Speed (holography-evaluation.md Sec. 8(b)): complex64/float32 throughout,
 ``scipy.fft`` with all workers and in-place complex FFTs, the upsampling and the
@@ -44,9 +44,9 @@ the number of planes.
 
 from __future__ import annotations
 
-from ._common import HologramResult, project
+from .hologram import HologramResult, project
 from .baselines import no_mask_hologram, one_step_hologram, random_phase_field
-from .display import ScatteringDisplay, field_from_phase, random_binary_mask
+from .scattering_display import ScatteringDisplay, field_from_phase, random_binary_mask
 from .etendue import (
     etendue_mm2,
     expansion_factor,

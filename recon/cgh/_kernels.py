@@ -4,7 +4,7 @@ Each kernel makes one pass over the full mask grid (``Gy x Gx``, e.g. 2160 x 384
 so an iteration costs little more than its FFTs. The SLM field is upsampled on the
 fly (``w[i // k, j // k]``), so the upsampled field of Eq. 7.15 is never stored and
 no exponential is evaluated on the full grid. Reductions accumulate in float64.
-Reference formulas are in :mod:`recon.holography.optimize`; the tests check them
+Reference formulas are in :mod:`recon.cgh.optimize`; the tests check them
 against plain numpy.
 """
 

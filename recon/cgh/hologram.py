@@ -1,4 +1,4 @@
-"""Shared pieces of :mod:`recon.holography`: the result record, projections, target checks."""
+"""Shared pieces of :mod:`recon.cgh`: the result record, projections, target checks."""
 
 from __future__ import annotations
 

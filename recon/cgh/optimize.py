@@ -48,9 +48,9 @@ from ..errors import DivergenceError, ReconInputError
 from ..fft import WORKERS
 from ..solvers.common import History
 from . import _kernels
-from ._common import HologramResult, check_slm_kind, check_targets, project
+from .hologram import HologramResult, check_slm_kind, check_targets, project
 from .baselines import one_step_hologram
-from .display import ScatteringDisplay, field_from_phase
+from .scattering_display import ScatteringDisplay, field_from_phase
 from .losses import IntensityLoss, butterworth_lowpass
 
 __all__ = ["loss_and_gradient", "optimize_hologram"]
