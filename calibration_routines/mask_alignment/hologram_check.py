@@ -28,8 +28,8 @@ import time
 import numpy as np
 
 from instrument.plan import PlanError
-from recon.errors import ReconInputError
 from recon.cgh import ScatteringDisplay, optimize_hologram
+from recon.errors import ReconInputError
 from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,

@@ -44,9 +44,7 @@ the number of planes.
 
 from __future__ import annotations
 
-from .hologram import HologramResult, project
 from .baselines import no_mask_hologram, one_step_hologram, random_phase_field
-from .scattering_display import ScatteringDisplay, field_from_phase, random_binary_mask
 from .etendue import (
     etendue_mm2,
     expansion_factor,
@@ -57,6 +55,7 @@ from .etendue import (
     pixels_for,
     slm_etendue_mm2,
 )
+from .hologram import HologramResult, project
 from .losses import (
     IntensityLoss,
     butterworth_lowpass,
@@ -66,6 +65,7 @@ from .losses import (
     passband_count,
 )
 from .optimize import loss_and_gradient, optimize_hologram
+from .scattering_display import ScatteringDisplay, field_from_phase, random_binary_mask
 
 __all__ = [
     "HologramResult",

@@ -26,10 +26,10 @@ import scipy.fft as sfft
 
 from ..errors import ReconInputError
 from ..fft import WORKERS
-from .scattering_display import ScatteringDisplay
 from .losses import IntensityLoss
 from .optimize import optimize_hologram
 from .protocol import load_bundled, prepare_target
+from .scattering_display import ScatteringDisplay
 
 __all__ = ["fft_seconds", "main", "run_benchmark"]
 

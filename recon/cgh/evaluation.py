@@ -14,10 +14,10 @@ import numpy as np
 
 from ..errors import ReconInputError
 from .baselines import one_step_hologram
-from .scattering_display import ScatteringDisplay
 from .losses import IntensityLoss
 from .optimize import optimize_hologram
 from .protocol import image_metrics, prepare_target
+from .scattering_display import ScatteringDisplay
 
 __all__ = [
     "LABELS",

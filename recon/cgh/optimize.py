@@ -48,10 +48,10 @@ from ..errors import DivergenceError, ReconInputError
 from ..fft import WORKERS
 from ..solvers.common import History
 from . import _kernels
-from .hologram import HologramResult, check_slm_kind, check_targets, project
 from .baselines import one_step_hologram
-from .scattering_display import ScatteringDisplay, field_from_phase
+from .hologram import HologramResult, check_slm_kind, check_targets, project
 from .losses import IntensityLoss, butterworth_lowpass
+from .scattering_display import ScatteringDisplay, field_from_phase
 
 __all__ = ["loss_and_gradient", "optimize_hologram"]
 

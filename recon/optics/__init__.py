@@ -6,5 +6,6 @@ recon.optics`` stays light and compiles no numba kernels):
 * :mod:`recon.optics.diffuser` - diffuser surfaces (smooth random, random microlens).
 * :mod:`recon.optics.lensless` - ray-traced lensless PSFs, local-convolution scene
   rendering and the default bench geometries.
-* :mod:`recon.optics.holo_display` - the holographic display bench as built (SLM, relay, mask, camera).
+* :mod:`recon.optics.holo_display` - the holographic display bench as built
+  (SLM, relay, random mask, Fourier lens, camera).
 """

@@ -6,7 +6,6 @@ import math
 
 import pytest
 
-from recon.errors import ReconInputError
 from recon.cgh import (
     etendue_mm2,
     expansion_factor,
@@ -17,6 +16,7 @@ from recon.cgh import (
     pixels_for,
     slm_etendue_mm2,
 )
+from recon.errors import ReconInputError
 
 
 def test_gaea2_eyebox_at_120_degrees_is_1_05_mm():

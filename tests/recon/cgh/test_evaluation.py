@@ -16,7 +16,6 @@ import socket
 import numpy as np
 import pytest
 
-from recon.errors import ReconInputError
 from recon.cgh import benchmark, evaluate
 from recon.cgh.evaluation import (
     METHODS,
@@ -35,6 +34,7 @@ from recon.cgh.protocol import (
     prepare_target,
     to_grey,
 )
+from recon.errors import ReconInputError
 
 SHAPES = {"astronaut": (512, 512, 3), "camera": (512, 512), "chelsea": (300, 451, 3),
           "clock": (300, 400), "coffee": (400, 600, 3), "coins": (303, 384),

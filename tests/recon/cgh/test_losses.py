@@ -12,7 +12,6 @@ import math
 import numpy as np
 import pytest
 
-from recon.errors import ReconInputError
 from recon.cgh import (
     IntensityLoss,
     ScatteringDisplay,
@@ -23,6 +22,7 @@ from recon.cgh import (
     lowpass,
     passband_count,
 )
+from recon.errors import ReconInputError
 
 
 def _rand_c(rng, shape):

@@ -13,7 +13,6 @@ import math
 import numpy as np
 import pytest
 
-from recon.errors import ReconInputError
 from recon.cgh import (
     IntensityLoss,
     ScatteringDisplay,
@@ -23,6 +22,7 @@ from recon.cgh import (
     project,
 )
 from recon.cgh.protocol import image_metrics, load_bundled, prepare_target
+from recon.errors import ReconInputError
 
 
 def _wrap(a):

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from recon.errors import ReconInputError
 from recon.cgh import ScatteringDisplay, field_from_phase, random_binary_mask
+from recon.errors import ReconInputError
 from recon.optics.holo_display import MaskModel
 
 
