@@ -305,10 +305,10 @@ def reference_level(plan: SlmLutPlan, store) -> int:
     instrument.plan.CheckFailed
         The response never reaches pi/2 (or the pass-1 data cannot be analysed).
     """
-    from .slm_lut_io import analyse
+    from .slm_lut_io import analyze
 
     try:
-        res = analyse(plan, store, passes=1)
+        res = analyze(plan, store, passes=1)
     except PlanError as exc:
         raise CheckFailed(f"pass 1 cannot be analysed: {exc}",
                           "fix the cause, then resume the run") from exc

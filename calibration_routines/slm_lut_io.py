@@ -23,7 +23,7 @@ from instrument.runstore import RunStore
 
 from . import slm_lut_analysis as ana
 
-__all__ = ["SlmLut", "analyse", "apply_lut", "blazed_efficiency", "load_lut", "reduce_run"]
+__all__ = ["SlmLut", "analyze", "apply_lut", "blazed_efficiency", "load_lut", "reduce_run"]
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ def _point_mean(store, index: int, tag: str) -> tuple[np.ndarray, float]:
     return frames.astype(np.float64).mean(axis=0), exposures.pop()
 
 
-def analyse(plan, store, passes: int = 2) -> dict:
+def analyze(plan, store, passes: int = 2) -> dict:
     """Phases of the measured levels from a run's frames (pass 1 only, or both).
 
     Parameters
@@ -124,7 +124,7 @@ def reduce_run(plan, store) -> dict:
     """Analyse a complete run, write the ``slm_lut`` and ``slm_phase_measured``
     products and return the summary (see :meth:`SlmLutPlan.reduce`)."""
     p = plan.params
-    res = analyse(plan, store, passes=2)
+    res = analyze(plan, store, passes=2)
     gray, detail = res["gray"], res["detail"]
     lut = ana.fit_lut(gray, res["phase"], res["weight"])
     fit_rms = float(np.sqrt(np.average((lut[gray] - res["phase"]) ** 2, weights=res["weight"]

@@ -7,7 +7,7 @@ Randomness in Computational Cameras and Displays* (PhD dissertation, UC
 Berkeley, 2020): estimate the dark level from a dark corner of the PSF
 (mean of ``psf[5:15, 5:15]``), subtract it from both the PSF and the
 measurement, and downsample both by box-averaging. Normalisation is left to
-the solver layer (:func:`normalise` is provided for it).
+the solver layer (:func:`normalize` is provided for it).
 
 Every refusal raises :class:`recon.errors.ReconInputError` whose message says
 what is wrong and how to fix it.
@@ -34,7 +34,7 @@ __all__ = [
     "SaturationWarning",
     "box_bin",
     "dark_level",
-    "normalise",
+    "normalize",
     "prepare_pair",
     "saturation_fraction",
     "subtract_dark",
@@ -45,7 +45,7 @@ __all__ = [
 #: Dark-corner region of the DiffuserCam tutorial: ``psf[5:15, 5:15]``.
 DEFAULT_DARK_REGION: tuple[slice, slice] = (slice(5, 15), slice(5, 15))
 
-_NORMALISE_MODES = ("l2", "max", "sum")
+_NORMALIZE_MODES = ("l2", "max", "sum")
 
 
 class SaturationWarning(UserWarning):
@@ -494,7 +494,7 @@ def prepare_pair(
     dtype's full scale; demosaic 2D inputs if `bayer` is given; check channel
     and spatial shapes; subtract the dark level from both images; bin both by
     `bin_factor`; clip the PSF at 0; check the PSF still has signal.
-    No normalisation is done here (the solver layer scales; see :func:`normalise`).
+    No normalisation is done here (the solver layer scales; see :func:`normalize`).
 
     Parameters
     ----------
@@ -665,7 +665,7 @@ def prepare_pair(
     return Prepared(psf=psf_b, raw=raw_b, info=info)
 
 
-def normalise(image: np.ndarray, mode: str = "l2") -> tuple[np.ndarray, float]:
+def normalize(image: np.ndarray, mode: str = "l2") -> tuple[np.ndarray, float]:
     """Scale an image by its L2 norm, maximum or sum.
 
     Parameters
@@ -691,25 +691,25 @@ def normalise(image: np.ndarray, mode: str = "l2") -> tuple[np.ndarray, float]:
         If `mode` is unknown, the image is empty, non-numeric, contains
         NaN/inf, is all zero, or (mode ``"sum"``) has a non-positive sum.
     """
-    if mode not in _NORMALISE_MODES:
+    if mode not in _NORMALIZE_MODES:
         raise ReconInputError(
-            f"unknown normalisation mode {mode!r}; use one of {', '.join(_NORMALISE_MODES)}"
+            f"unknown normalization mode {mode!r}; use one of {', '.join(_NORMALIZE_MODES)}"
         )
     image = _as_array(image, "image")
     if image.dtype.kind not in "uif" or image.size == 0:
         raise ReconInputError(
-            f"cannot normalise an array of dtype {image.dtype} and shape {image.shape}; "
+            f"cannot normalize an array of dtype {image.dtype} and shape {image.shape}; "
             "pass a non-empty numeric image"
         )
     data = image.astype(np.float64)
     n_bad = int(np.count_nonzero(~np.isfinite(data)))
     if n_bad:
         raise ReconInputError(
-            f"cannot normalise: image contains {n_bad} NaN/inf value(s); validate the input first"
+            f"cannot normalize: image contains {n_bad} NaN/inf value(s); validate the input first"
         )
     if not np.any(data):
         raise ReconInputError(
-            "cannot normalise an all-zero image (scale would be 0); check the input data"
+            "cannot normalize an all-zero image (scale would be 0); check the input data"
         )
     if mode == "l2":
         scale = float(np.linalg.norm(data.ravel()))
@@ -719,7 +719,7 @@ def normalise(image: np.ndarray, mode: str = "l2") -> tuple[np.ndarray, float]:
         scale = float(data.sum())
         if not scale > 0:
             raise ReconInputError(
-                f"cannot normalise by sum: the image sums to {scale:g} (<= 0); "
+                f"cannot normalize by sum: the image sums to {scale:g} (<= 0); "
                 "use mode 'l2' or 'max' for signed data"
             )
     return (data / scale).astype(np.float32), scale

@@ -16,7 +16,7 @@ from recon.preprocess import (
     SaturationWarning,
     box_bin,
     dark_level,
-    normalise,
+    normalize,
     prepare_pair,
     saturation_fraction,
     subtract_dark,
@@ -505,37 +505,37 @@ def test_prepare_pair_real_tutorial_data():
     assert out.info["dark_level"] == pytest.approx(float(psf[5:15, 5:15].mean()))
 
 
-# --------------------------------------------------------------------------- normalise
+# --------------------------------------------------------------------------- normalize
 
 
-def test_normalise_l2():
+def test_normalize_l2():
     image = np.array([[3.0, 0.0], [0.0, -4.0]])
-    scaled, scale = normalise(image, "l2")
+    scaled, scale = normalize(image, "l2")
     assert scale == pytest.approx(5.0)
     assert scaled.dtype == np.float32
     assert np.linalg.norm(scaled) == pytest.approx(1.0)
     np.testing.assert_allclose(scaled * scale, image, rtol=1e-6)
 
 
-def test_normalise_max_and_sum():
+def test_normalize_max_and_sum():
     image = np.array([[1, 2], [3, 4]], dtype=np.uint16)
-    scaled, scale = normalise(image, "max")
+    scaled, scale = normalize(image, "max")
     assert scale == 4.0
     np.testing.assert_allclose(scaled, [[0.25, 0.5], [0.75, 1.0]])
-    scaled, scale = normalise(image, "sum")
+    scaled, scale = normalize(image, "sum")
     assert scale == 10.0
     assert scaled.sum() == pytest.approx(1.0)
 
 
-def test_normalise_refusals():
+def test_normalize_refusals():
     with pytest.raises(ReconInputError, match="all-zero image"):
-        normalise(np.zeros((3, 3)), "l2")
-    with pytest.raises(ReconInputError, match="unknown normalisation mode 'l1'"):
-        normalise(np.ones((3, 3)), "l1")
+        normalize(np.zeros((3, 3)), "l2")
+    with pytest.raises(ReconInputError, match="unknown normalization mode 'l1'"):
+        normalize(np.ones((3, 3)), "l1")
     with pytest.raises(ReconInputError, match="sums to -2"):
-        normalise(np.array([[1.0, -3.0]]), "sum")
+        normalize(np.array([[1.0, -3.0]]), "sum")
     with pytest.raises(ReconInputError, match="1 NaN/inf"):
-        normalise(np.array([[1.0, np.nan]]), "max")
+        normalize(np.array([[1.0, np.nan]]), "max")
 
 
 def test_full_scale_below_dtype_max_detects_shifted_12bit_saturation():
