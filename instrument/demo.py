@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from recon import reconstruct
-from recon.io import save_image
+from recon.io import DATA_ORIENTATION, save_image, scene_view
 from recon.metrics import psnr, ssim
 
 from .acquisition import autoexpose, average_frames
@@ -49,7 +49,9 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
     ----------
     out_dir : path
         Run directory (created): ``psf.tif``, ``scene_raw.tif``, ``dark.tif``,
-        ``reconstruction.png``/``.tif``, ``truth.png``, ``report.json``.
+        ``reconstruction.png``/``.tif``, ``truth.png``, ``report.json``. The PNG
+        views show the scene upright; the TIFF keeps the model grid
+        (:data:`recon.io.DATA_ORIENTATION`).
     seed : int
         Seeds the bench (diffuser, noise).
     z_mm : float
@@ -118,9 +120,9 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
     save_image(out / "psf.tif", psf.astype(np.float32))
     save_image(out / "dark.tif", dark.astype(np.float32))
     save_image(out / "scene_raw.tif", scene_raw.astype(np.float32))
-    save_image(out / "reconstruction.png", result.image)
+    save_image(out / "reconstruction.png", scene_view(result.image))
     save_image(out / "reconstruction.tif", result.image)
-    save_image(out / "truth.png", truth_reg)
+    save_image(out / "truth.png", scene_view(truth_reg))
     report = {
         "bench": bench.config.name, "seed": seed, "z_mm": z_mm,
         "geometry": {"sensor_shape": list(bench.geometry.sensor_shape),
@@ -134,6 +136,7 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         "reconstruction": {k: v for k, v in result.metrics().items()
                            if k not in ("objective", "data_residual")},
         "score_vs_known_scene": score,
+        "orientation": {"png": "scene, upright", "tif": DATA_ORIENTATION},
         "timings_s": timings,
         "total_s": time.perf_counter() - t0,
     }

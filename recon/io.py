@@ -28,8 +28,10 @@ __all__ = [
     "LOAD_EXTENSIONS",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
+    "DATA_ORIENTATION",
     "load_image",
     "save_image",
+    "scene_view",
 ]
 
 _TIFF_EXTENSIONS = (".tif", ".tiff")
@@ -40,6 +42,12 @@ _NPY_EXTENSIONS = (".npy",)
 LOAD_EXTENSIONS: tuple[str, ...] = _TIFF_EXTENSIONS + _CV2_EXTENSIONS + _NPY_EXTENSIONS
 #: File extensions :func:`save_image` accepts (lower case; matching is case-insensitive).
 SAVE_EXTENSIONS: tuple[str, ...] = _TIFF_EXTENSIONS + (".png",) + _NPY_EXTENSIONS
+
+#: Orientation of reconstructions in data files (TIFF, ``.npy``, Zarr) and in the
+#: arrays the solvers return: the object grid of the convolution model (Kuo 2020,
+#: Eq. 3.3: a point at object position x lands at u = -m x on the sensor), i.e. the
+#: scene rotated by 180 degrees. PNG views are turned upright with :func:`scene_view`.
+DATA_ORIENTATION = "model grid (Eq. 3.3, u = -m x): the scene rotated by 180 degrees"
 
 # Sensor colour-filter layout (top-left 2x2 block, row by row) -> OpenCV code.
 # OpenCV's historical Bayer names describe the 2nd and 3rd pixels of the 2nd
@@ -204,6 +212,30 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     image = _to_channels_last(path, image, is_tiff=suffix in _TIFF_EXTENSIONS)
     logger.debug("loaded %s: shape %s, dtype %s", path, image.shape, image.dtype)
     return image
+
+
+def scene_view(image: np.ndarray, axes: tuple[int, int] = (0, 1)) -> np.ndarray:
+    """A reconstruction turned from the model grid to scene orientation, for viewing.
+
+    The lensless camera images a plane inverted (Kuo 2020, Eq. 3.3: u = -m x), so a
+    reconstruction on the model grid (:data:`DATA_ORIENTATION`) shows the scene
+    rotated by 180 degrees; flipping both lateral axes shows it upright, as a
+    person in front of the camera sees it. Data files keep the model grid.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        Any dtype; (H, W), (H, W, C) channels last, or a volume (Z, H, W) with
+        ``axes=(1, 2)``.
+    axes : tuple of int
+        The (row, column) axes to flip.
+
+    Returns
+    -------
+    numpy.ndarray
+        A flipped view (no copy), same shape and dtype.
+    """
+    return np.flip(np.asarray(image), axis=axes)
 
 
 def _viewing_image(image: np.ndarray) -> np.ndarray:

@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+from skimage import data
+from skimage.transform import resize
+
 from instrument.cli import main
 from instrument.demo import run_demo
+from recon.io import load_image
 
 #: PSNR (gain-fitted, after a +-2 px registration) of the reconstruction against the
 #: known scene; the demo measured 18.4 dB (seed 0, 200 ADMM iterations) and 18.7 dB
@@ -26,6 +31,18 @@ def test_demo_run_writes_the_run_and_beats_the_psnr_bound(tmp_path):
     assert set(report["timings_s"]) and report["total_s"] < 60
     assert any("PSF at z" in line for line in lines) and lines[-1].startswith("[")
     assert report["reconstruction"]["final_relative_residual"] < 0.1
+    # PNG views show the scene upright (the model grid is inverted, u = -m x): the
+    # scene's region in truth.png, resized, correlates with the upright scene
+    truth_view = load_image(tmp_path / "truth.png").astype(float)
+    rows, cols = np.nonzero(truth_view > 0.05 * truth_view.max())
+    region = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    scene = resize(data.camera().astype(float), truth_view[region].shape, anti_aliasing=True)
+    for name in ("truth.png", "reconstruction.png"):
+        crop = load_image(tmp_path / name).astype(float)[region]
+        upright, flipped = (float(np.corrcoef(crop.ravel(), s.ravel())[0, 1])
+                            for s in (scene, scene[::-1, ::-1]))
+        assert upright > 0.5 and upright > flipped + 0.3, (name, upright, flipped)
+    assert report["orientation"]["tif"].startswith("model grid")
 
 
 def test_cli_demo_and_bad_bench_file(tmp_path, capsys):
