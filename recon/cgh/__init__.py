@@ -25,9 +25,10 @@ losses
 optimize
     :func:`optimize_hologram` (projected gradient with Nesterov acceleration and
     backtracking, Algorithm 1 / App. A.4; phase-only or complex SLM) and
-    :func:`loss_and_gradient` (the Wirtinger gradient of Eq. A.7-A.9).
+    :func:`loss_and_gradient` (the Wirtinger gradient of Eq. A.7-A.9);
+    :func:`no_mask_hologram` (the same optimiser on the bare SLM, for reference).
 baselines
-    :func:`one_step_hologram` (Eq. 7.11-7.13), :func:`no_mask_hologram`.
+    :func:`one_step_hologram` (Eq. 7.11-7.13).
 protocol, evaluation, evaluate
     The pre-registered Table 7.1 protocol, its runner and acceptance rules, and
     the command line (``python -m recon.cgh.evaluate``).
@@ -44,7 +45,7 @@ the number of planes.
 
 from __future__ import annotations
 
-from .baselines import no_mask_hologram, one_step_hologram, random_phase_field
+from .baselines import one_step_hologram, random_phase_field
 from .etendue import (
     etendue_mm2,
     expansion_factor,
@@ -64,7 +65,7 @@ from .losses import (
     lowpass,
     passband_count,
 )
-from .optimize import loss_and_gradient, optimize_hologram
+from .optimize import loss_and_gradient, no_mask_hologram, optimize_hologram
 from .scattering_display import ScatteringDisplay, field_from_phase, random_binary_mask
 
 __all__ = [

@@ -1,10 +1,11 @@
-"""Baselines: one-step back-propagation (Eq. 7.11-7.13) and the no-mask display.
+"""Baseline: one-step back-propagation (Eq. 7.11-7.13).
 
 One-step back-propagation is the algorithm of the prior work the dissertation
 compares against (Popoff, Buckley, Yu, Park): assign the target a random phase,
 propagate it back through the lens and the conjugate mask, integrate the field
-over each SLM pixel and keep only the phase. The no-mask display is the same
-optimiser on the bare SLM (``k = 1``): the native étendue, for reference.
+over each SLM pixel and keep only the phase. The other reference, the no-mask
+display (the same optimiser on the bare SLM), is
+:func:`recon.cgh.optimize.no_mask_hologram`.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from ..solvers.common import History
 from .hologram import HologramResult, check_slm_kind, check_targets, project
 from .scattering_display import ScatteringDisplay
 
-__all__ = ["no_mask_hologram", "one_step_hologram", "random_phase_field"]
+__all__ = ["one_step_hologram", "random_phase_field"]
 
 
 def random_phase_field(target, seed: int = 0) -> np.ndarray:
@@ -94,33 +95,3 @@ def one_step_hologram(display: ScatteringDisplay, target, seed: int = 0,
                           ffts_per_iteration=0.0, stop_reason="one-step",
                           params={"method": "one-step", "seed": seed, "slm": slm})
 
-
-def no_mask_hologram(target, loss=None, *, slm_pitch_um: float = 16.0, **kwargs):
-    """Hologram on the bare SLM (no mask, native étendue) for reference.
-
-    The target is shown over the native field of view only, at SLM resolution; the
-    optimiser and loss are the same as with a mask (``k = 1``, so the Butterworth
-    passband holds every SLM frequency that fits its disc).
-
-    Parameters
-    ----------
-    target : numpy.ndarray
-        Target intensity, ``(N_y, N_x)`` = the SLM shape, centred frame.
-    loss : IntensityLoss, optional
-        Default :meth:`IntensityLoss.frequency`.
-    slm_pitch_um : float
-        SLM pitch (um).
-    **kwargs
-        Passed to :func:`recon.cgh.optimize.optimize_hologram`.
-
-    Returns
-    -------
-    (ScatteringDisplay, HologramResult)
-    """
-    from .optimize import optimize_hologram
-
-    t = np.asarray(target)
-    if t.ndim != 2:
-        raise ReconInputError(f"target must be 2D (rows, cols) at SLM resolution, got {t.shape}")
-    display = ScatteringDisplay.no_mask(t.shape, slm_pitch_um=slm_pitch_um)
-    return display, optimize_hologram(display, t, loss, **kwargs)

@@ -53,7 +53,7 @@ from .hologram import HologramResult, check_slm_kind, check_targets, project
 from .losses import IntensityLoss, butterworth_lowpass
 from .scattering_display import ScatteringDisplay, field_from_phase
 
-__all__ = ["loss_and_gradient", "optimize_hologram"]
+__all__ = ["loss_and_gradient", "no_mask_hologram", "optimize_hologram"]
 
 log = logging.getLogger(__name__)
 
@@ -409,3 +409,32 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     log.debug("hologram: %d iterations, loss %.4g, %.2f s (%s)", n_it, loss_s,
               result.seconds, reason)
     return result
+
+
+def no_mask_hologram(target, loss=None, *, slm_pitch_um: float = 16.0, **kwargs):
+    """Hologram on the bare SLM (no mask, native étendue) for reference.
+
+    The target is shown over the native field of view only, at SLM resolution; the
+    optimiser and loss are the same as with a mask (``k = 1``, so the Butterworth
+    passband holds every SLM frequency that fits its disc).
+
+    Parameters
+    ----------
+    target : numpy.ndarray
+        Target intensity, ``(N_y, N_x)`` = the SLM shape, centred frame.
+    loss : IntensityLoss, optional
+        Default :meth:`IntensityLoss.frequency`.
+    slm_pitch_um : float
+        SLM pitch (um).
+    **kwargs
+        Passed to :func:`optimize_hologram`.
+
+    Returns
+    -------
+    (ScatteringDisplay, HologramResult)
+    """
+    t = np.asarray(target)
+    if t.ndim != 2:
+        raise ReconInputError(f"target must be 2D (rows, cols) at SLM resolution, got {t.shape}")
+    display = ScatteringDisplay.no_mask(t.shape, slm_pitch_um=slm_pitch_um)
+    return display, optimize_hologram(display, t, loss, **kwargs)
