@@ -54,6 +54,7 @@ from instrument.plan import (
 
 from . import slm_lut_analysis as ana
 from .holo_bench import far_field_setup
+from .slm_lut_io import reduce_run, reference_level
 
 __all__ = ["SLM_EXPOSURE", "SlmLutPlan"]
 
@@ -279,8 +280,6 @@ class SlmLutPlan(Plan):
             Saturated frames, orders not found, no modulation (the message names the
             fix).
         """
-        from .slm_lut_io import reduce_run
-
         return reduce_run(self, store)
 
 
@@ -296,27 +295,3 @@ def _spot_share(frame: np.ndarray, xy, window_px: int, ring_px: int) -> float:
         return 0.0
     return float(ana.order_energies(f, xy, (0.0, 0.0), [0], window_px, ring_px)[0]) / total
 
-
-def reference_level(plan: SlmLutPlan, store) -> int:
-    """Pass 2's reference gray: the measured level whose pass-1 phase is nearest pi/2.
-
-    Raises
-    ------
-    instrument.plan.CheckFailed
-        The response never reaches pi/2 (or the pass-1 data cannot be analysed).
-    """
-    from .slm_lut_io import analyze
-
-    try:
-        res = analyze(plan, store, passes=1)
-    except PlanError as exc:
-        raise CheckFailed(f"pass 1 cannot be analysed: {exc}",
-                          "fix the cause, then resume the run") from exc
-    phase = res["phase"]
-    if phase.max() < 0.5 * np.pi:
-        raise CheckFailed(
-            f"the SLM's phase reaches only {phase.max():.2f} rad at gray 255 "
-            f"({plan.params['wavelength_nm']:g} nm), below pi/2",
-            "check the polarisation (along the liquid-crystal axis) and the wavelength")
-    i = 1 + int(np.argmin(np.abs(phase[1:] - 0.5 * np.pi)))
-    return int(plan.levels[i])

@@ -1,6 +1,10 @@
 """The SLM phase-LUT run's analysis and products, loading a LUT onto an SLM, and a
 check of a LUT on the bench (a blazed grating's first-order efficiency).
 
+This module owns the run's reduction (:func:`analyze`, :func:`reference_level`,
+:func:`reduce_run`); the plan, :mod:`calibration_routines.slm_lut`, imports it from
+here and this module never imports the plan.
+
 Load and apply a calibrated LUT in a later session::
 
     from calibration_routines.slm_lut_io import apply_lut, load_lut
@@ -18,12 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from instrument.acquisition import autoexpose, average_frames
-from instrument.plan import PlanError
+from instrument.plan import CheckFailed, PlanError
 from instrument.runstore import RunStore
 
 from . import slm_lut_analysis as ana
 
-__all__ = ["SlmLut", "analyze", "apply_lut", "blazed_efficiency", "load_lut", "reduce_run"]
+__all__ = ["SlmLut", "analyze", "apply_lut", "blazed_efficiency", "load_lut", "reduce_run",
+           "reference_level"]
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +111,6 @@ def analyze(plan, store, passes: int = 2) -> dict:
     else:
         ref = store.attrs.get("slm_lut_reference_gray")
         if ref is None:
-            from .slm_lut import reference_level
-
             ref = reference_level(plan, store)
         fraction[:, 1] = [frac[i] for i in gratings[2]]
         m2 = ana.folded_phase(fraction[:, 1], beta)
@@ -118,6 +121,40 @@ def analyze(plan, store, passes: int = 2) -> dict:
             "fraction": fraction, "beta": beta, "drift": max(e_uni) / min(e_uni) - 1.0,
             "zero_order_px": list(zero), "order_offset_px": list(offset), "orders": orders,
             "reference_gray": None if ref is None else int(ref)}
+
+
+def reference_level(plan, store) -> int:
+    """Pass 2's reference gray: the measured level whose pass-1 phase is nearest pi/2.
+
+    Parameters
+    ----------
+    plan : calibration_routines.slm_lut.SlmLutPlan
+    store : instrument.runstore.RunStore
+        Holding at least the pass-1 points.
+
+    Returns
+    -------
+    int
+        A gray level of ``plan.levels``.
+
+    Raises
+    ------
+    instrument.plan.CheckFailed
+        The response never reaches pi/2 (or the pass-1 data cannot be analysed).
+    """
+    try:
+        res = analyze(plan, store, passes=1)
+    except PlanError as exc:
+        raise CheckFailed(f"pass 1 cannot be analysed: {exc}",
+                          "fix the cause, then resume the run") from exc
+    phase = res["phase"]
+    if phase.max() < 0.5 * np.pi:
+        raise CheckFailed(
+            f"the SLM's phase reaches only {phase.max():.2f} rad at gray 255 "
+            f"({plan.params['wavelength_nm']:g} nm), below pi/2",
+            "check the polarisation (along the liquid-crystal axis) and the wavelength")
+    i = 1 + int(np.argmin(np.abs(phase[1:] - 0.5 * np.pi)))
+    return int(plan.levels[i])
 
 
 def reduce_run(plan, store) -> dict:
