@@ -115,7 +115,7 @@ def _ask(action: str, message: str) -> bool:
 
 def _open_bench(args):
     from instrument.bench import Bench
-    from instrument.config import load_bench
+    from instrument.bench_setup import load_bench
     from instrument.virtual_bench import VirtualBench
 
     config = load_bench(args.bench, simulate=args.simulate)

@@ -26,8 +26,8 @@ from typing import Any
 from drivers.base import jsonable
 from drivers.errors import DeviceError
 
+from .bench_setup import OpenBench, open_bench
 from .config import BenchConfig
-from .registry import OpenBench, open_bench
 
 __all__ = ["ROLES", "Bench", "BenchRoleError", "PromptRefused"]
 
@@ -65,7 +65,7 @@ class Bench:
     Parameters
     ----------
     devices : Mapping[str, drivers.base.Device]
-        ``{device id: open device}``, e.g. what :func:`instrument.registry.open_bench`
+        ``{device id: open device}``, e.g. what :func:`instrument.bench_setup.open_bench`
         returns.
     config : BenchConfig, optional
         The bench's config (its calibration defaults and geometry are read by plans).

@@ -24,13 +24,8 @@ import sys
 from collections import Counter
 from typing import Any
 
-from instrument.config import (
-    BenchConfig,
-    BenchConfigError,
-    default_bench,
-    load_bench,
-    simulated_twin,
-)
+from instrument.bench_setup import load_bench, simulated_twin
+from instrument.config import BenchConfig, BenchConfigError, default_bench
 
 __all__ = ["add_subcommands", "run"]
 
@@ -138,7 +133,8 @@ def _status_text(status: dict[str, Any]) -> str:
 
 
 def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
-    from instrument.registry import BenchOpenError, RegistryError, open_bench
+    from instrument.bench_setup import BenchOpenError, open_bench
+    from instrument.registry import RegistryError
 
     if not (timeout_s > 0):
         _error(f"--timeout must be a positive number of seconds, got {timeout_s}")

@@ -1,4 +1,4 @@
-"""Driver registry and device lifecycle.
+"""Driver registry: drivers by name, and what the installed drivers say about a bench.
 
 Drivers are found by name through the entry-point group ``diffuserlab.drivers``, so a
 third-party driver is a pip plugin declaring, in its own ``pyproject.toml``::
@@ -12,8 +12,11 @@ attribute ``kind`` (one of :data:`instrument.config.KINDS`) and the constructor
 imported only when a driver is resolved. :func:`register` adds drivers in-process
 (notebooks, tests); those take precedence over entry points of the same name.
 
-:func:`open_bench` constructs and opens every device of a bench, and closes the
-already-opened ones if any fails, so nothing is left half-open.
+:func:`driver_problems` and :func:`construction_problems` check a bench's devices
+against the drivers. This module imports :mod:`instrument.config` and never the
+reverse; loading a bench file with these checks, simulated twins and opening a bench
+(:func:`instrument.bench_setup.open_bench`) are in :mod:`instrument.bench_setup`,
+which imports both.
 """
 
 from __future__ import annotations
@@ -21,25 +24,15 @@ from __future__ import annotations
 import difflib
 import inspect
 import logging
-from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import Any
 
-from instrument.config import (
-    KINDS,
-    SIMULATED_DRIVERS,
-    BenchConfig,
-    DeviceConfig,
-    Problem,
-    with_simulated_drivers,
-)
+from instrument.config import KINDS, SIMULATED_DRIVERS, BenchConfig, Problem
 
 __all__ = [
     "ENTRY_POINT_GROUP",
-    "BenchOpenError",
     "DriverKindError",
     "DriverLoadError",
-    "OpenBench",
     "RegistryError",
     "UnknownDriverError",
     "accepted_params",
@@ -47,7 +40,6 @@ __all__ = [
     "construction_problems",
     "driver_problems",
     "names",
-    "open_bench",
     "register",
     "resolve",
     "unregister",
@@ -97,42 +89,6 @@ class DriverKindError(RegistryError):
             f"driver {name!r} drives a {driver_kind}, not a {kind}: use a {kind} driver "
             f"(e.g. {SIMULATED_DRIVERS.get(kind, '?')!r}) or set kind = {driver_kind!r}"
         )
-
-
-class BenchOpenError(RuntimeError):
-    """A device failed to construct or open; every device opened before it was closed.
-
-    Attributes
-    ----------
-    device_id : str
-        The device that failed.
-    closed : list[str]
-        Ids of the devices opened before it and closed again.
-    close_errors : dict[str, BaseException]
-        Devices whose close failed during that cleanup.
-    """
-
-    def __init__(
-        self,
-        device_id: str,
-        driver: str,
-        cause: BaseException,
-        closed: list[str],
-        close_errors: dict[str, BaseException],
-    ):
-        self.device_id = device_id
-        self.driver = driver
-        self.closed = closed
-        self.close_errors = close_errors
-        text = (
-            f"opening device {device_id!r} (driver {driver!r}) failed: "
-            f"{type(cause).__name__}: {cause}; closed again: {', '.join(closed) or 'none'}"
-        )
-        if close_errors:
-            text += "; close failed for: " + ", ".join(
-                f"{k} ({type(e).__name__}: {e})" for k, e in close_errors.items()
-            )
-        super().__init__(text)
 
 
 def _entry_points() -> dict[str, list[Any]]:
@@ -260,7 +216,7 @@ def driver_problems(devices: Any) -> list[Problem]:
     """Problems with the drivers of raw ``[[devices]]`` tables: unknown name, a driver
     of another kind, a parameter the driver's constructor does not take.
 
-    Used by :func:`instrument.config.load_bench`; tolerates malformed entries (those are
+    Used by :func:`instrument.bench_setup.parse_bench`; tolerates malformed entries (those are
     reported by the model validation).
     """
     if not isinstance(devices, list):
@@ -359,98 +315,3 @@ def construction_problems(config: BenchConfig) -> list[Problem]:
             except Exception as exc:  # never fail validation on this
                 log.debug("close after construction of %s failed: %s", dev.id, exc)
     return problems
-
-
-class OpenBench(dict[str, Any]):
-    """``{device id: opened device}``, in bench order; a context manager that closes them.
-
-    ``close()`` closes every device in reverse order (each close is attempted even if
-    another fails; failures are logged and returned), then empties the mapping.
-    """
-
-    def close(self) -> dict[str, BaseException]:
-        """Close every device, last opened first; returns ``{id: error}`` of failed closes."""
-        errors = _close_all(list(self.items()))
-        self.clear()
-        return errors
-
-    def __enter__(self) -> OpenBench:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
-
-
-def _close_all(devices: list[tuple[str, Any]]) -> dict[str, BaseException]:
-    errors: dict[str, BaseException] = {}
-    for dev_id, dev in reversed(devices):
-        try:
-            dev.close()
-        except Exception as exc:  # keep closing the others
-            log.warning("closing device %s failed: %s: %s", dev_id, type(exc).__name__, exc)
-            errors[dev_id] = exc
-    return errors
-
-
-def open_bench(
-    config: BenchConfig,
-    *,
-    simulate: bool = False,
-    timeout_s: float = 10.0,
-    construct: Callable[[DeviceConfig, type], Any] | None = None,
-) -> OpenBench:
-    """Construct and open every device of ``config``; usable as a context manager.
-
-    Every driver is resolved (and its kind checked) before any device is opened. Each
-    device is constructed as ``cls(device_id, **params)`` and opened with
-    ``open(timeout_s)``. If one fails (or the process is interrupted), the devices
-    already opened are closed again, last first, before the error propagates: nothing
-    is left half-open.
-
-    Parameters
-    ----------
-    config : BenchConfig
-    simulate : bool
-        Swap every device for its simulated twin first (:func:`with_simulated_drivers`).
-    timeout_s : float
-        Passed to each device's ``open``.
-    construct : callable, optional
-        ``construct(device_config, cls) -> device`` replaces the plain
-        ``cls(device_id, **params)``, e.g. to couple simulated devices to a virtual
-        bench; the open/close-on-failure semantics stay the same.
-
-    Raises
-    ------
-    RegistryError
-        A driver is unknown, cannot load, or is of another kind (nothing opened).
-    BenchOpenError
-        A device failed to construct or open (the others are closed again).
-    """
-    if not (timeout_s > 0):
-        raise ValueError(f"timeout_s must be > 0, got {timeout_s!r}")
-    if simulate:
-        config = with_simulated_drivers(config)
-    classes = [(d, resolve(d.driver, d.kind)) for d in config.devices]
-    bench = OpenBench()
-    for dev_cfg, cls in classes:
-        device = None
-        try:
-            if construct is None:
-                device = cls(dev_cfg.id, **dev_cfg.params)
-            else:
-                device = construct(dev_cfg, cls)
-            log.debug("opening %s (%s)", dev_cfg.id, dev_cfg.driver)
-            device.open(timeout_s)
-        except BaseException as exc:
-            pending = list(bench.items())
-            if device is not None:  # a failed open may have acquired something
-                pending.append((dev_cfg.id, device))
-            errors = _close_all(pending)
-            bench.clear()
-            if not isinstance(exc, Exception):
-                raise
-            closed = [i for i, _ in pending if i != dev_cfg.id and i not in errors]
-            errors.pop(dev_cfg.id, None)
-            raise BenchOpenError(dev_cfg.id, dev_cfg.driver, exc, closed, errors) from exc
-        bench[dev_cfg.id] = device
-    return bench

@@ -42,8 +42,9 @@ from recon.errors import ReconInputError
 from recon.optics.lensless import LenslessGeometry, LenslessModel, diffuser_for_sensor
 
 from .bench import Bench, PromptRefused
-from .config import BenchConfig, GeometryConfig, default_bench, with_simulated_drivers
-from .registry import accepted_params, open_bench
+from .bench_setup import open_bench, with_simulated_drivers
+from .config import BenchConfig, GeometryConfig, default_bench
+from .registry import accepted_params
 from .slm_response import SlmPhaseResponse
 
 log = logging.getLogger(__name__)
@@ -248,7 +249,7 @@ class VirtualBench(Bench):
         return cls(dev.id, **params)
 
     def open(self, timeout_s: float = 5.0) -> VirtualBench:
-        """Construct and open every device through :func:`instrument.registry.open_bench`
+        """Construct and open every device through :func:`instrument.bench_setup.open_bench`
         (nothing is left half-open if one fails); reopening builds fresh devices."""
         self.devices = open_bench(self.config, timeout_s=timeout_s, construct=self._construct)
         return self

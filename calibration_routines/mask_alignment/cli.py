@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``align mask``; returns the exit status."""
     from drivers.errors import DeviceError
     from instrument.bench import Bench
-    from instrument.config import load_bench
+    from instrument.bench_setup import load_bench
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl
     from instrument.virtual_bench import VirtualBench

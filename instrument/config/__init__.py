@@ -34,25 +34,33 @@ Bench rules (checked across fields):
   ``{x = [low, high], ...}`` (mm for x, y, z; degrees for tip, tilt, rotation) or an
   array of names, names from :data:`STAGE_AXES`;
 * every driver is known to the registry, drives the device's kind and takes the
-  parameters given (checked by :func:`load_bench` unless ``check_drivers=False``;
-  ``construct=True`` also constructs each device, unopened, to check the values).
+  parameters given (checked by :func:`instrument.bench_setup.load_bench` unless
+  ``check_drivers=False``; ``construct=True`` also constructs each device, unopened,
+  to check the values).
 
 Every problem found is reported at once in one :class:`BenchConfigError`, each with
 its location (dotted path, TOML line where known) and a fix.
+
+This package needs no driver: :func:`validate_bench_text` checks the models and the
+bench rules. Loading a bench file with the driver checks (``load_bench``,
+``parse_bench``) and the simulated twins (``simulated_twin``,
+``with_simulated_drivers``) are in :mod:`instrument.bench_setup`, above both this
+package and :mod:`instrument.registry`.
 """
 
 
 from __future__ import annotations
 
 from .base import BRANCHES, KINDS, SIMULATED_DRIVERS, STAGE_AXES, TWIN_PARAM_ALIASES
-from .defaults import default_bench, simulated_twin, with_simulated_drivers
-from .loading import load_bench, parse_bench
-from .models import BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
+from .defaults import default_bench
+from .loading import raise_problems, read_bench_text, validate_bench_text
+from .models import DEFAULT_TRAVEL, BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
 from .problems import BenchConfigError, Problem
 from .writer import to_toml
 
 __all__ = [
     "BRANCHES",
+    "DEFAULT_TRAVEL",
     "KINDS",
     "SIMULATED_DRIVERS",
     "STAGE_AXES",
@@ -64,9 +72,8 @@ __all__ = [
     "GeometryConfig",
     "Problem",
     "default_bench",
-    "load_bench",
-    "parse_bench",
-    "simulated_twin",
+    "raise_problems",
+    "read_bench_text",
     "to_toml",
-    "with_simulated_drivers",
+    "validate_bench_text",
 ]

@@ -43,7 +43,8 @@ TWIN_PARAM_ALIASES: dict[str, dict[str, tuple[str, ...]]] = {
     "slm": {"resolution": ("resolution", "resolution_px", "shape_px")},
 }
 
-_ID_RE = re.compile(r"^[a-z0-9_-]{1,64}$")
+#: What a device id may be: 1-64 of ``a-z``, ``0-9``, ``_``, ``-``.
+ID_RE = re.compile(r"^[a-z0-9_-]{1,64}$")
 
 # --------------------------------------------------------------------------- units
 
@@ -90,9 +91,20 @@ _UNIT_SCALE = {
 _QUANTITY_RE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-zµμ]*)\s*$")
 
 
-def _unit_of(key: str) -> str | None:
-    """The unit suffix of a key name (``distance_mm`` -> ``mm``, ``speed_mm_s`` ->
-    ``mm/s``), or None (also for ``..._per_s`` rates of unnamed quantities)."""
+def unit_of(key: str) -> str | None:
+    """The unit suffix of a key name.
+
+    Parameters
+    ----------
+    key : str
+        A TOML key such as ``distance_mm`` or ``speed_mm_s``.
+
+    Returns
+    -------
+    str or None
+        ``"mm"``, ``"mm/s"``, ...; None without a unit suffix (also for ``..._per_s``
+        rates of unnamed quantities).
+    """
     parts = key.lower().split("_")
     if len(parts) < 2 or parts[-1] not in _UNIT_WORDS:
         return None
@@ -104,7 +116,18 @@ def _unit_of(key: str) -> str | None:
     return parts[-1]
 
 
-def _unit_word(unit: str) -> str:
+def unit_word(unit: str) -> str:
+    """The unit spelled out for messages (``"mm/s"`` -> ``"millimetres per second"``).
+
+    Parameters
+    ----------
+    unit : str
+        A unit returned by :func:`unit_of`.
+
+    Returns
+    -------
+    str
+    """
     if unit.endswith("/s"):
         return f"{_UNIT_WORDS[unit[:-2]]} per second"
     return _UNIT_WORDS[unit]
@@ -114,8 +137,24 @@ def _fmt_number(x: float) -> str:
     return f"{x:.12g}"
 
 
-def _unit_fix(key: str, unit: str, got: str) -> str:
-    """The fix for a string given where a number in ``unit`` is expected."""
+def unit_fix(key: str, unit: str, got: str) -> str:
+    """The fix for a string given where a number in ``unit`` is expected.
+
+    Parameters
+    ----------
+    key : str
+        The key (its name carries the unit).
+    unit : str
+        The key's unit (:func:`unit_of`).
+    got : str
+        The string given, e.g. ``"5 cm"``.
+
+    Returns
+    -------
+    str
+        The fix, with the value converted to ``unit`` when the string's unit is of
+        the same dimension (``"'5 cm' is 50 mm: write distance_mm = 50"``).
+    """
     m = _QUANTITY_RE.match(got)
     if m:
         value, given = float(m.group(1)), m.group(2)
@@ -130,12 +169,12 @@ def _unit_fix(key: str, unit: str, got: str) -> str:
             return f"{got!r} is {_fmt_number(converted)} {unit}: write {key} = " + _fmt_number(
                 converted
             )
-    return f"write {key} as a plain number in {_unit_word(unit)}"
+    return f"write {key} as a plain number in {unit_word(unit)}"
 
 
 def _check_number(key: str, value: Any, *, integer: bool = False) -> None:
     """Refuse strings (naming the unit) and booleans where a number is expected."""
-    unit = _unit_of(key)
+    unit = unit_of(key)
     what = "an integer" if integer else "a number"
     if isinstance(value, str):
         if unit:
@@ -143,9 +182,9 @@ def _check_number(key: str, value: Any, *, integer: bool = False) -> None:
                 "unit",
                 "expected {unit_word} as a number, got {got}",
                 {
-                    "unit_word": _unit_word(unit),
+                    "unit_word": unit_word(unit),
                     "got": repr(value),
-                    "fix": _unit_fix(key, unit, value),
+                    "fix": unit_fix(key, unit, value),
                 },
             )
         raise PydanticCustomError(
@@ -187,7 +226,7 @@ class Range:
         return bool(above and x <= self.hi)
 
 
-class _Section(BaseModel):
+class Section(BaseModel):
     """Base of the TOML tables: unknown keys refused, numbers checked for units and range."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -217,7 +256,7 @@ class _Section(BaseModel):
         if rng is None or value is None:
             return value
         items = value if isinstance(value, tuple) else (value,)
-        unit = _unit_of(info.field_name)
+        unit = unit_of(info.field_name)
         unit_text = f" {unit}" if unit and unit != "px" else ""
         for x in items:
             if not (math.isfinite(x) and rng.contains(x)):
@@ -236,7 +275,23 @@ class _Section(BaseModel):
         return value
 
 
-def _pair_ordered(model: _Section, name: str, *, strict: bool) -> None:
+def pair_ordered(model: Section, name: str, *, strict: bool) -> None:
+    """Check that a (minimum, maximum) field of a model is ordered (a model validator's
+    helper).
+
+    Parameters
+    ----------
+    model : Section
+    name : str
+        Field holding two numbers.
+    strict : bool
+        Require ``min < max`` (else ``min <= max``).
+
+    Raises
+    ------
+    pydantic_core.PydanticCustomError
+        ``bench_rules`` error whose ``problems`` carry the location, message and fix.
+    """
     lo, hi = getattr(model, name)
     if lo < hi or (not strict and lo == hi):
         return
@@ -258,7 +313,18 @@ def _pair_ordered(model: _Section, name: str, *, strict: bool) -> None:
     )
 
 
-def _dotted(loc: tuple | list) -> str:
+def dotted(loc: tuple | list) -> str:
+    """A validation location as a dotted path: ``("devices", 1, "driver")`` ->
+    ``"devices[1].driver"``.
+
+    Parameters
+    ----------
+    loc : tuple or list of str and int
+
+    Returns
+    -------
+    str
+    """
     out = ""
     for part in loc:
         if isinstance(part, int):

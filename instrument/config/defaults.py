@@ -1,14 +1,11 @@
-"""The built-in simulated bench and simulated twins of devices.
+"""The built-in simulated bench.
 
 Part of :mod:`instrument.config` (see its docstring).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-from .base import SIMULATED_DRIVERS, TWIN_PARAM_ALIASES
-from .models import _DEFAULT_TRAVEL, BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
+from .models import BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
 
 # ------------------------------------------------------------------- default bench
 
@@ -82,72 +79,3 @@ def default_bench() -> BenchConfig:
         ),
         calibration=CalibrationDefaults(),
     )
-
-
-def simulated_twin(
-    device: DeviceConfig, geometry: GeometryConfig | None = None
-) -> tuple[DeviceConfig, list[str]]:
-    """The simulated twin of one device, and the names of the parameters it dropped.
-
-    The twin keeps the id and kind and takes the driver :data:`SIMULATED_DRIVERS`
-    names for the kind. Parameters are translated where they mean the same thing:
-
-    * names in :data:`TWIN_PARAM_ALIASES` are renamed (``bit_depth`` -> ``adc_bits``,
-      an SLM's ``shape_px`` -> ``resolution``, ...);
-    * a camera without ``sensor_shape``/``pixel_pitch_um`` takes them from the
-      geometry, an SLM without ``wavelength_nm`` the geometry's wavelength;
-    * a stage whose ``axes`` is an array of names gets travel ranges from
-      ``limits_mm``/``limits_deg`` (``{axis = [low, high]}``) or defaults;
-    * any other parameter is kept if the twin's constructor takes it by that name,
-      otherwise dropped (ports, serial numbers, ...). If the twin cannot be imported,
-      only the translated parameters are kept.
-    """
-    from instrument.registry import RegistryError, accepted_params, resolve
-
-    kind = device.kind
-    driver = SIMULATED_DRIVERS[kind]
-    rest = dict(device.params)
-    out: dict[str, Any] = {}
-    for name, sources in TWIN_PARAM_ALIASES[kind].items():
-        found = [src for src in sources if src in rest]
-        if found:
-            out[name] = rest[found[0]]
-            for src in found:
-                rest.pop(src)
-    if kind == "camera" and geometry is not None:
-        out.setdefault("sensor_shape", list(geometry.sensor_shape_px))
-        out.setdefault("pixel_pitch_um", rest.pop("pixel_pitch_um", geometry.sensor_pixel_pitch_um))
-    if kind == "slm" and geometry is not None:
-        out.setdefault("wavelength_nm", rest.pop("wavelength_nm", geometry.wavelength_nm))
-    if kind == "stage" and isinstance(rest.get("axes"), list):
-        limits = {**_as_dict(rest.pop("limits_mm", {})), **_as_dict(rest.pop("limits_deg", {}))}
-        out["axes"] = {
-            a: list(limits.get(a, _DEFAULT_TRAVEL.get(a, (-1.0, 1.0)))) for a in rest.pop("axes")
-        }
-    try:
-        accepted = accepted_params(resolve(driver, kind))
-    except RegistryError:
-        accepted = set()
-    dropped = []
-    for key, value in rest.items():
-        if accepted is None or key in accepted:
-            out.setdefault(key, value)
-        else:
-            dropped.append(key)
-    twin = device.model_copy(update={"driver": driver, "params": out})
-    return twin, dropped
-
-
-def _as_dict(value: Any) -> dict[str, Any]:
-    return value if isinstance(value, dict) else {}
-
-
-def with_simulated_drivers(config: BenchConfig) -> BenchConfig:
-    """The same bench with every device driven by its simulated twin.
-
-    Ids, kinds, geometry and calibration are kept; parameters are translated as in
-    :func:`simulated_twin` (shapes, pitches, stage travel kept; ports, serial numbers
-    and other hardware addresses dropped).
-    """
-    devices = [simulated_twin(d, config.geometry)[0] for d in config.devices]
-    return config.model_copy(update={"devices": devices})

@@ -1,6 +1,8 @@
-"""Parsing and loading bench files into BenchConfig (every problem at once).
+"""Reading bench files and validating them into BenchConfig (every problem at once).
 
-Part of :mod:`instrument.config` (see its docstring).
+Part of :mod:`instrument.config` (see its docstring). These are the checks that need
+no driver; :func:`instrument.bench_setup.parse_bench` and
+:func:`instrument.bench_setup.load_bench` add the driver checks and simulated twins.
 """
 
 from __future__ import annotations
@@ -8,21 +10,18 @@ from __future__ import annotations
 import re
 import tomllib
 from pathlib import Path
+from typing import Any
 
-from pydantic import (
-    ValidationError,
-)
+from pydantic import ValidationError
 
-from .base import SIMULATED_DRIVERS
-from .defaults import with_simulated_drivers
 from .models import BenchConfig, bench_rule_problems
 from .problems import (
     BenchConfigError,
     Problem,
-    _dotted,
-    _line_index,
-    _locate,
-    _problems_from_validation,
+    dotted,
+    line_index,
+    locate,
+    problems_from_validation,
 )
 
 # ---------------------------------------------------------------------- loading
@@ -76,15 +75,9 @@ def _syntax_problem(exc: tomllib.TOMLDecodeError, text: str) -> Problem:
     )
 
 
-def parse_bench(
-    text: str,
-    *,
-    source: str | None = None,
-    check_drivers: bool = True,
-    simulate: bool = False,
-    construct: bool = False,
-) -> BenchConfig:
-    """Validate TOML text as a bench; raises :class:`BenchConfigError` with every problem.
+def validate_bench_text(text: str, *, source: str | None = None
+                        ) -> tuple[Any, BenchConfig | None, list[Problem]]:
+    """TOML text checked against the bench models and rules (no driver is looked at).
 
     Parameters
     ----------
@@ -92,16 +85,21 @@ def parse_bench(
         The TOML document.
     source : str, optional
         Name used in messages (a file path).
-    check_drivers : bool
-        Also check every driver name in the registry and its kind (imports the
-        drivers).
-    simulate : bool
-        Return the bench with every device swapped for its simulated twin
-        (:func:`with_simulated_drivers`); the drivers checked are then the twins, so a
-        lab file validates on a machine without its hardware drivers.
-    construct : bool
-        Also construct every device (without opening it), so parameter values the
-        driver refuses are reported here rather than at open (``validate`` does).
+
+    Returns
+    -------
+    raw : dict
+        The parsed TOML document.
+    config : BenchConfig or None
+        The validated bench, None if the models refused it.
+    problems : list of Problem
+        What the models and the bench rules refused (empty with a config); not yet
+        located on TOML lines (:func:`raise_problems` does that).
+
+    Raises
+    ------
+    BenchConfigError
+        A TOML syntax error (with its line and column): nothing else can be checked.
     """
     try:
         raw = tomllib.loads(text)
@@ -112,59 +110,60 @@ def parse_bench(
     try:
         config = BenchConfig.model_validate(raw)
     except ValidationError as exc:
-        problems = _problems_from_validation(exc)
+        problems = problems_from_validation(exc)
         if not any(
             p.message.startswith(("duplicate device id", "a lensless bench", "a holography"))
             for p in problems
         ):
             problems += [
-                Problem(_dotted(loc), msg, fix)
+                Problem(dotted(loc), msg, fix)
                 for loc, msg, fix in bench_rule_problems(
                     raw.get("devices"), raw.get("branches", ["lensless"])
                 )
             ]
-    if check_drivers:
-        from instrument.registry import driver_problems
-
-        devices = raw.get("devices")
-        if simulate and config is not None:  # the twins, with their translated params
-            devices = [d.model_dump() for d in with_simulated_drivers(config).devices]
-        elif simulate and isinstance(devices, list):  # invalid file: check the twins' names
-            devices = [
-                {"id": d.get("id"), "kind": d["kind"], "driver": SIMULATED_DRIVERS[d["kind"]]}
-                if isinstance(d, dict) and d.get("kind") in SIMULATED_DRIVERS
-                else d
-                for d in devices
-            ]
-        problems += driver_problems(devices)
-    if construct and config is not None and not problems:
-        from instrument.registry import construction_problems
-
-        problems += construction_problems(with_simulated_drivers(config) if simulate else config)
-    if problems:
-        index = _line_index(text)
-        located = [_locate(p, index) for p in problems]
-        located.sort(key=lambda p: (p.line is None, p.line or 0))
-        raise BenchConfigError(located, source)
-    assert config is not None
-    return with_simulated_drivers(config) if simulate else config
+    return raw, config, problems
 
 
-def load_bench(
-    path: str | Path,
-    *,
-    check_drivers: bool = True,
-    simulate: bool = False,
-    construct: bool = False,
-) -> BenchConfig:
-    """Read and validate a bench TOML file (options as in :func:`parse_bench`).
+def raise_problems(problems: list[Problem], text: str, source: str | None = None) -> None:
+    """Raise every problem at once, each located on its TOML line, in line order.
+
+    Parameters
+    ----------
+    problems : list of Problem
+        Nothing happens if empty.
+    text : str
+        The TOML document the problems are about.
+    source : str, optional
+        Name used in messages (a file path).
 
     Raises
     ------
     BenchConfigError
-        Unreadable file, TOML syntax error (line and column), missing keys, unknown
-        keys, wrong units or ranges, duplicate ids, bench rules, unknown drivers or a
-        driver of another kind: every problem found, each with location and fix.
+        If there is any problem.
+    """
+    if not problems:
+        return
+    index = line_index(text)
+    located = [locate(p, index) for p in problems]
+    located.sort(key=lambda p: (p.line is None, p.line or 0))
+    raise BenchConfigError(located, source)
+
+
+def read_bench_text(path: str | Path) -> str:
+    """The text of a bench file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    BenchConfigError
+        Unreadable file (missing, a directory, no permission) or not UTF-8, with the fix.
     """
     path = Path(path)
     try:
@@ -179,16 +178,9 @@ def load_bench(
         problem = Problem("(file)", f"cannot read: {reason}", fix)
         raise BenchConfigError([problem], str(path)) from None
     try:
-        text = data.decode("utf-8")
+        return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise BenchConfigError(
             [Problem("(file)", "not UTF-8 text", "save the file as UTF-8 TOML", line)], str(path)
         ) from None
-    return parse_bench(
-        text,
-        source=str(path),
-        check_drivers=check_drivers,
-        simulate=simulate,
-        construct=construct,
-    )

@@ -18,15 +18,15 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from .base import (
-    _ID_RE,
+    ID_RE,
     STAGE_AXES,
     Range,
-    _dotted,
-    _pair_ordered,
-    _Section,
-    _unit_fix,
-    _unit_of,
-    _unit_word,
+    Section,
+    dotted,
+    pair_ordered,
+    unit_fix,
+    unit_of,
+    unit_word,
 )
 
 # ------------------------------------------------------------------------- models
@@ -37,12 +37,12 @@ def _rules_error(problems: list[tuple[tuple, str, str]]) -> PydanticCustomError:
     return PydanticCustomError(
         "bench_rules",
         "{summary}",
-        {"summary": "; ".join(f"{_dotted(p[0])}: {p[1]}" for p in problems),
+        {"summary": "; ".join(f"{dotted(p[0])}: {p[1]}" for p in problems),
          "problems": problems},
     )
 
 
-class GeometryConfig(_Section):
+class GeometryConfig(Section):
     """Optical geometry of the lensless camera (SI-prefixed units in the names)."""
 
     sensor_pixel_pitch_um: Annotated[float, Range(0, 50)] = Field(
@@ -65,7 +65,7 @@ class GeometryConfig(_Section):
     )
 
 
-class CalibrationDefaults(_Section):
+class CalibrationDefaults(Section):
     """Defaults of the calibration plans (each plan may override them)."""
 
     z_range_mm: Annotated[tuple[float, float], Range(0, 10000)] = Field(
@@ -89,12 +89,12 @@ class CalibrationDefaults(_Section):
 
     @model_validator(mode="after")
     def _ordered(self) -> CalibrationDefaults:
-        _pair_ordered(self, "z_range_mm", strict=True)
-        _pair_ordered(self, "exposure_bounds_s", strict=False)
+        pair_ordered(self, "z_range_mm", strict=True)
+        pair_ordered(self, "exposure_bounds_s", strict=False)
         return self
 
 
-class DeviceConfig(_Section):
+class DeviceConfig(Section):
     """One device: id, kind, driver (registry name) and driver parameters."""
 
     id: str = Field(description="unique device id: a-z, 0-9, _ and -")
@@ -105,7 +105,7 @@ class DeviceConfig(_Section):
     @field_validator("id", mode="after")
     @classmethod
     def _id_ok(cls, value: str) -> str:
-        if not _ID_RE.match(value):
+        if not ID_RE.match(value):
             suggestion = re.sub(r"[^a-z0-9_-]+", "_", value.lower()).strip("_")[:64] or "camera"
             raise PydanticCustomError(
                 "device_id",
@@ -135,15 +135,15 @@ class DeviceConfig(_Section):
                 if isinstance(v, dict):
                     walk(v, (*loc, key))
                     continue
-                unit = _unit_of(key)
+                unit = unit_of(key)
                 items = v if isinstance(v, list) else [v]
                 if unit and any(isinstance(x, str) for x in items):
                     bad = next(x for x in items if isinstance(x, str))
                     problems.append(
                         (
                             (*loc, key),
-                            f"expected {_unit_word(unit)} as a number, got {bad!r}",
-                            _unit_fix(key, unit, bad),
+                            f"expected {unit_word(unit)} as a number, got {bad!r}",
+                            unit_fix(key, unit, bad),
                         )
                     )
 
@@ -215,9 +215,9 @@ def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
                 out.append(
                     (
                         (*loc, name),
-                        f"expected {_unit_word(unit)} as a number, got {text!r}",
-                        f"travel of {name} is [low, high] in {_unit_word(unit)}: "
-                        + _unit_fix(name + "_" + unit, unit, text).replace(f"{name}_{unit} = ", ""),
+                        f"expected {unit_word(unit)} as a number, got {text!r}",
+                        f"travel of {name} is [low, high] in {unit_word(unit)}: "
+                        + unit_fix(name + "_" + unit, unit, text).replace(f"{name}_{unit} = ", ""),
                     )
                 )
                 continue
@@ -234,15 +234,15 @@ def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
                         (*loc, name),
                         f"travel of axis {name!r} must be [low, high] with low < high, "
                         f"got {travel!r}",
-                        f"write {name} = [low, high] in {_unit_word(unit)}, e.g. "
-                        f"{name} = {list(_DEFAULT_TRAVEL[name])}",
+                        f"write {name} = [low, high] in {unit_word(unit)}, e.g. "
+                        f"{name} = {list(DEFAULT_TRAVEL[name])}",
                     )
                 )
     return out
 
 
 #: Travel given to a simulated twin's axis when the bench file lists only names.
-_DEFAULT_TRAVEL: dict[str, tuple[float, float]] = {
+DEFAULT_TRAVEL: dict[str, tuple[float, float]] = {
     "x": (-25.0, 25.0),
     "y": (-25.0, 25.0),
     "z": (0.0, 50.0),
@@ -311,7 +311,7 @@ def bench_rule_problems(devices: list[Any], branches: Any) -> list[tuple[tuple, 
     return out
 
 
-class BenchConfig(_Section):
+class BenchConfig(Section):
     """A whole bench: devices, optical geometry and calibration defaults."""
 
     name: str = Field(description="bench name")

@@ -14,8 +14,10 @@ from pydantic import (
     ValidationError,
 )
 
-from .base import _dotted, _Section, _unit_of, _unit_word
+from .base import Section, dotted, unit_of, unit_word
+from .defaults import default_bench
 from .models import BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
+from .writer import toml_value
 
 # ------------------------------------------------------------------------ problems
 
@@ -66,7 +68,7 @@ class BenchConfigError(ValueError):
         return [p.format(self.source) for p in self.problems]
 
 
-_TABLE_MODELS: dict[str, type[_Section]] = {
+_TABLE_MODELS: dict[str, type[Section]] = {
     "": BenchConfig,
     "geometry": GeometryConfig,
     "calibration": CalibrationDefaults,
@@ -74,7 +76,7 @@ _TABLE_MODELS: dict[str, type[_Section]] = {
 }
 
 
-def _model_for(loc: tuple) -> type[_Section] | None:
+def _model_for(loc: tuple) -> type[Section] | None:
     names = [p for p in loc if isinstance(p, str)]
     return _TABLE_MODELS.get(".".join(names))
 
@@ -90,9 +92,6 @@ def _example(loc: tuple) -> str | None:
             "kind": '"camera"',
             "driver": '"simulated-camera"',
         }.get(names[-1])
-    from .defaults import default_bench  # local: defaults imports this module
-    from .writer import _toml_value
-
     node: Any = default_bench().model_dump()
     for name in names:
         if not isinstance(node, dict) or name not in node:
@@ -100,7 +99,7 @@ def _example(loc: tuple) -> str | None:
         node = node[name]
     if isinstance(node, dict | list) and names[-1] in ("devices", "geometry", "calibration"):
         return None
-    return _toml_value(node)
+    return toml_value(node)
 
 
 def _table_hint(loc: tuple) -> str:
@@ -115,7 +114,23 @@ def _table_hint(loc: tuple) -> str:
     return f"under [{'.'.join(names)}]"
 
 
-def _problems_from_validation(exc: ValidationError) -> list[Problem]:
+def problems_from_validation(exc: ValidationError) -> list[Problem]:
+    """Every error of a bench's model validation as a :class:`Problem` with a fix.
+
+    Bench-rule errors carry their own problems and custom errors their fix; pydantic's
+    built-in errors (missing or unknown key, wrong type or length, ...) are reworded
+    with a fix naming the key, its unit and an example value from the default bench.
+
+    Parameters
+    ----------
+    exc : pydantic.ValidationError
+        From ``BenchConfig.model_validate``.
+
+    Returns
+    -------
+    list of Problem
+        Without TOML lines (:func:`locate` adds them).
+    """
     problems: list[Problem] = []
     for err in exc.errors(include_url=False):
         loc = tuple(err["loc"])
@@ -126,10 +141,10 @@ def _problems_from_validation(exc: ValidationError) -> list[Problem]:
         if "problems" in ctx:
             base = loc  # () for the bench-level rules
             for sub, msg, fix in ctx["problems"]:
-                problems.append(Problem(_dotted(base + tuple(sub)), msg, fix))
+                problems.append(Problem(dotted(base + tuple(sub)), msg, fix))
             continue
         if "fix" in ctx:
-            problems.append(Problem(_dotted(loc), err["msg"], ctx["fix"]))
+            problems.append(Problem(dotted(loc), err["msg"], ctx["fix"]))
             continue
         # Built-in pydantic errors, reworded with a fix.
         if typ == "missing":
@@ -166,13 +181,13 @@ def _problems_from_validation(exc: ValidationError) -> list[Problem]:
             fix = "write each device as its own [[devices]] table (double brackets)"
         elif typ in ("model_type", "dict_type"):
             msg = f"expected a table, got {got!r}"
-            fix = f"write [{_dotted(loc)}] as a table with its keys below it"
+            fix = f"write [{dotted(loc)}] as a table with its keys below it"
         elif typ in ("string_type",):
             msg = f"expected a string, got {got!r}"
             fix = f'write {key} = "..." (in quotes)'
         elif typ.startswith(("int_", "float_")) or typ in ("tuple_type", "list_type"):
-            unit = _unit_of(key)
-            in_unit = f" in {_unit_word(unit)}" if unit else ""
+            unit = unit_of(key)
+            in_unit = f" in {unit_word(unit)}" if unit else ""
             msg = f"{err['msg'].lower()}, got {got!r}"
             fix = f"write {key} as {'numbers' if 'tuple' in typ else 'a number'}{in_unit}"
             ex = _example(loc)
@@ -180,7 +195,7 @@ def _problems_from_validation(exc: ValidationError) -> list[Problem]:
                 fix += f", e.g. {key} = {ex}"
         else:
             msg, fix = err["msg"], "see examples/bench-simulated.toml"
-        problems.append(Problem(_dotted(loc), msg, fix))
+        problems.append(Problem(dotted(loc), msg, fix))
     return problems
 
 
@@ -197,8 +212,19 @@ def _split_key(text: str) -> list[str]:
     return [p.strip("\"'") for p in parts]
 
 
-def _line_index(text: str) -> dict[str, int]:
-    """Best-effort map from dotted paths (``devices[1].driver``) to 1-based line numbers."""
+def line_index(text: str) -> dict[str, int]:
+    """Best-effort map from dotted paths (``devices[1].driver``) to 1-based line numbers.
+
+    Parameters
+    ----------
+    text : str
+        The TOML document.
+
+    Returns
+    -------
+    dict
+        ``{dotted path: line}`` for every table header and key found.
+    """
     index: dict[str, int] = {}
     counts: dict[str, int] = {}
     prefix: list[str] = []
@@ -234,7 +260,21 @@ def _join(parts: list[str]) -> str:
     return ".".join(parts).replace(".[", "[")
 
 
-def _locate(problem: Problem, index: dict[str, int]) -> Problem:
+def locate(problem: Problem, index: dict[str, int]) -> Problem:
+    """The problem with the TOML line of its location, or of the nearest enclosing
+    table or key that has one.
+
+    Parameters
+    ----------
+    problem : Problem
+    index : dict
+        From :func:`line_index`.
+
+    Returns
+    -------
+    Problem
+        ``problem`` itself if it already has a line or nothing encloses it.
+    """
     if problem.line is not None:
         return problem
     path = problem.location

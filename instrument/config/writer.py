@@ -9,7 +9,7 @@ import math
 import re
 from typing import Any
 
-from .base import _Section
+from .base import Section
 from .models import BenchConfig
 
 # ------------------------------------------------------------------------- to_toml
@@ -40,7 +40,22 @@ def _toml_string(s: str) -> str:
     return "".join(out)
 
 
-def _toml_value(v: Any) -> str:
+def toml_value(v: Any) -> str:
+    """A value as TOML text (inline arrays and tables; None items are left out).
+
+    Parameters
+    ----------
+    v : bool, int, float, str, list, tuple or dict
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    TypeError
+        A value TOML cannot hold.
+    """
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -54,14 +69,14 @@ def _toml_value(v: Any) -> str:
     if isinstance(v, str):
         return _toml_string(v)
     if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v if x is not None) + "]"
+        return "[" + ", ".join(toml_value(x) for x in v if x is not None) + "]"
     if isinstance(v, dict):
-        items = [f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items() if x is not None]
+        items = [f"{_toml_key(k)} = {toml_value(x)}" for k, x in v.items() if x is not None]
         return "{" + ", ".join(items) + "}" if items else "{}"
     raise TypeError(f"cannot write {type(v).__name__} {v!r} as TOML")
 
 
-def _toml_table(model: _Section, data: dict[str, Any], *, comments: bool) -> list[str]:
+def _toml_table(model: Section, data: dict[str, Any], *, comments: bool) -> list[str]:
     lines = []
     for key, value in data.items():
         if value is None:
@@ -69,12 +84,13 @@ def _toml_table(model: _Section, data: dict[str, Any], *, comments: bool) -> lis
         field = type(model).model_fields.get(key)
         if comments and field is not None and field.description:
             lines.append(f"# {field.description}")
-        lines.append(f"{_toml_key(key)} = {_toml_value(value)}")
+        lines.append(f"{_toml_key(key)} = {toml_value(value)}")
     return lines
 
 
 def to_toml(config: BenchConfig, *, comments: bool = True) -> str:
-    """The bench as TOML text that :func:`parse_bench` reads back to an equal config.
+    """The bench as TOML text that :func:`instrument.bench_setup.parse_bench` reads back to
+    an equal config.
 
     Written by a small serializer (no dependency): top-level keys, ``[geometry]``,
     ``[calibration]``, then one ``[[devices]]`` table per device with its
@@ -95,5 +111,5 @@ def to_toml(config: BenchConfig, *, comments: bool = True) -> str:
         params = {k: v for k, v in raw["params"].items() if v is not None}
         if params:
             out += ["", "[devices.params]"]
-            out += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in params.items()]
+            out += [f"{_toml_key(k)} = {toml_value(v)}" for k, v in params.items()]
     return "\n".join(out) + "\n"

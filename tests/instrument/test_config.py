@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
+from instrument.bench_setup import load_bench, parse_bench, simulated_twin, with_simulated_drivers
 from instrument.config import (
     SIMULATED_DRIVERS,
     BenchConfig,
@@ -16,11 +17,7 @@ from instrument.config import (
     GeometryConfig,
     Problem,
     default_bench,
-    load_bench,
-    parse_bench,
-    simulated_twin,
     to_toml,
-    with_simulated_drivers,
 )
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

@@ -15,14 +15,13 @@ import pytest
 from drivers.base import Device
 from drivers.errors import DeviceValueError
 from instrument import registry
+from instrument.bench_setup import BenchOpenError, open_bench
 from instrument.config import DeviceConfig, default_bench
 from instrument.registry import (
     ENTRY_POINT_GROUP,
-    BenchOpenError,
     DriverKindError,
     DriverLoadError,
     UnknownDriverError,
-    open_bench,
     resolve,
 )
 

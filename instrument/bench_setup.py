@@ -1,0 +1,342 @@
+"""From a bench file to open devices: the steps that need both the bench
+configuration (:mod:`instrument.config`) and the driver registry
+(:mod:`instrument.registry`).
+
+* :func:`parse_bench` / :func:`load_bench`: a bench file validated (models and bench
+  rules, :func:`instrument.config.validate_bench_text`) and checked against the
+  installed drivers (:func:`instrument.registry.driver_problems`, optionally
+  :func:`instrument.registry.construction_problems`);
+* :func:`simulated_twin` / :func:`with_simulated_drivers`: the simulated stand-ins of
+  a bench's devices (their parameters filtered by what the twin's driver takes);
+* :func:`open_bench`: construct and open every device, closing the already-opened
+  ones if any fails, so nothing is left half-open.
+
+This module imports both; neither :mod:`instrument.config` nor
+:mod:`instrument.registry` imports it or the other's dependants, so the two stay free
+of cycles.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .config import (
+    DEFAULT_TRAVEL,
+    SIMULATED_DRIVERS,
+    TWIN_PARAM_ALIASES,
+    BenchConfig,
+    DeviceConfig,
+    GeometryConfig,
+    raise_problems,
+    read_bench_text,
+    validate_bench_text,
+)
+from .registry import (
+    RegistryError,
+    accepted_params,
+    construction_problems,
+    driver_problems,
+    resolve,
+)
+
+__all__ = [
+    "BenchOpenError",
+    "OpenBench",
+    "load_bench",
+    "open_bench",
+    "parse_bench",
+    "simulated_twin",
+    "with_simulated_drivers",
+]
+
+log = logging.getLogger(__name__)
+
+# -------------------------------------------------------------- loading a bench file
+
+
+def parse_bench(
+    text: str,
+    *,
+    source: str | None = None,
+    check_drivers: bool = True,
+    simulate: bool = False,
+    construct: bool = False,
+) -> BenchConfig:
+    """Validate TOML text as a bench; raises ``BenchConfigError`` with every problem.
+
+    Parameters
+    ----------
+    text, source : str
+        The TOML document, and the name used in messages (a file path; optional).
+    check_drivers : bool
+        Also check every driver name in the registry and its kind (imports the
+        drivers).
+    simulate : bool
+        Return the bench with every device swapped for its simulated twin
+        (:func:`with_simulated_drivers`); the drivers checked are then the twins, so a
+        lab file validates on a machine without its hardware drivers.
+    construct : bool
+        Also construct every device (without opening it), so parameter values the
+        driver refuses are reported here rather than at open (``validate`` does).
+
+    Returns
+    -------
+    BenchConfig
+
+    Raises
+    ------
+    instrument.config.BenchConfigError
+        TOML syntax error (line and column), missing keys, unknown keys, wrong units or
+        ranges, duplicate ids, bench rules, unknown drivers or a driver of another
+        kind, refused parameters: every problem found, each with location and fix.
+    """
+    raw, config, problems = validate_bench_text(text, source=source)
+    if check_drivers:
+        devices = raw.get("devices")
+        if simulate and config is not None:  # the twins, with their translated params
+            devices = [d.model_dump() for d in with_simulated_drivers(config).devices]
+        elif simulate and isinstance(devices, list):  # invalid file: check the twins' names
+            devices = [
+                {"id": d.get("id"), "kind": d["kind"], "driver": SIMULATED_DRIVERS[d["kind"]]}
+                if isinstance(d, dict) and d.get("kind") in SIMULATED_DRIVERS
+                else d
+                for d in devices
+            ]
+        problems += driver_problems(devices)
+    if construct and config is not None and not problems:
+        problems += construction_problems(with_simulated_drivers(config) if simulate else config)
+    raise_problems(problems, text, source)
+    assert config is not None
+    return with_simulated_drivers(config) if simulate else config
+
+
+def load_bench(
+    path: str | Path,
+    *,
+    check_drivers: bool = True,
+    simulate: bool = False,
+    construct: bool = False,
+) -> BenchConfig:
+    """Read and validate a bench TOML file (options as in :func:`parse_bench`).
+
+    Raises
+    ------
+    instrument.config.BenchConfigError
+        Unreadable file, TOML syntax error (line and column), missing keys, unknown
+        keys, wrong units or ranges, duplicate ids, bench rules, unknown drivers or a
+        driver of another kind: every problem found, each with location and fix.
+    """
+    return parse_bench(
+        read_bench_text(path),
+        source=str(path),
+        check_drivers=check_drivers,
+        simulate=simulate,
+        construct=construct,
+    )
+
+
+# ------------------------------------------------------------------ simulated twins
+
+
+def simulated_twin(
+    device: DeviceConfig, geometry: GeometryConfig | None = None
+) -> tuple[DeviceConfig, list[str]]:
+    """The simulated twin of one device, and the names of the parameters it dropped.
+
+    The twin keeps the id and kind and takes the driver :data:`SIMULATED_DRIVERS`
+    names for the kind. Parameters are translated where they mean the same thing:
+
+    * names in :data:`TWIN_PARAM_ALIASES` are renamed (``bit_depth`` -> ``adc_bits``,
+      an SLM's ``shape_px`` -> ``resolution``, ...);
+    * a camera without ``sensor_shape``/``pixel_pitch_um`` takes them from the
+      geometry, an SLM without ``wavelength_nm`` the geometry's wavelength;
+    * a stage whose ``axes`` is an array of names gets travel ranges from
+      ``limits_mm``/``limits_deg`` (``{axis = [low, high]}``) or defaults;
+    * any other parameter is kept if the twin's constructor takes it by that name,
+      otherwise dropped (ports, serial numbers, ...). If the twin cannot be imported,
+      only the translated parameters are kept.
+    """
+    kind = device.kind
+    driver = SIMULATED_DRIVERS[kind]
+    rest = dict(device.params)
+    out: dict[str, Any] = {}
+    for name, sources in TWIN_PARAM_ALIASES[kind].items():
+        found = [src for src in sources if src in rest]
+        if found:
+            out[name] = rest[found[0]]
+            for src in found:
+                rest.pop(src)
+    if kind == "camera" and geometry is not None:
+        out.setdefault("sensor_shape", list(geometry.sensor_shape_px))
+        out.setdefault("pixel_pitch_um", rest.pop("pixel_pitch_um", geometry.sensor_pixel_pitch_um))
+    if kind == "slm" and geometry is not None:
+        out.setdefault("wavelength_nm", rest.pop("wavelength_nm", geometry.wavelength_nm))
+    if kind == "stage" and isinstance(rest.get("axes"), list):
+        limits = {**_as_dict(rest.pop("limits_mm", {})), **_as_dict(rest.pop("limits_deg", {}))}
+        out["axes"] = {
+            a: list(limits.get(a, DEFAULT_TRAVEL.get(a, (-1.0, 1.0)))) for a in rest.pop("axes")
+        }
+    try:
+        accepted = accepted_params(resolve(driver, kind))
+    except RegistryError:
+        accepted = set()
+    dropped = []
+    for key, value in rest.items():
+        if accepted is None or key in accepted:
+            out.setdefault(key, value)
+        else:
+            dropped.append(key)
+    twin = device.model_copy(update={"driver": driver, "params": out})
+    return twin, dropped
+
+
+def _as_dict(value: Any) -> dict[str, Any]:
+    return value if isinstance(value, dict) else {}
+
+
+def with_simulated_drivers(config: BenchConfig) -> BenchConfig:
+    """The same bench with every device driven by its simulated twin.
+
+    Ids, kinds, geometry and calibration are kept; parameters are translated as in
+    :func:`simulated_twin` (shapes, pitches, stage travel kept; ports, serial numbers
+    and other hardware addresses dropped).
+    """
+    devices = [simulated_twin(d, config.geometry)[0] for d in config.devices]
+    return config.model_copy(update={"devices": devices})
+
+
+# ------------------------------------------------------------------- opening a bench
+
+
+class BenchOpenError(RuntimeError):
+    """A device failed to construct or open; every device opened before it was closed.
+
+    Attributes
+    ----------
+    device_id : str
+        The device that failed.
+    closed : list[str]
+        Ids of the devices opened before it and closed again.
+    close_errors : dict[str, BaseException]
+        Devices whose close failed during that cleanup.
+    """
+
+    def __init__(
+        self,
+        device_id: str,
+        driver: str,
+        cause: BaseException,
+        closed: list[str],
+        close_errors: dict[str, BaseException],
+    ):
+        self.device_id = device_id
+        self.driver = driver
+        self.closed = closed
+        self.close_errors = close_errors
+        text = (
+            f"opening device {device_id!r} (driver {driver!r}) failed: "
+            f"{type(cause).__name__}: {cause}; closed again: {', '.join(closed) or 'none'}"
+        )
+        if close_errors:
+            text += "; close failed for: " + ", ".join(
+                f"{k} ({type(e).__name__}: {e})" for k, e in close_errors.items()
+            )
+        super().__init__(text)
+
+
+class OpenBench(dict[str, Any]):
+    """``{device id: opened device}``, in bench order; a context manager that closes them.
+
+    ``close()`` closes every device in reverse order (each close is attempted even if
+    another fails; failures are logged and returned), then empties the mapping.
+    """
+
+    def close(self) -> dict[str, BaseException]:
+        """Close every device, last opened first; returns ``{id: error}`` of failed closes."""
+        errors = _close_all(list(self.items()))
+        self.clear()
+        return errors
+
+    def __enter__(self) -> OpenBench:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def _close_all(devices: list[tuple[str, Any]]) -> dict[str, BaseException]:
+    errors: dict[str, BaseException] = {}
+    for dev_id, dev in reversed(devices):
+        try:
+            dev.close()
+        except Exception as exc:  # keep closing the others
+            log.warning("closing device %s failed: %s: %s", dev_id, type(exc).__name__, exc)
+            errors[dev_id] = exc
+    return errors
+
+
+def open_bench(
+    config: BenchConfig,
+    *,
+    simulate: bool = False,
+    timeout_s: float = 10.0,
+    construct: Callable[[DeviceConfig, type], Any] | None = None,
+) -> OpenBench:
+    """Construct and open every device of ``config``; usable as a context manager.
+
+    Every driver is resolved (and its kind checked) before any device is opened. Each
+    device is constructed as ``cls(device_id, **params)`` and opened with
+    ``open(timeout_s)``. If one fails (or the process is interrupted), the devices
+    already opened are closed again, last first, before the error propagates: nothing
+    is left half-open.
+
+    Parameters
+    ----------
+    config : BenchConfig
+    simulate : bool
+        Swap every device for its simulated twin first (:func:`with_simulated_drivers`).
+    timeout_s : float
+        Passed to each device's ``open``.
+    construct : callable, optional
+        ``construct(device_config, cls) -> device`` replaces the plain
+        ``cls(device_id, **params)``, e.g. to couple simulated devices to a virtual
+        bench; the open/close-on-failure semantics stay the same.
+
+    Raises
+    ------
+    RegistryError
+        A driver is unknown, cannot load, or is of another kind (nothing opened).
+    BenchOpenError
+        A device failed to construct or open (the others are closed again).
+    """
+    if not (timeout_s > 0):
+        raise ValueError(f"timeout_s must be > 0, got {timeout_s!r}")
+    if simulate:
+        config = with_simulated_drivers(config)
+    classes = [(d, resolve(d.driver, d.kind)) for d in config.devices]
+    bench = OpenBench()
+    for dev_cfg, cls in classes:
+        device = None
+        try:
+            if construct is None:
+                device = cls(dev_cfg.id, **dev_cfg.params)
+            else:
+                device = construct(dev_cfg, cls)
+            log.debug("opening %s (%s)", dev_cfg.id, dev_cfg.driver)
+            device.open(timeout_s)
+        except BaseException as exc:
+            pending = list(bench.items())
+            if device is not None:  # a failed open may have acquired something
+                pending.append((dev_cfg.id, device))
+            errors = _close_all(pending)
+            bench.clear()
+            if not isinstance(exc, Exception):
+                raise
+            closed = [i for i, _ in pending if i != dev_cfg.id and i not in errors]
+            errors.pop(dev_cfg.id, None)
+            raise BenchOpenError(dev_cfg.id, dev_cfg.driver, exc, closed, errors) from exc
+        bench[dev_cfg.id] = device
+    return bench
