@@ -6,8 +6,10 @@ and writes an alignment record (:class:`AlignmentRecord`, read back with
 ``diffuserlab align mask BENCH.toml [--simulate]`` is its command line.
 """
 
+from .config import AlignmentConfig
+from .errors import AlignmentFailed, MaskNotFound
 from .fitting import best_subpixel_offset, fit_similarity, fit_triangle
-from .procedure import AlignmentConfig, AlignmentFailed, MaskAligner, MaskNotFound
+from .procedure import MaskAligner
 from .record import AlignmentRecord, corrected_mask, load_alignment, section_bounds
 from .spotmeter import SpotMeter, SpotReading, blazed_phase
 

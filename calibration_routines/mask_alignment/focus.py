@@ -34,12 +34,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
 from instrument.plan import PlanError
+from recon.optics.holo_display import MaskModel, RelayModel
 
-from .fitting import fit_parabola, fit_plane
+from .config import AlignmentConfig
+from .errors import AlignmentFailed
+from .fitting import TriangleFit, fit_parabola, fit_plane
+from .spotmeter import SpotReading
+
+__all__ = ["FocusHost", "FocusStep"]
 
 
 @dataclass
@@ -78,51 +85,120 @@ class _TiltState:
         return move
 
 
-class FocusStep:
-    """Mixin of :class:`.procedure.MaskAligner` holding step 5 (see the module docstring).
+class FocusHost(Protocol):
+    """What the focus step uses of the aligner (:class:`.procedure.MaskAligner` is one).
 
-    Uses the aligner's ``cfg``, ``bench``, ``mm``, ``sections``, ``shift``,
-    ``section_fits``, ``_read``, ``_cross``, ``_move``, ``_event`` and ``_save_step``.
+    Attributes
+    ----------
+    cfg : AlignmentConfig
+        Its ``focus*`` options, ``relay_na`` and ``translation_tol_px``.
+    mm : recon.optics.holo_display.MaskModel
+        The mask model: SLM and mask pitches (um), ``half_size`` (mask px).
+    relay : recon.optics.holo_display.RelayModel
+        Its ``wavelength_um`` (the default sweep range).
+    mask_stage : drivers.stage.Stage
+        Read only: ``axes``, ``limits``, ``position(axis)``, ``positions()`` (moves go
+        through :meth:`move`).
+    sections : list of (int, int, int, int)
+        Section bounds ``(r0, r1, c0, c1)`` on the SLM.
+    central : (int, int, int, int)
+        The central patch (step 3's).
+    shift : numpy.ndarray
+        (2,) int64, the model's global software shift (mask px); the step adds the
+        whole pixels of the image motion it measures.
+    section_fits : list of dict or None
+        Step 4's per-section fits (``"offset"``: (x, y) mask px), None before step 4;
+        their offsets take the same whole pixels.
+    stage_px_total : numpy.ndarray
+        (2,) float, stage translation applied so far (mask px); the step's sub-pixel
+        correction is subtracted.
     """
 
-    def default_focus_range_mm(self) -> float:
+    cfg: AlignmentConfig
+    mm: MaskModel
+    relay: RelayModel
+    mask_stage: Any
+    sections: list
+    central: tuple
+    shift: np.ndarray
+    section_fits: list | None
+    stage_px_total: np.ndarray
+
+    def patch_centre(self, patch) -> tuple[float, float]:
+        """Centre of an SLM patch on the mask plane, (x, y) mask px from the axis."""
+
+    def read(self, patch, shift, **context) -> SpotReading:
+        """One spot reading of ``patch`` with the model shifted by ``shift`` (mask px);
+        ``context`` goes to the record."""
+
+    def cross(self, patch, centre, step: str, rnd: int) -> tuple[TriangleFit, TriangleFit,
+                                                                   float]:
+        """Separable cross of software shifts around ``centre``: (fit x, fit y, peak eta)."""
+
+    def move(self, **deltas: float) -> None:
+        """Move the mask stage by plane deltas: ``x_px``, ``y_px`` (mask px), ``rx``,
+        ``ry``, ``rz`` (rad), ``z_mm``."""
+
+    def event(self, step: str, message: str, **data) -> None:
+        """Report progress."""
+
+    def save_step(self, name: str, result: dict) -> None:
+        """Keep a step's result (and save the record)."""
+
+
+class FocusStep:
+    """Step 5 of the mask alignment on a host aligner (see the module docstring).
+
+    ``FocusStep(aligner).run()`` sweeps, fits and moves the mask stage through the
+    aligner (``aligner.focus()`` does this).
+
+    Parameters
+    ----------
+    host : FocusHost
+        The aligner: configuration, mask model, stage, sections and its readings.
+    """
+
+    def __init__(self, host: FocusHost):
+        self.host = host
+        self.cfg = host.cfg
+        self.stage = host.mask_stage
+
+    def default_range_mm(self) -> float:
         """Half-range of the first z sweep (mm): the relay's depth of field
         ``lambda / NA^2`` when its NA is configured, else ``2 Delta^2 / lambda`` (the
         defocus over which an SLM pixel of pitch ``Delta`` blurs by about its size)."""
-        lam_mm = self.relay.wavelength_um / 1000.0
+        lam_mm = self.host.relay.wavelength_um / 1000.0
         if self.cfg.relay_na is not None:
             return lam_mm / self.cfg.relay_na**2
-        pitch_mm = self.mm.slm_pitch_um / 1000.0
+        pitch_mm = self.host.mm.slm_pitch_um / 1000.0
         return 2.0 * pitch_mm**2 / lam_mm
 
     def _section_shifts(self) -> list[np.ndarray]:
-        fits = getattr(self, "section_fits", None)
+        fits = self.host.section_fits
         if fits is None:
-            return [np.asarray(self.shift, np.int64)] * len(self.sections)
+            return [np.asarray(self.host.shift, np.int64)] * len(self.host.sections)
         return [np.round(np.asarray(f["offset"])).astype(np.int64) for f in fits]
 
     def _sweep(self, zs, shifts, rnd: int, widen: int) -> np.ndarray:
         """eta of every section at every z (stage moved in ascending z): (sections, z)."""
-        st = self.bench.mask_stage
-        out = np.empty((len(self.sections), len(zs)))
+        st = self.stage
+        out = np.empty((len(self.host.sections), len(zs)))
         for i, z in enumerate(zs):
-            self._move(z_mm=float(z) - st.position("z"))
-            for j, patch in enumerate(self.sections):
-                out[j, i] = self._read(patch, shifts[j], step="focus", round=rnd, widen=widen,
-                                       section=j, z_mm=float(z)).eta
+            self.host.move(z_mm=float(z) - st.position("z"))
+            for j, patch in enumerate(self.host.sections):
+                out[j, i] = self.host.read(patch, shifts[j], step="focus", round=rnd,
+                                           widen=widen, section=j, z_mm=float(z)).eta
         return out
 
     def _check_travel(self, zs) -> None:
-        from .procedure import AlignmentFailed
-
-        lo, hi = self.bench.mask_stage.limits["z"]
+        lo, hi = self.stage.limits["z"]
         if zs[0] < lo or zs[-1] > hi:
             raise AlignmentFailed(
                 f"focus sweep z {zs[0]:.3f}..{zs[-1]:.3f} mm leaves the mask stage's z travel "
                 f"[{lo:g}, {hi:g}] mm; centre the stage's z near focus before aligning, or "
                 "lower focus_range_mm")
 
-    def focus(self) -> dict:
+    def run(self) -> dict:
         """Step 5: z sweeps per section, parabola vertices, plane fit -> z, tip, tilt.
 
         Returns
@@ -145,21 +221,21 @@ class FocusStep:
         instrument.runner.RunAborted
             The operator aborted between readings.
         """
-        cfg, st = self.cfg, self.bench.mask_stage
+        cfg, st = self.cfg, self.stage
         skip = ("focus step turned off (focus = false)" if not cfg.focus else
                 None if "z" in st.axes else f"the mask stage has no z axis (axes {list(st.axes)})")
         if skip is not None:
-            self._save_step("focus", {"skipped": skip})
-            self._event("focus", skip)
+            self.host.save_step("focus", {"skipped": skip})
+            self.host.event("focus", skip)
             return {"skipped": skip}
-        half = base_half = float(cfg.focus_range_mm or self.default_focus_range_mm())
+        half = base_half = float(cfg.focus_range_mm or self.default_range_mm())
         shifts = self._section_shifts()
-        pitch_mm = self.mm.mask_pitch_um / 1000.0
-        centres = np.array([self._patch_centre(p) for p in self.sections]) * pitch_mm
-        hx, hy = (h * pitch_mm for h in self.mm.half_size)
-        need = max(3, math.ceil(cfg.focus_min_fraction * len(self.sections)))
+        pitch_mm = self.host.mm.mask_pitch_um / 1000.0
+        centres = np.array([self.host.patch_centre(p) for p in self.host.sections]) * pitch_mm
+        hx, hy = (h * pitch_mm for h in self.host.mm.half_size)
+        need = max(3, math.ceil(cfg.focus_min_fraction * len(self.host.sections)))
         tilt = _TiltState(can={"rx": "tip" in st.axes, "ry": "tilt" in st.axes})
-        ref = self._cross(self.central, self.shift, "focus_reference", 0)
+        ref = self.host.cross(self.host.central, self.host.shift, "focus_reference", 0)
         z_start = z_centre = st.position("z")
         rounds: list[dict] = []
         reason, failed, widen, rnd = "max rounds", None, 0, 0
@@ -172,8 +248,8 @@ class FocusStep:
             if ok.sum() < need:
                 peak_z = float(zs[int(np.argmax((etas / np.maximum(
                     etas.max(axis=1, keepdims=True), 1e-30)).mean(axis=0)))])
-                self._event("focus", f"{int(ok.sum())}/{len(fits)} sections peak inside "
-                            f"+-{half:.3f} mm" + (", widening" if widen < 2 else ""))
+                self.host.event("focus", f"{int(ok.sum())}/{len(fits)} sections peak inside "
+                                f"+-{half:.3f} mm" + (", widening" if widen < 2 else ""))
                 rounds.append({"round": rnd + 1, "z_mm": zs, "eta": etas, "accepted": ok,
                                "widened": widen < 2, "reasons": [f.reason for f in fits]})
                 if widen >= 2:
@@ -199,7 +275,7 @@ class FocusStep:
             z_star = plane.z0 if plane is not None else float(np.mean(zv))
             step = 2.0 * swept / (cfg.focus_steps - 1)
             move_tilt = tilt.moves(plane, {"rx": hy, "ry": hx}, 0.1 * step,
-                                   lambda ax: self._event(
+                                   lambda ax: self.host.event(
                                        "focus", f"{ax}: the correction made the tilt worse; "
                                        "the stage axis runs the other way, reversed"))
             slopes = {} if plane is None else tilt.last
@@ -213,16 +289,17 @@ class FocusStep:
                                "slope_y": plane.slope_y, "sigmas": plane.sigmas,
                                "residual_rms_mm": plane.residual_rms},
                            "tilt_correction_rad": move_tilt})
-            self._event("focus", f"round {rnd}: best z {z_star:+.4f} mm (move {dz * 1e3:+.1f} "
-                        f"um, DOF {dof * 1e3:.0f} um), tilt slopes "
-                        + ", ".join(f"{a} {v * 1e3:+.2f} mrad" for a, v in slopes.items()))
-            self._move(z_mm=z_star - st.position("z"), rx=move_tilt["rx"], ry=move_tilt["ry"])
+            self.host.event("focus", f"round {rnd}: best z {z_star:+.4f} mm (move "
+                            f"{dz * 1e3:+.1f} um, DOF {dof * 1e3:.0f} um), tilt slopes "
+                            + ", ".join(f"{a} {v * 1e3:+.2f} mrad" for a, v in slopes.items()))
+            self.host.move(z_mm=z_star - st.position("z"), rx=move_tilt["rx"],
+                           ry=move_tilt["ry"])
             z_centre = z_star
             if swept == base_half and abs(dz) < dof / 10.0 and not any(move_tilt.values()):
                 reason = "converged"
                 break
         if failed is not None:
-            self._move(z_mm=z_start - st.position("z"))
+            self.host.move(z_mm=z_start - st.position("z"))
             reason = "failed"
         motion = self._image_motion(ref)
         res = {"rounds": rounds, "stop": reason, "error": failed, "range_mm": base_half,
@@ -230,13 +307,13 @@ class FocusStep:
                "tilt_applied_deg": {a: st.position(a) for a in ("tip", "tilt") if a in st.axes},
                "reversed_axes": tilt.reversed, "dof_mm": rounds[-1].get("dof_mm") if rounds
                else None, "image_motion": motion}
-        self._save_step("focus", res)
+        self.host.save_step("focus", res)
         return res
 
     def _image_motion(self, ref) -> dict:
         """Step 3 again, differentially: the central patch's offset before vs after."""
         fx0, fy0, _ = ref
-        fx, fy, _ = self._cross(self.central, self.shift, "focus_check", 0)
+        fx, fy, _ = self.host.cross(self.host.central, self.host.shift, "focus_check", 0)
         d = np.array([fx.offset - fx0.offset, fy.offset - fy0.offset])
         sig = np.hypot([fx.offset_sigma, fy.offset_sigma], [fx0.offset_sigma, fy0.offset_sigma])
         move = np.where((np.abs(d) >= self.cfg.translation_tol_px) & (np.abs(d) >= 2 * sig),
@@ -244,11 +321,11 @@ class FocusStep:
         whole = np.round(move).astype(np.int64)
         frac = move - whole
         if np.any(frac != 0.0):
-            self._move(x_px=-frac[0], y_px=-frac[1])
-            self.stage_px_total -= frac
+            self.host.move(x_px=-frac[0], y_px=-frac[1])
+            self.host.stage_px_total -= frac
         if np.any(whole != 0):  # whole pixels stay in the model's shifts
-            self.shift = np.asarray(self.shift) + whole
-            for f in getattr(self, "section_fits", None) or []:
+            self.host.shift = np.asarray(self.host.shift) + whole
+            for f in self.host.section_fits or []:
                 f["offset"] = tuple(np.asarray(f["offset"]) + whole)
         return {"offset_change_px": d, "sigma_px": sig, "stage_move_px": -frac,
                 "shift_change_px": whole}

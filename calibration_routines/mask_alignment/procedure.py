@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -56,136 +55,18 @@ from recon.optics.holo_display import (
 )
 from recon.optics.holo_display import spot_phase as _spot_phase
 
+from .config import AlignmentConfig
+from .errors import AlignmentFailed, MaskNotFound
 from .fitting import best_subpixel_offset, fit_similarity, fit_triangle
 from .focus import FocusStep
 from .hologram_check import hologram_check
 from .record import AlignmentRecord, corrected_mask, section_bounds
-from .spotmeter import SpotMeter, blazed_phase
+from .spotmeter import SpotMeter, SpotReading, blazed_phase
 
 __all__ = ["AlignmentConfig", "AlignmentFailed", "MaskAligner", "MaskNotFound"]
 
 
-class AlignmentFailed(PlanError):
-    """The alignment cannot continue (the message says why and what to do)."""
-
-
-class MaskNotFound(AlignmentFailed):
-    """No spot over the whole coarse search range."""
-
-
-@dataclass(frozen=True)
-class AlignmentConfig:
-    """Parameters of :class:`MaskAligner` (defaults from holography-evaluation.md 8(c)).
-
-    Attributes
-    ----------
-    sections : (int, int)
-        Section grid over the SLM (rows, cols), the dissertation's 3 x 5.
-    central_fraction : float
-        Area of the coarse-search patch as a fraction of the SLM.
-    coarse_range_px : int
-        Half-width of the coarse software search (mask px); widened x2 once.
-    coarse_step_px : int or None
-        Coarse step (default ``max(1, k // 2)``).
-    detection_factor : float
-        Detection threshold over the scan's median |eta|.
-    cross_radius_px : int or None
-        Radius of the separable cross (default ``k + 1``).
-    translation_tol_px : float
-    max_translation_rounds, max_rigid_rounds, max_piecewise_passes : int
-    rotation : bool
-        Let step 4 rotate the stage (otherwise it only translates).
-    rotation_tol_factor : float
-        Rotation stop tolerance ``factor * k / half-diagonal`` (rad): the corner
-        displacement left, in SLM pixels. The notes' 0.2 leaves 0.8 mask px at the
-        corners for k = 4, which integer section shifts cannot remove (up to ~35 %
-        of a corner section's spot); 0.05 leaves 0.2 px (< 10 %).
-    piecewise_radius_px : int
-        Largest per-section integer shift searched around the global one.
-    repeats : int
-        Captures per pattern where a noise estimate is needed (>= 2).
-    verify_fraction : float
-        Required eta over the simulated perfectly aligned eta, per section.
-    residual_tol_px : float
-        Per-section residual offset reported as too large beyond this.
-    frames : int
-        Frames averaged per reading.
-    u0 : (float, float) or None
-        Spot frequency (far-field samples); default chosen automatically.
-    fourier_tol_px : float
-        Largest RMS residual of the camera affine fit (camera px).
-    settle_s : float
-        Wait after each stage move (bench time).
-    timeout_s : float
-        Per-device-operation timeout.
-    relay_na : float or None
-        Image-side NA of the SLM -> mask relay as designed: the simulation that sets
-        each section's ceiling includes its pupil, and the first focus sweep spans
-        its depth of field ``lambda / NA^2``. None: no pupil.
-    focus : bool
-        Run step 5 (stage z, tip, tilt).
-    focus_range_mm : float or None
-        Half-range of the first z sweep (default from ``relay_na``, see
-        :meth:`.focus.FocusStep.default_focus_range_mm`); doubled at most twice.
-    focus_steps : int
-        Positions per sweep (the notes' 7-11).
-    max_focus_rounds : int
-    focus_min_fraction : float
-        Fraction of the sections that must show a maximum inside the sweep.
-    hologram_min_correlation : float
-        Step 7's test hologram (:func:`.hologram_check.hologram_check`): a correlation
-        with its simulation below this is reported as a warning (measured on the
-        virtual bench: 0.999 aligned, 0.96 at 0.5 mask px, 0.85 at 1 px, 0.47 at 2 px).
-    """
-
-    sections: tuple[int, int] = (3, 5)
-    central_fraction: float = 0.1
-    coarse_range_px: int = 12
-    coarse_step_px: int | None = None
-    detection_factor: float = 20.0
-    cross_radius_px: int | None = None
-    translation_tol_px: float = 0.05
-    max_translation_rounds: int = 3
-    max_rigid_rounds: int = 5
-    max_piecewise_passes: int = 3
-    rotation: bool = True
-    rotation_tol_factor: float = 0.05
-    piecewise_radius_px: int = 2
-    repeats: int = 3
-    verify_fraction: float = 0.8
-    residual_tol_px: float = 0.25
-    frames: int = 3
-    u0: tuple[float, float] | None = None
-    fourier_tol_px: float = 0.3
-    settle_s: float = 0.05
-    timeout_s: float = 10.0
-    relay_na: float | None = None
-    focus: bool = True
-    focus_range_mm: float | None = None
-    focus_steps: int = 9
-    max_focus_rounds: int = 3
-    focus_min_fraction: float = 0.5
-    hologram_min_correlation: float = 0.9
-
-    def __post_init__(self):
-        if self.repeats < 2:
-            raise PlanError("repeats must be >= 2 (a noise estimate needs two captures)")
-        if not 0 < self.central_fraction <= 1:
-            raise PlanError("central_fraction must be in (0, 1]")
-        if self.coarse_range_px < 1 or self.piecewise_radius_px < 0:
-            raise PlanError("coarse_range_px must be >= 1 and piecewise_radius_px >= 0")
-        if self.relay_na is not None and not 0 < self.relay_na < 1:
-            raise PlanError(f"relay_na must be in (0, 1) or None, got {self.relay_na}")
-        if self.focus_range_mm is not None and not self.focus_range_mm > 0:
-            raise PlanError(f"focus_range_mm must be > 0, got {self.focus_range_mm}")
-        if self.focus_steps < 5 or self.max_focus_rounds < 1:
-            raise PlanError("focus_steps must be >= 5 (a parabola and its error) and "
-                            "max_focus_rounds >= 1")
-        if not 0 < self.focus_min_fraction <= 1:
-            raise PlanError("focus_min_fraction must be in (0, 1]")
-
-
-class MaskAligner(FocusStep):
+class MaskAligner:
     """Align the SLM's random mask with camera feedback (see the module docstring).
 
     Parameters
@@ -229,6 +110,7 @@ class MaskAligner(FocusStep):
         self.sections = section_bounds(mask_model.slm_shape, self.cfg.sections)
         self.stage_px_total = np.zeros(2)  # stage translation applied, mask px
         self.rotation_applied = 0.0  # rad
+        self.section_fits: list[dict] | None = None  # step 4's per-section fits
         wavelength_nm = getattr(bench.slm, "wavelength_nm", None)
         if wavelength_nm is None:
             raise PlanError("the SLM does not state its wavelength_nm; set it in the bench "
@@ -238,7 +120,13 @@ class MaskAligner(FocusStep):
 
     # -- bookkeeping -------------------------------------------------------------------
 
-    def _event(self, step: str, message: str, **data) -> None:
+    @property
+    def mask_stage(self):
+        """The bench's mask stage."""
+        return self.bench.mask_stage
+
+    def event(self, step: str, message: str, **data) -> None:
+        """Report progress to ``on_event(step, message, data)`` (if given)."""
         if self.on_event is not None:
             self.on_event(step, message, data)
 
@@ -247,7 +135,8 @@ class MaskAligner(FocusStep):
             self.record.log({**self._context, **reading.as_dict(),
                              "pose": self.bench.mask_stage.positions()})
 
-    def _save_step(self, name: str, result: dict) -> None:
+    def save_step(self, name: str, result: dict) -> None:
+        """Keep a step's result in ``state["steps"][name]`` and save the record."""
         self.state["steps"][name] = result
         self.state["captures"] = self.meter.captures
         if self.record is not None:
@@ -255,27 +144,37 @@ class MaskAligner(FocusStep):
 
     # -- patterns and readings -----------------------------------------------------------
 
-    def _patch_centre(self, patch) -> tuple[float, float]:
+    def patch_centre(self, patch) -> tuple[float, float]:
+        """Centre of the SLM patch ``(r0, r1, c0, c1)`` on the mask plane: (x, y) mask px
+        from the optical axis."""
         r0, r1, c0, c1 = patch
         x, y = self.mm.slm_to_plane((r0 + r1) / 2.0, (c0 + c1) / 2.0)
         return float(x), float(y)
 
-    def _read(self, patch, shift, **context):
+    def read(self, patch, shift, **context) -> SpotReading:
+        """Show the spot pattern of ``patch`` for the model shifted by ``shift`` (integer
+        mask px) and read the spot; ``context`` is logged with the reading."""
         self._context = {"patch": list(patch), "shift": [int(shift[0]), int(shift[1])],
                          **context}
         phase = _spot_phase(self.mm, self.u0, patch, shift=(int(shift[0]), int(shift[1])))
         return self.meter.read(phase, self.spot_px)
 
-    def _cross(self, patch, centre, step: str, rnd: int):
-        """Separable cross of software shifts around ``centre``: triangle fits in x, y."""
+    def cross(self, patch, centre, step: str, rnd: int):
+        """Separable cross of software shifts around ``centre``: triangle fits in x, y.
+
+        Returns
+        -------
+        (TriangleFit, TriangleFit, float)
+            The fits along x and y (offsets in mask px) and the largest eta read.
+        """
         rad = self.cfg.cross_radius_px or self.k + 1
         sx, sy = (int(v) for v in centre)
         xs = np.arange(sx - rad, sx + rad + 1)
-        ex = [self._read(patch, (x, sy), step=step, round=rnd, axis="x").eta for x in xs]
+        ex = [self.read(patch, (x, sy), step=step, round=rnd, axis="x").eta for x in xs]
         fx = fit_triangle(xs, ex, self.k)
         bx = int(round(fx.offset)) if abs(fx.offset - sx) <= rad else sx
         ys = np.arange(sy - rad, sy + rad + 1)
-        ey = [self._read(patch, (bx, y), step=step, round=rnd, axis="y").eta for y in ys]
+        ey = [self.read(patch, (bx, y), step=step, round=rnd, axis="y").eta for y in ys]
         fy = fit_triangle(ys, ey, self.k)
         return fx, fy, max(max(ex), max(ey))
 
@@ -283,7 +182,7 @@ class MaskAligner(FocusStep):
 
     def preflight(self) -> dict:
         """Dark level, camera affine (mask out of the beam), spot frequency, model ceiling."""
-        self._event("preflight", "dark frames")
+        self.event("preflight", "dark frames")
         dark = self.meter.measure_dark()
         cam_map, resid = self._fourier_calibration()
         self.camera_map = cam_map
@@ -299,9 +198,9 @@ class MaskAligner(FocusStep):
                "spot_px": list(self.spot_px), "central_patch": list(self.central),
                "eta_model_central": self.eta_model["central"],
                "eta_model_sections": self.eta_model["sections"]}
-        self._save_step("preflight", res)
-        self._event("preflight", f"affine rms {resid:.3f} px, u0 {self.u0}, spot at "
-                    f"({self.spot_px[0]:.1f}, {self.spot_px[1]:.1f}) px")
+        self.save_step("preflight", res)
+        self.event("preflight", f"affine rms {resid:.3f} px, u0 {self.u0}, spot at "
+                   f"({self.spot_px[0]:.1f}, {self.spot_px[1]:.1f}) px")
         return res
 
     def _retracted(self):
@@ -317,7 +216,7 @@ class MaskAligner(FocusStep):
                              if (a, b) != (0, 0)]
         shape = tuple(self.bench.camera.image_shape)
         for attempt in range(1, 4):
-            self._event("preflight", f"Fourier calibration, attempt {attempt}")
+            self.event("preflight", f"Fourier calibration, attempt {attempt}")
             pts = []
             with self._retracted():
                 zero = None
@@ -383,22 +282,22 @@ class MaskAligner(FocusStep):
                 for sx in grid:
                     key = (int(sx), int(sy))
                     if key not in scanned:
-                        scanned[key] = self._read(self.central, key, step="coarse",
-                                                  widen=widen).eta
-            self._event("coarse", f"{len(scanned)} shifts scanned (+-{rng} px)")
+                        scanned[key] = self.read(self.central, key, step="coarse",
+                                                 widen=widen).eta
+            self.event("coarse", f"{len(scanned)} shifts scanned (+-{rng} px)")
             etas = np.array(list(scanned.values()))
             background = float(np.median(np.abs(etas)))
             best = max(scanned, key=scanned.get)
             if scanned[best] > self.cfg.detection_factor * background:
-                again = self._read(self.central, best, step="coarse", repeat=True).eta
+                again = self.read(self.central, best, step="coarse", repeat=True).eta
                 if again > self.cfg.detection_factor * background:
                     res = {"shift": list(best), "eta": scanned[best], "eta_repeat": again,
                            "background": background, "scanned": len(scanned),
                            "range_px": rng, "widened": bool(widen)}
-                    self._save_step("coarse", res)
+                    self.save_step("coarse", res)
                     self.shift = np.array(best, dtype=np.int64)
                     return res
-        self._save_step("coarse", {"scanned": len(scanned), "background": background,
+        self.save_step("coarse", {"scanned": len(scanned), "background": background,
                                    "best_eta": scanned[best], "found": False})
         raise MaskNotFound(
             f"no spot over +-{2 * self.cfg.coarse_range_px} mask px of software shift "
@@ -408,7 +307,7 @@ class MaskAligner(FocusStep):
 
     # -- step 3: global translation --------------------------------------------------------
 
-    def _move(self, **deltas) -> None:
+    def move(self, **deltas) -> None:
         """Move the mask stage by plane deltas: x_px, y_px (mask px), rz/rx/ry (rad), z_mm."""
         st = self.bench.mask_stage
         pitch_mm = self.mm.mask_pitch_um / 1000.0
@@ -438,7 +337,7 @@ class MaskAligner(FocusStep):
         """Rounds of cross fits on the central patch; the stage takes the fractional part."""
         rounds, stable, reason = [], 0, "max rounds"
         for rnd in range(1, self.cfg.max_translation_rounds + 1):
-            fx, fy, peak = self._cross(self.central, self.shift, label, rnd)
+            fx, fy, peak = self.cross(self.central, self.shift, label, rnd)
             d = np.array([fx.offset, fy.offset])
             sig = max(fx.offset_sigma, fy.offset_sigma)
             target = np.round(d).astype(np.int64)
@@ -446,8 +345,8 @@ class MaskAligner(FocusStep):
             rounds.append({"offset": d, "sigma": [fx.offset_sigma, fy.offset_sigma],
                            "eta_peak": peak, "shift": target})
             self.shift = target
-            self._event(label, f"round {rnd}: offset ({d[0]:+.3f}, {d[1]:+.3f}) px, "
-                        f"sigma {sig:.3f}, eta {peak:.3g}")
+            self.event(label, f"round {rnd}: offset ({d[0]:+.3f}, {d[1]:+.3f}) px, "
+                       f"sigma {sig:.3f}, eta {peak:.3g}")
             if np.max(np.abs(frac)) < self.cfg.translation_tol_px:
                 stable += 1
                 if stable >= 2 or rnd == self.cfg.max_translation_rounds:
@@ -459,12 +358,12 @@ class MaskAligner(FocusStep):
                 reason = "noise-limited"
                 break
             if rnd < self.cfg.max_translation_rounds:
-                self._move(x_px=-frac[0], y_px=-frac[1])
+                self.move(x_px=-frac[0], y_px=-frac[1])
                 self.stage_px_total -= frac
         self.offset = d
         res = {"rounds": rounds, "stop": reason, "shift": self.shift, "offset": d,
                "translation_px": d - self.stage_px_total}
-        self._save_step(label, res)
+        self.save_step(label, res)
         return res
 
     # -- step 4: rigid pose -------------------------------------------------------------------
@@ -474,8 +373,8 @@ class MaskAligner(FocusStep):
         out = []
         for j, patch in enumerate(self.sections):
             start = self.shift if centres is None else centres[j]
-            fx, fy, peak = self._cross(patch, start, label, rnd)
-            out.append({"section": j, "centre": self._patch_centre(patch),
+            fx, fy, peak = self.cross(patch, start, label, rnd)
+            out.append({"section": j, "centre": self.patch_centre(patch),
                         "offset": (fx.offset, fy.offset),
                         "sigma": (fx.offset_sigma, fy.offset_sigma), "eta_peak": peak})
         return out
@@ -521,10 +420,10 @@ class MaskAligner(FocusStep):
                            "subpixel_move_px": phi, "predicted_gain": gain,
                            "residual_rms_px": fit.residual_rms, "sections": secs})
             self.section_fits = secs
-            self._event("rigid", f"round {rnd}: t ({t[0]:+.3f}, {t[1]:+.3f}) px, theta "
-                        f"{fit.theta * 1e3:+.3f} mrad (sigma {fit.sigmas[2] * 1e3:.3f}), m-1 "
-                        f"{fit.scale_error:+.2e}, residual {fit.residual_rms:.3f} px, "
-                        f"sub-pixel move ({phi[0]:+.2f}, {phi[1]:+.2f}) px")
+            self.event("rigid", f"round {rnd}: t ({t[0]:+.3f}, {t[1]:+.3f}) px, theta "
+                       f"{fit.theta * 1e3:+.3f} mrad (sigma {fit.sigmas[2] * 1e3:.3f}), m-1 "
+                       f"{fit.scale_error:+.2e}, residual {fit.residual_rms:.3f} px, "
+                       f"sub-pixel move ({phi[0]:+.2f}, {phi[1]:+.2f}) px")
             shift = [abs(f) >= self.cfg.translation_tol_px and abs(f) >= 2 * s
                      for f, s in zip(phi, fit.sigmas[:2], strict=True)]
             if not rotate and not any(shift):
@@ -534,7 +433,7 @@ class MaskAligner(FocusStep):
                 break
             dth = -fit.theta if rotate else 0.0
             dxy = np.where(shift, phi, 0.0)
-            self._move(x_px=dxy[0], y_px=dxy[1], rz=dth)
+            self.move(x_px=dxy[0], y_px=dxy[1], rz=dth)
             self.rotation_applied += dth
             self.stage_px_total += dxy
             # where each section's offset should now be (rotation about the optical axis)
@@ -547,20 +446,30 @@ class MaskAligner(FocusStep):
                "theta_recovered_rad": last["theta_rad"] - self.rotation_applied,
                "translation_px": np.asarray(last["translation"]) - self.stage_px_total,
                "scale_error": last["scale_error"], "shift": self.shift}
-        self._save_step("rigid", res)
+        self.save_step("rigid", res)
         return res
+
+    # -- step 5: focus and tip/tilt ----------------------------------------------------------
+
+    def focus(self) -> dict:
+        """Step 5: focus and tip/tilt of the mask (stage z, tip, tilt).
+
+        Runs :class:`.focus.FocusStep` on this aligner; its :meth:`~.focus.FocusStep.run`
+        describes the result (also saved as ``steps["focus"]``) and the errors raised.
+        """
+        return FocusStep(self).run()
 
     # -- step 6: piecewise integer correction -------------------------------------------------
 
     def _eta_stats(self, patch, shift, label, **ctx) -> tuple[float, float]:
-        vals = [self._read(patch, shift, step=label, **ctx).eta for _ in range(self.cfg.repeats)]
+        vals = [self.read(patch, shift, step=label, **ctx).eta for _ in range(self.cfg.repeats)]
         return float(np.mean(vals)), float(np.std(vals, ddof=1))
 
     def piecewise(self) -> dict:
         """Per-section integer shifts that beat the global shift by more than 3 sigma."""
         r = self.cfg.piecewise_radius_px
         g = np.asarray(self.shift)
-        fits = getattr(self, "section_fits", None)
+        fits = self.section_fits
         shifts = []
         for j in range(len(self.sections)):
             start = g if fits is None else np.round(np.asarray(fits[j]["offset"])).astype(int)
@@ -573,7 +482,7 @@ class MaskAligner(FocusStep):
             key = (j, int(s[0]), int(s[1]))
             have = cache.setdefault(key, [])
             while len(have) < repeats:
-                have.append(self._read(self.sections[j], s, step="piecewise", section=j).eta)
+                have.append(self.read(self.sections[j], s, step="piecewise", section=j).eta)
             return float(np.mean(have)), float(np.std(have, ddof=1)) if len(have) > 1 else 0.0
 
         for p in range(1, self.cfg.max_piecewise_passes + 1):
@@ -595,14 +504,14 @@ class MaskAligner(FocusStep):
                     shifts[j] = best
                     changed += 1
             passes.append({"changed": changed, "shifts": shifts.copy()})
-            self._event("piecewise", f"pass {p}: {changed} section(s) changed")
+            self.event("piecewise", f"pass {p}: {changed} section(s) changed")
             if changed == 0:
                 reason = "no change"
                 break
         self.section_shifts = shifts
         res = {"passes": passes, "stop": reason, "shifts": shifts,
                "relative_shifts": shifts - g}
-        self._save_step("piecewise", res)
+        self.save_step("piecewise", res)
         return res
 
     # -- step 7: verify --------------------------------------------------------------------------
@@ -614,7 +523,7 @@ class MaskAligner(FocusStep):
             m, _ = self._eta_stats(patch, self.section_shifts[j], "verify", section=j)
             etas.append(m)
             ok.append(m >= self.cfg.verify_fraction * self.eta_model["sections"][j])
-        if getattr(self, "section_fits", None) is not None:
+        if self.section_fits is not None:
             for j, f in enumerate(self.section_fits):
                 resid.append(float(np.max(np.abs(np.asarray(f["offset"])
                                                  - self.section_shifts[j]))))
@@ -644,7 +553,7 @@ class MaskAligner(FocusStep):
                "residual_px": resid,
                "warnings": warnings, "seam_fraction": float(1.0 - seam.mean()),
                "test_hologram": holo}
-        self._save_step("verify", res)
+        self.save_step("verify", res)
         self.corrected = mask
         return res
 
@@ -688,11 +597,3 @@ class MaskAligner(FocusStep):
             else:
                 self.state["status"] = status
 
-
-def config_from_dict(values: dict) -> AlignmentConfig:
-    """An :class:`AlignmentConfig` from a mapping (unknown keys are refused by name)."""
-    known = set(asdict(AlignmentConfig()))
-    bad = sorted(set(values) - known)
-    if bad:
-        raise PlanError(f"unknown alignment option(s) {bad}; known: {sorted(known)}")
-    return replace(AlignmentConfig(), **values)

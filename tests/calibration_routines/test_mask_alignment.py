@@ -123,7 +123,7 @@ def test_piecewise_distortion(tmp_path):
     al, rep, _ = _run(bench, _model(bench), tmp_path, focus=False)  # in focus; saves time
     assert abs(rep["summary"]["theta_rad"] - truth.theta) <= 0.3e-3
     shifts = np.asarray(rep["summary"]["section_shifts"])
-    cen = np.array([al._patch_centre(p) for p in al.sections])
+    cen = np.array([al.patch_centre(p) for p in al.sections])
     dx, dy = bench.hologram.mask.displacement(cen[:, 0], cen[:, 1], bench._mask_pose())
     true = np.stack([dx, dy], 1)
     assert np.ptp(true, axis=0).max() > 1.0  # the distortion needs piecewise shifts

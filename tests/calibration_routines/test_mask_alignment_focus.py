@@ -39,10 +39,11 @@ class _Stage:
         return dict(self.pos)
 
 
-class _SyntheticAligner(FocusStep):
-    """The focus step on an analytic bench: each section's eta is a Gaussian in its
-    local defocus ``dz + rx y - ry x`` (the display model's convention), plus noise.
-    ``tip_sign = -1`` models a stage whose tip axis runs the other way."""
+class _SyntheticAligner:
+    """A focus-step host (``focus.FocusHost``) on an analytic bench: each section's eta
+    is a Gaussian in its local defocus ``dz + rx y - ry x`` (the display model's
+    convention), plus noise. ``tip_sign = -1`` models a stage whose tip axis runs the
+    other way."""
 
     def __init__(self, defocus_mm=0.1, tip=0.0, tilt=0.0, width_mm=0.12, noise=0.01,
                  tip_sign=1.0, flat=False, stage=None, **cfg):
@@ -53,29 +54,34 @@ class _SyntheticAligner(FocusStep):
         self.central = (40, 56, 50, 70)
         self.shift = np.zeros(2, np.int64)
         self.stage_px_total = np.zeros(2)
-        self.bench = SimpleNamespace(mask_stage=stage or _Stage())
+        self.mask_stage = stage or _Stage()
+        self.bench = SimpleNamespace(mask_stage=self.mask_stage)
+        self.section_fits = None
         self.truth = (defocus_mm, tip, tilt)
         self.width, self.noise, self.tip_sign, self.flat = width_mm, noise, tip_sign, flat
         self.rng = np.random.default_rng(1)
         self.events, self.saved, self.reads = [], {}, 0
 
-    _patch_centre = MaskAligner._patch_centre
+    patch_centre = MaskAligner.patch_centre
 
-    def _read(self, patch, shift, **ctx):
+    def focus(self):
+        return FocusStep(self).run()
+
+    def read(self, patch, shift, **ctx):
         self.reads += 1
         p = self.bench.mask_stage.pos
-        x, y = (v * self.mm.mask_pitch_um / 1000.0 for v in self._patch_centre(patch))
+        x, y = (v * self.mm.mask_pitch_um / 1000.0 for v in self.patch_centre(patch))
         rx = self.truth[1] + self.tip_sign * math.radians(p["tip"])
         ry = self.truth[2] + math.radians(p["tilt"])
         dz = self.truth[0] + p["z"] + rx * y - ry * x
         eta = 1.0 if self.flat else math.exp(-0.5 * (dz / self.width) ** 2)
         return SimpleNamespace(eta=eta * (1 + self.noise * self.rng.normal()))
 
-    def _cross(self, patch, centre, step, rnd):
+    def cross(self, patch, centre, step, rnd):
         fit = SimpleNamespace(offset=0.0, offset_sigma=0.01)
         return fit, fit, 1.0
 
-    def _move(self, **d):
+    def move(self, **d):
         p = self.bench.mask_stage.pos
         p["z"] += d.get("z_mm", 0.0)
         p["tip"] += math.degrees(d.get("rx", 0.0))
@@ -85,10 +91,10 @@ class _SyntheticAligner(FocusStep):
             if not lo <= p[a] <= hi:
                 raise AlignmentFailed(f"{a} limit")
 
-    def _event(self, step, message, **data):
+    def event(self, step, message, **data):
         self.events.append(message)
 
-    def _save_step(self, name, result):
+    def save_step(self, name, result):
         self.saved[name] = result
 
     def residual(self):
