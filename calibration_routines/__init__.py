@@ -1,6 +1,6 @@
 """Calibration plans the bench operator runs (layer 4): dark/flat, PSF sweeps, ...
 
-May import ``instrument`` and ``recon`` (see ARCHITECTURE.md). Importing the package
+May import ``instrument`` and ``recon`` (see docs/architecture.md). Importing the package
 registers every plan (:func:`instrument.plan.register_plan`), so a stored run can be
 resumed from its recorded plan name.
 """

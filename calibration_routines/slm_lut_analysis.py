@@ -21,7 +21,7 @@ energies against the uniform pattern's zero order (:func:`diffracted_share`).
 ``m`` is ``dphi`` folded into [0, pi]; the monotone response unfolds it
 (:func:`unfold_monotone`). Sensitivity ``d(dphi)/dC = -2 / sin(dphi)`` is poor near
 0 and pi, hence weights ``sin^2 m`` and a second grating pass against a reference
-level near pi/2 (:func:`combine_passes`). Source: hardware-protocols.md Sec. 3a
+level near pi/2 (:func:`combine_passes`). Source: docs/hardware.md, "Phase SLMs"
 (binary gratings, Opt. Express 20, 22334 (2012)); Kuo 2020 Sec. 7.4 pre-calibrates
 the SLM phase the same way.
 """

@@ -1,6 +1,6 @@
 """Device interfaces and drivers (layer 2): camera, stage, LED array, SLM.
 
-Imports nothing of ours (see ARCHITECTURE.md).
+Imports nothing of ours (see docs/architecture.md).
 
 - :mod:`drivers.errors`: the exception hierarchy (every message names device, problem, fix);
 - :mod:`drivers.base`: :class:`~drivers.base.Device`, the shared lifecycle and settings;

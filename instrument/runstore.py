@@ -1,4 +1,4 @@
-"""Run storage: one Zarr v3 store per run (ARCHITECTURE.md, "Storage").
+"""Run storage: one Zarr v3 store per run (docs/architecture.md, "Storage").
 
 Layout of ``RUN.zarr``::
 

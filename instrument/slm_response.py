@@ -6,7 +6,7 @@ its drive electronics and the wavelength; the software only *believes* a LUT
 the holography branch through :class:`SlmPhaseResponse` (the truth), so the SLM
 phase-LUT calibration has something real to measure.
 
-Wavelength scaling (hardware-protocols.md, Sec. 3a): the retardance of the liquid
+Wavelength scaling (docs/hardware.md, "Phase SLMs"): the retardance of the liquid
 crystal is a path difference, so the phase at wavelength ``lambda`` is
 ``phi(g) = (lambda_design / lambda) * phi_design(g)`` (first order; LC dispersion is
 neglected).

@@ -1,7 +1,7 @@
 """The virtual bench: simulated devices coupled through one optical model.
 
 What the simulated camera sees follows what the simulated stages, LED array and
-SLM do (ARCHITECTURE.md, "A simulated device is a driver like any other"):
+SLM do (docs/architecture.md, "A simulated device is a driver like any other"):
 
 * lensless branch: a pinhole on the source stage, lit from behind by the LED array,
   is a point source at the stage position; its image is the ray-traced PSF of the

@@ -1,7 +1,7 @@
 """FFT helpers shared by the forward models, solvers and benchmarks.
 
 All transforms go through :mod:`scipy.fft` with ``workers=os.cpu_count()`` (see
-ARCHITECTURE.md); the FFT floor used to state speed as a ratio is measured here.
+docs/architecture.md); the FFT floor used to state speed as a ratio is measured here.
 """
 
 from __future__ import annotations

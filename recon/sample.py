@@ -1,4 +1,4 @@
-"""The real DiffuserCam tutorial sample (../shared/data/diffusercam-tutorial).
+"""The real DiffuserCam tutorial sample: a PSF and a hand measurement (TIFF).
 
 Located next to the repository, or at ``$DIFFUSERLAB_DATA``; used by the demo, the
 benchmarks and the tests (nothing is downloaded).

@@ -1,4 +1,4 @@
-"""SLM-mask alignment with spot feedback (Kuo 2020 Sec. 7.4; holography-evaluation.md 8(c)).
+"""SLM-mask alignment with spot feedback (Kuo 2020 Sec. 7.4; docs/protocols.md).
 
 :class:`MaskAligner` runs the procedure on a bench (SLM, camera, 6-axis mask stage)
 and writes an alignment record (:class:`AlignmentRecord`, read back with

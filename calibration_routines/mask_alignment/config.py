@@ -15,7 +15,7 @@ __all__ = ["AlignmentConfig", "config_from_dict"]
 
 @dataclass(frozen=True)
 class AlignmentConfig:
-    """Parameters of :class:`.procedure.MaskAligner` (defaults from holography-evaluation.md 8(c)).
+    """Parameters of :class:`.procedure.MaskAligner` (defaults from docs/protocols.md).
 
     Attributes
     ----------

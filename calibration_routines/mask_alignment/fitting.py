@@ -1,4 +1,4 @@
-"""Model fits of the mask-alignment procedure (holography-evaluation.md 8(c)).
+"""Model fits of the mask-alignment procedure (docs/protocols.md, "Mask alignment").
 
 Plain functions on arrays, no bench access:
 
@@ -98,7 +98,7 @@ def fit_triangle(shifts, eta, k: float, rounded: bool = True) -> TriangleFit:
     Under a true mask offset ``d`` the spot amplitude of a pattern computed for the
     model shifted by ``s`` falls off as ``tri((s - d) / k)`` per axis (the overlap of
     the shifted binary mask with itself within one SLM pixel of ``k`` mask pixels;
-    holography-evaluation.md 8(c), checked against the bench model in the tests).
+    docs/protocols.md, checked against the bench model in the tests).
     A relay pupil or defocus blurs the SLM pixels on the mask and rounds the apex;
     ``tri_r`` is the triangle convolved with a Gaussian of fitted width ``r``
     (:func:`smoothed_triangle`). Fitting a sharp triangle to a rounded apex sampled at

@@ -1,6 +1,6 @@
 """Step 5 of the mask alignment: focus and tip/tilt of the mask (stage z, tip, tilt).
 
-holography-evaluation.md 8(c), step 5 (slmsuite's Zernike-sweep style): sweep the
+docs/protocols.md, "Mask alignment", step 5 (slmsuite's Zernike-sweep style): sweep the
 stage z over ``+-range`` in ``focus_steps`` steps; at every z show each section's
 spot pattern and read eta; fit a parabola to each section's eta(z) near its top
 (:func:`.fitting.fit_parabola`). A fit counts only if it has a maximum inside the

@@ -1,7 +1,7 @@
 """The verification step's test hologram: captured frame against its simulation.
 
-Step 7 of the alignment procedure (holography-evaluation.md 8(c): "one test
-hologram's captured PSNR against its simulation is recorded"; Kuo 2020, Sec. 7.4):
+Step 7 of the alignment procedure (docs/protocols.md, "Mask alignment": a test hologram
+captured and compared with its simulation; Kuo 2020, Sec. 7.4):
 a phase hologram of a test photograph is computed for the *corrected* mask (the
 model mask stitched from the alignment's per-section shifts), shown on the SLM and
 captured, and the capture is compared with a perfectly aligned simulation of the
@@ -249,9 +249,9 @@ def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
                    iterations: int = 60, seed: int = 0) -> dict:
     """Show a test hologram for the corrected mask and compare its capture with simulation.
 
-    Verification of the mask alignment (Kuo 2020, Sec. 7.4; holography-evaluation.md
-    8(c), step 7: "one test hologram's captured PSNR against its simulation is
-    recorded"):
+    Verification of the mask alignment (Kuo 2020, Sec. 7.4; docs/protocols.md,
+    "Mask alignment", step 7: a test hologram captured and compared with its
+    simulation):
 
     1. the target (default: scikit-image's ``camera`` photograph, grey) is placed on
        the centred ``R k x C k`` hologram grid where the camera sees it

@@ -1,4 +1,4 @@
-"""SLM-mask alignment with spot feedback (Kuo 2020 Sec. 7.4; holography-evaluation.md 8(c)).
+"""SLM-mask alignment with spot feedback (Kuo 2020 Sec. 7.4; docs/protocols.md).
 
 The bench shows, on the SLM, a pattern that focuses one far-field spot through the
 mask *as the model believes it is placed* (:func:`recon.optics.holo_display.spot_phase`)
@@ -392,7 +392,7 @@ class MaskAligner:
         section offsets (median of their triangle-fit errors) propagated through the
         fit, not the misfit of a distortion. Whole-aperture estimates are several
         times more precise than the central patch's (the metric of one patch is itself
-        random, holography-evaluation.md 8(c)). Stops when nothing moves, or after
+        random, docs/protocols.md). Stops when nothing moves, or after
         ``max_rigid_rounds``.
         """
         half_diag = math.hypot(*self.mm.half_size)

@@ -1,6 +1,6 @@
 """Spot measurements on the bench: show an SLM phase, capture, measure the spot.
 
-The alignment metric (holography-evaluation.md 8(c), steps 0-1) is the spot
+The alignment metric (docs/protocols.md, "Mask alignment", steps 0-1) is the spot
 efficiency ``eta = (E_W - n_W b) / E_total`` of a dark-subtracted frame
 (:func:`recon.optics.holo_display.efficiency`): window energy above the local
 background over the whole frame's energy, so laser drift and exposure cancel.

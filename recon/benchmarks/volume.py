@@ -8,7 +8,7 @@ Both methods need ``n_z + 1`` rfft2 and ``n_z + 1`` irfft2 at the padded shape p
 iteration (:func:`recon.volume.operator.fft_floor_seconds` times exactly that); the
 ratio of a method's median seconds per iteration to that floor, each run bracketed
 by two floor samples (paired, the host is shared and drifts), is its overhead. Goal:
-at most 2.5x (issue 5). The problem is synthetic (a caustic-like pattern magnified
+at most 2.5x. The problem is synthetic (a caustic-like pattern magnified
 by ``1 + d/z`` per depth, a few beads); speed does not depend on the content. For
 scale: the published C++/Halide implementation did 512 x 512 x 128 at about 1 s per
 iteration on a 4-core laptop (not run here).
@@ -16,7 +16,7 @@ iteration on a 4-core laptop (not run here).
 Memory: peak traced memory (tracemalloc: numpy and Python allocations, not numba's)
 per method and size, and each method alone at 512 x 512 x 64 (quick: the small
 size) in a fresh process, for a clean peak resident set size (``VmHWM``:
-everything, interpreter and numba included); the issue's budget is 4 GB
+everything, interpreter and numba included); the budget is 4 GB
 (:data:`MEMORY_GOAL_BYTES`).
 """
 
@@ -37,7 +37,7 @@ from . import benchmark_parser
 GOAL = 2.5
 SIZES_FULL = ((256, 256, 16), (512, 512, 64))
 SIZES_QUICK = ((64, 64, 4),)
-#: Memory budget of a 512 x 512 x 64 solve (issue 5), bytes.
+#: Memory budget of a 512 x 512 x 64 solve, bytes.
 MEMORY_GOAL_BYTES = 4 * 10**9
 
 

@@ -35,7 +35,7 @@ protocol, evaluation, evaluate
 benchmark
     Full-size speed benchmark (``python -m recon.cgh.benchmark``).
 
-Speed (holography-evaluation.md Sec. 8(b)): complex64/float32 throughout,
+Speed (docs/protocols.md, "Hologram speed budget"): complex64/float32 throughout,
 ``scipy.fft`` with all workers and in-place complex FFTs, the upsampling and the
 mask fused into one numba pass (no exponential or upsampled copy on the full grid),
 buffers allocated once, the field at the momentum point obtained by linearity.

@@ -1,4 +1,4 @@
-"""Full-size hologram speed benchmark (holography-evaluation.md Sec. 8(b)).
+"""Full-size hologram speed benchmark (docs/protocols.md, "Hologram speed budget").
 
 Default: 960 x 540 SLM with 16 um pixels, 16x expansion (k = 4, grid 3840 x 2160),
 frequency-constrained loss, 200 iterations; goal <= 90 s on a 2-core machine (other
@@ -33,7 +33,7 @@ from .scattering_display import ScatteringDisplay
 
 __all__ = ["fft_seconds", "main", "run_benchmark"]
 
-#: Goals of holography-evaluation.md Sec. 8(b) for a 960 x 540 SLM, 200 iterations:
+#: Goals (docs/protocols.md, "Hologram speed budget") for a 960 x 540 SLM, 200 iterations:
 #: (expansion factor, loss) -> seconds per hologram on a 2-core CPU.
 GOALS = {(16, "frequency"): 90.0, (16, "l2"): 60.0, (4, "frequency"): 20.0,
          (36, "frequency"): 240.0}

@@ -1,7 +1,7 @@
 """Table 7.1 reproduction: run the methods on a set of images and score them.
 
 The protocol (images, preprocessing, metrics) is :mod:`.protocol`; the acceptance
-rules are pre-registered in holography-evaluation.md Sec. 8(a) and checked by
+rules are pre-registered in docs/protocols.md ("Table 7.1") and checked by
 :func:`acceptance`. :mod:`.evaluate` is the command-line front end.
 """
 
@@ -202,7 +202,7 @@ def summarise(records) -> dict:
 
 def acceptance(summary: dict, records, psnr_tol: float = 1.5, ssim_tol: float = 0.07,
                seed_tol: float = 0.3) -> list[dict]:
-    """The pre-registered acceptance rules (holography-evaluation.md Sec. 8(a)).
+    """The pre-registered acceptance rules (docs/protocols.md, "Table 7.1").
 
     1. ordering freq > L2 > one-step (full-FoV PSNR) on >= 90 % of the images for
        every factor and seed (9 of 10);

@@ -1,4 +1,4 @@
-"""Pre-registered evaluation protocol for Table 7.1 (holography-evaluation.md, Sec. 8(a)).
+"""Pre-registered evaluation protocol for Table 7.1 (docs/protocols.md).
 
 Images, preprocessing and metrics are fixed here and never tuned per image:
 

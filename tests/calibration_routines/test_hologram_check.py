@@ -1,4 +1,4 @@
-"""The verification step's test hologram (holography-evaluation.md 8(c), step 7).
+"""The verification step's test hologram (docs/protocols.md, "Mask alignment", step 7).
 
 On the virtual bench (true camera mapping and relay of the bench, the model mask
 with all-zero section shifts as the corrected mask): an aligned mask reproduces the

@@ -1,4 +1,4 @@
-"""Mask alignment with spot feedback on the virtual bench (holography-evaluation.md 8(c)).
+"""Mask alignment with spot feedback on the virtual bench (docs/protocols.md).
 
 Known misalignments are set as the virtual mask's ground truth; the aligner sees
 only the camera. Every run here starts with the spot too weak to see (translation

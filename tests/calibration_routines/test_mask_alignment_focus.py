@@ -1,5 +1,5 @@
 """Step 5 of the mask alignment (focus, tip, tilt): its logic on a synthetic spot
-response, and T4 (holography-evaluation.md 8(c)) on the virtual bench."""
+response, and T4 (docs/protocols.md, "Mask alignment") on the virtual bench."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 5's end-to-end check: `diffuserlab recon3d` on a PSF stack and a bead
+"""End-to-end check of 3D reconstruction: `diffuserlab recon3d` on a PSF stack and a bead
 measurement both produced on the virtual bench by the calibration routines."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Holographic display model (recon.optics.holo_display): physics, mapping, determinism.
 
-Reference numbers are from holography-evaluation.md Sec. 8(c) (k = 4): the triangle
+Reference numbers are from docs/protocols.md, "Mask alignment" (k = 4): the triangle
 law ``(1 - |dx|/k)^2 (1 - |dy|/k)^2`` under a mask shift, a background of
 ``(1-2)/N_SLM`` of the spot peak for a random SLM phase, and a spot loss under
 rotation. Every test compares against an independent prediction (an analytic law,

@@ -50,7 +50,7 @@ Grids and units
 Every 2-vector in this module (``u0``, translations, shifts, camera positions) is in
 ``(x, y)`` = ``(column, row)`` order; arrays are indexed ``[row, col]``.
 
-Physics checks (holography-evaluation.md, Sec. 8(c)): with the spot pattern of the
+Physics checks (docs/protocols.md, "Mask alignment"): with the spot pattern of the
 model mask, a true-mask shift ``d`` scales the spot by ``(1-|dx|/k)^2 (1-|dy|/k)^2``
 (triangle law), a random SLM phase gives a background of about ``4/(pi N_SLM)`` of
 the spot peak, and rotation lowers the spot; these are tested in

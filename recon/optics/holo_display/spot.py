@@ -58,7 +58,7 @@ def spot_phase(mask_model: MaskModel, u0, patch=None, *, shift=(0.0, 0.0),
                fill: float = 0.0) -> np.ndarray:
     """SLM phase that focuses the model mask's light to one far-field spot at ``u0``.
 
-    Phase conjugation per SLM pixel (holography-evaluation.md 8(c); Eq. 7.12 with a
+    Phase conjugation per SLM pixel (docs/protocols.md, "Mask alignment"; Eq. 7.12 with a
     point target)::
 
         b_p   = sum_{x in p} M(x - s) exp(-i 2 pi (ux j / Nx + uy i / Ny))

@@ -1,4 +1,4 @@
-"""Table 7.1 protocol (holography-evaluation.md Sec. 8(a)): images, preprocessing,
+"""Table 7.1 protocol (docs/protocols.md, "Table 7.1"): images, preprocessing,
 metrics, the command-line tools, and the N = 240 test-suite run of the evaluation.
 
 The N = 240 run covers the full grid (10 images x 3 factors x 4 methods) for mask
