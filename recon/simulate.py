@@ -18,7 +18,7 @@ the PSF by exactly ``bin_factor`` fine pixels per coarse pixel. Compare
 ``truth[op.crop]`` with ``x[op.crop]`` of a coarse reconstruction.
 
 Scenes are natural images bundled with scikit-image (no download):
-:data:`SCENES`, loaded with :func:`load_scene`.
+:data:`recon.scenes.SCENES`, loaded with :func:`recon.scenes.load_scene`.
 """
 
 from __future__ import annotations
@@ -37,69 +37,7 @@ from .preprocess import box_bin
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SCENES", "Simulation", "add_camera_noise", "load_scene",
-           "simulate_measurement"]
-
-#: Natural test images shipped inside scikit-image's package data (no network fetch).
-SCENES: tuple[str, ...] = ("camera", "astronaut", "coffee", "chelsea")
-
-
-def load_scene(name: str, shape: tuple[int, int]) -> np.ndarray:
-    """A bundled scikit-image photograph as a float32 gray image of a given shape.
-
-    The image is converted to gray (luminance), centre-cropped to the aspect ratio
-    of ``shape`` (no distortion) and resized with :func:`skimage.transform.resize`
-    (anti-aliased). Values are in [0, 1].
-
-    Parameters
-    ----------
-    name : str
-        One of :data:`SCENES` (``"camera"``, ``"astronaut"``, ``"coffee"``,
-        ``"chelsea"``); these ship with scikit-image and need no download.
-    shape : (rows, cols)
-        Output shape, normally the fine sensor shape.
-
-    Returns
-    -------
-    numpy.ndarray
-        float32, ``shape``, values in [0, 1].
-
-    Raises
-    ------
-    ReconInputError
-        Unknown scene name or invalid shape.
-    """
-    import skimage.data
-    from skimage.color import rgb2gray
-    from skimage.transform import resize
-
-    if name not in SCENES:
-        raise ReconInputError(
-            f"unknown scene {name!r}; use one of {', '.join(SCENES)} (bundled with "
-            "scikit-image, no download)"
-        )
-    rows, cols = (int(s) for s in shape)
-    if rows < 2 or cols < 2:
-        raise ReconInputError(f"scene shape must be at least 2x2, got {shape}")
-    image = np.asarray(getattr(skimage.data, name)())
-    if image.ndim == 3:
-        image = rgb2gray(image[..., :3])
-    image = image.astype(np.float64)
-    if image.max() > 1.0:
-        image /= 255.0
-    h, w = image.shape
-    target = cols / rows
-    if w / h > target:  # too wide: crop columns
-        new_w = max(1, round(h * target))
-        left = (w - new_w) // 2
-        image = image[:, left:left + new_w]
-    else:  # too tall: crop rows
-        new_h = max(1, round(w / target))
-        top = (h - new_h) // 2
-        image = image[top:top + new_h, :]
-    out = resize(image, (rows, cols), order=1, anti_aliasing=True, mode="reflect")
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
-
+__all__ = ["Simulation", "add_camera_noise", "simulate_measurement"]
 
 @dataclass(frozen=True)
 class Simulation:
@@ -247,7 +185,7 @@ def simulate_measurement(psf_fine: np.ndarray, scene_fine: np.ndarray, *,
         2D PSF at the fine binning (e.g. the real PSF preprocessed with
         ``bin_factor=2`` when the reconstruction uses 4), non-negative, finite.
     scene_fine : numpy.ndarray
-        2D non-negative scene of the fine sensor shape (see :func:`load_scene`).
+        2D non-negative scene of the fine sensor shape (see :func:`recon.scenes.load_scene`).
     bin_factor : int
         Ratio of the reconstruction pixel to the rendering pixel (>= 1; 1 is the
         inverse crime and only meant for tests). If the fine shape is not a multiple,
@@ -296,7 +234,8 @@ def simulate_measurement(psf_fine: np.ndarray, scene_fine: np.ndarray, *,
     if psf.shape != scene.shape:
         raise ReconInputError(
             f"scene shape {scene.shape} differs from the fine PSF shape {psf.shape}; "
-            "resize the scene to the fine sensor, e.g. load_scene(name, psf_fine.shape)"
+            "resize the scene to the fine sensor, e.g. "
+            "recon.scenes.load_scene(name, psf_fine.shape)"
         )
     if not (np.all(np.isfinite(psf)) and np.all(np.isfinite(scene))):
         raise ReconInputError("PSF or scene contains NaN/inf")

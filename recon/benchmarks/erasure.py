@@ -28,7 +28,8 @@ from threadpoolctl import threadpool_limits
 
 from ..metrics import fit_gain, psnr, ssim
 from ..operators import PixelErasure
-from ..simulate import load_scene, simulate_measurement
+from ..scenes import load_scene
+from ..simulate import simulate_measurement
 from ..solvers import admm, fista
 from . import (
     DEFAULT_WEIGHTS,

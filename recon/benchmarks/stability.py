@@ -31,7 +31,8 @@ import numpy as np
 from ..errors import DivergenceError
 from ..metrics import psnr, ssim
 from ..operators import PixelErasure
-from ..simulate import load_scene, simulate_measurement
+from ..scenes import load_scene
+from ..simulate import simulate_measurement
 from . import (
     DEFAULT_WEIGHTS,
     METHODS,

@@ -34,8 +34,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ReconInputError
-from ..optics.lensless import LenslessModel, _overlap, default_geometry, usaf_target
+from ..optics.lensless import LenslessModel, default_geometry
 from ..preprocess import box_bin
+from ..scenes import cell_overlap, usaf_target
 from ..simulate import add_camera_noise
 from ..volume import VolumeConvolutionOperator, bin_stack, normalize_psf_stack
 
@@ -325,8 +326,8 @@ def target_truth(bench: VolumeBench, target: np.ndarray, z_near_mm: float, z_far
         q = float(bench.voxel_size_mm(zk))
         y = -(np.arange(rows) - r0) * q
         x = -(np.arange(cols) - c0) * q
-        ry = _overlap(np.linspace(-height / 2, height / 2, n_t + 1), y, q)
-        rx = _overlap(np.linspace(-width_mm / 2, width_mm / 2, m_t + 1), x, q)
+        ry = cell_overlap(np.linspace(-height / 2, height / 2, n_t + 1), y, q)
+        rx = cell_overlap(np.linspace(-width_mm / 2, width_mm / 2, m_t + 1), x, q)
         cos_t = zk / np.sqrt(y[:, None] ** 2 + x[None, :] ** 2 + zk * zk)
         out[k] = (ry @ (t * w[:, None]) @ rx.T) * 4.0 * math.pi * cos_t
     return out.astype(np.float32)
@@ -350,7 +351,7 @@ def tilted_target_scene(bench: VolumeBench, *, z_near_mm: float, z_far_mm: float
     width_mm : float
         Lateral extent, mm.
     target : ndarray, optional
-        Radiance pattern; default :func:`recon.optics.lensless.usaf_target` 128 x 128.
+        Radiance pattern; default :func:`recon.scenes.usaf_target` 128 x 128.
     slices, patches : int
         Rendering depth slices and local-convolution regions per axis.
     seed : int

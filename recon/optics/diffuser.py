@@ -53,7 +53,15 @@ def _size_wh_mm(size_mm) -> tuple[float, float]:
     return w, h
 
 
-def _positive(value, name: str, example: str) -> float:
+def finite_positive(value, name: str, example: str) -> float:
+    """``value`` as a finite positive float.
+
+    Raises
+    ------
+    ReconInputError
+        Not a number, not finite or not positive; the message names ``name`` and
+        gives ``example`` of a good value.
+    """
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:
@@ -64,7 +72,7 @@ def _positive(value, name: str, example: str) -> float:
 
 
 def _index(n) -> float:
-    n = _positive(n, "refractive index", "1.58 (polycarbonate) or 1.5")
+    n = finite_positive(n, "refractive index", "1.58 (polycarbonate) or 1.5")
     if n <= 1.0:
         raise ReconInputError(
             f"refractive index {n} must exceed 1 (a glass or polymer in air); e.g. 1.58"
@@ -175,7 +183,7 @@ class DiffuserSurface:
             raise ReconInputError("diffuser height map contains NaN or inf")
         h.setflags(write=False)
         object.__setattr__(self, "height_um", h)
-        object.__setattr__(self, "pitch_um", _positive(self.pitch_um, "pitch_um", "5.0"))
+        object.__setattr__(self, "pitch_um", finite_positive(self.pitch_um, "pitch_um", "5.0"))
         object.__setattr__(self, "refractive_index", _index(self.refractive_index))
 
     # ------------------------------------------------------------------ geometry
@@ -296,9 +304,9 @@ class DiffuserSurface:
         from scipy.optimize import brentq
 
         w_mm, h_mm = _size_wh_mm(size_mm)
-        pitch = _positive(pitch_um, "pitch_um", "5.0")
-        feat = _positive(feature_um, "feature_um", "140.0")
-        slope = _positive(slope_deg, "slope_deg", "0.7")
+        pitch = finite_positive(pitch_um, "pitch_um", "5.0")
+        feat = finite_positive(feature_um, "feature_um", "140.0")
+        slope = finite_positive(slope_deg, "slope_deg", "0.7")
         if slope >= 45.0:
             raise ReconInputError(f"slope_deg {slope} must be below 45 deg; e.g. 0.7")
         if pitch > feat / 4:
@@ -370,9 +378,9 @@ class DiffuserSurface:
         from scipy.spatial import cKDTree
 
         w_mm, h_mm = _size_wh_mm(size_mm)
-        pitch = _positive(pitch_um, "pitch_um", "2.5")
-        lens = _positive(lenslet_um, "lenslet_um", "250.0")
-        f_um = _positive(focal_mm, "focal_mm", "1.5") * 1e3
+        pitch = finite_positive(pitch_um, "pitch_um", "2.5")
+        lens = finite_positive(lenslet_um, "lenslet_um", "250.0")
+        f_um = finite_positive(focal_mm, "focal_mm", "1.5") * 1e3
         n = _index(refractive_index)
         if pitch > lens / 8:
             raise ReconInputError(

@@ -38,6 +38,10 @@ Scenes (:meth:`LenslessModel.render`). The local convolution model of Ch. 5
 PSF of its centre with :class:`recon.operators.ConvolutionOperator` on the fine
 grid, and the sum is binned. Scene values are radiances of a Lambertian object
 plane facing the camera; the output is the photon rate per pixel per unit radiance.
+
+The geometry (:class:`LenslessGeometry`, :func:`default_geometry`,
+:func:`diffuser_for_sensor`) lives in :mod:`recon.optics.lensless_geometry` and is
+re-exported here; test charts and scene resampling are in :mod:`recon.scenes`.
 """
 
 from __future__ import annotations
@@ -45,7 +49,6 @@ from __future__ import annotations
 import logging
 import math
 import numbers
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -53,7 +56,16 @@ from ..errors import ReconInputError
 from ..fft import fast_padded_shape
 from ..operators import ConvolutionOperator
 from ..preprocess import box_bin
-from .diffuser import DiffuserSurface
+from ..scenes import cell_overlap, tent_weights, usaf_target
+from .lensless_geometry import (
+    LenslessGeometry,
+    default_geometry,
+    diffuser_for_sensor,
+    oversample_factor,
+    positive_number,
+    size_pair_mm,
+    source_position,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -61,196 +73,10 @@ __all__ = [
     "LenslessGeometry",
     "LenslessModel",
     "default_geometry",
-    "usaf_target",
+    "diffuser_for_sensor",
 ]
 
 _MAX_RAYS = 60_000_000
-
-
-# ----------------------------------------------------------------------------- checks
-def _finite_positive(value, name: str, example: str) -> float:
-    if isinstance(value, bool):
-        raise ReconInputError(f"{name} must be a number, got {value!r}; e.g. {example}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as exc:
-        raise ReconInputError(f"{name} must be a number, got {value!r}; e.g. {example}") from exc
-    if not (math.isfinite(v) and v > 0):
-        raise ReconInputError(f"{name} must be finite and positive, got {value!r}; e.g. {example}")
-    return v
-
-
-def _pair_mm(value, name: str, example: str) -> tuple[float, float]:
-    try:
-        a, b = value
-    except (TypeError, ValueError) as exc:
-        raise ReconInputError(f"{name} must be a pair (width_mm, height_mm), e.g. "
-                              f"{example}; got {value!r}") from exc
-    a = _finite_positive(a, f"{name} width", example)
-    b = _finite_positive(b, f"{name} height", example)
-    return a, b
-
-
-def _oversample(value) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ReconInputError(
-            f"oversample must be an integer >= 1, got {value!r}; e.g. 2 (render on a grid "
-            "twice as fine as the sensor, then bin)"
-        )
-    return int(value)
-
-
-def _source(xyz) -> tuple[float, float, float]:
-    try:
-        arr = np.asarray(xyz, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ReconInputError(f"source position {xyz!r} must be (x, y, z) in mm") from exc
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ReconInputError(
-            f"source position must be three finite numbers (x, y, z) in mm, got {xyz!r}"
-        )
-    x, y, z = (float(v) for v in arr)
-    if z <= 0:
-        raise ReconInputError(
-            f"source z = {z} mm is not in front of the diffuser; z is the distance from the "
-            "diffuser towards the scene and must be positive (e.g. 30.0)"
-        )
-    return x, y, z
-
-
-# ----------------------------------------------------------------------------- geometry
-@dataclass(frozen=True, eq=False)
-class LenslessGeometry:
-    """A DiffuserCam bench: diffuser, aperture, sensor and pixel angular response.
-
-    Parameters
-    ----------
-    surface : DiffuserSurface
-        Textured face of the diffuser; must cover the aperture.
-    d_mm : float
-        Diffuser-to-sensor distance, mm (> 0).
-    aperture_mm : (width_mm, height_mm)
-        Rectangular aperture on the diffuser, centred on the axis (width along x /
-        sensor columns, height along y / rows), mm.
-    sensor_shape : (rows, cols)
-        Sensor pixels.
-    sensor_pitch_um : float
-        Pixel pitch, um.
-    falloff_sigma_deg : float or None
-        Standard deviation ``sigma`` of the pixel angular response
-        ``f(theta) = exp(-theta^2 / (2 sigma^2))`` (Eq. 5.1), degrees; None disables
-        the fall-off. Default 20 deg: ``f`` falls to 20 % (the cut-off of Fig. 3.5)
-        at ``sigma sqrt(2 ln 5) = 36 deg``, between the PCO prototype's measured 30.5
-        and 42 deg (Sec. 3.3).
-
-    Raises
-    ------
-    ReconInputError
-        Non-positive or non-finite distances, sizes or pitch, an empty aperture, an
-        aperture the surface does not cover, a bad sensor shape or fall-off.
-    """
-
-    surface: DiffuserSurface
-    d_mm: float
-    aperture_mm: tuple[float, float]
-    sensor_shape: tuple[int, int]
-    sensor_pitch_um: float
-    falloff_sigma_deg: float | None = 20.0
-
-    def __post_init__(self):
-        if not isinstance(self.surface, DiffuserSurface):
-            raise ReconInputError(
-                "surface must be a DiffuserSurface, e.g. DiffuserSurface.smooth_random(4.0)"
-            )
-        set_ = object.__setattr__
-        set_(self, "d_mm", _finite_positive(self.d_mm, "diffuser-to-sensor distance d_mm",
-                                            "8.9"))
-        try:
-            aw, ah = (float(v) for v in self.aperture_mm)
-        except (TypeError, ValueError) as exc:
-            raise ReconInputError(
-                f"aperture must be (width_mm, height_mm), got {self.aperture_mm!r}") from exc
-        if not (math.isfinite(aw) and math.isfinite(ah)) or aw <= 0 or ah <= 0:
-            raise ReconInputError(
-                f"aperture ({aw}, {ah}) mm is empty or invalid; give a positive (width_mm, "
-                "height_mm) such as (2.2, 2.8)"
-            )
-        set_(self, "aperture_mm", (aw, ah))
-        try:
-            rows, cols = (int(v) for v in self.sensor_shape)
-            ok = all(float(v) == int(v) for v in self.sensor_shape)
-        except (TypeError, ValueError):
-            ok = False
-        if not ok or rows < 2 or cols < 2:
-            raise ReconInputError(
-                f"sensor_shape must be (rows, cols) integers >= 2, got {self.sensor_shape!r}"
-            )
-        set_(self, "sensor_shape", (rows, cols))
-        set_(self, "sensor_pitch_um", _finite_positive(self.sensor_pitch_um, "sensor pitch",
-                                                       "13.0 um"))
-        if self.falloff_sigma_deg is not None:
-            set_(self, "falloff_sigma_deg", _finite_positive(
-                self.falloff_sigma_deg, "fall-off sigma", "20.0 deg, or None for no fall-off"))
-        sw, sh = self.surface.extent_mm
-        if aw > sw + 1e-9 or ah > sh + 1e-9:
-            raise ReconInputError(
-                f"aperture {aw:g} x {ah:g} mm is larger than the diffuser surface "
-                f"{sw:g} x {sh:g} mm; make a larger surface or a smaller aperture"
-            )
-
-    @property
-    def sensor_size_mm(self) -> tuple[float, float]:
-        """(width_mm, height_mm) of the sensor."""
-        rows, cols = self.sensor_shape
-        return cols * self.sensor_pitch_um * 1e-3, rows * self.sensor_pitch_um * 1e-3
-
-    def max_deflection_deg(self) -> float:
-        """Largest deflection ``beta`` of the diffuser inside the aperture, degrees."""
-        return self.surface.max_deflection_deg(self.aperture_mm)
-
-    def min_z_mm(self) -> float:
-        """Closest on-axis source distance whose PSF still fits on the sensor (App. A.2).
-
-        A ray from an on-axis source at ``z`` through aperture point ``x`` lands at
-        ``x (1 + d / z) + d tan(delta(x))`` (paraxially in the incidence, ``delta``
-        the thin-prism deflection :meth:`DiffuserSurface.deflection_rad`). The
-        PSF fits when, on both axes and both sides, the extreme landing point over
-        the surface samples inside the aperture stays within the sensor half-size.
-        Each of the four conditions is solved for ``z`` with Brent's method (the
-        extreme landing point comes from the aperture's far edge, so it decreases
-        with ``z``), and ``z_min`` is the largest of the four solutions. At ``z_min``
-        the caustic pattern just fills the sensor along its limiting axis.
-
-        Returns
-        -------
-        float
-            mm; ``math.inf`` if even a distant source's PSF (the aperture plus the
-            deflections) is larger than the sensor.
-        """
-        from scipy.optimize import brentq
-
-        x, y = self.surface.coordinates_mm()
-        aw, ah = self.aperture_mm
-        cols = np.abs(x) <= aw / 2 + 1e-12
-        rows = np.abs(y) <= ah / 2 + 1e-12
-        tan_dev = np.tan(self.surface.deflection_rad()[:, rows][:, :, cols])
-        d = self.d_mm
-        sw, sh = self.sensor_size_mm
-        z_min = 0.0
-        # per position along an axis only the extreme deflection across the other
-        # axis matters: (positions, largest tan, smallest tan, sensor half-size)
-        for pos, hi, lo, half in ((x[cols], tan_dev[0].max(0), tan_dev[0].min(0), sw / 2),
-                                  (y[rows], tan_dev[1].max(1), tan_dev[1].min(1), sh / 2)):
-            for p, t in ((pos, hi), (-pos, -lo)):
-                def excess(z, p=p, t=t, half=half):
-                    return float(np.max(p * (1.0 + d / z) + d * t)) - half
-
-                if excess(1e12) >= 0:
-                    return math.inf
-                if excess(1e-6 * d) <= 0:
-                    continue
-                z_min = max(z_min, brentq(excess, 1e-6 * d, 1e12, xtol=1e-9, rtol=1e-12))
-        return z_min
 
 
 # ----------------------------------------------------------------------------- model
@@ -275,7 +101,7 @@ class LenslessModel:
         if not isinstance(geometry, LenslessGeometry):
             raise ReconInputError("geometry must be a LenslessGeometry (see default_geometry)")
         self.geometry = geometry
-        self.rays_per_pixel = _finite_positive(rays_per_pixel, "rays_per_pixel", "2.0")
+        self.rays_per_pixel = positive_number(rays_per_pixel, "rays_per_pixel", "2.0")
         g = geometry.surface.slopes()
         self._gx = np.ascontiguousarray(g[0])
         self._gy = np.ascontiguousarray(g[1])
@@ -283,12 +109,12 @@ class LenslessModel:
     # ------------------------------------------------------------------ geometry helpers
     def magnification(self, z_mm: float) -> float:
         """Paraxial magnification ``m = d / z`` (Eq. 3.1)."""
-        z = _finite_positive(z_mm, "z_mm", "30.0")
+        z = positive_number(z_mm, "z_mm", "30.0")
         return self.geometry.d_mm / z
 
     def sensor_shift_mm(self, source_xyz_mm) -> tuple[float, float]:
         """Lateral PSF shift ``-(x, y) d / z`` (mm) of a source, relative to on-axis."""
-        x, y, z = _source(source_xyz_mm)
+        x, y, z = source_position(source_xyz_mm)
         m = self.geometry.d_mm / z
         return -x * m, -y * m
 
@@ -299,8 +125,8 @@ class LenslessModel:
     def ray_grid(self, z_mm: float, oversample: int = 2) -> tuple[int, int]:
         """Rays (nx, ny) across the aperture for sources at depth ``z_mm``."""
         geo = self.geometry
-        z = _finite_positive(z_mm, "z_mm", "30.0")
-        ov = _oversample(oversample)
+        z = positive_number(z_mm, "z_mm", "30.0")
+        ov = oversample_factor(oversample)
         fine_pitch = geo.sensor_pitch_um * 1e-3 / ov
         pitch = min(geo.surface.pitch_um * 1e-3,
                     fine_pitch / (self.rays_per_pixel * (1.0 + geo.d_mm / z)))
@@ -374,8 +200,8 @@ class LenslessModel:
             A source not in front of the diffuser (z <= 0), non-finite coordinates,
             a bad oversample.
         """
-        src = _source(source_xyz_mm)
-        ov = _oversample(oversample)
+        src = source_position(source_xyz_mm)
+        ov = oversample_factor(oversample)
         off = self.sensor_shift_mm(src) if registered else (0.0, 0.0)
         return self._bin(self._trace([src], [1.0], ov, off), ov)
 
@@ -405,8 +231,8 @@ class LenslessModel:
                 f"{power.shape[0]} intensities for {pts.shape[0]} points; give one per point")
         if not np.all(np.isfinite(power)) or np.any(power < 0):
             raise ReconInputError("intensities must be finite and non-negative")
-        sources = [_source(p) for p in pts]
-        ov = _oversample(oversample)
+        sources = [source_position(p) for p in pts]
+        ov = oversample_factor(oversample)
         return self._bin(self._trace(sources, power, ov), ov)
 
     # ------------------------------------------------------------------ brightness
@@ -434,7 +260,7 @@ class LenslessModel:
         ndarray, float64, shape of ``x_mm``
         """
         geo = self.geometry
-        z = _finite_positive(z_mm, "z_mm", "30.0")
+        z = positive_number(z_mm, "z_mm", "30.0")
         x = np.asarray(x_mm, np.float64)
         y = np.asarray(y_mm, np.float64)
         aw, ah = geo.aperture_mm
@@ -525,14 +351,14 @@ class LenslessModel:
             raise ReconInputError(f"scene must be a 2D image (rows, cols), got shape {y.shape}")
         if not np.all(np.isfinite(y)) or np.any(y < 0):
             raise ReconInputError("scene radiance must be finite and non-negative")
-        z = _finite_positive(z_mm, "scene depth z_mm", "30.0")
+        z = positive_number(z_mm, "scene depth z_mm", "30.0")
         if isinstance(field_of_view_mm, numbers.Real) and not isinstance(field_of_view_mm,
                                                                           bool):
-            fw = _finite_positive(field_of_view_mm, "field of view", "10.0")
+            fw = positive_number(field_of_view_mm, "field of view", "10.0")
             fov = (fw, fw * y.shape[0] / y.shape[1])
         else:
-            fov = _pair_mm(field_of_view_mm, "field of view", "(12.0, 10.0)")
-        ov = _oversample(oversample)
+            fov = size_pair_mm(field_of_view_mm, "field of view", "(12.0, 10.0)")
+        ov = oversample_factor(oversample)
         if isinstance(patches, bool) or not isinstance(patches, numbers.Integral) or patches < 1:
             raise ReconInputError(f"patches must be an integer >= 1, got {patches!r}; e.g. 3")
         patches = int(patches)
@@ -542,8 +368,8 @@ class LenslessModel:
         q = geo.sensor_pitch_um * 1e-3 / ov * z / geo.d_mm  # object cell, mm
         pos_y = -(np.arange(padded[0]) - padded[0] // 2) * q
         pos_x = -(np.arange(padded[1]) - padded[1] // 2) * q
-        ry = _overlap(np.linspace(-fov[1] / 2, fov[1] / 2, y.shape[0] + 1), pos_y, q)
-        rx = _overlap(np.linspace(-fov[0] / 2, fov[0] / 2, y.shape[1] + 1), pos_x, q)
+        ry = cell_overlap(np.linspace(-fov[1] / 2, fov[1] / 2, y.shape[0] + 1), pos_y, q)
+        rx = cell_overlap(np.linspace(-fov[0] / 2, fov[0] / 2, y.shape[1] + 1), pos_x, q)
         obj = ry @ y @ rx.T  # radiance x area, mm^2
         cos_t = z / np.sqrt(pos_y[:, None] ** 2 + pos_x[None, :] ** 2 + z * z)
         obj *= 4.0 * math.pi * cos_t
@@ -554,7 +380,7 @@ class LenslessModel:
         # the slowly varying brightness (1/r^2, obliquity, pixel fall-off) is applied
         # per object point; only the normalised caustic pattern is interpolated
         obj *= self._brightness_map(pos_x, pos_y, fov, z)
-        wx, wy = _tents(pos_x, cx), _tents(pos_y, cy)
+        wx, wy = tent_weights(pos_x, cx), tent_weights(pos_y, cy)
         out = np.zeros(fine_shape, np.float64)
         for a in range(patches):
             if not np.any(wy[a][:, None] * obj):
@@ -593,7 +419,7 @@ class LenslessModel:
             Depths (mm, > 0) of the top and bottom rows.
         field_of_view_mm : float or (width_mm, height_mm)
         target : ndarray (rows_t, cols_t), optional
-            Radiance pattern; default :func:`usaf_target` ``((256, 256))``.
+            Radiance pattern; default :func:`recon.scenes.usaf_target` ``((256, 256))``.
         slices : int
             Depth slices (>= 1; 1 renders everything at the mean depth).
         oversample, patches : int
@@ -603,8 +429,8 @@ class LenslessModel:
         -------
         ndarray, float64, shape (rows, cols)
         """
-        z0 = _finite_positive(z_near_mm, "z_near_mm", "25.0")
-        z1 = _finite_positive(z_far_mm, "z_far_mm", "40.0")
+        z0 = positive_number(z_near_mm, "z_near_mm", "25.0")
+        z1 = positive_number(z_far_mm, "z_far_mm", "40.0")
         if isinstance(slices, bool) or not isinstance(slices, numbers.Integral) or slices < 1:
             raise ReconInputError(f"slices must be an integer >= 1, got {slices!r}; e.g. 4")
         t = usaf_target((256, 256)) if target is None else np.asarray(target, np.float64)
@@ -615,159 +441,10 @@ class LenslessModel:
             zs = np.array([(z0 + z1) / 2])
         else:
             zs = np.linspace(min(z0, z1), max(z0, z1), int(slices))
-        weights = _tents(depth, zs)
+        weights = tent_weights(depth, zs)
         out = np.zeros(self.geometry.sensor_shape, np.float64)
         for k, zk in enumerate(zs):
             part = t * weights[k][:, None]
             if np.any(part):
                 out += self.render(part, float(zk), field_of_view_mm, oversample, patches)
         return out
-
-
-# ----------------------------------------------------------------------------- helpers
-def _overlap(edges: np.ndarray, centres: np.ndarray, q: float) -> np.ndarray:
-    """Overlap lengths (len(centres), len(edges) - 1) of cells [c - q/2, c + q/2]
-    with the intervals [edges[j], edges[j + 1]]."""
-    lo = np.maximum(centres[:, None] - q / 2, edges[None, :-1])
-    hi = np.minimum(centres[:, None] + q / 2, edges[None, 1:])
-    return np.clip(hi - lo, 0.0, None)
-
-
-def _tents(pos: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Piecewise-linear partition of unity: weights (len(centres), len(pos))."""
-    eye = np.eye(len(centres))
-    return np.stack([np.interp(pos, centres, eye[k]) for k in range(len(centres))])
-
-
-def usaf_target(shape: tuple[int, int] = (256, 256)) -> np.ndarray:
-    """A USAF-1951-like bar target: elements of three horizontal and three vertical
-    bars (bar length five widths), bar widths shrinking by ``2^(1/2)`` per element
-    from ``min(shape) / 16`` to 1 pixel, packed in rows.
-
-    Parameters
-    ----------
-    shape : (rows, cols)
-        At least 32 x 32.
-
-    Returns
-    -------
-    ndarray, float64, shape ``shape``
-        1 on the bars, 0 elsewhere.
-    """
-    try:
-        rows, cols = (int(v) for v in shape)
-    except (TypeError, ValueError) as exc:
-        raise ReconInputError(f"target shape must be (rows, cols), got {shape!r}") from exc
-    if rows < 32 or cols < 32:
-        raise ReconInputError(f"target shape {shape} is too small; use at least (32, 32)")
-    img = np.zeros((rows, cols), np.float64)
-    widths = []
-    w = min(rows, cols) / 16
-    while round(w) >= 1:
-        if not widths or round(w) != widths[-1]:
-            widths.append(int(round(w)))
-        w /= math.sqrt(2.0)
-    r0, c0, shelf = 2, 2, 0
-    for w in widths:
-        ew, eh = 11 * w, 5 * w  # horizontal-bar block, gap w, vertical-bar block
-        if c0 + ew > cols - 2:
-            r0, c0, shelf = r0 + shelf + 2 * w, 2, 0
-        if r0 + eh > rows - 2:
-            break
-        for k in range(3):  # three horizontal bars (5w long, w thick)
-            img[r0 + 2 * k * w:r0 + 2 * k * w + w, c0:c0 + 5 * w] = 1.0
-        for k in range(3):  # three vertical bars
-            img[r0:r0 + 5 * w, c0 + 6 * w + 2 * k * w:c0 + 6 * w + 2 * k * w + w] = 1.0
-        c0 += ew + 2 * w
-        shelf = max(shelf, eh)
-    return img
-
-
-def _fit_half_aperture(pos, tan_dev, axis, half, d, z0) -> float:
-    """Largest half-width A (mm, on the surface grid) such that no ray through
-    ``|p| <= A`` from an on-axis source at ``z0`` lands beyond ``half`` on the sensor
-    (see :meth:`LenslessGeometry.min_z_mm`); ``tan_dev`` (rows, cols) is tan of the
-    deflection along ``axis`` (0: x along columns, 1: y along rows), its extremes
-    taken across the other axis (reducing over ``axis`` of the array; a superset of
-    the final aperture, so conservative)."""
-    reach = np.maximum(pos * (1 + d / z0) + d * tan_dev.max(axis=axis),
-                       -(pos * (1 + d / z0) + d * tan_dev.min(axis=axis)))
-    bad = reach > half
-    if not np.any(bad):
-        return float(np.abs(pos).max())
-    ok = np.abs(pos) < np.abs(pos[bad]).min() - 1e-12
-    if not np.any(ok):
-        raise ReconInputError("the diffuser deflects too much for this sensor")
-    return float(np.abs(pos[ok]).max())
-
-
-def diffuser_for_sensor(kind: str, sensor_size_mm: tuple[float, float],
-                        seed: int = 0) -> DiffuserSurface:
-    """The default diffuser surface of a kind, covering a sensor plus 0.1 mm.
-
-    ``"smooth"``: :meth:`DiffuserSurface.smooth_random` (140 um features, mean slope
-    0.7 deg, n = 1.58) sampled at 5 um; ``"microlens"``:
-    :meth:`DiffuserSurface.random_microlens` (250 um lenslets, f = 1.5 mm) at 2.5 um.
-
-    Parameters
-    ----------
-    kind : {"smooth", "microlens"}
-    sensor_size_mm : (width_mm, height_mm)
-    seed : int
-
-    Returns
-    -------
-    DiffuserSurface
-
-    Raises
-    ------
-    ReconInputError
-        Unknown kind.
-    """
-    size = (sensor_size_mm[0] + 0.1, sensor_size_mm[1] + 0.1)
-    if kind == "smooth":
-        return DiffuserSurface.smooth_random(size, pitch_um=5.0, seed=seed)
-    if kind == "microlens":
-        return DiffuserSurface.random_microlens(size, 2.5, seed=seed)
-    raise ReconInputError(f"unknown diffuser kind {kind!r}; use 'smooth' or 'microlens'")
-
-
-def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
-    """A small bench geometry for tests and demos.
-
-    Both kinds: sensor 256 x 320 px at 13 um (3.33 x 4.16 mm; the PCO.edge 6.5 um
-    pixels binned 2 x 2 as in Ch. 4), pixel fall-off sigma 20 deg, aperture sized
-    per axis so that the PSF of an on-axis source at 20 mm just fits on the sensor
-    (App. A.2): the largest centred rectangle, on the surface grid, for which no
-    ray lands off the sensor (the criterion of :meth:`LenslessGeometry.min_z_mm`,
-    with deflections taken over the whole sensor-sized surface, so
-    ``min_z_mm()`` comes out at or just below 20 mm).
-
-    * ``"smooth"``: :meth:`DiffuserSurface.smooth_random` (140 um features, mean
-      slope 0.7 deg, n = 1.58, 5 um pitch), ``d = 8.9`` mm (the Ch. 4 prototype).
-    * ``"microlens"``: :meth:`DiffuserSurface.random_microlens` (250 um lenslets,
-      f = 1.5 mm, n = 1.5, 2.5 um pitch), ``d = 1.6`` mm (lenslets focus a source at
-      ~24 mm onto the sensor: ``1/d = 1/f - 1/z``).
-
-    Parameters
-    ----------
-    kind : {"smooth", "microlens"}
-    seed : int
-        Seed of the diffuser surface.
-
-    Returns
-    -------
-    LenslessGeometry
-    """
-    sensor, pitch_um, z_fill = (256, 320), 13.0, 20.0
-    sw, sh = sensor[1] * pitch_um * 1e-3, sensor[0] * pitch_um * 1e-3
-    surface = diffuser_for_sensor(kind, (sw, sh), seed)
-    d = 8.9 if kind == "smooth" else 1.6
-    x, y = surface.coordinates_mm()
-    tan_dev = np.tan(surface.deflection_rad())
-    in_x, in_y = np.abs(x) <= sw / 2, np.abs(y) <= sh / 2
-    aperture = tuple(round(v, 9) for v in (
-        2 * _fit_half_aperture(x[in_x], tan_dev[0][in_y][:, in_x], 0, sw / 2, d, z_fill),
-        2 * _fit_half_aperture(y[in_y], tan_dev[1][in_y][:, in_x], 1, sh / 2, d, z_fill),
-    ))
-    return LenslessGeometry(surface, d, aperture, sensor, pitch_um, 20.0)

@@ -19,12 +19,8 @@ from scipy import ndimage, optimize
 
 from recon.errors import ReconInputError
 from recon.optics.diffuser import DiffuserSurface
-from recon.optics.lensless import (
-    LenslessGeometry,
-    LenslessModel,
-    default_geometry,
-    usaf_target,
-)
+from recon.optics.lensless import LenslessGeometry, LenslessModel, default_geometry
+from recon.scenes import usaf_target
 
 
 # ----------------------------------------------------------------------------- helpers

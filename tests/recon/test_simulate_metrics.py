@@ -12,13 +12,8 @@ from recon.errors import ReconInputError
 from recon.metrics import fit_gain, psnr, ssim
 from recon.operators import ConvolutionOperator
 from recon.preprocess import box_bin
-from recon.simulate import (
-    SCENES,
-    Simulation,
-    add_camera_noise,
-    load_scene,
-    simulate_measurement,
-)
+from recon.scenes import SCENES, load_scene
+from recon.simulate import Simulation, add_camera_noise, simulate_measurement
 
 FINE = (48, 64)  # coarse 24 x 32 at bin 2
 
