@@ -62,8 +62,8 @@ from __future__ import annotations
 from .basics import gray_to_phase, linear_lut, phase_to_gray
 from .components import CameraMapping, LaserDrift, RelayModel, SlmModel
 from .mask import MaskModel, MaskTransform, StagePose
-from .model import HolographicDisplayModel, efficiency
-from .spot import spot_phase
+from .model import HolographicDisplayModel
+from .spot import efficiency, spot_phase
 
 __all__ = [
     "CameraMapping",
