@@ -1,0 +1,175 @@
+"""Conformance suite of cameras: settings, snap, streaming and frame counters."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drivers.camera import PIXEL_FORMATS, FrameRing
+from drivers.errors import (
+    CameraTimeoutError,
+    DeviceStateError,
+    DeviceValueError,
+)
+
+from .base import DeviceConformance
+
+
+class CameraConformance(DeviceConformance):
+    """Camera behaviour: settings, snap, streaming and frame counters."""
+
+    kind = "camera"
+    timeout_error = CameraTimeoutError
+
+    def use(self, device):
+        return device.snap()
+
+    def blocking_call(self, device):
+        return device.snap(timeout_s=1.0)
+
+    def changed_settings(self, device):
+        rows, cols = device.sensor_shape
+        fmt = "mono8" if device.pixel_format != "mono8" else "mono16"
+        return {
+            "pixel_format": fmt,
+            "roi": [1, 2, cols - 3, rows - 4],
+            "binning": 2 if device.binning != 2 else 1,
+            "exposure_s": device.exposure_s * 2,
+            "gain": 3.0 if device.gain != 3.0 else 1.0,
+            "trigger_mode": "software" if device.trigger_mode != "software" else "free_run",
+        }
+
+    def invalid_settings(self, device):
+        rows, cols = device.sensor_shape
+        return [
+            {"exposure_s": 0}, {"exposure_s": -1e-3}, {"exposure_s": math.nan},
+            {"exposure_s": "fast"}, {"exposure_s": 1e9}, {"gain": -1.0}, {"gain": math.inf},
+            {"pixel_format": "rgb8"}, {"pixel_format": 12},
+            {"roi": [0, 0, cols + 1, rows]}, {"roi": [cols, 0, 1, 1]}, {"roi": [0, 0, 10]},
+            {"roi": [0, 0, 0, 10]}, {"roi": [-1, 0, 10, 10]}, {"roi": "full"},
+            {"binning": 0}, {"binning": 1.5}, {"binning": True},
+            {"roi": [0, 0, 2, 2], "binning": 4},
+            {"trigger_mode": "external"},
+        ]
+
+    def assert_settings_in_effect(self, device, settings):
+        if settings["trigger_mode"] == "hardware":
+            return
+        frame = device.snap()
+        x, y, w, h = settings["roi"]
+        b = settings["binning"]
+        assert frame.image.shape == (h // b, w // b)
+        assert frame.image.dtype == (np.uint8 if settings["pixel_format"] == "mono8" else np.uint16)
+        assert frame.exposure_s == pytest.approx(settings["exposure_s"])
+        assert frame.gain == pytest.approx(settings["gain"])
+
+    def test_readonly_geometry(self, device):
+        rows, cols = device.sensor_shape
+        assert rows > 0 and cols > 0 and device.pixel_pitch_um > 0
+        with pytest.raises(AttributeError):
+            device.sensor_shape = (1, 1)
+        with pytest.raises(AttributeError):
+            device.bit_depth = 8
+        assert device.roi == (0, 0, cols, rows) or device.roi[2] <= cols
+
+    @pytest.mark.parametrize("fmt", sorted(PIXEL_FORMATS))
+    @pytest.mark.parametrize("binning", [1, 2, 3])
+    def test_snap_follows_roi_binning_format(self, device, fmt, binning):
+        rows, cols = device.sensor_shape
+        roi = (3, 5, cols // 2 + 1, rows // 2)
+        device.apply_settings({"pixel_format": fmt, "roi": roi, "binning": binning})
+        assert device.bit_depth == PIXEL_FORMATS[fmt]
+        assert device.image_shape == (roi[3] // binning, roi[2] // binning)
+        frame = device.snap()
+        assert frame.image.shape == device.image_shape
+        assert frame.image.dtype == (np.uint8 if fmt == "mono8" else np.uint16)
+        assert int(frame.image.max()) < 2 ** PIXEL_FORMATS[fmt]
+        device.roi = None
+        assert device.roi == (0, 0, cols, rows)
+
+    def test_frame_metadata_and_index(self, device):
+        device.apply_settings({"exposure_s": 0.005, "gain": 2.0})
+        frames = [device.snap() for _ in range(3)]
+        assert [f.index for f in frames] == list(range(frames[0].index, frames[0].index + 3))
+        stamps = [f.device_timestamp_s for f in frames]
+        assert stamps[0] < stamps[1] < stamps[2]
+        for f in frames:
+            assert f.exposure_s == pytest.approx(0.005) and f.gain == pytest.approx(2.0)
+            assert isinstance(f.saturated_pixels, int) and f.saturated_pixels >= 0
+            assert f.host_timestamp_s > 0
+
+    def test_settings_changes_while_streaming(self, device):
+        ring = FrameRing(4)
+        device.start_stream(ring)
+        try:
+            with pytest.raises(DeviceStateError, match="stop_stream"):
+                device.snap()
+            with pytest.raises(DeviceStateError):
+                device.binning = 2
+            with pytest.raises(DeviceStateError):
+                device.start_stream(FrameRing(2))
+            device.exposure_s = device.exposure_s * 1.5  # allowed while streaming
+            device.binning = device.binning  # unchanged value is fine
+        finally:
+            device.stop_stream()
+        device.stop_stream()  # idempotent
+        assert not device.is_streaming
+        with pytest.raises(DeviceValueError):
+            device.start_stream("ring")
+
+    def test_trigger_requires_software_stream(self, device):
+        device.trigger_mode = "software"
+        with pytest.raises(DeviceStateError, match="software"):
+            device.trigger()  # not streaming
+        device.trigger_mode = "free_run"
+        device.start_stream(FrameRing(2))
+        try:
+            with pytest.raises(DeviceStateError):
+                device.trigger()
+        finally:
+            device.stop_stream()
+
+    def test_free_run_stream_delivers_consecutive_frames(self, device):
+        ring = FrameRing(8)
+        device.start_stream(ring)
+        try:
+            frames = [ring.get(timeout_s=2.0) for _ in range(3)]
+        finally:
+            device.stop_stream()
+        indices = [f.index for f in frames]
+        assert indices == list(range(indices[0], indices[0] + 3))
+        assert ring.read == 3 and ring.dropped == 0
+        c = ring.counters()
+        assert c["acquired"] == c["read"] + c["skipped"] + c["buffered"]
+
+    def test_stream_counts_skipped_frames_when_not_read(self, device):
+        device.trigger_mode = "software"
+        ring = FrameRing(2)
+        device.start_stream(ring)
+        try:
+            for _ in range(5):
+                device.trigger()
+                self.advance_time(device, device.exposure_s * 2 + 0.1)
+        finally:
+            device.stop_stream()
+        assert (ring.acquired, ring.read, ring.skipped, len(ring)) == (5, 0, 3, 2)
+        first, second = ring.get(timeout_s=1.0), ring.get(timeout_s=1.0)
+        assert second.index == first.index + 1  # the two newest frames survive
+        assert ring.read == 2
+
+    def test_stream_get_times_out_without_trigger(self, device):
+        device.trigger_mode = "software"
+        ring = FrameRing(2)
+        device.start_stream(ring)
+        try:
+            with pytest.raises(CameraTimeoutError, match=device.device_id):
+                ring.get(timeout_s=0.2)
+        finally:
+            device.stop_stream()
+
+    def test_snap_rejects_bad_timeout(self, device):
+        for bad in (0, -1, math.nan):
+            with pytest.raises(DeviceValueError):
+                device.snap(timeout_s=bad)
