@@ -9,22 +9,12 @@ neighbours wrap circularly, matching the circular convolution of Eq. 3.4.
 
 from __future__ import annotations
 
-import os
+import numpy as np
 
-# numba's OpenMP workers must sleep, not spin, between parallel regions: spinning
-# threads steal both cores from scipy.fft's workers and double the FFT time.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-import numpy as np  # noqa: E402
-from numba import njit, prange  # noqa: E402
-
-# reassociation lets LLVM vectorise the reductions; NaN/inf semantics are kept so
-# divergence (NaN) still propagates to the objective.
-_JIT = dict(parallel=True, cache=True, nogil=True,
-            fastmath={"reassoc", "contract", "nsz", "arcp"})
+from .jit import PARALLEL_FAST, clip, data_split, njit, prange, shrink_split
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def crop_residual(full, b, w, top, left):
     """In place: ``full <- P(w * (w * C full - b))``; returns ||w * C full - b||^2.
 
@@ -53,7 +43,7 @@ def crop_residual(full, b, w, top, left):
     return acc
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def multiply_spectrum(spec, h, conjugate):
     """In place: spec *= h, or spec *= conj(h) if ``conjugate`` (both threads)."""
     n0, n1 = spec.shape
@@ -64,11 +54,6 @@ def multiply_spectrum(spec, h, conjugate):
 
 
 @njit(inline="always")
-def _clip(d, t):
-    return min(max(d, -t), t)
-
-
-@njit(inline="always")
 def _prox_px(y, grad, x, y_next, i, j, im, ip, jm, jp, step, thr, beta, lo):
     yc = y[i, j]
     zc = yc - step * grad[i, j]
@@ -76,8 +61,8 @@ def _prox_px(y, grad, x, y_next, i, j, im, ip, jm, jp, step, thr, beta, lo):
     zi_m = y[im, j] - step * grad[im, j]
     zj_p = y[i, jp] - step * grad[i, jp]
     zj_m = y[i, jm] - step * grad[i, jm]
-    corr = (_clip(0.5 * (zi_p - zc), thr) - _clip(0.5 * (zc - zi_m), thr)
-            + _clip(0.5 * (zj_p - zc), thr) - _clip(0.5 * (zc - zj_m), thr))
+    corr = (clip(0.5 * (zi_p - zc), thr) - clip(0.5 * (zc - zi_m), thr)
+            + clip(0.5 * (zj_p - zc), thr) - clip(0.5 * (zc - zj_m), thr))
     xn = max(zc + 0.25 * corr, lo)
     xo = x[i, j]
     x[i, j] = xn
@@ -85,7 +70,7 @@ def _prox_px(y, grad, x, y_next, i, j, im, ip, jm, jp, step, thr, beta, lo):
     return abs(y[ip, j] - yc) + abs(y[i, jp] - yc), (yc - xn) * (xn - xo)
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg):
     """One accelerated proximal-gradient update on a 2D grid, fused.
 
@@ -134,80 +119,49 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
              av, aux, auy, aw):
     """One pixel of :func:`admm_split_updates_2d`; returns its reduction terms."""
     zero = np.float32(0.0)
+    ninf = np.float32(-np.inf)
     rv = sv = ru = su = rw = sw = zero
     nv = nu = nw = zero  # mode 2: max(|G x|^2, |z|^2) proxies and |a|^2 per split
     dv = du = dw = zero
     # v split (crop / data): bp, wp are the weights and measurement padded with zeros
-    g = mx[i, j]
-    ww = wp[i, j]
-    bb = bp[i, j]
-    q = qv[i, j]
-    a = g - q
-    t = g + a
-    z = (ww * bb + mu1 * t) / (ww * ww + mu1)
-    r = ww * g - bb
+    ao = av[i, j] if mode == 2 else zero
+    qn, a, res, r2, s2, n2, d2 = data_split(mx[i, j], qv[i, j], ao, wp[i, j], bp[i, j], mu1)
     if mode == 2:
-        d = a - av[i, j]
-        rv = d * d
-        d = z - q - av[i, j]
-        sv = d * d
-        nv = max(g * g, z * z)
-        dv = a * a
+        rv, sv, nv, dv = r2, s2, n2, d2
     if mode != 0:
         av[i, j] = a
-    qv[i, j] = z - a
+    qv[i, j] = qn
     # w split (non-negativity)
     g = x[i, j]
-    q = qw[i, j]
-    a = g - q
-    t = g + a
-    z = max(t, zero)
+    ao = aw[i, j] if mode == 2 else zero
+    qn, a, r2, s2, n2, d2 = shrink_split(g, qw[i, j], ao, zero, zero)
     if mode == 2:
-        d = a - aw[i, j]
-        rw = d * d
-        d = z - q - aw[i, j]
-        sw = d * d
-        nw = max(g * g, z * z)
-        dw = a * a
+        rw, sw, nw, dw = r2, s2, n2, d2
     if mode != 0:
         aw[i, j] = a
-    qw[i, j] = z - a
+    qw[i, j] = qn
     # u split (anisotropic TV)
     gx = x[i, jp] - g
     gy = x[ip, j] - g
     if use_tv:
-        q = qux[i, j]
-        a = gx - q
-        t = gx + a
-        z = t - _clip(t, thr)
+        ao = aux[i, j] if mode == 2 else zero
+        qn, a, r2, s2, n2, d2 = shrink_split(gx, qux[i, j], ao, thr, ninf)
         if mode == 2:
-            d = a - aux[i, j]
-            ru = d * d
-            d = z - q - aux[i, j]
-            su = d * d
-            nu = max(gx * gx, z * z)
-            du = a * a
+            ru, su, nu, du = r2, s2, n2, d2
         if mode != 0:
             aux[i, j] = a
-        qux[i, j] = z - a
-        q = quy[i, j]
-        a = gy - q
-        t = gy + a
-        z = t - _clip(t, thr)
+        qux[i, j] = qn
+        ao = auy[i, j] if mode == 2 else zero
+        qn, a, r2, s2, n2, d2 = shrink_split(gy, quy[i, j], ao, thr, ninf)
         if mode == 2:
-            d = a - auy[i, j]
-            ru += d * d
-            d = z - q - auy[i, j]
-            su += d * d
-            nu += max(gy * gy, z * z)
-            du += a * a
+            ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
         if mode != 0:
             auy[i, j] = a
-        quy[i, j] = z - a
-    return (r * r, abs(gx) + abs(gy), rv, sv, ru, su, rw, sw, nv, dv, nu, du, nw, dw)
+        quy[i, j] = qn
+    return (res, abs(gx) + abs(gy), rv, sv, ru, su, rw, sw, nv, dv, nu, du, nw, dw)
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
                           mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw):
     """ADMM z- and dual updates of Eq. 4.5 / App. A.3 in 2D, fused, in q-form.
@@ -258,7 +212,7 @@ def _add14(a, b):
             a[11] + b[11], a[12] + b[12], a[13] + b[13])
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_rhs_2d(qux, quy, qw, out, mu2, mu3, use_tv):
     """out = mu2 * Psi^T q_u + mu3 * q_w, Psi^T of forward differences (circular)."""
     n0, n1 = qw.shape
@@ -272,7 +226,7 @@ def admm_rhs_2d(qux, quy, qw, out, mu2, mu3, use_tv):
             out[i, j] = val
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv, out):
     """out = 1 / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3) (the x-update of App. A.3)."""
     n0, n1 = out.shape
@@ -284,7 +238,7 @@ def admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv, out):
             out[i, j] = 1.0 / den
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_fourier_2d(qv_hat, rhs_hat, spec, inv_den, mu1):
     """x_hat = (mu1 conj(H) Qv + R) * inv_den into rhs_hat; H x_hat into qv_hat."""
     n0, n1 = qv_hat.shape

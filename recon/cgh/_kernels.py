@@ -10,19 +10,12 @@ against plain numpy.
 
 from __future__ import annotations
 
-import os
+import numpy as np
 
-# numba's OpenMP workers must sleep, not spin, between parallel regions (see
-# recon/_kernels.py): spinning threads steal the cores from scipy.fft's workers.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-import numpy as np  # noqa: E402
-from numba import njit, prange  # noqa: E402
-
-_JIT = dict(parallel=True, cache=True, nogil=True)
+from ..jit import PARALLEL, njit, prange
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def upsample_multiply(w, mask, k, out):  # pragma: no cover - jitted
     """``out[i, j] = mask[i, j] * w[i // k, j // k]`` (box upsampling, Eq. 7.15, times m)."""
     gy, gx = out.shape
@@ -32,7 +25,7 @@ def upsample_multiply(w, mask, k, out):  # pragma: no cover - jitted
             out[i, j] = mask[i, j] * w[r, j // k]
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def bin_conj_multiply(x, mask, k, out):  # pragma: no cover - jitted
     """``out[r, c] = sum over the k x k block of conj(mask) * x`` (U^T diag(m*), Eq. A.9)."""
     rows, cols = out.shape
@@ -49,7 +42,7 @@ def bin_conj_multiply(x, mask, k, out):  # pragma: no cover - jitted
                 out[r, c] = acc
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def combine_residual(a, za, b, zb, z, target, sigma, out):  # pragma: no cover - jitted
     """``z = a za + b zb`` and :func:`residual` of it, in one pass; same returns."""
     gy, gx = out.shape
@@ -71,7 +64,7 @@ def combine_residual(a, za, b, zb, z, target, sigma, out):  # pragma: no cover -
     return rr, ri
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def residual(z, target, sigma, out):  # pragma: no cover - jitted
     """``out = sigma |z|^2 - target``; returns ``(sum out^2, sum out * |z|^2)``.
 
@@ -96,7 +89,7 @@ def residual(z, target, sigma, out):  # pragma: no cover - jitted
     return rr, ri
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def spectrum_filter(spec, h2, t_spec, n_cols, apply, cross):  # pragma: no cover - jitted
     """Parseval sums of an rfft2 spectrum against the squared filter ``h2``.
 
@@ -129,7 +122,7 @@ def spectrum_filter(spec, h2, t_spec, n_cols, apply, cross):  # pragma: no cover
     return e, c
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def multiply_real(spec, h):  # pragma: no cover - jitted
     """In place: ``spec *= h`` (real ``h``, same shape)."""
     ny, nx = spec.shape
@@ -138,7 +131,7 @@ def multiply_real(spec, h):  # pragma: no cover - jitted
             spec[i, j] = spec[i, j] * h[i, j]
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def weight_filtered(rf, c2, pt):  # pragma: no cover - jitted
     """In place ``rf <- c2 * rf``; returns ``(sum c2 rf^2, sum c2 rf pt)`` (old rf)."""
     gy, gx = rf.shape
@@ -158,7 +151,7 @@ def weight_filtered(rf, c2, pt):  # pragma: no cover - jitted
     return e, c
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def weighted_sum(rf, c2):  # pragma: no cover - jitted
     """``sum c2 rf^2`` (float64 accumulation)."""
     gy, gx = rf.shape

@@ -11,17 +11,14 @@ its own buffer, so the result does not depend on the thread count.
 from __future__ import annotations
 
 import math
-import os
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-from numba import njit, prange  # noqa: E402
+from ..jit import PARALLEL, njit, prange
 
 #: Ray-row chunks (and per-chunk output buffers); fixed for determinism.
 CHUNKS = 4
 
 
-@njit(parallel=True, cache=True, nogil=True)
+@njit(**PARALLEL)
 def trace(gx, gy, surf_pitch, n, xs, ys, zs, power, d, half_w, half_h, nx, ny,
           inv_two_sigma2, fine_pitch, off_x, off_y, out):
     """Accumulate one point source's rays into ``out`` (CHUNKS, H, W), float64.

@@ -14,27 +14,11 @@ stores a_new, 2 additionally returns the residual terms used by the balancing.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
 
-from .._kernels import _JIT, _clip  # sets OMP_WAIT_POLICY before numba starts
-
-
-@njit(inline="always")
-def _split(g, q, a_old, thr, lo):
-    """One split of one voxel: a = g - q, z = prox(g + a), q_new = z - a.
-
-    prox: soft threshold ``thr`` then max(., lo). Returns q_new, a and the balancing
-    terms (a - a_old)^2, (z - z_old)^2, max(g^2, z^2), a^2 (z_old = q + a_old).
-    """
-    a = g - q
-    t = g + a
-    z = max(t - _clip(t, thr), lo)
-    d = a - a_old
-    e = z - q - a_old
-    return z - a, a, d * d, e * e, max(g * g, z * z), a * a
+from ..jit import PARALLEL_FAST, data_split, njit, prange, shrink_split
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_split_plane(mx, qv, bp, wp, mu1, mode, av):
     """The v split (crop / data) on the padded plane, in q-form, in place.
 
@@ -60,26 +44,18 @@ def admm_split_plane(mx, qv, bp, wp, mu1, mode, av):
         nn = np.float32(0.0)
         dd = np.float32(0.0)
         for j in range(n1):
-            g = mx[i, j]
-            ww = wp[i, j]
-            bb = bp[i, j]
-            q = qv[i, j]
-            a = g - q
-            t = g + a
-            z = (ww * bb + mu1 * t) / (ww * ww + mu1)
-            r = ww * g - bb
-            dr += r * r
+            ao = av[i, j] if mode == 2 else np.float32(0.0)
+            qn, a, res, rv, sv, nv, dv = data_split(mx[i, j], qv[i, j], ao, wp[i, j], bp[i, j],
+                                                    mu1)
+            dr += res
             if mode == 2:
-                ao = av[i, j]
-                d = a - ao
-                rr += d * d
-                e = z - q - ao
-                ss += e * e
-                nn += max(g * g, z * z)
-                dd += a * a
+                rr += rv
+                ss += sv
+                nn += nv
+                dd += dv
             if mode != 0:
                 av[i, j] = a
-            qv[i, j] = z - a
+            qv[i, j] = qn
         data += dr
         r2 += rr
         s2 += ss
@@ -97,7 +73,7 @@ def _vox(x, quz, quy, qux, qw, auz, auy, aux, aw, z, i, j, ip, jp, hz, l1thr, tv
     ru = su = nu = du = rw = sw = nw = dw = zero
     g = x[z, i, j]
     ao = aw[z, i, j] if mode == 2 else zero
-    qn, a, r2, s2, n2, d2 = _split(g, qw[z, i, j], ao, l1thr, lo)
+    qn, a, r2, s2, n2, d2 = shrink_split(g, qw[z, i, j], ao, l1thr, lo)
     qw[z, i, j] = qn
     if mode != 0:
         aw[z, i, j] = a
@@ -109,14 +85,14 @@ def _vox(x, quz, quy, qux, qw, auz, auy, aux, aw, z, i, j, ip, jp, hz, l1thr, tv
     tv = abs(gy) + abs(gx) + abs(gz)
     if use_tv:
         ao = aux[z, i, j] if mode == 2 else zero
-        qn, a, r2, s2, n2, d2 = _split(gx, qux[z, i, j], ao, tvthr, ninf)
+        qn, a, r2, s2, n2, d2 = shrink_split(gx, qux[z, i, j], ao, tvthr, ninf)
         qux[z, i, j] = qn
         if mode != 0:
             aux[z, i, j] = a
         if mode == 2:
             ru, su, nu, du = r2, s2, n2, d2
         ao = auy[z, i, j] if mode == 2 else zero
-        qn, a, r2, s2, n2, d2 = _split(gy, quy[z, i, j], ao, tvthr, ninf)
+        qn, a, r2, s2, n2, d2 = shrink_split(gy, quy[z, i, j], ao, tvthr, ninf)
         quy[z, i, j] = qn
         if mode != 0:
             auy[z, i, j] = a
@@ -124,7 +100,7 @@ def _vox(x, quz, quy, qux, qw, auz, auy, aux, aw, z, i, j, ip, jp, hz, l1thr, tv
             ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
         if hz:
             ao = auz[z, i, j] if mode == 2 else zero
-            qn, a, r2, s2, n2, d2 = _split(gz, quz[z, i, j], ao, tvthr, ninf)
+            qn, a, r2, s2, n2, d2 = shrink_split(gz, quz[z, i, j], ao, tvthr, ninf)
             quz[z, i, j] = qn
             if mode != 0:
                 auz[z, i, j] = a
@@ -139,7 +115,7 @@ def _add10(a, b):
             a[6] + b[6], a[7] + b[7], a[8] + b[8], a[9] + b[9])
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_split_volume(x, quz, quy, qux, qw, l1thr, tvthr, use_tv, nonneg, mode,
                       auz, auy, aux, aw, rows):
     """The w (identity: non-negativity and l1) and u (3D TV) splits, fused, in place.
@@ -182,7 +158,7 @@ def admm_split_volume(x, quz, quy, qux, qw, l1thr, tvthr, use_tv, nonneg, mode,
     return out
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_rhs_3d(quz, quy, qux, qw, out, mu2, mu3, use_tv):
     """out = mu2 Psi^T q_u + mu3 q_w (Psi^T of the forward differences of
     :func:`admm_split_volume`: circular laterally, no wrap in z)."""
@@ -204,7 +180,7 @@ def admm_rhs_3d(quz, quy, qux, qw, out, mu2, mu3, use_tv):
             out[z, i, j] = val
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def admm_xupdate_3d(spec, h, d_lat, mu1, mu2, mu3, nblocks):
     """The x-update of App. A.3 at every lateral frequency, exactly, in place.
 

@@ -10,12 +10,11 @@ so the Haar pairs along z stop at the first and last plane.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
 
-from .._kernels import _JIT, _clip  # sets OMP_WAIT_POLICY before numba starts
+from ..jit import PARALLEL_FAST, clip, njit, prange
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def accumulate_products(acc, spec, h, zero_first):
     """In place: ``acc[i, j] (+)= sum_z h[z, i, j] * spec[z, i, j]`` (Eq. 4.4 in Fourier space).
 
@@ -31,7 +30,7 @@ def accumulate_products(acc, spec, h, zero_first):
             acc[i, j] = s
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def conj_products(out, r, h):
     """``out[z, i, j] = conj(h[z, i, j]) * r[i, j]`` for every plane (the adjoint, Eq. 3.8)."""
     k, n0, n1 = out.shape
@@ -50,18 +49,18 @@ def _zval(y, grad, step, z, i, j):
 def _prox_vox(y, grad, x, y_next, z, i, j, im, ip, jm, jp, nz, step, thr, l1thr, beta, lo):
     yc = y[z, i, j]
     zc = yc - step * grad[z, i, j]
-    corr = (_clip(0.5 * (_zval(y, grad, step, z, ip, j) - zc), thr)
-            - _clip(0.5 * (zc - _zval(y, grad, step, z, im, j)), thr)
-            + _clip(0.5 * (_zval(y, grad, step, z, i, jp) - zc), thr)
-            - _clip(0.5 * (zc - _zval(y, grad, step, z, i, jm)), thr))
+    corr = (clip(0.5 * (_zval(y, grad, step, z, ip, j) - zc), thr)
+            - clip(0.5 * (zc - _zval(y, grad, step, z, im, j)), thr)
+            + clip(0.5 * (_zval(y, grad, step, z, i, jp) - zc), thr)
+            - clip(0.5 * (zc - _zval(y, grad, step, z, i, jm)), thr))
     tv = abs(y[z, ip, j] - yc) + abs(y[z, i, jp] - yc)
     if z + 1 < nz:
-        corr += _clip(0.5 * (_zval(y, grad, step, z + 1, i, j) - zc), thr)
+        corr += clip(0.5 * (_zval(y, grad, step, z + 1, i, j) - zc), thr)
         tv += abs(y[z + 1, i, j] - yc)
     if z > 0:
-        corr -= _clip(0.5 * (zc - _zval(y, grad, step, z - 1, i, j)), thr)
+        corr -= clip(0.5 * (zc - _zval(y, grad, step, z - 1, i, j)), thr)
     xn = zc + corr / 6.0
-    xn = xn - _clip(xn, l1thr)  # soft threshold (l1); l1thr = 0 leaves xn
+    xn = xn - clip(xn, l1thr)  # soft threshold (l1); l1thr = 0 leaves xn
     xn = max(xn, lo)
     xo = x[z, i, j]
     x[z, i, j] = xn
@@ -69,7 +68,7 @@ def _prox_vox(y, grad, x, y_next, z, i, j, im, ip, jm, jp, nz, step, thr, l1thr,
     return tv, abs(yc), (yc - xn) * (xn - xo)
 
 
-@njit(**_JIT)
+@njit(**PARALLEL_FAST)
 def proximal_step_3d(y, grad, x, y_next, step, thr, l1thr, beta, nonneg):
     """One accelerated proximal-gradient update on a volume (nz, n0, n1), fused.
 

@@ -9,26 +9,19 @@ import math
 import os
 
 import numpy as np
-from numba import njit, prange
 
 from ...errors import ReconInputError
-
-# numba's OpenMP workers must sleep, not spin, between parallel regions (see
-# recon/_kernels.py): spinning threads steal the cores from scipy.fft's workers.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+from ...jit import PARALLEL, njit, prange
 
 WORKERS = os.cpu_count() or 1
 TWO_PI = 2.0 * math.pi
 #: Largest fine grid accepted (samples); 2**27 complex64 samples are 1 GiB.
 MAX_FINE_SAMPLES = 2**27
 
-_JIT = dict(parallel=True, cache=True, nogil=True)
-
-
 # --------------------------------------------------------------------------- kernels
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def _render_mask_kernel(bits, margin, q, ss, hx, hy, ainv, tx, ty, radial, rc,
                         poly_x, poly_y, v0, v1, vout, out):  # pragma: no cover - jitted
     """Nearest-neighbour lookup of the mask at inverse-mapped fine-sample positions.
@@ -83,7 +76,7 @@ def _render_mask_kernel(bits, margin, q, ss, hx, hy, ainv, tx, ty, radial, rc,
             out[i, j] = acc * inv_n
 
 
-@njit(**_JIT)
+@njit(**PARALLEL)
 def _block_reduce_kernel(vals, ry, rx, wy, wx, n, out_ap, out_full):  # pragma: no cover
     """Per-block sums ``out_full[r, c] = sum_{blk} v ry rx`` and ``out_ap`` (x wy wx)."""
     rows, cols = out_ap.shape
