@@ -2,9 +2,11 @@
 
 Forward models with adjoints (:mod:`recon.operators`), solvers
 (:mod:`recon.solvers`), loading and preprocessing (:mod:`recon.io`,
-:mod:`recon.preprocess`) and the notebook API :func:`recon.reconstruct`.
+:mod:`recon.preprocess`) and the notebook API: :func:`recon.reconstruct` (2D) and
+:func:`recon.reconstruct_volume` (3D).
 """
 
 from .api import Reconstruction, reconstruct
+from .volume.api import VolumeReconstruction, reconstruct_volume
 
-__all__ = ["Reconstruction", "reconstruct"]
+__all__ = ["Reconstruction", "VolumeReconstruction", "reconstruct", "reconstruct_volume"]

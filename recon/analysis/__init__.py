@@ -23,6 +23,9 @@ UC Berkeley, 2020):
   distinguishability by reconstruction with the 20 % dip criterion (Sec. 4.4).
 - :mod:`recon.analysis.grid` -- reconstruction-grid recommendation (Nyquist planes
   in 1/z and lateral binning, only over the depths a scene spans).
+- :mod:`recon.analysis.reports` -- the numbers of ``diffuserlab analyze`` for a
+  whole PSF stack (stack preparation, resolution per depth, lateral and axial
+  conditioning, distinguishability, field of view per depth).
 
 Bad input raises :class:`recon.errors.ReconInputError` naming the problem and the fix.
 """
@@ -49,6 +52,16 @@ from .psf import (
     normalized_correlation,
     register_shift,
     remove_background_dct,
+)
+from .reports import (
+    axial_condition,
+    distinguishability,
+    energy_kept,
+    field_of_view,
+    lateral_condition,
+    prepare_stack,
+    resolution_per_depth,
+    support_width_px,
 )
 from .resolution import (
     LateralResolution,
@@ -112,4 +125,12 @@ __all__ = [
     "dip_between",
     "distinguishability_limit",
     "points_resolved",
+    "axial_condition",
+    "distinguishability",
+    "energy_kept",
+    "field_of_view",
+    "lateral_condition",
+    "prepare_stack",
+    "resolution_per_depth",
+    "support_width_px",
 ]

@@ -1,0 +1,296 @@
+"""The 3D notebook API: ``recon.reconstruct_volume(psf_stack, depths, raw)``.
+
+The volume counterpart of :func:`recon.reconstruct` (Kuo 2020, Ch. 4): sorts the
+PSF stack by depth, subtracts the dark level, bins laterally, scales the problem
+like the 2D API (:func:`recon.api.scaled_problem`: stack normalised by
+:func:`recon.volume.normalize_psf_stack`, measurement divided by its largest
+magnitude), builds the forward model of Eq. 4.4
+(:class:`recon.volume.VolumeConvolutionOperator`) and solves it with 3D FISTA or 3D
+ADMM (Eq. 4.5). ``diffuserlab recon3d`` is this plus reading and writing files.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ReconInputError
+from ..preprocess import (
+    box_bin,
+    dark_level,
+    saturation_fraction,
+    subtract_dark,
+    validate_measurement,
+    validate_psf,
+)
+from ..solvers import SolveResult
+from .admm import admm3d
+from .fista import fista3d
+from .operator import (
+    VolumeConvolutionOperator,
+    bin_stack,
+    fft_floor_seconds,
+    normalize_psf_stack,
+)
+
+__all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "VolumeReconstruction",
+           "check_volume_parameters", "prepare_volume_problem", "reconstruct_volume"]
+
+log = logging.getLogger(__name__)
+
+#: Default 3D TV weight of :func:`reconstruct_volume` and ``diffuserlab recon3d`` in
+#: the scaled problem (stack normalised by :func:`normalize_psf_stack`, measurement
+#: divided by its maximum).
+#: Chosen with the 3D accuracy benchmark (:mod:`recon.benchmarks.volume_accuracy`:
+#: tilted target on the virtual bench, 16 planes of 128 x 160, 200 iterations, SNR
+#: 35 dB): with ADMM, TV 1e-4 came out 1.4 dB below the best weight (1e-6; none
+#: equal), keeping 1.1 of the best's 2.5 dB over the zero volume; 1e-5 came out
+#: 0.4 dB below the best; FISTA changes by
+#: < 0.1 dB up to 1e-4, and beads are localised as well at 1e-5. A one-off check on
+#: the same render with 500 and 100 peak photons (SNR 25 and 17 dB) kept 1e-5
+#: within 0.3 and 0.1 dB of the best weight there, 1e-4 0.6-1.5 dB below.
+DEFAULT_TV = 1e-5
+
+#: Solvers of ``method``.
+METHODS = ("admm", "fista")
+
+#: Saturated fraction of the raw image above which a warning is logged.
+SATURATION_WARN = 0.001
+
+_SOLVERS = {"admm": admm3d, "fista": fista3d}
+
+
+@dataclass
+class VolumeReconstruction:
+    """Result of :func:`reconstruct_volume`.
+
+    Attributes
+    ----------
+    volume : ndarray, float32, shape (n_z, rows, cols)
+        The sensor field of view of every plane, in measurement counts per unit of
+        the normalised PSF stack (sum_z (sum h_z)^2 = 1), planes in depth order.
+    depths_mm : list of float
+        Depth of every plane (ascending), mm.
+    result : SolveResult
+        The solver's result in the scaled problem (whole object domain, histories,
+        parameters).
+    operator : VolumeConvolutionOperator
+        The forward model of the scaled problem.
+    info : dict
+        Preprocessing record (dark mode and level, bin factor, saturated fraction of
+        the raw image, clipped fraction of the stack), the scales (``psf_scale``,
+        ``raw_scale``), the method, weights and ``seconds_total`` (preprocessing
+        and solve).
+    """
+
+    volume: np.ndarray
+    depths_mm: list[float]
+    result: SolveResult
+    operator: VolumeConvolutionOperator
+    info: dict = field(default_factory=dict)
+
+    def metrics(self, fft_floor_s: float | None = None) -> dict:
+        """The solver part of ``recon3d``'s metrics record.
+
+        Parameters
+        ----------
+        fft_floor_s : float, optional
+            Seconds of the FFTs one iteration needs at least
+            (:func:`recon.volume.fft_floor_seconds`); measured now if not given.
+
+        Returns
+        -------
+        dict
+            method, iterations, tv, l1, shapes, depths, preprocessing, scales,
+            times (total, median per iteration), the FFT floor and the ratio to it,
+            final relative residual and objective, the objective and data residual
+            histories and the solver parameters.
+        """
+        op = self.operator
+        if fft_floor_s is None:
+            fft_floor_s = fft_floor_seconds(op.padded_shape, op.n_z)
+        per_iter = float(np.median(self.result.history.seconds))
+        info = dict(self.info)
+        head = {k: info.pop(k) for k in ("method", "iterations", "tv", "l1")}
+        scales = {k: info.pop(k) for k in ("psf_scale", "raw_scale")}
+        seconds_total = info.pop("seconds_total")
+        return {
+            **head,
+            "shape": list(self.volume.shape),
+            "sensor_shape": list(op.sensor_shape),
+            "padded_shape": list(op.padded_shape),
+            "n_planes": op.n_z,
+            "depths_mm": list(self.depths_mm),
+            **info,
+            **scales,
+            "seconds_total": seconds_total,
+            "seconds_per_iteration": per_iter,
+            "fft_floor_seconds": fft_floor_s,
+            "fft_floor_transforms": f"{op.n_z + 1} rfft2 + {op.n_z + 1} irfft2 at "
+                                    f"{op.padded_shape[0]}x{op.padded_shape[1]}",
+            "ratio_to_fft_floor": per_iter / fft_floor_s,
+            "final_relative_residual": self.result.final_relative_residual,
+            "final_objective": self.result.final_objective,
+            "objective": list(self.result.history.objective),
+            "data_residual": list(self.result.history.data_residual),
+            "params": dict(self.result.params),
+        }
+
+
+def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float = "auto",
+                           bin_factor: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Dark subtraction, binning and clipping with the :mod:`recon.preprocess` steps.
+
+    Parameters
+    ----------
+    stack : ndarray, shape (n_z, rows, cols), real
+        PSF stack, one plane per depth.
+    raw : ndarray, shape (rows, cols), real
+        One grayscale measurement, the size of a plane.
+    dark : "auto", "none" or float
+        ``"auto"``: the median over the planes of their dark-corner level
+        (:func:`recon.preprocess.dark_level`), subtracted from the stack and the raw
+        image; ``"none"``: no subtraction; a number: that level, input units.
+    bin_factor : int
+        Lateral box binning of every plane and of the raw image.
+
+    Returns
+    -------
+    stack : ndarray, float32, shape (n_z, rows / bin, cols / bin)
+        Non-negative (negative values after dark subtraction clipped to 0).
+    raw : ndarray, float32, shape (rows / bin, cols / bin)
+    info : dict
+        ``dark_mode``, ``dark_level``, ``bin_factor``, ``saturated_fraction_raw``,
+        ``psf_clipped_fraction``.
+
+    Raises
+    ------
+    ReconInputError
+        Invalid images, shapes that differ, or a plane without signal.
+    """
+    if raw.ndim != 2:
+        raise ReconInputError(f"the raw image has shape {raw.shape}; recon3d needs one "
+                              "grayscale image (rows, cols)")
+    if raw.shape != stack.shape[1:]:
+        raise ReconInputError(f"raw image {raw.shape[0]}x{raw.shape[1]} and PSF planes "
+                              f"{stack.shape[1]}x{stack.shape[2]} differ in size; capture or "
+                              "crop both to the same sensor region")
+    for k in range(stack.shape[0]):
+        validate_psf(stack[k])
+    validate_measurement(raw)
+    saturated = saturation_fraction(raw)
+    if saturated > SATURATION_WARN:
+        log.warning("%.2g%% of the raw image is saturated: the linear model does not hold "
+                    "there", 100 * saturated)
+    if dark == "none":
+        level = None
+    elif dark == "auto":
+        level = float(np.median([dark_level(stack[k]) for k in range(stack.shape[0])]))
+    else:
+        level = float(dark)
+    if level is not None:
+        stack = subtract_dark(stack, level)  # a scalar: any (n_z, r, c) layout is fine
+        raw = subtract_dark(raw, level)
+    stack = bin_stack(stack, bin_factor)
+    raw = box_bin(raw, bin_factor)
+    clipped = float(np.count_nonzero(stack < 0)) / stack.size
+    np.clip(stack, 0.0, None, out=stack)
+    empty = [k for k in range(stack.shape[0]) if not stack[k].sum(dtype=np.float64) > 0]
+    if empty:
+        raise ReconInputError(f"PSF planes {empty} have no signal above the dark level "
+                              f"{level}; try --dark none or a smaller value")
+    info = {"dark_mode": dark if isinstance(dark, str) else "value", "dark_level": level,
+            "bin_factor": int(bin_factor), "saturated_fraction_raw": saturated,
+            "psf_clipped_fraction": clipped}
+    return stack, raw, info
+
+
+def check_volume_parameters(method: str, iterations: int, tv: float, l1: float) -> None:
+    """Refuse parameters :func:`reconstruct_volume` cannot use (before any file is read).
+
+    Raises
+    ------
+    ReconInputError
+        ``method`` not in :data:`METHODS`, ``iterations`` not an integer >= 1, or a
+        weight that is not a finite number >= 0.
+    """
+    if method not in METHODS:
+        raise ReconInputError(f"unknown method {method!r}; choose admm or fista")
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ReconInputError(f"--iterations must be an integer >= 1, got {iterations!r}")
+    for name, w in (("tv", tv), ("l1", l1)):
+        if not (math.isfinite(w) and w >= 0):
+            raise ReconInputError(f"--{name} must be a finite number >= 0, got {w}")
+
+
+def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
+                       method: str = "admm", iterations: int = 100,
+                       tv: float = DEFAULT_TV, l1: float = 0.0, bin_factor: int = 1,
+                       dark: str | float = "auto") -> VolumeReconstruction:
+    """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
+
+    Parameters
+    ----------
+    psf_stack : ndarray, shape (n_z, rows, cols), real
+        One calibration PSF per depth (any order; sorted by depth here).
+    depths_mm : sequence of float, length n_z
+        Depth of every plane, mm.
+    raw : ndarray, shape (rows, cols), real
+        The measurement (sensor counts), the size of one plane.
+    method : {"admm", "fista"}
+        3D ADMM (:func:`recon.volume.admm3d`) or 3D FISTA
+        (:func:`recon.volume.fista3d`).
+    iterations : int
+        Solver iterations (>= 1).
+    tv, l1 : float
+        3D TV and l1 (native sparsity) weights in the scaled problem (>= 0; 0
+        disables).
+    bin_factor : int
+        Lateral box binning of the stack and the raw image.
+    dark : "auto", "none" or float
+        Dark level handling (:func:`prepare_volume_problem`).
+
+    Returns
+    -------
+    VolumeReconstruction
+        ``volume`` (float32, (n_z, rows / bin, cols / bin), measurement units),
+        ``depths_mm`` ascending, the solver result, the operator and the record.
+
+    Raises
+    ------
+    ReconInputError
+        Bad images, shapes or parameters.
+    recon.errors.DivergenceError
+        The solver diverged.
+    """
+    check_volume_parameters(method, iterations, tv, l1)
+    stack = np.asarray(psf_stack)
+    if stack.ndim != 3 or len(depths_mm) != stack.shape[0]:
+        raise ReconInputError(f"the PSF stack has shape {stack.shape} and {len(depths_mm)} "
+                              "depths; give one depth per plane of an (n_z, rows, cols) stack")
+    t_start = time.perf_counter()
+    order = np.argsort(depths_mm, kind="stable")
+    stack, depths = stack[order], [float(depths_mm[i]) for i in order]
+    stack, raw, info = prepare_volume_problem(stack, np.asarray(raw), dark, bin_factor)
+
+    h, psf_scale = normalize_psf_stack(stack)
+    del stack
+    raw_scale = float(np.max(np.abs(raw)))
+    if not raw_scale > 0:
+        raise ReconInputError("the measurement is zero after dark subtraction; check the "
+                              "exposure and --dark")
+    b = (raw / raw_scale).astype(np.float32)
+    op = VolumeConvolutionOperator(h, depths=depths)
+    log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
+             *op.sensor_shape, op.padded_shape, iterations)
+    result = _SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+    volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
+                                  dtype=np.float32)
+    info.update(method=method, iterations=iterations, tv=tv, l1=l1, psf_scale=psf_scale,
+                raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start)
+    return VolumeReconstruction(volume=volume, depths_mm=depths, result=result, operator=op,
+                                info=info)
