@@ -34,6 +34,87 @@ def _difference_power(shape: tuple[int, int]) -> np.ndarray:
         np.float32)
 
 
+def check_balancing(balance_every, balance_until: float, balance_ratio: float,
+                    balance_factor: float) -> None:
+    """Validate residual-balancing settings (shared by the 2D and 3D ADMM).
+
+    Raises
+    ------
+    ReconInputError
+        ``balance_every`` not an integer >= 2 (mode-1 and mode-2 iterations must
+        differ), ``balance_ratio`` or ``balance_factor`` not > 1 (the penalties
+        would oscillate or not move), ``balance_until`` outside [0, 1].
+    """
+    if isinstance(balance_every, bool) or not isinstance(balance_every, int) \
+            or balance_every < 2:
+        raise ReconInputError(f"balance_every must be an integer >= 2, got {balance_every!r}")
+    if not (balance_ratio > 1 and balance_factor > 1 and 0 <= balance_until <= 1):
+        raise ReconInputError("balance_ratio and balance_factor must be > 1 and "
+                              "balance_until in [0, 1]")
+
+
+def balance_mode(k: int, balance_every: int, last_balance: int) -> int:
+    """Mode of the fused split kernels at iteration ``k``.
+
+    0: plain update; 1: store the scaled duals (the iteration before a balancing
+    step); 2: also return the residual terms and balance. Balancing runs every
+    ``balance_every`` iterations while ``k < last_balance``.
+    """
+    if k < last_balance:
+        if k % balance_every == balance_every - 1:
+            return 1
+        if k % balance_every == 0 and k > 0:
+            return 2
+    return 0
+
+
+def balanced_penalty(mu_i: float, r2: float, s2: float, n2: float, d2: float,
+                     ratio: float, factor: float) -> float:
+    """One penalty after residual balancing (Boyd et al. 2011, Sec. 3.4.1).
+
+    With the normalised residuals of Wohlberg 2017, so the splits' different scales
+    do not matter: ``r = sqrt(r2 / n2)`` (primal ||G x - z|| over max(||G x||, ||z||))
+    and ``s = sqrt(s2 / d2)`` (dual mu ||z - z_prev|| over the dual's norm mu ||a||).
+    ``mu_i`` is multiplied by ``factor`` when r > ratio s and divided when
+    s > ratio r, within :data:`MU_RANGE`; unchanged when n2 or d2 is 0.
+
+    Parameters
+    ----------
+    mu_i : float
+        Current penalty.
+    r2, s2, n2, d2 : float
+        Sums over the split of (a - a_old)^2, (z - z_old)^2, max(g^2, z^2), a^2 (the
+        last four terms of :func:`recon.jit.shrink_split` / :func:`recon.jit.data_split`).
+    ratio, factor : float
+        ``balance_ratio`` and ``balance_factor`` (> 1).
+
+    Returns
+    -------
+    float
+    """
+    if n2 > 0 and d2 > 0:
+        r_i, s_i = math.sqrt(r2 / n2), math.sqrt(s2 / d2)
+        if r_i > ratio * s_i and mu_i < MU_RANGE[1]:
+            return mu_i * factor
+        if s_i > ratio * r_i and mu_i > MU_RANGE[0]:
+            return mu_i / factor
+    return mu_i
+
+
+def rescale_duals(splits) -> None:
+    """Keep the q-form state consistent after penalties change, in place.
+
+    Scaled duals are a = y / mu, so with the dual y fixed, q = z - a becomes
+    z - a mu / mu' = q + a (1 - mu / mu'). ``splits`` yields ``(q, a, mu_old,
+    mu_new)`` with ``a`` the duals stored by the mode-1 pass (overwritten here:
+    the next mode-1 pass rewrites them before they are read again).
+    """
+    for q, a, old, new in splits:
+        if old != new:
+            a *= np.float32(1.0 - old / new)
+            q += a
+
+
 def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: float = 1e-3,
          mu: tuple[float, float, float] | None = None, balance: bool = True,
          balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
@@ -91,8 +172,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
         raise ReconInputError(f"iterations must be >= 1, got {iterations}")
     if tv < 0 or not math.isfinite(tv):
         raise ReconInputError(f"TV weight must be >= 0, got {tv}")
-    if balance_every < 2:
-        raise ReconInputError("balance_every must be >= 2")
+    check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
     use_tv = tv > 0
     if mu is None:
         mu = (2e-3, 2e-3, 2e-3)
@@ -129,42 +209,20 @@ def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: f
         buf.fill(0.0)
     mon = Monitor(float(np.vdot(b, b)), "ADMM")
     mus = [(mu1, mu2, mu3)]
-    last_balance = int(balance_until * iterations)
+    last_balance = int(balance_until * iterations) if balance else 0
     for k in range(iterations):
         mon.start()
-        mode = 0
-        if balance and k < last_balance:
-            if k % balance_every == balance_every - 1:
-                mode = 1
-            elif k % balance_every == 0 and k > 0:
-                mode = 2
+        mode = balance_mode(k, balance_every, last_balance)
         s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2,
                                            mu3, tv, use_tv, mode, *scratch)
         if mode == 2:
-            new = []
-            for mu_i, r2, s2, n2, d2 in ((mu1, s[2], s[3], s[8], s[9]),
-                                         (mu2, s[4], s[5], s[10], s[11]),
-                                         (mu3, s[6], s[7], s[12], s[13])):
-                # normalised residuals (Wohlberg 2017): primal over max(|Gx|, |z|),
-                # dual mu ||dz|| over the dual variable's norm mu ||a||
-                if n2 > 0 and d2 > 0:
-                    r_i, s_i = math.sqrt(r2 / n2), math.sqrt(s2 / d2)
-                    if r_i > balance_ratio * s_i and mu_i < MU_RANGE[1]:
-                        mu_i *= balance_factor
-                    elif s_i > balance_ratio * r_i and mu_i > MU_RANGE[0]:
-                        mu_i /= balance_factor
-                new.append(mu_i)
-            if not use_tv:
-                new[1] = mu2
+            new = [balanced_penalty(mu1, *s[[2, 3, 8, 9]], balance_ratio, balance_factor),
+                   balanced_penalty(mu2, *s[[4, 5, 10, 11]], balance_ratio, balance_factor)
+                   if use_tv else mu2,
+                   balanced_penalty(mu3, *s[[6, 7, 12, 13]], balance_ratio, balance_factor)]
             if tuple(new) != (mu1, mu2, mu3):
-                # scaled duals a = y / mu: q = z - a becomes z - a mu / mu'
-                for q, a, old, nw in ((qv, scratch[0], mu1, new[0]),
-                                      (qux, scratch[1], mu2, new[1]),
-                                      (quy, scratch[2], mu2, new[1]),
-                                      (qw, scratch[3], mu3, new[2])):
-                    if old != nw:  # a is rewritten (mode 1) before it is read again
-                        a *= np.float32(1.0 - old / nw)
-                        q += a
+                rescale_duals(((qv, scratch[0], mu1, new[0]), (qux, scratch[1], mu2, new[1]),
+                               (quy, scratch[2], mu2, new[1]), (qw, scratch[3], mu3, new[2])))
                 mu1, mu2, mu3 = new
                 _kernels.admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv,
                                                   inv_den)

@@ -31,7 +31,7 @@ from numba import get_num_threads
 
 from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
-from ..solvers.admm import MU_RANGE
+from ..solvers.admm import balance_mode, balanced_penalty, check_balancing, rescale_duals
 from ..solvers.common import Monitor, SolveResult, check_measurement
 from . import _admm_kernels3d as _k
 from .fista import _check_weight, volume_tv
@@ -79,17 +79,6 @@ def solve_x_update(spec: np.ndarray, psf_spectra: np.ndarray, d_lat: np.ndarray,
     _k.admm_xupdate_3d(spec, psf_spectra, d_lat, mu1, mu2 if use_tv else 0.0, mu3,
                        4 * get_num_threads())
     return spec
-
-
-def _balanced(mu_i, r2, s2, n2, d2, ratio, factor):
-    """Wohlberg-normalised residual balancing of one penalty (as the 2D ADMM)."""
-    if n2 > 0 and d2 > 0:
-        r_i, s_i = math.sqrt(r2 / n2), math.sqrt(s2 / d2)
-        if r_i > ratio * s_i and mu_i < MU_RANGE[1]:
-            return mu_i * factor
-        if s_i > ratio * r_i and mu_i > MU_RANGE[0]:
-            return mu_i / factor
-    return mu_i
 
 
 def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
@@ -176,12 +165,7 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
     tv_w = _check_weight(tv, "TV")
     l1_w = _check_weight(l1, "l1")
-    if isinstance(balance_every, bool) or not isinstance(balance_every, int) \
-            or balance_every < 2:
-        raise ReconInputError(f"balance_every must be an integer >= 2, got {balance_every!r}")
-    if not (balance_ratio > 1 and balance_factor > 1 and 0 <= balance_until <= 1):
-        raise ReconInputError("balance_ratio and balance_factor must be > 1 and "
-                              "balance_until in [0, 1]")
+    check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
     mu = DEFAULT_MU if mu is None else mu
     try:
         mu1, mu2, mu3 = (float(m) for m in mu)
@@ -229,12 +213,7 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         if k == last_balance and k > 0:  # balancing over: drop the stored duals
             av = np.zeros((1, 1), np.float32)
             aw = auz = auy = aux = dummy3
-        mode = 0
-        if k < last_balance:
-            if k % balance_every == balance_every - 1:
-                mode = 1
-            elif k % balance_every == 0 and k > 0:
-                mode = 2
+        mode = balance_mode(k, balance_every, last_balance)
         x, mx = stack[:nz], stack[nz]
         sv = _k.admm_split_plane(mx, qv, bp, wp, mu1, mode, av)
         su = _k.admm_split_volume(x, quz, quy, qux, qw, l1_w / mu3,
@@ -242,20 +221,16 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
                                   auz, auy, aux, aw, rows)
         data_sq, tv_x, l1_x = sv[0], su[0], su[1]
         if mode == 2:
-            new = [_balanced(mu1, *sv[1:], balance_ratio, balance_factor),
-                   _balanced(mu2, *su[2:6], balance_ratio, balance_factor) if use_tv
+            new = [balanced_penalty(mu1, *sv[1:], balance_ratio, balance_factor),
+                   balanced_penalty(mu2, *su[2:6], balance_ratio, balance_factor) if use_tv
                    else mu2,
-                   _balanced(mu3, *su[6:10], balance_ratio, balance_factor)]
+                   balanced_penalty(mu3, *su[6:10], balance_ratio, balance_factor)]
             if tuple(new) != (mu1, mu2, mu3):
-                # scaled duals a = y / mu: q = z - a becomes z - a mu / mu'
-                pairs = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
+                splits = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
                 if use_tv:
-                    pairs += [(q, a, mu2, new[1]) for q, a in ((quz, auz), (quy, auy),
-                                                               (qux, aux))]
-                for q, a, old, nw in pairs:
-                    if old != nw:  # a is rewritten (mode 1) before it is read again
-                        a *= np.float32(1.0 - old / nw)
-                        q += a
+                    splits += [(q, a, mu2, new[1]) for q, a in ((quz, auz), (quy, auy),
+                                                                (qux, aux))]
+                rescale_duals(splits)
                 mu1, mu2, mu3 = new
                 mus.append((mu1, mu2, mu3))
         # objective of the iterate entering this iteration (before x is overwritten)
