@@ -83,33 +83,88 @@ def irfftn(x: np.ndarray, shape: tuple[int, ...], axes=(-2, -1)) -> np.ndarray:
     return sfft.irfftn(x, s=shape, axes=axes, workers=WORKERS)
 
 
+def time_ffts(shape: tuple[int, ...], *, real: bool = True, stacks: tuple[int, ...] = (1,),
+              repeats: int = 15, warmup: int = 2) -> float:
+    """Median wall time of a fixed set of FFTs at ``shape``: the one FFT-floor timer.
+
+    Every speed figure of the project is a ratio to such a floor, measured in the
+    same process as the solver (the machine is shared and noisy):
+
+    * ``real=True``: for each ``n`` in ``stacks``, a float32 stack ``(n, *shape)``
+      (just ``shape`` when ``n == 1``) goes through rfftn + irfftn over the axes of
+      ``shape`` (a batched pair; ``n`` pairs of transforms). The 2D solvers' floor
+      is ``stacks=(1,)`` (:func:`fft_pair_seconds`), the 3D one
+      ``stacks=(n_z, 1)`` (:func:`recon.volume.fft_floor_seconds`).
+    * ``real=False``: one in-place complex64 ``fftn`` (``norm="ortho"``) per plane
+      of each stack (the hologram optimiser's unit, :mod:`recon.cgh.benchmark`).
+
+    All transforms use :data:`WORKERS` threads.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Transform shape, e.g. the padded (rows, cols).
+    real : bool
+        Real pairs (True) or forward complex transforms (False).
+    stacks : tuple of int
+        Stack sizes (planes) transformed per timed repetition, each >= 1.
+    repeats : int
+        Timed repetitions (at least one); the median is returned.
+    warmup : int
+        Untimed repetitions first (plans, page faults).
+
+    Returns
+    -------
+    float
+        Seconds per repetition.
+    """
+    rng = np.random.default_rng(0)
+    axes = tuple(range(-len(shape), 0))
+    bufs = []
+    for n in stacks:
+        full = tuple(shape) if n == 1 else (n, *shape)
+        if real:
+            bufs.append(rng.random(full, dtype=np.float32))
+        else:
+            buf = np.empty(full, np.complex64)
+            buf.real = rng.standard_normal(full, dtype=np.float32)
+            buf.imag = 0.0
+            bufs.append(buf)
+
+    def once():
+        for buf in bufs:
+            if real:
+                irfftn(rfftn(buf, axes), shape, axes)
+            else:
+                sfft.fftn(buf, axes=axes, norm="ortho", overwrite_x=True, workers=WORKERS)
+
+    for _ in range(warmup):
+        once()
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        once()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
 def fft_pair_seconds(shape: tuple[int, ...], repeats: int = 15) -> float:
     """Median wall time of one rfft2 + irfft2 pair at ``shape`` in float32.
 
-    This is the "FFT floor": every solver iteration needs at least this, so speed
-    is stated as ``seconds_per_iteration / fft_pair_seconds``, measured in the
-    same process (the machine is shared and noisy).
+    This is the "FFT floor" of the 2D solvers: every iteration needs at least this,
+    so speed is stated as ``seconds_per_iteration / fft_pair_seconds``, measured in
+    the same process (:func:`time_ffts` with one real pair, two warm-up pairs).
 
     Parameters
     ----------
     shape : tuple of int
         Padded 2D shape (rows, cols).
     repeats : int
-        Number of timed pairs; the median is returned (after two warm-up pairs).
+        Number of timed pairs; the median is returned.
 
     Returns
     -------
     float
         Seconds per pair.
     """
-    rng = np.random.default_rng(0)
-    x = rng.random(shape, dtype=np.float32)
-    axes = tuple(range(-len(shape), 0))
-    for _ in range(2):
-        irfftn(rfftn(x, axes), shape, axes)
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        irfftn(rfftn(x, axes), shape, axes)
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+    return time_ffts(shape, repeats=repeats)

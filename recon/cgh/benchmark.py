@@ -22,49 +22,20 @@ import time
 import tracemalloc
 
 import numpy as np
-import scipy.fft as sfft
 
 from ..errors import ReconInputError
-from ..fft import WORKERS
+from ..fft import WORKERS, time_ffts
 from .losses import IntensityLoss
 from .optimize import optimize_hologram
 from .protocol import load_bundled, prepare_target
 from .scattering_display import ScatteringDisplay
 
-__all__ = ["fft_seconds", "main", "run_benchmark"]
+__all__ = ["main", "run_benchmark"]
 
 #: Goals (docs/protocols.md, "Hologram speed budget") for a 960 x 540 SLM, 200 iterations:
 #: (expansion factor, loss) -> seconds per hologram on a 2-core CPU.
 GOALS = {(16, "frequency"): 90.0, (16, "l2"): 60.0, (4, "frequency"): 20.0,
          (36, "frequency"): 240.0}
-
-
-def fft_seconds(shape, repeats: int = 9) -> float:
-    """Median wall time of one in-place complex64 ``fft2`` at ``shape`` (all workers).
-
-    Parameters
-    ----------
-    shape : (int, int)
-        Grid.
-    repeats : int
-        Timed transforms after two warm-up ones.
-
-    Returns
-    -------
-    float
-        Seconds.
-    """
-    rng = np.random.default_rng(0)
-    buf = np.empty(shape, np.complex64)
-    buf.real = rng.standard_normal(shape, dtype=np.float32)
-    buf.imag = 0.0
-    times = []
-    for i in range(repeats + 2):
-        t0 = time.perf_counter()
-        sfft.fft2(buf, norm="ortho", overwrite_x=True, workers=WORKERS)
-        if i >= 2:
-            times.append(time.perf_counter() - t0)
-    return float(np.median(times))
 
 
 def _warm_up(loss: IntensityLoss) -> None:
@@ -104,7 +75,7 @@ def run_benchmark(slm_shape=(540, 960), k: int = 4, iterations: int = 200,
     lf = losses[loss]()
     _warm_up(lf)
     grid = (slm_shape[0] * k, slm_shape[1] * k)
-    t_fft = fft_seconds(grid, fft_repeats)
+    t_fft = time_ffts(grid, real=False, repeats=fft_repeats)  # one complex64 fft2
     target = prepare_target(load_bundled("astronaut"), grid)
     tracemalloc.start()
     t0 = time.perf_counter()

@@ -10,14 +10,12 @@ floor of the 3D solvers.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import scipy.fft as sfft
 
 from .. import _kernels
 from ..errors import ReconInputError
-from ..fft import WORKERS, fast_padded_shape, irfftn, rfftn
+from ..fft import WORKERS, fast_padded_shape, irfftn, rfftn, time_ffts
 from ..operators import (
     ConvolutionOperator,
     LinearOperator,
@@ -369,6 +367,7 @@ def fft_floor_seconds(shape: tuple[int, int], n_z: int, repeats: int = 5) -> flo
     (float32 / complex64): a batched rfft2 of the ``n_z`` planes, one irfft2 of the
     summed spectrum, one rfft2 of the residual and a batched irfft2 back to ``n_z``
     planes. A solver's seconds per iteration divided by this is its overhead ratio.
+    Timed by :func:`recon.fft.time_ffts` (real pairs, stacks ``(n_z, 1)``).
 
     Parameters
     ----------
@@ -386,18 +385,4 @@ def fft_floor_seconds(shape: tuple[int, int], n_z: int, repeats: int = 5) -> flo
     """
     if n_z < 1 or len(shape) != 2:
         raise ReconInputError("fft_floor_seconds needs a 2D padded shape and n_z >= 1")
-    rng = np.random.default_rng(0)
-    vol = rng.random((n_z, *shape), dtype=np.float32)
-    plane = rng.random(shape, dtype=np.float32)
-
-    def once():
-        irfftn(rfftn(vol), shape)
-        irfftn(rfftn(plane), shape)
-
-    once()
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        once()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
+    return time_ffts(tuple(shape), stacks=(n_z, 1), repeats=repeats, warmup=1)
