@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import scipy.optimize
 
-from recon.analysis.psf import _as_float
 from recon.errors import ReconInputError
+from recon.validate import float_array
 
 __all__ = ["FalloffFit", "fit_gaussian_falloff", "fov_half_angle_deg"]
 
@@ -117,8 +117,8 @@ def fit_gaussian_falloff(angles_deg: Any, intensity: Any, *, center_deg: float =
     Fig. 5.3a; the angular cutoff ``alpha_c`` is where the response falls to 20 %
     of normal incidence (Sec. 3.3, Sec. 4.4), i.e. ``sigma sqrt(2 ln 5)`` for the fit.
     """
-    theta = _as_float(angles_deg, "angles_deg", ndims=(1,))
-    y = _as_float(intensity, "intensity", ndims=(1,))
+    theta = float_array(angles_deg, "angles_deg", ndims=(1,))
+    y = float_array(intensity, "intensity", ndims=(1,))
     if theta.shape != y.shape:
         raise ReconInputError(
             f"angles_deg has {theta.size} values but intensity has {y.size}; pass one "

@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 import scipy.ndimage
 
-from recon.analysis.psf import _as_float
-from recon.analysis.similarity import _check_image, _check_stack
+from recon.analysis.similarity import check_image, check_stack
 from recon.errors import ReconInputError
+from recon.validate import float_array
 
 __all__ = [
     "axial_layout",
@@ -82,7 +82,7 @@ def local_condition_number(columns: Any) -> float:
     shift-invariant ``A`` have equal norms unless part of a shifted PSF leaves the
     sensor.
     """
-    a = _as_float(columns, "columns", ndims=(2, 3))
+    a = float_array(columns, "columns", ndims=(2, 3))
     if a.ndim == 3:
         a = a.reshape(a.shape[0], -1).T
     m, k = a.shape
@@ -151,8 +151,8 @@ def point_source_columns(psf: Any, positions_px: Any, *, order: int = 3) -> np.n
     position and cropped to the sensor. Sub-pixel shifts use
     ``scipy.ndimage.shift(psf, (dy, dx), order=order, mode="constant")``.
     """
-    h = _check_image(psf, "psf")
-    pos = _as_float(positions_px, "positions_px", ndims=(1, 2))
+    h = check_image(psf, "psf")
+    pos = float_array(positions_px, "positions_px", ndims=(1, 2))
     if pos.ndim == 1:
         pos = pos[None, :]
     if pos.shape[1] != 2:
@@ -262,7 +262,7 @@ def condition_vs_k(
     4.4 / Fig. 4.5: it grows with k and approaches a limit, larger the closer the
     sources; the limit, not the two-point value, governs complex scenes.
     """
-    h = _check_image(psf, "psf")
+    h = check_image(psf, "psf")
     sep = _separation(separation_px, "separation_px", "2 (pixels)")
     if layout not in ("line", "grid"):
         raise ReconInputError(f"layout must be 'line' or 'grid', got {layout!r}")
@@ -306,8 +306,8 @@ def stack_source_columns(stack: Any, sources: Any, *, order: int = 3) -> np.ndar
         An invalid stack, ``sources`` not finite of shape (k, 3), a plane index that
         is not an integer inside the stack, or a bad ``order``.
     """
-    h = _check_stack(stack)
-    src = _as_float(sources, "sources", ndims=(1, 2))
+    h = check_stack(stack)
+    src = float_array(sources, "sources", ndims=(1, 2))
     if src.ndim == 1:
         src = src[None, :]
     if src.shape[1] != 3:
@@ -444,7 +444,7 @@ def condition_vs_k_axial(
     so two sources one 1/z step apart (Eq. 4.7) are about as alike as two sources
     one lateral resolution apart. Nested positions: never decreases with k.
     """
-    h = _check_stack(stack)
+    h = check_stack(stack)
     k_list = _check_ks(ks)
     positions = axial_layout(h.shape[0], max(k_list), separation_planes,
                              separation_px=separation_px, axis=axis, start_plane=start_plane)

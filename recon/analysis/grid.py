@@ -23,16 +23,16 @@ from typing import Any
 
 import numpy as np
 
-from recon.analysis.psf import _as_float
 from recon.analysis.resolution import (
     INNER_PRODUCT_THRESHOLD,
     RESOLUTION_LEVEL,
-    _crossing,
-    _level,
+    check_level,
+    crossing_lag,
 )
-from recon.analysis.sampling import _positive, inverse_depth_step_per_mm, inverse_depths
-from recon.analysis.similarity import _check_stack
+from recon.analysis.sampling import inverse_depth_step_per_mm, inverse_depths
+from recon.analysis.similarity import check_stack
 from recon.errors import ReconInputError
+from recon.validate import float_array, positive
 
 __all__ = ["GridRecommendation", "recommend_grid"]
 
@@ -113,7 +113,7 @@ class GridRecommendation:
 
 
 def _scene_span(scene: Any, z_lo: float, z_hi: float, reasons: list[str]) -> tuple[float, float]:
-    rng = _as_float(scene, "scene_depth_range_mm", ndims=(1,))
+    rng = float_array(scene, "scene_depth_range_mm", ndims=(1,))
     if rng.size != 2 or not 0 < rng[0] <= rng[1]:
         raise ReconInputError(
             f"scene_depth_range_mm must be (z_near, z_far) in mm with 0 < z_near <= z_far, "
@@ -198,9 +198,9 @@ def recommend_grid(
     value sets one bin for all planes. All measurements use every calibrated PSF,
     so the spacing does not depend on the scene; the scene only selects the span.
     """
-    stack = _check_stack(psf_stack, "psf_stack")
+    stack = check_stack(psf_stack, "psf_stack")
     n = stack.shape[0]
-    z = _as_float(depths_mm, "depths_mm", ndims=(1,))
+    z = float_array(depths_mm, "depths_mm", ndims=(1,))
     if z.size != n:
         raise ReconInputError(
             f"depths_mm has {z.size} values but psf_stack holds {n} PSFs; pass one depth per PSF"
@@ -209,9 +209,9 @@ def recommend_grid(
         raise ReconInputError(
             "depths_mm must be positive and distinct (object-to-diffuser distances in mm)"
         )
-    pitch = _positive(pitch_mm, "pitch_mm", " mm")
-    d = _positive(d_mm, "d_mm", " mm")
-    thr = _level(threshold, "threshold")
+    pitch = positive(pitch_mm, "pitch_mm", unit=" mm")
+    d = positive(d_mm, "d_mm", unit=" mm")
+    thr = check_level(threshold, "threshold")
 
     order = np.argsort(z)
     zs = z[order]
@@ -274,13 +274,9 @@ def recommend_grid(
             )
 
     # ----------------------------------------------------------------- lateral
-    res = np.array([[_crossing(stack[i], 1, thr), _crossing(stack[i], 0, thr)] for i in order])
-    res70 = np.array(
-        [
-            [_crossing(stack[i], 1, RESOLUTION_LEVEL), _crossing(stack[i], 0, RESOLUTION_LEVEL)]
-            for i in order
-        ]
-    )
+    res = np.array([[crossing_lag(stack[i], axis, thr) for axis in (1, 0)] for i in order])
+    res70 = np.array([[crossing_lag(stack[i], axis, RESOLUTION_LEVEL) for axis in (1, 0)]
+                      for i in order])
     k_res, ax = np.unravel_index(int(np.argmin(res)), res.shape)
     r = float(res[k_res, ax])
     bin_factor = max(1, math.floor(r / SAMPLES_PER_RESOLUTION + 1e-9))

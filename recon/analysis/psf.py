@@ -20,7 +20,6 @@ is wrong and how to fix it. Results are float64.
 
 from __future__ import annotations
 
-import numbers
 import os
 from typing import Any
 
@@ -28,6 +27,7 @@ import numpy as np
 import scipy.fft
 
 from recon.errors import ReconInputError
+from recon.validate import as_int, float_array
 
 __all__ = [
     "border_energy_fraction",
@@ -41,52 +41,12 @@ __all__ = [
 # ----------------------------------------------------------------------------- helpers
 
 
-def _as_float(
-    value: Any, name: str, ndims: tuple[int, ...] | None = (2,), finite: bool = True
-) -> np.ndarray:
-    """Convert to a float64 array, refusing non-numeric, empty, wrong-rank or NaN/inf."""
-    try:
-        arr = np.asarray(value)
-    except Exception as exc:  # ragged sequences and the like
-        raise ReconInputError(
-            f"{name} cannot be converted to an array ({exc}); pass a numpy array"
-        ) from exc
-    if arr.dtype.kind not in "buif":
-        raise ReconInputError(
-            f"{name} has non-numeric dtype {arr.dtype}; pass real intensities (int or float)"
-        )
-    if arr.size == 0:
-        raise ReconInputError(f"{name} is empty (shape {arr.shape}); pass a non-empty array")
-    if ndims is not None and arr.ndim not in ndims:
-        want = " or ".join(f"{n}D" for n in ndims)
-        if 2 in ndims:
-            hint = "pass an image (rows, cols)" + (
-                " or a stack (n, rows, cols)" if 3 in ndims else ""
-            )
-        else:
-            hint = "pass a scalar or a 1D sequence" if 0 in ndims else "pass a 1D sequence"
-        raise ReconInputError(f"{name} must be {want}, got shape {arr.shape}; {hint}")
-    arr = arr.astype(np.float64, copy=False)
-    if finite and not np.all(np.isfinite(arr)):
-        raise ReconInputError(
-            f"{name} contains NaN or inf values; replace them (e.g. np.nan_to_num) or "
-            "re-acquire the image"
-        )
-    return arr
-
-
 def _same_shape(a: np.ndarray, b: np.ndarray, name_a: str, name_b: str) -> None:
     if a.shape != b.shape:
         raise ReconInputError(
             f"{name_a} has shape {a.shape} but {name_b} has shape {b.shape}; crop or "
             "resample them to the same shape"
         )
-
-
-def _positive_int(value: Any, name: str, minimum: int = 1) -> int:
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
-        raise ReconInputError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    return int(value)
 
 
 # ----------------------------------------------------------------------------- functions
@@ -132,17 +92,17 @@ def remove_background_dct(
     10 x 10 DCT coefficients were set to zero ... Negative values after background
     subtraction were set to zero").
     """
-    img = _as_float(image, "image", ndims=(2, 3))
+    img = float_array(image, "image", ndims=(2, 3))
     rows, cols = img.shape[-2:]
     if isinstance(n_low, tuple | list):
         if len(n_low) != 2:
             raise ReconInputError(
                 f"n_low must be an int or a (ny, nx) pair, got {n_low!r}; e.g. 5 or (5, 5)"
             )
-        ny = _positive_int(n_low[0], "n_low[0]")
-        nx = _positive_int(n_low[1], "n_low[1]")
+        ny = as_int(n_low[0], "n_low[0]")
+        nx = as_int(n_low[1], "n_low[1]")
     else:
-        ny = nx = _positive_int(n_low, "n_low")
+        ny = nx = as_int(n_low, "n_low")
     if ny > rows or nx > cols:
         raise ReconInputError(
             f"n_low ({ny}, {nx}) is larger than the image frame ({rows}, {cols}); "
@@ -183,8 +143,8 @@ def inner_product(a: Any, b: Any) -> float:
     when it falls below 0.8). No mean is subtracted: a dark background counts as
     zero, a bright pedestal raises the value (Sec. 6.3).
     """
-    a_ = _as_float(a, "a", ndims=None)
-    b_ = _as_float(b, "b", ndims=None)
+    a_ = float_array(a, "a", ndims=None)
+    b_ = float_array(b, "b", ndims=None)
     _same_shape(a_, b_, "a", "b")
     na = float(np.linalg.norm(a_.ravel()))
     nb = float(np.linalg.norm(b_.ravel()))
@@ -221,8 +181,8 @@ def normalized_correlation(a: Any, b: Any) -> float:
     Unlike :func:`inner_product`, a uniform pedestal (background light, dark level)
     does not change the result.
     """
-    a_ = _as_float(a, "a", ndims=None)
-    b_ = _as_float(b, "b", ndims=None)
+    a_ = float_array(a, "a", ndims=None)
+    b_ = float_array(b, "b", ndims=None)
     _same_shape(a_, b_, "a", "b")
     a0 = (a_ - a_.mean()).ravel()
     b0 = (b_ - b_.mean()).ravel()
@@ -278,10 +238,10 @@ def register_shift(reference: Any, image: Any, *, upsample: int = 20) -> tuple[f
     """
     from skimage.registration import phase_cross_correlation
 
-    ref = _as_float(reference, "reference")
-    img = _as_float(image, "image")
+    ref = float_array(reference, "reference")
+    img = float_array(image, "image")
     _same_shape(ref, img, "reference", "image")
-    upsample = _positive_int(upsample, "upsample")
+    upsample = as_int(upsample, "upsample")
     for name, arr in (("reference", ref), ("image", img)):
         if not np.any(arr):
             raise ReconInputError(
@@ -329,8 +289,8 @@ def border_energy_fraction(psf: Any, border_px: int) -> float:
     captured in each calibration image (the aperture makes caustics from the
     nearest source just fill the sensor). "Energy" is the summed intensity.
     """
-    h = _as_float(psf, "psf")
-    border = _positive_int(border_px, "border_px", minimum=0)
+    h = float_array(psf, "psf")
+    border = as_int(border_px, "border_px", minimum=0)
     if np.any(h < 0):
         raise ReconInputError(
             "psf has negative values; clip them first (np.clip(psf, 0, None) or "

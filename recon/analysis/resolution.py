@@ -31,10 +31,10 @@ from typing import Any, NamedTuple
 import numpy as np
 import scipy.optimize
 
-from recon.analysis.psf import _as_float
-from recon.analysis.sampling import _positive, inverse_depth_step_per_mm, scale_at_threshold
-from recon.analysis.similarity import _check_image, _full_xcorr, _line_spectrum
+from recon.analysis.sampling import inverse_depth_step_per_mm, scale_at_threshold
+from recon.analysis.similarity import check_image, full_xcorr, line_spectrum
 from recon.errors import ReconInputError
+from recon.validate import float_array, positive
 
 __all__ = [
     "LateralResolution",
@@ -62,7 +62,14 @@ class LateralResolution(NamedTuple):
     y_px: float
 
 
-def _level(value: Any, name: str) -> float:
+def check_level(value: Any, name: str) -> float:
+    """A correlation threshold level: a real number strictly between 0 and 1, as float.
+
+    Raises
+    ------
+    ReconInputError
+        Not a real number (bools refused) or outside (0, 1).
+    """
     if (
         isinstance(value, bool)
         or not isinstance(value, numbers.Real)
@@ -72,14 +79,14 @@ def _level(value: Any, name: str) -> float:
     return float(value)
 
 
-def _crossing(h: np.ndarray, axis: int, level: float) -> float:
+def crossing_lag(h: np.ndarray, axis: int, level: float) -> float:
     """First lag > 0 at which the normalised autocorrelation along `axis` falls to `level`.
 
     The autocorrelation between integer lags is the band-limited (trigonometric)
     interpolation of its integer-lag samples, which is exactly the normalised inner
     product of ``h`` with a Fourier-shifted copy of itself on a zero-padded frame.
     """
-    power, n = _line_spectrum(h, axis)
+    power, n = line_spectrum(h, axis)
     weights = np.full(power.size, 2.0)
     weights[0] = 1.0
     if n % 2 == 0:
@@ -141,8 +148,8 @@ def autocorrelation(psf: Any) -> np.ndarray:
     zero-padded to at least ``(2 rows - 1, 2 cols - 1)`` (no wrap-around), as
     :func:`~recon.analysis.similarity.cross_correlation` of the PSF with itself.
     """
-    h = _check_image(psf, "psf")
-    return _full_xcorr(h, h) / float(np.sum(h * h))
+    h = check_image(psf, "psf")
+    return full_xcorr(h, h) / float(np.sum(h * h))
 
 
 def lateral_resolution_px(psf: Any, level: float = RESOLUTION_LEVEL) -> LateralResolution:
@@ -179,9 +186,9 @@ def lateral_resolution_px(psf: Any, level: float = RESOLUTION_LEVEL) -> LateralR
     bracket it with Brent's method on the band-limited interpolation of the line.
     Convert to object space with :func:`lateral_resolution_object_mm`.
     """
-    h = _check_image(psf, "psf")
-    lev = _level(level, "level")
-    return LateralResolution(x_px=_crossing(h, 1, lev), y_px=_crossing(h, 0, lev))
+    h = check_image(psf, "psf")
+    lev = check_level(level, "level")
+    return LateralResolution(x_px=crossing_lag(h, 1, lev), y_px=crossing_lag(h, 0, lev))
 
 
 def lateral_inner_product_resolution_px(
@@ -221,9 +228,9 @@ def lateral_inner_product_resolution_px(
     :func:`~recon.analysis.psf.inner_product` of the zero-padded PSF and its
     ``np.roll``-ed copy.
     """
-    h = _check_image(psf, "psf")
-    thr = _level(threshold, "threshold")
-    return LateralResolution(x_px=_crossing(h, 1, thr), y_px=_crossing(h, 0, thr))
+    h = check_image(psf, "psf")
+    thr = check_level(threshold, "threshold")
+    return LateralResolution(x_px=crossing_lag(h, 1, thr), y_px=crossing_lag(h, 0, thr))
 
 
 def lateral_resolution_object_mm(res_px: Any, pitch_mm: float, d_mm: float, z_mm: Any) -> Any:
@@ -262,12 +269,12 @@ def lateral_resolution_object_mm(res_px: Any, pitch_mm: float, d_mm: float, z_mm
     sensor-plane size times ``z / d``; the lateral resolution grows linearly with
     depth (Sec. 4.4).
     """
-    r = _as_float(res_px, "res_px", ndims=None)
+    r = float_array(res_px, "res_px", ndims=None)
     if np.any(r < 0):
         raise ReconInputError("res_px must be >= 0 (a width in pixels)")
-    p = _positive(pitch_mm, "pitch_mm", " mm")
-    d = _positive(d_mm, "d_mm", " mm")
-    z = _as_float(z_mm, "z_mm", ndims=None)
+    p = positive(pitch_mm, "pitch_mm", unit=" mm")
+    d = positive(d_mm, "d_mm", unit=" mm")
+    z = float_array(z_mm, "z_mm", ndims=None)
     if np.any(z <= 0):
         raise ReconInputError("z_mm must be > 0 (object-to-diffuser distance in mm)")
     out = r * p * z / d
@@ -294,11 +301,11 @@ def lateral_resolution_deg(res_px: Any, pitch_mm: float, d_mm: float) -> Any:
     ReconInputError
         If a value is not finite, `res_px` is negative, or another is not positive.
     """
-    r = _as_float(res_px, "res_px", ndims=None)
+    r = float_array(res_px, "res_px", ndims=None)
     if np.any(r < 0):
         raise ReconInputError("res_px must be >= 0 (a width in pixels)")
-    p = _positive(pitch_mm, "pitch_mm", " mm")
-    d = _positive(d_mm, "d_mm", " mm")
+    p = positive(pitch_mm, "pitch_mm", unit=" mm")
+    d = positive(d_mm, "d_mm", unit=" mm")
     out = np.degrees(np.arctan(r * p / d))
     return float(out) if out.ndim == 0 else out
 
@@ -389,8 +396,8 @@ def hyperfocal_distance_mm(
     this is ``z_H = (1 + d/z_psf) / c``. Example: Sec. 3.3's PCO prototype
     (``d = 8.8`` mm, hyperfocal 2929 mm) corresponds to ``s* - 1 = 0.0030``.
     """
-    d = _positive(d_mm, "d_mm", " mm")
-    z = _positive(psf_z_mm, "psf_z_mm", " mm")
+    d = positive(d_mm, "d_mm", unit=" mm")
+    z = positive(psf_z_mm, "psf_z_mm", unit=" mm")
     return d / _s_star_minus_one(psf, d, z, threshold)
 
 
@@ -444,9 +451,9 @@ def depth_of_field_mm(
     """
     if side not in ("far", "near"):
         raise ReconInputError(f"side must be 'far' or 'near', got {side!r}")
-    d = _positive(d_mm, "d_mm", " mm")
-    zp = _positive(psf_z_mm, "psf_z_mm", " mm")
-    z = np.atleast_1d(_as_float(z_mm, "z_mm", ndims=(0, 1)))
+    d = positive(d_mm, "d_mm", unit=" mm")
+    zp = positive(psf_z_mm, "psf_z_mm", unit=" mm")
+    z = np.atleast_1d(float_array(z_mm, "z_mm", ndims=(0, 1)))
     if np.any(z <= 0):
         raise ReconInputError("z_mm must be > 0 (object-to-diffuser distances in mm)")
     s_star = 1.0 + _s_star_minus_one(psf, d, zp, threshold)

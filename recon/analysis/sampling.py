@@ -29,8 +29,8 @@ import scipy.fft
 import scipy.ndimage
 import scipy.optimize
 
-from recon.analysis.psf import _as_float, _positive_int
 from recon.errors import ReconInputError
+from recon.validate import as_int, float_array, positive
 
 __all__ = [
     "axial_step_eq510_per_mm",
@@ -49,21 +49,9 @@ _MAX_DEPTHS = 1_000_000
 _GRID_POINTS = 49
 
 
-def _positive(value: Any, name: str, unit: str = "") -> float:
-    """A finite real number > 0, as float."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ReconInputError(f"{name} must be a real number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or v <= 0.0:
-        raise ReconInputError(
-            f"{name} must be finite and > 0, got {value!r}{unit}; pass a positive value"
-        )
-    return v
-
-
 def _depth_range(z_min_mm: Any, z_max_mm: Any) -> tuple[float, float]:
-    z0 = _positive(z_min_mm, "z_min_mm", " mm")
-    z1 = _positive(z_max_mm, "z_max_mm", " mm")
+    z0 = positive(z_min_mm, "z_min_mm", unit=" mm")
+    z1 = positive(z_max_mm, "z_max_mm", unit=" mm")
     if z0 >= z1:
         raise ReconInputError(
             f"z_min_mm ({z0}) must be smaller than z_max_mm ({z1}); swap them or widen the range"
@@ -96,7 +84,7 @@ def uniform_depths(z_min_mm: float, z_max_mm: float, n: int) -> np.ndarray:
         not an integer >= 2.
     """
     z0, z1 = _depth_range(z_min_mm, z_max_mm)
-    count = _positive_int(n, "n", minimum=2)
+    count = as_int(n, "n", minimum=2)
     return np.linspace(z0, z1, count, dtype=np.float64)
 
 
@@ -151,12 +139,12 @@ def inverse_depths(
         )
     inv0, inv1 = 1.0 / z0, 1.0 / z1
     if n is not None:
-        count = _positive_int(n, "n", minimum=2)
+        count = as_int(n, "n", minimum=2)
         if count > _MAX_DEPTHS:
             raise ReconInputError(f"n = {count} depths is too many; use at most {_MAX_DEPTHS}")
         z = 1.0 / np.linspace(inv0, inv1, count, dtype=np.float64)
     else:
-        c = _positive(c_per_mm, "c_per_mm", " 1/mm")
+        c = positive(c_per_mm, "c_per_mm", unit=" 1/mm")
         steps = (inv0 - inv1) / c
         if steps > _MAX_DEPTHS:
             raise ReconInputError(
@@ -200,8 +188,8 @@ def axial_step_eq510_per_mm(wavelength_nm: float, lenslet_pitch_um: float) -> fl
     diffraction-limited spot ``lambda / NA ~ 2 d lambda / p`` between neighbouring
     depths, giving ``1/z_1 - 1/z_2 <= 4 lambda / p^2``.
     """
-    lam_mm = _positive(wavelength_nm, "wavelength_nm", " nm") * 1e-6
-    p_mm = _positive(lenslet_pitch_um, "lenslet_pitch_um", " um") * 1e-3
+    lam_mm = positive(wavelength_nm, "wavelength_nm", unit=" nm") * 1e-6
+    p_mm = positive(lenslet_pitch_um, "lenslet_pitch_um", unit=" um") * 1e-3
     return 4.0 * lam_mm / (p_mm * p_mm)
 
 
@@ -227,7 +215,7 @@ def _mu(psf: np.ndarray, s: float) -> float:
 
 
 def _check_psf(psf: Any) -> np.ndarray:
-    h = _as_float(psf, "psf")
+    h = float_array(psf, "psf")
     if not np.any(h):
         raise ReconInputError(
             "psf is all zero; pass a PSF with signal (check exposure and background removal)"
@@ -274,7 +262,7 @@ def depth_sensitivity(psf: Any, scales: Any) -> np.ndarray:
     ``s`` and ``1/s``.
     """
     h = _check_psf(psf)
-    s = _as_float(scales, "scales", ndims=(0, 1)).ravel()
+    s = float_array(scales, "scales", ndims=(0, 1)).ravel()
     if np.any(s <= 0):
         raise ReconInputError("scales must be > 0; pass scale factors such as 1.0, 1.05, 1.1")
     return np.array([_mu(h, float(v)) for v in s], dtype=np.float64)
@@ -323,7 +311,7 @@ def scale_at_threshold(psf: Any, threshold: float = 0.8, *, max_scale: float = 2
     ):
         raise ReconInputError(f"threshold must be in (0, 1), got {threshold!r}; e.g. 0.8")
     thr = float(threshold)
-    top = _positive(max_scale, "max_scale")
+    top = positive(max_scale, "max_scale")
     if top <= 1.0:
         raise ReconInputError(f"max_scale must be > 1, got {max_scale!r}; e.g. 2.0")
     grid = 1.0 + (top - 1.0) * np.geomspace(1e-4, 1.0, _GRID_POINTS)
@@ -384,8 +372,8 @@ def inverse_depth_step_per_mm(psf: Any, d_mm: float, z_mm: float, threshold: flo
     ``1 + d/z_1 = s* (1 + d/z)``, hence
     ``c = 1/z_1 - 1/z = (s* - 1)(1 + d/z)/d = (s* - 1)(1/d + 1/z)``.
     """
-    d = _positive(d_mm, "d_mm", " mm")
-    z = _positive(z_mm, "z_mm", " mm")
+    d = positive(d_mm, "d_mm", unit=" mm")
+    z = positive(z_mm, "z_mm", unit=" mm")
     s_star = scale_at_threshold(psf, threshold)
     return (s_star - 1.0) * (1.0 / d + 1.0 / z)
 
@@ -436,9 +424,9 @@ def lateral_calibration_spacing_mm(
     above `rel_threshold` of DC (linear interpolation between bins). Nyquist
     sampling of ``f~`` then needs calibration points ``1 / (2 f_max)`` apart.
     """
-    sigma = math.radians(_positive(falloff_sigma_deg, "falloff_sigma_deg", " deg"))
-    z = _positive(z_mm, "z_mm", " mm")
-    thr = _positive(rel_threshold, "rel_threshold")
+    sigma = math.radians(positive(falloff_sigma_deg, "falloff_sigma_deg", unit=" deg"))
+    z = positive(z_mm, "z_mm", unit=" mm")
+    thr = positive(rel_threshold, "rel_threshold")
     if not 1e-9 < thr < 1.0:
         raise ReconInputError(f"rel_threshold must be in (1e-9, 1), got {rel_threshold!r}")
     grazing = math.radians(89.0)

@@ -26,8 +26,9 @@ from typing import Any
 import numpy as np
 import scipy.fft
 
-from recon.analysis.psf import _as_float, inner_product
+from recon.analysis.psf import inner_product
 from recon.errors import ReconInputError
+from recon.validate import float_array
 
 __all__ = ["cross_correlation", "inner_products_with", "stack_similarity"]
 
@@ -35,8 +36,15 @@ __all__ = ["cross_correlation", "inner_products_with", "stack_similarity"]
 # ----------------------------------------------------------------------------- helpers
 
 
-def _check_image(value: Any, name: str) -> np.ndarray:
-    h = _as_float(value, name)
+def check_image(value: Any, name: str) -> np.ndarray:
+    """A 2D PSF image as float64, refusing what :func:`recon.validate.float_array` refuses.
+
+    Raises
+    ------
+    ReconInputError
+        Not a finite 2D numeric array, or all zero (its correlation is undefined).
+    """
+    h = float_array(value, name)
     if not np.any(h):
         raise ReconInputError(
             f"{name} is all zero, so its correlation is undefined; pass a PSF with signal "
@@ -45,8 +53,15 @@ def _check_image(value: Any, name: str) -> np.ndarray:
     return h
 
 
-def _check_stack(value: Any, name: str = "stack") -> np.ndarray:
-    s = _as_float(value, name, ndims=(3,))
+def check_stack(value: Any, name: str = "stack") -> np.ndarray:
+    """A PSF stack ``(n, rows, cols)`` as float64 with no all-zero PSF.
+
+    Raises
+    ------
+    ReconInputError
+        Not a finite 3D numeric array, no PSF, or an all-zero PSF (its index is named).
+    """
+    s = float_array(value, name, ndims=(3,))
     if s.shape[0] < 1:
         raise ReconInputError(f"{name} holds no PSF; pass a stack (n, rows, cols) with n >= 1")
     empty = [i for i in range(s.shape[0]) if not np.any(s[i])]
@@ -70,7 +85,7 @@ def _index(value: Any, n: int, name: str = "index") -> int:
     return i % n
 
 
-def _full_xcorr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def full_xcorr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Unnormalised ``c[t] = sum_u a[u] b[u + t]`` for all lags, zero lag at the centre."""
     rows, cols = a.shape
     shape = (
@@ -86,7 +101,7 @@ def _full_xcorr(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(circ[: 2 * rows - 1, : 2 * cols - 1])
 
 
-def _line_spectrum(h: np.ndarray, axis: int) -> tuple[np.ndarray, int]:
+def line_spectrum(h: np.ndarray, axis: int) -> tuple[np.ndarray, int]:
     """Power spectrum along `axis`, summed over the other axis, zero-padded to >= 2 n - 1.
 
     Its inverse real FFT is the central line (zero lag along the other axis) of the
@@ -101,7 +116,7 @@ def _line_spectrum(h: np.ndarray, axis: int) -> tuple[np.ndarray, int]:
 
 def _central_line(h: np.ndarray, axis: int) -> np.ndarray:
     """Central line of the normalised linear autocorrelation along `axis`, lags -(n-1)..n-1."""
-    power, n = _line_spectrum(h, axis)
+    power, n = line_spectrum(h, axis)
     circ = scipy.fft.irfft(power, n=n)
     length = h.shape[axis]
     line = np.concatenate([circ[n - (length - 1) :], circ[:length]])
@@ -144,14 +159,14 @@ def cross_correlation(a: Any, b: Any) -> np.ndarray:
     uses it between the nearest and farthest PSFs of a stack ("the cross-correlation
     has no values greater than 50 %").
     """
-    a_ = _check_image(a, "a")
-    b_ = a_ if b is a else _check_image(b, "b")
+    a_ = check_image(a, "a")
+    b_ = a_ if b is a else check_image(b, "b")
     if a_.shape != b_.shape:
         raise ReconInputError(
             f"a has shape {a_.shape} but b has shape {b_.shape}; crop or pad them to the same shape"
         )
     norm = float(np.linalg.norm(a_)) * float(np.linalg.norm(b_))
-    return _full_xcorr(a_, b_) / norm
+    return full_xcorr(a_, b_) / norm
 
 
 def inner_products_with(stack: Any, index: int) -> np.ndarray:
@@ -184,7 +199,7 @@ def inner_products_with(stack: Any, index: int) -> np.ndarray:
     other PSFs; a sharp peak with side lobes around 0.5 shows the caustics from
     different depths are distinct.
     """
-    s = _check_stack(stack)
+    s = check_stack(stack)
     i = _index(index, s.shape[0])
     return np.array([inner_product(s[i], s[k]) for k in range(s.shape[0])], dtype=np.float64)
 
@@ -240,11 +255,11 @@ def stack_similarity(
     cross-correlation below 0.5 means any shift of one depth's caustics is unlike
     the other depth's.
     """
-    s = _check_stack(stack)
+    s = check_stack(stack)
     n, rows, cols = s.shape
     z = None
     if depths_mm is not None:
-        z = _as_float(depths_mm, "depths_mm", ndims=(1,))
+        z = float_array(depths_mm, "depths_mm", ndims=(1,))
         if z.size != n:
             raise ReconInputError(
                 f"depths_mm has {z.size} values but the stack holds {n} PSFs; pass one "

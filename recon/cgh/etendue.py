@@ -24,6 +24,7 @@ import math
 import numbers
 
 from ..errors import ReconInputError
+from ..validate import positive
 
 __all__ = [
     "etendue_mm2",
@@ -39,16 +40,6 @@ __all__ = [
 _MODELS = ("paraxial", "sine")
 
 
-def _positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ReconInputError(f"{name} must be a positive number, got {value!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise ReconInputError(f"{name} must be a positive finite number, got {value!r}")
-    return v
-
-
 def _model(model: str) -> str:
     if model not in _MODELS:
         raise ReconInputError(f"model must be one of {_MODELS}, got {model!r}")
@@ -56,7 +47,7 @@ def _model(model: str) -> str:
 
 
 def _fov_rad(fov_deg: float) -> float:
-    fov = _positive("fov_deg", fov_deg)
+    fov = positive(fov_deg, "fov_deg")
     if fov >= 180.0:
         raise ReconInputError(f"fov_deg must be below 180 degrees, got {fov}")
     return math.radians(fov)
@@ -85,8 +76,8 @@ def max_diffraction_angle_deg(pitch_um: float, wavelength_nm: float) -> float:
         Non-positive inputs, or ``lambda > 2 Delta`` (no propagating first order: use
         a larger pitch or a shorter wavelength).
     """
-    d = _positive("pitch_um", pitch_um)
-    lam = _positive("wavelength_nm", wavelength_nm) * 1e-3
+    d = positive(pitch_um, "pitch_um")
+    lam = positive(wavelength_nm, "wavelength_nm") * 1e-3
     if lam > 2.0 * d:
         raise ReconInputError(
             f"wavelength {lam * 1e3:g} nm exceeds twice the pitch {d:g} um: no propagating "
@@ -109,8 +100,8 @@ def etendue_mm2(width_mm: float, height_mm: float, half_angle_deg: float) -> flo
     float
         ``G`` in mm^2 (times the dimensionless ``4 sin^2``).
     """
-    a = _positive("width_mm", width_mm) * _positive("height_mm", height_mm)
-    th = _positive("half_angle_deg", half_angle_deg)
+    a = positive(width_mm, "width_mm") * positive(height_mm, "height_mm")
+    th = positive(half_angle_deg, "half_angle_deg")
     if th > 90.0:
         raise ReconInputError(f"half_angle_deg must be at most 90, got {th}")
     return 4.0 * a * math.sin(math.radians(th)) ** 2
@@ -138,7 +129,7 @@ def slm_etendue_mm2(shape, wavelength_nm: float) -> float:
         raise ReconInputError(f"shape must be (N_y, N_x) pixels, got {shape!r}") from None
     if ny < 1 or nx < 1:
         raise ReconInputError(f"shape must have positive pixel counts, got {shape!r}")
-    lam_mm = _positive("wavelength_nm", wavelength_nm) * 1e-6
+    lam_mm = positive(wavelength_nm, "wavelength_nm") * 1e-6
     return (lam_mm * nx) * (lam_mm * ny)
 
 
@@ -157,8 +148,8 @@ def expansion_factor(slm_pitch_um: float, mask_pitch_um: float) -> float:
     float
         ``q``; e.g. 16 um / 4 um gives 16 (the dissertation's prototype).
     """
-    return (_positive("slm_pitch_um", slm_pitch_um)
-            / _positive("mask_pitch_um", mask_pitch_um)) ** 2
+    return (positive(slm_pitch_um, "slm_pitch_um")
+            / positive(mask_pitch_um, "mask_pitch_um")) ** 2
 
 
 def fov_eyebox(n_pixels: int, pitch_um: float, wavelength_nm: float, f1_mm: float,
@@ -188,11 +179,11 @@ def fov_eyebox(n_pixels: int, pitch_um: float, wavelength_nm: float, f1_mm: floa
         ``(fov_deg, eyebox_mm)``.
     """
     n = _pixels(n_pixels)
-    d = _positive("pitch_um", pitch_um)
-    finest = d if mask_pitch_um is None else _positive("mask_pitch_um", mask_pitch_um)
+    d = positive(pitch_um, "pitch_um")
+    finest = d if mask_pitch_um is None else positive(mask_pitch_um, "mask_pitch_um")
     theta = math.radians(max_diffraction_angle_deg(finest, wavelength_nm))
-    f1 = _positive("f1_mm", f1_mm)
-    f2 = _positive("f2_mm", f2_mm)
+    f1 = positive(f1_mm, "f1_mm")
+    f2 = positive(f2_mm, "f2_mm")
     fov = 2.0 * math.atan(f1 / f2 * math.tan(theta))
     return math.degrees(fov), f2 / f1 * n * d * 1e-3
 
@@ -229,7 +220,7 @@ def eyebox_for_fov(n_pixels: int, fov_deg: float, wavelength_nm: float,
     float
         Eyebox (mm); 4160 px, 120 deg, 532 nm give 1.057 mm (paraxial).
     """
-    lam_n = _positive("wavelength_nm", wavelength_nm) * 1e-6 * _pixels(n_pixels)
+    lam_n = positive(wavelength_nm, "wavelength_nm") * 1e-6 * _pixels(n_pixels)
     return lam_n / _angular(_fov_rad(fov_deg), model)
 
 
@@ -259,8 +250,8 @@ def fov_for_eyebox(n_pixels: int, eyebox_mm: float, wavelength_nm: float,
         If the étendue cannot reach the eyebox at any angle (``"sine"`` model with
         ``lambda N / eyebox > 2``).
     """
-    a = _positive("wavelength_nm", wavelength_nm) * 1e-6 * _pixels(n_pixels) / _positive(
-        "eyebox_mm", eyebox_mm)
+    a = positive(wavelength_nm, "wavelength_nm") * 1e-6 * _pixels(n_pixels) / positive(
+        eyebox_mm, "eyebox_mm")
     if _model(model) == "paraxial":
         return math.degrees(a)
     if a > 2.0:
@@ -290,5 +281,5 @@ def pixels_for(fov_deg: float, eyebox_mm: float, wavelength_nm: float,
     float
         ``N`` (not rounded).
     """
-    lam_mm = _positive("wavelength_nm", wavelength_nm) * 1e-6
-    return _angular(_fov_rad(fov_deg), model) * _positive("eyebox_mm", eyebox_mm) / lam_mm
+    lam_mm = positive(wavelength_nm, "wavelength_nm") * 1e-6
+    return _angular(_fov_rad(fov_deg), model) * positive(eyebox_mm, "eyebox_mm") / lam_mm

@@ -13,6 +13,7 @@ import scipy.fft as sfft
 
 from ..errors import ReconInputError
 from ..fft import WORKERS
+from ..validate import positive
 from . import _kernels
 
 __all__ = ["ScatteringDisplay", "field_from_phase", "random_binary_mask"]
@@ -172,10 +173,10 @@ class ScatteringDisplay:
         if self.grid_shape[0] * self.grid_shape[1] > MAX_GRID_SAMPLES:
             raise ReconInputError(f"mask grid {self.grid_shape} exceeds {MAX_GRID_SAMPLES} "
                                   "samples; reduce the SLM size or k")
-        self.slm_pitch_um = _pos("slm_pitch_um", slm_pitch_um)
+        self.slm_pitch_um = positive(slm_pitch_um, "slm_pitch_um")
         self.mask_pitch_um = self.slm_pitch_um / self.k
-        self.wavelength_nm = _pos("wavelength_nm", wavelength_nm)
-        self.focal_length_mm = _pos("focal_length_mm", focal_length_mm)
+        self.wavelength_nm = positive(wavelength_nm, "wavelength_nm")
+        self.focal_length_mm = positive(focal_length_mm, "focal_length_mm")
         try:
             planes = [float(z) for z in np.atleast_1d(np.asarray(planes_mm, dtype=np.float64))]
         except (TypeError, ValueError):
@@ -368,11 +369,3 @@ class ScatteringDisplay:
         return (y.real ** 2 + y.imag ** 2).astype(np.float32)
 
 
-def _pos(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ReconInputError(f"{name} must be a positive number, got {value!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise ReconInputError(f"{name} must be a positive finite number, got {value!r}")
-    return v

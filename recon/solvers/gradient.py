@@ -18,7 +18,7 @@ from ..operators import LinearOperator
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 
 
-def _prox_threshold(step: float, tau: float, ndim: int) -> float:
+def prox_threshold(step: float, tau: float, ndim: int) -> float:
     """Threshold on the half-differences of App. A.1 for a step of tau*TV.
 
     Averaging the per-axis Haar shrinkage over ``ndim`` axes shrinks each axis by
@@ -44,7 +44,7 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
     if not lip > 0:
         raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSF")
     step = step_scale / lip
-    thr = _prox_threshold(step, tv, 2)
+    thr = prox_threshold(step, tv, 2)
     mon = Monitor(float(np.vdot(b, b)), method,)
     hint = ("the step is too large: lower the step scale (<= 1 is always stable)"
             if step_scale > 1 else "check the PSF and measurement scaling")

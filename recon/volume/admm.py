@@ -33,8 +33,9 @@ from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
 from ..solvers.admm import balance_mode, balanced_penalty, check_balancing, rescale_duals
 from ..solvers.common import Monitor, SolveResult, check_measurement
+from ..validate import nonneg_weight
 from . import _admm_kernels3d as _k
-from .fista import _check_weight, volume_tv
+from .fista import volume_tv
 from .operator import VolumeConvolutionOperator
 
 #: Default initial penalties (mu1, mu2, mu3) for the scaled problem (stack
@@ -163,8 +164,8 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         )
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
-    tv_w = _check_weight(tv, "TV")
-    l1_w = _check_weight(l1, "l1")
+    tv_w = nonneg_weight(tv, "TV")
+    l1_w = nonneg_weight(l1, "l1")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
     mu = DEFAULT_MU if mu is None else mu
     try:

@@ -18,7 +18,8 @@ import numpy as np
 from ..errors import ReconInputError
 from ..operators import LinearOperator
 from ..solvers.common import Monitor, SolveResult, check_measurement
-from ..solvers.gradient import _prox_threshold
+from ..solvers.gradient import prox_threshold
+from ..validate import nonneg_weight
 from . import _kernels3d
 from .operator import VolumeConvolutionOperator
 
@@ -39,13 +40,6 @@ def volume_tv(v: np.ndarray) -> float:
         for axis in (0, 1):
             tv += np.abs(np.roll(p, -1, axis=axis) - p).sum(dtype=np.float64)
     return float(tv)
-
-
-def _check_weight(value, name: str) -> float:
-    w = 0.0 if value is None else float(value)
-    if not (w >= 0 and math.isfinite(w)):
-        raise ReconInputError(f"{name} weight must be a finite number >= 0, got {value}")
-    return w
 
 
 def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
@@ -109,8 +103,8 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
             f"fista3d needs a volume operator (n_z, P0, P1), got input shape {op.shape_in}; "
             "use recon.solvers.fista for 2D"
         )
-    tv_w = _check_weight(tv, "TV")
-    l1_w = _check_weight(l1, "l1")
+    tv_w = nonneg_weight(tv, "TV")
+    l1_w = nonneg_weight(l1, "l1")
     b = check_measurement(b, op.shape_out)
     lip = None
     if step is None:
@@ -126,7 +120,7 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         if not (step > 0 and math.isfinite(step)):
             raise ReconInputError(f"step must be positive and finite, got {step}")
         too_large = True
-    thr = _prox_threshold(step, tv_w, 3)
+    thr = prox_threshold(step, tv_w, 3)
     l1thr = step * l1_w
     mon = Monitor(float(np.vdot(b, b)), "3D FISTA")
     hint = ("the step is too large: use step=None (1/L) or a step scale <= 1"

@@ -22,7 +22,7 @@ MAX_FINE_SAMPLES = 2**27
 
 
 @njit(**PARALLEL)
-def _render_mask_kernel(bits, margin, q, ss, hx, hy, ainv, tx, ty, radial, rc,
+def render_mask_kernel(bits, margin, q, ss, hx, hy, ainv, tx, ty, radial, rc,
                         poly_x, poly_y, v0, v1, vout, out):  # pragma: no cover - jitted
     """Nearest-neighbour lookup of the mask at inverse-mapped fine-sample positions.
 
@@ -77,7 +77,7 @@ def _render_mask_kernel(bits, margin, q, ss, hx, hy, ainv, tx, ty, radial, rc,
 
 
 @njit(**PARALLEL)
-def _block_reduce_kernel(vals, ry, rx, wy, wx, n, out_ap, out_full):  # pragma: no cover
+def block_reduce_kernel(vals, ry, rx, wy, wx, n, out_ap, out_full):  # pragma: no cover
     """Per-block sums ``out_full[r, c] = sum_{blk} v ry rx`` and ``out_ap`` (x wy wx)."""
     rows, cols = out_ap.shape
     for r in prange(rows):
@@ -100,52 +100,14 @@ def _block_reduce_kernel(vals, ry, rx, wy, wx, n, out_ap, out_full):  # pragma: 
 # --------------------------------------------------------------------------- validation
 
 
-def _int_param(name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ReconInputError(f"{name} must be an integer >= {minimum}, got {value!r}")
-    if int(value) < minimum:
-        raise ReconInputError(f"{name} must be an integer >= {minimum}, got {value}")
-    return int(value)
+def check_gray(gray, shape: tuple[int, int]) -> np.ndarray:
+    """An SLM image: a uint8 numpy array of ``shape`` (rows, cols), returned as is.
 
-
-def _float_param(name: str, value, *, lo: float | None = None, hi: float | None = None,
-                 lo_open: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ReconInputError(f"{name} must be a finite number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ReconInputError(f"{name} must be a finite number, got {value!r}")
-    if lo is not None and (v < lo or (lo_open and v == lo)):
-        rel = ">" if lo_open else ">="
-        raise ReconInputError(f"{name} must be {rel} {lo}, got {v}")
-    if hi is not None and v > hi:
-        raise ReconInputError(f"{name} must be <= {hi}, got {v}")
-    return v
-
-
-def _vec2(name: str, value) -> tuple[float, float]:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ReconInputError(f"{name} must be a pair of finite numbers (x, y), "
-                              f"got {value!r}") from None
-    if arr.shape != (2,) or not np.all(np.isfinite(arr)):
-        raise ReconInputError(f"{name} must be a pair of finite numbers (x, y), got {value!r}")
-    return float(arr[0]), float(arr[1])
-
-
-def _shape2(name: str, value) -> tuple[int, int]:
-    try:
-        t = tuple(value)
-    except TypeError:
-        raise ReconInputError(f"{name} must be (rows, cols), got {value!r}") from None
-    if len(t) != 2:
-        raise ReconInputError(f"{name} must be (rows, cols), got {value!r}")
-    return (_int_param(f"{name}[0]", t[0], 1), _int_param(f"{name}[1]", t[1], 1))
-
-
-def _check_gray(gray, shape: tuple[int, int]) -> np.ndarray:
+    Raises
+    ------
+    ReconInputError
+        Not a numpy array, not uint8, or the wrong shape.
+    """
     if not isinstance(gray, np.ndarray):
         raise ReconInputError(
             f"SLM image must be a numpy uint8 array of shape {shape}, got {type(gray).__name__}")
@@ -158,7 +120,14 @@ def _check_gray(gray, shape: tuple[int, int]) -> np.ndarray:
     return gray
 
 
-def _check_phase(phase, shape: tuple[int, int]) -> np.ndarray:
+def check_phase(phase, shape: tuple[int, int]) -> np.ndarray:
+    """An SLM phase map (radians): a real numpy array of ``shape``, as float64.
+
+    Raises
+    ------
+    ReconInputError
+        Not a real numpy array, the wrong shape, or NaN/inf.
+    """
     if not isinstance(phase, np.ndarray):
         raise ReconInputError(
             f"SLM phase must be a real numpy array of shape {shape}, got {type(phase).__name__}")
@@ -186,7 +155,14 @@ def linear_lut() -> np.ndarray:
     return TWO_PI * np.arange(256, dtype=np.float64) / 256.0
 
 
-def _check_lut(lut) -> np.ndarray:
+def check_lut(lut) -> np.ndarray:
+    """A phase-response LUT: 256 finite phases (radians), float64 copy; ``None`` -> linear.
+
+    Raises
+    ------
+    ReconInputError
+        Not 256 finite numbers.
+    """
     if lut is None:
         return linear_lut()
     try:
@@ -217,7 +193,7 @@ def gray_to_phase(gray: np.ndarray, lut=None) -> np.ndarray:
     """
     if not isinstance(gray, np.ndarray) or gray.dtype != np.uint8:
         raise ReconInputError("gray levels must be a numpy uint8 array")
-    return _check_lut(lut)[gray]
+    return check_lut(lut)[gray]
 
 
 def phase_to_gray(phase, lut=None) -> np.ndarray:
@@ -242,7 +218,7 @@ def phase_to_gray(phase, lut=None) -> np.ndarray:
     numpy.ndarray
         uint8, same shape as ``phase``.
     """
-    lut_arr = _check_lut(lut)
+    lut_arr = check_lut(lut)
     p = np.asarray(phase)
     if p.dtype.kind not in "fiu" or p.dtype == np.bool_:
         raise ReconInputError(f"phase must be real (radians), got dtype {p.dtype}")

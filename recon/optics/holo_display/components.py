@@ -11,16 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ReconInputError
-from .basics import (
-    _check_lut,
-    _float_param,
-    _int_param,
-    _shape2,
-    _vec2,
-    gray_to_phase,
-    phase_to_gray,
-)
-from .mask import _freeze
+from ...validate import as_int, as_shape2, as_vec2, finite_float
+from .basics import check_lut, gray_to_phase, phase_to_gray
+from .mask import freeze_array
 
 
 @dataclass(frozen=True)
@@ -53,14 +46,14 @@ class SlmModel:
     crosstalk_px: float = 0.0
 
     def __post_init__(self):
-        object.__setattr__(self, "lut", tuple(_check_lut(self.lut).tolist()))
+        object.__setattr__(self, "lut", tuple(check_lut(self.lut).tolist()))
         object.__setattr__(self, "fill_factor",
-                           _float_param("fill_factor", self.fill_factor, lo=0.0, hi=1.0,
+                           finite_float(self.fill_factor, "fill_factor", lo=0.0, hi=1.0,
                                         lo_open=True))
         object.__setattr__(self, "gap_amplitude",
-                           _float_param("gap_amplitude", self.gap_amplitude, lo=0.0, hi=1.0))
+                           finite_float(self.gap_amplitude, "gap_amplitude", lo=0.0, hi=1.0))
         object.__setattr__(self, "crosstalk_px",
-                           _float_param("crosstalk_px", self.crosstalk_px, lo=0.0, hi=2.0))
+                           finite_float(self.crosstalk_px, "crosstalk_px", lo=0.0, hi=2.0))
 
     @property
     def lut_array(self) -> np.ndarray:
@@ -140,16 +133,16 @@ class RelayModel:
 
     def __post_init__(self):
         object.__setattr__(self, "wavelength_um",
-                           _float_param("wavelength_um", self.wavelength_um, lo=0.0,
+                           finite_float(self.wavelength_um, "wavelength_um", lo=0.0,
                                         lo_open=True))
         if self.na is not None:
-            object.__setattr__(self, "na", _float_param("na", self.na, lo=0.0, hi=1.0,
+            object.__setattr__(self, "na", finite_float(self.na, "na", lo=0.0, hi=1.0,
                                                         lo_open=True))
         if self.level_step_um is not None:
             object.__setattr__(self, "level_step_um",
-                               _float_param("level_step_um", self.level_step_um, lo=0.0,
+                               finite_float(self.level_step_um, "level_step_um", lo=0.0,
                                             lo_open=True))
-        object.__setattr__(self, "max_levels", _int_param("max_levels", self.max_levels, 2))
+        object.__setattr__(self, "max_levels", as_int(self.max_levels, "max_levels", 2))
 
 
 # --------------------------------------------------------------------------- camera
@@ -182,7 +175,7 @@ class CameraMapping:
     offset: tuple[float, float] | None = None
 
     def __post_init__(self):
-        shape = _shape2("camera shape", self.shape)
+        shape = as_shape2(self.shape, "camera shape")
         object.__setattr__(self, "shape", shape)
         try:
             m = np.asarray(self.matrix, dtype=np.float64)
@@ -192,9 +185,9 @@ class CameraMapping:
             raise ReconInputError(f"camera matrix must be 2x2 finite numbers, got {m.shape}")
         if abs(np.linalg.det(m)) < 1e-9:
             raise ReconInputError("camera matrix is singular")
-        object.__setattr__(self, "matrix", _freeze(m))
+        object.__setattr__(self, "matrix", freeze_array(m))
         off = (shape[1] // 2, shape[0] // 2) if self.offset is None else self.offset
-        object.__setattr__(self, "offset", _vec2("camera offset", off))
+        object.__setattr__(self, "offset", as_vec2(off, "camera offset"))
 
     @classmethod
     def from_params(cls, shape=(480, 640), scale: float = 1.0, rotation: float = 0.0,
@@ -205,12 +198,12 @@ class CameraMapping:
         ``M = R(rotation) diag(+-scale, scale_y)`` (``scale_y`` defaults to ``scale``;
         ``flip_x`` mirrors x).
         """
-        sx = _float_param("scale", scale, lo=0.0, lo_open=True)
-        sy = sx if scale_y is None else _float_param("scale_y", scale_y, lo=0.0, lo_open=True)
-        th = _float_param("rotation", rotation)
+        sx = finite_float(scale, "scale", lo=0.0, lo_open=True)
+        sy = sx if scale_y is None else finite_float(scale_y, "scale_y", lo=0.0, lo_open=True)
+        th = finite_float(rotation, "rotation")
         c, s = math.cos(th), math.sin(th)
         m = np.array([[c, -s], [s, c]]) @ np.diag([-sx if flip_x else sx, sy])
-        return cls(shape=shape, matrix=_freeze(m), offset=offset)
+        return cls(shape=shape, matrix=freeze_array(m), offset=offset)
 
     @property
     def matrix_array(self) -> np.ndarray:
@@ -257,11 +250,11 @@ class LaserDrift:
 
     def __init__(self, seed: int = 0, sigma_per_sqrt_s: float = 1e-3,
                  tau_s: float | None = 600.0, factor0: float = 1.0):
-        self.seed = _int_param("seed", seed, 0)
-        self.sigma = _float_param("sigma_per_sqrt_s", sigma_per_sqrt_s, lo=0.0)
-        self.tau_s = None if tau_s is None else _float_param("tau_s", tau_s, lo=0.0,
+        self.seed = as_int(seed, "seed", 0)
+        self.sigma = finite_float(sigma_per_sqrt_s, "sigma_per_sqrt_s", lo=0.0)
+        self.tau_s = None if tau_s is None else finite_float(tau_s, "tau_s", lo=0.0,
                                                               lo_open=True)
-        self.factor0 = _float_param("factor0", factor0, lo=0.0, lo_open=True)
+        self.factor0 = finite_float(factor0, "factor0", lo=0.0, lo_open=True)
         self.reset()
 
     def reset(self) -> None:
@@ -277,7 +270,7 @@ class LaserDrift:
 
     def advance(self, dt_s: float) -> float:
         """Advance the clock by ``dt_s`` seconds (>= 0); returns the new factor."""
-        dt = _float_param("dt_s", dt_s, lo=0.0)
+        dt = finite_float(dt_s, "dt_s", lo=0.0)
         if dt > 0.0 and self.sigma > 0.0:
             z = float(self._rng.standard_normal())
             if self.tau_s is None:

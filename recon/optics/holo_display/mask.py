@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ReconInputError
-from .basics import MAX_FINE_SAMPLES, _float_param, _int_param, _render_mask_kernel, _shape2, _vec2
+from ...validate import as_int, as_shape2, as_vec2, finite_float
+from .basics import MAX_FINE_SAMPLES, render_mask_kernel
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,7 @@ class StagePose:
 
     def __post_init__(self):
         for name in ("x_mm", "y_mm", "z_mm", "rx_rad", "ry_rad", "rz_rad"):
-            object.__setattr__(self, name, _float_param(f"pose.{name}", getattr(self, name)))
+            object.__setattr__(self, name, finite_float(getattr(self, name), f"pose.{name}"))
 
     @classmethod
     def coerce(cls, pose) -> StagePose:
@@ -125,14 +126,14 @@ class MaskTransform:
     tilt_rad: float = 0.0
 
     def __post_init__(self):
-        object.__setattr__(self, "translation", _vec2("translation", self.translation))
-        object.__setattr__(self, "theta", _float_param("theta", self.theta))
+        object.__setattr__(self, "translation", as_vec2(self.translation, "translation"))
+        object.__setattr__(self, "theta", finite_float(self.theta, "theta"))
         object.__setattr__(self, "magnification",
-                           _float_param("magnification", self.magnification, lo=0.0,
+                           finite_float(self.magnification, "magnification", lo=0.0,
                                         lo_open=True))
-        object.__setattr__(self, "radial_px", _float_param("radial_px", self.radial_px))
+        object.__setattr__(self, "radial_px", finite_float(self.radial_px, "radial_px"))
         for name in ("defocus_mm", "tip_rad", "tilt_rad"):
-            object.__setattr__(self, name, _float_param(name, getattr(self, name)))
+            object.__setattr__(self, name, finite_float(getattr(self, name), name))
         if self.poly is not None:
             try:
                 arr = np.asarray(self.poly, dtype=np.float64)
@@ -142,7 +143,7 @@ class MaskTransform:
                     or arr.shape[1] < 1 or not np.all(np.isfinite(arr)):
                 raise ReconInputError(
                     f"poly must be finite numbers of shape (2, n, n), got shape {arr.shape}")
-            object.__setattr__(self, "poly", _freeze(arr))
+            object.__setattr__(self, "poly", freeze_array(arr))
 
     def poly_array(self) -> np.ndarray:
         """Polynomial coefficients as float64 (2, n, n) (zeros (2, 1, 1) if none)."""
@@ -201,11 +202,11 @@ def _explicit_bits(bits, shape: tuple[int, int], slm_shape, k: int, margin: int)
     return out
 
 
-def _freeze(arr: np.ndarray) -> tuple:
+def freeze_array(arr: np.ndarray) -> tuple:
     """Nested tuples (hashable) of a float array."""
     if arr.ndim == 1:
         return tuple(float(v) for v in arr)
-    return tuple(_freeze(a) for a in arr)
+    return tuple(freeze_array(a) for a in arr)
 
 
 # --------------------------------------------------------------------------- mask
@@ -288,15 +289,15 @@ class MaskModel:
                  q: int = 4, seed: int = 0, *, margin: int = 16,
                  truth: MaskTransform | None = None, phase_error: float = 0.0,
                  defect_fraction: float = 0.0, supersample: int = 1, bits=None):
-        self.slm_shape = _shape2("slm_shape", slm_shape)
-        self.slm_pitch_um = _float_param("slm_pitch_um", slm_pitch_um, lo=0.0, lo_open=True)
-        self.k = _int_param("k", k, 1)
-        self.q = _int_param("q", q, 1)
-        self.seed = _int_param("seed", seed, 0)
-        self.margin = _int_param("margin", margin, 0)
-        self.supersample = _int_param("supersample", supersample, 1)
-        self.phase_error = _float_param("phase_error", phase_error, lo=-1.0, hi=1.0)
-        self.defect_fraction = _float_param("defect_fraction", defect_fraction, lo=0.0, hi=1.0)
+        self.slm_shape = as_shape2(slm_shape, "slm_shape")
+        self.slm_pitch_um = finite_float(slm_pitch_um, "slm_pitch_um", lo=0.0, lo_open=True)
+        self.k = as_int(k, "k", 1)
+        self.q = as_int(q, "q", 1)
+        self.seed = as_int(seed, "seed", 0)
+        self.margin = as_int(margin, "margin", 0)
+        self.supersample = as_int(supersample, "supersample", 1)
+        self.phase_error = finite_float(phase_error, "phase_error", lo=-1.0, hi=1.0)
+        self.defect_fraction = finite_float(defect_fraction, "defect_fraction", lo=0.0, hi=1.0)
         r, c = self.slm_shape
         self.fine_shape = (r * self.k * self.q, c * self.k * self.q)
         if self.fine_shape[0] * self.fine_shape[1] > MAX_FINE_SAMPLES:
@@ -418,7 +419,7 @@ class MaskModel:
         hx, hy = self.half_size
         p = tr.poly_array()
         out = np.empty(self.fine_shape, np.complex64)
-        _render_mask_kernel(bits, self.margin, float(self.q), self.supersample, hx, hy,
+        render_mask_kernel(bits, self.margin, float(self.q), self.supersample, hx, hy,
                             self._ainv(tr),
                             tr.translation[0], tr.translation[1], tr.radial_px,
                             math.hypot(hx, hy), np.ascontiguousarray(p[0]),
@@ -464,7 +465,7 @@ class MaskModel:
             complex64 +1/-1, :attr:`fine_shape`, read-only (cached); +1 beyond the
             modelled mask.
         """
-        s = _vec2("shift", shift)
+        s = as_vec2(shift, "shift")
         key = ("model", s)
         tr = MaskTransform(translation=s)
         return self._cached(key, lambda: self._render(self.bits, tr, 1.0, -1.0, 1.0))

@@ -16,17 +16,11 @@ import numpy as np
 import scipy.fft as sfft
 
 from ...errors import ReconInputError
-from .basics import (
-    WORKERS,
-    _check_gray,
-    _check_phase,
-    _float_param,
-    _int_param,
-    _vec2,
-)
+from ...validate import as_int, as_vec2, finite_float
+from .basics import WORKERS, check_gray, check_phase
 from .components import CameraMapping, LaserDrift, RelayModel, SlmModel
 from .mask import MaskModel, StagePose
-from .spot import _block_reduce, _check_u0, _ramp
+from .spot import block_reduce, check_u0, phase_ramp
 
 
 @dataclass
@@ -84,8 +78,8 @@ class HolographicDisplayModel:
         self.drift = drift if drift is not None else LaserDrift()
         if not isinstance(self.drift, LaserDrift):
             raise ReconInputError("drift must be a LaserDrift")
-        self.power_e_per_s = _float_param("power_e_per_s", power_e_per_s, lo=0.0)
-        self.pad = _int_param("pad", pad, 1)
+        self.power_e_per_s = finite_float(power_e_per_s, "power_e_per_s", lo=0.0)
+        self.pad = as_int(pad, "pad", 1)
         self._n = mask.k * mask.q
         ap = self._slm.aperture(self._n)
         rows, cols = mask.slm_shape
@@ -126,7 +120,7 @@ class HolographicDisplayModel:
 
     def spot_camera_px(self, u0) -> tuple[float, float]:
         """Camera position ``(x, y)`` of far-field frequency ``u0`` (the affine)."""
-        return tuple(float(v) for v in self._camera.to_camera(_vec2("u0", u0)))
+        return tuple(float(v) for v in self._camera.to_camera(as_vec2(u0, "u0")))
 
     # -- geometry of a pose ------------------------------------------------------------
 
@@ -358,7 +352,7 @@ class HolographicDisplayModel:
         return out.reshape(rows * n, cols * n)
 
     def _phase_of(self, gray) -> np.ndarray:
-        return self._slm.gray_to_phase(_check_gray(gray, self.slm_shape))
+        return self._slm.gray_to_phase(check_gray(gray, self.slm_shape))
 
     # -- far field ---------------------------------------------------------------------
 
@@ -398,7 +392,7 @@ class HolographicDisplayModel:
 
     def far_field_phase(self, phase: np.ndarray, pose=None) -> np.ndarray:
         """:meth:`far_field` for an ideal (unquantised) SLM phase (float (R, C), rad)."""
-        phase = _check_phase(phase, self.slm_shape)
+        phase = check_phase(phase, self.slm_shape)
         spec = self._spectrum(phase, pose)
         inten = spec.real * spec.real + spec.imag * spec.imag
         return sfft.fftshift(inten).astype(np.float64) * self._scale()
@@ -423,7 +417,7 @@ class HolographicDisplayModel:
 
     def render_phase(self, phase: np.ndarray, pose=None) -> np.ndarray:
         """:meth:`render` for an ideal (unquantised) SLM phase (float (R, C), rad)."""
-        phase = _check_phase(phase, self.slm_shape)
+        phase = check_phase(phase, self.slm_shape)
         return self._to_camera(self._spectrum(phase, pose))
 
     def _to_camera(self, spec: np.ndarray) -> np.ndarray:
@@ -509,8 +503,8 @@ class HolographicDisplayModel:
         ny, nx = mm.fine_shape
         rows, cols = mm.slm_shape
         rel = self._defocus(pose)
-        ry = _ramp(u0[1], ny, ny)
-        rx = _ramp(u0[0], nx, nx)
+        ry = phase_ramp(u0[1], ny, ny)
+        rx = phase_ramp(u0[0], nx, nx)
         mtrue = mm.true_fine(pose)
         trivial = self._is_identity(rel)
         if trivial:
@@ -527,7 +521,7 @@ class HolographicDisplayModel:
                 g *= rx[None, :]
             val = ("fine", g)
         else:
-            c_ap, c_full = _block_reduce(g, ry, rx, self._wy, self._wx, self._n, (rows, cols))
+            c_ap, c_full = block_reduce(g, ry, rx, self._wy, self._wx, self._n, (rows, cols))
             c_gap = complex((c_full - c_ap).sum()) * self._slm.gap_amplitude
             val = ("coef", c_ap, c_gap)
         with self._lock:
@@ -542,9 +536,9 @@ class HolographicDisplayModel:
         ``A(u0) = sum_x U(x) m(x) exp(-i 2 pi (ux j/Nx + uy i/Ny))``, the FFT of the
         field behind the mask evaluated at ``u0`` (any real ``u0``, also off-grid).
         """
-        phase = _check_phase(phase, self.slm_shape)
+        phase = check_phase(phase, self.slm_shape)
         pose = StagePose.coerce(pose)
-        u0 = _check_u0(u0, self._mask.fine_shape)
+        u0 = check_u0(u0, self._mask.fine_shape)
         kern = self._spot_kernel(pose, u0)
         if kern[0] == "coef":
             s = np.exp(1j * phase)

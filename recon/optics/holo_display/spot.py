@@ -11,26 +11,42 @@ import math
 import numpy as np
 
 from ...errors import ReconInputError
-from .basics import _block_reduce_kernel, _float_param, _int_param, _vec2
+from ...validate import as_int, as_vec2, finite_float
+from .basics import block_reduce_kernel
 from .mask import MaskModel
 
 
-def _ramp(u: float, n_total: int, n: int, q_sub: int = 1) -> np.ndarray:
+def phase_ramp(u: float, n_total: int, n: int, q_sub: int = 1) -> np.ndarray:
     """``exp(-i 2 pi u j / n_total)`` for ``j = 0, q_sub, 2 q_sub, ...`` (n samples)."""
     j = np.arange(n, dtype=np.float64) * q_sub
     return np.exp(-2j * math.pi * u * j / n_total).astype(np.complex64)
 
 
-def _block_reduce(vals: np.ndarray, ry, rx, wy, wx, n: int, out_shape):
+def block_reduce(vals: np.ndarray, ry, rx, wy, wx, n: int, out_shape):
+    """Per-block sums of ``vals`` weighted by the ramps, with and without the aperture.
+
+    Wraps :func:`recon.optics.holo_display.basics.block_reduce_kernel` (numba):
+    ``ry``, ``rx`` complex ramps, ``wy``, ``wx`` aperture weights along rows and
+    columns, ``n`` the block size; returns ``(out_ap, out_full)``, complex128 arrays
+    of ``out_shape``.
+    """
     out_ap = np.zeros(out_shape, np.complex128)
     out_full = np.zeros(out_shape, np.complex128)
-    _block_reduce_kernel(vals, ry.astype(np.complex64), rx.astype(np.complex64),
+    block_reduce_kernel(vals, ry.astype(np.complex64), rx.astype(np.complex64),
                          wy.astype(np.float32), wx.astype(np.float32), int(n), out_ap, out_full)
     return out_ap, out_full
 
 
-def _check_u0(u0, fine_shape) -> tuple[float, float]:
-    ux, uy = _vec2("u0", u0)
+def check_u0(u0, fine_shape) -> tuple[float, float]:
+    """The spot's far-field offset ``u0 = (ux, uy)`` in fine-grid samples.
+
+    Raises
+    ------
+    ReconInputError
+        Not two finite numbers, or outside the fine grid's band
+        (|ux| < nx / 2, |uy| < ny / 2 with ``fine_shape = (ny, nx)``).
+    """
+    ux, uy = as_vec2(u0, "u0")
     ny, nx = fine_shape
     if abs(ux) >= nx / 2 or abs(uy) >= ny / 2:
         raise ReconInputError(
@@ -97,7 +113,7 @@ def spot_phase(mask_model: MaskModel, u0, patch=None, *, shift=(0.0, 0.0),
     phase = -np.angle(b)
     pt = _check_patch(patch, mask_model.slm_shape)
     if pt is not None:
-        fill = _float_param("fill", fill)
+        fill = finite_float(fill, "fill")
         r0, r1, c0, c1 = pt
         out = np.full(mask_model.slm_shape, fill, np.float64)
         out[r0:r1, c0:c1] = phase[r0:r1, c0:c1]
@@ -107,8 +123,8 @@ def spot_phase(mask_model: MaskModel, u0, patch=None, *, shift=(0.0, 0.0),
 
 def _model_coefficients(mm: MaskModel, u0, shift) -> np.ndarray:
     """``b_p`` of :func:`spot_phase` (complex128 (R, C))."""
-    ux, uy = _check_u0(u0, mm.fine_shape)
-    sx, sy = _vec2("shift", shift)
+    ux, uy = check_u0(u0, mm.fine_shape)
+    sx, sy = as_vec2(shift, "shift")
     ny, nx = mm.fine_shape
     rows, cols = mm.slm_shape
     k, q = mm.k, mm.q
@@ -127,15 +143,15 @@ def _model_coefficients(mm: MaskModel, u0, shift) -> np.ndarray:
         vals[~(vi[:, None] & vj[None, :])] = 1.0
         gx = np.exp(-2j * math.pi * ux * np.arange(q) / nx).sum()
         gy = np.exp(-2j * math.pi * uy * np.arange(q) / ny).sum()
-        ry = _ramp(uy, ny, hb, q)
-        rx = _ramp(ux, nx, wb, q)
-        _, full = _block_reduce(vals.astype(np.complex64), ry, rx, np.ones(hb), np.ones(wb), k,
+        ry = phase_ramp(uy, ny, hb, q)
+        rx = phase_ramp(ux, nx, wb, q)
+        _, full = block_reduce(vals.astype(np.complex64), ry, rx, np.ones(hb), np.ones(wb), k,
                                 (rows, cols))
         return full * (gx * gy)
     vals = mm.model_fine((sx, sy))
-    ry = _ramp(uy, ny, ny)
-    rx = _ramp(ux, nx, nx)
-    _, full = _block_reduce(vals, ry, rx, np.ones(ny), np.ones(nx), k * q, (rows, cols))
+    ry = phase_ramp(uy, ny, ny)
+    rx = phase_ramp(ux, nx, nx)
+    _, full = block_reduce(vals, ry, rx, np.ones(ny), np.ones(nx), k * q, (rows, cols))
     return full
 
 
@@ -176,14 +192,14 @@ def efficiency(frame: np.ndarray, spot_px, window: int = 5, ring: int | None = N
     """
     if not isinstance(frame, np.ndarray) or frame.ndim != 2 or frame.dtype.kind not in "fiu":
         raise ReconInputError("frame must be a 2-D real numpy array")
-    window = _int_param("window", window, 1)
+    window = as_int(window, "window", 1)
     if window % 2 == 0:
         raise ReconInputError(f"window must be odd, got {window}")
-    ring = window if ring is None else _int_param("ring", ring, 1)
+    ring = window if ring is None else as_int(ring, "ring", 1)
     rows, cols = frame.shape
     if window > min(rows, cols):
         raise ReconInputError(f"window {window} is larger than the frame {frame.shape}")
-    x, y = _vec2("spot_px", spot_px)
+    x, y = as_vec2(spot_px, "spot_px")
     cx, cy = int(round(x)), int(round(y))
     if not (0 <= cx < cols and 0 <= cy < rows):
         raise ReconInputError(f"spot_px {(x, y)} is outside the frame {frame.shape}")
