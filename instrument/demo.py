@@ -112,7 +112,7 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         raw = scene_raw - dark
         t = step(f"scene capture (exposure {scene_exp.exposure_s * 1e3:.2f} ms)", t)
         truth = bench.scene_truth()
-    result = reconstruct(psf, raw, method, iterations, dark="none")
+    result = reconstruct(psf, raw, method, iterations=iterations, dark="none")
     t = step(f"reconstruction ({method}, {iterations} iterations)", t)
     shift, truth_reg = _register(result.image, truth)
     score = {"psnr_db": psnr(result.image, truth_reg), "ssim": ssim(result.image, truth_reg),

@@ -133,7 +133,8 @@ def scaled_problem(psf: np.ndarray, b: np.ndarray, weights: np.ndarray | None = 
 
 
 def solve(
-    op: ConvolutionOperator, b: np.ndarray, method: str, iterations: int, tv: float, **options
+    op: ConvolutionOperator, b: np.ndarray, method: str, *, iterations: int, tv: float,
+    **options
 ) -> SolveResult:
     """Dispatch to one solver by name (``wiener``, ``gd``, ``fista``, ``admm``).
 
@@ -145,11 +146,11 @@ def solve(
     if method == "wiener":
         return wiener(op, b, **options)
     if method == "gd":
-        return gradient_descent(op, b, iterations, tv=tv, **options)
+        return gradient_descent(op, b, iterations=iterations, tv=tv, **options)
     if method == "fista":
-        return fista(op, b, iterations, tv=tv, **options)
+        return fista(op, b, iterations=iterations, tv=tv, **options)
     if method == "admm":
-        return admm(op, b, iterations, tv=tv, **options)
+        return admm(op, b, iterations=iterations, tv=tv, **options)
     raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
 
 
@@ -157,8 +158,8 @@ def reconstruct(
     psf: np.ndarray,
     raw: np.ndarray,
     method: str = "admm",
-    iterations: int = 100,
     *,
+    iterations: int = 100,
     tv: float | None = None,
     bin_factor: int = 1,
     dark=None,
@@ -254,7 +255,7 @@ def reconstruct(
         bc = b if b.ndim == 2 else b[..., c]
         op, scaled = scaled_problem(pc, bc, None if mask is None else mask.mask,
                                     b_scale=raw_scale)
-        res = solve(op, scaled, method, iterations, tv, **solver_options)
+        res = solve(op, scaled, method, iterations=iterations, tv=tv, **solver_options)
         results.append(res)
         estimates.append(res.x * raw_scale)
         op0 = op0 or op

@@ -127,7 +127,7 @@ def points_resolved(psf: np.ndarray, separation_px: float, *, n_points: int = 2,
     # PSF peaks there (its autocorrelation peak)
     centre = np.array(np.unravel_index(np.argmax(op.adjoint(scaled_problem(psf, psf)[1])),
                                        op.padded_shape), float)
-    x = np.asarray(solve(op, bs, method, iterations, 0.0).x, np.float64)
+    x = np.asarray(solve(op, bs, method, iterations=iterations, tv=0.0).x, np.float64)
     pos = centre[None, :] + offsets
     pairs = [(i, j) for i in range(len(pos)) for j in range(i + 1, len(pos))
              if abs(np.hypot(*(pos[i] - pos[j])) - separation_px) < 1e-6]

@@ -64,9 +64,9 @@ def solve(method: str, op: ConvolutionOperator, b: np.ndarray, iterations: int,
         Passed through from the solver.
     """
     if method == "wiener":
-        return api_solve(op, b, method, 1, 0.0, regularization=weight)
+        return api_solve(op, b, method, iterations=1, tv=0.0, regularization=weight)
     extra = {"lipschitz": lipschitz} if method in ("gd", "fista") else {}
-    return api_solve(op, b, method, iterations, weight, **extra)
+    return api_solve(op, b, method, iterations=iterations, tv=weight, **extra)
 
 
 def jsonable(obj: Any) -> Any:

@@ -94,10 +94,10 @@ def _experiment(psf, b, tv_fista, tv_admm, iterations):
     op_e = eraser @ op
     b_e = (eraser.mask * bs).astype(np.float32)
     keep = 1.0 - ERASED
-    jobs = {"admm_full": lambda: admm(op, bs, iterations, tv=tv_admm),
-            "fista_full": lambda: fista(op, bs, iterations, tv=tv_fista),
-            "fista_erased": lambda: fista(op_e, b_e, iterations, tv=tv_fista * keep),
-            "admm_erased": lambda: admm(op_e, b_e, iterations, tv=tv_admm * keep)}
+    jobs = {"admm_full": lambda: admm(op, bs, iterations=iterations, tv=tv_admm),
+            "fista_full": lambda: fista(op, bs, iterations=iterations, tv=tv_fista),
+            "fista_erased": lambda: fista(op_e, b_e, iterations=iterations, tv=tv_fista * keep),
+            "admm_erased": lambda: admm(op_e, b_e, iterations=iterations, tv=tv_admm * keep)}
     images, seconds, residuals = {}, {}, {}
     for name, job in jobs.items():
         t0 = time.perf_counter()

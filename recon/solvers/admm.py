@@ -115,7 +115,7 @@ def rescale_duals(splits) -> None:
             q += a
 
 
-def admm(op: ConvolutionOperator, b: np.ndarray, iterations: int = 100, *, tv: float = 1e-3,
+def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 1e-3,
          mu: tuple[float, float, float] | None = None, balance: bool = True,
          balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
          balance_factor: float = 2.0) -> SolveResult:

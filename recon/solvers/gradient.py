@@ -79,7 +79,7 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
                         "nonneg": nonneg, "momentum": momentum, "restart": restart})
 
 
-def fista(op: LinearOperator, b: np.ndarray, iterations: int = 100, *, tv: float = 0.0,
+def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,
           nonneg: bool = True, step_scale: float = 1.0, restart: bool = True,
           lipschitz: float | None = None) -> SolveResult:
     """FISTA (Kuo 2020, Algorithm 1; Beck & Teboulle 2009) with non-negativity and TV.
@@ -124,7 +124,7 @@ def fista(op: LinearOperator, b: np.ndarray, iterations: int = 100, *, tv: float
                         lipschitz)
 
 
-def gradient_descent(op: LinearOperator, b: np.ndarray, iterations: int = 100, *,
+def gradient_descent(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
                      tv: float = 0.0, nonneg: bool = True, momentum: float = 0.9,
                      step_scale: float = 1.0, lipschitz: float | None = None
                      ) -> SolveResult:

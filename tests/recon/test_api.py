@@ -39,9 +39,9 @@ def test_wiener_preview_real(real_pair):
 
 def test_colour_channels_independent(real_pair):
     psf, raw = real_pair
-    gray = recon.reconstruct(psf, raw, "fista", 20, bin_factor=8)
+    gray = recon.reconstruct(psf, raw, "fista", iterations=20, bin_factor=8)
     rgb_raw = np.stack([raw, raw // 2, raw // 4], axis=-1)
-    rgb = recon.reconstruct(psf, rgb_raw, "fista", 20, bin_factor=8)
+    rgb = recon.reconstruct(psf, rgb_raw, "fista", iterations=20, bin_factor=8)
     assert rgb.image.shape == gray.image.shape + (3,)
     assert len(rgb.results) == 3
     # channel 0 equals the grey reconstruction; the others scale with their raw
@@ -51,19 +51,21 @@ def test_colour_channels_independent(real_pair):
     ratio = rgb.image[..., 1].sum() / rgb.image[..., 0].sum()
     assert 0.45 < ratio < 0.55
     # one PSF per channel is also accepted
-    per_channel = recon.reconstruct(np.stack([psf] * 3, -1), rgb_raw, "fista", 5, bin_factor=8)
+    per_channel = recon.reconstruct(np.stack([psf] * 3, -1), rgb_raw, "fista", iterations=5,
+                                    bin_factor=8)
     assert per_channel.image.shape == rgb.image.shape
 
 
 def test_erasure_mask_folds_into_model(real_pair):
     psf, raw = real_pair
-    result = recon.reconstruct(psf, raw, "admm", 30, bin_factor=8, erase=0.8, seed=3)
+    result = recon.reconstruct(psf, raw, "admm", iterations=30, bin_factor=8, erase=0.8, seed=3)
     assert abs(result.info["erased_fraction"] - 0.8) < 0.02
     w = result.operator.sensor_weights
     assert set(np.unique(w)) <= {0.0, 1.0}
     # an explicit mask of the wrong shape is refused
     with pytest.raises(ReconInputError, match="erasure mask shape"):
-        recon.reconstruct(psf, raw, "admm", 5, bin_factor=8, erasure_mask=np.ones((3, 3)))
+        recon.reconstruct(psf, raw, "admm", iterations=5, bin_factor=8,
+                          erasure_mask=np.ones((3, 3)))
 
 
 @pytest.mark.parametrize(

@@ -24,9 +24,9 @@ TV = 1e-3  # ADMM TV weight (objective of the zero image is ~46)
 TV_FISTA = 3e-4
 
 SOLVERS = {
-    "gd": lambda op, b, n, **kw: gradient_descent(op, b, n, **kw),
-    "fista": lambda op, b, n, **kw: fista(op, b, n, **kw),
-    "admm": lambda op, b, n, **kw: admm(op, b, n, **({"tv": TV} | kw)),
+    "gd": lambda op, b, n, **kw: gradient_descent(op, b, iterations=n, **kw),
+    "fista": lambda op, b, n, **kw: fista(op, b, iterations=n, **kw),
+    "admm": lambda op, b, n, **kw: admm(op, b, iterations=n, **({"tv": TV} | kw)),
 }
 
 
@@ -137,7 +137,7 @@ def test_history_lengths_and_trends(conv_problem, name):
 
 def test_admm_objective_decreases_overall(conv_problem):
     b = conv_problem.b_clean
-    res = admm(conv_problem.op, b, ITERATIONS, tv=TV)
+    res = admm(conv_problem.op, b, iterations=ITERATIONS, tv=TV)
     obj = np.asarray(res.history.objective)
     assert obj[-1] < obj[0] / 10
     assert obj[-1] < 0.01 * conv_problem.zero_objective(b)  # 0.0023 when written
@@ -151,21 +151,21 @@ def test_admm_and_fista_agree_on_the_objective(conv_problem):
     """Both minimise 1/2||Ax-b||^2 + tau TV(x), x >= 0 (FISTA with the Haar-shift
     approximation of TV): their final objectives are close."""
     op, b = conv_problem.op, conv_problem.b_clean
-    f_admm = admm(op, b, ITERATIONS, tv=TV).final_objective
-    f_fista = fista(op, b, ITERATIONS, tv=TV).final_objective
+    f_admm = admm(op, b, iterations=ITERATIONS, tv=TV).final_objective
+    f_fista = fista(op, b, iterations=ITERATIONS, tv=TV).final_objective
     assert f_admm == pytest.approx(f_fista, rel=0.1)  # 0.1055 vs 0.1088 when written
 
 
 def test_fista_tv_beats_no_tv_on_noisy_scene(conv_problem):
     op, b = conv_problem.op, conv_problem.b_noisy
-    plain = conv_problem.psnr(fista(op, b, ITERATIONS).x)
-    tv = conv_problem.psnr(fista(op, b, ITERATIONS, tv=TV_FISTA).x)
+    plain = conv_problem.psnr(fista(op, b, iterations=ITERATIONS).x)
+    tv = conv_problem.psnr(fista(op, b, iterations=ITERATIONS, tv=TV_FISTA).x)
     assert tv > plain + 5.0  # 31.5 vs 21.1 dB when written
     assert tv > 28.0
 
 
 def test_fista_without_nonneg_goes_negative(conv_problem):
-    res = fista(conv_problem.op, conv_problem.b_noisy, ITERATIONS, nonneg=False)
+    res = fista(conv_problem.op, conv_problem.b_noisy, iterations=ITERATIONS, nonneg=False)
     assert res.x.min() < -0.05
     assert res.params["nonneg"] is False
 
@@ -173,7 +173,7 @@ def test_fista_without_nonneg_goes_negative(conv_problem):
 def test_fista_uses_given_lipschitz(conv_problem):
     op = conv_problem.op
     lip = op.lipschitz()
-    res = fista(op, conv_problem.b_clean, 3, lipschitz=2.0 * lip, step_scale=0.5)
+    res = fista(op, conv_problem.b_clean, iterations=3, lipschitz=2.0 * lip, step_scale=0.5)
     assert res.params["lipschitz"] == pytest.approx(2.0 * lip)
     assert res.params["step"] == pytest.approx(0.25 / lip)
 
@@ -198,8 +198,8 @@ def test_erased_pixels_are_recovered(conv_problem, name, kwargs, bound):
 def test_admm_balancing_rescues_bad_penalties(conv_problem, mu):
     op, b = conv_problem.op, conv_problem.b_clean
     zero = conv_problem.zero_objective(b)
-    good = admm(op, b, ITERATIONS, tv=TV, mu=mu, balance=True)
-    bad = admm(op, b, ITERATIONS, tv=TV, mu=mu, balance=False)
+    good = admm(op, b, iterations=ITERATIONS, tv=TV, mu=mu, balance=True)
+    bad = admm(op, b, iterations=ITERATIONS, tv=TV, mu=mu, balance=False)
     # balanced: 0.036 / 0.027 residual and 0.0036 / 0.0029 x zero objective when written
     assert good.final_relative_residual < 0.06
     assert good.final_objective < 0.01 * zero
@@ -225,7 +225,7 @@ def test_over_large_step_raises_divergence(conv_problem, solver, step_scale):
     b = conv_problem.b_noisy
     n = 100
     with pytest.raises(DivergenceError, match="step") as info:
-        solver(conv_problem.op, b, n, step_scale=step_scale)
+        solver(conv_problem.op, b, iterations=n, step_scale=step_scale)
     hist = info.value.history
     assert isinstance(hist, dict)
     obj = hist["objective"]
@@ -239,9 +239,9 @@ def test_over_large_step_raises_divergence(conv_problem, solver, step_scale):
 
 def _all_solvers():
     return [
-        pytest.param(lambda op, b: fista(op, b, 10), id="fista"),
-        pytest.param(lambda op, b: gradient_descent(op, b, 10), id="gd"),
-        pytest.param(lambda op, b: admm(op, b, 10), id="admm"),
+        pytest.param(lambda op, b: fista(op, b, iterations=10), id="fista"),
+        pytest.param(lambda op, b: gradient_descent(op, b, iterations=10), id="gd"),
+        pytest.param(lambda op, b: admm(op, b, iterations=10), id="admm"),
         pytest.param(lambda op, b: wiener(op, b, 1e-3), id="wiener"),
         pytest.param(lambda op, b: wiener(op, b), id="wiener-auto"),
     ]
@@ -269,28 +269,28 @@ def _masked_window(op):
 
 
 @pytest.mark.parametrize("call,fragment", [
-    (lambda op, b: fista(op, b, 0), "iterations"),
-    (lambda op, b: gradient_descent(op, b, 0), "iterations"),
-    (lambda op, b: admm(op, b, 0), "iterations"),
-    (lambda op, b: fista(op, b, 5, tv=-1e-3), "TV"),
-    (lambda op, b: fista(op, b, 5, tv=float("nan")), "TV"),
-    (lambda op, b: gradient_descent(op, b, 5, tv=-1.0), "TV"),
-    (lambda op, b: admm(op, b, 5, tv=-1e-3), "TV"),
-    (lambda op, b: gradient_descent(op, b, 5, momentum=1.0), "momentum"),
-    (lambda op, b: gradient_descent(op, b, 5, momentum=-0.1), "momentum"),
-    (lambda op, b: fista(op, b, 5, step_scale=0.0), "step"),
-    (lambda op, b: fista(op, b, 5, step_scale=-1.0), "step"),
+    (lambda op, b: fista(op, b, iterations=0), "iterations"),
+    (lambda op, b: gradient_descent(op, b, iterations=0), "iterations"),
+    (lambda op, b: admm(op, b, iterations=0), "iterations"),
+    (lambda op, b: fista(op, b, iterations=5, tv=-1e-3), "TV"),
+    (lambda op, b: fista(op, b, iterations=5, tv=float("nan")), "TV"),
+    (lambda op, b: gradient_descent(op, b, iterations=5, tv=-1.0), "TV"),
+    (lambda op, b: admm(op, b, iterations=5, tv=-1e-3), "TV"),
+    (lambda op, b: gradient_descent(op, b, iterations=5, momentum=1.0), "momentum"),
+    (lambda op, b: gradient_descent(op, b, iterations=5, momentum=-0.1), "momentum"),
+    (lambda op, b: fista(op, b, iterations=5, step_scale=0.0), "step"),
+    (lambda op, b: fista(op, b, iterations=5, step_scale=-1.0), "step"),
     (lambda op, b: wiener(op, b, 0.0), "regularization"),
     (lambda op, b: wiener(op, b, -1e-3), "regularization"),
     (lambda op, b: wiener(op, b, float("nan")), "regularization"),
     (lambda op, b: wiener(_masked_window(op), b, 1e-3), "Convolution"),
-    (lambda op, b: admm(_masked_window(op), b, 5), "Convolution"),
-    (lambda op, b: admm(PixelErasure(np.ones(op.shape_out)), b, 5), "Convolution"),
-    (lambda op, b: admm(op, b, 5, mu=(0.5, 0.0, 0.5)), "penalties"),
-    (lambda op, b: admm(op, b, 5, mu=(0.5, 1.0, -0.5)), "penalties"),
-    (lambda op, b: admm(op, b, 5, mu=(np.inf, 1.0, 0.5)), "penalties"),
-    (lambda op, b: admm(op, b, 5, balance_every=1), "balance_every"),
-    (lambda op, b: fista(ConvolutionOperator(np.zeros((32, 32))), b, 5), "zero"),
+    (lambda op, b: admm(_masked_window(op), b, iterations=5), "Convolution"),
+    (lambda op, b: admm(PixelErasure(np.ones(op.shape_out)), b, iterations=5), "Convolution"),
+    (lambda op, b: admm(op, b, iterations=5, mu=(0.5, 0.0, 0.5)), "penalties"),
+    (lambda op, b: admm(op, b, iterations=5, mu=(0.5, 1.0, -0.5)), "penalties"),
+    (lambda op, b: admm(op, b, iterations=5, mu=(np.inf, 1.0, 0.5)), "penalties"),
+    (lambda op, b: admm(op, b, iterations=5, balance_every=1), "balance_every"),
+    (lambda op, b: fista(ConvolutionOperator(np.zeros((32, 32))), b, iterations=5), "zero"),
 ], ids=["fista-it0", "gd-it0", "admm-it0", "fista-tv-neg", "fista-tv-nan", "gd-tv-neg",
         "admm-tv-neg", "gd-momentum-1", "gd-momentum-neg", "fista-step-0", "fista-step-neg",
         "wiener-reg-0", "wiener-reg-neg", "wiener-reg-nan", "wiener-composition",
@@ -318,8 +318,8 @@ def test_iterations_do_not_page_fault_fresh_memory(method):
     psf = rng.random((300, 400)).astype(np.float32) ** 8
     op = ConvolutionOperator(psf / psf.sum())  # padded 600 x 800: 1.9 MB per array
     b = op.forward(rng.random(op.shape_in).astype(np.float32))
-    run = (lambda n: admm(op, b, n, tv=1e-4)) if method == "admm" else (
-        lambda n: fista(op, b, n, tv=1e-4, lipschitz=1.0))
+    run = (lambda n: admm(op, b, iterations=n, tv=1e-4)) if method == "admm" else (
+        lambda n: fista(op, b, iterations=n, tv=1e-4, lipschitz=1.0))
     run(3)  # warm-up: compile, plans, first touch
 
     def faults():
