@@ -237,11 +237,7 @@ def reconstruct(
     sensor_shape = b.shape[:2]
     if erasure_mask is not None:
         mask = PixelErasure(erasure_mask)
-        if mask.shape_in != sensor_shape:
-            raise ReconInputError(
-                f"erasure mask shape {mask.shape_in} differs from the (binned) sensor "
-                f"shape {sensor_shape}"
-            )
+        mask.check_shape(sensor_shape, "(binned) sensor")
     elif erase > 0:
         mask = PixelErasure.random(sensor_shape, erase, seed)
     else:

@@ -148,6 +148,20 @@ class PixelErasure(LinearOperator):
     def adjoint(self, y):
         return self.forward(y)
 
+    def check_shape(self, sensor_shape: tuple[int, int], what: str = "sensor") -> None:
+        """Refuse a mask whose shape is not ``sensor_shape``.
+
+        Raises
+        ------
+        ReconInputError
+            "erasure mask shape ... differs from the <what> shape ...".
+        """
+        if tuple(self.shape_in) != tuple(sensor_shape):
+            raise ReconInputError(
+                f"erasure mask shape {self.shape_in} differs from the {what} "
+                f"shape {tuple(sensor_shape)}"
+            )
+
     @staticmethod
     def random(shape: tuple[int, int], erased_fraction: float, seed: int = 0) -> PixelErasure:
         """A mask erasing ``erased_fraction`` of the pixels uniformly at random.
@@ -166,6 +180,23 @@ class PixelErasure(LinearOperator):
             )
         rng = np.random.default_rng(seed)
         return PixelErasure((rng.random(shape) >= erased_fraction).astype(np.float32))
+
+
+class SensorWeighted:
+    """Erasure composition of the cropped-convolution operators (2D and 3D).
+
+    Mixin for operators ending in ``D = diag(w) C`` (crop, then sensor weights
+    ``w``, Eq. 3.10) that define ``sensor_shape``, ``sensor_weights`` and
+    ``with_weights(w)``: ``PixelErasure(m) @ op`` is ``op.with_weights(w * m)``
+    (diag(m) diag(w) = diag(m w)), so the solvers keep their fused fast paths.
+    Anything else composes as a plain :class:`Composition`.
+    """
+
+    def _rcompose(self, outer):
+        if isinstance(outer, PixelErasure):
+            outer.check_shape(self.sensor_shape)
+            return self.with_weights(self.sensor_weights * outer.mask)
+        return super()._rcompose(outer)
 
 
 def padded_grid(sensor_shape: tuple[int, int], padded_shape=None) -> tuple[
@@ -226,7 +257,7 @@ def checked_sensor_weights(weights, sensor_shape: tuple[int, int]) -> np.ndarray
     return w
 
 
-class ConvolutionOperator(LinearOperator):
+class ConvolutionOperator(SensorWeighted, LinearOperator):
     """Cropped 2D convolution with a shift-invariant PSF (Kuo 2020, Eq. 3.4).
 
     ``A y = diag(w) C F^-1 diag(F P h) F y``: the object ``y`` lives on the padded
@@ -280,17 +311,7 @@ class ConvolutionOperator(LinearOperator):
         self.sensor_weights = checked_sensor_weights(sensor_weights, h.shape)
         self._pad_buf = np.zeros(self.padded_shape, np.float32)
 
-    # -- composition -----------------------------------------------------------------
-    def _rcompose(self, outer):
-        if isinstance(outer, PixelErasure):
-            if outer.shape_in != self.sensor_shape:
-                raise ReconInputError(
-                    f"erasure mask shape {outer.shape_in} differs from the sensor "
-                    f"shape {self.sensor_shape}"
-                )
-            return self.with_weights(self.sensor_weights * outer.mask)
-        return super()._rcompose(outer)
-
+    # -- composition (PixelErasure @ op: see SensorWeighted) ------------------------
     def with_weights(self, sensor_weights: np.ndarray) -> ConvolutionOperator:
         """A copy with other sensor weights, sharing the PSF spectrum."""
         return ConvolutionOperator(self.psf, sensor_weights, self.padded_shape,

@@ -19,7 +19,7 @@ from ..fft import WORKERS, fast_padded_shape, irfftn, rfftn, time_ffts
 from ..operators import (
     ConvolutionOperator,
     LinearOperator,
-    PixelErasure,
+    SensorWeighted,
     checked_sensor_weights,
     padded_grid,
 )
@@ -30,7 +30,7 @@ from . import _kernels3d
 CHUNK_BYTES = 64 * 2**20
 
 
-class VolumeConvolutionOperator(LinearOperator):
+class VolumeConvolutionOperator(SensorWeighted, LinearOperator):
     r"""Cropped sum over depth of 2D convolutions (Kuo 2020, Eq. 4.4; App. A.3).
 
     ``A v = diag(w) C F^-1 [ sum_z H_z . F v_z ]`` with ``H_z = F P h_z`` the real FFT
@@ -144,17 +144,7 @@ class VolumeConvolutionOperator(LinearOperator):
             spectra[c] = rfftn(np.fft.ifftshift(padded, axes=(-2, -1)))
         return spectra
 
-    # -- composition -----------------------------------------------------------------
-    def _rcompose(self, outer):
-        if isinstance(outer, PixelErasure):
-            if outer.shape_in != self.sensor_shape:
-                raise ReconInputError(
-                    f"erasure mask shape {outer.shape_in} differs from the sensor "
-                    f"shape {self.sensor_shape}"
-                )
-            return self.with_weights(self.sensor_weights * outer.mask)
-        return super()._rcompose(outer)
-
+    # -- composition (PixelErasure @ op: see SensorWeighted) ------------------------
     def with_weights(self, sensor_weights: np.ndarray) -> VolumeConvolutionOperator:
         """A copy with other sensor weights, sharing the PSF spectra."""
         return VolumeConvolutionOperator(self.psf_stack, padded_shape=self.padded_shape,
