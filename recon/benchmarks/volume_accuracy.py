@@ -77,7 +77,7 @@ QUICK = {
 METHODS3D = {"fista3d": fista3d, "admm3d": admm3d}
 #: ``diffuserlab recon3d``'s default weights (TV :data:`recon.volume.DEFAULT_TV`, no
 #: l1), always in the sweep and compared with the best.
-RECON3D_DEFAULT = (DEFAULT_TV, 0.0)
+RECON3D_DEFAULT = (DEFAULT_TV["admm"], 0.0)
 #: Peak detection threshold (fraction of the largest 3 x 3 x 3 local mass) and
 #: matching gate. The reconstructed mass of far beads is lower at a finite number of
 #: iterations (their PSFs are dimmer, 1/z^2, and converge later), hence local mass.

@@ -42,9 +42,10 @@ __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "VolumeReconstruction",
 
 log = logging.getLogger(__name__)
 
-#: Default 3D TV weight of :func:`reconstruct_volume` and ``diffuserlab recon3d`` in
-#: the scaled problem (stack normalised by :func:`normalize_psf_stack`, measurement
-#: divided by its maximum).
+#: Default 3D TV weight per method (as :data:`recon.api.DEFAULT_TV` in 2D) of
+#: :func:`reconstruct_volume` and ``diffuserlab recon3d``, absolute in the scaled
+#: problem (stack normalised by :func:`normalize_psf_stack`, measurement divided by
+#: its maximum).
 #: Chosen with the 3D accuracy benchmark (:mod:`recon.benchmarks.volume_accuracy`:
 #: tilted target on the virtual bench, 16 planes of 128 x 160, 200 iterations, SNR
 #: 35 dB): with ADMM, TV 1e-4 came out 1.4 dB below the best weight (1e-6; none
@@ -53,7 +54,7 @@ log = logging.getLogger(__name__)
 #: < 0.1 dB up to 1e-4, and beads are localised as well at 1e-5. A one-off check on
 #: the same render with 500 and 100 peak photons (SNR 25 and 17 dB) kept 1e-5
 #: within 0.3 and 0.1 dB of the best weight there, 1e-4 0.6-1.5 dB below.
-DEFAULT_TV = 1e-5
+DEFAULT_TV = {"admm": 1e-5, "fista": 1e-5}
 
 #: Solvers of ``method``.
 METHODS = ("admm", "fista")
@@ -229,7 +230,7 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float) 
 
 def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                        method: str = "admm", iterations: int = 100,
-                       tv: float = DEFAULT_TV, l1: float = 0.0, bin_factor: int = 1,
+                       tv: float | None = None, l1: float = 0.0, bin_factor: int = 1,
                        dark: str | float = "auto") -> VolumeReconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
@@ -246,9 +247,11 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         (:func:`recon.volume.fista3d`).
     iterations : int
         Solver iterations (>= 1).
-    tv, l1 : float
-        3D TV and l1 (native sparsity) weights in the scaled problem (>= 0; 0
-        disables).
+    tv : float, optional
+        3D TV weight in the scaled problem (>= 0; 0 disables); default
+        :data:`DEFAULT_TV` for the method.
+    l1 : float
+        l1 (native sparsity) weight in the scaled problem (>= 0; 0 disables).
     bin_factor : int
         Lateral box binning of the stack and the raw image.
     dark : "auto", "none" or float
@@ -267,6 +270,8 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     recon.errors.DivergenceError
         The solver diverged.
     """
+    if tv is None:
+        tv = DEFAULT_TV.get(method, 0.0)  # an unknown method is refused just below
     check_volume_parameters(method, iterations, tv, l1)
     stack = np.asarray(psf_stack)
     if stack.ndim != 3 or len(depths_mm) != stack.shape[0]:
