@@ -1,8 +1,9 @@
 """Benchmarks of the reconstruction layer: speed, accuracy, stability, erasures.
 
-Each benchmark is a plain function returning a JSON-ready dict and printing a small
-table; :mod:`recon.benchmarks.run` runs them all (``python -m
-recon.benchmarks.run --quick``) and writes JSON/PNG files under ``--out``.
+Each benchmark is a plain function returning a JSON-ready dict, with a function
+formatting its small table; :func:`recon.benchmarks.run.run_benchmarks` runs them
+all and writes JSON/PNG files under ``out`` (``diffuserlab benchmark recon
+[--quick]`` runs it and prints the tables).
 
 This module holds what they share: locating and preprocessing the real DiffuserCam
 tutorial sample, the scaled problem the solvers expect (PSF normalised to unit sum,
@@ -12,7 +13,6 @@ helpers.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from pathlib import Path
@@ -28,7 +28,6 @@ from ..solvers import METHODS, SolveResult
 
 __all__ = [
     "DATA_ENV",
-    "benchmark_parser",
     "DEFAULT_WEIGHTS",
     "METHODS",
     "data_dir",
@@ -127,30 +126,6 @@ def format_table(headers: list[str], rows: list[list[Any]]) -> str:
         if k == 0:
             lines.append("  ".join("-" * w for w in widths))
     return "\n".join(lines)
-
-
-def benchmark_parser(prog: str, doc: str, quick_help: str) -> argparse.ArgumentParser:
-    """A command-line parser with the benchmarks' ``--quick`` and ``--out DIR`` options.
-
-    Parameters
-    ----------
-    prog : str
-        Program name shown in the usage, e.g. ``python -m recon.benchmarks.volume``.
-    doc : str
-        The module docstring; its first line is the description.
-    quick_help : str
-        Help text of ``--quick``.
-
-    Returns
-    -------
-    argparse.ArgumentParser
-        ``--out`` defaults to ``out/benchmark``.
-    """
-    p = argparse.ArgumentParser(prog=prog, description=(doc or "").split("\n")[0])
-    p.add_argument("--quick", action="store_true", help=quick_help)
-    p.add_argument("--out", type=Path, default=Path("out/benchmark"),
-                   help="output directory (default out/benchmark)")
-    return p
 
 
 def fmt(value: float | None, spec: str = ".2f") -> str:

@@ -72,7 +72,7 @@ def _evaluate(method, op, b, truth_fov, iterations, weight, lip) -> dict:
             "final_relative_residual": r.final_relative_residual}
 
 
-def run_accuracy(quick: bool = False, out: Path | None = None, verbose: bool = True,
+def run_accuracy(quick: bool = False, out: Path | None = None,
                  photons: float = PHOTONS, read_noise_e: float = READ_NOISE_E) -> dict:
     """PSNR/SSIM vs iterations and seconds for every method; chooses the weights.
 
@@ -82,7 +82,6 @@ def run_accuracy(quick: bool = False, out: Path | None = None, verbose: bool = T
         Two scenes, two weights per method, short runs.
     out : Path, optional
         Directory for ``accuracy.json`` and ``accuracy_psnr_vs_seconds.png``.
-    verbose : bool
     photons, read_noise_e : float
         Noise of the simulated measurements (see :func:`simulate_measurement`).
 
@@ -182,8 +181,6 @@ def run_accuracy(quick: bool = False, out: Path | None = None, verbose: bool = T
         "final": final,
         "wall_seconds": time.perf_counter() - t_start,
     }
-    if verbose:
-        print(accuracy_table(result))
     if out is not None:
         out = Path(out)
         write_json(out / "accuracy.json", result)

@@ -125,7 +125,7 @@ def _comparisons(images: dict[str, np.ndarray]) -> dict:
 
 
 def run_erasure(quick: bool = False, out: Path | None = None,
-                weights: dict[str, float] | None = None, verbose: bool = True) -> dict:
+                weights: dict[str, float] | None = None) -> dict:
     """Fig. 3.7 as numbers: erase 80 % of the sensor vs 80 % of the image.
 
     Parameters
@@ -138,7 +138,6 @@ def run_erasure(quick: bool = False, out: Path | None = None,
         TV weights for the simulated scene (``fista``, ``admm`` keys), e.g. from the
         accuracy sweep; default :data:`recon.benchmarks.DEFAULT_WEIGHTS`. The real
         hand uses :data:`REAL_TV`.
-    verbose : bool
 
     Returns
     -------
@@ -175,8 +174,6 @@ def run_erasure(quick: bool = False, out: Path | None = None,
               "iterations": iterations, "tv_scaled_by_measured_fraction": True,
               "real": real, "simulated": simulated,
               "wall_seconds": time.perf_counter() - t_start}
-    if verbose:
-        print(erasure_table(result))
     if out is not None:
         out = Path(out)
         write_json(out / "erasure.json", result)

@@ -1,15 +1,13 @@
-"""Run the reconstruction benchmarks and write their results.
+"""Run the reconstruction benchmarks and write their results (:func:`run_benchmarks`).
 
-Usage::
-
-    python -m recon.benchmarks.run [--out DIR] [--quick] [--only NAME]
-
-Writes ``speed.json``, ``accuracy.json`` + ``accuracy_psnr_vs_seconds.png``,
+``diffuserlab benchmark recon [--out DIR] [--quick] [--only NAME]`` calls it and
+prints every benchmark's table (:func:`format_result`) and the summary. It writes
+``speed.json``, ``accuracy.json`` + ``accuracy_psnr_vs_seconds.png``,
 ``stability.json`` + ``stability.png``, ``erasure.json`` + ``erasure.png``, the 3D
 benchmarks' ``volume_speed.json`` (:mod:`recon.benchmarks.volume`) and
 ``volume_accuracy.json`` + ``volume_accuracy.png``
-(:mod:`recon.benchmarks.volume_accuracy`), and ``summary.json`` under ``--out`` and
-prints a compact summary. The weights chosen by the accuracy sweep are used by the
+(:mod:`recon.benchmarks.volume_accuracy`), and ``summary.json`` under ``out`` and
+returns a compact summary. The weights chosen by the accuracy sweep are used by the
 stability and erasure benchmarks when they run in the same invocation; otherwise
 :data:`recon.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run
 together, the speed-vs-accuracy chart ``accuracy_psnr_vs_seconds.png`` gets a last
@@ -18,30 +16,48 @@ panel with the 3D methods (tilted-target volume PSNR against seconds).
 
 from __future__ import annotations
 
-import argparse
-import sys
+import importlib
+import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import ReconInputError
 from . import DEFAULT_WEIGHTS, METHODS, fmt, write_json
 
+__all__ = ["BENCHMARKS", "format_result", "run_benchmarks", "summarise"]
+
+log = logging.getLogger(__name__)
+
+#: The benchmarks, in the order they run.
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
               "volume_accuracy")
 
+#: (module, function) of each benchmark's text table (imported when needed: the
+#: benchmark modules are heavy).
+_TABLES = {"speed": ("speed", "speed_table"), "accuracy": ("accuracy", "accuracy_table"),
+           "stability": ("stability", "stability_table"),
+           "erasure": ("erasure", "erasure_table"),
+           "volume_speed": ("volume", "volume_speed_table"),
+           "volume_accuracy": ("volume_accuracy", "volume_accuracy_table")}
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m recon.benchmarks.run",
-                                description="Speed, accuracy, stability and erasure "
-                                            "benchmarks of the reconstruction layer, 2D and "
-                                            "3D.")
-    p.add_argument("--out", type=Path, default=Path("out/benchmark"),
-                   help="output directory (default out/benchmark)")
-    p.add_argument("--quick", action="store_true",
-                   help="fewer iterations and sweep points, small 3D problems (tests/CI, "
-                   "about 1 min)")
-    p.add_argument("--only", choices=BENCHMARKS, help="run a single benchmark")
-    return p
+
+def format_result(name: str, result: dict) -> str:
+    """The text table of one benchmark's result (e.g. :func:`.speed.speed_table`).
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`BENCHMARKS`.
+    result : dict
+        What its ``run_*`` function returned.
+
+    Returns
+    -------
+    str
+    """
+    module, function = _TABLES[name]
+    return getattr(importlib.import_module(f".{module}", __package__), function)(result)
 
 
 def summarise(results: dict) -> tuple[dict, str]:
@@ -129,57 +145,82 @@ def _summarise_volume(results: dict, summary: dict, lines: list[str]) -> None:
             f"{a['baselines']['back_projection']['psnr']:.2f} dB")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the selected benchmarks; returns the exit status (0, or 2 on input errors)."""
-    args = _parser().parse_args(argv)
-    from .accuracy import run_accuracy
+def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
+                   on_result: Callable[[str, dict, float], None] | None = None
+                   ) -> tuple[dict, str]:
+    """Run the selected benchmarks and write their files and ``summary.json``.
+
+    The weights chosen by the accuracy sweep are used by the stability and erasure
+    benchmarks of the same call (otherwise :data:`recon.benchmarks.DEFAULT_WEIGHTS`).
+    Progress is logged (``-- NAME --`` at INFO, seconds at DEBUG).
+
+    Parameters
+    ----------
+    out : Path
+        Output directory (created).
+    quick : bool
+        Fewer iterations and sweep points, small 3D problems (tests/CI, about 1 min).
+    only : str, optional
+        One name of :data:`BENCHMARKS`; default all.
+    on_result : callable, optional
+        Called as ``on_result(name, result, seconds)`` after each benchmark (the CLI
+        prints ``format_result(name, result)``).
+
+    Returns
+    -------
+    summary : dict
+        What ``summary.json`` holds: :func:`summarise`'s figures plus ``quick``,
+        ``weights_used``, ``seconds`` per benchmark and ``methods``.
+    text : str
+        The summary lines.
+
+    Raises
+    ------
+    ReconInputError
+        ``only`` is not a benchmark, or a benchmark refused its input (e.g. the
+        DiffuserCam sample is missing).
+    """
+    from .accuracy import plot_accuracy, run_accuracy
     from .erasure import run_erasure
     from .speed import run_speed
     from .stability import run_stability
     from .volume import run_volume_speed
     from .volume_accuracy import run_volume_accuracy
 
-    selected = [args.only] if args.only else list(BENCHMARKS)
-    out: Path = args.out
+    if only is not None and only not in BENCHMARKS:
+        raise ReconInputError(f"unknown benchmark {only!r}; choose one of "
+                              f"{', '.join(BENCHMARKS)}")
+    selected = [only] if only else list(BENCHMARKS)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {}
     weights = dict(DEFAULT_WEIGHTS)
     timings = {}
-    try:
-        for name in selected:
-            t0 = time.perf_counter()
-            print(f"-- {name} --", flush=True)
-            if name == "speed":
-                results[name] = run_speed(args.quick, out)
-            elif name == "accuracy":
-                results[name] = run_accuracy(args.quick, out)
-                weights.update(results[name]["chosen_weights"])
-            elif name == "stability":
-                results[name] = run_stability(args.quick, out, weights)
-            elif name == "erasure":
-                results[name] = run_erasure(args.quick, out, weights)
-            elif name == "volume_speed":
-                results[name] = run_volume_speed(args.quick, out)
-            else:
-                results[name] = run_volume_accuracy(args.quick, out)
-            timings[name] = time.perf_counter() - t0
-            print(f"({name}: {timings[name]:.1f} s)", flush=True)
-    except ReconInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    for name in selected:
+        t0 = time.perf_counter()
+        log.info("-- %s --", name)
+        if name == "speed":
+            results[name] = run_speed(quick, out)
+        elif name == "accuracy":
+            results[name] = run_accuracy(quick, out)
+            weights.update(results[name]["chosen_weights"])
+        elif name == "stability":
+            results[name] = run_stability(quick, out, weights)
+        elif name == "erasure":
+            results[name] = run_erasure(quick, out, weights)
+        elif name == "volume_speed":
+            results[name] = run_volume_speed(quick, out)
+        else:
+            results[name] = run_volume_accuracy(quick, out)
+        timings[name] = time.perf_counter() - t0
+        log.debug("(%s: %.1f s)", name, timings[name])
+        if on_result is not None:
+            on_result(name, results[name], timings[name])
     if "accuracy" in results and "volume_accuracy" in results:
-        from .accuracy import plot_accuracy
-
         plot_accuracy(results["accuracy"], out / "accuracy_psnr_vs_seconds.png",
                       volume=results["volume_accuracy"])
     summary, text = summarise(results)
-    summary.update(quick=args.quick, weights_used=weights, seconds=timings,
+    summary.update(quick=quick, weights_used=weights, seconds=timings,
                    methods=list(METHODS))
     write_json(out / "summary.json", summary)
-    print(text)
-    print(f"results in {out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return summary, text

@@ -103,7 +103,7 @@ def _measure(bin_factor: int, runs: int, iterations: int, wiener_solves: int,
 
 
 def run_speed(quick: bool = False, out: Path | None = None,
-              weights: dict[str, float] | None = None, verbose: bool = True) -> dict:
+              weights: dict[str, float] | None = None) -> dict:
     """Median seconds per iteration and ratio to the FFT floor at bin 4 and bin 2.
 
     Parameters
@@ -115,8 +115,6 @@ def run_speed(quick: bool = False, out: Path | None = None,
     weights : dict, optional
         Per-method weights (only TV on/off matters for the speed); default
         :data:`recon.benchmarks.DEFAULT_WEIGHTS`.
-    verbose : bool
-        Print the table.
 
     Returns
     -------
@@ -130,8 +128,6 @@ def run_speed(quick: bool = False, out: Path | None = None,
     result = {"quick": quick, "goals": GOALS, "references": REFERENCES, "bins": {}}
     for bf, (runs, iters, wsolves) in settings.items():
         result["bins"][str(bf)] = _measure(bf, runs, iters, wsolves, w)
-    if verbose:
-        print(speed_table(result))
     if out is not None:
         write_json(Path(out) / "speed.json", result)
     return result

@@ -125,7 +125,7 @@ def _failure_points(points: list[dict], key: str) -> dict:
 
 
 def run_stability(quick: bool = False, out: Path | None = None,
-                  weights: dict[str, float] | None = None, verbose: bool = True) -> dict:
+                  weights: dict[str, float] | None = None) -> dict:
     """Noise and erasure sweeps with failure points per method.
 
     Parameters
@@ -137,7 +137,6 @@ def run_stability(quick: bool = False, out: Path | None = None,
     weights : dict, optional
         Per-method weights (e.g. ``run_accuracy(...)["chosen_weights"]``); default
         :data:`recon.benchmarks.DEFAULT_WEIGHTS`.
-    verbose : bool
 
     Returns
     -------
@@ -172,8 +171,6 @@ def run_stability(quick: bool = False, out: Path | None = None,
                      "erasure": _failure_points(erasure, "erased")},
         "wall_seconds": time.perf_counter() - t_start,
     }
-    if verbose:
-        print(stability_table(result))
     if out is not None:
         out = Path(out)
         write_json(out / "stability.json", result)

@@ -1,8 +1,6 @@
 """3D speed benchmark: seconds per iteration of 3D FISTA and ADMM over the FFT floor.
 
-Usage::
-
-    python -m recon.benchmarks.volume [--quick] [--out DIR]
+Run with ``diffuserlab benchmark recon --only volume_speed [--quick] [--out DIR]``.
 
 Both methods need ``n_z + 1`` rfft2 and ``n_z + 1`` irfft2 at the padded shape per
 iteration (:func:`recon.volume.operator.fft_floor_seconds` times exactly that); the
@@ -25,14 +23,11 @@ from __future__ import annotations
 import json
 import multiprocessing
 import resource
-import sys
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
-
-from . import benchmark_parser
 
 GOAL = 2.5
 SIZES_FULL = ((256, 256, 16), (512, 512, 64))
@@ -160,8 +155,7 @@ def memory_alone(method: str, rows: int, cols: int, n_z: int, iterations: int = 
     return out
 
 
-def run_volume_speed(quick: bool = False, out: Path | None = None,
-                     verbose: bool = True) -> dict:
+def run_volume_speed(quick: bool = False, out: Path | None = None) -> dict:
     """Speed of fista3d and admm3d against the FFT floor, and their peak memory.
 
     Parameters
@@ -171,8 +165,6 @@ def run_volume_speed(quick: bool = False, out: Path | None = None,
         256 x 256 x 16 and 512 x 512 x 64, 3 runs of 8 iterations.
     out : Path, optional
         Directory for ``volume_speed.json``.
-    verbose : bool
-        Print the table.
 
     Returns
     -------
@@ -188,8 +180,6 @@ def run_volume_speed(quick: bool = False, out: Path | None = None,
     memory = [memory_alone(m, *sizes[-1]) for m in ("admm3d", "fista3d")]
     result = {"quick": quick, "goal": GOAL, "memory_goal_bytes": MEMORY_GOAL_BYTES,
               "sizes": results, "memory": memory}
-    if verbose:
-        print(volume_speed_table(result))
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "volume_speed.json").write_text(json.dumps(result, indent=1))
@@ -214,15 +204,3 @@ def volume_speed_table(result: dict) -> str:
                      f"{result['memory_goal_bytes'] / 1e9:g} GB: "
                      f"{'ok' if m['meets_goal'] else 'EXCEEDED'})")
     return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run :func:`run_volume_speed` from the command line; returns 0."""
-    args = benchmark_parser("python -m recon.benchmarks.volume", __doc__,
-                            "one tiny size (tests)").parse_args(argv)
-    run_volume_speed(args.quick, args.out)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

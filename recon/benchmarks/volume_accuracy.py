@@ -1,8 +1,6 @@
 """3D accuracy: bead localisation and tilted-target PSNR/SSIM against iterations and seconds.
 
-Usage::
-
-    python -m recon.benchmarks.volume_accuracy [--quick] [--out DIR]
+Run with ``diffuserlab benchmark recon --only volume_accuracy [--quick] [--out DIR]``.
 
 On the virtual bench's diffuser (:mod:`recon.benchmarks.volume_scenes`: ray-traced,
 spatially varying rendering on a finer grid with camera noise; reconstruction from
@@ -37,7 +35,7 @@ Writes ``volume_accuracy.json`` and ``volume_accuracy.png``.
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from pathlib import Path
 
@@ -48,8 +46,10 @@ from ..errors import DivergenceError, ReconInputError
 from ..metrics import fit_gain, psnr
 from ..volume import DEFAULT_TV, admm3d, fft_floor_seconds, fista3d
 from ..volume.localize import detect_peaks, match_peaks
-from . import benchmark_parser, fmt, format_table, write_json
+from . import fmt, format_table, write_json
 from .volume_scenes import VolumeBench, VolumeScene, bead_scene, make_bench, tilted_target_scene
+
+log = logging.getLogger(__name__)
 
 FULL = {
     "bench": {"bin_factor": 2, "n_planes": 16, "z_min_mm": 24.0, "z_max_mm": 48.0},
@@ -270,8 +270,7 @@ def conditioning(bench: VolumeBench, k_max: int = 16) -> dict:
 
 
 # ----------------------------------------------------------------------------- the run
-def run_volume_accuracy(quick: bool = False, out: Path | None = None,
-                        verbose: bool = True) -> dict:
+def run_volume_accuracy(quick: bool = False, out: Path | None = None) -> dict:
     """Sweep the weights, trace the curves, time against the FFT floor; write JSON + PNG.
 
     Parameters
@@ -281,8 +280,6 @@ def run_volume_accuracy(quick: bool = False, out: Path | None = None,
         (tests/CI, about 15 s).
     out : Path, optional
         Directory for ``volume_accuracy.json`` and ``volume_accuracy.png``.
-    verbose : bool
-        Print progress and the table.
 
     Returns
     -------
@@ -297,18 +294,14 @@ def run_volume_accuracy(quick: bool = False, out: Path | None = None,
     cfg = QUICK if quick else FULL
     t_start = time.perf_counter()
 
-    def say(text):
-        if verbose:
-            print(text, flush=True)
-
     bench = make_bench(**cfg["bench"])
     op = bench.op
     t0 = time.perf_counter()
     lip = op.lipschitz()
     lip_seconds = time.perf_counter() - t0
-    say(f"3D accuracy: {op.n_z} planes {bench.depths_mm[0]:g}-{bench.depths_mm[-1]:g} mm "
-        f"(uniform in 1/z), grid {op.sensor_shape[0]}x{op.sensor_shape[1]} (bin "
-        f"{bench.bin_factor}), padded {op.padded_shape}")
+    log.info(f"3D accuracy: {op.n_z} planes {bench.depths_mm[0]:g}-{bench.depths_mm[-1]:g} "
+             f"mm (uniform in 1/z), grid {op.sensor_shape[0]}x{op.sensor_shape[1]} (bin "
+             f"{bench.bin_factor}), padded {op.padded_shape}")
     sweep_scenes = _scenes(bench, cfg, 0)
     curve_scenes = _scenes(bench, cfg, 1) if cfg["held_out"] else sweep_scenes
     for name, solver in METHODS3D.items():  # warm-up: JIT caches, FFT plans
@@ -332,7 +325,7 @@ def run_volume_accuracy(quick: bool = False, out: Path | None = None,
             default_cmp[kind][m] = {"default": dflt, "best": best,
                                     "psnr_below_best_db": (best["psnr"] - dflt["psnr"])
                                     if kind == "target" and "psnr" in dflt else None}
-            say(f"  sweep {kind} {m}: best tv {best['tv']:g}, l1 {best['l1']:g}")
+            log.info(f"  sweep {kind} {m}: best tv {best['tv']:g}, l1 {best['l1']:g}")
 
     curves: dict = {k: {} for k in curve_scenes}
     final: dict = {k: {} for k in curve_scenes}
@@ -350,7 +343,7 @@ def run_volume_accuracy(quick: bool = False, out: Path | None = None,
                 volumes[(kind, m)] = vol
             curves[kind][m] = pts
             final[kind][m] = pts[-1]
-            say(f"  curve {kind} {m}: done")
+            log.info(f"  curve {kind} {m}: done")
     baselines = _baselines(bench, curve_scenes["target"])
     speed = {m: {"ratio_median": float(np.median(r)) if r else None,
                  "ratio_range": [float(min(r)), float(max(r))] if r else None,
@@ -377,8 +370,6 @@ def run_volume_accuracy(quick: bool = False, out: Path | None = None,
         "conditioning": conditioning(bench),
         "wall_seconds": time.perf_counter() - t_start,
     }
-    if verbose:
-        print(volume_accuracy_table(result))
     if out is not None:
         from .volume_plots import plot_volume_accuracy
 
@@ -429,19 +420,3 @@ def volume_accuracy_table(result: dict) -> str:
                      f"({c['separation_inverse_mm']:.4f} 1/mm): {c['condition'][0]:.3g} (k = 2) "
                      f"-> {c['condition'][-1]:.3g} (k = {c['ks'][-1]})")
     return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the benchmark; returns 0 (or 2 on input errors)."""
-    args = benchmark_parser("python -m recon.benchmarks.volume_accuracy", __doc__,
-                            "small and short (tests, about 20 s)").parse_args(argv)
-    try:
-        run_volume_accuracy(args.quick, args.out)
-    except ReconInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

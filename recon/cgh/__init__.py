@@ -31,9 +31,9 @@ baselines
     :func:`one_step_hologram` (Eq. 7.11-7.13).
 protocol, evaluation, evaluate
     The pre-registered Table 7.1 protocol, its runner and acceptance rules, and
-    the command line (``python -m recon.cgh.evaluate``).
+    the files of ``diffuserlab holo evaluate`` (:func:`evaluate.run_evaluation`).
 benchmark
-    Full-size speed benchmark (``python -m recon.cgh.benchmark``).
+    Full-size speed benchmark (``diffuserlab holo benchmark``).
 
 Speed (docs/protocols.md, "Hologram speed budget"): complex64/float32 throughout,
 ``scipy.fft`` with all workers and in-place complex FFTs, the upsampling and the

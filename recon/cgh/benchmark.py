@@ -6,18 +6,13 @@ goals in :data:`GOALS`).
 Prints seconds per iteration as a ratio to one complex64 FFT at the grid size
 measured in the same run (median of several), the measured FFTs per iteration,
 the FFT share of the time and the peak memory (Python/numpy allocations traced by
-:mod:`tracemalloc`, and the process' peak RSS)::
-
-    python -m recon.cgh.benchmark            # full size
-    python -m recon.cgh.benchmark --quick    # tiny smoke run
+:mod:`tracemalloc`, and the process' peak RSS); :func:`format_report` gives the
+lines ``diffuserlab holo benchmark [--quick]`` prints.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import resource
-import sys
 import time
 import tracemalloc
 
@@ -30,7 +25,7 @@ from .optimize import optimize_hologram
 from .protocol import load_bundled, prepare_target
 from .scattering_display import ScatteringDisplay
 
-__all__ = ["main", "run_benchmark"]
+__all__ = ["GOALS", "format_report", "goal_seconds", "run_benchmark"]
 
 #: Goals (docs/protocols.md, "Hologram speed budget") for a 960 x 540 SLM, 200 iterations:
 #: (expansion factor, loss) -> seconds per hologram on a 2-core CPU.
@@ -100,50 +95,51 @@ def run_benchmark(slm_shape=(540, 960), k: int = 4, iterations: int = 200,
             "stop_reason": res.stop_reason, "final_loss": res.loss}
 
 
-def main(argv=None) -> int:
-    """Run the benchmark and print the report; returns 0 (2 on bad input)."""
-    p = argparse.ArgumentParser(prog="python -m recon.cgh.benchmark",
-                                description=__doc__.split("\n\n")[0])
-    p.add_argument("--slm", type=int, nargs=2, default=(540, 960), metavar=("ROWS", "COLS"))
-    p.add_argument("--factor", type=int, default=16, help="expansion factor k^2 (16)")
-    p.add_argument("--iterations", type=int, default=200)
-    p.add_argument("--loss", default="frequency", choices=("frequency", "l2", "spatial"))
-    p.add_argument("--fft-repeats", type=int, default=9)
-    p.add_argument("--json", default=None, help="also write the report to this JSON file")
-    p.add_argument("--quick", action="store_true", help="tiny smoke run (36 x 64 SLM, 10 it.)")
-    args = p.parse_args(argv)
-    slm, iters, reps = tuple(args.slm), args.iterations, args.fft_repeats
-    if args.quick:
-        slm, iters, reps = (36, 64), 10, 3
-    k = int(round(args.factor ** 0.5))
-    try:
-        if k * k != args.factor or min(slm) < 1 or iters < 1 or reps < 1:
-            raise ReconInputError("--factor must be a perfect square; --slm, --iterations and "
-                                  "--fft-repeats must be positive")
-        rep = run_benchmark(slm, k, iters, args.loss, reps)
-    except ReconInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    goal = GOALS.get((args.factor, args.loss)) if slm == (540, 960) and iters == 200 else None
-    print(f"grid {rep['grid'][0]} x {rep['grid'][1]} (SLM {slm[0]} x {slm[1]}, {args.factor}x), "
-          f"{rep['loss']} loss, {rep['iterations']} iterations, {rep['workers']} workers")
-    print(f"total {rep['seconds']:.1f} s (setup {rep['setup_seconds']:.1f} s); "
-          f"{rep['seconds_per_iteration']:.3f} s/iteration "
-          f"(median {rep['median_seconds_per_iteration']:.3f})")
-    print(f"one complex64 FFT at the grid: {rep['fft_seconds'] * 1e3:.1f} ms (median of {reps}); "
-          f"s/iteration = {rep['ratio']:.2f} FFTs")
-    print(f"FFTs per iteration (complex equivalents): {rep['ffts_per_iteration']:.2f}; "
-          f"FFT share of the time {100 * rep['fft_share']:.0f} %; backtracks {rep['backtracks']}")
-    print(f"peak memory: {rep['peak_traced_mb']:.0f} MB traced (numpy/Python), "
-          f"{rep['peak_rss_mb']:.0f} MB peak RSS")
+def goal_seconds(factor: int, loss: str, slm_shape, iterations: int) -> float | None:
+    """The goal of :data:`GOALS` for this run, or None (only the full-size 960 x 540,
+    200-iteration runs have one)."""
+    if tuple(slm_shape) != (540, 960) or iterations != 200:
+        return None
+    return GOALS.get((factor, loss))
+
+
+def format_report(rep: dict, factor: int, fft_repeats: int, iterations: int) -> str:
+    """The report of a :func:`run_benchmark` result, one finding per line.
+
+    Parameters
+    ----------
+    rep : dict
+        From :func:`run_benchmark`.
+    factor : int
+        Expansion factor ``k^2`` of the run.
+    fft_repeats : int
+        FFT timings the median was taken over.
+    iterations : int
+        Iterations asked for (the optimiser may stop earlier).
+
+    Returns
+    -------
+    str
+        Grid and settings, total and per-iteration seconds, the FFT floor and the
+        ratio, FFTs per iteration and their share, peak memory and, for a full-size
+        run with a goal (:func:`goal_seconds`), whether it meets it.
+    """
+    slm, loss = rep["slm_shape"], rep["loss"]
+    lines = [
+        f"grid {rep['grid'][0]} x {rep['grid'][1]} (SLM {slm[0]} x {slm[1]}, {factor}x), "
+        f"{loss} loss, {rep['iterations']} iterations, {rep['workers']} workers",
+        f"total {rep['seconds']:.1f} s (setup {rep['setup_seconds']:.1f} s); "
+        f"{rep['seconds_per_iteration']:.3f} s/iteration "
+        f"(median {rep['median_seconds_per_iteration']:.3f})",
+        f"one complex64 FFT at the grid: {rep['fft_seconds'] * 1e3:.1f} ms (median of "
+        f"{fft_repeats}); s/iteration = {rep['ratio']:.2f} FFTs",
+        f"FFTs per iteration (complex equivalents): {rep['ffts_per_iteration']:.2f}; "
+        f"FFT share of the time {100 * rep['fft_share']:.0f} %; backtracks {rep['backtracks']}",
+        f"peak memory: {rep['peak_traced_mb']:.0f} MB traced (numpy/Python), "
+        f"{rep['peak_rss_mb']:.0f} MB peak RSS",
+    ]
+    goal = goal_seconds(factor, loss, slm, iterations)
     if goal is not None:
         verdict = "meets" if rep["seconds"] <= goal else "misses"
-        print(f"goal <= {goal:.0f} s per hologram ({args.factor}x, {args.loss}): {verdict}")
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rep, fh, indent=1)
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+        lines.append(f"goal <= {goal:.0f} s per hologram ({factor}x, {loss}): {verdict}")
+    return "\n".join(lines)

@@ -1,32 +1,29 @@
-"""Command-line evaluation reproducing Table 7.1 (wired as ``diffuserlab holo evaluate``).
+"""The evaluation reproducing Table 7.1, with its files (``diffuserlab holo evaluate``).
 
-Usage (N = 480 is the benchmark, N = 240 the test-suite variant)::
+:func:`run_evaluation` evaluates the images and writes ``records.csv`` (one row per
+image, factor, method, seed), ``summary.json`` (means, spreads, acceptance rules,
+settings), ``table.md`` (ours next to the dissertation's, :func:`format_table`) and
+``psnr_vs_seconds.png`` (:func:`plot_psnr_vs_seconds`). The command line (N = 480 is
+the benchmark, N = 240 the test-suite variant)::
 
-    python -m recon.cgh.evaluate --size 480 --factors 4,16,36 --seeds 0,1,2 \
-        --out holo_eval
-    python -m recon.cgh.evaluate --images my_photos/ --size 240 --out eval_mine
-
-Writes ``records.csv`` (one row per image, factor, method, seed), ``summary.json``
-(means, spreads, acceptance rules, settings), ``table.md`` (ours next to the
-dissertation's) and ``psnr_vs_seconds.png`` to ``--out``, and prints the table.
+    diffuserlab holo evaluate --size 480 --factors 4,16,36 --seeds 0,1,2 --out holo_eval
+    diffuserlab holo evaluate --images my_photos/ --size 240 --out eval_mine
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
-import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ReconInputError
 from .evaluation import LABELS, METHODS, TABLE_7_1, acceptance, evaluate_images, summarise
-from .protocol import BUNDLED_IMAGES, load_bundled, load_folder
 
-__all__ = ["format_table", "main", "plot_psnr_vs_seconds"]
+__all__ = ["HONESTY", "format_table", "plot_psnr_vs_seconds", "run_evaluation"]
 
 HONESTY = (
     "Notes: the images are scikit-image's bundled photographs, not the dissertation's 40; "
@@ -130,16 +127,6 @@ def plot_psnr_vs_seconds(records, path) -> None:
     plt.close(fig)
 
 
-def _ints(text: str, what: str) -> tuple[int, ...]:
-    try:
-        vals = tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise ReconInputError(f"{what} must be comma-separated integers, got {text!r}") from None
-    if not vals:
-        raise ReconInputError(f"{what} is empty")
-    return vals
-
-
 def _jsonable(summary, rules, settings) -> dict:
     cells = [{"factor": f, "method": m, "region": reg, **{k: v for k, v in c.items()
                                                           if k != "seed_psnr"},
@@ -149,61 +136,50 @@ def _jsonable(summary, rules, settings) -> dict:
     return {"settings": settings, "cells": cells, "acceptance": rules}
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="diffuserlab holo evaluate", description=__doc__.split(
-        "\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--size", type=int, default=480, help="target grid N (default 480)")
-    p.add_argument("--factors", default="4,16,36", help="expansion factors (default 4,16,36)")
-    p.add_argument("--seeds", default="0,1,2", help="mask seeds (default 0,1,2)")
-    p.add_argument("--iterations", type=int, default=200, help="optimiser iterations (200)")
-    p.add_argument("--methods", default=",".join(METHODS),
-                   help="comma-separated from one-step,l2,frequency,spatial,no-mask")
-    p.add_argument("--images", default=None,
-                   help="folder of PNG/JPEG/TIFF/.npy images (default: the 10 bundled photos)")
-    p.add_argument("--out", default="holo_eval", help="output folder (default holo_eval)")
-    p.add_argument("--quick", action="store_true",
-                   help="smoke run: N = 48, 3 images, factors 4,16, seed 0, 15 iterations")
-    p.add_argument("--strict", action="store_true", help="exit 1 when a rule fails")
-    return p
+def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: int,
+                   factors: tuple[int, ...], seeds: tuple[int, ...], iterations: int,
+                   methods: tuple[str, ...], source: str,
+                   progress: Callable[[int, int, dict], None] | None = None) -> dict:
+    """Evaluate the images and write the four files of the module docstring to ``out``.
 
+    Parameters
+    ----------
+    images : list of (str, ndarray)
+        Named images (:func:`.protocol.load_bundled` / :func:`.protocol.load_folder`).
+    out : str or Path
+        Output folder (created).
+    size, factors, seeds, iterations, methods
+        Passed to :func:`.evaluation.evaluate_images` (target grid N, expansion
+        factors, mask seeds, optimiser iterations, methods).
+    source : str
+        Where the images came from, recorded in the settings.
+    progress : callable, optional
+        ``progress(done, total, record)`` after each hologram.
 
-def main(argv=None) -> int:
-    """Run the evaluation; returns the exit status (0 ok, 1 a rule failed with
-    ``--strict``, 2 bad input)."""
-    args = _parser().parse_args(argv)
-    try:
-        size, factors, seeds, iters = args.size, _ints(args.factors, "--factors"), \
-            _ints(args.seeds, "--seeds"), args.iterations
-        methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-        if args.images:
-            images = load_folder(args.images)
-        else:
-            images = [(name, load_bundled(name)) for name, _ in BUNDLED_IMAGES]
-        if args.quick:
-            size, factors, seeds, iters, images = 48, (4, 16), (0,), 15, images[:3]
-        if size < 8 or iters < 1:
-            raise ReconInputError("--size must be >= 8 and --iterations >= 1")
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        t0 = time.perf_counter()
+    Returns
+    -------
+    dict
+        ``records``, ``summary``, ``rules`` (acceptance), ``settings`` (with
+        ``wall_seconds``), ``table`` (the Markdown of ``table.md``) and ``files``.
 
-        def progress(done, total, rec):
-            print(f"[{done}/{total}] {rec['factor']}x seed {rec['seed']} {rec['image']:>18} "
-                  f"{rec['method']:>9}: {rec['psnr_full']:6.2f} dB {rec['ssim_full']:.3f} "
-                  f"({rec['seconds']:.2f} s)", file=sys.stderr, flush=True)
-
-        records = evaluate_images(images, size, factors, methods, seeds, iters,
-                                  progress=progress)
-    except ReconInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    Raises
+    ------
+    ReconInputError
+        ``size < 8``, ``iterations < 1`` or a grid the factors do not divide.
+    """
+    if size < 8 or iterations < 1:
+        raise ReconInputError("--size must be >= 8 and --iterations >= 1")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    records = evaluate_images(images, size, factors, methods, seeds, iterations,
+                              progress=progress)
     summary = summarise(records)
     rules = acceptance(summary, records)
     settings = {"size": size, "factors": list(factors), "seeds": list(seeds),
-                "iterations": iters, "methods": list(methods),
+                "iterations": iterations, "methods": list(methods),
                 "images": [n for n, _ in images], "n_images": len(images),
-                "source": args.images or "skimage bundled (A10)",
-                "wall_seconds": time.perf_counter() - t0}
+                "source": source, "wall_seconds": time.perf_counter() - t0}
     fields = [k for k in records[0] if k != "curve"]
     with open(out / "records.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
@@ -213,11 +189,7 @@ def main(argv=None) -> int:
     table = format_table(summary, rules, settings)
     (out / "table.md").write_text(table)
     plot_psnr_vs_seconds(records, out / "psnr_vs_seconds.png")
-    print(table)
-    print(f"wrote {out}/records.csv, summary.json, table.md, psnr_vs_seconds.png "
-          f"({settings['wall_seconds']:.0f} s)")
-    return 1 if args.strict and any(r["passed"] is False for r in rules) else 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    files = [out / n for n in ("records.csv", "summary.json", "table.md",
+                               "psnr_vs_seconds.png")]
+    return {"records": records, "summary": summary, "rules": rules, "settings": settings,
+            "table": table, "files": files}

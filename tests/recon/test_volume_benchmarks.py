@@ -19,7 +19,6 @@ from scipy.signal import fftconvolve
 from recon.benchmarks.volume_accuracy import (
     METHODS3D,
     RECON3D_DEFAULT,
-    main,
     run_volume_accuracy,
     volume_psnr,
     volume_ssim,
@@ -93,7 +92,7 @@ def test_volume_metrics():
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     out = tmp_path_factory.mktemp("volume_accuracy")
-    return run_volume_accuracy(quick=True, out=out, verbose=False), out
+    return run_volume_accuracy(quick=True, out=out), out
 
 
 def test_every_bead_within_one_plane_at_the_end(quick):
@@ -140,9 +139,3 @@ def test_sweep_speed_conditioning_and_files(quick):
     data = json.loads((out / "volume_accuracy.json").read_text())
     assert data["setup"]["ffts_per_iteration"] == {"rfft2": 9, "irfft2": 9}
     assert (out / "volume_accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def test_main_refuses_unknown_options(capsys):
-    with pytest.raises(SystemExit):
-        main(["--bogus"])
-    capsys.readouterr()

@@ -1,5 +1,6 @@
 """Table 7.1 protocol (docs/protocols.md, "Table 7.1"): images, preprocessing,
-metrics, the command-line tools, and the N = 240 test-suite run of the evaluation.
+metrics, and the N = 240 test-suite run of the evaluation (the command lines:
+tests/instrument/cli/test_holo.py).
 
 The N = 240 run covers the full grid (10 images x 3 factors x 4 methods) for mask
 seed 0, and the seed-stability rule on mask seeds 0-2 for one-step, L2 and
@@ -10,13 +11,11 @@ seeds).
 
 from __future__ import annotations
 
-import json
 import socket
 
 import numpy as np
 import pytest
 
-from recon.cgh import benchmark, evaluate
 from recon.cgh.evaluation import (
     METHODS,
     TABLE_7_1,
@@ -113,36 +112,6 @@ def test_folder_of_png_jpeg_tiff_npy(tmp_path):
         load_folder(empty)
     with pytest.raises(ReconInputError, match="not a folder"):
         load_folder(tmp_path / "a.png")
-
-
-def test_evaluate_cli_quick_on_a_folder(tmp_path):
-    rng = np.random.default_rng(1)
-    imgs = tmp_path / "imgs"
-    imgs.mkdir()
-    for i in range(2):
-        np.save(imgs / f"im{i}.npy", rng.random((30, 40)))
-    out = tmp_path / "out"
-    assert evaluate.main(["--quick", "--images", str(imgs), "--out", str(out)]) == 0
-    for f in ("records.csv", "summary.json", "table.md", "psnr_vs_seconds.png"):
-        assert (out / f).stat().st_size > 0
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["settings"]["n_images"] == 2
-    assert {c["method"] for c in summary["cells"]} == set(METHODS)
-    assert "Table 7.1" in (out / "table.md").read_text()
-    assert evaluate.main(["--images", str(tmp_path / "nope"), "--out", str(out)]) == 2
-    assert evaluate.main(["--size", "100", "--factors", "36", "--images", str(imgs),
-                          "--out", str(out)]) == 2  # 100 is not divisible by 6
-
-
-def test_benchmark_quick(tmp_path, capsys):
-    js = tmp_path / "bench.json"
-    assert benchmark.main(["--quick", "--json", str(js)]) == 0
-    rep = json.loads(js.read_text())
-    assert rep["grid"] == [144, 256] and rep["iterations"] == 10
-    assert 3.5 <= rep["ffts_per_iteration"] < 5.0
-    assert rep["ratio"] > 0 and rep["peak_traced_mb"] > 0
-    assert "s/iteration =" in capsys.readouterr().out
-    assert benchmark.main(["--quick", "--factor", "15"]) == 2
 
 
 def test_factor_to_k():

@@ -18,7 +18,7 @@ from instrument.runstore import RunStore
 from instrument.stacks import load_psf_stack
 from instrument.virtual_bench import PlanarScene, VirtualBench
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 BENCH = str(ROOT / "examples" / "bench-simulated.toml")
 
 

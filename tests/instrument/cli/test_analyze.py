@@ -1,4 +1,4 @@
-"""Tests of ``diffuserlab analyze`` (instrument.analysis_cli) on a small synthetic stack.
+"""Tests of ``diffuserlab analyze`` (instrument.cli.analyze) on a small synthetic stack.
 
 The stack is a random caustic-like pattern (thresholded smoothed noise in a round
 aperture) magnified by (1 + d/z) / (1 + d/z_far) per depth with scipy.ndimage.zoom
@@ -8,7 +8,6 @@ through a parser built here with the module's add_subcommands.
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
@@ -16,7 +15,7 @@ import pytest
 import tifffile
 from scipy import ndimage
 
-from instrument import analysis_cli
+from instrument.cli import main
 
 N = 64
 D_MM = 5.0
@@ -51,17 +50,10 @@ def stack_file(tmp_path_factory):
     return path
 
 
-def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="diffuserlab")
-    sub = p.add_subparsers(dest="command", required=True)
-    analysis_cli.add_subcommands(sub)
-    return p
-
-
 def analyze(kind: str, stack, out, *extra) -> int:
     argv = ["analyze", kind, "--psf-stack", str(stack), "--pitch-um", str(PITCH_UM),
             "--d-mm", str(D_MM), "--out", str(out), *map(str, extra)]
-    return analysis_cli.run(parser().parse_args(argv))
+    return main(argv)
 
 
 def outputs(out, kind: str) -> dict:
@@ -214,7 +206,7 @@ def test_bad_input_exits_2_with_one_line(stack_file, tmp_path, capsys, kind, ext
     extra = [str(stack_file.parent / "stack.npy") if e == "NPY" else e for e in extra]
     argv = ["analyze", kind, "--psf-stack", str(stack_file), "--pitch-um", str(PITCH_UM),
             "--d-mm", str(D_MM), "--out", str(tmp_path), *extra]
-    assert analysis_cli.run(parser().parse_args(argv)) == 2
+    assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("diffuserlab: error:") and err.count("\n") == 1
     assert message in err

@@ -1,7 +1,8 @@
 """The bench subcommands of ``diffuserlab``: ``validate`` and ``devices``.
 
-``diffuserlab validate BENCH.toml [--simulate]``
-    Check a bench file, constructing (not opening) every device so that parameter
+``diffuserlab validate [BENCH.toml] [--simulate]``
+    Check a bench file (with ``--simulate`` and no file: the built-in simulated
+    bench), constructing (not opening) every device so that parameter
     values a driver refuses are reported too. Prints ``ok: N devices ...`` (exit 0),
     or every problem on its own line,
     ``diffuserlab: error: FILE:LINE: LOCATION: MESSAGE; fix: FIX`` (exit 2). With
@@ -20,14 +21,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections import Counter
 from typing import Any
 
-from instrument.bench_setup import load_bench, simulated_twin
-from instrument.config import BenchConfig, BenchConfigError, default_bench
+from ..bench_setup import load_bench, simulated_twin
+from ..config import BenchConfig, BenchConfigError
+from .common import bench_config, bench_label, error
 
-__all__ = ["add_subcommands", "run"]
+__all__ = ["add_subcommands", "run_devices", "run_validate"]
 
 _PLURAL = {"camera": "cameras", "stage": "stages", "led_array": "led_arrays", "slm": "slms"}
 
@@ -39,13 +40,16 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         help="check a bench TOML file (every problem with its location and fix)",
         description="Check a bench TOML file; exit 2 listing every problem.",
     )
-    vp.add_argument("bench", help="bench TOML file (see examples/bench-*.toml)")
+    vp.add_argument("bench", nargs="?", default=None,
+                    help="bench TOML file (see examples/bench-*.toml; with --simulate "
+                    "default: the built-in simulated bench)")
     vp.add_argument(
         "--simulate",
         action="store_true",
         help="check with every device swapped for its simulated twin "
         "(a lab file on a machine without the hardware drivers)",
     )
+    vp.set_defaults(handler=run_validate)
     dp = sub.add_parser(
         "devices",
         help="open every device of a bench and print its kind, driver and status",
@@ -63,24 +67,22 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         dest="timeout_s",
         help="seconds each device may take to open (default 10)",
     )
+    dp.set_defaults(handler=run_devices)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run ``validate`` or ``devices``; returns the exit status."""
-    if args.command == "validate":
-        return _validate(args.bench, simulate=args.simulate)
-    if args.command == "devices":
-        return _devices(args.bench, simulate=args.simulate, timeout_s=args.timeout_s)
-    raise ValueError(f"not a bench subcommand: {args.command!r}")
+def run_validate(args: argparse.Namespace) -> int:
+    """Run ``validate``; returns the exit status (module docstring)."""
+    return _validate(args.bench, simulate=args.simulate)
 
 
-def _error(line: str) -> None:
-    print(f"diffuserlab: error: {line}", file=sys.stderr)
+def run_devices(args: argparse.Namespace) -> int:
+    """Run ``devices``; returns the exit status (module docstring)."""
+    return _devices(args.bench, simulate=args.simulate, timeout_s=args.timeout_s)
 
 
 def _report(exc: BenchConfigError) -> int:
     for line in exc.lines():
-        _error(line)
+        error(line)
     return 2
 
 
@@ -96,18 +98,20 @@ def _summary(config: BenchConfig) -> str:
     )
 
 
-def _load(path: str, simulate: bool) -> tuple[BenchConfig, BenchConfig]:
-    """(as written, as it will be driven); raises BenchConfigError."""
-    driven = load_bench(path, simulate=simulate, construct=True)
-    return (load_bench(path, check_drivers=False) if simulate else driven), driven
+def _load(path: str | None, simulate: bool,
+          command: str) -> tuple[BenchConfig, BenchConfig]:
+    """(as written, as it will be driven); raises BenchConfigError or MissingBenchFile."""
+    driven = bench_config(path, simulate=simulate, command=command, construct=True)
+    written = load_bench(path, check_drivers=False) if simulate and path else driven
+    return written, driven
 
 
-def _validate(path: str, *, simulate: bool) -> int:
+def _validate(path: str | None, *, simulate: bool) -> int:
     try:
-        config, driven = _load(path, simulate)
+        config, driven = _load(path, simulate, "validate")
     except BenchConfigError as exc:
         return _report(exc)
-    print(f"ok: {_summary(config)} in {path}")
+    print(f"ok: {_summary(config)} in {bench_label(path)}")
     if simulate:
         for orig in config.devices:
             twin, dropped = simulated_twin(orig, config.geometry)
@@ -133,24 +137,24 @@ def _status_text(status: dict[str, Any]) -> str:
 
 
 def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
-    from instrument.bench_setup import BenchOpenError, open_bench
-    from instrument.registry import RegistryError
+    from ..bench_setup import BenchOpenError, open_bench
+    from ..registry import RegistryError
 
     if not (timeout_s > 0):
-        _error(f"--timeout must be a positive number of seconds, got {timeout_s}")
+        error(f"--timeout must be a positive number of seconds, got {timeout_s}")
         return 2
-    try:
-        config, driven = _load(path, simulate) if path else (default_bench(),) * 2
+    try:  # without a file: the built-in simulated bench, --simulate or not
+        config, driven = _load(path, simulate or path is None, "devices")
     except BenchConfigError as exc:
         return _report(exc)
-    source = path or "built-in simulated bench"
+    source = bench_label(path)
     try:
         bench = open_bench(driven, timeout_s=timeout_s)
     except RegistryError as exc:
-        _error(str(exc))
+        error(str(exc))
         return 2
     except BenchOpenError as exc:
-        _error(str(exc))
+        error(str(exc))
         return 1
     failed = 0
     with bench:

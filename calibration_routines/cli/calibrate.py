@@ -3,7 +3,8 @@
 Registered with the ``diffuserlab`` command through the entry-point group
 ``diffuserlab.commands`` (so the instrument layer never imports this one). Each
 routine opens the bench (``--simulate``: the virtual bench, which carries out the
-operator's actions itself; otherwise the real devices, and the operator is asked
+operator's actions itself, built from the bench file or, without one, from the
+built-in simulated bench; otherwise the real devices, and the operator is asked
 at each prompt), runs the plan into a run store with a progress bar and ETA, and
 prints the result. Ctrl-C aborts cleanly (LEDs off, stages stopped, data kept) and
 prints the command that resumes the run; exit status 0 done, 1 failed, 2 bad
@@ -23,6 +24,8 @@ import logging
 import sys
 from pathlib import Path
 
+from .common import add_bench_arguments, make_bench
+
 __all__ = ["add_subcommands", "run"]
 
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
@@ -31,10 +34,7 @@ ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
 def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
     if resume:
         p.add_argument("run", help="the run store to continue (RUN.zarr)")
-    p.add_argument("bench", help="bench TOML file (e.g. examples/bench-simulated.toml)")
-    p.add_argument("--simulate", action="store_true",
-                   help="run on the virtual bench built from the file (no hardware)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
+    add_bench_arguments(p)
     p.add_argument("--reconnect-timeout", type=float, default=30.0, dest="reconnect_timeout_s",
                    help="seconds to keep reconnecting a device that disconnected (default 30)")
     if not resume:
@@ -104,38 +104,18 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     cp.set_defaults(handler=run)
 
 
-def _ask(action: str, message: str) -> bool:
-    print(f"\n>>> {message}")
-    try:
-        answer = input("    press Enter when done, or type 'no' to stop: ")
-    except EOFError:
-        return False
-    return answer.strip().lower() not in ("no", "n", "q")
-
-
-def _open_bench(args):
-    from instrument.bench import Bench
-    from instrument.bench_setup import load_bench
-    from instrument.virtual_bench import VirtualBench
-
-    config = load_bench(args.bench, simulate=args.simulate)
-    if args.simulate:
-        return VirtualBench(config, seed=args.seed).open()
-    return Bench.open(config, on_prompt=_ask)
-
-
 def _plan(args, bench):
     frames = {} if args.frames is None else {"frames_per_point": args.frames}
     given = {k: v for k, v in vars(args).items() if v is not None}
     if args.routine == "dark":
-        from .dark_flat import DarkFlatPlan
+        from ..dark_flat import DarkFlatPlan
 
         params = {} if args.frames is None else {"n_frames": args.frames}
         if args.exposure_s is not None:
             params["exposure_s"] = args.exposure_s
         return DarkFlatPlan.for_bench(bench, **params)
     if args.routine == "psf-sweep":
-        from .psf_sweep import PsfSweepPlan, probe_inverse_depth_step
+        from ..psf_sweep import PsfSweepPlan, probe_inverse_depth_step
 
         cal = bench.config.calibration
         z_min = given.get("z_min", cal.z_range_mm[0])
@@ -153,7 +133,7 @@ def _plan(args, bench):
             params["n_depths"] = args.n_depths
         return PsfSweepPlan.for_bench(bench, **params)
     if args.routine == "psf-grid":
-        from .psf_grid import PsfGridPlan
+        from ..psf_grid import PsfGridPlan
 
         sigma = args.falloff_sigma_deg
         if args.falloff_run:
@@ -165,13 +145,13 @@ def _plan(args, bench):
                                      z_mm=args.z_mm, led_step=args.led_step,
                                      falloff_sigma_deg=sigma, **frames)
     if args.routine == "slm-lut":
-        from .slm_lut import SlmLutPlan
+        from ..slm_lut import SlmLutPlan
 
         params = {k: given[k] for k in ("n_levels", "period_px") if k in given}
         if args.frames is not None:
             params["frames_per_point"] = args.frames
         return SlmLutPlan.for_bench(bench, attenuate=not args.no_nd_filter, **params)
-    from .angular_response import AngularResponsePlan
+    from ..angular_response import AngularResponsePlan
 
     params = {k: given[k] for k in ("z_mm", "max_angle_deg", "n_angles", "beta_deg")
               if k in given}
@@ -199,7 +179,7 @@ def _apply_lut(bench, plan, path) -> bool:
     (reason on stderr) if a device failed."""
     from drivers.errors import DeviceError
 
-    from .slm_lut_io import apply_lut, blazed_efficiency, load_lut
+    from ..slm_lut_io import apply_lut, blazed_efficiency, load_lut
 
     lut = load_lut(path)
     try:
@@ -222,17 +202,23 @@ def run(args: argparse.Namespace) -> int:
     """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
     import calibration_routines  # noqa: F401  (registers the plans for resume)
     from drivers.errors import DeviceError
+    from instrument.cli.common import MissingBenchFile
+    from instrument.cli.runs import format_summary
     from instrument.config import BenchConfigError
     from instrument.plan import PlanError
     from instrument.runner import Runner
-    from instrument.runs_cli import format_summary
     from instrument.runstore import RunStore, RunStoreError
 
     if not getattr(args, "verbose", False):  # device chatter would break the progress bar
         logging.getLogger("drivers").setLevel(logging.WARNING)
         logging.getLogger("instrument").setLevel(logging.WARNING)
     try:
-        bench = _open_bench(args)
+        bench = make_bench(args, f"calibrate {args.routine}")
+        if args.simulate:
+            bench.open()
+    except MissingBenchFile as exc:
+        print(f"diffuserlab: error: {exc}", file=sys.stderr)
+        return 2
     except BenchConfigError as exc:
         for line in exc.lines():
             print(f"diffuserlab: error: {line}", file=sys.stderr)
@@ -267,8 +253,9 @@ def run(args: argparse.Namespace) -> int:
         return 0 if applied else 1
     for action in result.pending_actions:
         print(f"not resuming? then first: {action}", file=sys.stderr)
+    bench_arg = "" if args.bench is None else f" {args.bench}"
     sim = " --simulate" if args.simulate else ""
     print(f"\n{result.status} at point {result.points_done + 1} of {result.points_total}: "
           f"{result.error}\nthe data so far is kept; resume with:\n  diffuserlab calibrate "
-          f"resume {result.path} {args.bench}{sim}", file=sys.stderr)
+          f"resume {result.path}{bench_arg}{sim}", file=sys.stderr)
     return 130 if result.status == "aborted" else 1

@@ -1,4 +1,4 @@
-"""``diffuserlab align mask BENCH.toml [--simulate]``: SLM-mask alignment with spot feedback.
+"""``diffuserlab align mask [BENCH.toml] [--simulate]``: SLM-mask alignment with spot feedback.
 
 Registered through the entry-point group ``diffuserlab.commands``. Prints progress
 per step, writes the alignment record (``--out``, default
@@ -7,7 +7,8 @@ section passed the verification, 1 when it failed or completed with sections bel
 the verification bound (the record says which), 2 on bad input and 130 when
 interrupted (Ctrl-C aborts between readings; the record keeps what was measured).
 
-With ``--simulate`` the virtual bench is given a known misalignment (the
+With ``--simulate`` (and the bench file, or without one the built-in simulated
+bench) the virtual bench is given a known misalignment (the
 ``--sim-*`` options; default 5.3 / -3.6 mask px, 2 mrad and 0.08 mm of defocus;
 ``--sim-distortion-px 1`` adds a quadratic distortion the 3 x 5 integer sections can
 only partly follow; ``--sim-tip-mrad`` / ``--sim-tilt-mrad`` tilt the mount) and the
@@ -23,6 +24,8 @@ import math
 import sys
 from pathlib import Path
 
+from .common import add_bench_arguments, make_bench
+
 __all__ = ["add_subcommands", "run"]
 
 
@@ -31,9 +34,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ap = sub.add_parser("align", help="alignment routines (SLM mask with spot feedback)")
     asub = ap.add_subparsers(dest="routine", required=True)
     mp = asub.add_parser("mask", help="align the holography mask to the SLM (Sec. 7.4)")
-    mp.add_argument("bench", help="bench TOML file (e.g. examples/bench-simulated.toml)")
-    mp.add_argument("--simulate", action="store_true", help="run on the virtual bench")
-    mp.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
+    add_bench_arguments(mp)
     mp.add_argument("--out", default=None, help="record directory to create (default "
                     "out/align/mask-TIME.align)")
     mp.add_argument("--mask-seed", type=int, default=None,
@@ -90,24 +91,21 @@ def _truth(args):
 def run(args: argparse.Namespace) -> int:
     """Run ``align mask``; returns the exit status."""
     from drivers.errors import DeviceError
-    from instrument.bench import Bench
-    from instrument.bench_setup import load_bench
+    from instrument.cli.common import MissingBenchFile
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl
-    from instrument.virtual_bench import VirtualBench
     from recon.errors import ReconInputError
     from recon.optics.holo_display import MaskModel
 
     from ..holo_bench import holography_branch
+    from ..mask_alignment.procedure import AlignmentConfig, MaskAligner
+    from ..mask_alignment.record import AlignmentRecord
     from ..slm_lut_io import apply_lut
-    from .procedure import AlignmentConfig, MaskAligner
-    from .record import AlignmentRecord
 
     logging.basicConfig(level=logging.WARNING)
     out = Path(args.out or Path("out/align") / (
         f"mask-{_dt.datetime.now():%Y%m%d-%H%M%S}.align"))
     try:
-        config = load_bench(args.bench, simulate=args.simulate)
         if not args.simulate and args.mask_seed is None and args.mask_pattern is None:
             raise PlanError("on a real bench, pass --mask-pattern FILE.npy or --mask-seed "
                             "(the installed mask's pattern)")
@@ -116,8 +114,7 @@ def run(args: argparse.Namespace) -> int:
             import numpy as np
 
             pattern = np.load(args.mask_pattern, allow_pickle=False)
-        bench = (VirtualBench(config, seed=args.seed) if args.simulate
-                 else Bench.open(config, on_prompt=_ask))
+        bench = make_bench(args, "align mask")
         relay_na = args.relay_na
         if relay_na is None and args.simulate:
             relay_na = bench.relay_na
@@ -126,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
                               relay_na=relay_na, focus_range_mm=args.focus_range_mm)
         if args.simulate:
             bench.open()
-    except (OSError, ValueError, PlanError, DeviceError, ReconInputError) as exc:
+    except (OSError, ValueError, PlanError, DeviceError, ReconInputError,
+            MissingBenchFile) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     control = RunControl()
@@ -187,7 +185,3 @@ def run(args: argparse.Namespace) -> int:
     print(f"corrected mask: {out / 'corrected_mask.npy'}")
     return 0 if v["passed"] else 1
 
-
-def _ask(action: str, message: str) -> bool:
-    reply = input(f"{message} - done? [y/N] ")
-    return reply.strip().lower() in ("y", "yes")

@@ -2,8 +2,10 @@
 
 Each analysis reads a PSF stack (a run store, a TIFF stack with its depths or a
 TIFF / ``.npy`` stack with ``--depths``; sorted by depth), runs the
-:mod:`recon.analysis` functions of G. Kuo's dissertation (2020) on it and writes
-``OUT/<analysis>.png`` (a plot) and ``OUT/<analysis>.json`` (the numbers):
+:mod:`recon.analysis` functions of G. Kuo's dissertation (2020) on it (the per-stack
+numbers are :mod:`recon.analysis.reports`, callable from a notebook; the plots are
+drawn here) and writes ``OUT/<analysis>.png`` (a plot) and ``OUT/<analysis>.json``
+(the numbers):
 
 * ``resolution``: per depth, the 70 % autocorrelation half width (Sec. 3.2) in
   sensor pixels and in object space (m = d/z), the 0.8 inner-product shift and
@@ -34,12 +36,13 @@ import argparse
 import json
 import logging
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from drivers.base import jsonable
+
+from .common import floats
 
 __all__ = ["ANALYSES", "add_subcommands", "run", "run_analysis"]
 
@@ -131,20 +134,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     fp.add_argument("--support-energy", type=float, default=0.99,
                     help="PSF width = extent holding this central fraction of its energy "
                     "along each axis (default 0.99)")
-    ap.set_defaults(handler=run)
+    ap.set_defaults(handler=run, input_errors=(ValueError, OSError))
 
 
 # ----------------------------------------------------------------------------- input
-
-
-def _floats(text: str, option: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError as exc:
-        raise ValueError(f"{option} {text!r} is not a comma-separated list of numbers") from exc
-    if not values or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{option} {text!r} needs finite numbers")
-    return values
 
 
 def _need(args: argparse.Namespace, *names: str) -> None:
@@ -158,20 +151,15 @@ def _need(args: argparse.Namespace, *names: str) -> None:
 
 def _load(args: argparse.Namespace) -> tuple[np.ndarray, np.ndarray, dict]:
     """The stack sorted by depth (binned, background removed if asked), depths, header."""
-    from recon.analysis import remove_background_dct
-    from recon.volume import bin_stack
+    from recon.analysis import prepare_stack
 
-    from .stacks import load_psf_stack
+    from ..stacks import load_psf_stack
 
-    depths = None if args.depths is None else _floats(args.depths, "--depths")
+    depths = None if args.depths is None else floats(args.depths, "--depths")
     stack, z, _ = load_psf_stack(args.psf_stack, depths, product=args.psf_product)
     shape_in = list(stack.shape)
-    order = np.argsort(z, kind="stable")
-    stack, z = stack[order], np.asarray(z, np.float64)[order]
-    if args.bin_factor != 1:
-        stack = bin_stack(stack, args.bin_factor)
-    if args.remove_background:
-        stack = remove_background_dct(stack, args.remove_background).astype(np.float32)
+    stack, z = prepare_stack(stack, z, bin_factor=args.bin_factor,
+                             remove_background=args.remove_background)
     pitch_um = None if args.pitch_um is None else args.pitch_um * args.bin_factor
     header = {"analysis": args.analysis, "psf_stack": str(args.psf_stack),
               "psf_product": args.psf_product, "stack_shape_in": shape_in,
@@ -179,22 +167,6 @@ def _load(args: argparse.Namespace) -> tuple[np.ndarray, np.ndarray, dict]:
               "remove_background_dct": args.remove_background, "depths_mm": z,
               "pitch_um": pitch_um, "d_mm": args.d_mm, "threshold": args.threshold}
     return stack, z, header
-
-
-def _try(warnings: list[str], what: str, func, *a, **kw):
-    """``func(*a, **kw)``, or None with a warning when the analysis refuses the PSF."""
-    from recon.errors import ReconInputError
-
-    try:
-        return func(*a, **kw)
-    except ReconInputError as exc:
-        warnings.append(f"{what}: {exc}")
-        return None
-
-
-def _xy(res) -> dict | None:
-    """``{"x": ..., "y": ...}`` of a :class:`recon.analysis.LateralResolution` (or None)."""
-    return None if res is None else {"x": res.x_px, "y": res.y_px}
 
 
 def _figure(n_panels: int):
@@ -211,54 +183,12 @@ def _figure(n_panels: int):
 
 
 def _resolution(args, stack, z, header) -> tuple[dict, object, list[str]]:
-    from recon.analysis import (
-        autocorrelation,
-        axial_inner_product_scale,
-        depth_of_field_mm,
-        hyperfocal_distance_mm,
-        lateral_inner_product_resolution_px,
-        lateral_resolution_deg,
-        lateral_resolution_object_mm,
-        lateral_resolution_px,
-    )
+    from recon.analysis import autocorrelation, resolution_per_depth
 
     _need(args, "pitch_um", "d_mm")
-    pitch_mm, d, thr = header["pitch_um"] * 1e-3, args.d_mm, args.threshold
-    warnings: list[str] = []
-    rows = []
-    for k, zk in enumerate(z):
-        h, tag = stack[k], f"z = {zk:g} mm"
-        r70 = _try(warnings, f"{tag}, 70 % half width", lateral_resolution_px, h, args.level)
-        rip = _try(warnings, f"{tag}, inner-product shift", lateral_inner_product_resolution_px,
-                   h, thr)
-        s_star = _try(warnings, f"{tag}, inner-product scale", axial_inner_product_scale, h, thr)
-        hyper = _try(warnings, f"{tag}, hyperfocal distance", hyperfocal_distance_mm, h,
-                     d_mm=d, psf_z_mm=float(zk), threshold=thr)
-        far = near = None
-        if hyper is not None:
-            far = float(depth_of_field_mm(h, zk, d_mm=d, psf_z_mm=float(zk), threshold=thr)[0])
-            near = float(depth_of_field_mm(h, zk, d_mm=d, psf_z_mm=float(zk), threshold=thr,
-                                           side="near")[0])
-
-        def obj(res, zk=zk):
-            return None if res is None else {
-                "x": lateral_resolution_object_mm(res.x_px, pitch_mm, d, zk),
-                "y": lateral_resolution_object_mm(res.y_px, pitch_mm, d, zk)}
-
-        rows.append({
-            "depth_mm": float(zk),
-            "magnification": d / float(zk),
-            "autocorrelation_half_width_px": _xy(r70),
-            "autocorrelation_half_width_object_mm": obj(r70),
-            "autocorrelation_half_width_deg": None if r70 is None else
-            lateral_resolution_deg(min(r70), pitch_mm, d),
-            "inner_product_shift_px": _xy(rip),
-            "inner_product_shift_object_mm": obj(rip),
-            "inner_product_scale": s_star,
-            "hyperfocal_distance_mm": hyper,
-            "depth_of_field_far_mm": far,
-            "depth_of_field_near_mm": near,
-        })
+    thr = args.threshold
+    rows, warnings = resolution_per_depth(stack, z, pitch_mm=header["pitch_um"] * 1e-3,
+                                          d_mm=args.d_mm, level=args.level, threshold=thr)
     result = {**header, "level": args.level, "per_depth": rows, "warnings": warnings}
 
     mid = len(z) // 2
@@ -346,31 +276,21 @@ def _similarity(args, stack, z, header):
     return result, fig, lines
 
 
-def _energy_kept(h: np.ndarray, k_max: int, sep: float, layout: str, axis: str) -> float:
-    """Fraction of the PSF energy inside the frame for the outermost of `k_max` sources.
+def _psf_at(args, stack, z) -> tuple[np.ndarray, float]:
+    """The PSF at ``--depth`` (nearest within 5 %) or the middle plane, and its depth."""
+    from ..stacks import pick_depth
 
-    The sources sit where :func:`recon.analysis.condition_vs_k` puts them (centred
-    on the PSF's position, line or raster grid); a shifted PSF loses what leaves
-    the frame, which makes the large-k condition numbers pessimistic.
-    """
-    if layout == "line":
-        reach = ((k_max - 1) - (k_max - 1) // 2) * sep
-        shift = (0.0, reach) if axis == "x" else (reach, 0.0)
-    else:
-        width = math.ceil(math.sqrt(k_max))
-        height = math.ceil(k_max / width)
-        shift = (((height - 1) - (height - 1) // 2) * sep, ((width - 1) - (width - 1) // 2) * sep)
-    dy, dx = (min(int(round(v)), n) for v, n in zip(shift, h.shape, strict=True))
-    e = np.square(h, dtype=np.float64)
-    return float(e[: h.shape[0] - dy, : h.shape[1] - dx].sum() / e.sum())
+    if args.depth_mm is None:
+        k = len(z) // 2
+        return stack[k], float(z[k])
+    return pick_depth(stack, list(z), args.depth_mm)
 
 
 def _condition_axial(args, stack, z, header):
     """``analyze condition --axial``: sources across depth planes (Fig. 4.5 axially)."""
-    from recon.analysis import axial_layout, condition_vs_k_axial
-    from recon.errors import ReconInputError
+    from recon.analysis import axial_condition
 
-    steps = _floats(args.separations_planes, "--separations-planes")
+    steps = floats(args.separations_planes, "--separations-planes")
     if not all(s >= 1 and float(s).is_integer() for s in steps):
         raise ValueError(f"--separations-planes {args.separations_planes!r}: use whole "
                          "numbers of planes >= 1")
@@ -379,33 +299,8 @@ def _condition_axial(args, stack, z, header):
         start = int(np.argmin(np.abs(z - args.depth_mm)))
         if abs(z[start] - args.depth_mm) > 0.05 * args.depth_mm:
             raise ValueError(f"no plane within 5% of --depth {args.depth_mm:g} mm")
-    n_z = len(z)
-    per_step, warnings = [], []
-    for s in (int(v) for v in steps):
-        k_top, planes = args.k_max, None
-        while k_top >= 2 and planes is None:  # the most sources that fit in the stack
-            try:
-                planes = axial_layout(n_z, k_top, s, separation_px=args.xz_px,
-                                      axis=args.axis, start_plane=start)[:, 0].astype(int)
-            except ReconInputError:
-                k_top -= 1
-        if planes is None:
-            warnings.append(f"{s} plane(s) apart: fewer than 2 sources fit in {n_z} planes")
-            continue
-        if k_top < args.k_max:
-            warnings.append(f"{s} plane(s) apart: only {k_top} of {args.k_max} sources fit "
-                            f"in the stack's {n_z} planes")
-        ks = list(range(2, k_top + 1))
-        cond = condition_vs_k_axial(stack, s, ks, separation_px=args.xz_px, axis=args.axis,
-                                    start_plane=start)
-        used = np.unique(planes)
-        per_step.append({"separation_planes": s, "ks": ks, "condition_numbers": cond,
-                         "source_depths_mm": z[used],
-                         "separation_inverse_mm": float(np.mean(np.abs(np.diff(1.0 / z[used]))))
-                         if used.size > 1 else None,
-                         "two_point": float(cond[0]), "limit": float(cond[-1])})
-    if not per_step:
-        raise ValueError(f"no separation fits two sources in the stack's {n_z} planes")
+    per_step, warnings = axial_condition(stack, z, steps, args.k_max, xz_px=args.xz_px,
+                                         axis=args.axis, start_plane=start)
     result = {**header, "mode": "axial", "xz_px": args.xz_px, "axis": args.axis,
               "k_max": args.k_max, "per_separation": per_step, "warnings": warnings}
     fig, (a0,) = _figure(1)
@@ -426,30 +321,16 @@ def _condition_axial(args, stack, z, header):
 
 
 def _condition(args, stack, z, header):
-    from recon.analysis import condition_vs_k, lateral_resolution_object_mm
-
-    from .stacks import pick_depth
+    from recon.analysis import lateral_condition, lateral_resolution_object_mm
 
     if args.k_max < 2:
         raise ValueError(f"--k-max must be >= 2, got {args.k_max}")
     if args.axial:
         return _condition_axial(args, stack, z, header)
-    seps = _floats(args.separations_px, "--separations-px")
-    if args.depth_mm is None:
-        k = len(z) // 2
-        psf, depth = stack[k], float(z[k])
-    else:
-        psf, depth = pick_depth(stack, list(z), args.depth_mm)
-    ks = list(range(2, args.k_max + 1))
-    cond = [condition_vs_k(psf, s, ks, layout=args.layout, axis=args.axis) for s in seps]
-    warnings = []
-    for s in seps:
-        kept = _energy_kept(psf, args.k_max, s, args.layout, args.axis)
-        if kept < 0.9:
-            warnings.append(
-                f"at {s:g} px the outermost of {args.k_max} sources keeps {kept:.0%} of the PSF "
-                "energy inside the frame: its large-k condition numbers are pessimistic; use "
-                "a smaller --k-max or separation, or a larger frame")
+    seps = floats(args.separations_px, "--separations-px")
+    psf, depth = _psf_at(args, stack, z)
+    ks, cond, warnings = lateral_condition(psf, seps, args.k_max, layout=args.layout,
+                                           axis=args.axis)
     obj = None
     if args.pitch_um is not None and args.d_mm is not None:
         _need(args, "pitch_um", "d_mm")
@@ -473,22 +354,11 @@ def _condition(args, stack, z, header):
 
 
 def _distinguish(args, stack, z, header):
-    from recon.analysis import distinguishability_limit, lateral_resolution_object_mm
+    from recon.analysis import distinguishability, lateral_resolution_object_mm
 
-    from .stacks import pick_depth
-
-    seps = _floats(args.separations_px, "--separations-px")
-    if args.depth_mm is None:
-        k = len(z) // 2
-        psf, depth = stack[k], float(z[k])
-    else:
-        psf, depth = pick_depth(stack, list(z), args.depth_mm)
-    psf = np.clip(psf, 0.0, None)
-    out = {}
-    for n in (2, 16):
-        limit, results = distinguishability_limit(psf, seps, n_points=n, axis=args.axis,
-                                                  iterations=args.iterations)
-        out[n] = (limit, results)
+    seps = floats(args.separations_px, "--separations-px")
+    psf, depth = _psf_at(args, stack, z)
+    out = distinguishability(psf, seps, axis=args.axis, iterations=args.iterations)
     obj = None
     if args.pitch_um is not None and args.d_mm is not None:
         obj = {n: (None if lim is None else lateral_resolution_object_mm(
@@ -518,7 +388,7 @@ def _grid(args, stack, z, header):
     _need(args, "pitch_um", "d_mm")
     scene = None
     if args.scene_range is not None:
-        scene = _floats(args.scene_range, "--scene-range")
+        scene = floats(args.scene_range, "--scene-range")
         if len(scene) != 2:
             raise ValueError(f"--scene-range {args.scene_range!r}: give ZMIN,ZMAX in mm")
     rec = recommend_grid(stack, z, pitch_mm=header["pitch_um"] * 1e-3, d_mm=args.d_mm,
@@ -538,48 +408,17 @@ def _grid(args, stack, z, header):
     return result, fig, lines
 
 
-def _support_width_px(h: np.ndarray, axis: int, energy: float) -> float:
-    """Extent (px) of the central `energy` fraction of the PSF's marginal along `axis`."""
-    marginal = np.clip(h, 0, None).sum(axis=axis, dtype=np.float64)
-    cum = np.cumsum(marginal) / marginal.sum()
-    tail = (1.0 - energy) / 2.0
-    lo = int(np.searchsorted(cum, tail))
-    hi = int(np.searchsorted(cum, 1.0 - tail))
-    return float(hi - lo + 1)
-
-
 def _fov(args, stack, z, header):
-    from recon.analysis import fov_half_angle_deg
+    from recon.analysis import field_of_view
 
     _need(args, "pitch_um", "d_mm", "alpha_c_deg")
-    if not 0 < args.support_energy <= 1:
-        raise ValueError(f"--support-energy must be in (0, 1], got {args.support_energy}")
-    pitch_mm, d = header["pitch_um"] * 1e-3, args.d_mm
-    n, rows, cols = stack.shape
-    sensor = {"x": cols * pitch_mm, "y": rows * pitch_mm}
-    per = []
-    for k in range(n):
-        if not np.any(stack[k] > 0):
-            raise ValueError(f"plane {k} (z = {z[k]:g} mm) has no positive values")
-        width = {"x": _support_width_px(stack[k], 0, args.support_energy) * pitch_mm,
-                 "y": _support_width_px(stack[k], 1, args.support_energy) * pitch_mm}
-        fov, geo = {}, {}
-        for a in ("x", "y"):
-            fov[a] = fov_half_angle_deg(args.alpha_c_deg, beta_deg=args.beta_deg,
-                                        sensor_width_mm=sensor[a], psf_width_mm=width[a],
-                                        d_mm=d)
-            geo[a] = math.degrees(math.atan((sensor[a] + width[a]) / (2 * d)))
-        per.append({"depth_mm": float(z[k]), "psf_width_mm": width,
-                    "geometric_half_angle_deg": geo, "fov_half_angle_deg": fov,
-                    "limited_by": {a: "sensor angular cutoff" if args.alpha_c_deg < geo[a]
-                                   else "geometry" for a in ("x", "y")},
-                    "field_width_mm": {a: 2 * float(z[k]) * math.tan(math.radians(fov[a]))
-                                       for a in ("x", "y")}})
-    headline = {a: min(p["fov_half_angle_deg"][a] for p in per) for a in ("x", "y")}
+    fov = field_of_view(stack, z, pitch_mm=header["pitch_um"] * 1e-3, d_mm=args.d_mm,
+                        alpha_c_deg=args.alpha_c_deg, beta_deg=args.beta_deg,
+                        support_energy=args.support_energy)
+    pitch_mm, per = header["pitch_um"] * 1e-3, fov["per_depth"]
+    headline = fov["fov_half_angle_deg"]
     result = {**header, "alpha_c_deg": args.alpha_c_deg, "beta_deg": args.beta_deg,
-              "support_energy": args.support_energy, "sensor_width_mm": sensor,
-              "per_depth": per, "fov_half_angle_deg": headline,
-              "fov_full_angle_deg": {a: 2 * v for a, v in headline.items()}}
+              "support_energy": args.support_energy, **fov}
     fig, (a0, a1) = _figure(2)
     k = int(np.argmax(z))
     for a, axis in (("x", 0), ("y", 1)):
@@ -645,27 +484,8 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``analyze``; 0 on success, 2 on bad input (one line on stderr).
-
-    Parameters
-    ----------
-    args : argparse.Namespace
-        Parsed by the parser of :func:`add_subcommands`.
-
-    Returns
-    -------
-    int
-        The exit status.
-    """
-    from recon.errors import ReconInputError
-
-    from .runstore import RunStoreError
-
-    try:
-        _, lines = run_analysis(args)
-    except (ReconInputError, RunStoreError, ValueError, OSError) as exc:
-        text = " ".join(str(exc).split())
-        print(f"diffuserlab: error: {text}", file=sys.stderr)
-        return 2
+    """Run ``analyze`` (:func:`run_analysis`) and print its summary; returns 0 (bad input
+    exits 2 with one line through :func:`instrument.cli.main`)."""
+    _, lines = run_analysis(args)
     print("\n".join(lines))
     return 0

@@ -1,4 +1,4 @@
-"""Smoke test of the benchmark suite: one ``--quick`` run, files and figures present.
+"""Smoke test of the benchmark suite (``diffuserlab benchmark recon --quick``): files and figures.
 
 No timing thresholds: the machine is shared and noisy; only that every figure exists
 and is finite.
@@ -11,6 +11,7 @@ import math
 
 import pytest
 
+from instrument.cli import main
 from recon.benchmarks import METHODS, data_dir
 from recon.errors import ReconInputError
 
@@ -29,10 +30,8 @@ pytestmark = pytest.mark.skipif(not _data_available(),
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
-    from recon.benchmarks import run
-
     out = tmp_path_factory.mktemp("benchmark")
-    status = run.main(["--quick", "--out", str(out)])
+    status = main(["benchmark", "recon", "--quick", "--out", str(out)])
     return status, out
 
 
@@ -136,19 +135,16 @@ def test_summary_and_only_flag(quick_run, tmp_path, capsys):
         assert _finite(v["target_psnr"]) and _finite(v["ratio_to_fft_floor"])
         assert v["beads_missed"] == 0
     assert set(summary["volume_speed_ratio"]["64x64x4"]) == {"fista3d", "admm3d"}
-    from recon.benchmarks import run
-
     with pytest.raises(SystemExit):
-        run.main(["--only", "nonsense"])
+        main(["benchmark", "recon", "--only", "nonsense"])
     capsys.readouterr()
 
 
 def test_volume_benchmark_quick_writes_ratios(tmp_path, capsys):
     import json
 
-    from recon.benchmarks.volume import main as volume_main
-
-    assert volume_main(["--quick", "--out", str(tmp_path)]) == 0
+    assert main(["benchmark", "recon", "--quick", "--only", "volume_speed",
+                 "--out", str(tmp_path)]) == 0
     data = json.loads((tmp_path / "volume_speed.json").read_text())
     size = data["sizes"][0]
     assert size["ffts_per_iteration"] == {"rfft2": 5, "irfft2": 5}

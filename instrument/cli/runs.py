@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
-from .runstore import RunStore, RunStoreError
-from .stacks import export_tiff, import_psf_stack
+from ..runstore import RunStore
+from ..stacks import export_tiff, import_psf_stack
 
 __all__ = ["add_subcommands", "format_summary", "run"]
 
@@ -34,6 +33,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ip.add_argument("--out", required=True, help="run store to create (RUN.zarr)")
     ip.add_argument("--note", default="")
     ip.add_argument("--overwrite", action="store_true")
+    rp.set_defaults(handler=run, input_errors=(ValueError,))
 
 
 def format_summary(s: dict) -> str:
@@ -66,20 +66,17 @@ def format_summary(s: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run a ``runs`` subcommand; 0 on success, 2 on bad input."""
-    try:
-        if args.runs_command == "show":
-            summary = RunStore.open(args.run).summary()
-            print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
-        elif args.runs_command == "export":
-            out = export_tiff(args.run, args.out, product=None if args.frames else args.product)
-            print(f"wrote {out}")
-        elif args.runs_command == "import-psf":
-            depths = None if args.depths is None else [float(v) for v in args.depths.split(",")]
-            store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
-                                     overwrite=args.overwrite)
-            print(f"stored {store.n_points} depths in {store.path}")
-    except (RunStoreError, ValueError) as exc:
-        print(f"diffuserlab: error: {exc}", file=sys.stderr)
-        return 2
+    """Run a ``runs`` subcommand; 0 on success (a RunStoreError or ValueError exits 2
+    through :func:`instrument.cli.main`)."""
+    if args.runs_command == "show":
+        summary = RunStore.open(args.run).summary()
+        print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
+    elif args.runs_command == "export":
+        out = export_tiff(args.run, args.out, product=None if args.frames else args.product)
+        print(f"wrote {out}")
+    elif args.runs_command == "import-psf":
+        depths = None if args.depths is None else [float(v) for v in args.depths.split(",")]
+        store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
+                                 overwrite=args.overwrite)
+        print(f"stored {store.n_points} depths in {store.path}")
     return 0

@@ -1,0 +1,73 @@
+"""What ``calibrate`` and ``align`` share: bench arguments, opening the bench, prompts.
+
+With ``--simulate`` and no bench file both use the built-in simulated bench
+(:func:`instrument.cli.common.bench_config`, as ``diffuserlab devices`` does).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+__all__ = ["add_bench_arguments", "ask", "make_bench"]
+
+
+def add_bench_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the optional ``bench`` positional, ``--simulate`` and ``--seed`` to ``p``."""
+    p.add_argument("bench", nargs="?", default=None,
+                   help="bench TOML file (e.g. examples/bench-simulated.toml); with "
+                   "--simulate and no file: the built-in simulated bench")
+    p.add_argument("--simulate", action="store_true",
+                   help="run on the virtual bench built from the file (no hardware)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
+
+
+def ask(action: str, message: str) -> bool:
+    """The operator prompt of a real bench (``on_prompt`` of
+    :meth:`instrument.bench.Bench.open`): shows ``message`` and waits.
+
+    Returns
+    -------
+    bool
+        True when the operator pressed Enter (done); False when they typed
+        ``no``/``n``/``q`` or the input ended.
+    """
+    print(f"\n>>> {message}")
+    try:
+        answer = input("    press Enter when done, or type 'no' to stop: ")
+    except EOFError:
+        return False
+    return answer.strip().lower() not in ("no", "n", "q")
+
+
+def make_bench(args: argparse.Namespace, command: str):
+    """The bench of a command line: a virtual bench (not yet opened) with
+    ``--simulate``, else the real devices opened with :func:`ask` as the prompt.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        With ``bench`` (path or None), ``simulate`` and ``seed``.
+    command : str
+        The command's name, for the message when the bench file is missing.
+
+    Returns
+    -------
+    instrument.virtual_bench.VirtualBench or instrument.bench.Bench
+
+    Raises
+    ------
+    instrument.cli.common.MissingBenchFile
+        No bench file and no ``--simulate``.
+    instrument.config.BenchConfigError
+        The bench file has problems.
+    drivers.errors.DeviceError
+        A real device failed to open.
+    """
+    from instrument.bench import Bench
+    from instrument.cli.common import bench_config
+    from instrument.virtual_bench import VirtualBench
+
+    config = bench_config(args.bench, simulate=args.simulate, command=command)
+    if args.simulate:
+        return VirtualBench(config, seed=args.seed)
+    return Bench.open(config, on_prompt=ask)

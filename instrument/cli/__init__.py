@@ -1,0 +1,111 @@
+"""The ``diffuserlab`` command line.
+
+Subcommands: ``recon`` (one reconstruction from files; the PSF may be one depth of
+a run's PSF stack or of a TIFF stack), ``demo`` (the main job: a bench session on
+the built-in simulated bench; ``--real-sample`` reconstructs the real DiffuserCam
+sample instead), ``recon3d`` (a volume from one image and a PSF stack),
+``analyze`` (resolution, similarity, conditioning, grid, field of view of a PSF
+stack), ``validate`` / ``devices`` (bench files), ``runs`` (show, export, import
+run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
+compressed sensing; 3D speed, memory and accuracy), ``holo evaluate`` / ``holo
+benchmark`` (Table 7.1, hologram speed), plus the commands other layers register
+under the entry-point group ``diffuserlab.commands`` (``calibrate`` and ``align``
+from calibration_routines). Bad input exits with status 2 and a one-line reason; a
+diverging solver exits with status 3.
+
+Every command module has ``add_subcommands(sub)``; its parsers carry
+``handler=FUNCTION`` (and, where a command maps more than the project's input
+errors to status 2, ``input_errors=(...)``). :func:`main` dispatches once to
+``args.handler(args)`` inside one error boundary. Library code logs; :func:`main`
+sends INFO records (DEBUG with ``-v``) to the console, and only this package prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from . import analyze, bench, benchmark, demo, holo, recon, recon3d, runs
+
+__all__ = ["build_parser", "main"]
+
+log = logging.getLogger("diffuserlab")
+
+#: The command modules, in the order of ``diffuserlab --help``.
+COMMANDS = (recon, demo, recon3d, analyze, bench, runs, benchmark, holo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argparse parser of ``diffuserlab`` (documented in the README).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        Every subcommand's parser sets ``handler`` (see the module docstring); the
+        commands of the ``diffuserlab.commands`` entry points are added last.
+    """
+    parser = argparse.ArgumentParser(prog="diffuserlab", description=__doc__.split("\n")[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in COMMANDS:
+        module.add_subcommands(sub)
+    for add in _plugin_commands():
+        add(sub)
+    return parser
+
+
+def _plugin_commands():
+    """``add_subcommands(sub)`` functions registered under ``diffuserlab.commands``
+    (packages above this layer, e.g. calibration_routines, add their commands so)."""
+    from importlib.metadata import entry_points
+
+    for ep in sorted(entry_points(group="diffuserlab.commands"), key=lambda e: e.name):
+        try:
+            yield ep.load()
+        except ImportError as exc:  # a broken plugin must not take the CLI down
+            log.warning("command plugin %s not loaded: %s", ep.name, exc)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``diffuserlab`` console script; returns the exit status.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The handler's status; 2 (one line on stderr) on
+        :class:`recon.errors.ReconInputError`,
+        :class:`instrument.runstore.RunStoreError`,
+        :class:`instrument.cli.common.MissingBenchFile` and the errors the command
+        lists in ``input_errors``; 3 when a solver diverged
+        (:class:`recon.errors.DivergenceError`).
+    """
+    from recon.errors import DivergenceError, ReconInputError
+
+    from ..runstore import RunStoreError
+    from .common import MissingBenchFile
+
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    input_errors = (ReconInputError, RunStoreError, MissingBenchFile,
+                    *getattr(args, "input_errors", ()))
+    try:
+        return int(args.handler(args) or 0)
+    except DivergenceError as exc:
+        print(f"diffuserlab: diverged: {(str(exc).splitlines() or [''])[0]}", file=sys.stderr)
+        return 3
+    except input_errors as exc:
+        print(f"diffuserlab: error: {_one_line(exc)}", file=sys.stderr)
+        return 2

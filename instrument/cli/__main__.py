@@ -1,0 +1,7 @@
+"""``python -m instrument.cli``: the ``diffuserlab`` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,118 @@
+"""``diffuserlab holo {evaluate,benchmark}``: the holographic display's evaluations.
+
+``holo evaluate`` reproduces Table 7.1 (:func:`recon.cgh.evaluate.run_evaluation`:
+``records.csv``, ``summary.json``, ``table.md``, ``psnr_vs_seconds.png`` under
+``--out``; prints the table); exit 1 with ``--strict`` when an acceptance rule
+fails. ``holo benchmark`` times one full-size hologram against the FFT floor
+(:func:`recon.cgh.benchmark.run_benchmark`) and prints the report.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+__all__ = ["add_subcommands", "run_benchmark", "run_evaluate"]
+
+
+def add_subcommands(sub: argparse._SubParsersAction) -> None:
+    """Add ``holo`` with ``evaluate`` and ``benchmark`` to the ``diffuserlab`` subparsers."""
+    from recon.cgh.evaluation import METHODS
+
+    hp = sub.add_parser("holo", help="holographic display: Table 7.1 evaluation, speed "
+                        "benchmark")
+    hsub = hp.add_subparsers(dest="action", required=True)
+    ep = hsub.add_parser("evaluate", help="Table 7.1 reproduction (PSNR/SSIM per expansion "
+                         "factor and method)",
+                         description="The evaluation reproducing Table 7.1; writes "
+                         "records.csv, summary.json, table.md and psnr_vs_seconds.png.")
+    ep.add_argument("--size", type=int, default=480, help="target grid N (default 480)")
+    ep.add_argument("--factors", default="4,16,36", help="expansion factors (default 4,16,36)")
+    ep.add_argument("--seeds", default="0,1,2", help="mask seeds (default 0,1,2)")
+    ep.add_argument("--iterations", type=int, default=200, help="optimiser iterations (200)")
+    ep.add_argument("--methods", default=",".join(METHODS),
+                    help="comma-separated from one-step,l2,frequency,spatial,no-mask")
+    ep.add_argument("--images", default=None,
+                    help="folder of PNG/JPEG/TIFF/.npy images (default: the 10 bundled photos)")
+    ep.add_argument("--out", default="holo_eval", help="output folder (default holo_eval)")
+    ep.add_argument("--quick", action="store_true",
+                    help="smoke run: N = 48, 3 images, factors 4,16, seed 0, 15 iterations")
+    ep.add_argument("--strict", action="store_true", help="exit 1 when a rule fails")
+    ep.set_defaults(handler=run_evaluate)
+
+    bp = hsub.add_parser("benchmark", help="full-size hologram speed against the FFT floor",
+                         description="Full-size hologram speed benchmark: seconds per "
+                         "iteration against one FFT at the grid, FFT share, peak memory.")
+    bp.add_argument("--slm", type=int, nargs=2, default=(540, 960), metavar=("ROWS", "COLS"))
+    bp.add_argument("--factor", type=int, default=16, help="expansion factor k^2 (16)")
+    bp.add_argument("--iterations", type=int, default=200)
+    bp.add_argument("--loss", default="frequency", choices=("frequency", "l2", "spatial"))
+    bp.add_argument("--fft-repeats", type=int, default=9)
+    bp.add_argument("--json", default=None, help="also write the report to this JSON file")
+    bp.add_argument("--quick", action="store_true", help="tiny smoke run (36 x 64 SLM, 10 it.)")
+    bp.set_defaults(handler=run_benchmark)
+
+
+def _ints(text: str, what: str) -> tuple[int, ...]:
+    from recon.errors import ReconInputError
+
+    try:
+        vals = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise ReconInputError(f"{what} must be comma-separated integers, got {text!r}") from None
+    if not vals:
+        raise ReconInputError(f"{what} is empty")
+    return vals
+
+
+def run_evaluate(args: argparse.Namespace) -> int:
+    """Run ``holo evaluate``; 0, or 1 when a rule failed with ``--strict`` (bad input
+    exits 2 through :func:`instrument.cli.main`)."""
+    from recon.cgh.evaluate import run_evaluation
+    from recon.cgh.protocol import BUNDLED_IMAGES, load_bundled, load_folder
+
+    size, factors, seeds, iters = args.size, _ints(args.factors, "--factors"), \
+        _ints(args.seeds, "--seeds"), args.iterations
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if args.images:
+        images = load_folder(args.images)
+    else:
+        images = [(name, load_bundled(name)) for name, _ in BUNDLED_IMAGES]
+    if args.quick:
+        size, factors, seeds, iters, images = 48, (4, 16), (0,), 15, images[:3]
+
+    def progress(done, total, rec):
+        print(f"[{done}/{total}] {rec['factor']}x seed {rec['seed']} {rec['image']:>18} "
+              f"{rec['method']:>9}: {rec['psnr_full']:6.2f} dB {rec['ssim_full']:.3f} "
+              f"({rec['seconds']:.2f} s)", file=sys.stderr, flush=True)
+
+    ev = run_evaluation(images, args.out, size=size, factors=factors, seeds=seeds,
+                        iterations=iters, methods=methods,
+                        source=args.images or "skimage bundled (A10)", progress=progress)
+    print(ev["table"])
+    print(f"wrote {args.out}/records.csv, summary.json, table.md, psnr_vs_seconds.png "
+          f"({ev['settings']['wall_seconds']:.0f} s)")
+    return 1 if args.strict and any(r["passed"] is False for r in ev["rules"]) else 0
+
+
+def run_benchmark(args: argparse.Namespace) -> int:
+    """Run ``holo benchmark`` and print the report; returns 0 (bad input exits 2
+    through :func:`instrument.cli.main`)."""
+    from recon.cgh.benchmark import format_report
+    from recon.cgh.benchmark import run_benchmark as time_hologram
+    from recon.errors import ReconInputError
+
+    slm, iters, reps = tuple(args.slm), args.iterations, args.fft_repeats
+    if args.quick:
+        slm, iters, reps = (36, 64), 10, 3
+    k = int(round(args.factor ** 0.5))
+    if k * k != args.factor or min(slm) < 1 or iters < 1 or reps < 1:
+        raise ReconInputError("--factor must be a perfect square; --slm, --iterations and "
+                              "--fft-repeats must be positive")
+    rep = time_hologram(slm, k, iters, args.loss, reps)
+    print(format_report(rep, args.factor, reps, iters))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(rep, fh, indent=1)
+    return 0

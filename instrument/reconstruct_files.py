@@ -1,0 +1,317 @@
+"""Reconstruction from files: load -> reconstruct -> write PNG/TIFF/Zarr and metrics JSON.
+
+:func:`run_recon` is ``diffuserlab recon`` (one image from a PSF and a raw
+measurement; the PSF may be one depth of a run store's PSF stack or of a TIFF
+stack); :func:`run_recon3d` is ``diffuserlab recon3d`` (a volume from one image and
+a PSF stack, Kuo 2020, Ch. 4). The numerics are :func:`recon.reconstruct` and
+:func:`recon.reconstruct_volume`; this module reads run stores and stacks
+(:mod:`instrument.stacks`) and writes the outputs. It logs, it never prints.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drivers.base import jsonable
+
+__all__ = ["load_psf", "output_paths", "projections", "run_recon", "run_recon3d",
+           "volume_output_paths", "write_volume"]
+
+log = logging.getLogger(__name__)
+
+_VOLUME_SUFFIXES = (".tif", ".tiff", ".zarr")
+
+
+def output_paths(out: str) -> tuple[Path, Path]:
+    """(png, tif) paths for ``--out``: an extension picks the stem, none adds both.
+
+    Parameters
+    ----------
+    out : str
+        ``OUT``, ``OUT.png``, ``OUT.tif`` or ``OUT.tiff``.
+
+    Returns
+    -------
+    (Path, Path)
+        ``OUT.png`` and ``OUT.tif``.
+    """
+    p = Path(out)
+    stem = p.with_suffix("") if p.suffix.lower() in (".png", ".tif", ".tiff") else p
+    return stem.with_suffix(".png"), stem.with_suffix(".tif")
+
+
+def load_psf(psf_path: str, depth_mm: float | None,
+             product: str = "psf_stack") -> tuple[np.ndarray, float | None]:
+    """A 2D PSF from an image, or one depth of a stack (run store, TIFF or .npy stack).
+
+    Parameters
+    ----------
+    psf_path : str
+        An image (TIFF, PNG/JPEG, ``.npy``), a run store directory or a stack file.
+    depth_mm : float, optional
+        Depth of the stack's plane to use (nearest within 5 %); required for a stack
+        file, optional for a run store with one plane.
+    product : str
+        Which stack of a run store (``psf_stack`` or ``psf_stack_raw``).
+
+    Returns
+    -------
+    psf : ndarray, (rows, cols)
+    depth : float or None
+        The depth of the plane used (None for a plain image).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Unreadable input, or a stack without a matching depth.
+    """
+    from recon.errors import ReconInputError
+    from recon.io import load_image
+
+    from .runstore import RunStoreError
+    from .stacks import load_psf_stack, pick_depth
+
+    path = Path(psf_path)
+    if not path.is_dir() and depth_mm is None:
+        return load_image(psf_path), None
+    try:
+        stack, depths, _ = load_psf_stack(path, product=product)
+        psf, depth = pick_depth(stack, depths, depth_mm)
+    except RunStoreError as exc:
+        raise ReconInputError(str(exc)) from exc
+    return psf, depth
+
+
+def run_recon(
+    psf_path: str,
+    raw_path: str,
+    *,
+    method: str,
+    iterations: int,
+    bin_factor: int,
+    tv: float | None,
+    erase: float,
+    seed: int,
+    full_scale: float | None = None,
+    out: str,
+    metrics_json: str | None,
+    depth_mm: float | None = None,
+    psf_product: str = "psf_stack",
+) -> dict:
+    """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
+
+    Parameters
+    ----------
+    psf_path, raw_path : str
+        PSF (image or stack, see :func:`load_psf`) and raw measurement files.
+    method, iterations, bin_factor, tv, erase, seed, full_scale
+        Passed to :func:`recon.reconstruct`.
+    out : str
+        Output stem (see :func:`output_paths`).
+    metrics_json : str, optional
+        Where to write the metrics.
+    depth_mm, psf_product
+        Plane and product of a PSF stack (see :func:`load_psf`).
+
+    Returns
+    -------
+    dict
+        :meth:`recon.Reconstruction.metrics` (FFT floor: median of three timings)
+        plus the input paths, seed, PSF depth and output paths.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Bad files or parameters.
+    recon.errors.DivergenceError
+        The solver diverged.
+    """
+    from recon import reconstruct
+    from recon.fft import fft_pair_seconds
+    from recon.io import load_image, save_image
+
+    psf, depth = load_psf(psf_path, depth_mm, psf_product)
+    raw = load_image(raw_path)
+    result = reconstruct(
+        psf,
+        raw,
+        method,
+        iterations=iterations,
+        tv=tv,
+        bin_factor=bin_factor,
+        erase=erase,
+        seed=seed,
+        full_scale=full_scale,
+    )
+    floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
+    metrics = result.metrics(floor)
+    metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
+    png, tif = output_paths(out)
+    save_image(png, result.image)
+    save_image(tif, result.image)
+    metrics.update(output_png=str(png), output_tiff=str(tif))
+    if metrics_json:
+        Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
+        Path(metrics_json).write_text(json.dumps(metrics, indent=1))
+    return metrics
+
+
+def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
+    """The volume path and the three projection PNG paths of ``--out``.
+
+    Raises
+    ------
+    ValueError
+        ``out`` does not end in ``.tif``, ``.tiff`` or ``.zarr``.
+    """
+    path = Path(out)
+    if path.suffix.lower() not in _VOLUME_SUFFIXES:
+        raise ValueError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
+    stem = path.with_suffix("")
+    return path, {v: stem.parent / f"{stem.name}_mip_{v}.png" for v in ("xy", "xz", "yz")}
+
+
+def projections(volume: np.ndarray) -> dict[str, np.ndarray]:
+    """Maximum-intensity projections, each plane repeated so z is visible.
+
+    Parameters
+    ----------
+    volume : ndarray, shape (n_z, rows, cols)
+
+    Returns
+    -------
+    dict
+        ``xy`` is the maximum over z (rows, cols); ``xz`` over y (z, cols); ``yz``
+        over x (rows, z). Along z every plane is repeated
+        ``max(1, min(rows, cols) // (2 n_z))`` times (nearest neighbour, for viewing
+        only).
+    """
+    n_z, rows, cols = volume.shape
+    rep = max(1, min(rows, cols) // (2 * n_z))
+    return {"xy": volume.max(axis=0),
+            "xz": np.repeat(volume.max(axis=1), rep, axis=0),
+            "yz": np.repeat(volume.max(axis=2).T, rep, axis=1)}
+
+
+def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
+    """A float32 TIFF (JSON metadata, axes ZYX) or a Zarr v3 array (attributes).
+
+    Raises
+    ------
+    ValueError
+        ``path`` is an existing Zarr node that is not an array (e.g. a run store).
+    """
+    import tifffile
+    import zarr
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() != ".zarr":
+        tifffile.imwrite(path, volume.astype(np.float32), photometric="minisblack",
+                         metadata={**attrs, "axes": "ZYX"})
+        return
+    node = path / "zarr.json"
+    if path.exists():
+        kind = json.loads(node.read_text()).get("node_type") if node.is_file() else None
+        if kind != "array":
+            raise ValueError(f"--out {path} exists and is not a volume written by recon3d "
+                             "(a run store?); choose another name")
+    arr = zarr.create_array(str(path), shape=volume.shape, dtype="float32",
+                            chunks=(1, *volume.shape[1:]), overwrite=True, zarr_format=3)
+    arr[:] = volume
+    arr.attrs.update(attrs)
+
+
+def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, tv: float,
+                l1: float, out: str, depths_mm: list[float] | None = None,
+                bin_factor: int = 1, dark: str | float = "auto",
+                psf_product: str = "psf_stack", metrics_json: str | None = None) -> dict:
+    """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
+    projections and metrics.
+
+    Parameters
+    ----------
+    psf_stack : str
+        Run store, TIFF or ``.npy`` stack (see
+        :func:`instrument.stacks.load_psf_stack`).
+    raw_path : str
+        Raw measurement (TIFF, PNG or ``.npy``), the size of one PSF plane.
+    method : {"admm", "fista"}
+    iterations : int
+        Solver iterations (>= 1).
+    tv, l1 : float
+        3D TV and l1 weights in the scaled problem (>= 0; 0 disables).
+    out : str
+        ``OUT.tif``/``OUT.tiff`` or ``OUT.zarr``; projections go to
+        ``OUT_mip_xy.png``, ``OUT_mip_xz.png`` and ``OUT_mip_yz.png``.
+    depths_mm : list of float, optional
+        One depth per plane when the stack does not record them.
+    bin_factor : int
+        Lateral box binning of the stack and the raw image.
+    dark : "auto", "none" or float
+        Dark level handling (see :func:`recon.volume.api.prepare_volume_problem`).
+    psf_product : str
+        Product of a run store to read.
+    metrics_json : str, optional
+        Where to write the metrics.
+
+    Returns
+    -------
+    dict
+        :meth:`recon.VolumeReconstruction.metrics` (FFT floor measured after the
+        solve in this process; ``seconds_total`` includes loading) plus the input
+        paths and shapes and the output paths.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Bad files, shapes or parameters.
+    instrument.runstore.RunStoreError
+        Unreadable stack, missing or mismatched depths.
+    ValueError
+        Bad ``--out`` name.
+    recon.errors.DivergenceError
+        The solver diverged.
+    """
+    from recon.io import load_image, save_image
+    from recon.volume.api import check_volume_parameters, reconstruct_volume
+
+    from .stacks import load_psf_stack
+
+    check_volume_parameters(method, iterations, tv, l1)
+    vol_path, mip_paths = volume_output_paths(out)
+    t_start = time.perf_counter()
+    stack, depths, _ = load_psf_stack(psf_stack, depths_mm, product=psf_product)
+    stack_shape_in = list(stack.shape)
+    raw = load_image(raw_path)
+    raw_shape_in = list(raw.shape)
+    rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
+                             tv=tv, l1=l1, bin_factor=bin_factor, dark=dark)
+    seconds_total = time.perf_counter() - t_start
+    del stack
+    attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "
+             "normalised PSF stack (sum_z (sum h_z)^2 = 1)", "method": method,
+             "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor)}
+    write_volume(vol_path, rec.volume, attrs)
+    for view, image in projections(rec.volume).items():
+        save_image(mip_paths[view], image)
+    solved = rec.metrics()
+    solved["seconds_total"] = seconds_total
+    files = {"psf_stack": str(psf_stack), "psf_product": psf_product,
+             "stack_shape_in": stack_shape_in, "raw": str(raw_path),
+             "raw_shape_in": raw_shape_in}
+    head = ("method", "iterations", "tv", "l1", "shape", "sensor_shape", "padded_shape",
+            "n_planes", "depths_mm")
+    metrics = {**{k: solved.pop(k) for k in head}, **files, **solved,
+               "output_volume": str(vol_path),
+               "output_mips": {k: str(v) for k, v in mip_paths.items()}}
+    metrics = jsonable(metrics, nonfinite_to_none=True)
+    if metrics_json:
+        Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
+        Path(metrics_json).write_text(json.dumps(metrics, indent=1))
+    log.debug("recon3d: wrote %s and %s", vol_path, ", ".join(map(str, mip_paths.values())))
+    return metrics
