@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .jit import PARALLEL_FAST, clip, data_split, njit, prange, shrink_split
+from .jit import PARALLEL_FAST, balance_terms, clip, data_split, njit, prange, shrink_split
 
 
 @njit(**PARALLEL_FAST)
@@ -124,19 +124,20 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
     nv = nu = nw = zero  # mode 2: max(|G x|^2, |z|^2) proxies and |a|^2 per split
     dv = du = dw = zero
     # v split (crop / data): bp, wp are the weights and measurement padded with zeros
-    ao = av[i, j] if mode == 2 else zero
-    qn, a, res, r2, s2, n2, d2 = data_split(mx[i, j], qv[i, j], ao, wp[i, j], bp[i, j], mu1)
+    g = mx[i, j]
+    q = qv[i, j]
+    qn, a, z, res = data_split(g, q, wp[i, j], bp[i, j], mu1)
     if mode == 2:
-        rv, sv, nv, dv = r2, s2, n2, d2
+        rv, sv, nv, dv = balance_terms(g, q, a, z, av[i, j])
     if mode != 0:
         av[i, j] = a
     qv[i, j] = qn
     # w split (non-negativity)
     g = x[i, j]
-    ao = aw[i, j] if mode == 2 else zero
-    qn, a, r2, s2, n2, d2 = shrink_split(g, qw[i, j], ao, zero, zero)
+    q = qw[i, j]
+    qn, a, z = shrink_split(g, q, zero, zero)
     if mode == 2:
-        rw, sw, nw, dw = r2, s2, n2, d2
+        rw, sw, nw, dw = balance_terms(g, q, a, z, aw[i, j])
     if mode != 0:
         aw[i, j] = a
     qw[i, j] = qn
@@ -144,16 +145,17 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
     gx = x[i, jp] - g
     gy = x[ip, j] - g
     if use_tv:
-        ao = aux[i, j] if mode == 2 else zero
-        qn, a, r2, s2, n2, d2 = shrink_split(gx, qux[i, j], ao, thr, ninf)
+        q = qux[i, j]
+        qn, a, z = shrink_split(gx, q, thr, ninf)
         if mode == 2:
-            ru, su, nu, du = r2, s2, n2, d2
+            ru, su, nu, du = balance_terms(gx, q, a, z, aux[i, j])
         if mode != 0:
             aux[i, j] = a
         qux[i, j] = qn
-        ao = auy[i, j] if mode == 2 else zero
-        qn, a, r2, s2, n2, d2 = shrink_split(gy, quy[i, j], ao, thr, ninf)
+        q = quy[i, j]
+        qn, a, z = shrink_split(gy, q, thr, ninf)
         if mode == 2:
+            r2, s2, n2, d2 = balance_terms(gy, q, a, z, auy[i, j])
             ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
         if mode != 0:
             auy[i, j] = a

@@ -33,8 +33,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from numba import njit, prange  # noqa: E402
 
-__all__ = ["PARALLEL", "PARALLEL_FAST", "clip", "data_split", "njit", "prange",
-           "shrink_split"]
+__all__ = ["PARALLEL", "PARALLEL_FAST", "balance_terms", "clip", "data_split", "njit",
+           "prange", "shrink_split"]
 
 #: numba flags of the parallel kernels: threads over ``prange``, on-disk cache,
 #: GIL released (the acquisition thread keeps running during a solve).
@@ -56,7 +56,7 @@ def clip(d, t):
 
 
 @njit(inline="always")
-def shrink_split(g, q, a_old, thr, lo):
+def shrink_split(g, q, thr, lo):
     """One element of a shrinkage split, in q-form.
 
     ``a = g - q``, ``z = max(soft(g + a, thr), lo)``, ``q_new = z - a``. With
@@ -69,29 +69,22 @@ def shrink_split(g, q, a_old, thr, lo):
         ``(G x)`` at this element.
     q : float32
         Stored ``z - a`` of the previous iteration.
-    a_old : float32
-        Previous scaled dual (for the residuals; pass 0 when they are unused:
-        the dead terms are then removed by the compiler).
     thr, lo : float32
         Soft threshold and lower bound of the prox.
 
     Returns
     -------
-    q_new, a, r2, s2, n2, a2 : float32
-        New ``q``, new dual, and the residual-balancing terms
-        ``(a - a_old)^2`` (primal), ``(z - z_old)^2`` with ``z_old = q + a_old``
-        (dual), ``max(g^2, z^2)`` and ``a^2`` (scales).
+    q_new, a, z : float32
+        New ``q``, new scaled dual and new split variable (for :func:`balance_terms`).
     """
     a = g - q
     t = g + a
     z = max(t - clip(t, thr), lo)
-    d = a - a_old
-    e = z - q - a_old
-    return z - a, a, d * d, e * e, max(g * g, z * z), a * a
+    return z - a, a, z
 
 
 @njit(inline="always")
-def data_split(g, q, a_old, w, b, mu1):
+def data_split(g, q, w, b, mu1):
     """One element of the data split ``v = M x`` (Eq. 4.5, v-update), in q-form.
 
     ``a = g - q``, ``v = (w b + mu1 t) / (w^2 + mu1)`` with ``t = g + a``: the
@@ -100,7 +93,7 @@ def data_split(g, q, a_old, w, b, mu1):
 
     Parameters
     ----------
-    g, q, a_old : float32
+    g, q : float32
         As in :func:`shrink_split`, with ``g = (M x)`` on the padded grid.
     w, b : float32
         Sensor weight and (pre-weighted) measurement at this element, 0 off the sensor.
@@ -109,15 +102,36 @@ def data_split(g, q, a_old, w, b, mu1):
 
     Returns
     -------
-    q_new, a, res2, r2, s2, n2, a2 : float32
-        New ``q``, new dual, ``(w g - b)^2`` (the data misfit), then the balancing
-        terms as in :func:`shrink_split`.
+    q_new, a, z, res2 : float32
+        New ``q``, new dual, new split variable and ``(w g - b)^2`` (the data misfit).
     """
     a = g - q
     t = g + a
     z = (w * b + mu1 * t) / (w * w + mu1)
     r = w * g - b
+    return z - a, a, z, r * r
+
+
+@njit(inline="always")
+def balance_terms(g, q, a, z, a_old):
+    """Residual-balancing terms of one split element (see
+    :func:`recon.solvers.admm.balanced_penalty`).
+
+    Parameters
+    ----------
+    g, q : float32
+        ``(G x)`` and the ``q`` the update started from.
+    a, z : float32
+        New dual and split variable (from :func:`shrink_split` / :func:`data_split`).
+    a_old : float32
+        The dual stored by the previous iteration (so ``z_old = q + a_old``).
+
+    Returns
+    -------
+    r2, s2, n2, a2 : float32
+        ``(a - a_old)^2`` (primal residual), ``(z - z_old)^2`` (dual residual),
+        ``max(g^2, z^2)`` and ``a^2`` (their scales).
+    """
     d = a - a_old
     e = z - q - a_old
-    return z - a, a, r * r, d * d, e * e, max(g * g, z * z), a * a
-
+    return d * d, e * e, max(g * g, z * z), a * a

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import PARALLEL_FAST, data_split, njit, prange, shrink_split
+from ..jit import PARALLEL_FAST, balance_terms, data_split, njit, prange, shrink_split
 
 
 @njit(**PARALLEL_FAST)
@@ -44,11 +44,12 @@ def admm_split_plane(mx, qv, bp, wp, mu1, mode, av):
         nn = np.float32(0.0)
         dd = np.float32(0.0)
         for j in range(n1):
-            ao = av[i, j] if mode == 2 else np.float32(0.0)
-            qn, a, res, rv, sv, nv, dv = data_split(mx[i, j], qv[i, j], ao, wp[i, j], bp[i, j],
-                                                    mu1)
+            g = mx[i, j]
+            q = qv[i, j]
+            qn, a, zz, res = data_split(g, q, wp[i, j], bp[i, j], mu1)
             dr += res
             if mode == 2:
+                rv, sv, nv, dv = balance_terms(g, q, a, zz, av[i, j])
                 rr += rv
                 ss += sv
                 nn += nv
@@ -72,40 +73,42 @@ def _vox(x, quz, quy, qux, qw, auz, auy, aux, aw, z, i, j, ip, jp, hz, l1thr, tv
     ninf = np.float32(-np.inf)
     ru = su = nu = du = rw = sw = nw = dw = zero
     g = x[z, i, j]
-    ao = aw[z, i, j] if mode == 2 else zero
-    qn, a, r2, s2, n2, d2 = shrink_split(g, qw[z, i, j], ao, l1thr, lo)
+    q = qw[z, i, j]
+    qn, a, zz = shrink_split(g, q, l1thr, lo)
     qw[z, i, j] = qn
+    if mode == 2:
+        rw, sw, nw, dw = balance_terms(g, q, a, zz, aw[z, i, j])
     if mode != 0:
         aw[z, i, j] = a
-    if mode == 2:
-        rw, sw, nw, dw = r2, s2, n2, d2
     gy = x[z, ip, j] - g
     gx = x[z, i, jp] - g
     gz = x[z + 1, i, j] - g if hz else zero
     tv = abs(gy) + abs(gx) + abs(gz)
     if use_tv:
-        ao = aux[z, i, j] if mode == 2 else zero
-        qn, a, r2, s2, n2, d2 = shrink_split(gx, qux[z, i, j], ao, tvthr, ninf)
+        q = qux[z, i, j]
+        qn, a, zz = shrink_split(gx, q, tvthr, ninf)
         qux[z, i, j] = qn
+        if mode == 2:
+            ru, su, nu, du = balance_terms(gx, q, a, zz, aux[z, i, j])
         if mode != 0:
             aux[z, i, j] = a
-        if mode == 2:
-            ru, su, nu, du = r2, s2, n2, d2
-        ao = auy[z, i, j] if mode == 2 else zero
-        qn, a, r2, s2, n2, d2 = shrink_split(gy, quy[z, i, j], ao, tvthr, ninf)
+        q = quy[z, i, j]
+        qn, a, zz = shrink_split(gy, q, tvthr, ninf)
         quy[z, i, j] = qn
+        if mode == 2:
+            r2, s2, n2, d2 = balance_terms(gy, q, a, zz, auy[z, i, j])
+            ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
         if mode != 0:
             auy[z, i, j] = a
-        if mode == 2:
-            ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
         if hz:
-            ao = auz[z, i, j] if mode == 2 else zero
-            qn, a, r2, s2, n2, d2 = shrink_split(gz, quz[z, i, j], ao, tvthr, ninf)
+            q = quz[z, i, j]
+            qn, a, zz = shrink_split(gz, q, tvthr, ninf)
             quz[z, i, j] = qn
+            if mode == 2:
+                r2, s2, n2, d2 = balance_terms(gz, q, a, zz, auz[z, i, j])
+                ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
             if mode != 0:
                 auz[z, i, j] = a
-            if mode == 2:
-                ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
     return (tv, abs(g), ru, su, nu, du, rw, sw, nw, dw)
 
 
