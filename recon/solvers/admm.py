@@ -84,7 +84,7 @@ def balanced_penalty(mu_i: float, r2: float, s2: float, n2: float, d2: float,
         Current penalty.
     r2, s2, n2, d2 : float
         Sums over the split of (a - a_old)^2, (z - z_old)^2, max(g^2, z^2), a^2 (the
-        last four terms of :func:`recon.jit.shrink_split` / :func:`recon.jit.data_split`).
+        terms of :func:`recon.jit.balance_terms`).
     ratio, factor : float
         ``balance_ratio`` and ``balance_factor`` (> 1).
 
