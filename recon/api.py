@@ -17,13 +17,11 @@ from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
 from .preprocess import prepare_pair
-from .solvers import METHODS, SolveResult, admm, fista, gradient_descent, wiener
+from .solvers import SOLVERS, SolveResult
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
-#: measurement divided by its maximum). Chosen on simulated scenes with the real
-#: PSF (``diffuserlab benchmark recon``: 3e-4 to 1e-3 score best there) and by eye
-#: on the real hand (3e-4 keeps the fingers).
-DEFAULT_TV = {"wiener": 0.0, "gd": 3e-4, "fista": 3e-4, "admm": 3e-4}
+#: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
+DEFAULT_TV = {name: spec.default_tv for name, spec in SOLVERS.items()}
 
 
 @dataclass
@@ -136,22 +134,21 @@ def solve(
     op: ConvolutionOperator, b: np.ndarray, method: str, *, iterations: int, tv: float,
     **options
 ) -> SolveResult:
-    """Dispatch to one solver by name (``wiener``, ``gd``, ``fista``, ``admm``).
+    """Dispatch to one solver of :data:`recon.solvers.SOLVERS` by name.
+
+    A direct solver (Wiener) ignores ``iterations`` and ``tv``.
 
     Raises
     ------
     ReconInputError
         Unknown method.
     """
-    if method == "wiener":
-        return wiener(op, b, **options)
-    if method == "gd":
-        return gradient_descent(op, b, iterations=iterations, tv=tv, **options)
-    if method == "fista":
-        return fista(op, b, iterations=iterations, tv=tv, **options)
-    if method == "admm":
-        return admm(op, b, iterations=iterations, tv=tv, **options)
-    raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    spec = SOLVERS.get(method)
+    if spec is None:
+        raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(SOLVERS)}")
+    if not spec.iterative:
+        return spec.solve(op, b, **options)
+    return spec.solve(op, b, iterations=iterations, tv=tv, **options)
 
 
 def reconstruct(
@@ -218,8 +215,8 @@ def reconstruct(
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
-    if method not in METHODS:
-        raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if method not in SOLVERS:
+        raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(SOLVERS)}")
     if iterations < 1:
         raise ReconInputError(f"iterations must be >= 1, got {iterations}")
     tv = DEFAULT_TV[method] if tv is None else float(tv)
@@ -259,7 +256,7 @@ def reconstruct(
     image = np.ascontiguousarray(estimate[op0.crop])
     info.update(
         method=method,
-        iterations=1 if method == "wiener" else iterations,
+        iterations=iterations if SOLVERS[method].iterative else 1,
         tv=tv,
         bin_factor=bin_factor,
         raw_scale=raw_scale,

@@ -24,7 +24,7 @@ from ..api import DEFAULT_TV, scaled_problem
 from ..api import solve as api_solve
 from ..operators import ConvolutionOperator
 from ..sample import DATA_ENV, data_dir, load_sample
-from ..solvers import METHODS, SolveResult
+from ..solvers import METHODS, SOLVERS, SolveResult
 
 __all__ = [
     "DATA_ENV",
@@ -62,7 +62,7 @@ def solve(method: str, op: ConvolutionOperator, b: np.ndarray, iterations: int,
     DivergenceError
         Passed through from the solver.
     """
-    if method == "wiener":
+    if not SOLVERS[method].iterative:
         return api_solve(op, b, method, iterations=1, tv=0.0, regularization=weight)
     extra = {"lipschitz": lipschitz} if method in ("gd", "fista") else {}
     return api_solve(op, b, method, iterations=iterations, tv=weight, **extra)

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fft import fft_pair_seconds
+from ..solvers import SOLVERS
 from . import (
     DEFAULT_WEIGHTS,
     METHODS,
@@ -48,9 +49,8 @@ def _measure(bin_factor: int, runs: int, iterations: int, wiener_solves: int,
         floor.append(fft_pair_seconds(shape, repeats=5))
         return floor[-1]
 
-    # weights: GD without TV (the tutorial baseline), FISTA and ADMM with TV
-    used = {"wiener": weights["wiener"], "gd": 0.0, "fista": weights["fista"],
-            "admm": weights["admm"]}
+    # weights: GD without TV (the tutorial baseline), the others with theirs
+    used = {m: 0.0 if m == "gd" else weights[m] for m in METHODS}
     for m in METHODS:  # warm-up: JIT caches, FFT plans, page faults
         solve(m, op, b, 3, used[m], lipschitz=lip)
     times: dict[str, list[float]] = {m: [] for m in METHODS}
@@ -63,7 +63,7 @@ def _measure(bin_factor: int, runs: int, iterations: int, wiener_solves: int,
     for _ in range(runs):
         for m in METHODS:
             before = sample_floor()
-            if m == "wiener":
+            if not SOLVERS[m].iterative:
                 run = [solve(m, op, b, 1, used[m]).history.seconds[0] for _ in range(per_run)]
             else:
                 run = solve(m, op, b, iterations, used[m], lipschitz=lip).history.seconds

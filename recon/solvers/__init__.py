@@ -2,13 +2,59 @@
 
 Each takes a forward-model operator and a measurement and returns a
 :class:`~recon.solvers.common.SolveResult` (estimate + history).
+
+:data:`SOLVERS` is the one table of 2D solvers: :func:`recon.reconstruct`, the
+``recon`` command's ``--method`` choices and the benchmarks read it, so a new
+solver is one module here and one entry there (docs/architecture.md, "a solver").
 """
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from .admm import admm
 from .common import History, SolveResult
 from .gradient import fista, gradient_descent
 from .wiener import wiener
 
-METHODS = ("wiener", "gd", "fista", "admm")
 
-__all__ = ["METHODS", "History", "SolveResult", "admm", "fista", "gradient_descent", "wiener"]
+@dataclass(frozen=True)
+class SolverSpec:
+    """One solver as the API, the command line and the benchmarks see it.
+
+    Attributes
+    ----------
+    solve : callable
+        ``solve(op, b, *, iterations, tv, **options) -> SolveResult`` for an
+        iterative solver; ``solve(op, b, **options)`` for a direct one.
+    default_tv : float
+        Default TV weight, absolute in the scaled problem (unit-sum PSF,
+        measurement divided by its maximum); 0 for a solver without TV.
+    iterative : bool
+        Whether it takes ``iterations`` and ``tv`` (a direct solver such as Wiener
+        takes neither and reports one iteration).
+    summary : str
+        One line for help texts.
+    """
+
+    solve: Callable[..., SolveResult]
+    default_tv: float
+    iterative: bool
+    summary: str
+
+
+#: The 2D solvers by method name. Default TV weights: chosen on simulated scenes with
+#: the real PSF (``diffuserlab benchmark recon``: 3e-4 to 1e-3 score best there) and by
+#: eye on the real hand (3e-4 keeps the fingers).
+SOLVERS: dict[str, SolverSpec] = {
+    "wiener": SolverSpec(wiener, 0.0, False, "Wiener / Tikhonov preview, one FFT pair"),
+    "gd": SolverSpec(gradient_descent, 3e-4, True, "gradient descent with Nesterov momentum"),
+    "fista": SolverSpec(fista, 3e-4, True, "FISTA with TV and non-negativity (Alg. 1)"),
+    "admm": SolverSpec(admm, 3e-4, True,
+                       "ADMM with crop, TV and non-negativity splits (Eq. 4.5 in 2D)"),
+}
+
+#: Method names, in :data:`SOLVERS` order.
+METHODS = tuple(SOLVERS)
+
+__all__ = ["METHODS", "SOLVERS", "History", "SolveResult", "SolverSpec", "admm", "fista",
+           "gradient_descent", "wiener"]

@@ -37,7 +37,7 @@ from .operator import (
     normalize_psf_stack,
 )
 
-__all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "VolumeReconstruction",
+__all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "VolumeReconstruction",
            "check_volume_parameters", "prepare_volume_problem", "reconstruct_volume"]
 
 log = logging.getLogger(__name__)
@@ -56,13 +56,16 @@ log = logging.getLogger(__name__)
 #: within 0.3 and 0.1 dB of the best weight there, 1e-4 0.6-1.5 dB below.
 DEFAULT_TV = {"admm": 1e-5, "fista": 1e-5}
 
+#: The 3D solvers by method name (as :data:`recon.solvers.SOLVERS` in 2D); a new
+#: one is added here (``solve(op, b, *, iterations, tv, l1, nonneg)``) and in
+#: :data:`DEFAULT_TV`.
+SOLVERS = {"admm": admm3d, "fista": fista3d}
+
 #: Solvers of ``method``.
-METHODS = ("admm", "fista")
+METHODS = tuple(SOLVERS)
 
 #: Saturated fraction of the raw image above which a warning is logged.
 SATURATION_WARN = 0.001
-
-_SOLVERS = {"admm": admm3d, "fista": fista3d}
 
 
 @dataclass
@@ -292,7 +295,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
-    result = _SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+    result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
                                   dtype=np.float32)
     info.update(method=method, iterations=iterations, tv=tv, l1=l1, psf_scale=psf_scale,

@@ -80,3 +80,23 @@ def test_bad_parameters(real_pair, kwargs, fragment):
     psf, raw = real_pair
     with pytest.raises(ReconInputError, match=fragment):
         recon.reconstruct(psf, raw, **{"bin_factor": 8, **kwargs})
+
+
+def test_a_solver_added_to_the_table_is_reachable_by_name(monkeypatch):
+    """One entry in recon.solvers.SOLVERS makes a solver usable by recon.reconstruct."""
+    from recon.solvers import SOLVERS, SolverSpec, gradient_descent
+
+    calls = []
+
+    def landweber(op, b, *, iterations, tv, **options):
+        calls.append((iterations, tv))
+        return gradient_descent(op, b, iterations=iterations, tv=tv, momentum=0.0, **options)
+
+    monkeypatch.setitem(SOLVERS, "landweber", SolverSpec(landweber, 0.0, True, "Landweber"))
+    rng = np.random.default_rng(0)
+    psf = rng.random((16, 20))
+    raw = rng.random((16, 20)) + 0.1
+    result = recon.reconstruct(psf, raw, method="landweber", iterations=3, tv=0.0, dark="none")
+    assert calls == [(3, 0.0)] and result.info["iterations"] == 3
+    with pytest.raises(ReconInputError, match="unknown method 'nope'"):
+        recon.reconstruct(psf, raw, method="nope")

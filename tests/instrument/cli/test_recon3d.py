@@ -202,7 +202,7 @@ def test_admm_is_called_with_the_documented_signature(problem, tmp_path, monkeyp
         calls.append({"iterations": iterations, "tv": tv, "l1": l1, "nonneg": nonneg})
         return recon.volume.fista3d(op, b, iterations=iterations, tv=tv, l1=l1, nonneg=nonneg)
 
-    monkeypatch.setitem(recon.volume.api._SOLVERS, "admm", fake_admm3d)
+    monkeypatch.setitem(recon.volume.api.SOLVERS, "admm", fake_admm3d)
     assert cli(*_bad(problem, tmp_path, **{"--method": "admm", "--tv": 2e-4, "--l1": 1e-3,
                                            "--metrics-json": tmp_path / "m.json"})) == 0
     assert calls == [{"iterations": 2, "tv": 2e-4, "l1": 1e-3, "nonneg": True}]
