@@ -35,7 +35,7 @@ from ..solvers.admm import balance_mode, balanced_penalty, check_balancing, resc
 from ..solvers.common import Monitor, SolveResult, check_measurement
 from ..validate import nonneg_weight
 from . import _admm_kernels3d as _k
-from .fista import volume_tv
+from .fista import final_objective
 from .operator import VolumeConvolutionOperator
 
 #: Default initial penalties (mu1, mu2, mu3) for the scaled problem (stack
@@ -249,13 +249,7 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     if nonneg:
         np.maximum(x, 0, out=x)  # the estimate is the non-negative split
     x = np.ascontiguousarray(x)
-    r = op.forward(x) - b
-    data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq
-    if tv_w:
-        final += tv_w * volume_tv(x)
-    if l1_w:
-        final += l1_w * float(np.abs(x).sum(dtype=np.float64))
+    final, data_sq = final_objective(op, x, b, tv_w, l1_w)
     mon.history.extra["mu"] = [list(m) for m in mus]
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"tv": tv_w, "l1": l1_w, "nonneg": nonneg,

@@ -42,6 +42,38 @@ def volume_tv(v: np.ndarray) -> float:
     return float(tv)
 
 
+def final_objective(op: LinearOperator, x: np.ndarray, b: np.ndarray, tv_w: float,
+                    l1_w: float) -> tuple[float, float]:
+    """Objective of Eq. 4.5 at a final estimate, and its squared data residual.
+
+    ``0.5 ||A x - b||^2 + tv_w TV(x) + l1_w ||x||_1`` with :func:`volume_tv`; one
+    forward model application.
+
+    Parameters
+    ----------
+    op : LinearOperator
+        The volume forward model.
+    x : ndarray, float32, (n_z, P0, P1)
+        The estimate.
+    b : ndarray, float32, sensor shape
+        The measurement.
+    tv_w, l1_w : float
+        Weights (0 leaves the term out).
+
+    Returns
+    -------
+    objective, data_sq : float
+    """
+    r = op.forward(x) - b
+    data_sq = float(np.vdot(r, r))
+    final = 0.5 * data_sq
+    if tv_w:
+        final += tv_w * volume_tv(x)
+    if l1_w:
+        final += l1_w * float(np.abs(x).sum(dtype=np.float64))
+    return final, data_sq
+
+
 def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
             tv: float | None = None, l1: float | None = None, nonneg: bool = True,
             step: float | None = None, step_scale: float = 1.0, restart: bool = True,
@@ -150,13 +182,7 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         t = t_next
         y, y_next = y_next, y
         mon.record(loss + tv_w * tv_y + l1_w * l1_y, 2.0 * loss, x=x, hint=hint)
-    r = op.forward(x) - b
-    data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq
-    if tv_w:
-        final += tv_w * volume_tv(x)
-    if l1_w:
-        final += l1_w * float(np.abs(x).sum(dtype=np.float64))
+    final, data_sq = final_objective(op, x, b, tv_w, l1_w)
     mon.history.extra["restarts"] = restarts
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"step": step, "lipschitz": lip, "tv": tv_w, "l1": l1_w,
