@@ -45,7 +45,11 @@ def build_parser() -> argparse.ArgumentParser:
         Every subcommand's parser sets ``handler`` (see the module docstring); the
         commands of the ``diffuserlab.commands`` entry points are added last.
     """
-    parser = argparse.ArgumentParser(prog="diffuserlab", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="diffuserlab",
+        description="Bench control, calibration and reconstruction for lensless diffuser "
+        "cameras and random-mask holographic displays (Kuo 2020). Bad input: one line, "
+        "exit status 2; a diverging solver: exit status 3.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS:
