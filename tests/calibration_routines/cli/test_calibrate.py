@@ -99,8 +99,12 @@ def test_ctrl_c_aborts_and_prints_how_to_resume(tmp_path):
     cmd = [sys.executable, "-m", "instrument.cli", "calibrate", "psf-sweep", BENCH,
            "--simulate", "--z-min", "30", "--z-max", "120", "--n-depths", "12", "--frames",
            "8", "--out", str(path)]
+    # SIGINT at its default in the child: a runner started in the background (nohup,
+    # "&" without job control) passes SIGINT ignored, and Python then never raises
+    # KeyboardInterrupt
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
