@@ -105,6 +105,9 @@ def run_recon(
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
+    The PNG is a view turned upright (:func:`recon.io.scene_view`); the TIFF keeps
+    the model grid (:data:`recon.io.DATA_ORIENTATION`).
+
     Parameters
     ----------
     psf_path, raw_path : str
@@ -133,7 +136,7 @@ def run_recon(
     """
     from recon import reconstruct
     from recon.fft import fft_pair_seconds
-    from recon.io import load_image, save_image
+    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     raw = load_image(raw_path)
@@ -152,9 +155,10 @@ def run_recon(
     metrics = result.metrics(floor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
     png, tif = output_paths(out)
-    save_image(png, result.image)
+    save_image(png, scene_view(result.image))
     save_image(tif, result.image)
-    metrics.update(output_png=str(png), output_tiff=str(tif))
+    metrics.update(output_png=str(png), output_tiff=str(tif),
+                   orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})
     if metrics_json:
         Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
         Path(metrics_json).write_text(json.dumps(metrics, indent=1))
@@ -277,7 +281,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
     recon.errors.DivergenceError
         The solver diverged.
     """
-    from recon.io import load_image, save_image
+    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
     from recon.volume.api import check_volume_parameters, reconstruct_volume
 
     from .stacks import load_psf_stack
@@ -295,9 +299,11 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "
              "normalised PSF stack (sum_z (sum h_z)^2 = 1)", "method": method,
-             "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor)}
+             "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor),
+             "orientation": DATA_ORIENTATION}
     write_volume(vol_path, rec.volume, attrs)
-    for view, image in projections(rec.volume).items():
+    # the projections are views: turned to scene orientation (rows and columns flipped)
+    for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
         save_image(mip_paths[view], image)
     solved = rec.metrics()
     solved["seconds_total"] = seconds_total
@@ -308,7 +314,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
             "n_planes", "depths_mm")
     metrics = {**{k: solved.pop(k) for k in head}, **files, **solved,
                "output_volume": str(vol_path),
-               "output_mips": {k: str(v) for k, v in mip_paths.items()}}
+               "output_mips": {k: str(v) for k, v in mip_paths.items()},
+               "orientation": {"mips": "scene, upright", "volume": DATA_ORIENTATION}}
     metrics = jsonable(metrics, nonfinite_to_none=True)
     if metrics_json:
         Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)

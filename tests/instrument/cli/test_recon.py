@@ -11,6 +11,7 @@ import pytest
 import tifffile
 
 from instrument.cli import main
+from recon.io import DATA_ORIENTATION, load_image
 from tests.real_data import check_hand_image, sample_paths
 
 ARTIFACTS = Path(__file__).resolve().parents[3] / "out" / "test-artifacts"
@@ -65,6 +66,13 @@ def test_cli_recon_real_sample(tmp_path, capsys):
     assert image.dtype == np.float32
     check_hand_image(image)
     assert out.exists() and out.stat().st_size > 1000
+    # the PNG view is the TIFF turned upright (rotated by 180 degrees)
+    view = load_image(out).astype(float)
+    clipped = np.clip(image, 0, np.percentile(image, 99.9))
+    turned, same = (float(np.corrcoef(view.ravel(), c.ravel())[0, 1])
+                    for c in (clipped[::-1, ::-1], clipped))
+    assert turned > 0.99 and turned > same + 0.2, (turned, same)
+    assert m["orientation"]["tiff"] == DATA_ORIENTATION
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     shutil.copy(out, ARTIFACTS / "cli_admm_hand.png")
     assert "x FFT floor" in capsys.readouterr().out

@@ -20,6 +20,7 @@ from scipy.ndimage import gaussian_filter, map_coordinates
 import recon.volume
 import recon.volume.api
 from instrument.cli import main, recon3d
+from recon.io import load_image
 from recon.volume import VolumeConvolutionOperator
 
 N = 48
@@ -102,6 +103,12 @@ def test_recon3d_tif_puts_the_brightest_voxel_on_a_bead_plane(problem, tmp_path,
     z, i, j = np.unravel_index(int(np.argmax(volume)), volume.shape)
     assert z in {b[0] for b in BEADS}
     assert min(abs(i - bi) + abs(j - bj) for bz, bi, bj in BEADS if bz == z) <= 2
+    # the xy projection is a view turned upright (rows and columns flipped)
+    mip = load_image(tmp_path / "vol_mip_xy.png").astype(float)
+    xy = np.clip(volume.max(axis=0), 0, np.percentile(volume.max(axis=0), 99.9))
+    turned, same = (float(np.corrcoef(mip.ravel(), c.ravel())[0, 1])
+                    for c in (xy[::-1, ::-1], xy))
+    assert turned > 0.99 and turned > same + 0.2, (turned, same)
     m = json.loads(metrics_path.read_text())
     for key in ("method", "iterations", "tv", "l1", "shape", "padded_shape", "depths_mm",
                 "seconds_total", "seconds_per_iteration", "fft_floor_seconds",
