@@ -225,6 +225,11 @@ class RunStore:
         return tuple(self._group["frames"].shape[1:])
 
     @property
+    def frame_dtype(self) -> np.dtype:
+        """The run's frame dtype (the camera's)."""
+        return np.dtype(self._group["frames"].dtype)
+
+    @property
     def coord_names(self) -> list[str]:
         return list(self._coord_names)
 
@@ -281,7 +286,10 @@ class RunStore:
         Raises
         ------
         RunStoreError
-            Read-only store, index out of range, wrong image shape, unknown coordinate.
+            Read-only store, index out of range, wrong image shape, unknown coordinate,
+            or values the run's dtype cannot hold exactly (an integer run refuses
+            NaN/inf, non-integer floats and values outside its range instead of
+            wrapping or rounding them).
         """
         self._require_writable()
         if not 0 <= index < self.n_frames:
@@ -294,10 +302,42 @@ class RunStore:
         if unknown:
             raise RunStoreError(f"unknown coordinates {unknown}; the run has "
                                 f"{self._coord_names}")
+        image = self._exact(index, image)
         row = np.array([float(coords.get(n, np.nan)) for n in self._coord_names])
         self._group["frames"][index] = image
         self._group["coords"][index] = row
         self._group["done"][index] = 1
+
+    def _exact(self, index: int, image: np.ndarray) -> np.ndarray:
+        """``image`` cast to the run's dtype, or RunStoreError if that would change a value."""
+        dtype = self.frame_dtype
+        if image.dtype == dtype:
+            return image
+        kind = image.dtype.kind
+        if kind not in "biuf":
+            raise RunStoreError(f"frame {index}: {image.dtype} data cannot be stored in the "
+                                f"run's {dtype}; pass a real-valued image")
+        if dtype.kind == "f" or np.can_cast(image.dtype, dtype, casting="safe"):
+            return image.astype(dtype)
+        info = np.iinfo(dtype)
+        if kind == "f":
+            bad = ~np.isfinite(image)
+            if bad.any():
+                raise RunStoreError(
+                    f"frame {index}: {int(bad.sum())} NaN/inf pixels cannot be stored in the "
+                    f"run's {dtype}; fix the source or pass a finite image")
+            frac = image[image != np.round(image)]
+            if frac.size:
+                raise RunStoreError(
+                    f"frame {index}: non-integer values (e.g. {frac.flat[0]:g}) cannot be "
+                    f"stored exactly in the run's {dtype}; round them "
+                    "first or pass the camera's integer frame")
+        lo, hi = image.min(), image.max()
+        if lo < info.min or hi > info.max:
+            raise RunStoreError(
+                f"frame {index}: values {lo:g}..{hi:g} are outside the run's {dtype} range "
+                f"{info.min}..{info.max} (they would wrap); clip or rescale them first")
+        return image.astype(dtype)
 
     def clear_point(self, point: int) -> None:
         """Mark a point's frames not done (before it is captured again)."""

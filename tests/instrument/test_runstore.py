@@ -112,3 +112,26 @@ def test_reader_never_sees_a_partial_frame(tmp_path):
     for t in threads:
         t.join(60)
     assert not errors and reads[0] > 0
+
+
+@pytest.mark.parametrize("image, problem", [
+    (np.full((8, 10), -5.0), "outside"), (np.full((8, 10), 70000.0), "outside"),
+    (np.full((8, 10), np.nan), "NaN/inf"), (np.full((8, 10), np.inf), "NaN/inf"),
+    (np.full((8, 10), 2.5), "non-integer"), (np.full((8, 10), -5, np.int32), "outside"),
+    (np.full((8, 10), 70000, np.int64), "outside"), (np.ones((8, 10), complex), "cannot be"),
+])
+def test_values_the_dtype_cannot_hold_are_refused(tmp_path, image, problem):
+    """An integer run refuses data that would wrap or round (-5 -> 65531, NaN -> 0)."""
+    store = _create(tmp_path / "r.zarr")
+    with pytest.raises(RunStoreError, match=f"frame 2: .*{problem}"):
+        store.write_frame(2, image, {})
+    assert not store.done()[2]
+
+
+def test_values_that_fit_are_stored_exactly(tmp_path):
+    store = _create(tmp_path / "r.zarr")
+    store.write_frame(0, np.full((8, 10), 65535.0), {})
+    store.write_frame(1, np.full((8, 10), 70, np.int64), {})
+    store.write_frame(2, np.full((8, 10), 3, np.uint8), {})
+    assert [int(store.frame(i).image[0, 0]) for i in range(3)] == [65535, 70, 3]
+    assert store.frame(0).image.dtype == np.uint16
