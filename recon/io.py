@@ -11,8 +11,11 @@ message that names the file, the problem and the fix.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -26,6 +29,7 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "BAYER_PATTERNS",
     "LOAD_EXTENSIONS",
+    "atomic_path",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
     "DATA_ORIENTATION",
@@ -252,6 +256,49 @@ def _viewing_image(image: np.ndarray) -> np.ndarray:
     return np.rint(data).astype(np.uint8)
 
 
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary name next to ``path`` to write to; renamed into place on success.
+
+    The writer inside the ``with`` block writes the temporary file (same directory,
+    so the rename is atomic: :func:`os.replace`; same suffix, so writers that choose
+    the format by extension still do). When the block succeeds the file replaces
+    ``path``; when it raises, the temporary file is removed and ``path`` is left as
+    it was: a crash never leaves half a file under the final name.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The final file name. Missing parent directories are created.
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary file name (a hidden file ``.NAME.XXXX.tmpSUFFIX``, created empty).
+
+    Examples
+    --------
+    >>> with atomic_path("out/metrics.json") as tmp:  # doctest: +SKIP
+    ...     tmp.write_text("{}")
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
+                                suffix=f".tmp{path.suffix}")
+    os.close(fd)
+    tmp = Path(name)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the final file gets the usual mode
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
 def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
     """Save an image as a float32 TIFF data product, an 8-bit PNG view, or ``.npy``.
 
@@ -259,7 +306,9 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
     ----------
     path : str or os.PathLike
         Destination; the format follows the (case-insensitive) extension.
-        Missing parent directories are created.
+        Missing parent directories are created. The file is written under a
+        temporary name and renamed into place (:func:`atomic_path`): a failure
+        never leaves a partial file under ``path``.
 
         * ``.tif``/``.tiff``: the 32-bit data product. The image is written as
           float32 (values unchanged, no scaling) with :func:`tifffile.imwrite`;
@@ -308,26 +357,27 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
             "save it as .tif or .npy instead"
         )
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if suffix in _TIFF_EXTENSIONS:
-            data = np.ascontiguousarray(image, dtype=np.float32)
-            photometric = "rgb" if channels in (3, 4) and image.ndim == 3 else "minisblack"
-            planar = "contig" if image.ndim == 3 else None
-            tifffile.imwrite(path, data, photometric=photometric, planarconfig=planar)
-        elif suffix == ".png":
-            view = _viewing_image(image)
-            if view.ndim == 3 and channels == 1:
-                view = view[:, :, 0]
-            elif channels == 3:
-                view = cv2.cvtColor(view, cv2.COLOR_RGB2BGR)
-            elif channels == 4:
-                view = cv2.cvtColor(view, cv2.COLOR_RGBA2BGRA)
-            if not cv2.imwrite(str(path), view):
-                raise ReconInputError(
-                    f"{path}: OpenCV failed to write the PNG; check the directory is writable"
-                )
-        else:
-            np.save(path, image, allow_pickle=False)
+        with atomic_path(path) as tmp:
+            if suffix in _TIFF_EXTENSIONS:
+                data = np.ascontiguousarray(image, dtype=np.float32)
+                photometric = "rgb" if channels in (3, 4) and image.ndim == 3 else "minisblack"
+                planar = "contig" if image.ndim == 3 else None
+                tifffile.imwrite(tmp, data, photometric=photometric, planarconfig=planar)
+            elif suffix == ".png":
+                view = _viewing_image(image)
+                if view.ndim == 3 and channels == 1:
+                    view = view[:, :, 0]
+                elif channels == 3:
+                    view = cv2.cvtColor(view, cv2.COLOR_RGB2BGR)
+                elif channels == 4:
+                    view = cv2.cvtColor(view, cv2.COLOR_RGBA2BGRA)
+                if not cv2.imwrite(str(tmp), view):
+                    raise ReconInputError(
+                        f"{path}: OpenCV failed to write the PNG; check the directory is "
+                        "writable")
+            else:
+                with open(tmp, "wb") as fh:  # np.save(name) would append .npy to the name
+                    np.save(fh, image, allow_pickle=False)
     except OSError as exc:
         raise ReconInputError(
             f"{path}: cannot write file ({exc}); check the directory exists and is writable"

@@ -88,20 +88,24 @@ def jsonable(obj: Any) -> Any:
 
 def write_json(path: Path, data: dict) -> Path:
     """Write ``data`` (made JSON-safe by :func:`jsonable`) with indentation."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(jsonable(data), indent=1, allow_nan=False) + "\n")
-    return path
+    from ..io import atomic_path
+
+    text = json.dumps(jsonable(data), indent=1, allow_nan=False) + "\n"
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
 
 
 def save_figure(fig, path: Path) -> Path:
     """Save a :class:`matplotlib.figure.Figure` (no pyplot state involved)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
+    from ..io import atomic_path
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight")
     return path
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReconInputError
+from ..io import atomic_path
 from .evaluation import LABELS, METHODS, TABLE_7_1, acceptance, evaluate_images, summarise
 
 __all__ = ["HONESTY", "format_table", "plot_psnr_vs_seconds", "run_evaluation"]
@@ -123,7 +124,8 @@ def plot_psnr_vs_seconds(records, path) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
 
 
@@ -181,13 +183,15 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
                 "images": [n for n, _ in images], "n_images": len(images),
                 "source": source, "wall_seconds": time.perf_counter() - t0}
     fields = [k for k in records[0] if k != "curve"]
-    with open(out / "records.csv", "w", newline="") as fh:
+    with atomic_path(out / "records.csv") as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         w.writerows(records)
-    (out / "summary.json").write_text(json.dumps(_jsonable(summary, rules, settings), indent=1))
+    with atomic_path(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(_jsonable(summary, rules, settings), indent=1))
     table = format_table(summary, rules, settings)
-    (out / "table.md").write_text(table)
+    with atomic_path(out / "table.md") as tmp:
+        tmp.write_text(table)
     plot_psnr_vs_seconds(records, out / "psnr_vs_seconds.png")
     files = [out / n for n in ("records.csv", "summary.json", "table.md",
                                "psnr_vs_seconds.png")]

@@ -322,3 +322,64 @@ def test_bayer_refusals():
         demosaic_bayer(mosaic.astype(np.float32), "RGGB")
     with pytest.raises(ReconInputError, match="smaller than one 2x2 block"):
         demosaic_bayer(np.zeros((1, 8), dtype=np.uint8), "RGGB")
+
+
+# ----------------------------------------------------------------------------- atomic writes
+
+
+def test_atomic_path_renames_into_place_on_success(tmp_path):
+    from recon.io import atomic_path
+
+    final = tmp_path / "sub" / "m.json"
+    with atomic_path(final) as tmp:
+        assert tmp.parent == final.parent and tmp.suffix == ".json" and tmp != final
+        tmp.write_text("{}")
+        assert not final.exists()
+    assert final.read_text() == "{}"
+    assert [p.name for p in final.parent.iterdir()] == ["m.json"]
+
+
+@pytest.mark.parametrize("existing", [None, b"earlier"])
+def test_atomic_path_failure_leaves_no_file_and_no_temp(tmp_path, existing):
+    from recon.io import atomic_path
+
+    final = tmp_path / "m.json"
+    if existing is not None:
+        final.write_bytes(existing)
+    with pytest.raises(RuntimeError, match="crash"), atomic_path(final) as tmp:
+        tmp.write_text('{"half": ')
+        raise RuntimeError("crash while writing")
+    names = [p.name for p in tmp_path.iterdir()]
+    if existing is None:
+        assert names == []
+    else:
+        assert names == ["m.json"] and final.read_bytes() == existing
+
+
+@pytest.mark.parametrize("name", ["out.tif", "out.png", "out.npy"])
+def test_save_image_failure_leaves_no_partial_file(tmp_path, monkeypatch, name):
+    import cv2
+    import tifffile
+
+    from recon import io
+
+    def half_then_fail(path, *args, **kwargs):
+        open(path if not hasattr(path, "write") else path.name, "ab").write(b"partial")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(tifffile, "imwrite", half_then_fail)
+    monkeypatch.setattr(cv2, "imwrite", half_then_fail)
+    monkeypatch.setattr(np, "save", half_then_fail)
+    with pytest.raises(ReconInputError, match="cannot write"):
+        io.save_image(tmp_path / name, np.ones((4, 4), np.float32))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_image_npy_keeps_its_name_and_replaces(tmp_path):
+    from recon.io import load_image, save_image
+
+    path = tmp_path / "a.npy"
+    save_image(path, np.zeros((3, 3)))
+    save_image(path, np.ones((3, 3)))
+    assert np.array_equal(load_image(path), np.ones((3, 3)))
+    assert [p.name for p in tmp_path.iterdir()] == ["a.npy"]
