@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -249,19 +249,27 @@ class Runner:
                                    "pixel_pitch_um": cam.pixel_pitch_um})
         return self._execute(plan, store, points, start=0)
 
-    def resume(self, path: str | Path, plan: Plan | None = None) -> RunResult:
+    def resume(self, path: str | Path, plan: Plan | None = None, *,
+               redo: Sequence[int] = ()) -> RunResult:
         """Continue the run stored at ``path`` with its first incomplete point.
 
         ``plan`` defaults to the one the store recorded (rebuilt by name, see
-        :func:`instrument.plan.plan_from_record`).
+        :func:`instrument.plan.plan_from_record`). ``redo``: plan points whose frames
+        are marked not done first, so they are captured again (e.g. a point with a
+        damaged frame); points after the first incomplete one that are still
+        complete are not captured again.
 
         Raises
         ------
         RunStoreError
-            No run at ``path``, or a plan whose name/parameters/points differ from
-            the stored ones.
+            No run at ``path``, a plan whose name/parameters/points differ from the
+            stored ones, or a ``redo`` point the run does not have.
         """
         store = RunStore.open(path, mode="r+")
+        for point in redo:
+            store.frame_range(int(point))  # RunStoreError for a point the run lacks
+        for point in redo:
+            store.clear_point(int(point))
         rec = store.attrs["plan"]
         if plan is None:
             plan = plan_from_record(rec["name"], rec["params"])
@@ -279,10 +287,13 @@ class Runner:
                                     {"utc": utc_now(), "point": start}])
         if 0 < start < len(points):
             self._restore_camera(store, start)
-        return self._execute(plan, store, points, start=start)
+        complete = store.points_done()
+        skip = {i for i in range(start + 1, len(points)) if complete[i]} if redo else set()
+        return self._execute(plan, store, points, start=start, skip=skip)
 
     # ------------------------------------------------------------------ execution
-    def _execute(self, plan: Plan, store: RunStore, points, start: int) -> RunResult:
+    def _execute(self, plan: Plan, store: RunStore, points, start: int,
+                 skip: set[int] = frozenset()) -> RunResult:
         self._store = store
         self._t0 = time.monotonic()
         self._session_frames = 0
@@ -296,6 +307,8 @@ class Runner:
                 for step in plan.setup():
                     self._do_step(step, None)
                 for index in range(start, len(points)):
+                    if index in skip:
+                        continue
                     self._run_point(plan, store, index, points[index])
                     self._emit("point_done", index)
                 for step in plan.teardown():

@@ -10,18 +10,27 @@ Layout of ``RUN.zarr``::
     coords               (n_frames, n_coords) float64, one row per chunk; column names
                          in its attribute ``names`` (stage positions, LED, SLM pattern
                          id, exposure, gain, timestamps, saturation count, ...)
-    done                 (n_frames,) uint8, one element per chunk: 1 once the frame and
-                         its coordinates are written
+    crc32                (n_frames,) uint32, one element per chunk: CRC-32 of the frame's
+                         bytes (little-endian) then of its coordinate row (float64
+                         little-endian), written before the done flag (schema 2; schema-1
+                         stores have none and are read without verification)
+    done                 (n_frames,) uint8, one element per chunk: 1 once the frame, its
+                         coordinates and its checksum are written
     point                (n_frames,) int32: the plan point of each frame (fixed)
     tag                  (n_frames,) int16: index into the ``tags`` attribute (fixed)
-    products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...)
+    products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...);
+                         attribute ``crc32``: CRC-32 per plane (first axis) of a 3-D
+                         product, of the whole array otherwise
 
 The whole layout is fixed when the run is created (the plan declares every point
 and frame up front), so the metadata never changes while frames are written. Each
 chunk is written atomically (zarr's local store writes a temporary file and renames
-it) in the order frame, coordinates, done flag: a reader that trusts only frames
-flagged done never sees a partial one, and a crash loses at most the frame in
-flight.
+it) in the order frame, coordinates, checksum, done flag: a reader that trusts only
+frames flagged done never sees a partial one, and a crash loses at most the frame in
+flight. Reading a frame or a product verifies its checksum, so a chunk file deleted
+(zarr would return zeros) or altered afterwards is reported (RunStoreError naming the
+frame or product plane) instead of being read as data; :meth:`RunStore.verify`
+checks a whole run.
 """
 
 from __future__ import annotations
@@ -29,6 +38,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import logging
+import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +53,9 @@ __all__ = ["SCHEMA_VERSION", "RunStore", "RunStoreError", "software_version", "u
 log = logging.getLogger(__name__)
 
 #: Version of the layout above; bumped on any incompatible change.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Schema versions this diffuserlab reads (1: no checksums).
+READABLE_SCHEMAS = (1, 2)
 
 
 class RunStoreError(ValueError):
@@ -96,14 +108,15 @@ class RunStore:
         self.attrs = dict(group.attrs)
         if self.attrs.get("schema") != "diffuserlab-run":
             raise RunStoreError(f"{self.path} is a Zarr store but not a diffuserlab run")
-        if self.attrs.get("schema_version") != SCHEMA_VERSION:
+        if self.attrs.get("schema_version") not in READABLE_SCHEMAS:
             raise RunStoreError(
                 f"{self.path} has run schema {self.attrs.get('schema_version')}, this "
-                f"diffuserlab reads {SCHEMA_VERSION}; open it with the version that wrote "
+                f"diffuserlab reads {list(READABLE_SCHEMAS)}; open it with the version that wrote "
                 f"it ({self.attrs.get('software_version')})")
         self._coord_names = list(self._group["coords"].attrs["names"])
         self._point = np.asarray(self._group["point"][:])
         self._tag = np.asarray(self._group["tag"][:])
+        self.has_checksums = "crc32" in set(self._group.array_keys())
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -166,6 +179,7 @@ class RunStore:
                                     chunks=(1, len(coord_names)), dtype="float64",
                                     fill_value=np.nan)
         coords.attrs["names"] = list(coord_names)
+        group.create_array("crc32", shape=(n,), chunks=(1,), dtype="uint32", fill_value=0)
         group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0)
         group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32")[:] = point_of
         group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16")[:] = tag_of
@@ -306,6 +320,8 @@ class RunStore:
         row = np.array([float(coords.get(n, np.nan)) for n in self._coord_names])
         self._group["frames"][index] = image
         self._group["coords"][index] = row
+        if self.has_checksums:
+            self._group["crc32"][index] = _crc(image, row)
         self._group["done"][index] = 1
 
     def _exact(self, index: int, image: np.ndarray) -> np.ndarray:
@@ -367,11 +383,33 @@ class RunStore:
         """
         if not bool(self._group["done"][index]):  # one chunk
             raise RunStoreError(f"frame {index} of {self.path} is not written yet")
-        row = np.asarray(self._group["coords"][index])
-        return FrameRecord(int(index), int(self._point[index]),
-                           self.tag_of(index),
-                           np.asarray(self._group["frames"][index]),
+        image, row = self._read(index)
+        return FrameRecord(int(index), int(self._point[index]), self.tag_of(index), image,
                            dict(zip(self._coord_names, row.tolist(), strict=True)))
+
+    def _read(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Image and coordinate row of a done frame, checksum verified."""
+        index = int(index)
+        try:
+            image = np.asarray(self._group["frames"][index])
+            row = np.asarray(self._group["coords"][index], np.float64)
+            crc = int(self._group["crc32"][index]) if self.has_checksums else None
+        except Exception as exc:  # a corrupt chunk fails to decode
+            raise RunStoreError(self._damage(index, f"its chunks cannot be read ({exc})")) \
+                from exc
+        if crc is not None and crc != _crc(image, row):
+            missing = not (self.path / "frames" / "c" / str(index) / "0" / "0").exists()
+            raise RunStoreError(self._damage(
+                index, f"its chunk file frames/c/{index}/0/0 is missing (read as zeros)"
+                if missing else "its data differ from the checksum recorded when it was "
+                "written (a chunk file altered)"))
+        return image, row
+
+    def _damage(self, index: int, reason: str) -> str:
+        point = int(self._point[index])
+        return (f"frame {index} (point {point}) of {self.path} is damaged: {reason}; "
+                f"re-run that point: diffuserlab calibrate resume {self.path} BENCH.toml "
+                f"--redo {point}")
 
     def point_frames(self, point: int, tag: str | None = None) -> tuple[np.ndarray, list[dict]]:
         """Frames (n, rows, cols) and coordinates of one point (optionally one tag).
@@ -387,10 +425,9 @@ class RunStore:
             raise RunStoreError(f"point {point} has no frames tagged {tag!r}")
         if not self.done(range(idx[0], idx[-1] + 1))[[i - idx[0] for i in idx]].all():
             raise RunStoreError(f"point {point} of {self.path} is not complete")
-        frames = np.asarray(self._group["frames"][idx[0]:idx[-1] + 1])
-        frames = frames[[i - idx[0] for i in idx]]
-        coords = np.asarray(self._group["coords"][idx[0]:idx[-1] + 1])[
-            [i - idx[0] for i in idx]]
+        read = [self._read(i) for i in idx]
+        frames = np.stack([image for image, _ in read])
+        coords = [row for _, row in read]
         return frames, [dict(zip(self._coord_names, c.tolist(), strict=True)) for c in coords]
 
     def coords_table(self) -> dict[str, np.ndarray]:
@@ -409,7 +446,7 @@ class RunStore:
         chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
         arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
         arr[...] = array
-        arr.attrs.update(jsonable(attrs))
+        arr.attrs.update(jsonable({**attrs, "crc32": _product_crcs(array)}))
 
     def products(self) -> list[str]:
         """Names of the stored products."""
@@ -429,7 +466,48 @@ class RunStore:
                 f"{self.path} has no product {name!r} (it has {self.products()}); finish "
                 "or resume the run first")
         arr = products[name]
-        return np.asarray(arr[...]), dict(arr.attrs)
+        attrs = dict(arr.attrs)
+        fix = (f"recompute it: diffuserlab calibrate resume {self.path} BENCH.toml (a run "
+               "whose points are all stored only recomputes its products)")
+        try:
+            data = np.asarray(arr[...])
+        except Exception as exc:  # a corrupt chunk fails to decode
+            raise RunStoreError(f"product {name!r} of {self.path} is damaged: its chunks "
+                                f"cannot be read ({exc}); {fix}") from exc
+        recorded = attrs.pop("crc32", None)
+        if recorded is not None:
+            actual = _product_crcs(data)
+            bad = [k for k, (a, b) in enumerate(zip(recorded, actual, strict=False)) if a != b]
+            if bad or len(recorded) != len(actual):
+                where = f"plane {bad[0]}" if data.ndim == 3 and bad else "its data"
+                raise RunStoreError(f"product {name!r} of {self.path} is damaged: {where} "
+                                    "differs from the checksum recorded when it was "
+                                    f"written (a chunk file deleted or altered); {fix}")
+        return data, attrs
+
+    # ------------------------------------------------------------------ integrity
+    def verify(self) -> list[str]:
+        """Check every done frame and every product against its checksum.
+
+        Returns
+        -------
+        list of str
+            One line per problem (frame index and point, or product and plane, with
+            the fix); empty when the run is intact. A schema-1 run carries no
+            checksums: only unreadable chunks are found (see ``has_checksums``).
+        """
+        problems = []
+        for i in np.flatnonzero(self.done()):
+            try:
+                self._read(int(i))
+            except RunStoreError as exc:
+                problems.append(str(exc))
+        for name in self.products():
+            try:
+                self.product(name)
+            except RunStoreError as exc:
+                problems.append(str(exc))
+        return problems
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
@@ -453,3 +531,18 @@ class RunStore:
     def to_json(self) -> str:
         """:meth:`summary` as indented JSON."""
         return json.dumps(self.summary(), indent=1)
+
+
+def _crc(image: np.ndarray, row: np.ndarray) -> int:
+    """CRC-32 of a frame's bytes then its coordinate row (both little-endian)."""
+    image = np.ascontiguousarray(image, image.dtype.newbyteorder("<"))
+    crc = zlib.crc32(image.tobytes())
+    return zlib.crc32(np.ascontiguousarray(row, "<f8").tobytes(), crc)
+
+
+def _product_crcs(array: np.ndarray) -> list[int]:
+    """CRC-32 per plane of a 3-D array (its chunks), of the whole array otherwise."""
+    array = np.asarray(array)
+    planes = list(array) if array.ndim == 3 else [array]
+    return [zlib.crc32(np.ascontiguousarray(p, p.dtype.newbyteorder("<")).tobytes())
+            for p in planes]

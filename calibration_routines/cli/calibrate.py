@@ -101,6 +101,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "first-order efficiency with the previous LUT")
     rp = csub.add_parser("resume", help="continue an aborted, failed or killed run")
     _common(rp, resume=True)
+    rp.add_argument("--redo", default="", metavar="POINT[,POINT...]",
+                    help="capture these plan points again (e.g. a point with a damaged "
+                    "frame, see `diffuserlab runs verify`) before resuming")
     cp.set_defaults(handler=run)
 
 
@@ -234,7 +237,12 @@ def run(args: argparse.Namespace) -> int:
                 events = _progress(store.n_frames, int(store.done().sum()))
                 runner = Runner(bench, on_event=events,
                                 reconnect_timeout_s=args.reconnect_timeout_s)
-                result = runner.resume(args.run)
+                try:
+                    redo = [int(v) for v in args.redo.split(",") if v.strip()]
+                except ValueError:
+                    raise ValueError(f"--redo {args.redo!r}: give point numbers separated "
+                                     "by commas, e.g. --redo 3,7") from None
+                result = runner.resume(args.run, redo=redo)
             else:
                 plan = _plan(args, bench)
                 stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")

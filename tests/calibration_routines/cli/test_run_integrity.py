@@ -1,0 +1,58 @@
+"""A damaged run (chunk file deleted or altered) is reported by every command that
+reads it, naming the frame, and `calibrate resume --redo POINT` repairs it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from instrument.cli import main
+from instrument.runstore import RunStore
+
+ROOT = Path(__file__).resolve().parents[3]
+BENCH = str(ROOT / "examples" / "bench-simulated.toml")
+
+
+@pytest.fixture
+def sweep(tmp_path):
+    path = tmp_path / "sweep.zarr"
+    assert main(["calibrate", "psf-sweep", BENCH, "--simulate", "--z-min", "30",
+                 "--z-max", "60", "--n-depths", "3", "--frames", "2", "--out",
+                 str(path)]) == 0
+    return path
+
+
+def _frame_of_point(path, point):
+    return RunStore.open(path).frame_range(point).start
+
+
+@pytest.mark.parametrize("damage", ["delete", "alter"])
+def test_damaged_frame_is_named_and_redo_repairs_it(sweep, tmp_path, capsys, damage):
+    index = _frame_of_point(sweep, 1)
+    if damage == "delete":
+        (sweep / f"frames/c/{index}/0/0").unlink()
+    else:
+        arr = zarr.open_group(str(sweep), mode="r+")["frames"]
+        arr[index] = np.asarray(arr[index]) // 2 + 1
+    capsys.readouterr()
+    assert main(["runs", "export", str(sweep), "--frames", "--out",
+                 str(tmp_path / "f.tif")]) == 2
+    assert f"frame {index} (point 1)" in capsys.readouterr().err
+    assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate"]) == 1
+    captured = capsys.readouterr()
+    assert f"frame {index} (point 1)" in captured.out + captured.err
+    assert "--redo 1" in captured.out + captured.err
+    assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate", "--redo", "1"]) == 0
+    store = RunStore.open(sweep)
+    assert store.status == "complete" and store.verify() == []
+    assert len(store.attrs["resumes"]) == 2
+
+
+def test_redo_rejects_bad_points(sweep, capsys):
+    assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate", "--redo", "x"]) == 2
+    assert "--redo 'x'" in capsys.readouterr().err
+    assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate", "--redo", "9"]) == 2
+    assert "no point 9" in capsys.readouterr().err

@@ -1,0 +1,70 @@
+"""Run-store integrity: checksums catch deleted and altered chunks, old stores still read."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import zarr
+
+from instrument.runstore import RunStore, RunStoreError
+
+
+def _run(path):
+    store = RunStore.create(path, plan_name="p", plan_params={}, points=[{"z": 1.0}, {"z": 2.0}],
+                            frame_tags=[["psf", "psf"], ["psf", "psf"]], frame_shape=(8, 10),
+                            frame_dtype=np.uint16, coord_names=["exposure_s"])
+    for i in range(4):
+        store.write_frame(i, np.full((8, 10), i + 1, np.uint16), {"exposure_s": 0.1})
+    store.write_product("psf_stack", np.ones((2, 8, 10), np.float32), depths_mm=[1.0, 2.0])
+    return store
+
+
+def test_intact_run_verifies_clean(tmp_path):
+    store = _run(tmp_path / "r.zarr")
+    assert store.has_checksums and store.verify() == []
+    arr, attrs = store.product("psf_stack")
+    assert arr.sum() == 160 and "crc32" not in attrs and attrs["depths_mm"] == [1.0, 2.0]
+
+
+def test_deleted_frame_chunk_is_reported_not_read_as_zeros(tmp_path):
+    _run(tmp_path / "r.zarr")
+    (tmp_path / "r.zarr/frames/c/3/0/0").unlink()
+    store = RunStore.open(tmp_path / "r.zarr")
+    with pytest.raises(RunStoreError, match=r"frame 3 \(point 1\).*missing.*--redo 1"):
+        store.frame(3)
+    with pytest.raises(RunStoreError, match="frame 3"):
+        store.point_frames(1)
+    store.point_frames(0)  # the other point is intact
+    problems = store.verify()
+    assert len(problems) == 1 and "frame 3" in problems[0]
+
+
+def test_altered_frame_chunk_is_reported(tmp_path):
+    _run(tmp_path / "r.zarr")
+    zarr.open_group(str(tmp_path / "r.zarr"), mode="r+")["frames"][2] = np.zeros((8, 10)) + 7
+    store = RunStore.open(tmp_path / "r.zarr")
+    with pytest.raises(RunStoreError, match=r"frame 2 \(point 1\).*differ"):
+        store.frame(2)
+    (tmp_path / "r.zarr/frames/c/1/0/0").write_bytes(b"garbage")
+    problems = RunStore.open(tmp_path / "r.zarr").verify()
+    assert [p.split(" (")[0] for p in problems] == ["frame 1", "frame 2"]
+
+
+def test_damaged_product_plane_is_reported(tmp_path):
+    _run(tmp_path / "r.zarr")
+    (tmp_path / "r.zarr/products/psf_stack/c/1/0/0").unlink()
+    store = RunStore.open(tmp_path / "r.zarr")
+    with pytest.raises(RunStoreError, match="product 'psf_stack'.*plane 1"):
+        store.product("psf_stack")
+    assert len(store.verify()) == 1
+
+
+def test_schema_1_store_reads_without_checksums(tmp_path):
+    store = _run(tmp_path / "r.zarr")
+    store.update_attrs(schema_version=1)
+    shutil.rmtree(tmp_path / "r.zarr/crc32")
+    old = RunStore.open(tmp_path / "r.zarr")
+    assert not old.has_checksums and old.verify() == []
+    assert old.frame(3).image[0, 0] == 4
