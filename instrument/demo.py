@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from recon import reconstruct
-from recon.io import DATA_ORIENTATION, save_image, scene_view
+from recon.io import DATA_ORIENTATION, atomic_path, save_image, scene_view
 from recon.metrics import psnr, ssim
 
 from .acquisition import autoexpose, average_frames
@@ -38,6 +38,11 @@ def _register(estimate: np.ndarray, truth: np.ndarray, max_shift: int = 2):
             if best is None or score > best[0]:
                 best = (score, (dy, dx), t)
     return best[1], best[2]
+
+
+#: The files :func:`run_demo` writes in its directory.
+OUTPUT_FILES = ("psf.tif", "dark.tif", "scene_raw.tif", "reconstruction.png",
+                "reconstruction.tif", "truth.png", "report.json")
 
 
 def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 40.0,
@@ -140,6 +145,7 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         "timings_s": timings,
         "total_s": time.perf_counter() - t0,
     }
-    (out / "report.json").write_text(json.dumps(report, indent=1, default=float))
+    with atomic_path(out / "report.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1, default=float))
     step(f"wrote {out} (PSNR {score['psnr_db']:.2f} dB, SSIM {score['ssim']:.3f})", t)
     return report

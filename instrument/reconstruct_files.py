@@ -20,7 +20,7 @@ import numpy as np
 from drivers.base import jsonable
 
 __all__ = ["load_psf", "output_paths", "projections", "run_recon", "run_recon3d",
-           "volume_output_paths", "write_volume"]
+           "volume_output_paths", "write_json", "write_volume"]
 
 log = logging.getLogger(__name__)
 
@@ -160,9 +160,31 @@ def run_recon(
     metrics.update(output_png=str(png), output_tiff=str(tif),
                    orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})
     if metrics_json:
-        Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
-        Path(metrics_json).write_text(json.dumps(metrics, indent=1))
+        write_json(metrics_json, metrics)
     return metrics
+
+
+def write_json(path: str | Path, data: dict) -> Path:
+    """Write ``data`` as indented JSON, atomically (:func:`recon.io.atomic_path`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination (parent directories are created).
+    data : dict
+        JSON-serialisable.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    from recon.io import atomic_path
+
+    text = json.dumps(data, indent=1)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
 
 
 def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
@@ -205,6 +227,9 @@ def projections(volume: np.ndarray) -> dict[str, np.ndarray]:
 def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     """A float32 TIFF (JSON metadata, axes ZYX) or a Zarr v3 array (attributes).
 
+    The TIFF is written atomically (:func:`recon.io.atomic_path`); a Zarr array is a
+    directory of chunks and is written in place.
+
     Raises
     ------
     ValueError
@@ -213,10 +238,13 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     import tifffile
     import zarr
 
+    from recon.io import atomic_path
+
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() != ".zarr":
-        tifffile.imwrite(path, volume.astype(np.float32), photometric="minisblack",
-                         metadata={**attrs, "axes": "ZYX"})
+        with atomic_path(path) as tmp:
+            tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
+                             metadata={**attrs, "axes": "ZYX"})
         return
     node = path / "zarr.json"
     if path.exists():
@@ -318,7 +346,6 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
                "orientation": {"mips": "scene, upright", "volume": DATA_ORIENTATION}}
     metrics = jsonable(metrics, nonfinite_to_none=True)
     if metrics_json:
-        Path(metrics_json).parent.mkdir(parents=True, exist_ok=True)
-        Path(metrics_json).write_text(json.dumps(metrics, indent=1))
+        write_json(metrics_json, metrics)
     log.debug("recon3d: wrote %s and %s", vol_path, ", ".join(map(str, mip_paths.values())))
     return metrics

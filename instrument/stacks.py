@@ -138,6 +138,8 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
     """
     import tifffile
 
+    from recon.io import atomic_path
+
     store = RunStore.open(run)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -155,7 +157,8 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
                                                    for i in range(store.n_frames)],
                 "tags": [store.frame(i).tag for i in range(store.n_frames)],
                 "coords": {k: v.tolist() for k, v in coords.items()}}
-    tifffile.imwrite(out, array, metadata=meta, photometric="minisblack")
+    with atomic_path(out) as tmp:
+        tifffile.imwrite(tmp, array, metadata=meta, photometric="minisblack")
     return out
 
 

@@ -10,8 +10,10 @@ run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
 compressed sensing; 3D speed, memory and accuracy), ``holo evaluate`` / ``holo
 benchmark`` (Table 7.1, hologram speed), plus the commands other layers register
 under the entry-point group ``diffuserlab.commands`` (``calibrate`` and ``align``
-from calibration_routines). Bad input exits with status 2 and a one-line reason; a
-diverging solver exits with status 3.
+from calibration_routines). Bad input, and the ordinary OS errors (permission denied,
+no such file, no space left, ...), exit with status 2 and a one-line reason; a
+diverging solver exits with status 3; any other exception is a bug: one line and
+status 1, or its traceback with ``--debug``.
 
 Every command module has ``add_subcommands(sub)``; its parsers carry
 ``handler=FUNCTION`` (and, where a command maps more than the project's input
@@ -23,6 +25,7 @@ sends INFO records (DEBUG with ``-v``) to the console, and only this package pri
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import sys
 
@@ -49,8 +52,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="diffuserlab",
         description="Bench control, calibration and reconstruction for lensless diffuser "
         "cameras and random-mask holographic displays (Kuo 2020). Bad input: one line, "
-        "exit status 2; a diverging solver: exit status 3.")
+        "exit status 2; a diverging solver: exit status 3; a bug: one line, exit status 1 "
+        "(--debug shows the traceback). Outputs never replace inputs, nor existing files "
+        "without --overwrite.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the traceback of an unexpected error (a bug) instead of "
+                        "one line")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS:
         module.add_subcommands(sub)
@@ -75,6 +83,19 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
+#: errno values of an OSError that are the user's or the system's problem, not a bug.
+_ORDINARY_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EACCES,
+                              errno.EPERM, errno.ENOENT, errno.EISDIR, errno.ENOTDIR,
+                              errno.EEXIST, errno.ENAMETOOLONG})
+
+
+def _os_error_line(exc: OSError) -> str:
+    """``REASON: PATH`` of an OSError (both paths of a rename)."""
+    reason = exc.strerror or _one_line(exc) or type(exc).__name__
+    paths = [p for p in (exc.filename, exc.filename2) if p is not None]
+    return f"{reason}: {' -> '.join(map(str, paths))}" if paths else reason
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``diffuserlab`` console script; returns the exit status.
 
@@ -91,7 +112,10 @@ def main(argv: list[str] | None = None) -> int:
         :class:`instrument.runstore.RunStoreError`,
         :class:`instrument.cli.common.MissingBenchFile` and the errors the command
         lists in ``input_errors``; 3 when a solver diverged
-        (:class:`recon.errors.DivergenceError`).
+        (:class:`recon.errors.DivergenceError`); 2 (one line) on the ordinary OS
+        errors (permission denied, no such file, is / is not a directory, file exists,
+        no space left, read-only file system); 1 and one line saying it is a bug on any
+        other exception, whose traceback ``--debug`` shows instead.
     """
     from recon.errors import DivergenceError, ReconInputError
 
@@ -113,3 +137,14 @@ def main(argv: list[str] | None = None) -> int:
     except input_errors as exc:
         print(f"diffuserlab: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        if exc.errno not in _ORDINARY_ERRNOS or args.debug:
+            raise
+        print(f"diffuserlab: error: {_os_error_line(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        if args.debug:
+            raise
+        print(f"diffuserlab: internal error (a bug): {type(exc).__name__}: {_one_line(exc)}; "
+              "re-run with --debug for the traceback and report it", file=sys.stderr)
+        return 1

@@ -82,6 +82,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                         help="inner-product threshold of distinguishability (Sec. 6.4)")
     common.add_argument("--out", default="out/analysis",
                         help="directory for <analysis>.png and <analysis>.json")
+    common.add_argument("--overwrite", action="store_true",
+                        help="replace <analysis>.png and <analysis>.json of an earlier run")
 
     ap = sub.add_parser("analyze", help="system analysis of a PSF stack (plot + JSON)")
     asub = ap.add_subparsers(dest="analysis", required=True)
@@ -468,17 +470,24 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
     ValueError
         Missing or invalid options.
     """
+    from recon.io import atomic_path
+
+    from ..output_safety import check_outputs
+
     if args.bin_factor < 1:
         raise ValueError(f"--bin must be >= 1, got {args.bin_factor}")
+    out = Path(args.out)
+    png, js = out / f"{args.analysis}.png", out / f"{args.analysis}.json"
+    check_outputs([png, js], {"--psf-stack": args.psf_stack},
+                  getattr(args, "overwrite", False), directory=out)
     stack, z, header = _load(args)
     result, fig, lines = _RUNNERS[args.analysis](args, stack, z, header)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    png, js = out / f"{args.analysis}.png", out / f"{args.analysis}.json"
-    fig.savefig(png, dpi=100)
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp, dpi=100)
     result = jsonable({**result, "output_png": str(png), "output_json": str(js)},
                       nonfinite_to_none=True)
-    js.write_text(json.dumps(result, indent=1))
+    with atomic_path(js) as tmp:
+        tmp.write_text(json.dumps(result, indent=1))
     log.debug("analyze %s: wrote %s and %s", args.analysis, png, js)
     return result, [*lines, f"wrote {png} and {js}"]
 

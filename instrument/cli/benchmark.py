@@ -29,12 +29,19 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="fewer iterations and sweep points, small 3D problems (tests/CI, "
                     "about 1 min)")
     rp.add_argument("--only", choices=BENCHMARKS, help="run a single benchmark")
+    rp.add_argument("--overwrite", action="store_true",
+                    help="replace the results of an earlier run in --out")
     rp.set_defaults(handler=run_recon_benchmarks)
 
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:
     """Run ``benchmark recon``; returns 0 (bad input exits 2 through the boundary)."""
     from recon.benchmarks.run import format_result, run_benchmarks
+
+    from ..output_safety import check_outputs
+
+    # summary.json is written by every run: an --out holding one holds earlier results
+    check_outputs([args.out / "summary.json"], None, args.overwrite, directory=args.out)
 
     def show(name: str, result: dict, seconds: float) -> None:
         print(format_result(name, result))

@@ -20,14 +20,26 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     dp.add_argument("--seed", type=int, default=0, help="seed of the simulated bench")
     dp.add_argument("--real-sample", action="store_true",
                     help="instead, reconstruct the real DiffuserCam tutorial sample (bin 4)")
+    dp.add_argument("--overwrite", action="store_true",
+                    help="replace the files of an earlier demo in --out")
     dp.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo (:func:`instrument.demo.run_demo`) or the real sample; returns 0."""
-    if not args.real_sample:
-        from ..demo import run_demo
+    from recon.errors import ReconInputError
 
+    from ..output_safety import check_outputs
+
+    if args.seed < 0 or args.iterations < 1:
+        raise ReconInputError(f"--seed must be >= 0 (got {args.seed}) and --iterations >= 1 "
+                              f"(got {args.iterations})")
+    out = Path(args.out)
+    if not args.real_sample:
+        from ..demo import OUTPUT_FILES, run_demo
+
+        check_outputs([out / name for name in OUTPUT_FILES], None, args.overwrite,
+                      directory=out)
         run_demo(args.out, seed=args.seed, method=args.method, iterations=args.iterations)
         return 0
     from recon.sample import data_dir
@@ -36,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     from .recon import summary_line
 
     data = data_dir()
-    out = Path(args.out)
+    check_outputs([out / "hand.png", out / "hand.tif", out / "metrics.json"], None,
+                  args.overwrite, directory=out)
     m = run_recon(str(data / "psf_sample.tif"), str(data / "rawdata_hand_sample.tif"),
                   method=args.method, iterations=args.iterations, bin_factor=4, tv=None,
                   erase=0.0, seed=0, full_scale=65520.0, out=str(out / "hand.png"),

@@ -13,7 +13,10 @@ import argparse
 import json
 import sys
 
-__all__ = ["add_subcommands", "run_benchmark", "run_evaluate"]
+__all__ = ["EVALUATION_FILES", "add_subcommands", "run_benchmark", "run_evaluate"]
+
+#: The files ``holo evaluate`` writes under ``--out``.
+EVALUATION_FILES = ("records.csv", "summary.json", "table.md", "psnr_vs_seconds.png")
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +42,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ep.add_argument("--quick", action="store_true",
                     help="smoke run: N = 48, 3 images, factors 4,16, seed 0, 15 iterations")
     ep.add_argument("--strict", action="store_true", help="exit 1 when a rule fails")
+    ep.add_argument("--overwrite", action="store_true",
+                    help="replace the files of an earlier evaluation in --out")
     ep.set_defaults(handler=run_evaluate)
 
     bp = hsub.add_parser("benchmark", help="full-size hologram speed against the FFT floor",
@@ -51,6 +56,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("--fft-repeats", type=int, default=9)
     bp.add_argument("--json", default=None, help="also write the report to this JSON file")
     bp.add_argument("--quick", action="store_true", help="tiny smoke run (36 x 64 SLM, 10 it.)")
+    bp.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     bp.set_defaults(handler=run_benchmark)
 
 
@@ -69,11 +75,18 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
 def run_evaluate(args: argparse.Namespace) -> int:
     """Run ``holo evaluate``; 0, or 1 when a rule failed with ``--strict`` (bad input
     exits 2 through :func:`instrument.cli.main`)."""
+    from pathlib import Path
+
     from recon.cgh.evaluate import run_evaluation
     from recon.cgh.protocol import BUNDLED_IMAGES, load_bundled, load_folder
 
+    from ..output_safety import check_outputs
+
     size, factors, seeds, iters = args.size, _ints(args.factors, "--factors"), \
         _ints(args.seeds, "--seeds"), args.iterations
+    out = Path(args.out)
+    check_outputs([out / n for n in EVALUATION_FILES], {"--images": args.images},
+                  args.overwrite, directory=out)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
     if args.images:
         images = load_folder(args.images)
@@ -110,9 +123,15 @@ def run_benchmark(args: argparse.Namespace) -> int:
     if k * k != args.factor or min(slm) < 1 or iters < 1 or reps < 1:
         raise ReconInputError("--factor must be a perfect square; --slm, --iterations and "
                               "--fft-repeats must be positive")
+    if args.json:
+        from ..output_safety import check_outputs
+
+        check_outputs([args.json], None, args.overwrite, option="--json")
     rep = time_hologram(slm, k, iters, args.loss, reps)
     print(format_report(rep, args.factor, reps, iters))
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rep, fh, indent=1)
+        from recon.io import atomic_path
+
+        with atomic_path(args.json) as tmp:
+            tmp.write_text(json.dumps(rep, indent=1))
     return 0

@@ -40,6 +40,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--out", default="out/recon.png",
                     help="output image; writes OUT.png (viewing) and OUT.tif (float32)")
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
+    rp.add_argument("--overwrite", action="store_true",
+                    help="replace existing output files (never an input)")
     rp.set_defaults(handler=run)
 
 
@@ -56,8 +58,11 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
-    from ..reconstruct_files import run_recon
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import output_paths, run_recon
 
+    outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
+    check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
     m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
                   bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,

@@ -61,6 +61,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                    "OUT.zarr (Zarr v3 array, depths attribute); projections go to "
                    "OUT_mip_{xy,xz,yz}.png")
     p.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace existing output files (never an input)")
     p.set_defaults(handler=run, input_errors=(ValueError, OSError))
 
 
@@ -101,8 +103,12 @@ def run(args: argparse.Namespace) -> int:
     """Run ``recon3d`` (:func:`instrument.reconstruct_files.run_recon3d`) and print its
     summary line; returns 0 (bad input exits 2 and divergence 3 through
     :func:`instrument.cli.main`)."""
-    from ..reconstruct_files import run_recon3d
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import run_recon3d, volume_output_paths
 
+    vol, mips = volume_output_paths(args.out)
+    outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
+    check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
     m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
                     tv=args.tv, l1=args.l1, out=args.out, depths_mm=_parse_depths(args.depths),
                     bin_factor=args.bin_factor, dark=_parse_dark(args.dark),

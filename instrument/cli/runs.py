@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from ..output_safety import check_outputs
 from ..runstore import RunStore
 from ..stacks import export_tiff, import_psf_stack
 
@@ -22,6 +23,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                          "as TIFF")
     ep.add_argument("run")
     ep.add_argument("--out", required=True, help="TIFF file to write")
+    ep.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     group = ep.add_mutually_exclusive_group()
     group.add_argument("--product", default="psf_stack", help="product name (default "
                        "psf_stack)")
@@ -72,9 +74,11 @@ def run(args: argparse.Namespace) -> int:
         summary = RunStore.open(args.run).summary()
         print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
     elif args.runs_command == "export":
+        check_outputs([args.out], {"run": args.run}, args.overwrite)
         out = export_tiff(args.run, args.out, product=None if args.frames else args.product)
         print(f"wrote {out}")
     elif args.runs_command == "import-psf":
+        check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else [float(v) for v in args.depths.split(",")]
         store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
                                  overwrite=args.overwrite)

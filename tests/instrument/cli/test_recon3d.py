@@ -144,15 +144,15 @@ def test_recon3d_npy_with_depths_to_zarr_with_binning_and_dark(problem, tmp_path
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["dark_mode"] == "auto" and m["dark_level"] == pytest.approx(20.0, abs=0.5)
     assert m["bin_factor"] == 2 and m["sensor_shape"] == [N // 2, N // 2]
-    # writing again over the previous volume works; over a run store / other dir it refuses
-    assert cli("--psf-stack", rev, "--depths", ",".join(map(str, DEPTHS[::-1])), "--raw",
-               tmp_path / "raw_dark.npy", "--method", "fista", "--iterations", 2,
-               "--out", out) == 0
+    # writing again over the previous volume needs --overwrite; over a run store / other
+    # dir it refuses even then
+    again = ("--psf-stack", rev, "--depths", ",".join(map(str, DEPTHS[::-1])), "--raw",
+             tmp_path / "raw_dark.npy", "--method", "fista", "--iterations", 2)
+    assert cli(*again, "--out", out) == 2
+    assert cli(*again, "--out", out, "--overwrite") == 0
     other = tmp_path / "other.zarr"
     zarr.open_group(str(other), mode="w", zarr_format=3)
-    assert cli("--psf-stack", rev, "--depths", ",".join(map(str, DEPTHS[::-1])), "--raw",
-               tmp_path / "raw_dark.npy", "--method", "fista", "--iterations", 2,
-               "--out", other) == 2
+    assert cli(*again, "--out", other, "--overwrite") == 2
 
 
 def test_recon3d_reads_a_run_store(problem, tmp_path):

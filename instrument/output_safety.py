@@ -1,0 +1,115 @@
+"""Output safety of the ``diffuserlab`` commands: outputs never clobber inputs.
+
+Every command that writes files calls :func:`check_outputs` before any work starts.
+It refuses, with one line naming both paths, an output that is one of the command's
+inputs (resolved paths: ``recon --raw raw.tif --out raw`` would write ``raw.tif``)
+or lies inside an input directory (a run store), an output that already exists
+(unless ``--overwrite``), an output directory that is a file, and an output whose
+directory cannot be created or written (reported before the solve, not after).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+from recon.errors import ReconInputError
+
+__all__ = ["OutputError", "check_outputs"]
+
+log = logging.getLogger(__name__)
+
+
+class OutputError(ReconInputError):
+    """An output path the command refuses (exit status 2 through the CLI boundary)."""
+
+
+def _resolved(path: str | os.PathLike) -> Path:
+    return Path(os.path.abspath(os.path.expanduser(os.fspath(path)))).resolve()
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return folder in path.parents
+
+
+def _check_writable(folder: Path, label: str) -> None:
+    """Create ``folder`` (and parents) and write a probe file in it."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise OutputError(f"{label}: cannot create directory {folder}: a file of that name "
+                          "exists; choose another path") from None
+    except OSError as exc:
+        raise OutputError(f"{label}: cannot create directory {folder} ({exc.strerror or exc}); "
+                          "choose a writable path") from None
+    if not folder.is_dir():
+        raise OutputError(f"{label}: {folder} is not a directory; choose another path")
+    try:
+        with tempfile.TemporaryFile(dir=folder, prefix=".diffuserlab-probe-"):
+            pass
+    except OSError as exc:
+        raise OutputError(f"{label}: cannot write in {folder} ({exc.strerror or exc}); "
+                          "choose a writable path") from None
+
+
+def check_outputs(outputs: Iterable[str | os.PathLike],
+                  inputs: Mapping[str, str | os.PathLike | None] | None = None,
+                  overwrite: bool = False, *, directory: str | os.PathLike | None = None,
+                  option: str = "--out") -> None:
+    """Refuse outputs that would clobber an input or an existing file, before any work.
+
+    Parameters
+    ----------
+    outputs : iterable of path
+        Every file (or Zarr directory) the command will write.
+    inputs : mapping of str to path, optional
+        The command's inputs by option name (``{"--raw": "raw.tif"}``); None values
+        are skipped.
+    overwrite : bool
+        ``--overwrite``: existing outputs may be replaced (never an input).
+    directory : path, optional
+        The command's output directory (``--out`` of demo, analyze, holo evaluate,
+        benchmark recon); refused when it exists and is not a directory.
+    option : str
+        How messages name the output option.
+
+    Raises
+    ------
+    OutputError
+        An output is an input or lies inside an input directory; an output exists
+        (without ``overwrite``) or is a directory where a file is written; the output
+        directory is a file, cannot be created or is not writable. The message is
+        one line naming the paths.
+
+    Notes
+    -----
+    The directories of the outputs are created (as the command would create them)
+    and a probe file is written and removed in each.
+    """
+    ins = {name: _resolved(p) for name, p in (inputs or {}).items() if p is not None}
+    folders: dict[Path, str] = {}
+    if directory is not None:
+        d = _resolved(directory)
+        if d.exists() and not d.is_dir():
+            raise OutputError(f"{option} {directory} is a file, not a directory; choose a "
+                              "directory name")
+        folders[d] = f"{option} {directory}"
+    for out in outputs:
+        target = _resolved(out)
+        for name, src in ins.items():
+            if target == src or _inside(target, src):
+                what = "is" if target == src else "is inside"
+                raise OutputError(f"output {out} {what} the input {name} {src}; choose "
+                                  f"another {option}")
+        if target.is_dir() and target.suffix.lower() != ".zarr":
+            raise OutputError(f"output {out} is a directory; {option} needs a file name")
+        if target.exists() and not overwrite:
+            raise OutputError(f"output {out} exists; pass --overwrite to replace it, or "
+                              f"choose another {option}")
+        folders.setdefault(target.parent, f"output {out}")
+    for folder, label in folders.items():
+        _check_writable(folder, label)
+    log.debug("outputs checked: %s", ", ".join(map(str, folders)))

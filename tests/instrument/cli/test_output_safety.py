@@ -1,0 +1,160 @@
+"""Outputs never clobber inputs, and one error boundary for every command.
+
+Table-driven: each bad case is a command line that must exit 2 with one line on
+stderr (no traceback) naming the problem, before any work, leaving every file under
+the test directory unchanged (sha256 before and after, no new files).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+import tifffile
+
+import instrument.cli.recon
+from instrument.cli import main
+from instrument.output_safety import OutputError, check_outputs
+
+
+def _tree(root):
+    """{relative path: sha256} of every file under ``root``."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def files(tmp_path):
+    """Small inputs: psf.npy, raw.tif, stack.tif (depths), a run store, a directory
+    ``dir``, a regular file ``file.txt`` and earlier outputs of every command."""
+    rng = np.random.default_rng(0)
+    psf = rng.random((32, 32)).astype(np.float32)
+    np.save(tmp_path / "psf.npy", psf)
+    tifffile.imwrite(tmp_path / "raw.tif", (100 * rng.random((32, 32))).astype(np.float32))
+    stack = rng.random((3, 32, 32)).astype(np.float32)
+    tifffile.imwrite(tmp_path / "stack.tif", stack, metadata={"depths_mm": [2.0, 4.0, 8.0]},
+                     photometric="minisblack")
+    assert main(["runs", "import-psf", str(tmp_path / "stack.tif"), "--out",
+                 str(tmp_path / "run.zarr")]) == 0
+    (tmp_path / "dir").mkdir()
+    (tmp_path / "file.txt").write_text("not a directory\n")
+    (tmp_path / "old.png").write_bytes(b"earlier output")
+    for folder, name in (("demo", "report.json"), ("analysis", "resolution.json"),
+                         ("bench", "summary.json"), ("holo", "summary.json")):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / name).write_text("{}")
+    (tmp_path / "holo.json").write_text("{}")
+    return tmp_path
+
+
+def _cases(d):
+    recon = ["recon", "--psf", d / "psf.npy", "--raw", d / "raw.tif", "--iterations", 2]
+    return {
+        "recon metrics-json is a directory": (
+            [*recon, "--out", d / "o", "--metrics-json", d / "dir"], ["is a directory"]),
+        "recon out stem is the raw input": (
+            [*recon, "--out", d / "raw"], ["raw.tif", "is the input", "--raw"]),
+        "recon out is the psf input": (
+            [*recon, "--out", d / "psf.npy", "--metrics-json", d / "psf.npy"],
+            ["psf.npy", "is the input"]),
+        "recon out exists": ([*recon, "--out", d / "old.png"], ["exists", "--overwrite"]),
+        "recon out unwritable": ([*recon, "--out", "/proc/x/y.png"], ["/proc/x", "cannot"]),
+        "recon3d out is the stack": (
+            ["recon3d", "--psf-stack", d / "stack.tif", "--raw", d / "raw.tif", "--out",
+             d / "stack.tif"], ["stack.tif", "is the input", "--psf-stack"]),
+        "demo out is a file": (["demo", "--out", d / "file.txt"], ["file.txt", "is a file"]),
+        "demo negative seed": (["demo", "--seed", -1, "--out", d / "new"], ["--seed"]),
+        "demo out holds a demo": (["demo", "--out", d / "demo"], ["report.json", "exists"]),
+        "real sample out is a file": (["demo", "--real-sample", "--out", d / "file.txt"],
+                                      ["is a file"]),
+        "analyze out holds the analysis": (
+            ["analyze", "resolution", "--psf-stack", d / "stack.tif", "--out", d / "analysis"],
+            ["resolution.json", "exists"]),
+        "analyze out inside the run store": (
+            ["analyze", "resolution", "--psf-stack", d / "run.zarr", "--out",
+             d / "run.zarr" / "x"], ["is inside the input", "run.zarr"]),
+        "runs export out is a directory": (
+            ["runs", "export", d / "run.zarr", "--out", d / "dir"], ["is a directory"]),
+        "runs export out is the run": (
+            ["runs", "export", d / "run.zarr", "--out", d / "run.zarr"], ["is the input"]),
+        "runs export out exists": (
+            ["runs", "export", d / "run.zarr", "--out", d / "raw.tif"], ["exists"]),
+        "runs import-psf out is the stack": (
+            ["runs", "import-psf", d / "stack.tif", "--out", d / "stack.tif"],
+            ["is the input"]),
+        "holo evaluate out is a file": (
+            ["holo", "evaluate", "--quick", "--out", d / "file.txt"], ["is a file"]),
+        "holo evaluate out holds an evaluation": (
+            ["holo", "evaluate", "--quick", "--out", d / "holo"], ["summary.json", "exists"]),
+        "holo benchmark json exists": (
+            ["holo", "benchmark", "--quick", "--json", d / "holo.json"], ["exists", "--json"]),
+        "benchmark out holds results": (
+            ["benchmark", "recon", "--quick", "--only", "speed", "--out", d / "bench"],
+            ["summary.json", "exists"]),
+        "benchmark out is a file": (
+            ["benchmark", "recon", "--quick", "--out", d / "file.txt"], ["is a file"]),
+    }
+
+
+CASES = list(_cases(__import__("pathlib").Path("x")))
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_output_exits_2_with_one_line_and_inputs_unchanged(files, capsys, case):
+    argv, words = _cases(files)[case]
+    before = _tree(files)
+    capsys.readouterr()
+    status = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith("diffuserlab: error: ") and "Traceback" not in err
+    for word in words:
+        assert word in err, (word, err)
+    assert _tree(files) == before
+
+
+def test_overwrite_replaces_an_earlier_output(files, capsys):
+    argv = ["recon", "--psf", str(files / "psf.npy"), "--raw", str(files / "raw.tif"),
+            "--iterations", "2", "--out", str(files / "out" / "r"),
+            "--metrics-json", str(files / "out" / "m.json")]
+    assert main(argv) == 0
+    first = (files / "out" / "m.json").read_text()
+    assert main(argv) == 2
+    assert "exists" in capsys.readouterr().err
+    assert (files / "out" / "m.json").read_text() == first
+    assert main([*argv, "--overwrite"]) == 0
+    assert json.loads((files / "out" / "m.json").read_text())["output_png"].endswith("r.png")
+    assert sorted(p.name for p in (files / "out").iterdir()) == ["m.json", "r.png", "r.tif"]
+
+
+def test_overwrite_never_replaces_an_input(files):
+    with pytest.raises(OutputError, match="is the input"):
+        check_outputs([files / "raw.tif"], {"--raw": files / "raw.tif"}, overwrite=True)
+
+
+@pytest.mark.parametrize("exc, status", [
+    (PermissionError(13, "Permission denied", "/some/file"), 2),
+    (FileNotFoundError(2, "No such file or directory", "/gone"), 2),
+    (IsADirectoryError(21, "Is a directory", "/tmp"), 2),
+    (NotADirectoryError(20, "Not a directory", "/etc/passwd/x"), 2),
+    (OSError(28, "No space left on device", "/full/disk.tif"), 2),
+    (RuntimeError("something unexpected"), 1),
+    (KeyError("missing"), 1),
+])
+def test_error_boundary(monkeypatch, capsys, exc, status):
+    def boom(args):
+        raise exc
+
+    monkeypatch.setattr(instrument.cli.recon, "run", boom)
+    assert main(["recon", "--psf", "p.npy", "--raw", "r.npy"]) == status
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    if status == 2:
+        assert err.startswith("diffuserlab: error: ") and exc.filename in err
+    else:
+        assert "bug" in err and "--debug" in err
+        with pytest.raises(type(exc)):
+            main(["--debug", "recon", "--psf", "p.npy", "--raw", "r.npy"])
