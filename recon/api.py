@@ -18,6 +18,7 @@ from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
 from .preprocess import prepare_pair
 from .solvers import SOLVERS, SolveResult
+from .validate import as_int, finite_float, nonneg_weight
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -211,15 +212,22 @@ def reconstruct(
     Raises
     ------
     ReconInputError
-        Bad input (see :mod:`recon.preprocess`) or parameters.
+        Bad input (see :mod:`recon.preprocess`) or parameters: ``iterations`` and
+        ``bin_factor`` not integers >= 1, ``seed`` not an integer >= 0, ``erase`` not
+        in [0, 1), ``tv`` not a finite number >= 0 (the messages the CLI shows).
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
     if method not in SOLVERS:
         raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(SOLVERS)}")
-    if iterations < 1:
-        raise ReconInputError(f"iterations must be >= 1, got {iterations}")
-    tv = DEFAULT_TV[method] if tv is None else float(tv)
+    iterations = as_int(iterations, "iterations", 1)
+    bin_factor = as_int(bin_factor, "bin_factor", 1)
+    seed = as_int(seed, "seed", 0)
+    erase = finite_float(erase, "erase")
+    if not 0.0 <= erase < 1.0:  # the message of PixelErasure.random
+        raise ReconInputError(f"erased fraction {erase} is outside [0, 1); use e.g. 0.8 to "
+                              "erase 80 % of the pixels")
+    tv = DEFAULT_TV[method] if tv is None else nonneg_weight(tv, "tv")
     t_start = time.perf_counter()
     if preprocess:
         prepared = prepare_pair(

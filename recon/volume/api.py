@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 import time
 from dataclasses import dataclass, field
 
@@ -213,22 +214,31 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     return stack, raw, info
 
 
-def check_volume_parameters(method: str, iterations: int, tv: float, l1: float) -> None:
+def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
+                            bin_factor: int = 1) -> None:
     """Refuse parameters :func:`reconstruct_volume` cannot use (before any file is read).
 
     Raises
     ------
     ReconInputError
-        ``method`` not in :data:`METHODS`, ``iterations`` not an integer >= 1, or a
-        weight that is not a finite number >= 0.
+        ``method`` not in :data:`METHODS`, ``iterations`` or ``bin_factor`` not an
+        integer >= 1, or a weight that is not a finite number >= 0.
     """
     if method not in METHODS:
         raise ReconInputError(f"unknown method {method!r}; choose admm or fista")
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+    if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) \
+            or iterations < 1:
         raise ReconInputError(f"--iterations must be an integer >= 1, got {iterations!r}")
+    if isinstance(bin_factor, bool) or not isinstance(bin_factor, numbers.Integral) \
+            or bin_factor < 1:
+        raise ReconInputError(f"--bin must be an integer >= 1, got {bin_factor!r}")
     for name, w in (("tv", tv), ("l1", l1)):
-        if not (math.isfinite(w) and w >= 0):
-            raise ReconInputError(f"--{name} must be a finite number >= 0, got {w}")
+        try:
+            ok = not isinstance(w, bool) and math.isfinite(w) and w >= 0
+        except TypeError:
+            ok = False
+        if not ok:
+            raise ReconInputError(f"--{name} must be a finite number >= 0, got {w!r}")
 
 
 def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
@@ -275,7 +285,8 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     """
     if tv is None:
         tv = DEFAULT_TV.get(method, 0.0)  # an unknown method is refused just below
-    check_volume_parameters(method, iterations, tv, l1)
+    check_volume_parameters(method, iterations, tv, l1, bin_factor)
+    iterations, bin_factor = int(iterations), int(bin_factor)  # numpy integers too
     stack = np.asarray(psf_stack)
     if stack.ndim != 3 or len(depths_mm) != stack.shape[0]:
         raise ReconInputError(f"the PSF stack has shape {stack.shape} and {len(depths_mm)} "
