@@ -511,7 +511,9 @@ class RunStore:
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
-        """A JSON-able overview: plan, status, progress, times, products, warnings."""
+        """A JSON-able overview: plan, status, progress, times, products, warnings, and
+        ``problems`` (:meth:`verify`, every stored frame and product checked) with
+        ``checksums`` (False for a schema-1 run, which carries none)."""
         a = self.refresh()
         done = self.done()
         return jsonable({
@@ -526,6 +528,7 @@ class RunStore:
             "products": {n: {"shape": list(self._group["products"][n].shape),
                              "dtype": str(self._group["products"][n].dtype)}
                          for n in self.products()},
+            "checksums": self.has_checksums, "problems": self.verify(),
         })
 
     def to_json(self) -> str:

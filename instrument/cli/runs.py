@@ -1,4 +1,5 @@
-"""``diffuserlab runs {show,export,import-psf}``: look into and convert run stores."""
+"""``diffuserlab runs {show,verify,export,import-psf}``: look into, check and convert run
+stores."""
 
 from __future__ import annotations
 
@@ -13,12 +14,16 @@ __all__ = ["add_subcommands", "format_summary", "run"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
-    """Add ``runs`` (with ``show``, ``export``, ``import-psf``) to the subparsers."""
+    """Add ``runs`` (with ``show``, ``verify``, ``export``, ``import-psf``) to the
+    subparsers."""
     rp = sub.add_parser("runs", help="show, export or import runs (Zarr stores)")
     rsub = rp.add_subparsers(dest="runs_command", required=True)
     sp = rsub.add_parser("show", help="plan, status, progress, times, products of a run")
     sp.add_argument("run", help="run store directory (RUN.zarr)")
     sp.add_argument("--json", action="store_true", help="print the full summary as JSON")
+    vp = rsub.add_parser("verify", help="check every stored frame and product against its "
+                         "checksum; exit 0 intact, 1 damaged, 2 unreadable")
+    vp.add_argument("run", help="run store directory (RUN.zarr)")
     ep = rsub.add_parser("export", help="write a product (default psf_stack) or the frames "
                          "as TIFF")
     ep.add_argument("run")
@@ -40,9 +45,11 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 def format_summary(s: dict) -> str:
     """Human-readable lines of :meth:`RunStore.summary`."""
+    problems = s.get("problems", [])
+    state = f"{s['status']}, DAMAGED" if problems else s["status"]
     lines = [
         f"run      {s['path']}",
-        f"plan     {s['plan']}  ({s['status']})",
+        f"plan     {s['plan']}  ({state})",
         f"progress {s['points_done']}/{s['points']} points, {s['frames_done']}/{s['frames']} "
         f"frames of {s['frame_shape'][0]}x{s['frame_shape'][1]}",
         f"times    created {s['created_utc']}, started {s['started_utc']}, "
@@ -57,6 +64,10 @@ def format_summary(s: dict) -> str:
         lines.append(f"error    {s['error']}")
     for w in s["warnings"]:
         lines.append(f"warning  {w}")
+    for p in problems:
+        lines.append(f"damaged  {p}")
+    if not s.get("checksums", True):
+        lines.append("checks   none: this run (schema 1) carries no checksums")
     for name, info in s["products"].items():
         lines.append(f"product  {name}: {'x'.join(map(str, info['shape']))} {info['dtype']}")
     for key, value in s["summary"].items():
@@ -67,12 +78,35 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
+def verify(path: str) -> int:
+    """Print one line per damaged frame or product of the run at ``path`` and a
+    summary; 0 when intact, 1 when damaged (a RunStoreError for an unreadable run
+    exits 2 through :func:`instrument.cli.main`)."""
+    store = RunStore.open(path)
+    problems = store.verify()
+    for p in problems:
+        print(p)
+    checked = (f"{int(store.done().sum())} frames and {len(store.products())} products of "
+               f"{store.path}")
+    if not store.has_checksums:
+        print(f"{store.path} (run schema 1) carries no checksums: only unreadable chunks "
+              "can be found, not deleted or altered ones")
+    if problems:
+        print(f"damaged: {len(problems)} problem(s) in {checked}; repair a frame with "
+              f"diffuserlab calibrate resume {store.path} BENCH.toml --redo POINT")
+        return 1
+    print(f"intact: {checked} verified")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Run a ``runs`` subcommand; 0 on success (a RunStoreError or ValueError exits 2
     through :func:`instrument.cli.main`)."""
     if args.runs_command == "show":
         summary = RunStore.open(args.run).summary()
         print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
+    elif args.runs_command == "verify":
+        return verify(args.run)
     elif args.runs_command == "export":
         check_outputs([args.out], {"run": args.run}, args.overwrite)
         out = export_tiff(args.run, args.out, product=None if args.frames else args.product)

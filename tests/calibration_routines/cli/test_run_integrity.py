@@ -56,3 +56,23 @@ def test_redo_rejects_bad_points(sweep, capsys):
     assert "--redo 'x'" in capsys.readouterr().err
     assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate", "--redo", "9"]) == 2
     assert "no point 9" in capsys.readouterr().err
+
+
+def test_runs_verify_and_show(sweep, tmp_path, capsys):
+    assert main(["runs", "verify", str(sweep)]) == 0
+    assert "intact:" in capsys.readouterr().out
+    index = _frame_of_point(sweep, 2)
+    (sweep / f"frames/c/{index}/0/0").unlink()
+    (sweep / "products/psf_stack/c/0/0/0").unlink()
+    assert main(["runs", "verify", str(sweep)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith(f"frame {index} (point 2)") and "missing" in lines[0]
+    assert lines[1].startswith("product 'psf_stack'") and "plane 0" in lines[1]
+    assert lines[2].startswith("damaged: 2 problem(s)")
+    assert main(["runs", "show", str(sweep)]) == 0
+    out = capsys.readouterr().out
+    assert "(complete, DAMAGED)" in out and f"damaged  frame {index} (point 2)" in out
+    assert main(["runs", "export", str(sweep), "--out", str(tmp_path / "p.tif")]) == 2
+    assert "product 'psf_stack'" in capsys.readouterr().err
+    assert main(["runs", "verify", str(tmp_path / "nothing.zarr")]) == 2
+    assert "no run store" in capsys.readouterr().err
