@@ -58,7 +58,7 @@ def _check_writable(folder: Path, label: str) -> None:
 def check_outputs(outputs: Iterable[str | os.PathLike],
                   inputs: Mapping[str, str | os.PathLike | None] | None = None,
                   overwrite: bool = False, *, directory: str | os.PathLike | None = None,
-                  option: str = "--out") -> None:
+                  option: str = "--out", store: bool = False) -> None:
     """Refuse outputs that would clobber an input or an existing file, before any work.
 
     Parameters
@@ -75,11 +75,15 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
         benchmark recon); refused when it exists and is not a directory.
     option : str
         How messages name the output option.
+    store : bool
+        The outputs are directories (run stores); otherwise only Zarr outputs (a
+        ``.zarr`` name or a ``zarr.json`` inside) may be existing directories.
 
     Raises
     ------
     OutputError
-        An output is an input or lies inside an input directory; an output exists
+        An output is an input or lies inside an input directory, or is written
+        twice (e.g. ``--metrics-json`` naming the image ``--out`` writes); an output exists
         (without ``overwrite``) or is a directory where a file is written; the output
         directory is a file, cannot be created or is not writable. The message is
         one line naming the paths.
@@ -97,14 +101,20 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
             raise OutputError(f"{option} {directory} is a file, not a directory; choose a "
                               "directory name")
         folders[d] = f"{option} {directory}"
+    seen: dict[Path, str] = {}
     for out in outputs:
         target = _resolved(out)
+        if target in seen:
+            raise OutputError(f"output {out} is also the output {seen[target]}; choose "
+                              "different names")
+        seen[target] = str(out)
         for name, src in ins.items():
             if target == src or _inside(target, src):
                 what = "is" if target == src else "is inside"
                 raise OutputError(f"output {out} {what} the input {name} {src}; choose "
                                   f"another {option}")
-        if target.is_dir() and target.suffix.lower() != ".zarr":
+        if target.is_dir() and not (store or target.suffix.lower() == ".zarr"
+                                    or (target / "zarr.json").is_file()):
             raise OutputError(f"output {out} is a directory; {option} needs a file name")
         if target.exists() and not overwrite:
             raise OutputError(f"output {out} exists; pass --overwrite to replace it, or "

@@ -81,16 +81,17 @@ def test_recon_takes_one_depth_of_a_run(sweep, tmp_path, capsys):
     stack_tif = tmp_path / "stack.tif"  # the same from an exported TIFF stack
     assert main(["runs", "export", str(sweep), "--out", str(stack_tif)]) == 0
     assert main(["recon", "--psf", str(stack_tif), "--depth", "41", "--raw",
-                 str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out)]) == 0
+                 str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out),
+                 "--overwrite"]) == 0
     assert main(["recon", "--psf", str(sweep), "--psf-product", "psf_stack_raw", "--depth",
                  "40", "--raw", str(tmp_path / "raw.tif"), "--iterations", "5", "--out",
-                 str(out)]) == 0
+                 str(out), "--overwrite"]) == 0
     capsys.readouterr()
     assert main(["recon", "--psf", str(sweep), "--raw", str(tmp_path / "raw.tif"),
-                 "--out", str(out)]) == 2
+                 "--out", str(out), "--overwrite"]) == 2
     assert "--depth" in capsys.readouterr().err
     assert main(["recon", "--psf", str(sweep), "--depth", "100", "--raw",
-                 str(tmp_path / "raw.tif"), "--out", str(out)]) == 2
+                 str(tmp_path / "raw.tif"), "--out", str(out), "--overwrite"]) == 2
     assert "nearest 60 mm" in capsys.readouterr().err
 
 

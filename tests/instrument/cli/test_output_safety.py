@@ -59,6 +59,9 @@ def _cases(d):
         "recon out is the psf input": (
             [*recon, "--out", d / "psf.npy", "--metrics-json", d / "psf.npy"],
             ["psf.npy", "is the input"]),
+        "recon metrics-json is the png": (
+            [*recon, "--out", d / "o.png", "--metrics-json", d / "o.png"],
+            ["o.png", "is also the output"]),
         "recon out exists": ([*recon, "--out", d / "old.png"], ["exists", "--overwrite"]),
         "recon out unwritable": ([*recon, "--out", "/proc/x/y.png"], ["/proc/x", "cannot"]),
         "recon3d out is the stack": (
@@ -158,3 +161,13 @@ def test_error_boundary(monkeypatch, capsys, exc, status):
         assert "bug" in err and "--debug" in err
         with pytest.raises(type(exc)):
             main(["--debug", "recon", "--psf", "p.npy", "--raw", "r.npy"])
+
+
+def test_import_psf_overwrite_replaces_a_store_without_the_zarr_suffix(files):
+    store = files / "store"
+    argv = ["runs", "import-psf", str(files / "stack.tif"), "--out", str(store)]
+    assert main(argv) == 0
+    assert main([*argv, "--overwrite"]) == 0
+    check_outputs([store], None, overwrite=True, store=True)
+    with pytest.raises(OutputError, match="is a directory"):
+        check_outputs([files / "dir"], None, overwrite=True)
