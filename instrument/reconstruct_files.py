@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -227,8 +230,10 @@ def projections(volume: np.ndarray) -> dict[str, np.ndarray]:
 def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     """A float32 TIFF (JSON metadata, axes ZYX) or a Zarr v3 array (attributes).
 
-    The TIFF is written atomically (:func:`recon.io.atomic_path`); a Zarr array is a
-    directory of chunks and is written in place.
+    Both are written under a temporary name in the same directory and renamed into
+    place (the TIFF with :func:`recon.io.atomic_path`; a Zarr array, a directory, is
+    renamed over the old one, which is moved aside and then removed), so a failure
+    never leaves a partial volume under ``path``.
 
     Raises
     ------
@@ -252,10 +257,24 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
         if kind != "array":
             raise ValueError(f"--out {path} exists and is not a volume written by recon3d "
                              "(a run store?); choose another name")
-    arr = zarr.create_array(str(path), shape=volume.shape, dtype="float32",
-                            chunks=(1, *volume.shape[1:]), overwrite=True, zarr_format=3)
-    arr[:] = volume
-    arr.attrs.update(attrs)
+    # written under a temporary name and renamed into place (the old volume is moved
+    # aside first and removed after): never half an array under the final name
+    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
+    try:
+        arr = zarr.create_array(str(tmp), shape=volume.shape, dtype="float32",
+                                chunks=(1, *volume.shape[1:]), overwrite=True, zarr_format=3)
+        arr[:] = volume
+        arr.attrs.update(attrs)
+        if path.exists():
+            old = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old"))
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, tv: float,
