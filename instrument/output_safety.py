@@ -115,7 +115,7 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
                                   f"another {option}")
         if target.is_dir() and not (store or target.suffix.lower() == ".zarr"
                                     or (target / "zarr.json").is_file()):
-            raise OutputError(f"output {out} is a directory; {option} needs a file name")
+            raise OutputError(f"output {out} is a directory; give a file name")
         if target.exists() and not overwrite:
             raise OutputError(f"output {out} exists; pass --overwrite to replace it, or "
                               f"choose another {option}")
