@@ -244,10 +244,14 @@ class Runner:
             frame_shape=cam.image_shape, frame_dtype=cam.dtype,
             coord_names=coord_names(self.bench), bench_config=config,
             device_settings=self.bench.settings_snapshot(), note=note, overwrite=overwrite)
-        store.update_attrs(camera={"id": cam.device_id, "bit_depth": cam.bit_depth,
-                                   "full_scale_dn": 2 ** int(cam.bit_depth) - 1,
-                                   "pixel_pitch_um": cam.pixel_pitch_um})
-        return self._execute(plan, store, points, start=0)
+        store.lock()
+        try:
+            store.update_attrs(camera={"id": cam.device_id, "bit_depth": cam.bit_depth,
+                                       "full_scale_dn": 2 ** int(cam.bit_depth) - 1,
+                                       "pixel_pitch_um": cam.pixel_pitch_um})
+            return self._execute(plan, store, points, start=0)
+        finally:
+            store.unlock()
 
     def resume(self, path: str | Path, plan: Plan | None = None, *,
                redo: Sequence[int] = ()) -> RunResult:
@@ -266,10 +270,16 @@ class Runner:
             stored ones, or a ``redo`` point the run does not have.
         """
         store = RunStore.open(path, mode="r+")
+        store.lock()
+        try:
+            return self._resume(store, plan, redo)
+        finally:
+            store.unlock()
+
+    def _resume(self, store: RunStore, plan: Plan | None, redo: Sequence[int]) -> RunResult:
+        path = store.path
         for point in redo:
             store.frame_range(int(point))  # RunStoreError for a point the run lacks
-        for point in redo:
-            store.clear_point(int(point))
         rec = store.attrs["plan"]
         if plan is None:
             plan = plan_from_record(rec["name"], rec["params"])
@@ -279,6 +289,8 @@ class Runner:
         if not same:
             raise RunStoreError(f"{path} was recorded by plan {rec['name']!r} with other "
                                 "points; resume it with the plan it recorded (pass plan=None)")
+        for point in redo:
+            store.clear_point(int(point))
         start = store.first_incomplete_point()
         if start is None:
             log.info("%s: every point is stored; recomputing its products", path)

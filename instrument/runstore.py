@@ -18,6 +18,8 @@ Layout of ``RUN.zarr``::
                          coordinates and its checksum are written
     point                (n_frames,) int32: the plan point of each frame (fixed)
     tag                  (n_frames,) int16: index into the ``tags`` attribute (fixed)
+    .lock                JSON {pid, host, started_utc} while a process writes the run
+                         (:meth:`RunStore.lock`); not part of the Zarr hierarchy
     products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...);
                          attribute ``crc32``: CRC-32 per plane (first axis) of a 3-D
                          product, of the whole array otherwise
@@ -38,6 +40,8 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import logging
+import os
+import socket
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -116,7 +120,8 @@ class RunStore:
         self._coord_names = list(self._group["coords"].attrs["names"])
         self._point = np.asarray(self._group["point"][:])
         self._tag = np.asarray(self._group["tag"][:])
-        self.has_checksums = "crc32" in set(self._group.array_keys())
+        # (a file check: listing the group would warn about the .lock file)
+        self.has_checksums = (self.path / "crc32" / "zarr.json").is_file()
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -163,6 +168,8 @@ class RunStore:
         if path.exists() and not overwrite:
             raise RunStoreError(
                 f"{path} already exists; resume it, choose another name or pass overwrite")
+        if (path / LOCK_NAME).exists():
+            raise RunStoreError(f"not replacing {path}: {_lock_problem(path)}")
         if len(points) != len(frame_tags) or not points:
             raise RunStoreError("a run needs at least one point and one tag list per point "
                                 "(an empty list for a point without frames)")
@@ -224,6 +231,38 @@ class RunStore:
                                       zarr_format=3)
         self.attrs = dict(self._group.attrs)
         return self.attrs
+
+    # ------------------------------------------------------------------ writer lock
+    def lock(self) -> None:
+        """Claim the run for this process: create ``RUN.zarr/.lock`` atomically.
+
+        Raises
+        ------
+        RunStoreError
+            Another writer holds the run (its pid and host named), or a stale lock
+            is left by a process that is gone (never broken silently: remove it
+            after checking no one writes the run).
+        """
+        self._require_writable()
+        record = {"pid": os.getpid(), "host": socket.gethostname(), "started_utc": utc_now()}
+        try:
+            fd = os.open(self.path / LOCK_NAME, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            raise RunStoreError(f"cannot write {self.path}: {_lock_problem(self.path)}") \
+                from None
+        with os.fdopen(fd, "w") as fh:
+            json.dump(record, fh)
+        self._locked = True
+
+    def unlock(self) -> None:
+        """Release the lock :meth:`lock` took (nothing if this object holds none)."""
+        if getattr(self, "_locked", False):
+            (self.path / LOCK_NAME).unlink(missing_ok=True)
+            self._locked = False
+
+    def lock_owner(self) -> dict | None:
+        """The writer's lock record ``{pid, host, started_utc}``, None when unlocked."""
+        return _read_lock(self.path)
 
     # ------------------------------------------------------------------ layout
     @property
@@ -513,7 +552,8 @@ class RunStore:
     def summary(self) -> dict[str, Any]:
         """A JSON-able overview: plan, status, progress, times, products, warnings, and
         ``problems`` (:meth:`verify`, every stored frame and product checked) with
-        ``checksums`` (False for a schema-1 run, which carries none)."""
+        ``checksums`` (False for a schema-1 run, which carries none), and ``lock``
+        (who writes the run, or that its lock is stale; None when unlocked)."""
         a = self.refresh()
         done = self.done()
         return jsonable({
@@ -529,6 +569,7 @@ class RunStore:
                              "dtype": str(self._group["products"][n].dtype)}
                          for n in self.products()},
             "checksums": self.has_checksums, "problems": self.verify(),
+            "lock": _lock_problem(self.path) if self.lock_owner() is not None else None,
         })
 
     def to_json(self) -> str:
@@ -549,3 +590,46 @@ def _product_crcs(array: np.ndarray) -> list[int]:
     planes = list(array) if array.ndim == 3 else [array]
     return [zlib.crc32(np.ascontiguousarray(p, p.dtype.newbyteorder("<")).tobytes())
             for p in planes]
+
+
+#: Name of the writer's lock file inside a run store.
+LOCK_NAME = ".lock"
+
+
+def _read_lock(path: Path) -> dict | None:
+    try:
+        text = (Path(path) / LOCK_NAME).read_text()
+    except FileNotFoundError:
+        return None
+    try:
+        record = json.loads(text)
+        return record if isinstance(record, dict) else {}
+    except ValueError:
+        return {}
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _lock_problem(path: Path) -> str:
+    """Why ``path``'s lock stops a writer: held by a live process, stale, or unreadable."""
+    lock = Path(path) / LOCK_NAME
+    record = _read_lock(path)
+    if record is None:
+        return "its lock vanished meanwhile; try again"
+    pid, host = record.get("pid"), record.get("host")
+    if not isinstance(pid, int) or not host:
+        return (f"{lock} is unreadable (a writer died while creating it?); remove it after "
+                "checking no one writes the run")
+    if host == socket.gethostname() and not _pid_alive(pid):
+        return (f"a stale lock: the process {pid} that held it is gone; remove {lock} after "
+                "checking no one writes the run")
+    return (f"process {pid} on {host} is writing it (since {record.get('started_utc')}); "
+            f"wait for it to finish or stop it (if that process is gone, remove {lock})")

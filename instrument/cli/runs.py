@@ -66,6 +66,8 @@ def format_summary(s: dict) -> str:
         lines.append(f"warning  {w}")
     for p in problems:
         lines.append(f"damaged  {p}")
+    if s.get("lock"):
+        lines.append(f"locked   {s['lock']}")
     if not s.get("checksums", True):
         lines.append("checks   none: this run (schema 1) carries no checksums")
     for name, info in s["products"].items():

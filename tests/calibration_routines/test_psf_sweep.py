@@ -17,7 +17,7 @@ import pytest
 from calibration_routines.psf_sweep import PsfSweepPlan, probe_inverse_depth_step, sweep_depths
 from instrument.plan import PlanError
 from instrument.runner import Runner
-from instrument.runstore import RunStore
+from instrument.runstore import RunStore, RunStoreError
 from instrument.virtual_bench import VirtualBench
 from recon.analysis import normalized_correlation, remove_background_dct
 
@@ -154,6 +154,11 @@ def test_killed_sweep_read_while_written_then_resumed_equals_uninterrupted(tmp_p
     assert store.status == "running"  # killed: nobody marked it
     kept = int(store.done().sum())
     assert 14 <= kept < store.n_frames
+    # the killed writer's lock stays: reported as stale, never broken silently
+    with VirtualBench(seed=5) as vb, pytest.raises(RunStoreError, match=f"process {proc.pid} "
+                                                   "that held it is gone"):
+        Runner(vb).resume(path)
+    (path / ".lock").unlink()  # the operator checked no one writes the run
     with VirtualBench(seed=5) as vb:
         resumed = Runner(vb).resume(path)
         assert resumed.status == "complete"

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
+import socket
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -68,3 +73,54 @@ def test_schema_1_store_reads_without_checksums(tmp_path):
     old = RunStore.open(tmp_path / "r.zarr")
     assert not old.has_checksums and old.verify() == []
     assert old.frame(3).image[0, 0] == 4
+
+
+def test_second_writer_is_refused_and_lock_released(tmp_path):
+    store = _run(tmp_path / "r.zarr")
+    store.lock()
+    lock = tmp_path / "r.zarr/.lock"
+    assert lock.is_file() and store.lock_owner()["pid"] == os.getpid()
+    other = RunStore.open(tmp_path / "r.zarr", mode="r+")
+    with pytest.raises(RunStoreError, match=f"process {os.getpid()} on .* is writing it"):
+        other.lock()
+    with pytest.raises(RunStoreError, match="not replacing"):
+        RunStore.create(tmp_path / "r.zarr", plan_name="p", plan_params={}, points=[{}],
+                        frame_tags=[["a"]], frame_shape=(2, 2), frame_dtype=np.uint16,
+                        coord_names=[], overwrite=True)
+    assert store.verify() == [] and RunStore.open(tmp_path / "r.zarr").has_checksums
+    other.unlock()  # holds nothing: the owner's lock stays
+    assert lock.is_file()
+    store.unlock()
+    assert not lock.exists() and store.lock_owner() is None
+    other.lock()
+    other.unlock()
+
+
+def test_stale_lock_is_reported_not_broken(tmp_path):
+    _run(tmp_path / "r.zarr")
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead = int(proc.stdout)
+    lock = tmp_path / "r.zarr/.lock"
+    lock.write_text(json.dumps({"pid": dead, "host": socket.gethostname(),
+                                "started_utc": "x"}))
+    store = RunStore.open(tmp_path / "r.zarr", mode="r+")
+    with pytest.raises(RunStoreError, match=f"stale lock: the process {dead} that held it is "
+                       f"gone; remove {lock}"):
+        store.lock()
+    assert lock.is_file()
+    assert "stale lock" in store.summary()["lock"]
+    lock.write_text("{")
+    with pytest.raises(RunStoreError, match="unreadable"):
+        store.lock()
+
+
+def test_runner_refuses_a_locked_run_and_releases_its_own(tmp_path):
+    from instrument.runner import Runner
+    from instrument.virtual_bench import VirtualBench
+
+    store = _run(tmp_path / "r.zarr")
+    store.lock()
+    with VirtualBench() as bench, pytest.raises(RunStoreError, match="is writing it"):
+        Runner(bench).resume(tmp_path / "r.zarr")
+    store.unlock()

@@ -49,6 +49,7 @@ def test_damaged_frame_is_named_and_redo_repairs_it(sweep, tmp_path, capsys, dam
     store = RunStore.open(sweep)
     assert store.status == "complete" and store.verify() == []
     assert len(store.attrs["resumes"]) == 2
+    assert not (sweep / ".lock").exists()  # released after each run and resume
 
 
 def test_redo_rejects_bad_points(sweep, capsys):
