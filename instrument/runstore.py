@@ -52,7 +52,8 @@ import numpy as np
 
 from drivers.base import jsonable
 
-__all__ = ["SCHEMA_VERSION", "RunStore", "RunStoreError", "software_version", "utc_now"]
+__all__ = ["SCHEMA_VERSION", "RunStore", "RunStoreError", "is_run_store", "software_version",
+           "utc_now"]
 
 log = logging.getLogger(__name__)
 
@@ -155,12 +156,15 @@ class RunStore:
         note : str
             The operator's note.
         overwrite : bool
-            Replace an existing store at ``path``.
+            Replace an existing run store at ``path`` (recognised by the schema
+            marker in its ``zarr.json``; nothing else is deleted).
 
         Raises
         ------
         RunStoreError
-            ``path`` exists (and ``overwrite`` is False), or the layout is empty.
+            ``path`` exists (and ``overwrite`` is False), ``path`` exists and is not
+            a run store (a file or another directory: never replaced), the run at
+            ``path`` is locked by a writer, or the layout is empty.
         """
         import zarr
 
@@ -168,6 +172,10 @@ class RunStore:
         if path.exists() and not overwrite:
             raise RunStoreError(
                 f"{path} already exists; resume it, choose another name or pass overwrite")
+        if path.exists() and not is_run_store(path):
+            raise RunStoreError(
+                f"not replacing {path}: it is not a diffuserlab run store (only a run's "
+                "directory is ever deleted); choose another name or remove it yourself")
         if (path / LOCK_NAME).exists():
             raise RunStoreError(f"not replacing {path}: {_lock_problem(path)}")
         if len(points) != len(frame_tags) or not points:
@@ -633,3 +641,16 @@ def _lock_problem(path: Path) -> str:
                 "checking no one writes the run")
     return (f"process {pid} on {host} is writing it (since {record.get('started_utc')}); "
             f"wait for it to finish or stop it (if that process is gone, remove {lock})")
+
+
+def is_run_store(path: str | Path) -> bool:
+    """True if ``path`` is a directory whose ``zarr.json`` attributes mark a diffuserlab
+    run (``schema = "diffuserlab-run"``, any schema version); False for anything else,
+    missing or unreadable (never raises)."""
+    try:
+        meta = json.loads((Path(path) / "zarr.json").read_text())
+    except (OSError, ValueError):
+        return False
+    attrs = meta.get("attributes") if isinstance(meta, dict) else None
+    return Path(path).is_dir() and isinstance(attrs, dict) and \
+        attrs.get("schema") == "diffuserlab-run"

@@ -210,8 +210,14 @@ def run(args: argparse.Namespace) -> int:
     from instrument.config import BenchConfigError
     from instrument.plan import PlanError
     from instrument.runner import Runner
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runstore import RunStore, RunStoreError, is_run_store
 
+    out_arg = None if args.routine == "resume" else args.out
+    if out_arg and args.overwrite and Path(out_arg).exists() and not is_run_store(out_arg):
+        print(f"diffuserlab: error: not replacing {out_arg}: it is not a diffuserlab run store "
+              "(--overwrite only replaces a run); choose another --out or remove it yourself",
+              file=sys.stderr)
+        return 2
     if not getattr(args, "verbose", False):  # device chatter would break the progress bar
         logging.getLogger("drivers").setLevel(logging.WARNING)
         logging.getLogger("instrument").setLevel(logging.WARNING)

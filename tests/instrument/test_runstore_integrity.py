@@ -124,3 +124,19 @@ def test_runner_refuses_a_locked_run_and_releases_its_own(tmp_path):
     with VirtualBench() as bench, pytest.raises(RunStoreError, match="is writing it"):
         Runner(bench).resume(tmp_path / "r.zarr")
     store.unlock()
+
+
+def test_overwrite_replaces_only_a_run_store(tmp_path):
+    args = dict(plan_name="p", plan_params={}, points=[{}], frame_tags=[["a"]],
+                frame_shape=(2, 2), frame_dtype=np.uint16, coord_names=[], overwrite=True)
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "keep.txt").write_text("precious")
+    (tmp_path / "file.zarr").write_text("precious")
+    zarr.open_group(str(tmp_path / "other.zarr"), mode="w", zarr_format=3)
+    for name in ("data", "file.zarr", "other.zarr"):
+        with pytest.raises(RunStoreError, match="not a diffuserlab run store"):
+            RunStore.create(tmp_path / name, **args)
+    assert (tmp_path / "data" / "keep.txt").read_text() == "precious"
+    assert (tmp_path / "file.zarr").read_text() == "precious"
+    _run(tmp_path / "r.zarr")
+    assert RunStore.create(tmp_path / "r.zarr", **args).n_frames == 1

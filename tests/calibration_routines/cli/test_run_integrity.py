@@ -77,3 +77,24 @@ def test_runs_verify_and_show(sweep, tmp_path, capsys):
     assert "product 'psf_stack'" in capsys.readouterr().err
     assert main(["runs", "verify", str(tmp_path / "nothing.zarr")]) == 2
     assert "no run store" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("kind", ["file", "dir"])
+def test_calibrate_overwrite_refuses_what_is_not_a_run(tmp_path, capsys, kind):
+    target = tmp_path / "results"
+    if kind == "file":
+        target.write_text("precious")
+    else:
+        target.mkdir()
+        (target / "keep.txt").write_text("precious")
+    assert main(["calibrate", "dark", BENCH, "--simulate", "--frames", "2", "--out",
+                 str(target), "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(target) in err[0] and "not a diffuserlab run store" in err[0]
+    assert (target if kind == "file" else target / "keep.txt").read_text() == "precious"
+
+
+def test_calibrate_overwrite_replaces_a_run(sweep):
+    assert main(["calibrate", "dark", BENCH, "--simulate", "--frames", "2", "--out",
+                 str(sweep), "--overwrite"]) == 0
+    assert RunStore.open(sweep).attrs["plan"]["name"] != "psf-sweep"
