@@ -10,7 +10,7 @@ from ..output_safety import check_outputs
 from ..runstore import RunStore
 from ..stacks import export_tiff, import_psf_stack
 
-__all__ = ["add_subcommands", "format_summary", "run"]
+__all__ = ["add_subcommands", "format_summary", "run", "verify"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -81,9 +81,23 @@ def format_summary(s: dict) -> str:
 
 
 def verify(path: str) -> int:
-    """Print one line per damaged frame or product of the run at ``path`` and a
-    summary; 0 when intact, 1 when damaged (a RunStoreError for an unreadable run
-    exits 2 through :func:`instrument.cli.main`)."""
+    """``runs verify``: print one line per damaged frame or product and a summary.
+
+    Parameters
+    ----------
+    path : str
+        The run store (RUN.zarr).
+
+    Returns
+    -------
+    int
+        0 when every done frame and product matches its checksum, 1 when damaged.
+
+    Raises
+    ------
+    instrument.runstore.RunStoreError
+        No readable run at ``path`` (exit 2 through :func:`instrument.cli.main`).
+    """
     store = RunStore.open(path)
     problems = store.verify()
     for p in problems:
