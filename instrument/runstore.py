@@ -42,7 +42,6 @@ import json
 import logging
 import os
 import socket
-import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +50,15 @@ from typing import Any
 import numpy as np
 
 from drivers.base import jsonable
+
+from .run_integrity import (
+    LOCK_NAME,
+    frame_crc,
+    lock_problem,
+    product_crcs,
+    read_lock,
+    write_lock,
+)
 
 __all__ = ["SCHEMA_VERSION", "RunStore", "RunStoreError", "is_run_store", "software_version",
            "utc_now"]
@@ -177,7 +185,7 @@ class RunStore:
                 f"not replacing {path}: it is not a diffuserlab run store (only a run's "
                 "directory is ever deleted); choose another name or remove it yourself")
         if (path / LOCK_NAME).exists():
-            raise RunStoreError(f"not replacing {path}: {_lock_problem(path)}")
+            raise RunStoreError(f"not replacing {path}: {lock_problem(path)}")
         if len(points) != len(frame_tags) or not points:
             raise RunStoreError("a run needs at least one point and one tag list per point "
                                 "(an empty list for a point without frames)")
@@ -253,13 +261,8 @@ class RunStore:
         """
         self._require_writable()
         record = {"pid": os.getpid(), "host": socket.gethostname(), "started_utc": utc_now()}
-        try:
-            fd = os.open(self.path / LOCK_NAME, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            raise RunStoreError(f"cannot write {self.path}: {_lock_problem(self.path)}") \
-                from None
-        with os.fdopen(fd, "w") as fh:
-            json.dump(record, fh)
+        if not write_lock(self.path, record):
+            raise RunStoreError(f"cannot write {self.path}: {lock_problem(self.path)}")
         self._locked = True
 
     def unlock(self) -> None:
@@ -270,7 +273,7 @@ class RunStore:
 
     def lock_owner(self) -> dict | None:
         """The writer's lock record ``{pid, host, started_utc}``, None when unlocked."""
-        return _read_lock(self.path)
+        return read_lock(self.path)
 
     # ------------------------------------------------------------------ layout
     @property
@@ -368,7 +371,7 @@ class RunStore:
         self._group["frames"][index] = image
         self._group["coords"][index] = row
         if self.has_checksums:
-            self._group["crc32"][index] = _crc(image, row)
+            self._group["crc32"][index] = frame_crc(image, row)
         self._group["done"][index] = 1
 
     def _exact(self, index: int, image: np.ndarray) -> np.ndarray:
@@ -444,7 +447,7 @@ class RunStore:
         except Exception as exc:  # a corrupt chunk fails to decode
             raise RunStoreError(self._damage(index, f"its chunks cannot be read ({exc})")) \
                 from exc
-        if crc is not None and crc != _crc(image, row):
+        if crc is not None and crc != frame_crc(image, row):
             missing = not (self.path / "frames" / "c" / str(index) / "0" / "0").exists()
             raise RunStoreError(self._damage(
                 index, f"its chunk file frames/c/{index}/0/0 is missing (read as zeros)"
@@ -493,7 +496,7 @@ class RunStore:
         chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
         arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
         arr[...] = array
-        arr.attrs.update(jsonable({**attrs, "crc32": _product_crcs(array)}))
+        arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
 
     def products(self) -> list[str]:
         """Names of the stored products."""
@@ -523,7 +526,7 @@ class RunStore:
                                 f"cannot be read ({exc}); {fix}") from exc
         recorded = attrs.pop("crc32", None)
         if recorded is not None:
-            actual = _product_crcs(data)
+            actual = product_crcs(data)
             bad = [k for k, (a, b) in enumerate(zip(recorded, actual, strict=False)) if a != b]
             if bad or len(recorded) != len(actual):
                 where = f"plane {bad[0]}" if data.ndim == 3 and bad else "its data"
@@ -577,70 +580,12 @@ class RunStore:
                              "dtype": str(self._group["products"][n].dtype)}
                          for n in self.products()},
             "checksums": self.has_checksums, "problems": self.verify(),
-            "lock": _lock_problem(self.path) if self.lock_owner() is not None else None,
+            "lock": lock_problem(self.path) if self.lock_owner() is not None else None,
         })
 
     def to_json(self) -> str:
         """:meth:`summary` as indented JSON."""
         return json.dumps(self.summary(), indent=1)
-
-
-def _crc(image: np.ndarray, row: np.ndarray) -> int:
-    """CRC-32 of a frame's bytes then its coordinate row (both little-endian)."""
-    image = np.ascontiguousarray(image, image.dtype.newbyteorder("<"))
-    crc = zlib.crc32(image.tobytes())
-    return zlib.crc32(np.ascontiguousarray(row, "<f8").tobytes(), crc)
-
-
-def _product_crcs(array: np.ndarray) -> list[int]:
-    """CRC-32 per plane of a 3-D array (its chunks), of the whole array otherwise."""
-    array = np.asarray(array)
-    planes = list(array) if array.ndim == 3 else [array]
-    return [zlib.crc32(np.ascontiguousarray(p, p.dtype.newbyteorder("<")).tobytes())
-            for p in planes]
-
-
-#: Name of the writer's lock file inside a run store.
-LOCK_NAME = ".lock"
-
-
-def _read_lock(path: Path) -> dict | None:
-    try:
-        text = (Path(path) / LOCK_NAME).read_text()
-    except FileNotFoundError:
-        return None
-    try:
-        record = json.loads(text)
-        return record if isinstance(record, dict) else {}
-    except ValueError:
-        return {}
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _lock_problem(path: Path) -> str:
-    """Why ``path``'s lock stops a writer: held by a live process, stale, or unreadable."""
-    lock = Path(path) / LOCK_NAME
-    record = _read_lock(path)
-    if record is None:
-        return "its lock vanished meanwhile; try again"
-    pid, host = record.get("pid"), record.get("host")
-    if not isinstance(pid, int) or not host:
-        return (f"{lock} is unreadable (a writer died while creating it?); remove it after "
-                "checking no one writes the run")
-    if host == socket.gethostname() and not _pid_alive(pid):
-        return (f"a stale lock: the process {pid} that held it is gone; remove {lock} after "
-                "checking no one writes the run")
-    return (f"process {pid} on {host} is writing it (since {record.get('started_utc')}); "
-            f"wait for it to finish or stop it (if that process is gone, remove {lock})")
 
 
 def is_run_store(path: str | Path) -> bool:
