@@ -137,14 +137,13 @@ def main(argv: list[str] | None = None) -> int:
     except input_errors as exc:
         print(f"diffuserlab: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except OSError as exc:
-        if exc.errno not in _ORDINARY_ERRNOS or args.debug:
-            raise
-        print(f"diffuserlab: error: {_os_error_line(exc)}", file=sys.stderr)
-        return 2
     except Exception as exc:
         if args.debug:
             raise
+        if isinstance(exc, OSError) and exc.errno in _ORDINARY_ERRNOS:
+            print(f"diffuserlab: error: {_os_error_line(exc)}", file=sys.stderr)
+            return 2
+        # any other OSError (EIO, ...) or exception is a bug: one line, never a traceback
         print(f"diffuserlab: internal error (a bug): {type(exc).__name__}: {_one_line(exc)}; "
               "re-run with --debug for the traceback and report it", file=sys.stderr)
         return 1

@@ -144,6 +144,7 @@ def test_overwrite_never_replaces_an_input(files):
     (IsADirectoryError(21, "Is a directory", "/tmp"), 2),
     (NotADirectoryError(20, "Not a directory", "/etc/passwd/x"), 2),
     (OSError(28, "No space left on device", "/full/disk.tif"), 2),
+    (OSError(5, "Input/output error", "/dev/sdx"), 1),
     (RuntimeError("something unexpected"), 1),
     (KeyError("missing"), 1),
 ])
