@@ -13,7 +13,7 @@ __all__ = ["add_subcommands", "run", "summary_line"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.solvers import METHODS
+    from recon.solvers import METHODS, SOLVERS
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
     rp.add_argument("--psf", required=True,
@@ -26,7 +26,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "default) or psf_stack_raw (dark-subtracted only: better for extended "
                     "scenes when stray light is low, see the README)")
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
-    rp.add_argument("--method", choices=METHODS, default="admm")
+    rp.add_argument("--method", choices=METHODS, default="admm",
+                    help="; ".join(f"{name}: {spec.summary}" for name, spec in SOLVERS.items()))
     rp.add_argument("--iterations", type=int, default=100)
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
                     help="box-binning factor (4: 1200x1600 -> 300x400)")
