@@ -6,11 +6,11 @@ without importing each other.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 
 from instrument.plan import PlanError
 
-__all__ = ["AlignmentConfig", "config_from_dict"]
+__all__ = ["AlignmentConfig"]
 
 
 @dataclass(frozen=True)
@@ -123,12 +123,3 @@ class AlignmentConfig:
                             "max_focus_rounds >= 1")
         if not 0 < self.focus_min_fraction <= 1:
             raise PlanError("focus_min_fraction must be in (0, 1]")
-
-
-def config_from_dict(values: dict) -> AlignmentConfig:
-    """An :class:`AlignmentConfig` from a mapping (unknown keys are refused by name)."""
-    known = set(asdict(AlignmentConfig()))
-    bad = sorted(set(values) - known)
-    if bad:
-        raise PlanError(f"unknown alignment option(s) {bad}; known: {sorted(known)}")
-    return replace(AlignmentConfig(), **values)
