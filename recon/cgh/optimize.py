@@ -258,7 +258,7 @@ def loss_and_gradient(display: ScatteringDisplay, s, target, loss: IntensityLoss
     if not isinstance(display, ScatteringDisplay):
         raise ReconInputError(f"display must be a ScatteringDisplay, got {type(display).__name__}")
     eng = _Engine(display, check_targets(target, display), loss, double=double)
-    display._check_slm(s)  # shape, dtype and finiteness
+    display.check_slm(s)  # shape, dtype and finiteness
     s = np.ascontiguousarray(s, dtype=eng.cdt)
     z = eng.new_fields()
     eng.fields(s, z)

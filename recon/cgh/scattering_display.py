@@ -277,7 +277,23 @@ class ScatteringDisplay:
 
     # -- operator ----------------------------------------------------------------------
 
-    def _check_slm(self, s) -> np.ndarray:
+    def check_slm(self, s) -> np.ndarray:
+        """The SLM field ``s`` as a contiguous complex64 array, checked.
+
+        Parameters
+        ----------
+        s : array_like, :attr:`slm_shape`
+            Real or complex SLM field.
+
+        Returns
+        -------
+        ndarray, complex64, :attr:`slm_shape`
+
+        Raises
+        ------
+        ReconInputError
+            Wrong shape, non-numeric dtype, or NaN/inf values.
+        """
         a = np.asarray(s)
         if a.shape != self.slm_shape:
             raise ReconInputError(f"SLM field has shape {a.shape}, the display expects "
@@ -306,7 +322,7 @@ class ScatteringDisplay:
         numpy.ndarray
             complex64 ``grid_shape``.
         """
-        s = self._check_slm(s)
+        s = self.check_slm(s)
         if out is None:
             out = np.empty(self.grid_shape, np.complex64)
         _kernels.upsample_multiply(s, self.plane_masks[plane], self.k, out)
@@ -326,7 +342,7 @@ class ScatteringDisplay:
         numpy.ndarray
             complex64 ``shape_out``, centred (zero order at ``grid // 2``).
         """
-        s = self._check_slm(s)
+        s = self.check_slm(s)
         out = np.empty((self.n_planes, *self.grid_shape), np.complex64)
         for p in range(self.n_planes):
             x = self.upsampled_field(s, p, out=out[p])
