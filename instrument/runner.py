@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.base import jsonable
 from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutError
 
 from .acquisition import ExposureError, autoexpose
@@ -49,7 +50,8 @@ from .plan import (
     ShowSlm,
     plan_from_record,
 )
-from .runstore import RunStore, RunStoreError, utc_now
+from .run_identity import Difference, format_differences, resume_differences
+from .runstore import RunStore, RunStoreError, software_version, utc_now
 
 __all__ = ["RunAborted", "RunControl", "RunEvent", "RunResult", "Runner", "frame_coords"]
 
@@ -237,7 +239,7 @@ class Runner:
         if not points:
             raise PlanError(f"plan {plan.name!r} has no points; check its parameters")
         cam = self.bench.camera
-        config = self.bench.config.model_dump(mode="json") if self.bench.config else {}
+        config = self._config_dump()
         store = RunStore.create(
             path, plan_name=plan.name, plan_params=plan.params,
             points=[dict(p.coords) for p in points], frame_tags=[p.tags for p in points],
@@ -254,7 +256,7 @@ class Runner:
             store.unlock()
 
     def resume(self, path: str | Path, plan: Plan | None = None, *,
-               redo: Sequence[int] = ()) -> RunResult:
+               redo: Sequence[int] = (), accept_differences: bool = False) -> RunResult:
         """Continue the run stored at ``path`` with its first incomplete point.
 
         ``plan`` defaults to the one the store recorded (rebuilt by name, see
@@ -263,20 +265,55 @@ class Runner:
         damaged frame); points after the first incomplete one that are still
         complete are not captured again.
 
+        Before anything moves, the bench, camera and software are compared with
+        what the store recorded (:func:`instrument.run_identity.resume_differences`):
+        another device set, geometry, driver parameter or frame format is refused;
+        harmless differences (a serial port, the bench name, the software version)
+        are refused too unless ``accept_differences``. Every resume is recorded in
+        the store (``resumes``: time, first point, bench config, software version,
+        accepted differences).
+
         Raises
         ------
         RunStoreError
             No run at ``path``, a plan whose name/parameters/points differ from the
-            stored ones, or a ``redo`` point the run does not have.
+            stored ones, a ``redo`` point the run does not have, a set-up that
+            differs from the recorded one (the differences listed), or another
+            process holds the run's lock.
         """
         store = RunStore.open(path, mode="r+")
         store.lock()
         try:
-            return self._resume(store, plan, redo)
+            return self._resume(store, plan, redo, accept_differences)
         finally:
             store.unlock()
 
-    def _resume(self, store: RunStore, plan: Plan | None, redo: Sequence[int]) -> RunResult:
+    def _check_identity(self, store: RunStore, accept: bool) -> list[Difference]:
+        """The differences a resume may accept; RunStoreError for the others."""
+        cam = self.bench.camera
+        diffs = resume_differences(
+            store.attrs, stored_frame=(store.frame_shape, store.frame_dtype.name),
+            bench_config=self._config_dump(), frame=(cam.image_shape, np.dtype(cam.dtype).name),
+            software_version=software_version())
+        fatal = [d for d in diffs if d.severity == "fatal"]
+        if fatal:
+            raise RunStoreError(
+                f"{store.path} was recorded on another set-up and cannot be resumed on this "
+                f"one ({format_differences(fatal)}); resume it with the bench file it "
+                "recorded (`diffuserlab runs show` prints it) or start a new run")
+        if diffs and not accept:
+            raise RunStoreError(
+                f"{store.path}: the set-up differs from the recorded one in harmless ways "
+                f"({format_differences(diffs)}); check them and pass --accept-differences "
+                "(API: accept_differences=True) to resume")
+        return diffs
+
+    def _config_dump(self) -> dict[str, Any]:
+        config = self.bench.config
+        return config.model_dump(mode="json") if config is not None else {}
+
+    def _resume(self, store: RunStore, plan: Plan | None, redo: Sequence[int],
+                accept: bool) -> RunResult:
         path = store.path
         for point in redo:
             store.frame_range(int(point))  # RunStoreError for a point the run lacks
@@ -284,19 +321,24 @@ class Runner:
         if plan is None:
             plan = plan_from_record(rec["name"], rec["params"])
         points = plan.points()
-        same = (plan.name == rec["name"] and [dict(p.coords) for p in points] == rec["points"]
+        same = (plan.name == rec["name"] and jsonable(plan.params) == rec["params"]
+                and jsonable([dict(p.coords) for p in points]) == rec["points"]
                 and [len(p.tags) for p in points] == rec["frames_per_point"])
         if not same:
             raise RunStoreError(f"{path} was recorded by plan {rec['name']!r} with other "
-                                "points; resume it with the plan it recorded (pass plan=None)")
+                                "parameters or points; resume it with the plan it recorded "
+                                "(pass plan=None)")
+        accepted = self._check_identity(store, accept)
         for point in redo:
             store.clear_point(int(point))
         start = store.first_incomplete_point()
         if start is None:
             log.info("%s: every point is stored; recomputing its products", path)
             start = len(points)
-        store.update_attrs(resumes=[*store.attrs.get("resumes", []),
-                                    {"utc": utc_now(), "point": start}])
+        store.update_attrs(resumes=[*store.attrs.get("resumes", []), {
+            "utc": utc_now(), "point": start, "software_version": software_version(),
+            "bench_config": self._config_dump(),
+            "accepted_differences": [str(d) for d in accepted]}])
         if 0 < start < len(points):
             self._restore_camera(store, start)
         complete = store.points_done()

@@ -104,6 +104,11 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--redo", default="", metavar="POINT[,POINT...]",
                     help="capture these plan points again (e.g. a point with a damaged "
                     "frame, see `diffuserlab runs verify`) before resuming")
+    rp.add_argument("--accept-differences", action="store_true",
+                    help="resume although the set-up differs from the recorded one in "
+                    "harmless ways (a serial port or address, the bench name, calibration "
+                    "defaults, the software version; recorded with the resume). Another "
+                    "geometry, device set or driver parameter is always refused")
     cp.set_defaults(handler=run)
 
 
@@ -138,15 +143,9 @@ def _plan(args, bench):
     if args.routine == "psf-grid":
         from ..psf_grid import PsfGridPlan
 
-        sigma = args.falloff_sigma_deg
-        if args.falloff_run:
-            from instrument.runstore import RunStore
-
-            axes = RunStore.open(args.falloff_run).attrs["summary"]["axes"]
-            sigma = max(a["sigma_deg"] for a in axes.values())
         return PsfGridPlan.for_bench(bench, mode=args.mode, n=args.n, spacing_mm=args.spacing_mm,
                                      z_mm=args.z_mm, led_step=args.led_step,
-                                     falloff_sigma_deg=sigma, **frames)
+                                     falloff_sigma_deg=args.falloff_sigma_deg, **frames)
     if args.routine == "slm-lut":
         from ..slm_lut import SlmLutPlan
 
@@ -161,12 +160,45 @@ def _plan(args, bench):
     return AngularResponsePlan.for_bench(bench, **params, **frames)
 
 
+def _falloff_sigma_deg(path: str) -> float:
+    """The widest fall-off sigma (degrees) a complete angular-response run measured.
+
+    Raises
+    ------
+    PlanError
+        ``path`` is a run of another routine, or incomplete, or lacks the fit.
+    """
+    from instrument.plan import PlanError
+    from instrument.runstore import RunStore
+
+    from ..angular_response import AngularResponsePlan
+
+    store = RunStore.open(path)
+    name = store.attrs["plan"]["name"]
+    fix = ("pass a complete `calibrate angular-response` run, or give the sigma with "
+           "--falloff-sigma-deg")
+    if name != AngularResponsePlan.name:
+        raise PlanError(f"--falloff-run {path} is a {name!r} run, not an angular-response run; "
+                        f"{fix}")
+    axes = (store.attrs.get("summary") or {}).get("axes") or {}
+    sigmas = [a.get("sigma_deg") for a in axes.values() if isinstance(a, dict)]
+    if store.status != "complete" or not sigmas or None in sigmas:
+        raise PlanError(f"--falloff-run {path} holds no fitted fall-off (status "
+                        f"{store.status!r}); {fix}")
+    return float(max(sigmas))
+
+
 def _progress(total: int, initial: int):
+    """A run's event handler drawing a progress bar; the bar appears with the run's
+    first event, so a run refused before it starts prints only its error line."""
     from tqdm import tqdm
 
-    bar = tqdm(total=total, initial=initial, unit="frame", dynamic_ncols=True)
+    bar = None
 
     def on_event(e) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = tqdm(total=total, initial=initial, unit="frame", dynamic_ncols=True)
         if e.kind == "frame":
             bar.update(e.frames_done - bar.n)
             bar.set_postfix_str(f"point {e.point + 1}/{e.points_total}")
@@ -208,16 +240,28 @@ def run(args: argparse.Namespace) -> int:
     from instrument.cli.common import MissingBenchFile
     from instrument.cli.runs import format_summary
     from instrument.config import BenchConfigError
+    from instrument.output_safety import OutputError, check_outputs
     from instrument.plan import PlanError
     from instrument.runner import Runner
     from instrument.runstore import RunStore, RunStoreError, is_run_store
 
-    out_arg = None if args.routine == "resume" else args.out
-    if out_arg and args.overwrite and Path(out_arg).exists() and not is_run_store(out_arg):
-        print(f"diffuserlab: error: not replacing {out_arg}: it is not a diffuserlab run store "
-              "(--overwrite only replaces a run); choose another --out or remove it yourself",
-              file=sys.stderr)
-        return 2
+    out = None
+    if args.routine != "resume":  # outputs and input runs checked before the bench opens
+        stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        out = Path(args.out or f"out/runs/{args.routine}-{stamp}.zarr")
+        if args.overwrite and out.exists() and not is_run_store(out):
+            print(f"diffuserlab: error: not replacing {out}: it is not a diffuserlab run store "
+                  "(--overwrite only replaces a run); choose another --out or remove it "
+                  "yourself", file=sys.stderr)
+            return 2
+        try:
+            check_outputs([out], {"--falloff-run": getattr(args, "falloff_run", None)},
+                          args.overwrite, store=True)
+            if getattr(args, "falloff_run", None):
+                args.falloff_sigma_deg = _falloff_sigma_deg(args.falloff_run)
+        except (PlanError, RunStoreError, OutputError) as exc:
+            print(f"diffuserlab: error: {exc}", file=sys.stderr)
+            return 2
     if not getattr(args, "verbose", False):  # device chatter would break the progress bar
         logging.getLogger("drivers").setLevel(logging.WARNING)
         logging.getLogger("instrument").setLevel(logging.WARNING)
@@ -248,11 +292,10 @@ def run(args: argparse.Namespace) -> int:
                 except ValueError:
                     raise ValueError(f"--redo {args.redo!r}: give point numbers separated "
                                      "by commas, e.g. --redo 3,7") from None
-                result = runner.resume(args.run, redo=redo)
+                result = runner.resume(args.run, redo=redo,
+                                       accept_differences=args.accept_differences)
             else:
                 plan = _plan(args, bench)
-                stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-                out = Path(args.out or f"out/runs/{args.routine}-{stamp}.zarr")
                 total = sum(len(p.tags) for p in plan.points())
                 runner = Runner(bench, on_event=_progress(total, 0),
                                 reconnect_timeout_s=args.reconnect_timeout_s)

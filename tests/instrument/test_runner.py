@@ -223,7 +223,7 @@ def test_malformed_plan_and_wrong_resume_are_refused(tmp_path):
         result = Runner(vb).run(ZStepPlan(wrong_count=True), tmp_path / "w.zarr")
         assert result.status == "failed" and "declared" in result.error
         Runner(vb).run(ZStepPlan(depths=(30.0,)), tmp_path / "s.zarr")
-        with pytest.raises(RunStoreError, match="other points"):
+        with pytest.raises(RunStoreError, match="other parameters or points"):
             Runner(vb).resume(tmp_path / "s.zarr", ZStepPlan(depths=(31.0,)))
         with pytest.raises(RunStoreError, match="already exists"):
             Runner(vb).run(ZStepPlan(depths=(30.0,)), tmp_path / "s.zarr")
