@@ -92,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``align mask``; returns the exit status."""
     from drivers.errors import DeviceError
     from instrument.cli.common import MissingBenchFile
+    from instrument.output_safety import check_outputs
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl
     from recon.errors import ReconInputError
@@ -106,6 +107,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out or Path("out/align") / (
         f"mask-{_dt.datetime.now():%Y%m%d-%H%M%S}.align"))
     try:
+        # before the bench opens; an empty directory made for the record is fine
+        if out.exists() and not (out.is_dir() and not any(out.iterdir())):
+            raise PlanError(f"output {out} exists (an alignment record is never replaced); "
+                            "choose another --out")
+        check_outputs([out], {"--mask-pattern": args.mask_pattern, "--lut": args.lut},
+                      overwrite=True, store=True)
         if not args.simulate and args.mask_seed is None and args.mask_pattern is None:
             raise PlanError("on a real bench, pass --mask-pattern FILE.npy or --mask-seed "
                             "(the installed mask's pattern)")
@@ -125,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
             bench.open()
     except (OSError, ValueError, PlanError, DeviceError, ReconInputError,
             MissingBenchFile) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
     control = RunControl()
     try:
@@ -148,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
                                   0 if seed is None else seed, margin=args.mask_margin,
                                   bits=pattern)
             except ReconInputError as exc:
-                print(f"error: --mask-pattern {args.mask_pattern}: {exc}", file=sys.stderr)
+                print(f"diffuserlab: error: --mask-pattern {args.mask_pattern}: {exc}",
+                      file=sys.stderr)
                 return 2
             record = AlignmentRecord(out)
             print(f"alignment record: {out}")
