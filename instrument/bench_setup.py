@@ -23,6 +23,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from .config import (
     DEFAULT_TRAVEL,
     SIMULATED_DRIVERS,
@@ -30,15 +32,19 @@ from .config import (
     BenchConfig,
     DeviceConfig,
     GeometryConfig,
+    Problem,
     raise_problems,
     read_bench_text,
     validate_bench_text,
+    within,
 )
 from .registry import (
     RegistryError,
     accepted_params,
-    construction_problems,
+    device_construction_problems,
     driver_problems,
+    one_view,
+    required_params,
     resolve,
 )
 
@@ -81,6 +87,9 @@ def parse_bench(
     construct : bool
         Also construct every device (without opening it), so parameter values the
         driver refuses are reported here rather than at open (``validate`` does).
+        A device is constructed whenever its kind and driver are usable, whatever
+        the problems elsewhere in the file, without the parameters that have problems
+        of their own.
 
     Returns
     -------
@@ -93,24 +102,130 @@ def parse_bench(
         ranges, duplicate ids, bench rules, unknown drivers or a driver of another
         kind, refused parameters: every problem found, each with location and fix.
     """
+    with one_view():  # the installed drivers read once
+        return _parse_bench(text, source, check_drivers, simulate, construct)
+
+
+def _parse_bench(
+    text: str, source: str | None, check_drivers: bool, simulate: bool, construct: bool
+) -> BenchConfig:
     raw, config, problems = validate_bench_text(text, source=source)
+    devices = raw.get("devices")
+    entries = devices if isinstance(devices, list) else []
+    geometry = config.geometry if config is not None else _valid_geometry(raw.get("geometry"))
     if check_drivers:
-        devices = raw.get("devices")
-        if simulate and config is not None:  # the twins, with their translated params
-            devices = [d.model_dump() for d in with_simulated_drivers(config).devices]
-        elif simulate and isinstance(devices, list):  # invalid file: check the twins' names
-            devices = [
-                {"id": d.get("id"), "kind": d["kind"], "driver": SIMULATED_DRIVERS[d["kind"]]}
-                if isinstance(d, dict) and d.get("kind") in SIMULATED_DRIVERS
-                else d
-                for d in devices
-            ]
-        problems += driver_problems(devices)
-    if construct and config is not None and not problems:
-        problems += construction_problems(with_simulated_drivers(config) if simulate else config)
+        checked = [
+            _as_driven(i, d, config, geometry) if simulate else d for i, d in enumerate(entries)
+        ]
+        found = driver_problems(checked)
+        # A parameter the driver does not take: its value's problems are moot.
+        moot = [p.location for p in found if ".params." in p.location]
+        problems = [p for p in problems if not any(within(p.location, m) for m in moot)]
+        problems += found
+    if construct:
+        for i, entry in enumerate(entries):
+            device = _constructible(i, entry, problems, simulate)
+            if device is None:
+                continue
+            locations: dict[str, str] = {}
+            if simulate:
+                device, locations = _twin_with_locations(i, device, geometry)
+            problems += device_construction_problems(i, device, locations=locations)
     raise_problems(problems, text, source)
     assert config is not None
     return with_simulated_drivers(config) if simulate else config
+
+
+def _valid_geometry(raw: Any) -> GeometryConfig | None:
+    """The geometry table as a model, None if it has problems (reported elsewhere)."""
+    try:
+        return GeometryConfig.model_validate(raw)
+    except ValidationError:
+        return None
+
+
+def _as_driven(
+    index: int, entry: Any, config: BenchConfig | None, geometry: GeometryConfig | None
+) -> Any:
+    """A raw ``[[devices]]`` entry as its simulated twin (for the driver checks).
+
+    The twin's translated parameters when the device is valid; otherwise only its
+    driver name (the parameters have problems of their own, and a twin drops the ones
+    it does not take anyway).
+    """
+    if config is not None:
+        return simulated_twin(config.devices[index], geometry)[0].model_dump()
+    kind = _kind(entry)
+    if kind is None:
+        return entry
+    return {"id": entry.get("id"), "kind": kind, "driver": SIMULATED_DRIVERS[kind]}
+
+
+def _kind(entry: Any) -> str | None:
+    """The valid kind of a raw ``[[devices]]`` entry, None if it has none."""
+    kind = entry.get("kind") if isinstance(entry, dict) else None
+    return kind if isinstance(kind, str) and kind in SIMULATED_DRIVERS else None
+
+
+def _constructible(
+    index: int, entry: Any, problems: list[Problem], simulate: bool
+) -> DeviceConfig | None:
+    """The device to construct for a raw ``[[devices]]`` entry, None if it cannot be.
+
+    A device is constructed when its kind, driver and parameters table are valid and
+    the driver resolves (no problem at ``devices[i].driver``; with ``simulate``, the
+    twin's driver), with every parameter that has a problem of its own left out (its
+    problem is reported already; constructing with it would only report it again) -
+    unless the driver requires that parameter. A duplicate or malformed id does not
+    stop the construction.
+    """
+    here = f"devices[{index}]"
+    kind = _kind(entry)
+    if kind is None:
+        return None
+    driver, params = entry.get("driver"), entry.get("params", {})
+    if not isinstance(driver, str) or not driver.strip() or not isinstance(params, dict):
+        return None
+    mine = [p.location for p in problems if within(p.location, here)]
+    if any(loc in (here, f"{here}.params") or within(loc, f"{here}.driver") for loc in mine):
+        return None
+    bad = {key for key in params if any(within(loc, f"{here}.params.{key}") for loc in mine)}
+    try:
+        required = required_params(resolve(SIMULATED_DRIVERS[kind] if simulate else driver, kind))
+    except RegistryError:
+        return None
+    if bad & required:
+        return None
+    dev_id = entry.get("id")
+    return DeviceConfig.model_construct(
+        id=dev_id if isinstance(dev_id, str) and dev_id.strip() else f"device-{index}",
+        kind=kind,
+        driver=driver,
+        params={k: v for k, v in params.items() if k not in bad},
+    )
+
+
+def _twin_with_locations(
+    index: int, device: DeviceConfig, geometry: GeometryConfig | None
+) -> tuple[DeviceConfig, dict[str, str]]:
+    """The simulated twin, and where each of its parameters comes from in the file where
+    that is not under the twin's own name (an alias, or the geometry)."""
+    twin, _ = simulated_twin(device, geometry)
+    here = f"devices[{index}].params"
+    locations = {}
+    for name, sources in TWIN_PARAM_ALIASES[device.kind].items():
+        found = next((src for src in sources if src in device.params), None)
+        if found is not None:
+            locations[name] = f"{here}.{found}"
+    from_geometry = {
+        ("camera", "sensor_shape"): "geometry.sensor_shape_px",
+        ("camera", "pixel_pitch_um"): "geometry.sensor_pixel_pitch_um",
+        ("slm", "wavelength_nm"): "geometry.wavelength_nm",
+    }
+    for (kind, name), loc in from_geometry.items():
+        if kind == device.kind and name in twin.params and name not in device.params:
+            locations.setdefault(name, loc)
+    return twin, locations
 
 
 def load_bench(

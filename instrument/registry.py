@@ -24,10 +24,13 @@ from __future__ import annotations
 import difflib
 import inspect
 import logging
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from importlib.metadata import entry_points
 from typing import Any
 
-from instrument.config import KINDS, SIMULATED_DRIVERS, BenchConfig, Problem
+from instrument.config import KINDS, SIMULATED_DRIVERS, BenchConfig, DeviceConfig, Problem
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -38,9 +41,12 @@ __all__ = [
     "accepted_params",
     "available",
     "construction_problems",
+    "device_construction_problems",
     "driver_problems",
     "names",
+    "one_view",
     "register",
+    "required_params",
     "resolve",
     "unregister",
 ]
@@ -91,7 +97,34 @@ class DriverKindError(RegistryError):
         )
 
 
+_snapshot: dict[str, list[Any]] | None = None
+
+
+@contextmanager
+def one_view() -> Iterator[None]:
+    """Read the installed drivers' entry points once for the whole block.
+
+    Reading them takes ~20 ms (every installed distribution's metadata); checking a
+    bench resolves each driver several times. Inside the block every lookup sees the
+    same drivers; outside, each lookup reads them afresh (a plugin installed meanwhile
+    is found). Nested blocks share the outermost view.
+    """
+    global _snapshot
+    outer = _snapshot
+    if outer is None:
+        _snapshot = _read_entry_points()
+    try:
+        yield
+    finally:
+        _snapshot = outer
+
+
 def _entry_points() -> dict[str, list[Any]]:
+    """Entry points of the group by name (the :func:`one_view` snapshot inside one)."""
+    return _snapshot if _snapshot is not None else _read_entry_points()
+
+
+def _read_entry_points() -> dict[str, list[Any]]:
     """Entry points of the group by name, duplicates with the same target merged."""
     out: dict[str, list[Any]] = {}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
@@ -225,6 +258,8 @@ def driver_problems(devices: Any) -> list[Problem]:
     for i, dev in enumerate(devices):
         if not isinstance(dev, dict) or not isinstance(dev.get("driver"), str):
             continue
+        if not dev["driver"].strip():  # the model reports the empty name
+            continue
         name = dev["driver"]
         kind = dev.get("kind") if dev.get("kind") in KINDS else None
         label = f" of device {dev['id']!r}" if isinstance(dev.get("id"), str) else ""
@@ -282,36 +317,149 @@ def driver_problems(devices: Any) -> list[Problem]:
 
 
 def construction_problems(config: BenchConfig) -> list[Problem]:
-    """Construct every device of ``config`` without opening it; report the refusals.
+    """Construct every device of ``config`` without opening it; report the refusals
+    (:func:`device_construction_problems` for each device).
+
+    Parameters
+    ----------
+    config : BenchConfig
+
+    Returns
+    -------
+    list of Problem
+        Located at ``devices[i].params.NAME`` (the parameter refused) or
+        ``devices[i].params`` (not known which), or ``devices[i].driver``.
+    """
+    problems = []
+    for i, dev in enumerate(config.devices):
+        problems += device_construction_problems(i, dev)
+    return problems
+
+
+def device_construction_problems(
+    index: int, device: DeviceConfig, *, locations: dict[str, str] | None = None
+) -> list[Problem]:
+    """Construct one device without opening it; report every parameter value it refuses.
 
     A driver's constructor validates its parameters and touches no hardware (the
     device lifecycle connects in ``open``), so this finds bad parameter values (an
     SLM resolution of 0, axes the driver cannot use, ...) before anything is opened.
-    Errors carrying ``problem``/``fix`` (``drivers.errors.DeviceError``) keep them.
+    A constructor stops at the first value it refuses; that parameter is found (the
+    first named in the message, else the one whose removal changes the outcome) and
+    the device is constructed again without it (never without a required parameter),
+    so every refused value is reported in one pass. Errors carrying
+    ``problem``/``fix`` (``drivers.errors.DeviceError``) keep them. A device
+    constructed is closed again (a no-op for an unopened ``Device``).
+
+    Parameters
+    ----------
+    index : int
+        The device's position in ``[[devices]]`` (for the locations).
+    device : DeviceConfig
+        Id, kind, driver and the parameters to construct with.
+    locations : dict, optional
+        ``{parameter name: dotted location}`` where a parameter's location is not
+        ``devices[index].params.NAME`` (a simulated twin's parameter taken from a key
+        of another name, or from the geometry).
+
+    Returns
+    -------
+    list of Problem
+        Empty if the device constructs.
     """
+    try:
+        cls = resolve(device.driver, device.kind)
+    except RegistryError as exc:
+        return [Problem(f"devices[{index}].driver", str(exc), "see the message")]
+    locations = locations or {}
+    params = dict(device.params)
+    required = required_params(cls)
     problems = []
-    for i, dev in enumerate(config.devices):
-        try:
-            cls = resolve(dev.driver, dev.kind)
-            device = cls(dev.id, **dev.params)
-        except RegistryError as exc:
-            problems.append(Problem(f"devices[{i}].driver", str(exc), "see the message"))
-            continue
-        except Exception as exc:
-            problem = getattr(exc, "problem", None) or f"{type(exc).__name__}: {exc}"
-            fix = getattr(exc, "fix", None) or f"check the parameters {dev.driver!r} takes"
-            problems.append(
-                Problem(
-                    f"devices[{i}].params",
-                    f"driver {dev.driver!r} refused the parameters of device {dev.id!r}: {problem}",
-                    fix,
-                )
+    while True:
+        refusal = _construct(cls, device.id, params)
+        if refusal is None:
+            return problems
+        problem = getattr(refusal, "problem", None) or f"{type(refusal).__name__}: {refusal}"
+        fix = getattr(refusal, "fix", None) or f"check the parameters {device.driver!r} takes"
+        key = _refused_param(cls, device.id, params, refusal, required)
+        where = f"devices[{index}].params"
+        if key is not None:
+            where = locations.get(key, f"{where}.{key}")
+        problems.append(
+            Problem(
+                where,
+                f"driver {device.driver!r} refused the parameters of device {device.id!r}: "
+                f"{problem}",
+                fix,
             )
+        )
+        if key is None or key in required:  # not known which, or cannot be left out
+            return problems
+        params.pop(key)
+
+
+def _construct(cls: type, device_id: str, params: dict[str, Any]) -> Exception | None:
+    """Construct (and close again) a device; the exception its constructor raised, if any."""
+    try:
+        device = cls(device_id, **params)
+    except Exception as exc:  # any refusal is reported, never raised
+        return exc
+    close = getattr(device, "close", None)
+    if callable(close):
+        try:
+            close()  # not open: a no-op for a Device, releases anything a driver took
+        except Exception as exc:  # never fail validation on this
+            log.debug("close after construction of %s failed: %s", device_id, exc)
+    return None
+
+
+def required_params(cls: type) -> set[str]:
+    """Names of the constructor parameters after ``device_id`` that have no default.
+
+    Parameters
+    ----------
+    cls : type
+        A device class.
+
+    Returns
+    -------
+    set of str
+        Empty if the signature cannot be read.
+    """
+    try:
+        sig = inspect.signature(cls.__init__)
+    except (TypeError, ValueError):
+        return set()
+    return {
+        p.name
+        for i, p in enumerate(sig.parameters.values())
+        if i >= 2
+        and p.default is p.empty
+        and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
+    }
+
+
+def _refused_param(
+    cls: type, device_id: str, params: dict[str, Any], refusal: Exception, required: set[str]
+) -> str | None:
+    """The parameter whose value the constructor refused, or None if not known.
+
+    The one named in the error (the first named, by position in the message), else the
+    one whose removal makes the constructor pass or fail otherwise (never a required
+    parameter: its removal fails anyway).
+    """
+    text = str(getattr(refusal, "problem", None) or refusal)
+    named = [
+        (m.start(), key)
+        for key in params
+        if (m := re.search(rf"(?<![A-Za-z0-9_]){re.escape(key)}(?![A-Za-z0-9_])", text))
+    ]
+    if named:
+        return min(named)[1]
+    for key in params:
+        if key in required:
             continue
-        close = getattr(device, "close", None)
-        if callable(close):
-            try:
-                close()  # not open: a no-op for a Device, releases anything a driver took
-            except Exception as exc:  # never fail validation on this
-                log.debug("close after construction of %s failed: %s", dev.id, exc)
-    return problems
+        other = _construct(cls, device_id, {k: v for k, v in params.items() if k != key})
+        if other is None or str(other) != str(refusal):
+            return key
+    return None

@@ -55,7 +55,7 @@ from .base import BRANCHES, KINDS, SIMULATED_DRIVERS, STAGE_AXES, TWIN_PARAM_ALI
 from .defaults import default_bench
 from .loading import raise_problems, read_bench_text, validate_bench_text
 from .models import DEFAULT_TRAVEL, BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
-from .problems import BenchConfigError, Problem
+from .problems import BenchConfigError, Problem, within
 from .writer import to_toml
 
 __all__ = [
@@ -76,4 +76,5 @@ __all__ = [
     "read_bench_text",
     "to_toml",
     "validate_bench_text",
+    "within",
 ]

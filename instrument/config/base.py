@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, get_origin
 
 from pydantic import (
     BaseModel,
@@ -133,6 +133,23 @@ def unit_word(unit: str) -> str:
     return _UNIT_WORDS[unit]
 
 
+def short_repr(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut to ``limit`` characters, so that a message stays one readable
+    line whatever a file holds (a 4000-digit number, a deeply nested table).
+
+    Parameters
+    ----------
+    value : object
+    limit : int
+
+    Returns
+    -------
+    str
+    """
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _fmt_number(x: float) -> str:
     return f"{x:.12g}"
 
@@ -172,19 +189,23 @@ def unit_fix(key: str, unit: str, got: str) -> str:
     return f"write {key} as a plain number in {unit_word(unit)}"
 
 
-def _check_number(key: str, value: Any, *, integer: bool = False) -> None:
-    """Refuse strings (naming the unit) and booleans where a number is expected."""
+def _check_number(key: str, value: Any, *, integer: bool = False, in_pair: bool = False) -> None:
+    """Refuse strings (naming the unit) and booleans where a number is expected
+    (``in_pair``: an element of a ``[a, b]`` pair)."""
     unit = unit_of(key)
     what = "an integer" if integer else "a number"
     if isinstance(value, str):
         if unit:
+            fix = unit_fix(key, unit, value)
+            if in_pair:  # "write z_range_mm = 20" would drop the other value
+                fix = fix.replace(f"write {key} = ", "write that value as ")
             raise PydanticCustomError(
                 "unit",
                 "expected {unit_word} as a number, got {got}",
                 {
                     "unit_word": unit_word(unit),
-                    "got": repr(value),
-                    "fix": unit_fix(key, unit, value),
+                    "got": short_repr(value),
+                    "fix": fix,
                 },
             )
         raise PydanticCustomError(
@@ -226,17 +247,29 @@ class Range:
         return bool(above and x <= self.hi)
 
 
+@dataclass(frozen=True)
+class Ordered:
+    """Annotated marker: a (minimum, maximum) pair must be ordered (``strict``: min < max)."""
+
+    strict: bool
+
+
 class Section(BaseModel):
-    """Base of the TOML tables: unknown keys refused, numbers checked for units and range."""
+    """Base of the TOML tables: unknown keys refused, numbers checked for units and range
+    (:class:`Range`), (minimum, maximum) pairs for order (:class:`Ordered`)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     @classmethod
-    def _range(cls, name: str) -> Range | None:
+    def _marker(cls, name: str, marker: type) -> Any:
         field = cls.model_fields.get(name)
         if field is None:
             return None
-        return next((m for m in field.metadata if isinstance(m, Range)), None)
+        return next((m for m in field.metadata if isinstance(m, marker)), None)
+
+    @classmethod
+    def _range(cls, name: str) -> Range | None:
+        return cls._marker(name, Range)
 
     @field_validator("*", mode="before")
     @classmethod
@@ -244,9 +277,21 @@ class Section(BaseModel):
         rng = cls._range(info.field_name)
         if rng is None:
             return value
+        pair = get_origin(cls.model_fields[info.field_name].annotation) is tuple
+        if pair and isinstance(value, str):
+            unit = unit_of(info.field_name)
+            raise PydanticCustomError(
+                "number",
+                "expected two numbers{in_unit}, got {got}",
+                {
+                    "in_unit": f" in {unit_word(unit)}" if unit else "",
+                    "got": short_repr(value),
+                    "fix": f"write {info.field_name} = [a, b] (an array of two plain numbers)",
+                },
+            )
         items = value if isinstance(value, list | tuple) else [value]
         for item in items:
-            _check_number(info.field_name, item, integer=rng.integer)
+            _check_number(info.field_name, item, integer=rng.integer, in_pair=pair)
         return value
 
     @field_validator("*", mode="after")
@@ -260,7 +305,7 @@ class Section(BaseModel):
         unit_text = f" {unit}" if unit and unit != "px" else ""
         for x in items:
             if not (math.isfinite(x) and rng.contains(x)):
-                got = value if len(items) == 1 else list(value)
+                got = short_repr(value if len(items) == 1 else list(value))
                 raise PydanticCustomError(
                     "range",
                     "out of range: expected {each}{range}{unit}, got {got}",
@@ -272,43 +317,26 @@ class Section(BaseModel):
                         "fix": f"set {info.field_name} within {rng.text()}{unit_text}",
                     },
                 )
+        order = cls._marker(info.field_name, Ordered)
+        if order is not None:
+            _check_ordered(info.field_name, value, strict=order.strict)
         return value
 
 
-def pair_ordered(model: Section, name: str, *, strict: bool) -> None:
-    """Check that a (minimum, maximum) field of a model is ordered (a model validator's
-    helper).
-
-    Parameters
-    ----------
-    model : Section
-    name : str
-        Field holding two numbers.
-    strict : bool
-        Require ``min < max`` (else ``min <= max``).
-
-    Raises
-    ------
-    pydantic_core.PydanticCustomError
-        ``bench_rules`` error whose ``problems`` carry the location, message and fix.
-    """
-    lo, hi = getattr(model, name)
+def _check_ordered(name: str, pair: tuple[float, float], *, strict: bool) -> None:
+    """Refuse a (minimum, maximum) pair out of order (a field validator's helper)."""
+    lo, hi = pair
     if lo < hi or (not strict and lo == hi):
         return
     rel = "<" if strict else "<="
     raise PydanticCustomError(
-        "bench_rules",
-        "{summary}",
+        "order",
+        "the first value (minimum) must be {rel} the second (maximum), got [{lo}, {hi}]",
         {
-            "summary": f"{name}: the first value must be {rel} the second, got [{lo}, {hi}]",
-            "problems": [
-                (
-                    (name,),
-                    f"the first value (minimum) must be {rel} the second (maximum), "
-                    f"got [{_fmt_number(lo)}, {_fmt_number(hi)}]",
-                    f"write {name} = [{_fmt_number(min(lo, hi))}, {_fmt_number(max(lo, hi))}]",
-                )
-            ],
+            "rel": rel,
+            "lo": _fmt_number(lo),
+            "hi": _fmt_number(hi),
+            "fix": f"write {name} = [{_fmt_number(min(lo, hi))}, {_fmt_number(max(lo, hi))}]",
         },
     )
 

@@ -8,6 +8,7 @@ no driver; :func:`instrument.bench_setup.parse_bench` and
 from __future__ import annotations
 
 import re
+import sys
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from .problems import (
     line_index,
     locate,
     problems_from_validation,
+    within,
 )
 
 # ---------------------------------------------------------------------- loading
@@ -101,16 +103,17 @@ def validate_bench_text(text: str, *, source: str | None = None
     BenchConfigError
         A TOML syntax error (with its line and column): nothing else can be checked.
     """
-    try:
-        raw = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise BenchConfigError([_syntax_problem(exc, text)], source) from None
+    raw = _parse_toml(text, source)
+    deep = _cut_too_deep(raw)
     problems: list[Problem] = []
     config = None
     try:
         config = BenchConfig.model_validate(raw)
     except ValidationError as exc:
-        problems = problems_from_validation(exc)
+        problems = [
+            p for p in problems_from_validation(exc)
+            if not any(within(p.location, loc) for loc in deep)  # said once, below
+        ]
         if not any(
             p.message.startswith(("duplicate device id", "a lensless bench", "a holography"))
             for p in problems
@@ -121,11 +124,72 @@ def validate_bench_text(text: str, *, source: str | None = None
                     raw.get("devices"), raw.get("branches", ["lensless"])
                 )
             ]
+    problems += [
+        Problem(
+            loc,
+            f"tables and arrays nested more than {MAX_DEPTH} levels deep",
+            "a bench file needs only a few levels: write this value as a number, a string, "
+            "an array of those or a table of those",
+        )
+        for loc in deep
+    ]
     return raw, config, problems
 
 
+#: How deep tables and arrays may nest in a bench file (the deepest the models use is 5:
+#: ``devices[0].params.axes.x``); deeper values are refused before validation.
+MAX_DEPTH = 16
+
+
+
+def _parse_toml(text: str, source: str | None) -> dict[str, Any]:
+    """``tomllib.loads``, every failure a :class:`BenchConfigError` with the line where known."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        problem = _syntax_problem(exc, text)
+    except RecursionError:  # tomllib recurses once per level of nesting
+        problem = Problem(
+            "(TOML syntax)",
+            "arrays or inline tables nested too deeply to read",
+            f"a bench file needs at most {MAX_DEPTH} levels of nesting; close the brackets",
+        )
+    except ValueError:  # an integer too long for int() (sys.get_int_max_str_digits)
+        limit = sys.get_int_max_str_digits()
+        m = re.search(r"\d{%d,}" % (limit + 1), text) if limit else None  # noqa: UP031
+        problem = Problem(
+            "(TOML syntax)",
+            f"a number with more than {limit} digits, too long to read",
+            "write numbers with a few digits (an exponent for large values: 1e30)",
+            text[: m.start()].count("\n") + 1 if m else None,
+        )
+    raise BenchConfigError([problem], source) from None
+
+
+def _cut_too_deep(raw: dict[str, Any]) -> list[str]:
+    """Replace every value nested deeper than :data:`MAX_DEPTH` by None (so that nothing
+    downstream recurses into it); returns their dotted locations."""
+    cut: list[str] = []
+    stack: list[tuple[Any, tuple]] = [(raw, ())]
+    while stack:
+        node, loc = stack.pop()
+        keys = list(node) if isinstance(node, dict) else list(range(len(node)))
+        for key in keys:
+            value = node[key]
+            if not isinstance(value, dict | list):
+                continue
+            if len(loc) + 1 >= MAX_DEPTH:
+                node[key] = None
+                cut.append(dotted((*loc, key)))
+            else:
+                stack.append((value, (*loc, key)))
+    return cut
+
+
 def raise_problems(problems: list[Problem], text: str, source: str | None = None) -> None:
-    """Raise every problem at once, each located on its TOML line, in line order.
+    """Raise every problem at once, each located on its TOML line, in line order, each
+    once (two errors of one value, e.g. both elements of an empty pair missing, are one
+    problem).
 
     Parameters
     ----------
@@ -144,7 +208,7 @@ def raise_problems(problems: list[Problem], text: str, source: str | None = None
     if not problems:
         return
     index = line_index(text)
-    located = [locate(p, index) for p in problems]
+    located = list(dict.fromkeys(locate(p, index) for p in problems))  # each said once
     located.sort(key=lambda p: (p.line is None, p.line or 0))
     raise BenchConfigError(located, source)
 

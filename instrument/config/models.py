@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import (
     Field,
+    ValidationInfo,
     field_validator,
     model_validator,
 )
@@ -19,11 +20,13 @@ from pydantic_core import PydanticCustomError
 
 from .base import (
     ID_RE,
+    KINDS,
     STAGE_AXES,
+    Ordered,
     Range,
     Section,
     dotted,
-    pair_ordered,
+    short_repr,
     unit_fix,
     unit_of,
     unit_word,
@@ -68,7 +71,7 @@ class GeometryConfig(Section):
 class CalibrationDefaults(Section):
     """Defaults of the calibration plans (each plan may override them)."""
 
-    z_range_mm: Annotated[tuple[float, float], Range(0, 10000)] = Field(
+    z_range_mm: Annotated[tuple[float, float], Range(0, 10000), Ordered(strict=True)] = Field(
         (20.0, 200.0), description="point-source distances of the PSF z-sweep, (min, max) mm"
     )
     n_depths: Annotated[int, Range(1, 10000, False, True)] = Field(
@@ -80,18 +83,14 @@ class CalibrationDefaults(Section):
     dark_frames: Annotated[int, Range(0, 100000, False, True)] = Field(
         32, description="frames of the dark calibration"
     )
-    exposure_bounds_s: Annotated[tuple[float, float], Range(0, 3600)] = Field(
-        (1e-5, 1.0), description="auto-exposure limits, (min, max) seconds"
+    exposure_bounds_s: Annotated[tuple[float, float], Range(0, 3600), Ordered(strict=False)] = (
+        Field(
+            (1e-5, 1.0), description="auto-exposure limits, (min, max) seconds"
+        )
     )
     settle_s: Annotated[float, Range(0, 600, False)] = Field(
         0.2, description="wait after each stage move before the next frame, seconds"
     )
-
-    @model_validator(mode="after")
-    def _ordered(self) -> CalibrationDefaults:
-        pair_ordered(self, "z_range_mm", strict=True)
-        pair_ordered(self, "exposure_bounds_s", strict=False)
-        return self
 
 
 class DeviceConfig(Section):
@@ -100,7 +99,9 @@ class DeviceConfig(Section):
     id: str = Field(description="unique device id: a-z, 0-9, _ and -")
     kind: Literal["camera", "stage", "led_array", "slm"] = Field(description="device kind")
     driver: str = Field(description="driver name in the registry (diffuserlab.drivers)")
-    params: dict[str, Any] = Field(default_factory=dict, description="driver parameters")
+    params: dict[str, Any] = Field(
+        default_factory=dict, validate_default=True, description="driver parameters"
+    )
 
     @field_validator("id", mode="after")
     @classmethod
@@ -110,7 +111,7 @@ class DeviceConfig(Section):
             raise PydanticCustomError(
                 "device_id",
                 "invalid device id {got}: use 1-64 characters from a-z, 0-9, '_' and '-'",
-                {"got": repr(value), "fix": f'write id = "{suggestion}"'},
+                {"got": short_repr(value), "fix": f'write id = "{suggestion}"'},
             )
         return value
 
@@ -127,39 +128,37 @@ class DeviceConfig(Section):
 
     @field_validator("params", mode="after")
     @classmethod
-    def _param_units(cls, value: dict[str, Any]) -> dict[str, Any]:
-        problems = []
-
-        def walk(d: dict[str, Any], loc: tuple) -> None:
-            for key, v in d.items():
-                if isinstance(v, dict):
-                    walk(v, (*loc, key))
-                    continue
-                unit = unit_of(key)
-                items = v if isinstance(v, list) else [v]
-                if unit and any(isinstance(x, str) for x in items):
-                    bad = next(x for x in items if isinstance(x, str))
-                    problems.append(
-                        (
-                            (*loc, key),
-                            f"expected {unit_word(unit)} as a number, got {bad!r}",
-                            unit_fix(key, unit, bad),
-                        )
-                    )
-
-        walk(value, ())
+    def _params_ok(cls, value: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        """Unit-suffixed parameters are numbers; a stage's axes are valid (checked here,
+        not after the whole model, so they are reported with the device's other
+        problems: a model validator would not run while any field is invalid)."""
+        problems = _param_unit_problems(value, ())
+        if info.data.get("kind") == "stage":
+            problems += _axes_problems(value.get("axes"))
         if problems:
             raise _rules_error(problems)
         return value
 
-    @model_validator(mode="after")
-    def _stage_axes(self) -> DeviceConfig:
-        if self.kind != "stage":
-            return self
-        problems = _axes_problems(self.params.get("axes"))
-        if problems:
-            raise _rules_error(problems)
-        return self
+
+def _param_unit_problems(params: dict[str, Any], loc: tuple) -> list[tuple[tuple, str, str]]:
+    """Strings given for unit-suffixed parameters (at any depth of nested tables)."""
+    problems = []
+    for key, v in params.items():
+        if isinstance(v, dict):
+            problems += _param_unit_problems(v, (*loc, key))
+            continue
+        unit = unit_of(key)
+        items = v if isinstance(v, list) else [v]
+        if unit and any(isinstance(x, str) for x in items):
+            bad = next(x for x in items if isinstance(x, str))
+            problems.append(
+                (
+                    (*loc, key),
+                    f"expected {unit_word(unit)} as a number, got {short_repr(bad)}",
+                    unit_fix(key, unit, bad),
+                )
+            )
+    return problems
 
 
 def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
@@ -167,7 +166,7 @@ def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
     ranges (mm for x, y, z; degrees for tip, tilt, rotation) or an array of names."""
     valid = ", ".join(STAGE_AXES)
     example = "axes = { x = [-25, 25], y = [-25, 25], z = [0, 50] }"
-    loc = ("params", "axes")
+    loc = ("axes",)
     if axes is None:
         return [
             (
@@ -187,27 +186,30 @@ def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
         return [
             (
                 loc,
-                f"expected a table of axis travel ranges or an array of axis names, got {axes!r}",
+                "expected a table of axis travel ranges or an array of axis names, got "
+                + short_repr(axes),
                 f'write {example} (or axes = ["x", "y", "z"])',
             )
         ]
+    out = []
     bad = [a for a in names if a not in STAGE_AXES]
     if bad:
         close = {a: difflib.get_close_matches(a, STAGE_AXES, 1) for a in bad}
         hint = ", ".join(f"{a!r} -> {c[0]!r}" for a, c in close.items() if c)
-        return [
+        out.append(
             (
                 loc,
                 f"unknown stage axis name(s) {bad}",
                 f"use names from {valid}" + (f" ({hint})" if hint else ""),
             )
-        ]
+        )
     dup = sorted({a for a in names if names.count(a) > 1})
     if dup:
-        return [(loc, f"duplicate stage axis name(s) {dup}", "list each axis once")]
-    out = []
-    if isinstance(axes, dict):
+        out.append((loc, f"duplicate stage axis name(s) {dup}", "list each axis once"))
+    if isinstance(axes, dict):  # the travel of each known axis (unknown ones reported above)
         for name, travel in axes.items():
+            if name not in STAGE_AXES:
+                continue
             unit = "mm" if name in ("x", "y", "z") else "deg"
             items = travel if isinstance(travel, list) else [travel]
             text = next((t for t in items if isinstance(t, str)), None)
@@ -215,7 +217,7 @@ def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
                 out.append(
                     (
                         (*loc, name),
-                        f"expected {unit_word(unit)} as a number, got {text!r}",
+                        f"expected {unit_word(unit)} as a number, got {short_repr(text)}",
                         f"travel of {name} is [low, high] in {unit_word(unit)}: "
                         + unit_fix(name + "_" + unit, unit, text).replace(f"{name}_{unit} = ", ""),
                     )
@@ -233,7 +235,7 @@ def _axes_problems(axes: Any) -> list[tuple[tuple, str, str]]:
                     (
                         (*loc, name),
                         f"travel of axis {name!r} must be [low, high] with low < high, "
-                        f"got {travel!r}",
+                        f"got {short_repr(travel)}",
                         f"write {name} = [low, high] in {unit_word(unit)}, e.g. "
                         f"{name} = {list(DEFAULT_TRAVEL[name])}",
                     )
@@ -279,8 +281,12 @@ def bench_rule_problems(devices: list[Any], branches: Any) -> list[tuple[tuple, 
             first[dev_id] = i
     branch_list = branches if isinstance(branches, list) else []
     cameras = [(i, dev_id) for i, dev_id, kind in entries if kind == "camera"]
+    # "found none" only if every kind is known: a misspelt kind is reported on its own
+    all_known = len(entries) == len(devices) and all(
+        isinstance(kind, str) and kind in KINDS for _, _, kind in entries
+    )
     if "lensless" in branch_list:
-        if not cameras:
+        if not cameras and all_known:
             out.append(
                 (
                     ("devices",),
@@ -299,7 +305,7 @@ def bench_rule_problems(devices: list[Any], branches: Any) -> list[tuple[tuple, 
                     f"remove camera {dev_id!r} or describe it in a bench file of its own",
                 )
             )
-    if "holography" in branch_list and not any(k == "slm" for _, _, k in entries):
+    if "holography" in branch_list and all_known and not any(k == "slm" for _, _, k in entries):
         out.append(
             (
                 ("devices",),

@@ -14,7 +14,7 @@ from pydantic import (
     ValidationError,
 )
 
-from .base import Section, dotted, unit_of, unit_word
+from .base import Section, dotted, short_repr, unit_of, unit_word
 from .defaults import default_bench
 from .models import BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
 from .writer import toml_value
@@ -171,25 +171,33 @@ def problems_from_validation(exc: ValidationError) -> list[Problem]:
             if model is DeviceConfig:
                 fix += "; driver parameters go under [devices.params]"
         elif typ == "literal_error":
-            msg = f"expected {ctx.get('expected')}, got {got!r}"
+            msg = f"expected {ctx.get('expected')}, got {short_repr(got)}"
             fix = f"write {key} = one of {ctx.get('expected')}"
         elif typ == "too_long" or typ == "too_short":
-            msg = f"expected {ctx.get('max_length', ctx.get('min_length'))} values, got {got!r}"
+            n = ctx.get("max_length", ctx.get("min_length"))
+            msg = f"expected {n} values, got {short_repr(got)}"
             fix = f"write {key} = {_example(loc) or '[a, b]'}"
         elif typ == "list_type" and loc == ("devices",):
             msg = "devices must be an array of tables"
             fix = "write each device as its own [[devices]] table (double brackets)"
         elif typ in ("model_type", "dict_type"):
-            msg = f"expected a table, got {got!r}"
+            msg = f"expected a table, got {short_repr(got)}"
             fix = f"write [{dotted(loc)}] as a table with its keys below it"
         elif typ in ("string_type",):
-            msg = f"expected a string, got {got!r}"
+            msg = f"expected a string, got {short_repr(got)}"
             fix = f'write {key} = "..." (in quotes)'
-        elif typ.startswith(("int_", "float_")) or typ in ("tuple_type", "list_type"):
+        elif typ.startswith(("int_", "float_")) or typ in ("tuple_type", "list_type",
+                                                           "finite_number"):
             unit = unit_of(key)
             in_unit = f" in {unit_word(unit)}" if unit else ""
-            msg = f"{err['msg'].lower()}, got {got!r}"
-            fix = f"write {key} as {'numbers' if 'tuple' in typ else 'a number'}{in_unit}"
+            msg = f"{err['msg'].lower()}, got {short_repr(got)}"
+            if typ == "list_type":
+                what = "an array"
+            elif typ == "tuple_type":
+                what = "an array of numbers"
+            else:
+                what = "a finite number" if typ == "finite_number" else "a number"
+            fix = f"write {key} as {what}{in_unit}"
             ex = _example(loc)
             if ex:
                 fix += f", e.g. {key} = {ex}"
@@ -197,6 +205,24 @@ def problems_from_validation(exc: ValidationError) -> list[Problem]:
             msg, fix = err["msg"], "see examples/bench-simulated.toml"
         problems.append(Problem(dotted(loc), msg, fix))
     return problems
+
+
+def within(location: str, prefix: str) -> bool:
+    """True if dotted ``location`` is ``prefix`` or lies inside it.
+
+    ``within("devices[1].params.x", "devices[1].params")`` is True,
+    ``within("devices[10]", "devices[1]")`` is False.
+
+    Parameters
+    ----------
+    location, prefix : str
+        Dotted locations (:func:`dotted`).
+
+    Returns
+    -------
+    bool
+    """
+    return location == prefix or location.startswith((prefix + ".", prefix + "["))
 
 
 # ------------------------------------------------------------- TOML line locator

@@ -394,6 +394,88 @@ def test_every_problem_is_reported_at_once():
     assert all("; fix: " in line for line in err.lines())
 
 
+@pytest.mark.parametrize(
+    ("edits", "locations"),
+    [
+        pytest.param(  # the second pair was checked only once the first was in order
+            [("z_range_mm = [20.0, 200.0]", "z_range_mm = [200.0, 20.0]"),
+             ("exposure_bounds_s = [1e-05, 1.0]", "exposure_bounds_s = [1.0, 1e-05]"),
+             ("n_depths = 32", "n_depths = 0")],
+            ["calibration.z_range_mm", "calibration.n_depths", "calibration.exposure_bounds_s"],
+            id="calibration-pairs",
+        ),
+        pytest.param(  # a stage's axes were checked only once its other keys were valid
+            [('id = "source_stage"', 'id = "Source Stage"'),
+             (XYZ, "axes = {x = [25.0, -25.0], q = [0, 1]}\nspeed_mm_s = \"2 cm\"")],
+            ["devices[1].id", "devices[1].params.axes", "devices[1].params.axes.x",
+             "devices[1].params.speed_mm_s"],
+            id="stage-axes",
+        ),
+    ],
+)
+def test_problems_of_one_section_do_not_hide_each_other(edits, locations):
+    text = DEFAULT_TOML
+    for old, new in edits:
+        text = text.replace(old, new, 1)
+    found = problems(text, check_drivers=False)
+    assert [p.location for p in found] == locations
+    assert len({p.line for p in found[:2]}) == 2 and all(p.line for p in found)
+
+
+def test_driver_checks_say_nothing_twice():
+    # an empty driver name: the model's message only, not also "unknown driver ''"
+    p = only(edit('driver = "simulated-slm"', 'driver = ""'), "devices[3].driver")
+    assert p.message == "empty driver name"
+    # a parameter the driver does not take: its value's unit does not matter
+    p = only(edit("pitch_mm = 4.0", 'pitch_mm = 4.0\nspeed_mm_s = "2 cm"'),
+             "devices[2].params.speed_mm_s")
+    assert "takes no parameter 'speed_mm_s'" in p.message
+    # both values of an empty pair missing: one problem
+    p = only(edit("z_range_mm = [20.0, 200.0]", "z_range_mm = []"), "calibration.z_range_mm")
+    assert p.message == "too few values"
+
+
+def test_values_refused_by_a_driver_are_found_whatever_else_is_wrong():
+    text = (
+        edit("adc_bits = 12", "adc_bits = 3\nfoo = 1")  # refused, and an unknown parameter
+        .replace('diffuser_kind = "smooth"', 'diffuser_kind = "rough"')  # a schema error
+        .replace("resolution = [96, 120]", "resolution = [0, 120]")  # refused by the SLM
+    )
+    found = problems(text, construct=True)
+    assert [(p.location, p.line) for p in found] == [
+        ("geometry.diffuser_kind", line_of(text, "diffuser_kind")),
+        ("devices[0].params.adc_bits", line_of(text, "adc_bits = 3")),
+        ("devices[0].params.foo", line_of(text, "foo = 1")),
+        ("devices[3].params.resolution", line_of(text, "resolution =")),
+    ]
+    # with the simulated twins, at the key the file uses (an SLM's shape_px)
+    lab = (EXAMPLES / "bench-lab.toml").read_text().replace("shape_px = [1080, 1920]",
+                                                           "shape_px = [1080, 0]")
+    p = only(lab, "devices[3].params.shape_px", construct=True, simulate=True)
+    assert "cols=0" in p.message and p.line == line_of(lab, "shape_px = [1080, 0]")
+
+
+@pytest.mark.parametrize(
+    ("value", "message"),
+    [
+        ("[" * 3000 + "]" * 3000, "nested too deeply to read"),
+        ("[" * 30 + "1" + "]" * 30, "nested more than 16 levels deep"),
+        ("9" * 5000, "more than 4300 digits"),
+    ],
+    ids=["deeper-than-tomllib", "deep", "long-int"],
+)
+def test_hostile_values_are_bench_config_errors(value, message):
+    found = problems(edit("pitch_mm = 4.0", f"pitch_mm = {value}"), construct=True)
+    assert len(found) == 1 and message in found[0].message
+    assert all(len(p.format()) < 300 for p in found)
+
+
+def test_simulate_with_a_kind_that_is_not_a_string():
+    p = only(edit('kind = "slm"', 'kind = ["slm"]'), "devices[3].kind",
+             construct=True, simulate=True)  # was a TypeError (unhashable list)
+    assert "expected 'camera', 'stage', 'led_array' or 'slm'" in p.message
+
+
 def test_unreadable_files(tmp_path):
     with pytest.raises(BenchConfigError, match=r"missing\.toml: \(file\): cannot read: No such"):
         load_bench(tmp_path / "missing.toml")

@@ -212,31 +212,105 @@ def test_register_takes_precedence_and_unregister_removes(fakes):
     assert registry.available()["fake-led-array"] == "led_array"
 
 
-def test_construction_problems_without_opening(fakes):
-    class Picky(FakeCamera):
-        def __init__(self, device_id, **params):
-            super().__init__(device_id, **params)
-            if params.get("gain", 0) > 10:
-                raise DeviceValueError(device_id, f"gain={params['gain']} is too high", "use <= 10")
+class _Picky(FakeCamera):
+    """Refuses gain > 10 and offset < 0 (checked in that order), and an offset above
+    ``2 * gain`` (a cross-parameter rule); ``mode`` must be "a" (refused without naming
+    it); ``port`` is required."""
 
-    registry.register("picky", Picky)
-    bench = _bench(_dev("a", driver="picky", gain=20), _dev("b", fail_init=True), _dev("c"))
+    def __init__(self, device_id, *, port, gain=1, offset=0, mode="a", **params):
+        super().__init__(device_id, **params)
+        if gain > 10:
+            raise DeviceValueError(device_id, f"gain={gain} is too high", "use <= 10")
+        if offset < 0:
+            raise DeviceValueError(device_id, f"offset={offset} is negative", "use >= 0")
+        if offset > 2 * gain:
+            raise DeviceValueError(device_id, f"offset={offset} above twice the gain",
+                                   "lower offset")
+        if mode != "a":
+            raise RuntimeError("unsupported")
+
+
+def test_construction_problems_without_opening(fakes):
+    registry.register("picky", _Picky)
+    bench = _bench(
+        _dev("a", driver="picky", port=1, gain=20, offset=-1),  # two refusals, both named
+        _dev("b", fail_init=True),  # refusal naming no parameter: the one whose removal passes
+        _dev("c"),
+        _dev("d", driver="picky", port=1, gain=2, offset=9),  # cross-parameter: first named
+        _dev("e", driver="picky", port=1, mode="b"),
+    )
     found = registry.construction_problems(bench)
     assert [(p.location, p.message, p.fix) for p in found] == [
         (
-            "devices[0].params",
+            "devices[0].params.gain",
             "driver 'picky' refused the parameters of device 'a': gain=20 is too high",
             "use <= 10",
         ),
         (
-            "devices[1].params",
+            "devices[0].params.offset",
+            "driver 'picky' refused the parameters of device 'a': offset=-1 is negative",
+            "use >= 0",
+        ),
+        (
+            "devices[1].params.fail_init",
             "driver 'fake-camera' refused the parameters of device 'b': RuntimeError: "
             "constructor refused",
             "check the parameters 'fake-camera' takes",
         ),
+        (
+            "devices[3].params.offset",
+            "driver 'picky' refused the parameters of device 'd': offset=9 above twice the gain",
+            "lower offset",
+        ),
+        (
+            "devices[4].params.mode",
+            "driver 'picky' refused the parameters of device 'e': RuntimeError: unsupported",
+            "check the parameters 'picky' takes",
+        ),
     ]
     assert EVENTS == []  # nothing opened
     assert registry.construction_problems(_bench(_dev("a"), _dev("c"))) == []
+
+
+@pytest.mark.parametrize(
+    ("refusal", "location"),
+    [("no such device", "devices[3].params"), ("no such port", "devices[3].params.port")],
+)
+def test_construction_never_leaves_out_a_required_parameter(fakes, refusal, location):
+    class NeedsPort(FakeCamera):
+        def __init__(self, device_id, *, port, **params):
+            super().__init__(device_id, **params)
+            raise RuntimeError(refusal)
+
+    registry.register("needs-port", NeedsPort)
+    found = registry.device_construction_problems(3, _dev("a", driver="needs-port", port="x"))
+    # one problem: constructing again without the required port would only add a
+    # "missing argument" follow-on
+    assert [(p.location, p.message) for p in found] == [
+        (location, f"driver 'needs-port' refused the parameters of device 'a': RuntimeError: "
+                   f"{refusal}")
+    ]
+    assert registry.required_params(NeedsPort) == {"port"}
+    assert registry.required_params(_Picky) == {"port"}
+
+
+def test_one_view_reads_the_entry_points_once(monkeypatch):
+    reads = []
+    real = registry.entry_points
+
+    def counting(group):
+        reads.append(group)
+        return real(group=group)
+
+    monkeypatch.setattr(registry, "entry_points", counting)
+    with registry.one_view():
+        with registry.one_view():  # nested: the same view
+            assert resolve("simulated-camera").kind == "camera"
+        assert resolve("simulated-slm").kind == "slm"
+        assert "simulated-stage" in registry.names()
+    assert len(reads) == 1
+    resolve("simulated-camera")  # outside: read afresh
+    assert len(reads) == 2
 
 
 # -------------------------------------------------------------------- open_bench

@@ -12,6 +12,7 @@ from tests.instrument.test_registry import EVENTS, OPENED, use_fakes
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 SIM = str(EXAMPLES / "bench-simulated.toml")
+DEFAULT_TOML = to_toml(default_bench())
 LAB = str(EXAMPLES / "bench-lab.toml")
 
 
@@ -68,12 +69,65 @@ def test_validate_constructs_devices_to_check_parameter_values(capsys, tmp_path)
     path = write(tmp_path, text)
     assert main(["validate", path]) == 2
     err = capsys.readouterr().err.splitlines()
-    table = text.splitlines().index("adc_bits = 20") - 2  # its [devices.params] line, 1-based
-    assert len(err) == 1 and err[0].startswith(f"diffuserlab: error: {path}:{table}: ")
-    assert (
-        "devices[0].params: driver 'simulated-camera' refused the parameters of device " in (err[0])
-    )
-    assert "adc_bits" in err[0].split("; fix: ")[1]
+    line = text.splitlines().index("adc_bits = 20") + 1  # the parameter's own line
+    assert err == [
+        f"diffuserlab: error: {path}:{line}: devices[0].params.adc_bits: driver "
+        "'simulated-camera' refused the parameters of device 'camera': adc_bits=20 is not an "
+        "integer in range; fix: use an integer with 8 <= adc_bits <= 16"
+    ]
+
+
+def test_validate_lists_every_independent_problem_in_one_run(capsys, tmp_path):
+    """Schema errors in several sections and devices, an unknown driver, a driver of the
+    wrong kind, parameter values the drivers refuse (two in one device), a parameter a
+    driver does not take, a duplicate id, unordered pairs: one line each, no more."""
+    text = DEFAULT_TOML
+    for old, new in [
+        ("sensor_pixel_pitch_um = 13.0", "sensor_pixel_pitch_um = -13.0"),
+        ("z_range_mm = [20.0, 200.0]", "z_range_mm = [200.0, 20.0]"),
+        ("exposure_bounds_s = [1e-05, 1.0]", "exposure_bounds_s = [1.0, 1e-05]"),
+        ('id = "camera"', 'id = "Camera X"'),
+        ("\npixel_pitch_um = 13.0", "\npixel_pitch_um = -1.0"),
+        ("adc_bits = 12", "adc_bits = 3"),
+        ("x = [-25.0, 25.0], y", "x = [25.0, -25.0], y"),
+        ('driver = "simulated-led-array"', 'driver = "illuminate"'),
+        ("pitch_mm = 4.0", 'pitch_mm = "4 cm"'),
+        ("resolution = [96, 120]", "resolution = [0, 120]"),
+        ("wavelength_nm = 532.0\n\n[[devices]]", "wavelength_nm = 532.0\nport = 1\n\n[[devices]]"),
+        ('id = "mask_stage"\nkind = "stage"\ndriver = "simulated-stage"',
+         'id = "slm"\nkind = "stage"\ndriver = "simulated-slm"'),
+    ]:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    numbered = text.splitlines()
+
+    def line(fragment: str, nth: int = 0) -> int:
+        return [n for n, t in enumerate(numbered, 1) if t.startswith(fragment)][nth]
+
+    expected = [
+        (line("sensor_pixel_pitch_um"), "geometry.sensor_pixel_pitch_um"),
+        (line("z_range_mm"), "calibration.z_range_mm"),
+        (line("exposure_bounds_s"), "calibration.exposure_bounds_s"),
+        (line('id = "Camera X"'), "devices[0].id"),
+        (line("pixel_pitch_um"), "devices[0].params.pixel_pitch_um"),
+        (line("adc_bits"), "devices[0].params.adc_bits"),
+        (line("axes", 0), "devices[1].params.axes.x"),
+        (line('driver = "illuminate"'), "devices[2].driver"),
+        (line("pitch_mm"), "devices[2].params.pitch_mm"),
+        (line("resolution"), "devices[3].params.resolution"),
+        (line("port = 1"), "devices[3].params.port"),
+        (line('id = "slm"', 1), "devices[4].id"),
+        (line('driver = "simulated-slm"', 1), "devices[4].driver"),
+    ]
+    path = write(tmp_path, text)
+    assert main(["validate", path]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "Traceback" not in err and "internal error" not in err
+    lines = err.splitlines()
+    prefix = f"diffuserlab: error: {path}:"
+    assert all(ln.startswith(prefix) and "; fix: " in ln for ln in lines)
+    found = [ln[len(prefix):].split(": ", 2)[:2] for ln in lines]
+    assert [(int(n), loc) for n, loc in found] == expected  # in line order, each once
 
 
 def test_validate_syntax_error_and_missing_file(fakes, capsys, tmp_path):
