@@ -19,6 +19,7 @@ of cycles.
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -189,7 +190,8 @@ def _constructible(
     mine = [p.location for p in problems if within(p.location, here)]
     if any(loc in (here, f"{here}.params") or within(loc, f"{here}.driver") for loc in mine):
         return None
-    bad = {key for key in params if any(within(loc, f"{here}.params.{key}") for loc in mine)}
+    prefix = f"{here}.params."  # keys with problems, given or missing (a stage's axes)
+    bad = {re.split(r"[.\[]", loc[len(prefix):])[0] for loc in mine if loc.startswith(prefix)}
     try:
         required = required_params(resolve(SIMULATED_DRIVERS[kind] if simulate else driver, kind))
     except RegistryError:

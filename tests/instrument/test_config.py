@@ -455,6 +455,21 @@ def test_values_refused_by_a_driver_are_found_whatever_else_is_wrong():
     assert "cols=0" in p.message and p.line == line_of(lab, "shape_px = [1080, 0]")
 
 
+def test_a_missing_required_parameter_is_not_reported_again_by_the_driver(monkeypatch):
+    from drivers.simulated import SimulatedStage
+    from instrument import registry
+
+    class NeedsAxes(SimulatedStage):
+        def __init__(self, device_id, *, axes, **params):
+            super().__init__(device_id, axes=axes, **params)
+
+    monkeypatch.setitem(registry._local, "needs-axes", NeedsAxes)
+    text = edit('driver = "simulated-stage"\n\n[devices.params]\n' + XYZ,
+                'driver = "needs-axes"\n\n[devices.params]\nvelocity = 2.0')
+    p = only(text, "devices[1].params.axes", construct=True)  # no "missing argument 'axes'"
+    assert p.message == "a stage lists its axes in params.axes"
+
+
 @pytest.mark.parametrize(
     ("value", "message"),
     [
