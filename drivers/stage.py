@@ -181,8 +181,48 @@ class Stage(Device):
         """
         self._require_open()
         timeout_s = self._check_timeout(timeout_s)
+        self._last_path = path = self.path_to(targets)
+        targets = path[-1]
+        self._log.debug("%s: move_to %s (path %s)", self.device_id, targets, self._last_path)
+        start = self._now_s()
+        if len(path) > 1:  # backlash: the overshoot point first
+            with self._io():
+                self._do_move(path[0])
+            self._wait(timeout_s, targets)
+        with self._io():
+            self._do_move(targets)
+        if wait:
+            self._wait(timeout_s - (self._now_s() - start), targets)
+
+    def path_to(self, targets: Mapping[str, float],
+                start: Mapping[str, float] | None = None) -> list[dict[str, float]]:
+        """The moves :meth:`move_to` would make to reach ``targets``, checked, nothing moved.
+
+        Parameters
+        ----------
+        targets : Mapping[str, float]
+            ``{axis: position}`` in the axis unit.
+        start : Mapping[str, float], optional
+            Positions to start from (default: the current ones); a plan's preflight
+            passes the end of the previous move to check a whole sequence.
+
+        Returns
+        -------
+        list of dict
+            ``[overshoot, targets]`` when backlash makes the move end travelling in
+            its positive direction (the overshoot point holds every target, with the
+            backlash-corrected axes replaced), else ``[targets]``.
+
+        Raises
+        ------
+        StageLimitError
+            A target or its backlash overshoot point is outside the limits.
+        DeviceValueError
+            Unknown axis or a target that is not a finite number.
+        """
+        self._require_open()
         targets = self._check_targets(targets)
-        current = self.positions()
+        current = self.positions() if start is None else dict(start)
         backlash, limits = self._values["backlash"], self._values["limits"]
         pre: dict[str, float] = {}
         for axis, t in targets.items():
@@ -197,17 +237,7 @@ class Stage(Device):
                         f"[{lo:g}, {hi:g}] (target {t:g}, backlash {b:g})",
                         "approach from the other side, reduce the backlash or widen the limits",
                     )
-        self._last_path = ([{**targets, **pre}] if pre else []) + [dict(targets)]
-        self._log.debug("%s: move_to %s (path %s)", self.device_id, targets, self._last_path)
-        start = self._now_s()
-        if pre:
-            with self._io():
-                self._do_move(self._last_path[0])
-            self._wait(timeout_s, targets)
-        with self._io():
-            self._do_move(targets)
-        if wait:
-            self._wait(timeout_s - (self._now_s() - start), targets)
+        return ([{**targets, **pre}] if pre else []) + [dict(targets)]
 
     def move_by(
         self, deltas: Mapping[str, float], *, wait: bool = True, timeout_s: float = 30.0

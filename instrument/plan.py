@@ -236,6 +236,22 @@ class Plan(abc.ABC):
         safe state and the store is kept for resuming)."""
         return iter(())
 
+    def moves(self, points: Sequence[PlanPoint], indices: Sequence[int]
+              ) -> Iterator[tuple[int | None, Move]]:
+        """Every stage move the plan will make, in order, for the runner's preflight
+        (all targets checked against the stage limits before the first move).
+
+        Yields ``(point index, Move)`` pairs, ``None`` for setup and teardown, for the
+        points ``indices`` of ``points``. The default walks :meth:`setup`,
+        :meth:`steps` of each point and :meth:`teardown` without executing anything;
+        a plan whose steps depend on what earlier steps measured (so its generators
+        cannot be walked ahead) overrides this with the moves it can promise.
+        """
+        yield from ((None, s) for s in self.setup() if isinstance(s, Move))
+        for i in indices:
+            yield from ((i, s) for s in self.steps(i, points[i]) if isinstance(s, Move))
+        yield from ((None, s) for s in self.teardown() if isinstance(s, Move))
+
     def reduce(self, store) -> dict[str, Any]:
         """Derive products from a complete run's frames (write them with
         ``store.write_product``); return a JSON-able summary."""

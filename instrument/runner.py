@@ -231,13 +231,15 @@ class Runner:
         Raises
         ------
         PlanError
-            A malformed plan (nothing captured).
+            A malformed plan (nothing captured), or a stage target outside the
+            stage's limits (:meth:`preflight`; nothing moved, no store created).
         RunStoreError
             ``path`` exists and ``overwrite`` is False.
         """
         points = plan.points()
         if not points:
             raise PlanError(f"plan {plan.name!r} has no points; check its parameters")
+        self.preflight(plan, points, range(len(points)))
         cam = self.bench.camera
         config = self._config_dump()
         store = RunStore.create(
@@ -288,6 +290,33 @@ class Runner:
         finally:
             store.unlock()
 
+    def preflight(self, plan: Plan, points: Sequence, indices: Sequence[int]) -> None:
+        """Check every stage move of ``points[indices]`` (and of setup and teardown)
+        against the stage limits, before the first move.
+
+        The moves are followed in order from the stages' current positions, so a
+        backlash overshoot point is checked on the side the stage will approach from
+        (:meth:`drivers.stage.Stage.path_to`).
+
+        Raises
+        ------
+        PlanError
+            A target (or overshoot point) outside a stage's limits, or an unknown
+            stage or axis: the point, its coordinates and the stage's message.
+        """
+        positions: dict[str, dict[str, float]] = {}
+        for index, move in plan.moves(points, indices):
+            where = ("setup/teardown" if index is None else
+                     f"point {index + 1} of {len(points)} {dict(points[index].coords)}")
+            try:
+                stage = self.bench.device(move.stage)
+                start = positions.get(stage.device_id) or stage.positions()
+                path = stage.path_to(dict(move.targets), start)
+            except (DeviceError, LookupError) as exc:
+                raise PlanError(f"plan {plan.name!r} cannot run: {where}: {exc}; nothing "
+                                "moved - change the plan's range or the stage limits") from None
+            positions[stage.device_id] = {**start, **path[-1]}
+
     def _check_identity(self, store: RunStore, accept: bool) -> list[Difference]:
         """The differences a resume may accept; RunStoreError for the others."""
         cam = self.bench.camera
@@ -329,20 +358,21 @@ class Runner:
                                 "parameters or points; resume it with the plan it recorded "
                                 "(pass plan=None)")
         accepted = self._check_identity(store, accept)
+        complete = store.points_done()
+        complete[[int(p) for p in redo]] = False
+        start = int(np.argmin(complete)) if not complete.all() else len(points)
+        if start == len(points):
+            log.info("%s: every point is stored; recomputing its products", path)
+        skip = {i for i in range(start + 1, len(points)) if complete[i]} if redo else set()
+        self.preflight(plan, points, [i for i in range(start, len(points)) if i not in skip])
         for point in redo:
             store.clear_point(int(point))
-        start = store.first_incomplete_point()
-        if start is None:
-            log.info("%s: every point is stored; recomputing its products", path)
-            start = len(points)
         store.update_attrs(resumes=[*store.attrs.get("resumes", []), {
             "utc": utc_now(), "point": start, "software_version": software_version(),
             "bench_config": self._config_dump(),
             "accepted_differences": [str(d) for d in accepted]}])
         if 0 < start < len(points):
             self._restore_camera(store, start)
-        complete = store.points_done()
-        skip = {i for i in range(start + 1, len(points)) if complete[i]} if redo else set()
         return self._execute(plan, store, points, start=start, skip=skip)
 
     # ------------------------------------------------------------------ execution

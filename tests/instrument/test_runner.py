@@ -9,7 +9,17 @@ import numpy as np
 import pytest
 
 from instrument.bench import Bench
-from instrument.plan import Capture, Expose, Light, Move, Plan, PlanPoint, Prompt, register_plan
+from instrument.plan import (
+    Capture,
+    Expose,
+    Light,
+    Move,
+    Plan,
+    PlanError,
+    PlanPoint,
+    Prompt,
+    register_plan,
+)
 from instrument.runner import RunControl, Runner
 from instrument.runstore import RunStore, RunStoreError
 from instrument.virtual_bench import VirtualBench
@@ -227,3 +237,48 @@ def test_malformed_plan_and_wrong_resume_are_refused(tmp_path):
             Runner(vb).resume(tmp_path / "s.zarr", ZStepPlan(depths=(31.0,)))
         with pytest.raises(RunStoreError, match="already exists"):
             Runner(vb).run(ZStepPlan(depths=(30.0,)), tmp_path / "s.zarr")
+
+
+def test_every_stage_target_is_checked_before_the_first_move(tmp_path):
+    with VirtualBench(seed=3) as vb:
+        start = vb.source_stage.positions()
+        with pytest.raises(PlanError, match=r"point 4 of 4 \{'z_mm': 300.0\}.*z=300"):
+            Runner(vb).run(ZStepPlan(depths=(30.0, 40.0, 50.0, 300.0)), tmp_path / "p.zarr")
+        assert vb.source_stage.positions() == start  # nothing moved
+    assert not (tmp_path / "p.zarr").exists()  # no run created
+
+
+def test_backlash_overshoot_is_checked_along_the_sequence(tmp_path):
+    with VirtualBench(seed=3) as vb:
+        vb.source_stage.backlash = {"z": 5.0}  # every move ends travelling towards +z
+        vb.source_stage.limits = {"z": (0.0, 250.0)}
+        vb.source_stage.move_to({"z": 0.0})
+        # 120 -> 3 approaches from above: its overshoot at -2 mm is beyond the limit
+        with pytest.raises(PlanError, match="point 2 of 2.*overshoot point z=-2"):
+            Runner(vb).run(ZStepPlan(depths=(120.0, 3.0)), tmp_path / "b.zarr")
+        # increasing depths never overshoot: accepted
+        assert Runner(vb).run(ZStepPlan(depths=(3.0, 120.0)), tmp_path / "ok.zarr").status \
+            == "complete"
+
+
+def test_resume_checks_the_remaining_points_before_moving(tmp_path):
+    control = RunControl()
+
+    def on_event(e):
+        if e.kind == "point_done":
+            control.abort("stop after the first point")
+
+    path = tmp_path / "r.zarr"
+    with VirtualBench(seed=3) as vb:
+        assert Runner(vb, on_event=on_event, control=control).run(
+            ZStepPlan(), path).status == "aborted"
+    before = RunStore.open(path).attrs
+    with VirtualBench(seed=3) as vb:
+        vb.source_stage.limits = {"z": (0.0, 45.0)}  # the 50 and 60 mm points no longer fit
+        here = vb.source_stage.positions()
+        with pytest.raises(PlanError, match=r"point 3 of 4 \{'z_mm': 50.0\}"):
+            Runner(vb).resume(path)
+        assert vb.source_stage.positions() == here
+    after = RunStore.open(path).attrs
+    assert after["resumes"] == before["resumes"] and after["status"] == "aborted"
+    assert RunStore.open(path).lock_owner() is None  # the lock is released

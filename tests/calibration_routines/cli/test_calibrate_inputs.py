@@ -1,5 +1,6 @@
 """`calibrate` and `align mask` check their outputs and input runs before the bench
-opens: one error line, exit 2, nothing written."""
+opens, and every stage target before the first move: one error line, exit 2,
+nothing written."""
 
 from __future__ import annotations
 
@@ -43,6 +44,10 @@ CASES = {
     "out is the falloff run": (
         ["calibrate", "psf-grid", "--simulate", "--falloff-run", "{d}/dark.zarr",
          "--out", "{d}/dark.zarr", "--overwrite"], "is the input --falloff-run"),
+    "sweep beyond the stage travel": (
+        ["calibrate", "psf-sweep", "--simulate", "--z-min", "30", "--z-max", "300",
+         "--n-depths", "3", "--out", "{d}/sweep.zarr"],
+        "point 3 of 3 {'z_mm': 300.0}: source_stage: target z=300 mm is outside the limits"),
     "align out exists": (["align", "mask", "--simulate", "--out", "{d}/file.txt"],
                          "an alignment record is never replaced"),
     "align out inside the lut": (
