@@ -15,17 +15,35 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["as_int", "as_shape2", "as_vec2", "finite_float", "float_array", "nonneg_weight",
-           "positive"]
+__all__ = ["as_array", "as_int", "as_shape2", "as_vec2", "finite_float", "float_array",
+           "nonneg_weight", "positive"]
 
 
 def _number(value: Any, name: str, what: str, shown: Any = None) -> float:
-    """``float(value)``, or ReconInputError "<name> must be <what>, got <shown>"."""
+    """``float(value)`` of a real number, or ReconInputError "<name> must be <what>, got
+    <shown>".
+
+    Strings and bytes are refused although ``float()`` parses them: an API caller
+    passing ``"3"`` has a bug (the command line converts its text itself).
+    """
     try:
+        if isinstance(value, str | bytes):
+            raise TypeError(value)
         return float(value)
     except (TypeError, ValueError):
         shown = value if shown is None else shown
         raise ReconInputError(f"{name} must be {what}, got {shown!r}") from None
+
+
+def as_array(value: Any, name: str) -> np.ndarray:
+    """``np.asarray(value)``, or ReconInputError naming ``name`` (ragged sequences and the
+    like); no dtype or shape check."""
+    try:
+        return np.asarray(value)
+    except Exception as exc:  # ragged sequences and the like
+        raise ReconInputError(
+            f"{name} cannot be converted to an array ({exc}); pass a numpy array"
+        ) from None
 
 
 def positive(value: Any, name: str, *, unit: str = "") -> float:
@@ -80,9 +98,10 @@ def finite_float(value: Any, name: str, *, lo: float | None = None, hi: float | 
     Raises
     ------
     ReconInputError
-        Not a number, NaN/inf, or out of bounds.
+        Not a number (str and bool refused), NaN/inf, or out of bounds.
     """
-    v = _number(value, name, "a finite number")
+    v = _number(None if isinstance(value, bool) else value, name, "a finite number",
+                shown=value)
     if not math.isfinite(v):
         raise ReconInputError(f"{name} must be a finite number, got {value!r}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
@@ -112,9 +131,12 @@ def nonneg_weight(value: Any, name: str) -> float:
     Raises
     ------
     ReconInputError
-        NaN/inf or negative (the message reads "<name> weight must be ...").
+        Not a number (str and bool refused), NaN/inf or negative (the message reads
+        "<name> weight must be ...").
     """
-    w = 0.0 if value is None else float(value)
+    what = "a finite number >= 0"
+    w = 0.0 if value is None else _number(None if isinstance(value, bool) else value,
+                                          f"{name} weight", what, shown=value)
     if not (w >= 0 and math.isfinite(w)):
         raise ReconInputError(f"{name} weight must be a finite number >= 0, got {value}")
     return w
@@ -145,12 +167,7 @@ def float_array(value: Any, name: str, ndims: tuple[int, ...] | None = (2,),
     ReconInputError
         Not convertible, non-numeric dtype, empty, wrong rank or (``finite``) NaN/inf.
     """
-    try:
-        arr = np.asarray(value)
-    except Exception as exc:  # ragged sequences and the like
-        raise ReconInputError(
-            f"{name} cannot be converted to an array ({exc}); pass a numpy array"
-        ) from exc
+    arr = as_array(value, name)
     if arr.dtype.kind not in "buif":
         raise ReconInputError(
             f"{name} has non-numeric dtype {arr.dtype}; pass real intensities (int or float)"

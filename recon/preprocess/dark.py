@@ -117,8 +117,8 @@ def subtract_dark(
     dark_arr = as_array(dark, "dark")
     if dark_arr.dtype.kind not in "uif" or dark_arr.size == 0:
         raise ReconInputError(
-            f"dark must be a number, a per-channel vector or a dark frame, got {dark!r:.80}; "
-            "pass numeric dark data"
+            f"dark must be a number, a per-channel vector or a dark frame, got dtype "
+            f"{dark_arr.dtype} with shape {dark_arr.shape}; pass numeric dark data"
         )
     n_bad = int(np.count_nonzero(~np.isfinite(dark_arr)))
     if n_bad:

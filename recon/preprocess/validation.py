@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from recon.errors import ReconInputError
+from recon.validate import as_array
 
 logger = logging.getLogger(__name__)
 
@@ -39,16 +40,6 @@ class SaturationWarning(UserWarning):
     Saturated pixels break the linear convolution model, so a reconstruction
     from them shows artefacts; lower the exposure or the source power.
     """
-
-
-def as_array(image: Any, name: str) -> np.ndarray:
-    """``image`` as a numpy array; ReconInputError (naming ``name``) if it cannot be."""
-    try:
-        return np.asarray(image)
-    except Exception as exc:  # ragged sequences and the like
-        raise ReconInputError(
-            f"{name} cannot be converted to an array ({exc}); pass a numpy array"
-        ) from exc
 
 
 def require_image(image: np.ndarray, name: str) -> None:
@@ -114,7 +105,7 @@ def saturation_fraction(image: np.ndarray, full_scale: float | None = None) -> f
     ------
     ReconInputError
         If the image is not a non-empty numeric 2D/3D array, or `full_scale`
-        is not a finite number.
+        is not a positive finite number.
     """
     image = as_array(image, "image")
     require_image(image, "image")
@@ -127,9 +118,11 @@ def saturation_fraction(image: np.ndarray, full_scale: float | None = None) -> f
         isinstance(full_scale, bool)
         or not isinstance(full_scale, numbers.Real)
         or not np.isfinite(full_scale)
+        or not full_scale > 0
     ):
         raise ReconInputError(
-            f"full_scale must be a finite number, got {full_scale!r}; e.g. 4095 for 12-bit data"
+            f"full_scale must be a positive finite number, got {full_scale!r}; e.g. 4095 for "
+            "12-bit data"
         )
     return float(np.count_nonzero(image >= full_scale)) / image.size
 

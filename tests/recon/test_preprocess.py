@@ -212,7 +212,7 @@ def test_saturation_fraction_float():
 
 
 def test_saturation_fraction_bad_full_scale():
-    with pytest.raises(ReconInputError, match="full_scale must be a finite number"):
+    with pytest.raises(ReconInputError, match="full_scale must be a positive finite number"):
         saturation_fraction(np.ones((2, 2)), full_scale=float("inf"))
 
 
