@@ -8,6 +8,7 @@ erasure mask of Eq. 3.10 if asked), solves each colour channel independently
 
 from __future__ import annotations
 
+import inspect
 import time
 from dataclasses import dataclass, field
 
@@ -16,9 +17,9 @@ import numpy as np
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
-from .preprocess import prepare_pair
+from .preprocess import prepare_pair, validate_measurement, validate_psf
 from .solvers import SOLVERS, SolveResult
-from .validate import as_int, finite_float, nonneg_weight
+from .validate import as_array, as_int, finite_float, nonneg_weight
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -131,6 +132,40 @@ def scaled_problem(psf: np.ndarray, b: np.ndarray, weights: np.ndarray | None = 
     return op, (bw / scale).astype(np.float32)
 
 
+def solver_options(method: str) -> tuple[str, ...]:
+    """The keyword options of a method's solver beyond ``iterations`` and ``tv``.
+
+    Parameters
+    ----------
+    method : str
+        A key of :data:`recon.solvers.SOLVERS`.
+
+    Returns
+    -------
+    tuple of str
+        Option names in signature order (e.g. ``("regularization",)`` for Wiener).
+    """
+    params = inspect.signature(SOLVERS[method].solve).parameters
+    return tuple(n for n, p in list(params.items())[2:]
+                 if n not in ("iterations", "tv") and p.kind is not p.VAR_KEYWORD)
+
+
+def check_options(method: str, options: dict) -> None:
+    """Refuse solver options the method does not take (before any work).
+
+    Raises
+    ------
+    ReconInputError
+        One line naming the unknown options and those the method accepts.
+    """
+    known = solver_options(method)
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ReconInputError(
+            f"method {method!r} takes no option {', '.join(map(repr, unknown))}; its options "
+            f"are {', '.join(known) or 'none'}")
+
+
 def solve(
     op: ConvolutionOperator, b: np.ndarray, method: str, *, iterations: int, tv: float,
     **options
@@ -142,11 +177,12 @@ def solve(
     Raises
     ------
     ReconInputError
-        Unknown method.
+        Unknown method, or an option the method does not take.
     """
     spec = SOLVERS.get(method)
     if spec is None:
         raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(SOLVERS)}")
+    check_options(method, options)
     if not spec.iterative:
         return spec.solve(op, b, **options)
     return spec.solve(op, b, iterations=iterations, tv=tv, **options)
@@ -200,10 +236,12 @@ def reconstruct(
         12-bit data shifted into uint16); used for the saturation warning.
     preprocess : bool
         False when psf and raw are already dark-subtracted float arrays of equal
-        shape (binning still applies through prepare_pair when True only).
+        shape (binning still applies through prepare_pair when True only); they are
+        still checked like :func:`recon.preprocess.validate_psf` and
+        :func:`recon.preprocess.validate_measurement` do.
     **solver_options
         Passed to the solver (e.g. ``step_scale``, ``mu``, ``balance``,
-        ``regularization``).
+        ``regularization``); :func:`solver_options` lists what a method takes.
 
     Returns
     -------
@@ -214,7 +252,8 @@ def reconstruct(
     ReconInputError
         Bad input (see :mod:`recon.preprocess`) or parameters: ``iterations`` and
         ``bin_factor`` not integers >= 1, ``seed`` not an integer >= 0, ``erase`` not
-        in [0, 1), ``tv`` not a finite number >= 0 (the messages the CLI shows).
+        in [0, 1), ``tv`` not a finite number >= 0 (the messages the CLI shows), or a
+        solver option the method does not take.
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
@@ -228,6 +267,7 @@ def reconstruct(
         raise ReconInputError(f"erased fraction {erase} is outside [0, 1); use e.g. 0.8 to "
                               "erase 80 % of the pixels")
     tv = DEFAULT_TV[method] if tv is None else nonneg_weight(tv, "tv")
+    check_options(method, solver_options)
     t_start = time.perf_counter()
     if preprocess:
         prepared = prepare_pair(
@@ -235,9 +275,14 @@ def reconstruct(
         )
         p, b, info = prepared.psf, prepared.raw, dict(prepared.info)
     else:
-        p, b, info = np.asarray(psf, np.float32), np.asarray(raw, np.float32), {}
-        if p.shape[:2] != b.shape[:2]:
-            raise ReconInputError(f"PSF shape {p.shape} and raw shape {b.shape} differ")
+        p, b = as_array(psf, "PSF"), as_array(raw, "measurement")
+        validate_psf(p)
+        validate_measurement(b)
+        if p.shape[:2] != b.shape[:2] or (p.ndim == 3 and p.shape != b.shape):
+            raise ReconInputError(
+                f"PSF shape {p.shape} and raw shape {b.shape} differ; pass equal (rows, cols) "
+                "and, for a colour PSF, the same channels")
+        p, b, info = p.astype(np.float32), b.astype(np.float32), {}
     channels = 1 if b.ndim == 2 else b.shape[2]
     sensor_shape = b.shape[:2]
     if erasure_mask is not None:

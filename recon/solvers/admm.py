@@ -17,6 +17,7 @@ from .. import _kernels
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
+from ..validate import as_int, finite_float, nonneg_weight, positive
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 
 #: Balancing moves penalties only within this range (scaled problem: unit-sum PSF,
@@ -45,12 +46,29 @@ def check_balancing(balance_every, balance_until: float, balance_ratio: float,
         differ), ``balance_ratio`` or ``balance_factor`` not > 1 (the penalties
         would oscillate or not move), ``balance_until`` outside [0, 1].
     """
-    if isinstance(balance_every, bool) or not isinstance(balance_every, int) \
-            or balance_every < 2:
-        raise ReconInputError(f"balance_every must be an integer >= 2, got {balance_every!r}")
-    if not (balance_ratio > 1 and balance_factor > 1 and 0 <= balance_until <= 1):
-        raise ReconInputError("balance_ratio and balance_factor must be > 1 and "
-                              "balance_until in [0, 1]")
+    as_int(balance_every, "balance_every", 2)
+    finite_float(balance_until, "balance_until", lo=0.0, hi=1.0)
+    finite_float(balance_ratio, "balance_ratio", lo=1.0, lo_open=True)
+    finite_float(balance_factor, "balance_factor", lo=1.0, lo_open=True)
+
+
+def check_penalties(mu) -> tuple[float, float, float]:
+    """ADMM penalties ``(mu1, mu2, mu3)``: three positive finite numbers, default 2e-3 each.
+
+    Raises
+    ------
+    ReconInputError
+        Not a sequence of three, or an entry not a positive finite number.
+    """
+    if mu is None:
+        return (2e-3, 2e-3, 2e-3)
+    try:
+        n = len(mu)
+    except TypeError:
+        n = None
+    if n != 3 or isinstance(mu, str):
+        raise ReconInputError(f"mu must be three ADMM penalties (mu1, mu2, mu3), got {mu!r}")
+    return tuple(positive(m, f"mu[{i}] of the ADMM penalties") for i, m in enumerate(mu))
 
 
 def balance_mode(k: int, balance_every: int, last_balance: int) -> int:
@@ -168,17 +186,11 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     """
     if not isinstance(op, ConvolutionOperator):
         raise ReconInputError("ADMM here needs a ConvolutionOperator (optionally masked)")
-    if iterations < 1:
-        raise ReconInputError(f"iterations must be >= 1, got {iterations}")
-    if tv < 0 or not math.isfinite(tv):
-        raise ReconInputError(f"TV weight must be >= 0, got {tv}")
+    iterations = as_int(iterations, "iterations", 1)
+    tv = nonneg_weight(tv, "TV")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
     use_tv = tv > 0
-    if mu is None:
-        mu = (2e-3, 2e-3, 2e-3)
-    mu1, mu2, mu3 = (float(m) for m in mu)
-    if min(mu1, mu2, mu3) <= 0 or not all(map(math.isfinite, (mu1, mu2, mu3))):
-        raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")
+    mu1, mu2, mu3 = check_penalties(mu)
     b = check_measurement(b, op.shape_out)
     # weights and data as zero-padded planes keep the fused pass branch-free and
     # vectorised (zero weight and data off the sensor give the plain v = t update)

@@ -15,6 +15,7 @@ import numpy as np
 from .. import _kernels
 from ..errors import ReconInputError
 from ..operators import LinearOperator
+from ..validate import as_int, finite_float, nonneg_weight, positive
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 
 
@@ -31,12 +32,9 @@ def prox_threshold(step: float, tau: float, ndim: int) -> float:
 def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
                  nonneg: bool, step_scale: float, momentum, restart: bool,
                  method: str, lipschitz: float | None = None) -> SolveResult:
-    if iterations < 1:
-        raise ReconInputError(f"iterations must be >= 1, got {iterations}")
-    if tv < 0 or not math.isfinite(tv):
-        raise ReconInputError(f"TV weight must be >= 0, got {tv}")
-    if not step_scale > 0:
-        raise ReconInputError(f"step scale must be positive, got {step_scale}")
+    iterations = as_int(iterations, "iterations", 1)
+    tv = nonneg_weight(tv, "TV")
+    step_scale = positive(step_scale, "step_scale")
     if len(op.shape_in) != 2:
         raise ReconInputError(f"{method} supports 2D objects here, got {op.shape_in}")
     b = check_measurement(b, op.shape_out)
@@ -136,7 +134,8 @@ def gradient_descent(op: LinearOperator, b: np.ndarray, *, iterations: int = 100
 
     Parameters and returns as :func:`fista`; ``momentum`` in [0, 1).
     """
-    if not 0.0 <= momentum < 1.0:
+    momentum = finite_float(momentum, "momentum", lo=0.0)
+    if not momentum < 1.0:
         raise ReconInputError(f"momentum must be in [0, 1), got {momentum}")
     return _accelerated(op, b, iterations, tv, nonneg, step_scale, momentum, False,
                         "gradient descent", lipschitz)

@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
+from ..validate import positive
 from .common import History, SolveResult, check_measurement
 
 
@@ -67,9 +68,8 @@ def wiener(op: ConvolutionOperator, b: np.ndarray, regularization: float | None 
     if not isinstance(op, ConvolutionOperator):
         raise ReconInputError("Wiener deconvolution needs a ConvolutionOperator forward model")
     b = check_measurement(b, op.shape_out)
-    lam = auto_regularization(b) if regularization is None else float(regularization)
-    if not lam > 0 or not math.isfinite(lam):
-        raise ReconInputError(f"Wiener regularization must be positive, got {lam}")
+    lam = (auto_regularization(b) if regularization is None
+           else positive(regularization, "regularization"))
     spec = op.spectrum
     filt = (op.spectrum_conj / (spec.real**2 + spec.imag**2 + lam)).astype(np.complex64)
     padded = op.pad_buffer()

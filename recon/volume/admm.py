@@ -31,9 +31,15 @@ from numba import get_num_threads
 
 from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
-from ..solvers.admm import balance_mode, balanced_penalty, check_balancing, rescale_duals
+from ..solvers.admm import (
+    balance_mode,
+    balanced_penalty,
+    check_balancing,
+    check_penalties,
+    rescale_duals,
+)
 from ..solvers.common import Monitor, SolveResult, check_measurement
-from ..validate import nonneg_weight
+from ..validate import as_int, nonneg_weight
 from . import _admm_kernels3d as _k
 from .fista import final_objective
 from .operator import VolumeConvolutionOperator
@@ -162,19 +168,11 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
             "admm3d needs a VolumeConvolutionOperator (its PSF spectra give the "
             "per-frequency x-update); use fista3d for other volume operators"
         )
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
+    iterations = as_int(iterations, "iterations", 1)
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
-    mu = DEFAULT_MU if mu is None else mu
-    try:
-        mu1, mu2, mu3 = (float(m) for m in mu)
-    except (TypeError, ValueError) as exc:
-        raise ReconInputError(f"mu must be three penalties (mu1, mu2, mu3), got {mu!r}") \
-            from exc
-    if not all(m > 0 and math.isfinite(m) for m in (mu1, mu2, mu3)):
-        raise ReconInputError(f"ADMM penalties must be positive and finite, got {mu}")
+    mu1, mu2, mu3 = check_penalties(DEFAULT_MU if mu is None else mu)
     b = check_measurement(b, op.shape_out)
     use_tv = tv_w > 0
     nz = op.n_z

@@ -19,7 +19,7 @@ from ..errors import ReconInputError
 from ..operators import LinearOperator
 from ..solvers.common import Monitor, SolveResult, check_measurement
 from ..solvers.gradient import prox_threshold
-from ..validate import nonneg_weight
+from ..validate import as_int, nonneg_weight, positive
 from . import _kernels3d
 from .operator import VolumeConvolutionOperator
 
@@ -128,8 +128,7 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
     ReconInputError
         Invalid parameters, a non-3D operator or a bad measurement.
     """
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
+    iterations = as_int(iterations, "iterations", 1)
     if len(op.shape_in) != 3:
         raise ReconInputError(
             f"fista3d needs a volume operator (n_z, P0, P1), got input shape {op.shape_in}; "
@@ -140,17 +139,14 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
     b = check_measurement(b, op.shape_out)
     lip = None
     if step is None:
-        if not (step_scale > 0 and math.isfinite(step_scale)):
-            raise ReconInputError(f"step scale must be positive, got {step_scale}")
+        step_scale = positive(step_scale, "step_scale")
         lip = op.lipschitz() if lipschitz is None else float(lipschitz)
         if not (lip > 0 and math.isfinite(lip)):
             raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSFs")
         step = step_scale / lip
         too_large = step_scale > 1
     else:
-        step = float(step)
-        if not (step > 0 and math.isfinite(step)):
-            raise ReconInputError(f"step must be positive and finite, got {step}")
+        step = positive(step, "step")
         too_large = True
     thr = prox_threshold(step, tv_w, 3)
     l1thr = step * l1_w

@@ -185,7 +185,7 @@ def test_generic_operator_path_matches_fused(bead_problem):
 
 @pytest.mark.parametrize("kwargs,fragment", [
     ({"iterations": 0}, "iterations"), ({"tv": -1.0}, "TV"), ({"l1": float("nan")}, "l1"),
-    ({"step": -1.0}, "step"), ({"step_scale": 0.0}, "step scale"),
+    ({"step": -1.0}, "step"), ({"step_scale": 0.0}, "step_scale"),
 ])
 def test_invalid_parameters_are_refused(bead_problem, kwargs, fragment):
     op, b, lip = bead_problem
