@@ -39,6 +39,18 @@ log = logging.getLogger("diffuserlab")
 COMMANDS = (recon, demo, recon3d, analyze, bench, runs, benchmark, holo)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors (unknown option, a value of the wrong type,
+    a missing argument) are one line ``diffuserlab: error: ...`` and exit status 2, like
+    every other bad input; ``--help`` still shows the usage. Subparsers inherit it."""
+
+    def error(self, message: str) -> None:
+        command = self.prog.removeprefix("diffuserlab").strip()
+        where = f"{command}: " if command else ""
+        self.exit(2, f"diffuserlab: error: {where}{_one_line(message)} (see {self.prog} "
+                  "--help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argparse parser of ``diffuserlab`` (documented in the README).
 
@@ -48,14 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
         Every subcommand's parser sets ``handler`` (see the module docstring); the
         commands of the ``diffuserlab.commands`` entry points are added last.
     """
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="diffuserlab",
         description="Bench control, calibration and reconstruction for lensless diffuser "
         "cameras and random-mask holographic displays (Kuo 2020). Bad input: one line, "
         "exit status 2; a diverging solver: exit status 3; a bug: one line, exit status 1 "
         "(--debug shows the traceback). Outputs never replace inputs, nor existing files "
         "without --overwrite.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="debug logging, other libraries' log records included")
     parser.add_argument("--debug", action="store_true",
                         help="show the traceback of an unexpected error (a bug) instead of "
                         "one line")
@@ -77,6 +90,18 @@ def _plugin_commands():
             yield ep.load()
         except ImportError as exc:  # a broken plugin must not take the CLI down
             log.warning("command plugin %s not loaded: %s", ep.name, exc)
+
+
+#: Top-level packages whose log records reach the console without ``-v``.
+_PACKAGES = frozenset({"diffuserlab", "recon", "drivers", "instrument",
+                       "calibration_routines", "gui"})
+
+
+def _project_record(record: logging.LogRecord) -> bool:
+    """Console filter: a record of ours. Other libraries' records (tifffile's "invalid
+    page offset" of a truncated file, ...) would add lines to the one-line error of
+    bad input; ``-v`` shows them."""
+    return record.name.partition(".")[0] in _PACKAGES
 
 
 def _one_line(exc: BaseException) -> str:
@@ -127,6 +152,11 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    for handler in logging.getLogger().handlers:
+        if args.verbose:
+            handler.removeFilter(_project_record)
+        elif _project_record not in handler.filters:
+            handler.addFilter(_project_record)
     input_errors = (ReconInputError, RunStoreError, MissingBenchFile,
                     *getattr(args, "input_errors", ()))
     try:
