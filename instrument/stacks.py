@@ -19,7 +19,11 @@ import numpy as np
 
 from .runstore import RunStore, RunStoreError
 
-__all__ = ["export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
+__all__ = ["MIN_PLANE_PX", "export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
+
+#: Fewest pixels along each side of a PSF plane: a smaller array is a wrong file or a
+#: wrong axis order, not a measurement (the dark corner psf[5:15, 5:15] alone needs 6).
+MIN_PLANE_PX = 8
 
 
 def _depths(depths_mm, n: int, source: str) -> list[float]:
@@ -59,7 +63,8 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
     ------
     RunStoreError
         Unreadable or unsupported file, a run without the product, missing or
-        mismatched depths.
+        mismatched depths, values that are not real numbers (complex, bool, text)
+        or not finite, planes smaller than :data:`MIN_PLANE_PX` on a side.
     """
     import tifffile
 
@@ -80,21 +85,38 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
     elif path.suffix.lower() == ".npy":
         try:
             stack = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty file
             raise RunStoreError(f"cannot read {path}: {exc}") from exc
         recorded = None
     else:
         raise RunStoreError(f"{path}: use a run store (.zarr directory), a TIFF or a .npy file")
-    stack = np.asarray(stack, np.float32)
+    stack = _real_stack(np.asarray(stack), path)
     if stack.ndim == 2:
         stack = stack[None]
     if stack.ndim != 3:
         raise RunStoreError(f"{path} holds a {stack.ndim}-D array; a PSF stack is "
                             "(depths, rows, cols)")
+    if min(stack.shape[1:]) < MIN_PLANE_PX:
+        raise RunStoreError(f"{path} holds planes of {stack.shape[1]}x{stack.shape[2]} pixels; "
+                            f"a PSF needs at least {MIN_PLANE_PX}x{MIN_PLANE_PX} (wrong file "
+                            "or wrong axis order?)")
+    bad = int(np.count_nonzero(~np.isfinite(stack)))
+    if bad:
+        raise RunStoreError(f"{path} holds {bad} non-finite values (NaN or inf); fix or "
+                            "re-measure those pixels")
     if recorded is not None and depths_mm is not None and not np.allclose(recorded, depths_mm):
         raise RunStoreError(f"{path} records depths {recorded} mm, not {list(depths_mm)}")
     depths = _depths(recorded if recorded is not None else depths_mm, len(stack), str(path))
     return stack, depths, attrs
+
+
+def _real_stack(array: np.ndarray, path: Path) -> np.ndarray:
+    """``array`` as float32 if it holds real numbers (not complex, bool, text, objects)."""
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer)
+                                   or np.issubdtype(array.dtype, np.floating)):
+        raise RunStoreError(f"{path} holds {array.dtype} values; a PSF stack holds real "
+                            "numbers (integer or floating point intensities)")
+    return array.astype(np.float32, copy=False)
 
 
 def pick_depth(stack: np.ndarray, depths_mm: Sequence[float], depth_mm: float | None,
@@ -104,9 +126,11 @@ def pick_depth(stack: np.ndarray, depths_mm: Sequence[float], depth_mm: float | 
     Raises
     ------
     RunStoreError
-        No depth given for a multi-plane stack, or the nearest plane is more than
-        ``rel_tol`` (relative) away.
+        No depth given for a multi-plane stack, a depth that is not finite and > 0,
+        or the nearest plane is more than ``rel_tol`` (relative) away.
     """
+    if depth_mm is not None and not (np.isfinite(depth_mm) and depth_mm > 0):
+        raise RunStoreError(f"--depth {depth_mm:g} mm must be finite and > 0")
     if depth_mm is None:
         if len(stack) != 1:
             raise RunStoreError(
