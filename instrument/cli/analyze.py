@@ -151,6 +151,30 @@ def _need(args: argparse.Namespace, *names: str) -> None:
             raise ValueError(f"--{name.replace('_', '-')} must be finite and > 0, got {value}")
 
 
+def _fraction(args: argparse.Namespace, name: str) -> None:
+    value = getattr(args, name, None)
+    if value is not None and not 0 < value < 1:
+        raise ValueError(f"--{name.replace('_', '-')} must be between 0 and 1 (exclusive), "
+                         f"got {value}")
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """Refuse option values no analysis can use, before any file is read or written."""
+    if args.bin_factor < 1:
+        raise ValueError(f"--bin must be >= 1, got {args.bin_factor}")
+    if args.remove_background < 0:
+        raise ValueError(f"--remove-background must be >= 0 (0: off), got "
+                         f"{args.remove_background}")
+    for name in ("threshold", "level"):
+        _fraction(args, name)
+    depth = getattr(args, "depth_mm", None)
+    if depth is not None and not (math.isfinite(depth) and depth > 0):
+        raise ValueError(f"--depth must be finite and > 0 mm, got {depth}")
+    xz = getattr(args, "xz_px", 0.0)
+    if not (math.isfinite(xz) and xz >= 0):
+        raise ValueError(f"--xz-px must be finite and >= 0 (0: one line along z), got {xz}")
+
+
 def _load(args: argparse.Namespace) -> tuple[np.ndarray, np.ndarray, dict]:
     """The stack sorted by depth (binned, background removed if asked), depths, header."""
     from recon.analysis import prepare_stack
@@ -391,8 +415,9 @@ def _grid(args, stack, z, header):
     scene = None
     if args.scene_range is not None:
         scene = floats(args.scene_range, "--scene-range")
-        if len(scene) != 2:
-            raise ValueError(f"--scene-range {args.scene_range!r}: give ZMIN,ZMAX in mm")
+        if len(scene) != 2 or not 0 < scene[0] <= scene[1]:
+            raise ValueError(f"--scene-range {args.scene_range!r}: give ZMIN,ZMAX in mm with "
+                             "0 < ZMIN <= ZMAX")
     rec = recommend_grid(stack, z, pitch_mm=header["pitch_um"] * 1e-3, d_mm=args.d_mm,
                          threshold=args.threshold, scene_depth_range_mm=scene)
     result = {**header, "scene_range_mm": scene, **rec.to_dict()}
@@ -474,8 +499,7 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
 
     from ..output_safety import check_outputs
 
-    if args.bin_factor < 1:
-        raise ValueError(f"--bin must be >= 1, got {args.bin_factor}")
+    _check_options(args)
     out = Path(args.out)
     png, js = out / f"{args.analysis}.png", out / f"{args.analysis}.json"
     check_outputs([png, js], {"--psf-stack": args.psf_stack},

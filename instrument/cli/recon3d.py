@@ -17,6 +17,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from .common import floats
+
 __all__ = ["add_subcommands", "run", "summary_line"]
 
 
@@ -66,14 +68,6 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=run, input_errors=(ValueError, OSError))
 
 
-def _parse_depths(text: str | None) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError as exc:
-        raise ValueError(f"--depths {text!r} is not a comma-separated list of numbers (mm)") \
-            from exc
 
 
 def _parse_dark(text: str) -> str | float:
@@ -106,12 +100,14 @@ def run(args: argparse.Namespace) -> int:
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
 
+    depths = None if args.depths is None else floats(args.depths, "--depths")
+    dark = _parse_dark(args.dark)
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
     m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
-                    tv=args.tv, l1=args.l1, out=args.out, depths_mm=_parse_depths(args.depths),
-                    bin_factor=args.bin_factor, dark=_parse_dark(args.dark),
+                    tv=args.tv, l1=args.l1, out=args.out, depths_mm=depths,
+                    bin_factor=args.bin_factor, dark=dark,
                     psf_product=args.psf_product, metrics_json=args.metrics_json)
     print(summary_line(m))
     return 0

@@ -9,6 +9,7 @@ import json
 from ..output_safety import check_outputs
 from ..runstore import RunStore
 from ..stacks import export_tiff, import_psf_stack
+from .common import floats
 
 __all__ = ["add_subcommands", "format_summary", "run", "verify"]
 
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {out}")
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
-        depths = None if args.depths is None else [float(v) for v in args.depths.split(",")]
+        depths = None if args.depths is None else floats(args.depths, "--depths")
         store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
                                  overwrite=args.overwrite)
         print(f"stored {store.n_points} depths in {store.path}")
