@@ -2,12 +2,13 @@
 
 Table-driven: each bad case is a command line that must exit 2 with one line on
 stderr (no traceback) naming the problem, before any work, leaving every file under
-the test directory unchanged (sha256 before and after, no new files).
+the test directory unchanged (sha256 before and after, no new files); the checks are
+:func:`tests.faults.helpers.assert_refused`, shared with the fault table of every
+other input class (``tests/faults``).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 
 import numpy as np
@@ -17,12 +18,7 @@ import tifffile
 import instrument.cli.recon
 from instrument.cli import main
 from instrument.output_safety import OutputError, check_outputs
-
-
-def _tree(root):
-    """{relative path: sha256} of every file under ``root``."""
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file()}
+from tests.faults.helpers import assert_refused
 
 
 @pytest.fixture
@@ -107,16 +103,7 @@ CASES = list(_cases(__import__("pathlib").Path("x")))
 @pytest.mark.parametrize("case", CASES)
 def test_bad_output_exits_2_with_one_line_and_inputs_unchanged(files, capsys, case):
     argv, words = _cases(files)[case]
-    before = _tree(files)
-    capsys.readouterr()
-    status = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert status == 2, err
-    assert len(err.strip().splitlines()) == 1, err
-    assert err.startswith("diffuserlab: error: ") and "Traceback" not in err
-    for word in words:
-        assert word in err, (word, err)
-    assert _tree(files) == before
+    assert_refused(argv, words, files, capsys)
 
 
 def test_overwrite_replaces_an_earlier_output(files, capsys):

@@ -1,0 +1,169 @@
+"""Inputs of the fault tables: small valid files made once per session, and bad
+copies of them (one factory per input class).
+
+Every bad input lives in the same directory as the valid ones, so each case checks
+that *nothing* under it changed (:func:`tests.faults.helpers.tree`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+from instrument.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+SHAPE = (32, 32)
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "slow: a fault case that takes more than a few seconds")
+
+
+# ----------------------------------------------------------------------------- valid inputs
+
+
+def _valid(d: Path) -> None:
+    """psf.npy, raw.tif, stack.tif (depths 2, 4, 8 mm), stack.npy, run.zarr (imported
+    stack), dark.zarr (a completed simulated dark run), bench.toml, file.txt, dir/."""
+    rng = np.random.default_rng(0)
+    np.save(d / "psf.npy", rng.random(SHAPE).astype(np.float32))
+    tifffile.imwrite(d / "raw.tif", (100 * rng.random(SHAPE)).astype(np.float32))
+    stack = rng.random((3, *SHAPE)).astype(np.float32)
+    tifffile.imwrite(d / "stack.tif", stack, metadata={"depths_mm": [2.0, 4.0, 8.0]},
+                     photometric="minisblack")
+    np.save(d / "stack.npy", stack)
+    assert main(["runs", "import-psf", str(d / "stack.tif"), "--out", str(d / "run.zarr")]) == 0
+    assert main(["calibrate", "dark", "--simulate", "--frames", "2",
+                 "--out", str(d / "dark.zarr")]) == 0
+    shutil.copy(REPO / "examples" / "bench-simulated.toml", d / "bench.toml")
+    (d / "file.txt").write_text("a regular file, not a directory\n")
+    (d / "dir").mkdir()
+
+
+# ----------------------------------------------------------------------------- bad inputs
+
+
+def _empty(d: Path) -> None:
+    for name in ("empty.npy", "empty.tif", "empty.toml"):
+        (d / name).write_bytes(b"")
+    (d / "emptydir").mkdir()
+
+
+def _truncated(d: Path) -> None:
+    for src in ("psf.npy", "raw.tif", "stack.tif", "bench.toml"):
+        data = (d / src).read_bytes()
+        (d / f"trunc_{src}").write_bytes(data[: len(data) // 2])
+
+
+def _mislabelled(d: Path) -> None:
+    import cv2
+
+    (d / "text.tif").write_text("this is text, not a TIFF\n")
+    (d / "text.npy").write_text("this is text, not a NumPy array\n")
+    ok, png = cv2.imencode(".png", (255 * np.load(d / "psf.npy")).astype(np.uint8))
+    assert ok
+    (d / "png.tif").write_bytes(png.tobytes())
+    (d / "tif.npy").write_bytes((d / "raw.tif").read_bytes())
+    (d / "binary.toml").write_bytes(bytes(range(256)))
+    (d / "foreign.toml").write_text('[tool.black]\nline-length = 99\n')
+
+
+def _shapes(d: Path) -> None:
+    rng = np.random.default_rng(1)
+    np.save(d / "d1.npy", rng.random(32).astype(np.float32))
+    np.save(d / "d3.npy", rng.random((3, *SHAPE)).astype(np.float32))
+    np.save(d / "d4.npy", rng.random((2, 3, *SHAPE)).astype(np.float32))
+    np.save(d / "tiny.npy", rng.random((2, 2)).astype(np.float32))
+    np.save(d / "tiny_stack.npy", rng.random((3, 2, 2)).astype(np.float32))
+    tifffile.imwrite(d / "big_raw.tif", rng.random((48, 48)).astype(np.float32))
+    np.save(d / "bad_pattern.npy", np.ones((5, 7), np.uint8))
+
+
+def _dtypes(d: Path) -> None:
+    rng = np.random.default_rng(2)
+    np.save(d / "complex.npy", (rng.random(SHAPE) + 1j).astype(np.complex64))
+    np.save(d / "bool.npy", rng.random(SHAPE) > 0.5)
+    np.save(d / "str.npy", np.full(SHAPE, "ab"))
+    np.save(d / "object.npy", np.array([[None] * 32] * 32, dtype=object), allow_pickle=True)
+    np.save(d / "complex_stack.npy", (rng.random((3, *SHAPE)) + 1j).astype(np.complex64))
+
+
+def _nonfinite(d: Path) -> None:
+    psf = np.load(d / "psf.npy")
+    psf[3, 4] = np.nan
+    np.save(d / "nan.npy", psf)
+    raw = tifffile.imread(d / "raw.tif")
+    raw[5, 6] = np.inf
+    tifffile.imwrite(d / "inf.tif", raw)
+    stack = tifffile.imread(d / "stack.tif")
+    stack[1, 7, 7] = np.nan
+    tifffile.imwrite(d / "nan_stack.tif", stack, metadata={"depths_mm": [2.0, 4.0, 8.0]},
+                     photometric="minisblack")
+    np.save(d / "nan_stack.npy", stack)
+
+
+def _stores(d: Path) -> None:
+    """Damaged copies of run.zarr / dark.zarr, and a locked one."""
+    def copy(src: str, name: str) -> Path:
+        return Path(shutil.copytree(d / src, d / name))
+
+    chunk = Path("products", "psf_stack", "c", "1", "0", "0")
+    (copy("run.zarr", "deleted_chunk.zarr") / chunk).unlink()
+    altered = copy("run.zarr", "altered_chunk.zarr") / chunk
+    data = bytearray(altered.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    altered.write_bytes(bytes(data))
+    meta = copy("dark.zarr", "trunc_meta.zarr") / "zarr.json"
+    meta.write_bytes(meta.read_bytes()[: len(meta.read_bytes()) // 2])
+    (copy("dark.zarr", "notjson_meta.zarr") / "zarr.json").write_text("not json at all\n")
+    meta = copy("dark.zarr", "nokeys.zarr") / "zarr.json"
+    doc = json.loads(meta.read_text())
+    doc["attributes"] = {k: v for k, v in doc["attributes"].items()
+                         if k in ("schema", "schema_version")}
+    meta.write_text(json.dumps(doc))
+    lock = {"pid": os.getpid(), "host": socket.gethostname(),
+            "started_utc": "2026-01-01T00:00:00+00:00"}
+    (copy("dark.zarr", "locked.zarr") / ".lock").write_text(json.dumps(lock))
+    # a bench of another set-up: the simulated bench with the diffuser moved
+    text = (d / "bench.toml").read_text()
+    assert "diffuser_sensor_distance_mm = 8.9" in text
+    (d / "other_bench.toml").write_text(text.replace("diffuser_sensor_distance_mm = 8.9",
+                                                     "diffuser_sensor_distance_mm = 12.0"))
+
+
+FACTORIES = (_valid, _empty, _truncated, _mislabelled, _shapes, _dtypes, _nonfinite, _stores)
+
+
+@pytest.fixture(scope="session")
+def fault_dir(tmp_path_factory) -> Path:
+    """A directory with the valid inputs and one bad input per class (see the factories
+    above); the fault cases must leave every file in it as it was."""
+    d = tmp_path_factory.mktemp("faults")
+    for make in FACTORIES:
+        make(d)
+    return d
+
+
+@pytest.fixture
+def d(fault_dir, monkeypatch) -> Path:
+    """:func:`fault_dir`, also the working directory (default outputs land there).
+
+    Whatever a case adds (a failing case's outputs) is removed afterwards, so that one
+    failure does not turn the next cases' outputs into clashes.
+    """
+    before = set(fault_dir.rglob("*"))
+    monkeypatch.chdir(fault_dir)
+    yield fault_dir
+    for path in sorted(set(fault_dir.rglob("*")) - before, key=lambda p: len(p.parts)):
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)

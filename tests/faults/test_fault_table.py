@@ -1,0 +1,515 @@
+"""The fault table: every ``diffuserlab`` command on a matrix of bad inputs.
+
+Each case is a command line (run in the fault directory of ``conftest.py``, whose
+files are the valid inputs and one bad input per class) and the words its error
+must name. Every case must exit 2 with exactly one line
+``diffuserlab: error: ...`` on stderr, no traceback, and leave every file of the
+directory as it was (sha256 before and after, nothing added). Output clashes of
+recon, recon3d, demo, analyze, runs, holo and benchmark are in
+``tests/instrument/cli/test_output_safety.py``; this table covers the other
+commands' outputs and every other input class.
+
+A case whose fix lies in a file outside the command line is marked ``xfail`` with
+the file and the problem (strict: it fails once fixed, so the mark is removed).
+"""
+
+from __future__ import annotations
+
+import shlex
+from collections import Counter
+
+import pytest
+
+from .helpers import assert_refused
+
+#: input classes (the second part of a case id)
+CLASSES = ("missing", "empty", "truncated", "mislabelled", "shape", "dtype", "nonfinite",
+           "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench")
+
+
+def case(command: str, cls: str, what: str, words: str, *, xfail: str | None = None,
+         slow: bool = False):
+    """One row: ``command`` (split like a shell), its input class, a short name and the
+    words (``|``-separated) the error line must hold; ``xfail``: the file and problem
+    that make it fail today; ``slow``: it takes seconds (the command does real work)."""
+    assert cls in CLASSES, cls
+    marks = [pytest.mark.xfail(strict=True, reason=xfail)] if xfail else []
+    marks += [pytest.mark.slow] if slow else []
+    return pytest.param(shlex.split(command), [w for w in words.split("|") if w],
+                        id=f"{_command(command)}:{cls}:{what}", marks=marks)
+
+
+def _command(command: str) -> str:
+    """The (sub)command of a command line: its words before the first option or path."""
+    words = []
+    for word in command.split():
+        if word.startswith("-") or "." in word or "/" in word:
+            break
+        words.append(word)
+    return " ".join(words[:2])
+
+
+# Problems whose fix lies outside instrument/cli (see the module docstring).
+STORE_JSON = ("instrument/runstore.py: RunStore.open lets the json.JSONDecodeError of a damaged "
+              "zarr.json out: a line without the store's path ('Expecting value: line 1 column "
+              "1'), or exit 1 'internal error' where ValueError is not an input error (recon)")
+STORE_KEYS = ("instrument/runstore.py: RunStore.open accepts a zarr.json whose attributes lack "
+              "plan/status; summary() raises KeyError 'plan' (exit 1, internal error)")
+VERIFY_KEYS = ("instrument/runstore.py: verify() calls a store whose attributes lack "
+               "plan/status intact (exit 0)")
+RESUME_KEYS = ("instrument/runner.py: _resume reads store.attrs['plan'] unchecked: KeyError "
+               "'plan', exit 1 internal error")
+NOT_BENCH = ("instrument/config: an empty TOML or one that is not a bench file gives one "
+             "line per missing key (3-4 'diffuserlab: error:' lines), not one line saying it "
+             "is not a bench file")
+ALIGN_NPY = ("calibration_routines/cli/align.py: np.load errors of --mask-pattern are printed "
+             "raw ('error: ...', no file name); an empty file escapes as EOFError, exit 1 "
+             "internal error")
+ALIGN_LUT = ("calibration_routines/cli/align.py: a --lut that is missing, not a run store or "
+             "without slm_lut is found only after the bench opened: 'alignment failed: ...' "
+             "+ 'record: ...', exit 1")
+ALIGN_FRAMES = ("calibration_routines/cli/align.py: --frames 0 is refused only inside the "
+                "alignment: exit 1, two lines, the record o/al.align written")
+
+R = "recon --iterations 2 --out o/r"
+R2 = f"{R} --psf psf.npy --raw raw.tif"
+V = "recon3d --iterations 2 --out o/v.tif"
+V2 = f"{V} --psf-stack stack.tif --raw raw.tif"
+A = "analyze resolution --pitch-um 13 --d-mm 8.9 --out o/a"
+A2 = f"{A} --psf-stack stack.tif"
+
+RECON = [
+    case(f"{R} --psf nope.npy --raw raw.tif", "missing", "psf", "nope.npy"),
+    case(f"{R} --psf psf.npy --raw nope.tif", "missing", "raw", "nope.tif"),
+    case(f"{R} --psf dir --raw raw.tif", "missing", "psf is a directory", "dir"),
+    case(f"{R} --psf empty.npy --raw raw.tif", "empty", "psf", "empty.npy"),
+    case(f"{R} --psf psf.npy --raw empty.tif", "empty", "raw", "empty.tif"),
+    case(f"{R} --psf trunc_psf.npy --raw raw.tif", "truncated", "psf", "trunc_psf.npy"),
+    case(f"{R} --psf psf.npy --raw trunc_raw.tif", "truncated", "raw", "trunc_raw.tif"),
+    case(f"{R} --psf psf.npy --raw text.tif", "mislabelled", "text tif", "text.tif"),
+    case(f"{R} --psf png.tif --raw raw.tif", "mislabelled", "png as tif", "png.tif"),
+    case(f"{R} --psf text.npy --raw raw.tif", "mislabelled", "text npy", "text.npy"),
+    case(f"{R} --psf psf.npy --raw tif.npy", "mislabelled", "tif as npy", "tif.npy"),
+    case(f"{R} --psf psf.npy --raw psf.toml", "mislabelled", "unknown suffix", "psf.toml"),
+    case(f"{R} --psf d1.npy --raw raw.tif", "shape", "1-D psf", "d1.npy"),
+    case(f"{R} --psf d3.npy --raw raw.tif", "shape", "3-D psf without depth", "d3.npy"),
+    case(f"{R} --psf d4.npy --raw raw.tif", "shape", "4-D psf", "d4.npy"),
+    case(f"{R} --psf tiny.npy --raw tiny.npy", "shape", "2x2", "2"),
+    case(f"{R} --psf psf.npy --raw big_raw.tif", "shape", "size mismatch", "shape"),
+    case(f"{R} --psf complex.npy --raw raw.tif", "dtype", "complex psf", "complex"),
+    case(f"{R} --psf bool.npy --raw raw.tif", "dtype", "bool psf", "bool"),
+    case(f"{R} --psf str.npy --raw raw.tif", "dtype", "str psf", "str.npy"),
+    case(f"{R} --psf object.npy --raw raw.tif", "dtype", "object psf", "object.npy"),
+    case(f"{R} --psf nan.npy --raw raw.tif", "nonfinite", "nan psf", "nan"),
+    case(f"{R} --psf psf.npy --raw inf.tif", "nonfinite", "inf raw", "inf"),
+    case(f"{R2} --iterations 0", "number", "iterations 0", "iterations"),
+    case(f"{R2} --iterations -5", "number", "iterations -5", "iterations"),
+    case(f"{R2} --iterations abc", "number", "iterations abc", "--iterations"),
+    case(f"{R2} --tv -1", "number", "tv -1", "tv"),
+    case(f"{R2} --tv nan", "number", "tv nan", "tv"),
+    case(f"{R2} --tv inf", "number", "tv inf", "tv"),
+    case(f"{R2} --bin 0", "number", "bin 0", "bin"),
+    case(f"{R2} --bin -2", "number", "bin -2", "bin"),
+    case(f"{R2} --bin 64", "number", "bin larger than image", "bin"),
+    case(f"{R2} --erase 1.5", "number", "erase 1.5", "erase"),
+    case(f"{R2} --erase nan", "number", "erase nan", "erase"),
+    case(f"{R2} --erase 0.5 --seed -1", "number", "seed -1", "seed"),
+    case(f"{R2} --full-scale 0", "number", "full-scale 0", "full"),
+    case(f"{R2} --full-scale nan", "number", "full-scale nan", "full"),
+    case(f"{R} --psf stack.tif --depth 50 --raw raw.tif", "number", "depth not in stack", "50"),
+    case(f"{R} --psf stack.tif --depth nan --raw raw.tif", "number", "depth nan", "depth"),
+    case(f"{R} --psf stack.tif --depth -4 --raw raw.tif", "number", "depth -4", "depth"),
+    case(f"{R} --psf run.zarr --depth 4 --psf-product nope --raw raw.tif", "missing",
+         "product", "nope"),
+    case(f"{R} --psf deleted_chunk.zarr --depth 4 --raw raw.tif", "corrupt-store",
+         "deleted chunk", "deleted_chunk.zarr"),
+    case(f"{R} --psf altered_chunk.zarr --depth 4 --raw raw.tif", "corrupt-store",
+         "altered chunk", "altered_chunk.zarr"),
+    case(f"{R} --psf notjson_meta.zarr --depth 4 --raw raw.tif", "corrupt-store",
+         "zarr.json not json", "notjson_meta.zarr", xfail=STORE_JSON),
+    case(f"{R2} --out file.txt/r", "unwritable", "out under a file", "file.txt"),
+    case(f"{R2} --metrics-json /proc/x/m.json", "unwritable", "metrics in /proc", "/proc/x"),
+]
+
+RECON3D = [
+    case(f"{V} --psf-stack nope.tif --raw raw.tif", "missing", "stack", "nope.tif"),
+    case(f"{V} --psf-stack stack.tif --raw nope.tif", "missing", "raw", "nope.tif"),
+    case(f"{V} --psf-stack emptydir --raw raw.tif", "empty", "empty dir as store", "emptydir"),
+    case(f"{V} --psf-stack empty.tif --depths 1 --raw raw.tif", "empty", "stack", "empty.tif"),
+    case(f"{V} --psf-stack trunc_stack.tif --raw raw.tif", "truncated", "stack",
+         "trunc_stack.tif"),
+    case(f"{V} --psf-stack text.tif --depths 1 --raw raw.tif", "mislabelled", "text tif",
+         "text.tif"),
+    case(f"{V} --psf-stack text.npy --depths 1 --raw raw.tif", "mislabelled", "text npy",
+         "text.npy"),
+    case(f"{V} --psf-stack stack.tif --raw text.tif", "mislabelled", "raw text tif",
+         "text.tif"),
+    case(f"{V} --psf-stack stack.npy --raw raw.tif", "missing", "npy without depths",
+         "depths"),
+    case(f"{V} --psf-stack stack.npy --depths 2,4 --raw raw.tif", "shape", "depths count",
+         "depths"),
+    case(f"{V} --psf-stack d1.npy --depths 2 --raw raw.tif", "shape", "1-D stack", "d1.npy"),
+    case(f"{V} --psf-stack d4.npy --depths 2,4 --raw raw.tif", "shape", "4-D stack",
+         "d4.npy"),
+    case(f"{V} --psf-stack tiny_stack.npy --depths 2,4,8 --raw tiny.npy", "shape", "2x2",
+         "2"),
+    case(f"{V2} --raw big_raw.tif", "shape", "size mismatch", "size"),
+    case(f"{V} --psf-stack complex_stack.npy --depths 2,4,8 --raw raw.tif", "dtype",
+         "complex stack", "complex"),
+    case(f"{V} --psf-stack stack.tif --raw bool.npy", "dtype", "bool raw", "bool"),
+    case(f"{V} --psf-stack nan_stack.tif --raw raw.tif", "nonfinite", "nan stack", "nan"),
+    case(f"{V2} --raw inf.tif", "nonfinite", "inf raw", "inf"),
+    case(f"{V} --psf-stack stack.npy --depths 2,nan,8 --raw raw.tif", "nonfinite",
+         "nan depth", "depths"),
+    case(f"{V} --psf-stack stack.npy --depths 2,2,8 --raw raw.tif", "number",
+         "repeated depths", "depth"),
+    case(f"{V} --psf-stack stack.npy --depths=-2,4,8 --raw raw.tif", "number",
+         "negative depth", "depths"),
+    case(f"{V2} --iterations 0", "number", "iterations 0", "iterations"),
+    case(f"{V2} --tv -1", "number", "tv -1", "tv"),
+    case(f"{V2} --tv nan", "number", "tv nan", "tv"),
+    case(f"{V2} --l1 inf", "number", "l1 inf", "l1"),
+    case(f"{V2} --bin 0", "number", "bin 0", "bin"),
+    case(f"{V2} --dark nan", "number", "dark nan", "dark"),
+    case(f"{V2} --dark bright", "number", "dark word", "dark"),
+    case(f"{V2} --method newton", "number", "method", "newton"),
+    case(f"{V} --psf-stack deleted_chunk.zarr --raw raw.tif", "corrupt-store",
+         "deleted chunk", "deleted_chunk.zarr"),
+    case(f"{V} --psf-stack altered_chunk.zarr --raw raw.tif", "corrupt-store",
+         "altered chunk", "altered_chunk.zarr"),
+    case(f"{V} --psf-stack trunc_meta.zarr --raw raw.tif", "corrupt-store",
+         "truncated zarr.json", "trunc_meta.zarr", xfail=STORE_JSON),
+    case(f"{V} --psf-stack dark.zarr --raw raw.tif", "missing", "run without psf stack",
+         "psf_stack"),
+    case(f"{V2} --out file.txt/v.tif", "unwritable", "out under a file", "file.txt"),
+    case(f"{V2} --out /proc/x/v.zarr", "unwritable", "out in /proc", "/proc/x"),
+]
+
+ANALYZE = [
+    case(f"{A} --psf-stack nope.tif", "missing", "stack", "nope.tif"),
+    case(f"{A} --psf-stack empty.tif --depths 1", "empty", "stack", "empty.tif"),
+    case(f"{A} --psf-stack trunc_stack.tif", "truncated", "stack", "trunc_stack.tif"),
+    case(f"{A} --psf-stack text.npy --depths 1", "mislabelled", "text npy", "text.npy"),
+    case(f"{A} --psf-stack d1.npy --depths 1", "shape", "1-D", "d1.npy"),
+    case(f"{A} --psf-stack tiny_stack.npy --depths 2,4,8", "shape", "2x2", "2"),
+    case(f"{A} --psf-stack complex_stack.npy --depths 2,4,8", "dtype", "complex", "complex"),
+    case(f"{A} --psf-stack nan_stack.tif", "nonfinite", "nan stack", "nan"),
+    case(f"{A} --psf-stack stack.npy --depths 2,inf,8", "nonfinite", "inf depth", "depths"),
+    case(f"{A} --psf-stack deleted_chunk.zarr", "corrupt-store", "deleted chunk",
+         "deleted_chunk.zarr"),
+    case(f"{A} --psf-stack nokeys.zarr", "corrupt-store", "attrs lack keys", "nokeys.zarr"),
+    case("analyze resolution --psf-stack stack.tif --out o/a", "missing", "no pitch",
+         "--pitch-um"),
+    case(f"{A2} --pitch-um -13", "number", "pitch negative", "--pitch-um"),
+    case(f"{A2} --d-mm nan", "number", "d nan", "--d-mm"),
+    case(f"{A2} --bin 0", "number", "bin 0", "--bin"),
+    case(f"{A2} --bin 64", "number", "bin too large", "bin"),
+    case(f"{A2} --remove-background -1", "number", "remove-background -1", "background"),
+    case(f"{A2} --threshold 2", "number", "threshold 2", "threshold"),
+    case(f"{A2} --threshold nan", "number", "threshold nan", "threshold"),
+    case(f"{A2} --level 0", "number", "level 0", "level"),
+    case("analyze similarity --psf-stack stack.tif --out o/a --index 99", "number",
+         "index 99", "index"),
+    case("analyze similarity --psf-stack stack.tif --out o/a --index -9", "number",
+         "index -9", "index"),
+    case("analyze condition --psf-stack stack.tif --out o/a --k-max 1", "number", "k-max 1",
+         "--k-max"),
+    case("analyze condition --psf-stack stack.tif --out o/a --separations-px 0,-1", "number",
+         "separations <= 0", "separation"),
+    case("analyze condition --psf-stack stack.tif --out o/a --separations-px a", "number",
+         "separations a", "separations"),
+    case("analyze condition --psf-stack stack.tif --out o/a --depth 50", "number",
+         "depth not in stack", "50"),
+    case("analyze condition --psf-stack stack.tif --out o/a --axial --separations-planes 0",
+         "number", "planes 0", "separations-planes"),
+    case("analyze condition --psf-stack stack.tif --out o/a --axial --xz-px -1", "number",
+         "xz -1", "xz"),
+    case("analyze distinguish --psf-stack stack.tif --out o/a --iterations 0", "number",
+         "iterations 0", "iterations"),
+    case(f"{A2.replace('resolution', 'grid')} --scene-range 50,10", "number",
+         "scene range reversed", "scene-range"),
+    case(f"{A2.replace('resolution', 'grid')} --scene-range 10", "number",
+         "scene range one value", "scene-range"),
+    case(f"{A2.replace('resolution', 'fov')} --alpha-c-deg nan", "number", "alpha nan",
+         "alpha"),
+    case(f"{A2.replace('resolution', 'fov')} --alpha-c-deg 30 --support-energy 1.5",
+         "number", "support energy 1.5", "support"),
+    case(f"{A2.replace('resolution', 'fov')} --alpha-c-deg 30 --beta-deg -5", "number",
+         "beta -5", "beta"),
+    case(f"{A2} --out file.txt/a", "unwritable", "out under a file", "file.txt"),
+    case(f"{A2} --out /proc/x/a", "unwritable", "out in /proc", "/proc/x"),
+]
+
+BENCH = [
+    case("validate nope.toml", "missing", "bench file", "nope.toml"),
+    case("validate", "missing", "no file no simulate", "--simulate"),
+    case("validate empty.toml", "empty", "bench file", "empty.toml", xfail=NOT_BENCH),
+    case("validate trunc_bench.toml", "truncated", "bench file", "trunc_bench.toml"),
+    case("validate binary.toml", "mislabelled", "binary", "binary.toml"),
+    case("validate foreign.toml", "foreign-bench", "not a bench", "foreign.toml",
+         xfail=NOT_BENCH),
+    case("validate psf.npy", "mislabelled", "npy as bench", "psf.npy"),
+    case("devices nope.toml", "missing", "bench file", "nope.toml"),
+    case("devices foreign.toml", "foreign-bench", "not a bench", "foreign.toml",
+         xfail=NOT_BENCH),
+    case("devices --timeout 0", "number", "timeout 0", "--timeout"),
+    case("devices --timeout nan", "number", "timeout nan", "--timeout"),
+    case("devices --timeout -1", "number", "timeout -1", "--timeout"),
+]
+
+RUNS = [
+    case("runs show nope.zarr", "missing", "show", "nope.zarr"),
+    case("runs show emptydir", "empty", "show empty dir", "emptydir"),
+    case("runs show file.txt", "mislabelled", "show a file", "file.txt"),
+    case("runs show trunc_meta.zarr", "corrupt-store", "show truncated zarr.json",
+         "trunc_meta.zarr", xfail=STORE_JSON),
+    case("runs show notjson_meta.zarr", "corrupt-store", "show zarr.json not json",
+         "notjson_meta.zarr", xfail=STORE_JSON),
+    case("runs show nokeys.zarr", "corrupt-store", "show attrs lack keys", "nokeys.zarr",
+         xfail=STORE_KEYS),
+    case("runs verify nope.zarr", "missing", "verify", "nope.zarr"),
+    case("runs verify notjson_meta.zarr", "corrupt-store", "verify zarr.json not json",
+         "notjson_meta.zarr", xfail=STORE_JSON),
+    case("runs verify nokeys.zarr", "corrupt-store", "verify attrs lack keys", "nokeys.zarr",
+         xfail=VERIFY_KEYS),
+    case("runs export nope.zarr --out o/e.tif", "missing", "export", "nope.zarr"),
+    case("runs export run.zarr --product nope --out o/e.tif", "missing", "export product",
+         "nope"),
+    case("runs export deleted_chunk.zarr --out o/e.tif", "corrupt-store",
+         "export deleted chunk", "deleted_chunk.zarr"),
+    case("runs export altered_chunk.zarr --out o/e.tif", "corrupt-store",
+         "export altered chunk", "altered_chunk.zarr"),
+    case("runs export trunc_meta.zarr --out o/e.tif", "corrupt-store",
+         "export truncated zarr.json", "trunc_meta.zarr", xfail=STORE_JSON),
+    case("runs export run.zarr --out file.txt/e.tif", "unwritable", "export out under a file",
+         "file.txt"),
+    case("runs export run.zarr --out /proc/x/e.tif", "unwritable", "export out in /proc",
+         "/proc/x"),
+    case("runs import-psf nope.tif --out o/i.zarr", "missing", "import", "nope.tif"),
+    case("runs import-psf empty.npy --out o/i.zarr", "empty", "import", "empty.npy"),
+    case("runs import-psf trunc_stack.tif --out o/i.zarr", "truncated", "import",
+         "trunc_stack.tif"),
+    case("runs import-psf text.tif --depths 1 --out o/i.zarr", "mislabelled", "import text",
+         "text.tif"),
+    case("runs import-psf d1.npy --depths 1 --out o/i.zarr", "shape", "import 1-D", "d1.npy"),
+    case("runs import-psf d4.npy --depths 1,2 --out o/i.zarr", "shape", "import 4-D",
+         "d4.npy"),
+    case("runs import-psf stack.npy --depths 2,4 --out o/i.zarr", "shape",
+         "import depths count", "depths"),
+    case("runs import-psf complex_stack.npy --depths 2,4,8 --out o/i.zarr", "dtype",
+         "import complex", "complex"),
+    case("runs import-psf str.npy --depths 2 --out o/i.zarr", "dtype", "import str",
+         "str.npy"),
+    case("runs import-psf nan_stack.npy --depths 2,4,8 --out o/i.zarr", "nonfinite",
+         "import nan", "nan"),
+    case("runs import-psf stack.npy --depths 2,a,8 --out o/i.zarr", "number",
+         "import depths a", "--depths"),
+    case("runs import-psf stack.npy --depths 2,nan,8 --out o/i.zarr", "number",
+         "import depths nan", "depths"),
+    case("runs import-psf stack.npy --depths 8,4,-2 --out o/i.zarr", "number",
+         "import depths negative", "depths"),
+    case("runs import-psf stack.tif --out file.txt/i.zarr", "unwritable",
+         "import out under a file", "file.txt"),
+    case("runs import-psf stack.tif --out dir", "clash", "import out is a plain dir", "dir"),
+    case("runs import-psf stack.tif --out dir --overwrite", "clash",
+         "import overwrite a plain dir", "dir"),
+    case("runs import-psf stack.tif --out file.txt --overwrite", "clash",
+         "import overwrite a file", "file.txt"),
+    case("runs import-psf stack.tif --out run.zarr", "clash", "import out exists",
+         "run.zarr"),
+    case("runs import-psf stack.tif --out locked.zarr --overwrite", "locked-store",
+         "import overwrite a locked run", "locked.zarr"),
+]
+
+BENCHMARK = [
+    case("benchmark recon --quick --out file.txt/b", "unwritable", "out under a file",
+         "file.txt"),
+    case("benchmark recon --quick --out /proc/x/b", "unwritable", "out in /proc", "/proc/x"),
+    case("benchmark recon --quick --only nonsense --out o/b", "number", "only nonsense",
+         "nonsense"),
+]
+
+HE = "holo evaluate --out o/h"
+HB = "holo benchmark --quick"
+HOLO = [
+    case(f"{HE} --size 0", "number", "size 0", "--size"),
+    case(f"{HE} --size -48", "number", "size -48", "--size"),
+    case(f"{HE} --iterations 0", "number", "iterations 0", "--iterations"),
+    case(f"{HE} --factors a", "number", "factors a", "--factors"),
+    case(f"{HE} --factors 0", "number", "factors 0", "factor 0"),
+    case(f"{HE} --factors 5", "number", "factors not square", "factor 5"),
+    case(f"{HE} --seeds -1", "number", "seeds -1", "seed"),
+    case(f"{HE} --seeds ,", "number", "seeds empty", "--seeds"),
+    case(f"{HE} --methods bogus", "number", "methods bogus", "bogus"),
+    case(f"{HE} --images nope", "missing", "images", "nope"),
+    case(f"{HE} --images emptydir", "empty", "images", "emptydir"),
+    case(f"{HE} --images file.txt", "mislabelled", "images is a file", "file.txt"),
+    case("holo evaluate --quick --out file.txt/h", "unwritable", "out under a file",
+         "file.txt"),
+    case("holo evaluate --quick --out /proc/x/h", "unwritable", "out in /proc", "/proc/x"),
+    case("holo benchmark --factor 5", "number", "factor 5", "--factor"),
+    case("holo benchmark --slm 0 10", "number", "slm 0", "--slm"),
+    case("holo benchmark --iterations 0", "number", "iterations 0", "--iterations"),
+    case("holo benchmark --fft-repeats -1", "number", "fft repeats -1", "--fft-repeats"),
+    case(f"{HB} --json file.txt/h.json", "unwritable", "json under a file", "file.txt"),
+    case(f"{HB} --json /proc/x/h.json", "unwritable", "json in /proc", "/proc/x"),
+    case(f"{HB} --json dir", "clash", "json is a directory", "dir"),
+    case(f"{HB} --json raw.tif", "clash", "json exists", "exists"),
+]
+
+CAL_SEED = ("calibration_routines/cli/common.py make_bench: VirtualBench(seed=-1) raises "
+            "numpy's 'expected non-negative integer' ValueError outside calibrate's input "
+            "errors: exit 1 internal error")
+CAL_NDEPTHS = ("calibration_routines/psf_sweep.py: 'n must be an integer >= 2, got 0' does "
+               "not name --n-depths")
+CAL_RUNS = ("calibration_routines: the plan accepts the value; the run starts (run store "
+            "written, progress bar on stderr) and {}")
+
+C = "calibrate {} --simulate --out o/c.zarr"
+CD = C.format("dark") + " --frames 2"
+CS, CG = C.format("psf-sweep") + " --frames 1", C.format("psf-grid") + " --frames 1"
+CA, CL = C.format("angular-response") + " --frames 1", C.format("slm-lut") + " --frames 1"
+CALIBRATE = [
+    case("calibrate dark nope.toml --out o/c.zarr", "missing", "bench file", "nope.toml"),
+    case("calibrate dark --out o/c.zarr", "missing", "no bench no simulate", "--simulate"),
+    case("calibrate dark empty.toml --simulate --out o/c.zarr", "empty", "bench", "empty.toml",
+         xfail=NOT_BENCH),
+    case("calibrate dark trunc_bench.toml --simulate --out o/c.zarr", "truncated", "bench",
+         "trunc_bench.toml"),
+    case("calibrate dark foreign.toml --simulate --out o/c.zarr", "foreign-bench",
+         "not a bench", "foreign.toml", xfail=NOT_BENCH),
+    case("calibrate dark binary.toml --simulate --out o/c.zarr", "mislabelled",
+         "binary bench", "binary.toml"),
+    case(f"{CD} --frames 0", "number", "frames 0", "frames"),
+    case(f"{CD} --frames -3", "number", "frames -3", "frames"),
+    case(f"{CD} --exposure-s -1", "number", "exposure -1", "exposure"),
+    case(f"{CD} --exposure-s nan", "number", "exposure nan", "exposure"),
+    case(f"{CD} --reconnect-timeout -1", "number", "reconnect timeout -1", "reconnect",
+         slow=True,
+         xfail="calibration_routines/cli/calibrate.py: --reconnect-timeout -1 is accepted; "
+         "the dark run completes (exit 0)"),
+    case(f"{CD} --seed -1", "number", "seed -1", "seed", xfail=CAL_SEED),
+    case("calibrate dark --simulate --out file.txt/c.zarr", "unwritable", "out under a file",
+         "file.txt"),
+    case("calibrate dark --simulate --out /proc/x/c.zarr", "unwritable", "out in /proc",
+         "/proc/x"),
+    case("calibrate dark --simulate --out run.zarr", "clash", "out is an existing run",
+         "run.zarr"),
+    case("calibrate dark --simulate --out raw.tif", "clash", "out is a file", "raw.tif"),
+    case("calibrate dark --simulate --out dir --overwrite", "clash",
+         "overwrite a plain dir", "dir"),
+    case("calibrate dark --simulate --out locked.zarr --overwrite", "locked-store",
+         "overwrite a locked run", "locked.zarr"),
+    case(f"{CS} --z-min 100 --z-max 20", "number", "z range reversed", "z"),
+    case(f"{CS} --z-min -10 --z-max 20", "number", "z-min negative", "z"),
+    case(f"{CS} --z-min nan", "number", "z-min nan", "z"),
+    case(f"{CS} --n-depths 0", "number", "n-depths 0", "depths", xfail=CAL_NDEPTHS),
+    case(f"{CS} --c-per-mm -1", "number", "c-per-mm -1", "c_per_mm"),
+    case(f"{CG} --n 0", "number", "n 0", "n"),
+    case(f"{CG} --n -3", "number", "n -3", "n"),
+    case(f"{CG} --n 2 --led-step 0", "number", "led-step 0", "led", slow=True,
+         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format(
+             "fails at its first point (a store left in o/c.zarr)")),
+    case(f"{CG} --n 2 --mode stage --spacing-mm -1", "number", "spacing -1", "spacing",
+         slow=True,
+         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format("completes, exit 0")),
+    case(f"{CG} --mode stage --z-mm 0", "number", "z 0", "z",
+         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format(
+             "z = 0 is refused only then (a store left in o/c.zarr)")),
+    case(f"{CG} --n 2 --falloff-sigma-deg nan", "number", "falloff nan", "falloff",
+         slow=True,
+         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format(
+             "fails later (a store left in o/c.zarr)")),
+    case(f"{CG} --falloff-run nope.zarr", "missing", "falloff run", "nope.zarr"),
+    case(f"{CG} --falloff-run dark.zarr", "foreign-bench", "falloff run of another routine",
+         "dark.zarr"),
+    case(f"{CA} --n-angles 0", "number", "n-angles 0", "angles"),
+    case(f"{CA} --max-angle-deg -5", "number", "max angle -5", "angle"),
+    case(f"{CA} --max-angle-deg 100", "number", "max angle 100", "angle"),
+    case(f"{CA} --n-angles 3 --z-mm 0", "number", "source at z 0", "z", slow=True,
+         xfail="calibration_routines/angular_response.py: " + CAL_RUNS.format(
+             "completes, exit 0")),
+    case(f"{CL} --levels 3", "number", "levels 3", "levels"),
+    case(f"{CL} --levels 1000", "number", "levels 1000", "levels"),
+    case(f"{CL} --period-px 7", "number", "period odd", "period"),
+    case(f"{CL} --period-px 0", "number", "period 0", "period"),
+    case("calibrate resume nope.zarr --simulate", "missing", "run", "nope.zarr"),
+    case("calibrate resume dir --simulate", "mislabelled", "plain dir", "dir"),
+    case("calibrate resume notjson_meta.zarr --simulate", "corrupt-store", "zarr.json",
+         "notjson_meta.zarr", xfail=STORE_JSON),
+    case("calibrate resume nokeys.zarr --simulate", "corrupt-store", "attrs lack keys",
+         "nokeys.zarr", xfail=RESUME_KEYS),
+    case("calibrate resume locked.zarr --simulate", "locked-store", "locked run",
+         "locked.zarr|is writing it"),
+    case("calibrate resume dark.zarr --simulate --redo a", "number", "redo a", "--redo"),
+    case("calibrate resume dark.zarr --simulate --redo 999", "number", "redo 999", "999"),
+    case("calibrate resume dark.zarr foreign.toml --simulate", "foreign-bench",
+         "not a bench", "foreign.toml", xfail=NOT_BENCH),
+    case("calibrate resume dark.zarr other_bench.toml --simulate", "foreign-bench",
+         "bench of another setup", "another set-up|diffuser_sensor_distance_mm"),
+]
+
+AM = "align mask --simulate --out o/al.align"
+ALIGN = [
+    case(f"{AM} --mask-pattern nope.npy", "missing", "pattern", "nope.npy"),
+    case(f"{AM} --mask-pattern empty.npy", "empty", "pattern", "empty.npy", xfail=ALIGN_NPY),
+    case(f"{AM} --mask-pattern trunc_psf.npy", "truncated", "pattern", "trunc_psf.npy",
+         xfail=ALIGN_NPY),
+    case(f"{AM} --mask-pattern text.npy", "mislabelled", "pattern", "text.npy",
+         xfail=ALIGN_NPY),
+    case(f"{AM} --mask-pattern bad_pattern.npy", "shape", "pattern", "bad_pattern.npy"),
+    case(f"{AM} --mask-pattern complex.npy", "dtype", "pattern", "complex.npy"),
+    case(f"{AM} --mask-pattern object.npy", "dtype", "object pattern", "object.npy",
+         xfail=ALIGN_NPY),
+    case(f"{AM} --mask-pattern nan.npy", "nonfinite", "pattern", "nan.npy"),
+    case(f"{AM} --k 0", "number", "k 0", "k"),
+    case(f"{AM} --frames 0", "number", "frames 0", "frames", xfail=ALIGN_FRAMES),
+    case(f"{AM} --coarse-range-px -1", "number", "coarse range -1", "coarse"),
+    case(f"{AM} --relay-na nan", "number", "relay na nan", "na"),
+    case(f"{AM} --relay-na -0.1", "number", "relay na -0.1", "na"),
+    case(f"{AM} --focus-range-mm 0", "number", "focus range 0", "focus"),
+    case(f"{AM} --mask-margin -1", "number", "margin -1", "margin"),
+    case(f"{AM} --lut nope.zarr", "missing", "lut", "nope.zarr", xfail=ALIGN_LUT),
+    case(f"{AM} --lut dark.zarr", "foreign-bench", "lut is a dark run", "dark.zarr",
+         xfail=ALIGN_LUT),
+    case(f"{AM} --lut text.npy", "mislabelled", "lut text", "text.npy", xfail=ALIGN_LUT),
+    case("align mask --simulate --out file.txt/al.align", "unwritable", "out under a file",
+         "file.txt"),
+    case("align mask --simulate --out /proc/x/al.align", "unwritable", "out in /proc",
+         "/proc/x"),
+    case("align mask --simulate --out raw.tif", "clash", "out is a file", "raw.tif"),
+    case("align mask foreign.toml --simulate --out o/al.align", "foreign-bench",
+         "not a bench", "foreign.toml", xfail=NOT_BENCH),
+    case("align mask --out o/al.align", "missing", "real bench without pattern", "pattern"),
+]
+
+DEMO = [
+    case("demo --out o/demo --iterations 0", "number", "iterations 0", "--iterations"),
+    case("demo --out o/demo --method newton", "number", "method", "newton"),
+    case("demo --out o/demo --seed x", "number", "seed x", "--seed"),
+    case("demo --real-sample --out o/demo --iterations -1", "number", "real sample it -1",
+         "--iterations"),
+    case("demo --out /proc/x/demo", "unwritable", "out in /proc", "/proc/x"),
+    case("demo --out file.txt/demo", "unwritable", "out under a file", "file.txt"),
+]
+
+TABLE = {"recon": RECON, "demo": DEMO, "recon3d": RECON3D, "analyze": ANALYZE,
+         "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK, "holo": HOLO,
+         "calibrate": CALIBRATE, "align": ALIGN}
+ALL = [c for rows in TABLE.values() for c in rows]
+
+
+@pytest.mark.parametrize("argv, words", ALL)
+def test_bad_input_is_one_error_line_and_changes_nothing(d, capsys, argv, words):
+    assert_refused(argv, words, d, capsys)
+
+
+def test_the_table_covers_every_class_and_command():
+    classes = Counter(p.id.split(":")[1] for p in ALL)
+    assert set(classes) == set(CLASSES), set(CLASSES) - set(classes)
+    from instrument.cli import build_parser
+
+    commands = set(build_parser()._subparsers._group_actions[0].choices)
+    covered = {p.values[0][0] for p in ALL}
+    assert commands <= covered, commands - covered
+    assert len({p.id for p in ALL}) == len(ALL), "case ids must be unique"
