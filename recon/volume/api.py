@@ -29,6 +29,7 @@ from ..preprocess import (
     validate_psf,
 )
 from ..solvers import SolveResult
+from ..validate import as_array, float_array
 from .admm import admm3d
 from .fista import fista3d
 from .operator import (
@@ -191,12 +192,11 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     if saturated > SATURATION_WARN:
         log.warning("%.2g%% of the raw image is saturated: the linear model does not hold "
                     "there", 100 * saturated)
-    if dark == "none":
-        level = None
-    elif dark == "auto":
-        level = float(np.median([dark_level(stack[k]) for k in range(stack.shape[0])]))
+    if isinstance(dark, str) and dark in ("auto", "none"):
+        level = None if dark == "none" else float(
+            np.median([dark_level(stack[k]) for k in range(stack.shape[0])]))
     else:
-        level = float(dark)
+        level = _dark_value(dark)
     if level is not None:
         stack = subtract_dark(stack, level)  # a scalar: any (n_z, r, c) layout is fine
         raw = subtract_dark(raw, level)
@@ -212,6 +212,14 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
             "bin_factor": int(bin_factor), "saturated_fraction_raw": saturated,
             "psf_clipped_fraction": clipped}
     return stack, raw, info
+
+
+def _dark_value(dark) -> float:
+    """A dark level given as a number (input units), or ReconInputError."""
+    if isinstance(dark, bool) or not isinstance(dark, numbers.Real) or not math.isfinite(dark):
+        raise ReconInputError(f"dark must be 'auto', 'none' or a finite number (input units), "
+                              f"got {dark!r}")
+    return float(dark)
 
 
 def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
@@ -287,14 +295,18 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = DEFAULT_TV.get(method, 0.0)  # an unknown method is refused just below
     check_volume_parameters(method, iterations, tv, l1, bin_factor)
     iterations, bin_factor = int(iterations), int(bin_factor)  # numpy integers too
-    stack = np.asarray(psf_stack)
-    if stack.ndim != 3 or len(depths_mm) != stack.shape[0]:
-        raise ReconInputError(f"the PSF stack has shape {stack.shape} and {len(depths_mm)} "
+    if not (isinstance(dark, str) and dark in ("auto", "none")):
+        _dark_value(dark)
+    stack = as_array(psf_stack, "PSF stack")
+    z = float_array(depths_mm, "depths_mm", ndims=(1,))
+    if stack.ndim != 3 or len(z) != stack.shape[0]:
+        raise ReconInputError(f"the PSF stack has shape {stack.shape} and {len(z)} "
                               "depths; give one depth per plane of an (n_z, rows, cols) stack")
     t_start = time.perf_counter()
-    order = np.argsort(depths_mm, kind="stable")
-    stack, depths = stack[order], [float(depths_mm[i]) for i in order]
-    stack, raw, info = prepare_volume_problem(stack, np.asarray(raw), dark, bin_factor)
+    order = np.argsort(z, kind="stable")
+    stack, depths = stack[order], [float(z[i]) for i in order]
+    stack, raw, info = prepare_volume_problem(stack, as_array(raw, "raw image"), dark,
+                                              bin_factor)
 
     h, psf_scale = normalize_psf_stack(stack)
     del stack
