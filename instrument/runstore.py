@@ -75,6 +75,12 @@ class RunStoreError(ValueError):
     """A run store is missing, of another schema, or asked for something it lacks."""
 
 
+#: Attributes every run's zarr.json holds (a store lacking one is damaged).
+REQUIRED_ATTRS = ("schema_version", "software_version", "status", "plan", "tags",
+                  "bench_config", "device_settings", "note", "resumes", "warnings", "summary")
+REQUIRED_PLAN_ATTRS = ("name", "params", "points", "frames_per_point")
+
+
 def software_version() -> str:
     """The installed diffuserlab version (``"unknown"`` when not installed)."""
     from importlib.metadata import PackageNotFoundError, version
@@ -126,9 +132,26 @@ class RunStore:
                 f"{self.path} has run schema {self.attrs.get('schema_version')}, this "
                 f"diffuserlab reads {list(READABLE_SCHEMAS)}; open it with the version that wrote "
                 f"it ({self.attrs.get('software_version')})")
-        self._coord_names = list(self._group["coords"].attrs["names"])
-        self._point = np.asarray(self._group["point"][:])
-        self._tag = np.asarray(self._group["tag"][:])
+        missing = [k for k in REQUIRED_ATTRS if k not in self.attrs]
+        plan = self.attrs.get("plan")
+        if isinstance(plan, Mapping):
+            missing += [f"plan.{k}" for k in REQUIRED_PLAN_ATTRS if k not in plan]
+        elif "plan" not in missing:
+            missing.append("plan")
+        if missing:
+            raise RunStoreError(
+                f"{self.path} is damaged: its zarr.json lacks {', '.join(missing)}; restore "
+                "zarr.json from a backup copy of the run (the frames are not affected)")
+        try:
+            self._coord_names = list(self._group["coords"].attrs["names"])
+            self._point = np.asarray(self._group["point"][:])
+            self._tag = np.asarray(self._group["tag"][:])
+            for name in ("frames", "done", "products"):
+                self._group[name]
+        except (KeyError, ValueError, TypeError, OSError) as exc:
+            raise RunStoreError(
+                f"{self.path} is damaged: its layout is unreadable ({type(exc).__name__}: "
+                f"{exc}); restore the run from a backup copy") from None
         # (a file check: listing the group would warn about the .lock file)
         self.has_checksums = (self.path / "crc32" / "zarr.json").is_file()
 
@@ -236,7 +259,12 @@ class RunStore:
             raise RunStoreError(f"mode must be 'r' or 'r+', got {mode!r}")
         if not (path / "zarr.json").is_file():
             raise RunStoreError(f"no run store at {path} (expected a directory with zarr.json)")
-        group = zarr.open_group(str(path), mode=mode, zarr_format=3)
+        try:
+            group = zarr.open_group(str(path), mode=mode, zarr_format=3)
+        except (ValueError, KeyError, TypeError) as exc:  # JSONDecodeError is a ValueError
+            raise RunStoreError(
+                f"{path}/zarr.json is damaged ({type(exc).__name__}: {exc}); restore it from a "
+                "backup copy of the run (the frames are not affected)") from None
         return cls(path, group, writable=mode == "r+")
 
     def refresh(self) -> dict:

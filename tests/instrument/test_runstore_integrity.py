@@ -140,3 +140,28 @@ def test_overwrite_replaces_only_a_run_store(tmp_path):
     assert (tmp_path / "file.zarr").read_text() == "precious"
     _run(tmp_path / "r.zarr")
     assert RunStore.create(tmp_path / "r.zarr", **args).n_frames == 1
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda p: (p / "zarr.json").write_bytes((p / "zarr.json").read_bytes()[:200]),
+     r"r.zarr/zarr.json is damaged \(JSONDecodeError"),
+    (lambda p: (p / "zarr.json").write_text("not json"), "zarr.json is damaged"),
+    (lambda p: (p / "zarr.json").write_text(json.dumps(_without(p, "plan"))),
+     "is damaged: its zarr.json lacks plan;"),
+    (lambda p: (p / "zarr.json").write_text(json.dumps(_without(p, "tags", "status"))),
+     "lacks status, tags;"),
+    (lambda p: (p / "tag/zarr.json").unlink(), r"its layout is unreadable \(KeyError: 'tag'\)"),
+    (lambda p: (p / "frames/zarr.json").write_text("{"), "its layout is unreadable"),
+])
+def test_damaged_metadata_is_a_run_store_error_naming_the_damage(tmp_path, damage, message):
+    _run(tmp_path / "r.zarr")
+    damage(tmp_path / "r.zarr")
+    with pytest.raises(RunStoreError, match=message):
+        RunStore.open(tmp_path / "r.zarr")
+
+
+def _without(path, *keys):
+    meta = json.loads((path / "zarr.json").read_text())
+    for key in keys:
+        del meta["attributes"][key]
+    return meta
