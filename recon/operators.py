@@ -15,6 +15,39 @@ import numpy as np
 from . import _kernels
 from .errors import ReconInputError
 from .fft import fast_padded_shape, irfftn, rfftn
+from .validate import as_array, as_int, as_shape2, finite_float
+
+
+def real32(a, name: str, *, contiguous: bool = False) -> np.ndarray:
+    """``a`` as a float32 array, refusing what has no real value (complex, object,
+    strings, ragged sequences) instead of dropping an imaginary part or failing in numpy.
+
+    Parameters
+    ----------
+    a : array_like
+        Real data (bool, integer or float).
+    name : str
+        What it is, for the message.
+    contiguous : bool
+        Return a C-contiguous array.
+
+    Returns
+    -------
+    ndarray, float32
+        A view when ``a`` is already such an array.
+
+    Raises
+    ------
+    ReconInputError
+        Not convertible, or a non-real dtype.
+    """
+    arr = a if isinstance(a, np.ndarray) else as_array(a, name)
+    if arr.dtype.kind not in "biuf":
+        raise ReconInputError(f"{name} must be real numbers, got dtype {arr.dtype}; pass a "
+                              "real (float or integer) array")
+    if contiguous:
+        return np.ascontiguousarray(arr, dtype=np.float32)
+    return np.asarray(arr, dtype=np.float32)
 
 
 class LinearOperator(ABC):
@@ -70,11 +103,24 @@ class LinearOperator(ABC):
         """Largest eigenvalue of A^T A by power iteration (Lipschitz constant of the
         data-term gradient), with a 2 % safety margin.
 
+        Parameters
+        ----------
+        iterations : int
+            Power iterations (>= 1).
+        seed : int
+            Seed of the random start (>= 0).
+
         Returns
         -------
         float
+
+        Raises
+        ------
+        ReconInputError
+            ``iterations`` or ``seed`` not an integer in range.
         """
-        rng = np.random.default_rng(seed)
+        iterations = as_int(iterations, "iterations", 1)
+        rng = np.random.default_rng(as_int(seed, "seed", 0))
         x = rng.standard_normal(self.shape_in).astype(np.float32)
         x /= np.linalg.norm(x)
         lam = 0.0
@@ -129,11 +175,11 @@ class PixelErasure(LinearOperator):
     Raises
     ------
     ReconInputError
-        If the mask is not 2D, not finite, negative, or all zero.
+        If the mask is not 2D, not real numbers, not finite, negative, or all zero.
     """
 
     def __init__(self, mask: np.ndarray):
-        m = np.asarray(mask, dtype=np.float32)
+        m = real32(mask, "erasure mask")
         if m.ndim != 2 or not np.all(np.isfinite(m)) or np.any(m < 0) or not np.any(m):
             raise ReconInputError(
                 "erasure mask must be a 2D finite non-negative array with some measured "
@@ -171,8 +217,17 @@ class PixelErasure(LinearOperator):
         shape : (rows, cols)
         erased_fraction : float in [0, 1)
         seed : int
-            Seed of :func:`numpy.random.default_rng`, for reproducible masks.
+            Seed of :func:`numpy.random.default_rng`, for reproducible masks (>= 0).
+
+        Raises
+        ------
+        ReconInputError
+            A shape that is not two integers >= 1, a fraction outside [0, 1) or a
+            seed that is not an integer >= 0.
         """
+        shape = as_shape2(shape, "shape")
+        erased_fraction = finite_float(erased_fraction, "erased fraction")
+        seed = as_int(seed, "seed", 0)
         if not 0.0 <= erased_fraction < 1.0:
             raise ReconInputError(
                 f"erased fraction {erased_fraction} is outside [0, 1); use e.g. 0.8 to "
@@ -220,10 +275,12 @@ def padded_grid(sensor_shape: tuple[int, int], padded_shape=None) -> tuple[
     Raises
     ------
     ReconInputError
-        A padded shape smaller than ``2 * sensor - 1`` (circular wrap-around).
+        A padded shape that is not two integers, or smaller than ``2 * sensor - 1``
+        (circular wrap-around).
     """
-    padded = tuple(int(p) for p in (padded_shape or fast_padded_shape(sensor_shape)))
-    if len(padded) != 2 or any(p < 2 * s - 1 for p, s in zip(padded, sensor_shape,
+    padded = (fast_padded_shape(sensor_shape) if padded_shape is None
+              else as_shape2(padded_shape, "padded_shape"))
+    if any(p < 2 * s - 1 for p, s in zip(padded, sensor_shape,
                                                               strict=True)):
         raise ReconInputError(
             f"padded shape {padded} is smaller than twice the sensor {tuple(sensor_shape)}: "
@@ -243,11 +300,11 @@ def checked_sensor_weights(weights, sensor_shape: tuple[int, int]) -> np.ndarray
     Raises
     ------
     ReconInputError
-        Shape other than ``sensor_shape``, non-finite or negative weights.
+        Shape other than ``sensor_shape``, non-real, non-finite or negative weights.
     """
     if weights is None:
         return np.ones(sensor_shape, np.float32)
-    w = np.ascontiguousarray(weights, dtype=np.float32)
+    w = real32(weights, "sensor weights", contiguous=True)
     if w.shape != tuple(sensor_shape):
         raise ReconInputError(
             f"sensor weights shape {w.shape} differs from the PSF shape {tuple(sensor_shape)}"
@@ -288,7 +345,7 @@ class ConvolutionOperator(SensorWeighted, LinearOperator):
 
     def __init__(self, psf: np.ndarray, sensor_weights: np.ndarray | None = None,
                  padded_shape: tuple[int, int] | None = None, *, _spectrum=None):
-        h = np.asarray(psf, dtype=np.float32)
+        h = real32(psf, "PSF")
         if h.ndim != 2 or min(h.shape) < 2:
             raise ReconInputError(
                 f"PSF must be 2D (rows, cols) with at least 2 pixels per axis, got shape "
@@ -355,7 +412,7 @@ class ConvolutionOperator(SensorWeighted, LinearOperator):
 
     @staticmethod
     def _check(a, shape, what):
-        a = np.asarray(a, dtype=np.float32)
+        a = real32(a, what)
         if a.shape != tuple(shape):
             raise ReconInputError(f"{what} has shape {a.shape}, operator expects {shape}")
         return a

@@ -22,6 +22,7 @@ from ..operators import (
     SensorWeighted,
     checked_sensor_weights,
     padded_grid,
+    real32,
 )
 from ..preprocess import box_bin
 from . import _kernels3d
@@ -103,7 +104,7 @@ class VolumeConvolutionOperator(SensorWeighted, LinearOperator):
     def __init__(self, psf_stack: np.ndarray, *, padded_shape: tuple[int, int] | None = None,
                  sensor_weights: np.ndarray | None = None, depths=None,
                  chunk_bytes: int = CHUNK_BYTES, _spectra=None):
-        h = np.ascontiguousarray(psf_stack, dtype=np.float32)
+        h = real32(psf_stack, "PSF stack", contiguous=True)
         if h.ndim != 3 or h.shape[0] < 1 or min(h.shape[1:]) < 2:
             raise ReconInputError(
                 f"PSF stack must be 3D (n_z, rows, cols) with at least 2 pixels per lateral "
@@ -236,7 +237,7 @@ class VolumeConvolutionOperator(SensorWeighted, LinearOperator):
         return int(sum(a.nbytes for a in held))
 
     def _check(self, a, shape, what):
-        a = np.asarray(a, dtype=np.float32)
+        a = real32(a, what)
         if a.shape != tuple(shape):
             raise ReconInputError(
                 f"{what} has shape {a.shape}, the volume operator expects {tuple(shape)} "
