@@ -368,6 +368,16 @@ class Device(abc.ABC):
             f"{high if high is not None else 'inf'}",
         )
 
+    def _int_pair(self, name: str, value: Any, *, low: int = 1,
+                  high: int | None = None) -> tuple[int, int]:
+        """Return ``value`` as ``(rows, cols)`` ints within [low, high] or raise
+        DeviceValueError (also for a string or a sequence of another length)."""
+        if isinstance(value, str) or not hasattr(value, "__len__") or len(value) != 2:
+            raise self._error(DeviceValueError, f"{name}={value!r} is not (rows, cols)",
+                              f"give two integers, e.g. {name} = [480, 640]")
+        return (self._int(f"{name} rows", value[0], low=low, high=high),
+                self._int(f"{name} cols", value[1], low=low, high=high))
+
     def _choice(self, name: str, value: Any, choices: Any) -> Any:
         if isinstance(value, str) and value in choices:
             return value

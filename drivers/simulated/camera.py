@@ -90,9 +90,8 @@ class SimulatedCamera(SimulatedMixin, Camera):
     ) -> None:
         super().__init__(device_id)
         self._sim_setup(clock, CameraFaults(self, seed))
-        rows = self._int("sensor_shape rows", sensor_shape[0], low=1)
-        cols = self._int("sensor_shape cols", sensor_shape[1], low=1)
-        self._shape = (rows, cols)
+        # per-pixel maps are allocated here: a simulated sensor stays below 64 Mpx
+        self._shape = self._int_pair("sensor_shape", sensor_shape, high=8192)
         self._pitch = self._float("pixel_pitch_um", pixel_pitch_um, low=0, low_open=True)
         if irradiance is not None and not callable(irradiance):
             raise self._error(DeviceValueError, "irradiance is not callable",

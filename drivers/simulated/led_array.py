@@ -57,8 +57,7 @@ class SimulatedLedArray(SimulatedMixin, LedArray):
     ) -> None:
         super().__init__(device_id)
         self._sim_setup(clock, DeviceFaults(self, seed))
-        rows = self._int("shape rows", shape[0], low=1)
-        cols = self._int("shape cols", shape[1], low=1)
+        rows, cols = self._int_pair("shape", shape, high=1024)
         self._pitch = self._float("pitch_mm", pitch_mm, low=0.0, low_open=True)
         self._distance = self._float("distance_mm", distance_mm, low=0.0, low_open=True)
         i, j = np.divmod(np.arange(rows * cols), cols)

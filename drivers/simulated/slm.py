@@ -46,8 +46,7 @@ class SimulatedSlm(SimulatedMixin, Slm):
     ) -> None:
         super().__init__(device_id)
         self._sim_setup(clock, DeviceFaults(self, seed))
-        self._res = (self._int("rows", resolution[0], low=1), self._int("cols", resolution[1],
-                                                                         low=1))
+        self._res = self._int_pair("resolution", resolution, high=8192)
         self._pitch = self._float("pixel_pitch_um", pixel_pitch_um, low=0.0, low_open=True)
         self._wl = self._float("wavelength_nm", wavelength_nm, low=0.0, low_open=True)
         self._lut0 = self._validate_setting(

@@ -484,3 +484,16 @@ def test_simulated_devices_share_nothing_by_default():
     assert a.clock is not b.clock
     with pytest.raises(DeviceStateError):
         a.snap()
+
+
+@pytest.mark.parametrize("cls, name, value, message", [
+    (SimulatedCamera, "sensor_shape", (32768, 32768), "sensor_shape rows=32768 is not an integer"),
+    (SimulatedCamera, "sensor_shape", (480,), r"sensor_shape=\(480,\) is not \(rows, cols\)"),
+    (SimulatedSlm, "resolution", [96], r"resolution=\[96\] is not \(rows, cols\)"),
+    (SimulatedSlm, "resolution", "96x120", "resolution='96x120' is not"),
+    (SimulatedSlm, "resolution", (96, 100000), "resolution cols=100000"),
+    (SimulatedLedArray, "shape", (4096, 4096), "shape rows=4096"),
+])
+def test_simulated_shapes_are_checked_before_any_allocation(cls, name, value, message):
+    with pytest.raises(DeviceValueError, match=message):
+        cls("dev", **{name: value})
