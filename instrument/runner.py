@@ -280,8 +280,9 @@ class Runner:
         RunStoreError
             No run at ``path``, a plan whose name/parameters/points differ from the
             stored ones, a ``redo`` point the run does not have, a set-up that
-            differs from the recorded one (the differences listed), or another
-            process holds the run's lock.
+            differs from the recorded one (the differences listed), a damaged frame
+            in a point not in ``redo`` (every stored frame is verified first), or
+            another process holds the run's lock.
         """
         store = RunStore.open(path, mode="r+")
         store.lock()
@@ -358,6 +359,13 @@ class Runner:
                                 "parameters or points; resume it with the plan it recorded "
                                 "(pass plan=None)")
         accepted = self._check_identity(store, accept)
+        damaged = [e for e in store.damaged_frames() if e.point not in set(map(int, redo))]
+        if damaged:
+            bad = ",".join(str(p) for p in sorted({e.point for e in damaged}))
+            raise RunStoreError(
+                f"{path}: {len(damaged)} damaged frame(s) (frame {damaged[0].index}: "
+                f"{damaged[0].reason}); capture their points again: diffuserlab calibrate "
+                f"resume {path} BENCH.toml --redo {bad}")
         complete = store.points_done()
         complete[[int(p) for p in redo]] = False
         start = int(np.argmin(complete)) if not complete.all() else len(points)

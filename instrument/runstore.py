@@ -60,8 +60,8 @@ from .run_integrity import (
     write_lock,
 )
 
-__all__ = ["SCHEMA_VERSION", "RunStore", "RunStoreError", "is_run_store", "software_version",
-           "utc_now"]
+__all__ = ["SCHEMA_VERSION", "DamagedFrameError", "RunStore", "RunStoreError", "is_run_store",
+           "software_version", "utc_now"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +73,24 @@ READABLE_SCHEMAS = (1, 2)
 
 class RunStoreError(ValueError):
     """A run store is missing, of another schema, or asked for something it lacks."""
+
+
+class DamagedFrameError(RunStoreError):
+    """A done frame's chunk is missing, unreadable or differs from its checksum.
+
+    Attributes
+    ----------
+    index, point : int
+        The frame and its plan point.
+    reason : str
+        What is wrong with it.
+    """
+
+    def __init__(self, path: Path, index: int, point: int, reason: str) -> None:
+        super().__init__(f"frame {index} (point {point}) of {path} is damaged: {reason}; "
+                         f"re-run that point: diffuserlab calibrate resume {path} BENCH.toml "
+                         f"--redo {point}")
+        self.index, self.point, self.reason = index, point, reason
 
 
 #: Attributes every run's zarr.json holds (a store lacking one is damaged).
@@ -473,21 +491,17 @@ class RunStore:
             row = np.asarray(self._group["coords"][index], np.float64)
             crc = int(self._group["crc32"][index]) if self.has_checksums else None
         except Exception as exc:  # a corrupt chunk fails to decode
-            raise RunStoreError(self._damage(index, f"its chunks cannot be read ({exc})")) \
-                from exc
+            raise self._damage(index, f"its chunks cannot be read ({exc})") from exc
         if crc is not None and crc != frame_crc(image, row):
             missing = not (self.path / "frames" / "c" / str(index) / "0" / "0").exists()
-            raise RunStoreError(self._damage(
+            raise self._damage(
                 index, f"its chunk file frames/c/{index}/0/0 is missing (read as zeros)"
                 if missing else "its data differ from the checksum recorded when it was "
-                "written (a chunk file altered)"))
+                "written (a chunk file altered)")
         return image, row
 
-    def _damage(self, index: int, reason: str) -> str:
-        point = int(self._point[index])
-        return (f"frame {index} (point {point}) of {self.path} is damaged: {reason}; "
-                f"re-run that point: diffuserlab calibrate resume {self.path} BENCH.toml "
-                f"--redo {point}")
+    def _damage(self, index: int, reason: str) -> DamagedFrameError:
+        return DamagedFrameError(self.path, index, self.point_of(index), reason)
 
     def point_frames(self, point: int, tag: str | None = None) -> tuple[np.ndarray, list[dict]]:
         """Frames (n, rows, cols) and coordinates of one point (optionally one tag).
@@ -574,18 +588,28 @@ class RunStore:
             the fix); empty when the run is intact. A schema-1 run carries no
             checksums: only unreadable chunks are found (see ``has_checksums``).
         """
-        problems = []
-        for i in np.flatnonzero(self.done()):
-            try:
-                self._read(int(i))
-            except RunStoreError as exc:
-                problems.append(str(exc))
+        problems = [str(exc) for exc in self.damaged_frames()]
         for name in self.products():
             try:
                 self.product(name)
             except RunStoreError as exc:
                 problems.append(str(exc))
         return problems
+
+    def damaged_frames(self) -> list[DamagedFrameError]:
+        """Every done frame whose chunk is missing, unreadable or differs from its
+        checksum, as the error reading it raises (empty when all are intact)."""
+        out = []
+        for i in np.flatnonzero(self.done()):
+            try:
+                self._read(int(i))
+            except DamagedFrameError as exc:
+                out.append(exc)
+        return out
+
+    def point_of(self, index: int) -> int:
+        """The plan point frame ``index`` belongs to."""
+        return int(self._point[int(index)])
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:

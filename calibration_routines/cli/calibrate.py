@@ -312,7 +312,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"not resuming? then first: {action}", file=sys.stderr)
     bench_arg = "" if args.bench is None else f" {args.bench}"
     sim = " --simulate" if args.simulate else ""
-    print(f"\n{result.status} at point {result.points_done + 1} of {result.points_total}: "
-          f"{result.error}\nthe data so far is kept; resume with:\n  diffuserlab calibrate "
-          f"resume {result.path}{bench_arg}{sim}", file=sys.stderr)
+    where = (f"at point {result.points_done + 1} of {result.points_total}"
+             if result.points_done < result.points_total else
+             f"after all {result.points_total} points (computing the products)")
+    print(f"\n{result.status} {where}: {result.error}\nthe data so far is kept; resume "
+          f"with:\n  diffuserlab calibrate resume {result.path}{bench_arg}{sim}",
+          file=sys.stderr)
     return 130 if result.status == "aborted" else 1

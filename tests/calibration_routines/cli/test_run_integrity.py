@@ -41,14 +41,16 @@ def test_damaged_frame_is_named_and_redo_repairs_it(sweep, tmp_path, capsys, dam
     assert main(["runs", "export", str(sweep), "--frames", "--out",
                  str(tmp_path / "f.tif")]) == 2
     assert f"frame {index} (point 1)" in capsys.readouterr().err
-    assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate"]) == 1
-    captured = capsys.readouterr()
-    assert f"frame {index} (point 1)" in captured.out + captured.err
-    assert "--redo 1" in captured.out + captured.err
+    # a plain resume verifies every frame first and refuses, changing nothing
+    assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"1 damaged frame(s) (frame {index}:" in err
+    assert err.endswith(f"resume {sweep} BENCH.toml --redo 1")
+    assert RunStore.open(sweep).attrs["resumes"] == []
     assert main(["calibrate", "resume", str(sweep), BENCH, "--simulate", "--redo", "1"]) == 0
     store = RunStore.open(sweep)
     assert store.status == "complete" and store.verify() == []
-    assert len(store.attrs["resumes"]) == 2
+    assert len(store.attrs["resumes"]) == 1
     assert not (sweep / ".lock").exists()  # released after each run and resume
 
 
