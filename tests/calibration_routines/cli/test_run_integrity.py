@@ -77,6 +77,12 @@ def test_runs_verify_and_show(sweep, tmp_path, capsys):
     assert "(complete, DAMAGED)" in out and f"damaged  frame {index} (point 2)" in out
     assert main(["runs", "export", str(sweep), "--out", str(tmp_path / "p.tif")]) == 2
     assert "product 'psf_stack'" in capsys.readouterr().err
+    np.save(tmp_path / "raw.npy", np.ones((256, 320), np.float32))
+    assert main(["recon", "--psf", str(sweep), "--depth", "30", "--raw",
+                 str(tmp_path / "raw.npy"), "--out", str(tmp_path / "r.tif")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "product 'psf_stack'" in err and "plane 0" in err
+    assert not (tmp_path / "r.tif").exists()
     assert main(["runs", "verify", str(tmp_path / "nothing.zarr")]) == 2
     assert "no run store" in capsys.readouterr().err
 
