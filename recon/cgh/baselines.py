@@ -16,7 +16,9 @@ import time
 import numpy as np
 
 from ..errors import ReconInputError
+from ..operators import real32
 from ..solvers.common import History
+from ..validate import as_int
 from .hologram import HologramResult, check_slm_kind, check_targets, project
 from .scattering_display import ScatteringDisplay
 
@@ -31,17 +33,22 @@ def random_phase_field(target, seed: int = 0) -> np.ndarray:
     target : numpy.ndarray
         Real, non-negative intensities, any shape.
     seed : int
-        Seed of :func:`numpy.random.default_rng` for ``theta``.
+        Seed of :func:`numpy.random.default_rng` for ``theta`` (>= 0).
 
     Returns
     -------
     numpy.ndarray
         complex64, ``target.shape``.
+
+    Raises
+    ------
+    ReconInputError
+        Non-real, negative or non-finite target, or a seed not an integer >= 0.
     """
-    t = np.asarray(target, dtype=np.float32)
+    t = real32(target, "target")
     if not np.all(np.isfinite(t)) or np.any(t < 0):
         raise ReconInputError("target must be finite and >= 0")
-    theta = np.random.default_rng(seed).random(t.shape, dtype=np.float32)
+    theta = np.random.default_rng(as_int(seed, "seed", 0)).random(t.shape, dtype=np.float32)
     ang = np.float32(2.0 * math.pi) * theta
     out = np.empty(t.shape, np.complex64)
     amp = np.sqrt(t)
@@ -67,7 +74,7 @@ def one_step_hologram(display: ScatteringDisplay, target, seed: int = 0,
         Target intensity, ``display.grid_shape`` (or ``(n_planes, *grid_shape)``),
         centred frame, >= 0.
     seed : int
-        Seed of the random target phase.
+        Seed of the random target phase (>= 0).
     slm : {"phase", "complex"}
         Phase-only (keep the phase) or complex SLM (keep the field, scaled so the
         largest amplitude is 1).
@@ -76,6 +83,11 @@ def one_step_hologram(display: ScatteringDisplay, target, seed: int = 0,
     -------
     HologramResult
         With ``loss = nan`` and an empty history (no iterations).
+
+    Raises
+    ------
+    ReconInputError
+        Bad display, target (:func:`recon.cgh.hologram.check_targets`), seed or slm.
     """
     if not isinstance(display, ScatteringDisplay):
         raise ReconInputError(f"display must be a ScatteringDisplay, got {type(display).__name__}")

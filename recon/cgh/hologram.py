@@ -8,6 +8,7 @@ import numpy as np
 
 from ..errors import ReconInputError
 from ..solvers.common import History
+from ..validate import as_array
 
 SLM_KINDS = ("phase", "complex")
 
@@ -106,7 +107,7 @@ def check_targets(targets, display) -> np.ndarray:
     ReconInputError
         Wrong shape, NaN/inf, negative values, or an all-zero plane.
     """
-    t = np.asarray(targets)
+    t = given = as_array(targets, "target")
     if t.dtype.kind not in "fiu" or t.dtype == np.bool_:
         raise ReconInputError(f"target must be real intensities, got dtype {t.dtype}")
     grid = tuple(display.grid_shape)
@@ -114,7 +115,7 @@ def check_targets(targets, display) -> np.ndarray:
         t = t[None]
     if t.shape != (display.n_planes, *grid):
         raise ReconInputError(
-            f"target has shape {np.asarray(targets).shape}; the display needs {grid} per plane "
+            f"target has shape {given.shape}; the display needs {grid} per plane "
             f"({display.n_planes} plane(s)): resize the image to SLM shape x k")
     t = np.ascontiguousarray(t, dtype=np.float32)
     if not np.all(np.isfinite(t)):

@@ -47,6 +47,7 @@ import scipy.fft as sfft
 from ..errors import DivergenceError, ReconInputError
 from ..fft import WORKERS
 from ..solvers.common import History
+from ..validate import as_array, as_int, finite_float, positive
 from . import _kernels
 from .baselines import one_step_hologram
 from .hologram import HologramResult, check_slm_kind, check_targets, project
@@ -220,15 +221,17 @@ def _initial_field(display, targets, init, slm, seed) -> np.ndarray:
             rng = np.random.default_rng(seed)
             return field_from_phase(rng.uniform(-math.pi, math.pi, display.slm_shape))
         raise ReconInputError(f"init must be 'one-step', 'random' or an array, got {init!r}")
-    a = np.asarray(init)
+    a = as_array(init, "init")
     if a.shape != display.slm_shape:
         raise ReconInputError(f"init has shape {a.shape}, the SLM is {display.slm_shape}")
-    if a.dtype.kind in "fiu":
+    if a.dtype.kind not in "fiuc":
+        raise ReconInputError(f"init must be a real phase map or a complex field, got dtype "
+                              f"{a.dtype}")
+    if not np.all(np.isfinite(a)):
+        raise ReconInputError("init contains NaN or inf; pass a finite phase map or field")
+    if a.dtype.kind != "c":
         return field_from_phase(a)
-    s = np.ascontiguousarray(a, dtype=np.complex64)
-    if not np.all(np.isfinite(s)):
-        raise ReconInputError("init contains NaN or inf")
-    return project(s, slm)
+    return project(np.ascontiguousarray(a, dtype=np.complex64), slm)
 
 
 def loss_and_gradient(display: ScatteringDisplay, s, target, loss: IntensityLoss | None = None,
@@ -284,12 +287,12 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     loss : IntensityLoss, optional
         Default :meth:`IntensityLoss.frequency` (Eq. 7.17).
     iterations : int
-        Number of iterations (>= 1); 200 by default.
+        Number of iterations (an integer >= 1, numpy integers too); 200 by default.
     init : {"one-step", "random"} or numpy.ndarray
         Start: the one-step baseline (default), a random phase, a phase map (real)
         or a complex field (projected).
     seed : int
-        Seed of the one-step target phase or of the random start.
+        Seed of the one-step target phase or of the random start (>= 0).
     slm : {"phase", "complex"}
         Phase-only projection ``s/|s|`` (Eq. A.6) or complex SLM (``|s| <= 1``).
     step_scale : float
@@ -297,7 +300,7 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     step_growth : float
         Factor (>= 1) applied to the step after every iteration (1: monotone).
     max_backtracks : int
-        Halvings allowed per iteration; when exhausted the loss cannot decrease at
+        Halvings allowed per iteration (>= 0); when exhausted the loss cannot decrease at
         float32 precision and the run stops ("converged").
     checkpoints : iterable of int
         Iterations after which a copy of the field is kept (e.g. ``(25, 50, 100)``).
@@ -323,13 +326,16 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     if not isinstance(loss, IntensityLoss):
         raise ReconInputError(f"loss must be an IntensityLoss, got {type(loss).__name__}")
     check_slm_kind(slm)
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
-    if not (step_scale > 0 and math.isfinite(step_scale)):
-        raise ReconInputError(f"step_scale must be positive, got {step_scale!r}")
-    if not (step_growth >= 1.0 and math.isfinite(step_growth)):
-        raise ReconInputError(f"step_growth must be >= 1, got {step_growth!r}")
-    marks = {int(c) for c in checkpoints}
+    iterations = as_int(iterations, "iterations", 1)
+    seed = as_int(seed, "seed", 0)
+    step_scale = positive(step_scale, "step_scale")
+    step_growth = finite_float(step_growth, "step_growth", lo=1.0)
+    max_backtracks = as_int(max_backtracks, "max_backtracks", 0)
+    try:
+        marks = {as_int(c, "checkpoints entry", 1) for c in checkpoints}
+    except TypeError:
+        raise ReconInputError(f"checkpoints must be a sequence of iteration numbers, got "
+                              f"{checkpoints!r}") from None
     targets = check_targets(target, display)
     eng = _Engine(display, targets, loss)
     s = _initial_field(display, targets, init, slm, seed)

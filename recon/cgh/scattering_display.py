@@ -13,23 +13,13 @@ import scipy.fft as sfft
 
 from ..errors import ReconInputError
 from ..fft import WORKERS
-from ..validate import positive
+from ..validate import as_array, as_shape2, positive
 from . import _kernels
 
 __all__ = ["ScatteringDisplay", "field_from_phase", "random_binary_mask"]
 
 #: Largest mask grid accepted (samples); 2**27 complex64 samples are 1 GiB.
 MAX_GRID_SAMPLES = 2**27
-
-
-def _shape2(name: str, value) -> tuple[int, int]:
-    try:
-        t = tuple(int(v) for v in value)
-    except (TypeError, ValueError):
-        raise ReconInputError(f"{name} must be (rows, cols), got {value!r}") from None
-    if len(t) != 2 or min(t) < 1:
-        raise ReconInputError(f"{name} must be two positive integers (rows, cols), got {value!r}")
-    return t
 
 
 def random_binary_mask(slm_shape, k: int, seed: int = 0, slm_pitch_um: float = 16.0) -> np.ndarray:
@@ -57,7 +47,7 @@ def random_binary_mask(slm_shape, k: int, seed: int = 0, slm_pitch_um: float = 1
     """
     from ..optics.holo_display import MaskModel
 
-    mm = MaskModel(_shape2("slm_shape", slm_shape), slm_pitch_um, k=k, q=1, seed=seed, margin=0)
+    mm = MaskModel(as_shape2(slm_shape, "slm_shape"), slm_pitch_um, k=k, q=1, seed=seed, margin=0)
     out = mm.model
     out.setflags(write=False)
     return out
@@ -164,7 +154,7 @@ class ScatteringDisplay:
     def __init__(self, slm_shape, k: int = 4, *, mask=None, mask_seed: int = 0,
                  slm_pitch_um: float = 16.0, wavelength_nm: float = 532.0,
                  focal_length_mm: float = 100.0, planes_mm=(0.0,)):
-        self.slm_shape = _shape2("slm_shape", slm_shape)
+        self.slm_shape = as_shape2(slm_shape, "slm_shape")
         if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 1:
             raise ReconInputError(f"k (mask pixels per SLM pixel) must be an integer >= 1, "
                                   f"got {k!r}")
@@ -177,11 +167,12 @@ class ScatteringDisplay:
         self.mask_pitch_um = self.slm_pitch_um / self.k
         self.wavelength_nm = positive(wavelength_nm, "wavelength_nm")
         self.focal_length_mm = positive(focal_length_mm, "focal_length_mm")
-        try:
-            planes = [float(z) for z in np.atleast_1d(np.asarray(planes_mm, dtype=np.float64))]
-        except (TypeError, ValueError):
-            raise ReconInputError(f"planes_mm must be numbers (mm), got {planes_mm!r}") from None
-        if not planes or not all(math.isfinite(z) for z in planes):
+        z = np.atleast_1d(as_array(planes_mm, "planes_mm"))
+        if z.dtype.kind not in "iuf" or z.ndim != 1:
+            raise ReconInputError(f"planes_mm must be a sequence of numbers (mm), got "
+                                  f"{planes_mm!r}")
+        planes = [float(v) for v in z]
+        if not planes or not all(math.isfinite(v) for v in planes):
             raise ReconInputError(
                 f"planes_mm must be one or more finite numbers, got {planes_mm!r}")
         self.planes_mm = tuple(planes)
@@ -225,7 +216,7 @@ class ScatteringDisplay:
             out = np.ones(self.grid_shape, np.float32)
             out.setflags(write=False)
             return out
-        m = np.asarray(mask)
+        m = as_array(mask, "mask")
         if m.shape != self.grid_shape:
             raise ReconInputError(f"mask has shape {m.shape}; the display needs the mask grid "
                                   f"{self.grid_shape} = SLM shape x k")
@@ -294,7 +285,7 @@ class ScatteringDisplay:
         ReconInputError
             Wrong shape, non-numeric dtype, or NaN/inf values.
         """
-        a = np.asarray(s)
+        a = as_array(s, "SLM field")
         if a.shape != self.slm_shape:
             raise ReconInputError(f"SLM field has shape {a.shape}, the display expects "
                                   f"{self.slm_shape} (rows, cols)")
@@ -362,7 +353,7 @@ class ScatteringDisplay:
         numpy.ndarray
             complex64 ``slm_shape``.
         """
-        a = np.asarray(y)
+        a = as_array(y, "image field")
         if a.shape != tuple(self.shape_out):
             raise ReconInputError(f"image field has shape {a.shape}, the display expects "
                                   f"{self.shape_out}")

@@ -114,7 +114,7 @@ def test_field_from_phase():
 
 
 @pytest.mark.parametrize("kwargs,msg", [
-    (dict(slm_shape=(0, 4)), "positive"),
+    (dict(slm_shape=(0, 4)), "slm_shape"),
     (dict(k=0), "k"),
     (dict(k=2.5), "k"),
     (dict(mask=np.ones((3, 3))), "mask grid"),
