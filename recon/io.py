@@ -23,6 +23,7 @@ import numpy as np
 import tifffile
 
 from recon.errors import ReconInputError
+from recon.validate import as_array
 
 logger = logging.getLogger(__name__)
 
@@ -238,8 +239,19 @@ def scene_view(image: np.ndarray, axes: tuple[int, int] = (0, 1)) -> np.ndarray:
     -------
     numpy.ndarray
         A flipped view (no copy), same shape and dtype.
+
+    Raises
+    ------
+    ReconInputError
+        ``image`` is not an array, or ``axes`` are not two of its axes.
     """
-    return np.flip(np.asarray(image), axis=axes)
+    arr = as_array(image, "image")
+    try:
+        return np.flip(arr, axis=axes)
+    except (TypeError, ValueError, np.exceptions.AxisError):
+        raise ReconInputError(f"cannot flip axes {axes!r} of an image of shape {arr.shape}; "
+                              "pass an (H, W) or (H, W, C) image, or a volume with "
+                              "axes=(1, 2)") from None
 
 
 def _viewing_image(image: np.ndarray) -> np.ndarray:
@@ -340,7 +352,7 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
             f"{path}: cannot save with extension {suffix or '(none)'!r}; "
             f"use one of {', '.join(SAVE_EXTENSIONS)}"
         )
-    image = np.asarray(image)
+    image = as_array(image, f"{path}: image")
     if image.ndim not in (2, 3) or image.size == 0:
         raise ReconInputError(
             f"{path}: cannot save an array of shape {image.shape}; "
@@ -392,7 +404,7 @@ def demosaic_bayer(raw: np.ndarray, pattern: str) -> np.ndarray:
     ----------
     raw : numpy.ndarray
         Raw colour-filter-array image, shape (H, W), dtype uint8 or uint16
-        (sensor counts), H, W >= 2.
+        (sensor counts), H, W >= 3.
     pattern : str
         Colour-filter layout of the sensor's top-left 2x2 block, read row by
         row: one of ``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"`` (case-insensitive).
@@ -407,7 +419,7 @@ def demosaic_bayer(raw: np.ndarray, pattern: str) -> np.ndarray:
     ------
     ReconInputError
         If `pattern` is not one of the four patterns, `raw` is not 2D, is
-        smaller than 2x2, or its dtype is not uint8/uint16.
+        smaller than 3x3 (OpenCV then returns zeros), or its dtype is not uint8/uint16.
 
     Notes
     -----
@@ -422,16 +434,17 @@ def demosaic_bayer(raw: np.ndarray, pattern: str) -> np.ndarray:
             f"unknown Bayer pattern {pattern!r}; use one of {', '.join(BAYER_PATTERNS)} "
             "(the sensor's top-left 2x2 block read row by row)"
         )
-    raw = np.asarray(raw)
+    raw = as_array(raw, "raw mosaic")
     if raw.ndim != 2:
         raise ReconInputError(
             f"Bayer demosaicing needs a 2D raw mosaic, got shape {raw.shape}; "
             "pass the undemosaiced sensor image (or skip demosaicing for RGB input)"
         )
-    if raw.shape[0] < 2 or raw.shape[1] < 2:
+    if raw.shape[0] < 3 or raw.shape[1] < 3:
+        # OpenCV's bilinear demosaicing returns all zeros below 3 rows or columns
         raise ReconInputError(
-            f"Bayer mosaic of shape {raw.shape} is smaller than one 2x2 block; "
-            "pass the full sensor image"
+            f"Bayer mosaic of shape {raw.shape} is smaller than 3x3 pixels (one 2x2 block "
+            "and its neighbours); pass the full sensor image"
         )
     if raw.dtype not in (np.uint8, np.uint16):
         raise ReconInputError(

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ReconInputError
+from ..validate import as_array, as_int, finite_float, float_array, positive
 from ..volume.operator import bin_stack
 from .angular import fov_half_angle_deg
 from .conditioning import axial_layout, condition_vs_k, condition_vs_k_axial
@@ -43,8 +44,48 @@ from .resolution import (
     lateral_resolution_px,
 )
 
-__all__ = ["axial_condition", "distinguishability", "energy_kept", "field_of_view",
-           "lateral_condition", "prepare_stack", "resolution_per_depth", "support_width_px"]
+__all__ = ["axial_condition", "check_stack", "distinguishability", "energy_kept",
+           "field_of_view", "lateral_condition", "prepare_stack", "resolution_per_depth",
+           "support_width_px"]
+
+
+def check_stack(stack, depths_mm) -> tuple[np.ndarray, np.ndarray]:
+    """A PSF stack and its depths as the report functions take them.
+
+    Parameters
+    ----------
+    stack : array_like, (n_z, rows, cols)
+        Real, finite, non-empty.
+    depths_mm : sequence of float, length n_z
+        Finite, mm.
+
+    Returns
+    -------
+    stack : ndarray
+        The input as an array (its own dtype).
+    depths : ndarray, float64, (n_z,)
+
+    Raises
+    ------
+    ReconInputError
+        Not a real finite 3D stack, or not one finite depth per plane.
+    """
+    arr = as_array(stack, "PSF stack")
+    if arr.dtype.kind not in "biuf" or arr.ndim != 3 or arr.size == 0:
+        raise ReconInputError(f"the PSF stack must be a non-empty real (n_z, rows, cols) "
+                              f"array, got dtype {arr.dtype} and shape {arr.shape}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise ReconInputError("the PSF stack contains NaN or inf; repair or recapture it")
+    z = float_array(depths_mm, "depths", ndims=(1,))
+    if len(z) != arr.shape[0]:
+        raise ReconInputError(f"{len(z)} depths for a PSF stack of {arr.shape[0]} planes "
+                              f"(shape {arr.shape}); give one depth per plane")
+    return arr, z
+
+
+def _fraction(value, name: str) -> float:
+    """A fraction in (0, 1], or ReconInputError naming ``name``."""
+    return finite_float(value, name, lo=0.0, hi=1.0, lo_open=True)
 
 
 def prepare_stack(stack: np.ndarray, depths_mm, *, bin_factor: int = 1,
@@ -70,9 +111,18 @@ def prepare_stack(stack: np.ndarray, depths_mm, *, bin_factor: int = 1,
         float32 after background removal, else the input dtype (binned: float32).
     depths : ndarray, float64, (n_z,)
         Ascending.
+
+    Raises
+    ------
+    ReconInputError
+        See :func:`check_stack`; ``bin_factor`` not an integer >= 1,
+        ``remove_background`` not an integer >= 0.
     """
-    order = np.argsort(depths_mm, kind="stable")
-    stack, z = np.asarray(stack)[order], np.asarray(depths_mm, np.float64)[order]
+    stack, z = check_stack(stack, depths_mm)
+    bin_factor = as_int(bin_factor, "--bin", 1)
+    remove_background = as_int(remove_background, "--remove-background", 0)
+    order = np.argsort(z, kind="stable")
+    stack, z = stack[order], z[order]
     if bin_factor != 1:
         stack = bin_stack(stack, bin_factor)
     if remove_background:
@@ -124,7 +174,16 @@ def resolution_per_depth(stack: np.ndarray, z: np.ndarray, *, pitch_mm: float, d
         (None where the analysis refused the PSF).
     warnings : list of str
         Why a value is None.
+
+    Raises
+    ------
+    ReconInputError
+        See :func:`check_stack`; ``pitch_mm`` or ``d_mm`` not a positive number,
+        ``level`` or ``threshold`` not in (0, 1].
     """
+    stack, z = check_stack(stack, z)
+    pitch_mm, d_mm = positive(pitch_mm, "pitch_mm"), positive(d_mm, "--d-mm")
+    level, threshold = _fraction(level, "--level"), _fraction(threshold, "--threshold")
     warnings: list[str] = []
     rows = []
     for k, zk in enumerate(z):
@@ -187,7 +246,16 @@ def energy_kept(h: np.ndarray, k_max: int, sep: float, layout: str, axis: str) -
     -------
     float
         Sum of h^2 inside the frame after the outermost shift over the total.
+
+    Raises
+    ------
+    ReconInputError
+        ``h`` not a real finite 2D image, ``k_max`` not an integer >= 1, ``sep`` not a
+        finite number >= 0.
     """
+    h = float_array(h, "PSF")
+    k_max = as_int(k_max, "--k-max", 1)
+    sep = finite_float(sep, "separation", lo=0.0)
     if layout == "line":
         reach = ((k_max - 1) - (k_max - 1) // 2) * sep
         shift = (0.0, reach) if axis == "x" else (reach, 0.0)
@@ -227,10 +295,11 @@ def lateral_condition(psf: np.ndarray, separations_px, k_max: int, *, layout: st
     Raises
     ------
     ReconInputError
-        ``k_max < 2``.
+        ``k_max`` not an integer >= 2, separations not finite numbers > 0, or a PSF
+        that is not a real finite 2D image.
     """
-    if k_max < 2:
-        raise ReconInputError(f"--k-max must be >= 2, got {k_max}")
+    k_max = as_int(k_max, "--k-max", 2)
+    separations_px = _separations(separations_px, "--separations-px")
     ks = list(range(2, k_max + 1))
     cond = [condition_vs_k(psf, s, ks, layout=layout, axis=axis) for s in separations_px]
     warnings = []
@@ -242,6 +311,14 @@ def lateral_condition(psf: np.ndarray, separations_px, k_max: int, *, layout: st
                 "energy inside the frame: its large-k condition numbers are pessimistic; use "
                 "a smaller --k-max or separation, or a larger frame")
     return ks, cond, warnings
+
+
+def _separations(values, name: str) -> list[float]:
+    """Separations as a list of finite numbers > 0, or ReconInputError naming ``name``."""
+    seps = float_array(values, name, ndims=(0, 1)).ravel()
+    if np.any(seps <= 0):
+        raise ReconInputError(f"{name} must be > 0, got {seps.tolist()}")
+    return [float(v) for v in seps]
 
 
 def axial_condition(stack: np.ndarray, z: np.ndarray, steps, k_max: int, *,
@@ -278,11 +355,20 @@ def axial_condition(stack: np.ndarray, z: np.ndarray, steps, k_max: int, *,
     Raises
     ------
     ReconInputError
-        No step fits two sources in the stack.
+        See :func:`check_stack`; a step not an integer >= 1, ``k_max`` not an integer
+        >= 2, ``xz_px`` not a finite number >= 0; no step fits two sources in the stack.
     """
+    stack, z = check_stack(stack, z)
+    k_max = as_int(k_max, "--k-max", 2)
+    xz_px = finite_float(xz_px, "--xz-px", lo=0.0)
+    planes = float_array(steps, "--separations-planes", ndims=(0, 1)).ravel()
+    if np.any(planes < 1) or np.any(planes != np.round(planes)):
+        raise ReconInputError(f"--separations-planes must be whole numbers >= 1, got "
+                              f"{planes.tolist()}")
+    steps = [int(v) for v in planes]
     n_z = len(z)
     per_step, warnings = [], []
-    for s in (int(v) for v in steps):
+    for s in steps:
         k_top, planes = k_max, None
         while k_top >= 2 and planes is None:  # the most sources that fit in the stack
             try:
@@ -328,8 +414,16 @@ def distinguishability(psf: np.ndarray, separations_px, *, axis: str = "x",
     dict
         ``{2: (limit_px or None, results), 16: (...)}`` from
         :func:`recon.analysis.distinguishability_limit`.
+
+    Raises
+    ------
+    ReconInputError
+        A PSF that is not a real finite 2D image, separations not finite numbers > 0,
+        ``iterations`` not an integer >= 1.
     """
-    psf = np.clip(psf, 0.0, None)
+    psf = np.clip(float_array(psf, "PSF"), 0.0, None)
+    separations_px = _separations(separations_px, "--separations-px")
+    iterations = as_int(iterations, "--iterations", 1)
     return {n: distinguishability_limit(psf, separations_px, n_points=n, axis=axis,
                                         iterations=iterations) for n in (2, 16)}
 
@@ -345,7 +439,24 @@ def support_width_px(h: np.ndarray, axis: int, energy: float) -> float:
         The axis summed over (0: the width along x, 1: along y).
     energy : float
         Central fraction, (0, 1].
+
+    Returns
+    -------
+    float
+        Width in pixels (>= 1).
+
+    Raises
+    ------
+    ReconInputError
+        ``h`` not a real finite 2D image without positive values, ``axis`` not 0 or 1,
+        ``energy`` not in (0, 1].
     """
+    h = float_array(h, "PSF")
+    energy = _fraction(energy, "--support-energy")
+    if axis not in (0, 1) or isinstance(axis, bool):
+        raise ReconInputError(f"axis must be 0 or 1, got {axis!r}")
+    if not np.any(h > 0):
+        raise ReconInputError("the PSF has no positive values; its support has no width")
     marginal = np.clip(h, 0, None).sum(axis=axis, dtype=np.float64)
     cum = np.cumsum(marginal) / marginal.sum()
     tail = (1.0 - energy) / 2.0
@@ -386,10 +497,14 @@ def field_of_view(stack: np.ndarray, z: np.ndarray, *, pitch_mm: float, d_mm: fl
     Raises
     ------
     ReconInputError
-        ``support_energy`` outside (0, 1], or a plane without positive values.
+        See :func:`check_stack`; ``pitch_mm`` or ``d_mm`` not a positive number,
+        ``alpha_c_deg`` not in (0, 90], ``beta_deg`` not in [0, 90)
+        (:func:`recon.analysis.fov_half_angle_deg`), ``support_energy`` outside (0, 1],
+        or a plane without positive values.
     """
-    if not 0 < support_energy <= 1:
-        raise ReconInputError(f"--support-energy must be in (0, 1], got {support_energy}")
+    stack, z = check_stack(stack, z)
+    support_energy = _fraction(support_energy, "--support-energy")
+    pitch_mm, d_mm = positive(pitch_mm, "pitch_mm"), positive(d_mm, "--d-mm")
     n, rows, cols = stack.shape
     sensor = {"x": cols * pitch_mm, "y": rows * pitch_mm}
     per = []

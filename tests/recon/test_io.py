@@ -320,7 +320,7 @@ def test_bayer_refusals():
         demosaic_bayer(np.zeros((8, 8, 3), dtype=np.uint16), "RGGB")
     with pytest.raises(ReconInputError, match="uint8 or uint16"):
         demosaic_bayer(mosaic.astype(np.float32), "RGGB")
-    with pytest.raises(ReconInputError, match="smaller than one 2x2 block"):
+    with pytest.raises(ReconInputError, match="smaller than 3x3"):
         demosaic_bayer(np.zeros((1, 8), dtype=np.uint8), "RGGB")
 
 
