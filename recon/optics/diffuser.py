@@ -30,6 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import ReconInputError
+from ..validate import as_int
 
 __all__ = ["DiffuserSurface"]
 
@@ -63,6 +64,8 @@ def finite_positive(value, name: str, example: str) -> float:
         gives ``example`` of a good value.
     """
     try:
+        if isinstance(value, str | bytes):
+            raise TypeError(value)
         v = float(value)
     except (TypeError, ValueError) as exc:
         raise ReconInputError(f"{name} must be a number, got {value!r}; e.g. {example}") from exc
@@ -294,7 +297,7 @@ class DiffuserSurface:
         refractive_index : float
             1.58 (polycarbonate) by default.
         seed : int
-            Seed of :func:`numpy.random.default_rng`; same seed, same surface.
+            Seed of :func:`numpy.random.default_rng` (>= 0); same seed, same surface.
 
         Returns
         -------
@@ -316,7 +319,7 @@ class DiffuserSurface:
             )
         rows, cols = _grid_shape(w_mm * 1e3, h_mm * 1e3, pitch)
         pad = int(math.ceil(3 * feat / pitch))
-        rng = np.random.default_rng(seed)
+        rng = np.random.default_rng(as_int(seed, "seed", 0))
         noise = rng.standard_normal((rows + 2 * pad, cols + 2 * pad))
         s = feat / 2.0 / pitch  # kernel standard deviation in samples
         fy = np.fft.fftfreq(noise.shape[0])[:, None]
@@ -362,7 +365,7 @@ class DiffuserSurface:
         refractive_index : float
             1.5 by default.
         seed : int
-            Seed of :func:`numpy.random.default_rng`; same seed, same surface.
+            Seed of :func:`numpy.random.default_rng` (>= 0); same seed, same surface.
 
         Returns
         -------
@@ -390,7 +393,7 @@ class DiffuserSurface:
         radius = f_um * (n - 1.0)
         rows, cols = _grid_shape(w_mm * 1e3, h_mm * 1e3, pitch)
         half_w, half_h = (cols - 1) * pitch / 2, (rows - 1) * pitch / 2
-        rng = np.random.default_rng(seed)
+        rng = np.random.default_rng(as_int(seed, "seed", 0))
         margin = 4.0 * lens
         r_min = lens / 1.15  # Bridson's mean NN distance is ~1.1-1.2 r_min; rescaled below
         dom_w, dom_h = 2 * (half_w + margin), 2 * (half_h + margin)

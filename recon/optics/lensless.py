@@ -57,6 +57,7 @@ from ..fft import fast_padded_shape
 from ..operators import ConvolutionOperator
 from ..preprocess import box_bin
 from ..scenes import cell_overlap, tent_weights, usaf_target
+from ..validate import as_int, float_array
 from .lensless_geometry import (
     LenslessGeometry,
     default_geometry,
@@ -221,11 +222,11 @@ class LenslessModel:
         -------
         ndarray, float64, shape (rows, cols)
         """
-        pts = np.asarray(points_xyz_mm, dtype=np.float64)
+        pts = float_array(points_xyz_mm, "points", ndims=None, finite=False)
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ReconInputError(
                 f"points must have shape (N, 3) of (x, y, z) in mm, got {pts.shape}")
-        power = np.asarray(intensities, dtype=np.float64).reshape(-1)
+        power = float_array(intensities, "intensities", ndims=None, finite=False).reshape(-1)
         if power.shape[0] != pts.shape[0]:
             raise ReconInputError(
                 f"{power.shape[0]} intensities for {pts.shape[0]} points; give one per point")
@@ -253,16 +254,26 @@ class LenslessModel:
         z_mm : float
             Source depth, mm (> 0).
         samples : int
-            Aperture samples per axis.
+            Aperture samples per axis (>= 1).
 
         Returns
         -------
         ndarray, float64, shape of ``x_mm``
+
+        Raises
+        ------
+        ReconInputError
+            Positions that are not finite real numbers of one shape, ``z_mm`` not a
+            positive number, ``samples`` not an integer >= 1.
         """
         geo = self.geometry
         z = positive_number(z_mm, "z_mm", "30.0")
-        x = np.asarray(x_mm, np.float64)
-        y = np.asarray(y_mm, np.float64)
+        samples = as_int(samples, "samples", 1)
+        x = float_array(x_mm, "x_mm", ndims=None)
+        y = float_array(y_mm, "y_mm", ndims=None)
+        if x.shape != y.shape:
+            raise ReconInputError(f"x_mm and y_mm must have one shape, got {x.shape} and "
+                                  f"{y.shape}")
         aw, ah = geo.aperture_mm
         ax = ((np.arange(samples) + 0.5) / samples - 0.5) * aw
         ay = ((np.arange(samples) + 0.5) / samples - 0.5) * ah
@@ -346,7 +357,7 @@ class LenslessModel:
             Photon rate per pixel per unit scene radiance (scene unit times mm^2 sr).
         """
         geo = self.geometry
-        y = np.asarray(scene, dtype=np.float64)
+        y = float_array(scene, "scene", finite=False)
         if y.ndim != 2 or min(y.shape) < 1:
             raise ReconInputError(f"scene must be a 2D image (rows, cols), got shape {y.shape}")
         if not np.all(np.isfinite(y)) or np.any(y < 0):

@@ -66,6 +66,8 @@ def source_position(xyz) -> tuple[float, float, float]:
     """``xyz`` as three finite floats (x, y, z) mm with z > 0 (in front of the
     diffuser); else ReconInputError."""
     try:
+        if any(isinstance(v, bool | np.bool_ | str | bytes) for v in xyz):
+            raise TypeError(xyz)  # numpy would read True as 1.0 and "30" as 30.0
         arr = np.asarray(xyz, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ReconInputError(f"source position {xyz!r} must be (x, y, z) in mm") from exc

@@ -128,6 +128,18 @@ def assert_refused(excinfo, *names: str) -> None:
         assert name.lower() in msg.lower(), f"{name!r} not named in {msg!r}"
 
 
+def assert_call_refused(call, value, *names: str) -> None:
+    """``call(value)`` raises a one-line ReconInputError naming every one of ``names``."""
+    with pytest.raises(ReconInputError) as info:
+        call(value)
+    assert_refused(info, *names)
+
+
+def case_id(value) -> str:
+    """pytest id of a ``(call, name, values)`` case: the argument name."""
+    return value if isinstance(value, str) else ""
+
+
 # --------------------------------------------------------------------- recon.validate
 
 

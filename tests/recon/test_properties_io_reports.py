@@ -20,8 +20,10 @@ from .test_properties_common import (
     DTYPES,
     FAST,
     NOT_POSITIVE,
+    assert_call_refused,
     assert_refused,
     bad_arrays,
+    case_id,
     not_counts,
     random_array,
 )
@@ -171,13 +173,11 @@ def test_stack_reports_refuse_bad_stacks_and_depths(function, name, depths):
     (lambda v: reports.support_width_px(STACK[0], 0, v), "--support-energy",
      NOT_POSITIVE | st.floats(1.0 + 1e-9, 1e9)),
     (lambda v: reports.energy_kept(STACK[0], v, 2.0, "line", "x"), "--k-max", not_counts(1)),
-], ids=lambda v: v if isinstance(v, str) else "")
+], ids=case_id)
 @FAST
 @given(data=st.data())
 def test_report_numbers_are_refused_naming_them(call, name, values, data):
-    with pytest.raises(ReconInputError) as info:
-        call(data.draw(values))
-    assert_refused(info, name)
+    assert_call_refused(call, data.draw(values), name)
 
 
 @FAST
