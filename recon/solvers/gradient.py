@@ -38,8 +38,9 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
     if len(op.shape_in) != 2:
         raise ReconInputError(f"{method} supports 2D objects here, got {op.shape_in}")
     b = check_measurement(b, op.shape_out)
-    lip = op.lipschitz() if lipschitz is None else float(lipschitz)
-    if not lip > 0:
+    if lipschitz is not None:
+        lip = positive(lipschitz, "lipschitz")
+    elif not (lip := op.lipschitz()) > 0:
         raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSF")
     step = step_scale / lip
     thr = prox_threshold(step, tv, 2)

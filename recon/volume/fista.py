@@ -140,8 +140,9 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
     lip = None
     if step is None:
         step_scale = positive(step_scale, "step_scale")
-        lip = op.lipschitz() if lipschitz is None else float(lipschitz)
-        if not (lip > 0 and math.isfinite(lip)):
+        if lipschitz is not None:
+            lip = positive(lipschitz, "lipschitz")
+        elif not ((lip := op.lipschitz()) > 0 and math.isfinite(lip)):
             raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSFs")
         step = step_scale / lip
         too_large = step_scale > 1

@@ -139,7 +139,8 @@ def test_options_a_method_does_not_take_are_refused(method, option):
 
 
 @pytest.mark.parametrize(("method", "option"), [
-    ("wiener", "regularization"), ("gd", "step_scale"), ("fista", "step_scale")])
+    ("wiener", "regularization"), ("gd", "step_scale"), ("fista", "step_scale"),
+    ("gd", "lipschitz"), ("fista", "lipschitz")])
 @FAST
 @given(value=NOT_POSITIVE)
 def test_invalid_solver_options_are_refused(method, option, value):
