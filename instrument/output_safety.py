@@ -5,7 +5,8 @@ It refuses, with one line naming both paths, an output that is one of the comman
 inputs (resolved paths: ``recon --raw raw.tif --out raw`` would write ``raw.tif``)
 or lies inside an input directory (a run store), an output that already exists
 (unless ``--overwrite``), an output directory that is a file, and an output whose
-directory cannot be created or written (reported before the solve, not after).
+directory cannot be created or written (reported before the solve, not after). It
+creates nothing: a command refused afterwards leaves no trace.
 """
 
 from __future__ import annotations
@@ -36,22 +37,26 @@ def _inside(path: Path, folder: Path) -> bool:
 
 
 def _check_writable(folder: Path, label: str) -> None:
-    """Create ``folder`` (and parents) and write a probe file in it."""
+    """Refuse ``folder`` unless it is, or can be created as, a writable directory.
+
+    Nothing is created: the writers make their directories (``recon.io.atomic_path``,
+    Zarr), so a command refused later, on its inputs, leaves no empty folder behind.
+    The nearest existing ancestor must be a directory in which a probe file (removed
+    at once) can be written.
+    """
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        what = "a file of that name exists" if existing == folder else f"{existing} is a file"
+        raise OutputError(f"{label}: cannot create directory {folder}: {what}; choose another "
+                          "path")
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise OutputError(f"{label}: cannot create directory {folder}: a file of that name "
-                          "exists; choose another path") from None
-    except OSError as exc:
-        raise OutputError(f"{label}: cannot create directory {folder} ({exc.strerror or exc}); "
-                          "choose a writable path") from None
-    if not folder.is_dir():
-        raise OutputError(f"{label}: {folder} is not a directory; choose another path")
-    try:
-        with tempfile.TemporaryFile(dir=folder, prefix=".diffuserlab-probe-"):
+        with tempfile.TemporaryFile(dir=existing, prefix=".diffuserlab-probe-"):
             pass
     except OSError as exc:
-        raise OutputError(f"{label}: cannot write in {folder} ({exc.strerror or exc}); "
+        where = folder if existing == folder else f"{existing} (to create {folder})"
+        raise OutputError(f"{label}: cannot write in {where} ({exc.strerror or exc}); "
                           "choose a writable path") from None
 
 
@@ -90,8 +95,8 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
 
     Notes
     -----
-    The directories of the outputs are created (as the command would create them)
-    and a probe file is written and removed in each.
+    Nothing is created: for each output directory, a probe file is written and
+    removed in it or, if it does not exist yet, in its nearest existing ancestor.
     """
     ins = {name: _resolved(p) for name, p in (inputs or {}).items() if p is not None}
     folders: dict[Path, str] = {}

@@ -165,8 +165,7 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
     from recon.io import atomic_path
 
     store = RunStore.open(run)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = Path(out)  # its folder is made by atomic_path once the data is read
     if product is not None:
         array, attrs = store.product(product)
         meta = {**attrs, "run": str(store.path), "product": product}

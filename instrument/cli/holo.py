@@ -72,6 +72,23 @@ def _ints(text: str, what: str) -> tuple[int, ...]:
     return vals
 
 
+def _check_evaluation(factors: tuple[int, ...], seeds: tuple[int, ...],
+                      methods: tuple[str, ...]) -> None:
+    """Refuse factors, seeds and methods the evaluation cannot use, before it writes
+    anything (its output folder is made first)."""
+    from recon.cgh.evaluation import METHODS, factor_to_k
+    from recon.errors import ReconInputError
+
+    for factor in factors:
+        factor_to_k(factor)
+    if any(seed < 0 for seed in seeds):
+        raise ReconInputError(f"--seeds {','.join(map(str, seeds))}: a mask seed must be >= 0")
+    bad = [m for m in methods if m not in (*METHODS, "no-mask")]
+    if bad or not methods:
+        raise ReconInputError(f"--methods: unknown {bad or 'none given'}; choose from "
+                              f"{', '.join((*METHODS, 'no-mask'))}")
+
+
 def run_evaluate(args: argparse.Namespace) -> int:
     """Run ``holo evaluate``; 0, or 1 when a rule failed with ``--strict`` (bad input
     exits 2 through :func:`instrument.cli.main`)."""
@@ -88,12 +105,15 @@ def run_evaluate(args: argparse.Namespace) -> int:
     check_outputs([out / n for n in EVALUATION_FILES], {"--images": args.images},
                   args.overwrite, directory=out)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    if args.quick:
+        size, factors, seeds, iters = 48, (4, 16), (0,), 15
+    _check_evaluation(factors, seeds, methods)
     if args.images:
         images = load_folder(args.images)
     else:
         images = [(name, load_bundled(name)) for name, _ in BUNDLED_IMAGES]
     if args.quick:
-        size, factors, seeds, iters, images = 48, (4, 16), (0,), 15, images[:3]
+        images = images[:3]
 
     def progress(done, total, rec):
         print(f"[{done}/{total}] {rec['factor']}x seed {rec['seed']} {rec['image']:>18} "

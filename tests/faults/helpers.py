@@ -4,7 +4,7 @@
 command in-process and captures its status and output, :func:`assert_refused`
 checks the contract of a refused command line: exit status 2, exactly one line on
 stderr starting ``diffuserlab: error:`` that names the problem, no traceback, and
-the directory unchanged. Used by ``tests/faults`` and
+the directory unchanged (no file changed, nothing added or removed). Used by ``tests/faults`` and
 ``tests/instrument/cli/test_output_safety.py``.
 """
 
@@ -20,12 +20,14 @@ __all__ = ["assert_one_error_line", "assert_refused", "run_cli", "tree"]
 
 
 def tree(root: Path) -> dict[str, str]:
-    """{relative path: sha256 hex} of every file under ``root`` (links not followed).
+    """{relative path: sha256 hex of a file, ``"dir"`` for a directory} under ``root``.
 
-    Two trees compare equal when no file changed, appeared or vanished.
+    Two trees compare equal when no file changed and no file or directory appeared
+    or vanished (an empty folder left by a refused command counts).
     """
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(root.rglob("*")) if p.is_file() and not p.is_symlink()}
+    return {str(p.relative_to(root)):
+            "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if not p.is_symlink()}
 
 
 def run_cli(argv: Sequence[object], capsys) -> tuple[int, str, str]:
@@ -65,8 +67,8 @@ def assert_refused(argv: Sequence[object], words: Iterable[str], root: Path, cap
     words : iterable of str
         What the error line must mention (case-insensitive substrings).
     root : Path
-        The directory whose files must be unchanged (sha256 before and after, no
-        file added or removed).
+        The directory that must be unchanged (sha256 of every file before and after,
+        no file or directory added or removed).
     capsys : pytest.CaptureFixture
     status : int
         The expected exit status (2: bad input).
