@@ -46,7 +46,8 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
     thr = prox_threshold(step, tv, 2)
     mon = Monitor(float(np.vdot(b, b)), method,)
     hint = ("the step is too large: lower the step scale (<= 1 is always stable)"
-            if step_scale > 1 else "check the PSF and measurement scaling")
+            if step_scale > 1 else "check the PSF and measurement scaling"
+            + (f", or use a smaller TV weight than {tv:g}" if tv > 0 else ""))
     x = np.zeros(op.shape_in, np.float32)
     y = np.zeros(op.shape_in, np.float32)
     y_next = np.empty_like(y)

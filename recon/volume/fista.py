@@ -153,7 +153,9 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
     l1thr = step * l1_w
     mon = Monitor(float(np.vdot(b, b)), "3D FISTA")
     hint = ("the step is too large: use step=None (1/L) or a step scale <= 1"
-            if too_large else "check the PSF stack and measurement scaling")
+            if too_large else "check the PSF stack and measurement scaling"
+            + (f", or use smaller TV / l1 weights than {tv_w:g} / {l1_w:g}"
+               if tv_w > 0 or l1_w > 0 else ""))
     fused = isinstance(op, VolumeConvolutionOperator)
     x = np.zeros(op.shape_in, np.float32)
     y = np.zeros(op.shape_in, np.float32)

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 import recon
 from recon.api import solver_options
-from recon.errors import ReconInputError
+from recon.errors import DivergenceError, ReconInputError
 from recon.preprocess import SaturationWarning
 from recon.solvers import SOLVERS
 
@@ -164,3 +164,18 @@ def test_invalid_erasure_masks_are_refused(name):
     with pytest.raises(ReconInputError) as info:
         _reconstruct(PSF, RAW, "fista", iterations=2, erasure_mask=bad_arrays()[name])
     assert_refused(info, "erasure mask")
+
+
+@pytest.mark.parametrize("method", [m for m in METHODS if SOLVERS[m].iterative])
+@FAST
+@given(tv=st.floats(1e2, 1e30))
+def test_huge_tv_gives_an_image_or_a_divergence_naming_tv(method, tv):
+    """The divergence check compares with the zero image's objective, which a TV term
+    this large exceeds; then the one-line message must point at the TV weight."""
+    try:
+        out = _reconstruct(PSF, RAW, method, iterations=5, tv=tv)
+    except DivergenceError as exc:
+        msg = str(exc)
+        assert "\n" not in msg and "TV" in msg
+        return
+    assert np.all(np.isfinite(out.image)) and out.image.min() >= 0.0
