@@ -216,11 +216,11 @@ class SlmLutPlan(Plan):
         yield Expose(auto=self._exposure)
         yield Capture(f, "grating")
 
-    def moves(self, points, indices):
-        """No stage moves to check ahead: the steps show SLM patterns only (and the
-        pass-2 gratings depend on a level measured in pass 1, so the step generators
-        cannot be walked ahead); the mask retraction of :meth:`session` checks its
-        target against the stage limits itself before moving."""
+    def checked_steps(self, points, indices):
+        """Nothing to check ahead: the steps show SLM patterns and auto-expose (and
+        the pass-2 gratings depend on a level measured in pass 1, so the step
+        generators cannot be walked ahead); the mask retraction of :meth:`session`
+        checks its target against the stage limits itself before moving."""
         return iter(())
 
     def teardown(self):

@@ -231,6 +231,26 @@ class Device(abc.ABC):
         DeviceValueError
             An unknown name or a bad value; nothing is applied then.
         """
+        for name, value in self.check_settings(settings).items():
+            with self._io():
+                applied = self._do_apply(name, value)
+            self._values[name] = value if applied is None else applied
+            self._log.debug("%s: %s = %r", self.device_id, name, self._values[name])
+
+    def check_settings(self, settings: Mapping[str, Any]) -> dict[str, Any]:
+        """Validate ``settings`` as :meth:`apply_settings` would, applying nothing
+        (e.g. a plan's exposures checked before a run starts).
+
+        Returns
+        -------
+        dict
+            The validated values, normalised, in the order they would be applied.
+
+        Raises
+        ------
+        DeviceValueError
+            An unknown name or a bad value.
+        """
         self._require_open()
         if not isinstance(settings, Mapping):
             raise self._error(
@@ -250,11 +270,7 @@ class Device(abc.ABC):
                 value = self._validate_setting(name, settings[name], pending)
                 pending[name] = validated[name] = value
         self._check_settings(pending)
-        for name, value in validated.items():
-            with self._io():
-                applied = self._do_apply(name, value)
-            self._values[name] = value if applied is None else applied
-            self._log.debug("%s: %s = %r", self.device_id, name, self._values[name])
+        return validated
 
     def _set(self, name: str, value: Any) -> None:
         """Property setters go through :meth:`apply_settings`."""

@@ -236,21 +236,24 @@ class Plan(abc.ABC):
         safe state and the store is kept for resuming)."""
         return iter(())
 
-    def moves(self, points: Sequence[PlanPoint], indices: Sequence[int]
-              ) -> Iterator[tuple[int | None, Move]]:
-        """Every stage move the plan will make, in order, for the runner's preflight
-        (all targets checked against the stage limits before the first move).
+    def checked_steps(self, points: Sequence[PlanPoint], indices: Sequence[int]
+                      ) -> Iterator[tuple[int | None, Move | Expose | Light]]:
+        """The steps the runner's preflight checks against the devices before the
+        first move: every :class:`Move` (stage limits, backlash), fixed
+        :class:`Expose` (the camera's exposure range) and :class:`Light` (LED
+        indices and brightness), in order.
 
-        Yields ``(point index, Move)`` pairs, ``None`` for setup and teardown, for the
-        points ``indices`` of ``points``. The default walks :meth:`setup`,
+        Yields ``(point index, step)`` pairs, ``None`` for setup and teardown, for
+        the points ``indices`` of ``points``. The default walks :meth:`setup`,
         :meth:`steps` of each point and :meth:`teardown` without executing anything;
         a plan whose steps depend on what earlier steps measured (so its generators
-        cannot be walked ahead) overrides this with the moves it can promise.
+        cannot be walked ahead) overrides this with the steps it can promise.
         """
-        yield from ((None, s) for s in self.setup() if isinstance(s, Move))
+        kinds = (Move, Expose, Light)
+        yield from ((None, s) for s in self.setup() if isinstance(s, kinds))
         for i in indices:
-            yield from ((i, s) for s in self.steps(i, points[i]) if isinstance(s, Move))
-        yield from ((None, s) for s in self.teardown() if isinstance(s, Move))
+            yield from ((i, s) for s in self.steps(i, points[i]) if isinstance(s, kinds))
+        yield from ((None, s) for s in self.teardown() if isinstance(s, kinds))
 
     def reduce(self, store) -> dict[str, Any]:
         """Derive products from a complete run's frames (write them with

@@ -282,3 +282,37 @@ def test_resume_checks_the_remaining_points_before_moving(tmp_path):
     after = RunStore.open(path).attrs
     assert after["resumes"] == before["resumes"] and after["status"] == "aborted"
     assert RunStore.open(path).lock_owner() is None  # the lock is released
+
+
+@register_plan
+class LitPlan(Plan):
+    """Test plan: light the given LEDs at a fixed exposure and capture one frame."""
+
+    name = "test-lit"
+
+    def __init__(self, leds=((0,),), exposure_s=0.002, brightness=1.0):
+        super().__init__(leds=[list(v) for v in leds], exposure_s=exposure_s,
+                         brightness=brightness)
+
+    def points(self):
+        return [PlanPoint({"leds": v}, ("lit",)) for v in self.params["leds"]]
+
+    def steps(self, index, point):
+        yield Light(point.coords["leds"], self.params["brightness"])
+        yield Expose(exposure_s=self.params["exposure_s"])
+        yield Capture(1, "lit")
+
+
+@pytest.mark.parametrize("plan, message", [
+    (LitPlan(leds=[[0], [5, 1024]]),
+     r"point 2 of 2 .*led_array: LED\(s\) \[1024\] outside 0-1023"),
+    (LitPlan(brightness=1.5), "brightness 1.5 is outside"),
+    (LitPlan(exposure_s=1000.0),
+     "point 1 of 1 .*camera: exposure_s=1000.0 is not a number in range"),
+])
+def test_exposures_and_leds_are_checked_before_the_run(tmp_path, plan, message):
+    with VirtualBench(seed=3) as vb:
+        with pytest.raises(PlanError, match=message):
+            Runner(vb).run(plan, tmp_path / "l.zarr")
+        assert vb.led_array.lit() == {}
+    assert not (tmp_path / "l.zarr").exists()

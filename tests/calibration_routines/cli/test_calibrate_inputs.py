@@ -1,5 +1,5 @@
 """`calibrate` and `align mask` check their outputs and input runs before the bench
-opens, and every stage target before the first move: one error line, exit 2,
+opens, and every stage target, exposure and LED before the first move: one error line, exit 2,
 nothing written."""
 
 from __future__ import annotations
@@ -48,6 +48,9 @@ CASES = {
         ["calibrate", "psf-sweep", "--simulate", "--z-min", "30", "--z-max", "300",
          "--n-depths", "3", "--out", "{d}/sweep.zarr"],
         "point 3 of 3 {'z_mm': 300.0}: source_stage: target z=300 mm is outside the limits"),
+    "dark exposure beyond the camera's range": (
+        ["calibrate", "dark", "--simulate", "--exposure-s", "1000", "--out", "{d}/d2.zarr"],
+        "camera: exposure_s=1000.0 is not a number in range"),
     "align out exists": (["align", "mask", "--simulate", "--out", "{d}/file.txt"],
                          "an alignment record is never replaced"),
     "align out inside the lut": (
