@@ -11,6 +11,8 @@ import json
 import os
 import shutil
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -111,7 +113,8 @@ def _nonfinite(d: Path) -> None:
 
 
 def _stores(d: Path) -> None:
-    """Damaged copies of run.zarr / dark.zarr, and a locked one."""
+    """Damaged copies of run.zarr / dark.zarr, one locked by this (live) process and
+    one whose lock was left by a process that has exited."""
     def copy(src: str, name: str) -> Path:
         return Path(shutil.copytree(d / src, d / name))
 
@@ -132,6 +135,10 @@ def _stores(d: Path) -> None:
     lock = {"pid": os.getpid(), "host": socket.gethostname(),
             "started_utc": "2026-01-01T00:00:00+00:00"}
     (copy("dark.zarr", "locked.zarr") / ".lock").write_text(json.dumps(lock))
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    stale = {**lock, "pid": int(gone.stdout)}  # a process that has exited
+    (copy("dark.zarr", "stale_lock.zarr") / ".lock").write_text(json.dumps(stale))
     # a bench of another set-up: the simulated bench with the diffuser moved
     text = (d / "bench.toml").read_text()
     assert "diffuser_sensor_distance_mm = 8.9" in text

@@ -9,6 +9,9 @@ recon, recon3d, demo, analyze, runs, holo and benchmark are in
 ``tests/instrument/cli/test_output_safety.py``; this table covers the other
 commands' outputs and every other input class.
 
+Not here, by design: ``runs verify`` of a store with deleted or altered chunks exits 1
+and lists the damage (``runs show`` marks it DAMAGED), see the README's "Data safety".
+
 A case whose fix lies in a file outside the command line is marked ``xfail`` with
 the file and the problem (strict: it fails once fixed, so the mark is removed).
 """
@@ -53,8 +56,9 @@ def _command(command: str) -> str:
 NOT_BENCH = ("instrument/config: an empty TOML or one that is not a bench file gives one "
              "line per missing key (3-4 'diffuserlab: error:' lines), not one line saying it "
              "is not a bench file")
-ALIGN_NPY = ("calibration_routines/cli/align.py: np.load errors of --mask-pattern are printed "
-             "raw ('error: ...', no file name); an empty file escapes as EOFError, exit 1 "
+ALIGN_NPY = ("calibration_routines/cli/align.py: np.load errors of --mask-pattern are passed "
+             "on raw, without the file or option ('Failed to read all data for array...', "
+             "'Object arrays cannot be loaded...'); an empty file escapes as EOFError, exit 1 "
              "internal error")
 ALIGN_LUT = ("calibration_routines/cli/align.py: a --lut that is missing, not a run store or "
              "without slm_lut is found only after the bench opened: 'alignment failed: ...' "
@@ -428,6 +432,8 @@ CALIBRATE = [
          "nokeys.zarr"),
     case("calibrate resume locked.zarr --simulate", "locked-store", "locked run",
          "locked.zarr|is writing it"),
+    case("calibrate resume stale_lock.zarr --simulate", "locked-store", "stale lock",
+         "stale lock|stale_lock.zarr/.lock"),
     case("calibrate resume dark.zarr --simulate --redo a", "number", "redo a", "--redo"),
     case("calibrate resume dark.zarr --simulate --redo 999", "number", "redo 999", "999"),
     case("calibrate resume dark.zarr foreign.toml --simulate", "foreign-bench",
