@@ -219,18 +219,27 @@ class Camera(Device):
     """Abstract camera: validated settings, snap, streaming into a :class:`FrameRing`.
 
     Settable properties (applied in this order): ``pixel_format``, ``roi``,
-    ``binning``, ``exposure_s``, ``gain`` (dB), ``trigger_mode``. While streaming,
-    only ``exposure_s`` and ``gain`` may change.
+    ``binning``, ``exposure_s``, ``frame_rate_hz``, ``gain`` (dB), ``trigger_mode``.
+    While streaming, only ``exposure_s``, ``frame_rate_hz`` and ``gain`` may change.
+
+    Frame rate: ``frame_rate_hz`` is the requested free-run rate, within the
+    driver's ``frame_rate_range_hz``. An exposure longer than the frame period
+    limits it: the camera runs at :attr:`resulting_frame_rate_hz`, by default
+    ``min(frame_rate_hz, 1 / exposure_s)``; a driver whose sensor needs readout
+    time between exposures overrides ``_do_resulting_frame_rate_hz()``. Setting an
+    exposure longer than the period is allowed (the rate drops, the setting stays).
 
     Driver hooks, besides :class:`~drivers.base.Device`'s: ``_do_snap(timeout_s) ->
-    Frame``, ``_do_start_stream(ring)``, ``_do_stop_stream()``, ``_do_trigger()``.
-    ``_do_get_info()`` returns ``sensor_shape``, ``pixel_pitch_um``,
-    ``exposure_range_s``, ``gain_range_db``, ``pixel_formats``, ``max_binning``.
+    Frame``, ``_do_start_stream(ring)``, ``_do_stop_stream()``, ``_do_trigger()``;
+    optional ``_do_resulting_frame_rate_hz()``. ``_do_get_info()`` returns
+    ``sensor_shape``, ``pixel_pitch_um``, ``exposure_range_s``,
+    ``frame_rate_range_hz``, ``gain_range_db``, ``pixel_formats``, ``max_binning``.
     """
 
     kind: ClassVar[str] = "camera"
     timeout_error = CameraTimeoutError
-    _SETTINGS = ("pixel_format", "roi", "binning", "exposure_s", "gain", "trigger_mode")
+    _SETTINGS = ("pixel_format", "roi", "binning", "exposure_s", "frame_rate_hz", "gain",
+                 "trigger_mode")
     _STREAM_LOCKED = frozenset({"pixel_format", "roi", "binning", "trigger_mode"})
 
     def __init__(self, device_id: str, **params: Any) -> None:
@@ -261,6 +270,26 @@ class Camera(Device):
     @exposure_s.setter
     def exposure_s(self, value: float) -> None:
         self._set("exposure_s", value)
+
+    @property
+    def frame_rate_hz(self) -> float:
+        """Requested free-run frame rate in Hz (> 0, within the driver's
+        ``frame_rate_range_hz``); read back from the driver. The camera runs at
+        :attr:`resulting_frame_rate_hz`, which a long exposure lowers."""
+        return self._get("frame_rate_hz")
+
+    @frame_rate_hz.setter
+    def frame_rate_hz(self, value: float) -> None:
+        self._set("frame_rate_hz", value)
+
+    @property
+    def resulting_frame_rate_hz(self) -> float:
+        """Frame rate the camera actually runs at in free run, Hz (read-only): by
+        default ``min(frame_rate_hz, 1 / exposure_s)``, lower if the driver's sensor
+        needs readout time (see the class notes)."""
+        self._require_open()
+        with self._io():
+            return float(self._do_resulting_frame_rate_hz())
 
     @property
     def gain(self) -> float:
@@ -328,6 +357,10 @@ class Camera(Device):
         info = self._info
         if name == "exposure_s":
             lo, hi = info["exposure_range_s"]
+            v = self._float(name, value, low=0.0, low_open=True)
+            v = self._float(name, v, low=lo, high=hi)
+        elif name == "frame_rate_hz":
+            lo, hi = info["frame_rate_range_hz"]
             v = self._float(name, value, low=0.0, low_open=True)
             v = self._float(name, v, low=lo, high=hi)
         elif name == "gain":
@@ -496,6 +529,10 @@ class Camera(Device):
         }
 
     # ----------------------------------------------------------- hooks
+    def _do_resulting_frame_rate_hz(self) -> float:
+        """Free-run rate with the current settings; override when readout adds time."""
+        return min(self._values["frame_rate_hz"], 1.0 / self._values["exposure_s"])
+
     @abc.abstractmethod
     def _do_snap(self, timeout_s: float) -> Frame: ...
 

@@ -362,9 +362,9 @@ def test_sim_clock(monkeypatch):
     monkeypatch.setattr("drivers.simulated.clock.time.sleep", slept.append)
     rt = SimClock(realtime=True)
     rt.advance(0.25)
-    assert slept == [0.25]
+    assert slept == [pytest.approx(0.25, abs=0.01)]  # until the wall-clock deadline
     SimClock().advance(0.25)
-    assert slept == [0.25]  # the default never sleeps
+    assert len(slept) == 1  # the default never sleeps
 
 
 # --------------------------------------------------------------------------- sensor model
@@ -497,3 +497,130 @@ def test_simulated_devices_share_nothing_by_default():
 def test_simulated_shapes_are_checked_before_any_allocation(cls, name, value, message):
     with pytest.raises(DeviceValueError, match=message):
         cls("dev", **{name: value})
+
+
+# --------------------------------------------------------------------------- frame rate, video
+def test_streamed_rate_on_the_sim_clock_equals_the_frame_rate_setting():
+    cam = camera(max_frame_rate_hz=100.0)
+    cam.exposure_s = 0.004
+    cam.frame_rate_hz = 12.5
+    assert cam.frame_rate_hz == 12.5 and cam.resulting_frame_rate_hz == pytest.approx(12.5)
+    ring = FrameRing(64)
+    cam.start_stream(ring)
+    cam.clock.advance(2.0 + 1e-9)
+    cam.stop_stream()
+    assert ring.acquired == 25
+    stamps = [ring.get(0).device_timestamp_s for _ in range(len(ring))]
+    assert np.diff(stamps) == pytest.approx([0.08] * 24)
+
+
+def test_exposure_longer_than_the_frame_period_limits_the_rate():
+    cam = camera(max_frame_rate_hz=100.0)
+    cam.frame_rate_hz = 20.0
+    cam.exposure_s = 0.1  # twice the 50 ms period
+    assert cam.frame_rate_hz == 20.0  # the setting stays, the rate drops
+    assert cam.resulting_frame_rate_hz == pytest.approx(10.0)
+    assert cam.frame_period_s == pytest.approx(0.1)
+    ring = FrameRing(64)
+    cam.start_stream(ring)
+    cam.clock.advance(1.0 + 1e-9)
+    cam.stop_stream()
+    assert ring.acquired == 10
+    with pytest.raises(DeviceValueError, match="frame_rate_hz"):
+        cam.frame_rate_hz = 150.0  # above max_frame_rate_hz
+
+
+def test_frames_of_a_moving_scene_sample_it_mid_exposure():
+    seen = []
+
+    def irradiance(cam):
+        seen.append(cam.frame_time_s)
+        return np.full(SHAPE, 2e4 * (1.0 + cam.frame_time_s))
+
+    cam = camera(irradiance=irradiance, read_noise_e=0.0)
+    cam.exposure_s = 0.01
+    cam.frame_rate_hz = 10.0
+    ring = FrameRing(8)
+    cam.start_stream(ring)
+    frames = [ring.get(timeout_s=1.0) for _ in range(5)]
+    cam.stop_stream()
+    assert seen == pytest.approx([f.device_timestamp_s + 0.005 for f in frames])
+    means = [f.image.mean() for f in frames]
+    assert np.all(np.diff(means) > 0)  # the scene brightens with time, so do the frames
+    assert cam.frame_time_s == cam.clock.now_s  # outside a frame: the clock's time
+
+
+def test_realtime_clock_streams_on_the_wall_clock_from_a_grab_thread():
+    import time
+
+    cam = camera(clock=SimClock(realtime=True), max_frame_rate_hz=200.0,
+                 irradiance=lambda c: np.full(SHAPE, 1e4))
+    cam.exposure_s = 0.002
+    cam.frame_rate_hz = 50.0
+    ring = FrameRing(4)
+    t0 = time.monotonic()
+    cam.start_stream(ring)
+    time.sleep(0.4)  # nobody reads: the ring overflows and counts it
+    c = ring.counters()
+    frame = ring.get_latest(timeout_s=1.0)
+    cam.stop_stream()
+    elapsed = time.monotonic() - t0
+    assert 10 <= c["acquired"] <= 1.2 * 50 * elapsed + 1  # ~20 frames in 0.4 s
+    assert c["skipped"] == c["acquired"] - c["buffered"] and c["buffered"] == 4
+    assert frame.index >= c["acquired"] - 1
+    after = ring.acquired
+    time.sleep(0.05)
+    assert ring.acquired == after  # stopped: the grab thread is gone
+    cam.close()
+
+
+def test_gaussian_shot_noise_above_threshold_and_poisson_below():
+    means = (0.3, 20.0, 2e4)  # electrons in 10 ms: inverse transform, numpy Poisson, Gaussian
+    irr = np.repeat(np.array(means) / 0.01, [16, 16, 32])[None, :] * np.ones((SHAPE[0], 1))
+    irr.flags.writeable = False  # cached maps: fresh noise per frame all the same
+    cam = camera(irradiance=lambda c: irr, read_noise_e=0.0, dark_current_e_per_s=0.0,
+                 hot_pixel_fraction=0.0, adc_bits=16, full_well_e=65535.0, dark_offset_dn=0,
+                 gaussian_shot_noise_above_e=100.0)
+    frames = np.array([cam.snap().image.astype(float) for _ in range(40)])
+    tiny, low, bright = frames[:, :, :16], frames[:, :, 16:32], frames[:, :, 32:]
+    for part, mu in ((tiny, 0.3), (low, 20.0)):  # Poisson: integers, var = mean
+        assert np.all(part == np.round(part)) and part.mean() == pytest.approx(mu, rel=0.03)
+        assert part.var() == pytest.approx(mu, rel=0.05)
+    assert np.mean(tiny == 0) == pytest.approx(math.exp(-0.3), abs=0.01)
+    assert np.mean(tiny == 2) == pytest.approx(math.exp(-0.3) * 0.3**2 / 2, abs=0.005)
+    assert bright.mean() == pytest.approx(2e4, rel=0.01)
+    assert bright.var() == pytest.approx(2e4 + 1 / 12, rel=0.05)
+    assert not np.array_equal(frames[0], frames[1])
+    fast = camera(irradiance=flat(3e5), read_noise_e=5.0, gaussian_shot_noise_above_e=100.0)
+    exact = camera(irradiance=flat(3e5), read_noise_e=5.0)  # the default: exact Poisson
+    a = np.array([fast.snap().image for _ in range(20)], float)
+    b = np.array([exact.snap().image for _ in range(20)], float)
+    assert a.mean() == pytest.approx(b.mean(), rel=2e-3)
+    assert a.var() == pytest.approx(b.var(), rel=0.05)  # shot and read noise alike
+    with pytest.raises(DeviceValueError, match="gaussian_shot_noise_above_e"):
+        camera(gaussian_shot_noise_above_e=1.0)
+
+
+def test_realtime_clock_paces_on_a_wall_clock_anchor(monkeypatch):
+    wall = [100.0]
+    monkeypatch.setattr("drivers.simulated.clock.time.monotonic", lambda: wall[0])
+    monkeypatch.setattr("drivers.simulated.clock.time.sleep",
+                        lambda s: wall.__setitem__(0, wall[0] + s))
+    clock = SimClock(realtime=True, max_lag_s=0.1)
+    clock.advance(0.05)
+    assert wall[0] == pytest.approx(100.05)
+    wall[0] += 0.03  # work between advances (rendering a frame) does not add up
+    clock.advance(0.05)
+    assert wall[0] == pytest.approx(100.10)
+    wall[0] += 5.0  # idle: the clock does not race to catch up
+    clock.advance(0.05)
+    assert wall[0] == pytest.approx(105.15) and clock.slips == 1
+    assert clock.wall_time_until(clock.now_s + 0.2) == pytest.approx(0.2)
+    wall[0] += 0.05
+    clock.resync()  # a short idle gap forgotten too
+    assert clock.wall_time_until(clock.now_s + 0.2) == pytest.approx(0.2)
+    clock.run_until(0.0)  # in the past: nothing happens
+    assert clock.now_s == pytest.approx(0.15)
+    assert SimClock().wall_time_until(5.0) == 0.0
+    with pytest.raises(ValueError, match="max_lag_s"):
+        SimClock(realtime=True, max_lag_s=0)

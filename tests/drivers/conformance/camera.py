@@ -37,6 +37,7 @@ class CameraConformance(DeviceConformance):
             "roi": [1, 2, cols - 3, rows - 4],
             "binning": 2 if device.binning != 2 else 1,
             "exposure_s": device.exposure_s * 2,
+            "frame_rate_hz": device.frame_rate_hz / 2,
             "gain": 3.0 if device.gain != 3.0 else 1.0,
             "trigger_mode": "software" if device.trigger_mode != "software" else "free_run",
         }
@@ -46,6 +47,8 @@ class CameraConformance(DeviceConformance):
         return [
             {"exposure_s": 0}, {"exposure_s": -1e-3}, {"exposure_s": math.nan},
             {"exposure_s": "fast"}, {"exposure_s": 1e9}, {"gain": -1.0}, {"gain": math.inf},
+            {"frame_rate_hz": 0}, {"frame_rate_hz": -5.0}, {"frame_rate_hz": math.nan},
+            {"frame_rate_hz": "fast"}, {"frame_rate_hz": True}, {"frame_rate_hz": 1e9},
             {"pixel_format": "rgb8"}, {"pixel_format": 12},
             {"roi": [0, 0, cols + 1, rows]}, {"roi": [cols, 0, 1, 1]}, {"roi": [0, 0, 10]},
             {"roi": [0, 0, 0, 10]}, {"roi": [-1, 0, 10, 10]}, {"roi": "full"},
@@ -55,6 +58,7 @@ class CameraConformance(DeviceConformance):
         ]
 
     def assert_settings_in_effect(self, device, settings):
+        assert device.frame_rate_hz == pytest.approx(settings["frame_rate_hz"], rel=0.01)
         if settings["trigger_mode"] == "hardware":
             return
         frame = device.snap()
@@ -173,3 +177,38 @@ class CameraConformance(DeviceConformance):
         for bad in (0, -1, math.nan):
             with pytest.raises(DeviceValueError):
                 device.snap(timeout_s=bad)
+
+    def _stream_period_s(self, device, frames: int = 4) -> float:
+        """Median spacing of free-run frames' device timestamps, s."""
+        ring = FrameRing(frames + 2)
+        device.start_stream(ring)
+        try:
+            stamps = [ring.get(timeout_s=5.0).device_timestamp_s for _ in range(frames)]
+        finally:
+            device.stop_stream()
+        return float(np.median(np.diff(stamps)))
+
+    def test_frame_rate_setting_sets_the_free_run_rate(self, device):
+        lo_exposure = device.exposure_s
+        device.exposure_s = min(lo_exposure, 0.002)
+        rate = min(20.0, device.frame_rate_hz)
+        device.frame_rate_hz = rate
+        assert device.frame_rate_hz == pytest.approx(rate, rel=0.01)  # read back
+        resulting = device.resulting_frame_rate_hz
+        assert 0 < resulting <= min(rate, 1.0 / device.exposure_s) * (1 + 1e-6)
+        assert self._stream_period_s(device) == pytest.approx(1.0 / resulting, rel=0.02)
+        device.frame_rate_hz = rate / 2  # changing the rate while streaming is allowed
+        device.start_stream(FrameRing(2))
+        try:
+            device.frame_rate_hz = rate
+        finally:
+            device.stop_stream()
+
+    def test_exposure_longer_than_the_frame_period_limits_the_rate(self, device):
+        rate = min(20.0, device.frame_rate_hz)
+        device.frame_rate_hz = rate
+        device.exposure_s = 2.0 / rate  # twice the requested period: accepted
+        assert device.frame_rate_hz == pytest.approx(rate, rel=0.01)  # the setting stays
+        resulting = device.resulting_frame_rate_hz
+        assert resulting <= rate / 2 * (1 + 1e-6)
+        assert self._stream_period_s(device, 3) == pytest.approx(1.0 / resulting, rel=0.02)
