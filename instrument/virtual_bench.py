@@ -32,6 +32,7 @@ sensor noise is the simulated camera's own, so nothing relies on the inverse cri
 
 from __future__ import annotations
 
+import collections
 import logging
 from dataclasses import dataclass
 
@@ -46,10 +47,13 @@ from .bench_setup import open_bench, with_simulated_drivers
 from .config import BenchConfig, GeometryConfig, default_bench
 from .registry import accepted_params
 from .slm_response import SlmPhaseResponse
+from .video_scenes import VideoScene
 
 log = logging.getLogger(__name__)
 
 BRANCHES = ("lensless", "holography")
+#: Real-time virtual bench: the camera's ``gaussian_shot_noise_above_e`` (electrons).
+REALTIME_GAUSSIAN_ABOVE_E = 100.0
 
 #: Operator actions the virtual bench carries out: action -> (state flag, value).
 ACTIONS = {
@@ -174,6 +178,18 @@ class VirtualBench(Bench):
         (mean-reverting over 600 s; :class:`recon.optics.holo_display.LaserDrift`,
         seeded by ``seed``); 0: a steady laser (a resumed run then reproduces an
         uninterrupted one exactly).
+    realtime : bool
+        Run the simulated clock in real time (``SimClock(realtime=True)``): waits
+        take wall-clock time and a streaming camera delivers frames on the wall clock
+        from its grab thread (live capture and demos); default False (tests, plans).
+        The camera then draws Gaussian shot noise above
+        :data:`REALTIME_GAUSSIAN_ABOVE_E` electrons (unless its bench parameters say
+        otherwise), which makes 20 fps at 1200 x 1600 affordable.
+    render_cache_size : int
+        Noise-free camera images kept (keyed by everything they depend on, including
+        the scene time of a :class:`~instrument.video_scenes.VideoScene`), so a
+        periodic video scene rendered ahead (:meth:`prerender`) streams without
+        re-rendering.
 
     Attributes
     ----------
@@ -183,7 +199,7 @@ class VirtualBench(Bench):
     model : recon.optics.lensless.LenslessModel
     branch : {"lensless", "holography"}
         Which optical path the camera looks through.
-    scene : PlanarScene or BeadScene or TiltedTargetScene or None
+    scene : PlanarScene or BeadScene or TiltedTargetScene or VideoScene or None
     state : dict[str, bool]
         Operator-controlled state: ``camera_capped``, ``diffuser_installed``,
         ``pinhole_installed``, ``nd_filter_installed``.
@@ -202,10 +218,15 @@ class VirtualBench(Bench):
                  prnu_fraction: float = 0.01, falloff_sigma_deg: float | None = 20.0,
                  hologram=None, slm_response: SlmPhaseResponse | None = None,
                  nd_filter_transmission: float = 0.01, relay_na: float | None = 0.05,
-                 laser_drift_per_sqrt_s: float = 1e-3):
+                 laser_drift_per_sqrt_s: float = 1e-3, realtime: bool = False,
+                 render_cache_size: int = 8):
         super().__init__({}, config=with_simulated_drivers(config or default_bench()))
         self.seed = int(seed)
-        self.clock = SimClock()
+        self.clock = SimClock(realtime=realtime)
+        if isinstance(render_cache_size, bool) or not isinstance(render_cache_size, int) or (
+                render_cache_size < 1):
+            raise ValueError(f"render_cache_size={render_cache_size!r}: give an integer >= 1")
+        self.render_cache_size = render_cache_size
         self.geometry = lensless_geometry(self.config.geometry, seed, falloff_sigma_deg)
         self.model = LenslessModel(self.geometry)
         self.source_power = float(source_power_photons_per_s)
@@ -224,12 +245,11 @@ class VirtualBench(Bench):
         self.relay_na = None if relay_na is None else float(relay_na)
         self.laser_drift_per_sqrt_s = float(laser_drift_per_sqrt_s)
         self.branch = "lensless"
-        self.scene: PlanarScene | BeadScene | TiltedTargetScene | None = None
+        self.scene: PlanarScene | BeadScene | TiltedTargetScene | VideoScene | None = None
         self.state = {"camera_capped": False, "diffuser_installed": True,
                       "pinhole_installed": True, "nd_filter_installed": False}
         self._scene_version = 0
-        self._cache_key = None
-        self._cache_value: np.ndarray | None = None
+        self._renders: collections.OrderedDict[tuple, np.ndarray] = collections.OrderedDict()
         self._psf_cache: dict = {}
         self._stray_map: np.ndarray | None = None
 
@@ -245,6 +265,8 @@ class VirtualBench(Bench):
             params["pixel_pitch_um"] = self.geometry.sensor_pitch_um
             extra["irradiance"] = self.irradiance
             extra["prnu_fraction"] = self.prnu_fraction
+            if self.clock.realtime and "gaussian_shot_noise_above_e" not in params:
+                extra["gaussian_shot_noise_above_e"] = REALTIME_GAUSSIAN_ABOVE_E
         params.update({k: v for k, v in extra.items() if accepted is None or k in accepted})
         return cls(dev.id, **params)
 
@@ -291,12 +313,19 @@ class VirtualBench(Bench):
         log.info("virtual bench: %s", message)
 
     # -- the world ---------------------------------------------------------------------
-    def set_scene(self, scene: PlanarScene | BeadScene | TiltedTargetScene | None) -> None:
-        """Put a scene in front of the camera (None removes it)."""
+    def set_scene(self, scene: PlanarScene | BeadScene | TiltedTargetScene | VideoScene | None
+                  ) -> None:
+        """Put a scene in front of the camera (None removes it).
+
+        A :class:`~instrument.video_scenes.VideoScene` changes with time: each frame
+        shows it at the frame's :attr:`~drivers.simulated.SimulatedCamera.frame_time_s`
+        (the middle of the exposure), see :meth:`irradiance`.
+        """
         if scene is not None and not isinstance(scene, PlanarScene | BeadScene
-                                                | TiltedTargetScene):
+                                                | TiltedTargetScene | VideoScene):
             raise ReconInputError(
-                "scene must be a PlanarScene, a BeadScene, a TiltedTargetScene or None")
+                "scene must be a PlanarScene, a BeadScene, a TiltedTargetScene, a video "
+                "scene (instrument.video_scenes) or None")
         self.scene = scene
         self._scene_version += 1
 
@@ -332,10 +361,12 @@ class VirtualBench(Bench):
         return self.source_power * total
 
     def psf(self, xyz_mm) -> np.ndarray:
-        """Ray-traced PSF (fraction of emitted power per pixel), cached per position."""
+        """Ray-traced PSF (fraction of emitted power per pixel), cached per position
+        (rounded to 0.1 um; at least 64 positions, more for a video scene's sources)."""
         key = tuple(round(float(v), 4) for v in xyz_mm)
         if key not in self._psf_cache:
-            if len(self._psf_cache) > 64:
+            n = len(self.scene.sources_at(0.0)[1]) if isinstance(self.scene, VideoScene) else 0
+            if len(self._psf_cache) > max(64, 2 * n):
                 self._psf_cache.clear()
             self._psf_cache[key] = self.model.psf(key)
         return self._psf_cache[key]
@@ -408,7 +439,19 @@ class VirtualBench(Bench):
         clock: a slow multiplicative walk, 1e-3 per sqrt(s) by default). Nothing when the
         camera is capped; times ``nd_filter_transmission`` with the ND filter in. Cached
         on everything it depends on (branch, sources, operator state, scene, SLM
-        pattern and mask pose), so streaming a static bench costs nothing.
+        pattern and mask pose), so streaming a static bench costs nothing; the last
+        ``render_cache_size`` images are kept.
+
+        A video scene is shown at its scene time for ``camera.frame_time_s`` (the
+        bench time for a camera without it): each bead or cell is a point source
+        rendered with the ray-traced PSF of its position (:meth:`psf`, the pinhole's
+        path), so cells that do not move cost one PSF each, once.
+
+        Returns
+        -------
+        ndarray, float64, (rows, cols)
+            Read-only (the simulated camera keeps its per-pixel maps while the same
+            read-only array comes back).
         """
         state = tuple(sorted(self.state.items()))
         if self.branch == "holography":
@@ -418,15 +461,17 @@ class VirtualBench(Bench):
         else:
             gray = pose = None
             sources = () if self.state["camera_capped"] else self.point_sources()
-            key = ("lensless", sources, state, self._scene_version)
+            key = ("lensless", sources, state, self._scene_version, self._scene_time(camera))
         drift = 1.0
         if self.branch == "holography":  # the laser's power walks with bench time
             d = self.hologram.drift
             if self.now_s() > d.time_s:
                 d.advance(self.now_s() - d.time_s)
             drift = d.factor
-        if key == self._cache_key and self._cache_value is not None:
-            return self._cache_value * drift if drift != 1.0 else self._cache_value
+        cached = self._renders.get(key)
+        if cached is not None:
+            self._renders.move_to_end(key)
+            return cached * drift if drift != 1.0 else cached
         value = np.zeros(self.geometry.sensor_shape)
         if self.state["camera_capped"]:
             pass
@@ -439,19 +484,73 @@ class VirtualBench(Bench):
                 if self.stray_light_fraction > 0:
                     value += (self.stray_light_fraction * power * float(psf.sum())
                               * self.stray_light_map())
-            value += self._scene_image()
+            value += self._scene_image(key[-1])
         else:
             for pos, power in sources:
                 value += power * self.bare_sensor_irradiance(pos)
         if self.state["nd_filter_installed"]:
             value = value * self.nd_filter_transmission
-        self._cache_key, self._cache_value = key, value
+        value.flags.writeable = False
+        self._renders[key] = value
+        while len(self._renders) > self.render_cache_size:
+            self._renders.popitem(last=False)
         return value * drift if drift != 1.0 else value
 
-    def _scene_image(self) -> np.ndarray:
+    def _scene_time(self, camera) -> float | None:
+        """Scene time a camera frame shows (None: the scene does not change)."""
+        if not isinstance(self.scene, VideoScene):
+            return None
+        t = getattr(camera, "frame_time_s", None)
+        return self.scene.scene_time(self.now_s() if t is None else t)
+
+    def prerender(self, times_s=None) -> int:
+        """Render the video scene ahead of streaming, for the lensless camera as the
+        bench is now (sources, operator state).
+
+        Parameters
+        ----------
+        times_s : array_like of float, optional
+            Times to render, s; default every distinct scene time
+            (:meth:`~instrument.video_scenes.VideoScene.distinct_times`).
+
+        Returns
+        -------
+        int
+            Distinct renders now cached (at most ``render_cache_size``; raise it to
+            hold a whole period).
+
+        Raises
+        ------
+        ReconInputError
+            No video scene, or no ``times_s`` for a scene without finitely many
+            distinct times.
+        """
+        s = self.scene
+        if not isinstance(s, VideoScene):
+            raise ReconInputError("prerender needs a video scene; call set_scene() first")
+        times = s.distinct_times() if times_s is None else np.atleast_1d(
+            np.asarray(times_s, float))
+        if times is None:
+            raise ReconInputError(
+                "this scene has no finite set of distinct times (give time_step_s to a "
+                "periodic scene), so pass times_s")
+        distinct = sorted({s.scene_time(t) for t in times})
+        probe = _SceneProbe()
+        for t in distinct:
+            probe.frame_time_s = t
+            self.irradiance(probe)
+        return min(len(distinct), self.render_cache_size)
+
+    def _scene_image(self, scene_time_s: float | None = None) -> np.ndarray:
         s = self.scene
         if s is None:
             return 0.0
+        if isinstance(s, VideoScene):
+            out = np.zeros(self.geometry.sensor_shape)
+            for pos, power in zip(*s.sources_at(scene_time_s), strict=True):
+                if power > 0:
+                    out += power * self.psf(pos)
+            return out
         if isinstance(s, PlanarScene):
             return s.radiance * self.model.render(np.asarray(s.image, float), s.z_mm,
                                                   s.width_mm)
@@ -524,3 +623,10 @@ class VirtualBench(Bench):
         cs = slice(max(c0, 0), min(c0 + shape[1], cols))
         out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
         return out
+
+
+class _SceneProbe:
+    """Stands in for the camera in :meth:`VirtualBench.prerender`: only its
+    ``frame_time_s`` is read."""
+
+    frame_time_s: float = 0.0
