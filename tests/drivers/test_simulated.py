@@ -624,3 +624,16 @@ def test_realtime_clock_paces_on_a_wall_clock_anchor(monkeypatch):
     assert SimClock().wall_time_until(5.0) == 0.0
     with pytest.raises(ValueError, match="max_lag_s"):
         SimClock(realtime=True, max_lag_s=0)
+
+
+def test_realtime_stream_reports_an_unplugged_camera_to_the_reader():
+    cam = camera(clock=SimClock(realtime=True), max_frame_rate_hz=100.0)
+    cam.exposure_s = 0.002
+    ring = FrameRing(4)
+    cam.start_stream(ring)
+    ring.get(timeout_s=1.0)
+    cam.faults.disconnect()
+    with pytest.raises(DeviceDisconnectedError, match="unplugged"):
+        for _ in range(200):  # the buffered frames, then the error
+            ring.get(timeout_s=1.0)
+    cam.stop_stream()
