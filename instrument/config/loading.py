@@ -101,9 +101,16 @@ def validate_bench_text(text: str, *, source: str | None = None
     Raises
     ------
     BenchConfigError
-        A TOML syntax error (with its line and column): nothing else can be checked.
+        A TOML syntax error (with its line and column), or an empty document or one
+        with none of the bench keys (:data:`BENCH_KEYS`): nothing else can be checked.
     """
     raw = _parse_toml(text, source)
+    if not set(raw) & BENCH_KEYS:  # not one problem per missing key: one line
+        what = f"it holds {', '.join(sorted(raw)[:5])}" if raw else "it is empty"
+        raise BenchConfigError([Problem(
+            "(file)", f"not a bench file ({what}; a bench file has "
+            f"{', '.join(sorted(BENCH_KEYS))})",
+            "give a bench file; start from examples/bench-simulated.toml")], source)
     deep = _cut_too_deep(raw)
     problems: list[Problem] = []
     config = None
@@ -135,6 +142,10 @@ def validate_bench_text(text: str, *, source: str | None = None
     ]
     return raw, config, problems
 
+
+#: Top-level keys of which a bench file has at least one (anything else is another
+#: kind of TOML file, refused in one line rather than one line per missing key).
+BENCH_KEYS = frozenset({"name", "devices", "geometry", "branches", "calibration"})
 
 #: How deep tables and arrays may nest in a bench file (the deepest the models use is 5:
 #: ``devices[0].params.axes.x``); deeper values are refused before validation.
