@@ -88,13 +88,29 @@ def _truth(args):
                          tilt_rad=args.sim_tilt_mrad * 1e-3)
 
 
+def _load_pattern(path: str):
+    """The ``--mask-pattern`` array, or PlanError naming the file (np.load's own errors
+    name neither the file nor the option)."""
+    import numpy as np
+
+    from instrument.plan import PlanError
+
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, EOFError) as exc:  # empty, truncated, text or object arrays
+        raise PlanError(f"--mask-pattern {path}: cannot read it as a .npy array ({exc}); "
+                        "give the installed mask's pattern as saved by numpy.save") from None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``align mask``; returns the exit status."""
     from drivers.errors import DeviceError
     from instrument.cli.common import MissingBenchFile
+    from instrument.config import BenchConfigError
     from instrument.output_safety import check_outputs
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl
+    from instrument.runstore import RunStoreError
     from recon.errors import ReconInputError
     from recon.optics.holo_display import MaskModel
 
@@ -116,11 +132,12 @@ def run(args: argparse.Namespace) -> int:
         if not args.simulate and args.mask_seed is None and args.mask_pattern is None:
             raise PlanError("on a real bench, pass --mask-pattern FILE.npy or --mask-seed "
                             "(the installed mask's pattern)")
-        pattern = None
-        if args.mask_pattern is not None:
-            import numpy as np
+        pattern = None if args.mask_pattern is None else _load_pattern(args.mask_pattern)
+        lut = None
+        if args.lut:
+            from ..slm_lut_io import load_lut
 
-            pattern = np.load(args.mask_pattern, allow_pickle=False)
+            lut = load_lut(args.lut)  # RunStoreError: not a run, or no slm_lut product
         bench = make_bench(args, "align mask")
         relay_na = args.relay_na
         if relay_na is None and args.simulate:
@@ -130,15 +147,19 @@ def run(args: argparse.Namespace) -> int:
                               relay_na=relay_na, focus_range_mm=args.focus_range_mm)
         if args.simulate:
             bench.open()
-    except (OSError, ValueError, PlanError, DeviceError, ReconInputError,
+    except BenchConfigError as exc:  # one line per problem of the bench file
+        for line in exc.lines():
+            print(f"diffuserlab: error: {line}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError, PlanError, DeviceError, ReconInputError, RunStoreError,
             MissingBenchFile) as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
     control = RunControl()
     try:
         with bench, holography_branch(bench):
-            if args.lut:
-                lut = apply_lut(bench.slm, args.lut)
+            if lut is not None:
+                apply_lut(bench.slm, lut)
                 print(f"SLM LUT loaded from {args.lut} ({lut.wavelength_nm:g} nm)")
             elif args.simulate:
                 print("note: the SLM LUT is the driver's linear default; run `diffuserlab "

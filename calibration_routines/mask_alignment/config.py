@@ -108,6 +108,9 @@ class AlignmentConfig:
     hologram_min_correlation: float = 0.9
 
     def __post_init__(self):
+        if self.frames < 1:
+            raise PlanError(f"frames must be >= 1 (captures averaged per reading), got "
+                            f"{self.frames}")
         if self.repeats < 2:
             raise PlanError("repeats must be >= 2 (a noise estimate needs two captures)")
         if not 0 < self.central_fraction <= 1:
