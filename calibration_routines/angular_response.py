@@ -147,8 +147,9 @@ class AngularResponsePlan(Plan):
         if not (math.isfinite(d_mm) and d_mm > 0):
             raise PlanError(f"d_mm={d_mm!r}: the diffuser-sensor distance must be > 0 mm "
                             "(build the plan with AngularResponsePlan.for_bench)")
-        if not (math.isfinite(z_mm) and z_mm + d_mm > 0):
-            raise PlanError(f"z_mm={z_mm!r}: the pinhole must be in front of the sensor")
+        if not (math.isfinite(z_mm) and z_mm > 0):
+            raise PlanError(f"z_mm={z_mm!r} (--z-mm): the pinhole must be in front of the "
+                            "diffuser, at a depth > 0 mm")
         if not 0 < max_angle_deg < 85:
             raise PlanError(f"max_angle_deg={max_angle_deg!r}: use an angle in (0, 85) deg")
         if int(n_angles) != n_angles or n_angles < 3:

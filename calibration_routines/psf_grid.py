@@ -25,6 +25,8 @@ darks. Products (:meth:`PsfGridPlan.reduce`):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import ndimage
 
@@ -34,6 +36,27 @@ from recon.analysis import lateral_calibration_spacing_mm, register_shift, remov
 from ._common import backlight_leds, lit_capture_steps, sensor_geometry, signal_minus_dark
 
 __all__ = ["PsfGridPlan"]
+
+
+def _check_grid_numbers(*, n, spacing_mm, z_mm, led_step, falloff_sigma_deg) -> None:
+    """PlanError naming the option of a grid number that makes no sense (before any
+    run is created)."""
+    def whole(v, low):
+        return not isinstance(v, bool) and isinstance(v, int | np.integer) and v >= low
+
+    def positive(v):
+        return isinstance(v, int | float) and math.isfinite(v) and v > 0
+
+    if not whole(n, 2):
+        raise PlanError(f"n={n!r} (--n): a grid needs a whole number >= 2 of positions a side")
+    if not whole(led_step, 1):
+        raise PlanError(f"led_step={led_step!r} (--led-step): use every k-th LED, k >= 1")
+    for name, value in (("spacing_mm", spacing_mm), ("falloff_sigma_deg", falloff_sigma_deg)):
+        if value is not None and not positive(value):
+            raise PlanError(f"{name}={value!r} (--{name.replace('_', '-')}): give a "
+                            "number > 0")
+    if not positive(z_mm):
+        raise PlanError(f"z_mm={z_mm!r} (--z-mm): the pinhole depth must be > 0 mm")
 
 
 @register_plan
@@ -102,6 +125,8 @@ class PsfGridPlan(Plan):
         PlanError
             The grid leaves the stage travel or the LED array.
         """
+        _check_grid_numbers(n=n, spacing_mm=spacing_mm, z_mm=z_mm, led_step=led_step,
+                            falloff_sigma_deg=params.get("falloff_sigma_deg"))
         d_mm, pitch_mm, _ = sensor_geometry(bench.config)
         params.setdefault("frames_per_point", bench.config.calibration.frames_per_point)
         offsets = np.arange(n) - (n - 1) / 2

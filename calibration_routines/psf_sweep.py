@@ -66,6 +66,12 @@ def sweep_depths(z_min_mm: float, z_max_mm: float, *, spacing: str = "inverse",
     """
     if not (0 < z_min_mm < z_max_mm) or not math.isfinite(z_max_mm):
         raise PlanError(f"z range ({z_min_mm}, {z_max_mm}) mm: need 0 < z_min < z_max")
+    if n_depths is not None and (isinstance(n_depths, bool) or n_depths != int(n_depths)
+                                 or n_depths < 2):
+        raise PlanError(f"n_depths={n_depths!r} (--n-depths): a sweep needs a whole number "
+                        ">= 2 of depths")
+    if c_per_mm is not None and not (math.isfinite(c_per_mm) and c_per_mm > 0):
+        raise PlanError(f"c_per_mm={c_per_mm!r} (--c-per-mm): give a step in 1/z > 0 per mm")
     if spacing == "uniform":
         if n_depths is None or c_per_mm is not None:
             raise PlanError("uniform spacing takes n_depths (not c_per_mm)")

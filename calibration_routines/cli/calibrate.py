@@ -245,6 +245,10 @@ def run(args: argparse.Namespace) -> int:
     from instrument.runner import Runner
     from instrument.runstore import RunStore, RunStoreError, is_run_store
 
+    if not args.reconnect_timeout_s >= 0:  # NaN fails too
+        print(f"diffuserlab: error: --reconnect-timeout {args.reconnect_timeout_s}: give the "
+              "seconds to keep reconnecting a device, >= 0", file=sys.stderr)
+        return 2
     out = None
     if args.routine != "resume":  # outputs and input runs checked before the bench opens
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")

@@ -129,8 +129,10 @@ def test_positions_beyond_the_stage_travel_are_refused():
         # (10 + 8.9) tan(60 deg) = 32.7 mm > 25 mm
         with pytest.raises(PlanError, match="lower max_angle_deg to 52.9 deg"):
             AngularResponsePlan.for_bench(vb, max_angle_deg=60.0)
-        with pytest.raises(PlanError, match="z range"):
+        with pytest.raises(PlanError, match="in front of the diffuser"):
             AngularResponsePlan.for_bench(vb, z_mm=-5.0)
+        with pytest.raises(PlanError, match="z range"):
+            AngularResponsePlan.for_bench(vb, z_mm=300.0)
         # soft limits and backlash narrow the reach
         vb.source_stage.limits = {"y": (-10.0, 10.0)}
         vb.source_stage.backlash = {"x": 1.0}
