@@ -25,10 +25,6 @@ REPO = Path(__file__).resolve().parents[2]
 SHAPE = (32, 32)
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "slow: a fault case that takes more than a few seconds")
-
-
 # ----------------------------------------------------------------------------- valid inputs
 
 

@@ -11,9 +11,6 @@ commands' outputs and every other input class.
 
 Not here, by design: ``runs verify`` of a store with deleted or altered chunks exits 1
 and lists the damage (``runs show`` marks it DAMAGED), see the README's "Data safety".
-
-A case whose fix lies in a file outside the command line is marked ``xfail`` with
-the file and the problem (strict: it fails once fixed, so the mark is removed).
 """
 
 from __future__ import annotations
@@ -30,16 +27,12 @@ CLASSES = ("missing", "empty", "truncated", "mislabelled", "shape", "dtype", "no
            "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench")
 
 
-def case(command: str, cls: str, what: str, words: str, *, xfail: str | None = None,
-         slow: bool = False):
+def case(command: str, cls: str, what: str, words: str):
     """One row: ``command`` (split like a shell), its input class, a short name and the
-    words (``|``-separated) the error line must hold; ``xfail``: the file and problem
-    that make it fail today; ``slow``: it takes seconds (the command does real work)."""
+    words (``|``-separated) the error line must hold."""
     assert cls in CLASSES, cls
-    marks = [pytest.mark.xfail(strict=True, reason=xfail)] if xfail else []
-    marks += [pytest.mark.slow] if slow else []
     return pytest.param(shlex.split(command), [w for w in words.split("|") if w],
-                        id=f"{_command(command)}:{cls}:{what}", marks=marks)
+                        id=f"{_command(command)}:{cls}:{what}")
 
 
 def _command(command: str) -> str:
@@ -51,20 +44,6 @@ def _command(command: str) -> str:
         words.append(word)
     return " ".join(words[:2])
 
-
-# Problems whose fix lies outside instrument/cli (see the module docstring).
-NOT_BENCH = ("instrument/config: an empty TOML or one that is not a bench file gives one "
-             "line per missing key (3-4 'diffuserlab: error:' lines), not one line saying it "
-             "is not a bench file")
-ALIGN_NPY = ("calibration_routines/cli/align.py: np.load errors of --mask-pattern are passed "
-             "on raw, without the file or option ('Failed to read all data for array...', "
-             "'Object arrays cannot be loaded...'); an empty file escapes as EOFError, exit 1 "
-             "internal error")
-ALIGN_LUT = ("calibration_routines/cli/align.py: a --lut that is missing, not a run store or "
-             "without slm_lut is found only after the bench opened: 'alignment failed: ...' "
-             "+ 'record: ...', exit 1")
-ALIGN_FRAMES = ("calibration_routines/cli/align.py: --frames 0 is refused only inside the "
-                "alignment: exit 1, two lines, the record o/al.align written")
 
 R = "recon --iterations 2 --out o/r"
 R2 = f"{R} --psf psf.npy --raw raw.tif"
@@ -238,15 +217,13 @@ ANALYZE = [
 BENCH = [
     case("validate nope.toml", "missing", "bench file", "nope.toml"),
     case("validate", "missing", "no file no simulate", "--simulate"),
-    case("validate empty.toml", "empty", "bench file", "empty.toml", xfail=NOT_BENCH),
+    case("validate empty.toml", "empty", "bench file", "empty.toml"),
     case("validate trunc_bench.toml", "truncated", "bench file", "trunc_bench.toml"),
     case("validate binary.toml", "mislabelled", "binary", "binary.toml"),
-    case("validate foreign.toml", "foreign-bench", "not a bench", "foreign.toml",
-         xfail=NOT_BENCH),
+    case("validate foreign.toml", "foreign-bench", "not a bench", "foreign.toml"),
     case("validate psf.npy", "mislabelled", "npy as bench", "psf.npy"),
     case("devices nope.toml", "missing", "bench file", "nope.toml"),
-    case("devices foreign.toml", "foreign-bench", "not a bench", "foreign.toml",
-         xfail=NOT_BENCH),
+    case("devices foreign.toml", "foreign-bench", "not a bench", "foreign.toml"),
     case("devices --timeout 0", "number", "timeout 0", "--timeout"),
     case("devices --timeout nan", "number", "timeout nan", "--timeout"),
     case("devices --timeout -1", "number", "timeout -1", "--timeout"),
@@ -351,11 +328,6 @@ HOLO = [
     case(f"{HB} --json raw.tif", "clash", "json exists", "exists"),
 ]
 
-CAL_NDEPTHS = ("calibration_routines/psf_sweep.py: 'n must be an integer >= 2, got 0' does "
-               "not name --n-depths")
-CAL_RUNS = ("calibration_routines: the plan accepts the value; the run starts (run store "
-            "written, progress bar on stderr) and {}")
-
 C = "calibrate {} --simulate --out o/c.zarr"
 CD = C.format("dark") + " --frames 2"
 CS, CG = C.format("psf-sweep") + " --frames 1", C.format("psf-grid") + " --frames 1"
@@ -363,22 +335,18 @@ CA, CL = C.format("angular-response") + " --frames 1", C.format("slm-lut") + " -
 CALIBRATE = [
     case("calibrate dark nope.toml --out o/c.zarr", "missing", "bench file", "nope.toml"),
     case("calibrate dark --out o/c.zarr", "missing", "no bench no simulate", "--simulate"),
-    case("calibrate dark empty.toml --simulate --out o/c.zarr", "empty", "bench", "empty.toml",
-         xfail=NOT_BENCH),
+    case("calibrate dark empty.toml --simulate --out o/c.zarr", "empty", "bench", "empty.toml"),
     case("calibrate dark trunc_bench.toml --simulate --out o/c.zarr", "truncated", "bench",
          "trunc_bench.toml"),
     case("calibrate dark foreign.toml --simulate --out o/c.zarr", "foreign-bench",
-         "not a bench", "foreign.toml", xfail=NOT_BENCH),
+         "not a bench", "foreign.toml"),
     case("calibrate dark binary.toml --simulate --out o/c.zarr", "mislabelled",
          "binary bench", "binary.toml"),
     case(f"{CD} --frames 0", "number", "frames 0", "frames"),
     case(f"{CD} --frames -3", "number", "frames -3", "frames"),
     case(f"{CD} --exposure-s -1", "number", "exposure -1", "exposure"),
     case(f"{CD} --exposure-s nan", "number", "exposure nan", "exposure"),
-    case(f"{CD} --reconnect-timeout -1", "number", "reconnect timeout -1", "reconnect",
-         slow=True,
-         xfail="calibration_routines/cli/calibrate.py: --reconnect-timeout -1 is accepted; "
-         "the dark run completes (exit 0)"),
+    case(f"{CD} --reconnect-timeout -1", "number", "reconnect timeout -1", "reconnect"),
     case(f"{CD} --seed -1", "number", "seed -1", "seed"),
     case("calibrate dark --simulate --out file.txt/c.zarr", "unwritable", "out under a file",
          "file.txt"),
@@ -394,32 +362,21 @@ CALIBRATE = [
     case(f"{CS} --z-min 100 --z-max 20", "number", "z range reversed", "z"),
     case(f"{CS} --z-min -10 --z-max 20", "number", "z-min negative", "z"),
     case(f"{CS} --z-min nan", "number", "z-min nan", "z"),
-    case(f"{CS} --n-depths 0", "number", "n-depths 0", "depths", xfail=CAL_NDEPTHS),
+    case(f"{CS} --n-depths 0", "number", "n-depths 0", "depths"),
     case(f"{CS} --c-per-mm -1", "number", "c-per-mm -1", "c_per_mm"),
     case(f"{CG} --n 0", "number", "n 0", "n"),
     case(f"{CG} --n -3", "number", "n -3", "n"),
-    case(f"{CG} --n 2 --led-step 0", "number", "led-step 0", "led", slow=True,
-         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format(
-             "fails at its first point (a store left in o/c.zarr)")),
-    case(f"{CG} --n 2 --mode stage --spacing-mm -1", "number", "spacing -1", "spacing",
-         slow=True,
-         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format("completes, exit 0")),
-    case(f"{CG} --mode stage --z-mm 0", "number", "z 0", "z",
-         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format(
-             "z = 0 is refused only then (a store left in o/c.zarr)")),
-    case(f"{CG} --n 2 --falloff-sigma-deg nan", "number", "falloff nan", "falloff",
-         slow=True,
-         xfail="calibration_routines/psf_grid.py: " + CAL_RUNS.format(
-             "fails later (a store left in o/c.zarr)")),
+    case(f"{CG} --n 2 --led-step 0", "number", "led-step 0", "led"),
+    case(f"{CG} --n 2 --mode stage --spacing-mm -1", "number", "spacing -1", "spacing"),
+    case(f"{CG} --mode stage --z-mm 0", "number", "z 0", "z"),
+    case(f"{CG} --n 2 --falloff-sigma-deg nan", "number", "falloff nan", "falloff"),
     case(f"{CG} --falloff-run nope.zarr", "missing", "falloff run", "nope.zarr"),
     case(f"{CG} --falloff-run dark.zarr", "foreign-bench", "falloff run of another routine",
          "dark.zarr"),
     case(f"{CA} --n-angles 0", "number", "n-angles 0", "angles"),
     case(f"{CA} --max-angle-deg -5", "number", "max angle -5", "angle"),
     case(f"{CA} --max-angle-deg 100", "number", "max angle 100", "angle"),
-    case(f"{CA} --n-angles 3 --z-mm 0", "number", "source at z 0", "z", slow=True,
-         xfail="calibration_routines/angular_response.py: " + CAL_RUNS.format(
-             "completes, exit 0")),
+    case(f"{CA} --n-angles 3 --z-mm 0", "number", "source at z 0", "z"),
     case(f"{CL} --levels 3", "number", "levels 3", "levels"),
     case(f"{CL} --levels 1000", "number", "levels 1000", "levels"),
     case(f"{CL} --period-px 7", "number", "period odd", "period"),
@@ -437,7 +394,7 @@ CALIBRATE = [
     case("calibrate resume dark.zarr --simulate --redo a", "number", "redo a", "--redo"),
     case("calibrate resume dark.zarr --simulate --redo 999", "number", "redo 999", "999"),
     case("calibrate resume dark.zarr foreign.toml --simulate", "foreign-bench",
-         "not a bench", "foreign.toml", xfail=NOT_BENCH),
+         "not a bench", "foreign.toml"),
     case("calibrate resume dark.zarr other_bench.toml --simulate", "foreign-bench",
          "bench of another setup", "another set-up|diffuser_sensor_distance_mm"),
 ]
@@ -445,34 +402,30 @@ CALIBRATE = [
 AM = "align mask --simulate --out o/al.align"
 ALIGN = [
     case(f"{AM} --mask-pattern nope.npy", "missing", "pattern", "nope.npy"),
-    case(f"{AM} --mask-pattern empty.npy", "empty", "pattern", "empty.npy", xfail=ALIGN_NPY),
-    case(f"{AM} --mask-pattern trunc_psf.npy", "truncated", "pattern", "trunc_psf.npy",
-         xfail=ALIGN_NPY),
-    case(f"{AM} --mask-pattern text.npy", "mislabelled", "pattern", "text.npy",
-         xfail=ALIGN_NPY),
+    case(f"{AM} --mask-pattern empty.npy", "empty", "pattern", "empty.npy"),
+    case(f"{AM} --mask-pattern trunc_psf.npy", "truncated", "pattern", "trunc_psf.npy"),
+    case(f"{AM} --mask-pattern text.npy", "mislabelled", "pattern", "text.npy"),
     case(f"{AM} --mask-pattern bad_pattern.npy", "shape", "pattern", "bad_pattern.npy"),
     case(f"{AM} --mask-pattern complex.npy", "dtype", "pattern", "complex.npy"),
-    case(f"{AM} --mask-pattern object.npy", "dtype", "object pattern", "object.npy",
-         xfail=ALIGN_NPY),
+    case(f"{AM} --mask-pattern object.npy", "dtype", "object pattern", "object.npy"),
     case(f"{AM} --mask-pattern nan.npy", "nonfinite", "pattern", "nan.npy"),
     case(f"{AM} --k 0", "number", "k 0", "k"),
-    case(f"{AM} --frames 0", "number", "frames 0", "frames", xfail=ALIGN_FRAMES),
+    case(f"{AM} --frames 0", "number", "frames 0", "frames"),
     case(f"{AM} --coarse-range-px -1", "number", "coarse range -1", "coarse"),
     case(f"{AM} --relay-na nan", "number", "relay na nan", "na"),
     case(f"{AM} --relay-na -0.1", "number", "relay na -0.1", "na"),
     case(f"{AM} --focus-range-mm 0", "number", "focus range 0", "focus"),
     case(f"{AM} --mask-margin -1", "number", "margin -1", "margin"),
-    case(f"{AM} --lut nope.zarr", "missing", "lut", "nope.zarr", xfail=ALIGN_LUT),
-    case(f"{AM} --lut dark.zarr", "foreign-bench", "lut is a dark run", "dark.zarr",
-         xfail=ALIGN_LUT),
-    case(f"{AM} --lut text.npy", "mislabelled", "lut text", "text.npy", xfail=ALIGN_LUT),
+    case(f"{AM} --lut nope.zarr", "missing", "lut", "nope.zarr"),
+    case(f"{AM} --lut dark.zarr", "foreign-bench", "lut is a dark run", "dark.zarr"),
+    case(f"{AM} --lut text.npy", "mislabelled", "lut text", "text.npy"),
     case("align mask --simulate --out file.txt/al.align", "unwritable", "out under a file",
          "file.txt"),
     case("align mask --simulate --out /proc/x/al.align", "unwritable", "out in /proc",
          "/proc/x"),
     case("align mask --simulate --out raw.tif", "clash", "out is a file", "raw.tif"),
     case("align mask foreign.toml --simulate --out o/al.align", "foreign-bench",
-         "not a bench", "foreign.toml", xfail=NOT_BENCH),
+         "not a bench", "foreign.toml"),
     case("align mask --out o/al.align", "missing", "real bench without pattern", "pattern"),
 ]
 
