@@ -19,6 +19,8 @@ from pathlib import Path
 
 from recon.errors import ReconInputError
 
+from .runstore import is_run_store
+
 __all__ = ["OutputError", "check_outputs"]
 
 log = logging.getLogger(__name__)
@@ -87,9 +89,10 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
     Raises
     ------
     OutputError
-        An output is an input or lies inside an input directory, or is written
-        twice (e.g. ``--metrics-json`` naming the image ``--out`` writes); an output exists
-        (without ``overwrite``) or is a directory where a file is written; the output
+        An output is an input or lies inside an input directory or inside any run
+        store, or is written twice (e.g. ``--metrics-json`` naming the image
+        ``--out`` writes); an output exists (without ``overwrite``) or is a
+        directory where a file is written; the output
         directory is a file, cannot be created or is not writable. The message is
         one line naming the paths.
 
@@ -118,6 +121,10 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
                 what = "is" if target == src else "is inside"
                 raise OutputError(f"output {out} {what} the input {name} {src}; choose "
                                   f"another {option}")
+        run = next((p for p in target.parents if is_run_store(p)), None)
+        if run is not None:
+            raise OutputError(f"output {out} is inside the run store {run}; a run holds only "
+                              f"what its runs wrote - choose another {option} outside it")
         if target.is_dir() and not (store or target.suffix.lower() == ".zarr"
                                     or (target / "zarr.json").is_file()):
             raise OutputError(f"output {out} is a directory; give a file name")

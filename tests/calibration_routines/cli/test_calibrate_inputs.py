@@ -53,6 +53,9 @@ CASES = {
         "camera: exposure_s=1000.0 is not a number in range"),
     "align out exists": (["align", "mask", "--simulate", "--out", "{d}/file.txt"],
                          "an alignment record is never replaced"),
+    "align out inside a run store": (
+        ["align", "mask", "--simulate", "--out", "{d}/dark.zarr/x.align"],
+        "is inside the run store"),
     "align out inside the lut": (
         ["align", "mask", "--simulate", "--lut", "{d}/dark.zarr", "--out",
          "{d}/dark.zarr/x.align"], "is inside the input --lut"),

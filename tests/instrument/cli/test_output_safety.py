@@ -94,6 +94,13 @@ def _cases(d):
             ["summary.json", "exists"]),
         "benchmark out is a file": (
             ["benchmark", "recon", "--quick", "--out", d / "file.txt"], ["is a file"]),
+        "recon out inside a run store": (
+            [*recon, "--out", d / "run.zarr" / "r.tif"], ["inside the run store", "run.zarr"]),
+        "demo out inside a run store": (
+            ["demo", "--out", d / "run.zarr" / "demo"], ["inside the run store"]),
+        "runs export out inside the run it exports": (
+            ["runs", "export", d / "run.zarr", "--out", d / "run.zarr" / "x.tif"],
+            ["inside"]),
     }
 
 
