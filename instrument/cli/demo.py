@@ -31,9 +31,10 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
 
-    if args.seed < 0 or args.iterations < 1:
-        raise ReconInputError(f"--seed must be >= 0 (got {args.seed}) and --iterations >= 1 "
-                              f"(got {args.iterations})")
+    if args.seed < 0:
+        raise ReconInputError(f"--seed {args.seed}: give a seed >= 0")
+    if args.iterations < 1:
+        raise ReconInputError(f"--iterations {args.iterations}: give a count >= 1")
     out = Path(args.out)
     if not args.real_sample:
         from ..demo import OUTPUT_FILES, run_demo

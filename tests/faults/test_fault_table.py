@@ -433,6 +433,8 @@ DEMO = [
     case("demo --out o/demo --iterations 0", "number", "iterations 0", "--iterations"),
     case("demo --out o/demo --method newton", "number", "method", "newton"),
     case("demo --out o/demo --seed x", "number", "seed x", "--seed"),
+    case("demo --out o/demo --seed -1", "number", "seed -1", "--seed"),
+    case("demo --out file.txt", "clash", "out is a file", "file.txt|not a directory"),
     case("demo --real-sample --out o/demo --iterations -1", "number", "real sample it -1",
          "--iterations"),
     case("demo --out /proc/x/demo", "unwritable", "out in /proc", "/proc/x"),
