@@ -10,6 +10,7 @@ balanced from the primal and dual residuals (Boyd et al. 2011, Sec. 3.4.1).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -133,6 +134,202 @@ def rescale_duals(splits) -> None:
             q += a
 
 
+@dataclass
+class AdmmPlan:
+    """What ADMM precomputes from the operator alone, reusable across measurements.
+
+    Attributes
+    ----------
+    op : ConvolutionOperator
+        The forward model.
+    shape : (P0, P1)
+        ``op.padded_shape``.
+    wp : ndarray, float32, shape (P0, P1)
+        Sensor weights zero-padded to the object domain (zero weight off the sensor
+        gives the plain v = t update, so the fused pass is branch-free).
+    h_pow : ndarray, float32, shape (P0, P1 // 2 + 1)
+        |F P h|^2, the PSF's power spectrum.
+    d_pow : ndarray, float32, shape (P0, P1 // 2 + 1)
+        |F Psi|^2 summed over the axes (finite differences).
+    """
+
+    op: ConvolutionOperator
+    shape: tuple[int, int]
+    wp: np.ndarray
+    h_pow: np.ndarray
+    d_pow: np.ndarray
+
+    @classmethod
+    def of(cls, op: ConvolutionOperator) -> AdmmPlan:
+        """Precompute for ``op``.
+
+        Raises
+        ------
+        ReconInputError
+            ``op`` is not a :class:`~recon.operators.ConvolutionOperator`.
+        """
+        if not isinstance(op, ConvolutionOperator):
+            raise ReconInputError("ADMM here needs a ConvolutionOperator (optionally masked)")
+        wp = np.zeros(op.padded_shape, np.float32)
+        wp[op.crop] = op.sensor_weights
+        spec = op.spectrum
+        return cls(op, op.padded_shape, wp, (spec.real**2 + spec.imag**2).astype(np.float32),
+                   _difference_power(op.padded_shape))
+
+
+@dataclass
+class AdmmState:
+    """The ADMM iterate carried from one iteration (or one solve) to the next.
+
+    In the q-form of :func:`recon._kernels.admm_split_updates_2d` the whole state of
+    scaled-dual ADMM (Boyd et al. 2011, Sec. 3.1.1) is the primal ``x``, its image
+    ``M x`` and, per split, q_i = z_i - a_i (split variable minus scaled dual), plus
+    the penalties. All arrays float32 on the padded grid (P0, P1).
+
+    Attributes
+    ----------
+    x, mx : ndarray
+        Primal iterate and M x (circular convolution, uncropped).
+    stacked : ndarray, shape (2, P0, P1)
+        ``stacked[0]`` is q_v (crop split), ``stacked[1]`` the x-update's right-hand
+        side (scratch; one buffer so both forward FFTs run as one batched call).
+    qux, quy, qw : ndarray
+        q of the TV splits (forward differences along columns, rows) and of the
+        non-negativity split.
+    scratch : list of 4 ndarray
+        Scaled duals a_v, a_ux, a_uy, a_w stored by the balancing passes.
+    mu : (mu1, mu2, mu3)
+        Current penalties.
+    inv_den : ndarray, float32, shape (P0, P1 // 2 + 1)
+        1 / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3) for the current penalties.
+    use_tv : bool
+        Whether ``inv_den`` includes the TV term.
+    """
+
+    x: np.ndarray
+    mx: np.ndarray
+    stacked: np.ndarray
+    qux: np.ndarray
+    quy: np.ndarray
+    qw: np.ndarray
+    scratch: list
+    mu: tuple[float, float, float]
+    inv_den: np.ndarray
+    use_tv: bool
+
+    @classmethod
+    def zeros(cls, plan: AdmmPlan, mu: tuple[float, float, float], use_tv: bool
+              ) -> AdmmState:
+        """The cold start: everything zero (x_0 = 0), penalties ``mu``."""
+        shape = plan.shape
+        scratch = [np.zeros(shape, np.float32) for _ in range(4)]  # a_v, a_ux, a_uy, a_w
+        for buf in scratch:
+            # Write once so the pages are mapped writable: the vectorised split kernel
+            # issues masked stores to these buffers even in mode 0 (all lanes off), and
+            # a masked store to a not-yet-written calloc page takes a microcode assist:
+            # measured 3.8 ms instead of 0.65 ms per pass at 600 x 800.
+            buf.fill(0.0)
+        state = cls(np.zeros(shape, np.float32), np.zeros(shape, np.float32),
+                    np.zeros((2, *shape), np.float32),
+                    *(np.zeros(shape, np.float32) for _ in range(3)), scratch, tuple(mu),
+                    np.empty(plan.h_pow.shape, np.float32), use_tv)
+        state.set_penalties(plan, mu)
+        return state
+
+    def set_penalties(self, plan: AdmmPlan, mu) -> None:
+        """Adopt penalties ``mu`` and recompute ``inv_den`` (q rescaling is the caller's)."""
+        self.mu = tuple(mu)
+        _kernels.admm_inverse_denominator(plan.h_pow, plan.d_pow, *self.mu, self.use_tv,
+                                          self.inv_den)
+
+    def scale(self, factor: float) -> None:
+        """Multiply x, M x and every q by ``factor`` in place (the measurement's
+        scale changed by ``factor``: ADMM's linear parts are homogeneous in b)."""
+        f = np.float32(factor)
+        for a in (self.x, self.mx, self.stacked[0], self.qux, self.quy, self.qw):
+            a *= f
+
+
+def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int,
+             tv: float, balance: bool = True, balance_every: int = 5,
+             balance_until: float = 0.6, balance_ratio: float = 10.0,
+             balance_factor: float = 2.0) -> SolveResult:
+    """Run ``iterations`` ADMM iterations from ``state`` (updated in place).
+
+    The loop of :func:`admm`, which validates the parameters and calls this with
+    :meth:`AdmmState.zeros`; callers passing a warm state (the previous video
+    frame's, :mod:`recon.live`) validate them likewise. ``state.use_tv`` must equal
+    ``tv > 0``.
+
+    Parameters
+    ----------
+    plan : AdmmPlan
+    b : ndarray, shape ``plan.op.shape_out``, float32
+        Scaled, weighted measurement (checked with
+        :func:`~recon.solvers.common.check_measurement`).
+    state : AdmmState
+        Start; on return the final iterate (x before the non-negativity clip).
+    iterations, tv, balance, balance_every, balance_until, balance_ratio, balance_factor
+        As in :func:`admm` (already validated).
+
+    Returns
+    -------
+    SolveResult
+        As :func:`admm`; ``history.objective[0]`` is that of the starting iterate.
+
+    Raises
+    ------
+    DivergenceError
+        NaN/inf or an objective 100x that of the zero image.
+    ReconInputError
+        Misshapen, non-finite or all-zero ``b``.
+    """
+    op = plan.op
+    b = check_measurement(b, op.shape_out)
+    bp = np.zeros(plan.shape, np.float32)
+    bp[op.crop] = b
+    shape, spec, use_tv = plan.shape, op.spectrum, state.use_tv
+    mu1, mu2, mu3 = state.mu
+    x, mx = state.x, state.mx
+    stacked, qux, quy, qw, scratch = (state.stacked, state.qux, state.quy, state.qw,
+                                      state.scratch)
+    qv, rhs = stacked[0], stacked[1]
+    mon = Monitor(float(np.vdot(b, b)), "ADMM")
+    mus = [(mu1, mu2, mu3)]
+    last_balance = int(balance_until * iterations) if balance else 0
+    for k in range(iterations):
+        mon.start()
+        mode = balance_mode(k, balance_every, last_balance)
+        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, plan.wp, mu1, mu2,
+                                           mu3, tv, use_tv, mode, *scratch)
+        if mode == 2:
+            new = [balanced_penalty(mu1, *s[[2, 3, 8, 9]], balance_ratio, balance_factor),
+                   balanced_penalty(mu2, *s[[4, 5, 10, 11]], balance_ratio, balance_factor)
+                   if use_tv else mu2,
+                   balanced_penalty(mu3, *s[[6, 7, 12, 13]], balance_ratio, balance_factor)]
+            if tuple(new) != (mu1, mu2, mu3):
+                rescale_duals(((qv, scratch[0], mu1, new[0]), (qux, scratch[1], mu2, new[1]),
+                               (quy, scratch[2], mu2, new[1]), (qw, scratch[3], mu3, new[2])))
+                mu1, mu2, mu3 = new
+                state.set_penalties(plan, new)
+                mus.append((mu1, mu2, mu3))
+        _kernels.admm_rhs_2d(qux, quy, qw, rhs, mu2, mu3, use_tv)
+        spectra = rfftn(stacked)
+        _kernels.admm_fourier_2d(spectra[0], spectra[1], spec, state.inv_den, mu1)
+        mx, x = irfftn(spectra, shape)
+        mon.record(0.5 * s[0] + tv * s[1], s[0], x=x,
+                   hint="try --method fista or a smaller TV weight")
+    state.x, state.mx = x, mx
+    x = np.maximum(x, 0)  # the estimate is the non-negative split w
+    r = op.forward(x) - b
+    data_sq = float(np.vdot(r, r))
+    final = 0.5 * data_sq + tv * anisotropic_tv(x)
+    mon.history.extra["mu"] = [list(m) for m in mus]
+    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
+                       {"tv": tv, "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
+                        "balance": balance})
+
+
 def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 1e-3,
          mu: tuple[float, float, float] | None = None, balance: bool = True,
          balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
@@ -189,67 +386,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     iterations = as_int(iterations, "iterations", 1)
     tv = nonneg_weight(tv, "TV")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
-    use_tv = tv > 0
-    mu1, mu2, mu3 = check_penalties(mu)
+    mu = check_penalties(mu)
     b = check_measurement(b, op.shape_out)
-    # weights and data as zero-padded planes keep the fused pass branch-free and
-    # vectorised (zero weight and data off the sensor give the plain v = t update)
-    wp = np.zeros(op.padded_shape, np.float32)
-    wp[op.crop] = op.sensor_weights
-    bp = np.zeros(op.padded_shape, np.float32)
-    bp[op.crop] = b
-    shape = op.padded_shape
-    spec = op.spectrum
-    h_pow = (spec.real**2 + spec.imag**2).astype(np.float32)
-    d_pow = _difference_power(shape)
-
-    inv_den = np.empty(h_pow.shape, np.float32)
-    _kernels.admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv, inv_den)
-    x = np.zeros(shape, np.float32)
-    mx = np.zeros(shape, np.float32)
-    # q_v and the rhs share one buffer so both forward FFTs run as one batched call
-    # (and x, M x come out of one batched inverse): ~15 % faster than two pairs.
-    stacked = np.zeros((2, *shape), np.float32)
-    qv, rhs = stacked[0], stacked[1]
-    qux, quy, qw = (np.zeros(shape, np.float32) for _ in range(3))
-    scratch = [np.zeros(shape, np.float32) for _ in range(4)]  # a_v, a_ux, a_uy, a_w
-    for buf in scratch:
-        # Write once so the pages are mapped writable: the vectorised split kernel
-        # issues masked stores to these buffers even in mode 0 (all lanes off), and
-        # a masked store to a not-yet-written calloc page takes a microcode assist:
-        # measured 3.8 ms instead of 0.65 ms per pass at 600 x 800.
-        buf.fill(0.0)
-    mon = Monitor(float(np.vdot(b, b)), "ADMM")
-    mus = [(mu1, mu2, mu3)]
-    last_balance = int(balance_until * iterations) if balance else 0
-    for k in range(iterations):
-        mon.start()
-        mode = balance_mode(k, balance_every, last_balance)
-        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2,
-                                           mu3, tv, use_tv, mode, *scratch)
-        if mode == 2:
-            new = [balanced_penalty(mu1, *s[[2, 3, 8, 9]], balance_ratio, balance_factor),
-                   balanced_penalty(mu2, *s[[4, 5, 10, 11]], balance_ratio, balance_factor)
-                   if use_tv else mu2,
-                   balanced_penalty(mu3, *s[[6, 7, 12, 13]], balance_ratio, balance_factor)]
-            if tuple(new) != (mu1, mu2, mu3):
-                rescale_duals(((qv, scratch[0], mu1, new[0]), (qux, scratch[1], mu2, new[1]),
-                               (quy, scratch[2], mu2, new[1]), (qw, scratch[3], mu3, new[2])))
-                mu1, mu2, mu3 = new
-                _kernels.admm_inverse_denominator(h_pow, d_pow, mu1, mu2, mu3, use_tv,
-                                                  inv_den)
-                mus.append((mu1, mu2, mu3))
-        _kernels.admm_rhs_2d(qux, quy, qw, rhs, mu2, mu3, use_tv)
-        spectra = rfftn(stacked)
-        _kernels.admm_fourier_2d(spectra[0], spectra[1], spec, inv_den, mu1)
-        mx, x = irfftn(spectra, shape)
-        mon.record(0.5 * s[0] + tv * s[1], s[0], x=x,
-                   hint="try --method fista or a smaller TV weight")
-    x = np.maximum(x, 0)  # the estimate is the non-negative split w
-    r = op.forward(x) - b
-    data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq + tv * anisotropic_tv(x)
-    mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
-                       {"tv": tv, "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
-                        "balance": balance})
+    plan = AdmmPlan.of(op)
+    return run_admm(plan, b, AdmmState.zeros(plan, mu, tv > 0), iterations=iterations, tv=tv,
+                    balance=balance, balance_every=balance_every, balance_until=balance_until,
+                    balance_ratio=balance_ratio, balance_factor=balance_factor)
