@@ -1,0 +1,266 @@
+"""Per-PSF reconstructor for video: precompute once, then only the solve per frame.
+
+:class:`LiveReconstructor` prepares the PSF (dark level, binning, clip, unit sum), builds
+the forward model of Eq. 3.4 (:class:`~recon.operators.ConvolutionOperator`) and the ADMM
+precomputations (:class:`~recon.solvers.admm.AdmmPlan`) once. Per frame it does the raw
+conversion of :func:`recon.preprocess.prepare_pair` (same functions, same order), the
+scaling of :func:`recon.api.scaled_problem` and one solve:
+
+- :meth:`LiveReconstructor.wiener`: the Wiener preview (:func:`recon.solvers.wiener`).
+- :meth:`LiveReconstructor.admm`: a few ADMM iterations (Kuo 2020, Eq. 4.5 / App. A.3;
+  Boyd et al. 2011) through :func:`recon.solvers.admm.run_admm`, warm-started from the
+  previous frame's ADMM state (consecutive video frames are similar).
+
+A cold single frame equals :func:`recon.reconstruct` with the same method, iterations
+and weights exactly (tests/recon/test_live.py).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .api import DEFAULT_TV, scaled_problem
+from .errors import ReconInputError
+from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
+from .preprocess.dark import DEFAULT_DARK_REGION, resolve_dark
+from .preprocess.validation import as_array, check_bin_factor
+from .solvers import SolveResult, wiener
+from .solvers.admm import AdmmPlan, AdmmState, check_balancing, check_penalties, run_admm
+from .solvers.wiener import auto_regularization
+from .validate import as_int, nonneg_weight, positive
+
+__all__ = ["LiveReconstructor", "LiveResult"]
+
+
+@dataclass
+class LiveResult:
+    """One reconstructed frame.
+
+    Attributes
+    ----------
+    image : ndarray, float32, shape (rows, cols)
+        Sensor field of view of the estimate (binned sensor shape), measurement units
+        (counts per unit PSF sum), as :attr:`recon.api.Reconstruction.image`.
+    estimate : ndarray, float32, shape (P0, P1)
+        The whole padded object domain, same units.
+    solve : SolveResult
+        The solver's record (estimate in the scaled problem, history, parameters).
+    method : str
+        ``"wiener"`` or ``"admm"``.
+    iterations : int
+        ADMM iterations run on this frame (1 for Wiener).
+    warm : bool
+        Whether ADMM started from the previous frame's state.
+    raw_scale : float
+        The frame's scale max|b| (the scaled problem is b / raw_scale).
+    seconds : float
+        Wall time of the whole call (conversion + solve), s.
+    """
+
+    image: np.ndarray
+    estimate: np.ndarray
+    solve: SolveResult
+    method: str
+    iterations: int
+    warm: bool
+    raw_scale: float
+    seconds: float
+
+
+class LiveReconstructor:
+    """Reconstruct video frames of one PSF with the per-PSF work done once.
+
+    Parameters
+    ----------
+    psf : ndarray, (rows, cols), any real dtype
+        Calibration PSF in sensor counts, same shape as the frames (grayscale only).
+    bin_factor : int
+        Box binning of PSF and frames (4 turns 1200 x 1600 into 300 x 400).
+    dark : None, "none", float or ndarray
+        As in :func:`recon.preprocess.prepare_pair`: None estimates the dark level from
+        the PSF corner and subtracts it from the PSF and every frame.
+    tv : float, optional
+        ADMM TV weight in the scaled problem; default ``recon.api.DEFAULT_TV["admm"]``.
+    mu : (mu1, mu2, mu3), optional
+        Initial ADMM penalties (see :func:`recon.solvers.admm.admm`).
+    balance : bool
+        ADMM residual balancing (only acts when ``iterations`` >= 9 with the defaults).
+    regularization : float, optional
+        Wiener lambda in units of |H|^2. Default: estimated from the first frame
+        :meth:`wiener` sees (:func:`recon.solvers.wiener.auto_regularization`, a
+        wavelet noise estimate too slow for every frame) and kept afterwards
+        (:attr:`regularization`).
+
+    Raises
+    ------
+    ReconInputError
+        A PSF that is not 2D, not finite, without signal above the dark level, or
+        invalid weights / binning / dark.
+
+    Notes
+    -----
+    Warm start (:meth:`admm` with ``warm_start=True``) carries the whole scaled-dual
+    ADMM state of the previous frame (:class:`~recon.solvers.admm.AdmmState`): the primal
+    x, M x, and per split q = z - a (split variable minus scaled dual) for the crop,
+    the two TV and the non-negativity splits, plus the penalties. Only the data b
+    changes, which enters the crop split's v-update (Boyd et al. 2011, Sec. 3.1.1: the
+    iteration is a fixed-point map, so any state is a valid start). Since each frame is
+    scaled by its own max|b|, the state is first multiplied by previous scale / new
+    scale so it is in the new frame's units.
+    """
+
+    def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark=None,
+                 tv: float | None = None, mu=None, balance: bool = True,
+                 regularization: float | None = None):
+        psf = as_array(psf, "PSF")
+        validate_psf(psf)
+        if psf.ndim != 2:
+            raise ReconInputError(f"live reconstruction takes a 2D (grayscale) PSF, got shape "
+                                  f"{psf.shape}; pass one channel")
+        self.bin_factor = check_bin_factor(bin_factor)
+        self.raw_shape = psf.shape
+        self._dark_mode, self._dark = resolve_dark(dark, psf, DEFAULT_DARK_REGION, None)
+        p = np.maximum(self._convert(psf), 0.0)  # the PSF clip of prepare_pair
+        self.tv = DEFAULT_TV["admm"] if tv is None else nonneg_weight(tv, "tv")
+        self.mu = check_penalties(mu)
+        self.balance = bool(balance)
+        self.regularization = (None if regularization is None
+                               else positive(regularization, "regularization"))
+        # scaled_problem normalises the PSF to unit sum; its measurement half is unused
+        self.operator, _ = scaled_problem(p, p)
+        self.plan = AdmmPlan.of(self.operator)
+        self._state: AdmmState | None = None
+        self._state_scale = 1.0
+
+    @property
+    def sensor_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the binned frames and of :attr:`LiveResult.image`."""
+        return self.operator.sensor_shape
+
+    def _convert(self, raw: np.ndarray) -> np.ndarray:
+        """Dark subtraction and binning of :func:`recon.preprocess.prepare_pair`, float32."""
+        if self._dark_mode == "none":
+            return box_bin(raw.astype(np.float32), self.bin_factor)
+        return box_bin(subtract_dark(raw, self._dark), self.bin_factor)
+
+    def prepare(self, raw: np.ndarray) -> tuple[np.ndarray, float]:
+        """A raw frame as the scaled measurement of the solvers.
+
+        Parameters
+        ----------
+        raw : ndarray, ``raw_shape`` (the PSF's), any real dtype
+            Sensor counts.
+
+        Returns
+        -------
+        b : ndarray, float32, :attr:`sensor_shape`
+            Dark-subtracted, binned, divided by its max|b|.
+        raw_scale : float
+            That max|b|.
+
+        Raises
+        ------
+        ReconInputError
+            Wrong shape, non-finite values, or a frame that is zero after the dark
+            subtraction.
+        """
+        raw = as_array(raw, "measurement")
+        if raw.shape != self.raw_shape:
+            raise ReconInputError(f"frame has shape {raw.shape}, the PSF {self.raw_shape}; "
+                                  "stream frames of the PSF's size and binning")
+        validate_measurement(raw)
+        b = self._convert(raw)
+        scale = float(np.max(np.abs(b)))
+        if not scale > 0:
+            raise ReconInputError("frame is zero after dark subtraction; check the exposure")
+        # the scaling of recon.api.scaled_problem (no erasure weights here)
+        return (np.asarray(b, np.float64) / scale).astype(np.float32), scale
+
+    def _result(self, res: SolveResult, method: str, iterations: int, warm: bool,
+                scale: float, t0: float) -> LiveResult:
+        estimate = (res.x * scale).astype(np.float32)
+        image = np.ascontiguousarray(estimate[self.operator.crop])
+        return LiveResult(image, estimate, res, method, iterations, warm, scale,
+                          time.perf_counter() - t0)
+
+    def wiener(self, raw: np.ndarray) -> LiveResult:
+        """Wiener preview of one frame (:func:`recon.solvers.wiener`).
+
+        Parameters
+        ----------
+        raw : ndarray, ``raw_shape``, any real dtype
+
+        Returns
+        -------
+        LiveResult
+            Equal to ``recon.reconstruct(psf, raw, "wiener", bin_factor=..., dark=...,
+            regularization=...)`` (on the first frame also with the automatic lambda).
+
+        Raises
+        ------
+        ReconInputError
+            See :meth:`prepare`.
+        """
+        t0 = time.perf_counter()
+        b, scale = self.prepare(raw)
+        if self.regularization is None:
+            self.regularization = auto_regularization(b)
+        res = wiener(self.operator, b, regularization=self.regularization)
+        return self._result(res, "wiener", 1, False, scale, t0)
+
+    def admm(self, raw: np.ndarray, iterations: int = 5, warm_start: bool = True, *,
+             balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
+             balance_factor: float = 2.0) -> LiveResult:
+        """``iterations`` ADMM iterations on one frame, warm-started by default.
+
+        Parameters
+        ----------
+        raw : ndarray, ``raw_shape``, any real dtype
+        iterations : int
+            >= 1.
+        warm_start : bool
+            Start from the state left by the previous :meth:`admm` call (see the class
+            notes); False, or no previous call, starts cold (x_0 = 0, initial ``mu``).
+            The state is kept either way for the next frame.
+        balance_every, balance_until, balance_ratio, balance_factor
+            Residual balancing, as in :func:`recon.solvers.admm.admm`.
+
+        Returns
+        -------
+        LiveResult
+            Cold: equal to ``recon.reconstruct(psf, raw, "admm", iterations=iterations,
+            tv=tv, mu=mu, balance=balance, ...)``.
+
+        Raises
+        ------
+        ReconInputError
+            See :meth:`prepare`, or invalid iterations / balancing.
+        DivergenceError
+            The solve diverged; the state is dropped (the next frame starts cold).
+        """
+        t0 = time.perf_counter()
+        iterations = as_int(iterations, "iterations", 1)
+        check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
+        b, scale = self.prepare(raw)
+        warm = warm_start and self._state is not None
+        if warm:
+            self._state.scale(self._state_scale / scale)
+        else:
+            self._state = AdmmState.zeros(self.plan, self.mu, self.tv > 0)
+        self._state_scale = scale
+        try:
+            res = run_admm(self.plan, b, self._state, iterations=iterations, tv=self.tv,
+                           balance=self.balance, balance_every=balance_every,
+                           balance_until=balance_until, balance_ratio=balance_ratio,
+                           balance_factor=balance_factor)
+        except Exception:
+            self._state = None
+            raise
+        return self._result(res, "admm", iterations, warm, scale, t0)
+
+    def reset(self) -> None:
+        """Forget the ADMM state: the next :meth:`admm` call starts cold."""
+        self._state = None
