@@ -1,0 +1,480 @@
+"""Live reconstruction worker: the newest camera frame, reconstructed on its own thread.
+
+Data flow (docs/architecture.md, acquisition): the camera's grab thread fills a
+:class:`~drivers.camera.FrameRing`; a consumer of that stream (the recorder's fan-out,
+or :meth:`LiveReconstruction.start` with ``ring=`` when nothing else reads it) hands
+every frame to :meth:`LiveReconstruction.offer`, which puts it in a single-slot
+mailbox (:class:`LatestFrameSlot`) and returns at once: it never waits for the
+reconstruction, so the live path cannot slow the producer or the recorder. The worker
+thread takes the newest frame, reconstructs it (:class:`recon.live.LiveReconstructor`:
+Wiener preview by default, or K ADMM iterations warm-started from the previous frame)
+and publishes the result (:meth:`LiveReconstruction.latest`) with its statistics
+(:meth:`LiveReconstruction.stats`). Frames overwritten in the slot before the worker
+took them are counted as skipped, never silently.
+
+:func:`run_live_benchmark` measures the worker on the real-time simulated camera.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.camera import Frame, FrameRing
+from drivers.errors import CameraTimeoutError
+from recon.errors import ReconInputError
+from recon.validate import as_int, positive
+
+__all__ = ["LatestFrameSlot", "LivePreview", "LiveReconstruction", "LiveReconstructionError",
+           "run_live_benchmark"]
+
+log = logging.getLogger(__name__)
+
+#: Methods of the worker: the Wiener preview, or ADMM iterations per frame.
+LIVE_METHODS = ("wiener", "admm")
+
+
+class LiveReconstructionError(RuntimeError):
+    """The live worker could not start or stop in time."""
+
+
+class LatestFrameSlot:
+    """Single-slot mailbox keeping only the newest frame (thread-safe).
+
+    :meth:`offer` never blocks beyond a short lock; a frame still in the slot when the
+    next arrives is overwritten and counted in ``skipped``.
+
+    Attributes
+    ----------
+    received : int
+        Frames offered.
+    taken : int
+        Frames returned by :meth:`take`.
+    skipped : int
+        Frames overwritten before being taken. ``received == taken + skipped`` plus one
+        when a frame waits in the slot.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._frame: Frame | None = None
+        self._closed = False
+        self.received = 0
+        self.taken = 0
+        self.skipped = 0
+
+    def offer(self, frame: Frame) -> None:
+        """Put ``frame`` in the slot, replacing (and counting) an untaken one."""
+        with self._cond:
+            self.received += 1
+            if self._frame is not None:
+                self.skipped += 1
+            self._frame = frame
+            self._cond.notify()
+
+    def take(self, timeout_s: float) -> Frame | None:
+        """The newest frame, waiting up to ``timeout_s`` s; None on timeout or close."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._frame is None and not self._closed:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+            frame, self._frame = self._frame, None
+            if frame is not None:
+                self.taken += 1
+            return frame
+
+    def close(self) -> None:
+        """Wake a waiting :meth:`take` (returns None from then on when empty)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def counters(self) -> dict[str, int]:
+        """``received``, ``taken``, ``skipped`` and ``waiting`` (0 or 1)."""
+        with self._cond:
+            return {"received": self.received, "taken": self.taken, "skipped": self.skipped,
+                    "waiting": int(self._frame is not None)}
+
+
+@dataclass(frozen=True)
+class LivePreview:
+    """The latest reconstruction the worker published.
+
+    Attributes
+    ----------
+    image : ndarray, float32, (rows, cols)
+        Sensor field of view of the estimate (see :class:`recon.live.LiveResult`).
+    frame_index : int
+        The camera frame it came from.
+    host_timestamp_s : float
+        That frame's host timestamp (``time.time()`` at delivery), s.
+    result_time_s : float
+        ``time.time()`` when the result was ready, s.
+    latency_s : float
+        ``result_time_s - host_timestamp_s``.
+    compute_s : float
+        Raw conversion plus solve, s.
+    method : str
+    iterations : int
+    warm : bool
+        ADMM started from the previous frame's state.
+    """
+
+    image: np.ndarray
+    frame_index: int
+    host_timestamp_s: float
+    result_time_s: float
+    latency_s: float
+    compute_s: float
+    method: str
+    iterations: int
+    warm: bool
+
+
+def _method(method: str, iterations) -> tuple[str, int]:
+    if method not in LIVE_METHODS:
+        raise ReconInputError(f"live method {method!r} is unknown; use one of "
+                              f"{', '.join(LIVE_METHODS)}")
+    return method, as_int(iterations, "iterations", 1)
+
+
+class LiveReconstruction:
+    """Worker thread reconstructing the newest frame of a stream.
+
+    Parameters
+    ----------
+    reconstructor : recon.live.LiveReconstructor
+        Per-PSF reconstructor (anything with its ``wiener(raw)`` and
+        ``admm(raw, iterations, warm_start)`` methods returning a
+        :class:`recon.live.LiveResult`).
+    method : {"wiener", "admm"}
+        Wiener preview (default) or ``iterations`` ADMM iterations per frame.
+    iterations : int
+        ADMM iterations per frame (>= 1).
+    warm_start : bool
+        ADMM from the previous frame's state (default) or from zero on every frame.
+    window_s : float
+        Sliding window of the fps and latency statistics, s.
+
+    Raises
+    ------
+    ReconInputError
+        Unknown method, iterations < 1, or a window that is not > 0.
+    """
+
+    def __init__(self, reconstructor, *, method: str = "wiener", iterations: int = 5,
+                 warm_start: bool = True, window_s: float = 2.0):
+        self.reconstructor = reconstructor
+        self._method, self._iterations = _method(method, iterations)
+        self.warm_start = bool(warm_start)
+        self.window_s = positive(window_s, "window_s")
+        self.slot = LatestFrameSlot()
+        self._lock = threading.Lock()
+        self._latest: LivePreview | None = None
+        self._recent: deque[tuple[float, float]] = deque()  # (result time, latency)
+        self._latencies: deque[float] = deque(maxlen=100_000)
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self.reconstructed = 0
+        self.errors = 0
+        self.last_error: str | None = None
+        self.error: BaseException | None = None
+        self.ring: FrameRing | None = None
+
+    # -- control -------------------------------------------------------------------
+    def start(self, ring: FrameRing | None = None, timeout_s: float = 2.0) -> None:
+        """Start the worker (and, with ``ring``, a feeder thread draining it).
+
+        Parameters
+        ----------
+        ring : FrameRing, optional
+            Read every frame of this ring and :meth:`offer` it (only when nothing else
+            consumes the ring: a ring has one reader). Without it, the stream's
+            consumer calls :meth:`offer`.
+        timeout_s : float
+            How long the threads may take to come up, s.
+
+        Raises
+        ------
+        LiveReconstructionError
+            Already running, or a thread did not start within ``timeout_s``.
+        """
+        if any(t.is_alive() for t in self._threads):
+            raise LiveReconstructionError("live reconstruction is already running; call "
+                                          "stop() first")
+        self._stop.clear()
+        self.slot = LatestFrameSlot()
+        self.ring = ring
+        targets = [("live-recon", self._work)]
+        if ring is not None:
+            targets.append(("live-feed", self._feed))
+        started = []
+        self._threads = []
+        for name, target in targets:
+            ready = threading.Event()
+            t = threading.Thread(target=target, args=(ready,), name=name, daemon=True)
+            t.start()
+            self._threads.append(t)
+            started.append(ready)
+        deadline = time.monotonic() + timeout_s
+        if not all(r.wait(max(deadline - time.monotonic(), 0.0)) for r in started):
+            self.stop(timeout_s)
+            raise LiveReconstructionError(f"live reconstruction threads did not start "
+                                          f"within {timeout_s:g} s; the machine is overloaded")
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the threads and wait for them.
+
+        A frame being reconstructed is finished first, so ``timeout_s`` must exceed
+        one frame's reconstruction time.
+
+        Raises
+        ------
+        LiveReconstructionError
+            A thread still runs after ``timeout_s`` s (it is a daemon thread and ends
+            with its current frame).
+        """
+        self._stop.set()
+        self.slot.close()
+        deadline = time.monotonic() + timeout_s
+        for t in self._threads:
+            t.join(max(deadline - time.monotonic(), 0.0))
+        alive = [t.name for t in self._threads if t.is_alive()]
+        if alive:
+            raise LiveReconstructionError(
+                f"live reconstruction thread(s) {', '.join(alive)} still running after "
+                f"{timeout_s:g} s; give stop() a timeout longer than one frame's "
+                "reconstruction")
+        self._threads = []
+
+    def __enter__(self) -> LiveReconstruction:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        """Whether the worker thread is alive."""
+        return bool(self._threads) and self._threads[0].is_alive()
+
+    def set_method(self, method: str, iterations: int | None = None) -> None:
+        """Switch between the Wiener preview and ADMM (applies from the next frame).
+
+        Switching forgets the ADMM state: the scene may have changed meanwhile, so the
+        first ADMM frame after a switch starts cold.
+
+        Raises
+        ------
+        ReconInputError
+            Unknown method or iterations < 1.
+        """
+        m, k = _method(method, self._iterations if iterations is None else iterations)
+        with self._lock:
+            if m != self._method and hasattr(self.reconstructor, "reset"):
+                self.reconstructor.reset()
+            self._method, self._iterations = m, k
+
+    # -- producer side -------------------------------------------------------------
+    def offer(self, frame: Frame) -> None:
+        """Hand a frame to the worker; returns at once (never waits for the solve)."""
+        self.slot.offer(frame)
+
+    def _feed(self, ready: threading.Event) -> None:
+        ready.set()
+        ring = self.ring
+        while not self._stop.is_set():
+            try:
+                frame = ring.get(timeout_s=0.05)
+            except CameraTimeoutError:
+                continue
+            except Exception as exc:  # a producer error reported through the ring
+                self._record_error(exc, "feeding from the camera ring")
+                return
+            self.slot.offer(frame)
+
+    # -- worker --------------------------------------------------------------------
+    def _work(self, ready: threading.Event) -> None:
+        ready.set()
+        while not self._stop.is_set():
+            frame = self.slot.take(timeout_s=0.1)
+            if frame is None:
+                continue
+            with self._lock:
+                method, iterations = self._method, self._iterations
+            try:
+                if method == "wiener":
+                    res = self.reconstructor.wiener(frame.image)
+                else:
+                    res = self.reconstructor.admm(frame.image, iterations=iterations,
+                                                  warm_start=self.warm_start)
+            except Exception as exc:
+                self._record_error(exc, f"reconstructing frame {frame.index}")
+                continue
+            done = time.time()
+            preview = LivePreview(res.image, frame.index, frame.host_timestamp_s, done,
+                                  done - frame.host_timestamp_s, res.seconds, res.method,
+                                  res.iterations, res.warm)
+            with self._lock:
+                self._latest = preview
+                self.reconstructed += 1
+                self._recent.append((done, preview.latency_s))
+                while self._recent and self._recent[0][0] < done - self.window_s:
+                    self._recent.popleft()
+                self._latencies.append(preview.latency_s)
+
+    def _record_error(self, exc: BaseException, what: str) -> None:
+        with self._lock:
+            self.errors += 1
+            self.error = exc
+            self.last_error = f"{what}: {type(exc).__name__}: {exc}"
+        log.warning("live reconstruction: %s", self.last_error)
+
+    # -- results -------------------------------------------------------------------
+    def latest(self) -> LivePreview | None:
+        """The newest published reconstruction (None before the first)."""
+        with self._lock:
+            return self._latest
+
+    def stats(self) -> dict:
+        """Counters and rates, safe to call from any thread.
+
+        Returns
+        -------
+        dict
+            ``received``, ``reconstructed``, ``skipped`` (overwritten in the slot before
+            the worker took them), ``errors``, ``last_error`` (str or None), ``method``,
+            ``iterations``, ``fps`` (results per second over the last ``window_s``; 0
+            with fewer than 2), ``latency_s`` (of the newest result), ``latency_median_s``
+            and ``latency_p95_s`` (over the window; None without results), ``running``.
+        """
+        slot = self.slot.counters()
+        with self._lock:
+            recent = list(self._recent)
+            out = {"received": slot["received"], "reconstructed": self.reconstructed,
+                   "skipped": slot["skipped"], "errors": self.errors,
+                   "last_error": self.last_error, "method": self._method,
+                   "iterations": self._iterations,
+                   "latency_s": None if self._latest is None else self._latest.latency_s}
+        span = recent[-1][0] - recent[0][0] if len(recent) >= 2 else 0.0
+        out["fps"] = (len(recent) - 1) / span if span > 0 else 0.0
+        lat = [r[1] for r in recent]
+        out["latency_median_s"] = float(np.median(lat)) if lat else None
+        out["latency_p95_s"] = float(np.percentile(lat, 95)) if lat else None
+        out["running"] = self.running
+        return out
+
+    def latency_summary(self) -> dict:
+        """Latency over the whole run: ``count``, ``median_s``, ``p95_s``, ``max_s``
+        (None without results)."""
+        with self._lock:
+            lat = np.array(self._latencies)
+        if not lat.size:
+            return {"count": 0, "median_s": None, "p95_s": None, "max_s": None}
+        return {"count": int(lat.size), "median_s": float(np.median(lat)),
+                "p95_s": float(np.percentile(lat, 95)), "max_s": float(lat.max())}
+
+
+def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
+                       sensor_shape: tuple[int, int] = (300, 400),
+                       admm_iterations: int = 5, psnr_frames: int = 8) -> dict:
+    """Live throughput, latency and drops on the real-time simulated camera, and
+    the PSNR warm start buys (prints a report and returns the figures).
+
+    A :class:`~instrument.virtual_bench.VirtualBench` with ``realtime=True`` and a
+    ``sensor_shape`` sensor streams a prerendered bead-flow scene at ``fps`` into a
+    ring; :meth:`LiveReconstruction.start` with ``ring=`` feeds the worker. The PSF is
+    the bench's ray-traced on-axis PSF at the scene depth, as the camera would record it
+    (scaled to 4000 DN above the dark offset); frames and PSF have the camera's dark
+    offset subtracted. One run per mode (Wiener preview; warm ADMM with
+    ``admm_iterations``) of ``seconds`` each. The PSNR part is
+    :func:`recon.benchmarks.live.warm_vs_cold` on the real DiffuserCam PSF (moving
+    natural scene, ``psnr_frames`` frames, 300 x 400).
+
+    Parameters
+    ----------
+    seconds : float
+        Duration of each streaming run, s.
+    fps : float
+        Camera frame rate, Hz (the simulated camera allows up to 30).
+    sensor_shape : (rows, cols)
+        Simulated sensor.
+    admm_iterations : int
+        K of the ADMM run and of the PSNR table.
+    psnr_frames : int
+        Frames of the warm/cold PSNR comparison (>= 2).
+
+    Returns
+    -------
+    dict
+        ``runs``: per mode the worker's ``stats()`` at the end, ``latency`` (whole-run
+        summary), ``ring`` counters and ``camera_fps``; ``psnr``: the warm/cold table.
+    """
+    from instrument.config import default_bench
+    from instrument.video_scenes import BeadFlowScene
+    from instrument.virtual_bench import VirtualBench
+    from recon.benchmarks import load_sample
+    from recon.benchmarks.live import moving_scene, warm_vs_cold, warm_vs_cold_table
+    from recon.live import LiveReconstructor
+
+    cfg = default_bench()
+    geo = cfg.geometry.model_copy(update={"sensor_shape_px": tuple(sensor_shape)})
+    result: dict = {"sensor_shape": list(sensor_shape), "camera_fps_set": fps, "runs": {}}
+    with VirtualBench(cfg.model_copy(update={"geometry": geo}), seed=1, realtime=True,
+                      render_cache_size=8) as vb:
+        vb.led_array.all_off()
+        scene = BeadFlowScene(seed=2, time_step_s=0.5)  # 8 states of the 4 s period
+        vb.set_scene(scene)
+        vb.prerender()
+        cam = vb.camera
+        cam.apply_settings({"exposure_s": 0.005, "frame_rate_hz": fps})
+        h = vb.psf((0.0, 0.0, scene.z_mm))
+        psf = h / h.max() * 4000.0 + cam.dark_offset_dn
+        for mode in ("wiener", f"admm:{admm_iterations}"):
+            method, _, k = mode.partition(":")
+            live = LiveReconstruction(
+                LiveReconstructor(psf, dark=cam.dark_offset_dn, regularization=1e-2),
+                method=method, iterations=int(k or 1), window_s=seconds)
+            ring = FrameRing(64)
+            cam.start_stream(ring)
+            live.start(ring=ring)
+            t0 = time.monotonic()
+            time.sleep(seconds)
+            cam.stop_stream()
+            elapsed = time.monotonic() - t0
+            live.stop(timeout_s=5.0)
+            counters = ring.counters()
+            result["runs"][mode] = {"stats": live.stats(), "latency": live.latency_summary(),
+                                    "ring": counters,
+                                    "camera_fps": counters["acquired"] / elapsed}
+    fine = load_sample(2).psf
+    result["psnr"] = warm_vs_cold(fine, moving_scene(fine, psnr_frames, shift_px=4),
+                                  admm_iterations)
+    print(live_benchmark_table(result))
+    print(warm_vs_cold_table(result["psnr"]))
+    return result
+
+
+def live_benchmark_table(result: dict) -> str:
+    """Text table of the streaming part of :func:`run_live_benchmark`."""
+    rows, cols = result["sensor_shape"]
+    lines = [f"live reconstruction on the real-time simulated camera, {rows}x{cols}, camera "
+             f"set to {result['camera_fps_set']:g} fps",
+             "mode      camera fps  live fps  received  recon'd  skipped  errors  "
+             "latency med ms  p95 ms  ring dropped"]
+    for mode, r in result["runs"].items():
+        s, lat = r["stats"], r["latency"]
+        med = "-" if lat["median_s"] is None else f"{1e3 * lat['median_s']:.1f}"
+        p95 = "-" if lat["p95_s"] is None else f"{1e3 * lat['p95_s']:.1f}"
+        lines.append(f"{mode:<8}  {r['camera_fps']:10.1f}  {s['fps']:8.1f}  "
+                     f"{s['received']:8d}  {s['reconstructed']:7d}  {s['skipped']:7d}  "
+                     f"{s['errors']:6d}  {med:>14}  {p95:>6}  {r['ring']['dropped']:12d}")
+    return "\n".join(lines)

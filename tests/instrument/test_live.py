@@ -1,0 +1,172 @@
+"""instrument.live: the live reconstruction worker takes the newest frame, counts skips,
+reports fps, latency and errors, and stops in time."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from drivers.camera import Frame, FrameRing
+from instrument.live import LatestFrameSlot, LiveReconstruction, LiveReconstructionError
+from recon.errors import ReconInputError
+from recon.live import LiveReconstructor, LiveResult
+
+SHAPE = (32, 40)
+
+
+def _frame(index: int, value: float = 1.0) -> Frame:
+    image = np.full(SHAPE, 100 + value, np.uint16)
+    image[10:20, 12:30] += 50
+    return Frame(image, index, 0.01 * index, time.time(), 0.005, 0.0, 0)
+
+
+class SlowReconstructor:
+    """Stands in for recon.live.LiveReconstructor: sleeps, records the frames it saw."""
+
+    def __init__(self, seconds: float, fail_on: int | None = None):
+        self.seconds, self.fail_on = seconds, fail_on
+        self.seen: list[int] = []
+        self.resets = 0
+
+    def _run(self, raw, method, iterations, warm):
+        time.sleep(self.seconds)
+        index = int(raw[0, 0]) - 100
+        if index == self.fail_on:
+            raise ReconInputError(f"frame {index} is bad; fix the test frame")
+        self.seen.append(index)
+        return LiveResult(raw.astype(np.float32), raw.astype(np.float32), None, method,
+                          iterations, warm, 1.0, self.seconds)
+
+    def wiener(self, raw):
+        return self._run(raw, "wiener", 1, False)
+
+    def admm(self, raw, iterations, warm_start):
+        return self._run(raw, "admm", iterations, warm_start)
+
+    def reset(self):
+        self.resets += 1
+
+
+def _wait_for(condition, timeout_s=3.0):
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        time.sleep(0.005)
+
+
+def test_slot_keeps_the_newest_frame_and_counts_overwrites():
+    slot = LatestFrameSlot()
+    assert slot.take(0.0) is None
+    for i in range(3):
+        slot.offer(_frame(i))
+    assert slot.counters() == {"received": 3, "taken": 0, "skipped": 2, "waiting": 1}
+    assert slot.take(0.0).index == 2
+    assert slot.take(0.01) is None
+    got = []
+    t = threading.Thread(target=lambda: got.append(slot.take(2.0)))
+    t.start()
+    slot.offer(_frame(7))
+    t.join(2.0)
+    assert got[0].index == 7 and slot.counters()["skipped"] == 2
+    slot.close()
+    assert slot.take(5.0) is None  # closed: returns at once
+
+
+def test_worker_fed_faster_than_it_works_takes_the_newest_and_counts_skips():
+    slow = SlowReconstructor(0.04)
+    live = LiveReconstruction(slow, window_s=10.0)
+    live.start()
+    offer_s = []
+    for i in range(40):  # 200 fps offered, 25 fps possible
+        frame = _frame(i, value=i)
+        t0 = time.perf_counter()
+        live.offer(frame)
+        offer_s.append(time.perf_counter() - t0)
+        time.sleep(0.005)
+    assert max(offer_s) < 0.03  # offer never waited for a 40 ms solve
+    _wait_for(lambda: live.latest() is not None and live.latest().frame_index == 39)
+    live.stop(timeout_s=1.0)
+    s = live.stats()
+    assert s["received"] == 40
+    assert s["reconstructed"] == len(slow.seen) < 20
+    assert s["skipped"] == 40 - s["reconstructed"] > 20  # every frame accounted for
+    assert slow.seen == sorted(slow.seen) and slow.seen[-1] == 39
+    assert s["errors"] == 0 and s["last_error"] is None and not s["running"]
+    assert 10 < s["fps"] < 30  # ~25 fps of 40 ms solves
+    assert s["latency_median_s"] >= 0.04 and s["latency_p95_s"] >= s["latency_median_s"]
+    assert live.latency_summary()["count"] == s["reconstructed"]
+
+
+def test_worker_on_a_ring_with_the_real_reconstructor():
+    psf = np.full(SHAPE, 100, np.uint16)
+    psf[14:18, 18:22] = 3000
+    psf[8, 30] = 1500
+    ring = FrameRing(8)
+    live = LiveReconstruction(LiveReconstructor(psf, dark=100.0, regularization=1e-2))
+    live.start(ring=ring)
+    for i in range(5):
+        ring.put(_frame(i, value=i))
+        time.sleep(0.02)
+    _wait_for(lambda: live.stats()["reconstructed"] >= 1
+              and live.stats()["received"] == 5)
+    preview = live.latest()
+    assert preview.method == "wiener" and preview.image.shape == SHAPE
+    assert preview.latency_s > 0 and preview.result_time_s > preview.host_timestamp_s
+    live.set_method("admm", iterations=3)
+    ring.put(_frame(5))
+    ring.put(_frame(6))
+    _wait_for(lambda: live.latest().frame_index == 6)
+    assert live.latest().method == "admm" and live.latest().iterations == 3
+    live.stop(timeout_s=2.0)
+    s = live.stats()
+    assert s["received"] == 7 == s["reconstructed"] + s["skipped"]
+    assert ring.counters()["read"] == 7 and s["latency_s"] is not None
+    with pytest.raises(ReconInputError, match="unknown"):
+        live.set_method("fista")
+
+
+def test_errors_in_the_worker_are_reported_and_it_goes_on():
+    slow = SlowReconstructor(0.0, fail_on=1)
+    live = LiveReconstruction(slow)
+    with live:
+        live.start()
+        for i in range(3):
+            live.offer(_frame(i, value=i))
+            _wait_for(lambda i=i: live.slot.counters()["taken"] == i + 1)
+        _wait_for(lambda: live.stats()["reconstructed"] + live.stats()["errors"] == 3)
+    s = live.stats()
+    assert s["errors"] == 1 and s["reconstructed"] == 2
+    assert "frame 1" in s["last_error"] and "ReconInputError" in s["last_error"]
+    assert isinstance(live.error, ReconInputError)
+
+
+def test_a_failed_ring_is_reported():
+    ring = FrameRing(4)
+    live = LiveReconstruction(SlowReconstructor(0.0))
+    live.start(ring=ring)
+    ring.fail(ConnectionError("camera unplugged"))
+    _wait_for(lambda: live.stats()["errors"] == 1)
+    live.stop(timeout_s=1.0)
+    assert "camera unplugged" in live.stats()["last_error"]
+
+
+def test_stop_returns_within_its_timeout_or_says_why():
+    live = LiveReconstruction(SlowReconstructor(0.3))
+    live.start()
+    t0 = time.monotonic()
+    live.stop(timeout_s=1.0)  # idle worker: wakes at once
+    assert time.monotonic() - t0 < 0.5
+    live.start()
+    live.offer(_frame(0))
+    _wait_for(lambda: live.slot.counters()["taken"] == 1)
+    t0 = time.monotonic()
+    with pytest.raises(LiveReconstructionError, match="longer than one frame"):
+        live.stop(timeout_s=0.05)  # busy for 0.3 s
+    assert time.monotonic() - t0 < 0.2
+    with pytest.raises(LiveReconstructionError, match="already running"):
+        live.start()
+    live.stop(timeout_s=1.0)
+    assert not live.running and live.stats()["reconstructed"] == 1
