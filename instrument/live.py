@@ -181,6 +181,7 @@ class LiveReconstruction:
         self._latest: LivePreview | None = None
         self._recent: deque[tuple[float, float]] = deque()  # (result time, latency)
         self._latencies: deque[float] = deque(maxlen=100_000)
+        self._compute: deque[float] = deque(maxlen=100_000)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self.reconstructed = 0
@@ -330,6 +331,7 @@ class LiveReconstruction:
                 while self._recent and self._recent[0][0] < done - self.window_s:
                     self._recent.popleft()
                 self._latencies.append(preview.latency_s)
+                self._compute.append(preview.compute_s)
 
     def _record_error(self, exc: BaseException, what: str) -> None:
         with self._lock:
@@ -373,14 +375,17 @@ class LiveReconstruction:
         return out
 
     def latency_summary(self) -> dict:
-        """Latency over the whole run: ``count``, ``median_s``, ``p95_s``, ``max_s``
-        (None without results)."""
+        """Latency over the whole run: ``count``, ``median_s``, ``p95_s``, ``max_s``, and
+        ``compute_median_s`` (conversion + solve alone; its inverse is the rate the worker
+        could sustain); None without results."""
         with self._lock:
-            lat = np.array(self._latencies)
+            lat, comp = np.array(self._latencies), np.array(self._compute)
         if not lat.size:
-            return {"count": 0, "median_s": None, "p95_s": None, "max_s": None}
+            return {"count": 0, "median_s": None, "p95_s": None, "max_s": None,
+                    "compute_median_s": None}
         return {"count": int(lat.size), "median_s": float(np.median(lat)),
-                "p95_s": float(np.percentile(lat, 95)), "max_s": float(lat.max())}
+                "p95_s": float(np.percentile(lat, 95)), "max_s": float(lat.max()),
+                "compute_median_s": float(np.median(comp))}
 
 
 def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
@@ -416,7 +421,8 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
     -------
     dict
         ``runs``: per mode the worker's ``stats()`` at the end, ``latency`` (whole-run
-        summary), ``ring`` counters and ``camera_fps``; ``psnr``: the warm/cold table.
+        summary, with the compute time that bounds the worker's rate), ``ring`` counters
+        and ``camera_fps``; ``psnr``: the warm/cold table.
     """
     from instrument.config import default_bench
     from instrument.video_scenes import BeadFlowScene
@@ -469,12 +475,14 @@ def live_benchmark_table(result: dict) -> str:
     lines = [f"live reconstruction on the real-time simulated camera, {rows}x{cols}, camera "
              f"set to {result['camera_fps_set']:g} fps",
              "mode      camera fps  live fps  received  recon'd  skipped  errors  "
-             "latency med ms  p95 ms  ring dropped"]
+             "latency med ms  p95 ms  ring dropped  capacity fps"]
     for mode, r in result["runs"].items():
         s, lat = r["stats"], r["latency"]
         med = "-" if lat["median_s"] is None else f"{1e3 * lat['median_s']:.1f}"
         p95 = "-" if lat["p95_s"] is None else f"{1e3 * lat['p95_s']:.1f}"
+        cap = "-" if lat["compute_median_s"] is None else f"{1 / lat['compute_median_s']:.1f}"
         lines.append(f"{mode:<8}  {r['camera_fps']:10.1f}  {s['fps']:8.1f}  "
                      f"{s['received']:8d}  {s['reconstructed']:7d}  {s['skipped']:7d}  "
-                     f"{s['errors']:6d}  {med:>14}  {p95:>6}  {r['ring']['dropped']:12d}")
+                     f"{s['errors']:6d}  {med:>14}  {p95:>6}  {r['ring']['dropped']:12d}  "
+                     f"{cap:>12}")
     return "\n".join(lines)

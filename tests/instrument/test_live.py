@@ -97,7 +97,9 @@ def test_worker_fed_faster_than_it_works_takes_the_newest_and_counts_skips():
     assert s["errors"] == 0 and s["last_error"] is None and not s["running"]
     assert 10 < s["fps"] < 30  # ~25 fps of 40 ms solves
     assert s["latency_median_s"] >= 0.04 and s["latency_p95_s"] >= s["latency_median_s"]
-    assert live.latency_summary()["count"] == s["reconstructed"]
+    summary = live.latency_summary()
+    assert summary["count"] == s["reconstructed"]
+    assert summary["compute_median_s"] == pytest.approx(0.04)
 
 
 def test_worker_on_a_ring_with_the_real_reconstructor():
