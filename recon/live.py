@@ -87,7 +87,8 @@ class LiveReconstructor:
     mu : (mu1, mu2, mu3), optional
         Initial ADMM penalties (see :func:`recon.solvers.admm.admm`).
     balance : bool
-        ADMM residual balancing (only acts when ``iterations`` >= 9 with the defaults).
+        ADMM residual balancing (with the default schedule it first changes a penalty
+        at iteration 6 of 10 or more; none with a few iterations per frame).
     regularization : float, optional
         Wiener lambda in units of |H|^2. Default: estimated from the first frame
         :meth:`wiener` sees (:func:`recon.solvers.wiener.auto_regularization`, a

@@ -282,9 +282,13 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     DivergenceError
         NaN/inf or an objective 100x that of the zero image.
     ReconInputError
-        Misshapen, non-finite or all-zero ``b``.
+        Misshapen, non-finite or all-zero ``b``, or a state made for the other sign of
+        ``tv``.
     """
     op = plan.op
+    if state.use_tv != (tv > 0):
+        raise ReconInputError(f"ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
+                              f" but tv={tv}; start from AdmmState.zeros(plan, mu, tv > 0)")
     b = check_measurement(b, op.shape_out)
     bp = np.zeros(plan.shape, np.float32)
     bp[op.crop] = b

@@ -62,7 +62,7 @@ def test_warm_state_is_carried_and_reset():
     warm = live.admm(raw, iterations=3)
     assert warm.warm
     # the whole state (x, M x, every q = z - a, penalties) is carried: 3 + 3 iterations
-    # on one frame are the 6 iterations of one solve (no balancing step below 9)
+    # on one frame are the 6 iterations of one solve (no balancing step below 10)
     six = LiveReconstructor(psf).admm(raw, iterations=6, warm_start=False)
     np.testing.assert_array_equal(warm.image, six.image)
     # the warm start also survives a change of frame scale (state rescaled)
@@ -99,3 +99,14 @@ def test_warm_start_beats_cold_start_on_a_moving_scene():
     np.testing.assert_array_equal(cold[:, 0], warm[:, 0])  # frame 1 starts cold in both
     assert np.all(warm[:, 1:] > cold[:, 1:] + 0.1), (cold, warm)
     assert res["gain_db"][-1] > 0.5
+
+
+def test_run_admm_refuses_a_state_made_for_the_other_tv():
+    from recon.solvers.admm import AdmmState, run_admm
+
+    psf, raw = _raw_pair()
+    live = LiveReconstructor(psf)
+    b, _ = live.prepare(raw)
+    state = AdmmState.zeros(live.plan, (2e-3,) * 3, use_tv=False)
+    with pytest.raises(ReconInputError, match="tv"):
+        run_admm(live.plan, b, state, iterations=2, tv=1e-3)
