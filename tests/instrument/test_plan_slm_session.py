@@ -53,7 +53,8 @@ class SlmStepsPlan(Plan):
         return self._session(bench)
 
     def steps(self, index, point):
-        self.log.append(f"point {index}")
+        # logged when the runner executes the point (the preflight walks steps() ahead)
+        yield Check("log", lambda bench, store, i: self.log.append(f"point {i}"))
         shape = (96, 120)  # the default bench's SLM
         g = point.coords["gray"]
         if self.params["phase"]:
