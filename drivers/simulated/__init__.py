@@ -4,8 +4,8 @@ They implement the same interfaces as the hardware drivers and pass the same
 conformance tests. Time is a :class:`SimClock` advanced by operations (a move, an
 exposure, a settle), so tests never sleep; on ``SimClock(realtime=True)`` the clock
 follows the wall clock and a streaming simulated camera delivers its frames from a
-grab thread at its frame rate (video, live views). Every device has ``faults`` for seeded fault injection (timeouts,
-disconnection, dropped frames, stuck axes).
+grab thread at its frame rate (video, live views). Every device has ``faults`` for
+seeded fault injection (timeouts, disconnection, dropped frames, stuck axes).
 """
 
 from drivers.simulated.camera import SimulatedCamera
