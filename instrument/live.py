@@ -392,7 +392,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
                        sensor_shape: tuple[int, int] = (300, 400),
                        admm_iterations: int = 5, psnr_frames: int = 8) -> dict:
     """Live throughput, latency and drops on the real-time simulated camera, and
-    the PSNR warm start buys (prints a report and returns the figures).
+    the PSNR warm start buys (``diffuserlab benchmark live``).
 
     A :class:`~instrument.virtual_bench.VirtualBench` with ``realtime=True`` and a
     ``sensor_shape`` sensor streams a prerendered bead-flow scene at ``fps`` into a
@@ -464,8 +464,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
     fine = load_sample(2).psf
     result["psnr"] = warm_vs_cold(fine, moving_scene(fine, psnr_frames, shift_px=4),
                                   admm_iterations)
-    print(live_benchmark_table(result))
-    print(warm_vs_cold_table(result["psnr"]))
+    result["text"] = live_benchmark_table(result) + "\n" + warm_vs_cold_table(result["psnr"])
     return result
 
 

@@ -1,8 +1,10 @@
-"""``diffuserlab benchmark recon``: the reconstruction benchmarks, 2D and 3D.
+"""``diffuserlab benchmark {recon,live}``.
 
-Runs :func:`recon.benchmarks.run.run_benchmarks` (speed vs the FFT floor, accuracy,
-stability, compressed sensing; 3D speed, memory and accuracy), prints each
-benchmark's table as it finishes and the summary at the end.
+``recon`` runs :func:`recon.benchmarks.run.run_benchmarks` (speed vs the FFT floor,
+accuracy, stability, compressed sensing; 3D speed, memory and accuracy), prints each
+benchmark's table as it finishes and the summary at the end. ``live`` runs
+:func:`instrument.live.run_live_benchmark` (live reconstruction on the real-time
+simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["add_subcommands", "run_recon_benchmarks"]
+__all__ = ["add_subcommands", "run_live_benchmark", "run_recon_benchmarks"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -32,6 +34,20 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--overwrite", action="store_true",
                     help="replace the results of an earlier run in --out")
     rp.set_defaults(handler=run_recon_benchmarks)
+    lp = bsub.add_parser("live", help="live reconstruction on the real-time simulated camera "
+                         "(fps, latency, skipped frames) and warm- vs cold-start ADMM PSNR",
+                         description="Live reconstruction on the real-time simulated camera: "
+                         "a Wiener preview and warm-started ADMM, each for --seconds; then "
+                         "PSNR per iteration of warm vs cold ADMM on a moving scene.")
+    lp.add_argument("--seconds", type=float, default=5.0,
+                    help="duration of each streaming run, s (default 5)")
+    lp.add_argument("--fps", type=float, default=30.0,
+                    help="camera frame rate, Hz (default 30, the simulated maximum)")
+    lp.add_argument("--iterations", type=int, default=5,
+                    help="ADMM iterations per frame (default 5)")
+    lp.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    lp.add_argument("--overwrite", action="store_true", help="replace an existing --json")
+    lp.set_defaults(handler=run_live_benchmark)
 
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:
@@ -50,4 +66,29 @@ def run_recon_benchmarks(args: argparse.Namespace) -> int:
     _, text = run_benchmarks(args.out, quick=args.quick, only=args.only, on_result=show)
     print(text)
     print(f"results in {args.out}")
+    return 0
+
+
+def run_live_benchmark(args: argparse.Namespace) -> int:
+    """Run ``benchmark live``; returns 0 (bad input exits 2 through the boundary)."""
+    from drivers.base import jsonable
+    from recon.errors import ReconInputError
+
+    from .. import live
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import write_json
+
+    if not (0 < args.seconds <= 600 and 0 < args.fps and args.iterations >= 1):
+        raise ReconInputError(f"--seconds {args.seconds}, --fps {args.fps}, --iterations "
+                              f"{args.iterations}: give 0 < seconds <= 600, fps > 0 and "
+                              "iterations >= 1")
+    if args.json is not None:
+        check_outputs([args.json], None, args.overwrite, option="--json")
+    result = live.run_live_benchmark(args.seconds, args.fps,
+                                     admm_iterations=args.iterations)
+    print(result["text"])
+    if args.json is not None:
+        figures = {k: v for k, v in result.items() if k != "text"}
+        write_json(args.json, jsonable(figures, nonfinite_to_none=True))
+        print(f"figures in {args.json}")
     return 0

@@ -161,3 +161,21 @@ def test_volume_benchmark_quick_writes_ratios(tmp_path, capsys):
         assert 0 < m["rss_before_problem_bytes"] <= m["max_rss_bytes"]
     out = capsys.readouterr().out
     assert "3D speed" in out and "memory, admm3d alone" in out
+
+
+def test_benchmark_live_prints_and_writes_every_figure(tmp_path, capsys):
+    out = tmp_path / "live.json"
+    assert main(["benchmark", "live", "--seconds", "0.5", "--iterations", "1",
+                 "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "wiener" in text and "admm:1" in text and "cold dB" in text
+    figures = json.loads(out.read_text())
+    for mode in ("wiener", "admm:1"):
+        stats = figures["runs"][mode]["stats"]
+        assert stats["received"] > 0 and stats["errors"] == 0
+        # every frame the worker received is either reconstructed or counted as skipped
+        assert stats["received"] - stats["reconstructed"] - stats["skipped"] in (0, 1)
+        assert math.isfinite(figures["runs"][mode]["camera_fps"])
+    psnr = figures["psnr"]
+    assert psnr["iterations"] == [1] and all(map(math.isfinite, psnr["warm_mean_db"]))
+    assert main(["benchmark", "live", "--json", str(out)]) == 2  # never replaced silently
