@@ -28,6 +28,7 @@ import numpy as np
 from drivers.camera import Frame, FrameRing
 from drivers.errors import CameraTimeoutError
 from recon.errors import ReconInputError
+from recon.fft import check_threads, limited_threads
 from recon.validate import as_int, positive
 
 __all__ = ["LatestFrameSlot", "LivePreview", "LiveReconstruction", "LiveReconstructionError",
@@ -163,19 +164,25 @@ class LiveReconstruction:
         ADMM from the previous frame's state (default) or from zero on every frame.
     window_s : float
         Sliding window of the fps and latency statistics, s.
+    threads : int, optional
+        Most threads the worker's FFTs and numba kernels use
+        (:func:`recon.fft.limited_threads`), so that it leaves cores to a recorder
+        running beside it; None: all cores.
 
     Raises
     ------
     ReconInputError
-        Unknown method, iterations < 1, or a window that is not > 0.
+        Unknown method, iterations < 1, a window that is not > 0, or ``threads``
+        outside 1..os.cpu_count().
     """
 
     def __init__(self, reconstructor, *, method: str = "wiener", iterations: int = 5,
-                 warm_start: bool = True, window_s: float = 2.0):
+                 warm_start: bool = True, window_s: float = 2.0, threads: int | None = None):
         self.reconstructor = reconstructor
         self._method, self._iterations = _method(method, iterations)
         self.warm_start = bool(warm_start)
         self.window_s = positive(window_s, "window_s")
+        self.threads = None if threads is None else check_threads(threads)
         self.slot = LatestFrameSlot()
         self._lock = threading.Lock()
         self._latest: LivePreview | None = None
@@ -304,6 +311,13 @@ class LiveReconstruction:
 
     # -- worker --------------------------------------------------------------------
     def _work(self, ready: threading.Event) -> None:
+        if self.threads is None:
+            self._loop(ready)
+        else:
+            with limited_threads(self.threads):
+                self._loop(ready)
+
+    def _loop(self, ready: threading.Event) -> None:
         ready.set()
         while not self._stop.is_set():
             frame = self.slot.take(timeout_s=0.1)
@@ -390,7 +404,8 @@ class LiveReconstruction:
 
 def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
                        sensor_shape: tuple[int, int] = (300, 400),
-                       admm_iterations: int = 5, psnr_frames: int = 8) -> dict:
+                       admm_iterations: int = 5, psnr_frames: int = 8,
+                       threads: int | None = None) -> dict:
     """Live throughput, latency and drops on the real-time simulated camera, and
     the PSNR warm start buys (``diffuserlab benchmark live``).
 
@@ -416,6 +431,8 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
         K of the ADMM run and of the PSNR table.
     psnr_frames : int
         Frames of the warm/cold PSNR comparison (>= 2).
+    threads : int, optional
+        Thread cap of the live worker (:class:`LiveReconstruction`); None: all cores.
 
     Returns
     -------
@@ -433,7 +450,8 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
 
     cfg = default_bench()
     geo = cfg.geometry.model_copy(update={"sensor_shape_px": tuple(sensor_shape)})
-    result: dict = {"sensor_shape": list(sensor_shape), "camera_fps_set": fps, "runs": {}}
+    result: dict = {"sensor_shape": list(sensor_shape), "camera_fps_set": fps, "runs": {},
+                    "threads": threads}
     with VirtualBench(cfg.model_copy(update={"geometry": geo}), seed=1, realtime=True,
                       render_cache_size=8) as vb:
         vb.led_array.all_off()
@@ -448,7 +466,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
             method, _, k = mode.partition(":")
             live = LiveReconstruction(
                 LiveReconstructor(psf, dark=cam.dark_offset_dn, regularization=1e-2),
-                method=method, iterations=int(k or 1), window_s=seconds)
+                method=method, iterations=int(k or 1), window_s=seconds, threads=threads)
             ring = FrameRing(64)
             cam.start_stream(ring)
             live.start(ring=ring)
@@ -472,7 +490,8 @@ def live_benchmark_table(result: dict) -> str:
     """Text table of the streaming part of :func:`run_live_benchmark`."""
     rows, cols = result["sensor_shape"]
     lines = [f"live reconstruction on the real-time simulated camera, {rows}x{cols}, camera "
-             f"set to {result['camera_fps_set']:g} fps",
+             f"set to {result['camera_fps_set']:g} fps, worker threads "
+             f"{result.get('threads') or 'all'}",
              "mode      camera fps  live fps  received  recon'd  skipped  errors  "
              "latency med ms  p95 ms  ring dropped  capacity fps"]
     for mode, r in result["runs"].items():

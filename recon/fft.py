@@ -1,16 +1,21 @@
 """FFT helpers shared by the forward models, solvers and benchmarks.
 
 All transforms go through :mod:`scipy.fft` with ``workers=os.cpu_count()`` (see
-docs/architecture.md); the FFT floor used to state speed as a ratio is measured here.
+docs/architecture.md), or fewer inside :func:`limited_threads` (a thread that must
+leave cores to others, e.g. live reconstruction next to a recorder); the FFT floor
+used to state speed as a ratio is measured here.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import logging
 import os
 import sys
+import threading
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import scipy.fft as sfft
@@ -18,6 +23,48 @@ import scipy.fft as sfft
 WORKERS = os.cpu_count() or 1
 
 log = logging.getLogger(__name__)
+
+_limit = threading.local()
+
+
+def fft_workers() -> int:
+    """FFT workers of the calling thread: :data:`WORKERS`, or the cap of an enclosing
+    :func:`limited_threads`."""
+    return getattr(_limit, "n", WORKERS)
+
+
+def check_threads(n) -> int:
+    """``n`` as a thread count in [1, os.cpu_count()], else ReconInputError naming it."""
+    from .errors import ReconInputError
+
+    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= WORKERS:
+        raise ReconInputError(f"threads={n!r}: give an integer from 1 to {WORKERS} "
+                              "(this machine's cores)")
+    return n
+
+
+@contextlib.contextmanager
+def limited_threads(n: int) -> Iterator[None]:
+    """Context manager: the calling thread's FFTs (:func:`rfftn`, :func:`irfftn`) and
+    numba kernels use at most ``n`` threads; other threads are unaffected (numba's
+    thread count is per thread too).
+
+    Raises
+    ------
+    ReconInputError
+        ``n`` is not an integer in [1, os.cpu_count()].
+    """
+    from .jit import set_num_threads, thread_count
+
+    check_threads(n)
+    before_fft, before_numba = fft_workers(), thread_count()
+    _limit.n = n
+    set_num_threads(min(n, before_numba))
+    try:
+        yield
+    finally:
+        _limit.n = before_fft
+        set_num_threads(before_numba)
 
 
 def retain_freed_memory() -> bool:
@@ -74,13 +121,14 @@ def fast_padded_shape(shape: tuple[int, ...], factor: int = 2) -> tuple[int, ...
 
 
 def rfftn(x: np.ndarray, axes=(-2, -1)) -> np.ndarray:
-    """Real FFT over ``axes`` with all workers; float32 in gives complex64 out."""
-    return sfft.rfftn(x, axes=axes, workers=WORKERS)
+    """Real FFT over ``axes`` with the thread's workers (:func:`fft_workers`);
+    float32 in gives complex64 out."""
+    return sfft.rfftn(x, axes=axes, workers=fft_workers())
 
 
 def irfftn(x: np.ndarray, shape: tuple[int, ...], axes=(-2, -1)) -> np.ndarray:
-    """Inverse real FFT over ``axes`` to real lengths ``shape``, all workers."""
-    return sfft.irfftn(x, s=shape, axes=axes, workers=WORKERS)
+    """Inverse real FFT over ``axes`` to real lengths ``shape`` (:func:`fft_workers`)."""
+    return sfft.irfftn(x, s=shape, axes=axes, workers=fft_workers())
 
 
 def time_ffts(shape: tuple[int, ...], *, real: bool = True, stacks: tuple[int, ...] = (1,),

@@ -31,10 +31,11 @@ import os
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from numba import njit, prange  # noqa: E402
+from numba import get_num_threads as thread_count  # noqa: E402
+from numba import njit, prange, set_num_threads  # noqa: E402
 
 __all__ = ["PARALLEL", "PARALLEL_FAST", "balance_terms", "clip", "data_split", "njit",
-           "prange", "shrink_split"]
+           "prange", "set_num_threads", "shrink_split", "thread_count"]
 
 #: numba flags of the parallel kernels: threads over ``prange``, on-disk cache,
 #: GIL released (the acquisition thread keeps running during a solve).

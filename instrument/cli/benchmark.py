@@ -45,6 +45,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="camera frame rate, Hz (default 30, the simulated maximum)")
     lp.add_argument("--iterations", type=int, default=5,
                     help="ADMM iterations per frame (default 5)")
+    lp.add_argument("--threads", type=int, default=None,
+                    help="cap the live worker's threads (default: all cores)")
     lp.add_argument("--json", type=Path, default=None, help="also write the figures here")
     lp.add_argument("--overwrite", action="store_true", help="replace an existing --json")
     lp.set_defaults(handler=run_live_benchmark)
@@ -73,6 +75,7 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
     """Run ``benchmark live``; returns 0 (bad input exits 2 through the boundary)."""
     from drivers.base import jsonable
     from recon.errors import ReconInputError
+    from recon.fft import check_threads
 
     from .. import live
     from ..output_safety import check_outputs
@@ -82,10 +85,12 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
         raise ReconInputError(f"--seconds {args.seconds}, --fps {args.fps}, --iterations "
                               f"{args.iterations}: give 0 < seconds <= 600, fps > 0 and "
                               "iterations >= 1")
+    if args.threads is not None:
+        check_threads(args.threads)
     if args.json is not None:
         check_outputs([args.json], None, args.overwrite, option="--json")
     result = live.run_live_benchmark(args.seconds, args.fps,
-                                     admm_iterations=args.iterations)
+                                     admm_iterations=args.iterations, threads=args.threads)
     print(result["text"])
     if args.json is not None:
         figures = {k: v for k, v in result.items() if k != "text"}

@@ -300,6 +300,7 @@ BENCHMARK = [
     case("benchmark live --seconds 0", "number", "seconds 0", "--seconds 0"),
     case("benchmark live --fps nan", "number", "fps nan", "--fps nan"),
     case("benchmark live --iterations 0", "number", "iterations 0", "--iterations 0"),
+    case("benchmark live --threads 0", "number", "threads 0", "threads=0"),
     case("benchmark live --json file.txt", "clash", "json exists", "file.txt|exists"),
     case("benchmark live --json file.txt/b.json", "unwritable", "json under a file",
          "file.txt"),

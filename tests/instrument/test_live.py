@@ -172,3 +172,46 @@ def test_stop_returns_within_its_timeout_or_says_why():
         live.start()
     live.stop(timeout_s=1.0)
     assert not live.running and live.stats()["reconstructed"] == 1
+
+
+class ThreadProbe(SlowReconstructor):
+    """Records the FFT workers and numba threads the worker thread runs with."""
+
+    def _run(self, raw, method, iterations, warm):
+        from recon.fft import fft_workers
+        from recon.jit import thread_count
+
+        self.threads_seen = (fft_workers(), thread_count())
+        return super()._run(raw, method, iterations, warm)
+
+
+def test_threads_caps_the_worker_and_nothing_else():
+    from recon.fft import fft_workers
+    from recon.jit import thread_count
+
+    with pytest.raises(ReconInputError, match="threads=0"):
+        LiveReconstruction(SlowReconstructor(0.0), threads=0)
+    probe = ThreadProbe(0.0)
+    live = LiveReconstruction(probe, threads=1)
+    before = (fft_workers(), thread_count())
+    live.start()
+    try:
+        live.offer(_frame(1))
+        _wait_for(lambda: live.stats()["reconstructed"] == 1)
+        assert probe.threads_seen == (1, 1)
+        assert (fft_workers(), thread_count()) == before  # this thread keeps all cores
+    finally:
+        live.stop(timeout_s=2.0)
+
+
+def test_limited_threads_restores_the_caller():
+    from recon.fft import fft_workers, limited_threads
+    from recon.jit import thread_count
+
+    before = (fft_workers(), thread_count())
+    with limited_threads(1):
+        assert (fft_workers(), thread_count()) == (1, 1)
+    assert (fft_workers(), thread_count()) == before
+    with pytest.raises(ReconInputError, match="threads=99"):
+        with limited_threads(99):
+            pass
