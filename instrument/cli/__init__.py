@@ -29,14 +29,14 @@ import errno
 import logging
 import sys
 
-from . import analyze, bench, benchmark, demo, holo, recon, recon3d, runs
+from . import analyze, bench, benchmark, capture, demo, holo, recon, recon3d, runs
 
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("diffuserlab")
 
 #: The command modules, in the order of ``diffuserlab --help``.
-COMMANDS = (recon, demo, recon3d, analyze, bench, runs, benchmark, holo)
+COMMANDS = (recon, demo, recon3d, analyze, bench, runs, capture, benchmark, holo)
 
 
 class _Parser(argparse.ArgumentParser):

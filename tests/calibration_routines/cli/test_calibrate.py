@@ -158,3 +158,16 @@ def test_grid_takes_the_falloff_from_an_angular_run(tmp_path):
                  "1", "--n", "2", "--falloff-run", str(angle)]) == 0
     nyquist = RunStore.open(grid).attrs["summary"]["nyquist"]
     assert nyquist["checked"] and nyquist["falloff_sigma_deg"] == pytest.approx(20.0, rel=0.03)
+
+
+def test_capture_live_from_the_calibrated_sweep(sweep, tmp_path, capsys):
+    """The sweep's PSFs are dark-subtracted: capture live adds the frames' dark level
+    (the simulated camera's offset) back, so the beads come out, not streaks."""
+    from recon.io import load_image
+
+    png = tmp_path / "live.png"
+    assert main(["capture", "live", "--simulate", "--psf", str(sweep), "--depth", "30",
+                 "--method", "admm:3", "--seconds", "2", "--preview-png", str(png)]) == 0
+    assert "errors 0" in capsys.readouterr().out
+    energy = np.sort(load_image(png).astype(np.float64).ravel() ** 2)[::-1]
+    assert energy[: energy.size // 200].sum() > 0.2 * energy.sum()
