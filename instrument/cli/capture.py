@@ -153,7 +153,9 @@ def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
 def _status(t_s: float, ring, live) -> str:
     c, s = ring.counters(), live.stats()
     lat = "-" if s["latency_median_s"] is None else f"{1e3 * s['latency_median_s']:.0f} ms"
-    return (f"{t_s:5.1f} s  camera: acquired {c['acquired']}, dropped {c['dropped']}  |  "
+    rate = c["acquired"] / t_s if t_s > 0 else 0.0  # a camera short of its rate shows here
+    return (f"{t_s:5.1f} s  camera: {rate:.1f} fps, acquired {c['acquired']}, dropped "
+            f"{c['dropped']}  |  "
             f"live: {s['fps']:.1f} fps, latency {lat}, reconstructed {s['reconstructed']}, "
             f"skipped {s['skipped']}, errors {s['errors']}")
 

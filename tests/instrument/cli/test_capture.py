@@ -31,12 +31,14 @@ def test_capture_live_reports_counters_and_writes_a_preview_of_the_beads(
     assert main(["capture", "live", "--simulate", "--psf", str(psf_path), "--method", method,
                  "--seconds", "2.5", "--preview-png", str(png), "--threads", "1"]) == 0
     out = capsys.readouterr().out.splitlines()
-    status = [line for line in out if "camera: acquired" in line]
+    status = [line for line in out if "camera: " in line and "acquired" in line]
     assert len(status) >= 2 and "errors 0" in status[-1]
     acquired = int(status[-1].split("acquired ")[1].split(",")[0])
     reconstructed = int(status[-1].split("reconstructed ")[1].split(",")[0])
     skipped = int(status[-1].split("skipped ")[1].split(",")[0])
     assert acquired >= 30 and reconstructed >= 10
+    fps = float(status[-1].split("camera: ")[1].split(" fps")[0])
+    assert 10 < fps < 40  # the camera's measured rate (set to 30 fps) is shown
     assert reconstructed + skipped <= acquired
     image = load_image(png).astype(np.float64)
     # a handful of beads on a dark field: a tiny fraction of the pixels holds most of
