@@ -23,6 +23,8 @@ UC Berkeley, 2020):
   distinguishability by reconstruction with the 20 % dip criterion (Sec. 4.4).
 - :mod:`recon.analysis.grid` -- reconstruction-grid recommendation (Nyquist planes
   in 1/z and lateral binning, only over the depths a scene spans).
+- :mod:`recon.analysis.activity` -- ΔF/F of a fluorescence video against a per-pixel
+  percentile baseline (Fig. 6.5b).
 - :mod:`recon.analysis.reports` -- the numbers of ``diffuserlab analyze`` for a
   whole PSF stack (stack preparation, resolution per depth, lateral and axial
   conditioning, distinguishability, field of view per depth).
@@ -30,6 +32,7 @@ UC Berkeley, 2020):
 Bad input raises :class:`recon.errors.ReconInputError` naming the problem and the fix.
 """
 
+from .activity import delta_f_over_f
 from .angular import FalloffFit, fit_gaussian_falloff, fov_half_angle_deg
 from .conditioning import (
     axial_layout,
@@ -86,6 +89,7 @@ from .sampling import (
 from .similarity import cross_correlation, inner_products_with, stack_similarity
 
 __all__ = [
+    "delta_f_over_f",
     "FalloffFit",
     "axial_step_eq510_per_mm",
     "border_energy_fraction",
