@@ -50,6 +50,7 @@ from .plan import (
     ShowSlm,
     plan_from_record,
 )
+from .preflight import preflight
 from .run_identity import Difference, format_differences, resume_differences
 from .runstore import RunStore, RunStoreError, software_version, utc_now
 
@@ -292,51 +293,15 @@ class Runner:
             store.unlock()
 
     def preflight(self, plan: Plan, points: Sequence, indices: Sequence[int]) -> None:
-        """Check the steps of ``points[indices]`` (and of setup and teardown) against
-        the devices before the first move (:meth:`~instrument.plan.Plan.checked_steps`):
-        every stage target against the stage limits, fixed exposures against the
-        camera, LED indices and brightness against the LED array.
-
-        The moves are followed in order from the stages' current positions, so a
-        backlash overshoot point is checked on the side the stage will approach from
-        (:meth:`drivers.stage.Stage.path_to`).
+        """Check ``points[indices]`` against the bench before the first move
+        (:func:`instrument.preflight.preflight`).
 
         Raises
         ------
         PlanError
-            A step the device would refuse (a target or overshoot point outside a
-            stage's limits, an exposure out of range, an LED the array lacks, an
-            unknown device or axis): the point, its coordinates and the device's
-            message.
+            A step a device would refuse, naming its point.
         """
-        positions: dict[str, dict[str, float]] = {}
-        for index, step in plan.checked_steps(points, indices):
-            try:
-                if isinstance(step, Move):
-                    stage = self.bench.device(step.stage)
-                    start = positions.get(stage.device_id) or stage.positions()
-                    path = stage.path_to(dict(step.targets), start)
-                    positions[stage.device_id] = {**start, **path[-1]}
-                elif isinstance(step, Expose) and step.exposure_s is not None:
-                    self.bench.camera.check_settings({"exposure_s": step.exposure_s})
-                elif isinstance(step, Light):
-                    self._check_light(step)
-            except (DeviceError, LookupError, PlanError) as exc:
-                where = ("setup/teardown" if index is None else
-                         f"point {index + 1} of {len(points)} {dict(points[index].coords)}")
-                raise PlanError(f"plan {plan.name!r} cannot run: {where}: {exc}; nothing "
-                                "moved - change the plan's parameters or the device "
-                                "limits") from None
-
-    def _check_light(self, step: Light) -> None:
-        leds = self.bench.device(step.device)
-        if not 0 <= step.brightness <= 1:
-            raise PlanError(f"{leds.device_id}: brightness {step.brightness} is outside [0, 1]")
-        if isinstance(step.leds, str):
-            return  # "all" (anything else is refused by the step itself)
-        bad = [i for i in step.leds if not 0 <= i < leds.n_leds]
-        if bad:
-            raise PlanError(f"{leds.device_id}: LED(s) {bad} outside 0-{leds.n_leds - 1}")
+        preflight(self.bench, plan, points, indices)
 
     def _check_identity(self, store: RunStore, accept: bool) -> list[Difference]:
         """The differences a resume may accept; RunStoreError for the others."""
