@@ -59,6 +59,23 @@ def _check_grid_numbers(*, n, spacing_mm, z_mm, led_step, falloff_sigma_deg) -> 
         raise PlanError(f"z_mm={z_mm!r} (--z-mm): the pinhole depth must be > 0 mm")
 
 
+def _check_on_sensor(xy: np.ndarray, z_mm: float, d_mm: float, pitch_mm: float,
+                     sensor: tuple[int, int], step_mm: float) -> None:
+    """PlanError when the outermost grid position moves the PSF's centre off the
+    sensor: a pinhole at lateral x shifts the caustic by ``x d / z`` (Sec. 5.2; the
+    magnification m = d/z), and a PSF off the sensor leaves nothing to register."""
+    half_mm = np.array([sensor[1], sensor[0]]) * pitch_mm / 2  # (x, y) half widths
+    reach = np.abs(xy).max(axis=0) * d_mm / z_mm
+    if np.any(reach > half_mm):
+        k = int(np.argmax(reach / half_mm))
+        limit = step_mm * half_mm[k] / reach[k]
+        raise PlanError(
+            f"at z = {z_mm:g} mm the outer grid positions shift the PSF by "
+            f"{reach[k]:.2f} mm along {'xy'[k]}, beyond the sensor's half width "
+            f"{half_mm[k]:.2f} mm: those PSFs would leave the sensor; use a spacing of at "
+            f"most {limit:.3g} mm (--spacing-mm), fewer points or a larger z")
+
+
 @register_plan
 class PsfGridPlan(Plan):
     """The lateral PSF grid (module docstring).
@@ -127,7 +144,7 @@ class PsfGridPlan(Plan):
         """
         _check_grid_numbers(n=n, spacing_mm=spacing_mm, z_mm=z_mm, led_step=led_step,
                             falloff_sigma_deg=params.get("falloff_sigma_deg"))
-        d_mm, pitch_mm, _ = sensor_geometry(bench.config)
+        d_mm, pitch_mm, sensor = sensor_geometry(bench.config)
         params.setdefault("frames_per_point", bench.config.calibration.frames_per_point)
         offsets = np.arange(n) - (n - 1) / 2
         if mode == "stage":
@@ -140,6 +157,7 @@ class PsfGridPlan(Plan):
                     raise PlanError(f"the grid spans {axis} {xy[:, k].min():g}..."
                                     f"{xy[:, k].max():g} mm, outside the stage travel "
                                     f"{lo:g}..{hi:g} mm; use fewer points or a smaller spacing")
+            _check_on_sensor(xy, z_mm, d_mm, pitch_mm, sensor, step)
             return cls(mode="stage", positions_mm=xy, z_mm=z_mm, d_mm=d_mm, pitch_mm=pitch_mm,
                        led_positions_mm=bench.led_array.positions_mm, **params)
         leds = bench.led_array

@@ -58,6 +58,10 @@ def test_nyquist_check_flags_a_sparse_grid_and_reports_unchecked(vb):
 def test_grid_outside_the_travel_or_array_is_refused(vb):
     with pytest.raises(PlanError, match="travel"):
         PsfGridPlan.for_bench(vb, mode="stage", n=5, spacing_mm=20.0)
+    # 20 mm at z = 40 mm shifts the PSF by 20 * 8.9 / 40 = 4.45 mm, the sensor is
+    # 256 x 320 px of 13 um: half heights 1.66 mm, so at most 20 * 1.66 / 4.45 mm
+    with pytest.raises(PlanError, match=r"4.45 mm along y.*at most 7.48 mm"):
+        PsfGridPlan.for_bench(vb, mode="stage", n=3, spacing_mm=20.0)
     with pytest.raises(PlanError, match="no LED"):
         PsfGridPlan.for_bench(vb, mode="leds", n=9, led_step=8)
     with pytest.raises(PlanError, match="mode"):
