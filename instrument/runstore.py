@@ -18,6 +18,8 @@ Layout of ``RUN.zarr``::
                          coordinates and its checksum are written
     point                (n_frames,) int32: the plan point of each frame (fixed)
     tag                  (n_frames,) int16: index into the ``tags`` attribute (fixed)
+    storage attribute    present on sharded (video) runs only: {"shard_frames": k,
+                         "compressor": NAME}; see "Sharded runs" below
     .lock                JSON {pid, host, started_utc} while a process writes the run
                          (:meth:`RunStore.lock`); not part of the Zarr hierarchy
     products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...);
@@ -33,6 +35,15 @@ flight. Reading a frame or a product verifies its checksum, so a chunk file dele
 (zarr would return zeros) or altered afterwards is reported (RunStoreError naming the
 frame or product plane) instead of being read as data; :meth:`RunStore.verify`
 checks a whole run.
+
+Sharded runs (video, ``RunStore.create(shard_frames=k)``): ``frames`` keeps one
+frame per inner chunk but groups ``k`` frames per shard file (zarr's sharding
+codec), and ``coords``, ``crc32`` and ``done`` hold ``k`` frames per chunk, so a
+block of ``k`` frames costs 4 files instead of ``4 k``. Writing one inner chunk
+rewrites its whole shard, so such runs are written a shard at a time with
+:meth:`RunStore.write_frames` (frames, coordinates, checksums, then done flags): a
+crash loses at most the shard being written. Readers are unchanged (same arrays,
+shapes and meaning; schema 2).
 """
 
 from __future__ import annotations
@@ -60,8 +71,8 @@ from .run_integrity import (
     write_lock,
 )
 
-__all__ = ["SCHEMA_VERSION", "DamagedFrameError", "RunStore", "RunStoreError", "is_run_store",
-           "software_version", "utc_now"]
+__all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "RunStore",
+           "RunStoreError", "is_run_store", "software_version", "utc_now"]
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +80,22 @@ log = logging.getLogger(__name__)
 SCHEMA_VERSION = 2
 #: Schema versions this diffuserlab reads (1: no checksums).
 READABLE_SCHEMAS = (1, 2)
+#: Frame compressors a sharded run may use: "default" is zarr's own (zstd level 0,
+#: what unsharded runs use), "none" stores raw bytes, "zstd1" is zstd level 1,
+#: "blosc-lz4" is blosc lz4 with bit shuffle (all lossless).
+FRAME_COMPRESSORS = ("default", "none", "zstd1", "blosc-lz4")
+
+
+def _frame_compressors(name: str):
+    """The zarr ``compressors`` argument for one of :data:`FRAME_COMPRESSORS`."""
+    from zarr.codecs import BloscCodec, ZstdCodec
+
+    choices = {"default": "auto", "none": None, "zstd1": ZstdCodec(level=1),
+               "blosc-lz4": BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")}
+    if name not in choices:
+        raise RunStoreError(f"unknown frame compressor {name!r}; use one of "
+                            f"{list(FRAME_COMPRESSORS)}")
+    return choices[name]
 
 
 class RunStoreError(ValueError):
@@ -180,7 +207,8 @@ class RunStore:
                frame_shape: tuple[int, int], frame_dtype, coord_names: Sequence[str],
                bench_config: Mapping[str, Any] | None = None,
                device_settings: Mapping[str, Any] | None = None, note: str = "",
-               overwrite: bool = False) -> RunStore:
+               overwrite: bool = False, shard_frames: int | None = None,
+               compressor: str = "default") -> RunStore:
         """Create the store of a new run with its whole layout.
 
         Parameters
@@ -207,13 +235,20 @@ class RunStore:
         overwrite : bool
             Replace an existing run store at ``path`` (recognised by the schema
             marker in its ``zarr.json``; nothing else is deleted).
+        shard_frames : int, optional
+            Store ``k`` frames per shard file (video runs; see "Sharded runs" in
+            the module notes). None (default): one frame per file, as before.
+        compressor : str
+            One of :data:`FRAME_COMPRESSORS`, for a sharded run's frames
+            (unsharded runs always use "default").
 
         Raises
         ------
         RunStoreError
             ``path`` exists (and ``overwrite`` is False), ``path`` exists and is not
             a run store (a file or another directory: never replaced), the run at
-            ``path`` is locked by a writer, or the layout is empty.
+            ``path`` is locked by a writer, the layout is empty, ``shard_frames``
+            is not a positive integer or ``compressor`` is unknown.
         """
         import zarr
 
@@ -227,6 +262,14 @@ class RunStore:
                 "directory is ever deleted); choose another name or remove it yourself")
         if (path / LOCK_NAME).exists():
             raise RunStoreError(f"not replacing {path}: {lock_problem(path)}")
+        k = 1 if shard_frames is None else shard_frames
+        if not isinstance(k, int | np.integer) or isinstance(k, bool) or k < 1:
+            raise RunStoreError(f"shard_frames={shard_frames!r} is invalid; use an integer "
+                                ">= 1 or None")
+        compressors = _frame_compressors(compressor)
+        if shard_frames is None and compressor != "default":
+            raise RunStoreError(f"compressor {compressor!r} needs shard_frames (a sharded "
+                                "video run); unsharded runs use the default")
         if len(points) != len(frame_tags) or not points:
             raise RunStoreError("a run needs at least one point and one tag list per point "
                                 "(an empty list for a point without frames)")
@@ -237,14 +280,17 @@ class RunStore:
         n = int(point_of.size)
         rows, cols = (int(v) for v in frame_shape)
         group = zarr.open_group(str(path), mode="w", zarr_format=3)
+        k = int(min(k, max(n, 1)))
+        sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
+                                                    "compressors": compressors}
         group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
-                           dtype=np.dtype(frame_dtype), fill_value=0)
+                           dtype=np.dtype(frame_dtype), fill_value=0, **sharding)
         coords = group.create_array("coords", shape=(n, len(coord_names)),
-                                    chunks=(1, len(coord_names)), dtype="float64",
+                                    chunks=(k, len(coord_names)), dtype="float64",
                                     fill_value=np.nan)
         coords.attrs["names"] = list(coord_names)
-        group.create_array("crc32", shape=(n,), chunks=(1,), dtype="uint32", fill_value=0)
-        group.create_array("done", shape=(n,), chunks=(1,), dtype="uint8", fill_value=0)
+        group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0)
+        group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0)
         group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32")[:] = point_of
         group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16")[:] = tag_of
         group.create_group("products")
@@ -258,6 +304,8 @@ class RunStore:
             "device_settings": dict(device_settings or {}), "note": note,
             "resumes": [], "warnings": [], "error": None, "summary": {},
         }))
+        if shard_frames is not None:
+            group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
         return cls(path, group, writable=True)
 
     @classmethod
@@ -333,6 +381,12 @@ class RunStore:
     @property
     def frame_shape(self) -> tuple[int, int]:
         return tuple(self._group["frames"].shape[1:])
+
+    @property
+    def shard_frames(self) -> int | None:
+        """Frames per shard file of a sharded (video) run, None for one frame per file."""
+        shards = self._group["frames"].shards
+        return None if shards is None else int(shards[0])
 
     @property
     def frame_dtype(self) -> np.dtype:
@@ -420,6 +474,52 @@ class RunStore:
             self._group["crc32"][index] = frame_crc(image, row)
         self._group["done"][index] = 1
 
+    def write_frames(self, start: int, images: np.ndarray, coord_rows: np.ndarray) -> None:
+        """Store frames ``start .. start + len(images) - 1`` as one block: images, then
+        coordinates, then checksums, then done flags (each a single write).
+
+        Meant for sharded runs, written a whole shard at a time (``start`` a multiple
+        of :attr:`shard_frames`, ``len(images)`` equal to it except at the end of a
+        recording); any block is stored correctly, a partial shard just costs a
+        rewrite of that shard.
+
+        Parameters
+        ----------
+        start : int
+        images : ndarray, (m, rows, cols)
+            Cast exactly to the run's dtype (as :meth:`write_frame`).
+        coord_rows : ndarray, (m, n_coords) float64
+            Coordinates in :attr:`coord_names` order (NaN where unknown).
+
+        Raises
+        ------
+        RunStoreError
+            Read-only store, block outside the run, wrong image or coordinate shape,
+            or values the run's dtype cannot hold exactly.
+        """
+        self._require_writable()
+        images = np.asarray(images)
+        rows = np.asarray(coord_rows, np.float64)
+        m = images.shape[0] if images.ndim == 3 else -1
+        if images.ndim != 3 or images.shape[1:] != self.frame_shape:
+            raise RunStoreError(f"frame block shape {images.shape} is not (m, "
+                                f"{self.frame_shape[0]}, {self.frame_shape[1]}); keep the "
+                                "camera ROI/binning fixed")
+        if rows.shape != (m, len(self._coord_names)):
+            raise RunStoreError(f"coordinate block shape {rows.shape} is not ({m}, "
+                                f"{len(self._coord_names)}) for {self._coord_names}")
+        if not (0 <= start and start + m <= self.n_frames) or m == 0:
+            raise RunStoreError(f"frames {start}..{start + m - 1} are outside the run's "
+                                f"0..{self.n_frames - 1}")
+        images = np.stack([self._exact(start + j, im) for j, im in enumerate(images)])
+        stop = start + m
+        self._group["frames"][start:stop] = images
+        self._group["coords"][start:stop] = rows
+        if self.has_checksums:
+            self._group["crc32"][start:stop] = np.array(
+                [frame_crc(im, row) for im, row in zip(images, rows, strict=True)], np.uint32)
+        self._group["done"][start:stop] = 1
+
     def _exact(self, index: int, image: np.ndarray) -> np.ndarray:
         """``image`` cast to the run's dtype, or RunStoreError if that would change a value."""
         dtype = self.frame_dtype
@@ -493,9 +593,10 @@ class RunStore:
         except Exception as exc:  # a corrupt chunk fails to decode
             raise self._damage(index, f"its chunks cannot be read ({exc})") from exc
         if crc is not None and crc != frame_crc(image, row):
-            missing = not (self.path / "frames" / "c" / str(index) / "0" / "0").exists()
+            chunk = f"frames/c/{index // (self.shard_frames or 1)}/0/0"
+            missing = not (self.path / chunk).exists()
             raise self._damage(
-                index, f"its chunk file frames/c/{index}/0/0 is missing (read as zeros)"
+                index, f"its chunk file {chunk} is missing (read as zeros)"
                 if missing else "its data differ from the checksum recorded when it was "
                 "written (a chunk file altered)")
         return image, row
