@@ -134,9 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     int
         The handler's status; 2 (one line on stderr) on
         :class:`recon.errors.ReconInputError`,
-        :class:`instrument.runstore.RunStoreError`,
+        :class:`instrument.runstore.RunStoreError`, :class:`instrument.plan.PlanError`,
         :class:`instrument.cli.common.MissingBenchFile` and the errors the command
-        lists in ``input_errors``; 3 when a solver diverged
+        lists in ``input_errors``; 2 and one line per problem on
+        :class:`instrument.config.BenchConfigError`; 3 when a solver diverged
         (:class:`recon.errors.DivergenceError`); 2 (one line) on the ordinary OS
         errors (permission denied, no such file, is / is not a directory, file exists,
         no space left, read-only file system); 1 and one line saying it is a bug on any
@@ -144,6 +145,8 @@ def main(argv: list[str] | None = None) -> int:
     """
     from recon.errors import DivergenceError, ReconInputError
 
+    from ..config import BenchConfigError
+    from ..plan import PlanError
     from ..runstore import RunStoreError
     from .common import MissingBenchFile
 
@@ -157,10 +160,14 @@ def main(argv: list[str] | None = None) -> int:
             handler.removeFilter(_project_record)
         elif _project_record not in handler.filters:
             handler.addFilter(_project_record)
-    input_errors = (ReconInputError, RunStoreError, MissingBenchFile,
+    input_errors = (ReconInputError, RunStoreError, MissingBenchFile, PlanError,
                     *getattr(args, "input_errors", ()))
     try:
         return int(args.handler(args) or 0)
+    except BenchConfigError as exc:  # one line per problem of the bench file
+        for line in exc.lines():
+            print(f"diffuserlab: error: {line}", file=sys.stderr)
+        return 2
     except DivergenceError as exc:
         print(f"diffuserlab: diverged: {(str(exc).splitlines() or [''])[0]}", file=sys.stderr)
         return 3

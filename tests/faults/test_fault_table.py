@@ -448,9 +448,24 @@ DEMO = [
     case("demo --out file.txt/demo", "unwritable", "out under a file", "file.txt"),
 ]
 
+CL = "capture live --simulate --seconds 1"
+CAPTURE = [
+    case(f"{CL} --psf nope.npy", "missing", "psf", "nope.npy"),
+    case(f"{CL} --psf empty.npy", "empty", "psf", "empty.npy"),
+    case(f"{CL} --psf psf.npy", "shape", "psf of another shape", "32x32|256x320"),
+    case(f"{CL} --psf psf.npy --method bogus", "number", "method", "--method 'bogus'"),
+    case(f"{CL} --psf psf.npy --seconds 0", "number", "seconds 0", "--seconds 0"),
+    case(f"{CL} --psf psf.npy --preview-png raw.tif", "clash", "preview exists",
+         "raw.tif|exists"),
+    case(f"{CL} --psf psf.npy --preview-png file.txt/p.png", "unwritable",
+         "preview under a file", "file.txt"),
+    case("capture live foreign.toml --simulate --psf psf.npy", "foreign-bench",
+         "not a bench", "foreign.toml"),
+]
+
 TABLE = {"recon": RECON, "demo": DEMO, "recon3d": RECON3D, "analyze": ANALYZE,
          "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK, "holo": HOLO,
-         "calibrate": CALIBRATE, "align": ALIGN}
+         "calibrate": CALIBRATE, "align": ALIGN, "capture": CAPTURE}
 ALL = [c for rows in TABLE.values() for c in rows]
 
 

@@ -166,3 +166,23 @@ def test_import_psf_overwrite_replaces_a_store_without_the_zarr_suffix(files):
     check_outputs([store], None, overwrite=True, store=True)
     with pytest.raises(OutputError, match="is a directory"):
         check_outputs([files / "dir"], None, overwrite=True)
+
+
+def test_error_boundary_takes_project_errors_raised_anywhere(monkeypatch, capsys):
+    """A bench-file error is one line per problem, a plan error one line, both exit 2
+    (not a bug line), whichever command raises them."""
+    from instrument.config import BenchConfigError
+    from instrument.config.problems import Problem
+    from instrument.plan import PlanError
+
+    problems = [Problem("geometry", "missing", "add it"), Problem("name", "empty", "name it")]
+    for exc, lines in ((BenchConfigError(problems, "b.toml"), 2),
+                       (PlanError("n=0: give n >= 2"), 1)):
+        def boom(args, exc=exc):
+            raise exc
+
+        monkeypatch.setattr(instrument.cli.recon, "run", boom)
+        assert main(["recon", "--psf", "p.npy", "--raw", "r.npy"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == lines and all(e.startswith("diffuserlab: error: ") for e in err)
+        assert "bug" not in " ".join(err)
