@@ -125,6 +125,22 @@ class Device(abc.ABC):
         state = "open" if self._is_open else "closed"
         return f"<{type(self).__name__} {self.device_id!r} ({state})>"
 
+    @property
+    def info(self) -> dict[str, Any]:
+        """Fixed properties read when the device opened (JSON-able copy): ranges and
+        geometry the settings are validated against, e.g. a camera's
+        ``exposure_range_s``, ``frame_rate_range_hz`` and ``gain_range_db``, a stage's
+        ``axes`` with their ``travel`` and ``max_velocity`` (see each kind's
+        ``_do_get_info``). Operator interfaces show them as the settings' limits.
+
+        Raises
+        ------
+        DeviceStateError
+            The device is not open.
+        """
+        self._require_open()
+        return jsonable(self._info)
+
     # ------------------------------------------------------------------ lifecycle
     @property
     def is_open(self) -> bool:

@@ -184,3 +184,18 @@ def test_simulated_stream_reports_a_disconnect_to_the_reader():
     cam.faults.allow_reconnect()
     cam.reconnect()
     assert not cam.is_streaming
+
+
+def test_info_is_a_copy_of_the_fixed_properties_and_needs_an_open_device():
+    from drivers.errors import DeviceStateError
+    from drivers.simulated import SimulatedCamera
+
+    cam = SimulatedCamera("cam", sensor_shape=(8, 10))
+    with pytest.raises(DeviceStateError):
+        cam.info  # noqa: B018 (the property raises)
+    with cam:
+        info = cam.info
+        lo, hi = info["exposure_range_s"]
+        assert 0 < lo < hi and info["sensor_shape"] == [8, 10]
+        info["sensor_shape"][0] = 99  # a copy: the device keeps its own
+        assert cam.sensor_shape == (8, 10)
