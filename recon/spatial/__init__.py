@@ -1,0 +1,29 @@
+"""Spatially varying models (Kuo 2020, Ch. 5) and the microscope's solver (Sec. 6.2).
+
+- :mod:`recon.spatial.grid` -- registered PSF grids (Eq. 5.2), their bilinear
+  weights (Eq. 5.3) and PSF grids synthesised at new depths.
+- :mod:`recon.spatial.operator` -- the local convolution model (Eq. 5.4-5.5) and
+  the low-rank PCA model (Eq. 5.6-5.7) as forward-model operators with adjoints,
+  2D and 3D.
+"""
+
+from .grid import PsfGrid, register_psfs, scale_psf, synthesize_grid
+from .operator import (
+    SpatialConvolutionOperator,
+    local_convolution_operator,
+    pca_components,
+    pca_operator,
+    spatial_memory_bytes,
+)
+
+__all__ = [
+    "PsfGrid",
+    "SpatialConvolutionOperator",
+    "local_convolution_operator",
+    "pca_components",
+    "pca_operator",
+    "register_psfs",
+    "scale_psf",
+    "spatial_memory_bytes",
+    "synthesize_grid",
+]
