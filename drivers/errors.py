@@ -12,8 +12,11 @@ Hierarchy::
     |   +-- CameraTimeoutError, StageTimeoutError, LedArrayTimeoutError, SlmTimeoutError
     +-- DeviceDisconnectedError (also ConnectionError)
     +-- DeviceStateError            (used before open, snap while streaming, ...)
+    |   +-- StageMotionError        (a move ended away from its target: limit switch, stall)
     +-- DeviceValueError (also ValueError): a bad argument or setting
-        +-- StageLimitError         (a target outside the axis limits)
+    |   +-- StageLimitError         (a target outside the axis limits)
+    +-- DeviceProtocolError         (the device refused a command or replied out of protocol)
+    +-- MissingDependencyError (also ImportError): an optional library is not installed
 """
 
 from __future__ import annotations
@@ -22,12 +25,15 @@ __all__ = [
     "CameraTimeoutError",
     "DeviceDisconnectedError",
     "DeviceError",
+    "DeviceProtocolError",
     "DeviceStateError",
     "DeviceTimeoutError",
     "DeviceValueError",
     "LedArrayTimeoutError",
+    "MissingDependencyError",
     "SlmTimeoutError",
     "StageLimitError",
+    "StageMotionError",
     "StageTimeoutError",
 ]
 
@@ -100,3 +106,18 @@ class StageLimitError(DeviceValueError):
 
     A subclass of :class:`DeviceValueError`, hence of ``DeviceError`` and ``ValueError``.
     """
+
+
+class StageMotionError(DeviceStateError):
+    """A stage move or homing ended away from its target: a hardware limit switch, a
+    stall, an interruption or a fault the controller reported. The stage is idle."""
+
+
+class DeviceProtocolError(DeviceError):
+    """The device refused a command (a rejection or error reply) or answered something
+    the protocol does not allow; the message quotes the reply."""
+
+
+class MissingDependencyError(DeviceError, ImportError):
+    """An optional library a driver needs is not installed; raised when the device is
+    opened, never on import. The fix names the extra (``diffuserlab[hardware]``)."""

@@ -1,0 +1,220 @@
+"""The pseudo-terminal harness every serial emulator runs on.
+
+The emulator owns the master side of a pty; a driver opens the slave path with
+pyserial exactly as it would open ``/dev/ttyUSB0`` (hardware-protocols.md, section 0):
+the slave is put in raw mode at creation (no echo, no CR/LF translation before the
+driver opens it), unplugging closes the master (the driver then sees pyserial's
+"device reports readiness to read but returned no data" / ``EIO``), and re-plugging
+creates a new pty on a new path. A stable *link* (like udev's
+``/dev/serial/by-id/...-<serial>-...``) follows the current pty, so a driver that
+resolves its port by serial number finds the device again after a re-plug.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import select
+import threading
+import time
+import tty
+from pathlib import Path
+
+__all__ = ["PtyEmulator"]
+
+log = logging.getLogger("drivers.emulators")
+
+
+class PtyEmulator:
+    """A device model behind a pseudo-terminal, served by one background thread.
+
+    Subclasses implement :meth:`on_bytes` (bytes the driver wrote) and optionally
+    :meth:`on_tick` (called every ``tick_s`` for motion and unsolicited messages), and
+    send with :meth:`reply` (a reply to a command, subject to :meth:`drop_replies`) or
+    :meth:`emit` (unsolicited: events, banners, garbage). Model state is guarded by
+    :attr:`lock` (held while ``on_bytes``/``on_tick`` run), so tests may inspect it.
+
+    Parameters
+    ----------
+    link : str or Path, optional
+        A symlink kept pointing at the current pty (removed while unplugged).
+    time_scale : float
+        Model seconds per real second (100 makes a 10 s move take 0.1 s).
+    tick_s : float
+        Period of :meth:`on_tick`, real seconds.
+    """
+
+    def __init__(self, *, link: str | Path | None = None, time_scale: float = 1.0,
+                 tick_s: float = 0.002) -> None:
+        if not time_scale > 0:
+            raise ValueError(f"time_scale must be > 0, got {time_scale!r}")
+        self.link = None if link is None else Path(link)
+        self.time_scale = float(time_scale)
+        self.tick_s = float(tick_s)
+        self.lock = threading.RLock()
+        self.received = bytearray()  # everything the driver wrote, for byte-exact tests
+        self.sent = bytearray()      # everything the emulator wrote
+        self._master: int | None = None
+        self._slave: int | None = None
+        self.tty: str | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._unplug_request = threading.Event()
+        self._unplugged = threading.Event()
+        self._drop = 0
+        self.plug_count = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def port(self) -> str:
+        """The path a driver opens: the link if any, else the current pty."""
+        if self.link is not None:
+            return str(self.link)
+        if self.tty is None:
+            raise RuntimeError("the emulator is not started")
+        return self.tty
+
+    @property
+    def plugged(self) -> bool:
+        """True while the pty exists (between start/replug and unplug/stop)."""
+        return self._master is not None
+
+    def start(self) -> PtyEmulator:
+        """Create the pty and start serving; returns self."""
+        if self._thread is not None:
+            return self
+        self._plug()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._serve, name=type(self).__name__,
+                                         daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and remove the pty and the link."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
+        self._close_fds()
+
+    def unplug(self, timeout_s: float = 2.0) -> None:
+        """Close the master side, as a yanked USB cable would; the model keeps its state."""
+        if self._thread is None or self._master is None:
+            self._close_fds()
+            return
+        self._unplugged.clear()
+        self._unplug_request.set()
+        if not self._unplugged.wait(timeout_s):
+            raise RuntimeError("the emulator thread did not unplug in time")
+
+    def replug(self) -> None:
+        """Plug back in: a new pty (a new path), the link moved to it."""
+        if self._master is not None:
+            return
+        self._plug()
+        with self.lock:
+            self.on_replug()
+
+    def __enter__(self) -> PtyEmulator:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ sending
+    def reply(self, data: bytes) -> None:
+        """Send a reply to a command, unless :meth:`drop_replies` asked to lose it."""
+        if self._drop > 0:
+            self._drop -= 1
+            log.debug("%s: reply dropped: %r", type(self).__name__, bytes(data))
+            return
+        self.emit(data)
+
+    def emit(self, data: bytes) -> None:
+        """Send bytes now (unsolicited messages; lost while unplugged or if the driver
+        does not read and the pty buffer is full)."""
+        fd = self._master
+        if fd is None:
+            return
+        try:
+            os.write(fd, bytes(data))
+            self.sent += data
+        except (BlockingIOError, OSError) as exc:
+            log.debug("%s: write lost: %s", type(self).__name__, exc)
+
+    def drop_replies(self, n: int = 1) -> None:
+        """Lose the replies to the next ``n`` commands (the driver's reads time out)."""
+        with self.lock:
+            self._drop += int(n)
+
+    def now(self) -> float:
+        """Model time in seconds (real monotonic time times ``time_scale``)."""
+        return time.monotonic() * self.time_scale
+
+    # ------------------------------------------------------------------ subclass hooks
+    def on_bytes(self, data: bytes) -> None:
+        """Bytes the driver wrote (called with :attr:`lock` held)."""
+        raise NotImplementedError
+
+    def on_tick(self, now: float) -> None:
+        """Called every ``tick_s`` with the model time (lock held)."""
+
+    def on_replug(self) -> None:
+        """Called after a re-plug (e.g. a board that resets prints its banner)."""
+
+    # ------------------------------------------------------------------ internals
+    def _plug(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo or newline translation before the driver opens it
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave
+        self.tty = os.ttyname(slave)
+        self.plug_count += 1
+        if self.link is not None:
+            self.link.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.link.with_name(f".{self.link.name}.{os.getpid()}.tmp")
+            with contextlib.suppress(FileNotFoundError):
+                tmp.unlink()
+            tmp.symlink_to(self.tty)
+            os.replace(tmp, self.link)
+        log.debug("%s: plugged on %s", type(self).__name__, self.tty)
+
+    def _close_fds(self) -> None:
+        master, slave = self._master, self._slave
+        self._master = self._slave = None
+        if self.link is not None:
+            with contextlib.suppress(FileNotFoundError):
+                if self.link.is_symlink() and os.readlink(self.link) == self.tty:
+                    self.link.unlink()
+        for fd in (master, slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            if self._unplug_request.is_set():
+                self._close_fds()
+                self._unplug_request.clear()
+                self._unplugged.set()
+            fd = self._master
+            if fd is None:
+                time.sleep(self.tick_s)
+                with self.lock:
+                    self.on_tick(self.now())
+                continue
+            try:
+                ready, _, _ = select.select([fd], [], [], self.tick_s)
+                data = os.read(fd, 4096) if ready else b""
+            except (OSError, ValueError):
+                data = b""
+            with self.lock:
+                if data:
+                    self.received += data
+                    try:
+                        self.on_bytes(data)
+                    except Exception:  # a model bug must not kill the device
+                        log.exception("%s: error handling %r", type(self).__name__, data)
+                self.on_tick(self.now())

@@ -1,0 +1,535 @@
+"""Transports of the hardware drivers: serial ports (pyserial) and USB HID (hidapi).
+
+The libraries are optional (the ``hardware`` extra) and imported when a device opens
+(:func:`import_optional`), so ``import drivers`` works without them and a missing
+one is a :class:`~drivers.errors.MissingDependencyError` naming the extra.
+
+:class:`SerialLink` wraps one ``serial.Serial``:
+
+- the port is resolved on every :meth:`~SerialLink.open`: an explicit path (best a
+  stable ``/dev/serial/by-id/...`` link) or a USB serial number, looked up with
+  pyserial's ``list_ports`` and then in the by-id directories (a serial number found
+  again after an unplug may sit on a new ``/dev/ttyUSBn``);
+- every read has a deadline (:meth:`~SerialLink.read_until`,
+  :meth:`~SerialLink.read_exactly`; the port itself polls with a short timeout);
+- an I/O error (a yanked USB adapter: pyserial's "device reports readiness to read
+  but returned no data", ``EIO`` on write) becomes
+  :class:`~drivers.errors.DeviceDisconnectedError`;
+- modem-line ioctls (RTS, DTR) are guarded: a pseudo-terminal refuses them with
+  ``ENOTTY`` (:func:`set_modem_line`).
+
+:class:`HidLink` does the same for a USB HID device through cython-hidapi (the
+``hidapi`` package, imported as ``hid``): found by vendor/product id, serial number
+and interface, 64-byte reports written with the leading report id 0, reads with a
+timeout, ``IOError`` from hidapi = disconnected.
+"""
+
+from __future__ import annotations
+
+import errno
+import importlib
+import logging
+import re
+import time
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceTimeoutError,
+    MissingDependencyError,
+)
+
+__all__ = [
+    "BY_ID_DIR",
+    "HARDWARE_EXTRA",
+    "HidLink",
+    "SerialLink",
+    "find_serial_port",
+    "import_optional",
+    "set_modem_line",
+]
+
+log = logging.getLogger("drivers.transports")
+
+#: The pip extra holding pyserial, pyusb and hidapi.
+HARDWARE_EXTRA = "diffuserlab[hardware]"
+#: Where udev puts stable links to USB serial ports, named after the device's serial.
+BY_ID_DIR = "/dev/serial/by-id"
+
+_PACKAGES = {"serial": "pyserial", "hid": "hidapi", "usb": "pyusb"}
+
+
+def import_optional(module: str, device_id: str) -> ModuleType:
+    """Import an optional transport library, or raise an error naming the extra.
+
+    Parameters
+    ----------
+    module : str
+        ``"serial"`` (pyserial), ``"hid"`` (hidapi) or ``"usb"`` (pyusb); a dotted
+        submodule such as ``"serial.tools.list_ports"`` is allowed.
+    device_id : str
+        The device asking (named in the error).
+
+    Returns
+    -------
+    module
+
+    Raises
+    ------
+    MissingDependencyError
+        The library is not installed.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        package = _PACKAGES.get(module.split(".")[0], module)
+        raise MissingDependencyError(
+            device_id, f"the Python package {package} is not installed ({exc})",
+            f"pip install '{HARDWARE_EXTRA}' (or pip install {package})",
+        ) from exc
+
+
+def set_modem_line(port: Any, name: str, value: bool) -> bool:
+    """Set a modem control line (``"rts"`` or ``"dtr"``) of an open pyserial port.
+
+    A pseudo-terminal (an emulator, a virtual port) has no modem lines and refuses the
+    ioctl with ``ENOTTY``/``EINVAL``; that is ignored. Other errors propagate.
+
+    Returns
+    -------
+    bool
+        True when the line was set, False when the port has no modem lines.
+    """
+    try:
+        setattr(port, name, value)
+    except OSError as exc:
+        if exc.errno not in (errno.ENOTTY, errno.EINVAL):
+            raise
+        log.debug("%s: no modem lines (%s), %s not set", getattr(port, "port", "?"), exc, name)
+        return False
+    return True
+
+
+def find_serial_port(
+    serial_number: str, search_dirs: Iterable[str | Path] = (BY_ID_DIR,), *,
+    device_id: str = "serial",
+) -> str | None:
+    """The port of the USB serial device with ``serial_number``, or None.
+
+    pyserial's ``list_ports.comports()`` is asked first (its ``serial_number`` is the
+    USB iSerial string, e.g. ``27500101`` for a Thorlabs KDC101); then the entries of
+    ``search_dirs`` whose name holds the serial number as a whole word (udev's
+    ``/dev/serial/by-id/usb-Thorlabs_..._27500101-if00-port0``; an emulator's link
+    directory).
+
+    Parameters
+    ----------
+    serial_number : str
+        The serial number, compared as text.
+    search_dirs : iterable of str or Path
+        Directories of port links to search after ``list_ports``.
+    device_id : str
+        Named in the error if pyserial is missing.
+
+    Returns
+    -------
+    str or None
+        A device path (``/dev/ttyUSB3`` or a link to it).
+    """
+    list_ports = import_optional("serial.tools.list_ports", device_id)
+    for info in list_ports.comports():
+        if info.serial_number and str(info.serial_number) == str(serial_number):
+            return info.device
+    word = re.compile(rf"(?<![0-9A-Za-z]){re.escape(str(serial_number))}(?![0-9A-Za-z])")
+    for directory in search_dirs:
+        d = Path(directory).expanduser()
+        if not d.is_dir():
+            continue
+        for entry in sorted(d.iterdir()):
+            if word.search(entry.name) and entry.exists():
+                return str(entry)
+    return None
+
+
+class SerialLink:
+    """One serial port (pyserial) with deadlines on every read and typed errors.
+
+    Parameters
+    ----------
+    device_id : str
+        The device using the link (named in errors and logs).
+    port : str, optional
+        Device path; a ``/dev/serial/by-id/...`` link survives re-enumeration.
+    serial_number : str, optional
+        USB serial number, resolved on every open (:func:`find_serial_port`); used
+        when ``port`` is not given.
+    search_dirs : sequence of str
+        Link directories searched for ``serial_number`` after ``list_ports``.
+    baudrate : int
+        Line speed; 8 data bits, no parity, 1 stop bit.
+    rtscts, xonxoff : bool
+        Hardware / software flow control.
+    rts : bool, optional
+        Assert (True) or clear RTS after opening (guarded on pseudo-terminals).
+    timeout_error : type
+        The kind's timeout error raised by the reads.
+    poll_s : float
+        Timeout of one ``Serial.read`` call; reads loop until their deadline.
+    """
+
+    def __init__(
+        self, device_id: str, *, port: str | None = None, serial_number: str | None = None,
+        search_dirs: Sequence[str] = (BY_ID_DIR,), baudrate: int = 115200,
+        rtscts: bool = False, xonxoff: bool = False, rts: bool | None = None,
+        timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, poll_s: float = 0.02,
+    ) -> None:
+        self.device_id = device_id
+        self.port = port
+        self.serial_number = None if serial_number is None else str(serial_number)
+        self.search_dirs = tuple(str(d) for d in search_dirs)
+        self.baudrate = int(baudrate)
+        self.rtscts, self.xonxoff, self.rts = bool(rtscts), bool(xonxoff), rts
+        self.timeout_error = timeout_error
+        self.poll_s = float(poll_s)
+        self.path: str | None = None
+        self._serial: Any = None
+        self._buffer = bytearray()
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def is_open(self) -> bool:
+        """True while the port is open and no I/O error has been seen."""
+        return self._serial is not None
+
+    def resolve(self) -> str:
+        """The path to open now: ``port``, else the port of ``serial_number``.
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            No port given and no device with the serial number is plugged in.
+        """
+        if self.port:
+            return self.port
+        if not self.serial_number:
+            raise DeviceDisconnectedError(
+                self.device_id, "no serial port given", "set port or serial_number in params"
+            )
+        path = find_serial_port(self.serial_number, self.search_dirs, device_id=self.device_id)
+        if path is None:
+            raise DeviceDisconnectedError(
+                self.device_id,
+                f"no serial device with serial number {self.serial_number} is plugged in "
+                f"(looked in list_ports and {', '.join(self.search_dirs) or 'no directory'})",
+                "plug it in and power it on, check the serial number (dmesg, "
+                "ls /dev/serial/by-id) and the udev rules in docs/drivers/",
+            )
+        return path
+
+    def open(self) -> None:
+        """Resolve the port and open it (exclusively); flushes both buffers.
+
+        Raises
+        ------
+        MissingDependencyError
+            pyserial is not installed.
+        DeviceDisconnectedError
+            The port is absent, busy (another process holds it) or not accessible.
+        """
+        serial = import_optional("serial", self.device_id)
+        path = self.resolve()
+        try:
+            ser = serial.Serial(
+                path, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
+                timeout=self.poll_s, write_timeout=2.0, rtscts=self.rtscts,
+                xonxoff=self.xonxoff, exclusive=True,
+            )
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnectedError(
+                self.device_id, f"cannot open serial port {path}: {exc}",
+                "check the cable, that no other program holds the port, and the permissions "
+                "(group dialout, udev rules in docs/drivers/)",
+            ) from exc
+        self._serial = ser
+        self.path = path
+        self._buffer.clear()
+        try:
+            if self.rts is not None:
+                set_modem_line(ser, "rts", self.rts)
+            ser.reset_input_buffer()
+            ser.reset_output_buffer()
+        except (serial.SerialException, OSError) as exc:
+            self._lost(exc)
+        log.debug("%s: opened %s", self.device_id, path)
+
+    def close(self) -> None:
+        """Close the port; never raises (a vanished port is fine)."""
+        ser, self._serial = self._serial, None
+        self._buffer.clear()
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception as exc:  # a yanked adapter may fail on close
+                log.debug("%s: close: %s", self.device_id, exc)
+
+    # ------------------------------------------------------------------ I/O
+    def write(self, data: bytes) -> None:
+        """Write all of ``data``.
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The port is closed or the write failed (unplugged).
+        """
+        ser = self._require()
+        try:
+            ser.write(bytes(data))
+            ser.flush()
+        except Exception as exc:
+            self._lost(exc)
+
+    def read_some(self, timeout_s: float | None = None) -> bytes:
+        """The bytes received within one poll (or ``timeout_s``), possibly none.
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The port failed (unplugged).
+        """
+        if self._buffer:
+            out = bytes(self._buffer)
+            self._buffer.clear()
+            return out
+        ser = self._require()
+        try:
+            if timeout_s is not None and timeout_s != ser.timeout:
+                ser.timeout = timeout_s
+            n = ser.in_waiting
+            return ser.read(max(n, 1))
+        except Exception as exc:
+            self._lost(exc)
+        return b""  # not reached
+
+    def read_until(self, terminator: bytes, timeout_s: float, what: str = "a reply") -> bytes:
+        """Read up to and including ``terminator``, within ``timeout_s`` seconds.
+
+        Returns
+        -------
+        bytes
+            The data with the terminator; bytes after it stay buffered.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The link's ``timeout_error``: no terminator in time.
+        DeviceDisconnectedError
+            The port failed.
+        """
+        deadline = time.monotonic() + timeout_s
+        data = bytearray()
+        while True:
+            i = data.find(terminator)
+            if i >= 0:
+                end = i + len(terminator)
+                self._buffer[:0] = data[end:]
+                return bytes(data[:end])
+            if time.monotonic() > deadline:
+                self._buffer[:0] = data
+                raise self.timeout_error(
+                    self.device_id,
+                    f"no {what} within {timeout_s:g} s on {self.path} (received {bytes(data)!r})",
+                    "check that the device is powered and is the expected model, "
+                    "and the baud rate",
+                )
+            data += self.read_some()
+
+    def read_exactly(self, n: int, timeout_s: float, what: str = "a reply") -> bytes:
+        """Read exactly ``n`` bytes within ``timeout_s`` seconds (see :meth:`read_until`)."""
+        deadline = time.monotonic() + timeout_s
+        data = bytearray()
+        while len(data) < n:
+            if time.monotonic() > deadline:
+                self._buffer[:0] = data
+                raise self.timeout_error(
+                    self.device_id,
+                    f"no {what} within {timeout_s:g} s on {self.path} ({len(data)} of {n} "
+                    "bytes)", "check that the device is powered and is the expected model",
+                )
+            data += self.read_some()
+        self._buffer[:0] = data[n:]
+        return bytes(data[:n])
+
+    def discard_input(self) -> bytes:
+        """Drop and return whatever has been received and not read yet."""
+        out = bytes(self._buffer)
+        self._buffer.clear()
+        ser = self._require()
+        try:
+            n = ser.in_waiting
+            if n:
+                out += ser.read(n)
+        except Exception as exc:
+            self._lost(exc)
+        return out
+
+    # ------------------------------------------------------------------ helpers
+    def _require(self) -> Any:
+        if self._serial is None:
+            raise DeviceDisconnectedError(
+                self.device_id, f"serial port {self.path or self.port or '?'} is not open",
+                "call reconnect()",
+            )
+        return self._serial
+
+    def _lost(self, exc: BaseException) -> None:
+        path = self.path
+        self.close()
+        raise DeviceDisconnectedError(
+            self.device_id, f"serial port {path} failed: {exc}",
+            "check the USB cable and power, then call reconnect() (the port is found "
+            "again by its serial number)",
+        ) from exc
+
+
+class HidLink:
+    """One USB HID device through cython-hidapi (``pip install hidapi``; imports as ``hid``).
+
+    Parameters
+    ----------
+    device_id : str
+        The device using the link.
+    vendor_id, product_id : int
+        USB ids (e.g. 0x0451, 0x6401 for a DLPC350 LightCrafter 4500).
+    serial_number : str, optional
+        Pick this unit when several are plugged in; re-resolved on every open.
+    interface : int, optional
+        USB interface number to open (TI's host code opens interface 0).
+    report_size : int
+        Bytes per report without the report id.
+    timeout_error : type
+        The kind's timeout error.
+    hid_module : module-like, optional
+        Replaces ``import hid`` (an emulator providing ``enumerate`` and ``device``).
+    """
+
+    def __init__(
+        self, device_id: str, *, vendor_id: int, product_id: int,
+        serial_number: str | None = None, interface: int | None = 0, report_size: int = 64,
+        timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, hid_module: Any = None,
+    ) -> None:
+        self.device_id = device_id
+        self.vendor_id, self.product_id = int(vendor_id), int(product_id)
+        self.serial_number = None if serial_number is None else str(serial_number)
+        self.interface = interface
+        self.report_size = int(report_size)
+        self.timeout_error = timeout_error
+        self._hid_module = hid_module
+        self._dev: Any = None
+        self.path: bytes | None = None
+
+    @property
+    def is_open(self) -> bool:
+        """True while the device handle is open."""
+        return self._dev is not None
+
+    def open(self) -> None:
+        """Find the device (ids, serial, interface) and open it.
+
+        Raises
+        ------
+        MissingDependencyError
+            hidapi is not installed.
+        DeviceDisconnectedError
+            No such device, or it cannot be opened (permissions: see the udev rules).
+        """
+        hid = self._hid_module or import_optional("hid", self.device_id)
+        if not hasattr(hid, "enumerate") or not hasattr(hid, "device"):
+            raise MissingDependencyError(
+                self.device_id, "the module 'hid' is not cython-hidapi (the PyPI package "
+                "'hid' has the same import name)", "pip uninstall hid; pip install hidapi",
+            )
+        found = [
+            d for d in hid.enumerate(self.vendor_id, self.product_id)
+            if (self.serial_number is None or d.get("serial_number") == self.serial_number)
+            and (self.interface is None or d.get("interface_number") in (self.interface, -1))
+        ]
+        ids = f"{self.vendor_id:04x}:{self.product_id:04x}"
+        if not found:
+            raise DeviceDisconnectedError(
+                self.device_id, f"no USB HID device {ids}"
+                + (f" with serial {self.serial_number}" if self.serial_number else "")
+                + " is plugged in", "plug it in and power it on; check lsusb and the udev rules",
+            )
+        dev = hid.device()
+        try:
+            dev.open_path(found[0]["path"])
+        except OSError as exc:
+            raise DeviceDisconnectedError(
+                self.device_id, f"cannot open HID device {ids}: {exc}",
+                "check the permissions of /dev/hidraw* (udev rule in docs/drivers/)",
+            ) from exc
+        self._dev, self.path = dev, found[0]["path"]
+
+    def close(self) -> None:
+        """Close the handle; never raises."""
+        dev, self._dev = self._dev, None
+        if dev is not None:
+            try:
+                dev.close()
+            except Exception as exc:
+                log.debug("%s: close: %s", self.device_id, exc)
+
+    def write(self, report: bytes) -> None:
+        """Write one report (``report_size`` bytes, padded with zeros; report id 0 added).
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The write failed (unplugged).
+        """
+        dev = self._require()
+        data = bytes(report).ljust(self.report_size, b"\0")
+        try:
+            n = dev.write(b"\0" + data)
+        except (OSError, ValueError) as exc:
+            self._lost(exc)
+        if n is None or n < 0:
+            self._lost(OSError("hid write returned -1"))
+
+    def read(self, timeout_s: float) -> bytes:
+        """Read one report within ``timeout_s`` seconds.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The link's ``timeout_error``: nothing within the timeout.
+        DeviceDisconnectedError
+            The read failed (hidapi raises ``IOError`` after an unplug).
+        """
+        dev = self._require()
+        try:
+            data = dev.read(self.report_size, max(1, int(round(timeout_s * 1000))))
+        except (OSError, ValueError) as exc:
+            self._lost(exc)
+        if not data:
+            raise self.timeout_error(
+                self.device_id, f"no HID report within {timeout_s:g} s",
+                "check that the device is powered and not in a firmware-update mode",
+            )
+        return bytes(data)
+
+    def _require(self) -> Any:
+        if self._dev is None:
+            raise DeviceDisconnectedError(self.device_id, "the HID device is not open",
+                                          "call reconnect()")
+        return self._dev
+
+    def _lost(self, exc: BaseException) -> None:
+        self.close()
+        raise DeviceDisconnectedError(
+            self.device_id, f"USB HID I/O failed: {exc}",
+            "check the USB cable and power, then call reconnect()",
+        ) from exc

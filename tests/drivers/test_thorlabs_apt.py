@@ -1,0 +1,220 @@
+"""Thorlabs APT stage driver against the APT emulator on a pseudo-terminal."""
+
+from __future__ import annotations
+
+import struct
+import sys
+import threading
+import time
+
+import pytest
+
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceStateError,
+    MissingDependencyError,
+    StageMotionError,
+    StageTimeoutError,
+)
+from drivers.thorlabs_apt import ThorlabsAptStage
+from drivers.thorlabs_apt_protocol import AptFramer, AptMessage, pack_message
+from tests.drivers.conformance import StageConformance
+from tests.mocks import AptEmulator
+
+Z8 = 34554.96
+
+
+@pytest.fixture
+def emulator(tmp_path):
+    emu = AptEmulator("kdc101", serial_number=27000001, time_scale=200.0, update_period_s=0.01,
+                      link=tmp_path / "usb-Thorlabs_Brushed_Motor_Controller_27000001-if00-port0")
+    emu.start()
+    yield emu
+    emu.stop()
+
+
+def make_stage(emu, tmp_path, **kw):
+    kw.setdefault("axes", ["z"])
+    kw.setdefault("serial_numbers", {"z": "27000001"})
+    kw.setdefault("limits_mm", {"z": [0.0, 25.0]})
+    kw.setdefault("speed_mm_s", 2.0)
+    kw.setdefault("reply_timeout_s", 0.3)
+    return ThorlabsAptStage("stage", search_dirs=[str(tmp_path)], **kw)
+
+
+class TestAptConformance(StageConformance):
+    position_tolerance = 1e-4  # one count is 29 nm; the wait accepts 2 counts
+
+    @pytest.fixture
+    def device(self, emulator, tmp_path):
+        self.emu = emulator
+        stage = make_stage(emulator, tmp_path, home_on_open=True)
+        stage.open()
+        yield stage
+        stage.close()
+
+    def provoke_timeout(self, device):
+        self.emu.drop_replies(1)
+
+
+def test_byte_exact_messages(emulator, tmp_path):
+    """The worked examples of the protocol notes (KDC101 + Z8 stage)."""
+    with make_stage(emulator, tmp_path, home_on_open=True) as stage:
+        sent = bytes(emulator.received)
+        assert sent.startswith(bytes.fromhex("05 00 00 00 50 01"))  # HW_REQ_INFO
+        # velocity 2 mm/s, 1.5 mm/s²
+        vel = "13 04 0E 00 D0 01 01 00 00 00 00 00 8C 01 00 00 EB 96 17 00"
+        assert bytes.fromhex(vel) in sent
+        assert bytes.fromhex("11 00 00 00 50 01") in sent  # START_UPDATEMSGS
+        assert bytes.fromhex("43 04 01 00 50 01") in sent  # MOVE_HOME
+        emulator.received.clear()
+        stage.move_to({"z": 10.0})
+        sent = bytes(emulator.received)
+        assert bytes.fromhex("29 04 01 00 50 01") in sent  # REQ_STATUSBITS
+        assert bytes.fromhex("11 04 01 00 50 01") in sent  # REQ_POSCOUNTER
+        assert bytes.fromhex("53 04 06 00 D0 01 01 00 CE 45 05 00") in sent  # 345550 counts
+        emulator.received.clear()
+        stage.stop()
+        time.sleep(0.05)
+        assert bytes.fromhex("65 04 01 02 50 01") in bytes(emulator.received)  # profiled
+    assert bytes.fromhex("12 00 00 00 50 01") in bytes(emulator.received)  # updates off
+
+
+def test_framer_by_length_resync_and_interleaving():
+    status28 = pack_message(0x0481, 0x01, 0x21, data=struct.pack("<HiiI", 1, 5, 5, 0x400)
+                            + bytes(14))
+    homed = bytes.fromhex("44 04 01 00 01 50")
+    reply = pack_message(0x0412, 0x01, 0x50, data=struct.pack("<Hi", 1, -7))
+    framer = AptFramer()
+    stream = b"\xff\x13" + status28 + homed + b"\x00\x99" + reply
+    msgs = framer.feed(stream[:9]) + framer.feed(stream[9:])
+    assert [m.msg_id for m in msgs] == [0x0481, 0x0444, 0x0412]
+    assert len(msgs[0].data) == 28
+    assert msgs[1] == AptMessage(0x0444, 0x01, 0x50, 1, 0, None)
+    assert struct.unpack("<Hi", msgs[2].data) == (1, -7)
+    assert framer.resyncs == 4
+
+
+def test_counts_per_unit_is_per_axis_constant(emulator, tmp_path):
+    with make_stage(emulator, tmp_path, home_on_open=True, counts_per_unit=34304.0) as stage:
+        stage.move_to({"z": 10.0})
+        assert emulator.position() == 343040  # not 345550: the configured constant is used
+        assert stage.position("z") == pytest.approx(10.0, abs=1e-6)
+
+
+def test_move_refused_until_homed(emulator, tmp_path):
+    with make_stage(emulator, tmp_path) as stage:
+        with pytest.raises(DeviceStateError, match="not homed"):
+            stage.move_to({"z": 5.0})
+        assert emulator.position() == 0
+        stage.home()
+        stage.move_to({"z": 5.0})
+        assert stage.status()["homed"] == {"z": True}
+
+
+def test_move_interrupted_by_limit_switch(emulator, tmp_path):
+    with make_stage(emulator, tmp_path, home_on_open=True) as stage:
+        emulator.set_limit_switch(round(12.0 * Z8))
+        with pytest.raises(StageMotionError, match="limit switch at 12 mm, target 20"):
+            stage.move_to({"z": 20.0})
+        assert not stage.is_moving()
+        emulator.set_limit_switch(None)
+        stage.move_to({"z": 3.0})  # usable again
+
+
+def test_controller_error_report_and_garbage(emulator, tmp_path):
+    with make_stage(emulator, tmp_path, home_on_open=True) as stage:
+        emulator.garbage(b"\xff\xfe\x00\x13")
+        stage.move_to({"z": 1.0}, wait=False)
+        emulator.rich_response(0x2A, "Motor overtemp")
+        with pytest.raises(StageMotionError, match="error 42: Motor overtemp"):
+            stage.wait_until_idle()
+        stage.move_to({"z": 2.0})
+        assert stage.status()["controllers"]["sn:27000001"]["resyncs"] >= 4
+
+
+def test_keepalive_keeps_updates_flowing(emulator, tmp_path):
+    with make_stage(emulator, tmp_path, keepalive_s=0.2):
+        time.sleep(1.5)  # 150 update periods of 10 ms: silent after 50 without the ACK
+        with emulator.lock:
+            assert emulator.acks >= 5 and emulator.updates_on
+            assert emulator._updates_since_ack < 50
+        assert bytes.fromhex("92 04 00 00 50 01") in bytes(emulator.received)
+
+
+def test_stall_times_out_and_stops(emulator, tmp_path):
+    with make_stage(emulator, tmp_path, home_on_open=True) as stage:
+        emulator.stall()
+        with pytest.raises(StageTimeoutError, match="stopped"):
+            stage.move_to({"z": 10.0}, timeout_s=0.3)
+        emulator.stall(stalled=False)
+        assert not stage.is_moving()  # the driver sent MOVE_STOP
+
+
+def test_unplug_mid_move_then_reconnect_restores_settings(emulator, tmp_path):
+    stage = make_stage(emulator, tmp_path, home_on_open=True)
+    stage.open()
+    try:
+        stage.velocity = {"z": 1.0}
+        stage.limits = {"z": (1.0, 24.0)}
+        stage.move_to({"z": 20.0}, wait=False)
+        emulator.unplug()
+        t0 = time.monotonic()
+        with pytest.raises(DeviceDisconnectedError, match="reconnect"):
+            stage.wait_until_idle(timeout_s=30.0)
+        assert time.monotonic() - t0 < 2.0  # a clear error, never a hang
+        with pytest.raises(DeviceDisconnectedError, match="27000001"):
+            stage.reconnect()  # still unplugged: the serial number is not found
+        emulator.replug()  # a new pty; the by-id style link follows it
+        stage.reconnect()
+        assert stage.velocity == {"z": 1.0} and stage.limits == {"z": (1.0, 24.0)}
+        ch = emulator.channels[0x50]
+        assert ch.velocity[2] == round(Z8 * 2048 / 6e6 * 65536 * 1.0)  # re-sent after reconnect
+        assert stage.status()["homed"] == {"z": True}  # USB unplug only: position kept
+        stage.move_to({"z": 5.0})
+    finally:
+        stage.close()
+
+
+def test_bsc20x_bays_on_one_port(tmp_path):
+    emu = AptEmulator("bsc20x", channels=2, travel_counts=(0, 50 * 409600), time_scale=500.0,
+                      update_period_s=0.01)
+    with emu:
+        assert not emu.channels[0x21].enabled  # powers up disabled, "stuck" velocities
+        stage = ThorlabsAptStage("rack", axes=["x", "y"], port=emu.port, bays={"x": 0, "y": 1},
+                                 limits_mm={"x": [0, 50], "y": [0, 50]}, speed_mm_s=2.0,
+                                 home_on_open=True, reply_timeout_s=0.3)
+        with stage:
+            assert emu.channels[0x21].enabled and emu.channels[0x22].enabled
+            stage.move_to({"x": 3.0, "y": 4.5})
+            assert emu.position(0x21) == 3 * 409600 and emu.position(0x22) == round(4.5 * 409600)
+            assert stage.status()["controllers"]["port:" + emu.port]["model"] == "BSC203"
+        assert emu.acks == 0  # BSC20x: no status updates, polled instead
+
+
+def test_missing_pyserial_names_the_extra(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "serial", None)
+    stage = ThorlabsAptStage("stage", axes=["z"], port=str(tmp_path / "nope"),
+                             limits_mm={"z": [0, 25]})
+    with pytest.raises(MissingDependencyError, match=r"diffuserlab\[hardware\]"):
+        stage.open()
+    assert not stage.is_open
+
+
+def test_moves_from_two_threads_do_not_mix_replies(emulator, tmp_path):
+    with make_stage(emulator, tmp_path, home_on_open=True) as stage:
+        errors = []
+
+        def poll():
+            try:
+                for _ in range(50):
+                    stage.positions()
+            except Exception as exc:  # pragma: no cover - reported below
+                errors.append(exc)
+
+        t = threading.Thread(target=poll)
+        t.start()
+        for _ in range(50):
+            stage.is_moving()
+        t.join()
+        assert not errors
