@@ -5,8 +5,11 @@
 - :mod:`recon.spatial.operator` -- the local convolution model (Eq. 5.4-5.5) and
   the low-rank PCA model (Eq. 5.6-5.7) as forward-model operators with adjoints,
   2D and 3D.
+- :mod:`recon.spatial.background` -- FISTA jointly over the object and a smooth
+  background restricted to the lowest DCT coefficients (Eq. 6.2).
 """
 
+from .background import dct_basis, fista_background, lowpass_background
 from .grid import PsfGrid, register_psfs, scale_psf, synthesize_grid
 from .operator import (
     SpatialConvolutionOperator,
@@ -19,7 +22,10 @@ from .operator import (
 __all__ = [
     "PsfGrid",
     "SpatialConvolutionOperator",
+    "dct_basis",
+    "fista_background",
     "local_convolution_operator",
+    "lowpass_background",
     "pca_components",
     "pca_operator",
     "register_psfs",
