@@ -11,5 +11,6 @@ dropped replies, errors, stalls, limit switches and unplug / re-plug.
 from drivers.emulators._motion import Motion
 from drivers.emulators._pty import PtyEmulator
 from drivers.emulators.thorlabs_apt import AptEmulator
+from drivers.emulators.zaber import ZaberEmulator
 
-__all__ = ["AptEmulator", "Motion", "PtyEmulator"]
+__all__ = ["AptEmulator", "Motion", "PtyEmulator", "ZaberEmulator"]

@@ -1,0 +1,147 @@
+"""Zaber ASCII stage driver against the Zaber chain emulator on a pseudo-terminal."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceProtocolError,
+    DeviceStateError,
+    StageMotionError,
+)
+from drivers.zaber_ascii import ZaberAsciiStage, lrc
+from tests.drivers.conformance import StageConformance
+from tests.mocks import ZaberEmulator
+
+STEP = 0.047625e-3  # mm per microstep
+
+
+@pytest.fixture
+def emulator(tmp_path):
+    emu = ZaberEmulator({1: 1, 2: 2}, time_scale=100.0,
+                        link=tmp_path / "usb-Zaber_Technologies_X-MCC_AB123-if00-port0")
+    emu.start()
+    yield emu
+    emu.stop()
+
+
+def make_stage(emu, **kw):
+    kw.setdefault("axes", ["x", "y", "z"])
+    kw.setdefault("device_numbers", {"x": 1, "y": 2, "z": 2})
+    kw.setdefault("axis_numbers", {"z": 2})
+    kw.setdefault("speed_mm_s", 5.0)
+    kw.setdefault("reply_timeout_s", 0.3)
+    return ZaberAsciiStage("mask", port=emu.port, **kw)
+
+
+class TestZaberConformance(StageConformance):
+    position_tolerance = 1e-4
+
+    @pytest.fixture
+    def device(self, emulator):
+        self.emu = emulator
+        stage = make_stage(emulator, home_on_open=True)
+        stage.open()
+        yield stage
+        stage.close()
+
+    def provoke_timeout(self, device):
+        self.emu.drop_replies(1)
+
+
+def test_checksum_example():
+    assert lrc("01 tools echo") == "8F"
+
+
+def test_byte_exact_commands_and_replies(emulator):
+    with make_stage(emulator, axes=["x"], device_numbers={"x": 1}, axis_numbers=None,
+                    home_on_open=True) as stage:
+        emulator.commands.clear()
+        emulator.sent.clear()
+        stage.move_to({"x": 10.0})
+        cmds = list(emulator.commands)
+        move = next(c for c in cmds if "move" in c)
+        body = move[1:move.index(":")]
+        assert body.split(" ", 3)[3] == f"move abs {round(10.0 / STEP)}"
+        assert move.endswith(":" + lrc(body))
+        assert any(c.startswith("/1 1 ") and c.count(" ") == 2 for c in cmds)  # status poll
+        replies = bytes(emulator.sent).decode().split("\r\n")
+        mid = body.split()[2]
+        assert f"@01 1 {mid} OK BUSY -- 0" in replies  # the move's immediate reply
+        assert stage.velocity == {"x": 5.0}
+    assert emulator.axis(1).maxspeed == round(5.0 / STEP * 1.6384)
+
+
+def test_rejections_name_the_reason(emulator):
+    with make_stage(emulator, home_on_open=True) as stage:
+        with pytest.raises(DeviceProtocolError, match="BADCOMMAND"):
+            stage.command(1, 1, "frobnicate")
+        with pytest.raises(DeviceProtocolError, match="BADDATA.*out of range"):
+            stage.command(1, 1, f"move abs {10**9}")
+        with pytest.raises(DeviceProtocolError, match="BADAXIS"):
+            stage.command(1, 3, "get pos")
+        stage.move_to({"x": 1.0})  # still usable
+
+
+def test_move_refused_until_homed(emulator):
+    with make_stage(emulator) as stage:
+        with pytest.raises(DeviceStateError, match="WR"):
+            stage.move_to({"y": 2.0})
+        stage.home()
+        stage.move_to({"y": 2.0, "z": 3.0})
+        assert stage.position("z") == pytest.approx(3.0, abs=STEP)
+        assert stage.status()["warnings"] == {"x": [], "y": [], "z": []}
+
+
+def test_limit_stall_and_interruption_flags(emulator):
+    with make_stage(emulator, home_on_open=True) as stage:
+        emulator.set_limit_switch(round(12.0 / STEP), device=2, axis=1)
+        with pytest.raises(StageMotionError, match="WL .unexpected limit trigger. at 12 mm"):
+            stage.move_to({"y": 20.0})
+        emulator.set_limit_switch(None, device=2, axis=1)
+        stage.move_to({"y": 20.0})  # warnings were cleared
+        stage.move_to({"x": 30.0}, wait=False)
+        time.sleep(0.02)
+        emulator.stall(1, 1)
+        with pytest.raises(StageMotionError, match="FS .stalled and stopped."):
+            stage.wait_until_idle()
+        stage.move_to({"x": 5.0}, wait=False)
+        stage.command(1, 1, "move abs 0")  # another client replaces the move: NI
+        with pytest.raises(StageMotionError, match="NI"):
+            stage.wait_until_idle()
+
+
+def test_silent_device_times_out_with_kind_error(emulator):
+    with make_stage(emulator, home_on_open=True) as stage:
+        emulator.silence(2)
+        t0 = time.monotonic()
+        with pytest.raises(stage.timeout_error, match="reply to '/2 1"):
+            stage.positions()
+        assert time.monotonic() - t0 < 1.0
+        emulator.silence(2, False)
+        stage.positions()
+
+
+def test_unplug_mid_move_then_reconnect(emulator):
+    stage = make_stage(emulator, home_on_open=True)
+    stage.open()
+    try:
+        stage.velocity = {"x": 2.0}
+        stage.move_to({"x": 40.0}, wait=False)
+        emulator.unplug()
+        t0 = time.monotonic()
+        with pytest.raises(DeviceDisconnectedError):
+            stage.wait_until_idle(timeout_s=30.0)
+        assert time.monotonic() - t0 < 2.0
+        with pytest.raises(DeviceDisconnectedError):
+            stage.positions()
+        emulator.replug()
+        stage.reconnect()
+        assert stage.velocity["x"] == 2.0
+        assert emulator.axis(1).maxspeed == round(2.0 / STEP * 1.6384)  # re-applied
+        stage.move_to({"x": 1.0})
+    finally:
+        stage.close()
