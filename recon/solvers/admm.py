@@ -120,6 +120,24 @@ def balanced_penalty(mu_i: float, r2: float, s2: float, n2: float, d2: float,
     return mu_i
 
 
+def tie_nonneg_penalty(new: list, ratio: float, regularised: bool) -> None:
+    """Without a TV (or l1) split, let the non-negativity penalty follow the data one.
+
+    The non-negativity split's dual is zero wherever the constraint is inactive
+    (most pixels), so its normalised dual residual is large and residual balancing
+    drives mu3 down to the floor of :data:`MU_RANGE`. With a TV split, mu2 |F Psi|^2
+    keeps the x-update's denominator mu1 |H|^2 + mu2 |F Psi|^2 + mu3 conditioned;
+    without one, mu3 / mu1 is the x-update's only Tikhonov term and a tiny ratio
+    turns each x-update into an inverse filter: on a simulated camera scene (real
+    PSF, 3000 photo-electrons) ADMM with tv = 0 fell below the noise level
+    (objective 6.8 against 7.9 for the noise alone, peak 20x the truth's) and 11.6 dB
+    below FISTA. So mu3 keeps its starting ratio to mu1 (``new[2] = ratio * new[0]``),
+    in place, when ``regularised`` is False.
+    """
+    if not regularised:
+        new[2] = ratio * new[0]
+
+
 def rescale_duals(splits) -> None:
     """Keep the q-form state consistent after penalties change, in place.
 
@@ -301,6 +319,7 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     mon = Monitor(float(np.vdot(b, b)), "ADMM")
     mus = [(mu1, mu2, mu3)]
     last_balance = int(balance_until * iterations) if balance else 0
+    ratio = mu3 / mu1  # kept without a TV split (tie_nonneg_penalty)
     for k in range(iterations):
         mon.start()
         mode = balance_mode(k, balance_every, last_balance)
@@ -311,6 +330,7 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
                    balanced_penalty(mu2, *s[[4, 5, 10, 11]], balance_ratio, balance_factor)
                    if use_tv else mu2,
                    balanced_penalty(mu3, *s[[6, 7, 12, 13]], balance_ratio, balance_factor)]
+            tie_nonneg_penalty(new, ratio, use_tv)
             if tuple(new) != (mu1, mu2, mu3):
                 rescale_duals(((qv, scratch[0], mu1, new[0]), (qux, scratch[1], mu2, new[1]),
                                (quy, scratch[2], mu2, new[1]), (qw, scratch[3], mu3, new[2])))
@@ -355,7 +375,8 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     (G_i^T dropped: ||M|| <= 1 for a unit-sum PSF); mu_i is multiplied by
     ``balance_factor`` when r_i > ratio s_i and divided when s_i > ratio r_i, scaled
     duals rescaled. It stops after ``balance_until`` of the iterations so the final
-    penalties are fixed.
+    penalties are fixed. With ``tv = 0``, mu3 follows mu1 at its starting ratio
+    (:func:`tie_nonneg_penalty`).
 
     Parameters
     ----------
