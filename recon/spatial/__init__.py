@@ -5,11 +5,15 @@
 - :mod:`recon.spatial.operator` -- the local convolution model (Eq. 5.4-5.5) and
   the low-rank PCA model (Eq. 5.6-5.7) as forward-model operators with adjoints,
   2D and 3D.
+- :mod:`recon.spatial.choice` -- which model a grid needs (convolution, PCA with
+  the smallest k, local) from predicted model errors and, optionally, measured
+  reconstruction PSNR.
 - :mod:`recon.spatial.background` -- FISTA jointly over the object and a smooth
   background restricted to the lowest DCT coefficients (Eq. 6.2).
 """
 
 from .background import dct_basis, fista_background, lowpass_background
+from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .grid import PsfGrid, register_psfs, scale_psf, synthesize_grid
 from .operator import (
     SpatialConvolutionOperator,
@@ -20,6 +24,11 @@ from .operator import (
 )
 
 __all__ = [
+    "MODELS",
+    "ModelChoice",
+    "build_operator",
+    "choose_model",
+    "predicted_errors",
     "PsfGrid",
     "SpatialConvolutionOperator",
     "dct_basis",

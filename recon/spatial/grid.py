@@ -212,6 +212,11 @@ class PsfGrid:
             h, shifts, _ = register_psfs(h, int(np.argmin(np.hypot(*pos.T))))
         return cls(h[order], shifts[order], (len(ys), len(xs)), z_mm, d_mm)
 
+    @property
+    def central(self) -> int:
+        """Index of the node nearest the reference (the central PSF, zero shift)."""
+        return int(np.argmin(np.hypot(*self.shifts_px.T)))
+
     def node_coordinates(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean node row offsets (ny,) and column offsets (nx,), sensor px."""
         ny, nx = self.grid_shape

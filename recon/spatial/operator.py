@@ -362,7 +362,7 @@ def local_convolution_operator(grids, *, depths_mm=None, padded_shape=None, supp
             kernels.append(g.psfs[i])
             planes.append(z)
             coefs.append(c)
-        ref_sums.append(float(g.psfs[_central(g)].sum()))
+        ref_sums.append(float(g.psfs[g.central].sum()))
     return _assemble("local", kernels, planes, coefs, tents, plane_grids, ref_sums, volume,
                      normalize, padded_shape=padded, support=support,
                      sensor_weights=sensor_weights)
@@ -378,10 +378,6 @@ def _assemble(model, kernels, planes, coefs, tents, plane_grids, ref_sums, volum
         depths=[g.z_mm for g in plane_grids] if volume else None, **options)
     op.scale, op.model = scale, model
     return op
-
-
-def _central(g: PsfGrid) -> int:
-    return int(np.argmin(np.hypot(*g.shifts_px.T)))
 
 
 def pca_components(grid: PsfGrid, *, k: int | None = None, energy: float = 0.99
@@ -456,7 +452,7 @@ def pca_operator(grids, *, k: int | None = None, energy: float = 0.99, depths_mm
         planes.extend([z] * len(principal))
         ks.append(len(principal))
         explained.append(expl.tolist())
-        ref_sums.append(float(g.psfs[_central(g)].sum()))
+        ref_sums.append(float(g.psfs[g.central].sum()))
     op = _assemble("pca", kernels, planes, coefs, tents, plane_grids, ref_sums, volume,
                    normalize, padded_shape=padded, support=support,
                    sensor_weights=sensor_weights)

@@ -229,3 +229,34 @@ def test_bad_grids_are_refused_with_the_fix():
         PsfGrid(np.zeros((1, *SENSOR)), [(0, 0)], (1, 1))
     reg, shifts, ref = register_psfs(h)
     assert reg.shape == h.shape and shifts.shape == (4, 2) and 0 <= ref < 4
+
+
+def test_model_choice_takes_the_cheapest_model_that_suffices():
+    from recon.spatial.choice import build_operator, choose_model, predicted_errors
+
+    rng = np.random.default_rng(9)
+    same = _grid(rng, identical=True)
+    choice = choose_model(same)
+    assert choice.label() == "convolution" and choice.convolutions == 1
+    assert choice.predicted_error["convolution"] < 1e-6
+    p1, p2 = rng.random((2, *SENSOR)).astype(np.float32) ** 4
+    two = PsfGrid(np.stack([(1 - t) * p1 + t * p2 for t in np.linspace(0, 1, 9)]), SHIFTS,
+                  (3, 3))
+    choice = choose_model(two)
+    assert choice.label() == "pca:2", choice.reason
+    assert choice.predicted_error["pca:2"] < 1e-3 < choice.predicted_error["pca:1"]
+    wild = PsfGrid(rng.random((9, *SENSOR)) ** 8, SHIFTS, (3, 3))
+    choice = choose_model(wild)
+    assert choice.model == "local" and choice.convolutions == 9
+    errs = predicted_errors(wild)
+    assert errs["convolution"] > 0.5 and errs["pca:8"] < errs["pca:1"]
+    op = build_operator(same, "convolution")
+    assert op.n_kernels == 1
+    np.testing.assert_allclose(op.kernels[0] * op.scale, same.psfs[same.central], rtol=1e-6)
+    measured = choose_model(same, measure=True, max_side=16, iterations=60)
+    assert set(measured.measured_psnr_db) >= {"convolution", "local", "pca:1"}
+    assert measured.label() == "convolution"
+    assert abs(measured.measured_psnr_db["convolution"]
+               - measured.measured_psnr_db["local"]) < 0.5
+    measured = choose_model(wild, measure=True, max_side=16, iterations=60)
+    assert measured.measured_psnr_db["local"] > measured.measured_psnr_db["convolution"] + 1
