@@ -1,0 +1,336 @@
+"""What the panels run on their workers: thin calls into the library.
+
+* :func:`build_live` - a :class:`instrument.live.LiveReconstruction` for the session's
+  camera and a PSF from a file or run store (:func:`instrument.reconstruct_files.load_psf`),
+  with the frames' dark level as ``capture live`` takes it.
+* :func:`routine_options` / :func:`build_plan` - a calibration routine's options
+  are the ``calibrate`` command's own (its argparse definitions, defaults and help),
+  and the plan is built from them exactly as the command builds it.
+* :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
+  job's progress and a :class:`~instrument.runner.RunControl`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "build_live", "build_plan",
+           "default_run_path", "run_alignment",
+           "resume_plan", "routine_options", "run_plan"]
+
+#: Calibration routines, as ``calibrate`` names them.
+ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
+
+#: ``calibrate`` options that are not the routine's parameters (the GUI sets them).
+_NOT_PARAMETERS = {"help", "bench", "simulate", "seed", "reconnect_timeout_s", "out", "note",
+                   "overwrite", "falloff_run", "apply"}
+
+
+def build_live(session, psf_path: str, *, depth_mm: float | None = None,
+               method: str = "wiener", iterations: int = 5, dark: str = "",
+               threads: int | None = 1):
+    """A live reconstruction for the session's camera (not started).
+
+    Parameters
+    ----------
+    session : gui.session.Session
+        Connected.
+    psf_path : str
+        PSF image, PSF stack or calibration run.
+    depth_mm : float, optional
+        Depth of the stack's plane.
+    method, iterations
+        ``"wiener"`` or ``"admm"`` with ``iterations`` warm-started iterations per frame.
+    dark : str
+        The frames' dark level: ``""`` (the simulated camera's offset on the virtual
+        bench; estimated from the PSF's corner for a plain image), a number in DN, or
+        a ``calibrate dark`` run (its ``dark_mean``).
+    threads : int, optional
+        Threads of the reconstruction (default 1, leaving a core to the GUI and a
+        recorder).
+
+    Returns
+    -------
+    instrument.live.LiveReconstruction
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Unreadable PSF, a PSF whose shape is not the camera's frames, a calibrated
+        stack without a dark level on a real bench.
+    """
+    import numpy as np
+
+    from instrument.live import LiveReconstruction
+    from instrument.reconstruct_files import load_psf
+    from instrument.runstore import RunStore
+    from recon.errors import ReconInputError
+    from recon.live import LiveReconstructor
+
+    psf, depth = load_psf(psf_path, depth_mm)
+    stacked = depth is not None or Path(psf_path).is_dir()
+    cam = session.bench.camera
+    if tuple(cam.image_shape) != tuple(psf.shape):
+        raise ReconInputError(
+            f"the PSF {psf_path} is {psf.shape[0]}x{psf.shape[1]} but the camera delivers "
+            f"{cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate the PSF with the "
+            "camera's current ROI and binning")
+    level: Any = None
+    text = dark.strip()
+    if not text:
+        if hasattr(cam, "dark_offset_dn"):
+            level = float(cam.dark_offset_dn)
+        elif stacked:
+            raise ReconInputError(
+                f"{psf_path} is a calibrated (dark-subtracted) PSF stack: give the frames' "
+                "dark level in DN or a dark run (calibrate dark)")
+    else:
+        try:
+            level = float(text)
+        except ValueError:
+            level = np.asarray(RunStore.open(text).product("dark_mean")[0], np.float32)
+    if level is not None and stacked:  # the stack's PSF is dark-subtracted already
+        psf = psf + level
+    return LiveReconstruction(LiveReconstructor(psf, dark=level), method=method,
+                              iterations=iterations, threads=threads)
+
+
+class RoutineOption:
+    """One parameter of a calibration routine, from the ``calibrate`` command's parser.
+
+    Attributes
+    ----------
+    dest : str
+        The argparse destination (the name ``build_plan`` fills).
+    flag : str
+        The command-line option (``--z-min``).
+    help : str
+        Its help text (with the unit).
+    default : object
+    choices : tuple or None
+    is_flag : bool
+        An on/off option (``store_true``).
+    """
+
+    def __init__(self, action: argparse.Action) -> None:
+        self.dest = action.dest
+        self.flag = action.option_strings[-1]
+        self.help = action.help or ""
+        self.default = action.default
+        self.choices = tuple(action.choices) if action.choices else None
+        self.is_flag = isinstance(action, argparse._StoreTrueAction)
+
+
+def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """``parser.parse_args(argv)`` with argparse's complaint as a ValueError (argparse's
+    subparsers print and exit instead)."""
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err):
+            return parser.parse_args(argv)
+    except (SystemExit, argparse.ArgumentError) as exc:
+        lines = [ln for ln in err.getvalue().splitlines() if "error:" in ln]
+        text = lines[-1].split("error:", 1)[1].strip() if lines else str(exc)
+        raise ValueError(text) from None
+
+
+def _calibrate_parser() -> argparse.ArgumentParser:
+    from calibration_routines.cli.calibrate import add_subcommands
+
+    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
+    add_subcommands(parser.add_subparsers(dest="command"))
+    return parser
+
+
+def routine_options(routine: str) -> list[RoutineOption]:
+    """The parameters of ``calibrate ROUTINE``, in the command's order."""
+    parser = _calibrate_parser()
+    cal = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    sub = next(a for a in cal.choices["calibrate"]._actions
+               if isinstance(a, argparse._SubParsersAction)).choices[routine]
+    return [RoutineOption(a) for a in sub._actions
+            if a.option_strings and a.dest not in _NOT_PARAMETERS]
+
+
+def build_plan(bench, routine: str, values: dict[str, Any]):
+    """The plan ``calibrate ROUTINE`` would run with ``values``.
+
+    Parameters
+    ----------
+    bench : instrument.bench.Bench
+        Open.
+    routine : str
+        One of :data:`ROUTINES`.
+    values : dict
+        ``{option flag: text}`` for the options the operator set (empty text: the
+        default); flags map to True/False.
+
+    Raises
+    ------
+    ValueError
+        A value the option does not accept (the message names the option).
+    instrument.plan.PlanError
+        Parameters the plan refuses.
+    """
+    from calibration_routines.cli.calibrate import _plan
+
+    argv = ["calibrate", routine, "--simulate"]
+    for flag, value in values.items():
+        if value is True:
+            argv.append(flag)
+        elif value not in (False, None, ""):
+            argv += [flag, str(value)]
+    return _plan(_parse(_calibrate_parser(), argv), bench)
+
+
+def default_run_path(routine: str, folder: str = "out/runs") -> str:
+    """``out/runs/ROUTINE-YYYYmmdd-HHMMSS.zarr`` (what ``calibrate`` writes by default)."""
+    return str(Path(folder) / f"{routine}-{_dt.datetime.now():%Y%m%d-%H%M%S}.zarr")
+
+
+@contextmanager
+def _camera(session, user: str):
+    """Claim the camera for ``user``; on the virtual bench, take the moving scene out
+    of the beam for the run (as an operator removes the sample) and put it back."""
+    session.claim_camera(user)
+    bench = session.bench
+    scene = getattr(bench, "scene", None)
+    try:
+        if scene is not None:
+            bench.set_scene(None)
+        yield
+    finally:
+        if scene is not None:
+            bench.set_scene(scene)
+        session.release_camera(user)
+
+
+def run_plan(job, session, plan, path: str, control, *, overwrite: bool = False):
+    """Run ``plan`` into a new store at ``path`` (progress: the runner's events).
+
+    Returns
+    -------
+    instrument.runner.RunResult
+    """
+    from instrument.output_safety import check_outputs
+    from instrument.runner import Runner
+
+    check_outputs([path], {}, overwrite, store=True)
+    with _camera(session, "the calibration run"):
+        runner = Runner(session.bench, on_event=job.report, control=control)
+        return runner.run(plan, path, overwrite=overwrite)
+
+
+def resume_plan(job, session, path: str, control, *, accept_differences: bool = False):
+    """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
+    import calibration_routines  # noqa: F401  (registers the plans for resume)
+    from instrument.runner import Runner
+
+    with _camera(session, "the calibration run"):
+        runner = Runner(session.bench, on_event=job.report, control=control)
+        return runner.resume(path, accept_differences=accept_differences)
+
+
+#: The mask alignment's steps, in order (the names its events and record use).
+ALIGNMENT_STEPS = ("preflight", "coarse", "translation", "rigid", "focus", "piecewise",
+                   "verify")
+
+
+def _align_args(extra: list[str]):
+    """``align mask`` options as the command parses them (its defaults)."""
+    from calibration_routines.cli.align import add_subcommands
+
+    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
+    add_subcommands(parser.add_subparsers(dest="command"))
+    return _parse(parser, ["align", "mask", *extra])
+
+
+def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frames: int = 3,
+                  focus: bool = True):
+    """The mask alignment (:class:`calibration_routines.mask_alignment.MaskAligner`) on
+    the session's bench, recorded in ``out``; progress: ``{"kind": "event", ...}`` per
+    step message and ``{"kind": "reading", ...}`` per spot reading.
+
+    On the virtual bench the mask is misplaced as ``align mask --simulate`` places it
+    by default (its ``--sim-*`` options), so there is something to align.
+
+    Returns
+    -------
+    dict
+        The alignment report (:meth:`MaskAligner.run`).
+
+    Raises
+    ------
+    instrument.plan.PlanError
+        No mask pattern on a real bench, an existing record, a bench without the
+        holography devices.
+    instrument.runner.RunAborted
+        Aborted (the record keeps every reading).
+    """
+    from calibration_routines.cli.align import _truth
+    from calibration_routines.holo_bench import holography_branch
+    from calibration_routines.mask_alignment import AlignmentConfig, AlignmentRecord, MaskAligner
+    from instrument.plan import PlanError
+    from recon.optics.holo_display import MaskModel
+
+    extra = ["--simulate"] if session.is_virtual else []
+    if mask_seed.strip():
+        extra += ["--mask-seed", mask_seed.strip()]
+    args = _align_args(extra + ["--frames", str(frames)] + ([] if focus else ["--no-focus"]))
+    if not session.is_virtual and args.mask_seed is None:
+        raise PlanError("on a real bench, give the installed mask's seed (or run `diffuserlab "
+                        "align mask --mask-pattern FILE.npy`)")
+
+    class _Record(AlignmentRecord):
+        def log(self, entry: dict) -> None:
+            super().log(entry)
+            job.report({"kind": "reading", "eta": entry.get("eta"), "pose": entry.get("pose"),
+                        "step": entry.get("step")})
+
+    bench = session.bench
+    with _camera(session, "the mask alignment"), holography_branch(bench):
+        relay_na = bench.relay_na if session.is_virtual else args.relay_na
+        cfg = AlignmentConfig(coarse_range_px=args.coarse_range_px, frames=args.frames,
+                              rotation=not args.no_rotation, focus=not args.no_focus,
+                              relay_na=relay_na, focus_range_mm=args.focus_range_mm)
+        if session.is_virtual:
+            bench.hologram.mask.truth = _truth(args)
+            seed = bench.hologram.mask.seed if args.mask_seed is None else args.mask_seed
+        else:
+            seed = args.mask_seed
+        slm = bench.slm
+        model = MaskModel(slm.resolution, slm.pixel_pitch_um, args.k, 4, seed,
+                          margin=args.mask_margin)
+        record = _Record(out)
+        aligner = None
+
+        def on_event(step: str, message: str, data: dict) -> None:
+            steps = aligner.state["steps"] if aligner is not None else {}
+            job.report({"kind": "event", "step": step, "message": message,
+                        "done": list(steps), "steps": _section_summary(steps)})
+
+        aligner = MaskAligner(bench, model, cfg, record=record, control=control,
+                              on_event=on_event)
+        report = aligner.run()
+        job.report({"kind": "event", "step": "verify", "message": "completed",
+                    "done": list(report["steps"]), "steps": _section_summary(report["steps"])})
+        return report
+
+
+def _section_summary(steps: dict) -> dict:
+    """Per-section offsets (rigid step, mask px), integer shifts (piecewise) and
+    efficiency ratios (verify) found so far."""
+    out: dict = {}
+    rigid = steps.get("rigid")
+    if rigid and rigid.get("rounds"):
+        out["offsets_px"] = [list(map(float, s["offset"])) for s in rigid["rounds"][-1]["sections"]]
+    if "verify" in steps:
+        out["eta_ratio"] = [float(v) for v in steps["verify"]["eta_ratio"]]
+    return out

@@ -1,0 +1,155 @@
+"""Background jobs for the GUI: library calls on worker threads, results by Qt signals.
+
+The GUI thread never blocks: every device or compute call a panel makes runs in a
+:class:`Job` (a Python thread), which reports progress, its result or a readable
+error through Qt signals. Signals emitted on the worker thread reach slots of
+objects living on the GUI thread as queued calls, so the slots run on the GUI
+thread. A job can be cancelled: the function it runs gets the job and checks
+:attr:`Job.cancelled` (or waits on :attr:`Job.cancel_event`) between its steps.
+
+:func:`readable_error` turns an exception into the message the operator sees: the
+library's own message (device, plan, run store and input errors name the problem
+and the fix), never a traceback.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from PySide6.QtCore import QObject, Signal
+
+__all__ = ["Job", "readable_error"]
+
+log = logging.getLogger(__name__)
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    """Exception types whose message is written for the operator (problem and fix)."""
+    from drivers.errors import DeviceError
+    from instrument.live import LiveReconstructionError
+    from instrument.output_safety import OutputError
+    from instrument.plan import PlanError
+    from instrument.runstore import RunStoreError
+    from recon.errors import ReconInputError
+
+    return (DeviceError, PlanError, RunStoreError, ReconInputError, OutputError,
+            LiveReconstructionError, ValueError, OSError, LookupError, RuntimeError)
+
+
+def readable_error(exc: BaseException) -> str:
+    """The operator's message for ``exc``: one or more lines, never a traceback.
+
+    Parameters
+    ----------
+    exc : BaseException
+
+    Returns
+    -------
+    str
+        A bench file's problems one per line; the message of a device, plan, run
+        store, input or OS error as the library wrote it (it names the fix); for
+        anything else, the error's type and text marked as a bug (the traceback
+        goes to the log).
+    """
+    from instrument.config import BenchConfigError
+
+    if isinstance(exc, BenchConfigError):
+        return "\n".join(exc.lines())
+    if isinstance(exc, OSError) and exc.filename is not None:
+        return f"{exc.strerror or exc}: {exc.filename}"
+    if isinstance(exc, _input_errors()):
+        text = str(exc) or type(exc).__name__
+        return text
+    log.error("unexpected error in a GUI job", exc_info=exc)
+    return (f"unexpected error ({type(exc).__name__}: {exc}); this is a bug - the log has "
+            "the traceback to report")
+
+
+class Job(QObject):
+    """Run ``fn(job, *args, **kwargs)`` on a worker thread.
+
+    Signals
+    -------
+    progress(object)
+        Whatever ``fn`` passes to :meth:`report` (emitted on the worker thread,
+        delivered on the GUI thread).
+    succeeded(object)
+        ``fn``'s return value.
+    failed(str)
+        :func:`readable_error` of the exception ``fn`` raised.
+    finished()
+        After ``succeeded`` or ``failed``, always.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(job, *args, **kwargs)``; checks :attr:`cancelled` between steps.
+    name : str
+        Thread name (shows in logs).
+    """
+
+    progress = Signal(object)
+    succeeded = Signal(object)
+    failed = Signal(str)
+    finished = Signal()
+
+    def __init__(self, fn: Callable[..., Any], *args: Any, name: str = "gui-job",
+                 **kwargs: Any) -> None:
+        super().__init__()
+        self._fn, self._args, self._kwargs = fn, args, kwargs
+        self.name = name
+        self.cancel_event = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.result: Any = None
+        self.error: str | None = None
+        #: True once ``finished`` was delivered on the GUI thread (its slots have run).
+        self.done = False
+        self.finished.connect(self._mark_done)
+
+    def _mark_done(self) -> None:
+        self.done = True
+
+    @property
+    def cancelled(self) -> bool:
+        """True once :meth:`cancel` was called."""
+        return self.cancel_event.is_set()
+
+    @property
+    def running(self) -> bool:
+        """True while the worker thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self) -> Job:
+        """Start the worker thread; returns the job."""
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+        return self
+
+    def cancel(self) -> None:
+        """Ask the job to stop at its next check (returns at once)."""
+        self.cancel_event.set()
+
+    def report(self, value: Any) -> None:
+        """Emit ``progress(value)`` (call from ``fn``)."""
+        self.progress.emit(value)
+
+    def wait(self, timeout_s: float) -> bool:
+        """Join the worker thread (tests and shutdown only; True if it ended)."""
+        if self._thread is None:
+            return True
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()
+
+    def _run(self) -> None:
+        try:
+            self.result = self._fn(self, *self._args, **self._kwargs)
+        except BaseException as exc:  # noqa: BLE001 (every error becomes a message)
+            self.error = readable_error(exc)
+            self.failed.emit(self.error)
+        else:
+            self.succeeded.emit(self.result)
+        finally:
+            self.finished.emit()

@@ -1,0 +1,55 @@
+"""Fixtures of the GUI tests: Qt on the offscreen platform, a window on the virtual bench.
+
+The window's session is the built-in simulated bench streaming in real time, with no
+moving scene (rendering one ahead takes ~20 s; the tests move the stage instead). It is
+shared by the tests of a module (opening the bench and numba's first compilations take
+seconds); each test leaves it connected, with no job running.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+
+
+@pytest.fixture(scope="module")
+def window(qapp, tmp_path_factory):
+    """A connected :class:`gui.app.MainWindow` on the virtual bench (no scene)."""
+    os.environ["DIFFUSERLAB_GUI_SETTINGS"] = str(tmp_path_factory.mktemp("qt") / "gui.ini")
+    from gui.app import MainWindow
+    from gui.session import Session
+
+    w = MainWindow(Session(None, simulate=True, scene="none"))
+    w.show()
+    w.session.connect_bench()
+    wait_for(qapp, lambda: w.session.connected, 120.0, "the bench to open")
+    # moves of tens of mm at the stage's default 5 mm/s would take seconds of wall time
+    for stage in ("source_stage", "mask_stage"):
+        dev = w.session.bench.device(stage)
+        dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 50.0)})
+    yield w
+    w.shutdown()
+    w.deleteLater()
+    qapp.processEvents()
+
+
+def wait_for(qapp, condition, timeout_s: float, what: str) -> None:
+    """Process Qt events until ``condition()`` holds (fails naming ``what`` after the
+    timeout)."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        qapp.processEvents()
+        time.sleep(0.01)
+
+
+@pytest.fixture
+def wait(qapp):
+    """``wait(condition, timeout_s, what)`` processing Qt events meanwhile."""
+    return lambda condition, timeout_s=30.0, what="the GUI": wait_for(qapp, condition,
+                                                                      timeout_s, what)

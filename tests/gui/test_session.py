@@ -1,0 +1,186 @@
+"""A simulated session driven through the GUI's panels (pytest-qt, offscreen platform):
+connect, device settings (a refused value shows the interface's message), stage jog and
+go-to, the LED picker, the live view, a PSF sweep with pause, abort and resume, live
+reconstruction with the sweep's PSF, the results viewer on the run."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.errors import DeviceValueError
+
+
+def test_connect_opens_every_device_with_a_box(window):
+    assert list(window.devices.boxes) == list(window.session.bench.devices)
+    assert window.devices.connect_button.text() == "Disconnect"
+    box = window.devices.boxes["camera"]
+    # units and limits come from the device interface's info
+    limits = [w.text() for w in box.findChildren(type(box.status)) if "limits:" in w.text()]
+    lo, hi = window.session.bench.camera.info["exposure_range_s"]
+    assert f"limits: {lo:g} to {hi:g} s" in limits
+
+
+def test_refused_setting_shows_the_interfaces_message(window, wait):
+    box = window.devices.boxes["camera"]
+    cam = window.session.bench.camera
+    before = cam.exposure_s
+    with pytest.raises(DeviceValueError) as refused:
+        cam.check_settings({"exposure_s": -1})
+    box.fields["exposure_s"].setText("-1")
+    job = box.apply("exposure_s")
+    wait(lambda: job.done and box.error.text(), 10, "the refusal")
+    assert box.error.text() == str(refused.value)
+    assert cam.exposure_s == before  # nothing applied
+    box.fields["exposure_s"].setText("0.02")
+    job = box.apply("exposure_s")
+    wait(lambda: job.done and box.error.text() == "", 10, "the setting")
+    assert cam.exposure_s == pytest.approx(0.02)
+
+
+def test_stage_jog_go_to_and_a_target_beyond_the_limits(window, wait):
+    box = window.devices.boxes["source_stage"]
+    stage = window.session.bench.source_stage
+    z0 = stage.position("z")
+    box.jog_steps["z"].setValue(2.0)
+    job = box.jog("z", +1)
+    wait(lambda: job.done, 10, "the jog")
+    assert stage.position("z") == pytest.approx(z0 + 2.0)
+    box.targets["z"].setText("30")
+    job = box.go_to("z")
+    wait(lambda: job.done, 10, "the move")
+    assert stage.position("z") == pytest.approx(30.0)
+    box.targets["z"].setText("1000")
+    job = box.go_to("z")
+    wait(lambda: job.done, 10, "the refusal")
+    assert "outside the limits" in box.error.text() and stage.position("z") == pytest.approx(30)
+
+
+def test_led_picker_lights_the_clicked_led(window, wait):
+    box = window.devices.boxes["led_array"]
+    leds = window.session.bench.led_array
+    centre = int(np.argmin(np.hypot(*leds.positions_mm.T)))
+    job = box.light_led(centre)
+    wait(lambda: job.done, 10, "the LED")
+    assert list(leds.lit()) == [centre]
+    brushes = box.led_points.data["brush"]
+    assert brushes[centre].color().name() == "#ffb000"
+
+
+def _frame(window, wait, after: int):
+    wait(lambda: window.live._shown_raw > after, 10, "a new frame")
+    return window.live._shown_raw, window.live.raw_view.image.astype(float)
+
+
+def test_live_view_shows_frames_that_change(window, wait):
+    """With the LED behind the pinhole lit, moving the stage moves the PSF on the frames."""
+    window.live.toggle_stream()
+    wait(lambda: window.session.streaming, 5, "the stream")
+    i1, a = _frame(window, wait, -1)
+    i2, b = _frame(window, wait, i1)
+    noise = np.abs(b - a).mean()
+    stage = window.session.bench.source_stage
+    stage.move_to({"x": 3.0})
+    i3, c = _frame(window, wait, i2 + 1)
+    assert i1 < i2 < i3
+    assert np.abs(c - b).mean() > 3 * noise  # the PSF moved
+    assert "fps" in window.live.raw_stats.text() and "dropped" in window.live.raw_stats.text()
+    stage.move_to({"x": 0.0})
+    window.live.toggle_stream()
+    wait(lambda: not window.session.streaming, 5, "the stream to stop")
+
+
+@pytest.fixture(scope="module")
+def sweep(window, tmp_path_factory, qapp):
+    """A short PSF sweep run through the calibration panel, paused, aborted and resumed."""
+    from tests.gui.conftest import wait_for
+
+    def wait(cond, t=60.0, what="the run"):
+        wait_for(qapp, cond, t, what)
+
+    panel = window.calibration
+    panel.routine.setCurrentText("psf-sweep")
+    fields = panel.fields["psf-sweep"]
+    for flag, value in (("--z-min", "30"), ("--z-max", "60"), ("--n-depths", "3"),
+                        ("--frames", "1")):
+        fields[flag].setText(value)
+    path = str(tmp_path_factory.mktemp("runs") / "sweep.zarr")
+    panel.out.setText(path)
+    record = {"path": path}
+    job = panel.start()
+    assert job is not None, panel.status.text()
+    wait(lambda: "frame" in panel.events, 60, "the first frame")
+    panel.toggle_pause()
+    wait(lambda: "paused" in panel.events, 30, "the pause")
+    done = panel.progress.value()
+    record["paused_at"] = done
+    record["frames_shown"] = panel.view.image is not None
+    panel.abort()
+    wait(lambda: job.done and panel.result is not None, 30, "the abort")
+    record["aborted"] = panel.result
+    record["abort_message"] = panel.status.text()
+    record["progress_after_pause"] = panel.progress.value()
+    job = panel.resume()
+    wait(lambda: job.done, 120, "the resumed run")
+    record["resumed"] = panel.result
+    record["final_message"] = panel.status.text()
+    return record
+
+
+def test_psf_sweep_pause_abort_resume(sweep):
+    from instrument.runstore import RunStore
+
+    assert sweep["frames_shown"]
+    assert sweep["progress_after_pause"] == sweep["paused_at"]  # paused: nothing taken
+    assert sweep["aborted"].status == "aborted"
+    assert "calibrate resume" in sweep["abort_message"] and "Resume run" in sweep["abort_message"]
+    assert sweep["resumed"].status == "complete", sweep["final_message"]
+    store = RunStore.open(sweep["path"])
+    assert store.status == "complete" and "psf_stack" in store.products()
+
+
+def test_live_reconstruction_with_the_sweeps_psf(window, wait, sweep):
+    from instrument.runstore import RunStore
+
+    depths = RunStore.open(sweep["path"]).product("psf_stack")[1]["depths_mm"]
+    live = window.live
+    live.psf.setText(sweep["path"])
+    live.depth.setText(f"{depths[0]:g}")
+    live.method.setCurrentText("admm")
+    live.iterations.setValue(3)
+    job = live.start_reconstruction()
+    wait(lambda: job.done, 60, "the PSF to load")
+    assert live.live is not None, live.error.text()
+    wait(lambda: live._shown_recon >= 0, 30, "a reconstruction")
+    first = live._shown_recon
+    wait(lambda: live._shown_recon > first, 30, "the next reconstruction")
+    text = live.recon_stats.text()
+    assert "admm x3" in text and "latency" in text and "skipped" in text
+    assert live.recon_view.image.shape == window.session.bench.camera.image_shape
+    live.stop_reconstruction()
+    window.session.stop_stream()
+    wait(lambda: not window.session.streaming, 5, "the stream to stop")
+
+
+def test_results_viewer_shows_the_runs_frames_and_psf_stack(window, wait, sweep):
+    results = window.results
+    job = results.open(sweep["path"])
+    wait(lambda: job.done, 30, "the run to open")
+    assert results.store is not None and results.error.text() == ""
+    assert "psf_stack" in [results.products.itemText(i) for i in range(results.products.count())]
+    results.frame_slider.setValue(1)
+    assert results.view.image.shape == window.session.bench.camera.image_shape
+    results.show_product("psf_stack")
+    assert results.volume is not None and len(results.volume) == 3
+    results.depth_slider.setValue(2)
+    assert "plane 3 of 3" in results.depth_label.text() and "mm" in results.depth_label.text()
+    assert results.mip_views["xz"].image is not None
+
+
+def test_calibration_refuses_bad_parameters_with_the_commands_message(window):
+    panel = window.calibration
+    panel.routine.setCurrentText("psf-sweep")
+    panel.fields["psf-sweep"]["--n-depths"].setText("many")
+    assert panel.start() is None
+    assert "--n-depths" in panel.status.text() and "many" in panel.status.text()
+    panel.fields["psf-sweep"]["--n-depths"].setText("3")
