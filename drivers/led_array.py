@@ -31,12 +31,24 @@ import numpy as np
 from drivers.base import Device
 from drivers.errors import DeviceValueError, LedArrayTimeoutError
 
-__all__ = ["PATTERNS", "LedArray"]
+__all__ = ["PATTERNS", "LedArray", "grid_positions"]
 
 #: Pattern names understood by :meth:`LedArray.set_pattern`.
 PATTERNS: tuple[str, ...] = (
     "brightfield", "darkfield", "dpc_top", "dpc_bottom", "dpc_left", "dpc_right",
 )
+
+
+def grid_positions(rows: int, cols: int, pitch_mm: float) -> np.ndarray:
+    """``(rows * cols, 2)`` float positions ``(x, y)`` in mm of a rectangular LED grid
+    centred on the optical axis.
+
+    LED ``i * cols + j`` sits in grid row ``i`` (row 0 at the top, largest y) and
+    column ``j`` (column 0 at the left, smallest x): ``x = (j - (cols - 1) / 2) *
+    pitch_mm``, ``y = ((rows - 1) / 2 - i) * pitch_mm``.
+    """
+    i, j = np.divmod(np.arange(rows * cols), cols)
+    return np.stack([(j - (cols - 1) / 2) * pitch_mm, ((rows - 1) / 2 - i) * pitch_mm], axis=1)
 
 
 class LedArray(Device):

@@ -154,6 +154,13 @@ def find_serial_port(
     return None
 
 
+def _tail(data: bytes, n: int = 80) -> str:
+    """``data`` for a message: its last ``n`` bytes and how many came before."""
+    if len(data) <= n:
+        return repr(data)
+    return f"{len(data)} bytes ending {data[-n:]!r}"
+
+
 class SerialLink:
     """One serial port (pyserial) with deadlines on every read and typed errors.
 
@@ -340,7 +347,8 @@ class SerialLink:
                 self._buffer[:0] = data
                 raise self.timeout_error(
                     self.device_id,
-                    f"no {what} within {timeout_s:g} s on {self.path} (received {bytes(data)!r})",
+                    f"no {what} within {timeout_s:g} s on {self.path} (received "
+                    f"{_tail(bytes(data))})",
                     "check that the device is powered and is the expected model, "
                     "and the baud rate",
                 )

@@ -138,11 +138,21 @@ class PtyEmulator:
         fd = self._master
         if fd is None:
             return
-        try:
-            os.write(fd, bytes(data))
-            self.sent += data
-        except (BlockingIOError, OSError) as exc:
-            log.debug("%s: write lost: %s", type(self).__name__, exc)
+        view = memoryview(bytes(data))
+        deadline = time.monotonic() + 1.0  # a reader that stops reading: give up then
+        while view and time.monotonic() < deadline:
+            try:
+                n = os.write(fd, view)
+            except BlockingIOError:
+                select.select([], [fd], [], 0.05)
+                continue
+            except OSError as exc:
+                log.debug("%s: write lost: %s", type(self).__name__, exc)
+                return
+            self.sent += view[:n]
+            view = view[n:]
+        if view:
+            log.debug("%s: %d bytes lost (nobody reads)", type(self).__name__, len(view))
 
     def drop_replies(self, n: int = 1) -> None:
         """Lose the replies to the next ``n`` commands (the driver's reads time out)."""

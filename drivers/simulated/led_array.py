@@ -5,10 +5,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 from drivers.errors import DeviceValueError
-from drivers.led_array import LedArray
+from drivers.led_array import LedArray, grid_positions
 from drivers.simulated._common import SimulatedMixin
 from drivers.simulated.clock import SimClock
 from drivers.simulated.faults import DeviceFaults
@@ -60,10 +58,7 @@ class SimulatedLedArray(SimulatedMixin, LedArray):
         rows, cols = self._int_pair("shape", shape, high=1024)
         self._pitch = self._float("pitch_mm", pitch_mm, low=0.0, low_open=True)
         self._distance = self._float("distance_mm", distance_mm, low=0.0, low_open=True)
-        i, j = np.divmod(np.arange(rows * cols), cols)
-        self._positions = np.stack(
-            [(j - (cols - 1) / 2) * self._pitch, ((rows - 1) / 2 - i) * self._pitch], axis=1
-        )
+        self._positions = grid_positions(rows, cols, self._pitch)
         self._colours = dict(DEFAULT_COLOURS if colours is None else colours)
         if not self._colours or not all(isinstance(c, str) for c in self._colours):
             raise self._error(DeviceValueError, f"colours={colours!r} is invalid",
