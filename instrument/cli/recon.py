@@ -16,9 +16,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     from recon.solvers import METHODS, SOLVERS
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
-    rp.add_argument("--psf", required=True,
+    rp.add_argument("--psf", default=None,
                     help="PSF image (TIFF, PNG/JPEG or .npy), or a PSF stack: a run store "
-                    "(RUN.zarr from `calibrate psf-sweep`) or a TIFF stack, with --depth")
+                    "(RUN.zarr from `calibrate psf-sweep`) or a TIFF stack, with --depth "
+                    "(or --psf-grid instead)")
     rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
                     help="depth (mm) of the stack's PSF to use (nearest plane within 5%%)")
     rp.add_argument("--psf-product", default="psf_stack",
@@ -43,6 +44,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace existing output files (never an input)")
+    from .grid_options import add_grid_options
+
+    add_grid_options(rp, volume=False)
     rp.set_defaults(handler=run)
 
 
@@ -62,6 +66,15 @@ def run(args: argparse.Namespace) -> int:
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, run_recon
 
+    if (args.psf is None) == (args.psf_grid is None):
+        from recon.errors import ReconInputError
+
+        raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
+                              "not both")
+    if args.psf_grid:
+        from .grid_options import run_grid
+
+        return run_grid(args, volume=False)
     outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
     m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,

@@ -34,10 +34,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         OSError: bad option values, unreadable files exit 2).
     """
     p = sub.add_parser("recon3d", help="reconstruct a volume from one image and a PSF stack")
-    p.add_argument("--psf-stack", required=True,
+    p.add_argument("--psf-stack", default=None,
                    help="PSF stack: a run store (RUN.zarr from `calibrate psf-sweep` or "
                    "`runs import-psf`), a TIFF stack (depths in its metadata or --depths) or "
-                   "a .npy stack (n_z, rows, cols) with --depths")
+                   "a .npy stack (n_z, rows, cols) with --depths; or --psf-grid instead")
     p.add_argument("--psf-product", default="psf_stack",
                    help="which stack of a run store (default psf_stack)")
     p.add_argument("--depths", default=None,
@@ -65,6 +65,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (never an input)")
+    from .grid_options import add_grid_options
+
+    add_grid_options(p, volume=True)
     p.set_defaults(handler=run, input_errors=(ValueError, OSError))
 
 
@@ -101,6 +104,12 @@ def run(args: argparse.Namespace) -> int:
     from ..reconstruct_files import run_recon3d, volume_output_paths
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
+    if (args.psf_stack is None) == (args.psf_grid is None):
+        raise ValueError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
+    if args.psf_grid:
+        from .grid_options import run_grid
+
+        return run_grid(args, volume=True, depths=depths)
     dark = _parse_dark(args.dark)
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]

@@ -8,7 +8,8 @@ states each one's model error on the calibration itself, over the nodes whose
 region the scene occupies (the object support):
 
 * convolution: ``max_i sqrt(1 - ip(h~_i, h~_c)^2)`` with ``ip`` the normalised
-  inner product of a registered PSF and the central one (Fig. 5.1d) -- the
+  inner product of a registered PSF and the central one (Fig. 5.1d) over the
+  pixels the node's PSF had on the sensor (:meth:`PsfGrid.valid_masks`) -- the
   relative residual of the best multiple of the central PSF, so a pure brightness
   change (which the object absorbs, Eq. 5.1 far from the sensor) costs nothing;
 * PCA with ``k``: ``max_i ||h~_i - H_k e_i|| / ||h~_i||``, the rank-``k`` residual;
@@ -102,12 +103,6 @@ def _nodes_in_support(grid: PsfGrid, support) -> np.ndarray:
     return op.kept
 
 
-def _unit(h):
-    v = h.reshape(-1).astype(np.float64)
-    n = np.linalg.norm(v)
-    return v / n if n > 0 else v
-
-
 def predicted_errors(grids, support=None) -> dict[str, float]:
     """Predicted relative model errors of the candidate models (module docstring).
 
@@ -130,36 +125,48 @@ def predicted_errors(grids, support=None) -> dict[str, float]:
 
     for g in _grids(grids):
         nodes = _nodes_in_support(g, support)
-        ref = _unit(g.psfs[g.central])
-        conv = max(np.sqrt(max(0.0, 1.0 - float(ref @ _unit(g.psfs[i])) ** 2)) for i in nodes)
-        keep_max("convolution", conv)
+        valid = g.valid_masks().reshape(g.n, -1)
         H = g.psfs.reshape(g.n, -1).astype(np.float64)
-        norms = np.linalg.norm(H, axis=1)
+        ref = H[g.central]
+        keep_max("convolution", max(_shape_error(H[i], ref, valid[i]) for i in nodes))
         for k in range(1, g.n):
             principal, weights, _ = pca_components(g, k=k)
             if len(principal) < k:  # rank reached: more components add nothing
                 break
             approx = weights.reshape(k, g.n).T @ principal.reshape(k, -1).astype(np.float64)
-            rel = np.linalg.norm(H - approx, axis=1) / norms
-            keep_max(f"pca:{k}", rel[nodes].max())
-        keep_max("local", _interpolation_error(g, nodes))
+            rel = [np.linalg.norm((H[i] - approx[i])[valid[i]]) / np.linalg.norm(H[i][valid[i]])
+                   for i in nodes]
+            keep_max(f"pca:{k}", max(rel))
+        keep_max("local", _interpolation_error(g, nodes, valid))
     return errors
 
 
-def _interpolation_error(g: PsfGrid, nodes) -> float:
+def _shape_error(h: np.ndarray, ref: np.ndarray, valid: np.ndarray) -> float:
+    """sqrt(1 - ip^2) of two PSFs over the pixels the node's sensor saw."""
+    a, b = h[valid], ref[valid]
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if na == 0 or nb == 0:
+        return 1.0
+    return float(np.sqrt(max(0.0, 1.0 - (float(a @ b) / (na * nb)) ** 2)))
+
+
+def _interpolation_error(g: PsfGrid, nodes, valid) -> float:
     ny, nx = g.grid_shape
     h = g.psfs.reshape(ny, nx, -1).astype(np.float64)
+    ok = valid.reshape(ny, nx, -1)
     wanted = set(int(i) for i in nodes)
     worst = 0.0
     for a in range(ny):
         for b in range(nx):
             if a * nx + b not in wanted:
                 continue
-            norm = np.linalg.norm(h[a, b])
             for da, db in ((1, 0), (0, 1)):
                 if 0 <= a - da and a + da < ny and 0 <= b - db and b + db < nx:
-                    second = h[a - da, b - db] - 2 * h[a, b] + h[a + da, b + db]
-                    worst = max(worst, float(np.linalg.norm(second) / (8 * norm)))
+                    m = ok[a - da, b - db] & ok[a, b] & ok[a + da, b + db]
+                    second = (h[a - da, b - db] - 2 * h[a, b] + h[a + da, b + db])[m]
+                    norm = np.linalg.norm(h[a, b][m])
+                    if norm > 0:
+                        worst = max(worst, float(np.linalg.norm(second) / (8 * norm)))
     return worst
 
 

@@ -217,6 +217,18 @@ class PsfGrid:
         """Index of the node nearest the reference (the central PSF, zero shift)."""
         return int(np.argmin(np.hypot(*self.shifts_px.T)))
 
+    def valid_masks(self) -> np.ndarray:
+        """Per node, the registered pixels the sensor saw, (N, rows, cols) bool.
+
+        Registration shifts a PSF back by its shift, so where the light fell off the
+        sensor the registered PSF holds zeros that are missing data, not darkness:
+        pixel ``(r, c)`` is valid when ``(r + dy, c + dx)`` lies on the sensor.
+        """
+        rows, cols = self.sensor_shape
+        r = np.arange(rows)[None, :, None] + np.round(self.shifts_px[:, 0])[:, None, None]
+        c = np.arange(cols)[None, None, :] + np.round(self.shifts_px[:, 1])[:, None, None]
+        return (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+
     def node_coordinates(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean node row offsets (ny,) and column offsets (nx,), sensor px."""
         ny, nx = self.grid_shape
