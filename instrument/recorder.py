@@ -164,7 +164,8 @@ class Recorder:
                 return False
         return True
 
-    def close(self, *, ring: FrameRing | None = None, status: str = "complete") -> dict:
+    def close(self, *, ring: FrameRing | None = None, status: str = "complete",
+              trim: bool = False) -> dict:
         """Write what is queued (the last shard may be partial), store the totals in
         the run's summary, set its status and end time, release the lock.
 
@@ -175,6 +176,9 @@ class Recorder:
             overwritten) are stored with the recorder's.
         status : str
             Run status on success (``"complete"``, or ``"stopped"`` after Ctrl-C).
+        trim : bool
+            Cut the run to the frames recorded (:meth:`RunStore.truncate`), so a
+            recording that ended early or lost frames leaves no empty slots.
 
         Returns
         -------
@@ -195,6 +199,8 @@ class Recorder:
         summary["index_gaps"] = _gaps(self.recorded_indices)
         failed = self._error is not None
         try:
+            if trim and not failed:
+                self.store.truncate(self.recorded)
             self.store.update_attrs(
                 status="failed" if failed else status, ended_utc=utc_now(),
                 error=f"recording failed: {self._error}" if failed else None,

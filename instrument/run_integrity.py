@@ -19,8 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["LOCK_NAME", "frame_crc", "lock_problem", "pid_alive", "product_crcs", "read_lock",
-           "write_lock"]
+__all__ = ["LOCK_NAME", "RunStoreError", "frame_crc", "lock_problem", "pid_alive",
+           "product_crcs", "read_lock", "write_lock"]
+
+
+class RunStoreError(ValueError):
+    """A run store is missing, of another schema, or asked for something it lacks."""
 
 
 def frame_crc(image: np.ndarray, row: np.ndarray) -> int:

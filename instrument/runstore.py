@@ -64,12 +64,13 @@ from drivers.base import jsonable
 
 from .run_integrity import (
     LOCK_NAME,
+    RunStoreError,
     frame_crc,
     lock_problem,
-    product_crcs,
     read_lock,
     write_lock,
 )
+from .run_products import ProductsMixin
 
 __all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "RunStore",
            "RunStoreError", "is_run_store", "software_version", "utc_now"]
@@ -96,10 +97,6 @@ def _frame_compressors(name: str):
         raise RunStoreError(f"unknown frame compressor {name!r}; use one of "
                             f"{list(FRAME_COMPRESSORS)}")
     return choices[name]
-
-
-class RunStoreError(ValueError):
-    """A run store is missing, of another schema, or asked for something it lacks."""
 
 
 class DamagedFrameError(RunStoreError):
@@ -153,7 +150,7 @@ class FrameRecord:
     coords: dict[str, float]
 
 
-class RunStore:
+class RunStore(ProductsMixin):
     """A run's Zarr v3 store: create, write frames, read (also while being written).
 
     Use :meth:`create` for a new run and :meth:`open` for an existing one.
@@ -557,6 +554,30 @@ class RunStore:
         r = self.frame_range(point)
         self._group["done"][r.start:r.stop] = 0
 
+    def truncate(self, n_frames: int) -> None:
+        """Cut a one-point run (a video) to its first ``n_frames`` frame slots, which
+        must all be done: a recording that ended early or lost frames keeps no empty
+        slots.
+
+        Raises
+        ------
+        RunStoreError
+            Read-only, a run of several points, or a slot below ``n_frames`` not done.
+        """
+        self._require_writable()
+        n = int(n_frames)
+        if self.n_points != 1 or not 0 <= n <= self.n_frames:
+            raise RunStoreError(f"cannot cut {self.path} to {n_frames} frames: only a "
+                                f"one-point run of at least that many frames can be cut")
+        if not self.done(range(0, n)).all():
+            raise RunStoreError(f"cannot cut {self.path} to {n} frames: not all are stored")
+        for name in ("frames", "coords", "crc32", "done", "point", "tag"):
+            arr = self._group[name]
+            arr.resize((n, *arr.shape[1:]))
+        self._point, self._tag = self._point[:n], self._tag[:n]
+        plan = dict(self.attrs["plan"], frames_per_point=[n])
+        self.update_attrs(plan=plan)
+
     def update_attrs(self, **values: Any) -> None:
         """Set run attributes (status, times, summary, ...)."""
         self._require_writable()
@@ -628,59 +649,10 @@ class RunStore:
         c = np.asarray(self._group["coords"][:])
         return {n: c[:, k] for k, n in enumerate(self._coord_names)}
 
-    # ------------------------------------------------------------------ products
-    def write_product(self, name: str, array: np.ndarray, **attrs: Any) -> None:
-        """Store a derived array ``products/name`` (replacing it) with attributes."""
-        self._require_writable()
-        array = np.asarray(array)
-        products = self._group["products"]
-        if name in products:
-            del products[name]
-        chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
-        arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
-        arr[...] = array
-        arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
-
-    def products(self) -> list[str]:
-        """Names of the stored products."""
-        return sorted(self._group["products"].array_keys())
-
-    def product(self, name: str) -> tuple[np.ndarray, dict]:
-        """A product's array and attributes.
-
-        Raises
-        ------
-        RunStoreError
-            No such product (the run is incomplete or the plan makes none).
-        """
-        products = self._group["products"]
-        if name not in products:
-            raise RunStoreError(
-                f"{self.path} has no product {name!r} (it has {self.products()}); finish "
-                "or resume the run first")
-        arr = products[name]
-        attrs = dict(arr.attrs)
-        fix = (f"recompute it: diffuserlab calibrate resume {self.path} BENCH.toml (a run "
-               "whose points are all stored only recomputes its products)")
-        try:
-            data = np.asarray(arr[...])
-        except Exception as exc:  # a corrupt chunk fails to decode
-            raise RunStoreError(f"product {name!r} of {self.path} is damaged: its chunks "
-                                f"cannot be read ({exc}); {fix}") from exc
-        recorded = attrs.pop("crc32", None)
-        if recorded is not None:
-            actual = product_crcs(data)
-            bad = [k for k, (a, b) in enumerate(zip(recorded, actual, strict=False)) if a != b]
-            if bad or len(recorded) != len(actual):
-                where = f"plane {bad[0]}" if data.ndim == 3 and bad else "its data"
-                raise RunStoreError(f"product {name!r} of {self.path} is damaged: {where} "
-                                    "differs from the checksum recorded when it was "
-                                    f"written (a chunk file deleted or altered); {fix}")
-        return data, attrs
-
     # ------------------------------------------------------------------ integrity
     def verify(self) -> list[str]:
-        """Check every done frame and every product against its checksum.
+        """Check every done frame and every product (every written plane of a per-frame
+        product) against its checksum.
 
         Returns
         -------
@@ -689,13 +661,7 @@ class RunStore:
             the fix); empty when the run is intact. A schema-1 run carries no
             checksums: only unreadable chunks are found (see ``has_checksums``).
         """
-        problems = [str(exc) for exc in self.damaged_frames()]
-        for name in self.products():
-            try:
-                self.product(name)
-            except RunStoreError as exc:
-                problems.append(str(exc))
-        return problems
+        return [str(exc) for exc in self.damaged_frames()] + self.damaged_products()
 
     def damaged_frames(self) -> list[DamagedFrameError]:
         """Every done frame whose chunk is missing, unreadable or differs from its
@@ -729,9 +695,7 @@ class RunStore:
             "software_version": a["software_version"], "schema_version": a["schema_version"],
             "note": a["note"], "resumes": a["resumes"], "warnings": a["warnings"],
             "error": a["error"], "summary": a.get("summary", {}),
-            "products": {n: {"shape": list(self._group["products"][n].shape),
-                             "dtype": str(self._group["products"][n].dtype)}
-                         for n in self.products()},
+            "products": {n: self.product_info(n) for n in self.products()},
             "checksums": self.has_checksums, "problems": self.verify(),
             "lock": lock_problem(self.path) if self.lock_owner() is not None else None,
         })

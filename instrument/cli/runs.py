@@ -72,7 +72,10 @@ def format_summary(s: dict) -> str:
     if not s.get("checksums", True):
         lines.append("checks   none: this run (schema 1) carries no checksums")
     for name, info in s["products"].items():
-        lines.append(f"product  {name}: {'x'.join(map(str, info['shape']))} {info['dtype']}")
+        planes = (f"  ({info['planes_done']} of {info['shape'][0]} frames done)"
+                  if "planes_done" in info else "")
+        lines.append(f"product  {name}: {'x'.join(map(str, info['shape']))} {info['dtype']}"
+                     f"{planes}")
     for key, value in s["summary"].items():
         text = json.dumps(value)
         lines.append(f"result   {key} = {text if len(text) < 100 else text[:97] + '...'}")

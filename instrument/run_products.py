@@ -1,0 +1,246 @@
+"""Products of a run store: arrays derived from its frames (:mod:`instrument.runstore`).
+
+Two kinds, both under ``RUN.zarr/products/``:
+
+* a *whole* product (a PSF stack, a dark frame, a LUT) is written at once by
+  :meth:`ProductsMixin.write_product`; its attribute ``crc32`` holds one CRC-32 per
+  plane (3-D) or one for the array;
+* a *per-frame* product (a batch reconstruction of a video, ΔF/F) has one plane per
+  recorded frame, written one at a time in any order by
+  :meth:`ProductsMixin.write_product_frame` and resumable: the hidden arrays
+  ``NAME__crc32`` and ``NAME__done`` (one element per plane, one chunk each) hold a
+  plane's checksum and done flag, written after the plane, so a crash loses at most
+  the plane in flight and :meth:`ProductsMixin.product_frames_done` says what is left.
+
+Reading verifies: a plane whose chunk was deleted (zarr would return zeros) or
+altered is an error naming the product and plane, never data.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from drivers.base import jsonable
+
+from .run_integrity import RunStoreError, product_crcs
+
+__all__ = ["ProductsMixin"]
+
+#: Suffixes of the hidden arrays of a per-frame product.
+_DONE, _CRC = "__done", "__crc32"
+
+
+class ProductsMixin:
+    """Product methods of :class:`instrument.runstore.RunStore` (needs ``path``,
+    ``_group`` and ``_require_writable``)."""
+
+    # ------------------------------------------------------------------ whole products
+    def write_product(self, name: str, array: np.ndarray, **attrs: Any) -> None:
+        """Store a derived array ``products/name`` (replacing it) with attributes."""
+        self._require_writable()
+        _check_name(name)
+        array = np.asarray(array)
+        products = self._group["products"]
+        self._delete_product(name)
+        chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
+        arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
+        arr[...] = array
+        arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
+
+    def products(self) -> list[str]:
+        """Names of the stored products (the hidden arrays of per-frame ones left out)."""
+        return sorted(k for k in self._group["products"].array_keys()
+                      if not k.endswith((_DONE, _CRC)))
+
+    def product_info(self, name: str) -> dict[str, Any]:
+        """``{"shape", "dtype"}`` of a product, with ``planes_done`` for a per-frame one."""
+        arr = self._product_array(name)
+        info: dict[str, Any] = {"shape": list(arr.shape), "dtype": str(arr.dtype)}
+        if arr.attrs.get("per_frame"):
+            info["planes_done"] = int(self.product_frames_done(name).sum())
+        return info
+
+    def product(self, name: str) -> tuple[np.ndarray, dict]:
+        """A product's array and attributes, verified against its checksums.
+
+        Raises
+        ------
+        RunStoreError
+            No such product (the run is incomplete or the plan makes none), a
+            per-frame product with planes still missing, or a damaged plane.
+        """
+        arr = self._product_array(name)
+        attrs = dict(arr.attrs)
+        if attrs.get("per_frame"):
+            done = self.product_frames_done(name)
+            if not done.all():
+                raise RunStoreError(
+                    f"product {name!r} of {self.path} holds {int(done.sum())} of {done.size} "
+                    f"planes; finish it ({attrs.get('resume_hint', 'run its command again')})")
+            return np.stack([self.product_frame(name, i) for i in range(done.size)]), attrs
+        fix = (f"recompute it: diffuserlab calibrate resume {self.path} BENCH.toml (a run "
+               "whose points are all stored only recomputes its products)")
+        try:
+            data = np.asarray(arr[...])
+        except Exception as exc:  # a corrupt chunk fails to decode
+            raise RunStoreError(f"product {name!r} of {self.path} is damaged: its chunks "
+                                f"cannot be read ({exc}); {fix}") from exc
+        recorded = attrs.pop("crc32", None)
+        if recorded is not None:
+            actual = product_crcs(data)
+            bad = [k for k, (a, b) in enumerate(zip(recorded, actual, strict=False)) if a != b]
+            if bad or len(recorded) != len(actual):
+                where = f"plane {bad[0]}" if data.ndim == 3 and bad else "its data"
+                raise RunStoreError(f"product {name!r} of {self.path} is damaged: {where} "
+                                    "differs from the checksum recorded when it was "
+                                    f"written (a chunk file deleted or altered); {fix}")
+        return data, attrs
+
+    def damaged_products(self) -> list[str]:
+        """One line per damaged product or written plane of a per-frame product (the
+        error reading it raises); planes not written yet are not damage."""
+        problems = []
+        for name in self.products():
+            try:
+                if self._product_array(name).attrs.get("per_frame"):
+                    for i in np.flatnonzero(self.product_frames_done(name)):
+                        self.product_frame(name, int(i))
+                else:
+                    self.product(name)
+            except RunStoreError as exc:
+                problems.append(str(exc))
+        return problems
+
+    # ------------------------------------------------------------------ per-frame products
+    def create_frame_product(self, name: str, n_planes: int, plane_shape: Sequence[int],
+                             dtype=np.float32, *, overwrite: bool = False,
+                             **attrs: Any) -> None:
+        """Create an empty per-frame product (module notes), or keep an existing one.
+
+        Parameters
+        ----------
+        name : str
+        n_planes : int
+            One plane per frame of the run it derives from.
+        plane_shape : sequence of int
+            Shape of one plane, e.g. (rows, cols) of a reconstruction.
+        dtype : numpy dtype
+        overwrite : bool
+            Replace an existing product of that name. Otherwise an existing
+            per-frame product of the same shape, dtype and ``attrs`` is kept (its done
+            planes are resumed), and any other one is refused.
+        **attrs
+            JSON-able attributes (e.g. the parameters that made it; ``resume_hint``:
+            the command that finishes it).
+
+        Raises
+        ------
+        RunStoreError
+            Read-only store, bad name, or an existing product that differs.
+        """
+        self._require_writable()
+        _check_name(name)
+        shape = (int(n_planes), *(int(v) for v in plane_shape))
+        want = jsonable({**attrs, "per_frame": True})
+        products = self._group["products"]
+        if name in products and not overwrite:
+            arr = products[name]
+            have = {k: v for k, v in arr.attrs.items()}
+            if tuple(arr.shape) == shape and arr.dtype == np.dtype(dtype) and have == want:
+                return
+            differs = sorted(k for k in set(have) | set(want) if have.get(k) != want.get(k))
+            raise RunStoreError(
+                f"{self.path} already has a product {name!r} made with other settings "
+                f"({', '.join(differs) or 'shape/dtype'} differ); use the same settings to "
+                "resume it, or replace it (--overwrite, overwrite=True)")
+        self._delete_product(name)
+        arr = products.create_array(name, shape=shape, chunks=(1, *shape[1:]), dtype=dtype,
+                                    fill_value=0)
+        products.create_array(name + _CRC, shape=shape[:1], chunks=(1,), dtype="uint32",
+                              fill_value=0)
+        products.create_array(name + _DONE, shape=shape[:1], chunks=(1,), dtype="uint8",
+                              fill_value=0)
+        arr.attrs.update(want)
+
+    def write_product_frame(self, name: str, index: int, plane: np.ndarray) -> None:
+        """Store plane ``index`` of a per-frame product: data, checksum, then done flag.
+
+        Raises
+        ------
+        RunStoreError
+            Read-only store, not a per-frame product, index out of range, or a plane
+            of the wrong shape (cast to the product's dtype otherwise).
+        """
+        self._require_writable()
+        arr = self._per_frame(name)
+        index = int(index)
+        if not 0 <= index < arr.shape[0]:
+            raise RunStoreError(f"plane {index} is outside product {name!r} "
+                                f"(0..{arr.shape[0] - 1})")
+        plane = np.asarray(plane, arr.dtype)
+        if plane.shape != tuple(arr.shape[1:]):
+            raise RunStoreError(f"plane of shape {plane.shape} does not fit product {name!r} "
+                                f"(planes {tuple(arr.shape[1:])})")
+        products = self._group["products"]
+        arr[index] = plane
+        products[name + _CRC][index] = product_crcs(plane)[0]
+        products[name + _DONE][index] = 1
+
+    def product_frames_done(self, name: str) -> np.ndarray:
+        """Done flags of a per-frame product's planes, (n_planes,) bool."""
+        self._per_frame(name)
+        return np.asarray(self._group["products"][name + _DONE][:], bool)
+
+    def product_frame(self, name: str, index: int) -> np.ndarray:
+        """One done plane of a per-frame product, verified against its checksum.
+
+        Raises
+        ------
+        RunStoreError
+            Not a per-frame product, the plane is not written yet, or it is damaged.
+        """
+        arr = self._per_frame(name)
+        products = self._group["products"]
+        index = int(index)
+        if not (0 <= index < arr.shape[0] and products[name + _DONE][index]):
+            raise RunStoreError(f"plane {index} of product {name!r} of {self.path} is not "
+                                f"written yet; {arr.attrs.get('resume_hint', 'finish it')}")
+        plane = np.asarray(arr[index])
+        if product_crcs(plane)[0] != int(products[name + _CRC][index]):
+            raise RunStoreError(
+                f"product {name!r} of {self.path} is damaged: plane {index} differs from the "
+                "checksum recorded when it was written (a chunk file deleted or altered); "
+                f"compute it again: {arr.attrs.get('resume_hint', 'run its command again')} "
+                "with overwrite")
+        return plane
+
+    # ------------------------------------------------------------------ helpers
+    def _product_array(self, name: str):
+        products = self._group["products"]
+        if name not in self.products():
+            raise RunStoreError(
+                f"{self.path} has no product {name!r} (it has {self.products()}); finish "
+                "or resume the run first")
+        return products[name]
+
+    def _per_frame(self, name: str):
+        arr = self._product_array(name)
+        if not arr.attrs.get("per_frame"):
+            raise RunStoreError(f"product {name!r} of {self.path} is not a per-frame product")
+        return arr
+
+    def _delete_product(self, name: str) -> None:
+        products = self._group["products"]
+        for key in (name, name + _CRC, name + _DONE):
+            if key in products:
+                del products[key]
+
+
+def _check_name(name: str) -> None:
+    if not isinstance(name, str) or not name or "/" in name or name.startswith("__") \
+            or name.endswith((_DONE, _CRC)):
+        raise RunStoreError(f"product name {name!r} is invalid; use a plain name such as "
+                            "'recon_admm' (no '/', not ending in __done or __crc32)")
