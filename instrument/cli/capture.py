@@ -1,4 +1,4 @@
-"""``diffuserlab capture live``: watch the reconstruction while adjusting the scene.
+"""``diffuserlab capture live|video``: watch the reconstruction, record a video.
 
 ``diffuserlab capture live [BENCH.toml] [--simulate] --psf PSF [--depth Z]
 [--method wiener|admm:K] [--seconds T] [--preview-png FILE]``
@@ -11,6 +11,16 @@
     virtual bench streams in real time and shows a moving video scene
     (``--scene``: beads flowing in a channel, or neurons with calcium transients).
     Ctrl-C stops cleanly. Exit 0; 1 if the worker reported errors; 2 bad input.
+
+``diffuserlab capture video [BENCH.toml] [--simulate] (--frames N | --seconds T)
+[--fps F] [--scene ...] --out RUN.zarr [--live-recon wiener|admm:K --psf PSF]``
+    Records at the camera's rate into a new sharded run store
+    (:func:`instrument.video.record_video`): every frame in order, none skipped; a
+    frame the recorder cannot take is lost, counted and named by index. A progress
+    line once a second; Ctrl-C stops and keeps what was recorded. With
+    ``--live-recon`` a live reconstruction runs beside it on the newest frames.
+    Exit 0 no frame lost; 1 frames lost (count and indices printed); 2 bad input;
+    130 Ctrl-C.
 """
 
 from __future__ import annotations
@@ -20,49 +30,61 @@ import sys
 import time
 from pathlib import Path
 
-from .common import bench_config
+from .common import bench_config, dark_level
 
 __all__ = ["add_subcommands", "run_live"]
 
 SCENES = ("beads-flow", "neurons", "none")
 
 
+def _stream_options(p: argparse.ArgumentParser) -> None:
+    """Options both ``capture`` modes take: the bench, its camera, the simulated scene."""
+    p.add_argument("bench", nargs="?", default=None,
+                   help="bench TOML file (with --simulate and no file: the built-in one)")
+    p.add_argument("--simulate", action="store_true",
+                   help="the virtual bench, streaming in real time")
+    p.add_argument("--seed", type=int, default=0, help="--simulate: random seed")
+    p.add_argument("--scene", choices=SCENES, default="beads-flow",
+                   help="--simulate: the moving scene in front of the camera")
+    p.add_argument("--fps", type=float, default=None, help="camera frame rate, Hz")
+    p.add_argument("--exposure-s", type=float, default=None, help="camera exposure, s")
+
+
+def _recon_options(p: argparse.ArgumentParser, *, required: bool, method_flag: str,
+                   default_method: str | None) -> None:
+    """Options of the live reconstruction (its PSF, dark level, binning, threads)."""
+    p.add_argument("--psf", required=required,
+                   help="PSF image, PSF stack or calibration run (with --depth)")
+    p.add_argument("--depth", type=float, default=None, dest="depth_mm",
+                   help="depth of the stack's plane to use, mm")
+    p.add_argument(method_flag, default=default_method, dest="method",
+                   help="wiener or admm:K (K warm-started ADMM iterations per frame)"
+                   + ("" if default_method is None else f"; default {default_method}"))
+    p.add_argument("--dark", default=None,
+                   help="the frames' dark level: a number (DN) or a `calibrate dark` run "
+                   "(its dark_mean frame). Default: the simulated camera's offset with "
+                   "--simulate; required on a real bench with a calibrated PSF stack (its "
+                   "PSFs are dark-subtracted); with a plain PSF image, estimated from the "
+                   "PSF's corner as `recon` does")
+    p.add_argument("--bin", type=int, default=1, dest="bin_factor",
+                   help="bin PSF and frames by this factor")
+    p.add_argument("--threads", type=int, default=None,
+                   help="cap the reconstruction's threads (default: all cores)")
+
+
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
-    """Add ``capture`` (with ``live``) to the ``diffuserlab`` subparsers."""
-    cp = sub.add_parser("capture", help="stream the camera: live reconstruction")
+    """Add ``capture`` (``live`` and ``video``) to the ``diffuserlab`` subparsers."""
+    cp = sub.add_parser("capture", help="stream the camera: live reconstruction, video")
     csub = cp.add_subparsers(dest="mode", required=True)
     lp = csub.add_parser(
         "live", help="reconstruct the newest camera frame continuously; fps and latency "
         "once a second, the latest image to a PNG",
         description="Stream the camera and reconstruct the newest frame continuously "
         "(frames the reconstruction cannot take are skipped and counted). Ctrl-C stops.")
-    lp.add_argument("bench", nargs="?", default=None,
-                    help="bench TOML file (with --simulate and no file: the built-in one)")
-    lp.add_argument("--simulate", action="store_true",
-                    help="the virtual bench, streaming in real time")
-    lp.add_argument("--seed", type=int, default=0, help="--simulate: random seed")
-    lp.add_argument("--scene", choices=SCENES, default="beads-flow",
-                    help="--simulate: the moving scene in front of the camera")
-    lp.add_argument("--psf", required=True,
-                    help="PSF image, PSF stack or calibration run (with --depth)")
-    lp.add_argument("--depth", type=float, default=None, dest="depth_mm",
-                    help="depth of the stack's plane to use, mm")
-    lp.add_argument("--method", default="wiener",
-                    help="wiener (default) or admm:K (K warm-started iterations per frame)")
-    lp.add_argument("--dark", default=None,
-                    help="the frames' dark level: a number (DN) or a `calibrate dark` run "
-                    "(its dark_mean frame). Default: the simulated camera's offset with "
-                    "--simulate; required on a real bench with a calibrated PSF stack (its "
-                    "PSFs are dark-subtracted); with a plain PSF image, estimated from the "
-                    "PSF's corner as `recon` does")
-    lp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="bin PSF and frames by this factor")
+    _stream_options(lp)
+    _recon_options(lp, required=True, method_flag="--method", default_method="wiener")
     lp.add_argument("--seconds", type=float, default=10.0,
                     help="how long to stream, s (default 10; Ctrl-C stops earlier)")
-    lp.add_argument("--fps", type=float, default=None, help="camera frame rate, Hz")
-    lp.add_argument("--exposure-s", type=float, default=None, help="camera exposure, s")
-    lp.add_argument("--threads", type=int, default=None,
-                    help="cap the reconstruction's threads (default: all cores)")
     lp.add_argument("--preview-png", default=None,
                     help="write the latest reconstruction here every --preview-every-s")
     lp.add_argument("--preview-every-s", type=float, default=2.0,
@@ -70,6 +92,41 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     lp.add_argument("--overwrite", action="store_true",
                     help="replace an existing --preview-png")
     lp.set_defaults(handler=run_live)
+
+    vp = csub.add_parser(
+        "video", help="record a video into a run store (no frame skipped; losses counted)",
+        description="Record the camera's frames at its rate into a new run store "
+        "(sharded Zarr, lossless). A progress line once a second shows fps, written "
+        "MB/s and every counter. Ctrl-C stops cleanly and keeps what was recorded. Exit 0 "
+        "when every frame the camera acquired was stored, 1 when any was lost (the "
+        "count and the camera indices are printed), 2 bad input, 130 stopped by Ctrl-C "
+        "(the run keeps its frames, status 'stopped').")
+    _stream_options(vp)
+    length = vp.add_mutually_exclusive_group(required=True)
+    length.add_argument("--frames", type=int, default=None, help="frames to record")
+    length.add_argument("--seconds", type=float, default=None,
+                        help="seconds to record at the camera's frame rate")
+    vp.add_argument("--out", required=True, help="the new run store, RUN.zarr")
+    vp.add_argument("--overwrite", action="store_true",
+                    help="replace an earlier run store at --out (never anything else)")
+    vp.add_argument("--shard-frames", type=int, default=None,
+                    help=f"frames per shard file (default {_defaults()[0]})")
+    vp.add_argument("--compressor", default=None,
+                    help="lossless frame compression: none, zstd1, blosc-lz4 or default "
+                    f"(zarr's zstd); default {_defaults()[1]}")
+    vp.add_argument("--queue-frames", type=int, default=64,
+                    help="frames the recorder may queue before one is lost (default 64)")
+    vp.add_argument("--note", default="", help="the operator's note, stored with the run")
+    _recon_options(vp, required=False, method_flag="--live-recon", default_method=None)
+    vp.add_argument("--preview-png", default=None,
+                    help="with --live-recon: write the latest reconstruction here at the end")
+    vp.set_defaults(handler=run_video)
+
+
+def _defaults() -> tuple[int, str]:
+    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES
+
+    return DEFAULT_SHARD_FRAMES, DEFAULT_COMPRESSOR
 
 
 def _method(text: str) -> tuple[str, int]:
@@ -90,7 +147,7 @@ def _check_numbers(args: argparse.Namespace) -> None:
 
     for option, value in (("--seconds", args.seconds), ("--fps", args.fps),
                           ("--exposure-s", args.exposure_s),
-                          ("--preview-every-s", args.preview_every_s)):
+                          ("--preview-every-s", getattr(args, "preview_every_s", None))):
         if value is not None and not 0 < value < float("inf"):
             raise ReconInputError(f"{option} {value}: give a number > 0")
     if args.bin_factor < 1:
@@ -122,11 +179,7 @@ def _open(args: argparse.Namespace, config):
 def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
     """The frames' dark level (float DN or a per-pixel frame), None to estimate it from
     the PSF's corner like ``recon`` (a plain PSF image, no --dark)."""
-    import numpy as np
-
     from recon.errors import ReconInputError
-
-    from ..runstore import RunStore, RunStoreError
 
     if args.dark is None:
         if args.simulate:
@@ -137,17 +190,7 @@ def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
                 "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
                 "calibrate dark)")
         return None
-    try:
-        level = float(args.dark)
-    except ValueError:
-        try:
-            dark, _ = RunStore.open(args.dark).product("dark_mean")
-        except RunStoreError as exc:
-            raise ReconInputError(f"--dark {args.dark}: {exc}") from None
-        return np.asarray(dark, np.float32)
-    if not 0 <= level < float("inf"):
-        raise ReconInputError(f"--dark {args.dark}: give a level >= 0 DN or a dark run")
-    return level
+    return dark_level(args.dark)
 
 
 def _status(t_s: float, ring, live) -> str:
@@ -160,46 +203,55 @@ def _status(t_s: float, ring, live) -> str:
             f"skipped {s['skipped']}, errors {s['errors']}")
 
 
-def run_live(args: argparse.Namespace) -> int:
-    """Run ``capture live``; returns the exit status (module docstring)."""
-    from drivers.camera import FrameRing
+def _live(args: argparse.Namespace, cam):
+    """The live reconstruction the options ask for, checked against the camera; with
+    the PSF's description for the banner."""
     from recon.errors import ReconInputError
-    from recon.io import save_image, scene_view
     from recon.live import LiveReconstructor
 
     from ..live import LiveReconstruction
-    from ..output_safety import check_outputs
     from ..reconstruct_files import load_psf
 
     method, iterations = _method(args.method)
+    psf, depth = load_psf(args.psf, args.depth_mm)
+    stacked = depth is not None or Path(args.psf).is_dir()
+    if tuple(cam.image_shape) != tuple(psf.shape):
+        raise ReconInputError(
+            f"the PSF {args.psf} is {psf.shape[0]}x{psf.shape[1]} but the camera "
+            f"delivers {cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate "
+            "the PSF with the camera's current ROI and binning")
+    dark = _frame_dark(args, cam, stacked)
+    if dark is not None and stacked:  # the stack's PSF is dark-subtracted already:
+        psf = psf + dark  # LiveReconstructor subtracts the same dark from both
+    live = LiveReconstruction(LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark),
+                              method=method, iterations=iterations, threads=args.threads)
+    label = (f"{method}{'' if method == 'wiener' else f' x{iterations}'}, PSF {args.psf}"
+             f"{'' if depth is None else f' at {depth:g} mm'}")
+    return live, label
+
+
+def run_live(args: argparse.Namespace) -> int:
+    """Run ``capture live``; returns the exit status (module docstring)."""
+    from drivers.camera import FrameRing
+    from recon.io import save_image, scene_view
+
+    from ..output_safety import check_outputs
+
+    _method(args.method)
     _check_numbers(args)
     if args.preview_png is not None:
         check_outputs([args.preview_png], {"--psf": args.psf}, args.overwrite,
                       option="--preview-png")
     config = bench_config(args.bench, simulate=args.simulate, command="capture live")
-    psf, depth = load_psf(args.psf, args.depth_mm)
-    stacked = depth is not None or Path(args.psf).is_dir()
     bench = _open(args, config)
     try:
         cam = bench.camera
-        if tuple(cam.image_shape) != tuple(psf.shape):
-            raise ReconInputError(
-                f"the PSF {args.psf} is {psf.shape[0]}x{psf.shape[1]} but the camera "
-                f"delivers {cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate "
-                "the PSF with the camera's current ROI and binning")
-        dark = _frame_dark(args, cam, stacked)
-        if dark is not None and stacked:  # the stack's PSF is dark-subtracted already:
-            psf = psf + dark  # LiveReconstructor subtracts the same dark from both
-        live = LiveReconstruction(
-            LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark),
-            method=method, iterations=iterations, threads=args.threads)
         settings = {k: v for k, v in (("frame_rate_hz", args.fps),
                                       ("exposure_s", args.exposure_s)) if v is not None}
+        live, label = _live(args, cam)
         cam.apply_settings(settings)
-        print(f"live {method}{'' if method == 'wiener' else f' x{iterations}'} on "
-              f"{cam.device_id} ({cam.image_shape[0]}x{cam.image_shape[1]}, "
-              f"{cam.resulting_frame_rate_hz:.1f} fps), PSF {args.psf}"
-              f"{'' if depth is None else f' at {depth:g} mm'}; Ctrl-C stops", flush=True)
+        print(f"live {label} on {cam.device_id} ({cam.image_shape[0]}x{cam.image_shape[1]}, "
+              f"{cam.resulting_frame_rate_hz:.1f} fps); Ctrl-C stops", flush=True)
         ring = FrameRing(64)
         cam.start_stream(ring)
         t0 = last_print = last_png = time.monotonic()
@@ -234,3 +286,91 @@ def run_live(args: argparse.Namespace) -> int:
               f"{live.stats()['last_error']}", file=sys.stderr)
         return 1
     return 0
+
+
+def _video_line(p: dict) -> str:
+    """One progress line of ``capture video`` from :func:`instrument.video.record_video`'s
+    counters."""
+    line = (f"{p['elapsed_s']:6.1f} s  {p['fps']:.1f} fps, {p['write_mb_s']:.1f} MB/s  "
+            f"acquired {p['acquired']}, delivered {p['delivered']}, recorded "
+            f"{p['recorded']}, queued {p['queued']}, lost: camera {p['dropped_by_camera']}, "
+            f"ring {p['skipped_by_ring']}, recorder {p['lost_by_recorder']}")
+    live = p.get("live")
+    if live:
+        lat = live["latency_median_s"]
+        line += (f"  |  live: {live['fps']:.1f} fps, latency "
+                 f"{'-' if lat is None else f'{1e3 * lat:.0f} ms'}, skipped {live['skipped']}")
+    return line
+
+
+def run_video(args: argparse.Namespace) -> int:
+    """Run ``capture video``; returns the exit status (the parser's description)."""
+    from recon.errors import ReconInputError
+    from recon.io import save_image, scene_view
+
+    from ..output_safety import check_outputs
+    from ..recorder import index_ranges
+    from ..runstore import FRAME_COMPRESSORS
+    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, record_video
+
+    if args.method is not None:
+        _method(args.method)
+        if args.psf is None:
+            raise ReconInputError("--live-recon needs the PSF to reconstruct with: add "
+                                  "--psf PSF (and --depth for a stack)")
+    elif args.psf is not None or args.preview_png is not None:
+        raise ReconInputError("--psf and --preview-png go with --live-recon wiener|admm:K")
+    _check_numbers(args)
+    if args.frames is not None and args.frames < 1:
+        raise ReconInputError(f"--frames {args.frames}: give a whole number >= 1")
+    for option, value in (("--shard-frames", args.shard_frames),
+                          ("--queue-frames", args.queue_frames)):
+        if value is not None and value < 1:
+            raise ReconInputError(f"{option} {value}: give a whole number >= 1")
+    if args.compressor is not None and args.compressor not in FRAME_COMPRESSORS:
+        raise ReconInputError(f"--compressor: unknown frame compressor {args.compressor!r}; "
+                              f"use one of {list(FRAME_COMPRESSORS)}")
+    inputs = {"--psf": args.psf} if args.psf else {}
+    check_outputs([args.out], inputs, args.overwrite, store=True)
+    if args.preview_png:
+        check_outputs([args.preview_png], {**inputs, "--out": args.out}, args.overwrite,
+                      option="--preview-png")
+    config = bench_config(args.bench, simulate=args.simulate, command="capture video")
+    bench = _open(args, config)
+    try:
+        cam = bench.camera
+        live = label = None
+        if args.method is not None:
+            live, label = _live(args, cam)
+        extra = {}
+        if args.simulate:
+            extra["simulated"] = {"scene": args.scene, "seed": args.seed,
+                                  "dark_offset_dn": float(cam.dark_offset_dn)}
+        print(f"recording {cam.device_id} ({cam.image_shape[0]}x{cam.image_shape[1]} "
+              f"{cam.dtype}) to {args.out}"
+              f"{'' if label is None else f'; live {label}'}; Ctrl-C stops", flush=True)
+        summary = record_video(
+            bench, args.out, frames=args.frames, seconds=args.seconds, fps=args.fps,
+            exposure_s=args.exposure_s,
+            shard_frames=args.shard_frames or DEFAULT_SHARD_FRAMES,
+            compressor=args.compressor or DEFAULT_COMPRESSOR, queue_frames=args.queue_frames,
+            on_progress=lambda p: print(_video_line(p), flush=True), live=live,
+            overwrite=args.overwrite, note=args.note, **extra)
+        if live is not None and args.preview_png and live.latest() is not None:
+            save_image(args.preview_png, scene_view(live.latest().image))
+            print(f"latest reconstruction (frame {live.latest().frame_index}): "
+                  f"{args.preview_png}")
+    finally:
+        bench.close()
+    print(_video_line({**summary, "elapsed_s": summary["elapsed_s"]}))
+    print(f"{summary['status']}: {summary['recorded']} frames in {args.out} "
+          f"({summary['frames_requested']} requested)")
+    lost = summary["dropped_by_camera"] + summary["skipped_by_ring"] + \
+        summary["lost_by_recorder"]
+    if summary["index_gaps"] or lost:
+        missing = index_ranges(i for a, b in summary["index_gaps"] for i in range(a, b + 1))
+        print(f"diffuserlab: error: {lost} frame(s) lost (camera {summary['dropped_by_camera']}"
+              f", ring {summary['skipped_by_ring']}, recorder {summary['lost_by_recorder']}); "
+              f"camera indices missing from the run: {missing}", file=sys.stderr)
+        return 1
+    return 130 if summary["status"] == "stopped" else 0

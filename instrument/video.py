@@ -1,0 +1,240 @@
+"""Video recording on a bench: the camera's stream into a sharded run store.
+
+:func:`record_video` is what ``diffuserlab capture video`` (and the GUI's record
+panel) runs: the camera streams into a bounded :class:`drivers.camera.FrameRing`
+from its own grab thread; this thread takes every frame from the ring in order and
+offers it to the :class:`instrument.recorder.Recorder` (never skipped: a frame the
+recorder's bounded queue cannot take is lost, counted and kept by index) and, when
+given, to a live reconstruction (which only ever takes the newest frame, so it
+cannot slow the recorder). The run is a one-point plan ``"video"`` whose frames are
+stored in the order recorded, ``shard_frames`` per shard file, with the per-frame
+coordinates of :data:`instrument.recorder.VIDEO_COORDS`; when the recording ends
+early (Ctrl-C, ``stop``) or frames were lost, the run is cut to the frames it holds,
+so a stored video never has empty slots. A recording killed outright keeps every
+completed shard (see :mod:`instrument.recorder`).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.camera import FrameRing
+
+from .recorder import VIDEO_COORDS, Recorder, record_from_ring
+from .runstore import RunStore, RunStoreError
+
+__all__ = ["DEFAULT_COMPRESSOR", "DEFAULT_SHARD_FRAMES", "VIDEO_PLAN", "create_video_run",
+           "record_video", "video_frame_count"]
+
+#: Plan name of a recorded video run.
+VIDEO_PLAN = "video"
+#: Frames per shard file of a video run (64 frames of 1200 x 1600 uint16: 245 MB).
+DEFAULT_SHARD_FRAMES = 16
+#: Lossless frame compressor of a video run (see ``diffuserlab benchmark recording``).
+DEFAULT_COMPRESSOR = "none"
+
+
+def video_frame_count(*, frames: int | None, seconds: float | None, rate_hz: float) -> int:
+    """Frames a recording takes: ``frames``, or ``ceil(seconds * rate_hz)``.
+
+    Raises
+    ------
+    RunStoreError
+        Neither or both given, or a count below 1.
+    """
+    if (frames is None) == (seconds is None):
+        raise RunStoreError("give the length of the recording as frames or as seconds "
+                            "(--frames N or --seconds T), not both")
+    if frames is not None:
+        if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or frames < 1:
+            raise RunStoreError(f"--frames {frames}: give a whole number >= 1")
+        return int(frames)
+    if not (0 < seconds < math.inf):
+        raise RunStoreError(f"--seconds {seconds}: give a number > 0")
+    return max(1, math.ceil(seconds * rate_hz - 1e-9))
+
+
+def create_video_run(path: str | Path, camera, n_frames: int, *,
+                     bench_config: dict | None = None, device_settings: dict | None = None,
+                     shard_frames: int = DEFAULT_SHARD_FRAMES,
+                     compressor: str = DEFAULT_COMPRESSOR, note: str = "",
+                     overwrite: bool = False, **attrs: Any) -> RunStore:
+    """Create the run store of a recording of ``n_frames`` frames from ``camera``.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``RUN.zarr`` to create.
+    camera : drivers.camera.Camera
+        Open; its image shape, dtype, id, bit depth and pixel pitch are recorded.
+    n_frames : int
+        Frame slots (the run is cut to the frames recorded when it ends).
+    bench_config, device_settings : dict, optional
+        Snapshots stored with the run.
+    shard_frames : int
+        Frames per shard file.
+    compressor : str
+        One of :data:`instrument.runstore.FRAME_COMPRESSORS` (all lossless).
+    note : str
+    overwrite : bool
+        Replace an earlier run store at ``path`` (never anything else).
+    **attrs
+        Extra JSON-able run attributes (e.g. the simulated scene).
+
+    Returns
+    -------
+    RunStore
+        Writable, not yet locked.
+
+    Raises
+    ------
+    RunStoreError
+        As :meth:`RunStore.create`.
+    """
+    store = RunStore.create(
+        path, plan_name=VIDEO_PLAN, plan_params={"frames": int(n_frames)}, points=[{}],
+        frame_tags=[["video"] * int(n_frames)], frame_shape=camera.image_shape,
+        frame_dtype=camera.dtype, coord_names=list(VIDEO_COORDS), bench_config=bench_config,
+        device_settings=device_settings, note=note, overwrite=overwrite,
+        shard_frames=int(shard_frames), compressor=compressor)
+    store.update_attrs(camera={"id": camera.device_id, "bit_depth": camera.bit_depth,
+                               "full_scale_dn": 2 ** int(camera.bit_depth) - 1,
+                               "pixel_pitch_um": camera.pixel_pitch_um,
+                               "frame_rate_hz": camera.resulting_frame_rate_hz,
+                               "exposure_s": camera.exposure_s, "gain": camera.gain},
+                       **attrs)
+    return store
+
+
+def _progress(t0: float, rec: Recorder, ring: FrameRing, live) -> dict[str, Any]:
+    elapsed = time.monotonic() - t0
+    out = rec.counters(ring)
+    out["elapsed_s"] = round(elapsed, 3)
+    out["fps"] = out["acquired"] / elapsed if elapsed > 0 else 0.0
+    out["write_mb_s"] = out["bytes_written"] / 1e6 / elapsed if elapsed > 0 else 0.0
+    if live is not None:
+        out["live"] = live.stats()
+    return out
+
+
+def record_video(bench, out: str | Path, *, frames: int | None = None,
+                 seconds: float | None = None, fps: float | None = None,
+                 exposure_s: float | None = None, shard_frames: int = DEFAULT_SHARD_FRAMES,
+                 compressor: str = DEFAULT_COMPRESSOR, queue_frames: int = 64,
+                 ring_frames: int = 64, stop: threading.Event | None = None,
+                 on_progress: Callable[[dict], None] | None = None,
+                 progress_every_s: float = 1.0, live=None, overwrite: bool = False,
+                 note: str = "", frame_timeout_s: float | None = None,
+                 **attrs: Any) -> dict[str, Any]:
+    """Record a video from the bench's camera into a new run store.
+
+    Parameters
+    ----------
+    bench : instrument.bench.Bench or instrument.virtual_bench.VirtualBench
+        Open; its ``camera`` is used (and ``config`` / ``settings_snapshot()`` stored).
+    out : str or Path
+        ``RUN.zarr`` to create.
+    frames, seconds : int or float
+        Length of the recording: a frame count, or seconds at the camera's resulting
+        frame rate (exactly one of the two).
+    fps, exposure_s : float, optional
+        Camera settings applied first (validated by the camera interface).
+    shard_frames, compressor
+        Storage of the run (see :func:`create_video_run`).
+    queue_frames : int
+        Frames the recorder's queue holds before a frame is lost.
+    ring_frames : int
+        Capacity of the camera's ring.
+    stop : threading.Event, optional
+        Ends the recording early (Ctrl-C, the GUI's stop button); what was recorded is
+        kept and the run is marked ``stopped``.
+    on_progress : callable, optional
+        Called every ``progress_every_s`` with the counters (``delivered``,
+        ``recorded``, ``acquired``, ``dropped_by_camera``, ``skipped_by_ring``,
+        ``lost_by_recorder``, ``fps``, ``write_mb_s``, ``elapsed_s`` and ``live``).
+    live : instrument.live.LiveReconstruction, optional
+        Started by this function, offered every frame (it keeps only the newest),
+        stopped at the end; its statistics go into the summary.
+    overwrite : bool
+        Replace an earlier run store at ``out``.
+    note : str
+    frame_timeout_s : float, optional
+        Longest wait for one frame, s (default: 5 frame periods plus 1 s).
+    **attrs
+        Extra run attributes.
+
+    Returns
+    -------
+    dict
+        The recording summary (:meth:`Recorder.close` plus ``path``, ``status``,
+        ``frames_requested``, ``fps``, ``write_mb_s`` and ``live``).
+
+    Raises
+    ------
+    RunStoreError
+        Bad length or storage options, an existing ``out``, a failed write.
+    drivers.errors.DeviceError
+        A refused camera setting, the camera lost or silent past the timeout (the
+        frames recorded so far are kept, the run marked ``failed``).
+    """
+    cam = bench.camera
+    settings = {k: v for k, v in (("frame_rate_hz", fps), ("exposure_s", exposure_s))
+                if v is not None}
+    if settings:
+        cam.apply_settings(settings)
+    rate = float(cam.resulting_frame_rate_hz)
+    n = video_frame_count(frames=frames, seconds=seconds, rate_hz=rate)
+    config = getattr(bench, "config", None)
+    store = create_video_run(
+        out, cam, n, bench_config=config.model_dump(mode="json") if config is not None else {},
+        device_settings=bench.settings_snapshot(), shard_frames=shard_frames,
+        compressor=compressor, note=note, overwrite=overwrite, **attrs)
+    rec = Recorder(store, queue_frames=queue_frames)
+    ring = FrameRing(ring_frames)
+    stop = stop or threading.Event()
+    timeout_s = frame_timeout_s if frame_timeout_s is not None else 5.0 / rate + 1.0
+    t0 = time.monotonic()
+    last = [t0]
+
+    def on_frame(frame) -> None:
+        if live is not None:
+            live.offer(frame)
+        now = time.monotonic()
+        if on_progress is not None and now - last[0] >= progress_every_s:
+            last[0] = now
+            on_progress(_progress(t0, rec, ring, live))
+
+    rec.start()
+    status, error = "complete", None
+    try:
+        if live is not None:
+            live.start()
+        cam.start_stream(ring)
+        record_from_ring(rec, ring, n, stop=stop, timeout_s=timeout_s, on_frame=on_frame)
+        if stop.is_set():
+            status = "stopped"
+    except KeyboardInterrupt:
+        status = "stopped"
+    except BaseException as exc:
+        status, error = "failed", exc
+    finally:
+        if cam.is_streaming:
+            cam.stop_stream()
+        if live is not None:
+            live.stop(timeout_s=5.0)
+    final = _progress(t0, rec, ring, live)
+    summary = rec.close(ring=ring, status=status, trim=True)
+    if error is not None:
+        store.update_attrs(error=f"recording stopped by {type(error).__name__}: {error}")
+        raise error
+    summary.update(path=str(store.path), status=status, frames_requested=n,
+                   fps=final["fps"], write_mb_s=final["write_mb_s"],
+                   live=final.get("live"))
+    return summary
