@@ -38,7 +38,7 @@ TWIN_PARAM_ALIASES: dict[str, dict[str, tuple[str, ...]]] = {
         "sensor_shape": ("sensor_shape", "sensor_shape_px", "shape_px"),
         "adc_bits": ("adc_bits", "bit_depth"),
     },
-    "stage": {},
+    "stage": {"velocity": ("velocity", "speed_mm_s")},
     "led_array": {"shape": ("shape", "shape_px")},
     "slm": {"resolution": ("resolution", "resolution_px", "shape_px")},
 }

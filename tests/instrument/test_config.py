@@ -141,7 +141,7 @@ def test_with_simulated_drivers_translates_shared_params():
     # camera: shape and pitch from the geometry; Aravis settings and address dropped
     assert cam.params == {"sensor_shape": [2048, 2448], "pixel_pitch_um": 3.45}
     # stage: axis names + limits_mm become the twin's travel table
-    assert stage.params == {"axes": {"x": [0, 25], "y": [0, 25], "z": [0, 50]}}
+    assert stage.params == {"axes": {"x": [0, 25], "y": [0, 25], "z": [0, 50]}, "velocity": 2.0}
     assert mask.params["axes"]["rotation"] == [-180.0, 180.0]  # default travel
     assert leds.params == {"shape": [32, 32], "pitch_mm": 4.0}
     # SLM: shape_px -> resolution, wavelength from the geometry, bit_depth/screen dropped
@@ -176,7 +176,7 @@ def test_driver_of_the_wrong_kind():
     p = only(text, "devices[2].driver")
     assert "driver 'simulated-stage' of device 'led_array' drives a stage" in p.message
     assert "kind = 'led_array'" in p.message
-    assert "use a led_array driver (simulated-led-array)" in p.fix
+    assert "use a led_array driver (" in p.fix and "simulated-led-array)" in p.fix
     assert p.line == line_of(text, 'driver = "simulated-stage"', 1)
 
 
@@ -377,7 +377,7 @@ def test_every_problem_is_reported_at_once():
     text = (
         edit('id = "slm"', 'id = "camera"')
         .replace("diffuser_sensor_distance_mm = 8.9", 'diffuser_sensor_distance_mm = "9 mm"')
-        .replace('driver = "simulated-led-array"', 'driver = "illuminate"')
+        .replace('driver = "simulated-led-array"', 'driver = "acme-leds"')
         .replace("n_depths = 32", "n_depths = 0")
     )
     with pytest.raises(BenchConfigError) as info:
