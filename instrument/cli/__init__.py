@@ -6,7 +6,9 @@ the built-in simulated bench; ``--real-sample`` reconstructs the real DiffuserCa
 sample instead), ``recon3d`` (a volume from one image and a PSF stack),
 ``analyze`` (resolution, similarity, conditioning, grid, field of view of a PSF
 stack), ``validate`` / ``devices`` (bench files), ``runs`` (show, export, import
-run stores), ``benchmark recon`` (speed vs FFT floor, accuracy, stability,
+run stores), ``capture live`` / ``capture video`` (live reconstruction, video
+recording), ``recon-run`` (batch reconstruction of a recorded run on dask),
+``benchmark recon`` (speed vs FFT floor, accuracy, stability,
 compressed sensing; 3D speed, memory and accuracy), ``holo evaluate`` / ``holo
 benchmark`` (Table 7.1, hologram speed), plus the commands other layers register
 under the entry-point group ``diffuserlab.commands`` (``calibrate`` and ``align``
@@ -29,14 +31,14 @@ import errno
 import logging
 import sys
 
-from . import analyze, bench, benchmark, capture, demo, holo, recon, recon3d, runs
+from . import analyze, bench, benchmark, capture, demo, holo, recon, recon3d, recon_run, runs
 
 __all__ = ["build_parser", "main"]
 
 log = logging.getLogger("diffuserlab")
 
 #: The command modules, in the order of ``diffuserlab --help``.
-COMMANDS = (recon, demo, recon3d, analyze, bench, runs, capture, benchmark, holo)
+COMMANDS = (recon, demo, recon3d, analyze, bench, runs, capture, recon_run, benchmark, holo)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,0 +1,263 @@
+"""Batch reconstruction of a recorded run on dask (``diffuserlab recon-run``).
+
+Every selected frame of a run store is reconstructed independently with
+:func:`recon.reconstruct` (the same call, with the same arguments, as
+``diffuserlab recon`` on that frame, so the results are equal bit for bit) by dask
+workers: a local cluster of ``workers`` processes (one thread each) by default, or
+the workers of a running ``dask.distributed`` scheduler given by its address (the
+workers must see the run's path). Each result is written into the run as a
+per-frame product (:meth:`instrument.runstore.RunStore.write_product_frame`) as soon
+as it arrives, under the run's writer lock, so an interrupted batch keeps every
+finished frame and a second call with the same settings reconstructs only what is
+missing. With ``dff_percentile`` the ΔF/F of the reconstructed frames against a
+per-pixel percentile baseline (Kuo 2020, Fig. 6.5b) is stored as a second product.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .runstore import RunStore, RunStoreError
+
+__all__ = ["parse_frames", "reconstruct_run", "reconstruct_stored_frame"]
+
+log = logging.getLogger(__name__)
+
+
+def parse_frames(text: str | None, n_frames: int) -> range:
+    """The frames of ``--frames A:B`` (Python slice rules, no step) in a run of ``n_frames``.
+
+    Raises
+    ------
+    RunStoreError
+        Not of the form ``A:B``, ``A:`` or ``:B``, or an empty selection.
+    """
+    if text is None:
+        return range(n_frames)
+    a, sep, b = text.partition(":")
+    try:
+        if not sep or ":" in b:
+            raise ValueError
+        sel = range(n_frames)[slice(int(a) if a.strip() else None,
+                                    int(b) if b.strip() else None)]
+    except ValueError:
+        raise RunStoreError(f"--frames {text!r}: give A:B (frames A to B-1; A: or :B for "
+                            "open ends), e.g. 0:100") from None
+    if len(sel) == 0:
+        raise RunStoreError(f"--frames {text!r} selects no frame of the run's {n_frames}")
+    return sel
+
+
+@functools.lru_cache(maxsize=4)
+def _open_run(path: str) -> RunStore:
+    return RunStore.open(path)
+
+
+def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
+                             options: dict[str, Any], threads: int | None = 1
+                             ) -> tuple[int, np.ndarray]:
+    """Reconstruct frame ``index`` of a run: the task every dask worker runs.
+
+    Parameters
+    ----------
+    run_path : str
+        The run store (opened read-only once per worker process).
+    index : int
+        Frame slot.
+    psf : ndarray, (rows, cols)
+        PSF at the camera's frame shape.
+    options : dict
+        Keywords of :func:`recon.reconstruct` (method, iterations, tv, bin_factor, dark).
+    threads : int, optional
+        Cap on the task's FFT and numba threads (one per worker by default).
+
+    Returns
+    -------
+    (int, ndarray)
+        ``index`` and the image, float32 (rows // bin, cols // bin), model grid.
+
+    Raises
+    ------
+    RunStoreError
+        The frame is not stored or is damaged.
+    recon.errors.ReconInputError, recon.errors.DivergenceError
+        From :func:`recon.reconstruct`.
+    """
+    from contextlib import nullcontext
+
+    from recon import reconstruct
+    from recon.fft import limited_threads
+
+    raw = _open_run(str(run_path)).frame(int(index)).image
+    with limited_threads(threads) if threads else nullcontext():
+        result = reconstruct(psf, raw, **options)
+    return int(index), np.asarray(result.image, np.float32)
+
+
+def _client(workers: int | None, scheduler: str | None, timeout_s: float):
+    """A dask.distributed client: to ``scheduler``, else a local cluster of processes."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as exc:  # pragma: no cover - dask is a dependency
+        raise RunStoreError("batch reconstruction needs dask.distributed: pip install "
+                            "'dask[distributed]'") from exc
+    if scheduler is not None:
+        try:
+            return Client(scheduler, timeout=timeout_s), None
+        except OSError as exc:
+            raise RunStoreError(f"--scheduler {scheduler}: no dask scheduler answered within "
+                                f"{timeout_s:g} s ({exc}); start one (dask scheduler) or "
+                                "drop --scheduler for local workers") from None
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                           dashboard_address=":0", host="127.0.0.1")
+    return Client(cluster, timeout=timeout_s), cluster
+
+
+def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "admm",
+                    iterations: int = 100, tv: float | None = None, bin_factor: int = 1,
+                    dark: float | np.ndarray | None = None, frames: range | None = None,
+                    product: str | None = None, workers: int | None = None,
+                    scheduler: str | None = None, dff_percentile: float | None = None,
+                    overwrite: bool = False, psf_source: str = "",
+                    on_progress: Callable[[dict], None] | None = None,
+                    cancel: threading.Event | None = None,
+                    timeout_s: float = 60.0) -> dict[str, Any]:
+    """Reconstruct every selected frame of a recorded run with dask; store the results.
+
+    Parameters
+    ----------
+    run : str or Path
+        The run store (``capture video`` or any run); opened for writing and locked
+        while the batch runs.
+    psf : ndarray, (rows, cols)
+        PSF at the run's frame shape (:func:`instrument.reconstruct_files.load_psf`).
+    method, iterations, tv, bin_factor, dark
+        As :func:`recon.reconstruct`.
+    frames : range, optional
+        Frame slots to reconstruct (default all; see :func:`parse_frames`).
+    product : str, optional
+        Name of the per-frame product (default ``recon_<method>``); the ΔF/F product
+        is ``<product>_dff``.
+    workers : int, optional
+        Local worker processes (default: one per core); ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of a running dask.distributed scheduler (``tcp://host:8786``).
+    dff_percentile : float, optional
+        Also store ΔF/F against this per-pixel percentile of the selected frames.
+    overwrite : bool
+        Replace an existing product made with other settings (without it, such a
+        product is refused; one made with the same settings is resumed).
+    psf_source : str
+        Where the PSF came from, stored with the product.
+    on_progress : callable, optional
+        Called after each stored frame with ``{"done", "total", "skipped",
+        "elapsed_s", "fps"}``.
+    cancel : threading.Event, optional
+        Stops the batch (queued tasks cancelled); finished frames are kept.
+    timeout_s : float
+        Longest wait for the scheduler and for the local cluster to come up, s.
+
+    Returns
+    -------
+    dict
+        ``product``, ``frames`` (selected), ``reconstructed`` (this call),
+        ``skipped`` (already done), ``cancelled``, ``seconds``, ``fps``, ``workers``,
+        and ``dff_product`` when computed.
+
+    Raises
+    ------
+    RunStoreError
+        Missing, locked or damaged run, a frame not stored, a product clash, or no
+        scheduler at the address.
+    recon.errors.ReconInputError, recon.errors.DivergenceError
+        From a frame's reconstruction (the frames stored before it are kept).
+    """
+    from recon.validate import as_int
+
+    store = RunStore.open(run, "r+")
+    frames = range(store.n_frames) if frames is None else frames
+    stored = store.done()
+    missing = [i for i in frames if not stored[i]]
+    if missing:
+        raise RunStoreError(f"{store.path}: frames {missing[:5]}{'...' if len(missing) > 5 else ''}"
+                            " are not stored; select stored frames with --frames")
+    iterations = as_int(iterations, "iterations", minimum=1)
+    bin_factor = as_int(bin_factor, "bin_factor", minimum=1)
+    rows, cols = store.frame_shape
+    if tuple(np.shape(psf)) != (rows, cols):
+        raise RunStoreError(f"the PSF is {np.shape(psf)} but the run's frames are "
+                            f"{rows}x{cols}; use a PSF calibrated at the camera's frame shape")
+    options = {"method": method, "iterations": iterations, "tv": tv,
+               "bin_factor": bin_factor, "dark": dark}
+    name = product or f"recon_{method}"
+    hint = f"diffuserlab recon-run {store.path} with the same options"
+    store.lock()
+    t0 = time.monotonic()
+    done_now = 0
+    cancelled = False
+    client = cluster = None
+    try:
+        store.create_frame_product(
+            name, store.n_frames, (rows // bin_factor, cols // bin_factor), np.float32,
+            overwrite=overwrite, method=method, iterations=iterations, tv=tv,
+            bin_factor=bin_factor, psf=psf_source,
+            dark=None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame"),
+            orientation="model grid (Eq. 3.3)", resume_hint=hint)
+        already = store.product_frames_done(name)
+        todo = [i for i in frames if not already[i]]
+        skipped = len(frames) - len(todo)
+        n_workers = None
+        if todo:
+            from dask.distributed import as_completed
+
+            client, cluster = _client(workers, scheduler, timeout_s)
+            n_workers = len(client.scheduler_info()["workers"])
+            psf_future = client.scatter(np.asarray(psf), broadcast=True)
+            futures = [client.submit(reconstruct_stored_frame, str(store.path), i,
+                                     psf_future, options, pure=False) for i in todo]
+            try:
+                for fut in as_completed(futures):
+                    index, image = fut.result()
+                    store.write_product_frame(name, index, image)
+                    done_now += 1
+                    if on_progress is not None:
+                        el = time.monotonic() - t0
+                        on_progress({"done": done_now + skipped, "total": len(frames),
+                                     "skipped": skipped, "elapsed_s": el,
+                                     "fps": done_now / el if el > 0 else 0.0})
+                    if cancel is not None and cancel.is_set():
+                        cancelled = True
+                        break
+            finally:
+                client.cancel([f for f in futures if not f.done()])
+        elapsed = time.monotonic() - t0
+        out: dict[str, Any] = {
+            "product": name, "frames": [frames.start, frames.stop],
+            "reconstructed": done_now, "skipped": skipped, "cancelled": cancelled,
+            "seconds": round(elapsed, 3), "fps": done_now / elapsed if elapsed > 0 else 0.0,
+            "workers": n_workers}
+        if dff_percentile is not None and not cancelled:
+            from recon.analysis import delta_f_over_f
+
+            stack = np.stack([store.product_frame(name, i) for i in frames])
+            dff, baseline = delta_f_over_f(stack, dff_percentile)
+            store.write_product(f"{name}_dff", dff, percentile=dff_percentile,
+                                frames=[frames.start, frames.stop], source=name)
+            store.write_product(f"{name}_dff_baseline", baseline, percentile=dff_percentile,
+                                frames=[frames.start, frames.stop], source=name)
+            out["dff_product"] = f"{name}_dff"
+        return out
+    finally:
+        if client is not None:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+        store.unlock()

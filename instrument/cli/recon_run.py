@@ -1,0 +1,153 @@
+"""``diffuserlab recon-run``: reconstruct every frame of a recorded run, in parallel.
+
+``diffuserlab recon-run RUN.zarr --psf PSF|SWEEP.zarr [--depth Z] --method M
+--iterations N [--frames A:B] [--scheduler ADDRESS | --workers K] [--dff PERCENTILE]``
+    Reconstructs the selected frames with dask (:func:`instrument.batch.reconstruct_run`:
+    local worker processes, or a dask.distributed cluster given its scheduler's
+    address), shows a progress bar, stores the images in the run as the per-frame
+    product ``recon_<method>`` next to the raw frames, and resumes where it stopped
+    (frames already reconstructed with the same settings are skipped). Each frame
+    equals ``diffuserlab recon`` of that frame with the same method, weights and
+    iterations. ``--dff`` adds the ΔF/F product against a per-pixel percentile
+    baseline (Kuo 2020, Fig. 6.5b: 20). Exit 0; 2 bad input; 130 Ctrl-C (the frames
+    done are kept: run the same command again to finish).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+
+from .common import dark_level
+
+__all__ = ["add_subcommands", "run"]
+
+
+def add_subcommands(sub: argparse._SubParsersAction) -> None:
+    """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""
+    from recon.solvers import METHODS
+
+    rp = sub.add_parser(
+        "recon-run", help="reconstruct every frame of a recorded run with dask (resumable)",
+        description="Reconstruct the frames of a run store (e.g. from `capture video`) in "
+        "parallel with dask and store them in the run as a product; run it again to "
+        "resume. Ctrl-C stops and keeps the frames done.")
+    rp.add_argument("run", help="the run store, RUN.zarr")
+    rp.add_argument("--psf", required=True,
+                    help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth")
+    rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
+                    help="depth (mm) of the stack's PSF to use")
+    rp.add_argument("--psf-product", default="psf_stack",
+                    help="which stack of a calibration run: psf_stack (default) or "
+                    "psf_stack_raw")
+    rp.add_argument("--method", choices=METHODS, default="admm")
+    rp.add_argument("--iterations", type=int, default=100)
+    rp.add_argument("--tv", type=float, default=None,
+                    help="TV weight in the scaled problem (default per method)")
+    rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
+                    help="box-binning factor")
+    rp.add_argument("--dark", default=None,
+                    help="the frames' dark level: a number (DN) or a `calibrate dark` run. "
+                    "Default: the simulated camera's offset for a run recorded with "
+                    "--simulate; required with a calibrated (dark-subtracted) PSF stack "
+                    "otherwise; with a plain PSF image, estimated from its corner as "
+                    "`recon` does")
+    rp.add_argument("--frames", default=None, help="frames A:B to reconstruct (default all)")
+    where = rp.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None,
+                       help="local dask worker processes (default: one per core)")
+    where.add_argument("--scheduler", default=None,
+                       help="address of a dask.distributed scheduler (tcp://host:8786); "
+                       "its workers must see the run's path")
+    rp.add_argument("--dff", type=float, default=None, metavar="PERCENTILE",
+                    help="also store ΔF/F against this per-pixel percentile baseline "
+                    "(e.g. 20)")
+    rp.add_argument("--product", default=None,
+                    help="name of the product (default recon_<method>)")
+    rp.add_argument("--overwrite", action="store_true",
+                    help="replace a product of that name made with other settings")
+    rp.set_defaults(handler=run)
+
+
+def _dark(args: argparse.Namespace, stacked: bool, run_attrs: dict):
+    """The frames' dark level (see ``--dark``), None to estimate it like ``recon``."""
+    from recon.errors import ReconInputError
+
+    if args.dark is not None:
+        return dark_level(args.dark)
+    simulated = run_attrs.get("simulated") or {}
+    if stacked and "dark_offset_dn" in simulated:
+        return float(simulated["dark_offset_dn"])
+    if stacked:
+        raise ReconInputError(
+            f"--psf {args.psf} is a calibrated (dark-subtracted) PSF stack: give the frames' "
+            "dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab calibrate dark)")
+    return None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``recon-run``; returns the exit status (module docstring)."""
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    from recon.errors import ReconInputError
+
+    from ..batch import parse_frames, reconstruct_run
+    from ..reconstruct_files import load_psf
+    from ..runstore import RunStore
+
+    if args.iterations < 1:
+        raise ReconInputError(f"--iterations {args.iterations}: give a whole number >= 1")
+    if args.bin_factor < 1:
+        raise ReconInputError(f"--bin {args.bin_factor}: give a factor >= 1")
+    if args.workers is not None and args.workers < 1:
+        raise ReconInputError(f"--workers {args.workers}: give a whole number >= 1")
+    if args.dff is not None and not 0 <= args.dff <= 100:
+        raise ReconInputError(f"--dff {args.dff}: give a percentile in [0, 100] (e.g. 20)")
+    if args.tv is not None and not (args.tv >= 0 and math.isfinite(args.tv)):
+        raise ReconInputError(f"--tv {args.tv}: give a finite weight >= 0")
+    store = RunStore.open(args.run)
+    frames = parse_frames(args.frames, store.n_frames)
+    psf, depth = load_psf(args.psf, args.depth_mm, args.psf_product)
+    stacked = depth is not None or Path(args.psf).is_dir()
+    dark = _dark(args, stacked, store.attrs)
+    if dark is not None and stacked:  # the stack is dark-subtracted: both get the dark
+        psf = psf + dark  # subtracted by prepare_pair, as for the live view
+    source = f"{args.psf}" + ("" if depth is None else f" at {depth:g} mm")
+    print(f"{args.run}: frames {frames.start}:{frames.stop} of {store.n_frames}, "
+          f"{args.method} x{args.iterations}, PSF {source}; "
+          + (f"scheduler {args.scheduler}" if args.scheduler else
+             f"{args.workers or 'one per core'} local workers"), flush=True)
+    bars: list = []
+
+    def progress(p: dict) -> None:
+        if not bars:
+            bars.append(tqdm(total=p["total"], initial=p["skipped"], unit="frame",
+                             file=sys.stderr, dynamic_ncols=True))
+        bars[0].update(p["done"] - bars[0].n)
+
+    cancel = threading.Event()
+    try:
+        out = reconstruct_run(
+            args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
+            bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
+            workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
+            overwrite=args.overwrite, psf_source=source, on_progress=progress,
+            cancel=cancel)
+    except KeyboardInterrupt:
+        for bar in bars:
+            bar.close()
+        done = RunStore.open(args.run).product_info(args.product or f"recon_{args.method}")
+        print(f"stopped (Ctrl-C): {done.get('planes_done', 0)} frames of {args.run} are "
+              "reconstructed; run the same command again to finish", flush=True)
+        return 130
+    for bar in bars:
+        bar.close()
+    print(f"{out['product']}: {out['reconstructed']} frames reconstructed, {out['skipped']} "
+          f"already done, {out['seconds']:.1f} s ({out['fps']:.2f} frames/s with "
+          f"{out['workers'] or 0} workers)"
+          + (f"; ΔF/F in {out['dff_product']}" if out.get("dff_product") else ""))
+    return 0
