@@ -100,9 +100,9 @@ class MainWindow(QMainWindow):
         bench = self.session.bench_path or "built-in simulated bench"
         return f"DiffuserLab - {bench}{' (simulated)' if self.session.simulate else ''}"
 
-    def show_result(self, path: str) -> None:
-        """Open ``path`` in the Results panel and bring it to the front."""
-        self.results.open(path)
+    def show_result(self, path: str, product: str | None = None) -> None:
+        """Open ``path`` (a run's ``product``) in the Results panel, brought to the front."""
+        self.results.open(path, product)
         self.docks["Results"].raise_()
 
     def choose_bench(self) -> None:

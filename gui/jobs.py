@@ -8,6 +8,10 @@
   and the plan is built from them exactly as the command builds it.
 * :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
   job's progress and a :class:`~instrument.runner.RunControl`.
+* :func:`run_alignment` - the mask alignment as ``align mask`` runs it.
+* :func:`record` / :func:`batch_reconstruct` - a video recording
+  (:func:`instrument.video.record_video`) and the batch reconstruction of a run
+  (:func:`instrument.batch.reconstruct_run`, options as ``recon-run`` takes them).
 """
 
 from __future__ import annotations
@@ -18,9 +22,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "build_live", "build_plan",
-           "default_run_path", "run_alignment",
-           "resume_plan", "routine_options", "run_plan"]
+__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "batch_reconstruct", "build_live",
+           "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
+           "run_alignment", "run_plan"]
 
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
@@ -334,3 +338,64 @@ def _section_summary(steps: dict) -> dict:
     if "verify" in steps:
         out["eta_ratio"] = [float(v) for v in steps["verify"]["eta_ratio"]]
     return out
+
+
+def record(job, session, out: str, stop, *, frames: int | None, seconds: float | None,
+           fps: float | None, exposure_s: float | None, tap=None) -> dict:
+    """Record a video run (:func:`instrument.video.record_video`) with the camera claimed;
+    on the virtual bench the run records the scene, seed and the camera's dark offset,
+    as ``capture video --simulate`` does (``recon-run`` takes the dark level from it)."""
+    from instrument.video import record_video
+
+    bench = session.bench
+    attrs = {}
+    if session.is_virtual:
+        attrs["simulated"] = {"scene": session.scene_name, "seed": session.seed,
+                              "dark_offset_dn": float(bench.camera.dark_offset_dn)}
+    options = {k: v for k, v in (("fps", fps), ("exposure_s", exposure_s)) if v is not None}
+    session.claim_camera("the video recording")
+    try:
+        return record_video(bench, out, frames=frames, seconds=seconds, stop=stop,
+                            on_progress=job.report, progress_every_s=0.25, live=tap,
+                            **options, **attrs)
+    finally:
+        session.release_camera("the video recording")
+
+
+def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
+    """Reconstruct a recorded run with dask (:func:`instrument.batch.reconstruct_run`),
+    its options those of ``recon-run`` (``{flag: text}``), cancelled by the job.
+
+    Raises
+    ------
+    ValueError
+        An option ``recon-run`` refuses (the message names it).
+    instrument.runstore.RunStoreError, recon.errors.ReconInputError
+        From the run, the PSF or a frame's reconstruction (frames done are kept).
+    """
+    from instrument.batch import parse_frames, reconstruct_run
+    from instrument.cli.recon_run import _dark, add_subcommands
+    from instrument.reconstruct_files import load_psf
+    from instrument.runstore import RunStore
+
+    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
+    add_subcommands(parser.add_subparsers(dest="command"))
+    argv = ["recon-run", run]
+    for flag, value in options.items():
+        if value not in (None, ""):
+            argv += [flag, str(value)]
+    args = _parse(parser, argv)
+    store = RunStore.open(args.run)
+    frames = parse_frames(args.frames, store.n_frames)
+    psf, depth = load_psf(args.psf, args.depth_mm, args.psf_product)
+    stacked = depth is not None or Path(args.psf).is_dir()
+    dark = _dark(args, stacked, store.attrs)
+    if dark is not None and stacked:  # the stack is dark-subtracted: both get the dark
+        psf = psf + dark
+    source = f"{args.psf}" + ("" if depth is None else f" at {depth:g} mm")
+    return reconstruct_run(args.run, psf, method=args.method, iterations=args.iterations,
+                           tv=args.tv, bin_factor=args.bin_factor, dark=dark, frames=frames,
+                           product=args.product, workers=args.workers,
+                           scheduler=args.scheduler, dff_percentile=args.dff,
+                           overwrite=args.overwrite, psf_source=source,
+                           on_progress=job.report, cancel=job.cancel_event)

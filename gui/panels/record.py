@@ -23,10 +23,11 @@ from PySide6.QtWidgets import (
     QLineEdit,
     QProgressBar,
     QPushButton,
-    QSpinBox,
     QVBoxLayout,
     QWidget,
 )
+
+from recon.solvers import METHODS
 
 from ..session import Session
 from ..workers import Job
@@ -34,8 +35,6 @@ from .common import error_label
 
 __all__ = ["RecordPanel"]
 
-#: Methods offered for batch reconstruction.
-BATCH_METHODS = ("admm", "fista", "gd", "wiener")
 
 
 def _number(text: str, what: str, kind=float):
@@ -75,11 +74,12 @@ class RecordPanel(QWidget):
 
     Signals
     -------
-    result_ready(str)
-        A run whose batch reconstruction finished (the Results panel opens it).
+    result_ready(str, str)
+        ``(run, product)`` of a finished batch reconstruction (the Results panel shows
+        it).
     """
 
-    result_ready = Signal(str)
+    result_ready = Signal(str, str)
 
     def __init__(self, session: Session, live_panel=None, parent=None) -> None:
         super().__init__(parent)
@@ -131,41 +131,37 @@ class RecordPanel(QWidget):
         self.run_path = QLineEdit()
         self.run_path.setPlaceholderText("RUN.zarr (default: the last recording)")
         b.addWidget(self.run_path, 0, 1, 1, 3)
-        b.addWidget(QLabel("PSF (image, stack or run):"), 1, 0)
-        self.psf = QLineEdit()
-        b.addWidget(self.psf, 1, 1, 1, 3)
-        b.addWidget(QLabel("depth (mm):"), 2, 0)
-        self.depth = QLineEdit()
-        self.depth.setPlaceholderText("stack plane")
-        b.addWidget(self.depth, 2, 1)
-        b.addWidget(QLabel("method:"), 2, 2)
-        self.method = QComboBox()
-        self.method.addItems(BATCH_METHODS)
-        b.addWidget(self.method, 2, 3)
-        b.addWidget(QLabel("iterations:"), 3, 0)
-        self.iterations = QSpinBox()
-        self.iterations.setRange(1, 5000)
-        self.iterations.setValue(100)
-        b.addWidget(self.iterations, 3, 1)
-        b.addWidget(QLabel("dask workers:"), 3, 2)
-        self.workers = QLineEdit()
-        self.workers.setPlaceholderText("local default")
-        b.addWidget(self.workers, 3, 3)
-        b.addWidget(QLabel("frames (A:B):"), 4, 0)
-        self.frame_range = QLineEdit()
-        self.frame_range.setPlaceholderText("all")
-        b.addWidget(self.frame_range, 4, 1)
+        self.batch_fields: dict[str, QWidget] = {}
+        method = QComboBox()
+        method.addItems(METHODS)
+        method.setCurrentText("admm")
+        iterations = QLineEdit("100")
+        rows = (("--psf", "PSF (image, stack or run):", QLineEdit(), ""),
+                ("--depth", "depth (mm):", QLineEdit(), "stack plane"),
+                ("--method", "method:", method, ""),
+                ("--iterations", "iterations:", iterations, ""),
+                ("--frames", "frames (A:B):", QLineEdit(), "all"),
+                ("--workers", "dask workers:", QLineEdit(), "one per core"),
+                ("--dark", "dark (DN or dark run):", QLineEdit(), "auto"),
+                ("--dff", "ΔF/F baseline percentile:", QLineEdit(), "none (e.g. 20)"))
+        for i, (flag, label, widget, hint) in enumerate(rows):
+            if isinstance(widget, QLineEdit):
+                widget.setPlaceholderText(hint)
+            widget.setObjectName(f"batch{flag}")
+            self.batch_fields[flag] = widget
+            b.addWidget(QLabel(label), 1 + i // 2, 2 * (i % 2))
+            b.addWidget(widget, 1 + i // 2, 2 * (i % 2) + 1)
         self.batch_button = QPushButton("Reconstruct run")
         self.batch_button.clicked.connect(self.toggle_batch)
-        b.addWidget(self.batch_button, 5, 0)
+        b.addWidget(self.batch_button, 6, 0)
         self.batch_progress = QProgressBar()
         self.batch_progress.setFormat("%v / %m frames reconstructed")
-        b.addWidget(self.batch_progress, 5, 1, 1, 3)
+        b.addWidget(self.batch_progress, 6, 1, 1, 3)
         self.batch_status = QLabel("")
         self.batch_status.setWordWrap(True)
-        b.addWidget(self.batch_status, 6, 0, 1, 4)
+        b.addWidget(self.batch_status, 7, 0, 1, 4)
         self.batch_error = error_label()
-        b.addWidget(self.batch_error, 7, 0, 1, 4)
+        b.addWidget(self.batch_error, 8, 0, 1, 4)
         layout.addWidget(batch)
         layout.addStretch(1)
 
@@ -182,8 +178,8 @@ class RecordPanel(QWidget):
             self.start_recording()
 
     def start_recording(self) -> Job | None:
-        """Record into a new run store on a worker (camera claimed for the recording)."""
-        from instrument.video import record_video
+        """Record into a new run store on a worker (:func:`gui.jobs.record`)."""
+        from ..jobs import record
 
         self.record_error.setText("")
         if not self.session.connected:
@@ -193,34 +189,22 @@ class RecordPanel(QWidget):
         try:
             frames = _number(self.frames.text(), "frames", int)
             seconds = _number(self.seconds.text(), "seconds")
-            options = {"fps": _number(self.fps.text(), "frame rate"),
-                       "exposure_s": _number(self.exposure.text(), "exposure")}
-            if seconds is not None:
-                frames = None
-            self.session.claim_camera("the video recording")
-        except Exception as exc:  # noqa: BLE001 (shown, never raised)
-            from ..workers import readable_error
-
-            self.record_error.setText(readable_error(exc))
+            fps = _number(self.fps.text(), "frame rate")
+            exposure_s = _number(self.exposure.text(), "exposure")
+        except ValueError as exc:
+            self.record_error.setText(str(exc))
             return None
+        if seconds is not None:
+            frames = None
         out = self.out.text().strip() or f"out/runs/video-{_dt.datetime.now():%Y%m%d-%H%M%S}.zarr"
         self.stop_event = threading.Event()
-        live = getattr(self.live_panel, "live", None)
-        tap = _LiveTap(self.session, live)
+        tap = _LiveTap(self.session, getattr(self.live_panel, "live", None))
         self.record_progress.setRange(0, frames or 0)
         self.record_progress.setValue(0)
         self.counters.setText(f"recording into {out} ...")
-
-        def record(job: Job) -> dict:
-            try:
-                return record_video(self.session.bench, out, frames=frames, seconds=seconds,
-                                    stop=self.stop_event, on_progress=job.report,
-                                    progress_every_s=0.25, live=tap,
-                                    **{k: v for k, v in options.items() if v is not None})
-            finally:
-                self.session.release_camera("the video recording")
-
-        self.record_job = Job(record, name="record-video")
+        self.record_job = Job(record, self.session, out, self.stop_event, frames=frames,
+                              seconds=seconds, fps=fps, exposure_s=exposure_s, tap=tap,
+                              name="record-video")
         self.record_job.progress.connect(self.on_record_progress)
         self.record_job.succeeded.connect(self.on_recorded)
         self.record_job.failed.connect(self.on_record_failed)
@@ -263,33 +247,19 @@ class RecordPanel(QWidget):
             self.start_batch()
 
     def start_batch(self) -> Job | None:
-        """Reconstruct every frame of a run on a worker
-        (:func:`instrument.batch.reconstruct_run`)."""
-        from instrument.batch import reconstruct_run
+        """Reconstruct the frames of a run on a worker (:func:`gui.jobs.batch_reconstruct`)."""
+        from ..jobs import batch_reconstruct
 
         self.batch_error.setText("")
         run = self.run_path.text().strip() or self.last_run
         if not run:
             self.batch_error.setText("give the run to reconstruct (RUN.zarr)")
             return None
-        try:
-            depth = _number(self.depth.text(), "depth")
-            workers = _number(self.workers.text(), "dask workers", int)
-        except ValueError as exc:
-            self.batch_error.setText(str(exc))
-            return None
-        frames = self.frame_range.text().strip() or None
-        psf = self.psf.text().strip()
-        method, iterations = self.method.currentText(), self.iterations.value()
+        options = {flag: w.currentText() if isinstance(w, QComboBox) else w.text().strip()
+                   for flag, w in self.batch_fields.items()}
         self.batch_progress.setValue(0)
         self.batch_status.setText(f"reconstructing {run} ...")
-
-        def work(job: Job) -> dict:
-            return reconstruct_run(run, psf, depth_mm=depth, method=method,
-                                   iterations=iterations, frames=frames, workers=workers,
-                                   on_progress=job.report, cancel=job.cancel_event)
-
-        self.batch_job = Job(work, name="batch-recon")
+        self.batch_job = Job(batch_reconstruct, run, options, name="batch-recon")
         self.batch_job.progress.connect(self.on_batch_progress)
         self.batch_job.succeeded.connect(lambda result: self.on_batch_done(run, result))
         self.batch_job.failed.connect(self.on_batch_failed)
@@ -297,24 +267,24 @@ class RecordPanel(QWidget):
         return self.batch_job.start()
 
     def on_batch_progress(self, p: dict) -> None:
-        total = int(p.get("total", p.get("frames_total", 0)) or 0)
-        done = int(p.get("done", p.get("frames_done", 0)) or 0)
-        if total:
-            self.batch_progress.setMaximum(total)
-        self.batch_progress.setValue(done)
-        rate = p.get("frames_per_s")
-        self.batch_status.setText(f"{done} of {total} frames" +
-                                  ("" if rate is None else f", {rate:.2f} frames/s"))
+        self.batch_progress.setMaximum(int(p["total"]))
+        self.batch_progress.setValue(int(p["done"]))
+        self.batch_status.setText(f"{p['done']} of {p['total']} frames ({p['skipped']} done "
+                                  f"before), {p['fps']:.2f} frames/s, {p['elapsed_s']:.0f} s")
 
     def on_batch_done(self, run: str, result: dict) -> None:
         self.batch_result = result
         self.batch_button.setText("Reconstruct run")
-        status = result.get("status", "complete")
-        self.batch_status.setText(f"{status}: " + ", ".join(
-            f"{k} {v}" for k, v in result.items() if isinstance(v, int | float | str)
-            and k != "status"))
-        if status == "complete":
-            self.result_ready.emit(run)
+        if result.get("cancelled"):
+            self.batch_status.setText(
+                f"cancelled: {result['reconstructed']} frames reconstructed and kept in "
+                f"{result['product']}; press Reconstruct run again to finish")
+            return
+        self.batch_status.setText(
+            f"{result['product']}: {result['reconstructed']} frames reconstructed, "
+            f"{result['skipped']} already done, {result['seconds']:.1f} s "
+            f"({result['fps']:.2f} frames/s, {result['workers'] or 0} workers)")
+        self.result_ready.emit(run, result["product"])
 
     def on_batch_failed(self, text: str) -> None:
         self.batch_button.setText("Reconstruct run")

@@ -80,12 +80,23 @@ def read_result(path: str) -> dict:
 
 
 def _product(store, name: str) -> dict:
+    info = store.product_info(name)
+    if "planes_done" in info and info["planes_done"] < info["shape"][0]:
+        # a per-frame product still being made (or cut short): the frames it holds
+        done = np.flatnonzero(store.product_frames_done(name))
+        if not done.size:
+            raise ValueError(f"product {name!r} of {store.path} holds no frame yet")
+        array = np.stack([store.product_frame(name, int(i)) for i in done])
+        text = (f"{name}: frames {', '.join(str(int(i)) for i in done)} of "
+                f"{info['shape'][0]} reconstructed\n{json.dumps(info, indent=1)}")
+        return {"kind": "volume", "array": array, "depths_mm": None, "text": text,
+                "axis": "frame"}
     array, attrs = store.product(name)
     array = np.asarray(array)
     text = json.dumps(attrs, indent=1, default=str)
     if array.ndim == 3 and array.shape[-1] not in (3, 4):
         return {"kind": "volume", "array": array, "depths_mm": attrs.get("depths_mm"),
-                "text": text}
+                "text": text, "axis": "frame" if attrs.get("per_frame") else "plane"}
     return {"kind": "image", "array": array, "text": text}
 
 
@@ -98,6 +109,7 @@ class ResultsPanel(QWidget):
         self.store = None
         self.volume: np.ndarray | None = None
         self.depths: list[float] | None = None
+        self.axis = "plane"
         layout = QVBoxLayout(self)
         bar = QHBoxLayout()
         self.path = QLineEdit()
@@ -174,12 +186,14 @@ class ResultsPanel(QWidget):
             self.open(path)
 
     # -- loading -------------------------------------------------------------------------
-    def open(self, path: str) -> Job:
-        """Read ``path`` on a worker and show it."""
+    def open(self, path: str, product: str | None = None) -> Job:
+        """Read ``path`` on a worker and show it (a run's ``product`` if given)."""
         self.path.setText(path)
         self.error.setText("")
         self.job = Job(lambda job: read_result(path), name="read-result")
         self.job.succeeded.connect(self.show_result)
+        if product is not None:
+            self.job.succeeded.connect(lambda _: self.show_product(product))
         self.job.failed.connect(self.error.setText)
         return self.job.start()
 
@@ -205,6 +219,8 @@ class ResultsPanel(QWidget):
         if result["kind"] == "volume":
             self.volume = np.asarray(result["array"], np.float32)
             self.depths = result.get("depths_mm")
+            self.axis = result.get("axis", "plane")
+            self.depth_label.setText("depth:" if self.axis == "plane" else "frame:")
             self._mode(kind, volume=True)
             self.depth_slider.setRange(0, len(self.volume) - 1)
             self.depth_slider.setValue(0)
@@ -225,9 +241,9 @@ class ResultsPanel(QWidget):
             return
         depth = (f", z = {self.depths[index]:.2f} mm" if self.depths is not None
                  and index < len(self.depths) else "")
-        self.depth_label.setText(f"depth: plane {index + 1} of {len(self.volume)}{depth}")
+        self.depth_label.setText(f"{self.axis} {index + 1} of {len(self.volume)}{depth}")
         self.view.setImage(self.volume[index], autoLevels=True)
-        self.view.getView().setTitle(f"plane {index + 1}{depth}")
+        self.view.getView().setTitle(f"{self.axis} {index + 1}{depth}")
 
     def show_frame(self, index: int) -> None:
         """Show frame ``index`` of the open run (with its coordinates)."""
