@@ -1,0 +1,89 @@
+"""The emulated bench: ``diffuserlab emulators start``, ``devices`` and a PSF sweep through
+the real drivers (thorlabs-apt, zaber-ascii, illuminate, aravis on its fake camera)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from instrument.cli import main
+from instrument.emulated_bench import BENCH_TEMPLATE, DEFAULT_DIR, EmulatedBench
+from instrument.runstore import RunStore
+
+EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "bench-emulated.toml"
+
+
+def test_example_file_is_the_template_for_the_default_directory():
+    assert EXAMPLE.read_text() == BENCH_TEMPLATE.substitute(dir=str(DEFAULT_DIR))
+
+
+def test_devices_and_psf_sweep_on_the_emulated_bench(tmp_path, capsys):
+    with EmulatedBench(tmp_path / "links", time_scale=50.0) as emulated:
+        bench = tmp_path / "bench.toml"
+        bench.write_text(emulated.bench_text())
+        assert main(["validate", str(bench)]) == 0
+        capsys.readouterr()
+        assert main(["devices", str(bench)]) == 0
+        rows = [line.split()[:4] for line in capsys.readouterr().out.splitlines()[1:]]
+        assert rows == [
+            ["camera", "camera", "aravis", "open"],
+            ["source_stage", "stage", "thorlabs-apt", "open"],
+            ["led_array", "led_array", "illuminate", "open"],
+            ["slm", "slm", "simulated-slm", "open"],
+            ["mask_stage", "stage", "zaber-ascii", "open"],
+        ]
+        run = tmp_path / "sweep.zarr"
+        code = main(["calibrate", "psf-sweep", str(bench), "--n-depths", "3", "--z-min", "20",
+                     "--z-max", "60", "--spacing", "uniform", "--out", str(run)])
+        assert code == 0
+        store = RunStore.open(run)
+        assert store.summary()["status"] == "complete"
+        assert store.product("psf_stack")[0].shape == (3, 512, 512)
+        z = emulated.emulators["apt-z"]
+        assert z.position() == round(60.0 * 34554.96)  # the last depth, through the driver
+        assert z.acks >= 1  # the driver acknowledged the status updates (keepalive)
+
+
+def _start(tmp_path: Path, *extra: str) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "instrument.cli", "emulators", "start", "--dir",
+           str(tmp_path / "links"), *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_ready(proc: subprocess.Popen, timeout_s: float = 30.0) -> list[str]:
+    lines, deadline = [], time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line.rstrip("\n"))
+        if line.strip() == "ready":
+            return lines
+    proc.kill()
+    pytest.fail(f"emulators did not start: {lines} {proc.stderr.read()}")
+
+
+def test_emulators_start_serves_until_sigterm(tmp_path):
+    out = tmp_path / "bench.toml"
+    proc = _start(tmp_path, "--bench-out", str(out), "--ledmx", "--duration-s", "60")
+    try:
+        lines = _wait_ready(proc)
+        links = sorted(p.name for p in (tmp_path / "links").iterdir())
+        assert len(links) == 6 and any("27000003" in n for n in links)
+        assert all(os.path.exists(tmp_path / "links" / n) for n in links)
+        assert f"bench file: {out}" in lines
+        assert str(tmp_path / "links") in out.read_text()
+        second = _start(tmp_path)  # the same directory: refused, the first keeps serving
+        assert second.wait(30) == 2
+        assert "already run" in second.stderr.read()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(30) == 0
+    assert "emulators stopped" in proc.stdout.read()
+    assert list((tmp_path / "links").iterdir()) == []  # the links went with the ptys
