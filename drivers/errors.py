@@ -9,7 +9,8 @@ Hierarchy::
 
     DeviceError
     +-- DeviceTimeoutError (also TimeoutError)
-    |   +-- CameraTimeoutError, StageTimeoutError, LedArrayTimeoutError, SlmTimeoutError
+    |   +-- CameraTimeoutError, StageTimeoutError, LedArrayTimeoutError, SlmTimeoutError,
+    |       DmdTimeoutError
     +-- DeviceDisconnectedError (also ConnectionError)
     +-- DeviceStateError            (used before open, snap while streaming, ...)
     |   +-- StageMotionError        (a move ended away from its target: limit switch, stall)
@@ -29,6 +30,7 @@ __all__ = [
     "DeviceStateError",
     "DeviceTimeoutError",
     "DeviceValueError",
+    "DmdTimeoutError",
     "LedArrayTimeoutError",
     "MissingDependencyError",
     "SlmTimeoutError",
@@ -99,6 +101,10 @@ class LedArrayTimeoutError(DeviceTimeoutError):
 
 class SlmTimeoutError(DeviceTimeoutError):
     """The SLM did not display a pattern within the timeout."""
+
+
+class DmdTimeoutError(DeviceTimeoutError):
+    """The DMD did not answer or accept a pattern sequence within the timeout."""
 
 
 class StageLimitError(DeviceValueError):

@@ -10,6 +10,7 @@ seeded fault injection (timeouts, disconnection, dropped frames, stuck axes).
 
 from drivers.simulated.camera import SimulatedCamera
 from drivers.simulated.clock import SimClock
+from drivers.simulated.dmd import SimulatedDmd
 from drivers.simulated.faults import CameraFaults, DeviceFaults, StageFaults
 from drivers.simulated.led_array import DEFAULT_COLOURS, SimulatedLedArray
 from drivers.simulated.slm import SimulatedSlm
@@ -21,6 +22,7 @@ __all__ = [
     "DeviceFaults",
     "SimClock",
     "SimulatedCamera",
+    "SimulatedDmd",
     "SimulatedLedArray",
     "SimulatedSlm",
     "SimulatedStage",

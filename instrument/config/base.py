@@ -19,7 +19,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 #: Device kinds, as drivers declare them in their class attribute ``kind``.
-KINDS: tuple[str, ...] = ("camera", "stage", "led_array", "slm")
+KINDS: tuple[str, ...] = ("camera", "stage", "led_array", "slm", "dmd")
 #: Valid stage axis names (translations, then rotations of a 6-axis mount).
 STAGE_AXES: tuple[str, ...] = ("x", "y", "z", "tip", "tilt", "rotation")
 #: Optical branches a bench can have.
@@ -30,6 +30,7 @@ SIMULATED_DRIVERS: dict[str, str] = {
     "stage": "simulated-stage",
     "led_array": "simulated-led-array",
     "slm": "simulated-slm",
+    "dmd": "simulated-dmd",
 }
 #: Parameter names a simulated twin takes under another name, per kind:
 #: ``{twin name: (names in a bench file, first found wins)}``.
@@ -41,6 +42,7 @@ TWIN_PARAM_ALIASES: dict[str, dict[str, tuple[str, ...]]] = {
     "stage": {"velocity": ("velocity", "speed_mm_s")},
     "led_array": {"shape": ("shape", "shape_px")},
     "slm": {"resolution": ("resolution", "resolution_px", "shape_px")},
+    "dmd": {"resolution": ("resolution", "resolution_px", "shape_px")},
 }
 
 #: What a device id may be: 1-64 of ``a-z``, ``0-9``, ``_``, ``-``.

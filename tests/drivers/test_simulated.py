@@ -20,12 +20,14 @@ from drivers.errors import (
 from drivers.simulated import (
     SimClock,
     SimulatedCamera,
+    SimulatedDmd,
     SimulatedLedArray,
     SimulatedSlm,
     SimulatedStage,
 )
 from tests.drivers.conformance import (
     CameraConformance,
+    DmdConformance,
     LedArrayConformance,
     SlmConformance,
     StageConformance,
@@ -83,6 +85,26 @@ class TestSimulatedSlm(_Sim, SlmConformance):
     def device(self):
         with SimulatedSlm("slm0") as slm:
             yield slm
+
+
+class TestSimulatedDmd(_Sim, DmdConformance):
+    @pytest.fixture
+    def device(self):
+        with SimulatedDmd("dmd0") as dmd:
+            yield dmd
+
+
+def test_simulated_dmd_plays_the_sequence_in_time():
+    dmd = SimulatedDmd("dmd0")
+    with dmd:
+        dmd.apply_settings({"period_s": 0.1, "exposure_s": 0.05})
+        dmd.load_sequence([{"image": 0, "bit": b} for b in range(3)], repeat=False)
+        dmd.start()
+        seen = []
+        for _ in range(4):
+            seen.append(dmd.pattern_index)
+            dmd.clock.advance(0.1)
+        assert seen == [0, 1, 2, None] and not dmd.running
 
 
 # --------------------------------------------------------------------------- faults

@@ -22,6 +22,7 @@ Example::
 
 from .base import DeviceConformance
 from .camera import CameraConformance
+from .dmd import DmdConformance
 from .led_array import LedArrayConformance
 from .slm import SlmConformance
 from .stage import StageConformance
@@ -29,6 +30,7 @@ from .stage import StageConformance
 __all__ = [
     "CameraConformance",
     "DeviceConformance",
+    "DmdConformance",
     "LedArrayConformance",
     "SlmConformance",
     "StageConformance",

@@ -1,0 +1,151 @@
+"""LightCrafter 4500 (DLPC350) DMD driver against the fake HID transport."""
+
+from __future__ import annotations
+
+import struct
+import sys
+
+import pytest
+
+from drivers.dlp_lightcrafter import LightCrafter4500, pattern_lut_entry
+from drivers.dmd import PatternEntry
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceProtocolError,
+    DeviceValueError,
+    MissingDependencyError,
+)
+from tests.drivers.conformance import DmdConformance
+from tests.mocks import Dlpc350Emulator, FakeHid
+
+
+@pytest.fixture
+def hid():
+    return FakeHid(Dlpc350Emulator(validation_polls=2))
+
+
+def make(hid, **kw):
+    kw.setdefault("reply_timeout_s", 0.3)
+    return LightCrafter4500("dmd", hid_backend=hid, **kw)
+
+
+class TestLightCrafterConformance(DmdConformance):
+    @pytest.fixture
+    def device(self, hid):
+        self.emu = hid.emulator
+        with make(hid) as dmd:
+            yield dmd
+
+    def provoke_timeout(self, device):
+        self.emu.drop_replies(1)
+
+
+def test_byte_exact_reports(hid):
+    emu = hid.emulator
+    with make(hid) as dmd:
+        emu.reports.clear()
+        dmd.led_currents = {"red": 100 / 255, "green": 120 / 255, "blue": 140 / 255}
+        seq = emu.reports[0][1]
+        assert emu.reports[0] == bytes([0x40, seq, 0x05, 0x00, 0x01, 0x0B, 0x64, 0x78, 0x8C])\
+            .ljust(64, b"\0")  # the notes' worked example
+        assert emu.reports[1][:6] == bytes([0xC0, seq + 1, 0x02, 0x00, 0x01, 0x0B])  # read back
+        emu.reports.clear()
+        dmd.apply_settings({"exposure_s": 4500e-6, "period_s": 4500e-6})
+        assert bytes.fromhex("29 1A 94 11 00 00 94 11 00 00") in emu.reports[-1]
+        assert emu.exposure_us == emu.period_us == 4500
+        dmd.load_sequence([PatternEntry(0, 0, colour="blue")])
+        emu.reports.clear()
+        dmd.start()
+        assert emu.reports[0][2:7] == bytes([0x03, 0x00, 0x24, 0x1A, 0x02])
+        assert emu.reports[1][:6] == bytes([0xC0, emu.reports[1][1], 0x02, 0x00, 0x0C, 0x1A])
+
+
+def test_pattern_mode_bring_up_sequence(hid):
+    emu = hid.emulator
+    with make(hid) as dmd:
+        emu.log.clear()
+        entries = [PatternEntry(2, b, colour="green") for b in range(3)] + [
+            PatternEntry(5, 1, bit_depth=8, colour="red", invert=True)]
+        dmd.load_sequence(entries, repeat=True)
+        order = [cmd for cmd, _ in emu.log]
+        first = {c: order.index(c) for c in (0x1A24, 0x1A1B, 0x1A22, 0x1A31, 0x1A29, 0x1A1A)}
+        assert first[0x1A24] < first[0x1A1B] < first[0x1A22] < first[0x1A31] < first[0x1A1A]
+        assert (0x1A31, bytes([3, 1, 3, 2])) in emu.log  # 4 entries, repeat, 2 images
+        assert emu.lut_entries() == [
+            {"pattern": 0, "trigger": 0, "bit_depth": 1, "leds": 2, "invert": 0, "swap": 1},
+            {"pattern": 1, "trigger": 3, "bit_depth": 1, "leds": 2, "invert": 0, "swap": 0},
+            {"pattern": 2, "trigger": 3, "bit_depth": 1, "leds": 2, "invert": 0, "swap": 0},
+            {"pattern": 1, "trigger": 0, "bit_depth": 8, "leds": 1, "invert": 1, "swap": 1},
+        ]
+        assert emu.image_lut[:2] == [2, 5] and emu.pattern_source == 3
+        assert sum(1 for c, _ in emu.log if c == 0x1A1A) >= 3  # validate + polls while busy
+        dmd.start()
+        assert emu.running and dmd.running and emu.display_mode == 1
+        assert pattern_lut_entry(entries[3], first_of_image=True) == bytes([4, 0x18, 0x05])
+
+
+def test_nack_and_validation_failures(hid):
+    emu = hid.emulator
+    with make(hid) as dmd:
+        with pytest.raises(DeviceProtocolError, match="0x1A99.*NACK"):
+            dmd.command(0x1A99, b"\x01")
+        with pytest.raises(DeviceProtocolError, match="0x1A24.*NACK"):
+            dmd.command(0x1A24, b"\x02")  # start before any validated sequence
+        with pytest.raises(DeviceValueError, match="230 us"):
+            dmd.apply_settings({"exposure_s": 0.0099, "period_s": 0.01})
+        dmd.load_sequence([PatternEntry(0, 0)])
+        dmd.command(0x1A29, struct.pack("<II", 9900, 10000))  # behind the driver's back
+        with pytest.raises(DeviceProtocolError, match="under 230 us"):
+            dmd.validate()
+        with pytest.raises(DeviceProtocolError, match="NACK"):
+            dmd.start()  # the controller refuses an invalid sequence
+        dmd.apply_settings({"exposure_s": 0.005, "period_s": 0.01})
+        dmd.load_sequence([PatternEntry(0, 0)])
+        dmd.start()
+        with pytest.raises(DeviceProtocolError, match="NACK"):
+            dmd.command(0x1A31, bytes(4))  # configuration while running: refused
+        dmd.exposure_s = 0.004  # the driver stops, changes, re-validates, restarts
+        assert emu.running and emu.exposure_us == 4000
+
+
+def test_long_message_is_continued_in_a_second_report(hid):
+    emu = hid.emulator
+    with make(hid) as dmd:
+        emu.reports.clear()
+        with pytest.raises(DeviceProtocolError):  # an unknown command, 70 bytes of payload
+            dmd.command(0x1A98, bytes(range(70)))
+        assert len(emu.reports) == 2 and emu.log[-1] == (0x1A98, bytes(range(70)))
+
+
+def test_unplug_then_reconnect(hid):
+    emu = hid.emulator
+    with make(hid) as dmd:
+        dmd.led_currents = {"blue": 0.5}
+        seq = dmd.load_sequence([PatternEntry(1, b) for b in range(4)])
+        dmd.start()
+        emu.unplug()
+        with pytest.raises(DeviceDisconnectedError):
+            dmd.status()
+        with pytest.raises(DeviceDisconnectedError, match="0451:6401"):
+            dmd.reconnect()
+        emu.replug()
+        with emu.lock:  # the controller was power-cycled: defaults, stopped
+            emu.led_currents, emu.running = [104, 135, 130], False
+        dmd.reconnect()
+        assert emu.led_currents[2] == 128 and dmd.sequence == seq
+        assert emu.running  # the sequence was loaded again and restarted
+
+
+def test_missing_hidapi_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "hid", None)
+    dmd = LightCrafter4500("dmd")
+    with pytest.raises(MissingDependencyError, match=r"diffuserlab\[hardware\]"):
+        dmd.open()
+
+
+def test_exposure_rounds_to_microseconds(hid):
+    with make(hid) as dmd:
+        dmd.apply_settings({"exposure_s": 0.0012345, "period_s": 0.0012345})
+        assert dmd.exposure_s == 0.001234 or dmd.exposure_s == 0.001235
+        assert struct.unpack("<II", dmd.command(0x1A29, read=True)[:8])[0] == round(
+            dmd.exposure_s * 1e6)
