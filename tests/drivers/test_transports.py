@@ -1,0 +1,107 @@
+"""Transports: serial port resolution by serial number, deadlines, unplug, modem lines."""
+
+from __future__ import annotations
+
+import errno
+import os
+import sys
+import time
+import types
+
+import pytest
+import serial
+from serial.tools import list_ports
+
+from drivers.errors import (
+    DeviceDisconnectedError,
+    LedArrayTimeoutError,
+    MissingDependencyError,
+)
+from drivers.transports import (
+    HidLink,
+    SerialLink,
+    find_serial_port,
+    import_optional,
+    set_modem_line,
+)
+from tests.mocks import IlluminateEmulator
+
+
+def test_serial_number_from_list_ports_first(monkeypatch, tmp_path):
+    info = types.SimpleNamespace(device="/dev/ttyUSB7", serial_number="27500101")
+    monkeypatch.setattr(list_ports, "comports", lambda: [info])
+    (tmp_path / "usb-Thorlabs_27500101-if00-port0").symlink_to("/dev/null")
+    assert find_serial_port("27500101", [tmp_path]) == "/dev/ttyUSB7"
+
+
+def test_serial_number_in_link_directory_as_a_whole_word(monkeypatch, tmp_path):
+    monkeypatch.setattr(list_ports, "comports", lambda: [])
+    (tmp_path / "usb-Thorlabs_275001012-if00-port0").symlink_to("/dev/null")
+    assert find_serial_port("27500101", [tmp_path]) is None  # not a prefix match
+    (tmp_path / "usb-Thorlabs_27500101-if00-port0").symlink_to("/dev/null")
+    assert find_serial_port("27500101", [tmp_path, "/no/such/dir"]).endswith(
+        "27500101-if00-port0")
+    (tmp_path / "usb-Dead_999-if00").symlink_to(tmp_path / "gone")  # a dangling link
+    assert find_serial_port("999", [tmp_path]) is None
+
+
+def test_modem_lines_are_guarded_on_a_pty():
+    master, slave = os.openpty()
+    try:
+        port = serial.Serial(os.ttyname(slave), timeout=0.1)
+        assert set_modem_line(port, "rts", True) is False  # ENOTTY on a pty: ignored
+        port.close()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+    class Broken:
+        @property
+        def rts(self):
+            return True
+
+        @rts.setter
+        def rts(self, value):
+            raise OSError(errno.EIO, "Input/output error")
+
+    with pytest.raises(OSError):
+        set_modem_line(Broken(), "rts", True)
+
+
+def test_read_deadline_and_unplug():
+    with IlluminateEmulator((2, 2)) as emu:
+        link = SerialLink("leds", port=emu.port, timeout_error=LedArrayTimeoutError)
+        link.open()
+        link.write(b"machine\n")
+        assert link.read_until(b"-==-\n", 1.0) == b"-==-\n"
+        emu.drop_replies(1)
+        link.write(b"ver\n")
+        t0 = time.monotonic()
+        with pytest.raises(LedArrayTimeoutError, match="within 0.2 s"):
+            link.read_until(b"-==-\n", 0.2)
+        assert time.monotonic() - t0 < 1.0
+        emu.unplug()
+        with pytest.raises(DeviceDisconnectedError, match="reconnect"):
+            link.read_until(b"-==-\n", 5.0)
+        assert not link.is_open
+        link.close()  # idempotent on a vanished port
+
+
+def test_absent_serial_number_is_a_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setattr(list_ports, "comports", lambda: [])
+    link = SerialLink("stage", serial_number="27999999", search_dirs=[str(tmp_path)])
+    with pytest.raises(DeviceDisconnectedError, match="27999999.*plug it in"):
+        link.open()
+
+
+def test_missing_library_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "usb", None)
+    with pytest.raises(MissingDependencyError, match=r"pyusb.*diffuserlab\[hardware\]"):
+        import_optional("usb", "dmd")
+
+
+def test_hid_module_of_the_other_package_is_named():
+    other_hid = types.SimpleNamespace(Device=object)  # PyPI "hid" (ctypes) has Device
+    link = HidLink("dmd", vendor_id=0x0451, product_id=0x6401, hid_module=other_hid)
+    with pytest.raises(MissingDependencyError, match="pip install hidapi"):
+        link.open()
