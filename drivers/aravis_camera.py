@@ -43,6 +43,7 @@ from drivers.errors import (
     DeviceValueError,
     MissingDependencyError,
 )
+from drivers.grab_thread import GrabThread
 
 __all__ = ["AravisCamera"]
 
@@ -169,7 +170,7 @@ class AravisCamera(Camera):
         self._hw: dict[str, Any] = {}
         self._lost = threading.Event()
         self._lost_handler: Any = None
-        self._grab: tuple[threading.Thread, threading.Event] | None = None
+        self._grab: GrabThread | None = None
         self._index = 0
         self._stats: dict[str, int] = {}
 
@@ -392,6 +393,10 @@ class AravisCamera(Camera):
 
     # ------------------------------------------------------------------ settings
     def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
+        if name == "gain" and value != 0 and self._info["gain_range_db"][1] == 0:
+            raise self._error(DeviceValueError, "the camera's gain cannot be set in dB",
+                              "leave gain at 0, or for a GainRaw camera set "
+                              "params.gain_db_per_raw from its manual")
         v = super()._validate_setting(name, value, pending)
         if name == "trigger_mode" and v != "free_run":
             needed = "Software" if v == "software" else self._line
@@ -402,9 +407,6 @@ class AravisCamera(Camera):
                     "use another trigger mode" + ("" if v == "software" else
                                                   " or set params.trigger_line"),
                 )
-        if name == "gain" and v > 0 and self._features.get("gain") is None:
-            raise self._error(DeviceValueError, "the camera has no gain control",
-                              "leave gain at 0")
         return v
 
     def _do_apply(self, name: str, value: Any) -> Any:
@@ -563,19 +565,13 @@ class AravisCamera(Camera):
         stream = self._ensure_stream()
         self._call(self._cam.set_acquisition_mode, self._arv.AcquisitionMode.CONTINUOUS)
         self._call(self._cam.start_acquisition, what="starting the acquisition")
-        stop = threading.Event()
-        thread = threading.Thread(target=self._grab_loop, args=(stream, ring, stop),
-                                  daemon=True, name=f"{self.device_id}-aravis")
-        self._grab = (thread, stop)
-        thread.start()
+        self._grab = GrabThread(lambda stop: self._grab_loop(stream, ring, stop),
+                                f"{self.device_id}-aravis", 5.0).start()
 
     def _stop_grab(self) -> None:
-        if self._grab is not None:
-            thread, stop = self._grab
-            stop.set()
-            if thread is not threading.current_thread():
-                thread.join(timeout=5.0)
-            self._grab = None
+        grab, self._grab = self._grab, None
+        if grab is not None:
+            grab.stop()
 
     def _do_stop_stream(self) -> None:
         self._stop_grab()

@@ -1,0 +1,286 @@
+"""The V4L2 camera driver: the capture path against a recorded image sequence read
+through OpenCV, the V4L2 control mapping against a fake capture object
+(tests/mocks/v4l2.py) that keeps UVC semantics (auto-exposure menu, 100 us exposure
+units, silent clamping, a queue of stale buffers, FOURCC/size restarts, unplug)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers.camera import FrameRing
+from drivers.errors import (
+    CameraTimeoutError,
+    DeviceDisconnectedError,
+    DeviceValueError,
+)
+from drivers.v4l2_camera import (
+    AUTO_EXPOSURE,
+    CONVERT_RGB,
+    EXPOSURE,
+    FOURCC,
+    GAIN,
+    V4l2Camera,
+    fourcc_text,
+)
+from tests.drivers.conformance import CameraConformance
+from tests.mocks.v4l2 import FakeV4l2Capture
+
+SERIAL = "SN0042"
+LINK = f"usb-Acme_Fake_UVC_Cam_{SERIAL}-video-index0"
+N_FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A recorded 12-frame sequence (PNG files, 160 x 120) and its frames as gray arrays:
+    a smooth scene that moves by 3 px per frame, values below 128 (no saturation at 2x)."""
+    folder = tmp_path_factory.mktemp("recording")
+    yy, xx = np.mgrid[:120, :160]
+    frames = []
+    for k in range(N_FRAMES):
+        img = 20 + 40 * (1 + np.sin((xx + 3 * k) / 9.0) * np.cos(yy / 13.0))
+        img = np.rint(img).astype(np.uint8)
+        cv2.imwrite(str(folder / f"frame_{k:03d}.png"), img)
+        frames.append(img)
+    return str(folder / "frame_%03d.png"), frames
+
+
+@pytest.fixture
+def by_id(tmp_path):
+    """A by-id directory with the camera's link (udev's name pattern)."""
+    folder = tmp_path / "by-id"
+    folder.mkdir()
+    target = tmp_path / "video7"
+    target.write_bytes(b"")
+    os.symlink(target, folder / LINK)
+    return folder
+
+
+class Bench:
+    """The fakes the backend hands out (a new one per open, as a replugged camera)."""
+
+    def __init__(self, source: str):
+        self.source = source
+        self.fakes: list[FakeV4l2Capture] = []
+
+    def __call__(self, path: str) -> FakeV4l2Capture:
+        self.path = path
+        fake = FakeV4l2Capture(self.source, read_timeout_s=0.25)
+        self.fakes.append(fake)
+        return fake
+
+    @property
+    def fake(self) -> FakeV4l2Capture:
+        return self.fakes[-1]
+
+
+def make(recording, by_id, **kw) -> tuple[V4l2Camera, Bench]:
+    bench = Bench(recording[0])
+    params = dict(serial_number=SERIAL, by_id_dir=str(by_id), backend=bench,
+                  gain_db_per_unit=1.0, gain_max_units=100, exposure_range_s=(1e-4, 1.0),
+                  frame_rate_range_hz=(5.0, 100.0), read_timeout_s=0.25)
+    params.update(kw)
+    return V4l2Camera("uvc", **params), bench
+
+
+BASELINE = {"exposure_s": 0.005, "frame_rate_hz": 50.0}
+
+
+class TestV4l2Camera(CameraConformance):
+    @pytest.fixture
+    def device(self, recording, by_id):
+        cam, self.bench = make(recording, by_id)
+        cam.open()
+        cam.apply_settings(BASELINE)
+        yield cam
+        cam.close()
+
+    def provoke_timeout(self, device):
+        self.bench.fake.stall(1.1)  # no frame for longer than the call's 1 s
+
+    def test_trigger_hardware_is_refused(self, device):
+        with pytest.raises(DeviceValueError, match="no trigger input"):
+            device.trigger_mode = "hardware"
+
+
+# --------------------------------------------------------------------- choosing the camera
+def test_video_n_paths_are_refused():
+    with pytest.raises(DeviceValueError, match="by-id"):
+        V4l2Camera("uvc", device_path="/dev/video0")
+    with pytest.raises(DeviceValueError, match="serial_number"):
+        V4l2Camera("uvc")
+
+
+def test_found_by_serial_number_in_by_id(recording, by_id):
+    cam, bench = make(recording, by_id)
+    with cam:
+        assert bench.path == str(by_id / LINK)
+        assert cam.info["device_path"].endswith(LINK)
+    cam, _ = make(recording, by_id, serial_number="SN9999")
+    with pytest.raises(DeviceDisconnectedError, match=f"SN9999.*{LINK}"):
+        cam.open()
+
+
+# --------------------------------------------------------------------- control mapping
+def test_exposure_is_manual_in_100_us_units_and_read_back(recording, by_id, caplog):
+    cam, bench = make(recording, by_id)
+    with cam:
+        fake = bench.fake
+        assert fake.props[AUTO_EXPOSURE] == 1  # the camera came up in aperture priority (3)
+        fake.set_log.clear()
+        cam.exposure_s = 0.0123
+        assert fake.set_log[:2] == [(AUTO_EXPOSURE, 1), (EXPOSURE, 123)]
+        assert cam.exposure_s == pytest.approx(0.0123)
+        with caplog.at_level(logging.WARNING, logger="drivers.camera"):
+            cam.exposure_s = 0.8  # the camera's maximum is 5000 x 100 us: clamped silently
+        assert cam.exposure_s == pytest.approx(0.5) and fake.props[EXPOSURE] == 5000
+        assert "took 0.5" in caplog.text
+
+
+def test_gain_frame_rate_and_fourcc_read_back(recording, by_id):
+    cam, bench = make(recording, by_id)
+    with cam:
+        fake = bench.fake
+        cam.gain = 3.0
+        assert fake.props[GAIN] == 3 and cam.gain == 3.0
+        cam.frame_rate_hz = 27.0  # the camera offers 25 and 30
+        assert cam.frame_rate_hz == 25.0
+        assert cam.info["fourcc"] == {"mono8": "YUYV", "mono12": "Y16 ", "mono16": "Y16 "}
+        cam.pixel_format = "mono16"
+        assert fourcc_text(fake.props[FOURCC]) == "Y16 " and fake.props[CONVERT_RGB] == 0
+        frame = cam.snap()
+        assert frame.image.dtype == np.uint16 and frame.image.max() > 255
+        cam.pixel_format = "mono8"
+        assert fourcc_text(fake.props[FOURCC]) == "YUYV" and fake.props[CONVERT_RGB] == 1
+
+
+def test_gain_needs_a_db_mapping(recording, by_id):
+    cam, _ = make(recording, by_id, gain_db_per_unit=None)
+    with cam:
+        assert cam.info["gain_range_db"] == [0.0, 0.0]
+        with pytest.raises(DeviceValueError, match="gain_db_per_unit"):
+            cam.gain = 1.0
+
+
+def test_frame_size_is_requested_and_read_back(recording, by_id):
+    cam, _ = make(recording, by_id, size_px=(60, 80))
+    with cam:
+        assert cam.sensor_shape == (60, 80) and cam.snap().image.shape == (60, 80)
+    cam, _ = make(recording, by_id, size_px=(100, 100))  # snapped to the nearest size
+    with cam:
+        assert cam.sensor_shape in ((120, 160), (60, 80))
+
+
+# --------------------------------------------------------------------- frames
+def test_capture_path_delivers_the_recorded_frames(recording, by_id):
+    _, frames = recording
+    cam, _ = make(recording, by_id)
+    with cam:
+        cam.apply_settings({"exposure_s": 0.01, "frame_rate_hz": 50.0,  # scale 1
+                            "roi": [5, 7, 100, 80]})
+        ring = FrameRing(16)
+        cam.start_stream(ring)
+        try:
+            got = [ring.get(timeout_s=2.0) for _ in range(6)]
+        finally:
+            cam.stop_stream()
+    crops = [f[7:87, 5:105] for f in frames]
+    matched = []
+    for frame in got:
+        hits = [k for k, c in enumerate(crops) if np.array_equal(frame.image, c)]
+        assert len(hits) == 1, "a delivered frame is not exactly one recorded frame"
+        matched.append(hits[0])
+    assert all((b - a) % N_FRAMES == 1 for a, b in zip(matched, matched[1:], strict=False))
+    stamps = [f.device_timestamp_s for f in got]
+    assert np.median(np.diff(stamps)) == pytest.approx(0.02, rel=0.05)
+
+
+def test_stale_frames_after_a_change_are_flushed(recording, by_id):
+    cam, bench = make(recording, by_id, buffers=4)
+    with cam:
+        cam.apply_settings({"exposure_s": 0.005, "frame_rate_hz": 50.0})
+        time.sleep(0.2)  # the camera's 4 buffers fill with 5 ms frames
+        assert len(bench.fake._queue) or bench.fake._produce(time.monotonic()) is None
+        base = cam.snap().image.mean()
+        time.sleep(0.2)
+        cam.exposure_s = 0.01  # twice the signal from now on
+        frame = cam.snap()
+        assert frame.image.mean() == pytest.approx(2 * base, rel=0.1)
+        # streaming: a frame whose exposure began before a change is dropped (counted),
+        # never delivered with the new settings' label
+        cam.apply_settings({"exposure_s": 0.018})  # 18 of every 20 ms exposing
+        ring = FrameRing(64)
+        cam.start_stream(ring)
+        try:
+            ring.get(timeout_s=1.0)
+            fake = bench.fake
+            fake._produce(time.monotonic())
+            start = fake._next_start  # the frame in flight or the next one
+            time.sleep(max(start + 0.009 - time.monotonic(), 0.0))  # mid-exposure
+            cam.exposure_s = 0.009
+            time.sleep(0.3)
+        finally:
+            cam.stop_stream()
+        delivered = []
+        while len(ring):
+            delivered.append(ring.get(timeout_s=0.1))
+        labels = {round(f.exposure_s, 4) for f in delivered}
+        assert 0.009 in labels and labels <= {0.018, 0.009}
+        for f in delivered:  # content always matches the exposure in the frame's metadata
+            assert f.image.mean() == pytest.approx(base * f.exposure_s / 0.005, rel=0.15)
+        assert ring.dropped >= 1 and cam.dropped_frames == ring.dropped
+
+
+def test_stream_that_stops_times_out_then_resumes(recording, by_id):
+    cam, bench = make(recording, by_id)
+    with cam:
+        cam.apply_settings(BASELINE)
+        ring = FrameRing(8)
+        cam.start_stream(ring)
+        try:
+            ring.get(timeout_s=1.0)
+            bench.fake.stall(0.8)
+            time.sleep(0.05)
+            ring.clear()
+            with pytest.raises(CameraTimeoutError, match="no frame within 0.3 s"):
+                ring.get(timeout_s=0.3)
+            assert ring.get(timeout_s=2.0).image.shape == cam.image_shape
+        finally:
+            cam.stop_stream()
+
+
+def test_unplug_mid_stream_then_reconnect_restores_settings(recording, by_id):
+    cam, bench = make(recording, by_id)
+    with cam:
+        cam.apply_settings({"exposure_s": 0.007, "gain": 4.0, "frame_rate_hz": 50.0,
+                            "pixel_format": "mono16", "roi": [2, 2, 60, 40], "binning": 2})
+        before = cam.settings()
+        ring = FrameRing(8)
+        cam.start_stream(ring)
+        ring.get(timeout_s=1.0)
+        (by_id / LINK).unlink()  # udev removes the link, the device node goes away
+        bench.fake.unplug()
+        t0 = time.monotonic()
+        with pytest.raises(DeviceDisconnectedError, match="reconnect"):
+            while True:
+                ring.get(timeout_s=5.0)
+        assert time.monotonic() - t0 < 3.0
+        cam.stop_stream()
+        with pytest.raises(DeviceDisconnectedError):
+            cam.settings()
+        with pytest.raises(DeviceDisconnectedError, match=SERIAL):
+            cam.reconnect()  # still unplugged
+        os.symlink(by_id.parent / "video7", by_id / LINK)  # plugged back in
+        cam.reconnect()
+        fresh = bench.fake
+        assert len(bench.fakes) == 2 and cam.settings() == before
+        assert fresh.props[EXPOSURE] == 70 and fresh.props[GAIN] == 4
+        assert fourcc_text(fresh.props[FOURCC]) == "Y16 "
+        frame = cam.snap()
+        assert frame.image.shape == (20, 30) and frame.image.dtype == np.uint16

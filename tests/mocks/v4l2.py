@@ -1,0 +1,208 @@
+"""A UVC camera on OpenCV's V4L2 backend, as the ``cv2.VideoCapture`` surface the
+:class:`~drivers.v4l2_camera.V4l2Camera` driver uses (``isOpened``, ``read``, ``get``,
+``set``, ``release``), written from the V4L2/UVC control semantics (docs/drivers/v4l2.md):
+
+- frames come from a recorded image sequence or video read through OpenCV (a real
+  ``cv2.VideoCapture`` on the file, looped), scaled by exposure and gain;
+- the camera exposes frame k from ``t0 + k * period`` for one exposure, with the
+  settings in effect when its exposure began; ``period = max(1 / fps, exposure)``;
+- a queue of ``BUFFERSIZE`` buffers: ``read()`` returns the *oldest* queued frame (stale
+  after a setting change); frames finished while every buffer is full are lost;
+- ``CAP_PROP_POS_MSEC`` is the returned frame's timestamp (end of its exposure, ms of
+  CLOCK_MONOTONIC); ``read()`` waits for the next frame up to ``read_timeout_s`` and
+  returns ``(False, None)`` on a timeout or once unplugged;
+- controls: auto-exposure menu {1 manual, 3 aperture priority} (other values refused;
+  exposure refused while auto), exposure in 100 us units clamped to its range, gain in
+  raw units (the fake's unit is 1 dB) clamped, FPS snapped to the offered rates,
+  FOURCC among YUYV/GREY/"Y16 " (others refused), frame size snapped to the offered
+  sizes (width and height as a pair); FOURCC, size and buffer count restart the stream.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+from typing import Any
+
+import cv2
+import numpy as np
+
+from drivers.v4l2_camera import (
+    AUTO_EXPOSURE,
+    BUFFERSIZE,
+    CONVERT_RGB,
+    EXPOSURE,
+    FOURCC,
+    FPS,
+    FRAME_HEIGHT,
+    FRAME_WIDTH,
+    GAIN,
+    POS_MSEC,
+    fourcc_code,
+    fourcc_text,
+)
+
+__all__ = ["FakeV4l2Capture"]
+
+
+class FakeV4l2Capture:
+    """See the module docstring. ``sizes`` are ``(width, height)``, the first the default."""
+
+    FOURCCS = ("YUYV", "GREY", "Y16 ")
+
+    def __init__(self, source: str, *, sizes=((160, 120), (80, 60)),
+                 fps_choices=(5, 10, 15, 20, 25, 30, 50, 60, 100),
+                 exposure_units=(1, 5000), gain_units=(0, 100), read_timeout_s: float = 2.0):
+        self._source_path = source
+        self._source = cv2.VideoCapture(source, cv2.CAP_ANY)
+        if not self._source.isOpened():
+            raise FileNotFoundError(f"OpenCV cannot read {source}")
+        self.sizes, self.fps_choices = tuple(sizes), tuple(fps_choices)
+        self.exposure_units, self.gain_units = exposure_units, gain_units
+        self.read_timeout_s = read_timeout_s
+        self.opened, self.unplugged = True, False
+        self.props: dict[int, float] = {
+            FOURCC: fourcc_code("YUYV"), FRAME_WIDTH: sizes[0][0], FRAME_HEIGHT: sizes[0][1],
+            AUTO_EXPOSURE: 3, EXPOSURE: 100, GAIN: 0, FPS: 30, BUFFERSIZE: 4, CONVERT_RGB: 1,
+            POS_MSEC: 0.0,
+        }
+        self.set_log: list[tuple[int, float]] = []
+        self.lost = 0
+        self._stall_until = 0.0
+        self._history: list[tuple[float, dict[int, float]]] = []
+        self._queue: collections.deque[tuple[float, np.ndarray]] = collections.deque()
+        self._restart(time.monotonic())
+
+    # ------------------------------------------------------------------ timing
+    def _period(self, props: dict[int, float]) -> float:
+        return max(1.0 / props[FPS], props[EXPOSURE] * 1e-4)
+
+    def _restart(self, now: float) -> None:
+        self._queue.clear()
+        self._history = [(now, dict(self.props))]
+        self._next_start = now
+
+    def _settings_at(self, t: float) -> dict[int, float]:
+        current = self._history[0][1]
+        for since, props in self._history:
+            if since <= t:
+                current = props
+        return current
+
+    def _produce(self, now: float) -> None:
+        """Expose every frame whose exposure ended by ``now``."""
+        if now < self._stall_until:
+            return
+        self._next_start = max(self._next_start, self._stall_until)
+        while True:
+            props = self._settings_at(self._next_start)
+            end = self._next_start + props[EXPOSURE] * 1e-4
+            if end > now:
+                return
+            if len(self._queue) < int(self.props[BUFFERSIZE]):
+                self._queue.append((end, self._render(props)))
+            else:
+                self.lost += 1
+            self._next_start += self._period(props)
+
+    def _next_frame_source(self) -> np.ndarray:
+        ok, frame = self._source.read()
+        if not ok:  # loop the recording
+            self._source.release()
+            self._source = cv2.VideoCapture(self._source_path, cv2.CAP_ANY)
+            ok, frame = self._source.read()
+        return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+
+    def _render(self, props: dict[int, float]) -> np.ndarray:
+        gray = self._next_frame_source().astype(np.float64)
+        size = (int(props[FRAME_WIDTH]), int(props[FRAME_HEIGHT]))
+        if gray.shape[::-1] != size:
+            gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+        scale = props[EXPOSURE] / 100.0 * 10 ** (props[GAIN] / 20.0)
+        if fourcc_text(props[FOURCC]) == "Y16 ":
+            y16 = np.clip(np.rint(gray * scale * 256.0), 0, 65535).astype(np.uint16)
+            return y16 if props[CONVERT_RGB] == 0 else cv2.cvtColor(
+                (y16 >> 8).astype(np.uint8), cv2.COLOR_GRAY2BGR)
+        y8 = np.clip(np.rint(gray * scale), 0, 255).astype(np.uint8)
+        return cv2.cvtColor(y8, cv2.COLOR_GRAY2BGR)
+
+    # ------------------------------------------------------------------ cv2 surface
+    def isOpened(self) -> bool:  # noqa: N802 (cv2's name)
+        return self.opened
+
+    def read(self) -> tuple[bool, Any]:
+        deadline = time.monotonic() + self.read_timeout_s
+        while self.opened and not self.unplugged:
+            now = time.monotonic()
+            self._produce(now)
+            if self._queue:
+                stamp, image = self._queue.popleft()
+                self.props[POS_MSEC] = stamp * 1e3
+                return True, image
+            if now >= deadline:
+                break
+            time.sleep(min(0.002, deadline - now))
+        return False, None
+
+    def get(self, prop: int) -> float:
+        if not self.opened:
+            return 0.0
+        return float(self.props.get(prop, -1.0))
+
+    def set(self, prop: int, value: float) -> bool:
+        if not self.opened or self.unplugged:
+            return False
+        now = time.monotonic()
+        self._produce(now)  # frames exposed so far keep the old settings
+        self.set_log.append((prop, value))
+        p = self.props
+        restart = False
+        if prop == AUTO_EXPOSURE:
+            if int(value) not in (1, 3):
+                return False
+            p[prop] = int(value)
+        elif prop == EXPOSURE:
+            if p[AUTO_EXPOSURE] != 1:
+                return False  # the driver refuses a manual exposure in auto mode
+            lo, hi = self.exposure_units
+            p[prop] = int(min(max(round(value), lo), hi))
+        elif prop == GAIN:
+            lo, hi = self.gain_units
+            p[prop] = int(min(max(round(value), lo), hi))
+        elif prop == FPS:
+            p[prop] = float(min(self.fps_choices, key=lambda f: abs(f - value)))
+        elif prop == FOURCC:
+            if fourcc_text(value) not in self.FOURCCS:
+                return False
+            p[prop], restart = float(value), True
+        elif prop in (FRAME_WIDTH, FRAME_HEIGHT):
+            want = (value, p[FRAME_HEIGHT]) if prop == FRAME_WIDTH else (p[FRAME_WIDTH], value)
+            w, h = min(self.sizes, key=lambda s: abs(s[0] - want[0]) + abs(s[1] - want[1]))
+            p[FRAME_WIDTH], p[FRAME_HEIGHT], restart = w, h, True
+        elif prop == BUFFERSIZE:
+            if not 1 <= int(value) <= 10:
+                return False
+            p[prop], restart = int(value), True
+        elif prop == CONVERT_RGB:
+            p[prop] = 1 if value else 0
+        else:
+            return False
+        if restart:
+            self._restart(now)
+        else:
+            self._history.append((now, dict(p)))
+        return True
+
+    def release(self) -> None:
+        self.opened = False
+        self._source.release()
+
+    def stall(self, seconds: float) -> None:
+        """The camera stops sending for ``seconds`` (e.g. a USB bandwidth stall)."""
+        now = time.monotonic()
+        self._produce(now)
+        self._stall_until = now + seconds
+
+    def unplug(self) -> None:
+        """The camera disappears: reads fail from now on."""
+        self.unplugged = True
