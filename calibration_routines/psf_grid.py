@@ -13,7 +13,8 @@ darks. Products (:meth:`PsfGridPlan.reduce`):
 * ``psf_grid``: dark-subtracted PSFs per second of exposure, background removed
   (Sec. 6.4), with the positions;
 * the registered shifts: the translation of each PSF that maximises its
-  cross-correlation with the PSF nearest the axis (Sec. 5.2), in sensor pixels
+  cross-correlation with the PSF nearest the axis (Sec. 5.2; chained outwards
+  through neighbours, :func:`recon.spatial.register_psfs`), in sensor pixels
   ``(dy, dx)``, and the magnification fitted to them (a lateral source shift
   ``dx`` moves the caustics by ``-m dx`` on the sensor, ``m = d/z``, Eq. 3.1);
 * ``psf_grid_registered``: each PSF shifted back by its registered shift
@@ -28,10 +29,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import ndimage
 
 from instrument.plan import Light, Move, Plan, PlanError, PlanPoint, Prompt, register_plan
-from recon.analysis import lateral_calibration_spacing_mm, register_shift, remove_background_dct
+from recon.analysis import lateral_calibration_spacing_mm, remove_background_dct
+from recon.spatial import register_psfs
 
 from ._common import backlight_leds, lit_capture_steps, sensor_geometry, signal_minus_dark
 
@@ -234,14 +235,12 @@ class PsfGridPlan(Plan):
         psfs = np.stack([signal_minus_dark(store, i)[0] for i in range(store.n_points)])
         psfs = remove_background_dct(psfs, p["dct_n_low"])
         pos = np.asarray(p["positions_mm"])
-        ref = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
-        shifts = np.array([register_shift(psfs[ref], img) for img in psfs])  # (dy, dx) px
+        # (dy, dx) px, registered outwards from the PSF nearest the axis (Sec. 5.2)
+        registered, shifts, ref = register_psfs(psfs, positions=pos)
         delta = pos - pos[ref]  # (dx, dy) mm
         moved_mm = shifts[:, ::-1] * p["pitch_mm"]  # (dx, dy) on the sensor, mm
         m_fit = float(-np.sum(moved_mm * delta) / np.sum(delta * delta))
         residual_px = float(np.sqrt(np.mean((moved_mm + m_fit * delta) ** 2)) / p["pitch_mm"])
-        registered = np.stack([ndimage.shift(img, -s, order=1, mode="constant")
-                               for img, s in zip(psfs, shifts, strict=True)])
         nyquist = self.nyquist_check()
         attrs = {"positions_mm": pos.tolist(), "z_mm": p["z_mm"], "units": "DN/s",
                  "shifts_px": shifts.tolist(), "reference_index": ref}

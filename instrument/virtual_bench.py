@@ -152,9 +152,14 @@ class VirtualBench(Bench):
         Sec. 6.4 takes out).
     prnu_fraction : float
         The camera's photo-response non-uniformity (what a flat field measures).
-    falloff_sigma_deg : float or None
+    falloff_sigma_deg : float or None or "bench"
         Sigma of the pixels' Gaussian angular response (Eq. 5.1), degrees (what the
-        angular-response calibration measures); None: no fall-off.
+        angular-response calibration measures); None: no fall-off; ``"bench"``
+        (default): the bench file's ``geometry.sensor_falloff_sigma_deg``, else 20.
+        The bench file's ``geometry.background_light_photons_per_s`` adds a smooth
+        background (:meth:`stray_light_map`'s shape) whenever a source or a scene is
+        lit with the diffuser in (the microscope's excitation leak and filter
+        autofluorescence, Eq. 6.1's ``g``).
     hologram : HolographicDisplayModel, optional
         Model of the holography branch (its ``SlmModel`` holds the SLM's response);
         default built lazily from the SLM, ``slm_response`` and the camera shape
@@ -215,7 +220,7 @@ class VirtualBench(Bench):
 
     def __init__(self, config: BenchConfig | None = None, *, seed: int = 0,
                  source_power_photons_per_s: float = 2e11, stray_light_fraction: float = 0.02,
-                 prnu_fraction: float = 0.01, falloff_sigma_deg: float | None = 20.0,
+                 prnu_fraction: float = 0.01, falloff_sigma_deg: float | None | str = "bench",
                  hologram=None, slm_response: SlmPhaseResponse | None = None,
                  nd_filter_transmission: float = 0.01, relay_na: float | None = 0.05,
                  laser_drift_per_sqrt_s: float = 1e-3, realtime: bool = False,
@@ -227,7 +232,10 @@ class VirtualBench(Bench):
                 render_cache_size < 1):
             raise ValueError(f"render_cache_size={render_cache_size!r}: give an integer >= 1")
         self.render_cache_size = render_cache_size
+        if isinstance(falloff_sigma_deg, str):  # "bench": the bench file's, else 20 deg
+            falloff_sigma_deg = self.config.geometry.sensor_falloff_sigma_deg or 20.0
         self.geometry = lensless_geometry(self.config.geometry, seed, falloff_sigma_deg)
+        self.background_light = float(self.config.geometry.background_light_photons_per_s)
         self.model = LenslessModel(self.geometry)
         self.source_power = float(source_power_photons_per_s)
         self.stray_light_fraction = float(stray_light_fraction)
@@ -485,6 +493,8 @@ class VirtualBench(Bench):
                     value += (self.stray_light_fraction * power * float(psf.sum())
                               * self.stray_light_map())
             value += self._scene_image(key[-1])
+            if self.background_light > 0 and (sources or self.scene is not None):
+                value += self.background_light * self.stray_light_map()
         else:
             for pos, power in sources:
                 value += power * self.bare_sensor_irradiance(pos)

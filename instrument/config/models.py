@@ -66,6 +66,15 @@ class GeometryConfig(Section):
     wavelength_nm: Annotated[float, Range(200, 2000, False)] = Field(
         532.0, description="design wavelength, nanometres"
     )
+    sensor_falloff_sigma_deg: Annotated[float, Range(0, 90)] | None = Field(
+        None, description="Gaussian sigma of the pixels' angular response, degrees (Eq. 5.1; "
+        "what angular-response measures); the virtual twin's sensor (unset: 20 deg)"
+    )
+    background_light_photons_per_s: Annotated[float, Range(0, 1e18, False)] = Field(
+        0.0, description="smooth background light while a source or scene is lit (excitation "
+        "leak, filter autofluorescence), photons per second on the whole sensor; the "
+        "virtual twin adds it (Eq. 6.1's g)"
+    )
 
 
 class CalibrationDefaults(Section):

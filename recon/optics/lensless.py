@@ -62,6 +62,7 @@ from .lensless_geometry import (
     LenslessGeometry,
     default_geometry,
     diffuser_for_sensor,
+    microscope_geometry,
     oversample_factor,
     positive_number,
     size_pair_mm,
@@ -75,6 +76,7 @@ __all__ = [
     "LenslessModel",
     "default_geometry",
     "diffuser_for_sensor",
+    "microscope_geometry",
 ]
 
 _MAX_RAYS = 60_000_000

@@ -308,3 +308,33 @@ def default_geometry(kind: str = "smooth", seed: int = 0) -> LenslessGeometry:
         2 * _fit_half_aperture(y[in_y], tan_dev[1][in_y][:, in_x], 1, sh / 2, d, z_fill),
     ))
     return LenslessGeometry(surface, d, aperture, sensor, pitch_um, 20.0)
+
+
+def microscope_geometry(seed: int = 0, *, sensor_shape: tuple[int, int] = (135, 240),
+                        sensor_pitch_um: float = 23.2) -> LenslessGeometry:
+    """The diffuser fluorescence microscope of Ch. 6 (Sec. 6.4), as
+    ``examples/bench-microscope.toml`` describes it.
+
+    Random microlens diffuser (:meth:`DiffuserSurface.random_microlens`: 250 um
+    lenslets, f = 1.5 mm) ``d = 3.8`` mm in front of a backside-illuminated sensor
+    with a Gaussian angular fall-off of sigma 13 deg; the aperture is the whole
+    sensor-sized diffuser. Default sensor: the IMX290 (1080 x 1920 at 2.9 um)
+    binned 8 x 8, 135 x 240 at 23.2 um (3.1 x 5.6 mm). Objects sit 1.7-3 mm in
+    front of the diffuser (the lenslets image 2.5 mm onto the sensor).
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the lenslet layout.
+    sensor_shape : (rows, cols)
+    sensor_pitch_um : float
+
+    Returns
+    -------
+    LenslessGeometry
+    """
+    rows, cols = sensor_shape
+    sw, sh = cols * sensor_pitch_um * 1e-3, rows * sensor_pitch_um * 1e-3
+    surface = diffuser_for_sensor("microlens", (sw, sh), seed)
+    return LenslessGeometry(surface, 3.8, (round(sw, 9), round(sh, 9)), (rows, cols),
+                            sensor_pitch_um, 13.0)

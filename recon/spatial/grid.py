@@ -31,9 +31,16 @@ from ..scenes import tent_weights
 __all__ = ["PsfGrid", "register_psfs", "scale_psf", "synthesize_grid"]
 
 
-def register_psfs(psfs: np.ndarray, reference: int | None = None
+def register_psfs(psfs: np.ndarray, reference: int | None = None, positions=None
                   ) -> tuple[np.ndarray, np.ndarray, int]:
     """Register calibration PSFs to the central one (Eq. 5.2, ``s_i = 1``).
+
+    Shifts come from cross-correlation (Sec. 5.2) of the square roots of the PSFs
+    (which compresses the sensor fall-off, so the faint spots of an off-axis PSF
+    count). With ``positions`` the PSFs are registered outwards from the reference,
+    each against its nearest already registered neighbour (whose fall-off window
+    overlaps its own far more than the central PSF's does), and the shifts add up
+    along the chain; without, each is registered against the reference directly.
 
     Parameters
     ----------
@@ -41,8 +48,10 @@ def register_psfs(psfs: np.ndarray, reference: int | None = None
         Background-free PSFs of one depth (e.g. after
         :func:`recon.analysis.remove_background_dct`).
     reference : int, optional
-        Index of the central PSF; default the PSF with the most energy in the
-        sensor's centre ninth (the one nearest the axis).
+        Index of the central PSF; default the position nearest the axis, or without
+        positions the PSF with the most energy in the sensor's centre ninth.
+    positions : array_like, (N, 2), optional
+        Source positions (any unit), for the neighbour chain.
 
     Returns
     -------
@@ -61,10 +70,25 @@ def register_psfs(psfs: np.ndarray, reference: int | None = None
     h = real32(psfs, "PSF grid", contiguous=True)
     if h.ndim != 3 or h.shape[0] < 1:
         raise ReconInputError(f"PSF grid must be (N, rows, cols), got shape {h.shape}")
+    root = np.sqrt(np.maximum(h, 0.0))
+    pos = None if positions is None else np.asarray(positions, np.float64).reshape(-1, 2)
     if reference is None:
-        r, c = h.shape[1] // 3, h.shape[2] // 3
-        reference = int(np.argmax(h[:, r:2 * r or None, c:2 * c or None].sum(axis=(1, 2))))
-    shifts = np.array([register_shift(h[reference], img) for img in h], np.float64)
+        if pos is not None:
+            reference = int(np.argmin(np.hypot(*pos.T)))
+        else:
+            r, c = h.shape[1] // 3, h.shape[2] // 3
+            reference = int(np.argmax(h[:, r:2 * r or None, c:2 * c or None].sum(axis=(1, 2))))
+    shifts = np.zeros((h.shape[0], 2), np.float64)
+    if pos is None:
+        shifts[:] = [register_shift(root[reference], img) for img in root]
+    else:
+        done = [int(reference)]
+        for i in np.argsort(np.hypot(*(pos - pos[reference]).T), kind="stable"):
+            if i == reference:
+                continue
+            near = done[int(np.argmin(np.hypot(*(pos[done] - pos[i]).T)))]
+            shifts[i] = shifts[near] + register_shift(root[near], root[i])
+            done.append(int(i))
     registered = np.stack([ndimage.shift(img, -s, order=1, mode="constant")
                            for img, s in zip(h, shifts, strict=True)]).astype(np.float32)
     return registered, shifts, int(reference)
@@ -175,8 +199,8 @@ class PsfGrid:
         ----------
         psfs : ndarray, (N, rows, cols)
             Background-free PSFs; registered already when ``registered`` (then
-            ``shifts_px`` is required), else registered here (:func:`register_psfs`)
-            to the PSF of the position nearest the axis.
+            ``shifts_px`` is required), else registered here (:func:`register_psfs`,
+            outwards from the position nearest the axis).
         positions_mm : array_like, (N, 2)
             Source positions ``(x, y)``, mm, on a rectangular raster.
         z_mm, d_mm : float, optional
@@ -209,7 +233,7 @@ class PsfGrid:
                 raise ReconInputError("registered PSFs need their shifts_px")
             shifts = np.asarray(shifts_px, np.float64).reshape(-1, 2)
         else:
-            h, shifts, _ = register_psfs(h, int(np.argmin(np.hypot(*pos.T))))
+            h, shifts, _ = register_psfs(h, positions=pos)
         return cls(h[order], shifts[order], (len(ys), len(xs)), z_mm, d_mm)
 
     @property
