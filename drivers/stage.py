@@ -27,7 +27,7 @@ from typing import Any, ClassVar
 from drivers.base import Device
 from drivers.errors import DeviceError, DeviceValueError, StageLimitError, StageTimeoutError
 
-__all__ = ["AXIS_UNITS", "Stage"]
+__all__ = ["AXIS_UNITS", "HostTableStage", "Stage"]
 
 #: Allowed axis names and their units.
 AXIS_UNITS: dict[str, str] = {
@@ -356,3 +356,36 @@ class Stage(Device):
 
     @abc.abstractmethod
     def _do_stop(self) -> None: ...
+
+
+class HostTableStage(Stage):
+    """A hardware stage whose travel and settings are kept in host-side tables.
+
+    For drivers of real controllers: the subclass fills ``self._travel`` (``{axis:
+    (low, high)}``), ``self._vmax`` and ``self._hw`` (``limits``, ``velocity``,
+    ``backlash``) at open and implements ``_send_velocity(axis, velocity)``, which
+    sends one axis's velocity to the controller (and reads it back). Limits and
+    backlash are applied by this interface (software limits, overshoot moves).
+    """
+
+    _travel: dict[str, tuple[float, float]]
+    _vmax: float
+    _hw: dict[str, Any]
+
+    def _do_get_info(self) -> dict[str, Any]:
+        return {"axes": {a: {"travel": t, "max_velocity": self._vmax}
+                         for a, t in self._travel.items()}}
+
+    def _do_get_settings(self) -> dict[str, Any]:
+        return {k: dict(v) for k, v in self._hw.items()}
+
+    def _do_apply(self, name: str, value: Any) -> Any:
+        if name == "velocity":
+            for axis, v in value.items():
+                if v != self._hw["velocity"].get(axis):
+                    self._send_velocity(axis, v)
+        self._hw[name] = dict(value)
+        return None
+
+    @abc.abstractmethod
+    def _send_velocity(self, axis: str, velocity: float) -> None: ...

@@ -37,7 +37,7 @@ from drivers.errors import (
     DeviceValueError,
     StageMotionError,
 )
-from drivers.stage import AXIS_UNITS, Stage
+from drivers.stage import AXIS_UNITS, HostTableStage
 from drivers.thorlabs_apt_protocol import (
     MOVING_MASK,
     MSG,
@@ -62,7 +62,7 @@ _DEFAULT_MAX_VELOCITY = {"kdc101": 2.6, "kst101": 5.0, "bsc20x": 5.0}
 _T_DC = 2048 / 6e6
 
 
-class ThorlabsAptStage(Stage):
+class ThorlabsAptStage(HostTableStage):
     """Stage on Thorlabs APT controllers (one K-cube per axis, or a BSC20x's bays).
 
     Parameters
@@ -291,21 +291,6 @@ class ThorlabsAptStage(Stage):
     def _do_check_connection(self) -> None:
         for ctrl in self._ctrl.values():
             ctrl.check()
-
-    def _do_get_info(self) -> dict[str, Any]:
-        return {"axes": {a: {"travel": t, "max_velocity": self._vmax}
-                         for a, t in self._travel.items()}}
-
-    def _do_get_settings(self) -> dict[str, Any]:
-        return {k: dict(v) for k, v in self._hw.items()}
-
-    def _do_apply(self, name: str, value: Any) -> Any:
-        if name == "velocity":
-            for axis, v in value.items():
-                if v != self._hw["velocity"].get(axis):
-                    self._send_velocity(axis, v)
-        self._hw[name] = dict(value)
-        return None
 
     # ----------------------------------------------------------- units
     def _velocity_units(self, axis: str, velocity: float, accel: float) -> tuple[int, int]:

@@ -27,7 +27,7 @@ from drivers.errors import (
     DeviceValueError,
     StageMotionError,
 )
-from drivers.stage import AXIS_UNITS, Stage
+from drivers.stage import AXIS_UNITS, HostTableStage
 from drivers.transports import BY_ID_DIR, SerialLink
 
 __all__ = ["FLAG_MEANINGS", "MICROSTEP_SIZE", "ZaberAsciiStage", "lrc"]
@@ -54,7 +54,7 @@ def lrc(text: str) -> str:
     return f"{((total ^ 0xFF) + 1) & 0xFF:02X}"
 
 
-class ZaberAsciiStage(Stage):
+class ZaberAsciiStage(HostTableStage):
     """Zaber devices on one serial port, one stage axis per (device, axis).
 
     Parameters
@@ -222,7 +222,7 @@ class ZaberAsciiStage(Stage):
                             self._vmax)
                 velocity[a] = self._float(f"speed of {a}", v, low=0.0, low_open=True,
                                           high=self._vmax)
-                self._send_speed(a, velocity[a])
+                self._send_velocity(a, velocity[a])
             self._hw = {"limits": dict(travel), "velocity": velocity,
                         "backlash": dict.fromkeys(travel, 0.0)}
             if self.home_on_open:
@@ -243,22 +243,7 @@ class ZaberAsciiStage(Stage):
         if not self._link.is_open:
             self._link.write(b"")  # raises DeviceDisconnectedError
 
-    def _do_get_info(self) -> dict[str, Any]:
-        return {"axes": {a: {"travel": t, "max_velocity": self._vmax}
-                         for a, t in self._travel.items()}}
-
-    def _do_get_settings(self) -> dict[str, Any]:
-        return {k: dict(v) for k, v in self._hw.items()}
-
-    def _do_apply(self, name: str, value: Any) -> Any:
-        if name == "velocity":
-            for a, v in value.items():
-                if v != self._hw["velocity"].get(a):
-                    self._send_speed(a, v)
-        self._hw[name] = dict(value)
-        return None
-
-    def _send_speed(self, axis: str, velocity: float) -> None:
+    def _send_velocity(self, axis: str, velocity: float) -> None:
         data = max(1, round(velocity / self._step[axis] * 1.6384))
         self._axis_cmd(axis, f"set maxspeed {data}")
         back = int(self._axis_cmd(axis, "get maxspeed")[2])
