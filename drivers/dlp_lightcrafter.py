@@ -2,7 +2,9 @@
 
 Transport: hidapi (cython-hidapi, ``pip install hidapi``), USB 0451:6401, 64-byte
 reports written with the report id 0 (:class:`~drivers.transports.HidLink`); the
-kernel's hidraw driver stays bound, no detach. Notes: docs/drivers/dlp-lightcrafter.md.
+kernel's hidraw driver stays bound, no detach. ``transport="pyusb"`` uses pyusb on the
+interrupt endpoints 0x01/0x81 instead (:class:`~drivers.transports.UsbLink`, the
+kernel driver detached). Notes: docs/drivers/dlp-lightcrafter.md.
 
 Message (TI DLPC350 programmer's guide): ``flags`` (bit 7 read, bit 6 reply wanted,
 bit 5 set by the device on NACK), ``sequence`` (echoed), ``length`` (u16 LE: the
@@ -31,7 +33,7 @@ from typing import Any
 
 from drivers.dmd import Dmd, PatternEntry
 from drivers.errors import DeviceProtocolError, DeviceValueError
-from drivers.transports import HidLink
+from drivers.transports import HidLink, UsbLink
 
 __all__ = ["LightCrafter4500", "pattern_lut_entry"]
 
@@ -71,21 +73,27 @@ class LightCrafter4500(Dmd):
         Longest wait for one reply (TI's host waits 2 s).
     validation_timeout_s : float
         Longest wait for the sequence validation to finish.
-    hid_backend : module-like, optional
-        Replaces ``import hid`` (tests pass an emulator's fake hidapi).
+    transport : {"hidapi", "pyusb"}
+        hidapi through the kernel's hidraw driver (default), or pyusb (libusb) on the
+        interrupt endpoints with the kernel driver detached.
+    hid_backend, usb_backend : module-like, optional
+        Replace ``import hid`` / ``import usb`` (tests pass an emulator's fakes).
     """
 
     def __init__(self, device_id: str, *, serial_number: str | None = None,
                  reply_timeout_s: float = 2.0, validation_timeout_s: float = 2.0,
-                 hid_backend: Any = None) -> None:
+                 transport: str = "hidapi", hid_backend: Any = None,
+                 usb_backend: Any = None) -> None:
         super().__init__(device_id)
         self._reply_timeout = self._float("reply_timeout_s", reply_timeout_s, low=0.0,
                                           low_open=True)
         self._validation_timeout = self._float("validation_timeout_s", validation_timeout_s,
                                                low=0.0, low_open=True)
-        self._link = HidLink(device_id, vendor_id=VENDOR_ID, product_id=PRODUCT_ID,
-                             serial_number=serial_number, interface=0,
-                             timeout_error=self.timeout_error, hid_module=hid_backend)
+        transport = self._choice("transport", transport, ("hidapi", "pyusb"))
+        ids = {"vendor_id": VENDOR_ID, "product_id": PRODUCT_ID, "serial_number": serial_number,
+               "interface": 0, "timeout_error": self.timeout_error}
+        self._link = (HidLink(device_id, hid_module=hid_backend, **ids) if transport == "hidapi"
+                      else UsbLink(device_id, usb_module=usb_backend, **ids))
         self._seq = 0
         self._hw: dict[str, Any] = {}
         self.version: bytes = b""

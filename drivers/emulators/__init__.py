@@ -11,12 +11,12 @@ dropped replies, errors, stalls, limit switches and unplug / re-plug.
 from drivers.emulators._motion import Motion
 from drivers.emulators._pty import PtyEmulator
 from drivers.emulators.arduino_led import ArduinoLedEmulator
-from drivers.emulators.dlpc350 import Dlpc350Emulator, FakeHid
+from drivers.emulators.dlpc350 import Dlpc350Emulator, FakeHid, FakeUsb
 from drivers.emulators.illuminate import IlluminateEmulator
 from drivers.emulators.thorlabs_apt import AptEmulator
 from drivers.emulators.zaber import ZaberEmulator
 
 __all__ = [
-    "AptEmulator", "ArduinoLedEmulator", "Dlpc350Emulator", "FakeHid", "IlluminateEmulator",
-    "Motion", "PtyEmulator", "ZaberEmulator",
+    "AptEmulator", "ArduinoLedEmulator", "Dlpc350Emulator", "FakeHid", "FakeUsb",
+    "IlluminateEmulator", "Motion", "PtyEmulator", "ZaberEmulator",
 ]

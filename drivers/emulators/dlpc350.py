@@ -8,6 +8,10 @@ section 3b, and its emulator spec (a fake transport, not a pty):
   ``close``); ``write`` takes 65 bytes (report id 0 + 64) or 64; ``read(size,
   timeout_ms)`` returns a list of ints, empty on timeout, and raises ``OSError`` after
   an unplug, like hidapi;
+- :class:`FakeUsb` has the surface of pyusb (``core.find``, ``core.USBError``,
+  ``core.USBTimeoutError``, ``util.claim_interface`` ...) for the same controller on
+  its interrupt endpoints 0x01 / 0x81 (``USBError`` with errno 19 after an unplug,
+  ``USBTimeoutError`` on timeout, the kernel driver attached until detached);
 - a message is ``flags, sequence, length (u16 LE), CMD3, CMD2, payload``, continued
   in further 64-byte reports when longer (reassembled by the length field); a reply
   comes only when the flags ask for one (bit 6) or for a read (bit 7): ``flags | 0x20``
@@ -27,7 +31,7 @@ import threading
 import time
 from collections import deque
 
-__all__ = ["Dlpc350Emulator", "FakeHid"]
+__all__ = ["Dlpc350Emulator", "FakeHid", "FakeUsb"]
 
 VID, PID = 0x0451, 0x6401
 #: Payload length of each command the emulator knows, by command word (CMD2 << 8 | CMD3).
@@ -312,3 +316,96 @@ class _FakeDevice:
 
     def close(self) -> None:
         self.opened = False
+
+
+class _UsbError(OSError):
+    def __init__(self, strerror, error_code=None, errno=None):
+        super().__init__(errno, strerror)
+        self.backend_error_code = error_code
+
+
+class _UsbTimeoutError(_UsbError):
+    pass
+
+
+class FakeUsb:
+    """A stand-in for the ``usb`` package (pyusb) serving one :class:`Dlpc350Emulator`."""
+
+    def __init__(self, emulator: Dlpc350Emulator | None = None) -> None:
+        self.emulator = emulator or Dlpc350Emulator()
+        self.kernel_driver = True
+        fake = self
+
+        class core:  # noqa: N801 (module-like namespace)
+            USBError = _UsbError
+            USBTimeoutError = _UsbTimeoutError
+
+            @staticmethod
+            def find(idVendor=None, idProduct=None, custom_match=None, **kw):  # noqa: N803
+                if not fake.emulator.plugged or (idVendor, idProduct) != (VID, PID):
+                    return None
+                dev = _FakeUsbDevice(fake)
+                return dev if custom_match is None or custom_match(dev) else None
+
+        class util:  # noqa: N801
+            @staticmethod
+            def get_string(dev, index, langid=None):
+                return fake.emulator.serial_number if index == dev.iSerialNumber else ""
+
+            @staticmethod
+            def claim_interface(dev, interface):
+                if fake.kernel_driver:
+                    raise _UsbError("Resource busy", errno=16)
+                dev.claimed = True
+
+            @staticmethod
+            def release_interface(dev, interface):
+                dev.claimed = False
+
+            @staticmethod
+            def dispose_resources(dev):
+                dev.claimed = False
+
+        self.core, self.util = core, util
+
+
+class _FakeUsbDevice:
+    iSerialNumber = 3
+
+    def __init__(self, fake: FakeUsb) -> None:
+        self.fake = fake
+        self.emu = fake.emulator
+        self.claimed = False
+
+    def is_kernel_driver_active(self, interface: int) -> bool:
+        return self.fake.kernel_driver
+
+    def detach_kernel_driver(self, interface: int) -> None:
+        self.fake.kernel_driver = False
+
+    def attach_kernel_driver(self, interface: int) -> None:
+        self.fake.kernel_driver = True
+
+    def set_configuration(self) -> None:
+        if not self.emu.plugged:
+            raise _UsbError("No such device (it may have been disconnected)", errno=19)
+
+    def write(self, endpoint: int, data, timeout: int) -> int:
+        with self.emu.lock:
+            if not (self.claimed and self.emu.plugged) or endpoint != 0x01:
+                raise _UsbError("No such device (it may have been disconnected)", errno=19)
+            self.emu.feed(bytes(data)[:64])
+        return len(data)
+
+    def read(self, endpoint: int, size: int, timeout: int) -> bytes:
+        deadline = time.monotonic() + timeout / 1000
+        with self.emu.cond:
+            while True:
+                if not (self.claimed and self.emu.plugged) or endpoint != 0x81:
+                    raise _UsbError("No such device (it may have been disconnected)", errno=19)
+                if self.emu.replies:
+                    return self.emu.replies.popleft()[:size]
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise _UsbTimeoutError("Operation timed out", errno=110)
+                self.emu.cond.wait(left)

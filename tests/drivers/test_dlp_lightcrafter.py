@@ -16,7 +16,7 @@ from drivers.errors import (
     MissingDependencyError,
 )
 from tests.drivers.conformance import DmdConformance
-from tests.mocks import Dlpc350Emulator, FakeHid
+from tests.mocks import Dlpc350Emulator, FakeHid, FakeUsb
 
 
 @pytest.fixture
@@ -149,3 +149,34 @@ def test_exposure_rounds_to_microseconds(hid):
         assert dmd.exposure_s == 0.001234 or dmd.exposure_s == 0.001235
         assert struct.unpack("<II", dmd.command(0x1A29, read=True)[:8])[0] == round(
             dmd.exposure_s * 1e6)
+
+
+class TestLightCrafterOverPyusb(DmdConformance):
+    @pytest.fixture
+    def device(self):
+        usb = FakeUsb(Dlpc350Emulator(validation_polls=1))
+        self.emu = usb.emulator
+        self.usb = usb
+        with LightCrafter4500("dmd", transport="pyusb", usb_backend=usb,
+                              reply_timeout_s=0.3) as dmd:
+            assert not usb.kernel_driver  # detached to claim the interface
+            yield dmd
+        assert usb.kernel_driver  # re-attached on close
+
+    def provoke_timeout(self, device):
+        self.emu.drop_replies(1)
+
+
+def test_pyusb_unplug_and_serial_selection():
+    usb = FakeUsb(Dlpc350Emulator(serial_number="LC-7"))
+    with pytest.raises(DeviceDisconnectedError, match="with serial LC-8"):
+        LightCrafter4500("dmd", transport="pyusb", usb_backend=usb, serial_number="LC-8").open()
+    with LightCrafter4500("dmd", transport="pyusb", usb_backend=usb, serial_number="LC-7",
+                          reply_timeout_s=0.3) as dmd:
+        dmd.led_currents = {"green": 1.0}
+        usb.emulator.unplug()
+        with pytest.raises(DeviceDisconnectedError, match="USB I/O failed"):
+            dmd.status()
+        usb.emulator.replug()
+        dmd.reconnect()
+        assert usb.emulator.led_currents[1] == 255
