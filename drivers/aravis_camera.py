@@ -43,7 +43,7 @@ from drivers.errors import (
     DeviceValueError,
     MissingDependencyError,
 )
-from drivers.grab_thread import GrabThread
+from drivers.grab_thread import GrabThread, report_stream_error
 
 __all__ = ["AravisCamera"]
 
@@ -566,7 +566,8 @@ class AravisCamera(Camera):
         self._call(self._cam.set_acquisition_mode, self._arv.AcquisitionMode.CONTINUOUS)
         self._call(self._cam.start_acquisition, what="starting the acquisition")
         self._grab = GrabThread(lambda stop: self._grab_loop(stream, ring, stop),
-                                f"{self.device_id}-aravis", 5.0).start()
+                                f"{self.device_id}-aravis", 5.0,
+                                lambda exc: report_stream_error(self, ring, exc)).start()
 
     def _stop_grab(self) -> None:
         grab, self._grab = self._grab, None
@@ -613,14 +614,9 @@ class AravisCamera(Camera):
                     ring.mark_dropped()
                 else:
                     ring.put(frame)
-        except DeviceDisconnectedError as exc:
-            self._lost.set()
-            self._disconnected = True
-            self._log.error("%s: stream ended: %s", self.device_id, exc)
-            ring.fail(exc)
-        except Exception as exc:  # noqa: BLE001 -- handed to the reader, not lost
-            self._log.error("%s: grab thread failed: %s", self.device_id, exc)
-            ring.fail(exc)
+        except DeviceDisconnectedError:
+            self._lost.set()  # later calls fail fast instead of timing out on the link
+            raise
 
     def _do_status(self) -> dict[str, Any]:
         out = {**super()._do_status(), **self._stats, "next_index": self._index}

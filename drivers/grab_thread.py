@@ -4,8 +4,32 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from typing import Any
 
-__all__ = ["GrabThread"]
+from drivers.errors import DeviceDisconnectedError
+
+__all__ = ["GrabThread", "report_stream_error"]
+
+
+def report_stream_error(device: Any, ring: Any, exc: BaseException) -> None:
+    """End a stream on an error: a lost camera marks ``device`` disconnected; the error
+    is logged and handed to the reader through ``ring.fail`` (never lost).
+
+    Parameters
+    ----------
+    device : drivers.camera.Camera
+        The streaming camera.
+    ring : drivers.camera.FrameRing
+        Its ring; the next ``get`` after the buffered frames raises ``exc``.
+    exc : BaseException
+        What ended the stream.
+    """
+    if isinstance(exc, DeviceDisconnectedError):
+        device._disconnected = True
+        device._log.error("%s: stream ended: %s", device.device_id, exc)
+    else:
+        device._log.error("%s: grab thread failed: %s", device.device_id, exc)
+    ring.fail(exc)
 
 
 class GrabThread:
@@ -20,14 +44,22 @@ class GrabThread:
         Thread name (shown in logs and debuggers).
     join_timeout_s : float
         Longest wait for the thread to end in :meth:`stop`, in seconds.
+    on_error : callable
+        Called with any exception ``target`` raises (the thread then ends).
     """
 
     def __init__(self, target: Callable[[threading.Event], None], name: str,
-                 join_timeout_s: float) -> None:
+                 join_timeout_s: float, on_error: Callable[[BaseException], None]) -> None:
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=target, args=(self._stop,), daemon=True,
-                                        name=name)
+        self._target, self._on_error = target, on_error
+        self._thread = threading.Thread(target=self._run, daemon=True, name=name)
         self._join_timeout_s = join_timeout_s
+
+    def _run(self) -> None:
+        try:
+            self._target(self._stop)
+        except Exception as exc:  # noqa: BLE001 -- handed to on_error, not lost
+            self._on_error(exc)
 
     def start(self) -> GrabThread:
         """Start the thread; returns self."""

@@ -42,7 +42,7 @@ import numpy as np
 from drivers.camera import Camera, Frame, FrameRing
 from drivers.camera_image import frame_image
 from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceValueError
-from drivers.grab_thread import GrabThread
+from drivers.grab_thread import GrabThread, report_stream_error
 
 __all__ = ["BY_ID_DIR", "V4l2Camera"]
 
@@ -425,7 +425,8 @@ class V4l2Camera(Camera):
     def _do_start_stream(self, ring: FrameRing) -> None:
         self._trigger_times = []
         self._grab = GrabThread(lambda stop: self._grab_loop(ring, stop),
-                                f"{self.device_id}-v4l2", self._read_timeout + 2.0).start()
+                                f"{self.device_id}-v4l2", self._read_timeout + 2.0,
+                                lambda exc: report_stream_error(self, ring, exc)).start()
 
     def _stop_grab(self) -> None:
         grab, self._grab = self._grab, None
@@ -470,36 +471,28 @@ class V4l2Camera(Camera):
                     dropped(missed)
             last = stamp
 
-        try:
-            while not stop.is_set():
-                software = self._hw["trigger_mode"] == "software"
+        while not stop.is_set():
+            software = self._hw["trigger_mode"] == "software"
+            with self._lock:
+                since = self._trigger_times[0] if software and self._trigger_times \
+                    else None
+            if software and since is None:
+                stop.wait(0.002)
+                continue
+            try:
+                frame = self._fresh_frame(
+                    time.monotonic() + self._read_timeout, since or started,
+                    None if software else stale, None if software else gap)
+            except DeviceDisconnectedError:
+                raise
+            except DeviceError:  # a read timeout: keep waiting until stopped
+                continue
+            if stop.is_set():
+                return
+            if software:
                 with self._lock:
-                    since = self._trigger_times[0] if software and self._trigger_times \
-                        else None
-                if software and since is None:
-                    stop.wait(0.002)
-                    continue
-                try:
-                    frame = self._fresh_frame(
-                        time.monotonic() + self._read_timeout, since or started,
-                        None if software else stale, None if software else gap)
-                except DeviceDisconnectedError:
-                    raise
-                except DeviceError:  # a read timeout: keep waiting until stopped
-                    continue
-                if stop.is_set():
-                    return
-                if software:
-                    with self._lock:
-                        self._trigger_times.pop(0)
-                ring.put(frame)
-        except DeviceDisconnectedError as exc:
-            self._disconnected = True
-            self._log.error("%s: stream ended: %s", self.device_id, exc)
-            ring.fail(exc)
-        except Exception as exc:  # noqa: BLE001 -- handed to the reader, not lost
-            self._log.error("%s: grab thread failed: %s", self.device_id, exc)
-            ring.fail(exc)
+                    self._trigger_times.pop(0)
+            ring.put(frame)
 
     def _do_resulting_frame_rate_hz(self) -> float:
         return min(self._hw["frame_rate_hz"], 1.0 / self._hw["exposure_s"])
