@@ -106,7 +106,8 @@ class DeviceConfig(Section):
     """One device: id, kind, driver (registry name) and driver parameters."""
 
     id: str = Field(description="unique device id: a-z, 0-9, _ and -")
-    kind: Literal["camera", "stage", "led_array", "slm"] = Field(description="device kind")
+    kind: Literal["camera", "stage", "led_array", "slm", "dmd"] = Field(
+        description="device kind")
     driver: str = Field(description="driver name in the registry (diffuserlab.drivers)")
     params: dict[str, Any] = Field(
         default_factory=dict, validate_default=True, description="driver parameters"

@@ -162,12 +162,12 @@ def test_with_simulated_drivers_translates_shared_params():
 
 
 def test_unknown_driver():
-    text = edit('driver = "simulated-slm"', 'driver = "fullscreen-slm"')
+    text = edit('driver = "simulated-slm"', 'driver = "acme-slm"')
     p = only(text, "devices[3].driver")
-    assert "unknown driver 'fullscreen-slm' of device 'slm'" in p.message
+    assert "unknown driver 'acme-slm' of device 'slm'" in p.message
     assert "simulated-slm" in p.fix and "--simulate" in p.fix
-    assert p.line == line_of(text, "fullscreen-slm")
-    assert parse_bench(text, check_drivers=False).devices[3].driver == "fullscreen-slm"
+    assert p.line == line_of(text, "acme-slm")
+    assert parse_bench(text, check_drivers=False).devices[3].driver == "acme-slm"
     assert parse_bench(text, simulate=True).devices[3].driver == "simulated-slm"
 
 
@@ -315,7 +315,7 @@ def test_unknown_keys_suggest_the_spelling():
 
 def test_bad_kind_id_axes_and_diffuser():
     p = only(edit('kind = "led_array"', 'kind = "lamp"'), "devices[2].kind")
-    assert "expected 'camera', 'stage', 'led_array' or 'slm', got 'lamp'" in p.message
+    assert "expected 'camera', 'stage', 'led_array', 'slm' or 'dmd', got 'lamp'" in p.message
 
     p = only(edit('id = "slm"', 'id = "My SLM"'), "devices[3].id")
     assert "invalid device id 'My SLM'" in p.message and p.fix == 'write id = "my_slm"'
@@ -488,7 +488,7 @@ def test_hostile_values_are_bench_config_errors(value, message):
 def test_simulate_with_a_kind_that_is_not_a_string():
     p = only(edit('kind = "slm"', 'kind = ["slm"]'), "devices[3].kind",
              construct=True, simulate=True)  # was a TypeError (unhashable list)
-    assert "expected 'camera', 'stage', 'led_array' or 'slm'" in p.message
+    assert "expected 'camera', 'stage', 'led_array', 'slm' or 'dmd'" in p.message
 
 
 def test_unreadable_files(tmp_path):

@@ -188,9 +188,9 @@ def test_entry_point_problems_are_reported(monkeypatch):
 
 def test_unknown_driver_lists_the_available_ones(fakes):
     with pytest.raises(UnknownDriverError) as info:
-        resolve("aravis")
+        resolve("acme-camera")
     msg = str(info.value)
-    assert "unknown driver 'aravis'" in msg
+    assert "unknown driver 'acme-camera'" in msg
     assert "fake-camera" in msg and "simulated-stage" in msg
     assert isinstance(info.value, LookupError)
 
