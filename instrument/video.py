@@ -38,7 +38,7 @@ VIDEO_PLAN = "video"
 #: Frames per shard file of a video run (64 frames of 1200 x 1600 uint16: 245 MB).
 DEFAULT_SHARD_FRAMES = 16
 #: Lossless frame compressor of a video run (see ``diffuserlab benchmark recording``).
-DEFAULT_COMPRESSOR = "none"
+DEFAULT_COMPRESSOR = "blosc-lz4"
 
 
 def video_frame_count(*, frames: int | None, seconds: float | None, rate_hz: float) -> int:
@@ -166,7 +166,8 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
         Replace an earlier run store at ``out``.
     note : str
     frame_timeout_s : float, optional
-        Longest wait for one frame, s (default: 5 frame periods plus 1 s).
+        Longest wait for one frame, s (default: 10 frame periods plus 5 s, so a busy
+        machine's hiccup is not taken for a dead camera).
     **attrs
         Extra run attributes.
 
@@ -199,7 +200,7 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     rec = Recorder(store, queue_frames=queue_frames)
     ring = FrameRing(ring_frames)
     stop = stop or threading.Event()
-    timeout_s = frame_timeout_s if frame_timeout_s is not None else 5.0 / rate + 1.0
+    timeout_s = frame_timeout_s if frame_timeout_s is not None else 10.0 / rate + 5.0
     t0 = time.monotonic()
     last = [t0]
 

@@ -140,11 +140,16 @@ def main(argv: list[str] | None = None) -> int:
         :class:`instrument.cli.common.MissingBenchFile` and the errors the command
         lists in ``input_errors``; 2 and one line per problem on
         :class:`instrument.config.BenchConfigError`; 3 when a solver diverged
-        (:class:`recon.errors.DivergenceError`); 2 (one line) on the ordinary OS
+        (:class:`recon.errors.DivergenceError`); 2 (one line) on a refused device
+        setting or a missing driver library (:class:`drivers.errors.DeviceValueError`,
+        :class:`~drivers.errors.MissingDependencyError`) and 1 (one line) on any other
+        device error (a timeout, a disconnect: the bench failed, not the input); 2 (one
+        line) on the ordinary OS
         errors (permission denied, no such file, is / is not a directory, file exists,
         no space left, read-only file system); 1 and one line saying it is a bug on any
         other exception, whose traceback ``--debug`` shows instead.
     """
+    from drivers.errors import DeviceError, DeviceValueError, MissingDependencyError
     from recon.errors import DivergenceError, ReconInputError
 
     from ..config import BenchConfigError
@@ -176,6 +181,11 @@ def main(argv: list[str] | None = None) -> int:
     except input_errors as exc:
         print(f"diffuserlab: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except DeviceError as exc:  # a refused value or a missing library is the input's
+        bad_input = isinstance(exc, DeviceValueError | MissingDependencyError)
+        print(f"diffuserlab: {'error' if bad_input else 'device error'}: {_one_line(exc)}",
+              file=sys.stderr)
+        return 2 if bad_input else 1
     except Exception as exc:
         if args.debug:
             raise

@@ -1,10 +1,12 @@
-"""``diffuserlab benchmark {recon,live}``.
+"""``diffuserlab benchmark {recon,live,recording,batch}``.
 
 ``recon`` runs :func:`recon.benchmarks.run.run_benchmarks` (speed vs the FFT floor,
 accuracy, stability, compressed sensing; 3D speed, memory and accuracy), prints each
 benchmark's table as it finishes and the summary at the end. ``live`` runs
 :func:`instrument.live.run_live_benchmark` (live reconstruction on the real-time
 simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
+``recording`` and ``batch`` run :mod:`instrument.acquisition_benchmarks` (video
+recording at full size per compressor; recon-run's dask batch against a loop).
 """
 
 from __future__ import annotations
@@ -12,7 +14,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["add_subcommands", "run_live_benchmark", "run_recon_benchmarks"]
+__all__ = ["add_subcommands", "run_batch_benchmark", "run_live_benchmark",
+           "run_recon_benchmarks", "run_recording_benchmark"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -50,6 +53,38 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     lp.add_argument("--json", type=Path, default=None, help="also write the figures here")
     lp.add_argument("--overwrite", action="store_true", help="replace an existing --json")
     lp.set_defaults(handler=run_live_benchmark)
+    vp = bsub.add_parser("recording", help="record the real-time simulated camera at full "
+                         "size (1200x1600 uint16, 20 fps) per compressor: frames lost, MB/s, "
+                         "CPU, files per 1000 frames",
+                         description="Record the real-time simulated camera into sharded "
+                         "run stores, once per lossless compressor, for --seconds each "
+                         "(2 minutes by default; --long: 10 minutes, the default compressor "
+                         "only).")
+    vp.add_argument("--seconds", type=float, default=120.0,
+                    help="length of each recording, s (default 120)")
+    vp.add_argument("--long", action="store_true",
+                    help="one 10-minute recording with the default compressor")
+    vp.add_argument("--fps", type=float, default=20.0, help="camera frame rate (default 20)")
+    vp.add_argument("--compressors", default="none,blosc-lz4",
+                    help="comma-separated compressors to compare (default none,blosc-lz4)")
+    vp.add_argument("--dir", type=Path, default=None,
+                    help="where to write the runs (default a temporary directory, removed "
+                    "after; the disk's speed is part of the figure)")
+    vp.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    vp.add_argument("--overwrite", action="store_true", help="replace an existing --json")
+    vp.set_defaults(handler=run_recording_benchmark)
+    ap = bsub.add_parser("batch", help="batch ADMM over a recorded run with 1 and 2 dask "
+                         "workers against a single-process loop, with a chart",
+                         description="Frames per second of recon-run's dask batch (ADMM, "
+                         "300x400) with 1 and 2 local workers, as a ratio to a single-process "
+                         "loop over the same frames, and a chart.")
+    ap.add_argument("--frames", type=int, default=16, help="frames of the run (default 16)")
+    ap.add_argument("--iterations", type=int, default=100,
+                    help="ADMM iterations per frame (default 100)")
+    ap.add_argument("--out", type=Path, default=Path("out/benchmark-batch"),
+                    help="directory for batch.png and batch.json (default out/benchmark-batch)")
+    ap.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
+    ap.set_defaults(handler=run_batch_benchmark)
 
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:
@@ -96,4 +131,58 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
         figures = {k: v for k, v in result.items() if k != "text"}
         write_json(args.json, jsonable(figures, nonfinite_to_none=True))
         print(f"figures in {args.json}")
+    return 0
+
+
+def run_recording_benchmark(args: argparse.Namespace) -> int:
+    """Run ``benchmark recording``; returns 0 (bad input exits 2 through the boundary)."""
+    from drivers.base import jsonable
+    from recon.errors import ReconInputError
+
+    from ..acquisition_benchmarks import recording_table
+    from ..acquisition_benchmarks import run_recording_benchmark as run
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import write_json
+    from ..runstore import FRAME_COMPRESSORS
+    from ..video import DEFAULT_COMPRESSOR
+
+    seconds = 600.0 if args.long else args.seconds
+    comps = (DEFAULT_COMPRESSOR,) if args.long else tuple(
+        c.strip() for c in args.compressors.split(",") if c.strip())
+    bad = [c for c in comps if c not in FRAME_COMPRESSORS]
+    if bad or not comps:
+        raise ReconInputError(f"--compressors {args.compressors}: use names from "
+                              f"{list(FRAME_COMPRESSORS)}")
+    if not (0 < seconds <= 3600 and 0 < args.fps):
+        raise ReconInputError(f"--seconds {seconds}, --fps {args.fps}: give 0 < seconds <= "
+                              "3600 and fps > 0")
+    if args.json is not None:
+        check_outputs([args.json], None, args.overwrite, option="--json")
+    result = run(seconds, args.fps, compressors=comps, directory=args.dir)
+    print(recording_table(result))
+    if args.json is not None:
+        write_json(args.json, jsonable(result, nonfinite_to_none=True))
+        print(f"figures in {args.json}")
+    return 0
+
+
+def run_batch_benchmark(args: argparse.Namespace) -> int:
+    """Run ``benchmark batch``; returns 0 (bad input exits 2 through the boundary)."""
+    from drivers.base import jsonable
+    from recon.errors import ReconInputError
+
+    from ..acquisition_benchmarks import batch_table
+    from ..acquisition_benchmarks import run_batch_benchmark as run
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import write_json
+
+    if args.frames < 2 or args.iterations < 1:
+        raise ReconInputError(f"--frames {args.frames}, --iterations {args.iterations}: give "
+                              "frames >= 2 and iterations >= 1")
+    files = [args.out / "batch.png", args.out / "batch.json"]
+    check_outputs(files, None, args.overwrite, directory=args.out)
+    result = run(args.frames, args.iterations, chart=files[0])
+    write_json(files[1], jsonable(result, nonfinite_to_none=True))
+    print(batch_table(result))
+    print(f"chart and figures in {args.out}")
     return 0

@@ -305,12 +305,13 @@ def _video_line(p: dict) -> str:
 
 def run_video(args: argparse.Namespace) -> int:
     """Run ``capture video``; returns the exit status (the parser's description)."""
+    from drivers.errors import DeviceError, DeviceValueError
     from recon.errors import ReconInputError
     from recon.io import save_image, scene_view
 
     from ..output_safety import check_outputs
     from ..recorder import index_ranges
-    from ..runstore import FRAME_COMPRESSORS
+    from ..runstore import FRAME_COMPRESSORS, RunStore, is_run_store
     from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, record_video
 
     if args.method is not None:
@@ -349,13 +350,23 @@ def run_video(args: argparse.Namespace) -> int:
         print(f"recording {cam.device_id} ({cam.image_shape[0]}x{cam.image_shape[1]} "
               f"{cam.dtype}) to {args.out}"
               f"{'' if label is None else f'; live {label}'}; Ctrl-C stops", flush=True)
-        summary = record_video(
-            bench, args.out, frames=args.frames, seconds=args.seconds, fps=args.fps,
-            exposure_s=args.exposure_s,
-            shard_frames=args.shard_frames or DEFAULT_SHARD_FRAMES,
-            compressor=args.compressor or DEFAULT_COMPRESSOR, queue_frames=args.queue_frames,
-            on_progress=lambda p: print(_video_line(p), flush=True), live=live,
-            overwrite=args.overwrite, note=args.note, **extra)
+        try:
+            summary = record_video(
+                bench, args.out, frames=args.frames, seconds=args.seconds, fps=args.fps,
+                exposure_s=args.exposure_s,
+                shard_frames=args.shard_frames or DEFAULT_SHARD_FRAMES,
+                compressor=args.compressor or DEFAULT_COMPRESSOR,
+                queue_frames=args.queue_frames,
+                on_progress=lambda p: print(_video_line(p), flush=True), live=live,
+                overwrite=args.overwrite, note=args.note, **extra)
+        except DeviceError as exc:
+            if isinstance(exc, DeviceValueError):  # a refused setting: nothing recorded
+                raise
+            kept = RunStore.open(args.out).done().sum() if is_run_store(args.out) else 0
+            print(f"diffuserlab: device error: {' '.join(str(exc).split())} (the {kept} "
+                  f"frames recorded before are kept in {args.out}, status failed)",
+                  file=sys.stderr)
+            return 1
         if live is not None and args.preview_png and live.latest() is not None:
             save_image(args.preview_png, scene_view(live.latest().image))
             print(f"latest reconstruction (frame {live.latest().frame_index}): "

@@ -153,3 +153,19 @@ def test_capture_video_refuses_bad_options_in_one_line(tmp_path, capsys, argv, w
     err = capsys.readouterr().err.strip()
     assert err.startswith("diffuserlab: error:") and "\n" not in err and words in err
     assert not out.exists()
+
+
+def test_camera_lost_mid_recording_keeps_the_frames_and_says_so(bench, tmp_path):
+    from drivers.errors import DeviceDisconnectedError
+
+    def progress(p):
+        if p["recorded"] >= 8:
+            bench.camera.faults.disconnect()
+
+    with pytest.raises(DeviceDisconnectedError):
+        record_video(bench, tmp_path / "v.zarr", frames=200, fps=20.0, shard_frames=4,
+                     on_progress=progress, progress_every_s=0.0)
+    store = RunStore.open(tmp_path / "v.zarr")
+    assert store.status == "failed" and "DeviceDisconnectedError" in store.attrs["error"]
+    assert store.done().sum() >= 8 and store.verify() == []
+    assert store.lock_owner() is None
