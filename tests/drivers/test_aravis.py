@@ -18,7 +18,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.aravis_camera import AravisCamera, _frames_between, _import_aravis
+from drivers.aravis_camera import AravisCamera, _frames_between, _import_aravis, gvcp_answers
 from drivers.camera import FrameRing
 from drivers.camera_image import aligned_region, frame_image
 from drivers.errors import (
@@ -309,7 +309,7 @@ def test_unplug_mid_stream_is_a_clear_error_then_reconnect_restores(gige, gv_pro
         while True:
             ring.get(timeout_s=10.0)
     elapsed = time.monotonic() - t0
-    assert elapsed < 8.0, elapsed
+    assert elapsed < 4.0, elapsed  # measured 1.6 s: 1 s without frames + a 0.6 s probe
     with pytest.raises(DeviceDisconnectedError):
         gige.settings()
     gige.stop_stream()
@@ -351,6 +351,16 @@ def test_lost_packets_make_dropped_frames_never_delivered(gv_process):
                 np.testing.assert_array_equal(a, (a[0, 0] + xs + ys) % 255)
     finally:
         gv_process.start()
+
+
+def test_gvcp_probe_tells_a_live_camera_from_a_dead_one(gv_process):
+    gv_process.ensure()
+    assert gvcp_answers(GV_ADDRESS)
+    gv_process.stop()
+    t0 = time.monotonic()
+    assert not gvcp_answers(GV_ADDRESS, tries=2, wait_s=0.1)
+    assert time.monotonic() - t0 < 1.0
+    gv_process.start()
 
 
 # --------------------------------------------------------------------- host-side helpers
