@@ -218,7 +218,8 @@ def accuracy_table(result: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_accuracy(result: dict, path: Path, volume: dict | None = None) -> Path:
+def plot_accuracy(result: dict, path: Path, volume: dict | None = None,
+                  spatial: dict | None = None) -> Path:
     """PSNR against cumulative seconds, one panel per scene, one line per method.
 
     Parameters
@@ -231,6 +232,10 @@ def plot_accuracy(result: dict, path: Path, volume: dict | None = None) -> Path:
         A :func:`recon.benchmarks.volume_accuracy.run_volume_accuracy` result: adds a
         last panel with the 3D methods (tilted-target volume PSNR against seconds,
         :func:`recon.benchmarks.volume_plots.plot_volume_panel`).
+    spatial : dict, optional
+        A :func:`recon.benchmarks.spatial.run_spatial_accuracy` result: adds a panel
+        with the spatially varying models on the virtual microscope
+        (:func:`recon.benchmarks.spatial.plot_spatial_panel`).
 
     Returns
     -------
@@ -239,13 +244,17 @@ def plot_accuracy(result: dict, path: Path, volume: dict | None = None) -> Path:
     from matplotlib.figure import Figure
 
     scenes = list(result["curves"])
-    panels = len(scenes) + (volume is not None)
+    panels = len(scenes) + (volume is not None) + (spatial is not None)
     fig = Figure(figsize=(4.2 * panels, 3.6))
     axes = fig.subplots(1, panels, squeeze=False)[0]
     if volume is not None:
         from .volume_plots import plot_volume_panel
 
-        plot_volume_panel(axes[-1], volume)
+        plot_volume_panel(axes[len(scenes)], volume)
+    if spatial is not None:
+        from .spatial import plot_spatial_panel
+
+        plot_spatial_panel(axes[-1], spatial)
     for ax, name in zip(axes, scenes, strict=False):
         for m, pts in result["curves"][name].items():
             pts = [p for p in pts if p["psnr"] is not None]

@@ -6,12 +6,15 @@ prints every benchmark's table (:func:`format_result`) and the summary. It write
 ``stability.json`` + ``stability.png``, ``erasure.json`` + ``erasure.png``, the 3D
 benchmarks' ``volume_speed.json`` (:mod:`recon.benchmarks.volume`) and
 ``volume_accuracy.json`` + ``volume_accuracy.png``
-(:mod:`recon.benchmarks.volume_accuracy`), and ``summary.json`` under ``out`` and
+(:mod:`recon.benchmarks.volume_accuracy`), the spatially varying models'
+``spatial_speed.json`` and ``spatial_accuracy.json`` + ``spatial_psnr_vs_seconds.png``
+(:mod:`recon.benchmarks.spatial`), and ``summary.json`` under ``out`` and
 returns a compact summary. The weights chosen by the accuracy sweep are used by the
 stability and erasure benchmarks when they run in the same invocation; otherwise
 :data:`recon.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run
-together, the speed-vs-accuracy chart ``accuracy_psnr_vs_seconds.png`` gets a last
-panel with the 3D methods (tilted-target volume PSNR against seconds).
+together, the speed-vs-accuracy chart ``accuracy_psnr_vs_seconds.png`` gets a
+panel with the 3D methods (tilted-target volume PSNR against seconds), and one with
+the spatially varying models when ``spatial_accuracy`` ran.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ log = logging.getLogger(__name__)
 
 #: The benchmarks, in the order they run.
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
-              "volume_accuracy")
+              "volume_accuracy", "spatial_speed", "spatial_accuracy")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
@@ -39,7 +42,9 @@ _TABLES = {"speed": ("speed", "speed_table"), "accuracy": ("accuracy", "accuracy
            "stability": ("stability", "stability_table"),
            "erasure": ("erasure", "erasure_table"),
            "volume_speed": ("volume", "volume_speed_table"),
-           "volume_accuracy": ("volume_accuracy", "volume_accuracy_table")}
+           "volume_accuracy": ("volume_accuracy", "volume_accuracy_table"),
+           "spatial_speed": ("spatial", "spatial_speed_table"),
+           "spatial_accuracy": ("spatial", "spatial_accuracy_table")}
 
 
 def format_result(name: str, result: dict) -> str:
@@ -102,6 +107,10 @@ def summarise(results: dict) -> tuple[dict, str]:
         lines.append("erasure 80% simulated (PSNR vs truth): " + ", ".join(
             f"{k} {fmt(v['psnr'])}" for k, v in e["simulated"]["vs_truth"].items()))
     _summarise_volume(results, summary, lines)
+    for name in ("spatial_speed", "spatial_accuracy"):
+        if name in results:
+            summary[name] = results[name]
+            lines.append(format_result(name, results[name]))
     return summary, "\n".join(lines)
 
 
@@ -210,15 +219,21 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
             results[name] = run_erasure(quick, out, weights)
         elif name == "volume_speed":
             results[name] = run_volume_speed(quick, out)
+        elif name.startswith("spatial_"):
+            from . import spatial
+
+            results[name] = getattr(spatial, f"run_{name}")(quick, out)
         else:
             results[name] = run_volume_accuracy(quick, out)
         timings[name] = time.perf_counter() - t0
         log.debug("(%s: %.1f s)", name, timings[name])
         if on_result is not None:
             on_result(name, results[name], timings[name])
-    if "accuracy" in results and "volume_accuracy" in results:
+    if "accuracy" in results and ("volume_accuracy" in results
+                                  or "spatial_accuracy" in results):
         plot_accuracy(results["accuracy"], out / "accuracy_psnr_vs_seconds.png",
-                      volume=results["volume_accuracy"])
+                      volume=results.get("volume_accuracy"),
+                      spatial=results.get("spatial_accuracy"))
     summary, text = summarise(results)
     summary.update(quick=quick, weights_used=weights, seconds=timings,
                    methods=list(METHODS))
