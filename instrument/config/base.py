@@ -36,7 +36,7 @@ SIMULATED_DRIVERS: dict[str, str] = {
 #: ``{twin name: (names in a bench file, first found wins)}``.
 TWIN_PARAM_ALIASES: dict[str, dict[str, tuple[str, ...]]] = {
     "camera": {
-        "sensor_shape": ("sensor_shape", "sensor_shape_px", "shape_px"),
+        "sensor_shape": ("sensor_shape", "sensor_shape_px", "shape_px", "size_px"),
         "adc_bits": ("adc_bits", "bit_depth"),
     },
     "stage": {"velocity": ("velocity", "speed_mm_s")},
