@@ -272,6 +272,25 @@ def test_long_exposure_lowers_the_camera_rate():
         assert cam.resulting_frame_rate_hz == pytest.approx(20.0)
 
 
+def test_hardware_trigger_waits_for_the_line(gige):
+    gige.trigger_mode = "hardware"  # TriggerSource Line0, nothing wired on the fake
+    raw = _raw(gige)
+    assert (raw.get_string("TriggerMode"), raw.get_string("TriggerSource")) == ("On", "Line0")
+    with pytest.raises(CameraTimeoutError, match="trigger mode"):
+        gige.snap(timeout_s=0.5)
+    gige.trigger_mode = "free_run"
+    assert raw.get_string("TriggerMode") == "Off"
+    gige.snap(timeout_s=2.0)
+
+
+def test_trigger_line_must_exist():
+    with AravisCamera("fake", camera_name="Fake_1", fake_interface=True,
+                      trigger_line="Line7", **FAKE) as cam:
+        with pytest.raises(DeviceValueError, match="Line7"):
+            cam.trigger_mode = "hardware"
+        assert cam.trigger_mode != "hardware"
+
+
 # --------------------------------------------------------------------- streaming faults
 
 def test_stream_that_stops_times_out_then_resumes(gige, gv_process):
