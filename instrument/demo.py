@@ -46,7 +46,7 @@ OUTPUT_FILES = ("psf.tif", "dark.tif", "scene_raw.tif", "reconstruction.png",
 
 
 def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 40.0,
-             method: str = "admm", iterations: int = 200, frames: int = 4,
+             method: str = "auto", iterations: int = 200, frames: int = 4,
              progress: Callable[[str], None] = print) -> dict:
     """Run the demo session on the simulated bench and write its outputs.
 
@@ -62,7 +62,8 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
     z_mm : float
         Depth of the PSF calibration and of the scene, mm in front of the diffuser.
     method, iterations
-        Reconstruction (see :func:`recon.reconstruct`).
+        Reconstruction (see :func:`recon.reconstruct`; ``"auto"`` chooses the method
+        and the TV weight and the report says why; ``iterations`` is a maximum).
     frames : int
         Frames averaged per capture.
     progress : callable
@@ -118,7 +119,8 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         t = step(f"scene capture (exposure {scene_exp.exposure_s * 1e3:.2f} ms)", t)
         truth = bench.scene_truth()
     result = reconstruct(psf, raw, method, iterations=iterations, dark="none")
-    t = step(f"reconstruction ({method}, {iterations} iterations)", t)
+    t = step(f"reconstruction ({result.info['method']}, TV {result.info['tv']:.3g}, "
+             f"{result.info['iterations_used']} iterations)", t)
     shift, truth_reg = _register(result.image, truth)
     score = {"psnr_db": psnr(result.image, truth_reg), "ssim": ssim(result.image, truth_reg),
              "registration_shift_px": list(shift)}

@@ -97,7 +97,7 @@ def run_recon(
     method: str,
     iterations: int,
     bin_factor: int,
-    tv: float | None,
+    tv: float | str | None,
     erase: float,
     seed: int,
     full_scale: float | None = None,
@@ -105,6 +105,8 @@ def run_recon(
     metrics_json: str | None,
     depth_mm: float | None = None,
     psf_product: str = "psf_stack",
+    l1: float | str = 0.0,
+    seconds: float | None = None,
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
@@ -115,8 +117,8 @@ def run_recon(
     ----------
     psf_path, raw_path : str
         PSF (image or stack, see :func:`load_psf`) and raw measurement files.
-    method, iterations, bin_factor, tv, erase, seed, full_scale
-        Passed to :func:`recon.reconstruct`.
+    method, iterations, bin_factor, tv, erase, seed, full_scale, l1, seconds
+        Passed to :func:`recon.reconstruct` (``"auto"`` method and weights included).
     out : str
         Output stem (see :func:`output_paths`).
     metrics_json : str, optional
@@ -149,6 +151,8 @@ def run_recon(
         method,
         iterations=iterations,
         tv=tv,
+        l1=l1,
+        seconds=seconds,
         bin_factor=bin_factor,
         erase=erase,
         seed=seed,

@@ -116,7 +116,7 @@ def proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg):
 
 @njit(inline="always")
 def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
-             av, aux, auy, aw):
+             av, aux, auy, aw, l1thr):
     """One pixel of :func:`admm_split_updates_2d`; returns its reduction terms."""
     zero = np.float32(0.0)
     ninf = np.float32(-np.inf)
@@ -135,7 +135,7 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
     # w split (non-negativity)
     g = x[i, j]
     q = qw[i, j]
-    qn, a, z = shrink_split(g, q, zero, zero)
+    qn, a, z = shrink_split(g, q, l1thr, zero)  # l1 on x >= 0: max(t - l1 / mu3, 0)
     if mode == 2:
         rw, sw, nw, dw = balance_terms(g, q, a, z, aw[i, j])
     if mode != 0:
@@ -165,15 +165,16 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
 
 @njit(**PARALLEL_FAST)
 def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
-                          mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw):
+                          mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw, l1=0.0):
     """ADMM z- and dual updates of Eq. 4.5 / App. A.3 in 2D, fused, in q-form.
 
     For each split with G x = g (v: M x, u: Psi x as forward differences, w: x),
     keeping only q = z - a (a = scaled dual) between iterations:
     a_new = g - q_old; z_new = prox(g + a_new); q_new = z_new - a_new, where the
     proxes are v: (w b + mu1 t) / (w^2 + mu1) (w, b zero-padded off the sensor);
-    u: soft threshold tau/mu2; w: max(t, 0). This is the textbook scaled-dual
-    ADMM with the dual step of iteration k fused into the z-step of k+1.
+    u: soft threshold tau/mu2; w: max(t - l1/mu3, 0) (non-negativity, and the l1
+    weight ``l1`` when > 0: on x >= 0, l1 ||x||_1 is linear). This is the textbook
+    scaled-dual ADMM with the dual step of iteration k fused into the z-step of k+1.
 
     mode 0: plain; 1: store a_new in (av, aux, auy, aw); 2: also compute the
     residual norms r = ||a_new - a_old|| (primal) and ||z_new - z_old|| (for the
@@ -187,6 +188,7 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
     """
     n0, n1 = x.shape
     thr = np.float32(tau / mu2 if use_tv else 0.0)
+    l1thr = np.float32(l1 / mu3)
     mu1 = np.float32(mu1)
     rows = np.zeros((n0, 14))
     for i in prange(n0):
@@ -196,7 +198,7 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
         for j in range(n1):
             jp = j + 1 if j < n1 - 1 else 0
             c = _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
-                         av, aux, auy, aw)
+                         av, aux, auy, aw, l1thr)
             acc = _add14(acc, c)
         for k in range(14):
             rows[i, k] = acc[k]

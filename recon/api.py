@@ -14,12 +14,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .auto import AUTO, parse_weight, solve_channel
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
 from .preprocess import prepare_pair, validate_measurement, validate_psf
 from .solvers import SOLVERS, SolveResult
-from .validate import as_array, as_int, finite_float, nonneg_weight
+from .validate import as_array, as_int, finite_float
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -66,7 +67,10 @@ class Reconstruction:
         return {
             "method": self.info["method"],
             "iterations": self.info["iterations"],
+            "iterations_used": self.info.get("iterations_used", self.info["iterations"]),
             "tv": self.info["tv"],
+            "l1": self.info.get("l1", 0.0),
+            "auto": self.info.get("auto", []),
             "shape": list(self.image.shape),
             "padded_shape": list(self.operator.padded_shape),
             "channels": len(self.results),
@@ -191,10 +195,12 @@ def solve(
 def reconstruct(
     psf: np.ndarray,
     raw: np.ndarray,
-    method: str = "admm",
+    method: str = "auto",
     *,
     iterations: int = 100,
-    tv: float | None = None,
+    tv: float | str | None = "auto",
+    l1: float | str = 0.0,
+    seconds: float | None = None,
     bin_factor: int = 1,
     dark=None,
     bayer=None,
@@ -214,11 +220,22 @@ def reconstruct(
         One PSF for all channels, or one per channel.
     raw : ndarray, (rows, cols) or (rows, cols, C)
         Raw measurement (sensor counts).
-    method : {"wiener", "gd", "fista", "admm"}
+    method : {"auto", "wiener", "gd", "fista", "admm"}
+        ``"auto"`` (default) chooses by :mod:`recon.auto.choice` and says why in
+        ``info["auto"]``.
     iterations : int
-        Iterations of the iterative methods (ignored by Wiener).
-    tv : float, optional
-        TV weight in the scaled problem; default :data:`DEFAULT_TV` for the method.
+        Maximum iterations of the iterative methods (ignored by Wiener): they stop
+        earlier when the fit changes by less than the noise can explain
+        (:class:`recon.auto.Stopping`); ``info["iterations_used"]`` says how many ran.
+    tv : "auto" or float
+        TV weight in the scaled problem; ``"auto"`` (default; ``None`` too) chooses it
+        by the discrepancy principle (:mod:`recon.auto.weight`), a number fixes it
+        (:data:`DEFAULT_TV` holds the former fixed defaults).
+    l1 : "auto" or float
+        l1 weight (sparse scenes; ADMM, FISTA, GD); default 0.
+    seconds : float, optional
+        Time budget of each channel's solve, for ``method="auto"`` (Wiener when it
+        affords too few iterations).
     bin_factor : int
         Box binning before reconstruction (4 gives the tutorial's 300 x 400).
     dark, bayer
@@ -257,8 +274,9 @@ def reconstruct(
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
-    if method not in SOLVERS:
-        raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(SOLVERS)}")
+    if method != AUTO and method not in SOLVERS:
+        raise ReconInputError(f"unknown method {method!r}; choose one of auto, "
+                              f"{', '.join(SOLVERS)}")
     iterations = as_int(iterations, "iterations", 1)
     bin_factor = as_int(bin_factor, "bin_factor", 1)
     seed = as_int(seed, "seed", 0)
@@ -266,8 +284,13 @@ def reconstruct(
     if not 0.0 <= erase < 1.0:  # the message of PixelErasure.random
         raise ReconInputError(f"erased fraction {erase} is outside [0, 1); use e.g. 0.8 to "
                               "erase 80 % of the pixels")
-    tv = DEFAULT_TV[method] if tv is None else nonneg_weight(tv, "tv")
-    check_options(method, solver_options)
+    tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    if method == AUTO and solver_options:
+        raise ReconInputError(f"method 'auto' takes no solver options ({', '.join(solver_options)}"
+                              "); name a method to pass them")
+    if method != AUTO:
+        check_options(method, solver_options)
+    fft_s = None
     t_start = time.perf_counter()
     if preprocess:
         prepared = prepare_pair(
@@ -295,22 +318,31 @@ def reconstruct(
     raw_scale = float(np.max(np.abs(b)))
     if not raw_scale > 0:
         raise ReconInputError("measurement is zero after dark subtraction; check the exposure")
-    results, estimates, op0 = [], [], None
+    results, estimates, op0, records = [], [], None, []
     for c in range(channels):
         pc = p if p.ndim == 2 else p[..., c]
         bc = b if b.ndim == 2 else b[..., c]
         op, scaled = scaled_problem(pc, bc, None if mask is None else mask.mask,
                                     b_scale=raw_scale)
-        res = solve(op, scaled, method, iterations=iterations, tv=tv, **solver_options)
+        if seconds is not None and fft_s is None:
+            fft_s = fft_pair_seconds(op.padded_shape)  # the budget's unit, measured now
+        res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
+                                    iterations=iterations, tv=tv, l1=l1, seconds=seconds,
+                                    fft_pair_s=fft_s, **solver_options)
         results.append(res)
+        records.append(record)
         estimates.append(res.x * raw_scale)
         op0 = op0 or op
     estimate = estimates[0] if channels == 1 else np.stack(estimates, axis=-1)
     image = np.ascontiguousarray(estimate[op0.crop])
+    chosen = records[0].get("method", {}).get("method", method)
     info.update(
-        method=method,
-        iterations=iterations if SOLVERS[method].iterative else 1,
-        tv=tv,
+        method=chosen,
+        iterations=iterations if SOLVERS[chosen].iterative else 1,
+        iterations_used=max(r["iterations_used"] for r in records),
+        tv=records[0]["tv"],
+        l1=records[0]["l1"],
+        auto=records,
         bin_factor=bin_factor,
         raw_scale=raw_scale,
         erased_fraction=0.0 if mask is None else float(1 - op0.sensor_weights.mean()),

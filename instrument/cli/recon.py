@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["add_subcommands", "run", "summary_line"]
+__all__ = ["add_subcommands", "choice_lines", "run", "summary_line"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -27,13 +27,21 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "default) or psf_stack_raw (dark-subtracted only: better for extended "
                     "scenes when stray light is low, see the README)")
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
-    rp.add_argument("--method", choices=METHODS, default="admm",
-                    help="; ".join(f"{name}: {spec.summary}" for name, spec in SOLVERS.items()))
-    rp.add_argument("--iterations", type=int, default=100)
+    rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
+                    help="auto (default): chosen from the data and --seconds, and said why; "
+                    + "; ".join(f"{name}: {spec.summary}" for name, spec in SOLVERS.items()))
+    rp.add_argument("--iterations", type=int, default=100,
+                    help="maximum iterations: the solve stops earlier when the fit changes "
+                    "by less than the noise explains (the metrics say how many ran)")
+    rp.add_argument("--seconds", type=float, default=None,
+                    help="time budget of the solve for --method auto (Wiener if too short)")
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
                     help="box-binning factor (4: 1200x1600 -> 300x400)")
-    rp.add_argument("--tv", type=float, default=None,
-                    help="TV weight in the scaled problem (default per method)")
+    rp.add_argument("--tv", default="auto",
+                    help="TV weight in the scaled problem, or auto (default): the "
+                    "hold-out cross-validation along a warm-started path")
+    rp.add_argument("--l1", default="0",
+                    help="l1 weight (sparse scenes) in the scaled problem, or auto; default 0")
     rp.add_argument("--erase", type=float, default=0.0,
                     help="fraction of raw pixels to erase at random (compressed sensing)")
     rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
@@ -50,10 +58,24 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.set_defaults(handler=run)
 
 
+def choice_lines(m: dict) -> list[str]:
+    """What the automatic choices chose and why (first channel), for the terminal."""
+    rec = (m.get("auto") or [{}])[0]
+    lines = [f"method {m['method']}: {r}" for r in rec.get("method", {}).get("reasons", [])]
+    w = rec.get("weight")
+    if w:
+        lines.append(f"{w['regulariser']} weight {w['weight']:.3g}: {w['reason']}")
+    if m.get("iterations_used") is not None and m["method"] != "wiener":
+        lines.append(f"iterations used: {m['iterations_used']} (maximum {m['iterations']}"
+                     f"{' per phase of the automatic weight' if w else ''})")
+    return lines
+
+
 def summary_line(m: dict) -> str:
     """One line of a ``recon`` metrics record for the terminal."""
     return (
-        f"{m['method']}: {m['iterations']} it, {m['shape']} (padded {m['padded_shape']}), "
+        f"{m['method']}: {m.get('iterations_used', m['iterations'])} it, {m['shape']} "
+        f"(padded {m['padded_shape']}), "
         f"{m['seconds_total']:.2f} s total, {m['seconds_per_iteration'] * 1e3:.2f} ms/it = "
         f"{m['ratio_to_fft_floor']:.2f}x FFT floor ({m['fft_pair_seconds'] * 1e3:.2f} ms), "
         f"final relative residual {m['final_relative_residual']:.4f} -> "
@@ -80,6 +102,9 @@ def run(args: argparse.Namespace) -> int:
     m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
                   bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,
-                  depth_mm=args.depth_mm, psf_product=args.psf_product)
+                  depth_mm=args.depth_mm, psf_product=args.psf_product, l1=args.l1,
+                  seconds=args.seconds)
+    for line in choice_lines(m):
+        print(line)
     print(summary_line(m))
     return 0

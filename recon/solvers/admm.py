@@ -271,7 +271,7 @@ class AdmmState:
 def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int,
              tv: float, balance: bool = True, balance_every: int = 5,
              balance_until: float = 0.6, balance_ratio: float = 10.0,
-             balance_factor: float = 2.0) -> SolveResult:
+             balance_factor: float = 2.0, l1: float = 0.0, stop=None) -> SolveResult:
     """Run ``iterations`` ADMM iterations from ``state`` (updated in place).
 
     The loop of :func:`admm`, which validates the parameters and calls this with
@@ -287,8 +287,11 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
         :func:`~recon.solvers.common.check_measurement`).
     state : AdmmState
         Start; on return the final iterate (x before the non-negativity clip).
-    iterations, tv, balance, balance_every, balance_until, balance_ratio, balance_factor
+    iterations, tv, balance, balance_every, balance_until, balance_ratio, balance_factor, l1
         As in :func:`admm` (already validated).
+    stop : callable, optional
+        ``stop(history) -> bool``, asked after every iteration (automatic stopping,
+        :class:`recon.auto.weight.Stopping`); ``iterations`` stays the maximum.
 
     Returns
     -------
@@ -320,11 +323,12 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     mus = [(mu1, mu2, mu3)]
     last_balance = int(balance_until * iterations) if balance else 0
     ratio = mu3 / mu1  # kept without a TV split (tie_nonneg_penalty)
+    used = iterations
     for k in range(iterations):
         mon.start()
         mode = balance_mode(k, balance_every, last_balance)
         s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, plan.wp, mu1, mu2,
-                                           mu3, tv, use_tv, mode, *scratch)
+                                           mu3, tv, use_tv, mode, *scratch, l1)
         if mode == 2:
             new = [balanced_penalty(mu1, *s[[2, 3, 8, 9]], balance_ratio, balance_factor),
                    balanced_penalty(mu2, *s[[4, 5, 10, 11]], balance_ratio, balance_factor)
@@ -341,24 +345,29 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
         spectra = rfftn(stacked)
         _kernels.admm_fourier_2d(spectra[0], spectra[1], spec, state.inv_den, mu1)
         mx, x = irfftn(spectra, shape)
-        mon.record(0.5 * s[0] + tv * s[1], s[0], x=x,
+        l1_x = l1 * float(np.maximum(x, 0).sum(dtype=np.float64)) if l1 > 0 else 0.0
+        mon.record(0.5 * s[0] + tv * s[1] + l1_x, s[0], x=x,
                    hint="try --method fista or a smaller TV weight")
+        if stop is not None and stop(mon.history):
+            used = k + 1
+            break
     state.x, state.mx = x, mx
     x = np.maximum(x, 0)  # the estimate is the non-negative split w
     r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq + tv * anisotropic_tv(x)
+    final = 0.5 * data_sq + tv * anisotropic_tv(x) + l1 * float(x.sum(dtype=np.float64))
     mon.history.extra["mu"] = [list(m) for m in mus]
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
-                       {"tv": tv, "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
-                        "balance": balance})
+                       {"tv": tv, "l1": l1, "mu_initial": list(mus[0]),
+                        "mu_final": [mu1, mu2, mu3], "balance": balance,
+                        "iterations_used": used})
 
 
 def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 1e-3,
          mu: tuple[float, float, float] | None = None, balance: bool = True,
          balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
-         balance_factor: float = 2.0) -> SolveResult:
-    """ADMM with crop, TV and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
+         balance_factor: float = 2.0, l1: float = 0.0, stop=None) -> SolveResult:
+    """ADMM with crop, TV, l1 and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
 
     Per iteration, in scaled-dual form with q_i = z_i - a_i kept between iterations:
     u = soft(Psi x + a_u, tau/mu2); v = (D^T b + mu1 (M x + a_v)) / (D^T D + mu1);
@@ -387,6 +396,11 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     iterations : int
     tv : float
         TV weight tau; 0 removes the TV split.
+    l1 : float
+        l1 weight (native sparsity: beads, fluorescence), on the non-negativity split:
+        w = max(x + a_w - l1 / mu3, 0).
+    stop : callable, optional
+        ``stop(history) -> bool`` after every iteration (automatic stopping).
     mu : (mu1, mu2, mu3), optional
         Initial penalties; default (2e-3, 2e-3, 2e-3) for the scaled problem (unit-sum
         PSF, |b| <= 1); balancing adapts them, so the start matters little.
@@ -396,8 +410,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     Returns
     -------
     SolveResult
-        ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tau TV(x_k) for the iterate
-        entering iteration k (x_0 = 0); ``history.extra['mu']`` the penalties used.
+        ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tau TV(x_k) + l1 ||x_k||_1
+        for the iterate entering iteration k (x_0 = 0); ``history.extra['mu']`` the
+        penalties used; ``params['iterations_used']``.
 
     Raises
     ------
@@ -410,10 +425,12 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
         raise ReconInputError("ADMM here needs a ConvolutionOperator (optionally masked)")
     iterations = as_int(iterations, "iterations", 1)
     tv = nonneg_weight(tv, "TV")
+    l1 = nonneg_weight(l1, "l1")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
     mu = check_penalties(mu)
     b = check_measurement(b, op.shape_out)
     plan = AdmmPlan.of(op)
     return run_admm(plan, b, AdmmState.zeros(plan, mu, tv > 0), iterations=iterations, tv=tv,
                     balance=balance, balance_every=balance_every, balance_until=balance_until,
-                    balance_ratio=balance_ratio, balance_factor=balance_factor)
+                    balance_ratio=balance_ratio, balance_factor=balance_factor, l1=l1,
+                    stop=stop)

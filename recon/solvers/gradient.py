@@ -31,9 +31,13 @@ def prox_threshold(step: float, tau: float, ndim: int) -> float:
 
 def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
                  nonneg: bool, step_scale: float, momentum, restart: bool,
-                 method: str, lipschitz: float | None = None) -> SolveResult:
+                 method: str, lipschitz: float | None = None, l1: float = 0.0,
+                 stop=None, x0: np.ndarray | None = None) -> SolveResult:
     iterations = as_int(iterations, "iterations", 1)
     tv = nonneg_weight(tv, "TV")
+    l1 = nonneg_weight(l1, "l1")
+    if l1 > 0 and not nonneg:
+        raise ReconInputError("the l1 weight here needs nonneg=True (l1 on x >= 0 is linear)")
     step_scale = positive(step_scale, "step_scale")
     if len(op.shape_in) != 2:
         raise ReconInputError(f"{method} supports 2D objects here, got {op.shape_in}")
@@ -48,14 +52,25 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
     hint = ("the step is too large: lower the step scale (<= 1 is always stable)"
             if step_scale > 1 else "check the PSF and measurement scaling"
             + (f", or use a smaller TV weight than {tv:g}" if tv > 0 else ""))
-    x = np.zeros(op.shape_in, np.float32)
-    y = np.zeros(op.shape_in, np.float32)
+    if x0 is None:
+        x = np.zeros(op.shape_in, np.float32)
+    else:
+        x = np.array(x0, np.float32, copy=True, order="C")
+        if x.shape != tuple(op.shape_in):
+            raise ReconInputError(f"x0 has shape {x.shape}, the model's object is "
+                                  f"{tuple(op.shape_in)}")
+    y = x.copy()
     y_next = np.empty_like(y)
     t = 1.0
     restarts = []
+    used = iterations
     for k in range(iterations):
         mon.start()
         loss, grad = op.data_term(y, b)
+        l1_y = 0.0
+        if l1 > 0:  # on x >= 0, l1 ||x||_1 = l1 sum(x): a constant gradient
+            grad += np.float32(l1)
+            l1_y = l1 * float(y.sum(dtype=np.float64))
         if momentum is None:  # FISTA sequence (Algorithm 1)
             t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
             beta = (t - 1.0) / t_next
@@ -69,19 +84,24 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
         if momentum is None:
             t = t_next
         y, y_next = y_next, y
-        mon.record(loss + tv * tv_y, 2.0 * loss, x=x, hint=hint)
+        mon.record(loss + tv * tv_y + l1_y, 2.0 * loss, x=x, hint=hint)
+        if stop is not None and stop(mon.history):
+            used = k + 1
+            break
     r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq + tv * anisotropic_tv(x)
+    final = 0.5 * data_sq + tv * anisotropic_tv(x) + l1 * float(x.sum(dtype=np.float64))
     mon.history.extra["restarts"] = restarts
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"step": step, "lipschitz": lip, "tv": tv, "threshold": thr,
-                        "nonneg": nonneg, "momentum": momentum, "restart": restart})
+                        "nonneg": nonneg, "momentum": momentum, "restart": restart,
+                        "l1": l1, "iterations_used": used})
 
 
 def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,
           nonneg: bool = True, step_scale: float = 1.0, restart: bool = True,
-          lipschitz: float | None = None) -> SolveResult:
+          lipschitz: float | None = None, l1: float = 0.0, stop=None,
+          x0: np.ndarray | None = None) -> SolveResult:
     """FISTA (Kuo 2020, Algorithm 1; Beck & Teboulle 2009) with non-negativity and TV.
 
     Each iteration: grad = A^T (A y_k - b) (4 FFTs, fused crop); x_{k+1} = prox(y_k -
@@ -106,6 +126,12 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
     restart : bool
     lipschitz : float, optional
         Known L (skips the power iteration).
+    l1 : float
+        l1 weight (sparse scenes); with x >= 0 it adds the constant l1 to the gradient.
+    stop : callable, optional
+        ``stop(history) -> bool`` after every iteration (automatic stopping).
+    x0 : ndarray, shape ``op.shape_in``, optional
+        Starting point (warm start; default zero), momentum restarted.
 
     Returns
     -------
@@ -121,13 +147,13 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
         Invalid parameters.
     """
     return _accelerated(op, b, iterations, tv, nonneg, step_scale, None, restart, "FISTA",
-                        lipschitz)
+                        lipschitz, l1, stop, x0)
 
 
 def gradient_descent(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
                      tv: float = 0.0, nonneg: bool = True, momentum: float = 0.9,
-                     step_scale: float = 1.0, lipschitz: float | None = None
-                     ) -> SolveResult:
+                     step_scale: float = 1.0, lipschitz: float | None = None,
+                     l1: float = 0.0, stop=None) -> SolveResult:
     """Projected gradient descent with constant Nesterov momentum.
 
     y_{k+1} = x_{k+1} + momentum (x_{k+1} - x_k), x_{k+1} = prox(y_k - grad/L), the
@@ -140,4 +166,4 @@ def gradient_descent(op: LinearOperator, b: np.ndarray, *, iterations: int = 100
     if not momentum < 1.0:
         raise ReconInputError(f"momentum must be in [0, 1), got {momentum}")
     return _accelerated(op, b, iterations, tv, nonneg, step_scale, momentum, False,
-                        "gradient descent", lipschitz)
+                        "gradient descent", lipschitz, l1, stop)

@@ -59,7 +59,7 @@ def test_cli_recon_real_sample(tmp_path, capsys):
     assert m["ratio_to_fft_floor"] == pytest.approx(
         m["seconds_per_iteration"] / m["fft_pair_seconds"]
     )
-    assert len(m["objective"][0]) == 60
+    assert len(m["objective"][0]) == m["iterations_used"] <= 2 * 60  # a maximum per phase
     assert m["objective"][0][-1] < 0.01 * m["objective"][0][0]
     assert m["final_relative_residual"] < 0.05
     image = tifffile.imread(tmp_path / "hand.tif")

@@ -1,0 +1,142 @@
+"""Automatic regularisation, stopping and method choice: model no more than a scene needs.
+
+* :mod:`recon.auto.noise` - the Poisson-Gaussian noise model fitted to one frame;
+* :mod:`recon.auto.weight` - the TV / l1 weight by the (generalised) discrepancy
+  principle on a warm-started continuation path, and automatic stopping;
+* :mod:`recon.auto.choice` - the method for ``method="auto"`` and the no-signal check.
+
+:func:`solve_channel` is what :func:`recon.reconstruct` runs per colour channel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ReconInputError
+from ..solvers import SOLVERS, SolveResult
+from .choice import NoSignalError, check_signal, choose_method
+from .noise import NoiseModel, estimate_noise
+from .weight import MODEL_ERROR, AutoWeight, Stopping, admm_auto
+
+__all__ = ["AUTO", "AutoWeight", "NoSignalError", "NoiseModel", "Stopping", "estimate_noise",
+           "parse_weight", "solve_channel"]
+
+#: The value that asks for an automatic choice (``method``, ``tv``, ``l1``).
+AUTO = "auto"
+
+
+def parse_weight(value, name: str):
+    """``"auto"`` or a finite weight >= 0 (``None`` means ``"auto"``).
+
+    Raises
+    ------
+    ReconInputError
+        Anything else, naming ``name`` and the accepted values.
+    """
+    if value is None or (isinstance(value, str) and value.strip().lower() == AUTO):
+        return AUTO
+    try:
+        w = float(value)
+    except (TypeError, ValueError):
+        raise ReconInputError(f"{name} weight must be a finite number >= 0 or 'auto', got "
+                              f"{value!r}") from None
+    if not (np.isfinite(w) and w >= 0):
+        raise ReconInputError(f"{name} weight must be a finite number >= 0 or 'auto', got "
+                              f"{value!r}")
+    return w
+
+
+def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
+                  iterations: int, tv, l1, seconds: float | None = None,
+                  fft_pair_s: float | None = None, **options
+                  ) -> tuple[SolveResult, dict]:
+    """Solve one channel with automatic choices where asked, fixed ones elsewhere.
+
+    Parameters
+    ----------
+    op : ConvolutionOperator
+        Scaled forward model (unit-sum PSF, erasure weights folded in).
+    b : ndarray, float32, ``op.shape_out``
+        Scaled, weighted measurement (``raw * weights / raw_scale``).
+    raw : ndarray, ``op.shape_out``
+        The channel's dark-subtracted measurement before scaling (the noise model is
+        fitted to it).
+    raw_scale : float
+        ``b = raw * weights / raw_scale``.
+    method : str
+        ``"auto"`` or a key of :data:`recon.solvers.SOLVERS`.
+    iterations : int
+        Maximum iterations (automatic stopping ends earlier when the fit settles).
+    tv, l1 : "auto" or float
+        Weights; ``"auto"`` chooses by the discrepancy principle. With ``l1="auto"`` an
+        automatic ``tv`` is 0 (one weight is chosen at a time).
+    seconds : float, optional
+        Time budget of the solve (``method="auto"`` only).
+    fft_pair_s : float, optional
+        Measured FFT floor (needed with ``seconds``).
+    **options
+        Passed to a fixed method's solver.
+
+    Returns
+    -------
+    result : SolveResult
+        ``params['iterations_used']`` for the iterative methods.
+    record : dict
+        JSON-ready: ``noise`` (the fitted model), ``snr_db``, ``method`` (chosen and
+        why), ``weight`` (the :class:`AutoWeight` record when a weight was chosen),
+        ``tv``, ``l1``, ``iterations_used``.
+
+    Raises
+    ------
+    NoSignalError
+        ``method="auto"`` on a frame that holds only noise.
+    ReconInputError
+        Invalid weights or budget, or ``seconds`` with a fixed method.
+    """
+    w2 = np.square(op.sensor_weights, dtype=np.float64)
+    noise = estimate_noise(raw)
+    scaled = noise.scaled(raw_scale)
+    noise_energy = float(np.sum(w2 * scaled.variance(np.asarray(raw) / raw_scale)))
+    b_norm = float(np.linalg.norm(b))
+    record = {"noise": noise.as_dict(), "noise_energy_scaled": noise_energy,
+              "model_error": MODEL_ERROR}
+    if l1 == AUTO and tv == AUTO:
+        tv = 0.0
+    if method == AUTO:
+        record["snr_db"] = check_signal(b_norm ** 2, noise_energy)
+        choice = choose_method(iterations, seconds=seconds, fft_pair_s=fft_pair_s,
+                               snr_db=record["snr_db"])
+        record["method"] = choice.as_dict()
+        method, iterations = choice.method, choice.iterations
+    elif seconds is not None:
+        raise ReconInputError("a time budget (seconds) needs method 'auto'; drop it or use "
+                              "method='auto'")
+    spec = SOLVERS[method]
+    if not spec.iterative:
+        res = spec.solve(op, b, **options)
+        record.update(tv=0.0, l1=0.0, iterations_used=1)
+        return res, record
+    target = 0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2)
+    auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
+    if auto_reg is not None and method == "admm" and not options:
+        res, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
+                                regulariser=auto_reg)
+        record["weight"] = chosen.as_dict()
+        tv, l1 = ((chosen.weight, 0.0 if l1 == AUTO else l1) if auto_reg == "tv"
+                  else (tv, chosen.weight))
+    else:
+        if auto_reg is not None:
+            _, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
+                                  regulariser=auto_reg, path_only=True)
+            record["weight"] = dict(chosen.as_dict(), chosen_by="ADMM path, used by "
+                                    + method)
+            if auto_reg == "tv":
+                tv, l1 = chosen.weight, (0.0 if l1 == AUTO else l1)
+            else:
+                tv, l1 = (0.0 if tv == AUTO else tv), chosen.weight
+        stop = Stopping().hook(target, b_norm)
+        extra = {"l1": l1} if l1 else {}
+        res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options)
+    record.update(tv=float(tv), l1=float(l1),
+                  iterations_used=int(res.params.get("iterations_used", iterations)))
+    return res, record
