@@ -96,7 +96,7 @@ class V4l2Camera(Camera):
     buffers : int
         Frames the camera may queue (``CAP_PROP_BUFFERSIZE``, 1..10).
     pixel_pitch_um : float
-        Sensor pixel pitch (V4L2 does not report it).
+        Sensor pixel pitch in micrometres (required: V4L2 does not report it).
     exposure_range_s : (float, float)
         Exposures the camera takes, from its ``exposure_absolute`` range
         (``v4l2-ctl -L``) times 100 us.
@@ -123,7 +123,7 @@ class V4l2Camera(Camera):
     def __init__(
         self, device_id: str, *, device_path: str | None = None,
         serial_number: str | None = None, size_px: Any = None, fourcc: str | None = None,
-        buffers: int = 2, pixel_pitch_um: float = 3.0,
+        buffers: int = 2, pixel_pitch_um: float,
         exposure_range_s: Any = (1e-4, 1.0), frame_rate_range_hz: Any = (1.0, 120.0),
         gain_db_per_unit: float | None = None, gain_max_units: int = 255,
         read_timeout_s: float = 2.0, by_id_dir: str = BY_ID_DIR,

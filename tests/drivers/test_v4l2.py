@@ -84,7 +84,7 @@ def make(recording, by_id, **kw) -> tuple[V4l2Camera, Bench]:
     bench = Bench(recording[0])
     params = dict(serial_number=SERIAL, by_id_dir=str(by_id), backend=bench,
                   gain_db_per_unit=1.0, gain_max_units=100, exposure_range_s=(1e-4, 1.0),
-                  frame_rate_range_hz=(5.0, 100.0), read_timeout_s=0.25)
+                  frame_rate_range_hz=(5.0, 100.0), read_timeout_s=0.25, pixel_pitch_um=3.0)
     params.update(kw)
     return V4l2Camera("uvc", **params), bench
 
@@ -112,9 +112,9 @@ class TestV4l2Camera(CameraConformance):
 # --------------------------------------------------------------------- choosing the camera
 def test_video_n_paths_are_refused():
     with pytest.raises(DeviceValueError, match="by-id"):
-        V4l2Camera("uvc", device_path="/dev/video0")
+        V4l2Camera("uvc", device_path="/dev/video0", pixel_pitch_um=3.0)
     with pytest.raises(DeviceValueError, match="serial_number"):
-        V4l2Camera("uvc")
+        V4l2Camera("uvc", pixel_pitch_um=3.0)
 
 
 def test_found_by_serial_number_in_by_id(recording, by_id):
@@ -284,3 +284,12 @@ def test_unplug_mid_stream_then_reconnect_restores_settings(recording, by_id):
         assert fourcc_text(fresh.props[FOURCC]) == "Y16 "
         frame = cam.snap()
         assert frame.image.shape == (20, 30) and frame.image.dtype == np.uint16
+
+
+def test_real_opencv_backend_refuses_a_path_that_is_no_camera(by_id):
+    # the default backend: cv2.VideoCapture(path, cv2.CAP_V4L2) on a file that is no
+    # V4L2 device (CI has no camera) opens nothing, and the driver says so
+    cam = V4l2Camera("uvc", device_path=str(by_id / LINK), pixel_pitch_um=3.0)
+    with pytest.raises(DeviceDisconnectedError, match="cannot open .* as a V4L2 camera"):
+        cam.open()
+    assert not cam.is_open
