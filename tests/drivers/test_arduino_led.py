@@ -22,7 +22,7 @@ def emulator(tmp_path):
 
 
 def make_array(emu, **kw):
-    kw.setdefault("reply_timeout_s", 0.3)
+    kw.setdefault("reply_timeout_s", 1.0)
     return ArduinoLedArray("leds", port=emu.port, pitch_mm=3.0, distance_mm=40.0, **kw)
 
 

@@ -25,7 +25,7 @@ def hid():
 
 
 def make(hid, **kw):
-    kw.setdefault("reply_timeout_s", 0.3)
+    kw.setdefault("reply_timeout_s", 1.0)
     return LightCrafter4500("dmd", hid_backend=hid, **kw)
 
 
@@ -158,7 +158,7 @@ class TestLightCrafterOverPyusb(DmdConformance):
         self.emu = usb.emulator
         self.usb = usb
         with LightCrafter4500("dmd", transport="pyusb", usb_backend=usb,
-                              reply_timeout_s=0.3) as dmd:
+                              reply_timeout_s=1.0) as dmd:
             assert not usb.kernel_driver  # detached to claim the interface
             yield dmd
         assert usb.kernel_driver  # re-attached on close
@@ -172,7 +172,7 @@ def test_pyusb_unplug_and_serial_selection():
     with pytest.raises(DeviceDisconnectedError, match="with serial LC-8"):
         LightCrafter4500("dmd", transport="pyusb", usb_backend=usb, serial_number="LC-8").open()
     with LightCrafter4500("dmd", transport="pyusb", usb_backend=usb, serial_number="LC-7",
-                          reply_timeout_s=0.3) as dmd:
+                          reply_timeout_s=1.0) as dmd:
         dmd.led_currents = {"green": 1.0}
         usb.emulator.unplug()
         with pytest.raises(DeviceDisconnectedError, match="USB I/O failed"):

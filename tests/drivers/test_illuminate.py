@@ -23,7 +23,7 @@ def emulator(tmp_path):
 
 
 def make_array(emu, **kw):
-    kw.setdefault("reply_timeout_s", 0.3)
+    kw.setdefault("reply_timeout_s", 1.0)
     return IlluminateLedArray("leds", port=emu.port, shape=(8, 8), **kw)
 
 
@@ -92,7 +92,7 @@ def test_many_leds_are_split_into_commands(tmp_path):
 
 
 def test_wrong_shape_is_a_clear_error(emulator):
-    arr = IlluminateLedArray("leds", port=emulator.port, shape=(32, 32), reply_timeout_s=0.3)
+    arr = IlluminateLedArray("leds", port=emulator.port, shape=(32, 32), reply_timeout_s=1.0)
     with pytest.raises(DeviceValueError, match="64 LEDs"):
         arr.open()
     assert not arr.is_open
@@ -106,7 +106,7 @@ def test_unplug_then_reconnect_restores_leds(emulator):
         t0 = time.monotonic()
         with pytest.raises(DeviceDisconnectedError):
             arr.all_off()
-        assert time.monotonic() - t0 < 1.0
+        assert time.monotonic() - t0 < 3.0
         emulator.replug()
         with emulator.lock:
             emulator.values[:] = 0  # as after a power cycle

@@ -38,7 +38,7 @@ def make_stage(emu, tmp_path, **kw):
     kw.setdefault("serial_numbers", {"z": "27000001"})
     kw.setdefault("limits_mm", {"z": [0.0, 25.0]})
     kw.setdefault("speed_mm_s", 2.0)
-    kw.setdefault("reply_timeout_s", 0.3)
+    kw.setdefault("reply_timeout_s", 1.0)
     return ThorlabsAptStage("stage", search_dirs=[str(tmp_path)], **kw)
 
 
@@ -183,7 +183,7 @@ def test_bsc20x_bays_on_one_port(tmp_path):
         assert not emu.channels[0x21].enabled  # powers up disabled, "stuck" velocities
         stage = ThorlabsAptStage("rack", axes=["x", "y"], port=emu.port, bays={"x": 0, "y": 1},
                                  limits_mm={"x": [0, 50], "y": [0, 50]}, speed_mm_s=2.0,
-                                 home_on_open=True, reply_timeout_s=0.3)
+                                 home_on_open=True, reply_timeout_s=1.0)
         with stage:
             assert emu.channels[0x21].enabled and emu.channels[0x22].enabled
             stage.move_to({"x": 3.0, "y": 4.5})
