@@ -179,6 +179,13 @@ class AravisCamera(Camera):
 
     # ------------------------------------------------------------------ open / close
     def _do_open(self, timeout_s: float) -> None:
+        try:
+            self._connect(timeout_s)
+        except BaseException:
+            self._do_close()  # release the camera if the open failed half-way
+            raise
+
+    def _connect(self, timeout_s: float) -> None:
         self._arv, self._glib = _import_aravis(self.device_id)
         arv = self._arv
         if self._fake:

@@ -103,6 +103,13 @@ class FullscreenSlm(Slm):
 
     # ------------------------------------------------------------------ process
     def _do_open(self, timeout_s: float) -> None:
+        try:
+            self._connect(timeout_s)
+        except BaseException:
+            self._do_close()  # release the window process if the open failed half-way
+            raise
+
+    def _connect(self, timeout_s: float) -> None:
         if importlib.util.find_spec("PySide6") is None:
             raise MissingDependencyError(
                 self.device_id, "PySide6 is not installed (the SLM window is a Qt window)",

@@ -207,6 +207,13 @@ class V4l2Camera(Camera):
         return str(video[0])
 
     def _do_open(self, timeout_s: float) -> None:
+        try:
+            self._connect(timeout_s)
+        except BaseException:
+            self._do_close()  # release the capture if the open failed half-way
+            raise
+
+    def _connect(self, timeout_s: float) -> None:
         os.environ.setdefault("OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT",
                               str(max(1, math.ceil(self._read_timeout))))
         path = self.resolve_path()

@@ -244,6 +244,15 @@ def test_missing_pitch_names_the_parameter():
     assert not cam.is_open
 
 
+def test_failed_open_releases_the_gige_camera(gv_process):
+    gv_process.ensure()
+    with pytest.raises(DeviceValueError, match="pixel_pitch_um"):
+        AravisCamera("gige", camera_name=GV_ADDRESS).open()  # fails after connecting
+    with AravisCamera("gige", camera_name=GV_ADDRESS, **FAKE) as cam:
+        cam.exposure_s = 0.003  # writing needs the control channel the failed open held
+        assert cam.exposure_s == pytest.approx(0.003)
+
+
 def test_initial_settings_from_params():
     with AravisCamera("fake", camera_name="Fake_1", fake_interface=True, pixel_format="mono16",
                       exposure_s=0.02, frame_rate_hz=10.0, **FAKE) as cam:
