@@ -34,7 +34,7 @@ log = logging.getLogger(__name__)
 
 #: The benchmarks, in the order they run.
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
-              "volume_accuracy", "spatial_speed", "spatial_accuracy")
+              "volume_accuracy", "spatial_speed", "spatial_accuracy", "auto", "failure_maps")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
@@ -44,7 +44,9 @@ _TABLES = {"speed": ("speed", "speed_table"), "accuracy": ("accuracy", "accuracy
            "volume_speed": ("volume", "volume_speed_table"),
            "volume_accuracy": ("volume_accuracy", "volume_accuracy_table"),
            "spatial_speed": ("spatial", "spatial_speed_table"),
-           "spatial_accuracy": ("spatial", "spatial_accuracy_table")}
+           "spatial_accuracy": ("spatial", "spatial_accuracy_table"),
+           "auto": ("auto", "auto_table"),
+           "failure_maps": ("failure_maps", "failure_maps_table")}
 
 
 def format_result(name: str, result: dict) -> str:
@@ -107,6 +109,13 @@ def summarise(results: dict) -> tuple[dict, str]:
         lines.append("erasure 80% simulated (PSNR vs truth): " + ", ".join(
             f"{k} {fmt(v['psnr'])}" for k, v in e["simulated"]["vs_truth"].items()))
     _summarise_volume(results, summary, lines)
+    if "auto" in results:
+        a = results["auto"]["summary"]
+        summary["auto"] = a
+        lines.append(f"auto TV weight: {fmt(a['mean_shortfall_db'])} dB below the oracle on "
+                     f"average, {fmt(a['worst_shortfall_db'])} at worst, "
+                     f"{fmt(a['mean_gain_over_default_db'])} dB above the former default; "
+                     f"cost x{fmt(a['cost_ratio_median'])} of a fixed run (median)")
     for name in ("spatial_speed", "spatial_accuracy"):
         if name in results:
             summary[name] = results[name]
@@ -219,6 +228,11 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
             results[name] = run_erasure(quick, out, weights)
         elif name == "volume_speed":
             results[name] = run_volume_speed(quick, out)
+        elif name in ("auto", "failure_maps"):
+            from . import auto, failure_maps
+
+            results[name] = (auto.run_auto(quick, out) if name == "auto"
+                             else failure_maps.run_failure_maps(quick, out))
         elif name.startswith("spatial_"):
             from . import spatial
 

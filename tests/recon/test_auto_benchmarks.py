@@ -1,0 +1,53 @@
+"""The auto-vs-oracle benchmark and the failure maps, on tiny configurations."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recon.benchmarks.auto import auto_table, run_case
+from recon.benchmarks.auto_scenes import KINDS, make_scene
+from recon.benchmarks.failure_maps import _cell, failure_maps_table, plot_map
+
+
+def test_scene_kinds_are_non_negative_with_unit_peak():
+    for kind in ("photo:camera", *KINDS):
+        s = make_scene(kind, (120, 160))
+        assert s.shape == (120, 160) and s.min() >= 0 and s.max() == 1.0, kind
+        assert s[:5].max() == 0  # inset: a dark surround
+    beads = make_scene("beads", (120, 160), density=0.002)
+    assert np.mean(beads > 0.1) < 0.05  # sparse
+
+
+def test_run_case_reports_oracle_default_and_auto():
+    cfg = {"coarse_bin": 8, "iterations": 40, "grid": (1e-4, 3e-4)}
+    c = run_case("beads", 3000.0, cfg)
+    assert c["oracle"]["psnr"] == max(g["psnr"] for g in c["grid"])
+    assert c["default"]["tv"] == 3e-4
+    assert c["auto"]["psnr"] is not None and not c["auto"]["blank"]
+    assert c["auto_shortfall_db"] == c["oracle"]["psnr"] - c["auto"]["psnr"]
+    table = auto_table({"cases": [c], "summary": {
+        "mean_shortfall_db": c["auto_shortfall_db"], "worst_shortfall_db": 0.0,
+        "mean_gain_over_default_db": 0.0, "cost_ratio_median": 1.0, "cost_ratio_max": 1.0,
+        "failures": []}, "setup": {**cfg, "fixed_default": 3e-4}})
+    assert "beads" in table and "oracle" in table
+
+
+def test_failure_map_cell_and_figure(tmp_path):
+    from recon.benchmarks.auto_scenes import render_case
+
+    case = render_case("beads", 300.0, coarse_bin=8)
+    cell = _cell(case, None, ["wiener", "admm"], 20)
+    assert set(cell) == {"wiener", "admm"}
+    assert all("fails" in v for v in cell.values())
+    fails = {"psnr": 10.0, "converged": False, "fails": True}
+    ok = {"psnr": 30.0, "converged": True, "fails": False, "tv": 1e-4}
+    rows = [[{"admm": ok, "auto": ok}, {"admm": fails, "auto": ok}],
+            [{"admm": fails, "auto": fails}, {"admm": fails, "auto": fails}]]
+    result = {"methods": ["admm", "auto"], "setup": {"bound_db": 20.0, "coarse_bin": 8,
+                                                     "iterations": 20},
+              "density": {"rows": [300.0, 3000.0], "cols": ["a", "b"], "cells": rows},
+              "erasure": {"rows": [300.0], "cols": ["0"], "cells": [rows[0][:1]]}}
+    path = plot_map(result, "density", tmp_path / "map.png", "x")
+    assert path.stat().st_size > 5000
+    text = failure_maps_table(result)
+    assert "density admm: best 30.00 dB; fails at 3/4" in text
