@@ -73,6 +73,10 @@ class IlluminateEmulator(PtyEmulator):
         self.commands: list[bytes] = []
 
     # ------------------------------------------------------------------ parsing
+    def on_replug(self) -> None:
+        """A new USB connection: bytes of a message cut by the unplug are gone."""
+        self._line.clear()
+
     def on_bytes(self, data: bytes) -> None:
         self._line += data
         i = self._line.find(b"\n")

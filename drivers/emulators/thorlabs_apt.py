@@ -192,6 +192,10 @@ class AptEmulator(PtyEmulator):
     def _valid_dest(self, dest: int) -> bool:
         return dest in self.channels or dest in (RACK, USB_UNIT)
 
+    def on_replug(self) -> None:
+        """A new USB connection: bytes of a message cut by the unplug are gone."""
+        self._rx.clear()
+
     def on_bytes(self, data: bytes) -> None:
         self._rx += data
         while len(self._rx) >= 6:

@@ -107,6 +107,10 @@ class ZaberEmulator(PtyEmulator):
             self.devices[device]["silent"] = silent
 
     # ------------------------------------------------------------------ parsing
+    def on_replug(self) -> None:
+        """A new USB connection: bytes of a message cut by the unplug are gone."""
+        self._line.clear()
+
     def on_bytes(self, data: bytes) -> None:
         self._line += data
         while True:

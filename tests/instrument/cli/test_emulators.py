@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -87,3 +88,37 @@ def test_emulators_start_serves_until_sigterm(tmp_path):
         assert proc.wait(30) == 0
     assert "emulators stopped" in proc.stdout.read()
     assert list((tmp_path / "links").iterdir()) == []  # the links went with the ptys
+
+
+def test_psf_sweep_survives_an_unplugged_stage_controller(tmp_path, capsys):
+    """The z controller is unplugged during the sweep's first move and plugged back
+    0.5 s later: the runner reconnects it (found again by serial number on its new pty,
+    settings re-applied) and the run completes."""
+    with EmulatedBench(tmp_path / "links", time_scale=20.0) as emulated:
+        bench = tmp_path / "bench.toml"
+        bench.write_text(emulated.bench_text())
+        z = emulated.emulators["apt-z"]
+
+        def yank():
+            deadline = time.monotonic() + 60
+            while time.monotonic() < deadline:
+                with z.lock:
+                    moving = any(ch.motion is not None for ch in z.channels.values())
+                if moving and z.plug_count == 1:
+                    break
+                time.sleep(0.005)
+            z.unplug()
+            time.sleep(0.5)
+            z.replug()
+
+        thread = threading.Thread(target=yank, daemon=True)
+        thread.start()
+        run = tmp_path / "sweep.zarr"
+        code = main(["calibrate", "psf-sweep", str(bench), "--n-depths", "2", "--z-min", "20",
+                     "--z-max", "40", "--spacing", "uniform", "--out", str(run),
+                     "--reconnect-timeout", "20"])
+        thread.join(5)
+        assert code == 0
+        assert z.plug_count == 2  # it really was unplugged and plugged back
+        assert RunStore.open(run).summary()["status"] == "complete"
+        assert z.position() == round(40.0 * 34554.96)
