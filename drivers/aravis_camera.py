@@ -17,70 +17,35 @@ Protocol facts, settings and pitfalls: docs/drivers/aravis.md.
   dropped. Frame indices count from 0 at open, dropped frames included.
 - Free-run rate: the camera runs at ``min(frame_rate_hz, 1 / exposure_s)`` (the
   driver writes that rate, so a long exposure lowers it on every camera alike).
-- A lost camera (GigE heartbeat ``control-lost``, or a register read that fails
-  after a second without frames) ends the stream with
-  :class:`~drivers.errors.DeviceDisconnectedError`; :meth:`Device.reconnect` opens
-  it again by id and re-applies the settings.
+- A lost camera (GigE heartbeat ``control-lost``, or no answer to a probe after a
+  second without frames: :func:`drivers.aravis_support.gvcp_answers` for GigE) ends
+  the stream with :class:`~drivers.errors.DeviceDisconnectedError`;
+  :meth:`Device.reconnect` opens it again by id and re-applies the settings.
 
-Every wait has a timeout: frames are popped with a deadline, GigE register access
-times out inside Aravis (about 2.5 s for a dead camera).
+Every wait has a timeout: frames are popped with a deadline, the GigE probe waits
+0.6 s, Aravis's own register access times out inside Aravis (2.5 s per read).
 """
 
 from __future__ import annotations
 
 import contextlib
-import socket
-import struct
 import threading
 import time
 from typing import Any
 
 import numpy as np
 
+from drivers.aravis_support import FORMATS, LOST_CODES, frames_between, gvcp_answers, import_aravis
 from drivers.camera import Camera, Frame, FrameRing
 from drivers.camera_image import aligned_region, frame_image
 from drivers.errors import (
     DeviceDisconnectedError,
     DeviceError,
     DeviceValueError,
-    MissingDependencyError,
 )
 from drivers.grab_thread import GrabThread, report_stream_error
 
 __all__ = ["AravisCamera"]
-
-#: Camera pixel formats for each of ours, best first, with their significant bits.
-_FORMATS: dict[str, tuple[tuple[str, int], ...]] = {
-    "mono8": (("Mono8", 8),),
-    "mono12": (("Mono12", 12), ("Mono16", 16)),
-    "mono16": (("Mono16", 16), ("Mono12", 12)),
-}
-_CAMERA_BITS = {"Mono8": 8, "Mono12": 12, "Mono16": 16}
-#: ArvDeviceError codes that mean the camera is gone (NOT_CONNECTED, TRANSFER_ERROR,
-#: TIMEOUT, NOT_CONTROLLER).
-_LOST_CODES = {2, 4, 5, 10}
-_APT = "gir1.2-aravis-0.8 (apt-get install gir1.2-aravis-0.8)"
-
-
-def _import_aravis(device_id: str) -> tuple[Any, Any]:
-    """``(Aravis, GLib)`` from PyGObject, or MissingDependencyError naming the fix."""
-    try:
-        import gi
-    except ImportError as exc:
-        raise MissingDependencyError(
-            device_id, f"PyGObject is not installed ({exc})",
-            "pip install 'diffuserlab[hardware]' (PyGObject<3.51 builds with apt-get install "
-            "libgirepository1.0-dev libcairo2-dev pkg-config)",
-        ) from exc
-    try:
-        gi.require_version("Aravis", "0.8")
-        from gi.repository import Aravis, GLib
-    except (ImportError, ValueError) as exc:
-        raise MissingDependencyError(
-            device_id, f"the Aravis 0.8 typelib is not installed ({exc})", f"install {_APT}",
-        ) from exc
-    return Aravis, GLib
-
 
 class AravisCamera(Camera):
     """A GenICam camera driven through Aravis.
@@ -141,7 +106,7 @@ class AravisCamera(Camera):
                 raise self._error(DeviceValueError, f"{name}={value!r} is not a name",
                                   f"give {name} as a non-empty string")
         if pixel_format is not None:
-            self._choice("pixel_format", pixel_format, list(_FORMATS))
+            self._choice("pixel_format", pixel_format, list(FORMATS))
         self._initial = {
             k: v for k, v in (("pixel_format", pixel_format), ("exposure_s", exposure_s),
                               ("frame_rate_hz", frame_rate_hz), ("gain", gain))
@@ -186,7 +151,7 @@ class AravisCamera(Camera):
             raise
 
     def _connect(self, timeout_s: float) -> None:
-        self._arv, self._glib = _import_aravis(self.device_id)
+        self._arv, self._glib = import_aravis(self.device_id)
         arv = self._arv
         if self._fake:
             arv.enable_interface("Fake")
@@ -267,7 +232,7 @@ class AravisCamera(Camera):
         except self._glib.Error as exc:
             label = what or getattr(fn, "__name__", "aravis call")
             if self._lost.is_set() or (
-                exc.domain == "arv-device-error-quark" and exc.code in _LOST_CODES
+                exc.domain == "arv-device-error-quark" and exc.code in LOST_CODES
             ):
                 self._lost.set()
                 raise self._lost_error(f"{label} failed: {exc.message}") from exc
@@ -295,7 +260,7 @@ class AravisCamera(Camera):
         self._features = f
         formats = set(cam.dup_available_pixel_formats_as_strings() or [])
         self._formats = {ours: next((c for c in cands if c[0] in formats), None)
-                         for ours, cands in _FORMATS.items()}
+                         for ours, cands in FORMATS.items()}
         if not any(self._formats.values()):
             raise self._error(DeviceError, f"no monochrome pixel format among {sorted(formats)}",
                               "use a monochrome camera (Mono8, Mono12 or Mono16)")
@@ -621,7 +586,7 @@ class AravisCamera(Camera):
                 idle_since = time.monotonic()
                 try:
                     fid = int(buf.get_frame_id())
-                    missing = _frames_between(last_id, fid)
+                    missing = frames_between(last_id, fid)
                     last_id = fid
                     if missing:
                         self._stats["id_gaps"] += missing
@@ -646,47 +611,3 @@ class AravisCamera(Camera):
             out["aravis_stream"] = dict(zip(names, (int(v) for v in
                                                     self._stream.get_statistics()), strict=False))
         return out
-
-
-def gvcp_answers(ip: str, *, tries: int = 3, wait_s: float = 0.2) -> bool:
-    """Whether a GigE Vision camera answers a GVCP READREG of its heartbeat-timeout
-    bootstrap register (0x0938); any acknowledge counts (reading needs no control
-    privilege). GigE Vision 2.0, GVCP: header 0x42, flags 0x01 (acknowledge wanted),
-    command 0x0080, length 4, request id; then the 32-bit address, big-endian.
-
-    Parameters
-    ----------
-    ip : str
-        The camera's IPv4 address (GVCP port 3956).
-    tries, wait_s : int, float
-        Requests sent and the wait for each answer, in seconds.
-
-    Returns
-    -------
-    bool
-    """
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.settimeout(wait_s)
-        for req_id in range(1, tries + 1):
-            sock.sendto(struct.pack(">BBHHHI", 0x42, 0x01, 0x0080, 4, req_id, 0x0938),
-                        (ip, 3956))
-            try:
-                reply, _ = sock.recvfrom(64)
-            except (TimeoutError, ConnectionRefusedError, OSError):
-                continue
-            if len(reply) >= 8 and struct.unpack(">H", reply[2:4])[0] == 0x0081:
-                return True
-    return False
-
-
-def _frames_between(last: int | None, fid: int) -> int:
-    """Frames missing between camera frame ids ``last`` and ``fid``: GigE Vision ids
-    are 16-bit and wrap from 65535 to 1 (0 is invalid); a step back that is not a
-    wrap (a restarted camera) counts as none."""
-    if last is None or fid == last:
-        return 0
-    if fid > last:
-        return fid - last - 1
-    if last <= 0xFFFF and last >= 0x8000 and fid < 0x8000:
-        return (0xFFFF - last) + (fid - 1)
-    return 0

@@ -18,7 +18,8 @@ import time
 import numpy as np
 import pytest
 
-from drivers.aravis_camera import AravisCamera, _frames_between, _import_aravis, gvcp_answers
+from drivers.aravis_camera import AravisCamera
+from drivers.aravis_support import frames_between, gvcp_answers, import_aravis
 from drivers.camera import FrameRing
 from drivers.camera_image import aligned_region, frame_image
 from drivers.errors import (
@@ -46,7 +47,7 @@ class FakeGvCamera:
         self.lost_ratio = 0
 
     def start(self, lost_ratio: int = 0) -> None:
-        Aravis, GLib = _import_aravis("gv-test")
+        Aravis, GLib = import_aravis("gv-test")
         self.stop()
         args = [GV_BINARY, "-i", GV_ADDRESS, "-s", GV_SERIAL]
         if lost_ratio:
@@ -393,11 +394,11 @@ def test_gvcp_probe_tells_a_live_camera_from_a_dead_one(gv_process):
 
 # --------------------------------------------------------------------- host-side helpers
 def test_frame_id_gaps_with_the_16_bit_wrap():
-    assert _frames_between(None, 5) == 0
-    assert _frames_between(5, 6) == 0 and _frames_between(5, 9) == 3
-    assert _frames_between(65535, 1) == 0  # GigE ids skip 0
-    assert _frames_between(65534, 2) == 2  # 65535 and 1 lost
-    assert _frames_between(100, 3) == 0  # a restarted camera, not a loss
+    assert frames_between(None, 5) == 0
+    assert frames_between(5, 6) == 0 and frames_between(5, 9) == 3
+    assert frames_between(65535, 1) == 0  # GigE ids skip 0
+    assert frames_between(65534, 2) == 2  # 65535 and 1 lost
+    assert frames_between(100, 3) == 0  # a restarted camera, not a loss
 
 
 def test_aligned_region_covers_the_roi_on_the_camera_grid():
