@@ -22,6 +22,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from drivers.errors import (
+    DeviceDisconnectedError,
     DeviceProtocolError,
     DeviceStateError,
     DeviceValueError,
@@ -241,7 +242,8 @@ class ZaberAsciiStage(HostTableStage):
 
     def _do_check_connection(self) -> None:
         if not self._link.is_open:
-            self._link.write(b"")  # raises DeviceDisconnectedError
+            raise self._error(DeviceDisconnectedError, f"serial port {self._link.path} is "
+                              "closed (the device went away)", "call reconnect()")
 
     def _send_velocity(self, axis: str, velocity: float) -> None:
         data = max(1, round(velocity / self._step[axis] * 1.6384))
