@@ -148,7 +148,8 @@ def test_validate_lab_bench_unknown_drivers_then_simulated(capsys):
                    ("illuminate", "led_array"), ("fullscreen-slm", "slm"),
                    ("zaber-ascii", "mask_stage")]
     installed = set(registry.names())
-    assert {"thorlabs-apt", "zaber-ascii", "illuminate"} <= installed  # the real drivers
+    assert {"thorlabs-apt", "zaber-ascii", "illuminate", "aravis", "fullscreen-slm",
+            "v4l2"} <= installed  # the real drivers
     missing = [(name, dev) for name, dev in lab_drivers if name not in installed]
     assert main(["validate", LAB]) == (2 if missing else 0)
     err = capsys.readouterr().err.splitlines()
