@@ -41,7 +41,12 @@ import numpy as np
 
 from drivers.camera import Camera, Frame, FrameRing
 from drivers.camera_image import frame_image
-from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceValueError
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceError,
+    DeviceValueError,
+    MissingDependencyError,
+)
 from drivers.grab_thread import GrabThread, report_stream_error
 
 __all__ = ["BY_ID_DIR", "V4l2Camera"]
@@ -220,8 +225,6 @@ class V4l2Camera(Camera):
         try:
             cap = self._backend(path)
         except ImportError as exc:
-            from drivers.errors import MissingDependencyError
-
             raise MissingDependencyError(
                 self.device_id, f"OpenCV is not importable ({exc})",
                 "pip install opencv-contrib-python-headless (a dependency of diffuserlab)",
