@@ -281,8 +281,8 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
         raise
 
 
-def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, tv: float,
-                l1: float, out: str, depths_mm: list[float] | None = None,
+def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
+                tv: float | str, l1: float | str, out: str, depths_mm: list[float] | None = None,
                 bin_factor: int = 1, dark: str | float = "auto",
                 psf_product: str = "psf_stack", metrics_json: str | None = None) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
@@ -298,8 +298,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
     method : {"admm", "fista"}
     iterations : int
         Solver iterations (>= 1).
-    tv, l1 : float
-        3D TV and l1 weights in the scaled problem (>= 0; 0 disables).
+    tv, l1 : float or "auto"
+        3D TV and l1 weights in the scaled problem (>= 0; 0 disables; "auto": see
+        :func:`recon.reconstruct_volume`).
     out : str
         ``OUT.tif``/``OUT.tiff`` or ``OUT.zarr``; projections go to
         ``OUT_mip_xy.png``, ``OUT_mip_xz.png`` and ``OUT_mip_yz.png``.
@@ -332,12 +333,15 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int, 
     recon.errors.DivergenceError
         The solver diverged.
     """
+    from recon.auto import AUTO, parse_weight
     from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
     from recon.volume.api import check_volume_parameters, reconstruct_volume
 
     from .stacks import load_psf_stack
 
-    check_volume_parameters(method, iterations, tv, l1)
+    tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    check_volume_parameters("admm" if method == AUTO else method, iterations,
+                            0.0 if tv == AUTO else tv, 0.0 if l1 == AUTO else l1)
     vol_path, mip_paths = volume_output_paths(out)
     t_start = time.perf_counter()
     stack, depths, _ = load_psf_stack(psf_stack, depths_mm, product=psf_product)

@@ -43,15 +43,13 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--depths", default=None,
                    help="comma-separated depths in mm, one per plane (unless recorded)")
     p.add_argument("--raw", required=True, help="raw measurement, same size as the PSFs")
-    p.add_argument("--method", default="admm", help="admm or fista (default admm)")
+    p.add_argument("--method", default="auto", help="admm, fista or auto (admm; default)")
     p.add_argument("--iterations", type=int, default=100)
-    from recon.volume import DEFAULT_TV
-
-    p.add_argument("--tv", type=float, default=DEFAULT_TV["admm"],
-                   help="3D TV weight in the scaled problem (0 disables; default "
-                   f"{DEFAULT_TV['admm']:g}, chosen by the 3D accuracy benchmark)")
-    p.add_argument("--l1", type=float, default=0.0,
-                   help="l1 (native sparsity) weight in the scaled problem (default 0)")
+    p.add_argument("--tv", default="auto",
+                   help="3D TV weight in the scaled problem (0 disables), or auto (default): "
+                   "hold-out cross-validation, and only the planes that hold signal")
+    p.add_argument("--l1", default="0",
+                   help="l1 (native sparsity) weight in the scaled problem, or auto; default 0")
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
                    help="lateral box binning of every plane and of the raw image")
     p.add_argument("--dark", default="auto",
@@ -118,5 +116,9 @@ def run(args: argparse.Namespace) -> int:
                     tv=args.tv, l1=args.l1, out=args.out, depths_mm=depths,
                     bin_factor=args.bin_factor, dark=dark,
                     psf_product=args.psf_product, metrics_json=args.metrics_json)
+    auto = m.get("auto")
+    if auto:
+        print(f"{auto['regulariser']} weight {auto['weight']:.3g}, planes kept "
+              f"{auto['planes_kept']}: {auto['reason']}")
     print(summary_line(m))
     return 0

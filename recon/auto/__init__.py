@@ -38,11 +38,11 @@ def parse_weight(value, name: str):
     try:
         w = float(value)
     except (TypeError, ValueError):
-        raise ReconInputError(f"{name} weight must be a finite number >= 0 or 'auto', got "
-                              f"{value!r}") from None
+        raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
+                              f"'auto', got {value!r}") from None
     if not (np.isfinite(w) and w >= 0):
-        raise ReconInputError(f"{name} weight must be a finite number >= 0 or 'auto', got "
-                              f"{value!r}")
+        raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
+                              f"'auto', got {value!r}")
     return w
 
 

@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..auto import AUTO, parse_weight
+from ..auto.volume import auto_volume
 from ..errors import ReconInputError
 from ..preprocess import (
     box_bin,
@@ -251,8 +253,9 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
 
 def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                        method: str = "admm", iterations: int = 100,
-                       tv: float | None = None, l1: float = 0.0, bin_factor: int = 1,
-                       dark: str | float = "auto") -> VolumeReconstruction:
+                       tv: float | str | None = "auto", l1: float | str = 0.0,
+                       bin_factor: int = 1, dark: str | float = "auto"
+                       ) -> VolumeReconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -263,16 +266,20 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         Depth of every plane, mm.
     raw : ndarray, shape (rows, cols), real
         The measurement (sensor counts), the size of one plane.
-    method : {"admm", "fista"}
+    method : {"admm", "fista", "auto"}
         3D ADMM (:func:`recon.volume.admm3d`) or 3D FISTA
-        (:func:`recon.volume.fista3d`).
+        (:func:`recon.volume.fista3d`); ``"auto"`` is ADMM (the 3D accuracy
+        benchmark's best).
     iterations : int
         Solver iterations (>= 1).
-    tv : float, optional
-        3D TV weight in the scaled problem (>= 0; 0 disables); default
-        :data:`DEFAULT_TV` for the method.
-    l1 : float
-        l1 (native sparsity) weight in the scaled problem (>= 0; 0 disables).
+    tv : "auto" or float
+        3D TV weight in the scaled problem (>= 0; 0 disables); ``"auto"`` (default)
+        chooses it by hold-out cross-validation and keeps only the planes that hold
+        signal (:func:`recon.auto.volume.auto_volume`; ``info["auto"]`` says what and
+        why); ``None`` gives :data:`DEFAULT_TV` for the method.
+    l1 : "auto" or float
+        l1 (native sparsity) weight in the scaled problem (>= 0; 0 disables); with
+        ``"auto"`` it is the weight chosen (TV then fixed, 0 if ``tv`` is ``"auto"``).
     bin_factor : int
         Lateral box binning of the stack and the raw image.
     dark : "auto", "none" or float
@@ -291,9 +298,16 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     recon.errors.DivergenceError
         The solver diverged.
     """
+    if method == AUTO:  # 3D ADMM: the best localisation and PSNR of the 3D benchmark
+        method = "admm"
     if tv is None:
         tv = DEFAULT_TV.get(method, 0.0)  # an unknown method is refused just below
-    check_volume_parameters(method, iterations, tv, l1, bin_factor)
+    tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    auto_reg = "l1" if l1 == AUTO else "tv" if tv == AUTO else None
+    if auto_reg == "l1" and tv == AUTO:
+        tv = 0.0
+    check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
+                            0.0 if l1 == AUTO else l1, bin_factor)
     iterations, bin_factor = int(iterations), int(bin_factor)  # numpy integers too
     if not (isinstance(dark, str) and dark in ("auto", "none")):
         _dark_value(dark)
@@ -318,7 +332,13 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
-    result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+    if auto_reg is None:
+        result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+    else:
+        result, record = auto_volume(SOLVERS[method], op, b, iterations=iterations,
+                                     regulariser=auto_reg, other=l1 if auto_reg == "tv" else tv)
+        info["auto"] = record
+        tv, l1 = ((record["weight"], l1) if auto_reg == "tv" else (tv, record["weight"]))
     volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
                                   dtype=np.float32)
     info.update(method=method, iterations=iterations, tv=tv, l1=l1, psf_scale=psf_scale,

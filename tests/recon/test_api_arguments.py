@@ -45,8 +45,8 @@ def test_reconstruct_accepts_numpy_integers():
     ({"iterations": -3}, "--iterations must be an integer >= 1, got -3"),
     ({"bin_factor": 0.5}, "--bin must be an integer >= 1, got 0.5"),
     ({"bin_factor": 0}, "--bin must be an integer >= 1, got 0"),
-    ({"tv": "x"}, "--tv must be a finite number >= 0"),
-    ({"l1": float("inf")}, "--l1 must be a finite number >= 0"),
+    ({"tv": "x"}, "--tv: tv weight must be a finite number >= 0 or 'auto'"),
+    ({"l1": float("inf")}, "--l1: l1 weight must be a finite number >= 0 or 'auto'"),
 ])
 def test_reconstruct_volume_refuses(kwargs, message):
     with pytest.raises(ReconInputError) as info:
