@@ -21,7 +21,8 @@ start, the weight divided by ``factor`` (2, or more when the iterations do not a
 the whole path from :data:`START_WEIGHT` to :data:`END_WEIGHT` at 2) every ``stage``
 iterations, each stage warm-started from the last (continuation; Hale, Yin & Zhang
 2008); the first stage is three long (ADMM's start-up transient). The path stops
-when the held-out error has risen twice. It costs at most ``iterations``; the final
+when the held-out error has risen twice by more than one standard error above the
+best so far. It costs at most ``iterations``; the final
 solve on all pixels, warm-started at the chosen stage's estimate, at most
 ``iterations`` more and usually less (:class:`Stopping`): at most 2x a fixed-weight
 run of the same iterations.
@@ -233,7 +234,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         estimates.append(state.x.copy())
         if best is None or err < best[1]:
             best, rises = (len(path) - 1, err, se), 0
-        else:
+        elif err > best[1] + best[2]:  # a rise beyond the error's own scatter
             rises += 1
             if rises == 2:  # past the minimum: smaller weights only fit noise
                 break
