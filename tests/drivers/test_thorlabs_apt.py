@@ -218,3 +218,26 @@ def test_moves_from_two_threads_do_not_mix_replies(emulator, tmp_path):
             stage.is_moving()
         t.join()
         assert not errors
+
+
+def test_kst101_stepper_profile(tmp_path):
+    """KST101: microsteps (ZST actuator 2008645.63 per mm), stepper velocity units and the
+    28-byte GET_STATUSUPDATE framed by its length while the keepalive runs."""
+    emu = AptEmulator("kst101", serial_number=26000042, time_scale=200.0,
+                      travel_counts=(0, round(25 * 2008645.63)), update_period_s=0.01,
+                      link=tmp_path / "usb-Thorlabs_Stepper_Motor_Controller_26000042-if00-port0")
+    with emu:
+        stage = ThorlabsAptStage("stage", axes=["x"], serial_numbers={"x": "26000042"},
+                                 limits_mm={"x": [0, 25]}, speed_mm_s=1.0, home_on_open=True,
+                                 keepalive_s=0.2, reply_timeout_s=1.0,
+                                 search_dirs=[str(tmp_path)])
+        with stage:
+            vel = emu.channels[0x50].velocity[2]
+            assert vel == round(2008645.63 * 1.0 * 53.68)  # microsteps/s x 53.68
+            stage.move_to({"x": 12.5})
+            assert emu.position() == round(12.5 * 2008645.63)
+            time.sleep(0.6)
+            info = stage.status()["controllers"]["sn:26000042"]
+            assert info["model"] == "KST101" and info["resyncs"] == 0
+            assert b"\x81\x04\x1c\x00\x81\x50" in bytes(emu.sent)  # 28-byte updates were sent
+            assert emu.acks >= 1
