@@ -201,6 +201,7 @@ def reconstruct(
     tv: float | str | None = "auto",
     l1: float | str = 0.0,
     seconds: float | None = None,
+    auto_stop: bool = True,
     bin_factor: int = 1,
     dark=None,
     bayer=None,
@@ -236,6 +237,9 @@ def reconstruct(
     seconds : float, optional
         Time budget of each channel's solve, for ``method="auto"`` (Wiener when it
         affords too few iterations).
+    auto_stop : bool
+        Automatic stopping of a fixed-weight solve (default); False runs exactly
+        ``iterations`` (the automatic weight always stops by itself).
     bin_factor : int
         Box binning before reconstruction (4 gives the tutorial's 300 x 400).
     dark, bayer
@@ -328,7 +332,8 @@ def reconstruct(
             fft_s = fft_pair_seconds(op.padded_shape)  # the budget's unit, measured now
         res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
                                     iterations=iterations, tv=tv, l1=l1, seconds=seconds,
-                                    fft_pair_s=fft_s, **solver_options)
+                                    fft_pair_s=fft_s, auto_stop=auto_stop,
+                                    **solver_options)
         results.append(res)
         records.append(record)
         estimates.append(res.x * raw_scale)

@@ -233,7 +233,7 @@ class LiveReconstructor:
         -------
         LiveResult
             Cold: equal to ``recon.reconstruct(psf, raw, "admm", iterations=iterations,
-            tv=tv, mu=mu, balance=balance, ...)``.
+            tv=tv, auto_stop=False, mu=mu, balance=balance, ...)``.
 
         Raises
         ------

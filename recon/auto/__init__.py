@@ -48,7 +48,7 @@ def parse_weight(value, name: str):
 
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
                   iterations: int, tv, l1, seconds: float | None = None,
-                  fft_pair_s: float | None = None, **options
+                  fft_pair_s: float | None = None, auto_stop: bool = True, **options
                   ) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
@@ -74,6 +74,9 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         Time budget of the solve (``method="auto"`` only).
     fft_pair_s : float, optional
         Measured FFT floor (needed with ``seconds``).
+    auto_stop : bool
+        Stop a fixed-weight solve when its fit settles (:class:`Stopping`); False
+        runs exactly ``iterations``.
     **options
         Passed to a fixed method's solver.
 
@@ -134,7 +137,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
                 tv, l1 = chosen.weight, (0.0 if l1 == AUTO else l1)
             else:
                 tv, l1 = (0.0 if tv == AUTO else tv), chosen.weight
-        stop = Stopping().hook(target, b_norm)
+        stop = Stopping().hook(target, b_norm) if auto_stop else None
         extra = {"l1": l1} if l1 else {}
         res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options)
     record.update(tv=float(tv), l1=float(l1),

@@ -25,7 +25,7 @@ def test_cold_admm_equals_reconstruct_exactly(bin_factor):
     live = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, mu=(1e-3, 2e-3, 3e-3))
     got = live.admm(raw, iterations=12, warm_start=False)
     ref = recon.reconstruct(psf, raw, "admm", iterations=12, bin_factor=bin_factor, tv=1e-3,
-                            mu=(1e-3, 2e-3, 3e-3))
+                            auto_stop=False, mu=(1e-3, 2e-3, 3e-3))
     np.testing.assert_array_equal(got.image, ref.image)
     np.testing.assert_array_equal(got.estimate, ref.estimate)
     assert got.solve.history.objective == ref.results[0].history.objective
