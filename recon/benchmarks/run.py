@@ -34,7 +34,8 @@ log = logging.getLogger(__name__)
 
 #: The benchmarks, in the order they run.
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
-              "volume_accuracy", "spatial_speed", "spatial_accuracy", "auto", "failure_maps")
+              "volume_accuracy", "spatial_speed", "spatial_accuracy", "auto", "failure_maps",
+              "failure_map_3d")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
@@ -46,7 +47,8 @@ _TABLES = {"speed": ("speed", "speed_table"), "accuracy": ("accuracy", "accuracy
            "spatial_speed": ("spatial", "spatial_speed_table"),
            "spatial_accuracy": ("spatial", "spatial_accuracy_table"),
            "auto": ("auto", "auto_table"),
-           "failure_maps": ("failure_maps", "failure_maps_table")}
+           "failure_maps": ("failure_maps", "failure_maps_table"),
+           "failure_map_3d": ("failure_map_3d", "failure_map_3d_table")}
 
 
 def format_result(name: str, result: dict) -> str:
@@ -228,11 +230,12 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
             results[name] = run_erasure(quick, out, weights)
         elif name == "volume_speed":
             results[name] = run_volume_speed(quick, out)
-        elif name in ("auto", "failure_maps"):
-            from . import auto, failure_maps
+        elif name in ("auto", "failure_maps", "failure_map_3d"):
+            from . import auto, failure_map_3d, failure_maps
 
-            results[name] = (auto.run_auto(quick, out) if name == "auto"
-                             else failure_maps.run_failure_maps(quick, out))
+            run = {"auto": auto.run_auto, "failure_maps": failure_maps.run_failure_maps,
+                   "failure_map_3d": failure_map_3d.run_failure_map_3d}[name]
+            results[name] = run(quick, out)
         elif name.startswith("spatial_"):
             from . import spatial
 

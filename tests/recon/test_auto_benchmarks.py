@@ -51,3 +51,15 @@ def test_failure_map_cell_and_figure(tmp_path):
     assert path.stat().st_size > 5000
     text = failure_maps_table(result)
     assert "density admm: best 30.00 dB; fails at 3/4" in text
+
+
+def test_failure_map_3d_quick(tmp_path):
+    from recon.benchmarks.failure_map_3d import failure_map_3d_table, run_failure_map_3d
+
+    r = run_failure_map_3d(quick=True, out=tmp_path)
+    cell = r["cells"][0][0]
+    assert set(cell) == {"fista3d", "admm3d", "auto"}
+    assert all(0.0 <= c["found"] <= 1.0 for c in cell.values())
+    assert "planes_kept" in cell["auto"]
+    assert (tmp_path / "failure_map_3d.png").stat().st_size > 5000
+    assert "auto: fails at" in failure_map_3d_table(r)
