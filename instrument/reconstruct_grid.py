@@ -1,6 +1,7 @@
 """Reconstruction from PSF-grid runs: ``recon --psf-grid`` and ``recon3d --psf-grid``.
 
-A ``calibrate psf-grid`` run (:class:`calibration_routines.PsfGridPlan`) stores the
+A ``calibrate psf-grid`` run (:class:`calibration_routines.PsfGridPlan`; or a
+``calibrate psf-blind`` run, :class:`calibration_routines.PsfBlindPlan`) stores the
 registered PSFs of one depth (``products/psf_grid_registered``) with the source
 positions, the registered shifts and the depth; :func:`load_psf_grid` turns one
 into a :class:`recon.spatial.PsfGrid`. :func:`run_recon_grid` reconstructs one frame
@@ -52,9 +53,10 @@ def load_psf_grid(path: str | Path):
     try:
         store = RunStore.open(path)
         plan = store.attrs["plan"]
-        if plan.get("name") != "psf-grid":
+        if plan.get("name") not in ("psf-grid", "psf-blind"):
             raise ReconInputError(f"{path} is a {plan.get('name')!r} run, not a psf-grid run; "
-                                  "calibrate one with `diffuserlab calibrate psf-grid`")
+                                  "calibrate one with `diffuserlab calibrate psf-grid` (or "
+                                  "psf-blind)")
         psfs, attrs = store.product(GRID_PRODUCT)
     except RunStoreError as exc:
         raise ReconInputError(f"{exc}; finish the run with `diffuserlab calibrate resume "

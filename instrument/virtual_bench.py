@@ -93,10 +93,13 @@ class PlanarScene:
 @dataclass(frozen=True)
 class BeadScene:
     """Point-like beads in 3D: positions (N, 3) in mm (x, y, z) and powers (N,)
-    in photons / s emitted isotropically."""
+    in photons / s emitted isotropically. ``on_stage``: a bead slide carried by the
+    source stage, the positions relative to the stage's (x, y, z) (compressive
+    calibration, Sec. 5.4: the stage moves the slide between images)."""
 
     points_xyz_mm: np.ndarray
     powers_photons_per_s: np.ndarray
+    on_stage: bool = False
 
 
 @dataclass(frozen=True)
@@ -469,7 +472,10 @@ class VirtualBench(Bench):
         else:
             gray = pose = None
             sources = () if self.state["camera_capped"] else self.point_sources()
-            key = ("lensless", sources, state, self._scene_version, self._scene_time(camera))
+            slide = (self.source_position_mm() if isinstance(self.scene, BeadScene)
+                     and self.scene.on_stage else None)
+            key = ("lensless", sources, state, self._scene_version, slide,
+                   self._scene_time(camera))
         drift = 1.0
         if self.branch == "holography":  # the laser's power walks with bench time
             d = self.hologram.drift
@@ -567,8 +573,10 @@ class VirtualBench(Bench):
         if isinstance(s, TiltedTargetScene):
             return s.radiance * self.model.render_tilted_target(
                 s.z_near_mm, s.z_far_mm, s.width_mm, target=s.target)
-        return self.model.render_points(np.asarray(s.points_xyz_mm, float),
-                                        np.asarray(s.powers_photons_per_s, float))
+        points = np.asarray(s.points_xyz_mm, float)
+        if s.on_stage:
+            points = points + np.asarray(self.source_position_mm())
+        return self.model.render_points(points, np.asarray(s.powers_photons_per_s, float))
 
     # -- holography branch --------------------------------------------------------------
     @property

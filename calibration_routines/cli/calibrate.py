@@ -1,4 +1,4 @@
-"""``diffuserlab calibrate {dark,psf-sweep,psf-grid,angular-response,slm-lut,resume}``.
+"""``diffuserlab calibrate {dark,psf-sweep,psf-grid,psf-blind,angular-response,slm-lut,resume}``.
 
 Registered with the ``diffuserlab`` command through the entry-point group
 ``diffuserlab.commands`` (so the instrument layer never imports this one). Each
@@ -28,7 +28,8 @@ from .common import add_bench_arguments, make_bench
 
 __all__ = ["add_subcommands", "run"]
 
-ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
+ROUTINES = ("dark", "psf-sweep", "psf-grid", "psf-blind", "angular-response",
+            "slm-lut")
 
 
 def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
@@ -80,6 +81,19 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                       help="measured sensor fall-off sigma for the Nyquist check")
     fall.add_argument("--falloff-run", default=None,
                       help="angular-response run to take the fall-off sigma from")
+    bp = csub.add_parser("psf-blind", help="PSF grid from images of a bead slide at "
+                         "random stage offsets, by blind deconvolution (Sec. 5.4)")
+    _common(bp)
+    bp.add_argument("--images", type=int, default=4, help="bead-slide images (default 4)")
+    bp.add_argument("--grid", type=int, default=3, help="grid x grid PSFs to recover")
+    bp.add_argument("--z-mm", type=float, required=True, help="depth of the slide, mm")
+    bp.add_argument("--node-spacing-mm", type=float, required=True,
+                    help="spacing of the recovered PSFs in the object plane, mm")
+    bp.add_argument("--exposure-s", type=float, required=True,
+                    help="exposure of every image and dark, s")
+    bp.add_argument("--rounds", type=int, default=6, help="blind deconvolution rounds")
+    bp.add_argument("--bin", type=int, default=1, dest="bin_factor",
+                    help="bin the images before the blind deconvolution")
     ap = csub.add_parser("angular-response", help="sensor angular response (Fig. 3.5)")
     _common(ap)
     ap.add_argument("--z-mm", type=float, default=None, help="source depth, mm")
@@ -146,6 +160,13 @@ def _plan(args, bench):
         return PsfGridPlan.for_bench(bench, mode=args.mode, n=args.n, spacing_mm=args.spacing_mm,
                                      z_mm=args.z_mm, led_step=args.led_step,
                                      falloff_sigma_deg=args.falloff_sigma_deg, **frames)
+    if args.routine == "psf-blind":
+        from ..psf_blind import PsfBlindPlan
+
+        return PsfBlindPlan.for_bench(bench, n_images=args.images, z_mm=args.z_mm,
+                                      grid=args.grid, node_spacing_mm=args.node_spacing_mm,
+                                      exposure_s=args.exposure_s, seed=args.seed,
+                                      rounds=args.rounds, bin_factor=args.bin_factor, **frames)
     if args.routine == "slm-lut":
         from ..slm_lut import SlmLutPlan
 
@@ -158,6 +179,20 @@ def _plan(args, bench):
     params = {k: given[k] for k in ("z_mm", "max_angle_deg", "n_angles", "beta_deg")
               if k in given}
     return AngularResponsePlan.for_bench(bench, **params, **frames)
+
+
+def _bead_slide(bench, args) -> None:
+    """The virtual bench's bead slide for ``psf-blind --simulate``: 8 beads (seeded by
+    ``--seed``) over the node grid's field, carried by the source stage."""
+    import numpy as np
+
+    from instrument.virtual_bench import BeadScene
+
+    rng = np.random.default_rng([args.seed, 0x51])
+    half = args.node_spacing_mm * (args.grid - 1) / 2
+    xy = rng.uniform(-half, half, (8, 2))
+    points = np.column_stack([xy, np.zeros(8)])
+    bench.set_scene(BeadScene(points, np.full(8, bench.source_power), on_stage=True))
 
 
 def _falloff_sigma_deg(path: str) -> float:
@@ -273,6 +308,8 @@ def run(args: argparse.Namespace) -> int:
         bench = make_bench(args, f"calibrate {args.routine}")
         if args.simulate:
             bench.open()
+            if args.routine == "psf-blind":
+                _bead_slide(bench, args)
     except MissingBenchFile as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2

@@ -8,11 +8,14 @@
 - :mod:`recon.spatial.choice` -- which model a grid needs (convolution, PCA with
   the smallest k, local) from predicted model errors and, optionally, measured
   reconstruction PSNR.
+- :mod:`recon.spatial.blind` -- compressive calibration by blind deconvolution
+  (Sec. 5.4, Eq. 5.11-5.13).
 - :mod:`recon.spatial.background` -- FISTA jointly over the object and a smooth
   background restricted to the lowest DCT coefficients (Eq. 6.2).
 """
 
 from .background import dct_basis, fista_background, lowpass_background
+from .blind import BlindCalibration, blind_calibration
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .grid import PsfGrid, register_psfs, scale_psf, synthesize_grid
 from .operator import (
@@ -24,6 +27,8 @@ from .operator import (
 )
 
 __all__ = [
+    "BlindCalibration",
+    "blind_calibration",
     "MODELS",
     "ModelChoice",
     "build_operator",
