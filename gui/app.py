@@ -26,9 +26,14 @@ from PySide6.QtWidgets import (
 
 from .session import Session
 
-__all__ = ["MainWindow", "main", "settings"]
+__all__ = ["SWITCH_INTERVAL_S", "MainWindow", "configure", "main", "settings"]
 
 log = logging.getLogger(__name__)
+
+#: The interpreter's thread switch interval in the GUI process, s (Python's default is
+#: 5 ms): the GUI thread takes the GIL back from busy workers (live reconstruction,
+#: the virtual bench's rendering) sooner; measured with ``python -m gui.benchmark``.
+SWITCH_INTERVAL_S = 0.0005
 
 #: Dock titles, in tab order.
 PANELS = ("Devices", "Live view", "Calibration", "Alignment", "Record", "Results")
@@ -79,7 +84,7 @@ class MainWindow(QMainWindow):
             dock.setObjectName(f"dock-{title}")
             dock.setWidget(widget)
             self.docks[title] = dock
-        self.devices.setMinimumWidth(470)
+        self.devices.setMinimumWidth(560)
         self.addDockWidget(Qt.DockWidgetArea.LeftDockWidgetArea, self.docks["Devices"])
         self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, self.docks["Live view"])
         for title in PANELS[2:]:
@@ -160,6 +165,12 @@ class MainWindow(QMainWindow):
             job.wait(10.0)
 
 
+def configure() -> None:
+    """Process-wide settings of the GUI: row-major images, the thread switch interval."""
+    pg.setConfigOptions(imageAxisOrder="row-major")
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+
+
 def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
          scene: str = "beads-flow", connect: bool = True) -> int:
     """Run the GUI until its window closes; returns the exit status.
@@ -181,7 +192,7 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setOrganizationName("DiffuserLab")
     app.setApplicationName("gui")
-    pg.setConfigOptions(imageAxisOrder="row-major", antialias=True)
+    configure()
     if bench is None and not simulate:
         bench = settings().value("bench/last_file")
         if bench is None:

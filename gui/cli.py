@@ -37,5 +37,25 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise ImportError(f"the GUI needs the gui extra ({exc}); install it with "
                           "pip install 'diffuserlab[gui]'") from None
-    return main(args.bench, simulate=args.simulate, seed=args.seed, scene=args.scene,
-                connect=not args.no_connect)
+    status = main(args.bench, simulate=args.simulate, seed=args.seed, scene=args.scene,
+                  connect=not args.no_connect)
+    _exit_now(status)
+    return status
+
+
+def _exit_now(status: int) -> None:
+    """End the process once the window has closed (settings saved, bench closed).
+
+    PySide6 6.12 with pyqtgraph aborts in the interpreter's final garbage collection
+    ("Fatal Python error: none_dealloc / bool_dealloc") after a window with hidden
+    widgets was shown; nothing is left to do then, so the process ends without that
+    collection (output flushed, logging shut down first).
+    """
+    import logging
+    import os
+    import sys
+
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)

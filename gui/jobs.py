@@ -216,6 +216,25 @@ def _camera(session, user: str):
         session.release_camera(user)
 
 
+def _tagged(report, tags_of_point):
+    """The runner's event handler: ``report(event)`` with ``event.tag``, the plan's tag
+    of each captured frame (``psf``, ``dark``, ...; None on other events), so the panel
+    can show the frames of interest as they are taken."""
+    seen = {"point": None, "k": 0}
+
+    def on_event(e) -> None:
+        e.tag = None
+        if e.kind == "frame" and e.point is not None:
+            if e.point != seen["point"]:
+                seen.update(point=e.point, k=0)
+            tags = tags_of_point(e.point)
+            e.tag = tags[seen["k"]] if seen["k"] < len(tags) else None
+            seen["k"] += 1
+        report(e)
+
+    return on_event
+
+
 def run_plan(job, session, plan, path: str, control, *, overwrite: bool = False):
     """Run ``plan`` into a new store at ``path`` (progress: the runner's events).
 
@@ -227,8 +246,10 @@ def run_plan(job, session, plan, path: str, control, *, overwrite: bool = False)
     from instrument.runner import Runner
 
     check_outputs([path], {}, overwrite, store=True)
+    points = plan.points()
     with _camera(session, "the calibration run"):
-        runner = Runner(session.bench, on_event=job.report, control=control)
+        runner = Runner(session.bench, control=control,
+                        on_event=_tagged(job.report, lambda i: points[i].tags))
         return runner.run(plan, path, overwrite=overwrite)
 
 
@@ -236,9 +257,16 @@ def resume_plan(job, session, path: str, control, *, accept_differences: bool = 
     """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
     import calibration_routines  # noqa: F401  (registers the plans for resume)
     from instrument.runner import Runner
+    from instrument.runstore import RunStore
+
+    store = RunStore.open(path)
+
+    def tags_of_point(point: int) -> list[str]:
+        return [store.tag_of(i) for i in store.frame_range(point)]
 
     with _camera(session, "the calibration run"):
-        runner = Runner(session.bench, on_event=job.report, control=control)
+        runner = Runner(session.bench, control=control,
+                        on_event=_tagged(job.report, tags_of_point))
         return runner.resume(path, accept_differences=accept_differences)
 
 

@@ -105,11 +105,14 @@ class Session(QObject):
 
         return bench_config(self.bench_path, simulate=self.simulate, command="gui")
 
-    def connect_bench(self) -> Job:
-        """Open the bench on a worker thread; ``changed`` fires when it is open."""
+    def connect_bench(self, on_error: Callable[[str], None] | None = None) -> Job:
+        """Open the bench on a worker thread; ``changed`` fires when it is open,
+        ``on_error(message)`` is called if it cannot be opened."""
         job = Job(self._open, name="open-bench")
         job.succeeded.connect(self._opened)
         job.failed.connect(lambda text: self.message.emit(f"could not connect: {text}"))
+        if on_error is not None:
+            job.failed.connect(on_error)
         self.job = job
         return job.start()
 
@@ -177,7 +180,7 @@ class Session(QObject):
         vb.set_scene(scene)
         vb.prerender()
 
-    def set_scene(self, name: str) -> Job:
+    def set_scene(self, name: str, on_error: Callable[[str], None] | None = None) -> Job:
         """Put a moving scene (:data:`SCENES`) in front of the virtual bench's camera
         (rendered ahead on a worker thread)."""
         if name not in SCENES:
@@ -185,6 +188,8 @@ class Session(QObject):
         self.scene_name = name
         job = Job(lambda job: self._set_scene(self.bench, name), name="scene")
         job.failed.connect(lambda text: self.message.emit(f"scene: {text}"))
+        if on_error is not None:
+            job.failed.connect(on_error)
         self.job = job
         return job.start()
 

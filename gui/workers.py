@@ -32,11 +32,13 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from instrument.live import LiveReconstructionError
     from instrument.output_safety import OutputError
     from instrument.plan import PlanError
+    from instrument.runner import RunAborted
     from instrument.runstore import RunStoreError
     from recon.errors import ReconInputError
 
     return (DeviceError, PlanError, RunStoreError, ReconInputError, OutputError,
-            LiveReconstructionError, ValueError, OSError, LookupError, RuntimeError)
+            LiveReconstructionError, RunAborted, ValueError, OSError, LookupError,
+            RuntimeError)
 
 
 def readable_error(exc: BaseException) -> str:

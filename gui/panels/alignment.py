@@ -39,7 +39,8 @@ __all__ = ["AlignmentPanel"]
 
 #: The section grid of the alignment (rows, columns).
 GRID = (3, 5)
-_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2")
+_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+            "#bcbd22", "#17becf", "#7f7f7f")
 
 
 class AlignmentPanel(RunControls, QWidget):
@@ -96,7 +97,7 @@ class AlignmentPanel(RunControls, QWidget):
         self.plot = pg.PlotWidget(title="spot efficiency per reading")
         self.plot.setLabel("bottom", "reading")
         self.plot.setLabel("left", "spot efficiency eta")
-        self.plot.addLegend(offset=(10, 10))
+        self.plot.addLegend(offset=(10, 10), brush=pg.mkBrush(0, 0, 0, 170))
         self.curves: dict[str, pg.PlotDataItem] = {}
         self.plot.setMinimumHeight(260)
         right.addWidget(self.plot, 2)
@@ -175,6 +176,8 @@ class AlignmentPanel(RunControls, QWidget):
             xs = [n for n, _, s in self.readings if s == step]
             ys = [e for _, e, s in self.readings if s == step]
             self.curves[step].setData(xs, ys)
+            if step in self.step_labels and self.step_labels[step].text() == "waiting":
+                self.step_labels[step].setText("running")
             pose = p.get("pose") or {}
             self.pose.setText("mask stage pose: " + ", ".join(
                 f"{a} {v:+.4f} {'mm' if a in ('x', 'y', 'z') else 'deg'}"

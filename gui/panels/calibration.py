@@ -28,7 +28,7 @@ from PySide6.QtWidgets import (
 from ..jobs import ROUTINES, build_plan, default_run_path, resume_plan, routine_options, run_plan
 from ..session import Session
 from ..workers import Job, readable_error
-from .common import RunControls, image_view
+from .common import FrameView, RunControls
 
 __all__ = ["CalibrationPanel"]
 
@@ -50,6 +50,7 @@ class CalibrationPanel(RunControls, QWidget):
         self.last_path: str | None = None
         self.result = None
         self.events: list = []
+        self.light_frames = True
         layout = QHBoxLayout(self)
         left = QVBoxLayout()
         top = QHBoxLayout()
@@ -114,7 +115,7 @@ class CalibrationPanel(RunControls, QWidget):
         left.addWidget(self.status)
         left.addStretch(1)
         layout.addLayout(left, 2)
-        self.view = image_view("frames as they are taken (DN)")
+        self.view = FrameView("frames as they are taken (DN)")
         layout.addWidget(self.view, 3)
         self._set_running(False)
 
@@ -161,6 +162,7 @@ class CalibrationPanel(RunControls, QWidget):
         path = self.out.text().strip() or default_run_path(routine)
         self.last_path = path
         total = sum(len(p.tags) for p in plan.points())
+        self.light_frames = any(t != "dark" for p in plan.points() for t in p.tags)
         self.progress.setRange(0, total)
         self.progress.setValue(0)
         self._say(f"running {routine} into {path}")
@@ -189,10 +191,13 @@ class CalibrationPanel(RunControls, QWidget):
         self.eta.setText(f"{point}{e.elapsed_s:.0f} s elapsed, {_eta(e.eta_s)}")
         if e.kind in ("paused", "resumed", "reconnecting", "reconnected", "retrying"):
             self._say(f"{e.kind}: {e.message}")
-        if e.last_frame is not None:
+        tag = getattr(e, "tag", None)
+        if e.last_frame is not None and (tag != "dark" or not self.light_frames):
+            # frames with light (PSFs, flats, gratings) as they are taken; dark frames
+            # only in a run of dark frames
             self.view.setImage(e.last_frame, autoLevels=True)
-            self.view.getView().setTitle(f"frame {e.frames_done} of {e.frames_total} "
-                                         f"({point.rstrip(', ')}) (DN)")
+            self.view.setTitle(f"frame {e.frames_done} of {e.frames_total}: "
+                               f"{point.rstrip(', ')}, {tag or 'frame'} (DN)")
 
     def on_result(self, result) -> None:
         """A run ended: complete, aborted or failed (data kept, how to resume)."""

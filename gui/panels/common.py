@@ -2,19 +2,70 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pyqtgraph as pg
 from PySide6.QtWidgets import QLabel, QPushButton
 
-__all__ = ["RunControls", "error_label", "image_view"]
+__all__ = ["FrameView", "RunControls", "error_label"]
 
 
-def image_view(title: str) -> pg.ImageView:
-    """An image view with its histogram and level control, titled."""
-    view = pg.ImageView(view=pg.PlotItem(title=title))
-    view.ui.roiBtn.hide()
-    view.ui.menuBtn.hide()
-    view.setMinimumSize(320, 260)
-    return view
+class FrameView(pg.GraphicsLayoutWidget):
+    """An image with axes and a title, beside its histogram and level control.
+
+    Lighter than :class:`pyqtgraph.ImageView` for video: :meth:`setImage` only swaps the
+    image (levels from the image when asked), and the histogram, which costs more than
+    the image, is recomputed at most ``histogram_hz`` times per second (None: with
+    every image).
+
+    Attributes
+    ----------
+    image : ndarray or None
+        The image shown.
+    item : pyqtgraph.ImageItem
+    plot : pyqtgraph.PlotItem
+    histogram : pyqtgraph.HistogramLUTItem
+    """
+
+    def __init__(self, title: str, *, histogram_hz: float | None = None,
+                 axes=("column (px)", "row (px)"), parent=None) -> None:
+        super().__init__(parent)
+        self.plot = self.addPlot()
+        self.setTitle(title)
+        self.plot.setLabel("bottom", axes[0])
+        self.plot.setLabel("left", axes[1])
+        self.plot.setAspectLocked(True)
+        self.plot.invertY(True)
+        self.item = pg.ImageItem()
+        self.plot.addItem(self.item)
+        self.histogram = pg.HistogramLUTItem()
+        self.histogram.setImageItem(self.item)
+        self.item.sigImageChanged.disconnect(self.histogram.imageChanged)
+        self.addItem(self.histogram)
+        self.image = None
+        self._period_s = 0.0 if histogram_hz is None else 1.0 / histogram_hz
+        self._last_histogram = -1e9
+        self.setMinimumSize(320, 260)
+
+    def setTitle(self, title: str) -> None:  # noqa: N802 (Qt's style)
+        self.plot.setTitle(title, size="10pt")
+
+    def setImage(self, image, autoLevels: bool = True) -> None:  # noqa: N802, N803
+        """Show ``image`` (rows, cols); ``autoLevels``: levels from its 0.1 and 99.9
+        percentiles (the histogram range follows)."""
+        import time
+
+        self.image = image
+        if autoLevels:
+            lo, hi = np.percentile(image[::4, ::4], (0.1, 99.9))
+            levels = (float(lo), float(hi) if hi > lo else float(lo) + 1.0)
+            self.item.setImage(image, levels=levels)
+            self.histogram.setLevels(*levels)
+        else:
+            self.item.setImage(image, autoLevels=False)
+        now = time.monotonic()
+        if now - self._last_histogram >= self._period_s:
+            self._last_histogram = now
+            self.histogram.imageChanged(autoLevel=False, autoRange=autoLevels)
 
 
 def error_label() -> QLabel:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
@@ -51,6 +51,7 @@ class DeviceBox(QGroupBox):
         values = device.settings()
         for name, (label, unit) in SETTINGS.get(device.kind, {}).items():
             edit = QLineEdit(value_text(values[name]))
+            edit.setCursorPosition(0)
             edit.setObjectName(f"{device.device_id}.{name}")
             edit.returnPressed.connect(lambda n=name: self.apply(n))
             row = QHBoxLayout()
@@ -78,7 +79,7 @@ class DeviceBox(QGroupBox):
         layout.addWidget(self.error)
 
     # -- jobs ----------------------------------------------------------------------------
-    def run(self, fn, *args, done=None) -> Job:
+    def run(self, fn, *args, done=None, failed=None) -> Job:
         """Run ``fn(*args)`` on a worker; a refusal shows in :attr:`error`."""
         self.jobs = [j for j in self.jobs if j.running]
         job = Job(lambda job: fn(*args), name=f"device-{self.device.device_id}")
@@ -86,20 +87,26 @@ class DeviceBox(QGroupBox):
         job.succeeded.connect(lambda _: self.error.setText(""))
         if done is not None:
             job.succeeded.connect(done)
+        if failed is not None:
+            job.failed.connect(failed)
         self.jobs.append(job)
         return job.start()
 
     def apply(self, name: str) -> Job:
         """Apply the text of setting ``name`` through the device interface."""
-        value = parse_value(self.fields[name].text())
-        return self.run(self.device.apply_settings, {name: value},
-                        done=lambda _: self.refresh_settings())
+        edit = self.fields[name]
+        edit.setModified(False)
+        return self.run(self.device.apply_settings, {name: parse_value(edit.text())},
+                        done=lambda _: self.refresh_settings(),
+                        failed=lambda _: edit.setModified(True))  # the refused text stays
 
     def refresh_settings(self) -> None:
+        """Show the device's current settings (fields being edited are left alone)."""
         values = self.device.settings()
         for name, edit in self.fields.items():
-            if not edit.hasFocus():
+            if not edit.hasFocus() and not edit.isModified():
                 edit.setText(value_text(values[name]))
+                edit.setCursorPosition(0)
 
     def show_status(self, status: dict) -> None:
         """Show a :meth:`drivers.base.Device.status` dict (from the poller)."""
@@ -127,6 +134,8 @@ class DeviceBox(QGroupBox):
         grid = QGridLayout(box)
         grid.setContentsMargins(0, 0, 0, 0)
         for col, head in enumerate(("axis", "position", "jog step", "", "", "go to", "")):
+            if not head:
+                continue
             grid.addWidget(QLabel(f"<b>{head}</b>"), 0, col)
         self.positions: dict[str, QLabel] = {}
         self.jog_steps: dict[str, QDoubleSpinBox] = {}
@@ -138,6 +147,7 @@ class DeviceBox(QGroupBox):
             self.positions[axis] = QLabel("-")
             grid.addWidget(self.positions[axis], row, 1)
             step = QDoubleSpinBox()
+            step.setMaximumWidth(120)
             step.setDecimals(4)
             step.setRange(0.0001, float(travel[axis][1] - travel[axis][0]))
             step.setValue(1.0 if unit == "mm" else 0.1)
@@ -146,15 +156,18 @@ class DeviceBox(QGroupBox):
             grid.addWidget(step, row, 2)
             for col, sign in ((3, -1), (4, +1)):
                 b = QPushButton("-" if sign < 0 else "+")
+                b.setFixedWidth(34)
                 b.setObjectName(f"{self.device.device_id}.jog.{axis}{'-+'[sign > 0]}")
                 b.clicked.connect(lambda _=False, a=axis, s=sign: self.jog(a, s))
                 grid.addWidget(b, row, col)
             target = QLineEdit()
+            target.setMaximumWidth(90)
             target.setPlaceholderText(f"{unit}")
             target.setObjectName(f"{self.device.device_id}.goto.{axis}")
             self.targets[axis] = target
             grid.addWidget(target, row, 5)
             go = QPushButton("Go")
+            go.setFixedWidth(40)
             go.clicked.connect(lambda _=False, a=axis: self.go_to(a))
             grid.addWidget(go, row, 6)
         stop = QPushButton("Stop")
@@ -283,6 +296,7 @@ class DevicePanel(QWidget):
         outer.addWidget(self.error)
         self.area = QScrollArea()
         self.area.setWidgetResizable(True)
+        self.area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.inner = QWidget()
         self.inner_layout = QVBoxLayout(self.inner)
         self.inner_layout.addStretch(1)
@@ -302,20 +316,24 @@ class DevicePanel(QWidget):
         else:
             self.state.setText("connecting ...")
             self.connect_button.setEnabled(False)
-            job = self.session.connect_bench()
-            job.failed.connect(self.error.setText)
-            job.finished.connect(lambda: self.connect_button.setEnabled(True))
-            job.failed.connect(lambda _: self.state.setText("not connected"))
+            def failed(text: str) -> None:
+                self.error.setText(text)
+                self.state.setText("not connected")
+                self.connect_button.setEnabled(True)
+
+            job = self.session.connect_bench(on_error=failed)
+            job.succeeded.connect(lambda _: self.connect_button.setEnabled(True))
 
     def _set_scene(self) -> None:
         if self.session.is_virtual:
-            job = self.session.set_scene(self.scene.currentText())
-            job.failed.connect(self.error.setText)
+            self.session.set_scene(self.scene.currentText(), on_error=self.error.setText)
 
     def rebuild(self) -> None:
         """One box per device when the set of open devices changed."""
         devices = dict(self.session.bench.devices) if self.session.connected else {}
         self.connect_button.setText("Disconnect" if devices else "Connect")
+        if devices:
+            self.connect_button.setEnabled(True)
         virtual = self.session.is_virtual or (not devices and self.session.simulate)
         self.scene.setVisible(virtual)
         self.scene_label.setVisible(virtual)
@@ -349,4 +367,7 @@ class DevicePanel(QWidget):
     def _show_status(self, statuses: dict) -> None:
         for dev_id, status in statuses.items():
             if dev_id in self.boxes:
-                self.boxes[dev_id].show_status(status)
+                box = self.boxes[dev_id]
+                box.show_status(status)
+                if status.get("is_open") and not status.get("disconnected"):
+                    box.refresh_settings()

@@ -28,7 +28,7 @@ from PySide6.QtWidgets import (
 
 from ..session import CameraBusy, Session
 from ..workers import Job, readable_error
-from .common import error_label, image_view
+from .common import FrameView, error_label
 
 __all__ = ["LivePanel"]
 
@@ -46,6 +46,7 @@ class LivePanel(QWidget):
         self.job: Job | None = None
         self._shown_raw = -1
         self._shown_recon = -1
+        self._saturation_shown = False
         layout = QVBoxLayout(self)
         controls = QGridLayout()
         self.start_button = QPushButton("Start stream")
@@ -85,15 +86,15 @@ class LivePanel(QWidget):
         layout.addWidget(self.error)
         views = QHBoxLayout()
         left, right = QVBoxLayout(), QVBoxLayout()
-        self.raw_view = image_view("raw frame (DN)")
+        self.raw_view = FrameView("raw frame (DN)", histogram_hz=2.0)
         self.saturation = pg.ImageItem()
-        self.raw_view.getView().addItem(self.saturation)
+        self.raw_view.plot.addItem(self.saturation)
         self.saturation.setZValue(10)
         left.addWidget(self.raw_view, 1)
         self.raw_stats = QLabel("camera: not streaming")
         self.raw_stats.setWordWrap(True)
         left.addWidget(self.raw_stats)
-        self.recon_view = image_view("live reconstruction (upright)")
+        self.recon_view = FrameView("live reconstruction (upright)", histogram_hz=2.0)
         right.addWidget(self.recon_view, 1)
         self.recon_stats = QLabel("reconstruction: off")
         self.recon_stats.setWordWrap(True)
@@ -191,29 +192,37 @@ class LivePanel(QWidget):
 
     # -- display -------------------------------------------------------------------------
     def refresh(self) -> None:
-        """Show the newest frame and reconstruction and the counters (timer slot)."""
+        """Show the newest frame and reconstruction and the counters (timer slot; does
+        nothing while the panel is hidden)."""
         from recon.io import scene_view
 
+        if not self.isVisible():
+            return
         frame = self.session.latest_frame()
         if frame is not None and frame.index != self._shown_raw:
             first = self._shown_raw < 0
             self._shown_raw = frame.index
             image = frame.image
-            self.raw_view.setImage(image, autoLevels=first, autoHistogramRange=first)
+            self.raw_view.setImage(image, autoLevels=first)
             cam = self.session.bench.camera if self.session.connected else None
             if cam is not None:
-                full = 2 ** int(cam.bit_depth) - 1
-                sat = image >= full
-                overlay = np.zeros(image.shape + (4,), np.uint8)
-                overlay[sat] = (255, 0, 0, 255)
-                self.saturation.setImage(overlay, autoLevels=False)
-        counters = self.session.stream_counters()
-        if counters and frame is not None:
-            sat_px = int(getattr(frame, "saturated_pixels", 0))
-            self.raw_stats.setText(
-                f"camera: {counters['fps']:.1f} fps, frame {frame.index}, acquired "
-                f"{counters['acquired']}, dropped {counters['dropped']}, skipped by the "
-                f"display {counters['skipped']}; saturated {sat_px} px (red)")
+                sat = image >= 2 ** int(cam.bit_depth) - 1
+                if sat.any() or self._saturation_shown:
+                    overlay = np.zeros(image.shape + (4,), np.uint8)
+                    overlay[sat] = (255, 0, 0, 255)
+                    self.saturation.setImage(overlay, autoLevels=False)
+                    self._saturation_shown = bool(sat.any())
+        if frame is not None:
+            sat = f"saturated {int(frame.saturated_pixels)} px (red)"
+            if self.session.streaming:
+                c = self.session.stream_counters()
+                self.raw_stats.setText(
+                    f"camera: {c['fps']:.1f} fps, frame {frame.index}, acquired "
+                    f"{c['acquired']}, dropped {c['dropped']}, skipped by the ring "
+                    f"{c['skipped']}; {sat}")
+            elif self.session.camera_user is not None:
+                self.raw_stats.setText(f"camera busy with {self.session.camera_user}: frame "
+                                       f"{frame.index}; {sat}")
         if self.live is not None:
             s = self.live.stats()
             lat = "-" if s["latency_median_s"] is None else f"{1e3 * s['latency_median_s']:.0f}"
@@ -224,7 +233,5 @@ class LivePanel(QWidget):
                 f"{s['errors']}" + (f" - {s['last_error']}" if s["last_error"] else ""))
             latest = self.live.latest()
             if latest is not None and latest.frame_index != self._shown_recon:
-                first = self._shown_recon < 0
                 self._shown_recon = latest.frame_index
-                self.recon_view.setImage(scene_view(latest.image), autoLevels=True,
-                                         autoHistogramRange=first)
+                self.recon_view.setImage(scene_view(latest.image), autoLevels=True)

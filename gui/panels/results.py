@@ -28,7 +28,7 @@ from PySide6.QtWidgets import (
 )
 
 from ..workers import Job
-from .common import error_label, image_view
+from .common import FrameView, error_label
 
 __all__ = ["ResultsPanel", "read_result"]
 
@@ -96,8 +96,9 @@ def _product(store, name: str) -> dict:
     text = json.dumps(attrs, indent=1, default=str)
     if array.ndim == 3 and array.shape[-1] not in (3, 4):
         return {"kind": "volume", "array": array, "depths_mm": attrs.get("depths_mm"),
-                "text": text, "axis": "frame" if attrs.get("per_frame") else "plane"}
-    return {"kind": "image", "array": array, "text": text}
+                "text": text, "axis": "frame" if attrs.get("per_frame") else "plane",
+                "units": attrs.get("units")}
+    return {"kind": "image", "array": array, "text": text, "units": attrs.get("units")}
 
 
 class ResultsPanel(QWidget):
@@ -110,6 +111,7 @@ class ResultsPanel(QWidget):
         self.volume: np.ndarray | None = None
         self.depths: list[float] | None = None
         self.axis = "plane"
+        self.units: str | None = None
         layout = QVBoxLayout(self)
         bar = QHBoxLayout()
         self.path = QLineEdit()
@@ -151,13 +153,16 @@ class ResultsPanel(QWidget):
         images = QWidget()
         images_layout = QVBoxLayout(images)
         images_layout.setContentsMargins(0, 0, 0, 0)
-        self.view = image_view("image")
+        self.view = FrameView("image")
         images_layout.addWidget(self.view, 3)
         mips = QHBoxLayout()
-        self.mip_views = {k: image_view(f"max projection {k}") for k in ("xy", "xz", "yz")}
+        self.mip_views = {
+            "xy": FrameView("max over depth", axes=("column (px)", "row (px)")),
+            "xz": FrameView("max over rows", axes=("column (px)", "plane (repeated)")),
+            "yz": FrameView("max over columns", axes=("plane (repeated)", "row (px)"))}
         for v in self.mip_views.values():
             v.setMinimumSize(200, 180)
-            v.ui.histogram.hide()
+            v.histogram.hide()
             mips.addWidget(v)
         self.mips = QWidget()
         self.mips.setLayout(mips)
@@ -171,9 +176,14 @@ class ResultsPanel(QWidget):
         self._mode(None)
 
     def _mode(self, kind: str | None, volume: bool = False) -> None:
+        # the projections stay visible (blank for a 2D image): hiding pyqtgraph views
+        # before they were ever shown crashed PySide6 6.12 at interpreter exit
         self.run_bar.setVisible(kind == "run")
         self.depth_bar.setVisible(volume)
-        self.mips.setVisible(volume)
+        if not volume:
+            for view in self.mip_views.values():
+                view.item.clear()
+                view.image = None
 
     def _pick_file(self) -> None:
         path = QFileDialog.getOpenFileName(self, "open a result")[0]
@@ -190,12 +200,19 @@ class ResultsPanel(QWidget):
         """Read ``path`` on a worker and show it (a run's ``product`` if given)."""
         self.path.setText(path)
         self.error.setText("")
-        self.job = Job(lambda job: read_result(path), name="read-result")
-        self.job.succeeded.connect(self.show_result)
-        if product is not None:
-            self.job.succeeded.connect(lambda _: self.show_product(product))
-        self.job.failed.connect(self.error.setText)
-        return self.job.start()
+        job = Job(lambda job: read_result(path), name="read-result")
+        self.job = job
+
+        def show(result: dict) -> None:
+            if job is not self.job:  # another file was opened meanwhile
+                return
+            self.show_result(result)
+            if product is not None:
+                self.show_product(product)
+
+        job.succeeded.connect(show)
+        job.failed.connect(self.error.setText)
+        return job.start()
 
     def show_result(self, result: dict) -> None:
         kind = result["kind"]
@@ -220,6 +237,7 @@ class ResultsPanel(QWidget):
             self.volume = np.asarray(result["array"], np.float32)
             self.depths = result.get("depths_mm")
             self.axis = result.get("axis", "plane")
+            self.units = result.get("units")
             self.depth_label.setText("depth:" if self.axis == "plane" else "frame:")
             self._mode(kind, volume=True)
             self.depth_slider.setRange(0, len(self.volume) - 1)
@@ -233,7 +251,8 @@ class ResultsPanel(QWidget):
             self.volume = None
             self._mode(kind)
             self.view.setImage(np.asarray(result["array"]), autoLevels=True)
-            self.view.getView().setTitle("image")
+            units = result.get("units")
+            self.view.setTitle("image" + (f" ({units})" if units else ""))
 
     def show_slice(self, index: int) -> None:
         """Show plane ``index`` of the volume."""
@@ -241,9 +260,10 @@ class ResultsPanel(QWidget):
             return
         depth = (f", z = {self.depths[index]:.2f} mm" if self.depths is not None
                  and index < len(self.depths) else "")
+        depth += f" ({self.units})" if self.units else ""
         self.depth_label.setText(f"{self.axis} {index + 1} of {len(self.volume)}{depth}")
         self.view.setImage(self.volume[index], autoLevels=True)
-        self.view.getView().setTitle(f"{self.axis} {index + 1}{depth}")
+        self.view.setTitle(f"{self.axis} {index + 1}{depth}")
 
     def show_frame(self, index: int) -> None:
         """Show frame ``index`` of the open run (with its coordinates)."""
@@ -254,13 +274,12 @@ class ResultsPanel(QWidget):
             return
         rec = self.store.frame(index)
         self.volume = None
-        self.depth_bar.setVisible(False)
-        self.mips.setVisible(False)
+        self._mode("run")
         self.frame_label.setText(f"frame {index + 1} of {self.store.n_frames}")
         self.view.setImage(rec.image, autoLevels=True)
         coords = ", ".join(f"{k} {v:.4g}" for k, v in rec.coords.items()
                            if isinstance(v, float) and np.isfinite(v))
-        self.view.getView().setTitle(f"frame {index + 1} (point {rec.point}, {rec.tag}) (DN)")
+        self.view.setTitle(f"frame {index + 1} (point {rec.point}, {rec.tag}) (DN)")
         self.text.setPlainText(f"frame {index}: {coords}\n\n{self.store.to_json()}")
 
     def show_product(self, name: str) -> None:

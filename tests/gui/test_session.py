@@ -134,6 +134,7 @@ def test_psf_sweep_pause_abort_resume(sweep):
     assert sweep["progress_after_pause"] == sweep["paused_at"]  # paused: nothing taken
     assert sweep["aborted"].status == "aborted"
     assert "calibrate resume" in sweep["abort_message"] and "Resume run" in sweep["abort_message"]
+    assert sweep["resumed"] is not None, sweep["final_message"]
     assert sweep["resumed"].status == "complete", sweep["final_message"]
     store = RunStore.open(sweep["path"])
     assert store.status == "complete" and "psf_stack" in store.products()
@@ -240,3 +241,22 @@ def test_batch_reconstruct_the_video_and_view_it(window, wait, video, sweep):
     assert len(results.volume) == 4 and results.axis == "frame"
     results.depth_slider.setValue(3)
     assert "frame 4 of 4" in results.depth_label.text()
+
+
+def test_alignment_shows_readings_pose_and_steps_then_aborts(window, wait, tmp_path):
+    panel = window.alignment
+    panel.out.setText(str(tmp_path / "mask.align"))
+    panel.frames.setValue(1)
+    panel.focus.setChecked(False)
+    job = panel.start()
+    assert job is not None, panel.message.text()
+    wait(lambda: len(panel.readings) >= 2 or job.done, 300, "spot readings")
+    panel.abort()
+    wait(lambda: job.done, 120, "the alignment to stop")
+    assert len(panel.readings) >= 2
+    assert panel.step_labels["preflight"].text() == "done"
+    assert "mm" in panel.pose.text() and "deg" in panel.pose.text()
+    text = panel.message.text()
+    assert "aborted by the operator" in text and "bug" not in text
+    assert window.session.camera_user is None
+    assert (tmp_path / "mask.align" / "captures.jsonl").is_file()

@@ -1,0 +1,203 @@
+"""Screenshots of every panel, driven on the virtual bench (docs/images/ holds them).
+
+``python -m gui.screenshots OUT_DIR [--alignment-record DIR]`` (under an X display,
+e.g. ``xvfb-run -a``; the screenshot test runs it so) opens the window on the
+built-in simulated bench, drives each panel into a state worth showing and saves
+``gui-<panel>.png`` of each dock:
+
+* devices: the LED behind the pinhole lit, a refused exposure showing the camera
+  interface's message;
+* calibration: a short PSF sweep, complete, its last frame shown;
+* live: the stream with the live reconstruction (the sweep's PSF, warm ADMM);
+* record: a short video recorded;
+* results: the sweep's PSF stack with its depth slider and projections;
+* alignment: a finished record (``--alignment-record``, e.g. from ``diffuserlab
+  align mask --simulate``), else the first readings of a live alignment, aborted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["take_screenshots"]
+
+log = logging.getLogger(__name__)
+
+
+def _wait(app, condition, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {what}")
+        app.processEvents()
+        time.sleep(0.01)
+
+
+def _settle(app, seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        app.processEvents()
+        time.sleep(0.01)
+
+
+def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None,
+                     width: int = 1400, height: int = 860) -> list[Path]:
+    """Drive the panels and save one PNG per dock (see the module docstring).
+
+    Returns
+    -------
+    list of Path
+        The PNG files written.
+    """
+    import os
+    import tempfile
+
+    os.environ.setdefault("DIFFUSERLAB_GUI_SETTINGS",
+                          str(Path(tempfile.mkdtemp(prefix="gui-shots-")) / "gui.ini"))
+    from PySide6.QtWidgets import QApplication
+
+    from .app import MainWindow, configure
+    from .session import Session
+
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    configure()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix="gui-shots-runs-"))
+    w = MainWindow(Session(None, simulate=True, scene="none"))
+    w.resize(width, height)
+    w.show()
+    written: list[Path] = []
+
+    t0 = time.monotonic()
+
+    def shot(name: str, dock: str) -> None:
+        log.info("screenshot %s at %.1f s", name, time.monotonic() - t0)
+        w.docks[dock].raise_()
+        _settle(app, 0.6)
+        path = out / f"gui-{name}.png"
+        widget = w if name == "window" else w.docks[dock]
+        if not widget.grab().save(str(path)):
+            raise RuntimeError(f"could not write {path}")
+        written.append(path)
+
+    try:
+        s = w.session
+        s.connect_bench()
+        _wait(app, lambda: s.connected, 120, "the bench to open")
+        bench = s.bench
+        for stage in ("source_stage", "mask_stage"):
+            dev = bench.device(stage)
+            dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 50.0)})
+        # calibration: a short PSF sweep
+        cal = w.calibration
+        cal.routine.setCurrentText("psf-sweep")
+        for flag, value in (("--z-min", "30"), ("--z-max", "80"), ("--n-depths", "5"),
+                            ("--frames", "1")):
+            cal.fields["psf-sweep"][flag].setText(value)
+        sweep = str(work / "psf-sweep.zarr")
+        cal.out.setText(sweep)
+        w.docks["Calibration"].raise_()
+        job = cal.start()
+        _wait(app, lambda: job.done, 180, "the PSF sweep")
+        shot("calibration", "Calibration")
+        # devices: the LED behind the pinhole lit, a refused setting
+        box = w.devices.boxes["led_array"]
+        import numpy as np
+
+        centre = int(np.argmin(np.hypot(*bench.led_array.positions_mm.T)))
+        job = box.light_led(centre)
+        _wait(app, lambda: job.done, 10, "the LED")
+        from instrument.runstore import RunStore
+
+        depths = RunStore.open(sweep).product("psf_stack")[1]["depths_mm"]
+        depth = depths[len(depths) // 2]
+        bench.source_stage.move_to({"x": 0.0, "y": 0.0, "z": depth})
+        cam_box = w.devices.boxes["camera"]
+        cam_box.fields["exposure_s"].setText("120")
+        job = cam_box.apply("exposure_s")
+        _wait(app, lambda: job.done, 10, "the refusal")
+        shot("devices", "Devices")
+        cam_box.fields["exposure_s"].setText(f"{bench.camera.exposure_s:g}")
+        job = cam_box.apply("exposure_s")
+        _wait(app, lambda: job.done, 10, "the setting")
+        # live view: the stream and the live reconstruction with the sweep's PSF
+        live = w.live
+        live.psf.setText(sweep)
+        live.depth.setText(f"{depth:g}")
+        live.method.setCurrentText("admm")
+        live.iterations.setValue(5)
+        w.docks["Live view"].raise_()
+        job = live.start_reconstruction()
+        _wait(app, lambda: job.done, 120, "the live reconstruction to start")
+        if live.live is None:
+            raise RuntimeError(f"live reconstruction: {live.error.text()}")
+        _wait(app, lambda: live._shown_recon >= 0, 180, "a live reconstruction")
+        _settle(app, 3.0)
+        shot("live", "Live view")
+        shot("window", "Live view")
+        # record: a short video (the live view keeps running beside it)
+        rec = w.record
+        rec.out.setText(str(work / "video.zarr"))
+        rec.frames.setText("20")
+        rec.batch_fields["--psf"].setText(sweep)
+        rec.batch_fields["--depth"].setText(live.depth.text())
+        w.docks["Record"].raise_()
+        job = rec.start_recording()
+        _wait(app, lambda: job.done, 120, "the recording")
+        live.stop_reconstruction()
+        s.stop_stream()
+        rec.batch_fields["--method"].setCurrentText("admm")
+        rec.batch_fields["--iterations"].setText("10")
+        rec.batch_fields["--frames"].setText("0:4")
+        rec.batch_fields["--workers"].setText("1")
+        job = rec.start_batch()
+        _wait(app, lambda: job.done, 300, "the batch reconstruction")
+        shot("record", "Record")
+        # results: the PSF stack with its projections
+        job = w.results.open(sweep, "psf_stack")
+        _wait(app, lambda: job.done and w.results.volume is not None, 60, "the results")
+        w.results.depth_slider.setValue(1)
+        shot("results", "Results")
+        # alignment
+        al = w.alignment
+        w.docks["Alignment"].raise_()
+        if alignment_record:
+            al.open_record(alignment_record)
+        else:
+            al.out.setText(str(work / "mask.align"))
+            al.frames.setValue(1)
+            job = al.start()
+            _wait(app, lambda: len(al.readings) >= 6 or job.done, 300, "alignment readings")
+            al.abort()
+            _wait(app, lambda: job.done, 120, "the alignment to stop")
+        shot("alignment", "Alignment")
+    finally:
+        w.shutdown()
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m gui.screenshots",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("out_dir", help="folder for the PNG files (e.g. docs/images)")
+    p.add_argument("--alignment-record", default=None,
+                   help="a finished alignment record to show in the alignment panel")
+    args = p.parse_args(argv)
+    from PySide6.QtWidgets import QApplication
+
+    paths = take_screenshots(args.out_dir, alignment_record=args.alignment_record)
+    print(f"platform {QApplication.instance().platformName()}")
+    for path in paths:
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    from .cli import _exit_now
+
+    _exit_now(main())
