@@ -36,6 +36,7 @@ from ..fft import fft_workers, irfftn, rfftn
 from ..operators import LinearOperator, SensorWeighted, checked_sensor_weights, padded_grid
 from ..volume import _kernels3d
 from ..volume.operator import CHUNK_BYTES, VolumeConvolutionOperator
+from . import _kernels as _spatial_kernels
 from .grid import PsfGrid, synthesize_grid
 
 __all__ = ["SpatialConvolutionOperator", "local_convolution_operator", "pca_components",
@@ -137,6 +138,7 @@ class SpatialConvolutionOperator(SensorWeighted, LinearOperator):
         self._cache = None
         if self.n_kernels * plane_bytes <= WEIGHT_CACHE_BYTES:
             self._cache = np.stack([self._weight_map(j) for j in range(self.n_kernels)])
+        self._plane_index = np.ascontiguousarray(self.planes, dtype=np.int64)
         per = self._conv.planes_per_chunk
         self._tmp = np.empty((per, *self.padded_shape), np.float32)
         self._pad_buf = np.zeros(self.padded_shape, np.float32)
@@ -188,12 +190,15 @@ class SpatialConvolutionOperator(SensorWeighted, LinearOperator):
         return x if self.volume else x[None]
 
     def _sum_spectrum(self, x: np.ndarray) -> np.ndarray:
-        xv = self._planes_of(x)
+        xv = np.ascontiguousarray(self._planes_of(x))
         acc = self._conv._sum_spec
         for c in self._chunks:
             tmp = self._tmp[:c.stop - c.start]
-            for k, j in enumerate(range(c.start, c.stop)):
-                np.multiply(xv[self.planes[j]], self._weight_map(j), out=tmp[k])
+            if self._cache is not None:  # fused: one parallel pass over the chunk
+                _spatial_kernels.weighted_planes(tmp, xv, self._cache[c], self._plane_index[c])
+            else:
+                for k, j in enumerate(range(c.start, c.stop)):
+                    np.multiply(xv[self.planes[j]], self._weight_map(j), out=tmp[k])
             _kernels3d.accumulate_products(acc, rfftn(tmp), self.spectra[c], c.start == 0)
         return acc
 
@@ -206,6 +211,10 @@ class SpatialConvolutionOperator(SensorWeighted, LinearOperator):
             _kernels3d.conj_products(gc, spec, self.spectra[c])
             planes = sfft.irfftn(gc, s=self.padded_shape, axes=(-2, -1),
                                  workers=fft_workers(), overwrite_x=True)
+            if self._cache is not None:
+                _spatial_kernels.accumulate_weighted(ov, planes, self._cache[c],
+                                                     self._plane_index[c])
+                continue
             for k, j in enumerate(range(c.start, c.stop)):
                 planes[k] *= self._weight_map(j)
                 ov[self.planes[j]] += planes[k]
