@@ -82,7 +82,7 @@ def plot_map_3d(result: dict, path: Path) -> Path:
 
     methods = result["methods"]
     fig = Figure(figsize=(3.4 * len(methods), 3.4))
-    axes = fig.subplots(1, len(methods), squeeze=False)[0]
+    axes = fig.subplots(1, len(methods), squeeze=False, gridspec_kw={"wspace": 0.35})[0]
     auto_fail = np.array([[c["auto"]["fails"] for c in row] for row in result["cells"]], float)
     im = None
     for ax, m in zip(axes, methods, strict=True):

@@ -133,7 +133,7 @@ def plot_map(result: dict, name: str, path: Path, xlabel: str) -> Path:
     m, methods = result[name], result["methods"]
     bound = result["setup"]["bound_db"]
     fig = Figure(figsize=(3.3 * len(methods), 3.6))
-    axes = fig.subplots(1, len(methods), squeeze=False)[0]
+    axes = fig.subplots(1, len(methods), squeeze=False, gridspec_kw={"wspace": 0.35})[0]
     all_p = np.concatenate([_grid(m, k).ravel() for k in methods])
     vmin, vmax = np.nanmin(all_p), np.nanmax(all_p)
     auto_fail = np.array([[c["auto"].get("fails", True) for c in row] for row in m["cells"]],
