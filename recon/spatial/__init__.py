@@ -10,6 +10,8 @@
   reconstruction PSNR.
 - :mod:`recon.spatial.blind` -- compressive calibration by blind deconvolution
   (Sec. 5.4, Eq. 5.11-5.13).
+- :mod:`recon.spatial.resolution` -- two-point resolution across the field
+  (Sec. 6.4, Fig. 6.4a).
 - :mod:`recon.spatial.background` -- FISTA jointly over the object and a smooth
   background restricted to the lowest DCT coefficients (Eq. 6.2).
 """
@@ -25,6 +27,7 @@ from .operator import (
     pca_operator,
     spatial_memory_bytes,
 )
+from .resolution import two_point_resolution
 
 __all__ = [
     "BlindCalibration",
@@ -46,4 +49,5 @@ __all__ = [
     "scale_psf",
     "spatial_memory_bytes",
     "synthesize_grid",
+    "two_point_resolution",
 ]

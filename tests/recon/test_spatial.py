@@ -260,3 +260,25 @@ def test_model_choice_takes_the_cheapest_model_that_suffices():
                - measured.measured_psnr_db["local"]) < 0.5
     measured = choose_model(wild, measure=True, max_side=16, iterations=60)
     assert measured.measured_psnr_db["local"] > measured.measured_psnr_db["convolution"] + 1
+
+
+def test_two_point_resolution_follows_the_psf_across_the_field():
+    from scipy.ndimage import gaussian_filter
+
+    from recon.spatial.resolution import two_point_resolution
+
+    rng = np.random.default_rng(10)
+    shape = (40, 48)
+    base = np.zeros(shape, np.float32)
+    base[rng.integers(6, 34, 12), rng.integers(6, 42, 12)] = 1
+    shifts = [((a - 1) * 10, (c - 1) * 12) for a in range(3) for c in range(3)]
+    # sharp spots at the centre node, blurred ones (sigma 2.5 px) at the others
+    psfs = [gaussian_filter(base, 0.5 if (a, c) == (1, 1) else 2.5)
+            for a in range(3) for c in range(3)]
+    op = local_convolution_operator(PsfGrid(np.stack(psfs), shifts, (3, 3)))
+    res = two_point_resolution(op, [(0, 0), (10, 12)], [1, 2, 3, 4, 6, 8], iterations=150)
+    centre, corner = (r["resolution_px"] for r in res)
+    assert centre is not None and centre <= 3  # measured 2
+    assert corner is None or corner >= 2 * centre  # measured 6
+    with pytest.raises(ReconInputError, match="leaves the object grid"):
+        two_point_resolution(op, [(0, 60)], [2])
