@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .workers import wait_until
+
 __all__ = ["measure_lateness", "run_benchmark"]
 
 TIMER_MS = 10
@@ -57,15 +59,6 @@ def measure_lateness(app, seconds: float) -> np.ndarray:
     timer.stop()
     intervals = np.diff(np.asarray(stamps, np.float64)) / 1e9
     return np.maximum(intervals - TIMER_MS / 1000.0, 0.0)
-
-
-def _wait(app, condition, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {what}")
-        app.processEvents()
-        time.sleep(0.005)
 
 
 def _summary(lateness: np.ndarray) -> dict:
@@ -107,7 +100,7 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
     try:
         window.session.connect_bench()
         sweep_session.connect_bench()
-        _wait(app, lambda: window.session.connected and sweep_session.connected, 300,
+        wait_until(app, lambda: window.session.connected and sweep_session.connected, 300,
               "the benches to open (the moving scene is rendered ahead)")
         idle = measure_lateness(app, seconds)
         vb = window.session.bench
@@ -120,10 +113,10 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
         live.method.setCurrentText(method)
         live.iterations.setValue(iterations)
         job = live.start_reconstruction()
-        _wait(app, lambda: job.done, 120, "the live reconstruction to build")
+        wait_until(app, lambda: job.done, 120, "the live reconstruction to build")
         if live.live is None:
             raise RuntimeError(f"live reconstruction: {live.error.text()}")
-        _wait(app, lambda: live._shown_recon >= 0, 180, "the first reconstruction")
+        wait_until(app, lambda: live._shown_recon >= 0, 180, "the first reconstruction")
         stage = sweep_session.bench.source_stage
         stage.apply_settings({"velocity": dict.fromkeys(stage.axes, 50.0)})
         sweep_panel.routine.setCurrentText("psf-sweep")
@@ -134,7 +127,7 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
         sweep_panel.out.setText(str(work / "sweep.zarr"))
         if sweep_panel.start() is None:
             raise RuntimeError(f"PSF sweep: {sweep_panel.status.text()}")
-        _wait(app, lambda: "frame" in sweep_panel.events, 120, "the sweep's first frame")
+        wait_until(app, lambda: "frame" in sweep_panel.events, 120, "the sweep's first frame")
         before = (window.session.frames_seen, live.live.stats()["reconstructed"],
                   sweep_panel.progress.value())
         t0 = time.monotonic()
@@ -159,7 +152,7 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
         }
         out["p99_ratio_loaded_to_idle"] = out["loaded"]["p99_ms"] / max(out["idle"]["p99_ms"],
                                                                         1e-3)
-        _wait(app, lambda: sweep_panel.job is None or sweep_panel.job.done, 60,
+        wait_until(app, lambda: sweep_panel.job is None or sweep_panel.job.done, 60,
               "the sweep to stop")
         return out
     finally:

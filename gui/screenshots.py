@@ -12,7 +12,7 @@ built-in simulated bench, drives each panel into a state worth showing and saves
 * record: a short video recorded;
 * results: the sweep's PSF stack with its depth slider and projections;
 * alignment: a finished record (``--alignment-record``, e.g. from ``diffuserlab
-  align mask --simulate``), else the first readings of a live alignment, aborted.
+  align mask --simulate``, about 6 minutes), else the panel before a start.
 """
 
 from __future__ import annotations
@@ -23,18 +23,11 @@ import sys
 import time
 from pathlib import Path
 
+from .workers import wait_until
+
 __all__ = ["take_screenshots"]
 
 log = logging.getLogger(__name__)
-
-
-def _wait(app, condition, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise RuntimeError(f"timed out after {timeout_s:g} s waiting for {what}")
-        app.processEvents()
-        time.sleep(0.01)
 
 
 def _settle(app, seconds: float) -> None:
@@ -88,7 +81,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
     try:
         s = w.session
         s.connect_bench()
-        _wait(app, lambda: s.connected, 120, "the bench to open")
+        wait_until(app, lambda: s.connected, 120, "the bench to open")
         bench = s.bench
         for stage in ("source_stage", "mask_stage"):
             dev = bench.device(stage)
@@ -103,7 +96,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         cal.out.setText(sweep)
         w.docks["Calibration"].raise_()
         job = cal.start()
-        _wait(app, lambda: job.done, 180, "the PSF sweep")
+        wait_until(app, lambda: job.done, 180, "the PSF sweep")
         shot("calibration", "Calibration")
         # devices: the LED behind the pinhole lit, a refused setting
         box = w.devices.boxes["led_array"]
@@ -111,7 +104,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
 
         centre = int(np.argmin(np.hypot(*bench.led_array.positions_mm.T)))
         job = box.light_led(centre)
-        _wait(app, lambda: job.done, 10, "the LED")
+        wait_until(app, lambda: job.done, 10, "the LED")
         from instrument.runstore import RunStore
 
         depths = RunStore.open(sweep).product("psf_stack")[1]["depths_mm"]
@@ -120,11 +113,11 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         cam_box = w.devices.boxes["camera"]
         cam_box.fields["exposure_s"].setText("120")
         job = cam_box.apply("exposure_s")
-        _wait(app, lambda: job.done, 10, "the refusal")
+        wait_until(app, lambda: job.done, 10, "the refusal")
         shot("devices", "Devices")
         cam_box.fields["exposure_s"].setText(f"{bench.camera.exposure_s:g}")
         job = cam_box.apply("exposure_s")
-        _wait(app, lambda: job.done, 10, "the setting")
+        wait_until(app, lambda: job.done, 10, "the setting")
         # live view: the stream and the live reconstruction with the sweep's PSF
         live = w.live
         live.psf.setText(sweep)
@@ -133,10 +126,10 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         live.iterations.setValue(5)
         w.docks["Live view"].raise_()
         job = live.start_reconstruction()
-        _wait(app, lambda: job.done, 120, "the live reconstruction to start")
+        wait_until(app, lambda: job.done, 120, "the live reconstruction to start")
         if live.live is None:
             raise RuntimeError(f"live reconstruction: {live.error.text()}")
-        _wait(app, lambda: live._shown_recon >= 0, 180, "a live reconstruction")
+        wait_until(app, lambda: live._shown_recon >= 0, 180, "a live reconstruction")
         _settle(app, 3.0)
         shot("live", "Live view")
         shot("window", "Live view")
@@ -148,7 +141,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         rec.batch_fields["--depth"].setText(live.depth.text())
         w.docks["Record"].raise_()
         job = rec.start_recording()
-        _wait(app, lambda: job.done, 120, "the recording")
+        wait_until(app, lambda: job.done, 120, "the recording")
         live.stop_reconstruction()
         s.stop_stream()
         rec.batch_fields["--method"].setCurrentText("admm")
@@ -156,11 +149,11 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         rec.batch_fields["--frames"].setText("0:4")
         rec.batch_fields["--workers"].setText("1")
         job = rec.start_batch()
-        _wait(app, lambda: job.done, 300, "the batch reconstruction")
+        wait_until(app, lambda: job.done, 300, "the batch reconstruction")
         shot("record", "Record")
         # results: the PSF stack with its projections
         job = w.results.open(sweep, "psf_stack")
-        _wait(app, lambda: job.done and w.results.volume is not None, 60, "the results")
+        wait_until(app, lambda: job.done and w.results.volume is not None, 60, "the results")
         w.results.depth_slider.setValue(1)
         shot("results", "Results")
         # alignment
@@ -168,13 +161,6 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         w.docks["Alignment"].raise_()
         if alignment_record:
             al.open_record(alignment_record)
-        else:
-            al.out.setText(str(work / "mask.align"))
-            al.frames.setValue(1)
-            job = al.start()
-            _wait(app, lambda: len(al.readings) >= 6 or job.done, 300, "alignment readings")
-            al.abort()
-            _wait(app, lambda: job.done, 120, "the alignment to stop")
         shot("alignment", "Alignment")
     finally:
         w.shutdown()

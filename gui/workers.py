@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-__all__ = ["Job", "readable_error"]
+__all__ = ["Job", "readable_error", "wait_until"]
 
 log = logging.getLogger(__name__)
 
@@ -155,3 +156,19 @@ class Job(QObject):
             self.succeeded.emit(self.result)
         finally:
             self.finished.emit()
+
+
+def wait_until(app, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+    """Process Qt events until ``condition()`` holds (scripts and tests, never a panel).
+
+    Raises
+    ------
+    TimeoutError
+        After ``timeout_s`` seconds, naming ``what``.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"timed out after {timeout_s:g} s waiting for {what}")
+        app.processEvents()
+        time.sleep(0.005)

@@ -9,7 +9,6 @@ seconds); each test leaves it connected, with no job running.
 from __future__ import annotations
 
 import os
-import time
 
 import pytest
 
@@ -38,14 +37,10 @@ def window(qapp, tmp_path_factory):
 
 
 def wait_for(qapp, condition, timeout_s: float, what: str) -> None:
-    """Process Qt events until ``condition()`` holds (fails naming ``what`` after the
-    timeout)."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
-        qapp.processEvents()
-        time.sleep(0.01)
+    """Process Qt events until ``condition()`` holds (fails naming ``what``)."""
+    from gui.workers import wait_until
+
+    wait_until(qapp, condition, timeout_s, what)
 
 
 @pytest.fixture
