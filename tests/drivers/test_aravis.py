@@ -173,7 +173,9 @@ class TestAravisFake(_RestoringTimeout, CameraConformance):
         ring = FrameRing(2)
         device.start_stream(ring)
         try:
-            time.sleep(0.3)  # ~15 frames at 50 Hz, none read
+            deadline = time.monotonic() + 5.0
+            while ring.acquired < 5 and time.monotonic() < deadline:  # none read
+                time.sleep(0.02)
         finally:
             device.stop_stream()
         assert ring.acquired >= 5 and len(ring) == 2
@@ -310,7 +312,7 @@ def test_stream_that_stops_times_out_then_resumes(gige, gv_process):
         ring.get(timeout_s=2.0)
         gv_process.signal(signal.SIGSTOP)  # the camera stops sending
         try:
-            time.sleep(0.1)
+            time.sleep(0.3)  # frames already on the wire are in
             ring.clear()
             t0 = time.monotonic()
             with pytest.raises(CameraTimeoutError, match="no frame within 0.4 s"):
@@ -364,7 +366,9 @@ def test_lost_packets_make_dropped_frames_never_delivered(gv_process):
                                 "frame_rate_hz": 50.0})
             ring = FrameRing(64)
             cam.start_stream(ring)
-            time.sleep(1.5)
+            deadline = time.monotonic() + 10.0
+            while (ring.dropped < 1 or ring.acquired < 20) and time.monotonic() < deadline:
+                time.sleep(0.05)
             cam.stop_stream()
             frames = []
             while len(ring):

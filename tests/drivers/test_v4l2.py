@@ -205,12 +205,11 @@ def test_stale_frames_after_a_change_are_flushed(recording, by_id):
     cam, bench = make(recording, by_id, buffers=4)
     with cam:
         cam.apply_settings({"exposure_s": 0.005, "frame_rate_hz": 50.0})
-        time.sleep(0.2)  # the camera's 4 buffers fill with 5 ms frames
-        assert len(bench.fake._queue) or bench.fake._produce(time.monotonic()) is None
         base = cam.snap().image.mean()
-        time.sleep(0.2)
+        time.sleep(0.2)  # the camera's 4 buffers fill with 5 ms frames, later ones are lost
         cam.exposure_s = 0.01  # twice the signal from now on
         frame = cam.snap()
+        assert bench.fake.lost > 0  # the queue was full of old frames
         assert frame.image.mean() == pytest.approx(2 * base, rel=0.1)
         # streaming: a frame whose exposure began before a change is dropped (counted),
         # never delivered with the new settings' label
@@ -219,22 +218,27 @@ def test_stale_frames_after_a_change_are_flushed(recording, by_id):
         cam.start_stream(ring)
         try:
             ring.get(timeout_s=1.0)
-            fake = bench.fake
-            fake._produce(time.monotonic())
-            start = fake._next_start  # the frame in flight or the next one
-            time.sleep(max(start + 0.009 - time.monotonic(), 0.0))  # mid-exposure
+            time.sleep(0.1)
             cam.exposure_s = 0.009
             time.sleep(0.3)
         finally:
             cam.stop_stream()
-        delivered = []
-        while len(ring):
-            delivered.append(ring.get(timeout_s=0.1))
-        labels = {round(f.exposure_s, 4) for f in delivered}
-        assert 0.009 in labels and labels <= {0.018, 0.009}
-        for f in delivered:  # content always matches the exposure in the frame's metadata
-            assert f.image.mean() == pytest.approx(base * f.exposure_s / 0.005, rel=0.15)
-        assert ring.dropped >= 1 and cam.dropped_frames == ring.dropped
+        fake = bench.fake
+        with fake._lock:
+            t_change = next(t for t, p in fake._history if p[EXPOSURE] == 90)
+            straddling = [end for start, end, _ in fake.produced if start < t_change < end]
+    delivered = []
+    while len(ring):
+        delivered.append(ring.get(timeout_s=0.1))
+    labels = {round(f.exposure_s, 4) for f in delivered}
+    assert 0.009 in labels and labels <= {0.018, 0.009}
+    for f in delivered:  # content always matches the exposure in the frame's metadata
+        assert f.image.mean() == pytest.approx(base * f.exposure_s / 0.005, rel=0.15)
+    assert not any(abs(f.device_timestamp_s - end) < 1e-6 for f in delivered
+                   for end in straddling)
+    if straddling:  # exposing while the setting changed (~90 % of runs): dropped, counted
+        assert ring.dropped >= 1
+    assert cam.dropped_frames == ring.dropped
 
 
 def test_stream_that_stops_times_out_then_resumes(recording, by_id):

@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import collections
+import threading
 import time
 from typing import Any
 
@@ -68,6 +69,9 @@ class FakeV4l2Capture:
         }
         self.set_log: list[tuple[int, float]] = []
         self.lost = 0
+        #: every frame exposed: (start, end, exposure in 100 us units), lost ones too
+        self.produced: list[tuple[float, float, int]] = []
+        self._lock = threading.RLock()  # the test thread may look while the driver reads
         self._stall_until = 0.0
         self._history: list[tuple[float, dict[int, float]]] = []
         self._queue: collections.deque[tuple[float, np.ndarray]] = collections.deque()
@@ -99,6 +103,7 @@ class FakeV4l2Capture:
             end = self._next_start + props[EXPOSURE] * 1e-4
             if end > now:
                 return
+            self.produced.append((self._next_start, end, int(props[EXPOSURE])))
             if len(self._queue) < int(self.props[BUFFERSIZE]):
                 self._queue.append((end, self._render(props)))
             else:
@@ -134,11 +139,12 @@ class FakeV4l2Capture:
         deadline = time.monotonic() + self.read_timeout_s
         while self.opened and not self.unplugged:
             now = time.monotonic()
-            self._produce(now)
-            if self._queue:
-                stamp, image = self._queue.popleft()
-                self.props[POS_MSEC] = stamp * 1e3
-                return True, image
+            with self._lock:
+                self._produce(now)
+                if self._queue:
+                    stamp, image = self._queue.popleft()
+                    self.props[POS_MSEC] = stamp * 1e3
+                    return True, image
             if now >= deadline:
                 break
             time.sleep(min(0.002, deadline - now))
@@ -150,6 +156,10 @@ class FakeV4l2Capture:
         return float(self.props.get(prop, -1.0))
 
     def set(self, prop: int, value: float) -> bool:
+        with self._lock:
+            return self._set(prop, value)
+
+    def _set(self, prop: int, value: float) -> bool:
         if not self.opened or self.unplugged:
             return False
         now = time.monotonic()
@@ -199,9 +209,10 @@ class FakeV4l2Capture:
 
     def stall(self, seconds: float) -> None:
         """The camera stops sending for ``seconds`` (e.g. a USB bandwidth stall)."""
-        now = time.monotonic()
-        self._produce(now)
-        self._stall_until = now + seconds
+        with self._lock:
+            now = time.monotonic()
+            self._produce(now)
+            self._stall_until = now + seconds
 
     def unplug(self) -> None:
         """The camera disappears: reads fail from now on."""
