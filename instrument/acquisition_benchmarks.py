@@ -87,8 +87,10 @@ def run_recording_benchmark(seconds: float = 120.0, fps: float = 20.0,
     dict
         Per compressor: ``recorded``, ``lost`` (camera + ring + recorder),
         ``index_gaps``, ``camera_fps``, ``write_mb_s`` (raw frame bytes per second of
-        recording), ``disk_mb_s``, ``compression_ratio``, ``process_cpu`` (CPU
-        seconds per wall second of the whole process while recording),
+        recording), ``capacity_mb_s`` (raw frame bytes per second spent in the store's
+        writes: what the recorder could take from a faster camera), ``disk_mb_s``,
+        ``compression_ratio``, ``process_cpu`` (CPU seconds per wall second of the
+        whole process while recording),
         ``recorder_thread_cpu_s``, ``files_per_1000_frames``.
     """
     from .video import DEFAULT_SHARD_FRAMES, record_video
@@ -116,6 +118,7 @@ def run_recording_benchmark(seconds: float = 120.0, fps: float = 20.0,
                 "recorded": s["recorded"], "requested": s["frames_requested"], "lost": lost,
                 "index_gaps": s["index_gaps"], "camera_fps": s["fps"],
                 "write_mb_s": s["bytes_written"] / 1e6 / s["elapsed_s"],
+                "capacity_mb_s": s["bytes_written"] / 1e6 / max(s["write_s"], 1e-9),
                 "disk_mb_s": size / 1e6 / s["elapsed_s"],
                 "compression_ratio": s["bytes_written"] / max(size, 1),
                 "process_cpu": cpu / wall, "recorder_thread_cpu_s": s["thread_cpu_s"],
@@ -135,11 +138,12 @@ def recording_table(result: dict) -> str:
     lines = [f"recording {rows}x{cols} uint16 at {result['fps']:g} fps "
              f"({result['raw_mb_s']:.1f} MB/s raw) for {result['seconds']:g} s per "
              f"compressor, {result['shard_frames']} frames per shard",
-             "compressor  recorded/requested  lost  camera fps  write MB/s  disk MB/s  "
-             "ratio  process CPU  recorder-thread CPU s  files/1000 frames"]
+             "compressor  recorded/requested  lost  camera fps  write MB/s  capacity MB/s  "
+             "disk MB/s  ratio  process CPU  recorder-thread CPU s  files/1000 frames"]
     for comp, r in result["runs"].items():
         lines.append(f"{comp:<10}  {r['recorded']:>8}/{r['requested']:<9}  {r['lost']:>4}  "
                      f"{r['camera_fps']:>10.2f}  {r['write_mb_s']:>10.1f}  "
+                     f"{r['capacity_mb_s']:>13.1f}  "
                      f"{r['disk_mb_s']:>9.1f}  {r['compression_ratio']:>5.2f}  "
                      f"{r['process_cpu']:>11.2f}  {r['recorder_thread_cpu_s']:>21.1f}  "
                      f"{r['files_per_1000_frames']:>17.1f}")
@@ -229,6 +233,9 @@ def _batch_chart(result: dict, path: str | Path) -> None:
     x = np.arange(len(names))
     ax.bar(x - 0.2, steady, 0.4, label="steady state")
     ax.bar(x + 0.2, overall, 0.4, label="overall (with cluster start)")
+    for xi, b in zip(x[1:], result["batch"].values(), strict=True):
+        ax.annotate(f"{b['ratio_to_loop']:.2f} x loop", (xi - 0.2, b["fps_steady"]),
+                    ha="center", va="bottom", fontsize=8)
     ax.set_xticks(x, names)
     ax.set_ylabel("frames per second")
     rows, cols = result["sensor_shape"]
