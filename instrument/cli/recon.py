@@ -13,6 +13,7 @@ __all__ = ["add_subcommands", "choice_lines", "run", "summary_line"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon`` to the ``diffuserlab`` subparsers (``handler=run``)."""
+    from recon.auto import weight_arg
     from recon.solvers import METHODS, SOLVERS
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
@@ -37,10 +38,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="time budget of the solve for --method auto (Wiener if too short)")
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
                     help="box-binning factor (4: 1200x1600 -> 300x400)")
-    rp.add_argument("--tv", default="auto",
+    rp.add_argument("--tv", type=weight_arg, default="auto",
                     help="TV weight in the scaled problem, or auto (default): the "
                     "hold-out cross-validation along a warm-started path")
-    rp.add_argument("--l1", default="0",
+    rp.add_argument("--l1", type=weight_arg, default=0.0,
                     help="l1 weight (sparse scenes) in the scaled problem, or auto; default 0")
     rp.add_argument("--erase", type=float, default=0.0,
                     help="fraction of raw pixels to erase at random (compressed sensing)")

@@ -33,6 +33,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         :func:`run` without naming the command, and ``input_errors`` (ValueError,
         OSError: bad option values, unreadable files exit 2).
     """
+    from recon.auto import weight_arg
+
     p = sub.add_parser("recon3d", help="reconstruct a volume from one image and a PSF stack")
     p.add_argument("--psf-stack", default=None,
                    help="PSF stack: a run store (RUN.zarr from `calibrate psf-sweep` or "
@@ -45,10 +47,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--raw", required=True, help="raw measurement, same size as the PSFs")
     p.add_argument("--method", default="auto", help="admm, fista or auto (admm; default)")
     p.add_argument("--iterations", type=int, default=100)
-    p.add_argument("--tv", default="auto",
+    p.add_argument("--tv", type=weight_arg, default="auto",
                    help="3D TV weight in the scaled problem (0 disables), or auto (default): "
                    "hold-out cross-validation, and only the planes that hold signal")
-    p.add_argument("--l1", default="0",
+    p.add_argument("--l1", type=weight_arg, default=0.0,
                    help="l1 (native sparsity) weight in the scaled problem, or auto; default 0")
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
                    help="lateral box binning of every plane and of the raw image")

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 from ..errors import ReconInputError
@@ -19,14 +21,15 @@ from .noise import NoiseModel, estimate_noise
 from .weight import MODEL_ERROR, AutoWeight, Stopping, admm_auto
 
 __all__ = ["AUTO", "AutoWeight", "NoSignalError", "NoiseModel", "Stopping", "estimate_noise",
-           "parse_weight", "solve_channel"]
+           "parse_weight", "solve_channel", "weight_arg"]
 
 #: The value that asks for an automatic choice (``method``, ``tv``, ``l1``).
 AUTO = "auto"
 
 
 def parse_weight(value, name: str):
-    """``"auto"`` or a finite weight >= 0 (``None`` means ``"auto"``).
+    """``"auto"`` or a finite real weight >= 0 (``None`` means ``"auto"``); no strings
+    but ``"auto"`` (the command line converts with :func:`weight_arg`).
 
     Raises
     ------
@@ -35,15 +38,27 @@ def parse_weight(value, name: str):
     """
     if value is None or (isinstance(value, str) and value.strip().lower() == AUTO):
         return AUTO
-    try:
-        w = float(value)
-    except (TypeError, ValueError):
+    if isinstance(value, bool | str) or not isinstance(value, numbers.Real):
         raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
-                              f"'auto', got {value!r}") from None
+                              f"'auto', got {value!r}")
+    w = float(value)
     if not (np.isfinite(w) and w >= 0):
         raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
                               f"'auto', got {value!r}")
     return w
+
+
+def weight_arg(text: str):
+    """argparse type of ``--tv`` / ``--l1``: ``"auto"`` or a float.
+
+    Raises
+    ------
+    ValueError
+        Neither (argparse turns it into a usage error naming the option).
+    """
+    if str(text).strip().lower() == AUTO:
+        return AUTO
+    return float(text)
 
 
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
@@ -97,7 +112,10 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         Invalid weights or budget, or ``seconds`` with a fixed method.
     """
     w2 = np.square(op.sensor_weights, dtype=np.float64)
-    noise = estimate_noise(raw)
+    # a frame too small for the noise fit (< 8 x 8) gets no noise model: no signal
+    # check, and stopping on the model error alone
+    noise = (estimate_noise(raw) if min(np.shape(raw)[:2]) >= 8
+             else NoiseModel(0.0, 0.0, []))
     scaled = noise.scaled(raw_scale)
     noise_energy = float(np.sum(w2 * scaled.variance(np.asarray(raw) / raw_scale)))
     b_norm = float(np.linalg.norm(b))

@@ -147,6 +147,14 @@ def test_psf_much_smaller_than_the_sensor():
 
 def test_parse_weight():
     assert parse_weight(None, "tv") == "auto" and parse_weight(" AUTO ", "tv") == "auto"
-    assert parse_weight("1e-4", "tv") == 1e-4
+    assert parse_weight(1e-4, "tv") == 1e-4 and parse_weight(np.float32(0), "l1") == 0.0
+    for bad in ("1e-4", True, [0.1]):  # the command line converts with weight_arg
+        with pytest.raises(ReconInputError, match="--tv: tv weight must be"):
+            parse_weight(bad, "tv")
+    from recon.auto import weight_arg
+
+    assert weight_arg("Auto") == "auto" and weight_arg("1e-4") == 1e-4
+    with pytest.raises(ValueError):
+        weight_arg("x")
     with pytest.raises(ReconInputError, match="tv weight must be a finite number >= 0"):
         parse_weight(-1, "tv")
