@@ -77,6 +77,10 @@ class AravisCamera(Camera):
         the camera's manual). Without it such a camera's gain stays at its current value.
     fake_interface : bool
         Enable libaravis's in-process fake camera (device id ``"Fake_1"``; tests).
+    frame_retention_s : float
+        GigE: how long a frame may stay incomplete before it is dropped (Aravis's
+        ``frame-retention``, 0.1 s by default, which a busy host can exceed while the
+        missing packets are still waiting in the socket buffer).
 
     Raises
     ------
@@ -91,7 +95,7 @@ class AravisCamera(Camera):
         frame_rate_hz: float | None = None, trigger_line: str = "Line0",
         packet_size: int | None = None, n_buffers: int = 8,
         pixel_pitch_um: float | None = None, gain_db_per_raw: float | None = None,
-        fake_interface: bool = False,
+        fake_interface: bool = False, frame_retention_s: float = 0.5,
     ) -> None:
         super().__init__(device_id)
         if not camera_name and not serial_number:
@@ -127,6 +131,9 @@ class AravisCamera(Camera):
         self._db_per_raw = None if gain_db_per_raw is None else self._float(
             "gain_db_per_raw", gain_db_per_raw, low=0.0, low_open=True)
         self._fake = bool(fake_interface)
+        self._retention_s = self._float("frame_retention_s", frame_retention_s, low=0.001,
+                                        high=60.0)
+        self._gige = False
         self._arv: Any = None
         self._glib: Any = None
         self._cam: Any = None
@@ -172,7 +179,8 @@ class AravisCamera(Camera):
         self._call(cam.set_range_check_policy, arv.RangeCheckPolicy.ENABLE)
         self._resolve_features()
         self._gige_ip = None
-        if cam.is_gv_device():  # the fast liveness probe, if this camera answers it
+        self._gige = bool(cam.is_gv_device())
+        if self._gige:  # the fast liveness probe, if this camera answers it
             ip = cam.get_device().get_device_address().get_address().to_string()
             self._gige_ip = ip if gvcp_answers(ip) else None
         if self._packet is not None and cam.is_gv_device():
@@ -468,6 +476,8 @@ class AravisCamera(Camera):
         if self._stream is None or self._pool_payload != self._payload:
             self._stream = None
             stream = self._call(self._cam.create_stream, None, None, what="creating the stream")
+            if self._gige:  # a frame still incomplete after this long is dropped
+                stream.set_property("frame-retention", int(self._retention_s * 1e6))
             for _ in range(self._n_buffers):
                 stream.push_buffer(self._arv.Buffer.new_allocate(self._payload))
             self._stream, self._pool_payload = stream, self._payload

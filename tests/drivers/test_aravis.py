@@ -295,6 +295,11 @@ def test_hardware_trigger_waits_for_the_line(gige):
     gige.snap(timeout_s=2.0)
 
 
+def test_gige_stream_keeps_incomplete_frames_for_the_retention_time(gige):
+    gige.snap(timeout_s=2.0)
+    assert gige._stream.get_property("frame-retention") == 500_000  # us, the default 0.5 s
+
+
 def test_trigger_line_must_exist():
     with AravisCamera("fake", camera_name="Fake_1", fake_interface=True,
                       trigger_line="Line7", **FAKE) as cam:
