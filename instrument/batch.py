@@ -27,7 +27,7 @@ import numpy as np
 
 from .runstore import RunStore, RunStoreError
 
-__all__ = ["parse_frames", "reconstruct_run", "reconstruct_stored_frame"]
+__all__ = ["batch_psf", "parse_frames", "reconstruct_run", "reconstruct_stored_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +54,67 @@ def parse_frames(text: str | None, n_frames: int) -> range:
     if len(sel) == 0:
         raise RunStoreError(f"--frames {text!r} selects no frame of the run's {n_frames}")
     return sel
+
+
+def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
+              psf_product: str = "psf_stack", dark: str | None = None
+              ) -> tuple[np.ndarray, float | np.ndarray | None, str]:
+    """The PSF and the frames' dark level for reconstructing a recorded run.
+
+    A calibrated PSF stack (a run store, or a stack with ``depth_mm``) is
+    dark-subtracted, so the frames' dark level must be known: ``dark`` (a number in DN
+    or a ``calibrate dark`` run), else the simulated camera's offset a run recorded
+    on the virtual bench stores; it is then added to the PSF, so that
+    :func:`recon.reconstruct` subtracts the same level from both. With a plain PSF
+    image and no ``dark``, the level is estimated from the PSF's corner as
+    ``diffuserlab recon`` does (returned as None).
+
+    Parameters
+    ----------
+    psf_path : str
+        PSF image, stack or calibration run (:func:`instrument.reconstruct_files.load_psf`).
+    run_attrs : dict
+        The recorded run's attributes (``simulated.dark_offset_dn``).
+    depth_mm : float, optional
+        Plane of a stack.
+    psf_product : str
+        Stack product of a calibration run.
+    dark : str, optional
+        ``--dark``: a level in DN or a dark run.
+
+    Returns
+    -------
+    psf : ndarray, (rows, cols) float
+    dark : float, ndarray (rows, cols) or None
+    source : str
+        The PSF's description (path and depth) stored with the product.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Unreadable PSF, no matching depth, a bad ``dark``, or a calibrated stack with
+        no dark level known.
+    """
+    from pathlib import Path
+
+    from recon.errors import ReconInputError
+
+    from .reconstruct_files import dark_level, load_psf
+
+    psf, depth = load_psf(psf_path, depth_mm, psf_product)
+    stacked = depth is not None or Path(psf_path).is_dir()
+    level = None if dark is None else dark_level(dark)
+    simulated = run_attrs.get("simulated") or {}
+    if level is None and stacked:
+        if "dark_offset_dn" not in simulated:
+            raise ReconInputError(
+                f"--psf {psf_path} is a calibrated (dark-subtracted) PSF stack: give the "
+                "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
+                "calibrate dark)")
+        level = float(simulated["dark_offset_dn"])
+    if level is not None and stacked:  # the stack is dark-subtracted: both get the dark
+        psf = psf + level  # subtracted by prepare_pair, as for the live view
+    return psf, level, f"{psf_path}" + ("" if depth is None else f" at {depth:g} mm")
 
 
 @functools.lru_cache(maxsize=4)

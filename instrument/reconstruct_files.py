@@ -22,7 +22,7 @@ import numpy as np
 
 from drivers.base import jsonable
 
-__all__ = ["load_psf", "output_paths", "projections", "run_recon", "run_recon3d",
+__all__ = ["dark_level", "load_psf", "output_paths", "projections", "run_recon", "run_recon3d",
            "volume_output_paths", "write_json", "write_volume"]
 
 log = logging.getLogger(__name__)
@@ -88,6 +88,36 @@ def load_psf(psf_path: str, depth_mm: float | None,
     except RunStoreError as exc:
         raise ReconInputError(str(exc)) from exc
     return psf, depth
+
+
+def dark_level(text: str, option: str = "--dark"):
+    """The dark level of a ``--dark`` option: a number (DN) or a ``calibrate dark`` run.
+
+    Returns
+    -------
+    float or ndarray
+        The level in DN, or the run's ``dark_mean`` frame, (rows, cols) float32.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        A negative or non-finite number, or a path that is not a run with a dark frame.
+    """
+    from recon.errors import ReconInputError
+
+    from .runstore import RunStore, RunStoreError
+
+    try:
+        level = float(text)
+    except ValueError:
+        try:
+            dark, _ = RunStore.open(text).product("dark_mean")
+        except RunStoreError as exc:
+            raise ReconInputError(f"{option} {text}: {exc}") from None
+        return np.asarray(dark, np.float32)
+    if not 0 <= level < float("inf"):
+        raise ReconInputError(f"{option} {text}: give a level >= 0 DN or a dark run")
+    return level
 
 
 def run_recon(

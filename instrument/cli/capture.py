@@ -30,7 +30,8 @@ import sys
 import time
 from pathlib import Path
 
-from .common import bench_config, dark_level
+from ..reconstruct_files import dark_level
+from .common import bench_config
 
 __all__ = ["add_subcommands", "run_live"]
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 import sys
 
-__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "bench_config", "bench_label", "dark_level",
-           "error", "floats"]
+__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "bench_config", "bench_label", "error",
+           "floats"]
 
 #: How messages name the built-in simulated bench.
 BUILT_IN_BENCH = "built-in simulated bench"
@@ -87,34 +87,3 @@ def floats(text: str, option: str) -> list[float]:
         raise ValueError(f"{option} {text!r} needs finite numbers")
     return values
 
-
-def dark_level(text: str, option: str = "--dark"):
-    """The dark level of a ``--dark`` option: a number (DN) or a ``calibrate dark`` run.
-
-    Returns
-    -------
-    float or ndarray
-        The level in DN, or the run's ``dark_mean`` frame, (rows, cols) float32.
-
-    Raises
-    ------
-    recon.errors.ReconInputError
-        A negative or non-finite number, or a path that is not a run with a dark frame.
-    """
-    import numpy as np
-
-    from recon.errors import ReconInputError
-
-    from ..runstore import RunStore, RunStoreError
-
-    try:
-        level = float(text)
-    except ValueError:
-        try:
-            dark, _ = RunStore.open(text).product("dark_mean")
-        except RunStoreError as exc:
-            raise ReconInputError(f"{option} {text}: {exc}") from None
-        return np.asarray(dark, np.float32)
-    if not 0 <= level < math.inf:
-        raise ReconInputError(f"{option} {text}: give a level >= 0 DN or a dark run")
-    return level

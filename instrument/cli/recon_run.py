@@ -20,8 +20,6 @@ import math
 import sys
 import threading
 
-from .common import dark_level
-
 __all__ = ["add_subcommands", "run"]
 
 
@@ -71,32 +69,13 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.set_defaults(handler=run)
 
 
-def _dark(args: argparse.Namespace, stacked: bool, run_attrs: dict):
-    """The frames' dark level (see ``--dark``), None to estimate it like ``recon``."""
-    from recon.errors import ReconInputError
-
-    if args.dark is not None:
-        return dark_level(args.dark)
-    simulated = run_attrs.get("simulated") or {}
-    if stacked and "dark_offset_dn" in simulated:
-        return float(simulated["dark_offset_dn"])
-    if stacked:
-        raise ReconInputError(
-            f"--psf {args.psf} is a calibrated (dark-subtracted) PSF stack: give the frames' "
-            "dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab calibrate dark)")
-    return None
-
-
 def run(args: argparse.Namespace) -> int:
     """Run ``recon-run``; returns the exit status (module docstring)."""
-    from pathlib import Path
-
     from tqdm import tqdm
 
     from recon.errors import ReconInputError
 
-    from ..batch import parse_frames, reconstruct_run
-    from ..reconstruct_files import load_psf
+    from ..batch import batch_psf, parse_frames, reconstruct_run
     from ..runstore import RunStore
 
     if args.iterations < 1:
@@ -111,12 +90,8 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError(f"--tv {args.tv}: give a finite weight >= 0")
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
-    psf, depth = load_psf(args.psf, args.depth_mm, args.psf_product)
-    stacked = depth is not None or Path(args.psf).is_dir()
-    dark = _dark(args, stacked, store.attrs)
-    if dark is not None and stacked:  # the stack is dark-subtracted: both get the dark
-        psf = psf + dark  # subtracted by prepare_pair, as for the live view
-    source = f"{args.psf}" + ("" if depth is None else f" at {depth:g} mm")
+    psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
+                                  psf_product=args.psf_product, dark=args.dark)
     print(f"{args.run}: frames {frames.start}:{frames.stop} of {store.n_frames}, "
           f"{args.method} x{args.iterations}, PSF {source}; "
           + (f"scheduler {args.scheduler}" if args.scheduler else
