@@ -182,14 +182,28 @@ def _plan(args, bench):
 
 
 def _bead_slide(bench, args) -> None:
-    """The virtual bench's bead slide for ``psf-blind --simulate``: 8 beads (seeded by
-    ``--seed``) over the node grid's field, carried by the source stage."""
+    """The virtual bench's bead slide for ``psf-blind --simulate`` (and for resuming a
+    psf-blind run on it): 8 beads (seeded by ``--seed``) over the node grid's field,
+    carried by the source stage. Nothing for the other routines."""
     import numpy as np
 
+    from instrument.runstore import RunStore, RunStoreError
     from instrument.virtual_bench import BeadScene
 
+    if args.routine == "psf-blind":
+        spacing, grid = args.node_spacing_mm, args.grid
+    elif args.routine == "resume":
+        try:
+            plan = RunStore.open(args.run).attrs["plan"]
+        except (RunStoreError, OSError):
+            return  # the resume itself reports an unreadable run
+        if plan.get("name") != "psf-blind":
+            return
+        spacing, grid = plan["params"]["node_spacing_mm"], plan["params"]["grid_shape"][0]
+    else:
+        return
     rng = np.random.default_rng([args.seed, 0x51])
-    half = args.node_spacing_mm * (args.grid - 1) / 2
+    half = spacing * (grid - 1) / 2
     xy = rng.uniform(-half, half, (8, 2))
     points = np.column_stack([xy, np.zeros(8)])
     bench.set_scene(BeadScene(points, np.full(8, bench.source_power), on_stage=True))
@@ -308,8 +322,7 @@ def run(args: argparse.Namespace) -> int:
         bench = make_bench(args, f"calibrate {args.routine}")
         if args.simulate:
             bench.open()
-            if args.routine == "psf-blind":
-                _bead_slide(bench, args)
+            _bead_slide(bench, args)
     except MissingBenchFile as exc:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
