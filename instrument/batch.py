@@ -244,28 +244,30 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "admm",
     from recon.validate import as_int
 
     store = RunStore.open(run, "r+")
-    frames = range(store.n_frames) if frames is None else frames
-    stored = store.done()
-    missing = [i for i in frames if not stored[i]]
-    if missing:
-        raise RunStoreError(f"{store.path}: frames {missing[:5]}{'...' if len(missing) > 5 else ''}"
-                            " are not stored; select stored frames with --frames")
-    iterations = as_int(iterations, "iterations", minimum=1)
-    bin_factor = as_int(bin_factor, "bin_factor", minimum=1)
-    rows, cols = store.frame_shape
-    if tuple(np.shape(psf)) != (rows, cols):
-        raise RunStoreError(f"the PSF is {np.shape(psf)} but the run's frames are "
-                            f"{rows}x{cols}; use a PSF calibrated at the camera's frame shape")
-    options = {"method": method, "iterations": iterations, "tv": tv,
-               "bin_factor": bin_factor, "dark": dark}
-    name = product or f"recon_{method}"
-    hint = f"diffuserlab recon-run {store.path} with the same options"
-    store.lock()
+    store.lock()  # a second writer (or a stale lock) is refused before anything else
     t0 = time.monotonic()
     done_now = 0
     cancelled = False
     client = cluster = None
     try:
+        frames = range(store.n_frames) if frames is None else frames
+        stored = store.done()
+        missing = [i for i in frames if not stored[i]]
+        if missing:
+            raise RunStoreError(f"{store.path}: frames {missing[:5]}"
+                                f"{'...' if len(missing) > 5 else ''} are not stored; select "
+                                "stored frames with --frames")
+        iterations = as_int(iterations, "iterations", minimum=1)
+        bin_factor = as_int(bin_factor, "bin_factor", minimum=1)
+        rows, cols = store.frame_shape
+        if tuple(np.shape(psf)) != (rows, cols):
+            raise RunStoreError(f"the PSF is {np.shape(psf)} but the run's frames are "
+                                f"{rows}x{cols}; use a PSF calibrated at the camera's frame "
+                                "shape")
+        options = {"method": method, "iterations": iterations, "tv": tv,
+                   "bin_factor": bin_factor, "dark": dark}
+        name = product or f"recon_{method}"
+        hint = f"diffuserlab recon-run {store.path} with the same options"
         store.create_frame_product(
             name, store.n_frames, (rows // bin_factor, cols // bin_factor), np.float32,
             overwrite=overwrite, method=method, iterations=iterations, tv=tv,

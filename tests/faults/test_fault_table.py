@@ -463,9 +463,36 @@ CAPTURE = [
          "not a bench", "foreign.toml"),
 ]
 
+CV = "capture video --simulate --frames 2"
+RR = "recon-run dark.zarr --iterations 2"
+VIDEO = [
+    case(f"{CV} --out o/v.zarr --frames 0", "number", "frames 0", "--frames 0"),
+    case(f"{CV} --out o/v.zarr --compressor gzip", "number", "compressor", "gzip"),
+    case(f"{CV} --out o/v.zarr --shard-frames 0", "number", "shard frames", "--shard-frames 0"),
+    case(f"{CV} --out raw.tif", "clash", "out exists", "raw.tif|exists"),
+    case(f"{CV} --out file.txt/v.zarr", "unwritable", "out under a file", "file.txt"),
+    case(f"{CV} --out o/v.zarr --live-recon wiener --psf nope.npy", "missing", "live psf",
+         "nope.npy"),
+    case("capture video foreign.toml --simulate --frames 2 --out o/v.zarr", "foreign-bench",
+         "not a bench", "foreign.toml"),
+    case("recon-run nope.zarr --psf psf.npy", "missing", "run", "nope.zarr"),
+    case(f"{RR} --psf nope.npy", "missing", "psf", "nope.npy"),
+    case(f"{RR} --psf psf.npy", "shape", "psf of another shape", "32|frames are"),
+    case(f"{RR} --psf psf.npy --frames x", "number", "frames x", "--frames 'x'"),
+    case(f"{RR} --psf psf.npy --dff 120", "number", "dff 120", "--dff 120"),
+    case(f"{RR} --psf stack.tif --depth 2", "missing", "no dark for a stack", "--dark"),
+    case("recon-run trunc_meta.zarr --psf psf.npy", "corrupt-store", "truncated zarr.json",
+         "trunc_meta.zarr"),
+    case("recon-run locked.zarr --psf psf.npy", "locked-store", "locked run", "locked.zarr"),
+    case("emulators start --time-scale 0 --duration-s 0.1", "number", "time scale 0",
+         "--time-scale"),
+    case("emulators start --bench-out raw.tif --duration-s 0.1", "clash", "bench-out exists",
+         "raw.tif|exists"),
+]
+
 TABLE = {"recon": RECON, "demo": DEMO, "recon3d": RECON3D, "analyze": ANALYZE,
          "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK, "holo": HOLO,
-         "calibrate": CALIBRATE, "align": ALIGN, "capture": CAPTURE}
+         "calibrate": CALIBRATE, "align": ALIGN, "capture": CAPTURE, "video": VIDEO}
 ALL = [c for rows in TABLE.values() for c in rows]
 
 
