@@ -67,11 +67,8 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         Unreadable PSF, a PSF whose shape is not the camera's frames, a calibrated
         stack without a dark level on a real bench.
     """
-    import numpy as np
-
     from instrument.live import LiveReconstruction
-    from instrument.reconstruct_files import load_psf
-    from instrument.runstore import RunStore
+    from instrument.reconstruct_files import dark_level, load_psf
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
 
@@ -93,10 +90,7 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
                 f"{psf_path} is a calibrated (dark-subtracted) PSF stack: give the frames' "
                 "dark level in DN or a dark run (calibrate dark)")
     else:
-        try:
-            level = float(text)
-        except ValueError:
-            level = np.asarray(RunStore.open(text).product("dark_mean")[0], np.float32)
+        level = dark_level(text, "dark")
     if level is not None and stacked:  # the stack's PSF is dark-subtracted already
         psf = psf + level
     return LiveReconstruction(LiveReconstructor(psf, dark=level), method=method,
@@ -401,9 +395,8 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     instrument.runstore.RunStoreError, recon.errors.ReconInputError
         From the run, the PSF or a frame's reconstruction (frames done are kept).
     """
-    from instrument.batch import parse_frames, reconstruct_run
-    from instrument.cli.recon_run import _dark, add_subcommands
-    from instrument.reconstruct_files import load_psf
+    from instrument.batch import batch_psf, parse_frames, reconstruct_run
+    from instrument.cli.recon_run import add_subcommands
     from instrument.runstore import RunStore
 
     parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
@@ -415,12 +408,8 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     args = _parse(parser, argv)
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
-    psf, depth = load_psf(args.psf, args.depth_mm, args.psf_product)
-    stacked = depth is not None or Path(args.psf).is_dir()
-    dark = _dark(args, stacked, store.attrs)
-    if dark is not None and stacked:  # the stack is dark-subtracted: both get the dark
-        psf = psf + dark
-    source = f"{args.psf}" + ("" if depth is None else f" at {depth:g} mm")
+    psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
+                                  psf_product=args.psf_product, dark=args.dark)
     return reconstruct_run(args.run, psf, method=args.method, iterations=args.iterations,
                            tv=args.tv, bin_factor=args.bin_factor, dark=dark, frames=frames,
                            product=args.product, workers=args.workers,

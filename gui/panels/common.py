@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtWidgets import QLabel, QPushButton
+from PySide6.QtWidgets import QGraphicsView, QLabel, QPushButton
 
 __all__ = ["FrameView", "RunControls", "error_label"]
 
@@ -41,6 +41,8 @@ class FrameView(pg.GraphicsLayoutWidget):
         self.histogram.setImageItem(self.item)
         self.item.sigImageChanged.disconnect(self.histogram.imageChanged)
         self.addItem(self.histogram)
+        # repaint only what changed (pyqtgraph repaints the whole view by default)
+        self.setViewportUpdateMode(QGraphicsView.ViewportUpdateMode.MinimalViewportUpdate)
         self.image = None
         self._period_s = 0.0 if histogram_hz is None else 1.0 / histogram_hz
         self._last_histogram = -1e9
@@ -51,19 +53,27 @@ class FrameView(pg.GraphicsLayoutWidget):
 
     def setImage(self, image, autoLevels: bool = True) -> None:  # noqa: N802, N803
         """Show ``image`` (rows, cols); ``autoLevels``: levels from its 0.1 and 99.9
-        percentiles (the histogram range follows)."""
+        percentiles (the histogram range follows). In video mode (``histogram_hz``)
+        levels and histogram follow at most that often; between, the image is swapped
+        alone, and the view is re-ranged only when the image's shape changes (every
+        other part of the plot then stays as drawn)."""
         import time
 
+        now = time.monotonic()
+        due = now - self._last_histogram >= self._period_s
+        reshaped = self.image is None or np.shape(self.image) != np.shape(image)
         self.image = image
-        if autoLevels:
+        if autoLevels and (due or reshaped):
             lo, hi = np.percentile(image[::4, ::4], (0.1, 99.9))
             levels = (float(lo), float(hi) if hi > lo else float(lo) + 1.0)
             self.item.setImage(image, levels=levels)
             self.histogram.setLevels(*levels)
         else:
             self.item.setImage(image, autoLevels=False)
-        now = time.monotonic()
-        if now - self._last_histogram >= self._period_s:
+        if reshaped:
+            self.plot.vb.autoRange(padding=0.02)
+            self.plot.vb.disableAutoRange()
+        if due or reshaped:
             self._last_histogram = now
             self.histogram.imageChanged(autoLevel=False, autoRange=autoLevels)
 
