@@ -325,7 +325,7 @@ INJECTIONS = [
     ("adc_bits = 12", "adc_bits = 3", "devices[0].params.adc_bits"),
     ("\npixel_pitch_um = 13.0", "\npixel_pitch_um = -1.0", "devices[0].params.pixel_pitch_um"),
     ("x = [-25.0, 25.0], y", "x = [25.0, -25.0], y", "devices[1].params.axes.x"),
-    ('driver = "simulated-led-array"', 'driver = "illuminate"', "devices[2].driver"),
+    ('driver = "simulated-led-array"', 'driver = "acme-leds"', "devices[2].driver"),
     ("pitch_mm = 4.0", 'pitch_mm = "4 cm"', "devices[2].params.pitch_mm"),
     ("resolution = [96, 120]", "resolution = [0, 120]", "devices[3].params.resolution"),
     ("wavelength_nm = 532.0\n\n[[devices]]", "wavelength_nm = 532.0\nfoo = 1\n\n[[devices]]",
