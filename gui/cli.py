@@ -31,7 +31,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the GUI until its window closes; returns its exit status."""
+    """Run the GUI until its window closes; returns its exit status.
+
+    A bench file given on the command line is checked first, so a missing or broken
+    file is the usual one-line error (every problem listed) before any window opens.
+    """
+    if args.bench is not None:
+        from instrument.cli.common import bench_config
+
+        bench_config(args.bench, simulate=args.simulate, command="gui")
     try:
         from .app import main
     except ImportError as exc:

@@ -484,6 +484,8 @@ VIDEO = [
     case("recon-run trunc_meta.zarr --psf psf.npy", "corrupt-store", "truncated zarr.json",
          "trunc_meta.zarr"),
     case("recon-run locked.zarr --psf psf.npy", "locked-store", "locked run", "locked.zarr"),
+    case("gui nope.toml", "missing", "bench file", "nope.toml"),
+    case("gui foreign.toml --simulate", "foreign-bench", "not a bench", "foreign.toml"),
     case("emulators start --time-scale 0 --duration-s 0.1", "number", "time scale 0",
          "--time-scale"),
     case("emulators start --bench-out raw.tif --duration-s 0.1", "clash", "bench-out exists",
