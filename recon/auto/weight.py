@@ -73,7 +73,7 @@ class Stopping:
     """
 
     window: int = 10
-    tolerance: float = 1e-3
+    tolerance: float = 1e-4
 
     def hook(self, target: float, b_norm: float):
         """``stop(history) -> bool`` for the solvers' ``stop`` option."""
@@ -164,7 +164,10 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     regulariser : {"tv", "l1"}
         Which weight the path chooses (the other is 0).
     stage : int, optional
-        Iterations per path weight; default ``max(10, iterations // 20)``.
+        Iterations per path weight; default ``max(20, iterations // 10)`` (shorter
+        stages had not settled when compared: at 10 per stage the held-out error rose
+        in the transient after a weight step and the path stopped at 2.5e-3 on a
+        scene whose best weight is 1e-5, 6.4 dB below it).
     stopping : Stopping, optional
         Automatic stopping of the final solve (default :class:`Stopping`()).
     mu : (mu1, mu2, mu3), optional
@@ -194,7 +197,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Unknown ``regulariser``.
     """
     stopping = stopping or Stopping()
-    stage = min(stage or max(10, iterations // 20), max(1, iterations // 3))
+    stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
     b_norm = float(np.linalg.norm(b))
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     plan = AdmmPlan.of(op)
