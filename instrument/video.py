@@ -235,7 +235,8 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     if error is not None:
         store.update_attrs(error=f"recording stopped by {type(error).__name__}: {error}")
         raise error
+    elapsed = max(float(summary["elapsed_s"]), 1e-9)  # to the last frame written
     summary.update(path=str(store.path), status=status, frames_requested=n,
-                   fps=final["fps"], write_mb_s=final["write_mb_s"],
+                   fps=final["fps"], write_mb_s=summary["bytes_written"] / 1e6 / elapsed,
                    live=final.get("live"))
     return summary

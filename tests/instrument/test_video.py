@@ -33,6 +33,8 @@ def test_record_video_stores_every_frame_in_order(bench, tmp_path):
                            on_progress=progress.append, progress_every_s=0.5)
     assert summary["status"] == "complete" and summary["recorded"] == 30
     assert summary["index_gaps"] == [] and summary["lost_by_recorder"] == 0
+    assert summary["write_mb_s"] == pytest.approx(
+        30 * 256 * 320 * 2 / 1e6 / summary["elapsed_s"])  # every frame's bytes counted
     assert progress and progress[-1]["acquired"] >= progress[0]["acquired"]
     store = RunStore.open(tmp_path / "v.zarr")
     assert store.n_frames == 30 and store.done().all() and store.verify() == []
