@@ -262,7 +262,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     # error of the minimum (the minimum is flat; its argmin is noise)
     k = next(i for i, p in enumerate(path) if p["holdout_error"] <= best[1] + best[2])
     chosen, x_best = path[k]["weight"], estimates[k]
-    reason = (f"hold-out cross-validation: {100 * holdout:g} % of the pixels held out; the "
+    reason = (f"hold-out cross-validation: {100 * holdout:g} % of the pixels held out in "
+              f"{BLOCK} x {BLOCK} blocks; the "
               f"largest weight whose fit to the others predicts them within one standard "
               f"error ({best[2]:.3g}) of the best prediction ({best[1]:.4g})")
     if k == len(path) - 1 and rises == 0:
