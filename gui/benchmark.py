@@ -198,6 +198,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from .cli import _exit_now
+    from .cli import exit_now
 
-    _exit_now(main())
+    exit_now(main())

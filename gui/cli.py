@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["add_subcommands", "run"]
+__all__ = ["add_subcommands", "exit_now", "run"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -47,11 +47,11 @@ def run(args: argparse.Namespace) -> int:
                           "pip install 'diffuserlab[gui]'") from None
     status = main(args.bench, simulate=args.simulate, seed=args.seed, scene=args.scene,
                   connect=not args.no_connect)
-    _exit_now(status)
+    exit_now(status)
     return status
 
 
-def _exit_now(status: int) -> None:
+def exit_now(status: int) -> None:
     """End the process once the window has closed (settings saved, bench closed).
 
     PySide6 6.12 with pyqtgraph aborts in the interpreter's final garbage collection

@@ -24,7 +24,7 @@ from typing import Any
 
 __all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "batch_reconstruct", "build_live",
            "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
-           "run_alignment", "run_plan"]
+           "run_alignment", "run_plan", "section_summary"]
 
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
@@ -177,7 +177,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
     instrument.plan.PlanError
         Parameters the plan refuses.
     """
-    from calibration_routines.cli.calibrate import _plan
+    from calibration_routines.cli.calibrate import plan_from_args
 
     argv = ["calibrate", routine, "--simulate"]
     for flag, value in values.items():
@@ -185,7 +185,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
             argv.append(flag)
         elif value not in (False, None, ""):
             argv += [flag, str(value)]
-    return _plan(_parse(_calibrate_parser(), argv), bench)
+    return plan_from_args(_parse(_calibrate_parser(), argv), bench)
 
 
 def default_run_path(routine: str, folder: str = "out/runs") -> str:
@@ -300,7 +300,7 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
     instrument.runner.RunAborted
         Aborted (the record keeps every reading).
     """
-    from calibration_routines.cli.align import _truth
+    from calibration_routines.cli.align import simulated_truth
     from calibration_routines.holo_bench import holography_branch
     from calibration_routines.mask_alignment import AlignmentConfig, AlignmentRecord, MaskAligner
     from instrument.plan import PlanError
@@ -327,7 +327,7 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
                               rotation=not args.no_rotation, focus=not args.no_focus,
                               relay_na=relay_na, focus_range_mm=args.focus_range_mm)
         if session.is_virtual:
-            bench.hologram.mask.truth = _truth(args)
+            bench.hologram.mask.truth = simulated_truth(args)
             seed = bench.hologram.mask.seed if args.mask_seed is None else args.mask_seed
         else:
             seed = args.mask_seed
@@ -340,17 +340,17 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
         def on_event(step: str, message: str, data: dict) -> None:
             steps = aligner.state["steps"] if aligner is not None else {}
             job.report({"kind": "event", "step": step, "message": message,
-                        "done": list(steps), "steps": _section_summary(steps)})
+                        "done": list(steps), "steps": section_summary(steps)})
 
         aligner = MaskAligner(bench, model, cfg, record=record, control=control,
                               on_event=on_event)
         report = aligner.run()
         job.report({"kind": "event", "step": "verify", "message": "completed",
-                    "done": list(report["steps"]), "steps": _section_summary(report["steps"])})
+                    "done": list(report["steps"]), "steps": section_summary(report["steps"])})
         return report
 
 
-def _section_summary(steps: dict) -> dict:
+def section_summary(steps: dict) -> dict:
     """Per-section offsets (rigid step, mask px), integer shifts (piecewise) and
     efficiency ratios (verify) found so far."""
     out: dict = {}

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from .common import add_bench_arguments, make_bench
 
-__all__ = ["add_subcommands", "run"]
+__all__ = ["add_subcommands", "run", "simulated_truth"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -74,7 +74,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     mp.set_defaults(handler=run)
 
 
-def _truth(args):
+def simulated_truth(args):
+    """The misalignment ``align mask --simulate`` gives the virtual mask, from the
+    ``--sim-*`` options (translation and distortion in px, rotation in mrad, defocus in
+    mm, tip and tilt in mrad).
+
+    Returns
+    -------
+    recon.optics.holo_display.MaskTransform
+    """
     import numpy as np
 
     from recon.optics.holo_display import MaskTransform
@@ -166,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
                       "calibrate slm-lut ... --simulate --out LUT.zarr` and pass --lut LUT.zarr")
             slm = bench.slm
             if args.simulate:
-                truth = _truth(args)
+                truth = simulated_truth(args)
                 bench.hologram.mask.truth = truth
                 seed = bench.hologram.mask.seed if args.mask_seed is None else args.mask_seed
             else:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from .common import add_bench_arguments, make_bench
 
-__all__ = ["add_subcommands", "run"]
+__all__ = ["add_subcommands", "plan_from_args", "run"]
 
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "psf-blind", "angular-response",
             "slm-lut")
@@ -126,7 +126,26 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     cp.set_defaults(handler=run)
 
 
-def _plan(args, bench):
+def plan_from_args(args, bench):
+    """The calibration plan ``calibrate ROUTINE`` runs, built from its parsed options.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The options of ``calibrate`` (``routine`` and the routine's own); the GUI's
+        calibration panel parses its fields with the same parser.
+    bench : instrument.bench.Bench or instrument.virtual_bench.VirtualBench
+        The open bench (plans read its devices and geometry).
+
+    Returns
+    -------
+    instrument.plan.Plan
+
+    Raises
+    ------
+    instrument.plan.PlanError, recon.errors.ReconInputError
+        Options a plan refuses (the message names the option).
+    """
     frames = {} if args.frames is None else {"frames_per_point": args.frames}
     given = {k: v for k, v in vars(args).items() if v is not None}
     if args.routine == "dark":
@@ -349,7 +368,7 @@ def run(args: argparse.Namespace) -> int:
                 result = runner.resume(args.run, redo=redo,
                                        accept_differences=args.accept_differences)
             else:
-                plan = _plan(args, bench)
+                plan = plan_from_args(args, bench)
                 total = sum(len(p.tags) for p in plan.points())
                 runner = Runner(bench, on_event=_progress(total, 0),
                                 reconnect_timeout_s=args.reconnect_timeout_s)

@@ -149,7 +149,7 @@ class AlignmentPanel(RunControls, QWidget):
         """Show a finished (or stopped) alignment record."""
         from calibration_routines.mask_alignment import load_alignment
 
-        from ..jobs import _section_summary
+        from ..jobs import section_summary
 
         try:
             rec = load_alignment(path)
@@ -162,7 +162,7 @@ class AlignmentPanel(RunControls, QWidget):
                               "pose": entry.get("pose"), "step": entry.get("step")})
         self.on_progress({"kind": "event", "step": "", "message": f"record {path}: "
                           f"{rec.get('status')}", "done": list(rec.get("steps", {})),
-                          "steps": _section_summary(rec.get("steps", {}))})
+                          "steps": section_summary(rec.get("steps", {}))})
 
     # -- display -------------------------------------------------------------------------
     def on_progress(self, p: dict) -> None:
