@@ -197,7 +197,7 @@ def reconstruct(
     raw: np.ndarray,
     method: str = "auto",
     *,
-    iterations: int = 100,
+    iterations: int = 200,
     tv: float | str | None = "auto",
     l1: float | str = 0.0,
     seconds: float | None = None,

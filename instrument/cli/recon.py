@@ -31,7 +31,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
                     help="auto (default): chosen from the data and --seconds, and said why; "
                     + "; ".join(f"{name}: {spec.summary}" for name, spec in SOLVERS.items()))
-    rp.add_argument("--iterations", type=int, default=100,
+    rp.add_argument("--iterations", type=int, default=200,
                     help="maximum iterations: the solve stops earlier when the fit changes "
                     "by less than the noise explains (the metrics say how many ran)")
     rp.add_argument("--seconds", type=float, default=None,

@@ -36,7 +36,7 @@ RESIDUAL_BOUND = 0.2
 
 FULL = {"photons": [100.0, 300.0, 1000.0, 3000.0, 10000.0, 30000.0],
         "densities": [0.0005, 0.002, 0.01, 0.05, "photo:camera"],
-        "erased": [0.0, 0.5, 0.8, 0.9, 0.95], "iterations": 100, "coarse_bin": 8}
+        "erased": [0.0, 0.5, 0.8, 0.9, 0.95], "iterations": 200, "coarse_bin": 8}
 QUICK = {"photons": [300.0, 30000.0], "densities": [0.002, "photo:camera"],
          "erased": [0.0, 0.9], "iterations": 30, "coarse_bin": 8}
 
