@@ -127,11 +127,11 @@ def _data_terms(hist: History, b_norm: float) -> list[float]:
 BLOCK = 8
 
 
-def holdout_mask(shape, fraction: float, seed: int) -> np.ndarray:
-    """True where a pixel is kept: random ``BLOCK`` x ``BLOCK`` blocks held out."""
+def holdout_mask(shape, fraction: float, seed: int, block: int = BLOCK) -> np.ndarray:
+    """True where a pixel is kept: random ``block`` x ``block`` blocks held out."""
     rng = np.random.default_rng(seed)
-    blocks = rng.random((-(-shape[0] // BLOCK), -(-shape[1] // BLOCK))) >= fraction
-    return np.repeat(np.repeat(blocks, BLOCK, 0), BLOCK, 1)[:shape[0], :shape[1]]
+    blocks = rng.random((-(-shape[0] // block), -(-shape[1] // block))) >= fraction
+    return np.repeat(np.repeat(blocks, block, 0), block, 1)[:shape[0], :shape[1]]
 
 
 def warm_state(plan: AdmmPlan, x: np.ndarray | None, mu, use_tv: bool) -> AdmmState:
@@ -230,9 +230,12 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     # span START .. END within the budget: the first stage is 3, the others 1 stage long
     stages = max(2, (iterations - 3 * stage) // stage + 1)
     factor = max(PATH_FACTOR, (weight / END_WEIGHT) ** (1.0 / (stages - 1)))
-    keep = holdout_mask(op.sensor_shape, holdout, seed)
     w = op.sensor_weights
+    keep = holdout_mask(op.sensor_shape, holdout, seed)
     held = (w > 0) & ~keep
+    if held.sum() < 16 or not np.any(keep & (w > 0)):  # too small for blocks: pixels
+        keep = holdout_mask(op.sensor_shape, holdout, seed, block=1)
+        held = (w > 0) & ~keep
     fit_plan = AdmmPlan.of(op.with_weights(w * keep))
     b_fit = np.ascontiguousarray(b * keep, np.float32)
     state = AdmmState.zeros(fit_plan, check_penalties(mu), use_tv)
@@ -248,7 +251,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         used += n
         pred = w * np.maximum(state.mx[op.crop], 0)
         e = np.square(pred - b, dtype=np.float64)[held]
-        err, se = float(e.sum()), float(e.std() * math.sqrt(e.size))
+        err = float(e.sum())
+        se = float(e.std() * math.sqrt(e.size)) if e.size else 0.0
         path.append({"weight": weight, "holdout_error": err, "standard_error": se})
         estimates.append(state.x.copy())
         if best is None or err < best[1]:
@@ -260,7 +264,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         weight /= factor
     # one-standard-error rule: the largest weight whose error is within one standard
     # error of the minimum (the minimum is flat; its argmin is noise)
-    k = next(i for i, p in enumerate(path) if p["holdout_error"] <= best[1] + best[2])
+    k = next((i for i, p in enumerate(path) if p["holdout_error"] <= best[1] + best[2]),
+             best[0])
     chosen, x_best = path[k]["weight"], estimates[k]
     reason = (f"hold-out cross-validation: {100 * holdout:g} % of the pixels held out in "
               f"{BLOCK} x {BLOCK} blocks; the "
