@@ -136,7 +136,8 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     psf : ndarray, (rows, cols)
         PSF at the camera's frame shape.
     options : dict
-        Keywords of :func:`recon.reconstruct` (method, iterations, tv, bin_factor, dark).
+        Keywords of :func:`recon.reconstruct` (method, iterations, tv, l1, bin_factor,
+        dark).
     threads : int, optional
         Cap on the task's FFT and numba threads (one per worker by default).
 
@@ -182,8 +183,9 @@ def _client(workers: int | None, scheduler: str | None, timeout_s: float):
     return Client(cluster, timeout=timeout_s), cluster
 
 
-def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "admm",
-                    iterations: int = 100, tv: float | None = None, bin_factor: int = 1,
+def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
+                    iterations: int = 200, tv: float | str | None = "auto",
+                    l1: float | str = 0.0, bin_factor: int = 1,
                     dark: float | np.ndarray | None = None, frames: range | None = None,
                     product: str | None = None, workers: int | None = None,
                     scheduler: str | None = None, dff_percentile: float | None = None,
@@ -200,8 +202,9 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "admm",
         while the batch runs.
     psf : ndarray, (rows, cols)
         PSF at the run's frame shape (:func:`instrument.reconstruct_files.load_psf`).
-    method, iterations, tv, bin_factor, dark
-        As :func:`recon.reconstruct`.
+    method, iterations, tv, l1, bin_factor, dark
+        As :func:`recon.reconstruct` (the defaults are ``diffuserlab recon``'s: the
+        method and weights chosen from each frame's data, at most 200 iterations).
     frames : range, optional
         Frame slots to reconstruct (default all; see :func:`parse_frames`).
     product : str, optional
@@ -264,13 +267,13 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "admm",
             raise RunStoreError(f"the PSF is {np.shape(psf)} but the run's frames are "
                                 f"{rows}x{cols}; use a PSF calibrated at the camera's frame "
                                 "shape")
-        options = {"method": method, "iterations": iterations, "tv": tv,
+        options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
                    "bin_factor": bin_factor, "dark": dark}
         name = product or f"recon_{method}"
         hint = f"diffuserlab recon-run {store.path} with the same options"
         store.create_frame_product(
             name, store.n_frames, (rows // bin_factor, cols // bin_factor), np.float32,
-            overwrite=overwrite, method=method, iterations=iterations, tv=tv,
+            overwrite=overwrite, method=method, iterations=iterations, tv=tv, l1=l1,
             bin_factor=bin_factor, psf=psf_source,
             dark=None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame"),
             orientation="model grid (Eq. 3.3)", resume_hint=hint)

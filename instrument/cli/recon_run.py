@@ -25,6 +25,7 @@ __all__ = ["add_subcommands", "run"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""
+    from recon.auto import weight_arg
     from recon.solvers import METHODS
 
     rp = sub.add_parser(
@@ -40,10 +41,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--psf-product", default="psf_stack",
                     help="which stack of a calibration run: psf_stack (default) or "
                     "psf_stack_raw")
-    rp.add_argument("--method", choices=METHODS, default="admm")
-    rp.add_argument("--iterations", type=int, default=100)
-    rp.add_argument("--tv", type=float, default=None,
-                    help="TV weight in the scaled problem (default per method)")
+    rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
+                    help="as for `recon` (default auto: chosen from each frame's data)")
+    rp.add_argument("--iterations", type=int, default=200,
+                    help="maximum iterations per frame, as for `recon` (default 200)")
+    rp.add_argument("--tv", type=weight_arg, default="auto",
+                    help="TV weight in the scaled problem, or auto (default), as for `recon`")
+    rp.add_argument("--l1", type=weight_arg, default=0.0,
+                    help="l1 weight in the scaled problem, or auto; default 0")
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
                     help="box-binning factor")
     rp.add_argument("--dark", default=None,
@@ -86,8 +91,9 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError(f"--workers {args.workers}: give a whole number >= 1")
     if args.dff is not None and not 0 <= args.dff <= 100:
         raise ReconInputError(f"--dff {args.dff}: give a percentile in [0, 100] (e.g. 20)")
-    if args.tv is not None and not (args.tv >= 0 and math.isfinite(args.tv)):
-        raise ReconInputError(f"--tv {args.tv}: give a finite weight >= 0")
+    for option, value in (("--tv", args.tv), ("--l1", args.l1)):
+        if not isinstance(value, str) and not (value >= 0 and math.isfinite(value)):
+            raise ReconInputError(f"{option} {value}: give a finite weight >= 0 or auto")
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
@@ -108,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         out = reconstruct_run(
             args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
+            l1=args.l1,
             bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
             workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
             overwrite=args.overwrite, psf_source=source, on_progress=progress,
