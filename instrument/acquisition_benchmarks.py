@@ -160,7 +160,8 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
     at ``sensor_shape``; the PSF is the bench's on-axis PSF as recorded. The reference
     is a loop of :func:`recon.reconstruct` over the frames in this process (all
     cores); each batch is :func:`instrument.batch.reconstruct_run` with a fresh local
-    cluster of ``w`` one-thread worker processes. Rates are in steady state (from the
+    cluster of ``w`` worker processes (one frame at a time each, with the caller's
+    thread count). Rates are in steady state (from the
     first stored frame to the last) and overall (including the cluster's start).
 
     Returns

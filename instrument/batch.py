@@ -3,7 +3,8 @@
 Every selected frame of a run store is reconstructed independently with
 :func:`recon.reconstruct` (the same call, with the same arguments, as
 ``diffuserlab recon`` on that frame, so the results are equal bit for bit) by dask
-workers: a local cluster of ``workers`` processes (one thread each) by default, or
+workers: a local cluster of ``workers`` processes (one task at a time each, with
+the caller's FFT and numba thread count, so the numerics are the caller's) by default, or
 the workers of a running ``dask.distributed`` scheduler given by its address (the
 workers must see the run's path). Each result is written into the run as a
 per-frame product (:meth:`instrument.runstore.RunStore.write_product_frame`) as soon
@@ -123,7 +124,7 @@ def _open_run(path: str) -> RunStore:
 
 
 def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
-                             options: dict[str, Any], threads: int | None = 1
+                             options: dict[str, Any], threads: int | None = None
                              ) -> tuple[int, np.ndarray]:
     """Reconstruct frame ``index`` of a run: the task every dask worker runs.
 
@@ -139,7 +140,9 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
         Keywords of :func:`recon.reconstruct` (method, iterations, tv, l1, bin_factor,
         dark).
     threads : int, optional
-        Cap on the task's FFT and numba threads (one per worker by default).
+        The task's FFT and numba threads (:func:`recon.fft.limited_threads`; the
+        batch passes the caller's count, so the results equal a reconstruction in the
+        calling process bit for bit); None leaves the worker's defaults.
 
     Returns
     -------
@@ -286,9 +289,14 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
 
             client, cluster = _client(workers, scheduler, timeout_s)
             n_workers = len(client.scheduler_info()["workers"])
+            from recon.jit import thread_count
+
+            # each task computes with the caller's thread count: numba's parallel
+            # reductions depend on it, and the results must equal `recon`'s bit for bit
             psf_future = client.scatter(np.asarray(psf), broadcast=True)
             futures = [client.submit(reconstruct_stored_frame, str(store.path), i,
-                                     psf_future, options, pure=False) for i in todo]
+                                     psf_future, options, thread_count(), pure=False)
+                       for i in todo]
             try:
                 for fut in as_completed(futures):
                     index, image = fut.result()
