@@ -29,6 +29,8 @@ def test_recording_benchmark_reports_every_compressor(tmp_path):
 def test_batch_benchmark_equals_the_loop_and_draws_its_chart(tmp_path):
     r = run_batch_benchmark(frames=3, iterations=3, sensor_shape=(256, 320), workers=(1,),
                             chart=tmp_path / "batch.png")
-    assert r["batch"][1]["equal_to_loop"] and r["loop_fps"] > 0
+    # the loop's frames to float32 rounding (bit for bit unless a worker sums in
+    # another order)
+    assert r["batch"][1]["max_rel_diff_to_loop"] < 1e-5 and r["loop_fps"] > 0
     assert (tmp_path / "batch.png").stat().st_size > 1000
     assert "steady / loop" in batch_table(r)

@@ -19,6 +19,18 @@ from instrument.video_scenes import BeadFlowScene, NeuronFieldScene
 from instrument.virtual_bench import VirtualBench
 from recon.io import load_image
 
+
+def assert_same_frame(batch: np.ndarray, single: np.ndarray) -> None:
+    """A batch frame equals the single-frame reconstruction to float32 rounding.
+
+    Bit for bit on the development machine; a worker process whose BLAS or thread layout sums in
+    another order (dask sets OMP/OpenBLAS threads to 1 in its workers) can differ by a
+    few units in the last place, amplified by the iterations (seen: 8e-6 of a 2.8 peak).
+    """
+    assert batch.shape == single.shape and batch.dtype == single.dtype
+    np.testing.assert_allclose(batch, single, rtol=0, atol=1e-5 * float(np.abs(single).max()))
+
+
 OPTIONS = {"method": "admm", "iterations": 8, "bin_factor": 2}
 
 
@@ -74,7 +86,7 @@ def test_batch_equals_single_frame_reconstruction_and_resumes(video, cluster, tm
     for i in (0, 7, 11):
         frame = store.frame(i).image
         expect = recon.reconstruct(psf, frame, **OPTIONS).image
-        np.testing.assert_array_equal(data[i], expect)
+        assert_same_frame(data[i], expect)
     # other settings are refused while the product exists; --overwrite replaces it
     with pytest.raises(RunStoreError, match="iterations differ"):
         reconstruct_run(run, psf, scheduler=cluster.scheduler_address,
@@ -100,7 +112,7 @@ def test_recon_run_cli_equals_recon_cli_on_the_same_frame(video, tmp_path, capsy
                  "--out", str(tmp_path / "one")]) == 0
     single = load_image(tmp_path / "one.tif")
     store = RunStore.open(run)
-    np.testing.assert_array_equal(store.product_frame("recon_fista", 3), single)
+    assert_same_frame(store.product_frame("recon_fista", 3), single)
     assert store.product_frames_done("recon_fista").tolist() == [0, 0, 1, 1, 1] + [0] * 7
     dff, attrs = store.product("recon_fista_dff")
     assert dff.shape == (3, 128, 160) and attrs["percentile"] == 20
