@@ -12,6 +12,8 @@ bump) is a converging lenslet. Two kinds are provided:
   (App. A.2).
 * :meth:`DiffuserSurface.random_microlens`: the random microlens diffuser of
   Sec. 6.3: randomly placed spherical lenslets (~250 um, focal length ~1.5 mm).
+* :meth:`DiffuserSurface.regular_microlens`: the same lenslets on a square lattice
+  (the regular microlens array Sec. 6.3 compares against).
 
 Coordinates. Sample ``(i, j)`` of ``height_um`` sits at lateral position
 ``x = (j - (cols - 1) / 2) * pitch_um``, ``y = (i - (rows - 1) / 2) * pitch_um`` (um):
@@ -81,6 +83,22 @@ def _index(n) -> float:
             f"refractive index {n} must exceed 1 (a glass or polymer in air); e.g. 1.58"
         )
     return n
+
+
+def _lenslet_parameters(size_mm, pitch_um, lenslet_um, focal_mm, refractive_index):
+    """Checked (width_mm, height_mm, pitch_um, lenslet_um, cap radius_um, n) of a
+    microlens surface: the cap radius is ``R = f (n - 1)`` (plano-convex thin lens)."""
+    w_mm, h_mm = _size_wh_mm(size_mm)
+    pitch = finite_positive(pitch_um, "pitch_um", "2.5")
+    lens = finite_positive(lenslet_um, "lenslet_um", "250.0")
+    f_um = finite_positive(focal_mm, "focal_mm", "1.5") * 1e3
+    n = _index(refractive_index)
+    if pitch > lens / 8:
+        raise ReconInputError(
+            f"pitch {pitch} um cannot resolve lenslets of {lens} um; use at most "
+            f"lenslet_um / 8 = {lens / 8:g} um (lenslet_um / 20 recommended)"
+        )
+    return w_mm, h_mm, pitch, lens, f_um * (n - 1.0), n
 
 
 def _grid_shape(width_um: float, height_um: float, pitch_um: float) -> tuple[int, int]:
@@ -380,17 +398,8 @@ class DiffuserSurface:
         """
         from scipy.spatial import cKDTree
 
-        w_mm, h_mm = _size_wh_mm(size_mm)
-        pitch = finite_positive(pitch_um, "pitch_um", "2.5")
-        lens = finite_positive(lenslet_um, "lenslet_um", "250.0")
-        f_um = finite_positive(focal_mm, "focal_mm", "1.5") * 1e3
-        n = _index(refractive_index)
-        if pitch > lens / 8:
-            raise ReconInputError(
-                f"pitch {pitch} um cannot resolve lenslets of {lens} um; use at most "
-                f"lenslet_um / 8 = {lens / 8:g} um (lenslet_um / 20 recommended)"
-            )
-        radius = f_um * (n - 1.0)
+        w_mm, h_mm, pitch, lens, radius, n = _lenslet_parameters(
+            size_mm, pitch_um, lenslet_um, focal_mm, refractive_index)
         rows, cols = _grid_shape(w_mm * 1e3, h_mm * 1e3, pitch)
         half_w, half_h = (cols - 1) * pitch / 2, (rows - 1) * pitch / 2
         rng = np.random.default_rng(as_int(seed, "seed", 0))
@@ -411,7 +420,16 @@ class DiffuserSurface:
                 f"cover lenslets of {lens} um; use a longer focal length or smaller lenslets"
             )
         keep = (np.abs(pts[:, 0]) <= half_w + 3 * lens) & (np.abs(pts[:, 1]) <= half_h + 3 * lens)
-        pts = pts[keep]
+        return cls._from_lenslets(pts[keep], rows, cols, pitch, radius, n)
+
+    @classmethod
+    def _from_lenslets(cls, pts: np.ndarray, rows: int, cols: int, pitch: float,
+                       radius: float, n: float) -> DiffuserSurface:
+        """Union (pointwise maximum) of spherical caps of radius ``radius`` (um)
+        centred on ``pts`` (N, 2) um, on a centred ``rows x cols`` grid of ``pitch``;
+        the centres inside the grid are kept as ``centres_um``."""
+        from scipy.spatial import cKDTree
+
         tree = cKDTree(pts)
         x = (np.arange(cols) - (cols - 1) / 2) * pitch
         y = (np.arange(rows) - (rows - 1) / 2) * pitch
@@ -423,5 +441,57 @@ class DiffuserSurface:
             height[r0:r0 + block] = (np.sqrt(radius * radius - dmin * dmin) - radius).reshape(
                 xx.shape)
         height -= height.min()
+        half_w, half_h = (cols - 1) * pitch / 2, (rows - 1) * pitch / 2
         inside = (np.abs(pts[:, 0]) <= half_w) & (np.abs(pts[:, 1]) <= half_h)
         return cls(height, pitch, n, centres_um=pts[inside].copy())
+
+    @classmethod
+    def regular_microlens(cls, size_mm, pitch_um: float, lenslet_um: float = 250.0,
+                          focal_mm: float = 1.5, refractive_index: float = 1.5
+                          ) -> DiffuserSurface:
+        """Regular microlens array: the lenslets of :meth:`random_microlens` on a
+        square lattice (Kuo 2020, Sec. 6.3, the light-field microscope's array).
+
+        Centres at ``(i + 1/2) lenslet_um`` in x and y (i integer; no lenslet sits on
+        the axis, as on a lattice cut symmetrically), each a spherical cap of radius
+        ``R = focal_mm (n - 1)`` filling its square cell (the union of the caps).
+
+        Parameters
+        ----------
+        size_mm : float or (width_mm, height_mm)
+            Lateral size to cover.
+        pitch_um : float
+            Grid spacing in um; <= lenslet_um / 8 (lenslet_um / 20 recommended).
+        lenslet_um : float
+            Lattice period (centre-to-centre spacing), um.
+        focal_mm : float
+            Focal length of every lenslet, mm.
+        refractive_index : float
+            1.5 by default.
+
+        Returns
+        -------
+        DiffuserSurface
+            With ``centres_um`` (N, 2) the lattice points (x, y) inside the grid, um.
+
+        Raises
+        ------
+        ReconInputError
+            Non-positive parameters, a pitch too coarse for the lenslets, or a focal
+            length so short that a cap cannot cover its cell (``R`` below the cell's
+            half diagonal).
+        """
+        w_mm, h_mm, pitch, lens, radius, n = _lenslet_parameters(
+            size_mm, pitch_um, lenslet_um, focal_mm, refractive_index)
+        if lens / math.sqrt(2.0) >= radius:
+            raise ReconInputError(
+                f"focal length {focal_mm} mm gives a cap radius {radius:g} um, too small to "
+                f"cover square cells of {lens} um; use a longer focal length or smaller lenslets"
+            )
+        rows, cols = _grid_shape(w_mm * 1e3, h_mm * 1e3, pitch)
+        kx = int(math.ceil((cols - 1) * pitch / 2 / lens)) + 2
+        ky = int(math.ceil((rows - 1) * pitch / 2 / lens)) + 2
+        gx = (np.arange(-kx, kx) + 0.5) * lens
+        gy = (np.arange(-ky, ky) + 0.5) * lens
+        pts = np.column_stack([a.ravel() for a in np.meshgrid(gx, gy)])
+        return cls._from_lenslets(pts, rows, cols, pitch, radius, n)
