@@ -16,7 +16,6 @@ per-pixel percentile baseline (Kuo 2020, Fig. 6.5b) is stored as a second produc
 
 from __future__ import annotations
 
-import functools
 import logging
 import threading
 import time
@@ -26,9 +25,11 @@ from typing import Any
 
 import numpy as np
 
+from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
 from .runstore import RunStore, RunStoreError
 
-__all__ = ["batch_psf", "parse_frames", "reconstruct_run", "reconstruct_stored_frame"]
+__all__ = ["batch_psf", "frames_dark_level", "parse_frames", "reconstruct_run",
+           "reconstruct_stored_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -98,29 +99,42 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
     """
     from pathlib import Path
 
-    from recon.errors import ReconInputError
-
     from .reconstruct_files import dark_level, load_psf
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     stacked = depth is not None or Path(psf_path).is_dir()
     level = None if dark is None else dark_level(dark)
-    simulated = run_attrs.get("simulated") or {}
     if level is None and stacked:
-        if "dark_offset_dn" not in simulated:
-            raise ReconInputError(
-                f"--psf {psf_path} is a calibrated (dark-subtracted) PSF stack: give the "
-                "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
-                "calibrate dark)")
-        level = float(simulated["dark_offset_dn"])
+        level = frames_dark_level(None, run_attrs, f"--psf {psf_path} is a calibrated "
+                                  "(dark-subtracted) PSF stack")
     if level is not None and stacked:  # the stack is dark-subtracted: both get the dark
         psf = psf + level  # subtracted by prepare_pair, as for the live view
     return psf, level, f"{psf_path}" + ("" if depth is None else f" at {depth:g} mm")
 
 
-@functools.lru_cache(maxsize=4)
-def _open_run(path: str) -> RunStore:
-    return RunStore.open(path)
+def frames_dark_level(dark: str | None, run_attrs: dict, why: str
+                      ) -> float | np.ndarray:
+    """The recorded frames' dark level for dark-subtracted PSFs (a stack or a grid).
+
+    ``dark`` (``--dark``: DN or a ``calibrate dark`` run), else the simulated
+    camera's offset that a run recorded on the virtual bench stores.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        Neither is known (``why`` names the PSF that needs it), or a bad ``dark``.
+    """
+    from recon.errors import ReconInputError
+
+    from .reconstruct_files import dark_level
+
+    if dark is not None:
+        return dark_level(dark)
+    simulated = run_attrs.get("simulated") or {}
+    if "dark_offset_dn" not in simulated:
+        raise ReconInputError(f"{why}: give the frames' dark level with --dark DN or --dark "
+                              "DARK_RUN.zarr (diffuserlab calibrate dark)")
+    return float(simulated["dark_offset_dn"])
 
 
 def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
@@ -161,7 +175,7 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     from recon import reconstruct
     from recon.fft import limited_threads
 
-    raw = _open_run(str(run_path)).frame(int(index)).image
+    raw = open_run(str(run_path)).frame(int(index)).image
     with limited_threads(threads) if threads else nullcontext():
         result = reconstruct(psf, raw, **options)
     return int(index), np.asarray(result.image, np.float32)
@@ -186,13 +200,14 @@ def _client(workers: int | None, scheduler: str | None, timeout_s: float):
     return Client(cluster, timeout=timeout_s), cluster
 
 
-def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
+def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
                     iterations: int = 200, tv: float | str | None = "auto",
                     l1: float | str = 0.0, bin_factor: int = 1,
                     dark: float | np.ndarray | None = None, frames: range | None = None,
                     product: str | None = None, workers: int | None = None,
                     scheduler: str | None = None, dff_percentile: float | None = None,
                     overwrite: bool = False, psf_source: str = "",
+                    background: str = "estimate", grid_l1: float = 1e-3,
                     on_progress: Callable[[dict], None] | None = None,
                     cancel: threading.Event | None = None,
                     timeout_s: float = 60.0) -> dict[str, Any]:
@@ -203,16 +218,23 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
     run : str or Path
         The run store (``capture video`` or any run); opened for writing and locked
         while the batch runs.
-    psf : ndarray, (rows, cols)
-        PSF at the run's frame shape (:func:`instrument.reconstruct_files.load_psf`).
+    psf : ndarray (rows, cols), or instrument.batch_grid.GridBatchModel
+        PSF at the run's frame shape (:func:`instrument.reconstruct_files.load_psf`),
+        or a PSF grid with its model chosen and built once for the batch
+        (:func:`instrument.batch_grid.prepare_grid_batch`; the frames are then
+        reconstructed by :func:`instrument.batch_grid.reconstruct_stored_frame_grid`
+        with ``background``, ``grid_l1``, ``iterations`` and ``dark``).
     method, iterations, tv, l1, bin_factor, dark
         As :func:`recon.reconstruct` (the defaults are ``diffuserlab recon``'s: the
         method and weights chosen from each frame's data, at most 200 iterations).
+        With a grid, ``method``, ``tv`` and ``l1`` are not used and ``bin_factor``
+        is the grid model's.
     frames : range, optional
         Frame slots to reconstruct (default all; see :func:`parse_frames`).
     product : str, optional
-        Name of the per-frame product (default ``recon_<method>``); the ΔF/F product
-        is ``<product>_dff``.
+        Name of the per-frame product (default ``recon_<method>``, with a grid
+        ``recon_grid_<model>``); the ΔF/F product is ``<product>_dff``, a grid's
+        background estimates the per-frame product ``<product>_background``.
     workers : int, optional
         Local worker processes (default: one per core); ignored with ``scheduler``.
     scheduler : str, optional
@@ -224,6 +246,10 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
         product is refused; one made with the same settings is resumed).
     psf_source : str
         Where the PSF came from, stored with the product.
+    background : {"estimate", "none"}
+        With a grid: estimate each frame's smooth background jointly (Eq. 6.2).
+    grid_l1 : float
+        With a grid: the l1 weight in the scaled problem.
     on_progress : callable, optional
         Called after each stored frame with ``{"done", "total", "skipped",
         "elapsed_s", "fps"}``.
@@ -237,7 +263,8 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
     dict
         ``product``, ``frames`` (selected), ``reconstructed`` (this call),
         ``skipped`` (already done), ``cancelled``, ``seconds``, ``fps``, ``workers``,
-        and ``dff_product`` when computed.
+        ``dff_product`` when computed and ``background_product`` with a grid's
+        background estimate.
 
     Raises
     ------
@@ -266,21 +293,38 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
         iterations = as_int(iterations, "iterations", minimum=1)
         bin_factor = as_int(bin_factor, "bin_factor", minimum=1)
         rows, cols = store.frame_shape
-        if tuple(np.shape(psf)) != (rows, cols):
-            raise RunStoreError(f"the PSF is {np.shape(psf)} but the run's frames are "
-                                f"{rows}x{cols}; use a PSF calibrated at the camera's frame "
-                                "shape")
-        options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
-                   "bin_factor": bin_factor, "dark": dark}
-        name = product or f"recon_{method}"
+        grid = psf if isinstance(psf, GridBatchModel) else None
+        shape = tuple(grid.grid.sensor_shape if grid else np.shape(psf))
+        if shape != (rows, cols):
+            raise RunStoreError(f"the PSF is {shape} but the run's frames are {rows}x{cols}; "
+                                "use a PSF calibrated at the camera's frame shape")
+        dark_attr = None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame")
         hint = f"diffuserlab recon-run {store.path} with the same options"
-        store.create_frame_product(
-            name, store.n_frames, (rows // bin_factor, cols // bin_factor), np.float32,
-            overwrite=overwrite, method=method, iterations=iterations, tv=tv, l1=l1,
-            bin_factor=bin_factor, psf=psf_source,
-            dark=None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame"),
-            orientation="model grid (Eq. 3.3)", resume_hint=hint)
+        if grid is None:
+            options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
+                       "bin_factor": bin_factor, "dark": dark}
+            settings = {"method": method, "tv": tv, "l1": l1, "psf": psf_source,
+                        "orientation": "model grid (Eq. 3.3)"}
+            name, task = product or f"recon_{method}", reconstruct_stored_frame
+        else:
+            bin_factor = grid.bin_factor
+            options = {"background": background, "l1": grid_l1, "iterations": iterations,
+                       "dark": dark}
+            settings = {**grid.settings(), "background": background, "l1": grid_l1,
+                        "orientation": "sensor field of view (Eq. 5.5)"}
+            name, task = product or grid.product_name, reconstruct_stored_frame_grid
+        plane = (rows // bin_factor, cols // bin_factor)
+        settings.update(iterations=iterations, bin_factor=bin_factor, dark=dark_attr,
+                        resume_hint=hint)
+        store.create_frame_product(name, store.n_frames, plane, np.float32,
+                                   overwrite=overwrite, **settings)
+        bg_name = f"{name}_background" if grid and background == "estimate" else None
+        if bg_name:
+            store.create_frame_product(bg_name, store.n_frames, plane, np.float32,
+                                       overwrite=overwrite, source=name, **settings)
         already = store.product_frames_done(name)
+        if bg_name:  # a frame is done when both planes are
+            already &= store.product_frames_done(bg_name)
         todo = [i for i in frames if not already[i]]
         skipped = len(frames) - len(todo)
         n_workers = None
@@ -293,13 +337,14 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
 
             # each task computes with the caller's thread count: numba's parallel
             # reductions depend on it, and the results must equal `recon`'s bit for bit
-            psf_future = client.scatter(np.asarray(psf), broadcast=True)
-            futures = [client.submit(reconstruct_stored_frame, str(store.path), i,
-                                     psf_future, options, thread_count(), pure=False)
-                       for i in todo]
+            psf_future = client.scatter(grid or np.asarray(psf), broadcast=True)
+            futures = [client.submit(task, str(store.path), i, psf_future, options,
+                                     thread_count(), pure=False) for i in todo]
             try:
                 for fut in as_completed(futures):
-                    index, image = fut.result()
+                    index, image, *bg = fut.result()
+                    if bg_name:
+                        store.write_product_frame(bg_name, index, bg[0])
                     store.write_product_frame(name, index, image)
                     done_now += 1
                     if on_progress is not None:
@@ -318,6 +363,8 @@ def reconstruct_run(run: str | Path, psf: np.ndarray, *, method: str = "auto",
             "reconstructed": done_now, "skipped": skipped, "cancelled": cancelled,
             "seconds": round(elapsed, 3), "fps": done_now / elapsed if elapsed > 0 else 0.0,
             "workers": n_workers}
+        if bg_name:
+            out["background_product"] = bg_name
         if dff_percentile is not None and not cancelled:
             from recon.analysis import delta_f_over_f
 

@@ -1,7 +1,9 @@
-"""The ``--psf-grid`` options shared by ``recon`` and ``recon3d`` (spatially varying models).
+"""The ``--psf-grid`` options of ``recon``, ``recon3d`` and ``recon-run`` (spatially varying
+models).
 
 :func:`add_grid_options` adds ``--psf-grid``, ``--model``, ``--pca-k``,
-``--background``, ``--grid-l1`` and ``--grid-dark``; :func:`run_grid` checks the outputs and runs
+``--background``, ``--grid-l1`` and (not on ``recon-run``, whose ``--dark`` serves)
+``--grid-dark``; :func:`run_grid` checks the outputs and runs
 :func:`instrument.reconstruct_grid.run_recon_grid`, printing one summary line.
 """
 
@@ -12,8 +14,10 @@ import argparse
 __all__ = ["add_grid_options", "run_grid"]
 
 
-def add_grid_options(p: argparse.ArgumentParser, *, volume: bool) -> None:
-    """Add the PSF-grid options to the ``recon`` (2D) or ``recon3d`` parser."""
+def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
+                     grid_dark: bool = True) -> None:
+    """Add the PSF-grid options to the ``recon`` (2D), ``recon3d`` or ``recon-run``
+    (``grid_dark=False``: its ``--dark`` gives the frames' level) parser."""
     from recon.spatial.choice import MODELS
 
     g = p.add_argument_group(
@@ -33,6 +37,8 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool) -> None:
                    "default) or none")
     g.add_argument("--grid-l1", type=float, default=1e-3,
                    help="l1 weight of the --psf-grid solver in the scaled problem")
+    if not grid_dark:
+        return
     g.add_argument("--grid-dark", type=float, default=0.0,
                    help="level (DN) subtracted from the raw frame (the psf-grid PSFs are "
                    "dark-subtracted); with --background estimate an offset is also estimated")

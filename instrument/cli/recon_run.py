@@ -11,6 +11,16 @@
     iterations. ``--dff`` adds the ΔF/F product against a per-pixel percentile
     baseline (Kuo 2020, Fig. 6.5b: 20). Exit 0; 2 bad input; 130 Ctrl-C (the frames
     done are kept: run the same command again to finish).
+
+``diffuserlab recon-run RUN.zarr --psf-grid GRID.zarr [--model auto|convolution|local|pca]
+[--background estimate|none] ...``
+    The same with a spatially varying model (Ch. 5): the ``calibrate psf-grid`` run's
+    model is chosen once for the batch (:mod:`instrument.batch_grid`; ``--model``,
+    ``--pca-k``, ``--background``, ``--grid-l1`` as for ``recon --psf-grid``), every
+    frame reconstructed with its own background estimate (Eq. 6.2); the product is
+    ``recon_grid_<model>`` (``local``, ``convolution``, ``pcaK``) with the backgrounds
+    in ``recon_grid_<model>_background``. The grid's PSFs are dark-subtracted, so the
+    frames' dark level comes from ``--dark`` (or a simulated run's camera offset).
 """
 
 from __future__ import annotations
@@ -34,8 +44,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         "parallel with dask and store them in the run as a product; run it again to "
         "resume. Ctrl-C stops and keeps the frames done.")
     rp.add_argument("run", help="the run store, RUN.zarr")
-    rp.add_argument("--psf", required=True,
-                    help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth")
+    rp.add_argument("--psf", default=None,
+                    help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth "
+                    "(or --psf-grid instead)")
     rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
                     help="depth (mm) of the stack's PSF to use")
     rp.add_argument("--psf-product", default="psf_stack",
@@ -71,6 +82,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="name of the product (default recon_<method>)")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace a product of that name made with other settings")
+    from .grid_options import add_grid_options
+
+    add_grid_options(rp, volume=False, grid_dark=False)
     rp.set_defaults(handler=run)
 
 
@@ -94,12 +108,20 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--tv", args.tv), ("--l1", args.l1)):
         if not isinstance(value, str) and not (value >= 0 and math.isfinite(value)):
             raise ReconInputError(f"{option} {value}: give a finite weight >= 0 or auto")
+    if (args.psf is None) == (args.psf_grid is None):
+        raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
+                              "not both")
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
-    psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
-                                  psf_product=args.psf_product, dark=args.dark)
+    if args.psf_grid:
+        psf, dark, source, how = _grid(args, store)
+    else:
+        psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
+                                      psf_product=args.psf_product, dark=args.dark)
+        how = f"{args.method} x{args.iterations}"
+    name = args.product or (psf.product_name if args.psf_grid else f"recon_{args.method}")
     print(f"{args.run}: frames {frames.start}:{frames.stop} of {store.n_frames}, "
-          f"{args.method} x{args.iterations}, PSF {source}; "
+          f"{how}, PSF {source}; "
           + (f"scheduler {args.scheduler}" if args.scheduler else
              f"{args.workers or 'one per core'} local workers"), flush=True)
     bars: list = []
@@ -117,12 +139,12 @@ def run(args: argparse.Namespace) -> int:
             l1=args.l1,
             bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
             workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
-            overwrite=args.overwrite, psf_source=source, on_progress=progress,
-            cancel=cancel)
+            overwrite=args.overwrite, psf_source=source, background=args.background,
+            grid_l1=args.grid_l1, on_progress=progress, cancel=cancel)
     except KeyboardInterrupt:
         for bar in bars:
             bar.close()
-        done = RunStore.open(args.run).product_info(args.product or f"recon_{args.method}")
+        done = RunStore.open(args.run).product_info(name)
         print(f"stopped (Ctrl-C): {done.get('planes_done', 0)} frames of {args.run} are "
               "reconstructed; run the same command again to finish", flush=True)
         return 130
@@ -131,5 +153,32 @@ def run(args: argparse.Namespace) -> int:
     print(f"{out['product']}: {out['reconstructed']} frames reconstructed, {out['skipped']} "
           f"already done, {out['seconds']:.1f} s ({out['fps']:.2f} frames/s with "
           f"{out['workers'] or 0} workers)"
+          + (f"; backgrounds in {out['background_product']}"
+             if out.get("background_product") else "")
           + (f"; ΔF/F in {out['dff_product']}" if out.get("dff_product") else ""))
     return 0
+
+
+def _grid(args: argparse.Namespace, store):
+    """``--psf-grid``: the grid model chosen once for the batch, the frames' dark level,
+    the source and the model's description."""
+    from recon.errors import ReconInputError
+
+    from ..batch import frames_dark_level
+    from ..batch_grid import prepare_grid_batch
+
+    if len(args.psf_grid) > 1:
+        raise ReconInputError("recon-run reconstructs images: give one --psf-grid run (one "
+                              "depth)")
+    if args.depth_mm is not None:
+        raise ReconInputError("--depth selects a plane of a --psf stack; a --psf-grid run "
+                              "has one depth: drop --depth")
+    path = args.psf_grid[0]
+    prepared = prepare_grid_batch(path, store.frame_shape, model=args.model, k=args.pca_k,
+                                  bin_factor=args.bin_factor)
+    dark = frames_dark_level(args.dark, store.attrs, f"--psf-grid {path} holds "
+                             "dark-subtracted PSFs")
+    c = prepared.choice
+    how = (f"{c.label()} model ({prepared.operator.n_kernels} convolutions per apply; "
+           f"{c.reason}), background {args.background}, FISTA x{args.iterations}")
+    return prepared, dark, path, how

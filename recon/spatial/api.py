@@ -24,7 +24,7 @@ from .background import fista_background
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .grid import PsfGrid
 
-__all__ = ["BACKGROUNDS", "GridReconstruction", "bin_grid", "reconstruct_grid"]
+__all__ = ["BACKGROUNDS", "GridReconstruction", "bin_grid", "grid_model", "reconstruct_grid"]
 
 #: ``--background`` choices.
 BACKGROUNDS = ("estimate", "none")
@@ -85,10 +85,56 @@ def bin_grid(grid: PsfGrid, factor: int) -> PsfGrid:
                    grid.z_mm, grid.d_mm)
 
 
+def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=None,
+               bin_factor: int = 1, support=None, tolerance: float | None = None
+               ) -> tuple[ModelChoice, object]:
+    """Choose the forward model of a calibrated grid and build it, once for many frames.
+
+    The grids are binned by ``bin_factor`` (:func:`bin_grid`); ``auto`` takes
+    :func:`recon.spatial.choose_model`'s choice, any other model is used as given
+    (its predicted errors still reported).
+
+    Parameters
+    ----------
+    grids : PsfGrid or list of PsfGrid
+        One grid (2D) or one per depth (3D).
+    model, k, depths_mm, bin_factor, support, tolerance
+        As :func:`reconstruct_grid`.
+
+    Returns
+    -------
+    (ModelChoice, SpatialConvolutionOperator)
+        Pass them to :func:`reconstruct_grid` as ``prepared`` for every frame.
+
+    Raises
+    ------
+    ReconInputError
+        Unknown model, bad bin factor.
+    """
+    if model not in MODELS:
+        raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
+    single = isinstance(grids, PsfGrid)
+    glist = [bin_grid(g, bin_factor) for g in ([grids] if single else list(grids))]
+    arg = glist[0] if single else glist
+    if model == "auto":
+        opts = {} if tolerance is None else {"tolerance": tolerance}
+        support_2d = None if support is None or np.ndim(support) == 2 else np.any(support, 0)
+        choice = choose_model(arg, support=support_2d, **opts)
+    else:
+        errors = predicted_errors(arg)
+        choice = ModelChoice(model, k, 0, errors, reason="given (--model)")
+    op = build_operator(arg, choice.model, k=choice.k, depths_mm=depths_mm, support=support)
+    choice.convolutions = op.n_kernels // (op.n_z if op.volume else 1)
+    if choice.model == "pca":
+        choice.k = op.components[0]
+    return choice, op
+
+
 def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | None = None,
                      background: str = "estimate", l1: float = 1e-3, iterations: int = 200,
                      depths_mm=None, bin_factor: int = 1, dark: float = 0.0,
-                     support=None, tolerance: float | None = None) -> GridReconstruction:
+                     support=None, tolerance: float | None = None,
+                     prepared: tuple | None = None) -> GridReconstruction:
     """Reconstruct an image (one grid) or a volume (several grids) from one frame.
 
     Parameters
@@ -114,6 +160,10 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
         Object support on the model's object grid (after binning).
     tolerance : float, optional
         For ``auto`` (default :data:`recon.spatial.choice.DEFAULT_TOLERANCE`).
+    prepared : (ModelChoice, SpatialConvolutionOperator), optional
+        :func:`grid_model`'s result for these grids and ``bin_factor``, made once for
+        a batch of frames (then ``model``, ``k``, ``depths_mm``, ``support`` and
+        ``tolerance`` are not used).
 
     Returns
     -------
@@ -122,7 +172,8 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     Raises
     ------
     ReconInputError
-        Unknown model or background, a frame whose shape differs from the PSFs.
+        Unknown model or background, a frame whose shape differs from the PSFs (or
+        from the ``prepared`` model's).
     """
     if model not in MODELS:
         raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
@@ -138,19 +189,13 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
         raise ReconInputError(f"raw frame shape {b.shape} differs from the PSF grid's "
                               f"{glist[0].sensor_shape}; pass the frame of the calibrated camera")
     b = box_bin(b - float(dark), bin_factor) if bin_factor > 1 else b - float(dark)
-    glist = [bin_grid(g, bin_factor) for g in glist]
-    arg = glist[0] if single else glist
-    if model == "auto":
-        opts = {} if tolerance is None else {"tolerance": tolerance}
-        support_2d = None if support is None or np.ndim(support) == 2 else np.any(support, 0)
-        choice = choose_model(arg, support=support_2d, **opts)
-    else:
-        errors = predicted_errors(arg)
-        choice = ModelChoice(model, k, 0, errors, reason="given (--model)")
-    op = build_operator(arg, choice.model, k=choice.k, depths_mm=depths_mm, support=support)
-    choice.convolutions = op.n_kernels // (op.n_z if op.volume else 1)
-    if choice.model == "pca":
-        choice.k = op.components[0]
+    if prepared is None:
+        prepared = grid_model(grids, model=model, k=k, depths_mm=depths_mm,
+                              bin_factor=bin_factor, support=support, tolerance=tolerance)
+    choice, op = prepared
+    if tuple(op.shape_out) != b.shape:
+        raise ReconInputError(f"the prepared model's frames are {tuple(op.shape_out)} but the "
+                              f"binned frame is {b.shape}; prepare it with the same bin factor")
     scale = float(np.max(np.abs(b)))
     if not scale > 0:
         raise ReconInputError("raw frame is zero after the dark level; check the exposure")
