@@ -25,6 +25,9 @@ drawn here) and writes ``OUT/<analysis>.png`` (a plot) and ``OUT/<analysis>.json
   angular cutoff, the diffuser's deflection, the sensor width (stack shape times
   pitch) and the PSF width (the stack's support).
 
+``analyze design`` (:mod:`.analyze_design`) reads no stack: it simulates a
+microlens mask design and predicts its resolution (Sec. 6.4, Fig. 6.4a).
+
 PSFs should be background-removed (run stores' ``psf_stack`` is); for raw stacks
 pass ``--remove-background N`` (DCT, Sec. 6.2). Bad input exits with status 2 and
 one line.
@@ -137,6 +140,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="PSF width = extent holding this central fraction of its energy "
                     "along each axis (default 0.99)")
     ap.set_defaults(handler=run, input_errors=(ValueError, OSError))
+    from .analyze_design import add_parser as add_design
+
+    add_design(asub)  # analyze design: a mask design, not a PSF stack
 
 
 # ----------------------------------------------------------------------------- input

@@ -7,6 +7,7 @@ benchmark's table as it finishes and the summary at the end. ``live`` runs
 simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
 ``recording`` and ``batch`` run :mod:`instrument.acquisition_benchmarks` (video
 recording at full size per compressor; recon-run's dask batch against a loop).
+``design`` (:mod:`.benchmark_design`) compares the mask designs of Sec. 6.3.
 """
 
 from __future__ import annotations
@@ -85,6 +86,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="directory for batch.png and batch.json (default out/benchmark-batch)")
     ap.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
     ap.set_defaults(handler=run_batch_benchmark)
+    from .benchmark_design import add_parser as add_design
+
+    add_design(bsub)  # benchmark design: the mask designs of Sec. 6.3
 
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:
