@@ -341,9 +341,8 @@ def plot_design(result: dict, path: Path) -> Path:
     imgs = result.get("images", {})
     shown = [n for n in ("truth", "regular", "random") if n in imgs]
     fig = Figure(figsize=(11, 7.5), layout="constrained")
-    grid = fig.add_gridspec(2, max(len(shown), 2))
-    half = max(len(shown), 2) // 2
-    axes = [fig.add_subplot(grid[0, :half]), fig.add_subplot(grid[0, half:])]
+    grid = fig.add_gridspec(2, 6)
+    axes = [fig.add_subplot(grid[0, :3]), fig.add_subplot(grid[0, 3:])]
     colours = {n: f"C{i}" for i, n in enumerate(DESIGNS)}
     for ax, sweep in zip(axes, ("photons", "gaussian"), strict=True):
         levels = result["settings"][sweep]
@@ -358,7 +357,7 @@ def plot_design(result: dict, path: Path) -> Path:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, ncol=2)
     for k, name in enumerate(shown):
-        ax = fig.add_subplot(grid[1, k])
+        ax = fig.add_subplot(grid[1, 2 * k:2 * k + 2])
         img = imgs[name]
         ax.imshow(img, cmap="gray", vmin=0, vmax=float(np.percentile(img, 99.9)) or 1.0)
         title = "truth (2D)" if name == "truth" else f"{name} microlens, most photons"

@@ -212,6 +212,11 @@ ANALYZE = [
          "beta -5", "beta"),
     case(f"{A2} --out file.txt/a", "unwritable", "out under a file", "file.txt"),
     case(f"{A2} --out /proc/x/a", "unwritable", "out in /proc", "/proc/x"),
+    case("analyze design --focal-mm 5 --out o/a", "number", "design focal beyond d",
+         "--focal-mm 5|--distance-mm"),
+    case("analyze design --z-mm 2,-1 --out o/a", "number", "design negative depth", "--z-mm"),
+    case("analyze design --out file.txt/a", "unwritable", "design out under a file",
+         "file.txt"),
 ]
 
 BENCH = [
@@ -297,6 +302,8 @@ BENCHMARK = [
     case("benchmark recon --quick --out /proc/x/b", "unwritable", "out in /proc", "/proc/x"),
     case("benchmark recon --quick --only nonsense --out o/b", "number", "only nonsense",
          "nonsense"),
+    case("benchmark design --quick --out file.txt/b", "unwritable", "design out under a file",
+         "file.txt"),
     case("benchmark live --seconds 0", "number", "seconds 0", "--seconds 0"),
     case("benchmark live --fps nan", "number", "fps nan", "--fps nan"),
     case("benchmark live --iterations 0", "number", "iterations 0", "--iterations 0"),
