@@ -23,7 +23,8 @@ from recon.io import load_image
 from .test_batch import assert_same_frame
 
 BENCH = Path(__file__).resolve().parents[2] / "examples" / "bench-microscope.toml"
-BIN = 2
+BIN = 3  # 45 x 80 frames
+FRAMES = 30
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,7 @@ def scheduler():
 
 @pytest.fixture(scope="module")
 def microscope_video(tmp_path_factory):
-    """A 40-frame, 10 fps neuron video and a 3 x 3 PSF grid at the neurons' depth, both
+    """A 30-frame, 10 fps neuron video and a 3 x 3 PSF grid at the neurons' depth, both
     from the virtual microscope; the scene and the geometry for the truth."""
     d = tmp_path_factory.mktemp("microscope")
     with VirtualBench(load_bench(BENCH), seed=2) as vb:
@@ -47,7 +48,7 @@ def microscope_video(tmp_path_factory):
         vb.led_array.all_off()
         vb.set_scene(scene)
         vb.prerender([0.0])
-        record_video(vb, d / "neurons.zarr", frames=40, fps=10.0, exposure_s=0.01,
+        record_video(vb, d / "neurons.zarr", frames=FRAMES, fps=10.0, exposure_s=0.01,
                      shard_frames=16, simulated={"scene": "neurons",
                                                  "dark_offset_dn": vb.camera.dark_offset_dn})
         vb.set_scene(None)  # then the calibration: the bead on the stage, lit by the LEDs
@@ -70,24 +71,27 @@ def test_microscope_scenes_sit_in_its_calibrated_range_and_field():
         assert scene_depth_and_scale(vb) == (20.0, 1.0)
 
 
+@pytest.mark.slow
 def test_dff_of_a_microscope_neuron_video_with_the_local_model(microscope_video, scheduler,
                                                                capsys):
     """Each active cell's ΔF/F (20th-percentile baseline, Fig. 6.5b) from the batch's
-    local-model frames correlates with its true trace above 0.8; the product stores
-    the model and a background per frame; the same command resumes, other settings
-    are refused."""
+    local-model frames correlates with its true trace above 0.9 (measured: 0.98 to
+    0.999 over the six cells); the product stores the model and a background per
+    frame. About 1.5 to 2 minutes on 2 busy cores (recording, 3 x 3 calibration, 30
+    frames), hence slow; test_batch_grid_frames_equal_recon_psf_grid_of_each_frame
+    covers the batch path in the default run."""
     d, scene, g = microscope_video
     run = str(d / "neurons.zarr")
     argv = ["recon-run", run, "--psf-grid", str(d / "grid.zarr"), "--model", "local",
-            "--bin", str(BIN), "--iterations", "40", "--scheduler", scheduler]
-    assert main([*argv, "--dff", "20"]) == 0
+            "--bin", str(BIN), "--iterations", "30", "--scheduler", scheduler, "--dff", "20"]
+    assert main(argv) == 0
     assert "local model (9 convolutions per apply" in capsys.readouterr().out
     store = RunStore.open(run)
     movie, attrs = store.product("recon_grid_local")
     background, _ = store.product("recon_grid_local_background")
     dff, _ = store.product("recon_grid_local_dff")
     assert attrs["model"] == "local" and attrs["background"] == "estimate"
-    assert movie.shape == background.shape == dff.shape == (40, 135 // BIN, 240 // BIN)
+    assert movie.shape == background.shape == dff.shape == (FRAMES, 135 // BIN, 240 // BIN)
     assert background.mean() > 0
     # each cell's image: the lensless inversion u = -m x (Eq. 3.1) on the binned grid
     m = g.d_mm / scene.z_mm
@@ -101,13 +105,9 @@ def test_dff_of_a_microscope_neuron_video_with_the_local_model(microscope_video,
     table = store.coords_table()
     truth = scene.dff_traces(list(table["device_timestamp_s"] + 0.5 * table["exposure_s"]))
     active = [i for i in range(scene.n_cells) if truth[:, i].max() > 0.3]
-    assert len(active) >= 3
+    assert len(active) >= 4
     corr = [np.corrcoef(recovered[:, i], truth[:, i])[0, 1] for i in active]
-    assert min(corr) > 0.8, corr
-    assert main(argv) == 0  # resumed: nothing left to do
-    assert "0 frames reconstructed, 40 already done" in capsys.readouterr().out
-    assert main([*argv, "--background", "none"]) == 2
-    assert "other settings (background differ)" in capsys.readouterr().err
+    assert min(corr) > 0.9, corr
 
 
 def _video_run(path, frames, dark=10.0):
