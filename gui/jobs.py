@@ -72,6 +72,8 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
 
+    from .workers import BACKGROUND_NICE
+
     psf, depth = load_psf(psf_path, depth_mm)
     stacked = depth is not None or Path(psf_path).is_dir()
     cam = session.bench.camera
@@ -94,7 +96,7 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
     if level is not None and stacked:  # the stack's PSF is dark-subtracted already
         psf = psf + level
     return LiveReconstruction(LiveReconstructor(psf, dark=level), method=method,
-                              iterations=iterations, threads=threads)
+                              iterations=iterations, threads=threads, nice=BACKGROUND_NICE)
 
 
 class RoutineOption:

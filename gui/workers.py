@@ -22,9 +22,14 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-__all__ = ["Job", "readable_error", "wait_until"]
+__all__ = ["BACKGROUND_NICE", "Job", "readable_error", "wait_until"]
 
 log = logging.getLogger(__name__)
+
+#: Nice increment of the GUI's worker threads (jobs, the live reconstruction): on a
+#: machine whose cores the solvers fill, the event loop's thread still gets the CPU
+#: when a timer or an input is due (Linux; :func:`instrument.live.lower_thread_priority`).
+BACKGROUND_NICE = 5
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
@@ -147,6 +152,9 @@ class Job(QObject):
         return not self._thread.is_alive()
 
     def _run(self) -> None:
+        from instrument.live import lower_thread_priority
+
+        lower_thread_priority(BACKGROUND_NICE)
         try:
             self.result = self._fn(self, *self._args, **self._kwargs)
         except BaseException as exc:  # noqa: BLE001 (every error becomes a message)

@@ -32,7 +32,7 @@ from recon.fft import check_threads, limited_threads
 from recon.validate import as_int, positive
 
 __all__ = ["LatestFrameSlot", "LivePreview", "LiveReconstruction", "LiveReconstructionError",
-           "run_live_benchmark"]
+           "lower_thread_priority", "run_live_benchmark"]
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +42,41 @@ LIVE_METHODS = ("wiener", "admm")
 
 class LiveReconstructionError(RuntimeError):
     """The live worker could not start or stop in time."""
+
+
+def lower_thread_priority(increment: int) -> bool:
+    """Raise the calling thread's nice value by ``increment`` (lower its CPU priority).
+
+    On Linux a nice value belongs to a thread (``setpriority(PRIO_PROCESS, tid)``), and
+    threads started from this one later (numba's and the FFT's pools, when this thread
+    starts them) inherit it. Background compute (a live preview, a calibration sweep)
+    then yields the cores to the threads that must keep time: the camera's grab and
+    the recorder, and a GUI's event loop. An unprivileged process can only raise nice
+    values, so this cannot be undone in the thread.
+
+    Parameters
+    ----------
+    increment : int
+        Added to the thread's nice value (0 does nothing; the result is capped at 19).
+
+    Returns
+    -------
+    bool
+        True when the priority was changed; False where per-thread priorities are not
+        available (not Linux) or the call was refused.
+    """
+    import os
+    import sys
+
+    if increment <= 0 or not sys.platform.startswith("linux"):
+        return False
+    tid = threading.get_native_id()
+    try:
+        now = os.getpriority(os.PRIO_PROCESS, tid)
+        os.setpriority(os.PRIO_PROCESS, tid, min(now + int(increment), 19))
+    except OSError:
+        return False
+    return True
 
 
 class LatestFrameSlot:
@@ -168,6 +203,10 @@ class LiveReconstruction:
         Most threads the worker's FFTs and numba kernels use
         (:func:`recon.fft.limited_threads`), so that it leaves cores to a recorder
         running beside it; None: all cores.
+    nice : int
+        Raise the worker thread's nice value by this much
+        (:func:`lower_thread_priority`; default 0, unchanged): a preview beside a
+        recorder or a GUI then takes the CPU only when they leave it.
 
     Raises
     ------
@@ -177,12 +216,14 @@ class LiveReconstruction:
     """
 
     def __init__(self, reconstructor, *, method: str = "wiener", iterations: int = 5,
-                 warm_start: bool = True, window_s: float = 2.0, threads: int | None = None):
+                 warm_start: bool = True, window_s: float = 2.0, threads: int | None = None,
+                 nice: int = 0):
         self.reconstructor = reconstructor
         self._method, self._iterations = _method(method, iterations)
         self.warm_start = bool(warm_start)
         self.window_s = positive(window_s, "window_s")
         self.threads = None if threads is None else check_threads(threads)
+        self.nice = as_int(nice, "nice", 0)
         self.slot = LatestFrameSlot()
         self._lock = threading.Lock()
         self._latest: LivePreview | None = None
@@ -311,6 +352,7 @@ class LiveReconstruction:
 
     # -- worker --------------------------------------------------------------------
     def _work(self, ready: threading.Event) -> None:
+        lower_thread_priority(self.nice)
         if self.threads is None:
             self._loop(ready)
         else:

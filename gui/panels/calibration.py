@@ -115,7 +115,7 @@ class CalibrationPanel(RunControls, QWidget):
         left.addWidget(self.status)
         left.addStretch(1)
         layout.addLayout(left, 2)
-        self.view = FrameView("frames as they are taken (DN)")
+        self.view = FrameView("frames as they are taken (DN)", histogram_hz=2.0)
         layout.addWidget(self.view, 3)
         self._set_running(False)
 

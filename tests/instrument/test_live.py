@@ -3,6 +3,8 @@ reports fps, latency and errors, and stops in time."""
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 import time
 
@@ -112,15 +114,16 @@ def test_worker_on_a_ring_with_the_real_reconstructor():
     for i in range(5):
         ring.put(_frame(i, value=i))
         time.sleep(0.02)
+    # generous: the first frame compiles the kernels (a wait, not a speed check)
     _wait_for(lambda: live.stats()["reconstructed"] >= 1
-              and live.stats()["received"] == 5)
+              and live.stats()["received"] == 5, timeout_s=60.0)
     preview = live.latest()
     assert preview.method == "wiener" and preview.image.shape == SHAPE
     assert preview.latency_s > 0 and preview.result_time_s > preview.host_timestamp_s
     live.set_method("admm", iterations=3)
     ring.put(_frame(5))
     ring.put(_frame(6))
-    _wait_for(lambda: live.latest().frame_index == 6)
+    _wait_for(lambda: live.latest().frame_index == 6, timeout_s=60.0)
     assert live.latest().method == "admm" and live.latest().iterations == 3
     live.stop(timeout_s=2.0)
     s = live.stats()
@@ -215,3 +218,31 @@ def test_limited_threads_restores_the_caller():
     with pytest.raises(ReconInputError, match="threads=99"):
         with limited_threads(99):
             pass
+
+
+class NiceProbe(SlowReconstructor):
+    """Records the nice value of the thread that reconstructs."""
+
+    def _run(self, raw, method, iterations, warm):
+        import os
+
+        self.nice = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        return super()._run(raw, method, iterations, warm)
+
+
+@pytest.mark.skipif(not hasattr(os, "getpriority") or not sys.platform.startswith("linux"),
+                    reason="per-thread priorities are Linux's")
+def test_nice_lowers_the_worker_thread_and_nothing_else():
+    mine = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    probe = NiceProbe(0.0)
+    live = LiveReconstruction(probe, nice=5)
+    live.start()
+    try:
+        live.offer(_frame(1))
+        _wait_for(lambda: live.stats()["reconstructed"] == 1)
+        assert probe.nice == min(mine + 5, 19)
+        assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
+    finally:
+        live.stop(timeout_s=2.0)
+    with pytest.raises(ReconInputError, match="nice"):
+        LiveReconstruction(probe, nice=-1)
