@@ -110,6 +110,19 @@ def test_dff_of_a_microscope_neuron_video_with_the_local_model(microscope_video,
     assert min(corr) > 0.9, corr
 
 
+def test_capture_video_records_the_neurons_on_the_microscope_twin(tmp_path, capsys):
+    """``capture video BENCH --simulate --scene neurons`` on the microscope: the cells,
+    placed at its calibrated depths, light the sensor well inside its range."""
+    out = tmp_path / "n.zarr"
+    assert main(["capture", "video", str(BENCH), "--simulate", "--scene", "neurons",
+                 "--frames", "3", "--fps", "10", "--out", str(out)]) == 0
+    assert "complete: 3 frames" in capsys.readouterr().out
+    store = RunStore.open(out)
+    peak = max(float(store.frame(i).image.max()) for i in range(3))
+    dark = store.attrs["simulated"]["dark_offset_dn"]
+    assert store.frame_shape == (135, 240) and 500 < peak - dark < 4095 - dark
+
+
 def _video_run(path, frames, dark=10.0):
     """A run store holding ``frames`` (n, rows, cols) plus a dark level, as recorded."""
     from instrument.recorder import VIDEO_COORDS
