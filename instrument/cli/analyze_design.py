@@ -173,10 +173,10 @@ def _plot(design, result):
     axes[0].legend(fontsize=8)
     axes[1].set_title("scaled PSF (axial)")
     axes[2].axhline(result["threshold"], color="C1", ls="--", lw=0.8)
-    axes[2].set(ylim=(0, 1.05), title="largest inner product beyond 3 resolutions")
+    axes[2].set(ylim=(0, 1.05), title="ghosts: inner product, shift > 3 res.")
     mid = result["depths"][len(z) // 2]["z_mm"]
     psf = design.psf((0.0, 0.0, mid), 1)
     axes[3].imshow(psf ** 0.5, cmap="gray")
-    axes[3].set(title=f"{design.kind} lenslets, on-axis PSF at {mid:.3g} mm (sqrt)",
+    axes[3].set(title=f"{design.kind} lenslets: on-axis PSF\nat {mid:.3g} mm (sqrt)",
                 xticks=[], yticks=[])
     return fig

@@ -42,7 +42,7 @@ from ..errors import ReconInputError
 from ..metrics import psnr
 from ..optics.design_masks import DESIGNS, MaskDesign, bin_fine
 from ..volume import VolumeConvolutionOperator, fista3d, normalize_psf_stack
-from . import fmt, format_table, save_figure, write_json
+from . import fmt, format_table, log_x_axis, save_figure, write_json
 
 __all__ = ["design_table", "plot_design", "run_design"]
 
@@ -349,7 +349,8 @@ def plot_design(result: dict, path: Path) -> Path:
         for case, style in (("2d", "o-"), ("3d", "s--")):
             for name, vals in result["psnr"][sweep][case].items():
                 ax.plot(levels, vals, style, color=colours[name], label=f"{name} {case}")
-        ax.set_xscale("log")
+        log_x_axis(ax)
+        ax.set_xticks(levels, labels=[f"{v:g}" for v in levels])
         ax.set(ylabel="PSNR (dB)", xlabel="collected photons" if sweep == "photons"
                else "Gaussian noise std / mean pixel value",
                title="shot noise (Fig. 6.3)" if sweep == "photons"
