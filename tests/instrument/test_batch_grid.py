@@ -77,8 +77,8 @@ def test_dff_of_a_microscope_neuron_video_with_the_local_model(microscope_video,
     """Each active cell's ΔF/F (20th-percentile baseline, Fig. 6.5b) from the batch's
     local-model frames correlates with its true trace above 0.9 (measured: 0.98 to
     0.999 over the six cells); the product stores the model and a background per
-    frame. About 1.5 to 2 minutes on 2 busy cores (recording, 3 x 3 calibration, 30
-    frames), hence slow; test_batch_grid_frames_equal_recon_psf_grid_of_each_frame
+    frame. 24 s on 2 idle cores, 1.5 to 2 minutes on busy ones (recording, 3 x 3
+    calibration, 30 frames), hence slow; test_batch_grid_frames_equal_recon_psf_grid_of_each_frame
     covers the batch path in the default run."""
     d, scene, g = microscope_video
     run = str(d / "neurons.zarr")
