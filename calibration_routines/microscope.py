@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.output_safety import check_outputs
 from instrument.plan import PlanError
 from instrument.runner import Runner
 from recon.analysis import (
@@ -105,9 +106,14 @@ def microscope_grid_plans(bench, *, z_min_mm: float | None = None,
     return plans
 
 
-def calibrate_microscope(bench, out_dir: str | Path, *, on_event=None, **options
-                         ) -> list[Path]:
+def calibrate_microscope(bench, out_dir: str | Path, *, on_event=None,
+                         resolution_check: bool = False, **options) -> list[Path]:
     """Run :func:`microscope_grid_plans` on a bench: one ``grid-<z>mm.zarr`` per depth.
+
+    With ``resolution_check`` the two-point resolution of each depth's local model
+    at five field positions follows (Fig. 6.4a,
+    :func:`calibration_routines.microscope_resolution.microscope_resolution`),
+    written to ``resolution.json`` in ``out_dir`` and logged.
 
     Parameters
     ----------
@@ -117,6 +123,8 @@ def calibrate_microscope(bench, out_dir: str | Path, *, on_event=None, **options
         Folder for the run stores (created).
     on_event : callable, optional
         The runner's progress callback.
+    resolution_check : bool
+        Also measure the two-point resolution (ray traced on a virtual bench).
     **options
         Passed to :func:`microscope_grid_plans`.
 
@@ -127,6 +135,8 @@ def calibrate_microscope(bench, out_dir: str | Path, *, on_event=None, **options
     """
     sensor_geometry(bench.config)  # a clear error for a bench without geometry
     out = Path(out_dir)
+    if resolution_check:
+        check_outputs([out / "resolution.json"], None, False, option="out_dir")
     out.mkdir(parents=True, exist_ok=True)
     runs = []
     for plan in microscope_grid_plans(bench, **options):
@@ -134,4 +144,9 @@ def calibrate_microscope(bench, out_dir: str | Path, *, on_event=None, **options
         log.info("microscope: PSF grid at z = %.4f mm", plan.params["z_mm"])
         Runner(bench, on_event=on_event).run(plan, path)
         runs.append(path)
+    if resolution_check:
+        from .microscope_resolution import microscope_resolution, resolution_table
+
+        found = microscope_resolution(runs, bench=bench, out_json=out / "resolution.json")
+        log.info("microscope two-point resolution (Fig. 6.4a):\n%s", resolution_table(found))
     return runs

@@ -8,7 +8,9 @@ benchmarks' ``volume_speed.json`` (:mod:`recon.benchmarks.volume`) and
 ``volume_accuracy.json`` + ``volume_accuracy.png``
 (:mod:`recon.benchmarks.volume_accuracy`), the spatially varying models'
 ``spatial_speed.json`` and ``spatial_accuracy.json`` + ``spatial_psnr_vs_seconds.png``
-(:mod:`recon.benchmarks.spatial`), and ``summary.json`` under ``out`` and
+(:mod:`recon.benchmarks.spatial`), compressive calibration against centre-only and
+grid calibration's ``blind_calibration.json`` + ``blind_calibration.png``
+(:mod:`recon.benchmarks.blind`, Fig. 5.4d), and ``summary.json`` under ``out`` and
 returns a compact summary. The weights chosen by the accuracy sweep are used by the
 stability and erasure benchmarks when they run in the same invocation; otherwise
 :data:`recon.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run
@@ -34,8 +36,8 @@ log = logging.getLogger(__name__)
 
 #: The benchmarks, in the order they run.
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
-              "volume_accuracy", "spatial_speed", "spatial_accuracy", "auto", "failure_maps",
-              "failure_map_3d")
+              "volume_accuracy", "spatial_speed", "spatial_accuracy", "blind_calibration", "auto",
+              "failure_maps", "failure_map_3d")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
@@ -46,6 +48,7 @@ _TABLES = {"speed": ("speed", "speed_table"), "accuracy": ("accuracy", "accuracy
            "volume_accuracy": ("volume_accuracy", "volume_accuracy_table"),
            "spatial_speed": ("spatial", "spatial_speed_table"),
            "spatial_accuracy": ("spatial", "spatial_accuracy_table"),
+           "blind_calibration": ("blind", "blind_calibration_table"),
            "auto": ("auto", "auto_table"),
            "failure_maps": ("failure_maps", "failure_maps_table"),
            "failure_map_3d": ("failure_map_3d", "failure_map_3d_table")}
@@ -118,9 +121,9 @@ def summarise(results: dict) -> tuple[dict, str]:
                      f"average, {fmt(a['worst_shortfall_db'])} at worst, "
                      f"{fmt(a['mean_gain_over_default_db'])} dB above the former default; "
                      f"cost x{fmt(a['cost_ratio_median'])} of a fixed run (median)")
-    for name in ("spatial_speed", "spatial_accuracy"):
-        if name in results:
-            summary[name] = results[name]
+    for name in ("spatial_speed", "spatial_accuracy", "blind_calibration"):
+        if name in results:  # the figure's image crops stay in their own JSON file
+            summary[name] = {k: v for k, v in results[name].items() if k != "images"}
             lines.append(format_result(name, results[name]))
     return summary, "\n".join(lines)
 
@@ -236,6 +239,10 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
             run = {"auto": auto.run_auto, "failure_maps": failure_maps.run_failure_maps,
                    "failure_map_3d": failure_map_3d.run_failure_map_3d}[name]
             results[name] = run(quick, out)
+        elif name == "blind_calibration":
+            from .blind import run_blind_calibration
+
+            results[name] = run_blind_calibration(quick, out)
         elif name.startswith("spatial_"):
             from . import spatial
 

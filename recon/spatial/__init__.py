@@ -27,7 +27,7 @@ from .operator import (
     pca_operator,
     spatial_memory_bytes,
 )
-from .resolution import two_point_resolution
+from .resolution import ray_traced_pair, two_point_resolution
 
 __all__ = [
     "BlindCalibration",
@@ -45,6 +45,7 @@ __all__ = [
     "lowpass_background",
     "pca_components",
     "pca_operator",
+    "ray_traced_pair",
     "register_psfs",
     "scale_psf",
     "spatial_memory_bytes",

@@ -119,8 +119,8 @@ class _PsfModel:
 def blind_calibration(measurements, grid_shape: tuple[int, int], node_spacing_px,
                       *, rounds: int = 4, object_iterations: int = 100,
                       psf_iterations: int = 100, l1: float = 1e-3,
-                      z_mm: float | None = None, d_mm: float | None = None
-                      ) -> BlindCalibration:
+                      z_mm: float | None = None, d_mm: float | None = None,
+                      initial_psf=None, max_rank: int | None = None) -> BlindCalibration:
     """Recover ``ny x nx`` spatially varying PSFs from bead images (Eq. 5.11-5.13).
 
     Parameters
@@ -154,6 +154,7 @@ def blind_calibration(measurements, grid_shape: tuple[int, int], node_spacing_px
         raise ReconInputError(f"measurements must be (N, rows, cols), got shape {b.shape}")
     ny, nx = (as_int(v, "grid_shape", 1) for v in grid_shape)
     rounds = as_int(rounds, "rounds", 1)
+    max_rank = ny * nx if max_rank is None else as_int(max_rank, "max_rank", 1)
     l1 = nonneg_weight(l1, "l1")
     sy, sx = np.broadcast_to(np.asarray(node_spacing_px, float), (2,))
     if not (sy > 0 and sx > 0 and math.isfinite(sy) and math.isfinite(sx)):
@@ -164,12 +165,19 @@ def blind_calibration(measurements, grid_shape: tuple[int, int], node_spacing_px
     b = b / scale
     shifts = [((a - (ny - 1) / 2) * sy, (c - (nx - 1) / 2) * sx)
               for a in range(ny) for c in range(nx)]
-    h0 = _initial_psf(b)
+    if initial_psf is None:
+        h0 = _initial_psf(b)
+    else:
+        h0 = np.asarray(initial_psf, np.float32)
+        if h0.shape != b.shape[1:] or not np.all(np.isfinite(h0)) or not np.any(h0 > 0):
+            raise ReconInputError(f"initial_psf must be a finite, non-negative image of the "
+                                  f"measurements' shape {b.shape[1:]}, got {h0.shape}")
+        h0 = np.maximum(h0, 0.0)
     H = np.repeat(h0[None] / max(float(h0.sum()), 1e-30), ny * nx, axis=0)
     history = {"rank": [], "misfit_objects": [], "misfit_psfs": []}
     objects = None
     for r in range(rounds):
-        k = min(r + 1, ny * nx)
+        k = min(r + 1, ny * nx, max_rank)
         op = _operator(H, shifts, (ny, nx))
         objects = np.stack([fista_background(op, bi, iterations=object_iterations, l1=l1,
                                              estimate_background=False).x for bi in b])

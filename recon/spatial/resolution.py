@@ -7,7 +7,9 @@ noise is added, and the model reconstructs them with l1 FISTA
 the reconstruction dips by at least 20 % between them
 (:func:`recon.analysis.dip_between`, the criterion of Sec. 6.4). The resolution at
 a position is the smallest tested separation from which on every larger one is
-resolved.
+resolved. :func:`ray_traced_pair` makes the measurements by ray tracing the two
+points through a :class:`recon.optics.lensless.LenslessModel` instead (the virtual
+twin's optics: no model, no splatting onto the grid).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from ..analysis.distinguishability import DIP_CRITERION
 from ..errors import ReconInputError
 from .background import fista_background
 
-__all__ = ["two_point_resolution"]
+__all__ = ["ray_traced_pair", "two_point_resolution"]
 
 
 def _splat(shape, points) -> np.ndarray:
@@ -33,9 +35,52 @@ def _splat(shape, points) -> np.ndarray:
     return out
 
 
-def two_point_resolution(op, field_px, separations_px, *, truth_op=None, axis: str = "x",
-                         iterations: int = 200, l1: float = 1e-4, noise_std: float = 0.01,
-                         seed: int = 0) -> list[dict]:
+def ray_traced_pair(model, z_mm: float, shape_in, *, reference_mm=(0.0, 0.0),
+                    oversample: int = 2):
+    """Measurements of point pairs by ray tracing, for :func:`two_point_resolution`.
+
+    Object-grid pixel ``(r, c)`` of a model whose grid is centred on the source at
+    ``reference_mm`` (a PSF grid's reference node) is the source at ``x = x_ref - (c -
+    P1 // 2) p / m``, ``y = y_ref - (r - P0 // 2) p / m`` (Eq. 3.3, ``u = -m x``;
+    ``p`` the sensor pitch, ``m = d / z``).
+
+    Parameters
+    ----------
+    model : recon.optics.lensless.LenslessModel
+        The optics (e.g. the virtual bench's ``model``).
+    z_mm : float
+        Depth of the points, mm.
+    shape_in : (P0, P1)
+        The reconstructing model's object grid.
+    reference_mm : (x, y)
+        Source position of the object grid's centre, mm.
+    oversample : int
+        Ray-tracing grid factor.
+
+    Returns
+    -------
+    callable
+        ``f(points)`` with ``points`` (M, 2) object-grid ``(row, col)`` positions:
+        the sensor image (float64, the model's sensor shape) of unit points there.
+    """
+    geo = model.geometry
+    m = geo.d_mm / float(z_mm)
+    q = geo.sensor_pitch_um * 1e-3 / m
+    p0, p1 = (int(v) for v in shape_in)
+    x0, y0 = (float(v) for v in reference_mm)
+
+    def images(points):
+        pts = np.asarray(points, float).reshape(-1, 2)
+        xyz = np.column_stack([x0 - (pts[:, 1] - p1 // 2) * q, y0 - (pts[:, 0] - p0 // 2) * q,
+                               np.full(len(pts), float(z_mm))])
+        return model.render_points(xyz, np.ones(len(pts)), oversample)
+
+    return images
+
+
+def two_point_resolution(op, field_px, separations_px, *, truth_op=None, truth_images=None,
+                         axis: str = "x", iterations: int = 200, l1: float = 1e-4,
+                         noise_std: float = 0.01, seed: int = 0) -> list[dict]:
     """Two-point resolution of a 2D model at field positions (module docstring).
 
     Parameters
@@ -49,6 +94,9 @@ def two_point_resolution(op, field_px, separations_px, *, truth_op=None, axis: s
     truth_op : LinearOperator, optional
         Model that makes the measurements (default ``op``: the model's own
         resolution, the inverse crime; pass a finer model for mismatch).
+    truth_images : callable, optional
+        ``f(points)`` -> sensor image of unit points at object-grid ``(row, col)``
+        positions (e.g. :func:`ray_traced_pair`); takes precedence over ``truth_op``.
     axis : {"x", "y"}
         Direction of the pair.
     iterations, l1 : int, float
@@ -88,7 +136,13 @@ def two_point_resolution(op, field_px, separations_px, *, truth_op=None, axis: s
             if min(*p0, *p1) < 0 or np.any(np.maximum(p0, p1) + 1 >= op.shape_in):
                 raise ReconInputError(f"field position {pos.tolist()} px with separation "
                                       f"{s:g} leaves the object grid {op.shape_in}")
-            b = truth_op.forward(_splat(truth_op.shape_in, [p0, p1]))
+            if truth_images is not None:
+                b = np.asarray(truth_images(np.stack([p0, p1])), np.float64)
+                if b.shape != tuple(op.shape_out):
+                    raise ReconInputError(f"truth_images gave a {b.shape} image; the model's "
+                                          f"sensor is {tuple(op.shape_out)}")
+            else:
+                b = truth_op.forward(_splat(truth_op.shape_in, [p0, p1]))
             b = b + noise_std * float(b.max()) * rng.standard_normal(b.shape)
             x = fista_background(op, (b / np.abs(b).max()).astype(np.float32),
                                  iterations=iterations, l1=l1, estimate_background=False).x

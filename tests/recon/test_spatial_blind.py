@@ -71,3 +71,26 @@ def test_blind_calibration_refuses_bad_input():
         blind_calibration(np.zeros((2, 16, 16)), (3, 3), 5)
     with pytest.raises(ReconInputError, match="node_spacing_px"):
         blind_calibration(np.ones((2, 16, 16)), (3, 3), -1)
+    with pytest.raises(ReconInputError, match="initial_psf"):
+        blind_calibration(np.ones((2, 16, 16)), (3, 3), 5, initial_psf=np.ones((8, 8)))
+    with pytest.raises(ReconInputError, match="max_rank"):
+        blind_calibration(np.ones((2, 16, 16)), (3, 3), 5, max_rank=0)
+
+
+def test_blind_calibration_starts_from_a_given_psf_and_keeps_the_rank_cap():
+    """With the true central PSF as the start and rank <= 1 every node's PSF stays a
+    multiple of one pattern (the central PSF refined)."""
+    rng = np.random.default_rng(2)
+    truth = _truth(rng)
+    op = local_convolution_operator(PsfGrid(truth, SHIFTS, (3, 3)), normalize=False)
+    y = np.zeros(op.shape_in, np.float32)
+    y[op.shape_in[0] // 2 + rng.integers(-10, 10, 6), op.shape_in[1] // 2
+      + rng.integers(-12, 12, 6)] = 1
+    b = op.forward(y)[None]
+    res = blind_calibration(b, (3, 3), SPACING, rounds=3, max_rank=1, initial_psf=truth[4],
+                            object_iterations=40, psf_iterations=20)
+    assert res.history["rank"] == [1, 1, 1]
+    flat = res.grid.psfs.reshape(9, -1)
+    s = np.linalg.svd(flat, compute_uv=False)
+    assert s[1] < 1e-3 * s[0]
+    assert _corr(res.grid.psfs[4], truth[4]) > 0.9
