@@ -56,9 +56,9 @@ log = logging.getLogger(__name__)
 PRESETS = {
     "tiny": dict(sensor=(34, 60), pitch_um=92.8, n_images=9, nodes=3, beads=4, rounds=2,
                  blind_iterations=20, scene_iterations=40),
-    "quick": dict(sensor=(34, 60), pitch_um=92.8, n_images=9, nodes=5, beads=10, rounds=4,
+    "quick": dict(sensor=(34, 60), pitch_um=92.8, n_images=9, nodes=5, beads=20, rounds=4,
                   blind_iterations=100, scene_iterations=200),
-    "full": dict(sensor=(68, 120), pitch_um=46.4, n_images=9, nodes=5, beads=10, rounds=6,
+    "full": dict(sensor=(68, 120), pitch_um=46.4, n_images=9, nodes=5, beads=20, rounds=6,
                  blind_iterations=100, scene_iterations=300),
 }
 
