@@ -105,6 +105,7 @@ def test_translation_and_rotation_recovered(tmp_path):
                                       al.mm.model[m - sy:m - sy + 384, m - sx:m - sx + 480])
 
 
+@pytest.mark.slow  # several minutes of camera-in-the-loop captures; T1 + T2 above run by default
 def test_piecewise_distortion(tmp_path):
     """T3: translation, rotation and a smooth quadratic distortion (section-centre
     offsets spread over more than a mask pixel). Per-section integer shifts equal the
