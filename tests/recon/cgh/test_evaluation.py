@@ -172,6 +172,7 @@ def test_table_7_1_n240_ssim_within_0_07_of_every_cell(table_240):
     assert rules["4"]["passed"], rules["4"]["detail"]
 
 
+@pytest.mark.slow  # two more mask seeds of the whole table (~100 s); seed 0's rules run by default
 def test_table_7_1_n240_stable_across_three_mask_seeds(a10, table_240):
     records0, _ = table_240
     methods = ("one-step", "l2", "frequency")
