@@ -54,9 +54,9 @@ START_WEIGHT = {"tv": 1e-2, "l1": 1.0}
 END_WEIGHT = 1e-5
 #: Multiple of the held-out error's standard error within which the largest weight
 #: is taken. Half a standard error was tried: at 300 photo-electrons it mends the
-#: rule's worst cases (chelsea 1.8 -> 0.45 dB, astronaut 1.3 -> -0.06 dB below the
-#: oracle) but at 3000 it chose 2.7e-5 for astronaut, 2.1 dB below (the full rule:
-#: 7e-5, 0.0 dB); kept at one until a rule wins on every scene.
+#: rule's worst cases (chelsea 1.8 dB below the oracle -> 0.45 below, astronaut 1.3
+#: below -> 0.06 above), but at 3000 it chose 2.7e-5 for astronaut, 2.1 dB below (the
+#: full rule: 7e-5, 0.0 dB); kept at one until a rule wins on every scene.
 SE_RULE = 1.0
 #: Smallest factor between consecutive weights of the path (larger when the
 #: iterations do not allow the whole path at this factor).
