@@ -2,7 +2,8 @@
 
 Every selected frame of a run store is reconstructed independently with
 :func:`recon.reconstruct` (the same call, with the same arguments, as
-``diffuserlab recon`` on that frame, so the results are equal bit for bit) by dask
+``diffuserlab recon`` on that frame, so the results are equal to float32 rounding:
+bit for bit unless a worker's BLAS sums in another order) by dask
 workers: a local cluster of ``workers`` processes (one task at a time each, with
 the caller's FFT and numba thread count, so the numerics are the caller's) by default, or
 the workers of a running ``dask.distributed`` scheduler given by its address (the
@@ -156,7 +157,7 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     threads : int, optional
         The task's FFT and numba threads (:func:`recon.fft.limited_threads`; the
         batch passes the caller's count, so the results equal a reconstruction in the
-        calling process bit for bit); None leaves the worker's defaults.
+        calling process to float32 rounding); None leaves the worker's defaults.
 
     Returns
     -------
@@ -336,7 +337,8 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
             from recon.jit import thread_count
 
             # each task computes with the caller's thread count: numba's parallel
-            # reductions depend on it, and the results must equal `recon`'s bit for bit
+            # reductions depend on it, and the results must equal `recon`'s (to float32
+            # rounding: dask's workers run one BLAS thread)
             psf_future = client.scatter(grid or np.asarray(psf), broadcast=True)
             futures = [client.submit(task, str(store.path), i, psf_future, options,
                                      thread_count(), pure=False) for i in todo]
