@@ -170,15 +170,12 @@ class Session(QObject):
     # -- the virtual bench's scene ---------------------------------------------------------
     @staticmethod
     def _set_scene(vb, name: str) -> None:
-        from instrument.video_scenes import BeadFlowScene, NeuronFieldScene
+        from instrument.bench_scenes import show_video_scene
 
         if name == "none":
             vb.set_scene(None)
             return
-        scene = (BeadFlowScene(seed=vb.seed, time_step_s=0.5) if name == "beads-flow"
-                 else NeuronFieldScene(seed=vb.seed, time_step_s=0.25))
-        vb.set_scene(scene)
-        vb.prerender()
+        show_video_scene(vb, name, seed=vb.seed)  # as `capture --simulate --scene`
 
     def set_scene(self, name: str, on_error: Callable[[str], None] | None = None) -> Job:
         """Put a moving scene (:data:`SCENES`) in front of the virtual bench's camera

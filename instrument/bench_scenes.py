@@ -24,7 +24,7 @@ from recon.errors import ReconInputError
 
 from .video_scenes import BeadFlowScene, NeuronFieldScene, VideoScene
 
-__all__ = ["SCENE_NAMES", "scene_depth_and_scale", "video_scene_for_bench"]
+__all__ = ["SCENE_NAMES", "scene_depth_and_scale", "show_video_scene", "video_scene_for_bench"]
 
 #: ``--scene`` names of the moving scenes.
 SCENE_NAMES = ("beads-flow", "neurons")
@@ -103,3 +103,35 @@ def video_scene_for_bench(name: str, bench, *, seed: int = 0,
     if s == 1.0:
         return base
     return dataclasses.replace(base, z_mm=z, field_mm=tuple(v * s for v in base.field_mm))
+
+
+def show_video_scene(bench, name: str, *, seed: int = 0) -> VideoScene:
+    """Put the moving scene ``name`` (:func:`video_scene_for_bench`) in front of the
+    virtual bench's camera and render it ahead of streaming.
+
+    A periodic scene (the bead flow) is rendered at every distinct time; the neurons
+    (fixed cells whose brightness changes, no finite set of distinct times) need only
+    their cells' PSFs traced, after which a render is a weighted sum
+    (:meth:`instrument.virtual_bench.VirtualBench.prerender` at time 0).
+
+    Parameters
+    ----------
+    bench : instrument.virtual_bench.VirtualBench
+    name : {"beads-flow", "neurons"}
+    seed : int
+        Layout (and spike times) seed.
+
+    Returns
+    -------
+    VideoScene
+        The scene shown.
+
+    Raises
+    ------
+    ReconInputError
+        An unknown scene name.
+    """
+    scene = video_scene_for_bench(name, bench, seed=seed)
+    bench.set_scene(scene)
+    bench.prerender(None if scene.distinct_times() is not None else [0.0])
+    return scene

@@ -162,19 +162,15 @@ def _check_numbers(args: argparse.Namespace) -> None:
 def _open(args: argparse.Namespace, config):
     """The bench: the real one, or the virtual bench streaming a video scene."""
     from ..bench import Bench
-    from ..bench_scenes import video_scene_for_bench
+    from ..bench_scenes import show_video_scene
     from ..virtual_bench import VirtualBench
 
     if not args.simulate:
         return Bench.open(config)
     vb = VirtualBench(config, seed=args.seed, realtime=True).open()
     vb.led_array.all_off()
-    if args.scene != "none":  # placed and scaled for the bench (instrument.bench_scenes)
-        scene = video_scene_for_bench(args.scene, vb, seed=args.seed)
-        vb.set_scene(scene)
-        # a periodic scene: every distinct render ahead; the neurons (fixed cells whose
-        # brightness changes) need only their PSFs traced: a render is then a sum
-        vb.prerender(None if scene.distinct_times() is not None else [0.0])
+    if args.scene != "none":  # placed, scaled and rendered ahead for the bench
+        show_video_scene(vb, args.scene, seed=args.seed)
     return vb
 
 

@@ -260,3 +260,19 @@ def test_alignment_shows_readings_pose_and_steps_then_aborts(window, wait, tmp_p
     assert "aborted by the operator" in text and "bug" not in text
     assert window.session.camera_user is None
     assert (tmp_path / "mask.align" / "captures.jsonl").is_file()
+
+
+@pytest.mark.parametrize("name", ["beads-flow", "neurons", "none"])
+def test_every_scene_of_the_gui_shows_on_the_virtual_bench(name):
+    """The GUI's scenes are `capture --simulate --scene`'s (neurons failed to prerender)."""
+    from gui.session import Session
+    from instrument.virtual_bench import VirtualBench
+
+    vb = VirtualBench(seed=0, realtime=True).open()
+    try:
+        Session._set_scene(vb, name)
+        assert (vb.scene is None) == (name == "none")
+        if name == "neurons":
+            assert type(vb.scene).__name__ == "NeuronFieldScene"
+    finally:
+        vb.close()
