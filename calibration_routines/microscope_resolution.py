@@ -22,6 +22,7 @@ import numpy as np
 from instrument.output_safety import check_outputs
 from instrument.reconstruct_grid import GRID_PRODUCT, load_psf_grid
 from instrument.runstore import RunStore
+from recon.io import atomic_path
 from recon.spatial import local_convolution_operator, ray_traced_pair, two_point_resolution
 
 __all__ = ["microscope_resolution", "resolution_table"]
@@ -112,7 +113,8 @@ def microscope_resolution(runs, *, bench=None, field_mm=None, separations_px=SEP
                  [p["resolution_um"] for p in entry["positions"]])
         results.append(entry)
     if out_json is not None:
-        Path(out_json).write_text(json.dumps(results, indent=1))
+        with atomic_path(out_json) as tmp:  # never half a file under the final name
+            tmp.write_text(json.dumps(results, indent=1))
     return results
 
 

@@ -18,6 +18,8 @@ took them are counted as skipped, never silently.
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import threading
 import time
 from collections import deque
@@ -65,9 +67,6 @@ def lower_thread_priority(increment: int) -> bool:
         True when the priority was changed; False where per-thread priorities are not
         available (not Linux) or the call was refused.
     """
-    import os
-    import sys
-
     if increment <= 0 or not sys.platform.startswith("linux"):
         return False
     tid = threading.get_native_id()
