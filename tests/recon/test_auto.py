@@ -62,8 +62,12 @@ def test_holdout_weight_on_a_denoising_problem_with_a_computable_optimum():
     assert choice.criterion == "holdout" and "cross-validation" in choice.reason
 
 
-@pytest.mark.parametrize("kind, photons", [("text", 300.0), ("photo:camera", 30000.0)])
+@pytest.mark.parametrize("kind, photons", [("text", 300.0), ("photo:camera", 30000.0),
+                                           ("photo:chelsea", 300.0)])
 def test_auto_within_bound_of_the_oracle_on_small_scenes(kind, photons):
+    """Chelsea at 300 e- is where the one-standard-error rule alone takes the path's
+    first weight (1e-2, 20x the held-out minimum's); the bound keeps it within 2x."""
+    from recon.auto.weight import MAX_ABOVE_MINIMUM
     from recon.benchmarks.auto_scenes import render_case
 
     case = render_case(kind, photons, coarse_bin=8)
@@ -75,6 +79,10 @@ def test_auto_within_bound_of_the_oracle_on_small_scenes(kind, photons):
     rec = out.metrics(1e-3)["auto"][0]
     assert rec["method"]["method"] == "admm" and rec["weight"]["reason"]
     assert END_WEIGHT <= out.info["tv"] <= START_WEIGHT["tv"]
+    path = rec["weight"]["path"]
+    w_min = min(path, key=lambda p: p["holdout_error"])["weight"]
+    assert w_min <= out.info["tv"] <= MAX_ABOVE_MINIMUM * w_min * (1 + 1e-9), (
+        out.info["tv"], w_min)
 
 
 def test_fixed_weight_stops_when_the_fit_settles(conv_problem):
