@@ -230,7 +230,7 @@ def reconstruct(
         (:class:`recon.auto.Stopping`); ``info["iterations_used"]`` says how many ran.
     tv : "auto" or float
         TV weight in the scaled problem; ``"auto"`` (default; ``None`` too) chooses it
-        by the discrepancy principle (:mod:`recon.auto.weight`), a number fixes it
+        by hold-out cross-validation (:mod:`recon.auto.weight`), a number fixes it
         (:data:`DEFAULT_TV` holds the former fixed defaults).
     l1 : "auto" or float
         l1 weight (sparse scenes; ADMM, FISTA, GD); default 0.

@@ -1,8 +1,8 @@
 """Automatic regularisation, stopping and method choice: model no more than a scene needs.
 
 * :mod:`recon.auto.noise` - the Poisson-Gaussian noise model fitted to one frame;
-* :mod:`recon.auto.weight` - the TV / l1 weight by the (generalised) discrepancy
-  principle on a warm-started continuation path, and automatic stopping;
+* :mod:`recon.auto.weight` - the TV / l1 weight by hold-out cross-validation along a
+  warm-started continuation path, and automatic stopping;
 * :mod:`recon.auto.choice` - the method for ``method="auto"`` and the no-signal check.
 
 :func:`solve_channel` is what :func:`recon.reconstruct` runs per colour channel.
@@ -83,7 +83,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     iterations : int
         Maximum iterations (automatic stopping ends earlier when the fit settles).
     tv, l1 : "auto" or float
-        Weights; ``"auto"`` chooses by the discrepancy principle. With ``l1="auto"`` an
+        Weights; ``"auto"`` chooses by hold-out cross-validation. With ``l1="auto"`` an
         automatic ``tv`` is 0 (one weight is chosen at a time).
     seconds : float, optional
         Time budget of the solve (``method="auto"`` only).

@@ -10,8 +10,9 @@ almost none of a lensless measurement's signal (the diffuser's caustics are
 several pixels wide); its robust variance (1.4826 MAD, squared) within classes of
 equal local mean gives points (mean, variance) to which a line is fitted.
 
-The expected noise energy ``E ||n||^2 = sum_i (a b_i + c)`` is the target of the
-discrepancy principle (:mod:`recon.auto.weight`).
+The expected noise energy ``E ||n||^2 = sum_i (a b_i + c)`` sets the scale of
+automatic stopping (:class:`recon.auto.weight.Stopping`) and the no-signal check
+(:func:`recon.auto.choice.check_signal`).
 """
 
 from __future__ import annotations

@@ -9,8 +9,8 @@ reconstructed at bin 4 (model mismatch: finer rendering grid, binned PSF, noise)
 Per case: ADMM at every weight of a TV grid (the oracle is the best of them, so it
 is known to within the grid's factor of ~3), ADMM at the former fixed default
 (3e-4), and ``method="auto"`` exactly as :func:`recon.reconstruct` runs it
-(:func:`recon.auto.solve_channel`: noise model fitted to the frame, discrepancy
-principle, automatic stopping). PSNR is gain-fitted on the sensor field of view.
+(:func:`recon.auto.solve_channel`: noise model fitted to the frame, hold-out
+cross-validation, automatic stopping). PSNR is gain-fitted on the sensor field of view.
 The fixed runs take the full ``iterations``; auto's cost is its wall time over the
 fixed default run's.
 """
