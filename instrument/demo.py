@@ -1,9 +1,12 @@
 """The main job on the built-in simulated bench: ``diffuserlab demo``.
 
 Open the devices, take dark frames, capture the PSF at one depth by lighting the LED
-behind the pinhole on the source stage, capture a scene at that depth, reconstruct
-it with the recon core, and write the run (frames, PSF, result, a JSON report with
-timings and PSNR/SSIM against the known scene).
+behind the pinhole on the source stage, and the PSFs of a 3 x 3 grid of positions
+over the scene's field at that depth (the field's brightness, Eq. 5.1), capture a
+scene at that depth, reconstruct it with the recon core, divide the reconstruction
+by the measured brightness (:func:`recon.spatial.correct_brightness`: the lensless
+camera's vignetting), and write the run (frames, PSFs, result, a JSON report with
+timings and PSNR/SSIM against the known scene, before and after the correction).
 """
 
 from __future__ import annotations
@@ -19,6 +22,8 @@ import numpy as np
 from recon import reconstruct
 from recon.io import DATA_ORIENTATION, atomic_path, save_image, scene_view
 from recon.metrics import psnr, ssim
+from recon.spatial import PsfGrid
+from recon.spatial.brightness import correct_brightness, node_brightness
 
 from .acquisition import autoexpose, average_frames
 from .virtual_bench import PlanarScene, VirtualBench
@@ -41,7 +46,7 @@ def _register(estimate: np.ndarray, truth: np.ndarray, max_shift: int = 2):
 
 
 #: The files :func:`run_demo` writes in its directory.
-OUTPUT_FILES = ("psf.tif", "dark.tif", "scene_raw.tif", "reconstruction.png",
+OUTPUT_FILES = ("psf.tif", "psf_grid.tif", "dark.tif", "scene_raw.tif", "reconstruction.png",
                 "reconstruction.tif", "truth.png", "report.json")
 
 
@@ -53,10 +58,11 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
     Parameters
     ----------
     out_dir : path
-        Run directory (created): ``psf.tif``, ``scene_raw.tif``, ``dark.tif``,
-        ``reconstruction.png``/``.tif``, ``truth.png``, ``report.json``. The PNG
-        views show the scene upright; the TIFF keeps the model grid
-        (:data:`recon.io.DATA_ORIENTATION`).
+        Run directory (created): ``psf.tif``, ``psf_grid.tif`` (the 3 x 3 grid's PSFs
+        per second of exposure, row-major; positions in the report), ``scene_raw.tif``,
+        ``dark.tif``, ``reconstruction.png``/``.tif`` (brightness-corrected),
+        ``truth.png``, ``report.json``. The PNG views show the scene upright; the TIFF
+        keeps the model grid (:data:`recon.io.DATA_ORIENTATION`).
     seed : int
         Seeds the bench (diffuser, noise).
     z_mm : float
@@ -93,20 +99,38 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         cam, stage, leds = bench.camera, bench.source_stage, bench.led_array
         leds.all_off()
         offset = float(np.median(average_frames(cam, 2)[0]))  # dark level, DN
+        led_xy = np.asarray(leds.positions_mm)
+
+        def capture_psf(x_mm: float, y_mm: float):
+            """Pinhole at (x, y, z), the LED nearest behind it lit: PSF minus dark."""
+            stage.move_to({"x": x_mm, "y": y_mm, "z": z_mm}, timeout_s=60.0)
+            led = int(np.argmin(np.hypot(led_xy[:, 0] - x_mm, led_xy[:, 1] - y_mm)))
+            leds.set_leds([led], colour="white", brightness=1.0)
+            exposure = autoexpose(cam, dark_level=offset)
+            lit, meta = average_frames(cam, frames)
+            leds.all_off()
+            dark_lit, _ = average_frames(cam, frames)
+            return lit - dark_lit, exposure, meta
+
         # PSF: pinhole on axis at z, the LED right behind it
-        stage.move_to({"x": 0.0, "y": 0.0, "z": z_mm}, timeout_s=60.0)
-        pos = np.asarray(leds.positions_mm)
-        centre = int(np.argmin(np.hypot(pos[:, 0], pos[:, 1])))
-        leds.set_leds([centre], colour="white", brightness=1.0)
-        psf_exp = autoexpose(cam, dark_level=offset)
-        psf_raw, psf_meta = average_frames(cam, frames)
-        leds.all_off()
-        dark_psf, _ = average_frames(cam, frames)
-        psf = psf_raw - dark_psf
+        psf, psf_exp, psf_meta = capture_psf(0.0, 0.0)
         t = step(f"PSF at z = {z_mm:g} mm (exposure {psf_exp.exposure_s * 1e3:.2f} ms)", t)
         # scene: a natural image on a plane at the same depth
         width_mm = 0.8 * bench.geometry.sensor_shape[1] * bench.geometry.sensor_pitch_um \
             * 1e-3 * z_mm / bench.geometry.d_mm
+        # the field's brightness: PSFs on a 3 x 3 grid spanning the scene (Eq. 5.1)
+        half = 0.5 * width_mm
+        grid_xy = [(x, y) for y in (-half, 0.0, half) for x in (-half, 0.0, half)]
+        grid_psfs = []
+        for x, y in grid_xy:
+            if x == 0.0 and y == 0.0:
+                grid_psfs.append(psf / psf_exp.exposure_s)
+                continue
+            h, exposure, _ = capture_psf(x, y)
+            grid_psfs.append(h / exposure.exposure_s)
+        grid = PsfGrid.from_positions(np.stack(grid_psfs), grid_xy, z_mm=z_mm,
+                                      d_mm=bench.geometry.d_mm)
+        t = step(f"PSF grid 3 x 3 over +-{half:.1f} mm (field brightness)", t)
         scene = PlanarScene(data.camera().astype(float) / 255.0, z_mm, width_mm)
         bench.set_scene(scene)
         stage.move_to({"z": stage.limits["z"][1]}, timeout_s=60.0)  # pinhole out of the way
@@ -121,14 +145,19 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
     result = reconstruct(psf, raw, method, iterations=iterations, dark="none")
     t = step(f"reconstruction ({result.info['method']}, TV {result.info['tv']:.3g}, "
              f"{result.info['iterations_used']} iterations)", t)
-    shift, truth_reg = _register(result.image, truth)
-    score = {"psnr_db": psnr(result.image, truth_reg), "ssim": ssim(result.image, truth_reg),
-             "registration_shift_px": list(shift)}
+    image = correct_brightness(result.image, grid)
+    t = step("brightness correction (Eq. 5.1, from the PSF grid)", t)
+    shift, truth_reg = _register(image, truth)
+    score = {"psnr_db": psnr(image, truth_reg), "ssim": ssim(image, truth_reg),
+             "registration_shift_px": list(shift),
+             "uncorrected": {"psnr_db": psnr(result.image, truth_reg),
+                             "ssim": ssim(result.image, truth_reg)}}
     save_image(out / "psf.tif", psf.astype(np.float32))
+    save_image(out / "psf_grid.tif", grid.psfs)
     save_image(out / "dark.tif", dark.astype(np.float32))
     save_image(out / "scene_raw.tif", scene_raw.astype(np.float32))
-    save_image(out / "reconstruction.png", scene_view(result.image))
-    save_image(out / "reconstruction.tif", result.image)
+    save_image(out / "reconstruction.png", scene_view(image))
+    save_image(out / "reconstruction.tif", image)
     save_image(out / "truth.png", scene_view(truth_reg))
     report = {
         "bench": bench.config.name, "seed": seed, "z_mm": z_mm,
@@ -139,6 +168,9 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
                      "min_z_mm": bench.model.min_z_mm()},
         "exposure_s": {"psf": psf_exp.exposure_s, "scene": scene_exp.exposure_s},
         "frames_averaged": frames,
+        "psf_grid": {"positions_mm": [list(p) for p in grid_xy],
+                     "relative_brightness": node_brightness(grid).tolist(),
+                     "file": "psf_grid.tif (registered, per second of exposure)"},
         "frames": {"psf": psf_meta, "scene": scene_meta},
         "reconstruction": {k: v for k, v in result.metrics().items()
                            if k not in ("objective", "data_residual")},

@@ -14,10 +14,14 @@
   (Sec. 6.4, Fig. 6.4a).
 - :mod:`recon.spatial.background` -- FISTA jointly over the object and a smooth
   background restricted to the lowest DCT coefficients (Eq. 6.2).
+- :mod:`recon.spatial.brightness` -- the field's relative brightness from a grid
+  (the two-part model's brightness term, Eq. 5.1) and the correction of a
+  reconstruction made with the on-axis PSF.
 """
 
 from .background import dct_basis, fista_background, lowpass_background
 from .blind import BlindCalibration, blind_calibration
+from .brightness import brightness_map, correct_brightness, node_brightness
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .grid import PsfGrid, register_psfs, scale_psf, synthesize_grid
 from .operator import (
@@ -32,6 +36,9 @@ from .resolution import ray_traced_pair, two_point_resolution
 __all__ = [
     "BlindCalibration",
     "blind_calibration",
+    "brightness_map",
+    "correct_brightness",
+    "node_brightness",
     "MODELS",
     "ModelChoice",
     "build_operator",
