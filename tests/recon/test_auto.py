@@ -166,3 +166,26 @@ def test_parse_weight():
         weight_arg("x")
     with pytest.raises(ReconInputError, match="tv weight must be a finite number >= 0"):
         parse_weight(-1, "tv")
+
+
+def test_path_budget_keeps_auto_within_twice_a_fixed_run():
+    from recon.auto.weight import PATH_ITERATIONS, path_budget
+
+    for n in (1, 20, 60, 133, 134, 150, 199, 200, 500):
+        path, final = path_budget(n)
+        assert path + final == 2 * n and final >= n // 2 and final >= 1
+    assert path_budget(150) == (PATH_ITERATIONS, 100)  # fine steps from 134 on
+    assert path_budget(100) == (100, 100) and path_budget(300) == (300, 300)
+
+
+def test_a_path_too_short_for_fine_steps_says_so(conv_problem, caplog):
+    p = conv_problem
+    scale = float(np.abs(p.b_noisy).max())
+    bs = p.b_noisy / np.float32(scale)
+    _, choice = admm_auto(p.op, bs, iterations=60, noise_energy=bs.size * 1e-4,
+                          path_only=True)
+    assert "caution" in choice.reason and "150 iterations or more" in choice.reason
+    assert any("too coarse" in r.getMessage() for r in caplog.records)
+    _, fine = admm_auto(p.op, bs, iterations=200, noise_energy=bs.size * 1e-4,
+                        path_only=True)
+    assert "caution" not in fine.reason
