@@ -314,7 +314,9 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
 def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 tv: float | str, l1: float | str, out: str, depths_mm: list[float] | None = None,
                 bin_factor: int = 1, dark: str | float = "auto",
-                psf_product: str = "psf_stack", metrics_json: str | None = None) -> dict:
+                psf_product: str = "psf_stack", metrics_json: str | None = None,
+                planes: str = "all", pitch_um: float | None = None,
+                d_mm: float | None = None, scene_range_mm=None) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
     projections and metrics.
 
@@ -344,6 +346,12 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         Product of a run store to read.
     metrics_json : str, optional
         Where to write the metrics.
+    planes : {"all", "auto"}
+        ``"auto"``: only the calibrated planes nearest the recommended ones
+        (:func:`instrument.planes.select_planes`; needs ``pitch_um`` and ``d_mm``).
+    pitch_um, d_mm, scene_range_mm
+        Sensor pitch (um, unbinned), diffuser-to-sensor distance (mm) and the scene's
+        depth span (mm, optional) for ``planes="auto"``.
 
     Returns
     -------
@@ -378,6 +386,16 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     stack_shape_in = list(stack.shape)
     raw = load_image(raw_path)
     raw_shape_in = list(raw.shape)
+    plane_record = None
+    if planes == "auto":
+        from .planes import select_planes
+
+        keep, plane_record = select_planes(stack, depths, raw, pitch_um=pitch_um, d_mm=d_mm,
+                                           bin_factor=bin_factor, dark=dark,
+                                           scene_depth_range_mm=scene_range_mm)
+        stack, depths = stack[keep], [depths[i] for i in keep]
+    elif planes != "all":
+        raise ValueError(f"planes {planes!r}: use all or auto")
     rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
                              tv=tv, l1=l1, bin_factor=bin_factor, dark=dark)
     seconds_total = time.perf_counter() - t_start
@@ -400,7 +418,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     metrics = {**{k: solved.pop(k) for k in head}, **files, **solved,
                "output_volume": str(vol_path),
                "output_mips": {k: str(v) for k, v in mip_paths.items()},
-               "orientation": {"mips": "scene, upright", "volume": DATA_ORIENTATION}}
+               "orientation": {"mips": "scene, upright", "volume": DATA_ORIENTATION},
+               "planes": plane_record}
     metrics = jsonable(metrics, nonfinite_to_none=True)
     if metrics_json:
         write_json(metrics_json, metrics)

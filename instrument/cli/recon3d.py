@@ -58,6 +58,16 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                    help="dark level: auto (median of the planes' dark corners psf[5:15, "
                    "5:15], subtracted from the stack and the raw image; default), none, or "
                    "a number in input units")
+    p.add_argument("--planes", choices=("all", "auto"), default="all",
+                   help="all (default): every plane of the stack; auto: the calibrated "
+                   "planes nearest those that Nyquist-sample the measured axial "
+                   "resolution (Sec. 4.4, as `analyze grid`; needs --pitch-um and --d-mm)")
+    p.add_argument("--pitch-um", type=float, default=None,
+                   help="sensor pixel pitch, um, unbinned (for --planes auto)")
+    p.add_argument("--d-mm", type=float, default=None,
+                   help="diffuser-to-sensor distance, mm (for --planes auto)")
+    p.add_argument("--scene-range", default=None,
+                   help="ZMIN,ZMAX: depths (mm) the scene occupies, for --planes auto")
     p.add_argument("--out", default="out/volume.tif",
                    help="volume to write: OUT.tif (float32 TIFF, depths in its metadata) or "
                    "OUT.zarr (Zarr v3 array, depths attribute); projections go to "
@@ -117,7 +127,12 @@ def run(args: argparse.Namespace) -> int:
     m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
                     tv=args.tv, l1=args.l1, out=args.out, depths_mm=depths,
                     bin_factor=args.bin_factor, dark=dark,
-                    psf_product=args.psf_product, metrics_json=args.metrics_json)
+                    psf_product=args.psf_product, metrics_json=args.metrics_json,
+                    planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,
+                    scene_range_mm=(None if args.scene_range is None
+                                    else floats(args.scene_range, "--scene-range")))
+    if m.get("planes"):
+        print(m["planes"]["reason"])
     auto = m.get("auto")
     if auto:
         print(f"{auto['regulariser']} weight {auto['weight']:.3g}, planes kept "
