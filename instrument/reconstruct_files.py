@@ -378,6 +378,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     from .stacks import load_psf_stack
 
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    if planes not in ("all", "auto"):
+        raise ValueError(f"planes {planes!r}: use all or auto")
     check_volume_parameters("admm" if method == AUTO else method, iterations,
                             0.0 if tv == AUTO else tv, 0.0 if l1 == AUTO else l1)
     vol_path, mip_paths = volume_output_paths(out)
@@ -394,8 +396,6 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            bin_factor=bin_factor, dark=dark,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
-    elif planes != "all":
-        raise ValueError(f"planes {planes!r}: use all or auto")
     rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
                              tv=tv, l1=l1, bin_factor=bin_factor, dark=dark)
     seconds_total = time.perf_counter() - t_start

@@ -163,7 +163,7 @@ class AutoWeight:
     final_iterations: int = 0
     stopped_early: bool = False
     regulariser: str = "tv"
-    kept_iteration: int | None = None
+    kept_final_iteration: int | None = None
     holdout_coverage: float | None = None
     final_pixels: str | None = None
 
@@ -174,7 +174,7 @@ class AutoWeight:
                 "path_iterations": self.path_iterations,
                 "final_iterations": self.final_iterations,
                 "stopped_early": self.stopped_early,
-                "kept_final_iteration": self.kept_iteration,
+                "kept_final_iteration": self.kept_final_iteration,
                 "holdout_coverage": self.holdout_coverage,
                 "final_pixels": self.final_pixels}
 
@@ -205,6 +205,8 @@ def holdout_coverage(op, keep: np.ndarray) -> float:
     camera sees at all (``A^T w`` above 1e-3 of its peak), of ``A^T (w keep)`` to
     ``A^T w``: about 0.9 for a lensless PSF that spreads every point over many
     pixels, 0 for a compact PSF, whose held-out blocks leave object pixels unseen.
+    ``A`` is the cropped convolution model (Eq. 3.4), its adjoint the sensitivity of
+    each object pixel to the kept sensor pixels.
 
     Parameters
     ----------
@@ -254,6 +256,16 @@ def path_budget(iterations: int) -> tuple[int, int]:
     iterations), the final solve (which starts from the path's estimate at the chosen
     weight and needs fewer) giving up the difference. Below that the path stays short
     and coarse, and :func:`admm_auto` says so (:data:`COARSE_FACTOR`).
+
+    Parameters
+    ----------
+    iterations : int
+        Iterations of the fixed-weight run that automatic ADMM replaces (>= 1).
+
+    Returns
+    -------
+    (path, final) : (int, int)
+        Iterations of the held-out path and at most of the final solve.
     """
     n = int(iterations)
     path = PATH_ITERATIONS if n < PATH_ITERATIONS <= (3 * n) // 2 else n
@@ -410,9 +422,12 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         final_hist.append(res.history)
         final_data += _data_terms(res.history, b_norm)
         done += n
-        err = score(state)[0] if watch else -math.inf  # unwatched: the last iterate
-        if kept is None or err <= kept[0]:
-            kept = (err, res.x.copy() if watch else res.x, done)
+        if not watch:  # the last iterate
+            kept = (None, res.x, done)
+        else:
+            err = score(state)[0]
+            if kept is None or err <= kept[0]:
+                kept = (err, res.x.copy(), done)
         if stopping.done(final_data, target):
             stopped = done < final_budget
             break

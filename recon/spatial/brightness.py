@@ -69,8 +69,7 @@ def _basis(dy: np.ndarray, dx: np.ndarray, quadratic: bool) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def brightness_map(grid: PsfGrid, sensor_shape: tuple[int, int] | None = None
-                   ) -> np.ndarray:
+def brightness_map(grid: PsfGrid) -> np.ndarray:
     """Relative brightness on the (cropped) object grid of the convolution model.
 
     Object pixel ``(r, c)`` of the sensor-sized field images to the central PSF
@@ -82,13 +81,11 @@ def brightness_map(grid: PsfGrid, sensor_shape: tuple[int, int] | None = None
     Parameters
     ----------
     grid : PsfGrid
-    sensor_shape : (rows, cols), optional
-        Default the grid's sensor shape (binned reconstructions: the binned shape,
-        with a grid binned alike, :func:`recon.spatial.api.bin_grid`).
+        For a binned reconstruction, binned alike (:func:`recon.spatial.api.bin_grid`).
 
     Returns
     -------
-    ndarray, float32, ``sensor_shape``
+    ndarray, float32, ``grid.sensor_shape``
         Clipped below at :data:`MIN_BRIGHTNESS`.
 
     Raises
@@ -100,7 +97,7 @@ def brightness_map(grid: PsfGrid, sensor_shape: tuple[int, int] | None = None
     if grid.n < 2:
         raise ReconInputError("one PSF says nothing about the field's brightness; "
                               "calibrate a grid of at least 2 x 2 positions")
-    shape = tuple(sensor_shape or grid.sensor_shape)
+    shape = tuple(grid.sensor_shape)
     values = node_brightness(grid)
     ny, nx = grid.grid_shape
     quadratic = min(ny, nx) >= 3
