@@ -63,13 +63,13 @@ def weight_arg(text: str):
 
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
                   iterations: int, tv, l1, seconds: float | None = None,
-                  fft_pair_s: float | None = None, auto_stop: bool = True, **options
-                  ) -> tuple[SolveResult, dict]:
+                  fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
+                  plan_of=None, **options) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
     Parameters
     ----------
-    op : ConvolutionOperator
+    op : ConvolutionOperator or SpatialConvolutionOperator
         Scaled forward model (unit-sum PSF, erasure weights folded in).
     b : ndarray, float32, ``op.shape_out``
         Scaled, weighted measurement (``raw * weights / raw_scale``).
@@ -83,8 +83,9 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     iterations : int
         Maximum iterations (automatic stopping ends earlier when the fit settles).
     tv, l1 : "auto" or float
-        Weights; ``"auto"`` chooses by hold-out cross-validation. With ``l1="auto"`` an
-        automatic ``tv`` is 0 (one weight is chosen at a time).
+        Weights; ``"auto"`` chooses by hold-out cross-validation, the other weight held
+        fixed along the way. With ``l1="auto"`` an automatic ``tv`` is 0 (one weight is
+        chosen at a time).
     seconds : float, optional
         Time budget of the solve (``method="auto"`` only).
     fft_pair_s : float, optional
@@ -92,6 +93,13 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     auto_stop : bool
         Stop a fixed-weight solve when its fit settles (:class:`Stopping`); False
         runs exactly ``iterations``.
+    solvers : dict, optional
+        The methods by name (:class:`recon.solvers.SolverSpec`); default
+        :data:`recon.solvers.SOLVERS`. A spatially varying model passes its own
+        (:data:`recon.spatial.api.GRID_SOLVERS`).
+    plan_of : callable, optional
+        The automatic weight's ADMM plan for ``op`` (see
+        :func:`recon.auto.weight.admm_auto`).
     **options
         Passed to a fixed method's solver.
 
@@ -132,23 +140,29 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     elif seconds is not None:
         raise ReconInputError("a time budget (seconds) needs method 'auto'; drop it or use "
                               "method='auto'")
-    spec = SOLVERS[method]
+    solvers = SOLVERS if solvers is None else solvers
+    if method not in solvers:
+        raise ReconInputError(f"method {method!r} does not serve this forward model; use one "
+                              f"of {', '.join(solvers)}")
+    spec = solvers[method]
     if not spec.iterative:
         res = spec.solve(op, b, **options)
         record.update(tv=0.0, l1=0.0, iterations_used=1)
         return res, record
     target = 0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2)
     auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
+    fixed = float(l1 if auto_reg == "tv" else tv) if auto_reg is not None else 0.0
     if auto_reg is not None and method == "admm" and not options:
         res, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
-                                regulariser=auto_reg)
+                                regulariser=auto_reg, plan_of=plan_of, fixed=fixed)
         record["weight"] = chosen.as_dict()
         tv, l1 = ((chosen.weight, 0.0 if l1 == AUTO else l1) if auto_reg == "tv"
                   else (tv, chosen.weight))
     else:
         if auto_reg is not None:
             _, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
-                                  regulariser=auto_reg, path_only=True)
+                                  regulariser=auto_reg, path_only=True, plan_of=plan_of,
+                                  fixed=fixed)
             record["weight"] = dict(chosen.as_dict(), chosen_by="ADMM path, used by "
                                     + method)
             if auto_reg == "tv":

@@ -63,7 +63,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ReconInputError
-from ..fft import irfftn, rfftn
 from ..solvers.admm import AdmmPlan, AdmmState, check_penalties, run_admm
 from ..solvers.common import History, SolveResult
 
@@ -230,7 +229,7 @@ def warm_state(plan: AdmmPlan, x: np.ndarray | None, mu, use_tv: bool) -> AdmmSt
         return state
     x = np.ascontiguousarray(x, np.float32)
     state.x[...] = x
-    state.mx[...] = irfftn(rfftn(x) * plan.op.spectrum, plan.shape)
+    state.mx[...] = plan.op.convolve_full(x)
     state.stacked[0] = state.mx
     state.qw[...] = np.maximum(x, 0)
     if use_tv:
@@ -276,14 +275,14 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
               regulariser: str = "tv",
               stage: int | None = None,
               stopping: Stopping | None = None, mu=None, model_error: float = MODEL_ERROR,
-              path_only: bool = False, holdout: float = HOLDOUT, seed: int = 0
-              ) -> tuple[SolveResult | None, AutoWeight]:
+              path_only: bool = False, holdout: float = HOLDOUT, seed: int = 0,
+              plan_of=None, fixed: float = 0.0) -> tuple[SolveResult | None, AutoWeight]:
     """ADMM with its TV or l1 weight chosen by hold-out cross-validation, automatic stopping.
 
     Parameters
     ----------
-    op : ConvolutionOperator
-        Scaled forward model (unit-sum PSF).
+    op : ConvolutionOperator or SpatialConvolutionOperator
+        Scaled forward model (unit-sum PSF; the spatial model with ``plan_of``).
     b : ndarray, float32, ``op.shape_out``
         Scaled measurement (weighted, divided by its maximum).
     iterations : int
@@ -292,7 +291,10 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     noise_energy : float
         E||n||^2 of the scaled measurement (from :class:`recon.auto.noise.NoiseModel`).
     regulariser : {"tv", "l1"}
-        Which weight the path chooses (the other is 0).
+        Which weight the path chooses.
+    fixed : float
+        The other regulariser's weight, held fixed along the path and in the final
+        solve (default 0).
     stage : int, optional
         Iterations per path weight; default ``max(20, path // 10)`` (shorter
         stages had not settled when compared: at 10 per stage the held-out error rose
@@ -312,6 +314,10 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     path_only : bool
         Return after choosing the weight (``result`` None), for another solver to
         use it.
+    plan_of : callable, optional
+        ``plan_of(op) -> AdmmPlan`` for ``op`` and its copies with other sensor
+        weights: default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution);
+        :meth:`recon.spatial.SpatialAdmmPlan.of` for a spatially varying model.
 
     Returns
     -------
@@ -335,7 +341,16 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     if regulariser not in ("tv", "l1"):
         raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
-    use_tv = regulariser == "tv"
+    fixed = float(fixed)
+    if not (math.isfinite(fixed) and fixed >= 0):
+        raise ReconInputError(f"the fixed {'l1' if regulariser == 'tv' else 'tv'} weight "
+                              f"must be a finite number >= 0, got {fixed!r}")
+
+    def weights(w: float) -> dict:
+        """run_admm's tv and l1 with the path's weight ``w``."""
+        return {"tv": w, "l1": fixed} if regulariser == "tv" else {"tv": fixed, "l1": w}
+
+    use_tv = regulariser == "tv" or fixed > 0
 
     histories, path = [], []
     weight, used = START_WEIGHT[regulariser], 0
@@ -348,7 +363,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     if held.sum() < 16 or not np.any(keep & (w > 0)):  # too small for blocks: pixels
         keep = holdout_mask(op.sensor_shape, holdout, seed, block=1)
         held = (w > 0) & ~keep
-    fit_plan = AdmmPlan.of(op.with_weights(w * keep))
+    plan_of = plan_of or AdmmPlan.of
+    fit_plan = plan_of(op.with_weights(w * keep))
     b_fit = np.ascontiguousarray(b * keep, np.float32)
     state = AdmmState.zeros(fit_plan, check_penalties(mu), use_tv)
     best, rises, estimates = None, 0, []
@@ -364,8 +380,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         n = min(3 * stage, iterations) if not path else stage
         if used + n > iterations:
             break
-        res = run_admm(fit_plan, b_fit, state, iterations=n, tv=weight if use_tv else 0.0,
-                       l1=0.0 if use_tv else weight)
+        res = run_admm(fit_plan, b_fit, state, iterations=n, **weights(weight))
         histories.append(res.history)
         used += n
         err, se = score(state)
@@ -412,13 +427,13 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     # held-out blocks hide part of the object (a compact PSF): then on all pixels
     coverage = holdout_coverage(op, keep)
     watch = coverage >= MIN_COVERAGE
-    final_plan, b_final = (fit_plan, b_fit) if watch else (AdmmPlan.of(op), b)
+    final_plan, b_final = (fit_plan, b_fit) if watch else (plan_of(op), b)
     state = warm_state(final_plan, x_best, check_penalties(mu), use_tv)
     final_hist, final_data, done, stopped, kept = [], [], 0, False, None
     while done < final_budget:
         n = min(stopping.window, final_budget - done)
         res = run_admm(final_plan, b_final, state, iterations=n,
-                       tv=chosen if use_tv else 0.0, l1=0.0 if use_tv else chosen)
+                       **weights(chosen))
         final_hist.append(res.history)
         final_data += _data_terms(res.history, b_norm)
         done += n

@@ -235,3 +235,25 @@ def test_a_transient_after_a_weight_step_does_not_end_the_path():
     errors = [p["holdout_error"] for p in choice.path]
     assert errors[1] > errors[0] and len(choice.path) > 3
     assert choice.weight < 1e-3 and psnr(res.x[op.crop], case.truth) > 19.0
+
+
+def test_a_fixed_l1_weight_is_used_along_the_automatic_tv_path(conv_problem, monkeypatch):
+    """``tv="auto"`` with ``l1=0.05``: every ADMM run of the path and of the final solve
+    has l1 0.05 (it was dropped, while the record said 0.05), and the record says it."""
+    import recon.auto.weight as weight
+
+    seen = []
+    real = weight.run_admm
+
+    def spy(plan, b, state, **kw):
+        seen.append((kw["tv"], kw["l1"]))
+        return real(plan, b, state, **kw)
+
+    monkeypatch.setattr(weight, "run_admm", spy)
+    p = conv_problem
+    out = recon.reconstruct(p.op.psf, p.b_noisy, preprocess=False, tv="auto", l1=0.05,
+                            iterations=60)
+    assert seen and all(l1 == 0.05 and tv > 0 for tv, l1 in seen)
+    assert out.info["l1"] == 0.05 and out.info["tv"] == out.info["auto"][0]["weight"]["weight"]
+    with pytest.raises(ReconInputError, match="fixed l1 weight"):
+        admm_auto(p.op, p.b_noisy, iterations=20, noise_energy=1.0, fixed=-1.0)
