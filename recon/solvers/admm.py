@@ -28,7 +28,7 @@ from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 MU_RANGE = (1e-5, 1e2)
 
 
-def _difference_power(shape: tuple[int, int]) -> np.ndarray:
+def difference_power(shape: tuple[int, int]) -> np.ndarray:
     """|F Psi|^2 summed over axes on the rfft grid: sum_a (2 - 2 cos(2 pi k_a / N_a))."""
     k0 = np.fft.fftfreq(shape[0])[:, None]
     k1 = np.fft.rfftfreq(shape[1])[None, :]
@@ -187,12 +187,40 @@ class AdmmPlan:
             ``op`` is not a :class:`~recon.operators.ConvolutionOperator`.
         """
         if not isinstance(op, ConvolutionOperator):
-            raise ReconInputError("ADMM here needs a ConvolutionOperator (optionally masked)")
+            raise ReconInputError("ADMM here needs a ConvolutionOperator (optionally masked); for "
+                                  "a spatially varying model use recon.spatial.spatial_admm")
         wp = np.zeros(op.padded_shape, np.float32)
         wp[op.crop] = op.sensor_weights
         spec = op.spectrum
         return cls(op, op.padded_shape, wp, (spec.real**2 + spec.imag**2).astype(np.float32),
-                   _difference_power(op.padded_shape))
+                   difference_power(op.padded_shape))
+
+    def x_update(self, state: AdmmState, x: np.ndarray, mx: np.ndarray, mu
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """The x-update of App. A.3: the exact minimiser of
+        mu1/2 ||M x - q_v||^2 + mu2/2 ||Psi x - q_u||^2 + mu3/2 ||x - q_w||^2, a diagonal
+        solve in Fourier space (2 rfft2 + 2 irfft2, batched in pairs).
+
+        Parameters
+        ----------
+        state : AdmmState
+            Holds the q's (``stacked[0]`` is q_v; ``stacked[1]`` is overwritten with
+            the right-hand side) and ``inv_den``.
+        x, mx : ndarray, float32, ``shape``
+            The current iterate and M x (not used here: the solve is exact).
+        mu : (mu1, mu2, mu3)
+
+        Returns
+        -------
+        (x, mx) : new arrays, float32, ``shape``
+        """
+        mu1, mu2, mu3 = mu
+        _kernels.admm_rhs_2d(state.qux, state.quy, state.qw, state.stacked[1], mu2, mu3,
+                             state.use_tv)
+        spectra = rfftn(state.stacked)
+        _kernels.admm_fourier_2d(spectra[0], spectra[1], self.op.spectrum, state.inv_den, mu1)
+        mx, x = irfftn(spectra, self.shape)
+        return x, mx
 
 
 @dataclass
@@ -313,12 +341,12 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     b = check_measurement(b, op.shape_out)
     bp = np.zeros(plan.shape, np.float32)
     bp[op.crop] = b
-    shape, spec, use_tv = plan.shape, op.spectrum, state.use_tv
+    use_tv = state.use_tv
     mu1, mu2, mu3 = state.mu
     x, mx = state.x, state.mx
     stacked, qux, quy, qw, scratch = (state.stacked, state.qux, state.quy, state.qw,
                                       state.scratch)
-    qv, rhs = stacked[0], stacked[1]
+    qv = stacked[0]
     mon = Monitor(float(np.vdot(b, b)), "ADMM")
     mus = [(mu1, mu2, mu3)]
     last_balance = int(balance_until * iterations) if balance else 0
@@ -341,10 +369,7 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
                 mu1, mu2, mu3 = new
                 state.set_penalties(plan, new)
                 mus.append((mu1, mu2, mu3))
-        _kernels.admm_rhs_2d(qux, quy, qw, rhs, mu2, mu3, use_tv)
-        spectra = rfftn(stacked)
-        _kernels.admm_fourier_2d(spectra[0], spectra[1], spec, state.inv_den, mu1)
-        mx, x = irfftn(spectra, shape)
+        x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3))
         l1_x = l1 * float(np.maximum(x, 0).sum(dtype=np.float64)) if l1 > 0 else 0.0
         mon.record(0.5 * s[0] + tv * s[1] + l1_x, s[0], x=x,
                    hint="try --method fista or a smaller TV weight")
@@ -366,7 +391,8 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
 def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 1e-3,
          mu: tuple[float, float, float] | None = None, balance: bool = True,
          balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
-         balance_factor: float = 2.0, l1: float = 0.0, stop=None) -> SolveResult:
+         balance_factor: float = 2.0, l1: float = 0.0, stop=None,
+         plan: AdmmPlan | None = None) -> SolveResult:
     """ADMM with crop, TV, l1 and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
 
     Per iteration, in scaled-dual form with q_i = z_i - a_i kept between iterations:
@@ -401,6 +427,10 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
         w = max(x + a_w - l1 / mu3, 0).
     stop : callable, optional
         ``stop(history) -> bool`` after every iteration (automatic stopping).
+    plan : AdmmPlan, optional
+        Precomputed for ``op`` (default :meth:`AdmmPlan.of`); a subclass with another
+        x-update serves other forward models (:class:`recon.spatial.SpatialAdmmPlan`:
+        the local convolution model, ``op`` a ``SpatialConvolutionOperator``).
     mu : (mu1, mu2, mu3), optional
         Initial penalties; default (2e-3, 2e-3, 2e-3) for the scaled problem (unit-sum
         PSF, |b| <= 1); balancing adapts them, so the start matters little.
@@ -419,17 +449,20 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     DivergenceError
         NaN/inf or an objective 100x that of the zero image.
     ReconInputError
-        Not a convolution operator, or invalid parameters.
+        Not a convolution operator (without a ``plan``), a ``plan`` made for another
+        operator, or invalid parameters.
     """
-    if not isinstance(op, ConvolutionOperator):
-        raise ReconInputError("ADMM here needs a ConvolutionOperator (optionally masked)")
+    if plan is None:
+        plan = AdmmPlan.of(op)
+    elif plan.op is not op:
+        raise ReconInputError("the ADMM plan was made for another operator; make it with "
+                              "the plan's of(op)")
     iterations = as_int(iterations, "iterations", 1)
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
     mu = check_penalties(mu)
     b = check_measurement(b, op.shape_out)
-    plan = AdmmPlan.of(op)
     return run_admm(plan, b, AdmmState.zeros(plan, mu, tv > 0), iterations=iterations, tv=tv,
                     balance=balance, balance_every=balance_every, balance_until=balance_until,
                     balance_ratio=balance_ratio, balance_factor=balance_factor, l1=l1,

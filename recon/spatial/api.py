@@ -6,7 +6,11 @@ raw frame alike, pick the forward model (``auto``: :func:`recon.spatial.choose_m
 scale as the other solvers expect (central PSF of unit sum, measurement divided by
 its maximum) and solve Eq. 6.2 with :func:`recon.spatial.fista_background`
 (``background="estimate"``) or the same l1 FISTA without a background
-(``"none"``).
+(``"none"``); or (``method="admm"``, 2D, no background) TV ADMM
+(:func:`recon.spatial.spatial_admm`) with the weight chosen as :func:`recon.reconstruct`
+chooses it (hold-out cross-validation, :mod:`recon.auto`). ``two_part=True`` models
+a far scene by Eq. 5.1's two parts: the grid's caustics (:func:`recon.spatial.caustic_grid`)
+in the model, the brightness divided out of the image afterwards.
 """
 
 from __future__ import annotations
@@ -16,18 +20,31 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..auto import AUTO, parse_weight, solve_channel
 from ..errors import ReconInputError
 from ..preprocess import box_bin
+from ..solvers import SOLVERS, SolverSpec
 from ..solvers.common import SolveResult
 from ..validate import as_int, nonneg_weight
+from .admm import SpatialAdmmPlan, spatial_admm
 from .background import fista_background
+from .brightness import brightness_map, caustic_grid
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .grid import PsfGrid
 
-__all__ = ["BACKGROUNDS", "GridReconstruction", "bin_grid", "grid_model", "reconstruct_grid"]
+__all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "GridReconstruction", "bin_grid",
+           "grid_model", "reconstruct_grid"]
 
 #: ``--background`` choices.
 BACKGROUNDS = ("estimate", "none")
+#: ``method`` choices: FISTA on Eq. 6.2 (l1, optional background) or TV ADMM.
+GRID_METHODS = ("fista", "admm")
+#: The solvers that serve a spatially varying model, for :func:`recon.auto.solve_channel`.
+GRID_SOLVERS = {
+    "admm": SolverSpec(spatial_admm, SOLVERS["admm"].default_tv, True,
+                       "ADMM, x-update linearized and preconditioned by a convolution"),
+    "fista": SOLVERS["fista"],
+}
 
 
 @dataclass
@@ -86,8 +103,8 @@ def bin_grid(grid: PsfGrid, factor: int) -> PsfGrid:
 
 
 def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=None,
-               bin_factor: int = 1, support=None, tolerance: float | None = None
-               ) -> tuple[ModelChoice, object]:
+               bin_factor: int = 1, support=None, tolerance: float | None = None,
+               two_part: bool = False) -> tuple[ModelChoice, object]:
     """Choose the forward model of a calibrated grid and build it, once for many frames.
 
     The grids are binned by ``bin_factor`` (:func:`bin_grid`); ``auto`` takes
@@ -98,23 +115,33 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
     ----------
     grids : PsfGrid or list of PsfGrid
         One grid (2D) or one per depth (3D).
-    model, k, depths_mm, bin_factor, support, tolerance
+    model, k, depths_mm, bin_factor, support, tolerance, two_part
         As :func:`reconstruct_grid`.
 
     Returns
     -------
     (ModelChoice, SpatialConvolutionOperator)
-        Pass them to :func:`reconstruct_grid` as ``prepared`` for every frame.
+        Pass them to :func:`reconstruct_grid` as ``prepared`` for every frame. With
+        ``two_part`` the operator's ``brightness`` holds the map the images are divided
+        by (:func:`recon.spatial.brightness_map`, float32, sensor shape).
 
     Raises
     ------
     ReconInputError
-        Unknown model, bad bin factor.
+        Unknown model, bad bin factor, ``two_part`` with several grids (a volume).
     """
     if model not in MODELS:
         raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     single = isinstance(grids, PsfGrid)
     glist = [bin_grid(g, bin_factor) for g in ([grids] if single else list(grids))]
+    brightness = None
+    if two_part:
+        if not single:
+            raise ReconInputError("the two-part model (caustics in the model, brightness "
+                                  "divided out) is for one far plane; reconstruct a volume "
+                                  "without two_part")
+        brightness = brightness_map(glist[0])
+        glist = [caustic_grid(glist[0])]
     arg = glist[0] if single else glist
     if model == "auto":
         opts = {} if tolerance is None else {"tolerance": tolerance}
@@ -124,6 +151,7 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
         errors = predicted_errors(arg)
         choice = ModelChoice(model, k, 0, errors, reason="given (--model)")
     op = build_operator(arg, choice.model, k=choice.k, depths_mm=depths_mm, support=support)
+    op.brightness = brightness
     choice.convolutions = op.n_kernels // (op.n_z if op.volume else 1)
     if choice.model == "pca":
         choice.k = op.components[0]
@@ -131,10 +159,11 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
 
 
 def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | None = None,
-                     background: str = "estimate", l1: float = 1e-3, iterations: int = 200,
+                     background: str = "estimate", l1=None, iterations: int = 200,
                      depths_mm=None, bin_factor: int = 1, dark: float = 0.0,
                      support=None, tolerance: float | None = None,
-                     prepared: tuple | None = None) -> GridReconstruction:
+                     prepared: tuple | None = None, method: str = "fista", tv="auto",
+                     two_part: bool = False) -> GridReconstruction:
     """Reconstruct an image (one grid) or a volume (several grids) from one frame.
 
     Parameters
@@ -147,10 +176,26 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     k : int, optional
         PCA components (default from the explained energy).
     background : {"estimate", "none"}
-        Eq. 6.2's joint background, or none.
-    l1 : float
-        l1 weight in the scaled problem.
+        Eq. 6.2's joint background, or none (``"none"`` with ``method="admm"``).
+    l1 : float or "auto", optional
+        l1 weight in the scaled problem; default 1e-3 with FISTA (Eq. 6.2's sparse
+        object), 0 with ADMM; ``"auto"`` (``method="admm"`` only) chooses it by hold-out
+        cross-validation.
     iterations : int
+        FISTA's iterations; ADMM's maximum (it stops when the fit settles, and the
+        automatic weight takes at most twice as many, :mod:`recon.auto.weight`).
+    method : {"fista", "admm"}
+        FISTA on Eq. 6.2 (l1, non-negativity, the optional background), or ADMM with
+        TV, l1 and non-negativity (:func:`recon.spatial.spatial_admm`; 2D, without a
+        background): converged in a few hundred iterations where FISTA takes thousands.
+    tv : float or "auto"
+        TV weight of ``method="admm"`` (scaled problem); ``"auto"`` (default) by hold-out
+        cross-validation, the record in ``info["auto"]``.
+    two_part : bool
+        A far scene (Eq. 5.1): model the caustics (each PSF over its brightness,
+        :func:`recon.spatial.caustic_grid`) and divide the image by the brightness map
+        (:func:`recon.spatial.brightness_map`); 2D only. The kernels then carry equal
+        light, which is also what lets ADMM's preconditioner fit.
     depths_mm : array_like, optional
         3D reconstruction depths (grids synthesised, Sec. 5.2); default the grids'.
     bin_factor : int
@@ -172,15 +217,28 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     Raises
     ------
     ReconInputError
-        Unknown model or background, a frame whose shape differs from the PSFs (or
-        from the ``prepared`` model's).
+        Unknown model, background or method, a frame whose shape differs from the PSFs
+        (or from the ``prepared`` model's), ``method="admm"`` with a background
+        estimate or a volume, weights that are neither numbers >= 0 nor "auto".
+    recon.auto.NoSignalError
+        ``method="admm"`` on a frame that holds only noise.
     """
     if model not in MODELS:
         raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     if background not in BACKGROUNDS:
         raise ReconInputError(f"unknown background {background!r}; choose estimate or none")
+    if method not in GRID_METHODS:
+        raise ReconInputError(f"unknown method {method!r} for a PSF grid; choose "
+                              f"{' or '.join(GRID_METHODS)}")
     iterations = as_int(iterations, "iterations", 1)
-    l1 = nonneg_weight(l1, "l1")
+    if method == "admm":
+        if background != "none":
+            raise ReconInputError("the joint background of Eq. 6.2 is estimated by FISTA; with "
+                                  "method 'admm' give background 'none' (subtract the dark "
+                                  "frame first), or use method 'fista'")
+        tv, l1 = parse_weight(tv, "tv"), parse_weight(0.0 if l1 is None else l1, "l1")
+    else:
+        l1 = nonneg_weight(1e-3 if l1 is None else l1, "l1")
     t0 = time.perf_counter()
     single = isinstance(grids, PsfGrid)
     glist = [grids] if single else list(grids)
@@ -191,7 +249,8 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     b = box_bin(b - float(dark), bin_factor) if bin_factor > 1 else b - float(dark)
     if prepared is None:
         prepared = grid_model(grids, model=model, k=k, depths_mm=depths_mm,
-                              bin_factor=bin_factor, support=support, tolerance=tolerance)
+                              bin_factor=bin_factor, support=support, tolerance=tolerance,
+                              two_part=two_part)
     choice, op = prepared
     if tuple(op.shape_out) != b.shape:
         raise ReconInputError(f"the prepared model's frames are {tuple(op.shape_out)} but the "
@@ -199,13 +258,29 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     scale = float(np.max(np.abs(b)))
     if not scale > 0:
         raise ReconInputError("raw frame is zero after the dark level; check the exposure")
-    res = fista_background(op, (b / scale).astype(np.float32), iterations=iterations, l1=l1,
-                           estimate_background=background == "estimate")
+    info = {"method": method, "background": background, "iterations": iterations,
+            "bin_factor": int(bin_factor), "dark": float(dark), "raw_scale": scale,
+            "psf_scale": float(op.scale), "two_part": getattr(op, "brightness", None)
+            is not None}
+    if method == "admm":
+        if op.volume:
+            raise ReconInputError("ADMM serves one plane of a spatially varying model; "
+                                  "reconstruct a volume with method 'fista'")
+        res, record = solve_channel(op, (b / scale).astype(np.float32), b, scale,
+                                    method=AUTO, iterations=iterations, tv=tv, l1=l1,
+                                    solvers=GRID_SOLVERS, plan_of=SpatialAdmmPlan.of)
+        info.update(tv=record["tv"], l1=record["l1"], auto=record,
+                    iterations_used=record["iterations_used"])
+        g = None
+    else:
+        res = fista_background(op, (b / scale).astype(np.float32), iterations=iterations,
+                               l1=l1, estimate_background=background == "estimate")
+        g = res.params["background"] * scale if background == "estimate" else None
+        info["l1"] = l1
     crop = (slice(None), *op.crop) if op.volume else op.crop
     image = (res.x[crop] * scale).astype(np.float32)
-    g = res.params["background"] * scale if background == "estimate" else None
-    info = {"background": background, "l1": l1, "iterations": iterations,
-            "bin_factor": int(bin_factor), "dark": float(dark), "raw_scale": scale,
-            "psf_scale": float(op.scale), "seconds_total": time.perf_counter() - t0,
-            "depths_mm": None if not op.volume else [float(z) for z in op.depths]}
+    if getattr(op, "brightness", None) is not None:
+        image /= op.brightness
+    info.update(seconds_total=time.perf_counter() - t0,
+                depths_mm=None if not op.volume else [float(z) for z in op.depths])
     return GridReconstruction(image, g, res, op, choice, info)

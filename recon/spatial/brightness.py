@@ -23,7 +23,7 @@ from ..errors import ReconInputError
 from ..operators import padded_grid
 from .grid import PsfGrid
 
-__all__ = ["brightness_map", "correct_brightness", "node_brightness"]
+__all__ = ["brightness_map", "caustic_grid", "correct_brightness", "node_brightness"]
 
 #: Smallest relative brightness the map may reach: a correction of more than 10x
 #: amplifies noise more than it restores (and means the fit is extrapolating).
@@ -139,3 +139,55 @@ def correct_brightness(image: np.ndarray, grid: PsfGrid) -> np.ndarray:
             f"{tuple(grid.sensor_shape)}; reconstruct at the grid's binning")
     m = brightness_map(grid)
     return img / (m if img.ndim == 2 else m[:, :, None])
+
+
+def caustic_grid(grid: PsfGrid) -> PsfGrid:
+    """The caustic factor of Eq. 5.1 at each node: the registered PSF over its brightness.
+
+    Each registered PSF is divided by its relative brightness
+    (:func:`node_brightness`), so every node's kernel carries the central PSF's light
+    and only the caustic pattern differs between nodes. Where the sensor did not see
+    a node's registered PSF (the light fell past its edge,
+    :meth:`~recon.spatial.PsfGrid.valid_masks`) the pixel is taken from the nearest node
+    that saw it (nearest in sensor offset; the central node sees its whole PSF): the
+    pattern changes slowly over the field, so a neighbour's is the best estimate there
+    is, where zeros would tell the local model that the light of points next to the
+    node vanishes. Measured on the demo's 3 x 3 grid (corner PSFs shifted by 128 px on
+    a 256 x 320 sensor): the local model of the filled caustics, 21.3 dB (ADMM, TV
+    3e-4); of the PSFs as registered, unfilled, 19.3 dB (FISTA run to convergence, TV
+    1e-4); the central PSF with the brightness divided out, 19.7 dB at its best TV.
+
+    A far scene's reconstruction with a model of these kernels shows the scene times
+    the relative brightness; divide it by :func:`brightness_map` (what
+    :func:`correct_brightness` does).
+
+    Parameters
+    ----------
+    grid : PsfGrid
+        Registered PSFs of one depth (background-free, same exposure scale).
+
+    Returns
+    -------
+    PsfGrid
+        Same shifts, shape and depths; float32 kernels.
+
+    Raises
+    ------
+    ReconInputError
+        The errors of :func:`node_brightness`.
+    """
+    valid = grid.valid_masks()
+    caustics = grid.psfs / node_brightness(grid)[:, None, None].astype(np.float32)
+    shifts = grid.shifts_px
+    out = np.empty_like(caustics)
+    for i in range(grid.n):
+        order = np.argsort(np.hypot(*(shifts - shifts[i]).T), kind="stable")
+        filled = np.zeros(grid.sensor_shape, bool)
+        for j in order:
+            take = valid[j] & ~filled
+            out[i][take] = caustics[j][take]
+            filled |= take
+            if filled.all():
+                break
+        out[i][~filled] = 0.0
+    return PsfGrid(out, shifts, grid.grid_shape, grid.z_mm, grid.d_mm)

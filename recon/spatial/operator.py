@@ -78,12 +78,18 @@ class SpatialConvolutionOperator(SensorWeighted, LinearOperator):
         Kernels kept (convolutions per apply).
     ffts_per_apply : int
         ``n_kernels + 1``.
+    brightness : ndarray or None
+        With caustic kernels (the two-part model of a far scene,
+        :func:`recon.spatial.api.grid_model`), the relative brightness map (float32,
+        sensor shape) reconstructions are divided by; None otherwise.
 
     Raises
     ------
     ReconInputError
         Inconsistent shapes, a support of the wrong shape or empty on every kernel.
     """
+
+    brightness: np.ndarray | None = None
 
     def __init__(self, kernels, planes, coefficients, tents, *, volume: bool,
                  padded_shape=None, support=None, sensor_weights=None, depths=None,
@@ -220,9 +226,37 @@ class SpatialConvolutionOperator(SensorWeighted, LinearOperator):
                 ov[self.planes[j]] += planes[k]
         return out
 
-    def forward(self, x):
+    def convolve_full(self, x: np.ndarray) -> np.ndarray:
+        """``M x``: the sum of circular convolutions on the padded grid, before the
+        crop and the sensor weights (``K`` rfft2 + 1 irfft2).
+
+        Parameters
+        ----------
+        x : ndarray, ``shape_in``, float32
+
+        Returns
+        -------
+        ndarray, float32, ``padded_shape``
+        """
         x = self._check(x, self.shape_in, "object")
-        full = irfftn(self._sum_spectrum(x), self.padded_shape)
+        return irfftn(self._sum_spectrum(x), self.padded_shape)
+
+    def correlate_full(self, v: np.ndarray) -> np.ndarray:
+        """``M^T v``, the adjoint of :meth:`convolve_full` (1 rfft2 + ``K`` irfft2).
+
+        Parameters
+        ----------
+        v : ndarray, ``padded_shape``, float32
+
+        Returns
+        -------
+        ndarray, float32, ``shape_in``
+        """
+        v = self._check(v, self.padded_shape, "padded sensor image")
+        return self._backproject(rfftn(v), np.empty(self.shape_in, np.float32))
+
+    def forward(self, x):
+        full = self.convolve_full(x)
         return (self.sensor_weights * full[self.crop]).astype(np.float32)
 
     def adjoint(self, y):

@@ -8,7 +8,12 @@ import pytest
 from recon.errors import ReconInputError
 from recon.operators import padded_grid
 from recon.spatial import PsfGrid
-from recon.spatial.brightness import brightness_map, correct_brightness, node_brightness
+from recon.spatial.brightness import (
+    brightness_map,
+    caustic_grid,
+    correct_brightness,
+    node_brightness,
+)
 
 SHAPE = (96, 128)
 
@@ -67,3 +72,39 @@ def test_bad_grids_and_images_are_refused_with_the_fix():
     # a 2 x 2 grid fits a plane (too few nodes for the quadratic)
     small = brightness_map(grid.restrict(slice(0, 2), slice(0, 2)))
     assert np.all(np.isfinite(small)) and small.min() > 0
+
+
+def test_caustic_grid_divides_out_the_brightness_and_fills_unseen_pixels():
+    """Each node's caustic is its PSF over its brightness; where the sensor did not see
+    a node's registered PSF, the nearest node that saw the pixel gives it. Nodes carry
+    the pattern plus their own tag here, so where a pixel came from shows."""
+    rng = np.random.default_rng(2)
+    pattern = np.zeros(SHAPE, np.float32)
+    pattern[24:72, 32:96] = rng.random((48, 64)) ** 8
+    step = 40
+    shifts = np.array([(dy, dx) for dy in (-step, 0, step) for dx in (-step, 0, step)], float)
+    tags = np.arange(1, 10, dtype=np.float32) * 1e-3
+    bright = np.array([_falloff(dy, dx) for dy, dx in shifts], np.float32)
+    psfs = np.stack([(pattern + tags[i]) * bright[i] for i in range(9)])
+    seen = PsfGrid(psfs, shifts, (3, 3)).valid_masks()
+    grid = PsfGrid(psfs * seen, shifts, (3, 3))
+    out = caustic_grid(grid)
+    assert out.grid_shape == (3, 3) and np.array_equal(out.shifts_px, grid.shifts_px)
+    measured = node_brightness(grid)  # of pattern + tag: the tags shift it a little
+    for i in range(9):
+        np.testing.assert_allclose(out.psfs[i][seen[i]],
+                                   ((pattern + tags[i]) * bright[i] / measured[i])[seen[i]],
+                                   rtol=1e-5, atol=1e-7)
+    # the corner node (-40, -40): pixels its sensor missed come from (-40, 0) -- the
+    # nearest, before (0, -40) at the same distance (row-major) -- then the centre
+    corner = out.psfs[0]
+    from_edge = ~seen[0] & seen[1]
+    from_side = ~seen[0] & ~seen[1] & seen[3]
+    from_centre = ~seen[0] & ~seen[1] & ~seen[3]
+    assert from_edge.any() and from_side.any() and from_centre.any()
+    for where, node in ((from_edge, 1), (from_side, 3), (from_centre, 4)):
+        want = (pattern + tags[node]) * bright[node] / measured[node]
+        np.testing.assert_allclose(corner[where], want[where], rtol=1e-5, atol=1e-7)
+    # and no kernel keeps a hole (the tags are > 0 everywhere the central node saw,
+    # which is everywhere)
+    assert seen[4].all() and out.psfs.min() > 0
