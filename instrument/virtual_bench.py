@@ -614,33 +614,23 @@ class VirtualBench(Bench):
 
     # -- ground truth for evaluation -----------------------------------------------------
     def scene_truth(self, sensor_shape: tuple[int, int] | None = None) -> np.ndarray:
-        """The planar scene as a reconstruction of the convolution model should show it.
-
-        The object grid of Eq. 3.3 samples the plane at ``pitch z / d`` with the image
-        inverted (u = -m x); the scene is area-resampled onto that grid, flipped and
-        centred in the sensor field of view.
+        """The planar scene as a reconstruction of the convolution model should show it
+        (:meth:`recon.optics.lensless.LenslessModel.scene_truth`: area-resampled onto
+        the object grid of Eq. 3.3, flipped, centred in the sensor field of view).
 
         Returns
         -------
         ndarray, float64, ``sensor_shape`` (default the camera's)
-        """
-        from skimage.transform import resize
 
+        Raises
+        ------
+        ReconInputError
+            No planar scene in front of the camera.
+        """
         s = self.scene
         if not isinstance(s, PlanarScene):
             raise ReconInputError("scene_truth needs a PlanarScene in front of the camera")
-        rows, cols = sensor_shape or self.geometry.sensor_shape
-        spacing_mm = self.geometry.sensor_pitch_um * 1e-3 * s.z_mm / self.geometry.d_mm
-        img = np.asarray(s.image, float)
-        h_mm = s.width_mm * img.shape[0] / img.shape[1]
-        shape = (max(1, round(h_mm / spacing_mm)), max(1, round(s.width_mm / spacing_mm)))
-        small = resize(img, shape, anti_aliasing=True)[::-1, ::-1]
-        out = np.zeros((rows, cols))
-        r0, c0 = (rows - shape[0]) // 2, (cols - shape[1]) // 2
-        rs = slice(max(r0, 0), min(r0 + shape[0], rows))
-        cs = slice(max(c0, 0), min(c0 + shape[1], cols))
-        out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
-        return out
+        return self.model.scene_truth(s.image, s.z_mm, s.width_mm, sensor_shape)
 
 
 class _SceneProbe:

@@ -17,7 +17,7 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["fit_gain", "psnr", "ssim"]
+__all__ = ["fit_gain", "psnr", "register_truth", "ssim"]
 
 
 def _pair(estimate: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,6 +94,40 @@ def psnr(estimate: np.ndarray, truth: np.ndarray) -> float:
     if np.array_equal(g * e, t):
         return float("inf")
     return float(peak_signal_noise_ratio(t, g * e, data_range=data_range))
+
+
+def register_truth(estimate: np.ndarray, truth: np.ndarray, max_shift: int = 2
+                   ) -> tuple[tuple[int, int], np.ndarray]:
+    """The integer shift of ``truth`` that best matches ``estimate`` (highest
+    :func:`psnr`), for scoring a reconstruction whose object grid may sit half a pixel
+    or a pixel off the truth's (the centring of an even-sized grid).
+
+    Parameters
+    ----------
+    estimate, truth : ndarray, 2D, same shape
+    max_shift : int
+        Largest shift tried along each axis, px (>= 0).
+
+    Returns
+    -------
+    shift : (dy, dx)
+        The circular shift applied to ``truth`` (:func:`numpy.roll`).
+    shifted : ndarray
+        ``truth`` shifted by it.
+
+    Raises
+    ------
+    ReconInputError
+        As :func:`psnr`.
+    """
+    best = None
+    for dy in range(-max_shift, max_shift + 1):
+        for dx in range(-max_shift, max_shift + 1):
+            t = np.roll(truth, (dy, dx), axis=(0, 1))
+            score = psnr(estimate, t)
+            if best is None or score > best[0]:
+                best = (score, (dy, dx), t)
+    return best[1], best[2]
 
 
 def ssim(estimate: np.ndarray, truth: np.ndarray) -> float:

@@ -414,6 +414,48 @@ class LenslessModel:
         np.maximum(out, 0.0, out=out)  # FFT round-off below zero
         return self._bin(out, ov)
 
+    def scene_truth(self, scene, z_mm: float, width_mm: float,
+                    sensor_shape: tuple[int, int] | None = None) -> np.ndarray:
+        """A planar scene as a reconstruction on the object grid of Eq. 3.3 should show it.
+
+        The object grid samples the plane at ``pitch z / d`` with the image inverted
+        (u = -m x); the scene is area-resampled onto it (anti-aliased), flipped and
+        centred in the sensor's field of view: what :meth:`render`'s scene is scored
+        against.
+
+        Parameters
+        ----------
+        scene : ndarray, (rows_s, cols_s)
+            Radiance (any unit), as given to :meth:`render`.
+        z_mm : float
+            Depth of the scene plane, mm.
+        width_mm : float
+            Lateral width the scene covers, mm (its height from square pixels).
+        sensor_shape : (rows, cols), optional
+            Default the geometry's.
+
+        Returns
+        -------
+        ndarray, float64, ``sensor_shape``
+        """
+        from skimage.transform import resize
+
+        geo = self.geometry
+        rows, cols = sensor_shape or geo.sensor_shape
+        z = positive_number(z_mm, "scene depth z_mm", "30.0")
+        width = positive_number(width_mm, "scene width_mm", "10.0")
+        spacing_mm = geo.sensor_pitch_um * 1e-3 * z / geo.d_mm
+        img = np.asarray(scene, float)
+        h_mm = width * img.shape[0] / img.shape[1]
+        shape = (max(1, round(h_mm / spacing_mm)), max(1, round(width / spacing_mm)))
+        small = resize(img, shape, anti_aliasing=True)[::-1, ::-1]
+        out = np.zeros((rows, cols))
+        r0, c0 = (rows - shape[0]) // 2, (cols - shape[1]) // 2
+        rs = slice(max(r0, 0), min(r0 + shape[0], rows))
+        cs = slice(max(c0, 0), min(c0 + shape[1], cols))
+        out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+        return out
+
     def render_tilted_target(self, z_near_mm: float, z_far_mm: float, field_of_view_mm,
                              target: np.ndarray | None = None, slices: int = 4,
                              oversample: int = 2, patches: int = 1) -> np.ndarray:

@@ -252,3 +252,15 @@ def test_metrics_refuse_constant_truth_and_nan():
     est[0, 0] = np.nan
     with pytest.raises(ReconInputError):
         ssim(est, np.arange(64.0).reshape(8, 8))
+
+
+def test_register_truth_finds_the_shift_that_matches():
+    from recon.metrics import register_truth
+
+    rng = np.random.default_rng(3)
+    truth = np.zeros((40, 50))
+    truth[10:30, 12:40] = rng.random((20, 28))
+    estimate = 2.0 * np.roll(truth, (1, -2), axis=(0, 1))
+    shift, shifted = register_truth(estimate, truth)
+    assert shift == (1, -2) and np.array_equal(shifted, np.roll(truth, (1, -2), axis=(0, 1)))
+    assert register_truth(estimate, truth, max_shift=1)[0] != (1, -2)
