@@ -70,7 +70,8 @@ def load_psf_grid(path: str | Path):
 def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int | None,
                    background: str, l1: float, iterations: int, out: str,
                    metrics_json: str | None = None, depths_mm=None, bin_factor: int = 1,
-                   dark: float = 0.0, volume: bool = False) -> dict:
+                   dark: float = 0.0, volume: bool = False, method: str = "fista",
+                   tv="auto", two_part: bool = False) -> dict:
     """Load grids and a frame, reconstruct, write outputs; return the metrics.
 
     Parameters
@@ -79,7 +80,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
         psf-grid runs: one (2D, unless ``volume``) or one per depth.
     raw_path : str
         The frame (TIFF, PNG or ``.npy``).
-    model, k, background, l1, iterations, depths_mm, bin_factor, dark
+    model, k, background, l1, iterations, depths_mm, bin_factor, dark, method, tv, two_part
         As :func:`recon.spatial.api.reconstruct_grid`.
     out : str
         2D: the stem of ``OUT.png`` / ``OUT.tif`` (:func:`output_paths`); 3D: the
@@ -109,7 +110,8 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
     raw = load_image(raw_path)
     rec = reconstruct_grid(grids if (volume or len(grids) > 1) else grids[0], raw, model=model,
                            k=k, background=background, l1=l1, iterations=iterations,
-                           depths_mm=depths_mm, bin_factor=bin_factor, dark=dark)
+                           depths_mm=depths_mm, bin_factor=bin_factor, dark=dark,
+                           method=method, tv=tv, two_part=two_part)
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])

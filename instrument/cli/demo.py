@@ -16,7 +16,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     dp = sub.add_parser("demo", help="main job: a bench session on the built-in simulated bench")
     dp.add_argument("--out", default="out/demo", help="output directory")
     dp.add_argument("--method", choices=("auto", *METHODS), default="auto",
-                    help="auto (default): method and TV weight chosen from the data")
+                    help="auto (default): the model the PSF grid calls for, ADMM and the "
+                    "TV weight chosen from the data; a method: the on-axis PSF alone with "
+                    "that method (the brightness divided out likewise)")
     dp.add_argument("--iterations", type=int, default=200)
     dp.add_argument("--seed", type=int, default=0, help="seed of the simulated bench")
     dp.add_argument("--real-sample", action="store_true",

@@ -2,8 +2,9 @@
 models).
 
 :func:`add_grid_options` adds ``--psf-grid``, ``--model``, ``--pca-k``,
-``--background``, ``--grid-l1`` and (not on ``recon-run``, whose ``--dark`` serves)
-``--grid-dark``; :func:`run_grid` checks the outputs and runs
+``--background``, ``--grid-l1``, (not on ``recon-run``, whose ``--dark`` serves)
+``--grid-dark`` and (``recon`` only: one plane) ``--grid-method`` and ``--two-part``;
+:func:`run_grid` checks the outputs and runs
 :func:`instrument.reconstruct_grid.run_recon_grid`, printing one summary line.
 """
 
@@ -15,9 +16,12 @@ __all__ = ["add_grid_options", "run_grid"]
 
 
 def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
-                     grid_dark: bool = True) -> None:
+                     grid_dark: bool = True, solver: bool = False) -> None:
     """Add the PSF-grid options to the ``recon`` (2D), ``recon3d`` or ``recon-run``
-    (``grid_dark=False``: its ``--dark`` gives the frames' level) parser."""
+    (``grid_dark=False``: its ``--dark`` gives the frames' level) parser; ``solver``
+    adds ``--grid-method`` and ``--two-part`` (``recon``, whose ``--tv`` and ``--l1``
+    then serve ADMM)."""
+    from recon.spatial.api import GRID_METHODS
     from recon.spatial.choice import MODELS
 
     g = p.add_argument_group(
@@ -36,7 +40,17 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
                    help="estimate a smooth background jointly (Eq. 6.2, lowest 5x5 DCT; "
                    "default) or none")
     g.add_argument("--grid-l1", type=float, default=1e-3,
-                   help="l1 weight of the --psf-grid solver in the scaled problem")
+                   help="l1 weight of the --psf-grid FISTA solver in the scaled problem")
+    if solver:
+        g.add_argument("--grid-method", choices=GRID_METHODS, default="fista",
+                       help="solver of the --psf-grid model: fista (default; Eq. 6.2 with "
+                       "--background and --grid-l1) or admm (TV --tv, auto by default, l1 "
+                       "--l1, non-negativity; needs --background none; a few hundred "
+                       "iterations where FISTA needs thousands)")
+        g.add_argument("--two-part", action="store_true",
+                       help="a far scene (Eq. 5.1): model each grid PSF over its brightness "
+                       "(pixels the sensor missed from the nearest node) and divide the "
+                       "image by the brightness map measured from the grid")
     if not grid_dark:
         return
     g.add_argument("--grid-dark", type=float, default=0.0,
@@ -61,14 +75,24 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
         outputs.append(args.metrics_json)
     inputs = {f"--psf-grid {p}": p for p in args.psf_grid}
     check_outputs(outputs, {**inputs, "--raw": args.raw}, args.overwrite)
+    method = getattr(args, "grid_method", "fista")
     m = run_recon_grid(args.psf_grid, args.raw, model=args.model, k=args.pca_k,
-                       background=args.background, l1=args.grid_l1,
+                       background=args.background,
+                       l1=args.l1 if method == "admm" else args.grid_l1,
                        iterations=args.iterations, out=args.out,
                        metrics_json=args.metrics_json, depths_mm=depths,
-                       bin_factor=args.bin_factor, dark=args.grid_dark, volume=volume)
+                       bin_factor=args.bin_factor, dark=args.grid_dark, volume=volume,
+                       method=method, tv=getattr(args, "tv", "auto"),
+                       two_part=getattr(args, "two_part", False))
     where = m.get("output_volume") or m["output_png"]
+    weight = (m.get("auto") or {}).get("weight")
+    if weight:
+        print(f"{weight['regulariser']} weight {weight['weight']:.3g}: {weight['reason']}")
+    solver = (f"ADMM, TV {m['tv']:.3g}, {m['iterations_used']} it" if method == "admm"
+              else f"{m['iterations']} it")
     print(f"{m['model']['label']} model ({m['n_kernels']} convolutions per apply; "
-          f"{m['model']['reason']}), background {m['background']}: {m['iterations']} it, "
+          f"{m['model']['reason']}), background {m['background']}"
+          f"{', two-part (brightness divided out)' if m['two_part'] else ''}: {solver}, "
           f"{m['seconds_per_iteration'] * 1e3:.1f} ms/it = {m['ratio_to_fft_floor']:.2f}x "
           f"FFT floor, final relative residual {m['final_relative_residual']:.4f} -> {where}")
     return 0

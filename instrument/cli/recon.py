@@ -55,7 +55,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="replace existing output files (never an input)")
     from .grid_options import add_grid_options
 
-    add_grid_options(rp, volume=False)
+    add_grid_options(rp, volume=False, solver=True)
     rp.set_defaults(handler=run)
 
 

@@ -81,6 +81,34 @@ def test_recon_with_a_psf_grid_finds_the_sources_and_the_background(tmp_path, ca
     assert code == 0 and "model (" in capsys.readouterr().out
 
 
+def test_recon_with_a_psf_grid_by_admm_two_part(tmp_path, capsys):
+    """``--grid-method admm --two-part``: TV ADMM on the grid's caustics, the weight chosen
+    automatically and said, the brightness divided out; sources at their nodes."""
+    psfs = _grid_run(tmp_path / "grid.zarr")
+    raw = 100 * (psfs[0] + 0.7 * psfs[8])
+    np.save(tmp_path / "raw.npy", raw.astype(np.float32))
+    out = tmp_path / "out" / "r"
+    base = ["recon", "--psf-grid", str(tmp_path / "grid.zarr"), "--raw",
+            str(tmp_path / "raw.npy"), "--model", "local", "--iterations", "150",
+            "--grid-method", "admm", "--out", str(out)]
+    assert main(base) == 2
+    assert "background 'none'" in capsys.readouterr().err
+    code = main([*base, "--background", "none", "--two-part", "--metrics-json",
+                 str(tmp_path / "m.json")])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "tv weight" in printed and "hold-out cross-validation" in printed
+    assert "two-part (brightness divided out): ADMM, TV" in printed
+    m = json.loads((tmp_path / "m.json").read_text())
+    assert m["method"] == "admm" and m["two_part"] and m["tv"] == m["auto"]["weight"]["weight"]
+    assert not (tmp_path / "out" / "r_background.tif").exists()
+    import tifffile
+    image = tifffile.imread(out.with_suffix(".tif"))
+    top = np.argsort(image.ravel())[-2:]
+    found = {tuple(int(v) for v in np.unravel_index(i, image.shape)) for i in top}
+    assert found == {(20 - 8, 24 - 8), (20 + 8, 24 + 8)}
+
+
 def test_recon3d_with_psf_grids_per_depth(tmp_path, capsys):
     near = _grid_run(tmp_path / "near.zarr", seed=1, z_mm=2.0)
     _grid_run(tmp_path / "far.zarr", seed=2, z_mm=2.8)
