@@ -16,9 +16,14 @@ Rules, each from a measurement of the data or of the benchmarks, in this order:
 3. **Regulariser.** ADMM with the TV weight chosen by hold-out cross-validation
    (:mod:`recon.auto.weight`): as much TV as the held-out pixels show the scene
    needs, from 1e-2 (flat patches) down to 1e-5 (about none: below it ADMM does
-   worse than without TV). l1 (``l1="auto"``) is there for sparse scenes, but
-   on the benchmark's bead scenes TV scored higher (34 against 29-31 dB), so auto
-   keeps TV for them too.
+   worse than without TV). l1 (``l1="auto"``) is there for sparse scenes, but on
+   sparse scenes non-negativity is the prior that counts and l1 adds nothing
+   measurable, so auto keeps TV, whose held-out path runs down to next to none on
+   them (1e-5). Measured (real PSF, bin 4, 300 and 3000 e-, ADMM at 200 iterations,
+   best weight of each): the benchmark's beads (Gaussian, sigma 1 fine px) TV
+   33.6-39.9 dB against l1 29.5-33.6, TV with l1 added at most +0.1; point beads of
+   one pixel TV 35.0-38.7 against l1 32.0-34.7; FISTA without TV (non-negative least
+   squares, 1000 iterations) 36.9 / 34.2 dB, with its best l1 37.0 / 34.2.
 """
 
 from __future__ import annotations
@@ -140,5 +145,7 @@ def choose_method(iterations: int, *, seconds: float | None = None,
             reasons.append(f"time budget {seconds:g} s: at most {affordable} iterations")
             iterations = affordable
     reasons.append("ADMM (best PSNR per second in the speed-vs-accuracy benchmark) with the "
-                   "TV weight chosen by hold-out cross-validation")
+                   "TV weight chosen by hold-out cross-validation (TV, not l1: on sparse "
+                   "scenes non-negativity is the prior that counts, and l1 measured no "
+                   "better than TV's smallest weight)")
     return MethodChoice("admm", iterations, reasons)

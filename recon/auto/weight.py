@@ -74,11 +74,13 @@ log = logging.getLogger(__name__)
 #: measurement / max): TV far above the weights any scene of the benchmark wants
 #: (1e-5 .. 3e-3); l1 where it already empties a bead scene.
 START_WEIGHT = {"tv": 1e-2, "l1": 1.0}
-#: Smallest weight on the path. Below it ADMM's TV split is too weak to condition the
-#: x-update and does worse than no TV at all (camera scene, 300 e-: 10.6 dB at 1e-5
-#: with balanced penalties against 20.3 dB without TV; at 30000 e-, 17.2 dB at 1.2e-6
-#: against 27.2 dB at 1e-5).
-END_WEIGHT = 1e-5
+#: Smallest weight on the path per regulariser. TV: below it ADMM's TV split is too
+#: weak to condition the x-update and does worse than no TV at all (camera scene,
+#: 300 e-: 10.6 dB at 1e-5 with balanced penalties against 20.3 dB without TV; at
+#: 30000 e-, 17.2 dB at 1.2e-6 against 27.2 dB at 1e-5). l1: below 1e-3 it changes
+#: nothing (bead scenes of the auto benchmark, 300-3000 e-: the same PSNR to 0.1 dB
+#: from 1e-5 to 1e-3), and a path down to 1e-5 stepped by 5.2x at 200 iterations.
+END_WEIGHT = {"tv": 1e-5, "l1": 1e-3}
 #: Multiple of the held-out error's standard error within which the largest weight
 #: is taken. Half a standard error was tried: at 300 photo-electrons it mends the
 #: rule's worst cases (chelsea 1.8 dB below the oracle -> 0.45 below, astronaut 1.3
@@ -356,7 +358,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     weight, used = START_WEIGHT[regulariser], 0
     # span START .. END within the budget: the first stage is 3, the others 1 stage long
     stages = max(2, (iterations - 3 * stage) // stage + 1)
-    factor = max(PATH_FACTOR, (weight / END_WEIGHT) ** (1.0 / (stages - 1)))
+    factor = max(PATH_FACTOR, (weight / END_WEIGHT[regulariser]) ** (1.0 / (stages - 1)))
     w = op.sensor_weights
     keep = holdout_mask(op.sensor_shape, holdout, seed)
     held = (w > 0) & ~keep
@@ -375,7 +377,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         e = np.square(pred - b, dtype=np.float64)[held]
         return float(e.sum()), float(e.std() * math.sqrt(e.size)) if e.size else 0.0
 
-    while weight >= END_WEIGHT:
+    while weight >= END_WEIGHT[regulariser]:
         # the first stage rides out ADMM's start-up transient
         n = min(3 * stage, iterations) if not path else stage
         if used + n > iterations:
