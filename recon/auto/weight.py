@@ -64,7 +64,7 @@ import numpy as np
 
 from ..errors import ReconInputError
 from ..solvers.admm import AdmmPlan, AdmmState, check_penalties, run_admm
-from ..solvers.common import History, SolveResult
+from ..solvers.common import History, SolveResult, anisotropic_tv
 
 __all__ = ["AutoWeight", "Stopping", "admm_auto", "path_budget"]
 
@@ -325,8 +325,9 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     -------
     result : SolveResult
         The final estimate (the final solve's iterate that predicted the held-out
-        pixels best; ``final_relative_residual`` is the solve's last iterate's, on the
-        fit pixels); ``history`` spans the path and the final solve;
+        pixels best; ``final_objective`` and ``final_relative_residual`` are that
+        estimate's, on the pixels its solve fitted); ``history`` spans the path and
+        the final solve;
         ``params`` adds ``auto`` (the :class:`AutoWeight` record) and
         ``iterations_used``.
     choice : AutoWeight
@@ -382,7 +383,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         n = min(3 * stage, iterations) if not path else stage
         if used + n > iterations:
             break
-        res = run_admm(fit_plan, b_fit, state, iterations=n, **weights(weight))
+        res = run_admm(fit_plan, b_fit, state, iterations=n, final=False,
+                       **weights(weight))
         histories.append(res.history)
         used += n
         err, se = score(state)
@@ -434,7 +436,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     final_hist, final_data, done, stopped, kept = [], [], 0, False, None
     while done < final_budget:
         n = min(stopping.window, final_budget - done)
-        res = run_admm(final_plan, b_final, state, iterations=n,
+        res = run_admm(final_plan, b_final, state, iterations=n, final=False,
                        **weights(chosen))
         final_hist.append(res.history)
         final_data += _data_terms(res.history, b_norm)
@@ -455,5 +457,12 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
                         "fit, held-out watched" if watch
                         else "all (the held-out blocks hide object pixels)")
     params = dict(res.params, auto=choice.as_dict(), iterations_used=used + done)
-    return SolveResult(kept[1], history, res.final_objective, res.final_relative_residual,
-                       params), choice
+    # the returned estimate's objective and residual, on the pixels its solve fitted
+    x = kept[1]
+    r = final_plan.op.forward(x) - b_final
+    data_sq = float(np.vdot(r, r))
+    w_final = weights(chosen)
+    objective = (0.5 * data_sq + w_final["tv"] * anisotropic_tv(x)
+                 + w_final["l1"] * float(x.sum(dtype=np.float64)))
+    relative = math.sqrt(data_sq) / max(float(np.linalg.norm(b_final)), 1e-30)
+    return SolveResult(x, history, objective, relative, params), choice

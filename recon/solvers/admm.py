@@ -299,7 +299,8 @@ class AdmmState:
 def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int,
              tv: float, balance: bool = True, balance_every: int = 5,
              balance_until: float = 0.6, balance_ratio: float = 10.0,
-             balance_factor: float = 2.0, l1: float = 0.0, stop=None) -> SolveResult:
+             balance_factor: float = 2.0, l1: float = 0.0, stop=None,
+             final: bool = True) -> SolveResult:
     """Run ``iterations`` ADMM iterations from ``state`` (updated in place).
 
     The loop of :func:`admm`, which validates the parameters and calls this with
@@ -320,6 +321,10 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     stop : callable, optional
         ``stop(history) -> bool``, asked after every iteration (automatic stopping,
         :class:`recon.auto.weight.Stopping`); ``iterations`` stays the maximum.
+    final : bool
+        Evaluate the returned estimate's objective and residual (one forward model);
+        False, for a caller that runs the solve in pieces, reports the last
+        iteration's from the history instead (those of the iterate entering it).
 
     Returns
     -------
@@ -378,11 +383,16 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
             break
     state.x, state.mx = x, mx
     x = np.maximum(x, 0)  # the estimate is the non-negative split w
-    r = op.forward(x) - b
-    data_sq = float(np.vdot(r, r))
-    final = 0.5 * data_sq + tv * anisotropic_tv(x) + l1 * float(x.sum(dtype=np.float64))
+    if final:
+        r = op.forward(x) - b
+        data_sq = float(np.vdot(r, r))
+        objective = (0.5 * data_sq + tv * anisotropic_tv(x)
+                     + l1 * float(x.sum(dtype=np.float64)))
+        relative = math.sqrt(data_sq) / mon.b_norm
+    else:
+        objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
     mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
+    return SolveResult(x, mon.history, objective, relative,
                        {"tv": tv, "l1": l1, "mu_initial": list(mus[0]),
                         "mu_final": [mu1, mu2, mu3], "balance": balance,
                         "iterations_used": used})

@@ -270,3 +270,23 @@ def test_the_l1_path_spans_the_weights_that_matter_in_fine_steps(conv_problem):
     assert "caution" not in choice.reason
     assert weights[0] == START_WEIGHT["l1"] and min(weights) >= END_WEIGHT["l1"] * 0.999
     assert max(a / b for a, b in zip(weights, weights[1:], strict=False)) < 4.0
+
+
+def test_the_reported_objective_is_the_returned_estimate_s(conv_problem):
+    """The pieces of the path and the final solve skip their own final evaluation (one
+    forward model each); the result reports the objective and residual of the estimate
+    it returns, on the pixels its solve fitted."""
+    from recon.solvers.common import anisotropic_tv
+
+    p = conv_problem
+    bs = p.b_noisy / np.float32(np.abs(p.b_noisy).max())
+    res, choice = admm_auto(p.op, bs, iterations=150, noise_energy=bs.size * 1e-4)
+    # this PSF is compact, so the final solve fitted every pixel
+    assert choice.final_pixels.startswith("all")
+    keep = np.ones(p.op.sensor_shape, np.float32)
+    fit = p.op.with_weights(keep)
+    r = fit.forward(res.x) - bs * keep
+    want = 0.5 * float(np.vdot(r, r)) + choice.weight * anisotropic_tv(res.x)
+    assert res.final_objective == pytest.approx(want, rel=1e-4)
+    assert res.final_relative_residual == pytest.approx(
+        float(np.linalg.norm(r) / np.linalg.norm(bs * keep)), rel=1e-4)
