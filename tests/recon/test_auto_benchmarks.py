@@ -19,8 +19,12 @@ def test_scene_kinds_are_non_negative_with_unit_peak():
 
 
 def test_run_case_reports_oracle_default_and_auto():
-    cfg = {"coarse_bin": 8, "iterations": 40, "grid": (1e-4, 3e-4)}
+    cfg = {"coarse_bin": 8, "iterations": 40, "grid": (1e-4, 3e-4), "timing_repeats": 2}
     c = run_case("beads", 3000.0, cfg)
+    # the cost: medians of runs taken in turn, and the iterations against the fixed run's
+    assert len(c["auto"]["seconds_runs"]) == len(c["default"]["seconds_runs"]) == 2
+    assert c["auto_cost_ratio"] == c["auto"]["seconds"] / c["default"]["seconds"]
+    assert 0 < c["auto"]["iteration_ratio"] <= 2
     assert c["oracle"]["psnr"] == max(g["psnr"] for g in c["grid"])
     assert c["default"]["tv"] == 3e-4
     assert c["auto"]["psnr"] is not None and not c["auto"]["blank"]
