@@ -63,8 +63,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ReconInputError
-from ..solvers.admm import AdmmPlan, AdmmState, check_penalties, run_admm
-from ..solvers.common import History, SolveResult, anisotropic_tv
+from ..solvers.admm import AdmmPlan, AdmmState, check_penalties, objective_of, run_admm
+from ..solvers.common import History, SolveResult
 
 __all__ = ["AutoWeight", "Stopping", "admm_auto", "path_budget"]
 
@@ -459,10 +459,6 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     params = dict(res.params, auto=choice.as_dict(), iterations_used=used + done)
     # the returned estimate's objective and residual, on the pixels its solve fitted
     x = kept[1]
-    r = final_plan.op.forward(x) - b_final
-    data_sq = float(np.vdot(r, r))
-    w_final = weights(chosen)
-    objective = (0.5 * data_sq + w_final["tv"] * anisotropic_tv(x)
-                 + w_final["l1"] * float(x.sum(dtype=np.float64)))
-    relative = math.sqrt(data_sq) / max(float(np.linalg.norm(b_final)), 1e-30)
+    objective, relative = objective_of(final_plan.op, b_final, x, **weights(chosen),
+                                       b_norm=max(float(np.linalg.norm(b_final)), 1e-30))
     return SolveResult(x, history, objective, relative, params), choice

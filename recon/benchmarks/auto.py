@@ -64,8 +64,11 @@ def run_case(kind: str, photons: float, cfg: dict, seed: int = 0) -> dict:
     ok = [g for g in grid if g["psnr"] is not None]
     oracle = max(ok, key=lambda g: g["psnr"]) if ok else None
     scale = float(np.max(np.abs(case.raw_e)))
-    solve = lambda: solve_channel(case.op, case.b, case.raw_e, scale,  # noqa: E731
-                                  method="auto", iterations=it, tv="auto", l1=0.0)
+
+    def solve():
+        return solve_channel(case.op, case.b, case.raw_e, scale, method="auto",
+                             iterations=it, tv="auto", l1=0.0)
+
     t0 = time.perf_counter()
     try:
         res, rec = solve()

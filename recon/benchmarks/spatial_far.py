@@ -232,7 +232,20 @@ def spatial_far_table(result: dict) -> str:
 
 def plot_spatial_far(result: dict, path: Path) -> Path:
     """PSNR against seconds: ADMM and FISTA on the two-part local model, and the
-    automatic methods of the first case as points."""
+    automatic methods of the first case as points.
+
+    Parameters
+    ----------
+    result : dict
+        The record of :func:`run_spatial_far`.
+    path : Path
+        The PNG to write (replaced if it exists: the caller owns the output folder).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.0, 4.2))

@@ -296,6 +296,36 @@ class AdmmState:
             a *= f
 
 
+def objective_of(op, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
+                 b_norm: float) -> tuple[float, float]:
+    """The ADMM objective and relative data residual of an estimate.
+
+    Parameters
+    ----------
+    op : forward model
+        Anything with ``forward`` (e.g. :class:`recon.operators.ConvolutionOperator`).
+    b : ndarray, float32, sensor shape
+        The measurement the estimate was fitted to.
+    x : ndarray, float32, object shape
+        The (non-negative) estimate.
+    tv, l1 : float
+        The weights of anisotropic TV and l1 in the scaled problem.
+    b_norm : float
+        ``||b||``, > 0.
+
+    Returns
+    -------
+    objective : float
+        ``0.5 ||A x - b||^2 + tv TV(x) + l1 sum(x)`` (Eq. 3.9 with l1 added).
+    relative : float
+        ``||A x - b|| / ||b||``.
+    """
+    r = op.forward(x) - b
+    data_sq = float(np.vdot(r, r))
+    objective = 0.5 * data_sq + tv * anisotropic_tv(x) + l1 * float(x.sum(dtype=np.float64))
+    return objective, math.sqrt(data_sq) / b_norm
+
+
 def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int,
              tv: float, balance: bool = True, balance_every: int = 5,
              balance_until: float = 0.6, balance_ratio: float = 10.0,
@@ -384,11 +414,7 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     state.x, state.mx = x, mx
     x = np.maximum(x, 0)  # the estimate is the non-negative split w
     if final:
-        r = op.forward(x) - b
-        data_sq = float(np.vdot(r, r))
-        objective = (0.5 * data_sq + tv * anisotropic_tv(x)
-                     + l1 * float(x.sum(dtype=np.float64)))
-        relative = math.sqrt(data_sq) / mon.b_norm
+        objective, relative = objective_of(op, b, x, tv=tv, l1=l1, b_norm=mon.b_norm)
     else:
         objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
     mon.history.extra["mu"] = [list(m) for m in mus]
