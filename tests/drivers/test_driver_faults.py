@@ -194,3 +194,16 @@ def test_zaber_silent_device_does_not_block_the_healthy_axes():
                 stage.move_to({"y": 1.0})  # the silent one: a clear error, no hang
             emu.silence(2, False)
             stage.move_to({"y": 1.0})
+
+
+def test_zaber_home_on_open_honours_the_open_timeout():
+    with ZaberEmulator({1: 1}, time_scale=1.0) as emu:
+        with emu.lock:
+            emu.axis(1).position = 500_000.0  # 24 mm out, homing at 0.5 mm/s: ~48 s
+        stage = ZaberAsciiStage("stage", axes=["x"], port=emu.port, speed_mm_s=0.5,
+                                home_on_open=True, reply_timeout_s=0.5)
+        t0 = time.monotonic()
+        with pytest.raises(stage.timeout_error, match="within the open's 0.5 s"):
+            stage.open(timeout_s=0.5)
+        assert time.monotonic() - t0 < 1.5
+        assert emu.axis(1).motion is not None and emu.axis(1).motion.kind == "home"
