@@ -351,6 +351,8 @@ class ThorlabsAptStage(HostTableStage):
             if info["stage"] is not None:  # named in the bench file: a contradiction
                 raise self._error(DeviceValueError, f"stage {stage} cannot be on a {profile} "
                                   f"axis {axis} in {unit}", "check stages and the controller")
+            self._log.warning("%s: controller %s reports stage %s, which does not fit axis %s "
+                              "(%s); ignored", self.device_id, model, stage, axis, unit)
             stage = None  # the controller's own stage setting does not fit this axis
         if axis in self._cpu_param:
             cpu = self._cpu_param[axis]
