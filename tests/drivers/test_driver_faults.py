@@ -146,6 +146,10 @@ def test_apt_moving_after_reconnect_is_stopped_and_reported(apt, tmp_path, caplo
     stage.open()
     try:
         stage.move_to({"z": 20.0}, wait=False)  # 40 s of motion, 2 s at time_scale 20
+        deadline = time.monotonic() + 5.0  # the move command reached the controller
+        while apt.channels[0x50].motion is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert apt.channels[0x50].motion is not None
         apt.unplug()
         with pytest.raises(DeviceDisconnectedError):
             stage.wait_until_idle(timeout_s=30.0)
