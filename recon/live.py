@@ -111,6 +111,23 @@ class LiveReconstructor:
     iteration is a fixed-point map, so any state is a valid start). Since each frame is
     scaled by its own max|b|, the state is first multiplied by previous scale / new
     scale so it is in the new frame's units.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from recon.live import LiveReconstructor
+    >>> from recon.operators import ConvolutionOperator
+    >>> rng = np.random.default_rng(1)
+    >>> psf = 100.0 * (rng.random((48, 64)) > 0.97)  # a sparse caustic-like PSF
+    >>> scene = np.zeros((96, 128), np.float32); scene[40:56, 50:70] = 1.0
+    >>> frame = ConvolutionOperator(psf).forward(scene)  # one video frame
+    >>> live = LiveReconstructor(psf, dark=0.0)
+    >>> live.wiener(frame).image.shape
+    (48, 64)
+    >>> first = live.admm(frame, iterations=5)        # cold start
+    >>> second = live.admm(frame, iterations=5)       # warm: continues the first
+    >>> second.image.dtype
+    dtype('float32')
     """
 
     def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark=None,
