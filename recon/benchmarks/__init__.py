@@ -86,6 +86,31 @@ def jsonable(obj: Any) -> Any:
     return obj
 
 
+def machine_record() -> dict:
+    """Where and when a benchmark ran: UTC date, platform, CPU count, Python and NumPy
+    versions and the 1-minute load average (the machine may be shared).
+
+    Returns
+    -------
+    dict
+        ``date_utc`` (ISO 8601 str), ``platform``, ``cpu_count`` (int), ``python``,
+        ``numpy`` (str) and ``load_average_start`` (three floats, or None where the
+        system has none).
+    """
+    import datetime
+    import os
+    import platform
+
+    try:
+        load = list(os.getloadavg())
+    except OSError:
+        load = None
+    return {"date_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M"),
+            "platform": platform.platform(terse=True), "cpu_count": os.cpu_count(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "load_average_start": load}
+
+
 def write_json(path: Path, data: dict) -> Path:
     """Write ``data`` (made JSON-safe by :func:`jsonable`) with indentation."""
     from ..io import atomic_path

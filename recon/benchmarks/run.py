@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReconInputError
-from . import DEFAULT_WEIGHTS, METHODS, fmt, write_json
+from . import DEFAULT_WEIGHTS, METHODS, fmt, machine_record, write_json
 
 __all__ = ["BENCHMARKS", "format_result", "run_benchmarks", "summarise"]
 
@@ -230,6 +230,7 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {}
+    machine = machine_record()
     weights = dict(DEFAULT_WEIGHTS)
     timings = {}
     for name in selected:
@@ -277,6 +278,6 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
                       spatial=results.get("spatial_accuracy"))
     summary, text = summarise(results)
     summary.update(quick=quick, weights_used=weights, seconds=timings,
-                   methods=list(METHODS))
+                   methods=list(METHODS), machine=machine)
     write_json(out / "summary.json", summary)
     return summary, text
