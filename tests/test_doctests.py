@@ -7,7 +7,8 @@ import importlib
 import pytest
 
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
-MODULES = ("recon.operators", "recon.metrics", "recon.live", "recon.benchmarks.report")
+MODULES = ("diffuserlab.jsonio", "recon.operators", "recon.metrics", "recon.live",
+           "recon.benchmarks.report")
 
 
 @pytest.mark.parametrize("name", MODULES)
