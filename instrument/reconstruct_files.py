@@ -10,6 +10,7 @@ a PSF stack, Kuo 2020, Ch. 4). The numerics are :func:`recon.reconstruct` and
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -137,6 +138,8 @@ def run_recon(
     psf_product: str = "psf_stack",
     l1: float | str = 0.0,
     seconds: float | None = None,
+    allow_mixed_ranges: bool = False,
+    dark=None,
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
@@ -155,6 +158,10 @@ def run_recon(
         Where to write the metrics.
     depth_mm, psf_product
         Plane and product of a PSF stack (see :func:`load_psf`).
+    allow_mixed_ranges : bool
+        Accept a PSF and raw of different bit depths (``--allow-mixed-ranges``).
+    dark : None, "none", float or ndarray
+        Dark level (:func:`recon.preprocess.prepare_pair`; None: the PSF's corner).
 
     Returns
     -------
@@ -175,19 +182,11 @@ def run_recon(
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     raw = load_image(raw_path)
-    result = reconstruct(
-        psf,
-        raw,
-        method,
-        iterations=iterations,
-        tv=tv,
-        l1=l1,
-        seconds=seconds,
-        bin_factor=bin_factor,
-        erase=erase,
-        seed=seed,
-        full_scale=full_scale,
-    )
+    with named_pair(psf_path, raw_path):
+        result = reconstruct(psf, raw, method, iterations=iterations, tv=tv, l1=l1,
+                             seconds=seconds, bin_factor=bin_factor, erase=erase, seed=seed,
+                             full_scale=full_scale, allow_mixed_ranges=allow_mixed_ranges,
+                             dark=dark)
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
@@ -199,6 +198,18 @@ def run_recon(
     if metrics_json:
         write_json(metrics_json, metrics)
     return metrics
+
+
+@contextlib.contextmanager
+def named_pair(psf_path, raw_path):
+    """Name the files in a :class:`recon.preprocess.RawSignalError` raised inside (the
+    numerics speak of "the PSF" and "the raw")."""
+    from recon.preprocess import RawSignalError
+
+    try:
+        yield
+    except RawSignalError as exc:
+        raise RawSignalError(f"--raw {raw_path} (PSF {psf_path}): {exc}") from None
 
 
 def write_json(path: str | Path, data: dict) -> Path:
@@ -316,7 +327,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 bin_factor: int = 1, dark: str | float = "auto",
                 psf_product: str = "psf_stack", metrics_json: str | None = None,
                 planes: str = "all", pitch_um: float | None = None,
-                d_mm: float | None = None, scene_range_mm=None) -> dict:
+                d_mm: float | None = None, scene_range_mm=None,
+                allow_mixed_ranges: bool = False) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
     projections and metrics.
 
@@ -352,6 +364,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     pitch_um, d_mm, scene_range_mm
         Sensor pitch (um, unbinned), diffuser-to-sensor distance (mm) and the scene's
         depth span (mm, optional) for ``planes="auto"``.
+    allow_mixed_ranges : bool
+        Accept a stack and raw of different bit depths (``--allow-mixed-ranges``).
 
     Returns
     -------
@@ -396,8 +410,10 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            bin_factor=bin_factor, dark=dark,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
-    rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
-                             tv=tv, l1=l1, bin_factor=bin_factor, dark=dark)
+    with named_pair(psf_stack, raw_path):
+        rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
+                                 tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
+                                 allow_mixed_ranges=allow_mixed_ranges)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "

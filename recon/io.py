@@ -80,13 +80,42 @@ def _shape_str(shape: tuple[int, ...]) -> str:
 
 
 def _read_tiff(path: Path) -> np.ndarray:
+    """One image of a TIFF file, channels last; colour only from the file's samples.
+
+    A TIFF says what its axes are: ``S`` (samples per pixel, set with an RGB/RGBA
+    photometric tag or extra samples) is colour; any other axis (pages ``Q``/``I``,
+    ``Z``, ``T``, ``C`` of a grey stack) is a stack of frames. So a 3-page TIFF of
+    three frames is refused as a stack, not read as R, G, B.
+    """
     try:
-        return np.asarray(tifffile.imread(path))
+        with tifffile.TiffFile(path) as tif:
+            series = tif.series[0]
+            image = np.asarray(series.asarray())
+            axes = str(series.axes)
     except Exception as exc:  # tifffile raises TiffFileError, ValueError, OSError, ...
         raise ReconInputError(
             f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
             "check that the file is a complete, uncorrupted TIFF or re-export it"
         ) from exc
+    if len(axes) != image.ndim:  # an unusual series: keep tifffile's own shape
+        return image
+    keep = [i for i, a in enumerate(axes) if a in "YXS" or image.shape[i] != 1]
+    image = image.reshape([image.shape[i] for i in keep])
+    axes = "".join(axes[i] for i in keep)
+    frames = [(a, image.shape[i]) for i, a in enumerate(axes) if a not in "YXS"]
+    if frames:
+        count = int(np.prod([n for _, n in frames]))
+        rows, cols = (image.shape[axes.index(a)] for a in "YX")
+        raise ReconInputError(
+            f"{path}: file holds a stack of {count} images of {rows}x{cols} (grey frames, "
+            f"TIFF axes {axes}) where one image was expected; colour comes from an "
+            "RGB photometric tag (samples per pixel), never from a page count: pass one "
+            "frame (tifffile.imwrite('one.tif', tifffile.imread(FILE, key=0))), save a colour "
+            "image as RGB (photometric='rgb'), or load a PSF stack with the stack reader "
+            "(recon3d --psf-stack, recon --psf STACK --depth MM)")
+    if "S" in axes:
+        image = np.moveaxis(image, axes.index("S"), -1)
+    return image
 
 
 def _read_cv2(path: Path) -> np.ndarray:
@@ -139,13 +168,15 @@ def _to_channels_last(path: Path, image: np.ndarray, is_tiff: bool) -> np.ndarra
     if image.ndim == 2:
         return image
     first, _, last = shape
-    if is_tiff and first in (3, 4) and shape[1] > _MAX_CHANNELS and shape[2] > _MAX_CHANNELS:
-        logger.debug("%s: moving leading channel axis of %s to the end", path, shape)
-        image = np.moveaxis(image, 0, -1)
-    elif last <= _MAX_CHANNELS:
+    if is_tiff or last in (1, 3, 4):  # a TIFF's axes were read from its tags
         pass
     elif first == 1:
         image = image[0]
+    elif last <= _MAX_CHANNELS:
+        raise ReconInputError(
+            f"{path}: an array of shape {_shape_str(shape)} has {last} values per pixel; "
+            "colour is a last axis of 3 (RGB) or 4 (RGBA) samples: pass one grey image "
+            "(H, W) or an RGB(A) one (H, W, 3 or 4)")
     else:
         raise ReconInputError(
             f"{path}: file holds a stack of {first} images of {shape[1]}x{shape[2]} where one "
@@ -173,17 +204,21 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     numpy.ndarray
         The image in the file's native dtype (e.g. uint8, uint16 sensor counts,
         float32), shape (H, W) or (H, W, C) with channels last and C <= 4.
-        Colour images read through OpenCV are returned in RGB(A) order (OpenCV
-        reads BGR(A)). A TIFF with a leading channel axis of size 3 or 4 (planar
-        RGB, shape (C, H, W) with H, W > 4) is returned as (H, W, C). A singleton
-        channel axis, (H, W, 1) or (1, H, W), is dropped to give (H, W).
+        Colour comes from the file, never from a count of frames: a TIFF's samples
+        per pixel (its photometric RGB tag; planar RGB, stored (C, H, W), is returned
+        as (H, W, C)), the colour of a PNG/JPEG/BMP, or a last axis of 3 or 4 of a
+        ``.npy`` array. Colour images read through OpenCV are returned in RGB(A)
+        order (OpenCV reads BGR(A)). A singleton axis, (H, W, 1) or (1, H, W), is
+        dropped to give (H, W).
 
     Raises
     ------
     ReconInputError
         If the file does not exist, the extension is not supported, the file
         cannot be decoded (corrupt or truncated), the array is not 2D/3D, or the
-        file holds a stack of images where one image was expected.
+        file holds a stack of images where one image was expected (a TIFF of
+        several grey pages, whatever their count; a ``.npy`` array whose last
+        axis is not 1, 3 or 4 values per pixel).
 
     Notes
     -----

@@ -24,7 +24,8 @@ from .helpers import assert_refused
 
 #: input classes (the second part of a case id)
 CLASSES = ("missing", "empty", "truncated", "mislabelled", "shape", "dtype", "nonfinite",
-           "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench")
+           "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench",
+           "no-signal", "colour")
 
 
 def case(command: str, cls: str, what: str, words: str):
@@ -103,6 +104,56 @@ RECON = [
          "zarr.json not json", "notjson_meta.zarr"),
     case(f"{R2} --out file.txt/r", "unwritable", "out under a file", "file.txt"),
     case(f"{R2} --metrics-json /proc/x/m.json", "unwritable", "metrics in /proc", "/proc/x"),
+]
+
+RS = "recon --iterations 2 --out o/r --psf psf16.tif"
+#: the raw checked after its dark level, in every method (recon.preprocess.signal)
+NO_SIGNAL = [
+    case(f"{RS} --raw raw8.tif", "no-signal", "8-bit raw beside 16-bit psf",
+         "raw8.tif|uint8|uint16|--allow-mixed-ranges"),
+    *[case(f"{RS} --raw raw8.tif --allow-mixed-ranges --method {m}", "no-signal",
+           f"8-bit raw below the psf's dark level, {m}",
+           "raw8.tif|3168|dark corner|floor|--dark") for m in ("auto", "wiener", "gd",
+                                                                "fista", "admm")],
+    case(f"{RS} --raw bgsub.tif", "no-signal", "background-subtracted raw",
+         "bgsub.tif|below|3168|--dark none"),
+    case(f"{RS} --raw bgsub.tif --dark 3000", "no-signal", "dark value given",
+         "bgsub.tif|below|dark value given"),
+    case(f"{RS} --raw noise.tif --dark none --method admm --tv 1e-3", "no-signal",
+         "dark frame, fixed method", "noise.tif|no signal|dark level 0"),
+    case(f"{RS} --raw const.tif", "no-signal", "constant raw", "const.tif|constant|5000"),
+    case(f"{RS} --raw sat.tif --method wiener", "no-signal", "90 % saturated raw",
+         "sat.tif|90.6% of the raw is at full scale"),
+    case(f"{R} --psf psf.npy --raw lone.tif --method fista", "no-signal", "lone 1e38 pixel",
+         "lone.tif|(7, 9)|1e+38"),
+    case(f"{RS} --raw lone.tif", "no-signal", "1e38 above the psf camera's full scale",
+         "lone.tif|full scale 65535"),
+    case(f"{RS} --raw raw16.tif --erase 0.9999", "no-signal", "99.99 % erasure",
+         "--erase 0.9999|0.01%"),
+    case(f"{V} --psf-stack stack16.tif --raw raw8.tif", "no-signal",
+         "recon3d raw below the stack's dark level", "raw8.tif|3168|dark corners|--dark"),
+    case(f"{V} --psf-stack stack16.tif --raw bgsub.tif --method fista --tv 0", "no-signal",
+         "recon3d background-subtracted raw, fista", "bgsub.tif|below"),
+    case(f"{V} --psf-stack stack.tif --raw const.tif", "no-signal", "recon3d constant raw",
+         "const.tif|constant"),
+    case(f"{V} --psf-stack stack.tif --raw noise.tif --dark none", "no-signal",
+         "recon3d dark frame", "noise.tif|no signal"),
+    case(f"{V} --psf-stack stack.tif --raw lone.tif", "no-signal", "recon3d lone 1e38 pixel",
+         "lone.tif|1e+38"),
+]
+
+#: colour only from a photometric tag / samples per pixel or a last axis of 3 or 4
+COLOUR = [
+    case(f"{R} --psf psf.npy --raw pages3.tif", "colour", "3 grey pages as raw",
+         "pages3.tif|stack of 3 images|photometric"),
+    case(f"{R} --psf pages3.tif --raw raw.tif", "colour", "3 grey pages as psf",
+         "pages3.tif|stack of 3 images|--depth"),
+    case(f"{R} --psf psf.npy --raw pages_hw3.tif", "colour", "32 pages of 32x3",
+         "pages_hw3.tif|stack of 32 images"),
+    case(f"{R} --psf psf.npy --raw two.npy", "colour", "2 values per pixel",
+         "two.npy|2 values per pixel"),
+    case(f"{V2} --raw pages3.tif", "colour", "recon3d 3 grey pages as raw",
+         "pages3.tif|stack of 3 images"),
 ]
 
 RECON3D = [
@@ -499,8 +550,9 @@ VIDEO = [
          "raw.tif|exists"),
 ]
 
-TABLE = {"recon": RECON, "demo": DEMO, "recon3d": RECON3D, "analyze": ANALYZE,
-         "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK, "holo": HOLO,
+TABLE = {"recon": RECON, "no-signal": NO_SIGNAL, "colour": COLOUR, "demo": DEMO, "recon3d": RECON3D,
+         "analyze": ANALYZE, "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK,
+         "holo": HOLO,
          "calibrate": CALIBRATE, "align": ALIGN, "capture": CAPTURE, "video": VIDEO}
 ALL = [c for rows in TABLE.values() for c in rows]
 
