@@ -23,30 +23,46 @@ import numpy as np
 
 from drivers.base import jsonable
 
-__all__ = ["dark_level", "load_psf", "output_paths", "projections", "run_recon", "run_recon3d",
-           "volume_output_paths", "write_json", "write_volume"]
+__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
+           "projections", "run_recon", "run_recon3d", "volume_output_paths", "write_json",
+           "write_volume"]
 
 log = logging.getLogger(__name__)
 
 _VOLUME_SUFFIXES = (".tif", ".tiff", ".zarr")
 
 
+#: The image extensions ``--out`` of ``recon`` may end with (any other dot is part of
+#: the name: ``take.2`` writes ``take.2.png`` and ``take.2.tif``).
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+#: The file name ``recon`` writes inside a folder given as ``--out FOLDER/``.
+DEFAULT_STEM = "recon"
+
+
 def output_paths(out: str) -> tuple[Path, Path]:
-    """(png, tif) paths for ``--out``: an extension picks the stem, none adds both.
+    """(png, tif) paths for ``--out``: a known image extension picks the stem, anything
+    else is the stem itself; a folder (a trailing ``/`` or an existing directory) gets
+    ``recon.png`` and ``recon.tif`` inside.
+
+    Only :data:`IMAGE_SUFFIXES` are extensions: ``take.2`` is a name, not ``take`` with
+    the extension ``.2`` (which would write ``take.png`` and replace another take).
 
     Parameters
     ----------
     out : str
-        ``OUT``, ``OUT.png``, ``OUT.tif`` or ``OUT.tiff``.
+        ``OUT``, ``OUT.png``, ``OUT.tif``, ``OUT.tiff`` or ``FOLDER/``.
 
     Returns
     -------
     (Path, Path)
         ``OUT.png`` and ``OUT.tif``.
     """
-    p = Path(out)
-    stem = p.with_suffix("") if p.suffix.lower() in (".png", ".tif", ".tiff") else p
-    return stem.with_suffix(".png"), stem.with_suffix(".tif")
+    text = os.fspath(out)
+    p = Path(text)
+    if text.endswith(("/", os.sep)) or p.is_dir():
+        p = p / DEFAULT_STEM
+    name = p.stem if p.suffix.lower() in IMAGE_SUFFIXES else p.name
+    return p.with_name(name + ".png"), p.with_name(name + ".tif")
 
 
 def load_psf(psf_path: str, depth_mm: float | None,

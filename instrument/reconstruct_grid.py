@@ -145,5 +145,6 @@ def background_output(out: str, volume: bool) -> Path:
     """Where :func:`run_recon_grid` writes the estimated background for ``--out``."""
     from .reconstruct_files import output_paths, volume_output_paths
 
-    stem = (volume_output_paths(out)[0] if volume else output_paths(out)[1]).with_suffix("")
+    path = volume_output_paths(out)[0] if volume else output_paths(out)[1]
+    stem = path.with_name(path.stem)  # the known suffix only (take.2.tif -> take.2)
     return stem.parent / f"{stem.name}_background.tif"

@@ -31,6 +31,7 @@ __all__ = [
     "BAYER_PATTERNS",
     "LOAD_EXTENSIONS",
     "atomic_path",
+    "free_space_text",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
     "DATA_ORIENTATION",
@@ -303,6 +304,44 @@ def _viewing_image(image: np.ndarray) -> np.ndarray:
     return np.rint(data).astype(np.uint8)
 
 
+def _size_text(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if abs(n) < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} TB"  # pragma: no cover
+
+
+def free_space_text(path: str | os.PathLike) -> str:
+    """``"23.0 GB free of 80.0 GB on /data"`` for the file system holding ``path`` (its
+    nearest existing ancestor); ``"free space unknown"`` when it cannot be read."""
+    import shutil
+
+    p = Path(os.path.abspath(os.fspath(path)))
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        usage = shutil.disk_usage(p)
+    except OSError:
+        return "free space unknown"
+    return f"{_size_text(usage.free)} free of {_size_text(usage.total)} on {p}"
+
+
+def _disk_full(path: Path, exc: OSError) -> OSError | None:
+    """An ENOSPC OSError naming ``path`` and the free space for a write that failed
+    because the disk (or quota) is full, including numpy's short write ("N requested
+    and M written", no errno); None for any other error."""
+    import errno
+
+    text = str(exc)
+    short = exc.errno is None and "requested and" in text and "written" in text
+    if exc.errno not in (errno.ENOSPC, errno.EDQUOT) and not short:
+        return None
+    detail = f"; {text}" if short else ""
+    return OSError(errno.ENOSPC, f"No space left on device ({free_space_text(path)}"
+                   f"{detail}); free space or write elsewhere", str(path))
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """A temporary name next to ``path`` to write to; renamed into place on success.
@@ -311,7 +350,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     so the rename is atomic: :func:`os.replace`; same suffix, so writers that choose
     the format by extension still do). When the block succeeds the file replaces
     ``path``; when it raises, the temporary file is removed and ``path`` is left as
-    it was: a crash never leaves half a file under the final name.
+    it was: a crash never leaves half a file under the final name. A write that
+    fails because the disk is full (ENOSPC, a quota, numpy's short write) is raised
+    as an ENOSPC OSError naming ``path`` and the free space left.
 
     Parameters
     ----------
@@ -340,9 +381,12 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        full = _disk_full(path, exc) if isinstance(exc, OSError) else None
+        if full is not None:
+            raise full from exc
         raise
 
 

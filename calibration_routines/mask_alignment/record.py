@@ -18,7 +18,6 @@ A record is a directory (``*.align``):
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import numpy as np
 
 from drivers.base import jsonable
 from instrument.plan import PlanError
+from recon.io import atomic_path
 
 __all__ = ["AlignmentRecord", "corrected_mask", "load_alignment", "section_bounds"]
 
@@ -128,15 +128,17 @@ class AlignmentRecord:
         self._log.flush()
 
     def save(self) -> None:
-        """Write ``alignment.json`` atomically."""
-        tmp = self.path / "alignment.json.tmp"
-        tmp.write_text(json.dumps(jsonable(self.state, nonfinite_to_none=True), indent=1))
-        os.replace(tmp, self.path / "alignment.json")
+        """Write ``alignment.json`` atomically (:func:`recon.io.atomic_path`: no
+        temporary file is left when the write fails, e.g. on a full disk)."""
+        text = json.dumps(jsonable(self.state, nonfinite_to_none=True), indent=1)
+        with atomic_path(self.path / "alignment.json") as tmp:
+            tmp.write_text(text)
 
     def save_mask(self, mask: np.ndarray, seam_weight: np.ndarray) -> None:
-        """Write the corrected mask and its seam weight."""
-        np.save(self.path / "corrected_mask.npy", mask.astype(np.float32))
-        np.save(self.path / "seam_weight.npy", seam_weight.astype(np.float32))
+        """Write the corrected mask and its seam weight, each whole or not at all."""
+        for name, array in (("corrected_mask.npy", mask), ("seam_weight.npy", seam_weight)):
+            with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, array.astype(np.float32))
 
     def close(self, status: str, **extra) -> None:
         """Final status (``completed``, ``aborted``, ``failed``) and save."""

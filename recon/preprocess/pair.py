@@ -226,7 +226,7 @@ def prepare_pair(
             info["dark_level"] = float(np.mean(level, dtype=np.float64))
         else:
             info["dark_level"] = level_for_info(level)
-    logger.info("dark subtraction: mode %s, level %s", mode, info["dark_level"])
+    logger.debug("dark subtraction: mode %s, level %s", mode, info["dark_level"])
 
     psf_b = box_bin(psf_d, bin_factor)
     raw_b = box_bin(raw_d, bin_factor)
