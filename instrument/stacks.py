@@ -29,7 +29,12 @@ MIN_PLANE_PX = 8
 def _depths(depths_mm, n: int, source: str) -> list[float]:
     if depths_mm is None:
         raise RunStoreError(f"{source} carries no depths; pass depths_mm (one per plane, mm)")
-    depths = [float(z) for z in np.atleast_1d(np.asarray(depths_mm, float))]
+    try:
+        depths = [float(z) for z in np.atleast_1d(np.asarray(depths_mm, float))]
+    except (TypeError, ValueError):
+        raise RunStoreError(f"{source}: its depths {depths_mm!r} are not numbers of mm; fix "
+                            "the depths_mm it records, or give --depths (one per plane, "
+                            "mm)") from None
     if len(depths) != n:
         raise RunStoreError(f"{source} has {n} planes but {len(depths)} depths were given")
     if not all(np.isfinite(depths)) or min(depths) <= 0:
@@ -104,6 +109,8 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
     if bad:
         raise RunStoreError(f"{path} holds {bad} non-finite values (NaN or inf); fix or "
                             "re-measure those pixels")
+    if recorded is not None:
+        recorded = _depths(recorded, len(stack), str(path))
     if recorded is not None and depths_mm is not None and not np.allclose(recorded, depths_mm):
         raise RunStoreError(f"{path} records depths {recorded} mm, not {list(depths_mm)}")
     depths = _depths(recorded if recorded is not None else depths_mm, len(stack), str(path))

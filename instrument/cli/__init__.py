@@ -143,6 +143,27 @@ def _memory_line(exc: MemoryError) -> str:
     return f"out of memory: {what}{have}; give smaller sizes"
 
 
+def _inputs_note(args: argparse.Namespace, exc: BaseException) -> str:
+    """`` (in one of: a.tif, b.tif, out/r)`` (the command's paths) for a message of a
+    library outside the project (numpy's "operands could not be broadcast ...",
+    "could not convert string to float: 'abc'") that names neither a file nor an
+    option of the command; empty for the project's own messages, which name what
+    they refuse."""
+    from recon.errors import ReconInputError
+
+    from ..plan import PlanError
+    from ..runstore import RunStoreError
+
+    text = str(exc)
+    if isinstance(exc, ReconInputError | RunStoreError | PlanError) or "--" in text:
+        return ""
+    given = {k: v for k, v in vars(args).items() if isinstance(v, str) and v
+             and k not in ("handler", "command") and ("/" in v or "." in v)}
+    if not given or any(v in text for v in given.values()):
+        return ""
+    return f" (in one of: {', '.join(given.values())})"
+
+
 def _warning_as_log_record(message, category, filename, lineno, file=None, line=None):
     """``warnings.showwarning`` of the command line: a Python warning becomes one DEBUG
     record (``-v`` shows it), never a source line on the console. The project's own
@@ -232,9 +253,12 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: t
         print(f"diffuserlab: interrupted ({exc or 'Ctrl-C'})", file=sys.stderr)
         return exit_status(exc)
     except bench_open_error as exc:  # a device missing or unplugged: the bench, not a bug
-        print(f"diffuserlab: error: cannot open the bench: {_one_line(exc)}; check that the "
-              "device is connected and powered (diffuserlab devices BENCH.toml), or use "
-              "--simulate", file=sys.stderr)
+        fix = ("fix that value in the bench file (diffuserlab validate BENCH.toml lists every "
+               "problem)" if isinstance(exc.__cause__, DeviceValueError) else
+               "check that the device is connected and powered (diffuserlab devices "
+               "BENCH.toml), or use --simulate")
+        print(f"diffuserlab: error: cannot open the bench: {_one_line(exc)}; {fix}",
+              file=sys.stderr)
         return 2
     except BenchConfigError as exc:  # one line per problem of the bench file
         for line in exc.lines():
@@ -244,7 +268,8 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: t
         print(f"diffuserlab: diverged: {(str(exc).splitlines() or [''])[0]}", file=sys.stderr)
         return 3
     except input_errors as exc:
-        print(f"diffuserlab: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"diffuserlab: error: {_one_line(exc)}{_inputs_note(args, exc)}",
+              file=sys.stderr)
         return 2
     except DeviceError as exc:  # a refused value or a missing library is the input's
         bad_input = isinstance(exc, DeviceValueError | MissingDependencyError)

@@ -142,6 +142,11 @@ def _method(text: str) -> tuple[str, int]:
                           "per frame (e.g. admm:5)")
 
 
+#: Longest ``--seconds`` of a capture (a recording's frame count is bounded too, by
+#: :data:`instrument.video.MAX_FRAMES`, once the camera's rate is known).
+MAX_SECONDS = 1e7
+
+
 def _check_numbers(args: argparse.Namespace) -> None:
     from recon.errors import ReconInputError
     from recon.fft import check_threads
@@ -151,6 +156,9 @@ def _check_numbers(args: argparse.Namespace) -> None:
                           ("--preview-every-s", getattr(args, "preview_every_s", None))):
         if value is not None and not 0 < value < float("inf"):
             raise ReconInputError(f"{option} {value}: give a number > 0")
+    if args.seconds is not None and args.seconds > MAX_SECONDS:
+        raise ReconInputError(f"--seconds {args.seconds:g}: give at most {MAX_SECONDS:g} s "
+                              f"({MAX_SECONDS / 86400:.0f} days) per run")
     if args.bin_factor < 1:
         raise ReconInputError(f"--bin {args.bin_factor}: give a factor >= 1")
     if args.seed < 0:
