@@ -194,7 +194,7 @@ def run_recon(
     """
     from recon import reconstruct
     from recon.fft import fft_pair_seconds
-    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     raw = load_image(raw_path)
@@ -207,12 +207,13 @@ def run_recon(
     metrics = result.metrics(floor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
     png, tif = output_paths(out)
-    save_image(png, scene_view(result.image))
-    save_image(tif, result.image)
     metrics.update(output_png=str(png), output_tiff=str(tif),
                    orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})
-    if metrics_json:
-        write_json(metrics_json, metrics)
+    with output_group():  # the PNG, the TIFF and the JSON: all of them or none
+        save_image(png, scene_view(result.image))
+        save_image(tif, result.image)
+        if metrics_json:
+            write_json(metrics_json, metrics)
     return metrics
 
 
@@ -402,7 +403,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         The solver diverged.
     """
     from recon.auto import AUTO, parse_weight
-    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
     from recon.volume.api import check_volume_parameters, reconstruct_volume
 
     from .stacks import load_psf_stack
@@ -436,10 +437,11 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
              "normalised PSF stack (sum_z (sum h_z)^2 = 1)", "method": method,
              "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor),
              "orientation": DATA_ORIENTATION}
-    write_volume(vol_path, rec.volume, attrs)
-    # the projections are views: turned to scene orientation (rows and columns flipped)
-    for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
-        save_image(mip_paths[view], image)
+    with output_group():  # the volume and its projections: all of them or none
+        write_volume(vol_path, rec.volume, attrs)
+        # the projections are views: turned to scene orientation (rows and columns flipped)
+        for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
+            save_image(mip_paths[view], image)
     solved = rec.metrics()
     solved["seconds_total"] = seconds_total
     files = {"psf_stack": str(psf_stack), "psf_product": psf_product,

@@ -744,9 +744,10 @@ class RunStore(ProductsMixin):
         return json.dumps(self.summary(), indent=1)
 
 
-def discard_partial_run(path: str | Path, settle_s: float = 0.1, timeout_s: float = 5.0
-                        ) -> None:
-    """Remove a run store this process began and could not finish (whole or not at all).
+def discard_partial_run(path: str | Path, made=(), settle_s: float = 0.1,
+                        timeout_s: float = 5.0) -> None:
+    """Remove a run store this process began and could not finish (whole or not at all),
+    and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty.
 
     zarr writes chunks on a pool of threads: when one write fails (a full disk), the
     others still finish after the error has reached the caller and may create their
@@ -755,13 +756,16 @@ def discard_partial_run(path: str | Path, settle_s: float = 0.1, timeout_s: floa
     import shutil
     import time
 
+    from recon.io import remove_empty_dirs
+
     path = Path(path)
     deadline = time.monotonic() + timeout_s
     while True:
         shutil.rmtree(path, ignore_errors=True)
         time.sleep(settle_s)
         if not path.exists() or time.monotonic() > deadline:
-            return
+            break
+    remove_empty_dirs(made)
 
 
 def is_run_store(path: str | Path) -> bool:

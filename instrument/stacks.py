@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.io import missing_dirs
+
 from .runstore import RunStore, RunStoreError, discard_partial_run
 
 __all__ = ["MIN_PLANE_PX", "export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
@@ -227,7 +229,7 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
     stack, depths, attrs = load_psf_stack(source, depths_mm)
     order = np.argsort(depths)
     stack, depths = stack[order], [depths[i] for i in order]
-    existed, store = Path(out).exists(), None
+    existed, store, made = Path(out).exists(), None, missing_dirs(out)
     try:  # whole or not at all: a run this call began is removed when it fails
         store = RunStore.create(out, plan_name="imported-psf-stack",
                                 plan_params={"source": str(source)},
@@ -241,6 +243,6 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
                            summary={"depths_mm": depths, "source": str(source)})
     except BaseException:
         if store is not None or (not existed and Path(out).exists()):
-            discard_partial_run(out)
+            discard_partial_run(out, made)
         raise
     return store

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from drivers.camera import FrameRing
+from recon.io import missing_dirs
 
 from .recorder import VIDEO_COORDS, Recorder, record_from_ring
 from .runstore import RunStore, RunStoreError, discard_partial_run
@@ -227,7 +228,7 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     n = video_frame_count(frames=frames, seconds=seconds, rate_hz=rate)
     check_disk_space(out, n, cam.image_shape, cam.dtype)
     config = getattr(bench, "config", None)
-    store, existed = None, Path(out).exists()
+    store, existed, made = None, Path(out).exists(), missing_dirs(out)
     try:  # until the recorder holds the run, a failure (Ctrl-C too) leaves no run behind
         store = create_video_run(
             out, cam, n,
@@ -239,7 +240,7 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
         rec.start()
     except BaseException:
         if store is not None or (not existed and Path(out).exists()):
-            discard_partial_run(out)  # the empty run this call created
+            discard_partial_run(out, made)  # the empty run this call created
         raise
     stop = stop or threading.Event()
     timeout_s = frame_timeout_s if frame_timeout_s is not None else 10.0 / rate + 5.0

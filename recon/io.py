@@ -12,9 +12,11 @@ message that names the file, the problem and the fix.
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -32,6 +34,9 @@ __all__ = [
     "LOAD_EXTENSIONS",
     "atomic_path",
     "free_space_text",
+    "missing_dirs",
+    "output_group",
+    "remove_empty_dirs",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
     "DATA_ORIENTATION",
@@ -332,14 +337,83 @@ def _disk_full(path: Path, exc: OSError) -> OSError | None:
     because the disk (or quota) is full, including numpy's short write ("N requested
     and M written", no errno); None for any other error."""
     import errno
+    import re
+    import shutil
 
     text = str(exc)
     short = exc.errno is None and "requested and" in text and "written" in text
     if exc.errno not in (errno.ENOSPC, errno.EDQUOT) and not short:
         return None
+    if short:  # numpy says how much it wanted, not why it got less
+        wanted = re.search(r"(\d+) requested", text)
+        where = Path(os.path.abspath(path)).parent
+        while not where.exists() and where != where.parent:
+            where = where.parent
+        try:
+            free = shutil.disk_usage(where).free
+        except OSError:
+            free = 0
+        if wanted and free > int(wanted.group(1)):
+            return OSError(errno.EIO, f"the write stopped short ({text}; "
+                           f"{free_space_text(path)}: a file-size limit or a failing "
+                           "disk); write elsewhere", str(path))
     detail = f"; {text}" if short else ""
     return OSError(errno.ENOSPC, f"No space left on device ({free_space_text(path)}"
                    f"{detail}); free space or write elsewhere", str(path))
+
+
+#: The open :func:`output_group`'s pending ``(temporary, final)`` renames and the
+#: folders its writers created, per thread.
+_GROUP = threading.local()
+
+
+def missing_dirs(path: str | os.PathLike) -> list[Path]:
+    """The ancestors of ``path`` (``path`` itself excluded) that do not exist yet, deepest
+    first: what writing ``path`` creates, and a failed write removes again
+    (:func:`remove_empty_dirs`)."""
+    out = []
+    p = Path(os.path.abspath(os.fspath(path))).parent
+    while not p.exists() and p != p.parent:
+        out.append(p)
+        p = p.parent
+    return out
+
+
+def remove_empty_dirs(dirs) -> None:
+    """Remove the folders of :func:`missing_dirs` that are still empty, deepest first."""
+    for d in dirs:
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
+@contextlib.contextmanager
+def output_group() -> Iterator[None]:
+    """Several outputs written whole or not at all, together.
+
+    Inside the block, every :func:`atomic_path` (so :func:`save_image` too) keeps its
+    finished temporary file instead of renaming it; when the block ends normally all
+    of them are renamed into place, when it raises all of them are removed. So a
+    command that writes ``OUT.png``, ``OUT.tif`` and a JSON never leaves the PNG alone
+    when the TIFF fails (a full disk), which would block its retry ("exists").
+    Groups do not nest (an inner one joins the outer).
+    """
+    if getattr(_GROUP, "pending", None) is not None:
+        yield
+        return
+    _GROUP.pending, _GROUP.made = pending, made = [], []
+    try:
+        yield
+    except BaseException:
+        for tmp, _ in pending:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        remove_empty_dirs(made)
+        raise
+    else:
+        for tmp, final in pending:
+            os.replace(tmp, final)
+    finally:
+        _GROUP.pending = _GROUP.made = None
 
 
 @contextlib.contextmanager
@@ -349,8 +423,9 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     The writer inside the ``with`` block writes the temporary file (same directory,
     so the rename is atomic: :func:`os.replace`; same suffix, so writers that choose
     the format by extension still do). When the block succeeds the file replaces
-    ``path``; when it raises, the temporary file is removed and ``path`` is left as
-    it was: a crash never leaves half a file under the final name. A write that
+    ``path``; when it raises, the temporary file (and any folder it had to create,
+    if still empty) is removed and ``path`` is left as it was: a crash never leaves
+    half a file under the final name. A write that
     fails because the disk is full (ENOSPC, a quota, numpy's short write) is raised
     as an ENOSPC OSError naming ``path`` and the free space left.
 
@@ -370,6 +445,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     ...     tmp.write_text("{}")
     """
     path = Path(path)
+    made = missing_dirs(path)
+    group = getattr(_GROUP, "made", None)
+    if group is not None:
+        group.extend(made)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
                                 suffix=f".tmp{path.suffix}")
@@ -380,10 +459,15 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the final file gets the usual mode
     try:
         yield tmp
-        os.replace(tmp, path)
+        group = getattr(_GROUP, "pending", None)
+        if group is None:
+            os.replace(tmp, path)
+        else:  # renamed with the rest of its output_group
+            group.append((tmp, path))
     except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        remove_empty_dirs(made)
         full = _disk_full(path, exc) if isinstance(exc, OSError) else None
         if full is not None:
             raise full from exc
@@ -470,6 +554,8 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
                 with open(tmp, "wb") as fh:  # np.save(name) would append .npy to the name
                     np.save(fh, image, allow_pickle=False)
     except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO):
+            raise  # the disk's problem, named with its path (and free space) already
         raise ReconInputError(
             f"{path}: cannot write file ({exc}); check the directory exists and is writable"
         ) from exc

@@ -274,6 +274,12 @@ def _progress(total: int, initial: int):
             bar.write(f"{e.kind}: {e.message}")
         elif e.kind in ("completed", "aborted", "failed"):
             bar.close()
+
+    def close() -> None:  # a run that raised: its error line starts a line of its own
+        if bar is not None:
+            bar.close()
+
+    on_event.close = close
     return on_event
 
 
@@ -299,6 +305,27 @@ def _apply_lut(bench, plan, path) -> bool:
           f"LUT is on {bench.slm.device_id} for this session - load it later with "
           f"calibration_routines.slm_lut_io.apply_lut(bench.slm, '{path}')")
     return True
+
+
+def _run_whole_or_nothing(runner, plan, out, **options):
+    """``runner.run(plan, out)``; a new run that fails before it stored a frame (a full
+    disk while its layout is written, say) is removed instead of left half-made. A run
+    holding frames is kept (its data are the operator's; it resumes)."""
+    from instrument.runstore import RunStore, RunStoreError, discard_partial_run
+    from recon.io import missing_dirs
+
+    existed, made = Path(out).exists(), missing_dirs(out)
+    try:
+        return runner.run(plan, out, **options)
+    except BaseException:
+        if not existed and Path(out).exists():
+            try:
+                empty = not RunStore.open(out).done().any()
+            except RunStoreError:  # its description was not even written whole
+                empty = True
+            if empty:
+                discard_partial_run(out, made)
+        raise
 
 
 def run(args: argparse.Namespace) -> int:
@@ -353,11 +380,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 1
     applied = True  # slm-lut --apply: False if loading the LUT onto the SLM failed
+    bars = None
     try:
         with bench:
             if args.routine == "resume":
                 store = RunStore.open(args.run)
-                events = _progress(store.n_frames, int(store.done().sum()))
+                events = bars = _progress(store.n_frames, int(store.done().sum()))
                 runner = Runner(bench, on_event=events,
                                 reconnect_timeout_s=args.reconnect_timeout_s)
                 try:
@@ -370,14 +398,21 @@ def run(args: argparse.Namespace) -> int:
             else:
                 plan = plan_from_args(args, bench)
                 total = sum(len(p.tags) for p in plan.points())
-                runner = Runner(bench, on_event=_progress(total, 0),
+                bars = _progress(total, 0)
+                runner = Runner(bench, on_event=bars,
                                 reconnect_timeout_s=args.reconnect_timeout_s)
-                result = runner.run(plan, out, note=args.note, overwrite=args.overwrite)
+                result = _run_whole_or_nothing(runner, plan, out, note=args.note,
+                                               overwrite=args.overwrite)
                 if getattr(args, "apply", False) and result.status == "complete":
                     applied = _apply_lut(bench, plan, result.path)
     except (PlanError, RunStoreError, ValueError) as exc:
+        if bars is not None:
+            bars.close()
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if bars is not None:
+            bars.close()
     print(format_summary(RunStore.open(result.path).summary()))
     if result.status == "complete":
         return 0 if applied else 1

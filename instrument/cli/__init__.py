@@ -250,7 +250,7 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: t
     try:
         return int(args.handler(args) or 0)
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP not handled by the command
-        print(f"diffuserlab: interrupted ({exc or 'Ctrl-C'})", file=sys.stderr)
+        print(f"diffuserlab: interrupted ({str(exc) or 'Ctrl-C'})", file=sys.stderr)
         return exit_status(exc)
     except bench_open_error as exc:  # a device missing or unplugged: the bench, not a bug
         fix = ("fix that value in the bench file (diffuserlab validate BENCH.toml lists every "

@@ -318,7 +318,7 @@ def run_video(args: argparse.Namespace) -> int:
     from ..output_safety import check_outputs
     from ..recorder import index_ranges
     from ..runstore import FRAME_COMPRESSORS, RunStore, is_run_store
-    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, record_video
+    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES, record_video
 
     if args.method is not None:
         _method(args.method)
@@ -328,8 +328,9 @@ def run_video(args: argparse.Namespace) -> int:
     elif args.psf is not None or args.preview_png is not None:
         raise ReconInputError("--psf and --preview-png go with --live-recon wiener|admm:K")
     _check_numbers(args)
-    if args.frames is not None and args.frames < 1:
-        raise ReconInputError(f"--frames {args.frames}: give a whole number >= 1")
+    if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
+        raise ReconInputError(f"--frames {args.frames}: give a whole number >= 1 and at most "
+                              f"{MAX_FRAMES} (record longer videos in parts)")
     for option, value in (("--shard-frames", args.shard_frames),
                           ("--queue-frames", args.queue_frames)):
         if value is not None and value < 1:

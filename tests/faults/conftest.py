@@ -177,8 +177,30 @@ def _colour(d: Path) -> None:
     np.save(d / "two.npy", frames[:2].transpose(1, 2, 0))
 
 
+def _bench_fields(d: Path) -> None:
+    """Bench files whose values have the right types but cannot describe the bench: the
+    geometry contradicting the camera, a length in metres, an unknown driver parameter
+    (which a simulated twin would drop), a negative speed, two axes on one controller,
+    counts_per_unit = 0."""
+    sim = (d / "bench.toml").read_text()
+    lab = (REPO / "examples" / "bench-lab.toml").read_text()
+    emulated = (REPO / "examples" / "bench-emulated.toml").read_text()
+    edits = {
+        "b_geom.toml": (sim, "sensor_shape_px = [256, 320]", "sensor_shape_px = [512, 640]"),
+        "b_metres.toml": (sim, "diffuser_sensor_distance_mm = 8.9",
+                          "diffuser_sensor_distance_mm = 0.0089"),
+        "b_gain.toml": (sim, "adc_bits = 12", "adc_bits = 12\ngain_db = 6"),
+        "l_speed.toml": (lab, "speed_mm_s = 2.0", "speed_mm_s = -2.0"),
+        "l_serial.toml": (lab, 'y = "27500102"', 'y = "27500101"'),
+        "e_counts.toml": (emulated, "counts_per_unit = 34554.96", "counts_per_unit = 0"),
+    }
+    for name, (text, old, new) in edits.items():
+        assert text.count(old) == 1, (name, old)
+        (d / name).write_text(text.replace(old, new))
+
+
 FACTORIES = (_valid, _empty, _truncated, _mislabelled, _shapes, _dtypes, _nonfinite, _stores,
-             _signal, _colour)
+             _signal, _colour, _bench_fields)
 
 
 @pytest.fixture(scope="session")

@@ -25,7 +25,7 @@ from .helpers import assert_refused
 #: input classes (the second part of a case id)
 CLASSES = ("missing", "empty", "truncated", "mislabelled", "shape", "dtype", "nonfinite",
            "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench",
-           "no-signal", "colour")
+           "no-signal", "colour", "bench-field", "resource", "ignored-option", "out-name")
 
 
 def case(command: str, cls: str, what: str, words: str):
@@ -285,6 +285,26 @@ BENCH = [
     case("devices --timeout -1", "number", "timeout -1", "--timeout"),
 ]
 
+#: values of the right type that cannot describe the bench: refused at their line
+BENCH_FIELDS = [
+    case("validate b_geom.toml", "bench-field", "camera shape against the geometry",
+         "b_geom.toml:53|sensor_shape [256, 320]|geometry.sensor_shape_px [512, 640]"),
+    case("validate b_metres.toml", "bench-field", "distance in metres",
+         "b_metres.toml:25|0.0089 mm|diffuser_sensor_distance_mm = 8.9"),
+    case("validate b_gain.toml --simulate", "bench-field", "unknown parameter, simulated",
+         "b_gain.toml:56|gain_db|max_gain_db"),
+    case("validate l_speed.toml --simulate", "bench-field", "negative speed",
+         "l_speed.toml:65|speed_mm_s = -2|> 0"),
+    case("validate l_serial.toml --simulate", "bench-field", "two axes on one serial number",
+         "l_serial.toml:63|axes x, y share serial number '27500101'"),
+    case("validate e_counts.toml --simulate", "bench-field", "counts_per_unit 0",
+         "e_counts.toml:55|counts_per_unit = 0|> 0"),
+    case("devices b_metres.toml", "bench-field", "devices: distance in metres",
+         "b_metres.toml:25|metres"),
+    case("calibrate dark b_gain.toml --simulate --frames 2 --out o/c.zarr", "bench-field",
+         "calibrate: unknown parameter", "b_gain.toml:56|gain_db"),
+]
+
 RUNS = [
     case("runs show nope.zarr", "missing", "show", "nope.zarr"),
     case("runs show emptydir", "empty", "show empty dir", "emptydir"),
@@ -362,6 +382,45 @@ BENCHMARK = [
     case("benchmark live --json file.txt", "clash", "json exists", "file.txt|exists"),
     case("benchmark live --json file.txt/b.json", "unwritable", "json under a file",
          "file.txt"),
+]
+
+#: resources a command cannot have (memory, cores, frames, a scheduler), refused before
+#: any work
+RESOURCE = [
+    case("holo benchmark --slm 100000 100000", "resource", "hologram beyond memory",
+         "--slm 100000 100000|GiB of memory"),
+    case("holo evaluate --size 1000000 --out o/h", "resource", "evaluation beyond memory",
+         "--size 1000000|GiB of memory"),
+    case("capture video --simulate --seconds 1e308 --out o/v.zarr", "resource",
+         "recording of 1e308 s", "--seconds 1e+308|at most"),
+    case("capture video --simulate --frames 99999999 --out o/v.zarr", "resource",
+         "recording of 1e8 frames", "99999999|at most"),
+    case("recon-run dark.zarr --psf psf.npy --workers 1000000 --frames 0:2", "resource",
+         "workers beyond the cores", "--workers 1000000|cores"),
+    case("recon-run dark.zarr --psf psf.npy --scheduler notaurl", "resource",
+         "scheduler not an address", "--scheduler 'notaurl'|tcp://HOST:PORT"),
+    case("recon-run dark.zarr --psf psf.npy --scheduler tcp://127.0.0.1:9", "resource",
+         "scheduler port closed", "--scheduler tcp://127.0.0.1:9|nothing answers"),
+]
+
+#: options a command would otherwise ignore
+IGNORED = [
+    case("emulators start --duration-s nan", "ignored-option", "duration nan",
+         "--duration-s|nan"),
+    case("emulators start --duration-s -1", "ignored-option", "duration negative",
+         "--duration-s|-1"),
+    case("holo evaluate --quick --size 1000000 --out o/h", "ignored-option",
+         "evaluate --quick with --size", "--quick sets --size 48|drop --size"),
+    case("holo benchmark --quick --slm 100 100", "ignored-option",
+         "benchmark --quick with --slm", "--quick sets --slm 36 64|drop --slm"),
+]
+
+#: only known extensions are extensions
+OUT_NAMES = [
+    case("runs export run.zarr --out o/e.png", "out-name", "export under a png name",
+         "o/e.png|.tif"),
+    case("runs export run.zarr --out o/e", "out-name", "export without an extension",
+         "o/e|.tif"),
 ]
 
 HE = "holo evaluate --out o/h"
@@ -551,8 +610,9 @@ VIDEO = [
 ]
 
 TABLE = {"recon": RECON, "no-signal": NO_SIGNAL, "colour": COLOUR, "demo": DEMO, "recon3d": RECON3D,
-         "analyze": ANALYZE, "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK,
-         "holo": HOLO,
+         "analyze": ANALYZE, "validate/devices": BENCH, "bench-field": BENCH_FIELDS,
+         "runs": RUNS, "out-name": OUT_NAMES, "benchmark": BENCHMARK, "holo": HOLO,
+         "resource": RESOURCE, "ignored-option": IGNORED,
          "calibrate": CALIBRATE, "align": ALIGN, "capture": CAPTURE, "video": VIDEO}
 ALL = [c for rows in TABLE.values() for c in rows]
 
