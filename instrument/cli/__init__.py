@@ -32,7 +32,22 @@ import logging
 import sys
 import warnings
 
-from . import analyze, bench, benchmark, capture, demo, holo, recon, recon3d, recon_run, runs
+try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C may come
+    from . import (
+        analyze,
+        bench,
+        benchmark,
+        capture,
+        demo,
+        holo,
+        recon,
+        recon3d,
+        recon_run,
+        runs,
+    )
+except KeyboardInterrupt:  # one line and 130, as anywhere else; nothing has run yet
+    sys.stderr.write("diffuserlab: interrupted (Ctrl-C) while starting; nothing was done\n")
+    raise SystemExit(130) from None
 
 __all__ = ["build_parser", "main", "os_error_line"]
 
