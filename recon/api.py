@@ -91,6 +91,11 @@ class Reconstruction:
             "objective": [list(r.history.objective) for r in self.results],
             "data_residual": [list(r.history.data_residual) for r in self.results],
             "params": [_jsonable(r.params) for r in self.results],
+            # the dark level and where it came from, and the raw's own levels (a lensless
+            # raw has no dark region: its floor only bounds its dark level from above)
+            "dark": {"mode": self.info.get("dark_mode"), "level": self.info.get("dark_level"),
+                     "region": self.info.get("dark_region"),
+                     "raw_levels": self.info.get("raw_levels")},
         }
 
 

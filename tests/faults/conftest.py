@@ -175,6 +175,20 @@ def _colour(d: Path) -> None:
     tifffile.imwrite(d / "pages3.tif", frames, photometric="minisblack")
     tifffile.imwrite(d / "pages_hw3.tif", frames.transpose(1, 2, 0), photometric="minisblack")
     np.save(d / "two.npy", frames[:2].transpose(1, 2, 0))
+    tifffile.imwrite(d / "abc_depths.tif", frames, metadata={"depths_mm": ["abc", 4.0, 8.0]},
+                     photometric="minisblack")
+    sat = (2000 + 3000 * rng.random(SHAPE)).astype(np.uint16)
+    sat[:4] = 65535  # 12.5 % saturated: warned once, reconstructed
+    tifffile.imwrite(d / "sat12.tif", sat)
+
+
+def _frame_psf(d: Path) -> None:
+    """frame_psf.npy: a PSF at the simulated camera's frame shape (dark.zarr's frames)."""
+    from instrument.runstore import RunStore
+
+    rows, cols = RunStore.open(d / "dark.zarr").frame_shape
+    rng = np.random.default_rng(5)
+    np.save(d / "frame_psf.npy", (100 + 1000 * rng.random((rows, cols))).astype(np.float32))
 
 
 def _bench_fields(d: Path) -> None:
@@ -200,7 +214,7 @@ def _bench_fields(d: Path) -> None:
 
 
 FACTORIES = (_valid, _empty, _truncated, _mislabelled, _shapes, _dtypes, _nonfinite, _stores,
-             _signal, _colour, _bench_fields)
+             _signal, _colour, _bench_fields, _frame_psf)
 
 
 @pytest.fixture(scope="session")

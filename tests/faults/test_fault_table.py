@@ -25,7 +25,8 @@ from .helpers import assert_refused
 #: input classes (the second part of a case id)
 CLASSES = ("missing", "empty", "truncated", "mislabelled", "shape", "dtype", "nonfinite",
            "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench",
-           "no-signal", "colour", "bench-field", "resource", "ignored-option", "out-name")
+           "no-signal", "colour", "bench-field", "resource", "ignored-option", "out-name",
+           "messages")
 
 
 def case(command: str, cls: str, what: str, words: str):
@@ -69,7 +70,8 @@ RECON = [
     case(f"{R} --psf d1.npy --raw raw.tif", "shape", "1-D psf", "d1.npy"),
     case(f"{R} --psf d3.npy --raw raw.tif", "shape", "3-D psf without depth", "d3.npy"),
     case(f"{R} --psf d4.npy --raw raw.tif", "shape", "4-D psf", "d4.npy"),
-    case(f"{R} --psf tiny.npy --raw tiny.npy", "shape", "2x2", "2"),
+    case(f"{R} --psf tiny.npy --raw tiny.npy", "shape", "2x2",
+         "2x2 pixels|dark corner|--dark"),
     case(f"{R} --psf psf.npy --raw big_raw.tif", "shape", "size mismatch", "shape"),
     case(f"{R} --psf complex.npy --raw raw.tif", "dtype", "complex psf", "complex"),
     case(f"{R} --psf bool.npy --raw raw.tif", "dtype", "bool psf", "bool"),
@@ -154,6 +156,17 @@ COLOUR = [
          "two.npy|2 values per pixel"),
     case(f"{V2} --raw pages3.tif", "colour", "recon3d 3 grey pages as raw",
          "pages3.tif|stack of 3 images"),
+    # not "PSF has 3 channels": a stack without --depth is a stack
+    case(f"{R} --psf stack.tif --raw raw.tif", "colour", "psf stack without depth",
+         "stack.tif|stack of 3 images|--depth"),
+]
+
+#: messages a user can act on: the file named, the option to use
+MESSAGES = [
+    case(f"{R} --psf abc_depths.tif --depth 4 --raw raw.tif", "messages",
+         "stack depths not numbers", "abc_depths.tif|'abc'|--depths"),
+    case(f"{V} --psf-stack abc_depths.tif --raw raw.tif", "messages",
+         "recon3d stack depths not numbers", "abc_depths.tif|not numbers"),
 ]
 
 RECON3D = [
@@ -395,11 +408,11 @@ RESOURCE = [
          "recording of 1e308 s", "--seconds 1e+308|at most"),
     case("capture video --simulate --frames 99999999 --out o/v.zarr", "resource",
          "recording of 1e8 frames", "99999999|at most"),
-    case("recon-run dark.zarr --psf psf.npy --workers 1000000 --frames 0:2", "resource",
+    case("recon-run dark.zarr --psf frame_psf.npy --workers 1000000 --frames 0:2", "resource",
          "workers beyond the cores", "--workers 1000000|cores"),
-    case("recon-run dark.zarr --psf psf.npy --scheduler notaurl", "resource",
+    case("recon-run dark.zarr --psf frame_psf.npy --scheduler notaurl", "resource",
          "scheduler not an address", "--scheduler 'notaurl'|tcp://HOST:PORT"),
-    case("recon-run dark.zarr --psf psf.npy --scheduler tcp://127.0.0.1:9", "resource",
+    case("recon-run dark.zarr --psf frame_psf.npy --scheduler tcp://127.0.0.1:9", "resource",
          "scheduler port closed", "--scheduler tcp://127.0.0.1:9|nothing answers"),
 ]
 
@@ -609,7 +622,8 @@ VIDEO = [
          "raw.tif|exists"),
 ]
 
-TABLE = {"recon": RECON, "no-signal": NO_SIGNAL, "colour": COLOUR, "demo": DEMO, "recon3d": RECON3D,
+TABLE = {"recon": RECON, "no-signal": NO_SIGNAL, "colour": COLOUR, "messages": MESSAGES,
+         "demo": DEMO, "recon3d": RECON3D,
          "analyze": ANALYZE, "validate/devices": BENCH, "bench-field": BENCH_FIELDS,
          "runs": RUNS, "out-name": OUT_NAMES, "benchmark": BENCHMARK, "holo": HOLO,
          "resource": RESOURCE, "ignored-option": IGNORED,
