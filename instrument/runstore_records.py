@@ -26,10 +26,39 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["VIDEO_PLAN", "duplicate_keys", "index_ranges", "ranges_text", "record_problems"]
+__all__ = ["VIDEO_PLAN", "duplicate_keys", "index_ranges", "ranges_text", "record_problems",
+           "video_cannot_continue"]
 
 #: The plan name of a recorded video (:mod:`instrument.video`).
 VIDEO_PLAN = "video"
+
+
+def video_cannot_continue(store) -> str | None:
+    """Why ``store`` cannot be continued by a calibration resume, or None.
+
+    A recording (:mod:`instrument.video`) is not a plan of bench steps: what it did
+    not record happened and is gone, so it is never continued. Its stored frames are
+    kept and used as they are (``runs export --frames``, ``recon-run``).
+
+    Parameters
+    ----------
+    store : RunStore
+        An open run.
+
+    Returns
+    -------
+    str or None
+        The message naming the run, its stored frames and what to do instead; None
+        for a calibration run.
+    """
+    if (store.attrs.get("plan") or {}).get("name") != VIDEO_PLAN:
+        return None
+    kept = int(store.done().sum())
+    return (f"{store.path} is a video recording (capture video), not a calibration run: a "
+            f"recording cannot be continued, what it did not record is gone. Its {kept} "
+            f"stored frames are kept: export them (diffuserlab runs export {store.path} "
+            f"--frames --out FRAMES.tif), reconstruct them (diffuserlab recon-run "
+            f"{store.path} --psf PSF), or record a new video (diffuserlab capture video)")
 
 
 def index_ranges(indices: Iterable[int]) -> list[list[int]]:

@@ -339,6 +339,7 @@ def run(args: argparse.Namespace) -> int:
     from instrument.plan import PlanError
     from instrument.runner import Runner
     from instrument.runstore import RunStore, RunStoreError, is_run_store
+    from instrument.runstore_records import video_cannot_continue
 
     if not args.reconnect_timeout_s >= 0:  # NaN fails too
         print(f"diffuserlab: error: --reconnect-timeout {args.reconnect_timeout_s}: give the "
@@ -360,6 +361,14 @@ def run(args: argparse.Namespace) -> int:
                 args.falloff_sigma_deg = _falloff_sigma_deg(args.falloff_run)
         except (PlanError, RunStoreError, OutputError) as exc:
             print(f"diffuserlab: error: {exc}", file=sys.stderr)
+            return 2
+    else:  # a recording is never continued: said before the bench opens
+        try:
+            why = video_cannot_continue(RunStore.open(args.run))
+        except (RunStoreError, OSError):
+            why = None  # the resume itself reports an unreadable run
+        if why is not None:
+            print(f"diffuserlab: error: {why}", file=sys.stderr)
             return 2
     if not getattr(args, "verbose", False):  # device chatter would break the progress bar
         logging.getLogger("drivers").setLevel(logging.WARNING)

@@ -18,6 +18,7 @@ A record is a directory (``*.align``):
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -117,15 +118,26 @@ class AlignmentRecord:
         if self.path.exists() and any(self.path.iterdir()):
             raise PlanError(f"{self.path} already exists and is not empty; choose a new --out")
         self.path.mkdir(parents=True, exist_ok=True)
-        self._log = open(self.path / "captures.jsonl", "a", encoding="utf-8")  # noqa: SIM115
+        self._log = open(self.path / "captures.jsonl", "ab", buffering=0)  # noqa: SIM115
         self.state: dict = {"schema": "diffuserlab.mask-alignment/1", "status": "running",
                             "started_host_s": time.time(), "steps": {}}
         self.save()
 
     def log(self, entry: dict) -> None:
-        """Append one capture entry (flushed to disk)."""
-        self._log.write(json.dumps(jsonable(entry, nonfinite_to_none=True)) + "\n")
-        self._log.flush()
+        """Append one capture entry, written through to the file, whole or not at all:
+        a write the system refuses midway (a full disk, a file-size limit) is cut back
+        to the previous line, and the ``OSError`` propagates."""
+        line = (json.dumps(jsonable(entry, nonfinite_to_none=True)) + "\n").encode("utf-8")
+        end = self._log.seek(0, os.SEEK_END)
+        try:
+            written = 0
+            while written < len(line):  # an unbuffered write may take part of it
+                written += self._log.write(line[written:])
+        except OSError as exc:
+            self._log.truncate(end)
+            if exc.filename is None:  # a raw write names no file: name it
+                exc.filename = self._log.name
+            raise
 
     def save(self) -> None:
         """Write ``alignment.json`` atomically (:func:`recon.io.atomic_path`: no
@@ -179,6 +191,8 @@ def load_alignment(path) -> dict:
         if f.is_file():
             rec[name] = np.load(f)
     log = p / "captures.jsonl"
-    rec["captures"] = ([json.loads(line) for line in log.read_text().splitlines() if line]
-                       if log.is_file() else [])
+    text = log.read_text(encoding="utf-8") if log.is_file() else ""
+    # a last line without its newline is an append cut short (power lost while writing)
+    lines = text.split("\n")[:-1]
+    rec["captures"] = [json.loads(line) for line in lines if line]
     return rec

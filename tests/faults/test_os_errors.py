@@ -33,6 +33,8 @@ import resource, signal, sys
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 limit = int(sys.argv[1])
 resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+from numba.core import caching  # JIT code is compiled, never cached: the limit would cut it
+caching.Cache.save_overload = lambda self, sig, data: None
 from instrument.cli import main
 sys.exit(main(sys.argv[2:]))
 """
@@ -76,6 +78,32 @@ def test_a_write_refused_by_the_system_leaves_nothing_half_written(d, tmp_path, 
     assert_one_error_line(lines[0], [where])
     assert "File too large" in lines[0] or "stopped short" in lines[0], lines[0]
     assert tree(d) == before, "a half output or a temporary file was left"
+
+
+def test_an_alignment_cut_by_the_system_keeps_whole_records(d, tmp_path):
+    """``align mask`` whose capture log meets the file-size limit mid-line: exit 2 naming
+    the log, the record kept (status failed, every line whole, no ``*.tmp``), inputs
+    unchanged. Before: a half JSON line that ``load_alignment`` could not read."""
+    from calibration_routines.mask_alignment.record import load_alignment
+
+    before = tree(d)
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1",
+           "NUMBA_CACHE_DIR": str(tmp_path)}
+    proc = subprocess.run([sys.executable, "-c", FSIZE_CHILD, "5000", "align", "mask",
+                           "--simulate", "--out", "o/al.align"], cwd=d, capture_output=True,
+                          text=True, timeout=180, env=env)
+    assert proc.returncode == 2, proc.stderr
+    lines = [x for x in _error_lines(proc.stderr) if not x.startswith("[")]
+    assert len(lines) == 1, proc.stderr
+    assert_one_error_line(lines[0], ["File too large", "o/al.align/captures.jsonl"])
+    after = tree(d)
+    assert set(after) - set(before) - {"o"} == {
+        "o/al.align", "o/al.align/alignment.json", "o/al.align/captures.jsonl"}
+    assert {k: v for k, v in after.items() if k in before} == before
+    log = (d / "o" / "al.align" / "captures.jsonl").read_bytes()
+    assert 0 < len(log) <= 5000 and log.endswith(b"\n")
+    record = load_alignment(d / "o" / "al.align")
+    assert record["status"] == "failed" and len(record["captures"]) == log.count(b"\n")
 
 
 def _failing_imwrite(exc: OSError):

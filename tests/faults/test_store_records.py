@@ -53,6 +53,21 @@ def _sweep_done(run: Path) -> None:
     (run / "done" / "c" / "2").unlink()
 
 
+def _undamaged(run: Path) -> None:
+    pass
+
+
+def _killed(run: Path) -> None:
+    """What a SIGKILL while recording leaves: status recording, no summary, the last
+    shard (frames 16-23) not yet written."""
+    meta = run / "zarr.json"
+    doc = json.loads(meta.read_text())
+    doc["attributes"].update(status="recording", summary=None)
+    meta.write_text(json.dumps(doc))
+    (run / "done" / "c" / "2").unlink()
+    shutil.rmtree(run / "frames" / "c" / "2")
+
+
 def _frame_chunk(run: Path) -> None:
     """One byte of the second shard (frames 8-15) flipped: frame 11 no longer decodes."""
     chunk = run / "frames" / "c" / "1" / "0" / "0"
@@ -81,6 +96,14 @@ CASES = {
     "altered video frame: export the intact frames": (
         "video", _frame_chunk, ["runs", "export", "--frames", "--out", "{d}/out/e.tif"], 0,
         ["wrote", "frame 11 (point 0)", "damaged", "cannot be captured again"]),
+    # a recording is never continued (before: "no plan named 'video' is registered")
+    "video: calibrate resume": (
+        "video", _undamaged, ["calibrate", "resume", "--simulate"], 2,
+        ["is a video recording", "cannot be continued", "24 stored frames are kept",
+         "runs export", "--frames", "recon-run", "capture video"]),
+    "killed video: calibrate resume": (
+        "video", _killed, ["calibrate", "resume", "--simulate"], 2,
+        ["is a video recording", "16 stored frames are kept"]),
     "altered video frame: verify offers no re-recording": (
         "video", _frame_chunk, ["runs", "verify"], 1,
         ["frame 11 (point 0)", "restore the run from a backup", "recon-run"]),
@@ -116,3 +139,15 @@ def test_the_intact_runs_verify(runs, capsys):
     for which in ("video", "sweep"):
         code, out, _ = run_cli(["runs", "verify", runs / f"{which}.zarr"], capsys)
         assert code == 0 and out.startswith("intact"), out
+
+
+def test_the_api_never_continues_a_recording(runs, tmp_path):
+    """Runner.resume refuses a video before it locks or touches the run."""
+    from instrument.runner import Runner
+    from instrument.runstore import RunStoreError
+
+    run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
+    before = tree(tmp_path)
+    with pytest.raises(RunStoreError, match="is a video recording"):
+        Runner(bench=None).resume(run)
+    assert tree(tmp_path) == before
