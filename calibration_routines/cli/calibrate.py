@@ -341,9 +341,9 @@ def run(args: argparse.Namespace) -> int:
     from instrument.runstore import RunStore, RunStoreError, is_run_store
     from instrument.runstore_records import video_cannot_continue
 
-    if not args.reconnect_timeout_s >= 0:  # NaN fails too
+    if not 0 <= args.reconnect_timeout_s < float("inf"):  # NaN fails; every wait ends
         print(f"diffuserlab: error: --reconnect-timeout {args.reconnect_timeout_s}: give the "
-              "seconds to keep reconnecting a device, >= 0", file=sys.stderr)
+              "seconds to keep reconnecting a device, finite and >= 0", file=sys.stderr)
         return 2
     out = None
     if args.routine != "resume":  # outputs and input runs checked before the bench opens

@@ -296,6 +296,7 @@ BENCH = [
     case("devices --timeout 0", "number", "timeout 0", "--timeout"),
     case("devices --timeout nan", "number", "timeout nan", "--timeout"),
     case("devices --timeout -1", "number", "timeout -1", "--timeout"),
+    case("devices --timeout inf", "number", "timeout inf", "--timeout|finite"),
 ]
 
 #: values of the right type that cannot describe the bench: refused at their line
@@ -484,6 +485,8 @@ CALIBRATE = [
     case(f"{CD} --exposure-s -1", "number", "exposure -1", "exposure"),
     case(f"{CD} --exposure-s nan", "number", "exposure nan", "exposure"),
     case(f"{CD} --reconnect-timeout -1", "number", "reconnect timeout -1", "reconnect"),
+    case(f"{CD} --reconnect-timeout inf", "number", "reconnect timeout inf",
+         "--reconnect-timeout inf|finite"),
     case(f"{CD} --seed -1", "number", "seed -1", "seed"),
     case("calibrate dark --simulate --out file.txt/c.zarr", "unwritable", "out under a file",
          "file.txt"),
