@@ -18,6 +18,7 @@ per-pixel percentile baseline (Kuo 2020, Fig. 6.5b) is stored as a second produc
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -27,10 +28,10 @@ from typing import Any
 import numpy as np
 
 from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
-from .runstore import RunStore, RunStoreError
+from .runstore import DamagedFrameError, RunStore, RunStoreError
 
-__all__ = ["batch_psf", "frames_dark_level", "parse_frames", "reconstruct_run",
-           "reconstruct_stored_frame"]
+__all__ = ["batch_psf", "check_scheduler", "check_workers", "frames_dark_level", "parse_frames",
+           "reconstruct_run", "reconstruct_stored_frame"]
 
 log = logging.getLogger(__name__)
 
@@ -182,6 +183,60 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     return int(index), np.asarray(result.image, np.float32)
 
 
+def check_workers(workers: int | None, n_frames: int) -> int:
+    """The local worker processes for ``n_frames`` frames: ``workers`` (default one per
+    core), at most one per frame; refused beyond the machine's cores.
+
+    Raises
+    ------
+    RunStoreError
+        Not a whole number >= 1, or more than :func:`os.cpu_count` (each worker is a
+        process computing full-time: more only queue for the cores and their memory).
+    """
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return max(1, min(cores, n_frames))
+    if isinstance(workers, bool) or not isinstance(workers, int | np.integer) or workers < 1:
+        raise RunStoreError(f"--workers {workers}: give a whole number >= 1")
+    if workers > cores:
+        raise RunStoreError(f"--workers {workers}: this machine has {cores} cores; give at "
+                            f"most {cores} (a worker is a process busy full-time)")
+    return int(max(1, min(workers, n_frames)))
+
+
+def check_scheduler(scheduler: str, timeout_s: float = 5.0) -> None:
+    """Refuse a scheduler address that is not one, or where nothing listens, at once.
+
+    ``tcp://HOST:PORT`` (or ``HOST:PORT``, ``tls://...``): the address is parsed and a
+    TCP connection opened within ``timeout_s``; dask's own client would retry for its
+    whole timeout (a minute) before saying the port is closed.
+
+    Raises
+    ------
+    RunStoreError
+        Not an address (one line naming it and the form), or nothing answering there.
+    """
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler, strict=False)
+        if scheme not in ("tcp", "tls"):
+            return  # inproc, ucx, ws: no TCP port to try
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError):
+        raise RunStoreError(f"--scheduler {scheduler!r} is not a scheduler address; give "
+                            "tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786)") from None
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise RunStoreError(f"--scheduler {scheduler}: nothing answers at {host}:{port} "
+                            f"({exc.strerror or exc}); start one (dask scheduler) or drop "
+                            "--scheduler for local workers") from None
+
+
 def _client(workers: int | None, scheduler: str | None, timeout_s: float):
     """A dask.distributed client: to ``scheduler``, else a local cluster of processes."""
     try:
@@ -192,7 +247,7 @@ def _client(workers: int | None, scheduler: str | None, timeout_s: float):
     if scheduler is not None:
         try:
             return Client(scheduler, timeout=timeout_s), None
-        except OSError as exc:
+        except (OSError, ValueError, TypeError) as exc:
             raise RunStoreError(f"--scheduler {scheduler}: no dask scheduler answered within "
                                 f"{timeout_s:g} s ({exc}); start one (dask scheduler) or "
                                 "drop --scheduler for local workers") from None
@@ -231,15 +286,20 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         With a grid, ``method``, ``tv`` and ``l1`` are not used and ``bin_factor``
         is the grid model's.
     frames : range, optional
-        Frame slots to reconstruct (default all; see :func:`parse_frames`).
+        Frame slots to reconstruct (see :func:`parse_frames`; each must be stored).
+        Default: every stored frame (a recording killed midway keeps a prefix).
+        A frame whose checksum fails is left out and listed (``damaged``).
     product : str, optional
         Name of the per-frame product (default ``recon_<method>``, with a grid
         ``recon_grid_<model>``); the ΔF/F product is ``<product>_dff``, a grid's
         background estimates the per-frame product ``<product>_background``.
     workers : int, optional
-        Local worker processes (default: one per core); ignored with ``scheduler``.
+        Local worker processes (default: one per core), at most one per frame and at
+        most the machine's cores (:func:`check_workers`, before the run is locked);
+        ignored with ``scheduler``.
     scheduler : str, optional
-        Address of a running dask.distributed scheduler (``tcp://host:8786``).
+        Address of a running dask.distributed scheduler (``tcp://host:8786``); parsed
+        and tried (:func:`check_scheduler`) before the run is touched.
     dff_percentile : float, optional
         Also store ΔF/F against this per-pixel percentile of the selected frames.
     overwrite : bool
@@ -262,35 +322,50 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
     Returns
     -------
     dict
-        ``product``, ``frames`` (selected), ``reconstructed`` (this call),
-        ``skipped`` (already done), ``cancelled``, ``seconds``, ``fps``, ``workers``,
+        ``product``, ``frames`` (first and one past the last selected),
+        ``reconstructed`` (this call), ``skipped`` (already done), ``not_stored``
+        (ranges of frame slots left out because nothing was stored there, default
+        selection), ``damaged`` (one line per damaged frame left out), ``cancelled``,
+        ``seconds``, ``fps``, ``workers``,
         ``dff_product`` when computed and ``background_product`` with a grid's
         background estimate.
 
     Raises
     ------
     RunStoreError
-        Missing, locked or damaged run, a frame not stored, a product clash, or no
-        scheduler at the address.
+        Missing, locked or damaged run, a selected frame not stored, a product clash,
+        too many workers, or no scheduler at the address.
     recon.errors.ReconInputError, recon.errors.DivergenceError
         From a frame's reconstruction (the frames stored before it are kept).
     """
     from recon.validate import as_int
 
+    from .runstore_records import ranges_text
+
+    if scheduler is not None:  # before the store is touched: nothing written on failure
+        check_scheduler(scheduler)
     store = RunStore.open(run, "r+")
+    if scheduler is None:
+        workers = check_workers(workers, len(frames or range(store.n_frames)))
     store.lock()  # a second writer (or a stale lock) is refused before anything else
     t0 = time.monotonic()
     done_now = 0
     cancelled = False
     client = cluster = None
+    damaged: list[str] = []
     try:
-        frames = range(store.n_frames) if frames is None else frames
         stored = store.done()
-        missing = [i for i in frames if not stored[i]]
-        if missing:
-            raise RunStoreError(f"{store.path}: frames {missing[:5]}"
-                                f"{'...' if len(missing) > 5 else ''} are not stored; select "
-                                "stored frames with --frames")
+        if frames is None:  # the stored frames (a recording killed midway kept a prefix)
+            not_stored = np.flatnonzero(~stored)
+            frames = [int(i) for i in np.flatnonzero(stored)]
+            if not frames:
+                raise RunStoreError(f"{store.path} holds no stored frame")
+        else:
+            not_stored = np.array([i for i in frames if not stored[i]], int)
+            if not_stored.size:
+                raise RunStoreError(f"{store.path}: frames {ranges_text(not_stored)} are not "
+                                    "stored; select stored frames with --frames")
+        frames = list(frames)
         iterations = as_int(iterations, "iterations", minimum=1)
         bin_factor = as_int(bin_factor, "bin_factor", minimum=1)
         rows, cols = store.frame_shape
@@ -344,7 +419,11 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
                                      thread_count(), pure=False) for i in todo]
             try:
                 for fut in as_completed(futures):
-                    index, image, *bg = fut.result()
+                    try:
+                        index, image, *bg = fut.result()
+                    except DamagedFrameError as exc:  # left out, as runs verify says
+                        damaged.append(str(exc))
+                        continue
                     if bg_name:
                         store.write_product_frame(bg_name, index, bg[0])
                     store.write_product_frame(name, index, image)
@@ -360,22 +439,26 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
             finally:
                 client.cancel([f for f in futures if not f.done()])
         elapsed = time.monotonic() - t0
+        span = [frames[0], frames[-1] + 1]
         out: dict[str, Any] = {
-            "product": name, "frames": [frames.start, frames.stop],
+            "product": name, "frames": span,
             "reconstructed": done_now, "skipped": skipped, "cancelled": cancelled,
             "seconds": round(elapsed, 3), "fps": done_now / elapsed if elapsed > 0 else 0.0,
-            "workers": n_workers}
+            "workers": n_workers, "not_stored": ranges_text(not_stored),
+            "damaged": damaged}
         if bg_name:
             out["background_product"] = bg_name
         if dff_percentile is not None and not cancelled:
             from recon.analysis import delta_f_over_f
 
-            stack = np.stack([store.product_frame(name, i) for i in frames])
+            have = store.product_frames_done(name)
+            used = [i for i in frames if have[i]]
+            stack = np.stack([store.product_frame(name, i) for i in used])
             dff, baseline = delta_f_over_f(stack, dff_percentile)
             store.write_product(f"{name}_dff", dff, percentile=dff_percentile,
-                                frames=[frames.start, frames.stop], source=name)
+                                frames=span, frame_indices=used, source=name)
             store.write_product(f"{name}_dff_baseline", baseline, percentile=dff_percentile,
-                                frames=[frames.start, frames.stop], source=name)
+                                frames=span, frame_indices=used, source=name)
             out["dff_product"] = f"{name}_dff"
         return out
     finally:

@@ -39,6 +39,7 @@ from .config import (
     validate_bench_text,
     within,
 )
+from .config.rules import ID_TABLES
 from .registry import (
     RegistryError,
     accepted_params,
@@ -119,6 +120,9 @@ def _parse_bench(
             _as_driven(i, d, config, geometry) if simulate else d for i, d in enumerate(entries)
         ]
         found = driver_problems(checked)
+        if simulate:  # a twin drops what its driver does not take: check the real driver's
+            found += [p for p in driver_problems(entries)  # names where it is installed
+                      if ".params." in p.location and "takes no parameter" in p.message]
         # A parameter the driver does not take: its value's problems are moot.
         moot = [p.location for p in found if ".params." in p.location]
         problems = [p for p in problems if not any(within(p.location, m) for m in moot)]
@@ -196,8 +200,8 @@ def _constructible(
         required = required_params(resolve(SIMULATED_DRIVERS[kind] if simulate else driver, kind))
     except RegistryError:
         return None
-    if bad & required:
-        return None
+    if bad & (required | set(ID_TABLES)):  # constructed without them it would be another
+        return None  # device (a controller layout the file does not describe)
     dev_id = entry.get("id")
     return DeviceConfig.model_construct(
         id=dev_id if isinstance(dev_id, str) and dev_id.strip() else f"device-{index}",

@@ -21,9 +21,21 @@ from recon.errors import ReconInputError
 
 from .runstore import is_run_store
 
-__all__ = ["OutputError", "check_outputs"]
+__all__ = ["OutputError", "checked_outputs", "check_outputs"]
 
 log = logging.getLogger(__name__)
+
+#: The outputs :func:`check_outputs` passed in this process, most recent last: an OS
+#: error without a file name (zarr's writes on a full disk) is reported against them.
+_CHECKED: list[str] = []
+
+
+def checked_outputs(reset: bool = False) -> list[str]:
+    """The outputs checked so far (see :data:`_CHECKED`); ``reset`` forgets them (the
+    command line does at the start of each command)."""
+    if reset:
+        _CHECKED.clear()
+    return list(_CHECKED)
 
 
 class OutputError(ReconInputError):
@@ -134,4 +146,5 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
         folders.setdefault(target.parent, f"output {out}")
     for folder, label in folders.items():
         _check_writable(folder, label)
+    _CHECKED.extend(str(out) for out in seen.values())
     log.debug("outputs checked: %s", ", ".join(map(str, folders)))

@@ -10,6 +10,7 @@ a PSF stack, Kuo 2020, Ch. 4). The numerics are :func:`recon.reconstruct` and
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -22,30 +23,46 @@ import numpy as np
 
 from drivers.base import jsonable
 
-__all__ = ["dark_level", "load_psf", "output_paths", "projections", "run_recon", "run_recon3d",
-           "volume_output_paths", "write_json", "write_volume"]
+__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
+           "projections", "run_recon", "run_recon3d", "volume_output_paths", "write_json",
+           "write_volume"]
 
 log = logging.getLogger(__name__)
 
 _VOLUME_SUFFIXES = (".tif", ".tiff", ".zarr")
 
 
+#: The image extensions ``--out`` of ``recon`` may end with (any other dot is part of
+#: the name: ``take.2`` writes ``take.2.png`` and ``take.2.tif``).
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+#: The file name ``recon`` writes inside a folder given as ``--out FOLDER/``.
+DEFAULT_STEM = "recon"
+
+
 def output_paths(out: str) -> tuple[Path, Path]:
-    """(png, tif) paths for ``--out``: an extension picks the stem, none adds both.
+    """(png, tif) paths for ``--out``: a known image extension picks the stem, anything
+    else is the stem itself; a folder (a trailing ``/`` or an existing directory) gets
+    ``recon.png`` and ``recon.tif`` inside.
+
+    Only :data:`IMAGE_SUFFIXES` are extensions: ``take.2`` is a name, not ``take`` with
+    the extension ``.2`` (which would write ``take.png`` and replace another take).
 
     Parameters
     ----------
     out : str
-        ``OUT``, ``OUT.png``, ``OUT.tif`` or ``OUT.tiff``.
+        ``OUT``, ``OUT.png``, ``OUT.tif``, ``OUT.tiff`` or ``FOLDER/``.
 
     Returns
     -------
     (Path, Path)
         ``OUT.png`` and ``OUT.tif``.
     """
-    p = Path(out)
-    stem = p.with_suffix("") if p.suffix.lower() in (".png", ".tif", ".tiff") else p
-    return stem.with_suffix(".png"), stem.with_suffix(".tif")
+    text = os.fspath(out)
+    p = Path(text)
+    if text.endswith(("/", os.sep)) or p.is_dir():
+        p = p / DEFAULT_STEM
+    name = p.stem if p.suffix.lower() in IMAGE_SUFFIXES else p.name
+    return p.with_name(name + ".png"), p.with_name(name + ".tif")
 
 
 def load_psf(psf_path: str, depth_mm: float | None,
@@ -137,6 +154,8 @@ def run_recon(
     psf_product: str = "psf_stack",
     l1: float | str = 0.0,
     seconds: float | None = None,
+    allow_mixed_ranges: bool = False,
+    dark=None,
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
@@ -155,6 +174,10 @@ def run_recon(
         Where to write the metrics.
     depth_mm, psf_product
         Plane and product of a PSF stack (see :func:`load_psf`).
+    allow_mixed_ranges : bool
+        Accept a PSF and raw of different bit depths (``--allow-mixed-ranges``).
+    dark : None, "none", float or ndarray
+        Dark level (:func:`recon.preprocess.prepare_pair`; None: the PSF's corner).
 
     Returns
     -------
@@ -171,34 +194,39 @@ def run_recon(
     """
     from recon import reconstruct
     from recon.fft import fft_pair_seconds
-    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     raw = load_image(raw_path)
-    result = reconstruct(
-        psf,
-        raw,
-        method,
-        iterations=iterations,
-        tv=tv,
-        l1=l1,
-        seconds=seconds,
-        bin_factor=bin_factor,
-        erase=erase,
-        seed=seed,
-        full_scale=full_scale,
-    )
+    with named_pair(psf_path, raw_path):
+        result = reconstruct(psf, raw, method, iterations=iterations, tv=tv, l1=l1,
+                             seconds=seconds, bin_factor=bin_factor, erase=erase, seed=seed,
+                             full_scale=full_scale, allow_mixed_ranges=allow_mixed_ranges,
+                             dark=dark)
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
     png, tif = output_paths(out)
-    save_image(png, scene_view(result.image))
-    save_image(tif, result.image)
     metrics.update(output_png=str(png), output_tiff=str(tif),
                    orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})
-    if metrics_json:
-        write_json(metrics_json, metrics)
+    with output_group():  # the PNG, the TIFF and the JSON: all of them or none
+        save_image(png, scene_view(result.image))
+        save_image(tif, result.image)
+        if metrics_json:
+            write_json(metrics_json, metrics)
     return metrics
+
+
+@contextlib.contextmanager
+def named_pair(psf_path, raw_path):
+    """Name the files in a :class:`recon.preprocess.RawSignalError` raised inside (the
+    numerics speak of "the PSF" and "the raw")."""
+    from recon.preprocess import RawSignalError
+
+    try:
+        yield
+    except RawSignalError as exc:
+        raise RawSignalError(f"--raw {raw_path} (PSF {psf_path}): {exc}") from None
 
 
 def write_json(path: str | Path, data: dict) -> Path:
@@ -316,7 +344,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 bin_factor: int = 1, dark: str | float = "auto",
                 psf_product: str = "psf_stack", metrics_json: str | None = None,
                 planes: str = "all", pitch_um: float | None = None,
-                d_mm: float | None = None, scene_range_mm=None) -> dict:
+                d_mm: float | None = None, scene_range_mm=None,
+                allow_mixed_ranges: bool = False) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
     projections and metrics.
 
@@ -352,6 +381,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     pitch_um, d_mm, scene_range_mm
         Sensor pitch (um, unbinned), diffuser-to-sensor distance (mm) and the scene's
         depth span (mm, optional) for ``planes="auto"``.
+    allow_mixed_ranges : bool
+        Accept a stack and raw of different bit depths (``--allow-mixed-ranges``).
 
     Returns
     -------
@@ -372,7 +403,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         The solver diverged.
     """
     from recon.auto import AUTO, parse_weight
-    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
     from recon.volume.api import check_volume_parameters, reconstruct_volume
 
     from .stacks import load_psf_stack
@@ -396,18 +427,21 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            bin_factor=bin_factor, dark=dark,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
-    rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
-                             tv=tv, l1=l1, bin_factor=bin_factor, dark=dark)
+    with named_pair(psf_stack, raw_path):
+        rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
+                                 tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
+                                 allow_mixed_ranges=allow_mixed_ranges)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "
              "normalised PSF stack (sum_z (sum h_z)^2 = 1)", "method": method,
              "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor),
              "orientation": DATA_ORIENTATION}
-    write_volume(vol_path, rec.volume, attrs)
-    # the projections are views: turned to scene orientation (rows and columns flipped)
-    for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
-        save_image(mip_paths[view], image)
+    with output_group():  # the volume and its projections: all of them or none
+        write_volume(vol_path, rec.volume, attrs)
+        # the projections are views: turned to scene orientation (rows and columns flipped)
+        for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
+            save_image(mip_paths[view], image)
     solved = rec.metrics()
     solved["seconds_total"] = seconds_total
     files = {"psf_stack": str(psf_stack), "psf_product": psf_product,

@@ -95,7 +95,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
         :meth:`recon.spatial.api.GridReconstruction.metrics` plus the inputs and the
         output paths; with a background estimate also ``OUT_background.tif``.
     """
-    from recon.io import DATA_ORIENTATION, load_image, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
     from recon.spatial.api import reconstruct_grid
 
     from .reconstruct_files import (
@@ -115,28 +115,29 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])
-    if rec.operator.volume:
-        vol_path, mips = volume_output_paths(out)
-        write_volume(vol_path, rec.image, {"depths_mm": metrics["depths_mm"],
-                                           "model": rec.choice.label(),
-                                           "orientation": DATA_ORIENTATION})
-        for view, image in projections(scene_view(rec.image, axes=(1, 2))).items():
-            save_image(mips[view], image)
-        metrics.update(output_volume=str(vol_path),
-                       output_mips={k: str(v) for k, v in mips.items()})
-    else:
-        png, tif = output_paths(out)
-        save_image(png, scene_view(rec.image))
-        save_image(tif, rec.image)
-        metrics.update(output_png=str(png), output_tiff=str(tif))
-    if rec.background is not None:
-        bg = background_output(out, rec.operator.volume)
-        save_image(bg, rec.background)
-        metrics["output_background"] = str(bg)
-    metrics["orientation"] = {"png": "scene, upright", "data": DATA_ORIENTATION}
-    metrics = jsonable(metrics, nonfinite_to_none=True)
-    if metrics_json:
-        write_json(metrics_json, metrics)
+    with output_group():  # every output of the reconstruction, or none
+        if rec.operator.volume:
+            vol_path, mips = volume_output_paths(out)
+            write_volume(vol_path, rec.image, {"depths_mm": metrics["depths_mm"],
+                                               "model": rec.choice.label(),
+                                               "orientation": DATA_ORIENTATION})
+            for view, image in projections(scene_view(rec.image, axes=(1, 2))).items():
+                save_image(mips[view], image)
+            metrics.update(output_volume=str(vol_path),
+                           output_mips={k: str(v) for k, v in mips.items()})
+        else:
+            png, tif = output_paths(out)
+            save_image(png, scene_view(rec.image))
+            save_image(tif, rec.image)
+            metrics.update(output_png=str(png), output_tiff=str(tif))
+        if rec.background is not None:
+            bg = background_output(out, rec.operator.volume)
+            save_image(bg, rec.background)
+            metrics["output_background"] = str(bg)
+        metrics["orientation"] = {"png": "scene, upright", "data": DATA_ORIENTATION}
+        metrics = jsonable(metrics, nonfinite_to_none=True)
+        if metrics_json:
+            write_json(metrics_json, metrics)
     log.debug("recon --psf-grid: model %s", rec.choice.label())
     return metrics
 
@@ -145,5 +146,6 @@ def background_output(out: str, volume: bool) -> Path:
     """Where :func:`run_recon_grid` writes the estimated background for ``--out``."""
     from .reconstruct_files import output_paths, volume_output_paths
 
-    stem = (volume_output_paths(out)[0] if volume else output_paths(out)[1]).with_suffix("")
+    path = volume_output_paths(out)[0] if volume else output_paths(out)[1]
+    stem = path.with_name(path.stem)  # the known suffix only (take.2.tif -> take.2)
     return stem.parent / f"{stem.name}_background.tif"

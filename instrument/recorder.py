@@ -29,7 +29,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -37,6 +37,7 @@ import numpy as np
 from drivers.camera import Frame, FrameRing
 
 from .runstore import RunStore, RunStoreError, utc_now
+from .runstore_records import index_ranges
 
 __all__ = ["VIDEO_COORDS", "Recorder", "index_ranges", "record_from_ring", "recording_summary"]
 
@@ -49,17 +50,6 @@ VIDEO_COORDS = ("frame_index", "device_timestamp_s", "host_timestamp_s", "exposu
 Sink = Callable[[int, np.ndarray, np.ndarray], None]
 
 _STOP = object()
-
-
-def index_ranges(indices: Iterable[int]) -> list[list[int]]:
-    """Sorted integer indices as inclusive ranges, e.g. ``[3, 4, 5, 9] -> [[3, 5], [9, 9]]``."""
-    out: list[list[int]] = []
-    for i in sorted(int(v) for v in indices):
-        if out and i <= out[-1][1] + 1:
-            out[-1][1] = max(out[-1][1], i)
-        else:
-            out.append([i, i])
-    return out
 
 
 def _gaps(recorded: list[int]) -> list[list[int]]:

@@ -31,6 +31,8 @@ __all__ = ["ProductsMixin"]
 
 #: Suffixes of the hidden arrays of a per-frame product.
 _DONE, _CRC = "__done", "__crc32"
+#: Attribute of ``products/`` listing every product written (damage if one goes missing).
+_WRITTEN = "written"
 
 
 class ProductsMixin:
@@ -49,6 +51,19 @@ class ProductsMixin:
         arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
         arr[...] = array
         arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
+        self._note_product(name)
+
+    def recorded_products(self) -> list[str]:
+        """Names of the products the run recorded writing (the ``written`` attribute of
+        ``products/``; empty for runs written before it was kept): a product listed
+        here but absent from :meth:`products` was deleted."""
+        return list(self._group["products"].attrs.get(_WRITTEN, []))
+
+    def _note_product(self, name: str) -> None:
+        products = self._group["products"]
+        written = list(products.attrs.get(_WRITTEN, []))
+        if name not in written:
+            products.attrs[_WRITTEN] = sorted([*written, name])
 
     def products(self) -> list[str]:
         """Names of the stored products (the hidden arrays of per-frame ones left out)."""
@@ -164,6 +179,7 @@ class ProductsMixin:
         products.create_array(name + _DONE, shape=shape[:1], chunks=(1,), dtype="uint8",
                               fill_value=0)
         arr.attrs.update(want)
+        self._note_product(name)
 
     def write_product_frame(self, name: str, index: int, plane: np.ndarray) -> None:
         """Store plane ``index`` of a per-frame product: data, checksum, then done flag.

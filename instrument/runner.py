@@ -54,6 +54,7 @@ from .plan import (
 from .preflight import preflight
 from .run_identity import Difference, format_differences, resume_differences
 from .runstore import RunStore, RunStoreError, software_version, utc_now
+from .runstore_records import video_cannot_continue
 
 __all__ = ["RunAborted", "RunControl", "RunEvent", "RunResult", "Runner", "frame_coords"]
 
@@ -280,13 +281,17 @@ class Runner:
         Raises
         ------
         RunStoreError
-            No run at ``path``, a plan whose name/parameters/points differ from the
-            stored ones, a ``redo`` point the run does not have, a set-up that
-            differs from the recorded one (the differences listed), a damaged frame
-            in a point not in ``redo`` (every stored frame is verified first), or
-            another process holds the run's lock.
+            No run at ``path``, a video recording (never continued: its frames are used
+            as they are, :func:`instrument.runstore_records.video_cannot_continue`), a
+            plan whose name/parameters/points differ from the stored ones, a ``redo``
+            point the run does not have, a set-up that differs from the recorded one
+            (the differences listed), a damaged frame in a point not in ``redo`` (every
+            stored frame is verified first), or another process holds the run's lock.
         """
         store = RunStore.open(path, mode="r+")
+        why = video_cannot_continue(store)
+        if why is not None:
+            raise RunStoreError(why)
         store.lock()
         try:
             return self._resume(store, plan, redo, accept_differences)

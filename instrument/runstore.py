@@ -71,9 +71,11 @@ from .run_integrity import (
     write_lock,
 )
 from .run_products import ProductsMixin
+from .runstore_records import VIDEO_PLAN, record_problems
 
 __all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "RunStore",
-           "RunStoreError", "is_run_store", "software_version", "utc_now"]
+           "RunStoreError", "discard_partial_run", "is_run_store", "software_version",
+           "utc_now"]
 
 log = logging.getLogger(__name__)
 
@@ -110,11 +112,19 @@ class DamagedFrameError(RunStoreError):
         What is wrong with it.
     """
 
-    def __init__(self, path: Path, index: int, point: int, reason: str) -> None:
-        super().__init__(f"frame {index} (point {point}) of {path} is damaged: {reason}; "
-                         f"re-run that point: diffuserlab calibrate resume {path} BENCH.toml "
-                         f"--redo {point}")
+    def __init__(self, path: Path, index: int, point: int, reason: str,
+                 video: bool = False) -> None:
+        fix = ("a recorded video frame cannot be captured again: restore the run from a "
+               "backup copy, or leave the frame out (runs export --frames and recon-run "
+               "skip damaged frames)" if video else
+               f"re-run that point: diffuserlab calibrate resume {path} BENCH.toml "
+               f"--redo {point}")
+        super().__init__(f"frame {index} (point {point}) of {path} is damaged: {reason}; {fix}")
         self.index, self.point, self.reason = index, point, reason
+        self._init_args = (path, index, point, reason, video)
+
+    def __reduce__(self):  # crosses process boundaries (dask workers) intact
+        return type(self), self._init_args
 
 
 #: Attributes every run's zarr.json holds (a store lacking one is damaged).
@@ -623,7 +633,33 @@ class RunStore(ProductsMixin):
         return image, row
 
     def _damage(self, index: int, reason: str) -> DamagedFrameError:
-        return DamagedFrameError(self.path, index, self.point_of(index), reason)
+        return DamagedFrameError(self.path, index, self.point_of(index), reason,
+                                 video=self.is_video)
+
+    @property
+    def is_video(self) -> bool:
+        """A recorded video (plan ``video``): its frames cannot be captured again."""
+        return self.attrs["plan"]["name"] == VIDEO_PLAN
+
+    def intact_frames(self, frames: range | None = None) -> tuple[list[int], list[str]]:
+        """The done frames of ``frames`` (default all) whose checksums hold, and one line
+        per damaged one: what ``runs verify`` calls intact, for export and recon-run.
+
+        Reads every done frame of the selection once.
+        """
+        frames = range(self.n_frames) if frames is None else frames
+        done = self.done()
+        ok, damaged = [], []
+        for i in frames:
+            if not done[i]:
+                continue
+            try:
+                self._read(i)
+            except DamagedFrameError as exc:
+                damaged.append(str(exc))
+            else:
+                ok.append(int(i))
+        return ok, damaged
 
     def point_frames(self, point: int, tag: str | None = None) -> tuple[np.ndarray, list[dict]]:
         """Frames (n, rows, cols) and coordinates of one point (optionally one tag).
@@ -652,7 +688,9 @@ class RunStore(ProductsMixin):
     # ------------------------------------------------------------------ integrity
     def verify(self) -> list[str]:
         """Check every done frame and every product (every written plane of a per-frame
-        product) against its checksum.
+        product) against its checksum, and the store against what the run recorded of
+        itself (:func:`instrument.runstore_records.record_problems`: done flags of a
+        finished run, frame counts, products written, keys doubled in ``zarr.json``).
 
         Returns
         -------
@@ -661,7 +699,8 @@ class RunStore(ProductsMixin):
             the fix); empty when the run is intact. A schema-1 run carries no
             checksums: only unreadable chunks are found (see ``has_checksums``).
         """
-        return [str(exc) for exc in self.damaged_frames()] + self.damaged_products()
+        return ([str(exc) for exc in self.damaged_frames()] + self.damaged_products()
+                + record_problems(self))
 
     def damaged_frames(self) -> list[DamagedFrameError]:
         """Every done frame whose chunk is missing, unreadable or differs from its
@@ -703,6 +742,30 @@ class RunStore(ProductsMixin):
     def to_json(self) -> str:
         """:meth:`summary` as indented JSON."""
         return json.dumps(self.summary(), indent=1)
+
+
+def discard_partial_run(path: str | Path, made=(), settle_s: float = 0.1,
+                        timeout_s: float = 5.0) -> None:
+    """Remove a run store this process began and could not finish (whole or not at all),
+    and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty.
+
+    zarr writes chunks on a pool of threads: when one write fails (a full disk), the
+    others still finish after the error has reached the caller and may create their
+    folders again. So the folder is removed until it stays gone for ``settle_s``.
+    """
+    import shutil
+    import time
+
+    from recon.io import remove_empty_dirs
+
+    path = Path(path)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        shutil.rmtree(path, ignore_errors=True)
+        time.sleep(settle_s)
+        if not path.exists() or time.monotonic() > deadline:
+            break
+    remove_empty_dirs(made)
 
 
 def is_run_store(path: str | Path) -> bool:

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .runstore import RunStore, RunStoreError
+from recon.io import missing_dirs
+
+from .runstore import RunStore, RunStoreError, discard_partial_run
 
 __all__ = ["MIN_PLANE_PX", "export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
 
@@ -29,7 +31,12 @@ MIN_PLANE_PX = 8
 def _depths(depths_mm, n: int, source: str) -> list[float]:
     if depths_mm is None:
         raise RunStoreError(f"{source} carries no depths; pass depths_mm (one per plane, mm)")
-    depths = [float(z) for z in np.atleast_1d(np.asarray(depths_mm, float))]
+    try:
+        depths = [float(z) for z in np.atleast_1d(np.asarray(depths_mm, float))]
+    except (TypeError, ValueError):
+        raise RunStoreError(f"{source}: its depths {depths_mm!r} are not numbers of mm; fix "
+                            "the depths_mm it records, or give --depths (one per plane, "
+                            "mm)") from None
     if len(depths) != n:
         raise RunStoreError(f"{source} has {n} planes but {len(depths)} depths were given")
     if not all(np.isfinite(depths)) or min(depths) <= 0:
@@ -104,6 +111,8 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
     if bad:
         raise RunStoreError(f"{path} holds {bad} non-finite values (NaN or inf); fix or "
                             "re-measure those pixels")
+    if recorded is not None:
+        recorded = _depths(recorded, len(stack), str(path))
     if recorded is not None and depths_mm is not None and not np.allclose(recorded, depths_mm):
         raise RunStoreError(f"{path} records depths {recorded} mm, not {list(depths_mm)}")
     depths = _depths(recorded if recorded is not None else depths_mm, len(stack), str(path))
@@ -148,17 +157,27 @@ def _fmt(depths) -> str:
     return ", ".join(f"{z:.4g}" for z in depths)
 
 
-def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_stack") -> Path:
+def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_stack"
+                ) -> tuple[Path, list[str]]:
     """Write a run's product (or, with ``product=None``, its frames) as a TIFF.
 
     The product's attributes (depths, exposures, units, ...), or the frames' plan
-    points, tags and coordinates, go into the TIFF's JSON metadata, which
-    :func:`load_psf_stack` reads back.
+    points, tags, indices and coordinates, go into the TIFF's JSON metadata, which
+    :func:`load_psf_stack` reads back. Frames: the stored frames whose checksums
+    hold (:meth:`RunStore.intact_frames`: a recording killed midway exports what it
+    stored; a damaged frame is left out), their run indices in the metadata
+    (``frame_indices``).
+
+    Returns
+    -------
+    out : Path
+    skipped : list of str
+        One line per frame range left out (not stored) or damaged frame.
 
     Raises
     ------
     RunStoreError
-        No such run or product, or frames not all written.
+        No such run or product, or no intact frame.
     """
     import tifffile
 
@@ -169,20 +188,27 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
     if product is not None:
         array, attrs = store.product(product)
         meta = {**attrs, "run": str(store.path), "product": product}
-    else:
-        done = store.done()
-        if not done.all():
-            raise RunStoreError(f"{run}: {int((~done).sum())} frames are not written; resume "
-                                "the run first (or export a product)")
-        array = np.stack([store.frame(i).image for i in range(store.n_frames)])
+    skipped: list[str] = []
+    if product is None:
+        from .runstore_records import ranges_text
+
+        keep, skipped = store.intact_frames()
+        unstored = np.flatnonzero(~store.done())
+        if unstored.size:
+            skipped.insert(0, f"frames {ranges_text(unstored)} of {store.path} are not "
+                           "flagged done (not stored; runs verify says whether that is "
+                           "damage)")
+        if not keep:
+            raise RunStoreError(f"{run}: no stored frame is intact ({'; '.join(skipped)})")
+        records = [store.frame(i) for i in keep]
+        array = np.stack([r.image for r in records])
         coords = store.coords_table()
-        meta = {"run": str(store.path), "points": [store.frame(i).point
-                                                   for i in range(store.n_frames)],
-                "tags": [store.frame(i).tag for i in range(store.n_frames)],
-                "coords": {k: v.tolist() for k, v in coords.items()}}
+        meta = {"run": str(store.path), "frame_indices": keep,
+                "points": [r.point for r in records], "tags": [r.tag for r in records],
+                "coords": {k: v[keep].tolist() for k, v in coords.items()}}
     with atomic_path(out) as tmp:
         tifffile.imwrite(tmp, array, metadata=meta, photometric="minisblack")
-    return out
+    return out, skipped
 
 
 def import_psf_stack(source: str | Path, out: str | Path, *,
@@ -197,17 +223,26 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
     ------
     RunStoreError
         Unreadable file, missing depths, or ``out`` exists.
+    OSError
+        The store cannot be written (a full disk: the partial run is removed).
     """
     stack, depths, attrs = load_psf_stack(source, depths_mm)
     order = np.argsort(depths)
     stack, depths = stack[order], [depths[i] for i in order]
-    store = RunStore.create(out, plan_name="imported-psf-stack",
-                            plan_params={"source": str(source)},
-                            points=[{"z_mm": z} for z in depths],
-                            frame_tags=[[] for _ in depths], frame_shape=stack.shape[1:],
-                            frame_dtype=np.float32, coord_names=["exposure_s"], note=note,
-                            overwrite=overwrite)
-    store.write_product("psf_stack", stack, depths_mm=depths, source=str(source),
-                        units=attrs.get("units", "as imported"))
-    store.update_attrs(status="complete", summary={"depths_mm": depths, "source": str(source)})
+    existed, store, made = Path(out).exists(), None, missing_dirs(out)
+    try:  # whole or not at all: a run this call began is removed when it fails
+        store = RunStore.create(out, plan_name="imported-psf-stack",
+                                plan_params={"source": str(source)},
+                                points=[{"z_mm": z} for z in depths],
+                                frame_tags=[[] for _ in depths], frame_shape=stack.shape[1:],
+                                frame_dtype=np.float32, coord_names=["exposure_s"], note=note,
+                                overwrite=overwrite)
+        store.write_product("psf_stack", stack, depths_mm=depths, source=str(source),
+                            units=attrs.get("units", "as imported"))
+        store.update_attrs(status="complete",
+                           summary={"depths_mm": depths, "source": str(source)})
+    except BaseException:
+        if store is not None or (not existed and Path(out).exists()):
+            discard_partial_run(out, made)
+        raise
     return store

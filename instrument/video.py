@@ -17,6 +17,7 @@ completed shard (see :mod:`instrument.recorder`).
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -26,17 +27,19 @@ from typing import Any
 import numpy as np
 
 from drivers.camera import FrameRing
+from recon.io import missing_dirs
 
 from .recorder import VIDEO_COORDS, Recorder, record_from_ring
-from .runstore import RunStore, RunStoreError
+from .runstore import RunStore, RunStoreError, discard_partial_run
+from .runstore_records import VIDEO_PLAN
 
-__all__ = ["DEFAULT_COMPRESSOR", "DEFAULT_SHARD_FRAMES", "VIDEO_PLAN", "create_video_run",
-           "record_video", "video_frame_count"]
+__all__ = ["DEFAULT_COMPRESSOR", "DEFAULT_SHARD_FRAMES", "MAX_FRAMES", "VIDEO_PLAN",
+           "check_disk_space", "create_video_run", "record_video", "video_frame_count"]
 
-#: Plan name of a recorded video run.
-VIDEO_PLAN = "video"
 #: Frames per shard file of a video run (64 frames of 1200 x 1600 uint16: 245 MB).
 DEFAULT_SHARD_FRAMES = 16
+#: Most frames one recording takes (its run store holds one slot per frame).
+MAX_FRAMES = 10_000_000
 #: Lossless frame compressor of a video run (see ``diffuserlab benchmark recording``).
 DEFAULT_COMPRESSOR = "blosc-lz4"
 
@@ -55,10 +58,41 @@ def video_frame_count(*, frames: int | None, seconds: float | None, rate_hz: flo
     if frames is not None:
         if isinstance(frames, bool) or not isinstance(frames, int | np.integer) or frames < 1:
             raise RunStoreError(f"--frames {frames}: give a whole number >= 1")
-        return int(frames)
-    if not (0 < seconds < math.inf):
-        raise RunStoreError(f"--seconds {seconds}: give a number > 0")
-    return max(1, math.ceil(seconds * rate_hz - 1e-9))
+        n = int(frames)
+        what = f"--frames {frames}"
+    else:
+        if not (0 < seconds < math.inf):
+            raise RunStoreError(f"--seconds {seconds}: give a number > 0")
+        count = seconds * rate_hz - 1e-9
+        n = max(1, math.ceil(count)) if count < MAX_FRAMES else MAX_FRAMES + 1
+        what = f"--seconds {seconds:g} at {rate_hz:g} fps"
+    if n > MAX_FRAMES:
+        raise RunStoreError(f"{what} asks for more than {MAX_FRAMES} frames; record in "
+                            "parts of at most that many")
+    return n
+
+
+def check_disk_space(path: str | Path, n_frames: int, frame_shape, dtype) -> None:
+    """Refuse a recording whose frames, uncompressed, exceed the free space where its
+    run store goes (a lossless compressor saves little on noisy frames).
+
+    Raises
+    ------
+    RunStoreError
+        Not enough space: what it needs, what is free and where.
+    """
+    import shutil
+
+    need = int(n_frames) * int(np.prod(frame_shape)) * np.dtype(dtype).itemsize
+    where = Path(os.path.abspath(path)).parent
+    while not where.exists() and where != where.parent:
+        where = where.parent
+    free = shutil.disk_usage(where).free
+    if need > free:
+        raise RunStoreError(
+            f"recording {n_frames} frames of {frame_shape[0]}x{frame_shape[1]} "
+            f"{np.dtype(dtype)} needs {need / 1e9:.3g} GB (uncompressed), {free / 1e9:.3g} GB "
+            f"are free on {where}; record fewer frames (--frames/--seconds) or free space")
 
 
 def create_video_run(path: str | Path, camera, n_frames: int, *,
@@ -192,13 +226,22 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
         cam.apply_settings(settings)
     rate = float(cam.resulting_frame_rate_hz)
     n = video_frame_count(frames=frames, seconds=seconds, rate_hz=rate)
+    check_disk_space(out, n, cam.image_shape, cam.dtype)
     config = getattr(bench, "config", None)
-    store = create_video_run(
-        out, cam, n, bench_config=config.model_dump(mode="json") if config is not None else {},
-        device_settings=bench.settings_snapshot(), shard_frames=shard_frames,
-        compressor=compressor, note=note, overwrite=overwrite, **attrs)
-    rec = Recorder(store, queue_frames=queue_frames)
-    ring = FrameRing(ring_frames)
+    store, existed, made = None, Path(out).exists(), missing_dirs(out)
+    try:  # until the recorder holds the run, a failure (Ctrl-C too) leaves no run behind
+        store = create_video_run(
+            out, cam, n,
+            bench_config=config.model_dump(mode="json") if config is not None else {},
+            device_settings=bench.settings_snapshot(), shard_frames=shard_frames,
+            compressor=compressor, note=note, overwrite=overwrite, **attrs)
+        rec = Recorder(store, queue_frames=queue_frames)
+        ring = FrameRing(ring_frames)
+        rec.start()
+    except BaseException:
+        if store is not None or (not existed and Path(out).exists()):
+            discard_partial_run(out, made)  # the empty run this call created
+        raise
     stop = stop or threading.Event()
     timeout_s = frame_timeout_s if frame_timeout_s is not None else 10.0 / rate + 5.0
     t0 = time.monotonic()
@@ -212,7 +255,6 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
             last[0] = now
             on_progress(_progress(t0, rec, ring, live))
 
-    rec.start()
     status, error = "complete", None
     try:
         if live is not None:

@@ -18,7 +18,13 @@ from .auto import AUTO, parse_weight, solve_channel
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
-from .preprocess import prepare_pair, validate_measurement, validate_psf
+from .preprocess import (
+    check_measured_fraction,
+    check_raw_signal,
+    prepare_pair,
+    validate_measurement,
+    validate_psf,
+)
 from .solvers import SOLVERS, SolveResult
 from .validate import as_array, as_int, finite_float
 
@@ -85,6 +91,11 @@ class Reconstruction:
             "objective": [list(r.history.objective) for r in self.results],
             "data_residual": [list(r.history.data_residual) for r in self.results],
             "params": [_jsonable(r.params) for r in self.results],
+            # the dark level and where it came from, and the raw's own levels (a lensless
+            # raw has no dark region: its floor only bounds its dark level from above)
+            "dark": {"mode": self.info.get("dark_mode"), "level": self.info.get("dark_level"),
+                     "region": self.info.get("dark_region"),
+                     "raw_levels": self.info.get("raw_levels")},
         }
 
 
@@ -210,6 +221,7 @@ def reconstruct(
     seed: int = 0,
     preprocess: bool = True,
     full_scale: float | None = None,
+    allow_mixed_ranges: bool = False,
     **solver_options,
 ) -> Reconstruction:
     """Reconstruct an image from a DiffuserCam measurement and its PSF.
@@ -255,6 +267,9 @@ def reconstruct(
     full_scale : float, optional
         Saturation level of the input when below the dtype maximum (e.g. 65520 for
         12-bit data shifted into uint16); used for the saturation warning.
+    allow_mixed_ranges : bool
+        Accept a PSF and raw whose bit depths or ranges cannot belong to one camera
+        (:func:`recon.preprocess.check_pair_ranges`).
     preprocess : bool
         False when psf and raw are already dark-subtracted float arrays of equal
         shape (binning still applies through prepare_pair when True only); they are
@@ -273,8 +288,10 @@ def reconstruct(
     ReconInputError
         Bad input (see :mod:`recon.preprocess`) or parameters: ``iterations`` and
         ``bin_factor`` not integers >= 1, ``seed`` not an integer >= 0, ``erase`` not
-        in [0, 1), ``tv`` not a finite number >= 0 (the messages the CLI shows), or a
-        solver option the method does not take.
+        in [0, 1) or keeping fewer than 1 % of the pixels, ``tv`` not a finite number
+        >= 0 (the messages the CLI shows), or a solver option the method does not take;
+        a raw with nothing to reconstruct after its dark level
+        (:class:`recon.preprocess.RawSignalError`).
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
@@ -288,6 +305,7 @@ def reconstruct(
     if not 0.0 <= erase < 1.0:  # the message of PixelErasure.random
         raise ReconInputError(f"erased fraction {erase} is outside [0, 1); use e.g. 0.8 to "
                               "erase 80 % of the pixels")
+    check_measured_fraction(erase)
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
     if method == AUTO and solver_options:
         raise ReconInputError(f"method 'auto' takes no solver options ({', '.join(solver_options)}"
@@ -298,7 +316,8 @@ def reconstruct(
     t_start = time.perf_counter()
     if preprocess:
         prepared = prepare_pair(
-            psf, raw, bin_factor=bin_factor, dark=dark, bayer=bayer, full_scale=full_scale
+            psf, raw, bin_factor=bin_factor, dark=dark, bayer=bayer, full_scale=full_scale,
+            allow_mixed_ranges=allow_mixed_ranges,
         )
         p, b, info = prepared.psf, prepared.raw, dict(prepared.info)
     else:
@@ -309,11 +328,15 @@ def reconstruct(
             raise ReconInputError(
                 f"PSF shape {p.shape} and raw shape {b.shape} differ; pass equal (rows, cols) "
                 "and, for a colour PSF, the same channels")
-        p, b, info = p.astype(np.float32), b.astype(np.float32), {}
+        levels = check_raw_signal(b, b, dark_level=None,
+                                  dark_source="preprocess=False: nothing subtracted",
+                                  full_scale=full_scale)
+        p, b, info = p.astype(np.float32), b.astype(np.float32), {"raw_levels": levels}
     channels = 1 if b.ndim == 2 else b.shape[2]
     sensor_shape = b.shape[:2]
     if erasure_mask is not None:
         mask = PixelErasure(erasure_mask)
+        check_measured_fraction(mask.mask)
         mask.check_shape(sensor_shape, "(binned) sensor")
     elif erase > 0:
         mask = PixelErasure.random(sensor_shape, erase, seed)

@@ -12,9 +12,11 @@ message that names the file, the problem and the fix.
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -31,6 +33,10 @@ __all__ = [
     "BAYER_PATTERNS",
     "LOAD_EXTENSIONS",
     "atomic_path",
+    "free_space_text",
+    "missing_dirs",
+    "output_group",
+    "remove_empty_dirs",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
     "DATA_ORIENTATION",
@@ -80,13 +86,42 @@ def _shape_str(shape: tuple[int, ...]) -> str:
 
 
 def _read_tiff(path: Path) -> np.ndarray:
+    """One image of a TIFF file, channels last; colour only from the file's samples.
+
+    A TIFF says what its axes are: ``S`` (samples per pixel, set with an RGB/RGBA
+    photometric tag or extra samples) is colour; any other axis (pages ``Q``/``I``,
+    ``Z``, ``T``, ``C`` of a grey stack) is a stack of frames. So a 3-page TIFF of
+    three frames is refused as a stack, not read as R, G, B.
+    """
     try:
-        return np.asarray(tifffile.imread(path))
+        with tifffile.TiffFile(path) as tif:
+            series = tif.series[0]
+            image = np.asarray(series.asarray())
+            axes = str(series.axes)
     except Exception as exc:  # tifffile raises TiffFileError, ValueError, OSError, ...
         raise ReconInputError(
             f"{path}: cannot read as TIFF ({type(exc).__name__}: {exc}); "
             "check that the file is a complete, uncorrupted TIFF or re-export it"
         ) from exc
+    if len(axes) != image.ndim:  # an unusual series: keep tifffile's own shape
+        return image
+    keep = [i for i, a in enumerate(axes) if a in "YXS" or image.shape[i] != 1]
+    image = image.reshape([image.shape[i] for i in keep])
+    axes = "".join(axes[i] for i in keep)
+    frames = [(a, image.shape[i]) for i, a in enumerate(axes) if a not in "YXS"]
+    if frames:
+        count = int(np.prod([n for _, n in frames]))
+        rows, cols = (image.shape[axes.index(a)] for a in "YX")
+        raise ReconInputError(
+            f"{path}: file holds a stack of {count} images of {rows}x{cols} (grey frames, "
+            f"TIFF axes {axes}) where one image was expected; colour comes from an "
+            "RGB photometric tag (samples per pixel), never from a page count: pass one "
+            "frame (tifffile.imwrite('one.tif', tifffile.imread(FILE, key=0))), save a colour "
+            "image as RGB (photometric='rgb'), or load a PSF stack with the stack reader "
+            "(recon3d --psf-stack, recon --psf STACK --depth MM)")
+    if "S" in axes:
+        image = np.moveaxis(image, axes.index("S"), -1)
+    return image
 
 
 def _read_cv2(path: Path) -> np.ndarray:
@@ -139,13 +174,15 @@ def _to_channels_last(path: Path, image: np.ndarray, is_tiff: bool) -> np.ndarra
     if image.ndim == 2:
         return image
     first, _, last = shape
-    if is_tiff and first in (3, 4) and shape[1] > _MAX_CHANNELS and shape[2] > _MAX_CHANNELS:
-        logger.debug("%s: moving leading channel axis of %s to the end", path, shape)
-        image = np.moveaxis(image, 0, -1)
-    elif last <= _MAX_CHANNELS:
+    if is_tiff or last in (1, 3, 4):  # a TIFF's axes were read from its tags
         pass
     elif first == 1:
         image = image[0]
+    elif last <= _MAX_CHANNELS:
+        raise ReconInputError(
+            f"{path}: an array of shape {_shape_str(shape)} has {last} values per pixel; "
+            "colour is a last axis of 3 (RGB) or 4 (RGBA) samples: pass one grey image "
+            "(H, W) or an RGB(A) one (H, W, 3 or 4)")
     else:
         raise ReconInputError(
             f"{path}: file holds a stack of {first} images of {shape[1]}x{shape[2]} where one "
@@ -173,17 +210,21 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     numpy.ndarray
         The image in the file's native dtype (e.g. uint8, uint16 sensor counts,
         float32), shape (H, W) or (H, W, C) with channels last and C <= 4.
-        Colour images read through OpenCV are returned in RGB(A) order (OpenCV
-        reads BGR(A)). A TIFF with a leading channel axis of size 3 or 4 (planar
-        RGB, shape (C, H, W) with H, W > 4) is returned as (H, W, C). A singleton
-        channel axis, (H, W, 1) or (1, H, W), is dropped to give (H, W).
+        Colour comes from the file, never from a count of frames: a TIFF's samples
+        per pixel (its photometric RGB tag; planar RGB, stored (C, H, W), is returned
+        as (H, W, C)), the colour of a PNG/JPEG/BMP, or a last axis of 3 or 4 of a
+        ``.npy`` array. Colour images read through OpenCV are returned in RGB(A)
+        order (OpenCV reads BGR(A)). A singleton axis, (H, W, 1) or (1, H, W), is
+        dropped to give (H, W).
 
     Raises
     ------
     ReconInputError
         If the file does not exist, the extension is not supported, the file
         cannot be decoded (corrupt or truncated), the array is not 2D/3D, or the
-        file holds a stack of images where one image was expected.
+        file holds a stack of images where one image was expected (a TIFF of
+        several grey pages, whatever their count; a ``.npy`` array whose last
+        axis is not 1, 3 or 4 values per pixel).
 
     Notes
     -----
@@ -268,6 +309,113 @@ def _viewing_image(image: np.ndarray) -> np.ndarray:
     return np.rint(data).astype(np.uint8)
 
 
+def _size_text(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if abs(n) < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000.0
+    return f"{n:.1f} TB"  # pragma: no cover
+
+
+def free_space_text(path: str | os.PathLike) -> str:
+    """``"23.0 GB free of 80.0 GB on /data"`` for the file system holding ``path`` (its
+    nearest existing ancestor); ``"free space unknown"`` when it cannot be read."""
+    import shutil
+
+    p = Path(os.path.abspath(os.fspath(path)))
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        usage = shutil.disk_usage(p)
+    except OSError:
+        return "free space unknown"
+    return f"{_size_text(usage.free)} free of {_size_text(usage.total)} on {p}"
+
+
+def _disk_full(path: Path, exc: OSError) -> OSError | None:
+    """An ENOSPC OSError naming ``path`` and the free space for a write that failed
+    because the disk (or quota) is full, including numpy's short write ("N requested
+    and M written", no errno); None for any other error."""
+    import errno
+    import re
+    import shutil
+
+    text = str(exc)
+    short = exc.errno is None and "requested and" in text and "written" in text
+    if exc.errno not in (errno.ENOSPC, errno.EDQUOT) and not short:
+        return None
+    if short:  # numpy says how much it wanted, not why it got less
+        wanted = re.search(r"(\d+) requested", text)
+        where = Path(os.path.abspath(path)).parent
+        while not where.exists() and where != where.parent:
+            where = where.parent
+        try:
+            free = shutil.disk_usage(where).free
+        except OSError:
+            free = 0
+        if wanted and free > int(wanted.group(1)):
+            return OSError(errno.EIO, f"the write stopped short ({text}; "
+                           f"{free_space_text(path)}: a file-size limit or a failing "
+                           "disk); write elsewhere", str(path))
+    detail = f"; {text}" if short else ""
+    return OSError(errno.ENOSPC, f"No space left on device ({free_space_text(path)}"
+                   f"{detail}); free space or write elsewhere", str(path))
+
+
+#: The open :func:`output_group`'s pending ``(temporary, final)`` renames and the
+#: folders its writers created, per thread.
+_GROUP = threading.local()
+
+
+def missing_dirs(path: str | os.PathLike) -> list[Path]:
+    """The ancestors of ``path`` (``path`` itself excluded) that do not exist yet, deepest
+    first: what writing ``path`` creates, and a failed write removes again
+    (:func:`remove_empty_dirs`)."""
+    out = []
+    p = Path(os.path.abspath(os.fspath(path))).parent
+    while not p.exists() and p != p.parent:
+        out.append(p)
+        p = p.parent
+    return out
+
+
+def remove_empty_dirs(dirs) -> None:
+    """Remove the folders of :func:`missing_dirs` that are still empty, deepest first."""
+    for d in dirs:
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
+@contextlib.contextmanager
+def output_group() -> Iterator[None]:
+    """Several outputs written whole or not at all, together.
+
+    Inside the block, every :func:`atomic_path` (so :func:`save_image` too) keeps its
+    finished temporary file instead of renaming it; when the block ends normally all
+    of them are renamed into place, when it raises all of them are removed. So a
+    command that writes ``OUT.png``, ``OUT.tif`` and a JSON never leaves the PNG alone
+    when the TIFF fails (a full disk), which would block its retry ("exists").
+    Groups do not nest (an inner one joins the outer).
+    """
+    if getattr(_GROUP, "pending", None) is not None:
+        yield
+        return
+    _GROUP.pending, _GROUP.made = pending, made = [], []
+    try:
+        yield
+    except BaseException:
+        for tmp, _ in pending:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        remove_empty_dirs(made)
+        raise
+    else:
+        for tmp, final in pending:
+            os.replace(tmp, final)
+    finally:
+        _GROUP.pending = _GROUP.made = None
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """A temporary name next to ``path`` to write to; renamed into place on success.
@@ -275,8 +423,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     The writer inside the ``with`` block writes the temporary file (same directory,
     so the rename is atomic: :func:`os.replace`; same suffix, so writers that choose
     the format by extension still do). When the block succeeds the file replaces
-    ``path``; when it raises, the temporary file is removed and ``path`` is left as
-    it was: a crash never leaves half a file under the final name.
+    ``path``; when it raises, the temporary file (and any folder it had to create,
+    if still empty) is removed and ``path`` is left as it was: a crash never leaves
+    half a file under the final name. A write that
+    fails because the disk is full (ENOSPC, a quota, numpy's short write) is raised
+    as an ENOSPC OSError naming ``path`` and the free space left.
 
     Parameters
     ----------
@@ -294,6 +445,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     ...     tmp.write_text("{}")
     """
     path = Path(path)
+    made = missing_dirs(path)
+    group = getattr(_GROUP, "made", None)
+    if group is not None:
+        group.extend(made)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
                                 suffix=f".tmp{path.suffix}")
@@ -304,10 +459,18 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; the final file gets the usual mode
     try:
         yield tmp
-        os.replace(tmp, path)
-    except BaseException:
+        group = getattr(_GROUP, "pending", None)
+        if group is None:
+            os.replace(tmp, path)
+        else:  # renamed with the rest of its output_group
+            group.append((tmp, path))
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             tmp.unlink()
+        remove_empty_dirs(made)
+        full = _disk_full(path, exc) if isinstance(exc, OSError) else None
+        if full is not None:
+            raise full from exc
         raise
 
 
@@ -391,6 +554,8 @@ def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
                 with open(tmp, "wb") as fh:  # np.save(name) would append .npy to the name
                     np.save(fh, image, allow_pickle=False)
     except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO):
+            raise  # the disk's problem, named with its path (and free space) already
         raise ReconInputError(
             f"{path}: cannot write file ({exc}); check the directory exists and is writable"
         ) from exc

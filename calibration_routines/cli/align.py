@@ -200,7 +200,13 @@ def run(args: argparse.Namespace) -> int:
     except RunAborted as exc:
         print(f"aborted: {exc}", file=sys.stderr)
         return 130
-    except (PlanError, DeviceError, OSError, ValueError) as exc:
+    except OSError as exc:  # the disk or the system, not the alignment: one line, exit 2
+        from instrument.cli import os_error_line
+
+        print(f"diffuserlab: error: {os_error_line(exc)} (the record {out} keeps what was "
+              "written before)", file=sys.stderr)
+        return 2
+    except (PlanError, DeviceError, ValueError) as exc:
         print(f"alignment failed: {exc}\nrecord: {out}", file=sys.stderr)
         return 1
     s = report["summary"]

@@ -274,6 +274,12 @@ def _progress(total: int, initial: int):
             bar.write(f"{e.kind}: {e.message}")
         elif e.kind in ("completed", "aborted", "failed"):
             bar.close()
+
+    def close() -> None:  # a run that raised: its error line starts a line of its own
+        if bar is not None:
+            bar.close()
+
+    on_event.close = close
     return on_event
 
 
@@ -301,6 +307,27 @@ def _apply_lut(bench, plan, path) -> bool:
     return True
 
 
+def _run_whole_or_nothing(runner, plan, out, **options):
+    """``runner.run(plan, out)``; a new run that fails before it stored a frame (a full
+    disk while its layout is written, say) is removed instead of left half-made. A run
+    holding frames is kept (its data are the operator's; it resumes)."""
+    from instrument.runstore import RunStore, RunStoreError, discard_partial_run
+    from recon.io import missing_dirs
+
+    existed, made = Path(out).exists(), missing_dirs(out)
+    try:
+        return runner.run(plan, out, **options)
+    except BaseException:
+        if not existed and Path(out).exists():
+            try:
+                empty = not RunStore.open(out).done().any()
+            except RunStoreError:  # its description was not even written whole
+                empty = True
+            if empty:
+                discard_partial_run(out, made)
+        raise
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
     import calibration_routines  # noqa: F401  (registers the plans for resume)
@@ -312,10 +339,11 @@ def run(args: argparse.Namespace) -> int:
     from instrument.plan import PlanError
     from instrument.runner import Runner
     from instrument.runstore import RunStore, RunStoreError, is_run_store
+    from instrument.runstore_records import video_cannot_continue
 
-    if not args.reconnect_timeout_s >= 0:  # NaN fails too
+    if not 0 <= args.reconnect_timeout_s < float("inf"):  # NaN fails; every wait ends
         print(f"diffuserlab: error: --reconnect-timeout {args.reconnect_timeout_s}: give the "
-              "seconds to keep reconnecting a device, >= 0", file=sys.stderr)
+              "seconds to keep reconnecting a device, finite and >= 0", file=sys.stderr)
         return 2
     out = None
     if args.routine != "resume":  # outputs and input runs checked before the bench opens
@@ -333,6 +361,14 @@ def run(args: argparse.Namespace) -> int:
                 args.falloff_sigma_deg = _falloff_sigma_deg(args.falloff_run)
         except (PlanError, RunStoreError, OutputError) as exc:
             print(f"diffuserlab: error: {exc}", file=sys.stderr)
+            return 2
+    else:  # a recording is never continued: said before the bench opens
+        try:
+            why = video_cannot_continue(RunStore.open(args.run))
+        except (RunStoreError, OSError):
+            why = None  # the resume itself reports an unreadable run
+        if why is not None:
+            print(f"diffuserlab: error: {why}", file=sys.stderr)
             return 2
     if not getattr(args, "verbose", False):  # device chatter would break the progress bar
         logging.getLogger("drivers").setLevel(logging.WARNING)
@@ -353,11 +389,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 1
     applied = True  # slm-lut --apply: False if loading the LUT onto the SLM failed
+    bars = None
     try:
         with bench:
             if args.routine == "resume":
                 store = RunStore.open(args.run)
-                events = _progress(store.n_frames, int(store.done().sum()))
+                events = bars = _progress(store.n_frames, int(store.done().sum()))
                 runner = Runner(bench, on_event=events,
                                 reconnect_timeout_s=args.reconnect_timeout_s)
                 try:
@@ -370,14 +407,21 @@ def run(args: argparse.Namespace) -> int:
             else:
                 plan = plan_from_args(args, bench)
                 total = sum(len(p.tags) for p in plan.points())
-                runner = Runner(bench, on_event=_progress(total, 0),
+                bars = _progress(total, 0)
+                runner = Runner(bench, on_event=bars,
                                 reconnect_timeout_s=args.reconnect_timeout_s)
-                result = runner.run(plan, out, note=args.note, overwrite=args.overwrite)
+                result = _run_whole_or_nothing(runner, plan, out, note=args.note,
+                                               overwrite=args.overwrite)
                 if getattr(args, "apply", False) and result.status == "complete":
                     applied = _apply_lut(bench, plan, result.path)
     except (PlanError, RunStoreError, ValueError) as exc:
+        if bars is not None:
+            bars.close()
         print(f"diffuserlab: error: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if bars is not None:
+            bars.close()
     print(format_summary(RunStore.open(result.path).summary()))
     if result.status == "complete":
         return 0 if applied else 1

@@ -26,6 +26,7 @@ import numpy as np
 
 from drivers.base import jsonable
 from instrument.plan import PlanError
+from recon.io import atomic_path
 
 __all__ = ["AlignmentRecord", "corrected_mask", "load_alignment", "section_bounds"]
 
@@ -117,26 +118,39 @@ class AlignmentRecord:
         if self.path.exists() and any(self.path.iterdir()):
             raise PlanError(f"{self.path} already exists and is not empty; choose a new --out")
         self.path.mkdir(parents=True, exist_ok=True)
-        self._log = open(self.path / "captures.jsonl", "a", encoding="utf-8")  # noqa: SIM115
+        self._log = open(self.path / "captures.jsonl", "ab", buffering=0)  # noqa: SIM115
         self.state: dict = {"schema": "diffuserlab.mask-alignment/1", "status": "running",
                             "started_host_s": time.time(), "steps": {}}
         self.save()
 
     def log(self, entry: dict) -> None:
-        """Append one capture entry (flushed to disk)."""
-        self._log.write(json.dumps(jsonable(entry, nonfinite_to_none=True)) + "\n")
-        self._log.flush()
+        """Append one capture entry, written through to the file, whole or not at all:
+        a write the system refuses midway (a full disk, a file-size limit) is cut back
+        to the previous line, and the ``OSError`` propagates."""
+        line = (json.dumps(jsonable(entry, nonfinite_to_none=True)) + "\n").encode("utf-8")
+        end = self._log.seek(0, os.SEEK_END)
+        try:
+            written = 0
+            while written < len(line):  # an unbuffered write may take part of it
+                written += self._log.write(line[written:])
+        except OSError as exc:
+            self._log.truncate(end)
+            if exc.filename is None:  # a raw write names no file: name it
+                exc.filename = self._log.name
+            raise
 
     def save(self) -> None:
-        """Write ``alignment.json`` atomically."""
-        tmp = self.path / "alignment.json.tmp"
-        tmp.write_text(json.dumps(jsonable(self.state, nonfinite_to_none=True), indent=1))
-        os.replace(tmp, self.path / "alignment.json")
+        """Write ``alignment.json`` atomically (:func:`recon.io.atomic_path`: no
+        temporary file is left when the write fails, e.g. on a full disk)."""
+        text = json.dumps(jsonable(self.state, nonfinite_to_none=True), indent=1)
+        with atomic_path(self.path / "alignment.json") as tmp:
+            tmp.write_text(text)
 
     def save_mask(self, mask: np.ndarray, seam_weight: np.ndarray) -> None:
-        """Write the corrected mask and its seam weight."""
-        np.save(self.path / "corrected_mask.npy", mask.astype(np.float32))
-        np.save(self.path / "seam_weight.npy", seam_weight.astype(np.float32))
+        """Write the corrected mask and its seam weight, each whole or not at all."""
+        for name, array in (("corrected_mask.npy", mask), ("seam_weight.npy", seam_weight)):
+            with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, array.astype(np.float32))
 
     def close(self, status: str, **extra) -> None:
         """Final status (``completed``, ``aborted``, ``failed``) and save."""
@@ -177,6 +191,8 @@ def load_alignment(path) -> dict:
         if f.is_file():
             rec[name] = np.load(f)
     log = p / "captures.jsonl"
-    rec["captures"] = ([json.loads(line) for line in log.read_text().splitlines() if line]
-                       if log.is_file() else [])
+    text = log.read_text(encoding="utf-8") if log.is_file() else ""
+    # a last line without its newline is an append cut short (power lost while writing)
+    lines = text.split("\n")[:-1]
+    rec["captures"] = [json.loads(line) for line in lines if line]
     return rec

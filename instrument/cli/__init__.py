@@ -30,10 +30,26 @@ import argparse
 import errno
 import logging
 import sys
+import warnings
 
-from . import analyze, bench, benchmark, capture, demo, holo, recon, recon3d, recon_run, runs
+try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C may come
+    from . import (
+        analyze,
+        bench,
+        benchmark,
+        capture,
+        demo,
+        holo,
+        recon,
+        recon3d,
+        recon_run,
+        runs,
+    )
+except KeyboardInterrupt:  # one line and 130, as anywhere else; nothing has run yet
+    sys.stderr.write("diffuserlab: interrupted (Ctrl-C) while starting; nothing was done\n")
+    raise SystemExit(130) from None
 
-__all__ = ["build_parser", "main"]
+__all__ = ["build_parser", "main", "os_error_line"]
 
 log = logging.getLogger("diffuserlab")
 
@@ -110,17 +126,65 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split())
 
 
-#: errno values of an OSError that are the user's or the system's problem, not a bug.
-_ORDINARY_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EACCES,
-                              errno.EPERM, errno.ENOENT, errno.EISDIR, errno.ENOTDIR,
-                              errno.EEXIST, errno.ENAMETOOLONG})
+def os_error_line(exc: OSError) -> str:
+    """``REASON: PATH`` of an OSError (both paths of a rename); a disk that is full gets
+    its free space."""
+    from ..output_safety import checked_outputs
 
-
-def _os_error_line(exc: OSError) -> str:
-    """``REASON: PATH`` of an OSError (both paths of a rename)."""
     reason = exc.strerror or _one_line(exc) or type(exc).__name__
     paths = [p for p in (exc.filename, exc.filename2) if p is not None]
-    return f"{reason}: {' -> '.join(map(str, paths))}" if paths else reason
+    line = f"{reason}: {' -> '.join(map(str, paths))}" if paths else reason
+    if not paths and checked_outputs():  # e.g. zarr's write on a full disk names no file
+        paths = checked_outputs()[-1:]
+        line = f"{reason} while writing {', '.join(checked_outputs())}"
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT) and paths and "free" not in line:
+        from recon.io import free_space_text
+
+        line += f" ({free_space_text(paths[0])})"
+    return line
+
+
+def _memory_line(exc: MemoryError) -> str:
+    """One line for a MemoryError: what failed to allocate and what the machine has."""
+    import os
+
+    what = _one_line(exc) or "an allocation failed"
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
+        free = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES") / 2 ** 30
+        have = f"; this machine has {total:.1f} GiB of memory, {free:.1f} GiB free"
+    except (ValueError, OSError, AttributeError):
+        have = ""
+    return f"out of memory: {what}{have}; give smaller sizes"
+
+
+def _inputs_note(args: argparse.Namespace, exc: BaseException) -> str:
+    """`` (in one of: a.tif, b.tif, out/r)`` (the command's paths) for a message of a
+    library outside the project (numpy's "operands could not be broadcast ...",
+    "could not convert string to float: 'abc'") that names neither a file nor an
+    option of the command; empty for the project's own messages, which name what
+    they refuse."""
+    from recon.errors import ReconInputError
+
+    from ..plan import PlanError
+    from ..runstore import RunStoreError
+
+    text = str(exc)
+    if isinstance(exc, ReconInputError | RunStoreError | PlanError) or "--" in text:
+        return ""
+    given = {k: v for k, v in vars(args).items() if isinstance(v, str) and v
+             and k not in ("handler", "command") and ("/" in v or "." in v)}
+    if not given or any(v in text for v in given.values()):
+        return ""
+    return f" (in one of: {', '.join(given.values())})"
+
+
+def _warning_as_log_record(message, category, filename, lineno, file=None, line=None):
+    """``warnings.showwarning`` of the command line: a Python warning becomes one DEBUG
+    record (``-v`` shows it), never a source line on the console. The project's own
+    warnings (saturation, ...) are logged by the library as one WARNING record each,
+    so the console shows each once."""
+    log.debug("%s: %s (%s:%s)", category.__name__, message, filename, lineno)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,20 +208,30 @@ def main(argv: list[str] | None = None) -> int:
         setting or a missing driver library (:class:`drivers.errors.DeviceValueError`,
         :class:`~drivers.errors.MissingDependencyError`) and 1 (one line) on any other
         device error (a timeout, a disconnect: the bench failed, not the input); 2 (one
-        line) on the ordinary OS
-        errors (permission denied, no such file, is / is not a directory, file exists,
-        no space left, read-only file system); 1 and one line saying it is a bug on any
-        other exception, whose traceback ``--debug`` shows instead.
+        line naming the device) when a device cannot be opened
+        (:class:`instrument.bench_setup.BenchOpenError`); 2 (one line naming the path)
+        on every OS error (permission denied, no such file, no space left with the free
+        space, read-only file system, I/O error, ...), 2 on a MemoryError (what failed
+        to allocate, the machine's memory) and an OverflowError; 130 on Ctrl-C, 143 on
+        SIGTERM and 129 on SIGHUP, which are handled like Ctrl-C
+        (:mod:`instrument.cli.interrupts`: runs aborted or stopped, locks released);
+        1 and one line saying it is a bug on any other exception, whose traceback
+        ``--debug`` shows instead.
     """
-    from drivers.errors import DeviceError, DeviceValueError, MissingDependencyError
-    from recon.errors import DivergenceError, ReconInputError
+    from recon.errors import ReconInputError
 
-    from ..config import BenchConfigError
+    from ..bench_setup import BenchOpenError
     from ..plan import PlanError
     from ..runstore import RunStoreError
     from .common import MissingBenchFile
+    from .interrupts import exit_status, terminate_like_ctrl_c
 
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:  # Ctrl-C while the command modules load
+        print("diffuserlab: interrupted (Ctrl-C) while starting; nothing was done",
+              file=sys.stderr)
+        return 130
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
@@ -169,8 +243,38 @@ def main(argv: list[str] | None = None) -> int:
             handler.addFilter(_project_record)
     input_errors = (ReconInputError, RunStoreError, MissingBenchFile, PlanError,
                     *getattr(args, "input_errors", ()))
+    from ..output_safety import checked_outputs
+
+    checked_outputs(reset=True)
+    with terminate_like_ctrl_c() as received, warnings.catch_warnings():
+        warnings.showwarning = _warning_as_log_record
+        status = _dispatch(args, input_errors, BenchOpenError)
+    if received and status == exit_status(KeyboardInterrupt()):
+        status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
+    return status
+
+
+def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: type) -> int:
+    """Run ``args.handler`` inside the error boundary of :func:`main`; its status."""
+    from drivers.errors import DeviceError, DeviceValueError, MissingDependencyError
+    from recon.errors import DivergenceError
+
+    from ..config import BenchConfigError
+    from .interrupts import exit_status
+
     try:
         return int(args.handler(args) or 0)
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP not handled by the command
+        print(f"diffuserlab: interrupted ({str(exc) or 'Ctrl-C'})", file=sys.stderr)
+        return exit_status(exc)
+    except bench_open_error as exc:  # a device missing or unplugged: the bench, not a bug
+        fix = ("fix that value in the bench file (diffuserlab validate BENCH.toml lists every "
+               "problem)" if isinstance(exc.__cause__, DeviceValueError) else
+               "check that the device is connected and powered (diffuserlab devices "
+               "BENCH.toml), or use --simulate")
+        print(f"diffuserlab: error: cannot open the bench: {_one_line(exc)}; {fix}",
+              file=sys.stderr)
+        return 2
     except BenchConfigError as exc:  # one line per problem of the bench file
         for line in exc.lines():
             print(f"diffuserlab: error: {line}", file=sys.stderr)
@@ -179,7 +283,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"diffuserlab: diverged: {(str(exc).splitlines() or [''])[0]}", file=sys.stderr)
         return 3
     except input_errors as exc:
-        print(f"diffuserlab: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"diffuserlab: error: {_one_line(exc)}{_inputs_note(args, exc)}",
+              file=sys.stderr)
         return 2
     except DeviceError as exc:  # a refused value or a missing library is the input's
         bad_input = isinstance(exc, DeviceValueError | MissingDependencyError)
@@ -189,10 +294,17 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if args.debug:
             raise
-        if isinstance(exc, OSError) and exc.errno in _ORDINARY_ERRNOS:
-            print(f"diffuserlab: error: {_os_error_line(exc)}", file=sys.stderr)
+        if isinstance(exc, OSError):  # the system's or the user's problem, not a bug
+            print(f"diffuserlab: error: {os_error_line(exc)}", file=sys.stderr)
             return 2
-        # any other OSError (EIO, ...) or exception is a bug: one line, never a traceback
+        if isinstance(exc, MemoryError):
+            print(f"diffuserlab: error: {_memory_line(exc)}", file=sys.stderr)
+            return 2
+        if isinstance(exc, OverflowError):
+            print(f"diffuserlab: error: a number is too large ({_one_line(exc)}); give "
+                  "smaller values", file=sys.stderr)
+            return 2
+        # any other exception is a bug: one line, never a traceback
         print(f"diffuserlab: internal error (a bug): {type(exc).__name__}: {_one_line(exc)}; "
               "re-run with --debug for the traceback and report it", file=sys.stderr)
         return 1

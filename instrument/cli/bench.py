@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from collections import Counter
 from typing import Any
 
@@ -140,8 +141,8 @@ def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
     from ..bench_setup import BenchOpenError, open_bench
     from ..registry import RegistryError
 
-    if not (timeout_s > 0):
-        error(f"--timeout must be a positive number of seconds, got {timeout_s}")
+    if not (0 < timeout_s < math.inf):  # NaN fails too; every wait on a device ends
+        error(f"--timeout must be a finite number of seconds > 0, got {timeout_s}")
         return 2
     try:  # without a file: the built-in simulated bench, --simulate or not
         config, driven = _load(path, simulate or path is None, "devices")

@@ -142,6 +142,11 @@ def _method(text: str) -> tuple[str, int]:
                           "per frame (e.g. admm:5)")
 
 
+#: Longest ``--seconds`` of a capture (a recording's frame count is bounded too, by
+#: :data:`instrument.video.MAX_FRAMES`, once the camera's rate is known).
+MAX_SECONDS = 1e7
+
+
 def _check_numbers(args: argparse.Namespace) -> None:
     from recon.errors import ReconInputError
     from recon.fft import check_threads
@@ -151,6 +156,9 @@ def _check_numbers(args: argparse.Namespace) -> None:
                           ("--preview-every-s", getattr(args, "preview_every_s", None))):
         if value is not None and not 0 < value < float("inf"):
             raise ReconInputError(f"{option} {value}: give a number > 0")
+    if args.seconds is not None and args.seconds > MAX_SECONDS:
+        raise ReconInputError(f"--seconds {args.seconds:g}: give at most {MAX_SECONDS:g} s "
+                              f"({MAX_SECONDS / 86400:.0f} days) per run")
     if args.bin_factor < 1:
         raise ReconInputError(f"--bin {args.bin_factor}: give a factor >= 1")
     if args.seed < 0:
@@ -310,7 +318,7 @@ def run_video(args: argparse.Namespace) -> int:
     from ..output_safety import check_outputs
     from ..recorder import index_ranges
     from ..runstore import FRAME_COMPRESSORS, RunStore, is_run_store
-    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, record_video
+    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES, record_video
 
     if args.method is not None:
         _method(args.method)
@@ -320,8 +328,9 @@ def run_video(args: argparse.Namespace) -> int:
     elif args.psf is not None or args.preview_png is not None:
         raise ReconInputError("--psf and --preview-png go with --live-recon wiener|admm:K")
     _check_numbers(args)
-    if args.frames is not None and args.frames < 1:
-        raise ReconInputError(f"--frames {args.frames}: give a whole number >= 1")
+    if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
+        raise ReconInputError(f"--frames {args.frames}: give a whole number >= 1 and at most "
+                              f"{MAX_FRAMES} (record longer videos in parts)")
     for option, value in (("--shard-frames", args.shard_frames),
                           ("--queue-frames", args.queue_frames)):
         if value is not None and value < 1:

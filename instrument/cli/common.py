@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 import sys
 
-__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "bench_config", "bench_label", "error",
-           "floats"]
+__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "add_range_option", "bench_config",
+           "bench_label", "check_memory", "error", "floats"]
 
 #: How messages name the built-in simulated bench.
 BUILT_IN_BENCH = "built-in simulated bench"
@@ -87,3 +87,41 @@ def floats(text: str, option: str) -> list[float]:
         raise ValueError(f"{option} {text!r} needs finite numbers")
     return values
 
+
+
+def add_range_option(parser) -> None:
+    """``--allow-mixed-ranges`` of ``recon`` and ``recon3d``: accept a PSF and a raw
+    whose bit depths or value ranges cannot belong to one camera
+    (:func:`recon.preprocess.check_pair_ranges`)."""
+    parser.add_argument("--allow-mixed-ranges", action="store_true",
+                        help="accept a PSF and a raw of different bit depths or value "
+                        "ranges (e.g. a raw summed from several frames); refused by default "
+                        "because the PSF's dark level would not fit the raw")
+
+
+def check_memory(need_bytes: float, what: str) -> None:
+    """Refuse, before any work, a job whose arrays alone exceed the machine's memory.
+
+    Parameters
+    ----------
+    need_bytes : float
+        An estimate of what the job allocates, bytes.
+    what : str
+        The options that ask for it (for the message).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        ``need_bytes`` above the physical memory (both in GiB in the message).
+    """
+    import os
+
+    from recon.errors import ReconInputError
+
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not a POSIX system: not checked
+        return
+    if need_bytes > total:
+        raise ReconInputError(f"{what} needs about {need_bytes / 2 ** 30:.3g} GiB of memory, "
+                              f"this machine has {total / 2 ** 30:.3g} GiB; give smaller sizes")

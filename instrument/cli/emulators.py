@@ -10,6 +10,7 @@ that directory. The last line printed is ``ready`` once every emulator serves.
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import threading
 
@@ -42,8 +43,13 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Start the emulators, print their ports, serve until interrupted."""
-    if not args.time_scale > 0:
-        error(f"--time-scale must be > 0, got {args.time_scale}")
+    if not (args.time_scale > 0 and math.isfinite(args.time_scale)):
+        error(f"--time-scale must be a finite number > 0, got {args.time_scale}")
+        return 2
+    if args.duration_s is not None and not (args.duration_s > 0
+                                            and math.isfinite(args.duration_s)):
+        error(f"--duration-s must be a finite number of seconds > 0, got {args.duration_s} "
+              "(leave it out to run until Ctrl-C)")
         return 2
     if args.bench_out:
         check_outputs([args.bench_out], None, args.overwrite, option="--bench-out")

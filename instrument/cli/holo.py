@@ -30,10 +30,11 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                          "factor and method)",
                          description="The evaluation reproducing Table 7.1; writes "
                          "records.csv, summary.json, table.md and psnr_vs_seconds.png.")
-    ep.add_argument("--size", type=int, default=480, help="target grid N (default 480)")
-    ep.add_argument("--factors", default="4,16,36", help="expansion factors (default 4,16,36)")
-    ep.add_argument("--seeds", default="0,1,2", help="mask seeds (default 0,1,2)")
-    ep.add_argument("--iterations", type=int, default=200, help="optimiser iterations (200)")
+    ep.add_argument("--size", type=int, default=None, help="target grid N (default 480)")
+    ep.add_argument("--factors", default=None, help="expansion factors (default 4,16,36)")
+    ep.add_argument("--seeds", default=None, help="mask seeds (default 0,1,2)")
+    ep.add_argument("--iterations", type=int, default=None,
+                    help="optimiser iterations (200)")
     ep.add_argument("--methods", default=",".join(METHODS),
                     help="comma-separated from one-step,l2,frequency,spatial,no-mask")
     ep.add_argument("--images", default=None,
@@ -49,15 +50,39 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     bp = hsub.add_parser("benchmark", help="full-size hologram speed against the FFT floor",
                          description="Full-size hologram speed benchmark: seconds per "
                          "iteration against one FFT at the grid, FFT share, peak memory.")
-    bp.add_argument("--slm", type=int, nargs=2, default=(540, 960), metavar=("ROWS", "COLS"))
+    bp.add_argument("--slm", type=int, nargs=2, default=None, metavar=("ROWS", "COLS"),
+                    help="SLM pixels (default 540 960)")
     bp.add_argument("--factor", type=int, default=16, help="expansion factor k^2 (16)")
-    bp.add_argument("--iterations", type=int, default=200)
+    bp.add_argument("--iterations", type=int, default=None, help="iterations (200)")
     bp.add_argument("--loss", default="frequency", choices=("frequency", "l2", "spatial"))
-    bp.add_argument("--fft-repeats", type=int, default=9)
+    bp.add_argument("--fft-repeats", type=int, default=None, help="FFT timings (9)")
     bp.add_argument("--json", default=None, help="also write the report to this JSON file")
     bp.add_argument("--quick", action="store_true", help="tiny smoke run (36 x 64 SLM, 10 it.)")
     bp.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
     bp.set_defaults(handler=run_benchmark)
+
+
+def _settings(args: argparse.Namespace, options: dict[str, str], *, full: tuple,
+              quick: tuple) -> dict:
+    """The values of ``options`` ({flag: attribute}): the given ones, else the full run's
+    (``full``) or, with ``--quick``, the smoke run's (``quick``). ``--quick`` sets them
+    all, so giving one of them with it is refused, never ignored.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        ``--quick`` with one of ``options``.
+    """
+    from recon.errors import ReconInputError
+
+    given = [flag for flag, attr in options.items() if getattr(args, attr) is not None]
+    if args.quick and given:
+        sets = ", ".join(f"{flag} {' '.join(map(str, v)) if isinstance(v, tuple) else v}"
+                         for flag, v in zip(options, quick, strict=True))
+        raise ReconInputError(f"--quick sets {sets}: drop {', '.join(given)} or drop --quick")
+    defaults = quick if args.quick else full
+    return {attr: (getattr(args, attr) if getattr(args, attr) is not None else d)
+            for (flag, attr), d in zip(options.items(), defaults, strict=True)}
 
 
 def _ints(text: str, what: str) -> tuple[int, ...]:
@@ -96,18 +121,25 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
     from recon.cgh.evaluate import run_evaluation
     from recon.cgh.protocol import BUNDLED_IMAGES, load_bundled, load_folder
+    from recon.errors import ReconInputError
 
     from ..output_safety import check_outputs
+    from .common import check_memory
 
-    size, factors, seeds, iters = args.size, _ints(args.factors, "--factors"), \
-        _ints(args.seeds, "--seeds"), args.iterations
+    settings = _settings(args, {"--size": "size", "--factors": "factors", "--seeds": "seeds",
+                                "--iterations": "iterations"},
+                         full=(480, "4,16,36", "0,1,2", 200), quick=(48, "4,16", "0", 15))
+    size, iters = settings["size"], settings["iterations"]
+    factors, seeds = _ints(settings["factors"], "--factors"), _ints(settings["seeds"], "--seeds")
     out = Path(args.out)
     check_outputs([out / n for n in EVALUATION_FILES], {"--images": args.images},
                   args.overwrite, directory=out)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    if args.quick:
-        size, factors, seeds, iters = 48, (4, 16), (0,), 15
     _check_evaluation(factors, seeds, methods)
+    if size < 1 or iters < 1:
+        raise ReconInputError("--size and --iterations must be positive")
+    # the optimiser holds a few complex fields on the expanded SLM grid (k N)^2
+    check_memory(8 * 8 * max(factors) * size ** 2, f"--size {size} at factor {max(factors)}")
     if args.images:
         images = load_folder(args.images)
     else:
@@ -136,13 +168,18 @@ def run_benchmark(args: argparse.Namespace) -> int:
     from recon.cgh.benchmark import run_benchmark as time_hologram
     from recon.errors import ReconInputError
 
-    slm, iters, reps = tuple(args.slm), args.iterations, args.fft_repeats
-    if args.quick:
-        slm, iters, reps = (36, 64), 10, 3
+    from .common import check_memory
+
+    settings = _settings(args, {"--slm": "slm", "--iterations": "iterations",
+                                "--fft-repeats": "fft_repeats"},
+                         full=((540, 960), 200, 9), quick=((36, 64), 10, 3))
+    slm, iters, reps = tuple(settings["slm"]), settings["iterations"], settings["fft_repeats"]
     k = int(round(args.factor ** 0.5))
     if k * k != args.factor or min(slm) < 1 or iters < 1 or reps < 1:
         raise ReconInputError("--factor must be a perfect square; --slm, --iterations and "
                               "--fft-repeats must be positive")
+    check_memory(8 * 8 * args.factor * slm[0] * slm[1],
+                 f"--slm {slm[0]} {slm[1]} at --factor {args.factor}")
     if args.json:
         from ..output_safety import check_outputs
 

@@ -48,13 +48,19 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
     rp.add_argument("--full-scale", type=float, default=None,
                     help="saturation level if below the dtype max (65520: 12-bit in uint16)")
+    rp.add_argument("--dark", default="auto",
+                    help="dark level subtracted from the PSF and the raw: auto (the PSF's "
+                    "dark corner psf[5:15, 5:15]; default), none (both already "
+                    "dark-subtracted), a number (DN) or a `calibrate dark` run")
     rp.add_argument("--out", default="out/recon.png",
                     help="output image; writes OUT.png (viewing) and OUT.tif (float32)")
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace existing output files (never an input)")
+    from .common import add_range_option
     from .grid_options import add_grid_options
 
+    add_range_option(rp)
     add_grid_options(rp, volume=False, solver=True)
     rp.set_defaults(handler=run)
 
@@ -87,7 +93,7 @@ def summary_line(m: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
     from ..output_safety import check_outputs
-    from ..reconstruct_files import output_paths, run_recon
+    from ..reconstruct_files import dark_level, output_paths, run_recon
 
     if (args.psf is None) == (args.psf_grid is None):
         from recon.errors import ReconInputError
@@ -100,11 +106,13 @@ def run(args: argparse.Namespace) -> int:
         return run_grid(args, volume=False)
     outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
+    dark = args.dark.strip().lower()
+    dark = None if dark == "auto" else "none" if dark == "none" else dark_level(args.dark)
     m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
                   bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,
                   depth_mm=args.depth_mm, psf_product=args.psf_product, l1=args.l1,
-                  seconds=args.seconds)
+                  seconds=args.seconds, allow_mixed_ranges=args.allow_mixed_ranges, dark=dark)
     for line in choice_lines(m):
         print(line)
     print(summary_line(m))

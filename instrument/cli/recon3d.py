@@ -75,8 +75,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (never an input)")
+    from .common import add_range_option
     from .grid_options import add_grid_options
 
+    add_range_option(p)
     add_grid_options(p, volume=True)
     p.set_defaults(handler=run, input_errors=(ValueError, OSError))
 
@@ -130,7 +132,8 @@ def run(args: argparse.Namespace) -> int:
                     psf_product=args.psf_product, metrics_json=args.metrics_json,
                     planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,
                     scene_range_mm=(None if args.scene_range is None
-                                    else floats(args.scene_range, "--scene-range")))
+                                    else floats(args.scene_range, "--scene-range")),
+                    allow_mixed_ranges=args.allow_mixed_ranges)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")

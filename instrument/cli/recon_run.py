@@ -68,10 +68,13 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "--simulate; required with a calibrated (dark-subtracted) PSF stack "
                     "otherwise; with a plain PSF image, estimated from its corner as "
                     "`recon` does")
-    rp.add_argument("--frames", default=None, help="frames A:B to reconstruct (default all)")
+    rp.add_argument("--frames", default=None,
+                    help="frames A:B to reconstruct (default: every stored frame; a damaged "
+                    "frame is left out and listed)")
     where = rp.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None,
-                       help="local dask worker processes (default: one per core)")
+                       help="local dask worker processes (default: one per core; at most "
+                       "the machine's cores, and one per frame)")
     where.add_argument("--scheduler", default=None,
                        help="address of a dask.distributed scheduler (tcp://host:8786); "
                        "its workers must see the run's path")
@@ -101,8 +104,10 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError(f"--iterations {args.iterations}: give a whole number >= 1")
     if args.bin_factor < 1:
         raise ReconInputError(f"--bin {args.bin_factor}: give a factor >= 1")
-    if args.workers is not None and args.workers < 1:
-        raise ReconInputError(f"--workers {args.workers}: give a whole number >= 1")
+    if args.workers is not None:
+        from ..batch import check_workers
+
+        check_workers(args.workers, 1)  # the machine's bound, before any work
     if args.dff is not None and not 0 <= args.dff <= 100:
         raise ReconInputError(f"--dff {args.dff}: give a percentile in [0, 100] (e.g. 20)")
     for option, value in (("--tv", args.tv), ("--l1", args.l1)):
@@ -112,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
     store = RunStore.open(args.run)
-    frames = parse_frames(args.frames, store.n_frames)
+    frames = None if args.frames is None else parse_frames(args.frames, store.n_frames)
     if args.psf_grid:
         psf, dark, source, how = _grid(args, store)
     else:
@@ -120,7 +125,9 @@ def run(args: argparse.Namespace) -> int:
                                       psf_product=args.psf_product, dark=args.dark)
         how = f"{args.method} x{args.iterations}"
     name = args.product or (psf.product_name if args.psf_grid else f"recon_{args.method}")
-    print(f"{args.run}: frames {frames.start}:{frames.stop} of {store.n_frames}, "
+    which = ("the stored frames" if frames is None
+             else f"frames {frames.start}:{frames.stop}")
+    print(f"{args.run}: {which} of {store.n_frames}, "
           f"{how}, PSF {source}; "
           + (f"scheduler {args.scheduler}" if args.scheduler else
              f"{args.workers or 'one per core'} local workers"), flush=True)
@@ -150,6 +157,11 @@ def run(args: argparse.Namespace) -> int:
         return 130
     for bar in bars:
         bar.close()
+    if out["not_stored"]:
+        print(f"left out: frames {out['not_stored']} (not stored: the recording ended "
+              "there)")
+    for line in out["damaged"]:
+        print(f"left out: {line}")
     print(f"{out['product']}: {out['reconstructed']} frames reconstructed, {out['skipped']} "
           f"already done, {out['seconds']:.1f} s ({out['fps']:.2f} frames/s with "
           f"{out['workers'] or 0} workers)"

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from ..output_safety import check_outputs
 from ..runstore import RunStore
+from ..runstore_records import VIDEO_PLAN
 from ..stacks import export_tiff, import_psf_stack
 from .common import floats
 
@@ -28,12 +30,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ep = rsub.add_parser("export", help="write a product (default psf_stack) or the frames "
                          "as TIFF")
     ep.add_argument("run")
-    ep.add_argument("--out", required=True, help="TIFF file to write")
+    ep.add_argument("--out", required=True, help="TIFF file to write (.tif or .tiff)")
     ep.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     group = ep.add_mutually_exclusive_group()
     group.add_argument("--product", default="psf_stack", help="product name (default "
                        "psf_stack)")
-    group.add_argument("--frames", action="store_true", help="export the raw frames instead")
+    group.add_argument("--frames", action="store_true",
+                       help="export the raw frames instead: the stored frames whose "
+                       "checksums hold (a killed recording's, a damaged frame left out; "
+                       "each skipped range is listed)")
     ip = rsub.add_parser("import-psf", help="store a PSF stack (TIFF or .npy) as a run")
     ip.add_argument("stack", help="TIFF or .npy, (depths, rows, cols) or one 2D PSF")
     ip.add_argument("--depths", default=None,
@@ -79,7 +84,11 @@ def format_summary(s: dict) -> str:
     for key, value in s["summary"].items():
         text = json.dumps(value)
         lines.append(f"result   {key} = {text if len(text) < 100 else text[:97] + '...'}")
-    if s["status"] in ("aborted", "failed", "running"):
+    if s["plan"] == VIDEO_PLAN:
+        if s["status"] == "recording" and "is writing it" not in (s.get("lock") or ""):
+            lines.append(f"ended    killed while recording: its {s['frames_done']} stored "
+                         "frames are kept (runs export --frames and recon-run use them)")
+    elif s["status"] in ("aborted", "failed", "running"):
         lines.append(f"resume   diffuserlab calibrate resume {s['path']} BENCH.toml [--simulate]")
     return "\n".join(lines)
 
@@ -112,8 +121,8 @@ def verify(path: str) -> int:
         print(f"{store.path} (run schema 1) carries no checksums: only unreadable chunks "
               "can be found, not deleted or altered ones")
     if problems:
-        print(f"damaged: {len(problems)} problem(s) in {checked}; repair a frame with "
-              f"diffuserlab calibrate resume {store.path} BENCH.toml --redo POINT")
+        print(f"damaged: {len(problems)} problem(s) in {checked}; each line above says how "
+              "to repair it")
         return 1
     print(f"intact: {checked} verified")
     return 0
@@ -129,8 +138,14 @@ def run(args: argparse.Namespace) -> int:
         return verify(args.run)
     elif args.runs_command == "export":
         check_outputs([args.out], {"run": args.run}, args.overwrite)
-        out = export_tiff(args.run, args.out, product=None if args.frames else args.product)
+        if Path(args.out).suffix.lower() not in (".tif", ".tiff"):
+            raise ValueError(f"--out {args.out}: runs export writes a TIFF; give a .tif or "
+                             ".tiff name")
+        out, skipped = export_tiff(args.run, args.out,
+                                   product=None if args.frames else args.product)
         print(f"wrote {out}")
+        for line in skipped:
+            print(f"skipped  {line}")
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")

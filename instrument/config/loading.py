@@ -128,7 +128,9 @@ def validate_bench_text(text: str, *, source: str | None = None
             problems += [
                 Problem(dotted(loc), msg, fix)
                 for loc, msg, fix in bench_rule_problems(
-                    raw.get("devices"), raw.get("branches", ["lensless"])
+                    raw.get("devices"), raw.get("branches", ["lensless"]),
+                    None if any(within(p.location, "geometry") for p in problems)
+                    else raw.get("geometry"),  # a geometry with problems is said once
                 )
             ]
     problems += [

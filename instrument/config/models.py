@@ -31,6 +31,7 @@ from .base import (
     unit_of,
     unit_word,
 )
+from .rules import camera_geometry_problems, metres_problem, param_value_problems
 
 # ------------------------------------------------------------------------- models
 
@@ -75,6 +76,17 @@ class GeometryConfig(Section):
         "leak, filter autofluorescence), photons per second on the whole sensor; the "
         "virtual twin adds it (Eq. 6.1's g)"
     )
+
+    @model_validator(mode="after")
+    def _lengths_in_mm(self) -> GeometryConfig:
+        problems = [p for p in (
+            metres_problem(("diffuser_sensor_distance_mm",), "diffuser_sensor_distance_mm",
+                           self.diffuser_sensor_distance_mm),
+            metres_problem(("aperture_mm",), "aperture_mm", list(self.aperture_mm)),
+        ) if p is not None]
+        if problems:
+            raise _rules_error(problems)
+        return self
 
 
 class CalibrationDefaults(Section):
@@ -145,6 +157,7 @@ class DeviceConfig(Section):
         problems = _param_unit_problems(value, ())
         if info.data.get("kind") == "stage":
             problems += _axes_problems(value.get("axes"))
+        problems += param_value_problems(value, info.data.get("kind"))
         if problems:
             raise _rules_error(problems)
         return value
@@ -264,14 +277,18 @@ DEFAULT_TRAVEL: dict[str, tuple[float, float]] = {
 }
 
 
-def bench_rule_problems(devices: list[Any], branches: Any) -> list[tuple[tuple, str, str]]:
-    """Cross-device rules (unique ids, one camera, an SLM) on possibly malformed raw data.
+def bench_rule_problems(devices: list[Any], branches: Any, geometry: Any = None
+                        ) -> list[tuple[tuple, str, str]]:
+    """Cross-device rules (unique ids, one camera, an SLM; the camera's sensor as the
+    geometry describes it, :func:`instrument.config.rules.camera_geometry_problems`) on
+    possibly malformed raw data.
 
     Returns ``(location, message, fix)`` triples, the location relative to the bench.
     """
     out: list[tuple[tuple, str, str]] = []
     if not isinstance(devices, list):
         return out
+    out += camera_geometry_problems(devices, geometry)
     entries = [
         (i, d.get("id"), d.get("kind")) for i, d in enumerate(devices) if isinstance(d, dict)
     ]
@@ -352,7 +369,8 @@ class BenchConfig(Section):
     @model_validator(mode="after")
     def _rules(self) -> BenchConfig:
         problems = bench_rule_problems(
-            [{"id": d.id, "kind": d.kind} for d in self.devices], list(self.branches)
+            [{"id": d.id, "kind": d.kind, "params": d.params} for d in self.devices],
+            list(self.branches), self.geometry.model_dump(mode="json"),
         )
         if problems:
             raise _rules_error(problems)

@@ -7,6 +7,9 @@ Rules, each from a measurement of the data or of the benchmarks, in this order:
    frame's energy ||b||^2 is compared with the energy the noise alone would have,
    E||n||^2. When ||b||^2 < :data:`NO_SIGNAL_RATIO` E||n||^2 the data carry no signal
    and :class:`NoSignalError` says so (nothing to reconstruct; an image would be noise).
+   Before it, in every method, :func:`recon.preprocess.check_raw_signal` has checked the
+   raw after its dark level (a raw below the dark level, a constant or a noise-only
+   frame is refused there), so ||b||^2 here is light, not a dark offset.
 2. **Time budget.** With ``seconds`` given, an iteration costs about
    :data:`ITERATION_COST` FFT pairs (ADMM at 300 x 400 in the speed benchmark,
    2.7-3.2x the FFT floor) and the automatic weight up to twice the iterations, so

@@ -10,7 +10,9 @@ measurement, and downsample both by box-averaging. Normalisation is left to
 the solver layer (:func:`normalize` is provided for it).
 
 Submodules: :mod:`.validation` (input checks, saturation), :mod:`.dark` (dark
-level), :mod:`.binning` (box binning) and :mod:`.pair` (:func:`prepare_pair`,
+level), :mod:`.signal` (the raw checked after its dark level, the PSF/raw pair's bit
+depths, the erasure's measured pixels: used by every method, 2D and 3D),
+:mod:`.binning` (box binning) and :mod:`.pair` (:func:`prepare_pair`,
 :func:`normalize`); every public name is importable from ``recon.preprocess``.
 
 Every refusal raises :class:`recon.errors.ReconInputError` whose message says
@@ -21,6 +23,13 @@ what is wrong and how to fix it.
 from .binning import box_bin
 from .dark import DEFAULT_DARK_REGION, dark_level, subtract_dark
 from .pair import Prepared, normalize, prepare_pair
+from .signal import (
+    RawSignalError,
+    check_measured_fraction,
+    check_pair_ranges,
+    check_raw_signal,
+    raw_levels,
+)
 from .validation import (
     SaturationWarning,
     saturation_fraction,
@@ -31,11 +40,16 @@ from .validation import (
 __all__ = [
     "DEFAULT_DARK_REGION",
     "Prepared",
+    "RawSignalError",
     "SaturationWarning",
     "box_bin",
+    "check_measured_fraction",
+    "check_pair_ranges",
+    "check_raw_signal",
     "dark_level",
     "normalize",
     "prepare_pair",
+    "raw_levels",
     "saturation_fraction",
     "subtract_dark",
     "validate_measurement",

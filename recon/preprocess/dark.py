@@ -71,9 +71,12 @@ def dark_level(
         )
     patch = image[region]
     if patch.shape[0] == 0 or patch.shape[1] == 0:
+        rows, cols = (f"{s.start or 0}:{'' if s.stop is None else s.stop}" for s in region)
         raise ReconInputError(
-            f"dark region {region!r} selects no pixels of an image of shape {image.shape}; "
-            "choose a region inside the image"
+            f"the image is {image.shape[0]}x{image.shape[1]} pixels, too small for its dark "
+            f"corner (rows {rows}, cols {cols}, which hold no pixel of it): give the dark "
+            "level yourself (--dark LEVEL, or --dark none for dark-subtracted data), or use "
+            "the full-size image"
         )
     if image.ndim == 2:
         return float(patch.mean(dtype=np.float64))

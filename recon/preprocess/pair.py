@@ -20,6 +20,7 @@ from recon.io import demosaic_bayer
 
 from .binning import box_bin
 from .dark import DEFAULT_DARK_REGION, level_for_info, resolve_dark, subtract_dark
+from .signal import check_pair_ranges, check_raw_signal
 from .validation import (
     as_array,
     channel_count,
@@ -68,6 +69,7 @@ def prepare_pair(
     bayer: str | None = None,
     warn_saturation: float | None = 0.001,
     full_scale: float | None = None,
+    allow_mixed_ranges: bool = False,
 ) -> Prepared:
     """Validate and preprocess a PSF and a raw measurement for reconstruction.
 
@@ -125,7 +127,8 @@ def prepare_pair(
         ``bin_factor``, ``saturated_fraction_psf``, ``saturated_fraction_raw``,
         ``channels`` (of `raw`; 1 for 2D), ``psf_shared_across_channels``,
         ``psf_clipped_fraction`` (fraction of PSF samples set to 0 by the
-        clip), ``psf_shape``, ``raw_shape`` (outputs).
+        clip), ``psf_shape``, ``raw_shape`` (outputs), ``raw_levels`` (the raw's
+        floor, median, top and noise sigma, input units).
 
     Raises
     ------
@@ -135,6 +138,10 @@ def prepare_pair(
         spatial shapes differ (message names both shapes); for an invalid
         `dark`, `dark_region`, `bayer` or `bin_factor`; and if the PSF has no
         signal above the dark level after preprocessing.
+    RawSignalError
+        The raw holds nothing to reconstruct after its dark level, or cannot belong
+        with the PSF (:mod:`recon.preprocess.signal`: constant, mostly saturated, a
+        lone extreme value, below its dark level, no light left, mixed bit depths).
 
     Warns
     -----
@@ -176,6 +183,8 @@ def prepare_pair(
         raw, "measurement", warn_saturation, full_scale
     )
 
+    check_pair_ranges(psf, raw, allow_mixed_ranges=allow_mixed_ranges)
+    raw_in = raw
     if psf.shape[:2] != raw.shape[:2]:
         raise ReconInputError(
             f"PSF shape {psf.shape} and measurement shape {raw.shape} differ in height/width; "
@@ -217,11 +226,11 @@ def prepare_pair(
             info["dark_level"] = float(np.mean(level, dtype=np.float64))
         else:
             info["dark_level"] = level_for_info(level)
-    logger.info("dark subtraction: mode %s, level %s", mode, info["dark_level"])
+    logger.debug("dark subtraction: mode %s, level %s", mode, info["dark_level"])
 
     psf_b = box_bin(psf_d, bin_factor)
     raw_b = box_bin(raw_d, bin_factor)
-    del psf_d, raw_d
+    del psf_d
 
     negative = psf_b < 0
     info["psf_clipped_fraction"] = float(np.count_nonzero(negative)) / psf_b.size
@@ -237,6 +246,10 @@ def prepare_pair(
             "(try dark='none' or a smaller value) or recapture a brighter PSF"
         )
 
+    info["raw_levels"] = check_raw_signal(
+        raw_in, raw_d, dark_level=level, dark_source=_dark_source(mode, dark_region),
+        full_scale=full_scale)
+    del raw_d
     info["bin_factor"] = int(bin_factor)
     info["channels"] = channel_count(raw_b)
     info["psf_shared_across_channels"] = psf_b.ndim == 2 and raw_b.ndim == 3
@@ -244,6 +257,16 @@ def prepare_pair(
     info["raw_shape"] = tuple(raw_b.shape)
     logger.debug("prepare_pair: %s", info)
     return Prepared(psf=psf_b, raw=raw_b, info=info)
+
+
+def _dark_source(mode: str, region: tuple[slice, slice]) -> str:
+    """Where a dark level of :func:`resolve_dark`'s ``mode`` came from, for messages."""
+    if mode == "psf_region":
+        (r0, r1), (c0, c1) = ((s.start, s.stop) for s in region)
+        return f"the PSF's dark corner, rows {r0}:{r1}, cols {c0}:{c1}"
+    return {"none": "dark='none': nothing subtracted", "scalar": "the dark value given",
+            "vector": "the per-channel dark values given",
+            "frame": "the dark frame given"}[mode]
 
 
 def normalize(image: np.ndarray, mode: str = "l2") -> tuple[np.ndarray, float]:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..auto import AUTO, parse_weight, solve_channel
 from ..errors import ReconInputError
-from ..preprocess import box_bin
+from ..preprocess import box_bin, check_raw_signal
 from ..solvers import SOLVERS, SolverSpec
 from ..solvers.common import SolveResult
 from ..validate import as_int, nonneg_weight
@@ -246,6 +246,9 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     if b.shape != glist[0].sensor_shape:
         raise ReconInputError(f"raw frame shape {b.shape} differs from the PSF grid's "
                               f"{glist[0].sensor_shape}; pass the frame of the calibrated camera")
+    levels = check_raw_signal(raw, b - float(dark), dark_level=float(dark),
+                              dark_source="the dark value given" if dark else
+                              "no dark level: the grid's PSFs are dark-subtracted")
     b = box_bin(b - float(dark), bin_factor) if bin_factor > 1 else b - float(dark)
     if prepared is None:
         prepared = grid_model(grids, model=model, k=k, depths_mm=depths_mm,
@@ -260,6 +263,7 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
         raise ReconInputError("raw frame is zero after the dark level; check the exposure")
     info = {"method": method, "background": background, "iterations": iterations,
             "bin_factor": int(bin_factor), "dark": float(dark), "raw_scale": scale,
+            "raw_levels": levels,
             "psf_scale": float(op.scale), "two_part": getattr(op, "brightness", None)
             is not None}
     if method == "admm":

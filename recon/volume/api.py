@@ -24,6 +24,8 @@ from ..auto.volume import auto_volume
 from ..errors import ReconInputError
 from ..preprocess import (
     box_bin,
+    check_pair_ranges,
+    check_raw_signal,
     dark_level,
     saturation_fraction,
     subtract_dark,
@@ -150,7 +152,8 @@ class VolumeReconstruction:
 
 
 def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float = "auto",
-                           bin_factor: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+                           bin_factor: int = 1, allow_mixed_ranges: bool = False
+                           ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Dark subtraction, binning and clipping with the :mod:`recon.preprocess` steps.
 
     Parameters
@@ -165,6 +168,9 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
         image; ``"none"``: no subtraction; a number: that level, input units.
     bin_factor : int
         Lateral box binning of every plane and of the raw image.
+    allow_mixed_ranges : bool
+        Accept a stack and raw whose bit depths cannot be one camera's
+        (:func:`recon.preprocess.check_pair_ranges`).
 
     Returns
     -------
@@ -178,7 +184,9 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     Raises
     ------
     ReconInputError
-        Invalid images, shapes that differ, or a plane without signal.
+        Invalid images, shapes that differ, or a plane without signal; a raw with
+        nothing to reconstruct after its dark level
+        (:class:`recon.preprocess.RawSignalError`, :func:`recon.preprocess.check_raw_signal`).
     """
     if raw.ndim != 2:
         raise ReconInputError(f"the raw image has shape {raw.shape}; recon3d needs one "
@@ -190,6 +198,8 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     for k in range(stack.shape[0]):
         validate_psf(stack[k])
     validate_measurement(raw)
+    check_pair_ranges(stack, raw, allow_mixed_ranges=allow_mixed_ranges)
+    raw_in = raw
     saturated = saturation_fraction(raw)
     if saturated > SATURATION_WARN:
         log.warning("%.2g%% of the raw image is saturated: the linear model does not hold "
@@ -202,6 +212,10 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     if level is not None:
         stack = subtract_dark(stack, level)  # a scalar: any (n_z, r, c) layout is fine
         raw = subtract_dark(raw, level)
+    source = ("the median of the planes' dark corners, rows 5:15, cols 5:15"
+              if dark == "auto" else "--dark none: nothing subtracted" if level is None
+              else "the dark value given")
+    raw_levels = check_raw_signal(raw_in, raw, dark_level=level, dark_source=source)
     stack = bin_stack(stack, bin_factor)
     raw = box_bin(raw, bin_factor)
     clipped = float(np.count_nonzero(stack < 0)) / stack.size
@@ -212,7 +226,7 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
                               f"{level}; try --dark none or a smaller value")
     info = {"dark_mode": dark if isinstance(dark, str) else "value", "dark_level": level,
             "bin_factor": int(bin_factor), "saturated_fraction_raw": saturated,
-            "psf_clipped_fraction": clipped}
+            "psf_clipped_fraction": clipped, "raw_levels": raw_levels}
     return stack, raw, info
 
 
@@ -254,8 +268,8 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
 def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                        method: str = "admm", iterations: int = 100,
                        tv: float | str | None = "auto", l1: float | str = 0.0,
-                       bin_factor: int = 1, dark: str | float = "auto"
-                       ) -> VolumeReconstruction:
+                       bin_factor: int = 1, dark: str | float = "auto",
+                       allow_mixed_ranges: bool = False) -> VolumeReconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -284,6 +298,8 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         Lateral box binning of the stack and the raw image.
     dark : "auto", "none" or float
         Dark level handling (:func:`prepare_volume_problem`).
+    allow_mixed_ranges : bool
+        Accept a stack and raw of different bit depths (:func:`prepare_volume_problem`).
 
     Returns
     -------
@@ -320,7 +336,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     order = np.argsort(z, kind="stable")
     stack, depths = stack[order], [float(z[i]) for i in order]
     stack, raw, info = prepare_volume_problem(stack, as_array(raw, "raw image"), dark,
-                                              bin_factor)
+                                              bin_factor, allow_mixed_ranges)
 
     h, psf_scale = normalize_psf_stack(stack)
     del stack

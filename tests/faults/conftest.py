@@ -142,7 +142,79 @@ def _stores(d: Path) -> None:
                                                      "diffuser_sensor_distance_mm = 12.0"))
 
 
-FACTORIES = (_valid, _empty, _truncated, _mislabelled, _shapes, _dtypes, _nonfinite, _stores)
+def _signal(d: Path) -> None:
+    """Raws with nothing to reconstruct after their dark level, beside a 16-bit PSF whose
+    dark corner reads 3168 DN (and a 16-bit stack of the same camera)."""
+    rng = np.random.default_rng(3)
+    psf = np.full(SHAPE, 3168, np.uint16)
+    psf[16:30, 16:30] += (20000 * rng.random((14, 14))).astype(np.uint16)
+    tifffile.imwrite(d / "psf16.tif", psf)
+    stack = np.stack([psf, np.roll(psf, 2, 1), np.roll(psf, 4, 1)])
+    tifffile.imwrite(d / "stack16.tif", stack, metadata={"depths_mm": [2.0, 4.0, 8.0]},
+                     photometric="minisblack")
+    tifffile.imwrite(d / "raw16.tif", (3168 + 9000 * rng.random(SHAPE)).astype(np.uint16))
+    # an 8-bit export of a frame beside the 16-bit PSF: every level below 3168
+    tifffile.imwrite(d / "raw8.tif", (255 * rng.random(SHAPE)).astype(np.uint8))
+    # a background-subtracted frame (levels around 0) and a dark frame (noise only)
+    tifffile.imwrite(d / "bgsub.tif", (200 * rng.random(SHAPE) - 100).astype(np.float32))
+    tifffile.imwrite(d / "noise.tif", rng.normal(0, 5, SHAPE).astype(np.float32))
+    tifffile.imwrite(d / "const.tif", np.full(SHAPE, 5000, np.uint16))
+    sat = np.full(SHAPE, 65535, np.uint16)
+    sat[:3] = 9000  # 90 % saturated, not constant
+    tifffile.imwrite(d / "sat.tif", sat)
+    lone = (100 * rng.random(SHAPE) + 50).astype(np.float32)
+    lone[7, 9] = 1e38
+    tifffile.imwrite(d / "lone.tif", lone)
+
+
+def _colour(d: Path) -> None:
+    """Frames that are not colour: three grey pages (three frames, not R, G, B), 32 pages
+    of 32 x 3, an array of 2 values per pixel."""
+    rng = np.random.default_rng(4)
+    frames = (100 * rng.random((3, *SHAPE)) + 10).astype(np.float32)
+    tifffile.imwrite(d / "pages3.tif", frames, photometric="minisblack")
+    tifffile.imwrite(d / "pages_hw3.tif", frames.transpose(1, 2, 0), photometric="minisblack")
+    np.save(d / "two.npy", frames[:2].transpose(1, 2, 0))
+    tifffile.imwrite(d / "abc_depths.tif", frames, metadata={"depths_mm": ["abc", 4.0, 8.0]},
+                     photometric="minisblack")
+    sat = (2000 + 3000 * rng.random(SHAPE)).astype(np.uint16)
+    sat[:4] = 65535  # 12.5 % saturated: warned once, reconstructed
+    tifffile.imwrite(d / "sat12.tif", sat)
+
+
+def _frame_psf(d: Path) -> None:
+    """frame_psf.npy: a PSF at the simulated camera's frame shape (dark.zarr's frames)."""
+    from instrument.runstore import RunStore
+
+    rows, cols = RunStore.open(d / "dark.zarr").frame_shape
+    rng = np.random.default_rng(5)
+    np.save(d / "frame_psf.npy", (100 + 1000 * rng.random((rows, cols))).astype(np.float32))
+
+
+def _bench_fields(d: Path) -> None:
+    """Bench files whose values have the right types but cannot describe the bench: the
+    geometry contradicting the camera, a length in metres, an unknown driver parameter
+    (which a simulated twin would drop), a negative speed, two axes on one controller,
+    counts_per_unit = 0."""
+    sim = (d / "bench.toml").read_text()
+    lab = (REPO / "examples" / "bench-lab.toml").read_text()
+    emulated = (REPO / "examples" / "bench-emulated.toml").read_text()
+    edits = {
+        "b_geom.toml": (sim, "sensor_shape_px = [256, 320]", "sensor_shape_px = [512, 640]"),
+        "b_metres.toml": (sim, "diffuser_sensor_distance_mm = 8.9",
+                          "diffuser_sensor_distance_mm = 0.0089"),
+        "b_gain.toml": (sim, "adc_bits = 12", "adc_bits = 12\ngain_db = 6"),
+        "l_speed.toml": (lab, "speed_mm_s = 2.0", "speed_mm_s = -2.0"),
+        "l_serial.toml": (lab, 'y = "27500102"', 'y = "27500101"'),
+        "e_counts.toml": (emulated, "counts_per_unit = 34554.96", "counts_per_unit = 0"),
+    }
+    for name, (text, old, new) in edits.items():
+        assert text.count(old) == 1, (name, old)
+        (d / name).write_text(text.replace(old, new))
+
+
+FACTORIES = (_valid, _empty, _truncated, _mislabelled, _shapes, _dtypes, _nonfinite, _stores,
+             _signal, _colour, _bench_fields, _frame_psf)
 
 
 @pytest.fixture(scope="session")

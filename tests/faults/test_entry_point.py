@@ -35,3 +35,15 @@ def test_entry_point_matches_in_process(d, capsys, name):
     status, _, err = run_cli(shlex.split(command), capsys)
     assert status == 2
     assert err.strip() == proc.stderr.strip()
+
+
+def test_a_saturation_warning_is_one_log_line_once(d):
+    """A 12.5 %-saturated raw: reconstructed, and warned once, in one line (no Python
+    ``warnings`` source line, no second copy)."""
+    proc = subprocess.run([sys.executable, "-m", "instrument.cli", *shlex.split(
+        "recon --psf psf.npy --raw sat12.tif --method admm --tv 1e-3 --iterations 2 "
+        "--out o/s")], cwd=d, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "at full scale" in lines[0], proc.stderr
+    assert lines[0].startswith("WARNING ") and "warn(" not in proc.stderr

@@ -24,7 +24,9 @@ from .helpers import assert_refused
 
 #: input classes (the second part of a case id)
 CLASSES = ("missing", "empty", "truncated", "mislabelled", "shape", "dtype", "nonfinite",
-           "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench")
+           "number", "unwritable", "clash", "corrupt-store", "locked-store", "foreign-bench",
+           "no-signal", "colour", "bench-field", "resource", "ignored-option", "out-name",
+           "messages")
 
 
 def case(command: str, cls: str, what: str, words: str):
@@ -68,7 +70,8 @@ RECON = [
     case(f"{R} --psf d1.npy --raw raw.tif", "shape", "1-D psf", "d1.npy"),
     case(f"{R} --psf d3.npy --raw raw.tif", "shape", "3-D psf without depth", "d3.npy"),
     case(f"{R} --psf d4.npy --raw raw.tif", "shape", "4-D psf", "d4.npy"),
-    case(f"{R} --psf tiny.npy --raw tiny.npy", "shape", "2x2", "2"),
+    case(f"{R} --psf tiny.npy --raw tiny.npy", "shape", "2x2",
+         "2x2 pixels|dark corner|--dark"),
     case(f"{R} --psf psf.npy --raw big_raw.tif", "shape", "size mismatch", "shape"),
     case(f"{R} --psf complex.npy --raw raw.tif", "dtype", "complex psf", "complex"),
     case(f"{R} --psf bool.npy --raw raw.tif", "dtype", "bool psf", "bool"),
@@ -103,6 +106,67 @@ RECON = [
          "zarr.json not json", "notjson_meta.zarr"),
     case(f"{R2} --out file.txt/r", "unwritable", "out under a file", "file.txt"),
     case(f"{R2} --metrics-json /proc/x/m.json", "unwritable", "metrics in /proc", "/proc/x"),
+]
+
+RS = "recon --iterations 2 --out o/r --psf psf16.tif"
+#: the raw checked after its dark level, in every method (recon.preprocess.signal)
+NO_SIGNAL = [
+    case(f"{RS} --raw raw8.tif", "no-signal", "8-bit raw beside 16-bit psf",
+         "raw8.tif|uint8|uint16|--allow-mixed-ranges"),
+    *[case(f"{RS} --raw raw8.tif --allow-mixed-ranges --method {m}", "no-signal",
+           f"8-bit raw below the psf's dark level, {m}",
+           "raw8.tif|3168|dark corner|floor|--dark") for m in ("auto", "wiener", "gd",
+                                                                "fista", "admm")],
+    case(f"{RS} --raw bgsub.tif", "no-signal", "background-subtracted raw",
+         "bgsub.tif|below|3168|--dark none"),
+    case(f"{RS} --raw bgsub.tif --dark 3000", "no-signal", "dark value given",
+         "bgsub.tif|below|dark value given"),
+    case(f"{RS} --raw noise.tif --dark none --method admm --tv 1e-3", "no-signal",
+         "dark frame, fixed method", "noise.tif|no signal|dark level 0"),
+    case(f"{RS} --raw const.tif", "no-signal", "constant raw", "const.tif|constant|5000"),
+    case(f"{RS} --raw sat.tif --method wiener", "no-signal", "90 % saturated raw",
+         "sat.tif|90.6% of the raw is at full scale"),
+    case(f"{R} --psf psf.npy --raw lone.tif --method fista", "no-signal", "lone 1e38 pixel",
+         "lone.tif|(7, 9)|1e+38"),
+    case(f"{RS} --raw lone.tif", "no-signal", "1e38 above the psf camera's full scale",
+         "lone.tif|full scale 65535"),
+    case(f"{RS} --raw raw16.tif --erase 0.9999", "no-signal", "99.99 % erasure",
+         "--erase 0.9999|0.01%"),
+    case(f"{V} --psf-stack stack16.tif --raw raw8.tif", "no-signal",
+         "recon3d raw below the stack's dark level", "raw8.tif|3168|dark corners|--dark"),
+    case(f"{V} --psf-stack stack16.tif --raw bgsub.tif --method fista --tv 0", "no-signal",
+         "recon3d background-subtracted raw, fista", "bgsub.tif|below"),
+    case(f"{V} --psf-stack stack.tif --raw const.tif", "no-signal", "recon3d constant raw",
+         "const.tif|constant"),
+    case(f"{V} --psf-stack stack.tif --raw noise.tif --dark none", "no-signal",
+         "recon3d dark frame", "noise.tif|no signal"),
+    case(f"{V} --psf-stack stack.tif --raw lone.tif", "no-signal", "recon3d lone 1e38 pixel",
+         "lone.tif|1e+38"),
+]
+
+#: colour only from a photometric tag / samples per pixel or a last axis of 3 or 4
+COLOUR = [
+    case(f"{R} --psf psf.npy --raw pages3.tif", "colour", "3 grey pages as raw",
+         "pages3.tif|stack of 3 images|photometric"),
+    case(f"{R} --psf pages3.tif --raw raw.tif", "colour", "3 grey pages as psf",
+         "pages3.tif|stack of 3 images|--depth"),
+    case(f"{R} --psf psf.npy --raw pages_hw3.tif", "colour", "32 pages of 32x3",
+         "pages_hw3.tif|stack of 32 images"),
+    case(f"{R} --psf psf.npy --raw two.npy", "colour", "2 values per pixel",
+         "two.npy|2 values per pixel"),
+    case(f"{V2} --raw pages3.tif", "colour", "recon3d 3 grey pages as raw",
+         "pages3.tif|stack of 3 images"),
+    # not "PSF has 3 channels": a stack without --depth is a stack
+    case(f"{R} --psf stack.tif --raw raw.tif", "colour", "psf stack without depth",
+         "stack.tif|stack of 3 images|--depth"),
+]
+
+#: messages a user can act on: the file named, the option to use
+MESSAGES = [
+    case(f"{R} --psf abc_depths.tif --depth 4 --raw raw.tif", "messages",
+         "stack depths not numbers", "abc_depths.tif|'abc'|--depths"),
+    case(f"{V} --psf-stack abc_depths.tif --raw raw.tif", "messages",
+         "recon3d stack depths not numbers", "abc_depths.tif|not numbers"),
 ]
 
 RECON3D = [
@@ -232,6 +296,27 @@ BENCH = [
     case("devices --timeout 0", "number", "timeout 0", "--timeout"),
     case("devices --timeout nan", "number", "timeout nan", "--timeout"),
     case("devices --timeout -1", "number", "timeout -1", "--timeout"),
+    case("devices --timeout inf", "number", "timeout inf", "--timeout|finite"),
+]
+
+#: values of the right type that cannot describe the bench: refused at their line
+BENCH_FIELDS = [
+    case("validate b_geom.toml", "bench-field", "camera shape against the geometry",
+         "b_geom.toml:53|sensor_shape [256, 320]|geometry.sensor_shape_px [512, 640]"),
+    case("validate b_metres.toml", "bench-field", "distance in metres",
+         "b_metres.toml:25|0.0089 mm|diffuser_sensor_distance_mm = 8.9"),
+    case("validate b_gain.toml --simulate", "bench-field", "unknown parameter, simulated",
+         "b_gain.toml:56|gain_db|max_gain_db"),
+    case("validate l_speed.toml --simulate", "bench-field", "negative speed",
+         "l_speed.toml:65|speed_mm_s = -2|> 0"),
+    case("validate l_serial.toml --simulate", "bench-field", "two axes on one serial number",
+         "l_serial.toml:63|axes x, y share serial number '27500101'"),
+    case("validate e_counts.toml --simulate", "bench-field", "counts_per_unit 0",
+         "e_counts.toml:55|counts_per_unit = 0|> 0"),
+    case("devices b_metres.toml", "bench-field", "devices: distance in metres",
+         "b_metres.toml:25|metres"),
+    case("calibrate dark b_gain.toml --simulate --frames 2 --out o/c.zarr", "bench-field",
+         "calibrate: unknown parameter", "b_gain.toml:56|gain_db"),
 ]
 
 RUNS = [
@@ -313,6 +398,45 @@ BENCHMARK = [
          "file.txt"),
 ]
 
+#: resources a command cannot have (memory, cores, frames, a scheduler), refused before
+#: any work
+RESOURCE = [
+    case("holo benchmark --slm 100000 100000", "resource", "hologram beyond memory",
+         "--slm 100000 100000|GiB of memory"),
+    case("holo evaluate --size 1000000 --out o/h", "resource", "evaluation beyond memory",
+         "--size 1000000|GiB of memory"),
+    case("capture video --simulate --seconds 1e308 --out o/v.zarr", "resource",
+         "recording of 1e308 s", "--seconds 1e+308|at most"),
+    case("capture video --simulate --frames 99999999 --out o/v.zarr", "resource",
+         "recording of 1e8 frames", "99999999|at most"),
+    case("recon-run dark.zarr --psf frame_psf.npy --workers 1000000 --frames 0:2", "resource",
+         "workers beyond the cores", "--workers 1000000|cores"),
+    case("recon-run dark.zarr --psf frame_psf.npy --scheduler notaurl", "resource",
+         "scheduler not an address", "--scheduler 'notaurl'|tcp://HOST:PORT"),
+    case("recon-run dark.zarr --psf frame_psf.npy --scheduler tcp://127.0.0.1:9", "resource",
+         "scheduler port closed", "--scheduler tcp://127.0.0.1:9|nothing answers"),
+]
+
+#: options a command would otherwise ignore
+IGNORED = [
+    case("emulators start --duration-s nan", "ignored-option", "duration nan",
+         "--duration-s|nan"),
+    case("emulators start --duration-s -1", "ignored-option", "duration negative",
+         "--duration-s|-1"),
+    case("holo evaluate --quick --size 1000000 --out o/h", "ignored-option",
+         "evaluate --quick with --size", "--quick sets --size 48|drop --size"),
+    case("holo benchmark --quick --slm 100 100", "ignored-option",
+         "benchmark --quick with --slm", "--quick sets --slm 36 64|drop --slm"),
+]
+
+#: only known extensions are extensions
+OUT_NAMES = [
+    case("runs export run.zarr --out o/e.png", "out-name", "export under a png name",
+         "o/e.png|.tif"),
+    case("runs export run.zarr --out o/e", "out-name", "export without an extension",
+         "o/e|.tif"),
+]
+
 HE = "holo evaluate --out o/h"
 HB = "holo benchmark --quick"
 HOLO = [
@@ -361,6 +485,8 @@ CALIBRATE = [
     case(f"{CD} --exposure-s -1", "number", "exposure -1", "exposure"),
     case(f"{CD} --exposure-s nan", "number", "exposure nan", "exposure"),
     case(f"{CD} --reconnect-timeout -1", "number", "reconnect timeout -1", "reconnect"),
+    case(f"{CD} --reconnect-timeout inf", "number", "reconnect timeout inf",
+         "--reconnect-timeout inf|finite"),
     case(f"{CD} --seed -1", "number", "seed -1", "seed"),
     case("calibrate dark --simulate --out file.txt/c.zarr", "unwritable", "out under a file",
          "file.txt"),
@@ -499,8 +625,11 @@ VIDEO = [
          "raw.tif|exists"),
 ]
 
-TABLE = {"recon": RECON, "demo": DEMO, "recon3d": RECON3D, "analyze": ANALYZE,
-         "validate/devices": BENCH, "runs": RUNS, "benchmark": BENCHMARK, "holo": HOLO,
+TABLE = {"recon": RECON, "no-signal": NO_SIGNAL, "colour": COLOUR, "messages": MESSAGES,
+         "demo": DEMO, "recon3d": RECON3D,
+         "analyze": ANALYZE, "validate/devices": BENCH, "bench-field": BENCH_FIELDS,
+         "runs": RUNS, "out-name": OUT_NAMES, "benchmark": BENCHMARK, "holo": HOLO,
+         "resource": RESOURCE, "ignored-option": IGNORED,
          "calibrate": CALIBRATE, "align": ALIGN, "capture": CAPTURE, "video": VIDEO}
 ALL = [c for rows in TABLE.values() for c in rows]
 

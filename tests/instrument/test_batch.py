@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import recon
-from instrument.batch import parse_frames, reconstruct_run
+from instrument.batch import check_workers, parse_frames, reconstruct_run
 from instrument.cli import main
 from instrument.runstore import RunStore, RunStoreError
 from instrument.video import record_video
@@ -185,3 +185,25 @@ def test_dff_of_recorded_neurons_follows_the_truth(cluster, tmp_path):
     for i in active:
         assert np.corrcoef(recovered[:, i], truth[:, i])[0, 1] > 0.8
     assert dff.shape == movie.shape
+
+
+@pytest.mark.parametrize("workers, n_frames, expected", [
+    (None, 100, 8),  # default: one per core
+    (None, 3, 3),  # ... at most one per frame
+    (6, 2, 2),  # more workers than frames: one per frame
+    (8, 100, 8),
+    (1, 1, 1),
+])
+def test_workers_are_bounded_by_the_frames_and_the_cores(monkeypatch, workers, n_frames,
+                                                          expected):
+    monkeypatch.setattr("os.cpu_count", lambda: 8)
+    assert check_workers(workers, n_frames) == expected
+
+
+@pytest.mark.parametrize("workers, words", [
+    (9, "this machine has 8 cores"), (1_000_000, "give at most 8"), (0, ">= 1"),
+    (-1, ">= 1"), (2.5, "whole number"), (True, "whole number")])
+def test_workers_beyond_the_machine_are_refused(monkeypatch, workers, words):
+    monkeypatch.setattr("os.cpu_count", lambda: 8)
+    with pytest.raises(RunStoreError, match=words):
+        check_workers(workers, 2)

@@ -35,6 +35,7 @@ from instrument.config import (
     to_toml,
 )
 from instrument.config.base import Ordered, Range
+from instrument.config.rules import MIN_LENGTH_MM
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SIM_TEXT = (EXAMPLES / "bench-simulated.toml").read_text()
@@ -224,7 +225,28 @@ def valid_benches(draw) -> tuple[BenchConfig, str]:
                 lo, hi = sorted(draw(st.lists(st.floats(-1e4, 1e4), min_size=2, max_size=2,
                                               unique=True)))
                 axes[axis] = [lo, hi]
+        _physical(dev, data["geometry"])
+    geometry = data["geometry"]
+    geometry["diffuser_sensor_distance_mm"] = max(geometry["diffuser_sensor_distance_mm"],
+                                                  MIN_LENGTH_MM)
+    geometry["aperture_mm"] = tuple(max(v, MIN_LENGTH_MM) for v in geometry["aperture_mm"])
     return BenchConfig.model_validate(data), base
+
+
+def _physical(dev: dict, geometry: dict) -> None:
+    """The rules of instrument.config.rules on a drawn device: the camera's sensor is the
+    geometry's, an LED array's lengths are millimetres (not metres)."""
+    params = dev["params"]
+    if dev["kind"] == "camera":
+        if "pixel_pitch_um" in params:
+            params["pixel_pitch_um"] = geometry["sensor_pixel_pitch_um"]
+        for key in ("sensor_shape", "sensor_shape_px", "shape_px", "size_px"):
+            if key in params:
+                params[key] = list(geometry["sensor_shape_px"])
+    if dev["kind"] == "led_array":
+        for key in ("pitch_mm", "distance_mm"):
+            if key in params:
+                params[key] = max(params[key], MIN_LENGTH_MM)
 
 
 @PROPERTY

@@ -14,6 +14,7 @@ from recon.volume import reconstruct_volume
 RNG = np.random.default_rng(0)
 PSF = RNG.random((16, 16))
 STACK = RNG.random((2, 16, 16))
+RAW = PSF + 1.0  # above the PSF's "dark corner" (a random PSF has none): light to image
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -31,12 +32,12 @@ STACK = RNG.random((2, 16, 16))
 ])
 def test_reconstruct_refuses(kwargs, message):
     with pytest.raises(ReconInputError) as info:
-        recon.reconstruct(PSF, PSF, "fista", **kwargs)
+        recon.reconstruct(PSF, RAW, "fista", **kwargs)
     assert message in str(info.value)
 
 
 def test_reconstruct_accepts_numpy_integers():
-    out = recon.reconstruct(PSF, PSF, "fista", iterations=np.int64(2), bin_factor=np.int32(1))
+    out = recon.reconstruct(PSF, RAW, "fista", iterations=np.int64(2), bin_factor=np.int32(1))
     assert out.image.shape == PSF.shape
 
 
@@ -50,12 +51,12 @@ def test_reconstruct_accepts_numpy_integers():
 ])
 def test_reconstruct_volume_refuses(kwargs, message):
     with pytest.raises(ReconInputError) as info:
-        reconstruct_volume(STACK, [1.0, 2.0], PSF, method="fista", **kwargs)
+        reconstruct_volume(STACK, [1.0, 2.0], RAW, method="fista", **kwargs)
     assert message in str(info.value)
 
 
 def test_reconstruct_volume_accepts_numpy_integers():
-    rec = reconstruct_volume(STACK, [1.0, 2.0], PSF, method="fista", iterations=np.int64(2))
+    rec = reconstruct_volume(STACK, [1.0, 2.0], RAW, method="fista", iterations=np.int64(2))
     assert rec.volume.shape[0] == 2
 
 
@@ -67,5 +68,5 @@ def test_cli_and_api_say_the_same(tmp_path, capsys):
                  "--iterations", "0", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     with pytest.raises(ReconInputError) as info:
-        recon.reconstruct(PSF, PSF, iterations=0)
+        recon.reconstruct(PSF, RAW, iterations=0)
     assert err.strip() == f"diffuserlab: error: {info.value}"

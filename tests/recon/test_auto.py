@@ -109,7 +109,7 @@ def test_time_budget_of_one_frame_gives_wiener_and_says_why(conv_problem):
 def test_all_dark_frame_is_refused():
     psf = np.zeros((32, 32), np.float32)
     psf[14:18, 14:18] = 1.0
-    with pytest.raises(ReconInputError, match="zero"):
+    with pytest.raises(ReconInputError, match="constant .every sample 0"):
         recon.reconstruct(psf, np.zeros((32, 32), np.float32), preprocess=False)
 
 
@@ -118,11 +118,14 @@ def test_pure_noise_says_the_data_carry_no_signal():
     psf = np.zeros((64, 64), np.float32)
     psf[28:36, 28:36] = rng.random((8, 8)) ** 4
     noise = (rng.poisson(5.0, (64, 64)) - 5.0 + rng.normal(0, 2, (64, 64))).astype(np.float32)
+    # every method checks the raw after its dark level (here none: preprocess=False)
+    for method in ("auto", "admm", "wiener"):
+        with pytest.raises(ReconInputError, match="carries no signal above the dark level 0"):
+            recon.reconstruct(psf, noise, method, preprocess=False, iterations=30)
+    # the automatic check of the noise model still refuses a frame whose light is too
+    # weak for its noise
     with pytest.raises(NoSignalError, match="carry no signal"):
-        recon.reconstruct(psf, noise, preprocess=False, iterations=30)
-    # a fixed method still runs (the user asked for it)
-    out = recon.reconstruct(psf, noise, "admm", tv=1e-3, preprocess=False, iterations=10)
-    assert np.all(np.isfinite(out.image))
+        recon.reconstruct(psf, noise + 0.5, preprocess=False, iterations=30)
 
 
 def test_saturated_frame_warns_and_stays_finite():
@@ -131,11 +134,15 @@ def test_saturated_frame_warns_and_stays_finite():
     rng = np.random.default_rng(6)
     psf = np.zeros((64, 64), np.float32)
     psf[28:36, 28:36] = rng.random((8, 8)) ** 4
-    raw = np.full((64, 64), 65535, np.uint16)
+    raw = (1000 + 30000 * rng.random((64, 64))).astype(np.uint16)
+    raw[:8] = 65535  # 12.5 % saturated: warned, reconstructed
     with pytest.warns(SaturationWarning):
         out = recon.reconstruct(psf, raw, iterations=30, dark="none")
     assert np.all(np.isfinite(out.image)) and out.image.min() >= 0
     assert out.image.max() > 0  # not blank
+    raw[:56] = 65535  # 87.5 % saturated: the linear model fails on most of the frame
+    with pytest.raises(ReconInputError, match="87.5% of the raw is at full scale"):
+        recon.reconstruct(psf, raw, iterations=30, dark="none")
 
 
 def test_psf_much_smaller_than_the_sensor():

@@ -40,6 +40,21 @@ def test_load_tiff_planar_rgb_moves_channels_last(tmp_path):
     np.testing.assert_array_equal(out, np.moveaxis(planes, 0, -1))
 
 
+@pytest.mark.parametrize("pages", [3, 4])
+def test_grey_pages_are_frames_never_colour(tmp_path, pages):
+    """Colour comes from the samples per pixel (photometric tag), not from a page count:
+    three (or four) grey pages are three frames, refused where one image is expected,
+    however the same numbers load when the file says they are RGB."""
+    planes = RNG.integers(0, 4000, size=(pages, 10, 14), dtype=np.uint16)
+    path = tmp_path / "pages.tif"
+    tifffile.imwrite(path, planes, photometric="minisblack")
+    with pytest.raises(ReconInputError, match=f"stack of {pages} images of 10x14.*photometric"):
+        load_image(path)
+    tifffile.imwrite(path, np.moveaxis(planes, 0, -1),
+                     photometric="rgb", extrasamples=[] if pages == 3 else ["unassalpha"])
+    assert load_image(path).shape == (10, 14, pages)
+
+
 def test_load_singleton_leading_axis_is_dropped(tmp_path):
     data = RNG.random((1, 9, 11)).astype(np.float32)
     path = tmp_path / "one.npy"

@@ -66,7 +66,9 @@ def test_dark_level_custom_region():
 
 
 def test_dark_level_region_outside_image_refused():
-    with pytest.raises(ReconInputError, match="selects no pixels of an image of shape \\(4, 4\\)"):
+    with pytest.raises(ReconInputError,
+                       match="image is 4x4 pixels, too small for its dark corner .rows 5:15, "
+                       "cols 5:15.*--dark"):
         dark_level(np.ones((4, 4)))
 
 
@@ -281,18 +283,19 @@ def test_validate_accepts_good_data():
 
 def test_prepare_pair_tutorial_dark_from_psf_corner():
     psf, raw = _psf_and_raw(dark=100)
-    psf[5:15, 5:15] = 104  # corner mean 104 -> used for both images
+    psf[5:15, 5:15] = 101  # corner mean 101 -> used for both images
     out = prepare_pair(psf, raw)
     assert isinstance(out, Prepared)
     assert out.psf.dtype == np.float32 and out.raw.dtype == np.float32
     assert out.info["dark_mode"] == "psf_region"
-    assert out.info["dark_level"] == pytest.approx(104.0)
-    assert out.psf[20, 25] == pytest.approx(5000 - 104)
-    assert out.psf.min() == 0.0  # 100 - 104 clipped for the PSF
-    # raw keeps its negatives: 100 - 104 = -4 and (100 - 7) - 104 = -11
-    assert out.raw[0, 0] == pytest.approx(93 - 104)
-    assert out.raw[3, 0] == pytest.approx(-4)
-    np.testing.assert_allclose(out.raw, raw.astype(np.float32) - 104)
+    assert out.info["dark_level"] == pytest.approx(101.0)
+    assert out.psf[20, 25] == pytest.approx(5000 - 101)
+    assert out.psf.min() == 0.0  # 100 - 101 clipped for the PSF
+    # raw keeps its negatives: 100 - 101 = -1 and (100 - 7) - 101 = -8
+    assert out.raw[0, 0] == pytest.approx(93 - 101)
+    assert out.raw[3, 0] == pytest.approx(-1)
+    np.testing.assert_allclose(out.raw, raw.astype(np.float32) - 101)
+    assert out.info["raw_levels"]["floor"] == pytest.approx(100, abs=1)
     assert out.info["psf_clipped_fraction"] > 0.5
 
 
@@ -395,6 +398,7 @@ def test_prepare_pair_3d_psf_per_channel_dark():
     psf[...] = np.array([10, 20, 30], dtype=np.uint16)
     psf[20, 20] = 1000
     raw = np.full((32, 40, 3), 50, dtype=np.uint16)
+    raw[16:, 20:] = 60  # some structure: a constant raw carries no image
     out = prepare_pair(psf, raw)
     assert out.info["dark_level"] == [10.0, 20.0, 30.0]
     np.testing.assert_allclose(out.raw[0, 0], [40, 30, 20])
