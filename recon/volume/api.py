@@ -335,6 +335,9 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     t_start = time.perf_counter()
     order = np.argsort(z, kind="stable")
     stack, depths = stack[order], [float(z[i]) for i in order]
+    if len(set(depths)) < len(depths):  # arguments before the data's own checks
+        raise ReconInputError(f"depths_mm {depths} repeat a depth; give one distinct depth "
+                              "per plane of the PSF stack")
     stack, raw, info = prepare_volume_problem(stack, as_array(raw, "raw image"), dark,
                                               bin_factor, allow_mixed_ranges)
 

@@ -372,7 +372,14 @@ def test_atomic_path_failure_leaves_no_file_and_no_temp(tmp_path, existing):
 
 
 @pytest.mark.parametrize("name", ["out.tif", "out.png", "out.npy"])
-def test_save_image_failure_leaves_no_partial_file(tmp_path, monkeypatch, name):
+@pytest.mark.parametrize("error, raised, words", [
+    # the disk's problem: an OSError naming the file and the free space (exit 2)
+    (OSError(28, "No space left on device"), OSError, "No space left.*free.*out"),
+    # anything else the system refuses: a ReconInputError saying what to check
+    (OSError(13, "Permission denied"), ReconInputError, "cannot write"),
+], ids=["ENOSPC", "EACCES"])
+def test_save_image_failure_leaves_no_partial_file(tmp_path, monkeypatch, name, error,
+                                                   raised, words):
     import cv2
     import tifffile
 
@@ -380,12 +387,12 @@ def test_save_image_failure_leaves_no_partial_file(tmp_path, monkeypatch, name):
 
     def half_then_fail(path, *args, **kwargs):
         open(path if not hasattr(path, "write") else path.name, "ab").write(b"partial")
-        raise OSError(28, "No space left on device")
+        raise error
 
     monkeypatch.setattr(tifffile, "imwrite", half_then_fail)
     monkeypatch.setattr(cv2, "imwrite", half_then_fail)
     monkeypatch.setattr(np, "save", half_then_fail)
-    with pytest.raises(ReconInputError, match="cannot write"):
+    with pytest.raises(raised, match=words):
         io.save_image(tmp_path / name, np.ones((4, 4), np.float32))
     assert list(tmp_path.iterdir()) == []
 

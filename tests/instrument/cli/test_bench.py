@@ -238,7 +238,7 @@ def test_devices_bad_input_exits_2(fakes, capsys, tmp_path):
     assert main(["devices", str(tmp_path / "missing.toml")]) == 2
     assert capsys.readouterr().err.startswith("diffuserlab: error: ")
     assert main(["devices", "--timeout", "0"]) == 2
-    assert "--timeout must be a positive number" in capsys.readouterr().err
+    assert "--timeout must be a finite number of seconds > 0" in capsys.readouterr().err
     assert OPENED == {}
 
 
