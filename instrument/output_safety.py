@@ -17,7 +17,7 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-from recon.errors import ReconInputError
+from diffuserlab.errors import InputError
 
 from .runstore import is_run_store
 
@@ -38,7 +38,7 @@ def checked_outputs(reset: bool = False) -> list[str]:
     return list(_CHECKED)
 
 
-class OutputError(ReconInputError):
+class OutputError(InputError):
     """An output path the command refuses (exit status 2 through the CLI boundary)."""
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from diffuserlab.errors import InputError
 from drivers.base import jsonable
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
@@ -262,7 +263,7 @@ def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
     """
     path = Path(out)
     if path.suffix.lower() not in _VOLUME_SUFFIXES:
-        raise ValueError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
+        raise InputError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
     stem = path.with_suffix("")
     return path, {v: stem.parent / f"{stem.name}_mip_{v}.png" for v in ("xy", "xz", "yz")}
 
@@ -317,7 +318,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     if path.exists():
         kind = json.loads(node.read_text()).get("node_type") if node.is_file() else None
         if kind != "array":
-            raise ValueError(f"--out {path} exists and is not a volume written by recon3d "
+            raise InputError(f"--out {path} exists and is not a volume written by recon3d "
                              "(a run store?); choose another name")
     # written under a temporary name and renamed into place (the old volume is moved
     # aside first and removed after): never half an array under the final name
@@ -410,7 +411,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
 
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
     if planes not in ("all", "auto"):
-        raise ValueError(f"planes {planes!r}: use all or auto")
+        raise InputError(f"planes {planes!r}: use all or auto")
     check_volume_parameters("admm" if method == AUTO else method, iterations,
                             0.0 if tv == AUTO else tv, 0.0 if l1 == AUTO else l1)
     vol_path, mip_paths = volume_output_paths(out)

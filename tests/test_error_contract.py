@@ -31,7 +31,9 @@ def _our_exceptions():
             except ImportError:
                 continue
             for name, obj in vars(module).items():
-                if (inspect.isclass(obj) and issubclass(obj, BaseException)
+                # Warnings are not errors; KeyboardInterrupt subclasses (a signal
+                # handled like Ctrl-C) are control flow, not failures.
+                if (inspect.isclass(obj) and issubclass(obj, Exception)
                         and not issubclass(obj, Warning) and obj.__module__ == info.name):
                     found[f"{info.name}.{name}"] = obj
     return found

@@ -164,13 +164,10 @@ def _inputs_note(args: argparse.Namespace, exc: BaseException) -> str:
     "could not convert string to float: 'abc'") that names neither a file nor an
     option of the command; empty for the project's own messages, which name what
     they refuse."""
-    from recon.errors import ReconInputError
-
-    from ..plan import PlanError
-    from ..runstore import RunStoreError
+    from diffuserlab.errors import InputError
 
     text = str(exc)
-    if isinstance(exc, ReconInputError | RunStoreError | PlanError) or "--" in text:
+    if isinstance(exc, InputError) or "--" in text:
         return ""
     given = {k: v for k, v in vars(args).items() if isinstance(v, str) and v
              and k not in ("handler", "command") and ("/" in v or "." in v)}
@@ -199,10 +196,13 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The handler's status; 2 (one line on stderr) on
+        :class:`diffuserlab.errors.InputError` (the project's input errors:
         :class:`recon.errors.ReconInputError`,
         :class:`instrument.runstore.RunStoreError`, :class:`instrument.plan.PlanError`,
-        :class:`instrument.cli.common.MissingBenchFile` and the errors the command
-        lists in ``input_errors``; 2 and one line per problem on
+        :class:`instrument.output_safety.OutputError`,
+        :class:`instrument.cli.common.MissingBenchFile`, ...) and the errors a command
+        lists in ``input_errors`` (no command turns every ValueError into bad input:
+        an unexpected one is a bug); 2 and one line per problem on
         :class:`instrument.config.BenchConfigError`; 3 when a solver diverged
         (:class:`recon.errors.DivergenceError`); 2 (one line) on a refused device
         setting or a missing driver library (:class:`drivers.errors.DeviceValueError`,
@@ -218,12 +218,9 @@ def main(argv: list[str] | None = None) -> int:
         1 and one line saying it is a bug on any other exception, whose traceback
         ``--debug`` shows instead.
     """
-    from recon.errors import ReconInputError
+    from diffuserlab.errors import InputError
 
     from ..bench_setup import BenchOpenError
-    from ..plan import PlanError
-    from ..runstore import RunStoreError
-    from .common import MissingBenchFile
     from .interrupts import exit_status, terminate_like_ctrl_c
 
     try:
@@ -241,8 +238,7 @@ def main(argv: list[str] | None = None) -> int:
             handler.removeFilter(_project_record)
         elif _project_record not in handler.filters:
             handler.addFilter(_project_record)
-    input_errors = (ReconInputError, RunStoreError, MissingBenchFile, PlanError,
-                    *getattr(args, "input_errors", ()))
+    input_errors = (InputError, *getattr(args, "input_errors", ()))
     from ..output_safety import checked_outputs
 
     checked_outputs(reset=True)

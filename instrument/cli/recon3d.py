@@ -17,6 +17,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from diffuserlab.errors import InputError
+
 from .common import floats
 
 __all__ = ["add_subcommands", "run", "summary_line"]
@@ -30,8 +32,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     sub : argparse._SubParsersAction
         The subparsers of the ``diffuserlab`` parser. The new parser's defaults
         carry ``handler=run``, so :func:`instrument.cli.main` dispatches to
-        :func:`run` without naming the command, and ``input_errors`` (ValueError,
-        OSError: bad option values, unreadable files exit 2).
+        :func:`run` without naming the command; bad option values raise
+        :class:`diffuserlab.errors.InputError` (exit 2).
     """
     from recon.auto import weight_arg
 
@@ -80,7 +82,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
     add_range_option(p)
     add_grid_options(p, volume=True)
-    p.set_defaults(handler=run, input_errors=(ValueError, OSError))
+    p.set_defaults(handler=run)
 
 
 
@@ -92,9 +94,9 @@ def _parse_dark(text: str) -> str | float:
     try:
         value = float(key)
     except ValueError as exc:
-        raise ValueError(f"--dark {text!r}: use auto, none or a number") from exc
+        raise InputError(f"--dark {text!r}: use auto, none or a number") from exc
     if not math.isfinite(value):
-        raise ValueError(f"--dark {text!r} must be finite")
+        raise InputError(f"--dark {text!r} must be finite")
     return value
 
 
@@ -117,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
     if (args.psf_stack is None) == (args.psf_grid is None):
-        raise ValueError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
+        raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
     if args.psf_grid:
         from .grid_options import run_grid
 

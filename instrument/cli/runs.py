@@ -7,6 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
+from diffuserlab.errors import InputError
+
 from ..output_safety import check_outputs
 from ..runstore import RunStore
 from ..runstore_records import VIDEO_PLAN
@@ -46,7 +48,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ip.add_argument("--out", required=True, help="run store to create (RUN.zarr)")
     ip.add_argument("--note", default="")
     ip.add_argument("--overwrite", action="store_true")
-    rp.set_defaults(handler=run, input_errors=(ValueError,))
+    rp.set_defaults(handler=run)
 
 
 def format_summary(s: dict) -> str:
@@ -139,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.runs_command == "export":
         check_outputs([args.out], {"run": args.run}, args.overwrite)
         if Path(args.out).suffix.lower() not in (".tif", ".tiff"):
-            raise ValueError(f"--out {args.out}: runs export writes a TIFF; give a .tif or "
+            raise InputError(f"--out {args.out}: runs export writes a TIFF; give a .tif or "
                              ".tiff name")
         out, skipped = export_tiff(args.run, args.out,
                                    product=None if args.frames else args.product)
