@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.errors import InputError
+from diffuserlab.jsonio import write_json
 from drivers.base import jsonable
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
@@ -228,29 +229,6 @@ def named_pair(psf_path, raw_path):
         yield
     except RawSignalError as exc:
         raise RawSignalError(f"--raw {raw_path} (PSF {psf_path}): {exc}") from None
-
-
-def write_json(path: str | Path, data: dict) -> Path:
-    """Write ``data`` as indented JSON, atomically (:func:`recon.io.atomic_path`).
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination (parent directories are created).
-    data : dict
-        JSON-serialisable.
-
-    Returns
-    -------
-    Path
-        ``path``.
-    """
-    from recon.io import atomic_path
-
-    text = json.dumps(data, indent=1)
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-    return Path(path)
 
 
 def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
