@@ -316,7 +316,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 bin_factor: int = 1, dark: str | float = "auto",
                 psf_product: str = "psf_stack", metrics_json: str | None = None,
                 planes: str = "all", pitch_um: float | None = None,
-                d_mm: float | None = None, scene_range_mm=None) -> dict:
+                d_mm: float | None = None, scene_range_mm=None,
+                empty_planes: str = "keep") -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
     projections and metrics.
 
@@ -352,6 +353,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     pitch_um, d_mm, scene_range_mm
         Sensor pitch (um, unbinned), diffuser-to-sensor distance (mm) and the scene's
         depth span (mm, optional) for ``planes="auto"``.
+    empty_planes : {"keep", "drop"}
+        With an automatic weight, keep every plane or set those that show no signal
+        to zero (see :func:`recon.reconstruct_volume`).
 
     Returns
     -------
@@ -397,7 +401,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
     rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
-                             tv=tv, l1=l1, bin_factor=bin_factor, dark=dark)
+                             tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
+                             empty_planes=empty_planes)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "
