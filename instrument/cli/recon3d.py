@@ -48,7 +48,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default="auto", help="admm, fista or auto (admm; default)")
     p.add_argument("--iterations", type=int, default=200,
                    help="iterations (default 200; the automatic weight's path and final "
-                   "solve take at most twice as many together)")
+                   "solve take at most 2.5x as many together)")
     p.add_argument("--tv", type=weight_arg, default="auto",
                    help="3D TV weight in the scaled problem (0 disables), or auto (default): "
                    "hold-out cross-validation along a 3D ADMM path; every plane is kept and "

@@ -52,6 +52,12 @@ kept iterate was worse (ADMM's transient after a restart: 23.4 -> 18.1 dB after 
 iterations on the camera photograph at 300 e-). With a compact PSF the held-out
 blocks would hide object pixels (:func:`holdout_coverage`), and the final solve runs
 on all pixels instead.
+
+The machinery takes any ADMM plan with the interface of
+:class:`recon.solvers.admm.AdmmPlan` (``zeros``, ``warm``, ``run``, ``objective``): the
+spatially varying models' and the volume's (:mod:`recon.auto.volume`, with its own
+:class:`PathRule`: the 2D bound above was measured on 2D scenes and does not carry over
+to 3D).
 """
 
 from __future__ import annotations
@@ -136,12 +142,19 @@ class PathRule:
         weight is taken.
     max_above_minimum : float
         The chosen weight is at most this multiple of the held-out minimum's weight.
+    path_share : float, optional
+        Share of the budget the path takes (:func:`path_budget`); None: the 2D split.
+    budget : float
+        With ``path_share``: the path and the final solve take at most this multiple of
+        a fixed-weight run's iterations (2D: 2).
     """
 
     start: float
     end: float
     se_rule: float = SE_RULE
     max_above_minimum: float = MAX_ABOVE_MINIMUM
+    path_share: float | None = None
+    budget: float = 2.0
 
 
 #: The 2D rules (:data:`START_WEIGHT`, :data:`END_WEIGHT`, :data:`SE_RULE`,
@@ -290,19 +303,28 @@ def _merge(histories: list[History]) -> History:
     return out
 
 
-def path_budget(iterations: int) -> tuple[int, int]:
+def path_budget(iterations: int, path_share: float | None = None,
+                budget: float = 2.0) -> tuple[int, int]:
     """``(path, final)`` iterations of :func:`admm_auto` for a fixed run's ``iterations``.
 
     The two add up to ``2 * iterations``. The path takes ``iterations``, or
     :data:`PATH_ITERATIONS` when that is at most half as many again (134-199
     iterations), the final solve (which starts from the path's estimate at the chosen
     weight and needs fewer) giving up the difference. Below that the path stays short
-    and coarse, and :func:`admm_auto` says so (:data:`COARSE_FACTOR`).
+    and coarse, and :func:`admm_auto` says so (:data:`COARSE_FACTOR`). With
+    ``path_share`` the two add up to ``budget * iterations`` and the path takes that
+    share of them (the volume's rule: its ADMM settles more slowly after a weight step,
+    see :data:`recon.auto.volume.VOLUME_RULES`).
 
     Parameters
     ----------
     iterations : int
         Iterations of the fixed-weight run that automatic ADMM replaces (>= 1).
+    path_share : float, optional
+        Share of the budget the path takes, in (0, 1).
+    budget : float
+        With ``path_share``: path and final solve take at most this multiple of
+        ``iterations`` together.
 
     Returns
     -------
@@ -310,6 +332,10 @@ def path_budget(iterations: int) -> tuple[int, int]:
         Iterations of the held-out path and at most of the final solve.
     """
     n = int(iterations)
+    if path_share is not None:
+        total = max(2, round(budget * n))
+        path = min(total - 1, max(1, round(total * path_share)))
+        return path, total - path
     path = PATH_ITERATIONS if n < PATH_ITERATIONS <= (3 * n) // 2 else n
     return path, 2 * n - path
 
@@ -388,13 +414,13 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Unknown ``regulariser``.
     """
     stopping = stopping or Stopping()
-    iterations, final_budget = path_budget(iterations)
-    stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
-    b_norm = float(np.linalg.norm(b))
-    target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     if regulariser not in ("tv", "l1"):
         raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
     rule = rule or PATH_RULES[regulariser]
+    iterations, final_budget = path_budget(iterations, rule.path_share, rule.budget)
+    stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
+    b_norm = float(np.linalg.norm(b))
+    target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     fixed = float(fixed)
     if not (math.isfinite(fixed) and fixed >= 0):
         raise ReconInputError(f"the fixed {'l1' if regulariser == 'tv' else 'tv'} weight "

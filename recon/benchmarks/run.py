@@ -12,7 +12,11 @@ benchmarks' ``volume_speed.json`` (:mod:`recon.benchmarks.volume`) and
 ``spatial_far.json`` + ``spatial_far.png`` (:mod:`recon.benchmarks.spatial_far`: the
 two-part model and its ADMM), compressive calibration against centre-only and
 grid calibration's ``blind_calibration.json`` + ``blind_calibration.png``
-(:mod:`recon.benchmarks.blind`, Fig. 5.4d), and ``summary.json`` under ``out`` and
+(:mod:`recon.benchmarks.blind`, Fig. 5.4d), the automatic 3D weight against the
+oracle's ``volume_auto.json`` (:mod:`recon.benchmarks.volume_auto`), our 3D solvers
+beside LenslessPiCam's on the external 3D sample's ``volume_external.json`` +
+``volume_external.png`` (:mod:`recon.benchmarks.volume_external`), and
+``summary.json`` under ``out`` and
 returns a compact summary. The weights chosen by the accuracy sweep are used by the
 stability and erasure benchmarks when they run in the same invocation; otherwise
 :data:`recon.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run

@@ -193,7 +193,8 @@ def _apply_rule(path: list, se_rule: float, bound: float) -> float:
 
 
 def rule_study(cfg: dict | None = None, rules=((1.0, math.inf), (1.0, 2.0), (1.0, 4.0),
-                                               (0.5, math.inf), (1.5, math.inf), (0.0, 1.0)),
+                                               (1.0, 8.0), (0.5, math.inf), (0.5, 8.0),
+                                               (1.5, math.inf), (0.0, 1.0)),
                span: PathRule | None = None) -> dict:
     """The 3D path's choice rules on the same held-out paths.
 

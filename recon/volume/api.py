@@ -308,8 +308,9 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         benchmark's best).
     iterations : int
         Solver iterations (>= 1); with an automatic weight, those of the fixed-weight
-        run it replaces (the path and the final solve take at most twice as many; below
-        134 the path's steps are coarse and the record says so).
+        run it replaces (the path and the final solve take at most 2.5x as many,
+        :data:`recon.auto.volume.VOLUME_RULES`; with few iterations the path's steps
+        are coarse and the record says so).
     tv : "auto" or float
         3D TV weight in the scaled problem (>= 0; 0 disables); ``"auto"`` (default)
         chooses it by hold-out cross-validation along a warm-started 3D ADMM path and

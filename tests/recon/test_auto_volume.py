@@ -121,4 +121,9 @@ def test_the_3d_weight_is_the_2d_machinery(monkeypatch):
     assert len(weights) >= 6 and max(np.asarray(weights[:-1]) / weights[1:]) < 3.0
     assert choice["final_pixels"].startswith("fit") and choice["kept_final_iteration"]
     assert weights[0] == volume.VOLUME_RULES["tv"].start
+    # the 3D budget: 2.5x the fixed run, the path 60 % of it (2D: 2x, path_budget(150)).
+    assert weight.path_budget(150, 0.6, 2.5) == (225, 150)
+    assert weight.path_budget(150) == (200, 100)
+    assert 150 < choice["path_iterations"] <= 225 and choice["final_iterations"] <= 150
+    assert rec.result.params["iterations_used"] <= 375
     assert rec.info["tv"] == choice["weight"] == rec.info["auto"]["weight"]
