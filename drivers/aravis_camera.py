@@ -7,9 +7,16 @@ Protocol facts, settings and pitfalls: docs/drivers/aravis.md.
 - Feature names that differ between cameras (``ExposureTime`` / ``ExposureTimeAbs``,
   ``Gain`` (dB) / ``GainRaw``, ``AcquisitionFrameRate`` / ``...Abs``) are resolved
   once at open; Aravis's range checking is switched on (0.8 leaves it off).
+- Automatic exposure and gain (``ExposureAuto``, ``GainAuto``, where the camera has
+  them) are switched off at open and read back: a camera that powers up in continuous
+  auto exposure (FLIR Blackfly S) would otherwise override the exposure written.
+- Pixel formats: mono8, mono10 (Mono10, packed Mono10p), mono12 (Mono12, Mono12p,
+  Mono16), mono16; a colour camera's Bayer mosaic (BayerRG8/GR8/GB8/BG8 and the 16-bit
+  ones) demosaiced to rgb8/rgb16 on the host, or delivered raw as bayer8/bayer16
+  (pattern in ``info["bayer_pattern"]``); RGB8 cameras as rgb8.
 - The hardware ROI is the smallest region on the camera's increments that covers
-  the requested one; the host crops to the exact ROI, bins (block average) and
-  converts the pixel format (:mod:`drivers.camera_image`).
+  the requested one; the host unpacks, demosaics, crops to the exact ROI, bins (block
+  average) and converts the pixel format (:mod:`drivers.camera_image`).
 - Frames arrive through one stream with a pool of ``n_buffers`` buffers; every
   popped buffer is pushed back (also when its frame is dropped). A buffer whose
   status is not SUCCESS (missing packets, size mismatch, ...) is counted as dropped
@@ -33,9 +40,14 @@ import threading
 import time
 from typing import Any
 
-import numpy as np
-
-from drivers.aravis_support import FORMATS, LOST_CODES, frames_between, gvcp_answers, import_aravis
+from drivers.aravis_support import (
+    FORMATS,
+    LOST_CODES,
+    decode,
+    frames_between,
+    gvcp_answers,
+    import_aravis,
+)
 from drivers.camera import Camera, Frame, FrameRing
 from drivers.camera_image import aligned_region, frame_image
 from drivers.errors import (
@@ -59,8 +71,10 @@ class AravisCamera(Camera):
         it) or a GigE camera's IP address.
     serial_number : str, optional
         The camera's serial number (used when ``camera_name`` is not given).
-    pixel_format : {"mono8", "mono12", "mono16"}, optional
-        Pixel format set at open (default: the camera's, if monochrome, else mono8).
+    pixel_format : str, optional
+        "mono8", "mono10", "mono12", "mono16", "rgb8", "rgb16", "bayer8" or "bayer16",
+        set at open (default: the camera's current one, else the first monochrome one
+        it has, else rgb8).
     exposure_s, gain, frame_rate_hz : float, optional
         Exposure (s), gain (dB) and free-run rate (Hz) set at open.
     trigger_line : str
@@ -148,6 +162,7 @@ class AravisCamera(Camera):
         self._index = 0
         self._stats: dict[str, int] = {}
         self._gige_ip: str | None = None
+        self._auto_off: list[str] = []
 
     # ------------------------------------------------------------------ open / close
     def _do_open(self, timeout_s: float) -> None:
@@ -178,6 +193,7 @@ class AravisCamera(Camera):
         self._stats = {"completed": 0, "incomplete": 0, "id_gaps": 0}
         self._call(cam.set_range_check_policy, arv.RangeCheckPolicy.ENABLE)
         self._resolve_features()
+        self._automatic_off()
         self._gige_ip = None
         self._gige = bool(cam.is_gv_device())
         if self._gige:  # the fast liveness probe, if this camera answers it
@@ -267,13 +283,30 @@ class AravisCamera(Camera):
                               "ExposureTimeAbs", "use a camera with exposure control")
         self._features = f
         formats = set(cam.dup_available_pixel_formats_as_strings() or [])
-        self._formats = {ours: next((c for c in cands if c[0] in formats), None)
+        self._formats = {ours: next((c for c in cands if c.name in formats), None)
                          for ours, cands in FORMATS.items()}
         if not any(self._formats.values()):
-            raise self._error(DeviceError, f"no monochrome pixel format among {sorted(formats)}",
-                              "use a monochrome camera (Mono8, Mono12 or Mono16)")
+            raise self._error(DeviceError, f"no pixel format this driver reads among "
+                              f"{sorted(formats)}", "use a camera with Mono8/10/12/16 "
+                              "(or packed Mono10p/Mono12p), Bayer 8/16 or RGB8")
         self._sources = list(cam.dup_available_trigger_sources() or [])
         self._gain_is_raw = f["gain"] == "GainRaw"
+
+    def _automatic_off(self) -> None:
+        """Switch ExposureAuto and GainAuto off where the camera has them, and read back."""
+        cam = self._cam
+        self._auto_off = []
+        for name in ("ExposureAuto", "GainAuto"):
+            if not cam.is_feature_available(name):
+                continue
+            if self._call(cam.get_string, name) != "Off":
+                self._call(cam.set_string, name, "Off", what=f"switching {name} off")
+                got = self._call(cam.get_string, name)
+                if got != "Off":
+                    raise self._error(DeviceError, f"{name} reads {got!r} after it was "
+                                      "switched off", f"switch {name} off in the camera's "
+                                      "own tool, or choose another camera")
+            self._auto_off.append(name)
 
     def _read_float(self, name: str) -> float:
         node = self._cam.get_device().get_feature(name)
@@ -329,6 +362,9 @@ class AravisCamera(Camera):
             "exposure_range_s": (lo * 1e-6, hi * 1e-6), "frame_rate_range_hz": rate_range,
             "gain_range_db": (0.0, float(gain_max)),
             "pixel_formats": [k for k, v in self._formats.items() if v],
+            "bayer_pattern": next((v.name[5:7] for v in self._formats.values()
+                                   if v and v.layout.startswith("bayer")), None),
+            "automatic_off": list(self._auto_off),
             "max_binning": 16,
             "vendor": cam.get_vendor_name(), "model": cam.get_model_name(),
             "serial_number": cam.get_device_serial_number(),
@@ -338,7 +374,7 @@ class AravisCamera(Camera):
         region = self._call(cam.get_region)
         roi = (int(region.x), int(region.y), int(region.width), int(region.height))
         current = self._call(cam.get_pixel_format_as_string)
-        fmt = next((k for k, v in self._formats.items() if v and v[0] == current), None)
+        fmt = next((k for k, v in self._formats.items() if v and v.name == current), None)
         exposure = self._read_float(f["exposure"]) * 1e-6
         rate = self._read_float(f["rate"]) if f["rate"] else 1.0 / max(exposure, 1e-6)
         self._requested_rate = self._hw_rate = rate
@@ -348,10 +384,11 @@ class AravisCamera(Camera):
         }
         self._region, self._crop = roi, (0, 0)
         self._info = dict(self._info_cache)  # what _validate_setting reads during open
-        if fmt is None:  # a colour or packed format: switch to a monochrome one
+        if fmt is None:  # a format this driver does not read: switch to one it does
             self._do_apply("pixel_format", next(k for k, v in self._formats.items() if v))
         else:
-            self._source_bits = self._formats[fmt][1]
+            self._source = self._formats[fmt]
+            self._source_bits = self._source.bits
         self._payload = int(self._call(cam.get_payload))
 
     def _read_gain(self) -> float:
@@ -404,10 +441,10 @@ class AravisCamera(Camera):
     def _apply_one(self, name: str, value: Any) -> Any:
         cam, f = self._cam, self._features
         if name == "pixel_format":
-            camera_format, bits = self._formats[value]
-            self._call(cam.set_pixel_format_from_string, camera_format,
-                       what=f"setting PixelFormat {camera_format}")
-            self._source_bits = bits
+            source = self._formats[value]
+            self._call(cam.set_pixel_format_from_string, source.name,
+                       what=f"setting PixelFormat {source.name}")
+            self._source, self._source_bits = source, source.bits
             self._payload = int(self._call(cam.get_payload))
             return value
         if name == "roi":
@@ -497,14 +534,13 @@ class AravisCamera(Camera):
                             status.value_nick)
             return None
         h, w = buf.get_image_height(), buf.get_image_width()
-        dtype = np.uint8 if self._source_bits == 8 else np.dtype("<u2")
-        data = buf.get_data()
-        if len(data) < h * w * np.dtype(dtype).itemsize or (w, h) != self._region[2:]:
+        hw = self._hw
+        raw = None if (w, h) != self._region[2:] else decode(
+            buf.get_data(), self._source, (h, w), hw["pixel_format"].startswith("rgb"))
+        if raw is None:
             self._stats["incomplete"] += 1
             self._count_dropped()
             return None
-        raw = np.frombuffer(data, dtype=dtype, count=h * w).reshape(h, w)
-        hw = self._hw
         _, _, rw, rh = hw["roi"]
         image, saturated = frame_image(raw, self._crop, (rw, rh), hw["binning"],
                                        self._source_bits, hw["pixel_format"])

@@ -1,22 +1,90 @@
 """Aravis helpers of :mod:`drivers.aravis_camera`: importing PyGObject's Aravis, the
-GigE Vision liveness probe, frame-id arithmetic and the pixel-format table."""
+GigE Vision liveness probe, frame-id arithmetic, the pixel-format table and the decoding
+of a buffer in each camera format."""
 
 from __future__ import annotations
 
 import socket
 import struct
-from typing import Any
+from typing import Any, NamedTuple
 
+import numpy as np
+
+from drivers.camera_image import demosaic, unpack_mono10p, unpack_mono12p
 from drivers.errors import MissingDependencyError
 
-__all__ = ["FORMATS", "LOST_CODES", "frames_between", "gvcp_answers", "import_aravis"]
+__all__ = ["FORMATS", "LOST_CODES", "Source", "decode", "frames_between", "gvcp_answers",
+           "import_aravis"]
 
-#: Camera pixel formats for each of ours, best first, with their significant bits.
-FORMATS: dict[str, tuple[tuple[str, int], ...]] = {
-    "mono8": (("Mono8", 8),),
-    "mono12": (("Mono12", 12), ("Mono16", 16)),
-    "mono16": (("Mono16", 16), ("Mono12", 12)),
+
+class Source(NamedTuple):
+    """A camera pixel format: its GenICam name, significant bits per channel and how
+    its buffer is laid out ("u8", "u16" little-endian words, "p10"/"p12" PFNC packed,
+    "rgb" interleaved 8-bit, "bayer8"/"bayer16" a colour mosaic)."""
+
+    name: str
+    bits: int
+    layout: str
+
+
+def _bayer(depth: int) -> tuple[Source, ...]:
+    return tuple(Source(f"Bayer{p}{depth}", depth, f"bayer{8 if depth == 8 else 16}")
+                 for p in ("RG", "GR", "GB", "BG"))
+
+
+#: Camera pixel formats for each of ours, best first.
+FORMATS: dict[str, tuple[Source, ...]] = {
+    "mono8": (Source("Mono8", 8, "u8"),),
+    "mono10": (Source("Mono10", 10, "u16"), Source("Mono10p", 10, "p10")),
+    "mono12": (Source("Mono12", 12, "u16"), Source("Mono12p", 12, "p12"),
+               Source("Mono16", 16, "u16")),
+    "mono16": (Source("Mono16", 16, "u16"), Source("Mono12", 12, "u16"),
+               Source("Mono12p", 12, "p12")),
+    "rgb8": (*_bayer(8), Source("RGB8", 8, "rgb")),
+    "rgb16": _bayer(16),
+    "bayer8": _bayer(8),
+    "bayer16": _bayer(16),
 }
+_LAYOUT_BITS = {"u8": 8, "u16": 16, "p10": 10, "p12": 12, "rgb": 24, "bayer8": 8,
+                "bayer16": 16}
+
+
+def decode(data: bytes, source: Source, shape: tuple[int, int],
+           colour: bool) -> np.ndarray | None:
+    """The image in a buffer of ``source``'s layout.
+
+    Parameters
+    ----------
+    data : bytes
+        The buffer's data.
+    source : Source
+        The camera's pixel format.
+    shape : (rows, cols)
+        The buffer's image size.
+    colour : bool
+        Demosaic a Bayer mosaic (an rgb format asked for) instead of returning it raw.
+
+    Returns
+    -------
+    ndarray or None
+        ``(rows, cols)`` or ``(rows, cols, 3)`` uint8/uint16; None when ``data`` is
+        shorter than the image.
+    """
+    h, w = shape
+    n = h * w
+    if len(data) < -(-n * _LAYOUT_BITS[source.layout] // 8):
+        return None
+    if source.layout == "p10":
+        return unpack_mono10p(data, n).reshape(h, w)
+    if source.layout == "p12":
+        return unpack_mono12p(data, n).reshape(h, w)
+    if source.layout == "rgb":
+        return np.frombuffer(data, np.uint8, count=3 * n).reshape(h, w, 3)
+    dtype = np.uint8 if source.layout in ("u8", "bayer8") else np.dtype("<u2")
+    raw = np.frombuffer(data, dtype=dtype, count=n).reshape(h, w)
+    if colour and source.layout.startswith("bayer"):
+        return demosaic(raw, source.name[5:7])
+    return raw
 #: ArvDeviceError codes that mean the camera is gone (NOT_CONNECTED, TRANSFER_ERROR,
 #: TIMEOUT, NOT_CONTROLLER).
 LOST_CODES = {2, 4, 5, 10}

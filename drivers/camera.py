@@ -10,7 +10,11 @@ Conventions
   image shape is ``(height // binning, width // binning)``.
 - ``pixel_format``: "mono8" -> uint8; "mono12" -> uint16 holding 0..4095;
   "mono16" -> uint16 on the full 16-bit scale (a 12-bit sensor's data shifted up
-  by 4 bits, full scale 65520).
+  by 4 bits, full scale 65520); the formats every camera offers
+  (:data:`PIXEL_FORMATS`). A driver may offer more (:data:`EXTRA_FORMATS`): "mono10"
+  (uint16 holding 0..1023), "rgb8"/"rgb16" (a colour sensor's image, demosaiced:
+  ``(rows, cols, 3)``, red, green, blue) and "bayer8"/"bayer16" (its raw colour
+  mosaic, 2D, pattern in ``info["bayer_pattern"]``; no binning, even ROI offsets).
 - Frame indices count every frame the camera produced since open, including
   dropped ones, so a gap in indices shows a loss; losses are also counted.
 """
@@ -30,10 +34,20 @@ import numpy as np
 from drivers.base import Device
 from drivers.errors import CameraTimeoutError, DeviceError, DeviceStateError, DeviceValueError
 
-__all__ = ["PIXEL_FORMATS", "TRIGGER_MODES", "Camera", "Frame", "FrameRing"]
+__all__ = ["EXTRA_FORMATS", "PIXEL_FORMATS", "TRIGGER_MODES", "Camera", "Frame", "FrameRing",
+           "format_bits"]
 
-#: Pixel formats and their bit depth.
+#: Pixel formats every camera driver offers, and their bit depth.
 PIXEL_FORMATS: dict[str, int] = {"mono8": 8, "mono12": 12, "mono16": 16}
+#: Formats some drivers offer (a camera that has them): bit depth per channel.
+EXTRA_FORMATS: dict[str, int] = {"mono10": 10, "rgb8": 8, "rgb16": 16, "bayer8": 8,
+                                 "bayer16": 16}
+_ALL_FORMATS = {**PIXEL_FORMATS, **EXTRA_FORMATS}
+
+
+def format_bits(pixel_format: str) -> int:
+    """Bits per pixel (per channel for rgb) of a pixel format name."""
+    return _ALL_FORMATS[pixel_format]
 #: Trigger modes: continuous, on :meth:`Camera.trigger`, on an external pulse.
 TRIGGER_MODES: tuple[str, ...] = ("free_run", "software", "hardware")
 
@@ -45,7 +59,8 @@ class Frame:
     Attributes
     ----------
     image : ndarray
-        ``(rows, cols)`` uint8 (mono8) or uint16 (mono12, mono16), after ROI and binning.
+        ``(rows, cols)`` uint8 (mono8, bayer8) or uint16 (mono10/12/16, bayer16), or
+        ``(rows, cols, 3)`` for rgb8/rgb16, after ROI and binning.
     index : int
         Frame number since the camera was opened (dropped frames use up numbers).
     device_timestamp_s : float
@@ -302,7 +317,8 @@ class Camera(Device):
 
     @property
     def pixel_format(self) -> str:
-        """"mono8", "mono12" or "mono16" (see the module notes)."""
+        """"mono8", "mono12", "mono16", or one of the driver's extra formats (see the
+        module notes)."""
         return self._get("pixel_format")
 
     @pixel_format.setter
@@ -311,12 +327,12 @@ class Camera(Device):
 
     @property
     def bit_depth(self) -> int:
-        """Bits per pixel of the current pixel format (8, 12 or 16)."""
-        return PIXEL_FORMATS[self.pixel_format]
+        """Bits per pixel (per channel) of the current pixel format (8, 10, 12 or 16)."""
+        return format_bits(self.pixel_format)
 
     @property
     def dtype(self) -> np.dtype:
-        """Image dtype: uint8 for mono8, uint16 otherwise."""
+        """Image dtype: uint8 for 8-bit formats, uint16 otherwise."""
         return np.dtype(np.uint8 if self.bit_depth == 8 else np.uint16)
 
     @property
@@ -347,11 +363,12 @@ class Camera(Device):
         self._set("trigger_mode", value)
 
     @property
-    def image_shape(self) -> tuple[int, int]:
-        """Shape ``(rows, cols)`` of the images delivered with the current ROI and binning."""
+    def image_shape(self) -> tuple[int, ...]:
+        """Shape ``(rows, cols)`` (``(rows, cols, 3)`` for rgb) of the images delivered with
+        the current ROI, binning and pixel format."""
         _, _, w, h = self.roi
         b = self.binning
-        return (h // b, w // b)
+        return (h // b, w // b, 3) if self.pixel_format.startswith("rgb") else (h // b, w // b)
 
     def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
         info = self._info
@@ -366,7 +383,7 @@ class Camera(Device):
         elif name == "gain":
             v = self._float(name, value, low=0.0, high=float(info["gain_range_db"][1]))
         elif name == "pixel_format":
-            v = self._choice(name, value, [p for p in info["pixel_formats"] if p in PIXEL_FORMATS])
+            v = self._choice(name, value, [p for p in info["pixel_formats"] if p in _ALL_FORMATS])
         elif name == "trigger_mode":
             v = self._choice(name, value, TRIGGER_MODES)
         elif name == "binning":
@@ -398,7 +415,14 @@ class Camera(Device):
         return (x, y, w, h)
 
     def _check_settings(self, pending: dict[str, Any]) -> None:
-        _, _, w, h = pending["roi"]
+        x, y, w, h = pending["roi"]
+        if str(pending["pixel_format"]).startswith("bayer") and (
+                pending["binning"] != 1 or x % 2 or y % 2):
+            raise self._error(
+                DeviceValueError, f"{pending['pixel_format']} (a raw colour mosaic) with "
+                f"binning {pending['binning']} and roi offset ({x}, {y})",
+                "use binning 1 and an even roi x and y (or rgb8/rgb16, demosaiced)",
+            )
         if min(w, h) < pending["binning"]:
             raise self._error(
                 DeviceValueError,

@@ -14,20 +14,31 @@ write asks for a reply, so a refused command (NACK) raises
 :class:`~drivers.errors.DeviceProtocolError` at once; replies carrying another
 sequence number (late answers) are skipped.
 
-Commands used: LED currents (0x0B01, PWM 0-255 per colour), main status (0x1A0C),
-display mode (0x1A1B: 1 = pattern mode), pattern source (0x1A22: 3 flash, 0 video),
-trigger mode (0x1A23), start/stop (0x1A24: 2 start, 0 stop), exposure and period
-(0x1A29, u32 microseconds each), pattern configuration (0x1A31), the mailbox
-(0x1A32-0x1A34: pattern LUT entries, image LUT), LED enables (0x1A07) and
-validation (0x1A1A, polled until not busy). The controller requires exposure ==
-period or period - exposure >= 230 us, and a stopped sequence while its
-configuration changes: changing the exposure of a running sequence stops it,
-re-validates and starts it again.
+Commands used (framing and payloads checked against TI's host code,
+``dlpc350_api.cpp``, and the LightCrafter modules of slstudio, QDSpy and
+pycrafter4500; docs/drivers/dlp-lightcrafter.md has the verification matrix):
+LED PWM polarity (0x1A05, set to normal at open) and LED currents (0x0B01, one byte
+per colour written as ``255 - pwm``: the EVM's LED drivers invert the PWM, as
+slstudio and QDSpy write them), main status (0x1A0C), display mode (0x1A1B: 1 =
+pattern mode), pattern source (0x1A22: 3 flash, 0 video), trigger mode (0x1A23),
+start/stop (0x1A24: 2 start, 0 stop), exposure and period (0x1A29, u32 microseconds
+each), pattern configuration (0x1A31: entries - 1, repeat, patterns - 1, images - 1;
+the firmware takes 0-based counts), the mailbox (0x1A33 open/close, 0x1A32 address,
+0x1A34 data: the whole pattern LUT as one message of 3 bytes per entry, the image
+LUT as one message of 1 byte per image, the two entries of a 2-image LUT in swapped
+order as TI's ``DLPC350_SendImageLut`` sends them), LED enables (0x1A07) and
+validation (0x1A1A with one data byte, polled until not busy). After a stop, a mode
+change and a start the driver polls the state until the controller reports it (the
+controller takes a moment to switch). The controller requires exposure == period or
+period - exposure >= 230 us, and a stopped sequence while its configuration changes:
+changing the exposure of a running sequence stops it, re-validates and starts it
+again.
 """
 
 from __future__ import annotations
 
 import struct
+import threading
 import time
 from typing import Any
 
@@ -35,7 +46,7 @@ from drivers.dmd import Dmd, PatternEntry
 from drivers.errors import DeviceProtocolError, DeviceValueError
 from drivers.transports import HidLink, UsbLink
 
-__all__ = ["LightCrafter4500", "pattern_lut_entry"]
+__all__ = ["LightCrafter4500", "image_lut_payload", "led_pwm", "pattern_lut_entry"]
 
 VENDOR_ID, PRODUCT_ID = 0x0451, 0x6401
 #: LED colours of the LightCrafter 4500 (OSRAM LEDs), nm; and their select bits.
@@ -45,6 +56,22 @@ _VALIDATION = {0x01: "exposure or frame period out of range",
                0x02: "pattern numbers out of range for their bit depth",
                0x10: "frame period - exposure is under 230 us"}
 _MIN_DARK_US = 230
+#: Pause between two reads of a state (mode, sequencer) the driver waits for, s.
+_STATE_POLL_S = 0.005
+
+
+def led_pwm(fraction: float) -> int:
+    """The 0x0B01 byte for an LED current ``fraction`` (0 off .. 1 full) with the PWM
+    polarity normal (0x1A05 = 0): the EVM's LED drivers invert the PWM, so the byte is
+    ``255 - round(255 * fraction)`` (slstudio's ``ProjectorLC4500``, QDSpy's
+    ``setLEDCurrents``)."""
+    return 255 - round(255 * float(fraction))
+
+
+def image_lut_payload(images: list[int]) -> bytes:
+    """The MBOX_DATA (0x1A34) payload of an image LUT: one byte per flash image index,
+    the two entries of a 2-entry LUT swapped (TI ``DLPC350_SendImageLut``)."""
+    return bytes([images[1], images[0]] if len(images) == 2 else images)
 
 
 def pattern_lut_entry(entry: PatternEntry, *, first_of_image: bool) -> bytes:
@@ -95,6 +122,7 @@ class LightCrafter4500(Dmd):
         self._link = (HidLink(device_id, hid_module=hid_backend, **ids) if transport == "hidapi"
                       else UsbLink(device_id, usb_module=usb_backend, **ids))
         self._seq = 0
+        self._command_lock = threading.RLock()
         self._hw: dict[str, Any] = {}
         self.version: bytes = b""
 
@@ -118,7 +146,17 @@ class LightCrafter4500(Dmd):
             The controller refused the command (NACK) or a read returned no data.
         DmdTimeoutError
             No reply within the timeout.
+
+        Notes
+        -----
+        Safe from several threads: one command and its reply at a time (a reply read
+        by another thread would be skipped there as a late one and lost here).
         """
+        with self._command_lock:
+            return self._exchange(cmd, payload, read, timeout_s)
+
+    def _exchange(self, cmd: int, payload: bytes, read: bool,
+                  timeout_s: float | None) -> bytes:
         self._seq = (self._seq + 1) & 0xFF
         flags = 0xC0 if read else 0x40
         msg = bytes([flags, self._seq]) + struct.pack("<HH", 2 + len(payload), cmd) + payload
@@ -151,12 +189,12 @@ class LightCrafter4500(Dmd):
         self._link.open()
         try:
             self.version = self.command(0x0205, read=True, timeout_s=min(timeout_s, 5.0))
-            self.command(0x1A24, b"\x00")  # a known state: sequence stopped
+            self._stop_sequence(timeout_s)  # a known state: sequence stopped
+            self.command(0x1A05, b"\x00")  # PWM polarity normal (the currents map below)
             exposure_us, period_us = struct.unpack("<II", self.command(0x1A29, read=True)[:8])
             currents = self.command(0x0B01, read=True)[:3]
             self._hw = {"exposure_s": exposure_us / 1e6, "period_s": period_us / 1e6,
-                        "led_currents": {c: v / 255 for c, v in zip(COLOURS, currents,
-                                                                      strict=True)}}
+                        "led_currents": self._fractions(currents)}
         except BaseException:
             self._link.close()
             raise
@@ -181,26 +219,48 @@ class LightCrafter4500(Dmd):
 
     def _do_apply(self, name: str, value: Any) -> Any:
         if name == "led_currents":
-            pwm = bytes(round(255 * value[c]) for c in COLOURS)
+            pwm = bytes(led_pwm(value[c]) for c in COLOURS)
             self.command(0x0B01, pwm)
             back = self.command(0x0B01, read=True)[:3]
             if back != pwm:
                 raise self._error(DeviceProtocolError, f"LED currents read back as "
                                   f"{list(back)}, sent {list(pwm)}", "check the controller")
-            self._hw[name] = {c: v / 255 for c, v in zip(COLOURS, back, strict=True)}
+            self._hw[name] = self._fractions(back)
             return self._hw[name]
         pair = {"exposure_s": self._hw["exposure_s"], "period_s": self._hw["period_s"],
                 name: value}
         running = self._do_running()
         if running:
-            self.command(0x1A24, b"\x00")
+            self._stop_sequence(self._reply_timeout)
         us = (round(pair["exposure_s"] * 1e6), round(pair["period_s"] * 1e6))
         self.command(0x1A29, struct.pack("<II", *us))
         self._hw["exposure_s"], self._hw["period_s"] = us[0] / 1e6, us[1] / 1e6
         if running:
             self.validate()
-            self.command(0x1A24, b"\x02")
+            self._do_start(self._reply_timeout)
         return self._hw[name]
+
+    @staticmethod
+    def _fractions(pwm: bytes) -> dict[str, float]:
+        return {c: (255 - v) / 255 for c, v in zip(COLOURS, pwm, strict=True)}
+
+    def _await(self, read: Any, want: Any, what: str, timeout_s: float) -> None:
+        """Poll ``read()`` until it returns ``want`` (the controller switches a mode or
+        the sequencer a moment after the command), or raise the timeout error."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            got = read()
+            if got == want:
+                return
+            if time.monotonic() > deadline:
+                raise self._timeout(f"the controller still reports {what} = {got!r} "
+                                    f"{timeout_s:g} s after the change (wanted {want!r})",
+                                    "check the controller's status; reconnect it")
+            time.sleep(_STATE_POLL_S)
+
+    def _stop_sequence(self, timeout_s: float) -> None:
+        self.command(0x1A24, b"\x00")
+        self._await(self._do_running, False, "sequencer running", timeout_s)
 
     # ----------------------------------------------------------- sequences
     def _do_load(self, entries: tuple[PatternEntry, ...], repeat: bool, source: str,
@@ -208,28 +268,34 @@ class LightCrafter4500(Dmd):
         deadline = time.monotonic() + timeout_s
         images = [] if source == "video" else list(dict.fromkeys(e.image for e in entries))
         n = len(entries)
-        self.command(0x1A24, b"\x00")  # stop
+        self._stop_sequence(timeout_s)
         self.command(0x1A1B, b"\x01")  # pattern mode
+        self._await(lambda: self.command(0x1A1B, read=True)[0] & 1, 1, "display mode",
+                    max(deadline - time.monotonic(), self._reply_timeout))
         self.command(0x1A22, b"\x03" if source == "flash" else b"\x00")
-        self.command(0x1A31, bytes([n - 1, int(repeat), n - 1, len(images)]))
+        # 0-based counts (TI DLPC350_SetPatternConfig: "firmware command takes 0-based
+        # indices"); the image count is irrelevant for the video source
+        self.command(0x1A31, bytes([n - 1, int(repeat), n - 1, max(len(images), 1) - 1]))
         self.command(0x1A23, b"\x01" if source == "flash" else b"\x00")
         us = (round(self._hw["exposure_s"] * 1e6), round(self._hw["period_s"] * 1e6))
         self.command(0x1A29, struct.pack("<II", *us))
         self.command(0x1A07, b"\x0f")  # the sequencer switches the LEDs
-        self.command(0x1A33, b"\x02")  # pattern LUT mailbox
-        previous = None
-        for i, entry in enumerate(entries):
-            self.command(0x1A32, bytes([i]))
-            self.command(0x1A34, pattern_lut_entry(entry, first_of_image=entry.image != previous))
+        lut, previous = bytearray(), None
+        for entry in entries:
+            lut += pattern_lut_entry(entry, first_of_image=entry.image != previous)
             previous = entry.image
-        self.command(0x1A33, b"\x00")
+        self._mailbox(2, bytes(lut))  # pattern LUT: one message, 3 bytes per entry
         if images:
-            self.command(0x1A33, b"\x01")  # image LUT mailbox
-            self.command(0x1A32, b"\x00")
-            for image in images:
-                self.command(0x1A34, bytes([image, 0, 0]))
-            self.command(0x1A33, b"\x00")
+            self._mailbox(1, image_lut_payload(images))  # image LUT: 1 byte per image
         self.validate(max(deadline - time.monotonic(), self._reply_timeout))
+
+    def _mailbox(self, box: int, data: bytes) -> None:
+        """Open mailbox ``box`` (1 image LUT, 2 pattern LUT), write ``data`` from address
+        0 as one MBOX_DATA message, close it (TI DLPC350_SendPatLut/SendImageLut)."""
+        self.command(0x1A33, bytes([box]))
+        self.command(0x1A32, b"\x00")
+        self.command(0x1A34, data)
+        self.command(0x1A33, b"\x00")
 
     def validate(self, timeout_s: float | None = None) -> None:
         """Have the controller validate the loaded sequence (0x1A1A), wait while it is
@@ -242,7 +308,7 @@ class LightCrafter4500(Dmd):
         DmdTimeoutError
             Still busy after the timeout.
         """
-        self.command(0x1A1A)
+        self.command(0x1A1A, b"\x00")
         deadline = time.monotonic() + (timeout_s or self._validation_timeout)
         while True:
             status = self.command(0x1A1A, read=True)[0]
@@ -263,12 +329,10 @@ class LightCrafter4500(Dmd):
 
     def _do_start(self, timeout_s: float) -> None:
         self.command(0x1A24, b"\x02", timeout_s=timeout_s)
-        if not self.main_status() & 0x02:
-            raise self._error(DeviceProtocolError, "the sequencer did not start",
-                              "reload the sequence")
+        self._await(self._do_running, True, "sequencer running", timeout_s)
 
     def _do_stop(self, timeout_s: float) -> None:
-        self.command(0x1A24, b"\x00", timeout_s=timeout_s)
+        self._stop_sequence(timeout_s)
 
     def _do_running(self) -> bool:
         return bool(self.main_status() & 0x02)

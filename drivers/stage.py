@@ -41,7 +41,9 @@ class Stage(Device):
     Driver hooks, besides :class:`~drivers.base.Device`'s: ``_do_move(targets)``
     (start an absolute move, do not wait), ``_do_home(axes)`` (start homing),
     ``_do_wait(timeout_s) -> bool`` (True once idle, False on timeout),
-    ``_do_is_moving() -> bool``, ``_do_positions() -> dict`` and ``_do_stop()``.
+    ``_do_is_moving() -> bool``, ``_do_positions() -> dict`` and ``_do_stop()``;
+    optionally ``_do_positions_of(axes)`` (positions of some axes only: a move asks
+    only the axes it needs, so a silent controller does not block the others).
     ``_do_get_info()`` returns ``{"axes": {name: {"travel": (lo, hi),
     "max_velocity": v}}}``.
     """
@@ -141,7 +143,16 @@ class Stage(Device):
     def position(self, axis: str) -> float:
         """Current position of ``axis`` in its unit (interpolated while moving)."""
         axis = self._axis(axis)
-        return self.positions()[axis]
+        return self._positions_of((axis,))[axis]
+
+    def _positions_of(self, axes: Iterable[str]) -> dict[str, float]:
+        """Positions of ``axes`` only (a silent controller of another axis is not asked)."""
+        axes = tuple(axes)
+        if not axes:
+            return {}
+        with self._io():
+            pos = self._do_positions_of(axes)
+        return {a: float(pos[a]) for a in axes}
 
     def positions(self) -> dict[str, float]:
         """Current positions ``{axis: value}``."""
@@ -222,8 +233,11 @@ class Stage(Device):
         """
         self._require_open()
         targets = self._check_targets(targets)
-        current = self.positions() if start is None else dict(start)
         backlash, limits = self._values["backlash"], self._values["limits"]
+        if start is None:  # only the axes whose backlash depends on where they are
+            current = self._positions_of(a for a in targets if backlash[a] != 0.0)
+        else:
+            current = dict(start)
         pre: dict[str, float] = {}
         for axis, t in targets.items():
             b = backlash[axis]
@@ -248,7 +262,8 @@ class Stage(Device):
             raise self._error(
                 DeviceValueError, f"deltas={deltas!r} is not a mapping", "pass {axis: delta}"
             )
-        current = self.positions()
+        named = [self._axis(a) for a in deltas]
+        current = self._positions_of(named)
         targets = {}
         for axis, d in deltas.items():
             axis = self._axis(axis)
@@ -354,6 +369,11 @@ class Stage(Device):
     @abc.abstractmethod
     def _do_positions(self) -> dict[str, float]: ...
 
+    def _do_positions_of(self, axes: tuple[str, ...]) -> dict[str, float]:
+        """Positions of ``axes``; a driver with one controller per axis overrides it to
+        ask only those controllers."""
+        return self._do_positions()
+
     @abc.abstractmethod
     def _do_stop(self) -> None: ...
 
@@ -364,8 +384,9 @@ class HostTableStage(Stage):
     For drivers of real controllers: the subclass fills ``self._travel`` (``{axis:
     (low, high)}``), ``self._vmax`` and ``self._hw`` (``limits``, ``velocity``,
     ``backlash``) at open and implements ``_send_velocity(axis, velocity)``, which
-    sends one axis's velocity to the controller (and reads it back). Limits and
-    backlash are applied by this interface (software limits, overshoot moves).
+    sends one axis's velocity to the controller, reads it back and returns the
+    velocity the controller took (None: as sent). Limits and backlash are applied by
+    this interface (software limits, overshoot moves).
     """
 
     _travel: dict[str, tuple[float, float]]
@@ -381,11 +402,15 @@ class HostTableStage(Stage):
 
     def _do_apply(self, name: str, value: Any) -> Any:
         if name == "velocity":
+            value = dict(value)
             for axis, v in value.items():
                 if v != self._hw["velocity"].get(axis):
-                    self._send_velocity(axis, v)
+                    took = self._send_velocity(axis, v)
+                    value[axis] = v if took is None else took
+            self._hw[name] = value
+            return dict(value)
         self._hw[name] = dict(value)
         return None
 
     @abc.abstractmethod
-    def _send_velocity(self, axis: str, velocity: float) -> None: ...
+    def _send_velocity(self, axis: str, velocity: float) -> float | None: ...

@@ -3,25 +3,36 @@
 One :class:`ThorlabsAptStage` drives several axes: each axis is a single-channel
 K-cube found by its USB serial number (``serial_numbers``), or a bay of a BSC20x
 on one port (``port`` and ``bays``). Wire protocol, messages and framing:
-:mod:`drivers.thorlabs_apt_protocol`; operator notes: docs/drivers/thorlabs-apt.md.
+:mod:`drivers.thorlabs_apt_protocol`; controller models and stage constants:
+:mod:`drivers.thorlabs_apt_models`; operator notes: docs/drivers/thorlabs-apt.md.
 
-Positions travel as integer counts; ``counts_per_unit`` (per axis) converts them, and
-must be calibrated: the Z8 actuators' 34554.96 counts/mm of the 2025 protocol
-document differ by 0.73 % from the 34304 of older documents (220 µm over 30 mm).
-Velocities and accelerations are sent in controller units (DC servo: counts x T x
-65536 per second with T = 2048 / 6e6 s, acceleration x T²; steppers: microsteps/s x
-53.68 and microsteps/s² / 90.9).
+The controller's scaling follows from the model string it reports (HW_GET_INFO), not
+from its serial number (serial prefixes 40/70 also cover the legacy BSC101/BSC103
+racks, refused here); a ``profile`` given in the bench file must agree with it.
+Positions travel as integer counts; ``counts_per_unit`` (per axis) converts them, or
+the constant of a known stage (``stages``, or the stage a KDC101 reports). A rotation
+axis needs one of them (a PRM1-Z8 has 1919.64 counts/deg, not the Z8's 34554.96/mm).
+Linear axes default to the profile's actuator, which must be calibrated: the Z8
+actuators' 34554.96 counts/mm of the 2025 protocol document differ by 0.73 % from the
+34304 of older documents (220 µm over 30 mm). Velocities and accelerations are sent
+in controller units and read back; the controller's quantisation (within 1 %) is
+accepted and the velocity it took becomes the setting.
 
 Motion state is polled (MOT_REQ_STATUSBITS, MOT_REQ_POSCOUNTER), never cached,
 because the K-cube's wheel moves the stage too; MOVE_COMPLETED, MOVE_HOMED,
 MOVE_STOPPED and the status updates are events that wake a waiting call early. With
 ``status_updates`` on (K-cubes), the controller's updates are acknowledged every
-``keepalive_s`` (it goes silent after 50 unacknowledged ones).
+``keepalive_s`` (it goes silent after 50 unacknowledged ones). An axis found moving
+when the stage opens (a reconnect while a move went on) is stopped, and reported
+(a warning and ``status()["stopped_at_open"]``), so no stale position is read.
 
 Software limits are the ``limits`` setting (checked before anything moves); a move
-that ends away from its target (a hardware limit switch, a stall, an error reported
-by the controller) raises :class:`~drivers.errors.StageMotionError`. Absolute moves
-are refused until the axis is homed (``require_homed``; ``home_on_open`` homes at open).
+that ends farther from its target than ``position_tolerance_counts`` (a hardware limit
+switch, a stall, an error reported by the controller) raises
+:class:`~drivers.errors.StageMotionError`. Absolute moves are refused until the axis
+is homed (``require_homed``; ``home_on_open`` homes at open, within the open's
+timeout). The stored homing parameters are left as they are unless ``home_velocity``
+is given (then only the velocity changes).
 """
 
 from __future__ import annotations
@@ -38,6 +49,14 @@ from drivers.errors import (
     StageMotionError,
 )
 from drivers.stage import AXIS_UNITS, HostTableStage
+from drivers.thorlabs_apt_models import (
+    COUNTS_PER_UNIT,
+    KDC_STAGE_IDS,
+    POSITION_TOLERANCE_COUNTS,
+    STAGES,
+    profile_of_model,
+    velocity_units,
+)
 from drivers.thorlabs_apt_protocol import (
     MOVING_MASK,
     MSG,
@@ -48,18 +67,11 @@ from drivers.thorlabs_apt_protocol import (
 )
 from drivers.transports import BY_ID_DIR, SerialLink
 
-__all__ = ["COUNTS_PER_UNIT", "PROFILE_BY_SERIAL_PREFIX", "ThorlabsAptStage"]
+__all__ = ["COUNTS_PER_UNIT", "STAGES", "ThorlabsAptStage"]
 
-#: Controller profile from the first two digits of the USB serial number.
-PROFILE_BY_SERIAL_PREFIX: dict[str, str] = {
-    "26": "kst101", "27": "kdc101", "83": "kdc101", "40": "bsc20x", "70": "bsc20x",
-}
-#: Default counts per mm (or degree) per profile: Z8 actuator (2025 document), ZST
-#: actuator, DRV013 (1 mm per turn). Calibrate on the bench.
-COUNTS_PER_UNIT: dict[str, float] = {"kdc101": 34554.96, "kst101": 2008645.63,
-                                     "bsc20x": 409600.0}
 _DEFAULT_MAX_VELOCITY = {"kdc101": 2.6, "kst101": 5.0, "bsc20x": 5.0}
-_T_DC = 2048 / 6e6
+#: Relative difference between the velocity sent and read back taken as quantisation.
+_VELOCITY_QUANTUM = 0.01
 
 
 class ThorlabsAptStage(HostTableStage):
@@ -81,11 +93,17 @@ class ThorlabsAptStage(HostTableStage):
     bays : Mapping[str, int], optional
         ``{axis: bay}`` (0-based) of a BSC20x on ``port``.
     profile : str, optional
-        "kdc101", "kst101" or "bsc20x"; default from the serial number's prefix
-        (26 KST101, 27 KDC101, 40/70 BSC), else "bsc20x" with bays, else "kdc101".
+        "kdc101", "kst101" or "bsc20x". By default the controller's model string
+        decides (KDC101/TDC001, KST101/TST101, BSC20x); a profile given here must agree
+        with it, and is required for a model the driver does not know.
     counts_per_unit : float or Mapping[str, float], optional
-        Encoder counts (microsteps) per mm or degree; default per profile
-        (:data:`COUNTS_PER_UNIT`). Calibrate it.
+        Encoder counts (microsteps) per mm or degree, per axis. Default: the stage's
+        (``stages``, or the stage a KDC101 reports), else for linear axes the
+        profile's actuator (:data:`~drivers.thorlabs_apt_models.COUNTS_PER_UNIT`).
+        Rotation axes need it or a known stage. Calibrate it.
+    stages : Mapping[str, str], optional
+        ``{axis: stage model}`` from :data:`~drivers.thorlabs_apt_models.STAGES`
+        (e.g. ``{rotation = "PRM1-Z8"}``).
     limits_mm, limits_deg : Mapping[str, (float, float)], optional
         Travel per axis (software limits start there); required for axes given by
         name only.
@@ -94,13 +112,19 @@ class ThorlabsAptStage(HostTableStage):
     acceleration : float
         Acceleration in unit/s², sent with every velocity.
     max_velocity : float, optional
-        Largest velocity allowed (unit/s); default per profile.
+        Largest velocity allowed (unit/s); default per profile (2.6 DC, 5 steppers).
     home_velocity : float, optional
-        Homing velocity (unit/s); default the initial velocity.
+        Homing velocity (unit/s), written into the controller's stored homing
+        parameters (direction, limit switch and offset are kept); by default the
+        stored parameters are left alone.
+    position_tolerance_counts : int or Mapping[str, int], optional
+        Largest distance between a finished move and its target, counts, per axis;
+        default 20 for a DC servo, 2 for a stepper.
     require_homed : bool
         Refuse moves of an axis that is not homed (the position is not referenced).
     home_on_open : bool
-        Home every axis that is not homed when the stage opens.
+        Home every axis that is not homed when the stage opens (within the open's
+        ``timeout_s``).
     status_updates : bool, optional
         Ask for the controller's status updates and acknowledge them; default on for
         K-cubes, off for a BSC20x (it ignores the acknowledgement).
@@ -116,24 +140,31 @@ class ThorlabsAptStage(HostTableStage):
         port: str | None = None, serial_numbers: Mapping[str, str | int] | None = None,
         bays: Mapping[str, int] | None = None, profile: str | None = None,
         counts_per_unit: float | Mapping[str, float] | None = None,
+        stages: Mapping[str, str] | None = None,
         limits_mm: Mapping[str, Sequence[float]] | None = None,
         limits_deg: Mapping[str, Sequence[float]] | None = None,
         speed_mm_s: float | None = None, speed_deg_s: float | None = None,
         acceleration: float = 1.5, max_velocity: float | None = None,
-        home_velocity: float | None = None, require_homed: bool = True,
-        home_on_open: bool = False, status_updates: bool | None = None,
-        keepalive_s: float = 0.9, reply_timeout_s: float = 1.0, poll_s: float = 0.01,
+        home_velocity: float | None = None,
+        position_tolerance_counts: int | Mapping[str, int] | None = None,
+        require_homed: bool = True, home_on_open: bool = False,
+        status_updates: bool | None = None, keepalive_s: float = 0.9,
+        reply_timeout_s: float = 1.0, poll_s: float = 0.01,
         search_dirs: Sequence[str] = (BY_ID_DIR,),
     ) -> None:
         super().__init__(device_id)
         travel = self._travel_from(axes, {**dict(limits_mm or {}), **dict(limits_deg or {})})
         serials = {str(a): str(s) for a, s in dict(serial_numbers or {}).items()}
         bays = dict(bays or {})
-        for name, table in (("serial_numbers", serials), ("bays", bays)):
+        stages = {str(a): str(n).strip().upper() for a, n in dict(stages or {}).items()}
+        for name, table in (("serial_numbers", serials), ("bays", bays), ("stages", stages)):
             extra = sorted(set(table) - set(travel))
             if extra:
                 raise self._error(DeviceValueError, f"{name} names unknown axes {extra}",
                                   f"use axes from {list(travel)}")
+        if profile is not None and profile not in COUNTS_PER_UNIT:
+            raise self._error(DeviceValueError, f"profile={profile!r} is not supported",
+                              f"use one of {sorted(COUNTS_PER_UNIT)}")
         self._axes: dict[str, dict[str, Any]] = {}
         for axis in travel:
             if axis in serials:
@@ -143,15 +174,21 @@ class ThorlabsAptStage(HostTableStage):
             else:
                 raise self._error(DeviceValueError, f"axis {axis!r} has no controller",
                                   "give its serial number in serial_numbers, or a port")
-            prof = profile or (PROFILE_BY_SERIAL_PREFIX.get(sn[:2]) if sn else None) or (
-                "bsc20x" if axis in bays else "kdc101")
-            if prof not in COUNTS_PER_UNIT:
-                raise self._error(DeviceValueError, f"profile={prof!r} is not supported",
-                                  f"use one of {sorted(COUNTS_PER_UNIT)}")
             bay = bays.get(axis)
             dest = USB_UNIT if bay is None else 0x21 + self._int(f"bays[{axis}]", bay, low=0,
                                                                   high=9)
-            self._axes[axis] = {"key": key, "serial": sn, "profile": prof, "dest": dest}
+            stage = stages.get(axis)
+            if stage is not None:
+                if stage not in STAGES:
+                    raise self._error(DeviceValueError, f"stages[{axis}] = {stage!r} is not "
+                                      "a known stage", f"use one of {sorted(STAGES)}, or give "
+                                      "counts_per_unit")
+                if STAGES[stage].unit != AXIS_UNITS[axis]:
+                    raise self._error(DeviceValueError, f"stage {stage} moves in "
+                                      f"{STAGES[stage].unit}, axis {axis} in {AXIS_UNITS[axis]}",
+                                      "give the stage to an axis of its unit")
+            self._axes[axis] = {"key": key, "serial": sn, "dest": dest, "stage": stage,
+                                "profile": None, "cpu": None, "tol": None}
         shared = [a for a in self._axes if self._axes[a]["dest"] == USB_UNIT]
         keys = [self._axes[a]["key"] for a in shared]
         if len(keys) != len(set(keys)):
@@ -159,21 +196,29 @@ class ThorlabsAptStage(HostTableStage):
                               "give each axis a serial number, or the bays of a BSC20x")
         cpu = counts_per_unit if isinstance(counts_per_unit, Mapping) else dict.fromkeys(
             travel, counts_per_unit)
-        for axis, info in self._axes.items():
-            c = cpu.get(axis) or COUNTS_PER_UNIT[info["profile"]]
-            info["cpu"] = self._float(f"counts_per_unit[{axis}]", c, low=0.0, low_open=True)
+        self._cpu_param = {a: self._float(f"counts_per_unit[{a}]", cpu[a], low=0.0,
+                                          low_open=True)
+                           for a in travel if cpu.get(a) is not None}
+        tol = (position_tolerance_counts if isinstance(position_tolerance_counts, Mapping)
+               else dict.fromkeys(travel, position_tolerance_counts))
+        self._tol_param = {a: self._int(f"position_tolerance_counts[{a}]", tol[a], low=0)
+                           for a in travel if tol.get(a) is not None}
+        self._profile_param = profile
         self._travel = travel
-        prof0 = next(iter(self._axes.values()))["profile"]
-        self._vmax = self._float("max_velocity", max_velocity or _DEFAULT_MAX_VELOCITY[prof0],
-                                 low=0.0, low_open=True)
-        self._v0 = {}
-        for axis in travel:
-            v = speed_deg_s if AXIS_UNITS[axis] == "deg" else speed_mm_s
-            self._v0[axis] = self._float(f"speed of {axis}", v if v is not None else self._vmax / 2,
-                                         low=0.0, low_open=True, high=self._vmax)
+        self._vmax_param = None if max_velocity is None else self._float(
+            "max_velocity", max_velocity, low=0.0, low_open=True)
+        self._speed_param = {a: (speed_deg_s if AXIS_UNITS[a] == "deg" else speed_mm_s)
+                             for a in travel}
+        for axis, v in self._speed_param.items():
+            if v is not None:
+                self._float(f"speed of {axis}", v, low=0.0, low_open=True,
+                            high=self._vmax_param or float("inf"))
+        self._vmax = self._vmax_param or 0.0
+        self._v0: dict[str, float] = {}
         self._accel = self._float("acceleration", acceleration, low=0.0, low_open=True)
         self._home_v = None if home_velocity is None else self._float(
-            "home_velocity", home_velocity, low=0.0, low_open=True, high=self._vmax)
+            "home_velocity", home_velocity, low=0.0, low_open=True,
+            high=self._vmax_param or float("inf"))
         self.require_homed, self.home_on_open = bool(require_homed), bool(home_on_open)
         self._status_updates = status_updates
         self._keepalive = self._float("keepalive_s", keepalive_s, low=0.05, high=1.0)
@@ -187,6 +232,7 @@ class ThorlabsAptStage(HostTableStage):
         self._homing: set[str] = set()
         self._faults: list[str] = []
         self._hw: dict[str, Any] = {}
+        self.stopped_at_open: dict[str, float] = {}
 
     def _travel_from(self, axes: Any, limits: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
         if isinstance(axes, str) or not isinstance(axes, Mapping | Sequence) or not axes:
@@ -211,8 +257,10 @@ class ThorlabsAptStage(HostTableStage):
 
     # ----------------------------------------------------------- lifecycle hooks
     def _do_open(self, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
         self._ctrl = {}
         self._faults = []
+        self.stopped_at_open = {}
         try:
             for info in self._axes.values():
                 key = info["key"]
@@ -230,6 +278,10 @@ class ThorlabsAptStage(HostTableStage):
                 self._ctrl[key] = ctrl
                 self._identify(ctrl, info, min(timeout_s, self._reply_timeout))
             for axis, info in self._axes.items():
+                self._resolve_axis(axis, info)
+            self._resolve_velocities()
+            self._stop_motion_found(deadline)
+            for axis, info in self._axes.items():
                 self._prepare_axis(axis, info)
             for key, ctrl in self._ctrl.items():
                 profs = {i["profile"] for i in self._axes.values() if i["key"] == key}
@@ -242,12 +294,7 @@ class ThorlabsAptStage(HostTableStage):
             self._hw = {"limits": dict(self._travel), "velocity": dict(self._v0),
                         "backlash": dict.fromkeys(self._travel, 0.0)}
             if self.home_on_open:
-                todo = tuple(a for a in self._axes if not self._status(a) & STATUS["HOMED"])
-                if todo:
-                    self._do_home(todo)
-                    if not self._do_wait(max(timeout_s, 120.0)):
-                        raise self._timeout("homing at open did not finish",
-                                            "check the stage, or home it by hand")
+                self._home_at_open(deadline, timeout_s)
         except BaseException:
             self._do_close()
             raise
@@ -261,12 +308,112 @@ class ThorlabsAptStage(HostTableStage):
             raise self._error(DeviceProtocolError, f"HW_GET_INFO carried {len(data)} bytes",
                               "check that the device is a Thorlabs APT controller")
         serial = struct.unpack_from("<i", data)[0]
-        model = data[4:12].split(b"\0")[0].decode("ascii", "replace")
+        model = data[4:12].split(b"\0")[0].decode("ascii", "replace").strip()
+        stage_id = struct.unpack_from("<H", data, 76)[0] if len(data) >= 78 else 0
         ctrl.info = {"serial": serial, "model": model}  # type: ignore[attr-defined]
+        if stage_id in KDC_STAGE_IDS:
+            ctrl.info["stage"] = KDC_STAGE_IDS[stage_id]  # type: ignore[attr-defined]
         if info["serial"] and str(serial) != info["serial"]:
             raise self._error(DeviceProtocolError,
                               f"controller on {ctrl.link.path} reports serial {serial}, "
                               f"expected {info['serial']}", "check serial_numbers")
+
+    def _resolve_axis(self, axis: str, info: dict[str, Any]) -> None:
+        """Profile, counts per unit and position tolerance of an axis, from what its
+        controller reported and the bench file's parameters."""
+        ctrl_info = getattr(self._ctrl[info["key"]], "info", {})
+        model = ctrl_info.get("model", "")
+        try:
+            profile = profile_of_model(model)
+        except ValueError:
+            raise self._error(
+                DeviceValueError, f"controller {model} (serial {ctrl_info.get('serial')}) is a "
+                "legacy stepper controller whose microsteps and velocity scaling this driver "
+                "does not support (no 53.68 velocity factor)",
+                "use a BSC20x/KST101 controller, or another driver") from None
+        if profile is None and self._profile_param is None:
+            raise self._error(DeviceValueError, f"controller model {model!r} (serial "
+                              f"{ctrl_info.get('serial')}) is not one this driver knows",
+                              "set profile = \"kdc101\", \"kst101\" or \"bsc20x\" if it "
+                              "uses that scaling")
+        if profile is not None and self._profile_param not in (None, profile):
+            raise self._error(DeviceValueError, f"profile={self._profile_param!r} contradicts "
+                              f"the controller's model {model} (profile {profile!r})",
+                              f"remove profile, or set profile = {profile!r}")
+        if profile is None:
+            self._log.warning("%s: controller model %r unknown; using profile %r as set",
+                              self.device_id, model, self._profile_param)
+            profile = self._profile_param
+        stage = info["stage"] or ctrl_info.get("stage")
+        unit = AXIS_UNITS[axis]
+        if stage is not None and (STAGES[stage].unit != unit or
+                                  profile not in STAGES[stage].profiles):
+            if info["stage"] is not None:  # named in the bench file: a contradiction
+                raise self._error(DeviceValueError, f"stage {stage} cannot be on a {profile} "
+                                  f"axis {axis} in {unit}", "check stages and the controller")
+            self._log.warning("%s: controller %s reports stage %s, which does not fit axis %s "
+                              "(%s); ignored", self.device_id, model, stage, axis, unit)
+            stage = None  # the controller's own stage setting does not fit this axis
+        if axis in self._cpu_param:
+            cpu = self._cpu_param[axis]
+        elif stage is not None:
+            cpu = STAGES[stage].counts_per_unit
+        elif unit == "deg":
+            raise self._error(DeviceValueError, f"rotation axis {axis} has no counts per "
+                              "degree (the controller reports no stage this driver knows)",
+                              f"give counts_per_unit = {{ {axis} = ... }} or stages = "
+                              f"{{ {axis} = \"PRM1-Z8\" }} (1919.64 counts/deg)")
+        else:
+            cpu = COUNTS_PER_UNIT[profile]
+        info.update(profile=profile, cpu=cpu, stage=stage,
+                    tol=self._tol_param.get(axis, POSITION_TOLERANCE_COUNTS[profile]))
+
+    def _resolve_velocities(self) -> None:
+        prof0 = next(iter(self._axes.values()))["profile"]
+        self._vmax = self._vmax_param or _DEFAULT_MAX_VELOCITY[prof0]
+        for axis in self._travel:
+            v = self._speed_param[axis]
+            self._v0[axis] = self._float(f"speed of {axis}", v if v is not None else
+                                         self._vmax / 2, low=0.0, low_open=True,
+                                         high=self._vmax)
+        if self._home_v is not None:
+            self._float("home_velocity", self._home_v, high=self._vmax)
+
+    def _stop_motion_found(self, deadline: float) -> None:
+        """Stop and report axes that move as the stage opens (the controller went on
+        with a move while the host was away); a homing axis is left homing when
+        ``home_on_open`` waits for it."""
+        moving = {}
+        for axis in self._axes:
+            bits = self._status(axis)
+            if bits & MOVING_MASK and not (self.home_on_open and bits & STATUS["HOMING"]):
+                moving[axis] = bits
+        if not moving:
+            return
+        for axis in moving:
+            info = self._axes[axis]
+            self._ctrl[info["key"]].send(MSG["MOT_MOVE_STOP"], info["dest"], 1, 0x02)
+        while any(self._status(a) & MOVING_MASK for a in moving):
+            if time.monotonic() > deadline:
+                raise self._timeout(f"axes {sorted(moving)} were moving when the stage "
+                                    "opened and did not stop", "check the controller")
+            time.sleep(self._poll)
+        self.stopped_at_open = {a: self._counts(a) / self._axes[a]["cpu"] for a in moving}
+        self._log.warning("%s: axes %s were moving when the stage opened (a move went on "
+                          "while disconnected); stopped at %s", self.device_id,
+                          sorted(moving), self.stopped_at_open)
+
+    def _home_at_open(self, deadline: float, timeout_s: float) -> None:
+        status = {a: self._status(a) for a in self._axes}
+        todo = tuple(a for a, s in status.items() if not s & (STATUS["HOMED"] | STATUS["HOMING"]))
+        already = {a for a, s in status.items() if s & STATUS["HOMING"]}
+        if todo:
+            self._do_home(todo)
+        self._homing |= already
+        if (todo or already) and not self._do_wait(max(deadline - time.monotonic(), 0.0)):
+            raise self._timeout(f"homing at open did not finish within the open's "
+                                f"{timeout_s:g} s; the axes are still homing",
+                                "open again once homed, or open with a longer timeout_s")
 
     def _prepare_axis(self, axis: str, info: dict[str, Any]) -> None:
         ctrl, dest = self._ctrl[info["key"]], info["dest"]
@@ -277,11 +424,15 @@ class ThorlabsAptStage(HostTableStage):
             time.sleep(0.05)
         # controller-side backlash off: the Stage interface compensates backlash itself
         ctrl.send(MSG["MOT_SET_GENMOVEPARAMS"], dest, data=struct.pack("<Hi", 1, 0))
-        self._send_velocity(axis, self._v0[axis])
-        hv = self._home_v or self._v0[axis]
-        vel_units = self._velocity_units(axis, hv, self._accel)[0]
-        ctrl.send(MSG["MOT_SET_HOMEPARAMS"], dest,
-                  data=struct.pack("<HHHii", 1, 2, 1, vel_units, 0))
+        self._v0[axis] = self._send_velocity(axis, self._v0[axis])
+        if self._home_v is not None:  # change the velocity only, keep the rest as stored
+            reply = ctrl.request(MSG["MOT_REQ_HOMEPARAMS"], MSG["MOT_GET_HOMEPARAMS"], dest,
+                                 param1=1, timeout_s=self._reply_timeout)
+            _, direction, switch, _, offset = struct.unpack_from("<HHHii",
+                                                                 reply.data or bytes(14))
+            vel_units = self._velocity_units(axis, self._home_v, self._accel)[0]
+            ctrl.send(MSG["MOT_SET_HOMEPARAMS"], dest,
+                      data=struct.pack("<HHHii", 1, direction, switch, vel_units, offset))
 
     def _do_close(self) -> None:
         ctrls, self._ctrl = self._ctrl, {}
@@ -295,13 +446,11 @@ class ThorlabsAptStage(HostTableStage):
     # ----------------------------------------------------------- units
     def _velocity_units(self, axis: str, velocity: float, accel: float) -> tuple[int, int]:
         info = self._axes[axis]
-        cpu = info["cpu"]
-        if info["profile"] == "kdc101":
-            return round(cpu * _T_DC * 65536 * velocity), max(
-                1, round(cpu * _T_DC * _T_DC * 65536 * accel))
-        return round(cpu * velocity * 53.68), max(1, round(cpu * accel / 90.9))
+        return velocity_units(info["profile"], info["cpu"], velocity, accel)
 
-    def _send_velocity(self, axis: str, velocity: float) -> None:
+    def _send_velocity(self, axis: str, velocity: float) -> float:
+        """Send one axis's velocity and read it back; return the velocity the controller
+        took (its quantisation accepted within 1 %)."""
         info = self._axes[axis]
         ctrl, dest = self._ctrl[info["key"]], info["dest"]
         vel, acc = self._velocity_units(axis, velocity, self._accel)
@@ -309,10 +458,12 @@ class ThorlabsAptStage(HostTableStage):
         back = ctrl.request(MSG["MOT_REQ_VELPARAMS"], MSG["MOT_GET_VELPARAMS"], dest,
                             param1=1, timeout_s=self._reply_timeout)
         got = struct.unpack_from("<Hiii", back.data or bytes(14))
-        if (got[2], got[3]) != (acc, vel):
+        if not all(abs(g - w) <= max(1, _VELOCITY_QUANTUM * abs(w))
+                   for g, w in ((got[2], acc), (got[3], vel))):
             raise self._error(DeviceProtocolError,
                               f"axis {axis}: velocity parameters read back as {got[1:]}, sent "
                               f"(0, {acc}, {vel})", "check the controller model and profile")
+        return velocity * got[3] / vel if vel else velocity
 
     # ----------------------------------------------------------- queries
     def _status(self, axis: str) -> int:
@@ -368,7 +519,10 @@ class ThorlabsAptStage(HostTableStage):
         return any(self._status(a) & MOVING_MASK for a in self._axes)
 
     def _do_positions(self) -> dict[str, float]:
-        return {a: self._counts(a) / info["cpu"] for a, info in self._axes.items()}
+        return self._do_positions_of(tuple(self._axes))
+
+    def _do_positions_of(self, axes: tuple[str, ...]) -> dict[str, float]:
+        return {a: self._counts(a) / self._axes[a]["cpu"] for a in axes}
 
     def _do_stop(self) -> None:
         for info in self._axes.values():
@@ -405,7 +559,7 @@ class ThorlabsAptStage(HostTableStage):
             counts = self._counts(axis)
             want = round(target * info["cpu"])
             bits = status.get(axis, 0)
-            if abs(counts - want) > 2:
+            if abs(counts - want) > info["tol"]:
                 limit = " at a limit switch" if bits & (STATUS["FWD_LIMIT"] |
                                                        STATUS["REV_LIMIT"]) else ""
                 problems.append(f"axis {axis} stopped{limit} at {counts / info['cpu']:.6g} "
@@ -421,6 +575,11 @@ class ThorlabsAptStage(HostTableStage):
     def _do_status(self) -> dict[str, Any]:
         out = super()._do_status()
         out["homed"] = {a: bool(self._status(a) & STATUS["HOMED"]) for a in self._axes}
+        out["axes_setup"] = {a: {"profile": i["profile"], "counts_per_unit": i["cpu"],
+                                 "stage": i["stage"], "position_tolerance_counts": i["tol"]}
+                             for a, i in self._axes.items()}
+        if self.stopped_at_open:
+            out["stopped_at_open"] = dict(self.stopped_at_open)
         out["controllers"] = {
             key: {"port": c.link.path, **getattr(c, "info", {}),
                   "keepalives_sent": c.keepalives_sent, "resyncs": c.framer.resyncs}

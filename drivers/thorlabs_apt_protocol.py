@@ -7,9 +7,13 @@ the destination is set, param1|param2 is the length of a data packet that follow
 The host is 0x01; a single-channel K-/T-cube is 0x50; the bays of a BSC20x rack
 (0x11) are 0x21 + bay.
 
-:class:`AptFramer` splits a byte stream into :class:`AptMessage` by the header's data
-flag and length (a stepper's GET_STATUSUPDATE is 14 bytes in older documents and 28
-in the 2025 one: the length decides), skipping bytes that cannot start a header.
+:class:`AptFramer` splits the byte stream a controller sends into :class:`AptMessage`
+by the header's data flag and length (a stepper's GET_STATUSUPDATE is 14 bytes in
+older documents and 28 in the 2025 one: the length decides). It frames only messages
+addressed to the host with an id a controller sends and a length that id can have,
+and resynchronises a byte at a time on anything else (as thorlabs_apt_device's
+``Unpacker`` does), so stray bytes cannot pose as a header whose length swallows the
+next reply.
 :class:`AptController` owns one serial port and one reader thread that frames every
 message and routes it: a reply to the request waiting for it, anything else (move
 completed, homed, stopped, status updates, error reports) to the event handler, so
@@ -31,6 +35,7 @@ from drivers.transports import SerialLink
 
 __all__ = [
     "HOST",
+    "INBOUND",
     "MSG",
     "STATUS",
     "AptController",
@@ -44,7 +49,6 @@ log = logging.getLogger("drivers.thorlabs_apt")
 HOST = 0x01
 RACK = 0x11
 USB_UNIT = 0x50
-_ENDPOINTS = {HOST, RACK, USB_UNIT, *range(0x21, 0x2B)}
 
 #: Message ids used by the stage driver (MGMSG_ names without the prefix).
 MSG: dict[str, int] = {
@@ -73,6 +77,31 @@ STATUS: dict[str, int] = {
 }
 MOVING_MASK = 0x10 | 0x20 | 0x40 | 0x80 | 0x200
 _EVENTS = {0x0080, 0x0081, 0x0444, 0x0464, 0x0466, 0x0481, 0x0491}
+_SOURCES = {0x00, RACK, USB_UNIT, *range(0x21, 0x2B)}
+#: Messages a controller sends to the host: id -> data lengths it may carry (0: the
+#: header-only form). Status blocks are 14 bytes (DC servo), 20 (brushless) or 28
+#: (stepper, 2025 document).
+INBOUND: dict[int, frozenset[int]] = {
+    0x0006: frozenset({84}),            # HW_GET_INFO
+    0x0080: frozenset({0}),             # HW_RESPONSE
+    0x0081: frozenset({68}),            # HW_RICHRESPONSE
+    0x0212: frozenset({0}),             # MOD_GET_CHANENABLESTATE
+    0x0412: frozenset({6}),             # MOT_GET_POSCOUNTER
+    0x040B: frozenset({6}),             # MOT_GET_ENCCOUNTER
+    0x0415: frozenset({14}),            # MOT_GET_VELPARAMS
+    0x0418: frozenset({22}),            # MOT_GET_JOGPARAMS
+    0x0425: frozenset({16}),            # MOT_GET_LIMSWITCHPARAMS
+    0x042A: frozenset({6}),             # MOT_GET_STATUSBITS
+    0x043C: frozenset({6}),             # MOT_GET_GENMOVEPARAMS
+    0x0442: frozenset({14}),            # MOT_GET_HOMEPARAMS
+    0x0444: frozenset({0}),             # MOT_MOVE_HOMED
+    0x0447: frozenset({6}),             # MOT_GET_MOVERELPARAMS
+    0x0452: frozenset({6}),             # MOT_GET_MOVEABSPARAMS
+    0x0464: frozenset({14, 20, 28}),    # MOT_MOVE_COMPLETED
+    0x0466: frozenset({14, 20, 28}),    # MOT_MOVE_STOPPED
+    0x0481: frozenset({14, 28}),        # MOT_GET_STATUSUPDATE
+    0x0491: frozenset({14}),            # MOT_GET_DCSTATUSUPDATE
+}
 
 
 @dataclass(frozen=True)
@@ -120,30 +149,41 @@ def pack_message(msg_id: int, dest: int, source: int = HOST, param1: int = 0,
 
 
 class AptFramer:
-    """Split a byte stream into :class:`AptMessage` by the header's data flag and length.
+    """Split a controller's byte stream into :class:`AptMessage`.
 
-    A 6-byte window that cannot be a header (unknown endpoints, a length over 255) is
-    skipped one byte at a time (counted in :attr:`resyncs`), so garbage between
-    messages costs only the garbage. Any source is accepted (some controllers put 0 in
-    move-completed messages).
+    A 6-byte window is a header only if its id is in :data:`INBOUND`, it is addressed
+    to the host (0x01; 0x00 accepted), its source is a controller endpoint (or 0, which
+    some units put in move-completed messages) and its form and length are ones that
+    id has. Anything else is skipped one byte at a time (counted in :attr:`resyncs`),
+    so garbage between messages costs only the garbage and cannot swallow a reply.
     """
 
     def __init__(self) -> None:
         self._buf = bytearray()
         self.resyncs = 0
 
+    @staticmethod
+    def plausible(header: bytes | bytearray) -> bool:
+        """True when 6 bytes can start a message a controller sends to the host."""
+        msg_id, p1, p2, dest, src = struct.unpack_from("<HBBBB", header)
+        lengths = INBOUND.get(msg_id)
+        if lengths is None or (dest & 0x7F) not in (HOST, 0x00) or src not in _SOURCES:
+            return False
+        n = (p1 | p2 << 8) if dest & 0x80 else 0
+        return n in lengths
+
     def feed(self, data: bytes) -> list[AptMessage]:
         """Add received bytes; return the complete messages, in order."""
         self._buf += data
         out = []
         while len(self._buf) >= 6:
-            msg_id, p1, p2, dest, src = struct.unpack_from("<HBBBB", self._buf)
-            long = bool(dest & 0x80)
-            n = (p1 | p2 << 8) if long else 0
-            if (dest & 0x7F) not in _ENDPOINTS or (src not in _ENDPOINTS and src != 0) or n > 255:
+            if not self.plausible(self._buf):
                 del self._buf[0]
                 self.resyncs += 1
                 continue
+            msg_id, p1, p2, dest, src = struct.unpack_from("<HBBBB", self._buf)
+            long = bool(dest & 0x80)
+            n = (p1 | p2 << 8) if long else 0
             if len(self._buf) < 6 + n:
                 break
             data_ = bytes(self._buf[6:6 + n]) if long else None
@@ -183,7 +223,7 @@ class AptController:
         self.updates = False
         self.keepalives_sent = 0
         self._cond = threading.Condition()
-        self._waiting: dict[tuple[int, int], list[AptMessage]] = {}
+        self._waiting: dict[tuple[int, int], list[list[AptMessage]]] = {}
         self._write_lock = threading.Lock()
         self._request_lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -243,6 +283,11 @@ class AptController:
                 param2: int = 0, data: bytes | None = None, timeout_s: float = 1.0) -> AptMessage:
         """Send a REQ message and return the GET reply from ``dest``.
 
+        Safe from several threads at once, also for the same message: every request
+        waits in its own box, queued per (reply id, source) in the order the requests
+        were sent, and the controller's replies fill the boxes in that order (a GUI's
+        status poll and a running plan both asking MOT_REQ_STATUSBITS each get one).
+
         Raises
         ------
         DeviceTimeoutError
@@ -251,13 +296,22 @@ class AptController:
             The port failed before the reply came.
         """
         key = (reply_id, dest)
-        with self._request_lock, self._cond:
-            self._waiting[key] = []
+        box: list[AptMessage] = []
+        # Registering the waiter and sending the request happen under one lock, so the
+        # waiters of one key are queued in the order their requests went out; the
+        # controller answers in that order and each reply fills the oldest empty box.
+        with self._request_lock:
+            with self._cond:
+                self._waiting.setdefault(key, []).append(box)
+            try:
+                self.send(msg_id, dest, param1, param2, data)
+            except BaseException:
+                self._forget(key, box)
+                raise
         try:
-            self.send(msg_id, dest, param1, param2, data)
             deadline = time.monotonic() + timeout_s
             with self._cond:
-                while not self._waiting[key]:
+                while not box:
                     if self._lost is not None:
                         raise self._lost
                     left = deadline - time.monotonic()
@@ -270,9 +324,17 @@ class AptController:
                             "raise reply_timeout_s for a slow controller",
                         )
                     self._cond.wait(left)
-                return self._waiting[key][0]
+                return box[0]
         finally:
-            with self._cond:
+            self._forget(key, box)
+
+    def _forget(self, key: tuple[int, int], box: list[AptMessage]) -> None:
+        """Remove one request's box from the table (the key when it was the last)."""
+        with self._cond:
+            boxes = self._waiting.get(key, [])
+            if any(b is box for b in boxes):
+                boxes[:] = [b for b in boxes if b is not box]
+            if not boxes:
                 self._waiting.pop(key, None)
 
     def start_updates(self, dests: tuple[int, ...]) -> None:
@@ -312,10 +374,11 @@ class AptController:
 
     def _route(self, msg: AptMessage) -> None:
         with self._cond:
-            box = self._waiting.get((msg.msg_id, msg.source))
-            if box is None and msg.source == 0:  # lenient: some units send source 0
-                box = next((b for (m, _), b in self._waiting.items() if m == msg.msg_id), None)
-            delivered = box is not None and not box
+            boxes = self._waiting.get((msg.msg_id, msg.source))
+            if boxes is None and msg.source == 0:  # lenient: some units send source 0
+                boxes = next((b for (m, _), b in self._waiting.items() if m == msg.msg_id), None)
+            box = next((b for b in boxes or () if not b), None)  # the oldest unanswered
+            delivered = box is not None
             if delivered:
                 box.append(msg)
             self._cond.notify_all()

@@ -16,7 +16,13 @@ one is a :class:`~drivers.errors.MissingDependencyError` naming the extra.
   but returned no data", ``EIO`` on write) becomes
   :class:`~drivers.errors.DeviceDisconnectedError`;
 - modem-line ioctls (RTS, DTR) are guarded: a pseudo-terminal refuses them with
-  ``ENOTTY`` (:func:`set_modem_line`).
+  ``ENOTTY`` (:func:`set_modem_line`);
+- the port is opened exclusively: refused while another process has it open (named,
+  where ``/proc`` tells: :func:`port_holders`), locked with ``flock`` (pyserial's
+  ``exclusive=True``, which other pyserial users that ask for it respect) and marked
+  ``TIOCEXCL``, so a later plain ``open()`` by another user's program fails with
+  ``EBUSY`` (as thorlabs-apt-device and pylablib open ports, without asking; root
+  passes ``TIOCEXCL``).
 
 :class:`HidLink` does the same for a USB HID device through cython-hidapi (the
 ``hidapi`` package, imported as ``hid``): found by vendor/product id, serial number
@@ -31,7 +37,9 @@ from __future__ import annotations
 import errno
 import importlib
 import logging
+import os
 import re
+import stat
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -52,6 +60,7 @@ __all__ = [
     "UsbLink",
     "find_serial_port",
     "import_optional",
+    "port_holders",
     "set_modem_line",
 ]
 
@@ -157,6 +166,91 @@ def find_serial_port(
     return None
 
 
+def port_holders(path: str | Path, proc: str | Path = "/proc") -> list[tuple[int, str]]:
+    """Other processes that have the device ``path`` open, where the OS can tell.
+
+    Scans ``/proc/<pid>/fd`` (Linux; processes of other users are visible to root
+    only) for a descriptor of the same character device. For a pseudo-terminal, the
+    process holding its master side too (an emulator, a terminal) is the device's
+    other end, not a competing client, and is left out.
+
+    Parameters
+    ----------
+    path : str or Path
+        A device node or a link to one (``/dev/serial/by-id/...``).
+    proc : str or Path
+        The proc file system.
+
+    Returns
+    -------
+    list of (int, str)
+        ``(pid, command line)`` of each other process holding it; empty where the OS
+        does not tell (no ``/proc``) or nobody does.
+    """
+    try:
+        st = os.stat(path)
+    except OSError:
+        return []
+    if not stat.S_ISCHR(st.st_mode) or not Path(proc).is_dir():
+        return []
+    real = os.path.realpath(path)
+    pts = int(real.rsplit("/", 1)[1]) if re.fullmatch(r"/dev/pts/\d+", real) else None
+    out = []
+    for entry in Path(proc).iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            fds = list((entry / "fd").iterdir())
+        except OSError:
+            continue
+        for fd in fds:
+            try:
+                fst = os.stat(fd)
+            except OSError:
+                continue
+            if stat.S_ISCHR(fst.st_mode) and fst.st_rdev == st.st_rdev:
+                if pts is not None and _holds_master(entry, fds, pts):
+                    break
+                try:
+                    cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(
+                        "utf-8", "replace").strip()
+                except OSError:
+                    cmd = "?"
+                out.append((int(entry.name), cmd or "?"))
+                break
+    return out
+
+
+def _holds_master(entry: Path, fds: list[Path], index: int) -> bool:
+    """True when the process ``entry`` holds the master side of pty ``index``."""
+    for fd in fds:
+        try:
+            info = (entry / "fdinfo" / fd.name).read_text()
+        except OSError:
+            continue
+        if re.search(rf"^tty-index:\s*{index}$", info, re.MULTILINE):
+            return True
+    return False
+
+
+def _holders_text(path: str) -> str:
+    holders = port_holders(path)
+    if not holders:
+        return ""
+    return "; held by " + ", ".join(f"process {pid} ({cmd[:60]})" for pid, cmd in holders)
+
+
+def _set_exclusive(ser: Any, on: bool) -> None:
+    """TIOCEXCL / TIOCNXCL on an open port (ignored where unsupported)."""
+    try:
+        import fcntl
+        import termios
+        fcntl.ioctl(ser.fileno(), termios.TIOCEXCL if on else termios.TIOCNXCL)
+    except (ImportError, AttributeError, OSError, ValueError) as exc:
+        log.debug("%s: TIOC%sEXCL not set: %s", getattr(ser, "port", "?"),
+                  "" if on else "N", exc)
+
+
 def _tail(data: bytes, n: int = 80) -> str:
     """``data`` for a message: its last ``n`` bytes and how many came before."""
     if len(data) <= n:
@@ -251,6 +345,12 @@ class SerialLink:
         """
         serial = import_optional("serial", self.device_id)
         path = self.resolve()
+        held = _holders_text(path)
+        if held:
+            raise DeviceDisconnectedError(
+                self.device_id, f"serial port {path} is open in another program{held}",
+                "close that program: two programs on one port take each other's replies",
+            )
         try:
             ser = serial.Serial(
                 path, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
@@ -259,10 +359,11 @@ class SerialLink:
             )
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnectedError(
-                self.device_id, f"cannot open serial port {path}: {exc}",
+                self.device_id, f"cannot open serial port {path}: {exc}{_holders_text(path)}",
                 "check the cable, that no other program holds the port, and the permissions "
                 "(group dialout, udev rules in docs/drivers/)",
             ) from exc
+        _set_exclusive(ser, True)
         self._serial = ser
         self.path = path
         self._buffer.clear()
@@ -280,6 +381,7 @@ class SerialLink:
         ser, self._serial = self._serial, None
         self._buffer.clear()
         if ser is not None:
+            _set_exclusive(ser, False)  # the tty may outlive us (a pty's other end)
             try:
                 ser.close()
             except Exception as exc:  # a yanked adapter may fail on close

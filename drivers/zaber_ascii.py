@@ -17,6 +17,7 @@ reference position) means not homed: moves are refused until homed
 from __future__ import annotations
 
 import re
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -148,8 +149,10 @@ class ZaberAsciiStage(HostTableStage):
                                 search_dirs=search_dirs, baudrate=baudrate,
                                 timeout_error=self.timeout_error)
         self._msg_id = 0
+        self._command_lock = threading.RLock()
         self._travel: dict[str, tuple[float, float]] = {}
         self._hw: dict[str, Any] = {}
+        self._moving: set[str] = set()  # axes the last move/home started
 
     # ----------------------------------------------------------- protocol
     def command(self, device: int, axis: int, text: str = "") -> tuple[str, str, str]:
@@ -168,7 +171,16 @@ class ZaberAsciiStage(HostTableStage):
             The device rejected the command (``RJ``); the message names the reason.
         StageTimeoutError
             No reply within ``reply_timeout_s``.
+
+        Notes
+        -----
+        Safe from several threads: one command and its reply at a time on the port
+        (another thread's ``discard_input`` or read would otherwise take this reply).
         """
+        with self._command_lock:
+            return self._exchange(device, axis, text)
+
+    def _exchange(self, device: int, axis: int, text: str) -> tuple[str, str, str]:
         self._msg_id = self._msg_id % 99 + 1
         body = f"{device} {axis} {self._msg_id}" + (f" {text}" if text else "")
         line = f"/{body}:{lrc(body)}\n" if self._checksums else f"/{body}\n"
@@ -179,6 +191,7 @@ class ZaberAsciiStage(HostTableStage):
             left = max(deadline - time.monotonic(), 1e-3)
             raw = self._link.read_until(b"\n", left, what=f"reply to {line.strip()!r}")
             text_line = raw.decode("ascii", "replace").strip()
+            text_line = text_line[max(text_line.rfind("@"), 0):]  # noise before a reply
             m = _REPLY_RE.match(text_line)
             if m is None:  # an info (#) or alert (!) line, or noise
                 continue
@@ -200,6 +213,8 @@ class ZaberAsciiStage(HostTableStage):
 
     # ----------------------------------------------------------- lifecycle hooks
     def _do_open(self, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        self._moving = set()
         self._link.open()
         try:
             travel = {}
@@ -230,9 +245,11 @@ class ZaberAsciiStage(HostTableStage):
                 todo = tuple(a for a in self._addr if "WR" in self._warnings(a))
                 if todo:
                     self._do_home(todo)
-                    if not self._do_wait(max(timeout_s, 120.0)):
-                        raise self._timeout("homing at open did not finish",
-                                            "check the stage, or home it by hand")
+                    if not self._do_wait(max(deadline - time.monotonic(), 0.0)):
+                        raise self._timeout(f"homing at open did not finish within the open's "
+                                            f"{timeout_s:g} s; the axes are still homing",
+                                            "open again once homed, or open with a longer "
+                                            "timeout_s")
         except BaseException:
             self._link.close()
             raise
@@ -268,12 +285,14 @@ class ZaberAsciiStage(HostTableStage):
         for a in targets:
             self._axis_cmd(a, "warnings clear")  # stale flags of earlier operations
         for a, t in targets.items():
+            self._moving.add(a)
             _, flag, _ = self._axis_cmd(a, f"move abs {round(t / self._step[a])}")
             if flag == "NI":  # this move replaced a running one: expected, not a fault
                 self._axis_cmd(a, "warnings clear")
 
     def _do_home(self, axes: tuple[str, ...]) -> None:
         for a in axes:
+            self._moving.add(a)
             self._axis_cmd(a, "warnings clear")
             self._axis_cmd(a, "home")
 
@@ -281,16 +300,29 @@ class ZaberAsciiStage(HostTableStage):
         return any(self._axis_cmd(a)[0] == "BUSY" for a in self._addr)
 
     def _do_positions(self) -> dict[str, float]:
+        return self._do_positions_of(tuple(self._addr))
+
+    def _do_positions_of(self, axes: tuple[str, ...]) -> dict[str, float]:
         return {a: int(self._axis_cmd(a, "get pos")[2].split()[0]) * self._step[a]
-                for a in self._addr}
+                for a in axes}
 
     def _do_stop(self) -> None:
+        """Stop every axis; an axis that does not answer does not keep the others moving."""
+        failed = None
         for a in self._addr:
-            self._axis_cmd(a, "stop")
+            try:
+                self._axis_cmd(a, "stop")
+            except (self.timeout_error, DeviceProtocolError) as exc:
+                failed = failed or exc
+        self._moving.clear()
+        if failed is not None:
+            raise failed
 
     def _do_wait(self, timeout_s: float) -> bool:
+        """Wait for the axes the last move or home started (all axes when none did)."""
         deadline = time.monotonic() + timeout_s
-        pending = set(self._addr)
+        watched = sorted(self._moving) or list(self._addr)
+        pending = set(watched)
         while pending:
             pending = {a for a in pending if self._axis_cmd(a)[0] == "BUSY"}
             if not pending:
@@ -298,13 +330,14 @@ class ZaberAsciiStage(HostTableStage):
             if time.monotonic() >= deadline:
                 return False
             time.sleep(min(self._poll, max(deadline - time.monotonic(), 0.0)))
+        self._moving.clear()
         problems = []
-        for a in self._addr:
+        for a in watched:
             flags = [f for f in self._warnings(a) if f[0] == "F" or f in ("WL", "NI")]
             if flags:
                 problems.append(f"axis {a}: " + ", ".join(
                     f"{f} ({FLAG_MEANINGS.get(f, 'see the Zaber manual')})" for f in flags)
-                    + f" at {self._do_positions()[a]:.6g} {AXIS_UNITS[a]}")
+                    + f" at {self._do_positions_of((a,))[a]:.6g} {AXIS_UNITS[a]}")
                 self._axis_cmd(a, "warnings clear")
         if problems:
             raise self._error(StageMotionError, "; ".join(problems),

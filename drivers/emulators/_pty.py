@@ -31,9 +31,10 @@ class PtyEmulator:
 
     Subclasses implement :meth:`on_bytes` (bytes the driver wrote) and optionally
     :meth:`on_tick` (called every ``tick_s`` for motion and unsolicited messages), and
-    send with :meth:`reply` (a reply to a command, subject to :meth:`drop_replies`) or
-    :meth:`emit` (unsolicited: events, banners, garbage). Model state is guarded by
-    :attr:`lock` (held while ``on_bytes``/``on_tick`` run), so tests may inspect it.
+    send with :meth:`reply` (a reply to a command, subject to :meth:`drop_replies` and
+    :meth:`stray_before_reply`) or :meth:`emit` (unsolicited: events, banners,
+    garbage). Model state is guarded by :attr:`lock` (held while
+    ``on_bytes``/``on_tick`` run), so tests may inspect it.
 
     Parameters
     ----------
@@ -63,6 +64,7 @@ class PtyEmulator:
         self._unplug_request = threading.Event()
         self._unplugged = threading.Event()
         self._drop = 0
+        self._prefix = b""
         self.plug_count = 0
 
     # ------------------------------------------------------------------ lifecycle
@@ -130,7 +132,13 @@ class PtyEmulator:
             self._drop -= 1
             log.debug("%s: reply dropped: %r", type(self).__name__, bytes(data))
             return
-        self.emit(data)
+        prefix, self._prefix = self._prefix, b""
+        self.emit(prefix + bytes(data))
+
+    def stray_before_reply(self, data: bytes) -> None:
+        """Send ``data`` (line noise, a glitch on the cable) just before the next reply."""
+        with self.lock:
+            self._prefix += bytes(data)
 
     def emit(self, data: bytes) -> None:
         """Send bytes now (unsolicited messages; lost while unplugged or if the driver

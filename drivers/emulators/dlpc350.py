@@ -1,7 +1,9 @@
 """Emulator of a TI DLP LightCrafter 4500 (DLPC350) behind a fake hidapi module.
 
 Written from the DLPC350 host protocol as summarised in hardware-protocols.md,
-section 3b, and its emulator spec (a fake transport, not a pty):
+section 3b, and checked against TI's host code (``dlpc350_api.cpp`` as copied in
+slstudio) and the clients labs use (pycrafter4500, QDSpy): it takes their framing
+and refuses bytes they would not send.
 
 - :class:`FakeHid` has the surface of cython-hidapi's ``hid`` module
   (``enumerate(vid, pid)``, ``device()`` with ``open_path``, ``write``, ``read``,
@@ -11,17 +13,29 @@ section 3b, and its emulator spec (a fake transport, not a pty):
 - :class:`FakeUsb` has the surface of pyusb (``core.find``, ``core.USBError``,
   ``core.USBTimeoutError``, ``util.claim_interface`` ...) for the same controller on
   its interrupt endpoints 0x01 / 0x81 (``USBError`` with errno 19 after an unplug,
-  ``USBTimeoutError`` on timeout, the kernel driver attached until detached);
+  ``USBTimeoutError`` on timeout, the kernel driver attached until detached; like
+  pyusb, a read or write claims the interface itself once no kernel driver holds it);
 - a message is ``flags, sequence, length (u16 LE), CMD3, CMD2, payload``, continued
   in further 64-byte reports when longer (reassembled by the length field); a reply
   comes only when the flags ask for one (bit 6) or for a read (bit 7): ``flags | 0x20``
   (NACK) on error, the same sequence, the length of the data, data from byte 4;
-- NACK for an unknown command, a wrong payload length, or a command not allowed in
-  the current state (pattern configuration, exposure or mailbox while the sequence
-  runs; start before a successful validation);
+- NACK for an unknown command, a wrong payload length (0x1A1A takes one byte), or a
+  command not allowed in the current state (pattern configuration, exposure or
+  mailbox while the sequence runs; start before a successful validation);
+- the mailbox (0x1A33 open, 0x1A32 address, 0x1A34 data): a data message writes its
+  entries from the address, which then advances past them, so TI's framing (the
+  whole LUT in one message, 3 bytes per pattern entry, 1 byte per image index) and
+  one entry per message (pycrafter4500, QDSpy) both work; a 2-byte image LUT message
+  holds its entries swapped (TI's ``DLPC350_SendImageLut`` sends them so);
 - validation (write 0x1A1A) is busy for ``validation_polls`` reads of 0x1A1A, then
-  reports bit 0 (exposure longer than the period), bit 1 (bad pattern numbers or
-  LUT size) and bit 4 (period - exposure < 230 us).
+  reports bit 0 (exposure longer than the period), bit 1 (bad pattern numbers, fewer
+  pattern LUT entries written than configured, or, with the flash source, an image LUT
+  of another length than the configured image count) and bit 4 (period - exposure <
+  230 us);
+- a display mode change and a start/stop take ``settle_polls`` reads to show in the
+  status reads (0x1A1B, 0x1A0C, 0x1A24), as a controller that takes a moment;
+- LED currents (0x0B01) are PWM bytes; with the PWM polarity normal (0x1A05 = 0, the
+  power-up state) the EVM's LED drivers invert them (:meth:`led_fractions`).
 """
 
 from __future__ import annotations
@@ -35,10 +49,11 @@ __all__ = ["Dlpc350Emulator", "FakeHid", "FakeUsb"]
 
 VID, PID = 0x0451, 0x6401
 #: Payload length of each command the emulator knows, by command word (CMD2 << 8 | CMD3).
-PAYLOAD = {
-    0x0200: 1, 0x0205: 0, 0x0B01: 3, 0x1A00: 1, 0x1A07: 1, 0x1A0A: 0, 0x1A0B: 0, 0x1A0C: 0,
-    0x1A1A: 0, 0x1A1B: 1, 0x1A22: 1, 0x1A23: 1, 0x1A24: 1, 0x1A29: 8, 0x1A31: 4, 0x1A32: 1,
-    0x1A33: 1, 0x1A34: 3,
+#: ``None``: variable (the mailbox data).
+PAYLOAD: dict[int, int | None] = {
+    0x0200: 1, 0x0205: 0, 0x0609: 1, 0x0B01: 3, 0x100A: 1, 0x1A00: 1, 0x1A05: 1,
+    0x1A07: 1, 0x1A0A: 0, 0x1A0B: 0, 0x1A0C: 0, 0x1A0E: 1, 0x1A1A: 1, 0x1A1B: 1, 0x1A22: 1,
+    0x1A23: 1, 0x1A24: 1, 0x1A29: 8, 0x1A31: 4, 0x1A32: 1, 0x1A33: 1, 0x1A34: None,
 }
 _LOCKED_WHILE_RUNNING = {0x1A29, 0x1A31, 0x1A32, 0x1A33, 0x1A34, 0x1A22, 0x1A23, 0x1A1B}
 
@@ -52,11 +67,20 @@ class Dlpc350Emulator:
         Reported by ``enumerate``.
     validation_polls : int
         Reads of 0x1A1A that still show "busy" after a validation request.
+    reply_latency_s : float
+        Delay before a reply can be read (a full-speed USB interrupt endpoint is polled
+        every 1 ms; 0 answers at once).
+    settle_polls : int
+        Status reads after a display mode change or a start/stop that still show the
+        previous state.
     """
 
-    def __init__(self, serial_number: str = "LC4500-0001", validation_polls: int = 2) -> None:
+    def __init__(self, serial_number: str = "LC4500-0001", validation_polls: int = 2,
+                 reply_latency_s: float = 0.0, settle_polls: int = 1) -> None:
         self.serial_number = serial_number
         self.validation_polls = int(validation_polls)
+        self.reply_latency_s = float(reply_latency_s)
+        self.settle_polls = int(settle_polls)
         self.lock = threading.Lock()
         self.plugged = True
         self.standby = False
@@ -64,6 +88,10 @@ class Dlpc350Emulator:
         self.input_source = 0
         self.led_enables = 0x0F
         self.led_currents = [104, 135, 130]
+        self.pwm_invert = 0
+        self.gamma = 0
+        self.parked = False
+        self.frozen = False
         self.pattern_source = 0
         self.trigger_mode = 0
         self.exposure_us, self.period_us = 8333, 8333
@@ -72,11 +100,14 @@ class Dlpc350Emulator:
         self.mailbox_address = 0
         self.pattern_lut: list[bytes] = [bytes(3)] * 128
         self.image_lut: list[int] = [0] * 64
+        self.written = {1: 0, 2: 0}  # entries written since each mailbox was opened
+        self._shown = {"mode": 0, "running": False}  # what the status reads report
+        self._settle = {"mode": 0, "running": 0}
         self.validation_status = 0x00
         self.validated = False
         self._busy_polls = 0
         self.running = False
-        self.replies: deque[bytes] = deque()
+        self.replies: deque[tuple[float, bytes]] = deque()  # (readable from, report)
         self.log: list[tuple[int, bytes]] = []  # (command, payload) of every message
         self.reports: list[bytes] = []  # every 64-byte report written
         self._partial: bytearray | None = None
@@ -101,6 +132,22 @@ class Dlpc350Emulator:
         """Lose the next ``n`` replies (the driver's reads time out)."""
         with self.lock:
             self.drop += int(n)
+
+    def next_reply(self, deadline: float) -> bytes | None:
+        """Wait (holding :attr:`cond`) for the oldest reply until ``deadline``
+        (``time.monotonic()``); None on timeout. Raises OSError once unplugged."""
+        while True:
+            if not self.plugged:
+                raise OSError("the device is unplugged")
+            now = time.monotonic()
+            if self.replies and self.replies[0][0] <= now:
+                return self.replies.popleft()[1]
+            left = deadline - now
+            if left <= 0:
+                return None
+            if self.replies:
+                left = min(left, self.replies[0][0] - now)
+            self.cond.wait(left)
 
     # ------------------------------------------------------------------ transport
     def feed(self, report: bytes) -> None:
@@ -137,7 +184,7 @@ class Dlpc350Emulator:
             self.drop -= 1
             return
         out = bytes([flags | (0x20 if nack else 0), seq]) + struct.pack("<H", len(data)) + data
-        self.replies.append(out.ljust(64, b"\0"))
+        self.replies.append((time.monotonic() + self.reply_latency_s, out.ljust(64, b"\0")))
         self.cond.notify_all()
 
     # ------------------------------------------------------------------ commands
@@ -146,25 +193,25 @@ class Dlpc350Emulator:
             return b"", False
         if read:
             return self._read(cmd)
-        if len(p) != PAYLOAD[cmd] and cmd != 0x1A1A:
+        if PAYLOAD[cmd] is not None and len(p) != PAYLOAD[cmd]:
             return b"", False
         if self.running and cmd in _LOCKED_WHILE_RUNNING:
             return b"", False
-        if cmd == 0x0200:
+        simple = {0x0B01: "led_currents", 0x1A00: "input_source", 0x1A07: "led_enables",
+                  0x1A22: "pattern_source", 0x1A23: "trigger_mode", 0x1A0E: "gamma",
+                  0x1A05: "pwm_invert"}
+        if cmd in simple:
+            setattr(self, simple[cmd], list(p) if cmd == 0x0B01 else p[0])
+        elif cmd == 0x0200:
             self.standby = bool(p[0])
-        elif cmd == 0x0B01:
-            self.led_currents = list(p)
-        elif cmd == 0x1A00:
-            self.input_source = p[0]
-        elif cmd == 0x1A07:
-            self.led_enables = p[0]
+        elif cmd == 0x0609:
+            self.parked = bool(p[0] & 1)
+        elif cmd == 0x100A:
+            self.frozen = bool(p[0] & 1)
         elif cmd == 0x1A1B:
             self.display_mode = p[0] & 1
+            self._settle["mode"] = self.settle_polls
             self.validated = False
-        elif cmd == 0x1A22:
-            self.pattern_source = p[0]
-        elif cmd == 0x1A23:
-            self.trigger_mode = p[0]
         elif cmd == 0x1A24:
             return self._sequence_control(p[0])
         elif cmd == 0x1A29:
@@ -176,42 +223,59 @@ class Dlpc350Emulator:
         elif cmd == 0x1A32:
             self.mailbox_address = p[0]
         elif cmd == 0x1A33:
+            if p[0] > 3:
+                return b"", False
             self.mailbox = p[0]
+            self.mailbox_address = 0
+            if p[0] in self.written:
+                self.written[p[0]] = 0
         elif cmd == 0x1A34:
             return self._mailbox_data(p)
         elif cmd == 0x1A1A:
             self._busy_polls = self.validation_polls
             self.validation_status = self._validate()
             self.validated = self.validation_status & 0x13 == 0
-        else:
-            return b"", False
         return b"", True
+
+    def _status_read(self, key: str) -> object:
+        """What a status read shows: the previous state until ``settle_polls`` reads
+        after the change have passed."""
+        if self._settle[key] > 0:
+            self._settle[key] -= 1
+        else:
+            self._shown[key] = self.display_mode if key == "mode" else self.running
+        return self._shown[key]
 
     def _read(self, cmd: int) -> tuple[bytes, bool]:
         if cmd == 0x0205:
             return struct.pack("<IIII", 0x02070100, 0x00000000, 0x03000200, 0), True
         if cmd == 0x1A0C:
-            status = (int(not self.running)) | (int(self.running) << 1)
+            running = bool(self._status_read("running"))
+            status = (int(self.parked) | int(running) << 1 | int(self.frozen) << 2
+                      | int(bool(self.gamma & 0x80)) << 3)
             return bytes([status]), True
-        if cmd == 0x1A0A:
-            return bytes([0x01]), True  # initialisation done, no errors
-        if cmd == 0x1A0B:
-            return bytes([0x01]), True
+        if cmd == 0x1A24:
+            return bytes([2 if self._status_read("running") else 0]), True
+        if cmd == 0x1A1B:
+            return bytes([int(self._status_read("mode"))]), True
+        if cmd in (0x1A0A, 0x1A0B):
+            return bytes([0x01]), True  # initialisation done, no errors / memory ok
         if cmd == 0x1A1A:
             if self._busy_polls > 0:
                 self._busy_polls -= 1
                 return bytes([0x80]), True
             return bytes([self.validation_status]), True
-        if cmd == 0x0B01:
-            return bytes(self.led_currents), True
         if cmd == 0x1A29:
             return struct.pack("<II", self.exposure_us, self.period_us), True
-        if cmd == 0x1A1B:
-            return bytes([self.display_mode]), True
-        if cmd == 0x1A24:
-            return bytes([2 if self.running else 0]), True
         if cmd == 0x1A31:
             return bytes(self.pattern_config), True
+        single = {0x0200: lambda: int(self.standby), 0x1A05: lambda: self.pwm_invert,
+                  0x1A07: lambda: self.led_enables, 0x1A22: lambda: self.pattern_source,
+                  0x1A23: lambda: self.trigger_mode, 0x1A0E: lambda: self.gamma}
+        if cmd in single:
+            return bytes([single[cmd]()]), True
+        if cmd == 0x0B01:
+            return bytes(self.led_currents), True
         return b"", False
 
     def _sequence_control(self, op: int) -> tuple[bytes, bool]:
@@ -223,15 +287,26 @@ class Dlpc350Emulator:
             self.running = False
         else:
             return b"", False
+        self._settle["running"] = self.settle_polls
         return b"", True
 
     def _mailbox_data(self, p: bytes) -> tuple[bytes, bool]:
-        if self.mailbox == 2 and self.mailbox_address < 128:
-            self.pattern_lut[self.mailbox_address] = bytes(p)
-            self.mailbox_address += 1
-        elif self.mailbox == 1 and self.mailbox_address < 64:
-            self.image_lut[self.mailbox_address] = p[0]
-            self.mailbox_address += 1
+        """Entries from the current address, the address advancing past them."""
+        if self.mailbox == 2:
+            if not p or len(p) % 3 or self.mailbox_address + len(p) // 3 > 128:
+                return b"", False
+            for k in range(0, len(p), 3):
+                self.pattern_lut[self.mailbox_address] = bytes(p[k:k + 3])
+                self.mailbox_address += 1
+            self.written[2] += len(p) // 3
+        elif self.mailbox == 1:
+            if not p or self.mailbox_address + len(p) > 64:
+                return b"", False
+            entries = [p[1], p[0]] if len(p) == 2 else list(p)  # TI's 2-entry order
+            for image in entries:
+                self.image_lut[self.mailbox_address] = image
+                self.mailbox_address += 1
+            self.written[1] += len(entries)
         else:
             return b"", False
         self.validated = False
@@ -248,7 +323,18 @@ class Dlpc350Emulator:
             depth = (entry[1] & 0x0F) or 1
             if (entry[0] >> 2) > 24 // depth - 1 or not 1 <= depth <= 8:
                 bits |= 0x02
+        if self.written[2] < n:
+            bits |= 0x02  # configured entries never written
+        if self.pattern_source == 3 and self.written[1] != self.pattern_config[3] + 1:
+            bits |= 0x02  # image LUT length is not the configured image count
         return bits
+
+    def led_fractions(self) -> list[float]:
+        """The LED currents the EVM drives, as fractions of full (red, green, blue): its
+        LED drivers invert the PWM, so with the polarity normal (0x1A05 = 0) a byte b
+        gives ``(255 - b) / 255``, with it inverted ``b / 255`` (slstudio and QDSpy
+        write ``255 - current``; this needs a real EVM to confirm)."""
+        return [(b if self.pwm_invert & 1 else 255 - b) / 255 for b in self.led_currents]
 
     def lut_entries(self) -> list[dict[str, int]]:
         """The pattern LUT as loaded: ``[{"pattern", "bit_depth", "leds", "invert",
@@ -304,15 +390,13 @@ class _FakeDevice:
     def read(self, size: int, timeout_ms: int = 0) -> list[int]:
         deadline = time.monotonic() + timeout_ms / 1000
         with self.emu.cond:
-            while True:
-                if not (self.opened and self.emu.plugged):
-                    raise OSError("read error")
-                if self.emu.replies:
-                    return list(self.emu.replies.popleft()[:size])
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return []
-                self.emu.cond.wait(left)
+            if not self.opened:
+                raise OSError("read error")
+            try:
+                report = self.emu.next_reply(deadline)
+            except OSError:
+                raise OSError("read error") from None
+            return [] if report is None else list(report[:size])
 
     def close(self) -> None:
         self.opened = False
@@ -390,22 +474,35 @@ class _FakeUsbDevice:
         if not self.emu.plugged:
             raise _UsbError("No such device (it may have been disconnected)", errno=19)
 
-    def write(self, endpoint: int, data, timeout: int) -> int:
+    def _auto_claim(self) -> None:
+        """pyusb claims the interface itself on the first transfer (and fails while a
+        kernel driver holds it)."""
+        if not self.claimed and not self.fake.kernel_driver:
+            self.claimed = True
+
+    def reset(self) -> None:
+        """Like ``usb.core.Device.reset``: the interface is released."""
+        self.claimed = False
+
+    def write(self, endpoint: int, data, timeout: int | None = None) -> int:
+        self._auto_claim()
         with self.emu.lock:
             if not (self.claimed and self.emu.plugged) or endpoint != 0x01:
                 raise _UsbError("No such device (it may have been disconnected)", errno=19)
             self.emu.feed(bytes(data)[:64])
         return len(data)
 
-    def read(self, endpoint: int, size: int, timeout: int) -> bytes:
-        deadline = time.monotonic() + timeout / 1000
+    def read(self, endpoint: int, size: int, timeout: int | None = None) -> bytes:
+        self._auto_claim()
+        deadline = time.monotonic() + (1000 if timeout is None else timeout) / 1000
         with self.emu.cond:
-            while True:
-                if not (self.claimed and self.emu.plugged) or endpoint != 0x81:
-                    raise _UsbError("No such device (it may have been disconnected)", errno=19)
-                if self.emu.replies:
-                    return self.emu.replies.popleft()[:size]
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise _UsbTimeoutError("Operation timed out", errno=110)
-                self.emu.cond.wait(left)
+            if not self.claimed or endpoint != 0x81:
+                raise _UsbError("No such device (it may have been disconnected)", errno=19)
+            try:
+                report = self.emu.next_reply(deadline)
+            except OSError:
+                raise _UsbError("No such device (it may have been disconnected)",
+                                errno=19) from None
+            if report is None:
+                raise _UsbTimeoutError("Operation timed out", errno=110)
+            return report[:size]

@@ -16,6 +16,14 @@ hardware-protocols.md, section 1a, and its emulator spec:
 - a channel that is disabled ignores moves; a BSC20x powers up disabled with tiny
   velocities (the "stuck" quirk); moves beyond the travel, or across an injected
   limit switch, stop at the switch with the limit bit set and MOVE_STOPPED;
+- the messages third-party clients send (thorlabs-apt-device, pylablib): jog
+  parameters and MOVE_JOG (single step or continuous, jog status bits), MOVE_VELOCITY
+  (to the end of the travel), power, limit-switch and trigger parameters (stored and
+  read back); messages the model does not know are ignored without a reply, as a
+  controller does (listed in :attr:`AptEmulator.unknown`);
+- HW_GET_INFO carries the model string (``model`` overrides the profile's, e.g. a
+  legacy "BSC103") and, for a KDC101, the stage id in bytes 76-77 (``stage_id``);
+  ``velocity_quantum`` rounds stored velocities as a controller may;
 - faults: :meth:`drop_replies`, :meth:`stall`, :meth:`set_limit_switch`,
   :meth:`rich_response`, :meth:`garbage`, :meth:`unplug` / :meth:`replug`.
 
@@ -56,6 +64,7 @@ PROFILES: dict[str, dict] = {
 # status bits
 FWD_LIMIT, REV_LIMIT = 0x1, 0x2
 MOVING_FWD, MOVING_REV = 0x10, 0x20
+JOG_FWD, JOG_REV = 0x40, 0x80
 MOTOR_CONNECTED, HOMING, HOMED = 0x100, 0x200, 0x400
 ENABLED = 0x80000000
 
@@ -78,8 +87,13 @@ class AptChannel:
     limit_switch: int | None = None
     limit_hit: int = 0
     stalled: bool = False
+    end_offset: int = 0  # a servo settling this many counts off its target
     end_messages: bool = True
-    jog: bytes = field(default=b"")
+    jog: tuple[int, ...] = (2, 0, 0, 0, 0, 2)  # mode, step, vmin, accel, vmax, stop mode
+    power: tuple[int, int] = (10, 30)  # rest factor, move factor
+    limit_params: bytes = field(default=struct.pack("<HHiiH", 2, 2, 0, 0, 1))
+    trigger: bytes = field(default=bytes(20))
+    trigger_mode: int = 0
 
 
 class AptEmulator(PtyEmulator):
@@ -100,13 +114,20 @@ class AptEmulator(PtyEmulator):
         Only used to pick plausible power-up velocities (2 units/s, 1.5 units/s²).
     update_period_s : float
         Period of the status updates, real seconds (100 ms on the hardware).
+    model : str, optional
+        Model string of HW_GET_INFO (default the profile's: KDC101, KST101, BSC203).
+    stage_id : int
+        Stage id a KDC101 reports in HW_GET_INFO bytes 76-77 (6 = PRM1-Z8, 0 none).
+    velocity_quantum : int
+        Stored velocities are rounded to a multiple of this (controller units).
     link, time_scale : see :class:`PtyEmulator`.
     """
 
     def __init__(
         self, profile: str = "kdc101", *, serial_number: int | None = None, channels: int = 1,
         travel_counts: tuple[int, int] = (0, 863874), counts_per_unit: float = 34554.96,
-        update_period_s: float = 0.1, link: str | Path | None = None, time_scale: float = 1.0,
+        update_period_s: float = 0.1, model: str | None = None, stage_id: int = 0,
+        velocity_quantum: int = 1, link: str | Path | None = None, time_scale: float = 1.0,
     ) -> None:
         super().__init__(link=link, time_scale=time_scale)
         if profile not in PROFILES:
@@ -114,6 +135,9 @@ class AptEmulator(PtyEmulator):
         self.profile = profile
         self.spec = PROFILES[profile]
         self.serial_number = int(serial_number or self.spec["serial"])
+        self.model = str(model or self.spec["model"])
+        self.stage_id = int(stage_id)
+        self.velocity_quantum = max(1, int(velocity_quantum))
         self.stepper = self.spec["stepper"]
         self.update_period_s = float(update_period_s)
         bay = profile == "bsc20x"
@@ -223,6 +247,8 @@ class AptEmulator(PtyEmulator):
             bits |= MOVING_FWD if ch.motion.direction >= 0 else MOVING_REV
             if ch.motion.kind == "home":
                 bits |= HOMING
+            if ch.motion.kind == "jog":
+                bits |= JOG_FWD if ch.motion.direction >= 0 else JOG_REV
         lo, hi = ch.travel
         if ch.motion is None and round(ch.position) <= lo:
             bits |= REV_LIMIT
@@ -251,9 +277,9 @@ class AptEmulator(PtyEmulator):
 
     def _info(self, source: int) -> bytes:
         fw = bytes([2, 0, 3, 0])  # minor, interim, major, unused
-        data = (struct.pack("<i", self.serial_number) + self.spec["model"].encode().ljust(8, b"\0")
-                + struct.pack("<H", self.spec["hw_type"]) + fw + bytes(60)
-                + struct.pack("<HHH", 1, 0, len(self.channels)))
+        data = (struct.pack("<i", self.serial_number) + self.model.encode()[:8].ljust(8, b"\0")
+                + struct.pack("<H", self.spec["hw_type"]) + fw + bytes(58)
+                + struct.pack("<H", self.stage_id) + struct.pack("<HHH", 1, 0, len(self.channels)))
         return self._data_msg(0x0006, data, source)
 
     def _handle(self, msg_id: int, p1: int, p2: int, dest: int, data: bytes | None) -> None:
@@ -293,7 +319,8 @@ class AptEmulator(PtyEmulator):
             ch.position = float(struct.unpack_from("<Hi", data)[1])
         elif msg_id == 0x0413 and data is not None and len(data) >= 14:
             _, vmin, acc, vmax = struct.unpack_from("<Hiii", data)
-            ch.velocity = (vmin, acc, vmax)
+            q = self.velocity_quantum
+            ch.velocity = (vmin, acc, max(q, round(vmax / q) * q))
         elif msg_id == 0x0414:
             self.reply(self._data_msg(0x0415, struct.pack("<Hiii", 1, *ch.velocity), src))
         elif msg_id == 0x0440 and data is not None and len(data) >= 14:
@@ -327,6 +354,31 @@ class AptEmulator(PtyEmulator):
             self.reply(self._data_msg(0x0491, self._status_block(ch), src))
         elif msg_id == 0x0480 and self.stepper:
             self.reply(self._status_update(ch))
+        elif msg_id == 0x0416 and data is not None and len(data) >= 22:
+            ch.jog = struct.unpack_from("<HiiiiH", data, 2)
+        elif msg_id == 0x0417:
+            self.reply(self._data_msg(0x0418, struct.pack("<HHiiiiH", 1, *ch.jog), src))
+        elif msg_id == 0x046A:  # MOVE_JOG: p2 1 forward, 2 reverse
+            self._jog(ch, now, 1 if p2 == 1 else -1)
+        elif msg_id == 0x0457:  # MOVE_VELOCITY: to the end of the travel
+            sign = 1 if p2 == 1 else -1
+            self._start(ch, now, sign * 1e12, "velocity")
+        elif msg_id == 0x0426 and data is not None and len(data) >= 6:
+            ch.power = struct.unpack_from("<HH", data, 2)
+        elif msg_id == 0x0427:
+            self.reply(self._data_msg(0x0428, struct.pack("<HHH", 1, *ch.power), src))
+        elif msg_id == 0x0423 and data is not None and len(data) >= 16:
+            ch.limit_params = bytes(data[2:16])
+        elif msg_id == 0x0424:
+            self.reply(self._data_msg(0x0425, struct.pack("<H", 1) + ch.limit_params, src))
+        elif msg_id == 0x0523 and data is not None and not self.stepper:
+            ch.trigger = bytes(data[2:22]).ljust(20, b"\0")
+        elif msg_id == 0x0524 and not self.stepper:
+            self.reply(self._data_msg(0x0525, struct.pack("<H", 1) + ch.trigger, src))
+        elif msg_id == 0x0500:
+            ch.trigger_mode = p2
+        elif msg_id == 0x0501:
+            self.reply(self._short_msg(0x0502, 1, ch.trigger_mode, src))
         elif msg_id == 0x046B:
             ch.end_messages = False
         elif msg_id == 0x046C:
@@ -336,6 +388,18 @@ class AptEmulator(PtyEmulator):
             log.debug("APT emulator: ignored message 0x%04x", msg_id)
 
     # ------------------------------------------------------------------ motion
+    def _jog(self, ch: AptChannel, now: float, sign: int) -> None:
+        """MOVE_JOG with the jog parameters: one step (mode 2) or on to the end of the
+        travel until stopped (mode 1), at the jog velocity."""
+        mode, step, _, acc, vmax, _ = ch.jog
+        velocity = ch.velocity
+        if vmax > 0:
+            ch.velocity = (0, acc or velocity[1], vmax)
+        p0 = ch.motion.position(now) if ch.motion is not None else ch.position
+        target = sign * 1e12 if mode == 1 else round(p0) + sign * step
+        self._start(ch, now, target, "jog")
+        ch.velocity = velocity
+
     def _start(self, ch: AptChannel, now: float, target: float, kind: str) -> None:
         if not ch.enabled:
             log.debug("APT emulator: channel 0x%02x disabled, move ignored", ch.address)
@@ -382,6 +446,8 @@ class AptEmulator(PtyEmulator):
             ch.limit_hit = FWD_LIMIT if m.direction > 0 else REV_LIMIT
             self._event(0x0466, ch)
             return
+        if m.kind == "move":
+            ch.position += ch.end_offset
         self._event(0x0464, ch)
 
     def _event(self, msg_id: int, ch: AptChannel) -> None:

@@ -74,6 +74,7 @@ class ZaberEmulator(PtyEmulator):
             self.devices[int(addr)] = {
                 "axes": [ZaberAxis(**axis_kw) for _ in range(int(spec.get("axes", 1)))],
                 "device_id": int(spec.get("device_id", 50081)),
+                "peripheral_id": int(spec.get("peripheral_id", 0)),
                 "serial": int(spec.get("serial", 33000 + int(addr))),
                 "alert": 0, "silent": False,
             }
@@ -133,7 +134,8 @@ class ZaberEmulator(PtyEmulator):
         nums = []
         while tokens and len(nums) < 3 and re.fullmatch(r"\d+", tokens[0]):
             nums.append(int(tokens.pop(0)))
-        device, axis, msg_id = (nums + [0, 0, None])[:3]
+        device, axis = (nums + [0, 0])[:2]
+        msg_id = nums[2] if len(nums) > 2 else None
         targets = sorted(self.devices) if device == 0 else [device]
         for addr in targets:
             dev = self.devices.get(addr)
@@ -189,6 +191,14 @@ class ZaberEmulator(PtyEmulator):
             return self._get(addr, axes, args[0])
         if verb == "set" and len(args) == 2:
             return self._set(addr, axes, args[0], args[1])
+        if verb == "tools" and args[:1] == ["echo"]:
+            return "OK", " ".join(args[1:]) or "0"
+        if verb == "system" and args == ["reset"]:
+            for a in range(1, len(dev["axes"]) + 1):
+                ax = self.axis(addr, a)
+                ax.motion = None
+                ax.flags = {"WR"}
+            return "OK", "0"
         if verb == "warnings":
             flags = sorted(set().union(*(self.axis(addr, a).flags for a in axes)))
             if args == ["clear"]:
@@ -203,6 +213,17 @@ class ZaberEmulator(PtyEmulator):
         mode = args[0]
         for a in axes:
             ax = self.axis(addr, a)
+            if mode == "vel" and len(args) == 2 and re.fullmatch(r"-?\d+", args[1]):
+                speed = int(args[1])
+                if abs(speed) > ax.maxspeed:
+                    return "RJ", "BADDATA"
+                if speed == 0:
+                    if ax.motion is not None:
+                        ax.position, ax.motion = ax.motion.position(now), None
+                    continue
+                self._start(addr, a, now, float(ax.limit_max if speed > 0 else ax.limit_min),
+                            "vel", speed=abs(speed))
+                continue
             if mode in ("min", "max") and len(args) == 1:
                 target = ax.limit_min if mode == "min" else ax.limit_max
             elif mode in ("abs", "rel") and len(args) == 2 and re.fullmatch(r"-?\d+", args[1]):
@@ -211,7 +232,7 @@ class ZaberEmulator(PtyEmulator):
                 target = n if mode == "abs" else round(cur) + n
                 if not ax.limit_min <= target <= ax.limit_max:
                     return "RJ", "BADDATA"
-            elif mode in ("abs", "rel", "min", "max"):
+            elif mode in ("abs", "rel", "min", "max", "vel"):
                 return "RJ", "BADDATA"
             else:
                 return "RJ", "BADCOMMAND"
@@ -223,8 +244,14 @@ class ZaberEmulator(PtyEmulator):
 
     def _get(self, addr: int, axes: list[int], name: str) -> tuple[str, str]:
         dev = self.devices[addr]
-        if name == "device.id":
+        if name in ("device.id", "deviceid"):
             return "OK", str(dev["device_id"])
+        if name == "system.axiscount":
+            return "OK", str(len(dev["axes"]))
+        if name == "comm.packet.size.max":
+            return "OK", "80"
+        if name == "peripheralid":
+            return "OK", " ".join(str(dev["peripheral_id"]) for _ in axes)
         if name == "system.serial":
             return "OK", str(dev["serial"])
         if name == "version":
@@ -257,14 +284,15 @@ class ZaberEmulator(PtyEmulator):
         return "OK", "0"
 
     # ------------------------------------------------------------------ motion
-    def _start(self, addr: int, axis: int, now: float, target: float, kind: str) -> None:
+    def _start(self, addr: int, axis: int, now: float, target: float, kind: str,
+               speed: int | None = None) -> None:
         ax = self.axis(addr, axis)
         if ax.motion is not None:
             ax.position = ax.motion.position(now)
             ax.flags.add("NI")  # the running move was interrupted
         ax.flags.discard("FS")
         ax.flags.discard("WL")
-        speed = ax.maxspeed / 1.6384
+        speed = (speed or ax.maxspeed) / 1.6384
         accel = ax.accel * 10000 / 1.6384
         ax.motion = Motion(now, ax.position, target, speed, accel, kind)
 

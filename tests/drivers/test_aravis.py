@@ -235,7 +235,7 @@ def test_constructor_checks_parameters_without_hardware():
     with pytest.raises(DeviceValueError, match="camera_name"):
         AravisCamera("cam")
     with pytest.raises(DeviceValueError, match="pixel_format"):
-        AravisCamera("cam", camera_name="x", pixel_format="rgb8")
+        AravisCamera("cam", camera_name="x", pixel_format="rgb32")
     with pytest.raises(DeviceValueError, match="n_buffers"):
         AravisCamera("cam", camera_name="x", n_buffers=1)
 
@@ -430,3 +430,14 @@ def test_frame_image_crops_bins_and_converts():
     np.testing.assert_array_equal(img8, (raw >> 4).astype(np.uint8))
     full = np.full((4, 4), 4095, np.uint16)
     assert frame_image(full, (0, 0), (4, 4), 1, 12, "mono12")[1] == 16
+
+
+def test_automatic_gain_left_on_is_switched_off_at_open(gv_process):
+    """The fake GigE camera keeps its registers between opens: GainAuto left Continuous
+    (as a FLIR Blackfly S powers up) is switched off at the next open and read back."""
+    gv_process.ensure()
+    with AravisCamera("gige", camera_name=GV_ADDRESS, n_buffers=4, **FAKE) as cam:
+        _raw(cam).set_string("GainAuto", "Continuous")
+    with AravisCamera("gige", camera_name=GV_ADDRESS, n_buffers=4, **FAKE) as cam:
+        assert _raw(cam).get_string("GainAuto") == "Off"
+        assert cam.info["automatic_off"] == ["GainAuto"]  # the fake has no ExposureAuto

@@ -44,10 +44,14 @@ def test_byte_exact_reports(hid):
     emu = hid.emulator
     with make(hid) as dmd:
         emu.reports.clear()
-        dmd.led_currents = {"red": 100 / 255, "green": 120 / 255, "blue": 140 / 255}
+        # PWM bytes 100, 120, 140 (the notes' worked example): the EVM inverts the PWM, so
+        # they are currents (255 - b) / 255 (slstudio and QDSpy write 255 - current)
+        dmd.led_currents = {"red": 155 / 255, "green": 135 / 255, "blue": 115 / 255}
         seq = emu.reports[0][1]
         assert emu.reports[0] == bytes([0x40, seq, 0x05, 0x00, 0x01, 0x0B, 0x64, 0x78, 0x8C])\
-            .ljust(64, b"\0")  # the notes' worked example
+            .ljust(64, b"\0")
+        assert emu.pwm_invert == 0  # set at open: the mapping above holds
+        assert emu.led_fractions() == pytest.approx([155 / 255, 135 / 255, 115 / 255])
         assert emu.reports[1][:6] == bytes([0xC0, seq + 1, 0x02, 0x00, 0x01, 0x0B])  # read back
         emu.reports.clear()
         dmd.apply_settings({"exposure_s": 4500e-6, "period_s": 4500e-6})
@@ -58,6 +62,9 @@ def test_byte_exact_reports(hid):
         dmd.start()
         assert emu.reports[0][2:7] == bytes([0x03, 0x00, 0x24, 0x1A, 0x02])
         assert emu.reports[1][:6] == bytes([0xC0, emu.reports[1][1], 0x02, 0x00, 0x0C, 0x1A])
+        emu.reports.clear()
+        dmd.validate()
+        assert emu.reports[0][:7] == bytes([0x40, emu.reports[0][1], 0x03, 0x00, 0x1A, 0x1A, 0])
 
 
 def test_pattern_mode_bring_up_sequence(hid):
@@ -70,7 +77,15 @@ def test_pattern_mode_bring_up_sequence(hid):
         order = [cmd for cmd, _ in emu.log]
         first = {c: order.index(c) for c in (0x1A24, 0x1A1B, 0x1A22, 0x1A31, 0x1A29, 0x1A1A)}
         assert first[0x1A24] < first[0x1A1B] < first[0x1A22] < first[0x1A31] < first[0x1A1A]
-        assert (0x1A31, bytes([3, 1, 3, 2])) in emu.log  # 4 entries, repeat, 2 images
+        # 0-based counts: 4 entries, repeat, 4 patterns, 2 images (TI SetPatternConfig)
+        assert (0x1A31, bytes([3, 1, 3, 1])) in emu.log
+        writes = [(c, p) for c, p in emu.log if c in (0x1A32, 0x1A33, 0x1A34)]
+        lut = b"".join(pattern_lut_entry(e, first_of_image=i in (0, 3))
+                       for i, e in enumerate(entries))
+        assert writes == [(0x1A33, b"\x02"), (0x1A32, b"\x00"), (0x1A34, lut),
+                          (0x1A33, b"\x00"), (0x1A33, b"\x01"), (0x1A32, b"\x00"),
+                          (0x1A34, bytes([5, 2])),  # 2 images: sent swapped, as TI does
+                          (0x1A33, b"\x00")]
         assert emu.lut_entries() == [
             {"pattern": 0, "trigger": 0, "bit_depth": 1, "leds": 2, "invert": 0, "swap": 1},
             {"pattern": 1, "trigger": 3, "bit_depth": 1, "leds": 2, "invert": 0, "swap": 0},
@@ -82,6 +97,56 @@ def test_pattern_mode_bring_up_sequence(hid):
         dmd.start()
         assert emu.running and dmd.running and emu.display_mode == 1
         assert pattern_lut_entry(entries[3], first_of_image=True) == bytes([4, 0x18, 0x05])
+
+
+def test_long_pattern_lut_and_five_images(hid):
+    """A 25-entry LUT is one 75-byte message (two reports); 5 images, one byte each."""
+    emu = hid.emulator
+    with make(hid) as dmd:
+        entries = [PatternEntry(i % 5, i // 5) for i in range(25)]
+        emu.reports.clear()
+        dmd.load_sequence(entries)
+        assert emu.pattern_config == (24, 1, 24, 4)  # repeat is the default
+        assert emu.written == {1: 5, 2: 25}
+        assert emu.image_lut[:5] == [0, 1, 2, 3, 4]
+        assert [e["pattern"] for e in emu.lut_entries()] == [i // 5 for i in range(25)]
+        dmd.start()
+        assert emu.running
+
+
+def test_old_wrong_bytes_are_refused(hid):
+    """What this driver used to send fails on the emulator as on a controller: no data
+    byte in validate (NACK), the image count not 0-based and 3 bytes per image (the
+    controller reads images 2,0,0,5,0,0: the validation flags the LUT)."""
+    emu = hid.emulator
+    with make(hid) as dmd:
+        with pytest.raises(DeviceProtocolError, match="0x1A1A.*NACK"):
+            dmd.command(0x1A1A)
+        dmd.load_sequence([PatternEntry(2, 0), PatternEntry(5, 0)])
+        dmd.command(0x1A31, bytes([1, 0, 1, 2]))  # len(images) instead of len - 1
+        with pytest.raises(DeviceProtocolError, match="pattern numbers"):
+            dmd.validate()
+        dmd.command(0x1A31, bytes([1, 0, 1, 1]))
+        dmd.command(0x1A33, b"\x01")
+        dmd.command(0x1A32, b"\x00")
+        for image in (2, 5):
+            dmd.command(0x1A34, bytes([image, 0, 0]))
+        dmd.command(0x1A33, b"\x00")
+        assert emu.image_lut[:6] == [2, 0, 0, 5, 0, 0]
+        with pytest.raises(DeviceProtocolError, match="pattern numbers"):
+            dmd.validate()
+
+
+def test_state_changes_are_polled_until_reported():
+    """A controller that shows a new mode or sequencer state a few reads late: the
+    driver polls with retries instead of assuming (slstudio polls too)."""
+    hid = FakeHid(Dlpc350Emulator(settle_polls=4))
+    with make(hid) as dmd:
+        dmd.load_sequence([PatternEntry(0, b) for b in range(3)])
+        dmd.start()
+        assert dmd.running
+        dmd.stop()
+        assert not dmd.running
 
 
 def test_nack_and_validation_failures(hid):
@@ -132,7 +197,8 @@ def test_unplug_then_reconnect(hid):
         with emu.lock:  # the controller was power-cycled: defaults, stopped
             emu.led_currents, emu.running = [104, 135, 130], False
         dmd.reconnect()
-        assert emu.led_currents[2] == 128 and dmd.sequence == seq
+        assert emu.led_fractions()[2] == pytest.approx(0.5, abs=0.5 / 255)
+        assert dmd.sequence == seq
         assert emu.running  # the sequence was loaded again and restarted
 
 
@@ -179,4 +245,5 @@ def test_pyusb_unplug_and_serial_selection():
             dmd.status()
         usb.emulator.replug()
         dmd.reconnect()
-        assert usb.emulator.led_currents[1] == 255
+        assert usb.emulator.led_currents[1] == 0  # full current: PWM byte 0 on the EVM
+        assert usb.emulator.led_fractions()[1] == 1.0

@@ -12,6 +12,7 @@ import pytest
 from drivers.errors import (
     DeviceDisconnectedError,
     DeviceStateError,
+    DeviceValueError,
     MissingDependencyError,
     StageMotionError,
     StageTimeoutError,
@@ -241,3 +242,85 @@ def test_kst101_stepper_profile(tmp_path):
             assert info["model"] == "KST101" and info["resyncs"] == 0
             assert b"\x81\x04\x1c\x00\x81\x50" in bytes(emu.sent)  # 28-byte updates were sent
             assert emu.acks >= 1
+
+
+# ------------------------------------------------------------------ model, stage, scaling
+def test_profile_comes_from_the_model_the_controller_reports(tmp_path):
+    """Serial prefix 70 is a BSC203 or a legacy BSC103: HW_GET_INFO's model decides."""
+    with AptEmulator("bsc20x", model="BSC103", channels=1, time_scale=200.0) as emu:
+        stage = ThorlabsAptStage("rack", axes=["x"], port=emu.port, bays={"x": 0},
+                                 limits_mm={"x": [0, 2]}, reply_timeout_s=1.0)
+        with pytest.raises(DeviceValueError, match="BSC103.*legacy stepper"):
+            stage.open()
+    with AptEmulator("kdc101", time_scale=200.0) as emu:
+        stage = ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 profile="kst101", reply_timeout_s=1.0)
+        with pytest.raises(DeviceValueError, match="contradicts.*KDC101"):
+            stage.open()
+    with AptEmulator("kdc101", model="XYZ999", time_scale=200.0) as emu:
+        stage = ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 reply_timeout_s=1.0)
+        with pytest.raises(DeviceValueError, match="'XYZ999'.*set profile"):
+            stage.open()
+        stage = ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 profile="kdc101", reply_timeout_s=1.0)
+        with stage:  # an explicit profile for an unknown model: used, with a warning
+            assert stage.status()["axes_setup"]["z"]["profile"] == "kdc101"
+
+
+def test_rotation_axis_needs_its_counts_per_degree(tmp_path):
+    with AptEmulator("kdc101", time_scale=200.0) as emu:
+        kw = dict(axes=["rotation"], port=emu.port, limits_deg={"rotation": [0, 360]},
+                  reply_timeout_s=1.0)
+        with pytest.raises(DeviceValueError, match="rotation axis.*PRM1-Z8"):
+            ThorlabsAptStage("r", **kw).open()
+        with ThorlabsAptStage("r", stages={"rotation": "PRM1-Z8"}, **kw) as stage:
+            assert stage.status()["axes_setup"]["rotation"]["counts_per_unit"] == \
+                pytest.approx(1919.6418578623391)
+        with ThorlabsAptStage("r", counts_per_unit=2000.0, **kw) as stage:
+            assert stage.status()["axes_setup"]["rotation"]["counts_per_unit"] == 2000.0
+    with AptEmulator("kdc101", stage_id=6, time_scale=200.0) as emu:  # reports a PRM1-Z8
+        kw["port"] = emu.port
+        with ThorlabsAptStage("r", home_on_open=True, **kw) as stage:
+            stage.move_to({"rotation": 90.0})
+            assert emu.position() == round(90 * 1919.6418578623391)
+    with pytest.raises(DeviceValueError, match="moves in mm"):
+        ThorlabsAptStage("r", axes=["rotation"], port="x", limits_deg={"rotation": [0, 9]},
+                         stages={"rotation": "Z825"})
+
+
+def test_homing_parameters_are_left_alone_unless_set(emulator, tmp_path):
+    with emulator.lock:
+        emulator.channels[0x50].home_params = (1, 4, 999, 1234)  # stored by the user
+    with make_stage(emulator, tmp_path, home_on_open=True):
+        pass
+    assert emulator.channels[0x50].home_params == (1, 4, 999, 1234)
+    assert struct.pack("<H", 0x0440) not in bytes(emulator.received)
+    with make_stage(emulator, tmp_path, home_velocity=0.5):
+        pass
+    vel = round(Z8 * 2048 / 6e6 * 65536 * 0.5)
+    assert emulator.channels[0x50].home_params == (1, 4, vel, 1234)  # only the velocity
+
+
+def test_position_tolerance_per_stage(emulator, tmp_path):
+    with emulator.lock:
+        emulator.channels[0x50].end_offset = 12  # a DC servo settling 12 counts off
+    with make_stage(emulator, tmp_path, home_on_open=True) as stage:
+        stage.move_to({"z": 5.0})  # within the DC default (20 counts)
+        assert stage.status()["axes_setup"]["z"]["position_tolerance_counts"] == 20
+    with make_stage(emulator, tmp_path, position_tolerance_counts={"z": 5}) as stage:
+        with pytest.raises(StageMotionError, match="stopped at"):
+            stage.move_to({"z": 6.0})
+
+
+def test_velocity_quantisation_is_accepted(tmp_path):
+    with AptEmulator("kdc101", velocity_quantum=64, time_scale=200.0) as emu:
+        with ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                              speed_mm_s=1.0, reply_timeout_s=1.0) as stage:
+            sent = round(Z8 * 2048 / 6e6 * 65536)
+            took = emu.channels[0x50].velocity[2]
+            assert took % 64 == 0 and took != sent
+            assert stage.velocity["z"] == pytest.approx(took / sent)  # what it runs at
+            stage.velocity = {"z": 1.7}
+            assert stage.velocity["z"] == pytest.approx(1.7, rel=1e-3)
+            assert stage.velocity["z"] != 1.7

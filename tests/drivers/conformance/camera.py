@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.camera import PIXEL_FORMATS, FrameRing
+from drivers.camera import EXTRA_FORMATS, PIXEL_FORMATS, FrameRing
 from drivers.errors import (
     CameraTimeoutError,
     DeviceStateError,
@@ -49,7 +49,9 @@ class CameraConformance(DeviceConformance):
             {"exposure_s": "fast"}, {"exposure_s": 1e9}, {"gain": -1.0}, {"gain": math.inf},
             {"frame_rate_hz": 0}, {"frame_rate_hz": -5.0}, {"frame_rate_hz": math.nan},
             {"frame_rate_hz": "fast"}, {"frame_rate_hz": True}, {"frame_rate_hz": 1e9},
-            {"pixel_format": "rgb8"}, {"pixel_format": 12},
+            {"pixel_format": "cmyk8"}, {"pixel_format": 12},
+            *[{"pixel_format": f} for f in sorted(EXTRA_FORMATS)
+              if f not in device.info["pixel_formats"]][:1],
             {"roi": [0, 0, cols + 1, rows]}, {"roi": [cols, 0, 1, 1]}, {"roi": [0, 0, 10]},
             {"roi": [0, 0, 0, 10]}, {"roi": [-1, 0, 10, 10]}, {"roi": "full"},
             {"binning": 0}, {"binning": 1.5}, {"binning": True},
@@ -92,6 +94,18 @@ class CameraConformance(DeviceConformance):
         assert int(frame.image.max()) < 2 ** PIXEL_FORMATS[fmt]
         device.roi = None
         assert device.roi == (0, 0, cols, rows)
+
+    def test_snap_in_the_extra_formats_offered(self, device):
+        rows, cols = device.sensor_shape
+        for fmt in [f for f in device.info["pixel_formats"] if f in EXTRA_FORMATS]:
+            binning = 1 if fmt.startswith("bayer") else 2
+            device.apply_settings({"pixel_format": fmt, "roi": (2, 4, cols // 2, rows // 2),
+                                   "binning": binning})
+            frame = device.snap()
+            assert frame.image.shape == device.image_shape
+            assert frame.image.shape[2:] == ((3,) if fmt.startswith("rgb") else ())
+            assert frame.image.dtype == (np.uint8 if EXTRA_FORMATS[fmt] == 8 else np.uint16)
+            assert int(frame.image.max()) < 2 ** EXTRA_FORMATS[fmt]
 
     def test_frame_metadata_and_index(self, device):
         device.apply_settings({"exposure_s": 0.005, "gain": 2.0})

@@ -1,0 +1,116 @@
+"""pylablib's Kinesis driver (``pylablib.devices.Thorlabs.KinesisMotor``, its own
+framing and its own unit scaling per controller model and stage) drives the APT
+emulator, and reads back what our driver set: positions, velocities and homing
+parameters in metres, from a scaling written independently of ours.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+
+from drivers.thorlabs_apt import ThorlabsAptStage
+from tests.drivers.interop.clients import client
+from tests.mocks import AptEmulator
+
+client("pylablib", "pylablib-lightweight")
+from pylablib.devices import Thorlabs  # noqa: E402
+from pylablib.devices.Thorlabs import kinesis  # noqa: E402
+
+Z8_PYLABLIB = 34304.0  # pylablib's counts/mm for Z8 stages (older protocol documents)
+
+
+@pytest.fixture(autouse=True)
+def no_rts_cycle(monkeypatch):
+    """pylablib toggles RTS at connect (for an FTDI chip); a pseudo-terminal has no
+    modem lines and refuses the ioctl, so the toggle is skipped here."""
+    monkeypatch.setattr(kinesis.BasicKinesisDevice, "_cycle_rts", staticmethod(lambda i: None))
+
+
+def motor(emu, scale="stage"):
+    return Thorlabs.KinesisMotor(("serial", emu.port), scale=scale)
+
+
+def test_kdc101_session_with_the_stage_it_reports(tmp_path):
+    emu = AptEmulator("kdc101", time_scale=50.0, update_period_s=0.01, stage_id=7)
+    with emu:
+        dev = motor(emu)
+        try:
+            info = dev.get_device_info()
+            assert (info.serial_no, info.model_no, info.nchannels) == (27000001, "KDC101", 1)
+            assert dev.get_stage() == "MTS25-Z8" and dev.get_scale_units() == "m"
+            assert "homed" not in dev.get_status() and "enabled" in dev.get_status()
+            dev.home(sync=True, force=True, timeout=10)
+            assert dev.is_homed() and emu.channels[0x50].homed
+            dev.move_to(5e-3)
+            dev.wait_move(timeout=10)
+            assert emu.position() == round(5 * Z8_PYLABLIB)
+            dev.move_by(-1e-3)
+            dev.wait_move(timeout=10)
+            assert emu.position() == round(4 * Z8_PYLABLIB)
+            assert dev.get_position() == pytest.approx(4e-3, abs=1e-7)
+            dev.setup_velocity(max_velocity=1e-3, acceleration=2e-3)
+            vel = dev.get_velocity_parameters()
+            assert vel.max_velocity == pytest.approx(1e-3, rel=1e-5)
+            assert abs(emu.channels[0x50].velocity[2] - Z8_PYLABLIB * 2048 / 6e6 * 65536) <= 1
+            dev.setup_jog(mode="step", step_size=1e-4)
+            p = emu.position()
+            dev.jog("+", kind="builtin")
+            dev.wait_move(timeout=10)
+            assert abs(emu.position() - p) == round(0.1 * Z8_PYLABLIB)
+            dev.jog("-", kind="continuous")  # MOVE_VELOCITY, until stopped or at the end
+            dev.stop(sync=True, timeout=10)
+            assert not dev.is_moving() and emu.channels[0x50].motion is None
+            assert dev.get_homing_parameters().home_direction == "reverse"
+            assert dev.get_limit_switch_parameters().sw_kind == "ignore"
+            assert dev.get_kcube_trigio_parameters().trig1_mode is not None
+        finally:
+            dev.close()
+        assert not emu.unknown
+
+
+def test_kst101_stepper_units():
+    """pylablib's stepper scaling (microsteps/s x 53.68, /s² x 53.68 x 204.94e-6) read
+    against the emulator's: a ZST actuator at 2008645.63 microsteps/mm."""
+    emu = AptEmulator("kst101", time_scale=50.0, update_period_s=0.01,
+                      travel_counts=(0, round(25 * 2008645.63)))
+    with emu:
+        dev = motor(emu, scale="ZST")
+        try:
+            dev.home(sync=True, force=True, timeout=10)
+            dev.setup_velocity(max_velocity=0.5e-3, acceleration=1e-3)
+            # pylablib truncates where our driver rounds: one unit apart at most
+            assert abs(emu.channels[0x50].velocity[2] - 2008645.63 * 0.5 * 53.68) <= 1
+            dev.move_to(2e-3)
+            dev.wait_move(timeout=10)
+            assert emu.position() == round(2 * 2008645.63)
+            assert dev.get_position() == pytest.approx(2e-3, abs=1e-9)
+        finally:
+            dev.close()
+
+
+def test_our_driver_settings_read_by_pylablib(tmp_path):
+    """What our driver set (velocity, position, homing parameters left alone) is what
+    pylablib reads, through its own scaling of the same stage."""
+    emu = AptEmulator("kdc101", time_scale=50.0, update_period_s=0.01, stage_id=7)
+    with emu:
+        with emu.lock:  # homing parameters as a previous user stored them
+            emu.channels[0x50].home_params = (1, 1, 12345, 678)
+        stage = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 counts_per_unit=Z8_PYLABLIB, speed_mm_s=1.5,
+                                 home_on_open=True)
+        with stage:
+            stage.move_to({"z": 7.25})
+        assert emu.channels[0x50].home_params == (1, 1, 12345, 678)  # untouched
+        dev = motor(emu)
+        try:
+            assert dev.get_position() == pytest.approx(7.25e-3, abs=1e-7)
+            assert dev.get_velocity_parameters().max_velocity == pytest.approx(1.5e-3, rel=1e-5)
+            home = dev.get_homing_parameters()
+            assert home.home_direction == "forward" and home.offset_distance == pytest.approx(
+                678 / (Z8_PYLABLIB * 1e3))
+        finally:
+            dev.close()
+    sent = bytes(emu.received)
+    assert struct.pack("<H", 0x0440) not in sent  # no MOT_SET_HOMEPARAMS from anyone
