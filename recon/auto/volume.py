@@ -35,11 +35,12 @@ __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
 #: measurement / max): the 2D rule (one standard error, at most 2x the minimum's
 #: weight) over TV 1e-3 .. 1e-6; the path and the final solve take 2.5x a fixed run's
 #: iterations, the path 60 % of them (at 200 iterations: a 300-iteration path in
-#: 30-iteration stages, against 20 in 2D, and a final solve of at most 200). Measured with the rule study of the 3D
-#: auto benchmark (:func:`recon.benchmarks.volume_auto.rule_study`: 18 cases, beads and
-#: textured discs with far planes 3x, 10x and 30x dimmer, 300-30000 e-, 6 planes at
-#: bin 8; 200-iteration 3D ADMM at every path weight, each rule applied to the same
-#: held-out paths). With the 2D split (20-iteration stages) 3D ADMM had not settled
+#: 30-iteration stages, against 20 in 2D, and a final solve of at most 200). Measured
+#: with the rule study of the 3D auto benchmark
+#: (:func:`recon.benchmarks.volume_auto.rule_study`: 18 cases, beads and textured
+#: discs with far planes 3x, 10x and 30x dimmer, 300-30000 e-, 6 planes at bin 8;
+#: 200-iteration 3D ADMM at every path weight, each rule applied to the same held-out
+#: paths). With the 2D split (20-iteration stages) 3D ADMM had not settled
 #: after each weight step, the held-out minimum sat at too large or too small a weight,
 #: and the 2D rule was 0.18 dB below the best path weight on average and 1.80 at worst
 #: (the unbounded rule 0.09 and 0.51); with 30-iteration stages every rule did better:
@@ -52,8 +53,9 @@ __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
 #: changes below 1e-6). The 3D auto benchmark (:mod:`recon.benchmarks.volume_auto`,
 #: the same 18 cases) with the path at 3/4 of 2x (a final solve of at most 100): 0.43
 #: dB below the oracle on average, 1.15 at worst (discs at 30000 e-: the oracle's
-#: weight, too few final iterations); at 60 % of 2.5x: 0.24 and 0.55. l1: the same over the span of the 3D accuracy benchmark's l1
-#: grid (1e-5 .. 1e-3), one decade wider on each side; not measured.
+#: weight, too few final iterations); at 60 % of 2.5x: 0.24 and 0.55. l1: the same
+#: over the span of the 3D accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade
+#: wider on each side; not measured.
 VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, path_share=0.6, budget=2.5),
                 "l1": PathRule(start=1e-2, end=1e-6, path_share=0.6, budget=2.5)}
 #: What :func:`auto_volume` may do with planes that hold no signal.
@@ -61,8 +63,8 @@ EMPTY_PLANES = ("keep", "drop")
 
 
 def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations: int,
-                regulariser: str = "tv", other: float = 0.0, empty_planes: str = "keep",
-                seed: int = 0) -> tuple[object, dict]:
+                plan_of, fista, regulariser: str = "tv", other: float = 0.0,
+                empty_planes: str = "keep", seed: int = 0) -> tuple[object, dict]:
     """Choose the 3D weight, solve, and test every plane for signal.
 
     Parameters
@@ -79,6 +81,11 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
         Iterations of the fixed-weight run this replaces (the path and the final
         solve together take at most 2.5x as many, :data:`VOLUME_RULES`,
         :func:`recon.auto.weight.path_budget`).
+    plan_of : callable
+        The volume's ADMM plan, :meth:`recon.volume.VolumeAdmmPlan.of` (passed in:
+        ``recon.volume`` imports this package, not the other way round).
+    fista : callable
+        3D FISTA, :func:`recon.volume.fista3d` (the final solve of ``method="fista"``).
     regulariser : {"tv", "l1"}
         The weight to choose; ``other`` is the fixed value of the other one.
     empty_planes : {"keep", "drop"}
@@ -106,8 +113,6 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
     recon.errors.DivergenceError
         The solver diverged.
     """
-    from ..volume import VolumeAdmmPlan, fista3d
-
     if method not in ("admm", "fista"):
         raise ReconInputError(f"3D automatic weight: method {method!r}; use admm or fista")
     if empty_planes not in EMPTY_PLANES:
@@ -119,7 +124,7 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
     variance = w2 * noise.variance(b)
     noise_energy = float(variance.sum())
     common = {"iterations": iterations, "noise_energy": noise_energy,
-              "regulariser": regulariser, "plan_of": VolumeAdmmPlan.of, "fixed": other,
+              "regulariser": regulariser, "plan_of": plan_of, "fixed": other,
               "rule": VOLUME_RULES[regulariser], "seed": seed}
     keep, held = holdout_split(op, HOLDOUT, seed)
     if method == "admm":
@@ -127,7 +132,7 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
     else:
         _, choice = admm_auto(op, b, path_only=True, **common)
         tv, l1 = ((choice.weight, other) if regulariser == "tv" else (other, choice.weight))
-        result = fista3d(op.with_weights(op.sensor_weights * keep),
+        result = fista(op.with_weights(op.sensor_weights * keep),
                          np.ascontiguousarray(b * keep, np.float32), iterations=iterations,
                          tv=tv, l1=l1, nonneg=True)
         choice.final_pixels = "fit (FISTA at the path's weight)"

@@ -21,7 +21,7 @@ import numpy as np
 from ..auto.noise import estimate_noise
 from ..auto.volume import auto_volume
 from ..errors import DivergenceError
-from ..volume import DEFAULT_TV
+from ..volume import DEFAULT_TV, VolumeAdmmPlan, fista3d
 from . import save_figure, write_json
 from .volume_accuracy import METHODS3D, bead_metrics
 from .volume_scenes import bead_scene, make_bench
@@ -35,7 +35,8 @@ def _solve(method: str, bench, scene, iterations: int):
     op = bench.op
     if method == "auto":
         r, rec = auto_volume("admm", op, scene.b, noise=estimate_noise(scene.b),
-                             iterations=iterations)
+                             iterations=iterations, plan_of=VolumeAdmmPlan.of,
+                             fista=fista3d)
         return r, {"tv": rec["weight"], "planes_kept": rec["planes_kept"],
                    "planes_without_evidence": rec["drop"]["planes"]}
     tv = DEFAULT_TV["admm" if method == "admm3d" else "fista"]

@@ -36,7 +36,7 @@ from ..auto.noise import estimate_noise
 from ..auto.volume import VOLUME_RULES, auto_volume
 from ..auto.weight import PathRule, admm_auto
 from ..errors import DivergenceError
-from ..volume import VolumeAdmmPlan, admm3d
+from ..volume import VolumeAdmmPlan, admm3d, fista3d
 from . import fmt, format_table, write_json
 from .auto import GOAL_MEAN_DB, GOAL_WORST_DB, goal_summary, setup_record
 from .volume_accuracy import volume_psnr
@@ -118,7 +118,8 @@ def run_case(kind: str, dim: float, photons: float, cfg: dict, seed: int = 0) ->
     oracle = max(ok, key=lambda g: g["psnr"]) if ok else None
     t0 = time.perf_counter()
     try:
-        res, rec = auto_volume("admm", case.op, case.b, noise=_noise(case), iterations=it)
+        res, rec = auto_volume("admm", case.op, case.b, noise=_noise(case), iterations=it,
+                               plan_of=VolumeAdmmPlan.of, fista=fista3d)
         vol = _fov(case, res.x)
         objects = object_metrics(case, vol)
         auto = {"psnr": volume_psnr(vol, case.truth), "tv": rec["weight"],

@@ -33,7 +33,7 @@ from ..preprocess import (
 )
 from ..solvers import SolveResult
 from ..validate import as_array, float_array
-from .admm import admm3d
+from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
 from .operator import (
     VolumeConvolutionOperator,
@@ -386,7 +386,8 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         # the frame's Poisson-Gaussian noise (too small a frame: none known)
         noise = estimate_noise(raw) if min(raw.shape) >= 8 else NoiseModel(0.0, 0.0, [])
         result, record = auto_volume(method, op, b, noise=noise.scaled(raw_scale),
-                                     iterations=iterations, regulariser=auto_reg,
+                                     iterations=iterations, plan_of=VolumeAdmmPlan.of,
+                                     fista=fista3d, regulariser=auto_reg,
                                      other=l1 if auto_reg == "tv" else tv,
                                      empty_planes=empty_planes)
         info["auto"] = dict(record, noise=noise.as_dict())
