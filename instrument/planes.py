@@ -3,9 +3,10 @@
 A sweep calibrated finer than the camera resolves in depth costs planes (FFTs, memory)
 that add nothing: :func:`recon.analysis.recommend_grid` (Sec. 4.4, Eq. 4.7) gives the
 planes that Nyquist-sample the measured axial resolution over the scene's depths, and
-:func:`select_planes` keeps the calibrated PSF nearest each of them. The automatic 3D
-weight (:func:`recon.auto.volume.auto_volume`) then drops the kept planes that hold no
-signal in a cheap first estimate.
+:func:`select_planes` keeps the calibrated PSF nearest each of them. This thins a sweep
+by the camera's resolution, never by where the light is: the automatic 3D weight
+(:func:`recon.auto.volume.auto_volume`) keeps every plane it is given and reports those
+that show no signal.
 """
 
 from __future__ import annotations

@@ -324,7 +324,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 psf_product: str = "psf_stack", metrics_json: str | None = None,
                 planes: str = "all", pitch_um: float | None = None,
                 d_mm: float | None = None, scene_range_mm=None,
-                allow_mixed_ranges: bool = False) -> dict:
+                allow_mixed_ranges: bool = False, empty_planes: str = "keep") -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
     projections and metrics.
 
@@ -362,6 +362,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         depth span (mm, optional) for ``planes="auto"``.
     allow_mixed_ranges : bool
         Accept a stack and raw of different bit depths (``--allow-mixed-ranges``).
+    empty_planes : {"keep", "drop"}
+        With an automatic weight, keep every plane or set those that show no signal
+        to zero (see :func:`recon.reconstruct_volume`).
 
     Returns
     -------
@@ -409,7 +412,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     with named_pair(psf_stack, raw_path):
         rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
                                  tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
-                                 allow_mixed_ranges=allow_mixed_ranges)
+                                 allow_mixed_ranges=allow_mixed_ranges,
+                                 empty_planes=empty_planes)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "

@@ -48,10 +48,16 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated depths in mm, one per plane (unless recorded)")
     p.add_argument("--raw", required=True, help="raw measurement, same size as the PSFs")
     p.add_argument("--method", default="auto", help="admm, fista or auto (admm; default)")
-    p.add_argument("--iterations", type=int, default=100)
+    p.add_argument("--iterations", type=int, default=200,
+                   help="iterations (default 200; the automatic weight's path and final "
+                   "solve take at most 2.5x as many together)")
     p.add_argument("--tv", type=weight_arg, default="auto",
                    help="3D TV weight in the scaled problem (0 disables), or auto (default): "
-                   "hold-out cross-validation, and only the planes that hold signal")
+                   "hold-out cross-validation along a 3D ADMM path; every plane is kept and "
+                   "tested for signal")
+    p.add_argument("--empty-planes", choices=("keep", "drop"), default="keep",
+                   help="with an automatic weight: keep every plane (default) or set those "
+                   "that show no signal in the held-out pixels to zero (reported)")
     p.add_argument("--l1", type=weight_arg, default=0.0,
                    help="l1 (native sparsity) weight in the scaled problem, or auto; default 0")
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
@@ -135,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
                     planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,
                     scene_range_mm=(None if args.scene_range is None
                                     else floats(args.scene_range, "--scene-range")),
-                    allow_mixed_ranges=args.allow_mixed_ranges)
+                    allow_mixed_ranges=args.allow_mixed_ranges,
+                    empty_planes=args.empty_planes)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")

@@ -1,69 +1,96 @@
-"""Automatic 3D weight and planes: hold-out cross-validation over a short weight grid,
-then only the planes that hold signal (Kuo 2020, Ch. 4; :mod:`recon.auto.weight` for
-the criterion).
+"""Automatic 3D weight, and which planes show signal (Kuo 2020, Ch. 4; the 2D machinery
+of :mod:`recon.auto.weight`).
 
-The 2D path needs a warm-startable solver; the 3D solvers are one call each, so the
-candidates are the few weights the 3D accuracy benchmark found worth trying
-(:data:`CANDIDATES`), each solved for a third of the iterations on 90 % of the pixels
-(the fit) and scored by how well it predicts the other 10 %; the one-standard-error
-rule picks the largest weight close to the best. Those fits are also the cheap first
-estimate of where the signal lies: planes whose peak is below :data:`PLANE_FRACTION`
-of the brightest plane's are dropped, and
-the final solve (``iterations``) runs on the remaining planes only (a smaller forward
-model, fewer FFTs), the dropped planes returned as zeros. Cost: the candidates
-together take the iterations of one full solve, on all planes; the final solve at
-most one more: at most 2x a fixed-weight run.
+The weight: the 2D machinery itself (:func:`recon.auto.weight.admm_auto`) on the
+volume model through :class:`recon.volume.VolumeAdmmPlan` -- a warm-started 3D ADMM
+path from :data:`VOLUME_RULES` ``start`` down to ``end``, 10 % of the sensor pixels
+held out in 8 x 8 blocks, the largest weight within one standard error of the
+held-out minimum but at most twice its weight (the 2D rule, re-measured in 3D, where
+the path needs longer stages: :data:`VOLUME_RULES`), then the final solve on the fit
+pixels that keeps the iterate predicting the held-out pixels best. 3D FISTA takes the
+weight the path chose and solves on the same fit pixels.
+
+The planes: every plane is kept. Dimness is not emptiness -- a far plane of a
+fluorescent sample collects less light and may hold a dim object -- and nothing is
+decided relative to the brightest plane. Each plane is tested against the held-out
+pixels and the frame's noise model (:func:`recon.auto.planes.plane_tests`), and the
+record lists each plane's energy, its evidence and those without evidence. With
+``empty_planes="drop"`` those that show no signal, alone or together, are set to
+zero, and the record says which, why, and what the held-out error and the data
+residual did; nothing is re-solved, so no plane's light moves to another.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from ..errors import DivergenceError
+from ..errors import ReconInputError
+from .noise import NoiseModel
+from .planes import plane_tests, planes_record
+from .weight import HOLDOUT, PathRule, admm_auto, holdout_split
 
-__all__ = ["CANDIDATES", "PLANE_FRACTION", "auto_volume"]
+__all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
 
-#: 3D weights tried per regulariser (scaled problem): the 3D accuracy benchmark's
-#: best weights lie in 1e-6 .. 1e-4 for TV; l1 from 1e-4 (beads) to 1e-2.
-CANDIDATES = {"tv": (1e-4, 1e-5, 1e-6), "l1": (1e-2, 1e-3, 1e-4)}
-#: A plane whose first-estimate peak (its brightest voxel in the field of view, over
-#: the candidates) is below this fraction of the brightest plane's holds no signal.
-#: Plane sums do not separate (the far planes' broad PSFs spread a diffuse background
-#: over them: sums 0.47-1.0 of the largest with beads in one plane only) and the short
-#: candidate fits blur the peaks too (0.19-0.43 of the bead plane's there, against
-#: 0.03-0.15 after a full solve), hence one half. A plane holding signal less than half
-#: as bright as the brightest plane's is dropped with it: a limitation.
-PLANE_FRACTION = 0.5
-HOLDOUT = 0.1
+#: The 3D path and rule per regulariser (normalised stack, ``sum_z (sum h_z)^2 = 1``,
+#: measurement / max): the 2D rule (one standard error, at most 2x the minimum's
+#: weight) over TV 1e-3 .. 1e-6; the path and the final solve take 2.5x a fixed run's
+#: iterations, the path 60 % of them (at 200 iterations: a 300-iteration path in
+#: 30-iteration stages, against 20 in 2D, and a final solve of at most 200). Measured
+#: with the rule study of the 3D auto benchmark
+#: (:func:`recon.benchmarks.volume_auto.rule_study`: 18 cases, beads and textured
+#: discs with far planes 3x, 10x and 30x dimmer, 300-30000 e-, 6 planes at bin 8;
+#: 200-iteration 3D ADMM at every path weight, each rule applied to the same held-out
+#: paths). With the 2D split (20-iteration stages) 3D ADMM had not settled
+#: after each weight step, the held-out minimum sat at too large or too small a weight,
+#: and the 2D rule was 0.18 dB below the best path weight on average and 1.80 at worst
+#: (the unbounded rule 0.09 and 0.51); with 30-iteration stages every rule did better:
+#: the 2D rule, a bound of 4x or 8x, or none 0.08 and 0.51, half a standard error
+#: 0.06 and 0.51, the minimum 0.11 and 0.51. The bound stays: on the external 3D sample
+#: (:mod:`recon.volume.sample`, bin 2) the held-out error is flat within one standard
+#: error from 1.4e-4 down to 1e-6, where the unbounded rule takes 1.4e-4, a few flat
+#: blocks, and the bounded one 1.9e-5. A path over 1e-4 .. 1e-7 did worse (0.16 and
+#: 0.95 with 20-iteration stages and the unbounded rule; the beads' PSNR no longer
+#: changes below 1e-6). The 3D auto benchmark (:mod:`recon.benchmarks.volume_auto`,
+#: the same 18 cases) with the path at 3/4 of 2x (a final solve of at most 100): 0.43
+#: dB below the oracle on average, 1.15 at worst (discs at 30000 e-: the oracle's
+#: weight, too few final iterations); at 60 % of 2.5x: 0.24 and 0.55. l1: the same
+#: over the span of the 3D accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade
+#: wider on each side; not measured.
+VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, path_share=0.6, budget=2.5),
+                "l1": PathRule(start=1e-2, end=1e-6, path_share=0.6, budget=2.5)}
+#: What :func:`auto_volume` may do with planes that hold no signal.
+EMPTY_PLANES = ("keep", "drop")
 
 
-def _planes(op, kept: list[int]):
-    """The forward model of the planes ``kept`` only (sharing their spectra)."""
-    depths = None if op.depths is None else [op.depths[k] for k in kept]
-    return type(op)(np.ascontiguousarray(op.psf_stack[kept]), padded_shape=op.padded_shape,
-                    sensor_weights=op.sensor_weights, depths=depths,
-                    _spectra=np.ascontiguousarray(op.spectra[kept]))
-
-
-def auto_volume(solve, op, b: np.ndarray, *, iterations: int, regulariser: str, other: float,
-                seed: int = 0) -> tuple[object, dict]:
-    """Choose the 3D weight and the planes, then solve.
+def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations: int,
+                plan_of, fista, regulariser: str = "tv", other: float = 0.0,
+                empty_planes: str = "keep", seed: int = 0) -> tuple[object, dict]:
+    """Choose the 3D weight, solve, and test every plane for signal.
 
     Parameters
     ----------
-    solve : callable
-        ``solve(op, b, iterations=, tv=, l1=, nonneg=True) -> SolveResult``
-        (:func:`recon.volume.admm3d` or :func:`recon.volume.fista3d`).
+    method : {"admm", "fista"}
+        The 3D solver of the final solve (the path is 3D ADMM either way).
     op : VolumeConvolutionOperator
         Scaled forward model (normalised stack).
     b : ndarray, float32, ``op.shape_out``
         Scaled measurement.
+    noise : NoiseModel
+        The frame's noise model in the units of ``b`` (:meth:`NoiseModel.scaled`).
     iterations : int
-        Iterations of the final solve (the candidates share as many).
+        Iterations of the fixed-weight run this replaces (the path and the final
+        solve together take at most 2.5x as many, :data:`VOLUME_RULES`,
+        :func:`recon.auto.weight.path_budget`).
+    plan_of : callable
+        The volume's ADMM plan, :meth:`recon.volume.VolumeAdmmPlan.of` (passed in:
+        ``recon.volume`` imports this package, not the other way round).
+    fista : callable
+        3D FISTA, :func:`recon.volume.fista3d` (the final solve of ``method="fista"``).
     regulariser : {"tv", "l1"}
         The weight to choose; ``other`` is the fixed value of the other one.
+    empty_planes : {"keep", "drop"}
+        Keep every plane (default), or set those that show no signal to zero
+        (:func:`recon.auto.planes.planes_record`); reported either way.
     seed : int
         Seed of the held-out pixels.
 
@@ -72,45 +99,51 @@ def auto_volume(solve, op, b: np.ndarray, *, iterations: int, regulariser: str, 
     result : SolveResult
         On all planes (``x`` of ``op.shape_in``; dropped planes are zero).
     record : dict
-        ``weight``, ``regulariser``, ``candidates`` (weight, held-out error, standard
-        error), ``planes_kept`` (indices), ``plane_energy`` (each plane's peak in the first
-        estimate), ``reason``.
+        JSON-ready: ``regulariser``, ``weight``, ``weight_choice`` (the
+        :class:`recon.auto.weight.AutoWeight` record: path, rule, final solve),
+        ``planes`` (per plane: index, depth, energy, held-out t, removal's effect,
+        shows signal), ``planes_kept``, ``planes_dropped``, ``drop`` (the planes
+        without evidence, whether they were dropped, the held-out error and
+        relative residual with every plane and without them), ``reason``.
+
+    Raises
+    ------
+    ReconInputError
+        Unknown method, regulariser or ``empty_planes``.
+    recon.errors.DivergenceError
+        The solver diverged.
     """
-    keep = np.random.default_rng(seed).random(op.sensor_shape) >= HOLDOUT
-    held = (op.sensor_weights > 0) & ~keep
-    fit_op = op.with_weights(op.sensor_weights * keep)
-    b_fit = np.ascontiguousarray(b * keep, np.float32)
-    per = max(1, iterations // len(CANDIDATES[regulariser]))
-    cands, energy = [], None
-    for w in CANDIDATES[regulariser]:
-        tv, l1 = (w, other) if regulariser == "tv" else (other, w)
-        try:
-            r = solve(fit_op, b_fit, iterations=per, tv=tv, l1=l1, nonneg=True)
-        except DivergenceError:
-            continue
-        e = np.square(op.forward(r.x) - b, dtype=np.float64)[held]
-        cands.append({"weight": w, "holdout_error": float(e.sum()),
-                      "standard_error": float(e.std() * math.sqrt(e.size))})
-        plane = np.max(r.x[(slice(None), *op.crop)].reshape(op.n_z, -1), axis=1)
-        energy = plane if energy is None else np.maximum(energy, plane)
-    if not cands:
-        raise DivergenceError("3D automatic weight: every candidate diverged; give fixed "
-                              "weights (--tv, --l1)")
-    best = min(cands, key=lambda c: c["holdout_error"])
-    chosen = next(c for c in cands
-                  if c["holdout_error"] <= best["holdout_error"] + best["standard_error"])
-    kept = [k for k in range(op.n_z) if energy[k] >= PLANE_FRACTION * energy.max()]
-    tv, l1 = ((chosen["weight"], other) if regulariser == "tv" else (other, chosen["weight"]))
-    sub = op if len(kept) == op.n_z else _planes(op, kept)
-    result = solve(sub, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
-    if sub is not op:
-        x = np.zeros(op.shape_in, np.float32)
-        x[kept] = result.x
-        result.x = x
-    record = {"regulariser": regulariser, "weight": chosen["weight"], "candidates": cands,
-              "planes_kept": kept, "plane_energy": [float(v) for v in energy],
-              "reason": (f"hold-out cross-validation over {len(cands)} weights "
-                         f"({per} iterations each on 90 % of the pixels, one-standard-error "
-                         f"rule); {len(kept)} of {op.n_z} planes hold >= "
-                         f"{100 * PLANE_FRACTION:g} % of the brightest plane's peak")}
+    if method not in ("admm", "fista"):
+        raise ReconInputError(f"3D automatic weight: method {method!r}; use admm or fista")
+    if empty_planes not in EMPTY_PLANES:
+        raise ReconInputError(f"empty_planes {empty_planes!r}: use one of "
+                              f"{', '.join(EMPTY_PLANES)}")
+    if regulariser not in VOLUME_RULES:
+        raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
+    w2 = np.square(op.sensor_weights, dtype=np.float64)
+    variance = w2 * noise.variance(b)
+    noise_energy = float(variance.sum())
+    common = {"iterations": iterations, "noise_energy": noise_energy,
+              "regulariser": regulariser, "plan_of": plan_of, "fixed": other,
+              "rule": VOLUME_RULES[regulariser], "seed": seed}
+    keep, held = holdout_split(op, HOLDOUT, seed)
+    if method == "admm":
+        result, choice = admm_auto(op, b, **common)
+    else:
+        _, choice = admm_auto(op, b, path_only=True, **common)
+        tv, l1 = ((choice.weight, other) if regulariser == "tv" else (other, choice.weight))
+        result = fista(op.with_weights(op.sensor_weights * keep),
+                         np.ascontiguousarray(b * keep, np.float32), iterations=iterations,
+                         tv=tv, l1=l1, nonneg=True)
+        choice.final_pixels = "fit (FISTA at the path's weight)"
+        choice.final_iterations = iterations
+        result.params["iterations_used"] = choice.path_iterations + iterations
+    tests = plane_tests(op, result.x, b, variance, held)
+    planes, kept, drop = planes_record(op, result.x, b, tests, held, empty_planes)
+    if drop["planes"] and drop["applied"]:
+        result.x[drop["planes"]] = 0.0
+    record = {"regulariser": regulariser, "weight": choice.weight,
+              "weight_choice": choice.as_dict(), "planes": planes, "planes_kept": kept,
+              "planes_dropped": drop["planes"] if drop["applied"] else [], "drop": drop,
+              "reason": f"{choice.reason}. Planes: {drop['reason']}"}
     return result, record

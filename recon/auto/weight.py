@@ -52,6 +52,12 @@ kept iterate was worse (ADMM's transient after a restart: 23.4 -> 18.1 dB after 
 iterations on the camera photograph at 300 e-). With a compact PSF the held-out
 blocks would hide object pixels (:func:`holdout_coverage`), and the final solve runs
 on all pixels instead.
+
+The machinery takes any ADMM plan with the interface of
+:class:`recon.solvers.admm.AdmmPlan` (``zeros``, ``warm``, ``run``, ``objective``): the
+spatially varying models' and the volume's (:mod:`recon.auto.volume`, with its own
+:class:`PathRule`: the 2D bound above was measured on 2D scenes and does not carry over
+to 3D).
 """
 
 from __future__ import annotations
@@ -63,10 +69,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ReconInputError
-from ..solvers.admm import AdmmPlan, AdmmState, check_penalties, objective_of, run_admm
+from ..solvers.admm import AdmmPlan, check_penalties
 from ..solvers.common import History, SolveResult
 
-__all__ = ["AutoWeight", "Stopping", "admm_auto", "path_budget"]
+__all__ = ["PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto", "holdout_split",
+           "path_budget"]
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +127,39 @@ COARSE_FACTOR = 4.0
 MODEL_ERROR = 0.005
 #: Fraction of the sensor pixels held out for cross-validation.
 HOLDOUT = 0.1
+
+
+@dataclass(frozen=True)
+class PathRule:
+    """Where the held-out path runs and how it chooses (per regulariser and model).
+
+    Attributes
+    ----------
+    start, end : float
+        First and smallest weight of the path (scaled problem).
+    se_rule : float
+        Multiple of the held-out error's standard error within which the largest
+        weight is taken.
+    max_above_minimum : float
+        The chosen weight is at most this multiple of the held-out minimum's weight.
+    path_share : float, optional
+        Share of the budget the path takes (:func:`path_budget`); None: the 2D split.
+    budget : float
+        With ``path_share``: the path and the final solve take at most this multiple of
+        a fixed-weight run's iterations (2D: 2).
+    """
+
+    start: float
+    end: float
+    se_rule: float = SE_RULE
+    max_above_minimum: float = MAX_ABOVE_MINIMUM
+    path_share: float | None = None
+    budget: float = 2.0
+
+
+#: The 2D rules (:data:`START_WEIGHT`, :data:`END_WEIGHT`, :data:`SE_RULE`,
+#: :data:`MAX_ABOVE_MINIMUM`); the 3D ones are :data:`recon.auto.volume.VOLUME_RULES`.
+PATH_RULES = {reg: PathRule(START_WEIGHT[reg], END_WEIGHT[reg]) for reg in ("tv", "l1")}
 
 
 @dataclass
@@ -211,33 +251,47 @@ def holdout_coverage(op, keep: np.ndarray) -> float:
 
     Parameters
     ----------
-    op : ConvolutionOperator
+    op : ConvolutionOperator or VolumeConvolutionOperator
+        (a volume: the smallest ratio over every plane's object pixels)
     keep : ndarray of bool, ``op.shape_out``
 
     Returns
     -------
     float
     """
-    seen = op.adjoint(np.ones(op.shape_out, np.float32))[op.crop]
-    seen_fit = op.adjoint(np.asarray(keep, np.float32))[op.crop]
+    fov = (Ellipsis, *op.crop)  # a volume operator: every plane's field of view
+    seen = op.adjoint(np.ones(op.shape_out, np.float32))[fov]
+    seen_fit = op.adjoint(np.asarray(keep, np.float32))[fov]
     lit = seen > 1e-3 * float(seen.max())
     return float(np.min(seen_fit[lit] / seen[lit])) if np.any(lit) else 0.0
 
 
-def warm_state(plan: AdmmPlan, x: np.ndarray | None, mu, use_tv: bool) -> AdmmState:
-    """An ADMM state at the primal ``x`` with zero duals (q_i = G_i x), or zeros."""
-    state = AdmmState.zeros(plan, mu, use_tv)
-    if x is None:
-        return state
-    x = np.ascontiguousarray(x, np.float32)
-    state.x[...] = x
-    state.mx[...] = plan.op.convolve_full(x)
-    state.stacked[0] = state.mx
-    state.qw[...] = np.maximum(x, 0)
-    if use_tv:
-        state.qux[...] = np.roll(x, -1, axis=1) - x
-        state.quy[...] = np.roll(x, -1, axis=0) - x
-    return state
+def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels the fits keep and the measured pixels they hold out.
+
+    Random :data:`BLOCK` x :data:`BLOCK` blocks (:func:`holdout_mask`), single pixels
+    when the sensor is too small for blocks (fewer than 16 measured pixels held out,
+    or none kept).
+
+    Parameters
+    ----------
+    op : forward model with ``sensor_shape`` and ``sensor_weights``
+    holdout : float
+        Fraction held out.
+    seed : int
+
+    Returns
+    -------
+    keep, held : ndarray of bool, ``op.sensor_shape``
+    """
+    w = op.sensor_weights
+    keep = holdout_mask(op.sensor_shape, holdout, seed)
+    held = (w > 0) & ~keep
+    if held.sum() < 16 or not np.any(keep & (w > 0)):  # too small for blocks: pixels
+        keep = holdout_mask(op.sensor_shape, holdout, seed, block=1)
+        held = (w > 0) & ~keep
+    return keep, held
 
 
 def _merge(histories: list[History]) -> History:
@@ -249,19 +303,28 @@ def _merge(histories: list[History]) -> History:
     return out
 
 
-def path_budget(iterations: int) -> tuple[int, int]:
+def path_budget(iterations: int, path_share: float | None = None,
+                budget: float = 2.0) -> tuple[int, int]:
     """``(path, final)`` iterations of :func:`admm_auto` for a fixed run's ``iterations``.
 
     The two add up to ``2 * iterations``. The path takes ``iterations``, or
     :data:`PATH_ITERATIONS` when that is at most half as many again (134-199
     iterations), the final solve (which starts from the path's estimate at the chosen
     weight and needs fewer) giving up the difference. Below that the path stays short
-    and coarse, and :func:`admm_auto` says so (:data:`COARSE_FACTOR`).
+    and coarse, and :func:`admm_auto` says so (:data:`COARSE_FACTOR`). With
+    ``path_share`` the two add up to ``budget * iterations`` and the path takes that
+    share of them (the volume's rule: its ADMM settles more slowly after a weight step,
+    see :data:`recon.auto.volume.VOLUME_RULES`).
 
     Parameters
     ----------
     iterations : int
         Iterations of the fixed-weight run that automatic ADMM replaces (>= 1).
+    path_share : float, optional
+        Share of the budget the path takes, in (0, 1).
+    budget : float
+        With ``path_share``: path and final solve take at most this multiple of
+        ``iterations`` together.
 
     Returns
     -------
@@ -269,6 +332,10 @@ def path_budget(iterations: int) -> tuple[int, int]:
         Iterations of the held-out path and at most of the final solve.
     """
     n = int(iterations)
+    if path_share is not None:
+        total = max(2, round(budget * n))
+        path = min(total - 1, max(1, round(total * path_share)))
+        return path, total - path
     path = PATH_ITERATIONS if n < PATH_ITERATIONS <= (3 * n) // 2 else n
     return path, 2 * n - path
 
@@ -278,13 +345,15 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
               stage: int | None = None,
               stopping: Stopping | None = None, mu=None, model_error: float = MODEL_ERROR,
               path_only: bool = False, holdout: float = HOLDOUT, seed: int = 0,
-              plan_of=None, fixed: float = 0.0) -> tuple[SolveResult | None, AutoWeight]:
+              plan_of=None, fixed: float = 0.0, rule: PathRule | None = None
+              ) -> tuple[SolveResult | None, AutoWeight]:
     """ADMM with its TV or l1 weight chosen by hold-out cross-validation, automatic stopping.
 
     Parameters
     ----------
-    op : ConvolutionOperator or SpatialConvolutionOperator
-        Scaled forward model (unit-sum PSF; the spatial model with ``plan_of``).
+    op : ConvolutionOperator, SpatialConvolutionOperator or VolumeConvolutionOperator
+        Scaled forward model (unit-sum PSF or normalised stack; the spatial model and
+        the volume model with their ``plan_of``).
     b : ndarray, float32, ``op.shape_out``
         Scaled measurement (weighted, divided by its maximum).
     iterations : int
@@ -312,14 +381,21 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     holdout : float
         Fraction of the (measured) pixels held out of the path's fits.
     seed : int
-        Seed of the held-out pixels.
+        Seed of the held-out pixels (:func:`holdout_split`).
     path_only : bool
         Return after choosing the weight (``result`` None), for another solver to
         use it.
     plan_of : callable, optional
-        ``plan_of(op) -> AdmmPlan`` for ``op`` and its copies with other sensor
-        weights: default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution);
-        :meth:`recon.spatial.SpatialAdmmPlan.of` for a spatially varying model.
+        ``plan_of(op) -> plan`` for ``op`` and its copies with other sensor weights:
+        default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution);
+        :meth:`recon.spatial.SpatialAdmmPlan.of` for a spatially varying model,
+        :meth:`recon.volume.VolumeAdmmPlan.of` for a volume. A plan has ``op``,
+        ``zeros(mu, use_tv)``, ``warm(x, mu, use_tv)``, ``run(b, state, iterations=,
+        tv=, l1=, final=)`` and ``objective(b, x, tv=, l1=, b_norm=)``; its states
+        ``x``, ``mx`` (the uncropped prediction plane) and ``mu``.
+    rule : PathRule, optional
+        The path's span and choice rule; default :data:`PATH_RULES` of
+        ``regulariser`` (the 2D rules).
 
     Returns
     -------
@@ -338,39 +414,38 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Unknown ``regulariser``.
     """
     stopping = stopping or Stopping()
-    iterations, final_budget = path_budget(iterations)
+    if regulariser not in ("tv", "l1"):
+        raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
+    rule = rule or PATH_RULES[regulariser]
+    iterations, final_budget = path_budget(iterations, rule.path_share, rule.budget)
     stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
     b_norm = float(np.linalg.norm(b))
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
-    if regulariser not in ("tv", "l1"):
-        raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
     fixed = float(fixed)
     if not (math.isfinite(fixed) and fixed >= 0):
         raise ReconInputError(f"the fixed {'l1' if regulariser == 'tv' else 'tv'} weight "
                               f"must be a finite number >= 0, got {fixed!r}")
 
     def weights(w: float) -> dict:
-        """run_admm's tv and l1 with the path's weight ``w``."""
+        """The plan's tv and l1 with the path's weight ``w``."""
         return {"tv": w, "l1": fixed} if regulariser == "tv" else {"tv": fixed, "l1": w}
 
     use_tv = regulariser == "tv" or fixed > 0
 
     histories, path = [], []
-    weight, used = START_WEIGHT[regulariser], 0
+    weight, used = rule.start, 0
     # span START .. END within the budget: the first stage is 3, the others 1 stage long
     stages = max(2, (iterations - 3 * stage) // stage + 1)
-    factor = max(PATH_FACTOR, (weight / END_WEIGHT[regulariser]) ** (1.0 / (stages - 1)))
+    factor = max(PATH_FACTOR, (weight / rule.end) ** (1.0 / (stages - 1)))
     w = op.sensor_weights
-    keep = holdout_mask(op.sensor_shape, holdout, seed)
-    held = (w > 0) & ~keep
-    if held.sum() < 16 or not np.any(keep & (w > 0)):  # too small for blocks: pixels
-        keep = holdout_mask(op.sensor_shape, holdout, seed, block=1)
-        held = (w > 0) & ~keep
+    keep, held = holdout_split(op, holdout, seed)
     plan_of = plan_of or AdmmPlan.of
     fit_plan = plan_of(op.with_weights(w * keep))
     b_fit = np.ascontiguousarray(b * keep, np.float32)
-    state = AdmmState.zeros(fit_plan, check_penalties(mu), use_tv)
-    best, rises, estimates = None, 0, []
+    state = fit_plan.zeros(check_penalties(mu), use_tv)
+    # the path's estimates from the stage before the best on: the warm start is the
+    # one nearest the chosen weight, which lies within max_above_minimum x the best's
+    best, rises, estimates = None, 0, {}
 
     def score(st) -> tuple[float, float]:
         """Held-out prediction error of a fit's state, and its standard error."""
@@ -378,18 +453,17 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         e = np.square(pred - b, dtype=np.float64)[held]
         return float(e.sum()), float(e.std() * math.sqrt(e.size)) if e.size else 0.0
 
-    while weight >= END_WEIGHT[regulariser]:
+    while weight >= rule.end:
         # the first stage rides out ADMM's start-up transient
         n = min(3 * stage, iterations) if not path else stage
         if used + n > iterations:
             break
-        res = run_admm(fit_plan, b_fit, state, iterations=n, final=False,
-                       **weights(weight))
+        res = fit_plan.run(b_fit, state, iterations=n, final=False, **weights(weight))
         histories.append(res.history)
         used += n
         err, se = score(state)
         path.append({"weight": weight, "holdout_error": err, "standard_error": se})
-        estimates.append(state.x.copy())
+        estimates[len(path) - 1] = state.x.copy()
         if best is None or err < best[1]:
             best, rises = (len(path) - 1, err, se), 0
         elif err < path[-2]["holdout_error"]:  # falling again: a transient, not the end
@@ -398,23 +472,28 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
             rises += 1
             if rises == 2:  # past the minimum: smaller weights only fit noise
                 break
+        if rule.max_above_minimum <= factor:
+            for i in [i for i in estimates if i < best[0] - 1]:
+                del estimates[i]
         weight /= factor
     # one-standard-error rule: the largest weight whose error is within one standard
     # error of the minimum (the minimum is flat; its argmin is noise)
     k = next((i for i, p in enumerate(path)
-              if p["holdout_error"] <= best[1] + SE_RULE * best[2]), best[0])
+              if p["holdout_error"] <= best[1] + rule.se_rule * best[2]), best[0])
     w_min = path[best[0]]["weight"]
-    chosen = min(path[k]["weight"], MAX_ABOVE_MINIMUM * w_min)
+    chosen = min(path[k]["weight"], rule.max_above_minimum * w_min)
     # warm start: the path estimate whose weight is nearest the chosen one
-    near = min(range(len(path)), key=lambda i: abs(math.log(path[i]["weight"] / chosen)))
+    near = min(estimates, key=lambda i: abs(math.log(path[i]["weight"] / chosen)))
     x_best = estimates[near]
+    estimates = None
     reason = (f"hold-out cross-validation: {100 * holdout:g} % of the pixels held out in "
               f"{BLOCK} x {BLOCK} blocks; the "
-              f"largest weight whose fit to the others predicts them within one standard "
+              f"largest weight whose fit to the others predicts them within "
+              f"{'one' if rule.se_rule == 1 else f'{rule.se_rule:g}'} standard "
               f"error ({best[2]:.3g}) of the best prediction ({best[1]:.4g}, at weight "
               f"{w_min:.3g})")
     if chosen < path[k]["weight"]:
-        reason += (f", bounded to {MAX_ABOVE_MINIMUM:g}x that weight (the rule alone "
+        reason += (f", bounded to {rule.max_above_minimum:g}x that weight (the rule alone "
                    f"gives {path[k]['weight']:.3g})")
     if near == len(path) - 1 and rises == 0:
         reason += "; the smallest weight of the path"
@@ -432,12 +511,12 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     coverage = holdout_coverage(op, keep)
     watch = coverage >= MIN_COVERAGE
     final_plan, b_final = (fit_plan, b_fit) if watch else (plan_of(op), b)
-    state = warm_state(final_plan, x_best, check_penalties(mu), use_tv)
+    state = final_plan.warm(x_best, check_penalties(mu), use_tv)
+    x_best = None
     final_hist, final_data, done, stopped, kept = [], [], 0, False, None
     while done < final_budget:
         n = min(stopping.window, final_budget - done)
-        res = run_admm(final_plan, b_final, state, iterations=n, final=False,
-                       **weights(chosen))
+        res = final_plan.run(b_final, state, iterations=n, final=False, **weights(chosen))
         final_hist.append(res.history)
         final_data += _data_terms(res.history, b_norm)
         done += n
@@ -459,6 +538,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     params = dict(res.params, auto=choice.as_dict(), iterations_used=used + done)
     # the returned estimate's objective and residual, on the pixels its solve fitted
     x = kept[1]
-    objective, relative = objective_of(final_plan.op, b_final, x, **weights(chosen),
-                                       b_norm=max(float(np.linalg.norm(b_final)), 1e-30))
+    objective, relative = final_plan.objective(b_final, x, **weights(chosen),
+                                               b_norm=max(float(np.linalg.norm(b_final)),
+                                                          1e-30))
     return SolveResult(x, history, objective, relative, params), choice

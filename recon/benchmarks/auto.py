@@ -99,6 +99,24 @@ def run_case(kind: str, photons: float, cfg: dict, seed: int = 0) -> dict:
                                 if default.get("seconds") else None)}
 
 
+def goal_summary(shortfalls: list, failures: list) -> dict:
+    """Mean and worst shortfall against the oracle (dB) and whether the goals
+    (:data:`GOAL_MEAN_DB`, :data:`GOAL_WORST_DB`, no failures) are met."""
+    summary = {"mean_shortfall_db": float(np.mean(shortfalls)) if shortfalls else None,
+               "worst_shortfall_db": float(np.max(shortfalls)) if shortfalls else None,
+               "failures": failures}
+    summary["meets_goals"] = bool(shortfalls and summary["mean_shortfall_db"] <= GOAL_MEAN_DB
+                                  and summary["worst_shortfall_db"] <= GOAL_WORST_DB
+                                  and not failures)
+    return summary
+
+
+def setup_record(cfg: dict) -> dict:
+    """A benchmark configuration as JSON (tuples as lists) with the goals."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items()} | {
+        "goals_db": {"mean": GOAL_MEAN_DB, "worst": GOAL_WORST_DB}}
+
+
 def run_auto(quick: bool = False, out: Path | None = None) -> dict:
     """Auto vs oracle vs fixed default over the scene x photon grid.
 
@@ -117,21 +135,14 @@ def run_auto(quick: bool = False, out: Path | None = None) -> dict:
     cost = [c["auto_cost_ratio"] for c in cases if c["auto_cost_ratio"] is not None]
     failures = [f"{c['scene']}@{c['photons']:g}" for c in cases
                 if c["auto"].get("psnr") is None or c["auto"].get("blank")]
-    summary = {"mean_shortfall_db": float(np.mean(short)) if short else None,
-               "worst_shortfall_db": float(np.max(short)) if short else None,
-               "mean_gain_over_default_db": float(np.mean(gain)) if gain else None,
-               "cost_ratio_median": float(np.median(cost)) if cost else None,
-               "cost_ratio_max": float(np.max(cost)) if cost else None,
-               "iteration_ratio_max": max((c["auto"]["iteration_ratio"] for c in cases
-                                           if "iteration_ratio" in c["auto"]), default=None),
-               "failures": failures}
-    summary["meets_goals"] = bool(short and summary["mean_shortfall_db"] <= GOAL_MEAN_DB
-                                  and summary["worst_shortfall_db"] <= GOAL_WORST_DB
-                                  and not failures)
-    result = {"quick": quick, "setup": {k: list(v) if isinstance(v, tuple) else v
-                                        for k, v in cfg.items()} | {
-                  "fixed_default": FIXED_DEFAULT, "read_noise_e": 3.0,
-                  "goals_db": {"mean": GOAL_MEAN_DB, "worst": GOAL_WORST_DB}},
+    summary = goal_summary(short, failures) | {
+        "mean_gain_over_default_db": float(np.mean(gain)) if gain else None,
+        "cost_ratio_median": float(np.median(cost)) if cost else None,
+        "cost_ratio_max": float(np.max(cost)) if cost else None,
+        "iteration_ratio_max": max((c["auto"]["iteration_ratio"] for c in cases
+                                    if "iteration_ratio" in c["auto"]), default=None)}
+    result = {"quick": quick, "setup": setup_record(cfg) | {
+                  "fixed_default": FIXED_DEFAULT, "read_noise_e": 3.0},
               "cases": cases, "summary": summary,
               "wall_seconds": time.perf_counter() - t0}
     if out is not None:

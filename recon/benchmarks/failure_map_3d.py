@@ -4,7 +4,7 @@ Beads ray-traced at random 3D positions on the virtual bench's diffuser
 (:func:`recon.benchmarks.volume_scenes.bead_scene`: off-axis effects, noise; the
 reconstruction uses on-axis PSFs, so model mismatch), reconstructed by 3D FISTA and
 3D ADMM at ``recon3d``'s former fixed TV (:data:`recon.volume.DEFAULT_TV`) and by
-the automatic weight and planes (:func:`recon.auto.volume.auto_volume`). A cell fails
+the automatic weight (:func:`recon.auto.volume.auto_volume`, every plane kept). A cell fails
 when a bead is missed, a spurious one is found, or a bead lands more than one plane
 off (:func:`recon.benchmarks.volume_accuracy.bead_metrics`), or the solve diverges.
 One figure: a panel per method, the fraction of beads found within one plane as
@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..auto.noise import estimate_noise
 from ..auto.volume import auto_volume
 from ..errors import DivergenceError
-from ..volume import DEFAULT_TV
+from ..volume import DEFAULT_TV, VolumeAdmmPlan, fista3d
 from . import save_figure, write_json
 from .volume_accuracy import METHODS3D, bead_metrics
 from .volume_scenes import bead_scene, make_bench
@@ -33,9 +34,11 @@ QUICK = {"beads": [3], "photons": [3000.0], "iterations": 20, "bin_factor": 4, "
 def _solve(method: str, bench, scene, iterations: int):
     op = bench.op
     if method == "auto":
-        r, rec = auto_volume(METHODS3D["admm3d"], op, scene.b, iterations=iterations,
-                             regulariser="tv", other=0.0)
-        return r, {"tv": rec["weight"], "planes_kept": rec["planes_kept"]}
+        r, rec = auto_volume("admm", op, scene.b, noise=estimate_noise(scene.b),
+                             iterations=iterations, plan_of=VolumeAdmmPlan.of,
+                             fista=fista3d)
+        return r, {"tv": rec["weight"], "planes_kept": rec["planes_kept"],
+                   "planes_without_evidence": rec["drop"]["planes"]}
     tv = DEFAULT_TV["admm" if method == "admm3d" else "fista"]
     return METHODS3D[method](op, scene.b, iterations=iterations, tv=tv, l1=0.0), {"tv": tv}
 
@@ -94,9 +97,9 @@ def plot_map_3d(result: dict, path: Path) -> Path:
                     ax.plot(j, i, "x", color="red", ms=9, mew=2)
                 if auto_fail[i, j]:
                     ax.add_patch(_box(j, i))
-                if m == "auto" and "planes_kept" in c[m]:
-                    ax.text(j, i + 0.3, f"{len(c[m]['planes_kept'])} pl", ha="center",
-                            fontsize=7, color="white")
+                if m == "auto" and "planes_without_evidence" in c[m]:
+                    ax.text(j, i + 0.3, f"{len(c[m]['planes_without_evidence'])} ne",
+                            ha="center", fontsize=7, color="white")
         ax.set_xticks(range(len(result["cols"])), [str(v) for v in result["cols"]])
         ax.set_yticks(range(len(result["rows"])), [f"{v:g}" for v in result["rows"]])
         ax.set_xlabel("beads in the volume")
@@ -104,7 +107,8 @@ def plot_map_3d(result: dict, path: Path) -> Path:
     axes[0].set_ylabel("peak photo-electrons")
     fig.colorbar(im, ax=list(axes), shrink=0.8, label="fraction of beads found")
     fig.suptitle("3D beads: failure (x) = a bead missed, spurious or > 1 plane off; auto's "
-                 "failed cells boxed; auto: planes kept", fontsize=9)
+                 "failed cells boxed; auto: planes without evidence of signal (ne)",
+                 fontsize=9)
     return save_figure(fig, path)
 
 

@@ -12,7 +12,11 @@ benchmarks' ``volume_speed.json`` (:mod:`recon.benchmarks.volume`) and
 ``spatial_far.json`` + ``spatial_far.png`` (:mod:`recon.benchmarks.spatial_far`: the
 two-part model and its ADMM), compressive calibration against centre-only and
 grid calibration's ``blind_calibration.json`` + ``blind_calibration.png``
-(:mod:`recon.benchmarks.blind`, Fig. 5.4d), and ``summary.json`` under ``out`` and
+(:mod:`recon.benchmarks.blind`, Fig. 5.4d), the automatic 3D weight against the
+oracle's ``volume_auto.json`` (:mod:`recon.benchmarks.volume_auto`), our 3D solvers
+beside LenslessPiCam's on the external 3D sample's ``volume_external.json`` +
+``volume_external.png`` (:mod:`recon.benchmarks.volume_external`), and
+``summary.json`` under ``out`` and
 returns a compact summary. The weights chosen by the accuracy sweep are used by the
 stability and erasure benchmarks when they run in the same invocation; otherwise
 :data:`recon.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run
@@ -41,7 +45,8 @@ log = logging.getLogger(__name__)
 #: The benchmarks, in the order they run.
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
               "volume_accuracy", "spatial_speed", "spatial_accuracy", "spatial_far",
-              "blind_calibration", "auto", "failure_maps", "failure_map_3d")
+              "blind_calibration", "auto", "failure_maps", "failure_map_3d", "volume_auto",
+              "volume_external")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
@@ -56,7 +61,9 @@ _TABLES = {"speed": ("speed", "speed_table"), "accuracy": ("accuracy", "accuracy
            "blind_calibration": ("blind", "blind_calibration_table"),
            "auto": ("auto", "auto_table"),
            "failure_maps": ("failure_maps", "failure_maps_table"),
-           "failure_map_3d": ("failure_map_3d", "failure_map_3d_table")}
+           "failure_map_3d": ("failure_map_3d", "failure_map_3d_table"),
+           "volume_auto": ("volume_auto", "volume_auto_table"),
+           "volume_external": ("volume_external", "volume_external_table")}
 
 
 def format_result(name: str, result: dict) -> str:
@@ -158,6 +165,16 @@ def _summarise_volume(results: dict, summary: dict, lines: list[str]) -> None:
         lines.append("3D memory alone (max RSS, budget 4 GB): " + ", ".join(
             f"{m['method']} {'x'.join(map(str, m['shape']))} {m['max_rss_bytes'] / 2**30:.2f} GiB"
             for m in v["memory"]))
+    if "volume_auto" in results:
+        a = results["volume_auto"]["summary"]
+        summary["volume_auto"] = a
+        lines.append(f"3D auto TV weight: {fmt(a['mean_shortfall_db'])} dB below the oracle on "
+                     f"average, {fmt(a['worst_shortfall_db'])} at worst; objects off their "
+                     f"depth {a['objects_off_depth']} of {a['objects']}")
+    if "volume_external" in results:
+        e = results["volume_external"]
+        summary["volume_external"] = {k: e[k] for k in ("ratios", "agreement", "default")}
+        lines.append(format_result("volume_external", e))
     if "volume_accuracy" in results:
         a = results["volume_accuracy"]
         fin = a["final"]
@@ -247,11 +264,14 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
             results[name] = run_erasure(quick, out, weights)
         elif name == "volume_speed":
             results[name] = run_volume_speed(quick, out)
-        elif name in ("auto", "failure_maps", "failure_map_3d"):
-            from . import auto, failure_map_3d, failure_maps
+        elif name in ("auto", "failure_maps", "failure_map_3d", "volume_auto",
+                      "volume_external"):
+            from . import auto, failure_map_3d, failure_maps, volume_auto, volume_external
 
             run = {"auto": auto.run_auto, "failure_maps": failure_maps.run_failure_maps,
-                   "failure_map_3d": failure_map_3d.run_failure_map_3d}[name]
+                   "failure_map_3d": failure_map_3d.run_failure_map_3d,
+                   "volume_auto": volume_auto.run_volume_auto,
+                   "volume_external": volume_external.run_volume_external}[name]
             results[name] = run(quick, out)
         elif name == "blind_calibration":
             from .blind import run_blind_calibration

@@ -195,6 +195,37 @@ class AdmmPlan:
         return cls(op, op.padded_shape, wp, (spec.real**2 + spec.imag**2).astype(np.float32),
                    difference_power(op.padded_shape))
 
+    # -- the interface of the automatic weight (recon.auto.weight.admm_auto), shared
+    # with recon.volume.VolumeAdmmPlan --------------------------------------------
+    def zeros(self, mu, use_tv: bool) -> AdmmState:
+        """The cold start (:meth:`AdmmState.zeros`)."""
+        return AdmmState.zeros(self, mu, use_tv)
+
+    def warm(self, x: np.ndarray | None, mu, use_tv: bool) -> AdmmState:
+        """A state at the primal ``x`` (padded grid) with zero duals (q_i = G_i x)."""
+        state = AdmmState.zeros(self, mu, use_tv)
+        if x is None:
+            return state
+        x = np.ascontiguousarray(x, np.float32)
+        state.x[...] = x
+        state.mx[...] = self.op.convolve_full(x)
+        state.stacked[0] = state.mx
+        state.qw[...] = np.maximum(x, 0)
+        if use_tv:
+            state.qux[...] = np.roll(x, -1, axis=1) - x
+            state.quy[...] = np.roll(x, -1, axis=0) - x
+        return state
+
+    def run(self, b: np.ndarray, state: AdmmState, *, iterations: int, tv: float,
+            l1: float = 0.0, final: bool = True) -> SolveResult:
+        """:func:`run_admm` from ``state`` (updated in place)."""
+        return run_admm(self, b, state, iterations=iterations, tv=tv, l1=l1, final=final)
+
+    def objective(self, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
+                  b_norm: float) -> tuple[float, float]:
+        """:func:`objective_of` with this plan's operator."""
+        return objective_of(self.op, b, x, tv=tv, l1=l1, b_norm=b_norm)
+
     def x_update(self, state: AdmmState, x: np.ndarray, mx: np.ndarray, mu
                  ) -> tuple[np.ndarray, np.ndarray]:
         """The x-update of App. A.3: the exact minimiser of

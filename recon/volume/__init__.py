@@ -5,7 +5,7 @@
 (3D TV by Haar shifts, l1, non-negativity).
 """
 
-from .admm import admm3d
+from .admm import VolumeAdmmPlan, VolumeAdmmState, admm3d, run_admm3d
 from .api import DEFAULT_TV, VolumeReconstruction, reconstruct_volume
 from .fista import fista3d, volume_tv
 from .operator import (
@@ -19,6 +19,8 @@ from .operator import (
 __all__ = [
     "DEFAULT_TV",
     "VolumeConvolutionOperator",
+    "VolumeAdmmPlan",
+    "VolumeAdmmState",
     "VolumeReconstruction",
     "admm3d",
     "bin_stack",
@@ -27,5 +29,6 @@ __all__ = [
     "fft_floor_seconds",
     "normalize_psf_stack",
     "reconstruct_volume",
+    "run_admm3d",
     "volume_tv",
 ]

@@ -24,6 +24,7 @@ for the rank-one data term (``M^H M`` at one lateral frequency is ``conj(h) h^T`
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.fft as sfft
@@ -86,6 +87,252 @@ def solve_x_update(spec: np.ndarray, psf_spectra: np.ndarray, d_lat: np.ndarray,
     _k.admm_xupdate_3d(spec, psf_spectra, d_lat, mu1, mu2 if use_tv else 0.0, mu3,
                        4 * get_num_threads())
     return spec
+
+
+@dataclass
+class VolumeAdmmPlan:
+    """What 3D ADMM precomputes from the operator (the 3D counterpart of
+    :class:`recon.solvers.admm.AdmmPlan`, with the same interface for the automatic
+    weight, :func:`recon.auto.weight.admm_auto`: ``zeros``, ``warm``, ``run``,
+    ``objective``).
+
+    Attributes
+    ----------
+    op : VolumeConvolutionOperator
+    shape : (P0, P1)
+        ``op.padded_shape``.
+    wp : ndarray, float32, (P0, P1)
+        Sensor weights zero-padded to the lateral object domain.
+    d_lat : ndarray, float32, (P0, P1 // 2 + 1)
+        Lateral ``|F Psi|^2`` (:func:`lateral_difference_power`).
+    """
+
+    op: VolumeConvolutionOperator
+    shape: tuple[int, int]
+    wp: np.ndarray
+    d_lat: np.ndarray
+
+    @classmethod
+    def of(cls, op: VolumeConvolutionOperator) -> VolumeAdmmPlan:
+        """Precompute for ``op``.
+
+        Raises
+        ------
+        ReconInputError
+            ``op`` is not a :class:`VolumeConvolutionOperator`.
+        """
+        if not isinstance(op, VolumeConvolutionOperator):
+            raise ReconInputError(
+                "admm3d needs a VolumeConvolutionOperator (its PSF spectra give the "
+                "per-frequency x-update); use fista3d for other volume operators")
+        wp = np.zeros(op.padded_shape, np.float32)
+        wp[op.crop] = op.sensor_weights
+        return cls(op, op.padded_shape, wp, lateral_difference_power(op.padded_shape))
+
+    def zeros(self, mu, use_tv: bool) -> VolumeAdmmState:
+        """The cold start (x_0 = 0, every q zero), penalties ``mu``."""
+        nz = self.op.n_z
+        shape_in = self.op.shape_in
+        tv_shape = shape_in if use_tv else (1, 1, 1)  # never indexed without TV
+        return VolumeAdmmState(np.zeros((nz + 1, *self.shape), np.float32),
+                               np.zeros(self.shape, np.float32),
+                               np.zeros(shape_in, np.float32),
+                               *(np.zeros(tv_shape, np.float32) for _ in range(3)),
+                               tuple(float(m) for m in mu), bool(use_tv))
+
+    def warm(self, x: np.ndarray | None, mu, use_tv: bool) -> VolumeAdmmState:
+        """A state at the primal ``x`` (n_z, P0, P1) with zero duals (q_i = G_i x)."""
+        state = self.zeros(mu, use_tv)
+        if x is None:
+            return state
+        x = np.asarray(x, np.float32)
+        state.stack[:-1] = x
+        state.stack[-1] = self.op.convolve_full(x)
+        state.qv[...] = state.stack[-1]
+        np.maximum(x, 0, out=state.qw)
+        if use_tv:
+            state.quz[:-1] = x[1:] - x[:-1]  # no wrap in depth: the last plane has none
+            state.quy[...] = np.roll(x, -1, axis=1) - x
+            state.qux[...] = np.roll(x, -1, axis=2) - x
+        return state
+
+    def run(self, b: np.ndarray, state: VolumeAdmmState, *, iterations: int, tv: float,
+            l1: float = 0.0, final: bool = True) -> SolveResult:
+        """:func:`run_admm3d` from ``state`` (updated in place)."""
+        return run_admm3d(self, b, state, iterations=iterations, tv=tv, l1=l1, final=final)
+
+    def objective(self, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
+                  b_norm: float) -> tuple[float, float]:
+        """Objective of Eq. 4.5 at ``x`` and its relative data residual against ``b``."""
+        final, data_sq = final_objective(self.op, x, b, tv, l1)
+        return final, math.sqrt(data_sq) / b_norm
+
+
+@dataclass
+class VolumeAdmmState:
+    """The 3D ADMM iterate, carried from one call of :func:`run_admm3d` to the next.
+
+    In q-form (q_i = z_i - a_i) the state is the primal ``x``, ``M x`` and one q per
+    split, plus the penalties; float32 on the padded grid.
+
+    Attributes
+    ----------
+    stack : ndarray, (n_z + 1, P0, P1)
+        ``[x planes, M x]`` (one array: one batched FFT per iteration).
+    qv : ndarray, (P0, P1)
+        q of the crop split v = M x.
+    qw : ndarray, (n_z, P0, P1)
+        q of the identity split w = x (non-negativity, l1).
+    quz, quy, qux : ndarray, (n_z, P0, P1)
+        q of the 3D TV splits (forward differences along z, y, x); (1, 1, 1)
+        placeholders without TV.
+    mu : (mu1, mu2, mu3)
+    use_tv : bool
+    """
+
+    stack: np.ndarray
+    qv: np.ndarray
+    qw: np.ndarray
+    quz: np.ndarray
+    quy: np.ndarray
+    qux: np.ndarray
+    mu: tuple[float, float, float]
+    use_tv: bool
+
+    @property
+    def x(self) -> np.ndarray:
+        """The primal volume (before the non-negativity clip), a view."""
+        return self.stack[:-1]
+
+    @property
+    def mx(self) -> np.ndarray:
+        """``M x``: the uncropped sum over depth of the convolved planes, a view."""
+        return self.stack[-1]
+
+
+def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
+               iterations: int, tv: float, l1: float = 0.0, nonneg: bool = True,
+               balance: bool = True, balance_every: int = 5, balance_until: float = 0.6,
+               balance_ratio: float = 10.0, balance_factor: float = 2.0,
+               final: bool = True) -> SolveResult:
+    """Run ``iterations`` 3D ADMM iterations from ``state`` (updated in place).
+
+    The loop of :func:`admm3d`, which validates the parameters and starts from
+    :meth:`VolumeAdmmPlan.zeros`; the automatic weight continues a state along its
+    path of weights (:func:`recon.auto.weight.admm_auto`). Balancing runs over the
+    first ``balance_until`` of this call's iterations.
+
+    Parameters
+    ----------
+    plan : VolumeAdmmPlan
+    b : ndarray, float32, ``plan.op.shape_out``
+    state : VolumeAdmmState
+        ``state.use_tv`` must equal ``tv > 0``.
+    iterations, tv, l1, nonneg, balance, balance_every, balance_until, balance_ratio,
+    balance_factor
+        As :func:`admm3d` (validated by the caller).
+    final : bool
+        Evaluate the returned estimate's objective and residual (one forward model);
+        False reports the last iteration's from the history.
+
+    Returns
+    -------
+    SolveResult
+        As :func:`admm3d`.
+
+    Raises
+    ------
+    DivergenceError
+        NaN/inf or an objective 100x that of the zero volume.
+    ReconInputError
+        A bad measurement, or a state made for the other sign of ``tv``.
+    """
+    op = plan.op
+    tv_w, l1_w = float(tv), float(l1)
+    if state.use_tv != (tv_w > 0):
+        raise ReconInputError(f"3D ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
+                              f" but tv={tv_w}; start from VolumeAdmmPlan.zeros(mu, tv > 0)")
+    b = check_measurement(b, op.shape_out)
+    use_tv = state.use_tv
+    mu1, mu2, mu3 = state.mu
+    nz = op.n_z
+    shape = plan.shape
+    wp = plan.wp
+    bp = np.zeros(shape, np.float32)
+    bp[op.crop] = b
+    d_lat = plan.d_lat
+    spectra = op.spectra
+    stack, qv, qw, quz, quy, qux = (state.stack, state.qv, state.qw, state.quz, state.quy,
+                                    state.qux)
+    dummy3 = np.zeros((1, 1, 1), np.float32)
+    last_balance = int(balance_until * iterations) if balance else 0
+    if last_balance > 0:
+        av = np.zeros(shape, np.float32)
+        aw = np.zeros(op.shape_in, np.float32)
+        auz, auy, aux = ((np.zeros(op.shape_in, np.float32) for _ in range(3))
+                         if use_tv else (dummy3, dummy3, dummy3))
+    else:
+        av = np.zeros((1, 1), np.float32)
+        aw = auz = auy = aux = dummy3
+
+    rows = np.zeros((nz * shape[0], 10))  # per-row sums of the volume split pass
+    mon = Monitor(float(np.vdot(b, b)), "3D ADMM")
+    hint = "try method fista3d or smaller TV / l1 weights"
+    mus = [(mu1, mu2, mu3)]
+    for k in range(iterations):
+        mon.start()
+        if k == last_balance and k > 0:  # balancing over: drop the stored duals
+            av = np.zeros((1, 1), np.float32)
+            aw = auz = auy = aux = dummy3
+        mode = balance_mode(k, balance_every, last_balance)
+        x, mx = stack[:nz], stack[nz]
+        sv = _k.admm_split_plane(mx, qv, bp, wp, mu1, mode, av)
+        su = _k.admm_split_volume(x, quz, quy, qux, qw, l1_w / mu3,
+                                  tv_w / mu2 if use_tv else 0.0, use_tv, nonneg, mode,
+                                  auz, auy, aux, aw, rows)
+        data_sq, tv_x, l1_x = sv[0], su[0], su[1]
+        if mode == 2:
+            new = [balanced_penalty(mu1, *sv[1:], balance_ratio, balance_factor),
+                   balanced_penalty(mu2, *su[2:6], balance_ratio, balance_factor) if use_tv
+                   else mu2,
+                   balanced_penalty(mu3, *su[6:10], balance_ratio, balance_factor)]
+            if tuple(new) != (mu1, mu2, mu3):
+                splits = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
+                if use_tv:
+                    splits += [(q, a, mu2, new[1]) for q, a in ((quz, auz), (quy, auy),
+                                                                (qux, aux))]
+                rescale_duals(splits)
+                mu1, mu2, mu3 = new
+                mus.append((mu1, mu2, mu3))
+        # objective of the iterate entering this iteration (before x is overwritten)
+        objective = 0.5 * data_sq + tv_w * tv_x + l1_w * l1_x
+        _k.admm_rhs_3d(quz, quy, qux, qw, x, mu2, mu3, use_tv)  # R over x
+        np.copyto(mx, qv)
+        spec = rfftn(stack)
+        del x, mx
+        stack = None  # let the allocator recycle it for the inverse transform
+        solve_x_update(spec, spectra, d_lat, (mu1, mu2, mu3), use_tv)
+        stack = sfft.irfftn(spec, s=shape, axes=(-2, -1), workers=WORKERS, overwrite_x=True)
+        spec = None
+        state.stack = stack  # the state stays whole even if the next iteration diverges
+        mon.record(objective, data_sq, x=stack[:nz], hint=hint)
+    state.mu = (mu1, mu2, mu3)
+    x = stack[:nz]
+    if nonneg:
+        x = np.maximum(x, 0)  # the estimate is the non-negative split
+    x = np.ascontiguousarray(x)
+    if final:
+        objective, data_sq = final_objective(op, x, b, tv_w, l1_w)
+        relative = math.sqrt(data_sq) / mon.b_norm
+    else:
+        objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
+    mon.history.extra["mu"] = [list(m) for m in mus]
+    return SolveResult(x, mon.history, objective, relative,
+                       {"tv": tv_w, "l1": l1_w, "nonneg": nonneg,
+                        "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
+                        "balance": balance, "iterations": iterations,
+                        "iterations_used": iterations,
+                        "ffts_per_iteration": {"rfft2": nz + 1, "irfft2": nz + 1}})
 
 
 def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
@@ -163,94 +410,14 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     ReconInputError
         Not a volume operator, a bad measurement or invalid parameters.
     """
-    if not isinstance(op, VolumeConvolutionOperator):
-        raise ReconInputError(
-            "admm3d needs a VolumeConvolutionOperator (its PSF spectra give the "
-            "per-frequency x-update); use fista3d for other volume operators"
-        )
+    plan = VolumeAdmmPlan.of(op)
     iterations = as_int(iterations, "iterations", 1)
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
     check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
-    mu1, mu2, mu3 = check_penalties(DEFAULT_MU if mu is None else mu)
+    mu = check_penalties(DEFAULT_MU if mu is None else mu)
     b = check_measurement(b, op.shape_out)
-    use_tv = tv_w > 0
-    nz = op.n_z
-    shape = op.padded_shape
-    wp = np.zeros(shape, np.float32)
-    wp[op.crop] = op.sensor_weights
-    bp = np.zeros(shape, np.float32)
-    bp[op.crop] = b
-    d_lat = lateral_difference_power(shape)
-    spectra = op.spectra
-
-    # [x (n_z planes), M x]: one array, so one batched rfft2 / irfft2 per iteration
-    stack = np.zeros((nz + 1, *shape), np.float32)
-    qv = np.zeros(shape, np.float32)
-    qw = np.zeros(op.shape_in, np.float32)
-    if use_tv:
-        quz, quy, qux = (np.zeros(op.shape_in, np.float32) for _ in range(3))
-    else:
-        quz = quy = qux = np.zeros((1, 1, 1), np.float32)  # never indexed
-    dummy3 = np.zeros((1, 1, 1), np.float32)
-    last_balance = int(balance_until * iterations) if balance else 0
-    if last_balance > 0:
-        av = np.zeros(shape, np.float32)
-        aw = np.zeros(op.shape_in, np.float32)
-        auz, auy, aux = ((np.zeros(op.shape_in, np.float32) for _ in range(3))
-                         if use_tv else (dummy3, dummy3, dummy3))
-    else:
-        av = np.zeros((1, 1), np.float32)
-        aw = auz = auy = aux = dummy3
-
-    rows = np.zeros((nz * shape[0], 10))  # per-row sums of the volume split pass
-    mon = Monitor(float(np.vdot(b, b)), "3D ADMM")
-    hint = "try method fista3d or smaller TV / l1 weights"
-    mus = [(mu1, mu2, mu3)]
-    for k in range(iterations):
-        mon.start()
-        if k == last_balance and k > 0:  # balancing over: drop the stored duals
-            av = np.zeros((1, 1), np.float32)
-            aw = auz = auy = aux = dummy3
-        mode = balance_mode(k, balance_every, last_balance)
-        x, mx = stack[:nz], stack[nz]
-        sv = _k.admm_split_plane(mx, qv, bp, wp, mu1, mode, av)
-        su = _k.admm_split_volume(x, quz, quy, qux, qw, l1_w / mu3,
-                                  tv_w / mu2 if use_tv else 0.0, use_tv, nonneg, mode,
-                                  auz, auy, aux, aw, rows)
-        data_sq, tv_x, l1_x = sv[0], su[0], su[1]
-        if mode == 2:
-            new = [balanced_penalty(mu1, *sv[1:], balance_ratio, balance_factor),
-                   balanced_penalty(mu2, *su[2:6], balance_ratio, balance_factor) if use_tv
-                   else mu2,
-                   balanced_penalty(mu3, *su[6:10], balance_ratio, balance_factor)]
-            if tuple(new) != (mu1, mu2, mu3):
-                splits = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
-                if use_tv:
-                    splits += [(q, a, mu2, new[1]) for q, a in ((quz, auz), (quy, auy),
-                                                                (qux, aux))]
-                rescale_duals(splits)
-                mu1, mu2, mu3 = new
-                mus.append((mu1, mu2, mu3))
-        # objective of the iterate entering this iteration (before x is overwritten)
-        objective = 0.5 * data_sq + tv_w * tv_x + l1_w * l1_x
-        _k.admm_rhs_3d(quz, quy, qux, qw, x, mu2, mu3, use_tv)  # R over x
-        np.copyto(mx, qv)
-        spec = rfftn(stack)
-        del x, mx
-        stack = None  # let the allocator recycle it for the inverse transform
-        solve_x_update(spec, spectra, d_lat, (mu1, mu2, mu3), use_tv)
-        stack = sfft.irfftn(spec, s=shape, axes=(-2, -1), workers=WORKERS, overwrite_x=True)
-        spec = None
-        mon.record(objective, data_sq, x=stack[:nz], hint=hint)
-    x = stack[:nz]
-    if nonneg:
-        np.maximum(x, 0, out=x)  # the estimate is the non-negative split
-    x = np.ascontiguousarray(x)
-    final, data_sq = final_objective(op, x, b, tv_w, l1_w)
-    mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
-                       {"tv": tv_w, "l1": l1_w, "nonneg": nonneg,
-                        "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
-                        "balance": balance, "iterations": iterations,
-                        "ffts_per_iteration": {"rfft2": nz + 1, "irfft2": nz + 1}})
+    return run_admm3d(plan, b, plan.zeros(mu, tv_w > 0), iterations=iterations, tv=tv_w,
+                      l1=l1_w, nonneg=nonneg, balance=balance, balance_every=balance_every,
+                      balance_until=balance_until, balance_ratio=balance_ratio,
+                      balance_factor=balance_factor)

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..auto import AUTO, parse_weight
-from ..auto.volume import auto_volume
+from ..auto.noise import NoiseModel, estimate_noise
+from ..auto.volume import EMPTY_PLANES, auto_volume
 from ..errors import ReconInputError
 from ..preprocess import (
     box_bin,
@@ -34,7 +35,7 @@ from ..preprocess import (
 )
 from ..solvers import SolveResult
 from ..validate import as_array, float_array
-from .admm import admm3d
+from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
 from .operator import (
     VolumeConvolutionOperator,
@@ -44,7 +45,8 @@ from .operator import (
 )
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "VolumeReconstruction",
-           "check_volume_parameters", "prepare_volume_problem", "reconstruct_volume"]
+           "check_volume_parameters", "depth_profile", "prepare_volume_problem",
+           "reconstruct_volume"]
 
 log = logging.getLogger(__name__)
 
@@ -117,8 +119,10 @@ class VolumeReconstruction:
         dict
             method, iterations, tv, l1, shapes, depths, preprocessing, scales,
             times (total, median per iteration), the FFT floor and the ratio to it,
-            final relative residual and objective, the objective and data residual
-            histories and the solver parameters.
+            where the volume puts its light (:func:`depth_profile`: ``plane_energy``,
+            ``plane_peak``, ``depth_profile``), final relative residual and
+            objective, the objective and data residual histories and the solver
+            parameters.
         """
         op = self.operator
         if fft_floor_s is None:
@@ -143,12 +147,44 @@ class VolumeReconstruction:
             "fft_floor_transforms": f"{op.n_z + 1} rfft2 + {op.n_z + 1} irfft2 at "
                                     f"{op.padded_shape[0]}x{op.padded_shape[1]}",
             "ratio_to_fft_floor": per_iter / fft_floor_s,
+            **depth_profile(self.volume, self.depths_mm),
             "final_relative_residual": self.result.final_relative_residual,
             "final_objective": self.result.final_objective,
             "objective": list(self.result.history.objective),
             "data_residual": list(self.result.history.data_residual),
             "params": dict(self.result.params),
         }
+
+
+def depth_profile(volume: np.ndarray, depths_mm) -> dict:
+    """Where a volume puts its light: per-plane energy and the depth profile.
+
+    Parameters
+    ----------
+    volume : ndarray, (n_z, rows, cols)
+        Non-negative volume (measurement units), planes in depth order.
+    depths_mm : sequence of float, (n_z,)
+
+    Returns
+    -------
+    dict
+        ``plane_energy`` (sum of each plane), ``plane_peak`` (each plane's largest
+        voxel) and ``depth_profile``: ``depths_mm``, ``energy_fraction`` (each plane's
+        share of the total), ``mean_depth_mm`` (energy-weighted), ``peak_plane``
+        (the plane of most energy); JSON-ready.
+    """
+    v = np.asarray(volume)
+    energy = v.reshape(v.shape[0], -1).sum(axis=1, dtype=np.float64)
+    peak = v.reshape(v.shape[0], -1).max(axis=1)
+    total = float(energy.sum())
+    z = [float(d) for d in depths_mm]
+    frac = energy / total if total > 0 else np.zeros_like(energy)
+    return {"plane_energy": [float(e) for e in energy],
+            "plane_peak": [float(p) for p in peak],
+            "depth_profile": {"depths_mm": z, "energy_fraction": [float(f) for f in frac],
+                              "mean_depth_mm": (float(np.dot(frac, z)) if total > 0
+                                                else None),
+                              "peak_plane": int(np.argmax(energy))}}
 
 
 def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float = "auto",
@@ -266,10 +302,11 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
 
 
 def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
-                       method: str = "admm", iterations: int = 100,
+                       method: str = "admm", iterations: int = 200,
                        tv: float | str | None = "auto", l1: float | str = 0.0,
                        bin_factor: int = 1, dark: str | float = "auto",
-                       allow_mixed_ranges: bool = False) -> VolumeReconstruction:
+                       allow_mixed_ranges: bool = False, empty_planes: str = "keep"
+                       ) -> VolumeReconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -285,12 +322,16 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         (:func:`recon.volume.fista3d`); ``"auto"`` is ADMM (the 3D accuracy
         benchmark's best).
     iterations : int
-        Solver iterations (>= 1).
+        Solver iterations (>= 1); with an automatic weight, those of the fixed-weight
+        run it replaces (the path and the final solve take at most 2.5x as many,
+        :data:`recon.auto.volume.VOLUME_RULES`; with few iterations the path's steps
+        are coarse and the record says so).
     tv : "auto" or float
         3D TV weight in the scaled problem (>= 0; 0 disables); ``"auto"`` (default)
-        chooses it by hold-out cross-validation and keeps only the planes that hold
-        signal (:func:`recon.auto.volume.auto_volume`; ``info["auto"]`` says what and
-        why); ``None`` gives :data:`DEFAULT_TV` for the method.
+        chooses it by hold-out cross-validation along a warm-started 3D ADMM path and
+        tests every plane for signal against the held-out pixels and the frame's
+        noise model (:func:`recon.auto.volume.auto_volume`; ``info["auto"]`` says
+        what and why); ``None`` gives :data:`DEFAULT_TV` for the method.
     l1 : "auto" or float
         l1 (native sparsity) weight in the scaled problem (>= 0; 0 disables); with
         ``"auto"`` it is the weight chosen (TV then fixed, 0 if ``tv`` is ``"auto"``).
@@ -300,6 +341,11 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         Dark level handling (:func:`prepare_volume_problem`).
     allow_mixed_ranges : bool
         Accept a stack and raw of different bit depths (:func:`prepare_volume_problem`).
+    empty_planes : {"keep", "drop"}
+        With an automatic weight: keep every plane (default), or set those that show
+        no signal in the held-out pixels, alone or together
+        (:func:`recon.auto.planes.plane_tests`), to zero; ``info["auto"]`` says
+        which, why, and what the held-out error and the residual did.
 
     Returns
     -------
@@ -324,6 +370,9 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = 0.0
     check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
                             0.0 if l1 == AUTO else l1, bin_factor)
+    if empty_planes not in EMPTY_PLANES:
+        raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
+                              "drop (planes that show no signal set to zero, reported)")
     iterations, bin_factor = int(iterations), int(bin_factor)  # numpy integers too
     if not (isinstance(dark, str) and dark in ("auto", "none")):
         _dark_value(dark)
@@ -354,9 +403,14 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     if auto_reg is None:
         result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     else:
-        result, record = auto_volume(SOLVERS[method], op, b, iterations=iterations,
-                                     regulariser=auto_reg, other=l1 if auto_reg == "tv" else tv)
-        info["auto"] = record
+        # the frame's Poisson-Gaussian noise (too small a frame: none known)
+        noise = estimate_noise(raw) if min(raw.shape) >= 8 else NoiseModel(0.0, 0.0, [])
+        result, record = auto_volume(method, op, b, noise=noise.scaled(raw_scale),
+                                     iterations=iterations, plan_of=VolumeAdmmPlan.of,
+                                     fista=fista3d, regulariser=auto_reg,
+                                     other=l1 if auto_reg == "tv" else tv,
+                                     empty_planes=empty_planes)
+        info["auto"] = dict(record, noise=noise.as_dict())
         tv, l1 = ((record["weight"], l1) if auto_reg == "tv" else (tv, record["weight"]))
     volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
                                   dtype=np.float32)

@@ -175,10 +175,14 @@ class VolumeConvolutionOperator(SensorWeighted, LinearOperator):
                                  overwrite_x=True)
         return out
 
+    def convolve_full(self, x: np.ndarray) -> np.ndarray:
+        """``M x``: the sum over depth of the planes' circular convolutions on the padded
+        grid, before the crop (float32, ``padded_shape``; n_z rfft2 + 1 irfft2)."""
+        return irfftn(self.sum_spectrum(np.asarray(x, np.float32)), self.padded_shape)
+
     def forward(self, x):
         x = self._check(x, self.shape_in, "volume")
-        full = irfftn(self.sum_spectrum(x), self.padded_shape)
-        return (self.sensor_weights * full[self.crop]).astype(np.float32)
+        return (self.sensor_weights * self.convolve_full(x)[self.crop]).astype(np.float32)
 
     def adjoint(self, y):
         y = self._check(y, self.shape_out, "sensor image")

@@ -113,11 +113,14 @@ def test_recon3d_tif_puts_the_brightest_voxel_on_a_bead_plane(problem, tmp_path,
     for key in ("method", "iterations", "tv", "l1", "shape", "padded_shape", "depths_mm",
                 "seconds_total", "seconds_per_iteration", "fft_floor_seconds",
                 "ratio_to_fft_floor", "final_relative_residual", "objective", "data_residual",
-                "output_volume", "output_mips", "dark_mode", "bin_factor"):
+                "output_volume", "output_mips", "dark_mode", "bin_factor", "plane_energy",
+                "plane_peak", "depth_profile"):
         assert key in m, key
     assert m["method"] == method and m["iterations"] == 40
     assert m["shape"] == [5, N, N] and np.allclose(m["depths_mm"], DEPTHS)
     assert len(m["objective"]) == 40
+    assert len(m["plane_energy"]) == 5
+    assert m["depth_profile"]["peak_plane"] in {b[0] for b in BEADS}
     assert 0 < m["final_relative_residual"] < 0.5
     assert m["fft_floor_seconds"] > 0 and m["ratio_to_fft_floor"] > 0
 

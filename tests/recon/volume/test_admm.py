@@ -218,3 +218,45 @@ def test_bad_operator_and_measurement_are_refused(bead_problem):  # noqa: F811
     bad[3, 4] = np.nan
     with pytest.raises(ReconInputError, match="NaN"):
         admm3d(op, bad, iterations=2)
+
+
+# ------------------------------------------------------------ plan, state, warm start
+
+
+def test_run_in_pieces_equals_one_run(clean_problem):
+    """Without balancing, 3D ADMM continued from its state (run_admm3d, what the
+    automatic weight's path does) is the same iteration as one call of admm3d."""
+    from recon.volume import VolumeAdmmPlan, run_admm3d
+
+    op, b = clean_problem
+    whole = admm3d(op, b, iterations=12, tv=1e-4, balance=False)
+    plan = VolumeAdmmPlan.of(op)
+    state = plan.zeros((2e-3, 2e-3, 2e-3), True)
+    run_admm3d(plan, b, state, iterations=5, tv=1e-4, balance=False)
+    last = run_admm3d(plan, b, state, iterations=7, tv=1e-4, balance=False)
+    assert np.allclose(last.x, whole.x, rtol=1e-5, atol=1e-6 * float(whole.x.max()))
+    assert last.history.objective[-1] == pytest.approx(whole.history.objective[-1], rel=1e-5)
+
+
+def test_warm_start_carries_the_estimate(clean_problem):
+    """A state warmed at a converged estimate starts where that estimate is (its M x and
+    q's consistent with it): its first objective is that estimate's, far below the cold
+    start's, and the plan's objective agrees with the solver's."""
+    from recon.volume import VolumeAdmmPlan
+
+    op, b = clean_problem
+    ref = admm3d(op, b, iterations=80, tv=1e-4)
+    plan = VolumeAdmmPlan.of(op)
+    warm = plan.warm(ref.x, (2e-3, 2e-3, 2e-3), True)
+    assert np.allclose(op.forward(ref.x), warm.mx[op.crop], atol=1e-5)
+    cont = plan.run(b, warm, iterations=3, tv=1e-4)
+    cold = plan.run(b, plan.zeros((2e-3, 2e-3, 2e-3), True), iterations=3, tv=1e-4)
+    assert cont.history.objective[0] < 0.1 * cold.history.objective[0]
+    objective, relative = plan.objective(b, ref.x, tv=1e-4, l1=0.0,
+                                         b_norm=float(np.linalg.norm(b)))
+    assert objective == pytest.approx(ref.final_objective, rel=1e-6)
+    assert relative == pytest.approx(ref.final_relative_residual, rel=1e-6)
+    with pytest.raises(ReconInputError, match="state was made for tv > 0"):
+        plan.run(b, warm, iterations=1, tv=0.0)
+    with pytest.raises(ReconInputError, match="VolumeConvolutionOperator"):
+        VolumeAdmmPlan.of(ConvolutionOperator(np.ones((8, 8), np.float32)))
