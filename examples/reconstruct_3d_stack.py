@@ -4,16 +4,17 @@ Run from the repository root::
 
     python examples/reconstruct_3d_stack.py [DATA_DIR] [--bin 2] [--planes 8]
 
-``DATA_DIR`` holds ``psf/psf00.tiff ... psfNN.tiff`` (one PSF per depth, nearest first)
-and ``image.tiff`` (the 3D DiffuserCam sample distributed with LenslessPiCam; default
-``../shared/data/diffuser3d-lenslesspicam``). The depths are not published with that
-data, so the script gives the planes increasing nominal depths; their order is what
-matters. The TV weight is chosen automatically and every plane is kept; the script
+``DATA_DIR`` holds ``psf/psf00.tiff ... psfNN.tiff`` (one PSF per depth, nearest
+first) and ``image.tiff``: the 3D DiffuserCam sample distributed with LenslessPiCam
+(default ``$DIFFUSERLAB_DATA3D`` or ``../shared/data/diffuser3d-lenslesspicam``). The
+depths are not published with that data, so the script gives the planes increasing
+nominal depths; their order is what matters. The TV weight is chosen automatically and every plane is kept; the script
 prints the per-plane energy (where the scene's light went) and writes the maximum
 projection along depth as a PNG.
 """
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -25,8 +26,8 @@ from recon.io import load_image, save_image, scene_view
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("data", nargs="?", type=Path,
-                        default=Path("../shared/data/diffuser3d-lenslesspicam"))
+    default = os.environ.get("DIFFUSERLAB_DATA3D", "../shared/data/diffuser3d-lenslesspicam")
+    parser.add_argument("data", nargs="?", type=Path, default=Path(default))
     parser.add_argument("--bin", type=int, default=2, help="lateral binning (1: full size)")
     parser.add_argument("--planes", type=int, default=0,
                         help="use every k-th plane so that about this many remain (0: all)")

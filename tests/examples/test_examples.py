@@ -6,12 +6,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
-
 from recon.sample import data_dir
+from recon.volume.sample import volume_data_dir
 
 ROOT = Path(__file__).resolve().parents[2]
-DATA_3D = ROOT.parent / "shared/data/diffuser3d-lenslesspicam"
 
 
 def _run(script: str, *args: str) -> str:
@@ -38,10 +36,7 @@ def test_2d_example_names_missing_data(tmp_path):
 
 
 def test_3d_stack_example(tmp_path):
-    if not DATA_3D.is_dir():
-        pytest.fail(f"the 3D sample is missing at {DATA_3D} (../shared/data next to the "
-                    "repository)")
-    out = _run("reconstruct_3d_stack.py", str(DATA_3D), "--bin", "4", "--planes", "4",
+    out = _run("reconstruct_3d_stack.py", str(volume_data_dir()), "--bin", "4", "--planes", "4",
                "--iterations", "20", "--out", str(tmp_path))
     shares = [float(line.split(":")[1].split("%")[0]) for line in out.splitlines()
               if "% of the energy" in line]
