@@ -8,7 +8,8 @@ Run from the repository root::
 first) and ``image.tiff``: the 3D DiffuserCam sample distributed with LenslessPiCam
 (default ``$DIFFUSERLAB_DATA3D`` or ``../shared/data/diffuser3d-lenslesspicam``). The
 depths are not published with that data, so the script gives the planes increasing
-nominal depths; their order is what matters. The TV weight is chosen automatically and every plane is kept; the script
+nominal depths; their order is what matters. The TV weight is chosen automatically and
+every plane is kept; the script
 prints the per-plane energy (where the scene's light went) and writes the maximum
 projection along depth as a PNG.
 """
