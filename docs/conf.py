@@ -39,3 +39,22 @@ html_theme = "pydata_sphinx_theme"
 html_title = "DiffuserLab"
 html_theme_options = {"navigation_with_keys": False, "show_toc_level": 2}
 os.environ.setdefault("NUMBA_DISABLE_JIT", "0")
+
+
+def _escape_bars(app, what, name, obj, options, lines):
+    """The docstrings write norms and magnitudes as plain text (``||A x - b||``,
+    ``|H|^2``); reStructuredText would read ``|b|`` as a substitution. Escape the bars
+    outside inline literals and tables."""
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        table_row = (stripped.startswith("|") and stripped.endswith("|")
+                     and stripped.count("|") > 2) or stripped.startswith("+-")
+        if "|" not in line or table_row:
+            continue
+        parts = line.split("``")
+        lines[i] = "``".join(p.replace("|", r"\|") if k % 2 == 0 else p
+                             for k, p in enumerate(parts))
+
+
+def setup(app):
+    app.connect("autodoc-process-docstring", _escape_bars, priority=400)
