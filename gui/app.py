@@ -24,6 +24,7 @@ from PySide6.QtWidgets import (
     QMessageBox,
 )
 
+from .binding import BindingLeakError, check_binding
 from .session import Session
 
 __all__ = ["SWITCH_INTERVAL_S", "MainWindow", "configure", "main", "settings"]
@@ -192,6 +193,11 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setOrganizationName("DiffuserLab")
     app.setApplicationName("gui")
+    try:
+        check_binding()
+    except BindingLeakError as exc:
+        QMessageBox.critical(None, "DiffuserLab", str(exc))
+        raise
     configure()
     if bench is None and not simulate:
         bench = settings().value("bench/last_file")

@@ -14,6 +14,7 @@ and the fix), never a traceback.
 
 from __future__ import annotations
 
+import errno
 import logging
 import threading
 import time
@@ -22,7 +23,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-__all__ = ["BACKGROUND_NICE", "Job", "readable_error", "wait_until"]
+__all__ = ["BACKGROUND_NICE", "InputError", "Job", "readable_error", "wait_until"]
 
 log = logging.getLogger(__name__)
 
@@ -34,45 +35,75 @@ log = logging.getLogger(__name__)
 BACKGROUND_NICE = 10
 
 
+class InputError(ValueError):
+    """A value the operator typed into the GUI that it cannot use (the message names the
+    field and what to type)."""
+
+
+#: errno values of an OSError that are the operator's or the system's problem (a path
+#: that does not exist, no permission, a full disk), not a bug: as the command line.
+_ORDINARY_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EACCES,
+                              errno.EPERM, errno.ENOENT, errno.EISDIR, errno.ENOTDIR,
+                              errno.EEXIST, errno.ENAMETOOLONG})
+
+
 def _input_errors() -> tuple[type[BaseException], ...]:
-    """Exception types whose message is written for the operator (problem and fix)."""
+    """The project's own exception types, whose message is written for the operator
+    (problem and fix). Anything else (a KeyError, a TypeError, numpy's ValueError) is a
+    bug, shown as one and logged with its traceback."""
+    from calibration_routines.mask_alignment.errors import AlignmentFailed
     from drivers.errors import DeviceError
+    from instrument.bench import BenchRoleError, PromptRefused
+    from instrument.bench_setup import BenchOpenError
+    from instrument.cli.common import MissingBenchFile
+    from instrument.emulated_bench import EmulatorsRunningError
     from instrument.live import LiveReconstructionError
-    from instrument.output_safety import OutputError
-    from instrument.plan import PlanError
+    from instrument.plan import CheckFailed, PlanError
+    from instrument.registry import RegistryError
     from instrument.runner import RunAborted
     from instrument.runstore import RunStoreError
-    from recon.errors import ReconInputError
+    from recon.errors import DivergenceError, ReconInputError
 
-    return (DeviceError, PlanError, RunStoreError, ReconInputError, OutputError,
-            LiveReconstructionError, RunAborted, ValueError, OSError, LookupError,
-            RuntimeError)
+    from .binding import BindingLeakError
+    from .session import CameraBusy
+
+    return (DeviceError, PlanError, AlignmentFailed, CheckFailed, RunStoreError,
+            ReconInputError, DivergenceError, LiveReconstructionError, RunAborted,
+            BenchRoleError, BenchOpenError, PromptRefused, RegistryError, MissingBenchFile,
+            EmulatorsRunningError, BindingLeakError, CameraBusy, InputError)
 
 
-def readable_error(exc: BaseException) -> str:
+def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> str:
     """The operator's message for ``exc``: one or more lines, never a traceback.
 
     Parameters
     ----------
     exc : BaseException
+    labels : dict, optional
+        ``{command-line flag: field label}`` of the panel that shows the message
+        (:func:`gui.messages.operator_text`).
 
     Returns
     -------
     str
-        A bench file's problems one per line; the message of a device, plan, run
-        store, input or OS error as the library wrote it (it names the fix); for
-        anything else, the error's type and text marked as a bug (the traceback
-        goes to the log).
+        A bench file's problems one per line; the message of one of the project's own
+        errors (device, plan, run store, input, ...: it names the fix) or of an
+        ordinary OS error (no such file, permission denied, disk full: with the path)
+        in the GUI's terms; for anything else, the error's type and text marked as a
+        bug (the traceback goes to the log).
     """
     from instrument.config import BenchConfigError
 
+    from .messages import operator_text
+
     if isinstance(exc, BenchConfigError):
         return "\n".join(exc.lines())
-    if isinstance(exc, OSError) and exc.filename is not None:
-        return f"{exc.strerror or exc}: {exc.filename}"
+    if isinstance(exc, OSError) and exc.errno in _ORDINARY_ERRNOS:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+        return f"{reason}: {' -> '.join(paths)}" if paths else reason
     if isinstance(exc, _input_errors()):
-        text = str(exc) or type(exc).__name__
-        return text
+        return operator_text(str(exc) or type(exc).__name__, labels)
     log.error("unexpected error in a GUI job", exc_info=exc)
     return (f"unexpected error ({type(exc).__name__}: {exc}); this is a bug - the log has "
             "the traceback to report")
