@@ -32,6 +32,7 @@ _RANGES = (
     (re.compile(r"-inf <= (\w+) <= inf"), r"a finite number for \1"),
     (re.compile(rf"-inf <= (\w+) <= ({_NUMBER})"), r"\1 <= \2"),
     (re.compile(rf"({_NUMBER}) <= (\w+) <= inf"), r"\2 >= \1"),
+    (re.compile(rf"({_NUMBER}) < (\w+) <= inf"), r"\2 > \1"),
     (re.compile(r"-inf\s*(?:\.\.|to)\s*inf"), "no limit"),
 )
 _FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9-]*)")

@@ -121,7 +121,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         # live view: the stream and the live reconstruction with the sweep's PSF
         live = w.live
         live.psf.setText(sweep)
-        live.depth.setText(f"{depth:g}")
+        live.depth.setEditText(f"{depth:g}")
         live.method.setCurrentText("admm")
         live.iterations.setValue(5)
         w.docks["Live view"].raise_()
@@ -138,7 +138,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         rec.out.setText(str(work / "video.zarr"))
         rec.frames.setText("20")
         rec.batch_fields["--psf"].setText(sweep)
-        rec.batch_fields["--depth"].setText(live.depth.text())
+        rec.batch_fields["--depth"].setEditText(live.depth.currentText())
         w.docks["Record"].raise_()
         job = rec.start_recording()
         wait_until(app, lambda: job.done, 120, "the recording")

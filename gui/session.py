@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -26,9 +27,12 @@ from PySide6.QtCore import QObject, Signal
 
 from .workers import Job
 
-__all__ = ["CameraBusy", "SCENES", "Session"]
+__all__ = ["CameraBusy", "RATE_WINDOW_S", "SCENES", "Session"]
 
 log = logging.getLogger(__name__)
+
+#: The camera's frame rate shown is measured over this many seconds.
+RATE_WINDOW_S = 2.0
 
 #: Moving scenes the virtual bench can put in front of the camera (``--simulate``).
 SCENES = ("beads-flow", "neurons", "none")
@@ -67,6 +71,7 @@ class Session(QObject):
     changed = Signal()
     message = Signal(str)
     prompt = Signal(str, str, object)
+    _resume = Signal()
 
     def __init__(self, bench_path: str | None = None, *, simulate: bool = False,
                  seed: int = 0, scene: str = "beads-flow") -> None:
@@ -79,6 +84,8 @@ class Session(QObject):
             raise ValueError(f"scene {scene!r} is unknown; use one of {', '.join(SCENES)}")
         self.scene_name = scene
         self.camera_user: str | None = None
+        #: True while the window closes (jobs then leave the bench as it is).
+        self.closing = False
         self.ring = None
         self._consumers: dict[str, Callable[[Any], None]] = {}
         self._latest = None
@@ -87,7 +94,9 @@ class Session(QObject):
         self._lock = threading.Lock()
         self.frames_seen = 0
         self._stream_t0 = 0.0
+        self._rate: deque[tuple[float, int]] = deque()
         self.job: Job | None = None
+        self._resume.connect(self._resume_stream)
 
     # -- connection -----------------------------------------------------------------------
     @property
@@ -208,11 +217,24 @@ class Session(QObject):
         self.camera_user = user
         self.changed.emit()
 
-    def release_camera(self, user: str) -> None:
-        """Give the camera back (no-op if ``user`` does not hold it)."""
+    def release_camera(self, user: str, *, resume_stream: bool = False) -> None:
+        """Give the camera back (no-op if ``user`` does not hold it); ``resume_stream``:
+        start the live stream again (on the GUI thread, whichever thread calls)."""
         if self.camera_user == user:
             self.camera_user = None
             self.changed.emit()
+            if resume_stream:
+                self._resume.emit()
+
+    def _resume_stream(self) -> None:
+        if self.bench is None or self.camera_user is not None or self.streaming:
+            return
+        try:
+            self.start_stream()
+        except Exception as exc:  # noqa: BLE001 (told, never raised into the event loop)
+            from .workers import readable_error
+
+            self.message.emit(f"the live stream could not start again: {readable_error(exc)}")
 
     # -- the stream ------------------------------------------------------------------------
     @property
@@ -244,6 +266,7 @@ class Session(QObject):
         self._stop.clear()
         self.frames_seen = 0
         self._stream_t0 = time.monotonic()
+        self._rate.clear()
         self._fanout = threading.Thread(target=self._fan_out, args=(self.ring,),
                                         name="gui-stream", daemon=True)
         self._fanout.start()
@@ -283,13 +306,26 @@ class Session(QObject):
         return self._latest
 
     def stream_counters(self) -> dict[str, float]:
-        """The ring's counters (acquired, read, skipped, dropped) and the measured rate."""
+        """The ring's counters (acquired, read, skipped, dropped) and ``fps``: the rate
+        of the frames delivered over the last :data:`RATE_WINDOW_S` seconds (not since
+        the stream started: a change of exposure shows within seconds)."""
         if self.ring is None:
             return {}
         out: dict[str, float] = dict(self.ring.counters())
-        span = time.monotonic() - self._stream_t0
-        out["fps"] = self.frames_seen / span if span > 0 and self.streaming else 0.0
+        out["fps"] = self.frame_rate() if self.streaming else 0.0
         return out
+
+    def frame_rate(self) -> float:
+        """Frames delivered per second over the last :data:`RATE_WINDOW_S` seconds."""
+        now = time.monotonic()
+        rate = self._rate
+        rate.append((now, self.frames_seen))
+        while len(rate) > 2 and now - rate[1][0] >= RATE_WINDOW_S:
+            rate.popleft()
+        (t0, n0), (t1, n1) = rate[0], rate[-1]
+        if t1 - t0 < 0.2:
+            return 0.0
+        return (n1 - n0) / (t1 - t0)
 
     def _fan_out(self, ring) -> None:
         from drivers.errors import CameraTimeoutError
