@@ -403,17 +403,13 @@ class MainWindow(QMainWindow):
         self._when_idle(self._close_bench)
 
     def _close_bench(self) -> None:
-        job = self.session.disconnect_bench()
-
         def closed() -> None:
             self._ready_to_close = True
             self.close()
 
-        if job is None:
+        self.statusBar().showMessage("closing the devices ...")
+        if self.session.disconnect_bench(then=closed) is None:
             closed()
-        else:
-            self.statusBar().showMessage("closing the devices ...")
-            job.finished.connect(closed)
 
     def shutdown(self) -> None:
         """Stop the jobs that hold the bench and close it, waiting here (scripts and

@@ -190,7 +190,7 @@ class FrameView(QWidget):
         self.plot.setLabel("left", axes[1])
         self.plot.setAspectLocked(True)
         self.plot.invertY(True)
-        self.item = pg.ImageItem()
+        self.item = pg.ImageItem(axisOrder="row-major")
         self.plot.addItem(self.item)
         self.histogram = pg.HistogramLUTItem()
         self.histogram.setImageItem(self.item)
@@ -390,11 +390,11 @@ class FrameView(QWidget):
         on = self.roi_action.isChecked() if on is None else bool(on)
         self.roi_action.setChecked(on)
         if on and self.roi.scene() is None:
+            self.plot.addItem(self.roi)
             if self.image is not None:
                 rows, cols = self.image.shape[:2]
                 self.roi.setPos((cols / 4, rows / 4), finish=False)
                 self.roi.setSize((cols / 2, rows / 2), finish=False)
-            self.plot.addItem(self.roi)
         elif not on and self.roi.scene() is not None:
             self.plot.removeItem(self.roi)
             self.stats.setText("")
@@ -403,7 +403,7 @@ class FrameView(QWidget):
     def roi_statistics(self) -> dict[str, float] | None:
         """Statistics of the ROI's pixels (:func:`image_statistics`) and its bounds
         (``x``, ``y``, ``width``, ``height`` in px); None when the ROI is off."""
-        if not self.roi_action.isChecked() or self.image is None:
+        if not self.roi_action.isChecked() or self.image is None or self.roi.scene() is None:
             return None
         pixels = self.roi.getArrayRegion(self.image, self.item, order=0)
         out = image_statistics(pixels)
@@ -431,12 +431,10 @@ class FrameView(QWidget):
         on = self.profile_action.isChecked() if on is None else bool(on)
         self.profile_action.setChecked(on)
         if on and self.line.scene() is None:
+            self.plot.addItem(self.line)
             if self.image is not None:
                 rows, cols = self.image.shape[:2]
-                h0, h1 = self.line.getHandles()
-                h0.setPos(cols * 0.1, rows / 2)
-                h1.setPos(cols * 0.9, rows / 2)
-            self.plot.addItem(self.line)
+                self.set_line((cols * 0.1, rows / 2), (cols * 0.9, rows / 2))
         elif not on and self.line.scene() is not None:
             self.plot.removeItem(self.line)
         self.profile_plot.setVisible(on)
@@ -444,13 +442,14 @@ class FrameView(QWidget):
 
     def profile(self) -> tuple[np.ndarray, np.ndarray] | None:
         """``(distance_px, values)`` along the profile line; None when it is off."""
-        if not self.profile_action.isChecked() or self.image is None:
+        if not self.profile_action.isChecked() or self.image is None or \
+                self.line.scene() is None:
             return None
-        values = np.asarray(self.line.getArrayRegion(self.image, self.item, order=1),
-                            np.float64)
-        a, b = (h.pos() for h in self.line.getHandles())
-        length = float(np.hypot(b.x() - a.x(), b.y() - a.y()))
-        return np.linspace(0.0, length, values.size), values
+        # LineSegmentROI maps (x, y) to the data's axes itself: x is the column axis of
+        # a row-major image (pyqtgraph swaps them only for the rectangular ROIs)
+        values = np.asarray(self.line.getArrayRegion(self.image, self.item, axes=(1, 0),
+                                                     order=1), np.float64)
+        return np.arange(values.size, dtype=np.float64), values  # samples 1 px apart
 
     def set_line(self, start: tuple[float, float], end: tuple[float, float]) -> None:
         """Place the profile line from ``start`` to ``end`` (x = column, y = row)."""

@@ -114,14 +114,17 @@ class Session(QObject):
 
         return bench_config(self.bench_path, simulate=self.simulate, command="gui")
 
-    def connect_bench(self, on_error: Callable[[str], None] | None = None) -> Job:
-        """Open the bench on a worker thread; ``changed`` fires when it is open,
-        ``on_error(message)`` is called if it cannot be opened."""
+    def connect_bench(self, on_error: Callable[[str], None] | None = None,
+                      on_open: Callable[[], None] | None = None) -> Job:
+        """Open the bench on a worker thread; ``changed`` fires when it is open, then
+        ``on_open()``; ``on_error(message)`` is called if it cannot be opened."""
         job = Job(self._open, name="open-bench")
         job.succeeded.connect(self._opened)
         job.failed.connect(lambda text: self.message.emit(f"could not connect: {text}"))
         if on_error is not None:
             job.failed.connect(on_error)
+        if on_open is not None:
+            job.succeeded.connect(lambda _: on_open())
         self.job = job
         return job.start()
 
@@ -144,9 +147,9 @@ class Session(QObject):
                           f"devices {', '.join(bench.devices)}")
         self.changed.emit()
 
-    def disconnect_bench(self) -> Job | None:
+    def disconnect_bench(self, then: Callable[[], None] | None = None) -> Job | None:
         """Stop the stream and close every device on a worker thread (``changed`` fires
-        at once: the panels stop using the bench)."""
+        at once: the panels stop using the bench); ``then()`` once they are closed."""
         if self.bench is None:
             return None
         bench, self.bench = self.bench, None
@@ -160,6 +163,8 @@ class Session(QObject):
         job = Job(close, name="close-bench")
         job.succeeded.connect(lambda _: self.message.emit("disconnected"))
         job.failed.connect(lambda text: self.message.emit(f"disconnect: {text}"))
+        if then is not None:
+            job.finished.connect(then)
         self.job = job
         return job.start()
 

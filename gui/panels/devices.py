@@ -415,8 +415,8 @@ class DevicePanel(QWidget):
                 self.state.setText("not connected")
                 self.connect_button.setEnabled(True)
 
-            job = self.session.connect_bench(on_error=failed)
-            job.succeeded.connect(lambda _: self.connect_button.setEnabled(True))
+            self.session.connect_bench(on_error=failed,
+                                       on_open=lambda: self.connect_button.setEnabled(True))
 
     def _set_scene(self) -> None:
         if self.session.is_virtual:
