@@ -28,6 +28,7 @@ re-validates and starts it again.
 from __future__ import annotations
 
 import struct
+import threading
 import time
 from typing import Any
 
@@ -95,6 +96,7 @@ class LightCrafter4500(Dmd):
         self._link = (HidLink(device_id, hid_module=hid_backend, **ids) if transport == "hidapi"
                       else UsbLink(device_id, usb_module=usb_backend, **ids))
         self._seq = 0
+        self._command_lock = threading.RLock()
         self._hw: dict[str, Any] = {}
         self.version: bytes = b""
 
@@ -118,7 +120,17 @@ class LightCrafter4500(Dmd):
             The controller refused the command (NACK) or a read returned no data.
         DmdTimeoutError
             No reply within the timeout.
+
+        Notes
+        -----
+        Safe from several threads: one command and its reply at a time (a reply read
+        by another thread would be skipped there as a late one and lost here).
         """
+        with self._command_lock:
+            return self._exchange(cmd, payload, read, timeout_s)
+
+    def _exchange(self, cmd: int, payload: bytes, read: bool,
+                  timeout_s: float | None) -> bytes:
         self._seq = (self._seq + 1) & 0xFF
         flags = 0xC0 if read else 0x40
         msg = bytes([flags, self._seq]) + struct.pack("<HH", 2 + len(payload), cmd) + payload

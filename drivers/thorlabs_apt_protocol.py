@@ -183,7 +183,7 @@ class AptController:
         self.updates = False
         self.keepalives_sent = 0
         self._cond = threading.Condition()
-        self._waiting: dict[tuple[int, int], list[AptMessage]] = {}
+        self._waiting: dict[tuple[int, int], list[list[AptMessage]]] = {}
         self._write_lock = threading.Lock()
         self._request_lock = threading.Lock()
         self._thread: threading.Thread | None = None
@@ -243,6 +243,11 @@ class AptController:
                 param2: int = 0, data: bytes | None = None, timeout_s: float = 1.0) -> AptMessage:
         """Send a REQ message and return the GET reply from ``dest``.
 
+        Safe from several threads at once, also for the same message: every request
+        waits in its own box, queued per (reply id, source) in the order the requests
+        were sent, and the controller's replies fill the boxes in that order (a GUI's
+        status poll and a running plan both asking MOT_REQ_STATUSBITS each get one).
+
         Raises
         ------
         DeviceTimeoutError
@@ -251,13 +256,22 @@ class AptController:
             The port failed before the reply came.
         """
         key = (reply_id, dest)
-        with self._request_lock, self._cond:
-            self._waiting[key] = []
+        box: list[AptMessage] = []
+        # Registering the waiter and sending the request happen under one lock, so the
+        # waiters of one key are queued in the order their requests went out; the
+        # controller answers in that order and each reply fills the oldest empty box.
+        with self._request_lock:
+            with self._cond:
+                self._waiting.setdefault(key, []).append(box)
+            try:
+                self.send(msg_id, dest, param1, param2, data)
+            except BaseException:
+                self._forget(key, box)
+                raise
         try:
-            self.send(msg_id, dest, param1, param2, data)
             deadline = time.monotonic() + timeout_s
             with self._cond:
-                while not self._waiting[key]:
+                while not box:
                     if self._lost is not None:
                         raise self._lost
                     left = deadline - time.monotonic()
@@ -270,9 +284,17 @@ class AptController:
                             "raise reply_timeout_s for a slow controller",
                         )
                     self._cond.wait(left)
-                return self._waiting[key][0]
+                return box[0]
         finally:
-            with self._cond:
+            self._forget(key, box)
+
+    def _forget(self, key: tuple[int, int], box: list[AptMessage]) -> None:
+        """Remove one request's box from the table (the key when it was the last)."""
+        with self._cond:
+            boxes = self._waiting.get(key, [])
+            if any(b is box for b in boxes):
+                boxes[:] = [b for b in boxes if b is not box]
+            if not boxes:
                 self._waiting.pop(key, None)
 
     def start_updates(self, dests: tuple[int, ...]) -> None:
@@ -312,10 +334,11 @@ class AptController:
 
     def _route(self, msg: AptMessage) -> None:
         with self._cond:
-            box = self._waiting.get((msg.msg_id, msg.source))
-            if box is None and msg.source == 0:  # lenient: some units send source 0
-                box = next((b for (m, _), b in self._waiting.items() if m == msg.msg_id), None)
-            delivered = box is not None and not box
+            boxes = self._waiting.get((msg.msg_id, msg.source))
+            if boxes is None and msg.source == 0:  # lenient: some units send source 0
+                boxes = next((b for (m, _), b in self._waiting.items() if m == msg.msg_id), None)
+            box = next((b for b in boxes or () if not b), None)  # the oldest unanswered
+            delivered = box is not None
             if delivered:
                 box.append(msg)
             self._cond.notify_all()

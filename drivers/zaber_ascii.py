@@ -17,6 +17,7 @@ reference position) means not homed: moves are refused until homed
 from __future__ import annotations
 
 import re
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -148,6 +149,7 @@ class ZaberAsciiStage(HostTableStage):
                                 search_dirs=search_dirs, baudrate=baudrate,
                                 timeout_error=self.timeout_error)
         self._msg_id = 0
+        self._command_lock = threading.RLock()
         self._travel: dict[str, tuple[float, float]] = {}
         self._hw: dict[str, Any] = {}
 
@@ -168,7 +170,16 @@ class ZaberAsciiStage(HostTableStage):
             The device rejected the command (``RJ``); the message names the reason.
         StageTimeoutError
             No reply within ``reply_timeout_s``.
+
+        Notes
+        -----
+        Safe from several threads: one command and its reply at a time on the port
+        (another thread's ``discard_input`` or read would otherwise take this reply).
         """
+        with self._command_lock:
+            return self._exchange(device, axis, text)
+
+    def _exchange(self, device: int, axis: int, text: str) -> tuple[str, str, str]:
         self._msg_id = self._msg_id % 99 + 1
         body = f"{device} {axis} {self._msg_id}" + (f" {text}" if text else "")
         line = f"/{body}:{lrc(body)}\n" if self._checksums else f"/{body}\n"

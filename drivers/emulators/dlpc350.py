@@ -52,11 +52,16 @@ class Dlpc350Emulator:
         Reported by ``enumerate``.
     validation_polls : int
         Reads of 0x1A1A that still show "busy" after a validation request.
+    reply_latency_s : float
+        Delay before a reply can be read (a full-speed USB interrupt endpoint is polled
+        every 1 ms; 0 answers at once).
     """
 
-    def __init__(self, serial_number: str = "LC4500-0001", validation_polls: int = 2) -> None:
+    def __init__(self, serial_number: str = "LC4500-0001", validation_polls: int = 2,
+                 reply_latency_s: float = 0.0) -> None:
         self.serial_number = serial_number
         self.validation_polls = int(validation_polls)
+        self.reply_latency_s = float(reply_latency_s)
         self.lock = threading.Lock()
         self.plugged = True
         self.standby = False
@@ -76,7 +81,7 @@ class Dlpc350Emulator:
         self.validated = False
         self._busy_polls = 0
         self.running = False
-        self.replies: deque[bytes] = deque()
+        self.replies: deque[tuple[float, bytes]] = deque()  # (readable from, report)
         self.log: list[tuple[int, bytes]] = []  # (command, payload) of every message
         self.reports: list[bytes] = []  # every 64-byte report written
         self._partial: bytearray | None = None
@@ -101,6 +106,22 @@ class Dlpc350Emulator:
         """Lose the next ``n`` replies (the driver's reads time out)."""
         with self.lock:
             self.drop += int(n)
+
+    def next_reply(self, deadline: float) -> bytes | None:
+        """Wait (holding :attr:`cond`) for the oldest reply until ``deadline``
+        (``time.monotonic()``); None on timeout. Raises OSError once unplugged."""
+        while True:
+            if not self.plugged:
+                raise OSError("the device is unplugged")
+            now = time.monotonic()
+            if self.replies and self.replies[0][0] <= now:
+                return self.replies.popleft()[1]
+            left = deadline - now
+            if left <= 0:
+                return None
+            if self.replies:
+                left = min(left, self.replies[0][0] - now)
+            self.cond.wait(left)
 
     # ------------------------------------------------------------------ transport
     def feed(self, report: bytes) -> None:
@@ -137,7 +158,7 @@ class Dlpc350Emulator:
             self.drop -= 1
             return
         out = bytes([flags | (0x20 if nack else 0), seq]) + struct.pack("<H", len(data)) + data
-        self.replies.append(out.ljust(64, b"\0"))
+        self.replies.append((time.monotonic() + self.reply_latency_s, out.ljust(64, b"\0")))
         self.cond.notify_all()
 
     # ------------------------------------------------------------------ commands
@@ -304,15 +325,13 @@ class _FakeDevice:
     def read(self, size: int, timeout_ms: int = 0) -> list[int]:
         deadline = time.monotonic() + timeout_ms / 1000
         with self.emu.cond:
-            while True:
-                if not (self.opened and self.emu.plugged):
-                    raise OSError("read error")
-                if self.emu.replies:
-                    return list(self.emu.replies.popleft()[:size])
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return []
-                self.emu.cond.wait(left)
+            if not self.opened:
+                raise OSError("read error")
+            try:
+                report = self.emu.next_reply(deadline)
+            except OSError:
+                raise OSError("read error") from None
+            return [] if report is None else list(report[:size])
 
     def close(self) -> None:
         self.opened = False
@@ -400,12 +419,13 @@ class _FakeUsbDevice:
     def read(self, endpoint: int, size: int, timeout: int) -> bytes:
         deadline = time.monotonic() + timeout / 1000
         with self.emu.cond:
-            while True:
-                if not (self.claimed and self.emu.plugged) or endpoint != 0x81:
-                    raise _UsbError("No such device (it may have been disconnected)", errno=19)
-                if self.emu.replies:
-                    return self.emu.replies.popleft()[:size]
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise _UsbTimeoutError("Operation timed out", errno=110)
-                self.emu.cond.wait(left)
+            if not self.claimed or endpoint != 0x81:
+                raise _UsbError("No such device (it may have been disconnected)", errno=19)
+            try:
+                report = self.emu.next_reply(deadline)
+            except OSError:
+                raise _UsbError("No such device (it may have been disconnected)",
+                                errno=19) from None
+            if report is None:
+                raise _UsbTimeoutError("Operation timed out", errno=110)
+            return report[:size]
