@@ -32,12 +32,14 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDockWidget,
     QFileDialog,
+    QFrame,
     QLabel,
     QLineEdit,
     QMainWindow,
     QMessageBox,
     QPlainTextEdit,
     QPushButton,
+    QScrollArea,
     QSlider,
     QTextEdit,
 )
@@ -136,7 +138,14 @@ class MainWindow(QMainWindow):
         for title, widget in zip(PANELS, widgets, strict=True):
             dock = QDockWidget(title, self)
             dock.setObjectName(f"dock-{title}")
-            dock.setWidget(widget)
+            if title in ("Devices", "Live view", "Log"):
+                dock.setWidget(widget)
+            else:  # a small screen scrolls a task panel instead of pushing the window off it
+                area = QScrollArea()
+                area.setWidgetResizable(True)
+                area.setFrameShape(QFrame.Shape.NoFrame)
+                area.setWidget(widget)
+                dock.setWidget(area)
             self.docks[title] = dock
         self._default_layout()
         self._menus()
@@ -158,7 +167,7 @@ class MainWindow(QMainWindow):
         """Devices on the left; the Live view on top of the right side, beside (above)
         the task panels and the log, so the camera stays in view during a run."""
         d = self.docks
-        self.devices.setMinimumWidth(480)
+        self.devices.setMinimumWidth(540)
         self.addDockWidget(Qt.DockWidgetArea.LeftDockWidgetArea, d["Devices"])
         self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, d["Live view"])
         self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, d["Calibration"])
@@ -166,9 +175,9 @@ class MainWindow(QMainWindow):
         for title in ("Alignment", "Record", "Results", "Log"):
             self.tabifyDockWidget(d["Calibration"], d[title])
         d["Calibration"].raise_()
-        self.resizeDocks([d["Live view"], d["Calibration"]], [430, 470],
+        self.resizeDocks([d["Live view"], d["Calibration"]], [480, 420],
                          Qt.Orientation.Vertical)
-        self.resizeDocks([d["Devices"], d["Live view"]], [500, 1000],
+        self.resizeDocks([d["Devices"], d["Live view"]], [560, 940],
                          Qt.Orientation.Horizontal)
 
     def _menus(self) -> None:
@@ -453,6 +462,9 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
     gui.binding.BindingLeakError
         The installed PySide6 leaks references (the window would abort within minutes).
     """
+    import faulthandler
+
+    faulthandler.enable()  # a crash in Qt or a C extension prints every thread's stack
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setOrganizationName("DiffuserLab")
     app.setApplicationName("gui")

@@ -23,7 +23,7 @@ SETTINGS: dict[str, dict[str, tuple[str, str]]] = {
         "gain": ("gain", "dB"),
         "pixel_format": ("pixel format", ""),
         "binning": ("binning", "x"),
-        "roi": ("ROI (x, y, width, height)", "px"),
+        "roi": ("ROI x, y, w, h", "px"),
         "trigger_mode": ("trigger", ""),
     },
     "stage": {

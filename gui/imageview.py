@@ -183,7 +183,8 @@ class FrameView(QWidget):
         self.toolbar.setStyleSheet("QToolBar { spacing: 2px; }")
         layout.addWidget(self.toolbar)
         self.glw = pg.GraphicsLayoutWidget()
-        layout.addWidget(self.glw, 1)
+        self.glw.setMinimumHeight(140)
+        layout.addWidget(self.glw, 3)
         self.plot = self.glw.addPlot()
         self.setTitle(title)
         self.plot.setLabel("bottom", axes[0])
@@ -207,10 +208,11 @@ class FrameView(QWidget):
         self.line.sigRegionChanged.connect(lambda *_: self._update_profile())
         self.profile_plot = pg.PlotWidget()
         self.profile_plot.setLabel("bottom", "distance along the line (px)")
-        self.profile_plot.setMaximumHeight(150)
+        self.profile_plot.setMinimumHeight(70)
+        self.profile_plot.setMaximumHeight(140)
         self.profile_curve = self.profile_plot.plot([], [], pen=pg.mkPen("#d09000", width=2))
         self.profile_plot.hide()
-        layout.addWidget(self.profile_plot)
+        layout.addWidget(self.profile_plot, 1)
         info = QHBoxLayout()
         self.readout = QLabel("")
         self.readout.setMinimumWidth(170)
@@ -221,7 +223,7 @@ class FrameView(QWidget):
         layout.addLayout(info)
         self._make_tools()
         self.glw.scene().sigMouseMoved.connect(self._mouse_moved)
-        self.setMinimumSize(320, 260)
+        self.setMinimumSize(240, 200)
 
     # -- the tool bar ----------------------------------------------------------------------
     def _make_tools(self) -> None:
@@ -233,27 +235,29 @@ class FrameView(QWidget):
         self.profile_action.setCheckable(True)
         self.profile_action.setToolTip("a line whose profile shows below the image")
         tb.addSeparator()
-        self.auto_action = tb.addAction("Auto levels", self.auto_levels)
-        self.auto_action.setToolTip("set the levels from the image now (and unlock them)")
+        self.auto_action = tb.addAction("Auto", self.auto_levels)
+        self.auto_action.setToolTip("auto levels: from the image now, in the mode beside "
+                                    "(and unlocked)")
         self.level_mode = QComboBox()
         self.level_mode.addItems(list(LEVEL_MODES))
         self.level_mode.setCurrentText("0.1-99.9 %")
         self.level_mode.setToolTip("automatic levels: the image's min/max, or percentiles")
         self.level_mode.activated.connect(lambda _: self.auto_levels())
         tb.addWidget(self.level_mode)
-        self.lock_action = tb.addAction("Lock levels")
+        self.lock_action = tb.addAction("Lock")
         self.lock_action.setCheckable(True)
-        self.lock_action.setToolTip("keep the levels as they are for new images (dragging "
-                                    "the histogram's region locks them too)")
+        self.lock_action.setToolTip("lock the levels: new images keep them (dragging the "
+                                    "histogram's region locks them too)")
         tb.addSeparator()
         self.colormap = QComboBox()
         self.colormap.addItems(COLORMAPS)
         self.colormap.setToolTip("colormap")
         self.colormap.currentTextChanged.connect(self.set_colormap)
         tb.addWidget(self.colormap)
-        self.snapshot_action = tb.addAction("Save snapshot...", self.choose_snapshot)
-        self.snapshot_action.setToolTip("write the image shown as a TIFF with its metadata "
-                                        "(device settings, time, reconstruction parameters)")
+        self.snapshot_action = tb.addAction("Snapshot...", self.choose_snapshot)
+        self.snapshot_action.setToolTip("save a snapshot: the image shown as a TIFF with its "
+                                        "metadata (device settings, time, reconstruction "
+                                        "parameters)")
 
     @property
     def levels_locked(self) -> bool:

@@ -114,7 +114,7 @@ class AlignmentPanel(RunControls, QWidget):
         self.plot.setLabel("left", "spot efficiency eta")
         self.plot.addLegend(offset=(10, 10), brush=pg.mkBrush(0, 0, 0, 170))
         self.curves: dict[str, pg.PlotDataItem] = {}
-        self.plot.setMinimumHeight(260)
+        self.plot.setMinimumHeight(170)
         right.addWidget(self.plot, 2)
         sections = QGroupBox("per-section offsets (mask px, x / y) and eta / aligned simulation")
         self.section_grid = QGridLayout(sections)
@@ -123,7 +123,7 @@ class AlignmentPanel(RunControls, QWidget):
             for c in range(GRID[1]):
                 cell = QLabel(f"section {r * GRID[1] + c}\n-")
                 cell.setAlignment(Qt.AlignmentFlag.AlignCenter)
-                cell.setMinimumSize(96, 56)
+                cell.setMinimumSize(84, 44)
                 cell.setStyleSheet("border: 1px solid #999; background: #f4f4f4;")
                 self.section_grid.addWidget(cell, r, c)
                 self.cells.append(cell)

@@ -187,35 +187,40 @@ class DeviceBox(QGroupBox):
         """``{name: settings}`` saved for this device on this bench."""
         return load_json(self._preset_key, {})
 
-    def _preset_controls(self) -> QHBoxLayout:
+    def _preset_controls(self) -> QFormLayout:
+        form = QFormLayout()
         row = QHBoxLayout()
-        row.addWidget(QLabel("preset:"))
         self.preset = QComboBox()
         self.preset.setObjectName(f"{self.device.device_id}.preset")
         self.preset.setMinimumWidth(110)
         wheel_needs_focus(self.preset)
         self.preset.addItems(list(self.presets()))
         row.addWidget(self.preset, 1)
-        apply = QPushButton("Apply preset")
+        apply = QPushButton("Apply")
+        apply.setToolTip("apply the saved settings")
         apply.clicked.connect(lambda: self.apply_preset(self.preset.currentText()))
         row.addWidget(apply)
-        self.preset_name = QLineEdit()
-        self.preset_name.setPlaceholderText("new preset's name")
-        self.preset_name.setObjectName(f"{self.device.device_id}.preset-name")
-        row.addWidget(self.preset_name, 1)
-        save = QPushButton("Save settings as")
-        save.clicked.connect(lambda: self.save_preset(self.preset_name.text()))
-        row.addWidget(save)
         delete = QPushButton("Delete")
         delete.clicked.connect(lambda: self.delete_preset(self.preset.currentText()))
         row.addWidget(delete)
-        return row
+        form.addRow("preset:", row)
+        save_row = QHBoxLayout()
+        self.preset_name = QLineEdit()
+        self.preset_name.setPlaceholderText("name for the current settings")
+        self.preset_name.setObjectName(f"{self.device.device_id}.preset-name")
+        self.preset_name.returnPressed.connect(lambda: self.save_preset(self.preset_name.text()))
+        save_row.addWidget(self.preset_name, 1)
+        save = QPushButton("Save as preset")
+        save.clicked.connect(lambda: self.save_preset(self.preset_name.text()))
+        save_row.addWidget(save)
+        form.addRow("", save_row)
+        return form
 
     def save_preset(self, name: str) -> None:
         """Save the device's current settings (those the panel edits) as ``name``."""
         name = name.strip()
         if not name:
-            self.error.setText("type a name for the preset, then press Save settings as")
+            self.error.setText("type a name for the preset, then press Save as preset")
             return
         values = self.device.settings()
         presets = self.presets()
@@ -385,7 +390,7 @@ class DevicePanel(QWidget):
         outer.addWidget(self.error)
         self.area = QScrollArea()
         self.area.setWidgetResizable(True)
-        self.area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAsNeeded)
         self.inner = QWidget()
         self.inner_layout = QVBoxLayout(self.inner)
         self.inner_layout.addStretch(1)

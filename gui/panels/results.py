@@ -210,7 +210,7 @@ class ResultsPanel(QWidget):
             "yz": FrameView("max over columns", axes=("plane (repeated)", "row (px)"),
                             name="mip-yz")}
         for v in self.mip_views.values():
-            v.setMinimumSize(200, 180)
+            v.setMinimumSize(150, 130)
             v.histogram.hide()
             v.metadata = self._metadata
             mips.addWidget(v)
@@ -226,10 +226,9 @@ class ResultsPanel(QWidget):
         self._mode(None)
 
     def _mode(self, kind: str | None, volume: bool = False) -> None:
-        # the projections stay visible (blank for a 2D image): hiding pyqtgraph views
-        # before they were ever shown crashed PySide6 6.12 at interpreter exit
         self.run_bar.setVisible(kind == "run")
         self.depth_bar.setVisible(volume)
+        self.mips.setVisible(volume)  # the projections of a volume only
         if not volume:
             for view in self.mip_views.values():
                 view.clear()

@@ -30,7 +30,7 @@ from ..device_settings import parse_value
 from ..fields import load_json, store_json, wheel_needs_focus
 from ..workers import InputError, Job
 
-__all__ = ["MotionQueue", "StageControls"]
+__all__ = ["JogButton", "MotionQueue", "StageControls"]
 
 
 class MotionQueue(QObject):
@@ -129,6 +129,14 @@ class MotionQueue(QObject):
             raise
 
 
+class JogButton(QPushButton):
+    """A jog button: a quick second click is a second click (Qt's double click would
+    swallow it: three quick clicks jogged twice)."""
+
+    def mouseDoubleClickEvent(self, event) -> None:  # noqa: N802 (Qt's name)
+        self.mousePressEvent(event)
+
+
 class StageControls(QWidget):
     """Jog (step per axis, -/+), go-to (Enter or Go), Stop, stored positions.
 
@@ -180,7 +188,7 @@ class StageControls(QWidget):
             self.jog_steps[axis] = step
             grid.addWidget(step, row, 2)
             for col, sign in ((3, -1), (4, +1)):
-                b = QPushButton("-" if sign < 0 else "+")
+                b = JogButton("-" if sign < 0 else "+")
                 b.setFixedWidth(34)
                 b.setObjectName(f"{dev_id}.jog.{axis}{'-+'[sign > 0]}")
                 b.setToolTip(f"move {axis} by {'-' if sign < 0 else '+'}one step (clicks add "
