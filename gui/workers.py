@@ -14,14 +14,16 @@ and the fix), never a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from typing import Any
 
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, QTimer, Signal
 
 __all__ = ["BACKGROUND_NICE", "InputError", "Job", "readable_error", "wait_until"]
 
@@ -109,6 +111,10 @@ def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> 
             "the traceback to report")
 
 
+#: Jobs started and not yet released on the GUI thread (:meth:`Job._release`).
+_LIVE_JOBS: set[Job] = set()
+
+
 class Job(QObject):
     """Run ``fn(job, *args, **kwargs)`` on a worker thread.
 
@@ -152,6 +158,23 @@ class Job(QObject):
 
     def _mark_done(self) -> None:
         self.done = True
+        QTimer.singleShot(0, self._release)  # after the other slots of ``finished``
+
+    def _release(self) -> None:
+        """On the GUI thread, once every slot has run: wait for the worker thread to be
+        gone, cut the connections (their closures often hold the job: a cycle through
+        Qt that Python's collector cannot see) and let the job go. Its last reference
+        is then dropped on the GUI thread, never on the worker (a QObject deleted on
+        another thread while events for it wait in the GUI thread's queue crashed the
+        window)."""
+        if self._thread is not None:
+            self._thread.join(5.0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            for signal in (self.progress, self.succeeded, self.failed, self.finished):
+                with contextlib.suppress(RuntimeError, TypeError):
+                    signal.disconnect()
+        _LIVE_JOBS.discard(self)
 
     @property
     def cancelled(self) -> bool:
@@ -164,7 +187,9 @@ class Job(QObject):
         return self._thread is not None and self._thread.is_alive()
 
     def start(self) -> Job:
-        """Start the worker thread; returns the job."""
+        """Start the worker thread; returns the job (kept alive until its ``finished``
+        has been handled on the GUI thread)."""
+        _LIVE_JOBS.add(self)
         self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
         self._thread.start()
         return self

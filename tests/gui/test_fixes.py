@@ -297,3 +297,31 @@ class _FrozenLive:
     def stats(self):
         return {"reconstructed": 5, "skipped": 0, "errors": 0, "last_error": None,
                 "method": "wiener", "iterations": 1, "fps": 30.0, "latency_median_s": 0.01}
+
+
+# -- a job's end: released on the GUI thread, no cycle left behind -----------------------------
+
+
+def test_finished_jobs_are_released_on_the_gui_thread(qapp, wait):
+    """A job whose closures hold the job itself (a cycle through Qt the collector cannot
+    see) is freed, and on the GUI thread: the window crashed (SIGSEGV in the event
+    loop) when a job's last reference went on its worker thread."""
+    import gc
+    import weakref
+
+    from gui.workers import _LIVE_JOBS, Job
+
+    freed_on: list[str] = []
+    refs = []
+    for i in range(30):
+        job = Job(lambda job, i=i: i, name=f"t{i}")
+        job.succeeded.connect(lambda r, job=job: job.name)  # the job in its own slot
+        weakref.finalize(job, lambda: freed_on.append(threading.current_thread().name))
+        refs.append(weakref.ref(job))
+        job.start()
+        del job
+    wait(lambda: not _LIVE_JOBS, 20, "the jobs to be released")
+    qapp.processEvents()
+    gc.collect()
+    assert all(r() is None for r in refs)
+    assert freed_on and set(freed_on) == {threading.main_thread().name}
