@@ -86,6 +86,7 @@ class Operator:
         self.loops = 0
         self.t0 = time.monotonic()
         self._gen: Iterator | None = None
+        self._answered: set = set()
         self.target = None
         self._control = _Control.from_env()
 
@@ -94,6 +95,19 @@ class Operator:
         self.monitor.start()
         self._gen = self.day()
         QTimer.singleShot(0, self._step)
+        self._prompts = QTimer()
+        self._prompts.timeout.connect(self._answer_prompts)
+        self._prompts.start(500)
+
+    def _answer_prompts(self) -> None:
+        """A run's operator prompt on a real bench (cap the camera, ...): done, as the
+        operator would, by clicking Done."""
+        for box in self.w.findChildren(QMessageBox):
+            if box.isVisible() and box.windowTitle() == "operator action" and \
+                    box not in self._answered:
+                self._answered.add(box)
+                self.notes.setdefault("prompts", []).append(box.text())
+                self.x.click(box.button(QMessageBox.StandardButton.Ok))
 
     def _step(self, value: Any = None) -> None:
         try:
@@ -615,6 +629,7 @@ class Operator:
 
     def _finish(self, quit: bool = False) -> None:
         self.monitor.stop()
+        self._prompts.stop()
         if self.failure is not None:  # what the window showed when the step failed
             screen = QApplication.primaryScreen().grabWindow(0)
             screen.save(str(self.work / "failure.png"))
@@ -639,12 +654,22 @@ def _census(top: int = 25) -> dict:
     """Live objects per type (the most numerous), for finding what grows in a long day
     (``DIFFUSERLAB_DAY_CENSUS=1``; takes a garbage collection and a walk of the heap)."""
     import gc
-    from collections import Counter
+    from collections import Counter, deque
 
     gc.collect()
-    counts = Counter(type(o).__name__ for o in gc.get_objects())
+    objects = gc.get_objects()
+    counts = Counter(type(o).__name__ for o in objects)
+    sized = sorted(((len(o), id(o), o) for o in objects
+                    if type(o) in (list, dict, deque, set)), key=lambda s: s[:2])[-12:]
+    big = []
+    for n, _, o in reversed(sized):
+        owners = [type(r).__name__ for r in gc.get_referrers(o)[:4] if r is not objects]
+        sample = repr(next(iter(o.items() if isinstance(o, dict) else o), None))[:80]
+        big.append({"type": type(o).__name__, "len": n, "owners": owners, "sample": sample})
+    del objects, sized
     return {"t_s": time.monotonic(), "objects": sum(counts.values()),
-            "top": dict(counts.most_common(top))}
+            "blocks": sys.getallocatedblocks(), "top": dict(counts.most_common(top)),
+            "biggest": big}
 
 
 class _Control:

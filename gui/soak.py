@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["GOALS", "run_day", "summarise"]
+__all__ = ["GOALS", "print_summary", "run_day", "summarise", "x_display"]
 
 #: The goals of the day (issue: 60 minutes, every phase).
 GOALS = {"crashes": 0, "lost_frames": 0, "p99_ms": 100.0, "max_ms": 250.0,
@@ -45,8 +45,16 @@ WINDOW_MANAGERS = ("openbox", "fluxbox")
 
 
 @contextlib.contextmanager
-def _x_display(display: str | None, size: str = "1600x1000x24"):
-    """A display with a window manager: ``display`` as it is, else a new Xvfb."""
+def x_display(display: str | None = None, size: str = "1600x1000x24"):
+    """Context manager: an X display with a window manager running on it, as
+    ``(display, window manager's name)``: ``display`` as it is, else a new Xvfb of
+    ``size``; both stopped on exit.
+
+    Raises
+    ------
+    FileNotFoundError
+        Xvfb or a window manager is not installed (scripts/system-deps.sh).
+    """
     procs: list[subprocess.Popen] = []
     try:
         if display is None:
@@ -146,7 +154,7 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
     load0 = os.getloadavg()
     t0 = time.monotonic()
     with contextlib.ExitStack() as stack:
-        display, wm = stack.enter_context(_x_display(display))
+        display, wm = stack.enter_context(x_display(display))
         env["DISPLAY"] = display
         if emulated:
             bench = stack.enter_context(EmulatedBench(work_dir / "ports", time_scale=20.0))

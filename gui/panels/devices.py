@@ -41,6 +41,16 @@ from .stage import MotionQueue, StageControls
 __all__ = ["DevicePanel", "DeviceBox"]
 
 
+_BRUSHES: list = []
+
+
+def _led_brushes():
+    """The LED map's two brushes (lit, dark), made once."""
+    if not _BRUSHES:
+        _BRUSHES.extend([pg.mkBrush("#ffb000"), pg.mkBrush("#30303080")])
+    return _BRUSHES
+
+
 class DeviceBox(QGroupBox):
     """One device: state and Reconnect, status fields, settings (unit, limits, Apply),
     presets, and its kind's controls.
@@ -148,8 +158,14 @@ class DeviceBox(QGroupBox):
         return self.run(self.device.reconnect, done=lambda _: self.refresh_settings())
 
     def refresh_settings(self) -> None:
-        """Show the device's current settings (fields being edited are left alone)."""
-        values = self.device.settings()
+        """Show the device's current settings (fields being edited are left alone; a
+        device that went away meanwhile is left as shown: its state says so)."""
+        from drivers.errors import DeviceError
+
+        try:
+            values = self.device.settings()
+        except DeviceError:
+            return
         for name, edit in self.fields.items():
             if not edit.hasFocus() and not edit.isModified():
                 edit.setText(value_text(values[name], name))
@@ -298,13 +314,18 @@ class DeviceBox(QGroupBox):
                         done=lambda _: self.show_lit())
 
     def show_lit(self) -> None:
+        """Colour the lit LEDs on the map (only when the set changed; two brushes shared
+        by every point: a fresh QBrush per point and call kept ~6000 references per
+        call alive in pyqtgraph's scatter plot)."""
         try:
-            lit = self.device.lit()
+            lit = set(self.device.lit())
         except Exception:  # noqa: BLE001 (disconnected: the state line says so)
-            lit = {}
-        brushes = [pg.mkBrush("#ffb000") if i in lit else pg.mkBrush("#30303080")
-                   for i in range(self.device.n_leds)]
-        self.led_points.setBrush(brushes)
+            lit = set()
+        if lit == getattr(self, "_lit_shown", None):
+            return
+        self._lit_shown = lit
+        on, off = _led_brushes()
+        self.led_points.setBrush([on if i in lit else off for i in range(self.device.n_leds)])
 
     # -- SLM -----------------------------------------------------------------------------
     def _slm_controls(self) -> QWidget:
