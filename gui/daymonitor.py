@@ -61,6 +61,8 @@ class DayMonitor(QObject):
         self.sampler.timeout.connect(self.sample)
         self.t0 = time.monotonic()
         self.gc_ms: dict[int, list[float]] = {}
+        #: Firings later than 100 ms and collections longer than 50 ms, in time order.
+        self.events: list[dict] = []
         self._gc_t0: float | None = None
 
     def _gc(self, phase: str, info: dict) -> None:
@@ -71,6 +73,10 @@ class DayMonitor(QObject):
             g = info.get("generation", 0)
             self.gc_ms.setdefault(g, []).append(ms)
             self._gc_t0 = None
+            if ms > 50:
+                self.events.append({"t_s": round(time.monotonic() - self.t0, 2),
+                                    "what": f"gc gen{g}", "ms": round(ms, 1),
+                                    "phase": self.phase})
 
     def start(self) -> None:
         import gc
@@ -104,6 +110,10 @@ class DayMonitor(QObject):
         if self._last_ns is not None:
             late = max((now - self._last_ns) / 1e9 - TIMER_MS / 1000.0, 0.0)
             self.lateness.setdefault(self.phase, []).append(late)
+            if late > 0.1:  # when the event loop was held: compared with the GC's pauses
+                self.events.append({"t_s": round(time.monotonic() - self.t0, 2),
+                                    "what": "late", "ms": round(1e3 * late, 1),
+                                    "phase": self.phase})
         self._last_ns = now
 
     def sample(self) -> dict:
@@ -128,5 +138,6 @@ class DayMonitor(QObject):
         gc_stats = {f"gen{g}": {"count": len(v), "max_ms": float(max(v)),
                                 "total_ms": float(sum(v))} for g, v in self.gc_ms.items()}
         return {"timer_ms": TIMER_MS, "phases": phases, "samples": self.samples, "gc": gc_stats,
+                "slow_events": self.events[-400:],
                 "worst_p99_ms": max((p["p99_ms"] for p in phases.values()), default=0.0),
                 "worst_max_ms": max((p["max_ms"] for p in phases.values()), default=0.0)}

@@ -92,6 +92,7 @@ class Session(QObject):
         self._fanout: threading.Thread | None = None
         self._stop = threading.Event()
         self._lock = threading.Lock()
+        self._stream_lock = threading.RLock()  # one start or stop at a time
         self.frames_seen = 0
         self._stream_t0 = 0.0
         self._rate: deque[tuple[float, int]] = deque()
@@ -234,12 +235,30 @@ class Session(QObject):
     def _resume_stream(self) -> None:
         if self.bench is None or self.camera_user is not None or self.streaming:
             return
-        try:
-            self.start_stream()
-        except Exception as exc:  # noqa: BLE001 (told, never raised into the event loop)
-            from .workers import readable_error
+        self.stream_job(True, on_error=lambda text: self.message.emit(
+            f"the live stream could not start again: {text}"))
 
-            self.message.emit(f"the live stream could not start again: {readable_error(exc)}")
+    def stream_job(self, on: bool, then: Callable[[], Any] | None = None,
+                   on_error: Callable[[str], None] | None = None,
+                   done: Callable[[Any], None] | None = None) -> Job:
+        """Start (``on``) or stop the stream on a worker, then ``then()`` there too
+        (stopping joins the camera's grab thread, which may be rendering or reading a
+        frame: never on the GUI thread); ``done(then's result)`` and ``on_error(text)``
+        on the GUI thread. Returns the started job."""
+
+        def work(job: Job):
+            if on:
+                self.start_stream()
+            else:
+                self.stop_stream()
+            return None if then is None else then()
+
+        job = Job(work, name="stream-on" if on else "stream-off")
+        if on_error is not None:
+            job.failed.connect(on_error)
+        if done is not None:
+            job.succeeded.connect(done)
+        return job.start()
 
     # -- the stream ------------------------------------------------------------------------
     @property
@@ -258,15 +277,18 @@ class Session(QObject):
         """
         from drivers.camera import FrameRing
 
-        if self.bench is None:
-            raise CameraBusy("no bench is connected; press Connect first")
-        if self.camera_user is not None:
-            raise CameraBusy(f"the camera is busy with {self.camera_user}; the live view "
-                             "starts again when it ends")
-        if self.streaming:
-            return
-        cam = self.bench.camera
-        self.ring = FrameRing(ring_frames)
+        with self._stream_lock:
+            if self.bench is None:
+                raise CameraBusy("no bench is connected; press Connect first")
+            if self.camera_user is not None:
+                raise CameraBusy(f"the camera is busy with {self.camera_user}; the live "
+                                 "view starts again when it ends")
+            if self.streaming:
+                return
+            self._start(self.bench.camera, FrameRing(ring_frames))
+
+    def _start(self, cam, ring) -> None:
+        self.ring = ring
         cam.start_stream(self.ring)
         self._stop.clear()
         self.frames_seen = 0
@@ -278,18 +300,20 @@ class Session(QObject):
         self.changed.emit()
 
     def stop_stream(self, timeout_s: float = 2.0, *, bench=None) -> None:
-        """Stop the stream (idempotent); the ring keeps its counters."""
-        if self._fanout is None:
-            return
-        bench = bench if bench is not None else self.bench
-        self._stop.set()
-        try:
-            if bench is not None:
-                bench.camera.stop_stream()
-        finally:
-            self._fanout.join(timeout_s)
-            self._fanout = None
-            self.changed.emit()
+        """Stop the stream (idempotent); the ring keeps its counters. Waits for the
+        camera's grab thread: call it on a worker (:meth:`stream_job`)."""
+        with self._stream_lock:
+            if self._fanout is None:
+                return
+            bench = bench if bench is not None else self.bench
+            self._stop.set()
+            try:
+                if bench is not None:
+                    bench.camera.stop_stream()
+            finally:
+                self._fanout.join(timeout_s)
+                self._fanout = None
+                self.changed.emit()
 
     def add_consumer(self, name: str, offer: Callable[[Any], None]) -> None:
         """Hand every streamed frame to ``offer(frame)`` (must return at once)."""

@@ -31,7 +31,7 @@ from PySide6.QtWidgets import (
 )
 
 from ..fields import remember, wheel_needs_focus
-from ..session import CameraBusy, Session
+from ..session import Session
 from ..workers import InputError, Job, readable_error
 from .common import FrameView, depth_field, error_label, offer_depths
 
@@ -60,6 +60,7 @@ class LivePanel(QWidget):
         self.session = session
         self.live = None
         self.job: Job | None = None
+        self.stream_job: Job | None = None
         self.depth_job: Job | None = None
         self.depth_used: float | None = None
         self._shown_raw = -1
@@ -171,15 +172,15 @@ class LivePanel(QWidget):
         if not self.session.connected and self.live is not None:
             self.stop_reconstruction()
 
-    def toggle_stream(self) -> None:
+    def toggle_stream(self) -> Job | None:
+        """Start or stop the camera's stream (on a worker)."""
         self.error.setText("")
-        if self.session.streaming:
-            self.session.stop_stream()
-            return
-        try:
-            self.session.start_stream()
-        except (CameraBusy, Exception) as exc:  # noqa: B014 (shown, never raised)
-            self.error.setText(readable_error(exc))
+        if not self.session.connected:
+            self.error.setText("no bench is connected; press Connect on the Devices panel")
+            return None
+        self.stream_job = self.session.stream_job(not self.session.streaming,
+                                                  on_error=self.error.setText)
+        return self.stream_job
 
     def snap(self) -> Job | None:
         """Stop the stream and take one frame on a worker (shown as the raw frame)."""
@@ -190,13 +191,11 @@ class LivePanel(QWidget):
         if self.session.camera_user is not None:
             self.error.setText(f"the camera is busy with {self.session.camera_user}")
             return None
-        self.session.stop_stream()
         cam = self.session.bench.camera
-        job = Job(lambda job: cam.snap(), name="snap")
-        job.succeeded.connect(self.session.show_frame)
-        job.failed.connect(self.error.setText)
-        self.job = job
-        return job.start()
+        self.stream_job = self.session.stream_job(False, then=cam.snap,
+                                                  on_error=self.error.setText,
+                                                  done=self.session.show_frame)
+        return self.stream_job
 
     def toggle_reconstruction(self) -> None:
         if self.live is not None:
@@ -250,7 +249,7 @@ class LivePanel(QWidget):
             self.live = live
             self.session.add_consumer(CONSUMER, live.offer)
             if not self.session.streaming and self.session.camera_user is None:
-                self.session.start_stream()
+                self.stream_job = self.session.stream_job(True, on_error=self.error.setText)
         except Exception as exc:  # noqa: BLE001 (shown, never raised)
             self.error.setText(readable_error(exc))
         self.recon_button.setText("Stop reconstruction" if self.live else
