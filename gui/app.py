@@ -48,6 +48,7 @@ from .binding import BindingLeakError, check_binding
 from .device_status import STATE_COLOURS, device_state, status_line
 from .fields import settings
 from .logpane import LogPane, gui_log
+from .memory import configure_allocator
 from .session import Session
 
 __all__ = ["SWITCH_INTERVAL_S", "MainWindow", "configure", "main", "settings"]
@@ -474,6 +475,7 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
         QMessageBox.critical(None, "DiffuserLab", str(exc))
         raise
     configure()
+    configure_allocator()
     if bench is None and not simulate:
         bench = settings().value("bench/last_file")
         if bench is None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import logging
+import queue
 import threading
 import time
 import warnings
@@ -130,8 +131,11 @@ def settle_heap() -> None:
     :data:`HEAP_SETTLING_JOBS`."""
     import gc
 
+    from .memory import trim_soon
+
     gc.collect(1)
     gc.freeze()
+    trim_soon()
 
 
 class Job(QObject):
@@ -169,6 +173,9 @@ class Job(QObject):
         self.name = name
         self.cancel_event = threading.Event()
         self._thread: threading.Thread | None = None
+        self._started = False
+        self._launched = threading.Event()
+        self._ended = threading.Event()
         self.result: Any = None
         self.error: str | None = None
         #: True once ``finished`` was delivered on the GUI thread (its slots have run).
@@ -186,8 +193,8 @@ class Job(QObject):
         is then dropped on the GUI thread, never on the worker (a QObject deleted on
         another thread while events for it wait in the GUI thread's queue crashed the
         window)."""
-        if self._thread is not None:
-            self._thread.join(5.0)
+        self._launched.wait(5.0)
+        self.wait(5.0)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             for signal in (self.progress, self.succeeded, self.failed, self.finished):
@@ -204,15 +211,18 @@ class Job(QObject):
 
     @property
     def running(self) -> bool:
-        """True while the worker thread runs."""
-        return self._thread is not None and self._thread.is_alive()
+        """True from :meth:`start` until the job's function has returned."""
+        return self._started and not self._ended.is_set()
 
     def start(self) -> Job:
         """Start the worker thread; returns the job (kept alive until its ``finished``
-        has been handled on the GUI thread)."""
+        has been handled on the GUI thread) at once: the thread is started by the
+        launcher (:func:`_launch`), so the GUI thread never waits for a new thread to
+        get the interpreter (``Thread.start`` waits for the thread's first step, which
+        held the event loop up to 5 s on a loaded machine in the operator's day)."""
         _LIVE_JOBS.add(self)
-        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
-        self._thread.start()
+        self._started = True
+        _launch(self)
         return self
 
     def cancel(self) -> None:
@@ -225,10 +235,15 @@ class Job(QObject):
 
     def wait(self, timeout_s: float) -> bool:
         """Join the worker thread (tests and shutdown only; True if it ended)."""
-        if self._thread is None:
+        if not self._started:
             return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
+        if not self._ended.wait(timeout_s):
+            return False
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+            return not thread.is_alive()
+        return True
 
     def _run(self) -> None:
         from instrument.live import lower_thread_priority
@@ -243,6 +258,43 @@ class Job(QObject):
             self.succeeded.emit(self.result)
         finally:
             self.finished.emit()
+            self._ended.set()
+
+
+_launch_queue: queue.SimpleQueue[Job] = queue.SimpleQueue()
+_launcher: threading.Thread | None = None
+_launcher_lock = threading.Lock()
+
+
+def _launch(job: Job) -> None:
+    """Have the launcher thread start ``job``'s worker thread (started itself once)."""
+    global _launcher
+    _launch_queue.put(job)
+    with _launcher_lock:
+        if _launcher is None:
+            _launcher = threading.Thread(target=_launch_jobs, name="job-launcher",
+                                         daemon=True)
+            _launcher.start()
+
+
+def _launch_jobs() -> None:
+    """The launcher thread: start each queued job's thread, then let go of the job
+    before saying so (``_launched``): a job's last reference must go on the GUI thread
+    (:meth:`Job._release` waits for ``_launched``)."""
+    while True:
+        job = _launch_queue.get()
+        launched = job._launched
+        thread = threading.Thread(target=job._run, name=job.name, daemon=True)
+        job._thread = thread
+        try:
+            thread.start()
+        except RuntimeError as exc:  # "can't start new thread": the job fails, reported
+            job.error = readable_error(exc)
+            job.failed.emit(job.error)
+            job.finished.emit()
+            job._ended.set()
+        del job, thread
+        launched.set()
 
 
 def wait_until(app, condition: Callable[[], bool], timeout_s: float, what: str) -> None:

@@ -325,3 +325,28 @@ def test_finished_jobs_are_released_on_the_gui_thread(qapp, wait):
     gc.collect()
     assert all(r() is None for r in refs)
     assert freed_on and set(freed_on) == {threading.main_thread().name}
+
+
+def test_starting_a_job_never_waits_for_a_thread_on_the_gui_thread(qapp, wait, monkeypatch):
+    """``Thread.start`` waits until the new thread has run its first step; on a loaded
+    machine that held the event loop up to 5 s in the operator's day (the GUI thread in
+    ``threading.Thread.start``). Jobs are started by the launcher thread instead."""
+    from gui.workers import Job
+
+    first = Job(lambda job: None, name="first").start()  # the launcher is up
+    wait(lambda: first.done, 20, "the first job")
+    starters: list[str] = []
+    start = threading.Thread.start
+
+    def recording_start(self):
+        starters.append(threading.current_thread().name)
+        return start(self)
+
+    monkeypatch.setattr(threading.Thread, "start", recording_start)
+    gate = threading.Event()
+    jobs = [Job(lambda job: gate.wait(10), name=f"gated{i}").start() for i in range(5)]
+    assert all(j.running for j in jobs)  # running from start(), before its thread runs
+    gate.set()
+    wait(lambda: all(j.done for j in jobs), 20, "the gated jobs")
+    assert not any(j.running for j in jobs)
+    assert starters and threading.main_thread().name not in starters, starters
