@@ -286,6 +286,7 @@ class Operator:
         while self.remaining_s() > loop_s:
             t = time.monotonic()
             self.loops += 1
+            self.monitor.loop = self.loops
             yield from self.stream_and_stage()
             yield from self.calibrate(pause_and_resume=False)
             yield from self.live_view()
@@ -668,6 +669,7 @@ def _census(top: int = 25) -> dict:
         big.append({"type": type(o).__name__, "len": n, "owners": owners, "sample": sample})
     del objects, sized
     return {"t_s": time.monotonic(), "objects": sum(counts.values()),
+            "frozen": gc.get_freeze_count(),
             "blocks": sys.getallocatedblocks(), "top": dict(counts.most_common(top)),
             "biggest": big}
 

@@ -36,9 +36,10 @@ __all__ = ["GOALS", "print_summary", "run_day", "summarise", "x_display"]
 
 #: The goals of the day (issue: 60 minutes, every phase).
 GOALS = {"crashes": 0, "lost_frames": 0, "p99_ms": 100.0, "max_ms": 250.0,
-         "rss_growth_pct": 10.0}
-#: Samples of the first this many seconds are the warm-up (the bench opening, numba
-#: compiling, caches filling), left out of the drift and growth figures.
+         "rss_growth_pct": 10.0, "none_drift_per_min": 60.0}
+#: The warm-up is the day's first pass (the bench opening, numba compiling, dask and
+#: the libraries imported, caches filled); a day without a second pass falls back to
+#: leaving out the samples of the first this many seconds.
 WARMUP_S = 120.0
 #: Window managers tried, in order.
 WINDOW_MANAGERS = ("openbox", "fluxbox")
@@ -212,14 +213,21 @@ def summarise(report: dict) -> dict:
     dict
         ``crashes``, ``lost_frames``, ``phases`` (lateness per phase), ``worst_p99_ms``,
         ``worst_max_ms``, ``none_drift_per_min`` and ``true_drift_per_min`` (slope of a
-        straight line through the samples after the warm-up), ``rss_growth_pct`` (last
-        sample over the first after the warm-up), ``goals_met`` (per goal).
+        straight line through the samples after the warm-up: the first pass),
+        ``rss_growth_pct`` (last sample over the first after the warm-up), ``per_loop``
+        (memory and None's count at each pass's start), ``stalls`` (what the GUI thread
+        ran when the watchdog saw it 100 ms late, counted), ``goals_met`` (per goal).
     """
     lost = sum(int(r.get("lost_by_recorder") or 0) + int(r.get("dropped_by_camera") or 0)
                + int(r.get("skipped_by_ring") or 0) for r in report.get("records", []))
-    samples = [s for s in report.get("samples", []) if s["t_s"] >= WARMUP_S] or \
-        report.get("samples", [])[-3:]
+    every = report.get("samples", [])
+    samples = [s for s in every if s.get("loop", 0) >= 1]  # after the first pass
+    warmup = "the first pass"
+    if len(samples) < 2:
+        samples = [s for s in every if s["t_s"] >= WARMUP_S] or every[-3:]
+        warmup = f"{WARMUP_S:.0f} s"
     out: dict = {"crashes": int(bool(report.get("crashed"))), "lost_frames": lost,
+                 "warmup": warmup,
                  "phases": report.get("phases", {}),
                  "worst_p99_ms": report.get("worst_p99_ms"),
                  "worst_max_ms": report.get("worst_max_ms"),
@@ -231,6 +239,11 @@ def summarise(report: dict) -> dict:
             out[f"{key}_drift_per_min"] = float(np.polyfit(t, y, 1)[0]) if np.ptp(t) > 0 \
                 else 0.0
             out[f"{key}_refs_range"] = [int(y.min()), int(y.max())]
+        starts: dict[int, dict] = {}
+        for s in every:
+            starts.setdefault(s.get("loop", 0), s)
+        out["per_loop"] = [{"loop": k, "t_s": round(v["t_s"]), "rss_mb": round(v["rss_mb"]),
+                            "none_refs": v["none_refs"]} for k, v in sorted(starts.items())]
         rss = [s["rss_mb"] for s in samples]
         out["rss_mb"] = [round(rss[0], 1), round(rss[-1], 1), round(max(rss), 1)]
         out["rss_growth_pct"] = 100.0 * (rss[-1] - rss[0]) / rss[0]
@@ -240,8 +253,37 @@ def summarise(report: dict) -> dict:
         "lost_frames": lost == GOALS["lost_frames"],
         "p99_ms": all(p["p99_ms"] < GOALS["p99_ms"] for p in phases),
         "max_ms": all(p["max_ms"] < GOALS["max_ms"] for p in phases),
-        "rss_growth_pct": out.get("rss_growth_pct", 0.0) < GOALS["rss_growth_pct"]}
+        "rss_growth_pct": out.get("rss_growth_pct", 0.0) < GOALS["rss_growth_pct"],
+        "none_drift_per_min": abs(out.get("none_drift_per_min", 0.0))
+        < GOALS["none_drift_per_min"]}
+    out["stalls"] = _stall_causes(report.get("stalls", []))
     return out
+
+
+#: The GUI thread's innermost frame when it waited in Qt's event loop (no Python of
+#: ours running: the process waited for a core, or for the GIL held by a worker).
+_EVENT_LOOP = ("app.py", "main")
+
+
+def _stall_causes(stalls: list[dict]) -> list[tuple[str, int]]:
+    """What the GUI thread ran during the watchdog's stalls, most frequent first:
+    ``"event loop (waiting for a core or the GIL)"`` or its innermost frames."""
+    from collections import Counter
+
+    causes: Counter = Counter()
+    for st in stalls:
+        stack = st.get("gui_stack") or []
+        inner = stack[-1] if stack else ""
+        parts = inner.split(":")
+        if len(parts) >= 3 and parts[0].endswith(_EVENT_LOOP[0]) and parts[2] == _EVENT_LOOP[1]:
+            what = "event loop (waiting for a core or the GIL)"
+            busy = ", ".join(sorted({t.split("@")[0] for t in st.get("threads", [])}))
+            if busy:
+                what += f"; running: {busy}"
+        else:
+            what = " <- ".join(reversed(stack[-3:]))
+        causes[f"{st.get('phase')}: {what}"] += 1
+    return causes.most_common()
 
 
 def print_summary(s: dict, report: dict) -> None:
@@ -264,10 +306,13 @@ def print_summary(s: dict, report: dict) -> None:
         print(f"    {name:<14} p50 {p['p50_ms']:6.2f}  p99 {p['p99_ms']:7.2f}  max "
               f"{p['max_ms']:8.2f} ms  ({p['firings']} firings, {p['seconds']:.0f} s){flag}")
     if "none_drift_per_min" in s:
-        print(f"  refcount drift after {WARMUP_S:.0f} s: None {s['none_drift_per_min']:+.1f}"
+        print(f"  refcount drift after {s['warmup']}: None {s['none_drift_per_min']:+.1f}"
               f"/min (range {s['none_refs_range']}), True {s['true_drift_per_min']:+.1f}/min")
         print(f"  RSS {s['rss_mb'][0]:.0f} -> {s['rss_mb'][1]:.0f} MB (max "
               f"{s['rss_mb'][2]:.0f}): {s['rss_growth_pct']:+.1f} %")
+    if s.get("per_loop"):
+        print("  at each pass's start (s: RSS MB, None refs): " + ", ".join(
+            f"{p['t_s']}: {p['rss_mb']}, {p['none_refs']}" for p in s["per_loop"]))
     gc = report.get("gc", {})
     if gc:
         print("  garbage collector pauses: " + ", ".join(
@@ -276,5 +321,10 @@ def print_summary(s: dict, report: dict) -> None:
     if q:
         print(f"  Ctrl+Q while recording: run {q.get('status')}, lock {q.get('lock')}, "
               f"{q.get('frames_done')} frames, problems {q.get('problems')}")
+    if s.get("stalls"):
+        print(f"  stalls over 100 ms, what the GUI thread ran ({sum(n for _, n in s['stalls'])}"
+              " seen by the watchdog; most frequent first):")
+        for what, n in s["stalls"][:12]:
+            print(f"    {n:4d} x {what}")
     met = s["goals_met"]
     print("  goals: " + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in met.items()))
