@@ -50,6 +50,7 @@ from .fields import settings
 from .logpane import LogPane, gui_log
 from .memory import configure_allocator
 from .session import Session
+from .workers import settle_heap
 
 __all__ = ["SWITCH_INTERVAL_S", "MainWindow", "configure", "main", "settings"]
 
@@ -484,6 +485,7 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
                                  "built-in simulated bench.")
             return 2
     window = MainWindow(Session(bench, simulate=simulate, seed=seed, scene=scene))
+    settle_heap()  # the libraries and the window, out of the collector's full passes
     window.show()
     if connect:
         window.devices.toggle_connection()
