@@ -25,7 +25,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-from .workers import Job
+from .workers import CameraBusy, Job
 
 __all__ = ["CameraBusy", "RATE_WINDOW_S", "SCENES", "Session"]
 
@@ -36,10 +36,6 @@ RATE_WINDOW_S = 2.0
 
 #: Moving scenes the virtual bench can put in front of the camera (``--simulate``).
 SCENES = ("beads-flow", "neurons", "none")
-
-
-class CameraBusy(RuntimeError):
-    """Another job holds the camera."""
 
 
 class Session(QObject):

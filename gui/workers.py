@@ -26,8 +26,8 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
-__all__ = ["BACKGROUND_NICE", "HEAP_SETTLING_JOBS", "InputError", "Job", "readable_error",
-           "settle_heap", "wait_until"]
+__all__ = ["BACKGROUND_NICE", "HEAP_SETTLING_JOBS", "CameraBusy", "InputError", "Job",
+           "readable_error", "settle_heap", "wait_until"]
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +37,10 @@ log = logging.getLogger(__name__)
 #: ``python -m gui.benchmark`` with ADMM x5 live and a PSF sweep: p99 lateness 51 ms
 #: at +5, 29-35 ms at +10.
 BACKGROUND_NICE = 10
+
+
+class CameraBusy(RuntimeError):
+    """Another job holds the camera (or no bench is connected); the message says which."""
 
 
 class InputError(ValueError):
@@ -69,7 +73,6 @@ def _input_errors() -> tuple[type[BaseException], ...]:
     from recon.errors import DivergenceError, ReconInputError
 
     from .binding import BindingLeakError
-    from .session import CameraBusy
 
     return (DeviceError, PlanError, AlignmentFailed, CheckFailed, RunStoreError,
             ReconInputError, DivergenceError, LiveReconstructionError, RunAborted,
