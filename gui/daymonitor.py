@@ -33,7 +33,8 @@ __all__ = ["DayMonitor", "rss_mb"]
 TIMER_MS = 10
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
 _WAITING = frozenset({"wait", "get", "sleep", "select", "_wait_for_tstate_lock", "acquire",
-                      "accept", "recv", "readline", "poll", "join", "_worker"})
+                      "accept", "recv", "readline", "poll", "join", "_worker",
+                      "_launch_jobs"})
 
 
 def _short_path(path: str) -> str:

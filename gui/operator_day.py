@@ -318,8 +318,16 @@ class Operator:
             yield self.until(lambda: not box.queue.busy and abs(stage.position("z") - 60) < 1e-3,
                              60, "the go-to z 60")
         start = stage.positions()
-        yield from self.click(self.button("source_stage.jog.x+"), times=3)  # quick clicks
+        jog = self.button("source_stage.jog.x+")
+        clicks: list[bool] = []
+        count = clicks.append
+        jog.clicked.connect(count)
+        yield from self.click(jog, times=3)  # quick clicks
         step = box.stage.jog_steps["x"].value()
+        # xdotool has sent them; on a loaded machine the window may read the last one
+        # only after the first two moved: wait for the three, then for the stage
+        yield self.until(lambda: len(clicks) >= 3, 60, "the window to get the three clicks")
+        jog.clicked.disconnect(count)
         yield self.until(lambda: not box.queue.busy, 60, "the three jogs")
         moved = stage.position("x") - start["x"]
         if abs(moved - 3 * step) > 1e-3:
