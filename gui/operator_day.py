@@ -320,7 +320,10 @@ class Operator:
         start = stage.positions()
         jog = self.button("source_stage.jog.x+")
         clicks: list[bool] = []
-        count = clicks.append
+
+        def count(checked: bool = False) -> None:
+            clicks.append(checked)
+
         jog.clicked.connect(count)
         yield from self.click(jog, times=3)  # quick clicks
         step = box.stage.jog_steps["x"].value()
