@@ -317,6 +317,10 @@ def print_summary(s: dict, report: dict) -> None:
     if gc:
         print("  garbage collector pauses: " + ", ".join(
             f"{g} {v['count']} x, max {v['max_ms']:.0f} ms" for g, v in sorted(gc.items())))
+    lost_clicks = report.get("notes", {}).get("jog_clicks_not_received")
+    if lost_clicks:
+        print(f"  jog clicks sent by xdotool that the button never got (clicked again): "
+              f"{lost_clicks}")
     q = report.get("quit_run")
     if q:
         print(f"  Ctrl+Q while recording: run {q.get('status')}, lock {q.get('lock')}, "
