@@ -333,10 +333,17 @@ class Session(QObject):
     def stream_counters(self) -> dict[str, float]:
         """The ring's counters (acquired, read, skipped, dropped) and ``fps``: the rate
         of the frames delivered over the last :data:`RATE_WINDOW_S` seconds (not since
-        the stream started: a change of exposure shows within seconds)."""
-        if self.ring is None:
+        the stream started: a change of exposure shows within seconds).
+
+        Read without the ring's lock (each counter is one int, read whole): the GUI
+        thread never waits for the grab thread, which on a loaded machine held it while
+        descheduled (the operator's day's watchdog found the event loop there); the
+        numbers shown may be one frame apart."""
+        ring = self.ring
+        if ring is None:
             return {}
-        out: dict[str, float] = dict(self.ring.counters())
+        out: dict[str, float] = {"acquired": ring.acquired, "read": ring.read,
+                                 "skipped": ring.skipped, "dropped": ring.dropped}
         out["fps"] = self.frame_rate() if self.streaming else 0.0
         return out
 
