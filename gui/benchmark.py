@@ -1,6 +1,8 @@
 """Responsiveness benchmark of the GUI: the Qt event loop's latency under load.
 
 ``python -m gui.benchmark [--seconds 20] [--method admm:5] [--json OUT.json]``
+(``python -m gui.benchmark soak [--minutes 60] [--emulated]``: the operator's day in a
+real window, :mod:`gui.soak`)
 
 Measures how late a 10 ms timer fires on the GUI thread (its lateness: the interval
 between two firings minus 10 ms), first with the window idle (the reference), then
@@ -165,9 +167,41 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
             job.wait(10.0)
 
 
+def soak(argv: list[str]) -> int:
+    """``python -m gui.benchmark soak [--minutes 60] [--emulated] [--json OUT]``: the
+    operator's day in a real window for ``--minutes`` (:func:`gui.soak.run_day`), its
+    figures against the goals (:func:`gui.soak.summarise`)."""
+    from .soak import print_summary, run_day, summarise
+
+    p = argparse.ArgumentParser(prog="python -m gui.benchmark soak",
+                                description=soak.__doc__.split("\n\n")[0])
+    p.add_argument("--minutes", type=float, default=60.0, help="length of the day")
+    p.add_argument("--emulated", action="store_true",
+                   help="the emulated bench (real drivers on protocol emulators)")
+    p.add_argument("--alignment-s", type=float, default=0.0,
+                   help="abort the alignment after this many seconds (default 0: the "
+                   "whole alignment)")
+    p.add_argument("--display", default=None, help="an X display (default a new Xvfb)")
+    p.add_argument("--work", default=None, help="folder for the runs and the report")
+    p.add_argument("--json", default=None, help="also write the report and figures here")
+    args = p.parse_args(argv)
+    report = run_day(emulated=args.emulated, minutes=args.minutes,
+                     alignment_s=args.alignment_s, display=args.display, work=args.work)
+    figures = summarise(report)
+    print_summary(figures, report)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"figures": figures, "report": report},
+                                              indent=1, default=str))
+    return 0 if all(figures["goals_met"].values()) and not figures["failure"] else 1
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["soak"]:
+        return soak(argv[1:])
     p = argparse.ArgumentParser(prog="python -m gui.benchmark", description=__doc__.split(
-        "\n\n")[0])
+        "\n\n")[0], epilog="python -m gui.benchmark soak --help: the operator's day in a "
+        "real window (60 minutes by default)")
     p.add_argument("--seconds", type=float, default=20.0, help="length of each phase, s")
     p.add_argument("--method", default="wiener", help="wiener or admm:K")
     p.add_argument("--json", default=None, help="also write the figures here")

@@ -9,6 +9,7 @@ the command says which extra to install.
 from __future__ import annotations
 
 import argparse
+import sys
 
 __all__ = ["add_subcommands", "exit_now", "run"]
 
@@ -45,23 +46,31 @@ def run(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise ImportError(f"the GUI needs the gui extra ({exc}); install it with "
                           "pip install 'diffuserlab[gui]'") from None
-    status = main(args.bench, simulate=args.simulate, seed=args.seed, scene=args.scene,
-                  connect=not args.no_connect)
+    from .binding import BindingLeakError
+
+    try:
+        status = main(args.bench, simulate=args.simulate, seed=args.seed, scene=args.scene,
+                      connect=not args.no_connect)
+    except BindingLeakError as exc:  # before any window: one line, and no final collection
+        print(f"diffuserlab: error: {exc}", file=sys.stderr)
+        status = 2
     exit_now(status)
     return status
 
 
 def exit_now(status: int) -> None:
-    """End the process once the window has closed (settings saved, bench closed).
+    """End the process once the window has closed (settings saved, bench closed, runs
+    finished), without the interpreter's final garbage collection.
 
-    PySide6 6.12 with pyqtgraph aborts in the interpreter's final garbage collection
-    ("Fatal Python error: none_dealloc / bool_dealloc") after a window with hidden
-    widgets was shown; nothing is left to do then, so the process ends without that
-    collection (output flushed, logging shut down first).
+    Nothing is left to do then, and tearing down Qt's and pyqtgraph's objects in the
+    collector's order costs time and risks an abort in a destructor; output is flushed
+    and logging shut down first. (The "Fatal Python error: none_dealloc" once seen
+    here was not an exit problem: PySide6 6.12.0 leaks a reference to None on every
+    Qt call, so the count ran out while the window was in use; the gui extra excludes
+    that release and :func:`gui.binding.check_binding` refuses it at start.)
     """
     import logging
     import os
-    import sys
 
     logging.shutdown()
     sys.stdout.flush()

@@ -18,13 +18,14 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import re
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 __all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "batch_reconstruct", "build_live",
            "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
-           "run_alignment", "run_plan", "section_summary"]
+           "run_alignment", "run_plan", "section_summary", "stack_depths"]
 
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
@@ -59,10 +60,15 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
 
     Returns
     -------
-    instrument.live.LiveReconstruction
+    live : instrument.live.LiveReconstruction
+    depth_mm : float or None
+        The depth of the stack's plane used (the nearest to ``depth_mm``); None for a
+        single PSF image.
 
     Raises
     ------
+    gui.workers.InputError
+        No PSF given.
     recon.errors.ReconInputError
         Unreadable PSF, a PSF whose shape is not the camera's frames, a calibrated
         stack without a dark level on a real bench.
@@ -72,8 +78,11 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
 
-    from .workers import BACKGROUND_NICE
+    from .workers import BACKGROUND_NICE, InputError
 
+    if not psf_path.strip():
+        raise InputError("give the PSF: an image, a PSF stack or a calibration run (PSF "
+                         "sweep); Browse... picks one")
     psf, depth = load_psf(psf_path, depth_mm)
     stacked = depth is not None or Path(psf_path).is_dir()
     cam = session.bench.camera
@@ -95,8 +104,28 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         level = dark_level(text, "dark")
     if level is not None and stacked:  # the stack's PSF is dark-subtracted already
         psf = psf + level
-    return LiveReconstruction(LiveReconstructor(psf, dark=level), method=method,
+    live = LiveReconstruction(LiveReconstructor(psf, dark=level), method=method,
                               iterations=iterations, threads=threads, nice=BACKGROUND_NICE)
+    return live, depth
+
+
+def stack_depths(psf_path: str) -> list[float]:
+    """The depths (mm) of the planes of a PSF stack or calibration run; ``[]`` for a
+    single PSF image or a path that is not a stack (offered as the depth field's
+    choices, read on a worker)."""
+    from instrument.runstore import RunStoreError
+    from instrument.stacks import load_psf_stack
+    from recon.errors import ReconInputError
+
+    path = Path(psf_path.strip()) if psf_path.strip() else None
+    if path is None or not path.exists() or path.suffix.lower() in (
+            ".png", ".jpg", ".jpeg"):
+        return []
+    try:
+        _, depths, _ = load_psf_stack(path)
+    except (RunStoreError, ReconInputError, OSError, ValueError):
+        return []  # not a stack: the depth field stays free
+    return [float(z) for z in depths]
 
 
 class RoutineOption:
@@ -126,10 +155,12 @@ class RoutineOption:
 
 
 def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
-    """``parser.parse_args(argv)`` with argparse's complaint as a ValueError (argparse's
+    """``parser.parse_args(argv)`` with argparse's complaint as an InputError (argparse's
     subparsers print and exit instead)."""
     import contextlib
     import io
+
+    from .workers import InputError
 
     err = io.StringIO()
     try:
@@ -138,7 +169,11 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
     except (SystemExit, argparse.ArgumentError) as exc:
         lines = [ln for ln in err.getvalue().splitlines() if "error:" in ln]
         text = lines[-1].split("error:", 1)[1].strip() if lines else str(exc)
-        raise ValueError(text) from None
+        m = re.match(r"argument (\S+): invalid (int|float) value: (.*)", text)
+        if m:
+            what = "a whole number" if m.group(2) == "int" else "a number"
+            text = f"{m.group(1)}: {m.group(3)} is not {what}"
+        raise InputError(text.removeprefix("argument ")) from None
 
 
 def _calibrate_parser() -> argparse.ArgumentParser:
@@ -174,7 +209,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
 
     Raises
     ------
-    ValueError
+    gui.workers.InputError
         A value the option does not accept (the message names the option).
     instrument.plan.PlanError
         Parameters the plan refuses.
@@ -196,20 +231,33 @@ def default_run_path(routine: str, folder: str = "out/runs") -> str:
 
 
 @contextmanager
-def _camera(session, user: str):
-    """Claim the camera for ``user``; on the virtual bench, take the moving scene out
-    of the beam for the run (as an operator removes the sample) and put it back."""
+def _camera(session, user: str, *, sample_out: bool = True):
+    """Claim the camera for ``user``, and give the bench back as it was: the camera's
+    settings, the stages' positions and the LEDs put back (:func:`gui.benchstate.restore`,
+    also after an abort or a failure) and the live stream started again if it ran (not
+    when the window is closing).
+
+    ``sample_out``: on the virtual bench, take the moving scene out of the beam for the
+    run (as an operator removes the sample) and put it back."""
+    from .benchstate import capture, restore
+
+    was_streaming = session.streaming
     session.claim_camera(user)
     bench = session.bench
-    scene = getattr(bench, "scene", None)
+    scene = getattr(bench, "scene", None) if sample_out else None
     try:
+        before = capture(bench)
         if scene is not None:
             bench.set_scene(None)
-        yield
+        try:
+            yield
+        finally:
+            if scene is not None:
+                bench.set_scene(scene)
+            if not session.closing:  # the window closes: the devices close next
+                restore(bench, before)
     finally:
-        if scene is not None:
-            bench.set_scene(scene)
-        session.release_camera(user)
+        session.release_camera(user, resume_stream=was_streaming and not session.closing)
 
 
 def _tagged(report, tags_of_point):
@@ -366,9 +414,10 @@ def section_summary(steps: dict) -> dict:
 
 def record(job, session, out: str, stop, *, frames: int | None, seconds: float | None,
            fps: float | None, exposure_s: float | None, tap=None) -> dict:
-    """Record a video run (:func:`instrument.video.record_video`) with the camera claimed;
-    on the virtual bench the run records the scene, seed and the camera's dark offset,
-    as ``capture video --simulate`` does (``recon-run`` takes the dark level from it)."""
+    """Record a video run (:func:`instrument.video.record_video`) with the camera claimed
+    (its settings put back and the live stream resumed afterwards); on the virtual bench
+    the run records the scene, seed and the camera's dark offset, as ``capture video
+    --simulate`` does (``recon-run`` takes the dark level from it)."""
     from instrument.video import record_video
 
     bench = session.bench
@@ -377,13 +426,10 @@ def record(job, session, out: str, stop, *, frames: int | None, seconds: float |
         attrs["simulated"] = {"scene": session.scene_name, "seed": session.seed,
                               "dark_offset_dn": float(bench.camera.dark_offset_dn)}
     options = {k: v for k, v in (("fps", fps), ("exposure_s", exposure_s)) if v is not None}
-    session.claim_camera("the video recording")
-    try:
+    with _camera(session, "the video recording", sample_out=False):
         return record_video(bench, out, frames=frames, seconds=seconds, stop=stop,
                             on_progress=job.report, progress_every_s=0.25, live=tap,
                             **options, **attrs)
-    finally:
-        session.release_camera("the video recording")
 
 
 def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
@@ -392,8 +438,8 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
 
     Raises
     ------
-    ValueError
-        An option ``recon-run`` refuses (the message names it).
+    gui.workers.InputError
+        No PSF, or an option ``recon-run`` refuses (the message names it).
     instrument.runstore.RunStoreError, recon.errors.ReconInputError
         From the run, the PSF or a frame's reconstruction (frames done are kept).
     """
@@ -401,12 +447,17 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     from instrument.cli.recon_run import add_subcommands
     from instrument.runstore import RunStore
 
+    from .workers import InputError
+
     parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
     add_subcommands(parser.add_subparsers(dest="command"))
     argv = ["recon-run", run]
     for flag, value in options.items():
         if value not in (None, ""):
             argv += [flag, str(value)]
+    if not str(options.get("--psf") or "").strip():
+        raise InputError("give the PSF to reconstruct with: an image, a PSF stack or a "
+                         "calibration run (PSF sweep)")
     args = _parse(parser, argv)
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)

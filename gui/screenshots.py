@@ -9,10 +9,15 @@ built-in simulated bench, drives each panel into a state worth showing and saves
   interface's message;
 * calibration: a short PSF sweep, complete, its last frame shown;
 * live: the stream with the live reconstruction (the sweep's PSF, warm ADMM);
+* tools: the image tools on the live view (ROI statistics, line profile, pixel readout,
+  a colormap);
+* disconnected: the window with the LED array unplugged (red in its box, the status
+  area and the device count; Reconnect);
 * record: a short video recorded;
 * results: the sweep's PSF stack with its depth slider and projections;
 * alignment: a finished record (``--alignment-record``, e.g. from ``diffuserlab
-  align mask --simulate``, about 6 minutes), else the panel before a start.
+  align mask --simulate``, about 6 minutes), else the panel before a start;
+* log: the log pane with the session's history.
 """
 
 from __future__ import annotations
@@ -70,11 +75,19 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
 
     def shot(name: str, dock: str) -> None:
         log.info("screenshot %s at %.1f s", name, time.monotonic() - t0)
-        w.docks[dock].raise_()
-        _settle(app, 0.6)
+        d = w.docks[dock]
+        d.raise_()
+        whole = name in ("window", "disconnected")
+        if not whole:  # one panel, floated at a readable size, then docked back
+            d.setFloating(True)
+            d.resize(1300, 760)
+        _settle(app, 0.8)
         path = out / f"gui-{name}.png"
-        widget = w if name == "window" else w.docks[dock]
-        if not widget.grab().save(str(path)):
+        ok = (w if whole else d).grab().save(str(path))
+        if not whole:
+            d.setFloating(False)
+            _settle(app, 0.3)
+        if not ok:
             raise RuntimeError(f"could not write {path}")
         written.append(path)
 
@@ -121,7 +134,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         # live view: the stream and the live reconstruction with the sweep's PSF
         live = w.live
         live.psf.setText(sweep)
-        live.depth.setText(f"{depth:g}")
+        live.depth.setEditText(f"{depth:g}")
         live.method.setCurrentText("admm")
         live.iterations.setValue(5)
         w.docks["Live view"].raise_()
@@ -133,12 +146,42 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         _settle(app, 3.0)
         shot("live", "Live view")
         shot("window", "Live view")
+        # the image tools: ROI statistics, line profile, colormap, pixel readout
+        raw = live.raw_view
+        raw.show_roi(True)
+        raw.show_profile(True)
+        live.recon_view.set_colormap("viridis")
+        live.recon_view.show_roi(True)
+        _settle(app, 0.5)
+        from PySide6.QtCore import QPoint
+        from PySide6.QtTest import QTest
+
+        port = raw.glw.viewport()
+        QTest.mouseMove(port, QPoint(port.width() // 3, port.height() // 3))
+        QTest.mouseMove(port, QPoint(port.width() // 3 + 5, port.height() // 3 + 3))
+        _settle(app, 1.0)
+        shot("tools", "Live view")
+        raw.show_roi(False)
+        raw.show_profile(False)
+        live.recon_view.show_roi(False)
+        # a device unplugged: red in its box, the status area and the device count
+        leds = bench.led_array
+        leds.faults.disconnect()
+        job = box.light_led(centre)
+        wait_until(app, lambda: job.done, 10, "the refused LED")
+        wait_until(app, lambda: "disconnected" in w.devices.state.text(), 10, "the poll")
+        w.devices.area.ensureWidgetVisible(box, 0, 0)
+        _settle(app, 1.5)
+        shot("disconnected", "Devices")
+        leds.faults.allow_reconnect()
+        job = box.reconnect()
+        wait_until(app, lambda: job.done, 10, "the reconnect")
         # record: a short video (the live view keeps running beside it)
         rec = w.record
         rec.out.setText(str(work / "video.zarr"))
         rec.frames.setText("20")
         rec.batch_fields["--psf"].setText(sweep)
-        rec.batch_fields["--depth"].setText(live.depth.text())
+        rec.batch_fields["--depth"].setEditText(live.depth.currentText())
         w.docks["Record"].raise_()
         job = rec.start_recording()
         wait_until(app, lambda: job.done, 120, "the recording")
@@ -162,6 +205,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         if alignment_record:
             al.open_record(alignment_record)
         shot("alignment", "Alignment")
+        shot("log", "Log")
     finally:
         w.shutdown()
     return written

@@ -19,23 +19,23 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-from .workers import Job
+from .workers import CameraBusy, Job
 
-__all__ = ["CameraBusy", "SCENES", "Session"]
+__all__ = ["CameraBusy", "RATE_WINDOW_S", "SCENES", "Session"]
 
 log = logging.getLogger(__name__)
 
+#: The camera's frame rate shown is measured over this many seconds.
+RATE_WINDOW_S = 2.0
+
 #: Moving scenes the virtual bench can put in front of the camera (``--simulate``).
 SCENES = ("beads-flow", "neurons", "none")
-
-
-class CameraBusy(RuntimeError):
-    """Another job holds the camera."""
 
 
 class Session(QObject):
@@ -67,6 +67,7 @@ class Session(QObject):
     changed = Signal()
     message = Signal(str)
     prompt = Signal(str, str, object)
+    _resume = Signal()
 
     def __init__(self, bench_path: str | None = None, *, simulate: bool = False,
                  seed: int = 0, scene: str = "beads-flow") -> None:
@@ -79,15 +80,20 @@ class Session(QObject):
             raise ValueError(f"scene {scene!r} is unknown; use one of {', '.join(SCENES)}")
         self.scene_name = scene
         self.camera_user: str | None = None
+        #: True while the window closes (jobs then leave the bench as it is).
+        self.closing = False
         self.ring = None
         self._consumers: dict[str, Callable[[Any], None]] = {}
         self._latest = None
         self._fanout: threading.Thread | None = None
         self._stop = threading.Event()
         self._lock = threading.Lock()
+        self._stream_lock = threading.RLock()  # one start or stop at a time
         self.frames_seen = 0
         self._stream_t0 = 0.0
+        self._rate: deque[tuple[float, int]] = deque()
         self.job: Job | None = None
+        self._resume.connect(self._resume_stream)
 
     # -- connection -----------------------------------------------------------------------
     @property
@@ -105,14 +111,17 @@ class Session(QObject):
 
         return bench_config(self.bench_path, simulate=self.simulate, command="gui")
 
-    def connect_bench(self, on_error: Callable[[str], None] | None = None) -> Job:
-        """Open the bench on a worker thread; ``changed`` fires when it is open,
-        ``on_error(message)`` is called if it cannot be opened."""
+    def connect_bench(self, on_error: Callable[[str], None] | None = None,
+                      on_open: Callable[[], None] | None = None) -> Job:
+        """Open the bench on a worker thread; ``changed`` fires when it is open, then
+        ``on_open()``; ``on_error(message)`` is called if it cannot be opened."""
         job = Job(self._open, name="open-bench")
         job.succeeded.connect(self._opened)
         job.failed.connect(lambda text: self.message.emit(f"could not connect: {text}"))
         if on_error is not None:
             job.failed.connect(on_error)
+        if on_open is not None:
+            job.succeeded.connect(lambda _: on_open())
         self.job = job
         return job.start()
 
@@ -135,9 +144,9 @@ class Session(QObject):
                           f"devices {', '.join(bench.devices)}")
         self.changed.emit()
 
-    def disconnect_bench(self) -> Job | None:
+    def disconnect_bench(self, then: Callable[[], None] | None = None) -> Job | None:
         """Stop the stream and close every device on a worker thread (``changed`` fires
-        at once: the panels stop using the bench)."""
+        at once: the panels stop using the bench); ``then()`` once they are closed."""
         if self.bench is None:
             return None
         bench, self.bench = self.bench, None
@@ -151,6 +160,8 @@ class Session(QObject):
         job = Job(close, name="close-bench")
         job.succeeded.connect(lambda _: self.message.emit("disconnected"))
         job.failed.connect(lambda text: self.message.emit(f"disconnect: {text}"))
+        if then is not None:
+            job.finished.connect(then)
         self.job = job
         return job.start()
 
@@ -208,11 +219,42 @@ class Session(QObject):
         self.camera_user = user
         self.changed.emit()
 
-    def release_camera(self, user: str) -> None:
-        """Give the camera back (no-op if ``user`` does not hold it)."""
+    def release_camera(self, user: str, *, resume_stream: bool = False) -> None:
+        """Give the camera back (no-op if ``user`` does not hold it); ``resume_stream``:
+        start the live stream again (on the GUI thread, whichever thread calls)."""
         if self.camera_user == user:
             self.camera_user = None
             self.changed.emit()
+            if resume_stream:
+                self._resume.emit()
+
+    def _resume_stream(self) -> None:
+        if self.bench is None or self.camera_user is not None or self.streaming:
+            return
+        self.stream_job(True, on_error=lambda text: self.message.emit(
+            f"the live stream could not start again: {text}"))
+
+    def stream_job(self, on: bool, then: Callable[[], Any] | None = None,
+                   on_error: Callable[[str], None] | None = None,
+                   done: Callable[[Any], None] | None = None) -> Job:
+        """Start (``on``) or stop the stream on a worker, then ``then()`` there too
+        (stopping joins the camera's grab thread, which may be rendering or reading a
+        frame: never on the GUI thread); ``done(then's result)`` and ``on_error(text)``
+        on the GUI thread. Returns the started job."""
+
+        def work(job: Job):
+            if on:
+                self.start_stream()
+            else:
+                self.stop_stream()
+            return None if then is None else then()
+
+        job = Job(work, name="stream-on" if on else "stream-off")
+        if on_error is not None:
+            job.failed.connect(on_error)
+        if done is not None:
+            job.succeeded.connect(done)
+        return job.start()
 
     # -- the stream ------------------------------------------------------------------------
     @property
@@ -231,37 +273,43 @@ class Session(QObject):
         """
         from drivers.camera import FrameRing
 
-        if self.bench is None:
-            raise CameraBusy("no bench is connected; press Connect first")
-        if self.camera_user is not None:
-            raise CameraBusy(f"the camera is busy with {self.camera_user}; the live view "
-                             "starts again when it ends")
-        if self.streaming:
-            return
-        cam = self.bench.camera
-        self.ring = FrameRing(ring_frames)
+        with self._stream_lock:
+            if self.bench is None:
+                raise CameraBusy("no bench is connected; press Connect first")
+            if self.camera_user is not None:
+                raise CameraBusy(f"the camera is busy with {self.camera_user}; the live "
+                                 "view starts again when it ends")
+            if self.streaming:
+                return
+            self._start(self.bench.camera, FrameRing(ring_frames))
+
+    def _start(self, cam, ring) -> None:
+        self.ring = ring
         cam.start_stream(self.ring)
         self._stop.clear()
         self.frames_seen = 0
         self._stream_t0 = time.monotonic()
+        self._rate.clear()
         self._fanout = threading.Thread(target=self._fan_out, args=(self.ring,),
                                         name="gui-stream", daemon=True)
         self._fanout.start()
         self.changed.emit()
 
     def stop_stream(self, timeout_s: float = 2.0, *, bench=None) -> None:
-        """Stop the stream (idempotent); the ring keeps its counters."""
-        if self._fanout is None:
-            return
-        bench = bench if bench is not None else self.bench
-        self._stop.set()
-        try:
-            if bench is not None:
-                bench.camera.stop_stream()
-        finally:
-            self._fanout.join(timeout_s)
-            self._fanout = None
-            self.changed.emit()
+        """Stop the stream (idempotent); the ring keeps its counters. Waits for the
+        camera's grab thread: call it on a worker (:meth:`stream_job`)."""
+        with self._stream_lock:
+            if self._fanout is None:
+                return
+            bench = bench if bench is not None else self.bench
+            self._stop.set()
+            try:
+                if bench is not None:
+                    bench.camera.stop_stream()
+            finally:
+                self._fanout.join(timeout_s)
+                self._fanout = None
+                self.changed.emit()
 
     def add_consumer(self, name: str, offer: Callable[[Any], None]) -> None:
         """Hand every streamed frame to ``offer(frame)`` (must return at once)."""
@@ -283,13 +331,33 @@ class Session(QObject):
         return self._latest
 
     def stream_counters(self) -> dict[str, float]:
-        """The ring's counters (acquired, read, skipped, dropped) and the measured rate."""
-        if self.ring is None:
+        """The ring's counters (acquired, read, skipped, dropped) and ``fps``: the rate
+        of the frames delivered over the last :data:`RATE_WINDOW_S` seconds (not since
+        the stream started: a change of exposure shows within seconds).
+
+        Read without the ring's lock (each counter is one int, read whole): the GUI
+        thread never waits for the grab thread, which on a loaded machine held it while
+        descheduled (the operator's day's watchdog found the event loop there); the
+        numbers shown may be one frame apart."""
+        ring = self.ring
+        if ring is None:
             return {}
-        out: dict[str, float] = dict(self.ring.counters())
-        span = time.monotonic() - self._stream_t0
-        out["fps"] = self.frames_seen / span if span > 0 and self.streaming else 0.0
+        out: dict[str, float] = {"acquired": ring.acquired, "read": ring.read,
+                                 "skipped": ring.skipped, "dropped": ring.dropped}
+        out["fps"] = self.frame_rate() if self.streaming else 0.0
         return out
+
+    def frame_rate(self) -> float:
+        """Frames delivered per second over the last :data:`RATE_WINDOW_S` seconds."""
+        now = time.monotonic()
+        rate = self._rate
+        rate.append((now, self.frames_seen))
+        while len(rate) > 2 and now - rate[1][0] >= RATE_WINDOW_S:
+            rate.popleft()
+        (t0, n0), (t1, n1) = rate[0], rate[-1]
+        if t1 - t0 < 0.2:
+            return 0.0
+        return (n1 - n0) / (t1 - t0)
 
     def _fan_out(self, ring) -> None:
         from drivers.errors import CameraTimeoutError

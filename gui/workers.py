@@ -14,15 +14,20 @@ and the fix), never a traceback.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import logging
+import queue
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from typing import Any
 
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, QTimer, Signal
 
-__all__ = ["BACKGROUND_NICE", "Job", "readable_error", "wait_until"]
+__all__ = ["BACKGROUND_NICE", "HEAP_SETTLING_JOBS", "CameraBusy", "InputError", "Job",
+           "readable_error", "settle_heap", "wait_until"]
 
 log = logging.getLogger(__name__)
 
@@ -34,48 +39,106 @@ log = logging.getLogger(__name__)
 BACKGROUND_NICE = 10
 
 
+class CameraBusy(RuntimeError):
+    """Another job holds the camera (or no bench is connected); the message says which."""
+
+
+class InputError(ValueError):
+    """A value the operator typed into the GUI that it cannot use (the message names the
+    field and what to type)."""
+
+
+#: errno values of an OSError that are the operator's or the system's problem (a path
+#: that does not exist, no permission, a full disk), not a bug: as the command line.
+_ORDINARY_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EACCES,
+                              errno.EPERM, errno.ENOENT, errno.EISDIR, errno.ENOTDIR,
+                              errno.EEXIST, errno.ENAMETOOLONG})
+
+
 def _input_errors() -> tuple[type[BaseException], ...]:
-    """Exception types whose message is written for the operator (problem and fix)."""
+    """The project's own exception types, whose message is written for the operator
+    (problem and fix). Anything else (a KeyError, a TypeError, numpy's ValueError) is a
+    bug, shown as one and logged with its traceback."""
+    from calibration_routines.mask_alignment.errors import AlignmentFailed
     from drivers.errors import DeviceError
+    from instrument.bench import BenchRoleError, PromptRefused
+    from instrument.bench_setup import BenchOpenError
+    from instrument.cli.common import MissingBenchFile
+    from instrument.emulated_bench import EmulatorsRunningError
     from instrument.live import LiveReconstructionError
-    from instrument.output_safety import OutputError
-    from instrument.plan import PlanError
+    from instrument.plan import CheckFailed, PlanError
+    from instrument.registry import RegistryError
     from instrument.runner import RunAborted
     from instrument.runstore import RunStoreError
-    from recon.errors import ReconInputError
+    from recon.errors import DivergenceError, ReconInputError
 
-    return (DeviceError, PlanError, RunStoreError, ReconInputError, OutputError,
-            LiveReconstructionError, RunAborted, ValueError, OSError, LookupError,
-            RuntimeError)
+    from .binding import BindingLeakError
+
+    return (DeviceError, PlanError, AlignmentFailed, CheckFailed, RunStoreError,
+            ReconInputError, DivergenceError, LiveReconstructionError, RunAborted,
+            BenchRoleError, BenchOpenError, PromptRefused, RegistryError, MissingBenchFile,
+            EmulatorsRunningError, BindingLeakError, CameraBusy, InputError)
 
 
-def readable_error(exc: BaseException) -> str:
+def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> str:
     """The operator's message for ``exc``: one or more lines, never a traceback.
 
     Parameters
     ----------
     exc : BaseException
+    labels : dict, optional
+        ``{command-line flag: field label}`` of the panel that shows the message
+        (:func:`gui.messages.operator_text`).
 
     Returns
     -------
     str
-        A bench file's problems one per line; the message of a device, plan, run
-        store, input or OS error as the library wrote it (it names the fix); for
-        anything else, the error's type and text marked as a bug (the traceback
-        goes to the log).
+        A bench file's problems one per line; the message of one of the project's own
+        errors (device, plan, run store, input, ...: it names the fix) or of an
+        ordinary OS error (no such file, permission denied, disk full: with the path)
+        in the GUI's terms; for anything else, the error's type and text marked as a
+        bug (the traceback goes to the log).
     """
     from instrument.config import BenchConfigError
 
+    from .messages import operator_text
+
     if isinstance(exc, BenchConfigError):
         return "\n".join(exc.lines())
-    if isinstance(exc, OSError) and exc.filename is not None:
-        return f"{exc.strerror or exc}: {exc.filename}"
+    if isinstance(exc, OSError) and exc.errno in _ORDINARY_ERRNOS:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+        return f"{reason}: {' -> '.join(paths)}" if paths else reason
     if isinstance(exc, _input_errors()):
-        text = str(exc) or type(exc).__name__
-        return text
+        return operator_text(str(exc) or type(exc).__name__, labels)
     log.error("unexpected error in a GUI job", exc_info=exc)
     return (f"unexpected error ({type(exc).__name__}: {exc}); this is a bug - the log has "
             "the traceback to report")
+
+
+#: Jobs started and not yet released on the GUI thread (:meth:`Job._release`).
+_LIVE_JOBS: set[Job] = set()
+
+#: Jobs after which the heap is settled (:func:`settle_heap`): they import libraries
+#: and build long-lived objects (the bench, numba's and dask's machinery, plans).
+HEAP_SETTLING_JOBS = frozenset({"open-bench", "build-live", "calibration", "alignment",
+                                "record-video", "batch-recon"})
+
+
+def settle_heap() -> None:
+    """Collect the young garbage and freeze what survives (:func:`gc.freeze`), so the
+    collector's full passes stop walking the libraries' and the bench's long-lived
+    objects: a full collection of the GUI's heap held every thread for up to 0.3 s
+    (measured in the operator's day), a pause the event loop shows as a freeze. Cheap
+    (a generation-1 collection); called on the GUI thread after the long jobs of
+    :data:`HEAP_SETTLING_JOBS`."""
+    import gc
+
+    from .memory import trim_soon
+
+    gc.collect(1)
+    gc.freeze()
+    trim_soon()
 
 
 class Job(QObject):
@@ -113,6 +176,9 @@ class Job(QObject):
         self.name = name
         self.cancel_event = threading.Event()
         self._thread: threading.Thread | None = None
+        self._started = False
+        self._launched = threading.Event()
+        self._ended = threading.Event()
         self.result: Any = None
         self.error: str | None = None
         #: True once ``finished`` was delivered on the GUI thread (its slots have run).
@@ -121,6 +187,25 @@ class Job(QObject):
 
     def _mark_done(self) -> None:
         self.done = True
+        QTimer.singleShot(0, self._release)  # after the other slots of ``finished``
+
+    def _release(self) -> None:
+        """On the GUI thread, once every slot has run: wait for the worker thread to be
+        gone, cut the connections (their closures often hold the job: a cycle through
+        Qt that Python's collector cannot see) and let the job go. Its last reference
+        is then dropped on the GUI thread, never on the worker (a QObject deleted on
+        another thread while events for it wait in the GUI thread's queue crashed the
+        window)."""
+        self._launched.wait(5.0)
+        self.wait(5.0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            for signal in (self.progress, self.succeeded, self.failed, self.finished):
+                with contextlib.suppress(RuntimeError, TypeError):
+                    signal.disconnect()
+        _LIVE_JOBS.discard(self)
+        if self.name in HEAP_SETTLING_JOBS:
+            settle_heap()
 
     @property
     def cancelled(self) -> bool:
@@ -129,13 +214,18 @@ class Job(QObject):
 
     @property
     def running(self) -> bool:
-        """True while the worker thread runs."""
-        return self._thread is not None and self._thread.is_alive()
+        """True from :meth:`start` until the job's function has returned."""
+        return self._started and not self._ended.is_set()
 
     def start(self) -> Job:
-        """Start the worker thread; returns the job."""
-        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
-        self._thread.start()
+        """Start the worker thread; returns the job (kept alive until its ``finished``
+        has been handled on the GUI thread) at once: the thread is started by the
+        launcher (:func:`_launch`), so the GUI thread never waits for a new thread to
+        get the interpreter (``Thread.start`` waits for the thread's first step, which
+        held the event loop up to 5 s on a loaded machine in the operator's day)."""
+        _LIVE_JOBS.add(self)
+        self._started = True
+        _launch(self)
         return self
 
     def cancel(self) -> None:
@@ -148,10 +238,15 @@ class Job(QObject):
 
     def wait(self, timeout_s: float) -> bool:
         """Join the worker thread (tests and shutdown only; True if it ended)."""
-        if self._thread is None:
+        if not self._started:
             return True
-        self._thread.join(timeout_s)
-        return not self._thread.is_alive()
+        if not self._ended.wait(timeout_s):
+            return False
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout_s)
+            return not thread.is_alive()
+        return True
 
     def _run(self) -> None:
         from instrument.live import lower_thread_priority
@@ -166,6 +261,43 @@ class Job(QObject):
             self.succeeded.emit(self.result)
         finally:
             self.finished.emit()
+            self._ended.set()
+
+
+_launch_queue: queue.SimpleQueue[Job] = queue.SimpleQueue()
+_launcher: threading.Thread | None = None
+_launcher_lock = threading.Lock()
+
+
+def _launch(job: Job) -> None:
+    """Have the launcher thread start ``job``'s worker thread (started itself once)."""
+    global _launcher
+    _launch_queue.put(job)
+    with _launcher_lock:
+        if _launcher is None:
+            _launcher = threading.Thread(target=_launch_jobs, name="job-launcher",
+                                         daemon=True)
+            _launcher.start()
+
+
+def _launch_jobs() -> None:
+    """The launcher thread: start each queued job's thread, then let go of the job
+    before saying so (``_launched``): a job's last reference must go on the GUI thread
+    (:meth:`Job._release` waits for ``_launched``)."""
+    while True:
+        job = _launch_queue.get()
+        launched = job._launched
+        thread = threading.Thread(target=job._run, name=job.name, daemon=True)
+        job._thread = thread
+        try:
+            thread.start()
+        except RuntimeError as exc:  # "can't start new thread": the job fails, reported
+            job.error = readable_error(exc)
+            job.failed.emit(job.error)
+            job.finished.emit()
+            job._ended.set()
+        del job, thread
+        launched.set()
 
 
 def wait_until(app, condition: Callable[[], bool], timeout_s: float, what: str) -> None:

@@ -53,7 +53,7 @@ import json
 import logging
 import os
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -686,11 +686,17 @@ class RunStore(ProductsMixin):
         return {n: c[:, k] for k, n in enumerate(self._coord_names)}
 
     # ------------------------------------------------------------------ integrity
-    def verify(self) -> list[str]:
+    def verify(self, on_progress: Callable[[int, int], None] | None = None) -> list[str]:
         """Check every done frame and every product (every written plane of a per-frame
         product) against its checksum, and the store against what the run recorded of
         itself (:func:`instrument.runstore_records.record_problems`: done flags of a
         finished run, frame counts, products written, keys doubled in ``zarr.json``).
+
+        Parameters
+        ----------
+        on_progress : callable, optional
+            ``on_progress(checked, total)`` after each done frame is checked (a viewer
+            shows how far a long run's check has come).
 
         Returns
         -------
@@ -699,18 +705,23 @@ class RunStore(ProductsMixin):
             the fix); empty when the run is intact. A schema-1 run carries no
             checksums: only unreadable chunks are found (see ``has_checksums``).
         """
-        return ([str(exc) for exc in self.damaged_frames()] + self.damaged_products()
-                + record_problems(self))
+        return ([str(exc) for exc in self.damaged_frames(on_progress)]
+                + self.damaged_products() + record_problems(self))
 
-    def damaged_frames(self) -> list[DamagedFrameError]:
+    def damaged_frames(self, on_progress: Callable[[int, int], None] | None = None,
+                       ) -> list[DamagedFrameError]:
         """Every done frame whose chunk is missing, unreadable or differs from its
-        checksum, as the error reading it raises (empty when all are intact)."""
+        checksum, as the error reading it raises (empty when all are intact);
+        ``on_progress(checked, total)`` after each frame."""
         out = []
-        for i in np.flatnonzero(self.done()):
+        done = np.flatnonzero(self.done())
+        for k, i in enumerate(done, start=1):
             try:
                 self._read(int(i))
             except DamagedFrameError as exc:
                 out.append(exc)
+            if on_progress is not None:
+                on_progress(k, len(done))
         return out
 
     def point_of(self, index: int) -> int:
@@ -718,11 +729,13 @@ class RunStore(ProductsMixin):
         return int(self._point[int(index)])
 
     # ------------------------------------------------------------------ summary
-    def summary(self) -> dict[str, Any]:
+    def summary(self, *, verify: bool = True) -> dict[str, Any]:
         """A JSON-able overview: plan, status, progress, times, products, warnings, and
-        ``problems`` (:meth:`verify`, every stored frame and product checked) with
-        ``checksums`` (False for a schema-1 run, which carries none), and ``lock``
-        (who writes the run, or that its lock is stale; None when unlocked)."""
+        ``problems`` (:meth:`verify`, every stored frame and product checked; None with
+        ``verify=False``, which reads no frame: what a viewer shows at once, checking
+        the run apart) with ``checksums`` (False for a schema-1 run, which carries
+        none), and ``lock`` (who writes the run, or that its lock is stale; None when
+        unlocked)."""
         a = self.refresh()
         done = self.done()
         return jsonable({
@@ -735,7 +748,8 @@ class RunStore(ProductsMixin):
             "note": a["note"], "resumes": a["resumes"], "warnings": a["warnings"],
             "error": a["error"], "summary": a.get("summary", {}),
             "products": {n: self.product_info(n) for n in self.products()},
-            "checksums": self.has_checksums, "problems": self.verify(),
+            "checksums": self.has_checksums,
+            "problems": self.verify() if verify else None,
             "lock": lock_problem(self.path) if self.lock_owner() is not None else None,
         })
 

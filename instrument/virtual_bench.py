@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.errors import DeviceDisconnectedError
 from drivers.simulated import SimClock
 from recon.errors import ReconInputError
 from recon.optics.lensless import LenslessGeometry, LenslessModel, diffuser_for_sensor
@@ -359,7 +360,7 @@ class VirtualBench(Bench):
         with weight exp(-r^2 / (2 (2 pitch)^2)) times its brightness.
         """
         leds = self.led_array
-        lit = leds.lit()
+        lit = self._lit_leds()
         if not lit:
             return 0.0
         x, y, _ = self.source_position_mm()
@@ -400,7 +401,16 @@ class VirtualBench(Bench):
         xy = np.asarray(leds.positions_mm)
         z = float(leds.distance_mm)
         return tuple(((round(float(xy[i, 0]), 6), round(float(xy[i, 1]), 6), z),
-                      self.source_power * float(b)) for i, (_, b) in sorted(leds.lit().items()))
+                      self.source_power * float(b))
+                     for i, (_, b) in sorted(self._lit_leds().items()))
+
+    def _lit_leds(self) -> dict:
+        """The lit LEDs; none while the array is unplugged (it lost its power: the
+        camera keeps streaming a dark scene instead of failing with the array)."""
+        try:
+            return self.led_array.lit()
+        except DeviceDisconnectedError:
+            return {}
 
     def bare_sensor_irradiance(self, xyz_mm) -> np.ndarray:
         """Fraction of a point source's power per pixel with the diffuser and aperture

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # System libraries the tests and the optional extras need (Debian / Ubuntu, apt-get):
 # - Qt for the GUI (PySide6 on the offscreen platform, and Xvfb with the xcb platform for
-#   the screenshot and SLM-window tests): these libraries, Xvfb and a font;
+#   the screenshot and SLM-window tests): these libraries, Xvfb and a font; for the
+#   operator-day test in a real window, a window manager (openbox), xdotool (clicks, keys
+#   and typing through the X server) and xprop (x11-utils: the windows' stacking order);
 # - Aravis cameras: the libaravis 0.8 typelib, its fake GigE camera (aravis-tools) for the
 #   driver tests, and what PyGObject (the hardware extra) needs to build; libX11, which the
 #   SLM-window test calls to read the displayed pixels back from Xvfb.
@@ -14,6 +16,6 @@ $SUDO apt-get install -y -qq --no-install-recommends xvfb xauth \
     libegl1 libgl1 libfontconfig1 libdbus-1-3 libxkbcommon0 libxkbcommon-x11-0 \
     libxcb-cursor0 libxcb-icccm4 libxcb-image0 libxcb-keysyms1 libxcb-randr0 \
     libxcb-render-util0 libxcb-shape0 libxcb-xfixes0 libxcb-xinerama0 libxcb-xkb1 \
-    fonts-dejavu-core \
+    fonts-dejavu-core openbox xdotool x11-utils \
     gir1.2-aravis-0.8 aravis-tools libgirepository1.0-dev libcairo2-dev pkg-config \
     libx11-6 >/dev/null

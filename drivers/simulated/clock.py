@@ -71,10 +71,12 @@ class SimClock:
         return self._now
 
     def advance(self, dt_s: float) -> None:
-        """Advance by ``dt_s`` >= 0 seconds, firing due timers in order."""
+        """Advance by ``dt_s`` >= 0 seconds from now, firing due timers in order (safe
+        from several threads: "now" is read under the lock that advancing holds)."""
         if not dt_s >= 0 or not math.isfinite(dt_s):
             raise ValueError(f"SimClock: cannot advance by {dt_s!r} s; use a finite dt_s >= 0")
-        self.advance_to(self._now + dt_s)
+        with self._lock:
+            self.advance_to(self._now + dt_s)
 
     def advance_to(self, t_s: float) -> None:
         """Advance to time ``t_s`` (>= now), firing due timers in order."""

@@ -30,15 +30,21 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from ..fields import remember, settings, wheel_needs_focus
 from ..jobs import ALIGNMENT_STEPS, run_alignment
+from ..logpane import announce_job
 from ..session import Session
 from ..workers import Job
-from .common import RunControls
+from .common import JobProgress, RunControls
 
 __all__ = ["AlignmentPanel"]
 
 #: The section grid of the alignment (rows, columns).
 GRID = (3, 5)
+#: Readings a whole alignment takes on the simulated bench (``align mask --simulate``,
+#: 3 frames per reading: 1360 with the focus steps, 1046 without), the ETA's guess
+#: until an alignment on this machine has finished (its count is remembered then).
+EXPECTED_READINGS = {True: 1360, False: 1046}
 _COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
             "#bcbd22", "#17becf", "#7f7f7f")
 
@@ -59,16 +65,21 @@ class AlignmentPanel(RunControls, QWidget):
         self.out.setPlaceholderText("default out/align/mask-TIME.align")
         form.addWidget(self.out, 0, 1, 1, 3)
         form.addWidget(QLabel("mask seed:"), 1, 0)
-        self.seed = QLineEdit()
+        self.seed = remember(QLineEdit(), "align/mask-seed")
         self.seed.setPlaceholderText("simulated: the virtual mask's")
         form.addWidget(self.seed, 1, 1)
         form.addWidget(QLabel("frames per reading:"), 1, 2)
         self.frames = QSpinBox()
         self.frames.setRange(1, 20)
         self.frames.setValue(3)
+        self.frames.setObjectName("align.frames")
+        wheel_needs_focus(self.frames)
+        remember(self.frames, "align/frames")
         form.addWidget(self.frames, 1, 3)
         self.focus = QCheckBox("focus and tip/tilt (stage z, tip, tilt)")
         self.focus.setChecked(True)
+        self.focus.setObjectName("align.focus")
+        remember(self.focus, "align/focus")
         form.addWidget(self.focus, 2, 0, 1, 4)
         left.addLayout(form)
         buttons = QHBoxLayout()
@@ -77,6 +88,10 @@ class AlignmentPanel(RunControls, QWidget):
         for b in [*self._make_controls("Start alignment", self.start), self.open_button]:
             buttons.addWidget(b)
         left.addLayout(buttons)
+        self.start_button.setObjectName("align.start")
+        self.abort_button.setObjectName("align.abort")
+        self.progress = JobProgress("readings")
+        left.addWidget(self.progress)
         steps = QGroupBox("steps")
         grid = QGridLayout(steps)
         self.step_labels: dict[str, QLabel] = {}
@@ -99,7 +114,7 @@ class AlignmentPanel(RunControls, QWidget):
         self.plot.setLabel("left", "spot efficiency eta")
         self.plot.addLegend(offset=(10, 10), brush=pg.mkBrush(0, 0, 0, 170))
         self.curves: dict[str, pg.PlotDataItem] = {}
-        self.plot.setMinimumHeight(260)
+        self.plot.setMinimumHeight(170)
         right.addWidget(self.plot, 2)
         sections = QGroupBox("per-section offsets (mask px, x / y) and eta / aligned simulation")
         self.section_grid = QGridLayout(sections)
@@ -108,7 +123,7 @@ class AlignmentPanel(RunControls, QWidget):
             for c in range(GRID[1]):
                 cell = QLabel(f"section {r * GRID[1] + c}\n-")
                 cell.setAlignment(Qt.AlignmentFlag.AlignCenter)
-                cell.setMinimumSize(96, 56)
+                cell.setMinimumSize(84, 44)
                 cell.setStyleSheet("border: 1px solid #999; background: #f4f4f4;")
                 self.section_grid.addWidget(cell, r, c)
                 self.cells.append(cell)
@@ -119,6 +134,22 @@ class AlignmentPanel(RunControls, QWidget):
     def _set_running(self, running: bool) -> None:
         super()._set_running(running)
         self.open_button.setEnabled(not running)
+
+    @property
+    def running(self) -> bool:
+        return self.job is not None and self.job.running
+
+    def _readings_key(self) -> str:
+        return f"align/readings-focus-{int(self.focus.isChecked())}"
+
+    def expected_readings(self) -> int:
+        """Readings the whole alignment is expected to take: the last finished one's on
+        this machine with the same focus setting, else :data:`EXPECTED_READINGS`."""
+        stored = settings().value(self._readings_key())
+        try:
+            return max(int(stored), 1)
+        except (TypeError, ValueError):
+            return EXPECTED_READINGS[self.focus.isChecked()]
 
     # -- actions -------------------------------------------------------------------------
     def start(self) -> Job | None:
@@ -131,6 +162,8 @@ class AlignmentPanel(RunControls, QWidget):
         for label in self.step_labels.values():
             label.setText("waiting")
         self.message.setText(f"aligning; record {out}")
+        announce_job("mask alignment")
+        self.progress.start(self.expected_readings(), note="about")
         self.job = Job(run_alignment, self.session, out, self._new_control(),
                        mask_seed=self.seed.text(), frames=self.frames.value(),
                        focus=self.focus.isChecked(), name="alignment")
@@ -176,8 +209,11 @@ class AlignmentPanel(RunControls, QWidget):
             xs = [n for n, _, s in self.readings if s == step]
             ys = [e for _, e, s in self.readings if s == step]
             self.curves[step].setData(xs, ys)
-            if step in self.step_labels and self.step_labels[step].text() == "waiting":
-                self.step_labels[step].setText("running")
+            self._mark_running(step)
+            if self.job is not None and self.job.running:
+                n = len(self.readings)
+                self.progress.report(n, max(n + 1, self.progress.bar.maximum()),
+                                     note=f"step {step}")
             pose = p.get("pose") or {}
             self.pose.setText("mask stage pose: " + ", ".join(
                 f"{a} {v:+.4f} {'mm' if a in ('x', 'y', 'z') else 'deg'}"
@@ -188,11 +224,22 @@ class AlignmentPanel(RunControls, QWidget):
         for name, label in self.step_labels.items():
             if name in done:
                 label.setText("done")
-            elif name == current or (current or "").startswith(name):
-                label.setText("running")
+        self._mark_running(current or "")
         if p.get("message"):
             self.message.setText(f"[{current}] {p['message']}" if current else p["message"])
         self._show_sections(p.get("steps", {}))
+
+    def _mark_running(self, step: str) -> None:
+        """Show ``step`` (or the step it is a part of: ``focus_check`` is ``focus``)
+        running; a step running before it is done now (one step runs at a time)."""
+        name = next((n for n in ALIGNMENT_STEPS if step == n or step.startswith(n + "_")),
+                    None)
+        if name is None or self.step_labels[name].text() == "done":
+            return
+        for other, label in self.step_labels.items():
+            if other != name and label.text() == "running":
+                label.setText("done")
+        self.step_labels[name].setText("running")
 
     def _show_sections(self, summary: dict) -> None:
         offsets = summary.get("offsets_px")
@@ -210,6 +257,9 @@ class AlignmentPanel(RunControls, QWidget):
 
     def on_report(self, report: dict) -> None:
         self._set_running(False)
+        settings().setValue(self._readings_key(), len(self.readings))
+        self.progress.report(len(self.readings), len(self.readings))
+        self.progress.finish()
         s = report.get("summary", {})
         passed = report["steps"]["verify"]["passed"]
         t = s.get("translation_px", (0.0, 0.0))
@@ -220,6 +270,7 @@ class AlignmentPanel(RunControls, QWidget):
 
     def on_failed(self, text: str) -> None:
         self._set_running(False)
+        self.progress.finish("")
         self.message.setText(f"alignment stopped: {text}\nThe record keeps every reading "
                              "taken; start a new alignment to try again.")
         for label in self.step_labels.values():

@@ -1,16 +1,18 @@
 """Calibration panel: dark/flat, PSF sweep, PSF grid, angular response and SLM LUT with
-their parameters, a progress bar with ETA, pause / abort / resume, and each frame
-shown as it is taken.
+their parameters, overall progress with elapsed time and ETA, pause / abort / resume,
+and each frame shown as it is taken.
 
-The parameters are the ``calibrate`` command's options (:func:`gui.jobs.routine_options`),
-the plan is the one the command builds (:func:`gui.jobs.build_plan`), and the run is
-:class:`instrument.runner.Runner` on a worker, controlled through a
-:class:`~instrument.runner.RunControl`. A run that ends aborted or failed keeps its
-data and says how to resume it (the Resume button, or the command line).
+The parameters are the ``calibrate`` command's options (:func:`gui.jobs.routine_options`,
+remembered between sessions), the plan is the one the command builds
+(:func:`gui.jobs.build_plan`), and the run is :class:`instrument.runner.Runner` on a
+worker, controlled through a :class:`~instrument.runner.RunControl`. The bench is
+given back as it was (camera settings, stage positions, LEDs, the live stream). A
+run that ends aborted or failed keeps its data and says how to resume it.
 """
 
 from __future__ import annotations
 
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -18,26 +20,22 @@ from PySide6.QtWidgets import (
     QHBoxLayout,
     QLabel,
     QLineEdit,
-    QProgressBar,
     QPushButton,
+    QScrollArea,
     QStackedWidget,
     QVBoxLayout,
     QWidget,
 )
 
+from ..fields import remember, wheel_needs_focus
 from ..jobs import ROUTINES, build_plan, default_run_path, resume_plan, routine_options, run_plan
+from ..logpane import announce_job
+from ..messages import operator_text
 from ..session import Session
 from ..workers import Job, readable_error
-from .common import FrameView, RunControls
+from .common import FrameView, JobProgress, RunControls
 
 __all__ = ["CalibrationPanel"]
-
-
-def _eta(seconds) -> str:
-    if seconds is None:
-        return "ETA -"
-    m, s = divmod(int(round(seconds)), 60)
-    return f"ETA {m} min {s:02d} s" if m else f"ETA {s} s"
 
 
 class CalibrationPanel(RunControls, QWidget):
@@ -51,12 +49,15 @@ class CalibrationPanel(RunControls, QWidget):
         self.result = None
         self.events: list = []
         self.light_frames = True
+        self.labels: dict[str, str] = {}
         layout = QHBoxLayout(self)
         left = QVBoxLayout()
         top = QHBoxLayout()
         top.addWidget(QLabel("routine:"))
         self.routine = QComboBox()
+        self.routine.setObjectName("calibration.routine")
         self.routine.addItems(ROUTINES)
+        wheel_needs_focus(self.routine)
         top.addWidget(self.routine, 1)
         left.addLayout(top)
         self.forms = QStackedWidget()
@@ -72,12 +73,16 @@ class CalibrationPanel(RunControls, QWidget):
                     w = QComboBox()
                     w.addItems([str(c) for c in opt.choices])
                     w.setCurrentText(str(opt.default))
+                    wheel_needs_focus(w)
                 else:
                     w = QLineEdit("" if opt.default is None else str(opt.default))
                     w.setPlaceholderText("default")
-                w.setToolTip(f"{opt.flag}: {opt.help}")
+                w.setToolTip(opt.help)
                 w.setObjectName(f"{routine}{opt.flag}")
-                label = QLabel(f"{opt.flag[2:]}:")
+                remember(w, f"calibrate/{routine}/{opt.flag[2:]}")
+                name = opt.flag[2:].replace("-", " ")
+                self.labels[opt.flag] = name
+                label = QLabel(f"{name}:")
                 label.setToolTip(opt.help)
                 hint = QLabel(opt.help)
                 hint.setWordWrap(True)
@@ -92,34 +97,47 @@ class CalibrationPanel(RunControls, QWidget):
             self.fields[routine] = fields
             self.forms.addWidget(page)
         self.routine.currentIndexChanged.connect(self.forms.setCurrentIndex)
-        left.addWidget(self.forms)
+        remember(self.routine, "calibrate/routine")
+        self.forms.setCurrentIndex(self.routine.currentIndex())
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setWidget(self.forms)
+        left.addWidget(scroll, 1)
         out = QHBoxLayout()
         out.addWidget(QLabel("run store:"))
         self.out = QLineEdit()
+        self.out.setObjectName("calibration.out")
         self.out.setPlaceholderText("default out/runs/ROUTINE-TIME.zarr")
         out.addWidget(self.out, 1)
         left.addLayout(out)
         buttons = QHBoxLayout()
         self.resume_button = QPushButton("Resume run")
+        self.resume_button.setObjectName("calibration.resume")
         self.resume_button.clicked.connect(self.resume)
         for b in [*self._make_controls("Start", self.start), self.resume_button]:
             buttons.addWidget(b)
+        self.start_button.setObjectName("calibration.start")
+        self.pause_button.setObjectName("calibration.pause")
+        self.abort_button.setObjectName("calibration.abort")
         left.addLayout(buttons)
-        self.progress = QProgressBar()
-        self.progress.setFormat("%v / %m frames")
+        self.progress = JobProgress("frames")
         left.addWidget(self.progress)
-        self.eta = QLabel("")
-        left.addWidget(self.eta)
         self.status = QLabel("")
         self.status.setWordWrap(True)
         left.addWidget(self.status)
-        left.addStretch(1)
         layout.addLayout(left, 2)
-        self.view = FrameView("frames as they are taken (DN)", histogram_hz=2.0)
+        self.view = FrameView("frames as they are taken (DN)", histogram_hz=2.0,
+                              name="calibration-frame")
+        self.view.metadata = self._frame_metadata
         layout.addWidget(self.view, 3)
         self._set_running(False)
 
     # -- state ---------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self.job is not None and self.job.running
+
     def _set_running(self, running: bool) -> None:
         super()._set_running(running)
         self.resume_button.setEnabled(not running and self.last_path is not None and (
@@ -136,15 +154,24 @@ class CalibrationPanel(RunControls, QWidget):
                 out[flag] = w.text().strip()
         return out
 
-    def _launch(self, fn, *args) -> Job:
+    def _launch(self, fn, total: int = 0) -> Job:
         self.events = []
         self.result = None
-        self.job = Job(fn, *args, self._new_control(), name="calibration")
+        announce_job("calibration run")
+        self.job = Job(fn, self._new_control(), name="calibration")
         self.job.progress.connect(self.on_event)
         self.job.succeeded.connect(self.on_result)
         self.job.failed.connect(self.on_failed)
         self._set_running(True)
+        self.progress.start(total)
         return self.job.start()
+
+    def _frame_metadata(self) -> dict:
+        out = {"kind": "calibration frame", "routine": self.routine.currentText(),
+               "run": self.last_path, "parameters": self._values(self.routine.currentText())}
+        if self.session.connected:
+            out["device_settings"] = self.session.bench.settings_snapshot()
+        return out
 
     # -- actions -------------------------------------------------------------------------
     def start(self) -> Job | None:
@@ -152,22 +179,20 @@ class CalibrationPanel(RunControls, QWidget):
         routine = self.routine.currentText()
         self.status.setStyleSheet("")
         if not self.session.connected:
-            self.status.setText("no bench is connected; press Connect on the Devices panel")
+            self._say("no bench is connected; press Connect on the Devices panel", error=True)
             return None
         try:
             plan = build_plan(self.session.bench, routine, self._values(routine))
         except Exception as exc:  # noqa: BLE001 (shown, never raised)
-            self._say(readable_error(exc), error=True)
+            self._say(readable_error(exc, self.labels), error=True)
             return None
         path = self.out.text().strip() or default_run_path(routine)
         self.last_path = path
         total = sum(len(p.tags) for p in plan.points())
         self.light_frames = any(t != "dark" for p in plan.points() for t in p.tags)
-        self.progress.setRange(0, total)
-        self.progress.setValue(0)
         self._say(f"running {routine} into {path}")
         return self._launch(lambda job, control: run_plan(job, self.session, plan, path,
-                                                          control))
+                                                          control), total)
 
     def resume(self) -> Job | None:
         """Resume the last run (:meth:`instrument.runner.Runner.resume`)."""
@@ -179,44 +204,47 @@ class CalibrationPanel(RunControls, QWidget):
 
     # -- results -------------------------------------------------------------------------
     def _say(self, text: str, *, error: bool = False) -> None:
+        from ..logpane import gui_log
+
         self.status.setStyleSheet("color: #b00020;" if error else "")
         self.status.setText(text)
+        (gui_log.warning if error else gui_log.info)("%s", text)
 
     def on_event(self, e) -> None:
         """Show a :class:`instrument.runner.RunEvent`."""
         self.events.append(e.kind)
-        self.progress.setMaximum(e.frames_total)
-        self.progress.setValue(e.frames_done)
-        point = "" if e.point is None else f"point {e.point + 1}/{e.points_total}, "
-        self.eta.setText(f"{point}{e.elapsed_s:.0f} s elapsed, {_eta(e.eta_s)}")
+        point = "" if e.point is None else f"point {e.point + 1}/{e.points_total}"
+        self.progress.report(e.frames_done, e.frames_total, eta_s=e.eta_s, note=point)
         if e.kind in ("paused", "resumed", "reconnecting", "reconnected", "retrying"):
-            self._say(f"{e.kind}: {e.message}")
+            self._say(f"{e.kind}: {operator_text(e.message)}")
         tag = getattr(e, "tag", None)
         if e.last_frame is not None and (tag != "dark" or not self.light_frames):
             # frames with light (PSFs, flats, gratings) as they are taken; dark frames
             # only in a run of dark frames
             self.view.setImage(e.last_frame, autoLevels=True)
             self.view.setTitle(f"frame {e.frames_done} of {e.frames_total}: "
-                               f"{point.rstrip(', ')}, {tag or 'frame'} (DN)")
+                               f"{point}, {tag or 'frame'} (DN)")
 
     def on_result(self, result) -> None:
         """A run ended: complete, aborted or failed (data kept, how to resume)."""
         self.result = result
         self._set_running(False)
+        self.progress.finish()
         if result.status == "complete":
-            self._say(f"complete: {result.path}")
+            self._say(f"complete: {result.path}; the camera, stages and LEDs are as before "
+                      "the run")
             return
         where = (f"at point {result.points_done + 1} of {result.points_total}"
                  if result.points_done < result.points_total else
                  f"after all {result.points_total} points (computing the products)")
-        bench = "" if self.session.bench_path is None else f" {self.session.bench_path}"
-        sim = " --simulate" if self.session.simulate else ""
         pending = "".join(f"\nnot resuming? then first: {a}" for a in result.pending_actions)
-        self._say(f"{result.status} {where}: {result.error}\nThe data so far is kept; press "
-                  f"Resume run, or run `diffuserlab calibrate resume {result.path}{bench}{sim}`"
-                  f"{pending}", error=True)
+        error = operator_text(str(result.error), self.labels)
+        self._say(f"{result.status} {where}: {error}\nThe data so far is kept in "
+                  f"{result.path}; press Resume run to go on from there{pending}", error=True)
 
     def on_failed(self, text: str) -> None:
         """The run could not start or stopped with an error outside the runner."""
         self._set_running(False)
+        self.progress.finish("")
         self._say(text, error=True)
+

@@ -1,89 +1,196 @@
-"""What several panels share: an image view, an error line, run controls."""
+"""What several panels share: an error line that also goes to the log, run controls,
+and the overall progress of a long job with its elapsed time and ETA."""
 
 from __future__ import annotations
 
-import numpy as np
-import pyqtgraph as pg
-from PySide6.QtWidgets import QGraphicsView, QLabel, QPushButton
+import time
 
-__all__ = ["FrameView", "RunControls", "error_label"]
+from PySide6.QtCore import QTimer
+from PySide6.QtWidgets import (
+    QComboBox,
+    QHBoxLayout,
+    QLabel,
+    QProgressBar,
+    QPushButton,
+    QWidget,
+)
+
+from ..fields import wheel_needs_focus
+from ..imageview import FrameView
+from ..logpane import gui_log
+from ..workers import Job
+
+__all__ = ["ErrorLabel", "FrameView", "JobProgress", "RunControls", "depth_field",
+           "error_label", "eta_text", "offer_depths"]
 
 
-class FrameView(pg.GraphicsLayoutWidget):
-    """An image with axes and a title, beside its histogram and level control.
+class ErrorLabel(QLabel):
+    """A wrapped, red label for the messages of refused actions; each message also goes
+    to the log pane (the session's history)."""
 
-    Lighter than :class:`pyqtgraph.ImageView` for video: :meth:`setImage` only swaps the
-    image (levels from the image when asked), and the histogram, which costs more than
-    the image, is recomputed at most ``histogram_hz`` times per second (None: with
-    every image).
+    def __init__(self, text: str = "", parent=None) -> None:
+        super().__init__(text, parent)
+        self.setWordWrap(True)
+        self.setStyleSheet("color: #b00020;")
 
-    Attributes
+    def setText(self, text: str) -> None:  # noqa: N802 (Qt's name)
+        if text and text != self.text():
+            gui_log.warning("%s", text)
+        super().setText(text)
+
+
+def error_label() -> ErrorLabel:
+    """A wrapped, red label for the messages of refused actions (:class:`ErrorLabel`)."""
+    return ErrorLabel()
+
+
+def depth_field(name: str) -> QComboBox:
+    """An editable depth field (mm) that offers a stack's depths (:func:`offer_depths`)."""
+    box = QComboBox()
+    box.setEditable(True)
+    box.setObjectName(name)
+    box.lineEdit().setPlaceholderText("stack plane; empty: single PSF")
+    box.setToolTip("the PSF stack's depths are offered (mm)")
+    wheel_needs_focus(box)
+    return box
+
+
+def offer_depths(box: QComboBox, psf_path: str) -> Job:
+    """Read the depths of the PSF stack ``psf_path`` on a worker and offer them in
+    ``box`` (the text typed stays; the first depth is filled in if none was)."""
+    from ..jobs import stack_depths
+
+    job = Job(lambda job: stack_depths(psf_path), name="stack-depths")
+
+    def show(depths: list[float]) -> None:
+        text = box.currentText()
+        box.blockSignals(True)
+        box.clear()
+        box.addItems([f"{z:g}" for z in depths])
+        box.blockSignals(False)
+        box.setEditText(text if text or not depths else f"{depths[0]:g}")
+        box.setToolTip(f"the stack's depths: {', '.join(f'{z:g}' for z in depths)} mm"
+                       if depths else "a single PSF image: leave empty")
+
+    job.succeeded.connect(show)
+    return job.start()
+
+
+def eta_text(seconds: float | None) -> str:
+    """``"ETA 2 min 05 s"``, ``"ETA 40 s"`` or ``"ETA -"`` (unknown)."""
+    if seconds is None:
+        return "ETA -"
+    m, s = divmod(int(round(max(seconds, 0.0))), 60)
+    h, m = divmod(m, 60)
+    if h:
+        return f"ETA {h} h {m:02d} min"
+    return f"ETA {m} min {s:02d} s" if m else f"ETA {s} s"
+
+
+def _clock(seconds: float) -> str:
+    m, s = divmod(int(seconds), 60)
+    h, m = divmod(m, 60)
+    return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
+
+
+class JobProgress(QWidget):
+    """A progress bar with the elapsed time and the ETA of a long job, ticking once a
+    second between the job's own reports (which may be minutes apart).
+
+    The ETA is the job's own estimate when it gives one (counted down between reports),
+    else ``elapsed * remaining / done`` from its rate so far.
+
+    Parameters
     ----------
-    image : ndarray or None
-        The image shown.
-    item : pyqtgraph.ImageItem
-    plot : pyqtgraph.PlotItem
-    histogram : pyqtgraph.HistogramLUTItem
+    unit : str
+        What is counted (``"frames"``, ``"readings"``).
     """
 
-    def __init__(self, title: str, *, histogram_hz: float | None = None,
-                 axes=("column (px)", "row (px)"), parent=None) -> None:
+    def __init__(self, unit: str = "frames", parent=None) -> None:
         super().__init__(parent)
-        self.plot = self.addPlot()
-        self.setTitle(title)
-        self.plot.setLabel("bottom", axes[0])
-        self.plot.setLabel("left", axes[1])
-        self.plot.setAspectLocked(True)
-        self.plot.invertY(True)
-        self.item = pg.ImageItem()
-        self.plot.addItem(self.item)
-        self.histogram = pg.HistogramLUTItem()
-        self.histogram.setImageItem(self.item)
-        self.item.sigImageChanged.disconnect(self.histogram.imageChanged)
-        self.addItem(self.histogram)
-        # repaint only what changed (pyqtgraph repaints the whole view by default)
-        self.setViewportUpdateMode(QGraphicsView.ViewportUpdateMode.MinimalViewportUpdate)
-        self.image = None
-        self._period_s = 0.0 if histogram_hz is None else 1.0 / histogram_hz
-        self._last_histogram = -1e9
-        self.setMinimumSize(320, 260)
+        self.unit = unit
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        self.bar = QProgressBar()
+        self.bar.setFormat(f"%v / %m {unit} (%p %)")
+        layout.addWidget(self.bar, 3)
+        self.label = QLabel("")
+        self.label.setMinimumWidth(230)
+        layout.addWidget(self.label, 2)
+        self.timer = QTimer(self)
+        self.timer.timeout.connect(self.tick)
+        self._t0: float | None = None
+        self._eta: tuple[float, float] | None = None  # (eta_s, at monotonic time)
+        self._done = 0
+        self._total = 0
+        self.note = ""
 
-    def setTitle(self, title: str) -> None:  # noqa: N802 (Qt's style)
-        self.plot.setTitle(title, size="10pt")
+    @property
+    def running(self) -> bool:
+        return self._t0 is not None
 
-    def setImage(self, image, autoLevels: bool = True) -> None:  # noqa: N802, N803
-        """Show ``image`` (rows, cols); ``autoLevels``: levels from its 0.1 and 99.9
-        percentiles (the histogram range follows). In video mode (``histogram_hz``)
-        levels and histogram follow at most that often; between, the image is swapped
-        alone, and the view is re-ranged only when the image's shape changes (every
-        other part of the plot then stays as drawn)."""
-        import time
+    def value(self) -> int:
+        """Units done (the bar's value)."""
+        return self.bar.value()
 
+    def maximum(self) -> int:
+        """Units in all (the bar's maximum; 0 while unknown)."""
+        return self.bar.maximum()
+
+    def start(self, total: int = 0, note: str = "") -> None:
+        """A job starts (``total``: how many units it will do; 0 unknown)."""
+        self._t0 = time.monotonic()
+        self._eta = None
+        self._done, self._total = 0, int(total)
+        self.note = note
+        self.bar.setRange(0, max(int(total), 0))
+        self.bar.setValue(0)
+        self.timer.start(1000)
+        self.tick()
+
+    def report(self, done: int, total: int | None = None, eta_s: float | None = None,
+               note: str | None = None) -> None:
+        """The job reports ``done`` of ``total`` units (and its own ETA, if it has one)."""
+        if self._t0 is None:
+            self.start(total or 0)
+        if total is not None:
+            self._total = int(total)
+            self.bar.setMaximum(max(int(total), 0))
+        self._done = int(done)
+        self.bar.setValue(min(self._done, self.bar.maximum()))
+        self._eta = None if eta_s is None else (float(eta_s), time.monotonic())
+        if note is not None:
+            self.note = note
+        self.tick()
+
+    def eta_s(self) -> float | None:
+        """The time left, s (None while unknown)."""
+        if self._t0 is None:
+            return None
         now = time.monotonic()
-        due = now - self._last_histogram >= self._period_s
-        reshaped = self.image is None or np.shape(self.image) != np.shape(image)
-        self.image = image
-        if autoLevels and (due or reshaped):
-            lo, hi = np.percentile(image[::4, ::4], (0.1, 99.9))
-            levels = (float(lo), float(hi) if hi > lo else float(lo) + 1.0)
-            self.item.setImage(image, levels=levels)
-            self.histogram.setLevels(*levels)
-        else:
-            self.item.setImage(image, autoLevels=False)
-        if reshaped:
-            self.plot.vb.autoRange(padding=0.02)
-            self.plot.vb.disableAutoRange()
-        if due or reshaped:
-            self._last_histogram = now
-            self.histogram.imageChanged(autoLevel=False, autoRange=autoLevels)
+        if self._eta is not None:
+            eta, at = self._eta
+            return max(eta - (now - at), 0.0)
+        if self._done > 0 and self._total > self._done:
+            return (now - self._t0) * (self._total - self._done) / self._done
+        return None
 
+    def elapsed_s(self) -> float:
+        return 0.0 if self._t0 is None else time.monotonic() - self._t0
 
-def error_label() -> QLabel:
-    """A wrapped, red label for the messages of refused actions."""
-    label = QLabel("")
-    label.setWordWrap(True)
-    label.setStyleSheet("color: #b00020;")
-    return label
+    def tick(self) -> None:
+        if self._t0 is None:
+            return
+        text = f"{_clock(self.elapsed_s())} elapsed, {eta_text(self.eta_s())}"
+        self.label.setText(f"{self.note}{'; ' if self.note else ''}{text}")
+
+    def finish(self, text: str = "") -> None:
+        """The job ended: the clock stops (the last figures stay)."""
+        self.tick()
+        self.timer.stop()
+        self._t0 = None
+        if text:
+            self.label.setText(text)
 
 
 class RunControls:

@@ -1,21 +1,24 @@
-"""Device panel: connect / disconnect, each device's status and settings, stage jog and
-go-to, the LED picker on the array's geometry, the SLM pattern picker.
+"""Device panel: connect / disconnect, each device's state, settings, presets and
+Reconnect, stage jog, go-to and stored positions, the LED picker on the array's
+geometry, the SLM pattern picker.
 
 Every device call runs in a :class:`~gui.workers.Job`; values are validated by the
 device interfaces (:meth:`drivers.base.Device.apply_settings`), whose message shows
-under the device when one is refused.
+under the device when one is refused. Statuses are read once a second on a worker
+(never overlapping) and shown as named fields (:mod:`gui.device_status`); the
+``statuses`` signal hands them to the window's status area. Presets (a device's
+settings under a name) and stored stage positions belong to the bench file and are
+kept between sessions (:mod:`gui.fields`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, QTimer
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QComboBox,
-    QDoubleSpinBox,
     QFormLayout,
-    QGridLayout,
     QGroupBox,
     QHBoxLayout,
     QLabel,
@@ -28,35 +31,70 @@ from PySide6.QtWidgets import (
 )
 
 from ..device_settings import SETTINGS, limits_text, parse_value, value_text
+from ..device_status import STATE_COLOURS, device_state, status_fields
+from ..fields import bench_key, load_json, store_json, wheel_needs_focus
 from ..session import SCENES, Session
-from ..workers import Job
+from ..workers import Job, readable_error
 from .common import error_label
+from .stage import MotionQueue, StageControls
 
 __all__ = ["DevicePanel", "DeviceBox"]
 
 
-class DeviceBox(QGroupBox):
-    """One device: status, settings (unit, limits, Apply) and its kind's controls."""
+_BRUSHES: list = []
 
-    def __init__(self, device, parent=None) -> None:
+
+def _led_brushes():
+    """The LED map's two brushes (lit, dark), made once."""
+    if not _BRUSHES:
+        _BRUSHES.extend([pg.mkBrush("#ffb000"), pg.mkBrush("#30303080")])
+    return _BRUSHES
+
+
+class DeviceBox(QGroupBox):
+    """One device: state and Reconnect, status fields, settings (unit, limits, Apply),
+    presets, and its kind's controls.
+
+    Parameters
+    ----------
+    device : drivers.base.Device
+    bench : str
+        The bench's settings group (:func:`gui.fields.bench_key`).
+    """
+
+    def __init__(self, device, bench: str = "bench/default", parent=None) -> None:
         super().__init__(f"{device.device_id} ({device.kind}, {type(device).__name__})", parent)
         self.device = device
+        self.bench = bench
         self.jobs: list[Job] = []
+        self.last_status: dict = {}
         layout = QVBoxLayout(self)
-        self.status = QLabel("")
-        self.status.setWordWrap(True)
-        layout.addWidget(self.status)
+        head = QHBoxLayout()
+        self.state = QLabel("open")
+        self.state.setObjectName(f"{device.device_id}.state")
+        head.addWidget(self.state, 1)
+        self.reconnect_button = QPushButton("Reconnect")
+        self.reconnect_button.setObjectName(f"{device.device_id}.reconnect")
+        self.reconnect_button.setToolTip("close the device, open it again and re-apply its "
+                                         "settings (after a cable or power problem)")
+        self.reconnect_button.clicked.connect(self.reconnect)
+        head.addWidget(self.reconnect_button)
+        layout.addLayout(head)
+        self.status_form = QFormLayout()
+        self.status_labels: dict[str, QLabel] = {}
+        layout.addLayout(self.status_form)
         form = QFormLayout()
         self.fields: dict[str, QLineEdit] = {}
         values = device.settings()
         for name, (label, unit) in SETTINGS.get(device.kind, {}).items():
-            edit = QLineEdit(value_text(values[name]))
+            edit = QLineEdit(value_text(values[name], name))
             edit.setCursorPosition(0)
             edit.setObjectName(f"{device.device_id}.{name}")
             edit.returnPressed.connect(lambda n=name: self.apply(n))
             row = QHBoxLayout()
             row.addWidget(edit, 1)
             button = QPushButton("Apply")
+            button.setObjectName(f"{device.device_id}.{name}.apply")
             button.clicked.connect(lambda _=False, n=name: self.apply(n))
             row.addWidget(button)
             cell = QVBoxLayout()
@@ -69,13 +107,20 @@ class DeviceBox(QGroupBox):
             form.addRow(f"{label}{f' ({unit})' if unit else ''}:", cell)
             self.fields[name] = edit
         layout.addLayout(form)
+        if self.fields:
+            layout.addLayout(self._preset_controls())
+        self.queue: MotionQueue | None = None
+        self.stage: StageControls | None = None
+        self.error = error_label()
         if device.kind == "stage":
-            layout.addWidget(self._stage_controls())
+            self.queue = MotionQueue(device)
+            self.queue.failed.connect(self.error.setText)
+            self.stage = StageControls(device, self.queue, bench, self.error.setText)
+            layout.addWidget(self.stage)
         elif device.kind == "led_array":
             layout.addWidget(self._led_controls())
         elif device.kind == "slm":
             layout.addWidget(self._slm_controls())
-        self.error = error_label()
         layout.addWidget(self.error)
 
     # -- jobs ----------------------------------------------------------------------------
@@ -92,96 +137,134 @@ class DeviceBox(QGroupBox):
         self.jobs.append(job)
         return job.start()
 
-    def apply(self, name: str) -> Job:
-        """Apply the text of setting ``name`` through the device interface."""
+    def apply(self, name: str) -> Job | None:
+        """Apply the text of setting ``name`` through the device interface (a time
+        takes its unit: ``20 ms``)."""
         edit = self.fields[name]
+        try:
+            value = parse_value(edit.text(), name)
+        except ValueError as exc:
+            self.error.setText(readable_error(exc))
+            return None
         edit.setModified(False)
-        return self.run(self.device.apply_settings, {name: parse_value(edit.text())},
+        return self.run(self.device.apply_settings, {name: value},
                         done=lambda _: self.refresh_settings(),
                         failed=lambda _: edit.setModified(True))  # the refused text stays
 
+    def reconnect(self) -> Job:
+        """Close and open the device again, its settings re-applied
+        (:meth:`drivers.base.Device.reconnect`)."""
+        self.state.setText("reconnecting ...")
+        return self.run(self.device.reconnect, done=lambda _: self.refresh_settings())
+
     def refresh_settings(self) -> None:
-        """Show the device's current settings (fields being edited are left alone)."""
-        values = self.device.settings()
+        """Show the device's current settings (fields being edited are left alone; a
+        device that went away meanwhile is left as shown: its state says so)."""
+        from drivers.errors import DeviceError
+
+        try:
+            values = self.device.settings()
+        except DeviceError:
+            return
         for name, edit in self.fields.items():
             if not edit.hasFocus() and not edit.isModified():
-                edit.setText(value_text(values[name]))
+                edit.setText(value_text(values[name], name))
                 edit.setCursorPosition(0)
 
     def show_status(self, status: dict) -> None:
-        """Show a :meth:`drivers.base.Device.status` dict (from the poller)."""
-        skip = {"device_id", "kind", "driver"}
-        parts = []
-        for key, value in status.items():
-            if key in skip:
-                continue
-            if isinstance(value, float):
-                value = f"{value:.4g}"
-            elif isinstance(value, dict):
-                value = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
-                                  for k, v in value.items())
-            parts.append(f"{key}: {value}")
-        self.status.setText("; ".join(parts))
-        if "positions" in status and hasattr(self, "positions"):
-            for axis, label in self.positions.items():
-                label.setText(f"{status['positions'][axis]:.4f}")
+        """Show a :meth:`drivers.base.Device.status` dict (from the poller) as fields."""
+        self.last_status = status
+        state = device_state(status)
+        try:
+            settings = self.device.settings() if state not in ("disconnected", "closed") \
+                else None
+        except Exception:  # noqa: BLE001 (a device gone between the poll and now)
+            settings = None
+        colour = STATE_COLOURS.get(state, "#000")
+        text = "DISCONNECTED: press Reconnect" if state == "disconnected" else state
+        self.state.setText(f'<b style="color:{colour}">{text}</b>')
+        rows = status_fields(self.device.kind, status, settings)[1:]
+        for label, value in rows:
+            if label not in self.status_labels:
+                widget = QLabel(value)
+                widget.setWordWrap(True)
+                self.status_form.addRow(f"{label}:", widget)
+                self.status_labels[label] = widget
+            self.status_labels[label].setText(value)
+        if self.stage is not None and isinstance(status.get("positions"), dict):
+            self.stage.show_positions(status["positions"])
 
-    # -- stage ---------------------------------------------------------------------------
-    def _stage_controls(self) -> QWidget:
-        from drivers.stage import AXIS_UNITS
+    # -- presets ---------------------------------------------------------------------------
+    @property
+    def _preset_key(self) -> str:
+        return f"{self.bench}/presets/{self.device.device_id}"
 
-        box = QWidget()
-        grid = QGridLayout(box)
-        grid.setContentsMargins(0, 0, 0, 0)
-        for col, head in enumerate(("axis", "position", "jog step", "", "", "go to", "")):
-            if not head:
-                continue
-            grid.addWidget(QLabel(f"<b>{head}</b>"), 0, col)
-        self.positions: dict[str, QLabel] = {}
-        self.jog_steps: dict[str, QDoubleSpinBox] = {}
-        self.targets: dict[str, QLineEdit] = {}
-        travel = self.device.travel
-        for row, axis in enumerate(self.device.axes, start=1):
-            unit = AXIS_UNITS[axis]
-            grid.addWidget(QLabel(f"{axis} ({unit})"), row, 0)
-            self.positions[axis] = QLabel("-")
-            grid.addWidget(self.positions[axis], row, 1)
-            step = QDoubleSpinBox()
-            step.setMaximumWidth(120)
-            step.setDecimals(4)
-            step.setRange(0.0001, float(travel[axis][1] - travel[axis][0]))
-            step.setValue(1.0 if unit == "mm" else 0.1)
-            step.setSuffix(f" {unit}")
-            self.jog_steps[axis] = step
-            grid.addWidget(step, row, 2)
-            for col, sign in ((3, -1), (4, +1)):
-                b = QPushButton("-" if sign < 0 else "+")
-                b.setFixedWidth(34)
-                b.setObjectName(f"{self.device.device_id}.jog.{axis}{'-+'[sign > 0]}")
-                b.clicked.connect(lambda _=False, a=axis, s=sign: self.jog(a, s))
-                grid.addWidget(b, row, col)
-            target = QLineEdit()
-            target.setMaximumWidth(90)
-            target.setPlaceholderText(f"{unit}")
-            target.setObjectName(f"{self.device.device_id}.goto.{axis}")
-            self.targets[axis] = target
-            grid.addWidget(target, row, 5)
-            go = QPushButton("Go")
-            go.setFixedWidth(40)
-            go.clicked.connect(lambda _=False, a=axis: self.go_to(a))
-            grid.addWidget(go, row, 6)
-        stop = QPushButton("Stop")
-        stop.clicked.connect(lambda: self.run(self.device.stop))
-        grid.addWidget(stop, len(self.device.axes) + 1, 0)
-        return box
+    def presets(self) -> dict[str, dict]:
+        """``{name: settings}`` saved for this device on this bench."""
+        return load_json(self._preset_key, {})
 
-    def jog(self, axis: str, sign: int) -> Job:
-        """Move ``axis`` by one jog step in direction ``sign``."""
-        return self.run(self.device.move_by, {axis: sign * self.jog_steps[axis].value()})
+    def _preset_controls(self) -> QFormLayout:
+        form = QFormLayout()
+        row = QHBoxLayout()
+        self.preset = QComboBox()
+        self.preset.setObjectName(f"{self.device.device_id}.preset")
+        self.preset.setMinimumWidth(110)
+        wheel_needs_focus(self.preset)
+        self.preset.addItems(list(self.presets()))
+        row.addWidget(self.preset, 1)
+        apply = QPushButton("Apply")
+        apply.setToolTip("apply the saved settings")
+        apply.clicked.connect(lambda: self.apply_preset(self.preset.currentText()))
+        row.addWidget(apply)
+        delete = QPushButton("Delete")
+        delete.clicked.connect(lambda: self.delete_preset(self.preset.currentText()))
+        row.addWidget(delete)
+        form.addRow("preset:", row)
+        save_row = QHBoxLayout()
+        self.preset_name = QLineEdit()
+        self.preset_name.setPlaceholderText("name for the current settings")
+        self.preset_name.setObjectName(f"{self.device.device_id}.preset-name")
+        self.preset_name.returnPressed.connect(lambda: self.save_preset(self.preset_name.text()))
+        save_row.addWidget(self.preset_name, 1)
+        save = QPushButton("Save as preset")
+        save.clicked.connect(lambda: self.save_preset(self.preset_name.text()))
+        save_row.addWidget(save)
+        form.addRow("", save_row)
+        return form
 
-    def go_to(self, axis: str) -> Job:
-        """Move ``axis`` to the go-to field's value (the stage checks its limits)."""
-        return self.run(self.device.move_to, {axis: parse_value(self.targets[axis].text())})
+    def save_preset(self, name: str) -> None:
+        """Save the device's current settings (those the panel edits) as ``name``."""
+        name = name.strip()
+        if not name:
+            self.error.setText("type a name for the preset, then press Save as preset")
+            return
+        values = self.device.settings()
+        presets = self.presets()
+        presets[name] = {k: values[k] for k in self.fields if k in values}
+        store_json(self._preset_key, presets)
+        self.preset_name.clear()
+        self._show_presets(name)
+
+    def apply_preset(self, name: str) -> Job | None:
+        """Apply the saved settings ``name`` (validated by the device first)."""
+        preset = self.presets().get(name)
+        if preset is None:
+            self.error.setText("choose a saved preset (or save the settings as one first)")
+            return None
+        return self.run(self.device.apply_settings, preset,
+                        done=lambda _: self.refresh_settings())
+
+    def delete_preset(self, name: str) -> None:
+        presets = self.presets()
+        if presets.pop(name, None) is not None:
+            store_json(self._preset_key, presets)
+        self._show_presets()
+
+    def _show_presets(self, current: str | None = None) -> None:
+        self.preset.clear()
+        self.preset.addItems(list(self.presets()))
+        if current:
+            self.preset.setCurrentText(current)
 
     # -- LED array -----------------------------------------------------------------------
     def _led_controls(self) -> QWidget:
@@ -205,6 +288,7 @@ class DeviceBox(QGroupBox):
         row = QHBoxLayout()
         self.pattern = QComboBox()
         self.pattern.addItems(PATTERNS)
+        wheel_needs_focus(self.pattern)
         row.addWidget(QLabel("pattern:"))
         row.addWidget(self.pattern)
         show = QPushButton("Show pattern")
@@ -212,6 +296,7 @@ class DeviceBox(QGroupBox):
                                               done=lambda _: self.show_lit()))
         row.addWidget(show)
         off = QPushButton("All off")
+        off.setObjectName(f"{self.device.device_id}.all-off")
         off.clicked.connect(lambda: self.run(self.device.all_off, done=lambda _: self.show_lit()))
         row.addWidget(off)
         layout.addLayout(row)
@@ -229,10 +314,18 @@ class DeviceBox(QGroupBox):
                         done=lambda _: self.show_lit())
 
     def show_lit(self) -> None:
-        lit = self.device.lit()
-        brushes = [pg.mkBrush("#ffb000") if i in lit else pg.mkBrush("#30303080")
-                   for i in range(self.device.n_leds)]
-        self.led_points.setBrush(brushes)
+        """Colour the lit LEDs on the map (only when the set changed; two brushes shared
+        by every point: a fresh QBrush per point and call kept ~6000 references per
+        call alive in pyqtgraph's scatter plot)."""
+        try:
+            lit = set(self.device.lit())
+        except Exception:  # noqa: BLE001 (disconnected: the state line says so)
+            lit = set()
+        if lit == getattr(self, "_lit_shown", None):
+            return
+        self._lit_shown = lit
+        on, off = _led_brushes()
+        self.led_points.setBrush([on if i in lit else off for i in range(self.device.n_leds)])
 
     # -- SLM -----------------------------------------------------------------------------
     def _slm_controls(self) -> QWidget:
@@ -241,12 +334,14 @@ class DeviceBox(QGroupBox):
         row.setContentsMargins(0, 0, 0, 0)
         self.slm_pattern = QComboBox()
         self.slm_pattern.addItems(["flat (zero phase)", "blazed grating", "random phase"])
+        wheel_needs_focus(self.slm_pattern)
         row.addWidget(QLabel("pattern:"))
         row.addWidget(self.slm_pattern)
         self.slm_period = QSpinBox()
         self.slm_period.setRange(2, 512)
         self.slm_period.setValue(8)
         self.slm_period.setSuffix(" px period")
+        wheel_needs_focus(self.slm_period)
         row.addWidget(self.slm_period)
         show = QPushButton("Show on SLM")
         show.clicked.connect(self.show_slm_pattern)
@@ -270,33 +365,53 @@ class DeviceBox(QGroupBox):
 
 
 class DevicePanel(QWidget):
-    """Connect / disconnect and one :class:`DeviceBox` per device of the session."""
+    """Connect / disconnect and one :class:`DeviceBox` per device of the session.
+
+    Signals
+    -------
+    statuses(dict)
+        ``{device id: status}`` after each poll (the window's status area shows them).
+    """
+
+    statuses = Signal(dict)
 
     def __init__(self, session: Session, parent=None) -> None:
         super().__init__(parent)
         self.session = session
         self.boxes: dict[str, DeviceBox] = {}
+        self.last_statuses: dict[str, dict] = {}
         outer = QVBoxLayout(self)
         bar = QHBoxLayout()
         self.connect_button = QPushButton("Connect")
+        self.connect_button.setObjectName("connect")
         self.connect_button.clicked.connect(self.toggle_connection)
         bar.addWidget(self.connect_button)
         self.scene = QComboBox()
         self.scene.addItems(SCENES)
         self.scene.setToolTip("the virtual bench's moving scene in front of the camera")
         self.scene.activated.connect(lambda _: self._set_scene())
+        wheel_needs_focus(self.scene)
         self.scene_label = QLabel("virtual bench scene:")
         bar.addWidget(self.scene_label)
         bar.addWidget(self.scene)
         bar.addStretch(1)
         self.state = QLabel("not connected")
+        self.state.setObjectName("device-count")
         bar.addWidget(self.state)
         outer.addLayout(bar)
+        keys = QHBoxLayout()
+        keys.addWidget(QLabel("arrow keys move:"))
+        self.arrow_stage = QComboBox()
+        self.arrow_stage.setToolTip("the stage the arrow keys jog (x, y; Page Up/Down: z) "
+                                    "when no text field has the focus")
+        wheel_needs_focus(self.arrow_stage)
+        keys.addWidget(self.arrow_stage, 1)
+        outer.addLayout(keys)
         self.error = error_label()
         outer.addWidget(self.error)
         self.area = QScrollArea()
         self.area.setWidgetResizable(True)
-        self.area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        self.area.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAsNeeded)
         self.inner = QWidget()
         self.inner_layout = QVBoxLayout(self.inner)
         self.inner_layout.addStretch(1)
@@ -309,6 +424,10 @@ class DevicePanel(QWidget):
         self.timer.start(1000)
         self.rebuild()
 
+    @property
+    def bench_key(self) -> str:
+        return bench_key(self.session.bench_path, self.session.simulate)
+
     def toggle_connection(self) -> None:
         self.error.setText("")
         if self.session.connected:
@@ -316,13 +435,14 @@ class DevicePanel(QWidget):
         else:
             self.state.setText("connecting ...")
             self.connect_button.setEnabled(False)
+
             def failed(text: str) -> None:
                 self.error.setText(text)
                 self.state.setText("not connected")
                 self.connect_button.setEnabled(True)
 
-            job = self.session.connect_bench(on_error=failed)
-            job.succeeded.connect(lambda _: self.connect_button.setEnabled(True))
+            self.session.connect_bench(on_error=failed,
+                                       on_open=lambda: self.connect_button.setEnabled(True))
 
     def _set_scene(self) -> None:
         if self.session.is_virtual:
@@ -345,11 +465,37 @@ class DevicePanel(QWidget):
             box.setParent(None)
             box.deleteLater()
         self.boxes = {}
+        self.last_statuses = {}
         for index, (dev_id, dev) in enumerate(devices.items()):
-            box = DeviceBox(dev)
+            box = DeviceBox(dev, self.bench_key)
             self.inner_layout.insertWidget(index, box)
             self.boxes[dev_id] = box
-        self.state.setText(f"{len(devices)} devices open" if devices else "not connected")
+        self.arrow_stage.clear()
+        self.arrow_stage.addItems([k for k, b in self.boxes.items()
+                                   if b.stage is not None and "x" in b.device.axes])
+        self._show_count()
+
+    def _show_count(self) -> None:
+        n = len(self.boxes)
+        if not n:
+            self.state.setText("not connected")
+            return
+        states = [device_state(self.last_statuses.get(k, {"is_open": True}))
+                  for k in self.boxes]
+        bad = [k for k, s in zip(self.boxes, states, strict=True)
+               if s in ("disconnected", "closed")]
+        text = f"{n} devices: {n - len(bad)} open"
+        if bad:
+            text += f', <b style="color:#c00020">{len(bad)} disconnected ({", ".join(bad)})</b>'
+        self.state.setText(text)
+
+    def stage_box(self) -> DeviceBox | None:
+        """The box of the stage the arrow keys move."""
+        return self.boxes.get(self.arrow_stage.currentText())
+
+    def stop_all_motion(self) -> list[Job]:
+        """Stop every stage now (queued moves dropped)."""
+        return [b.queue.stop() for b in self.boxes.values() if b.queue is not None]
 
     def poll(self) -> None:
         """Read every device's status on a worker (once a second, never overlapping)."""
@@ -358,7 +504,13 @@ class DevicePanel(QWidget):
         devices = {k: b.device for k, b in self.boxes.items()}
 
         def read(job: Job) -> dict:
-            return {k: d.status() for k, d in devices.items()}
+            out = {}
+            for k, d in devices.items():
+                try:
+                    out[k] = d.status()
+                except Exception as exc:  # noqa: BLE001 (shown as the device's state)
+                    out[k] = {"is_open": d.is_open, "disconnected": True, "error": str(exc)}
+            return out
 
         self.poll_job = Job(read, name="device-status")
         self.poll_job.succeeded.connect(self._show_status)
@@ -371,3 +523,6 @@ class DevicePanel(QWidget):
                 box.show_status(status)
                 if status.get("is_open") and not status.get("disconnected"):
                     box.refresh_settings()
+        self.last_statuses = statuses
+        self._show_count()
+        self.statuses.emit(statuses)

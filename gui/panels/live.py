@@ -1,18 +1,22 @@
 """Live view: the raw camera frame (histogram, saturation overlay, fps) beside the live
-reconstruction (its own fps, latency, skipped and error counters).
+reconstruction (its own fps, latency, skipped and error counters), Snap.
 
 The session's stream hands every frame to :class:`instrument.live.LiveReconstruction`
 (Wiener preview or warm-started ADMM with a few iterations per frame; PSF from a file
 or a run store, :func:`gui.jobs.build_live`); a 20 Hz timer shows the newest frame
 and the newest reconstruction and the counters. Nothing here waits on the camera or
-the solver.
+the solver. The PSF, depth, dark level, method and iterations are remembered between
+sessions; the depth offers the stack's planes and shows the plane used; the PSF and
+depth in use are handed to the batch reconstruction (``psf_chosen``).
 """
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import (
     QComboBox,
     QFileDialog,
@@ -26,67 +30,103 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from ..session import CameraBusy, Session
-from ..workers import Job, readable_error
-from .common import FrameView, error_label
+from ..fields import remember, wheel_needs_focus
+from ..session import Session
+from ..workers import InputError, Job, readable_error
+from .common import FrameView, depth_field, error_label, offer_depths
 
-__all__ = ["LivePanel"]
+__all__ = ["LivePanel", "STALE_S"]
 
 #: Consumer name of the live reconstruction on the session's stream.
 CONSUMER = "live-reconstruction"
+#: A reconstruction rate older than this (s) is shown as stale, not as a rate.
+STALE_S = 2.0
 
 
 class LivePanel(QWidget):
-    """See the module docstring."""
+    """See the module docstring.
+
+    Signals
+    -------
+    psf_chosen(str, str)
+        ``(psf, depth)`` of a live reconstruction that started (the batch fields
+        take them).
+    """
+
+    psf_chosen = Signal(str, str)
 
     def __init__(self, session: Session, parent=None) -> None:
         super().__init__(parent)
         self.session = session
         self.live = None
         self.job: Job | None = None
+        self.stream_job: Job | None = None
+        self.depth_job: Job | None = None
+        self.depth_used: float | None = None
         self._shown_raw = -1
         self._shown_recon = -1
         self._saturation_shown = False
+        self._recon_count = (-1, time.monotonic())
+        self._live_settings: dict = {}
         layout = QVBoxLayout(self)
         controls = QGridLayout()
         self.start_button = QPushButton("Start stream")
+        self.start_button.setObjectName("live.stream")
+        self.start_button.setToolTip("start or stop the camera's live stream (F5)")
         self.start_button.clicked.connect(self.toggle_stream)
         controls.addWidget(self.start_button, 0, 0)
+        self.snap_button = QPushButton("Snap")
+        self.snap_button.setObjectName("live.snap")
+        self.snap_button.setToolTip("stop the stream and take one frame (F6)")
+        self.snap_button.clicked.connect(self.snap)
+        controls.addWidget(self.snap_button, 1, 0)
         controls.addWidget(QLabel("PSF (image, stack or run):"), 0, 1)
-        self.psf = QLineEdit()
+        self.psf = remember(QLineEdit(), "live/psf")
+        self.psf.setObjectName("live.psf")
         self.psf.setPlaceholderText("e.g. out/runs/psf-sweep-....zarr")
+        self.psf.editingFinished.connect(self.offer_depths)
         controls.addWidget(self.psf, 0, 2, 1, 3)
         browse = QPushButton("Browse...")
         browse.clicked.connect(self._browse)
         controls.addWidget(browse, 0, 5)
         controls.addWidget(QLabel("depth (mm):"), 1, 1)
-        self.depth = QLineEdit()
-        self.depth.setPlaceholderText("stack plane; empty: single PSF")
+        self.depth = remember(depth_field("live.depth"), "live/depth")
         controls.addWidget(self.depth, 1, 2)
         controls.addWidget(QLabel("dark (DN or dark run):"), 1, 3)
-        self.dark = QLineEdit()
+        self.dark = remember(QLineEdit(), "live/dark")
         self.dark.setPlaceholderText("auto")
         controls.addWidget(self.dark, 1, 4)
         controls.addWidget(QLabel("method:"), 2, 1)
         self.method = QComboBox()
         self.method.addItems(["wiener", "admm"])
+        self.method.setObjectName("live.method")
+        wheel_needs_focus(self.method)
+        remember(self.method, "live/method")
         self.method.currentTextChanged.connect(self._method_changed)
         controls.addWidget(self.method, 2, 2)
         controls.addWidget(QLabel("ADMM iterations per frame:"), 2, 3)
         self.iterations = QSpinBox()
         self.iterations.setRange(1, 50)
         self.iterations.setValue(5)
+        self.iterations.setObjectName("live.iterations")
+        wheel_needs_focus(self.iterations)
+        remember(self.iterations, "live/iterations")
         self.iterations.valueChanged.connect(self._method_changed)
         controls.addWidget(self.iterations, 2, 4)
         self.recon_button = QPushButton("Start reconstruction")
+        self.recon_button.setObjectName("live.reconstruct")
         self.recon_button.clicked.connect(self.toggle_reconstruction)
         controls.addWidget(self.recon_button, 1, 5, 2, 1)
+        self.plane = QLabel("")
+        self.plane.setObjectName("live.plane")
+        controls.addWidget(self.plane, 2, 0)
         layout.addLayout(controls)
         self.error = error_label()
         layout.addWidget(self.error)
         views = QHBoxLayout()
         left, right = QVBoxLayout(), QVBoxLayout()
-        self.raw_view = FrameView("raw frame (DN)", histogram_hz=2.0)
+        self.raw_view = FrameView("raw frame (DN)", histogram_hz=2.0, name="raw")
+        self.raw_view.metadata = self._raw_metadata
         self.saturation = pg.ImageItem()
         self.raw_view.plot.addItem(self.saturation)
         self.saturation.setZValue(10)
@@ -94,7 +134,9 @@ class LivePanel(QWidget):
         self.raw_stats = QLabel("camera: not streaming")
         self.raw_stats.setWordWrap(True)
         left.addWidget(self.raw_stats)
-        self.recon_view = FrameView("live reconstruction (upright)", histogram_hz=2.0)
+        self.recon_view = FrameView("live reconstruction (upright)", histogram_hz=2.0,
+                                    name="reconstruction")
+        self.recon_view.metadata = self._recon_metadata
         right.addWidget(self.recon_view, 1)
         self.recon_stats = QLabel("reconstruction: off")
         self.recon_stats.setWordWrap(True)
@@ -114,24 +156,46 @@ class LivePanel(QWidget):
             QFileDialog.getOpenFileName(self, "PSF image or stack")[0]
         if path:
             self.psf.setText(path)
+            self.offer_depths()
+
+    def offer_depths(self) -> Job:
+        """Offer the PSF stack's depths in the depth field (read on a worker)."""
+        self.depth_job = offer_depths(self.depth, self.psf.text())
+        return self.depth_job
 
     def _session_changed(self) -> None:
         streaming = self.session.streaming
         self.start_button.setText("Stop stream" if streaming else "Start stream")
         self.start_button.setEnabled(self.session.connected)
+        self.snap_button.setEnabled(self.session.connected)
         self.recon_button.setEnabled(self.session.connected)
         if not self.session.connected and self.live is not None:
             self.stop_reconstruction()
 
-    def toggle_stream(self) -> None:
+    def toggle_stream(self) -> Job | None:
+        """Start or stop the camera's stream (on a worker)."""
         self.error.setText("")
-        if self.session.streaming:
-            self.session.stop_stream()
-            return
-        try:
-            self.session.start_stream()
-        except (CameraBusy, Exception) as exc:  # noqa: B014 (shown, never raised)
-            self.error.setText(readable_error(exc))
+        if not self.session.connected:
+            self.error.setText("no bench is connected; press Connect on the Devices panel")
+            return None
+        self.stream_job = self.session.stream_job(not self.session.streaming,
+                                                  on_error=self.error.setText)
+        return self.stream_job
+
+    def snap(self) -> Job | None:
+        """Stop the stream and take one frame on a worker (shown as the raw frame)."""
+        self.error.setText("")
+        if not self.session.connected:
+            self.error.setText("no bench is connected; press Connect on the Devices panel")
+            return None
+        if self.session.camera_user is not None:
+            self.error.setText(f"the camera is busy with {self.session.camera_user}")
+            return None
+        cam = self.session.bench.camera
+        self.stream_job = self.session.stream_job(False, then=cam.snap,
+                                                  on_error=self.error.setText,
+                                                  done=self.session.show_frame)
+        return self.stream_job
 
     def toggle_reconstruction(self) -> None:
         if self.live is not None:
@@ -139,39 +203,60 @@ class LivePanel(QWidget):
         else:
             self.start_reconstruction()
 
+    def _depth_mm(self) -> float | None:
+        text = self.depth.currentText().strip().removesuffix("mm").strip()
+        if not text:
+            return None
+        try:
+            return float(text)
+        except ValueError:
+            raise InputError(f"depth {text!r}: give a number in mm (one of the stack's "
+                             "depths), or leave it empty for a single PSF image") from None
+
     def start_reconstruction(self) -> Job | None:
         """Build the reconstruction on a worker (PSF loading, FFT plans), then start it
         on the stream (started too if it was not)."""
         from ..jobs import build_live
 
         self.error.setText("")
-        depth_text = self.depth.text().strip()
-        try:
-            depth = float(depth_text) if depth_text else None
-        except ValueError:
-            self.error.setText(f"depth {depth_text!r}: give a number in mm, or leave it empty")
+        if not self.session.connected:
+            self.error.setText("no bench is connected; press Connect on the Devices panel")
             return None
+        try:
+            depth = self._depth_mm()
+        except InputError as exc:
+            self.error.setText(str(exc))
+            return None
+        psf, dark = self.psf.text().strip(), self.dark.text()
+        method, iterations = self.method.currentText(), self.iterations.value()
         self.recon_button.setEnabled(False)
-        self.job = Job(lambda job: build_live(
-            self.session, self.psf.text().strip(), depth_mm=depth,
-            method=self.method.currentText(), iterations=self.iterations.value(),
-            dark=self.dark.text()), name="build-live")
+        self.job = Job(lambda job: build_live(self.session, psf, depth_mm=depth,
+                                              method=method, iterations=iterations,
+                                              dark=dark), name="build-live")
+        self._live_settings = {"psf": psf, "depth_requested_mm": depth, "dark": dark}
         self.job.succeeded.connect(self._live_ready)
         self.job.failed.connect(self.error.setText)
         self.job.finished.connect(lambda: self.recon_button.setEnabled(True))
         return self.job.start()
 
-    def _live_ready(self, live) -> None:
+    def _live_ready(self, result) -> None:
+        live, depth = result
+        self.depth_used = depth
+        self._live_settings["depth_used_mm"] = depth
+        self.plane.setText("" if depth is None else f"plane used: z = {depth:g} mm")
         try:
             live.start()
             self.live = live
             self.session.add_consumer(CONSUMER, live.offer)
-            if not self.session.streaming:
-                self.session.start_stream()
+            if not self.session.streaming and self.session.camera_user is None:
+                self.stream_job = self.session.stream_job(True, on_error=self.error.setText)
         except Exception as exc:  # noqa: BLE001 (shown, never raised)
             self.error.setText(readable_error(exc))
         self.recon_button.setText("Stop reconstruction" if self.live else
                                   "Start reconstruction")
+        if self.live is not None:
+            self.psf_chosen.emit(self._live_settings["psf"],
+                                 "" if depth is None else f"{depth:g}")
 
     def stop_reconstruction(self) -> None:
         """Detach the worker from the stream and stop it (it ends with its frame)."""
@@ -182,6 +267,7 @@ class LivePanel(QWidget):
             job.failed.connect(self.error.setText)
             self.job = job.start()
         self.recon_button.setText("Start reconstruction")
+        self.plane.setText("")
 
     def _method_changed(self, *_) -> None:
         if self.live is not None:
@@ -189,6 +275,28 @@ class LivePanel(QWidget):
                 self.live.set_method(self.method.currentText(), self.iterations.value())
             except Exception as exc:  # noqa: BLE001 (shown, never raised)
                 self.error.setText(readable_error(exc))
+
+    # -- snapshot metadata ---------------------------------------------------------------
+    def _raw_metadata(self) -> dict:
+        frame = self.session.latest_frame()
+        out: dict = {"kind": "raw camera frame"}
+        if frame is not None:
+            out["frame"] = {"index": int(frame.index),
+                            "timestamp_s": float(getattr(frame, "timestamp_s", 0.0) or 0.0)}
+        if self.session.connected:
+            out["device_settings"] = self.session.bench.settings_snapshot()
+            out["bench"] = self.session.bench_path or "built-in simulated bench"
+        return out
+
+    def _recon_metadata(self) -> dict:
+        out = self._raw_metadata()
+        out["kind"] = "live reconstruction (upright)"
+        out["reconstruction"] = {**self._live_settings, "method": self.method.currentText(),
+                                 "iterations": self.iterations.value()}
+        if self.live is not None:
+            s = self.live.stats()
+            out["reconstruction"].update(method=s["method"], iterations=s["iterations"])
+        return out
 
     # -- display -------------------------------------------------------------------------
     def refresh(self) -> None:
@@ -203,7 +311,7 @@ class LivePanel(QWidget):
             first = self._shown_raw < 0
             self._shown_raw = frame.index
             image = frame.image
-            self.raw_view.setImage(image, autoLevels=first)
+            self.raw_view.setImage(image, autoLevels=first or not self.raw_view.levels_locked)
             cam = self.session.bench.camera if self.session.connected else None
             if cam is not None:
                 sat = image >= 2 ** int(cam.bit_depth) - 1
@@ -217,21 +325,39 @@ class LivePanel(QWidget):
             if self.session.streaming:
                 c = self.session.stream_counters()
                 self.raw_stats.setText(
-                    f"camera: {c['fps']:.1f} fps, frame {frame.index}, acquired "
+                    f"camera: {c['fps']:.1f} fps (last 2 s), frame {frame.index}, acquired "
                     f"{c['acquired']}, dropped {c['dropped']}, skipped by the ring "
                     f"{c['skipped']}; {sat}")
             elif self.session.camera_user is not None:
                 self.raw_stats.setText(f"camera busy with {self.session.camera_user}: frame "
                                        f"{frame.index}; {sat}")
+            else:
+                self.raw_stats.setText(f"camera: not streaming (Start stream or F5); frame "
+                                       f"{frame.index}; {sat}")
         if self.live is not None:
-            s = self.live.stats()
-            lat = "-" if s["latency_median_s"] is None else f"{1e3 * s['latency_median_s']:.0f}"
-            method = s["method"] + ("" if s["method"] == "wiener" else f" x{s['iterations']}")
-            self.recon_stats.setText(
-                f"reconstruction ({method}): {s['fps']:.1f} fps, latency {lat} ms, "
-                f"reconstructed {s['reconstructed']}, skipped {s['skipped']}, errors "
-                f"{s['errors']}" + (f" - {s['last_error']}" if s["last_error"] else ""))
+            self._show_live_stats()
             latest = self.live.latest()
             if latest is not None and latest.frame_index != self._shown_recon:
                 self._shown_recon = latest.frame_index
                 self.recon_view.setImage(scene_view(latest.image), autoLevels=True)
+
+    def _show_live_stats(self) -> None:
+        s = self.live.stats()
+        now = time.monotonic()
+        if s["reconstructed"] != self._recon_count[0]:
+            self._recon_count = (s["reconstructed"], now)
+        idle = now - self._recon_count[1]
+        method = s["method"] + ("" if s["method"] == "wiener" else f" x{s['iterations']}")
+        if idle > STALE_S:
+            why = ("the camera is busy" if self.session.camera_user is not None
+                   else "the stream is stopped" if not self.session.streaming
+                   else "waiting for frames")
+            rate = f"no new result for {idle:.0f} s ({why})"
+        else:
+            lat = ("-" if s["latency_median_s"] is None
+                   else f"{1e3 * s['latency_median_s']:.0f}")
+            rate = f"{s['fps']:.1f} fps, latency {lat} ms"
+        self.recon_stats.setText(
+            f"reconstruction ({method}): {rate}, reconstructed {s['reconstructed']}, "
+            f"skipped {s['skipped']}, errors {s['errors']}"
+            + (f" - {s['last_error']}" if s["last_error"] else ""))

@@ -1,5 +1,5 @@
-"""Record panel: start / stop a video recording (frames written, MB/s, dropped), and
-batch reconstruction of a recorded run (progress, cancel).
+"""Record panel: start / stop a video recording (frames written, MB/s, dropped, ETA),
+and batch reconstruction of a recorded run (progress, ETA, cancel).
 
 Recording is :func:`instrument.video.record_video` on a worker (the camera streams
 into a ring, every frame goes to the recorder; the live view keeps showing the newest
@@ -7,12 +7,15 @@ frame and, if it runs, the live reconstruction); Stop sets its ``stop`` event, a
 the run keeps what was recorded. Batch reconstruction is
 :func:`instrument.batch.reconstruct_run` on a worker (dask), cancelled through its
 ``cancel`` event; its results are a product of the run, shown in the Results panel.
+Every field is remembered between sessions; the live reconstruction's PSF and depth
+are carried into the batch fields (:meth:`RecordPanel.take_psf`).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import threading
+from pathlib import Path
 
 from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (
@@ -21,7 +24,6 @@ from PySide6.QtWidgets import (
     QGroupBox,
     QLabel,
     QLineEdit,
-    QProgressBar,
     QPushButton,
     QVBoxLayout,
     QWidget,
@@ -29,12 +31,20 @@ from PySide6.QtWidgets import (
 
 from recon.solvers import METHODS
 
+from ..device_settings import parse_duration_s
+from ..fields import remember, wheel_needs_focus
+from ..logpane import announce_job
 from ..session import Session
-from ..workers import Job
-from .common import error_label
+from ..workers import InputError, Job
+from .common import JobProgress, depth_field, error_label, offer_depths
 
 __all__ = ["RecordPanel"]
 
+#: The batch fields' labels, for messages that name a ``recon-run`` option.
+BATCH_LABELS = {"--psf": "PSF", "--depth": "depth (mm)", "--method": "method",
+                "--iterations": "iterations", "--frames": "frames (A:B)",
+                "--workers": "dask workers", "--dark": "dark (DN or dark run)",
+                "--dff": "ΔF/F baseline percentile"}
 
 
 def _number(text: str, what: str, kind=float):
@@ -44,7 +54,7 @@ def _number(text: str, what: str, kind=float):
     try:
         return kind(text)
     except ValueError:
-        raise ValueError(f"{what} {text!r}: give a number or leave it empty") from None
+        raise InputError(f"{what} {text!r}: give a number or leave it empty") from None
 
 
 class _LiveTap:
@@ -91,33 +101,36 @@ class RecordPanel(QWidget):
         self.last_run: str | None = None
         self.summary: dict | None = None
         self.batch_result: dict | None = None
+        self._carried: tuple[str, str] = ("", "")
         layout = QVBoxLayout(self)
         rec = QGroupBox("record a video")
         g = QGridLayout(rec)
         g.addWidget(QLabel("run store:"), 0, 0)
         self.out = QLineEdit()
+        self.out.setObjectName("record.out")
         self.out.setPlaceholderText("default out/runs/video-TIME.zarr")
         g.addWidget(self.out, 0, 1, 1, 3)
         g.addWidget(QLabel("frames:"), 1, 0)
-        self.frames = QLineEdit("100")
+        self.frames = remember(QLineEdit("100"), "record/frames")
+        self.frames.setObjectName("record.frames")
         self.frames.setToolTip("number of frames (or give seconds instead)")
         g.addWidget(self.frames, 1, 1)
         g.addWidget(QLabel("or seconds (s):"), 1, 2)
-        self.seconds = QLineEdit()
+        self.seconds = remember(QLineEdit(), "record/seconds")
         g.addWidget(self.seconds, 1, 3)
         g.addWidget(QLabel("frame rate (Hz):"), 2, 0)
-        self.fps = QLineEdit()
+        self.fps = remember(QLineEdit(), "record/fps")
         self.fps.setPlaceholderText("camera's setting")
         g.addWidget(self.fps, 2, 1)
-        g.addWidget(QLabel("exposure (s):"), 2, 2)
-        self.exposure = QLineEdit()
-        self.exposure.setPlaceholderText("camera's setting")
+        g.addWidget(QLabel("exposure (ms or s):"), 2, 2)
+        self.exposure = remember(QLineEdit(), "record/exposure")
+        self.exposure.setPlaceholderText("camera's setting (e.g. 20 ms)")
         g.addWidget(self.exposure, 2, 3)
         self.record_button = QPushButton("Start recording")
+        self.record_button.setObjectName("record.start")
         self.record_button.clicked.connect(self.toggle_recording)
         g.addWidget(self.record_button, 3, 0)
-        self.record_progress = QProgressBar()
-        self.record_progress.setFormat("%v / %m frames written")
+        self.record_progress = JobProgress("frames written")
         g.addWidget(self.record_progress, 3, 1, 1, 3)
         self.counters = QLabel("not recording")
         self.counters.setWordWrap(True)
@@ -128,18 +141,22 @@ class RecordPanel(QWidget):
         batch = QGroupBox("batch reconstruction of a recorded run (dask)")
         b = QGridLayout(batch)
         b.addWidget(QLabel("run:"), 0, 0)
-        self.run_path = QLineEdit()
+        self.run_path = remember(QLineEdit(), "batch/run")
+        self.run_path.setObjectName("batch.run")
         self.run_path.setPlaceholderText("RUN.zarr (default: the last recording)")
         b.addWidget(self.run_path, 0, 1, 1, 3)
         self.batch_fields: dict[str, QWidget] = {}
         method = QComboBox()
         method.addItems(METHODS)
         method.setCurrentText("admm")
-        iterations = QLineEdit("100")
-        rows = (("--psf", "PSF (image, stack or run):", QLineEdit(), ""),
-                ("--depth", "depth (mm):", QLineEdit(), "stack plane"),
+        wheel_needs_focus(method)
+        psf = QLineEdit()
+        psf.editingFinished.connect(lambda: offer_depths(self.batch_fields["--depth"],
+                                                         psf.text()))
+        rows = (("--psf", "PSF (image, stack or run):", psf, ""),
+                ("--depth", "depth (mm):", depth_field("batch--depth"), ""),
                 ("--method", "method:", method, ""),
-                ("--iterations", "iterations:", iterations, ""),
+                ("--iterations", "iterations:", QLineEdit("100"), ""),
                 ("--frames", "frames (A:B):", QLineEdit(), "all"),
                 ("--workers", "dask workers:", QLineEdit(), "one per core"),
                 ("--dark", "dark (DN or dark run):", QLineEdit(), "auto"),
@@ -148,14 +165,15 @@ class RecordPanel(QWidget):
             if isinstance(widget, QLineEdit):
                 widget.setPlaceholderText(hint)
             widget.setObjectName(f"batch{flag}")
+            remember(widget, f"batch/{flag[2:]}")
             self.batch_fields[flag] = widget
             b.addWidget(QLabel(label), 1 + i // 2, 2 * (i % 2))
             b.addWidget(widget, 1 + i // 2, 2 * (i % 2) + 1)
         self.batch_button = QPushButton("Reconstruct run")
+        self.batch_button.setObjectName("batch.start")
         self.batch_button.clicked.connect(self.toggle_batch)
         b.addWidget(self.batch_button, 6, 0)
-        self.batch_progress = QProgressBar()
-        self.batch_progress.setFormat("%v / %m frames reconstructed")
+        self.batch_progress = JobProgress("frames reconstructed")
         b.addWidget(self.batch_progress, 6, 1, 1, 3)
         self.batch_status = QLabel("")
         self.batch_status.setWordWrap(True)
@@ -165,17 +183,39 @@ class RecordPanel(QWidget):
         layout.addWidget(batch)
         layout.addStretch(1)
 
-    # -- recording -----------------------------------------------------------------------
+    # -- state ---------------------------------------------------------------------------
     @property
     def recording(self) -> bool:
         return self.record_job is not None and self.record_job.running
 
+    @property
+    def batch_running(self) -> bool:
+        return self.batch_job is not None and self.batch_job.running
+
+    def take_psf(self, psf: str, depth: str) -> None:
+        """The live reconstruction's PSF and depth, carried into the batch fields (unless
+        the operator typed others there)."""
+        psf_field = self.batch_fields["--psf"]
+        depth_box = self.batch_fields["--depth"]
+        if psf_field.text().strip() in ("", self._carried[0]):
+            psf_field.setText(psf)
+            offer_depths(depth_box, psf)
+        if depth_box.currentText().strip() in ("", self._carried[1]):
+            depth_box.setEditText(depth)
+        self._carried = (psf, depth)
+
+    # -- recording -----------------------------------------------------------------------
     def toggle_recording(self) -> None:
         if self.recording:
-            self.stop_event.set()
-            self.record_button.setText("Stopping ...")
+            self.stop_recording()
         else:
             self.start_recording()
+
+    def stop_recording(self) -> None:
+        """Stop the recording (what was recorded is kept, the run summarised)."""
+        self.stop_event.set()
+        if self.recording:
+            self.record_button.setText("Stopping ...")
 
     def start_recording(self) -> Job | None:
         """Record into a new run store on a worker (:func:`gui.jobs.record`)."""
@@ -190,8 +230,8 @@ class RecordPanel(QWidget):
             frames = _number(self.frames.text(), "frames", int)
             seconds = _number(self.seconds.text(), "seconds")
             fps = _number(self.fps.text(), "frame rate")
-            exposure_s = _number(self.exposure.text(), "exposure")
-        except ValueError as exc:
+            exposure_s = parse_duration_s(self.exposure.text())
+        except InputError as exc:
             self.record_error.setText(str(exc))
             return None
         if seconds is not None:
@@ -199,32 +239,38 @@ class RecordPanel(QWidget):
         out = self.out.text().strip() or f"out/runs/video-{_dt.datetime.now():%Y%m%d-%H%M%S}.zarr"
         self.stop_event = threading.Event()
         tap = _LiveTap(self.session, getattr(self.live_panel, "live", None))
-        self.record_progress.setRange(0, frames or 0)
-        self.record_progress.setValue(0)
-        self.counters.setText(f"recording into {out} ...")
+        self.record_progress.start(frames or 0)
+        self.counters.setText("starting the recording ...")
+        announce_job("recording")
         self.record_job = Job(record, self.session, out, self.stop_event, frames=frames,
                               seconds=seconds, fps=fps, exposure_s=exposure_s, tap=tap,
                               name="record-video")
-        self.record_job.progress.connect(self.on_record_progress)
+        self.record_job.progress.connect(lambda p: self.on_record_progress(p, out))
         self.record_job.succeeded.connect(self.on_recorded)
-        self.record_job.failed.connect(self.on_record_failed)
+        self.record_job.failed.connect(lambda text: self.on_record_failed(text, out))
         self.record_button.setText("Stop recording")
-        self.last_run = out
         return self.record_job.start()
 
-    def on_record_progress(self, p: dict) -> None:
-        self.record_progress.setValue(int(p.get("recorded", 0)))
+    def on_record_progress(self, p: dict, out: str = "") -> None:
+        recorded = int(p.get("recorded", 0))
+        total = self.record_progress.bar.maximum()
+        eta = None
+        if total and p.get("fps"):
+            eta = max(total - recorded, 0) / max(float(p["fps"]), 1e-9)
+        self.record_progress.report(recorded, eta_s=eta)
         self.counters.setText(
-            f"{p.get('elapsed_s', 0):.1f} s: written {p.get('recorded', 0)} frames, "
-            f"{p.get('write_mb_s', 0):.1f} MB/s, camera {p.get('fps', 0):.1f} fps; dropped by "
-            f"the camera {p.get('dropped_by_camera', 0)}, skipped by the ring "
-            f"{p.get('skipped_by_ring', 0)}, lost by the recorder {p.get('lost_by_recorder', 0)}")
+            f"recording into {out}: written {recorded} frames, {p.get('write_mb_s', 0):.1f} "
+            f"MB/s, camera {p.get('fps', 0):.1f} fps; dropped by the camera "
+            f"{p.get('dropped_by_camera', 0)}, skipped by the ring {p.get('skipped_by_ring', 0)}"
+            f", lost by the recorder {p.get('lost_by_recorder', 0)}")
 
     def on_recorded(self, summary: dict) -> None:
         self.summary = summary
+        self.last_run = summary["path"]
         self.record_button.setText("Start recording")
-        self.record_progress.setMaximum(max(int(summary.get("frames_requested", 0)), 1))
-        self.record_progress.setValue(int(summary.get("recorded", 0)))
+        self.record_progress.report(int(summary.get("recorded", 0)),
+                                    max(int(summary.get("frames_requested", 0)), 1))
+        self.record_progress.finish()
         lost = int(summary.get("lost_by_recorder", 0)) + int(summary.get("dropped_by_camera", 0))
         self.counters.setText(
             f"{summary['status']}: {summary.get('recorded', 0)} frames written to "
@@ -233,14 +279,22 @@ class RecordPanel(QWidget):
             + ("no frame lost" if not lost else f"{lost} frame(s) lost (see runs show)"))
         self.run_path.setText(summary["path"])
 
-    def on_record_failed(self, text: str) -> None:
+    def on_record_failed(self, text: str, out: str = "") -> None:
+        from instrument.runstore import is_run_store
+
         self.record_button.setText("Start recording")
-        self.record_error.setText(f"recording stopped: {text}\nThe frames recorded so far are "
-                                  "kept in the run.")
+        self.record_progress.finish("")
+        if out and is_run_store(out):  # the run was created: what it holds is kept
+            self.last_run = out
+            self.counters.setText(f"stopped: the frames recorded so far are kept in {out}")
+            self.record_error.setText(f"recording stopped: {text}")
+        else:
+            self.counters.setText("not recording")
+            self.record_error.setText(f"recording not started: {text}")
 
     # -- batch ---------------------------------------------------------------------------
     def toggle_batch(self) -> None:
-        if self.batch_job is not None and self.batch_job.running:
+        if self.batch_running:
             self.batch_job.cancel()
             self.batch_button.setText("Cancelling ...")
         else:
@@ -255,11 +309,25 @@ class RecordPanel(QWidget):
         if not run:
             self.batch_error.setText("give the run to reconstruct (RUN.zarr)")
             return None
+        if not Path(run).exists():
+            self.batch_error.setText(f"the run {run} does not exist; record one or give the "
+                                     "path of a recorded run")
+            return None
         options = {flag: w.currentText() if isinstance(w, QComboBox) else w.text().strip()
                    for flag, w in self.batch_fields.items()}
-        self.batch_progress.setValue(0)
+        self.batch_progress.start(0)
         self.batch_status.setText(f"reconstructing {run} ...")
-        self.batch_job = Job(batch_reconstruct, run, options, name="batch-recon")
+        announce_job("batch reconstruction")
+
+        def reconstruct(job: Job):
+            try:
+                return batch_reconstruct(job, run, options)
+            except InputError as exc:
+                from ..messages import operator_text
+
+                raise InputError(operator_text(str(exc), BATCH_LABELS)) from None
+
+        self.batch_job = Job(reconstruct, name="batch-recon")
         self.batch_job.progress.connect(self.on_batch_progress)
         self.batch_job.succeeded.connect(lambda result: self.on_batch_done(run, result))
         self.batch_job.failed.connect(self.on_batch_failed)
@@ -267,14 +335,16 @@ class RecordPanel(QWidget):
         return self.batch_job.start()
 
     def on_batch_progress(self, p: dict) -> None:
-        self.batch_progress.setMaximum(int(p["total"]))
-        self.batch_progress.setValue(int(p["done"]))
+        remaining = int(p["total"]) - int(p["done"])
+        eta = remaining / p["fps"] if p.get("fps") else None
+        self.batch_progress.report(int(p["done"]), int(p["total"]), eta_s=eta)
         self.batch_status.setText(f"{p['done']} of {p['total']} frames ({p['skipped']} done "
-                                  f"before), {p['fps']:.2f} frames/s, {p['elapsed_s']:.0f} s")
+                                  f"before), {p['fps']:.2f} frames/s")
 
     def on_batch_done(self, run: str, result: dict) -> None:
         self.batch_result = result
         self.batch_button.setText("Reconstruct run")
+        self.batch_progress.finish()
         if result.get("cancelled"):
             self.batch_status.setText(
                 f"cancelled: {result['reconstructed']} frames reconstructed and kept in "
@@ -288,6 +358,7 @@ class RecordPanel(QWidget):
 
     def on_batch_failed(self, text: str) -> None:
         self.batch_button.setText("Reconstruct run")
+        self.batch_progress.finish("")
         self.batch_error.setText(text)
 
     def cancel(self) -> None:

@@ -1,8 +1,13 @@
 """Results viewer: 2D images, 3D volumes (slices with a depth slider, maximum-intensity
 projections), a run store's frames and products, and metrics JSON.
 
-Files are read on a worker through the library's readers (:func:`recon.io.load_image`,
-:class:`instrument.runstore.RunStore`, tifffile / zarr for volumes); projections are
+Nothing that reads a file or a store runs on the GUI thread: files are read on a
+worker through the library's readers (:func:`recon.io.load_image`,
+:class:`instrument.runstore.RunStore`, tifffile / zarr for volumes); a run opens with
+its summary as recorded (:meth:`~instrument.runstore.RunStore.summary` without the
+check), and its checksums are verified once, on a worker, with progress. Each step
+of the frame slider asks for a frame; one reader reads the newest asked for (steps
+made while it reads are skipped, not queued). Projections are
 :func:`instrument.reconstruct_files.projections`.
 """
 
@@ -20,6 +25,7 @@ from PySide6.QtWidgets import (
     QLabel,
     QLineEdit,
     QPlainTextEdit,
+    QProgressBar,
     QPushButton,
     QSlider,
     QSplitter,
@@ -27,6 +33,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from ..fields import remember
 from ..workers import Job
 from .common import FrameView, error_label
 
@@ -34,14 +41,14 @@ __all__ = ["ResultsPanel", "read_result"]
 
 
 def read_result(path: str) -> dict:
-    """What the viewer shows for ``path``.
+    """What the viewer shows for ``path`` (read on a worker).
 
     Returns
     -------
     dict
-        ``kind`` (``"run"``, ``"volume"``, ``"image"``, ``"json"``), with ``store``
-        (a run), ``array`` and ``depths_mm`` (volumes: (n_z, rows, cols)), ``text``
-        (JSON, attributes).
+        ``kind`` (``"run"``, ``"volume"``, ``"image"``, ``"json"``), with ``store`` and
+        ``summary`` (a run: its summary as recorded, no frame read), ``array`` and
+        ``depths_mm`` (volumes: (n_z, rows, cols)), ``text`` (JSON, attributes).
 
     Raises
     ------
@@ -52,12 +59,14 @@ def read_result(path: str) -> dict:
     from recon.io import load_image
 
     p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"{p} does not exist; choose an image, volume, run store or "
-                                "metrics JSON")
+    if not path.strip() or not p.exists():
+        raise FileNotFoundError(2, "no such file or folder; choose an image, volume, run "
+                                "store or metrics JSON", str(p))
     if p.is_dir() and is_run_store(p):
         store = RunStore.open(p)
-        return {"kind": "run", "store": store, "text": store.to_json()}
+        summary = store.summary(verify=False)
+        return {"kind": "run", "store": store, "summary": summary,
+                "text": json.dumps(summary, indent=1)}
     if p.is_dir():
         import zarr
 
@@ -76,7 +85,17 @@ def read_result(path: str) -> dict:
         if array.ndim == 3 and array.shape[-1] not in (3, 4):
             return {"kind": "volume", "array": array, "depths_mm": meta.get("depths_mm"),
                     "text": json.dumps(meta, indent=1)}
+        if meta:
+            return {"kind": "image", "array": array, "text": json.dumps(meta, indent=1,
+                                                                        default=str)}
     return {"kind": "image", "array": load_image(p), "text": f"{p}"}
+
+
+def _frame(store, index: int) -> dict:
+    """Frame ``index`` of a run with its coordinates (read on a worker)."""
+    if not store.done(range(index, index + 1))[0]:
+        return {"index": index, "record": None}
+    return {"index": index, "record": store.frame(index)}
 
 
 def _product(store, name: str) -> dict:
@@ -102,19 +121,33 @@ def _product(store, name: str) -> dict:
 
 
 class ResultsPanel(QWidget):
-    """See the module docstring."""
+    """See the module docstring.
+
+    Attributes
+    ----------
+    problems : list of str or None
+        The open run's verification: None until it has finished.
+    """
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.job: Job | None = None
+        self.frame_job: Job | None = None
+        self.verify_job: Job | None = None
         self.store = None
+        self.summary_text = ""
+        self.problems: list[str] | None = None
         self.volume: np.ndarray | None = None
         self.depths: list[float] | None = None
         self.axis = "plane"
         self.units: str | None = None
+        self.path_shown: str | None = None
+        self._wanted_frame: int | None = None
+        self.frame_shown: int | None = None
         layout = QVBoxLayout(self)
         bar = QHBoxLayout()
-        self.path = QLineEdit()
+        self.path = remember(QLineEdit(), "results/path")
+        self.path.setObjectName("results.path")
         self.path.setPlaceholderText("image, volume (TIFF / Zarr), run store (.zarr) or "
                                      "metrics .json")
         self.path.returnPressed.connect(lambda: self.open(self.path.text().strip()))
@@ -126,13 +159,25 @@ class ResultsPanel(QWidget):
         layout.addLayout(bar)
         self.error = error_label()
         layout.addWidget(self.error)
+        check = QHBoxLayout()
+        self.verify_label = QLabel("")
+        check.addWidget(self.verify_label, 1)
+        self.verify_progress = QProgressBar()
+        self.verify_progress.setFormat("checking checksums: %v / %m frames")
+        self.verify_progress.setMaximumWidth(320)
+        self.verify_progress.hide()
+        check.addWidget(self.verify_progress)
+        layout.addLayout(check)
         run_bar = QHBoxLayout()
         self.frame_label = QLabel("frame:")
+        self.frame_label.setMinimumWidth(150)
         run_bar.addWidget(self.frame_label)
         self.frame_slider = QSlider(Qt.Orientation.Horizontal)
+        self.frame_slider.setObjectName("results.frame")
         self.frame_slider.valueChanged.connect(self.show_frame)
         run_bar.addWidget(self.frame_slider, 1)
         self.products = QComboBox()
+        self.products.setObjectName("results.products")
         self.products.activated.connect(lambda _: self.show_product(self.products.currentText()))
         run_bar.addWidget(QLabel("product:"))
         run_bar.addWidget(self.products)
@@ -144,6 +189,7 @@ class ResultsPanel(QWidget):
         self.depth_label.setMinimumWidth(190)
         depth_bar.addWidget(self.depth_label)
         self.depth_slider = QSlider(Qt.Orientation.Horizontal)
+        self.depth_slider.setObjectName("results.depth")
         self.depth_slider.valueChanged.connect(self.show_slice)
         depth_bar.addWidget(self.depth_slider, 1)
         self.depth_bar = QWidget()
@@ -153,16 +199,20 @@ class ResultsPanel(QWidget):
         images = QWidget()
         images_layout = QVBoxLayout(images)
         images_layout.setContentsMargins(0, 0, 0, 0)
-        self.view = FrameView("image")
+        self.view = FrameView("image", name="result")
+        self.view.metadata = self._metadata
         images_layout.addWidget(self.view, 3)
         mips = QHBoxLayout()
         self.mip_views = {
-            "xy": FrameView("max over depth", axes=("column (px)", "row (px)")),
-            "xz": FrameView("max over rows", axes=("column (px)", "plane (repeated)")),
-            "yz": FrameView("max over columns", axes=("plane (repeated)", "row (px)"))}
+            "xy": FrameView("max over depth", axes=("column (px)", "row (px)"), name="mip-xy"),
+            "xz": FrameView("max over rows", axes=("column (px)", "plane (repeated)"),
+                            name="mip-xz"),
+            "yz": FrameView("max over columns", axes=("plane (repeated)", "row (px)"),
+                            name="mip-yz")}
         for v in self.mip_views.values():
-            v.setMinimumSize(200, 180)
+            v.setMinimumSize(150, 130)
             v.histogram.hide()
+            v.metadata = self._metadata
             mips.addWidget(v)
         self.mips = QWidget()
         self.mips.setLayout(mips)
@@ -176,14 +226,12 @@ class ResultsPanel(QWidget):
         self._mode(None)
 
     def _mode(self, kind: str | None, volume: bool = False) -> None:
-        # the projections stay visible (blank for a 2D image): hiding pyqtgraph views
-        # before they were ever shown crashed PySide6 6.12 at interpreter exit
         self.run_bar.setVisible(kind == "run")
         self.depth_bar.setVisible(volume)
+        self.mips.setVisible(volume)  # the projections of a volume only
         if not volume:
             for view in self.mip_views.values():
-                view.item.clear()
-                view.image = None
+                view.clear()
 
     def _pick_file(self) -> None:
         path = QFileDialog.getOpenFileName(self, "open a result")[0]
@@ -195,17 +243,32 @@ class ResultsPanel(QWidget):
         if path:
             self.open(path)
 
+    def _metadata(self) -> dict:
+        out: dict = {"kind": "result", "path": self.path_shown}
+        if self.store is not None and self.frame_shown is not None and self.volume is None:
+            out["frame"] = self.frame_shown
+        if self.volume is not None:
+            out[self.axis] = self.depth_slider.value()
+            if self.depths is not None and self.depth_slider.value() < len(self.depths):
+                out["depth_mm"] = self.depths[self.depth_slider.value()]
+            out["product"] = self.products.currentText() if self.store is not None else None
+        return out
+
     # -- loading -------------------------------------------------------------------------
     def open(self, path: str, product: str | None = None) -> Job:
-        """Read ``path`` on a worker and show it (a run's ``product`` if given)."""
+        """Read ``path`` on a worker and show it (a run's ``product`` if given); a run's
+        checksums are then verified on another worker."""
         self.path.setText(path)
         self.error.setText("")
+        if self.verify_job is not None:
+            self.verify_job.cancel()
         job = Job(lambda job: read_result(path), name="read-result")
         self.job = job
 
         def show(result: dict) -> None:
             if job is not self.job:  # another file was opened meanwhile
                 return
+            self.path_shown = path
             self.show_result(result)
             if product is not None:
                 self.show_product(product)
@@ -217,20 +280,79 @@ class ResultsPanel(QWidget):
     def show_result(self, result: dict) -> None:
         kind = result["kind"]
         self.text.setPlainText(result.get("text", ""))
+        self.store = None
+        self.problems = None
+        self.verify_label.setText("")
+        self.verify_progress.hide()
         if kind == "json":
             self._mode("json")
             return
         if kind == "run":
             self.store = result["store"]
+            self.summary_text = result["text"]
             n = self.store.n_frames
+            self.frame_slider.blockSignals(True)
             self.frame_slider.setRange(0, max(n - 1, 0))
-            self.products.clear()
-            self.products.addItems(self.store.products())
-            self._mode("run")
             self.frame_slider.setValue(0)
+            self.frame_slider.blockSignals(False)
+            self.products.clear()
+            self.products.addItems(list(result["summary"].get("products", {})))
+            self._mode("run")
+            self.volume = None
             self.show_frame(0)
+            self.verify()
             return
         self._show_array(result, None)
+
+    def verify(self) -> Job | None:
+        """Check the open run's checksums once, on a worker, with progress."""
+        store = self.store
+        if store is None:
+            return None
+        self.verify_progress.setRange(0, 0)
+        self.verify_progress.show()
+        self.verify_label.setText("checking the run's checksums ...")
+
+        def check(job: Job) -> list[str]:
+            def progress(k: int, n: int) -> None:
+                if job.cancelled:
+                    raise _Cancelled
+                if k == n or k % 25 == 0:
+                    job.report((k, n))
+
+            try:
+                return store.verify(on_progress=progress)
+            except _Cancelled:
+                return None
+
+        job = Job(check, name="verify-run")
+        self.verify_job = job
+
+        def progress(kn) -> None:
+            if job is self.verify_job:
+                self.verify_progress.setRange(0, kn[1])
+                self.verify_progress.setValue(kn[0])
+
+        def done(problems) -> None:
+            if job is not self.verify_job or problems is None:
+                return
+            self.problems = problems
+            self.verify_progress.hide()
+            if problems:
+                self.verify_label.setText(
+                    f'<b style="color:#b00020">{len(problems)} problem(s) found</b> (listed '
+                    "beside the image)")
+                self.summary_text += "\n\nproblems:\n" + "\n".join(problems)
+                self.text.setPlainText(self.summary_text)
+            else:
+                self.verify_label.setText("checksums verified: every frame and product is "
+                                          "intact")
+
+        job.progress.connect(progress)
+        job.succeeded.connect(done)
+        job.failed.connect(lambda text: (self.verify_progress.hide(),
+                                         self.verify_label.setText(f"check failed: {text}")))
+        return job.start()
 
     def _show_array(self, result: dict, kind: str | None) -> None:
         if result["kind"] == "volume":
@@ -255,7 +377,7 @@ class ResultsPanel(QWidget):
             self.view.setTitle("image" + (f" ({units})" if units else ""))
 
     def show_slice(self, index: int) -> None:
-        """Show plane ``index`` of the volume."""
+        """Show plane ``index`` of the volume (in memory: no file is read)."""
         if self.volume is None or not 0 <= index < len(self.volume):
             return
         depth = (f", z = {self.depths[index]:.2f} mm" if self.depths is not None
@@ -266,13 +388,39 @@ class ResultsPanel(QWidget):
         self.view.setTitle(f"{self.axis} {index + 1}{depth}")
 
     def show_frame(self, index: int) -> None:
-        """Show frame ``index`` of the open run (with its coordinates)."""
+        """Ask for frame ``index`` of the open run: read on a worker, the newest asked
+        for shown (slider steps made while one is read are skipped)."""
         if self.store is None or self.store.n_frames == 0:
             return
-        if not self.store.done()[index]:
-            self.frame_label.setText(f"frame {index}: not captured")
+        self._wanted_frame = int(index)
+        self.frame_label.setText(f"frame {index + 1} of {self.store.n_frames} ...")
+        if self.frame_job is None or self.frame_job.done:
+            self._read_frame()
+
+    def _read_frame(self) -> None:
+        store, index = self.store, self._wanted_frame
+        if store is None or index is None:
             return
-        rec = self.store.frame(index)
+        job = Job(lambda job: _frame(store, index), name="read-frame")
+        self.frame_job = job
+        job.succeeded.connect(lambda result: self._frame_read(store, result))
+        job.failed.connect(self.error.setText)
+        job.finished.connect(self._next_frame)
+        job.start()
+
+    def _next_frame(self) -> None:
+        if self.frame_job is not None and self._wanted_frame is not None and (
+                self.frame_shown != self._wanted_frame):
+            self._read_frame()
+
+    def _frame_read(self, store, result: dict) -> None:
+        if store is not self.store or self._wanted_frame is None:
+            return  # another run opened, or a product shown meanwhile
+        index, rec = result["index"], result["record"]
+        self.frame_shown = index
+        if rec is None:
+            self.frame_label.setText(f"frame {index + 1}: not captured")
+            return
         self.volume = None
         self._mode("run")
         self.frame_label.setText(f"frame {index + 1} of {self.store.n_frames}")
@@ -280,18 +428,30 @@ class ResultsPanel(QWidget):
         coords = ", ".join(f"{k} {v:.4g}" for k, v in rec.coords.items()
                            if isinstance(v, float) and np.isfinite(v))
         self.view.setTitle(f"frame {index + 1} (point {rec.point}, {rec.tag}) (DN)")
-        self.text.setPlainText(f"frame {index}: {coords}\n\n{self.store.to_json()}")
+        self.text.setPlainText(f"frame {index}: {coords}\n\n{self.summary_text}")
 
-    def show_product(self, name: str) -> None:
-        """Show product ``name`` of the open run (2D, or a volume with its depths)."""
-        if self.store is None or not name:
-            return
-        try:
-            result = _product(self.store, name)
-        except Exception as exc:  # noqa: BLE001 (shown, never raised)
-            from ..workers import readable_error
+    def show_product(self, name: str) -> Job | None:
+        """Show product ``name`` of the open run (2D, or a volume with its depths), read
+        on a worker."""
+        store = self.store
+        if store is None or not name:
+            return None
+        self._wanted_frame = None
+        job = Job(lambda job: _product(store, name), name="read-product")
+        self.job = job
 
-            self.error.setText(readable_error(exc))
-            return
-        self.text.setPlainText(result["text"])
-        self._show_array(result, "run")
+        def show(result: dict) -> None:
+            if store is not self.store:
+                return
+            self.text.setPlainText(result["text"])
+            if self.products.currentText() != name:
+                self.products.setCurrentText(name)
+            self._show_array(result, "run")
+
+        job.succeeded.connect(show)
+        job.failed.connect(self.error.setText)
+        return job.start()
+
+
+class _Cancelled(Exception):
+    """Another run was opened while this one's checksums were checked."""

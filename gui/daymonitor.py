@@ -1,0 +1,200 @@
+"""What the operator-day run measures in the GUI's own process.
+
+:class:`DayMonitor` runs beside the window on the GUI thread:
+
+* a 10 ms precise timer whose lateness (interval minus 10 ms) tells how long the
+  event loop was kept from its timers, split by the phase of the day it fell in;
+* the garbage collector's pauses (any thread's collection stops every thread);
+* a watchdog thread that, when the timer is more than 100 ms overdue, records what
+  the GUI thread was running then (its innermost Python frames, or "waiting in the
+  event loop" when none of ours: the process waited for a core or for the GIL held
+  by a worker), so a slow firing can be told from the machine's load;
+* every few seconds, ``sys.getrefcount(None)`` and ``sys.getrefcount(True)`` (a
+  leaking Qt binding drains them: -860 a second while streaming under PySide6
+  6.12.0) and the process's resident memory.
+
+:meth:`DayMonitor.report` gives per phase the firings, p50 / p99 / max lateness and
+seconds, and the samples.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+import traceback
+
+import numpy as np
+from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
+
+__all__ = ["DayMonitor", "rss_mb"]
+
+TIMER_MS = 10
+#: Innermost functions of a thread that waits (left out of a stall's busy threads).
+_WAITING = frozenset({"wait", "get", "sleep", "select", "_wait_for_tstate_lock", "acquire",
+                      "accept", "recv", "readline", "poll", "join", "_worker",
+                      "_launch_jobs"})
+
+
+def _short_path(path: str) -> str:
+    """``package/module.py`` of a source path (its last two parts)."""
+    parts = path.replace("\\", "/").split("/")
+    return "/".join(parts[-2:])
+
+
+def rss_mb() -> float:
+    """Resident memory of this process, MB (Linux ``/proc/self/statm``)."""
+    with open("/proc/self/statm") as f:
+        pages = int(f.read().split()[1])
+    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+class DayMonitor(QObject):
+    """Lateness per phase and reference-count / memory samples (module docstring).
+
+    Parameters
+    ----------
+    sample_s : float
+        Seconds between refcount and memory samples.
+    """
+
+    def __init__(self, sample_s: float = 5.0, parent=None) -> None:
+        super().__init__(parent)
+        self.clock = QElapsedTimer()
+        self.phase = "start"
+        #: Which pass through the day's middle is running (0: the first, the warm-up).
+        self.loop = 0
+        self._last_ns: int | None = None
+        self.lateness: dict[str, list[float]] = {}
+        self.phase_seconds: dict[str, float] = {}
+        self._phase_t0 = time.monotonic()
+        self.samples: list[dict] = []
+        self.timer = QTimer(self)
+        self.timer.setTimerType(Qt.TimerType.PreciseTimer)
+        self.timer.setInterval(TIMER_MS)
+        self.timer.timeout.connect(self._fired)
+        self.sampler = QTimer(self)
+        self.sampler.setInterval(int(sample_s * 1000))
+        self.sampler.timeout.connect(self.sample)
+        self.t0 = time.monotonic()
+        self.gc_ms: dict[int, list[float]] = {}
+        #: Firings later than 100 ms and collections longer than 50 ms, in time order.
+        self.events: list[dict] = []
+        self._gc_t0: float | None = None
+        #: What the GUI thread ran during stalls (:meth:`_watch`), in time order.
+        self.stalls: list[dict] = []
+        self._gui_thread = threading.get_ident()
+        self._last_fired = time.monotonic()
+        self._watching = threading.Event()
+
+    def _gc(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._gc_t0 = time.perf_counter()
+        elif self._gc_t0 is not None:
+            ms = 1e3 * (time.perf_counter() - self._gc_t0)
+            g = info.get("generation", 0)
+            self.gc_ms.setdefault(g, []).append(ms)
+            self._gc_t0 = None
+            if ms > 50:
+                self.events.append({"t_s": round(time.monotonic() - self.t0, 2),
+                                    "what": f"gc gen{g}", "ms": round(ms, 1),
+                                    "phase": self.phase})
+
+    def start(self) -> None:
+        import gc
+
+        gc.callbacks.append(self._gc)
+        self.clock.start()
+        self._last_ns = None
+        self.timer.start()
+        self.sampler.start()
+        self.sample()
+        self._gui_thread = threading.get_ident()
+        self._watching.set()
+        threading.Thread(target=self._watch, name="day-watchdog", daemon=True).start()
+
+    def _watch(self) -> None:
+        """Every 20 ms: when the timer is over 100 ms overdue, record the GUI thread's
+        innermost frames once per stall (the threads' names that were running Python
+        too), in :attr:`stalls`."""
+        sampled_for = None
+        while self._watching.is_set():
+            time.sleep(0.02)
+            last = self._last_fired
+            if time.monotonic() - last < 0.1 + TIMER_MS / 1000.0 or sampled_for == last:
+                continue
+            sampled_for = last
+            frames = sys._current_frames()
+            gui = frames.get(self._gui_thread)
+            stack = traceback.extract_stack(gui)[-6:] if gui is not None else []
+            where = [f"{_short_path(f.filename)}:{f.lineno}:{f.name}" for f in stack]
+            names = {t.ident: t.name for t in threading.enumerate()}
+            busy = []
+            for ident, frame in frames.items():
+                if ident in (self._gui_thread, threading.get_ident()):
+                    continue
+                top = traceback.extract_stack(frame, limit=1)[-1]
+                if top.name not in _WAITING:
+                    busy.append(f"{names.get(ident, ident)}@{_short_path(top.filename)}:"
+                                f"{top.lineno}:{top.name}")
+            if len(self.stalls) < 2000:
+                self.stalls.append({"t_s": round(time.monotonic() - self.t0, 2),
+                                    "phase": self.phase, "gui_stack": where,
+                                    "threads": busy})
+
+    def stop(self) -> None:
+        import gc
+
+        self._watching.clear()
+        if self._gc in gc.callbacks:
+            gc.callbacks.remove(self._gc)
+        self.timer.stop()
+        self.sampler.stop()
+        self.set_phase("end")
+
+    def set_phase(self, name: str) -> None:
+        """The lateness measured from now on counts for phase ``name``."""
+        now = time.monotonic()
+        self.phase_seconds[self.phase] = self.phase_seconds.get(self.phase, 0.0) + (
+            now - self._phase_t0)
+        self.phase, self._phase_t0 = name, now
+        self.sample()
+
+    def _fired(self) -> None:
+        self._last_fired = time.monotonic()
+        now = self.clock.nsecsElapsed()
+        if self._last_ns is not None:
+            late = max((now - self._last_ns) / 1e9 - TIMER_MS / 1000.0, 0.0)
+            self.lateness.setdefault(self.phase, []).append(late)
+            if late > 0.1:  # when the event loop was held: compared with the GC's pauses
+                self.events.append({"t_s": round(time.monotonic() - self.t0, 2),
+                                    "what": "late", "ms": round(1e3 * late, 1),
+                                    "phase": self.phase})
+        self._last_ns = now
+
+    def sample(self) -> dict:
+        """Take one refcount and memory sample (also at every phase change)."""
+        s = {"t_s": time.monotonic() - self.t0, "phase": self.phase, "loop": self.loop,
+             "none_refs": sys.getrefcount(None), "true_refs": sys.getrefcount(True),
+             "rss_mb": rss_mb()}
+        self.samples.append(s)
+        return s
+
+    def report(self) -> dict:
+        """``{"phases": {name: {firings, p50_ms, p99_ms, max_ms, seconds}}, "samples":
+        [...], "worst_p99_ms", "worst_max_ms"}``."""
+        phases = {}
+        for name, values in self.lateness.items():
+            ms = 1e3 * np.asarray(values)
+            phases[name] = {"firings": int(ms.size),
+                            "p50_ms": float(np.percentile(ms, 50)),
+                            "p99_ms": float(np.percentile(ms, 99)),
+                            "max_ms": float(ms.max()),
+                            "seconds": round(self.phase_seconds.get(name, 0.0), 1)}
+        gc_stats = {f"gen{g}": {"count": len(v), "max_ms": float(max(v)),
+                                "total_ms": float(sum(v))} for g, v in self.gc_ms.items()}
+        return {"timer_ms": TIMER_MS, "phases": phases, "samples": self.samples, "gc": gc_stats,
+                "slow_events": self.events[-400:], "stalls": self.stalls[-400:],
+                "worst_p99_ms": max((p["p99_ms"] for p in phases.values()), default=0.0),
+                "worst_max_ms": max((p["max_ms"] for p in phases.values()), default=0.0)}

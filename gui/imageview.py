@@ -1,0 +1,515 @@
+"""The image view of every panel, with the tools an operator expects from Micro-Manager
+or napari: pixel readout, ROI statistics, line profile, auto levels, level lock,
+colormap and "Save snapshot".
+
+:class:`FrameView` is an image on a :class:`pyqtgraph.PlotItem` (axes in pixels, y
+down) beside a :class:`pyqtgraph.HistogramLUTItem`, with a tool bar. The tools are
+pyqtgraph's own: a :class:`pyqtgraph.RectROI` whose pixels give the statistics, a
+:class:`pyqtgraph.LineSegmentROI` whose :meth:`~pyqtgraph.ROI.getArrayRegion` is the
+profile, the histogram's level region, :func:`pyqtgraph.colormap.get` maps. A
+snapshot is the image shown, as a TIFF (tifffile) whose JSON description holds its
+metadata: the view's title, levels, colormap and ROI, the time, and what the panel
+adds (device settings, the reconstruction's parameters, the run and frame).
+
+For video the view is light: :meth:`FrameView.setImage` swaps the image and
+recomputes levels, histogram and ROI statistics at most ``histogram_hz`` times a
+second.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyqtgraph as pg
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QComboBox,
+    QFileDialog,
+    QGraphicsView,
+    QHBoxLayout,
+    QLabel,
+    QToolBar,
+    QVBoxLayout,
+    QWidget,
+)
+
+from .workers import Job
+
+__all__ = ["COLORMAPS", "LEVEL_MODES", "FrameView", "image_statistics", "write_snapshot"]
+
+#: Colormaps offered (pyqtgraph's bundled maps; "grey" is the plain ramp).
+COLORMAPS = ("grey", "viridis", "inferno", "magma", "plasma", "cividis", "turbo")
+#: Automatic level modes: ``{label: (low percentile, high percentile)}``; 0/100 is min/max.
+LEVEL_MODES = {"min/max": (0.0, 100.0), "0.1-99.9 %": (0.1, 99.9), "1-99 %": (1.0, 99.0),
+               "5-95 %": (5.0, 95.0)}
+#: The ROI statistics refresh at most this often on video, Hz.
+ROI_HZ = 4.0
+
+
+def image_statistics(pixels: np.ndarray) -> dict[str, float]:
+    """Mean, standard deviation, minimum, maximum, sum and count of ``pixels``.
+
+    Parameters
+    ----------
+    pixels : ndarray
+        Any shape; NaN pixels are left out.
+
+    Returns
+    -------
+    dict
+        ``{"mean", "std", "min", "max", "sum", "pixels"}`` (floats; NaN and 0 pixels
+        for an empty selection).
+    """
+    a = np.asarray(pixels, np.float64).ravel()
+    a = a[np.isfinite(a)]
+    if not a.size:
+        return {"mean": float("nan"), "std": float("nan"), "min": float("nan"),
+                "max": float("nan"), "sum": 0.0, "pixels": 0}
+    return {"mean": float(a.mean()), "std": float(a.std()), "min": float(a.min()),
+            "max": float(a.max()), "sum": float(a.sum()), "pixels": int(a.size)}
+
+
+def write_snapshot(path: str | Path, image: np.ndarray, metadata: dict[str, Any]) -> Path:
+    """Write ``image`` as a TIFF with ``metadata`` as its JSON description.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.tif``/``.tiff`` file to create (an existing file is refused).
+    image : ndarray, (rows, cols)
+        Written in its own dtype (the data, not the colours shown).
+    metadata : dict
+        JSON-able; read back with ``tifffile.TiffFile(path).shaped_metadata[0]``.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    FileExistsError
+        ``path`` exists (a snapshot never replaces a file).
+    gui.workers.InputError
+        Not a TIFF name.
+    """
+    import tifffile
+
+    from .workers import InputError
+
+    path = Path(path)
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        raise InputError(f"snapshot {path}: give a .tif or .tiff file name")
+    if path.exists():
+        raise FileExistsError(17, "a snapshot never replaces a file; choose another name",
+                              str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = json.loads(json.dumps(metadata, default=_jsonable))
+    tmp = path.with_name(f".{path.name}.part")
+    tifffile.imwrite(tmp, np.ascontiguousarray(image), metadata=meta)
+    tmp.replace(path)
+    return path
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+class FrameView(QWidget):
+    """An image with axes, histogram and the operator's tools (see the module docstring).
+
+    Parameters
+    ----------
+    title : str
+    histogram_hz : float, optional
+        Video mode: levels, histogram and ROI statistics follow at most this often
+        (None: with every image).
+    axes : (str, str)
+        Axis labels (bottom, left).
+    name : str
+        Stem of the snapshot's default file name.
+
+    Attributes
+    ----------
+    image : ndarray or None
+        The image shown.
+    item : pyqtgraph.ImageItem
+    plot : pyqtgraph.PlotItem
+    histogram : pyqtgraph.HistogramLUTItem
+    roi : pyqtgraph.RectROI
+        The statistics ROI (shown when the ROI tool is on).
+    line : pyqtgraph.LineSegmentROI
+        The profile line (shown when the profile tool is on).
+    readout : QLabel
+        The pixel under the cursor.
+    stats : QLabel
+        The ROI's statistics.
+    metadata : callable or None
+        ``metadata() -> dict`` added to a snapshot's description (set by the panel).
+
+    Signals
+    -------
+    snapshot_saved(str)
+        The path of a snapshot written.
+    """
+
+    snapshot_saved = Signal(str)
+
+    def __init__(self, title: str, *, histogram_hz: float | None = None,
+                 axes=("column (px)", "row (px)"), name: str = "image", parent=None) -> None:
+        super().__init__(parent)
+        self.name = name
+        self.metadata: Callable[[], dict] | None = None
+        self.image: np.ndarray | None = None
+        self._title = title
+        self._period_s = 0.0 if histogram_hz is None else 1.0 / histogram_hz
+        self._last_histogram = -1e9
+        self._last_roi = -1e9
+        self._setting_levels = False
+        self.jobs: list[Job] = []
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.setSpacing(2)
+        self.toolbar = QToolBar()
+        self.toolbar.setStyleSheet("QToolBar { spacing: 2px; }")
+        layout.addWidget(self.toolbar)
+        self.glw = pg.GraphicsLayoutWidget()
+        self.glw.setMinimumHeight(140)
+        layout.addWidget(self.glw, 3)
+        self.plot = self.glw.addPlot()
+        self.setTitle(title)
+        self.plot.setLabel("bottom", axes[0])
+        self.plot.setLabel("left", axes[1])
+        self.plot.setAspectLocked(True)
+        self.plot.invertY(True)
+        self.item = pg.ImageItem(axisOrder="row-major")
+        self.plot.addItem(self.item)
+        self.histogram = pg.HistogramLUTItem()
+        self.histogram.setImageItem(self.item)
+        self.item.sigImageChanged.disconnect(self.histogram.imageChanged)
+        self.histogram.region.sigRegionChangeFinished.connect(self._levels_dragged)
+        self.glw.addItem(self.histogram)
+        # repaint only what changed (pyqtgraph repaints the whole view by default)
+        self.glw.setViewportUpdateMode(QGraphicsView.ViewportUpdateMode.MinimalViewportUpdate)
+        self.roi = pg.RectROI((0, 0), (20, 20), pen=pg.mkPen("#00d0ff", width=2))
+        self.roi.setZValue(20)
+        self.roi.sigRegionChanged.connect(lambda *_: self._update_roi(force=True))
+        self.line = pg.LineSegmentROI([(0, 0), (20, 20)], pen=pg.mkPen("#ffd000", width=2))
+        self.line.setZValue(20)
+        self.line.sigRegionChanged.connect(lambda *_: self._update_profile())
+        self.profile_plot = pg.PlotWidget()
+        self.profile_plot.setLabel("bottom", "distance along the line (px)")
+        self.profile_plot.setMinimumHeight(70)
+        self.profile_plot.setMaximumHeight(140)
+        self.profile_curve = self.profile_plot.plot([], [], pen=pg.mkPen("#d09000", width=2))
+        self.profile_plot.hide()
+        layout.addWidget(self.profile_plot, 1)
+        info = QHBoxLayout()
+        self.readout = QLabel("")
+        self.readout.setMinimumWidth(170)
+        self.stats = QLabel("")
+        self.stats.setWordWrap(True)
+        info.addWidget(self.readout)
+        info.addWidget(self.stats, 1)
+        layout.addLayout(info)
+        self._make_tools()
+        self.glw.scene().sigMouseMoved.connect(self._mouse_moved)
+        self.setMinimumSize(240, 200)
+
+    # -- the tool bar ----------------------------------------------------------------------
+    def _make_tools(self) -> None:
+        tb = self.toolbar
+        self.roi_action = tb.addAction("ROI", self.show_roi)
+        self.roi_action.setCheckable(True)
+        self.roi_action.setToolTip("a rectangle whose pixels' statistics show below the image")
+        self.profile_action = tb.addAction("Profile", self.show_profile)
+        self.profile_action.setCheckable(True)
+        self.profile_action.setToolTip("a line whose profile shows below the image")
+        tb.addSeparator()
+        self.auto_action = tb.addAction("Auto", self.auto_levels)
+        self.auto_action.setToolTip("auto levels: from the image now, in the mode beside "
+                                    "(and unlocked)")
+        self.level_mode = QComboBox()
+        self.level_mode.addItems(list(LEVEL_MODES))
+        self.level_mode.setCurrentText("0.1-99.9 %")
+        self.level_mode.setToolTip("automatic levels: the image's min/max, or percentiles")
+        self.level_mode.activated.connect(lambda _: self.auto_levels())
+        tb.addWidget(self.level_mode)
+        self.lock_action = tb.addAction("Lock")
+        self.lock_action.setCheckable(True)
+        self.lock_action.setToolTip("lock the levels: new images keep them (dragging the "
+                                    "histogram's region locks them too)")
+        tb.addSeparator()
+        self.colormap = QComboBox()
+        self.colormap.addItems(COLORMAPS)
+        self.colormap.setToolTip("colormap")
+        self.colormap.currentTextChanged.connect(self.set_colormap)
+        tb.addWidget(self.colormap)
+        self.snapshot_action = tb.addAction("Snapshot...", self.choose_snapshot)
+        self.snapshot_action.setToolTip("save a snapshot: the image shown as a TIFF with its "
+                                        "metadata (device settings, time, reconstruction "
+                                        "parameters)")
+
+    @property
+    def levels_locked(self) -> bool:
+        """True while new images keep the current levels."""
+        return self.lock_action.isChecked()
+
+    def lock_levels(self, locked: bool = True) -> None:
+        """Keep (or let follow) the levels for new images."""
+        self.lock_action.setChecked(bool(locked))
+
+    def levels(self) -> tuple[float, float]:
+        """The levels (black, white) in the image's units."""
+        lo, hi = self.item.getLevels() if self.item.getLevels() is not None else (0.0, 1.0)
+        return float(lo), float(hi)
+
+    def _levels_of(self, image: np.ndarray) -> tuple[float, float]:
+        lo_p, hi_p = LEVEL_MODES[self.level_mode.currentText()]
+        sample = image[::4, ::4] if image.size > 65536 else image
+        finite = sample[np.isfinite(sample)] if sample.dtype.kind == "f" else sample
+        if not np.size(finite):
+            return 0.0, 1.0
+        if (lo_p, hi_p) == (0.0, 100.0):
+            lo, hi = float(np.min(finite)), float(np.max(finite))
+        else:
+            lo, hi = (float(v) for v in np.percentile(finite, (lo_p, hi_p)))
+        return lo, (hi if hi > lo else lo + 1.0)
+
+    def _set_levels(self, levels: tuple[float, float]) -> None:
+        self._setting_levels = True
+        try:
+            self.item.setLevels(levels)
+            self.histogram.setLevels(*levels)
+        finally:
+            self._setting_levels = False
+
+    def _levels_dragged(self, *_) -> None:
+        if not self._setting_levels:  # the operator moved the histogram's region
+            self.lock_levels(True)
+
+    def auto_levels(self) -> None:
+        """Levels from the image shown, in the chosen mode; new images follow again."""
+        self.lock_levels(False)
+        if self.image is not None:
+            self._set_levels(self._levels_of(self.image))
+            self._histogram(auto_range=True)
+
+    def set_colormap(self, name: str) -> None:
+        """Show the image through colormap ``name`` (:data:`COLORMAPS`)."""
+        if name not in COLORMAPS:
+            raise ValueError(f"colormap {name!r}: use one of {', '.join(COLORMAPS)}")
+        if self.colormap.currentText() != name:
+            self.colormap.setCurrentText(name)  # comes back here through the signal
+            return
+        cmap = pg.ColorMap(None, [(0, 0, 0), (255, 255, 255)]) if name == "grey" else \
+            pg.colormap.get(name)
+        self.histogram.gradient.setColorMap(cmap)
+
+    # -- image -----------------------------------------------------------------------------
+    def setTitle(self, title: str) -> None:  # noqa: N802 (Qt's style)
+        self._title = title
+        self.plot.setTitle(title, size="10pt")
+
+    def title(self) -> str:
+        return self._title
+
+    def clear(self) -> None:
+        """Show nothing."""
+        self.item.clear()
+        self.image = None
+
+    def setImage(self, image, autoLevels: bool = True) -> None:  # noqa: N802, N803
+        """Show ``image`` (rows, cols).
+
+        ``autoLevels``: levels from the image in the chosen mode (:data:`LEVEL_MODES`)
+        unless they are locked. In video mode (``histogram_hz``) levels, histogram and
+        ROI statistics follow at most that often; between, the image is swapped alone,
+        and the view is re-ranged only when the image's shape changes.
+        """
+        now = time.monotonic()
+        due = now - self._last_histogram >= self._period_s
+        reshaped = self.image is None or np.shape(self.image) != np.shape(image)
+        self.image = image
+        follow = autoLevels and not self.levels_locked
+        if follow and (due or reshaped):
+            levels = self._levels_of(image)
+            self.item.setImage(image, levels=levels)
+            self._set_levels(levels)
+        else:
+            self.item.setImage(image, autoLevels=False)
+        if reshaped:
+            self.plot.vb.autoRange(padding=0.02)
+            self.plot.vb.disableAutoRange()
+        if due or reshaped:
+            self._last_histogram = now
+            self._histogram(auto_range=follow)
+        self._update_roi()
+        if self.profile_action.isChecked():
+            self._update_profile()
+
+    def _histogram(self, auto_range: bool) -> None:
+        self._setting_levels = True
+        try:
+            self.histogram.imageChanged(autoLevel=False, autoRange=auto_range)
+        finally:
+            self._setting_levels = False
+
+    # -- pixel readout ---------------------------------------------------------------------
+    def _mouse_moved(self, pos) -> None:
+        if self.image is None or not self.plot.sceneBoundingRect().contains(pos):
+            self.readout.setText("")
+            return
+        p = self.item.mapFromScene(pos)
+        self.readout.setText(self.pixel_text(p.x(), p.y()))
+
+    def pixel_text(self, x: float, y: float) -> str:
+        """``"x 12, y 40: 1023"``: the pixel at image coordinates (x = column, y = row),
+        or ``""`` outside the image."""
+        if self.image is None:
+            return ""
+        col, row = int(np.floor(x)), int(np.floor(y))
+        rows, cols = self.image.shape[:2]
+        if not (0 <= row < rows and 0 <= col < cols):
+            return ""
+        v = self.image[row, col]
+        value = (f"{v:.5g}" if np.ndim(v) == 0 and np.issubdtype(np.asarray(v).dtype,
+                                                                   np.floating)
+                 else str(v.tolist() if np.ndim(v) else v))
+        return f"x {col}, y {row}: {value}"
+
+    # -- ROI and profile -------------------------------------------------------------------
+    def show_roi(self, on: bool | None = None) -> None:
+        """Show (or hide) the statistics ROI; placed over the image's centre quarter the
+        first time."""
+        on = self.roi_action.isChecked() if on is None else bool(on)
+        self.roi_action.setChecked(on)
+        if on and self.roi.scene() is None:
+            self.plot.addItem(self.roi)
+            if self.image is not None:
+                rows, cols = self.image.shape[:2]
+                self.roi.setPos((cols / 4, rows / 4), finish=False)
+                self.roi.setSize((cols / 2, rows / 2), finish=False)
+        elif not on and self.roi.scene() is not None:
+            self.plot.removeItem(self.roi)
+            self.stats.setText("")
+        self._update_roi(force=True)
+
+    def roi_statistics(self) -> dict[str, float] | None:
+        """Statistics of the ROI's pixels (:func:`image_statistics`) and its bounds
+        (``x``, ``y``, ``width``, ``height`` in px); None when the ROI is off."""
+        if not self.roi_action.isChecked() or self.image is None or self.roi.scene() is None:
+            return None
+        pixels = self.roi.getArrayRegion(self.image, self.item, order=0)
+        out = image_statistics(pixels)
+        (x, y), (w, h) = self.roi.pos(), self.roi.size()
+        out.update(x=float(x), y=float(y), width=float(w), height=float(h))
+        return out
+
+    def _update_roi(self, force: bool = False) -> None:
+        now = time.monotonic()
+        if not self.roi_action.isChecked() or (not force and self._period_s
+                                                and now - self._last_roi < 1.0 / ROI_HZ):
+            return
+        self._last_roi = now
+        s = self.roi_statistics()
+        if s is None:
+            return
+        self.stats.setText(
+            f"ROI {s['width']:.0f} x {s['height']:.0f} px at ({s['x']:.0f}, {s['y']:.0f}): "
+            f"mean {s['mean']:.5g}, std {s['std']:.4g}, min {s['min']:.5g}, max "
+            f"{s['max']:.5g}, sum {s['sum']:.5g}")
+
+    def show_profile(self, on: bool | None = None) -> None:
+        """Show (or hide) the profile line and its plot; across the image's middle the
+        first time."""
+        on = self.profile_action.isChecked() if on is None else bool(on)
+        self.profile_action.setChecked(on)
+        if on and self.line.scene() is None:
+            self.plot.addItem(self.line)
+            if self.image is not None:
+                rows, cols = self.image.shape[:2]
+                self.set_line((cols * 0.1, rows / 2), (cols * 0.9, rows / 2))
+        elif not on and self.line.scene() is not None:
+            self.plot.removeItem(self.line)
+        self.profile_plot.setVisible(on)
+        self._update_profile()
+
+    def profile(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(distance_px, values)`` along the profile line; None when it is off."""
+        if not self.profile_action.isChecked() or self.image is None or \
+                self.line.scene() is None:
+            return None
+        # LineSegmentROI maps (x, y) to the data's axes itself: x is the column axis of
+        # a row-major image (pyqtgraph swaps them only for the rectangular ROIs)
+        values = np.asarray(self.line.getArrayRegion(self.image, self.item, axes=(1, 0),
+                                                     order=1), np.float64)
+        return np.arange(values.size, dtype=np.float64), values  # samples 1 px apart
+
+    def set_line(self, start: tuple[float, float], end: tuple[float, float]) -> None:
+        """Place the profile line from ``start`` to ``end`` (x = column, y = row)."""
+        h0, h1 = self.line.getHandles()
+        self.line.movePoint(h0, self.line.mapFromParent(pg.Point(*start)), finish=False)
+        self.line.movePoint(h1, self.line.mapFromParent(pg.Point(*end)))
+
+    def _update_profile(self) -> None:
+        prof = self.profile()
+        if prof is not None:
+            self.profile_curve.setData(*prof)
+
+    # -- snapshot --------------------------------------------------------------------------
+    def snapshot_metadata(self) -> dict[str, Any]:
+        """What a snapshot records: the view's title, levels, colormap, ROI (with its
+        statistics), the time, and the panel's :attr:`metadata`."""
+        meta: dict[str, Any] = {
+            "title": self._title, "time_utc": _dt.datetime.now(_dt.UTC).isoformat(),
+            "levels": list(self.levels()), "colormap": self.colormap.currentText(),
+            "levels_locked": self.levels_locked}
+        roi = self.roi_statistics()
+        if roi is not None:
+            meta["roi"] = roi
+        if self.metadata is not None:
+            meta.update(self.metadata())
+        return meta
+
+    def default_snapshot_name(self) -> str:
+        return f"{self.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}.tif"
+
+    def choose_snapshot(self) -> Job | None:
+        """Ask for a file name, then :meth:`save_snapshot` (the folder is remembered)."""
+        from .fields import settings
+
+        if self.image is None:
+            self.stats.setText("no image to save yet")
+            return None
+        folder = str(settings().value("snapshots/folder", "out/snapshots"))
+        path = QFileDialog.getSaveFileName(self, "save snapshot (TIFF with metadata)",
+                                           str(Path(folder) / self.default_snapshot_name()),
+                                           "TIFF (*.tif *.tiff)")[0]
+        if not path:
+            return None
+        settings().setValue("snapshots/folder", str(Path(path).parent))
+        return self.save_snapshot(path)
+
+    def save_snapshot(self, path: str | Path) -> Job | None:
+        """Write the image shown and :meth:`snapshot_metadata` to ``path`` on a worker
+        (:func:`write_snapshot`); the result or the refusal shows under the image."""
+        if self.image is None:
+            self.stats.setText("no image to save yet")
+            return None
+        image, meta = np.array(self.image, copy=True), self.snapshot_metadata()
+        job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot")
+        job.succeeded.connect(lambda p: (self.stats.setText(f"snapshot saved: {p}"),
+                                         self.snapshot_saved.emit(str(p))))
+        job.failed.connect(lambda text: self.stats.setText(f"snapshot not saved: {text}"))
+        self.jobs = [j for j in self.jobs if j.running] + [job]
+        return job.start()

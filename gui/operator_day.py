@@ -1,0 +1,765 @@
+"""An operator's day, driven through the real ``diffuserlab gui`` in a real X window.
+
+``python -m gui.operator_day --report OUT.json [--bench FILE | --simulate] [--minutes M]``
+runs the ``diffuserlab gui`` command itself (:func:`instrument.cli.main`, the window
+and event loop as an operator gets them) with an :class:`Operator` on its event loop.
+The operator clicks, types and presses keys through the X server (:mod:`gui.xinput`,
+xdotool), finds what to click by the widgets' names, and waits for what the window
+shows, never blocking the event loop. The day:
+
+connect; stream (F5); stage jogs, go-to with Enter, a stored position recalled; LEDs;
+dark and PSF sweep (paused, continued, aborted, resumed); live Wiener then ADMM with
+the sweep's PSF; a short alignment (simulated bench); a 200-frame recording with the
+live reconstruction running; a batch reconstruction; Results with slider steps; the
+image tools and a snapshot; an LED array unplugged and reconnected; Esc during a
+move and Snap (F6); then, when the day's minutes are not used up, the day's middle
+again; at the end Ctrl+Q during a recording, answered Yes.
+
+:class:`gui.daymonitor.DayMonitor` measures the GUI thread's lateness per phase, the
+reference counts of None and True and the memory; the report (JSON) is written before
+the window closes. ``gui.soak`` starts Xvfb, a window manager and the emulators, runs
+this, and checks how the process ended.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import socket
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QPoint, QPointF, QTimer
+from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox, QToolButton
+
+from .daymonitor import DayMonitor
+from .xinput import XInput, centre
+
+__all__ = ["Operator", "main"]
+
+log = logging.getLogger(__name__)
+
+#: Environment variable naming the socket file descriptor to the emulators' process.
+CONTROL_ENV = "DIFFUSERLAB_DAY_CONTROL"
+
+
+class StepFailed(RuntimeError):
+    """A step of the day did not show what it should have (the message says what)."""
+
+
+class _Wait:
+    def __init__(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+        self.condition, self.timeout_s, self.what = condition, timeout_s, what
+        self.deadline = time.monotonic() + timeout_s
+
+
+class Operator:
+    """The day's steps as a generator stepped by the event loop (module docstring).
+
+    Parameters
+    ----------
+    window : gui.app.MainWindow
+    options : argparse.Namespace
+        ``work`` (folder for runs), ``minutes``, ``report``, ``simulate``,
+        ``alignment_s`` (abort the alignment after this; 0: let it finish).
+    """
+
+    def __init__(self, window, options) -> None:
+        self.w = window
+        self.o = options
+        self.app = QApplication.instance()
+        self.x = XInput()
+        self.monitor = DayMonitor()
+        self.work = Path(options.work)
+        self.work.mkdir(parents=True, exist_ok=True)
+        self.completed: list[str] = []
+        self.failure: str | None = None
+        self.records: list[dict] = []
+        self.notes: dict[str, Any] = {}
+        self.loops = 0
+        self.t0 = time.monotonic()
+        self._gen: Iterator | None = None
+        self._answered: set = set()
+        self.target = None
+        self._control = _Control.from_env()
+
+    # -- stepping ---------------------------------------------------------------------------
+    def start(self) -> None:
+        self.monitor.start()
+        self._gen = self.day()
+        QTimer.singleShot(0, self._step)
+        self._prompts = QTimer()
+        self._prompts.timeout.connect(self._answer_prompts)
+        self._prompts.start(500)
+
+    def _answer_prompts(self) -> None:
+        """A run's operator prompt on a real bench (cap the camera, ...): done, as the
+        operator would, by clicking Done."""
+        for box in self.w.findChildren(QMessageBox):
+            if box.isVisible() and box.windowTitle() == "operator action" and \
+                    box not in self._answered:
+                self._answered.add(box)
+                self.notes.setdefault("prompts", []).append(box.text())
+                self.x.click(box.button(QMessageBox.StandardButton.Ok))
+
+    def _step(self, value: Any = None) -> None:
+        try:
+            item = self._gen.send(value) if value is not None else next(self._gen)
+        except StopIteration:
+            return
+        except Exception as exc:  # noqa: BLE001 (a failed step ends the day, reported)
+            self.failure = f"{type(exc).__name__}: {exc}"
+            log.error("operator day failed: %s\n%s", exc, traceback.format_exc())
+            self._finish()
+            return
+        if isinstance(item, int | float):
+            QTimer.singleShot(int(item * 1000), self._step)
+        elif isinstance(item, _Wait):
+            self._poll(item)
+        else:
+            QTimer.singleShot(0, self._step)
+
+    def _poll(self, wait: _Wait) -> None:
+        try:
+            ok = bool(wait.condition())
+        except Exception as exc:  # noqa: BLE001 (the condition itself failed)
+            self._throw(StepFailed(f"while waiting for {wait.what}: {exc}"))
+            return
+        if ok:
+            QTimer.singleShot(0, self._step)
+        elif time.monotonic() > wait.deadline:
+            self._throw(StepFailed(f"timed out after {wait.timeout_s:g} s waiting for "
+                                   f"{wait.what}"))
+        else:
+            QTimer.singleShot(50, lambda: self._poll(wait))
+
+    def _throw(self, exc: Exception) -> None:
+        try:
+            item = self._gen.throw(exc)
+        except StopIteration:
+            return
+        except Exception as err:  # noqa: BLE001
+            self.failure = f"{type(err).__name__}: {err}"
+            log.error("operator day failed: %s", err)
+            self._finish()
+            return
+        if isinstance(item, int | float):
+            QTimer.singleShot(int(item * 1000), self._step)
+        elif isinstance(item, _Wait):
+            self._poll(item)
+
+    @staticmethod
+    def until(condition: Callable[[], bool], timeout_s: float, what: str) -> _Wait:
+        return _Wait(condition, timeout_s, what)
+
+    def typed(self) -> _Wait:
+        """Wait until xdotool has carried out what was sent."""
+        return _Wait(self.x.idle, 60, "the X input to be carried out")
+
+    def phase(self, name: str) -> None:
+        if name == "stream" and os.environ.get("DIFFUSERLAB_DAY_CENSUS"):
+            self.notes.setdefault("census", []).append(_census())
+        self.monitor.set_phase(name)
+        log.info("operator day: %s (%.0f s)", name, time.monotonic() - self.t0)
+
+    def done(self, name: str) -> None:
+        self.completed.append(name)
+
+    def find(self, cls, name: str):
+        widget = self.w.findChild(cls, name)
+        if widget is None:
+            raise StepFailed(f"no {cls.__name__} named {name!r} in the window")
+        return widget
+
+    def button(self, name: str):
+        from PySide6.QtWidgets import QPushButton
+
+        return self.find(QPushButton, name)
+
+    def tool(self, view, action) -> QToolButton:
+        return view.toolbar.widgetForAction(action)
+
+    def dock(self, title: str) -> None:
+        self.w.docks[title].raise_()
+
+    def aim(self, widget) -> Iterator:
+        """Scroll ``widget`` into view and wait until the window shows it where it will
+        be clicked (nothing covering it, the layout settled); the point is in
+        :attr:`target`. A tool hidden in a narrow tool bar's overflow is shown first
+        (its ">>" button clicked)."""
+        from PySide6.QtWidgets import QToolBar
+
+        bar = widget.parentWidget()
+        if isinstance(bar, QToolBar) and not widget.isVisible():
+            ext = bar.findChild(QToolButton, "qt_toolbar_ext_button")
+            if ext is not None and ext.isVisible():
+                self.x.click(ext)
+                yield self.typed()
+                yield self.until(widget.isVisible, 5, "the tool bar's overflow to open")
+        for _ in range(40):
+            point = centre(widget)
+            under = QApplication.widgetAt(point)
+            if under is not None and (under is widget or widget.isAncestorOf(under)):
+                self.target = point
+                return
+            yield 0.1
+        raise StepFailed(f"{widget.objectName() or widget} is not on the screen where the "
+                         f"window says (covered or off screen): {QApplication.widgetAt(point)}")
+
+    def click(self, widget, times: int = 1) -> Iterator:
+        """Click ``widget``'s centre (``times`` quick clicks) once it shows there."""
+        yield from self.aim(widget)
+        for _ in range(times):
+            self.x.click_at(self.target)
+        yield self.typed()
+
+    @staticmethod
+    def _focused(widget) -> bool:
+        focus = QApplication.focusWidget()
+        return focus is not None and (focus is widget or widget.isAncestorOf(focus)
+                                      or focus.isAncestorOf(widget))
+
+    def fill(self, widget, text: str, enter: bool = False) -> Iterator:
+        """Click ``field``, check it took the focus, type ``text`` over what it held."""
+        yield from self.click(widget)
+        yield self.until(lambda: self._focused(widget), 5,
+                         f"the field {widget.objectName() or widget} to take the focus")
+        self.x.key("ctrl+a", "BackSpace")
+        if text:
+            self.x.type(text)
+        if enter:
+            self.x.key("Return")
+        yield self.typed()
+
+    def choose(self, combo, text: str) -> Iterator:
+        """Pick ``text`` in a combo box: click it open, click the entry in its list."""
+        if combo.currentText() == text:
+            return
+        index = combo.findText(text)
+        if index < 0:
+            raise StepFailed(f"{combo.objectName()} offers no {text!r}")
+        yield from self.click(combo)
+        yield self.until(lambda: QApplication.activePopupWidget() is not None, 10,
+                         f"{combo.objectName()}'s list to open")
+        view = combo.view()
+        rect = view.visualRect(view.model().index(index, combo.modelColumn()))
+        self.x.click_at(view.viewport().mapToGlobal(rect.center()))
+        yield self.typed()
+        yield self.until(lambda: combo.currentText() == text, 10, f"{text!r} chosen")
+
+    def remaining_s(self) -> float:
+        return self.o.minutes * 60.0 - (time.monotonic() - self.t0)
+
+    def check_no_bug(self, where: str) -> None:
+        bugs = [ln for ln in self.w.log_pane.lines if "this is a bug" in ln]
+        if bugs:
+            raise StepFailed(f"{where}: the window showed a bug: {bugs[-1]}")
+
+    # -- the day ----------------------------------------------------------------------------
+    def day(self) -> Iterator:
+        w = self.w
+        self.phase("connect")
+        yield self.until(lambda: w.session.connected, 300, "the bench to open")
+        bench = w.session.bench
+        if self.o.simulate:
+            for name in ("source_stage", "mask_stage"):
+                dev = bench.device(name)
+                dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 20.0)})
+        self.done("connect")
+        yield from self.stream_and_stage()
+        yield from self.calibrate(pause_and_resume=True)
+        yield from self.live_view()
+        yield from self.alignment()
+        yield from self.record_and_batch()
+        yield from self.results()
+        yield from self.image_tools()
+        yield from self.unplug_and_reconnect()
+        yield from self.shortcuts()
+        loop_s = 0.8 * (time.monotonic() - self.t0)  # the day's middle, again
+        while self.remaining_s() > loop_s:
+            t = time.monotonic()
+            self.loops += 1
+            self.monitor.loop = self.loops
+            yield from self.stream_and_stage()
+            yield from self.calibrate(pause_and_resume=False)
+            yield from self.live_view()
+            yield from self.record_and_batch()
+            yield from self.results()
+            yield from self.image_tools()
+            yield from self.unplug_and_reconnect()
+            yield from self.shortcuts()
+            loop_s = 1.1 * (time.monotonic() - t)
+        yield from self.quit_mid_recording()
+
+    def stream_and_stage(self) -> Iterator:
+        w = self.w
+        self.phase("stream")
+        self.dock("Calibration")
+        if not w.session.streaming:
+            self.x.click(w.live.raw_view.glw)  # focus in the window, no field
+            self.x.key("F5")
+            yield self.typed()
+        yield self.until(lambda: w.session.streaming, 20, "F5 to start the stream")
+        yield self.until(lambda: w.live._shown_raw > 10, 60, "frames in the live view")
+        yield 5.0
+        self.done("stream")
+        self.phase("stage")
+        box = w.devices.boxes["source_stage"]
+        stage = box.device
+        if self.o.simulate and self.loops == 0:  # the pinhole in front of the diffuser
+            yield from self.fill(box.stage.targets["z"], "60", enter=True)
+            yield self.until(lambda: not box.queue.busy and abs(stage.position("z") - 60) < 1e-3,
+                             60, "the go-to z 60")
+        start = stage.positions()
+        jog = self.button("source_stage.jog.x+")
+        clicks: list[bool] = []
+
+        def count(checked: bool = False) -> None:
+            clicks.append(checked)
+
+        jog.clicked.connect(count)
+        yield from self.click(jog, times=3)  # quick clicks
+        step = box.stage.jog_steps["x"].value()
+        # xdotool has sent them; on a loaded machine the window may read the last one
+        # only after the first two moved: wait for the three, then for the stage. Under
+        # load 15 a click sometimes never reached the button (the stage moved twice):
+        # the missing ones are clicked again, one at a time, and counted in the report
+        t_wait = time.monotonic()
+        yield self.until(lambda: len(clicks) >= 3 or time.monotonic() - t_wait > 15, 30,
+                         "the window to get the three clicks")
+        for _ in range(3 - len(clicks)):
+            self.notes["jog_clicks_not_received"] = \
+                self.notes.get("jog_clicks_not_received", 0) + 1
+            n = len(clicks)
+            yield from self.click(jog)
+            yield self.until(lambda n=n: len(clicks) > n, 30, "a jog click to be received")
+        jog.clicked.disconnect(count)
+        yield self.until(lambda: not box.queue.busy, 60, "the three jogs")
+        moved = stage.position("x") - start["x"]
+        if abs(moved - 3 * step) > 1e-3:
+            raise StepFailed(f"three jogs of {step} moved x by {moved}")
+        yield from self.fill(box.stage.targets["z"], f"{start['z'] + 2.0:g}", enter=True)
+        yield self.until(lambda: not box.queue.busy and abs(
+            stage.position("z") - start["z"] - 2.0) < 1e-3, 60, "Enter in go-to z to move")
+        name = f"day-{self.loops}"
+        yield from self.fill(box.stage.position_name, name, enter=True)
+        yield self.until(lambda: name in box.stage.stored_buttons, 20, "the stored position")
+        yield from self.fill(box.stage.targets["x"], f"{start['x']:g}", enter=True)
+        yield self.until(lambda: not box.queue.busy, 60, "the move back")
+        yield from self.click(box.stage.stored_buttons[name])
+        yield self.until(lambda: not box.queue.busy and abs(
+            stage.position("x") - start["x"] - 3 * step) < 1e-3, 60, "the recall")
+        box.stage.forget(name)
+        yield from self.fill(box.stage.targets["x"], f"{start['x']:g}", enter=True)
+        yield from self.fill(box.stage.targets["z"], f"{start['z']:g}", enter=True)
+        yield self.until(lambda: not box.queue.busy, 60, "the stage back")
+        self.done("stage")
+        self.phase("leds")
+        leds = w.devices.boxes["led_array"]
+        yield from self.click(self.button("led_array.all-off"))
+        yield self.until(lambda: not leds.device.lit(), 20, "All off")
+        if self.o.simulate:  # the LED behind the pinhole, clicked on the array's map
+            import numpy as np
+
+            yield from self.aim(leds.led_plot.viewport())  # scrolled into view
+            pos = leds.device.positions_mm
+            i = int(np.argmin(np.hypot(*pos.T)))
+            vb = leds.led_plot.getViewBox()
+            scene = vb.mapViewToScene(QPointF(float(pos[i, 0]), float(pos[i, 1])))
+            local = leds.led_plot.mapFromScene(scene)
+            self.x.click_at(leds.led_plot.viewport().mapToGlobal(local))
+            yield self.typed()
+            yield self.until(lambda: list(leds.device.lit()) == [i], 20, "the LED clicked")
+        self.done("leds")
+        self.check_no_bug("stage and LEDs")
+
+    def calibrate(self, pause_and_resume: bool) -> Iterator:
+        w = self.w
+        cal = w.calibration
+        self.dock("Calibration")
+        self.phase("calibration")
+        yield from self.choose(cal.routine, "dark")
+        yield from self.fill(cal.fields["dark"]["--frames"], "2")
+        if not self.o.simulate:
+            # libaravis's fake camera sees no light: its pattern scales with the exposure
+            # alone, so the dark is taken at the shortest exposure (the flat's automatic
+            # exposure is longer) for the flat to read brighter than the dark
+            yield from self.fill(cal.fields["dark"]["--exposure-s"], "1e-05")
+        dark = self.work / f"dark-{self.loops}.zarr"
+        yield from self.fill(cal.out, str(dark))
+        yield from self.click(cal.start_button)
+        yield self.until(lambda: cal.result is not None or not cal.running, 300, "the dark run")
+        if cal.result is None or cal.result.status != "complete":
+            raise StepFailed(f"dark run: {cal.status.text()}")
+        self.notes["dark"] = str(dark)
+        yield self.until(lambda: w.session.streaming, 30, "the stream to resume after dark")
+        yield from self.choose(cal.routine, "psf-sweep")
+        fields = cal.fields["psf-sweep"]
+        z = (30, 80, 3) if self.o.simulate else (20, 60, 3)
+        for flag, value in (("--z-min", z[0]), ("--z-max", z[1]), ("--n-depths", z[2]),
+                            ("--frames", 1)):
+            yield from self.fill(fields[flag], str(value))
+        sweep = self.work / f"sweep-{self.loops}.zarr"
+        yield from self.fill(cal.out, str(sweep))
+        yield from self.click(cal.start_button)
+        yield self.until(lambda: "frame" in cal.events, 300, "the sweep's first frame")
+        if pause_and_resume:
+            yield from self.click(cal.pause_button)
+            yield self.until(lambda: "paused" in cal.events, 120, "the pause")
+            yield 2.0
+            yield from self.click(cal.pause_button)  # Continue
+            yield self.until(lambda: "resumed" in cal.events, 60, "Continue")
+            yield from self.click(cal.abort_button)
+            yield self.until(lambda: cal.result is not None, 120, "the abort")
+            if cal.result.status == "complete":
+                self.notes["abort"] = "the sweep ended before the abort"
+            else:
+                yield self.until(lambda: cal.resume_button.isEnabled(), 10, "Resume enabled")
+                yield from self.click(cal.resume_button)
+                yield self.until(lambda: cal.result is None, 20, "the resumed run")
+        yield self.until(lambda: cal.result is not None, 600, "the sweep to finish")
+        if cal.result.status != "complete":
+            raise StepFailed(f"PSF sweep: {cal.status.text()}")
+        self.notes["sweep"] = str(sweep)
+        yield self.until(lambda: w.session.streaming, 30, "the stream to resume after the sweep")
+        self.done("calibration" + (" with pause, abort, resume" if pause_and_resume else ""))
+        self.check_no_bug("calibration")
+
+    def live_view(self) -> Iterator:
+        w = self.w
+        live = w.live
+        self.phase("live-wiener")
+        if live.live is not None:  # still running from before: stopped, then the new PSF
+            yield from self.click(live.recon_button)
+            yield self.until(lambda: live.live is None, 30, "the reconstruction to stop")
+        yield from self.fill(live.psf, self.notes["sweep"], enter=True)
+        yield self.until(lambda: live.depth_job is not None and live.depth_job.done, 30,
+                         "the stack's depths")
+        yield from self.fill(live.depth.lineEdit(), live.depth.itemText(1))
+        if not self.o.simulate:
+            yield from self.fill(live.dark, self.notes["dark"])
+        if live.method.currentText() != "wiener":
+            yield from self.choose(live.method, "wiener")
+        yield from self.click(live.recon_button)
+        yield self.until(lambda: live.live is not None or live.error.text(), 180,
+                         "the live reconstruction")
+        if live.live is None:
+            raise StepFailed(f"live reconstruction: {live.error.text()}")
+        first = live._shown_recon
+        yield self.until(lambda: live._shown_recon > first, 180, "a Wiener reconstruction")
+        yield 8.0
+        self.done("live Wiener")
+        self.phase("live-admm")
+        yield from self.choose(live.method, "admm")
+        yield self.until(lambda: live.live.stats()["method"] == "admm", 20, "ADMM")
+        n = live.live.stats()["reconstructed"]
+        yield self.until(lambda: live.live.stats()["reconstructed"] > n + 5, 300,
+                         "ADMM reconstructions (numba compiles first)")
+        yield 8.0
+        self.done("live ADMM")
+        self.check_no_bug("live view")
+
+    def alignment(self) -> Iterator:
+        w = self.w
+        al = w.alignment
+        self.dock("Alignment")
+        self.phase("alignment")
+        yield from self.fill(al.out, str(self.work / f"mask-{self.loops}.align"))
+        if not self.o.simulate:  # a real bench needs the mask's seed: refused, clearly
+            yield from self.click(al.start_button)
+            yield self.until(lambda: "seed" in al.message.text(), 30, "the refusal")
+            self.done("alignment refused without a mask seed")
+            return
+        yield from self.fill(al.frames.lineEdit(), "1")
+        if al.focus.isChecked():
+            yield from self.click(al.focus)
+        yield from self.click(al.start_button)
+        yield self.until(lambda: al.running, 20, "the alignment to start")
+        if self.o.alignment_s > 0:  # a short alignment: aborted after a while
+            yield self.o.alignment_s
+            if al.running:
+                yield from self.click(al.abort_button)
+        yield self.until(lambda: not al.running, 900, "the alignment to end")
+        if "bug" in al.message.text():
+            raise StepFailed(f"alignment: {al.message.text()}")
+        self.notes["alignment"] = al.message.text().splitlines()[0]
+        yield self.until(lambda: w.session.streaming, 30, "the stream after the alignment")
+        self.done("alignment")
+
+    def record_and_batch(self) -> Iterator:
+        w = self.w
+        rec = w.record
+        self.dock("Record")
+        self.phase("recording")
+        if w.live.live is None:
+            raise StepFailed("the live reconstruction should run during the recording")
+        video = self.work / f"video-{self.loops}.zarr"
+        yield from self.fill(rec.out, str(video))
+        yield from self.fill(rec.frames, "200")
+        yield from self.fill(rec.seconds, "")
+        yield from self.click(rec.record_button)
+        yield self.until(lambda: rec.record_job is not None and rec.record_job.done, 300,
+                         "the 200-frame recording")
+        s = rec.summary
+        if s is None or s.get("path") != str(video):
+            raise StepFailed(f"recording: {rec.record_error.text() or rec.counters.text()}")
+        self.records.append({k: s.get(k) for k in ("path", "status", "recorded",
+                                                   "lost_by_recorder", "dropped_by_camera",
+                                                   "skipped_by_ring", "fps")})
+        self.done("recording 200 frames with live reconstruction")
+        self.phase("batch")
+        fields = rec.batch_fields
+        if fields["--psf"].text() != self.notes["sweep"]:
+            raise StepFailed(f"the live PSF was not carried to Batch: {fields['--psf'].text()}")
+        yield from self.choose(fields["--method"], "wiener")
+        yield from self.fill(fields["--frames"], "0:20")
+        yield from self.fill(fields["--workers"], "1")
+        if not self.o.simulate:
+            yield from self.fill(fields["--dark"], self.notes["dark"])
+        yield from self.click(rec.batch_button)
+        yield self.until(lambda: rec.batch_job is not None and rec.batch_job.done, 600,
+                         "the batch reconstruction")
+        if rec.batch_result is None or rec.batch_result.get("reconstructed", 0) < 1:
+            raise StepFailed(f"batch: {rec.batch_error.text()}")
+        self.notes["video"] = str(video)
+        self.done("batch")
+        self.check_no_bug("recording and batch")
+
+    def results(self) -> Iterator:
+        w = self.w
+        res = w.results
+        self.dock("Results")
+        self.phase("results")
+        yield from self.fill(res.path, self.notes["video"], enter=True)
+        yield self.until(lambda: res.store is not None and res.frame_shown == 0, 60,
+                         "the recorded run")
+        yield from self.click(res.frame_slider)
+        for _ in range(25):
+            self.x.key("Right")
+        yield self.typed()
+        target = res.frame_slider.value()
+        yield self.until(lambda: res.frame_shown == target, 60, "the last slider step")
+        yield self.until(lambda: res.problems is not None, 300, "the run's check")
+        if res.problems:
+            raise StepFailed(f"results: {res.problems[:2]}")
+        self.done("results with slider steps")
+
+    def image_tools(self) -> Iterator:
+        w = self.w
+        raw = w.live.raw_view
+        self.phase("image-tools")
+        for action in (raw.roi_action, raw.profile_action):
+            if not action.isChecked():
+                yield from self.click(self.tool(raw, action))
+        yield self.until(lambda: raw.roi_statistics() is not None and raw.profile() is not None,
+                         10, "ROI and profile")
+        inside = raw.glw.mapToGlobal(raw.glw.rect().center())
+        for dx in (0, 7, 14):  # a few moves over the image (motion events)
+            self.x.move_to(inside + QPoint(dx - 40, dx - 20))
+        yield self.typed()
+        yield self.until(lambda: raw.readout.text().startswith("x "), 10, "the pixel readout")
+        yield from self.choose(raw.colormap, "viridis")
+        yield from self.click(self.tool(raw, raw.lock_action))
+        yield from self.click(self.tool(raw, raw.snapshot_action))
+        yield self.until(lambda: isinstance(QApplication.activeModalWidget(), QFileDialog), 20,
+                         "the snapshot dialog")
+        shot = self.work / f"snapshot-{self.loops}.tif"
+        self.x.key("ctrl+a")
+        self.x.type(str(shot))
+        self.x.key("Return")
+        yield self.typed()
+        yield self.until(lambda: shot.exists(), 30, "the snapshot file")
+        for action in (raw.roi_action, raw.profile_action, raw.lock_action):
+            yield from self.click(self.tool(raw, action))
+        yield from self.choose(raw.colormap, "grey")
+        self.done("image tools and a snapshot")
+
+    def unplug_and_reconnect(self) -> Iterator:
+        w = self.w
+        self.phase("disconnect")
+        box = w.devices.boxes["led_array"]
+        if self._control is not None:
+            self._control.ask("unplug illuminate")
+            yield self.until(self._control.answered, 30, "the emulator unplugged")
+        else:
+            box.device.faults.disconnect()
+        yield from self.click(self.button("led_array.all-off"))
+        yield self.until(lambda: "DISCONNECTED" in w.device_labels["led_array"].text(), 30,
+                         "the status area to show the LED array disconnected")
+        if "disconnected" not in w.devices.state.text():
+            raise StepFailed(f"device count: {w.devices.state.text()}")
+        if self._control is not None:
+            self._control.ask("replug illuminate")
+            yield self.until(self._control.answered, 30, "the emulator plugged back")
+        else:
+            box.device.faults.allow_reconnect()
+        yield from self.click(box.reconnect_button)
+        yield self.until(lambda: "DISCONNECTED" not in w.device_labels["led_array"].text()
+                         and "disconnected" not in w.devices.state.text(), 60,
+                         "the LED array reconnected")
+        self.done("unplug and Reconnect")
+
+    def shortcuts(self) -> Iterator:
+        w = self.w
+        self.phase("shortcuts")
+        box = w.devices.boxes["source_stage"]
+        stage = box.device
+        far = {a: (lo + hi) / 2 for a, (lo, hi) in stage.travel.items() if a == "z"}
+        self.x.click(w.live.raw_view.glw)
+        yield self.typed()
+        stage.move_to(far, wait=False)  # a long move, then Esc
+        yield 0.2
+        self.x.key("Escape")
+        yield self.typed()
+        yield self.until(lambda: not stage.is_moving(), 10, "Esc to stop the stage")
+        before = w.session.frames_seen
+        self.x.key("F6")
+        yield self.typed()
+        yield self.until(lambda: not w.session.streaming and w.session.frames_seen > before,
+                         30, "F6 to snap a frame")
+        self.x.key("F5")
+        yield self.typed()
+        yield self.until(lambda: w.session.streaming, 20, "F5 to start the stream again")
+        self.done("shortcuts")
+
+    def quit_mid_recording(self) -> Iterator:
+        w = self.w
+        rec = w.record
+        self.dock("Record")
+        self.phase("quit")
+        video = self.work / "last-video.zarr"
+        yield from self.fill(rec.out, str(video))
+        yield from self.fill(rec.frames, "100000")
+        yield from self.click(rec.record_button)
+        yield self.until(lambda: rec.record_progress.value() >= 10, 120, "frames recorded")
+        self.notes["quit_recording"] = str(video)
+        self.done("quit asked while recording")
+        self._finish(quit=True)
+
+    # -- the end ------------------------------------------------------------------------------
+    def report(self) -> dict:
+        out = self.monitor.report()
+        out.update(completed=self.completed, failure=self.failure, records=self.records,
+                   notes=self.notes, loops=self.loops, day_s=time.monotonic() - self.t0,
+                   xinput_errors=self.x.errors, xinput_sent=self.x.sent,
+                   log_errors=[ln for ln in self.w.log_pane.lines if " error: " in ln][-20:],
+                   platform=QApplication.instance().platformName(),
+                   simulate=bool(self.o.simulate))
+        return out
+
+    def _finish(self, quit: bool = False) -> None:
+        self.monitor.stop()
+        self._prompts.stop()
+        if self.failure is not None:  # what the window showed when the step failed
+            screen = QApplication.primaryScreen().grabWindow(0)
+            screen.save(str(self.work / "failure.png"))
+        Path(self.o.report).write_text(json.dumps(self.report(), indent=1, default=str))
+        if quit:  # Ctrl+Q, then Yes in the question: the recording is finished first
+            self.x.click(self.w.live.raw_view.glw)
+            self.x.key("ctrl+q")
+            QTimer.singleShot(1500, self._answer_yes)
+        else:
+            self.w.confirm = lambda title, text: True
+            QTimer.singleShot(0, self.w.close)
+
+    def _answer_yes(self) -> None:
+        box = QApplication.activeModalWidget()
+        if isinstance(box, QMessageBox):
+            self.x.key("alt+y")
+        else:
+            QTimer.singleShot(500, self._answer_yes)
+
+
+def _census(top: int = 25) -> dict:
+    """Live objects per type (the most numerous), for finding what grows in a long day
+    (``DIFFUSERLAB_DAY_CENSUS=1``; takes a garbage collection and a walk of the heap)."""
+    import gc
+    from collections import Counter, deque
+
+    gc.collect()
+    objects = gc.get_objects()
+    counts = Counter(type(o).__name__ for o in objects)
+    sized = sorted(((len(o), id(o), o) for o in objects
+                    if type(o) in (list, dict, deque, set)), key=lambda s: s[:2])[-12:]
+    big = []
+    for n, _, o in reversed(sized):
+        owners = [type(r).__name__ for r in gc.get_referrers(o)[:4] if r is not objects]
+        sample = repr(next(iter(o.items() if isinstance(o, dict) else o), None))[:80]
+        big.append({"type": type(o).__name__, "len": n, "owners": owners, "sample": sample})
+    del objects, sized
+    return {"t_s": time.monotonic(), "objects": sum(counts.values()),
+            "frozen": gc.get_freeze_count(),
+            "blocks": sys.getallocatedblocks(), "top": dict(counts.most_common(top)),
+            "biggest": big}
+
+
+class _Control:
+    """Requests to the process that runs the emulators (unplug / replug a device)."""
+
+    def __init__(self, fd: int) -> None:
+        self.sock = socket.socket(fileno=fd)
+        self._answer = threading.Event()
+        self._answer.set()
+
+    @classmethod
+    def from_env(cls) -> _Control | None:
+        fd = os.environ.get(CONTROL_ENV)
+        return cls(int(fd)) if fd else None
+
+    def ask(self, request: str) -> None:
+        self._answer.clear()
+
+        def exchange() -> None:
+            self.sock.sendall((request + "\n").encode())
+            self.sock.recv(64)
+            self._answer.set()
+
+        threading.Thread(target=exchange, daemon=True).start()
+
+    def answered(self) -> bool:
+        return self._answer.is_set()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m gui.operator_day",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--bench", default=None, help="bench file (default: --simulate)")
+    p.add_argument("--simulate", action="store_true", help="the built-in simulated bench")
+    p.add_argument("--minutes", type=float, default=5.0, help="length of the day")
+    p.add_argument("--alignment-s", type=float, default=30.0,
+                   help="abort the alignment after this many seconds (0: let it finish)")
+    p.add_argument("--work", required=True, help="folder for the day's runs")
+    p.add_argument("--report", required=True, help="JSON report written before the end")
+    args = p.parse_args(argv)
+    args.simulate = args.simulate or args.bench is None
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+
+    def begin() -> None:
+        from .app import MainWindow
+
+        windows = [w for w in app.topLevelWidgets() if isinstance(w, MainWindow)]
+        if not windows:
+            QTimer.singleShot(100, begin)
+            return
+        operator = Operator(windows[0], args)
+        app._operator = operator  # kept alive with the application
+        operator.start()
+
+    QTimer.singleShot(0, begin)
+    from instrument.cli import main as diffuserlab
+
+    command = ["gui", "--scene", "beads-flow"] + (
+        ["--simulate"] if args.bench is None else [args.bench])
+    return diffuserlab(command)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,112 @@
+"""The window asks before it cuts a job short and then finishes it (the recording's run
+summarised, its lock released, before the devices close); every run gives the bench
+back as it was (camera settings, stage positions, LEDs, the live stream)."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture
+def own_window(qapp, tmp_path, monkeypatch):
+    """A window of its own (it is closed by the test)."""
+    monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(tmp_path / "gui.ini"))
+    from gui.app import MainWindow
+    from gui.session import Session
+    from tests.gui.conftest import wait_for
+
+    w = MainWindow(Session(None, simulate=True, scene="none"))
+    w.show()
+    w.session.connect_bench()
+    wait_for(qapp, lambda: w.session.connected, 120.0, "the bench to open")
+    yield w
+    if w.session.connected:
+        w.shutdown()
+    w.deleteLater()
+    qapp.processEvents()
+
+
+def test_closing_mid_recording_asks_then_finishes_the_run(own_window, wait, tmp_path):
+    from instrument.runstore import RunStore
+
+    w = own_window
+    asked: list[str] = []
+    answers = [False, True]
+    w.confirm = lambda title, text: (asked.append(text), answers.pop(0))[1]
+    rec = w.record
+    path = str(tmp_path / "long.zarr")
+    rec.out.setText(path)
+    rec.frames.setText("3000")
+    job = rec.start_recording()
+    wait(lambda: rec.record_progress.value() >= 5, 60, "frames written")
+    w.close()  # answered No: nothing stops
+    assert asked and "video recording" in asked[0]
+    wait(lambda: rec.record_progress.value() >= 15, 30, "more frames")
+    assert w.isVisible() and rec.recording and w.session.connected
+    w.close()  # answered Yes: the recording stops and is finished, then the devices close
+    wait(lambda: not w.isVisible(), 60, "the window to close")
+    assert job.done and not w.session.connected
+    store = RunStore.open(path)
+    assert store.status == "stopped"
+    assert store.lock_owner() is None  # no stale lock
+    assert 15 <= store.summary(verify=False)["frames_done"] < 3000
+    assert store.summary()["problems"] == []
+
+
+def test_closing_with_nothing_running_does_not_ask(own_window, wait):
+    w = own_window
+    w.confirm = lambda title, text: pytest.fail(f"asked: {text}")
+    w.close()
+    wait(lambda: not w.isVisible(), 30, "the window to close")
+    assert not w.session.connected
+
+
+def test_runs_give_the_bench_back_and_the_stream_resumes(own_window, wait, tmp_path):
+    """Dark, PSF sweep and an aborted alignment each leave the camera's exposure, the
+    stages, the LEDs and the live stream as they were (they used to leave the run's
+    auto-exposure, the sweep's last stage point and the stream stopped)."""
+    w = own_window
+    bench = w.session.bench
+    for name in ("source_stage", "mask_stage"):
+        dev = bench.device(name)
+        dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 50.0)})
+    cam, stage, leds = bench.camera, bench.source_stage, bench.led_array
+    cam.apply_settings({"exposure_s": 0.012})
+    stage.move_to({"x": 1.0, "z": 40.0})
+    centre = int(abs(leds.positions_mm).sum(axis=1).argmin())
+    leds.set_leds([centre], "white", 0.5)
+    lit = leds.lit()
+    w.session.start_stream()
+    before = (cam.settings(), stage.positions(), mask := bench.mask_stage.positions())
+
+    def check(what: str) -> None:
+        wait(lambda: w.session.streaming, 15, f"the stream to resume after {what}")
+        assert cam.settings() == before[0], what
+        assert stage.positions() == pytest.approx(before[1], abs=1e-6), what
+        assert bench.mask_stage.positions() == pytest.approx(mask, abs=1e-6), what
+        assert leds.lit() == lit, what
+        w.live.refresh()
+        assert "busy" not in w.live.raw_stats.text(), what
+
+    cal = w.calibration
+    for routine, values in (("dark", {"--frames": "2"}),
+                            ("psf-sweep", {"--z-min": "30", "--z-max": "60",
+                                           "--n-depths": "2", "--frames": "1"})):
+        cal.routine.setCurrentText(routine)
+        for flag, value in values.items():
+            cal.fields[routine][flag].setText(value)
+        cal.out.setText(str(tmp_path / f"{routine}.zarr"))
+        job = cal.start()
+        assert job is not None, cal.status.text()
+        wait(lambda j=job: j.done, 180, routine)
+        assert cal.result is not None and cal.result.status == "complete", cal.status.text()
+        check(routine)
+    al = w.alignment
+    al.out.setText(str(tmp_path / "mask.align"))
+    al.frames.setValue(1)
+    al.focus.setChecked(False)
+    job = al.start()
+    wait(lambda: len(al.readings) >= 3 or job.done, 300, "spot readings")
+    al.abort()
+    wait(lambda: job.done, 120, "the alignment to stop")
+    check("the alignment")

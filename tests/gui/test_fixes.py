@@ -1,0 +1,352 @@
+"""What broke in the operator's day, each caught here (offscreen; the real-window day is
+tests/gui/test_operator_day.py): error messages, Results on the GUI thread, closing
+mid-recording, the bench left changed by a run, refused inputs, stage jogs, stale
+numbers."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+import pytest
+from PySide6.QtCore import QPoint, QPointF, Qt
+from PySide6.QtGui import QWheelEvent
+from PySide6.QtTest import QTest
+
+# -- 2. only the project's own errors read as operator messages ---------------------------
+
+
+def test_a_keyerror_is_a_bug_with_its_traceback_in_the_log(caplog):
+    from gui.workers import InputError, readable_error
+    from instrument.plan import PlanError
+
+    with caplog.at_level(logging.ERROR, logger="gui.workers"):
+        text = readable_error(KeyError((1066, 80)))
+    assert "bug" in text and "KeyError" in text
+    assert caplog.records and caplog.records[-1].exc_info is not None  # the traceback
+    for exc in (ValueError("operands could not be broadcast"), LookupError("x"),
+                RuntimeError("y"), TypeError("z")):
+        assert "bug" in readable_error(exc), exc
+    assert readable_error(PlanError("z-max must be > z-min")) == "z-max must be > z-min"
+    assert readable_error(InputError("frames 'x': give a number")) == \
+        "frames 'x': give a number"
+
+
+def test_library_messages_read_in_the_guis_terms():
+    from gui.messages import operator_text
+
+    assert operator_text("stage: stopped answering. Fix: check cable and power, then call "
+                         "reconnect()") == ("stage: stopped answering. Fix: check cable and "
+                                            "power, then press Reconnect on the device "
+                                            "(Devices panel)")
+    assert operator_text("paused; resume() to continue, abort() to stop") == \
+        "paused; press Continue to go on or Abort to stop"
+    assert operator_text("use -inf <= x <= 60") == "use x <= 60"
+    assert operator_text("use a finite number with 0 < exposure_s <= inf") == \
+        "use a finite number with exposure_s > 0"
+    assert operator_text("a stack needs --depth (mm)", {"--depth": "depth (mm)"}) == \
+        "a stack needs 'depth (mm)' (mm)"
+    assert operator_text("give --z-min") == "give 'z min'"
+    assert "diffuserlab" not in operator_text("run `diffuserlab calibrate resume X`")
+
+
+def test_exposure_fields_take_units():
+    from gui.device_settings import parse_duration_s, parse_value, value_text
+    from gui.workers import InputError
+
+    for text, seconds in (("20 ms", 0.02), ("20ms", 0.02), ("0.02 s", 0.02), ("0.02", 0.02),
+                          ("500 us", 5e-4), ("500 µs", 5e-4), ("1e-3 s", 1e-3)):
+        assert parse_duration_s(text) == pytest.approx(seconds), text
+    assert parse_duration_s("  ") is None
+    with pytest.raises(InputError, match="20 ms"):
+        parse_duration_s("20 parsecs")
+    assert parse_value("20 ms", "exposure_s") == pytest.approx(0.02)
+    assert parse_value('{"x": 1}', "velocity") == {"x": 1}
+    assert value_text(0.02, "exposure_s") == "20 ms" and value_text(2.5, "exposure_s") == "2.5 s"
+
+
+# -- 3. Results never reads a store on the GUI thread ----------------------------------------
+
+
+def _video_run(path, n=40):
+    from instrument.runstore import RunStore
+
+    store = RunStore.create(path, plan_name="video", plan_params={},
+                            points=[{"t": float(k)} for k in range(n)],
+                            frame_tags=[["frame"]] * n, frame_shape=(64, 80),
+                            frame_dtype=np.uint16, coord_names=["exposure_s"])
+    for i in range(n):
+        store.write_frame(i, np.full((64, 80), i, np.uint16), {"exposure_s": 0.01})
+    store.update_attrs(status="complete")
+    return store
+
+
+def test_results_reads_the_store_on_workers_and_verifies_once(qapp, wait, tmp_path,
+                                                             monkeypatch):
+    from gui.panels.results import ResultsPanel
+    from instrument.runstore import RunStore
+
+    _video_run(tmp_path / "v.zarr")
+    calls: list[tuple[str, str]] = []
+    for name in ("frame", "done", "summary", "verify", "_read", "product", "refresh",
+                 "product_info"):
+        original = getattr(RunStore, name)
+
+        def spy(self, *a, _name=name, _original=original, **k):
+            calls.append((_name, threading.current_thread().name))
+            return _original(self, *a, **k)
+
+        monkeypatch.setattr(RunStore, name, spy)
+    panel = ResultsPanel()
+    panel.show()
+    job = panel.open(str(tmp_path / "v.zarr"))
+    wait(lambda: job.done and panel.problems is not None, 30, "the run and its check")
+    for step in range(1, 30):  # the slider dragged across the run
+        panel.frame_slider.setValue(step)
+        qapp.processEvents()
+    wait(lambda: panel.frame_shown == 29, 30, "the last frame asked for")
+    main = threading.main_thread().name
+    assert calls and all(thread != main for _, thread in calls), \
+        [c for c in calls if c[1] == main][:5]
+    assert sum(1 for n, _ in calls if n == "verify") == 1
+    assert panel.problems == [] and "intact" in panel.verify_label.text()
+    assert panel.view.image[0, 0] == 29
+    assert sum(1 for n, _ in calls if n == "frame") < 29  # steps made while reading: skipped
+    panel.deleteLater()
+
+
+def test_results_verification_reports_damage(qapp, wait, tmp_path):
+    from gui.panels.results import ResultsPanel
+
+    _video_run(tmp_path / "v.zarr")
+    (tmp_path / "v.zarr/frames/c/5/0/0").unlink()
+    panel = ResultsPanel()
+    job = panel.open(str(tmp_path / "v.zarr"))
+    wait(lambda: job.done and panel.problems is not None, 30, "the check")
+    assert len(panel.problems) == 1 and "frame 5" in panel.problems[0]
+    assert "1 problem" in panel.verify_label.text()
+    assert "frame 5" in panel.text.toPlainText()
+
+
+# -- 6. refused inputs say so, and nothing pretends to have started ---------------------------
+
+
+def test_batch_without_a_psf_says_to_give_one(window, wait, tmp_path):
+    _video_run(tmp_path / "v.zarr")
+    panel = window.record
+    panel.run_path.setText(str(tmp_path / "v.zarr"))
+    panel.batch_fields["--psf"].setText("")
+    job = panel.start_batch()
+    wait(lambda: job.done, 30, "the refusal")
+    text = panel.batch_error.text()
+    assert "give the PSF" in text and "bug" not in text and "TypeError" not in text
+
+
+def test_live_reconstruction_without_a_psf_says_to_give_one(window, wait):
+    live = window.live
+    live.psf.setText("")
+    live.depth.setEditText("")
+    job = live.start_reconstruction()
+    wait(lambda: job.done, 30, "the refusal")
+    assert "give the PSF" in live.error.text() and "No run store at ." not in live.error.text()
+    assert live.live is None
+
+
+def test_a_refused_recording_neither_says_recording_nor_becomes_the_last(window, wait,
+                                                                         tmp_path):
+    panel = window.record
+    last = panel.last_run
+    (tmp_path / "taken.zarr").mkdir()  # an existing folder: the run cannot be created
+    panel.out.setText(str(tmp_path / "taken.zarr"))
+    panel.frames.setText("5")
+    job = panel.start_recording()
+    wait(lambda: job.done, 30, "the refusal")
+    assert panel.last_run == last
+    assert "recording into" not in panel.counters.text()
+    assert "not started" in panel.record_error.text()
+    assert window.session.camera_user is None
+    panel.out.setText("")
+
+
+# -- 7. stage jogs add to the target; the wheel needs the focus; Enter moves ------------------
+
+
+def test_quick_jog_clicks_add_to_the_target_not_the_position(window, wait):
+    box = window.devices.boxes["source_stage"]
+    stage = window.session.bench.source_stage
+    stage.apply_settings({"velocity": {"x": 2.0, "y": 2.0, "z": 2.0}})  # 0.5 s per mm
+    try:
+        x0 = stage.position("x")
+        box.stage.jog_steps["x"].setValue(1.0)
+        plus = box.findChild(type(box.reconnect_button), "source_stage.jog.x+")
+        for _ in range(3):
+            QTest.mouseClick(plus, Qt.MouseButton.LeftButton)
+            QTest.qWait(60)  # mid-move
+        wait(lambda: not box.queue.busy, 20, "the jogs")
+        assert stage.position("x") == pytest.approx(x0 + 3.0, abs=1e-6)
+    finally:
+        stage.apply_settings({"velocity": dict.fromkeys(stage.axes, 50.0)})
+        stage.move_to({"x": 0.0})
+
+
+def test_the_wheel_changes_a_jog_step_only_when_it_has_the_focus(window):
+    box = window.devices.boxes["source_stage"]
+    step = box.stage.jog_steps["x"]
+    step.setValue(1.0)
+    step.clearFocus()
+
+    def wheel() -> None:
+        centre = QPointF(step.width() / 2, step.height() / 2)
+        event = QWheelEvent(centre, QPointF(step.mapToGlobal(centre.toPoint())), QPoint(0, 0),
+                            QPoint(0, -120 * 5), Qt.MouseButton.NoButton,
+                            Qt.KeyboardModifier.NoModifier, Qt.ScrollPhase.NoScrollPhase,
+                            False)
+        from PySide6.QtWidgets import QApplication
+
+        QApplication.sendEvent(step, event)
+
+    wheel()
+    assert step.value() == 1.0
+    step.setFocus()
+    wheel()
+    assert step.value() != 1.0
+    step.setValue(1.0)
+
+
+def test_enter_in_a_go_to_field_moves(window, wait):
+    box = window.devices.boxes["source_stage"]
+    field = box.stage.targets["z"]
+    field.setText("42")
+    QTest.keyClick(field, Qt.Key.Key_Return)
+    wait(lambda: not box.queue.busy, 10, "the move")
+    assert window.session.bench.source_stage.position("z") == pytest.approx(42.0)
+
+
+# -- 8. numbers that follow what happens now --------------------------------------------------
+
+
+def test_camera_fps_follows_a_change_of_rate_within_seconds(window, wait):
+    """The rate shown is the last 2 s's (a rate since the stream started showed 11 fps
+    while the camera delivered 30)."""
+    session = window.session
+    cam = session.bench.camera
+    session.start_stream()
+    try:
+        QTest.qWait(3000)
+        fast = session.stream_counters()["fps"]
+        cam.apply_settings({"frame_rate_hz": 3.0})
+        QTest.qWait(3000)
+        n0, t0 = session.frames_seen, time.monotonic()
+        QTest.qWait(2000)
+        actual = (session.frames_seen - n0) / (time.monotonic() - t0)
+        slow = session.stream_counters()["fps"]
+    finally:
+        cam.apply_settings({"frame_rate_hz": 30.0})
+        session.stop_stream()
+    assert fast > 8 and slow == pytest.approx(actual, rel=0.35, abs=0.5), (fast, slow, actual)
+    assert slow < 0.6 * fast
+
+
+def test_job_progress_ticks_between_reports():
+    from gui.panels.common import JobProgress
+
+    p = JobProgress("frames")
+    p.start(10)
+    p.report(2, 10, eta_s=100.0)
+    first, text = p.eta_s(), p.label.text()
+    QTest.qWait(2200)
+    assert "elapsed" in p.label.text() and "ETA" in p.label.text()
+    assert p.eta_s() < first - 2.0  # counted down without a new report
+    assert p.label.text() != text  # and shown so
+    p.report(5, 10)  # no estimate given: from the rate so far
+    assert p.eta_s() == pytest.approx(p.elapsed_s(), rel=0.2)
+    p.finish()
+    assert not p.timer.isActive()
+
+
+def test_one_alignment_step_shows_running_at_a_time(window):
+    panel = window.alignment
+    for label in panel.step_labels.values():
+        label.setText("waiting")
+    panel.on_progress({"kind": "reading", "eta": 0.1, "pose": {}, "step": "coarse"})
+    panel.on_progress({"kind": "reading", "eta": 0.1, "pose": {}, "step": "translation"})
+    panel.on_progress({"kind": "event", "step": "focus_check", "message": "checking",
+                       "done": ["preflight"], "steps": {}})
+    running = [n for n, lab in panel.step_labels.items() if lab.text() == "running"]
+    assert running == ["focus"]
+    assert panel.step_labels["coarse"].text() == "done"
+
+
+def test_reconstruction_stats_say_when_no_result_arrives(window, wait):
+    live = window.live
+    live.live = _FrozenLive()
+    try:
+        live._recon_count = (-1, time.monotonic())
+        live._show_live_stats()
+        assert "fps" in live.recon_stats.text()
+        live._recon_count = (5, time.monotonic() - 10)
+        live._show_live_stats()
+        assert "no new result for 10 s" in live.recon_stats.text()
+    finally:
+        live.live = None
+
+
+class _FrozenLive:
+    def stats(self):
+        return {"reconstructed": 5, "skipped": 0, "errors": 0, "last_error": None,
+                "method": "wiener", "iterations": 1, "fps": 30.0, "latency_median_s": 0.01}
+
+
+# -- a job's end: released on the GUI thread, no cycle left behind -----------------------------
+
+
+def test_finished_jobs_are_released_on_the_gui_thread(qapp, wait):
+    """A job whose closures hold the job itself (a cycle through Qt the collector cannot
+    see) is freed, and on the GUI thread: the window crashed (SIGSEGV in the event
+    loop) when a job's last reference went on its worker thread."""
+    import gc
+    import weakref
+
+    from gui.workers import _LIVE_JOBS, Job
+
+    freed_on: list[str] = []
+    refs = []
+    for i in range(30):
+        job = Job(lambda job, i=i: i, name=f"t{i}")
+        job.succeeded.connect(lambda r, job=job: job.name)  # the job in its own slot
+        weakref.finalize(job, lambda: freed_on.append(threading.current_thread().name))
+        refs.append(weakref.ref(job))
+        job.start()
+        del job
+    wait(lambda: not _LIVE_JOBS, 20, "the jobs to be released")
+    qapp.processEvents()
+    gc.collect()
+    assert all(r() is None for r in refs)
+    assert freed_on and set(freed_on) == {threading.main_thread().name}
+
+
+def test_starting_a_job_never_waits_for_a_thread_on_the_gui_thread(qapp, wait, monkeypatch):
+    """``Thread.start`` waits until the new thread has run its first step; on a loaded
+    machine that held the event loop up to 5 s in the operator's day (the GUI thread in
+    ``threading.Thread.start``). Jobs are started by the launcher thread instead."""
+    from gui.workers import Job
+
+    first = Job(lambda job: None, name="first").start()  # the launcher is up
+    wait(lambda: first.done, 20, "the first job")
+    starters: list[str] = []
+    start = threading.Thread.start
+
+    def recording_start(self):
+        starters.append(threading.current_thread().name)
+        return start(self)
+
+    monkeypatch.setattr(threading.Thread, "start", recording_start)
+    gate = threading.Event()
+    jobs = [Job(lambda job: gate.wait(10), name=f"gated{i}").start() for i in range(5)]
+    assert all(j.running for j in jobs)  # running from start(), before its thread runs
+    gate.set()
+    wait(lambda: all(j.done for j in jobs), 20, "the gated jobs")
+    assert not any(j.running for j in jobs)
+    assert starters and threading.main_thread().name not in starters, starters
