@@ -10,12 +10,13 @@ import pytest
 
 from diffuserlab.errors import DiffuserLabError, InputError
 
-PACKAGES = ("diffuserlab", "recon", "drivers", "instrument", "calibration_routines")
+PACKAGES = ("diffuserlab", "recon", "drivers", "instrument", "calibration_routines", "gui")
 #: Private exceptions of the protocol emulators stand for a device's own firmware
 #: errors and never leave the emulator.
 SKIP_MODULE_PREFIXES = ("drivers.emulators.",)
-#: Optional modules whose imports need a display or a library not installed here.
-OPTIONAL = ("drivers.slm_window_app", "drivers.aravis_support")
+#: Optional modules whose imports need a display or a library not installed here, and
+#: the operator's-day driver (a test harness: its StepFailed is a failed test step).
+OPTIONAL = ("drivers.slm_window_app", "drivers.aravis_support", "gui.operator_day")
 
 
 def _our_exceptions():
@@ -33,8 +34,10 @@ def _our_exceptions():
             for name, obj in vars(module).items():
                 # Warnings are not errors; KeyboardInterrupt subclasses (a signal
                 # handled like Ctrl-C) are control flow, not failures.
+                # Private classes (``_Cancelled``) are control flow inside a module.
                 if (inspect.isclass(obj) and issubclass(obj, Exception)
-                        and not issubclass(obj, Warning) and obj.__module__ == info.name):
+                        and not issubclass(obj, Warning) and obj.__module__ == info.name
+                        and not name.startswith("_")):
                     found[f"{info.name}.{name}"] = obj
     return found
 
