@@ -12,6 +12,8 @@ attribute ``SETTINGS`` of :class:`~drivers.base.Device`, in the order
 - a machine-readable description (:meth:`Setting.describe`,
   :meth:`~drivers.base.Device.setting_specs`) for operator interfaces and schemas;
 - the limits as an operator reads them (:meth:`Setting.limits_text`);
+- a pydantic model of a settings table (:func:`settings_model`), hence a JSON
+  schema for files that hold settings;
 - the settings tables of the driver documentation (:func:`settings_markdown`,
   written to docs/drivers/settings.md by ``python -m drivers.settings_doc``).
 
@@ -28,7 +30,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["FromInfo", "Setting", "info", "settings_markdown", "with_settings"]
+__all__ = ["FromInfo", "Setting", "info", "settings_markdown", "settings_model",
+           "with_settings"]
 
 _FIELD = re.compile(r"\{([^{}]+)\}")
 
@@ -349,3 +352,57 @@ def settings_markdown(kinds: Mapping[str, type], drivers: tuple[type, ...] = ())
         if removed:
             lines += ["Not offered: " + ", ".join(f"`{n}`" for n in removed) + ".", ""]
     return "\n".join(lines)
+
+
+_PY_TYPES = {"float": float, "int": int, "str": str, "(float, float)": tuple[float, float],
+             "int[4]": tuple[int, int, int, int], "float[256]": list[float]}
+
+
+def settings_model(cls: type) -> type:
+    """A pydantic model of the writable settings of device class ``cls``.
+
+    Every field is optional (a file may hold some settings); static limits and
+    choices are checked, limits read from a device's info are named in the field's
+    description (they are checked when the settings reach the open device).
+    ``settings_model(Camera).model_json_schema()`` is the JSON schema.
+
+    Parameters
+    ----------
+    cls : type
+        A :class:`~drivers.base.Device` subclass.
+
+    Returns
+    -------
+    type
+        A ``pydantic.BaseModel`` subclass named ``<Class>Settings``, refusing
+        unknown names.
+    """
+    from typing import Annotated, Literal
+
+    import pydantic
+
+    fields: dict[str, Any] = {}
+    for s in cls.SETTINGS:
+        if s.read_only:
+            continue
+        if s.dtype == "str" and isinstance(s.choices, tuple):
+            kind: Any = Literal[s.choices]
+        else:
+            kind = _PY_TYPES[s.dtype]
+        limits: dict[str, float] = {}
+        if s.dtype in ("float", "int") and s.check is None:
+            if s.positive:
+                limits["gt"] = 0
+            if isinstance(s.low, int | float):
+                limits["gt" if s.low_open else "ge"] = s.low
+            if isinstance(s.high, int | float):
+                limits["le"] = s.high
+        kind = Annotated[kind, pydantic.Field(**limits)] if limits else kind
+        if s.per is not None:
+            kind = dict[str, kind]
+        unit = s.unit_of()
+        text = f"{s.description}" + (f" [{unit}]" if unit else "") + (
+            f"; limits: {s.limits_text()}" if s.limits_text() else "")
+        fields[s.name] = (kind | None, pydantic.Field(None, description=text))
+    return pydantic.create_model(f"{cls.__name__}Settings",
+                                 __config__=pydantic.ConfigDict(extra="forbid"), **fields)

@@ -132,3 +132,31 @@ def test_messages_name_the_setting_the_key_and_the_fix():
             cam.exposure_s = -1  # "> 0" named before the sensor's range
         with pytest.raises(DeviceValueError, match=r"1e-06 <= exposure_s <= 60"):
             cam.exposure_s = 100.0
+
+
+def test_settings_model_is_a_schema_of_the_declarations():
+    import pydantic
+
+    from drivers.settings import settings_model
+    from drivers.slm import Slm
+
+    model = settings_model(Camera)
+    schema = model.model_json_schema()
+    assert list(schema["properties"]) == list(Camera._SETTINGS)
+    assert "[s]" in schema["properties"]["exposure_s"]["description"]
+    assert "info.exposure_range_s[0]" in schema["properties"]["exposure_s"]["description"]
+    with SimulatedCamera("cam0") as cam:
+        assert model.model_validate(cam.settings()).exposure_s == cam.exposure_s
+    for bad in ({"exposure_s": -1.0}, {"trigger_mode": "sometimes"}, {"no_such": 1},
+                {"binning": 0}):
+        with pytest.raises(pydantic.ValidationError):
+            model.model_validate(bad)
+    slm = settings_model(Slm)
+    with pytest.raises(pydantic.ValidationError):
+        slm.model_validate({"settle_s": 61.0})  # the declared 60 s limit, in one place
+    assert slm.model_validate({"settle_s": 60.0}).settle_s == 60.0
+    stage = settings_model(SimulatedStage)
+    assert stage.model_validate({"velocity": {"x": 2.0}}).velocity == {"x": 2.0}
+    with pytest.raises(pydantic.ValidationError):
+        stage.model_validate({"velocity": {"x": 0.0}})
+    assert "temperature_c" not in settings_model(_CappedGain).model_fields  # read-only
