@@ -119,7 +119,7 @@ def test_target_psnr_rises_and_beats_the_baselines(quick):
         assert psnr[-1] > bl["zero_volume"]["psnr"] + 0.5
         assert pts[-1]["ssim"] > bl["back_projection"]["ssim"]
         secs = [p["seconds"] for p in pts]
-        assert all(s > 0 for s in secs) and secs == sorted(secs)
+        assert all(s > 0 for s in secs)  # timed separately: no order on a shared machine
 
 
 def test_sweep_speed_conditioning_and_files(quick):
