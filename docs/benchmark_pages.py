@@ -2,7 +2,7 @@
 
 Each directory under ``docs/benchmarks/results/`` is the ``--out`` directory of one
 ``diffuserlab benchmark recon`` run; :func:`recon.benchmarks.report.markdown_page`
-turns it into ``docs/benchmarks/<name>.md`` when the build starts (those files are
+turns it into ``docs/benchmarks/run-<name>.md`` when the build starts (those files are
 generated, not kept in git).
 """
 
@@ -18,7 +18,7 @@ def _generate(app) -> None:
             title = (run / "TITLE").read_text().strip() if (run / "TITLE").is_file() \
                 else f"Benchmarks: {run.name}"
             page = markdown_page(run, title, figures_prefix=f"results/{run.name}/")
-            target = here / f"{run.name}.md"
+            target = here / f"run-{run.name}.md"
             if not target.is_file() or target.read_text() != page:
                 target.write_text(page)
 
