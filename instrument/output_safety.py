@@ -19,8 +19,6 @@ from pathlib import Path
 
 from diffuserlab.errors import InputError
 
-from .runstore import is_run_store
-
 __all__ = ["OutputError", "checked_outputs", "check_outputs"]
 
 log = logging.getLogger(__name__)
@@ -122,6 +120,8 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
                               "directory name")
         folders[d] = f"{option} {directory}"
     seen: dict[Path, str] = {}
+    from .runstore import is_run_store  # zarr: not loaded by the command line's start
+
     for out in outputs:
         target = _resolved(out)
         if target in seen:

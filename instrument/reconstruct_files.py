@@ -110,17 +110,20 @@ def load_psf(psf_path: str, depth_mm: float | None,
 
 
 def dark_level(text: str, option: str = "--dark"):
-    """The dark level of a ``--dark`` option: a number (DN) or a ``calibrate dark`` run.
+    """The dark level of a ``--dark`` option: a number (DN), a ``calibrate dark`` run or
+    a dark image (TIFF, PNG, ``.npy``: a frame taken with the light blocked).
 
     Returns
     -------
     float or ndarray
-        The level in DN, or the run's ``dark_mean`` frame, (rows, cols) float32.
+        The level in DN, or the run's ``dark_mean`` frame or the image, (rows, cols)
+        float32.
 
     Raises
     ------
     recon.errors.ReconInputError
-        A negative or non-finite number, or a path that is not a run with a dark frame.
+        A negative or non-finite number, a run without a dark frame, or an unreadable
+        image.
     """
     from recon.errors import ReconInputError
 
@@ -129,6 +132,10 @@ def dark_level(text: str, option: str = "--dark"):
     try:
         level = float(text)
     except ValueError:
+        if Path(text).is_file():  # a dark image
+            from recon.io import load_image
+
+            return np.asarray(load_image(text), np.float32)
         try:
             dark, _ = RunStore.open(text).product("dark_mean")
         except RunStoreError as exc:

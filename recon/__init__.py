@@ -12,6 +12,8 @@ command line's ``--help`` and its commands that do not reconstruct start fast.
 
 from typing import TYPE_CHECKING
 
+from diffuserlab.lazy import lazy_attributes
+
 __all__ = ["Reconstruction", "VolumeReconstruction", "reconstruct", "reconstruct_volume"]
 
 _LAZY = {"Reconstruction": ".api", "reconstruct": ".api",
@@ -22,15 +24,4 @@ if TYPE_CHECKING:  # pragma: no cover
     from .volume.api import VolumeReconstruction, reconstruct_volume
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        import importlib
-
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_attributes(__name__, _LAZY, globals(), __all__)

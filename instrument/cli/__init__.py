@@ -220,7 +220,6 @@ def main(argv: list[str] | None = None) -> int:
     """
     from diffuserlab.errors import InputError
 
-    from ..bench_setup import BenchOpenError
     from .interrupts import exit_status, terminate_like_ctrl_c
 
     try:
@@ -244,26 +243,41 @@ def main(argv: list[str] | None = None) -> int:
     checked_outputs(reset=True)
     with terminate_like_ctrl_c() as received, warnings.catch_warnings():
         warnings.showwarning = _warning_as_log_record
-        status = _dispatch(args, input_errors, BenchOpenError)
+        status = _dispatch(args, input_errors)
     if received and status == exit_status(KeyboardInterrupt()):
         status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
     return status
 
 
-def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: type) -> int:
+class _NeverRaised(Exception):
+    """Stands for an exception class whose module the command never imported."""
+
+
+def _raised_class(module: str, name: str) -> type[BaseException]:
+    """The exception class ``module.name`` when the command imported ``module``, else
+    :class:`_NeverRaised`: a module never imported raised nothing, and importing it
+    only to catch its error would load pydantic (the bench models) into commands
+    that never read a bench file (``runs show``, ``recon``, ...)."""
+    loaded = sys.modules.get(module)
+    return _NeverRaised if loaded is None else getattr(loaded, name)
+
+
+def _dispatch(args: argparse.Namespace, input_errors: tuple) -> int:
     """Run ``args.handler`` inside the error boundary of :func:`main`; its status."""
     from drivers.errors import DeviceError, DeviceValueError, MissingDependencyError
     from recon.errors import DivergenceError
 
-    from ..config import BenchConfigError
     from .interrupts import exit_status
 
+    # the bench's error classes are looked up when an exception reaches their clause
+    # (an except clause's expression is evaluated then), after the handler ran
     try:
         return int(args.handler(args) or 0)
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP not handled by the command
         print(f"diffuserlab: interrupted ({str(exc) or 'Ctrl-C'})", file=sys.stderr)
         return exit_status(exc)
-    except bench_open_error as exc:  # a device missing or unplugged: the bench, not a bug
+    except _raised_class("instrument.bench_setup", "BenchOpenError") as exc:  # a device
+        # missing or unplugged: the bench, not a bug
         fix = ("fix that value in the bench file (diffuserlab validate BENCH.toml lists every "
                "problem)" if isinstance(exc.__cause__, DeviceValueError) else
                "check that the device is connected and powered (diffuserlab devices "
@@ -271,7 +285,8 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: t
         print(f"diffuserlab: error: cannot open the bench: {_one_line(exc)}; {fix}",
               file=sys.stderr)
         return 2
-    except BenchConfigError as exc:  # one line per problem of the bench file
+    except _raised_class("instrument.config.problems", "BenchConfigError") as exc:  # one
+        # line per problem of the bench file
         for line in exc.lines():
             print(f"diffuserlab: error: {line}", file=sys.stderr)
         return 2

@@ -40,13 +40,15 @@ import json
 import logging
 import math
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from diffuserlab.errors import InputError
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 
 from .common import floats
+
+if TYPE_CHECKING:  # pragma: no cover  (numpy is imported where the analyses run)
+    import numpy as np
 
 __all__ = ["ANALYSES", "add_subcommands", "run", "run_analysis"]
 
@@ -216,6 +218,8 @@ def _figure(n_panels: int):
 
 
 def _resolution(args, stack, z, header) -> tuple[dict, object, list[str]]:
+    import numpy as np
+
     from recon.analysis import autocorrelation, resolution_per_depth
 
     _need(args, "pitch_um", "d_mm")
@@ -268,6 +272,8 @@ def _resolution(args, stack, z, header) -> tuple[dict, object, list[str]]:
 
 
 def _similarity(args, stack, z, header):
+    import numpy as np
+
     from recon.analysis import stack_similarity
 
     s = stack_similarity(stack, z, index=args.index)
@@ -321,6 +327,8 @@ def _psf_at(args, stack, z) -> tuple[np.ndarray, float]:
 
 def _condition_axial(args, stack, z, header):
     """``analyze condition --axial``: sources across depth planes (Fig. 4.5 axially)."""
+    import numpy as np
+
     from recon.analysis import axial_condition
 
     steps = floats(args.separations_planes, "--separations-planes")
@@ -354,6 +362,8 @@ def _condition_axial(args, stack, z, header):
 
 
 def _condition(args, stack, z, header):
+    import numpy as np
+
     from recon.analysis import lateral_condition, lateral_resolution_object_mm
 
     if args.k_max < 2:
@@ -443,6 +453,8 @@ def _grid(args, stack, z, header):
 
 
 def _fov(args, stack, z, header):
+    import numpy as np
+
     from recon.analysis import field_of_view
 
     _need(args, "pitch_um", "d_mm", "alpha_c_deg")

@@ -20,10 +20,8 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
-
 from diffuserlab.errors import InputError
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 
 from .common import floats
 
@@ -153,6 +151,7 @@ def run_design(args: argparse.Namespace) -> int:
 def _plot(design, result):
     """Fig. 6.4a-style plot: lateral and axial resolution vs depth (mean, range over
     the field positions), the ghost inner product, and the on-axis PSF."""
+    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -36,17 +36,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReconInputError
+from ..options import BENCHMARKS  # the benchmarks, in the order they run
 from . import DEFAULT_WEIGHTS, METHODS, fmt, machine_record, write_json
 
 __all__ = ["BENCHMARKS", "format_result", "run_benchmarks", "summarise"]
 
 log = logging.getLogger(__name__)
 
-#: The benchmarks, in the order they run.
-BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
-              "volume_accuracy", "spatial_speed", "spatial_accuracy", "spatial_far",
-              "blind_calibration", "auto", "failure_maps", "failure_map_3d", "volume_auto",
-              "volume_external")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
