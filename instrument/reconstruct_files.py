@@ -109,6 +109,17 @@ def load_psf(psf_path: str, depth_mm: float | None,
     return psf, depth
 
 
+def frames_dark_text(dark) -> str | None:
+    """A frames' ``--dark`` (``recon-run``, ``capture live``) as :func:`dark_level` takes
+    it: None for ``auto`` (or None: the level is found elsewhere), ``"0"`` for ``none``
+    (the frames are dark-subtracted), else the text (a level in DN, a dark run or image).
+    """
+    if dark is None:
+        return None
+    key = str(dark).strip().lower()
+    return None if key == "auto" else "0" if key == "none" else str(dark)
+
+
 def dark_level(text: str, option: str = "--dark"):
     """The dark level of a ``--dark`` option: a number (DN), a ``calibrate dark`` run or
     a dark image (TIFF, PNG, ``.npy``: a frame taken with the light blocked).

@@ -14,9 +14,9 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["AUTO", "BACKGROUNDS", "BENCHMARKS", "GRID_L1", "GRID_METHODS", "HOLOGRAM_METHODS",
-           "METHODS", "METHOD_SUMMARIES", "MODELS", "NONE", "VOLUME_METHODS", "DarkOption",
-           "dark_arg", "weight_arg"]
+__all__ = ["AUTO", "BACKGROUNDS", "BENCHMARKS", "DarkOption", "GRID_L1", "GRID_METHODS",
+           "HOLOGRAM_METHODS", "L1_DEFAULT", "METHODS", "METHOD_SUMMARIES", "MODELS", "NONE",
+           "Unset", "VOLUME_METHODS", "dark_arg", "l1_given", "weight_arg"]
 
 #: The value that asks for an automatic choice (``method``, ``tv``, ``l1``, ``dark``).
 AUTO = "auto"
@@ -51,6 +51,28 @@ BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
               "volume_accuracy", "spatial_speed", "spatial_accuracy", "spatial_far",
               "blind_calibration", "auto", "failure_maps", "failure_map_3d", "volume_auto",
               "volume_external")
+
+
+class Unset(float):
+    """A flag's numeric default that also says the flag was not given: ``--l1`` is 0 for
+    one PSF, while FISTA on a PSF grid takes its own default (:data:`GRID_L1`, Eq. 6.2).
+    """
+
+    __slots__ = ()
+
+
+#: ``--l1``'s default: 0, unless the model has its own (:func:`l1_given`).
+L1_DEFAULT = Unset(0.0)
+
+
+def l1_given(value):
+    """``--l1`` as given, or None when it was not (the model's own default then).
+
+    Returns
+    -------
+    float, "auto" or None
+    """
+    return None if isinstance(value, Unset) else value
 
 
 def weight_arg(text: str):

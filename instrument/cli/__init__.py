@@ -32,6 +32,8 @@ import logging
 import sys
 import warnings
 
+from diffuserlab.errors import DiffuserLabError
+
 try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C may come
     from . import (
         analyze,
@@ -249,8 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     return status
 
 
-class _NeverRaised(Exception):
-    """Stands for an exception class whose module the command never imported."""
+class _NeverRaised(DiffuserLabError):
+    """Stands for an exception class whose module the command never imported (never
+    raised)."""
 
 
 def _raised_class(module: str, name: str) -> type[BaseException]:

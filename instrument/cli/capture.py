@@ -183,9 +183,9 @@ def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
     the PSF's corner like ``recon`` (a plain PSF image, no --dark)."""
     from recon.errors import ReconInputError
 
-    from .recon_flags import dark_for_frames
+    from ..reconstruct_files import dark_level, frames_dark_text
 
-    dark = dark_for_frames(args.dark)
+    dark = frames_dark_text(args.dark)
     if dark is None:
         if args.simulate:
             return float(cam.dark_offset_dn)
@@ -195,8 +195,6 @@ def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
                 "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
                 "calibrate dark)")
         return None
-    from ..reconstruct_files import dark_level
-
     return dark_level(dark)
 
 

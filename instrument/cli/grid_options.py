@@ -55,7 +55,7 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
 
 def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     """Run a ``--psf-grid`` reconstruction and print its summary line."""
-    from recon.options import GRID_METHODS
+    from recon.options import GRID_METHODS, l1_given
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, volume_output_paths
@@ -77,7 +77,7 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     inputs = {f"--psf-grid {p}": p for p in args.psf_grid}
     check_outputs(outputs, {**inputs, "--raw": args.raw}, args.overwrite)
     m = run_recon_grid(args.psf_grid, args.raw, model=args.model, k=args.pca_k,
-                       background=args.background, l1=args.l1,
+                       background=args.background, l1=l1_given(args.l1),
                        iterations=args.iterations, out=args.out,
                        metrics_json=args.metrics_json, depths_mm=depths,
                        bin_factor=args.bin_factor, dark=dark, volume=volume,

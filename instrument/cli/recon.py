@@ -13,7 +13,7 @@ __all__ = ["add_subcommands", "choice_lines", "run", "summary_line"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.options import METHOD_SUMMARIES, METHODS, weight_arg
+    from recon.options import L1_DEFAULT, METHOD_SUMMARIES, METHODS, weight_arg
 
     from .recon_flags import L1_HELP, TV_HELP, add_dark_option
 
@@ -44,7 +44,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
                     help="box-binning factor, pixels per side (4: 1200x1600 -> 300x400)")
     rp.add_argument("--tv", type=weight_arg, default="auto", help=TV_HELP)
-    rp.add_argument("--l1", type=weight_arg, default=None, help=L1_HELP)
+    rp.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
     rp.add_argument("--erase", type=float, default=0.0,
                     help="fraction (0-1) of raw pixels to erase at random (compressed sensing)")
     rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
@@ -95,6 +95,8 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
+    from recon.options import l1_given
+
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, run_recon
     from .recon_flags import dark_for_image
@@ -115,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
                   bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,
                   depth_mm=args.depth_mm, psf_product=args.psf_product,
-                  l1=0.0 if args.l1 is None else args.l1,
+                  l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
                   seconds=args.seconds, allow_mixed_ranges=args.allow_mixed_ranges, dark=dark)
     for line in choice_lines(m):
         print(line)

@@ -34,7 +34,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         :func:`run` without naming the command; bad option values raise
         :class:`diffuserlab.errors.InputError` (exit 2).
     """
-    from recon.options import VOLUME_METHODS, weight_arg
+    from recon.options import L1_DEFAULT, VOLUME_METHODS, weight_arg
 
     from .recon_flags import L1_HELP, add_dark_option
 
@@ -60,7 +60,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--empty-planes", choices=("keep", "drop"), default="keep",
                    help="with an automatic weight: keep every plane (default) or set those "
                    "that show no signal in the held-out pixels to zero (reported)")
-    p.add_argument("--l1", type=weight_arg, default=None, help=L1_HELP)
+    p.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
                    help="lateral box binning of every plane and of the raw image, pixels per "
                    "side")
@@ -107,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
     """Run ``recon3d`` (:func:`instrument.reconstruct_files.run_recon3d`) and print its
     summary line; returns 0 (bad input exits 2 and divergence 3 through
     :func:`instrument.cli.main`)."""
+    from recon.options import l1_given
+
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
     from .recon_flags import dark_for_volume
@@ -123,7 +125,8 @@ def run(args: argparse.Namespace) -> int:
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
     m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
-                    tv=args.tv, l1=0.0 if args.l1 is None else args.l1, out=args.out,
+                    tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
+                    out=args.out,
                     depths_mm=depths,
                     bin_factor=args.bin_factor, dark=dark,
                     psf_product=args.psf_product, metrics_json=args.metrics_json,

@@ -18,7 +18,7 @@ import sys
 from diffuserlab.errors import InputError
 
 __all__ = ["DARK_FORMS", "FRAMES_AUTO", "FRAMES_FRAME", "L1_HELP", "TV_HELP", "DeprecatedAlias",
-           "add_dark_option", "add_deprecated", "dark_for_frames", "dark_for_grid",
+           "add_dark_option", "add_deprecated", "dark_for_grid",
            "dark_for_image", "dark_for_volume", "grid_method"]
 
 #: ``--tv`` of every reconstruction command.
@@ -132,16 +132,6 @@ def dark_for_grid(dark) -> float:
     """
     _refuse_frame(dark, "--psf-grid")
     return 0.0 if dark.auto or dark.none else dark.level
-
-
-def dark_for_frames(dark) -> str | None:
-    """``--dark`` of ``recon-run`` and ``capture live`` as :func:`instrument.batch.batch_psf`
-    and :func:`instrument.reconstruct_files.dark_level` take it: None (auto: the
-    simulated camera's offset, or the PSF's corner for a plain PSF image), ``"0"``
-    (none) or the text (a level in DN, a dark run or a dark image)."""
-    if dark.auto:
-        return None
-    return "0" if dark.none else str(dark)
 
 
 def grid_method(method: str, allowed: tuple[str, ...]) -> str:

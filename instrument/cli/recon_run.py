@@ -35,7 +35,7 @@ __all__ = ["add_subcommands", "run"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.options import METHODS, weight_arg
+    from recon.options import L1_DEFAULT, METHODS, weight_arg
 
     from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, L1_HELP, TV_HELP, add_dark_option
 
@@ -59,7 +59,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--iterations", type=int, default=200,
                     help="maximum iterations per frame, as for `recon` (default 200)")
     rp.add_argument("--tv", type=weight_arg, default="auto", help=TV_HELP)
-    rp.add_argument("--l1", type=weight_arg, default=None, help=L1_HELP)
+    rp.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
                     help="box-binning factor, pixels per side")
     add_dark_option(rp, auto=FRAMES_AUTO, frame=FRAMES_FRAME)
@@ -91,11 +91,10 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from recon.errors import ReconInputError
-    from recon.options import GRID_L1
+    from recon.options import GRID_L1, l1_given
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
     from ..runstore import RunStore
-    from .recon_flags import dark_for_frames
 
     if args.iterations < 1:
         raise ReconInputError(f"--iterations {args.iterations}: give a whole number >= 1")
@@ -108,8 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if args.dff is not None and not 0 <= args.dff <= 100:
         raise ReconInputError(f"--dff {args.dff}: give a percentile in [0, 100] (e.g. 20)")
     for option, value in (("--tv", args.tv), ("--l1", args.l1)):
-        if value is not None and not isinstance(value, str) and not (
-                value >= 0 and math.isfinite(value)):
+        if not isinstance(value, str) and not (value >= 0 and math.isfinite(value)):
             raise ReconInputError(f"{option} {value}: give a finite weight >= 0 or auto")
     if (args.psf is None) == (args.psf_grid is None):
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
@@ -120,8 +118,7 @@ def run(args: argparse.Namespace) -> int:
         psf, dark, source, how = _grid(args, store)
     else:
         psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
-                                      psf_product=args.psf_product,
-                                      dark=dark_for_frames(args.dark))
+                                      psf_product=args.psf_product, dark=args.dark)
         how = f"{args.method} x{args.iterations}"
     name = args.product or (psf.product_name if args.psf_grid else f"recon_{args.method}")
     which = ("the stored frames" if frames is None
@@ -142,11 +139,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         out = reconstruct_run(
             args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
-            l1=0.0 if args.l1 is None else args.l1,
+            l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
             bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
             workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
             overwrite=args.overwrite, psf_source=source, background=args.background,
-            grid_l1=GRID_L1 if args.l1 is None else args.l1, on_progress=progress, cancel=cancel)
+            grid_l1=GRID_L1 if l1_given(args.l1) is None else args.l1, on_progress=progress,
+            cancel=cancel)
     except KeyboardInterrupt:
         for bar in bars:
             bar.close()
@@ -177,7 +175,7 @@ def _grid(args: argparse.Namespace, store):
 
     from ..batch import frames_dark_level
     from ..batch_grid import prepare_grid_batch
-    from .recon_flags import dark_for_frames, grid_method
+    from .recon_flags import grid_method
 
     if len(args.psf_grid) > 1:
         raise ReconInputError("recon-run reconstructs images: give one --psf-grid run (one "
@@ -189,7 +187,7 @@ def _grid(args: argparse.Namespace, store):
     path = args.psf_grid[0]
     prepared = prepare_grid_batch(path, store.frame_shape, model=args.model, k=args.pca_k,
                                   bin_factor=args.bin_factor)
-    dark = frames_dark_level(dark_for_frames(args.dark), store.attrs, f"--psf-grid {path} holds "
+    dark = frames_dark_level(args.dark, store.attrs, f"--psf-grid {path} holds "
                              "dark-subtracted PSFs")
     c = prepared.choice
     how = (f"{c.label()} model ({prepared.operator.n_kernels} convolutions per apply; "

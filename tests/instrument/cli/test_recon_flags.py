@@ -14,13 +14,13 @@ import tifffile
 from diffuserlab.errors import InputError
 from instrument.cli import build_parser, main
 from instrument.cli.recon_flags import (
-    dark_for_frames,
     dark_for_grid,
     dark_for_image,
     dark_for_volume,
     grid_method,
 )
-from recon.options import dark_arg
+from instrument.reconstruct_files import frames_dark_text
+from recon.options import dark_arg, l1_given
 
 #: Each command's argv without --dark (the parser only: nothing runs).
 COMMANDS = {
@@ -53,7 +53,9 @@ def test_a_negative_dark_is_a_usage_error(command, capsys):
 @pytest.mark.parametrize("command", ["recon", "recon3d", "recon-run"])
 def test_l1_default_is_left_to_the_model(command):
     """No --l1: 0 for one PSF, 1e-3 for FISTA on a grid (resolved where the model is known)."""
-    assert build_parser().parse_args(COMMANDS[command]).l1 is None
+    l1 = build_parser().parse_args(COMMANDS[command]).l1
+    assert l1 == 0.0 and l1_given(l1) is None
+    assert l1_given(build_parser().parse_args([*COMMANDS[command], "--l1", "0"]).l1) == 0.0
 
 
 def test_the_grid_twins_are_deprecated_aliases(capsys):
@@ -89,7 +91,7 @@ def test_dark_conversions(tmp_path):
     assert dark_for_image(dark_arg("none")) == "none" and dark_for_image(dark_arg("3")) == 3.0
     assert [dark_for_volume(dark_arg(t)) for t in ("auto", "none", "4")] == ["auto", "none", 4.0]
     assert [dark_for_grid(dark_arg(t)) for t in ("auto", "none", "4")] == [0.0, 0.0, 4.0]
-    assert [dark_for_frames(dark_arg(t)) for t in ("auto", "none", "4")] == [None, "0", "4"]
+    assert [frames_dark_text(dark_arg(t)) for t in ("auto", "none", "4")] == [None, "0", "4"]
     for refuse in (dark_for_volume, dark_for_grid):
         with pytest.raises(InputError, match="use auto, none or a number"):
             refuse(image)
