@@ -15,7 +15,7 @@ Hooks every driver implements (called only while open, except ``_do_open``):
 ``_do_get_info() -> Mapping``
     Fixed properties read once per open (sensor shape, axes, geometry, ...).
 ``_do_get_settings() -> Mapping``
-    The device's current value of every name in ``_SETTINGS``.
+    The device's current value of every setting the kind declares (``SETTINGS``).
 ``_do_apply(name, value) -> value | None``
     Send one validated setting; return the value the device actually took
     (read back) or None when it took ``value`` as given.
@@ -45,6 +45,7 @@ from drivers.errors import (
     DeviceTimeoutError,
     DeviceValueError,
 )
+from drivers.settings import Setting
 
 __all__ = ["Device", "jsonable"]
 
@@ -105,8 +106,48 @@ class Device(abc.ABC):
     kind: ClassVar[str] = "device"
     #: Exception raised when a blocking call of this kind times out.
     timeout_error: ClassVar[type[DeviceTimeoutError]] = DeviceTimeoutError
-    #: Settable properties, in the order :meth:`apply_settings` applies them.
+    #: The settings, declared once (:class:`~drivers.settings.Setting`), in the order
+    #: :meth:`apply_settings` applies them; validation, :meth:`setting_specs` and the
+    #: documentation's tables come from it. A driver may extend or narrow its kind's
+    #: table (:func:`~drivers.settings.with_settings`).
+    SETTINGS: ClassVar[tuple[Setting, ...]] = ()
+    #: Names of the writable settings, in order (derived from ``SETTINGS``).
     _SETTINGS: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "SETTINGS" in cls.__dict__:
+            names = [s.name for s in cls.SETTINGS]
+            if len(set(names)) != len(names):
+                raise TypeError(f"{cls.__name__}.SETTINGS declares a name twice: {names}")
+            cls._SETTINGS = tuple(s.name for s in cls.SETTINGS if not s.read_only)
+            cls._SPECS = {s.name: s for s in cls.SETTINGS}
+
+    _SPECS: ClassVar[dict[str, Setting]] = {}
+
+    @classmethod
+    def setting(cls, name: str) -> Setting:
+        """The declaration of setting ``name`` (KeyError if the class has none)."""
+        return cls._SPECS[name]
+
+    @classmethod
+    def setting_specs(cls, info: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+        """The declared settings, machine-readable, in the order of application.
+
+        Parameters
+        ----------
+        info : Mapping, optional
+            An open device's :attr:`info` (``device.setting_specs(device.info)``):
+            limits and choices are then numbers and lists; without it they name the
+            info entries they come from.
+
+        Returns
+        -------
+        list of dict
+            One :meth:`~drivers.settings.Setting.describe` per setting (name, dtype,
+            unit, description, limits, read-only, ...).
+        """
+        return [jsonable(s.describe(info)) for s in cls.SETTINGS]
 
     def __init__(self, device_id: str, **params: Any) -> None:
         if not isinstance(device_id, str) or not device_id.strip():
@@ -273,6 +314,12 @@ class Device(abc.ABC):
                 DeviceValueError, f"settings must be a mapping, got {type(settings).__name__}",
                 "pass a dict such as the one settings() returns",
             )
+        read_only = sorted(n for n in settings if n in self._SPECS and self._SPECS[n].read_only)
+        if read_only:
+            raise self._error(
+                DeviceValueError, f"settings {read_only} are read-only on this device",
+                f"leave them out; settable are {list(self._SETTINGS)}",
+            )
         unknown = sorted(set(settings) - set(self._SETTINGS))
         if unknown:
             raise self._error(
@@ -298,8 +345,13 @@ class Device(abc.ABC):
 
     def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
         """Return ``value`` normalised, or raise DeviceValueError. ``pending`` holds the
-        settings as they will be once the names before ``name`` are applied."""
-        return value
+        settings as they will be once the names before ``name`` are applied.
+
+        Checks the declaration (:meth:`~drivers.settings.Setting.validate`); a kind or
+        driver overrides it only for what one setting cannot say (a camera's stream
+        lock, a driver's hardware restriction), calling this first or after."""
+        spec = self._SPECS.get(name)
+        return value if spec is None else spec.validate(self, value, pending)
 
     def _check_settings(self, pending: dict[str, Any]) -> None:  # noqa: B027 (optional hook)
         """Check constraints between settings (raise DeviceValueError)."""

@@ -33,6 +33,7 @@ import numpy as np
 
 from drivers.base import Device
 from drivers.errors import CameraTimeoutError, DeviceError, DeviceStateError, DeviceValueError
+from drivers.settings import Setting, info
 
 __all__ = ["EXTRA_FORMATS", "PIXEL_FORMATS", "TRIGGER_MODES", "Camera", "Frame", "FrameRing",
            "format_bits"]
@@ -230,6 +231,29 @@ class FrameRing:
             self._pump = pump
 
 
+_LOCKED = frozenset({"stream_locked"})  # a setting the camera refuses while streaming
+
+
+def _check_roi(device: Device, label: str, value: Any, low: Any, high: Any
+               ) -> tuple[int, int, int, int]:
+    """The ``roi`` setting as ``(x, y, width, height)`` within the sensor (None: all)."""
+    rows, cols = device._info["sensor_shape"]
+    if value is None:
+        return (0, 0, int(cols), int(rows))
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence | np.ndarray) or (
+        len(value) != 4
+    ):
+        raise device._error(
+            DeviceValueError, f"roi={value!r} is not (x, y, width, height)",
+            "pass four integers in sensor pixels, or None for the full sensor",
+        )
+    x = device._int("roi x", value[0], low=0, high=cols - 1)
+    y = device._int("roi y", value[1], low=0, high=rows - 1)
+    w = device._int("roi width", value[2], low=1, high=cols - x)
+    h = device._int("roi height", value[3], low=1, high=rows - y)
+    return (x, y, w, h)
+
+
 class Camera(Device):
     """Abstract camera: validated settings, snap, streaming into a :class:`FrameRing`.
 
@@ -253,9 +277,26 @@ class Camera(Device):
 
     kind: ClassVar[str] = "camera"
     timeout_error = CameraTimeoutError
-    _SETTINGS = ("pixel_format", "roi", "binning", "exposure_s", "frame_rate_hz", "gain",
-                 "trigger_mode")
-    _STREAM_LOCKED = frozenset({"pixel_format", "roi", "binning", "trigger_mode"})
+    SETTINGS = (
+        Setting("pixel_format", "str", description="pixel format of the images (see the "
+                "camera module's conventions)", tags=_LOCKED,
+                choices=info("pixel_formats", transform=lambda formats: [
+                    p for p in formats if p in _ALL_FORMATS])),
+        Setting("roi", "int[4]", "px", "region of interest (x, y, width, height) in unbinned "
+                "sensor pixels; null sets the full sensor", tags=_LOCKED, check=_check_roi,
+                bounds="within {sensor_shape[1]} x {sensor_shape[0]} px"),
+        Setting("binning", "int", "", "binning factor, the same along rows and columns",
+                low=1, high=info("max_binning"), tags=_LOCKED),
+        Setting("exposure_s", "float", "s", "exposure time", positive=True,
+                low=info("exposure_range_s[0]"), high=info("exposure_range_s[1]")),
+        Setting("frame_rate_hz", "float", "Hz", "requested free-run frame rate (a long "
+                "exposure lowers the rate the camera runs at)", positive=True,
+                low=info("frame_rate_range_hz[0]"), high=info("frame_rate_range_hz[1]")),
+        Setting("gain", "float", "dB", "analog gain (0 dB: the sensor's native conversion "
+                "gain)", low=0.0, high=info("gain_range_db[1]")),
+        Setting("trigger_mode", "str", description="free_run, software (trigger()) or "
+                "hardware (an external pulse)", choices=TRIGGER_MODES, tags=_LOCKED),
+    )
 
     def __init__(self, device_id: str, **params: Any) -> None:
         super().__init__(device_id, **params)
@@ -371,48 +412,14 @@ class Camera(Device):
         return (h // b, w // b, 3) if self.pixel_format.startswith("rgb") else (h // b, w // b)
 
     def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
-        info = self._info
-        if name == "exposure_s":
-            lo, hi = info["exposure_range_s"]
-            v = self._float(name, value, low=0.0, low_open=True)
-            v = self._float(name, v, low=lo, high=hi)
-        elif name == "frame_rate_hz":
-            lo, hi = info["frame_rate_range_hz"]
-            v = self._float(name, value, low=0.0, low_open=True)
-            v = self._float(name, v, low=lo, high=hi)
-        elif name == "gain":
-            v = self._float(name, value, low=0.0, high=float(info["gain_range_db"][1]))
-        elif name == "pixel_format":
-            v = self._choice(name, value, [p for p in info["pixel_formats"] if p in _ALL_FORMATS])
-        elif name == "trigger_mode":
-            v = self._choice(name, value, TRIGGER_MODES)
-        elif name == "binning":
-            v = self._int(name, value, low=1, high=int(info["max_binning"]))
-        else:
-            v = self._validate_roi(value)
-        if self._streaming and name in self._STREAM_LOCKED and v != self._values[name]:
+        v = super()._validate_setting(name, value, pending)
+        if self._streaming and "stream_locked" in self._SPECS[name].tags and (
+                v != self._values[name]):
             raise self._error(
                 DeviceStateError, f"cannot change {name} while streaming",
                 "call stop_stream() first",
             )
         return v
-
-    def _validate_roi(self, value: Any) -> tuple[int, int, int, int]:
-        rows, cols = self._info["sensor_shape"]
-        if value is None:
-            return (0, 0, int(cols), int(rows))
-        if isinstance(value, str | bytes) or not isinstance(value, Sequence | np.ndarray) or (
-            len(value) != 4
-        ):
-            raise self._error(
-                DeviceValueError, f"roi={value!r} is not (x, y, width, height)",
-                "pass four integers in sensor pixels, or None for the full sensor",
-            )
-        x = self._int("roi x", value[0], low=0, high=cols - 1)
-        y = self._int("roi y", value[1], low=0, high=rows - 1)
-        w = self._int("roi width", value[2], low=1, high=cols - x)
-        h = self._int("roi height", value[3], low=1, high=rows - y)
-        return (x, y, w, h)
 
     def _check_settings(self, pending: dict[str, Any]) -> None:
         x, y, w, h = pending["roi"]

@@ -33,6 +33,7 @@ from typing import Any, ClassVar
 
 from drivers.base import Device
 from drivers.errors import DeviceStateError, DeviceValueError, DmdTimeoutError
+from drivers.settings import Setting
 
 __all__ = ["Dmd", "PatternEntry"]
 
@@ -68,7 +69,14 @@ class Dmd(Device):
 
     kind: ClassVar[str] = "dmd"
     timeout_error = DmdTimeoutError
-    _SETTINGS = ("exposure_s", "period_s", "led_currents")
+    SETTINGS = (
+        Setting("exposure_s", "float", "s", "time each pattern is shown (<= period_s)",
+                low=0.0, low_open=True, high=10.0),
+        Setting("period_s", "float", "s", "time between patterns (>= exposure_s)",
+                low=0.0, low_open=True, high=10.0),
+        Setting("led_currents", "float", "", "LED current per colour, fraction of the "
+                "maximum", per="colours", key_name="colour", low=0.0, high=1.0),
+    )
 
     def __init__(self, device_id: str, **params: Any) -> None:
         super().__init__(device_id, **params)
@@ -117,19 +125,6 @@ class Dmd(Device):
     @led_currents.setter
     def led_currents(self, value: Mapping[str, float]) -> None:
         self._set("led_currents", value)
-
-    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
-        if name in ("exposure_s", "period_s"):
-            return self._float(name, value, low=0.0, low_open=True, high=10.0)
-        if not isinstance(value, Mapping):
-            raise self._error(DeviceValueError, f"led_currents={value!r} is not a mapping",
-                              f"pass {{colour: fraction}} with colours from "
-                              f"{list(self._info['colours'])}")
-        out = dict(pending["led_currents"])
-        for colour, v in value.items():
-            colour = self._choice("colour", colour, self._info["colours"])
-            out[colour] = self._float(f"led_currents[{colour}]", v, low=0.0, high=1.0)
-        return out
 
     def _check_settings(self, pending: dict[str, Any]) -> None:
         if pending["exposure_s"] > pending["period_s"]:

@@ -22,6 +22,8 @@ Hierarchy::
 
 from __future__ import annotations
 
+from diffuserlab.errors import DiffuserLabError
+
 __all__ = [
     "CameraTimeoutError",
     "DeviceDisconnectedError",
@@ -40,8 +42,8 @@ __all__ = [
 ]
 
 
-class DeviceError(Exception):
-    """Base class of every device error.
+class DeviceError(DiffuserLabError):
+    """Base class of every device error (a :class:`diffuserlab.errors.DiffuserLabError`).
 
     Parameters
     ----------

@@ -30,6 +30,7 @@ import numpy as np
 
 from drivers.base import Device
 from drivers.errors import DeviceValueError, LedArrayTimeoutError
+from drivers.settings import Setting, info
 
 __all__ = ["PATTERNS", "LedArray", "grid_positions"]
 
@@ -66,7 +67,14 @@ class LedArray(Device):
 
     kind: ClassVar[str] = "led_array"
     timeout_error = LedArrayTimeoutError
-    _SETTINGS = ("na_illum", "colour", "brightness")
+    SETTINGS = (
+        Setting("na_illum", "float", "", "default illumination NA of the patterns "
+                "(sin of the largest angle lit)", low=0.0, low_open=True, high=1.0),
+        Setting("colour", "str", "", "default colour of the patterns",
+                choices=info("colours")),
+        Setting("brightness", "float", "", "default brightness of the patterns, fraction "
+                "of full", low=0.0, high=1.0),
+    )
 
     def __init__(self, device_id: str, **params: Any) -> None:
         super().__init__(device_id, **params)
@@ -137,13 +145,6 @@ class LedArray(Device):
     @brightness.setter
     def brightness(self, value: float) -> None:
         self._set("brightness", value)
-
-    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
-        if name == "na_illum":
-            return self._float(name, value, low=0.0, low_open=True, high=1.0)
-        if name == "colour":
-            return self._choice(name, value, self._info["colours"])
-        return self._float(name, value, low=0.0, high=1.0)
 
     # ----------------------------------------------------------- patterns
     def pattern_indices(self, name: str, na: float | None = None) -> np.ndarray:

@@ -18,6 +18,7 @@ import numpy as np
 
 from drivers.base import Device
 from drivers.errors import DeviceValueError, SlmTimeoutError
+from drivers.settings import Setting
 
 __all__ = ["TWO_PI", "Slm", "linear_lut"]
 
@@ -30,6 +31,24 @@ def linear_lut(max_phase_rad: float = TWO_PI) -> np.ndarray:
     With the default the 256 levels tile [0, 2 pi) without repeating 0 and 2 pi.
     """
     return max_phase_rad * np.arange(256) / 256.0
+
+
+def _check_lut(device: Device, label: str, value: Any, low: Any, high: Any
+               ) -> tuple[float, ...]:
+    """The ``lut_rad`` setting: 256 finite, monotone, non-constant phases (rad)."""
+    try:
+        lut = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        lut = np.zeros(0)
+    d = np.diff(lut) if lut.shape == (256,) else np.zeros(0)
+    ok = lut.shape == (256,) and np.all(np.isfinite(lut))
+    ok = ok and (np.all(d >= 0) or np.all(d <= 0)) and np.ptp(lut) > 0
+    if not ok:
+        raise device._error(
+            DeviceValueError, "lut_rad is not 256 finite, monotone, non-constant phases",
+            "pass the calibrated phase (rad) of gray levels 0..255, e.g. linear_lut()",
+        )
+    return tuple(float(v) for v in lut)
 
 
 class Slm(Device):
@@ -46,7 +65,13 @@ class Slm(Device):
 
     kind: ClassVar[str] = "slm"
     timeout_error = SlmTimeoutError
-    _SETTINGS = ("lut_rad", "settle_s")
+    SETTINGS = (
+        Setting("lut_rad", "float[256]", "rad", "phase delay of each gray level 0..255 at "
+                "the device's wavelength (calibrated per device)", check=_check_lut,
+                bounds="256 finite, monotone, non-constant phases"),
+        Setting("settle_s", "float", "s", "time waited after each new image for the "
+                "liquid crystal to settle", low=0.0, high=60.0),
+    )
 
     def __init__(self, device_id: str, **params: Any) -> None:
         super().__init__(device_id, **params)
@@ -91,23 +116,6 @@ class Slm(Device):
     @settle_s.setter
     def settle_s(self, value: float) -> None:
         self._set("settle_s", value)
-
-    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
-        if name == "settle_s":
-            return self._float(name, value, low=0.0, high=60.0)
-        try:
-            lut = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            lut = np.zeros(0)
-        d = np.diff(lut) if lut.shape == (256,) else np.zeros(0)
-        ok = lut.shape == (256,) and np.all(np.isfinite(lut))
-        ok = ok and (np.all(d >= 0) or np.all(d <= 0)) and np.ptp(lut) > 0
-        if not ok:
-            raise self._error(
-                DeviceValueError, "lut_rad is not 256 finite, monotone, non-constant phases",
-                "pass the calibrated phase (rad) of gray levels 0..255, e.g. linear_lut()",
-            )
-        return tuple(float(v) for v in lut)
 
     # ----------------------------------------------------------- conversion
     def phase_to_gray(self, phase_rad: Any) -> np.ndarray:

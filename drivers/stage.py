@@ -26,6 +26,7 @@ from typing import Any, ClassVar
 
 from drivers.base import Device
 from drivers.errors import DeviceError, DeviceValueError, StageLimitError, StageTimeoutError
+from drivers.settings import Setting, info
 
 __all__ = ["AXIS_UNITS", "HostTableStage", "Stage"]
 
@@ -33,6 +34,27 @@ __all__ = ["AXIS_UNITS", "HostTableStage", "Stage"]
 AXIS_UNITS: dict[str, str] = {
     "x": "mm", "y": "mm", "z": "mm", "tip": "deg", "tilt": "deg", "rotation": "deg",
 }
+
+
+def _check_limits(device: Device, label: str, value: Any, low: float, high: float
+                  ) -> tuple[float, float]:
+    """One axis's soft limits ``(low, high)`` within its travel ``[low, high]``."""
+    if isinstance(value, str | bytes) or not hasattr(value, "__len__") or len(value) != 2:
+        raise device._error(
+            DeviceValueError, f"{label}={value!r} is not (low, high)",
+            f"pass two numbers within the travel [{low}, {high}]",
+        )
+    a = device._float(f"{label} low", value[0], low=low, high=high)
+    b = device._float(f"{label} high", value[1], low=low, high=high)
+    if not a < b:
+        raise device._error(
+            DeviceValueError, f"{label}=({a}, {b}) has low >= high", "give low < high",
+        )
+    return (a, b)
+
+
+def _span(travel: Any) -> float:
+    return float(travel[1]) - float(travel[0])
 
 
 class Stage(Device):
@@ -50,7 +72,21 @@ class Stage(Device):
 
     kind: ClassVar[str] = "stage"
     timeout_error = StageTimeoutError
-    _SETTINGS = ("limits", "velocity", "backlash")
+    SETTINGS = (
+        Setting("limits", "(float, float)", "{unit}", "soft limits (low, high) per axis, "
+                "within the travel; moves outside them are refused", per="axes",
+                key_name="axis", key_units=AXIS_UNITS, check=_check_limits,
+                low=info("axes.{key}.travel[0]"), high=info("axes.{key}.travel[1]")),
+        Setting("velocity", "float", "{unit}/s", "velocity per axis", per="axes",
+                key_name="axis", key_units=AXIS_UNITS, low=0.0, low_open=True,
+                high=info("axes.{key}.max_velocity")),
+        Setting("backlash", "float", "{unit}", "signed backlash overshoot per axis: moves "
+                "end travelling in its direction (0: off)", per="axes", key_name="axis",
+                key_units=AXIS_UNITS,
+                low=info("axes.{key}.travel", transform=lambda t: -_span(t),
+                         text="-(travel span)"),
+                high=info("axes.{key}.travel", transform=_span, text="travel span")),
+    )
 
     def __init__(self, device_id: str, **params: Any) -> None:
         super().__init__(device_id, **params)
@@ -104,40 +140,6 @@ class Stage(Device):
     def last_path(self) -> list[dict[str, float]]:
         """Commanded legs of the last move: absolute targets, in order."""
         return [dict(leg) for leg in self._last_path]
-
-    def _validate_setting(self, name: str, value: Any, pending: dict[str, Any]) -> Any:
-        if not isinstance(value, Mapping):
-            raise self._error(
-                DeviceValueError, f"{name}={value!r} is not a mapping of axis -> value",
-                f"pass e.g. {{'{next(iter(self._info['axes']))}': ...}}",
-            )
-        out = dict(pending[name])
-        for axis, v in value.items():
-            axis = self._axis(axis)
-            info = self._info["axes"][axis]
-            if name == "velocity":
-                out[axis] = self._float(
-                    f"velocity[{axis}]", v, low=0.0, low_open=True, high=info["max_velocity"]
-                )
-            elif name == "backlash":
-                lo, hi = info["travel"]
-                out[axis] = self._float(f"backlash[{axis}]", v, low=lo - hi, high=hi - lo)
-            else:
-                lo, hi = info["travel"]
-                if isinstance(v, str | bytes) or not hasattr(v, "__len__") or len(v) != 2:
-                    raise self._error(
-                        DeviceValueError, f"limits[{axis}]={v!r} is not (low, high)",
-                        f"pass two numbers within the travel [{lo}, {hi}]",
-                    )
-                a = self._float(f"limits[{axis}] low", v[0], low=lo, high=hi)
-                b = self._float(f"limits[{axis}] high", v[1], low=lo, high=hi)
-                if not a < b:
-                    raise self._error(
-                        DeviceValueError, f"limits[{axis}]=({a}, {b}) has low >= high",
-                        "give low < high",
-                    )
-                out[axis] = (a, b)
-        return out
 
     # ----------------------------------------------------------- state
     def position(self, axis: str) -> float:

@@ -48,6 +48,7 @@ from drivers.errors import (
     MissingDependencyError,
 )
 from drivers.grab_thread import GrabThread, report_stream_error
+from drivers.settings import with_settings
 
 __all__ = ["BY_ID_DIR", "V4l2Camera"]
 
@@ -124,6 +125,10 @@ class V4l2Camera(Camera):
     DeviceValueError
         A parameter is invalid, e.g. a ``/dev/videoN`` path.
     """
+
+    #: A UVC camera has no trigger input: the kind's trigger modes without "hardware".
+    SETTINGS = with_settings(Camera.SETTINGS, Camera.setting("trigger_mode").replace(
+        choices=("free_run", "software"), description="free_run or software (trigger())"))
 
     def __init__(
         self, device_id: str, *, device_path: str | None = None,
@@ -331,11 +336,10 @@ class V4l2Camera(Camera):
         if name == "gain" and value != 0 and self._db_per_unit is None:
             raise self._error(DeviceValueError, "gain is not mapped to dB for this camera",
                               "set params.gain_db_per_unit (and gain_max_units)")
-        v = super()._validate_setting(name, value, pending)
-        if name == "trigger_mode" and v == "hardware":
+        if name == "trigger_mode" and value == "hardware":  # named before the choices
             raise self._error(DeviceValueError, "a V4L2 (UVC) camera has no trigger input",
                               "use trigger_mode 'free_run' or 'software'")
-        return v
+        return super()._validate_setting(name, value, pending)
 
     def _do_apply(self, name: str, value: Any) -> Any:
         with self._state:  # frames are checked for staleness and labelled under it

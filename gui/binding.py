@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import sys
 
+from diffuserlab.errors import DiffuserLabError
+
 __all__ = ["BindingLeakError", "LEAK_LIMIT", "check_binding", "reference_drift"]
 
 #: Largest change of a reference count over the calls :func:`reference_drift` makes
@@ -26,7 +28,7 @@ __all__ = ["BindingLeakError", "LEAK_LIMIT", "check_binding", "reference_drift"]
 LEAK_LIMIT = 50
 
 
-class BindingLeakError(RuntimeError):
+class BindingLeakError(DiffuserLabError, RuntimeError):
     """The installed Qt binding releases references it does not own."""
 
 

@@ -299,9 +299,11 @@ def run_plan(job, session, plan, path: str, control, *, overwrite: bool = False)
 
 def resume_plan(job, session, path: str, control, *, accept_differences: bool = False):
     """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
-    import calibration_routines  # noqa: F401  (registers the plans for resume)
+    from calibration_routines import register_plans
     from instrument.runner import Runner
     from instrument.runstore import RunStore
+
+    register_plans()  # resuming rebuilds the plan from its recorded name
 
     store = RunStore.open(path)
 

@@ -26,6 +26,9 @@ from typing import Any
 
 from PySide6.QtCore import QObject, QTimer, Signal
 
+import diffuserlab.errors
+from diffuserlab.errors import DiffuserLabError
+
 __all__ = ["BACKGROUND_NICE", "HEAP_SETTLING_JOBS", "CameraBusy", "InputError", "Job",
            "readable_error", "settle_heap", "wait_until"]
 
@@ -39,11 +42,11 @@ log = logging.getLogger(__name__)
 BACKGROUND_NICE = 10
 
 
-class CameraBusy(RuntimeError):
+class CameraBusy(DiffuserLabError, RuntimeError):
     """Another job holds the camera (or no bench is connected); the message says which."""
 
 
-class InputError(ValueError):
+class InputError(diffuserlab.errors.InputError):
     """A value the operator typed into the GUI that it cannot use (the message names the
     field and what to type)."""
 
@@ -57,27 +60,11 @@ _ORDINARY_ERRNOS = frozenset({errno.ENOSPC, errno.EROFS, errno.EDQUOT, errno.EAC
 
 def _input_errors() -> tuple[type[BaseException], ...]:
     """The project's own exception types, whose message is written for the operator
-    (problem and fix). Anything else (a KeyError, a TypeError, numpy's ValueError) is a
+    (problem and fix): :class:`diffuserlab.errors.DiffuserLabError` and its subclasses
+    (the GUI's :class:`InputError`, :class:`CameraBusy` and the binding check's error
+    among them). Anything else (a KeyError, a TypeError, numpy's ValueError) is a
     bug, shown as one and logged with its traceback."""
-    from calibration_routines.mask_alignment.errors import AlignmentFailed
-    from drivers.errors import DeviceError
-    from instrument.bench import BenchRoleError, PromptRefused
-    from instrument.bench_setup import BenchOpenError
-    from instrument.cli.common import MissingBenchFile
-    from instrument.emulated_bench import EmulatorsRunningError
-    from instrument.live import LiveReconstructionError
-    from instrument.plan import CheckFailed, PlanError
-    from instrument.registry import RegistryError
-    from instrument.runner import RunAborted
-    from instrument.runstore import RunStoreError
-    from recon.errors import DivergenceError, ReconInputError
-
-    from .binding import BindingLeakError
-
-    return (DeviceError, PlanError, AlignmentFailed, CheckFailed, RunStoreError,
-            ReconInputError, DivergenceError, LiveReconstructionError, RunAborted,
-            BenchRoleError, BenchOpenError, PromptRefused, RegistryError, MissingBenchFile,
-            EmulatorsRunningError, BindingLeakError, CameraBusy, InputError)
+    return (DiffuserLabError,)
 
 
 def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> str:

@@ -84,7 +84,8 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
     psf_product : str
         Stack product of a calibration run.
     dark : str, optional
-        ``--dark``: a level in DN or a dark run.
+        ``--dark``: ``auto`` (or None), ``none``, a level in DN, a dark run or a dark
+        image.
 
     Returns
     -------
@@ -101,8 +102,9 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
     """
     from pathlib import Path
 
-    from .reconstruct_files import dark_level, load_psf
+    from .reconstruct_files import dark_level, frames_dark_text, load_psf
 
+    dark = frames_dark_text(dark)
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     stacked = depth is not None or Path(psf_path).is_dir()
     level = None if dark is None else dark_level(dark)
@@ -118,8 +120,9 @@ def frames_dark_level(dark: str | None, run_attrs: dict, why: str
                       ) -> float | np.ndarray:
     """The recorded frames' dark level for dark-subtracted PSFs (a stack or a grid).
 
-    ``dark`` (``--dark``: DN or a ``calibrate dark`` run), else the simulated
-    camera's offset that a run recorded on the virtual bench stores.
+    ``dark`` (``--dark``: DN, a ``calibrate dark`` run, a dark image, ``none``), else
+    (None or ``auto``) the simulated camera's offset that a run recorded on the virtual
+    bench stores.
 
     Raises
     ------
@@ -128,8 +131,9 @@ def frames_dark_level(dark: str | None, run_attrs: dict, why: str
     """
     from recon.errors import ReconInputError
 
-    from .reconstruct_files import dark_level
+    from .reconstruct_files import dark_level, frames_dark_text
 
+    dark = frames_dark_text(dark)
     if dark is not None:
         return dark_level(dark)
     simulated = run_attrs.get("simulated") or {}

@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from diffuserlab.errors import DiffuserLabError
 from drivers.base import jsonable
 from drivers.errors import DeviceError
 
@@ -43,11 +44,11 @@ ROLES = {
 }
 
 
-class BenchRoleError(LookupError):
+class BenchRoleError(DiffuserLabError, LookupError):
     """The bench has no device for a role (or the name is neither a role nor an id)."""
 
 
-class PromptRefused(RuntimeError):
+class PromptRefused(DiffuserLabError, RuntimeError):
     """The operator (or the absence of one) did not carry out a plan's prompt."""
 
 

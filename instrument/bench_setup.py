@@ -26,6 +26,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from diffuserlab.errors import DiffuserLabError
+
 from .config import (
     DEFAULT_TRAVEL,
     SIMULATED_DRIVERS,
@@ -332,7 +334,7 @@ def with_simulated_drivers(config: BenchConfig) -> BenchConfig:
 # ------------------------------------------------------------------- opening a bench
 
 
-class BenchOpenError(RuntimeError):
+class BenchOpenError(DiffuserLabError, RuntimeError):
     """A device failed to construct or open; every device opened before it was closed.
 
     Attributes

@@ -21,6 +21,7 @@ import os
 import string
 from pathlib import Path
 
+from diffuserlab.errors import DiffuserLabError
 from drivers.emulators import (
     AptEmulator,
     ArduinoLedEmulator,
@@ -138,7 +139,7 @@ home_on_open = true
 ''')
 
 
-class EmulatorsRunningError(RuntimeError):
+class EmulatorsRunningError(DiffuserLabError, RuntimeError):
     """Emulators already serve the link directory (another ``emulators start``)."""
 
 

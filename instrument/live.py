@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from diffuserlab.errors import DiffuserLabError
 from drivers.camera import Frame, FrameRing
 from drivers.errors import CameraTimeoutError
 from recon.errors import ReconInputError
@@ -42,7 +43,7 @@ log = logging.getLogger(__name__)
 LIVE_METHODS = ("wiener", "admm")
 
 
-class LiveReconstructionError(RuntimeError):
+class LiveReconstructionError(DiffuserLabError, RuntimeError):
     """The live worker could not start or stop in time."""
 
 

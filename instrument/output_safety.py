@@ -17,9 +17,7 @@ import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
-from recon.errors import ReconInputError
-
-from .runstore import is_run_store
+from diffuserlab.errors import InputError
 
 __all__ = ["OutputError", "checked_outputs", "check_outputs"]
 
@@ -38,7 +36,7 @@ def checked_outputs(reset: bool = False) -> list[str]:
     return list(_CHECKED)
 
 
-class OutputError(ReconInputError):
+class OutputError(InputError):
     """An output path the command refuses (exit status 2 through the CLI boundary)."""
 
 
@@ -122,6 +120,8 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
                               "directory name")
         folders[d] = f"{option} {directory}"
     seen: dict[Path, str] = {}
+    from .runstore import is_run_store  # zarr: not loaded by the command line's start
+
     for out in outputs:
         target = _resolved(out)
         if target in seen:

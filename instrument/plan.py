@@ -31,6 +31,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from diffuserlab.errors import DiffuserLabError, InputError
+
 __all__ = [
     "PLAN_TYPES", "AutoExposure", "Capture", "Check", "CheckFailed", "Expose", "Light", "Move",
     "Plan", "PlanError", "PlanPoint", "Prompt", "ShowSlm", "Step", "plan_from_record",
@@ -38,11 +40,11 @@ __all__ = [
 ]
 
 
-class PlanError(ValueError):
+class PlanError(InputError):
     """A plan is malformed or its parameters are invalid (the message names the fix)."""
 
 
-class CheckFailed(RuntimeError):
+class CheckFailed(DiffuserLabError, RuntimeError):
     """A :class:`Check` step found the bench unfit to continue; ``fix`` says what to do."""
 
     def __init__(self, problem: str, fix: str) -> None:

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from diffuserlab.errors import InputError
+from diffuserlab.jsonio import write_json
 from drivers.base import jsonable
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
@@ -107,18 +109,32 @@ def load_psf(psf_path: str, depth_mm: float | None,
     return psf, depth
 
 
+def frames_dark_text(dark) -> str | None:
+    """A frames' ``--dark`` (``recon-run``, ``capture live``) as :func:`dark_level` takes
+    it: None for ``auto`` (or None: the level is found elsewhere), ``"0"`` for ``none``
+    (the frames are dark-subtracted), else the text (a level in DN, a dark run or image).
+    """
+    if dark is None:
+        return None
+    key = str(dark).strip().lower()
+    return None if key == "auto" else "0" if key == "none" else str(dark)
+
+
 def dark_level(text: str, option: str = "--dark"):
-    """The dark level of a ``--dark`` option: a number (DN) or a ``calibrate dark`` run.
+    """The dark level of a ``--dark`` option: a number (DN), a ``calibrate dark`` run or
+    a dark image (TIFF, PNG, ``.npy``: a frame taken with the light blocked).
 
     Returns
     -------
     float or ndarray
-        The level in DN, or the run's ``dark_mean`` frame, (rows, cols) float32.
+        The level in DN, or the run's ``dark_mean`` frame or the image, (rows, cols)
+        float32.
 
     Raises
     ------
     recon.errors.ReconInputError
-        A negative or non-finite number, or a path that is not a run with a dark frame.
+        A negative or non-finite number, a run without a dark frame, or an unreadable
+        image.
     """
     from recon.errors import ReconInputError
 
@@ -127,6 +143,10 @@ def dark_level(text: str, option: str = "--dark"):
     try:
         level = float(text)
     except ValueError:
+        if Path(text).is_file():  # a dark image
+            from recon.io import load_image
+
+            return np.asarray(load_image(text), np.float32)
         try:
             dark, _ = RunStore.open(text).product("dark_mean")
         except RunStoreError as exc:
@@ -229,29 +249,6 @@ def named_pair(psf_path, raw_path):
         raise RawSignalError(f"--raw {raw_path} (PSF {psf_path}): {exc}") from None
 
 
-def write_json(path: str | Path, data: dict) -> Path:
-    """Write ``data`` as indented JSON, atomically (:func:`recon.io.atomic_path`).
-
-    Parameters
-    ----------
-    path : str or Path
-        Destination (parent directories are created).
-    data : dict
-        JSON-serialisable.
-
-    Returns
-    -------
-    Path
-        ``path``.
-    """
-    from recon.io import atomic_path
-
-    text = json.dumps(data, indent=1)
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-    return Path(path)
-
-
 def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
     """The volume path and the three projection PNG paths of ``--out``.
 
@@ -262,7 +259,7 @@ def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
     """
     path = Path(out)
     if path.suffix.lower() not in _VOLUME_SUFFIXES:
-        raise ValueError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
+        raise InputError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
     stem = path.with_suffix("")
     return path, {v: stem.parent / f"{stem.name}_mip_{v}.png" for v in ("xy", "xz", "yz")}
 
@@ -317,7 +314,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     if path.exists():
         kind = json.loads(node.read_text()).get("node_type") if node.is_file() else None
         if kind != "array":
-            raise ValueError(f"--out {path} exists and is not a volume written by recon3d "
+            raise InputError(f"--out {path} exists and is not a volume written by recon3d "
                              "(a run store?); choose another name")
     # written under a temporary name and renamed into place (the old volume is moved
     # aside first and removed after): never half an array under the final name
@@ -413,7 +410,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
 
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
     if planes not in ("all", "auto"):
-        raise ValueError(f"planes {planes!r}: use all or auto")
+        raise InputError(f"planes {planes!r}: use all or auto")
     check_volume_parameters("admm" if method == AUTO else method, iterations,
                             0.0 if tv == AUTO else tv, 0.0 if l1 == AUTO else l1)
     vol_path, mip_paths = volume_output_paths(out)

@@ -30,6 +30,7 @@ from contextlib import contextmanager
 from importlib.metadata import entry_points
 from typing import Any
 
+from diffuserlab.errors import DiffuserLabError
 from instrument.config import KINDS, SIMULATED_DRIVERS, BenchConfig, DeviceConfig, Problem
 
 __all__ = [
@@ -59,7 +60,7 @@ ENTRY_POINT_GROUP = "diffuserlab.drivers"
 _local: dict[str, type] = {}
 
 
-class RegistryError(LookupError):
+class RegistryError(DiffuserLabError, LookupError):
     """A driver name that cannot be used; the message names the fix."""
 
 

@@ -19,11 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from diffuserlab.errors import InputError
+
 __all__ = ["LOCK_NAME", "RunStoreError", "frame_crc", "lock_problem", "pid_alive",
            "product_crcs", "read_lock", "write_lock"]
 
 
-class RunStoreError(ValueError):
+class RunStoreError(InputError):
     """A run store is missing, of another schema, or asked for something it lacks."""
 
 

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from diffuserlab.errors import DiffuserLabError
 from drivers.base import jsonable
 from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutError
 
@@ -60,7 +61,7 @@ __all__ = ["RunAborted", "RunControl", "RunEvent", "RunResult", "Runner", "frame
 log = logging.getLogger(__name__)
 
 
-class RunAborted(Exception):
+class RunAborted(DiffuserLabError):
     """Raised inside the runner when an abort was requested (never escapes it)."""
 
 

@@ -32,16 +32,11 @@ from recon.io import missing_dirs
 from .recorder import VIDEO_COORDS, Recorder, record_from_ring
 from .runstore import RunStore, RunStoreError, discard_partial_run
 from .runstore_records import VIDEO_PLAN
+from .video_defaults import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES
 
 __all__ = ["DEFAULT_COMPRESSOR", "DEFAULT_SHARD_FRAMES", "MAX_FRAMES", "VIDEO_PLAN",
            "check_disk_space", "create_video_run", "record_video", "video_frame_count"]
 
-#: Frames per shard file of a video run (64 frames of 1200 x 1600 uint16: 245 MB).
-DEFAULT_SHARD_FRAMES = 16
-#: Most frames one recording takes (its run store holds one slot per frame).
-MAX_FRAMES = 10_000_000
-#: Lossless frame compressor of a video run (see ``diffuserlab benchmark recording``).
-DEFAULT_COMPRESSOR = "blosc-lz4"
 
 
 def video_frame_count(*, frames: int | None, seconds: float | None, rate_hz: float) -> int:

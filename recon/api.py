@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from diffuserlab.jsonio import jsonable
+
 from .auto import AUTO, parse_weight, solve_channel
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
@@ -90,17 +92,13 @@ class Reconstruction:
             "final_objective": [r.final_objective for r in self.results],
             "objective": [list(r.history.objective) for r in self.results],
             "data_residual": [list(r.history.data_residual) for r in self.results],
-            "params": [_jsonable(r.params) for r in self.results],
+            "params": [jsonable(r.params) for r in self.results],
             # the dark level and where it came from, and the raw's own levels (a lensless
             # raw has no dark region: its floor only bounds its dark level from above)
             "dark": {"mode": self.info.get("dark_mode"), "level": self.info.get("dark_level"),
                      "region": self.info.get("dark_region"),
                      "raw_levels": self.info.get("raw_levels")},
         }
-
-
-def _jsonable(d: dict) -> dict:
-    return {k: (float(v) if isinstance(v, np.floating) else v) for k, v in d.items()}
 
 
 def scaled_problem(psf: np.ndarray, b: np.ndarray, weights: np.ndarray | None = None, *,

@@ -6,17 +6,20 @@ one-line reason and exit with status 2.
 
 from __future__ import annotations
 
+from diffuserlab.errors import DiffuserLabError, InputError
 
-class ReconInputError(ValueError):
+
+class ReconInputError(InputError):
     """Input data or parameters that cannot be reconstructed as given.
 
     Raised for unreadable files, shape mismatches, NaN/inf values, an all-zero or
     negative-only PSF, and invalid solver parameters. The message says what is
-    wrong and how to fix it.
+    wrong and how to fix it. An :class:`diffuserlab.errors.InputError` (and so a
+    ValueError): the command line reports it with exit status 2.
     """
 
 
-class DivergenceError(RuntimeError):
+class DivergenceError(DiffuserLabError, RuntimeError):
     """An iterative solver diverged (objective rising without bound, or NaN/inf).
 
     Parameters

@@ -28,7 +28,8 @@ from .preprocess import box_bin, subtract_dark, validate_measurement, validate_p
 from .preprocess.dark import DEFAULT_DARK_REGION, resolve_dark
 from .preprocess.validation import as_array, check_bin_factor
 from .solvers import SolveResult, wiener
-from .solvers.admm import AdmmPlan, AdmmState, check_balancing, check_penalties, run_admm
+from .solvers.admm import AdmmPlan, AdmmState, run_admm
+from .solvers.penalty import AdmmPenalty, check_penalty_settings
 from .solvers.wiener import auto_regularization
 from .validate import as_int, nonneg_weight, positive
 
@@ -84,11 +85,11 @@ class LiveReconstructor:
         the PSF corner and subtracts it from the PSF and every frame.
     tv : float, optional
         ADMM TV weight in the scaled problem; default ``recon.api.DEFAULT_TV["admm"]``.
-    mu : (mu1, mu2, mu3), optional
-        Initial ADMM penalties (see :func:`recon.solvers.admm.admm`).
-    balance : bool
-        ADMM residual balancing (with the default schedule it first changes a penalty
-        at iteration 6 of 10 or more; none with a few iterations per frame).
+    penalty : AdmmPenalty, optional
+        Initial ADMM penalties and residual balancing (default ``AdmmPenalty()``, see
+        :func:`recon.solvers.admm.admm`; with the default schedule balancing first
+        changes a penalty at iteration 6 of 10 or more; none with a few iterations
+        per frame).
     regularization : float, optional
         Wiener lambda in units of |H|^2. Default: estimated from the first frame
         :meth:`wiener` sees (:func:`recon.solvers.wiener.auto_regularization`, a
@@ -111,10 +112,27 @@ class LiveReconstructor:
     iteration is a fixed-point map, so any state is a valid start). Since each frame is
     scaled by its own max|b|, the state is first multiplied by previous scale / new
     scale so it is in the new frame's units.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from recon.live import LiveReconstructor
+    >>> from recon.operators import ConvolutionOperator
+    >>> rng = np.random.default_rng(1)
+    >>> psf = 100.0 * (rng.random((48, 64)) > 0.97)  # a sparse caustic-like PSF
+    >>> scene = np.zeros((96, 128), np.float32); scene[40:56, 50:70] = 1.0
+    >>> frame = ConvolutionOperator(psf).forward(scene)  # one video frame
+    >>> live = LiveReconstructor(psf, dark=0.0)
+    >>> live.wiener(frame).image.shape
+    (48, 64)
+    >>> first = live.admm(frame, iterations=5)        # cold start
+    >>> second = live.admm(frame, iterations=5)       # warm: continues the first
+    >>> second.image.dtype
+    dtype('float32')
     """
 
     def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark=None,
-                 tv: float | None = None, mu=None, balance: bool = True,
+                 tv: float | None = None, penalty: AdmmPenalty | None = None,
                  regularization: float | None = None):
         psf = as_array(psf, "PSF")
         validate_psf(psf)
@@ -126,8 +144,7 @@ class LiveReconstructor:
         self._dark_mode, self._dark = resolve_dark(dark, psf, DEFAULT_DARK_REGION, None)
         p = np.maximum(self._convert(psf), 0.0)  # the PSF clip of prepare_pair
         self.tv = DEFAULT_TV["admm"] if tv is None else nonneg_weight(tv, "tv")
-        self.mu = check_penalties(mu)
-        self.balance = bool(balance)
+        self.penalty = check_penalty_settings(penalty)
         self.regularization = (None if regularization is None
                                else positive(regularization, "regularization"))
         # scaled_problem normalises the PSF to unit sum; its measurement half is unused
@@ -212,9 +229,8 @@ class LiveReconstructor:
         res = wiener(self.operator, b, regularization=self.regularization)
         return self._result(res, "wiener", 1, False, scale, t0)
 
-    def admm(self, raw: np.ndarray, iterations: int = 5, warm_start: bool = True, *,
-             balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
-             balance_factor: float = 2.0) -> LiveResult:
+    def admm(self, raw: np.ndarray, iterations: int = 5, warm_start: bool = True
+             ) -> LiveResult:
         """``iterations`` ADMM iterations on one frame, warm-started by default.
 
         Parameters
@@ -224,39 +240,35 @@ class LiveReconstructor:
             >= 1.
         warm_start : bool
             Start from the state left by the previous :meth:`admm` call (see the class
-            notes); False, or no previous call, starts cold (x_0 = 0, initial ``mu``).
-            The state is kept either way for the next frame.
-        balance_every, balance_until, balance_ratio, balance_factor
-            Residual balancing, as in :func:`recon.solvers.admm.admm`.
+            notes); False, or no previous call, starts cold (x_0 = 0, the initial
+            penalties of ``penalty``). The state is kept either way for the next frame.
 
         Returns
         -------
         LiveResult
             Cold: equal to ``recon.reconstruct(psf, raw, "admm", iterations=iterations,
-            tv=tv, auto_stop=False, mu=mu, balance=balance, ...)``.
+            tv=tv, auto_stop=False, penalty=penalty)``.
 
         Raises
         ------
         ReconInputError
-            See :meth:`prepare`, or invalid iterations / balancing.
+            See :meth:`prepare`, or invalid iterations.
         DivergenceError
             The solve diverged; the state is dropped (the next frame starts cold).
         """
         t0 = time.perf_counter()
         iterations = as_int(iterations, "iterations", 1)
-        check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
         b, scale = self.prepare(raw)
         warm = warm_start and self._state is not None
         if warm:
             self._state.scale(self._state_scale / scale)
         else:
-            self._state = AdmmState.zeros(self.plan, self.mu, self.tv > 0)
+            self._state = AdmmState.zeros(self.plan, self.penalty.initial(),
+                                          self.tv > 0)
         self._state_scale = scale
         try:
             res = run_admm(self.plan, b, self._state, iterations=iterations, tv=self.tv,
-                           balance=self.balance, balance_every=balance_every,
-                           balance_until=balance_until, balance_ratio=balance_ratio,
-                           balance_factor=balance_factor)
+                           penalty=self.penalty)
         except Exception:
             self._state = None
             raise

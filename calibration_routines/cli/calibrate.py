@@ -55,30 +55,30 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     dp = csub.add_parser("dark", help="dark frames, hot-pixel map and flat field")
     _common(dp)
     dp.add_argument("--exposure-s", type=float, default=None,
-                    help="dark exposure (default: the camera's current one)")
+                    help="dark exposure, s (default: the camera's current one)")
     sp = csub.add_parser("psf-sweep", help="axial PSF sweep (Sec. 4.3)")
     _common(sp)
     sp.add_argument("--z-min", type=float, default=None, help="nearest depth, mm")
     sp.add_argument("--z-max", type=float, default=None, help="farthest depth, mm")
     sp.add_argument("--spacing", choices=("inverse", "uniform"), default="inverse",
                     help="constant step in 1/z (Eq. 4.7, default) or in z")
-    sp.add_argument("--n-depths", type=int, default=None)
+    sp.add_argument("--n-depths", type=int, default=None, help="number of depth planes")
     sp.add_argument("--c-per-mm", type=float, default=None, help="step in 1/z, 1/mm")
     sp.add_argument("--probe-step", action="store_true",
                     help="derive the 1/z step from the depth sensitivity of a PSF measured "
                     "at z-min (Nyquist: half the distinguishable step)")
-    sp.add_argument("--x-mm", type=float, default=0.0)
-    sp.add_argument("--y-mm", type=float, default=0.0)
+    sp.add_argument("--x-mm", type=float, default=0.0, help="source x position, mm (default 0)")
+    sp.add_argument("--y-mm", type=float, default=0.0, help="source y position, mm (default 0)")
     gp = csub.add_parser("psf-grid", help="lateral PSF grid (Sec. 5.2-5.3)")
     _common(gp)
     gp.add_argument("--mode", choices=("leds", "stage"), default="leds")
     gp.add_argument("--n", type=int, default=3, help="n x n positions")
-    gp.add_argument("--spacing-mm", type=float, default=None, help="stage raster spacing")
+    gp.add_argument("--spacing-mm", type=float, default=None, help="stage raster spacing, mm")
     gp.add_argument("--z-mm", type=float, default=40.0, help="stage mode depth, mm")
     gp.add_argument("--led-step", type=int, default=2, help="leds mode: every k-th LED")
     fall = gp.add_mutually_exclusive_group()
     fall.add_argument("--falloff-sigma-deg", type=float, default=None,
-                      help="measured sensor fall-off sigma for the Nyquist check")
+                      help="measured sensor fall-off sigma, degrees, for the Nyquist check")
     fall.add_argument("--falloff-run", default=None,
                       help="angular-response run to take the fall-off sigma from")
     bp = csub.add_parser("psf-blind", help="PSF grid from images of a bead slide at "
@@ -93,14 +93,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="exposure of every image and dark, s")
     bp.add_argument("--rounds", type=int, default=6, help="blind deconvolution rounds")
     bp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="bin the images before the blind deconvolution")
+                    help="bin the images before the blind deconvolution, pixels per side")
     ap = csub.add_parser("angular-response", help="sensor angular response (Fig. 3.5)")
     _common(ap)
     ap.add_argument("--z-mm", type=float, default=None, help="source depth, mm")
-    ap.add_argument("--max-angle-deg", type=float, default=None)
+    ap.add_argument("--max-angle-deg", type=float, default=None,
+                    help="largest source angle, degrees")
     ap.add_argument("--n-angles", type=int, default=None, help="angles per axis")
     ap.add_argument("--beta-deg", type=float, default=None,
-                    help="diffuser's maximum deflection for the FoV (Eq. 3.12)")
+                    help="diffuser's maximum deflection for the FoV, degrees (Eq. 3.12)")
     lp = csub.add_parser("slm-lut", help="SLM phase look-up table (gray -> phase) from "
                          "binary gratings, mask retracted")
     _common(lp)
@@ -330,7 +331,7 @@ def _run_whole_or_nothing(runner, plan, out, **options):
 
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
-    import calibration_routines  # noqa: F401  (registers the plans for resume)
+    from calibration_routines import register_plans
     from drivers.errors import DeviceError
     from instrument.cli.common import MissingBenchFile
     from instrument.cli.runs import format_summary
@@ -402,6 +403,7 @@ def run(args: argparse.Namespace) -> int:
                 except ValueError:
                     raise ValueError(f"--redo {args.redo!r}: give point numbers separated "
                                      "by commas, e.g. --redo 3,7") from None
+                register_plans()  # the run's plan is rebuilt from its recorded name
                 result = runner.resume(args.run, redo=redo,
                                        accept_differences=args.accept_differences)
             else:

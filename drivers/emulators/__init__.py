@@ -13,10 +13,11 @@ from drivers.emulators._pty import PtyEmulator
 from drivers.emulators.arduino_led import ArduinoLedEmulator
 from drivers.emulators.dlpc350 import Dlpc350Emulator, FakeHid, FakeUsb
 from drivers.emulators.illuminate import IlluminateEmulator
+from drivers.emulators.template_stage import TemplateStageEmulator
 from drivers.emulators.thorlabs_apt import AptEmulator
 from drivers.emulators.zaber import ZaberEmulator
 
 __all__ = [
     "AptEmulator", "ArduinoLedEmulator", "Dlpc350Emulator", "FakeHid", "FakeUsb",
-    "IlluminateEmulator", "Motion", "PtyEmulator", "ZaberEmulator",
+    "IlluminateEmulator", "Motion", "PtyEmulator", "TemplateStageEmulator", "ZaberEmulator",
 ]

@@ -21,9 +21,27 @@ import time
 import tty
 from pathlib import Path
 
-__all__ = ["PtyEmulator"]
+__all__ = ["PtyEmulator", "take_lines"]
 
 log = logging.getLogger("drivers.emulators")
+
+
+def take_lines(buffer: bytearray) -> list[str]:
+    """Remove the complete lines from ``buffer`` and return them, stripped, non-empty.
+
+    A line ends at CR, LF or CRLF (an ASCII protocol accepts any of them); an
+    unfinished line stays in ``buffer`` for the next bytes.
+    """
+    lines = []
+    while True:
+        ends = [i for i in (buffer.find(b"\r"), buffer.find(b"\n")) if i >= 0]
+        if not ends:
+            return lines
+        i = min(ends)
+        text = bytes(buffer[:i]).decode("ascii", "replace").strip()
+        del buffer[:i + 1]
+        if text:
+            lines.append(text)
 
 
 class PtyEmulator:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers.emulators._motion import Motion
-from drivers.emulators._pty import PtyEmulator
+from drivers.emulators._pty import PtyEmulator, take_lines
 from drivers.zaber_ascii import lrc  # the checksum is tested on its documented example
 
 __all__ = ["ZaberAxis", "ZaberEmulator"]
@@ -114,13 +114,7 @@ class ZaberEmulator(PtyEmulator):
 
     def on_bytes(self, data: bytes) -> None:
         self._line += data
-        while True:
-            ends = [i for i in (self._line.find(b"\r"), self._line.find(b"\n")) if i >= 0]
-            if not ends:
-                return
-            i = min(ends)
-            raw = bytes(self._line[:i]).decode("ascii", "replace").strip()
-            del self._line[:i + 1]
+        for raw in take_lines(self._line):
             if raw.startswith("/"):
                 self.commands.append(raw)
                 self._command(raw[1:])

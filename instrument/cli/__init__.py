@@ -32,6 +32,8 @@ import logging
 import sys
 import warnings
 
+from diffuserlab.errors import DiffuserLabError
+
 try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C may come
     from . import (
         analyze,
@@ -164,13 +166,10 @@ def _inputs_note(args: argparse.Namespace, exc: BaseException) -> str:
     "could not convert string to float: 'abc'") that names neither a file nor an
     option of the command; empty for the project's own messages, which name what
     they refuse."""
-    from recon.errors import ReconInputError
-
-    from ..plan import PlanError
-    from ..runstore import RunStoreError
+    from diffuserlab.errors import InputError
 
     text = str(exc)
-    if isinstance(exc, ReconInputError | RunStoreError | PlanError) or "--" in text:
+    if isinstance(exc, InputError) or "--" in text:
         return ""
     given = {k: v for k, v in vars(args).items() if isinstance(v, str) and v
              and k not in ("handler", "command") and ("/" in v or "." in v)}
@@ -199,10 +198,13 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The handler's status; 2 (one line on stderr) on
+        :class:`diffuserlab.errors.InputError` (the project's input errors:
         :class:`recon.errors.ReconInputError`,
         :class:`instrument.runstore.RunStoreError`, :class:`instrument.plan.PlanError`,
-        :class:`instrument.cli.common.MissingBenchFile` and the errors the command
-        lists in ``input_errors``; 2 and one line per problem on
+        :class:`instrument.output_safety.OutputError`,
+        :class:`instrument.cli.common.MissingBenchFile`, ...) and the errors a command
+        lists in ``input_errors`` (no command turns every ValueError into bad input:
+        an unexpected one is a bug); 2 and one line per problem on
         :class:`instrument.config.BenchConfigError`; 3 when a solver diverged
         (:class:`recon.errors.DivergenceError`); 2 (one line) on a refused device
         setting or a missing driver library (:class:`drivers.errors.DeviceValueError`,
@@ -218,12 +220,8 @@ def main(argv: list[str] | None = None) -> int:
         1 and one line saying it is a bug on any other exception, whose traceback
         ``--debug`` shows instead.
     """
-    from recon.errors import ReconInputError
+    from diffuserlab.errors import InputError
 
-    from ..bench_setup import BenchOpenError
-    from ..plan import PlanError
-    from ..runstore import RunStoreError
-    from .common import MissingBenchFile
     from .interrupts import exit_status, terminate_like_ctrl_c
 
     try:
@@ -241,33 +239,48 @@ def main(argv: list[str] | None = None) -> int:
             handler.removeFilter(_project_record)
         elif _project_record not in handler.filters:
             handler.addFilter(_project_record)
-    input_errors = (ReconInputError, RunStoreError, MissingBenchFile, PlanError,
-                    *getattr(args, "input_errors", ()))
+    input_errors = (InputError, *getattr(args, "input_errors", ()))
     from ..output_safety import checked_outputs
 
     checked_outputs(reset=True)
     with terminate_like_ctrl_c() as received, warnings.catch_warnings():
         warnings.showwarning = _warning_as_log_record
-        status = _dispatch(args, input_errors, BenchOpenError)
+        status = _dispatch(args, input_errors)
     if received and status == exit_status(KeyboardInterrupt()):
         status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
     return status
 
 
-def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: type) -> int:
+class _NeverRaised(DiffuserLabError):
+    """Stands for an exception class whose module the command never imported (never
+    raised)."""
+
+
+def _raised_class(module: str, name: str) -> type[BaseException]:
+    """The exception class ``module.name`` when the command imported ``module``, else
+    :class:`_NeverRaised`: a module never imported raised nothing, and importing it
+    only to catch its error would load pydantic (the bench models) into commands
+    that never read a bench file (``runs show``, ``recon``, ...)."""
+    loaded = sys.modules.get(module)
+    return _NeverRaised if loaded is None else getattr(loaded, name)
+
+
+def _dispatch(args: argparse.Namespace, input_errors: tuple) -> int:
     """Run ``args.handler`` inside the error boundary of :func:`main`; its status."""
     from drivers.errors import DeviceError, DeviceValueError, MissingDependencyError
     from recon.errors import DivergenceError
 
-    from ..config import BenchConfigError
     from .interrupts import exit_status
 
+    # the bench's error classes are looked up when an exception reaches their clause
+    # (an except clause's expression is evaluated then), after the handler ran
     try:
         return int(args.handler(args) or 0)
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP not handled by the command
         print(f"diffuserlab: interrupted ({str(exc) or 'Ctrl-C'})", file=sys.stderr)
         return exit_status(exc)
-    except bench_open_error as exc:  # a device missing or unplugged: the bench, not a bug
+    except _raised_class("instrument.bench_setup", "BenchOpenError") as exc:  # a device
+        # missing or unplugged: the bench, not a bug
         fix = ("fix that value in the bench file (diffuserlab validate BENCH.toml lists every "
                "problem)" if isinstance(exc.__cause__, DeviceValueError) else
                "check that the device is connected and powered (diffuserlab devices "
@@ -275,7 +288,8 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple, bench_open_error: t
         print(f"diffuserlab: error: cannot open the bench: {_one_line(exc)}; {fix}",
               file=sys.stderr)
         return 2
-    except BenchConfigError as exc:  # one line per problem of the bench file
+    except _raised_class("instrument.config.problems", "BenchConfigError") as exc:  # one
+        # line per problem of the bench file
         for line in exc.lines():
             print(f"diffuserlab: error: {line}", file=sys.stderr)
         return 2

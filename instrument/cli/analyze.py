@@ -40,12 +40,15 @@ import json
 import logging
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from drivers.base import jsonable
+from diffuserlab.errors import InputError
+from diffuserlab.jsonio import jsonable
 
 from .common import floats
+
+if TYPE_CHECKING:  # pragma: no cover  (numpy is imported where the analyses run)
+    import numpy as np
 
 __all__ = ["ANALYSES", "add_subcommands", "run", "run_analysis"]
 
@@ -139,7 +142,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     fp.add_argument("--support-energy", type=float, default=0.99,
                     help="PSF width = extent holding this central fraction of its energy "
                     "along each axis (default 0.99)")
-    ap.set_defaults(handler=run, input_errors=(ValueError, OSError))
+    ap.set_defaults(handler=run)
     from .analyze_design import add_parser as add_design
 
     add_design(asub)  # analyze design: a mask design, not a PSF stack
@@ -152,33 +155,33 @@ def _need(args: argparse.Namespace, *names: str) -> None:
     for name in names:
         value = getattr(args, name)
         if value is None:
-            raise ValueError(f"analyze {args.analysis} needs --{name.replace('_', '-')}")
+            raise InputError(f"analyze {args.analysis} needs --{name.replace('_', '-')}")
         if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be finite and > 0, got {value}")
+            raise InputError(f"--{name.replace('_', '-')} must be finite and > 0, got {value}")
 
 
 def _fraction(args: argparse.Namespace, name: str) -> None:
     value = getattr(args, name, None)
     if value is not None and not 0 < value < 1:
-        raise ValueError(f"--{name.replace('_', '-')} must be between 0 and 1 (exclusive), "
+        raise InputError(f"--{name.replace('_', '-')} must be between 0 and 1 (exclusive), "
                          f"got {value}")
 
 
 def _check_options(args: argparse.Namespace) -> None:
     """Refuse option values no analysis can use, before any file is read or written."""
     if args.bin_factor < 1:
-        raise ValueError(f"--bin must be >= 1, got {args.bin_factor}")
+        raise InputError(f"--bin must be >= 1, got {args.bin_factor}")
     if args.remove_background < 0:
-        raise ValueError(f"--remove-background must be >= 0 (0: off), got "
+        raise InputError(f"--remove-background must be >= 0 (0: off), got "
                          f"{args.remove_background}")
     for name in ("threshold", "level"):
         _fraction(args, name)
     depth = getattr(args, "depth_mm", None)
     if depth is not None and not (math.isfinite(depth) and depth > 0):
-        raise ValueError(f"--depth must be finite and > 0 mm, got {depth}")
+        raise InputError(f"--depth must be finite and > 0 mm, got {depth}")
     xz = getattr(args, "xz_px", 0.0)
     if not (math.isfinite(xz) and xz >= 0):
-        raise ValueError(f"--xz-px must be finite and >= 0 (0: one line along z), got {xz}")
+        raise InputError(f"--xz-px must be finite and >= 0 (0: one line along z), got {xz}")
 
 
 def _load(args: argparse.Namespace) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -215,6 +218,8 @@ def _figure(n_panels: int):
 
 
 def _resolution(args, stack, z, header) -> tuple[dict, object, list[str]]:
+    import numpy as np
+
     from recon.analysis import autocorrelation, resolution_per_depth
 
     _need(args, "pitch_um", "d_mm")
@@ -267,6 +272,8 @@ def _resolution(args, stack, z, header) -> tuple[dict, object, list[str]]:
 
 
 def _similarity(args, stack, z, header):
+    import numpy as np
+
     from recon.analysis import stack_similarity
 
     s = stack_similarity(stack, z, index=args.index)
@@ -320,17 +327,19 @@ def _psf_at(args, stack, z) -> tuple[np.ndarray, float]:
 
 def _condition_axial(args, stack, z, header):
     """``analyze condition --axial``: sources across depth planes (Fig. 4.5 axially)."""
+    import numpy as np
+
     from recon.analysis import axial_condition
 
     steps = floats(args.separations_planes, "--separations-planes")
     if not all(s >= 1 and float(s).is_integer() for s in steps):
-        raise ValueError(f"--separations-planes {args.separations_planes!r}: use whole "
+        raise InputError(f"--separations-planes {args.separations_planes!r}: use whole "
                          "numbers of planes >= 1")
     start = None
     if args.depth_mm is not None:
         start = int(np.argmin(np.abs(z - args.depth_mm)))
         if abs(z[start] - args.depth_mm) > 0.05 * args.depth_mm:
-            raise ValueError(f"no plane within 5% of --depth {args.depth_mm:g} mm")
+            raise InputError(f"no plane within 5% of --depth {args.depth_mm:g} mm")
     per_step, warnings = axial_condition(stack, z, steps, args.k_max, xz_px=args.xz_px,
                                          axis=args.axis, start_plane=start)
     result = {**header, "mode": "axial", "xz_px": args.xz_px, "axis": args.axis,
@@ -353,10 +362,12 @@ def _condition_axial(args, stack, z, header):
 
 
 def _condition(args, stack, z, header):
+    import numpy as np
+
     from recon.analysis import lateral_condition, lateral_resolution_object_mm
 
     if args.k_max < 2:
-        raise ValueError(f"--k-max must be >= 2, got {args.k_max}")
+        raise InputError(f"--k-max must be >= 2, got {args.k_max}")
     if args.axial:
         return _condition_axial(args, stack, z, header)
     seps = floats(args.separations_px, "--separations-px")
@@ -422,7 +433,7 @@ def _grid(args, stack, z, header):
     if args.scene_range is not None:
         scene = floats(args.scene_range, "--scene-range")
         if len(scene) != 2 or not 0 < scene[0] <= scene[1]:
-            raise ValueError(f"--scene-range {args.scene_range!r}: give ZMIN,ZMAX in mm with "
+            raise InputError(f"--scene-range {args.scene_range!r}: give ZMIN,ZMAX in mm with "
                              "0 < ZMIN <= ZMAX")
     rec = recommend_grid(stack, z, pitch_mm=header["pitch_um"] * 1e-3, d_mm=args.d_mm,
                          threshold=args.threshold, scene_depth_range_mm=scene)
@@ -442,6 +453,8 @@ def _grid(args, stack, z, header):
 
 
 def _fov(args, stack, z, header):
+    import numpy as np
+
     from recon.analysis import field_of_view
 
     _need(args, "pitch_um", "d_mm", "alpha_c_deg")

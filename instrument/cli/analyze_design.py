@@ -20,9 +20,8 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
-
-from drivers.base import jsonable
+from diffuserlab.errors import InputError
+from diffuserlab.jsonio import jsonable
 
 from .common import floats
 
@@ -71,7 +70,7 @@ def add_parser(asub: argparse._SubParsersAction) -> None:
                    help="directory for design.png and design.json (default out/analysis)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace design.png and design.json of an earlier run")
-    p.set_defaults(handler=run_design, input_errors=(ValueError,))
+    p.set_defaults(handler=run_design)
 
 
 def _checked(args: argparse.Namespace):
@@ -82,17 +81,17 @@ def _checked(args: argparse.Namespace):
                        ("pitch_um", "um"), ("wavelength_nm", "nm")):
         v = getattr(args, name)
         if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"--{name.replace('_', '-')} must be finite and > 0 {unit}, "
+            raise InputError(f"--{name.replace('_', '-')} must be finite and > 0 {unit}, "
                              f"got {v:g}")
     if not (math.isfinite(args.falloff_deg) and args.falloff_deg >= 0):
-        raise ValueError(f"--falloff-deg must be >= 0 (0: none), got {args.falloff_deg:g}")
+        raise InputError(f"--falloff-deg must be >= 0 (0: none), got {args.falloff_deg:g}")
     if not 0 < args.threshold < 1:
-        raise ValueError(f"--threshold must be between 0 and 1 (exclusive), got "
+        raise InputError(f"--threshold must be between 0 and 1 (exclusive), got "
                          f"{args.threshold:g}; e.g. 0.8")
     if not 32 <= args.sensor_px <= 2048:
-        raise ValueError(f"--sensor-px must be 32 .. 2048, got {args.sensor_px}")
+        raise InputError(f"--sensor-px must be 32 .. 2048, got {args.sensor_px}")
     if args.focal_mm >= args.distance_mm:
-        raise ValueError(f"--focal-mm {args.focal_mm:g} must be below --distance-mm "
+        raise InputError(f"--focal-mm {args.focal_mm:g} must be below --distance-mm "
                          f"{args.distance_mm:g}: lenslets that do not focus before the sensor "
                          "image no object plane onto it")
     design = MaskDesign(args.layout, (args.sensor_px, args.sensor_px), args.pitch_um,
@@ -104,11 +103,11 @@ def _checked(args: argparse.Namespace):
         depths = floats(args.z_mm, "--z-mm")
         bad = [z for z in depths if not (math.isfinite(z) and z > 0)]
         if bad or not depths:
-            raise ValueError(f"--z-mm {args.z_mm!r}: give depths > 0 mm in front of the mask, "
+            raise InputError(f"--z-mm {args.z_mm!r}: give depths > 0 mm in front of the mask, "
                              "e.g. 2.0,2.5,3.0")
     period_px = args.lenslet_um * (1 + args.distance_mm / min(depths)) / args.pitch_um
     if period_px > args.sensor_px / 3:
-        raise ValueError(f"--sensor-px {args.sensor_px} holds less than 3 lenslet images "
+        raise InputError(f"--sensor-px {args.sensor_px} holds less than 3 lenslet images "
                          f"({period_px:.0f} px apart at z = {min(depths):g} mm); use at "
                          f"least {math.ceil(3 * period_px)} px or a coarser --pitch-um")
     return design, sorted(depths)
@@ -152,6 +151,7 @@ def run_design(args: argparse.Namespace) -> int:
 def _plot(design, result):
     """Fig. 6.4a-style plot: lateral and axial resolution vs depth (mean, range over
     the field positions), the ghost inner product, and the on-axis PSF."""
+    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -23,11 +23,12 @@ import argparse
 import json
 import math
 from collections import Counter
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from ..bench_setup import load_bench, simulated_twin
-from ..config import BenchConfig, BenchConfigError
 from .common import bench_config, bench_label, error
+
+if TYPE_CHECKING:  # pragma: no cover  (the bench models load pydantic: not for --help)
+    from ..config import BenchConfig, BenchConfigError
 
 __all__ = ["add_subcommands", "run_devices", "run_validate"]
 
@@ -102,12 +103,17 @@ def _summary(config: BenchConfig) -> str:
 def _load(path: str | None, simulate: bool,
           command: str) -> tuple[BenchConfig, BenchConfig]:
     """(as written, as it will be driven); raises BenchConfigError or MissingBenchFile."""
+    from ..bench_setup import load_bench
+
     driven = bench_config(path, simulate=simulate, command=command, construct=True)
     written = load_bench(path, check_drivers=False) if simulate and path else driven
     return written, driven
 
 
 def _validate(path: str | None, *, simulate: bool) -> int:
+    from ..bench_setup import simulated_twin
+    from ..config import BenchConfigError
+
     try:
         config, driven = _load(path, simulate, "validate")
     except BenchConfigError as exc:
@@ -139,6 +145,7 @@ def _status_text(status: dict[str, Any]) -> str:
 
 def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
     from ..bench_setup import BenchOpenError, open_bench
+    from ..config import BenchConfigError
     from ..registry import RegistryError
 
     if not (0 < timeout_s < math.inf):  # NaN fails too; every wait on a device ends

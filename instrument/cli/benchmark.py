@@ -21,7 +21,7 @@ __all__ = ["add_subcommands", "run_batch_benchmark", "run_live_benchmark",
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``benchmark`` (with the suite ``recon``) to the ``diffuserlab`` subparsers."""
-    from recon.benchmarks.run import BENCHMARKS
+    from recon.options import BENCHMARKS
 
     bp = sub.add_parser("benchmark", help="benchmarks (speed vs FFT floor, accuracy, ...)")
     bsub = bp.add_subparsers(dest="suite", required=True)

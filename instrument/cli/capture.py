@@ -30,7 +30,6 @@ import sys
 import time
 from pathlib import Path
 
-from ..reconstruct_files import dark_level
 from .common import bench_config
 
 __all__ = ["add_subcommands", "run_live"]
@@ -61,14 +60,11 @@ def _recon_options(p: argparse.ArgumentParser, *, required: bool, method_flag: s
     p.add_argument(method_flag, default=default_method, dest="method",
                    help="wiener or admm:K (K warm-started ADMM iterations per frame)"
                    + ("" if default_method is None else f"; default {default_method}"))
-    p.add_argument("--dark", default=None,
-                   help="the frames' dark level: a number (DN) or a `calibrate dark` run "
-                   "(its dark_mean frame). Default: the simulated camera's offset with "
-                   "--simulate; required on a real bench with a calibrated PSF stack (its "
-                   "PSFs are dark-subtracted); with a plain PSF image, estimated from the "
-                   "PSF's corner as `recon` does")
+    from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, add_dark_option
+
+    add_dark_option(p, auto=FRAMES_AUTO, frame=FRAMES_FRAME)
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                   help="bin PSF and frames by this factor")
+                   help="bin PSF and frames by this factor, pixels per side")
     p.add_argument("--threads", type=int, default=None,
                    help="cap the reconstruction's threads (default: all cores)")
 
@@ -125,7 +121,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 
 def _defaults() -> tuple[int, str]:
-    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES
+    from ..video_defaults import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES
 
     return DEFAULT_SHARD_FRAMES, DEFAULT_COMPRESSOR
 
@@ -187,7 +183,10 @@ def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
     the PSF's corner like ``recon`` (a plain PSF image, no --dark)."""
     from recon.errors import ReconInputError
 
-    if args.dark is None:
+    from ..reconstruct_files import dark_level, frames_dark_text
+
+    dark = frames_dark_text(args.dark)
+    if dark is None:
         if args.simulate:
             return float(cam.dark_offset_dn)
         if stacked:
@@ -196,7 +195,7 @@ def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
                 "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
                 "calibrate dark)")
         return None
-    return dark_level(args.dark)
+    return dark_level(dark)
 
 
 def _status(t_s: float, ring, live) -> str:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 import sys
 
+from diffuserlab.errors import InputError
+
 __all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "add_range_option", "bench_config",
            "bench_label", "check_memory", "error", "floats"]
 
@@ -17,7 +19,7 @@ __all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "add_range_option", "bench_conf
 BUILT_IN_BENCH = "built-in simulated bench"
 
 
-class MissingBenchFile(ValueError):
+class MissingBenchFile(InputError):
     """A command that needs a bench file got neither a file nor ``--simulate``."""
 
 
@@ -82,9 +84,9 @@ def floats(text: str, option: str) -> list[float]:
     try:
         values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError as exc:
-        raise ValueError(f"{option} {text!r} is not a comma-separated list of numbers") from exc
+        raise InputError(f"{option} {text!r} is not a comma-separated list of numbers") from exc
     if not values or not all(math.isfinite(v) for v in values):
-        raise ValueError(f"{option} {text!r} needs finite numbers")
+        raise InputError(f"{option} {text!r} needs finite numbers")
     return values
 
 

@@ -11,7 +11,7 @@ __all__ = ["add_subcommands", "run"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``demo`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.solvers import METHODS
+    from recon.options import METHODS
 
     dp = sub.add_parser("demo", help="main job: a bench session on the built-in simulated bench")
     dp.add_argument("--out", default="out/demo", help="output directory")

@@ -14,8 +14,6 @@ import math
 import signal
 import threading
 
-from ..emulated_bench import DEFAULT_DIR, EmulatedBench, EmulatorsRunningError
-from ..output_safety import check_outputs
 from .common import error
 
 __all__ = ["add_subcommands"]
@@ -27,8 +25,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                         "the real drivers run without it (examples/bench-emulated.toml)")
     esub = ep.add_subparsers(dest="emulators_command", required=True)
     sp = esub.add_parser("start", help="start the emulators and serve until Ctrl-C")
-    sp.add_argument("--dir", default=str(DEFAULT_DIR),
-                    help=f"directory of the port links (default {DEFAULT_DIR})")
+    sp.add_argument("--dir", default=None,
+                    help="directory of the port links (default: the one "
+                    "examples/bench-emulated.toml names)")
     sp.add_argument("--bench-out", default=None,
                     help="write the emulated bench file for --dir here")
     sp.add_argument("--overwrite", action="store_true", help="replace an existing --bench-out")
@@ -43,6 +42,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Start the emulators, print their ports, serve until interrupted."""
+    from ..emulated_bench import DEFAULT_DIR, EmulatedBench, EmulatorsRunningError
+    from ..output_safety import check_outputs
+
     if not (args.time_scale > 0 and math.isfinite(args.time_scale)):
         error(f"--time-scale must be a finite number > 0, got {args.time_scale}")
         return 2
@@ -53,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.bench_out:
         check_outputs([args.bench_out], None, args.overwrite, option="--bench-out")
-    bench = EmulatedBench(args.dir, time_scale=args.time_scale, ledmx=args.ledmx)
+    bench = EmulatedBench(DEFAULT_DIR if args.dir is None else args.dir,
+                          time_scale=args.time_scale, ledmx=args.ledmx)
     try:
         bench.start()
     except EmulatorsRunningError as exc:

@@ -2,8 +2,10 @@
 models).
 
 :func:`add_grid_options` adds ``--psf-grid``, ``--model``, ``--pca-k``,
-``--background``, ``--grid-l1``, (not on ``recon-run``, whose ``--dark`` serves)
-``--grid-dark`` and (``recon`` only: one plane) ``--grid-method`` and ``--two-part``;
+``--background`` and (``recon`` only: one plane) ``--two-part``; the solver, its l1
+weight and the frame's dark level are the commands' own ``--method``, ``--l1`` and
+``--dark`` (:mod:`instrument.cli.recon_flags`), whose former twins ``--grid-method``,
+``--grid-l1`` and ``--grid-dark`` remain as hidden deprecated aliases.
 :func:`run_grid` checks the outputs and runs
 :func:`instrument.reconstruct_grid.run_recon_grid`, printing one summary line.
 """
@@ -18,11 +20,12 @@ __all__ = ["add_grid_options", "run_grid"]
 def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
                      grid_dark: bool = True, solver: bool = False) -> None:
     """Add the PSF-grid options to the ``recon`` (2D), ``recon3d`` or ``recon-run``
-    (``grid_dark=False``: its ``--dark`` gives the frames' level) parser; ``solver``
-    adds ``--grid-method`` and ``--two-part`` (``recon``, whose ``--tv`` and ``--l1``
-    then serve ADMM)."""
-    from recon.spatial.api import GRID_METHODS
-    from recon.spatial.choice import MODELS
+    parser, with the hidden deprecated aliases ``--grid-l1`` and (``grid_dark``)
+    ``--grid-dark``; ``solver`` adds ``--two-part`` and the alias ``--grid-method``
+    (``recon``, whose ``--method admm`` solves a grid with ``--tv`` and ``--l1``)."""
+    from recon.options import BACKGROUNDS, GRID_METHODS, MODELS, dark_arg
+
+    from .recon_flags import add_deprecated
 
     g = p.add_argument_group(
         "spatially varying model (Ch. 5): a calibrate psf-grid run instead of a PSF")
@@ -36,33 +39,31 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
                    "(central PSF), local (every grid PSF, Eq. 5.3-5.5) or pca (Eq. 5.6-5.7)")
     g.add_argument("--pca-k", type=int, default=None,
                    help="principal PSFs of --model pca (default: 99 %% explained energy)")
-    g.add_argument("--background", choices=("estimate", "none"), default="estimate",
+    g.add_argument("--background", choices=BACKGROUNDS, default="estimate",
                    help="estimate a smooth background jointly (Eq. 6.2, lowest 5x5 DCT; "
                    "default) or none")
-    g.add_argument("--grid-l1", type=float, default=1e-3,
-                   help="l1 weight of the --psf-grid FISTA solver in the scaled problem")
+    add_deprecated(g, "--grid-l1", "--l1", "l1", type=float)
     if solver:
-        g.add_argument("--grid-method", choices=GRID_METHODS, default="fista",
-                       help="solver of the --psf-grid model: fista (default; Eq. 6.2 with "
-                       "--background and --grid-l1) or admm (TV --tv, auto by default, l1 "
-                       "--l1, non-negativity; needs --background none; a few hundred "
-                       "iterations where FISTA needs thousands)")
+        add_deprecated(g, "--grid-method", "--method", "method", choices=GRID_METHODS)
         g.add_argument("--two-part", action="store_true",
                        help="a far scene (Eq. 5.1): model each grid PSF over its brightness "
                        "(pixels the sensor missed from the nearest node) and divide the "
                        "image by the brightness map measured from the grid")
-    if not grid_dark:
-        return
-    g.add_argument("--grid-dark", type=float, default=0.0,
-                   help="level (DN) subtracted from the raw frame (the psf-grid PSFs are "
-                   "dark-subtracted); with --background estimate an offset is also estimated")
+    if grid_dark:
+        add_deprecated(g, "--grid-dark", "--dark", "dark", type=dark_arg)
 
 
 def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     """Run a ``--psf-grid`` reconstruction and print its summary line."""
+    from recon.options import GRID_METHODS, l1_given
+
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, volume_output_paths
     from ..reconstruct_grid import background_output, run_recon_grid
+    from .recon_flags import dark_for_grid, grid_method
+
+    method = grid_method(args.method, GRID_METHODS)
+    dark = dark_for_grid(args.dark)
 
     if volume:
         vol, mips = volume_output_paths(args.out)
@@ -75,13 +76,11 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
         outputs.append(args.metrics_json)
     inputs = {f"--psf-grid {p}": p for p in args.psf_grid}
     check_outputs(outputs, {**inputs, "--raw": args.raw}, args.overwrite)
-    method = getattr(args, "grid_method", "fista")
     m = run_recon_grid(args.psf_grid, args.raw, model=args.model, k=args.pca_k,
-                       background=args.background,
-                       l1=args.l1 if method == "admm" else args.grid_l1,
+                       background=args.background, l1=l1_given(args.l1),
                        iterations=args.iterations, out=args.out,
                        metrics_json=args.metrics_json, depths_mm=depths,
-                       bin_factor=args.bin_factor, dark=args.grid_dark, volume=volume,
+                       bin_factor=args.bin_factor, dark=dark, volume=volume,
                        method=method, tv=getattr(args, "tv", "auto"),
                        two_part=getattr(args, "two_part", False))
     where = m.get("output_volume") or m["output_png"]

@@ -21,7 +21,7 @@ EVALUATION_FILES = ("records.csv", "summary.json", "table.md", "psnr_vs_seconds.
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``holo`` with ``evaluate`` and ``benchmark`` to the ``diffuserlab`` subparsers."""
-    from recon.cgh.evaluation import METHODS
+    from recon.options import HOLOGRAM_METHODS as METHODS
 
     hp = sub.add_parser("holo", help="holographic display: Table 7.1 evaluation, speed "
                         "benchmark")

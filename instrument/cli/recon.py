@@ -13,8 +13,9 @@ __all__ = ["add_subcommands", "choice_lines", "run", "summary_line"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.auto import weight_arg
-    from recon.solvers import METHODS, SOLVERS
+    from recon.options import L1_DEFAULT, METHOD_SUMMARIES, METHODS, weight_arg
+
+    from .recon_flags import L1_HELP, TV_HELP, add_dark_option
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
     rp.add_argument("--psf", default=None,
@@ -29,29 +30,31 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "scenes when stray light is low, see the README)")
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
     rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
-                    help="auto (default): chosen from the data and --seconds, and said why; "
-                    + "; ".join(f"{name}: {spec.summary}" for name, spec in SOLVERS.items()))
+                    help="auto (default): chosen from the data and --seconds, and said why "
+                    "(with --psf-grid: fista); "
+                    + "; ".join(f"{name}: {text}" for name, text in METHOD_SUMMARIES.items())
+                    + ". With --psf-grid: fista (Eq. 6.2 with --background and --l1) or admm "
+                    "(TV --tv, l1 --l1, non-negativity; needs --background none; a few hundred "
+                    "iterations where FISTA needs thousands)")
     rp.add_argument("--iterations", type=int, default=200,
                     help="maximum iterations: the solve stops earlier when the fit changes "
                     "by less than the noise explains (the metrics say how many ran)")
     rp.add_argument("--seconds", type=float, default=None,
-                    help="time budget of the solve for --method auto (Wiener if too short)")
+                    help="time budget of the solve, s, for --method auto (Wiener if too short)")
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="box-binning factor (4: 1200x1600 -> 300x400)")
-    rp.add_argument("--tv", type=weight_arg, default="auto",
-                    help="TV weight in the scaled problem, or auto (default): the "
-                    "hold-out cross-validation along a warm-started path")
-    rp.add_argument("--l1", type=weight_arg, default=0.0,
-                    help="l1 weight (sparse scenes) in the scaled problem, or auto; default 0")
+                    help="box-binning factor, pixels per side (4: 1200x1600 -> 300x400)")
+    rp.add_argument("--tv", type=weight_arg, default="auto", help=TV_HELP)
+    rp.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
     rp.add_argument("--erase", type=float, default=0.0,
-                    help="fraction of raw pixels to erase at random (compressed sensing)")
+                    help="fraction (0-1) of raw pixels to erase at random (compressed sensing)")
     rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
     rp.add_argument("--full-scale", type=float, default=None,
-                    help="saturation level if below the dtype max (65520: 12-bit in uint16)")
-    rp.add_argument("--dark", default="auto",
-                    help="dark level subtracted from the PSF and the raw: auto (the PSF's "
-                    "dark corner psf[5:15, 5:15]; default), none (both already "
-                    "dark-subtracted), a number (DN) or a `calibrate dark` run")
+                    help="saturation level, DN, if below the dtype max (65520: 12-bit in "
+                    "uint16)")
+    add_dark_option(rp, auto="the PSF's dark corner psf[5:15, 5:15], subtracted from the "
+                    "PSF and the raw; with --psf-grid nothing, --background estimate fits "
+                    "the offset", frame="or a `calibrate dark` run or a dark image (TIFF, "
+                    "PNG, .npy), subtracted pixel by pixel (refused with --psf-grid)")
     rp.add_argument("--out", default="out/recon.png",
                     help="output image; writes OUT.png (viewing) and OUT.tif (float32)")
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
@@ -92,8 +95,11 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
+    from recon.options import l1_given
+
     from ..output_safety import check_outputs
-    from ..reconstruct_files import dark_level, output_paths, run_recon
+    from ..reconstruct_files import output_paths, run_recon
+    from .recon_flags import dark_for_image
 
     if (args.psf is None) == (args.psf_grid is None):
         from recon.errors import ReconInputError
@@ -106,12 +112,12 @@ def run(args: argparse.Namespace) -> int:
         return run_grid(args, volume=False)
     outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
-    dark = args.dark.strip().lower()
-    dark = None if dark == "auto" else "none" if dark == "none" else dark_level(args.dark)
+    dark = dark_for_image(args.dark)
     m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
                   bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,
-                  depth_mm=args.depth_mm, psf_product=args.psf_product, l1=args.l1,
+                  depth_mm=args.depth_mm, psf_product=args.psf_product,
+                  l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
                   seconds=args.seconds, allow_mixed_ranges=args.allow_mixed_ranges, dark=dark)
     for line in choice_lines(m):
         print(line)

@@ -15,7 +15,8 @@ Bad input exits with status 2 and one line; a diverging solver with status 3.
 from __future__ import annotations
 
 import argparse
-import math
+
+from diffuserlab.errors import InputError
 
 from .common import floats
 
@@ -30,10 +31,12 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     sub : argparse._SubParsersAction
         The subparsers of the ``diffuserlab`` parser. The new parser's defaults
         carry ``handler=run``, so :func:`instrument.cli.main` dispatches to
-        :func:`run` without naming the command, and ``input_errors`` (ValueError,
-        OSError: bad option values, unreadable files exit 2).
+        :func:`run` without naming the command; bad option values raise
+        :class:`diffuserlab.errors.InputError` (exit 2).
     """
-    from recon.auto import weight_arg
+    from recon.options import L1_DEFAULT, VOLUME_METHODS, weight_arg
+
+    from .recon_flags import L1_HELP, add_dark_option
 
     p = sub.add_parser("recon3d", help="reconstruct a volume from one image and a PSF stack")
     p.add_argument("--psf-stack", default=None,
@@ -45,25 +48,26 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--depths", default=None,
                    help="comma-separated depths in mm, one per plane (unless recorded)")
     p.add_argument("--raw", required=True, help="raw measurement, same size as the PSFs")
-    p.add_argument("--method", default="auto", help="admm, fista or auto (admm; default)")
+    p.add_argument("--method", default="auto", metavar="{auto," + ",".join(VOLUME_METHODS) + "}",
+                   help="auto (default: admm; with --psf-grid fista), admm or fista")
     p.add_argument("--iterations", type=int, default=200,
                    help="iterations (default 200; the automatic weight's path and final "
                    "solve take at most 2.5x as many together)")
     p.add_argument("--tv", type=weight_arg, default="auto",
-                   help="3D TV weight in the scaled problem (0 disables), or auto (default): "
-                   "hold-out cross-validation along a 3D ADMM path; every plane is kept and "
-                   "tested for signal")
+                   help="3D TV weight in the scaled problem (unitless; 0 disables), or auto "
+                   "(default): hold-out cross-validation along a 3D ADMM path; every plane is "
+                   "kept and tested for signal")
     p.add_argument("--empty-planes", choices=("keep", "drop"), default="keep",
                    help="with an automatic weight: keep every plane (default) or set those "
                    "that show no signal in the held-out pixels to zero (reported)")
-    p.add_argument("--l1", type=weight_arg, default=0.0,
-                   help="l1 (native sparsity) weight in the scaled problem, or auto; default 0")
+    p.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                   help="lateral box binning of every plane and of the raw image")
-    p.add_argument("--dark", default="auto",
-                   help="dark level: auto (median of the planes' dark corners psf[5:15, "
-                   "5:15], subtracted from the stack and the raw image; default), none, or "
-                   "a number in input units")
+                   help="lateral box binning of every plane and of the raw image, pixels per "
+                   "side")
+    add_dark_option(p, auto="the median of the planes' dark corners psf[5:15, 5:15], "
+                    "subtracted from the stack and the raw image; with --psf-grid nothing, "
+                    "--background estimate fits the offset", frame="a dark run or image is "
+                    "refused (one level is subtracted from the stack and the raw)")
     p.add_argument("--planes", choices=("all", "auto"), default="all",
                    help="all (default): every plane of the stack; auto: the calibrated "
                    "planes nearest those that Nyquist-sample the measured axial "
@@ -86,22 +90,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
     add_range_option(p)
     add_grid_options(p, volume=True)
-    p.set_defaults(handler=run, input_errors=(ValueError, OSError))
-
-
-
-
-def _parse_dark(text: str) -> str | float:
-    key = str(text).strip().lower()
-    if key in ("auto", "none"):
-        return key
-    try:
-        value = float(key)
-    except ValueError as exc:
-        raise ValueError(f"--dark {text!r}: use auto, none or a number") from exc
-    if not math.isfinite(value):
-        raise ValueError(f"--dark {text!r} must be finite")
-    return value
+    p.set_defaults(handler=run)
 
 
 def summary_line(m: dict) -> str:
@@ -118,22 +107,27 @@ def run(args: argparse.Namespace) -> int:
     """Run ``recon3d`` (:func:`instrument.reconstruct_files.run_recon3d`) and print its
     summary line; returns 0 (bad input exits 2 and divergence 3 through
     :func:`instrument.cli.main`)."""
+    from recon.options import l1_given
+
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
+    from .recon_flags import dark_for_volume
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
     if (args.psf_stack is None) == (args.psf_grid is None):
-        raise ValueError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
+        raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
     if args.psf_grid:
         from .grid_options import run_grid
 
         return run_grid(args, volume=True, depths=depths)
-    dark = _parse_dark(args.dark)
+    dark = dark_for_volume(args.dark)
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
     m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
-                    tv=args.tv, l1=args.l1, out=args.out, depths_mm=depths,
+                    tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
+                    out=args.out,
+                    depths_mm=depths,
                     bin_factor=args.bin_factor, dark=dark,
                     psf_product=args.psf_product, metrics_json=args.metrics_json,
                     planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,

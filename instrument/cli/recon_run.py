@@ -16,7 +16,7 @@
 [--background estimate|none] ...``
     The same with a spatially varying model (Ch. 5): the ``calibrate psf-grid`` run's
     model is chosen once for the batch (:mod:`instrument.batch_grid`; ``--model``,
-    ``--pca-k``, ``--background``, ``--grid-l1`` as for ``recon --psf-grid``), every
+    ``--pca-k``, ``--background``, ``--l1`` as for ``recon --psf-grid``; FISTA), every
     frame reconstructed with its own background estimate (Eq. 6.2); the product is
     ``recon_grid_<model>`` (``local``, ``convolution``, ``pcaK``) with the backgrounds
     in ``recon_grid_<model>_background``. The grid's PSFs are dark-subtracted, so the
@@ -35,8 +35,9 @@ __all__ = ["add_subcommands", "run"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.auto import weight_arg
-    from recon.solvers import METHODS
+    from recon.options import L1_DEFAULT, METHODS, weight_arg
+
+    from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, L1_HELP, TV_HELP, add_dark_option
 
     rp = sub.add_parser(
         "recon-run", help="reconstruct every frame of a recorded run with dask (resumable)",
@@ -48,26 +49,20 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth "
                     "(or --psf-grid instead)")
     rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
-                    help="depth (mm) of the stack's PSF to use")
+                    help="depth (mm) of the stack's PSF to use (nearest plane within 5%%)")
     rp.add_argument("--psf-product", default="psf_stack",
                     help="which stack of a calibration run: psf_stack (default) or "
                     "psf_stack_raw")
     rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
-                    help="as for `recon` (default auto: chosen from each frame's data)")
+                    help="as for `recon` (default auto: chosen from each frame's data; with "
+                    "--psf-grid fista, the only solver of a batch on a PSF grid)")
     rp.add_argument("--iterations", type=int, default=200,
                     help="maximum iterations per frame, as for `recon` (default 200)")
-    rp.add_argument("--tv", type=weight_arg, default="auto",
-                    help="TV weight in the scaled problem, or auto (default), as for `recon`")
-    rp.add_argument("--l1", type=weight_arg, default=0.0,
-                    help="l1 weight in the scaled problem, or auto; default 0")
+    rp.add_argument("--tv", type=weight_arg, default="auto", help=TV_HELP)
+    rp.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
     rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="box-binning factor")
-    rp.add_argument("--dark", default=None,
-                    help="the frames' dark level: a number (DN) or a `calibrate dark` run. "
-                    "Default: the simulated camera's offset for a run recorded with "
-                    "--simulate; required with a calibrated (dark-subtracted) PSF stack "
-                    "otherwise; with a plain PSF image, estimated from its corner as "
-                    "`recon` does")
+                    help="box-binning factor, pixels per side")
+    add_dark_option(rp, auto=FRAMES_AUTO, frame=FRAMES_FRAME)
     rp.add_argument("--frames", default=None,
                     help="frames A:B to reconstruct (default: every stored frame; a damaged "
                     "frame is left out and listed)")
@@ -96,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from recon.errors import ReconInputError
+    from recon.options import GRID_L1, l1_given
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
     from ..runstore import RunStore
@@ -143,11 +139,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         out = reconstruct_run(
             args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
-            l1=args.l1,
+            l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
             bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
             workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
             overwrite=args.overwrite, psf_source=source, background=args.background,
-            grid_l1=args.grid_l1, on_progress=progress, cancel=cancel)
+            grid_l1=GRID_L1 if l1_given(args.l1) is None else args.l1, on_progress=progress,
+            cancel=cancel)
     except KeyboardInterrupt:
         for bar in bars:
             bar.close()
@@ -178,6 +175,7 @@ def _grid(args: argparse.Namespace, store):
 
     from ..batch import frames_dark_level
     from ..batch_grid import prepare_grid_batch
+    from .recon_flags import grid_method
 
     if len(args.psf_grid) > 1:
         raise ReconInputError("recon-run reconstructs images: give one --psf-grid run (one "
@@ -185,6 +183,7 @@ def _grid(args: argparse.Namespace, store):
     if args.depth_mm is not None:
         raise ReconInputError("--depth selects a plane of a --psf stack; a --psf-grid run "
                               "has one depth: drop --depth")
+    grid_method(args.method, ("fista",))
     path = args.psf_grid[0]
     prepared = prepare_grid_batch(path, store.frame_shape, model=args.model, k=args.pca_k,
                                   bin_factor=args.bin_factor)

@@ -7,10 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
-from ..output_safety import check_outputs
-from ..runstore import RunStore
-from ..runstore_records import VIDEO_PLAN
-from ..stacks import export_tiff, import_psf_stack
+from diffuserlab.errors import InputError
+
 from .common import floats
 
 __all__ = ["add_subcommands", "format_summary", "run", "verify"]
@@ -46,11 +44,13 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ip.add_argument("--out", required=True, help="run store to create (RUN.zarr)")
     ip.add_argument("--note", default="")
     ip.add_argument("--overwrite", action="store_true")
-    rp.set_defaults(handler=run, input_errors=(ValueError,))
+    rp.set_defaults(handler=run)
 
 
 def format_summary(s: dict) -> str:
     """Human-readable lines of :meth:`RunStore.summary`."""
+    from ..runstore_records import VIDEO_PLAN
+
     problems = s.get("problems", [])
     state = f"{s['status']}, DAMAGED" if problems else s["status"]
     lines = [
@@ -111,6 +111,8 @@ def verify(path: str) -> int:
     instrument.runstore.RunStoreError
         No readable run at ``path`` (exit 2 through :func:`instrument.cli.main`).
     """
+    from ..runstore import RunStore
+
     store = RunStore.open(path)
     problems = store.verify()
     for p in problems:
@@ -131,6 +133,9 @@ def verify(path: str) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run a ``runs`` subcommand; 0 on success (a RunStoreError or ValueError exits 2
     through :func:`instrument.cli.main`)."""
+    from ..output_safety import check_outputs
+    from ..runstore import RunStore
+
     if args.runs_command == "show":
         summary = RunStore.open(args.run).summary()
         print(json.dumps(summary, indent=1) if args.json else format_summary(summary))
@@ -139,8 +144,10 @@ def run(args: argparse.Namespace) -> int:
     elif args.runs_command == "export":
         check_outputs([args.out], {"run": args.run}, args.overwrite)
         if Path(args.out).suffix.lower() not in (".tif", ".tiff"):
-            raise ValueError(f"--out {args.out}: runs export writes a TIFF; give a .tif or "
+            raise InputError(f"--out {args.out}: runs export writes a TIFF; give a .tif or "
                              ".tiff name")
+        from ..stacks import export_tiff
+
         out, skipped = export_tiff(args.run, args.out,
                                    product=None if args.frames else args.product)
         print(f"wrote {out}")
@@ -149,6 +156,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")
+        from ..stacks import import_psf_stack
+
         store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
                                  overwrite=args.overwrite)
         print(f"stored {store.n_points} depths in {store.path}")

@@ -14,6 +14,8 @@ from pydantic import (
     ValidationError,
 )
 
+from diffuserlab.errors import InputError
+
 from .base import Section, dotted, short_repr, unit_of, unit_word
 from .defaults import default_bench
 from .models import BenchConfig, CalibrationDefaults, DeviceConfig, GeometryConfig
@@ -50,7 +52,7 @@ class Problem:
         return self.format()
 
 
-class BenchConfigError(ValueError):
+class BenchConfigError(InputError):
     """A bench file or configuration with problems; ``problems`` lists every one of them."""
 
     def __init__(self, problems: list[Problem], source: str | None = None):

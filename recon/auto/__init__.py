@@ -15,6 +15,7 @@ import numbers
 import numpy as np
 
 from ..errors import ReconInputError
+from ..options import weight_arg  # moved there (a light module for the parsers)
 from ..solvers import SOLVERS, SolveResult
 from .choice import NoSignalError, check_signal, choose_method
 from .noise import NoiseModel, estimate_noise
@@ -46,19 +47,6 @@ def parse_weight(value, name: str):
         raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
                               f"'auto', got {value!r}")
     return w
-
-
-def weight_arg(text: str):
-    """argparse type of ``--tv`` / ``--l1``: ``"auto"`` or a float.
-
-    Raises
-    ------
-    ValueError
-        Neither (argparse turns it into a usage error naming the option).
-    """
-    if str(text).strip().lower() == AUTO:
-        return AUTO
-    return float(text)
 
 
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,

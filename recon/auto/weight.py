@@ -372,7 +372,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         in the transient after a weight step and the path stopped at 2.5e-3 on a
         scene whose best weight is 1e-5, 6.4 dB below it).
     stopping : Stopping, optional
-        Automatic stopping of the final solve (default :class:`Stopping`()).
+        Automatic stopping of the final solve (default ``Stopping()``).
     mu : (mu1, mu2, mu3), optional
         Starting ADMM penalties.
     model_error : float

@@ -13,12 +13,13 @@ helpers.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from diffuserlab.jsonio import jsonable, write_json
 
 from ..api import DEFAULT_TV, scaled_problem
 from ..api import solve as api_solve
@@ -68,32 +69,29 @@ def solve(method: str, op: ConvolutionOperator, b: np.ndarray, iterations: int,
     return api_solve(op, b, method, iterations=iterations, tv=weight, **extra)
 
 
-def jsonable(obj: Any) -> Any:
-    """Recursively convert numpy scalars/arrays and tuples; non-finite floats -> None."""
-    if isinstance(obj, dict):
-        return {str(k): jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist())
-    if isinstance(obj, np.integer | bool):
-        return obj if isinstance(obj, bool) else int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, float | np.floating):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    return obj
+def machine_record() -> dict:
+    """Where and when a benchmark ran: UTC date, platform, CPU count, Python and NumPy
+    versions and the 1-minute load average (the machine may be shared).
 
+    Returns
+    -------
+    dict
+        ``date_utc`` (ISO 8601 str), ``platform``, ``cpu_count`` (int), ``python``,
+        ``numpy`` (str) and ``load_average_start`` (three floats, or None where the
+        system has none).
+    """
+    import datetime
+    import os
+    import platform
 
-def write_json(path: Path, data: dict) -> Path:
-    """Write ``data`` (made JSON-safe by :func:`jsonable`) with indentation."""
-    from ..io import atomic_path
-
-    text = json.dumps(jsonable(data), indent=1, allow_nan=False) + "\n"
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-    return Path(path)
+    try:
+        load = list(os.getloadavg())
+    except OSError:
+        load = None
+    return {"date_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M"),
+            "platform": platform.platform(terse=True), "cpu_count": os.cpu_count(),
+            "python": platform.python_version(), "numpy": np.__version__,
+            "load_average_start": load}
 
 
 def save_figure(fig, path: Path) -> Path:

@@ -36,17 +36,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ReconInputError
-from . import DEFAULT_WEIGHTS, METHODS, fmt, write_json
+from ..options import BENCHMARKS  # the benchmarks, in the order they run
+from . import DEFAULT_WEIGHTS, METHODS, fmt, machine_record, write_json
 
 __all__ = ["BENCHMARKS", "format_result", "run_benchmarks", "summarise"]
 
 log = logging.getLogger(__name__)
 
-#: The benchmarks, in the order they run.
-BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
-              "volume_accuracy", "spatial_speed", "spatial_accuracy", "spatial_far",
-              "blind_calibration", "auto", "failure_maps", "failure_map_3d", "volume_auto",
-              "volume_external")
 
 #: (module, function) of each benchmark's text table (imported when needed: the
 #: benchmark modules are heavy).
@@ -247,6 +243,7 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {}
+    machine = machine_record()
     weights = dict(DEFAULT_WEIGHTS)
     timings = {}
     for name in selected:
@@ -297,6 +294,6 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
                       spatial=results.get("spatial_accuracy"))
     summary, text = summarise(results)
     summary.update(quick=quick, weights_used=weights, seconds=timings,
-                   methods=list(METHODS))
+                   methods=list(METHODS), machine=machine)
     write_json(out / "summary.json", summary)
     return summary, text

@@ -13,12 +13,13 @@ the benchmark, N = 240 the test-suite variant)::
 from __future__ import annotations
 
 import csv
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+
+from diffuserlab.jsonio import write_json
 
 from ..errors import ReconInputError
 from ..io import atomic_path
@@ -129,7 +130,7 @@ def plot_psnr_vs_seconds(records, path) -> None:
     plt.close(fig)
 
 
-def _jsonable(summary, rules, settings) -> dict:
+def _summary_record(summary, rules, settings) -> dict:
     cells = [{"factor": f, "method": m, "region": reg, **{k: v for k, v in c.items()
                                                           if k != "seed_psnr"},
               "seed_psnr": {str(s): p for s, p in c["seed_psnr"].items()},
@@ -187,8 +188,7 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
         w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
         w.writeheader()
         w.writerows(records)
-    with atomic_path(out / "summary.json") as tmp:
-        tmp.write_text(json.dumps(_jsonable(summary, rules, settings), indent=1))
+    write_json(out / "summary.json", _summary_record(summary, rules, settings))
     table = format_table(summary, rules, settings)
     with atomic_path(out / "table.md") as tmp:
         tmp.write_text(table)

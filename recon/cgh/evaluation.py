@@ -13,6 +13,7 @@ from collections import defaultdict
 import numpy as np
 
 from ..errors import ReconInputError
+from ..options import HOLOGRAM_METHODS
 from .baselines import one_step_hologram
 from .losses import IntensityLoss
 from .optimize import optimize_hologram
@@ -28,8 +29,9 @@ __all__ = [
     "summarise",
 ]
 
-#: Methods of Table 7.1 in order, and the reference "no-mask" (native étendue).
-METHODS = ("one-step", "l2", "frequency", "spatial")
+#: Methods of Table 7.1 in order (:data:`recon.options.HOLOGRAM_METHODS`); LABELS also
+#: names the reference "no-mask" (native étendue).
+METHODS = HOLOGRAM_METHODS
 LABELS = {"one-step": "One-step backpropagation", "l2": "Ours: No constraints",
           "frequency": "Ours: Frequency constraints", "spatial": "Ours: Spatial constraints",
           "no-mask": "No mask, native étendue (reference)"}

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from .admm import admm
 from .common import History, SolveResult
 from .gradient import fista, gradient_descent
+from .penalty import AdmmPenalty
 from .wiener import wiener
 
 
@@ -56,5 +57,5 @@ SOLVERS: dict[str, SolverSpec] = {
 #: Method names, in :data:`SOLVERS` order.
 METHODS = tuple(SOLVERS)
 
-__all__ = ["METHODS", "SOLVERS", "History", "SolveResult", "SolverSpec", "admm", "fista",
-           "gradient_descent", "wiener"]
+__all__ = ["METHODS", "SOLVERS", "AdmmPenalty", "History", "SolveResult", "SolverSpec", "admm",
+           "fista", "gradient_descent", "wiener"]

@@ -18,14 +18,25 @@ from .. import _kernels
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
-from ..validate import as_int, finite_float, nonneg_weight, positive
+from ..validate import as_int, nonneg_weight
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
+from .penalty import (
+    MU_RANGE,
+    AdmmPenalty,
+    balance_mode,
+    balanced_penalty,
+    check_balancing,
+    check_penalties,
+    check_penalty_settings,
+    rescale_duals,
+    tie_nonneg_penalty,
+)
 
-#: Balancing moves penalties only within this range (scaled problem: unit-sum PSF,
-#: |b| <= 1). The normalised dual residual of an inactive constraint (e.g. x >= 0
-#: where x is positive anyway) has a dual near zero and would push its penalty
-#: down without bound.
-MU_RANGE = (1e-5, 1e2)
+# the balancing steps live in .penalty; named here too for the 3D ADMM's imports
+__all__ = ["MU_RANGE", "AdmmPenalty", "AdmmPlan", "AdmmState", "admm", "balance_mode",
+           "balanced_penalty", "check_balancing", "check_penalties", "check_penalty_settings",
+           "difference_power",
+           "objective_of", "rescale_duals", "run_admm", "tie_nonneg_penalty"]
 
 
 def difference_power(shape: tuple[int, int]) -> np.ndarray:
@@ -34,122 +45,6 @@ def difference_power(shape: tuple[int, int]) -> np.ndarray:
     k1 = np.fft.rfftfreq(shape[1])[None, :]
     return ((2 - 2 * np.cos(2 * np.pi * k0)) + (2 - 2 * np.cos(2 * np.pi * k1))).astype(
         np.float32)
-
-
-def check_balancing(balance_every, balance_until: float, balance_ratio: float,
-                    balance_factor: float) -> None:
-    """Validate residual-balancing settings (shared by the 2D and 3D ADMM).
-
-    Raises
-    ------
-    ReconInputError
-        ``balance_every`` not an integer >= 2 (mode-1 and mode-2 iterations must
-        differ), ``balance_ratio`` or ``balance_factor`` not > 1 (the penalties
-        would oscillate or not move), ``balance_until`` outside [0, 1].
-    """
-    as_int(balance_every, "balance_every", 2)
-    finite_float(balance_until, "balance_until", lo=0.0, hi=1.0)
-    finite_float(balance_ratio, "balance_ratio", lo=1.0, lo_open=True)
-    finite_float(balance_factor, "balance_factor", lo=1.0, lo_open=True)
-
-
-def check_penalties(mu) -> tuple[float, float, float]:
-    """ADMM penalties ``(mu1, mu2, mu3)``: three positive finite numbers, default 2e-3 each.
-
-    Raises
-    ------
-    ReconInputError
-        Not a sequence of three, or an entry not a positive finite number.
-    """
-    if mu is None:
-        return (2e-3, 2e-3, 2e-3)
-    try:
-        n = len(mu)
-    except TypeError:
-        n = None
-    if n != 3 or isinstance(mu, str):
-        raise ReconInputError(f"mu must be three ADMM penalties (mu1, mu2, mu3), got {mu!r}")
-    return tuple(positive(m, f"mu[{i}] of the ADMM penalties") for i, m in enumerate(mu))
-
-
-def balance_mode(k: int, balance_every: int, last_balance: int) -> int:
-    """Mode of the fused split kernels at iteration ``k``.
-
-    0: plain update; 1: store the scaled duals (the iteration before a balancing
-    step); 2: also return the residual terms and balance. Balancing runs every
-    ``balance_every`` iterations while ``k < last_balance``.
-    """
-    if k < last_balance:
-        if k % balance_every == balance_every - 1:
-            return 1
-        if k % balance_every == 0 and k > 0:
-            return 2
-    return 0
-
-
-def balanced_penalty(mu_i: float, r2: float, s2: float, n2: float, d2: float,
-                     ratio: float, factor: float) -> float:
-    """One penalty after residual balancing (Boyd et al. 2011, Sec. 3.4.1).
-
-    With the normalised residuals of Wohlberg 2017, so the splits' different scales
-    do not matter: ``r = sqrt(r2 / n2)`` (primal ||G x - z|| over max(||G x||, ||z||))
-    and ``s = sqrt(s2 / d2)`` (dual mu ||z - z_prev|| over the dual's norm mu ||a||).
-    ``mu_i`` is multiplied by ``factor`` when r > ratio s and divided when
-    s > ratio r, within :data:`MU_RANGE`; unchanged when n2 or d2 is 0.
-
-    Parameters
-    ----------
-    mu_i : float
-        Current penalty.
-    r2, s2, n2, d2 : float
-        Sums over the split of (a - a_old)^2, (z - z_old)^2, max(g^2, z^2), a^2 (the
-        terms of :func:`recon.jit.balance_terms`).
-    ratio, factor : float
-        ``balance_ratio`` and ``balance_factor`` (> 1).
-
-    Returns
-    -------
-    float
-    """
-    if n2 > 0 and d2 > 0:
-        r_i, s_i = math.sqrt(r2 / n2), math.sqrt(s2 / d2)
-        if r_i > ratio * s_i and mu_i < MU_RANGE[1]:
-            return mu_i * factor
-        if s_i > ratio * r_i and mu_i > MU_RANGE[0]:
-            return mu_i / factor
-    return mu_i
-
-
-def tie_nonneg_penalty(new: list, ratio: float, regularised: bool) -> None:
-    """Without a TV (or l1) split, let the non-negativity penalty follow the data one.
-
-    The non-negativity split's dual is zero wherever the constraint is inactive
-    (most pixels), so its normalised dual residual is large and residual balancing
-    drives mu3 down to the floor of :data:`MU_RANGE`. With a TV split, mu2 |F Psi|^2
-    keeps the x-update's denominator mu1 |H|^2 + mu2 |F Psi|^2 + mu3 conditioned;
-    without one, mu3 / mu1 is the x-update's only Tikhonov term and a tiny ratio
-    turns each x-update into an inverse filter: on a simulated camera scene (real
-    PSF, 3000 photo-electrons) ADMM with tv = 0 fell below the noise level
-    (objective 6.8 against 7.9 for the noise alone, peak 20x the truth's) and 11.6 dB
-    below FISTA. So mu3 keeps its starting ratio to mu1 (``new[2] = ratio * new[0]``),
-    in place, when ``regularised`` is False.
-    """
-    if not regularised:
-        new[2] = ratio * new[0]
-
-
-def rescale_duals(splits) -> None:
-    """Keep the q-form state consistent after penalties change, in place.
-
-    Scaled duals are a = y / mu, so with the dual y fixed, q = z - a becomes
-    z - a mu / mu' = q + a (1 - mu / mu'). ``splits`` yields ``(q, a, mu_old,
-    mu_new)`` with ``a`` the duals stored by the mode-1 pass (overwritten here:
-    the next mode-1 pass rewrites them before they are read again).
-    """
-    for q, a, old, new in splits:
-        if old != new:
-            a *= np.float32(1.0 - old / new)
-            q += a
 
 
 @dataclass
@@ -358,9 +253,7 @@ def objective_of(op, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
 
 
 def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int,
-             tv: float, balance: bool = True, balance_every: int = 5,
-             balance_until: float = 0.6, balance_ratio: float = 10.0,
-             balance_factor: float = 2.0, l1: float = 0.0, stop=None,
+             tv: float, l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
              final: bool = True) -> SolveResult:
     """Run ``iterations`` ADMM iterations from ``state`` (updated in place).
 
@@ -376,9 +269,13 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
         Scaled, weighted measurement (checked with
         :func:`~recon.solvers.common.check_measurement`).
     state : AdmmState
-        Start; on return the final iterate (x before the non-negativity clip).
-    iterations, tv, balance, balance_every, balance_until, balance_ratio, balance_factor, l1
+        Start, with its penalties; on return the final iterate (x before the
+        non-negativity clip).
+    iterations, tv, l1
         As in :func:`admm` (already validated).
+    penalty : AdmmPenalty, optional
+        Residual balancing settings (default ``AdmmPenalty()``); its ``mu`` is not
+        used here (the state carries the current penalties).
     stop : callable, optional
         ``stop(history) -> bool``, asked after every iteration (automatic stopping,
         :class:`recon.auto.weight.Stopping`); ``iterations`` stays the maximum.
@@ -401,6 +298,7 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
         ``tv``.
     """
     op = plan.op
+    penalty = AdmmPenalty() if penalty is None else penalty
     if state.use_tv != (tv > 0):
         raise ReconInputError(f"ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
                               f" but tv={tv}; start from AdmmState.zeros(plan, mu, tv > 0)")
@@ -415,19 +313,18 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     qv = stacked[0]
     mon = Monitor(float(np.vdot(b, b)), "ADMM")
     mus = [(mu1, mu2, mu3)]
-    last_balance = int(balance_until * iterations) if balance else 0
+    last_balance = penalty.last_balance(iterations)
     ratio = mu3 / mu1  # kept without a TV split (tie_nonneg_penalty)
     used = iterations
     for k in range(iterations):
         mon.start()
-        mode = balance_mode(k, balance_every, last_balance)
+        mode = penalty.mode(k, last_balance)
         s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, plan.wp, mu1, mu2,
                                            mu3, tv, use_tv, mode, *scratch, l1)
         if mode == 2:
-            new = [balanced_penalty(mu1, *s[[2, 3, 8, 9]], balance_ratio, balance_factor),
-                   balanced_penalty(mu2, *s[[4, 5, 10, 11]], balance_ratio, balance_factor)
-                   if use_tv else mu2,
-                   balanced_penalty(mu3, *s[[6, 7, 12, 13]], balance_ratio, balance_factor)]
+            new = [penalty.balanced(mu1, *s[[2, 3, 8, 9]]),
+                   penalty.balanced(mu2, *s[[4, 5, 10, 11]]) if use_tv else mu2,
+                   penalty.balanced(mu3, *s[[6, 7, 12, 13]])]
             tie_nonneg_penalty(new, ratio, use_tv)
             if tuple(new) != (mu1, mu2, mu3):
                 rescale_duals(((qv, scratch[0], mu1, new[0]), (qux, scratch[1], mu2, new[1]),
@@ -451,14 +348,12 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     mon.history.extra["mu"] = [list(m) for m in mus]
     return SolveResult(x, mon.history, objective, relative,
                        {"tv": tv, "l1": l1, "mu_initial": list(mus[0]),
-                        "mu_final": [mu1, mu2, mu3], "balance": balance,
-                        "iterations_used": used})
+                        "mu_final": [mu1, mu2, mu3], "balance": penalty.balance,
+                        "iterations": iterations, "iterations_used": used})
 
 
 def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 1e-3,
-         mu: tuple[float, float, float] | None = None, balance: bool = True,
-         balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
-         balance_factor: float = 2.0, l1: float = 0.0, stop=None,
+         l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
          plan: AdmmPlan | None = None) -> SolveResult:
     """ADMM with crop, TV, l1 and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
 
@@ -471,14 +366,14 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
 
     Residual balancing (on by default; Boyd et al. 2011, Sec. 3.4.1, with the
     normalised residuals of Wohlberg 2017 so the three splits' different scales do
-    not matter): every ``balance_every`` iterations, for each split,
+    not matter): every ``penalty.balance_every`` iterations, for each split,
     r_i = ||G_i x - z_i|| / max(||G_i x||, ||z_i||) and
     s_i = mu_i ||z_i - z_i^prev|| / ||y_i|| with y_i = mu_i a_i the dual variable
     (G_i^T dropped: ||M|| <= 1 for a unit-sum PSF); mu_i is multiplied by
-    ``balance_factor`` when r_i > ratio s_i and divided when s_i > ratio r_i, scaled
-    duals rescaled. It stops after ``balance_until`` of the iterations so the final
-    penalties are fixed. With ``tv = 0``, mu3 follows mu1 at its starting ratio
-    (:func:`tie_nonneg_penalty`).
+    ``balance_factor`` when r_i > ``balance_ratio`` s_i and divided when
+    s_i > ``balance_ratio`` r_i, scaled duals rescaled. It stops after
+    ``balance_until`` of the iterations so the final penalties are fixed. With
+    ``tv = 0``, mu3 follows mu1 at its starting ratio (:func:`tie_nonneg_penalty`).
 
     Parameters
     ----------
@@ -492,24 +387,24 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     l1 : float
         l1 weight (native sparsity: beads, fluorescence), on the non-negativity split:
         w = max(x + a_w - l1 / mu3, 0).
+    penalty : AdmmPenalty, optional
+        Initial penalties and residual balancing (default ``AdmmPenalty()``: mu
+        (2e-3, 2e-3, 2e-3) for the scaled problem, unit-sum PSF and |b| <= 1,
+        balanced every 5 iterations during the first 60 %).
     stop : callable, optional
         ``stop(history) -> bool`` after every iteration (automatic stopping).
     plan : AdmmPlan, optional
         Precomputed for ``op`` (default :meth:`AdmmPlan.of`); a subclass with another
         x-update serves other forward models (:class:`recon.spatial.SpatialAdmmPlan`:
         the local convolution model, ``op`` a ``SpatialConvolutionOperator``).
-    mu : (mu1, mu2, mu3), optional
-        Initial penalties; default (2e-3, 2e-3, 2e-3) for the scaled problem (unit-sum
-        PSF, |b| <= 1); balancing adapts them, so the start matters little.
-    balance, balance_every, balance_until, balance_ratio, balance_factor
-        Residual balancing settings (see above).
 
     Returns
     -------
     SolveResult
         ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tau TV(x_k) + l1 ||x_k||_1
         for the iterate entering iteration k (x_0 = 0); ``history.extra['mu']`` the
-        penalties used; ``params['iterations_used']``.
+        penalties used; ``params`` with ``iterations`` (the maximum) and
+        ``iterations_used``.
 
     Raises
     ------
@@ -517,7 +412,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
         NaN/inf or an objective 100x that of the zero image.
     ReconInputError
         Not a convolution operator (without a ``plan``), a ``plan`` made for another
-        operator, or invalid parameters.
+        operator, ``penalty`` not an :class:`AdmmPenalty`, or invalid parameters.
     """
     if plan is None:
         plan = AdmmPlan.of(op)
@@ -527,10 +422,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     iterations = as_int(iterations, "iterations", 1)
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
-    check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
-    mu = check_penalties(mu)
+    penalty = check_penalty_settings(penalty)
     b = check_measurement(b, op.shape_out)
-    return run_admm(plan, b, AdmmState.zeros(plan, mu, tv > 0), iterations=iterations, tv=tv,
-                    balance=balance, balance_every=balance_every, balance_until=balance_until,
-                    balance_ratio=balance_ratio, balance_factor=balance_factor, l1=l1,
-                    stop=stop)
+    return run_admm(plan, b, AdmmState.zeros(plan, penalty.initial(), tv > 0),
+                    iterations=iterations, tv=tv, l1=l1, penalty=penalty, stop=stop)

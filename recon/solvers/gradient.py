@@ -16,6 +16,7 @@ from .. import _kernels
 from ..errors import ReconInputError
 from ..operators import LinearOperator
 from ..validate import as_int, finite_float, nonneg_weight, positive
+from .accelerated import accelerated_loop
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 
 
@@ -59,43 +60,29 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
         if x.shape != tuple(op.shape_in):
             raise ReconInputError(f"x0 has shape {x.shape}, the model's object is "
                                   f"{tuple(op.shape_in)}")
-    y = x.copy()
-    y_next = np.empty_like(y)
-    t = 1.0
-    restarts = []
-    used = iterations
-    for k in range(iterations):
-        mon.start()
+
+    def data_term(y):
         loss, grad = op.data_term(y, b)
-        l1_y = 0.0
         if l1 > 0:  # on x >= 0, l1 ||x||_1 = l1 sum(x): a constant gradient
             grad += np.float32(l1)
-            l1_y = l1 * float(y.sum(dtype=np.float64))
-        if momentum is None:  # FISTA sequence (Algorithm 1)
-            t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-            beta = (t - 1.0) / t_next
-        else:
-            beta = momentum
+        return loss, grad
+
+    def prox_step(y, grad, x, y_next, beta):
+        l1_y = l1 * float(y.sum(dtype=np.float64)) if l1 > 0 else 0.0
         tv_y, dot = _kernels.proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg)
-        if restart and dot > 0.0:
-            y_next[...] = x
-            t_next = 1.0
-            restarts.append(k)
-        if momentum is None:
-            t = t_next
-        y, y_next = y_next, y
-        mon.record(loss + tv * tv_y + l1_y, 2.0 * loss, x=x, hint=hint)
-        if stop is not None and stop(mon.history):
-            used = k + 1
-            break
+        return tv * tv_y + l1_y, dot
+
+    used, restarts = accelerated_loop(x, iterations=iterations, data_term=data_term,
+                                      prox_step=prox_step, monitor=mon, momentum=momentum,
+                                      restart=restart, stop=stop, hint=hint)
     r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
     final = 0.5 * data_sq + tv * anisotropic_tv(x) + l1 * float(x.sum(dtype=np.float64))
     mon.history.extra["restarts"] = restarts
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
-                       {"step": step, "lipschitz": lip, "tv": tv, "threshold": thr,
+                       {"step": step, "lipschitz": lip, "tv": tv, "tv_threshold": thr,
                         "nonneg": nonneg, "momentum": momentum, "restart": restart,
-                        "l1": l1, "iterations_used": used})
+                        "l1": l1, "iterations": iterations, "iterations_used": used})
 
 
 def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,

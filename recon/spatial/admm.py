@@ -139,8 +139,8 @@ def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: i
     tv, l1 : float
         Weights (scaled problem), >= 0.
     **options
-        ``mu``, ``balance``, ``balance_every``, ``balance_until``, ``balance_ratio``,
-        ``balance_factor``, ``stop``: as :func:`recon.solvers.admm`.
+        ``penalty`` (:class:`~recon.solvers.AdmmPenalty`) and ``stop``: as
+        :func:`recon.solvers.admm`.
 
     Returns
     -------

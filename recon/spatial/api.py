@@ -22,6 +22,7 @@ import numpy as np
 
 from ..auto import AUTO, parse_weight, solve_channel
 from ..errors import ReconInputError
+from ..options import BACKGROUNDS, GRID_METHODS  # ``--background``, ``method`` choices
 from ..preprocess import box_bin, check_raw_signal
 from ..solvers import SOLVERS, SolverSpec
 from ..solvers.common import SolveResult
@@ -35,10 +36,6 @@ from .grid import PsfGrid
 __all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "GridReconstruction", "bin_grid",
            "grid_model", "reconstruct_grid"]
 
-#: ``--background`` choices.
-BACKGROUNDS = ("estimate", "none")
-#: ``method`` choices: FISTA on Eq. 6.2 (l1, optional background) or TV ADMM.
-GRID_METHODS = ("fista", "admm")
 #: The solvers that serve a spatially varying model, for :func:`recon.auto.solve_channel`.
 GRID_SOLVERS = {
     "admm": SolverSpec(spatial_admm, SOLVERS["admm"].default_tv, True,

@@ -26,6 +26,7 @@ import scipy.fft as sfft
 
 from ..errors import ReconInputError
 from ..operators import LinearOperator
+from ..solvers.accelerated import accelerated_loop
 from ..solvers.common import Monitor, SolveResult, check_measurement
 from ..validate import as_int, nonneg_weight, positive
 
@@ -95,8 +96,8 @@ def lowpass_background(b: np.ndarray, n_low: int = 5) -> np.ndarray:
 
 def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200,
                      l1: float = 1e-4, n_low: int = 5, restart: bool = True,
-                     lipschitz: float | None = None, estimate_background: bool = True
-                     ) -> SolveResult:
+                     lipschitz: float | None = None, estimate_background: bool = True,
+                     stop=None) -> SolveResult:
     """FISTA on Eq. 6.2: object (l1, non-negative) and a smooth non-negative background.
 
     Parameters
@@ -121,6 +122,9 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200
         False keeps ``g = 0``: the same l1 FISTA without the background (for data
         whose background was removed otherwise, e.g. by
         :func:`recon.analysis.remove_background_dct`).
+    stop : callable, optional
+        ``stop(history) -> bool`` after every iteration (automatic stopping);
+        ``iterations`` stays the maximum.
 
     Returns
     -------
@@ -128,7 +132,9 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200
         ``x`` the object (``op.shape_in``); ``params["background"]`` the background
         (sensor shape, float32, in the measurement's units), also its DCT
         coefficients ``params["background_dct"]`` (n_low, n_low);
-        ``history.objective`` per iteration (at the extrapolated point).
+        ``history.objective`` per iteration (at the extrapolated point y_k, data term
+        and l1 both); ``params`` with ``iterations`` (the maximum) and
+        ``iterations_used``.
 
     Raises
     ------
@@ -149,32 +155,38 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200
         raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSFs")
     step = 1.0 / (lip_a + 1.0)
     mon = Monitor(float(np.vdot(b, b)), "FISTA with background")
-    x = np.zeros(op.shape_in, np.float32)
-    y = np.zeros_like(x)
-    g = (lowpass_background(b, n_low) if estimate_background
-         else np.zeros(b.shape, np.float32))
-    g = low.project_nonneg(g) if estimate_background else g
-    gy = g.copy()
-    t = 1.0
-    restarts = []
-    for k in range(iterations):
-        mon.start()
+    g0 = (lowpass_background(b, n_low) if estimate_background
+          else np.zeros(b.shape, np.float32))
+    # the joint variable [object; background] in one buffer, viewed as its two parts
+    n = math.prod(op.shape_in)
+    joint = np.zeros(n + b.size, np.float32)
+
+    def parts(v):
+        return v[:n].reshape(op.shape_in), v[n:].reshape(b.shape)
+
+    x, g = parts(joint)
+    g[...] = low.project_nonneg(g0) if estimate_background else g0
+
+    def data_term(v):
+        y, gy = parts(v)
         resid = op.forward(y) + gy - b  # A y + g - b: both gradients from it
-        loss = 0.5 * float(np.vdot(resid, resid))
-        grad = op.adjoint(resid)
+        return 0.5 * float(np.vdot(resid, resid)), (op.adjoint(resid), resid)
+
+    def prox_step(v, grads, v_new, v_next, beta):
+        (y, gy), (x, g), (y_next, gy_next) = parts(v), parts(v_new), parts(v_next)
+        grad, resid = grads
         x_new = np.maximum(y - step * grad - step * tau, 0.0).astype(np.float32)
-        g_new = low.project_nonneg(gy - step * resid) if estimate_background else g
-        t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        beta = (t - 1.0) / t_next
+        g_new = low.project_nonneg(gy - step * resid) if estimate_background else g.copy()
         dot = float(np.vdot(y - x_new, x_new - x)) + float(np.vdot(gy - g_new, g_new - g))
-        if restart and dot > 0.0:
-            y, gy, t_next = x_new.copy(), g_new.copy(), 1.0
-            restarts.append(k)
-        else:
-            y = (x_new + beta * (x_new - x)).astype(np.float32)
-            gy = (g_new + beta * (g_new - g)).astype(np.float32)
-        x, g, t = x_new, g_new, t_next
-        mon.record(loss + tau * float(np.abs(y).sum(dtype=np.float64)), 2.0 * loss, x=x)
+        y_next[...] = x_new + beta * (x_new - x)
+        gy_next[...] = g_new + beta * (g_new - g)
+        x[...], g[...] = x_new, g_new
+        return tau * float(np.abs(y).sum(dtype=np.float64)), dot
+
+    used, restarts = accelerated_loop(joint, iterations=iterations, data_term=data_term,
+                                      prox_step=prox_step, monitor=mon, restart=restart,
+                                      stop=stop, snapshot=x)
+    x, g = x.copy(), g.copy()
     resid = op.forward(x) + g - b
     data_sq = float(np.vdot(resid, resid))
     final = 0.5 * data_sq + tau * float(x.sum(dtype=np.float64))
@@ -182,4 +194,5 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"step": step, "lipschitz": lip_a, "l1": tau, "n_low": int(n_low),
                         "background": g, "background_dct": low.coefficients(g),
-                        "restart": restart, "iterations": iterations})
+                        "restart": restart, "iterations": iterations,
+                        "iterations_used": used})

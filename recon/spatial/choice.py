@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ReconInputError
+from ..options import MODELS  # model names of ``--model``
 from ..preprocess import box_bin
 from .grid import PsfGrid
 from .operator import local_convolution_operator, pca_components, pca_operator
@@ -41,8 +42,6 @@ from .operator import local_convolution_operator, pca_components, pca_operator
 __all__ = ["DEFAULT_TOLERANCE", "MODELS", "ModelChoice", "build_operator", "choose_model",
            "measure_models", "predicted_errors"]
 
-#: Model names of ``--model``.
-MODELS = ("auto", "convolution", "local", "pca")
 #: Largest predicted relative model error a cheaper model may have.
 DEFAULT_TOLERANCE = 0.1
 

@@ -32,14 +32,8 @@ from numba import get_num_threads
 
 from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
-from ..solvers.admm import (
-    balance_mode,
-    balanced_penalty,
-    check_balancing,
-    check_penalties,
-    rescale_duals,
-)
 from ..solvers.common import Monitor, SolveResult, check_measurement
+from ..solvers.penalty import AdmmPenalty, check_penalty_settings, rescale_duals
 from ..validate import as_int, nonneg_weight
 from . import _admm_kernels3d as _k
 from .fista import final_objective
@@ -212,9 +206,7 @@ class VolumeAdmmState:
 
 def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
                iterations: int, tv: float, l1: float = 0.0, nonneg: bool = True,
-               balance: bool = True, balance_every: int = 5, balance_until: float = 0.6,
-               balance_ratio: float = 10.0, balance_factor: float = 2.0,
-               final: bool = True) -> SolveResult:
+               penalty: AdmmPenalty | None = None, final: bool = True) -> SolveResult:
     """Run ``iterations`` 3D ADMM iterations from ``state`` (updated in place).
 
     The loop of :func:`admm3d`, which validates the parameters and starts from
@@ -228,9 +220,9 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
     b : ndarray, float32, ``plan.op.shape_out``
     state : VolumeAdmmState
         ``state.use_tv`` must equal ``tv > 0``.
-    iterations, tv, l1, nonneg, balance, balance_every, balance_until, balance_ratio,
-    balance_factor
-        As :func:`admm3d` (validated by the caller).
+    iterations, tv, l1, nonneg, penalty
+        As :func:`admm3d` (validated by the caller); the state's penalties are the
+        initial ones (``penalty.mu`` is used only by :func:`admm3d`).
     final : bool
         Evaluate the returned estimate's objective and residual (one forward model);
         False reports the last iteration's from the history.
@@ -253,6 +245,7 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
         raise ReconInputError(f"3D ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
                               f" but tv={tv_w}; start from VolumeAdmmPlan.zeros(mu, tv > 0)")
     b = check_measurement(b, op.shape_out)
+    penalty = check_penalty_settings(penalty)
     use_tv = state.use_tv
     mu1, mu2, mu3 = state.mu
     nz = op.n_z
@@ -265,7 +258,7 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
     stack, qv, qw, quz, quy, qux = (state.stack, state.qv, state.qw, state.quz, state.quy,
                                     state.qux)
     dummy3 = np.zeros((1, 1, 1), np.float32)
-    last_balance = int(balance_until * iterations) if balance else 0
+    last_balance = penalty.last_balance(iterations)
     if last_balance > 0:
         av = np.zeros(shape, np.float32)
         aw = np.zeros(op.shape_in, np.float32)
@@ -284,7 +277,7 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
         if k == last_balance and k > 0:  # balancing over: drop the stored duals
             av = np.zeros((1, 1), np.float32)
             aw = auz = auy = aux = dummy3
-        mode = balance_mode(k, balance_every, last_balance)
+        mode = penalty.mode(k, last_balance)
         x, mx = stack[:nz], stack[nz]
         sv = _k.admm_split_plane(mx, qv, bp, wp, mu1, mode, av)
         su = _k.admm_split_volume(x, quz, quy, qux, qw, l1_w / mu3,
@@ -292,10 +285,9 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
                                   auz, auy, aux, aw, rows)
         data_sq, tv_x, l1_x = sv[0], su[0], su[1]
         if mode == 2:
-            new = [balanced_penalty(mu1, *sv[1:], balance_ratio, balance_factor),
-                   balanced_penalty(mu2, *su[2:6], balance_ratio, balance_factor) if use_tv
-                   else mu2,
-                   balanced_penalty(mu3, *su[6:10], balance_ratio, balance_factor)]
+            new = [penalty.balanced(mu1, *sv[1:]),
+                   penalty.balanced(mu2, *su[2:6]) if use_tv else mu2,
+                   penalty.balanced(mu3, *su[6:10])]
             if tuple(new) != (mu1, mu2, mu3):
                 splits = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
                 if use_tv:
@@ -330,16 +322,14 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
     return SolveResult(x, mon.history, objective, relative,
                        {"tv": tv_w, "l1": l1_w, "nonneg": nonneg,
                         "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
-                        "balance": balance, "iterations": iterations,
+                        "balance": penalty.balance, "iterations": iterations,
                         "iterations_used": iterations,
                         "ffts_per_iteration": {"rfft2": nz + 1, "irfft2": nz + 1}})
 
 
 def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
            tv: float | None = None, l1: float | None = None, nonneg: bool = True,
-           mu: tuple[float, float, float] | None = None, balance: bool = True,
-           balance_every: int = 5, balance_until: float = 0.6, balance_ratio: float = 10.0,
-           balance_factor: float = 2.0) -> SolveResult:
+           penalty: AdmmPenalty | None = None) -> SolveResult:
     r"""ADMM on a volume with 3D TV, l1 and non-negativity (Eq. 4.5, App. A.3).
 
     Per iteration, in scaled-dual q-form (q_i = z_i - a_i kept between
@@ -390,10 +380,10 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         l1 weight (native sparsity, on the w split).
     nonneg : bool
         Constrain x >= 0 (the w split).
-    mu : (mu1, mu2, mu3), optional
-        Initial penalties of the v, u and w splits; default :data:`DEFAULT_MU`.
-    balance, balance_every, balance_until, balance_ratio, balance_factor
-        Residual balancing settings (see above).
+    penalty : AdmmPenalty, optional
+        The initial penalties ``mu`` of the v, u and w splits (default
+        :data:`DEFAULT_MU`) and the residual balancing settings (see above), as for
+        the 2D ADMM (:class:`recon.solvers.AdmmPenalty`).
 
     Returns
     -------
@@ -414,10 +404,7 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     iterations = as_int(iterations, "iterations", 1)
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
-    check_balancing(balance_every, balance_until, balance_ratio, balance_factor)
-    mu = check_penalties(DEFAULT_MU if mu is None else mu)
+    penalty = check_penalty_settings(penalty)
     b = check_measurement(b, op.shape_out)
-    return run_admm3d(plan, b, plan.zeros(mu, tv_w > 0), iterations=iterations, tv=tv_w,
-                      l1=l1_w, nonneg=nonneg, balance=balance, balance_every=balance_every,
-                      balance_until=balance_until, balance_ratio=balance_ratio,
-                      balance_factor=balance_factor)
+    return run_admm3d(plan, b, plan.zeros(penalty.initial(DEFAULT_MU), tv_w > 0),
+                      iterations=iterations, tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty)

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import ReconInputError
 from ..operators import LinearOperator
+from ..solvers.accelerated import accelerated_loop
 from ..solvers.common import Monitor, SolveResult, check_measurement
 from ..solvers.gradient import prox_threshold
 from ..validate import as_int, nonneg_weight, positive
@@ -77,7 +78,7 @@ def final_objective(op: LinearOperator, x: np.ndarray, b: np.ndarray, tv_w: floa
 def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
             tv: float | None = None, l1: float | None = None, nonneg: bool = True,
             step: float | None = None, step_scale: float = 1.0, restart: bool = True,
-            lipschitz: float | None = None) -> SolveResult:
+            lipschitz: float | None = None, stop=None) -> SolveResult:
     """FISTA on a volume with 3D TV (Haar shifts), l1 and non-negativity.
 
     Each iteration: ``grad = A^T (A y_k - b)`` (the fused data term: ``2 n_z + 2``
@@ -112,13 +113,17 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
     restart : bool
     lipschitz : float, optional
         Known L (skips the power iteration, :meth:`LinearOperator.lipschitz`).
+    stop : callable, optional
+        ``stop(history) -> bool`` after every iteration (automatic stopping);
+        ``iterations`` stays the maximum.
 
     Returns
     -------
     SolveResult
         ``x`` is the volume (n_z, P0, P1) float32 on the padded grid;
         ``history.objective[k]`` is evaluated at the extrapolated point y_k (free);
-        ``final_objective`` is exact at the returned x; ``history.extra["restarts"]``.
+        ``final_objective`` is exact at the returned x; ``history.extra["restarts"]``;
+        ``params`` with ``iterations`` (the maximum) and ``iterations_used``.
 
     Raises
     ------
@@ -158,32 +163,28 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
                if tv_w > 0 or l1_w > 0 else ""))
     fused = isinstance(op, VolumeConvolutionOperator)
     x = np.zeros(op.shape_in, np.float32)
-    y = np.zeros(op.shape_in, np.float32)
-    y_next = np.empty_like(y)
-    grad = np.empty_like(y)
-    t = 1.0
-    restarts = []
-    for k in range(iterations):
-        mon.start()
+    grad = np.empty_like(x)
+
+    def data_term(y):
         if fused:
             loss, _ = op.data_term(y, b, out=grad)
         else:
             loss, g = op.data_term(y, b)
             np.copyto(grad, g)
-        t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        beta = (t - 1.0) / t_next
+        return loss, grad
+
+    def prox_step(y, grad, x, y_next, beta):
         tv_y, l1_y, dot = _kernels3d.proximal_step_3d(y, grad, x, y_next, step, thr, l1thr,
                                                      beta, nonneg)
-        if restart and dot > 0.0:
-            y_next[...] = x
-            t_next = 1.0
-            restarts.append(k)
-        t = t_next
-        y, y_next = y_next, y
-        mon.record(loss + tv_w * tv_y + l1_w * l1_y, 2.0 * loss, x=x, hint=hint)
+        return tv_w * tv_y + l1_w * l1_y, dot
+
+    used, restarts = accelerated_loop(x, iterations=iterations, data_term=data_term,
+                                      prox_step=prox_step, monitor=mon, restart=restart,
+                                      stop=stop, hint=hint)
     final, data_sq = final_objective(op, x, b, tv_w, l1_w)
     mon.history.extra["restarts"] = restarts
     return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
                        {"step": step, "lipschitz": lip, "tv": tv_w, "l1": l1_w,
                         "tv_threshold": thr, "l1_threshold": l1thr, "nonneg": nonneg,
-                        "restart": restart, "iterations": iterations})
+                        "restart": restart, "iterations": iterations,
+                        "iterations_used": used})

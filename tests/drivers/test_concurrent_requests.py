@@ -15,10 +15,17 @@ import threading
 import pytest
 
 from drivers.dlp_lightcrafter import LightCrafter4500
+from drivers.template import TemplateStage
 from drivers.thorlabs_apt import ThorlabsAptStage
 from drivers.thorlabs_apt_protocol import MSG
 from drivers.zaber_ascii import ZaberAsciiStage
-from tests.mocks import AptEmulator, Dlpc350Emulator, FakeHid, ZaberEmulator
+from tests.mocks import (
+    AptEmulator,
+    Dlpc350Emulator,
+    FakeHid,
+    TemplateStageEmulator,
+    ZaberEmulator,
+)
 
 THREADS, ROUNDS = 8, 25
 
@@ -96,6 +103,20 @@ def test_zaber_same_command_from_many_threads(tmp_path):
                 assert status in ("IDLE", "BUSY") and data.lstrip("-").isdigit()
 
             errors = hammer(get_pos)
+            assert not errors, errors[:3]
+            errors = hammer(lambda: (stage.is_moving(), stage.positions()), threads=4, rounds=10)
+            assert not errors, errors[:3]
+
+
+def test_template_queries_from_many_threads():
+    """The template's protocol has no message ids: only its lock pairs replies."""
+    with TemplateStageEmulator(2, time_scale=100.0) as emu:
+        with TemplateStage("stage", axes=["x", "y"], port=emu.port, reply_timeout_s=2.0) as stage:
+            def queries():
+                assert stage.query("AXES?") == "2"
+                assert stage.query("TRAVEL? 2") == "0 50"
+
+            errors = hammer(queries)
             assert not errors, errors[:3]
             errors = hammer(lambda: (stage.is_moving(), stage.positions()), threads=4, rounds=10)
             assert not errors, errors[:3]

@@ -7,13 +7,12 @@ import time
 import pytest
 
 from drivers.errors import (
-    DeviceDisconnectedError,
     DeviceProtocolError,
     DeviceStateError,
     StageMotionError,
 )
 from drivers.zaber_ascii import ZaberAsciiStage, lrc
-from tests.drivers.conformance import StageConformance
+from tests.drivers.conformance import StageConformance, unplug_mid_move
 from tests.mocks import ZaberEmulator
 
 STEP = 0.047625e-3  # mm per microstep
@@ -129,15 +128,7 @@ def test_unplug_mid_move_then_reconnect(emulator):
     stage = make_stage(emulator, home_on_open=True)
     stage.open()
     try:
-        stage.velocity = {"x": 2.0}
-        stage.move_to({"x": 40.0}, wait=False)
-        emulator.unplug()
-        t0 = time.monotonic()
-        with pytest.raises(DeviceDisconnectedError):
-            stage.wait_until_idle(timeout_s=30.0)
-        assert time.monotonic() - t0 < 2.0
-        with pytest.raises(DeviceDisconnectedError):
-            stage.positions()
+        unplug_mid_move(stage, emulator, "x", 40.0, velocity=2.0)
         emulator.replug()
         stage.reconnect()
         assert stage.velocity["x"] == 2.0

@@ -10,7 +10,7 @@ recon, recon3d, demo, analyze, runs, holo and benchmark are in
 commands' outputs and every other input class.
 
 Not here, by design: ``runs verify`` of a store with deleted or altered chunks exits 1
-and lists the damage (``runs show`` marks it DAMAGED), see the README's "Data safety".
+and lists the damage (``runs show`` marks it DAMAGED), see docs/data-safety.md.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Table-driven like the fault table: each case damages a copy of a valid run (a
 24-frame simulated video of shards of 8, a complete simulated PSF sweep) and runs a
-command on it. ``runs verify`` exits 1 and names the damage on its line (the README's
+command on it. ``runs verify`` exits 1 and names the damage on its line (docs/data-safety.md's
 "Data safety": 1 damaged, 2 unreadable), ``runs show`` says DAMAGED, and ``runs export
 --frames`` exports the intact frames and lists what it left out. Every command leaves
 every file under the test directory as it was (sha256 before and after).

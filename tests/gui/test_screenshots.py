@@ -2,7 +2,7 @@
 
 Runs ``python -m gui.screenshots`` on an Xvfb display with a window manager
 (:func:`gui.soak.x_display`; scripts/system-deps.sh installs them). The PNGs go to a
-temporary folder; ``DIFFUSERLAB_SCREENSHOT_DIR=docs/images`` writes the README's, and
+temporary folder; ``DIFFUSERLAB_SCREENSHOT_DIR=docs/images`` writes the documentation's, and
 ``DIFFUSERLAB_ALIGNMENT_RECORD`` shows a finished alignment record (``diffuserlab align
 mask --simulate --out DIR``) in the alignment panel.
 """

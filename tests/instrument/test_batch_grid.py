@@ -173,7 +173,7 @@ def test_batch_grid_frames_equal_recon_psf_grid_of_each_frame(synthetic, schedul
         np.save(tmp_path / "raw.npy", store.frame(i).image.astype(np.float32))
         assert main(["recon", "--psf-grid", str(d / "grid.zarr"), "--raw",
                      str(tmp_path / "raw.npy"), "--model", "local", "--iterations", "30",
-                     "--grid-dark", "10", "--out", str(tmp_path / f"f{i}"),
+                     "--dark", "10", "--out", str(tmp_path / f"f{i}"),
                      "--overwrite"]) == 0
         assert_same_frame(movie[i], load_image(tmp_path / f"f{i}.tif"))
         assert_same_frame(background[i], load_image(tmp_path / f"f{i}_background.tif"))

@@ -82,7 +82,7 @@ def test_recon_with_a_psf_grid_finds_the_sources_and_the_background(tmp_path, ca
 
 
 def test_recon_with_a_psf_grid_by_admm_two_part(tmp_path, capsys):
-    """``--grid-method admm --two-part``: TV ADMM on the grid's caustics, the weight chosen
+    """``--method admm --two-part``: TV ADMM on the grid's caustics, the weight chosen
     automatically and said, the brightness divided out; sources at their nodes."""
     psfs = _grid_run(tmp_path / "grid.zarr")
     raw = 100 * (psfs[0] + 0.7 * psfs[8])
@@ -90,7 +90,7 @@ def test_recon_with_a_psf_grid_by_admm_two_part(tmp_path, capsys):
     out = tmp_path / "out" / "r"
     base = ["recon", "--psf-grid", str(tmp_path / "grid.zarr"), "--raw",
             str(tmp_path / "raw.npy"), "--model", "local", "--iterations", "150",
-            "--grid-method", "admm", "--out", str(out)]
+            "--method", "admm", "--out", str(out)]
     assert main(base) == 2
     assert "background 'none'" in capsys.readouterr().err
     code = main([*base, "--background", "none", "--two-part", "--metrics-json",

@@ -61,5 +61,5 @@ def test_write_json_failure_keeps_the_earlier_file(tmp_path):
     path = write_json(tmp_path / "m.json", {"a": 1})
     with pytest.raises(TypeError):
         write_json(path, {"a": object()})
-    assert path.read_text() == '{\n "a": 1\n}'
+    assert path.read_text() == '{\n "a": 1\n}\n'
     assert [p.name for p in tmp_path.iterdir()] == ["m.json"]

@@ -9,6 +9,7 @@ import recon
 from recon.benchmarks.live import moving_scene, warm_vs_cold
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor
+from recon.solvers import AdmmPenalty
 
 
 def _raw_pair(shape=(64, 80), seed=1):
@@ -22,16 +23,17 @@ def _raw_pair(shape=(64, 80), seed=1):
 @pytest.mark.parametrize("bin_factor", [1, 2])
 def test_cold_admm_equals_reconstruct_exactly(bin_factor):
     psf, raw = _raw_pair()
-    live = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, mu=(1e-3, 2e-3, 3e-3))
+    penalty = AdmmPenalty(mu=(1e-3, 2e-3, 3e-3))
+    live = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, penalty=penalty)
     got = live.admm(raw, iterations=12, warm_start=False)
     ref = recon.reconstruct(psf, raw, "admm", iterations=12, bin_factor=bin_factor, tv=1e-3,
-                            auto_stop=False, mu=(1e-3, 2e-3, 3e-3))
+                            auto_stop=False, penalty=penalty)
     np.testing.assert_array_equal(got.image, ref.image)
     np.testing.assert_array_equal(got.estimate, ref.estimate)
     assert got.solve.history.objective == ref.results[0].history.objective
     assert not got.warm and got.image.shape == live.sensor_shape
     # the first call has no state to start from: warm_start=True is cold too
-    again = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, mu=(1e-3, 2e-3, 3e-3))
+    again = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, penalty=penalty)
     first = again.admm(raw, iterations=12)
     assert not first.warm
     np.testing.assert_array_equal(first.image, ref.image)

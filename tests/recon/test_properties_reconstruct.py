@@ -17,7 +17,7 @@ import recon
 from recon.api import solver_options
 from recon.errors import DivergenceError, ReconInputError
 from recon.preprocess import SaturationWarning
-from recon.solvers import SOLVERS
+from recon.solvers import SOLVERS, AdmmPenalty
 
 from .test_properties_common import (
     FAST,
@@ -130,7 +130,8 @@ def test_shape_mismatch_names_both_shapes(h, w, dh, dw, preprocess):
 
 @pytest.mark.parametrize("method", METHODS)
 @FAST
-@given(option=st.sampled_from(["step_scale", "mu", "regularization", "momentum", "bogus"]))
+@given(option=st.sampled_from(["step_scale", "penalty", "regularization", "momentum",
+                               "bogus"]))
 def test_options_a_method_does_not_take_are_refused(method, option):
     if option in solver_options(method):
         return
@@ -155,7 +156,7 @@ def test_invalid_solver_options_are_refused(method, option, value):
                     st.sampled_from([(1e-3, 1e-3), "abc", (1, 2, 3, 4)])))
 def test_invalid_admm_penalties_are_refused(mu):
     with pytest.raises(ReconInputError) as info:
-        _reconstruct(PSF, RAW, "admm", iterations=2, mu=mu)
+        _reconstruct(PSF, RAW, "admm", iterations=2, penalty=AdmmPenalty(mu=mu))
     assert_refused(info, "mu")
 
 

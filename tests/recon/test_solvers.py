@@ -16,7 +16,7 @@ import pytest
 
 from recon.errors import DivergenceError, ReconInputError
 from recon.operators import ConvolutionOperator, PixelErasure
-from recon.solvers import admm, fista, gradient_descent, wiener
+from recon.solvers import AdmmPenalty, admm, fista, gradient_descent, wiener
 from recon.solvers.wiener import auto_regularization
 
 ITERATIONS = 200
@@ -98,8 +98,8 @@ def test_wiener_auto_regularization_estimates_noise(conv_problem):
     ("gd", {}, 22.0),  # 25.2 dB
     ("fista", {}, 35.0),  # 43.0 dB
     ("fista", {"tv": TV_FISTA}, 33.0),  # 37.8 dB
-    ("admm", {"tv": TV, "balance": True}, 26.0),  # 29.3 dB
-    ("admm", {"tv": TV, "balance": False}, 24.5),  # 27.7 dB
+    ("admm", {"tv": TV, "penalty": AdmmPenalty(balance=True)}, 26.0),  # 29.3 dB
+    ("admm", {"tv": TV, "penalty": AdmmPenalty(balance=False)}, 24.5),  # 27.7 dB
 ], ids=["gd", "fista", "fista-tv", "admm-balanced", "admm-fixed-mu"])
 def test_solver_recovers_scene(conv_problem, name, kwargs, bound):
     op, b = conv_problem.op, conv_problem.b_clean
@@ -198,8 +198,8 @@ def test_erased_pixels_are_recovered(conv_problem, name, kwargs, bound):
 def test_admm_balancing_rescues_bad_penalties(conv_problem, mu):
     op, b = conv_problem.op, conv_problem.b_clean
     zero = conv_problem.zero_objective(b)
-    good = admm(op, b, iterations=ITERATIONS, tv=TV, mu=mu, balance=True)
-    bad = admm(op, b, iterations=ITERATIONS, tv=TV, mu=mu, balance=False)
+    good = admm(op, b, iterations=ITERATIONS, tv=TV, penalty=AdmmPenalty(mu=mu, balance=True))
+    bad = admm(op, b, iterations=ITERATIONS, tv=TV, penalty=AdmmPenalty(mu=mu, balance=False))
     # balanced: 0.036 / 0.027 residual and 0.0036 / 0.0029 x zero objective when written
     assert good.final_relative_residual < 0.06
     assert good.final_objective < 0.01 * zero
@@ -286,10 +286,14 @@ def _masked_window(op):
     (lambda op, b: wiener(_masked_window(op), b, 1e-3), "Convolution"),
     (lambda op, b: admm(_masked_window(op), b, iterations=5), "Convolution"),
     (lambda op, b: admm(PixelErasure(np.ones(op.shape_out)), b, iterations=5), "Convolution"),
-    (lambda op, b: admm(op, b, iterations=5, mu=(0.5, 0.0, 0.5)), "penalties"),
-    (lambda op, b: admm(op, b, iterations=5, mu=(0.5, 1.0, -0.5)), "penalties"),
-    (lambda op, b: admm(op, b, iterations=5, mu=(np.inf, 1.0, 0.5)), "penalties"),
-    (lambda op, b: admm(op, b, iterations=5, balance_every=1), "balance_every"),
+    (lambda op, b: admm(op, b, iterations=5, penalty=AdmmPenalty(mu=(0.5, 0.0, 0.5))),
+     "penalties"),
+    (lambda op, b: admm(op, b, iterations=5, penalty=AdmmPenalty(mu=(0.5, 1.0, -0.5))),
+     "penalties"),
+    (lambda op, b: admm(op, b, iterations=5, penalty=AdmmPenalty(mu=(np.inf, 1.0, 0.5))),
+     "penalties"),
+    (lambda op, b: admm(op, b, iterations=5, penalty=AdmmPenalty(balance_every=1)),
+     "balance_every"),
     (lambda op, b: fista(ConvolutionOperator(np.zeros((32, 32))), b, iterations=5), "zero"),
 ], ids=["fista-it0", "gd-it0", "admm-it0", "fista-tv-neg", "fista-tv-nan", "gd-tv-neg",
         "admm-tv-neg", "gd-momentum-1", "gd-momentum-neg", "fista-step-0", "fista-step-neg",
@@ -334,3 +338,32 @@ def test_iterations_do_not_page_fault_fresh_memory(method):
     per_iteration = (faults_of(40) - faults_of(10)) / 30
     # one fresh 600 x 800 float32 array is ~470 pages; default glibc gave ~1000-2000
     assert per_iteration < 100, per_iteration
+
+
+def test_admm_penalty_settings_are_one_validated_value(conv_problem):
+    """AdmmPenalty: frozen, validated on construction, and each setting reaches the loop."""
+    import dataclasses
+
+    penalty = AdmmPenalty(mu=[1e-3, 2e-3, 3e-3], balance_every=np.int64(4))
+    assert penalty.mu == (1e-3, 2e-3, 3e-3) and penalty.balance_every == 4
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        penalty.balance = False
+    for bad, fragment in [({"balance": "yes"}, "balance"), ({"balance_until": 1.5},
+                          "balance_until"), ({"balance_ratio": 1.0}, "balance_ratio"),
+                          ({"balance_factor": 0.5}, "balance_factor"), ({"mu": (1, 2)}, "mu")]:
+        with pytest.raises(ReconInputError, match=fragment):
+            AdmmPenalty(**bad)
+    op, b = conv_problem.op, conv_problem.b_noisy
+    with pytest.raises(ReconInputError, match="AdmmPenalty"):
+        admm(op, b, iterations=5, penalty={"mu": (1e-3, 1e-3, 1e-3)})
+    mu = (1e-4, 1e-1, 1e-4)  # badly scaled: balancing moves them when allowed
+    moved = admm(op, b, iterations=40, tv=TV, penalty=AdmmPenalty(mu=mu))
+    assert moved.params["mu_initial"] == list(mu) and len(moved.history.extra["mu"]) > 1
+    # balancing only before iteration 0.0 * 40, or off: the penalties stay at mu
+    for frozen in (AdmmPenalty(mu=mu, balance_until=0.0), AdmmPenalty(mu=mu, balance=False)):
+        res = admm(op, b, iterations=40, tv=TV, penalty=frozen)
+        assert res.history.extra["mu"] == [list(mu)] and res.params["mu_final"] == list(mu)
+    # balancing every 10 iterations changes the penalties at most 2 times in 40 x 0.6
+    sparse = admm(op, b, iterations=40, tv=TV, penalty=AdmmPenalty(mu=mu, balance_every=10))
+    assert 1 < len(sparse.history.extra["mu"]) <= 3 < len(moved.history.extra["mu"])
+    assert moved.params["iterations"] == moved.params["iterations_used"] == 40

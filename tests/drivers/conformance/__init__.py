@@ -25,7 +25,7 @@ from .camera import CameraConformance
 from .dmd import DmdConformance
 from .led_array import LedArrayConformance
 from .slm import SlmConformance
-from .stage import StageConformance
+from .stage import StageConformance, unplug_mid_move
 
 __all__ = [
     "CameraConformance",
@@ -34,4 +34,5 @@ __all__ = [
     "LedArrayConformance",
     "SlmConformance",
     "StageConformance",
+    "unplug_mid_move",
 ]

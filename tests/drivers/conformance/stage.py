@@ -3,16 +3,35 @@
 from __future__ import annotations
 
 import math
+import time
 
 import pytest
 
 from drivers.errors import (
+    DeviceDisconnectedError,
     DeviceValueError,
     StageLimitError,
     StageTimeoutError,
 )
 
 from .base import DeviceConformance
+
+
+def unplug_mid_move(stage, emulator, axis: str, target: float, velocity: float) -> None:
+    """Start a slow move of ``axis`` and unplug ``emulator`` (a yanked USB cable).
+
+    Checks that waiting for the move raises DeviceDisconnectedError at once (never
+    hangs) and so does every later call, until the test calls ``reconnect()``.
+    """
+    stage.velocity = {axis: velocity}
+    stage.move_to({axis: target}, wait=False)
+    emulator.unplug()
+    t0 = time.monotonic()
+    with pytest.raises(DeviceDisconnectedError, match="reconnect"):
+        stage.wait_until_idle(timeout_s=30.0)
+    assert time.monotonic() - t0 < 2.0  # a clear error, never a hang
+    with pytest.raises(DeviceDisconnectedError):
+        stage.positions()
 
 
 class StageConformance(DeviceConformance):

@@ -16,6 +16,7 @@ import scipy.fft as sfft
 
 from recon.errors import DivergenceError, ReconInputError
 from recon.operators import ConvolutionOperator
+from recon.solvers import AdmmPenalty
 from recon.volume import VolumeConvolutionOperator, admm3d, fista3d, normalize_psf_stack
 from recon.volume.admm import lateral_difference_power, solve_x_update
 
@@ -158,8 +159,8 @@ def test_objective_decreases(bead_problem):  # noqa: F811
 def test_balancing_rescues_bad_penalties(clean_problem, mu):
     op, b = clean_problem
     zero = 0.5 * float(np.vdot(b, b))
-    good = admm3d(op, b, iterations=300, tv=1e-4, mu=mu, balance=True)
-    bad = admm3d(op, b, iterations=300, tv=1e-4, mu=mu, balance=False)
+    good = admm3d(op, b, iterations=300, tv=1e-4, penalty=AdmmPenalty(mu=mu, balance=True))
+    bad = admm3d(op, b, iterations=300, tv=1e-4, penalty=AdmmPenalty(mu=mu, balance=False))
     # balanced: residual 0.034 / 0.079, objective 0.008 / 0.012 x zero when written;
     # fixed: 0.91 / 0.995 and 0.83 / 0.99
     assert good.final_relative_residual < 0.15
@@ -186,7 +187,8 @@ def test_without_nonneg_goes_negative(bead_problem):  # noqa: F811
 def test_huge_weights_are_caught_or_kept_finite(bead_problem):  # noqa: F811
     op, b, _ = bead_problem
     try:
-        res = admm3d(op, b, iterations=10, mu=(1e30, 1e30, 1e30), balance=False)
+        res = admm3d(op, b, iterations=10,
+                     penalty=AdmmPenalty(mu=(1e30, 1e30, 1e30), balance=False))
     except DivergenceError as err:
         assert "3D ADMM" in str(err)
     else:
@@ -202,8 +204,10 @@ def test_huge_weights_are_caught_or_kept_finite(bead_problem):  # noqa: F811
 ])
 def test_invalid_parameters_are_refused(bead_problem, kwargs, fragment):  # noqa: F811
     op, b, _ = bead_problem
-    with pytest.raises(ReconInputError, match=fragment):
-        admm3d(op, b, **({"iterations": 5} | kwargs))
+    settings = {k: kwargs.pop(k) for k in list(kwargs) if k == "mu" or k.startswith("balance")}
+    with pytest.raises(ReconInputError, match=fragment):  # the penalty settings are
+        penalty = AdmmPenalty(**settings) if settings else None  # checked when made
+        admm3d(op, b, **({"iterations": 5} | kwargs), penalty=penalty)
 
 
 def test_bad_operator_and_measurement_are_refused(bead_problem):  # noqa: F811
@@ -229,11 +233,12 @@ def test_run_in_pieces_equals_one_run(clean_problem):
     from recon.volume import VolumeAdmmPlan, run_admm3d
 
     op, b = clean_problem
-    whole = admm3d(op, b, iterations=12, tv=1e-4, balance=False)
+    whole = admm3d(op, b, iterations=12, tv=1e-4, penalty=AdmmPenalty(balance=False))
     plan = VolumeAdmmPlan.of(op)
     state = plan.zeros((2e-3, 2e-3, 2e-3), True)
-    run_admm3d(plan, b, state, iterations=5, tv=1e-4, balance=False)
-    last = run_admm3d(plan, b, state, iterations=7, tv=1e-4, balance=False)
+    run_admm3d(plan, b, state, iterations=5, tv=1e-4, penalty=AdmmPenalty(balance=False))
+    last = run_admm3d(plan, b, state, iterations=7, tv=1e-4,
+                      penalty=AdmmPenalty(balance=False))
     assert np.allclose(last.x, whole.x, rtol=1e-5, atol=1e-6 * float(whole.x.max()))
     assert last.history.objective[-1] == pytest.approx(whole.history.objective[-1], rel=1e-5)
 
