@@ -11,7 +11,8 @@ resident memory grew 30-50 % over 6-13 minutes, of which ``malloc_trim(0)`` gave
 :func:`configure_allocator` fixes the mmap threshold (blocks of 128 KiB or more are
 mapped on their own and unmapped when freed; the dynamic raise is off) and
 :func:`trim_soon` hands the free pages of every heap back after a long job, on a
-thread of its own (``malloc_trim`` takes the heaps' locks, never the GIL). Elsewhere
+thread of its own, started with the window (``malloc_trim`` takes the heaps' locks,
+never the GIL). Elsewhere
 than glibc both do nothing.
 """
 
@@ -62,6 +63,7 @@ def configure_allocator(mmap_threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> boo
     lib = _glibc()
     if lib is None:
         return False
+    _start_trimmer()
     ok = lib.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold_bytes)) == 1
     ok &= lib.mallopt(_M_TRIM_THRESHOLD, 2 * int(mmap_threshold_bytes)) == 1
     if not ok:
@@ -80,8 +82,29 @@ def trim_now() -> bool:
         return bool(lib.malloc_trim(0))
 
 
+_trim_wanted = threading.Event()
+_trimmer: threading.Thread | None = None
+
+
+def _trim_when_asked() -> None:
+    while True:
+        _trim_wanted.wait()
+        _trim_wanted.clear()
+        trim_now()
+
+
 def trim_soon() -> None:
-    """:func:`trim_now` on a thread of its own (skipped while one runs)."""
-    if _glibc() is None or _trimming.locked():
+    """:func:`trim_now` on the trimming thread (started once, by
+    :func:`configure_allocator` or here): the caller never waits for a thread to
+    start (``Thread.start`` held the GUI thread in the soak)."""
+    if _glibc() is None:
         return
-    threading.Thread(target=trim_now, name="malloc-trim", daemon=True).start()
+    _start_trimmer()
+    _trim_wanted.set()
+
+
+def _start_trimmer() -> None:
+    global _trimmer
+    if _trimmer is None:
+        _trimmer = threading.Thread(target=_trim_when_asked, name="malloc-trim", daemon=True)
+        _trimmer.start()

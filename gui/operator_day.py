@@ -387,18 +387,19 @@ class Operator:
         self.phase("calibration")
         yield from self.choose(cal.routine, "dark")
         yield from self.fill(cal.fields["dark"]["--frames"], "2")
-        if not self.o.simulate:
-            # libaravis's fake camera sees no light: its pattern scales with the exposure
-            # alone, so the dark is taken at the shortest exposure (the flat's automatic
-            # exposure is longer) for the flat to read brighter than the dark
-            yield from self.fill(cal.fields["dark"]["--exposure-s"], "1e-05")
         dark = self.work / f"dark-{self.loops}.zarr"
         yield from self.fill(cal.out, str(dark))
         yield from self.click(cal.start_button)
         yield self.until(lambda: cal.result is not None or not cal.running, 300, "the dark run")
-        if cal.result is None or cal.result.status != "complete":
+        if not self.o.simulate and cal.result is not None and cal.result.status == "failed" \
+                and "no light" in cal.status.text():
+            # libaravis's fake camera sees no light (its frames are a pattern that the
+            # LEDs do not change: flat == its dark): the run must refuse, saying so
+            self.done("dark refused: the flat received no light")
+        elif cal.result is None or cal.result.status != "complete":
             raise StepFailed(f"dark run: {cal.status.text()}")
-        self.notes["dark"] = str(dark)
+        else:
+            self.notes["dark"] = str(dark)
         yield self.until(lambda: w.session.streaming, 30, "the stream to resume after dark")
         yield from self.choose(cal.routine, "psf-sweep")
         fields = cal.fields["psf-sweep"]
@@ -443,8 +444,8 @@ class Operator:
         yield self.until(lambda: live.depth_job is not None and live.depth_job.done, 30,
                          "the stack's depths")
         yield from self.fill(live.depth.lineEdit(), live.depth.itemText(1))
-        if not self.o.simulate:
-            yield from self.fill(live.dark, self.notes["dark"])
+        if not self.o.simulate:  # the dark run, or a level in DN when it was refused
+            yield from self.fill(live.dark, self.notes.get("dark", "0"))
         if live.method.currentText() != "wiener":
             yield from self.choose(live.method, "wiener")
         yield from self.click(live.recon_button)
@@ -522,7 +523,7 @@ class Operator:
         yield from self.fill(fields["--frames"], "0:20")
         yield from self.fill(fields["--workers"], "1")
         if not self.o.simulate:
-            yield from self.fill(fields["--dark"], self.notes["dark"])
+            yield from self.fill(fields["--dark"], self.notes.get("dark", "0"))
         yield from self.click(rec.batch_button)
         yield self.until(lambda: rec.batch_job is not None and rec.batch_job.done, 600,
                          "the batch reconstruction")

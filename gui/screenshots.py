@@ -69,6 +69,8 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
     w = MainWindow(Session(None, simulate=True, scene="none"))
     w.resize(width, height)
     w.show()
+    _settle(app, 0.5)
+    layout = w.saveState()  # the default layout, put back after a panel was floated
     written: list[Path] = []
 
     t0 = time.monotonic()
@@ -76,6 +78,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
     def shot(name: str, dock: str) -> None:
         log.info("screenshot %s at %.1f s", name, time.monotonic() - t0)
         d = w.docks[dock]
+        w.restoreState(layout)  # a dock floated and docked back lands out of place
         d.raise_()
         whole = name in ("window", "disconnected")
         if not whole:  # one panel, floated at a readable size, then docked back
@@ -83,9 +86,17 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
             d.resize(1300, 760)
         _settle(app, 0.8)
         path = out / f"gui-{name}.png"
-        ok = (w if whole else d).grab().save(str(path))
+        if whole:  # as the X server shows it: grab() draws docks once floated (native
+            # windows) at wrong offsets, over each other
+            w.raise_()
+            _settle(app, 0.3)
+            image = app.primaryScreen().grabWindow(w.winId())
+        else:
+            image = d.grab()
+        ok = image.save(str(path))
         if not whole:
             d.setFloating(False)
+            w.restoreState(layout)
             _settle(app, 0.3)
         if not ok:
             raise RuntimeError(f"could not write {path}")
@@ -110,7 +121,6 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         w.docks["Calibration"].raise_()
         job = cal.start()
         wait_until(app, lambda: job.done, 180, "the PSF sweep")
-        shot("calibration", "Calibration")
         # devices: the LED behind the pinhole lit, a refused setting
         box = w.devices.boxes["led_array"]
         import numpy as np
@@ -123,14 +133,6 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         depths = RunStore.open(sweep).product("psf_stack")[1]["depths_mm"]
         depth = depths[len(depths) // 2]
         bench.source_stage.move_to({"x": 0.0, "y": 0.0, "z": depth})
-        cam_box = w.devices.boxes["camera"]
-        cam_box.fields["exposure_s"].setText("120")
-        job = cam_box.apply("exposure_s")
-        wait_until(app, lambda: job.done, 10, "the refusal")
-        shot("devices", "Devices")
-        cam_box.fields["exposure_s"].setText(f"{bench.camera.exposure_s:g}")
-        job = cam_box.apply("exposure_s")
-        wait_until(app, lambda: job.done, 10, "the setting")
         # live view: the stream and the live reconstruction with the sweep's PSF
         live = w.live
         live.psf.setText(sweep)
@@ -144,8 +146,33 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
             raise RuntimeError(f"live reconstruction: {live.error.text()}")
         wait_until(app, lambda: live._shown_recon >= 0, 180, "a live reconstruction")
         _settle(app, 3.0)
-        shot("live", "Live view")
+        # the whole window first: a dock floated for its own shot and docked back
+        # leaves the window's layout overlapping under the window manager
         shot("window", "Live view")
+        # a device unplugged: red in its box, the status area and the device count
+        leds = bench.led_array
+        leds.faults.disconnect()
+        job = box.light_led(centre)
+        wait_until(app, lambda: job.done, 10, "the refused LED")
+        wait_until(app, lambda: "disconnected" in w.devices.state.text(), 10, "the poll")
+        w.devices.area.ensureWidgetVisible(box, 0, 0)
+        _settle(app, 1.5)
+        shot("disconnected", "Devices")
+        leds.faults.allow_reconnect()
+        job = box.reconnect()
+        wait_until(app, lambda: job.done, 10, "the reconnect")
+        # devices: a refused setting shows the interface's message
+        cam_box = w.devices.boxes["camera"]
+        w.devices.area.ensureWidgetVisible(cam_box, 0, 0)
+        cam_box.fields["exposure_s"].setText("120")
+        job = cam_box.apply("exposure_s")
+        wait_until(app, lambda: job.done, 10, "the refusal")
+        shot("devices", "Devices")
+        cam_box.fields["exposure_s"].setText(f"{bench.camera.exposure_s:g}")
+        job = cam_box.apply("exposure_s")
+        wait_until(app, lambda: job.done, 10, "the setting")
+        shot("calibration", "Calibration")
+        shot("live", "Live view")
         # the image tools: ROI statistics, line profile, colormap, pixel readout
         raw = live.raw_view
         raw.show_roi(True)
@@ -164,18 +191,6 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         raw.show_roi(False)
         raw.show_profile(False)
         live.recon_view.show_roi(False)
-        # a device unplugged: red in its box, the status area and the device count
-        leds = bench.led_array
-        leds.faults.disconnect()
-        job = box.light_led(centre)
-        wait_until(app, lambda: job.done, 10, "the refused LED")
-        wait_until(app, lambda: "disconnected" in w.devices.state.text(), 10, "the poll")
-        w.devices.area.ensureWidgetVisible(box, 0, 0)
-        _settle(app, 1.5)
-        shot("disconnected", "Devices")
-        leds.faults.allow_reconnect()
-        job = box.reconnect()
-        wait_until(app, lambda: job.done, 10, "the reconnect")
         # record: a short video (the live view keeps running beside it)
         rec = w.record
         rec.out.setText(str(work / "video.zarr"))

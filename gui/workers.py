@@ -103,6 +103,9 @@ def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> 
             "the traceback to report")
 
 
+#: How soon a job whose thread has not ended yet is looked at again for release, ms.
+RELEASE_RETRY_MS = 20
+
 #: Jobs started and not yet released on the GUI thread (:meth:`Job._release`).
 _LIVE_JOBS: set[Job] = set()
 
@@ -177,14 +180,19 @@ class Job(QObject):
         QTimer.singleShot(0, self._release)  # after the other slots of ``finished``
 
     def _release(self) -> None:
-        """On the GUI thread, once every slot has run: wait for the worker thread to be
-        gone, cut the connections (their closures often hold the job: a cycle through
-        Qt that Python's collector cannot see) and let the job go. Its last reference
+        """On the GUI thread, once every slot has run and the worker thread has ended
+        (else again a little later, never waiting): cut the connections (their
+        closures often hold the job: a cycle through Qt that Python's collector cannot
+        see) and let the job go. Its last reference
         is then dropped on the GUI thread, never on the worker (a QObject deleted on
         another thread while events for it wait in the GUI thread's queue crashed the
         window)."""
-        self._launched.wait(5.0)
-        self.wait(5.0)
+        thread = self._thread
+        if not self._launched.is_set() or (thread is not None and thread.is_alive()):
+            # the worker (or the launcher) still holds the job: come back, never block
+            # the event loop joining a thread that waits for a core (seen in the soak)
+            QTimer.singleShot(RELEASE_RETRY_MS, self._release)
+            return
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             for signal in (self.progress, self.succeeded, self.failed, self.finished):

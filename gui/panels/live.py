@@ -230,9 +230,13 @@ class LivePanel(QWidget):
         psf, dark = self.psf.text().strip(), self.dark.text()
         method, iterations = self.method.currentText(), self.iterations.value()
         self.recon_button.setEnabled(False)
-        self.job = Job(lambda job: build_live(self.session, psf, depth_mm=depth,
-                                              method=method, iterations=iterations,
-                                              dark=dark), name="build-live")
+        def build(job):
+            live, depth_used = build_live(self.session, psf, depth_mm=depth, method=method,
+                                          iterations=iterations, dark=dark)
+            live.start()  # its thread started here: Thread.start waits for a core
+            return live, depth_used
+
+        self.job = Job(build, name="build-live")
         self._live_settings = {"psf": psf, "depth_requested_mm": depth, "dark": dark}
         self.job.succeeded.connect(self._live_ready)
         self.job.failed.connect(self.error.setText)
@@ -245,13 +249,14 @@ class LivePanel(QWidget):
         self._live_settings["depth_used_mm"] = depth
         self.plane.setText("" if depth is None else f"plane used: z = {depth:g} mm")
         try:
-            live.start()
-            self.live = live
             self.session.add_consumer(CONSUMER, live.offer)
+            self.live = live
             if not self.session.streaming and self.session.camera_user is None:
                 self.stream_job = self.session.stream_job(True, on_error=self.error.setText)
         except Exception as exc:  # noqa: BLE001 (shown, never raised)
             self.error.setText(readable_error(exc))
+            if self.live is None:  # not attached: its thread stops (on a worker)
+                Job(lambda job: live.stop(timeout_s=10.0), name="stop-live").start()
         self.recon_button.setText("Stop reconstruction" if self.live else
                                   "Start reconstruction")
         if self.live is not None:

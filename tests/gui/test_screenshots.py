@@ -26,7 +26,7 @@ def test_every_panel_renders_in_a_real_window(tmp_path):
 
     from gui.soak import x_display
 
-    out = Path(os.environ.get("DIFFUSERLAB_SCREENSHOT_DIR") or tmp_path / "shots")
+    out = Path(os.environ.get("DIFFUSERLAB_SCREENSHOT_DIR") or tmp_path / "shots").resolve()
     cmd = [sys.executable, "-m", "gui.screenshots", str(out)]
     if os.environ.get("DIFFUSERLAB_ALIGNMENT_RECORD"):
         cmd += ["--alignment-record", os.environ["DIFFUSERLAB_ALIGNMENT_RECORD"]]
