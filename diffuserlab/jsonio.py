@@ -1,22 +1,20 @@
-"""The one conversion to JSON types and the one JSON writer of the project.
+"""The one conversion to JSON types and the one JSON text of the project.
 
-Standard JSON has no NaN or infinity: :func:`jsonable` turns them into ``None`` by
-default, and :func:`write_json` refuses to write them, so every metrics, report or
-benchmark file DiffuserLab writes can be read by any JSON parser.
+Standard JSON has no NaN or infinity: :func:`json_text` turns them into null, so every
+metrics, report or benchmark file DiffuserLab writes (through
+:func:`recon.io.write_json`, which writes the text atomically and joins an
+:func:`recon.io.output_group`) can be read by any JSON parser.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
-import tempfile
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
-__all__ = ["jsonable", "write_json", "atomic_write_text"]
+__all__ = ["json_text", "jsonable"]
 
 
 def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
@@ -59,76 +57,33 @@ def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
     return obj
 
 
-def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file renamed into place.
-
-    A crash or an error never leaves half a file under the final name; missing
-    parent directories are created.
+def json_text(data: Any) -> str:
+    """``data`` as indented, standard JSON text (NaN and infinity become null).
 
     Parameters
     ----------
-    path : str or os.PathLike
-        The final file name.
-    text : str
-        The whole content (UTF-8).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
-
-    Raises
-    ------
-    OSError
-        The directory cannot be written (permissions, full disk); ``path`` is
-        left as it was.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
-                                suffix=f".tmp{path.suffix}")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(name, 0o666 & ~umask)  # mkstemp makes 0600; the usual mode
-        os.replace(name, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(name)
-        raise
-    return path
-
-
-def write_json(path: str | os.PathLike, data: Any) -> Path:
-    """Write ``data`` as indented, standard JSON, atomically.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        The JSON file (replaced if it exists: callers check for overwriting first).
     data : object
-        Anything :func:`jsonable` converts; NaN and infinity become null.
+        Anything :func:`jsonable` converts.
 
     Returns
     -------
-    pathlib.Path
-        ``path``.
+    str
+        The JSON document, ending with a newline (:func:`recon.io.write_json` writes
+        it atomically).
 
     Raises
     ------
     TypeError
         ``data`` holds an object JSON cannot represent (names it).
-    OSError
-        The file cannot be written; an existing file is left as it was.
 
     Examples
     --------
-    >>> import json, tempfile, pathlib
-    >>> p = write_json(pathlib.Path(tempfile.mkdtemp()) / "m.json", {"x": float("inf")})
-    >>> json.loads(p.read_text())
-    {'x': None}
+    >>> print(json_text({"x": float("inf"), "shape": (2,)}), end="")
+    {
+     "x": null,
+     "shape": [
+      2
+     ]
+    }
     """
-    text = json.dumps(jsonable(data, nonfinite_to_none=True), indent=1, allow_nan=False) + "\n"
-    return atomic_write_text(path, text)
+    return json.dumps(jsonable(data, nonfinite_to_none=True), indent=1, allow_nan=False) + "\n"

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.errors import InputError
-from diffuserlab.jsonio import write_json
 from drivers.base import jsonable
+from recon.io import write_json
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
            "projections", "run_recon", "run_recon3d", "volume_output_paths", "write_json",

@@ -37,6 +37,7 @@ __all__ = [
     "missing_dirs",
     "output_group",
     "remove_empty_dirs",
+    "write_json",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
     "DATA_ORIENTATION",
@@ -472,6 +473,47 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         if full is not None:
             raise full from exc
         raise
+
+
+def write_json(path: str | os.PathLike, data) -> Path:
+    """Write ``data`` as indented, standard JSON (:func:`diffuserlab.jsonio.json_text`)
+    through :func:`atomic_path`: whole or not at all, and with the other outputs of an
+    :func:`output_group`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The JSON file (replaced if it exists: callers check for overwriting first).
+    data : object
+        Anything :func:`diffuserlab.jsonio.jsonable` converts; NaN and infinity
+        become null.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    TypeError
+        ``data`` holds an object JSON cannot represent (nothing is written).
+    OSError
+        The file cannot be written (a full disk is named with its free space); an
+        existing file is left as it was.
+
+    Examples
+    --------
+    >>> import json, tempfile, pathlib
+    >>> p = write_json(pathlib.Path(tempfile.mkdtemp()) / "m.json", {"x": float("inf")})
+    >>> json.loads(p.read_text())
+    {'x': None}
+    """
+    from diffuserlab.jsonio import json_text
+
+    text = json_text(data)  # before the file is touched: a TypeError leaves no trace
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)
 
 
 def save_image(path: str | os.PathLike, image: np.ndarray) -> None:

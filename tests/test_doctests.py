@@ -7,7 +7,7 @@ import importlib
 import pytest
 
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
-MODULES = ("diffuserlab.jsonio", "recon.operators", "recon.metrics", "recon.live",
+MODULES = ("diffuserlab.jsonio", "recon.io", "recon.operators", "recon.metrics", "recon.live",
            "recon.benchmarks.report")
 
 

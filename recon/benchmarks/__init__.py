@@ -19,10 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from diffuserlab.jsonio import jsonable, write_json
+from diffuserlab.jsonio import jsonable
 
 from ..api import DEFAULT_TV, scaled_problem
 from ..api import solve as api_solve
+from ..io import write_json
 from ..operators import ConvolutionOperator
 from ..sample import DATA_ENV, data_dir, load_sample
 from ..solvers import METHODS, SOLVERS, SolveResult

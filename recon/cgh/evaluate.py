@@ -19,10 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from diffuserlab.jsonio import write_json
-
 from ..errors import ReconInputError
-from ..io import atomic_path
+from ..io import atomic_path, write_json
 from .evaluation import LABELS, METHODS, TABLE_7_1, acceptance, evaluate_images, summarise
 
 __all__ = ["HONESTY", "format_table", "plot_psnr_vs_seconds", "run_evaluation"]
