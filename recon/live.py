@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .api import DEFAULT_TV, scaled_problem
 from .errors import ReconInputError
+from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
 from .preprocess.dark import DEFAULT_DARK_REGION, resolve_dark
 from .preprocess.validation import as_array, check_bin_factor
