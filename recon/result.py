@@ -42,7 +42,8 @@ class ReconInfo:
     method_reason : str
         Why: ``"given"``, or the automatic choice's reason.
     iterations : int
-        The largest number of iterations allowed (1 for Wiener).
+        The iterations asked for (1 for Wiener); an automatic weight's path and final
+        solve may take more (:mod:`recon.auto.weight`).
     iterations_used : int
         The most any solve ran (automatic stopping ends earlier).
     tv, l1 : float or None

@@ -350,7 +350,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
     iterations, bin_factor = int(iterations), int(bin_factor)  # numpy integers too
-    dark_argument(dark, np.shape(raw)[:2])  # refused before the work
+    raw = as_array(raw, "raw image")
+    dark_argument(dark, raw.shape[:2])  # refused before the work
     stack = as_array(psf_stack, "PSF stack")
     z = float_array(depths_mm, "depths_mm", ndims=(1,))
     if stack.ndim != 3 or len(z) != stack.shape[0]:
@@ -362,7 +363,7 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     if len(set(depths)) < len(depths):  # arguments before the data's own checks
         raise ReconInputError(f"depths_mm {depths} repeat a depth; give one distinct depth "
                               "per plane of the PSF stack")
-    stack, raw, info = prepare_volume_problem(stack, as_array(raw, "raw image"), dark,
+    stack, raw, info = prepare_volume_problem(stack, raw, dark,
                                               bin_factor, allow_mixed_ranges)
 
     h, psf_scale = normalize_psf_stack(stack)
