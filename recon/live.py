@@ -44,7 +44,7 @@ class LiveResult:
     ----------
     image : ndarray, float32, shape (rows, cols)
         Sensor field of view of the estimate (binned sensor shape), measurement units
-        (counts per unit PSF sum), as :attr:`recon.api.Reconstruction.image`.
+        (counts per unit PSF sum), as :attr:`recon.Reconstruction.image`.
     estimate : ndarray, float32, shape (P0, P1)
         The whole padded object domain, same units.
     solve : SolveResult
