@@ -165,7 +165,8 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
 
 @njit(**PARALLEL_FAST)
 def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
-                          mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw, l1=0.0):
+                          mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw, l1=0.0,
+                          rhs=None):
     """ADMM z- and dual updates of Eq. 4.5 / App. A.3 in 2D, fused, in q-form.
 
     For each split with G x = g (v: M x, u: Psi x as forward differences, w: x),
@@ -180,6 +181,13 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
     residual norms r = ||a_new - a_old|| (primal) and ||z_new - z_old|| (for the
     dual residual) from a_old held in those buffers, then store a_new.
 
+    ``rhs`` (optional, float32 like ``x``): also write the x-update's right-hand
+    side mu2 Psi^T q_u + mu3 q_w of the new q's into it, as :func:`admm_rhs_2d`
+    does (same arithmetic, same values) but in the same pass: each thread runs
+    blocks of consecutive rows, so row i's right-hand side is formed right after
+    row i, from rows i and i - 1 still in cache; the first row of each block,
+    whose row i - 1 another thread wrote, is done after the parallel loop.
+
     Returns
     -------
     out : ndarray, shape (14,), float64
@@ -191,28 +199,41 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
     l1thr = np.float32(l1 / mu3)
     mu1 = np.float32(mu1)
     rows = np.zeros((n0, 14))
-    for i in prange(n0):
-        # One row loop per mode, each with the mode a literal: the loop of a run-time
-        # mode is vectorised with masked stores to the dual buffers that are all-off
-        # in mode 0 yet cost a microcode assist per vector on pages the kernel has not
-        # stored to lately (mode 0 measured 34-40 ms against 8-10 ms for mode 1 at
-        # 1200 x 1600; specialised, 2.2-3.5 ms). Same arithmetic, same results.
-        if mode == 0:
-            acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 0,
-                            av, aux, auy, aw, l1thr)
-        elif mode == 1:
-            acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 1,
-                            av, aux, auy, aw, l1thr)
-        else:
-            acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 2,
-                            av, aux, auy, aw, l1thr)
-        for k in range(14):
-            rows[i, k] = acc[k]
+    blocks = min(n0, _ROW_BLOCKS)
+    for blk in prange(blocks):
+        start = blk * n0 // blocks
+        for i in range(start, (blk + 1) * n0 // blocks):
+            # One row loop per mode, each with the mode a literal: the loop of a run-time
+            # mode is vectorised with masked stores to the dual buffers that are all-off
+            # in mode 0 yet cost a microcode assist per vector on pages the kernel has
+            # not stored to lately (mode 0 measured 34-40 ms against 8-10 ms for mode 1
+            # at 1200 x 1600; specialised, 2.2-3.5 ms). Same arithmetic, same results.
+            if mode == 0:
+                acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 0,
+                                av, aux, auy, aw, l1thr)
+            elif mode == 1:
+                acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 1,
+                                av, aux, auy, aw, l1thr)
+            else:
+                acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 2,
+                                av, aux, auy, aw, l1thr)
+            for k in range(14):
+                rows[i, k] = acc[k]
+            if rhs is not None and i > start:
+                _rhs_row(qux, quy, qw, rhs, i, mu2, mu3, use_tv)
+    if rhs is not None:
+        for blk in range(blocks):
+            _rhs_row(qux, quy, qw, rhs, blk * n0 // blocks, mu2, mu3, use_tv)
     out = np.zeros(14)
     for i in range(n0):
         for k in range(14):
             out[k] += rows[i, k]
     return out
+
+
+#: Row blocks of :func:`admm_split_updates_2d` (a few per thread; each block's first
+#: row has its right-hand side done after the parallel loop).
+_ROW_BLOCKS = 16
 
 
 @njit(inline="always")
@@ -238,18 +259,24 @@ def _add14(a, b):
             a[11] + b[11], a[12] + b[12], a[13] + b[13])
 
 
+@njit(inline="always")
+def _rhs_row(qux, quy, qw, out, i, mu2, mu3, use_tv):
+    """Row ``i`` of :func:`admm_rhs_2d`."""
+    n0, n1 = qw.shape
+    im = i - 1 if i > 0 else n0 - 1
+    for j in range(n1):
+        jm = j - 1 if j > 0 else n1 - 1
+        val = mu3 * qw[i, j]
+        if use_tv:
+            val += mu2 * (qux[i, jm] - qux[i, j] + quy[im, j] - quy[i, j])
+        out[i, j] = val
+
+
 @njit(**PARALLEL_FAST)
 def admm_rhs_2d(qux, quy, qw, out, mu2, mu3, use_tv):
     """out = mu2 * Psi^T q_u + mu3 * q_w, Psi^T of forward differences (circular)."""
-    n0, n1 = qw.shape
-    for i in prange(n0):
-        im = i - 1 if i > 0 else n0 - 1
-        for j in range(n1):
-            jm = j - 1 if j > 0 else n1 - 1
-            val = mu3 * qw[i, j]
-            if use_tv:
-                val += mu2 * (qux[i, jm] - qux[i, j] + quy[im, j] - quy[i, j])
-            out[i, j] = val
+    for i in prange(qw.shape[0]):
+        _rhs_row(qux, quy, qw, out, i, mu2, mu3, use_tv)
 
 
 @njit(**PARALLEL_FAST)

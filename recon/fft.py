@@ -126,9 +126,12 @@ def rfftn(x: np.ndarray, axes=(-2, -1)) -> np.ndarray:
     return sfft.rfftn(x, axes=axes, workers=fft_workers())
 
 
-def irfftn(x: np.ndarray, shape: tuple[int, ...], axes=(-2, -1)) -> np.ndarray:
-    """Inverse real FFT over ``axes`` to real lengths ``shape`` (:func:`fft_workers`)."""
-    return sfft.irfftn(x, s=shape, axes=axes, workers=fft_workers())
+def irfftn(x: np.ndarray, shape: tuple[int, ...], axes=(-2, -1), *,
+           overwrite_x: bool = False) -> np.ndarray:
+    """Inverse real FFT over ``axes`` to real lengths ``shape`` (:func:`fft_workers`);
+    ``overwrite_x`` lets the transform use ``x`` as its scratch (its content is then
+    undefined), saving a copy of the spectrum."""
+    return sfft.irfftn(x, s=shape, axes=axes, workers=fft_workers(), overwrite_x=overwrite_x)
 
 
 def time_ffts(shape: tuple[int, ...], *, real: bool = True, stacks: tuple[int, ...] = (1,),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -64,7 +65,14 @@ class AdmmPlan:
         |F P h|^2, the PSF's power spectrum.
     d_pow : ndarray, float32, shape (P0, P1 // 2 + 1)
         |F Psi|^2 summed over the axes (finite differences).
+    rhs_in_split : bool (class attribute)
+        Whether :func:`run_admm` has the split pass write the x-update's right-hand
+        side (``state.stacked[1]``) and calls :meth:`x_update` with
+        ``rhs_ready=True``; False for a plan whose x-update does not use it
+        (:class:`recon.spatial.SpatialAdmmPlan`).
     """
+
+    rhs_in_split: ClassVar[bool] = True
 
     op: ConvolutionOperator
     shape: tuple[int, int]
@@ -121,11 +129,12 @@ class AdmmPlan:
         """:func:`objective_of` with this plan's operator."""
         return objective_of(self.op, b, x, tv=tv, l1=l1, b_norm=b_norm)
 
-    def x_update(self, state: AdmmState, x: np.ndarray, mx: np.ndarray, mu
-                 ) -> tuple[np.ndarray, np.ndarray]:
+    def x_update(self, state: AdmmState, x: np.ndarray, mx: np.ndarray, mu, *,
+                 rhs_ready: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """The x-update of App. A.3: the exact minimiser of
         mu1/2 ||M x - q_v||^2 + mu2/2 ||Psi x - q_u||^2 + mu3/2 ||x - q_w||^2, a diagonal
-        solve in Fourier space (2 rfft2 + 2 irfft2, batched in pairs).
+        solve in Fourier space (2 rfft2 + 2 irfft2, plane by plane: a 2-plane batch
+        outgrows the L2 cache at 600 x 800).
 
         Parameters
         ----------
@@ -135,18 +144,23 @@ class AdmmPlan:
         x, mx : ndarray, float32, ``shape``
             The current iterate and M x (not used here: the solve is exact).
         mu : (mu1, mu2, mu3)
+        rhs_ready : bool
+            ``stacked[1]`` already holds mu2 Psi^T q_u + mu3 q_w of the current q's
+            and ``mu`` (written by the split pass, :func:`run_admm`).
 
         Returns
         -------
         (x, mx) : new arrays, float32, ``shape``
         """
         mu1, mu2, mu3 = mu
-        _kernels.admm_rhs_2d(state.qux, state.quy, state.qw, state.stacked[1], mu2, mu3,
-                             state.use_tv)
-        spectra = rfftn(state.stacked)
-        _kernels.admm_fourier_2d(spectra[0], spectra[1], self.op.spectrum, state.inv_den, mu1)
-        mx, x = irfftn(spectra, self.shape)
-        return x, mx
+        if not rhs_ready:
+            _kernels.admm_rhs_2d(state.qux, state.quy, state.qw, state.stacked[1], mu2, mu3,
+                                 state.use_tv)
+        qv_hat = rfftn(state.stacked[0])
+        x_hat = rfftn(state.stacked[1])
+        _kernels.admm_fourier_2d(qv_hat, x_hat, self.op.spectrum, state.inv_den, mu1)
+        x = irfftn(x_hat, self.shape, overwrite_x=True)
+        return x, irfftn(qv_hat, self.shape, overwrite_x=True)
 
 
 @dataclass
@@ -164,7 +178,7 @@ class AdmmState:
         Primal iterate and M x (circular convolution, uncropped).
     stacked : ndarray, shape (2, P0, P1)
         ``stacked[0]`` is q_v (crop split), ``stacked[1]`` the x-update's right-hand
-        side (scratch; one buffer so both forward FFTs run as one batched call).
+        side (scratch, written by the split pass or by :meth:`AdmmPlan.x_update`).
     qux, quy, qw : ndarray
         q of the TV splits (forward differences along columns, rows) and of the
         non-negativity split.
@@ -316,11 +330,15 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
     last_balance = penalty.last_balance(iterations)
     ratio = mu3 / mu1  # kept without a TV split (tie_nonneg_penalty)
     used = iterations
+    rhs = stacked[1] if plan.rhs_in_split else None
     for k in range(iterations):
         mon.start()
         mode = penalty.mode(k, last_balance)
+        # the right-hand side comes out of the split pass except where balancing may
+        # change the q's and penalties after it (mode 2): x_update forms it then
         s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, plan.wp, mu1, mu2,
-                                           mu3, tv, use_tv, mode, *scratch, l1)
+                                           mu3, tv, use_tv, mode, *scratch, l1,
+                                           None if mode == 2 else rhs)
         if mode == 2:
             new = [penalty.balanced(mu1, *s[[2, 3, 8, 9]]),
                    penalty.balanced(mu2, *s[[4, 5, 10, 11]]) if use_tv else mu2,
@@ -332,7 +350,10 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
                 mu1, mu2, mu3 = new
                 state.set_penalties(plan, new)
                 mus.append((mu1, mu2, mu3))
-        x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3))
+        if rhs is not None and mode != 2:
+            x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3), rhs_ready=True)
+        else:
+            x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3))
         l1_x = l1 * float(np.maximum(x, 0).sum(dtype=np.float64)) if l1 > 0 else 0.0
         mon.record(0.5 * s[0] + tv * s[1] + l1_x, s[0], x=x,
                    hint="try --method fista or a smaller TV weight")
@@ -361,8 +382,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     u = soft(Psi x + a_u, tau/mu2); v = (D^T b + mu1 (M x + a_v)) / (D^T D + mu1);
     w = max(x + a_w, 0); x = F^-1[(mu1 conj(H) F q_v + F(mu2 Psi^T q_u + mu3 q_w))
     / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3)]; a_i += G_i x - z_i. That is 2 rfft + 2 irfft
-    per iteration, batched in pairs (M x is reused from the x-update), plus three
-    fused passes.
+    per iteration (M x is reused from the x-update), plus two fused passes: the
+    splits with the x-update's right-hand side, and the Fourier-space solve (a third,
+    the right-hand side alone, in balancing iterations).
 
     Residual balancing (on by default; Boyd et al. 2011, Sec. 3.4.1, with the
     normalised residuals of Wohlberg 2017 so the three splits' different scales do

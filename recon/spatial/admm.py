@@ -65,6 +65,8 @@ class SpatialAdmmPlan(AdmmPlan):
         ``rho`` of the module docstring: the preconditioner's kernel power.
     """
 
+    rhs_in_split = False  # the linearized x-update forms its own gradient
+
     @classmethod
     def of(cls, op: SpatialConvolutionOperator) -> SpatialAdmmPlan:
         """Precompute for ``op``.

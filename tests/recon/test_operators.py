@@ -452,6 +452,37 @@ def test_admm_split_updates_match_reference(mode, use_tv):
         assert out[4] == 0.0 and out[5] == 0.0
 
 
+@pytest.mark.parametrize("rows", [10, 40])  # fewer rows than blocks, and several per block
+@pytest.mark.parametrize("mode", [0, 1])
+@pytest.mark.parametrize("use_tv", [True, False])
+def test_admm_split_writes_the_rhs_of_its_new_q(rows, mode, use_tv):
+    """The split pass's optional right-hand side equals admm_rhs_2d run on its output."""
+    rng = _rng(40 + rows + mode)
+    shape = (rows, 14)
+
+    def r():
+        return rng.standard_normal(shape).astype(np.float32)
+
+    x, mx, qv, qux, quy, qw = r(), r(), r(), r(), r(), r()
+    av, aux, auy, aw = r(), r(), r(), r()
+    wp, bp = rng.random(shape).astype(np.float32), rng.random(shape).astype(np.float32)
+    mu1, mu2, mu3, tau = 0.7, 1.3, 0.4, 0.5
+    state = [a.copy() for a in (x, mx, qv, qux, quy, qw, bp, wp)]
+    duals = [a.copy() for a in (av, aux, auy, aw)]
+    plain = _kernels.admm_split_updates_2d(*state, mu1, mu2, mu3, tau, use_tv, mode, *duals,
+                                           0.1)
+    want = np.full(shape, np.nan, np.float32)
+    _kernels.admm_rhs_2d(state[3], state[4], state[5], want, mu2, mu3, use_tv)
+    rhs = np.full(shape, np.nan, np.float32)
+    fused = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp, mu1, mu2, mu3, tau,
+                                           use_tv, mode, av, aux, auy, aw, 0.1, rhs)
+    np.testing.assert_array_equal(rhs, want)
+    for got, ref in zip((qv, qux, quy, qw, av, aux, auy, aw), state[2:6] + duals,
+                        strict=True):
+        np.testing.assert_array_equal(got, ref)
+    np.testing.assert_allclose(fused, plain, rtol=1e-6, atol=1e-6)
+
+
 def _psi_t(qux, quy):
     """Adjoint of the circular forward differences (ux along axis 1, uy along axis 0)."""
     return (np.roll(qux, 1, axis=1) - qux) + (np.roll(quy, 1, axis=0) - quy)
