@@ -37,8 +37,8 @@ from drivers.base import jsonable
 from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutError
 
 from .acquisition import ExposureError, autoexpose
-from .coords import coord_specs
 from .bench import Bench, PromptRefused
+from .coords import coord_specs
 from .plan import (
     Capture,
     Check,
