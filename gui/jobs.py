@@ -3,9 +3,10 @@
 * :func:`build_live` - a :class:`instrument.live.LiveReconstruction` for the session's
   camera and a PSF from a file or run store (:func:`instrument.reconstruct_files.load_psf`),
   with the frames' dark level as ``capture live`` takes it.
-* :func:`routine_options` / :func:`build_plan` - a calibration routine's options
-  are the ``calibrate`` command's own (its argparse definitions, defaults and help),
-  and the plan is built from them exactly as the command builds it.
+* :func:`routine_options` / :func:`build_plan` - a calibration routine's parameters
+  are its typed model (:mod:`calibration_routines.parameters`), from which the
+  ``calibrate`` command's options are generated too; the form's texts become the
+  model, and the model builds the plan.
 * :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
   job's progress and a :class:`~instrument.runner.RunControl`.
 * :func:`run_alignment` - the mask alignment as ``align mask`` runs it.
@@ -23,17 +24,12 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "batch_reconstruct", "build_live",
+__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_reconstruct", "build_live",
            "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
            "run_alignment", "run_plan", "section_summary", "stack_depths"]
 
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
-
-#: ``calibrate`` options that are not the routine's parameters (the GUI sets them).
-_NOT_PARAMETERS = {"help", "bench", "simulate", "seed", "reconnect_timeout_s", "out", "note",
-                   "overwrite", "falloff_run", "apply"}
-
 
 def build_live(session, psf_path: str, *, depth_mm: float | None = None,
                method: str = "wiener", iterations: int = 5, dark: str = "",
@@ -128,32 +124,6 @@ def stack_depths(psf_path: str) -> list[float]:
     return [float(z) for z in depths]
 
 
-class RoutineOption:
-    """One parameter of a calibration routine, from the ``calibrate`` command's parser.
-
-    Attributes
-    ----------
-    dest : str
-        The argparse destination (the name ``build_plan`` fills).
-    flag : str
-        The command-line option (``--z-min``).
-    help : str
-        Its help text (with the unit).
-    default : object
-    choices : tuple or None
-    is_flag : bool
-        An on/off option (``store_true``).
-    """
-
-    def __init__(self, action: argparse.Action) -> None:
-        self.dest = action.dest
-        self.flag = action.option_strings[-1]
-        self.help = action.help or ""
-        self.default = action.default
-        self.choices = tuple(action.choices) if action.choices else None
-        self.is_flag = isinstance(action, argparse._StoreTrueAction)
-
-
 def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
     """``parser.parse_args(argv)`` with argparse's complaint as an InputError (argparse's
     subparsers print and exit instead)."""
@@ -176,26 +146,19 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespa
         raise InputError(text.removeprefix("argument ")) from None
 
 
-def _calibrate_parser() -> argparse.ArgumentParser:
-    from calibration_routines.cli.calibrate import add_subcommands
+def routine_options(routine: str) -> list:
+    """The parameters of ``calibrate ROUTINE``, in the command's order: the fields of
+    its model (:data:`calibration_routines.parameters.PARAMETERS`), each an
+    :class:`instrument.options.OptionSpec` (flag, type, default, choices, unit,
+    limits, help)."""
+    from calibration_routines.parameters import PARAMETERS
 
-    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
-    add_subcommands(parser.add_subparsers(dest="command"))
-    return parser
-
-
-def routine_options(routine: str) -> list[RoutineOption]:
-    """The parameters of ``calibrate ROUTINE``, in the command's order."""
-    parser = _calibrate_parser()
-    cal = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    sub = next(a for a in cal.choices["calibrate"]._actions
-               if isinstance(a, argparse._SubParsersAction)).choices[routine]
-    return [RoutineOption(a) for a in sub._actions
-            if a.option_strings and a.dest not in _NOT_PARAMETERS]
+    return PARAMETERS[routine].specs()
 
 
 def build_plan(bench, routine: str, values: dict[str, Any]):
-    """The plan ``calibrate ROUTINE`` would run with ``values``.
+    """The plan ``calibrate ROUTINE`` would run with ``values``: the routine's parameter
+    model built from the form's texts, handed to its plan.
 
     Parameters
     ----------
@@ -209,20 +172,15 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
 
     Raises
     ------
-    gui.workers.InputError
-        A value the option does not accept (the message names the option).
+    diffuserlab.errors.InputError
+        A value the option does not accept (the message names the option and its
+        limits).
     instrument.plan.PlanError
         Parameters the plan refuses.
     """
-    from calibration_routines.cli.calibrate import plan_from_args
+    from calibration_routines.parameters import PARAMETERS
 
-    argv = ["calibrate", routine, "--simulate"]
-    for flag, value in values.items():
-        if value is True:
-            argv.append(flag)
-        elif value not in (False, None, ""):
-            argv += [flag, str(value)]
-    return plan_from_args(_parse(_calibrate_parser(), argv), bench)
+    return PARAMETERS[routine].from_text(values).plan(bench)
 
 
 def default_run_path(routine: str, folder: str = "out/runs") -> str:

@@ -1,0 +1,289 @@
+"""Typed parameter models from which command-line options and GUI forms are generated.
+
+A command's parameters are one pydantic model (a subclass of :class:`Options`), each
+field declared with :func:`option` (help, unit, limits, the command-line flag). From
+the model come:
+
+- the ``argparse`` options (:meth:`Options.add_arguments`: flag, type, default,
+  choices, required, help with the unit, the limits and the default);
+- a form's fields (:meth:`Options.specs`: one :class:`OptionSpec` per field);
+- the validated value from a parsed command line (:meth:`Options.from_namespace`) or
+  from a form's texts (:meth:`Options.from_text`), a bad value raising
+  :class:`diffuserlab.errors.InputError` that names the option and its limits;
+- documentation tables (:meth:`Options.markdown`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import annotated_types as at
+import pydantic
+
+from diffuserlab.errors import InputError
+
+__all__ = ["OptionSpec", "Options", "option"]
+
+
+def option(default: Any = ..., *, help: str, unit: str = "", flag: str | None = None,
+           default_text: str = "", **limits: Any) -> Any:
+    """A field of an :class:`Options` model.
+
+    Parameters
+    ----------
+    default : object
+        The default; ``...`` for a required option; None for "chosen by the plan"
+        (``help`` then says how).
+    help : str
+        What the value is, without the unit (``"nearest depth"``).
+    unit : str
+        SI unit (``"mm"``, ``"s"``, ``"deg"``); ``""`` for a count or a name.
+    flag : str, optional
+        The command-line option, default ``--`` + the name with dashes
+        (``z_min_mm`` -> ``--z-min-mm``).
+    default_text : str
+        What a None default means (``"the camera's current one"``).
+    **limits
+        pydantic's ``gt``, ``ge``, ``lt``, ``le``.
+    """
+    return pydantic.Field(default, description=help,
+                          json_schema_extra={"unit": unit, "flag": flag,
+                                             "default_text": default_text}, **limits)
+
+
+def _num(v: Any) -> str:
+    return f"{v:g}" if isinstance(v, int | float) else str(v)
+
+
+@dataclass(frozen=True)
+class OptionSpec:
+    """One field of an :class:`Options` model as a command line and a form need it.
+
+    Attributes
+    ----------
+    dest : str
+        The field's name.
+    flag : str
+        The command-line option (``--z-min``).
+    type : type
+        ``int``, ``float``, ``str`` or ``bool`` (an on/off flag).
+    default : object
+        None: chosen by the plan; ``...``: required.
+    required : bool
+    choices : tuple of str or None
+    unit : str
+    description : str
+        The declared help, without the unit.
+    limits : str
+        ``"> 0"``, ``"8 to 256"``, ``""``.
+    default_text : str
+        What a None default means.
+    """
+
+    dest: str
+    flag: str
+    type: type
+    default: Any
+    required: bool
+    choices: tuple[str, ...] | None
+    unit: str
+    description: str
+    limits: str
+    default_text: str = ""
+
+    @property
+    def is_flag(self) -> bool:
+        """An on/off option (``store_true``)."""
+        return self.type is bool
+
+    @property
+    def help(self) -> str:
+        """The help text: description, unit, limits, default."""
+        text = self.description + (f", {self.unit}" if self.unit else "")
+        if self.limits:
+            text += f"; {self.limits}"
+        if self.required:
+            text += " (required)"
+        elif self.default is not None and not self.is_flag:
+            text += f" (default {_num(self.default)})"
+        elif self.default_text:
+            text += f" (default: {self.default_text})"
+        return text
+
+
+def _limits_text(meta: list[Any]) -> str:
+    low = high = None
+    low_open = high_open = False
+    for m in meta:
+        if isinstance(m, at.Gt):
+            low, low_open = m.gt, True
+        elif isinstance(m, at.Ge):
+            low = m.ge
+        elif isinstance(m, at.Lt):
+            high, high_open = m.lt, True
+        elif isinstance(m, at.Le):
+            high = m.le
+    if low is None and high is None:
+        return ""
+    if high is None:
+        return f"{'>' if low_open else '>='} {_num(low)}"
+    if low is None:
+        return f"{'<' if high_open else '<='} {_num(high)}"
+    return (f"{_num(low)}{' (excl.)' if low_open else ''} to {_num(high)}"
+            f"{' (excl.)' if high_open else ''}")
+
+
+def _base_type(annotation: Any) -> tuple[type, tuple[str, ...] | None]:
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        annotation = args[0]
+    if typing.get_origin(annotation) is Literal:
+        return str, tuple(str(c) for c in typing.get_args(annotation))
+    return annotation, None
+
+
+class Options(pydantic.BaseModel):
+    """Base of a command's parameter model (see the module docstring)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+    #: The command the options belong to, for messages (``"calibrate psf-sweep"``).
+    command: ClassVar[str] = ""
+
+    @classmethod
+    def specs(cls) -> list[OptionSpec]:
+        """One :class:`OptionSpec` per field, in declaration order."""
+        out = []
+        for name, f in cls.model_fields.items():
+            extra = f.json_schema_extra or {}
+            kind, choices = _base_type(f.annotation)
+            flag = extra.get("flag") or "--" + name.replace("_", "-")
+            out.append(OptionSpec(name, flag, kind, f.default if not f.is_required() else ...,
+                                  f.is_required(), choices, extra.get("unit", ""),
+                                  f.description or "", _limits_text(f.metadata),
+                                  extra.get("default_text", "")))
+        return out
+
+    @classmethod
+    def spec(cls, name: str) -> OptionSpec:
+        """The :class:`OptionSpec` of field ``name``."""
+        return next(s for s in cls.specs() if s.dest == name)
+
+    @classmethod
+    def add_arguments(cls, parser, containers: Mapping[str, Any] | None = None) -> None:
+        """Add one ``argparse`` option per field to ``parser``.
+
+        Parameters
+        ----------
+        parser : argparse.ArgumentParser
+        containers : Mapping, optional
+            ``{field: group}``: add that field's option to another container (a
+            mutually exclusive group) instead.
+        """
+        for s in cls.specs():
+            target = (containers or {}).get(s.dest, parser)
+            if s.is_flag:
+                target.add_argument(s.flag, action="store_true", dest=s.dest, help=s.help)
+                continue
+            kw: dict[str, Any] = {"dest": s.dest, "help": s.help,
+                                  "type": s.type if s.type in (int, float) else str}
+            if s.choices:
+                kw["choices"] = s.choices
+            if s.required:
+                kw["required"] = True
+            else:
+                kw["default"] = s.default
+            target.add_argument(s.flag, **kw)
+
+    @classmethod
+    def validated(cls, data: Mapping[str, Any]):
+        """The model of ``data`` (``{field: value}``).
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            A value outside its limits, of the wrong type, not among the choices, or a
+            required one missing; the message names the option, its limits and unit.
+        """
+        try:
+            return cls.model_validate(dict(data))
+        except pydantic.ValidationError as exc:
+            raise InputError(cls._message(exc.errors()[0])) from None
+
+    @classmethod
+    def _message(cls, err: Mapping[str, Any]) -> str:
+        name = str(err["loc"][0]) if err.get("loc") else ""
+        if name not in cls.model_fields:
+            return f"{cls.command}: {err.get('msg')}"
+        s = cls.spec(name)
+        what = s.description + (f" in {s.unit}" if s.unit else "")
+        if err["type"] == "missing":
+            return f"give {s.flag} ({what})"
+        if s.choices:
+            return f"{s.flag} {err.get('input')!r}: use one of {', '.join(s.choices)}"
+        value = err.get("input")
+        kind = "a whole number" if s.type is int else "a number" if s.type is float else "text"
+        if s.limits:
+            return (f"{s.flag} {value!r} is outside its limits: {what} must be {s.limits}"
+                    f" {s.unit}").rstrip()
+        return f"{s.flag} {value!r}: give {kind} ({what})"
+
+    @classmethod
+    def from_namespace(cls, args: argparse.Namespace):
+        """The model of a parsed command line (its fields' ``dest``); InputError as
+        :meth:`validated`."""
+        return cls.validated({s.dest: getattr(args, s.dest) for s in cls.specs()
+                              if hasattr(args, s.dest)})
+
+    @classmethod
+    def from_text(cls, values: Mapping[str, Any]):
+        """The model of a form's values ``{flag or field: text or bool}``; an empty
+        text takes the default.
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            Text that is not a number where one is needed (``"--n-depths: 'many' is
+            not a whole number"``), and as :meth:`validated`.
+        """
+        by_key = {s.flag: s for s in cls.specs()} | {s.dest: s for s in cls.specs()}
+        data: dict[str, Any] = {}
+        for key, value in values.items():
+            s = by_key.get(key)
+            if s is None:
+                raise InputError(f"{cls.command}: unknown option {key!r}; use one of "
+                                 f"{[x.flag for x in cls.specs()]}")
+            if s.is_flag:
+                data[s.dest] = bool(value)
+                continue
+            text = "" if value is None else str(value).strip()
+            if not text:
+                continue
+            if s.type in (int, float):
+                try:
+                    data[s.dest] = s.type(text)
+                except ValueError:
+                    what = "a whole number" if s.type is int else "a number"
+                    raise InputError(f"{s.flag}: {text!r} is not {what}") from None
+            else:
+                data[s.dest] = text
+        return cls.validated(data)
+
+    @classmethod
+    def markdown(cls) -> str:
+        """A Markdown table of the options (option, type, unit, limits, default, what)."""
+        rows = ["| option | type | unit | limits | default | description |",
+                "|---|---|---|---|---|---|"]
+        for s in cls.specs():
+            kind = "flag" if s.is_flag else ("one of " + ", ".join(s.choices)
+                                             if s.choices else s.type.__name__)
+            default = ("required" if s.required else "off" if s.is_flag else
+                       (s.default_text or "-") if s.default is None else _num(s.default))
+            cells = [f"`{s.flag}`", kind, s.unit, s.limits, default, s.description]
+            rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+        return "\n".join(rows)
