@@ -1,0 +1,148 @@
+"""Each calibration routine's parameters are one typed model
+(calibration_routines/parameters.py): the ``calibrate`` options and the GUI's forms are
+generated from it, bad values are refused naming the option and its limits, and the
+GUI's plan is the command's plan without any argv."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from calibration_routines.cli.calibrate import add_subcommands, plan_from_args
+from calibration_routines.parameters import PARAMETERS, PsfSweepParams, SlmLutParams
+from diffuserlab.errors import InputError
+from instrument.options import option
+
+#: The options ``calibrate`` had before the models, with their defaults (tests, docs
+#: and scripts use them): none may change.
+HISTORIC = {
+    "dark": {"--frames": None, "--exposure-s": None},
+    "psf-sweep": {"--frames": None, "--z-min": None, "--z-max": None, "--spacing": "inverse",
+                  "--n-depths": None, "--c-per-mm": None, "--probe-step": False,
+                  "--x-mm": 0.0, "--y-mm": 0.0},
+    "psf-grid": {"--frames": None, "--mode": "leds", "--n": 3, "--spacing-mm": None,
+                 "--z-mm": 40.0, "--led-step": 2, "--falloff-sigma-deg": None},
+    "psf-blind": {"--frames": None, "--images": 4, "--grid": 3, "--z-mm": ...,
+                  "--node-spacing-mm": ..., "--exposure-s": ..., "--rounds": 6, "--bin": 1},
+    "angular-response": {"--frames": None, "--z-mm": None, "--max-angle-deg": None,
+                         "--n-angles": None, "--beta-deg": None},
+    "slm-lut": {"--frames": None, "--levels": None, "--period-px": None,
+                "--no-nd-filter": False},
+}
+
+
+def _routine_parsers() -> dict[str, argparse.ArgumentParser]:
+    parser = argparse.ArgumentParser(prog="diffuserlab")
+    add_subcommands(parser.add_subparsers(dest="command"))
+    cal = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    sub = next(a for a in cal.choices["calibrate"]._actions
+               if isinstance(a, argparse._SubParsersAction))
+    return dict(sub.choices)
+
+
+def test_the_models_keep_every_historic_flag_and_default():
+    assert list(PARAMETERS) == list(HISTORIC)
+    for routine, flags in HISTORIC.items():
+        specs = {s.flag: s for s in PARAMETERS[routine].specs()}
+        assert list(specs) == list(flags), routine
+        for flag, default in flags.items():
+            assert specs[flag].default == default, (routine, flag)
+
+
+def test_calibrate_options_are_generated_from_the_models():
+    parsers = _routine_parsers()
+    for routine, model in PARAMETERS.items():
+        actions = {a.option_strings[-1]: a for a in parsers[routine]._actions
+                   if a.option_strings}
+        for s in model.specs():
+            a = actions[s.flag]
+            assert a.dest == s.dest and a.help == s.help, (routine, s.flag)
+            assert a.required == s.required
+            if s.is_flag:
+                assert isinstance(a, argparse._StoreTrueAction)
+            else:
+                assert a.type is s.type and (a.default == s.default or s.required)
+                assert tuple(a.choices or ()) == (s.choices or ())
+            if s.unit:
+                assert f", {s.unit}" in a.help  # help names the unit
+            if s.limits:
+                assert s.limits in a.help
+    assert "--falloff-run" in {o for a in parsers["psf-grid"]._actions
+                               for o in a.option_strings}
+    assert "--apply" in parsers["slm-lut"].format_help()
+
+
+def test_a_limit_changed_in_the_model_changes_the_options_and_the_refusal():
+    class Narrow(PsfSweepParams):
+        n_depths: int | None = option(None, ge=4, help="number of depth planes")
+
+    parser = argparse.ArgumentParser()
+    Narrow.add_arguments(parser)
+    assert ">= 4" in parser.format_help().replace("\n", " ").replace("  ", " ")
+    assert PsfSweepParams.from_text({"--n-depths": "3"}).n_depths == 3
+    with pytest.raises(InputError, match=r"--n-depths 3 is outside its limits: number of "
+                       r"depth planes must be >= 4"):
+        Narrow.from_text({"--n-depths": "3"})
+
+
+@pytest.mark.parametrize("routine, values, message", [
+    ("psf-sweep", {"--n-depths": "many"}, r"^--n-depths: 'many' is not a whole number$"),
+    ("psf-sweep", {"--z-min": "-5"}, r"--z-min -5.0 is outside its limits: nearest depth "
+                                     r"in mm must be > 0 mm"),
+    ("psf-sweep", {"--spacing": "log"}, r"--spacing 'log': use one of inverse, uniform"),
+    ("slm-lut", {"--levels": "300"}, r"--levels 300 .*must be 8 to 256"),
+    ("angular-response", {"--max-angle-deg": "85"}, r"must be 0 \(excl.\) to 85 \(excl.\)"),
+    ("psf-blind", {"--z-mm": "30"}, r"give --node-spacing-mm \(spacing of the recovered"),
+    ("dark", {"--frames": "0"}, r"--frames 0 is outside its limits: frames per point must "
+                                r"be >= 1"),
+    ("dark", {"--no-such": "1"}, r"unknown option '--no-such'"),
+])
+def test_bad_values_name_the_option_and_its_limits(routine, values, message):
+    with pytest.raises(InputError, match=message):
+        PARAMETERS[routine].from_text(values)
+
+
+def test_models_are_typed_and_frozen():
+    p = SlmLutParams.from_text({"--levels": "32", "--no-nd-filter": True, "--frames": ""})
+    assert (p.n_levels, p.no_nd_filter, p.frames) == (32, True, None)
+    with pytest.raises(Exception):  # noqa: B017 (pydantic's frozen-instance error)
+        p.n_levels = 8
+    schema = SlmLutParams.model_json_schema()
+    assert schema["properties"]["n_levels"]["anyOf"][0] == {"maximum": 256, "minimum": 8,
+                                                            "type": "integer"}
+
+
+def test_the_guis_plan_is_the_commands_plan_without_argv():
+    from gui.jobs import build_plan, routine_options
+    from instrument.virtual_bench import VirtualBench
+
+    assert [o.flag for o in routine_options("psf-grid")] == list(HISTORIC["psf-grid"])
+    parser = argparse.ArgumentParser(prog="diffuserlab")
+    add_subcommands(parser.add_subparsers(dest="command"))
+    with VirtualBench(seed=0) as bench:
+        for routine, gui_values, argv in (
+                ("psf-sweep", {"--z-min": "30", "--z-max": "60", "--n-depths": "3",
+                               "--spacing": "uniform"},
+                 ["--z-min", "30", "--z-max", "60", "--n-depths", "3", "--spacing",
+                  "uniform"]),
+                ("psf-grid", {"--mode": "stage", "--n": "2", "--z-mm": "35"},
+                 ["--mode", "stage", "--n", "2", "--z-mm", "35"]),
+                ("dark", {"--frames": "2"}, ["--frames", "2"]),
+                ("slm-lut", {"--levels": "16", "--no-nd-filter": True},
+                 ["--levels", "16", "--no-nd-filter"])):
+            gui_plan = build_plan(bench, routine, gui_values)
+            args = parser.parse_args(["calibrate", routine, "--simulate", *argv])
+            cli_plan = plan_from_args(args, bench)
+            assert gui_plan.name == cli_plan.name and gui_plan.params == cli_plan.params, \
+                routine
+
+
+def test_the_gui_never_synthesises_a_calibrate_command_line():
+    import inspect
+
+    import gui.jobs
+
+    source = inspect.getsource(gui.jobs.build_plan) + inspect.getsource(
+        gui.jobs.routine_options)
+    assert "argv" not in source and "parse_args" not in source and "_parse" not in source
