@@ -146,3 +146,18 @@ def test_the_gui_never_synthesises_a_calibrate_command_line():
     source = inspect.getsource(gui.jobs.build_plan) + inspect.getsource(
         gui.jobs.routine_options)
     assert "argv" not in source and "parse_args" not in source and "_parse" not in source
+
+
+def test_options_page_matches_the_models(tmp_path):
+    from calibration_routines.parameters_doc import DEFAULT_PAGE, main, page
+
+    assert DEFAULT_PAGE.read_text(encoding="utf-8") == page(), (
+        "docs/calibration-options.md is out of date: run python -m "
+        "calibration_routines.parameters_doc")
+    for model in PARAMETERS.values():
+        for s in model.specs():
+            assert f"`{s.flag}`" in page()
+    stale = tmp_path / "options.md"
+    stale.write_text(page().replace("nearest depth", "near"), encoding="utf-8")
+    assert main(["--check", "--page", str(stale)]) == 1
+    assert main(["--page", str(stale)]) == 0 and stale.read_text(encoding="utf-8") == page()
