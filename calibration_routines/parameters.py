@@ -18,7 +18,7 @@ from typing import ClassVar, Literal
 
 from instrument.options import Options, option
 
-__all__ = ["PARAMETERS", "AngularResponseParams", "DarkParams", "PsfBlindParams",
+__all__ = ["PARAMETERS", "AlignMaskParams", "AngularResponseParams", "DarkParams", "PsfBlindParams",
            "PsfGridParams", "PsfSweepParams", "RoutineParams", "SlmLutParams"]
 
 
@@ -221,3 +221,44 @@ class SlmLutParams(RoutineParams):
 PARAMETERS: dict[str, type[RoutineParams]] = {
     m.routine: m for m in (DarkParams, PsfSweepParams, PsfGridParams, PsfBlindParams,
                            AngularResponseParams, SlmLutParams)}
+
+
+class AlignMaskParams(Options):
+    """The parameters of ``align mask`` (the SLM-mask alignment with spot feedback,
+    :class:`calibration_routines.mask_alignment.MaskAligner`); ``--sim-*`` place the
+    virtual bench's mask with ``--simulate`` (:func:`calibration_routines.cli.align.
+    simulated_truth`)."""
+
+    command: ClassVar[str] = "align mask"
+
+    mask_seed: int | None = option(None, help="seed of the installed mask's pattern",
+                                   default_text="the virtual bench's")
+    mask_pattern: str | None = option(
+        None, help="the installed mask's pattern, .npy: uint8 0/1 bits (1 = phase pi) or "
+        "+1/-1, shape (R k + 2 margin, C k + 2 margin); instead of --mask-seed",
+        default_text="none")
+    mask_margin: int = option(16, ge=0, help="mask pixels of --mask-pattern beyond the SLM "
+                              "footprint on each side")
+    k: int = option(4, ge=1, help="mask pixels per SLM pixel")
+    lut: str | None = option(None, help="SLM LUT to load first: a `calibrate slm-lut` run "
+                             "store (RUN.zarr) or its exported LUT file", default_text="none")
+    coarse_range_px: int = option(12, ge=1, help="half-width of the coarse software search "
+                                  "(widened x2 once)", unit="mask px")
+    frames: int = option(3, ge=1, help="frames averaged per reading")
+    no_rotation: bool = option(False, help="do not rotate the stage")
+    no_focus: bool = option(False, help="do not adjust the stage's z, tip and tilt (step 5)")
+    relay_na: float | None = option(
+        None, gt=0, le=1, help="image-side NA of the SLM -> mask relay (sets the simulated "
+        "ceiling and the first focus sweep, lambda/NA^2)",
+        default_text="the virtual bench's with --simulate, else no pupil")
+    focus_range_mm: float | None = option(None, gt=0, help="half-range of the first z sweep",
+                                          unit="mm", default_text="from --relay-na")
+    sim_translation_px: tuple[float, float] = option(
+        (5.3, -3.6), help="--simulate: true mask offset", unit="mask px")
+    sim_rotation_mrad: float = option(2.0, help="--simulate: true mask rotation", unit="mrad")
+    sim_distortion_px: float = option(0.0, help="--simulate: quadratic distortion at the "
+                                      "footprint edge", unit="mask px")
+    sim_defocus_mm: float = option(0.08, help="--simulate: mask distance from the SLM image "
+                                   "at stage z = 0", unit="mm")
+    sim_tip_mrad: float = option(0.0, help="--simulate: mount rotation about x", unit="mrad")
+    sim_tilt_mrad: float = option(0.0, help="--simulate: mount rotation about y", unit="mrad")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from calibration_routines.parameters import PARAMETERS
+from calibration_routines.parameters import PARAMETERS, AlignMaskParams
 from diffuserlab.docpage import page_main
 
 __all__ = ["DEFAULT_PAGE", "main", "page"]
@@ -38,6 +38,9 @@ def page() -> str:
         if name == "slm-lut":
             lines += ["`--apply` loads the new LUT onto the SLM at the end and compares a "
                       "blazed grating's first-order efficiency with the previous LUT.", ""]
+    lines += ["## `align mask`", "", "The SLM-mask alignment with spot feedback (see "
+              "[Holography](holography.md)); it also takes the bench file, `--simulate`, "
+              "`--seed` and `--out`.", "", AlignMaskParams.markdown(), ""]
     return "\n".join(lines)
 
 

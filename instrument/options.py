@@ -57,6 +57,8 @@ def option(default: Any = ..., *, help: str, unit: str = "", flag: str | None = 
 
 
 def _num(v: Any) -> str:
+    if isinstance(v, tuple | list):
+        return " ".join(_num(x) for x in v)
     return f"{v:g}" if isinstance(v, int | float) else str(v)
 
 
@@ -83,6 +85,8 @@ class OptionSpec:
         ``"> 0"``, ``"8 to 256"``, ``""``.
     default_text : str
         What a None default means.
+    nargs : int or None
+        The number of values of a tuple option (``--sim-translation-px TX TY``).
     """
 
     dest: str
@@ -95,6 +99,7 @@ class OptionSpec:
     description: str
     limits: str
     default_text: str = ""
+    nargs: int | None = None
 
     @property
     def is_flag(self) -> bool:
@@ -138,13 +143,16 @@ def _limits_text(meta: list[Any]) -> str:
             f"{' (excl.)' if high_open else ''}")
 
 
-def _base_type(annotation: Any) -> tuple[type, tuple[str, ...] | None]:
+def _base_type(annotation: Any) -> tuple[type, tuple[str, ...] | None, int | None]:
     args = [a for a in typing.get_args(annotation) if a is not type(None)]
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
         annotation = args[0]
     if typing.get_origin(annotation) is Literal:
-        return str, tuple(str(c) for c in typing.get_args(annotation))
-    return annotation, None
+        return str, tuple(str(c) for c in typing.get_args(annotation)), None
+    if typing.get_origin(annotation) is tuple:
+        items = typing.get_args(annotation)
+        return items[0], None, len(items)
+    return annotation, None, None
 
 
 class Options(pydantic.BaseModel):
@@ -161,12 +169,12 @@ class Options(pydantic.BaseModel):
         out = []
         for name, f in cls.model_fields.items():
             extra = f.json_schema_extra or {}
-            kind, choices = _base_type(f.annotation)
+            kind, choices, nargs = _base_type(f.annotation)
             flag = extra.get("flag") or "--" + name.replace("_", "-")
             out.append(OptionSpec(name, flag, kind, f.default if not f.is_required() else ...,
                                   f.is_required(), choices, extra.get("unit", ""),
                                   f.description or "", _limits_text(f.metadata),
-                                  extra.get("default_text", "")))
+                                  extra.get("default_text", ""), nargs))
         return out
 
     @classmethod
@@ -194,6 +202,8 @@ class Options(pydantic.BaseModel):
                                   "type": s.type if s.type in (int, float) else str}
             if s.choices:
                 kw["choices"] = s.choices
+            if s.nargs:
+                kw["nargs"] = s.nargs
             if s.required:
                 kw["required"] = True
             else:
@@ -265,11 +275,15 @@ class Options(pydantic.BaseModel):
             if not text:
                 continue
             if s.type in (int, float):
+                parts = text.replace(",", " ").split() if s.nargs else [text]
+                what = "a whole number" if s.type is int else "a number"
+                if s.nargs and len(parts) != s.nargs:
+                    raise InputError(f"{s.flag}: {text!r} is not {s.nargs} numbers")
                 try:
-                    data[s.dest] = s.type(text)
+                    values_ = [s.type(p) for p in parts]
                 except ValueError:
-                    what = "a whole number" if s.type is int else "a number"
                     raise InputError(f"{s.flag}: {text!r} is not {what}") from None
+                data[s.dest] = tuple(values_) if s.nargs else values_[0]
             else:
                 data[s.dest] = text
         return cls.validated(data)
@@ -282,6 +296,8 @@ class Options(pydantic.BaseModel):
         for s in cls.specs():
             kind = "flag" if s.is_flag else ("one of " + ", ".join(s.choices)
                                              if s.choices else s.type.__name__)
+            if s.nargs:
+                kind += f" x {s.nargs}"
             default = ("required" if s.required else "off" if s.is_flag else
                        (s.default_text or "-") if s.default is None else _num(s.default))
             cells = [f"`{s.flag}`", kind, s.unit, s.limits, default, s.description]

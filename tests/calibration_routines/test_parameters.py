@@ -138,14 +138,13 @@ def test_the_guis_plan_is_the_commands_plan_without_argv():
                 routine
 
 
-def test_the_gui_never_synthesises_a_calibrate_command_line():
+def test_the_gui_never_synthesises_a_command_line():
     import inspect
 
     import gui.jobs
 
-    source = inspect.getsource(gui.jobs.build_plan) + inspect.getsource(
-        gui.jobs.routine_options)
-    assert "argv" not in source and "parse_args" not in source and "_parse" not in source
+    source = inspect.getsource(gui.jobs)
+    assert "argv" not in source and "parse_args" not in source
 
 
 def test_options_page_matches_the_models(tmp_path):
@@ -161,3 +160,57 @@ def test_options_page_matches_the_models(tmp_path):
     stale.write_text(page().replace("nearest depth", "near"), encoding="utf-8")
     assert main(["--check", "--page", str(stale)]) == 1
     assert main(["--page", str(stale)]) == 0 and stale.read_text(encoding="utf-8") == page()
+
+
+ALIGN_HISTORIC = {"--mask-seed": None, "--mask-pattern": None, "--mask-margin": 16, "--k": 4,
+                  "--lut": None, "--coarse-range-px": 12, "--frames": 3,
+                  "--no-rotation": False, "--no-focus": False, "--relay-na": None,
+                  "--focus-range-mm": None, "--sim-translation-px": (5.3, -3.6),
+                  "--sim-rotation-mrad": 2.0, "--sim-distortion-px": 0.0,
+                  "--sim-defocus-mm": 0.08, "--sim-tip-mrad": 0.0, "--sim-tilt-mrad": 0.0}
+
+
+def test_align_mask_options_come_from_its_model():
+    from calibration_routines.cli.align import add_subcommands as add_align
+    from calibration_routines.cli.align import simulated_truth
+    from calibration_routines.parameters import AlignMaskParams
+
+    specs = {s.flag: s for s in AlignMaskParams.specs()}
+    assert {f: s.default for f, s in specs.items()} == ALIGN_HISTORIC
+    parser = argparse.ArgumentParser(prog="diffuserlab")
+    add_align(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["align", "mask", "--simulate", "--frames", "2",
+                              "--sim-translation-px", "1", "-2", "--no-focus"])
+    cli = AlignMaskParams.from_namespace(args)
+    gui = AlignMaskParams.from_text({"--frames": "2", "--sim-translation-px": "1, -2",
+                                     "--no-focus": True, "--mask-seed": ""})
+    assert cli == gui and gui.sim_translation_px == (1.0, -2.0)
+    assert simulated_truth(gui).translation == simulated_truth(cli).translation
+    with pytest.raises(InputError, match=r"--mask-seed: 'abc' is not a whole number"):
+        AlignMaskParams.from_text({"--mask-seed": "abc"})
+    with pytest.raises(InputError, match=r"--relay-na 2.0 is outside its limits"):
+        AlignMaskParams.from_text({"--relay-na": "2"})
+    with pytest.raises(InputError, match=r"--sim-translation-px: '1' is not 2 numbers"):
+        AlignMaskParams.from_text({"--sim-translation-px": "1"})
+
+
+def test_the_guis_batch_options_are_recon_runs_declarations_without_argv():
+    from gui.jobs import _recon_run_args
+    from instrument.cli.recon_run import add_subcommands as add_recon_run
+
+    parser = argparse.ArgumentParser(prog="diffuserlab")
+    add_recon_run(parser.add_subparsers(dest="command"))
+    cli = parser.parse_args(["recon-run", "v.zarr", "--psf", "p.npy", "--iterations", "7",
+                             "--method", "fista", "--depth", "45", "--workers", "1"])
+    gui = _recon_run_args(add_recon_run, "v.zarr", {
+        "--psf": "p.npy", "--iterations": "7", "--method": "fista", "--depth": "45",
+        "--workers": "1", "--frames": "", "--tv": ""})
+    assert vars(gui) == vars(cli)
+    for options, message in (({"--iterations": "many"}, r"--iterations: 'many' is not a "
+                               r"whole number"),
+                             ({"--method": "magic"}, r"--method: 'magic': use one of"),
+                             ({"--workers": "1", "--scheduler": "tcp://x:1"},
+                              r"--workers: not allowed with --scheduler"),
+                             ({"--nope": "1"}, r"recon-run has no option --nope")):
+        with pytest.raises(InputError, match=message):
+            _recon_run_args(add_recon_run, "v.zarr", options)
