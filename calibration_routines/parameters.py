@@ -12,7 +12,7 @@ option tables of docs/calibration.md are generated from them
 
 from __future__ import annotations
 
-from abc import abstractmethod
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import ClassVar, Literal
 
@@ -22,7 +22,7 @@ __all__ = ["PARAMETERS", "AlignMaskParams", "AngularResponseParams", "DarkParams
            "PsfGridParams", "PsfSweepParams", "RoutineParams", "SlmLutParams"]
 
 
-class RoutineParams(Options):
+class RoutineParams(Options, ABC):
     """Parameters every routine takes; subclasses add their own and build the plan."""
 
     #: The routine's name as ``calibrate`` takes it.

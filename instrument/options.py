@@ -11,6 +11,9 @@ the model come:
   from a form's texts (:meth:`Options.from_text`), a bad value raising
   :class:`diffuserlab.errors.InputError` that names the option and its limits;
 - documentation tables (:meth:`Options.markdown`).
+
+The declarations import nothing heavy (a command's parser and ``--help`` are built
+without pydantic); the pydantic model that validates is made on first use.
 """
 
 from __future__ import annotations
@@ -21,9 +24,6 @@ import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
-
-import annotated_types as at
-import pydantic
 
 from diffuserlab.errors import InputError
 
@@ -51,9 +51,22 @@ def option(default: Any = ..., *, help: str, unit: str = "", flag: str | None = 
     **limits
         pydantic's ``gt``, ``ge``, ``lt``, ``le``.
     """
-    return pydantic.Field(default, description=help,
-                          json_schema_extra={"unit": unit, "flag": flag,
-                                             "default_text": default_text}, **limits)
+    unknown = set(limits) - {"gt", "ge", "lt", "le"}
+    if unknown:
+        raise TypeError(f"option() takes the limits gt, ge, lt, le, not {sorted(unknown)}")
+    return _Option(default, help, unit, flag, default_text, limits)
+
+
+@dataclass(frozen=True)
+class _Option:
+    """A field's declaration (what :func:`option` returns)."""
+
+    default: Any
+    help: str
+    unit: str
+    flag: str | None
+    default_text: str
+    limits: dict
 
 
 def _num(v: Any) -> str:
@@ -121,18 +134,10 @@ class OptionSpec:
         return text
 
 
-def _limits_text(meta: list[Any]) -> str:
-    low = high = None
-    low_open = high_open = False
-    for m in meta:
-        if isinstance(m, at.Gt):
-            low, low_open = m.gt, True
-        elif isinstance(m, at.Ge):
-            low = m.ge
-        elif isinstance(m, at.Lt):
-            high, high_open = m.lt, True
-        elif isinstance(m, at.Le):
-            high = m.le
+def _limits_text(limits: Mapping[str, Any]) -> str:
+    low_open, high_open = "gt" in limits, "lt" in limits
+    low = limits.get("gt", limits.get("ge"))
+    high = limits.get("lt", limits.get("le"))
     if low is None and high is None:
         return ""
     if high is None:
@@ -155,26 +160,82 @@ def _base_type(annotation: Any) -> tuple[type, tuple[str, ...] | None, int | Non
     return annotation, None, None
 
 
-class Options(pydantic.BaseModel):
-    """Base of a command's parameter model (see the module docstring)."""
+class Options:
+    """Base of a command's parameter model (see the module docstring).
 
-    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+    Subclasses declare fields as ``name: type = option(...)``; an instance holds the
+    validated values as attributes and is frozen.
+    """
 
     #: The command the options belong to, for messages (``"calibrate psf-sweep"``).
     command: ClassVar[str] = ""
+    _fields: ClassVar[dict[str, tuple[Any, _Option]]] = {}
+    _pydantic: ClassVar[Any] = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        fields: dict[str, tuple[Any, _Option]] = {}
+        for klass in reversed(cls.__mro__):
+            decl = {k: v for k, v in vars(klass).items() if isinstance(v, _Option)}
+            if decl:
+                hints = typing.get_type_hints(klass)
+                for name, opt in decl.items():
+                    fields[name] = (hints[name], opt)
+        cls._fields = fields
+        cls._pydantic = None
+
+    def __init__(self, **values: Any) -> None:
+        object.__setattr__(self, "_values", dict(values))
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{type(self).__name__} is frozen: build a new one")
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and other._values == self._values
+
+    def __hash__(self) -> int:
+        return hash((type(self), tuple(sorted(map(repr, self._values.items())))))
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{k}={v!r}" for k, v in self._values.items())
+        return f"{type(self).__name__}({inner})"
+
+    def model_dump(self) -> dict[str, Any]:
+        """The values, ``{field: value}``."""
+        return dict(self._values)
+
+    @classmethod
+    def _model(cls):
+        """The pydantic model that validates (made on first use)."""
+        if cls.__dict__.get("_pydantic") is None:
+            import pydantic
+
+            fields = {name: (kind, pydantic.Field(opt.default, description=opt.help,
+                                                  **opt.limits))
+                      for name, (kind, opt) in cls._fields.items()}
+            cls._pydantic = pydantic.create_model(
+                f"{cls.__name__}Model", __config__=pydantic.ConfigDict(extra="forbid"),
+                **fields)
+        return cls._pydantic
+
+    @classmethod
+    def model_json_schema(cls) -> dict[str, Any]:
+        """The JSON schema of the options (pydantic's)."""
+        return cls._model().model_json_schema()
 
     @classmethod
     def specs(cls) -> list[OptionSpec]:
         """One :class:`OptionSpec` per field, in declaration order."""
         out = []
-        for name, f in cls.model_fields.items():
-            extra = f.json_schema_extra or {}
-            kind, choices, nargs = _base_type(f.annotation)
-            flag = extra.get("flag") or "--" + name.replace("_", "-")
-            out.append(OptionSpec(name, flag, kind, f.default if not f.is_required() else ...,
-                                  f.is_required(), choices, extra.get("unit", ""),
-                                  f.description or "", _limits_text(f.metadata),
-                                  extra.get("default_text", ""), nargs))
+        for name, (annotation, opt) in cls._fields.items():
+            kind, choices, nargs = _base_type(annotation)
+            flag = opt.flag or "--" + name.replace("_", "-")
+            required = opt.default is ...
+            out.append(OptionSpec(name, flag, kind, opt.default, required, choices, opt.unit,
+                                  opt.help, _limits_text(opt.limits), opt.default_text,
+                                  nargs))
         return out
 
     @classmethod
@@ -220,15 +281,18 @@ class Options(pydantic.BaseModel):
             A value outside its limits, of the wrong type, not among the choices, or a
             required one missing; the message names the option, its limits and unit.
         """
+        import pydantic
+
         try:
-            return cls.model_validate(dict(data))
+            model = cls._model().model_validate(dict(data))
         except pydantic.ValidationError as exc:
             raise InputError(cls._message(exc.errors()[0])) from None
+        return cls(**model.model_dump())
 
     @classmethod
     def _message(cls, err: Mapping[str, Any]) -> str:
         name = str(err["loc"][0]) if err.get("loc") else ""
-        if name not in cls.model_fields:
+        if name not in cls._fields:
             return f"{cls.command}: {err.get('msg')}"
         s = cls.spec(name)
         what = s.description + (f" in {s.unit}" if s.unit else "")
