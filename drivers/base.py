@@ -275,6 +275,13 @@ class Device(abc.ABC):
         self._require_open()
         return jsonable({name: self._values[name] for name in self._SETTINGS})
 
+    def setting_values(self) -> dict[str, Any]:
+        """Every declared setting's value, the read-only ones included (JSON-able), in
+        declaration order; what an operator interface shows (:meth:`settings` holds
+        only the writable ones, to feed back to :meth:`apply_settings`)."""
+        self._require_open()
+        return jsonable({s.name: self._values.get(s.name) for s in self.SETTINGS})
+
     def apply_settings(self, settings: Mapping[str, Any]) -> None:
         """Validate all of ``settings``, then apply them in the defined order.
 

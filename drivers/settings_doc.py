@@ -6,10 +6,10 @@ page differs from the declarations (``tests/drivers/test_settings.py`` checks it
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
+from diffuserlab.docpage import page_main
 from drivers.aravis_camera import AravisCamera
 from drivers.arduino_led import ArduinoLedArray
 from drivers.camera import Camera
@@ -51,24 +51,8 @@ def page() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Write (or with ``--check`` compare) the settings page; returns the exit status."""
-    parser = argparse.ArgumentParser(prog="python -m drivers.settings_doc",
-                                     description=__doc__.splitlines()[0])
-    parser.add_argument("--page", type=Path, default=DEFAULT_PAGE, help="the Markdown file")
-    parser.add_argument("--check", action="store_true",
-                        help="compare instead of writing; exit 1 when it differs")
-    args = parser.parse_args(argv)
-    text = page()
-    if args.check:
-        current = args.page.read_text(encoding="utf-8") if args.page.exists() else ""
-        if current != text:
-            print(f"{args.page} is out of date: run python -m drivers.settings_doc",
-                  file=sys.stderr)
-            return 1
-        return 0
-    args.page.write_text(text, encoding="utf-8")
-    print(f"wrote {args.page}")
-    return 0
+    """Write (or with ``--check`` compare) the page; returns the exit status."""
+    return page_main("drivers.settings_doc", __doc__.splitlines()[0], DEFAULT_PAGE, page, argv)
 
 
 if __name__ == "__main__":

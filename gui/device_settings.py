@@ -1,7 +1,10 @@
-"""What the device panel shows about each setting: its label, unit and limits.
+"""What the device panel shows about each setting, generated from the declarations.
 
-The limits come from the device itself (:attr:`drivers.base.Device.info`, the ranges
-its interface validates against); the panel only shows them. Whether a value is
+Each row of a device's box is one :class:`~drivers.settings.Setting` its class
+declares (``type(device).SETTINGS``, in the order they apply): its label comes from
+the name, its unit, limits (numbers read from the open device's
+:attr:`~drivers.base.Device.info`), description and read-only flag from the
+declaration, so a new device kind or setting needs no edit here. Whether a value is
 accepted is decided by the device interface (:meth:`drivers.base.Device.apply_settings`),
 whose message the panel shows when it refuses one.
 """
@@ -9,100 +12,112 @@ whose message the panel shows when it refuses one.
 from __future__ import annotations
 
 import json
-import math
 import re
+from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["SETTINGS", "limits_text", "parse_duration_s", "parse_value", "value_text"]
+__all__ = ["Row", "label_of", "limits_text", "parse_duration_s", "parse_value", "rows",
+           "value_text"]
 
-#: ``{kind: {setting: (label, unit)}}`` for the settings the panel edits.
-SETTINGS: dict[str, dict[str, tuple[str, str]]] = {
-    "camera": {
-        "exposure_s": ("exposure", "ms or s"),
-        "frame_rate_hz": ("frame rate", "Hz"),
-        "gain": ("gain", "dB"),
-        "pixel_format": ("pixel format", ""),
-        "binning": ("binning", "x"),
-        "roi": ("ROI x, y, w, h", "px"),
-        "trigger_mode": ("trigger", ""),
-    },
-    "stage": {
-        "velocity": ("velocity", "per axis"),
-        "backlash": ("backlash", "per axis"),
-        "limits": ("soft limits", "per axis"),
-    },
-    "led_array": {
-        "brightness": ("brightness", "0-1"),
-        "na_illum": ("illumination NA", ""),
-        "colour": ("colour", ""),
-    },
-    "slm": {
-        "settle_s": ("settle time", "s"),
-    },
-}
+#: Name endings that repeat the unit (``exposure_s``: "exposure", unit s).
+_UNIT_SUFFIX = re.compile(r"_(s|hz|db|mm|um|nm|rad|deg|px)$")
+#: Abbreviations written in capitals in a label.
+_CAPITALS = {"roi": "ROI", "na": "NA", "lut": "LUT", "led": "LED"}
 
 
-def _range(pair: Any, unit: str) -> str:
-    lo, hi = (float(v) for v in pair)
-    if math.isinf(lo) and math.isinf(hi):
-        return "no limit"
-    if math.isinf(hi):
-        return f"{lo:g} {unit} or more".replace("  ", " ")
-    if math.isinf(lo):
-        return f"up to {hi:g} {unit}".rstrip()
-    return f"{lo:g} to {hi:g} {unit}".rstrip()
+def label_of(name: str) -> str:
+    """The row's label for setting ``name``: words, without a unit suffix
+    (``"frame_rate_hz"`` -> ``"frame rate"``, ``"na_illum"`` -> ``"NA illum"``)."""
+    words = _UNIT_SUFFIX.sub("", name).split("_")
+    return " ".join(_CAPITALS.get(w, w) for w in words)
 
 
-def limits_text(device, name: str) -> str:
-    """The limits of setting ``name`` of an open ``device``, as the panel shows them.
+@dataclass(frozen=True)
+class Row:
+    """One setting as the panel shows it.
+
+    Attributes
+    ----------
+    name : str
+        The setting's key (``device.settings()[name]``).
+    label : str
+        The row's label (:func:`label_of`).
+    unit : str
+        The declared unit (``"per axis"`` for a per-axis setting whose unit
+        differs per axis, the units then in ``limits``).
+    limits : str
+        The limits with the open device's numbers
+        (:meth:`drivers.settings.Setting.limits_text`).
+    tooltip : str
+        The declaration's description, type and limits.
+    read_only : bool
+        Shown, not editable (no Apply).
+    spec : drivers.settings.Setting
+        The declaration itself.
+    """
+
+    name: str
+    label: str
+    unit: str
+    limits: str
+    tooltip: str
+    read_only: bool
+    spec: Any
+
+    @property
+    def title(self) -> str:
+        """The form's label: ``"exposure (s)"``."""
+        return f"{self.label} ({self.unit})" if self.unit else self.label
+
+
+def rows(device) -> list[Row]:
+    """The rows of an open ``device``: one per declared setting, in declaration order.
 
     Parameters
     ----------
     device : drivers.base.Device
-        An open device.
-    name : str
-        One of its settings.
+        An open device (its info gives the limits' numbers).
+
+    Returns
+    -------
+    list of Row
+    """
+    info = device.info
+    out = []
+    for s in type(device).SETTINGS:
+        if s.per is None:
+            unit = s.unit_of()
+        elif "{unit}" in s.unit:
+            unit = f"per {s.key_name}"
+        else:
+            unit = f"{s.unit} per {s.key_name}".strip()
+        limits = s.limits_text(info)
+        dtype = s.dtype if s.per is None else f"{{{s.key_name}: {s.dtype}}}"
+        tip = "; ".join(p for p in (s.description, f"type {dtype}",
+                                    f"limits {limits}" if limits else "",
+                                    "read-only" if s.read_only else "") if p)
+        if s.unit == "s" and s.per is None:
+            tip += "; type a time with its unit: 20 ms, 0.02 s, 500 us"
+        out.append(Row(s.name, label_of(s.name), unit, limits, tip, s.read_only, s))
+    return out
+
+
+def limits_text(device, name: str) -> str:
+    """The limits of setting ``name`` of an open ``device``, as the panel shows them
+    (from its declaration, :meth:`drivers.settings.Setting.limits_text`).
 
     Returns
     -------
     str
         E.g. ``"1e-05 to 10 s"``, ``"one of mono8, mono12"``; ``""`` when the
-        interface states no range.
-    """
-    info = device.info
-    kind = device.kind
-    if kind == "camera":
-        if name == "exposure_s":
-            return _range(info["exposure_range_s"], "s")
-        if name == "frame_rate_hz":
-            return _range(info["frame_rate_range_hz"], "Hz")
-        if name == "gain":
-            return _range((0.0, info["gain_range_db"][1]), "dB")
-        if name == "pixel_format":
-            return "one of " + ", ".join(info["pixel_formats"])
-        if name == "binning":
-            return f"1 to {info['max_binning']}"
-        if name == "trigger_mode":
-            return "free_run, software or hardware"
-        if name == "roi":
-            rows, cols = info["sensor_shape"]
-            return f"within {cols} x {rows} px"
-    if kind == "stage":
-        from drivers.stage import AXIS_UNITS
+        declaration states no range.
 
-        axes = info["axes"]
-        if name == "velocity":
-            return "; ".join(f"{a} <= {v['max_velocity']:g} {AXIS_UNITS[a]}/s"
-                             for a, v in axes.items())
-        return "; ".join(f"{a} {_range(v['travel'], AXIS_UNITS[a])}"
-                         for a, v in axes.items())
-    if kind == "led_array":
-        if name == "colour":
-            return "one of " + ", ".join(info["colours"])
-        return "0 to 1" if name == "brightness" else "0 (excl.) to 1"
-    if kind == "slm" and name == "settle_s":
-        return "0 to 60 s"
-    return ""
+    Raises
+    ------
+    KeyError
+        The device declares no setting ``name``.
+    """
+    return type(device).setting(name).limits_text(device.info)
 
 
 def value_text(value: Any, name: str | None = None) -> str:
@@ -144,20 +159,36 @@ def parse_duration_s(text: str, what: str = "exposure") -> float | None:
     return float(m.group(1)) * TIME_UNITS.get(m.group(2) or "s", 1.0)
 
 
-def parse_value(text: str, name: str | None = None) -> Any:
-    """The operator's text as a setting value: a time with its unit for a setting in
-    seconds (``exposure_s``: ``"20 ms"``), else JSON (numbers, lists, mappings) when it
-    parses, else the text itself (the device interface then names what it expects).
+def parse_value(text: str, name: str | None = None, spec=None) -> Any:
+    """The operator's text as a setting value.
+
+    With the setting's declaration ``spec`` (:class:`drivers.settings.Setting`): a
+    time with its unit for a setting declared in seconds (``"20 ms"``), a number for a
+    ``float``/``int`` setting, else JSON (lists, mappings), else the text itself (the
+    device interface then names what it expects). Without it, a name ending in ``_s``
+    is taken as a time.
 
     Raises
     ------
     gui.workers.InputError
-        A time setting that is not a time (:func:`parse_duration_s`).
+        A time setting that is not a time (:func:`parse_duration_s`); a number setting
+        that is not a number (the message names the setting and its limits).
     """
+    from .workers import InputError
+
     text = text.strip()
-    if name is not None and name.endswith("_s"):
-        return parse_duration_s(text, name.removesuffix("_s").replace("_", " "))
+    is_time = (spec.unit == "s" and spec.per is None) if spec is not None else (
+        name is not None and name.endswith("_s"))
+    if is_time:
+        return parse_duration_s(text, (name or spec.name).removesuffix("_s").replace("_", " "))
     try:
-        return json.loads(text)
+        value = json.loads(text)
     except ValueError:
-        return text
+        value = text
+    if spec is not None and spec.per is None and spec.dtype in ("float", "int") and (
+            isinstance(value, bool) or not isinstance(value, int | float)):
+        what = "a whole number" if spec.dtype == "int" else "a number"
+        unit = f" in {spec.unit}" if spec.unit else ""
+        raise InputError(f"{spec.name} {text!r} is not {what}: give {what}{unit} "
+                         f"({spec.limits_text()})".replace(" ()", ""))
+    return value

@@ -3,9 +3,10 @@
 * :func:`build_live` - a :class:`instrument.live.LiveReconstruction` for the session's
   camera and a PSF from a file or run store (:func:`instrument.reconstruct_files.load_psf`),
   with the frames' dark level as ``capture live`` takes it.
-* :func:`routine_options` / :func:`build_plan` - a calibration routine's options
-  are the ``calibrate`` command's own (its argparse definitions, defaults and help),
-  and the plan is built from them exactly as the command builds it.
+* :func:`routine_options` / :func:`build_plan` - a calibration routine's parameters
+  are its typed model (:mod:`calibration_routines.parameters`), from which the
+  ``calibrate`` command's options are generated too; the form's texts become the
+  model, and the model builds the plan.
 * :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
   job's progress and a :class:`~instrument.runner.RunControl`.
 * :func:`run_alignment` - the mask alignment as ``align mask`` runs it.
@@ -18,22 +19,16 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import re
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "RoutineOption", "batch_reconstruct", "build_live",
+__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_reconstruct", "build_live",
            "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
            "run_alignment", "run_plan", "section_summary", "stack_depths"]
 
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
-
-#: ``calibrate`` options that are not the routine's parameters (the GUI sets them).
-_NOT_PARAMETERS = {"help", "bench", "simulate", "seed", "reconnect_timeout_s", "out", "note",
-                   "overwrite", "falloff_run", "apply"}
-
 
 def build_live(session, psf_path: str, *, depth_mm: float | None = None,
                method: str = "wiener", iterations: int = 5, dark: str = "",
@@ -128,74 +123,19 @@ def stack_depths(psf_path: str) -> list[float]:
     return [float(z) for z in depths]
 
 
-class RoutineOption:
-    """One parameter of a calibration routine, from the ``calibrate`` command's parser.
+def routine_options(routine: str) -> list:
+    """The parameters of ``calibrate ROUTINE``, in the command's order: the fields of
+    its model (:data:`calibration_routines.parameters.PARAMETERS`), each an
+    :class:`instrument.options.OptionSpec` (flag, type, default, choices, unit,
+    limits, help)."""
+    from calibration_routines.parameters import PARAMETERS
 
-    Attributes
-    ----------
-    dest : str
-        The argparse destination (the name ``build_plan`` fills).
-    flag : str
-        The command-line option (``--z-min``).
-    help : str
-        Its help text (with the unit).
-    default : object
-    choices : tuple or None
-    is_flag : bool
-        An on/off option (``store_true``).
-    """
-
-    def __init__(self, action: argparse.Action) -> None:
-        self.dest = action.dest
-        self.flag = action.option_strings[-1]
-        self.help = action.help or ""
-        self.default = action.default
-        self.choices = tuple(action.choices) if action.choices else None
-        self.is_flag = isinstance(action, argparse._StoreTrueAction)
-
-
-def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
-    """``parser.parse_args(argv)`` with argparse's complaint as an InputError (argparse's
-    subparsers print and exit instead)."""
-    import contextlib
-    import io
-
-    from .workers import InputError
-
-    err = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(err):
-            return parser.parse_args(argv)
-    except (SystemExit, argparse.ArgumentError) as exc:
-        lines = [ln for ln in err.getvalue().splitlines() if "error:" in ln]
-        text = lines[-1].split("error:", 1)[1].strip() if lines else str(exc)
-        m = re.match(r"argument (\S+): invalid (int|float) value: (.*)", text)
-        if m:
-            what = "a whole number" if m.group(2) == "int" else "a number"
-            text = f"{m.group(1)}: {m.group(3)} is not {what}"
-        raise InputError(text.removeprefix("argument ")) from None
-
-
-def _calibrate_parser() -> argparse.ArgumentParser:
-    from calibration_routines.cli.calibrate import add_subcommands
-
-    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
-    add_subcommands(parser.add_subparsers(dest="command"))
-    return parser
-
-
-def routine_options(routine: str) -> list[RoutineOption]:
-    """The parameters of ``calibrate ROUTINE``, in the command's order."""
-    parser = _calibrate_parser()
-    cal = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    sub = next(a for a in cal.choices["calibrate"]._actions
-               if isinstance(a, argparse._SubParsersAction)).choices[routine]
-    return [RoutineOption(a) for a in sub._actions
-            if a.option_strings and a.dest not in _NOT_PARAMETERS]
+    return PARAMETERS[routine].specs()
 
 
 def build_plan(bench, routine: str, values: dict[str, Any]):
-    """The plan ``calibrate ROUTINE`` would run with ``values``.
+    """The plan ``calibrate ROUTINE`` would run with ``values``: the routine's parameter
+    model built from the form's texts, handed to its plan.
 
     Parameters
     ----------
@@ -209,20 +149,15 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
 
     Raises
     ------
-    gui.workers.InputError
-        A value the option does not accept (the message names the option).
+    diffuserlab.errors.InputError
+        A value the option does not accept (the message names the option and its
+        limits).
     instrument.plan.PlanError
         Parameters the plan refuses.
     """
-    from calibration_routines.cli.calibrate import plan_from_args
+    from calibration_routines.parameters import PARAMETERS
 
-    argv = ["calibrate", routine, "--simulate"]
-    for flag, value in values.items():
-        if value is True:
-            argv.append(flag)
-        elif value not in (False, None, ""):
-            argv += [flag, str(value)]
-    return plan_from_args(_parse(_calibrate_parser(), argv), bench)
+    return PARAMETERS[routine].from_text(values).plan(bench)
 
 
 def default_run_path(routine: str, folder: str = "out/runs") -> str:
@@ -321,23 +256,17 @@ ALIGNMENT_STEPS = ("preflight", "coarse", "translation", "rigid", "focus", "piec
                    "verify")
 
 
-def _align_args(extra: list[str]):
-    """``align mask`` options as the command parses them (its defaults)."""
-    from calibration_routines.cli.align import add_subcommands
-
-    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
-    add_subcommands(parser.add_subparsers(dest="command"))
-    return _parse(parser, ["align", "mask", *extra])
-
-
 def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frames: int = 3,
                   focus: bool = True):
     """The mask alignment (:class:`calibration_routines.mask_alignment.MaskAligner`) on
     the session's bench, recorded in ``out``; progress: ``{"kind": "event", ...}`` per
     step message and ``{"kind": "reading", ...}`` per spot reading.
 
-    On the virtual bench the mask is misplaced as ``align mask --simulate`` places it
-    by default (its ``--sim-*`` options), so there is something to align.
+    The parameters are ``align mask``'s model
+    (:class:`calibration_routines.parameters.AlignMaskParams`), built from the panel's
+    values. On the virtual bench the mask is misplaced as ``align mask --simulate``
+    places it by default (the model's ``sim_*`` defaults), so there is something to
+    align.
 
     Returns
     -------
@@ -346,6 +275,8 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
 
     Raises
     ------
+    diffuserlab.errors.InputError
+        A mask seed that is not a whole number, fewer than 1 frame.
     instrument.plan.PlanError
         No mask pattern on a real bench, an existing record, a bench without the
         holography devices.
@@ -355,13 +286,12 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
     from calibration_routines.cli.align import simulated_truth
     from calibration_routines.holo_bench import holography_branch
     from calibration_routines.mask_alignment import AlignmentConfig, AlignmentRecord, MaskAligner
+    from calibration_routines.parameters import AlignMaskParams
     from instrument.plan import PlanError
     from recon.optics.holo_display import MaskModel
 
-    extra = ["--simulate"] if session.is_virtual else []
-    if mask_seed.strip():
-        extra += ["--mask-seed", mask_seed.strip()]
-    args = _align_args(extra + ["--frames", str(frames)] + ([] if focus else ["--no-focus"]))
+    args = AlignMaskParams.from_text({"--mask-seed": mask_seed, "--frames": str(frames),
+                                      "--no-focus": not focus})
     if not session.is_virtual and args.mask_seed is None:
         raise PlanError("on a real bench, give the installed mask's seed (or run `diffuserlab "
                         "align mask --mask-pattern FILE.npy`)")
@@ -434,6 +364,59 @@ def record(job, session, out: str, stop, *, frames: int | None, seconds: float |
                             **options, **attrs)
 
 
+def _recon_run_args(add_subcommands, run: str, options: dict[str, str]) -> argparse.Namespace:
+    """``recon-run``'s options from the form's ``{flag: text}``: each converted by the
+    command's own declaration (type, choices, default), no command line assembled.
+
+    Raises
+    ------
+    gui.workers.InputError
+        An unknown option, a value its type or choices refuse, two options that
+        exclude each other (the message names the option).
+    """
+    from .workers import InputError
+
+    parser = argparse.ArgumentParser(prog="diffuserlab")
+    add_subcommands(parser.add_subparsers(dest="command"))
+    sub = next(a for a in parser._actions
+               if isinstance(a, argparse._SubParsersAction)).choices["recon-run"]
+    args = argparse.Namespace(command="recon-run", run=run, **sub._defaults)
+    by_flag: dict[str, argparse.Action] = {}
+    for action in sub._actions:
+        if action.option_strings and action.dest != "help":
+            default = action.default
+            if default == argparse.SUPPRESS:
+                pass  # an alias of another option: that one's default stands
+            elif isinstance(default, str) and action.type is not None:  # as argparse does
+                setattr(args, action.dest, action.type(default))
+            else:
+                setattr(args, action.dest, default)
+            by_flag.update(dict.fromkeys(action.option_strings, action))
+    given = set()
+    for flag, value in options.items():
+        text = "" if value is None else str(value).strip()
+        if not text:
+            continue
+        action = by_flag.get(flag)
+        if action is None:
+            raise InputError(f"recon-run has no option {flag}")
+        try:
+            v = action.type(text) if action.type is not None else text
+        except (ValueError, TypeError, argparse.ArgumentTypeError) as exc:
+            what = {int: "a whole number", float: "a number"}.get(action.type)
+            raise InputError(f"{flag}: {text!r} is not {what}" if what else
+                             f"{flag}: {exc}") from None
+        if action.choices is not None and v not in action.choices:
+            raise InputError(f"{flag}: {text!r}: use one of {', '.join(action.choices)}")
+        setattr(args, action.dest, v)
+        given.add(action)
+    for group in sub._mutually_exclusive_groups:
+        both = [a.option_strings[-1] for a in group._group_actions if a in given]
+        if len(both) > 1:
+            raise InputError(f"{both[0]}: not allowed with {both[1]}")
+    return args
+
+
 def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     """Reconstruct a recorded run with dask (:func:`instrument.batch.reconstruct_run`),
     its options those of ``recon-run`` (``{flag: text}``), cancelled by the job.
@@ -451,16 +434,10 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
 
     from .workers import InputError
 
-    parser = argparse.ArgumentParser(prog="diffuserlab", exit_on_error=False)
-    add_subcommands(parser.add_subparsers(dest="command"))
-    argv = ["recon-run", run]
-    for flag, value in options.items():
-        if value not in (None, ""):
-            argv += [flag, str(value)]
     if not str(options.get("--psf") or "").strip():
         raise InputError("give the PSF to reconstruct with: an image, a PSF stack or a "
                          "calibration run (PSF sweep)")
-    args = _parse(parser, argv)
+    args = _recon_run_args(add_subcommands, run, options)
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,

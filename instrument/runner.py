@@ -38,6 +38,7 @@ from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutEr
 
 from .acquisition import ExposureError, autoexpose
 from .bench import Bench, PromptRefused
+from .coords import coord_specs
 from .plan import (
     Capture,
     Check,
@@ -157,7 +158,8 @@ class RunResult:
 
 def frame_coords(bench: Bench, frame) -> dict[str, float]:
     """Per-frame coordinates: camera exposure/gain/timestamps/saturation, every stage
-    axis (``<stage id>.<axis>``), LED count/first index/brightness, SLM pattern id."""
+    axis (``<stage id>.<axis>``), LED count/first index/brightness, SLM pattern id, DMD
+    exposure/period/running (their units: :mod:`instrument.coords`)."""
     out = {"exposure_s": frame.exposure_s, "gain": frame.gain,
            "device_timestamp_s": frame.device_timestamp_s,
            "host_time_unix_s": frame.host_timestamp_s,
@@ -173,6 +175,10 @@ def frame_coords(bench: Bench, frame) -> dict[str, float]:
             out[f"{dev_id}.brightness"] = float(max((b for _, b in lit.values()), default=0.0))
         elif dev.kind == "slm":
             out[f"{dev_id}.pattern_id"] = float(dev.pattern_id)
+        elif dev.kind == "dmd":
+            out[f"{dev_id}.exposure_s"] = float(dev.exposure_s)
+            out[f"{dev_id}.period_s"] = float(dev.period_s)
+            out[f"{dev_id}.running"] = float(dev.running)
     return out
 
 
@@ -187,6 +193,8 @@ def coord_names(bench: Bench) -> list[str]:
             names += [f"{dev_id}.n_lit", f"{dev_id}.first_lit", f"{dev_id}.brightness"]
         elif dev.kind == "slm":
             names.append(f"{dev_id}.pattern_id")
+        elif dev.kind == "dmd":
+            names += [f"{dev_id}.exposure_s", f"{dev_id}.period_s", f"{dev_id}.running"]
     return names
 
 
@@ -245,11 +253,13 @@ class Runner:
         self.preflight(plan, points, range(len(points)))
         cam = self.bench.camera
         config = self._config_dump()
+        names = coord_names(self.bench)
         store = RunStore.create(
             path, plan_name=plan.name, plan_params=plan.params,
             points=[dict(p.coords) for p in points], frame_tags=[p.tags for p in points],
             frame_shape=cam.image_shape, frame_dtype=cam.dtype,
-            coord_names=coord_names(self.bench), bench_config=config,
+            coord_names=names, coord_specs=coord_specs(names, self.bench.devices),
+            bench_config=config,
             device_settings=self.bench.settings_snapshot(), note=note, overwrite=overwrite)
         store.lock()
         try:

@@ -9,7 +9,10 @@ Layout of ``RUN.zarr``::
     frames               (n_frames, rows, cols) camera dtype, one frame per chunk
     coords               (n_frames, n_coords) float64, one row per chunk; column names
                          in its attribute ``names`` (stage positions, LED, SLM pattern
-                         id, exposure, gain, timestamps, saturation count, ...)
+                         id, exposure, gain, timestamps, saturation count, ...), their
+                         units and dimension names in ``units`` and ``dims``
+                         ({name: str}, from instrument.coords); Zarr dimension names
+                         ("frame", "coord")
     crc32                (n_frames,) uint32, one element per chunk: CRC-32 of the frame's
                          bytes (little-endian) then of its coordinate row (float64
                          little-endian), written before the done flag (schema 2; schema-1
@@ -215,7 +218,8 @@ class RunStore(ProductsMixin):
                bench_config: Mapping[str, Any] | None = None,
                device_settings: Mapping[str, Any] | None = None, note: str = "",
                overwrite: bool = False, shard_frames: int | None = None,
-               compressor: str = "default") -> RunStore:
+               compressor: str = "default",
+               coord_specs: Mapping[str, Mapping[str, str]] | None = None) -> RunStore:
         """Create the store of a new run with its whole layout.
 
         Parameters
@@ -248,6 +252,10 @@ class RunStore(ProductsMixin):
         compressor : str
             One of :data:`FRAME_COMPRESSORS`, for a sharded run's frames
             (unsharded runs always use "default").
+        coord_specs : Mapping, optional
+            ``{name: {"unit": str, "dim": str}}`` for every coordinate
+            (:func:`instrument.coords.coord_specs`), stored in the ``coords`` array's
+            attributes ``units`` and ``dims`` (:meth:`coord_info` reads them back).
 
         Raises
         ------
@@ -255,7 +263,8 @@ class RunStore(ProductsMixin):
             ``path`` exists (and ``overwrite`` is False), ``path`` exists and is not
             a run store (a file or another directory: never replaced), the run at
             ``path`` is locked by a writer, the layout is empty, ``shard_frames``
-            is not a positive integer or ``compressor`` is unknown.
+            is not a positive integer or ``compressor`` is unknown, ``coord_specs``
+            lacks a coordinate.
         """
         import zarr
 
@@ -277,6 +286,9 @@ class RunStore(ProductsMixin):
         if shard_frames is None and compressor != "default":
             raise RunStoreError(f"compressor {compressor!r} needs shard_frames (a sharded "
                                 "video run); unsharded runs use the default")
+        missing = [n for n in coord_names if coord_specs is not None and n not in coord_specs]
+        if missing:
+            raise RunStoreError(f"coord_specs lacks the unit of {missing}")
         if len(points) != len(frame_tags) or not points:
             raise RunStoreError("a run needs at least one point and one tag list per point "
                                 "(an empty list for a point without frames)")
@@ -294,8 +306,11 @@ class RunStore(ProductsMixin):
                            dtype=np.dtype(frame_dtype), fill_value=0, **sharding)
         coords = group.create_array("coords", shape=(n, len(coord_names)),
                                     chunks=(k, len(coord_names)), dtype="float64",
-                                    fill_value=np.nan)
+                                    fill_value=np.nan, dimension_names=("frame", "coord"))
         coords.attrs["names"] = list(coord_names)
+        if coord_specs is not None:
+            coords.attrs["units"] = {n: str(coord_specs[n]["unit"]) for n in coord_names}
+            coords.attrs["dims"] = {n: str(coord_specs[n]["dim"]) for n in coord_names}
         group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0)
         group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0)
         group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32")[:] = point_of
@@ -680,6 +695,20 @@ class RunStore(ProductsMixin):
         coords = [row for _, row in read]
         return frames, [dict(zip(self._coord_names, c.tolist(), strict=True)) for c in coords]
 
+    def coord_info(self) -> dict[str, dict[str, str | None]]:
+        """Each coordinate's unit and dimension name as stored with the run.
+
+        Returns
+        -------
+        dict
+            ``{name: {"unit": str or None, "dim": str or None}}`` in
+            :attr:`coord_names` order; None for a run written before units were
+            stored (``""``: dimensionless).
+        """
+        attrs = self._group["coords"].attrs
+        units, dims = attrs.get("units") or {}, attrs.get("dims") or {}
+        return {n: {"unit": units.get(n), "dim": dims.get(n)} for n in self._coord_names}
+
     def coords_table(self) -> dict[str, np.ndarray]:
         """Every per-frame coordinate as ``{name: (n_frames,) float64}`` (NaN if unwritten)."""
         c = np.asarray(self._group["coords"][:])
@@ -748,6 +777,7 @@ class RunStore(ProductsMixin):
             "note": a["note"], "resumes": a["resumes"], "warnings": a["warnings"],
             "error": a["error"], "summary": a.get("summary", {}),
             "products": {n: self.product_info(n) for n in self.products()},
+            "coords": self.coord_info(),
             "checksums": self.has_checksums,
             "problems": self.verify() if verify else None,
             "lock": lock_problem(self.path) if self.lock_owner() is not None else None,

@@ -19,6 +19,7 @@ import numpy as np
 
 from recon.io import missing_dirs
 
+from .coords import coord_specs
 from .runstore import RunStore, RunStoreError, discard_partial_run
 
 __all__ = ["MIN_PLANE_PX", "export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
@@ -235,7 +236,8 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
                                 plan_params={"source": str(source)},
                                 points=[{"z_mm": z} for z in depths],
                                 frame_tags=[[] for _ in depths], frame_shape=stack.shape[1:],
-                                frame_dtype=np.float32, coord_names=["exposure_s"], note=note,
+                                frame_dtype=np.float32, coord_names=["exposure_s"],
+                                coord_specs=coord_specs(["exposure_s"]), note=note,
                                 overwrite=overwrite)
         store.write_product("psf_stack", stack, depths_mm=depths, source=str(source),
                             units=attrs.get("units", "as imported"))

@@ -29,6 +29,7 @@ import numpy as np
 from drivers.camera import FrameRing
 from recon.io import missing_dirs
 
+from .coords import coord_specs
 from .recorder import VIDEO_COORDS, Recorder, record_from_ring
 from .runstore import RunStore, RunStoreError, discard_partial_run
 from .runstore_records import VIDEO_PLAN
@@ -130,7 +131,9 @@ def create_video_run(path: str | Path, camera, n_frames: int, *,
     store = RunStore.create(
         path, plan_name=VIDEO_PLAN, plan_params={"frames": int(n_frames)}, points=[{}],
         frame_tags=[["video"] * int(n_frames)], frame_shape=camera.image_shape,
-        frame_dtype=camera.dtype, coord_names=list(VIDEO_COORDS), bench_config=bench_config,
+        frame_dtype=camera.dtype, coord_names=list(VIDEO_COORDS),
+        coord_specs=coord_specs(VIDEO_COORDS, {camera.device_id: camera}),
+        bench_config=bench_config,
         device_settings=device_settings, note=note, overwrite=overwrite,
         shard_frames=int(shard_frames), compressor=compressor)
     store.update_attrs(camera={"id": camera.device_id, "bit_depth": camera.bit_depth,

@@ -24,6 +24,7 @@ import math
 import sys
 from pathlib import Path
 
+from ..parameters import AlignMaskParams
 from .common import add_bench_arguments, make_bench
 
 __all__ = ["add_subcommands", "run", "simulated_truth"]
@@ -37,40 +38,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     add_bench_arguments(mp)
     mp.add_argument("--out", default=None, help="record directory to create (default "
                     "out/align/mask-TIME.align)")
-    mp.add_argument("--mask-seed", type=int, default=None,
-                    help="seed of the installed mask's pattern (default: the virtual bench's)")
-    mp.add_argument("--mask-pattern", default=None,
-                    help="the installed mask's pattern, .npy: uint8 0/1 bits (1 = phase pi) "
-                    "or +1/-1, shape (R k + 2 margin, C k + 2 margin); instead of --mask-seed")
-    mp.add_argument("--mask-margin", type=int, default=16,
-                    help="mask pixels of --mask-pattern beyond the SLM footprint on each side")
-    mp.add_argument("--k", type=int, default=4, help="mask pixels per SLM pixel (default 4)")
-    mp.add_argument("--lut", default=None, help="SLM LUT to load first: a `calibrate "
-                    "slm-lut` run store (RUN.zarr) or its exported LUT file")
-    mp.add_argument("--coarse-range-px", type=int, default=12,
-                    help="half-width of the coarse software search, mask px (widened x2 once)")
-    mp.add_argument("--frames", type=int, default=3, help="frames averaged per reading")
-    mp.add_argument("--no-rotation", action="store_true", help="do not rotate the stage")
-    mp.add_argument("--no-focus", action="store_true",
-                    help="do not adjust the stage's z, tip and tilt (step 5)")
-    mp.add_argument("--relay-na", type=float, default=None,
-                    help="image-side NA of the SLM -> mask relay (sets the simulated ceiling "
-                    "and the first focus sweep, lambda/NA^2; default: the virtual bench's with "
-                    "--simulate, else no pupil)")
-    mp.add_argument("--focus-range-mm", type=float, default=None,
-                    help="half-range of the first z sweep, mm (default from --relay-na)")
-    mp.add_argument("--sim-translation-px", type=float, nargs=2, default=(5.3, -3.6),
-                    metavar=("TX", "TY"), help="--simulate: true mask offset, mask px")
-    mp.add_argument("--sim-rotation-mrad", type=float, default=2.0,
-                    help="--simulate: true mask rotation, mrad")
-    mp.add_argument("--sim-distortion-px", type=float, default=0.0,
-                    help="--simulate: quadratic distortion at the footprint edge, mask px")
-    mp.add_argument("--sim-defocus-mm", type=float, default=0.08,
-                    help="--simulate: mask distance from the SLM image at stage z = 0, mm")
-    mp.add_argument("--sim-tip-mrad", type=float, default=0.0,
-                    help="--simulate: mount rotation about x, mrad")
-    mp.add_argument("--sim-tilt-mrad", type=float, default=0.0,
-                    help="--simulate: mount rotation about y, mrad")
+    AlignMaskParams.add_arguments(mp)  # the procedure's parameters, declared once
     mp.set_defaults(handler=run)
 
 
@@ -131,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out or Path("out/align") / (
         f"mask-{_dt.datetime.now():%Y%m%d-%H%M%S}.align"))
     try:
+        AlignMaskParams.from_namespace(args)  # limits (InputError), before the bench opens
         # before the bench opens; an empty directory made for the record is fine
         if out.exists() and not (out.is_dir() and not any(out.iterdir())):
             raise PlanError(f"output {out} exists (an alignment record is never replaced); "

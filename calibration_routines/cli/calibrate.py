@@ -24,12 +24,13 @@ import logging
 import sys
 from pathlib import Path
 
+from ..parameters import PARAMETERS
 from .common import add_bench_arguments, make_bench
 
 __all__ = ["add_subcommands", "plan_from_args", "run"]
 
-ROUTINES = ("dark", "psf-sweep", "psf-grid", "psf-blind", "angular-response",
-            "slm-lut")
+#: The routines, in the order of their parameter models.
+ROUTINES = tuple(PARAMETERS)
 
 
 def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
@@ -43,8 +44,6 @@ def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
                        "out/runs/ROUTINE-TIME.zarr)")
         p.add_argument("--note", default="", help="operator's note stored with the run")
         p.add_argument("--overwrite", action="store_true", help="replace an existing --out")
-        p.add_argument("--frames", type=int, default=None,
-                       help="frames per point (default from the bench file)")
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -52,68 +51,20 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     cp = sub.add_parser("calibrate", help="calibration routines (dark/flat, PSF sweep, SLM LUT, "
                         "PSF grid, angular response) and resuming them")
     csub = cp.add_subparsers(dest="routine", required=True)
-    dp = csub.add_parser("dark", help="dark frames, hot-pixel map and flat field")
-    _common(dp)
-    dp.add_argument("--exposure-s", type=float, default=None,
-                    help="dark exposure, s (default: the camera's current one)")
-    sp = csub.add_parser("psf-sweep", help="axial PSF sweep (Sec. 4.3)")
-    _common(sp)
-    sp.add_argument("--z-min", type=float, default=None, help="nearest depth, mm")
-    sp.add_argument("--z-max", type=float, default=None, help="farthest depth, mm")
-    sp.add_argument("--spacing", choices=("inverse", "uniform"), default="inverse",
-                    help="constant step in 1/z (Eq. 4.7, default) or in z")
-    sp.add_argument("--n-depths", type=int, default=None, help="number of depth planes")
-    sp.add_argument("--c-per-mm", type=float, default=None, help="step in 1/z, 1/mm")
-    sp.add_argument("--probe-step", action="store_true",
-                    help="derive the 1/z step from the depth sensitivity of a PSF measured "
-                    "at z-min (Nyquist: half the distinguishable step)")
-    sp.add_argument("--x-mm", type=float, default=0.0, help="source x position, mm (default 0)")
-    sp.add_argument("--y-mm", type=float, default=0.0, help="source y position, mm (default 0)")
-    gp = csub.add_parser("psf-grid", help="lateral PSF grid (Sec. 5.2-5.3)")
-    _common(gp)
-    gp.add_argument("--mode", choices=("leds", "stage"), default="leds")
-    gp.add_argument("--n", type=int, default=3, help="n x n positions")
-    gp.add_argument("--spacing-mm", type=float, default=None, help="stage raster spacing, mm")
-    gp.add_argument("--z-mm", type=float, default=40.0, help="stage mode depth, mm")
-    gp.add_argument("--led-step", type=int, default=2, help="leds mode: every k-th LED")
-    fall = gp.add_mutually_exclusive_group()
-    fall.add_argument("--falloff-sigma-deg", type=float, default=None,
-                      help="measured sensor fall-off sigma, degrees, for the Nyquist check")
-    fall.add_argument("--falloff-run", default=None,
-                      help="angular-response run to take the fall-off sigma from")
-    bp = csub.add_parser("psf-blind", help="PSF grid from images of a bead slide at "
-                         "random stage offsets, by blind deconvolution (Sec. 5.4)")
-    _common(bp)
-    bp.add_argument("--images", type=int, default=4, help="bead-slide images (default 4)")
-    bp.add_argument("--grid", type=int, default=3, help="grid x grid PSFs to recover")
-    bp.add_argument("--z-mm", type=float, required=True, help="depth of the slide, mm")
-    bp.add_argument("--node-spacing-mm", type=float, required=True,
-                    help="spacing of the recovered PSFs in the object plane, mm")
-    bp.add_argument("--exposure-s", type=float, required=True,
-                    help="exposure of every image and dark, s")
-    bp.add_argument("--rounds", type=int, default=6, help="blind deconvolution rounds")
-    bp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="bin the images before the blind deconvolution, pixels per side")
-    ap = csub.add_parser("angular-response", help="sensor angular response (Fig. 3.5)")
-    _common(ap)
-    ap.add_argument("--z-mm", type=float, default=None, help="source depth, mm")
-    ap.add_argument("--max-angle-deg", type=float, default=None,
-                    help="largest source angle, degrees")
-    ap.add_argument("--n-angles", type=int, default=None, help="angles per axis")
-    ap.add_argument("--beta-deg", type=float, default=None,
-                    help="diffuser's maximum deflection for the FoV, degrees (Eq. 3.12)")
-    lp = csub.add_parser("slm-lut", help="SLM phase look-up table (gray -> phase) from "
-                         "binary gratings, mask retracted")
-    _common(lp)
-    lp.add_argument("--levels", type=int, default=None, dest="n_levels",
-                    help="gray levels measured, 8-256 (default 48)")
-    lp.add_argument("--period-px", type=int, default=None,
-                    help="grating period in SLM pixels, even (default 8)")
-    lp.add_argument("--no-nd-filter", action="store_true",
-                    help="do not ask for an ND filter in front of the camera")
-    lp.add_argument("--apply", action="store_true",
-                    help="load the new LUT onto the SLM and compare a blazed grating's "
-                    "first-order efficiency with the previous LUT")
+    for name, model in PARAMETERS.items():
+        rp = csub.add_parser(name, help=model.summary)
+        _common(rp)
+        if name == "psf-grid":  # the sigma given, or read from an angular-response run
+            fall = rp.add_mutually_exclusive_group()
+            model.add_arguments(rp, {"falloff_sigma_deg": fall})
+            fall.add_argument("--falloff-run", default=None,
+                              help="angular-response run to take the fall-off sigma from")
+        else:
+            model.add_arguments(rp)
+        if name == "slm-lut":
+            rp.add_argument("--apply", action="store_true",
+                            help="load the new LUT onto the SLM and compare a blazed "
+                            "grating's first-order efficiency with the previous LUT")
     rp = csub.add_parser("resume", help="continue an aborted, failed or killed run")
     _common(rp, resume=True)
     rp.add_argument("--redo", default="", metavar="POINT[,POINT...]",
@@ -128,13 +79,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 
 def plan_from_args(args, bench):
-    """The calibration plan ``calibrate ROUTINE`` runs, built from its parsed options.
+    """The calibration plan ``calibrate ROUTINE`` runs, built from its parsed options
+    through the routine's parameter model
+    (:data:`calibration_routines.parameters.PARAMETERS`).
 
     Parameters
     ----------
     args : argparse.Namespace
-        The options of ``calibrate`` (``routine`` and the routine's own); the GUI's
-        calibration panel parses its fields with the same parser.
+        The options of ``calibrate`` (``routine``, ``seed`` and the routine's own).
     bench : instrument.bench.Bench or instrument.virtual_bench.VirtualBench
         The open bench (plans read its devices and geometry).
 
@@ -144,61 +96,12 @@ def plan_from_args(args, bench):
 
     Raises
     ------
+    diffuserlab.errors.InputError
+        A parameter outside its declared limits (the message names the option).
     instrument.plan.PlanError, recon.errors.ReconInputError
         Options a plan refuses (the message names the option).
     """
-    frames = {} if args.frames is None else {"frames_per_point": args.frames}
-    given = {k: v for k, v in vars(args).items() if v is not None}
-    if args.routine == "dark":
-        from ..dark_flat import DarkFlatPlan
-
-        params = {} if args.frames is None else {"n_frames": args.frames}
-        if args.exposure_s is not None:
-            params["exposure_s"] = args.exposure_s
-        return DarkFlatPlan.for_bench(bench, **params)
-    if args.routine == "psf-sweep":
-        from ..psf_sweep import PsfSweepPlan, probe_inverse_depth_step
-
-        cal = bench.config.calibration
-        z_min = given.get("z_min", cal.z_range_mm[0])
-        params = dict(z_min_mm=z_min, z_max_mm=given.get("z_max", cal.z_range_mm[1]),
-                      spacing=args.spacing, x_mm=args.x_mm, y_mm=args.y_mm, **frames)
-        if args.probe_step:
-            step = probe_inverse_depth_step(bench, z_min, x_mm=args.x_mm, y_mm=args.y_mm)
-            print(f"depth step from the measured depth sensitivity at {z_min:g} mm: "
-                  f"{step:.4g} /mm in 1/z")
-            params.update(spacing="inverse", c_per_mm=step,
-                          depth_step_source=f"probed at {z_min:g} mm (threshold 0.8, /2)")
-        elif args.c_per_mm is not None:
-            params["c_per_mm"] = args.c_per_mm
-        elif args.n_depths is not None:
-            params["n_depths"] = args.n_depths
-        return PsfSweepPlan.for_bench(bench, **params)
-    if args.routine == "psf-grid":
-        from ..psf_grid import PsfGridPlan
-
-        return PsfGridPlan.for_bench(bench, mode=args.mode, n=args.n, spacing_mm=args.spacing_mm,
-                                     z_mm=args.z_mm, led_step=args.led_step,
-                                     falloff_sigma_deg=args.falloff_sigma_deg, **frames)
-    if args.routine == "psf-blind":
-        from ..psf_blind import PsfBlindPlan
-
-        return PsfBlindPlan.for_bench(bench, n_images=args.images, z_mm=args.z_mm,
-                                      grid=args.grid, node_spacing_mm=args.node_spacing_mm,
-                                      exposure_s=args.exposure_s, seed=args.seed,
-                                      rounds=args.rounds, bin_factor=args.bin_factor, **frames)
-    if args.routine == "slm-lut":
-        from ..slm_lut import SlmLutPlan
-
-        params = {k: given[k] for k in ("n_levels", "period_px") if k in given}
-        if args.frames is not None:
-            params["frames_per_point"] = args.frames
-        return SlmLutPlan.for_bench(bench, attenuate=not args.no_nd_filter, **params)
-    from ..angular_response import AngularResponsePlan
-
-    params = {k: given[k] for k in ("z_mm", "max_angle_deg", "n_angles", "beta_deg")
-              if k in given}
-    return AngularResponsePlan.for_bench(bench, **params, **frames)
+    return PARAMETERS[args.routine].from_namespace(args).plan(bench, seed=args.seed)
 
 
 def _bead_slide(bench, args) -> None:
@@ -332,6 +235,7 @@ def _run_whole_or_nothing(runner, plan, out, **options):
 def run(args: argparse.Namespace) -> int:
     """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
     from calibration_routines import register_plans
+    from diffuserlab.errors import InputError
     from drivers.errors import DeviceError
     from instrument.cli.common import MissingBenchFile
     from instrument.cli.runs import format_summary
@@ -360,7 +264,8 @@ def run(args: argparse.Namespace) -> int:
                           args.overwrite, store=True)
             if getattr(args, "falloff_run", None):
                 args.falloff_sigma_deg = _falloff_sigma_deg(args.falloff_run)
-        except (PlanError, RunStoreError, OutputError) as exc:
+            PARAMETERS[args.routine].from_namespace(args)  # limits, before the bench opens
+        except (PlanError, RunStoreError, OutputError, InputError) as exc:
             print(f"diffuserlab: error: {exc}", file=sys.stderr)
             return 2
     else:  # a recording is never continued: said before the bench opens

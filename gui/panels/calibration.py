@@ -2,8 +2,9 @@
 their parameters, overall progress with elapsed time and ETA, pause / abort / resume,
 and each frame shown as it is taken.
 
-The parameters are the ``calibrate`` command's options (:func:`gui.jobs.routine_options`,
-remembered between sessions), the plan is the one the command builds
+The parameters are the routine's typed model, from which the ``calibrate`` command's
+options are generated too (:func:`gui.jobs.routine_options`, remembered between
+sessions); the form's texts become the model, which builds the plan
 (:func:`gui.jobs.build_plan`), and the run is :class:`instrument.runner.Runner` on a
 worker, controlled through a :class:`~instrument.runner.RunControl`. The bench is
 given back as it was (camera settings, stage positions, LEDs, the live stream). A
@@ -75,7 +76,7 @@ class CalibrationPanel(RunControls, QWidget):
                     w.setCurrentText(str(opt.default))
                     wheel_needs_focus(w)
                 else:
-                    w = QLineEdit("" if opt.default is None else str(opt.default))
+                    w = QLineEdit("" if opt.default in (None, ...) else str(opt.default))
                     w.setPlaceholderText("default")
                 w.setToolTip(opt.help)
                 w.setObjectName(f"{routine}{opt.flag}")

@@ -30,7 +30,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from ..device_settings import SETTINGS, limits_text, parse_value, value_text
+from ..device_settings import parse_value, rows, value_text
 from ..device_status import STATE_COLOURS, device_state, status_fields
 from ..fields import bench_key, load_json, store_json, wheel_needs_focus
 from ..session import SCENES, Session
@@ -85,27 +85,35 @@ class DeviceBox(QGroupBox):
         layout.addLayout(self.status_form)
         form = QFormLayout()
         self.fields: dict[str, QLineEdit] = {}
-        values = device.settings()
-        for name, (label, unit) in SETTINGS.get(device.kind, {}).items():
-            edit = QLineEdit(value_text(values[name], name))
+        self.rows = {row.name: row for row in rows(device)}  # from the declarations
+        self.limit_labels: dict[str, QLabel] = {}
+        values = device.setting_values()
+        for name, spec in self.rows.items():
+            edit = QLineEdit(value_text(values.get(name), name))
             edit.setCursorPosition(0)
             edit.setObjectName(f"{device.device_id}.{name}")
-            edit.returnPressed.connect(lambda n=name: self.apply(n))
+            edit.setToolTip(spec.tooltip)
             row = QHBoxLayout()
             row.addWidget(edit, 1)
-            button = QPushButton("Apply")
-            button.setObjectName(f"{device.device_id}.{name}.apply")
-            button.clicked.connect(lambda _=False, n=name: self.apply(n))
-            row.addWidget(button)
+            if spec.read_only:
+                edit.setReadOnly(True)
+            else:
+                edit.returnPressed.connect(lambda n=name: self.apply(n))
+                button = QPushButton("Apply")
+                button.setObjectName(f"{device.device_id}.{name}.apply")
+                button.clicked.connect(lambda _=False, n=name: self.apply(n))
+                row.addWidget(button)
             cell = QVBoxLayout()
             cell.setSpacing(1)
             cell.addLayout(row)
-            limits = QLabel(f"limits: {limits_text(device, name)}")
+            limits = QLabel(f"limits: {spec.limits}" if spec.limits else "")
+            limits.setObjectName(f"{device.device_id}.{name}.limits")
             limits.setWordWrap(True)
             limits.setStyleSheet("color: #555; font-size: 11px;")
             cell.addWidget(limits)
-            form.addRow(f"{label}{f' ({unit})' if unit else ''}:", cell)
+            form.addRow(f"{spec.title}:", cell)
             self.fields[name] = edit
+            self.limit_labels[name] = limits
         layout.addLayout(form)
         if self.fields:
             layout.addLayout(self._preset_controls())
@@ -142,7 +150,7 @@ class DeviceBox(QGroupBox):
         takes its unit: ``20 ms``)."""
         edit = self.fields[name]
         try:
-            value = parse_value(edit.text(), name)
+            value = parse_value(edit.text(), name, self.rows[name].spec)
         except ValueError as exc:
             self.error.setText(readable_error(exc))
             return None
@@ -163,12 +171,12 @@ class DeviceBox(QGroupBox):
         from drivers.errors import DeviceError
 
         try:
-            values = self.device.settings()
+            values = self.device.setting_values()
         except DeviceError:
             return
         for name, edit in self.fields.items():
             if not edit.hasFocus() and not edit.isModified():
-                edit.setText(value_text(values[name], name))
+                edit.setText(value_text(values.get(name), name))
                 edit.setCursorPosition(0)
 
     def show_status(self, status: dict) -> None:
@@ -240,7 +248,8 @@ class DeviceBox(QGroupBox):
             return
         values = self.device.settings()
         presets = self.presets()
-        presets[name] = {k: values[k] for k in self.fields if k in values}
+        presets[name] = {k: values[k] for k in self.fields
+                         if k in values and not self.rows[k].read_only}
         store_json(self._preset_key, presets)
         self.preset_name.clear()
         self._show_presets(name)

@@ -81,6 +81,9 @@ def format_summary(s: dict) -> str:
                   if "planes_done" in info else "")
         lines.append(f"product  {name}: {'x'.join(map(str, info['shape']))} {info['dtype']}"
                      f"{planes}")
+    coords = s.get("coords") or {}
+    if coords:
+        lines.append("coords   " + ", ".join(_coord_text(n, c) for n, c in coords.items()))
     for key, value in s["summary"].items():
         text = json.dumps(value)
         lines.append(f"result   {key} = {text if len(text) < 100 else text[:97] + '...'}")
@@ -91,6 +94,16 @@ def format_summary(s: dict) -> str:
     elif s["status"] in ("aborted", "failed", "running"):
         lines.append(f"resume   diffuserlab calibrate resume {s['path']} BENCH.toml [--simulate]")
     return "\n".join(lines)
+
+
+def _coord_text(name: str, info: dict) -> str:
+    """``source_stage.z [mm] (z)``: a coordinate with its stored unit and dimension
+    name (``[-]`` dimensionless, ``[?]`` a run written before units were stored)."""
+    unit = info.get("unit")
+    unit = "?" if unit is None else unit or "-"
+    dim = info.get("dim")
+    return f"{name} [{unit}]" + (f" ({dim})" if dim and dim != name.rpartition(".")[2]
+                                 else "")
 
 
 def verify(path: str) -> int:

@@ -177,4 +177,5 @@ def test_cli_calibrates_applies_and_resumes(tmp_path, capsys):
     assert RunStore.open(out).attrs["plan"]["params"]["n_levels"] == 8
     assert main(["calibrate", "resume", str(out), BENCH, "--simulate"]) == 0
     assert main(["calibrate", "slm-lut", BENCH, "--simulate", "--levels", "3"]) == 2
-    assert "8 to 256 gray levels" in capsys.readouterr().err
+    assert "--levels 3 is outside its limits: gray levels measured must be 8 to 256" in \
+        capsys.readouterr().err

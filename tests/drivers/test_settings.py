@@ -13,7 +13,6 @@ from drivers.errors import DeviceValueError
 from drivers.settings import Setting, info, settings_markdown, with_settings
 from drivers.settings_doc import DEFAULT_PAGE, KINDS, main, page
 from drivers.simulated import SimulatedCamera, SimulatedDmd, SimulatedLedArray, SimulatedStage
-from gui.device_settings import SETTINGS as GUI_ROWS
 
 
 def test_settings_page_matches_the_declarations(tmp_path):
@@ -36,16 +35,6 @@ def test_every_kind_declares_its_settings_once(kind):
         assert cls.setting(s.name) is s
         assert f"`{s.name}`" in page()
     json.dumps(cls.setting_specs())  # machine-readable without a device
-
-
-def test_gui_rows_are_declared_settings():
-    """Every setting the device panel edits is declared by its kind, with the unit the
-    panel shows where that is an SI unit (the panel can be generated from these)."""
-    for kind, rows in GUI_ROWS.items():
-        for name, (_label, unit) in rows.items():
-            spec = KINDS[kind].setting(name)
-            if unit in ("s", "Hz", "dB"):
-                assert spec.unit == unit, (kind, name)
 
 
 def test_specs_of_an_open_device_carry_its_limits():

@@ -1,0 +1,369 @@
+"""Typed parameter models from which command-line options and GUI forms are generated.
+
+A command's parameters are one pydantic model (a subclass of :class:`Options`), each
+field declared with :func:`option` (help, unit, limits, the command-line flag). From
+the model come:
+
+- the ``argparse`` options (:meth:`Options.add_arguments`: flag, type, default,
+  choices, required, help with the unit, the limits and the default);
+- a form's fields (:meth:`Options.specs`: one :class:`OptionSpec` per field);
+- the validated value from a parsed command line (:meth:`Options.from_namespace`) or
+  from a form's texts (:meth:`Options.from_text`), a bad value raising
+  :class:`diffuserlab.errors.InputError` that names the option and its limits;
+- documentation tables (:meth:`Options.markdown`).
+
+The declarations import nothing heavy (a command's parser and ``--help`` are built
+without pydantic); the pydantic model that validates is made on first use.
+"""
+
+from __future__ import annotations
+
+import argparse
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+from diffuserlab.errors import InputError
+
+__all__ = ["OptionSpec", "Options", "option"]
+
+
+def option(default: Any = ..., *, help: str, unit: str = "", flag: str | None = None,
+           default_text: str = "", **limits: Any) -> Any:
+    """A field of an :class:`Options` model.
+
+    Parameters
+    ----------
+    default : object
+        The default; ``...`` for a required option; None for "chosen by the plan"
+        (``help`` then says how).
+    help : str
+        What the value is, without the unit (``"nearest depth"``).
+    unit : str
+        SI unit (``"mm"``, ``"s"``, ``"deg"``); ``""`` for a count or a name.
+    flag : str, optional
+        The command-line option, default ``--`` + the name with dashes
+        (``z_min_mm`` -> ``--z-min-mm``).
+    default_text : str
+        What a None default means (``"the camera's current one"``).
+    **limits
+        pydantic's ``gt``, ``ge``, ``lt``, ``le``.
+    """
+    unknown = set(limits) - {"gt", "ge", "lt", "le"}
+    if unknown:
+        raise TypeError(f"option() takes the limits gt, ge, lt, le, not {sorted(unknown)}")
+    return _Option(default, help, unit, flag, default_text, limits)
+
+
+@dataclass(frozen=True)
+class _Option:
+    """A field's declaration (what :func:`option` returns)."""
+
+    default: Any
+    help: str
+    unit: str
+    flag: str | None
+    default_text: str
+    limits: dict
+
+
+def _num(v: Any) -> str:
+    if isinstance(v, tuple | list):
+        return " ".join(_num(x) for x in v)
+    return f"{v:g}" if isinstance(v, int | float) else str(v)
+
+
+@dataclass(frozen=True)
+class OptionSpec:
+    """One field of an :class:`Options` model as a command line and a form need it.
+
+    Attributes
+    ----------
+    dest : str
+        The field's name.
+    flag : str
+        The command-line option (``--z-min``).
+    type : type
+        ``int``, ``float``, ``str`` or ``bool`` (an on/off flag).
+    default : object
+        None: chosen by the plan; ``...``: required.
+    required : bool
+    choices : tuple of str or None
+    unit : str
+    description : str
+        The declared help, without the unit.
+    limits : str
+        ``"> 0"``, ``"8 to 256"``, ``""``.
+    default_text : str
+        What a None default means.
+    nargs : int or None
+        The number of values of a tuple option (``--sim-translation-px TX TY``).
+    """
+
+    dest: str
+    flag: str
+    type: type
+    default: Any
+    required: bool
+    choices: tuple[str, ...] | None
+    unit: str
+    description: str
+    limits: str
+    default_text: str = ""
+    nargs: int | None = None
+
+    @property
+    def is_flag(self) -> bool:
+        """An on/off option (``store_true``)."""
+        return self.type is bool
+
+    @property
+    def help(self) -> str:
+        """The help text: description, unit, limits, default."""
+        text = self.description + (f", {self.unit}" if self.unit else "")
+        if self.limits:
+            text += f"; {self.limits}"
+        if self.required:
+            text += " (required)"
+        elif self.default is not None and not self.is_flag:
+            text += f" (default {_num(self.default)})"
+        elif self.default_text:
+            text += f" (default: {self.default_text})"
+        return text
+
+
+def _limits_text(limits: Mapping[str, Any]) -> str:
+    low_open, high_open = "gt" in limits, "lt" in limits
+    low = limits.get("gt", limits.get("ge"))
+    high = limits.get("lt", limits.get("le"))
+    if low is None and high is None:
+        return ""
+    if high is None:
+        return f"{'>' if low_open else '>='} {_num(low)}"
+    if low is None:
+        return f"{'<' if high_open else '<='} {_num(high)}"
+    return (f"{_num(low)}{' (excl.)' if low_open else ''} to {_num(high)}"
+            f"{' (excl.)' if high_open else ''}")
+
+
+def _base_type(annotation: Any) -> tuple[type, tuple[str, ...] | None, int | None]:
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        annotation = args[0]
+    if typing.get_origin(annotation) is Literal:
+        return str, tuple(str(c) for c in typing.get_args(annotation)), None
+    if typing.get_origin(annotation) is tuple:
+        items = typing.get_args(annotation)
+        return items[0], None, len(items)
+    return annotation, None, None
+
+
+class Options:
+    """Base of a command's parameter model (see the module docstring).
+
+    Subclasses declare fields as ``name: type = option(...)``; an instance holds the
+    validated values as attributes and is frozen.
+    """
+
+    #: The command the options belong to, for messages (``"calibrate psf-sweep"``).
+    command: ClassVar[str] = ""
+    _fields: ClassVar[dict[str, tuple[Any, _Option]]] = {}
+    _pydantic: ClassVar[Any] = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        fields: dict[str, tuple[Any, _Option]] = {}
+        for klass in reversed(cls.__mro__):
+            decl = {k: v for k, v in vars(klass).items() if isinstance(v, _Option)}
+            if decl:
+                hints = typing.get_type_hints(klass)
+                for name, opt in decl.items():
+                    fields[name] = (hints[name], opt)
+        cls._fields = fields
+        cls._pydantic = None
+
+    def __init__(self, **values: Any) -> None:
+        object.__setattr__(self, "_values", dict(values))
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{type(self).__name__} is frozen: build a new one")
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and other._values == self._values
+
+    def __hash__(self) -> int:
+        return hash((type(self), tuple(sorted(map(repr, self._values.items())))))
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{k}={v!r}" for k, v in self._values.items())
+        return f"{type(self).__name__}({inner})"
+
+    def model_dump(self) -> dict[str, Any]:
+        """The values, ``{field: value}``."""
+        return dict(self._values)
+
+    @classmethod
+    def _model(cls):
+        """The pydantic model that validates (made on first use)."""
+        if cls.__dict__.get("_pydantic") is None:
+            import pydantic
+
+            fields = {name: (kind, pydantic.Field(opt.default, description=opt.help,
+                                                  **opt.limits))
+                      for name, (kind, opt) in cls._fields.items()}
+            cls._pydantic = pydantic.create_model(
+                f"{cls.__name__}Model", __config__=pydantic.ConfigDict(extra="forbid"),
+                **fields)
+        return cls._pydantic
+
+    @classmethod
+    def model_json_schema(cls) -> dict[str, Any]:
+        """The JSON schema of the options (pydantic's)."""
+        return cls._model().model_json_schema()
+
+    @classmethod
+    def specs(cls) -> list[OptionSpec]:
+        """One :class:`OptionSpec` per field, in declaration order."""
+        out = []
+        for name, (annotation, opt) in cls._fields.items():
+            kind, choices, nargs = _base_type(annotation)
+            flag = opt.flag or "--" + name.replace("_", "-")
+            required = opt.default is ...
+            out.append(OptionSpec(name, flag, kind, opt.default, required, choices, opt.unit,
+                                  opt.help, _limits_text(opt.limits), opt.default_text,
+                                  nargs))
+        return out
+
+    @classmethod
+    def spec(cls, name: str) -> OptionSpec:
+        """The :class:`OptionSpec` of field ``name``."""
+        return next(s for s in cls.specs() if s.dest == name)
+
+    @classmethod
+    def add_arguments(cls, parser, containers: Mapping[str, Any] | None = None) -> None:
+        """Add one ``argparse`` option per field to ``parser``.
+
+        Parameters
+        ----------
+        parser : argparse.ArgumentParser
+        containers : Mapping, optional
+            ``{field: group}``: add that field's option to another container (a
+            mutually exclusive group) instead.
+        """
+        for s in cls.specs():
+            target = (containers or {}).get(s.dest, parser)
+            if s.is_flag:
+                target.add_argument(s.flag, action="store_true", dest=s.dest, help=s.help)
+                continue
+            kw: dict[str, Any] = {"dest": s.dest, "help": s.help,
+                                  "type": s.type if s.type in (int, float) else str}
+            if s.choices:
+                kw["choices"] = s.choices
+            if s.nargs:
+                kw["nargs"] = s.nargs
+            if s.required:
+                kw["required"] = True
+            else:
+                kw["default"] = s.default
+            target.add_argument(s.flag, **kw)
+
+    @classmethod
+    def validated(cls, data: Mapping[str, Any]):
+        """The model of ``data`` (``{field: value}``).
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            A value outside its limits, of the wrong type, not among the choices, or a
+            required one missing; the message names the option, its limits and unit.
+        """
+        import pydantic
+
+        try:
+            model = cls._model().model_validate(dict(data))
+        except pydantic.ValidationError as exc:
+            raise InputError(cls._message(exc.errors()[0])) from None
+        return cls(**model.model_dump())
+
+    @classmethod
+    def _message(cls, err: Mapping[str, Any]) -> str:
+        name = str(err["loc"][0]) if err.get("loc") else ""
+        if name not in cls._fields:
+            return f"{cls.command}: {err.get('msg')}"
+        s = cls.spec(name)
+        what = s.description + (f" in {s.unit}" if s.unit else "")
+        if err["type"] == "missing":
+            return f"give {s.flag} ({what})"
+        if s.choices:
+            return f"{s.flag} {err.get('input')!r}: use one of {', '.join(s.choices)}"
+        value = err.get("input")
+        kind = "a whole number" if s.type is int else "a number" if s.type is float else "text"
+        if s.limits:
+            return (f"{s.flag} {value!r} is outside its limits: {what} must be {s.limits}"
+                    f" {s.unit}").rstrip()
+        return f"{s.flag} {value!r}: give {kind} ({what})"
+
+    @classmethod
+    def from_namespace(cls, args: argparse.Namespace):
+        """The model of a parsed command line (its fields' ``dest``); InputError as
+        :meth:`validated`."""
+        return cls.validated({s.dest: getattr(args, s.dest) for s in cls.specs()
+                              if hasattr(args, s.dest)})
+
+    @classmethod
+    def from_text(cls, values: Mapping[str, Any]):
+        """The model of a form's values ``{flag or field: text or bool}``; an empty
+        text takes the default.
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            Text that is not a number where one is needed (``"--n-depths: 'many' is
+            not a whole number"``), and as :meth:`validated`.
+        """
+        by_key = {s.flag: s for s in cls.specs()} | {s.dest: s for s in cls.specs()}
+        data: dict[str, Any] = {}
+        for key, value in values.items():
+            s = by_key.get(key)
+            if s is None:
+                raise InputError(f"{cls.command}: unknown option {key!r}; use one of "
+                                 f"{[x.flag for x in cls.specs()]}")
+            if s.is_flag:
+                data[s.dest] = bool(value)
+                continue
+            text = "" if value is None else str(value).strip()
+            if not text:
+                continue
+            if s.type in (int, float):
+                parts = text.replace(",", " ").split() if s.nargs else [text]
+                what = "a whole number" if s.type is int else "a number"
+                if s.nargs and len(parts) != s.nargs:
+                    raise InputError(f"{s.flag}: {text!r} is not {s.nargs} numbers")
+                try:
+                    values_ = [s.type(p) for p in parts]
+                except ValueError:
+                    raise InputError(f"{s.flag}: {text!r} is not {what}") from None
+                data[s.dest] = tuple(values_) if s.nargs else values_[0]
+            else:
+                data[s.dest] = text
+        return cls.validated(data)
+
+    @classmethod
+    def markdown(cls) -> str:
+        """A Markdown table of the options (option, type, unit, limits, default, what)."""
+        rows = ["| option | type | unit | limits | default | description |",
+                "|---|---|---|---|---|---|"]
+        for s in cls.specs():
+            kind = "flag" if s.is_flag else ("one of " + ", ".join(s.choices)
+                                             if s.choices else s.type.__name__)
+            if s.nargs:
+                kind += f" x {s.nargs}"
+            default = ("required" if s.required else "off" if s.is_flag else
+                       (s.default_text or "-") if s.default is None else _num(s.default))
+            cells = [f"`{s.flag}`", kind, s.unit, s.limits, default, s.description]
+            rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+        return "\n".join(rows)
