@@ -24,6 +24,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+from diffuserlab.errors import DiffuserLabError
+
 __all__ = ["FRAME_COORDS", "CoordError", "coord_specs"]
 
 #: Coordinates that are no device setting: ``{name: (unit, dimension name)}``; for a
@@ -41,8 +43,9 @@ FRAME_COORDS: dict[str, tuple[str, str]] = {
 }
 
 
-class CoordError(ValueError):
-    """A coordinate whose unit nothing declares."""
+class CoordError(DiffuserLabError, ValueError):
+    """A coordinate whose unit nothing declares (a device or recorder that names a
+    coordinate without declaring it: a bug in the driver or the plan, not an input)."""
 
 
 def _declaration(cls: type, name: str):

@@ -503,7 +503,7 @@ CALIBRATE = [
     case(f"{CS} --z-min -10 --z-max 20", "number", "z-min negative", "z"),
     case(f"{CS} --z-min nan", "number", "z-min nan", "z"),
     case(f"{CS} --n-depths 0", "number", "n-depths 0", "depths"),
-    case(f"{CS} --c-per-mm -1", "number", "c-per-mm -1", "c_per_mm"),
+    case(f"{CS} --c-per-mm -1", "number", "c-per-mm -1", "--c-per-mm|must be > 0"),
     case(f"{CG} --n 0", "number", "n 0", "n"),
     case(f"{CG} --n -3", "number", "n -3", "n"),
     case(f"{CG} --n 2 --led-step 0", "number", "led-step 0", "led"),
