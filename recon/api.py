@@ -17,6 +17,7 @@ import numpy as np
 from diffuserlab.jsonio import jsonable
 
 from .auto import AUTO, parse_weight, solve_channel
+from .backend import resolve_device
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
@@ -29,6 +30,7 @@ from .preprocess import (
 )
 from .solvers import SOLVERS, SolveResult
 from .validate import as_array, as_int, finite_float
+from .xp.dispatch import device_solvers
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -220,6 +222,7 @@ def reconstruct(
     preprocess: bool = True,
     full_scale: float | None = None,
     allow_mixed_ranges: bool = False,
+    device: str = "cpu",
     **solver_options,
 ) -> Reconstruction:
     """Reconstruct an image from a DiffuserCam measurement and its PSF.
@@ -268,6 +271,12 @@ def reconstruct(
     allow_mixed_ranges : bool
         Accept a PSF and raw whose bit depths or ranges cannot belong to one camera
         (:func:`recon.preprocess.check_pair_ranges`).
+    device : {"cpu", "cuda", "auto"}
+        Where the iterative solvers run (:func:`recon.backend.resolve_device`): the
+        CPU's NumPy path (default), a CUDA GPU through CuPy or PyTorch (the array-API
+        path, :mod:`recon.xp`; an automatic weight is chosen along its ADMM path on the
+        CPU, then the chosen method solves on the GPU), or the GPU when one is usable.
+        ``info["device"]`` says which ran.
     preprocess : bool
         False when psf and raw are already dark-subtracted float arrays of equal
         shape (binning still applies through prepare_pair when True only); they are
@@ -289,7 +298,8 @@ def reconstruct(
         in [0, 1) or keeping fewer than 1 % of the pixels, ``tv`` not a finite number
         >= 0 (the messages the CLI shows), or a solver option the method does not take;
         a raw with nothing to reconstruct after its dark level
-        (:class:`recon.preprocess.RawSignalError`).
+        (:class:`recon.preprocess.RawSignalError`); an unusable ``device`` (names what
+        is missing) or a problem that does not fit in the GPU's free memory.
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
@@ -310,6 +320,9 @@ def reconstruct(
                               "); name a method to pass them")
     if method != AUTO:
         check_options(method, solver_options)
+    backend = resolve_device(device)
+    on_device = ({} if backend.is_numpy else
+                 {"solvers": device_solvers(backend), "weight_path_solves": False})
     fft_s = None
     t_start = time.perf_counter()
     if preprocess:
@@ -354,7 +367,7 @@ def reconstruct(
         res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
                                     iterations=iterations, tv=tv, l1=l1, seconds=seconds,
                                     fft_pair_s=fft_s, auto_stop=auto_stop,
-                                    **solver_options)
+                                    **on_device, **solver_options)
         results.append(res)
         records.append(record)
         estimates.append(res.x * raw_scale)
@@ -373,5 +386,6 @@ def reconstruct(
         raw_scale=raw_scale,
         erased_fraction=0.0 if mask is None else float(1 - op0.sensor_weights.mean()),
         seconds_total=time.perf_counter() - t_start,
+        device=backend.label,
     )
     return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results, op0, info)

@@ -22,6 +22,7 @@ import numpy as np
 from ..auto import AUTO, parse_weight
 from ..auto.noise import NoiseModel, estimate_noise
 from ..auto.volume import EMPTY_PLANES, auto_volume
+from ..backend import resolve_device
 from ..errors import ReconInputError
 from ..preprocess import (
     box_bin,
@@ -35,6 +36,8 @@ from ..preprocess import (
 )
 from ..solvers import SolveResult
 from ..validate import as_array, float_array
+from ..xp.admm3d import memory_bytes as admm3d_memory
+from ..xp.dispatch import solve_on
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
 from .operator import (
@@ -305,8 +308,8 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                        method: str = "admm", iterations: int = 200,
                        tv: float | str | None = "auto", l1: float | str = 0.0,
                        bin_factor: int = 1, dark: str | float = "auto",
-                       allow_mixed_ranges: bool = False, empty_planes: str = "keep"
-                       ) -> VolumeReconstruction:
+                       allow_mixed_ranges: bool = False, empty_planes: str = "keep",
+                       device: str = "cpu") -> VolumeReconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -346,6 +349,11 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         no signal in the held-out pixels, alone or together
         (:func:`recon.auto.planes.plane_tests`), to zero; ``info["auto"]`` says
         which, why, and what the held-out error and the residual did.
+    device : {"cpu", "cuda", "auto"}
+        Where 3D ADMM runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
+        (default), a CUDA GPU (the array-API path :func:`recon.xp.admm3d.admm3d_xp`,
+        with fixed weights: the automatic weight and 3D FISTA run on the CPU only),
+        or the GPU when one is usable. ``info["device"]`` says which ran.
 
     Returns
     -------
@@ -356,10 +364,12 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     Raises
     ------
     ReconInputError
-        Bad images, shapes or parameters.
+        Bad images, shapes or parameters; an unusable ``device``, an automatic weight
+        or FISTA asked of a GPU, or a volume that does not fit in its free memory.
     recon.errors.DivergenceError
         The solver diverged.
     """
+    backend = resolve_device(device)
     if method == AUTO:  # 3D ADMM: the best localisation and PSNR of the 3D benchmark
         method = "admm"
     if tv is None:
@@ -370,6 +380,11 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = 0.0
     check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
                             0.0 if l1 == AUTO else l1, bin_factor)
+    if not backend.is_numpy and (auto_reg is not None or method != "admm"):
+        raise ReconInputError(f"{backend.label}: on a GPU a volume is solved by 3D ADMM with "
+                              "fixed weights (the automatic weight and 3D FISTA run on the "
+                              "CPU); give --tv and --l1 numbers with --method admm, or use "
+                              "--device cpu")
     if empty_planes not in EMPTY_PLANES:
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
@@ -400,7 +415,13 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
-    if auto_reg is None:
+    if not backend.is_numpy:
+        result = solve_on(backend, admm3d, op, b, iterations=iterations, tv=tv, l1=l1,
+                          nonneg=True, needed_bytes=admm3d_memory(op.n_z, op.padded_shape,
+                                                                  tv > 0),
+                          what=f"3D ADMM on {op.n_z} planes of {op.sensor_shape[0]} x "
+                               f"{op.sensor_shape[1]}")
+    elif auto_reg is None:
         result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     else:
         # the frame's Poisson-Gaussian noise (too small a frame: none known)
@@ -415,6 +436,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
                                   dtype=np.float32)
     info.update(method=method, iterations=iterations, tv=tv, l1=l1, psf_scale=psf_scale,
-                raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start)
+                raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
+                device=backend.label)
     return VolumeReconstruction(volume=volume, depths_mm=depths, result=result, operator=op,
                                 info=info)
