@@ -29,8 +29,8 @@ from .preprocess import (
     validate_psf,
 )
 from .solvers import SOLVERS, SolveResult
+from .solvers.device import device_solvers
 from .validate import as_array, as_int, finite_float
-from .xp.dispatch import device_solvers
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -274,7 +274,7 @@ def reconstruct(
     device : {"cpu", "cuda", "auto"}
         Where the iterative solvers run (:func:`recon.backend.resolve_device`): the
         CPU's NumPy path (default), a CUDA GPU through CuPy or PyTorch (the array-API
-        path, :mod:`recon.xp`; an automatic weight is chosen along its ADMM path on the
+        path, :mod:`recon.solvers.device`; an automatic weight is chosen along its ADMM path on the
         CPU, then the chosen method solves on the GPU), or the GPU when one is usable.
         ``info["device"]`` says which ran.
     preprocess : bool

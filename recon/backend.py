@@ -3,7 +3,9 @@ PyTorch on a CUDA GPU) and the checks before it does.
 
 The numerics that matter for speed have two implementations behind one entry: the
 NumPy one (numba kernels, :mod:`recon.solvers`, :mod:`recon.volume`) and a generic one
-written against the Python array API standard (:mod:`recon.xp`, through
+written against the Python array API standard (``xp_*`` modules: :mod:`recon.xp_operators`,
+:mod:`recon.solvers.xp_admm`, :mod:`recon.solvers.xp_fista`,
+:mod:`recon.volume.xp_admm3d`; through
 ``array-api-compat``), which runs on any conforming array: CuPy and PyTorch (CPU or
 CUDA) arrays, or ``array-api-strict`` in the tests. The solvers dispatch on the type of
 the measurement they are given: a ``numpy.ndarray`` takes the NumPy path unchanged,
@@ -25,8 +27,8 @@ from .errors import ReconInputError
 from .options import DEVICES
 
 __all__ = ["DEVICES", "Backend", "GPU_INSTALL", "array_namespace", "check_memory",
-           "free_device_bytes", "is_numpy", "resolve_device", "to_device", "to_numpy",
-           "torch_cpu"]
+           "device_of", "free_device_bytes", "is_numpy", "resolve_device", "to_device", "to_numpy",
+           "torch_cpu", "total"]
 
 #: How to install a GPU backend (the message of an unusable ``cuda`` request).
 GPU_INSTALL = "pip install 'diffuserlab[gpu]'"
@@ -161,6 +163,18 @@ def torch_cpu() -> Backend | None:
     import torch
 
     return Backend("torch", xp, torch.device("cpu"), "cpu (torch, generic path)")
+
+
+def device_of(a):
+    """The device of array ``a`` (``array_api_compat.device``)."""
+    import array_api_compat
+
+    return array_api_compat.device(a)
+
+
+def total(xp, a) -> float:
+    """``sum(a)`` as a Python float (one device-to-host transfer on a GPU)."""
+    return float(xp.sum(a))
 
 
 def to_device(a, backend: Backend):

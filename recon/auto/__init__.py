@@ -92,7 +92,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     weight_path_solves : bool
         With an automatic weight and ADMM, the result is the weight path's own solve
         (default); False: the path only chooses the weight and ``solvers``' ADMM then
-        solves (e.g. on a GPU, :func:`recon.xp.dispatch.device_solvers`; the path runs
+        solves (e.g. on a GPU, :func:`recon.solvers.device.device_solvers`; the path runs
         on the CPU).
     **options
         Passed to a fixed method's solver.

@@ -94,7 +94,7 @@ def accelerated_loop(x: np.ndarray, *, iterations: int,
     snapshot = x if snapshot is None else snapshot
     if isinstance(y, np.ndarray):
         y_next = np.empty_like(y)
-    else:  # another array-API backend (recon.xp): same loop, that library's arrays
+    else:  # another array-API backend (recon.solvers.xp_fista): same loop, that library's arrays
         from ..backend import array_namespace
 
         y_next = array_namespace(y).empty_like(y)

@@ -44,8 +44,8 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
         raise ReconInputError(f"{method} supports 2D objects here, got {op.shape_in}")
     if lipschitz is not None:
         lipschitz = positive(lipschitz, "lipschitz")
-    if not isinstance(b, np.ndarray):  # another backend: the array-API path (recon.xp)
-        from ..xp.fista import accelerated_xp
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from .xp_fista import accelerated_xp
 
         return accelerated_xp(op, b, iterations=iterations, tv=tv, nonneg=nonneg,
                               step_scale=step_scale, momentum=momentum, restart=restart,
@@ -112,7 +112,7 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
     b : ndarray, shape ``op.shape_out``, float32
         Measurement (scaled so its values are O(1), see :func:`recon.reconstruct`). An
         array of another array-API backend (CuPy, PyTorch) runs the generic path
-        :func:`recon.xp.fista.accelerated_xp` on its device (``op`` a
+        :func:`recon.solvers.xp_fista.accelerated_xp` on its device (``op`` a
         :class:`~recon.operators.ConvolutionOperator`).
     iterations : int
     tv : float

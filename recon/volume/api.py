@@ -35,9 +35,8 @@ from ..preprocess import (
     validate_psf,
 )
 from ..solvers import SolveResult
+from ..solvers.device import solve_on
 from ..validate import as_array, float_array
-from ..xp.admm3d import memory_bytes as admm3d_memory
-from ..xp.dispatch import solve_on
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
 from .operator import (
@@ -46,6 +45,7 @@ from .operator import (
     fft_floor_seconds,
     normalize_psf_stack,
 )
+from .xp_admm3d import memory_bytes as admm3d_memory
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "VolumeReconstruction",
            "check_volume_parameters", "depth_profile", "prepare_volume_problem",
@@ -351,7 +351,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         which, why, and what the held-out error and the residual did.
     device : {"cpu", "cuda", "auto"}
         Where 3D ADMM runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
-        (default), a CUDA GPU (the array-API path :func:`recon.xp.admm3d.admm3d_xp`,
+        (default), a CUDA GPU (the array-API path :func:`recon.volume.xp_admm3d.admm3d_xp`,
         with fixed weights: the automatic weight and 3D FISTA run on the CPU only),
         or the GPU when one is usable. ``info["device"]`` says which ran.
 

@@ -14,10 +14,10 @@ import numpy as np
 
 from ..errors import ReconInputError
 from ..operators import ConvolutionOperator
-from ..solvers.accelerated import accelerated_loop
-from ..solvers.common import SolveResult
-from .common import XpMonitor, check_measurement_xp, total, tv_circular
-from .operators import XpConvolution
+from ..xp_operators import XpConvolution
+from .accelerated import accelerated_loop
+from .common import SolveResult
+from .xp_common import XpMonitor, check_measurement_xp, total, tv_circular
 
 __all__ = ["accelerated_xp", "proximal_step"]
 

@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backend import array_namespace
-from ..errors import ReconInputError
-from .common import device_of, total
+from .backend import array_namespace, device_of, total
+from .errors import ReconInputError
 
-__all__ = ["XpConvolution", "XpVolumeConvolution", "xp_operator"]
+__all__ = ["XpConvolution", "XpVolumeConvolution"]
 
 
 class _XpCropped:
@@ -127,7 +126,7 @@ class XpVolumeConvolution(_XpCropped):
     """:class:`recon.volume.VolumeConvolutionOperator` on the backend of ``like``.
 
     All planes are transformed in one batched call (no chunking: a GPU holds the
-    spectra of the whole volume; :func:`recon.xp.admm3d.memory_bytes` is checked
+    spectra of the whole volume; :func:`recon.volume.xp_admm3d.memory_bytes` is checked
     before a solve).
 
     Attributes
@@ -172,22 +171,3 @@ class XpVolumeConvolution(_XpCropped):
         r = self.wp * self.convolve_full(self._check(x, self.shape_in, "volume")) - self.pad(b)
         return 0.5 * total(self.xp, r * r), self.backproject_full(self.wp * r)
 
-
-def xp_operator(op, like):
-    """The generic operator of a NumPy 2D or 3D convolution operator, on ``like``'s
-    backend.
-
-    Raises
-    ------
-    ReconInputError
-        Another kind of operator (no generic path for it).
-    """
-    from ..operators import ConvolutionOperator
-    from ..volume.operator import VolumeConvolutionOperator
-
-    if isinstance(op, ConvolutionOperator):
-        return XpConvolution(op, like)
-    if isinstance(op, VolumeConvolutionOperator):
-        return XpVolumeConvolution(op, like)
-    raise ReconInputError(f"{type(op).__name__} has no array-API path: only the 2D and 3D "
-                          "convolution models run on another backend; pass NumPy arrays")

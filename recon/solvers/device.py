@@ -68,8 +68,8 @@ def device_solvers(backend: Backend, solvers=None) -> dict:
         Same keys and :class:`~recon.solvers.SolverSpec` values; those of
         :data:`GENERIC_2D` solve on ``backend`` (NumPy backend: the table unchanged).
     """
-    from ..solvers import SOLVERS
-    from .admm import memory_bytes
+    from . import SOLVERS
+    from .xp_admm import memory_bytes
 
     solvers = SOLVERS if solvers is None else solvers
     if backend.is_numpy:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..solvers.admm import difference_power
-from ..solvers.common import SolveResult
-from ..solvers.penalty import tie_nonneg_penalty
-from .common import (
+from ..xp_operators import XpConvolution
+from .common import SolveResult
+from .penalty import tie_nonneg_penalty
+from .xp_common import (
     XpMonitor,
     balance_terms,
     check_measurement_xp,
@@ -23,7 +23,6 @@ from .common import (
     total,
     tv_circular,
 )
-from .operators import XpConvolution
 
 __all__ = ["admm_xp", "memory_bytes"]
 
@@ -41,14 +40,15 @@ def _rescale(q, a, old: float, new: float):
     return q + a * (1.0 - old / new) if old != new else q
 
 
-def admm_xp(op, b, *, iterations: int, tv: float, l1: float, penalty, stop=None
+def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=None
             ) -> SolveResult:
     """ADMM of :func:`recon.solvers.admm.admm` on ``b``'s backend (validated parameters).
 
     Parameters
     ----------
-    op : ConvolutionOperator
-        The NumPy forward model (its spectrum and weights are moved to ``b``'s device).
+    plan : AdmmPlan
+        The NumPy path's plan (:class:`recon.solvers.admm.AdmmPlan`): its operator's
+        spectrum and weights and its power spectra are moved to ``b``'s device.
     b : array (array API), float32, ``op.shape_out``
         Scaled, weighted measurement on the target device.
     iterations : int
@@ -69,14 +69,14 @@ def admm_xp(op, b, *, iterations: int, tv: float, l1: float, penalty, stop=None
     DivergenceError, ReconInputError
         As :func:`recon.solvers.admm.admm`.
     """
+    op = plan.op
     xop = XpConvolution(op, b)
     xp = xop.xp
     b = check_measurement_xp(b, op.shape_out)
     shape = xop.padded_shape
     bp, wp = xop.pad(b), xop.wp
     spec = xop.spectrum
-    h_pow = xp.real(spec) ** 2 + xp.imag(spec) ** 2
-    d_pow = xop.asarray(difference_power(shape))
+    h_pow, d_pow = xop.asarray(plan.h_pow), xop.asarray(plan.d_pow)
     use_tv = tv > 0
     mu1, mu2, mu3 = penalty.initial()
     ratio = mu3 / mu1

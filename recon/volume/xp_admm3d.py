@@ -12,11 +12,17 @@ from __future__ import annotations
 
 import math
 
+from ..backend import total
 from ..solvers.common import SolveResult
-from ..volume.admm import lateral_difference_power
-from .admm import _rescale
-from .common import XpMonitor, balance_terms, check_measurement_xp, data_split, shrink_split, total
-from .operators import XpVolumeConvolution
+from ..solvers.xp_admm import _rescale
+from ..solvers.xp_common import (
+    XpMonitor,
+    balance_terms,
+    check_measurement_xp,
+    data_split,
+    shrink_split,
+)
+from ..xp_operators import XpVolumeConvolution
 
 __all__ = ["admm3d_xp", "memory_bytes", "x_update"]
 
@@ -94,14 +100,15 @@ def _differences(xp, x):
     return gz, xp.roll(x, -1, axis=1) - x, xp.roll(x, -1, axis=2) - x
 
 
-def admm3d_xp(op, b, *, iterations: int, tv: float, l1: float, nonneg: bool,
+def admm3d_xp(plan, b, *, iterations: int, tv: float, l1: float, nonneg: bool,
               penalty, mu0) -> SolveResult:
     """3D ADMM of :func:`recon.volume.admm3d` on ``b``'s backend (validated parameters).
 
     Parameters
     ----------
-    op : VolumeConvolutionOperator
-        NumPy forward model (spectra and weights moved to ``b``'s device).
+    plan : VolumeAdmmPlan
+        The NumPy path's plan (:class:`recon.volume.VolumeAdmmPlan`): its operator's
+        spectra and weights and its lateral ``|F Psi|^2`` move to ``b``'s device.
     b : array (array API), float32, ``op.shape_out``
     iterations : int
     tv, l1 : float
@@ -120,12 +127,13 @@ def admm3d_xp(op, b, *, iterations: int, tv: float, l1: float, nonneg: bool,
     DivergenceError, ReconInputError
         As :func:`recon.volume.admm3d`.
     """
+    op = plan.op
     xop = XpVolumeConvolution(op, b)
     xp = xop.xp
     b = check_measurement_xp(b, op.shape_out)
     nz, shape = op.n_z, xop.padded_shape
     bp, wp = xop.pad(b), xop.wp
-    d_lat = xop.asarray(lateral_difference_power(shape))
+    d_lat = xop.asarray(plan.d_lat)
     use_tv = tv > 0
     mu1, mu2, mu3 = mu0
     zeros = xp.zeros(op.shape_in, dtype=xp.float32, device=xop.device)

@@ -10,24 +10,12 @@ from __future__ import annotations
 
 import math
 
-from ..backend import array_namespace, to_numpy
+from ..backend import array_namespace, to_numpy, total
 from ..errors import DivergenceError, ReconInputError
-from ..solvers.common import Monitor
+from .common import Monitor
 
-__all__ = ["XpMonitor", "balance_terms", "check_measurement_xp", "data_split", "device_of",
-           "shrink_split", "total", "tv_circular"]
-
-
-def device_of(a):
-    """The device of array ``a`` (``array_api_compat.device``)."""
-    import array_api_compat
-
-    return array_api_compat.device(a)
-
-
-def total(xp, a) -> float:
-    """``sum(a)`` as a Python float (one device-to-host transfer)."""
-    return float(xp.sum(a))
+__all__ = ["XpMonitor", "balance_terms", "check_measurement_xp", "data_split", "shrink_split",
+           "total", "tv_circular"]
 
 
 def shrink_split(xp, g, q, thr: float, nonneg: bool):
