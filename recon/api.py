@@ -76,6 +76,7 @@ class Reconstruction:
         med = float(np.median(per_iter))
         return {
             "method": self.info["method"],
+            "device": self.info.get("device", "cpu (numpy)"),
             "iterations": self.info["iterations"],
             "iterations_used": self.info.get("iterations_used", self.info["iterations"]),
             "tv": self.info["tv"],

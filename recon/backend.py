@@ -194,7 +194,7 @@ def to_numpy(a) -> np.ndarray:
         return a.detach().cpu().numpy()
     if array_api_compat.is_cupy_array(a):
         return a.get()
-    return np.asarray(a)
+    return np.from_dlpack(a)  # any other array-API array on the CPU (DLPack)
 
 
 def free_device_bytes(backend: Backend) -> int | None:
