@@ -147,7 +147,8 @@ def run_gpu_benchmark(args: argparse.Namespace) -> int:
     if args.json is not None:
         check_outputs([args.json], None, args.overwrite, option="--json")
     print("benchmark gpu: median s per iteration (live: per frame of 5 ADMM iterations), "
-          "ratio to the backend's FFT floor, speed-up over the NumPy path", flush=True)
+          "ratio of one iteration to the backend's FFT floor, speed-up over the NumPy path",
+          flush=True)
     result = run(quick=args.quick, iterations=args.iterations,
                  include_torch_cpu=not args.no_torch_cpu,
                  log=lambda line: print(line, flush=True))

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import array_namespace, device_of
 from ..xp_operators import XpConvolution
 from .common import SolveResult
 from .penalty import tie_nonneg_penalty
@@ -38,6 +39,17 @@ def memory_bytes(padded_shape: tuple[int, int]) -> int:
 def _rescale(q, a, old: float, new: float):
     """:func:`recon.solvers.penalty.rescale_duals` for one split, out of place."""
     return q + a * (1.0 - old / new) if old != new else q
+
+
+def _device_plan(plan, b):
+    """The plan's operator and power spectra on ``b``'s device, made once per plan and
+    device (kept on the plan: a live view reuses its plan frame after frame)."""
+    key = (array_namespace(b).__name__, str(device_of(b)))
+    cache = plan.__dict__.setdefault("_device_copies", {})
+    if key not in cache:
+        xop = XpConvolution(plan.op, b)
+        cache[key] = (xop, xop.asarray(plan.h_pow), xop.asarray(plan.d_pow))
+    return cache[key]
 
 
 def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=None
@@ -70,13 +82,12 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
         As :func:`recon.solvers.admm.admm`.
     """
     op = plan.op
-    xop = XpConvolution(op, b)
+    xop, h_pow, d_pow = _device_plan(plan, b)
     xp = xop.xp
     b = check_measurement_xp(b, op.shape_out)
     shape = xop.padded_shape
     bp, wp = xop.pad(b), xop.wp
     spec = xop.spectrum
-    h_pow, d_pow = xop.asarray(plan.h_pow), xop.asarray(plan.d_pow)
     use_tv = tv > 0
     mu1, mu2, mu3 = penalty.initial()
     ratio = mu3 / mu1
