@@ -26,7 +26,7 @@ import numpy as np
 from .errors import ReconInputError
 from .options import DEVICES
 
-__all__ = ["DEVICES", "Backend", "GPU_INSTALL", "array_namespace", "check_memory",
+__all__ = ["DEVICES", "NUMPY", "Backend", "GPU_INSTALL", "array_namespace", "check_memory",
            "device_of", "free_device_bytes", "is_numpy", "resolve_device", "to_device", "to_numpy",
            "torch_cpu", "total"]
 
