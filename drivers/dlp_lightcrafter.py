@@ -1,9 +1,9 @@
 """TI DLP LightCrafter 4500 (DLPC350 controller) as a :class:`~drivers.dmd.Dmd`, over USB HID.
 
 Transport: hidapi (cython-hidapi, ``pip install hidapi``), USB 0451:6401, 64-byte
-reports written with the report id 0 (:class:`~drivers.transports.HidLink`); the
+reports written with the report id 0 (:class:`~drivers.usb_transports.HidLink`); the
 kernel's hidraw driver stays bound, no detach. ``transport="pyusb"`` uses pyusb on the
-interrupt endpoints 0x01/0x81 instead (:class:`~drivers.transports.UsbLink`, the
+interrupt endpoints 0x01/0x81 instead (:class:`~drivers.usb_transports.UsbLink`, the
 kernel driver detached). Notes: docs/drivers/dlp-lightcrafter.md.
 
 Message (TI DLPC350 programmer's guide): ``flags`` (bit 7 read, bit 6 reply wanted,
@@ -44,7 +44,7 @@ from typing import Any
 
 from drivers.dmd import Dmd, PatternEntry
 from drivers.errors import DeviceProtocolError, DeviceValueError
-from drivers.transports import HidLink, UsbLink
+from drivers.usb_transports import HidLink, UsbLink
 
 __all__ = ["LightCrafter4500", "image_lut_payload", "led_pwm", "pattern_lut_entry"]
 

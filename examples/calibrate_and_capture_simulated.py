@@ -24,7 +24,7 @@ from instrument.runner import Runner
 from instrument.stacks import load_psf_stack
 from instrument.virtual_bench import PlanarScene, VirtualBench
 from recon import reconstruct
-from recon.io import save_image, scene_view
+from recon.io import save_image
 from recon.metrics import psnr, register_truth
 
 
@@ -62,10 +62,10 @@ def main(argv=None) -> int:
     recon = reconstruct(stack[k], raw, iterations=args.iterations, dark=0.0)
     image = recon.image
     _, registered = register_truth(image, truth)
-    print(f"reconstructed at {depths_mm[k]:.1f} mm: {recon.info['method']}, TV weight "
-          f"{recon.info['tv']:.3g}; PSNR against the known scene "
+    print(f"reconstructed at {depths_mm[k]:.1f} mm: {recon.info.method}, TV weight "
+          f"{recon.info.tv:.3g}; PSNR against the known scene "
           f"{psnr(image, registered):.1f} dB")
-    save_image(args.out / "reconstruction.png", scene_view(image))
+    save_image(args.out / "reconstruction.png", recon.upright())
     print(f"wrote {args.out / 'reconstruction.png'}")
     return 0
 

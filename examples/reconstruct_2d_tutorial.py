@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from recon import reconstruct
-from recon.io import load_image, save_image, scene_view
+from recon.io import load_image, save_image
 
 
 def main(argv=None) -> int:
@@ -38,16 +38,16 @@ def main(argv=None) -> int:
                          bin_factor=args.bin)
 
     info = result.info
-    print(f"image {result.image.shape} {result.image.dtype}: {info['method']}, TV weight "
-          f"{info['tv']:.3g}, {info['iterations_used']} iterations, "
-          f"{info['seconds_total']:.1f} s; dark level {info['dark_level']:.1f} DN "
-          f"({info['dark_mode']})")
-    for choice in info["auto"]:  # one per colour channel
+    print(f"image {result.image.shape} {result.image.dtype}: {info.method}, TV weight "
+          f"{info.tv:.3g}, {info.iterations_used} iterations, "
+          f"{info.seconds_total:.1f} s; dark level {info.dark_level:.1f} DN "
+          f"({info.dark_source})")
+    for choice in info.auto:  # one per colour channel
         print("  method:", "; ".join(choice["method"]["reasons"]))
         print("  weight:", choice["weight"]["reason"])
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "reconstruction.png"
-    save_image(path, scene_view(result.image))
+    save_image(path, result.upright())  # the scene's orientation
     print(f"wrote {path}")
     return 0
 

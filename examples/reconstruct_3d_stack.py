@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon import reconstruct_volume
-from recon.io import load_image, save_image, scene_view
+from recon import PsfStack, reconstruct
+from recon.io import load_image, save_image
 
 
 def main(argv=None) -> int:
@@ -46,10 +46,11 @@ def main(argv=None) -> int:
     depths_mm = np.arange(len(files), dtype=float) * step + 1.0  # nominal, increasing
     raw = load_image(args.data / "image.tiff")
 
-    result = reconstruct_volume(stack, depths_mm, raw, iterations=args.iterations,
-                                bin_factor=args.bin)
+    result = reconstruct(PsfStack(stack, depths_mm), raw, iterations=args.iterations,
+                         bin_factor=args.bin)
+    print(result)
 
-    volume = result.volume
+    volume = result.image
     print(f"volume {volume.shape} {volume.dtype} (planes, rows, cols)")
     energy = volume.reshape(volume.shape[0], -1).sum(axis=1)
     share = energy / max(energy.sum(), 1e-30)
@@ -58,7 +59,7 @@ def main(argv=None) -> int:
               + "#" * int(round(50 * e)))
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "max_projection.png"
-    save_image(path, scene_view(volume.max(axis=0)))
+    save_image(path, result.upright().max(axis=0))  # the scene's orientation
     print(f"wrote {path}")
     return 0
 

@@ -45,6 +45,7 @@ from PySide6.QtWidgets import (
 )
 
 from .binding import BindingLeakError, check_binding
+from .colorleak import install as install_color_fix
 from .device_status import STATE_COLOURS, device_state, status_line
 from .fields import settings
 from .logpane import LogPane, gui_log
@@ -436,8 +437,10 @@ class MainWindow(QMainWindow):
 
 
 def configure() -> None:
-    """Process-wide settings of the GUI: row-major images, the thread switch interval."""
+    """Process-wide settings of the GUI: row-major images, the thread switch interval,
+    colours that do not leak references (:mod:`gui.colorleak`)."""
     pg.setConfigOptions(imageAxisOrder="row-major")
+    install_color_fix()
     sys.setswitchinterval(SWITCH_INTERVAL_S)
 
 

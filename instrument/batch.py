@@ -342,6 +342,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
     recon.errors.ReconInputError, recon.errors.DivergenceError
         From a frame's reconstruction (the frames stored before it are kept).
     """
+    from recon.io import DATA_ORIENTATION
     from recon.validate import as_int
 
     from .runstore_records import ranges_text
@@ -382,16 +383,16 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         hint = f"diffuserlab recon-run {store.path} with the same options"
         if grid is None:
             options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
-                       "bin_factor": bin_factor, "dark": dark}
+                       "bin_factor": bin_factor, "dark": "auto" if dark is None else dark}
             settings = {"method": method, "tv": tv, "l1": l1, "psf": psf_source,
-                        "orientation": "model grid (Eq. 3.3)"}
+                        "orientation": DATA_ORIENTATION}
             name, task = product or f"recon_{method}", reconstruct_stored_frame
         else:
             bin_factor = grid.bin_factor
             options = {"background": background, "l1": grid_l1, "iterations": iterations,
                        "dark": dark}
             settings = {**grid.settings(), "background": background, "l1": grid_l1,
-                        "orientation": "sensor field of view (Eq. 5.5)"}
+                        "orientation": DATA_ORIENTATION}
             name, task = product or grid.product_name, reconstruct_stored_frame_grid
         plane = (rows // bin_factor, cols // bin_factor)
         settings.update(iterations=iterations, bin_factor=bin_factor, dark=dark_attr,

@@ -8,7 +8,7 @@ tolerance, :func:`recon.spatial.choose_model`; or the model given) and builds it
 once (:func:`recon.spatial.api.grid_model`). :func:`instrument.batch.reconstruct_run`
 sends that prepared model to its dask workers, which run
 :func:`reconstruct_stored_frame_grid` on each frame: the l1 FISTA of
-:func:`recon.spatial.api.reconstruct_grid` with, by default, the frame's own smooth
+:func:`recon.reconstruct` for a PSF grid with, by default, the frame's own smooth
 background estimated jointly (Kuo 2020, Eq. 6.2), stored beside the image.
 """
 
@@ -140,28 +140,28 @@ def reconstruct_stored_frame_grid(run_path: str, index: int, prepared: GridBatch
     Returns
     -------
     (int, ndarray, ndarray or None)
-        ``index``, the image (float32, (rows // bin, cols // bin), sensor field of
-        view) and the estimated background (float32, same shape; None with
-        ``background="none"``), both in frame units (DN).
+        ``index``, the image (float32, (rows // bin, cols // bin), the sensor field
+        of view on the model grid, as every reconstruction) and the estimated
+        background (float32, same shape; None with ``background="none"``), both in
+        frame units (DN).
 
     Raises
     ------
     RunStoreError
         The frame is not stored or is damaged.
     recon.errors.ReconInputError
-        From :func:`recon.spatial.api.reconstruct_grid`.
+        From :func:`recon.reconstruct`.
     """
+    from recon import reconstruct
     from recon.fft import limited_threads
-    from recon.spatial.api import reconstruct_grid
 
     raw = np.asarray(open_run(str(run_path)).frame(int(index)).image, np.float64)
     dark = options.get("dark")
-    if dark is not None:
-        raw = raw - np.asarray(dark, np.float64)
     with limited_threads(threads) if threads else nullcontext():
-        rec = reconstruct_grid(prepared.grid, raw, background=options["background"],
-                               l1=options["l1"], iterations=options["iterations"],
-                               bin_factor=prepared.bin_factor,
-                               prepared=(prepared.choice, prepared.operator))
+        rec = reconstruct(prepared.grid, raw, "fista", background=options["background"],
+                          l1=options["l1"], iterations=options["iterations"],
+                          bin_factor=prepared.bin_factor,
+                          dark="none" if dark is None else dark,
+                          prepared=(prepared.choice, prepared.operator))
     background = None if rec.background is None else np.asarray(rec.background, np.float32)
     return int(index), np.asarray(rec.image, np.float32), background

@@ -31,7 +31,6 @@ from recon import reconstruct
 from recon.io import DATA_ORIENTATION, atomic_path, save_image, scene_view
 from recon.metrics import psnr, register_truth, ssim
 from recon.spatial import PsfGrid
-from recon.spatial.api import reconstruct_grid
 from recon.spatial.brightness import correct_brightness, node_brightness
 
 from .acquisition import autoexpose, average_frames
@@ -142,8 +141,8 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         t = step(f"scene capture (exposure {scene_exp.exposure_s * 1e3:.2f} ms)", t)
         truth = bench.scene_truth()
     if method == "auto":
-        rec = reconstruct_grid(grid, raw, method="admm", model="auto", two_part=True,
-                               background="none", iterations=iterations, tv="auto")
+        rec = reconstruct(grid, raw, "admm", model="auto", two_part=True, dark="none",
+                          background="none", iterations=iterations, tv="auto")
         image, uncorrected = rec.image, rec.image * rec.operator.brightness
         recon_metrics = rec.metrics()
         t = step(f"reconstruction ({rec.choice.label()} model of the PSF grid's caustics: "

@@ -3,8 +3,8 @@
 :func:`run_recon` is ``diffuserlab recon`` (one image from a PSF and a raw
 measurement; the PSF may be one depth of a run store's PSF stack or of a TIFF
 stack); :func:`run_recon3d` is ``diffuserlab recon3d`` (a volume from one image and
-a PSF stack, Kuo 2020, Ch. 4). The numerics are :func:`recon.reconstruct` and
-:func:`recon.reconstruct_volume`; this module reads run stores and stacks
+a PSF stack, Kuo 2020, Ch. 4). The numerics are :func:`recon.reconstruct` (a PSF
+or a :class:`recon.PsfStack`); this module reads run stores and stacks
 (:mod:`instrument.stacks`) and writes the outputs. It logs, it never prints.
 """
 
@@ -175,7 +175,7 @@ def run_recon(
     l1: float | str = 0.0,
     seconds: float | None = None,
     allow_mixed_ranges: bool = False,
-    dark=None,
+    dark="auto",
     device: str = "cpu",
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
@@ -197,8 +197,8 @@ def run_recon(
         Plane and product of a PSF stack (see :func:`load_psf`).
     allow_mixed_ranges : bool
         Accept a PSF and raw of different bit depths (``--allow-mixed-ranges``).
-    dark : None, "none", float or ndarray
-        Dark level (:func:`recon.preprocess.prepare_pair`; None: the PSF's corner).
+    dark : "auto", "none", None, float or ndarray
+        Dark level (:func:`recon.reconstruct`; ``"auto"``: the PSF's corner).
 
     Returns
     -------
@@ -339,13 +339,14 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
 
 def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 tv: float | str, l1: float | str, out: str, depths_mm: list[float] | None = None,
-                bin_factor: int = 1, dark: str | float = "auto",
+                bin_factor: int = 1, dark="auto",
                 psf_product: str = "psf_stack", metrics_json: str | None = None,
                 planes: str = "all", pitch_um: float | None = None,
                 d_mm: float | None = None, scene_range_mm=None,
                 allow_mixed_ranges: bool = False, empty_planes: str = "keep",
                 device: str = "cpu") -> dict:
-    """Load, reconstruct a volume (:func:`recon.reconstruct_volume`), write it and its
+    """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
+    write it and its
     projections and metrics.
 
     Parameters
@@ -360,7 +361,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         Solver iterations (>= 1).
     tv, l1 : float or "auto"
         3D TV and l1 weights in the scaled problem (>= 0; 0 disables; "auto": see
-        :func:`recon.reconstruct_volume`).
+        :func:`recon.reconstruct`).
     out : str
         ``OUT.tif``/``OUT.tiff`` or ``OUT.zarr``; projections go to
         ``OUT_mip_xy.png``, ``OUT_mip_xz.png`` and ``OUT_mip_yz.png``.
@@ -384,14 +385,14 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         Accept a stack and raw of different bit depths (``--allow-mixed-ranges``).
     empty_planes : {"keep", "drop"}
         With an automatic weight, keep every plane or set those that show no signal
-        to zero (see :func:`recon.reconstruct_volume`).
+        to zero (see :func:`recon.reconstruct`).
     device : {"cpu", "cuda", "auto"}
-        Where 3D ADMM runs (:func:`recon.reconstruct_volume`).
+        Where 3D ADMM runs (:func:`recon.reconstruct`).
 
     Returns
     -------
     dict
-        :meth:`recon.VolumeReconstruction.metrics` (FFT floor measured after the
+        :meth:`recon.Reconstruction.metrics` (FFT floor measured after the
         solve in this process; ``seconds_total`` includes loading) plus the input
         paths and shapes and the output paths.
 
@@ -406,9 +407,10 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     recon.errors.DivergenceError
         The solver diverged.
     """
+    from recon import PsfStack, reconstruct
     from recon.auto import AUTO, parse_weight
     from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
-    from recon.volume.api import check_volume_parameters, reconstruct_volume
+    from recon.volume.api import check_volume_parameters
 
     from .stacks import load_psf_stack
 
@@ -432,10 +434,10 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
     with named_pair(psf_stack, raw_path):
-        rec = reconstruct_volume(stack, depths, raw, method=method, iterations=iterations,
-                                 tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
-                                 allow_mixed_ranges=allow_mixed_ranges,
-                                 empty_planes=empty_planes, device=device)
+        rec = reconstruct(PsfStack(stack, depths), raw, method, iterations=iterations,
+                          tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
+                          allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes,
+                          device=device)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "

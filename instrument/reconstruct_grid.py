@@ -6,7 +6,7 @@ registered PSFs of one depth (``products/psf_grid_registered``) with the source
 positions, the registered shifts and the depth; :func:`load_psf_grid` turns one
 into a :class:`recon.spatial.PsfGrid`. :func:`run_recon_grid` reconstructs one frame
 with one grid (an image) or several (a volume, one grid per depth; depths between
-them synthesised) through :func:`recon.spatial.api.reconstruct_grid` and writes the
+them synthesised) through :func:`recon.reconstruct` and writes the
 outputs the way ``recon`` and ``recon3d`` do. It logs, it never prints.
 """
 
@@ -70,7 +70,7 @@ def load_psf_grid(path: str | Path):
 def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int | None,
                    background: str, l1: float, iterations: int, out: str,
                    metrics_json: str | None = None, depths_mm=None, bin_factor: int = 1,
-                   dark: float = 0.0, volume: bool = False, method: str = "fista",
+                   dark="auto", volume: bool = False, method: str = "auto",
                    tv="auto", two_part: bool = False) -> dict:
     """Load grids and a frame, reconstruct, write outputs; return the metrics.
 
@@ -81,7 +81,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
     raw_path : str
         The frame (TIFF, PNG or ``.npy``).
     model, k, background, l1, iterations, depths_mm, bin_factor, dark, method, tv, two_part
-        As :func:`recon.spatial.api.reconstruct_grid`.
+        As :func:`recon.reconstruct` for a PSF grid.
     out : str
         2D: the stem of ``OUT.png`` / ``OUT.tif`` (:func:`output_paths`); 3D: the
         volume ``OUT.tif`` / ``OUT.zarr`` with its projections.
@@ -92,11 +92,11 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
     Returns
     -------
     dict
-        :meth:`recon.spatial.api.GridReconstruction.metrics` plus the inputs and the
+        :meth:`recon.Reconstruction.metrics` plus the inputs and the
         output paths; with a background estimate also ``OUT_background.tif``.
     """
+    from recon import reconstruct
     from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
-    from recon.spatial.api import reconstruct_grid
 
     from .reconstruct_files import (
         output_paths,
@@ -108,10 +108,10 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
 
     grids = [load_psf_grid(p) for p in grid_paths]
     raw = load_image(raw_path)
-    rec = reconstruct_grid(grids if (volume or len(grids) > 1) else grids[0], raw, model=model,
-                           k=k, background=background, l1=l1, iterations=iterations,
-                           depths_mm=depths_mm, bin_factor=bin_factor, dark=dark,
-                           method=method, tv=tv, two_part=two_part)
+    rec = reconstruct(grids if (volume or len(grids) > 1) else grids[0], raw, method,
+                      model=model, k=k, background=background, l1=l1, iterations=iterations,
+                      depths_mm=depths_mm, bin_factor=bin_factor, dark=dark, tv=tv,
+                      two_part=two_part)
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])

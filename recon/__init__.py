@@ -2,8 +2,10 @@
 
 Forward models with adjoints (:mod:`recon.operators`), solvers
 (:mod:`recon.solvers`), loading and preprocessing (:mod:`recon.io`,
-:mod:`recon.preprocess`) and the notebook API: :func:`recon.reconstruct` (2D) and
-:func:`recon.reconstruct_volume` (3D).
+:mod:`recon.preprocess`) and the front door: :func:`recon.reconstruct` for a PSF
+(2D), a :class:`recon.PsfStack` (3D) or a :class:`recon.spatial.PsfGrid` (spatially
+varying), one :class:`recon.Reconstruction` result (``reconstruct_volume`` and
+``reconstruct_grid`` are its short spellings for a stack and a grid).
 
 The names below are imported on first use (PEP 562), so that importing a light
 submodule (``recon.errors``, ``recon.io``) does not load numba and the solvers: the
@@ -14,14 +16,20 @@ from typing import TYPE_CHECKING
 
 from diffuserlab.lazy import lazy_attributes
 
-__all__ = ["Reconstruction", "VolumeReconstruction", "reconstruct", "reconstruct_volume"]
+__all__ = ["PsfStack", "ReconInfo", "Reconstruction", "reconstruct", "reconstruct_grid",
+           "reconstruct_volume"]
 
-_LAZY = {"Reconstruction": ".api", "reconstruct": ".api",
-         "VolumeReconstruction": ".volume.api", "reconstruct_volume": ".volume.api"}
+_LAZY = {name: ".api" for name in __all__}
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .api import Reconstruction, reconstruct
-    from .volume.api import VolumeReconstruction, reconstruct_volume
+    from .api import (
+        PsfStack,
+        ReconInfo,
+        Reconstruction,
+        reconstruct,
+        reconstruct_grid,
+        reconstruct_volume,
+    )
 
 
 __getattr__, __dir__ = lazy_attributes(__name__, _LAZY, globals(), __all__)

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .api import DEFAULT_TV, scaled_problem
 from .errors import ReconInputError
+from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
 from .preprocess.dark import DEFAULT_DARK_REGION, resolve_dark
 from .preprocess.validation import as_array, check_bin_factor
@@ -44,7 +44,7 @@ class LiveResult:
     ----------
     image : ndarray, float32, shape (rows, cols)
         Sensor field of view of the estimate (binned sensor shape), measurement units
-        (counts per unit PSF sum), as :attr:`recon.api.Reconstruction.image`.
+        (counts per unit PSF sum), as :attr:`recon.Reconstruction.image`.
     estimate : ndarray, float32, shape (P0, P1)
         The whole padded object domain, same units.
     solve : SolveResult

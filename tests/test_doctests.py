@@ -8,7 +8,8 @@ import pytest
 
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
 MODULES = ("diffuserlab.jsonio", "recon.io", "recon.operators", "recon.metrics", "recon.live",
-           "recon.benchmarks.report")
+           "recon.benchmarks.report", "recon.api", "recon.solvers.admm",
+           "recon.solvers.gradient")
 
 
 @pytest.mark.parametrize("name", MODULES)

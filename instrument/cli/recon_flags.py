@@ -118,8 +118,9 @@ def _refuse_frame(dark, command: str) -> None:
 
 
 def dark_for_image(dark):
-    """``--dark`` for :func:`instrument.reconstruct_files.run_recon`: None (auto),
-    ``"none"``, a level (DN) or the dark run's or image's frame, (rows, cols) float32.
+    """``--dark`` for :func:`instrument.reconstruct_files.run_recon`: ``"auto"``,
+    ``"none"``, a level (DN) or the dark run's or image's frame, (rows, cols) float32
+    (the ``dark`` of :func:`recon.reconstruct`).
 
     Raises
     ------
@@ -127,7 +128,7 @@ def dark_for_image(dark):
         A path that is neither a dark run nor a readable image.
     """
     if dark.auto:
-        return None
+        return "auto"
     if dark.none:
         return "none"
     if dark.level is not None:
@@ -150,11 +151,11 @@ def dark_for_volume(dark):
     return "auto" if dark.auto else "none" if dark.none else dark.level
 
 
-def dark_for_grid(dark) -> float:
-    """``--dark`` of a ``--psf-grid`` reconstruction: the level (DN) subtracted from the
-    raw frame. ``auto`` and ``none`` subtract nothing (the grid's PSFs are
-    dark-subtracted; ``--background estimate`` fits the frame's offset with the
-    background).
+def dark_for_grid(dark):
+    """``--dark`` of a ``--psf-grid`` reconstruction: ``"auto"``, ``"none"`` or the level
+    (DN) subtracted from the raw frame (the ``dark`` of :func:`recon.reconstruct`:
+    ``auto`` and ``none`` subtract nothing, the grid's PSFs are dark-subtracted and
+    ``--background estimate`` fits the frame's offset with the background).
 
     Raises
     ------
@@ -162,7 +163,7 @@ def dark_for_grid(dark) -> float:
         A dark run or image.
     """
     _refuse_frame(dark, "--psf-grid")
-    return 0.0 if dark.auto or dark.none else dark.level
+    return dark_for_volume(dark)
 
 
 def grid_method(method: str, allowed: tuple[str, ...]) -> str:

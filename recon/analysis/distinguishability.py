@@ -107,7 +107,7 @@ def points_resolved(psf: np.ndarray, separation_px: float, *, n_points: int = 2,
     ReconInputError
         Bad PSF, separation, axis or point count.
     """
-    from ..api import scaled_problem, solve
+    from ..planar import scaled_problem, solve
 
     psf = np.asarray(psf, np.float64)
     if psf.ndim != 2 or not np.all(np.isfinite(psf)) or psf.sum() <= 0:

@@ -22,7 +22,7 @@ grid (:meth:`recon.optics.lensless.LenslessModel.scene_truth`):
   (:func:`recon.spatial.caustic_grid`) in the model :func:`recon.spatial.choose_model`
   picks, or in the local convolution model, solved by ADMM
   (:func:`recon.spatial.spatial_admm`) with the automatic TV weight, the brightness
-  divided out (:func:`recon.spatial.api.reconstruct_grid`). (The two-part convolution
+  divided out (:func:`recon.reconstruct` of the grid). (The two-part convolution
   model is the on-axis method: one caustic, the brightness divided out.)
 * convergence (first case): the two-part local model at the best of three fixed TV
   weights (:data:`CONVERGENCE_WEIGHTS`), ADMM and FISTA (:func:`recon.solvers.fista`,
@@ -98,9 +98,8 @@ def _bin(grid, raw, truth, factor: int):
 
 
 def _methods(grid, raw, truth, iterations: int, models=("auto", "local")) -> dict:
-    from .. import reconstruct
+    from ..api import reconstruct
     from ..spatial import correct_brightness
-    from ..spatial.api import reconstruct_grid
 
     out = {}
     t0 = time.perf_counter()
@@ -112,8 +111,8 @@ def _methods(grid, raw, truth, iterations: int, models=("auto", "local")) -> dic
     for model in models:
         name = f"two-part {model}"
         t0 = time.perf_counter()
-        rec = reconstruct_grid(grid, raw, method="admm", two_part=True, background="none",
-                               model=model, iterations=iterations)
+        rec = reconstruct(grid, raw, "admm", two_part=True, background="none",
+                          model=model, iterations=iterations)
         m = rec.metrics()
         out[name] = {**_score(rec.image, truth), "seconds": time.perf_counter() - t0,
                      "model": rec.choice.label(), "tv": rec.info["tv"],

@@ -11,7 +11,8 @@ throughout, never the inverse crime.
 
 Per case: 3D ADMM at every weight of a TV grid (the oracle is the best by volume PSNR
 after one gain fit, known to within the grid's factor of ~3) and the automatic choice
-exactly as :func:`recon.reconstruct_volume` runs it (:func:`recon.auto.volume.auto_volume`:
+exactly as :func:`recon.reconstruct` runs it for a :class:`recon.PsfStack`
+(:func:`recon.auto.volume.auto_volume`:
 noise model fitted to the frame, the held-out path, the watched final solve, every
 plane kept). Reported: auto's shortfall against the oracle (mean and worst; goals
 :data:`recon.benchmarks.auto.GOAL_MEAN_DB`, ``GOAL_WORST_DB``: the 2D goals), and for

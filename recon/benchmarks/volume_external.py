@@ -17,7 +17,8 @@ binned (2: 135 x 160; quick: 4, 67 x 80). In one process:
   LenslessPiCam 1.0.8 convolves each plane with its PSF and compares each with the
   whole image (its gradient has no sum over depth), so it solves a different
   problem than Eq. 4.4; the benchmark says how far its volume agrees with ours;
-* the default of ``recon3d`` (:func:`recon.reconstruct_volume`, automatic weight);
+* the default of ``recon3d`` (:func:`recon.reconstruct` of a :class:`recon.PsfStack`,
+  automatic weight);
   its time, residual and how much of the unregularised FISTA's fine structure its
   maximum projection keeps (:func:`fine_structure_share`).
 
@@ -36,8 +37,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from ..api import PsfStack, reconstruct
 from ..volume import admm3d, fft_floor_seconds, fista3d, normalize_psf_stack
-from ..volume.api import reconstruct_volume
 from ..volume.operator import VolumeConvolutionOperator
 from ..volume.sample import load_volume_sample
 from . import fmt, format_table, save_figure, write_json
@@ -170,10 +171,10 @@ def run_volume_external(quick: bool = False, out: Path | None = None) -> dict:
     lens, v_lens = _lensless(stack, sample.raw, op, b, it, cfg["chunk"])
     floor = 0.5 * (floor0 + fft_floor_seconds(op.padded_shape, op.n_z))
     t0 = time.perf_counter()
-    default = reconstruct_volume(sample.stack, sample.depths, sample.raw, iterations=it,
-                                 dark="none")
+    default = reconstruct(PsfStack(sample.stack, sample.depths), sample.raw, iterations=it,
+                          dark="none")
     default_s = time.perf_counter() - t0
-    auto = default.info["auto"]
+    auto = default.info.auto[0]
     methods = {m["method"]: m for m in (fista, admm, lens)}
     for m in methods.values():
         if "seconds_per_iteration" in m:

@@ -21,7 +21,7 @@ what is wrong and how to fix it.
 
 
 from .binning import box_bin
-from .dark import DEFAULT_DARK_REGION, dark_level, subtract_dark
+from .dark import DEFAULT_DARK_REGION, dark_argument, dark_level, subtract_dark
 from .pair import Prepared, normalize, prepare_pair
 from .signal import (
     RawSignalError,
@@ -39,6 +39,7 @@ from .validation import (
 
 __all__ = [
     "DEFAULT_DARK_REGION",
+    "dark_argument",
     "Prepared",
     "RawSignalError",
     "SaturationWarning",

@@ -8,6 +8,7 @@ a scalar, a per-channel vector or a dark frame can be given instead
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,7 @@ from .validation import as_array, require_image
 
 __all__ = [
     "DEFAULT_DARK_REGION",
+    "dark_argument",
     "dark_level",
     "level_for_info",
     "resolve_dark",
@@ -189,3 +191,51 @@ def level_for_info(level: float | np.ndarray | None) -> float | list[float] | No
         return None
     arr = np.asarray(level, dtype=np.float64)
     return float(arr) if arr.ndim == 0 else [float(v) for v in arr.ravel()]
+
+
+def dark_argument(dark, shape: tuple[int, int]) -> tuple[str, float | np.ndarray | None]:
+    """``(mode, level)`` of a one-level dark argument: ``"auto"``, ``"none"``/None, DN or a frame.
+
+    The volume and grid reconstructions take one level for the frame (a number or
+    a frame); the 2D path also takes one level per channel (:func:`resolve_dark`).
+
+    Parameters
+    ----------
+    dark : "auto", "none", None, float or ndarray
+        As :func:`recon.reconstruct`'s ``dark`` (docs/cli.md's ``--dark``).
+    shape : (rows, cols)
+        The raw frame's shape, which a dark frame must have.
+
+    Returns
+    -------
+    mode : {"auto", "none", "value", "frame"}
+    level : float, ndarray (rows, cols) float32 or None
+        None for ``"auto"`` (estimated by the caller) and ``"none"``.
+
+    Raises
+    ------
+    ReconInputError
+        Anything else, a non-finite number or a frame of another shape.
+    """
+    if dark is None or (isinstance(dark, str) and dark.strip().lower() == "none"):
+        return "none", None
+    if isinstance(dark, str) and dark.strip().lower() == "auto":
+        return "auto", None
+    if isinstance(dark, np.ndarray) and dark.ndim == 2:
+        if dark.shape != tuple(shape):
+            raise ReconInputError(f"the dark frame is {dark.shape[0]}x{dark.shape[1]} but the "
+                                  f"raw image is {shape[0]}x{shape[1]}; give the dark frame "
+                                  "of the same camera region")
+        frame = np.asarray(dark, np.float32)
+        if not np.all(np.isfinite(frame)):
+            raise ReconInputError("the dark frame holds NaN or inf values; recapture it")
+        return "frame", frame
+    if np.ndim(dark) == 0 and not isinstance(dark, (bool, np.bool_, str)):
+        try:
+            value = float(dark)
+        except (TypeError, ValueError):
+            value = math.nan
+        if math.isfinite(value):
+            return "value", value
+    raise ReconInputError(f"dark must be 'auto', 'none' (or None), a finite level in DN or a "
+                          f"dark frame (rows, cols), got {dark!r}")

@@ -6,6 +6,17 @@ Each takes a forward-model operator and a measurement and returns a
 :data:`SOLVERS` is the one table of 2D solvers: :func:`recon.reconstruct`, the
 ``recon`` command's ``--method`` choices and the benchmarks read it, so a new
 solver is one module here and one entry there (docs/architecture.md, "a solver").
+
+One convention for every iterative solver, 2D, 3D and spatially varying
+(:func:`fista`, :func:`gradient_descent`, :func:`admm`, :func:`recon.volume.fista3d`,
+:func:`recon.volume.admm3d`, :func:`recon.spatial.spatial_admm`,
+:func:`recon.spatial.fista_background`): keywords ``iterations`` (the most allowed,
+default 100), ``tv`` and ``l1`` (absolute weights in the
+scaled problem, default 0: a solver solves the problem it is given and adds no term
+unless asked; choosing a weight is :func:`recon.reconstruct`'s job, ``"auto"`` by
+default, with the tested fixed weights in :data:`recon.api.DEFAULT_TV` and
+:data:`recon.volume.DEFAULT_TV`), ``stop`` where the solver stops early; and
+``params`` holding ``iterations`` (the maximum) and ``iterations_used`` (how many ran).
 """
 
 from collections.abc import Callable

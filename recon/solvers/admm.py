@@ -352,7 +352,7 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
                         "iterations": iterations, "iterations_used": used})
 
 
-def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 1e-3,
+def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,
          l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
          plan: AdmmPlan | None = None) -> SolveResult:
     """ADMM with crop, TV, l1 and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
@@ -385,7 +385,8 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
         path :func:`recon.solvers.xp_admm.admm_xp` and returns ``x`` on that device.
     iterations : int
     tv : float
-        TV weight tau; 0 removes the TV split.
+        TV weight tau (default 0, as every solver's: no term unless asked); 0 removes
+        the TV split.
     l1 : float
         l1 weight (native sparsity: beads, fluorescence), on the non-negativity split:
         w = max(x + a_w - l1 / mu3, 0).
@@ -415,6 +416,22 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     ReconInputError
         Not a convolution operator (without a ``plan``), a ``plan`` made for another
         operator, ``penalty`` not an :class:`AdmmPenalty`, or invalid parameters.
+
+    Examples
+    --------
+    A point behind a small PSF, in the scaled problem (unit-sum PSF, measurement of
+    order 1); :func:`recon.reconstruct` does the scaling and chooses the weight:
+
+    >>> import numpy as np
+    >>> from recon.operators import ConvolutionOperator
+    >>> psf = np.zeros((16, 16), np.float32); psf[7:9, 6:10] = 0.125
+    >>> op = ConvolutionOperator(psf)
+    >>> x = np.zeros(op.shape_in, np.float32); x[14, 18] = 1.0
+    >>> res = admm(op, op.forward(x), iterations=50, tv=1e-4)
+    >>> res.x.shape, np.unravel_index(np.argmax(res.x), res.x.shape)
+    ((32, 32), (np.int64(14), np.int64(18)))
+    >>> res.params["iterations"], res.params["iterations_used"] <= 50
+    (50, True)
     """
     if plan is None:
         plan = AdmmPlan.of(op)

@@ -121,7 +121,7 @@ class SpatialAdmmPlan(AdmmPlan):
 
 
 def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
-                 tv: float = 1e-3, l1: float = 0.0, **options) -> SolveResult:
+                 tv: float = 0.0, l1: float = 0.0, **options) -> SolveResult:
     """ADMM with TV, l1 and non-negativity for a 2D spatially varying model.
 
     :func:`recon.solvers.admm` with the linearized x-update of this module
@@ -137,7 +137,7 @@ def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: i
         Measurement, multiplied by the sensor weights, divided by its maximum.
     iterations : int
     tv, l1 : float
-        Weights (scaled problem), >= 0.
+        Weights (scaled problem), >= 0; default 0, as every solver's.
     **options
         ``penalty`` (:class:`~recon.solvers.AdmmPenalty`) and ``stop``: as
         :func:`recon.solvers.admm`.

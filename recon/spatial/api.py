@@ -1,6 +1,6 @@
-"""Reconstruction with a calibrated PSF grid: preprocess, choose the model, solve, crop.
+"""A calibrated PSF grid: what :func:`recon.reconstruct` runs for a :class:`PsfGrid`.
 
-:func:`reconstruct_grid` is what ``diffuserlab recon --psf-grid`` and ``recon3d
+:func:`reconstruct_psf_grid` is what ``diffuserlab recon --psf-grid`` and ``recon3d
 --psf-grid`` run (through :mod:`instrument.reconstruct_grid`): bin the grid and the
 raw frame alike, pick the forward model (``auto``: :func:`recon.spatial.choose_model`),
 scale as the other solvers expect (central PSF of unit sum, measurement divided by
@@ -16,16 +16,15 @@ in the model, the brightness divided out of the image afterwards.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..auto import AUTO, parse_weight, solve_channel
 from ..errors import ReconInputError
 from ..options import BACKGROUNDS, GRID_METHODS  # ``--background``, ``method`` choices
-from ..preprocess import box_bin, check_raw_signal
+from ..preprocess import box_bin, check_raw_signal, dark_argument
+from ..result import ReconInfo, Reconstruction
 from ..solvers import SOLVERS, SolverSpec
-from ..solvers.common import SolveResult
 from ..validate import as_int, nonneg_weight
 from .admm import SpatialAdmmPlan, spatial_admm
 from .background import fista_background
@@ -33,8 +32,8 @@ from .brightness import brightness_map, caustic_grid
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .grid import PsfGrid
 
-__all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "GridReconstruction", "bin_grid",
-           "grid_model", "reconstruct_grid"]
+__all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "bin_grid", "grid_dark",
+           "grid_metrics", "grid_model", "reconstruct_psf_grid"]
 
 #: The solvers that serve a spatially varying model, for :func:`recon.auto.solve_channel`.
 GRID_SOLVERS = {
@@ -44,46 +43,67 @@ GRID_SOLVERS = {
 }
 
 
-@dataclass
-class GridReconstruction:
-    """Result of :func:`reconstruct_grid`.
+def grid_metrics(rec: Reconstruction, floor_seconds: float | None = None) -> dict:
+    """JSON-ready record of a grid reconstruction (:meth:`Reconstruction.metrics`): model,
+    cost, timings against the FFT floor of the model's ``K`` convolutions
+    (:func:`recon.volume.fft_floor_seconds`)."""
+    from ..volume import fft_floor_seconds
 
-    Attributes
+    op, result, inf = rec.operator, rec.result, rec.info
+    if floor_seconds is None:
+        floor_seconds = fft_floor_seconds(op.padded_shape, op.n_kernels)
+    per_it = float(np.median(result.history.seconds))
+    info = {"method": inf.method, "device": inf.device, "iterations": inf.iterations,
+            "iterations_used": inf.iterations_used, "bin_factor": inf.bin_factor,
+            "raw_scale": inf.raw_scale, "tv": inf.tv, "l1": inf.l1,
+            "dark_mode": inf.dark_mode, **inf.extra, "seconds_total": inf.seconds_total,
+            "depths_mm": rec.depths_mm}
+    if inf.auto:
+        info["auto"] = inf.auto[0]
+    return {"model": rec.choice.as_dict(), "n_kernels": int(op.n_kernels),
+            "ffts_per_apply": int(op.ffts_per_apply), "shape": list(rec.image.shape),
+            "padded_shape": list(op.padded_shape), **info,
+            "seconds_per_iteration": per_it, "fft_floor_seconds": floor_seconds,
+            "ratio_to_fft_floor": per_it / floor_seconds,
+            "final_relative_residual": result.final_relative_residual,
+            "objective": list(result.history.objective)}
+
+
+#: Where a grid reconstruction's dark level came from, per mode (:func:`grid_dark`).
+GRID_DARK_SOURCES = {
+    "auto": "auto: nothing subtracted, the grid's PSFs are dark-subtracted (background "
+            "'estimate' fits the frame's offset)",
+    "none": "none: the frame is dark-subtracted",
+    "value": "the dark value given", "frame": "the dark frame given, pixel by pixel"}
+
+
+def grid_dark(dark, shape: tuple[int, int]) -> tuple[str, float | np.ndarray]:
+    """``(mode, level)`` of a grid reconstruction's dark argument.
+
+    The grid's PSFs are dark-subtracted, so the level is subtracted from the frame only;
+    ``"auto"`` subtracts nothing (Eq. 6.2's background, ``background="estimate"``,
+    fits the frame's offset), as ``"none"``.
+
+    Parameters
     ----------
-    image : ndarray, float32
-        Sensor field of view: (rows, cols) in 2D, (n_z, rows, cols) in 3D, in
-        measurement units per unit of the normalised central PSF.
-    background : ndarray, float32, (rows, cols) or None
-        The estimated background, measurement units.
-    result : SolveResult
-    operator : SpatialConvolutionOperator
-    choice : ModelChoice
-    info : dict
+    dark : "auto", "none", None, float or ndarray (rows, cols)
+        As :func:`recon.reconstruct`.
+    shape : (rows, cols)
+        The frame's shape.
+
+    Returns
+    -------
+    mode : {"auto", "none", "value", "frame"}
+    level : float or ndarray float32 (rows, cols)
+        What to subtract (0.0 for ``"auto"`` and ``"none"``).
+
+    Raises
+    ------
+    ReconInputError
+        A dark argument of none of these forms.
     """
-
-    image: np.ndarray
-    background: np.ndarray | None
-    result: SolveResult
-    operator: object
-    choice: ModelChoice
-    info: dict = field(default_factory=dict)
-
-    def metrics(self, floor_seconds: float | None = None) -> dict:
-        """JSON-ready record: model, cost, timings against the FFT floor of the
-        model's ``K`` convolutions (:func:`recon.volume.fft_floor_seconds`)."""
-        from ..volume import fft_floor_seconds
-
-        op = self.operator
-        if floor_seconds is None:
-            floor_seconds = fft_floor_seconds(op.padded_shape, op.n_kernels)
-        per_it = float(np.median(self.result.history.seconds))
-        return {"model": self.choice.as_dict(), "n_kernels": int(op.n_kernels),
-                "ffts_per_apply": int(op.ffts_per_apply), "shape": list(self.image.shape),
-                "padded_shape": list(op.padded_shape), **self.info,
-                "seconds_per_iteration": per_it, "fft_floor_seconds": floor_seconds,
-                "ratio_to_fft_floor": per_it / floor_seconds,
-                "final_relative_residual": self.result.final_relative_residual,
-                "objective": list(self.result.history.objective)}
+    mode, level = dark_argument(dark, shape)
+    return mode, 0.0 if level is None else level
 
 
 def bin_grid(grid: PsfGrid, factor: int) -> PsfGrid:
@@ -113,12 +133,12 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
     grids : PsfGrid or list of PsfGrid
         One grid (2D) or one per depth (3D).
     model, k, depths_mm, bin_factor, support, tolerance, two_part
-        As :func:`reconstruct_grid`.
+        As :func:`reconstruct_psf_grid`.
 
     Returns
     -------
     (ModelChoice, SpatialConvolutionOperator)
-        Pass them to :func:`reconstruct_grid` as ``prepared`` for every frame. With
+        Pass them to :func:`reconstruct_psf_grid` as ``prepared`` for every frame. With
         ``two_part`` the operator's ``brightness`` holds the map the images are divided
         by (:func:`recon.spatial.brightness_map`, float32, sensor shape).
 
@@ -155,12 +175,12 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
     return choice, op
 
 
-def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | None = None,
-                     background: str = "estimate", l1=None, iterations: int = 200,
-                     depths_mm=None, bin_factor: int = 1, dark: float = 0.0,
-                     support=None, tolerance: float | None = None,
-                     prepared: tuple | None = None, method: str = "fista", tv="auto",
-                     two_part: bool = False) -> GridReconstruction:
+def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
+                         k: int | None = None, background: str = "estimate", l1=None,
+                         iterations: int = 200, depths_mm=None, bin_factor: int = 1,
+                         dark="auto", support=None, tolerance: float | None = None,
+                         prepared: tuple | None = None, method: str = "auto", tv="auto",
+                         two_part: bool = False) -> Reconstruction:
     """Reconstruct an image (one grid) or a volume (several grids) from one frame.
 
     Parameters
@@ -181,13 +201,15 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     iterations : int
         FISTA's iterations; ADMM's maximum (it stops when the fit settles, and the
         automatic weight takes at most twice as many, :mod:`recon.auto.weight`).
-    method : {"fista", "admm"}
-        FISTA on Eq. 6.2 (l1, non-negativity, the optional background), or ADMM with
-        TV, l1 and non-negativity (:func:`recon.spatial.spatial_admm`; 2D, without a
-        background): converged in a few hundred iterations where FISTA takes thousands.
+    method : {"auto", "fista", "admm"}
+        ``"auto"`` (default) is FISTA: the grid solver that estimates Eq. 6.2's
+        background and serves a volume. FISTA on Eq. 6.2 (l1, non-negativity, the
+        optional background), or ADMM with TV, l1 and non-negativity
+        (:func:`recon.spatial.spatial_admm`; 2D, without a background): converged
+        in a few hundred iterations where FISTA takes thousands.
     tv : float or "auto"
         TV weight of ``method="admm"`` (scaled problem); ``"auto"`` (default) by hold-out
-        cross-validation, the record in ``info["auto"]``.
+        cross-validation, the record in ``info.auto``.
     two_part : bool
         A far scene (Eq. 5.1): model the caustics (each PSF over its brightness,
         :func:`recon.spatial.caustic_grid`) and divide the image by the brightness map
@@ -196,8 +218,9 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     depths_mm : array_like, optional
         3D reconstruction depths (grids synthesised, Sec. 5.2); default the grids'.
     bin_factor : int
-    dark : float
-        Level subtracted from the raw frame first (DN).
+    dark : "auto", "none", None, float or ndarray (rows, cols)
+        Subtracted from the raw frame only (:func:`grid_dark`: the grid's PSFs are
+        dark-subtracted; ``"auto"`` and ``"none"`` subtract nothing).
     support : ndarray of bool, optional
         Object support on the model's object grid (after binning).
     tolerance : float, optional
@@ -209,7 +232,9 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
 
     Returns
     -------
-    GridReconstruction
+    Reconstruction
+        ``info.kind == "grid"``; ``background`` and ``choice`` set; ``depths_mm`` for
+        a volume.
 
     Raises
     ------
@@ -224,6 +249,10 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
         raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     if background not in BACKGROUNDS:
         raise ReconInputError(f"unknown background {background!r}; choose estimate or none")
+    reason = "given"
+    if method == AUTO:
+        method, reason = "fista", ("FISTA: the grid solver that estimates Eq. 6.2's "
+                                   "background and serves a volume")
     if method not in GRID_METHODS:
         raise ReconInputError(f"unknown method {method!r} for a PSF grid; choose "
                               f"{' or '.join(GRID_METHODS)}")
@@ -243,10 +272,11 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     if b.shape != glist[0].sensor_shape:
         raise ReconInputError(f"raw frame shape {b.shape} differs from the PSF grid's "
                               f"{glist[0].sensor_shape}; pass the frame of the calibrated camera")
-    levels = check_raw_signal(raw, b - float(dark), dark_level=float(dark),
-                              dark_source="the dark value given" if dark else
-                              "no dark level: the grid's PSFs are dark-subtracted")
-    b = box_bin(b - float(dark), bin_factor) if bin_factor > 1 else b - float(dark)
+    dark_mode, level = grid_dark(dark, b.shape)
+    b = b - level
+    levels = check_raw_signal(raw, b, dark_level=level,
+                              dark_source=GRID_DARK_SOURCES[dark_mode])
+    b = box_bin(b, bin_factor) if bin_factor > 1 else b
     if prepared is None:
         prepared = grid_model(grids, model=model, k=k, depths_mm=depths_mm,
                               bin_factor=bin_factor, support=support, tolerance=tolerance,
@@ -258,9 +288,7 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
     scale = float(np.max(np.abs(b)))
     if not scale > 0:
         raise ReconInputError("raw frame is zero after the dark level; check the exposure")
-    info = {"method": method, "background": background, "iterations": iterations,
-            "bin_factor": int(bin_factor), "dark": float(dark), "raw_scale": scale,
-            "raw_levels": levels,
+    info = {"background": background, "dark": float(np.mean(level)), "raw_levels": levels,
             "psf_scale": float(op.scale), "two_part": getattr(op, "brightness", None)
             is not None}
     if method == "admm":
@@ -270,18 +298,25 @@ def reconstruct_grid(grids, raw: np.ndarray, *, model: str = "auto", k: int | No
         res, record = solve_channel(op, (b / scale).astype(np.float32), b, scale,
                                     method=AUTO, iterations=iterations, tv=tv, l1=l1,
                                     solvers=GRID_SOLVERS, plan_of=SpatialAdmmPlan.of)
-        info.update(tv=record["tv"], l1=record["l1"], auto=record,
-                    iterations_used=record["iterations_used"])
+        tv, l1, auto, used = record["tv"], record["l1"], [record], record["iterations_used"]
         g = None
     else:
         res = fista_background(op, (b / scale).astype(np.float32), iterations=iterations,
                                l1=l1, estimate_background=background == "estimate")
         g = res.params["background"] * scale if background == "estimate" else None
-        info["l1"] = l1
+        tv, auto, used = None, [], int(res.params.get("iterations_used", iterations))
     crop = (slice(None), *op.crop) if op.volume else op.crop
-    image = (res.x[crop] * scale).astype(np.float32)
+    estimate = (res.x * scale).astype(np.float32)
+    image = np.ascontiguousarray(estimate[crop])
     if getattr(op, "brightness", None) is not None:
         image /= op.brightness
-    info.update(seconds_total=time.perf_counter() - t0,
-                depths_mm=None if not op.volume else [float(z) for z in op.depths])
-    return GridReconstruction(image, g, res, op, choice, info)
+    info_ = ReconInfo(
+        kind="grid", method=method, method_reason=reason, iterations=iterations,
+        iterations_used=used, tv=tv, l1=l1, auto=auto, dark_mode=dark_mode,
+        dark_level=None if dark_mode in ("auto", "none") else float(np.mean(level)),
+        dark_source=GRID_DARK_SOURCES[dark_mode], bin_factor=int(bin_factor),
+        raw_scale=scale, seconds_total=time.perf_counter() - t0, histories=[res.history],
+        extra=info)
+    return Reconstruction(image, estimate, [res], op, info_,
+                          depths_mm=[float(z) for z in op.depths] if op.volume else None,
+                          background=g, choice=choice, record=grid_metrics)

@@ -94,8 +94,8 @@ def lowpass_background(b: np.ndarray, n_low: int = 5) -> np.ndarray:
     return np.maximum(_LowFrequency(b.shape, n_low).project(b), 0.0)
 
 
-def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200,
-                     l1: float = 1e-4, n_low: int = 5, restart: bool = True,
+def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
+                     l1: float = 0.0, n_low: int = 5, restart: bool = True,
                      lipschitz: float | None = None, estimate_background: bool = True,
                      stop=None) -> SolveResult:
     """FISTA on Eq. 6.2: object (l1, non-negative) and a smooth non-negative background.
@@ -110,7 +110,8 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 200
         Measurement scaled to O(1) (divided by its maximum).
     iterations : int
     l1 : float
-        tau, the l1 weight (>= 0).
+        tau, the l1 weight (>= 0; default 0, as every solver's: Eq. 6.2's sparse
+        object takes e.g. 1e-3, what :func:`recon.reconstruct` uses for a grid).
     n_low : int
         Background support: the ``n_low x n_low`` lowest DCT coefficients (5 in
         Sec. 6.2).

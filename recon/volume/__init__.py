@@ -6,7 +6,7 @@
 """
 
 from .admm import VolumeAdmmPlan, VolumeAdmmState, admm3d, run_admm3d
-from .api import DEFAULT_TV, VolumeReconstruction, reconstruct_volume
+from .api import DEFAULT_TV, reconstruct_stack
 from .fista import fista3d, volume_tv
 from .operator import (
     VolumeConvolutionOperator,
@@ -21,14 +21,13 @@ __all__ = [
     "VolumeConvolutionOperator",
     "VolumeAdmmPlan",
     "VolumeAdmmState",
-    "VolumeReconstruction",
     "admm3d",
     "bin_stack",
     "estimate_memory_bytes",
     "fista3d",
     "fft_floor_seconds",
     "normalize_psf_stack",
-    "reconstruct_volume",
+    "reconstruct_stack",
     "run_admm3d",
     "volume_tv",
 ]

@@ -328,7 +328,7 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
 
 
 def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
-           tv: float | None = None, l1: float | None = None, nonneg: bool = True,
+           tv: float = 0.0, l1: float = 0.0, nonneg: bool = True,
            penalty: AdmmPenalty | None = None) -> SolveResult:
     r"""ADMM on a volume with 3D TV, l1 and non-negativity (Eq. 4.5, App. A.3).
 
@@ -376,10 +376,10 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         An array of another array-API backend (CuPy, PyTorch) runs the generic path
         :func:`recon.volume.xp_admm3d.admm3d_xp` on its device.
     iterations : int
-    tv : float, optional
-        3D TV weight (None or 0 removes the u split).
-    l1 : float, optional
-        l1 weight (native sparsity, on the w split).
+    tv : float
+        3D TV weight (default 0, as every solver's; 0 or None removes the u split).
+    l1 : float
+        l1 weight (native sparsity, on the w split; default 0).
     nonneg : bool
         Constrain x >= 0 (the w split).
     penalty : AdmmPenalty, optional

@@ -1,12 +1,14 @@
-"""The 3D notebook API: ``recon.reconstruct_volume(psf_stack, depths, raw)``.
+"""A PSF stack (3D): what :func:`recon.reconstruct` runs for a :class:`recon.PsfStack`.
 
-The volume counterpart of :func:`recon.reconstruct` (Kuo 2020, Ch. 4): sorts the
+The volume counterpart of the 2D path (Kuo 2020, Ch. 4): sorts the
 PSF stack by depth, subtracts the dark level, bins laterally, scales the problem
 like the 2D API (:func:`recon.api.scaled_problem`: stack normalised by
 :func:`recon.volume.normalize_psf_stack`, measurement divided by its largest
 magnitude), builds the forward model of Eq. 4.4
 (:class:`recon.volume.VolumeConvolutionOperator`) and solves it with 3D FISTA or 3D
 ADMM (Eq. 4.5). ``diffuserlab recon3d`` is this plus reading and writing files.
+The result is the one :class:`recon.result.Reconstruction` (``info.kind ==
+"volume"``).
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ import logging
 import math
 import numbers
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,13 +29,14 @@ from ..preprocess import (
     box_bin,
     check_pair_ranges,
     check_raw_signal,
+    dark_argument,
     dark_level,
     saturation_fraction,
     subtract_dark,
     validate_measurement,
     validate_psf,
 )
-from ..solvers import SolveResult
+from ..result import ReconInfo, Reconstruction
 from ..solvers.device import solve_on
 from ..validate import as_array, float_array
 from .admm import VolumeAdmmPlan, admm3d
@@ -47,14 +49,13 @@ from .operator import (
 )
 from .xp_admm3d import memory_bytes as admm3d_memory
 
-__all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "VolumeReconstruction",
-           "check_volume_parameters", "depth_profile", "prepare_volume_problem",
-           "reconstruct_volume"]
+__all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "check_volume_parameters",
+           "depth_profile", "prepare_volume_problem", "reconstruct_stack", "volume_metrics"]
 
 log = logging.getLogger(__name__)
 
 #: Default 3D TV weight per method (as :data:`recon.api.DEFAULT_TV` in 2D) of
-#: :func:`reconstruct_volume` and ``diffuserlab recon3d``, absolute in the scaled
+#: a fixed-weight 3D solve (``recon3d --tv`` a number), absolute in the scaled
 #: problem (stack normalised by :func:`normalize_psf_stack`, measurement divided by
 #: its maximum).
 #: Chosen with the 3D accuracy benchmark (:mod:`recon.benchmarks.volume_accuracy`:
@@ -79,84 +80,60 @@ METHODS = tuple(SOLVERS)
 SATURATION_WARN = 0.001
 
 
-@dataclass
-class VolumeReconstruction:
-    """Result of :func:`reconstruct_volume`.
+def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dict:
+    """The solver part of ``recon3d``'s metrics record (:meth:`Reconstruction.metrics`).
 
-    Attributes
+    Parameters
     ----------
-    volume : ndarray, float32, shape (n_z, rows, cols)
-        The sensor field of view of every plane, in measurement counts per unit of
-        the normalised PSF stack (sum_z (sum h_z)^2 = 1), planes in depth order.
-    depths_mm : list of float
-        Depth of every plane (ascending), mm.
-    result : SolveResult
-        The solver's result in the scaled problem (whole object domain, histories,
-        parameters).
-    operator : VolumeConvolutionOperator
-        The forward model of the scaled problem.
-    info : dict
-        Preprocessing record (dark mode and level, bin factor, saturated fraction of
-        the raw image, clipped fraction of the stack), the scales (``psf_scale``,
-        ``raw_scale``), the method, weights and ``seconds_total`` (preprocessing
-        and solve).
+    rec : Reconstruction
+        A volume reconstruction (a PSF stack).
+    fft_floor_s : float, optional
+        Seconds of the FFTs one iteration needs at least
+        (:func:`recon.volume.fft_floor_seconds`); measured now if not given.
+
+    Returns
+    -------
+    dict
+        method, iterations, tv, l1, shapes, depths, preprocessing, scales,
+        times (total, median per iteration), the FFT floor and the ratio to it,
+        where the volume puts its light (:func:`depth_profile`: ``plane_energy``,
+        ``plane_peak``, ``depth_profile``), final relative residual and
+        objective, the objective and data residual histories and the solver
+        parameters; ``auto`` (the automatic weight's record) when the weight was
+        chosen.
     """
-
-    volume: np.ndarray
-    depths_mm: list[float]
-    result: SolveResult
-    operator: VolumeConvolutionOperator
-    info: dict = field(default_factory=dict)
-
-    def metrics(self, fft_floor_s: float | None = None) -> dict:
-        """The solver part of ``recon3d``'s metrics record.
-
-        Parameters
-        ----------
-        fft_floor_s : float, optional
-            Seconds of the FFTs one iteration needs at least
-            (:func:`recon.volume.fft_floor_seconds`); measured now if not given.
-
-        Returns
-        -------
-        dict
-            method, iterations, tv, l1, shapes, depths, preprocessing, scales,
-            times (total, median per iteration), the FFT floor and the ratio to it,
-            where the volume puts its light (:func:`depth_profile`: ``plane_energy``,
-            ``plane_peak``, ``depth_profile``), final relative residual and
-            objective, the objective and data residual histories and the solver
-            parameters.
-        """
-        op = self.operator
-        if fft_floor_s is None:
-            fft_floor_s = fft_floor_seconds(op.padded_shape, op.n_z)
-        per_iter = float(np.median(self.result.history.seconds))
-        info = dict(self.info)
-        head = {k: info.pop(k) for k in ("method", "iterations", "tv", "l1")}
-        scales = {k: info.pop(k) for k in ("psf_scale", "raw_scale")}
-        seconds_total = info.pop("seconds_total")
-        return {
-            **head,
-            "shape": list(self.volume.shape),
-            "sensor_shape": list(op.sensor_shape),
-            "padded_shape": list(op.padded_shape),
-            "n_planes": op.n_z,
-            "depths_mm": list(self.depths_mm),
-            **info,
-            **scales,
-            "seconds_total": seconds_total,
-            "seconds_per_iteration": per_iter,
-            "fft_floor_seconds": fft_floor_s,
-            "fft_floor_transforms": f"{op.n_z + 1} rfft2 + {op.n_z + 1} irfft2 at "
-                                    f"{op.padded_shape[0]}x{op.padded_shape[1]}",
-            "ratio_to_fft_floor": per_iter / fft_floor_s,
-            **depth_profile(self.volume, self.depths_mm),
-            "final_relative_residual": self.result.final_relative_residual,
-            "final_objective": self.result.final_objective,
-            "objective": list(self.result.history.objective),
-            "data_residual": list(self.result.history.data_residual),
-            "params": dict(self.result.params),
-        }
+    op, result, inf = rec.operator, rec.result, rec.info
+    if fft_floor_s is None:
+        fft_floor_s = fft_floor_seconds(op.padded_shape, op.n_z)
+    per_iter = float(np.median(result.history.seconds))
+    info = {"dark_mode": inf.dark_mode, "dark_level": inf.dark_level,
+            "bin_factor": inf.bin_factor, **inf.extra}
+    if inf.auto:
+        info["auto"] = inf.auto[0]
+    scales = {"psf_scale": info.pop("psf_scale"), "raw_scale": inf.raw_scale}
+    return {
+        "method": inf.method, "device": inf.device, "iterations": inf.iterations,
+        "iterations_used": inf.iterations_used, "tv": inf.tv, "l1": inf.l1,
+        "shape": list(rec.image.shape),
+        "sensor_shape": list(op.sensor_shape),
+        "padded_shape": list(op.padded_shape),
+        "n_planes": op.n_z,
+        "depths_mm": list(rec.depths_mm),
+        **info,
+        **scales,
+        "seconds_total": inf.seconds_total,
+        "seconds_per_iteration": per_iter,
+        "fft_floor_seconds": fft_floor_s,
+        "fft_floor_transforms": f"{op.n_z + 1} rfft2 + {op.n_z + 1} irfft2 at "
+                                f"{op.padded_shape[0]}x{op.padded_shape[1]}",
+        "ratio_to_fft_floor": per_iter / fft_floor_s,
+        **depth_profile(rec.image, rec.depths_mm),
+        "final_relative_residual": result.final_relative_residual,
+        "final_objective": result.final_objective,
+        "objective": list(result.history.objective),
+        "data_residual": list(result.history.data_residual),
+        "params": dict(result.params),
+    }
 
 
 def depth_profile(volume: np.ndarray, depths_mm) -> dict:
@@ -190,7 +167,7 @@ def depth_profile(volume: np.ndarray, depths_mm) -> dict:
                               "peak_plane": int(np.argmax(energy))}}
 
 
-def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float = "auto",
+def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark="auto",
                            bin_factor: int = 1, allow_mixed_ranges: bool = False
                            ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Dark subtraction, binning and clipping with the :mod:`recon.preprocess` steps.
@@ -201,10 +178,12 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
         PSF stack, one plane per depth.
     raw : ndarray, shape (rows, cols), real
         One grayscale measurement, the size of a plane.
-    dark : "auto", "none" or float
+    dark : "auto", "none", None, float or ndarray (rows, cols)
         ``"auto"``: the median over the planes of their dark-corner level
         (:func:`recon.preprocess.dark_level`), subtracted from the stack and the raw
-        image; ``"none"``: no subtraction; a number: that level, input units.
+        image; ``"none"`` or None: no subtraction; a number: that level, input units
+        (DN); a dark frame (the raw's shape): subtracted pixel by pixel from every
+        plane and the raw image.
     bin_factor : int
         Lateral box binning of every plane and of the raw image.
     allow_mixed_ranges : bool
@@ -243,17 +222,13 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     if saturated > SATURATION_WARN:
         log.warning("%.2g%% of the raw image is saturated: the linear model does not hold "
                     "there", 100 * saturated)
-    if isinstance(dark, str) and dark in ("auto", "none"):
-        level = None if dark == "none" else float(
-            np.median([dark_level(stack[k]) for k in range(stack.shape[0])]))
-    else:
-        level = _dark_value(dark)
-    if level is not None:
-        stack = subtract_dark(stack, level)  # a scalar: any (n_z, r, c) layout is fine
+    mode, level = dark_argument(dark, raw.shape)
+    if mode == "auto":
+        level = float(np.median([dark_level(stack[k]) for k in range(stack.shape[0])]))
+    if level is not None:  # a scalar or a frame of the raw's shape: any plane count
+        stack = np.asarray(stack, np.float32) - np.asarray(level, np.float32)
         raw = subtract_dark(raw, level)
-    source = ("the median of the planes' dark corners, rows 5:15, cols 5:15"
-              if dark == "auto" else "--dark none: nothing subtracted" if level is None
-              else "the dark value given")
+    source = VOLUME_DARK_SOURCES[mode]
     raw_levels = check_raw_signal(raw_in, raw, dark_level=level, dark_source=source)
     stack = bin_stack(stack, bin_factor)
     raw = box_bin(raw, bin_factor)
@@ -263,18 +238,18 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark: str | float
     if empty:
         raise ReconInputError(f"PSF planes {empty} have no signal above the dark level "
                               f"{level}; try --dark none or a smaller value")
-    info = {"dark_mode": dark if isinstance(dark, str) else "value", "dark_level": level,
+    info = {"dark_mode": mode, "dark_source": source,
+            "dark_level": float(np.mean(level)) if mode == "frame" else level,
             "bin_factor": int(bin_factor), "saturated_fraction_raw": saturated,
             "psf_clipped_fraction": clipped, "raw_levels": raw_levels}
     return stack, raw, info
 
 
-def _dark_value(dark) -> float:
-    """A dark level given as a number (input units), or ReconInputError."""
-    if isinstance(dark, bool) or not isinstance(dark, numbers.Real) or not math.isfinite(dark):
-        raise ReconInputError(f"dark must be 'auto', 'none' or a finite number (input units), "
-                              f"got {dark!r}")
-    return float(dark)
+#: Where the dark level of a volume (or grid) reconstruction came from, per mode.
+VOLUME_DARK_SOURCES = {"auto": "the median of the planes' dark corners, rows 5:15, cols 5:15",
+                       "none": "none: the inputs are dark-subtracted",
+                       "value": "the dark value given",
+                       "frame": "the dark frame given, pixel by pixel"}
 
 
 def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
@@ -304,12 +279,12 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
             raise ReconInputError(f"--{name} must be a finite number >= 0, got {w!r}")
 
 
-def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
-                       method: str = "admm", iterations: int = 200,
-                       tv: float | str | None = "auto", l1: float | str = 0.0,
-                       bin_factor: int = 1, dark: str | float = "auto",
-                       allow_mixed_ranges: bool = False, empty_planes: str = "keep",
-                       device: str = "cpu") -> VolumeReconstruction:
+def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
+                      method: str = "auto", iterations: int = 200,
+                      tv: float | str | None = "auto", l1: float | str = 0.0,
+                      bin_factor: int = 1, dark="auto",
+                      allow_mixed_ranges: bool = False, empty_planes: str = "keep",
+                      device: str = "cpu") -> Reconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -340,7 +315,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         ``"auto"`` it is the weight chosen (TV then fixed, 0 if ``tv`` is ``"auto"``).
     bin_factor : int
         Lateral box binning of the stack and the raw image.
-    dark : "auto", "none" or float
+    dark : "auto", "none", None, float or ndarray
         Dark level handling (:func:`prepare_volume_problem`).
     allow_mixed_ranges : bool
         Accept a stack and raw of different bit depths (:func:`prepare_volume_problem`).
@@ -357,9 +332,10 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
 
     Returns
     -------
-    VolumeReconstruction
-        ``volume`` (float32, (n_z, rows / bin, cols / bin), measurement units),
-        ``depths_mm`` ascending, the solver result, the operator and the record.
+    Reconstruction
+        ``image`` (float32, (n_z, rows / bin, cols / bin), measurement units; also
+        ``volume``), ``depths_mm`` ascending, the solver result, the operator and the
+        record (``info.kind == "volume"``).
 
     Raises
     ------
@@ -370,10 +346,10 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         The solver diverged.
     """
     backend = resolve_device(device)
+    reason = "given"
     if method == AUTO:  # 3D ADMM: the best localisation and PSNR of the 3D benchmark
-        method = "admm"
-    if tv is None:
-        tv = DEFAULT_TV.get(method, 0.0)  # an unknown method is refused just below
+        method, reason = "admm", ("3D ADMM: the best localisation and PSNR of the 3D "
+                                  "accuracy benchmark (recon.benchmarks.volume_accuracy)")
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
     auto_reg = "l1" if l1 == AUTO else "tv" if tv == AUTO else None
     if auto_reg == "l1" and tv == AUTO:
@@ -389,8 +365,8 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
     iterations, bin_factor = int(iterations), int(bin_factor)  # numpy integers too
-    if not (isinstance(dark, str) and dark in ("auto", "none")):
-        _dark_value(dark)
+    raw = as_array(raw, "raw image")
+    dark_argument(dark, raw.shape[:2])  # refused before the work
     stack = as_array(psf_stack, "PSF stack")
     z = float_array(depths_mm, "depths_mm", ndims=(1,))
     if stack.ndim != 3 or len(z) != stack.shape[0]:
@@ -402,7 +378,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     if len(set(depths)) < len(depths):  # arguments before the data's own checks
         raise ReconInputError(f"depths_mm {depths} repeat a depth; give one distinct depth "
                               "per plane of the PSF stack")
-    stack, raw, info = prepare_volume_problem(stack, as_array(raw, "raw image"), dark,
+    stack, raw, info = prepare_volume_problem(stack, raw, dark,
                                               bin_factor, allow_mixed_ranges)
 
     h, psf_scale = normalize_psf_stack(stack)
@@ -415,6 +391,7 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
+    auto = []
     if not backend.is_numpy:
         result = solve_on(backend, admm3d, op, b, iterations=iterations, tv=tv, l1=l1,
                           nonneg=True, needed_bytes=admm3d_memory(op.n_z, op.padded_shape,
@@ -431,12 +408,16 @@ def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                                      fista=fista3d, regulariser=auto_reg,
                                      other=l1 if auto_reg == "tv" else tv,
                                      empty_planes=empty_planes)
-        info["auto"] = dict(record, noise=noise.as_dict())
+        auto = [dict(record, noise=noise.as_dict())]
         tv, l1 = ((record["weight"], l1) if auto_reg == "tv" else (tv, record["weight"]))
-    volume = np.ascontiguousarray(result.x[(slice(None), *op.crop)] * raw_scale,
-                                  dtype=np.float32)
-    info.update(method=method, iterations=iterations, tv=tv, l1=l1, psf_scale=psf_scale,
-                raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
-                device=backend.label)
-    return VolumeReconstruction(volume=volume, depths_mm=depths, result=result, operator=op,
-                                info=info)
+    estimate = (result.x * raw_scale).astype(np.float32)
+    volume = np.ascontiguousarray(estimate[(slice(None), *op.crop)])
+    info_ = ReconInfo(
+        kind="volume", method=method, method_reason=reason, iterations=iterations,
+        iterations_used=int(result.params.get("iterations_used", iterations)), tv=tv, l1=l1,
+        auto=auto, dark_mode=info.pop("dark_mode"), dark_level=info.pop("dark_level"),
+        dark_source=info.pop("dark_source"), bin_factor=info.pop("bin_factor"),
+        raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
+        device=backend.label, histories=[result.history], extra={**info, "psf_scale": psf_scale})
+    return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
+                          record=volume_metrics)

@@ -76,7 +76,7 @@ def final_objective(op: LinearOperator, x: np.ndarray, b: np.ndarray, tv_w: floa
 
 
 def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
-            tv: float | None = None, l1: float | None = None, nonneg: bool = True,
+            tv: float = 0.0, l1: float = 0.0, nonneg: bool = True,
             step: float | None = None, step_scale: float = 1.0, restart: bool = True,
             lipschitz: float | None = None, stop=None) -> SolveResult:
     """FISTA on a volume with 3D TV (Haar shifts), l1 and non-negativity.
@@ -100,10 +100,10 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         Measurement, scaled so its values are O(1) (e.g. divided by its maximum,
         with the stack normalised by :func:`~recon.volume.normalize_psf_stack`).
     iterations : int
-    tv : float, optional
-        3D TV weight (None or 0 disables TV).
-    l1 : float, optional
-        l1 weight (native sparsity; None or 0 disables it).
+    tv : float
+        3D TV weight (default 0, as every solver's; 0 or None disables TV).
+    l1 : float
+        l1 weight (native sparsity; default 0; 0 or None disables it).
     nonneg : bool
         Project onto v >= 0.
     step : float, optional

@@ -59,7 +59,7 @@ def test_microscope_end_to_end_beads_at_their_depths(tmp_path):
     the local convolution model and the background estimate: every bead is found in
     its plane (about 3 minutes on 2 cores)."""
     from instrument.reconstruct_grid import load_psf_grid
-    from recon.spatial.api import reconstruct_grid
+    from recon import reconstruct_grid
     from recon.volume.localize import detect_peaks, match_peaks
 
     beads = np.array([(0.15, -0.1, 1.9), (-0.2, 0.12, 2.35), (0.05, 0.2, 2.8),

@@ -18,12 +18,12 @@ from drivers.errors import (
     MissingDependencyError,
 )
 from drivers.transports import (
-    HidLink,
     SerialLink,
     find_serial_port,
     import_optional,
     set_modem_line,
 )
+from drivers.usb_transports import HidLink
 from tests.mocks import IlluminateEmulator
 
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import recon
+from recon import reconstruct_volume
 from recon.errors import ReconInputError
-from recon.volume import reconstruct_volume
 
 RNG = np.random.default_rng(0)
 PSF = RNG.random((16, 16))

@@ -41,7 +41,7 @@ def test_dim_far_planes_keep_every_object(kind, dim):
     (+-1 plane) with its brightness within the stated tolerance."""
     case = render_volume_case(kind, PHOTONS, n_planes=6, dim=dim)
     rec = _reconstruct(case, iterations=200)
-    auto = rec.info["auto"]
+    auto = rec.info.auto[0]
     assert auto["planes_kept"] == list(range(6)) and auto["planes_dropped"] == []
     lo, hi = BRIGHTNESS[kind]
     for o in object_metrics(case, rec.volume):
@@ -61,7 +61,7 @@ def test_empty_planes_are_reported_and_kept(half_empty):
     prediction does not explain data the others leave) and are reported, but kept: the
     default drops nothing. Those with a bead show signal."""
     case, rec = half_empty
-    auto = rec.info["auto"]
+    auto = rec.info.auto[0]
     planes = auto["planes"]
     assert [p["shows_signal"] for p in planes[:3]] == [True] * 3
     assert all(p["holdout_t"] >= 3 for p in planes[:3])
@@ -80,12 +80,12 @@ def test_dropping_empty_planes_is_explicit_and_reported(half_empty):
     without them."""
     case, kept = half_empty
     rec = _reconstruct(case, iterations=150, empty_planes="drop")
-    drop = rec.info["auto"]["drop"]
-    assert drop["applied"] and drop["planes"] == kept.info["auto"]["drop"]["planes"]
+    drop = rec.info.auto[0]["drop"]
+    assert drop["applied"] and drop["planes"] == kept.info.auto[0]["drop"]["planes"]
     assert np.all(rec.volume[drop["planes"]] == 0)
     others = [k for k in range(6) if k not in drop["planes"]]
     assert np.array_equal(rec.volume[others], kept.volume[others])
-    assert rec.info["auto"]["planes_kept"] == others
+    assert rec.info.auto[0]["planes_kept"] == others
     for key in ("holdout_error_all_planes", "holdout_error_without",
                 "relative_residual_all_planes", "relative_residual_without"):
         assert drop[key] > 0
@@ -116,7 +116,7 @@ def test_the_3d_weight_is_the_2d_machinery(monkeypatch):
 
     assert len(calls) == 1 and calls[0]["plan_of"] == VolumeAdmmPlan.of
     assert calls[0]["rule"] is volume.VOLUME_RULES["tv"]
-    choice = rec.info["auto"]["weight_choice"]
+    choice = rec.info.auto[0]["weight_choice"]
     weights = [p["weight"] for p in choice["path"]]
     assert len(weights) >= 6 and max(np.asarray(weights[:-1]) / weights[1:]) < 3.0
     assert choice["final_pixels"].startswith("fit") and choice["kept_final_iteration"]
@@ -126,4 +126,4 @@ def test_the_3d_weight_is_the_2d_machinery(monkeypatch):
     assert weight.path_budget(150) == (200, 100)
     assert 150 < choice["path_iterations"] <= 225 and choice["final_iterations"] <= 150
     assert rec.result.params["iterations_used"] <= 375
-    assert rec.info["tv"] == choice["weight"] == rec.info["auto"]["weight"]
+    assert rec.info["tv"] == choice["weight"] == rec.info.auto[0]["weight"]

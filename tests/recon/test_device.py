@@ -12,11 +12,11 @@ import pytest
 
 import recon.api
 import recon.backend as backend_mod
+import recon.planar
 import recon.volume.api
-from recon import reconstruct
+from recon import reconstruct, reconstruct_volume
 from recon.backend import Backend, check_memory, resolve_device
 from recon.errors import ReconInputError
-from recon.volume import reconstruct_volume
 
 xs = pytest.importorskip("array_api_strict")
 
@@ -91,7 +91,7 @@ def _stand_in(monkeypatch, name: str, free: int | None = None) -> Backend:
             pytest.skip("PyTorch is not installed")
     else:
         standin = Backend("array-api-strict", xs, None, "cpu (array-api-strict)")
-    for mod in (recon.api, recon.volume.api):
+    for mod in (recon.api, recon.planar, recon.volume.api):
         monkeypatch.setattr(mod, "resolve_device", lambda d: standin)
     monkeypatch.setattr(backend_mod, "free_device_bytes", lambda b: free)
     import recon.solvers.device as device_mod
@@ -167,3 +167,29 @@ def test_reconstruct_volume_refuses_what_the_gpu_does_not_run(monkeypatch):
     with pytest.raises(ReconInputError, match="fixed weights"):
         reconstruct_volume(stack, depths, raw, iterations=5, tv=1e-3, method="fista",
                            device="cuda")
+
+
+def test_the_device_is_a_field_of_the_record_and_a_key_of_the_metrics(monkeypatch):
+    psf, raw = _pair()
+    ref = reconstruct(psf, raw, "fista", iterations=5, tv=1e-3)
+    assert ref.info.device == "cpu (numpy)" and ref.metrics(1.0)["device"] == "cpu (numpy)"
+    stack, depths, vraw = _volume()
+    standin = _stand_in(monkeypatch, "array-api-strict")
+    got = reconstruct(psf, raw, "fista", iterations=5, tv=1e-3, device="cuda")
+    assert got.info.device == standin.label and got.metrics(1.0)["device"] == standin.label
+    vol = reconstruct(recon.PsfStack(stack, depths), vraw, "admm", iterations=5, tv=1e-3,
+                      device="cuda")
+    assert vol.info.device == standin.label and vol.metrics(1.0)["device"] == standin.label
+
+
+def test_a_psf_grid_is_refused_on_a_gpu_and_runs_on_the_cpu(monkeypatch):
+    from recon.spatial import PsfGrid
+
+    psf, raw = _pair()
+    grid = PsfGrid(psf[None], np.zeros((1, 2)), (1, 1))
+    ok = reconstruct(grid, raw, iterations=3)  # device="cpu"
+    assert ok.info.device == "cpu (numpy)" and ok.metrics(1.0)["device"] == "cpu (numpy)"
+    _stand_in(monkeypatch, "array-api-strict")
+    for device in ("cuda", "auto"):  # auto resolves to the (stand-in) GPU here
+        with pytest.raises(ReconInputError, match="PSF grid .* CPU only; use device='cpu'"):
+            reconstruct(grid, raw, iterations=3, device=device)

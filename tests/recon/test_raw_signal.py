@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import recon
+from recon import reconstruct_volume
 from recon.preprocess import RawSignalError, check_raw_signal, prepare_pair
 from recon.preprocess.signal import check_pair_ranges, noise_sigma
 from recon.sample import load_sample
-from recon.volume.api import reconstruct_volume
 
 
 def _camera_pair(rng, dark=3168.0, shape=(48, 48)):
@@ -158,8 +158,8 @@ def test_3d_and_the_psf_grid_check_the_raw_too():
     with pytest.raises(RawSignalError, match="below"):
         reconstruct_volume(stack, [1.0, 2.0], raw.astype(np.float32) - 3168, method="fista",
                            iterations=2, tv=0.0)
+    from recon import reconstruct_grid
     from recon.spatial import PsfGrid
-    from recon.spatial.api import reconstruct_grid
 
     centre = (psf.astype(np.float64) - 3168).clip(0, None)
     grid = PsfGrid(np.stack([centre] * 4), np.array(

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from recon import reconstruct_grid
 from recon.errors import ReconInputError
 from recon.operators import ConvolutionOperator, padded_grid
 from recon.spatial import PsfGrid
-from recon.spatial.api import reconstruct_grid
 
 SHAPE = (64, 80)
 STEP = (16, 20)
@@ -82,7 +82,7 @@ def test_automatic_weight_is_chosen_and_recorded():
     raw = rng.poisson(np.maximum(raw, 0) * 50.0).astype(np.float32) / 50.0
     rec = reconstruct_grid(_grid(pattern), raw, method="admm", background="none",
                            two_part=True, iterations=150)
-    auto = rec.info["auto"]
+    auto = rec.info.auto[0]
     assert auto["weight"]["criterion"] == "holdout" and auto["weight"]["regulariser"] == "tv"
     assert rec.info["tv"] == auto["weight"]["weight"] > 0
     assert auto["method"]["method"] == "admm" and auto["snr_db"] > 10

@@ -74,9 +74,12 @@ def test_kdc101_session(kdc):
     until(lambda: emu.position() == 150_000 and ch.motion is None, what="jog back")
 
     dev.move_velocity("reverse")  # direction 1: towards the forward end of the travel
+    # the emulator's motion first: a status sent before the move arrived may still show
+    # the jog's moving bit (a loaded machine got there before the move, CI run)
+    until(lambda: ch.motion is not None, what="velocity move received")
+    assert ch.motion.direction > 0
     until(lambda: dev.status["moving_forward"] or dev.status["moving_reverse"],
           what="moving at velocity")
-    assert ch.motion is not None and ch.motion.direction > 0
     dev.stop()
     until(lambda: ch.motion is None, what="stopped")
     stopped_at = emu.position()

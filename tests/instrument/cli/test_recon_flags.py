@@ -87,10 +87,10 @@ def test_dark_conversions(tmp_path):
     np.save(tmp_path / "dark.npy", frame)
     image = dark_arg(str(tmp_path / "dark.npy"))
     assert np.array_equal(dark_for_image(image), frame)
-    assert dark_for_image(dark_arg("auto")) is None
+    assert dark_for_image(dark_arg("auto")) == "auto"
     assert dark_for_image(dark_arg("none")) == "none" and dark_for_image(dark_arg("3")) == 3.0
     assert [dark_for_volume(dark_arg(t)) for t in ("auto", "none", "4")] == ["auto", "none", 4.0]
-    assert [dark_for_grid(dark_arg(t)) for t in ("auto", "none", "4")] == [0.0, 0.0, 4.0]
+    assert [dark_for_grid(dark_arg(t)) for t in ("auto", "none", "4")] == ["auto", "none", 4.0]
     assert [frames_dark_text(dark_arg(t)) for t in ("auto", "none", "4")] == [None, "0", "4"]
     for refuse in (dark_for_volume, dark_for_grid):
         with pytest.raises(InputError, match="use auto, none or a number"):

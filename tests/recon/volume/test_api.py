@@ -31,12 +31,12 @@ def test_the_brightest_voxels_are_the_beads(beads, method):
     stack, raw = beads
     rec = recon.reconstruct_volume(stack, DEPTHS, raw, method=method, iterations=60,
                                    dark=DARK)
-    assert isinstance(rec, recon.VolumeReconstruction)
+    assert isinstance(rec, recon.Reconstruction)
     assert rec.volume.shape == stack.shape and rec.volume.dtype == np.float32
     assert rec.depths_mm == sorted(DEPTHS)
     z, i, j = np.unravel_index(np.argmax(rec.volume), rec.volume.shape)
     assert (int(z), int(i), int(j)) in BEADS
-    m = rec.metrics(fft_floor_s=1e-3)
+    m = rec.metrics(floor_s=1e-3)
     assert m["method"] == method and m["n_planes"] == len(DEPTHS)
     assert m["dark_level"] == DARK and np.isfinite(m["final_relative_residual"])
 

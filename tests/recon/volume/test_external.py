@@ -39,7 +39,7 @@ def reconstructions():
 def test_default_fits_the_external_data(reconstructions):
     s, default, _, _ = reconstructions
     assert default.volume.shape == (44, *s.raw.shape)
-    auto = default.info["auto"]
+    auto = default.info.auto[0]
     assert auto["planes_kept"] == list(range(44))
     assert default.result.final_relative_residual < MAX_RESIDUAL
     m = default.metrics()
@@ -53,7 +53,7 @@ def test_default_keeps_fine_structure(reconstructions):
     _, default, plain, blocks = reconstructions
     share = fine_structure_share(default.volume.max(0), plain.volume.max(0))
     flat = fine_structure_share(blocks.volume.max(0), plain.volume.max(0))
-    assert share >= MIN_SHARE, (share, default.info["auto"]["weight"])
+    assert share >= MIN_SHARE, (share, default.info.auto[0]["weight"])
     assert flat < MIN_SHARE, flat
 
 

@@ -1,0 +1,330 @@
+"""USB transports of the hardware drivers: USB HID (hidapi) and raw USB (pyusb).
+
+:class:`HidLink` does for a USB HID device what :class:`drivers.transports.SerialLink`
+does for a serial port, through cython-hidapi (the ``hidapi`` package, imported as
+``hid``): found by vendor/product id, serial number
+and interface, 64-byte reports written with the leading report id 0, reads with a
+timeout, ``IOError`` from hidapi = disconnected. :class:`UsbLink` reaches the same reports
+through pyusb (libusb) on the interrupt endpoints, detaching the kernel driver, for
+systems where hidraw is not available.
+
+Both are optional (the ``hardware`` extra), imported when a device opens
+(:func:`drivers.transports.import_optional`).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from drivers.errors import (
+    DeviceDisconnectedError,
+    DeviceTimeoutError,
+    MissingDependencyError,
+)
+from drivers.transports import import_optional
+
+__all__ = ["HidLink", "UsbLink"]
+
+log = logging.getLogger("drivers.transports")
+
+
+class HidLink:
+    """One USB HID device through cython-hidapi (``pip install hidapi``; imports as ``hid``).
+
+    Parameters
+    ----------
+    device_id : str
+        The device using the link.
+    vendor_id, product_id : int
+        USB ids (e.g. 0x0451, 0x6401 for a DLPC350 LightCrafter 4500).
+    serial_number : str, optional
+        Pick this unit when several are plugged in; re-resolved on every open.
+    interface : int, optional
+        USB interface number to open (TI's host code opens interface 0).
+    report_size : int
+        Bytes per report without the report id.
+    timeout_error : type
+        The kind's timeout error.
+    hid_module : module-like, optional
+        Replaces ``import hid`` (an emulator providing ``enumerate`` and ``device``).
+    """
+
+    def __init__(
+        self, device_id: str, *, vendor_id: int, product_id: int,
+        serial_number: str | None = None, interface: int | None = 0, report_size: int = 64,
+        timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, hid_module: Any = None,
+    ) -> None:
+        self.device_id = device_id
+        self.vendor_id, self.product_id = int(vendor_id), int(product_id)
+        self.serial_number = None if serial_number is None else str(serial_number)
+        self.interface = interface
+        self.report_size = int(report_size)
+        self.timeout_error = timeout_error
+        self._hid_module = hid_module
+        self._dev: Any = None
+        self.path: bytes | None = None
+
+    @property
+    def is_open(self) -> bool:
+        """True while the device handle is open."""
+        return self._dev is not None
+
+    def open(self) -> None:
+        """Find the device (ids, serial, interface) and open it.
+
+        Raises
+        ------
+        MissingDependencyError
+            hidapi is not installed.
+        DeviceDisconnectedError
+            No such device, or it cannot be opened (permissions: see the udev rules).
+        """
+        hid = self._hid_module or import_optional("hid", self.device_id)
+        if not hasattr(hid, "enumerate") or not hasattr(hid, "device"):
+            raise MissingDependencyError(
+                self.device_id, "the module 'hid' is not cython-hidapi (the PyPI package "
+                "'hid' has the same import name)", "pip uninstall hid; pip install hidapi",
+            )
+        found = [
+            d for d in hid.enumerate(self.vendor_id, self.product_id)
+            if (self.serial_number is None or d.get("serial_number") == self.serial_number)
+            and (self.interface is None or d.get("interface_number") in (self.interface, -1))
+        ]
+        ids = f"{self.vendor_id:04x}:{self.product_id:04x}"
+        if not found:
+            raise DeviceDisconnectedError(
+                self.device_id, f"no USB HID device {ids}"
+                + (f" with serial {self.serial_number}" if self.serial_number else "")
+                + " is plugged in", "plug it in and power it on; check lsusb and the udev rules",
+            )
+        dev = hid.device()
+        try:
+            dev.open_path(found[0]["path"])
+        except OSError as exc:
+            raise DeviceDisconnectedError(
+                self.device_id, f"cannot open HID device {ids}: {exc}",
+                "check the permissions of /dev/hidraw* (udev rule in docs/drivers/)",
+            ) from exc
+        self._dev, self.path = dev, found[0]["path"]
+
+    def close(self) -> None:
+        """Close the handle; never raises."""
+        dev, self._dev = self._dev, None
+        if dev is not None:
+            try:
+                dev.close()
+            except Exception as exc:
+                log.debug("%s: close: %s", self.device_id, exc)
+
+    def write(self, report: bytes) -> None:
+        """Write one report (``report_size`` bytes, padded with zeros; report id 0 added).
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The write failed (unplugged).
+        """
+        dev = self._require()
+        data = bytes(report).ljust(self.report_size, b"\0")
+        try:
+            n = dev.write(b"\0" + data)
+        except (OSError, ValueError) as exc:
+            self._lost(exc)
+        if n is None or n < 0:
+            self._lost(OSError("hid write returned -1"))
+
+    def read(self, timeout_s: float) -> bytes:
+        """Read one report within ``timeout_s`` seconds.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The link's ``timeout_error``: nothing within the timeout.
+        DeviceDisconnectedError
+            The read failed (hidapi raises ``IOError`` after an unplug).
+        """
+        dev = self._require()
+        try:
+            data = dev.read(self.report_size, max(1, int(round(timeout_s * 1000))))
+        except (OSError, ValueError) as exc:
+            self._lost(exc)
+        if not data:
+            raise self.timeout_error(
+                self.device_id, f"no HID report within {timeout_s:g} s",
+                "check that the device is powered and not in a firmware-update mode",
+            )
+        return bytes(data)
+
+    def _require(self) -> Any:
+        if self._dev is None:
+            raise DeviceDisconnectedError(self.device_id, "the HID device is not open",
+                                          "call reconnect()")
+        return self._dev
+
+    def _lost(self, exc: BaseException) -> None:
+        self.close()
+        raise DeviceDisconnectedError(
+            self.device_id, f"USB HID I/O failed: {exc}",
+            "check the USB cable and power, then call reconnect()",
+        ) from exc
+
+
+class UsbLink:
+    """One USB device through pyusb (libusb): interrupt/bulk endpoints, kernel driver
+    detached, the same ``open/close/write/read`` as :class:`HidLink`.
+
+    Parameters
+    ----------
+    device_id : str
+        The device using the link.
+    vendor_id, product_id : int
+        USB ids.
+    serial_number : str, optional
+        Pick this unit (its iSerialNumber string); re-resolved on every open.
+    interface : int
+        Interface to claim.
+    ep_out, ep_in : int
+        Endpoint addresses (0x01 and 0x81 on a LightCrafter 4500).
+    report_size : int
+        Bytes per transfer (padded with zeros on write).
+    timeout_error : type
+        The kind's timeout error.
+    usb_module : module-like, optional
+        Replaces ``import usb`` (its ``core`` and ``util``; tests pass a fake).
+    """
+
+    def __init__(
+        self, device_id: str, *, vendor_id: int, product_id: int,
+        serial_number: str | None = None, interface: int = 0, ep_out: int = 0x01,
+        ep_in: int = 0x81, report_size: int = 64,
+        timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, usb_module: Any = None,
+    ) -> None:
+        self.device_id = device_id
+        self.vendor_id, self.product_id = int(vendor_id), int(product_id)
+        self.serial_number = None if serial_number is None else str(serial_number)
+        self.interface, self.ep_out, self.ep_in = int(interface), int(ep_out), int(ep_in)
+        self.report_size = int(report_size)
+        self.timeout_error = timeout_error
+        self._usb_module = usb_module
+        self._usb: Any = None
+        self._dev: Any = None
+
+    @property
+    def is_open(self) -> bool:
+        """True while the interface is claimed."""
+        return self._dev is not None
+
+    def open(self) -> None:
+        """Find the device, detach the kernel driver, configure it and claim the interface.
+
+        Raises
+        ------
+        MissingDependencyError
+            pyusb is not installed.
+        DeviceDisconnectedError
+            No such device; or it cannot be claimed (permissions: the udev rules; busy:
+            another process or a kernel driver that cannot be detached).
+        """
+        usb = self._usb_module
+        if usb is None:
+            import_optional("usb.core", self.device_id)
+            import_optional("usb.util", self.device_id)
+            usb = import_optional("usb", self.device_id)
+        self._usb = usb
+        ids = f"{self.vendor_id:04x}:{self.product_id:04x}"
+
+        def wanted(dev: Any) -> bool:
+            if self.serial_number is None:
+                return True
+            try:
+                return usb.util.get_string(dev, dev.iSerialNumber) == self.serial_number
+            except (usb.core.USBError, ValueError):
+                return False
+
+        dev = usb.core.find(idVendor=self.vendor_id, idProduct=self.product_id,
+                            custom_match=wanted)
+        if dev is None:
+            raise DeviceDisconnectedError(
+                self.device_id, f"no USB device {ids}" + (
+                    f" with serial {self.serial_number}" if self.serial_number else "")
+                + " is plugged in", "plug it in and power it on; check lsusb",
+            )
+        try:
+            try:
+                if dev.is_kernel_driver_active(self.interface):
+                    dev.detach_kernel_driver(self.interface)
+            except NotImplementedError:  # not on this platform
+                pass
+            dev.set_configuration()
+            usb.util.claim_interface(dev, self.interface)
+        except usb.core.USBError as exc:
+            usb.util.dispose_resources(dev)
+            raise DeviceDisconnectedError(
+                self.device_id, f"cannot claim USB device {ids}: {exc}",
+                "check the udev rule (permissions) and that no other program uses it",
+            ) from exc
+        self._dev = dev
+
+    def close(self) -> None:
+        """Release the interface; never raises."""
+        dev, self._dev = self._dev, None
+        if dev is None:
+            return
+        usb = self._usb
+        for step in (lambda: usb.util.release_interface(dev, self.interface),
+                     lambda: dev.attach_kernel_driver(self.interface),
+                     lambda: usb.util.dispose_resources(dev)):
+            try:
+                step()
+            except Exception as exc:  # a vanished device, or no kernel driver to re-attach
+                log.debug("%s: close: %s", self.device_id, exc)
+
+    def write(self, report: bytes) -> None:
+        """Write one report (padded to ``report_size``) to ``ep_out``.
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The transfer failed (unplugged).
+        """
+        dev = self._require()
+        try:
+            dev.write(self.ep_out, bytes(report).ljust(self.report_size, b"\0"), 1000)
+        except self._usb.core.USBError as exc:
+            self._lost(exc)
+
+    def read(self, timeout_s: float) -> bytes:
+        """Read one report from ``ep_in`` within ``timeout_s`` seconds.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The link's ``timeout_error``: nothing within the timeout.
+        DeviceDisconnectedError
+            The transfer failed (unplugged).
+        """
+        dev = self._require()
+        try:
+            data = dev.read(self.ep_in, self.report_size, max(1, int(round(timeout_s * 1000))))
+        except self._usb.core.USBTimeoutError:
+            data = b""
+        except self._usb.core.USBError as exc:
+            self._lost(exc)
+        if not data:
+            raise self.timeout_error(self.device_id, f"no USB report within {timeout_s:g} s",
+                                     "check that the device is powered")
+        return bytes(data)
+
+    def _require(self) -> Any:
+        if self._dev is None:
+            raise DeviceDisconnectedError(self.device_id, "the USB device is not open",
+                                          "call reconnect()")
+        return self._dev
+
+    def _lost(self, exc: BaseException) -> None:
+        self.close()
+        raise DeviceDisconnectedError(
+            self.device_id, f"USB I/O failed: {exc}",
+            "check the USB cable and power, then call reconnect()",
+        ) from exc

@@ -1,0 +1,365 @@
+"""One PSF (2D): what :func:`recon.reconstruct` runs for a PSF array.
+
+Preprocesses (dark level, binning, colour), scales the data so the automatic
+defaults hold for any camera, builds the forward model of Eq. 3.4 (with the
+erasure mask of Eq. 3.10 if asked), solves each colour channel independently
+(Sec. 3.1, "Extension to Color") and crops the sensor field of view.
+"""
+
+from __future__ import annotations
+
+import inspect
+import time
+
+import numpy as np
+
+from diffuserlab.jsonio import jsonable
+
+from .auto import AUTO, parse_weight, solve_channel
+from .backend import resolve_device
+from .errors import ReconInputError
+from .fft import fft_pair_seconds
+from .operators import ConvolutionOperator, PixelErasure
+from .preprocess import (
+    check_measured_fraction,
+    check_raw_signal,
+    prepare_pair,
+    validate_measurement,
+    validate_psf,
+)
+from .result import ReconInfo, Reconstruction
+from .solvers import SOLVERS, SolveResult
+from .solvers.device import device_solvers
+from .validate import as_array, as_int, finite_float
+
+#: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
+#: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
+DEFAULT_TV = {name: spec.default_tv for name, spec in SOLVERS.items()}
+
+
+def image_metrics(rec: Reconstruction, fft_pair_s: float | None = None) -> dict:
+    """The 2D metrics record of ``recon --metrics-json`` (:meth:`Reconstruction.metrics`).
+
+    Parameters
+    ----------
+    rec : Reconstruction
+        A 2D reconstruction (one PSF).
+    fft_pair_s : float, optional
+        FFT floor; measured now at the padded shape if not given.
+    """
+    info, results = rec.info, rec.results
+    if fft_pair_s is None:
+        fft_pair_s = fft_pair_seconds(rec.operator.padded_shape)
+    per_iter = [s for r in results for s in r.history.seconds]
+    med = float(np.median(per_iter))
+    return {
+        "method": info.method,
+        "device": info.device,
+        "iterations": info.iterations,
+        "iterations_used": info.iterations_used,
+        "tv": info.tv,
+        "l1": info.l1,
+        "auto": list(info.auto),
+        "shape": list(rec.image.shape),
+        "padded_shape": list(rec.operator.padded_shape),
+        "channels": len(results),
+        "bin_factor": info.bin_factor,
+        "erased_fraction": info["erased_fraction"],
+        "seconds_total": info.seconds_total,
+        "seconds_per_iteration": med,
+        "fft_pair_seconds": fft_pair_s,
+        "ratio_to_fft_floor": med / fft_pair_s,
+        "final_relative_residual": max(r.final_relative_residual for r in results),
+        "final_objective": [r.final_objective for r in results],
+        "objective": [list(r.history.objective) for r in results],
+        "data_residual": [list(r.history.data_residual) for r in results],
+        "params": [jsonable(r.params) for r in results],
+        # the dark level and where it came from, and the raw's own levels (a lensless
+        # raw has no dark region: its floor only bounds its dark level from above)
+        "dark": {"mode": info.dark_mode, "level": info.dark_level,
+                 "region": info.get("dark_region"), "raw_levels": info.get("raw_levels")},
+    }
+
+
+def scaled_problem(psf: np.ndarray, b: np.ndarray, weights: np.ndarray | None = None, *,
+                   b_scale: float | None = None) -> tuple[ConvolutionOperator, np.ndarray]:
+    """Forward model and measurement in the solvers' scaling convention.
+
+    The PSF is normalised to unit sum (so |H| <= 1 and the Lipschitz constant is
+    at most 1) and the weighted measurement divided by ``b_scale`` (default its
+    largest absolute value), so step sizes, penalties and TV weights are the same
+    for any camera's numbers.
+
+    Parameters
+    ----------
+    psf : ndarray, (rows, cols)
+        Non-negative PSF with positive sum.
+    b : ndarray, (rows, cols)
+        Measurement, same shape.
+    weights : ndarray, (rows, cols), optional
+        Sensor weights / erasure mask (Eq. 3.10); b is multiplied by them.
+    b_scale : float, optional
+        Common scale, e.g. shared by the colour channels of one image.
+
+    Returns
+    -------
+    op : ConvolutionOperator
+    b_scaled : ndarray, float32
+
+    Raises
+    ------
+    ReconInputError
+        PSF without positive energy, or a measurement that is zero after weighting.
+    """
+    h = np.asarray(psf, np.float64)
+    total = float(h.sum())
+    if not total > 0:
+        raise ReconInputError("PSF has no positive energy; check the dark subtraction")
+    op = ConvolutionOperator((h / total).astype(np.float32), sensor_weights=weights)
+    bw = op.sensor_weights * np.asarray(b, np.float64)
+    scale = float(np.max(np.abs(bw))) if b_scale is None else float(b_scale)
+    if not scale > 0:
+        raise ReconInputError(
+            "measurement is zero after dark subtraction and weighting; check the exposure"
+        )
+    return op, (bw / scale).astype(np.float32)
+
+
+def solver_options(method: str) -> tuple[str, ...]:
+    """The keyword options of a method's solver beyond ``iterations`` and ``tv``.
+
+    Parameters
+    ----------
+    method : str
+        A key of :data:`recon.solvers.SOLVERS`.
+
+    Returns
+    -------
+    tuple of str
+        Option names in signature order (e.g. ``("regularization",)`` for Wiener).
+    """
+    params = inspect.signature(SOLVERS[method].solve).parameters
+    return tuple(n for n, p in list(params.items())[2:]
+                 if n not in ("iterations", "tv") and p.kind is not p.VAR_KEYWORD)
+
+
+def check_options(method: str, options: dict) -> None:
+    """Refuse solver options the method does not take (before any work).
+
+    Raises
+    ------
+    ReconInputError
+        One line naming the unknown options and those the method accepts.
+    """
+    known = solver_options(method)
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ReconInputError(
+            f"method {method!r} takes no option {', '.join(map(repr, unknown))}; its options "
+            f"are {', '.join(known) or 'none'}")
+
+
+def solve(
+    op: ConvolutionOperator, b: np.ndarray, method: str, *, iterations: int, tv: float,
+    **options
+) -> SolveResult:
+    """Dispatch to one solver of :data:`recon.solvers.SOLVERS` by name.
+
+    A direct solver (Wiener) ignores ``iterations`` and ``tv``.
+
+    Raises
+    ------
+    ReconInputError
+        Unknown method, or an option the method does not take.
+    """
+    spec = SOLVERS.get(method)
+    if spec is None:
+        raise ReconInputError(f"unknown method {method!r}; choose one of {', '.join(SOLVERS)}")
+    check_options(method, options)
+    if not spec.iterative:
+        return spec.solve(op, b, **options)
+    return spec.solve(op, b, iterations=iterations, tv=tv, **options)
+
+
+def reconstruct_image(
+    psf: np.ndarray,
+    raw: np.ndarray,
+    method: str = "auto",
+    *,
+    iterations: int = 200,
+    tv: float | str | None = "auto",
+    l1: float | str = 0.0,
+    seconds: float | None = None,
+    auto_stop: bool = True,
+    bin_factor: int = 1,
+    dark="auto",
+    bayer=None,
+    erase: float = 0.0,
+    erasure_mask: np.ndarray | None = None,
+    seed: int = 0,
+    preprocess: bool = True,
+    full_scale: float | None = None,
+    allow_mixed_ranges: bool = False,
+    device: str = "cpu",
+    **solver_options,
+) -> Reconstruction:
+    """Reconstruct an image from one PSF: :func:`recon.reconstruct` for a PSF array.
+
+    Parameters
+    ----------
+    psf : ndarray, (rows, cols) or (rows, cols, C), any real dtype
+        Calibration PSF (image of a point source), same spatial shape as ``raw``.
+        One PSF for all channels, or one per channel.
+    raw : ndarray, (rows, cols) or (rows, cols, C)
+        Raw measurement (sensor counts).
+    method, iterations, tv, l1, bin_factor, dark, allow_mixed_ranges, device
+        As :func:`recon.reconstruct` (``dark`` already checked there:
+        ``"auto"``, ``"none"``, a number or an array).
+    seconds : float, optional
+        Time budget of each channel's solve, for ``method="auto"`` (Wiener when it
+        affords too few iterations).
+    auto_stop : bool
+        Automatic stopping of a fixed-weight solve (default); False runs exactly
+        ``iterations`` (the automatic weight always stops by itself).
+    bayer : str, optional
+        Bayer pattern of a raw mosaic (:func:`recon.preprocess.prepare_pair`).
+    erase : float
+        Fraction of sensor pixels to erase at random (compressed sensing, Eq. 3.10).
+    erasure_mask : ndarray, optional
+        Explicit mask at the binned sensor shape (1 measured, 0 erased); overrides
+        ``erase``.
+    seed : int
+        Seed of the random erasure mask.
+    preprocess : bool
+        False when psf and raw are already dark-subtracted float arrays of equal
+        shape (``dark`` and ``bin_factor`` then unused); they are still checked like
+        :func:`recon.preprocess.validate_psf` and
+        :func:`recon.preprocess.validate_measurement` do.
+    full_scale : float, optional
+        Saturation level of the input when below the dtype maximum (e.g. 65520 for
+        12-bit data shifted into uint16); used for the saturation warning.
+    **solver_options
+        Passed to the solver (e.g. ``step_scale``, ``penalty``, ``regularization``);
+        :func:`solver_options` lists what a method takes.
+
+    Returns
+    -------
+    Reconstruction
+        ``info.kind == "image"``; one result per colour channel.
+
+    Raises
+    ------
+    ReconInputError
+        Bad input (see :mod:`recon.preprocess`) or parameters: ``iterations`` and
+        ``bin_factor`` not integers >= 1, ``seed`` not an integer >= 0, ``erase`` not
+        in [0, 1) or keeping fewer than 1 % of the pixels, ``tv`` not a finite number
+        >= 0 (the messages the CLI shows), or a solver option the method does not take;
+        a raw with nothing to reconstruct after its dark level
+        (:class:`recon.preprocess.RawSignalError`); an unusable ``device`` (names what
+        is missing) or a problem that does not fit in the GPU's free memory.
+    DivergenceError
+        The solver diverged (history and last good estimate attached).
+    """
+    if method != AUTO and method not in SOLVERS:
+        raise ReconInputError(f"unknown method {method!r}; choose one of auto, "
+                              f"{', '.join(SOLVERS)}")
+    iterations = as_int(iterations, "iterations", 1)
+    bin_factor = as_int(bin_factor, "bin_factor", 1)
+    seed = as_int(seed, "seed", 0)
+    erase = finite_float(erase, "erase")
+    if not 0.0 <= erase < 1.0:  # the message of PixelErasure.random
+        raise ReconInputError(f"erased fraction {erase} is outside [0, 1); use e.g. 0.8 to "
+                              "erase 80 % of the pixels")
+    check_measured_fraction(erase)
+    tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    if method == AUTO and solver_options:
+        raise ReconInputError(f"method 'auto' takes no solver options ({', '.join(solver_options)}"
+                              "); name a method to pass them")
+    if method != AUTO:
+        check_options(method, solver_options)
+    backend = resolve_device(device)
+    on_device = ({} if backend.is_numpy else
+                 {"solvers": device_solvers(backend), "weight_path_solves": False})
+    fft_s = None
+    t_start = time.perf_counter()
+    if preprocess:
+        prepared = prepare_pair(  # its dark=None is the estimate from the PSF's corner
+            psf, raw, bin_factor=bin_factor, dark=None if _is(dark, "auto") else dark,
+            bayer=bayer, full_scale=full_scale,
+            allow_mixed_ranges=allow_mixed_ranges,
+        )
+        p, b, info = prepared.psf, prepared.raw, dict(prepared.info)
+    else:
+        p, b = as_array(psf, "PSF"), as_array(raw, "measurement")
+        validate_psf(p)
+        validate_measurement(b)
+        if p.shape[:2] != b.shape[:2] or (p.ndim == 3 and p.shape != b.shape):
+            raise ReconInputError(
+                f"PSF shape {p.shape} and raw shape {b.shape} differ; pass equal (rows, cols) "
+                "and, for a colour PSF, the same channels")
+        levels = check_raw_signal(b, b, dark_level=None,
+                                  dark_source="preprocess=False: nothing subtracted",
+                                  full_scale=full_scale)
+        p, b, info = p.astype(np.float32), b.astype(np.float32), {"raw_levels": levels}
+    channels = 1 if b.ndim == 2 else b.shape[2]
+    sensor_shape = b.shape[:2]
+    if erasure_mask is not None:
+        mask = PixelErasure(erasure_mask)
+        check_measured_fraction(mask.mask)
+        mask.check_shape(sensor_shape, "(binned) sensor")
+    elif erase > 0:
+        mask = PixelErasure.random(sensor_shape, erase, seed)
+    else:
+        mask = None
+    raw_scale = float(np.max(np.abs(b)))
+    if not raw_scale > 0:
+        raise ReconInputError("measurement is zero after dark subtraction; check the exposure")
+    results, estimates, op0, records = [], [], None, []
+    for c in range(channels):
+        pc = p if p.ndim == 2 else p[..., c]
+        bc = b if b.ndim == 2 else b[..., c]
+        op, scaled = scaled_problem(pc, bc, None if mask is None else mask.mask,
+                                    b_scale=raw_scale)
+        if seconds is not None and fft_s is None:
+            fft_s = fft_pair_seconds(op.padded_shape)  # the budget's unit, measured now
+        res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
+                                    iterations=iterations, tv=tv, l1=l1, seconds=seconds,
+                                    fft_pair_s=fft_s, auto_stop=auto_stop,
+                                    **on_device, **solver_options)
+        results.append(res)
+        records.append(record)
+        estimates.append(res.x * raw_scale)
+        op0 = op0 or op
+    estimate = estimates[0] if channels == 1 else np.stack(estimates, axis=-1)
+    image = np.ascontiguousarray(estimate[op0.crop])
+    chosen = records[0].get("method", {}).get("method", method)
+    reason = ("given" if method != AUTO
+              else "; ".join(records[0].get("method", {}).get("reasons", [])) or "auto")
+    if not preprocess:
+        info.update(dark_mode="none", dark_level=None)
+    dark_mode = info.pop("dark_mode", None)
+    info_ = ReconInfo(
+        kind="image", method=chosen, method_reason=reason,
+        iterations=iterations if SOLVERS[chosen].iterative else 1,
+        iterations_used=max(r["iterations_used"] for r in records),
+        tv=records[0]["tv"], l1=records[0]["l1"], auto=records,
+        dark_mode=dark_mode, dark_level=info.pop("dark_level", None),
+        dark_source=_DARK_SOURCES.get(dark_mode, "the dark value given"),
+        bin_factor=bin_factor, raw_scale=raw_scale,
+        seconds_total=time.perf_counter() - t_start, device=backend.label,
+        histories=[r.history for r in results],
+        extra={**info, "erased_fraction": 0.0 if mask is None
+               else float(1 - op0.sensor_weights.mean())})
+    return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results, op0,
+                          info_, record=image_metrics)
+
+
+#: :func:`recon.preprocess.prepare_pair`'s dark modes in words (``ReconInfo.dark_source``).
+_DARK_SOURCES = {"psf_region": "the PSF's dark corner (recon.preprocess.DEFAULT_DARK_REGION)",
+                 "none": "none: the inputs are dark-subtracted",
+                 "scalar": "the dark value given", "vector": "the per-channel values given",
+                 "frame": "the dark frame given, pixel by pixel"}
+
+
+def _is(value, word: str) -> bool:
+    return isinstance(value, str) and value == word
