@@ -176,6 +176,7 @@ def run_recon(
     seconds: float | None = None,
     allow_mixed_ranges: bool = False,
     dark="auto",
+    device: str = "cpu",
 ) -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
@@ -186,7 +187,7 @@ def run_recon(
     ----------
     psf_path, raw_path : str
         PSF (image or stack, see :func:`load_psf`) and raw measurement files.
-    method, iterations, bin_factor, tv, erase, seed, full_scale, l1, seconds
+    method, iterations, bin_factor, tv, erase, seed, full_scale, l1, seconds, device
         Passed to :func:`recon.reconstruct` (``"auto"`` method and weights included).
     out : str
         Output stem (see :func:`output_paths`).
@@ -222,7 +223,7 @@ def run_recon(
         result = reconstruct(psf, raw, method, iterations=iterations, tv=tv, l1=l1,
                              seconds=seconds, bin_factor=bin_factor, erase=erase, seed=seed,
                              full_scale=full_scale, allow_mixed_ranges=allow_mixed_ranges,
-                             dark=dark)
+                             dark=dark, device=device)
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
@@ -342,7 +343,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 psf_product: str = "psf_stack", metrics_json: str | None = None,
                 planes: str = "all", pitch_um: float | None = None,
                 d_mm: float | None = None, scene_range_mm=None,
-                allow_mixed_ranges: bool = False, empty_planes: str = "keep") -> dict:
+                allow_mixed_ranges: bool = False, empty_planes: str = "keep",
+                device: str = "cpu") -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
     write it and its
     projections and metrics.
@@ -384,6 +386,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     empty_planes : {"keep", "drop"}
         With an automatic weight, keep every plane or set those that show no signal
         to zero (see :func:`recon.reconstruct`).
+    device : {"cpu", "cuda", "auto"}
+        Where 3D ADMM runs (:func:`recon.reconstruct`).
 
     Returns
     -------
@@ -432,7 +436,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     with named_pair(psf_stack, raw_path):
         rec = reconstruct(PsfStack(stack, depths), raw, method, iterations=iterations,
                           tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
-                          allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes)
+                          allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes,
+                          device=device)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "

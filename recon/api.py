@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .backend import resolve_device
 from .errors import ReconInputError
 from .planar import DEFAULT_TV, check_options, scaled_problem, solve, solver_options
 from .result import KINDS, ReconInfo, Reconstruction
@@ -94,7 +95,7 @@ def model_kind(model) -> str:
 def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: int = 200,
                 tv: float | str | None = "auto", l1: float | str | None = None,
                 bin_factor: int = 1, dark="auto", allow_mixed_ranges: bool = False,
-                **options) -> Reconstruction:
+                device: str = "cpu", **options) -> Reconstruction:
     """Reconstruct an image or a volume from one lensless measurement and its model.
 
     The model kind picks the path: one PSF (2D: dark level, binning, colour, the
@@ -147,6 +148,13 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
     allow_mixed_ranges : bool
         Accept a model and raw whose bit depths cannot be one camera's (one PSF or a
         stack).
+    device : {"cpu", "cuda", "auto"}
+        Where the solves run (:func:`recon.backend.resolve_device`): the CPU's NumPy
+        path (default), a CUDA GPU through CuPy or PyTorch (the array-API path,
+        :mod:`recon.solvers.device`), or the GPU when one is usable. One PSF: every
+        method; an automatic weight is chosen along its ADMM path on the CPU, then the
+        chosen method solves on the GPU. A stack: 3D ADMM with fixed weights only. A
+        grid: the CPU only. ``info.device`` says which ran.
     **options
         Kind-specific options (:data:`KIND_OPTIONS`): one PSF ``seconds``,
         ``auto_stop``, ``bayer``, ``erase``, ``erasure_mask``, ``seed``,
@@ -168,7 +176,10 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         A model of none of the accepted kinds (the message names them), a bad
         argument, an option the kind does not take, or bad data (see
         :mod:`recon.preprocess`); :class:`recon.preprocess.RawSignalError` for a raw
-        with nothing to reconstruct after its dark level.
+        with nothing to reconstruct after its dark level; an unusable ``device``
+        (names what is missing), a GPU asked of a grid, an automatic weight or FISTA
+        asked of a GPU for a stack, or a problem that does not fit in the GPU's free
+        memory.
     recon.errors.DivergenceError
         A solver diverged.
 
@@ -217,14 +228,16 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         return reconstruct_image(model, raw, method, iterations=iterations, tv=tv,
                                  l1=0.0 if l1 is None else l1, bin_factor=bin_factor,
                                  dark=_image_dark(dark), allow_mixed_ranges=allow_mixed_ranges,
-                                 **options)
+                                 device=device, **options)
     if kind == "volume":
         from .volume.api import reconstruct_stack
 
         return reconstruct_stack(model.psf, model.depths_mm, raw, method=method,
                                  iterations=iterations, tv=tv, l1=0.0 if l1 is None else l1,
                                  bin_factor=bin_factor, dark=dark,
-                                 allow_mixed_ranges=allow_mixed_ranges, **options)
+                                 allow_mixed_ranges=allow_mixed_ranges, device=device,
+                                 **options)
+    _grid_device(device)
     from .spatial.api import reconstruct_psf_grid
 
     grids = model if not isinstance(model, tuple) else list(model)
@@ -233,6 +246,20 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
 
 
 _KIND_WORDS = {"image": "PSF (2D)", "volume": "PSF stack", "grid": "PSF grid"}
+
+
+def _grid_device(device) -> None:
+    """Refuse a GPU for a PSF grid (the spatially varying models run on the CPU only).
+
+    ``"auto"`` is refused too where it resolves to a GPU, as the command line's
+    ``--psf-grid --device auto`` is, so one call gives one answer on a machine.
+    """
+    if isinstance(device, str) and device.strip().lower() == "cpu":
+        return
+    backend = resolve_device(device)
+    if not backend.is_numpy:
+        raise ReconInputError(f"device {device!r}: a PSF grid (spatially varying model) is "
+                              "reconstructed on the CPU only; use device='cpu'")
 
 
 def _image_dark(dark):

@@ -14,9 +14,13 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["AUTO", "BACKGROUNDS", "BENCHMARKS", "DarkOption", "GRID_L1", "GRID_METHODS",
+__all__ = ["AUTO", "BACKGROUNDS", "BENCHMARKS", "DEVICES", "DarkOption", "GRID_L1", "GRID_METHODS",
            "HOLOGRAM_METHODS", "L1_DEFAULT", "METHODS", "METHOD_SUMMARIES", "MODELS", "NONE",
            "Unset", "VOLUME_METHODS", "dark_arg", "l1_given", "weight_arg"]
+
+#: ``--device`` choices (:func:`recon.backend.resolve_device`): the CPU (NumPy, numba),
+#: a CUDA GPU (CuPy or PyTorch), or the GPU when one is usable.
+DEVICES = ("cpu", "cuda", "auto")
 
 #: The value that asks for an automatic choice (``method``, ``tv``, ``l1``, ``dark``).
 AUTO = "auto"

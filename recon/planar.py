@@ -16,6 +16,7 @@ import numpy as np
 from diffuserlab.jsonio import jsonable
 
 from .auto import AUTO, parse_weight, solve_channel
+from .backend import resolve_device
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
@@ -28,6 +29,7 @@ from .preprocess import (
 )
 from .result import ReconInfo, Reconstruction
 from .solvers import SOLVERS, SolveResult
+from .solvers.device import device_solvers
 from .validate import as_array, as_int, finite_float
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
@@ -52,6 +54,7 @@ def image_metrics(rec: Reconstruction, fft_pair_s: float | None = None) -> dict:
     med = float(np.median(per_iter))
     return {
         "method": info.method,
+        "device": info.device,
         "iterations": info.iterations,
         "iterations_used": info.iterations_used,
         "tv": info.tv,
@@ -197,6 +200,7 @@ def reconstruct_image(
     preprocess: bool = True,
     full_scale: float | None = None,
     allow_mixed_ranges: bool = False,
+    device: str = "cpu",
     **solver_options,
 ) -> Reconstruction:
     """Reconstruct an image from one PSF: :func:`recon.reconstruct` for a PSF array.
@@ -208,7 +212,7 @@ def reconstruct_image(
         One PSF for all channels, or one per channel.
     raw : ndarray, (rows, cols) or (rows, cols, C)
         Raw measurement (sensor counts).
-    method, iterations, tv, l1, bin_factor, dark, allow_mixed_ranges
+    method, iterations, tv, l1, bin_factor, dark, allow_mixed_ranges, device
         As :func:`recon.reconstruct` (``dark`` already checked there:
         ``"auto"``, ``"none"``, a number or an array).
     seconds : float, optional
@@ -251,7 +255,8 @@ def reconstruct_image(
         in [0, 1) or keeping fewer than 1 % of the pixels, ``tv`` not a finite number
         >= 0 (the messages the CLI shows), or a solver option the method does not take;
         a raw with nothing to reconstruct after its dark level
-        (:class:`recon.preprocess.RawSignalError`).
+        (:class:`recon.preprocess.RawSignalError`); an unusable ``device`` (names what
+        is missing) or a problem that does not fit in the GPU's free memory.
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
@@ -272,6 +277,9 @@ def reconstruct_image(
                               "); name a method to pass them")
     if method != AUTO:
         check_options(method, solver_options)
+    backend = resolve_device(device)
+    on_device = ({} if backend.is_numpy else
+                 {"solvers": device_solvers(backend), "weight_path_solves": False})
     fft_s = None
     t_start = time.perf_counter()
     if preprocess:
@@ -317,7 +325,7 @@ def reconstruct_image(
         res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
                                     iterations=iterations, tv=tv, l1=l1, seconds=seconds,
                                     fft_pair_s=fft_s, auto_stop=auto_stop,
-                                    **solver_options)
+                                    **on_device, **solver_options)
         results.append(res)
         records.append(record)
         estimates.append(res.x * raw_scale)
@@ -338,7 +346,7 @@ def reconstruct_image(
         dark_mode=dark_mode, dark_level=info.pop("dark_level", None),
         dark_source=_DARK_SOURCES.get(dark_mode, "the dark value given"),
         bin_factor=bin_factor, raw_scale=raw_scale,
-        seconds_total=time.perf_counter() - t_start,
+        seconds_total=time.perf_counter() - t_start, device=backend.label,
         histories=[r.history for r in results],
         extra={**info, "erased_fraction": 0.0 if mask is None
                else float(1 - op0.sensor_weights.mean())})

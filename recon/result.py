@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from .backend import NUMPY
 from .solvers.common import History, SolveResult
 
 __all__ = ["KINDS", "ReconInfo", "Reconstruction"]
@@ -67,6 +68,10 @@ class ReconInfo:
         The measurement's scale (its largest magnitude after the dark level).
     seconds_total : float
         Preprocessing and solve, wall-clock seconds.
+    device : str
+        Where the solves ran (:attr:`recon.backend.Backend.label`): ``"cpu (numpy)"``
+        (the NumPy path, the default), or e.g. ``"cuda:0 (cupy)"`` for the array-API
+        path on a GPU (``device=`` of :func:`recon.reconstruct`).
     histories : tuple of History
         The solves' per-iteration histories (objective, data residual, seconds).
     extra : mapping
@@ -88,6 +93,7 @@ class ReconInfo:
     bin_factor: int = 1
     raw_scale: float = 1.0
     seconds_total: float = 0.0
+    device: str = NUMPY.label
     histories: tuple[History, ...] = field(default=(), repr=False)
     extra: Mapping = field(default_factory=dict, repr=False)
 

@@ -1,4 +1,7 @@
-"""``diffuserlab benchmark {recon,live,recording,batch}``.
+"""``diffuserlab benchmark {recon,gpu,live,recording,batch}``.
+
+``gpu`` runs :func:`recon.benchmarks.gpu.run_gpu_benchmark` (speed per device and
+backend: the NumPy path, the array-API path on PyTorch's CPU backend and on a CUDA GPU).
 
 ``recon`` runs :func:`recon.benchmarks.run.run_benchmarks` (speed vs the FFT floor,
 accuracy, stability, compressed sensing; 3D speed, memory and accuracy), prints each
@@ -15,7 +18,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["add_subcommands", "run_batch_benchmark", "run_live_benchmark",
+__all__ = ["add_subcommands", "run_batch_benchmark", "run_gpu_benchmark", "run_live_benchmark",
            "run_recon_benchmarks", "run_recording_benchmark"]
 
 
@@ -38,6 +41,25 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--overwrite", action="store_true",
                     help="replace the results of an earlier run in --out")
     rp.set_defaults(handler=run_recon_benchmarks)
+    gp = bsub.add_parser("gpu", help="speed per device and backend: 2D / 3D ADMM, the "
+                         "hologram and live ADMM x5, as s/iteration, ratio to each device's "
+                         "FFT floor and speed-up over the CPU",
+                         description="Seconds per iteration on every backend present (the "
+                         "NumPy path, the array-API path on PyTorch's CPU backend, CuPy or "
+                         "PyTorch on a CUDA GPU; absent ones are printed as unmeasured): 2D "
+                         "ADMM at 300x400 and 1200x1600, 3D ADMM at 256x256x32 and "
+                         "512x512x128, the hologram at 960x540 and 16x, live ADMM x5 at "
+                         "1200x1600.")
+    gp.add_argument("--quick", action="store_true",
+                    help="the 3D cases one size down (128x128x16, 256x256x32) and 4 "
+                    "iterations: a few minutes on a 2-core CPU")
+    gp.add_argument("--iterations", type=int, default=None,
+                    help="iterations per timed solve (default 12, 4 with --quick)")
+    gp.add_argument("--no-torch-cpu", action="store_true",
+                    help="leave out the generic path on PyTorch's CPU backend")
+    gp.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    gp.add_argument("--overwrite", action="store_true", help="replace an existing --json")
+    gp.set_defaults(handler=run_gpu_benchmark)
     lp = bsub.add_parser("live", help="live reconstruction on the real-time simulated camera "
                          "(fps, latency, skipped frames) and warm- vs cold-start ADMM PSNR",
                          description="Live reconstruction on the real-time simulated camera: "
@@ -107,6 +129,32 @@ def run_recon_benchmarks(args: argparse.Namespace) -> int:
     _, text = run_benchmarks(args.out, quick=args.quick, only=args.only, on_result=show)
     print(text)
     print(f"results in {args.out}")
+    return 0
+
+
+def run_gpu_benchmark(args: argparse.Namespace) -> int:
+    """Run ``benchmark gpu`` (:func:`recon.benchmarks.gpu.run_gpu_benchmark`); returns 0."""
+    from drivers.base import jsonable
+    from recon.benchmarks.gpu import run_gpu_benchmark as run
+    from recon.errors import ReconInputError
+
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import write_json
+
+    if args.iterations is not None and args.iterations < 2:
+        raise ReconInputError(f"--iterations {args.iterations}: give 2 or more (the first "
+                              "iteration carries the set-up and is not counted)")
+    if args.json is not None:
+        check_outputs([args.json], None, args.overwrite, option="--json")
+    print("benchmark gpu: median s per iteration (live: per frame of 5 ADMM iterations), "
+          "ratio of one iteration to the backend's FFT floor, speed-up over the NumPy path",
+          flush=True)
+    result = run(quick=args.quick, iterations=args.iterations,
+                 include_torch_cpu=not args.no_torch_cpu,
+                 log=lambda line: print(line, flush=True))
+    if args.json is not None:
+        write_json(args.json, jsonable(result, nonfinite_to_none=True))
+        print(f"figures in {args.json}")
     return 0
 
 

@@ -15,7 +15,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon`` to the ``diffuserlab`` subparsers (``handler=run``)."""
     from recon.options import L1_DEFAULT, METHOD_SUMMARIES, METHODS, weight_arg
 
-    from .recon_flags import L1_HELP, TV_HELP, add_dark_option
+    from .recon_flags import L1_HELP, TV_HELP, add_dark_option, add_device_option
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
     rp.add_argument("--psf", default=None,
@@ -65,6 +65,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
     add_range_option(rp)
     add_grid_options(rp, volume=False, solver=True)
+    add_device_option(rp)
     rp.set_defaults(handler=run)
 
 
@@ -99,13 +100,14 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, run_recon
-    from .recon_flags import dark_for_image
+    from .recon_flags import check_device, dark_for_image
 
     if (args.psf is None) == (args.psf_grid is None):
         from recon.errors import ReconInputError
 
         raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
+    check_device(args.device, grid=args.psf_grid is not None)
     if args.psf_grid:
         from .grid_options import run_grid
 
@@ -118,7 +120,8 @@ def run(args: argparse.Namespace) -> int:
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,
                   depth_mm=args.depth_mm, psf_product=args.psf_product,
                   l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
-                  seconds=args.seconds, allow_mixed_ranges=args.allow_mixed_ranges, dark=dark)
+                  seconds=args.seconds, allow_mixed_ranges=args.allow_mixed_ranges, dark=dark,
+                  device=args.device)
     for line in choice_lines(m):
         print(line)
     print(summary_line(m))

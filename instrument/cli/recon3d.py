@@ -36,7 +36,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """
     from recon.options import L1_DEFAULT, VOLUME_METHODS, weight_arg
 
-    from .recon_flags import L1_HELP, add_dark_option
+    from .recon_flags import L1_HELP, add_dark_option, add_device_option
 
     p = sub.add_parser("recon3d", help="reconstruct a volume from one image and a PSF stack")
     p.add_argument("--psf-stack", default=None,
@@ -90,6 +90,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
     add_range_option(p)
     add_grid_options(p, volume=True)
+    add_device_option(p)
     p.set_defaults(handler=run)
 
 
@@ -111,11 +112,12 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
-    from .recon_flags import dark_for_volume
+    from .recon_flags import check_device, dark_for_volume
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
     if (args.psf_stack is None) == (args.psf_grid is None):
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
+    check_device(args.device, grid=args.psf_grid is not None)
     if args.psf_grid:
         from .grid_options import run_grid
 
@@ -130,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
                     depths_mm=depths,
                     bin_factor=args.bin_factor, dark=dark,
                     psf_product=args.psf_product, metrics_json=args.metrics_json,
-                    planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,
+                    planes=args.planes, device=args.device, pitch_um=args.pitch_um, d_mm=args.d_mm,
                     scene_range_mm=(None if args.scene_range is None
                                     else floats(args.scene_range, "--scene-range")),
                     allow_mixed_ranges=args.allow_mixed_ranges,

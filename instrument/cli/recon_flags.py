@@ -18,8 +18,8 @@ import sys
 from diffuserlab.errors import InputError
 
 __all__ = ["DARK_FORMS", "FRAMES_AUTO", "FRAMES_FRAME", "L1_HELP", "TV_HELP", "DeprecatedAlias",
-           "add_dark_option", "add_deprecated", "dark_for_grid",
-           "dark_for_image", "dark_for_volume", "grid_method"]
+           "add_dark_option", "add_deprecated", "add_device_option", "check_device",
+           "dark_for_grid", "dark_for_image", "dark_for_volume", "grid_method"]
 
 #: ``--tv`` of every reconstruction command.
 TV_HELP = ("TV weight in the scaled problem (unitless: unit-sum PSF, raw divided by its "
@@ -56,6 +56,37 @@ def add_dark_option(p, *, auto: str, frame: str) -> None:
     p.add_argument("--dark", type=dark_arg, default=dark_arg("auto"),
                    metavar="auto|none|DN|DARK_RUN", help=DARK_FORMS.format(auto=auto,
                                                                            frame=frame))
+
+
+def add_device_option(p) -> None:
+    """Add ``--device cpu|cuda|auto`` (default cpu; :func:`recon.backend.resolve_device`)."""
+    from recon.options import DEVICES
+
+    p.add_argument("--device", choices=DEVICES, default="cpu",
+                   help="where the solver runs: cpu (default; NumPy and numba), cuda (a "
+                   "CUDA GPU through CuPy or PyTorch: pip install 'diffuserlab[gpu]'; "
+                   "refused with a message when none is usable) or auto (the GPU when one "
+                   "is usable, else the CPU); docs/reconstruction.md says what runs there")
+
+
+def check_device(device: str, *, grid: bool = False) -> None:
+    """Refuse an unusable ``--device`` before any file is read.
+
+    Raises
+    ------
+    InputError
+        ``cuda`` without CuPy / a CUDA PyTorch or without a visible device (the message
+        of :func:`recon.backend.resolve_device`), or a GPU asked of a PSF grid (the
+        spatially varying models run on the CPU).
+    """
+    if device == "cpu":
+        return
+    from recon.backend import resolve_device
+
+    backend = resolve_device(device)
+    if grid and not backend.is_numpy:
+        raise InputError(f"--device {device}: a --psf-grid (spatially varying model) is "
+                         "reconstructed on the CPU only; use --device cpu")
 
 
 class DeprecatedAlias(argparse.Action):

@@ -52,7 +52,8 @@ def parse_weight(value, name: str):
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
                   iterations: int, tv, l1, seconds: float | None = None,
                   fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
-                  plan_of=None, **options) -> tuple[SolveResult, dict]:
+                  plan_of=None, weight_path_solves: bool = True, **options
+                  ) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
     Parameters
@@ -88,6 +89,11 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     plan_of : callable, optional
         The automatic weight's ADMM plan for ``op`` (see
         :func:`recon.auto.weight.admm_auto`).
+    weight_path_solves : bool
+        With an automatic weight and ADMM, the result is the weight path's own solve
+        (default); False: the path only chooses the weight and ``solvers``' ADMM then
+        solves (e.g. on a GPU, :func:`recon.solvers.device.device_solvers`; the path runs
+        on the CPU).
     **options
         Passed to a fixed method's solver.
 
@@ -140,7 +146,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     target = 0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2)
     auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
     fixed = float(l1 if auto_reg == "tv" else tv) if auto_reg is not None else 0.0
-    if auto_reg is not None and method == "admm" and not options:
+    if auto_reg is not None and method == "admm" and not options and weight_path_solves:
         res, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
                                 regulariser=auto_reg, plan_of=plan_of, fixed=fixed)
         record["weight"] = chosen.as_dict()

@@ -92,7 +92,12 @@ def accelerated_loop(x: np.ndarray, *, iterations: int,
     """
     y = x.copy() if y is None else y
     snapshot = x if snapshot is None else snapshot
-    y_next = np.empty_like(y)
+    if isinstance(y, np.ndarray):
+        y_next = np.empty_like(y)
+    else:  # another array-API backend (recon.solvers.xp_fista): same loop, that library's arrays
+        from ..backend import array_namespace
+
+        y_next = array_namespace(y).empty_like(y)
     t = 1.0
     restarts: list[int] = []
     for k in range(iterations):

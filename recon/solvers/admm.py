@@ -402,7 +402,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     op : ConvolutionOperator
         Forward model; erasure masks are folded into its sensor weights.
     b : ndarray, shape ``op.shape_out``, float32
-        Measurement, multiplied by the sensor weights, scaled to O(1).
+        Measurement, multiplied by the sensor weights, scaled to O(1). An array of
+        another array-API backend (CuPy, PyTorch: on its device) runs the generic
+        path :func:`recon.solvers.xp_admm.admm_xp` and returns ``x`` on that device.
     iterations : int
     tv : float
         TV weight tau (default 0, as every solver's: no term unless asked); 0 removes
@@ -462,6 +464,10 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from .xp_admm import admm_xp
+
+        return admm_xp(plan, b, iterations=iterations, tv=tv, l1=l1, penalty=penalty, stop=stop)
     b = check_measurement(b, op.shape_out)
     return run_admm(plan, b, AdmmState.zeros(plan, penalty.initial(), tv > 0),
                     iterations=iterations, tv=tv, l1=l1, penalty=penalty, stop=stop)

@@ -42,9 +42,17 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
     step_scale = positive(step_scale, "step_scale")
     if len(op.shape_in) != 2:
         raise ReconInputError(f"{method} supports 2D objects here, got {op.shape_in}")
+    if lipschitz is not None:
+        lipschitz = positive(lipschitz, "lipschitz")
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from .xp_fista import accelerated_xp
+
+        return accelerated_xp(op, b, iterations=iterations, tv=tv, nonneg=nonneg,
+                              step_scale=step_scale, momentum=momentum, restart=restart,
+                              method=method, lipschitz=lipschitz, l1=l1, stop=stop, x0=x0)
     b = check_measurement(b, op.shape_out)
     if lipschitz is not None:
-        lip = positive(lipschitz, "lipschitz")
+        lip = lipschitz
     elif not (lip := op.lipschitz()) > 0:
         raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSF")
     step = step_scale / lip
@@ -102,7 +110,10 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
     op : LinearOperator
         2D forward model, e.g. :class:`recon.operators.ConvolutionOperator`.
     b : ndarray, shape ``op.shape_out``, float32
-        Measurement (scaled so its values are O(1), see :func:`recon.reconstruct`).
+        Measurement (scaled so its values are O(1), see :func:`recon.reconstruct`). An
+        array of another array-API backend (CuPy, PyTorch) runs the generic path
+        :func:`recon.solvers.xp_fista.accelerated_xp` on its device (``op`` a
+        :class:`~recon.operators.ConvolutionOperator`).
     iterations : int
     tv : float
         TV weight tau (default 0, as every solver's; 0 disables TV).

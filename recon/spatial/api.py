@@ -53,7 +53,7 @@ def grid_metrics(rec: Reconstruction, floor_seconds: float | None = None) -> dic
     if floor_seconds is None:
         floor_seconds = fft_floor_seconds(op.padded_shape, op.n_kernels)
     per_it = float(np.median(result.history.seconds))
-    info = {"method": inf.method, "iterations": inf.iterations,
+    info = {"method": inf.method, "device": inf.device, "iterations": inf.iterations,
             "iterations_used": inf.iterations_used, "bin_factor": inf.bin_factor,
             "raw_scale": inf.raw_scale, "tv": inf.tv, "l1": inf.l1,
             "dark_mode": inf.dark_mode, **inf.extra, "seconds_total": inf.seconds_total,

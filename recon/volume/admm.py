@@ -373,6 +373,8 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     b : ndarray, shape ``op.shape_out``, float32
         Measurement (pre-weighted), scaled to O(1), with the stack normalised by
         :func:`~recon.volume.normalize_psf_stack`.
+        An array of another array-API backend (CuPy, PyTorch) runs the generic path
+        :func:`recon.volume.xp_admm3d.admm3d_xp` on its device.
     iterations : int
     tv : float
         3D TV weight (default 0, as every solver's; 0 or None removes the u split).
@@ -405,6 +407,11 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from .xp_admm3d import admm3d_xp
+
+        return admm3d_xp(plan, b, iterations=iterations, tv=tv_w, l1=l1_w, nonneg=nonneg,
+                         penalty=penalty, mu0=penalty.initial(DEFAULT_MU))
     b = check_measurement(b, op.shape_out)
     return run_admm3d(plan, b, plan.zeros(penalty.initial(DEFAULT_MU), tv_w > 0),
                       iterations=iterations, tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty)

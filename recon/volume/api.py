@@ -23,6 +23,7 @@ import numpy as np
 from ..auto import AUTO, parse_weight
 from ..auto.noise import NoiseModel, estimate_noise
 from ..auto.volume import EMPTY_PLANES, auto_volume
+from ..backend import resolve_device
 from ..errors import ReconInputError
 from ..preprocess import (
     box_bin,
@@ -36,6 +37,7 @@ from ..preprocess import (
     validate_psf,
 )
 from ..result import ReconInfo, Reconstruction
+from ..solvers.device import solve_on
 from ..validate import as_array, float_array
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
@@ -45,6 +47,7 @@ from .operator import (
     fft_floor_seconds,
     normalize_psf_stack,
 )
+from .xp_admm3d import memory_bytes as admm3d_memory
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "check_volume_parameters",
            "depth_profile", "prepare_volume_problem", "reconstruct_stack", "volume_metrics"]
@@ -109,7 +112,7 @@ def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dic
         info["auto"] = inf.auto[0]
     scales = {"psf_scale": info.pop("psf_scale"), "raw_scale": inf.raw_scale}
     return {
-        "method": inf.method, "iterations": inf.iterations,
+        "method": inf.method, "device": inf.device, "iterations": inf.iterations,
         "iterations_used": inf.iterations_used, "tv": inf.tv, "l1": inf.l1,
         "shape": list(rec.image.shape),
         "sensor_shape": list(op.sensor_shape),
@@ -280,8 +283,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                       method: str = "auto", iterations: int = 200,
                       tv: float | str | None = "auto", l1: float | str = 0.0,
                       bin_factor: int = 1, dark="auto",
-                      allow_mixed_ranges: bool = False, empty_planes: str = "keep"
-                      ) -> Reconstruction:
+                      allow_mixed_ranges: bool = False, empty_planes: str = "keep",
+                      device: str = "cpu") -> Reconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -321,6 +324,11 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         no signal in the held-out pixels, alone or together
         (:func:`recon.auto.planes.plane_tests`), to zero; ``info["auto"]`` says
         which, why, and what the held-out error and the residual did.
+    device : {"cpu", "cuda", "auto"}
+        Where 3D ADMM runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
+        (default), a CUDA GPU (the array-API path :func:`recon.volume.xp_admm3d.admm3d_xp`,
+        with fixed weights: the automatic weight and 3D FISTA run on the CPU only),
+        or the GPU when one is usable. ``info["device"]`` says which ran.
 
     Returns
     -------
@@ -332,10 +340,12 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     Raises
     ------
     ReconInputError
-        Bad images, shapes or parameters.
+        Bad images, shapes or parameters; an unusable ``device``, an automatic weight
+        or FISTA asked of a GPU, or a volume that does not fit in its free memory.
     recon.errors.DivergenceError
         The solver diverged.
     """
+    backend = resolve_device(device)
     reason = "given"
     if method == AUTO:  # 3D ADMM: the best localisation and PSNR of the 3D benchmark
         method, reason = "admm", ("3D ADMM: the best localisation and PSNR of the 3D "
@@ -346,6 +356,11 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = 0.0
     check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
                             0.0 if l1 == AUTO else l1, bin_factor)
+    if not backend.is_numpy and (auto_reg is not None or method != "admm"):
+        raise ReconInputError(f"{backend.label}: on a GPU a volume is solved by 3D ADMM with "
+                              "fixed weights (the automatic weight and 3D FISTA run on the "
+                              "CPU); give --tv and --l1 numbers with --method admm, or use "
+                              "--device cpu")
     if empty_planes not in EMPTY_PLANES:
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
@@ -377,7 +392,13 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
     auto = []
-    if auto_reg is None:
+    if not backend.is_numpy:
+        result = solve_on(backend, admm3d, op, b, iterations=iterations, tv=tv, l1=l1,
+                          nonneg=True, needed_bytes=admm3d_memory(op.n_z, op.padded_shape,
+                                                                  tv > 0),
+                          what=f"3D ADMM on {op.n_z} planes of {op.sensor_shape[0]} x "
+                               f"{op.sensor_shape[1]}")
+    elif auto_reg is None:
         result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     else:
         # the frame's Poisson-Gaussian noise (too small a frame: none known)
@@ -397,6 +418,6 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         auto=auto, dark_mode=info.pop("dark_mode"), dark_level=info.pop("dark_level"),
         dark_source=info.pop("dark_source"), bin_factor=info.pop("bin_factor"),
         raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
-        histories=[result.history], extra={**info, "psf_scale": psf_scale})
+        device=backend.label, histories=[result.history], extra={**info, "psf_scale": psf_scale})
     return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
                           record=volume_metrics)

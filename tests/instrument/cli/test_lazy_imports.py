@@ -14,9 +14,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
 
+#: The GPU backends and the array-API layers: loaded only when a device other than the
+#: CPU is asked for (``--device cuda|auto``, ``device=``), never by the CPU path.
+GPU = ("cupy", "torch", "array_api_compat", "array_api_strict")
+
 #: Libraries no parser, no ``--help`` may load (seconds of start-up between them).
 HEAVY = ("numba", "scipy", "zarr", "dask", "pydantic", "PySide6", "matplotlib", "numpy",
-         "tifffile", "cv2", "skimage", "tqdm")
+         "tifffile", "cv2", "skimage", "tqdm", *GPU)
 
 _PROBE = """
 import argparse, contextlib, io, json, sys
@@ -85,3 +89,30 @@ def test_the_calibration_package_loads_its_plans_on_demand():
             "c.DarkFlatPlan.name)")
     assert _run(code).strip() == ("[] ['angular-response', 'dark-flat', 'psf-blind', "
                                   "'psf-grid', 'psf-sweep', 'slm-lut'] dark-flat")
+
+
+def test_a_cpu_reconstruction_loads_no_gpu_library(tmp_path):
+    """``recon`` and ``recon3d`` on the CPU (the default device) run the NumPy path and
+    never import CuPy, PyTorch or the array-API layers."""
+    code = f"""
+import sys
+import numpy as np
+from instrument.cli import main
+rng = np.random.default_rng(0)
+psf = np.full((32, 40), 4.0, np.float32)
+psf[rng.integers(0, 32, 30), rng.integers(0, 40, 30)] += 900.0
+np.save({str(tmp_path / "psf.npy")!r}, psf)
+raw = rng.poisson(200 + 100 * rng.random((32, 40))) + 4.0
+np.save({str(tmp_path / "raw.npy")!r}, raw.astype(np.float32))
+stack = np.stack([psf, psf[:, ::-1]])
+import tifffile
+tifffile.imwrite({str(tmp_path / "stack.tif")!r}, stack)
+assert main(["recon", "--psf", {str(tmp_path / "psf.npy")!r}, "--raw",
+             {str(tmp_path / "raw.npy")!r}, "--iterations", "5",
+             "--out", {str(tmp_path / "r")!r}]) == 0
+assert main(["recon3d", "--psf-stack", {str(tmp_path / "stack.tif")!r}, "--depths", "10,20",
+             "--raw", {str(tmp_path / "raw.npy")!r}, "--iterations", "3", "--tv", "1e-3",
+             "--out", {str(tmp_path / "v.tif")!r}]) == 0
+print(sorted({{m.split(".")[0] for m in sys.modules}} & set({GPU!r})))
+"""
+    assert _run(code).strip().splitlines()[-1] == "[]"

@@ -1,0 +1,51 @@
+"""``diffuserlab benchmark gpu`` on small cases: every backend present gets a row with
+its figures, absent devices are listed as unmeasured with the reason."""
+
+from __future__ import annotations
+
+import pytest
+
+from recon.backend import torch_cpu
+from recon.benchmarks.gpu import CASES, Case, _measure, format_table, run_gpu_benchmark
+
+SMALL = (Case("2D ADMM 32x40", "admm2d", (32, 40)), Case("3D ADMM 16x20x3", "admm3d",
+                                                        (16, 20, 3)),
+         Case("live ADMM x5 32x40", "live", (32, 40)))
+
+
+def test_the_issue_cases_are_the_default():
+    assert [c.name for c in CASES] == [
+        "2D ADMM 300x400", "2D ADMM 1200x1600", "3D ADMM 256x256x32", "3D ADMM 512x512x128",
+        "hologram 960x540 16x", "live ADMM x5 1200x1600"]
+
+
+def test_rows_for_every_backend_with_ratios_and_speedups():
+    lines = []
+    result = run_gpu_benchmark(iterations=3, cases=SMALL, log=lines.append)
+    rows = result["rows"]
+    assert len(lines) == len(rows) and len(rows) % len(SMALL) == 0
+    for case in SMALL:
+        mine = [r for r in rows if r["case"] == case.name]
+        cpu = mine[0]
+        assert cpu["backend"] == "cpu (numpy)" and cpu["speedup_vs_cpu"] == 1.0
+        for r in mine:
+            if r["seconds_per_iteration"] is None:
+                assert r["note"].startswith(("unmeasured: ", "not run: "))
+                continue
+            assert r["seconds_per_iteration"] > 0 and r["fft_floor_seconds"] > 0
+            per_iteration = r["seconds_per_iteration"] / (5 if "live" in case.name else 1)
+            assert r["ratio_to_fft_floor"] == pytest.approx(
+                per_iteration / r["fft_floor_seconds"])
+            assert r["speedup_vs_cpu"] == pytest.approx(
+                cpu["seconds_per_iteration"] / r["seconds_per_iteration"])
+    labels = {r["backend"] for r in rows}
+    assert ("cpu (torch, generic path)" in labels) == (torch_cpu() is not None)
+    assert "FFT floor" in format_table(result)
+
+
+def test_the_hologram_has_no_generic_path_and_says_so():
+    backend = torch_cpu()
+    if backend is None:
+        pytest.skip("PyTorch is not installed")
+    out = _measure(Case("hologram", "holo", (540, 960, 4)), backend, 2)
+    assert out == {"note": "no generic path: the hologram optimiser runs on the CPU only"}
