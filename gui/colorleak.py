@@ -53,7 +53,13 @@ def numpy_leaks(calls: int = 200) -> int:
 
 
 def installed() -> bool:
-    """Whether :func:`install` has wrapped ``pyqtgraph.functions.mkColor``."""
+    """Whether :func:`install` has wrapped ``pyqtgraph.functions.mkColor``.
+
+    Returns
+    -------
+    bool
+        True once the wrapper is in place in this process.
+    """
     import pyqtgraph.functions as fn
 
     return hasattr(fn.mkColor, _PATCH_ATTR)
@@ -70,7 +76,14 @@ def install(*, force: bool = False) -> bool:
     Returns
     -------
     bool
-        True when the wrapper is in place (now or from an earlier call).
+        True when the wrapper is in place (now or from an earlier call), False where
+        NumPy does not leak and ``force`` is False.
+
+    Examples
+    --------
+    >>> from gui import colorleak
+    >>> colorleak.install(force=True) and colorleak.installed()
+    True
     """
     import pyqtgraph as pg
     import pyqtgraph.colormap as colormap
