@@ -421,6 +421,11 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     """Reconstruct a recorded run with dask (:func:`instrument.batch.reconstruct_run`),
     its options those of ``recon-run`` (``{flag: text}``), cancelled by the job.
 
+    The batch runs in a child process
+    (:func:`instrument.batch_process.reconstruct_run_in_process`): dask's scheduler and
+    client never live in the GUI's process, whose references, memory and interpreter
+    lock each batch would otherwise take a share of for the rest of the session.
+
     Raises
     ------
     gui.workers.InputError
@@ -428,7 +433,8 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     instrument.runstore.RunStoreError, recon.errors.ReconInputError
         From the run, the PSF or a frame's reconstruction (frames done are kept).
     """
-    from instrument.batch import batch_psf, parse_frames, reconstruct_run
+    from instrument.batch import batch_psf, parse_frames
+    from instrument.batch_process import reconstruct_run_in_process
     from instrument.cli.recon_run import add_subcommands
     from instrument.runstore import RunStore
 
@@ -442,9 +448,9 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     frames = parse_frames(args.frames, store.n_frames)
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                   psf_product=args.psf_product, dark=args.dark)
-    return reconstruct_run(args.run, psf, method=args.method, iterations=args.iterations,
-                           tv=args.tv, bin_factor=args.bin_factor, dark=dark, frames=frames,
-                           product=args.product, workers=args.workers,
-                           scheduler=args.scheduler, dff_percentile=args.dff,
-                           overwrite=args.overwrite, psf_source=source,
-                           on_progress=job.report, cancel=job.cancel_event)
+    return reconstruct_run_in_process(
+        args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
+        bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
+        workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
+        overwrite=args.overwrite, psf_source=source, on_progress=job.report,
+        cancel=job.cancel_event)

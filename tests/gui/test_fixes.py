@@ -70,7 +70,7 @@ def test_exposure_fields_take_units():
 # -- 3. Results never reads a store on the GUI thread ----------------------------------------
 
 
-def _video_run(path, n=40):
+def _video_run(path, n=40, image=lambda i: np.full((64, 80), i, np.uint16)):
     from instrument.runstore import RunStore
 
     store = RunStore.create(path, plan_name="video", plan_params={},
@@ -78,7 +78,7 @@ def _video_run(path, n=40):
                             frame_tags=[["frame"]] * n, frame_shape=(64, 80),
                             frame_dtype=np.uint16, coord_names=["exposure_s"])
     for i in range(n):
-        store.write_frame(i, np.full((64, 80), i, np.uint16), {"exposure_s": 0.01})
+        store.write_frame(i, image(i), {"exposure_s": 0.01})
     store.update_attrs(status="complete")
     return store
 
@@ -142,6 +142,37 @@ def test_batch_without_a_psf_says_to_give_one(window, wait, tmp_path):
     wait(lambda: job.done, 30, "the refusal")
     text = panel.batch_error.text()
     assert "give the PSF" in text and "bug" not in text and "TypeError" not in text
+
+
+def test_batch_runs_in_a_child_process_not_in_the_guis(window, wait, tmp_path, monkeypatch):
+    """dask's scheduler and client never live in the GUI's process (each batch there kept
+    ~230 references to None and threads): the batch runs in a child process, so the
+    GUI's own ``reconstruct_run`` is never called, and the frames are stored."""
+    import instrument.batch
+    from instrument.runstore import RunStore
+
+    def in_the_gui(*args, **kwargs):
+        raise AssertionError("the batch ran in the GUI's process")
+
+    monkeypatch.setattr(instrument.batch, "reconstruct_run", in_the_gui)
+    rng = np.random.default_rng(0)  # frames with structure (a constant frame is refused)
+    _video_run(tmp_path / "v.zarr", n=2,
+               image=lambda i: rng.integers(100, 4000, (64, 80)).astype(np.uint16))
+    psf = np.zeros((64, 80), np.float32)
+    psf[30:34, 38:42] = 100.0
+    np.save(tmp_path / "psf.npy", psf)
+    panel = window.record
+    panel.run_path.setText(str(tmp_path / "v.zarr"))
+    fields = panel.batch_fields
+    for flag, text in (("--psf", str(tmp_path / "psf.npy")), ("--frames", "0:2"),
+                       ("--workers", "1"), ("--dark", "0")):
+        fields[flag].setText(text)
+    fields["--method"].setCurrentText("wiener")
+    job = panel.start_batch()
+    wait(lambda: job.done, 120, "the batch reconstruction")
+    assert panel.batch_result is not None, panel.batch_error.text()
+    assert panel.batch_result["reconstructed"] == 2
+    assert RunStore.open(tmp_path / "v.zarr").product_frames_done("recon_wiener").sum() == 2
 
 
 def test_live_reconstruction_without_a_psf_says_to_give_one(window, wait):
