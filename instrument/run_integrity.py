@@ -21,7 +21,8 @@ import numpy as np
 
 from diffuserlab.errors import InputError
 
-__all__ = ["LOCK_NAME", "RunStoreError", "frame_crc", "lock_problem", "pid_alive",
+__all__ = ["LOCK_NAME", "VERIFY_BLOCK_BYTES", "DamagedFrameError", "RunStoreError",
+           "damaged_frames", "frame_crc", "lock_problem", "pid_alive",
            "product_crcs", "read_lock", "write_lock"]
 
 
@@ -126,3 +127,99 @@ def write_lock(path: Path, record: dict) -> bool:
     with os.fdopen(fd, "w") as fh:
         json.dump(record, fh)
     return True
+
+
+class DamagedFrameError(RunStoreError):
+    """A done frame's chunk is missing, unreadable or differs from its checksum.
+
+    Attributes
+    ----------
+    index, point : int
+        The frame and its plan point.
+    reason : str
+        What is wrong with it.
+    """
+
+    def __init__(self, path: Path, index: int, point: int, reason: str,
+                 video: bool = False) -> None:
+        fix = ("a recorded video frame cannot be captured again: restore the run from a "
+               "backup copy, or leave the frame out (runs export --frames and recon-run "
+               "skip damaged frames)" if video else
+               f"re-run that point: diffuserlab calibrate resume {path} BENCH.toml "
+               f"--redo {point}")
+        super().__init__(f"frame {index} (point {point}) of {path} is damaged: {reason}; {fix}")
+        self.index, self.point, self.reason = index, point, reason
+        self._init_args = (path, index, point, reason, video)
+
+    def __reduce__(self):  # crosses process boundaries (dask workers) intact
+        return type(self), self._init_args
+
+
+#: Most bytes of frames :func:`damaged_frames` reads at once.
+VERIFY_BLOCK_BYTES = 64 * 2 ** 20
+
+
+def damaged_frames(store, on_progress=None) -> list[DamagedFrameError]:
+    """Every done frame of ``store`` whose chunk is missing, unreadable or differs from
+    its checksum (:func:`frame_crc`).
+
+    Frames are read in blocks of whole chunks (shards), at most
+    :data:`VERIFY_BLOCK_BYTES` a block: one read per block instead of three per frame
+    (37 frames of 256 x 320: 0.05 s instead of 0.08 s). A block that cannot be read,
+    and a frame whose checksum fails, is read again on its own for the error's reason.
+
+    Parameters
+    ----------
+    store : instrument.runstore.RunStore
+    on_progress : callable, optional
+        ``on_progress(checked, total)`` after each done frame.
+
+    Returns
+    -------
+    list of DamagedFrameError
+        As reading each damaged frame raises it; empty when all are intact.
+    """
+    out = []
+    done = np.flatnonzero(store.done())
+    if not store.has_checksums or done.size == 0:  # only unreadable chunks to find
+        return _damaged_one_by_one(store, done, on_progress, 0, len(done))
+    crcs = np.asarray(store._group["crc32"][:])
+    rows = np.asarray(store._group["coords"][:], np.float64)
+    frames = store._group["frames"]
+    per_chunk = int((frames.shards or frames.chunks)[0])
+    frame_bytes = int(np.prod(store.frame_shape)) * frames.dtype.itemsize
+    step = per_chunk * max(1, VERIFY_BLOCK_BYTES // max(1, per_chunk * frame_bytes))
+    checked = 0
+    for start in range(0, store.n_frames, step):
+        block = done[(done >= start) & (done < start + step)]
+        if block.size == 0:
+            continue
+        try:
+            images = np.asarray(frames[int(block[0]):int(block[-1]) + 1])
+        except Exception:  # a corrupt chunk fails to decode: frame by frame
+            out += _damaged_one_by_one(store, block, on_progress, checked, len(done))
+            checked += block.size
+            continue
+        for i in block:
+            if int(crcs[i]) != frame_crc(images[i - block[0]], rows[i]):
+                out += _damaged_one_by_one(store, [i], None, 0, 0)
+            checked += 1
+            if on_progress is not None:
+                on_progress(checked, len(done))
+    return out
+
+
+def _damaged_one_by_one(store, indices, on_progress, checked: int, total: int,
+                        ) -> list[DamagedFrameError]:
+    """The errors :meth:`RunStore._read <instrument.runstore.RunStore>` raises for each
+    frame of ``indices`` (``on_progress(checked + k, total)`` after the k-th)."""
+    out = []
+    for k, i in enumerate(indices, start=checked + 1):
+        try:
+            store._read(int(i))
+        except DamagedFrameError as exc:
+            out.append(exc)
+        if on_progress is not None:
+            on_progress(k, total)
+    return out
+

@@ -67,7 +67,9 @@ from drivers.base import jsonable
 
 from .run_integrity import (
     LOCK_NAME,
+    DamagedFrameError,
     RunStoreError,
+    damaged_frames,
     frame_crc,
     lock_problem,
     read_lock,
@@ -102,32 +104,6 @@ def _frame_compressors(name: str):
         raise RunStoreError(f"unknown frame compressor {name!r}; use one of "
                             f"{list(FRAME_COMPRESSORS)}")
     return choices[name]
-
-
-class DamagedFrameError(RunStoreError):
-    """A done frame's chunk is missing, unreadable or differs from its checksum.
-
-    Attributes
-    ----------
-    index, point : int
-        The frame and its plan point.
-    reason : str
-        What is wrong with it.
-    """
-
-    def __init__(self, path: Path, index: int, point: int, reason: str,
-                 video: bool = False) -> None:
-        fix = ("a recorded video frame cannot be captured again: restore the run from a "
-               "backup copy, or leave the frame out (runs export --frames and recon-run "
-               "skip damaged frames)" if video else
-               f"re-run that point: diffuserlab calibrate resume {path} BENCH.toml "
-               f"--redo {point}")
-        super().__init__(f"frame {index} (point {point}) of {path} is damaged: {reason}; {fix}")
-        self.index, self.point, self.reason = index, point, reason
-        self._init_args = (path, index, point, reason, video)
-
-    def __reduce__(self):  # crosses process boundaries (dask workers) intact
-        return type(self), self._init_args
 
 
 #: Attributes every run's zarr.json holds (a store lacking one is damaged).
@@ -741,17 +717,9 @@ class RunStore(ProductsMixin):
                        ) -> list[DamagedFrameError]:
         """Every done frame whose chunk is missing, unreadable or differs from its
         checksum, as the error reading it raises (empty when all are intact);
-        ``on_progress(checked, total)`` after each frame."""
-        out = []
-        done = np.flatnonzero(self.done())
-        for k, i in enumerate(done, start=1):
-            try:
-                self._read(int(i))
-            except DamagedFrameError as exc:
-                out.append(exc)
-            if on_progress is not None:
-                on_progress(k, len(done))
-        return out
+        ``on_progress(checked, total)`` after each frame
+        (:func:`instrument.run_integrity.damaged_frames`: read in blocks)."""
+        return damaged_frames(self, on_progress)
 
     def point_of(self, index: int) -> int:
         """The plan point frame ``index`` belongs to."""

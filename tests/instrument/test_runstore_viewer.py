@@ -4,6 +4,7 @@ every frame that reports its progress (the GUI's Results panel runs it once, apa
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from instrument.runstore import RunStore
 
@@ -38,3 +39,33 @@ def test_verify_reports_progress_and_still_finds_damage(tmp_path):
     problems = store.verify(on_progress=lambda k, n: seen.append((k, n)))
     assert seen == [(k, 5) for k in range(1, 6)]
     assert len(problems) == 1 and "frame 2" in problems[0]
+
+
+@pytest.mark.parametrize("block_bytes", [1, 64 * 2 ** 20])
+def test_a_block_check_of_a_sharded_video_finds_the_altered_frame(tmp_path, monkeypatch,
+                                                                  block_bytes):
+    """Frames are checked a block of shards at a time (one block, or a shard per block):
+    a frame altered inside a shard, and one never written, are told apart, with the
+    progress of every done frame."""
+    import zarr
+
+    import instrument.run_integrity as integrity
+
+    monkeypatch.setattr(integrity, "VERIFY_BLOCK_BYTES", block_bytes)
+    n = 10
+    store = RunStore.create(tmp_path / "v.zarr", plan_name="video", plan_params={},
+                            points=[{"t": float(k)} for k in range(n)],
+                            frame_tags=[["frame"]] * n, frame_shape=(8, 10),
+                            frame_dtype=np.uint16, coord_names=["exposure_s"],
+                            shard_frames=4)
+    rng = np.random.default_rng(0)
+    for i in range(n - 1):  # the last frame is not written
+        store.write_frame(i, rng.integers(0, 4000, (8, 10)).astype(np.uint16),
+                          {"exposure_s": 0.01})
+    assert RunStore.open(tmp_path / "v.zarr").verify() == []
+    zarr.open_group(str(tmp_path / "v.zarr"), mode="r+")["frames"][5] = np.full((8, 10), 7)
+    seen = []
+    problems = RunStore.open(tmp_path / "v.zarr").verify(
+        on_progress=lambda k, total: seen.append((k, total)))
+    assert seen == [(k, 9) for k in range(1, 10)]
+    assert len(problems) == 1 and problems[0].startswith("frame 5 ") and "differ" in problems[0]
