@@ -17,6 +17,7 @@ import pytest
 
 import recon
 from instrument.batch_process import (
+    BATCH_NICE,
     BatchProcessError,
     _last_word,
     _portable,
@@ -56,6 +57,8 @@ def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run)
     out = reconstruct_run_in_process(run, video[1], frames=range(0, 3), on_progress=seen.append,
                                      **OPTIONS)
     assert out["reconstructed"] == 3 and not out["cancelled"]
+    assert out["process"]["pid"] != os.getpid()
+    assert out["process"]["nice"] == min(19, os.nice(0) + BATCH_NICE)
     assert [p["done"] for p in seen] == [1, 2, 3] and {p["total"] for p in seen} == {3}
     store = RunStore.open(run)
     assert store.lock_owner() is None
