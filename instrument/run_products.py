@@ -71,9 +71,13 @@ class ProductsMixin:
                       if not k.endswith((_DONE, _CRC)))
 
     def product_info(self, name: str) -> dict[str, Any]:
-        """``{"shape", "dtype"}`` of a product, with ``planes_done`` for a per-frame one."""
+        """``{"shape", "dtype"}`` of a product, with ``planes_done`` for a per-frame one
+        and ``orientation`` where the product records it (a reconstruction: the model
+        grid, :data:`recon.io.DATA_ORIENTATION`)."""
         arr = self._product_array(name)
         info: dict[str, Any] = {"shape": list(arr.shape), "dtype": str(arr.dtype)}
+        if "orientation" in arr.attrs:
+            info["orientation"] = arr.attrs["orientation"]
         if arr.attrs.get("per_frame"):
             info["planes_done"] = int(self.product_frames_done(name).sum())
         return info

@@ -37,7 +37,10 @@ from ..fields import remember
 from ..workers import Job
 from .common import FrameView, error_label
 
-__all__ = ["ResultsPanel", "read_result"]
+__all__ = ["UPRIGHT", "ResultsPanel", "read_result"]
+
+#: The title's note on a reconstruction turned upright for viewing.
+UPRIGHT = " (upright; stored on the model grid)"
 
 
 def read_result(path: str) -> dict:
@@ -72,8 +75,9 @@ def read_result(path: str) -> dict:
 
         arr = zarr.open_array(str(p), mode="r")
         attrs = dict(arr.attrs)
-        return {"kind": "volume", "array": np.asarray(arr[...]),
-                "depths_mm": attrs.get("depths_mm"), "text": json.dumps(attrs, indent=1)}
+        return _upright({"kind": "volume", "array": np.asarray(arr[...]),
+                         "depths_mm": attrs.get("depths_mm"),
+                         "text": json.dumps(attrs, indent=1)}, attrs.get("orientation"))
     if p.suffix.lower() == ".json":
         return {"kind": "json", "text": json.dumps(json.loads(p.read_text()), indent=1)}
     if p.suffix.lower() in (".tif", ".tiff"):
@@ -83,12 +87,29 @@ def read_result(path: str) -> dict:
             array = tif.asarray()
             meta = dict(tif.shaped_metadata[0]) if tif.shaped_metadata else {}
         if array.ndim == 3 and array.shape[-1] not in (3, 4):
-            return {"kind": "volume", "array": array, "depths_mm": meta.get("depths_mm"),
-                    "text": json.dumps(meta, indent=1)}
+            return _upright({"kind": "volume", "array": array,
+                             "depths_mm": meta.get("depths_mm"),
+                             "text": json.dumps(meta, indent=1)}, meta.get("orientation"))
         if meta:
-            return {"kind": "image", "array": array, "text": json.dumps(meta, indent=1,
-                                                                        default=str)}
+            return _upright({"kind": "image", "array": array,
+                             "text": json.dumps(meta, indent=1, default=str)},
+                            meta.get("orientation"))
     return {"kind": "image", "array": load_image(p), "text": f"{p}"}
+
+
+def _upright(result: dict, orientation) -> dict:
+    """``result`` with its array turned upright (:func:`recon.io.scene_view`) when the
+    data are a reconstruction on the model grid (``orientation`` is, or names in a
+    dict, :data:`recon.io.DATA_ORIENTATION`), as the live view shows them; marked
+    ``upright``. Anything else (frames, PSFs) is shown as the sensor saw it."""
+    from recon.io import DATA_ORIENTATION, scene_view
+
+    values = orientation.values() if isinstance(orientation, dict) else (orientation,)
+    if DATA_ORIENTATION not in values:
+        return result
+    array = np.asarray(result["array"])
+    axes = (1, 2) if result["kind"] == "volume" else (0, 1)
+    return {**result, "array": scene_view(array, axes), "upright": True}
 
 
 def _frame(store, index: int) -> dict:
@@ -108,16 +129,17 @@ def _product(store, name: str) -> dict:
         array = np.stack([store.product_frame(name, int(i)) for i in done])
         text = (f"{name}: frames {', '.join(str(int(i)) for i in done)} of "
                 f"{info['shape'][0]} reconstructed\n{json.dumps(info, indent=1)}")
-        return {"kind": "volume", "array": array, "depths_mm": None, "text": text,
-                "axis": "frame"}
+        return _upright({"kind": "volume", "array": array, "depths_mm": None, "text": text,
+                         "axis": "frame"}, info.get("orientation"))
     array, attrs = store.product(name)
     array = np.asarray(array)
     text = json.dumps(attrs, indent=1, default=str)
     if array.ndim == 3 and array.shape[-1] not in (3, 4):
-        return {"kind": "volume", "array": array, "depths_mm": attrs.get("depths_mm"),
-                "text": text, "axis": "frame" if attrs.get("per_frame") else "plane",
-                "units": attrs.get("units")}
-    return {"kind": "image", "array": array, "text": text, "units": attrs.get("units")}
+        return _upright({"kind": "volume", "array": array, "depths_mm": attrs.get("depths_mm"),
+                         "text": text, "axis": "frame" if attrs.get("per_frame") else "plane",
+                         "units": attrs.get("units")}, attrs.get("orientation"))
+    return _upright({"kind": "image", "array": array, "text": text,
+                     "units": attrs.get("units")}, attrs.get("orientation"))
 
 
 class ResultsPanel(QWidget):
@@ -141,6 +163,7 @@ class ResultsPanel(QWidget):
         self.depths: list[float] | None = None
         self.axis = "plane"
         self.units: str | None = None
+        self.upright = False
         self.path_shown: str | None = None
         self._wanted_frame: int | None = None
         self.frame_shown: int | None = None
@@ -360,6 +383,7 @@ class ResultsPanel(QWidget):
             self.depths = result.get("depths_mm")
             self.axis = result.get("axis", "plane")
             self.units = result.get("units")
+            self.upright = bool(result.get("upright"))
             self.depth_label.setText("depth:" if self.axis == "plane" else "frame:")
             self._mode(kind, volume=True)
             self.depth_slider.setRange(0, len(self.volume) - 1)
@@ -374,7 +398,8 @@ class ResultsPanel(QWidget):
             self._mode(kind)
             self.view.setImage(np.asarray(result["array"]), autoLevels=True)
             units = result.get("units")
-            self.view.setTitle("image" + (f" ({units})" if units else ""))
+            self.view.setTitle("image" + (f" ({units})" if units else "")
+                               + (UPRIGHT if result.get("upright") else ""))
 
     def show_slice(self, index: int) -> None:
         """Show plane ``index`` of the volume (in memory: no file is read)."""
@@ -385,7 +410,8 @@ class ResultsPanel(QWidget):
         depth += f" ({self.units})" if self.units else ""
         self.depth_label.setText(f"{self.axis} {index + 1} of {len(self.volume)}{depth}")
         self.view.setImage(self.volume[index], autoLevels=True)
-        self.view.setTitle(f"{self.axis} {index + 1}{depth}")
+        self.view.setTitle(f"{self.axis} {index + 1}{depth}"
+                           + (UPRIGHT if self.upright else ""))
 
     def show_frame(self, index: int) -> None:
         """Ask for frame ``index`` of the open run: read on a worker, the newest asked
