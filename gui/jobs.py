@@ -32,7 +32,7 @@ ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
 
 def build_live(session, psf_path: str, *, depth_mm: float | None = None,
                method: str = "wiener", iterations: int = 5, dark: str = "",
-               threads: int | None = 1):
+               threads: int | None = 1, device: str = "cpu"):
     """A live reconstruction for the session's camera (not started).
 
     Parameters
@@ -52,6 +52,9 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
     threads : int, optional
         Threads of the reconstruction (default 1, leaving a core to the GUI and a
         recorder).
+    device : {"cpu", "cuda", "auto"}
+        Where the solves run (:class:`recon.live.LiveReconstructor`'s ``device``; the
+        reconstructor's ``backend.label`` says which).
 
     Returns
     -------
@@ -66,7 +69,8 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         No PSF given.
     recon.errors.ReconInputError
         Unreadable PSF, a PSF whose shape is not the camera's frames, a calibrated
-        stack without a dark level on a real bench.
+        stack without a dark level on a real bench; an unusable ``device`` (what is
+        missing) or a GPU without the memory the live reconstruction needs.
     """
     from instrument.live import LiveReconstruction
     from instrument.reconstruct_files import dark_level, load_psf
@@ -99,8 +103,9 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         level = dark_level(text, "dark")
     if level is not None and stacked:  # the stack's PSF is dark-subtracted already
         psf = psf + level
-    live = LiveReconstruction(LiveReconstructor(psf, dark=level), method=method,
-                              iterations=iterations, threads=threads, nice=BACKGROUND_NICE)
+    live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),
+                              method=method, iterations=iterations, threads=threads,
+                              nice=BACKGROUND_NICE)
     return live, depth
 
 

@@ -13,6 +13,13 @@ as it arrives, under the run's writer lock, so an interrupted batch keeps every
 finished frame and a second call with the same settings reconstructs only what is
 missing. With ``dff_percentile`` the ΔF/F of the reconstructed frames against a
 per-pixel percentile baseline (Kuo 2020, Fig. 6.5b) is stored as a second product.
+
+With ``device="cuda"`` every worker process runs its solves on a GPU through
+:func:`recon.reconstruct`'s ``device`` (each resolves the name itself: local workers
+share the machine's GPU 0, one local worker by default as dask-cuda runs one worker
+per GPU; a cluster's workers use their own machine's GPU, with ``auto`` the CPU where
+none is usable). The device is not part of the product's settings: a batch resumed on
+another device continues the same product (the images agree to float32 rounding).
 """
 
 from __future__ import annotations
@@ -158,7 +165,7 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
         PSF at the camera's frame shape.
     options : dict
         Keywords of :func:`recon.reconstruct` (method, iterations, tv, l1, bin_factor,
-        dark).
+        dark, device).
     threads : int, optional
         The task's FFT and numba threads (:func:`recon.fft.limited_threads`; the
         batch passes the caller's count, so the results equal a reconstruction in the
@@ -270,7 +277,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
                     background: str = "estimate", grid_l1: float = 1e-3,
                     on_progress: Callable[[dict], None] | None = None,
                     cancel: threading.Event | None = None,
-                    timeout_s: float = 60.0) -> dict[str, Any]:
+                    timeout_s: float = 60.0, device: str = "cpu") -> dict[str, Any]:
     """Reconstruct every selected frame of a recorded run with dask; store the results.
 
     Parameters
@@ -298,9 +305,9 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         ``recon_grid_<model>``); the ΔF/F product is ``<product>_dff``, a grid's
         background estimates the per-frame product ``<product>_background``.
     workers : int, optional
-        Local worker processes (default: one per core), at most one per frame and at
-        most the machine's cores (:func:`check_workers`, before the run is locked);
-        ignored with ``scheduler``.
+        Local worker processes (default: one per core, one with a GPU ``device``), at
+        most one per frame and at most the machine's cores (:func:`check_workers`,
+        before the run is locked); ignored with ``scheduler``.
     scheduler : str, optional
         Address of a running dask.distributed scheduler (``tcp://host:8786``); parsed
         and tried (:func:`check_scheduler`) before the run is touched.
@@ -322,6 +329,10 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         Stops the batch (queued tasks cancelled); finished frames are kept.
     timeout_s : float
         Longest wait for the scheduler and for the local cluster to come up, s.
+    device : {"cpu", "cuda", "auto"}
+        Where each worker's solves run (``device`` of :func:`recon.reconstruct`; module
+        notes); resolved here first, so an unusable one is refused before the run is
+        touched. A grid model runs on the CPU only.
 
     Returns
     -------
@@ -330,7 +341,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         ``reconstructed`` (this call), ``skipped`` (already done), ``not_stored``
         (ranges of frame slots left out because nothing was stored there, default
         selection), ``damaged`` (one line per damaged frame left out), ``cancelled``,
-        ``seconds``, ``fps``, ``workers``,
+        ``seconds``, ``fps``, ``workers``, ``device`` (as asked),
         ``dff_product`` when computed and ``background_product`` with a grid's
         background estimate.
 
@@ -340,17 +351,26 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         Missing, locked or damaged run, a selected frame not stored, a product clash,
         too many workers, or no scheduler at the address.
     recon.errors.ReconInputError, recon.errors.DivergenceError
-        From a frame's reconstruction (the frames stored before it are kept).
+        From a frame's reconstruction (the frames stored before it are kept); an
+        unusable ``device``, or a GPU asked of a grid model (before the run is touched).
     """
+    from recon.backend import resolve_device
+    from recon.errors import ReconInputError
     from recon.io import DATA_ORIENTATION
     from recon.validate import as_int
 
     from .runstore_records import ranges_text
 
+    backend = resolve_device(device)  # before the store is touched, as the scheduler
+    if isinstance(psf, GridBatchModel) and not backend.is_numpy:
+        raise ReconInputError(f"device {device!r}: a PSF grid (spatially varying model) is "
+                              "reconstructed on the CPU only; use device='cpu'")
     if scheduler is not None:  # before the store is touched: nothing written on failure
         check_scheduler(scheduler)
     store = RunStore.open(run, "r+")
     if scheduler is None:
+        if workers is None and not backend.is_numpy:
+            workers = 1  # one worker per GPU (module notes)
         workers = check_workers(workers, len(frames or range(store.n_frames)))
     store.lock()  # a second writer (or a stale lock) is refused before anything else
     t0 = time.monotonic()
@@ -383,7 +403,8 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         hint = f"diffuserlab recon-run {store.path} with the same options"
         if grid is None:
             options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
-                       "bin_factor": bin_factor, "dark": "auto" if dark is None else dark}
+                       "bin_factor": bin_factor, "dark": "auto" if dark is None else dark,
+                       "device": device}
             settings = {"method": method, "tv": tv, "l1": l1, "psf": psf_source,
                         "orientation": DATA_ORIENTATION}
             name, task = product or f"recon_{method}", reconstruct_stored_frame
@@ -450,7 +471,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
             "reconstructed": done_now, "skipped": skipped, "cancelled": cancelled,
             "seconds": round(elapsed, 3), "fps": done_now / elapsed if elapsed > 0 else 0.0,
             "workers": n_workers, "not_stored": ranges_text(not_stored),
-            "damaged": damaged}
+            "damaged": damaged, "device": device}
         if bg_name:
             out["background_product"] = bg_name
         if dff_percentile is not None and not cancelled:

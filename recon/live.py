@@ -13,6 +13,10 @@ scaling of :func:`recon.api.scaled_problem` and one solve:
 
 A cold single frame equals :func:`recon.reconstruct` with the same method, iterations
 and weights exactly (tests/recon/test_live.py).
+
+``device="cuda"`` (or ``"auto"`` with a usable GPU) keeps the PSF spectrum, the Wiener
+filter and the warm-start ADMM state on the GPU (:class:`recon.xp_live.DeviceLive`, the
+array-API path); frames still come in and images go out as NumPy arrays.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .backend import Backend, resolve_device, to_numpy
 from .errors import ReconInputError
 from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
@@ -46,9 +51,11 @@ class LiveResult:
         Sensor field of view of the estimate (binned sensor shape), measurement units
         (counts per unit PSF sum), as :attr:`recon.Reconstruction.image`.
     estimate : ndarray, float32, shape (P0, P1)
-        The whole padded object domain, same units.
+        The whole padded object domain, same units (on a device: copied to the host
+        when first read).
     solve : SolveResult
-        The solver's record (estimate in the scaled problem, history, parameters).
+        The solver's record (estimate in the scaled problem, history, parameters; on
+        a device its ``x`` stays there and ``params["device"]`` names it).
     method : str
         ``"wiener"`` or ``"admm"``.
     iterations : int
@@ -69,6 +76,22 @@ class LiveResult:
     warm: bool
     raw_scale: float
     seconds: float
+
+
+class _DeviceResult(LiveResult):
+    """A :class:`LiveResult` whose ``estimate`` stays on the device until it is read
+    (a live view shows only ``image``: the padded grid is 4x the sensor's)."""
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The padded estimate on the host (copied on first access)."""
+        if not isinstance(self._estimate, np.ndarray):
+            self._estimate = to_numpy(self._estimate)
+        return self._estimate
+
+    @estimate.setter
+    def estimate(self, value) -> None:
+        self._estimate = value
 
 
 class LiveReconstructor:
@@ -95,12 +118,20 @@ class LiveReconstructor:
         :meth:`wiener` sees (:func:`recon.solvers.wiener.auto_regularization`, a
         wavelet noise estimate too slow for every frame) and kept afterwards
         (:attr:`regularization`).
+    device : {"cpu", "cuda", "auto"} or Backend
+        Where the solves run (:func:`recon.backend.resolve_device`): ``cpu`` the NumPy
+        path (numba); ``cuda`` a GPU through the array-API path
+        (:class:`recon.xp_live.DeviceLive`), with the PSF spectrum and the ADMM state
+        kept there between frames. A :class:`~recon.backend.Backend` is used as given
+        (PyTorch's CPU backend in benchmarks and tests). :attr:`backend` says which.
 
     Raises
     ------
     ReconInputError
         A PSF that is not 2D, not finite, without signal above the dark level, or
-        invalid weights / binning / dark.
+        invalid weights / binning / dark; an unusable ``device`` (names what is
+        missing), or a problem that does not fit in the GPU's free memory (says how
+        much it needs; checked before anything is put on the device).
 
     Notes
     -----
@@ -133,7 +164,7 @@ class LiveReconstructor:
 
     def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark=None,
                  tv: float | None = None, penalty: AdmmPenalty | None = None,
-                 regularization: float | None = None):
+                 regularization: float | None = None, device: str | Backend = "cpu"):
         psf = as_array(psf, "PSF")
         validate_psf(psf)
         if psf.ndim != 2:
@@ -152,6 +183,19 @@ class LiveReconstructor:
         self.plan = AdmmPlan.of(self.operator)
         self._state: AdmmState | None = None
         self._state_scale = 1.0
+        self.backend = _backend(device)
+        self._device = None
+        if not self.backend.is_numpy:
+            from .xp_live import DeviceLive
+
+            self._device = DeviceLive(self.backend, self.plan)
+
+    @property
+    def state(self):
+        """The ADMM state the next warm frame starts from (:class:`AdmmState
+        <recon.solvers.admm.AdmmState>`, on a device :class:`XpAdmmState
+        <recon.solvers.xp_admm.XpAdmmState>` with its arrays there), or None."""
+        return self._state
 
     @property
     def sensor_shape(self) -> tuple[int, int]:
@@ -199,6 +243,10 @@ class LiveReconstructor:
 
     def _result(self, res: SolveResult, method: str, iterations: int, warm: bool,
                 scale: float, t0: float) -> LiveResult:
+        if self._device is not None:
+            image, estimate = self._device.images(res.x, scale, self.operator.crop)
+            return _DeviceResult(image, estimate, res, method, iterations, warm, scale,
+                                 time.perf_counter() - t0)
         estimate = (res.x * scale).astype(np.float32)
         image = np.ascontiguousarray(estimate[self.operator.crop])
         return LiveResult(image, estimate, res, method, iterations, warm, scale,
@@ -226,7 +274,8 @@ class LiveReconstructor:
         b, scale = self.prepare(raw)
         if self.regularization is None:
             self.regularization = auto_regularization(b)
-        res = wiener(self.operator, b, regularization=self.regularization)
+        res = (wiener(self.operator, b, regularization=self.regularization)
+               if self._device is None else self._device.wiener(b, self.regularization))
         return self._result(res, "wiener", 1, False, scale, t0)
 
     def admm(self, raw: np.ndarray, iterations: int = 5, warm_start: bool = True
@@ -262,13 +311,19 @@ class LiveReconstructor:
         warm = warm_start and self._state is not None
         if warm:
             self._state.scale(self._state_scale / scale)
-        else:
+        elif self._device is None:
             self._state = AdmmState.zeros(self.plan, self.penalty.initial(),
                                           self.tv > 0)
+        else:
+            self._state = self._device.zeros(self.penalty.initial(), self.tv > 0)
         self._state_scale = scale
         try:
-            res = run_admm(self.plan, b, self._state, iterations=iterations, tv=self.tv,
-                           penalty=self.penalty)
+            if self._device is None:
+                res = run_admm(self.plan, b, self._state, iterations=iterations,
+                               tv=self.tv, penalty=self.penalty)
+            else:
+                res = self._device.admm(b, self._state, iterations=iterations, tv=self.tv,
+                                        penalty=self.penalty)
         except Exception:
             self._state = None
             raise
@@ -277,3 +332,11 @@ class LiveReconstructor:
     def reset(self) -> None:
         """Forget the ADMM state: the next :meth:`admm` call starts cold."""
         self._state = None
+
+
+def _backend(device) -> Backend:
+    """The backend of a ``device=`` argument: a name (:func:`resolve_device`) or a
+    :class:`~recon.backend.Backend` as given."""
+    if isinstance(device, Backend):
+        return device
+    return resolve_device(device)

@@ -5,9 +5,12 @@ The session's stream hands every frame to :class:`instrument.live.LiveReconstruc
 (Wiener preview or warm-started ADMM with a few iterations per frame; PSF from a file
 or a run store, :func:`gui.jobs.build_live`); a 20 Hz timer shows the newest frame
 and the newest reconstruction and the counters. Nothing here waits on the camera or
-the solver. The PSF, depth, dark level, method and iterations are remembered between
-sessions; the depth offers the stack's planes and shows the plane used; the PSF and
-depth in use are handed to the batch reconstruction (``psf_chosen``).
+the solver. The PSF, depth, dark level, method, iterations and device (cpu, cuda or
+auto: where the solves run, :class:`recon.live.LiveReconstructor`) are remembered
+between sessions; the depth offers the stack's planes and shows the plane used; the PSF
+and depth in use are handed to the batch reconstruction (``psf_chosen``). A device that
+cannot be used (no GPU, no CuPy / PyTorch, too little GPU memory) is refused with the
+message in the panel; the raw stream goes on.
 """
 
 from __future__ import annotations
@@ -113,6 +116,21 @@ class LivePanel(QWidget):
         remember(self.iterations, "live/iterations")
         self.iterations.valueChanged.connect(self._method_changed)
         controls.addWidget(self.iterations, 2, 4)
+        controls.addWidget(QLabel("device:"), 3, 1)
+        from recon.options import DEVICES
+
+        self.device = QComboBox()
+        self.device.addItems(list(DEVICES))
+        self.device.setObjectName("live.device")
+        self.device.setToolTip("where the reconstruction runs: cpu (NumPy), cuda (a GPU "
+                               "through CuPy or PyTorch) or auto (the GPU when one is "
+                               "usable); taken when the reconstruction starts")
+        wheel_needs_focus(self.device)
+        remember(self.device, "live/device")
+        controls.addWidget(self.device, 3, 2)
+        self.device_used = QLabel("")
+        self.device_used.setObjectName("live.device_used")
+        controls.addWidget(self.device_used, 3, 3, 1, 2)
         self.recon_button = QPushButton("Start reconstruction")
         self.recon_button.setObjectName("live.reconstruct")
         self.recon_button.clicked.connect(self.toggle_reconstruction)
@@ -229,15 +247,17 @@ class LivePanel(QWidget):
             return None
         psf, dark = self.psf.text().strip(), self.dark.text()
         method, iterations = self.method.currentText(), self.iterations.value()
+        device = self.device.currentText()
         self.recon_button.setEnabled(False)
         def build(job):
             live, depth_used = build_live(self.session, psf, depth_mm=depth, method=method,
-                                          iterations=iterations, dark=dark)
+                                          iterations=iterations, dark=dark, device=device)
             live.start()  # its thread started here: Thread.start waits for a core
             return live, depth_used
 
         self.job = Job(build, name="build-live")
-        self._live_settings = {"psf": psf, "depth_requested_mm": depth, "dark": dark}
+        self._live_settings = {"psf": psf, "depth_requested_mm": depth, "dark": dark,
+                               "device_requested": device}
         self.job.succeeded.connect(self._live_ready)
         self.job.failed.connect(self.error.setText)
         self.job.finished.connect(lambda: self.recon_button.setEnabled(True))
@@ -247,6 +267,9 @@ class LivePanel(QWidget):
         live, depth = result
         self.depth_used = depth
         self._live_settings["depth_used_mm"] = depth
+        label = live.reconstructor.backend.label
+        self._live_settings["device"] = label
+        self.device_used.setText(f"running on {label}")
         self.plane.setText("" if depth is None else f"plane used: z = {depth:g} mm")
         try:
             self.session.add_consumer(CONSUMER, live.offer)
@@ -273,6 +296,7 @@ class LivePanel(QWidget):
             self.job = job.start()
         self.recon_button.setText("Start reconstruction")
         self.plane.setText("")
+        self.device_used.setText("")
 
     def _method_changed(self, *_) -> None:
         if self.live is not None:

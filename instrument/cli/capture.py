@@ -1,7 +1,7 @@
 """``diffuserlab capture live|video``: watch the reconstruction, record a video.
 
 ``diffuserlab capture live [BENCH.toml] [--simulate] --psf PSF [--depth Z]
-[--method wiener|admm:K] [--seconds T] [--preview-png FILE]``
+[--method wiener|admm:K] [--device cpu|cuda|auto] [--seconds T] [--preview-png FILE]``
     Streams the bench's camera into a ring, reconstructs the newest frame on a worker
     thread (:class:`instrument.live.LiveReconstruction`: Wiener preview by default,
     or K ADMM iterations per frame warm-started from the previous frame), prints the
@@ -10,10 +10,13 @@
     (upright view, written atomically). No GUI needed. With ``--simulate`` the
     virtual bench streams in real time and shows a moving video scene
     (``--scene``: beads flowing in a channel, or neurons with calcium transients).
+    ``--device cuda`` reconstructs on a GPU (the PSF spectrum and the warm-start
+    state kept there); an unusable device exits 2 before the bench is opened.
     Ctrl-C stops cleanly. Exit 0; 1 if the worker reported errors; 2 bad input.
 
 ``diffuserlab capture video [BENCH.toml] [--simulate] (--frames N | --seconds T)
-[--fps F] [--scene ...] --out RUN.zarr [--live-recon wiener|admm:K --psf PSF]``
+[--fps F] [--scene ...] --out RUN.zarr [--live-recon wiener|admm:K --psf PSF
+[--device cpu|cuda|auto]]``
     Records at the camera's rate into a new sharded run store
     (:func:`instrument.video.record_video`): every frame in order, none skipped; a
     frame the recorder cannot take is lost, counted and named by index. A progress
@@ -60,9 +63,10 @@ def _recon_options(p: argparse.ArgumentParser, *, required: bool, method_flag: s
     p.add_argument(method_flag, default=default_method, dest="method",
                    help="wiener or admm:K (K warm-started ADMM iterations per frame)"
                    + ("" if default_method is None else f"; default {default_method}"))
-    from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, add_dark_option
+    from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, add_dark_option, add_device_option
 
     add_dark_option(p, auto=FRAMES_AUTO, frame=FRAMES_FRAME)
+    add_device_option(p)
     p.add_argument("--bin", type=int, default=1, dest="bin_factor",
                    help="bin PSF and frames by this factor, pixels per side")
     p.add_argument("--threads", type=int, default=None,
@@ -228,10 +232,11 @@ def _live(args: argparse.Namespace, cam):
     dark = _frame_dark(args, cam, stacked)
     if dark is not None and stacked:  # the stack's PSF is dark-subtracted already:
         psf = psf + dark  # LiveReconstructor subtracts the same dark from both
-    live = LiveReconstruction(LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark),
-                              method=method, iterations=iterations, threads=args.threads)
+    recon = LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark, device=args.device)
+    live = LiveReconstruction(recon, method=method, iterations=iterations,
+                              threads=args.threads)
     label = (f"{method}{'' if method == 'wiener' else f' x{iterations}'}, PSF {args.psf}"
-             f"{'' if depth is None else f' at {depth:g} mm'}")
+             f"{'' if depth is None else f' at {depth:g} mm'}, on {recon.backend.label}")
     return live, label
 
 
@@ -241,9 +246,11 @@ def run_live(args: argparse.Namespace) -> int:
     from recon.io import save_image, scene_view
 
     from ..output_safety import check_outputs
+    from .recon_flags import check_device
 
     _method(args.method)
     _check_numbers(args)
+    check_device(args.device)  # before the bench is opened or a file written
     if args.preview_png is not None:
         check_outputs([args.preview_png], {"--psf": args.psf}, args.overwrite,
                       option="--preview-png")
@@ -318,15 +325,18 @@ def run_video(args: argparse.Namespace) -> int:
     from ..recorder import index_ranges
     from ..runstore import FRAME_COMPRESSORS, RunStore, is_run_store
     from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES, record_video
+    from .recon_flags import check_device
 
     if args.method is not None:
         _method(args.method)
         if args.psf is None:
             raise ReconInputError("--live-recon needs the PSF to reconstruct with: add "
                                   "--psf PSF (and --depth for a stack)")
-    elif args.psf is not None or args.preview_png is not None:
-        raise ReconInputError("--psf and --preview-png go with --live-recon wiener|admm:K")
+    elif args.psf is not None or args.preview_png is not None or args.device != "cpu":
+        raise ReconInputError("--psf, --preview-png and --device go with --live-recon "
+                              "wiener|admm:K")
     _check_numbers(args)
+    check_device(args.device)  # before the bench is opened or a file written
     if args.frames is not None and not 1 <= args.frames <= MAX_FRAMES:
         raise ReconInputError(f"--frames {args.frames}: give a whole number >= 1 and at most "
                               f"{MAX_FRAMES} (record longer videos in parts)")

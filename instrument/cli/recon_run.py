@@ -1,7 +1,8 @@
 """``diffuserlab recon-run``: reconstruct every frame of a recorded run, in parallel.
 
 ``diffuserlab recon-run RUN.zarr --psf PSF|SWEEP.zarr [--depth Z] --method M
---iterations N [--frames A:B] [--scheduler ADDRESS | --workers K] [--dff PERCENTILE]``
+--iterations N [--frames A:B] [--scheduler ADDRESS | --workers K] [--dff PERCENTILE]
+[--device cpu|cuda|auto]``
     Reconstructs the selected frames with dask (:func:`instrument.batch.reconstruct_run`:
     local worker processes, or a dask.distributed cluster given its scheduler's
     address), shows a progress bar, stores the images in the run as the per-frame
@@ -9,8 +10,10 @@
     (frames already reconstructed with the same settings are skipped). Each frame
     equals ``diffuserlab recon`` of that frame with the same method, weights and
     iterations. ``--dff`` adds the ΔF/F product against a per-pixel percentile
-    baseline (Kuo 2020, Fig. 6.5b: 20). Exit 0; 2 bad input; 130 Ctrl-C (the frames
-    done are kept: run the same command again to finish).
+    baseline (Kuo 2020, Fig. 6.5b: 20). ``--device cuda`` solves on a GPU in every
+    worker (one local worker unless ``--workers``; a cluster's workers use their own
+    GPU); an unusable device exits 2 before the run is opened. Exit 0; 2 bad input;
+    130 Ctrl-C (the frames done are kept: run the same command again to finish).
 
 ``diffuserlab recon-run RUN.zarr --psf-grid GRID.zarr [--model auto|convolution|local|pca]
 [--background estimate|none] ...``
@@ -37,7 +40,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""
     from recon.options import L1_DEFAULT, METHODS, weight_arg
 
-    from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, L1_HELP, TV_HELP, add_dark_option
+    from .recon_flags import (
+        FRAMES_AUTO,
+        FRAMES_FRAME,
+        L1_HELP,
+        TV_HELP,
+        add_dark_option,
+        add_device_option,
+    )
 
     rp = sub.add_parser(
         "recon-run", help="reconstruct every frame of a recorded run with dask (resumable)",
@@ -80,6 +90,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="name of the product (default recon_<method>)")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace a product of that name made with other settings")
+    add_device_option(rp)
     from .grid_options import add_grid_options
 
     add_grid_options(rp, volume=False, grid_dark=False)
@@ -95,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
     from ..runstore import RunStore
+    from .recon_flags import check_device
 
     if args.iterations < 1:
         raise ReconInputError(f"--iterations {args.iterations}: give a whole number >= 1")
@@ -112,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.psf is None) == (args.psf_grid is None):
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
+    check_device(args.device, grid=args.psf_grid is not None)  # before the run is opened
     store = RunStore.open(args.run)
     frames = None if args.frames is None else parse_frames(args.frames, store.n_frames)
     if args.psf_grid:
@@ -126,7 +139,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.run}: {which} of {store.n_frames}, "
           f"{how}, PSF {source}; "
           + (f"scheduler {args.scheduler}" if args.scheduler else
-             f"{args.workers or 'one per core'} local workers"), flush=True)
+             f"{args.workers or 'one per core'} local workers" if args.device == "cpu"
+             or args.workers else "one local worker")
+          + ("" if args.device == "cpu" else f", device {args.device}"), flush=True)
     bars: list = []
 
     def progress(p: dict) -> None:
@@ -144,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
             workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
             overwrite=args.overwrite, psf_source=source, background=args.background,
             grid_l1=GRID_L1 if l1_given(args.l1) is None else args.l1, on_progress=progress,
-            cancel=cancel)
+            cancel=cancel, device=args.device)
     except KeyboardInterrupt:
         for bar in bars:
             bar.close()

@@ -9,9 +9,12 @@ operations instead of the fused numba passes.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..backend import array_namespace, device_of
+from ..errors import ReconInputError
 from ..xp_operators import XpConvolution
 from .common import SolveResult
 from .penalty import tie_nonneg_penalty
@@ -25,7 +28,7 @@ from .xp_common import (
     tv_circular,
 )
 
-__all__ = ["admm_xp", "memory_bytes"]
+__all__ = ["XpAdmmState", "admm_xp", "device_plan", "memory_bytes"]
 
 
 def memory_bytes(padded_shape: tuple[int, int]) -> int:
@@ -36,14 +39,73 @@ def memory_bytes(padded_shape: tuple[int, int]) -> int:
     return 24 * plane + 6 * plane
 
 
+@dataclass
+class XpAdmmState:
+    """The ADMM iterate of :func:`admm_xp` carried between solves (a live view's warm
+    start): :class:`recon.solvers.admm.AdmmState` on a device.
+
+    Attributes
+    ----------
+    x, mx : array, float32, (P0, P1)
+        Primal iterate (before the non-negativity clip) and M x.
+    qv, qux, quy, qw : array, float32, (P0, P1)
+        q = z - a of the crop, the two TV and the non-negativity splits.
+    av, aux, auy, aw : array, float32, (P0, P1)
+        Scaled duals stored by the balancing passes.
+    mu : (mu1, mu2, mu3)
+        Current penalties.
+    use_tv : bool
+        Whether the TV splits are in use (``tv > 0``).
+    """
+
+    x: object
+    mx: object
+    qv: object
+    qux: object
+    quy: object
+    qw: object
+    av: object
+    aux: object
+    auy: object
+    aw: object
+    mu: tuple
+    use_tv: bool
+
+    @classmethod
+    def zeros(cls, xp, shape: tuple[int, int], device, mu, use_tv: bool) -> XpAdmmState:
+        """The cold start: every array zero (x_0 = 0), penalties ``mu``."""
+        zero = xp.zeros(shape, dtype=xp.float32, device=device)
+        return cls(*(zero,) * 10, tuple(mu), bool(use_tv))
+
+    def scale(self, factor: float) -> None:
+        """Multiply x, M x and every q by ``factor`` (:meth:`AdmmState.scale
+        <recon.solvers.admm.AdmmState.scale>`: the measurement's scale changed)."""
+        f = float(np.float32(factor))
+        for name in ("x", "mx", "qv", "qux", "quy", "qw"):
+            setattr(self, name, getattr(self, name) * f)
+
+
 def _rescale(q, a, old: float, new: float):
     """:func:`recon.solvers.penalty.rescale_duals` for one split, out of place."""
     return q + a * (1.0 - old / new) if old != new else q
 
 
-def _device_plan(plan, b):
+def device_plan(plan, b):
     """The plan's operator and power spectra on ``b``'s device, made once per plan and
-    device (kept on the plan: a live view reuses its plan frame after frame)."""
+    device (kept on the plan: a live view reuses its plan frame after frame).
+
+    Parameters
+    ----------
+    plan : AdmmPlan
+    b : array (array API)
+        Any array of the target backend and device.
+
+    Returns
+    -------
+    (XpConvolution, h_pow, d_pow)
+        The operator on the device and |H|^2, |F Psi|^2 there, float32
+        (P0, P1 // 2 + 1).
+    """
     key = (array_namespace(b).__name__, str(device_of(b)))
     cache = plan.__dict__.setdefault("_device_copies", {})
     if key not in cache:
@@ -52,8 +114,8 @@ def _device_plan(plan, b):
     return cache[key]
 
 
-def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=None
-            ) -> SolveResult:
+def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=None,
+            state: XpAdmmState | None = None) -> SolveResult:
     """ADMM of :func:`recon.solvers.admm.admm` on ``b``'s backend (validated parameters).
 
     Parameters
@@ -69,6 +131,10 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
     penalty : AdmmPenalty
     stop : callable, optional
         ``stop(history) -> bool`` after every iteration (automatic stopping).
+    state : XpAdmmState, optional
+        Start from this iterate and its penalties (a warm start, as
+        :func:`recon.solvers.admm.run_admm` from an ``AdmmState``) and leave the final
+        iterate in it; default a cold start with ``penalty``'s initial penalties.
 
     Returns
     -------
@@ -79,17 +145,23 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
     Raises
     ------
     DivergenceError, ReconInputError
-        As :func:`recon.solvers.admm.admm`.
+        As :func:`recon.solvers.admm.admm`; a ``state`` made for the other sign of
+        ``tv``.
     """
     op = plan.op
-    xop, h_pow, d_pow = _device_plan(plan, b)
+    xop, h_pow, d_pow = device_plan(plan, b)
     xp = xop.xp
     b = check_measurement_xp(b, op.shape_out)
     shape = xop.padded_shape
     bp, wp = xop.pad(b), xop.wp
     spec = xop.spectrum
     use_tv = tv > 0
-    mu1, mu2, mu3 = penalty.initial()
+    if state is None:
+        state = XpAdmmState.zeros(xp, shape, xop.device, penalty.initial(), use_tv)
+    if state.use_tv != use_tv:
+        raise ReconInputError(f"ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
+                              f" but tv={tv}; start from XpAdmmState.zeros(..., tv > 0)")
+    mu1, mu2, mu3 = state.mu
     ratio = mu3 / mu1
 
     def inverse_denominator(m1, m2, m3):
@@ -97,9 +169,8 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
         return 1.0 / (den + m2 * d_pow if use_tv else den)
 
     inv_den = inverse_denominator(mu1, mu2, mu3)
-    zeros = xp.zeros(shape, dtype=xp.float32, device=xop.device)
-    x = mx = qv = qux = quy = qw = zeros
-    av = aux = auy = aw = zeros
+    x, mx, qv, qux, quy, qw = state.x, state.mx, state.qv, state.qux, state.quy, state.qw
+    av, aux, auy, aw = state.av, state.aux, state.auy, state.aw
     mon = XpMonitor(xp, total(xp, b * b), "ADMM")
     mus = [(mu1, mu2, mu3)]
     last_balance = penalty.last_balance(iterations)
@@ -159,6 +230,9 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
         if stop is not None and stop(mon.history):
             used = k + 1
             break
+    state.x, state.mx, state.qv, state.qux, state.quy, state.qw = x, mx, qv, qux, quy, qw
+    state.av, state.aux, state.auy, state.aw = av, aux, auy, aw
+    state.mu = (mu1, mu2, mu3)
     x = xp.clip(x, min=0.0)
     r = xop.forward(x) - b
     data_sq = total(xp, r * r)

@@ -49,3 +49,22 @@ def test_the_hologram_has_no_generic_path_and_says_so():
         pytest.skip("PyTorch is not installed")
     out = _measure(Case("hologram", "holo", (540, 960, 4)), backend, 2)
     assert out == {"note": "no generic path: the hologram optimiser runs on the CPU only"}
+
+
+def test_the_live_case_runs_the_warm_started_live_reconstructor_on_the_backend(monkeypatch):
+    backend = torch_cpu()
+    if backend is None:
+        pytest.skip("PyTorch is not installed")
+    import recon.xp_live as xp_live
+
+    calls = []
+    solve = xp_live.DeviceLive.admm
+
+    def spy(self, b, state, **kwargs):
+        calls.append((self.backend.label, type(state.x).__module__))
+        return solve(self, b, state, **kwargs)
+
+    monkeypatch.setattr(xp_live.DeviceLive, "admm", spy)
+    out = _measure(Case("live ADMM x5 32x40", "live", (32, 40)), backend, 6)
+    assert out["iterations_per_unit"] == 5 and out["seconds_per_iteration"] > 0
+    assert calls == [(backend.label, "torch")] * 4  # one cold frame, three warm ones
