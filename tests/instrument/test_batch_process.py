@@ -93,10 +93,12 @@ def test_the_childs_error_comes_back_with_its_type_and_traceback(video, run):
 
 
 class _TwoArguments(RunStoreError):
-    """A project error whose arguments do not survive pickling."""
+    """A project error that cannot be pickled: it holds a lock (and its arguments do not
+    round-trip, unless tblib, which dask installs, rebuilds it without them)."""
 
     def __init__(self, path, reason):
         super().__init__(f"{path}: {reason}")
+        self.held = threading.Lock()
 
 
 def test_an_error_that_cannot_be_pickled_keeps_its_message_and_kind():
