@@ -42,8 +42,9 @@ PLANE_BYTES = 8 + 4 + 4 + 4 + 3 * 8
 #: Bytes per mask-grid sample shared by the planes: the filters (``H``, ``H^2`` with the
 #: column weights, half-size; the spatial weights) and the temporaries of one plane's
 #: evaluation (field, intensity, residual, spectrum, gradient field, its inverse FFT, the
-#: masked product; an FFT workspace).
-SHARED_BYTES = 2 + 2 + 4 + 8 + 4 + 4 + 4 + 4 + 8 + 8 + 8 + 8
+#: masked product) and the FFT plans' work areas (CuPy keeps one with each cached plan:
+#: forward, inverse, real forward and inverse).
+SHARED_BYTES = 2 + 2 + 4 + 8 + 4 + 4 + 4 + 4 + 8 + 8 + 8 + 3 * 8
 
 
 def memory_bytes(slm_shape, k: int, n_planes: int = 1) -> int:

@@ -80,3 +80,17 @@ def test_the_benchmark_runs_the_generic_path_on_the_device_asked(monkeypatch, ca
     assert "on cpu (torch)" in out and "FFT share not timed (generic path)" in out
     rep = json.loads(report.read_text())
     assert rep["device"] == "cpu (torch)" and rep["iterations"] >= 1 and rep["fft_seconds"] > 0
+
+
+def test_a_cpu_hologram_loads_no_gpu_library():
+    """``holo benchmark`` on the CPU (the default device) runs the NumPy path and never
+    imports CuPy, PyTorch or the array-API layers."""
+    from .test_lazy_imports import GPU, _run
+
+    code = f"""
+import sys
+from instrument.cli import main
+assert main(["holo", "benchmark", "--quick"]) == 0
+print(sorted({{m.split(".")[0] for m in sys.modules}} & set({GPU!r})))
+"""
+    assert _run(code).strip().splitlines()[-1] == "[]"
