@@ -176,3 +176,30 @@ def test_an_unusable_cuda_request_names_what_is_missing():
     d, target, _ = _problem()
     with pytest.raises(ReconInputError, match="cuda requested but"):
         optimize_hologram(d, target, IntensityLoss.l2(), 2, device="cuda")
+
+
+@pytest.mark.parametrize("name", GENERIC)
+def test_the_display_model_and_its_adjoint_on_every_backend(name):
+    """:class:`XpDisplay` gives :class:`ScatteringDisplay`'s adjoint (centred frame) and
+    its raw-frame fields and back-projection are adjoint to each other, per plane, with a
+    real mask plane and a complex (Fresnel) one."""
+    from recon.cgh.xp_display import XpDisplay
+
+    backend = _backend(name)
+    d, _, s = _problem((0.0, 25.0))
+    xd = XpDisplay(d, backend)
+    rng = np.random.default_rng(7)
+    y = (rng.standard_normal((2, *d.grid_shape))
+         + 1j * rng.standard_normal((2, *d.grid_shape))).astype(np.complex64)
+    ref = d.adjoint(y)
+    got = np.asarray(to_numpy(xd.adjoint(on(backend, y))))
+    assert np.abs(got - ref).max() <= EVAL_TOL * np.abs(ref).max()
+    fields = xd.fields(on(backend, s))
+    for p in range(2):
+        fwd = np.asarray(to_numpy(fields[p])).astype(np.complex128)
+        back = np.asarray(to_numpy(xd.back(on(backend, y[p]), p))).astype(np.complex128)
+        lhs, rhs = np.vdot(fwd, y[p]), np.vdot(s, back)
+        assert abs(lhs - rhs) <= EVAL_TOL * abs(lhs)
+        # |fft2(m U s)|^2 is the centred intensity, ifftshift-ed
+        np.testing.assert_allclose(np.abs(fwd) ** 2, np.fft.ifftshift(
+            d.intensity(s)[p]), rtol=1e-4, atol=1e-4 * d.intensity(s)[p].max())
