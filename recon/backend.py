@@ -216,7 +216,8 @@ def free_device_bytes(backend: Backend) -> int | None:
 
 
 def check_memory(needed_bytes: int, free_bytes: int | None, *, what: str,
-                 where: str = "the GPU") -> None:
+                 where: str = "the GPU",
+                 fix: str = "bin the data (--bin), use fewer depth planes") -> None:
     """Refuse a solve that does not fit before it starts.
 
     Parameters
@@ -227,6 +228,9 @@ def check_memory(needed_bytes: int, free_bytes: int | None, *, what: str,
         Free device memory (:func:`free_device_bytes`); None skips the check.
     what, where : str
         The solve and the device, for the message.
+    fix : str
+        What makes the problem smaller, for the message (before "free the GPU, or use
+        --device cpu").
 
     Raises
     ------
@@ -238,5 +242,4 @@ def check_memory(needed_bytes: int, free_bytes: int | None, *, what: str,
     gib = 2.0**30
     raise ReconInputError(
         f"{what} needs {needed_bytes / gib:.2f} GiB on {where}, {free_bytes / gib:.2f} GiB "
-        "are free; bin the data (--bin), use fewer depth planes, free the GPU, or use "
-        "--device cpu")
+        f"are free; {fix}, free the GPU, or use --device cpu")

@@ -4,7 +4,10 @@
 ``records.csv``, ``summary.json``, ``table.md``, ``psnr_vs_seconds.png`` under
 ``--out``; prints the table); exit 1 with ``--strict`` when an acceptance rule
 fails. ``holo benchmark`` times one full-size hologram against the FFT floor
-(:func:`recon.cgh.benchmark.run_benchmark`) and prints the report.
+(:func:`recon.cgh.benchmark.run_benchmark`) and prints the report. Both take
+``--device cpu|cuda|auto`` (the optimiser on the CPU's NumPy path or a GPU's generic
+path); an unusable device, or a hologram too large for the GPU's free memory, exits 2
+before anything is read or written.
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ EVALUATION_FILES = ("records.csv", "summary.json", "table.md", "psnr_vs_seconds.
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``holo`` with ``evaluate`` and ``benchmark`` to the ``diffuserlab`` subparsers."""
     from recon.options import HOLOGRAM_METHODS as METHODS
+
+    from .recon_flags import add_device_option
 
     hp = sub.add_parser("holo", help="holographic display: Table 7.1 evaluation, speed "
                         "benchmark")
@@ -43,6 +48,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ep.add_argument("--quick", action="store_true",
                     help="smoke run: N = 48, 3 images, factors 4,16, seed 0, 15 iterations")
     ep.add_argument("--strict", action="store_true", help="exit 1 when a rule fails")
+    add_device_option(ep)
     ep.add_argument("--overwrite", action="store_true",
                     help="replace the files of an earlier evaluation in --out")
     ep.set_defaults(handler=run_evaluate)
@@ -59,6 +65,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("--json", default=None, help="also write the report to this JSON file")
     bp.add_argument("--quick", action="store_true", help="tiny smoke run (36 x 64 SLM, 10 it.)")
     bp.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    add_device_option(bp)
     bp.set_defaults(handler=run_benchmark)
 
 
@@ -83,6 +90,22 @@ def _settings(args: argparse.Namespace, options: dict[str, str], *, full: tuple,
     defaults = quick if args.quick else full
     return {attr: (getattr(args, attr) if getattr(args, attr) is not None else d)
             for (flag, attr), d in zip(options.items(), defaults, strict=True)}
+
+
+def _device(args: argparse.Namespace, slm_shape, k: int):
+    """The backend of ``--device``, refused (exit 2 through :func:`instrument.cli.main`)
+    when unusable or when the largest hologram asked for does not fit in the GPU's free
+    memory; checked before anything is read or written."""
+    from recon.backend import resolve_device
+    from recon.cgh.xp_optimize import check_device_memory
+
+    from .recon_flags import check_device
+
+    check_device(args.device)
+    backend = resolve_device(args.device)
+    if not backend.is_numpy:
+        check_device_memory(backend, slm_shape, k)
+    return backend
 
 
 def _ints(text: str, what: str) -> tuple[int, ...]:
@@ -120,6 +143,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from recon.cgh.evaluate import run_evaluation
+    from recon.cgh.evaluation import factor_to_k
     from recon.cgh.protocol import BUNDLED_IMAGES, load_bundled, load_folder
     from recon.errors import ReconInputError
 
@@ -138,6 +162,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     _check_evaluation(factors, seeds, methods)
     if size < 1 or iters < 1:
         raise ReconInputError("--size and --iterations must be positive")
+    k_max = max(factor_to_k(f) for f in factors)
+    _device(args, (max(size // k_max, 1),) * 2, k_max)
     # the optimiser holds a few complex fields on the expanded SLM grid (k N)^2
     check_memory(8 * 8 * max(factors) * size ** 2, f"--size {size} at factor {max(factors)}")
     if args.images:
@@ -154,7 +180,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
     ev = run_evaluation(images, args.out, size=size, factors=factors, seeds=seeds,
                         iterations=iters, methods=methods,
-                        source=args.images or "skimage bundled (A10)", progress=progress)
+                        source=args.images or "skimage bundled (A10)", progress=progress,
+                        device=args.device)
     print(ev["table"])
     print(f"wrote {args.out}/records.csv, summary.json, table.md, psnr_vs_seconds.png "
           f"({ev['settings']['wall_seconds']:.0f} s)")
@@ -178,13 +205,14 @@ def run_benchmark(args: argparse.Namespace) -> int:
     if k * k != args.factor or min(slm) < 1 or iters < 1 or reps < 1:
         raise ReconInputError("--factor must be a perfect square; --slm, --iterations and "
                               "--fft-repeats must be positive")
+    backend = _device(args, slm, k)
     check_memory(8 * 8 * args.factor * slm[0] * slm[1],
                  f"--slm {slm[0]} {slm[1]} at --factor {args.factor}")
     if args.json:
         from ..output_safety import check_outputs
 
         check_outputs([args.json], None, args.overwrite, option="--json")
-    rep = time_hologram(slm, k, iters, args.loss, reps)
+    rep = time_hologram(slm, k, iters, args.loss, reps, backend)
     print(format_report(rep, args.factor, reps, iters))
     if args.json:
         from recon.io import atomic_path

@@ -27,6 +27,10 @@ optimize
     backtracking, Algorithm 1 / App. A.4; phase-only or complex SLM) and
     :func:`loss_and_gradient` (the Wirtinger gradient of Eq. A.7-A.9);
     :func:`no_mask_hologram` (the same optimiser on the bare SLM, for reference).
+    ``device="cpu"|"cuda"|"auto"`` picks the NumPy path or the generic one.
+iteration, xp_optimize, xp_display
+    The optimiser's loop shared by both paths; the generic loss, gradient and display
+    model on any array-API backend (PyTorch, CuPy; a GPU), imported only when used.
 baselines
     :func:`one_step_hologram` (Eq. 7.11-7.13).
 protocol, evaluation, evaluate

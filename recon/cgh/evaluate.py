@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..backend import resolve_device
 from ..errors import ReconInputError
 from ..io import atomic_path, write_json
 from .evaluation import LABELS, METHODS, TABLE_7_1, acceptance, evaluate_images, summarise
@@ -140,7 +141,8 @@ def _summary_record(summary, rules, settings) -> dict:
 def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: int,
                    factors: tuple[int, ...], seeds: tuple[int, ...], iterations: int,
                    methods: tuple[str, ...], source: str,
-                   progress: Callable[[int, int, dict], None] | None = None) -> dict:
+                   progress: Callable[[int, int, dict], None] | None = None,
+                   device: str = "cpu") -> dict:
     """Evaluate the images and write the four files of the module docstring to ``out``.
 
     Parameters
@@ -156,6 +158,9 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
         Where the images came from, recorded in the settings.
     progress : callable, optional
         ``progress(done, total, record)`` after each hologram.
+    device : {"cpu", "cuda", "auto"}
+        Where the optimiser runs (:func:`.evaluation.evaluate_images`); recorded in the
+        settings as the optimiser reports it.
 
     Returns
     -------
@@ -166,21 +171,24 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
     Raises
     ------
     ReconInputError
-        ``size < 8``, ``iterations < 1`` or a grid the factors do not divide.
+        ``size < 8``, ``iterations < 1``, a grid the factors do not divide, or an
+        unusable ``device``.
     """
     if size < 8 or iterations < 1:
         raise ReconInputError("--size must be >= 8 and --iterations >= 1")
+    where = resolve_device(device).label  # an unusable device is refused before out is made
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     records = evaluate_images(images, size, factors, methods, seeds, iterations,
-                              progress=progress)
+                              progress=progress, device=device)
     summary = summarise(records)
     rules = acceptance(summary, records)
     settings = {"size": size, "factors": list(factors), "seeds": list(seeds),
                 "iterations": iterations, "methods": list(methods),
                 "images": [n for n, _ in images], "n_images": len(images),
-                "source": source, "wall_seconds": time.perf_counter() - t0}
+                "source": source, "device": where,
+                "wall_seconds": time.perf_counter() - t0}
     fields = [k for k in records[0] if k != "curve"]
     with atomic_path(out / "records.csv") as tmp, open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")

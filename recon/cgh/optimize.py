@@ -33,6 +33,12 @@ FFTs per iteration (complex-FFT equivalents, a real FFT counts 1/2; plus one
 trial per backtrack, rare after the first iterations): L2 2 (fft2 + ifft2),
 frequency 3.5 (+ rfft2/irfft2 for the gradient, rfft2 for the trial's loss),
 spatial 5. Multiply by the number of planes.
+
+Two engines evaluate the loss and gradient: :class:`_Engine` here (NumPy, numba kernels
+of :mod:`._kernels`, scipy.fft in place) and the generic
+:class:`recon.cgh.xp_optimize.XpEngine` (the array API: PyTorch or CuPy on a GPU, any
+conforming array); :func:`recon.cgh.iteration.iterate` runs the loop with either.
+:func:`optimize_hologram` picks by ``device`` and by the type of the target.
 """
 
 from __future__ import annotations
@@ -44,13 +50,14 @@ import time
 import numpy as np
 import scipy.fft as sfft
 
-from ..errors import DivergenceError, ReconInputError
+from ..backend import resolve_device, to_numpy
+from ..errors import ReconInputError
 from ..fft import WORKERS
-from ..solvers.common import History
 from ..validate import as_array, as_int, finite_float, positive
 from . import _kernels
 from .baselines import one_step_hologram
 from .hologram import HologramResult, check_slm_kind, check_targets, project
+from .iteration import iterate
 from .losses import IntensityLoss, butterworth_lowpass
 from .scattering_display import ScatteringDisplay, field_from_phase
 
@@ -139,11 +146,44 @@ class _Engine:
         """One complex grid buffer per plane (complex64, or complex128 when double)."""
         return [np.empty(self.grid, self.cdt) for _ in self.masks]
 
-    def fields(self, s: np.ndarray, out: list[np.ndarray]) -> None:
-        """``out[p] = fft2(m_p U s)`` (raw frame), in place."""
+    def fields(self, s: np.ndarray, out: list[np.ndarray]) -> list[np.ndarray]:
+        """``out[p] = fft2(m_p U s)`` (raw frame), in place; returns ``out``."""
         for p, m in enumerate(self.masks):
             _kernels.upsample_multiply(s, m, self.k, out[p])
             self._fft_inplace(out[p])
+        return out
+
+    @staticmethod
+    def copy_fields(src: list[np.ndarray], dst: list[np.ndarray]) -> list[np.ndarray]:
+        """Copy the fields ``src`` into the buffers ``dst``; returns ``dst``."""
+        for a, b in zip(dst, src, strict=True):
+            np.copyto(a, b)
+        return dst
+
+    @staticmethod
+    def new_grad(s: np.ndarray) -> np.ndarray:
+        """A gradient buffer like ``s``."""
+        return np.empty_like(s)
+
+    @staticmethod
+    def copy(a: np.ndarray) -> np.ndarray:
+        """A copy of ``a``."""
+        return a.copy()
+
+    @staticmethod
+    def extrapolate(s: np.ndarray, s_prev: np.ndarray, beta: float) -> np.ndarray:
+        """Nesterov's point ``s + beta (s - s_prev)`` (complex64)."""
+        return s + np.float32(beta) * (s - s_prev) if beta else s.copy()
+
+    @staticmethod
+    def descend(w: np.ndarray, mu: float, grad: np.ndarray, slm: str) -> np.ndarray:
+        """The projected gradient step ``prox(w - mu grad)`` (Eq. A.6)."""
+        return project(w - np.float32(mu) * grad, slm)
+
+    @staticmethod
+    def inner(a: np.ndarray, b: np.ndarray) -> float:
+        """``Re <a, b>``."""
+        return float(np.vdot(a, b).real)
 
     def power(self, s: np.ndarray) -> float:
         """``sum I`` on each plane: ``sum mask_energy |s|^2`` (Parseval)."""
@@ -174,8 +214,8 @@ class _Engine:
 
     def value_and_grad(self, a: float, za: list[np.ndarray], b: float, zb: list[np.ndarray],
                        z: list[np.ndarray], w: np.ndarray, total: float,
-                       grad: np.ndarray) -> float:
-        """Loss at ``w`` and its real gradient into ``grad``.
+                       grad: np.ndarray) -> tuple[float, np.ndarray]:
+        """Loss at ``w`` and its real gradient into ``grad``; returns both.
 
         The fields at ``w`` are ``a za + b zb`` (linearity in ``s``); they are built
         into ``z`` and destroyed there.
@@ -210,7 +250,7 @@ class _Engine:
             grad += self.rdt.type(2.0 * sig) * self.slm_tmp
         if const:
             grad -= self.rdt.type(2.0 * const) * self.energy * w
-        return acc
+        return acc, grad
 
 
 def _initial_field(display, targets, init, slm, seed) -> np.ndarray:
@@ -241,40 +281,85 @@ def loss_and_gradient(display: ScatteringDisplay, s, target, loss: IntensityLoss
     Parameters
     ----------
     display : ScatteringDisplay
-    s : numpy.ndarray
-        Complex SLM field, ``slm_shape`` (any modulus).
+    s : numpy.ndarray or array
+        Complex SLM field, ``slm_shape`` (any modulus). A NumPy array takes the NumPy
+        path; an array of another array-API library (PyTorch, CuPy) the generic path
+        (:class:`recon.cgh.xp_optimize.XpEngine`) on that array's device.
     target : numpy.ndarray
         Target intensity per plane (centred frame), normalised internally to the
         power of a unit-modulus SLM field.
     loss : IntensityLoss, optional
         Default :meth:`IntensityLoss.frequency`.
     double : bool
-        Evaluate in float64/complex128 (for gradient checks); default single.
+        Evaluate in float64/complex128 (for gradient checks; NumPy path only);
+        default single.
 
     Returns
     -------
-    (float, numpy.ndarray)
+    (float, array)
         ``L`` and the gradient ``g`` (complex64, complex128 when ``double``) with
-        ``dL = Re <g, ds>``.
+        ``dL = Re <g, ds>``; on ``s``'s device for the generic path.
+
+    Raises
+    ------
+    ReconInputError
+        Bad display, field or target; ``double`` on the generic path.
     """
     loss = IntensityLoss.frequency() if loss is None else loss
     if not isinstance(display, ScatteringDisplay):
         raise ReconInputError(f"display must be a ScatteringDisplay, got {type(display).__name__}")
+    backend = _array_backend(s)
+    if backend is not None:
+        if double:
+            raise ReconInputError("double=True is for the NumPy path; pass a numpy array")
+        from .xp_optimize import XpEngine
+
+        display.check_slm(to_numpy(s))  # shape, dtype and finiteness
+        eng = XpEngine(display, check_targets(_host(target), display), loss, backend)
+        s = backend.xp.astype(s, backend.xp.complex64)
+        z = eng.fields(s)
+        return eng.value_and_grad(1.0, z, 0.0, z, z, s, eng.power(s))
     eng = _Engine(display, check_targets(target, display), loss, double=double)
     display.check_slm(s)  # shape, dtype and finiteness
     s = np.ascontiguousarray(s, dtype=eng.cdt)
-    z = eng.new_fields()
-    eng.fields(s, z)
-    g = np.empty(display.slm_shape, eng.cdt)
-    val = eng.value_and_grad(1.0, z, 0.0, z, z, s, eng.power(s), g)
-    return val, g
+    z = eng.fields(s, eng.new_fields())
+    return eng.value_and_grad(1.0, z, 0.0, z, z, s, eng.power(s),
+                              np.empty(display.slm_shape, eng.cdt))
+
+
+def _host(a):
+    """``a`` as a host (NumPy) array when it is another library's array, else as given."""
+    return a if _array_backend(a) is None else to_numpy(a)
+
+
+def _array_backend(a):
+    """The backend of an array of another array-API library (PyTorch, CuPy, ...), or
+    None for NumPy arrays and anything else (lists, scalars)."""
+    if isinstance(a, np.ndarray) or not hasattr(a, "__dlpack__"):
+        return None
+    from .xp_optimize import backend_of
+
+    try:
+        return backend_of(a)
+    except TypeError:  # not an array-API array after all
+        return None
+
+
+def _choose_backend(target, device: str):
+    """Where the optimisation runs: ``device`` (:func:`recon.backend.resolve_device`),
+    or the target's own library and device when it is not a NumPy array and ``device``
+    is the CPU (or ``auto`` without a GPU)."""
+    backend = resolve_device(device)
+    if backend.is_numpy:
+        return _array_backend(target) or backend
+    return backend
 
 
 def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | None = None,
                       iterations: int = 200, *, init="one-step", seed: int = 0,
                       slm: str = "phase", step_scale: float = 4.0, step_growth: float = 1.0,
-                      max_backtracks: int = 30, checkpoints=(), callback=None
-                      ) -> HologramResult:
+                      max_backtracks: int = 30, checkpoints=(), callback=None,
+                      device: str = "cpu") -> HologramResult:
     """Compute an SLM pattern for a target intensity (Eq. 7.14 / 7.23, Algorithm 1).
 
     Parameters
@@ -305,8 +390,17 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     checkpoints : iterable of int
         Iterations after which a copy of the field is kept (e.g. ``(25, 50, 100)``).
     callback : callable, optional
-        ``callback(iteration, field, loss)`` after each iteration; return ``True`` to
-        stop early (e.g. to cancel from a GUI).
+        ``callback(iteration, field, loss)`` after each iteration (``field`` on the
+        device the optimisation runs on); return ``True`` to stop early (e.g. to
+        cancel from a GUI).
+    device : {"cpu", "cuda", "auto"}
+        Where it runs (:func:`recon.backend.resolve_device`): ``cpu`` the NumPy path
+        (numba kernels, scipy.fft), ``cuda`` the generic path
+        (:mod:`recon.cgh.xp_optimize`) on the GPU through CuPy or PyTorch, ``auto``
+        the GPU when one is usable. A ``target`` of another array library (a PyTorch
+        tensor, a CuPy array) with ``cpu`` runs the generic path on that array's
+        device. The result is on the host either way; ``params["device"]`` says where
+        it ran.
 
     Returns
     -------
@@ -315,7 +409,9 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     Raises
     ------
     ReconInputError
-        Bad display, target, parameters or init.
+        Bad display, target, parameters or init; an unusable ``device`` (names what
+        is missing); a problem that does not fit in the GPU's free memory (says how
+        much it needs, :func:`recon.cgh.xp_optimize.memory_bytes`).
     DivergenceError
         The loss became NaN/inf (history and last good field attached).
     """
@@ -336,84 +432,27 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     except TypeError:
         raise ReconInputError(f"checkpoints must be a sequence of iteration numbers, got "
                               f"{checkpoints!r}") from None
-    targets = check_targets(target, display)
-    eng = _Engine(display, targets, loss)
-    s = _initial_field(display, targets, init, slm, seed)
-    zs, zp, zw = eng.new_fields(), eng.new_fields(), eng.new_fields()
-    eng.fields(s, zs)
-    for a, b in zip(zp, zs, strict=True):
-        np.copyto(a, b)
-    loss_s = eng.value(zs, eng.power(s))
-    s_prev = s.copy()
-    grad = np.empty_like(s)
-    mu = step_scale / (display.k ** 2)
-    t = 1.0
-    hist = History(extra={"step": [], "backtracks": [], "ffts": [], "restarts": [],
-                          "fft_seconds": []})
-    result = HologramResult(field=s, phase=np.angle(s), loss=loss_s, history=hist, seconds=0.0)
-    reason = "iterations"
-    tol = 1e-6
-    for it in range(1, iterations + 1):
-        t0 = time.perf_counter()
-        ffts0, fsec0 = eng.ffts, eng.fft_seconds
-        t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-        beta = (t - 1.0) / t_next
-        w = s + np.float32(beta) * (s - s_prev) if beta else s.copy()
-        loss_w = eng.value_and_grad(1.0 + beta, zs, -beta, zp, zw, w, eng.power(w), grad)
-        if not math.isfinite(loss_w):
-            raise DivergenceError(f"hologram loss became {loss_w} at iteration {it}; check the "
-                                  "target for extreme values", history=hist.as_dict(),
-                                  last_good=s)
-        backtracks = 0
-        while True:
-            s_new = project(w - np.float32(mu) * grad, slm)
-            eng.fields(s_new, zp)  # z(s_{k-1}) is no longer needed
-            loss_new = eng.value(zp, eng.power(s_new))
-            d = s_new - w
-            bound = (loss_w + float(np.vdot(grad, d).real)
-                     + float(np.vdot(d, d).real) / (2.0 * mu))
-            accepted = loss_new <= bound + tol * abs(loss_w)
-            if accepted or backtracks == max_backtracks:
-                break
-            mu *= 0.5
-            backtracks += 1
-        if not accepted:
-            reason = "converged (no decrease at float32 precision)"
-            break
-        if loss_new > loss_s:
-            t_next = 1.0
-            hist.extra["restarts"].append(it)
-        s_prev, s = s, s_new
-        zs, zp = zp, zs
-        loss_s, t = loss_new, t_next
-        hist.extra["step"].append(mu)
-        hist.extra["backtracks"].append(backtracks)
-        mu *= step_growth
-        hist.extra["ffts"].append(eng.ffts - ffts0)
-        hist.extra["fft_seconds"].append(eng.fft_seconds - fsec0)
-        hist.objective.append(loss_s)
-        hist.data_residual.append(math.sqrt(max(loss_s, 0.0) / eng.norm0))
-        hist.seconds.append(time.perf_counter() - t0)
-        if it in marks:
-            result.checkpoints[it] = s.copy()
-            result.checkpoint_seconds[it] = time.perf_counter() - t_start
-        if callback is not None and callback(it, s, loss_s):
-            reason = "stopped by callback"
-            break
-    n_it = len(hist.objective)
-    result.field = s
-    result.phase = np.angle(s).astype(np.float32)
-    result.loss = loss_s
-    result.iterations = n_it
-    result.ffts_per_iteration = float(np.mean(hist.extra["ffts"])) if n_it else 0.0
-    result.stop_reason = reason
-    result.seconds = time.perf_counter() - t_start
+    backend = _choose_backend(target, device)
+    targets = check_targets(_host(target), display)
+    if backend.is_numpy:
+        eng = _Engine(display, targets, loss)
+        s = _initial_field(display, targets, init, slm, seed)
+    else:
+        from .xp_optimize import XpEngine, check_device_memory, initial_field_xp
+
+        check_device_memory(backend, display.slm_shape, display.k, display.n_planes)
+        eng = XpEngine(display, targets, loss, backend)
+        s = initial_field_xp(eng, targets, init if isinstance(init, str) else
+                             _initial_field(display, targets, _host(init), slm, seed), slm, seed)
+    result = iterate(eng, s, iterations, slm=slm, mu=step_scale / (display.k ** 2),
+                      step_growth=step_growth, max_backtracks=max_backtracks, marks=marks,
+                      callback=callback, t_start=t_start)
     result.params = {"loss": loss.name, "iterations": iterations, "init": init if isinstance(
         init, str) else "array", "seed": seed, "slm": slm, "step_scale": step_scale,
-        "step_growth": step_growth, "final_step": mu, "k": display.k,
-        "planes_mm": display.planes_mm}
-    log.debug("hologram: %d iterations, loss %.4g, %.2f s (%s)", n_it, loss_s,
-              result.seconds, reason)
+        "step_growth": step_growth, "final_step": result.params["final_step"], "k": display.k,
+        "planes_mm": display.planes_mm, "device": backend.label}
+    log.debug("hologram on %s: %d iterations, loss %.4g, %.2f s (%s)", backend.label,
+              result.iterations, result.loss, result.seconds, result.stop_reason)
     return result
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from recon.backend import torch_cpu
-from recon.benchmarks.gpu import CASES, Case, _measure, format_table, run_gpu_benchmark
+from recon.benchmarks.gpu import CASES, Case, format_table, run_gpu_benchmark
 
 SMALL = (Case("2D ADMM 32x40", "admm2d", (32, 40)), Case("3D ADMM 16x20x3", "admm3d",
                                                         (16, 20, 3)),
@@ -43,12 +43,37 @@ def test_rows_for_every_backend_with_ratios_and_speedups():
     assert "FFT floor" in format_table(result)
 
 
-def test_the_hologram_has_no_generic_path_and_says_so():
-    backend = torch_cpu()
-    if backend is None:
-        pytest.skip("PyTorch is not installed")
-    out = _measure(Case("hologram", "holo", (540, 960, 4)), backend, 2)
-    assert out == {"note": "no generic path: the hologram optimiser runs on the CPU only"}
+def test_the_hologram_runs_the_optimiser_on_every_backend(monkeypatch):
+    import recon.cgh.benchmark as holo_bench
+
+    ran = []
+    real = holo_bench.optimize_hologram
+
+    def spy(*args, **kwargs):
+        res = real(*args, **kwargs)
+        ran.append((res.params["device"], res.iterations))
+        return res
+
+    monkeypatch.setattr(holo_bench, "optimize_hologram", spy)
+    case = Case("hologram 32x24 4x", "holo", (24, 32, 2))
+    result = run_gpu_benchmark(iterations=6, cases=(case,), log=lambda line: None)
+    rows = result["rows"]
+    cpu = rows[0]
+    assert cpu["backend"] == "cpu (numpy)" and cpu["speedup_vs_cpu"] == 1.0
+    measured = [r for r in rows if r["seconds_per_iteration"] is not None]
+    for r in measured:
+        assert r["fft_floor_seconds"] > 0 and not r["note"]
+        assert r["ratio_to_fft_floor"] == pytest.approx(
+            r["seconds_per_iteration"] / r["fft_floor_seconds"])
+        assert r["speedup_vs_cpu"] == pytest.approx(
+            cpu["seconds_per_iteration"] / r["seconds_per_iteration"])
+    # each measured backend ran the real optimiser (warm-up, then 3 timed iterations)
+    timed = [device for device, iterations in ran if iterations == 3]
+    assert len(timed) == len(measured)
+    if torch_cpu() is not None:
+        assert timed[:2] == ["cpu (numpy)", "cpu (torch)"]
+        assert rows[1]["backend"] == "cpu (torch, generic path)" and rows[1] in measured
+    assert all(r["note"].startswith("unmeasured: ") for r in rows if r not in measured)
 
 
 def test_the_live_case_runs_the_warm_started_live_reconstructor_on_the_backend(monkeypatch):
