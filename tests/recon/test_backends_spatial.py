@@ -11,7 +11,7 @@ chosen weight's ADMM then runs on the device.
 
 Tolerances as tests/recon/test_backends.py's: the adjoint identity to 1e-5 relative,
 the solvers' iterates to 1e-4 of the estimate's peak after 40 iterations (measured
-here up to 3e-6: float32 rounding through other FFTs and summation orders).
+here up to 2.2e-6: float32 rounding through other FFTs and summation orders).
 """
 
 from __future__ import annotations
