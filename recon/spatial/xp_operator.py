@@ -40,9 +40,9 @@ DEVICE_WEIGHT_CACHE_BYTES = 1024 * 2**20
 
 def _per_kernel_batch_bytes(padded_shape) -> int:
     """Bytes of one kernel in a batch: the weighted plane and its irfft2 output
-    (float32) and the rfft2 output and its product with the spectrum (complex64)."""
+    (float32), the rfft2 output, the conjugate spectrum and a product (complex64)."""
     p0, p1 = padded_shape
-    return 2 * 4 * p0 * p1 + 2 * 8 * p0 * (p1 // 2 + 1)
+    return 2 * 4 * p0 * p1 + 3 * 8 * p0 * (p1 // 2 + 1)
 
 
 class XpSpatialConvolution(_XpCropped):
@@ -79,11 +79,9 @@ class XpSpatialConvolution(_XpCropped):
             raise ReconInputError(f"XpSpatialConvolution needs a SpatialConvolutionOperator, "
                                   f"got {type(op).__name__}")
         super().__init__(op, like)
-        xp = self.xp
         self.volume, self.n_z = op.volume, op.n_z
         self.n_kernels, self.ffts_per_apply = op.n_kernels, op.ffts_per_apply
         self.spectra = self.asarray(op.spectra)
-        self.spectra_conj = xp.conj(self.spectra)
         plane_bytes = 4 * op.padded_shape[0] * op.padded_shape[1]
         self.weights = None
         if op.n_kernels * plane_bytes <= cache_bytes:
@@ -127,7 +125,7 @@ class XpSpatialConvolution(_XpCropped):
         xp = self.xp
         planes = [None] * self.n_z
         for plane, start, stop in self.batches:
-            g = xp.fft.irfftn(self.spectra_conj[start:stop, ...] * spec[None, ...],
+            g = xp.fft.irfftn(xp.conj(self.spectra[start:stop, ...]) * spec[None, ...],
                               s=self.padded_shape, axes=(-2, -1))
             part = xp.sum(g * self._weights_of(plane, start, stop), axis=0)
             planes[plane] = part if planes[plane] is None else planes[plane] + part
@@ -222,12 +220,12 @@ def device_memory_bytes(op: SpatialConvolutionOperator, *, planes: int,
     Returns
     -------
     int
-        Kernel spectra (twice: and their conjugates), weight maps when kept, one
-        batch's FFT temporaries and ``planes`` padded planes.
+        Kernel spectra, weight maps when kept, one batch's FFT temporaries and
+        ``planes`` padded planes.
     """
     p0, p1 = op.padded_shape
     plane = 4 * p0 * p1
-    spectra = 2 * op.spectra.nbytes
+    spectra = op.spectra.nbytes
     maps = op.n_kernels * plane
     weights = maps if maps <= cache_bytes else 0
     per = _per_kernel_batch_bytes(op.padded_shape)
