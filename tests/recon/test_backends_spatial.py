@@ -54,10 +54,18 @@ def _grid(seed=0, z_mm=None, shape=(30, 40), n=3) -> PsfGrid:
     return PsfGrid(psfs, shifts, (n, n), z_mm)
 
 
+def _support():
+    """An object support on the padded grid over 4 of the 9 nodes' regions."""
+    support = np.zeros((60, 80), bool)
+    support[15:30, 20:40] = True
+    return support
+
+
 MODELS = {
     "local": lambda: local_convolution_operator(_grid(3)),
     "pca-2": lambda: pca_operator(_grid(3), k=2),
     "local-3d": lambda: local_convolution_operator([_grid(1, 1.0), _grid(2, 2.0)]),
+    "local-support": lambda: local_convolution_operator(_grid(3), support=_support()),
 }
 
 
