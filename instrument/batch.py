@@ -332,7 +332,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
     device : {"cpu", "cuda", "auto"}
         Where each worker's solves run (``device`` of :func:`recon.reconstruct`; module
         notes); resolved here first, so an unusable one is refused before the run is
-        touched. A grid model runs on the CPU only.
+        touched. A grid model's solves run there too (:mod:`recon.spatial.device`).
 
     Returns
     -------
@@ -352,19 +352,15 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         too many workers, or no scheduler at the address.
     recon.errors.ReconInputError, recon.errors.DivergenceError
         From a frame's reconstruction (the frames stored before it are kept); an
-        unusable ``device``, or a GPU asked of a grid model (before the run is touched).
+        unusable ``device`` (before the run is touched).
     """
     from recon.backend import resolve_device
-    from recon.errors import ReconInputError
     from recon.io import DATA_ORIENTATION
     from recon.validate import as_int
 
     from .runstore_records import ranges_text
 
     backend = resolve_device(device)  # before the store is touched, as the scheduler
-    if isinstance(psf, GridBatchModel) and not backend.is_numpy:
-        raise ReconInputError(f"device {device!r}: a PSF grid (spatially varying model) is "
-                              "reconstructed on the CPU only; use device='cpu'")
     if scheduler is not None:  # before the store is touched: nothing written on failure
         check_scheduler(scheduler)
     store = RunStore.open(run, "r+")
@@ -411,7 +407,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         else:
             bin_factor = grid.bin_factor
             options = {"background": background, "l1": grid_l1, "iterations": iterations,
-                       "dark": dark}
+                       "dark": dark, "device": device}
             settings = {**grid.settings(), "background": background, "l1": grid_l1,
                         "orientation": DATA_ORIENTATION}
             name, task = product or grid.product_name, reconstruct_stored_frame_grid

@@ -132,8 +132,9 @@ def reconstruct_stored_frame_grid(run_path: str, index: int, prepared: GridBatch
     prepared : GridBatchModel
         From :func:`prepare_grid_batch` (sent to each worker once).
     options : dict
-        ``background`` ("estimate" or "none"), ``l1``, ``iterations`` and ``dark``
-        (the frames' dark level: DN, a (rows, cols) frame, or None for 0).
+        ``background`` ("estimate" or "none"), ``l1``, ``iterations``, ``dark``
+        (the frames' dark level: DN, a (rows, cols) frame, or None for 0) and
+        ``device`` (``device`` of :func:`recon.reconstruct`; default cpu).
     threads : int, optional
         FFT and numba threads of the task (:func:`recon.fft.limited_threads`).
 
@@ -162,6 +163,7 @@ def reconstruct_stored_frame_grid(run_path: str, index: int, prepared: GridBatch
                           l1=options["l1"], iterations=options["iterations"],
                           bin_factor=prepared.bin_factor,
                           dark="none" if dark is None else dark,
-                          prepared=(prepared.choice, prepared.operator))
+                          prepared=(prepared.choice, prepared.operator),
+                          device=options.get("device", "cpu"))
     background = None if rec.background is None else np.asarray(rec.background, np.float32)
     return int(index), np.asarray(rec.image, np.float32), background

@@ -71,7 +71,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
                    background: str, l1: float, iterations: int, out: str,
                    metrics_json: str | None = None, depths_mm=None, bin_factor: int = 1,
                    dark="auto", volume: bool = False, method: str = "auto",
-                   tv="auto", two_part: bool = False) -> dict:
+                   tv="auto", two_part: bool = False, device: str = "cpu") -> dict:
     """Load grids and a frame, reconstruct, write outputs; return the metrics.
 
     Parameters
@@ -82,6 +82,8 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
         The frame (TIFF, PNG or ``.npy``).
     model, k, background, l1, iterations, depths_mm, bin_factor, dark, method, tv, two_part
         As :func:`recon.reconstruct` for a PSF grid.
+    device : {"cpu", "cuda", "auto"}
+        Where the solve runs (``device=`` of :func:`recon.reconstruct`).
     out : str
         2D: the stem of ``OUT.png`` / ``OUT.tif`` (:func:`output_paths`); 3D: the
         volume ``OUT.tif`` / ``OUT.zarr`` with its projections.
@@ -111,7 +113,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
     rec = reconstruct(grids if (volume or len(grids) > 1) else grids[0], raw, method,
                       model=model, k=k, background=background, l1=l1, iterations=iterations,
                       depths_mm=depths_mm, bin_factor=bin_factor, dark=dark, tv=tv,
-                      two_part=two_part)
+                      two_part=two_part, device=device)
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])

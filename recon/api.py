@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backend import resolve_device
 from .errors import ReconInputError
 from .planar import DEFAULT_TV, check_options, scaled_problem, solve, solver_options
 from .result import KINDS, ReconInfo, Reconstruction
@@ -154,7 +153,9 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         :mod:`recon.solvers.device`), or the GPU when one is usable. One PSF: every
         method; an automatic weight is chosen along its ADMM path on the CPU, then the
         chosen method solves on the GPU. A stack: 3D ADMM with fixed weights only. A
-        grid: the CPU only. ``info.device`` says which ran.
+        grid: FISTA (Eq. 6.2) and ADMM; ADMM's automatic weight is chosen on the CPU
+        (:func:`recon.spatial.api.reconstruct_psf_grid`). ``info.device`` says which
+        ran.
     **options
         Kind-specific options (:data:`KIND_OPTIONS`): one PSF ``seconds``,
         ``auto_stop``, ``bayer``, ``erase``, ``erasure_mask``, ``seed``,
@@ -177,8 +178,8 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         argument, an option the kind does not take, or bad data (see
         :mod:`recon.preprocess`); :class:`recon.preprocess.RawSignalError` for a raw
         with nothing to reconstruct after its dark level; an unusable ``device``
-        (names what is missing), a GPU asked of a grid, an automatic weight or FISTA
-        asked of a GPU for a stack, or a problem that does not fit in the GPU's free
+        (names what is missing), an automatic weight or FISTA asked of a GPU for a
+        stack, or a problem that does not fit in the GPU's free
         memory.
     recon.errors.DivergenceError
         A solver diverged.
@@ -237,29 +238,15 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
                                  bin_factor=bin_factor, dark=dark,
                                  allow_mixed_ranges=allow_mixed_ranges, device=device,
                                  **options)
-    _grid_device(device)
     from .spatial.api import reconstruct_psf_grid
 
     grids = model if not isinstance(model, tuple) else list(model)
     return reconstruct_psf_grid(grids, raw, method=method, iterations=iterations, tv=tv,
-                                l1=l1, bin_factor=bin_factor, dark=dark, **options)
+                                l1=l1, bin_factor=bin_factor, dark=dark, device=device,
+                                **options)
 
 
 _KIND_WORDS = {"image": "PSF (2D)", "volume": "PSF stack", "grid": "PSF grid"}
-
-
-def _grid_device(device) -> None:
-    """Refuse a GPU for a PSF grid (the spatially varying models run on the CPU only).
-
-    ``"auto"`` is refused too where it resolves to a GPU, as the command line's
-    ``--psf-grid --device auto`` is, so one call gives one answer on a machine.
-    """
-    if isinstance(device, str) and device.strip().lower() == "cpu":
-        return
-    backend = resolve_device(device)
-    if not backend.is_numpy:
-        raise ReconInputError(f"device {device!r}: a PSF grid (spatially varying model) is "
-                              "reconstructed on the CPU only; use device='cpu'")
 
 
 def _image_dark(dark):

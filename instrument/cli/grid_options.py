@@ -82,7 +82,8 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
                        metrics_json=args.metrics_json, depths_mm=depths,
                        bin_factor=args.bin_factor, dark=dark, volume=volume,
                        method=method, tv=getattr(args, "tv", "auto"),
-                       two_part=getattr(args, "two_part", False))
+                       two_part=getattr(args, "two_part", False),
+                       device=getattr(args, "device", "cpu"))
     where = m.get("output_volume") or m["output_png"]
     weight = (m.get("auto") or {}).get("weight")
     if weight:

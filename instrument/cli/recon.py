@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
         raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
-    check_device(args.device, grid=args.psf_grid is not None)
+    check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid
 

@@ -117,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     depths = None if args.depths is None else floats(args.depths, "--depths")
     if (args.psf_stack is None) == (args.psf_grid is None):
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
-    check_device(args.device, grid=args.psf_grid is not None)
+    check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid
 

@@ -69,24 +69,20 @@ def add_device_option(p) -> None:
                    "is usable, else the CPU); docs/reconstruction.md says what runs there")
 
 
-def check_device(device: str, *, grid: bool = False) -> None:
+def check_device(device: str) -> None:
     """Refuse an unusable ``--device`` before any file is read.
 
     Raises
     ------
-    InputError
+    recon.errors.ReconInputError
         ``cuda`` without CuPy / a CUDA PyTorch or without a visible device (the message
-        of :func:`recon.backend.resolve_device`), or a GPU asked of a PSF grid (the
-        spatially varying models run on the CPU).
+        of :func:`recon.backend.resolve_device`; exit 2).
     """
     if device == "cpu":
         return
     from recon.backend import resolve_device
 
-    backend = resolve_device(device)
-    if grid and not backend.is_numpy:
-        raise InputError(f"--device {device}: a --psf-grid (spatially varying model) is "
-                         "reconstructed on the CPU only; use --device cpu")
+    resolve_device(device)
 
 
 class DeprecatedAlias(argparse.Action):

@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.psf is None) == (args.psf_grid is None):
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
-    check_device(args.device, grid=args.psf_grid is not None)  # before the run is opened
+    check_device(args.device)  # before the run is opened
     store = RunStore.open(args.run)
     frames = None if args.frames is None else parse_frames(args.frames, store.n_frames)
     if args.psf_grid:

@@ -28,7 +28,7 @@ from .xp_common import (
     tv_circular,
 )
 
-__all__ = ["XpAdmmState", "admm_xp", "device_plan", "memory_bytes"]
+__all__ = ["XpAdmmState", "admm_xp", "device_plan", "fourier_x_update", "memory_bytes"]
 
 
 def memory_bytes(padded_shape: tuple[int, int]) -> int:
@@ -90,9 +90,46 @@ def _rescale(q, a, old: float, new: float):
     return q + a * (1.0 - old / new) if old != new else q
 
 
+def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool):
+    """The exact x-update of App. A.3 (:meth:`recon.solvers.admm.AdmmPlan.x_update`):
+    a diagonal solve in Fourier space, 2 rfft2 + 2 irfft2 batched in pairs.
+
+    Parameters
+    ----------
+    xop : XpConvolution
+    x, mx : arrays, float32, (P0, P1)
+        Not used (the solve is exact); the signature of every plan's x-update.
+    q : (qv, qux, quy, qw)
+        The splits' q's.
+    mu : (mu1, mu2, mu3)
+    inv_den : array, float32, (P0, P1 // 2 + 1)
+        1 / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3).
+    use_tv : bool
+
+    Returns
+    -------
+    (x, mx) : arrays, float32, (P0, P1)
+    """
+    xp = xop.xp
+    qv, qux, quy, qw = q
+    mu1, mu2, mu3 = mu
+    # R = mu2 Psi^T q_u + mu3 q_w, then the diagonal solve
+    rhs = mu3 * qw
+    if use_tv:
+        rhs = rhs + mu2 * (xp.roll(qux, 1, axis=1) - qux + xp.roll(quy, 1, axis=0) - quy)
+    spectra = xp.fft.rfftn(xp.stack([qv, rhs]), axes=(-2, -1))
+    x_hat = (mu1 * xop.spectrum_conj * spectra[0, ...] + spectra[1, ...]) * inv_den
+    out = xp.fft.irfftn(xp.stack([xop.spectrum * x_hat, x_hat]), s=xop.padded_shape,
+                        axes=(-2, -1))
+    return out[1, ...], out[0, ...]
+
+
 def device_plan(plan, b):
-    """The plan's operator and power spectra on ``b``'s device, made once per plan and
-    device (kept on the plan: a live view reuses its plan frame after frame).
+    """The plan's operator, power spectra and x-update on ``b``'s device, made once per
+    plan and device (kept on the plan: a live view reuses its plan frame after frame).
+
+    A plan with another x-update names its own (``plan.device_parts(b)`` -> operator,
+    x-update: :meth:`recon.spatial.SpatialAdmmPlan.device_parts`).
 
     Parameters
     ----------
@@ -102,15 +139,17 @@ def device_plan(plan, b):
 
     Returns
     -------
-    (XpConvolution, h_pow, d_pow)
-        The operator on the device and |H|^2, |F Psi|^2 there, float32
-        (P0, P1 // 2 + 1).
+    (XpConvolution, h_pow, d_pow, x_update)
+        The operator on the device, |H|^2 and |F Psi|^2 there (float32,
+        (P0, P1 // 2 + 1)), and the x-update (:func:`fourier_x_update`'s signature).
     """
     key = (array_namespace(b).__name__, str(device_of(b)))
     cache = plan.__dict__.setdefault("_device_copies", {})
     if key not in cache:
-        xop = XpConvolution(plan.op, b)
-        cache[key] = (xop, xop.asarray(plan.h_pow), xop.asarray(plan.d_pow))
+        parts = getattr(plan, "device_parts", None)
+        xop, x_update = (parts(b) if parts is not None
+                         else (XpConvolution(plan.op, b), fourier_x_update))
+        cache[key] = (xop, xop.asarray(plan.h_pow), xop.asarray(plan.d_pow), x_update)
     return cache[key]
 
 
@@ -122,7 +161,9 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
     ----------
     plan : AdmmPlan
         The NumPy path's plan (:class:`recon.solvers.admm.AdmmPlan`): its operator's
-        spectrum and weights and its power spectra are moved to ``b``'s device.
+        spectrum and weights and its power spectra are moved to ``b``'s device (a
+        plan with another x-update, :class:`recon.spatial.SpatialAdmmPlan`, gives its
+        generic operator and x-update by ``device_parts``).
     b : array (array API), float32, ``op.shape_out``
         Scaled, weighted measurement on the target device.
     iterations : int
@@ -149,12 +190,11 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
         ``tv``.
     """
     op = plan.op
-    xop, h_pow, d_pow = device_plan(plan, b)
+    xop, h_pow, d_pow, x_update = device_plan(plan, b)
     xp = xop.xp
     b = check_measurement_xp(b, op.shape_out)
     shape = xop.padded_shape
     bp, wp = xop.pad(b), xop.wp
-    spec = xop.spectrum
     use_tv = tv > 0
     if state is None:
         state = XpAdmmState.zeros(xp, shape, xop.device, penalty.initial(), use_tv)
@@ -216,14 +256,7 @@ def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=Non
                 mu1, mu2, mu3 = new
                 inv_den = inverse_denominator(mu1, mu2, mu3)
                 mus.append((mu1, mu2, mu3))
-        # x-update (App. A.3): R = mu2 Psi^T q_u + mu3 q_w, then a diagonal solve
-        rhs = mu3 * qw
-        if use_tv:
-            rhs = rhs + mu2 * (xp.roll(qux, 1, axis=1) - qux + xp.roll(quy, 1, axis=0) - quy)
-        spectra = xp.fft.rfftn(xp.stack([qv, rhs]), axes=(-2, -1))
-        x_hat = (mu1 * xop.spectrum_conj * spectra[0, ...] + spectra[1, ...]) * inv_den
-        out = xp.fft.irfftn(xp.stack([spec * x_hat, x_hat]), s=shape, axes=(-2, -1))
-        mx, x = out[0, ...], out[1, ...]
+        x, mx = x_update(xop, x, mx, (qv, qux, quy, qw), (mu1, mu2, mu3), inv_den, use_tv)
         l1_x = l1 * total(xp, xp.clip(x, min=0.0)) if l1 > 0 else 0.0
         mon.record(0.5 * data_sq + tv * tv_x + l1_x, data_sq, x=x,
                    hint="try --method fista or a smaller TV weight")

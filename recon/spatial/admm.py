@@ -121,6 +121,19 @@ class SpatialAdmmPlan(AdmmPlan):
         x = x - irfftn(step, self.shape)
         return x, self.op.convolve_full(x)
 
+    def device_parts(self, like):
+        """The generic operator and x-update on ``like``'s backend, for
+        :func:`recon.solvers.xp_admm.admm_xp` (a measurement of another backend).
+
+        Returns
+        -------
+        (XpSpatialConvolution, recon.spatial.xp_admm.linearized_x_update)
+        """
+        from .xp_admm import linearized_x_update
+        from .xp_operator import XpSpatialConvolution
+
+        return XpSpatialConvolution(self.op, like), linearized_x_update
+
 
 def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
                  tv: float = 0.0, l1: float = 0.0, **options) -> SolveResult:
@@ -136,7 +149,9 @@ def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: i
         2D local convolution (Eq. 5.3-5.5) or PCA (Eq. 5.6-5.7) model, kernels scaled
         so the reference PSF has unit sum (:func:`recon.spatial.local_convolution_operator`).
     b : ndarray, float32, ``op.shape_out``
-        Measurement, multiplied by the sensor weights, divided by its maximum.
+        Measurement, multiplied by the sensor weights, divided by its maximum. An
+        array of another array-API backend (CuPy, PyTorch: on its device) runs the
+        generic path (:mod:`recon.spatial.xp_admm`) and returns ``x`` on that device.
     iterations : int
     tv, l1 : float
         Weights (scaled problem), >= 0; default 0, as every solver's.

@@ -10,7 +10,9 @@ its maximum) and solve Eq. 6.2 with :func:`recon.spatial.fista_background`
 (:func:`recon.spatial.spatial_admm`) with the weight chosen as :func:`recon.reconstruct`
 chooses it (hold-out cross-validation, :mod:`recon.auto`). ``two_part=True`` models
 a far scene by Eq. 5.1's two parts: the grid's caustics (:func:`recon.spatial.caustic_grid`)
-in the model, the brightness divided out of the image afterwards.
+in the model, the brightness divided out of the image afterwards. ``device="cuda"``
+runs the solve on a GPU through the array-API path (:mod:`recon.spatial.device`); the
+model choice and ADMM's automatic weight stay on the CPU.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import time
 import numpy as np
 
 from ..auto import AUTO, parse_weight, solve_channel
+from ..backend import resolve_device
 from ..errors import ReconInputError
 from ..options import BACKGROUNDS, GRID_METHODS  # ``--background``, ``method`` choices
 from ..preprocess import box_bin, check_raw_signal, dark_argument
@@ -30,6 +33,7 @@ from .admm import SpatialAdmmPlan, spatial_admm
 from .background import fista_background
 from .brightness import brightness_map, caustic_grid
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
+from .device import BACKGROUND_PLANES, device_grid_solvers, solve_grid_on
 from .grid import PsfGrid
 
 __all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "bin_grid", "grid_dark",
@@ -180,7 +184,7 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
                          iterations: int = 200, depths_mm=None, bin_factor: int = 1,
                          dark="auto", support=None, tolerance: float | None = None,
                          prepared: tuple | None = None, method: str = "auto", tv="auto",
-                         two_part: bool = False) -> Reconstruction:
+                         two_part: bool = False, device: str = "cpu") -> Reconstruction:
     """Reconstruct an image (one grid) or a volume (several grids) from one frame.
 
     Parameters
@@ -229,6 +233,12 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
         :func:`grid_model`'s result for these grids and ``bin_factor``, made once for
         a batch of frames (then ``model``, ``k``, ``depths_mm``, ``support`` and
         ``tolerance`` are not used).
+    device : {"cpu", "cuda", "auto"}
+        Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy
+        path (default), or a CUDA GPU through the array-API path (FISTA of Eq. 6.2,
+        :mod:`recon.spatial.xp_background`; ADMM, :mod:`recon.spatial.xp_admm`), after
+        a check of its free memory (:mod:`recon.spatial.device`). The model choice and
+        ADMM's automatic weight run on the CPU. ``info.device`` says which ran.
 
     Returns
     -------
@@ -241,10 +251,13 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
     ReconInputError
         Unknown model, background or method, a frame whose shape differs from the PSFs
         (or from the ``prepared`` model's), ``method="admm"`` with a background
-        estimate or a volume, weights that are neither numbers >= 0 nor "auto".
+        estimate or a volume, weights that are neither numbers >= 0 nor "auto"; an
+        unusable ``device`` (names what is missing) or a solve that does not fit in
+        its free memory (says how much it needs).
     recon.auto.NoSignalError
         ``method="admm"`` on a frame that holds only noise.
     """
+    backend = resolve_device(device)
     if model not in MODELS:
         raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     if background not in BACKGROUNDS:
@@ -295,14 +308,22 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
         if op.volume:
             raise ReconInputError("ADMM serves one plane of a spatially varying model; "
                                   "reconstruct a volume with method 'fista'")
+        # on a GPU the automatic weight's path runs on the CPU, the chosen weight's
+        # ADMM on the GPU (as for one PSF, recon.planar)
         res, record = solve_channel(op, (b / scale).astype(np.float32), b, scale,
                                     method=AUTO, iterations=iterations, tv=tv, l1=l1,
-                                    solvers=GRID_SOLVERS, plan_of=SpatialAdmmPlan.of)
+                                    solvers=device_grid_solvers(backend, GRID_SOLVERS),
+                                    plan_of=SpatialAdmmPlan.of,
+                                    weight_path_solves=backend.is_numpy)
         tv, l1, auto, used = record["tv"], record["l1"], [record], record["iterations_used"]
         g = None
     else:
-        res = fista_background(op, (b / scale).astype(np.float32), iterations=iterations,
-                               l1=l1, estimate_background=background == "estimate")
+        options = {"iterations": iterations, "l1": l1,
+                   "estimate_background": background == "estimate"}
+        b_scaled = (b / scale).astype(np.float32)
+        res = (fista_background(op, b_scaled, **options) if backend.is_numpy else
+               solve_grid_on(backend, fista_background, op, b_scaled,
+                             planes=BACKGROUND_PLANES, method="FISTA", **options))
         g = res.params["background"] * scale if background == "estimate" else None
         tv, auto, used = None, [], int(res.params.get("iterations_used", iterations))
     crop = (slice(None), *op.crop) if op.volume else op.crop
@@ -315,8 +336,8 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
         iterations_used=used, tv=tv, l1=l1, auto=auto, dark_mode=dark_mode,
         dark_level=None if dark_mode in ("auto", "none") else float(np.mean(level)),
         dark_source=GRID_DARK_SOURCES[dark_mode], bin_factor=int(bin_factor),
-        raw_scale=scale, seconds_total=time.perf_counter() - t0, histories=[res.history],
-        extra=info)
+        raw_scale=scale, seconds_total=time.perf_counter() - t0, device=backend.label,
+        histories=[res.history], extra=info)
     return Reconstruction(image, estimate, [res], op, info_,
                           depths_mm=[float(z) for z in op.depths] if op.volume else None,
                           background=g, choice=choice, record=grid_metrics)

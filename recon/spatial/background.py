@@ -22,59 +22,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.fft as sfft
 
-from ..errors import ReconInputError
 from ..operators import LinearOperator
 from ..solvers.accelerated import accelerated_loop
 from ..solvers.common import Monitor, SolveResult, check_measurement
 from ..validate import as_int, nonneg_weight, positive
+from .joint import LowFrequency, dct_basis, joint_lipschitz, joint_result, low_frequency
 
 __all__ = ["dct_basis", "fista_background", "lowpass_background"]
-
-
-def dct_basis(length: int, n_low: int) -> np.ndarray:
-    """The ``n_low`` lowest orthonormal DCT-II basis vectors of a length, (length, n_low).
-
-    Columns are orthonormal, so ``B B^T`` projects onto their span and ``B^T x``
-    are the DCT coefficients of :func:`scipy.fft.dct` (``norm="ortho"``).
-    """
-    eye = np.eye(length, n_low)
-    return sfft.idct(eye, type=2, norm="ortho", axis=0)
-
-
-class _LowFrequency:
-    """The span of the ``n x n`` lowest DCT basis images of a (rows, cols) frame."""
-
-    def __init__(self, shape, n_low: int):
-        n_low = as_int(n_low, "background DCT size n_low", 1)
-        if n_low > min(shape):
-            raise ReconInputError(f"background DCT size {n_low} exceeds the sensor {shape}")
-        self.by = dct_basis(shape[0], n_low).astype(np.float32)
-        self.bx = dct_basis(shape[1], n_low).astype(np.float32)
-
-    def coefficients(self, g):
-        return self.by.T @ g @ self.bx
-
-    def image(self, c):
-        return (self.by @ c @ self.bx.T).astype(np.float32)
-
-    def project(self, g):
-        return self.image(self.coefficients(g))
-
-    def project_nonneg(self, g, rounds: int = 8):
-        """Dykstra's projection onto span & {g >= 0}; the result lies in the span."""
-        x = g
-        p = np.zeros_like(g)
-        q = np.zeros_like(g)
-        for _ in range(rounds):
-            yk = np.maximum(x + p, 0.0)
-            p = x + p - yk
-            x = self.project(yk + q)
-            q = yk + q - x
-            if x.min() >= 0:
-                break
-        return x
 
 
 def lowpass_background(b: np.ndarray, n_low: int = 5) -> np.ndarray:
@@ -91,7 +46,7 @@ def lowpass_background(b: np.ndarray, n_low: int = 5) -> np.ndarray:
     ndarray, float32, (rows, cols)
     """
     b = np.asarray(b, np.float32)
-    return np.maximum(_LowFrequency(b.shape, n_low).project(b), 0.0)
+    return np.maximum(LowFrequency(b.shape, n_low).project(b), 0.0)
 
 
 def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
@@ -146,14 +101,16 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 100
     """
     iterations = as_int(iterations, "iterations", 1)
     tau = nonneg_weight(l1, "l1")
+    lipschitz = None if lipschitz is None else positive(lipschitz, "lipschitz")
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from .xp_background import fista_background_xp
+
+        return fista_background_xp(op, b, iterations=iterations, l1=tau, n_low=n_low,
+                                   restart=restart, lipschitz=lipschitz, stop=stop,
+                                   estimate_background=estimate_background)
     b = check_measurement(b, op.shape_out)
-    if len(b.shape) != 2:
-        raise ReconInputError("the background model needs a 2D sensor image")
-    low = _LowFrequency(b.shape, n_low)
-    if lipschitz is not None:
-        lip_a = positive(lipschitz, "lipschitz")
-    elif not ((lip_a := op.lipschitz()) > 0 and math.isfinite(lip_a)):
-        raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSFs")
+    low = low_frequency(b, n_low)
+    lip_a = joint_lipschitz(op, lipschitz)
     step = 1.0 / (lip_a + 1.0)
     mon = Monitor(float(np.vdot(b, b)), "FISTA with background")
     g0 = (lowpass_background(b, n_low) if estimate_background
@@ -190,10 +147,7 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 100
     x, g = x.copy(), g.copy()
     resid = op.forward(x) + g - b
     data_sq = float(np.vdot(resid, resid))
-    final = 0.5 * data_sq + tau * float(x.sum(dtype=np.float64))
-    mon.history.extra["restarts"] = restarts
-    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
-                       {"step": step, "lipschitz": lip_a, "l1": tau, "n_low": int(n_low),
-                        "background": g, "background_dct": low.coefficients(g),
-                        "restart": restart, "iterations": iterations,
-                        "iterations_used": used})
+    return joint_result(x, g, mon, data_sq, float(x.sum(dtype=np.float64)), low,
+                        {"step": step, "lipschitz": lip_a, "l1": tau, "n_low": int(n_low),
+                         "restart": restart, "iterations": iterations,
+                         "iterations_used": used}, restarts)

@@ -10,9 +10,9 @@ import importlib.util
 import numpy as np
 import pytest
 
-import recon.api
 import recon.backend as backend_mod
 import recon.planar
+import recon.spatial.api
 import recon.volume.api
 from recon import reconstruct, reconstruct_volume
 from recon.backend import Backend, check_memory, resolve_device
@@ -91,7 +91,7 @@ def _stand_in(monkeypatch, name: str, free: int | None = None) -> Backend:
             pytest.skip("PyTorch is not installed")
     else:
         standin = Backend("array-api-strict", xs, None, "cpu (array-api-strict)")
-    for mod in (recon.api, recon.planar, recon.volume.api):
+    for mod in (recon.planar, recon.spatial.api, recon.volume.api):
         monkeypatch.setattr(mod, "resolve_device", lambda d: standin)
     monkeypatch.setattr(backend_mod, "free_device_bytes", lambda b: free)
     import recon.solvers.device as device_mod
@@ -182,14 +182,15 @@ def test_the_device_is_a_field_of_the_record_and_a_key_of_the_metrics(monkeypatc
     assert vol.info.device == standin.label and vol.metrics(1.0)["device"] == standin.label
 
 
-def test_a_psf_grid_is_refused_on_a_gpu_and_runs_on_the_cpu(monkeypatch):
+def test_a_psf_grid_runs_on_the_cpu_and_on_a_device(monkeypatch):
     from recon.spatial import PsfGrid
 
     psf, raw = _pair()
     grid = PsfGrid(psf[None], np.zeros((1, 2)), (1, 1))
     ok = reconstruct(grid, raw, iterations=3)  # device="cpu"
     assert ok.info.device == "cpu (numpy)" and ok.metrics(1.0)["device"] == "cpu (numpy)"
-    _stand_in(monkeypatch, "array-api-strict")
+    standin = _stand_in(monkeypatch, "array-api-strict")
     for device in ("cuda", "auto"):  # auto resolves to the (stand-in) GPU here
-        with pytest.raises(ReconInputError, match="PSF grid .* CPU only; use device='cpu'"):
-            reconstruct(grid, raw, iterations=3, device=device)
+        got = reconstruct(grid, raw, iterations=3, device=device)
+        assert got.info.device == standin.label
+        assert np.abs(got.image - ok.image).max() <= 1e-4 * np.abs(ok.image).max()

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from recon.backend import torch_cpu
-from recon.benchmarks.gpu import CASES, Case, format_table, run_gpu_benchmark
+from recon.benchmarks.gpu import CASES, Case, _measure, format_table, run_gpu_benchmark
 
 SMALL = (Case("2D ADMM 32x40", "admm2d", (32, 40)), Case("3D ADMM 16x20x3", "admm3d",
                                                         (16, 20, 3)),

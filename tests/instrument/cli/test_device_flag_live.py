@@ -58,11 +58,45 @@ def test_capture_video_takes_device_only_with_live_recon(monkeypatch, tmp_path, 
     assert not (tmp_path / "v.zarr").exists()
 
 
-def test_recon_run_refuses_a_gpu_for_a_psf_grid(monkeypatch, tmp_path, capsys):
-    _torch_for_cuda(monkeypatch)
-    assert main(["recon-run", str(tmp_path / "r.zarr"), "--psf-grid", "g.zarr",
-                 "--device", "cuda"]) == 2
-    assert "is reconstructed on the CPU only" in capsys.readouterr().err
+def test_recon_run_reconstructs_a_psf_grid_on_the_device(monkeypatch, tmp_path, capsys):
+    """``recon-run --psf-grid --device cuda``: each frame's grid solve runs on the device
+    (PyTorch's CPU backend standing in) and equals the CPU's within float32 rounding."""
+    from dask.distributed import Client, LocalCluster
+
+    import recon.spatial.api
+    import recon.spatial.device as grid_device
+    from tests.instrument.test_batch_grid import _video_run
+    from tests.instrument.test_reconstruct_grid import _grid_run
+
+    psfs = _grid_run(tmp_path / "grid.zarr")
+    a = np.linspace(1, 3, 2)
+    _video_run(tmp_path / "v.zarr", 400 * (a[:, None, None] * psfs[0] + psfs[8]))
+    standin = _torch_for_cuda(monkeypatch)
+    monkeypatch.setattr(recon.spatial.api, "resolve_device", lambda d: standin)
+    solves = []
+    solve_grid_on = grid_device.solve_grid_on
+
+    def spy(backend, *args, **kwargs):
+        solves.append(backend.label)
+        return solve_grid_on(backend, *args, **kwargs)
+
+    def in_process(workers, scheduler, timeout_s):  # threads: the stand-in reaches them
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                               dashboard_address=":0")
+        return Client(cluster, timeout=timeout_s), cluster
+
+    monkeypatch.setattr(grid_device, "solve_grid_on", spy)
+    monkeypatch.setattr(recon.spatial.api, "solve_grid_on", spy)
+    monkeypatch.setattr(instrument.batch, "_client", in_process)
+    argv = ["recon-run", str(tmp_path / "v.zarr"), "--psf-grid", str(tmp_path / "grid.zarr"),
+            "--model", "local", "--iterations", "20"]
+    assert main([*argv, "--device", "cuda"]) == 0
+    assert solves == ["cpu (torch, generic path)"] * 2
+    on_device = RunStore.open(tmp_path / "v.zarr").product("recon_grid_local")[0]
+    monkeypatch.undo()
+    assert main([*argv, "--overwrite", "--workers", "1"]) == 0
+    cpu = RunStore.open(tmp_path / "v.zarr").product("recon_grid_local")[0]
+    assert np.abs(on_device - cpu).max() <= 1e-4 * np.abs(cpu).max()
 
 
 def test_capture_live_reconstructs_on_the_device_it_is_given(monkeypatch, psf_path,  # noqa: F811
