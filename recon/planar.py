@@ -29,7 +29,7 @@ from .preprocess import (
 )
 from .result import ReconInfo, Reconstruction
 from .solvers import SOLVERS, SolveResult
-from .solvers.device import device_solvers
+from .solvers.device import device_solvers, fft_pair_seconds_on
 from .validate import as_array, as_int, finite_float
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
@@ -279,7 +279,7 @@ def reconstruct_image(
         check_options(method, solver_options)
     backend = resolve_device(device)
     on_device = ({} if backend.is_numpy else
-                 {"solvers": device_solvers(backend), "weight_path_solves": False})
+                 {"solvers": device_solvers(backend), "backend": backend})
     fft_s = None
     t_start = time.perf_counter()
     if preprocess:
@@ -320,8 +320,8 @@ def reconstruct_image(
         bc = b if b.ndim == 2 else b[..., c]
         op, scaled = scaled_problem(pc, bc, None if mask is None else mask.mask,
                                     b_scale=raw_scale)
-        if seconds is not None and fft_s is None:
-            fft_s = fft_pair_seconds(op.padded_shape)  # the budget's unit, measured now
+        if seconds is not None and fft_s is None:  # the budget's unit, measured now
+            fft_s = fft_pair_seconds_on(backend, op.padded_shape)
         res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
                                     iterations=iterations, tv=tv, l1=l1, seconds=seconds,
                                     fft_pair_s=fft_s, auto_stop=auto_stop,

@@ -68,6 +68,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..backend import array_namespace, device_of, is_numpy, total
 from ..errors import ReconInputError
 from ..solvers.admm import AdmmPlan, check_penalties
 from ..solvers.common import History, SolveResult
@@ -294,6 +295,52 @@ def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
     return keep, held
 
 
+class _PathArrays:
+    """The few whole-array steps of :func:`admm_auto` outside the plan's solves, on the
+    measurement's backend: NumPy as before, or the array-API namespace of a device
+    array (the iterates and the held-out scores stay on that device)."""
+
+    def __init__(self, b):
+        self.numpy = is_numpy(b)
+        if not self.numpy:
+            self.xp, self.device = array_namespace(b), device_of(b)
+
+    def put(self, a: np.ndarray, dtype=np.float32):
+        """A host array as an array of the measurement's backend."""
+        a = np.ascontiguousarray(a, dtype)
+        return a if self.numpy else self.xp.asarray(a, device=self.device)
+
+    def norm(self, a) -> float:
+        """||a|| as a float."""
+        if self.numpy:
+            return float(np.linalg.norm(a))
+        return math.sqrt(total(self.xp, a * a))
+
+    def copy(self, a):
+        """A copy of ``a`` (on its device)."""
+        return a.copy() if self.numpy else self.xp.asarray(a, copy=True)
+
+    def held_error(self, pred, b, held, n_held: int) -> tuple[float, float]:
+        """Sum of ``(pred - b)^2`` over the held-out pixels (float64) and its standard
+        error (``std * sqrt(n)``); ``held`` a bool mask (NumPy) or its float64 0/1
+        array (a device)."""
+        if self.numpy:
+            e = np.square(pred - b, dtype=np.float64)[held]
+            return float(e.sum()), float(e.std() * math.sqrt(e.size)) if e.size else 0.0
+        if not n_held:
+            return 0.0, 0.0
+        xp = self.xp
+        d = xp.astype(pred - b, xp.float64)
+        e = d * d * held
+        s = total(xp, e)
+        dev = (e - s / n_held) * held  # two-pass, as numpy.std
+        return s, math.sqrt(total(xp, dev * dev) / n_held) * math.sqrt(n_held)
+
+    def clip0(self, a):
+        """max(a, 0)."""
+        return np.maximum(a, 0) if self.numpy else self.xp.clip(a, min=0.0)
+
+
 def _merge(histories: list[History]) -> History:
     out = History()
     for h in histories:
@@ -340,6 +387,14 @@ def path_budget(iterations: int, path_share: float | None = None,
     return path, 2 * n - path
 
 
+def _device_plan_of(like):
+    """``plan_of`` of the 2D convolution on ``like``'s device
+    (:class:`recon.solvers.xp_admm.XpAdmmPlan`)."""
+    from ..solvers.xp_admm import XpAdmmPlan
+
+    return XpAdmmPlan.maker(like, AdmmPlan.of)
+
+
 def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
               regulariser: str = "tv",
               stage: int | None = None,
@@ -355,7 +410,12 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Scaled forward model (unit-sum PSF or normalised stack; the spatial model and
         the volume model with their ``plan_of``).
     b : ndarray, float32, ``op.shape_out``
-        Scaled measurement (weighted, divided by its maximum).
+        Scaled measurement (weighted, divided by its maximum). An array of another
+        array-API backend (CuPy, PyTorch) runs the path and the final solve on its
+        device (the generic ADMM, :class:`recon.solvers.xp_admm.XpAdmmPlan`, by
+        default): iterates, warm starts and held-out scores stay there, the result's
+        ``x`` too; the held-out split and :func:`holdout_coverage` are computed on
+        the host from ``op``.
     iterations : int
         Iterations of the fixed-weight run this replaces: the path and the final solve
         take at most twice as many together (:func:`path_budget`).
@@ -387,7 +447,9 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         use it.
     plan_of : callable, optional
         ``plan_of(op) -> plan`` for ``op`` and its copies with other sensor weights:
-        default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution);
+        default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution; with ``b`` on a
+        device its :class:`~recon.solvers.xp_admm.XpAdmmPlan`; a caller's ``plan_of``
+        must make plans for ``b``'s backend);
         :meth:`recon.spatial.SpatialAdmmPlan.of` for a spatially varying model,
         :meth:`recon.volume.VolumeAdmmPlan.of` for a volume. A plan has ``op``,
         ``zeros(mu, use_tv)``, ``warm(x, mu, use_tv)``, ``run(b, state, iterations=,
@@ -419,7 +481,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     rule = rule or PATH_RULES[regulariser]
     iterations, final_budget = path_budget(iterations, rule.path_share, rule.budget)
     stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
-    b_norm = float(np.linalg.norm(b))
+    arrays = _PathArrays(b)
+    b_norm = arrays.norm(b)
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     fixed = float(fixed)
     if not (math.isfinite(fixed) and fixed >= 0):
@@ -439,9 +502,16 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     factor = max(PATH_FACTOR, (weight / rule.end) ** (1.0 / (stages - 1)))
     w = op.sensor_weights
     keep, held = holdout_split(op, holdout, seed)
-    plan_of = plan_of or AdmmPlan.of
+    if plan_of is None:
+        plan_of = AdmmPlan.of if arrays.numpy else _device_plan_of(b)
     fit_plan = plan_of(op.with_weights(w * keep))
-    b_fit = np.ascontiguousarray(b * keep, np.float32)
+    if arrays.numpy:
+        b_fit = np.ascontiguousarray(b * keep, np.float32)
+        w_on, held_on = w, held
+    else:  # the weights and masks on the device, once
+        b_fit = b * arrays.put(keep)
+        w_on, held_on = arrays.put(w), arrays.put(held, np.float64)
+    n_held = int(np.count_nonzero(held))
     state = fit_plan.zeros(check_penalties(mu), use_tv)
     # the path's estimates from the stage before the best on: the warm start is the
     # one nearest the chosen weight, which lies within max_above_minimum x the best's
@@ -449,9 +519,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
 
     def score(st) -> tuple[float, float]:
         """Held-out prediction error of a fit's state, and its standard error."""
-        pred = w * np.maximum(st.mx[op.crop], 0)
-        e = np.square(pred - b, dtype=np.float64)[held]
-        return float(e.sum()), float(e.std() * math.sqrt(e.size)) if e.size else 0.0
+        return arrays.held_error(w_on * arrays.clip0(st.mx[op.crop]), b, held_on, n_held)
 
     while weight >= rule.end:
         # the first stage rides out ADMM's start-up transient
@@ -463,7 +531,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         used += n
         err, se = score(state)
         path.append({"weight": weight, "holdout_error": err, "standard_error": se})
-        estimates[len(path) - 1] = state.x.copy()
+        estimates[len(path) - 1] = arrays.copy(state.x)
         if best is None or err < best[1]:
             best, rises = (len(path) - 1, err, se), 0
         elif err < path[-2]["holdout_error"]:  # falling again: a transient, not the end
@@ -525,7 +593,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         else:
             err = score(state)[0]
             if kept is None or err <= kept[0]:
-                kept = (err, res.x.copy(), done)
+                kept = (err, arrays.copy(res.x), done)
         if stopping.done(final_data, target):
             stopped = done < final_budget
             break
@@ -539,6 +607,5 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     # the returned estimate's objective and residual, on the pixels its solve fitted
     x = kept[1]
     objective, relative = final_plan.objective(b_final, x, **weights(chosen),
-                                               b_norm=max(float(np.linalg.norm(b_final)),
-                                                          1e-30))
+                                               b_norm=max(arrays.norm(b_final), 1e-30))
     return SolveResult(x, history, objective, relative, params), choice

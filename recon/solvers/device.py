@@ -1,22 +1,38 @@
 """Running a NumPy-path solve on another device: move the measurement there, check the
 device's memory first, bring the estimate back.
 
-:func:`device_solvers` is the 2D solver table (:data:`recon.solvers.SOLVERS`) with each
-generic solver wrapped so; :func:`recon.reconstruct` and :func:`recon.auto.solve_channel`
-use it for ``device="cuda"``. Wiener (one FFT pair) stays on the CPU.
+:func:`device_solvers` is the 2D solver table (:data:`recon.solvers.SOLVERS`) with every
+solver wrapped so (Wiener, GD, FISTA and ADMM all have a generic path);
+:func:`recon.reconstruct` and :func:`recon.auto.solve_channel` use it for
+``device="cuda"``.
 """
 
 from __future__ import annotations
 
 import inspect
+import time
 from dataclasses import replace
+
+import numpy as np
 
 from ..backend import Backend, check_memory, free_device_bytes, to_device, to_numpy
 
-__all__ = ["GENERIC_2D", "device_solvers", "solve_on"]
+__all__ = ["GENERIC_2D", "check_device_memory", "device_solvers", "fft_pair_seconds_on",
+           "solve_on"]
 
-#: The 2D methods with an array-API path (the others run on the CPU).
-GENERIC_2D = ("gd", "fista", "admm")
+#: The 2D methods with an array-API path (any other would run on the CPU).
+GENERIC_2D = ("wiener", "gd", "fista", "admm")
+
+
+def check_device_memory(backend: Backend, needed_bytes: int, what: str) -> None:
+    """:func:`recon.backend.check_memory` against ``backend``'s free memory.
+
+    Raises
+    ------
+    ReconInputError
+        "<what> needs X GiB on <device>, Y GiB are free; ...".
+    """
+    check_memory(needed_bytes, free_device_bytes(backend), what=what, where=backend.label)
 
 
 def solve_on(backend: Backend, solve, op, b, *, needed_bytes: int, what: str, **kwargs):
@@ -46,7 +62,7 @@ def solve_on(backend: Backend, solve, op, b, *, needed_bytes: int, what: str, **
     ReconInputError
         The solve does not fit in the device's free memory (says how much it needs).
     """
-    check_memory(needed_bytes, free_device_bytes(backend), what=what, where=backend.label)
+    check_device_memory(backend, needed_bytes, what)
     result = solve(op, to_device(b, backend), **kwargs)
     result.x = to_numpy(result.x)
     result.params["device"] = backend.label
@@ -70,14 +86,17 @@ def device_solvers(backend: Backend, solvers=None) -> dict:
     """
     from . import SOLVERS
     from .xp_admm import memory_bytes
+    from .xp_wiener import memory_bytes as wiener_bytes
 
     solvers = SOLVERS if solvers is None else solvers
     if backend.is_numpy:
         return solvers
 
     def wrapped(name, spec):
+        needs = wiener_bytes if name == "wiener" else memory_bytes  # FISTA / GD need less
+
         def run(op, b, **kwargs):
-            return solve_on(backend, spec.solve, op, b, needed_bytes=memory_bytes(
+            return solve_on(backend, spec.solve, op, b, needed_bytes=needs(
                 op.padded_shape), what=f"2D {name} at {op.sensor_shape[0]} x "
                 f"{op.sensor_shape[1]}", **kwargs)
 
@@ -87,3 +106,40 @@ def device_solvers(backend: Backend, solvers=None) -> dict:
     return {name: wrapped(name, spec) if name in GENERIC_2D else spec
             for name, spec in solvers.items()}
 
+
+
+def fft_pair_seconds_on(backend: Backend, shape: tuple[int, int],
+                        repeats: int | None = None) -> float:
+    """:func:`recon.fft.fft_pair_seconds` on ``backend``'s device: the median seconds of
+    one float32 rfft2 + irfft2 pair at ``shape``, each pair waited for (one element
+    read back), after one warm-up pair (plans, kernels). The unit of a time budget
+    (:func:`recon.auto.choice.choose_method`) on that device.
+
+    Parameters
+    ----------
+    backend : Backend
+    shape : (P0, P1)
+        Padded shape.
+    repeats : int, optional
+        Timed pairs (default: 15 on the NumPy path, as :func:`recon.fft.fft_pair_seconds`;
+        7 on a device).
+
+    Returns
+    -------
+    float
+        Seconds per pair.
+    """
+    if backend.is_numpy:
+        from ..fft import fft_pair_seconds
+
+        return fft_pair_seconds(shape) if repeats is None else fft_pair_seconds(shape, repeats)
+    xp = backend.xp
+    repeats = 7 if repeats is None else repeats
+    buf = to_device(np.random.default_rng(0).random(shape, dtype=np.float32), backend)
+    times = []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        out = xp.fft.irfftn(xp.fft.rfftn(buf, axes=(-2, -1)), s=shape, axes=(-2, -1))
+        float(out[0, 0])  # wait for the device
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times[1:]))

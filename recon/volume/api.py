@@ -48,6 +48,7 @@ from .operator import (
     normalize_psf_stack,
 )
 from .xp_admm3d import memory_bytes as admm3d_memory
+from .xp_fista3d import memory_bytes as fista3d_memory
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "check_volume_parameters",
            "depth_profile", "prepare_volume_problem", "reconstruct_stack", "volume_metrics"]
@@ -325,10 +326,12 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         (:func:`recon.auto.planes.plane_tests`), to zero; ``info["auto"]`` says
         which, why, and what the held-out error and the residual did.
     device : {"cpu", "cuda", "auto"}
-        Where 3D ADMM runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
-        (default), a CUDA GPU (the array-API path :func:`recon.volume.xp_admm3d.admm3d_xp`,
-        with fixed weights: the automatic weight and 3D FISTA run on the CPU only),
-        or the GPU when one is usable. ``info["device"]`` says which ran.
+        Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
+        (default), a CUDA GPU (the array-API paths
+        :func:`recon.volume.xp_admm3d.admm3d_xp` and
+        :func:`recon.volume.xp_fista3d.fista3d_xp`, with fixed weights: the automatic
+        3D weight and its plane tests run on the CPU only), or the GPU when one is
+        usable. ``info["device"]`` says which ran.
 
     Returns
     -------
@@ -341,7 +344,7 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     ------
     ReconInputError
         Bad images, shapes or parameters; an unusable ``device``, an automatic weight
-        or FISTA asked of a GPU, or a volume that does not fit in its free memory.
+        asked of a GPU, or a volume that does not fit in its free memory.
     recon.errors.DivergenceError
         The solver diverged.
     """
@@ -356,11 +359,10 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = 0.0
     check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
                             0.0 if l1 == AUTO else l1, bin_factor)
-    if not backend.is_numpy and (auto_reg is not None or method != "admm"):
-        raise ReconInputError(f"{backend.label}: on a GPU a volume is solved by 3D ADMM with "
-                              "fixed weights (the automatic weight and 3D FISTA run on the "
-                              "CPU); give --tv and --l1 numbers with --method admm, or use "
-                              "--device cpu")
+    if not backend.is_numpy and auto_reg is not None:
+        raise ReconInputError(f"{backend.label}: on a GPU a volume is solved with fixed "
+                              "weights (the automatic 3D weight and plane tests run on the "
+                              "CPU); give --tv and --l1 numbers, or use --device cpu")
     if empty_planes not in EMPTY_PLANES:
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
@@ -393,11 +395,12 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
              *op.sensor_shape, op.padded_shape, iterations)
     auto = []
     if not backend.is_numpy:
-        result = solve_on(backend, admm3d, op, b, iterations=iterations, tv=tv, l1=l1,
-                          nonneg=True, needed_bytes=admm3d_memory(op.n_z, op.padded_shape,
-                                                                  tv > 0),
-                          what=f"3D ADMM on {op.n_z} planes of {op.sensor_shape[0]} x "
-                               f"{op.sensor_shape[1]}")
+        needed = (admm3d_memory(op.n_z, op.padded_shape, tv > 0) if method == "admm"
+                  else fista3d_memory(op.n_z, op.padded_shape))
+        result = solve_on(backend, SOLVERS[method], op, b, iterations=iterations, tv=tv,
+                          l1=l1, nonneg=True, needed_bytes=needed,
+                          what=f"3D {'ADMM' if method == 'admm' else 'FISTA'} on {op.n_z} "
+                               f"planes of {op.sensor_shape[0]} x {op.sensor_shape[1]}")
     elif auto_reg is None:
         result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     else:
