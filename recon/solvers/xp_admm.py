@@ -34,7 +34,8 @@ from .xp_common import (
     tv_circular,
 )
 
-__all__ = ["XpAdmmPlan", "XpAdmmState", "admm_xp", "memory_bytes", "run_admm_xp"]
+__all__ = ["XpAdmmPlan", "XpAdmmState", "XpPlanBase", "admm_xp", "memory_bytes",
+           "run_admm_xp"]
 
 
 def memory_bytes(padded_shape: tuple[int, int]) -> int:
@@ -50,7 +51,38 @@ def _rescale(q, a, old: float, new: float):
     return q + a * (1.0 - old / new) if old != new else q
 
 
-class XpAdmmPlan:
+class XpPlanBase:
+    """What the 2D and 3D generic ADMM plans share (:class:`XpAdmmPlan`,
+    :class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`): the ``plan_of`` maker and the
+    warm start. A subclass has ``xp``, ``xop``, ``zeros(mu, use_tv)`` and
+    ``tv_splits(x) -> {name: G_u x}`` for its TV splits."""
+
+    @classmethod
+    def maker(cls, like, numpy_plan_of):
+        """``plan_of(op) -> plan`` on ``like``'s device from the NumPy plans of
+        ``numpy_plan_of`` (e.g. :meth:`recon.solvers.admm.AdmmPlan.of`), for
+        :func:`recon.auto.weight.admm_auto`."""
+        return lambda op: cls(numpy_plan_of(op), like)
+
+    def warm(self, x, mu, use_tv: bool):
+        """A state at the primal ``x`` (the object grid, on the device or the host)
+        with zero duals (q_i = G_i x, :meth:`recon.solvers.admm.AdmmPlan.warm`)."""
+        state = self.zeros(mu, use_tv)
+        if x is None:
+            return state
+        xp = self.xp
+        x = xp.asarray(self.xop.asarray(x) if isinstance(x, np.ndarray) else x, copy=True,
+                       dtype=xp.float32)
+        state.x = x
+        state.mx = state.qv = self.xop.convolve_full(x)
+        state.qw = xp.clip(x, min=0.0)
+        if use_tv:
+            for name, q in self.tv_splits(x).items():
+                setattr(state, name, q)
+        return state
+
+
+class XpAdmmPlan(XpPlanBase):
     """:class:`recon.solvers.admm.AdmmPlan` on the device of ``like``.
 
     The operator's spectrum and weights and the power spectra are copied to the
@@ -85,13 +117,6 @@ class XpAdmmPlan:
         self.xop, self.h_pow, self.d_pow = cache[key]
         self.xp, self.shape = self.xop.xp, self.xop.padded_shape
 
-    @classmethod
-    def maker(cls, like, numpy_plan_of):
-        """``plan_of(op) -> XpAdmmPlan`` on ``like``'s device from the NumPy plans of
-        ``numpy_plan_of`` (e.g. :meth:`recon.solvers.admm.AdmmPlan.of`), for
-        :func:`recon.auto.weight.admm_auto`."""
-        return lambda op: cls(numpy_plan_of(op), like)
-
     def zeros(self, mu, use_tv: bool) -> XpAdmmState:
         """The cold start: everything zero, penalties ``mu``."""
         z = self.xp.zeros(self.shape, dtype=self.xp.float32, device=self.xop.device)
@@ -99,22 +124,10 @@ class XpAdmmPlan:
         state.set_penalties(self, mu)
         return state
 
-    def warm(self, x, mu, use_tv: bool) -> XpAdmmState:
-        """A state at the primal ``x`` (padded grid, on the device or the host) with
-        zero duals (:meth:`recon.solvers.admm.AdmmPlan.warm`)."""
-        state = self.zeros(mu, use_tv)
-        if x is None:
-            return state
+    def tv_splits(self, x) -> dict:
+        """G_u x of the TV splits: forward differences along columns and rows."""
         xp = self.xp
-        x = xp.asarray(self.xop.asarray(x) if isinstance(x, np.ndarray) else x, copy=True,
-                       dtype=xp.float32)
-        state.x = x
-        state.mx = state.qv = self.xop.convolve_full(x)
-        state.qw = xp.clip(x, min=0.0)
-        if use_tv:
-            state.qux = xp.roll(x, -1, axis=1) - x
-            state.quy = xp.roll(x, -1, axis=0) - x
-        return state
+        return {"qux": xp.roll(x, -1, axis=1) - x, "quy": xp.roll(x, -1, axis=0) - x}
 
     def run(self, b, state: XpAdmmState, *, iterations: int, tv: float, l1: float = 0.0,
             final: bool = True) -> SolveResult:

@@ -2,7 +2,8 @@
 
 Under ``array-api-strict`` and PyTorch's CPU backend (standing in for a GPU): the
 automatic weight's held-out path and final solve (:func:`recon.auto.weight.admm_auto`
-on :class:`recon.solvers.xp_admm.XpAdmmPlan`), Wiener
+on :class:`recon.solvers.xp_admm.XpAdmmPlan`, and in 3D on
+:class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`), Wiener
 (:func:`recon.solvers.xp_wiener.wiener_xp`) and 3D FISTA
 (:func:`recon.volume.xp_fista3d.fista3d_xp`) match the NumPy path to float32 rounding
 (the tolerance of tests/recon/test_backends.py), and make the same choices. Each test
@@ -25,6 +26,7 @@ from recon.solvers import wiener
 from recon.solvers.device import device_solvers, fft_pair_seconds_on
 from recon.solvers.xp_admm import XpAdmmPlan
 from recon.volume import fista3d
+from recon.volume.xp_admm3d import XpVolumeAdmmPlan
 
 from .test_backends import SOLVER_TOL, _backend, _problem_2d, _problem_3d, host, on
 from .test_device import _pair, _stand_in, _volume
@@ -34,6 +36,7 @@ NAMES = ["array-api-strict", "torch-cpu"]
 admm_mod = importlib.import_module("recon.solvers.admm")
 wiener_mod = importlib.import_module("recon.solvers.wiener")
 fista3d_mod = importlib.import_module("recon.volume.fista")
+admm3d_mod = importlib.import_module("recon.volume.admm")
 weight_mod = importlib.import_module("recon.auto.weight")
 
 
@@ -215,14 +218,44 @@ def test_reconstruct_a_stack_with_fista_on_a_device_equals_the_cpu(monkeypatch):
     assert np.abs(got.volume - ref.volume).max() <= SOLVER_TOL * np.abs(ref.volume).max()
 
 
-def test_the_automatic_3d_weight_on_a_device_says_it_runs_on_the_cpu(monkeypatch):
+@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("method", ["admm", "fista"])
+def test_the_automatic_3d_weight_runs_on_the_device_and_chooses_as_numpy(monkeypatch, name,
+                                                                        method):
     stack, depths, raw = _volume()
-    _stand_in(monkeypatch, "array-api-strict")
-    for method in ("admm", "fista"):
-        with pytest.raises(ReconInputError, match="automatic 3D weight and plane tests run "
-                                                  "on the CPU"):
-            recon.reconstruct(recon.PsfStack(stack, depths), raw, method, iterations=5,
-                              device="cuda")
+    ref = recon.reconstruct(recon.PsfStack(stack, depths), raw, method, iterations=150)
+    standin = _stand_in(monkeypatch, name)
+    seen = []
+    real = XpVolumeAdmmPlan.run
+
+    def run(self, b, state, **kwargs):
+        seen.append((type(b), type(state.x)))
+        return real(self, b, state, **kwargs)
+
+    monkeypatch.setattr(XpVolumeAdmmPlan, "run", run)
+    _forbid(monkeypatch, admm3d_mod, "run_admm3d")  # the NumPy 3D ADMM loop
+    _forbid(monkeypatch, fista3d_mod._kernels3d, "proximal_step_3d")
+    got = recon.reconstruct(recon.PsfStack(stack, depths), raw, method, iterations=150,
+                            device="cuda")
+    a, g = ref.info.auto[0], got.info.auto[0]
+    path, ref_path = g["weight_choice"]["path"], a["weight_choice"]["path"]
+    assert len(ref_path) >= 3  # warm-started solves, a rise, the choice
+    assert seen and all(not issubclass(t, np.ndarray) for pair in seen for t in pair)
+    assert got.info.device == standin.label and got.results[0].params["device"] == standin.label
+    assert g["weight"] == a["weight"] and got.info.tv == ref.info.tv
+    assert [p["holdout_error"] for p in path] == pytest.approx(
+        [p["holdout_error"] for p in ref_path], rel=SOLVER_TOL)
+    assert g["weight_choice"]["kept_final_iteration"] == a["weight_choice"]["kept_final_iteration"]
+    assert g["planes_kept"] == a["planes_kept"]  # the plane tests (on the host) agree
+    assert np.abs(got.volume - ref.volume).max() <= SOLVER_TOL * np.abs(ref.volume).max()
+
+
+def test_the_automatic_3d_path_is_refused_when_it_does_not_fit(monkeypatch):
+    stack, depths, raw = _volume()
+    _stand_in(monkeypatch, "array-api-strict", free=1000)
+    with pytest.raises(ReconInputError, match=r"automatic 3D ADMM on 3 planes of 24 x 32 needs "
+                                              r"0.00 GiB on cpu \(array-api-strict\)"):
+        recon.reconstruct(recon.PsfStack(stack, depths), raw, iterations=5, device="cuda")
 
 
 def test_the_numpy_path_of_the_weight_path_is_untouched(monkeypatch):
