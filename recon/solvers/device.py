@@ -17,8 +17,8 @@ import numpy as np
 
 from ..backend import Backend, check_memory, free_device_bytes, to_device, to_numpy
 
-__all__ = ["GENERIC_2D", "check_device_memory", "device_solvers", "fft_pair_seconds_on",
-           "solve_on"]
+__all__ = ["GENERIC_2D", "check_device_memory", "device_metrics", "device_solvers",
+           "fft_pair_seconds_on", "solve_on"]
 
 #: The 2D methods with an array-API path (any other would run on the CPU).
 GENERIC_2D = ("wiener", "gd", "fista", "admm")
@@ -109,25 +109,30 @@ def device_solvers(backend: Backend, solvers=None) -> dict:
 
 
 def fft_pair_seconds_on(backend: Backend, shape: tuple[int, int],
-                        repeats: int | None = None) -> float:
+                        repeats: int | None = None, n_z: int = 0) -> float:
     """:func:`recon.fft.fft_pair_seconds` on ``backend``'s device: the median seconds of
-    one float32 rfft2 + irfft2 pair at ``shape``, each pair waited for (one element
-    read back), after one warm-up pair (plans, kernels). The unit of a time budget
-    (:func:`recon.auto.choice.choose_method`) on that device.
+    one float32 rfft2 + irfft2 pair at ``shape`` (with ``n_z``: a batched pair on
+    ``n_z`` planes and one on a single plane, the ``n_z + 1`` pairs of a 3D
+    iteration), each waited for (one element read back), after one warm-up (plans,
+    kernels). The unit of a time budget (:func:`recon.auto.choice.choose_method`) and
+    of the metrics' ratio to the FFT floor on that device.
 
     Parameters
     ----------
     backend : Backend
+        A device; NumPy (2D only) gives :func:`recon.fft.fft_pair_seconds`.
     shape : (P0, P1)
         Padded shape.
     repeats : int, optional
-        Timed pairs (default: 15 on the NumPy path, as :func:`recon.fft.fft_pair_seconds`;
-        7 on a device).
+        Timed repeats (default: 15 on the NumPy path, as
+        :func:`recon.fft.fft_pair_seconds`; 7 on a device).
+    n_z : int
+        Planes of a volume (0: one 2D pair).
 
     Returns
     -------
     float
-        Seconds per pair.
+        Seconds per pair (per ``n_z + 1`` pairs with ``n_z``).
     """
     if backend.is_numpy:
         from ..fft import fft_pair_seconds
@@ -135,11 +140,33 @@ def fft_pair_seconds_on(backend: Backend, shape: tuple[int, int],
         return fft_pair_seconds(shape) if repeats is None else fft_pair_seconds(shape, repeats)
     xp = backend.xp
     repeats = 7 if repeats is None else repeats
-    buf = to_device(np.random.default_rng(0).random(shape, dtype=np.float32), backend)
+    rng = np.random.default_rng(0)
+    bufs = [to_device(rng.random((n, *shape) if n > 1 else shape, dtype=np.float32), backend)
+            for n in ((n_z, 1) if n_z else (1,))]
     times = []
     for _ in range(repeats + 1):
         t0 = time.perf_counter()
-        out = xp.fft.irfftn(xp.fft.rfftn(buf, axes=(-2, -1)), s=shape, axes=(-2, -1))
-        float(out[0, 0])  # wait for the device
+        for buf in bufs:
+            out = xp.fft.irfftn(xp.fft.rfftn(buf, axes=(-2, -1)), s=shape, axes=(-2, -1))
+            float(out[(0,) * out.ndim])  # wait for the device
         times.append(time.perf_counter() - t0)
     return float(np.median(times[1:]))
+
+
+def device_metrics(record, backend: Backend, n_z: int = 0):
+    """A metrics record (:func:`recon.planar.image_metrics`,
+    :func:`recon.volume.api.volume_metrics`) whose FFT floor, when not given, is
+    measured on ``backend``'s device (:func:`fft_pair_seconds_on`): the ratio to the
+    floor of the device the solve ran on.
+
+    Returns
+    -------
+    callable
+        ``record(rec, floor_s=None) -> dict``.
+    """
+    def metrics(rec, floor_s: float | None = None) -> dict:
+        if floor_s is None:
+            floor_s = fft_pair_seconds_on(backend, rec.operator.padded_shape, n_z=n_z)
+        return record(rec, floor_s)
+
+    return metrics

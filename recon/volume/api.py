@@ -37,7 +37,7 @@ from ..preprocess import (
     validate_psf,
 )
 from ..result import ReconInfo, Reconstruction
-from ..solvers.device import check_device_memory, solve_on
+from ..solvers.device import check_device_memory, device_metrics, solve_on
 from ..validate import as_array, float_array
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
@@ -91,7 +91,9 @@ def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dic
         A volume reconstruction (a PSF stack).
     fft_floor_s : float, optional
         Seconds of the FFTs one iteration needs at least
-        (:func:`recon.volume.fft_floor_seconds`); measured now if not given.
+        (:func:`recon.volume.fft_floor_seconds`); measured now if not given (on the
+        CPU; a reconstruction on a device measures its device's,
+        :func:`recon.solvers.device.device_metrics`).
 
     Returns
     -------
@@ -428,4 +430,5 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
         device=backend.label, histories=[result.history], extra={**info, "psf_scale": psf_scale})
     return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
-                          record=volume_metrics)
+                          record=volume_metrics if backend.is_numpy
+                          else device_metrics(volume_metrics, backend, op.n_z))

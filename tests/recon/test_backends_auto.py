@@ -269,3 +269,31 @@ def test_the_numpy_path_of_the_weight_path_is_untouched(monkeypatch):
     res, rec = solve_channel(op, b, raw, scale, method="auto", iterations=60, tv="auto",
                              l1=0.0)
     assert isinstance(res.x, np.ndarray) and "device" not in res.params
+
+
+def test_the_metrics_of_a_device_solve_use_that_devices_fft_floor(monkeypatch):
+    """The ratio to the FFT floor of ``--metrics-json`` is the device's: the floor is
+    measured on the device the solve ran on (2D pair; 3D ``n_z + 1`` pairs)."""
+    device_mod = importlib.import_module("recon.solvers.device")
+    psf, raw = _pair()
+    stack, depths, vraw = _volume()
+    standin = _stand_in(monkeypatch, "torch-cpu")
+    floors = []
+    real = device_mod.fft_pair_seconds_on
+
+    def floor(backend, shape, repeats=None, n_z=0):
+        floors.append((backend, tuple(shape), n_z))
+        return real(backend, shape, repeats=2, n_z=n_z)
+
+    monkeypatch.setattr(device_mod, "fft_pair_seconds_on", floor)
+    rec = recon.reconstruct(psf, raw, "fista", iterations=5, tv=1e-3, device="cuda")
+    m = rec.metrics()
+    assert floors == [(standin, rec.operator.padded_shape, 0)]
+    assert m["ratio_to_fft_floor"] == pytest.approx(m["seconds_per_iteration"]
+                                                    / m["fft_pair_seconds"])
+    vol = recon.reconstruct(recon.PsfStack(stack, depths), vraw, "admm", iterations=5, tv=1e-3,
+                            device="cuda")
+    vm = vol.metrics()
+    assert floors[-1] == (standin, vol.operator.padded_shape, 3)
+    assert vm["fft_floor_seconds"] > 0
+    assert rec.metrics(0.5)["fft_pair_seconds"] == 0.5 and len(floors) == 2  # given: kept
