@@ -68,10 +68,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..backend import array_namespace, device_of, is_numpy, total
 from ..errors import ReconInputError
 from ..solvers.admm import AdmmPlan, check_penalties
 from ..solvers.common import History, SolveResult
+from .xp_path import PathArrays, device_plan_of
 
 __all__ = ["PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto", "holdout_split",
            "path_budget"]
@@ -295,52 +295,6 @@ def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
     return keep, held
 
 
-class _PathArrays:
-    """The few whole-array steps of :func:`admm_auto` outside the plan's solves, on the
-    measurement's backend: NumPy as before, or the array-API namespace of a device
-    array (the iterates and the held-out scores stay on that device)."""
-
-    def __init__(self, b):
-        self.numpy = is_numpy(b)
-        if not self.numpy:
-            self.xp, self.device = array_namespace(b), device_of(b)
-
-    def put(self, a: np.ndarray, dtype=np.float32):
-        """A host array as an array of the measurement's backend."""
-        a = np.ascontiguousarray(a, dtype)
-        return a if self.numpy else self.xp.asarray(a, device=self.device)
-
-    def norm(self, a) -> float:
-        """||a|| as a float."""
-        if self.numpy:
-            return float(np.linalg.norm(a))
-        return math.sqrt(total(self.xp, a * a))
-
-    def copy(self, a):
-        """A copy of ``a`` (on its device)."""
-        return a.copy() if self.numpy else self.xp.asarray(a, copy=True)
-
-    def held_error(self, pred, b, held, n_held: int) -> tuple[float, float]:
-        """Sum of ``(pred - b)^2`` over the held-out pixels (float64) and its standard
-        error (``std * sqrt(n)``); ``held`` a bool mask (NumPy) or its float64 0/1
-        array (a device)."""
-        if self.numpy:
-            e = np.square(pred - b, dtype=np.float64)[held]
-            return float(e.sum()), float(e.std() * math.sqrt(e.size)) if e.size else 0.0
-        if not n_held:
-            return 0.0, 0.0
-        xp = self.xp
-        d = xp.astype(pred - b, xp.float64)
-        e = d * d * held
-        s = total(xp, e)
-        dev = (e - s / n_held) * held  # two-pass, as numpy.std
-        return s, math.sqrt(total(xp, dev * dev) / n_held) * math.sqrt(n_held)
-
-    def clip0(self, a):
-        """max(a, 0)."""
-        return np.maximum(a, 0) if self.numpy else self.xp.clip(a, min=0.0)
-
-
 def _merge(histories: list[History]) -> History:
     out = History()
     for h in histories:
@@ -385,14 +339,6 @@ def path_budget(iterations: int, path_share: float | None = None,
         return path, total - path
     path = PATH_ITERATIONS if n < PATH_ITERATIONS <= (3 * n) // 2 else n
     return path, 2 * n - path
-
-
-def _device_plan_of(like):
-    """``plan_of`` of the 2D convolution on ``like``'s device
-    (:class:`recon.solvers.xp_admm.XpAdmmPlan`)."""
-    from ..solvers.xp_admm import XpAdmmPlan
-
-    return XpAdmmPlan.maker(like, AdmmPlan.of)
 
 
 def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
@@ -481,7 +427,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     rule = rule or PATH_RULES[regulariser]
     iterations, final_budget = path_budget(iterations, rule.path_share, rule.budget)
     stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
-    arrays = _PathArrays(b)
+    arrays = PathArrays(b)
     b_norm = arrays.norm(b)
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     fixed = float(fixed)
@@ -503,7 +449,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     w = op.sensor_weights
     keep, held = holdout_split(op, holdout, seed)
     if plan_of is None:
-        plan_of = AdmmPlan.of if arrays.numpy else _device_plan_of(b)
+        plan_of = AdmmPlan.of if arrays.numpy else device_plan_of(b, AdmmPlan.of)
     fit_plan = plan_of(op.with_weights(w * keep))
     if arrays.numpy:
         b_fit = np.ascontiguousarray(b * keep, np.float32)

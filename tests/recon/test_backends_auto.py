@@ -265,7 +265,7 @@ def test_the_numpy_path_of_the_weight_path_is_untouched(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("a generic plan on the NumPy path")
 
-    monkeypatch.setattr(weight_mod, "_device_plan_of", refuse)
+    monkeypatch.setattr(weight_mod, "device_plan_of", refuse)
     res, rec = solve_channel(op, b, raw, scale, method="auto", iterations=60, tv="auto",
                              l1=0.0)
     assert isinstance(res.x, np.ndarray) and "device" not in res.params
