@@ -29,7 +29,7 @@ from .preprocess import (
 )
 from .result import ReconInfo, Reconstruction
 from .solvers import SOLVERS, SolveResult
-from .solvers.device import device_solvers
+from .solvers.device import device_metrics, device_solvers, fft_pair_seconds_on
 from .validate import as_array, as_int, finite_float
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
@@ -45,7 +45,9 @@ def image_metrics(rec: Reconstruction, fft_pair_s: float | None = None) -> dict:
     rec : Reconstruction
         A 2D reconstruction (one PSF).
     fft_pair_s : float, optional
-        FFT floor; measured now at the padded shape if not given.
+        FFT floor; measured now at the padded shape if not given (on the CPU; a
+        reconstruction on a device measures its device's,
+        :func:`recon.solvers.device.device_metrics`).
     """
     info, results = rec.info, rec.results
     if fft_pair_s is None:
@@ -279,7 +281,7 @@ def reconstruct_image(
         check_options(method, solver_options)
     backend = resolve_device(device)
     on_device = ({} if backend.is_numpy else
-                 {"solvers": device_solvers(backend), "weight_path_solves": False})
+                 {"solvers": device_solvers(backend), "backend": backend})
     fft_s = None
     t_start = time.perf_counter()
     if preprocess:
@@ -320,8 +322,8 @@ def reconstruct_image(
         bc = b if b.ndim == 2 else b[..., c]
         op, scaled = scaled_problem(pc, bc, None if mask is None else mask.mask,
                                     b_scale=raw_scale)
-        if seconds is not None and fft_s is None:
-            fft_s = fft_pair_seconds(op.padded_shape)  # the budget's unit, measured now
+        if seconds is not None and fft_s is None:  # the budget's unit, measured now
+            fft_s = fft_pair_seconds_on(backend, op.padded_shape)
         res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
                                     iterations=iterations, tv=tv, l1=l1, seconds=seconds,
                                     fft_pair_s=fft_s, auto_stop=auto_stop,
@@ -351,7 +353,8 @@ def reconstruct_image(
         extra={**info, "erased_fraction": 0.0 if mask is None
                else float(1 - op0.sensor_weights.mean())})
     return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results, op0,
-                          info_, record=image_metrics)
+                          info_, record=image_metrics if backend.is_numpy
+                          else device_metrics(image_metrics, backend))
 
 
 #: :func:`recon.preprocess.prepare_pair`'s dark modes in words (``ReconInfo.dark_source``).

@@ -2,7 +2,7 @@
 GPU (CuPy, PyTorch) or any other array-API backend.
 
 :class:`DeviceLive` keeps on the device, for the whole video, the PSF spectrum and the
-sensor weights (:func:`recon.solvers.xp_admm.device_plan`, made once), the Wiener filter
+sensor weights (:class:`recon.solvers.xp_admm.XpAdmmPlan`, made once), the Wiener filter
 of the current lambda and the warm-start ADMM iterate
 (:class:`recon.solvers.xp_admm.XpAdmmState`). Per frame only the scaled measurement
 (sensor-sized) goes to the device and the sensor field of view comes back; the
@@ -24,7 +24,7 @@ import numpy as np
 
 from .backend import Backend, check_memory, free_device_bytes, to_device, to_numpy, total
 from .solvers.common import History, SolveResult
-from .solvers.xp_admm import XpAdmmState, admm_xp, device_plan, memory_bytes
+from .solvers.xp_admm import XpAdmmPlan, XpAdmmState, admm_xp, memory_bytes
 
 __all__ = ["DeviceLive", "live_memory_bytes", "wiener_filter"]
 
@@ -93,7 +93,8 @@ class DeviceLive:
         self.backend = backend
         self.plan = plan
         like = to_device(np.zeros(1, np.float32), backend)
-        self.xop = device_plan(plan, like)[0]
+        self.xplan = XpAdmmPlan(plan, like)
+        self.xop = self.xplan.xop
         self.xp = self.xop.xp
         self._filter: tuple[float, object] | None = None
 
@@ -103,7 +104,7 @@ class DeviceLive:
 
     def zeros(self, mu, use_tv: bool) -> XpAdmmState:
         """A cold ADMM state (everything zero) with penalties ``mu``."""
-        return XpAdmmState.zeros(self.xp, self.xop.padded_shape, self.xop.device, mu, use_tv)
+        return self.xplan.zeros(mu, use_tv)
 
     def admm(self, b: np.ndarray, state: XpAdmmState, *, iterations: int, tv: float,
              penalty) -> SolveResult:

@@ -22,7 +22,7 @@ from .noise import NoiseModel, estimate_noise
 from .weight import MODEL_ERROR, AutoWeight, Stopping, admm_auto
 
 __all__ = ["AUTO", "AutoWeight", "NoSignalError", "NoiseModel", "Stopping", "estimate_noise",
-           "parse_weight", "solve_channel", "weight_arg"]
+           "parse_weight", "solve_channel", "weight_arg", "weight_path"]
 
 #: The value that asks for an automatic choice (``method``, ``tv``, ``l1``).
 AUTO = "auto"
@@ -49,10 +49,55 @@ def parse_weight(value, name: str):
     return w
 
 
+def weight_path(backend, op, b: np.ndarray, **kwargs) -> tuple[SolveResult | None, AutoWeight]:
+    """:func:`recon.auto.weight.admm_auto` on ``backend`` (None or NumPy: on the host).
+
+    On a device the measurement is moved there after a memory check, the path and the
+    final solve run on the generic ADMM with every iterate kept there, and the
+    result's ``x`` comes back as a NumPy array (``params["device"]`` names the device).
+
+    Parameters
+    ----------
+    backend : Backend or None
+    op : ConvolutionOperator
+        Scaled forward model (a device: the 2D convolution only).
+    b : ndarray, float32, ``op.shape_out``
+        Scaled measurement on the host.
+    **kwargs
+        Passed to :func:`~recon.auto.weight.admm_auto`.
+
+    Returns
+    -------
+    result, choice
+        As :func:`~recon.auto.weight.admm_auto`.
+
+    Raises
+    ------
+    ReconInputError
+        The path does not fit in the device's free memory (says how much it needs).
+    """
+    if backend is None or backend.is_numpy:
+        return admm_auto(op, b, **kwargs)
+    from ..backend import to_device, to_numpy
+    from ..solvers.device import check_device_memory
+    from ..solvers.xp_admm import memory_bytes
+
+    p0, p1 = op.padded_shape
+    # the solve's arrays, and up to 8 planes more: the path's kept estimates, the final
+    # solve's best iterate, the held-out masks and weights
+    check_device_memory(backend, memory_bytes((p0, p1)) + 8 * 4 * p0 * p1,
+                        f"automatic 2D ADMM at {op.sensor_shape[0]} x {op.sensor_shape[1]}")
+    res, chosen = admm_auto(op, to_device(b, backend), **kwargs)
+    if res is not None:
+        res.x = to_numpy(res.x)
+        res.params["device"] = backend.label
+    return res, chosen
+
+
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
                   iterations: int, tv, l1, seconds: float | None = None,
                   fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
-                  plan_of=None, weight_path_solves: bool = True, **options
+                  plan_of=None, weight_path_solves: bool = True, backend=None, **options
                   ) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
@@ -92,8 +137,13 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     weight_path_solves : bool
         With an automatic weight and ADMM, the result is the weight path's own solve
         (default); False: the path only chooses the weight and ``solvers``' ADMM then
-        solves (e.g. on a GPU, :func:`recon.solvers.device.device_solvers`; the path runs
-        on the CPU).
+        solves.
+    backend : Backend, optional
+        Where the automatic weight's path and final solve run
+        (:func:`recon.auto.weight.admm_auto` on the generic ADMM, iterates kept on the
+        device between its solves; the result's ``x`` comes back to the host); None
+        or :data:`recon.backend.NUMPY`: the NumPy path. ``solvers`` should then be the
+        same device's (:func:`recon.solvers.device.device_solvers`).
     **options
         Passed to a fixed method's solver.
 
@@ -111,7 +161,8 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     NoSignalError
         ``method="auto"`` on a frame that holds only noise.
     ReconInputError
-        Invalid weights or budget, or ``seconds`` with a fixed method.
+        Invalid weights or budget, ``seconds`` with a fixed method, or a weight path
+        that does not fit in the device's free memory.
     """
     w2 = np.square(op.sensor_weights, dtype=np.float64)
     # a frame too small for the noise fit (< 8 x 8) gets no noise model: no signal
@@ -147,16 +198,17 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
     fixed = float(l1 if auto_reg == "tv" else tv) if auto_reg is not None else 0.0
     if auto_reg is not None and method == "admm" and not options and weight_path_solves:
-        res, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
-                                regulariser=auto_reg, plan_of=plan_of, fixed=fixed)
+        res, chosen = weight_path(backend, op, b, iterations=iterations,
+                                  noise_energy=noise_energy, regulariser=auto_reg,
+                                  plan_of=plan_of, fixed=fixed)
         record["weight"] = chosen.as_dict()
         tv, l1 = ((chosen.weight, 0.0 if l1 == AUTO else l1) if auto_reg == "tv"
                   else (tv, chosen.weight))
     else:
         if auto_reg is not None:
-            _, chosen = admm_auto(op, b, iterations=iterations, noise_energy=noise_energy,
-                                  regulariser=auto_reg, path_only=True, plan_of=plan_of,
-                                  fixed=fixed)
+            _, chosen = weight_path(backend, op, b, iterations=iterations,
+                                    noise_energy=noise_energy, regulariser=auto_reg,
+                                    path_only=True, plan_of=plan_of, fixed=fixed)
             record["weight"] = dict(chosen.as_dict(), chosen_by="ADMM path, used by "
                                     + method)
             if auto_reg == "tv":

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import to_device, to_numpy
 from ..errors import ReconInputError
 from .noise import NoiseModel
 from .planes import plane_tests, planes_record
@@ -64,7 +65,8 @@ EMPTY_PLANES = ("keep", "drop")
 
 def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations: int,
                 plan_of, fista, regulariser: str = "tv", other: float = 0.0,
-                empty_planes: str = "keep", seed: int = 0) -> tuple[object, dict]:
+                empty_planes: str = "keep", seed: int = 0, backend=None,
+                device_plan=None) -> tuple[object, dict]:
     """Choose the 3D weight, solve, and test every plane for signal.
 
     Parameters
@@ -93,6 +95,14 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
         (:func:`recon.auto.planes.planes_record`); reported either way.
     seed : int
         Seed of the held-out pixels.
+    backend : Backend, optional
+        Where the path and the final solve run: None or NumPy the host; another
+        backend its device (the measurement moved there, the iterates kept there
+        between the path's solves, ``x`` brought back for the plane tests, which run
+        on the host).
+    device_plan : type, optional
+        With a device ``backend``: the generic plan class with
+        ``maker(like, plan_of)`` (:class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`).
 
     Returns
     -------
@@ -127,17 +137,26 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
               "regulariser": regulariser, "plan_of": plan_of, "fixed": other,
               "rule": VOLUME_RULES[regulariser], "seed": seed}
     keep, held = holdout_split(op, HOLDOUT, seed)
+    on_device = backend is not None and not backend.is_numpy
+    b_solve = b
+    if on_device:  # the measurement and the path's plans on the device
+        b_solve = to_device(b, backend)
+        common["plan_of"] = device_plan.maker(b_solve, plan_of)
     if method == "admm":
-        result, choice = admm_auto(op, b, **common)
+        result, choice = admm_auto(op, b_solve, **common)
     else:
-        _, choice = admm_auto(op, b, path_only=True, **common)
+        _, choice = admm_auto(op, b_solve, path_only=True, **common)
         tv, l1 = ((choice.weight, other) if regulariser == "tv" else (other, choice.weight))
+        b_fit = np.ascontiguousarray(b * keep, np.float32)
         result = fista(op.with_weights(op.sensor_weights * keep),
-                         np.ascontiguousarray(b * keep, np.float32), iterations=iterations,
-                         tv=tv, l1=l1, nonneg=True)
+                       to_device(b_fit, backend) if on_device else b_fit,
+                       iterations=iterations, tv=tv, l1=l1, nonneg=True)
         choice.final_pixels = "fit (FISTA at the path's weight)"
         choice.final_iterations = iterations
         result.params["iterations_used"] = choice.path_iterations + iterations
+    if on_device:  # the plane tests run on the host
+        result.x = to_numpy(result.x)
+        result.params["device"] = backend.label
     tests = plane_tests(op, result.x, b, variance, held)
     planes, kept, drop = planes_record(op, result.x, b, tests, held, empty_planes)
     if drop["planes"] and drop["applied"]:

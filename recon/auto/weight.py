@@ -71,6 +71,7 @@ import numpy as np
 from ..errors import ReconInputError
 from ..solvers.admm import AdmmPlan, check_penalties
 from ..solvers.common import History, SolveResult
+from .xp_path import PathArrays, device_plan_of
 
 __all__ = ["PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto", "holdout_split",
            "path_budget"]
@@ -355,7 +356,12 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Scaled forward model (unit-sum PSF or normalised stack; the spatial model and
         the volume model with their ``plan_of``).
     b : ndarray, float32, ``op.shape_out``
-        Scaled measurement (weighted, divided by its maximum).
+        Scaled measurement (weighted, divided by its maximum). An array of another
+        array-API backend (CuPy, PyTorch) runs the path and the final solve on its
+        device (the generic ADMM, :class:`recon.solvers.xp_admm.XpAdmmPlan`, by
+        default): iterates, warm starts and held-out scores stay there, the result's
+        ``x`` too; the held-out split and :func:`holdout_coverage` are computed on
+        the host from ``op``.
     iterations : int
         Iterations of the fixed-weight run this replaces: the path and the final solve
         take at most twice as many together (:func:`path_budget`).
@@ -387,7 +393,9 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         use it.
     plan_of : callable, optional
         ``plan_of(op) -> plan`` for ``op`` and its copies with other sensor weights:
-        default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution);
+        default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution; with ``b`` on a
+        device its :class:`~recon.solvers.xp_admm.XpAdmmPlan`; a caller's ``plan_of``
+        must make plans for ``b``'s backend);
         :meth:`recon.spatial.SpatialAdmmPlan.of` for a spatially varying model,
         :meth:`recon.volume.VolumeAdmmPlan.of` for a volume. A plan has ``op``,
         ``zeros(mu, use_tv)``, ``warm(x, mu, use_tv)``, ``run(b, state, iterations=,
@@ -419,7 +427,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     rule = rule or PATH_RULES[regulariser]
     iterations, final_budget = path_budget(iterations, rule.path_share, rule.budget)
     stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
-    b_norm = float(np.linalg.norm(b))
+    arrays = PathArrays(b)
+    b_norm = arrays.norm(b)
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
     fixed = float(fixed)
     if not (math.isfinite(fixed) and fixed >= 0):
@@ -439,9 +448,16 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     factor = max(PATH_FACTOR, (weight / rule.end) ** (1.0 / (stages - 1)))
     w = op.sensor_weights
     keep, held = holdout_split(op, holdout, seed)
-    plan_of = plan_of or AdmmPlan.of
+    if plan_of is None:
+        plan_of = AdmmPlan.of if arrays.numpy else device_plan_of(b, AdmmPlan.of)
     fit_plan = plan_of(op.with_weights(w * keep))
-    b_fit = np.ascontiguousarray(b * keep, np.float32)
+    if arrays.numpy:
+        b_fit = np.ascontiguousarray(b * keep, np.float32)
+        w_on, held_on = w, held
+    else:  # the weights and masks on the device, once
+        b_fit = b * arrays.put(keep)
+        w_on, held_on = arrays.put(w), arrays.put(held, np.float64)
+    n_held = int(np.count_nonzero(held))
     state = fit_plan.zeros(check_penalties(mu), use_tv)
     # the path's estimates from the stage before the best on: the warm start is the
     # one nearest the chosen weight, which lies within max_above_minimum x the best's
@@ -449,9 +465,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
 
     def score(st) -> tuple[float, float]:
         """Held-out prediction error of a fit's state, and its standard error."""
-        pred = w * np.maximum(st.mx[op.crop], 0)
-        e = np.square(pred - b, dtype=np.float64)[held]
-        return float(e.sum()), float(e.std() * math.sqrt(e.size)) if e.size else 0.0
+        return arrays.held_error(w_on * arrays.clip0(st.mx[op.crop]), b, held_on, n_held)
 
     while weight >= rule.end:
         # the first stage rides out ADMM's start-up transient
@@ -463,7 +477,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         used += n
         err, se = score(state)
         path.append({"weight": weight, "holdout_error": err, "standard_error": se})
-        estimates[len(path) - 1] = state.x.copy()
+        estimates[len(path) - 1] = arrays.copy(state.x)
         if best is None or err < best[1]:
             best, rises = (len(path) - 1, err, se), 0
         elif err < path[-2]["holdout_error"]:  # falling again: a transient, not the end
@@ -525,7 +539,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         else:
             err = score(state)[0]
             if kept is None or err <= kept[0]:
-                kept = (err, res.x.copy(), done)
+                kept = (err, arrays.copy(res.x), done)
         if stopping.done(final_data, target):
             stopped = done < final_budget
             break
@@ -539,6 +553,5 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     # the returned estimate's objective and residual, on the pixels its solve fitted
     x = kept[1]
     objective, relative = final_plan.objective(b_final, x, **weights(chosen),
-                                               b_norm=max(float(np.linalg.norm(b_final)),
-                                                          1e-30))
+                                               b_norm=max(arrays.norm(b_final), 1e-30))
     return SolveResult(x, history, objective, relative, params), choice

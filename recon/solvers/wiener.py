@@ -50,7 +50,10 @@ def wiener(op: ConvolutionOperator, b: np.ndarray, regularization: float | None 
     op : ConvolutionOperator
         Forward model (its PSF spectrum and sensor weights are used).
     b : ndarray, shape ``op.shape_out``, float32
-        Measurement (already multiplied by the sensor weights).
+        Measurement (already multiplied by the sensor weights). An array of another
+        array-API backend (CuPy, PyTorch) runs :func:`recon.solvers.xp_wiener.wiener_xp`
+        on its device and returns ``x`` there (the automatic lambda is estimated
+        from a host copy).
     regularization : float, optional
         lambda, in units of |H|^2; default :func:`auto_regularization`.
 
@@ -67,6 +70,16 @@ def wiener(op: ConvolutionOperator, b: np.ndarray, regularization: float | None 
     """
     if not isinstance(op, ConvolutionOperator):
         raise ReconInputError("Wiener deconvolution needs a ConvolutionOperator forward model")
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from ..backend import to_numpy
+        from .xp_common import check_measurement_xp
+        from .xp_wiener import wiener_xp
+
+        b = check_measurement_xp(b, op.shape_out)
+        # the noise estimate (wavelet MAD, scikit-image) reads the measurement on the host
+        lam = (auto_regularization(to_numpy(b)) if regularization is None
+               else positive(regularization, "regularization"))
+        return wiener_xp(op, b, lam)
     b = check_measurement(b, op.shape_out)
     lam = (auto_regularization(b) if regularization is None
            else positive(regularization, "regularization"))

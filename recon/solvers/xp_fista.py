@@ -2,7 +2,8 @@
 
 The proximal step of :func:`recon._kernels.proximal_step_2d` (the Haar-shift TV of
 Kuo 2020, App. A.1; Kamilov, Bostan & Unser 2012, then max(., 0)) as whole-array
-operations; the loop is the one of every FISTA of the project
+operations, along any number of axes (the 3D FISTA's too,
+:mod:`recon.volume.xp_fista3d`); the loop is the one of every FISTA of the project
 (:func:`recon.solvers.accelerated.accelerated_loop`).
 """
 
@@ -19,36 +20,84 @@ from .accelerated import accelerated_loop
 from .common import SolveResult
 from .xp_common import XpMonitor, check_measurement_xp, total, tv_circular
 
-__all__ = ["accelerated_xp", "proximal_step"]
+__all__ = ["accelerated_xp", "device_problem", "proximal_step", "tv_open"]
 
 
-def proximal_step(xp, y, grad, x, step: float, thr: float, beta: float, nonneg: bool):
-    """One accelerated proximal-gradient update (:func:`recon._kernels.proximal_step_2d`).
+def _differences(xp, z, axis: int, wrap: bool):
+    """Forward and backward differences of ``z`` along ``axis``: circular (``wrap``)
+    or open (zero across the first and last slice: the depth of a volume)."""
+    if wrap:
+        return xp.roll(z, -1, axis=axis) - z, z - xp.roll(z, 1, axis=axis)
+    n = z.shape[axis]
+    lo = [slice(None)] * z.ndim
+    hi = [slice(None)] * z.ndim
+    lo[axis], hi[axis] = slice(0, n - 1), slice(1, n)
+    d = z[tuple(hi)] - z[tuple(lo)]
+    edge = [slice(None)] * z.ndim
+    edge[axis] = slice(0, 1)
+    zero = xp.zeros_like(z[tuple(edge)])
+    return xp.concat([d, zero], axis=axis), xp.concat([zero, d], axis=axis)
+
+
+def tv_open(xp, y, open_axis: int | None = None) -> float:
+    """Anisotropic TV of ``y``: |forward differences| along every axis, circular but
+    along ``open_axis`` (a volume's depth: no wrap)."""
+    return sum(total(xp, xp.abs(_differences(xp, y, ax, ax != open_axis)[0]))
+               for ax in range(y.ndim))
+
+
+def proximal_step(xp, y, grad, x, step: float, thr: float, beta: float, nonneg: bool,
+                  l1thr: float = 0.0, open_axis: int | None = None):
+    """One accelerated proximal-gradient update: :func:`recon._kernels.proximal_step_2d`
+    on an image, :func:`recon.volume._kernels3d.proximal_step_3d` on a volume
+    (``open_axis=0``: depth pairs stop at the first and last planes).
+
+    ``z = y - step grad``; the Haar-shift TV of App. A.1 along every axis (threshold
+    ``thr`` on the half-differences, averaged over the ``ndim`` axes: each element
+    moves by ``sum_axes [clip(d_k) - clip(d_{k-1})] / (2 ndim)``); the l1 soft
+    threshold ``l1thr``; then ``max(., 0)`` with ``nonneg``.
 
     Returns
     -------
     x_new, y_next : arrays
     tv_y : float
-        Anisotropic TV of ``y``.
+        Anisotropic TV of ``y`` (:func:`tv_open`).
     dot : float
         ``<y - x_new, x_new - x>`` (gradient restart test).
     """
     z = y - step * grad
-
-    def clip(d):
-        return xp.clip(d, min=-thr, max=thr)
-
     x_new = z
     if thr > 0:
-        corr = (clip(0.5 * (xp.roll(z, -1, axis=0) - z)) - clip(0.5 * (z - xp.roll(z, 1, axis=0)))
-                + clip(0.5 * (xp.roll(z, -1, axis=1) - z))
-                - clip(0.5 * (z - xp.roll(z, 1, axis=1))))
-        x_new = z + 0.25 * corr
+        corr = None
+        for ax in range(z.ndim):
+            fwd, bwd = _differences(xp, z, ax, ax != open_axis)
+            term = (xp.clip(0.5 * fwd, min=-thr, max=thr)
+                    - xp.clip(0.5 * bwd, min=-thr, max=thr))
+            corr = term if corr is None else corr + term
+        x_new = z + corr / (2.0 * z.ndim)
+    if l1thr > 0:
+        x_new = x_new - xp.clip(x_new, min=-l1thr, max=l1thr)
     if nonneg:
         x_new = xp.clip(x_new, min=0.0)
     step_x = x_new - x
-    return (x_new, x_new + beta * step_x, tv_circular(xp, y, (0, 1)),
+    return (x_new, x_new + beta * step_x, tv_open(xp, y, open_axis),
             total(xp, (y - x_new) * step_x))
+
+
+def device_problem(op, b, op_type: type, xp_type: type, method: str):
+    """The generic operator of ``op`` on ``b``'s device, its namespace and the checked
+    measurement (:func:`~recon.solvers.xp_common.check_measurement_xp`).
+
+    Raises
+    ------
+    ReconInputError
+        ``op`` is not an ``op_type``, or a bad measurement.
+    """
+    if not isinstance(op, op_type):
+        raise ReconInputError(f"{method} on another backend needs a {op_type.__name__}, got "
+                              f"{type(op).__name__}; pass NumPy arrays")
+    xop = xp_type(op, b)
+    return xop, xop.xp, check_measurement_xp(b, op.shape_out)
 
 
 def accelerated_xp(op, b, *, iterations: int, tv: float, nonneg: bool, step_scale: float,
@@ -78,12 +127,7 @@ def accelerated_xp(op, b, *, iterations: int, tv: float, nonneg: bool, step_scal
     DivergenceError, ReconInputError
         As :func:`recon.solvers.gradient.fista`.
     """
-    if not isinstance(op, ConvolutionOperator):
-        raise ReconInputError(f"{method} on another backend needs a ConvolutionOperator, got "
-                              f"{type(op).__name__}; pass NumPy arrays")
-    xop = XpConvolution(op, b)
-    xp = xop.xp
-    b = check_measurement_xp(b, op.shape_out)
+    xop, xp, b = device_problem(op, b, ConvolutionOperator, XpConvolution, method)
     lip = lipschitz if lipschitz is not None else xop.lipschitz()
     if not lip > 0:
         raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSF")

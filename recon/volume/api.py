@@ -37,7 +37,7 @@ from ..preprocess import (
     validate_psf,
 )
 from ..result import ReconInfo, Reconstruction
-from ..solvers.device import solve_on
+from ..solvers.device import check_device_memory, device_metrics, solve_on
 from ..validate import as_array, float_array
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
@@ -47,7 +47,9 @@ from .operator import (
     fft_floor_seconds,
     normalize_psf_stack,
 )
+from .xp_admm3d import XpVolumeAdmmPlan, auto3d_extra_bytes
 from .xp_admm3d import memory_bytes as admm3d_memory
+from .xp_fista3d import memory_bytes as fista3d_memory
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "check_volume_parameters",
            "depth_profile", "prepare_volume_problem", "reconstruct_stack", "volume_metrics"]
@@ -89,7 +91,9 @@ def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dic
         A volume reconstruction (a PSF stack).
     fft_floor_s : float, optional
         Seconds of the FFTs one iteration needs at least
-        (:func:`recon.volume.fft_floor_seconds`); measured now if not given.
+        (:func:`recon.volume.fft_floor_seconds`); measured now if not given (on the
+        CPU; a reconstruction on a device measures its device's,
+        :func:`recon.solvers.device.device_metrics`).
 
     Returns
     -------
@@ -325,10 +329,12 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         (:func:`recon.auto.planes.plane_tests`), to zero; ``info["auto"]`` says
         which, why, and what the held-out error and the residual did.
     device : {"cpu", "cuda", "auto"}
-        Where 3D ADMM runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
-        (default), a CUDA GPU (the array-API path :func:`recon.volume.xp_admm3d.admm3d_xp`,
-        with fixed weights: the automatic weight and 3D FISTA run on the CPU only),
-        or the GPU when one is usable. ``info["device"]`` says which ran.
+        Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
+        (default), a CUDA GPU (the array-API paths
+        :func:`recon.volume.xp_admm3d.admm3d_xp` and
+        :func:`recon.volume.xp_fista3d.fista3d_xp`; an automatic weight's held-out
+        path and final solve run there too, its plane tests on the host), or the GPU
+        when one is usable. ``info["device"]`` says which ran.
 
     Returns
     -------
@@ -340,8 +346,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     Raises
     ------
     ReconInputError
-        Bad images, shapes or parameters; an unusable ``device``, an automatic weight
-        or FISTA asked of a GPU, or a volume that does not fit in its free memory.
+        Bad images, shapes or parameters; an unusable ``device``, or a volume that
+        does not fit in its free memory.
     recon.errors.DivergenceError
         The solver diverged.
     """
@@ -356,11 +362,6 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = 0.0
     check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
                             0.0 if l1 == AUTO else l1, bin_factor)
-    if not backend.is_numpy and (auto_reg is not None or method != "admm"):
-        raise ReconInputError(f"{backend.label}: on a GPU a volume is solved by 3D ADMM with "
-                              "fixed weights (the automatic weight and 3D FISTA run on the "
-                              "CPU); give --tv and --l1 numbers with --method admm, or use "
-                              "--device cpu")
     if empty_planes not in EMPTY_PLANES:
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
@@ -392,22 +393,31 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
     auto = []
-    if not backend.is_numpy:
-        result = solve_on(backend, admm3d, op, b, iterations=iterations, tv=tv, l1=l1,
-                          nonneg=True, needed_bytes=admm3d_memory(op.n_z, op.padded_shape,
-                                                                  tv > 0),
-                          what=f"3D ADMM on {op.n_z} planes of {op.sensor_shape[0]} x "
-                               f"{op.sensor_shape[1]}")
+    if not backend.is_numpy and auto_reg is None:
+        needed = (admm3d_memory(op.n_z, op.padded_shape, tv > 0) if method == "admm"
+                  else fista3d_memory(op.n_z, op.padded_shape))
+        result = solve_on(backend, SOLVERS[method], op, b, iterations=iterations, tv=tv,
+                          l1=l1, nonneg=True, needed_bytes=needed,
+                          what=f"3D {'ADMM' if method == 'admm' else 'FISTA'} on {op.n_z} "
+                               f"planes of {op.sensor_shape[0]} x {op.sensor_shape[1]}")
     elif auto_reg is None:
         result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     else:
         # the frame's Poisson-Gaussian noise (too small a frame: none known)
         noise = estimate_noise(raw) if min(raw.shape) >= 8 else NoiseModel(0.0, 0.0, [])
+        on_device = {}
+        if not backend.is_numpy:
+            # the path's 3D ADMM, its kept estimates and the fit plan's second spectra
+            check_device_memory(backend, admm3d_memory(op.n_z, op.padded_shape, True)
+                                + auto3d_extra_bytes(op.n_z, op.padded_shape),
+                                f"automatic 3D ADMM on {op.n_z} planes of "
+                                f"{op.sensor_shape[0]} x {op.sensor_shape[1]}")
+            on_device = {"backend": backend, "device_plan": XpVolumeAdmmPlan}
         result, record = auto_volume(method, op, b, noise=noise.scaled(raw_scale),
                                      iterations=iterations, plan_of=VolumeAdmmPlan.of,
                                      fista=fista3d, regulariser=auto_reg,
                                      other=l1 if auto_reg == "tv" else tv,
-                                     empty_planes=empty_planes)
+                                     empty_planes=empty_planes, **on_device)
         auto = [dict(record, noise=noise.as_dict())]
         tv, l1 = ((record["weight"], l1) if auto_reg == "tv" else (tv, record["weight"]))
     estimate = (result.x * raw_scale).astype(np.float32)
@@ -420,4 +430,5 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
         device=backend.label, histories=[result.history], extra={**info, "psf_scale": psf_scale})
     return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
-                          record=volume_metrics)
+                          record=volume_metrics if backend.is_numpy
+                          else device_metrics(volume_metrics, backend, op.n_z))

@@ -98,7 +98,10 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         3D forward model with ``shape_in = (n_z, P0, P1)``.
     b : ndarray, shape ``op.shape_out``, float32
         Measurement, scaled so its values are O(1) (e.g. divided by its maximum,
-        with the stack normalised by :func:`~recon.volume.normalize_psf_stack`).
+        with the stack normalised by :func:`~recon.volume.normalize_psf_stack`). An
+        array of another array-API backend (CuPy, PyTorch) runs the generic path
+        :func:`recon.volume.xp_fista3d.fista3d_xp` on its device and returns ``x``
+        there (``op`` a :class:`~recon.volume.operator.VolumeConvolutionOperator`).
     iterations : int
     tv : float
         3D TV weight (default 0, as every solver's; 0 or None disables TV).
@@ -141,26 +144,34 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         )
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
-    b = check_measurement(b, op.shape_out)
-    lip = None
     if step is None:
         step_scale = positive(step_scale, "step_scale")
         if lipschitz is not None:
-            lip = positive(lipschitz, "lipschitz")
-        elif not ((lip := op.lipschitz()) > 0 and math.isfinite(lip)):
-            raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSFs")
-        step = step_scale / lip
-        too_large = step_scale > 1
+            lipschitz = positive(lipschitz, "lipschitz")
     else:
         step = positive(step, "step")
-        too_large = True
-    thr = prox_threshold(step, tv_w, 3)
-    l1thr = step * l1_w
-    mon = Monitor(float(np.vdot(b, b)), "3D FISTA")
+    too_large = step is not None or step_scale > 1
     hint = ("the step is too large: use step=None (1/L) or a step scale <= 1"
             if too_large else "check the PSF stack and measurement scaling"
             + (f", or use smaller TV / l1 weights than {tv_w:g} / {l1_w:g}"
                if tv_w > 0 or l1_w > 0 else ""))
+    if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        from .xp_fista3d import fista3d_xp
+
+        return fista3d_xp(op, b, iterations=iterations, tv=tv_w, l1=l1_w, nonneg=nonneg,
+                          step=step, step_scale=step_scale, restart=restart,
+                          lipschitz=lipschitz, stop=stop, hint=hint)
+    b = check_measurement(b, op.shape_out)
+    lip = None
+    if step is None:
+        if lipschitz is not None:
+            lip = lipschitz
+        elif not ((lip := op.lipschitz()) > 0 and math.isfinite(lip)):
+            raise ReconInputError("forward model is zero (Lipschitz constant 0): check the PSFs")
+        step = step_scale / lip
+    thr = prox_threshold(step, tv_w, 3)
+    l1thr = step * l1_w
+    mon = Monitor(float(np.vdot(b, b)), "3D FISTA")
     fused = isinstance(op, VolumeConvolutionOperator)
     x = np.zeros(op.shape_in, np.float32)
     grad = np.empty_like(x)
