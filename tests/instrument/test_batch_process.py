@@ -24,35 +24,20 @@ from instrument.batch_process import (
     reconstruct_run_in_process,
 )
 from instrument.runstore import RunStore, RunStoreError
-from instrument.video import record_video
-from instrument.video_scenes import BeadFlowScene
-from instrument.virtual_bench import VirtualBench
+from tests.instrument.test_batch import video  # noqa: F401 (the fixture)
 
 OPTIONS = {"method": "admm", "iterations": 6, "tv": 1e-3, "bin_factor": 2, "workers": 1}
 
 
-@pytest.fixture(scope="module")
-def video(tmp_path_factory):
-    """An 8-frame bead video from the virtual bench and its PSF."""
-    d = tmp_path_factory.mktemp("batch-process")
-    with VirtualBench(seed=1) as vb:
-        vb.led_array.all_off()
-        vb.set_scene(BeadFlowScene(seed=1, time_step_s=0.05))
-        h = vb.psf((0.0, 0.0, BeadFlowScene().z_mm))
-        offset = vb.camera.dark_offset_dn
-        record_video(vb, d / "v.zarr", frames=8, fps=20.0, shard_frames=4)
-    psf = (h / h.max() * 4000.0 + offset).astype(np.float32)
-    return d / "v.zarr", psf
-
-
 @pytest.fixture
-def run(video, tmp_path):
+def run(video, tmp_path):  # noqa: F811
+    """A copy of test_batch's 12-frame bead video."""
     path = tmp_path / "v.zarr"
-    shutil.copytree(video[0], path)
+    shutil.copytree(video[0] / "v.zarr", path)
     return path
 
 
-def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run):
+def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run):  # noqa: F811
     seen = []
     out = reconstruct_run_in_process(run, video[1], frames=range(0, 3), on_progress=seen.append,
                                      **OPTIONS)
@@ -69,7 +54,7 @@ def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run)
                                    atol=1e-5 * float(np.abs(expect).max()))
 
 
-def test_a_cancel_stops_the_child_and_keeps_its_frames(video, run):
+def test_a_cancel_stops_the_child_and_keeps_its_frames(video, run):  # noqa: F811
     cancel = threading.Event()
 
     def progress(p):
@@ -78,12 +63,12 @@ def test_a_cancel_stops_the_child_and_keeps_its_frames(video, run):
 
     out = reconstruct_run_in_process(run, video[1], cancel=cancel, on_progress=progress,
                                      **OPTIONS)
-    assert out["cancelled"] and 1 <= out["reconstructed"] < 8
+    assert out["cancelled"] and 1 <= out["reconstructed"] < 12
     done = RunStore.open(run).product_frames_done("recon_admm")
     assert done.sum() == out["reconstructed"]
 
 
-def test_the_childs_error_comes_back_with_its_type_and_traceback(video, run):
+def test_the_childs_error_comes_back_with_its_type_and_traceback(video, run):  # noqa: F811
     reconstruct_run_in_process(run, video[1], frames=range(0, 1), **OPTIONS)
     with pytest.raises(RunStoreError, match="iterations differ") as info:
         reconstruct_run_in_process(run, video[1], frames=range(0, 1),
@@ -125,7 +110,7 @@ def test_a_child_that_dies_without_a_result_is_named_so():
     assert "exit status 9" in str(error) and "start the batch again" in str(error)
 
 
-def test_batches_in_a_child_leave_the_callers_references_alone(video, run):
+def test_batches_in_a_child_leave_the_callers_references_alone(video, run):  # noqa: F811
     """In the caller's process a batch keeps ~230 references to None (dask's scheduler
     and client); through the child it keeps none of them."""
     reconstruct_run_in_process(run, video[1], frames=range(0, 1), **OPTIONS)  # warm up
