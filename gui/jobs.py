@@ -103,7 +103,8 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         level = dark_level(text, "dark")
     if level is not None and stacked:  # the stack's PSF is dark-subtracted already
         psf = psf + level
-    live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),
+    live = LiveReconstruction(LiveReconstructor(psf, dark="auto" if level is None else level,
+                                                device=device),
                               method=method, iterations=iterations, threads=threads,
                               nice=BACKGROUND_NICE)
     return live, depth

@@ -250,16 +250,12 @@ _KIND_WORDS = {"image": "PSF (2D)", "volume": "PSF stack", "grid": "PSF grid"}
 
 
 def _image_dark(dark):
-    """The front door's dark for the 2D path: None means ``"none"`` here."""
-    if dark is None:
-        return "none"
-    if isinstance(dark, str):
-        key = dark.strip().lower()
-        if key in ("auto", "none"):
-            return key
-        raise ReconInputError(f"dark {dark!r}: give 'auto', 'none' (or None), a level in DN, "
-                              "one level per channel or a dark frame")
-    return dark
+    """The front door's dark for the 2D path (:func:`recon.preprocess.dark.front_door_dark`,
+    the estimate spelled ``"auto"``)."""
+    from .preprocess.dark import front_door_dark
+
+    resolved = front_door_dark(dark)
+    return "auto" if resolved is None else resolved
 
 
 def reconstruct_volume(psf_stack: np.ndarray, depths_mm, raw: np.ndarray,

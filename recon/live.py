@@ -30,7 +30,7 @@ from .backend import Backend, resolve_device, to_numpy
 from .errors import ReconInputError
 from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
-from .preprocess.dark import DEFAULT_DARK_REGION, resolve_dark
+from .preprocess.dark import DEFAULT_DARK_REGION, front_door_dark, resolve_dark
 from .preprocess.validation import as_array, check_bin_factor
 from .solvers import SolveResult, wiener
 from .solvers.admm import AdmmPlan, AdmmState, run_admm
@@ -103,9 +103,11 @@ class LiveReconstructor:
         Calibration PSF in sensor counts, same shape as the frames (grayscale only).
     bin_factor : int
         Box binning of PSF and frames (4 turns 1200 x 1600 into 300 x 400).
-    dark : None, "none", float or ndarray
-        As in :func:`recon.preprocess.prepare_pair`: None estimates the dark level from
-        the PSF corner and subtracts it from the PSF and every frame.
+    dark : "auto", "none", None, float or ndarray
+        As :func:`recon.reconstruct`'s: ``"auto"`` (default) estimates the dark level
+        from the PSF's corner and subtracts it from the PSF and every frame; ``"none"``
+        or None subtracts nothing (both are dark-subtracted already); a level in DN or a
+        dark frame (rows, cols) is subtracted from both.
     tv : float, optional
         ADMM TV weight in the scaled problem; default ``recon.api.DEFAULT_TV["admm"]``.
     penalty : AdmmPenalty, optional
@@ -162,7 +164,7 @@ class LiveReconstructor:
     dtype('float32')
     """
 
-    def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark=None,
+    def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark="auto",
                  tv: float | None = None, penalty: AdmmPenalty | None = None,
                  regularization: float | None = None, device: str | Backend = "cpu"):
         psf = as_array(psf, "PSF")
@@ -172,7 +174,8 @@ class LiveReconstructor:
                                   f"{psf.shape}; pass one channel")
         self.bin_factor = check_bin_factor(bin_factor)
         self.raw_shape = psf.shape
-        self._dark_mode, self._dark = resolve_dark(dark, psf, DEFAULT_DARK_REGION, None)
+        self._dark_mode, self._dark = resolve_dark(front_door_dark(dark), psf,
+                                                   DEFAULT_DARK_REGION, None)
         p = np.maximum(self._convert(psf), 0.0)  # the PSF clip of prepare_pair
         self.tv = DEFAULT_TV["admm"] if tv is None else nonneg_weight(tv, "tv")
         self.penalty = check_penalty_settings(penalty)

@@ -232,7 +232,8 @@ def _live(args: argparse.Namespace, cam):
     dark = _frame_dark(args, cam, stacked)
     if dark is not None and stacked:  # the stack's PSF is dark-subtracted already:
         psf = psf + dark  # LiveReconstructor subtracts the same dark from both
-    recon = LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark, device=args.device)
+    recon = LiveReconstructor(psf, bin_factor=args.bin_factor,
+                              dark="auto" if dark is None else dark, device=args.device)
     live = LiveReconstruction(recon, method=method, iterations=iterations,
                               threads=args.threads)
     label = (f"{method}{'' if method == 'wiener' else f' x{iterations}'}, PSF {args.psf}"

@@ -148,6 +148,30 @@ def subtract_dark(
     return out
 
 
+def front_door_dark(dark: Any) -> Any:
+    """The dark argument of :func:`resolve_dark` for the front door's vocabulary.
+
+    :func:`recon.reconstruct` and :class:`recon.live.LiveReconstructor` take ``"auto"``
+    (estimate the level from the PSF's dark corner), ``"none"`` or None (subtract
+    nothing: the inputs are dark-subtracted already), a level in DN, one level per
+    channel or a dark frame; :func:`resolve_dark` spells the estimate None.
+
+    Raises
+    ------
+    ReconInputError
+        A string other than ``"auto"`` or ``"none"``.
+    """
+    if dark is None:
+        return "none"
+    if isinstance(dark, str):
+        key = dark.strip().lower()
+        if key in ("auto", "none"):
+            return None if key == "auto" else "none"
+        raise ReconInputError(f"dark {dark!r}: give 'auto', 'none' (or None), a level in DN, "
+                              "one level per channel or a dark frame")
+    return dark
+
+
 def resolve_dark(
     dark: Any,
     psf: np.ndarray,

@@ -57,6 +57,16 @@ def test_wiener_equals_reconstruct_exactly():
                                        regularization=0.05).image)
 
 
+@pytest.mark.parametrize("dark", ["auto", None, "none", 100.0])
+def test_dark_means_what_it_means_at_the_front_door(dark):
+    """One dark vocabulary: ``"auto"`` estimates from the PSF's corner, None and
+    ``"none"`` subtract nothing, a level is subtracted; as :func:`recon.reconstruct`."""
+    psf, raw = _raw_pair()
+    got = LiveReconstructor(psf, dark=dark, regularization=0.05).wiener(raw)
+    ref = recon.reconstruct(psf, raw, "wiener", dark=dark, regularization=0.05)
+    np.testing.assert_array_equal(got.image, ref.image)
+
+
 def test_warm_state_is_carried_and_reset():
     psf, raw = _raw_pair()
     live = LiveReconstructor(psf)
