@@ -28,7 +28,7 @@ import traceback
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
-__all__ = ["DayMonitor", "rss_mb"]
+__all__ = ["DayMonitor", "HeapTracker", "rss_mb"]
 
 TIMER_MS = 10
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
@@ -198,3 +198,47 @@ class DayMonitor(QObject):
                 "slow_events": self.events[-400:], "stalls": self.stalls[-400:],
                 "worst_p99_ms": max((p["p99_ms"] for p in phases.values()), default=0.0),
                 "worst_max_ms": max((p["max_ms"] for p in phases.values()), default=0.0)}
+
+
+class HeapTracker:
+    """Where the Python heap grows from one pass of the day to the next (tracemalloc).
+
+    Off unless the environment sets ``DIFFUSERLAB_TRACEMALLOC`` (the frames of traceback
+    kept per allocation, e.g. 8): tracing slows every allocation. :meth:`mark` at each
+    pass's start takes a snapshot (the first starts the tracing: the warm-up pass is
+    left out); :meth:`report` compares the first snapshot with the last, by traceback.
+    NumPy's array buffers are traced; Qt's own (C++) allocations are not.
+    """
+
+    def __init__(self) -> None:
+        import os
+
+        self.frames = int(os.environ.get("DIFFUSERLAB_TRACEMALLOC", "0") or 0)
+        self.first = self.last = None
+
+    def mark(self) -> None:
+        """A pass starts: snapshot (the first call starts tracing)."""
+        import tracemalloc
+
+        if self.frames <= 0:
+            return
+        if not tracemalloc.is_tracing():
+            tracemalloc.start(self.frames)
+            return
+        snap = tracemalloc.take_snapshot().filter_traces(
+            [tracemalloc.Filter(False, tracemalloc.__file__)])
+        if self.first is None:
+            self.first = snap
+        self.last = snap
+
+    def report(self, top: int = 15) -> list[dict]:
+        """The ``top`` tracebacks whose memory grew most between the first and the last
+        snapshot: ``{"mb", "count", "where"}`` (innermost frames last); empty when off."""
+        if self.first is None or self.last is self.first:
+            return []
+        stats = self.last.compare_to(self.first, "traceback")
+        return [{"mb": round(st.size_diff / 2 ** 20, 2), "count": st.count_diff,
+                 "where": [f"{f.filename.rsplit('site-packages/', 1)[-1]}:{f.lineno}"
+                           for f in st.traceback][-6:]}
+                for st in sorted(stats, key=lambda st: -st.size_diff)[:top]]
+

@@ -39,7 +39,7 @@ from typing import Any
 from PySide6.QtCore import QPoint, QPointF, QTimer
 from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox, QToolButton
 
-from .daymonitor import DayMonitor
+from .daymonitor import DayMonitor, HeapTracker
 from .xinput import XInput, centre
 
 __all__ = ["Operator", "main"]
@@ -84,6 +84,7 @@ class Operator:
         self.records: list[dict] = []
         self.notes: dict[str, Any] = {}
         self.loops = 0
+        self.heap = HeapTracker()
         self.t0 = time.monotonic()
         self._gen: Iterator | None = None
         self._answered: set = set()
@@ -287,6 +288,7 @@ class Operator:
             t = time.monotonic()
             self.loops += 1
             self.monitor.loop = self.loops
+            self.heap.mark()
             yield from self.stream_and_stage()
             yield from self.calibrate(pause_and_resume=False)
             yield from self.live_view()
@@ -652,7 +654,7 @@ class Operator:
                    xinput_errors=self.x.errors, xinput_sent=self.x.sent,
                    log_errors=[ln for ln in self.w.log_pane.lines if " error: " in ln][-20:],
                    platform=QApplication.instance().platformName(),
-                   simulate=bool(self.o.simulate))
+                   simulate=bool(self.o.simulate), heap_growth=self.heap.report())
         return out
 
     def _finish(self, quit: bool = False) -> None:

@@ -339,6 +339,9 @@ def print_summary(s: dict, report: dict) -> None:
     if s.get("per_loop"):
         print("  at each pass's start (s: RSS MB, None refs): " + ", ".join(
             f"{p['t_s']}: {p['rss_mb']}, {p['none_refs']}" for p in s["per_loop"]))
+    for g in report.get("heap_growth", [])[:8]:  # DIFFUSERLAB_TRACEMALLOC set
+        print(f"  heap grew {g['mb']:+.1f} MB ({g['count']:+d} blocks) at "
+              + " <- ".join(reversed(g["where"][-3:])))
     gc = report.get("gc", {})
     if gc:
         print("  garbage collector pauses: " + ", ".join(

@@ -64,3 +64,30 @@ def test_drift_is_measured_from_pass_to_pass_not_within_a_pass():
     leaking = summarise(_day(leak_per_pass=500, shown_per_s=20))
     assert abs(leaking["none_drift_per_min"] - 500.0) < 1.0  # one pass a minute
     assert not leaking["goals_met"]["none_drift_per_min"]
+
+
+def test_heap_tracker_names_where_the_heap_grew_between_passes(monkeypatch):
+    """With DIFFUSERLAB_TRACEMALLOC set, the tracker names the line whose allocations
+    grew from the first traced pass to the last; unset, it traces nothing."""
+    import tracemalloc
+
+    import numpy as np
+
+    from gui.daymonitor import HeapTracker
+
+    monkeypatch.delenv("DIFFUSERLAB_TRACEMALLOC", raising=False)
+    off = HeapTracker()
+    off.mark()
+    off.mark()
+    assert off.report() == [] and not tracemalloc.is_tracing()
+    monkeypatch.setenv("DIFFUSERLAB_TRACEMALLOC", "4")
+    tracker, kept = HeapTracker(), []
+    try:
+        for _ in range(4):  # warm-up start, then three passes each keeping 4 MB
+            tracker.mark()
+            kept.append(np.ones(2 ** 19))
+        growth = tracker.report()
+    finally:
+        tracemalloc.stop()
+    assert growth and growth[0]["mb"] >= 7.9, growth  # two passes' worth since the first
+    assert any("test_daymonitor.py" in where for where in growth[0]["where"]), growth[0]
