@@ -7,7 +7,10 @@ issue (2D ADMM at 300 x 400 and 1200 x 1600, 3D ADMM at 256 x 256 x 32 and
 it prints seconds per iteration, the ratio to that device's FFT floor (measured in the
 same process on the same backend) and the speed-up over the NumPy path on the CPU. A
 backend that is not installed or sees no device is listed as "unmeasured" with the
-reason; a case without a generic path on a backend says so.
+reason; a case that does not fit in a device's memory says so ("not run: ...").
+Every case runs the project's own solver on each backend (the live case the
+warm-started :class:`recon.live.LiveReconstructor`, the hologram
+:func:`recon.cgh.optimize_hologram`).
 
 Problems are synthetic (a random sparse PSF or PSF stack at the sensor size and a
 random scene): the time of an iteration does not depend on the content.
