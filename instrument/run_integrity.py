@@ -165,7 +165,7 @@ def damaged_frames(store, on_progress=None) -> list[DamagedFrameError]:
 
     Frames are read in blocks of whole chunks (shards), at most
     :data:`VERIFY_BLOCK_BYTES` a block: one read per block instead of three per frame
-    (37 frames of 256 x 320: 0.05 s instead of 0.08 s). A block that cannot be read,
+    (a 200-frame video of 256 x 320: 0.28 s instead of 1.12 s). A block that cannot be read,
     and a frame whose checksum fails, is read again on its own for the error's reason.
 
     Parameters
