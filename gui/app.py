@@ -469,6 +469,7 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
     """
     import faulthandler
 
+    configure_allocator()  # before Qt and the workers start their threads (their heaps)
     faulthandler.enable()  # a crash in Qt or a C extension prints every thread's stack
     app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setOrganizationName("DiffuserLab")
@@ -479,7 +480,6 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
         QMessageBox.critical(None, "DiffuserLab", str(exc))
         raise
     configure()
-    configure_allocator()
     if bench is None and not simulate:
         bench = settings().value("bench/last_file")
         if bench is None:
