@@ -48,12 +48,17 @@ pytestmark = pytest.mark.skipif(platform.libc_ver()[0] != "glibc",
                                 reason="the allocator settings are glibc's")
 
 
-def _kept_mb(mode: str) -> int:
-    out = subprocess.run([sys.executable, "-c", SCRIPT, mode], cwd=ROOT, capture_output=True,
+def _run(script: str, mode: str) -> int:
+    """The last number ``script`` prints, run in a fresh interpreter with ``mode``."""
+    out = subprocess.run([sys.executable, "-c", script, mode], cwd=ROOT, capture_output=True,
                          text=True, timeout=120, env={"PYTHONPATH": str(ROOT),
                                                       "PATH": "/usr/bin:/bin"})
     assert out.returncode == 0, out.stderr
     return int(out.stdout.split()[-1])
+
+
+def _kept_mb(mode: str) -> int:
+    return _run(SCRIPT, mode)
 
 
 def test_the_pattern_keeps_memory_under_the_defaults():
@@ -87,11 +92,7 @@ print(arena_count())
 
 
 def _arenas(mode: str) -> int:
-    out = subprocess.run([sys.executable, "-c", ARENAS, mode], cwd=ROOT, capture_output=True,
-                         text=True, timeout=120, env={"PYTHONPATH": str(ROOT),
-                                                      "PATH": "/usr/bin:/bin"})
-    assert out.returncode == 0, out.stderr
-    return int(out.stdout.split()[-1])
+    return _run(ARENAS, mode)
 
 
 def test_the_guis_threads_share_at_most_two_heaps():
