@@ -24,6 +24,7 @@ from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 from .penalty import (
     MU_RANGE,
     AdmmPenalty,
+    admm_result,
     balance_mode,
     balanced_penalty,
     check_balancing,
@@ -366,11 +367,8 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
         objective, relative = objective_of(op, b, x, tv=tv, l1=l1, b_norm=mon.b_norm)
     else:
         objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, objective, relative,
-                       {"tv": tv, "l1": l1, "mu_initial": list(mus[0]),
-                        "mu_final": [mu1, mu2, mu3], "balance": penalty.balance,
-                        "iterations": iterations, "iterations_used": used})
+    return admm_result(x, mon.history, objective, relative, tv=tv, l1=l1, mus=mus,
+                       penalty=penalty, iterations=iterations, used=used)
 
 
 def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,

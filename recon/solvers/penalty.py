@@ -20,9 +20,9 @@ import numpy as np
 from ..errors import ReconInputError
 from ..validate import as_int, finite_float, positive
 
-__all__ = ["DEFAULT_MU", "MU_RANGE", "AdmmPenalty", "balance_mode", "balanced_penalty",
-           "check_balancing", "check_penalties", "check_penalty_settings", "rescale_duals",
-           "tie_nonneg_penalty"]
+__all__ = ["DEFAULT_MU", "MU_RANGE", "AdmmPenalty", "admm_result", "balance_mode",
+           "balanced_penalty", "check_balancing", "check_penalties", "check_penalty_settings",
+           "rescale_duals", "tie_nonneg_penalty"]
 
 #: Balancing moves penalties only within this range (scaled problem: unit-sum PSF,
 #: |b| <= 1). The normalised dual residual of an inactive constraint (e.g. x >= 0
@@ -244,3 +244,46 @@ def check_penalty_settings(penalty) -> AdmmPenalty:
             f"penalty must be an AdmmPenalty (recon.solvers.AdmmPenalty(mu=..., balance=...)), "
             f"got {type(penalty).__name__}")
     return penalty
+
+
+def admm_result(x, history, objective: float, relative: float, *, tv: float, l1: float,
+                mus: list, penalty: AdmmPenalty, iterations: int, used: int,
+                nonneg: bool | None = None, **extra):
+    """The :class:`~recon.solvers.common.SolveResult` every ADMM returns (2D and 3D,
+    NumPy and generic path): the penalties' course in ``history.extra["mu"]`` and the
+    parameters they all report.
+
+    Parameters
+    ----------
+    x : array, float32
+        The estimate (on the solve's device).
+    history : SolveHistory
+        The monitor's history (its ``extra["mu"]`` is set here).
+    objective, relative : float
+        Final objective and relative data residual.
+    tv, l1 : float
+        The weights solved with.
+    mus : list of (mu1, mu2, mu3)
+        The penalties at the start and after each change (the last: the final ones).
+    penalty : AdmmPenalty
+        Its ``balance`` is reported.
+    iterations, used : int
+        Iterations asked for and run (automatic stopping ends earlier).
+    nonneg : bool, optional
+        Reported after ``l1`` when given (3D ADMM).
+    **extra
+        Further parameters, reported last (``ffts_per_iteration``, ``backend``).
+
+    Returns
+    -------
+    SolveResult
+    """
+    from .common import SolveResult
+
+    history.extra["mu"] = [list(m) for m in mus]
+    params = {"tv": tv, "l1": l1, **({} if nonneg is None else {"nonneg": nonneg}),
+              "mu_initial": list(mus[0]), "mu_final": list(mus[-1]),
+              "balance": penalty.balance, "iterations": iterations,
+              "iterations_used": used, **extra}
+    return SolveResult(x, history, objective, relative, params)
+

@@ -23,7 +23,7 @@ from ..backend import array_namespace, device_of
 from ..errors import ReconInputError
 from ..xp_operators import XpConvolution
 from .common import SolveResult
-from .penalty import AdmmPenalty, tie_nonneg_penalty
+from .penalty import AdmmPenalty, admm_result, tie_nonneg_penalty
 from .xp_common import (
     XpMonitor,
     balance_terms,
@@ -324,12 +324,9 @@ def run_admm_xp(plan: XpAdmmPlan, b, state: XpAdmmState, *, iterations: int, tv:
         objective, relative = plan.objective(b, x, tv=tv, l1=l1, b_norm=mon.b_norm)
     else:
         objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, objective, relative,
-                       {"tv": tv, "l1": l1, "mu_initial": list(mus[0]),
-                        "mu_final": [mu1, mu2, mu3], "balance": penalty.balance,
-                        "iterations": iterations, "iterations_used": used,
-                        "backend": xp.__name__})
+    return admm_result(x, mon.history, objective, relative, tv=tv, l1=l1, mus=mus,
+                       penalty=penalty, iterations=iterations, used=used,
+                       backend=xp.__name__)
 
 
 def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=None,

@@ -33,7 +33,12 @@ from numba import get_num_threads
 from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
 from ..solvers.common import Monitor, SolveResult, check_measurement
-from ..solvers.penalty import AdmmPenalty, check_penalty_settings, rescale_duals
+from ..solvers.penalty import (
+    AdmmPenalty,
+    admm_result,
+    check_penalty_settings,
+    rescale_duals,
+)
 from ..validate import as_int, nonneg_weight
 from . import _admm_kernels3d as _k
 from .fista import final_objective
@@ -318,13 +323,9 @@ def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
         relative = math.sqrt(data_sq) / mon.b_norm
     else:
         objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, objective, relative,
-                       {"tv": tv_w, "l1": l1_w, "nonneg": nonneg,
-                        "mu_initial": list(mus[0]), "mu_final": [mu1, mu2, mu3],
-                        "balance": penalty.balance, "iterations": iterations,
-                        "iterations_used": iterations,
-                        "ffts_per_iteration": {"rfft2": nz + 1, "irfft2": nz + 1}})
+    return admm_result(x, mon.history, objective, relative, tv=tv_w, l1=l1_w, mus=mus,
+                       penalty=penalty, iterations=iterations, used=iterations,
+                       nonneg=nonneg, ffts_per_iteration={"rfft2": nz + 1, "irfft2": nz + 1})
 
 
 def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,

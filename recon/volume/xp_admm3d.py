@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from ..backend import total
 from ..errors import ReconInputError
 from ..solvers.common import SolveResult
-from ..solvers.penalty import AdmmPenalty
+from ..solvers.penalty import AdmmPenalty, admm_result
 from ..solvers.xp_admm import XpPlanBase, _rescale
 from ..solvers.xp_common import (
     XpMonitor,
@@ -309,13 +309,10 @@ def run_admm3d_xp(plan: XpVolumeAdmmPlan, b, state: XpVolumeAdmmState, *, iterat
         relative = math.sqrt(data_sq) / mon.b_norm
     else:
         objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    mon.history.extra["mu"] = [list(m) for m in mus]
-    return SolveResult(x, mon.history, objective, relative,
-                       {"tv": tv, "l1": l1, "nonneg": nonneg, "mu_initial": list(mus[0]),
-                        "mu_final": [mu1, mu2, mu3], "balance": penalty.balance,
-                        "iterations": iterations, "iterations_used": iterations,
-                        "ffts_per_iteration": {"rfft2": nz + 1, "irfft2": nz + 1},
-                        "backend": xp.__name__})
+    return admm_result(x, mon.history, objective, relative, tv=tv, l1=l1, mus=mus,
+                       penalty=penalty, iterations=iterations, used=iterations,
+                       nonneg=nonneg, ffts_per_iteration={"rfft2": nz + 1, "irfft2": nz + 1},
+                       backend=xp.__name__)
 
 
 def admm3d_xp(plan, b, *, iterations: int, tv: float, l1: float, nonneg: bool,
