@@ -90,8 +90,14 @@ def configure_allocator(mmap_threshold_bytes: int = MMAP_THRESHOLD_BYTES,
 
 
 def arena_count() -> int | None:
-    """How many heaps (arenas) glibc's allocator has now (``malloc_info``); None
-    elsewhere than glibc."""
+    """How many heaps (arenas) glibc's allocator has now.
+
+    Returns
+    -------
+    int or None
+        The ``<heap nr=...>`` entries of ``malloc_info``'s report (written to a
+        temporary file); None elsewhere than glibc, or when the file cannot be opened.
+    """
     import os
     import tempfile
 

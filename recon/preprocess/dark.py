@@ -156,6 +156,17 @@ def front_door_dark(dark: Any) -> Any:
     nothing: the inputs are dark-subtracted already), a level in DN, one level per
     channel or a dark frame; :func:`resolve_dark` spells the estimate None.
 
+    Parameters
+    ----------
+    dark : str, None, float, array-like
+        The front door's form.
+
+    Returns
+    -------
+    None, "none", float or ndarray
+        None for ``"auto"`` (estimate), ``"none"`` for None or ``"none"``, anything
+        else unchanged (:func:`resolve_dark` checks it).
+
     Raises
     ------
     ReconInputError
