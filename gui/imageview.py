@@ -11,9 +11,10 @@ snapshot is the image shown, as a TIFF (tifffile) whose JSON description holds i
 metadata: the view's title, levels, colormap and ROI, the time, and what the panel
 adds (device settings, the reconstruction's parameters, the run and frame).
 
-For video the view is light: :meth:`FrameView.setImage` swaps the image and
-recomputes levels, histogram and ROI statistics at most ``histogram_hz`` times a
-second.
+For video, and for a run's frames stepped through with a slider, the view is light:
+:meth:`FrameView.setImage` swaps the image and recomputes levels, histogram and ROI
+statistics at most ``histogram_hz`` times a second; the last image of a burst gets its
+own at the end of the period (a timer), so the view never rests on stale levels.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from typing import Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Signal
+from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import (
     QComboBox,
     QFileDialog,
@@ -131,8 +132,8 @@ class FrameView(QWidget):
     ----------
     title : str
     histogram_hz : float, optional
-        Video mode: levels, histogram and ROI statistics follow at most this often
-        (None: with every image).
+        Video mode: levels, histogram and ROI statistics follow at most this often, and
+        the newest image gets them at the end of the period (None: with every image).
     axes : (str, str)
         Axis labels (bottom, left).
     name : str
@@ -175,6 +176,10 @@ class FrameView(QWidget):
         self._last_histogram = -1e9
         self._last_roi = -1e9
         self._setting_levels = False
+        self._follow = True
+        self._catch_up = QTimer(self)
+        self._catch_up.setSingleShot(True)
+        self._catch_up.timeout.connect(self._refresh_levels)
         self.jobs: list[Job] = []
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
@@ -325,6 +330,7 @@ class FrameView(QWidget):
 
     def clear(self) -> None:
         """Show nothing."""
+        self._catch_up.stop()
         self.item.clear()
         self.image = None
 
@@ -333,29 +339,48 @@ class FrameView(QWidget):
 
         ``autoLevels``: levels from the image in the chosen mode (:data:`LEVEL_MODES`)
         unless they are locked. In video mode (``histogram_hz``) levels, histogram and
-        ROI statistics follow at most that often; between, the image is swapped alone,
-        and the view is re-ranged only when the image's shape changes.
+        ROI statistics follow at most that often: between, the image is swapped alone
+        and the newest one gets them when the period ends. The view is re-ranged only
+        when the image's shape changes.
         """
         now = time.monotonic()
         due = now - self._last_histogram >= self._period_s
         reshaped = self.image is None or np.shape(self.image) != np.shape(image)
         self.image = image
-        follow = autoLevels and not self.levels_locked
-        if follow and (due or reshaped):
-            levels = self._levels_of(image)
-            self.item.setImage(image, levels=levels)
-            self._set_levels(levels)
+        self._follow = autoLevels and not self.levels_locked
+        if due or reshaped:
+            self._catch_up.stop()
+            if self._follow:
+                levels = self._levels_of(image)
+                self.item.setImage(image, levels=levels)
+                self._set_levels(levels)
+            else:
+                self.item.setImage(image, autoLevels=False)
+            self._last_histogram = now
+            self._histogram(auto_range=self._follow)
         else:
             self.item.setImage(image, autoLevels=False)
+            if not self._catch_up.isActive():
+                wait_s = self._last_histogram + self._period_s - now
+                self._catch_up.start(max(1, int(np.ceil(1e3 * wait_s))))
         if reshaped:
             self.plot.vb.autoRange(padding=0.02)
             self.plot.vb.disableAutoRange()
-        if due or reshaped:
-            self._last_histogram = now
-            self._histogram(auto_range=follow)
         self._update_roi()
         if self.profile_action.isChecked():
             self._update_profile()
+
+    def _refresh_levels(self) -> None:
+        """The end of a video period: levels (unless locked), histogram and ROI
+        statistics of the newest image, which was shown without them."""
+        if self.image is None:
+            return
+        self._last_histogram = time.monotonic()
+        follow = self._follow and not self.levels_locked
+        if follow:
+            self._set_levels(self._levels_of(self.image))
+        self._histogram(auto_range=follow)
+        self._update_roi(force=True)
 
     def _histogram(self, auto_range: bool) -> None:
         self._setting_levels = True

@@ -41,6 +41,9 @@ __all__ = ["UPRIGHT", "ResultsPanel", "read_result"]
 
 #: The title's note on a reconstruction turned upright for viewing.
 UPRIGHT = " (upright; stored on the model grid)"
+#: How often, at most, the image's levels and histogram follow while an operator steps
+#: through a run's frames or a volume's planes, Hz (each costs the window ~5 ms).
+STEPPING_HISTOGRAM_HZ = 5.0
 
 
 def read_result(path: str) -> dict:
@@ -204,8 +207,14 @@ class ResultsPanel(QWidget):
         self.products.activated.connect(lambda _: self.show_product(self.products.currentText()))
         run_bar.addWidget(QLabel("product:"))
         run_bar.addWidget(self.products)
+        self.frame_info = QLabel("")
+        self.frame_info.setObjectName("results.frame_info")
+        self.frame_info.setTextInteractionFlags(Qt.TextInteractionFlag.TextSelectableByMouse)
         self.run_bar = QWidget()
-        self.run_bar.setLayout(run_bar)
+        run_rows = QVBoxLayout(self.run_bar)
+        run_rows.setContentsMargins(0, 0, 0, 0)
+        run_rows.addLayout(run_bar)
+        run_rows.addWidget(self.frame_info)
         layout.addWidget(self.run_bar)
         depth_bar = QHBoxLayout()
         self.depth_label = QLabel("depth:")
@@ -222,7 +231,9 @@ class ResultsPanel(QWidget):
         images = QWidget()
         images_layout = QVBoxLayout(images)
         images_layout.setContentsMargins(0, 0, 0, 0)
-        self.view = FrameView("image", name="result")
+        # a run's frames stepped through: levels and histogram follow at most 5 times a
+        # second (the newest frame gets its own at the end of the period)
+        self.view = FrameView("image", name="result", histogram_hz=STEPPING_HISTOGRAM_HZ)
         self.view.metadata = self._metadata
         images_layout.addWidget(self.view, 3)
         mips = QHBoxLayout()
@@ -454,7 +465,12 @@ class ResultsPanel(QWidget):
         coords = ", ".join(f"{k} {v:.4g}" for k, v in rec.coords.items()
                            if isinstance(v, float) and np.isfinite(v))
         self.view.setTitle(f"frame {index + 1} (point {rec.point}, {rec.tag}) (DN)")
-        self.text.setPlainText(f"frame {index}: {coords}\n\n{self.summary_text}")
+        # beside the slider, not in the summary: re-laying out the summary's text on
+        # every step costs the window about as much as the image
+        self.frame_info.setText(f"frame index {index}: {coords}" if coords else
+                                f"frame index {index}")
+        if self.text.toPlainText() != self.summary_text:  # a product's text was shown
+            self.text.setPlainText(self.summary_text)
 
     def show_product(self, name: str) -> Job | None:
         """Show product ``name`` of the open run (2D, or a volume with its depths), read

@@ -114,6 +114,13 @@ def test_results_reads_the_store_on_workers_and_verifies_once(qapp, wait, tmp_pa
     assert panel.problems == [] and "intact" in panel.verify_label.text()
     assert panel.view.image[0, 0] == 29
     assert sum(1 for n, _ in calls if n == "frame") < 29  # steps made while reading: skipped
+    # the newest frame's levels, whatever the stepping skipped, and its coordinates
+    # beside the slider; the run's summary text is not rewritten on every step
+    wait(lambda: not panel.view._catch_up.isActive(), 2.0, "the levels to follow")
+    lo, hi = panel.view.levels()
+    assert lo <= 29 <= hi
+    assert panel.frame_info.text().startswith("frame index 29")
+    assert panel.text.toPlainText() == panel.summary_text
     panel.deleteLater()
 
 

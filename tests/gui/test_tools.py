@@ -86,6 +86,39 @@ def test_auto_levels_min_max_percentile_and_lock(view):
     assert v.levels_locked
 
 
+def test_video_mode_levels_follow_the_newest_image_at_the_end_of_the_period(qapp, wait):
+    """In video mode a burst of images is shown with the first one's levels, and the
+    newest gets its own levels, histogram and ROI statistics when the period ends (a
+    slider scrubbed through a run must not rest on a stale image's levels)."""
+    from gui.imageview import FrameView
+
+    v = FrameView("video", histogram_hz=4.0)
+    v.resize(500, 400)
+    v.show()
+    v.level_mode.setCurrentText("min/max")
+    v.show_roi(True)
+    ramp = np.arange(40 * 50, dtype=np.float32).reshape(40, 50)
+    v.setImage(ramp)
+    first = v.levels()
+    assert first == (pytest.approx(0.0), pytest.approx(ramp.max()))
+    for k in (2, 3, 4):  # within the period: swapped alone
+        v.setImage(ramp * k)
+    assert v.levels() == first
+    assert np.array_equal(v.item.image, ramp * 4)
+    wait(lambda: v.levels()[1] == pytest.approx(4 * ramp.max()), 2.0,
+         "the newest image's levels at the end of the period")
+    hist_x, _ = v.histogram.plot.getData()
+    assert hist_x.max() > 3 * ramp.max()  # the histogram is the newest image's
+    assert f"max {4 * ramp[:20, :20].max():.5g}," in v.stats.text()  # the 20 px ROI
+    v.lock_levels(True)  # locked: a burst's end keeps them
+    v.setImage(ramp)
+    v.setImage(ramp * 9)
+    qapp.processEvents()
+    wait(lambda: not v._catch_up.isActive(), 2.0, "the period's end")
+    assert v.levels()[1] == pytest.approx(4 * ramp.max())
+    v.deleteLater()
+
+
 def test_colormap_choice_changes_the_lookup_table(view):
     v, _ = view
     grey = v.histogram.gradient.getLookupTable(256)
