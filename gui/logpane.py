@@ -79,7 +79,9 @@ class LogPane(QWidget):
     Attributes
     ----------
     lines : list of str
-        Every line shown, oldest first (the text view keeps :data:`MAX_LINES`).
+        The lines shown, oldest first: the last :data:`MAX_LINES` (up to 10 % more
+        between trims), as the text view keeps them, so a day-long session's pane
+        does not grow.
     repeats : dict
         ``{(logger, message template): times seen}`` in the current job.
     """
@@ -144,6 +146,8 @@ class LogPane(QWidget):
             message += " (traceback in the terminal log)"
         line = f"{stamp} {level + ': ' if level else ''}{message}"
         self.lines.append(line)
+        if len(self.lines) > MAX_LINES + MAX_LINES // 10:
+            del self.lines[:-MAX_LINES]
         colour = {"warning": "#a06000", "error": "#b00020"}.get(level)
         self.text.moveCursor(QTextCursor.MoveOperation.End)
         if colour:

@@ -371,6 +371,24 @@ def test_log_pane_shows_warnings_once_per_job_and_prompts(window):
     assert "a refusal the operator saw" in pane.lines[-1]
 
 
+def test_log_pane_keeps_the_last_lines_only(qapp):
+    """A day-long session's log pane does not grow: the lines kept are the last
+    MAX_LINES (with some slack between trims), as the text view's."""
+    from gui.logpane import MAX_LINES, LogPane, gui_log
+
+    pane = LogPane()
+    pane.install()
+    try:
+        for k in range(MAX_LINES + MAX_LINES // 10 + 5):
+            gui_log.info(f"operator line {k}")  # distinct lines (a repeat shows once)
+    finally:
+        pane.uninstall()
+    assert MAX_LINES <= len(pane.lines) <= MAX_LINES + MAX_LINES // 10
+    assert pane.lines[-1].endswith(f"operator line {MAX_LINES + MAX_LINES // 10 + 4}")
+    assert pane.text.document().blockCount() <= MAX_LINES
+    pane.deleteLater()
+
+
 def test_the_live_view_is_beside_the_task_panels_by_default(window):
     docks = window.docks
     live = docks["Live view"]
