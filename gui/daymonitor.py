@@ -28,7 +28,7 @@ import traceback
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
-__all__ = ["DayMonitor", "HeapTracker", "rss_mb"]
+__all__ = ["DayMonitor", "HeapTracker", "frozen_garbage", "rss_mb"]
 
 TIMER_MS = 10
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
@@ -41,6 +41,39 @@ def _short_path(path: str) -> str:
     """``package/module.py`` of a source path (its last two parts)."""
     parts = path.replace("\\", "/").split("/")
     return "/".join(parts[-2:])
+
+
+def frozen_garbage() -> dict:
+    """What the garbage collector finds once the objects frozen by
+    :func:`gui.workers.settle_heap` are let back in (the end of a long day).
+
+    A frozen object is never collected: cyclic garbage made of objects that were alive
+    at a freeze stays in memory. This collects the ordinary garbage first, then
+    unfreezes, collects again and gives the heaps' free pages back, and says how much
+    each found. The collector then runs as usual (nothing is frozen any more).
+
+    Returns
+    -------
+    dict
+        ``frozen`` (objects frozen before), ``garbage`` (unreachable objects found by
+        an ordinary full collection), ``frozen_garbage`` (found after unfreezing),
+        ``rss_mb`` (before), ``rss_mb_after`` (after both collections and a trim),
+        ``collect_s`` (the second collection's duration, s).
+    """
+    import gc
+
+    from .memory import trim_now
+
+    before = rss_mb()
+    frozen = gc.get_freeze_count()
+    garbage = gc.collect()
+    gc.unfreeze()
+    t = time.perf_counter()
+    found = gc.collect()
+    collect_s = time.perf_counter() - t
+    trim_now()
+    return {"frozen": frozen, "garbage": garbage, "frozen_garbage": found,
+            "rss_mb": before, "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
 def rss_mb() -> float:

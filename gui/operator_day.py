@@ -663,7 +663,12 @@ class Operator:
         if self.failure is not None:  # what the window showed when the step failed
             screen = QApplication.primaryScreen().grabWindow(0)
             screen.save(str(self.work / "failure.png"))
-        Path(self.o.report).write_text(json.dumps(self.report(), indent=1, default=str))
+        report = self.report()
+        if os.environ.get("DIFFUSERLAB_DAY_FROZEN_GARBAGE"):  # unfreezes: the day's end
+            from .daymonitor import frozen_garbage
+
+            report["frozen_garbage"] = frozen_garbage()
+        Path(self.o.report).write_text(json.dumps(report, indent=1, default=str))
         if quit:  # Ctrl+Q, then Yes in the question: the recording is finished first
             self.x.click(self.w.live.raw_view.glw)
             self.x.key("ctrl+q")

@@ -342,6 +342,12 @@ def print_summary(s: dict, report: dict) -> None:
     for g in report.get("heap_growth", [])[:8]:  # DIFFUSERLAB_TRACEMALLOC set
         print(f"  heap grew {g['mb']:+.1f} MB ({g['count']:+d} blocks) at "
               + " <- ".join(reversed(g["where"][-3:])))
+    fg = report.get("frozen_garbage")  # DIFFUSERLAB_DAY_FROZEN_GARBAGE set
+    if fg:
+        print(f"  at the day's end: {fg['frozen']} objects frozen; a full collection found "
+              f"{fg['garbage']} unreachable, {fg['frozen_garbage']} more once unfrozen "
+              f"({1e3 * fg['collect_s']:.0f} ms); RSS {fg['rss_mb']:.0f} -> "
+              f"{fg['rss_mb_after']:.0f} MB")
     gc = report.get("gc", {})
     if gc:
         print("  garbage collector pauses: " + ", ".join(
