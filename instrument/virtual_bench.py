@@ -55,6 +55,10 @@ log = logging.getLogger(__name__)
 BRANCHES = ("lensless", "holography")
 #: Real-time virtual bench: the camera's ``gaussian_shot_noise_above_e`` (electrons).
 REALTIME_GAUSSIAN_ABOVE_E = 100.0
+#: Ray-traced PSFs kept (the positions used last; a 256 x 320 sensor's is 0.66 MB, and a
+#: new one takes ~0.04 s): a long session that visits ever new stage positions keeps
+#: ~10 MB of them, not the ~43 MB that 64 cost (measured in the operator's hour-long day).
+PSF_CACHE_SIZE = 16
 
 #: Operator actions the virtual bench carries out: action -> (state flag, value).
 ACTIONS = {
@@ -262,7 +266,7 @@ class VirtualBench(Bench):
                       "pinhole_installed": True, "nd_filter_installed": False}
         self._scene_version = 0
         self._renders: collections.OrderedDict[tuple, np.ndarray] = collections.OrderedDict()
-        self._psf_cache: dict = {}
+        self._psf_cache: collections.OrderedDict[tuple, np.ndarray] = collections.OrderedDict()
         self._stray_map: np.ndarray | None = None
 
     def _construct(self, dev, cls):
@@ -374,14 +378,18 @@ class VirtualBench(Bench):
 
     def psf(self, xyz_mm) -> np.ndarray:
         """Ray-traced PSF (fraction of emitted power per pixel), cached per position
-        (rounded to 0.1 um; at least 64 positions, more for a video scene's sources)."""
+        (rounded to 0.1 um): the :data:`PSF_CACHE_SIZE` positions used last, or twice a
+        video scene's sources if that is more; the least recently used goes first."""
         key = tuple(round(float(v), 4) for v in xyz_mm)
-        if key not in self._psf_cache:
-            n = len(self.scene.sources_at(0.0)[1]) if isinstance(self.scene, VideoScene) else 0
-            if len(self._psf_cache) > max(64, 2 * n):
-                self._psf_cache.clear()
-            self._psf_cache[key] = self.model.psf(key)
-        return self._psf_cache[key]
+        cached = self._psf_cache.get(key)
+        if cached is not None:
+            self._psf_cache.move_to_end(key)
+            return cached
+        n = len(self.scene.sources_at(0.0)[1]) if isinstance(self.scene, VideoScene) else 0
+        psf = self._psf_cache[key] = self.model.psf(key)
+        while len(self._psf_cache) > max(PSF_CACHE_SIZE, 2 * n):
+            self._psf_cache.popitem(last=False)
+        return psf
 
     def point_sources(self) -> tuple[tuple[tuple[float, float, float], float], ...]:
         """The point sources lit now: ``((x, y, z) mm, power photons/s)`` each.

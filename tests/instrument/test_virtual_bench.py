@@ -42,6 +42,23 @@ def _shift_px(a, b):
     return iy - (a.shape[0] - 1), ix - (a.shape[1] - 1)
 
 
+def test_psf_cache_keeps_the_positions_used_last(bench):
+    """The ray-traced PSFs are cached per position, the least recently used dropped
+    first, at most PSF_CACHE_SIZE of them (a long session's stage positions are ever
+    new: the cache must not grow with them)."""
+    from instrument.virtual_bench import PSF_CACHE_SIZE
+
+    home = bench.psf((0.0, 0.0, 60.0))
+    assert bench.psf((0.0, 0.0, 60.00001)) is home  # same position to 0.1 um: cached
+    for k in range(1, 3 * PSF_CACHE_SIZE):
+        bench.psf((0.01 * k, 0.0, 60.0))
+        assert bench.psf((0.0, 0.0, 60.0)) is home  # used every step: kept
+        assert len(bench._psf_cache) <= PSF_CACHE_SIZE
+    assert (0.01, 0.0, 60.0) not in bench._psf_cache  # used once, long ago: dropped
+    first = bench.psf((0.01, 0.0, 60.0))  # traced again, the same
+    np.testing.assert_array_equal(first, bench.model.psf((0.01, 0.0, 60.0)))
+
+
 def test_lateral_stage_move_shifts_psf_by_d_over_z(bench):
     """Eq. 3.1: a lateral source shift dx moves the PSF by -dx d/z on the sensor."""
     z, dx, dy = 40.0, 0.6, -0.4  # mm
