@@ -33,8 +33,12 @@ from .conftest import REPO
 
 def _start(argv: list[str], cwd: Path) -> subprocess.Popen:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
+    # SIGINT at its default in the child, as from a terminal: a test run started in the
+    # background (nohup, "&" without job control) passes SIGINT ignored, and Python
+    # then never raises KeyboardInterrupt
     return subprocess.Popen([sys.executable, "-m", "instrument.cli", *argv], cwd=cwd, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _wait_for(predicate, timeout_s: float = 90.0) -> None:
