@@ -28,7 +28,7 @@ import traceback
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
-__all__ = ["DayMonitor", "HeapTracker", "frozen_garbage", "rss_mb"]
+__all__ = ["DayMonitor", "HeapTracker", "census", "frozen_garbage", "rss_mb"]
 
 TIMER_MS = 10
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
@@ -41,6 +41,44 @@ def _short_path(path: str) -> str:
     """``package/module.py`` of a source path (its last two parts)."""
     parts = path.replace("\\", "/").split("/")
     return "/".join(parts[-2:])
+
+
+def census(top: int = 25) -> dict:
+    """Live objects per type (the most numerous), for finding what grows in a long day
+    (the operator's day takes one at each pass's stream phase when
+    ``DIFFUSERLAB_DAY_CENSUS=1``; a full garbage collection and a walk of the heap).
+
+    Parameters
+    ----------
+    top : int
+        How many of the most numerous types to list.
+
+    Returns
+    -------
+    dict
+        ``t_s`` (monotonic clock, s), ``objects`` (tracked by the collector),
+        ``frozen`` (of them frozen), ``blocks`` (``sys.getallocatedblocks``), ``top``
+        (``{type name: count}``) and ``biggest``: the 12 largest lists, dicts, deques
+        and sets with their length, the types that refer to them and a sample item.
+    """
+    import gc
+    from collections import Counter, deque
+
+    gc.collect()
+    objects = gc.get_objects()
+    counts = Counter(type(o).__name__ for o in objects)
+    sized = sorted(((len(o), id(o), o) for o in objects
+                    if type(o) in (list, dict, deque, set)), key=lambda s: s[:2])[-12:]
+    big = []
+    for n, _, o in reversed(sized):
+        owners = [type(r).__name__ for r in gc.get_referrers(o)[:4] if r is not objects]
+        sample = repr(next(iter(o.items() if isinstance(o, dict) else o), None))[:80]
+        big.append({"type": type(o).__name__, "len": n, "owners": owners, "sample": sample})
+    del objects, sized
+    return {"t_s": time.monotonic(), "objects": sum(counts.values()),
+            "frozen": gc.get_freeze_count(),
+            "blocks": sys.getallocatedblocks(), "top": dict(counts.most_common(top)),
+            "biggest": big}
 
 
 def frozen_garbage() -> dict:

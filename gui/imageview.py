@@ -348,31 +348,25 @@ class FrameView(QWidget):
         reshaped = self.image is None or np.shape(self.image) != np.shape(image)
         self.image = image
         self._follow = autoLevels and not self.levels_locked
-        if due or reshaped:
-            self._catch_up.stop()
-            if self._follow:
-                levels = self._levels_of(image)
-                self.item.setImage(image, levels=levels)
-                self._set_levels(levels)
-            else:
-                self.item.setImage(image, autoLevels=False)
-            self._last_histogram = now
-            self._histogram(auto_range=self._follow)
-        else:
-            self.item.setImage(image, autoLevels=False)
-            if not self._catch_up.isActive():
-                wait_s = self._last_histogram + self._period_s - now
-                self._catch_up.start(max(1, int(np.ceil(1e3 * wait_s))))
+        self.item.setImage(image, autoLevels=False)  # the levels follow before the paint
         if reshaped:
             self.plot.vb.autoRange(padding=0.02)
             self.plot.vb.disableAutoRange()
-        self._update_roi()
+        if due or reshaped:
+            self._catch_up.stop()
+            self._refresh_levels()
+        else:
+            self._update_roi()
+            if not self._catch_up.isActive():
+                wait_s = self._last_histogram + self._period_s - now
+                self._catch_up.start(max(1, int(np.ceil(1e3 * wait_s))))
         if self.profile_action.isChecked():
             self._update_profile()
 
     def _refresh_levels(self) -> None:
-        """The end of a video period: levels (unless locked), histogram and ROI
-        statistics of the newest image, which was shown without them."""
+        """Levels (unless locked or not asked for), histogram and ROI statistics of the
+        image shown: with each image, or in video mode at most once a period (the
+        newest image of a burst at the period's end)."""
         if self.image is None:
             return
         self._last_histogram = time.monotonic()

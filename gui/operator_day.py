@@ -39,7 +39,7 @@ from typing import Any
 from PySide6.QtCore import QPoint, QPointF, QTimer
 from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox, QToolButton
 
-from .daymonitor import DayMonitor, HeapTracker
+from .daymonitor import DayMonitor, HeapTracker, census
 from .xinput import XInput, centre
 
 __all__ = ["Operator", "main"]
@@ -166,7 +166,7 @@ class Operator:
 
     def phase(self, name: str) -> None:
         if name == "stream" and os.environ.get("DIFFUSERLAB_DAY_CENSUS"):
-            self.notes.setdefault("census", []).append(_census())
+            self.notes.setdefault("census", []).append(census())
         self.monitor.set_phase(name)
         log.info("operator day: %s (%.0f s)", name, time.monotonic() - self.t0)
 
@@ -683,29 +683,6 @@ class Operator:
             self.x.key("alt+y")
         else:
             QTimer.singleShot(500, self._answer_yes)
-
-
-def _census(top: int = 25) -> dict:
-    """Live objects per type (the most numerous), for finding what grows in a long day
-    (``DIFFUSERLAB_DAY_CENSUS=1``; takes a garbage collection and a walk of the heap)."""
-    import gc
-    from collections import Counter, deque
-
-    gc.collect()
-    objects = gc.get_objects()
-    counts = Counter(type(o).__name__ for o in objects)
-    sized = sorted(((len(o), id(o), o) for o in objects
-                    if type(o) in (list, dict, deque, set)), key=lambda s: s[:2])[-12:]
-    big = []
-    for n, _, o in reversed(sized):
-        owners = [type(r).__name__ for r in gc.get_referrers(o)[:4] if r is not objects]
-        sample = repr(next(iter(o.items() if isinstance(o, dict) else o), None))[:80]
-        big.append({"type": type(o).__name__, "len": n, "owners": owners, "sample": sample})
-    del objects, sized
-    return {"t_s": time.monotonic(), "objects": sum(counts.values()),
-            "frozen": gc.get_freeze_count(),
-            "blocks": sys.getallocatedblocks(), "top": dict(counts.most_common(top)),
-            "biggest": big}
 
 
 class _Control:

@@ -286,4 +286,3 @@ def admm_result(x, history, objective: float, relative: float, *, tv: float, l1:
               "balance": penalty.balance, "iterations": iterations,
               "iterations_used": used, **extra}
     return SolveResult(x, history, objective, relative, params)
-

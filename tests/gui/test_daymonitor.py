@@ -119,3 +119,17 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     assert out["frozen_garbage"] >= 2 and out["frozen"] >= 2
     assert gc.get_freeze_count() == 0
     assert out["rss_mb"] > 0 and out["rss_mb_after"] > 0 and out["collect_s"] >= 0
+
+
+def test_census_counts_live_objects_and_names_the_biggest_containers():
+    from gui.daymonitor import census
+
+    class Marker:
+        pass
+
+    held = [Marker() for _ in range(5000)]
+    out = census(top=400)
+    assert out["top"].get("Marker", 0) >= 5000
+    assert any(b["type"] == "list" and b["len"] >= 5000 for b in out["biggest"])
+    assert out["objects"] >= 5000 and out["blocks"] > 0
+    del held
