@@ -103,3 +103,32 @@ def test_the_guis_threads_share_at_most_two_heaps():
 
     assert _arenas("default") > ARENA_MAX  # the test can see the problem
     assert _arenas("configured") <= ARENA_MAX
+
+
+def test_settling_the_heap_collects_old_garbage_before_it_freezes():
+    """Cyclic garbage already in the oldest generation when the heap is settled is
+    collected, not frozen with the survivors (a frozen object is never collected: the
+    old young-only collection kept 57000 such objects over a 24-minute day)."""
+    import gc
+    import weakref
+
+    import numpy as np
+
+    from gui.workers import settle_heap
+
+    class Node:
+        pass
+
+    a, b = Node(), Node()
+    a.other, b.other = b, a
+    a.payload = np.zeros(1000, np.uint8)
+    probe = weakref.ref(a)
+    gc.collect()  # the cycle survives a full collection: now in the oldest generation
+    del a, b  # garbage that only a full collection finds
+    try:
+        settle_heap()
+        gc.collect()
+        assert probe() is None, "the settle froze a dead cycle"
+        assert gc.get_freeze_count() > 0  # what was alive is frozen
+    finally:
+        gc.unfreeze()
