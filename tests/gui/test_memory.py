@@ -132,3 +132,28 @@ def test_settling_the_heap_collects_old_garbage_before_it_freezes():
         assert gc.get_freeze_count() > 0  # what was alive is frozen
     finally:
         gc.unfreeze()
+
+
+PERIODIC = """
+import sys, time
+import numpy as np
+from gui.daymonitor import rss_mb
+from gui.memory import configure_allocator
+assert configure_allocator(trim_period_s=float(sys.argv[1]))
+base = rss_mb()
+keep, blocks = [], []
+for _ in range(2000):  # 64 KiB blocks, under the mmap threshold, a kept block between
+    b = np.empty(64 << 10, np.uint8); b[:] = 1
+    blocks.append(b)
+    keep.append(bytes(2000))
+del blocks  # holes in the heap: it cannot shrink from the top
+time.sleep(2.0)
+print(round(rss_mb() - base))
+"""
+
+
+def test_the_trimming_thread_gives_free_pages_back_unasked():
+    """Blocks under the mmap threshold freed between long jobs stay in the holed heap
+    until a trim; the trimming thread trims every ``trim_period_s`` without being asked."""
+    assert _run(PERIODIC, "3600") > 100  # the test can see the problem
+    assert _run(PERIODIC, "0.5") < 30
