@@ -351,11 +351,12 @@ def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int
                 mu1, mu2, mu3 = new
                 state.set_penalties(plan, new)
                 mus.append((mu1, mu2, mu3))
+        # the l1 term of the iterate entering this iteration, as the data and TV terms
+        l1_x = l1 * float(np.maximum(x, 0).sum(dtype=np.float64)) if l1 > 0 else 0.0
         if rhs is not None and mode != 2:
             x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3), rhs_ready=True)
         else:
             x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3))
-        l1_x = l1 * float(np.maximum(x, 0).sum(dtype=np.float64)) if l1 > 0 else 0.0
         mon.record(0.5 * s[0] + tv * s[1] + l1_x, s[0], x=x,
                    hint="try --method fista or a smaller TV weight")
         if stop is not None and stop(mon.history):

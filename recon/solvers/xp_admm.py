@@ -309,9 +309,10 @@ def run_admm_xp(plan: XpAdmmPlan, b, state: XpAdmmState, *, iterations: int, tv:
                 mu1, mu2, mu3 = new
                 state.set_penalties(plan, new)
                 mus.append((mu1, mu2, mu3))
+        # the l1 term of the iterate entering this iteration, as the data and TV terms
+        l1_x = l1 * total(xp, xp.clip(x, min=0.0)) if l1 > 0 else 0.0
         x, mx = plan.x_update(xop, x, mx, (qv, qux, quy, qw), (mu1, mu2, mu3), state.inv_den,
                               use_tv)
-        l1_x = l1 * total(xp, xp.clip(x, min=0.0)) if l1 > 0 else 0.0
         mon.record(0.5 * data_sq + tv * tv_x + l1_x, data_sq, x=x,
                    hint="try --method fista or a smaller TV weight")
         if stop is not None and stop(mon.history):
