@@ -30,9 +30,9 @@ Software limits are the ``limits`` setting (checked before anything moves); a mo
 that ends farther from its target than ``position_tolerance_counts`` (a hardware limit
 switch, a stall, an error reported by the controller) raises
 :class:`~drivers.errors.StageMotionError`. Absolute moves are refused until the axis
-is homed (``require_homed``; ``home_on_open`` homes at open, within the open's
-timeout). The stored homing parameters are left as they are unless ``home_velocity``
-is given (then only the velocity changes).
+is homed (``require_homed``; ``home_on_open`` homes at open, within
+``home_timeout_s``). The stored homing parameters are left as they are unless
+``home_velocity`` is given (then only the velocity changes).
 """
 
 from __future__ import annotations
@@ -123,8 +123,10 @@ class ThorlabsAptStage(HostTableStage):
     require_homed : bool
         Refuse moves of an axis that is not homed (the position is not referenced).
     home_on_open : bool
-        Home every axis that is not homed when the stage opens (within the open's
-        ``timeout_s``).
+        Home every axis that is not homed when the stage opens.
+    home_timeout_s : float
+        Longest wait for that homing, s (default 120); the open's ``timeout_s`` does
+        not bound it.
     status_updates : bool, optional
         Ask for the controller's status updates and acknowledge them; default on for
         K-cubes, off for a BSC20x (it ignores the acknowledgement).
@@ -148,7 +150,7 @@ class ThorlabsAptStage(HostTableStage):
         home_velocity: float | None = None,
         position_tolerance_counts: int | Mapping[str, int] | None = None,
         require_homed: bool = True, home_on_open: bool = False,
-        status_updates: bool | None = None, keepalive_s: float = 0.9,
+        home_timeout_s: float = 120.0, status_updates: bool | None = None, keepalive_s: float = 0.9,
         reply_timeout_s: float = 1.0, poll_s: float = 0.01,
         search_dirs: Sequence[str] = (BY_ID_DIR,),
     ) -> None:
@@ -220,6 +222,8 @@ class ThorlabsAptStage(HostTableStage):
             "home_velocity", home_velocity, low=0.0, low_open=True,
             high=self._vmax_param or float("inf"))
         self.require_homed, self.home_on_open = bool(require_homed), bool(home_on_open)
+        self._home_timeout = self._float("home_timeout_s", home_timeout_s, low=0.0,
+                                         low_open=True)
         self._status_updates = status_updates
         self._keepalive = self._float("keepalive_s", keepalive_s, low=0.05, high=1.0)
         self._reply_timeout = self._float("reply_timeout_s", reply_timeout_s, low=0.0,
@@ -294,7 +298,7 @@ class ThorlabsAptStage(HostTableStage):
             self._hw = {"limits": dict(self._travel), "velocity": dict(self._v0),
                         "backlash": dict.fromkeys(self._travel, 0.0)}
             if self.home_on_open:
-                self._home_at_open(deadline, timeout_s)
+                self._home_at_open()
         except BaseException:
             self._do_close()
             raise
@@ -403,17 +407,18 @@ class ThorlabsAptStage(HostTableStage):
                           "while disconnected); stopped at %s", self.device_id,
                           sorted(moving), self.stopped_at_open)
 
-    def _home_at_open(self, deadline: float, timeout_s: float) -> None:
+    def _home_at_open(self) -> None:
         status = {a: self._status(a) for a in self._axes}
         todo = tuple(a for a, s in status.items() if not s & (STATUS["HOMED"] | STATUS["HOMING"]))
         already = {a for a, s in status.items() if s & STATUS["HOMING"]}
         if todo:
             self._do_home(todo)
         self._homing |= already
-        if (todo or already) and not self._do_wait(max(deadline - time.monotonic(), 0.0)):
-            raise self._timeout(f"homing at open did not finish within the open's "
-                                f"{timeout_s:g} s; the axes are still homing",
-                                "open again once homed, or open with a longer timeout_s")
+        if (todo or already) and not self._do_wait(self._home_timeout):
+            raise self._timeout(f"homing at open did not finish within home_timeout_s = "
+                                f"{self._home_timeout:g} s; the axes are still homing",
+                                "open again once homed, or raise home_timeout_s in the "
+                                "bench file")
 
     def _prepare_axis(self, axis: str, info: dict[str, Any]) -> None:
         ctrl, dest = self._ctrl[info["key"]], info["dest"]

@@ -87,6 +87,9 @@ class ZaberAsciiStage(HostTableStage):
         Largest velocity allowed, unit/s.
     require_homed, home_on_open : bool
         Refuse moves of an axis showing ``WR``; home such axes at open.
+    home_timeout_s : float
+        Longest wait for that homing, s (default 120); the open's ``timeout_s`` does
+        not bound it.
     reply_timeout_s, poll_s : float
         Longest wait for a reply; polling period while moving.
     checksums : bool
@@ -105,7 +108,8 @@ class ZaberAsciiStage(HostTableStage):
         limits_deg: Mapping[str, Sequence[float]] | None = None,
         speed_mm_s: float | None = None, speed_deg_s: float | None = None,
         max_velocity: float = 20.0, require_homed: bool = True, home_on_open: bool = False,
-        reply_timeout_s: float = 1.0, poll_s: float = 0.01, checksums: bool = True,
+        home_timeout_s: float = 120.0, reply_timeout_s: float = 1.0, poll_s: float = 0.01,
+        checksums: bool = True,
         search_dirs: Sequence[str] = (BY_ID_DIR,),
     ) -> None:
         super().__init__(device_id)
@@ -141,6 +145,8 @@ class ZaberAsciiStage(HostTableStage):
         self._vmax = self._float("max_velocity", max_velocity, low=0.0, low_open=True)
         self._speed = {a: (speed_deg_s if AXIS_UNITS[a] == "deg" else speed_mm_s) for a in names}
         self.require_homed, self.home_on_open = bool(require_homed), bool(home_on_open)
+        self._home_timeout = self._float("home_timeout_s", home_timeout_s, low=0.0,
+                                         low_open=True)
         self._reply_timeout = self._float("reply_timeout_s", reply_timeout_s, low=0.0,
                                           low_open=True)
         self._poll = self._float("poll_s", poll_s, low=0.0, low_open=True, high=1.0)
@@ -213,7 +219,6 @@ class ZaberAsciiStage(HostTableStage):
 
     # ----------------------------------------------------------- lifecycle hooks
     def _do_open(self, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
         self._moving = set()
         self._link.open()
         try:
@@ -245,11 +250,11 @@ class ZaberAsciiStage(HostTableStage):
                 todo = tuple(a for a in self._addr if "WR" in self._warnings(a))
                 if todo:
                     self._do_home(todo)
-                    if not self._do_wait(max(deadline - time.monotonic(), 0.0)):
-                        raise self._timeout(f"homing at open did not finish within the open's "
-                                            f"{timeout_s:g} s; the axes are still homing",
-                                            "open again once homed, or open with a longer "
-                                            "timeout_s")
+                    if not self._do_wait(self._home_timeout):
+                        raise self._timeout(f"homing at open did not finish within "
+                                            f"home_timeout_s = {self._home_timeout:g} s; the "
+                                            "axes are still homing", "open again once homed, "
+                                            "or raise home_timeout_s in the bench file")
         except BaseException:
             self._link.close()
             raise

@@ -318,3 +318,26 @@ def test_velocity_quantisation_is_accepted(tmp_path):
             stage.velocity = {"z": 1.7}
             assert stage.velocity["z"] == pytest.approx(1.7, rel=1e-3)
             assert stage.velocity["z"] != 1.7
+
+
+def test_homing_at_open_waits_for_home_timeout_not_the_opens_timeout(tmp_path):
+    """Homing a long travel takes longer than the bench's open timeout: home_on_open waits
+    up to home_timeout_s, and names that setting when it runs out."""
+    emu = AptEmulator("kdc101", time_scale=1.0, update_period_s=0.01)
+    with emu:
+        emu.channels[0x50].position = 1.2 * Z8  # 1.2 mm from home, homed at 1 mm/s
+        stage = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 home_velocity=1.0, home_on_open=True, reply_timeout_s=1.0)
+        t0 = time.monotonic()
+        stage.open(timeout_s=0.5)  # the homing takes about 1.2 s
+        try:
+            assert time.monotonic() - t0 > 0.5
+            assert stage.status()["homed"] == {"z": True}
+        finally:
+            stage.close()
+        emu.channels[0x50].position, emu.channels[0x50].homed = 1.2 * Z8, False
+        short = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 home_velocity=1.0, home_on_open=True, home_timeout_s=0.2)
+        with pytest.raises(StageTimeoutError, match="home_timeout_s = 0.2 s"):
+            short.open(timeout_s=5.0)
+        assert not short.is_open

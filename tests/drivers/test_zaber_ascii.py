@@ -10,6 +10,7 @@ from drivers.errors import (
     DeviceProtocolError,
     DeviceStateError,
     StageMotionError,
+    StageTimeoutError,
 )
 from drivers.zaber_ascii import ZaberAsciiStage, lrc
 from tests.drivers.conformance import StageConformance, unplug_mid_move
@@ -136,3 +137,27 @@ def test_unplug_mid_move_then_reconnect(emulator):
         stage.move_to({"x": 1.0})
     finally:
         stage.close()
+
+
+def test_homing_at_open_waits_for_home_timeout_not_the_opens_timeout():
+    """Homing a long travel takes longer than the bench's open timeout: home_on_open waits
+    up to home_timeout_s, and names that setting when it runs out."""
+    emu = ZaberEmulator({1: 1}, time_scale=1.0)
+    with emu:
+        emu.axis(1, 1).position = 1.2e-3 / 0.047625e-6  # 1.2 mm from home, at 1 mm/s
+        kw = {"axes": ["x"], "device_numbers": {"x": 1}, "speed_mm_s": 1.0,
+              "home_on_open": True, "port": emu.port}
+        stage = ZaberAsciiStage("mask", **kw)
+        t0 = time.monotonic()
+        stage.open(timeout_s=0.5)  # the homing takes about 1.2 s
+        try:
+            assert time.monotonic() - t0 > 0.5
+            assert stage.position("x") == pytest.approx(0.0, abs=1e-3)
+        finally:
+            stage.close()
+        emu.axis(1, 1).position = 1.2e-3 / 0.047625e-6
+        emu.axis(1, 1).flags.add("WR")
+        short = ZaberAsciiStage("mask", home_timeout_s=0.2, **kw)
+        with pytest.raises(StageTimeoutError, match="home_timeout_s = 0.2 s"):
+            short.open(timeout_s=5.0)
+        assert not short.is_open
