@@ -29,7 +29,48 @@ __all__ = ["HidLink", "UsbLink"]
 log = logging.getLogger("drivers.transports")
 
 
-class HidLink:
+class _ReportLink:
+    """What :class:`HidLink` and :class:`UsbLink` share: the ids, the open handle, and
+    the errors of a link that is closed, lost or silent (a subclass defines ``open``,
+    ``close``, ``write`` and ``read``)."""
+
+    #: The transport, as the error messages name it.
+    kind = "USB"
+
+    def __init__(self, device_id: str, vendor_id: int, product_id: int,
+                 serial_number: str | None, report_size: int,
+                 timeout_error: type[DeviceTimeoutError]) -> None:
+        self.device_id = device_id
+        self.vendor_id, self.product_id = int(vendor_id), int(product_id)
+        self.serial_number = None if serial_number is None else str(serial_number)
+        self.report_size = int(report_size)
+        self.timeout_error = timeout_error
+        self._dev: Any = None
+
+    @property
+    def is_open(self) -> bool:
+        """True while the device is open."""
+        return self._dev is not None
+
+    def _require(self) -> Any:
+        if self._dev is None:
+            raise DeviceDisconnectedError(self.device_id, f"the {self.kind} device is not "
+                                          "open", "call reconnect()")
+        return self._dev
+
+    def _silent(self, timeout_s: float, hint: str) -> DeviceTimeoutError:
+        return self.timeout_error(self.device_id,
+                                  f"no {self.kind} report within {timeout_s:g} s", hint)
+
+    def _lost(self, exc: BaseException) -> None:
+        self.close()
+        raise DeviceDisconnectedError(
+            self.device_id, f"{self.kind} I/O failed: {exc}",
+            "check the USB cable and power, then call reconnect()",
+        ) from exc
+
+
+class HidLink(_ReportLink):
     """One USB HID device through cython-hidapi (``pip install hidapi``; imports as ``hid``).
 
     Parameters
@@ -50,25 +91,18 @@ class HidLink:
         Replaces ``import hid`` (an emulator providing ``enumerate`` and ``device``).
     """
 
+    kind = "USB HID"
+
     def __init__(
         self, device_id: str, *, vendor_id: int, product_id: int,
         serial_number: str | None = None, interface: int | None = 0, report_size: int = 64,
         timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, hid_module: Any = None,
     ) -> None:
-        self.device_id = device_id
-        self.vendor_id, self.product_id = int(vendor_id), int(product_id)
-        self.serial_number = None if serial_number is None else str(serial_number)
+        super().__init__(device_id, vendor_id, product_id, serial_number, report_size,
+                         timeout_error)
         self.interface = interface
-        self.report_size = int(report_size)
-        self.timeout_error = timeout_error
         self._hid_module = hid_module
-        self._dev: Any = None
         self.path: bytes | None = None
-
-    @property
-    def is_open(self) -> bool:
-        """True while the device handle is open."""
-        return self._dev is not None
 
     def open(self) -> None:
         """Find the device (ids, serial, interface) and open it.
@@ -150,27 +184,12 @@ class HidLink:
         except (OSError, ValueError) as exc:
             self._lost(exc)
         if not data:
-            raise self.timeout_error(
-                self.device_id, f"no HID report within {timeout_s:g} s",
-                "check that the device is powered and not in a firmware-update mode",
-            )
+            raise self._silent(timeout_s, "check that the device is powered and not in a "
+                               "firmware-update mode")
         return bytes(data)
 
-    def _require(self) -> Any:
-        if self._dev is None:
-            raise DeviceDisconnectedError(self.device_id, "the HID device is not open",
-                                          "call reconnect()")
-        return self._dev
 
-    def _lost(self, exc: BaseException) -> None:
-        self.close()
-        raise DeviceDisconnectedError(
-            self.device_id, f"USB HID I/O failed: {exc}",
-            "check the USB cable and power, then call reconnect()",
-        ) from exc
-
-
-class UsbLink:
+class UsbLink(_ReportLink):
     """One USB device through pyusb (libusb): interrupt/bulk endpoints, kernel driver
     detached, the same ``open/close/write/read`` as :class:`HidLink`.
 
@@ -200,20 +219,11 @@ class UsbLink:
         ep_in: int = 0x81, report_size: int = 64,
         timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, usb_module: Any = None,
     ) -> None:
-        self.device_id = device_id
-        self.vendor_id, self.product_id = int(vendor_id), int(product_id)
-        self.serial_number = None if serial_number is None else str(serial_number)
+        super().__init__(device_id, vendor_id, product_id, serial_number, report_size,
+                         timeout_error)
         self.interface, self.ep_out, self.ep_in = int(interface), int(ep_out), int(ep_in)
-        self.report_size = int(report_size)
-        self.timeout_error = timeout_error
         self._usb_module = usb_module
         self._usb: Any = None
-        self._dev: Any = None
-
-    @property
-    def is_open(self) -> bool:
-        """True while the interface is claimed."""
-        return self._dev is not None
 
     def open(self) -> None:
         """Find the device, detach the kernel driver, configure it and claim the interface.
@@ -312,19 +322,5 @@ class UsbLink:
         except self._usb.core.USBError as exc:
             self._lost(exc)
         if not data:
-            raise self.timeout_error(self.device_id, f"no USB report within {timeout_s:g} s",
-                                     "check that the device is powered")
+            raise self._silent(timeout_s, "check that the device is powered")
         return bytes(data)
-
-    def _require(self) -> Any:
-        if self._dev is None:
-            raise DeviceDisconnectedError(self.device_id, "the USB device is not open",
-                                          "call reconnect()")
-        return self._dev
-
-    def _lost(self, exc: BaseException) -> None:
-        self.close()
-        raise DeviceDisconnectedError(
-            self.device_id, f"USB I/O failed: {exc}",
-            "check the USB cable and power, then call reconnect()",
-        ) from exc
