@@ -14,11 +14,10 @@ threshold (blocks of 128 KiB or more are mapped on their own and unmapped when f
 the dynamic raise is off) and
 :func:`trim_soon` hands the free pages of every heap back after a long job, on a
 thread of its own, started with the window (``malloc_trim`` takes the heaps' locks,
-never the GIL). That thread also trims every :data:`TRIM_PERIOD_S` seconds unasked:
-blocks under the mmap threshold freed between long jobs (the live view's, the
-Results panel's) left the heaps holed, and the resident memory at the starts of an
-hour's passes wandered between 828 and 916 MB, of which a trim at the day's end gave
-back 135 MB. Elsewhere than glibc all of this does nothing.
+never the GIL). That thread also trims every :data:`TRIM_PERIOD_S` seconds unasked,
+so the free pages of blocks under the mmap threshold freed between long jobs (the
+live view's, the Results panel's) go back without waiting for the next long job.
+Elsewhere than glibc all of this does nothing.
 """
 
 from __future__ import annotations
