@@ -169,17 +169,17 @@ def test_apt_moving_after_reconnect_is_stopped_and_reported(apt, tmp_path, caplo
 
 
 # ------------------------------------------------------------------ timeouts
-def test_home_on_open_honours_the_open_timeout(apt, tmp_path):
+def test_home_on_open_honours_home_timeout(apt, tmp_path):
     with apt.lock:  # the controller is homing slowly (its front panel, another program)
         ch = apt.channels[0x50]
         ch.position = 800_000.0
         ch.home_params = (2, 1, apt.velocity_units(0.05 * Z8, Z8)[0], 0)
         apt._start(ch, apt.now(), ch.travel[0], "home")
-    stage = apt_stage(tmp_path, home_on_open=True)
+    stage = apt_stage(tmp_path, home_on_open=True, home_timeout_s=0.5)
     t0 = time.monotonic()
-    with pytest.raises(stage.timeout_error, match="within the open's 0.5 s"):
-        stage.open(timeout_s=0.5)
-    assert time.monotonic() - t0 < 1.5  # not max(timeout, 120 s)
+    with pytest.raises(stage.timeout_error, match="home_timeout_s = 0.5 s"):
+        stage.open(timeout_s=5.0)
+    assert time.monotonic() - t0 < 1.5  # not the open's 5 s, nor the default 120 s
     assert apt.channels[0x50].motion.kind == "home"  # left homing, not stopped
 
 
@@ -200,14 +200,14 @@ def test_zaber_silent_device_does_not_block_the_healthy_axes():
             stage.move_to({"y": 1.0})
 
 
-def test_zaber_home_on_open_honours_the_open_timeout():
+def test_zaber_home_on_open_honours_home_timeout():
     with ZaberEmulator({1: 1}, time_scale=1.0) as emu:
         with emu.lock:
             emu.axis(1).position = 500_000.0  # 24 mm out, homing at 0.5 mm/s: ~48 s
         stage = ZaberAsciiStage("stage", axes=["x"], port=emu.port, speed_mm_s=0.5,
-                                home_on_open=True, reply_timeout_s=0.5)
+                                home_on_open=True, home_timeout_s=0.5, reply_timeout_s=0.5)
         t0 = time.monotonic()
-        with pytest.raises(stage.timeout_error, match="within the open's 0.5 s"):
-            stage.open(timeout_s=0.5)
+        with pytest.raises(stage.timeout_error, match="home_timeout_s = 0.5 s"):
+            stage.open(timeout_s=5.0)
         assert time.monotonic() - t0 < 1.5
         assert emu.axis(1).motion is not None and emu.axis(1).motion.kind == "home"
