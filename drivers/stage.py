@@ -416,3 +416,19 @@ class HostTableStage(Stage):
 
     @abc.abstractmethod
     def _send_velocity(self, axis: str, velocity: float) -> float | None: ...
+
+    def _wait_homing_at_open(self, home_timeout_s: float) -> None:
+        """Wait up to ``home_timeout_s`` seconds for the homing a driver started at open
+        (``home_on_open``); the open's own timeout does not bound it, since a long travel
+        homes in tens of seconds.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The kind's timeout error, naming ``home_timeout_s``; the axes keep homing.
+        """
+        if not self._do_wait(home_timeout_s):
+            raise self._timeout(f"homing at open did not finish within home_timeout_s = "
+                                f"{home_timeout_s:g} s; the axes are still homing",
+                                "open again once homed, or raise home_timeout_s in the "
+                                "bench file")

@@ -150,7 +150,8 @@ class ThorlabsAptStage(HostTableStage):
         home_velocity: float | None = None,
         position_tolerance_counts: int | Mapping[str, int] | None = None,
         require_homed: bool = True, home_on_open: bool = False,
-        home_timeout_s: float = 120.0, status_updates: bool | None = None, keepalive_s: float = 0.9,
+        home_timeout_s: float = 120.0, status_updates: bool | None = None,
+        keepalive_s: float = 0.9,
         reply_timeout_s: float = 1.0, poll_s: float = 0.01,
         search_dirs: Sequence[str] = (BY_ID_DIR,),
     ) -> None:
@@ -414,11 +415,8 @@ class ThorlabsAptStage(HostTableStage):
         if todo:
             self._do_home(todo)
         self._homing |= already
-        if (todo or already) and not self._do_wait(self._home_timeout):
-            raise self._timeout(f"homing at open did not finish within home_timeout_s = "
-                                f"{self._home_timeout:g} s; the axes are still homing",
-                                "open again once homed, or raise home_timeout_s in the "
-                                "bench file")
+        if todo or already:
+            self._wait_homing_at_open(self._home_timeout)
 
     def _prepare_axis(self, axis: str, info: dict[str, Any]) -> None:
         ctrl, dest = self._ctrl[info["key"]], info["dest"]

@@ -250,11 +250,7 @@ class ZaberAsciiStage(HostTableStage):
                 todo = tuple(a for a in self._addr if "WR" in self._warnings(a))
                 if todo:
                     self._do_home(todo)
-                    if not self._do_wait(self._home_timeout):
-                        raise self._timeout(f"homing at open did not finish within "
-                                            f"home_timeout_s = {self._home_timeout:g} s; the "
-                                            "axes are still homing", "open again once homed, "
-                                            "or raise home_timeout_s in the bench file")
+                    self._wait_homing_at_open(self._home_timeout)
         except BaseException:
             self._link.close()
             raise
