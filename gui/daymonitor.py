@@ -81,37 +81,68 @@ def census(top: int = 25) -> dict:
             "biggest": big}
 
 
-def frozen_garbage() -> dict:
+def frozen_garbage(top: int = 12) -> dict:
     """What the garbage collector finds once the objects frozen by
     :func:`gui.workers.settle_heap` are let back in (the end of a long day).
 
     A frozen object is never collected: cyclic garbage made of objects that were alive
-    at a freeze stays in memory. This collects the ordinary garbage first, then
-    unfreezes, collects again and gives the heaps' free pages back, and says how much
-    each found. The collector then runs as usual (nothing is frozen any more).
+    at a freeze stays in memory. This collects the ordinary garbage first and gives
+    the heaps' free pages back, then unfreezes, collects again (keeping what it finds
+    aside, :data:`gc.DEBUG_SAVEALL`, to count it), frees that and trims again, and
+    says how much each step found and freed. The collector then runs as usual
+    (nothing is frozen any more).
+
+    Parameters
+    ----------
+    top : int
+        How many of the most numerous types of the frozen garbage to list.
 
     Returns
     -------
     dict
         ``frozen`` (objects frozen before), ``garbage`` (unreachable objects found by
         an ordinary full collection), ``frozen_garbage`` (found after unfreezing),
-        ``rss_mb`` (before), ``rss_mb_after`` (after both collections and a trim),
-        ``collect_s`` (the second collection's duration, s).
+        ``types`` (``{type name: count}`` of those, the most numerous), ``arrays_mb``
+        (NumPy array buffers they held, MB), ``rss_mb`` (before), ``rss_mb_collected``
+        (after the ordinary collection and a trim), ``rss_mb_after`` (after the frozen
+        garbage is freed and a trim), ``collect_s`` (the second collection's
+        duration, s).
     """
     import gc
+    from collections import Counter
 
     from .memory import trim_now
 
     before = rss_mb()
     frozen = gc.get_freeze_count()
     garbage = gc.collect()
+    trim_now()
+    collected = rss_mb()
     gc.unfreeze()
-    t = time.perf_counter()
-    found = gc.collect()
-    collect_s = time.perf_counter() - t
+    flags = gc.get_debug()
+    gc.set_debug(flags | gc.DEBUG_SAVEALL)
+    try:
+        t = time.perf_counter()
+        found = gc.collect()
+        collect_s = time.perf_counter() - t
+    finally:
+        gc.set_debug(flags)
+    saved, gc.garbage[:] = list(gc.garbage), []
+    types = Counter(type(o).__name__ for o in saved)
+    buffers = {}
+    for o in saved:
+        for r in gc.get_referents(o):
+            if isinstance(r, np.ndarray):
+                base = r if r.base is None else r.base
+                if isinstance(base, np.ndarray):
+                    buffers[id(base)] = base.nbytes
+    del saved, o, r
+    gc.collect()
     trim_now()
     return {"frozen": frozen, "garbage": garbage, "frozen_garbage": found,
-            "rss_mb": before, "rss_mb_after": rss_mb(), "collect_s": collect_s}
+            "types": dict(types.most_common(top)), "arrays_mb": sum(buffers.values()) / 1e6,
+            "rss_mb": before, "rss_mb_collected": collected, "rss_mb_after": rss_mb(),
+            "collect_s": collect_s}
 
 
 def rss_mb() -> float:
@@ -246,9 +277,12 @@ class DayMonitor(QObject):
 
     def sample(self) -> dict:
         """Take one refcount and memory sample (also at every phase change)."""
+        from .memory import heap_mb
+
         s = {"t_s": time.monotonic() - self.t0, "phase": self.phase, "loop": self.loop,
              "none_refs": sys.getrefcount(None), "true_refs": sys.getrefcount(True),
-             "rss_mb": rss_mb()}
+             "rss_mb": rss_mb(), "py_blocks": sys.getallocatedblocks()}
+        s.update({f"heap_{k}": v for k, v in (heap_mb() or {}).items()})
         self.samples.append(s)
         return s
 

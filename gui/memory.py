@@ -28,7 +28,7 @@ import logging
 import threading
 
 __all__ = ["ARENA_MAX", "MMAP_THRESHOLD_BYTES", "TRIM_PERIOD_S", "arena_count",
-           "configure_allocator", "trim_now", "trim_soon"]
+           "configure_allocator", "heap_mb", "trim_now", "trim_soon"]
 
 log = logging.getLogger(__name__)
 
@@ -128,6 +128,36 @@ def arena_count() -> int | None:
             return f.read().count("<heap nr=")
     finally:
         os.unlink(path)
+
+
+class _Mallinfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in (
+        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+        "uordblks", "fordblks", "keepcost")]
+
+
+def heap_mb() -> dict[str, float] | None:
+    """What glibc's allocator holds now, summed over its heaps (``mallinfo2``), MB.
+
+    Tells a leak from fragmentation in a long run: memory in use that grows is
+    allocated and kept (by Python objects' buffers, Qt, the libraries); free memory
+    that grows is held by the heaps and not given back.
+
+    Returns
+    -------
+    dict or None
+        ``in_use_mb`` (blocks allocated from the heaps), ``free_mb`` (free in the
+        heaps, still resident unless trimmed) and ``mapped_mb`` (blocks mapped on
+        their own, at or above the mmap threshold); None elsewhere than glibc 2.33+.
+        Python's small objects (its own arenas) and Qt's mapped images are in none.
+    """
+    lib = _glibc()
+    if lib is None or not hasattr(lib, "mallinfo2"):
+        return None
+    lib.mallinfo2.restype = _Mallinfo2
+    m = lib.mallinfo2()
+    return {"in_use_mb": m.uordblks / 1e6, "free_mb": m.fordblks / 1e6,
+            "mapped_mb": m.hblkhd / 1e6}
 
 
 def trim_now() -> bool:

@@ -247,7 +247,9 @@ def summarise(report: dict) -> dict:
         for s in every:
             starts.setdefault(s.get("loop", 0), s)
         out["per_loop"] = [{"loop": k, "t_s": round(v["t_s"]), "rss_mb": round(v["rss_mb"]),
-                            "none_refs": v["none_refs"]} for k, v in sorted(starts.items())]
+                            "none_refs": v["none_refs"],
+                            **{h: round(v[h]) for h in _HEAP_KEYS if h in v}}
+                           for k, v in sorted(starts.items())]
         rss = [s["rss_mb"] for s in samples]
         out["rss_mb"] = [round(rss[0], 1), round(rss[-1], 1), round(max(rss), 1)]
         out["rss_growth_pct"] = 100.0 * (rss[-1] - rss[0]) / rss[0]
@@ -273,6 +275,10 @@ def summarise(report: dict) -> dict:
         < GOALS["none_drift_per_min"]}
     out["stalls"] = _stall_causes(report.get("stalls", []))
     return out
+
+
+#: The allocator's figures in each sample (:func:`gui.memory.heap_mb`), MB.
+_HEAP_KEYS = ("heap_in_use_mb", "heap_free_mb", "heap_mapped_mb")
 
 
 def _slope(t: np.ndarray, y: np.ndarray) -> float:
@@ -339,6 +345,10 @@ def print_summary(s: dict, report: dict) -> None:
     if s.get("per_loop"):
         print("  at each pass's start (s: RSS MB, None refs): " + ", ".join(
             f"{p['t_s']}: {p['rss_mb']}, {p['none_refs']}" for p in s["per_loop"]))
+        if all(h in s["per_loop"][0] for h in _HEAP_KEYS):
+            print("  the allocator's heaps at each pass's start (MB in use / free / mapped): "
+                  + ", ".join(f"{p['heap_in_use_mb']}/{p['heap_free_mb']}/{p['heap_mapped_mb']}"
+                              for p in s["per_loop"]))
     for g in report.get("heap_growth", [])[:8]:  # DIFFUSERLAB_TRACEMALLOC set
         print(f"  heap grew {g['mb']:+.1f} MB ({g['count']:+d} blocks) at "
               + " <- ".join(reversed(g["where"][-3:])))
@@ -346,8 +356,12 @@ def print_summary(s: dict, report: dict) -> None:
     if fg:
         print(f"  at the day's end: {fg['frozen']} objects frozen; a full collection found "
               f"{fg['garbage']} unreachable, {fg['frozen_garbage']} more once unfrozen "
-              f"({1e3 * fg['collect_s']:.0f} ms); RSS {fg['rss_mb']:.0f} -> "
-              f"{fg['rss_mb_after']:.0f} MB")
+              f"({1e3 * fg['collect_s']:.0f} ms, holding {fg.get('arrays_mb', 0):.0f} MB of "
+              f"arrays); RSS {fg['rss_mb']:.0f} -> {fg.get('rss_mb_collected', 0):.0f} (the "
+              f"ordinary garbage freed) -> {fg['rss_mb_after']:.0f} MB (the frozen too)")
+        if fg.get("types"):
+            print("  the frozen garbage by type: " + ", ".join(
+                f"{k} {v}" for k, v in fg["types"].items()))
     gc = report.get("gc", {})
     if gc:
         print("  garbage collector pauses: " + ", ".join(

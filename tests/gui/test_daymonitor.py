@@ -69,6 +69,31 @@ def test_drift_is_measured_from_pass_to_pass_not_within_a_pass():
     assert not leaking["goals_met"]["none_drift_per_min"]
 
 
+def test_the_summary_splits_each_pass_starts_memory_by_the_allocators_heaps(capsys):
+    """The allocator's figures sampled by the monitor reach the summary per pass, so a
+    long day's growth reads as memory in use (kept) or free in the heaps (not given
+    back)."""
+    from gui.soak import print_summary, summarise
+
+    day = _day(leak_per_pass=0, shown_per_s=0)
+    for s in day["samples"]:
+        s.update(heap_in_use_mb=100.0 + 10 * s["loop"], heap_free_mb=5.0, heap_mapped_mb=40.0)
+    figures = summarise(day)
+    assert [p["heap_in_use_mb"] for p in figures["per_loop"]] == [100, 110, 120, 130, 140]
+    print_summary(figures, day)
+    assert "(MB in use / free / mapped): 100/5/40, 110/5/40" in capsys.readouterr().out
+
+
+def test_the_monitor_samples_the_allocators_heaps(qapp):
+    from gui.daymonitor import DayMonitor
+    from gui.memory import heap_mb
+
+    s = DayMonitor().sample()
+    assert s["py_blocks"] > 0
+    if heap_mb() is not None:  # glibc
+        assert s["heap_in_use_mb"] > 0 and s["heap_mapped_mb"] >= 0
+
+
 def test_heap_tracker_names_where_the_heap_grew_between_passes(monkeypatch):
     """With DIFFUSERLAB_TRACEMALLOC set, the tracker names the line whose allocations
     grew from the first traced pass to the last; unset, it traces nothing."""
@@ -117,6 +142,9 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     out = frozen_garbage()
     assert probe() is None
     assert out["frozen_garbage"] >= 2 and out["frozen"] >= 2
+    assert out["types"].get("Node") == 2, out["types"]
+    assert 4.0 <= out["arrays_mb"] < 4.1, out  # what the cycle held, counted once
+    assert not gc.garbage  # what was kept aside to be counted is freed
     assert gc.get_freeze_count() == 0
     assert out["rss_mb"] > 0 and out["rss_mb_after"] > 0 and out["collect_s"] >= 0
 

@@ -157,3 +157,35 @@ def test_the_trimming_thread_gives_free_pages_back_unasked():
     until a trim; the trimming thread trims every ``trim_period_s`` without being asked."""
     assert _run(PERIODIC, "3600") > 100  # the test can see the problem
     assert _run(PERIODIC, "0.5") < 30
+
+
+HEAP = """
+import sys, threading
+import numpy as np
+from gui.memory import heap_mb
+def fill(keep):
+    for _ in range(2000):
+        keep.append(np.ones(1000))  # 8 kB each: from the heaps, not mapped
+before = heap_mb()
+keep = []
+t = threading.Thread(target=fill, args=(keep,)); t.start(); t.join()
+big = np.ones(10 << 20, np.uint8)  # 10 MB: mapped on its own
+held = heap_mb()
+del keep
+freed = heap_mb()
+print(round(held["in_use_mb"] - before["in_use_mb"]),
+      round(held["mapped_mb"] - before["mapped_mb"]), round(freed["free_mb"] - held["free_mb"]))
+"""
+
+
+def test_heap_figures_tell_memory_in_use_from_memory_mapped_and_freed():
+    """``heap_mb`` splits the allocator's memory the way a long run's growth has to be
+    read: 16 MB of small arrays in use, a 10 MB array mapped, and the small ones'
+    memory free in the heaps once released."""
+    out = subprocess.run([sys.executable, "-c", HEAP], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, env={"PYTHONPATH": str(ROOT),
+                                                      "PATH": "/usr/bin:/bin"})
+    assert out.returncode == 0, out.stderr
+    in_use, mapped, freed = map(int, out.stdout.split())
+    assert 15 <= in_use <= 18 and 10 <= mapped <= 11, out.stdout
+    assert freed >= 10, out.stdout  # some of it may go back at once (the heap's top)
