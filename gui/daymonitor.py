@@ -81,50 +81,19 @@ def census(top: int = 25) -> dict:
             "biggest": big}
 
 
-def frozen_garbage(top: int = 12) -> dict:
-    """What the garbage collector finds once the objects frozen by
-    :func:`gui.workers.settle_heap` are let back in (the end of a long day).
-
-    A frozen object is never collected: cyclic garbage made of objects that were alive
-    at a freeze stays in memory. This collects the ordinary garbage first and gives
-    the heaps' free pages back, then unfreezes, collects again (keeping what it finds
-    aside, :data:`gc.DEBUG_SAVEALL`, to count it), frees that and trims again, and
-    says how much each step found and freed. The collector then runs as usual
-    (nothing is frozen any more).
-
-    Parameters
-    ----------
-    top : int
-        How many of the most numerous types of the frozen garbage to list.
-
-    Returns
-    -------
-    dict
-        ``frozen`` (objects frozen before), ``garbage`` (unreachable objects found by
-        an ordinary full collection), ``frozen_garbage`` (found after unfreezing),
-        ``types`` (``{type name: count}`` of those, the most numerous), ``arrays_mb``
-        (NumPy array buffers they held, MB), ``rss_mb`` (before), ``rss_mb_collected``
-        (after the ordinary collection and a trim), ``rss_mb_after`` (after the frozen
-        garbage is freed and a trim), ``collect_s`` (the second collection's
-        duration, s).
-    """
+def _collect_counted(top: int) -> tuple[int, dict, float, float]:
+    """A full collection that keeps what it finds aside (:data:`gc.DEBUG_SAVEALL`) to
+    count it, then frees it: (objects found, ``{type name: count}`` of the most
+    numerous, NumPy array buffers they held in MB, the collection's duration in s)."""
     import gc
     from collections import Counter
 
-    from .memory import trim_now
-
-    before = rss_mb()
-    frozen = gc.get_freeze_count()
-    garbage = gc.collect()
-    trim_now()
-    collected = rss_mb()
-    gc.unfreeze()
     flags = gc.get_debug()
     gc.set_debug(flags | gc.DEBUG_SAVEALL)
     try:
         t = time.perf_counter()
         found = gc.collect()
-        collect_s = time.perf_counter() - t
+        took_s = time.perf_counter() - t
     finally:
         gc.set_debug(flags)
     saved, gc.garbage[:] = list(gc.garbage), []
@@ -136,13 +105,54 @@ def frozen_garbage(top: int = 12) -> dict:
                 base = r if r.base is None else r.base
                 if isinstance(base, np.ndarray):
                     buffers[id(base)] = base.nbytes
-    del saved, o, r
+    del saved
     gc.collect()
+    return found, dict(types.most_common(top)), sum(buffers.values()) / 1e6, took_s
+
+
+def frozen_garbage(top: int = 12) -> dict:
+    """What the garbage collector finds at the end of a long day: the ordinary
+    garbage, then what the freezes of :func:`gui.workers.settle_heap` kept.
+
+    A frozen object is never collected: cyclic garbage made of objects that were alive
+    at a freeze stays in memory. This collects the ordinary garbage and gives the
+    heaps' free pages back, then unfreezes, collects again and trims again. Each
+    collection keeps what it finds aside to count it (its types and the NumPy arrays it
+    held) before freeing it. The collector then runs as usual (nothing is frozen any
+    more).
+
+    Parameters
+    ----------
+    top : int
+        How many of the most numerous types to list per collection.
+
+    Returns
+    -------
+    dict
+        ``frozen`` (objects frozen before); ``garbage``, ``garbage_types`` and
+        ``garbage_arrays_mb`` (the ordinary collection: objects found, ``{type name:
+        count}`` of the most numerous, NumPy array buffers they held, MB);
+        ``frozen_garbage``, ``types`` and ``arrays_mb`` (the same for the collection
+        after unfreezing); ``rss_mb`` (before), ``rss_mb_collected`` (after the ordinary
+        collection and a trim), ``rss_mb_after`` (after the frozen garbage is freed and
+        a trim), ``collect_s`` (the second collection's duration, s).
+    """
+    import gc
+
+    from .memory import trim_now
+
+    before = rss_mb()
+    frozen = gc.get_freeze_count()
+    garbage, garbage_types, garbage_mb, _ = _collect_counted(top)
     trim_now()
-    return {"frozen": frozen, "garbage": garbage, "frozen_garbage": found,
-            "types": dict(types.most_common(top)), "arrays_mb": sum(buffers.values()) / 1e6,
-            "rss_mb": before, "rss_mb_collected": collected, "rss_mb_after": rss_mb(),
-            "collect_s": collect_s}
+    collected = rss_mb()
+    gc.unfreeze()
+    found, types, arrays_mb, collect_s = _collect_counted(top)
+    trim_now()
+    return {"frozen": frozen, "garbage": garbage, "garbage_types": garbage_types,
+            "garbage_arrays_mb": garbage_mb, "frozen_garbage": found, "types": types,
+            "arrays_mb": arrays_mb, "rss_mb": before, "rss_mb_collected": collected,
+            "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
 def rss_mb() -> float:

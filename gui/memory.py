@@ -82,11 +82,17 @@ def configure_allocator(mmap_threshold_bytes: int = MMAP_THRESHOLD_BYTES,
     bool
         True when the allocator took the settings (glibc), False elsewhere.
     """
+    from recon.fft import leave_allocator_alone
+
+    if not trim_period_s > 0:
+        raise ValueError(f"trim_period_s must be > 0 s, got {trim_period_s!r}")
+    # The solvers' module raises both thresholds when imported (fault-free reuse of
+    # FFT buffers in batch work): in the window's process these settings win,
+    # whether it was imported before or after.
+    leave_allocator_alone()
     lib = _glibc()
     if lib is None:
         return False
-    if not trim_period_s > 0:
-        raise ValueError(f"trim_period_s must be > 0 s, got {trim_period_s!r}")
     ok = lib.mallopt(_M_ARENA_MAX, int(arena_max)) == 1
     _start_trimmer(float(trim_period_s))
     ok &= lib.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold_bytes)) == 1

@@ -355,13 +355,15 @@ def print_summary(s: dict, report: dict) -> None:
     fg = report.get("frozen_garbage")  # DIFFUSERLAB_DAY_FROZEN_GARBAGE set
     if fg:
         print(f"  at the day's end: {fg['frozen']} objects frozen; a full collection found "
-              f"{fg['garbage']} unreachable, {fg['frozen_garbage']} more once unfrozen "
+              f"{fg['garbage']} unreachable (holding {fg.get('garbage_arrays_mb', 0):.0f} MB "
+              f"of arrays), {fg['frozen_garbage']} more once unfrozen "
               f"({1e3 * fg['collect_s']:.0f} ms, holding {fg.get('arrays_mb', 0):.0f} MB of "
               f"arrays); RSS {fg['rss_mb']:.0f} -> {fg.get('rss_mb_collected', 0):.0f} (the "
               f"ordinary garbage freed) -> {fg['rss_mb_after']:.0f} MB (the frozen too)")
-        if fg.get("types"):
-            print("  the frozen garbage by type: " + ", ".join(
-                f"{k} {v}" for k, v in fg["types"].items()))
+        for label, key in (("ordinary", "garbage_types"), ("frozen", "types")):
+            if fg.get(key):
+                print(f"  the {label} garbage by type: " + ", ".join(
+                    f"{k} {v}" for k, v in fg[key].items()))
     gc = report.get("gc", {})
     if gc:
         print("  garbage collector pauses: " + ", ".join(

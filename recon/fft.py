@@ -67,6 +67,23 @@ def limited_threads(n: int) -> Iterator[None]:
         set_num_threads(before_numba)
 
 
+#: Set by :func:`leave_allocator_alone`: the process manages glibc's allocator itself.
+_allocator_left_alone = False
+
+
+def leave_allocator_alone() -> None:
+    """:func:`retain_freed_memory` does nothing from now on, in this process.
+
+    For a process that runs for hours and sets glibc's allocator for that itself
+    (:func:`gui.memory.configure_allocator`): heaps that keep every freed block under
+    256 MB and never shrink fragment over a day (in the GUI's operator day, 117-207 MB
+    free and kept in the heaps at the passes' starts, and the resident memory crept).
+    Settings this module already made stay until the caller sets its own.
+    """
+    global _allocator_left_alone
+    _allocator_left_alone = True
+
+
 def retain_freed_memory() -> bool:
     """Keep freed large blocks in the heap instead of returning them to the kernel.
 
@@ -76,16 +93,17 @@ def retain_freed_memory() -> bool:
     again: ~4300 minor faults per ADMM iteration at 1200 x 1600 (17 MB zeroed by the
     kernel, several ms). Raising glibc's mmap and trim thresholds (mallopt) makes
     the reuse fault-free. Process-wide and glibc-only; elsewhere this is a no-op.
-    Set ``DIFFUSERLAB_DEFAULT_MALLOC=1`` to leave the allocator alone.
+    Called once, when this module is imported (:data:`RETAINS_FREED_MEMORY`). Set
+    ``DIFFUSERLAB_DEFAULT_MALLOC=1`` to leave the allocator alone, or call
+    :func:`leave_allocator_alone` (the GUI does).
 
     Returns
     -------
     bool
         True when the thresholds were set.
     """
-    if os.environ.get("DIFFUSERLAB_DEFAULT_MALLOC") == "1" or not sys.platform.startswith(
-        "linux"
-    ):
+    if (_allocator_left_alone or os.environ.get("DIFFUSERLAB_DEFAULT_MALLOC") == "1"
+            or not sys.platform.startswith("linux")):
         return False
     try:
         libc = ctypes.CDLL("libc.so.6")

@@ -189,3 +189,28 @@ def test_heap_figures_tell_memory_in_use_from_memory_mapped_and_freed():
     in_use, mapped, freed = map(int, out.stdout.split())
     assert 15 <= in_use <= 18 and 10 <= mapped <= 11, out.stdout
     assert freed >= 10, out.stdout  # some of it may go back at once (the heap's top)
+
+
+ORDER = """
+import sys
+import numpy as np
+from gui.memory import configure_allocator, heap_mb
+if sys.argv[1] == "solvers-first":
+    import recon.solvers
+assert configure_allocator()
+import recon.solvers, recon.fft  # the solvers' module raises the thresholds when imported
+assert not recon.fft.retain_freed_memory()  # asked again: left alone
+before = heap_mb()["mapped_mb"]
+frame = np.ones(1 << 20)  # 8 MB
+print(round(heap_mb()["mapped_mb"] - before))
+"""
+
+
+@pytest.mark.parametrize("order", ["solvers-first", "solvers-after"])
+def test_the_solvers_module_does_not_undo_the_guis_allocator_settings(order):
+    """``recon.fft`` raises glibc's mmap threshold to 256 MB when imported (fault-free
+    FFT buffers in batch work). In the window's process, imported before or after
+    :func:`configure_allocator`, the GUI's threshold stays: a frame-sized block is
+    mapped on its own and given back when freed (with the raised threshold, the soak's
+    heaps kept 117-207 MB free and the resident memory crept)."""
+    assert _run(ORDER, order) >= 8
