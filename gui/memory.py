@@ -9,15 +9,18 @@ resident memory grew 30-50 % over 6-13 minutes, of which ``malloc_trim(0)`` gave
 ~200 MB at once (measured: 1106 -> 911 MB), with no Python object left alive.
 
 :func:`configure_allocator` lets the threads share two heaps instead of one each
-(the resident memory then stayed flat over the day's passes), fixes the mmap
-threshold (blocks of 128 KiB or more are mapped on their own and unmapped when freed;
-the dynamic raise is off) and
+(the resident memory then stayed flat over the day's passes), and
 :func:`trim_soon` hands the free pages of every heap back after a long job, on a
 thread of its own, started with the window (``malloc_trim`` takes the heaps' locks,
-never the GIL). That thread also trims every :data:`TRIM_PERIOD_S` seconds unasked,
-so the free pages of blocks under the mmap threshold freed between long jobs (the
-live view's, the Results panel's) go back without waiting for the next long job.
-Elsewhere than glibc all of this does nothing.
+never the GIL). That thread also trims every :data:`TRIM_PERIOD_S` seconds unasked.
+The mmap threshold stays the solvers' (:mod:`recon.fft` raises it to 256 MB when
+imported, so FFT buffers are reused without page faults): fixing it at
+:data:`MMAP_THRESHOLD_BYTES` (``configure_allocator(mmap_threshold_bytes=...)``)
+gives frame-sized blocks back as they are freed and the heaps stay unfragmented
+(7 MB free at an hour's pass starts against 117-207 MB, the resident memory about
+100 MB lower) but the live ADMM view ran at 12 fps instead of 20-21 on the 2-core
+machine, so the window keeps the solvers' thresholds. Elsewhere than glibc all of this does
+nothing.
 """
 
 from __future__ import annotations
@@ -32,7 +35,8 @@ __all__ = ["ARENA_MAX", "MMAP_THRESHOLD_BYTES", "TRIM_PERIOD_S", "arena_count",
 
 log = logging.getLogger(__name__)
 
-#: Blocks of this size or more are mapped on their own (glibc's initial threshold).
+#: A fixed mmap threshold that keeps the heaps unfragmented (glibc's initial one), for
+#: ``configure_allocator(mmap_threshold_bytes=...)``; the window does not set it.
 MMAP_THRESHOLD_BYTES = 128 * 1024
 #: Heaps (arenas) the process's threads share: glibc's default is 8 per core.
 ARENA_MAX = 2
@@ -61,12 +65,12 @@ def _glibc() -> ctypes.CDLL | None:
     return _libc
 
 
-def configure_allocator(mmap_threshold_bytes: int = MMAP_THRESHOLD_BYTES,
+def configure_allocator(mmap_threshold_bytes: int | None = None,
                         arena_max: int = ARENA_MAX,
                         trim_period_s: float = TRIM_PERIOD_S) -> bool:
-    """Fix glibc's mmap threshold at ``mmap_threshold_bytes`` (and the heap trim
-    threshold at twice that), so freed frame-sized blocks go back to the system, and
-    let the process's threads share at most ``arena_max`` heaps.
+    """Let the process's threads share at most ``arena_max`` heaps, start the trimming
+    thread, and choose glibc's mmap threshold: the solvers' (the default) or a fixed
+    one.
 
     Each worker thread (a Job, the camera grab, the live reconstruction) gets a heap
     of its own under glibc's default (up to 8 per core), and memory freed in one heap
@@ -74,29 +78,52 @@ def configure_allocator(mmap_threshold_bytes: int = MMAP_THRESHOLD_BYTES,
     grew from 1043 to 1517 MB while the Python heap stayed nearly flat; the same day
     with two heaps (``MALLOC_ARENA_MAX=2``) held 751-789 MB over 7 passes (+1.1 %).
     Call it before the threads start (:func:`gui.app.main` does, first): heaps made
-    before stay. It also starts the trimming thread, which gives the heaps' free pages
-    back every ``trim_period_s`` seconds and whenever :func:`trim_soon` asks.
+    before stay. The trimming thread gives the heaps' free pages back every
+    ``trim_period_s`` seconds and whenever :func:`trim_soon` asks.
+
+    With ``mmap_threshold_bytes=None`` the thresholds are the solvers'
+    (:func:`recon.fft.retain_freed_memory`, 256 MB and 1 GB): FFT buffers are reused
+    from the heaps without page faults. With a number, blocks of that size or more
+    are mapped on their own and given back when freed (the heap trim threshold is
+    twice that), whether :mod:`recon.fft` is imported before or after. Measured on
+    the 2-core machine: with 128 KiB the live ADMM view (5 iterations a frame,
+    ``python -m gui.benchmark --method admm:5``) ran at 12 fps instead of 20-21, and
+    an hour's operator day held 705-796 MB at its pass starts with 7 MB free in the
+    heaps, against 812-913 MB and 117-207 MB free with the solvers' thresholds.
+
+    Parameters
+    ----------
+    mmap_threshold_bytes : int or None
+        Fixed mmap threshold, bytes; None keeps the solvers' thresholds.
+    arena_max : int
+        Heaps the threads share.
+    trim_period_s : float
+        Seconds between the trimming thread's unasked trims (> 0).
 
     Returns
     -------
     bool
         True when the allocator took the settings (glibc), False elsewhere.
+
+    Raises
+    ------
+    ValueError
+        ``trim_period_s`` is not above 0.
     """
-    from recon.fft import leave_allocator_alone
+    import recon.fft
 
     if not trim_period_s > 0:
         raise ValueError(f"trim_period_s must be > 0 s, got {trim_period_s!r}")
-    # The solvers' module raises both thresholds when imported (fault-free reuse of
-    # FFT buffers in batch work): in the window's process these settings win,
-    # whether it was imported before or after.
-    leave_allocator_alone()
+    if mmap_threshold_bytes is not None:
+        recon.fft.leave_allocator_alone()  # its raise at import no longer undoes ours
     lib = _glibc()
     if lib is None:
         return False
     ok = lib.mallopt(_M_ARENA_MAX, int(arena_max)) == 1
     _start_trimmer(float(trim_period_s))
-    ok &= lib.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold_bytes)) == 1
-    ok &= lib.mallopt(_M_TRIM_THRESHOLD, 2 * int(mmap_threshold_bytes)) == 1
+    if mmap_threshold_bytes is not None:
+        ok &= lib.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold_bytes)) == 1
+        ok &= lib.mallopt(_M_TRIM_THRESHOLD, 2 * int(mmap_threshold_bytes)) == 1
     if not ok:
         log.warning("the allocator refused the GUI's settings; memory freed by the "
                     "GUI's threads may stay with the process")
