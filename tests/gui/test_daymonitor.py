@@ -134,7 +134,9 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     a, b = Node(), Node()
     a.other, b.other = b, a
     a.payload = np.zeros(4_000_000, np.uint8)  # 4 MB held by the cycle
+    b.payload = a.payload[::2]  # a view of it: the buffer counts once
     probe = weakref.ref(a)
+    gc.collect()  # earlier tests' garbage is not frozen with the cycle
     gc.freeze()
     del a, b
     gc.collect()
