@@ -42,10 +42,16 @@ MMAP_THRESHOLD_BYTES = 128 * 1024
 ARENA_MAX = 2
 #: Seconds between the trimming thread's unasked trims.
 TRIM_PERIOD_S = 30.0
-#: ``mallopt`` parameter numbers (glibc's malloc.h).
-_M_TRIM_THRESHOLD = -1
-_M_MMAP_THRESHOLD = -3
+#: ``mallopt`` parameter number of the heap count (glibc's malloc.h); the thresholds
+#: are set by :mod:`recon.fft`.
 _M_ARENA_MAX = -8
+
+
+class _Mallinfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in (
+        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
+        "uordblks", "fordblks", "keepcost")]
+
 
 _libc: ctypes.CDLL | None = None
 _trimming = threading.Lock()
@@ -59,6 +65,8 @@ def _glibc() -> ctypes.CDLL | None:
             lib = ctypes.CDLL(name or "libc.so.6")
             lib.mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
             lib.malloc_trim.argtypes = [ctypes.c_size_t]
+            if hasattr(lib, "mallinfo2"):  # glibc 2.33+
+                lib.mallinfo2.restype = _Mallinfo2
         except (OSError, AttributeError):
             return None
         _libc = lib
@@ -114,16 +122,13 @@ def configure_allocator(mmap_threshold_bytes: int | None = None,
 
     if not trim_period_s > 0:
         raise ValueError(f"trim_period_s must be > 0 s, got {trim_period_s!r}")
-    if mmap_threshold_bytes is not None:
-        recon.fft.leave_allocator_alone()  # its raise at import no longer undoes ours
     lib = _glibc()
     if lib is None:
         return False
     ok = lib.mallopt(_M_ARENA_MAX, int(arena_max)) == 1
     _start_trimmer(float(trim_period_s))
-    if mmap_threshold_bytes is not None:
-        ok &= lib.mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold_bytes)) == 1
-        ok &= lib.mallopt(_M_TRIM_THRESHOLD, 2 * int(mmap_threshold_bytes)) == 1
+    if mmap_threshold_bytes is not None:  # holds if recon.fft is imported after
+        ok &= recon.fft.fix_allocator_thresholds(mmap_threshold_bytes)
     if not ok:
         log.warning("the allocator refused the GUI's settings; memory freed by the "
                     "GUI's threads may stay with the process")
@@ -163,12 +168,6 @@ def arena_count() -> int | None:
         os.unlink(path)
 
 
-class _Mallinfo2(ctypes.Structure):
-    _fields_ = [(name, ctypes.c_size_t) for name in (
-        "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks",
-        "uordblks", "fordblks", "keepcost")]
-
-
 def heap_mb() -> dict[str, float] | None:
     """What glibc's allocator holds now, summed over its heaps (``mallinfo2``), MB.
 
@@ -187,7 +186,6 @@ def heap_mb() -> dict[str, float] | None:
     lib = _glibc()
     if lib is None or not hasattr(lib, "mallinfo2"):
         return None
-    lib.mallinfo2.restype = _Mallinfo2
     m = lib.mallinfo2()
     return {"in_use_mb": m.uordblks / 1e6, "free_mb": m.fordblks / 1e6,
             "mapped_mb": m.hblkhd / 1e6}

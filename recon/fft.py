@@ -67,21 +67,49 @@ def limited_threads(n: int) -> Iterator[None]:
         set_num_threads(before_numba)
 
 
-#: Set by :func:`leave_allocator_alone`: the process manages glibc's allocator itself.
-_allocator_left_alone = False
+#: Set by :func:`fix_allocator_thresholds`: the process chose its own thresholds.
+_thresholds_fixed = False
 
 
-def leave_allocator_alone() -> None:
-    """:func:`retain_freed_memory` does nothing from now on, in this process.
+def _set_thresholds(mmap_threshold_bytes: int, trim_threshold_bytes: int) -> bool:
+    """glibc's mmap and heap-trim thresholds (``mallopt``); False where refused or not
+    glibc on Linux."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
+        return bool(libc.mallopt(m_mmap_threshold, int(mmap_threshold_bytes))
+                    and libc.mallopt(m_trim_threshold, int(trim_threshold_bytes)))
+    except (OSError, AttributeError):
+        return False
 
-    For a process that runs for hours and sets glibc's allocator for that itself
-    (:func:`gui.memory.configure_allocator`): heaps that keep every freed block under
-    256 MB and never shrink fragment over a day (in the GUI's operator day, 117-207 MB
-    free and kept in the heaps at the passes' starts, and the resident memory crept).
-    Settings this module already made stay until the caller sets its own.
+
+def fix_allocator_thresholds(mmap_threshold_bytes: int) -> bool:
+    """Fix glibc's mmap threshold (the heap trim threshold at twice it), and keep
+    :func:`retain_freed_memory` from changing them again in this process.
+
+    For a process that runs for hours (:func:`gui.memory.configure_allocator` offers
+    it): blocks of ``mmap_threshold_bytes`` or more are mapped on their own and given
+    back when freed, so the heaps do not fragment (in the GUI's operator day, 7 MB
+    free in the heaps at the passes' starts against 117-207 MB with this module's
+    thresholds), at the price of page faults on every FFT buffer (the live ADMM view
+    ran at 12 fps instead of 20-21). Holds whether this module was imported before
+    or after.
+
+    Parameters
+    ----------
+    mmap_threshold_bytes : int
+        Blocks of this size or more are mapped on their own, bytes.
+
+    Returns
+    -------
+    bool
+        True when the allocator took the thresholds (glibc on Linux).
     """
-    global _allocator_left_alone
-    _allocator_left_alone = True
+    global _thresholds_fixed
+    _thresholds_fixed = True
+    return _set_thresholds(mmap_threshold_bytes, 2 * int(mmap_threshold_bytes))
 
 
 def retain_freed_memory() -> bool:
@@ -94,27 +122,19 @@ def retain_freed_memory() -> bool:
     kernel, several ms). Raising glibc's mmap and trim thresholds (mallopt) makes
     the reuse fault-free. Process-wide and glibc-only; elsewhere this is a no-op.
     Called once, when this module is imported (:data:`RETAINS_FREED_MEMORY`). Set
-    ``DIFFUSERLAB_DEFAULT_MALLOC=1`` to leave the allocator alone, or call
-    :func:`leave_allocator_alone` (the GUI does).
+    ``DIFFUSERLAB_DEFAULT_MALLOC=1`` to leave the allocator alone; after
+    :func:`fix_allocator_thresholds` this does nothing.
 
     Returns
     -------
     bool
         True when the thresholds were set.
     """
-    if (_allocator_left_alone or os.environ.get("DIFFUSERLAB_DEFAULT_MALLOC") == "1"
-            or not sys.platform.startswith("linux")):
+    if _thresholds_fixed or os.environ.get("DIFFUSERLAB_DEFAULT_MALLOC") == "1":
         return False
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's malloc.h
-        ok = libc.mallopt(m_mmap_threshold, 256 * 2**20) and libc.mallopt(
-            m_trim_threshold, 2**30
-        )
-    except (OSError, AttributeError):
-        return False
-    log.debug("glibc mallopt thresholds raised: %s", bool(ok))
-    return bool(ok)
+    ok = _set_thresholds(256 * 2**20, 2**30)
+    log.debug("glibc mallopt thresholds raised: %s", ok)
+    return ok
 
 
 RETAINS_FREED_MEMORY = retain_freed_memory()
