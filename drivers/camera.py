@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from diffuserlab.errors import kept_error
 from drivers.base import Device
 from drivers.errors import CameraTimeoutError, DeviceError, DeviceStateError, DeviceValueError
 from drivers.settings import Setting, info
@@ -160,9 +161,11 @@ class FrameRing:
 
     def fail(self, error: BaseException) -> None:
         """Report a producer error (e.g. a lost camera): once the buffered frames are
-        read, :meth:`get` raises ``error`` instead of waiting. :meth:`clear` resets it."""
+        read, :meth:`get` raises ``error`` instead of waiting. :meth:`clear` resets it.
+        ``error`` is kept without its traceback (:func:`diffuserlab.errors.kept_error`):
+        the producer's frames would hold the ring, a cycle; log it before if wanted."""
         with self._cond:
-            self._error = error
+            self._error = kept_error(error)
             self._cond.notify_all()
 
     def clear(self) -> None:

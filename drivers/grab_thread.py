@@ -28,7 +28,7 @@ def report_stream_error(device: Any, ring: Any, exc: BaseException) -> None:
         device._disconnected = True
         device._log.error("%s: stream ended: %s", device.device_id, exc)
     else:
-        device._log.error("%s: grab thread failed: %s", device.device_id, exc)
+        device._log.error("%s: grab thread failed: %s", device.device_id, exc, exc_info=exc)
     ring.fail(exc)
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from diffuserlab.errors import DiffuserLabError
+from diffuserlab.errors import DiffuserLabError, kept_error
 from drivers.camera import Frame, FrameRing
 from drivers.errors import CameraTimeoutError
 from recon.errors import ReconInputError
@@ -392,7 +392,7 @@ class LiveReconstruction:
     def _record_error(self, exc: BaseException, what: str) -> None:
         with self._lock:
             self.errors += 1
-            self.error = exc
+            self.error = kept_error(exc)  # its traceback would hold this object: a cycle
             self.last_error = f"{what}: {type(exc).__name__}: {exc}"
         log.warning("live reconstruction: %s", self.last_error)
 

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from diffuserlab.errors import kept_error
 from drivers.camera import Frame, FrameRing
 
 from .runstore import RunStore, RunStoreError, utc_now
@@ -257,7 +258,7 @@ class Recorder:
         try:
             self._sink(start, images, rows)
         except Exception as exc:  # noqa: BLE001 -- reported by offer()/close()
-            self._error = exc
+            self._error = kept_error(exc)  # its traceback would hold the block's images
             with self._lock:
                 self.lost_indices.extend(int(f.index) for f in block)
             return

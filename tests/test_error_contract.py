@@ -63,3 +63,21 @@ def test_derives_from_the_root(name):
                                   "instrument.run_integrity.RunStoreError"])
 def test_input_errors_are_input_errors(name):
     assert issubclass(EXCEPTIONS[name], InputError)
+
+
+def test_kept_error_drops_the_tracebacks_of_the_whole_chain():
+    from diffuserlab.errors import kept_error
+
+    def fail():
+        try:
+            raise KeyError("inner")
+        except KeyError as inner:
+            raise RuntimeError("outer") from inner
+
+    try:
+        fail()
+    except RuntimeError as exc:
+        caught, kept = exc, kept_error(exc)
+    assert kept is caught and str(kept) == "outer" and isinstance(kept.__cause__, KeyError)
+    assert kept.__traceback__ is None and kept.__cause__.__traceback__ is None
+    assert kept.__context__.__traceback__ is None

@@ -15,6 +15,7 @@ from drivers.camera import Frame, FrameRing
 from instrument.live import LatestFrameSlot, LiveReconstruction, LiveReconstructionError
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor, LiveResult
+from tests.refcycles import assert_freed_without_the_collector
 
 SHAPE = (32, 40)
 
@@ -246,3 +247,22 @@ def test_nice_lowers_the_worker_thread_and_nothing_else():
         live.stop(timeout_s=2.0)
     with pytest.raises(ReconInputError, match="nice"):
         LiveReconstruction(probe, nice=-1)
+
+
+def test_a_stopped_live_reconstruction_with_an_error_is_freed_without_the_collector():
+    """The worker's error is kept without its traceback: the traceback's frames hold
+    the live reconstruction (a cycle). Once frozen by the GUI's settle_heap such a
+    cycle is never collected: the operator's day kept a stopped ADMM view's arrays."""
+    ring = FrameRing(4)
+    live = LiveReconstruction(SlowReconstructor(0.0, fail_on=0))
+    live.start(ring=ring)
+    ring.put(_frame(0, value=0))  # the reconstruction fails on it
+    _wait_for(lambda lr=live: lr.stats()["errors"] == 1)
+    assert "frame 0" in live.stats()["last_error"]
+    ring.fail(ConnectionError("camera unplugged"))
+    _wait_for(lambda lr=live: lr.stats()["errors"] == 2)
+    live.stop(timeout_s=2.0)
+    assert isinstance(live.error, ConnectionError) and "frame 0" not in live.stats()["last_error"]
+    held = {"live": live}
+    del live
+    assert_freed_without_the_collector(held, "live", "stopped live reconstruction")

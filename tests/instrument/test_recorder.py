@@ -17,6 +17,7 @@ from drivers.camera import Frame, FrameRing
 from drivers.simulated import SimulatedCamera
 from instrument.recorder import VIDEO_COORDS, Recorder, index_ranges, record_from_ring
 from instrument.runstore import RunStore, RunStoreError
+from tests.refcycles import assert_freed_without_the_collector
 
 SHAPE = (24, 32)
 
@@ -195,3 +196,22 @@ def test_recorder_needs_video_coords_and_valid_sharding(tmp_path):
     with pytest.raises(RunStoreError, match="unknown frame compressor"):
         _video_store(tmp_path / "b.zarr", 4, compressor="gzip")
     assert store.shard_frames is None
+
+
+def test_a_failed_recorder_is_freed_without_the_collector(tmp_path):
+    """The writer's error is kept without its traceback, whose frames held the recorder
+    and the failed block's images (a cycle the GUI's frozen heap never collects)."""
+    store = _video_store(tmp_path / "v.zarr", 8, shard=4)
+
+    def full_disk(start, images, rows):
+        raise OSError(28, "No space left on device")
+
+    rec = Recorder(store, sink=full_disk)
+    rec.start()
+    for i in range(4):
+        rec.offer(_frame(i))
+    with pytest.raises(RunStoreError, match="No space left"):
+        rec.close()
+    held = {"rec": rec}
+    del rec
+    assert_freed_without_the_collector(held, "rec", "failed recorder")
