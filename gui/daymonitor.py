@@ -24,11 +24,13 @@ import sys
 import threading
 import time
 import traceback
+from array import array
+from types import FrameType
 
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
-__all__ = ["DayMonitor", "HeapTracker", "census", "frozen_garbage", "rss_mb"]
+__all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage", "rss_mb"]
 
 TIMER_MS = 10
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
@@ -46,7 +48,9 @@ def _short_path(path: str) -> str:
 def census(top: int = 25) -> dict:
     """Live objects per type (the most numerous), for finding what grows in a long day
     (the operator's day takes one at each pass's stream phase when
-    ``DIFFUSERLAB_DAY_CENSUS=1``; a full garbage collection and a walk of the heap).
+    ``DIFFUSERLAB_DAY_CENSUS=1``; a full garbage collection and a walk of the whole
+    heap, the objects frozen by :func:`gui.workers.settle_heap` included: about a
+    second on the GUI thread, so a day with the census does not measure lateness).
 
     Parameters
     ----------
@@ -57,15 +61,22 @@ def census(top: int = 25) -> dict:
     -------
     dict
         ``t_s`` (monotonic clock, s), ``objects`` (tracked by the collector),
-        ``frozen`` (of them frozen), ``blocks`` (``sys.getallocatedblocks``), ``top``
-        (``{type name: count}``) and ``biggest``: the 12 largest lists, dicts, deques
-        and sets with their length, the types that refer to them and a sample item.
+        ``frozen`` (of them frozen before the census), ``blocks``
+        (``sys.getallocatedblocks``), ``top`` (``{type name: count}``) and
+        ``biggest``: the 12 largest lists, dicts, deques and sets with their length,
+        the types that refer to them and a sample item; ``arrays``: the NumPy arrays
+        alive, by holder (:func:`array_holders`).
     """
     import gc
     from collections import Counter, deque
 
     gc.collect()
+    frozen = gc.get_freeze_count()
+    if frozen:  # the frozen objects too (most of a settled heap): unfrozen to be listed,
+        gc.unfreeze()  # frozen again with the survivors of the collection above
     objects = gc.get_objects()
+    if frozen:
+        gc.freeze()
     counts = Counter(type(o).__name__ for o in objects)
     sized = sorted(((len(o), id(o), o) for o in objects
                     if type(o) in (list, dict, deque, set)), key=lambda s: s[:2])[-12:]
@@ -74,17 +85,110 @@ def census(top: int = 25) -> dict:
         owners = [type(r).__name__ for r in gc.get_referrers(o)[:4] if r is not objects]
         sample = repr(next(iter(o.items() if isinstance(o, dict) else o), None))[:80]
         big.append({"type": type(o).__name__, "len": n, "owners": owners, "sample": sample})
+    arrays = array_holders(objects, top=30)
     del objects, sized
     return {"t_s": time.monotonic(), "objects": sum(counts.values()),
-            "frozen": gc.get_freeze_count(),
+            "frozen": frozen,
             "blocks": sys.getallocatedblocks(), "top": dict(counts.most_common(top)),
-            "biggest": big}
+            "biggest": big, "arrays": arrays}
 
 
-def _collect_counted(top: int) -> tuple[int, dict, float, float]:
+def _root(a: np.ndarray):
+    """The object that owns an array's memory: its last ndarray base, or that array's
+    own non-array base (a ``bytes``, ``mmap``, ...)."""
+    while isinstance(a.base, np.ndarray):
+        a = a.base
+    return a
+
+
+def array_holders(objects: list | None = None, top: int = 15, *,
+                  threads: bool = True) -> dict:
+    """The NumPy array memory alive now, by what holds it: for finding which arrays make
+    a long day's resident memory (the operator's day takes one with :func:`census`).
+
+    Each array buffer counts once (views count as the array they view), for the first
+    holder found: an attribute of an object (``Type.attribute``, also for arrays in a
+    list, dict, tuple or deque it holds, two levels down), a local variable of a frame
+    kept by a traceback or a generator (``frame of function (package/module.py)``), an
+    item of another container (the container's type), or a local variable of a thread's
+    running function (``thread: function``).
+
+    Parameters
+    ----------
+    objects : list or None
+        The collector's objects (``gc.get_objects()``, taken when None).
+    top : int
+        How many holders to list.
+    threads : bool
+        Also look in the running threads' local variables.
+
+    Returns
+    -------
+    dict
+        ``mb`` (all array buffers found, MiB), ``buffers`` (their number) and
+        ``holders``: ``[{"where", "mb", "buffers"}]``, the largest first.
+    """
+    import gc
+    from collections import deque
+
+    if objects is None:
+        objects = gc.get_objects()
+    seen: dict[int, tuple[str, int]] = {}
+
+    def add(value, where: str, depth: int = 0, attribute: bool = False) -> None:
+        if isinstance(value, np.ndarray):
+            root = _root(value)
+            if id(root) not in seen:
+                seen[id(root)] = (where, int(root.nbytes))
+        elif (depth < 2 and isinstance(value, dict | list | tuple | deque)
+              and (attribute or not gc.is_tracked(value))):
+            # an attribute's container, or one holding only untracked things (never
+            # among the collector's objects): its arrays count for this holder
+            for v in list(value.values() if isinstance(value, dict) else value):
+                add(v, where, depth + 1, attribute)
+
+    containers = (dict, list, tuple, set, frozenset)
+    for o in objects:  # objects' attributes first: they name the holder best
+        if isinstance(o, (*containers, type)):
+            continue
+        name = type(o).__name__
+        if isinstance(o, FrameType):  # a traceback's or a generator's frame
+            name = f"frame of {o.f_code.co_qualname} ({_short_path(o.f_code.co_filename)})"
+        try:  # past a __getattr__ (pydantic's placeholders raise from theirs)
+            attrs = object.__getattribute__(o, "__dict__")
+        except Exception:  # noqa: BLE001 (no instance dictionary, whatever the reason)
+            attrs = None
+        if isinstance(attrs, dict):
+            for k, v in attrs.items():
+                add(v, f"{name}.{k}", attribute=True)
+        for r in gc.get_referents(o):
+            add(r, name)
+    for o in objects:
+        if isinstance(o, containers):
+            for r in (o.values() if isinstance(o, dict) else o):
+                add(r, type(o).__name__)
+    names = {t.ident: t.name for t in threading.enumerate()}
+    for ident, frame in (sys._current_frames() if threads else {}).items():
+        while frame is not None:
+            for v in frame.f_locals.values():
+                add(v, f"{names.get(ident, ident)}: {frame.f_code.co_name}")
+            frame = frame.f_back
+    by: dict[str, list[int]] = {}
+    for where, nbytes in seen.values():
+        entry = by.setdefault(where, [0, 0])
+        entry[0] += nbytes
+        entry[1] += 1
+    holders = sorted(by.items(), key=lambda kv: -kv[1][0])[:top]
+    return {"mb": round(sum(n for _, n in seen.values()) / 2**20, 1), "buffers": len(seen),
+            "holders": [{"where": w, "mb": round(n / 2**20, 2), "buffers": c}
+                        for w, (n, c) in holders]}
+
+
+def _collect_counted(top: int) -> tuple[int, dict, dict, float]:
     """A full collection that keeps what it finds aside (:data:`gc.DEBUG_SAVEALL`) to
     count it, then frees it: (objects found, ``{type name: count}`` of the most
-    numerous, NumPy array buffers they held in MB, the collection's duration in s)."""
+    numerous, the NumPy arrays they held by holder (:func:`array_holders`), the
+    collection's duration in s)."""
     import gc
     from collections import Counter
 
@@ -98,16 +202,10 @@ def _collect_counted(top: int) -> tuple[int, dict, float, float]:
         gc.set_debug(flags)
     saved, gc.garbage[:] = list(gc.garbage), []
     types = Counter(type(o).__name__ for o in saved)
-    buffers = {}
-    for o in saved:
-        for r in gc.get_referents(o):
-            if isinstance(r, np.ndarray):
-                base = r if r.base is None else r.base
-                if isinstance(base, np.ndarray):
-                    buffers[id(base)] = base.nbytes
+    arrays = array_holders(saved, top=top, threads=False)
     del saved
     gc.collect()
-    return found, dict(types.most_common(top)), sum(buffers.values()) / 1e6, took_s
+    return found, dict(types.most_common(top)), arrays, took_s
 
 
 def frozen_garbage(top: int = 12) -> dict:
@@ -131,11 +229,12 @@ def frozen_garbage(top: int = 12) -> dict:
     dict
         ``frozen`` (objects frozen before); ``garbage``, ``garbage_types`` and
         ``garbage_arrays_mb`` (the ordinary collection: objects found, ``{type name:
-        count}`` of the most numerous, NumPy array buffers they held, MB);
+        count}`` of the most numerous, NumPy array buffers they held, MiB);
         ``frozen_garbage``, ``types`` and ``arrays_mb`` (the same for the collection
-        after unfreezing); ``rss_mb`` (before), ``rss_mb_collected`` (after the ordinary
-        collection and a trim), ``rss_mb_after`` (after the frozen garbage is freed and
-        a trim), ``collect_s`` (the second collection's duration, s).
+        after unfreezing); ``garbage_array_holders`` and ``array_holders``: what held
+        those arrays (:func:`array_holders`); ``rss_mb`` (before), ``rss_mb_collected``
+        (after the ordinary collection and a trim), ``rss_mb_after`` (after the frozen
+        garbage is freed and a trim), ``collect_s`` (the second collection's duration, s).
     """
     import gc
 
@@ -143,16 +242,18 @@ def frozen_garbage(top: int = 12) -> dict:
 
     before = rss_mb()
     frozen = gc.get_freeze_count()
-    garbage, garbage_types, garbage_mb, _ = _collect_counted(top)
+    garbage, garbage_types, garbage_arrays, _ = _collect_counted(top)
     trim_now()
     collected = rss_mb()
     gc.unfreeze()
-    found, types, arrays_mb, collect_s = _collect_counted(top)
+    found, types, arrays, collect_s = _collect_counted(top)
     trim_now()
     return {"frozen": frozen, "garbage": garbage, "garbage_types": garbage_types,
-            "garbage_arrays_mb": garbage_mb, "frozen_garbage": found, "types": types,
-            "arrays_mb": arrays_mb, "rss_mb": before, "rss_mb_collected": collected,
-            "rss_mb_after": rss_mb(), "collect_s": collect_s}
+            "garbage_arrays_mb": garbage_arrays["mb"],
+            "garbage_array_holders": garbage_arrays["holders"],
+            "frozen_garbage": found, "types": types, "arrays_mb": arrays["mb"],
+            "array_holders": arrays["holders"], "rss_mb": before,
+            "rss_mb_collected": collected, "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
 def rss_mb() -> float:
@@ -178,7 +279,9 @@ class DayMonitor(QObject):
         #: Which pass through the day's middle is running (0: the first, the warm-up).
         self.loop = 0
         self._last_ns: int | None = None
-        self.lateness: dict[str, list[float]] = {}
+        #: Lateness per phase, s: packed doubles (8 bytes a firing; a list of floats
+        #: took 32, ~11 MB in an hour: the monitor's own growth counted in the RSS).
+        self.lateness: dict[str, array] = {}
         self.phase_seconds: dict[str, float] = {}
         self._phase_t0 = time.monotonic()
         self.samples: list[dict] = []
@@ -190,7 +293,7 @@ class DayMonitor(QObject):
         self.sampler.setInterval(int(sample_s * 1000))
         self.sampler.timeout.connect(self.sample)
         self.t0 = time.monotonic()
-        self.gc_ms: dict[int, list[float]] = {}
+        self.gc_ms: dict[int, array] = {}
         #: Firings later than 100 ms and collections longer than 50 ms, in time order.
         self.events: list[dict] = []
         self._gc_t0: float | None = None
@@ -206,7 +309,7 @@ class DayMonitor(QObject):
         elif self._gc_t0 is not None:
             ms = 1e3 * (time.perf_counter() - self._gc_t0)
             g = info.get("generation", 0)
-            self.gc_ms.setdefault(g, []).append(ms)
+            self.gc_ms.setdefault(g, array("d")).append(ms)
             self._gc_t0 = None
             if ms > 50:
                 self.events.append({"t_s": round(time.monotonic() - self.t0, 2),
@@ -278,7 +381,7 @@ class DayMonitor(QObject):
         now = self.clock.nsecsElapsed()
         if self._last_ns is not None:
             late = max((now - self._last_ns) / 1e9 - TIMER_MS / 1000.0, 0.0)
-            self.lateness.setdefault(self.phase, []).append(late)
+            self.lateness.setdefault(self.phase, array("d")).append(late)
             if late > 0.1:  # when the event loop was held: compared with the GC's pauses
                 self.events.append({"t_s": round(time.monotonic() - self.t0, 2),
                                     "what": "late", "ms": round(1e3 * late, 1),

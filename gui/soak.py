@@ -205,6 +205,21 @@ def _run_state(path: str) -> dict:
         return {"error": str(exc)}
 
 
+def _print_array_census(taken: list[dict]) -> None:
+    """The NumPy arrays alive at each pass's stream phase (``DIFFUSERLAB_DAY_CENSUS``
+    set: :func:`gui.daymonitor.array_holders`), and the holders that changed most
+    between the second census and the last."""
+    taken = [c["arrays"] for c in taken if "arrays" in c]
+    if len(taken) < 2:
+        return
+    print("  arrays alive at each pass's stream phase (MiB): "
+          + ", ".join(f"{a['mb']:.0f}" for a in taken))
+    first, last = ({h["where"]: h["mb"] for h in a["holders"]} for a in (taken[1], taken[-1]))
+    moved = sorted(set(first) | set(last), key=lambda w: -abs(last.get(w, 0) - first.get(w, 0)))
+    for where in moved[:8]:
+        print(f"    {where}: {first.get(where, 0):.1f} -> {last.get(where, 0):.1f} MiB")
+
+
 def summarise(report: dict) -> dict:
     """The day's figures against :data:`GOALS` (see the module docstring).
 
@@ -352,18 +367,23 @@ def print_summary(s: dict, report: dict) -> None:
     for g in report.get("heap_growth", [])[:8]:  # DIFFUSERLAB_TRACEMALLOC set
         print(f"  heap grew {g['mb']:+.1f} MB ({g['count']:+d} blocks) at "
               + " <- ".join(reversed(g["where"][-3:])))
+    _print_array_census(report.get("notes", {}).get("census", []))
     fg = report.get("frozen_garbage")  # DIFFUSERLAB_DAY_FROZEN_GARBAGE set
     if fg:
         print(f"  at the day's end: {fg['frozen']} objects frozen; a full collection found "
-              f"{fg['garbage']} unreachable (holding {fg.get('garbage_arrays_mb', 0):.0f} MB "
+              f"{fg['garbage']} unreachable (holding {fg.get('garbage_arrays_mb', 0):.0f} MiB "
               f"of arrays), {fg['frozen_garbage']} more once unfrozen "
-              f"({1e3 * fg['collect_s']:.0f} ms, holding {fg.get('arrays_mb', 0):.0f} MB of "
+              f"({1e3 * fg['collect_s']:.0f} ms, holding {fg.get('arrays_mb', 0):.0f} MiB of "
               f"arrays); RSS {fg['rss_mb']:.0f} -> {fg.get('rss_mb_collected', 0):.0f} (the "
               f"ordinary garbage freed) -> {fg['rss_mb_after']:.0f} MB (the frozen too)")
-        for label, key in (("ordinary", "garbage_types"), ("frozen", "types")):
+        for label, key, holders in (("ordinary", "garbage_types", "garbage_array_holders"),
+                                    ("frozen", "types", "array_holders")):
             if fg.get(key):
                 print(f"  the {label} garbage by type: " + ", ".join(
                     f"{k} {v}" for k, v in fg[key].items()))
+            if fg.get(holders):
+                print(f"  the arrays of the {label} garbage by holder (MiB): " + ", ".join(
+                    f"{h['where']} {h['mb']:.1f}" for h in fg[holders][:8]))
     gc = report.get("gc", {})
     if gc:
         print("  garbage collector pauses: " + ", ".join(

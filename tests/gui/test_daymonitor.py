@@ -84,6 +84,23 @@ def test_the_summary_splits_each_pass_starts_memory_by_the_allocators_heaps(caps
     assert "(MB in use / free / mapped): 100/5/40, 110/5/40" in capsys.readouterr().out
 
 
+def test_the_summary_names_the_array_holders_that_grew_between_censuses(capsys):
+    """With DIFFUSERLAB_DAY_CENSUS set, each pass's census of live arrays reaches the
+    summary, and the holders that changed most from the second census to the last."""
+    from gui.soak import print_summary, summarise
+
+    day = _day(leak_per_pass=0, shown_per_s=0)
+    day["notes"] = {"census": [
+        {"arrays": {"mb": 100.0 + 20 * k, "buffers": 10, "holders": [
+            {"where": "VirtualBench._psf_cache", "mb": 10.0 + 20 * k, "buffers": 1 + k},
+            {"where": "ImageItem.image", "mb": 5.0, "buffers": 1}]}} for k in range(4)]}
+    print_summary(summarise(day), day)
+    out = capsys.readouterr().out
+    assert "arrays alive at each pass's stream phase (MiB): 100, 120, 140, 160" in out
+    assert "VirtualBench._psf_cache: 30.0 -> 70.0 MiB" in out
+    assert out.index("_psf_cache: 30.0") < out.index("ImageItem.image: 5.0 -> 5.0")
+
+
 def test_the_monitor_samples_the_allocators_heaps(qapp):
     from gui.daymonitor import DayMonitor
     from gui.memory import heap_mb
@@ -145,9 +162,10 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     assert probe() is None
     assert out["frozen_garbage"] >= 2 and out["frozen"] >= 2
     assert out["types"].get("Node") == 2, out["types"]
-    assert 4.0 <= out["arrays_mb"] < 4.1, out  # what the cycle held, counted once
+    assert 3.8 <= out["arrays_mb"] < 3.9, out  # 4 MB (3.81 MiB) held by the cycle, once
+    assert {"where": "Node.payload", "mb": 3.81, "buffers": 1} in out["array_holders"]
     assert not gc.garbage  # what was kept aside to be counted is freed
-    assert "Node" not in out["garbage_types"] and out["garbage_arrays_mb"] < 4.0
+    assert "Node" not in out["garbage_types"] and out["garbage_arrays_mb"] < 3.8
     assert gc.get_freeze_count() == 0
     assert out["rss_mb"] > 0 and out["rss_mb_after"] > 0 and out["collect_s"] >= 0
 
@@ -164,3 +182,117 @@ def test_census_counts_live_objects_and_names_the_biggest_containers():
     assert any(b["type"] == "list" and b["len"] >= 5000 for b in out["biggest"])
     assert out["objects"] >= 5000 and out["blocks"] > 0
     del held
+
+
+def test_census_counts_the_frozen_objects_and_their_arrays_too():
+    """Most of the window's heap is frozen (settle_heap): the census walks it too and
+    leaves it frozen."""
+    import gc
+
+    from gui.daymonitor import census
+
+    class FrozenHolder:
+        pass
+
+    gc.collect()
+    kept = FrozenHolder()
+    kept.buffer = np.zeros(2**20, np.uint8)  # 1 MiB
+    gc.freeze()
+    try:
+        out = census(top=100_000)
+        assert out["frozen"] > 0 and gc.get_freeze_count() >= out["frozen"]
+        assert out["top"].get("FrozenHolder") == 1
+        assert any(h["where"] == "FrozenHolder.buffer" and h["mb"] >= 1.0
+                   for h in out["arrays"]["holders"]), out["arrays"]
+    finally:
+        gc.unfreeze()
+    del kept
+
+
+def test_array_holders_name_the_attribute_container_or_thread_holding_each_buffer():
+    import threading
+
+    from gui.daymonitor import array_holders
+
+    class PsfCache:
+        def __init__(self):
+            self.psf = np.ones((512, 512))  # 2 MiB
+            self.view = self.psf[::2]  # a view: counts as the array it views
+            self.frames = [np.zeros((256, 256)) for _ in range(4)]  # 4 x 0.5 MiB
+
+    class Placeholder:  # like pydantic's mock validators: no __dict__, and any
+        __slots__ = ()  # attribute not found raises from __getattr__
+
+        def __getattr__(self, name):
+            raise RuntimeError(f"no {name} here")
+
+    held, odd = PsfCache(), Placeholder()
+    started, release = threading.Event(), threading.Event()
+
+    def grab():
+        frame = np.zeros((1024, 1024), np.uint8)  # 1 MiB, a local of a running thread
+        started.set()
+        release.wait(10)
+        return frame
+
+    t = threading.Thread(target=grab, name="grab-test")
+    t.start()
+    try:
+        assert started.wait(10)
+        out = array_holders(top=400)
+    finally:
+        release.set()
+        t.join()
+    by = {h["where"]: h for h in out["holders"]}
+    assert by["PsfCache.psf"]["mb"] == 2.0 and by["PsfCache.psf"]["buffers"] == 1
+    assert "PsfCache.view" not in by
+    assert by["PsfCache.frames"]["mb"] == 2.0 and by["PsfCache.frames"]["buffers"] == 4
+    assert by["grab-test: grab"]["mb"] == 1.0
+    assert out["mb"] >= 5.0 and out["buffers"] >= 6
+    del held, odd
+
+
+def test_the_monitor_keeps_a_firing_in_a_few_bytes(qapp, monkeypatch):
+    """An hour's day fires the 10 ms timer ~340 000 times; the lateness kept per firing
+    is part of the RSS the day measures, so it must stay a packed double (a list of
+    Python floats took 32 bytes a firing: ~11 MB an hour)."""
+    import tracemalloc
+
+    import gui.daymonitor
+    from gui.daymonitor import DayMonitor
+
+    monkeypatch.setattr(gui.daymonitor, "TIMER_MS", 0)  # every firing late: a new float
+    m = DayMonitor()
+    m.clock.start()
+    m.set_phase("stream")
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for _ in range(100_000):
+            m._fired()
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert len(m.lateness["stream"]) == 99_999 and min(m.lateness["stream"]) > 0
+    assert grown < 12 * 100_000, f"{grown / 1e5:.1f} bytes a firing"
+    assert m.report()["phases"]["stream"]["firings"] == len(m.lateness["stream"])
+
+
+def test_array_holders_name_the_function_of_a_kept_frame():
+    """A frame kept by a traceback (an error stored with its traceback) is named by its
+    function, the place to look for the cycle."""
+    from gui.daymonitor import array_holders
+
+    def solve():
+        scratch = np.zeros(2**20, np.uint8)  # 1 MiB, a local of the failing frame
+        raise RuntimeError(f"diverged ({scratch.size})")
+
+    try:
+        solve()
+    except RuntimeError as exc:
+        kept = exc  # the traceback keeps solve's frame and its locals
+    out = array_holders(top=400)
+    assert any(h["where"].startswith("frame of ") and "solve" in h["where"]
+               and "test_daymonitor.py" in h["where"] and h["mb"] >= 1.0
+               for h in out["holders"]), out["holders"]
+    del kept
