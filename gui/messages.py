@@ -17,9 +17,10 @@ __all__ = ["operator_text"]
 
 #: API calls in device and runner messages, and the GUI's way of doing them.
 _CALLS = (
-    (re.compile(r"\b(?:then )?call (?:faults\.allow_reconnect\(\), then )?reconnect\(\)"
+    (re.compile(r"\b(then )?call (?:faults\.allow_reconnect\(\), then )?reconnect\(\)"
                 r"(?: and start the stream again)?"),
-     "then press Reconnect on the device (Devices panel)"),
+     r"\1press Reconnect on the device (Devices panel)"),
+    (re.compile(r" \(faults\.disconnect\(\)\)"), ""),  # the simulated bench's fault
     (re.compile(r"\breconnect\(\)"), "Reconnect (Devices panel)"),
     (re.compile(r"resume\(\) to continue, abort\(\) to stop"),
      "press Continue to go on or Abort to stop"),

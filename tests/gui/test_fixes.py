@@ -41,6 +41,10 @@ def test_library_messages_read_in_the_guis_terms():
                          "reconnect()") == ("stage: stopped answering. Fix: check cable and "
                                             "power, then press Reconnect on the device "
                                             "(Devices panel)")
+    assert operator_text("led_array: simulated disconnection (faults.disconnect()). Fix: "
+                         "call faults.allow_reconnect(), then reconnect()") == (
+        "led_array: simulated disconnection. Fix: press Reconnect on the device "
+        "(Devices panel)")
     assert operator_text("paused; resume() to continue, abort() to stop") == \
         "paused; press Continue to go on or Abort to stop"
     assert operator_text("use -inf <= x <= 60") == "use x <= 60"
