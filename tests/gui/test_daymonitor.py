@@ -41,6 +41,47 @@ def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     assert not figures["goals_met"]["max_ms"]
 
 
+class _Held:
+    """Stands for a solver's state in a worker's locals (weakly referenceable)."""
+
+
+def test_watchdog_keeps_no_frame_of_a_stall(qapp, wait):
+    """A stall's record keeps names, never frames: a frame kept outlives its function
+    with its locals (a stopped live reconstruction's arrays), and the watchdog's own
+    frame in that record made a cycle that the heap's freeze kept for good."""
+    import threading
+
+    from PySide6.QtCore import QTimer
+
+    from gui.daymonitor import DayMonitor
+    from tests.refcycles import assert_freed_without_the_collector
+
+    probe: list = []
+    release = threading.Event()
+
+    def worker() -> None:
+        held = _Held()
+        probe.append(weakref.ref(held))
+        release.wait(10)
+
+    thread = threading.Thread(target=worker, name="held-worker")
+    thread.start()
+    monitor = DayMonitor(sample_s=0.2)
+    monitor.start()
+    try:
+        QTimer.singleShot(50, lambda: _held_up_in_a_slot(0.4))
+        t0 = time.monotonic()
+        wait(lambda: time.monotonic() - t0 > 0.8, 5, "the stall to be recorded")
+        assert monitor.stalls, "no stall recorded"
+        namespace = {"held": probe[0]()}
+        release.set()
+        thread.join(5)
+        assert_freed_without_the_collector(namespace, "held", "worker's local after a stall")
+    finally:
+        release.set()
+        monitor.stop()
+
+
 def _day(leak_per_pass: int, shown_per_s: int) -> dict:
     """Samples of a five-pass day: each pass shows data (``shown_per_s`` references a
     second, gone when the next pass starts) and keeps ``leak_per_pass``."""
