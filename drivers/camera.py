@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import abc
 import collections
+import copy
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -85,6 +86,20 @@ class Frame:
     exposure_s: float
     gain: float
     saturated_pixels: int
+
+
+def _to_raise(error: BaseException) -> BaseException:
+    """A copy of a producer's stored error, to raise to one reader (the same type,
+    message and cause). Raising an exception gives it a traceback whose frames hold the
+    ring: the stored error would make a reference cycle, and keep the readers' frames,
+    once frozen for good (:func:`gui.workers.settle_heap`). An error that cannot be
+    copied is raised itself."""
+    try:
+        fresh = copy.copy(error)
+    except Exception:  # noqa: BLE001 (an exception type copy cannot rebuild)
+        return error
+    fresh.__cause__, fresh.__suppress_context__ = error.__cause__, True
+    return fresh
 
 
 class FrameRing:
@@ -205,7 +220,7 @@ class FrameRing:
         with self._cond:
             while not self._buf:
                 if self._error is not None:
-                    raise self._error
+                    raise _to_raise(self._error)
                 if budget <= 0:
                     raise CameraTimeoutError(
                         self.device_id,

@@ -161,6 +161,21 @@ def test_frame_ring_reports_producer_errors_after_buffered_frames():
         ring.get(timeout_s=0)
 
 
+def test_a_failed_ring_read_once_is_freed_without_the_collector():
+    """Each reader gets a copy of the stored error: the raised one's traceback holds
+    the ring, and the stored one with it would be a cycle (frozen for good in the GUI)."""
+    from tests.refcycles import assert_freed_without_the_collector
+
+    held = {"ring": FrameRing(4)}
+    held["ring"].fail(DeviceDisconnectedError("cam0", "link lost", "reconnect"))
+    for _ in range(2):
+        with pytest.raises(DeviceDisconnectedError, match="cam0: link lost") as caught:
+            held["ring"].get(timeout_s=0)
+        assert caught.value.device_id == "cam0"
+    del caught
+    assert_freed_without_the_collector(held, "ring", "failed frame ring")
+
+
 def test_frame_ring_wakes_a_waiting_reader():
     ring = FrameRing(2)
     got = []
