@@ -30,7 +30,9 @@ from types import FrameType
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
-__all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage", "rss_mb"]
+from .memory import rss_mb
+
+__all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage"]
 
 TIMER_MS = 10
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
@@ -274,13 +276,6 @@ def frozen_garbage(top: int = 12) -> dict:
             "rss_mb_collected": collected, "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
-def rss_mb() -> float:
-    """Resident memory of this process, MB (Linux ``/proc/self/statm``)."""
-    with open("/proc/self/statm") as f:
-        pages = int(f.read().split()[1])
-    return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
-
-
 class DayMonitor(QObject):
     """Lateness per phase and reference-count / memory samples (module docstring).
 
@@ -448,8 +443,6 @@ class HeapTracker:
     """
 
     def __init__(self) -> None:
-        import os
-
         self.frames = int(os.environ.get("DIFFUSERLAB_TRACEMALLOC", "0") or 0)
         self.first = self.last = None
 

@@ -22,8 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = """
 import sys, threading
 import numpy as np
-from gui.daymonitor import rss_mb
-from gui.memory import configure_allocator, trim_now
+from gui.memory import configure_allocator, rss_mb, trim_now
 mode = sys.argv[1]
 if mode == "configured":
     from gui.memory import MMAP_THRESHOLD_BYTES
@@ -138,9 +137,9 @@ def test_settling_the_heap_collects_old_garbage_before_it_freezes():
 PERIODIC = """
 import sys, time
 import numpy as np
-from gui.daymonitor import rss_mb
-from gui.memory import configure_allocator
-assert configure_allocator(trim_period_s=float(sys.argv[1]))
+from gui.memory import configure_allocator, rss_mb
+period_s, rise_mb = (float(v) for v in sys.argv[1].split(","))
+assert configure_allocator(trim_period_s=period_s, trim_rise_mb=rise_mb)
 base = rss_mb()
 keep, blocks = [], []
 for _ in range(2000):  # 64 KiB blocks, under the mmap threshold, a kept block between
@@ -156,8 +155,15 @@ print(round(rss_mb() - base))
 def test_the_trimming_thread_gives_free_pages_back_unasked():
     """Blocks under the mmap threshold freed between long jobs stay in the holed heap
     until a trim; the trimming thread trims every ``trim_period_s`` without being asked."""
-    assert _run(PERIODIC, "3600") > 100  # the test can see the problem
-    assert _run(PERIODIC, "0.5") < 30
+    assert _run(PERIODIC, "3600,1e6") > 100  # the test can see the problem
+    assert _run(PERIODIC, "0.5,1e6") < 30
+
+
+def test_the_trimming_thread_trims_when_the_resident_memory_rises():
+    """Memory freed by a step stays resident until a trim: the trimming thread trims
+    as soon as the heaps' free memory rose ``trim_rise_mb`` above its lowest since the
+    last trim, without waiting for its period (an hour here)."""
+    assert _run(PERIODIC, "3600,32") < 30
 
 
 HEAP = """
