@@ -233,23 +233,26 @@ def rss_mb() -> float:
     return pages * os.sysconf("SC_PAGE_SIZE") / 1e6
 
 
+def _heap_free_mb() -> float | None:
+    """The heaps' free memory, MB (:func:`heap_mb`); None without mallinfo2."""
+    heap = heap_mb()
+    return None if heap is None else heap["free_mb"]
+
+
 def _trim_when_asked(period_s: float, rise_mb: float) -> None:
     """The trimming thread: trim when asked, when the heaps' free memory rose
     ``rise_mb`` above its lowest since the last trim (memory freed since, resident
     until a trim; looked at every :data:`TRIM_CHECK_S`), and every ``period_s``."""
-    heap = heap_mb()
-    low, last = (None if heap is None else heap["free_mb"]), time.monotonic()
+    low, last = _heap_free_mb(), time.monotonic()
     while True:
         asked = _trim_wanted.wait(min(TRIM_CHECK_S, period_s))
-        heap = heap_mb()  # None where glibc has no mallinfo2: the period alone
-        free = None if heap is None else heap["free_mb"]
+        free = _heap_free_mb()  # None where glibc has no mallinfo2: the period alone
         low = free if low is None or free is None else min(low, free)
-        freed = free is not None and free - low > rise_mb
-        if asked or freed or time.monotonic() - last >= period_s:
+        if asked or (free is not None and free - low > rise_mb) or \
+                time.monotonic() - last >= period_s:
             _trim_wanted.clear()
             trim_now()
-            heap = heap_mb()
-            low, last = (None if heap is None else heap["free_mb"]), time.monotonic()
+            low, last = _heap_free_mb(), time.monotonic()
 
 
 def trim_soon() -> None:
