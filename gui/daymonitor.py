@@ -150,7 +150,7 @@ def array_holders(objects: list | None = None, top: int = 15, *,
               and (attribute or not gc.is_tracked(value))):
             # an attribute's container, or one holding only untracked things (never
             # among the collector's objects): its arrays count for this holder
-            for v in list(value.values() if isinstance(value, dict) else value):
+            for v in _items(value, values=True):
                 add(v, where, depth + 1, attribute)
 
     containers = (dict, list, tuple, set, frozenset)
@@ -165,13 +165,13 @@ def array_holders(objects: list | None = None, top: int = 15, *,
         except Exception:  # noqa: BLE001 (no instance dictionary, whatever the reason)
             attrs = None
         if isinstance(attrs, dict):
-            for k, v in attrs.items():
+            for k, v in _items(attrs):
                 add(v, f"{name}.{k}", attribute=True)
         for r in gc.get_referents(o):
             add(r, name)
     for o in objects:
         if isinstance(o, containers):
-            for r in (o.values() if isinstance(o, dict) else o):
+            for r in _items(o, values=True):
                 add(r, type(o).__name__)
     names = {t.ident: t.name for t in threading.enumerate()}
     for ident, frame in (sys._current_frames() if threads else {}).items():
@@ -188,6 +188,20 @@ def array_holders(objects: list | None = None, top: int = 15, *,
     return {"mb": round(sum(n for _, n in seen.values()) / 2**20, 1), "buffers": len(seen),
             "holders": [{"where": w, "mb": round(n / 2**20, 2), "buffers": c}
                         for w, (n, c) in holders]}
+
+
+def _items(container, values: bool = False) -> list:
+    """A list of a container's items (a dict's ``(key, value)`` pairs, or its values when
+    ``values``), taken while other threads may change it: a change during the copy
+    (``RuntimeError``) retries, and a container changing every time gives ``[]``."""
+    for _ in range(5):
+        try:
+            if isinstance(container, dict):
+                return list(container.values() if values else container.items())
+            return list(container)
+        except RuntimeError:  # changed size during the copy: another thread's doing
+            continue
+    return []
 
 
 def _thread_stacks() -> dict[int, traceback.StackSummary]:
