@@ -13,7 +13,6 @@ per object-grid pixel).
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 
@@ -22,7 +21,7 @@ import numpy as np
 from instrument.output_safety import check_outputs
 from instrument.reconstruct_grid import GRID_PRODUCT, load_psf_grid
 from instrument.runstore import RunStore
-from recon.io import atomic_path
+from recon.io import write_json
 from recon.spatial import local_convolution_operator, ray_traced_pair, two_point_resolution
 
 __all__ = ["microscope_resolution", "resolution_table"]
@@ -113,8 +112,7 @@ def microscope_resolution(runs, *, bench=None, field_mm=None, separations_px=SEP
                  [p["resolution_um"] for p in entry["positions"]])
         results.append(entry)
     if out_json is not None:
-        with atomic_path(out_json) as tmp:  # never half a file under the final name
-            tmp.write_text(json.dumps(results, indent=1))
+        write_json(out_json, results)  # never half a file under the final name
     return results
 
 

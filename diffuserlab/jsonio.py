@@ -14,7 +14,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["json_text", "jsonable"]
+__all__ = ["json_line", "json_text", "jsonable"]
 
 
 def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
@@ -57,13 +57,16 @@ def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
     return obj
 
 
-def json_text(data: Any) -> str:
+def json_text(data: Any, *, default=None) -> str:
     """``data`` as indented, standard JSON text (NaN and infinity become null).
 
     Parameters
     ----------
     data : object
         Anything :func:`jsonable` converts.
+    default : callable, optional
+        What to write for an object JSON has no type for (``str`` for a report that
+        holds, say, an exception); None (default) raises TypeError instead.
 
     Returns
     -------
@@ -86,4 +89,22 @@ def json_text(data: Any) -> str:
      ]
     }
     """
-    return json.dumps(jsonable(data, nonfinite_to_none=True), indent=1, allow_nan=False) + "\n"
+    return json.dumps(jsonable(data, nonfinite_to_none=True), indent=1, allow_nan=False,
+                      default=default) + "\n"
+
+
+def json_line(data: Any) -> str:
+    """``data`` as one line of standard JSON, ending with a newline (a JSON Lines log
+    entry); NaN and infinity become null.
+
+    Raises
+    ------
+    TypeError
+        ``data`` holds an object JSON cannot represent.
+
+    Examples
+    --------
+    >>> json_line({"x": float("nan"), "n": 2})
+    '{"x": null, "n": 2}\\n'
+    """
+    return json.dumps(jsonable(data, nonfinite_to_none=True), allow_nan=False) + "\n"

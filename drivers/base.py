@@ -38,6 +38,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from diffuserlab.jsonio import jsonable
 from drivers.errors import (
     DeviceDisconnectedError,
     DeviceError,
@@ -47,37 +48,7 @@ from drivers.errors import (
 )
 from drivers.settings import Setting
 
-__all__ = ["Device", "jsonable"]
-
-
-def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
-    """Return a copy of ``obj`` made of JSON types (dict, list, str, float, int, bool, None).
-
-    Tuples and arrays become lists, numpy scalars Python scalars, mapping keys strings.
-
-    Parameters
-    ----------
-    obj : object
-        Nested mappings, lists, tuples, numpy arrays and scalars, plain Python values.
-    nonfinite_to_none : bool
-        Replace inf and NaN floats by None, so :func:`json.dumps` writes standard JSON
-        (otherwise they pass through and json writes ``Infinity`` / ``NaN``).
-
-    Returns
-    -------
-    object
-    """
-    if isinstance(obj, Mapping):
-        return {str(k): jsonable(v, nonfinite_to_none=nonfinite_to_none) for k, v in obj.items()}
-    if isinstance(obj, np.ndarray):
-        return jsonable(obj.tolist(), nonfinite_to_none=nonfinite_to_none)
-    if isinstance(obj, list | tuple):
-        return [jsonable(v, nonfinite_to_none=nonfinite_to_none) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if nonfinite_to_none and isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
+__all__ = ["Device"]
 
 
 class Device(abc.ABC):

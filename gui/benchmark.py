@@ -27,7 +27,6 @@ percentile under 50 ms while loaded. Runs on the offscreen platform unless
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import tempfile
@@ -190,8 +189,9 @@ def soak(argv: list[str]) -> int:
     figures = summarise(report)
     print_summary(figures, report)
     if args.json:
-        Path(args.json).write_text(json.dumps({"figures": figures, "report": report},
-                                              indent=1, default=str))
+        from recon.io import write_json
+
+        write_json(args.json, {"figures": figures, "report": report}, default=str)
     return 0 if all(figures["goals_met"].values()) and not figures["failure"] else 1
 
 
@@ -227,7 +227,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{res['sweep_frames_during']} frames taken "
           f"({'still running' if res['sweep_still_running_at_end'] else 'ended'} at the end)")
     if args.json:
-        Path(args.json).write_text(json.dumps(res, indent=1))
+        from recon.io import write_json
+
+        write_json(args.json, res)
     return 0
 
 

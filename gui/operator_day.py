@@ -24,7 +24,6 @@ this, and checks how the process ended.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import socket
@@ -38,6 +37,8 @@ from typing import Any
 
 from PySide6.QtCore import QPoint, QPointF, QTimer
 from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox, QToolButton
+
+from recon.io import write_json
 
 from .daymonitor import DayMonitor, HeapTracker, census
 from .xinput import XInput, centre
@@ -668,7 +669,7 @@ class Operator:
             from .daymonitor import frozen_garbage
 
             report["frozen_garbage"] = frozen_garbage()
-        Path(self.o.report).write_text(json.dumps(report, indent=1, default=str))
+        write_json(self.o.report, report, default=str)
         if quit:  # Ctrl+Q, then Yes in the question: the recording is finished first
             self.x.click(self.w.live.raw_view.glw)
             self.x.key("ctrl+q")

@@ -24,7 +24,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from diffuserlab.errors import DiffuserLabError
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 from drivers.errors import DeviceError
 
 from .bench_setup import OpenBench, open_bench

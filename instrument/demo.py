@@ -19,7 +19,6 @@ PSFs cost the convolution model.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
@@ -28,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from recon import reconstruct
-from recon.io import DATA_ORIENTATION, atomic_path, save_image, scene_view
+from recon.io import DATA_ORIENTATION, save_image, scene_view, write_json
 from recon.metrics import psnr, register_truth, ssim
 from recon.spatial import PsfGrid
 from recon.spatial.brightness import correct_brightness, node_brightness
@@ -187,7 +186,6 @@ def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 4
         "timings_s": timings,
         "total_s": time.perf_counter() - t0,
     }
-    with atomic_path(out / "report.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1, default=float))
+    write_json(out / "report.json", report)
     step(f"wrote {out} (PSNR {score['psnr_db']:.2f} dB, SSIM {score['ssim']:.3f})", t)
     return report

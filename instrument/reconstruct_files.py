@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.errors import InputError
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 from recon.io import write_json
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 
 __all__ = ["GRID_PRODUCT", "background_output", "load_psf_grid", "run_recon_grid"]
 

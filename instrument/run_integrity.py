@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.errors import InputError
+from diffuserlab.jsonio import json_text
 
 __all__ = ["LOCK_NAME", "VERIFY_BLOCK_BYTES", "DamagedFrameError", "RunStoreError",
            "damaged_frames", "frame_crc", "lock_problem", "pid_alive",
@@ -125,7 +126,7 @@ def write_lock(path: Path, record: dict) -> bool:
     except FileExistsError:
         return False
     with os.fdopen(fd, "w") as fh:
-        json.dump(record, fh)
+        fh.write(json_text(record))  # created exclusively: no atomic rename here
     return True
 
 

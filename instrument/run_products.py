@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 
 from .run_integrity import RunStoreError, product_crcs
 

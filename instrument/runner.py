@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from diffuserlab.errors import DiffuserLabError
-from drivers.base import jsonable
+from diffuserlab.jsonio import jsonable
 from drivers.errors import DeviceDisconnectedError, DeviceError, DeviceTimeoutError
 
 from .acquisition import ExposureError, autoexpose

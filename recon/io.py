@@ -475,7 +475,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
-def write_json(path: str | os.PathLike, data) -> Path:
+def write_json(path: str | os.PathLike, data, *, default=None) -> Path:
     """Write ``data`` as indented, standard JSON (:func:`diffuserlab.jsonio.json_text`)
     through :func:`atomic_path`: whole or not at all, and with the other outputs of an
     :func:`output_group`.
@@ -487,6 +487,9 @@ def write_json(path: str | os.PathLike, data) -> Path:
     data : object
         Anything :func:`diffuserlab.jsonio.jsonable` converts; NaN and infinity
         become null.
+    default : callable, optional
+        What to write for an object JSON has no type for (``str``); None (default)
+        raises TypeError.
 
     Returns
     -------
@@ -510,7 +513,7 @@ def write_json(path: str | os.PathLike, data) -> Path:
     """
     from diffuserlab.jsonio import json_text
 
-    text = json_text(data)  # before the file is touched: a TypeError leaves no trace
+    text = json_text(data, default=default)  # before the file: a TypeError leaves no trace
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.base import jsonable
+from diffuserlab.jsonio import json_line
 from instrument.plan import PlanError
-from recon.io import atomic_path
+from recon.io import atomic_path, write_json
 
 __all__ = ["AlignmentRecord", "corrected_mask", "load_alignment", "section_bounds"]
 
@@ -127,7 +127,7 @@ class AlignmentRecord:
         """Append one capture entry, written through to the file, whole or not at all:
         a write the system refuses midway (a full disk, a file-size limit) is cut back
         to the previous line, and the ``OSError`` propagates."""
-        line = (json.dumps(jsonable(entry, nonfinite_to_none=True)) + "\n").encode("utf-8")
+        line = json_line(entry).encode("utf-8")
         end = self._log.seek(0, os.SEEK_END)
         try:
             written = 0
@@ -142,9 +142,7 @@ class AlignmentRecord:
     def save(self) -> None:
         """Write ``alignment.json`` atomically (:func:`recon.io.atomic_path`: no
         temporary file is left when the write fails, e.g. on a full disk)."""
-        text = json.dumps(jsonable(self.state, nonfinite_to_none=True), indent=1)
-        with atomic_path(self.path / "alignment.json") as tmp:
-            tmp.write_text(text)
+        write_json(self.path / "alignment.json", self.state)
 
     def save_mask(self, mask: np.ndarray, seam_weight: np.ndarray) -> None:
         """Write the corrected mask and its seam weight, each whole or not at all."""

@@ -36,7 +36,6 @@ one line.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 from pathlib import Path
@@ -514,7 +513,7 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
     ValueError
         Missing or invalid options.
     """
-    from recon.io import atomic_path
+    from recon.io import atomic_path, write_json
 
     from ..output_safety import check_outputs
 
@@ -529,8 +528,7 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
         fig.savefig(tmp, dpi=100)
     result = jsonable({**result, "output_png": str(png), "output_json": str(js)},
                       nonfinite_to_none=True)
-    with atomic_path(js) as tmp:
-        tmp.write_text(json.dumps(result, indent=1))
+    write_json(js, result)
     log.debug("analyze %s: wrote %s and %s", args.analysis, png, js)
     return result, [*lines, f"wrote {png} and {js}"]
 

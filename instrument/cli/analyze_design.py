@@ -16,12 +16,10 @@ with the range over the field positions, as Fig. 6.4a, and the on-axis PSF) and
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 
 from diffuserlab.errors import InputError
-from diffuserlab.jsonio import jsonable
 
 from .common import floats
 
@@ -117,7 +115,7 @@ def run_design(args: argparse.Namespace) -> int:
     """Run ``analyze design``: write ``OUT/design.png`` and ``OUT/design.json``, print a
     line per depth; returns 0 (bad input: one line, exit 2, through the boundary)."""
     from recon.analysis.design import design_resolution
-    from recon.io import atomic_path
+    from recon.io import atomic_path, write_json
 
     from ..output_safety import check_outputs
 
@@ -134,8 +132,7 @@ def run_design(args: argparse.Namespace) -> int:
               "pitch_um": args.pitch_um, "sensor_px": args.sensor_px,
               "wavelength_nm": args.wavelength_nm, "falloff_deg": args.falloff_deg,
               "seed": args.seed, **result, "output_png": str(png), "output_json": str(js)}
-    with atomic_path(js) as tmp:
-        tmp.write_text(json.dumps(jsonable(record, nonfinite_to_none=True), indent=1))
+    write_json(js, record)
     for d in result["depths"]:
         s = d["summary"]
         print(f"z = {d['z_mm']:.3g} mm: lateral {s['lateral_um']['mean']:.1f} um "

@@ -134,7 +134,7 @@ def run_recon_benchmarks(args: argparse.Namespace) -> int:
 
 def run_gpu_benchmark(args: argparse.Namespace) -> int:
     """Run ``benchmark gpu`` (:func:`recon.benchmarks.gpu.run_gpu_benchmark`); returns 0."""
-    from drivers.base import jsonable
+    from diffuserlab.jsonio import jsonable
     from recon.benchmarks.gpu import run_gpu_benchmark as run
     from recon.errors import ReconInputError
 
@@ -160,7 +160,7 @@ def run_gpu_benchmark(args: argparse.Namespace) -> int:
 
 def run_live_benchmark(args: argparse.Namespace) -> int:
     """Run ``benchmark live``; returns 0 (bad input exits 2 through the boundary)."""
-    from drivers.base import jsonable
+    from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
     from recon.fft import check_threads
 
@@ -188,7 +188,7 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
 
 def run_recording_benchmark(args: argparse.Namespace) -> int:
     """Run ``benchmark recording``; returns 0 (bad input exits 2 through the boundary)."""
-    from drivers.base import jsonable
+    from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
     from ..acquisition_benchmarks import recording_table
@@ -220,7 +220,7 @@ def run_recording_benchmark(args: argparse.Namespace) -> int:
 
 def run_batch_benchmark(args: argparse.Namespace) -> int:
     """Run ``benchmark batch``; returns 0 (bad input exits 2 through the boundary)."""
-    from drivers.base import jsonable
+    from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
     from ..acquisition_benchmarks import batch_table

@@ -13,7 +13,6 @@ before anything is read or written.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 __all__ = ["EVALUATION_FILES", "add_subcommands", "run_benchmark", "run_evaluate"]
@@ -215,8 +214,7 @@ def run_benchmark(args: argparse.Namespace) -> int:
     rep = time_hologram(slm, k, iters, args.loss, reps, backend)
     print(format_report(rep, args.factor, reps, iters))
     if args.json:
-        from recon.io import atomic_path
+        from recon.io import write_json
 
-        with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps(rep, indent=1))
+        write_json(args.json, rep)
     return 0

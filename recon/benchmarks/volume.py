@@ -20,7 +20,6 @@ everything, interpreter and numba included); the budget is 4 GB
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import resource
 import tracemalloc
@@ -28,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+
+from ..io import write_json
 
 GOAL = 2.5
 SIZES_FULL = ((256, 256, 16), (512, 512, 64))
@@ -182,7 +183,7 @@ def run_volume_speed(quick: bool = False, out: Path | None = None) -> dict:
               "sizes": results, "memory": memory}
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
-        (Path(out) / "volume_speed.json").write_text(json.dumps(result, indent=1))
+        write_json(Path(out) / "volume_speed.json", result)
     return result
 
 

@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drivers.base import Device, jsonable
+from diffuserlab.jsonio import jsonable
+from drivers.base import Device
 from drivers.camera import Frame, FrameRing
 from drivers.errors import (
     CameraTimeoutError,
