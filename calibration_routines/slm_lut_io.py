@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from diffuserlab.errors import InputError
 from instrument.acquisition import autoexpose, average_frames
 from instrument.plan import CheckFailed, PlanError
 from instrument.runstore import RunStore
@@ -230,7 +231,7 @@ def apply_lut(slm, source, *, tolerance_nm: float = 1.0) -> SlmLut:
 
     Raises
     ------
-    ValueError
+    diffuserlab.errors.InputError
         The LUT was measured at a wavelength more than ``tolerance_nm`` from the SLM's
         ``wavelength_nm`` (calibrate at that wavelength, or pass a larger tolerance).
     drivers.errors.DeviceValueError
@@ -238,7 +239,7 @@ def apply_lut(slm, source, *, tolerance_nm: float = 1.0) -> SlmLut:
     """
     lut = source if isinstance(source, SlmLut) else load_lut(source)
     if abs(lut.wavelength_nm - slm.wavelength_nm) > tolerance_nm:
-        raise ValueError(f"the LUT in {lut.source} is for {lut.wavelength_nm:g} nm but the SLM "
+        raise InputError(f"the LUT in {lut.source} is for {lut.wavelength_nm:g} nm but the SLM "
                          f"{slm.device_id!r} runs at {slm.wavelength_nm:g} nm; calibrate at "
                          "that wavelength (diffuserlab calibrate slm-lut) or raise tolerance_nm")
     slm.lut_rad = lut.lut_rad

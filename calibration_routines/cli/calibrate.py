@@ -7,8 +7,11 @@ operator's actions itself, built from the bench file or, without one, from the
 built-in simulated bench; otherwise the real devices, and the operator is asked
 at each prompt), runs the plan into a run store with a progress bar and ETA, and
 prints the result. Ctrl-C aborts cleanly (LEDs off, stages stopped, data kept) and
-prints the command that resumes the run; exit status 0 done, 1 failed, 2 bad
-input, 130 interrupted.
+prints the command that resumes the run; exit status 0 done, 1 failed, 130
+interrupted; every error reaches the command line's one boundary
+(:func:`instrument.cli.main`), as in every other command: bad input (an InputError, a
+bench file's problems, a device that cannot be opened) 2, a device failing 1, and
+any other exception is a bug, not bad input.
 
 ``slm-lut --apply`` also loads the fitted LUT onto the SLM at the end and prints a
 blazed grating's first-order efficiency with the previous and the new LUT (mask
@@ -236,64 +239,42 @@ def run(args: argparse.Namespace) -> int:
     """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
     from calibration_routines import register_plans
     from diffuserlab.errors import InputError
-    from drivers.errors import DeviceError
-    from instrument.cli.common import MissingBenchFile
     from instrument.cli.runs import format_summary
-    from instrument.config import BenchConfigError
-    from instrument.output_safety import OutputError, check_outputs
-    from instrument.plan import PlanError
+    from instrument.output_safety import check_outputs
     from instrument.runner import Runner
     from instrument.runstore import RunStore, RunStoreError, is_run_store
     from instrument.runstore_records import video_cannot_continue
 
     if not 0 <= args.reconnect_timeout_s < float("inf"):  # NaN fails; every wait ends
-        print(f"diffuserlab: error: --reconnect-timeout {args.reconnect_timeout_s}: give the "
-              "seconds to keep reconnecting a device, finite and >= 0", file=sys.stderr)
-        return 2
+        raise InputError(f"--reconnect-timeout {args.reconnect_timeout_s}: give the seconds "
+                         "to keep reconnecting a device, finite and >= 0")
     out = None
     if args.routine != "resume":  # outputs and input runs checked before the bench opens
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
         out = Path(args.out or f"out/runs/{args.routine}-{stamp}.zarr")
         if args.overwrite and out.exists() and not is_run_store(out):
-            print(f"diffuserlab: error: not replacing {out}: it is not a diffuserlab run store "
-                  "(--overwrite only replaces a run); choose another --out or remove it "
-                  "yourself", file=sys.stderr)
-            return 2
-        try:
-            check_outputs([out], {"--falloff-run": getattr(args, "falloff_run", None)},
-                          args.overwrite, store=True)
-            if getattr(args, "falloff_run", None):
-                args.falloff_sigma_deg = _falloff_sigma_deg(args.falloff_run)
-            PARAMETERS[args.routine].from_namespace(args)  # limits, before the bench opens
-        except (PlanError, RunStoreError, OutputError, InputError) as exc:
-            print(f"diffuserlab: error: {exc}", file=sys.stderr)
-            return 2
+            raise InputError(f"not replacing {out}: it is not a diffuserlab run store "
+                             "(--overwrite only replaces a run); choose another --out or "
+                             "remove it yourself")
+        check_outputs([out], {"--falloff-run": getattr(args, "falloff_run", None)},
+                      args.overwrite, store=True)
+        if getattr(args, "falloff_run", None):
+            args.falloff_sigma_deg = _falloff_sigma_deg(args.falloff_run)
+        PARAMETERS[args.routine].from_namespace(args)  # limits, before the bench opens
     else:  # a recording is never continued: said before the bench opens
         try:
             why = video_cannot_continue(RunStore.open(args.run))
         except (RunStoreError, OSError):
             why = None  # the resume itself reports an unreadable run
         if why is not None:
-            print(f"diffuserlab: error: {why}", file=sys.stderr)
-            return 2
+            raise InputError(why)
     if not getattr(args, "verbose", False):  # device chatter would break the progress bar
         logging.getLogger("drivers").setLevel(logging.WARNING)
         logging.getLogger("instrument").setLevel(logging.WARNING)
-    try:
-        bench = make_bench(args, f"calibrate {args.routine}")
-        if args.simulate:
-            bench.open()
-            _bead_slide(bench, args)
-    except MissingBenchFile as exc:
-        print(f"diffuserlab: error: {exc}", file=sys.stderr)
-        return 2
-    except BenchConfigError as exc:
-        for line in exc.lines():
-            print(f"diffuserlab: error: {line}", file=sys.stderr)
-        return 2
-    except DeviceError as exc:
-        print(f"diffuserlab: error: {exc}", file=sys.stderr)
-        return 1
+    bench = make_bench(args, f"calibrate {args.routine}")  # errors: the CLI's boundary
+    if args.simulate:
+        bench.open()
+        _bead_slide(bench, args)
     applied = True  # slm-lut --apply: False if loading the LUT onto the SLM failed
     bars = None
     try:
@@ -306,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
                 try:
                     redo = [int(v) for v in args.redo.split(",") if v.strip()]
                 except ValueError:
-                    raise ValueError(f"--redo {args.redo!r}: give point numbers separated "
+                    raise InputError(f"--redo {args.redo!r}: give point numbers separated "
                                      "by commas, e.g. --redo 3,7") from None
                 register_plans()  # the run's plan is rebuilt from its recorded name
                 result = runner.resume(args.run, redo=redo,
@@ -321,11 +302,6 @@ def run(args: argparse.Namespace) -> int:
                                                overwrite=args.overwrite)
                 if getattr(args, "apply", False) and result.status == "complete":
                     applied = _apply_lut(bench, plan, result.path)
-    except (PlanError, RunStoreError, ValueError) as exc:
-        if bars is not None:
-            bars.close()
-        print(f"diffuserlab: error: {exc}", file=sys.stderr)
-        return 2
     finally:
         if bars is not None:
             bars.close()
