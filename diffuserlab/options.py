@@ -1,15 +1,19 @@
 """Typed parameter models from which command-line options and GUI forms are generated.
 
-A command's parameters are one pydantic model (a subclass of :class:`Options`), each
-field declared with :func:`option` (help, unit, limits, the command-line flag). From
-the model come:
+Layer 0, so every layer declares its parameters with it: the calibration routines'
+(:mod:`calibration_routines.parameters`) and the reconstruction's
+(:class:`recon.options.ReconOptions`). A command's parameters are one pydantic
+model (a subclass of :class:`Options`), each field declared with :func:`option`
+(help, unit, limits, the command-line flag). From the model come:
 
 - the ``argparse`` options (:meth:`Options.add_arguments`: flag, type, default,
   choices, required, help with the unit, the limits and the default);
 - a form's fields (:meth:`Options.specs`: one :class:`OptionSpec` per field);
-- the validated value from a parsed command line (:meth:`Options.from_namespace`) or
-  from a form's texts (:meth:`Options.from_text`), a bad value raising
-  :class:`diffuserlab.errors.InputError` that names the option and its limits;
+- the validated value from a parsed command line (:meth:`Options.from_namespace`),
+  from a form's texts (:meth:`Options.from_text`) or from a Python call's keywords
+  (:meth:`Options.validated` with ``front="python"``), a bad value raising
+  :class:`diffuserlab.errors.InputError` that names the option as that front end
+  spells it (``--tv`` on the command line, ``tv=`` in Python) and its limits;
 - documentation tables (:meth:`Options.markdown`).
 
 The declarations import nothing heavy (a command's parser and ``--help`` are built
@@ -31,7 +35,9 @@ __all__ = ["OptionSpec", "Options", "option"]
 
 
 def option(default: Any = ..., *, help: str, unit: str = "", flag: str | None = None,
-           default_text: str = "", **limits: Any) -> Any:
+           default_text: str = "", parse: Any = None, metavar: str | None = None,
+           kinds: tuple[str, ...] = (), methods: tuple[str, ...] = (), label: str = "",
+           **limits: Any) -> Any:
     """A field of an :class:`Options` model.
 
     Parameters
@@ -48,13 +54,26 @@ def option(default: Any = ..., *, help: str, unit: str = "", flag: str | None = 
         (``z_min_mm`` -> ``--z-min-mm``).
     default_text : str
         What a None default means (``"the camera's current one"``).
+    parse : callable, optional
+        Text to value, for a value that is more than a number or a name (``"auto"`` or
+        a number, a dark run): the command line's ``type`` and a form's conversion;
+        it raises ValueError or ``argparse.ArgumentTypeError`` on bad text.
+    metavar : str, optional
+        The value's name in ``--help`` (``auto|none|DN|DARK_RUN``).
+    kinds, methods : tuple of str
+        Who uses the value (the reconstruction's model kinds and methods); empty:
+        every one.
+    label : str
+        A short name of the value for messages (``"TV weight"``); default ``help``.
     **limits
-        pydantic's ``gt``, ``ge``, ``lt``, ``le``.
+        pydantic's ``gt``, ``ge``, ``lt``, ``le`` and ``allow_inf_nan``.
     """
-    unknown = set(limits) - {"gt", "ge", "lt", "le"}
+    unknown = set(limits) - {"gt", "ge", "lt", "le", "allow_inf_nan"}
     if unknown:
-        raise TypeError(f"option() takes the limits gt, ge, lt, le, not {sorted(unknown)}")
-    return _Option(default, help, unit, flag, default_text, limits)
+        raise TypeError("option() takes the limits gt, ge, lt, le, allow_inf_nan, not "
+                        f"{sorted(unknown)}")
+    return _Option(default, help, unit, flag, default_text, limits, parse, metavar,
+                   tuple(kinds), tuple(methods), label)
 
 
 @dataclass(frozen=True)
@@ -67,6 +86,11 @@ class _Option:
     flag: str | None
     default_text: str
     limits: dict
+    parse: Any = None
+    metavar: str | None = None
+    kinds: tuple[str, ...] = ()
+    methods: tuple[str, ...] = ()
+    label: str = ""
 
 
 def _num(v: Any) -> str:
@@ -100,6 +124,13 @@ class OptionSpec:
         What a None default means.
     nargs : int or None
         The number of values of a tuple option (``--sim-translation-px TX TY``).
+    parse : callable or None
+        Text to value where it is more than ``type`` (:func:`option`).
+    metavar : str or None
+    kinds, methods : tuple of str
+        Who uses the value (empty: every one).
+    label : str
+        A short name for messages (default: the description).
     """
 
     dest: str
@@ -113,6 +144,23 @@ class OptionSpec:
     limits: str
     default_text: str = ""
     nargs: int | None = None
+    parse: Any = None
+    metavar: str | None = None
+    kinds: tuple[str, ...] = ()
+    methods: tuple[str, ...] = ()
+    label: str = ""
+
+    @property
+    def kind_text(self) -> str:
+        """What a value is, in words: ``"a whole number"``, ``"a number or auto"``."""
+        kind = {int: "a whole number", float: "a number"}.get(self.type, "text")
+        return kind + "".join(f" or {c}" for c in self.choices or ()
+                              ) if self.type is not str else kind
+
+    def name(self, front: str = "cli") -> str:
+        """The option as a front end spells it: ``--bin`` (``"cli"``) or
+        ``bin_factor=`` (``"python"``)."""
+        return self.flag if front == "cli" else f"{self.dest}="
 
     @property
     def is_flag(self) -> bool:
@@ -134,7 +182,12 @@ class OptionSpec:
         return text
 
 
+#: pydantic's error types of a value outside its limits.
+_LIMIT_ERRORS = ("greater_than", "greater_than_equal", "less_than", "less_than_equal")
+
+
 def _limits_text(limits: Mapping[str, Any]) -> str:
+    limits = {k: v for k, v in limits.items() if k != "allow_inf_nan"}
     low_open, high_open = "gt" in limits, "lt" in limits
     low = limits.get("gt", limits.get("ge"))
     high = limits.get("lt", limits.get("le"))
@@ -148,9 +201,27 @@ def _limits_text(limits: Mapping[str, Any]) -> str:
             f"{' (excl.)' if high_open else ''}")
 
 
+def _field(pydantic, kind: Any, opt: _Option) -> tuple[Any, Any]:
+    """A pydantic field of a declaration: a union's numeric member (``float`` of
+    ``float | Literal["auto"]``) carries the limits, the other members none."""
+    members = typing.get_args(kind)
+    if opt.limits and typing.get_origin(kind) in (typing.Union, types.UnionType) and any(
+            m in (int, float) for m in members):
+        kind = typing.Union[tuple(  # noqa: UP007 (members built at run time)
+            typing.Annotated[m, pydantic.Field(**opt.limits)] if m in (int, float) else m
+            for m in members)]
+        return kind, pydantic.Field(opt.default, description=opt.help)
+    return kind, pydantic.Field(opt.default, description=opt.help, **opt.limits)
+
+
 def _base_type(annotation: Any) -> tuple[type, tuple[str, ...] | None, int | None]:
     args = [a for a in typing.get_args(annotation) if a is not type(None)]
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        names = tuple(str(c) for a in args if typing.get_origin(a) is Literal
+                      for c in typing.get_args(a))
+        others = [a for a in args if typing.get_origin(a) is not Literal]
+        if names and others:  # a number or a name: tv is a weight or "auto"
+            return others[0], names, None
         annotation = args[0]
     if typing.get_origin(annotation) is Literal:
         return str, tuple(str(c) for c in typing.get_args(annotation)), None
@@ -212,9 +283,8 @@ class Options:
         if cls.__dict__.get("_pydantic") is None:
             import pydantic
 
-            fields = {name: (kind, pydantic.Field(opt.default, description=opt.help,
-                                                  **opt.limits))
-                      for name, (kind, opt) in cls._fields.items()}
+            fields = {name: _field(pydantic, kind, opt) for name, (kind, opt)
+                      in cls._fields.items()}
             cls._pydantic = pydantic.create_model(
                 f"{cls.__name__}Model", __config__=pydantic.ConfigDict(extra="forbid"),
                 **fields)
@@ -235,7 +305,8 @@ class Options:
             required = opt.default is ...
             out.append(OptionSpec(name, flag, kind, opt.default, required, choices, opt.unit,
                                   opt.help, _limits_text(opt.limits), opt.default_text,
-                                  nargs))
+                                  nargs, opt.parse, opt.metavar, opt.kinds, opt.methods,
+                                  opt.label))
         return out
 
     @classmethod
@@ -244,7 +315,9 @@ class Options:
         return next(s for s in cls.specs() if s.dest == name)
 
     @classmethod
-    def add_arguments(cls, parser, containers: Mapping[str, Any] | None = None) -> None:
+    def add_arguments(cls, parser, containers: Mapping[str, Any] | None = None, *,
+                      fields: tuple[str, ...] | None = None,
+                      overrides: Mapping[str, Mapping[str, Any]] | None = None) -> None:
         """Add one ``argparse`` option per field to ``parser``.
 
         Parameters
@@ -253,15 +326,29 @@ class Options:
         containers : Mapping, optional
             ``{field: group}``: add that field's option to another container (a
             mutually exclusive group) instead.
+        fields : tuple of str, optional
+            Only these fields, in this order (a command that takes some of them).
+        overrides : Mapping, optional
+            ``{field: {argparse keyword: value}}``: what one command says or accepts
+            differently (a narrower ``choices``, a ``help`` naming its own
+            behaviour); the default stays the declared one.
         """
-        for s in cls.specs():
+        specs = {s.dest: s for s in cls.specs()}
+        for name in fields or tuple(specs):
+            s = specs[name]
             target = (containers or {}).get(s.dest, parser)
+            extra = dict((overrides or {}).get(s.dest, {}))
+            text = s.help.replace("%", "%%")  # argparse formats help with %
             if s.is_flag:
-                target.add_argument(s.flag, action="store_true", dest=s.dest, help=s.help)
+                target.add_argument(s.flag, action="store_true", dest=s.dest,
+                                    help=extra.get("help", text))
                 continue
-            kw: dict[str, Any] = {"dest": s.dest, "help": s.help,
-                                  "type": s.type if s.type in (int, float) else str}
-            if s.choices:
+            kw: dict[str, Any] = {"dest": s.dest, "help": text,
+                                  "type": s.parse or (s.type if s.type in (int, float)
+                                                      else str)}
+            if s.metavar:
+                kw["metavar"] = s.metavar
+            if s.choices and s.type is str:
                 kw["choices"] = s.choices
             if s.nargs:
                 kw["nargs"] = s.nargs
@@ -269,11 +356,19 @@ class Options:
                 kw["required"] = True
             else:
                 kw["default"] = s.default
+            kw.update(extra)
             target.add_argument(s.flag, **kw)
 
     @classmethod
-    def validated(cls, data: Mapping[str, Any]):
+    def validated(cls, data: Mapping[str, Any], *, front: str = "cli"):
         """The model of ``data`` (``{field: value}``).
+
+        Parameters
+        ----------
+        data : Mapping
+        front : {"cli", "python"}
+            How a message names the option: its flag (``--tv``) or its keyword
+            (``tv=``).
 
         Raises
         ------
@@ -286,26 +381,36 @@ class Options:
         try:
             model = cls._model().model_validate(dict(data))
         except pydantic.ValidationError as exc:
-            raise InputError(cls._message(exc.errors()[0])) from None
-        return cls(**model.model_dump())
+            raise InputError(cls._message(exc.errors()[0], front)) from None
+        values = dict(model)
+        for name, value in data.items():  # a parsed value keeps its own type (DarkOption)
+            if name in cls._fields and cls._fields[name][1].parse is not None:
+                values[name] = value
+        return cls(**values)
 
     @classmethod
-    def _message(cls, err: Mapping[str, Any]) -> str:
+    def _message(cls, err: Mapping[str, Any], front: str = "cli") -> str:
         name = str(err["loc"][0]) if err.get("loc") else ""
         if name not in cls._fields:
             return f"{cls.command}: {err.get('msg')}"
         s = cls.spec(name)
-        what = s.description + (f" in {s.unit}" if s.unit else "")
+        flag = s.name(front)
+        what = (s.label or s.description) + (f" in {s.unit}" if s.unit not in ("",
+                                                                             "unitless")
+                                             else "")
         if err["type"] == "missing":
-            return f"give {s.flag} ({what})"
-        if s.choices:
-            return f"{s.flag} {err.get('input')!r}: use one of {', '.join(s.choices)}"
+            return f"give {flag} ({what})"
         value = err.get("input")
-        kind = "a whole number" if s.type is int else "a number" if s.type is float else "text"
-        if s.limits:
-            return (f"{s.flag} {value!r} is outside its limits: {what} must be {s.limits}"
-                    f" {s.unit}").rstrip()
-        return f"{s.flag} {value!r}: give {kind} ({what})"
+        given = f"{flag}{value!r}" if front == "python" else f"{flag} {value!r}"
+        if s.choices and s.type is str:
+            return f"{given}: use one of {', '.join(s.choices)}"
+        if err["type"] == "finite_number":
+            return f"{given}: give a finite number ({what})"
+        if s.limits and err["type"] in _LIMIT_ERRORS:
+            unit = "" if s.unit == "unitless" else s.unit
+            return (f"{given} is outside its limits: {what} must be {s.limits}"
+                    f" {unit}").rstrip()
+        return f"{given}: give {s.kind_text} ({what})"
 
     @classmethod
     def from_namespace(cls, args: argparse.Namespace):
@@ -338,7 +443,14 @@ class Options:
             text = "" if value is None else str(value).strip()
             if not text:
                 continue
-            if s.type in (int, float):
+            if s.parse is not None:
+                try:
+                    data[s.dest] = s.parse(text)
+                except (ValueError, TypeError, argparse.ArgumentTypeError) as exc:
+                    why = (f"is not {s.kind_text}" if s.type in (int, float)
+                           else f"is refused: {exc}")
+                    raise InputError(f"{s.flag}: {text!r} {why}") from None
+            elif s.type in (int, float):
                 parts = text.replace(",", " ").split() if s.nargs else [text]
                 what = "a whole number" if s.type is int else "a number"
                 if s.nargs and len(parts) != s.nargs:
@@ -353,17 +465,33 @@ class Options:
         return cls.validated(data)
 
     @classmethod
+    def bounds(cls, name: str) -> dict[str, Any]:
+        """The declared limits of field ``name`` (``{"ge": 1, "le": 50}``), for a form's
+        spin box."""
+        return dict(cls._fields[name][1].limits)
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """``{field: declared default}`` (the very objects the declarations hold)."""
+        return {name: opt.default for name, (_, opt) in cls._fields.items()}
+
+    @classmethod
     def markdown(cls) -> str:
         """A Markdown table of the options (option, type, unit, limits, default, what)."""
-        rows = ["| option | type | unit | limits | default | description |",
-                "|---|---|---|---|---|---|"]
+        used = any(s.kinds or s.methods for s in cls.specs())
+        rows = ["| option | type | unit | limits | default | description |"
+                + (" used by |" if used else ""),
+                "|---|---|---|---|---|---|" + ("---|" if used else "")]
         for s in cls.specs():
-            kind = "flag" if s.is_flag else ("one of " + ", ".join(s.choices)
-                                             if s.choices else s.type.__name__)
+            kind = ("flag" if s.is_flag else "one of " + ", ".join(s.choices)
+                    if s.choices and s.type is str else
+                    " or ".join((s.type.__name__, *(s.choices or ()))))
             if s.nargs:
                 kind += f" x {s.nargs}"
             default = ("required" if s.required else "off" if s.is_flag else
                        (s.default_text or "-") if s.default is None else _num(s.default))
             cells = [f"`{s.flag}`", kind, s.unit, s.limits, default, s.description]
+            if used:
+                cells.append(", ".join((*s.kinds, *s.methods)) or "all")
             rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
         return "\n".join(rows)

@@ -79,7 +79,8 @@ def test_the_option_module_imports_only_the_standard_library():
     code = ("import sys; before = set(sys.modules); import recon.options; "
             "print(sorted(m for m in set(sys.modules) - before "
             "if m.partition('.')[0] not in sys.stdlib_module_names))")
-    assert _run(code).strip() == "['diffuserlab', 'diffuserlab.lazy', 'recon', 'recon.options']"
+    assert _run(code).strip() == ("['diffuserlab', 'diffuserlab.errors', 'diffuserlab.lazy', "
+                                  "'diffuserlab.options', 'recon', 'recon.options']")
 
 
 def test_the_calibration_package_loads_its_plans_on_demand():
