@@ -46,9 +46,11 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
     method, iterations
         ``"wiener"`` or ``"admm"`` with ``iterations`` warm-started iterations per frame.
     dark : str
-        The frames' dark level: ``""`` (the simulated camera's offset on the virtual
-        bench; estimated from the PSF's corner for a plain image), a number in DN, or
-        a ``calibrate dark`` run (its ``dark_mean``).
+        The frames' dark level, as ``--dark`` (one meaning,
+        :func:`instrument.reconstruct_files.resolve_dark`): ``""`` for auto (a plain
+        PSF image: its dark corner; a calibration run's PSF: the simulated camera's
+        offset on the virtual bench, else refused), ``none``, a number in DN, or a
+        ``calibrate dark`` run or dark image.
     threads : int, optional
         Threads of the reconstruction (default 1, leaving a core to the GUI and a
         recorder).
@@ -73,7 +75,8 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         missing) or a GPU without the memory the live reconstruction needs.
     """
     from instrument.live import LiveReconstruction
-    from instrument.reconstruct_files import dark_level, load_psf
+    from instrument.reconstruct_files import load_psf, resolve_dark
+    from instrument.stacks import dark_subtracted
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
 
@@ -83,28 +86,19 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         raise InputError("give the PSF: an image, a PSF stack or a calibration run (PSF "
                          "sweep); Browse... picks one")
     psf, depth = load_psf(psf_path, depth_mm)
-    stacked = depth is not None or Path(psf_path).is_dir()
     cam = session.bench.camera
     if tuple(cam.image_shape) != tuple(psf.shape):
         raise ReconInputError(
             f"the PSF {psf_path} is {psf.shape[0]}x{psf.shape[1]} but the camera delivers "
             f"{cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate the PSF with the "
             "camera's current ROI and binning")
-    level: Any = None
-    text = dark.strip()
-    if not text:
-        if hasattr(cam, "dark_offset_dn"):
-            level = float(cam.dark_offset_dn)
-        elif stacked:
-            raise ReconInputError(
-                f"{psf_path} is a calibrated (dark-subtracted) PSF stack: give the frames' "
-                "dark level in DN or a dark run (calibrate dark)")
-    else:
-        level = dark_level(text, "dark")
-    if level is not None and stacked:  # the stack's PSF is dark-subtracted already
-        psf = psf + level
-    live = LiveReconstruction(LiveReconstructor(psf, dark="auto" if level is None else level,
-                                                device=device),
+    from recon.options import ReconOptions
+
+    psf, level = resolve_dark(  # one meaning of an empty (auto) dark field, as the CLI's
+        dark.strip() or ReconOptions.defaults()["dark"], psf,
+        calibrated=dark_subtracted(psf_path), recorded=getattr(cam, "dark_offset_dn", None),
+        what=psf_path)
+    live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),
                               method=method, iterations=iterations, threads=threads,
                               nice=BACKGROUND_NICE)
     return live, depth
@@ -370,57 +364,42 @@ def record(job, session, out: str, stop, *, frames: int | None, seconds: float |
                             **options, **attrs)
 
 
-def _recon_run_args(add_subcommands, run: str, options: dict[str, str]) -> argparse.Namespace:
-    """``recon-run``'s options from the form's ``{flag: text}``: each converted by the
-    command's own declaration (type, choices, default), no command line assembled.
+def _recon_run_args(run: str, options: dict[str, str]) -> argparse.Namespace:
+    """``recon-run``'s options from the form's ``{flag: text}``: each converted and
+    checked by its one declaration (:class:`recon.options.ReconOptions` for the
+    reconstruction, :class:`instrument.cli.recon_run.RunOptions` for the run's own:
+    type, choices, limits, default), no command line assembled; an empty text takes
+    the declared default.
 
     Raises
     ------
     gui.workers.InputError
-        An unknown option, a value its type or choices refuse, two options that
+        An unknown option, a value its type, choices or limits refuse, two options that
         exclude each other (the message names the option).
     """
+    import diffuserlab.errors
+    from instrument.cli.recon_flags import COMMAND_FIELDS, GRID_FIELDS
+    from instrument.cli.recon_run import RunOptions
+    from recon.options import ReconOptions
+
     from .workers import InputError
 
-    parser = argparse.ArgumentParser(prog="diffuserlab")
-    add_subcommands(parser.add_subparsers(dest="command"))
-    sub = next(a for a in parser._actions
-               if isinstance(a, argparse._SubParsersAction)).choices["recon-run"]
-    args = argparse.Namespace(command="recon-run", run=run, **sub._defaults)
-    by_flag: dict[str, argparse.Action] = {}
-    for action in sub._actions:
-        if action.option_strings and action.dest != "help":
-            default = action.default
-            if default == argparse.SUPPRESS:
-                pass  # an alias of another option: that one's default stands
-            elif isinstance(default, str) and action.type is not None:  # as argparse does
-                setattr(args, action.dest, action.type(default))
-            else:
-                setattr(args, action.dest, default)
-            by_flag.update(dict.fromkeys(action.option_strings, action))
-    given = set()
-    for flag, value in options.items():
-        text = "" if value is None else str(value).strip()
-        if not text:
-            continue
-        action = by_flag.get(flag)
-        if action is None:
+    taken = (*COMMAND_FIELDS["recon-run"], *GRID_FIELDS["recon-run"])
+    recon_flags = {s.flag for s in ReconOptions.specs() if s.dest in taken}
+    run_flags = {s.flag for s in RunOptions.specs()}
+    for flag in options:
+        if flag not in recon_flags | run_flags:
             raise InputError(f"recon-run has no option {flag}")
-        try:
-            v = action.type(text) if action.type is not None else text
-        except (ValueError, TypeError, argparse.ArgumentTypeError) as exc:
-            what = {int: "a whole number", float: "a number"}.get(action.type)
-            raise InputError(f"{flag}: {text!r} is not {what}" if what else
-                             f"{flag}: {exc}") from None
-        if action.choices is not None and v not in action.choices:
-            raise InputError(f"{flag}: {text!r}: use one of {', '.join(action.choices)}")
-        setattr(args, action.dest, v)
-        given.add(action)
-    for group in sub._mutually_exclusive_groups:
-        both = [a.option_strings[-1] for a in group._group_actions if a in given]
-        if len(both) > 1:
-            raise InputError(f"{both[0]}: not allowed with {both[1]}")
-    return args
+    given = {f for f, v in options.items() if str(v if v is not None else "").strip()}
+    if {"--workers", "--scheduler"} <= given:
+        raise InputError("--workers: not allowed with --scheduler")
+    try:
+        rec = ReconOptions.from_text({f: v for f, v in options.items() if f in recon_flags})
+        own = RunOptions.from_text({f: v for f, v in options.items() if f in run_flags})
+    except diffuserlab.errors.InputError as exc:
+        raise InputError(str(exc)) from None
+    values = {k: v for k, v in rec.model_dump().items() if k in taken}
+    return argparse.Namespace(command="recon-run", run=run, **values, **own.model_dump())
 
 
 def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
@@ -441,7 +420,6 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     """
     from instrument.batch import batch_psf, parse_frames
     from instrument.batch_process import reconstruct_run_in_process
-    from instrument.cli.recon_run import add_subcommands
     from instrument.runstore import RunStore
 
     from .workers import InputError
@@ -449,14 +427,15 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     if not str(options.get("--psf") or "").strip():
         raise InputError("give the PSF to reconstruct with: an image, a PSF stack or a "
                          "calibration run (PSF sweep)")
-    args = _recon_run_args(add_subcommands, run, options)
+    args = _recon_run_args(run, options)
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                   psf_product=args.psf_product, dark=args.dark)
     return reconstruct_run_in_process(
         args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
-        bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
+        l1=args.l1, bin_factor=args.bin_factor, dark=dark, frames=frames,
+        product=args.product, device=args.device,
         workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
         overwrite=args.overwrite, psf_source=source, on_progress=job.report,
         cancel=job.cancel_event)

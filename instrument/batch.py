@@ -37,7 +37,7 @@ import numpy as np
 from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
 from .runstore import DamagedFrameError, RunStore, RunStoreError
 
-__all__ = ["batch_psf", "check_scheduler", "check_workers", "frames_dark_level", "parse_frames",
+__all__ = ["batch_psf", "check_scheduler", "check_workers", "parse_frames",
            "reconstruct_run", "reconstruct_stored_frame"]
 
 log = logging.getLogger(__name__)
@@ -72,13 +72,13 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
               ) -> tuple[np.ndarray, float | np.ndarray | None, str]:
     """The PSF and the frames' dark level for reconstructing a recorded run.
 
-    A calibrated PSF stack (a run store, or a stack with ``depth_mm``) is
-    dark-subtracted, so the frames' dark level must be known: ``dark`` (a number in DN
-    or a ``calibrate dark`` run), else the simulated camera's offset a run recorded
-    on the virtual bench stores; it is then added to the PSF, so that
-    :func:`recon.reconstruct` subtracts the same level from both. With a plain PSF
-    image and no ``dark``, the level is estimated from the PSF's corner as
-    ``diffuserlab recon`` does (returned as None).
+    ``--dark`` has its one meaning (:func:`instrument.reconstruct_files.resolve_dark`):
+    a calibration run's PSF is dark-subtracted, so the frames' level is ``dark`` (a
+    number in DN, a ``calibrate dark`` run or image), else the simulated camera's
+    offset a run recorded on the virtual bench stores, added to the PSF so that
+    :func:`recon.reconstruct` subtracts the same level from both; a plain PSF (an
+    image, a TIFF stack's plane) and ``auto`` estimate the level from the PSF's corner
+    as ``diffuserlab recon`` does (returned as None).
 
     Parameters
     ----------
@@ -107,47 +107,17 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
         Unreadable PSF, no matching depth, a bad ``dark``, or a calibrated stack with
         no dark level known.
     """
-    from pathlib import Path
 
-    from .reconstruct_files import dark_level, frames_dark_text, load_psf
+    from .reconstruct_files import load_psf, resolve_dark
+    from .stacks import dark_subtracted
 
-    dark = frames_dark_text(dark)
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
-    stacked = depth is not None or Path(psf_path).is_dir()
-    level = None if dark is None else dark_level(dark)
-    if level is None and stacked:
-        level = frames_dark_level(None, run_attrs, f"--psf {psf_path} is a calibrated "
-                                  "(dark-subtracted) PSF stack")
-    if level is not None and stacked:  # the stack is dark-subtracted: both get the dark
-        psf = psf + level  # subtracted by prepare_pair, as for the live view
+    recorded = (run_attrs.get("simulated") or {}).get("dark_offset_dn")
+    psf, level = resolve_dark(dark, psf, calibrated=dark_subtracted(psf_path),
+                              recorded=recorded, what=f"--psf {psf_path}")
+    level = None if isinstance(level, str) and level == "auto" else (
+        0.0 if isinstance(level, str) else level)  # "none": the frames are dark-subtracted
     return psf, level, f"{psf_path}" + ("" if depth is None else f" at {depth:g} mm")
-
-
-def frames_dark_level(dark: str | None, run_attrs: dict, why: str
-                      ) -> float | np.ndarray:
-    """The recorded frames' dark level for dark-subtracted PSFs (a stack or a grid).
-
-    ``dark`` (``--dark``: DN, a ``calibrate dark`` run, a dark image, ``none``), else
-    (None or ``auto``) the simulated camera's offset that a run recorded on the virtual
-    bench stores.
-
-    Raises
-    ------
-    recon.errors.ReconInputError
-        Neither is known (``why`` names the PSF that needs it), or a bad ``dark``.
-    """
-    from recon.errors import ReconInputError
-
-    from .reconstruct_files import dark_level, frames_dark_text
-
-    dark = frames_dark_text(dark)
-    if dark is not None:
-        return dark_level(dark)
-    simulated = run_attrs.get("simulated") or {}
-    if "dark_offset_dn" not in simulated:
-        raise ReconInputError(f"{why}: give the frames' dark level with --dark DN or --dark "
-                              "DARK_RUN.zarr (diffuserlab calibrate dark)")
-    return float(simulated["dark_offset_dn"])
 
 
 def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,

@@ -26,8 +26,8 @@ from diffuserlab.jsonio import jsonable
 from recon.io import write_json
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
-           "projections", "run_recon", "run_recon3d", "volume_output_paths", "write_json",
-           "write_volume"]
+           "projections", "resolve_dark", "run_recon", "run_recon3d", "volume_output_paths",
+           "write_json", "write_volume"]
 
 log = logging.getLogger(__name__)
 
@@ -109,15 +109,68 @@ def load_psf(psf_path: str, depth_mm: float | None,
     return psf, depth
 
 
-def frames_dark_text(dark) -> str | None:
-    """A frames' ``--dark`` (``recon-run``, ``capture live``) as :func:`dark_level` takes
-    it: None for ``auto`` (or None: the level is found elsewhere), ``"0"`` for ``none``
-    (the frames are dark-subtracted), else the text (a level in DN, a dark run or image).
+def resolve_dark(dark, psf: np.ndarray, *, calibrated: bool, recorded: float | None = None,
+                 what: str = "the PSF"):
+    """``--dark`` with one meaning for every reconstruction command (docs/cli.md).
+
+    ``auto``: a plain PSF (an image, a TIFF or ``.npy`` stack) carries its dark level in
+    its dark corner ``psf[5:15, 5:15]`` (a stack: the median of its planes' corners),
+    which :func:`recon.reconstruct` estimates and subtracts from PSF and raw; a PSF
+    from a calibration run (``calibrated``) is dark-subtracted, so the frames' level
+    recorded with them (``recorded``: a simulated run's or bench's camera offset) is
+    used, and without one the level must be given. A level or a frame (given, or
+    recorded) is subtracted from the raw and from a plain PSF; a calibrated PSF gets it
+    added first, so that it stays as calibrated.
+
+    Parameters
+    ----------
+    dark : str, float, ndarray or None
+        ``--dark`` as given (``auto`` or None, ``none``, a level in DN, a ``calibrate
+        dark`` run or a dark image) or a value read already (DN, a frame).
+    psf : ndarray
+        The PSF (rows, cols) or stack (n_z, rows, cols).
+    calibrated : bool
+        ``psf`` comes from a calibration run store (dark-subtracted).
+    recorded : float, optional
+        The frames' dark level, DN, recorded with them.
+    what : str
+        The PSF as the message names it (``"--psf RUN.zarr"``).
+
+    Returns
+    -------
+    psf : ndarray
+        ``psf``, or ``psf + level`` for a calibrated one.
+    dark : "auto", "none", float or ndarray
+        The ``dark`` of :func:`recon.reconstruct`.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        ``auto`` with a calibrated PSF and no recorded level (names the fix), or a bad
+        ``dark`` (:func:`dark_level`).
     """
-    if dark is None:
-        return None
-    key = str(dark).strip().lower()
-    return None if key == "auto" else "0" if key == "none" else str(dark)
+    from recon.errors import ReconInputError
+
+    if isinstance(dark, np.ndarray) or isinstance(dark, int | float) and not isinstance(
+            dark, bool):
+        level = dark
+    else:
+        key = "auto" if dark is None else str(dark).strip().lower()
+        if key == "none":
+            return psf, "none"
+        if key != "auto":
+            level = dark_level(str(dark))
+        elif recorded is not None and calibrated:
+            level = float(recorded)
+        elif calibrated:
+            raise ReconInputError(
+                f"{what} is a calibrated (dark-subtracted) PSF: give the frames' dark level "
+                "with --dark DN or --dark DARK_RUN.zarr (diffuserlab calibrate dark)")
+        else:
+            return psf, "auto"
+    if calibrated:  # subtracted from both below: the calibrated PSF stays as it was
+        psf = psf + level
+    return psf, level
 
 
 def dark_level(text: str, option: str = "--dark"):
@@ -197,8 +250,9 @@ def run_recon(
         Plane and product of a PSF stack (see :func:`load_psf`).
     allow_mixed_ranges : bool
         Accept a PSF and raw of different bit depths (``--allow-mixed-ranges``).
-    dark : "auto", "none", None, float or ndarray
-        Dark level (:func:`recon.reconstruct`; ``"auto"``: the PSF's corner).
+    dark : str, float, ndarray or None
+        ``--dark`` (:func:`resolve_dark`: ``"auto"`` is the PSF's corner, or asks for
+        the level of a calibration run's dark-subtracted PSF).
 
     Returns
     -------
@@ -218,6 +272,10 @@ def run_recon(
     from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
+    from .stacks import dark_subtracted
+
+    psf, dark = resolve_dark(dark, psf, calibrated=dark_subtracted(psf_path),
+                             what=f"--psf {psf_path}")
     raw = load_image(raw_path)
     with named_pair(psf_path, raw_path):
         result = reconstruct(psf, raw, method, iterations=iterations, tv=tv, l1=l1,
@@ -369,8 +427,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         One depth per plane when the stack does not record them.
     bin_factor : int
         Lateral box binning of the stack and the raw image.
-    dark : "auto", "none" or float
-        Dark level handling (see :func:`recon.volume.api.prepare_volume_problem`).
+    dark : str, float, ndarray or None
+        ``--dark`` (:func:`resolve_dark`; then
+        :func:`recon.volume.api.prepare_volume_problem`).
     psf_product : str
         Product of a run store to read.
     metrics_json : str, optional
@@ -412,7 +471,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
     from recon.volume.api import check_volume_parameters
 
-    from .stacks import load_psf_stack
+    from .stacks import dark_subtracted, load_psf_stack
 
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
     if planes not in ("all", "auto"):
@@ -422,6 +481,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     vol_path, mip_paths = volume_output_paths(out)
     t_start = time.perf_counter()
     stack, depths, _ = load_psf_stack(psf_stack, depths_mm, product=psf_product)
+    stack, dark = resolve_dark(dark, stack, calibrated=dark_subtracted(psf_stack),
+                               what=f"--psf-stack {psf_stack}")
     stack_shape_in = list(stack.shape)
     raw = load_image(raw_path)
     raw_shape_in = list(raw.shape)

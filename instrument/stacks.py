@@ -22,7 +22,8 @@ from recon.io import missing_dirs
 from .coords import coord_specs
 from .runstore import RunStore, RunStoreError, discard_partial_run
 
-__all__ = ["MIN_PLANE_PX", "export_tiff", "import_psf_stack", "load_psf_stack", "pick_depth"]
+__all__ = ["IMPORTED_PLAN", "MIN_PLANE_PX", "dark_subtracted", "export_tiff", "import_psf_stack",
+           "load_psf_stack", "pick_depth"]
 
 #: Fewest pixels along each side of a PSF plane: a smaller array is a wrong file or a
 #: wrong axis order, not a measurement (the dark corner psf[5:15, 5:15] alone needs 6).
@@ -43,6 +44,34 @@ def _depths(depths_mm, n: int, source: str) -> list[float]:
     if not all(np.isfinite(depths)) or min(depths) <= 0:
         raise RunStoreError(f"depths {depths} must be finite and > 0 mm")
     return depths
+
+
+#: The plan name of a run store made by :func:`import_psf_stack`: its stack is as imported.
+IMPORTED_PLAN = "imported-psf-stack"
+
+
+def dark_subtracted(path: str | Path) -> bool:
+    """Whether the PSF (stack) at ``path`` is a calibration run's, dark-subtracted by the
+    routine that measured it (``--dark auto`` then needs the frames' level,
+    :func:`instrument.reconstruct_files.resolve_dark`); a file, or a run store made by
+    :func:`import_psf_stack`, holds the PSF as its maker left it.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    bool
+    """
+    path = Path(path)
+    if not path.is_dir():
+        return False
+    try:
+        plan = RunStore.open(path).attrs.get("plan") or {}
+    except RunStoreError:  # not a run: reading it as a PSF reports why
+        return False
+    return plan.get("name") != IMPORTED_PLAN
 
 
 def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
@@ -232,7 +261,7 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
     stack, depths = stack[order], [depths[i] for i in order]
     existed, store, made = Path(out).exists(), None, missing_dirs(out)
     try:  # whole or not at all: a run this call began is removed when it fails
-        store = RunStore.create(out, plan_name="imported-psf-stack",
+        store = RunStore.create(out, plan_name=IMPORTED_PLAN,
                                 plan_params={"source": str(source)},
                                 points=[{"z_mm": z} for z in depths],
                                 frame_tags=[[] for _ in depths], frame_shape=stack.shape[1:],

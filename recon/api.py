@@ -17,12 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ReconInputError
+from .options import SHARED, ReconOptions, kind_options, l1_given
 from .planar import DEFAULT_TV, check_options, scaled_problem, solve, solver_options
 from .result import KINDS, ReconInfo, Reconstruction
 
-__all__ = ["DEFAULT_TV", "KINDS", "PsfStack", "ReconInfo", "Reconstruction", "check_options",
-           "model_kind", "reconstruct", "reconstruct_grid", "reconstruct_volume",
-           "scaled_problem", "solve", "solver_options"]
+__all__ = ["DEFAULT_TV", "KINDS", "SHARED", "PsfStack", "ReconInfo", "Reconstruction",
+           "check_options", "check_values", "model_kind", "reconstruct", "reconstruct_grid",
+           "reconstruct_volume", "scaled_problem", "solve", "solver_options"]
 
 #: What ``model`` may be, for the error message of :func:`model_kind`.
 ACCEPTED_MODELS = ("a PSF array (rows, cols) or (rows, cols, C)",
@@ -30,14 +31,17 @@ ACCEPTED_MODELS = ("a PSF array (rows, cols) or (rows, cols, C)",
                    "a recon.spatial.PsfGrid or a list of them (one per depth)")
 
 #: Options only some kinds take (beyond the shared method, iterations, tv, l1,
-#: bin_factor, dark and allow_mixed_ranges).
-KIND_OPTIONS = {
-    "image": ("seconds", "auto_stop", "bayer", "erase", "erasure_mask", "seed", "preprocess",
-              "full_scale"),
-    "volume": ("empty_planes",),
-    "grid": ("model", "k", "background", "depths_mm", "support", "tolerance", "prepared",
-             "two_part"),
-}
+#: bin_factor, dark and device), from their declarations
+#: (:class:`recon.options.ReconOptions`'s ``kinds``) and the kinds' Python-only objects.
+KIND_OPTIONS = {kind: kind_options(kind) for kind in KINDS}
+
+#: The declared defaults (:meth:`recon.options.ReconOptions.defaults`): the very objects
+#: the command line's flags and the GUI's forms default to.
+_D = ReconOptions.defaults()
+#: The keywords whose values :func:`reconstruct` checks against their declarations
+#: before any work (the others are objects: a dark frame, a mask, a grid's support).
+_CHECKED = ("iterations", "tv", "l1", "bin_factor", "seconds", "erase", "seed",
+            "full_scale", "k")
 
 
 @dataclass(frozen=True)
@@ -91,10 +95,10 @@ def model_kind(model) -> str:
     raise ReconInputError(f"model is {what}; give {'; or '.join(ACCEPTED_MODELS)}")
 
 
-def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: int = 200,
-                tv: float | str | None = "auto", l1: float | str | None = None,
-                bin_factor: int = 1, dark="auto", allow_mixed_ranges: bool = False,
-                device: str = "cpu", **options) -> Reconstruction:
+def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
+                iterations: int = _D["iterations"], tv: float | str | None = _D["tv"],
+                l1: float | str | None = _D["l1"], bin_factor: int = _D["bin_factor"],
+                dark=_D["dark"], device: str = _D["device"], **options) -> Reconstruction:
     """Reconstruct an image or a volume from one lensless measurement and its model.
 
     The model kind picks the path: one PSF (2D: dark level, binning, colour, the
@@ -131,8 +135,9 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         :data:`recon.volume.DEFAULT_TV` hold tested fixed weights). FISTA on a grid has
         no TV term (``info.tv`` None).
     l1 : "auto", None or float
-        l1 (sparsity) weight; ``"auto"`` chooses it with TV fixed; None (default) is
-        0, and 1e-3 for FISTA on a grid (Eq. 6.2's sparse object).
+        l1 (sparsity) weight; ``"auto"`` chooses it with TV fixed; not given (the
+        declared default, :data:`recon.options.L1_DEFAULT`) or None is 0, and 1e-3 for
+        FISTA on a grid (Eq. 6.2's sparse object).
     bin_factor : int
         Lateral box binning of model and raw before the solve (>= 1).
     dark : "auto", "none", None, float or ndarray
@@ -144,9 +149,6 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         level in DN; an array is a dark frame (raw's shape; one PSF also takes one
         level per channel), subtracted pixel by pixel. A grid subtracts it from the
         raw only.
-    allow_mixed_ranges : bool
-        Accept a model and raw whose bit depths cannot be one camera's (one PSF or a
-        stack).
     device : {"cpu", "cuda", "auto"}
         Where the solves run (:func:`recon.backend.resolve_device`): the CPU's NumPy
         path (default), a CUDA GPU through CuPy or PyTorch (the array-API path,
@@ -157,7 +159,10 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         (:func:`recon.spatial.api.reconstruct_psf_grid`). ``info.device`` says which
         ran.
     **options
-        Kind-specific options (:data:`KIND_OPTIONS`): one PSF ``seconds``,
+        Kind-specific options (:data:`KIND_OPTIONS`, declared with the others in
+        :class:`recon.options.ReconOptions`): one PSF or a stack
+        ``allow_mixed_ranges`` (accept a model and raw whose bit depths cannot be one
+        camera's); one PSF ``seconds``,
         ``auto_stop``, ``bayer``, ``erase``, ``erasure_mask``, ``seed``,
         ``preprocess``, ``full_scale`` and the named solver's options
         (:func:`solver_options`); a stack ``empty_planes``; a grid ``model``, ``k``,
@@ -175,7 +180,9 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
     ------
     ReconInputError
         A model of none of the accepted kinds (the message names them), a bad
-        argument, an option the kind does not take, or bad data (see
+        argument (a value outside its declared limits, named as the keyword:
+        ``iterations=0 is outside its limits: ...``), an option the kind does not
+        take, or bad data (see
         :mod:`recon.preprocess`); :class:`recon.preprocess.RawSignalError` for a raw
         with nothing to reconstruct after its dark level; an unusable ``device``
         (names what is missing), an automatic weight or FISTA asked of a GPU for a
@@ -223,20 +230,20 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
         raise ReconInputError(
             f"a {_KIND_WORDS[kind]} takes no option {', '.join(map(repr, sorted(extra)))}; its "
             f"own options are {', '.join(allowed)}")
+    check_values(iterations=iterations, tv=tv, l1=l1, bin_factor=bin_factor, **options)
+    l1 = l1_given(l1)  # None: the model's own default (0, FISTA on a grid 1e-3)
     if kind == "image":
         from .planar import reconstruct_image
 
         return reconstruct_image(model, raw, method, iterations=iterations, tv=tv,
                                  l1=0.0 if l1 is None else l1, bin_factor=bin_factor,
-                                 dark=_image_dark(dark), allow_mixed_ranges=allow_mixed_ranges,
-                                 device=device, **options)
+                                 dark=_image_dark(dark), device=device, **options)
     if kind == "volume":
         from .volume.api import reconstruct_stack
 
         return reconstruct_stack(model.psf, model.depths_mm, raw, method=method,
                                  iterations=iterations, tv=tv, l1=0.0 if l1 is None else l1,
-                                 bin_factor=bin_factor, dark=dark,
-                                 allow_mixed_ranges=allow_mixed_ranges, device=device,
+                                 bin_factor=bin_factor, dark=dark, device=device,
                                  **options)
     from .spatial.api import reconstruct_psf_grid
 
@@ -244,6 +251,28 @@ def reconstruct(model, raw: np.ndarray, /, method: str = "auto", *, iterations: 
     return reconstruct_psf_grid(grids, raw, method=method, iterations=iterations, tv=tv,
                                 l1=l1, bin_factor=bin_factor, dark=dark, device=device,
                                 **options)
+
+
+def check_values(**values) -> None:
+    """Check the keywords of :func:`reconstruct` against their declarations
+    (:class:`recon.options.ReconOptions`: type and limits), before any work.
+
+    Raises
+    ------
+    ReconInputError
+        A value outside its limits or of the wrong type, named as the Python keyword
+        (``tv=-1 is outside its limits: TV weight must be >= 0``).
+    """
+    given = {k: v for k, v in values.items() if k in _CHECKED
+             and not (k in ("tv", "l1") and v is None)
+             and not isinstance(v, np.ndarray)}
+    if any(isinstance(v, bool) for k, v in given.items() if k != "seed"):
+        name = next(k for k, v in given.items() if isinstance(v, bool))
+        raise ReconInputError(f"{name}={given[name]!r}: give a number, not a truth value")
+    try:
+        ReconOptions.validated(given, front="python")
+    except ValueError as exc:  # diffuserlab.errors.InputError: as the numerics' error
+        raise ReconInputError(str(exc)) from None
 
 
 _KIND_WORDS = {"image": "PSF (2D)", "volume": "PSF stack", "grid": "PSF grid"}

@@ -242,4 +242,4 @@ def check_memory(needed_bytes: int, free_bytes: int | None, *, what: str,
     gib = 2.0**30
     raise ReconInputError(
         f"{what} needs {needed_bytes / gib:.2f} GiB on {where}, {free_bytes / gib:.2f} GiB "
-        f"are free; {fix}, free the GPU, or use --device cpu")
+        f"are free; {fix}, free the GPU, or use the CPU (device cpu)")

@@ -1,6 +1,13 @@
-"""The reconstruction layer's option names and argument types, for command-line parsers.
+"""The reconstruction layer's parameters, declared once, and their option names.
 
-This module imports only the standard library, so that ``diffuserlab --help`` (and
+:class:`ReconOptions` declares every parameter of :func:`recon.reconstruct` (name,
+type, unit, default, limits, help, which model kinds and methods use it);
+:class:`LiveOptions` those of the live reconstructor. The flags of ``recon``,
+``recon3d``, ``recon-run`` and ``capture live``, the GUI's Live and Batch forms, the
+keywords :func:`recon.reconstruct` accepts per model kind and the table of
+docs/cli.md are generated from them (:mod:`diffuserlab.options` is the machinery).
+
+This module imports only the standard library (and layer 0), so that ``diffuserlab --help`` (and
 every command that does not reconstruct) builds its parser without loading numpy,
 numba or scipy. The modules that implement the choices re-export these names
 (:data:`recon.spatial.api.GRID_METHODS`, :data:`recon.spatial.choice.MODELS`,
@@ -13,10 +20,14 @@ from __future__ import annotations
 
 import argparse
 import math
+from typing import Literal
+
+from diffuserlab.options import Options, option
 
 __all__ = ["AUTO", "BACKGROUNDS", "BENCHMARKS", "DEVICES", "DarkOption", "GRID_L1", "GRID_METHODS",
-           "HOLOGRAM_METHODS", "L1_DEFAULT", "METHODS", "METHOD_SUMMARIES", "MODELS", "NONE",
-           "Unset", "VOLUME_METHODS", "dark_arg", "l1_given", "weight_arg"]
+           "HOLOGRAM_METHODS", "KINDS", "L1_DEFAULT", "LiveOptions", "METHODS",
+           "METHOD_SUMMARIES", "MODELS", "NONE", "ReconOptions", "Unset", "VOLUME_METHODS",
+           "dark_arg", "kind_options", "l1_given", "weight_arg"]
 
 #: ``--device`` choices (:func:`recon.backend.resolve_device`): the CPU (NumPy, numba),
 #: a CUDA GPU (CuPy or PyTorch), or the GPU when one is usable.
@@ -143,3 +154,123 @@ def dark_arg(text: str) -> DarkOption:
     if level is not None and not (math.isfinite(level) and level >= 0):
         raise argparse.ArgumentTypeError(f"{text}: a level is a finite number of DN >= 0")
     return value
+
+
+#: The model kinds of :func:`recon.reconstruct` (:data:`recon.result.KINDS` is this).
+KINDS = ("image", "volume", "grid")
+
+_WEIGHT = "in the scaled problem (unit-sum PSF, raw divided by its maximum), or auto"
+
+
+class ReconOptions(Options):
+    """Every parameter of a reconstruction, declared once.
+
+    A field is one parameter: its Python keyword (:func:`recon.reconstruct`), its flag
+    (``--`` + the name, or ``flag``), type, unit, default, limits, help and the model
+    kinds (``"image"``: one PSF, ``"volume"``: a PSF stack, ``"grid"``: a PSF grid) and
+    methods that use it (empty: every one). A new parameter is one field here and one
+    use in the solver: the commands' flags (:meth:`add_arguments`), the GUI's forms
+    (:meth:`specs`), :func:`recon.reconstruct`'s keyword check (:func:`kind_options`)
+    and docs/cli.md's table (:meth:`markdown`) follow.
+    """
+
+    command = "reconstruction"
+
+    method: Literal["auto", "wiener", "gd", "fista", "admm"] = option(
+        "auto", help="solver: auto (chosen from the data: one PSF ADMM, or Wiener for a "
+        "short --seconds; a stack 3D ADMM; a grid FISTA, Eq. 6.2), or one of wiener, gd, "
+        "fista, admm (2D); admm, fista (stack, grid)", label="solver")
+    iterations: int = option(
+        200, help="maximum iterations: the solve stops earlier when the fit changes by less "
+        "than the noise explains (an automatic weight's path and final solve take at most "
+        "2.5x as many together)", ge=1, methods=("gd", "fista", "admm"), label="maximum iterations")
+    tv: float | Literal["auto"] | None = option(
+        AUTO, help=f"TV weight {_WEIGHT} (hold-out cross-validation along a warm-started "
+        "ADMM path); 0 disables; FISTA on a grid has none", unit="unitless",
+        parse=weight_arg, metavar="TV|auto", ge=0, allow_inf_nan=False, label="TV weight")
+    l1: float | Literal["auto"] | None = option(
+        L1_DEFAULT, help=f"l1 weight (sparse scenes) {_WEIGHT}; 0, and with a PSF grid and "
+        f"FISTA {GRID_L1:g} (Eq. 6.2)", unit="unitless", parse=weight_arg, metavar="L1|auto",
+        ge=0, allow_inf_nan=False, label="l1 weight")
+    bin_factor: int = option(
+        1, help="box binning of PSF and raw, pixels per side (4: 1200x1600 -> 300x400)",
+        flag="--bin", ge=1, label="binning factor")
+    dark: str = option(
+        AUTO, help="dark level: auto (a PSF as measured: its dark corner psf[5:15, 5:15], "
+        "for a stack the median of its planes' corners, subtracted from PSF and raw; a "
+        "calibration run's dark-subtracted PSF: the level recorded with the frames, a "
+        "simulated camera's offset, else refused for a PSF or stack, nothing for a grid "
+        "whose background fits the offset), none (the inputs are dark-subtracted), a level "
+        "in DN, or a `calibrate dark` run or dark image subtracted pixel by pixel (a grid "
+        "takes a level)",
+        parse=dark_arg, metavar="auto|none|DN|DARK_RUN", label="dark level")
+    device: Literal["cpu", "cuda", "auto"] = option(
+        "cpu", help="where the solver runs: cpu (NumPy and numba), cuda (a CUDA GPU through "
+        "CuPy or PyTorch: pip install 'diffuserlab[gpu]'; refused with a message when none "
+        "is usable) or auto (the GPU when one is usable, else the CPU)", label="device")
+    allow_mixed_ranges: bool = option(
+        False, help="accept a PSF and a raw of different bit depths or value ranges (e.g. a "
+        "raw summed from several frames); refused by default because the PSF's dark level "
+        "would not fit the raw",
+        kinds=("image", "volume"))
+    seconds: float | None = option(
+        None, help="time budget of the solve for method auto (Wiener if too short)",
+        unit="s", gt=0, kinds=("image",), default_text="none", label="time budget")
+    erase: float = option(
+        0.0, help="fraction of raw pixels erased at random (compressed sensing)", ge=0, lt=1,
+        kinds=("image",), label="erased fraction")
+    seed: int = option(0, help="seed of the erasure mask", ge=0, kinds=("image",),
+                       label="erasure seed")
+    full_scale: float | None = option(
+        None, help="saturation level if below the dtype maximum (65520: 12-bit in uint16)",
+        unit="DN", gt=0, kinds=("image",), default_text="the dtype maximum",
+        label="saturation level")
+    empty_planes: Literal["keep", "drop"] = option(
+        "keep", help="with an automatic weight: keep every plane, or set those that show "
+        "no signal in the held-out pixels to zero (reported)",
+        kinds=("volume",), label="empty planes")
+    model: Literal["auto", "convolution", "local", "pca"] = option(
+        "auto", help="forward model of a grid: auto (the cheapest whose predicted model "
+        "error is within 0.1: convolution, PCA with the smallest k, local), convolution "
+        "(central PSF), local (every grid PSF, Eq. 5.3-5.5) or pca (Eq. 5.6-5.7)",
+        kinds=("grid",), label="grid model")
+    k: int | None = option(
+        None, help="principal PSFs of model pca", flag="--pca-k", ge=1, kinds=("grid",),
+        default_text="99 % explained energy", label="PCA components")
+    background: Literal["estimate", "none"] = option(
+        "estimate", help="estimate a smooth background jointly (Eq. 6.2, lowest 5x5 DCT) or "
+        "none", kinds=("grid",), methods=("fista",), label="background")
+    two_part: bool = option(
+        False, help="a far scene (Eq. 5.1): model each grid PSF over its brightness and "
+        "divide the image by the brightness map measured from the grid",
+        kinds=("grid",), label="two-part model")
+
+
+#: Keywords of :func:`recon.reconstruct` that are no flag: its own objects (a mask, a
+#: prepared model, a colour pattern), per kind.
+_PYTHON_ONLY = {
+    "image": ("auto_stop", "bayer", "erasure_mask", "preprocess"),
+    "volume": (),
+    "grid": ("depths_mm", "support", "tolerance", "prepared"),
+}
+#: Keywords every kind takes (the front door's own).
+SHARED = tuple(s.dest for s in ReconOptions.specs() if not s.kinds)
+
+
+def kind_options(kind: str) -> tuple[str, ...]:
+    """The keywords of :func:`recon.reconstruct` only model kind ``kind`` takes: its
+    declared :class:`ReconOptions` fields and its Python-only objects."""
+    return (*(s.dest for s in ReconOptions.specs() if kind in s.kinds), *_PYTHON_ONLY[kind])
+
+
+class LiveOptions(Options):
+    """The live reconstructor's own parameters (``capture live``, the GUI's Live form);
+    its dark level, binning and device are :class:`ReconOptions`'."""
+
+    command = "live reconstruction"
+
+    method: Literal["wiener", "admm"] = option(
+        "wiener", help="wiener (a preview, one FFT pair per frame) or admm (warm-started "
+        "from the previous frame's state)")
+    iterations: int = option(
+        5, help="ADMM iterations per frame", ge=1, le=50, methods=("admm",))

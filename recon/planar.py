@@ -20,6 +20,7 @@ from .backend import resolve_device
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
+from .options import ReconOptions
 from .preprocess import (
     check_measured_fraction,
     check_raw_signal,
@@ -31,6 +32,9 @@ from .result import ReconInfo, Reconstruction
 from .solvers import SOLVERS, SolveResult
 from .solvers.device import device_metrics, device_solvers, fft_pair_seconds_on
 from .validate import as_array, as_int, finite_float
+
+#: The declared defaults (:class:`recon.options.ReconOptions`), shared with the front door.
+_D = ReconOptions.defaults()
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -186,23 +190,23 @@ def solve(
 def reconstruct_image(
     psf: np.ndarray,
     raw: np.ndarray,
-    method: str = "auto",
+    method: str = _D["method"],
     *,
-    iterations: int = 200,
-    tv: float | str | None = "auto",
+    iterations: int = _D["iterations"],
+    tv: float | str | None = _D["tv"],
     l1: float | str = 0.0,
-    seconds: float | None = None,
+    seconds: float | None = _D["seconds"],
     auto_stop: bool = True,
-    bin_factor: int = 1,
-    dark="auto",
+    bin_factor: int = _D["bin_factor"],
+    dark=_D["dark"],
     bayer=None,
-    erase: float = 0.0,
+    erase: float = _D["erase"],
     erasure_mask: np.ndarray | None = None,
-    seed: int = 0,
+    seed: int = _D["seed"],
     preprocess: bool = True,
-    full_scale: float | None = None,
-    allow_mixed_ranges: bool = False,
-    device: str = "cpu",
+    full_scale: float | None = _D["full_scale"],
+    allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
+    device: str = _D["device"],
     **solver_options,
 ) -> Reconstruction:
     """Reconstruct an image from one PSF: :func:`recon.reconstruct` for a PSF array.

@@ -18,12 +18,13 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .backend import NUMPY
+from .options import KINDS as _KINDS
 from .solvers.common import History, SolveResult
 
 __all__ = ["KINDS", "ReconInfo", "Reconstruction"]
 
 #: The model kinds :func:`recon.reconstruct` serves: one PSF, a PSF stack, a PSF grid.
-KINDS = ("image", "volume", "grid")
+KINDS = _KINDS  # recon.options declares the kinds with the parameters that use them
 
 
 @dataclass(frozen=True)

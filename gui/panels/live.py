@@ -33,6 +33,8 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from recon.options import LiveOptions, ReconOptions
+
 from ..fields import remember, wheel_needs_focus
 from ..session import Session
 from ..workers import InputError, Job, readable_error
@@ -97,11 +99,12 @@ class LivePanel(QWidget):
         controls.addWidget(self.depth, 1, 2)
         controls.addWidget(QLabel("dark (DN or dark run):"), 1, 3)
         self.dark = remember(QLineEdit(), "live/dark")
-        self.dark.setPlaceholderText("auto")
+        self.dark.setPlaceholderText(ReconOptions.defaults()["dark"])
         controls.addWidget(self.dark, 1, 4)
         controls.addWidget(QLabel("method:"), 2, 1)
         self.method = QComboBox()
-        self.method.addItems(["wiener", "admm"])
+        self.method.addItems(LiveOptions.spec("method").choices)
+        self.method.setCurrentText(LiveOptions.defaults()["method"])
         self.method.setObjectName("live.method")
         wheel_needs_focus(self.method)
         remember(self.method, "live/method")
@@ -109,18 +112,18 @@ class LivePanel(QWidget):
         controls.addWidget(self.method, 2, 2)
         controls.addWidget(QLabel("ADMM iterations per frame:"), 2, 3)
         self.iterations = QSpinBox()
-        self.iterations.setRange(1, 50)
-        self.iterations.setValue(5)
+        limits = LiveOptions.bounds("iterations")
+        self.iterations.setRange(limits["ge"], limits["le"])
+        self.iterations.setValue(LiveOptions.defaults()["iterations"])
         self.iterations.setObjectName("live.iterations")
         wheel_needs_focus(self.iterations)
         remember(self.iterations, "live/iterations")
         self.iterations.valueChanged.connect(self._method_changed)
         controls.addWidget(self.iterations, 2, 4)
         controls.addWidget(QLabel("device:"), 3, 1)
-        from recon.options import DEVICES
-
         self.device = QComboBox()
-        self.device.addItems(list(DEVICES))
+        self.device.addItems(list(ReconOptions.spec("device").choices))
+        self.device.setCurrentText(ReconOptions.defaults()["device"])
         self.device.setObjectName("live.device")
         self.device.setToolTip("where the reconstruction runs: cpu (NumPy), cuda (a GPU "
                                "through CuPy or PyTorch) or auto (the GPU when one is "

@@ -29,7 +29,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from recon.solvers import METHODS
+from recon.options import ReconOptions
 
 from ..device_settings import parse_duration_s
 from ..fields import remember, wheel_needs_focus
@@ -146,9 +146,10 @@ class RecordPanel(QWidget):
         self.run_path.setPlaceholderText("RUN.zarr (default: the last recording)")
         b.addWidget(self.run_path, 0, 1, 1, 3)
         self.batch_fields: dict[str, QWidget] = {}
+        # choices and defaults are the declarations' (recon-run's, recon.reconstruct's)
         method = QComboBox()
-        method.addItems(METHODS)
-        method.setCurrentText("admm")
+        method.addItems(ReconOptions.spec("method").choices)
+        method.setCurrentText(ReconOptions.defaults()["method"])
         wheel_needs_focus(method)
         psf = QLineEdit()
         psf.editingFinished.connect(lambda: offer_depths(self.batch_fields["--depth"],
@@ -156,10 +157,11 @@ class RecordPanel(QWidget):
         rows = (("--psf", "PSF (image, stack or run):", psf, ""),
                 ("--depth", "depth (mm):", depth_field("batch--depth"), ""),
                 ("--method", "method:", method, ""),
-                ("--iterations", "iterations:", QLineEdit("100"), ""),
+                ("--iterations", "iterations:",
+                 QLineEdit(str(ReconOptions.defaults()["iterations"])), ""),
                 ("--frames", "frames (A:B):", QLineEdit(), "all"),
                 ("--workers", "dask workers:", QLineEdit(), "one per core"),
-                ("--dark", "dark (DN or dark run):", QLineEdit(), "auto"),
+                ("--dark", "dark (DN or dark run):", QLineEdit(), ReconOptions.defaults()["dark"]),
                 ("--dff", "ΔF/F baseline percentile:", QLineEdit(), "none (e.g. 20)"))
         for i, (flag, label, widget, hint) in enumerate(rows):
             if isinstance(widget, QLineEdit):

@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 from .common import bench_config
 
@@ -60,15 +59,15 @@ def _recon_options(p: argparse.ArgumentParser, *, required: bool, method_flag: s
                    help="PSF image, PSF stack or calibration run (with --depth)")
     p.add_argument("--depth", type=float, default=None, dest="depth_mm",
                    help="depth of the stack's plane to use, mm")
-    p.add_argument(method_flag, default=default_method, dest="method",
-                   help="wiener or admm:K (K warm-started ADMM iterations per frame)"
-                   + ("" if default_method is None else f"; default {default_method}"))
-    from .recon_flags import FRAMES_AUTO, FRAMES_FRAME, add_dark_option, add_device_option
+    from recon.options import LiveOptions
 
-    add_dark_option(p, auto=FRAMES_AUTO, frame=FRAMES_FRAME)
-    add_device_option(p)
-    p.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                   help="bin PSF and frames by this factor, pixels per side")
+    p.add_argument(method_flag, default=default_method, dest="method",
+                   help="wiener or admm:K (K warm-started ADMM iterations per frame; admm: "
+                   f"{LiveOptions.defaults()['iterations']})"
+                   + ("" if default_method is None else f"; default {default_method}"))
+    from .recon_flags import add_recon_flags
+
+    add_recon_flags(p, "capture live")
     p.add_argument("--threads", type=int, default=None,
                    help="cap the reconstruction's threads (default: all cores)")
 
@@ -83,7 +82,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         description="Stream the camera and reconstruct the newest frame continuously "
         "(frames the reconstruction cannot take are skipped and counted). Ctrl-C stops.")
     _stream_options(lp)
-    _recon_options(lp, required=True, method_flag="--method", default_method="wiener")
+    from recon.options import LiveOptions
+
+    _recon_options(lp, required=True, method_flag="--method",
+                   default_method=LiveOptions.defaults()["method"])
     lp.add_argument("--seconds", type=float, default=10.0,
                     help="how long to stream, s (default 10; Ctrl-C stops earlier)")
     lp.add_argument("--preview-png", default=None,
@@ -132,10 +134,13 @@ def _defaults() -> tuple[int, str]:
 
 def _method(text: str) -> tuple[str, int]:
     from recon.errors import ReconInputError
+    from recon.options import LiveOptions
 
     name, _, k = text.partition(":")
     if name == "wiener" and not k:
         return "wiener", 1
+    if name == "admm" and not k:  # the live form's default iterations per frame
+        return "admm", LiveOptions.defaults()["iterations"]
     if name == "admm" and k.isdigit() and int(k) >= 1:
         return "admm", int(k)
     raise ReconInputError(f"--method {text!r}: use wiener or admm:K with K >= 1 iterations "
@@ -182,26 +187,6 @@ def _open(args: argparse.Namespace, config):
     return vb
 
 
-def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
-    """The frames' dark level (float DN or a per-pixel frame), None to estimate it from
-    the PSF's corner like ``recon`` (a plain PSF image, no --dark)."""
-    from recon.errors import ReconInputError
-
-    from ..reconstruct_files import dark_level, frames_dark_text
-
-    dark = frames_dark_text(args.dark)
-    if dark is None:
-        if args.simulate:
-            return float(cam.dark_offset_dn)
-        if stacked:
-            raise ReconInputError(
-                f"--psf {args.psf} is a calibrated (dark-subtracted) PSF stack: give the "
-                "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
-                "calibrate dark)")
-        return None
-    return dark_level(dark)
-
-
 def _status(t_s: float, ring, live) -> str:
     c, s = ring.counters(), live.stats()
     lat = "-" if s["latency_median_s"] is None else f"{1e3 * s['latency_median_s']:.0f} ms"
@@ -219,21 +204,21 @@ def _live(args: argparse.Namespace, cam):
     from recon.live import LiveReconstructor
 
     from ..live import LiveReconstruction
-    from ..reconstruct_files import load_psf
+    from ..reconstruct_files import load_psf, resolve_dark
+    from ..stacks import dark_subtracted
 
     method, iterations = _method(args.method)
     psf, depth = load_psf(args.psf, args.depth_mm)
-    stacked = depth is not None or Path(args.psf).is_dir()
     if tuple(cam.image_shape) != tuple(psf.shape):
         raise ReconInputError(
             f"the PSF {args.psf} is {psf.shape[0]}x{psf.shape[1]} but the camera "
             f"delivers {cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate "
             "the PSF with the camera's current ROI and binning")
-    dark = _frame_dark(args, cam, stacked)
-    if dark is not None and stacked:  # the stack's PSF is dark-subtracted already:
-        psf = psf + dark  # LiveReconstructor subtracts the same dark from both
-    recon = LiveReconstructor(psf, bin_factor=args.bin_factor,
-                              dark="auto" if dark is None else dark, device=args.device)
+    psf, dark = resolve_dark(  # one meaning of --dark auto (docs/cli.md)
+        args.dark, psf, calibrated=dark_subtracted(args.psf),
+        recorded=float(cam.dark_offset_dn) if args.simulate else None,
+        what=f"--psf {args.psf}")
+    recon = LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark, device=args.device)
     live = LiveReconstruction(recon, method=method, iterations=iterations,
                               threads=args.threads)
     label = (f"{method}{'' if method == 'wiener' else f' x{iterations}'}, PSF {args.psf}"

@@ -12,7 +12,7 @@ import sys
 
 from diffuserlab.errors import InputError
 
-__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "add_range_option", "bench_config",
+__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "bench_config",
            "bench_label", "check_memory", "error", "floats"]
 
 #: How messages name the built-in simulated bench.
@@ -89,16 +89,6 @@ def floats(text: str, option: str) -> list[float]:
         raise InputError(f"{option} {text!r} needs finite numbers")
     return values
 
-
-
-def add_range_option(parser) -> None:
-    """``--allow-mixed-ranges`` of ``recon`` and ``recon3d``: accept a PSF and a raw
-    whose bit depths or value ranges cannot belong to one camera
-    (:func:`recon.preprocess.check_pair_ranges`)."""
-    parser.add_argument("--allow-mixed-ranges", action="store_true",
-                        help="accept a PSF and a raw of different bit depths or value "
-                        "ranges (e.g. a raw summed from several frames); refused by default "
-                        "because the PSF's dark level would not fit the raw")
 
 
 def check_memory(need_bytes: float, what: str) -> None:

@@ -23,9 +23,9 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
     parser, with the hidden deprecated aliases ``--grid-l1`` and (``grid_dark``)
     ``--grid-dark``; ``solver`` adds ``--two-part`` and the alias ``--grid-method``
     (``recon``, whose ``--method admm`` solves a grid with ``--tv`` and ``--l1``)."""
-    from recon.options import BACKGROUNDS, GRID_METHODS, MODELS, dark_arg
+    from recon.options import GRID_METHODS, dark_arg
 
-    from .recon_flags import add_deprecated
+    from .recon_flags import add_deprecated, add_recon_flags
 
     g = p.add_argument_group(
         "spatially varying model (Ch. 5): a calibrate psf-grid run instead of a PSF")
@@ -33,22 +33,11 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
                    help="a `calibrate psf-grid` run (registered PSFs of one depth); "
                    + ("repeat it, one run per depth, for a volume (depths between the runs "
                       "are synthesised with --depths)" if volume else "one run"))
-    g.add_argument("--model", choices=MODELS, default="auto",
-                   help="forward model: auto (the cheapest whose predicted model error is "
-                   "within 0.1: convolution, PCA with the smallest k, local), convolution "
-                   "(central PSF), local (every grid PSF, Eq. 5.3-5.5) or pca (Eq. 5.6-5.7)")
-    g.add_argument("--pca-k", type=int, default=None,
-                   help="principal PSFs of --model pca (default: 99 %% explained energy)")
-    g.add_argument("--background", choices=BACKGROUNDS, default="estimate",
-                   help="estimate a smooth background jointly (Eq. 6.2, lowest 5x5 DCT; "
-                   "default) or none")
+    add_recon_flags(g, "", fields=("model", "k", "background",
+                                   *(("two_part",) if solver else ())))
     add_deprecated(g, "--grid-l1", "--l1", "l1", type=float)
     if solver:
         add_deprecated(g, "--grid-method", "--method", "method", choices=GRID_METHODS)
-        g.add_argument("--two-part", action="store_true",
-                       help="a far scene (Eq. 5.1): model each grid PSF over its brightness "
-                       "(pixels the sensor missed from the nearest node) and divide the "
-                       "image by the brightness map measured from the grid")
     if grid_dark:
         add_deprecated(g, "--grid-dark", "--dark", "dark", type=dark_arg)
 
@@ -76,7 +65,7 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
         outputs.append(args.metrics_json)
     inputs = {f"--psf-grid {p}": p for p in args.psf_grid}
     check_outputs(outputs, {**inputs, "--raw": args.raw}, args.overwrite)
-    m = run_recon_grid(args.psf_grid, args.raw, model=args.model, k=args.pca_k,
+    m = run_recon_grid(args.psf_grid, args.raw, model=args.model, k=args.k,
                        background=args.background, l1=l1_given(args.l1),
                        iterations=args.iterations, out=args.out,
                        metrics_json=args.metrics_json, depths_mm=depths,

@@ -13,9 +13,7 @@ __all__ = ["add_subcommands", "choice_lines", "run", "summary_line"]
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.options import L1_DEFAULT, METHOD_SUMMARIES, METHODS, weight_arg
-
-    from .recon_flags import L1_HELP, TV_HELP, add_dark_option, add_device_option
+    from .recon_flags import add_recon_flags
 
     rp = sub.add_parser("recon", help="reconstruct an image from a PSF and a raw measurement")
     rp.add_argument("--psf", default=None,
@@ -29,43 +27,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     "default) or psf_stack_raw (dark-subtracted only: better for extended "
                     "scenes when stray light is low, see the README)")
     rp.add_argument("--raw", required=True, help="raw measurement, same shape as the PSF")
-    rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
-                    help="auto (default): chosen from the data and --seconds, and said why "
-                    "(with --psf-grid: fista); "
-                    + "; ".join(f"{name}: {text}" for name, text in METHOD_SUMMARIES.items())
-                    + ". With --psf-grid: fista (Eq. 6.2 with --background and --l1) or admm "
-                    "(TV --tv, l1 --l1, non-negativity; needs --background none; a few hundred "
-                    "iterations where FISTA needs thousands)")
-    rp.add_argument("--iterations", type=int, default=200,
-                    help="maximum iterations: the solve stops earlier when the fit changes "
-                    "by less than the noise explains (the metrics say how many ran)")
-    rp.add_argument("--seconds", type=float, default=None,
-                    help="time budget of the solve, s, for --method auto (Wiener if too short)")
-    rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="box-binning factor, pixels per side (4: 1200x1600 -> 300x400)")
-    rp.add_argument("--tv", type=weight_arg, default="auto", help=TV_HELP)
-    rp.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
-    rp.add_argument("--erase", type=float, default=0.0,
-                    help="fraction (0-1) of raw pixels to erase at random (compressed sensing)")
-    rp.add_argument("--seed", type=int, default=0, help="seed of the erasure mask")
-    rp.add_argument("--full-scale", type=float, default=None,
-                    help="saturation level, DN, if below the dtype max (65520: 12-bit in "
-                    "uint16)")
-    add_dark_option(rp, auto="the PSF's dark corner psf[5:15, 5:15], subtracted from the "
-                    "PSF and the raw; with --psf-grid nothing, --background estimate fits "
-                    "the offset", frame="or a `calibrate dark` run or a dark image (TIFF, "
-                    "PNG, .npy), subtracted pixel by pixel (refused with --psf-grid)")
+    add_recon_flags(rp, "recon")
     rp.add_argument("--out", default="out/recon.png",
                     help="output image; writes OUT.png (viewing) and OUT.tif (float32)")
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace existing output files (never an input)")
-    from .common import add_range_option
     from .grid_options import add_grid_options
 
-    add_range_option(rp)
     add_grid_options(rp, volume=False, solver=True)
-    add_device_option(rp)
     rp.set_defaults(handler=run)
 
 
@@ -100,13 +70,14 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, run_recon
-    from .recon_flags import check_device, dark_for_image
+    from .recon_flags import check_device, check_recon_flags
 
     if (args.psf is None) == (args.psf_grid is None):
         from recon.errors import ReconInputError
 
         raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
+    check_recon_flags(args)
     check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid
@@ -114,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         return run_grid(args, volume=False)
     outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
-    dark = dark_for_image(args.dark)
+    dark = args.dark  # instrument.reconstruct_files.resolve_dark: one meaning of auto
     m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
                   bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
                   full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,

@@ -34,9 +34,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         :func:`run` without naming the command; bad option values raise
         :class:`diffuserlab.errors.InputError` (exit 2).
     """
-    from recon.options import L1_DEFAULT, VOLUME_METHODS, weight_arg
-
-    from .recon_flags import L1_HELP, add_dark_option, add_device_option
+    from .recon_flags import add_recon_flags
 
     p = sub.add_parser("recon3d", help="reconstruct a volume from one image and a PSF stack")
     p.add_argument("--psf-stack", default=None,
@@ -48,26 +46,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--depths", default=None,
                    help="comma-separated depths in mm, one per plane (unless recorded)")
     p.add_argument("--raw", required=True, help="raw measurement, same size as the PSFs")
-    p.add_argument("--method", default="auto", metavar="{auto," + ",".join(VOLUME_METHODS) + "}",
-                   help="auto (default: admm; with --psf-grid fista), admm or fista")
-    p.add_argument("--iterations", type=int, default=200,
-                   help="iterations (default 200; the automatic weight's path and final "
-                   "solve take at most 2.5x as many together)")
-    p.add_argument("--tv", type=weight_arg, default="auto",
-                   help="3D TV weight in the scaled problem (unitless; 0 disables), or auto "
-                   "(default): hold-out cross-validation along a 3D ADMM path; every plane is "
-                   "kept and tested for signal")
-    p.add_argument("--empty-planes", choices=("keep", "drop"), default="keep",
-                   help="with an automatic weight: keep every plane (default) or set those "
-                   "that show no signal in the held-out pixels to zero (reported)")
-    p.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
-    p.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                   help="lateral box binning of every plane and of the raw image, pixels per "
-                   "side")
-    add_dark_option(p, auto="the median of the planes' dark corners psf[5:15, 5:15], "
-                    "subtracted from the stack and the raw image; with --psf-grid nothing, "
-                    "--background estimate fits the offset", frame="a dark run or image is "
-                    "refused (one level is subtracted from the stack and the raw)")
+    add_recon_flags(p, "recon3d")
     p.add_argument("--planes", choices=("all", "auto"), default="all",
                    help="all (default): every plane of the stack; auto: the calibrated "
                    "planes nearest those that Nyquist-sample the measured axial "
@@ -85,12 +64,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (never an input)")
-    from .common import add_range_option
     from .grid_options import add_grid_options
 
-    add_range_option(p)
     add_grid_options(p, volume=True)
-    add_device_option(p)
     p.set_defaults(handler=run)
 
 
@@ -112,17 +88,18 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
-    from .recon_flags import check_device, dark_for_volume
+    from .recon_flags import check_device, check_recon_flags
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
     if (args.psf_stack is None) == (args.psf_grid is None):
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
+    check_recon_flags(args)
     check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid
 
         return run_grid(args, volume=True, depths=depths)
-    dark = dark_for_volume(args.dark)
+    dark = args.dark  # instrument.reconstruct_files.resolve_dark: one meaning of auto
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)

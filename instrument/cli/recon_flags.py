@@ -1,10 +1,13 @@
 """The flags that ``recon``, ``recon3d``, ``recon-run`` and ``capture live`` share, with
-one meaning each (docs/cli.md has the table).
+one meaning each, generated from their one declaration,
+:class:`recon.options.ReconOptions` (:func:`add_recon_flags`; docs/cli.md's table is
+:func:`flags_table`, ``python -m instrument.cli.recon_flags`` prints it).
 
 ``--dark`` takes the same forms everywhere (:func:`recon.options.dark_arg`): ``auto``
-(default), ``none``, a level in DN, or a ``calibrate dark`` run or a dark image where
-the command can subtract a per-pixel frame; the ``dark_for_*`` functions turn it into
-what each reconstruction takes, refusing clearly what it cannot use. The spatially
+(default), ``none``, a level in DN, or a ``calibrate dark`` run or a dark image,
+subtracted pixel by pixel, with one meaning of ``auto`` in every command
+(:func:`instrument.reconstruct_files.resolve_dark`); :func:`dark_for_grid` refuses
+what a PSF grid cannot use (a frame). The spatially
 varying path (``--psf-grid``) uses the plain ``--method``, ``--l1`` and ``--dark``;
 its former twins ``--grid-method``, ``--grid-l1`` and ``--grid-dark`` remain as hidden
 aliases that print a one-line note (:class:`DeprecatedAlias`).
@@ -17,56 +20,91 @@ import sys
 
 from diffuserlab.errors import InputError
 
-__all__ = ["DARK_FORMS", "FRAMES_AUTO", "FRAMES_FRAME", "L1_HELP", "TV_HELP", "DeprecatedAlias",
-           "add_dark_option", "add_deprecated", "add_device_option", "check_device",
-           "dark_for_grid", "dark_for_image", "dark_for_volume", "grid_method"]
+__all__ = ["COMMAND_FIELDS", "DeprecatedAlias", "add_deprecated", "add_device_option",
+           "add_recon_flags", "check_device", "check_recon_flags", "dark_for_grid",
+           "flags_table", "grid_method"]
 
-#: ``--tv`` of every reconstruction command.
-TV_HELP = ("TV weight in the scaled problem (unitless: unit-sum PSF, raw divided by its "
-           "maximum), or auto (default): hold-out cross-validation along a warm-started path")
-#: ``--l1`` of every reconstruction command.
-L1_HELP = ("l1 weight (sparse scenes) in the scaled problem (unitless), or auto; default 0, "
-           "with --psf-grid and --method fista/auto 1e-3 (Eq. 6.2)")
+#: The :class:`recon.options.ReconOptions` fields each command offers as flags, in
+#: ``--help`` order (the ``--psf-grid`` group's model, pca-k, background and two-part
+#: are added by :func:`instrument.cli.grid_options.add_grid_options`), and the
+#: :class:`recon.options.LiveOptions` of ``capture live``.
+COMMAND_FIELDS = {
+    "recon": ("method", "iterations", "seconds", "bin_factor", "tv", "l1", "erase", "seed",
+              "full_scale", "dark", "allow_mixed_ranges", "device"),
+    "recon3d": ("method", "iterations", "tv", "empty_planes", "l1", "bin_factor", "dark",
+                "allow_mixed_ranges", "device"),
+    "recon-run": ("method", "iterations", "tv", "l1", "bin_factor", "dark", "device"),
+    "capture live": ("dark", "device", "bin_factor"),
+}
+#: The ``--psf-grid`` fields of each command (:func:`instrument.cli.grid_options.add_grid_options`).
+GRID_FIELDS = {"recon": ("model", "k", "background", "two_part"),
+               "recon3d": ("model", "k", "background"),
+               "recon-run": ("model", "k", "background")}
+#: What a command shows more narrowly than the declaration (the default stays):
+#: recon3d checks its method itself (``unknown method 'gd'; choose admm or fista``).
+_NARROWER = {"recon3d": {"method": {"choices": None, "metavar": "{auto,admm,fista}"}}}
 
-#: ``--dark auto`` and a dark frame in ``recon-run`` and ``capture live`` (the frames' level).
-FRAMES_AUTO = ("the simulated camera's offset for a run recorded or a bench run with "
-               "--simulate, else with a plain PSF image its dark corner as `recon` does; "
-               "a calibrated (dark-subtracted) PSF stack or grid then needs the level")
-FRAMES_FRAME = ("or a `calibrate dark` run or a dark image (TIFF, PNG, .npy), subtracted "
-                "pixel by pixel (a --psf-grid takes a level)")
 
-#: The help text's description of ``--dark``'s forms (every command).
-DARK_FORMS = ("dark level: auto (default; {auto}), none (the inputs are already "
-              "dark-subtracted: nothing is subtracted) or a level in DN; {frame}")
-
-
-def add_dark_option(p, *, auto: str, frame: str) -> None:
-    """Add ``--dark`` (type :func:`recon.options.dark_arg`, default ``auto``) to ``p``.
+def add_recon_flags(p, command: str, *, fields: tuple[str, ...] | None = None) -> None:
+    """Add ``command``'s reconstruction flags to ``p``, generated from
+    :class:`recon.options.ReconOptions` (flag, type, default, limits, help).
 
     Parameters
     ----------
     p : argparse.ArgumentParser or argument group
-    auto : str
-        What ``auto`` does in this command (for the help text).
-    frame : str
-        What a dark run or image does here, or that it is refused (for the help text).
+    command : str
+        A key of :data:`COMMAND_FIELDS`.
+    fields : tuple of str, optional
+        Only these (default: the command's :data:`COMMAND_FIELDS`).
     """
-    from recon.options import dark_arg
+    from recon.options import ReconOptions
 
-    p.add_argument("--dark", type=dark_arg, default=dark_arg("auto"),
-                   metavar="auto|none|DN|DARK_RUN", help=DARK_FORMS.format(auto=auto,
-                                                                           frame=frame))
+    ReconOptions.add_arguments(p, fields=fields or COMMAND_FIELDS[command],
+                               overrides=_NARROWER.get(command))
+
+
+def check_recon_flags(args) -> None:
+    """Validate the parsed reconstruction flags against their declarations before any
+    file is read (limits, types); the message names the flag (``--tv``).
+
+    Raises
+    ------
+    diffuserlab.errors.InputError
+        A value outside its limits (``--iterations 0``, ``--tv -1``, ``--erase 1``).
+    """
+    from recon.options import ReconOptions
+
+    ReconOptions.from_namespace(args)
 
 
 def add_device_option(p) -> None:
-    """Add ``--device cpu|cuda|auto`` (default cpu; :func:`recon.backend.resolve_device`)."""
-    from recon.options import DEVICES
+    """Add ``--device cpu|cuda|auto`` (:class:`recon.options.ReconOptions`'s ``device``;
+    :func:`recon.backend.resolve_device`)."""
+    from recon.options import ReconOptions
 
-    p.add_argument("--device", choices=DEVICES, default="cpu",
-                   help="where the solver runs: cpu (default; NumPy and numba), cuda (a "
-                   "CUDA GPU through CuPy or PyTorch: pip install 'diffuserlab[gpu]'; "
-                   "refused with a message when none is usable) or auto (the GPU when one "
-                   "is usable, else the CPU); docs/reconstruction.md says what runs there")
+    ReconOptions.add_arguments(p, fields=("device",))
+
+
+def flags_table() -> str:
+    """docs/cli.md's table of the reconstruction flags: every
+    :class:`recon.options.ReconOptions` and :class:`recon.options.LiveOptions` field
+    with the commands that offer it (generated; ``python -m instrument.cli.recon_flags``
+    prints it)."""
+    from recon.options import LiveOptions, ReconOptions
+
+    commands: dict[str, list[str]] = {}
+    for command, fields in COMMAND_FIELDS.items():
+        for f in (*fields, *GRID_FIELDS.get(command, ())):
+            commands.setdefault(f, []).append(command)
+    lines = ReconOptions.markdown().splitlines()
+    out = [lines[0] + " commands |", lines[1] + "---|"]
+    for s, row in zip(ReconOptions.specs(), lines[2:], strict=True):
+        out.append(row + f" {', '.join(commands.get(s.dest, ['Python only']))} |")
+    for s, row in zip(LiveOptions.specs(), LiveOptions.markdown().splitlines()[2:],
+                      strict=True):
+        flag = "`--method` (live)" if s.dest == "method" else "`--method admm:K` (K)"
+        out.append(row.replace(f"`{s.flag}`", flag, 1) + " capture live |")
+    return "\n".join(out)
 
 
 def check_device(device: str) -> None:
@@ -113,40 +151,6 @@ def _refuse_frame(dark, command: str) -> None:
                          "of the dark run's dark_mean product)")
 
 
-def dark_for_image(dark):
-    """``--dark`` for :func:`instrument.reconstruct_files.run_recon`: ``"auto"``,
-    ``"none"``, a level (DN) or the dark run's or image's frame, (rows, cols) float32
-    (the ``dark`` of :func:`recon.reconstruct`).
-
-    Raises
-    ------
-    recon.errors.ReconInputError
-        A path that is neither a dark run nor a readable image.
-    """
-    if dark.auto:
-        return "auto"
-    if dark.none:
-        return "none"
-    if dark.level is not None:
-        return dark.level
-    from ..reconstruct_files import dark_level
-
-    return dark_level(dark.path)
-
-
-def dark_for_volume(dark):
-    """``--dark`` for :func:`instrument.reconstruct_files.run_recon3d`: ``"auto"``,
-    ``"none"`` or a level (DN).
-
-    Raises
-    ------
-    diffuserlab.errors.InputError
-        A dark run or image (the volume model subtracts one level from stack and raw).
-    """
-    _refuse_frame(dark, "recon3d")
-    return "auto" if dark.auto else "none" if dark.none else dark.level
-
-
 def dark_for_grid(dark):
     """``--dark`` of a ``--psf-grid`` reconstruction: ``"auto"``, ``"none"`` or the level
     (DN) subtracted from the raw frame (the ``dark`` of :func:`recon.reconstruct`:
@@ -159,7 +163,7 @@ def dark_for_grid(dark):
         A dark run or image.
     """
     _refuse_frame(dark, "--psf-grid")
-    return dark_for_volume(dark)
+    return "auto" if dark.auto else "none" if dark.none else dark.level
 
 
 def grid_method(method: str, allowed: tuple[str, ...]) -> str:
@@ -176,3 +180,7 @@ def grid_method(method: str, allowed: tuple[str, ...]) -> str:
         raise InputError(f"--method {method}: a --psf-grid model is solved with "
                          f"{' or '.join(allowed)} (auto: fista)")
     return method
+
+
+if __name__ == "__main__":  # docs/cli.md's table
+    print(flags_table())

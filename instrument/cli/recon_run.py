@@ -23,31 +23,59 @@
     frame reconstructed with its own background estimate (Eq. 6.2); the product is
     ``recon_grid_<model>`` (``local``, ``convolution``, ``pcaK``) with the backgrounds
     in ``recon_grid_<model>_background``. The grid's PSFs are dark-subtracted, so the
-    frames' dark level comes from ``--dark`` (or a simulated run's camera offset).
+    frames' dark level comes from ``--dark``, or with ``auto`` a simulated run's camera
+    offset, else nothing: the background fits the offset (docs/cli.md).
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import threading
 
-__all__ = ["add_subcommands", "run"]
+from diffuserlab.options import Options, option
+
+__all__ = ["RunOptions", "add_subcommands", "run"]
+
+
+class RunOptions(Options):
+    """``recon-run``'s own options (the run's PSF, frames, workers, products); its
+    reconstruction flags are :class:`recon.options.ReconOptions`'. The command's parser
+    and the GUI's Batch form (:func:`gui.jobs.batch_reconstruct`) are generated from
+    both."""
+
+    command = "recon-run"
+
+    psf: str | None = option(
+        None, help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth (or "
+        "--psf-grid instead)", default_text="none", label="PSF")
+    depth_mm: float | None = option(
+        None, help="depth of the stack's PSF to use (nearest plane within 5 %)", unit="mm",
+        flag="--depth", default_text="a plain PSF image", label="depth")
+    psf_product: str = option(
+        "psf_stack", help="which stack of a calibration run: psf_stack or psf_stack_raw",
+        label="PSF product")
+    frames: str | None = option(
+        None, help="frames A:B to reconstruct (a damaged frame is left out and listed)",
+        default_text="every stored frame", label="frames")
+    workers: int | None = option(
+        None, help="local dask worker processes (at most the machine's cores, and one per "
+        "frame)", default_text="one per core", label="workers")
+    scheduler: str | None = option(
+        None, help="address of a dask.distributed scheduler (tcp://host:8786); its workers "
+        "must see the run's path", default_text="local workers", label="scheduler")
+    dff: float | None = option(
+        None, help="also store ΔF/F against this per-pixel percentile baseline (e.g. 20)",
+        metavar="PERCENTILE", default_text="none", label="ΔF/F percentile")
+    product: str | None = option(
+        None, help="name of the product", default_text="recon_<method>", label="product")
+    overwrite: bool = option(
+        False, help="replace a product of that name made with other settings")
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""
-    from recon.options import L1_DEFAULT, METHODS, weight_arg
-
-    from .recon_flags import (
-        FRAMES_AUTO,
-        FRAMES_FRAME,
-        L1_HELP,
-        TV_HELP,
-        add_dark_option,
-        add_device_option,
-    )
+    from .recon_flags import add_recon_flags
 
     rp = sub.add_parser(
         "recon-run", help="reconstruct every frame of a recorded run with dask (resumable)",
@@ -55,42 +83,13 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         "parallel with dask and store them in the run as a product; run it again to "
         "resume. Ctrl-C stops and keeps the frames done.")
     rp.add_argument("run", help="the run store, RUN.zarr")
-    rp.add_argument("--psf", default=None,
-                    help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth "
-                    "(or --psf-grid instead)")
-    rp.add_argument("--depth", type=float, default=None, dest="depth_mm",
-                    help="depth (mm) of the stack's PSF to use (nearest plane within 5%%)")
-    rp.add_argument("--psf-product", default="psf_stack",
-                    help="which stack of a calibration run: psf_stack (default) or "
-                    "psf_stack_raw")
-    rp.add_argument("--method", choices=("auto", *METHODS), default="auto",
-                    help="as for `recon` (default auto: chosen from each frame's data; with "
-                    "--psf-grid fista, the only solver of a batch on a PSF grid)")
-    rp.add_argument("--iterations", type=int, default=200,
-                    help="maximum iterations per frame, as for `recon` (default 200)")
-    rp.add_argument("--tv", type=weight_arg, default="auto", help=TV_HELP)
-    rp.add_argument("--l1", type=weight_arg, default=L1_DEFAULT, help=L1_HELP)
-    rp.add_argument("--bin", type=int, default=1, dest="bin_factor",
-                    help="box-binning factor, pixels per side")
-    add_dark_option(rp, auto=FRAMES_AUTO, frame=FRAMES_FRAME)
-    rp.add_argument("--frames", default=None,
-                    help="frames A:B to reconstruct (default: every stored frame; a damaged "
-                    "frame is left out and listed)")
     where = rp.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None,
-                       help="local dask worker processes (default: one per core; at most "
-                       "the machine's cores, and one per frame)")
-    where.add_argument("--scheduler", default=None,
-                       help="address of a dask.distributed scheduler (tcp://host:8786); "
-                       "its workers must see the run's path")
-    rp.add_argument("--dff", type=float, default=None, metavar="PERCENTILE",
-                    help="also store ΔF/F against this per-pixel percentile baseline "
-                    "(e.g. 20)")
-    rp.add_argument("--product", default=None,
-                    help="name of the product (default recon_<method>)")
-    rp.add_argument("--overwrite", action="store_true",
-                    help="replace a product of that name made with other settings")
-    add_device_option(rp)
+    RunOptions.add_arguments(rp, {"workers": where, "scheduler": where},
+                             fields=("psf", "depth_mm", "psf_product"))
+    add_recon_flags(rp, "recon-run")  # per frame, as for `recon`
+    RunOptions.add_arguments(rp, {"workers": where, "scheduler": where},
+                             fields=("frames", "workers", "scheduler", "dff", "product",
+                                     "overwrite"))
     from .grid_options import add_grid_options
 
     add_grid_options(rp, volume=False, grid_dark=False)
@@ -106,21 +105,15 @@ def run(args: argparse.Namespace) -> int:
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
     from ..runstore import RunStore
-    from .recon_flags import check_device
+    from .recon_flags import check_device, check_recon_flags
 
-    if args.iterations < 1:
-        raise ReconInputError(f"--iterations {args.iterations}: give a whole number >= 1")
-    if args.bin_factor < 1:
-        raise ReconInputError(f"--bin {args.bin_factor}: give a factor >= 1")
+    check_recon_flags(args)  # --iterations, --bin, --tv, --l1 against their limits
     if args.workers is not None:
         from ..batch import check_workers
 
         check_workers(args.workers, 1)  # the machine's bound, before any work
     if args.dff is not None and not 0 <= args.dff <= 100:
         raise ReconInputError(f"--dff {args.dff}: give a percentile in [0, 100] (e.g. 20)")
-    for option, value in (("--tv", args.tv), ("--l1", args.l1)):
-        if not isinstance(value, str) and not (value >= 0 and math.isfinite(value)):
-            raise ReconInputError(f"{option} {value}: give a finite weight >= 0 or auto")
     if (args.psf is None) == (args.psf_grid is None):
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
@@ -188,9 +181,8 @@ def _grid(args: argparse.Namespace, store):
     the source and the model's description."""
     from recon.errors import ReconInputError
 
-    from ..batch import frames_dark_level
     from ..batch_grid import prepare_grid_batch
-    from .recon_flags import grid_method
+    from .recon_flags import dark_for_grid, grid_method
 
     if len(args.psf_grid) > 1:
         raise ReconInputError("recon-run reconstructs images: give one --psf-grid run (one "
@@ -200,10 +192,16 @@ def _grid(args: argparse.Namespace, store):
                               "has one depth: drop --depth")
     grid_method(args.method, ("fista",))
     path = args.psf_grid[0]
-    prepared = prepare_grid_batch(path, store.frame_shape, model=args.model, k=args.pca_k,
+    prepared = prepare_grid_batch(path, store.frame_shape, model=args.model, k=args.k,
                                   bin_factor=args.bin_factor)
-    dark = frames_dark_level(args.dark, store.attrs, f"--psf-grid {path} holds "
-                             "dark-subtracted PSFs")
+    # --dark's one meaning for a grid (docs/cli.md): its PSFs are dark-subtracted, so
+    # auto is the frames' recorded level, else nothing (the background fits the offset)
+    dark = dark_for_grid(args.dark)
+    recorded = (store.attrs.get("simulated") or {}).get("dark_offset_dn")
+    if dark == "auto":
+        dark = 0.0 if recorded is None else float(recorded)
+    elif dark == "none":
+        dark = 0.0
     c = prepared.choice
     how = (f"{c.label()} model ({prepared.operator.n_kernels} convolutions per apply; "
            f"{c.reason}), background {args.background}, FISTA x{args.iterations}")

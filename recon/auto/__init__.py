@@ -40,11 +40,11 @@ def parse_weight(value, name: str):
     if value is None or (isinstance(value, str) and value.strip().lower() == AUTO):
         return AUTO
     if isinstance(value, bool | str) or not isinstance(value, numbers.Real):
-        raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
+        raise ReconInputError(f"{name} weight must be a finite number >= 0 or "
                               f"'auto', got {value!r}")
     w = float(value)
     if not (np.isfinite(w) and w >= 0):
-        raise ReconInputError(f"--{name}: {name} weight must be a finite number >= 0 or "
+        raise ReconInputError(f"{name} weight must be a finite number >= 0 or "
                               f"'auto', got {value!r}")
     return w
 

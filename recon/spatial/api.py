@@ -24,7 +24,11 @@ import numpy as np
 from ..auto import AUTO, parse_weight, solve_channel
 from ..backend import resolve_device
 from ..errors import ReconInputError
-from ..options import BACKGROUNDS, GRID_METHODS  # ``--background``, ``method`` choices
+from ..options import (  # ``--background``, ``method`` choices
+    BACKGROUNDS,
+    GRID_METHODS,
+    ReconOptions,
+)
 from ..preprocess import box_bin, check_raw_signal, dark_argument
 from ..result import ReconInfo, Reconstruction
 from ..solvers import SOLVERS, SolverSpec
@@ -35,6 +39,9 @@ from .brightness import brightness_map, caustic_grid
 from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted_errors
 from .device import BACKGROUND_PLANES, device_grid_solvers, solve_grid_on
 from .grid import PsfGrid
+
+#: The declared defaults (:class:`recon.options.ReconOptions`), shared with the front door.
+_D = ReconOptions.defaults()
 
 __all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "bin_grid", "grid_dark",
            "grid_metrics", "grid_model", "reconstruct_psf_grid"]
@@ -179,12 +186,14 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
     return choice, op
 
 
-def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = "auto",
-                         k: int | None = None, background: str = "estimate", l1=None,
-                         iterations: int = 200, depths_mm=None, bin_factor: int = 1,
-                         dark="auto", support=None, tolerance: float | None = None,
-                         prepared: tuple | None = None, method: str = "auto", tv="auto",
-                         two_part: bool = False, device: str = "cpu") -> Reconstruction:
+def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
+                         k: int | None = _D["k"], background: str = _D["background"],
+                         l1=None, iterations: int = _D["iterations"], depths_mm=None,
+                         bin_factor: int = _D["bin_factor"], dark=_D["dark"], support=None,
+                         tolerance: float | None = None, prepared: tuple | None = None,
+                         method: str = _D["method"], tv=_D["tv"],
+                         two_part: bool = _D["two_part"],
+                         device: str = _D["device"]) -> Reconstruction:
     """Reconstruct an image (one grid) or a volume (several grids) from one frame.
 
     Parameters

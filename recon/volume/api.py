@@ -25,6 +25,7 @@ from ..auto.noise import NoiseModel, estimate_noise
 from ..auto.volume import EMPTY_PLANES, auto_volume
 from ..backend import resolve_device
 from ..errors import ReconInputError
+from ..options import ReconOptions
 from ..preprocess import (
     box_bin,
     check_pair_ranges,
@@ -50,6 +51,9 @@ from .operator import (
 from .xp_admm3d import XpVolumeAdmmPlan, auto3d_extra_bytes
 from .xp_admm3d import memory_bytes as admm3d_memory
 from .xp_fista3d import memory_bytes as fista3d_memory
+
+#: The declared defaults (:class:`recon.options.ReconOptions`), shared with the front door.
+_D = ReconOptions.defaults()
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "check_volume_parameters",
            "depth_profile", "prepare_volume_problem", "reconstruct_stack", "volume_metrics"]
@@ -241,7 +245,7 @@ def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark="auto",
     empty = [k for k in range(stack.shape[0]) if not stack[k].sum(dtype=np.float64) > 0]
     if empty:
         raise ReconInputError(f"PSF planes {empty} have no signal above the dark level "
-                              f"{level}; try --dark none or a smaller value")
+                              f"{level}; try the dark level none or a smaller value")
     info = {"dark_mode": mode, "dark_source": source,
             "dark_level": float(np.mean(level)) if mode == "frame" else level,
             "bin_factor": int(bin_factor), "saturated_fraction_raw": saturated,
@@ -270,25 +274,26 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
         raise ReconInputError(f"unknown method {method!r}; choose admm or fista")
     if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) \
             or iterations < 1:
-        raise ReconInputError(f"--iterations must be an integer >= 1, got {iterations!r}")
+        raise ReconInputError(f"iterations must be an integer >= 1, got {iterations!r}")
     if isinstance(bin_factor, bool) or not isinstance(bin_factor, numbers.Integral) \
             or bin_factor < 1:
-        raise ReconInputError(f"--bin must be an integer >= 1, got {bin_factor!r}")
+        raise ReconInputError(f"bin_factor must be an integer >= 1, got {bin_factor!r}")
     for name, w in (("tv", tv), ("l1", l1)):
         try:
             ok = not isinstance(w, bool) and math.isfinite(w) and w >= 0
         except TypeError:
             ok = False
         if not ok:
-            raise ReconInputError(f"--{name} must be a finite number >= 0, got {w!r}")
+            raise ReconInputError(f"{name} must be a finite number >= 0, got {w!r}")
 
 
 def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
-                      method: str = "auto", iterations: int = 200,
-                      tv: float | str | None = "auto", l1: float | str = 0.0,
-                      bin_factor: int = 1, dark="auto",
-                      allow_mixed_ranges: bool = False, empty_planes: str = "keep",
-                      device: str = "cpu") -> Reconstruction:
+                      method: str = _D["method"], iterations: int = _D["iterations"],
+                      tv: float | str | None = _D["tv"], l1: float | str = 0.0,
+                      bin_factor: int = _D["bin_factor"], dark=_D["dark"],
+                      allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
+                      empty_planes: str = _D["empty_planes"],
+                      device: str = _D["device"]) -> Reconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters

@@ -164,7 +164,7 @@ def test_parse_weight():
     assert parse_weight(None, "tv") == "auto" and parse_weight(" AUTO ", "tv") == "auto"
     assert parse_weight(1e-4, "tv") == 1e-4 and parse_weight(np.float32(0), "l1") == 0.0
     for bad in ("1e-4", True, [0.1]):  # the command line converts with weight_arg
-        with pytest.raises(ReconInputError, match="--tv: tv weight must be"):
+        with pytest.raises(ReconInputError, match="^tv weight must be"):
             parse_weight(bad, "tv")
     from recon.auto import weight_arg
 

@@ -72,11 +72,17 @@ def test_recon_takes_one_depth_of_a_run(sweep, tmp_path, capsys):
         vb.set_scene(PlanarScene(np.ones((16, 16)), 40.0, 6.0))
         vb.camera.exposure_s = 0.05
         raw = vb.camera.snap().image
+        offset = f"{vb.camera.dark_offset_dn:g}"
     tifffile.imwrite(tmp_path / "raw.tif", raw)
     out = tmp_path / "recon"
+    # the run's stack is dark-subtracted and a raw file records no level: --dark auto
+    # asks for it (one meaning of auto, docs/cli.md)
+    assert main(["recon", "--psf", str(sweep), "--depth", "40", "--raw",
+                 str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out)]) == 2
+    assert "calibrated (dark-subtracted) PSF" in capsys.readouterr().err
     assert main(["recon", "--psf", str(sweep), "--depth", "40", "--raw",
                  str(tmp_path / "raw.tif"), "--iterations", "5", "--out", str(out),
-                 "--metrics-json", str(tmp_path / "m.json")]) == 0
+                 "--dark", offset, "--metrics-json", str(tmp_path / "m.json")]) == 0
     assert '"psf_depth_mm": 40.0' in (tmp_path / "m.json").read_text()
     stack_tif = tmp_path / "stack.tif"  # the same from an exported TIFF stack
     assert main(["runs", "export", str(sweep), "--out", str(stack_tif)]) == 0
@@ -85,7 +91,7 @@ def test_recon_takes_one_depth_of_a_run(sweep, tmp_path, capsys):
                  "--overwrite"]) == 0
     assert main(["recon", "--psf", str(sweep), "--psf-product", "psf_stack_raw", "--depth",
                  "40", "--raw", str(tmp_path / "raw.tif"), "--iterations", "5", "--out",
-                 str(out), "--overwrite"]) == 0
+                 str(out), "--overwrite", "--dark", offset]) == 0
     capsys.readouterr()
     assert main(["recon", "--psf", str(sweep), "--raw", str(tmp_path / "raw.tif"),
                  "--out", str(out), "--overwrite"]) == 2

@@ -67,7 +67,7 @@ def test_a_hologram_too_large_for_the_gpu_exits_2_saying_how_much(monkeypatch, c
     # quick runs: benchmark 64 x 36 at 16x; evaluate N = 48 at 16x (SLM 12 x 12)
     what = "64 x 36 SLM at 16x" if action == "benchmark" else "12 x 12 SLM at 16x"
     assert f"the hologram of a {what} with 1 plane(s) needs" in err
-    assert "0.00 GiB are free" in err and "use --device cpu" in err
+    assert "0.00 GiB are free" in err and "use the CPU (device cpu)" in err
     assert not out.exists()
 
 

@@ -156,6 +156,13 @@ def test_recon3d_npy_with_depths_to_zarr_with_binning_and_dark(problem, tmp_path
     other = tmp_path / "other.zarr"
     zarr.open_group(str(other), mode="w", zarr_format=3)
     assert cli(*again, "--out", other, "--overwrite") == 2
+    # --dark DARK_RUN (here a dark image), the form its help offers: subtracted pixel by
+    # pixel from every plane and the raw
+    np.save(tmp_path / "dark.npy", np.full((N, N), 20.0, np.float32))
+    assert cli(*again, "--dark", tmp_path / "dark.npy", "--out", tmp_path / "d.tif",
+               "--metrics-json", tmp_path / "d.json") == 0
+    m = json.loads((tmp_path / "d.json").read_text())
+    assert m["dark_mode"] == "frame" and m["dark_level"] == pytest.approx(20.0)
 
 
 def test_recon3d_reads_a_run_store(problem, tmp_path):
@@ -186,8 +193,8 @@ def _bad(problem, tmp_path, **over) -> list[str]:
     ({"--raw": "SMALL"}, "differ in size"),
     ({"--method": "gd"}, "unknown method"),
     ({"--iterations": 0}, "iterations must be"),
-    ({"--tv": -1}, "tv weight must be"),
-    ({"--dark": "dim"}, "use auto, none or a number"),
+    ({"--tv": -1}, "--tv -1.0 is outside its limits: TV weight must be >= 0"),
+    ({"--dark": "dim"}, "--dark dim: no run store at"),  # a dark run or image: read
     ({"--out": "OUTPNG"}, "use a .tif/.tiff or .zarr"),
     ({"--bin": 100}, "larger than the image"),
     ({"--raw": "MISSING"}, "not found"),

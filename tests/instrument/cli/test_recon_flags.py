@@ -13,13 +13,8 @@ import tifffile
 
 from diffuserlab.errors import InputError
 from instrument.cli import build_parser, main
-from instrument.cli.recon_flags import (
-    dark_for_grid,
-    dark_for_image,
-    dark_for_volume,
-    grid_method,
-)
-from instrument.reconstruct_files import frames_dark_text
+from instrument.cli.recon_flags import dark_for_grid, grid_method
+from instrument.reconstruct_files import resolve_dark
 from recon.options import dark_arg, l1_given
 
 #: Each command's argv without --dark (the parser only: nothing runs).
@@ -76,25 +71,35 @@ def test_the_grid_twins_are_deprecated_aliases(capsys):
 def test_help_shows_the_plain_flags_only(capsys):
     with pytest.raises(SystemExit):
         main(["recon", "--help"])
-    out = capsys.readouterr().out
+    out = " ".join(capsys.readouterr().out.split())
     assert "--grid-" not in out and "--dark auto|none|DN|DARK_RUN" in out
-    for unit in ("s, for --method auto", "pixels per side", "level in DN", "DN, if below"):
+    for unit in ("too short), s", "pixels per side", "a level in DN", "DN; > 0"):
         assert unit in out
 
 
-def test_dark_conversions(tmp_path):
+def test_dark_has_one_meaning(tmp_path):
+    """``resolve_dark`` is what every command does with ``--dark``: a plain PSF's
+    ``auto`` is its dark corner (estimated by recon.reconstruct), a calibration run's
+    dark-subtracted PSF takes the recorded level or asks for one, a level or frame is
+    added back to a calibrated PSF so that it stays as calibrated."""
     frame = np.full((4, 5), 7.0, np.float32)
     np.save(tmp_path / "dark.npy", frame)
+    psf = np.ones((4, 5), np.float32)
     image = dark_arg(str(tmp_path / "dark.npy"))
-    assert np.array_equal(dark_for_image(image), frame)
-    assert dark_for_image(dark_arg("auto")) == "auto"
-    assert dark_for_image(dark_arg("none")) == "none" and dark_for_image(dark_arg("3")) == 3.0
-    assert [dark_for_volume(dark_arg(t)) for t in ("auto", "none", "4")] == ["auto", "none", 4.0]
+    out, dark = resolve_dark(image, psf, calibrated=False)
+    assert np.array_equal(dark, frame) and out is psf
+    assert resolve_dark(dark_arg("auto"), psf, calibrated=False) == (psf, "auto")
+    assert resolve_dark(dark_arg("auto"), psf, calibrated=False, recorded=3.0)[1] == "auto"
+    assert resolve_dark(dark_arg("none"), psf, calibrated=True)[1] == "none"
+    out, dark = resolve_dark(dark_arg("auto"), psf, calibrated=True, recorded=3.0)
+    assert dark == 3.0 and np.array_equal(out, psf + 3.0)
+    out, dark = resolve_dark(dark_arg("4"), psf, calibrated=True)
+    assert dark == 4.0 and np.array_equal(out, psf + 4.0)
+    with pytest.raises(InputError, match="calibrated .dark-subtracted. PSF: give the frames'"):
+        resolve_dark(dark_arg("auto"), psf, calibrated=True, what="--psf RUN.zarr")
     assert [dark_for_grid(dark_arg(t)) for t in ("auto", "none", "4")] == ["auto", "none", 4.0]
-    assert [frames_dark_text(dark_arg(t)) for t in ("auto", "none", "4")] == [None, "0", "4"]
-    for refuse in (dark_for_volume, dark_for_grid):
-        with pytest.raises(InputError, match="use auto, none or a number"):
-            refuse(image)
+    with pytest.raises(InputError, match="use auto, none or a number"):
+        dark_for_grid(image)
 
 
 def test_grid_method():
