@@ -277,6 +277,14 @@ class Options:
         """The values, ``{field: value}``."""
         return dict(self._values)
 
+    def replace(self, **changes: Any):
+        """A copy with ``changes`` (values a caller derived from validated ones, e.g. the
+        solver an automatic method resolves to); not validated again."""
+        unknown = set(changes) - set(type(self)._fields)
+        if unknown:
+            raise TypeError(f"{type(self).__name__} has no field {sorted(unknown)}")
+        return type(self)(**{**self._values, **changes})
+
     @classmethod
     def _model(cls):
         """The pydantic model that validates (made on first use)."""

@@ -210,27 +210,9 @@ def dark_level(text: str, option: str = "--dark"):
     return level
 
 
-def run_recon(
-    psf_path: str,
-    raw_path: str,
-    *,
-    method: str,
-    iterations: int,
-    bin_factor: int,
-    tv: float | str | None,
-    erase: float,
-    seed: int,
-    full_scale: float | None = None,
-    out: str,
-    metrics_json: str | None,
-    depth_mm: float | None = None,
-    psf_product: str = "psf_stack",
-    l1: float | str = 0.0,
-    seconds: float | None = None,
-    allow_mixed_ranges: bool = False,
-    dark="auto",
-    device: str = "cpu",
-) -> dict:
+def run_recon(psf_path: str, raw_path: str, options, *, out: str,
+              metrics_json: str | None = None, depth_mm: float | None = None,
+              psf_product: str = "psf_stack") -> dict:
     """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
 
     The PNG is a view turned upright (:func:`recon.io.scene_view`); the TIFF keeps
@@ -240,19 +222,16 @@ def run_recon(
     ----------
     psf_path, raw_path : str
         PSF (image or stack, see :func:`load_psf`) and raw measurement files.
-    method, iterations, bin_factor, tv, erase, seed, full_scale, l1, seconds, device
-        Passed to :func:`recon.reconstruct` (``"auto"`` method and weights included).
+    options : recon.options.ReconOptions
+        The reconstruction's parameters (validated: ``ReconOptions.from_namespace``
+        of the command line, or ``ReconOptions.validated``); its one-PSF keywords go
+        to :func:`recon.reconstruct`, its ``dark`` through :func:`resolve_dark`.
     out : str
         Output stem (see :func:`output_paths`).
     metrics_json : str, optional
         Where to write the metrics.
     depth_mm, psf_product
         Plane and product of a PSF stack (see :func:`load_psf`).
-    allow_mixed_ranges : bool
-        Accept a PSF and raw of different bit depths (``--allow-mixed-ranges``).
-    dark : str, float, ndarray or None
-        ``--dark`` (:func:`resolve_dark`: ``"auto"`` is the PSF's corner, or asks for
-        the level of a calibration run's dark-subtracted PSF).
 
     Returns
     -------
@@ -274,17 +253,15 @@ def run_recon(
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
     from .stacks import dark_subtracted
 
-    psf, dark = resolve_dark(dark, psf, calibrated=dark_subtracted(psf_path),
+    psf, dark = resolve_dark(options.dark, psf, calibrated=dark_subtracted(psf_path),
                              what=f"--psf {psf_path}")
     raw = load_image(raw_path)
     with named_pair(psf_path, raw_path):
-        result = reconstruct(psf, raw, method, iterations=iterations, tv=tv, l1=l1,
-                             seconds=seconds, bin_factor=bin_factor, erase=erase, seed=seed,
-                             full_scale=full_scale, allow_mixed_ranges=allow_mixed_ranges,
-                             dark=dark, device=device)
+        result = reconstruct(psf, raw, **{**options.keywords("image"), "dark": dark})
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
-    metrics.update(psf=str(psf_path), raw=str(raw_path), seed=seed, psf_depth_mm=depth)
+    metrics.update(psf=str(psf_path), raw=str(raw_path), seed=options.seed,
+                   psf_depth_mm=depth)
     png, tif = output_paths(out)
     metrics.update(output_png=str(png), output_tiff=str(tif),
                    orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})

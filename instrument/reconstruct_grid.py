@@ -67,11 +67,9 @@ def load_psf_grid(path: str | Path):
                                   registered=True, shifts_px=attrs["shifts_px"])
 
 
-def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int | None,
-                   background: str, l1: float, iterations: int, out: str,
-                   metrics_json: str | None = None, depths_mm=None, bin_factor: int = 1,
-                   dark="auto", volume: bool = False, method: str = "auto",
-                   tv="auto", two_part: bool = False, device: str = "cpu") -> dict:
+def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
+                   metrics_json: str | None = None, depths_mm=None,
+                   volume: bool = False) -> dict:
     """Load grids and a frame, reconstruct, write outputs; return the metrics.
 
     Parameters
@@ -80,10 +78,12 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
         psf-grid runs: one (2D, unless ``volume``) or one per depth.
     raw_path : str
         The frame (TIFF, PNG or ``.npy``).
-    model, k, background, l1, iterations, depths_mm, bin_factor, dark, method, tv, two_part
-        As :func:`recon.reconstruct` for a PSF grid.
-    device : {"cpu", "cuda", "auto"}
-        Where the solve runs (``device=`` of :func:`recon.reconstruct`).
+    options : recon.options.ReconOptions
+        The reconstruction's parameters; its PSF-grid keywords go to
+        :func:`recon.reconstruct` (``dark`` a level, "auto" or "none": a grid takes no
+        dark frame).
+    depths_mm : sequence of float, optional
+        Depths to synthesise between the grids' (a volume).
     out : str
         2D: the stem of ``OUT.png`` / ``OUT.tif`` (:func:`output_paths`); 3D: the
         volume ``OUT.tif`` / ``OUT.zarr`` with its projections.
@@ -110,10 +110,8 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, *, model: str, k: int |
 
     grids = [load_psf_grid(p) for p in grid_paths]
     raw = load_image(raw_path)
-    rec = reconstruct(grids if (volume or len(grids) > 1) else grids[0], raw, method,
-                      model=model, k=k, background=background, l1=l1, iterations=iterations,
-                      depths_mm=depths_mm, bin_factor=bin_factor, dark=dark, tv=tv,
-                      two_part=two_part, device=device)
+    rec = reconstruct(grids if (volume or len(grids) > 1) else grids[0], raw,
+                      depths_mm=depths_mm, **options.keywords("grid"))
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])

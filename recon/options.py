@@ -245,6 +245,12 @@ class ReconOptions(Options):
         "divide the image by the brightness map measured from the grid",
         kinds=("grid",), label="two-part model")
 
+    def keywords(self, kind: str) -> dict:
+        """The keywords of :func:`recon.reconstruct` for a model of ``kind`` (``"image"``,
+        ``"volume"``, ``"grid"``): the shared ones and the kind's own, as validated."""
+        own = {s.dest for s in self.specs() if not s.kinds or kind in s.kinds}
+        return {k: v for k, v in self.model_dump().items() if k in own}
+
 
 #: Keywords of :func:`recon.reconstruct` that are no flag: its own objects (a mask, a
 #: prepared model, a colour pattern), per kind.

@@ -46,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
                       directory=out)
         run_demo(args.out, seed=args.seed, method=args.method, iterations=args.iterations)
         return 0
+    from recon.options import ReconOptions
     from recon.sample import data_dir
 
     from ..reconstruct_files import run_recon
@@ -54,9 +55,9 @@ def run(args: argparse.Namespace) -> int:
     data = data_dir()
     check_outputs([out / "hand.png", out / "hand.tif", out / "metrics.json"], None,
                   args.overwrite, directory=out)
+    options = ReconOptions.validated({"method": args.method, "iterations": args.iterations,
+                                      "bin_factor": 4, "tv": None, "full_scale": 65520.0})
     m = run_recon(str(data / "psf_sample.tif"), str(data / "rawdata_hand_sample.tif"),
-                  method=args.method, iterations=args.iterations, bin_factor=4, tv=None,
-                  erase=0.0, seed=0, full_scale=65520.0, out=str(out / "hand.png"),
-                  metrics_json=str(out / "metrics.json"))
+                  options, out=str(out / "hand.png"), metrics_json=str(out / "metrics.json"))
     print(summary_line(m))
     return 0

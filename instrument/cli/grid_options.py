@@ -44,7 +44,7 @@ def add_grid_options(p: argparse.ArgumentParser, *, volume: bool,
 
 def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     """Run a ``--psf-grid`` reconstruction and print its summary line."""
-    from recon.options import GRID_METHODS, l1_given
+    from recon.options import GRID_METHODS, ReconOptions
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, volume_output_paths
@@ -65,14 +65,9 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
         outputs.append(args.metrics_json)
     inputs = {f"--psf-grid {p}": p for p in args.psf_grid}
     check_outputs(outputs, {**inputs, "--raw": args.raw}, args.overwrite)
-    m = run_recon_grid(args.psf_grid, args.raw, model=args.model, k=args.k,
-                       background=args.background, l1=l1_given(args.l1),
-                       iterations=args.iterations, out=args.out,
-                       metrics_json=args.metrics_json, depths_mm=depths,
-                       bin_factor=args.bin_factor, dark=dark, volume=volume,
-                       method=method, tv=getattr(args, "tv", "auto"),
-                       two_part=getattr(args, "two_part", False),
-                       device=getattr(args, "device", "cpu"))
+    options = ReconOptions.from_namespace(args).replace(method=method, dark=dark)
+    m = run_recon_grid(args.psf_grid, args.raw, options, out=args.out,
+                       metrics_json=args.metrics_json, depths_mm=depths, volume=volume)
     where = m.get("output_volume") or m["output_png"]
     weight = (m.get("auto") or {}).get("weight")
     if weight:

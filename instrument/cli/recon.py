@@ -66,8 +66,6 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
-    from recon.options import l1_given
-
     from ..output_safety import check_outputs
     from ..reconstruct_files import output_paths, run_recon
     from .recon_flags import check_device, check_recon_flags
@@ -77,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
         raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
-    check_recon_flags(args)
+    options = check_recon_flags(args)
     check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid
@@ -85,14 +83,8 @@ def run(args: argparse.Namespace) -> int:
         return run_grid(args, volume=False)
     outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
-    dark = args.dark  # instrument.reconstruct_files.resolve_dark: one meaning of auto
-    m = run_recon(args.psf, args.raw, method=args.method, iterations=args.iterations,
-                  bin_factor=args.bin_factor, tv=args.tv, erase=args.erase, seed=args.seed,
-                  full_scale=args.full_scale, out=args.out, metrics_json=args.metrics_json,
-                  depth_mm=args.depth_mm, psf_product=args.psf_product,
-                  l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
-                  seconds=args.seconds, allow_mixed_ranges=args.allow_mixed_ranges, dark=dark,
-                  device=args.device)
+    m = run_recon(args.psf, args.raw, options, out=args.out, metrics_json=args.metrics_json,
+                  depth_mm=args.depth_mm, psf_product=args.psf_product)
     for line in choice_lines(m):
         print(line)
     print(summary_line(m))

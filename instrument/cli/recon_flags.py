@@ -63,9 +63,14 @@ def add_recon_flags(p, command: str, *, fields: tuple[str, ...] | None = None) -
                                overrides=_NARROWER.get(command))
 
 
-def check_recon_flags(args) -> None:
-    """Validate the parsed reconstruction flags against their declarations before any
+def check_recon_flags(args):
+    """The parsed reconstruction flags, validated against their declarations before any
     file is read (limits, types); the message names the flag (``--tv``).
+
+    Returns
+    -------
+    recon.options.ReconOptions
+        What the runners take (:func:`instrument.reconstruct_files.run_recon`, ...).
 
     Raises
     ------
@@ -74,7 +79,7 @@ def check_recon_flags(args) -> None:
     """
     from recon.options import ReconOptions
 
-    ReconOptions.from_namespace(args)
+    return ReconOptions.from_namespace(args)
 
 
 def add_device_option(p) -> None:
