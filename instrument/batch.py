@@ -34,8 +34,13 @@ from typing import Any
 
 import numpy as np
 
+from recon.options import ReconOptions
+
 from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
 from .runstore import DamagedFrameError, RunStore, RunStoreError
+
+#: The declared defaults (:class:`recon.options.ReconOptions`), shared with every front end.
+_D = ReconOptions.defaults()
 
 __all__ = ["batch_psf", "check_scheduler", "check_workers", "parse_frames",
            "reconstruct_run", "reconstruct_stored_frame"]
@@ -237,9 +242,9 @@ def _client(workers: int | None, scheduler: str | None, timeout_s: float):
     return Client(cluster, timeout=timeout_s), cluster
 
 
-def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
-                    iterations: int = 200, tv: float | str | None = "auto",
-                    l1: float | str = 0.0, bin_factor: int = 1,
+def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
+                    iterations: int = _D["iterations"], tv: float | str | None = _D["tv"],
+                    l1: float | str = 0.0, bin_factor: int = _D["bin_factor"],
                     dark: float | np.ndarray | None = None, frames: range | None = None,
                     product: str | None = None, workers: int | None = None,
                     scheduler: str | None = None, dff_percentile: float | None = None,
@@ -247,7 +252,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
                     background: str = "estimate", grid_l1: float = 1e-3,
                     on_progress: Callable[[dict], None] | None = None,
                     cancel: threading.Event | None = None,
-                    timeout_s: float = 60.0, device: str = "cpu") -> dict[str, Any]:
+                    timeout_s: float = 60.0, device: str = _D["device"]) -> dict[str, Any]:
     """Reconstruct every selected frame of a recorded run with dask; store the results.
 
     Parameters

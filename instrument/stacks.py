@@ -32,13 +32,12 @@ MIN_PLANE_PX = 8
 
 def _depths(depths_mm, n: int, source: str) -> list[float]:
     if depths_mm is None:
-        raise RunStoreError(f"{source} carries no depths; pass depths_mm (one per plane, mm)")
+        raise RunStoreError(f"{source} carries no depths; give one depth per plane, in mm")
     try:
         depths = [float(z) for z in np.atleast_1d(np.asarray(depths_mm, float))]
     except (TypeError, ValueError):
         raise RunStoreError(f"{source}: its depths {depths_mm!r} are not numbers of mm; fix "
-                            "the depths_mm it records, or give --depths (one per plane, "
-                            "mm)") from None
+                            "the depths it records, or give one depth per plane, in mm") from None
     if len(depths) != n:
         raise RunStoreError(f"{source} has {n} planes but {len(depths)} depths were given")
     if not all(np.isfinite(depths)) or min(depths) <= 0:

@@ -217,7 +217,9 @@ class ReconOptions(Options):
         None, help="time budget of the solve for method auto (Wiener if too short)",
         unit="s", gt=0, kinds=("image",), default_text="none", label="time budget")
     erase: float = option(
-        0.0, help="fraction of raw pixels erased at random (compressed sensing)", ge=0, lt=1,
+        0.0, help="fraction of raw pixels erased at random (compressed sensing; at least "
+        "1 % must stay measured, recon.preprocess.signal.MIN_MEASURED_FRACTION)", ge=0,
+        le=0.99,
         kinds=("image",), label="erased fraction")
     seed: int = option(0, help="seed of the erasure mask", ge=0, kinds=("image",),
                        label="erasure seed")

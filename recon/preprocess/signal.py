@@ -293,7 +293,8 @@ def check_measured_fraction(mask_or_erased) -> None:
         Too few measured pixels (the fraction and the limit named).
     """
     if np.ndim(mask_or_erased) == 0:
-        kept_fraction, what = 1.0 - float(mask_or_erased), f"--erase {mask_or_erased:g}"
+        kept_fraction = 1.0 - float(mask_or_erased)
+        what = f"an erased fraction of {mask_or_erased:g}"
     else:
         mask = np.asarray(mask_or_erased)
         kept_fraction = np.count_nonzero(mask) / max(mask.size, 1)
@@ -302,4 +303,4 @@ def check_measured_fraction(mask_or_erased) -> None:
         raise RawSignalError(
             f"{what} keeps {kept_fraction:.2%} of the sensor's pixels: fewer than "
             f"{MIN_MEASURED_FRACTION:.0%} measured leaves the reconstruction to the prior "
-            "alone; erase at most 99 % (--erase 0.99)")
+            "alone; erase at most 99 % of the pixels (0.99)")

@@ -177,7 +177,7 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
         choice = choose_model(arg, support=support_2d, **opts)
     else:
         errors = predicted_errors(arg)
-        choice = ModelChoice(model, k, 0, errors, reason="given (--model)")
+        choice = ModelChoice(model, k, 0, errors, reason="given")
     op = build_operator(arg, choice.model, k=choice.k, depths_mm=depths_mm, support=support)
     op.brightness = brightness
     choice.convolutions = op.n_kernels // (op.n_z if op.volume else 1)

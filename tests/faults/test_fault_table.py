@@ -130,8 +130,8 @@ NO_SIGNAL = [
          "lone.tif|(7, 9)|1e+38"),
     case(f"{RS} --raw lone.tif", "no-signal", "1e38 above the psf camera's full scale",
          "lone.tif|full scale 65535"),
-    case(f"{RS} --raw raw16.tif --erase 0.9999", "no-signal", "99.99 % erasure",
-         "--erase 0.9999|0.01%"),
+    case(f"{RS} --raw raw16.tif --erase 0.9999", "number", "99.99 % erasure",
+         "--erase 0.9999|0 to 0.99"),
     case(f"{V} --psf-stack stack16.tif --raw raw8.tif", "no-signal",
          "recon3d raw below the stack's dark level", "raw8.tif|3168|dark corners|--dark"),
     case(f"{V} --psf-stack stack16.tif --raw bgsub.tif --method fista --tv 0", "no-signal",
@@ -164,7 +164,7 @@ COLOUR = [
 #: messages a user can act on: the file named, the option to use
 MESSAGES = [
     case(f"{R} --psf abc_depths.tif --depth 4 --raw raw.tif", "messages",
-         "stack depths not numbers", "abc_depths.tif|'abc'|--depths"),
+         "stack depths not numbers", "abc_depths.tif|'abc'|one depth per plane"),
     case(f"{V} --psf-stack abc_depths.tif --raw raw.tif", "messages",
          "recon3d stack depths not numbers", "abc_depths.tif|not numbers"),
 ]
@@ -613,7 +613,9 @@ VIDEO = [
     case(f"{RR} --psf psf.npy", "shape", "psf of another shape", "32|frames are"),
     case(f"{RR} --psf psf.npy --frames x", "number", "frames x", "--frames 'x'"),
     case(f"{RR} --psf psf.npy --dff 120", "number", "dff 120", "--dff 120"),
-    case(f"{RR} --psf stack.tif --depth 2", "missing", "no dark for a stack", "--dark"),
+    # a calibration run's dark-subtracted PSF without a dark level: test_calibrate's
+    # test_recon_takes_one_depth_of_a_run and test_recon_flags' test_dark_has_one_meaning
+    # (a TIFF stack is a PSF as measured: its dark corner, as in every command)
     case("recon-run trunc_meta.zarr --psf psf.npy", "corrupt-store", "truncated zarr.json",
          "trunc_meta.zarr"),
     case("recon-run locked.zarr --psf psf.npy", "locked-store", "locked run", "locked.zarr"),

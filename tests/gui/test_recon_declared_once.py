@@ -108,7 +108,7 @@ def test_a_new_parameter_needs_one_declaration(monkeypatch):
     assert (args.halo_px, args.window, args.iterations) == (7, "hann", 200)
     assert "halo_px" in kind_options("image") and "window" in kind_options("volume")
     assert "halo_px" not in kind_options("grid")
-    with pytest.raises(Exception, match=r"^halo_px=-1 is outside its limits: halo in px must be >= 0 px"):
+    with pytest.raises(Exception, match=r"^halo_px=-1 is outside its limits: halo in px"):
         _WithNewParameter.validated({"halo_px": -1}, front="python")
     assert _WithNewParameter.from_text({"--halo-px": "3"}).halo_px == 3
     table = flags_table()
@@ -127,3 +127,9 @@ def test_each_command_offers_its_declared_flags_only():
         args = vars(build_parser().parse_args(ARGV[command]))
         assert set(fields) <= set(args), command
     assert "erase" not in vars(build_parser().parse_args(ARGV["recon3d"]))
+
+
+def test_the_declared_erase_limit_is_the_numerics_one():
+    from recon.preprocess.signal import MIN_MEASURED_FRACTION
+
+    assert ReconOptions.bounds("erase")["le"] == pytest.approx(1 - MIN_MEASURED_FRACTION)

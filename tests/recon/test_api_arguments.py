@@ -25,7 +25,7 @@ RAW = PSF + 1.0  # above the PSF's "dark corner" (a random PSF has none): light 
     ({"bin_factor": -2}, "bin_factor=-2 is outside its limits: binning factor must be >= 1"),
     ({"seed": -1}, "seed=-1 is outside its limits: erasure seed must be >= 0"),
     ({"seed": 0.5}, "seed=0.5: give a whole number"),
-    ({"erase": 1.5}, "erase=1.5 is outside its limits: erased fraction must be 0 to 1 (excl.)"),
+    ({"erase": 1.5}, "erase=1.5 is outside its limits: erased fraction must be 0 to 0.99"),
     ({"erase": -0.1}, "erase=-0.1 is outside its limits"),
     ({"erase": float("nan")}, "erase=nan is outside its limits"),
     ({"tv": -1.0}, "tv=-1.0 is outside its limits: TV weight must be >= 0"),
