@@ -75,6 +75,7 @@ from .run_integrity import (
     read_lock,
     write_lock,
 )
+from .ome import describe_run, run_dims
 from .run_products import ProductsMixin
 from .runstore_records import VIDEO_PLAN, record_problems
 
@@ -278,19 +279,25 @@ class RunStore(ProductsMixin):
         k = int(min(k, max(n, 1)))
         sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
                                                     "compressors": compressors}
+        dims = run_dims({"plan": {"name": plan_name, "points": list(points)}})
         group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
-                           dtype=np.dtype(frame_dtype), fill_value=0, **sharding)
+                           dtype=np.dtype(frame_dtype), fill_value=0,
+                           dimension_names=dims["frames"], **sharding)
         coords = group.create_array("coords", shape=(n, len(coord_names)),
                                     chunks=(k, len(coord_names)), dtype="float64",
-                                    fill_value=np.nan, dimension_names=("frame", "coord"))
+                                    fill_value=np.nan, dimension_names=dims["coords"])
         coords.attrs["names"] = list(coord_names)
         if coord_specs is not None:
             coords.attrs["units"] = {n: str(coord_specs[n]["unit"]) for n in coord_names}
             coords.attrs["dims"] = {n: str(coord_specs[n]["dim"]) for n in coord_names}
-        group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0)
-        group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0)
-        group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32")[:] = point_of
-        group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16")[:] = tag_of
+        group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0,
+                           dimension_names=dims["crc32"])
+        group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0,
+                           dimension_names=dims["done"])
+        group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32",
+                           dimension_names=dims["point"])[:] = point_of
+        group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16",
+                           dimension_names=dims["tag"])[:] = tag_of
         group.create_group("products")
         group.attrs.update(jsonable({
             "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
@@ -304,6 +311,7 @@ class RunStore(ProductsMixin):
         }))
         if shard_frames is not None:
             group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
+        describe_run(group)
         return cls(path, group, writable=True)
 
     @classmethod
@@ -585,6 +593,9 @@ class RunStore(ProductsMixin):
         values = jsonable(values)
         self._group.attrs.update(values)
         self.attrs.update(values)
+        if {"camera", "device_settings"} & set(values):  # the pitch or frame interval
+            describe_run(self._group)
+            self.attrs = dict(self._group.attrs)
 
     def add_warning(self, text: str) -> None:
         """Append a warning to the run's ``warnings`` attribute."""
