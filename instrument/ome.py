@@ -39,9 +39,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FRAME_ARRAYS", "OME_UNITS", "OmeAxis", "describe_run", "frame_axis",
+__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_run", "frame_axis",
            "frame_pitch_um", "image_attrs", "product_axes", "product_dims", "run_dims",
-           "set_dimension_names", "unique_dims", "volume_axes", "write_products_ome"]
+           "dim_sizes", "set_dimension_names", "unique_dims", "volume_axes",
+           "with_source", "write_products_ome"]
 
 #: Arrays of the run's root group that hold one element (or row) per frame.
 FRAME_ARRAYS = ("crc32", "done", "point", "tag")
@@ -123,10 +124,11 @@ def volume_axes(depths_mm: Sequence[float] | None, n_planes: int) -> tuple[OmeAx
     return OmeAxis("plane"), meta
 
 
-def _space(pitch_um: float | None) -> list[OmeAxis]:
+def _space(pitch_um: float | None, bin_factor: int = 1) -> list[OmeAxis]:
+    names = ("y", "x") if bin_factor == 1 else (f"y_bin{bin_factor}", f"x_bin{bin_factor}")
     if pitch_um is None:
-        return [OmeAxis("y", "space"), OmeAxis("x", "space")]
-    return [OmeAxis(a, "space", "micrometer", float(pitch_um)) for a in ("y", "x")]
+        return [OmeAxis(a, "space") for a in names]
+    return [OmeAxis(a, "space", "micrometer", float(pitch_um)) for a in names]
 
 
 def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
@@ -134,22 +136,26 @@ def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
     """The OME axes of an image product and its multiscale metadata, or None for a
     product that is no image (a table with ``columns``, a 1-D array, 4-D and up).
 
-    2-D: (``y``, ``x``); 3-D: a per-frame product's first axis is the run's
-    (:func:`frame_axis`), a product with ``depths_mm`` has :func:`volume_axes`, a
-    grid of PSFs (a name with ``grid``) ``node``, anything else ``plane``. ``y``/``x`` are scaled by the
-    frame pitch (:func:`frame_pitch_um`) times the product's ``bin_factor``.
+    2-D: (``y``, ``x``); 3-D: a per-frame product's first axis (or one with
+    ``frame_indices``: ΔF/F) is the run's (:func:`frame_axis`), a product with
+    ``depths_mm`` has :func:`volume_axes`, a grid of PSFs (a name with ``grid``)
+    ``node``, anything else ``plane``. ``y``/``x`` are scaled by the frame pitch
+    (:func:`frame_pitch_um`) times the product's ``bin_factor`` ``b`` (its ``source``'s
+    for a ΔF/F), and named ``y_binb``/``x_binb`` when ``b > 1`` (their size differs
+    from the frames').
     """
     shape = tuple(int(v) for v in shape)
     if "columns" in attrs or len(shape) not in (2, 3):
         return None
     pitch = frame_pitch_um(run_attrs)
     b = attrs.get("bin_factor", 1)
-    if pitch is not None and isinstance(b, int | float) and b > 0:
-        pitch *= float(b)
+    b = int(b) if isinstance(b, int | float) and b >= 1 and b == int(b) else 1
+    if pitch is not None:
+        pitch *= b
     meta: dict = {}
     if len(shape) == 2:
-        return _space(pitch), meta
-    if attrs.get("per_frame"):
+        return _space(pitch, b), meta
+    if attrs.get("per_frame") or "frame_indices" in attrs:
         first = frame_axis(run_attrs)
     elif attrs.get("depths_mm") is not None:
         first, meta = volume_axes(attrs["depths_mm"], shape[0])
@@ -157,7 +163,7 @@ def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
         first = OmeAxis("node")
     else:
         first = OmeAxis("plane")
-    return [first, *_space(pitch)], meta
+    return [first, *_space(pitch, b)], meta
 
 
 def product_dims(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
@@ -175,11 +181,25 @@ def product_dims(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
     return tuple(f"dim_{k}" for k in range(len(shape)))
 
 
+def with_source(attrs: Mapping[str, Any], products) -> dict:
+    """A product's attributes with the ``bin_factor`` of the product it derives from
+    (its ``source``, e.g. the reconstruction a ΔF/F was computed from) when it
+    records none."""
+    attrs = dict(attrs)
+    source = attrs.get("source")
+    if "bin_factor" not in attrs and isinstance(source, str) and source in products:
+        node = products[source]
+        if hasattr(node, "shape") and "bin_factor" in node.attrs:
+            attrs["bin_factor"] = node.attrs["bin_factor"]
+    return attrs
+
+
 def unique_dims(dims: Sequence[str], shape: Sequence[int], taken: Mapping[str, int],
                 suffix: str) -> tuple[str, ...]:
     """``dims`` with ``_suffix`` added to each name that ``taken`` ({name: size} of
-    the group's other arrays) already uses with another size: one group's arrays
-    must agree on the size of a dimension for xarray to open it as one dataset."""
+    the group's other arrays and of its parent's) already uses with another size: a
+    group's arrays, and a group and its parent, must agree on the size of a
+    dimension for xarray to open the run as one tree."""
     return tuple(d if taken.get(d, n) == n else f"{d}_{suffix}"
                  for d, n in zip(dims, shape, strict=True))
 
@@ -292,14 +312,15 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
     if arrays and path is not None:
         changed += _set_missing(path, group, run_dims(attrs, group["frames"].ndim))
         products = group["products"]
-        taken: dict[str, int] = {}
+        taken = dim_sizes(group, ROOT_ARRAYS)
         plan: dict[str, tuple[str, ...]] = {}
         for name in sorted(products.array_keys()):
             arr = products[name]
             if name.endswith(("__done", "__crc32")):
                 continue
             dims = tuple(arr.metadata.dimension_names or ()) or unique_dims(
-                product_dims(name, arr.shape, dict(arr.attrs), attrs), arr.shape, taken, name)
+                product_dims(name, arr.shape, with_source(arr.attrs, products), attrs),
+                arr.shape, taken, name)
             taken.update(zip(dims, arr.shape, strict=True))
             plan[name] = dims
             for hidden in ("__done", "__crc32"):
@@ -316,10 +337,30 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
     return changed
 
 
+#: The arrays of a run's root group.
+ROOT_ARRAYS = ("frames", "coords", *FRAME_ARRAYS)
+
+
+def dim_sizes(group, names: Sequence[str] | None = None) -> dict[str, int]:
+    """``{dimension name: size}`` over the named arrays ``names`` of one group (None:
+    all of them; a run's root is not listed, zarr would warn about its ``.lock``)."""
+    out: dict[str, int] = {}
+    for name in group.array_keys() if names is None else names:
+        dims = group[name].metadata.dimension_names
+        if dims is not None:
+            out.update(zip(dims, group[name].shape, strict=True))
+    return out
+
+
+#: Dimension names a run's ``coords`` had before the frames' axis was named.
+_LEGACY_COORD_DIMS = ("frame", "coord")
+
+
 def _set_missing(root: Path, group, dims: Mapping[str, Sequence[str]]) -> list[str]:
     out = []
     for name, names in dims.items():
-        if name in group and group[name].metadata.dimension_names is None \
+        have = group[name].metadata.dimension_names if name in group else ()
+        if (have is None or (name == "coords" and tuple(have) == _LEGACY_COORD_DIMS)) \
                 and set_dimension_names(root / name, names):
             out.append(name)
     return out
@@ -334,7 +375,7 @@ def write_products_ome(products, run_attrs: Mapping[str, Any]) -> None:
         arr = products[name]
         if name.endswith(("__done", "__crc32")):
             continue
-        found = product_axes(name, arr.shape, dict(arr.attrs), run_attrs)
+        found = product_axes(name, arr.shape, with_source(arr.attrs, products), run_attrs)
         dims = arr.metadata.dimension_names
         if found is None or dims is None:
             continue

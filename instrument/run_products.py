@@ -25,7 +25,7 @@ import numpy as np
 
 from drivers.base import jsonable
 
-from .ome import product_dims, unique_dims, write_products_ome
+from .ome import ROOT_ARRAYS, dim_sizes, product_dims, unique_dims, with_source, write_products_ome
 from .run_integrity import RunStoreError, product_crcs
 
 __all__ = ["ProductsMixin"]
@@ -246,14 +246,12 @@ class ProductsMixin:
     # ------------------------------------------------------------------ helpers
     def _product_dims(self, name: str, shape, attrs) -> tuple[str, ...]:
         """Dimension names of a new product (:func:`instrument.ome.product_dims`), a
-        name suffixed with the product's where another product uses it with another
-        size (xarray opens ``products/`` as one dataset)."""
+        name suffixed with the product's where another product or the frames use it
+        with another size (xarray opens ``products/`` as one dataset under the root);
+        the product is deleted before, so its old names do not count."""
         products = self._group["products"]
-        taken: dict[str, int] = {}
-        for other in products.array_keys():
-            dims = products[other].metadata.dimension_names
-            if other != name and dims is not None:
-                taken.update(zip(dims, products[other].shape, strict=True))
+        taken = {**dim_sizes(self._group, ROOT_ARRAYS), **dim_sizes(products)}
+        attrs = with_source(attrs, products)
         return unique_dims(product_dims(name, shape, attrs, self.attrs), shape, taken, name)
 
     def _product_array(self, name: str):

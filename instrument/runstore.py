@@ -65,6 +65,7 @@ import numpy as np
 
 from drivers.base import jsonable
 
+from .ome import describe_run, run_dims
 from .run_integrity import (
     LOCK_NAME,
     DamagedFrameError,
@@ -75,7 +76,6 @@ from .run_integrity import (
     read_lock,
     write_lock,
 )
-from .ome import describe_run, run_dims
 from .run_products import ProductsMixin
 from .runstore_records import VIDEO_PLAN, record_problems
 
@@ -370,6 +370,34 @@ class RunStore(ProductsMixin):
         if getattr(self, "_locked", False):
             (self.path / LOCK_NAME).unlink(missing_ok=True)
             self._locked = False
+
+    def upgrade(self) -> list[str]:
+        """Add the OME-Zarr 0.5 description (:mod:`instrument.ome`) to a run written
+        before it: dimension names on every array that lacks them, the ``ome`` blocks
+        of the root and of ``products/``. Only metadata documents (``zarr.json``) are
+        rewritten; no chunk is touched, so every checksum still holds.
+
+        Returns
+        -------
+        list of str
+            The arrays whose dimension names were set (empty when the run had them).
+
+        Raises
+        ------
+        RunStoreError
+            Read-only store, or another process writes the run (its lock).
+        """
+        import zarr
+
+        self.lock()
+        try:
+            changed = describe_run(self._group, arrays=True)
+            self._group = zarr.open_group(str(self.path), mode="r+", zarr_format=3)
+            describe_run(self._group)
+            self.attrs = dict(self._group.attrs)
+        finally:
+            self.unlock()
+        return changed
 
     def lock_owner(self) -> dict | None:
         """The writer's lock record ``{pid, host, started_utc}``, None when unlocked."""

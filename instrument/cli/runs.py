@@ -1,4 +1,4 @@
-"""``diffuserlab runs {show,verify,export,import-psf}``: look into, check and convert run
+"""``diffuserlab runs {show,verify,export,upgrade,import-psf}``: look into, check and convert run
 stores."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ __all__ = ["add_subcommands", "format_summary", "run", "verify"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
-    """Add ``runs`` (with ``show``, ``verify``, ``export``, ``import-psf``) to the
+    """Add ``runs`` (with ``show``, ``verify``, ``export``, ``upgrade``, ``import-psf``) to the
     subparsers."""
     rp = sub.add_parser("runs", help="show, export or import runs (Zarr stores)")
     rsub = rp.add_subparsers(dest="runs_command", required=True)
@@ -37,6 +37,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                        help="export the raw frames instead: the stored frames whose "
                        "checksums hold (a killed recording's, a damaged frame left out; "
                        "each skipped range is listed)")
+    up = rsub.add_parser("upgrade", help="add the OME-Zarr 0.5 description (axis names, "
+                         "units, scales) to a run written before it, in place; no data "
+                         "chunk is touched")
+    up.add_argument("run", help="run store directory (RUN.zarr)")
     ip = rsub.add_parser("import-psf", help="store a PSF stack (TIFF or .npy) as a run")
     ip.add_argument("stack", help="TIFF or .npy, (depths, rows, cols) or one 2D PSF")
     ip.add_argument("--depths", default=None,
@@ -166,6 +170,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {out}")
         for line in skipped:
             print(f"skipped  {line}")
+    elif args.runs_command == "upgrade":
+        store = RunStore.open(args.run, "r+")
+        changed = store.upgrade()
+        print(f"{store.path}: named the dimensions of {len(changed)} arrays"
+              + (f" ({', '.join(changed)})" if changed else "")
+              + "; OME-Zarr 0.5 description written (no data chunk touched)")
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")
