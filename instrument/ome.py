@@ -41,7 +41,7 @@ import numpy as np
 
 __all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_run", "frame_axis",
            "frame_pitch_um", "image_attrs", "product_axes", "product_dims", "run_dims",
-           "dim_sizes", "set_dimension_names", "unique_dims", "volume_axes",
+           "dim_sizes", "set_dimension_names", "space_axes", "unique_dims", "volume_axes",
            "with_source", "write_products_ome"]
 
 #: Arrays of the run's root group that hold one element (or row) per frame.
@@ -124,7 +124,9 @@ def volume_axes(depths_mm: Sequence[float] | None, n_planes: int) -> tuple[OmeAx
     return OmeAxis("plane"), meta
 
 
-def _space(pitch_um: float | None, bin_factor: int = 1) -> list[OmeAxis]:
+def space_axes(pitch_um: float | None, bin_factor: int = 1) -> list[OmeAxis]:
+    """The ``y``, ``x`` axes of a plane of pixels ``pitch_um`` apart (micrometer; no
+    unit when None), named ``y_binb``, ``x_binb`` for a plane binned by ``b > 1``."""
     names = ("y", "x") if bin_factor == 1 else (f"y_bin{bin_factor}", f"x_bin{bin_factor}")
     if pitch_um is None:
         return [OmeAxis(a, "space") for a in names]
@@ -154,7 +156,7 @@ def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
         pitch *= b
     meta: dict = {}
     if len(shape) == 2:
-        return _space(pitch, b), meta
+        return space_axes(pitch, b), meta
     if attrs.get("per_frame") or "frame_indices" in attrs:
         first = frame_axis(run_attrs)
     elif attrs.get("depths_mm") is not None:
@@ -163,7 +165,7 @@ def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
         first = OmeAxis("node")
     else:
         first = OmeAxis("plane")
-    return [first, *_space(pitch, b)], meta
+    return [first, *space_axes(pitch, b)], meta
 
 
 def product_dims(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
@@ -330,7 +332,7 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
     frames = group["frames"]
     dims = frames.metadata.dimension_names
     if dims is not None:  # (a store written before: runs upgrade names them first)
-        found = [frame_axis(attrs), *_space(frame_pitch_um(attrs))][-frames.ndim:]
+        found = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))][-frames.ndim:]
         axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found, strict=True)]
         group.attrs["ome"] = image_attrs([("frames", "frames", axes, {})])
     write_products_ome(group["products"], attrs)

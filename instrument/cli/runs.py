@@ -26,9 +26,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                          "checksum; exit 0 intact, 1 damaged, 2 unreadable")
     vp.add_argument("run", help="run store directory (RUN.zarr)")
     ep = rsub.add_parser("export", help="write a product (default psf_stack) or the frames "
-                         "as TIFF")
+                         "as TIFF: an ImageJ hyperstack (Fiji) or an OME-TIFF, with axes, "
+                         "pixel size, spacing and units")
     ep.add_argument("run")
-    ep.add_argument("--out", required=True, help="TIFF file to write (.tif or .tiff)")
+    ep.add_argument("--out", required=True, help="TIFF file to write (.tif or .tiff; "
+                    ".ome.tif for an OME-TIFF)")
+    ep.add_argument("--format", choices=("auto", "imagej", "ome"), default="auto",
+                    help="imagej: an ImageJ hyperstack; ome: an OME-TIFF; auto (default): "
+                    "OME-TIFF for a .ome.tif name, else ImageJ")
     ep.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     group = ep.add_mutually_exclusive_group()
     group.add_argument("--product", default="psf_stack", help="product name (default "
@@ -166,7 +171,8 @@ def run(args: argparse.Namespace) -> int:
         from ..stacks import export_tiff
 
         out, skipped = export_tiff(args.run, args.out,
-                                   product=None if args.frames else args.product)
+                                   product=None if args.frames else args.product,
+                                   fmt=args.format)
         print(f"wrote {out}")
         for line in skipped:
             print(f"skipped  {line}")

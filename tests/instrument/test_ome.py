@@ -186,3 +186,53 @@ def test_upgrade_adds_the_description_without_touching_a_chunk(tmp_path, capsys)
     again = RunStore.open(store.path, "r+")
     assert again.verify() == [] and again.upgrade() == []
     assert again.frame(5).image[0, 0] == 5
+
+
+def _export(run, out, *extra):
+    assert main(["runs", "export", str(run), "--out", str(out), *extra]) == 0
+    import tifffile
+
+    return tifffile.TiffFile(out)
+
+
+def test_export_imagej_hyperstacks_and_ome_tiff(tmp_path):
+    from instrument.stacks import load_psf_stack
+
+    store = _sweep(tmp_path / "s.zarr")
+    depths = [10.0, 10.5, 11.0]
+    store.write_product("psf_stack", np.ones((3, 16, 20), np.float32), depths_mm=depths)
+    pitch = PITCH_UM * BINNING
+    with _export(store.path, tmp_path / "psf.tif") as tif:  # Fiji: a Z stack in um
+        assert tif.is_imagej and tif.series[0].axes == "ZYX"
+        ij = tif.imagej_metadata
+        assert ij["spacing"] == pytest.approx(500.0) and ij["unit"] == "um"
+        num, den = tif.pages[0].tags["XResolution"].value
+        assert den / num == pytest.approx(pitch, rel=1e-5)
+    # the exported depths are read back as before
+    assert load_psf_stack(tmp_path / "psf.tif")[1] == depths
+    with _export(store.path, tmp_path / "psf.ome.tif") as tif:
+        assert tif.is_ome and tif.series[0].axes == "ZYX"
+        import tifffile
+
+        pixels = tifffile.xml2dict(tif.ome_metadata)["OME"]["Image"]["Pixels"]
+        assert pixels["PhysicalSizeX"] == pytest.approx(pitch)
+        assert pixels["PhysicalSizeZ"] == pytest.approx(500.0)
+        assert pixels["PhysicalSizeXUnit"] == "µm"
+    assert load_psf_stack(tmp_path / "psf.ome.tif")[1] == depths
+    with _export(store.path, tmp_path / "frames.tif", "--frames") as tif:
+        assert tif.series[0].axes == "TYX" and tif.series[0].shape == (6, 16, 20)
+        assert tif.imagej_metadata["Labels"][1] == "frame 1 dark point 0"
+        assert "finterval" not in tif.imagej_metadata  # a sweep: frames, not time
+
+
+def test_export_video_frames_with_their_interval(tmp_path):
+    store = _video(tmp_path / "v.zarr")
+    with _export(store.path, tmp_path / "v.tif", "--frames") as tif:
+        assert tif.series[0].axes == "TYX"
+        assert tif.imagej_metadata["finterval"] == pytest.approx(1 / FPS)
+    with _export(store.path, tmp_path / "v.ome.tif", "--frames") as tif:
+        import tifffile
+
+        pixels = tifffile.xml2dict(tif.ome_metadata)["OME"]["Image"]["Pixels"]
+        assert pixels["TimeIncrement"] == pytest.approx(1 / FPS)
+        assert pixels["SizeT"] == 6 and pixels["TimeIncrementUnit"] == "s"
