@@ -55,7 +55,7 @@ class ProductsMixin:
         arr[...] = array
         arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
         self._note_product(name)
-        write_products_ome(products, self.attrs)
+        write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
 
     def recorded_products(self) -> list[str]:
         """Names of the products the run recorded writing (the ``written`` attribute of
@@ -189,7 +189,7 @@ class ProductsMixin:
                               fill_value=0, dimension_names=dims[:1])
         arr.attrs.update(want)
         self._note_product(name)
-        write_products_ome(products, self.attrs)
+        write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
 
     def write_product_frame(self, name: str, index: int, plane: np.ndarray) -> None:
         """Store plane ``index`` of a per-frame product: data, checksum, then done flag.
