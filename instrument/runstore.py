@@ -12,7 +12,8 @@ Layout of ``RUN.zarr``::
                          id, exposure, gain, timestamps, saturation count, ...), their
                          units and dimension names in ``units`` and ``dims``
                          ({name: str}, from instrument.coords); Zarr dimension names
-                         ("frame", "coord")
+                         (the frames' first axis, "coord"; ("frame", "coord") before
+                         the OME-Zarr description)
     crc32                (n_frames,) uint32, one element per chunk: CRC-32 of the frame's
                          bytes (little-endian) then of its coordinate row (float64
                          little-endian), written before the done flag (schema 2; schema-1
@@ -28,6 +29,12 @@ Layout of ``RUN.zarr``::
     products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...);
                          attribute ``crc32``: CRC-32 per plane (first axis) of a 3-D
                          product, of the whole array otherwise
+    dimension_names, ome every array names its dimensions (the frames' first axis
+                         ``t`` for a video, named for what a sweep's points vary
+                         otherwise, shared by the per-frame arrays); the root's and
+                         ``products/``'s ``ome`` attribute describe them as OME-Zarr
+                         0.5 images (:mod:`instrument.ome`; ``runs upgrade`` adds both
+                         to a run written before)
 
 The whole layout is fixed when the run is created (the plan declares every point
 and frame up front), so the metadata never changes while frames are written. Each
