@@ -10,15 +10,13 @@ model grid (:data:`recon.io.DATA_ORIENTATION`), scaled by the layer's pixel size
 times the binning.
 """
 
-from __future__ import annotations
-
+# (no ``from __future__ import annotations``: magicgui builds the form from the
+# annotations at run time; napari's types are strings it resolves by importing napari,
+# the optional extra)
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
-
-if TYPE_CHECKING:  # napari's types, for magicgui's form; napari is the optional extra
-    import napari
 
 __all__ = ["METHODS", "reconstruct_layer"]
 
@@ -39,12 +37,12 @@ def _plane(layer, viewer) -> np.ndarray:
     return np.asarray(data[index])
 
 
-def reconstruct_layer(layer: napari.layers.Image, psf_run: Path,
+def reconstruct_layer(layer: "napari.layers.Image", psf_run: Path,  # noqa: F821
                       product: str = "psf_stack", depth_mm: float = 0.0,
                       method: Literal["auto", "admm", "fista", "wiener"] = "auto",
                       iterations: int = 100, bin_factor: int = 1,
-                      viewer: napari.Viewer | None = None
-                      ) -> napari.types.LayerDataTuple:
+                      viewer: "napari.Viewer" = None,  # noqa: F821
+                      ) -> "napari.types.LayerDataTuple":  # noqa: F821
     """Reconstruct the plane of ``layer`` that napari shows with a run's PSF.
 
     Parameters

@@ -120,3 +120,26 @@ def test_widget_reconstructs_the_shown_frame_with_a_runs_psf(tmp_path, plugin):
     # napari's widget machinery builds the form from the manifest's function
     widget = npe2.PluginManager.instance().get_manifest(plugin).contributions.widgets[0]
     assert widget.get_callable() is not None
+
+
+def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
+    """The widget napari builds from the manifest (magicgui on the function; a canvas
+    needs OpenGL, which the offscreen platform lacks, so no viewer window)."""
+    from napari.layers import Image
+
+    rng = np.random.default_rng(2)
+    n = 24
+    psf = np.zeros((n, n), np.float32)
+    psf[rng.integers(3, n - 3, 8), rng.integers(3, n - 3, 8)] = 1.0
+    store = _sweep(tmp_path / "psf.zarr", n_points=1, shape=(n, n))
+    store.write_product("psf_stack", psf[None], depths_mm=[10.0])
+    contribution = npe2.PluginManager.instance().get_manifest(plugin).contributions.widgets[0]
+    widget = contribution.get_callable()()  # autogenerate: a magicgui factory
+    assert list(widget.method.choices) == ["auto", "admm", "fista", "wiener"]
+    layer = Image(rng.random((n, n)).astype(np.float32) * 100 + 10, name="raw")
+    widget.layer.choices = [layer]  # (napari fills it with the viewer's image layers)
+    widget.layer.value = layer
+    widget.psf_run.value = store.path
+    widget.method.value = "wiener"
+    data, kwargs, kind = widget()
+    assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
