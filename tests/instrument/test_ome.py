@@ -14,7 +14,7 @@ from ome_zarr_models.v05.image import Image
 
 from instrument.cli import main
 from instrument.ome import volume_axes
-from instrument.runstore import RunStore
+from instrument.runstore import RunStore, RunStoreError
 from instrument.runstore_records import VIDEO_PLAN
 
 PITCH_UM, BINNING, FPS = 3.45, 2, 25.0
@@ -174,6 +174,10 @@ def test_upgrade_adds_the_description_without_touching_a_chunk(tmp_path, capsys)
     old.write_product_frame("recon_admm", 1, np.ones((8, 10)))
     with pytest.raises(ValueError):
         Image.from_zarr(zarr.open_group(store.path, mode="r"))
+    old.lock()  # a run another process writes is refused, unchanged
+    with pytest.raises(RunStoreError, match="lock|writ"):
+        RunStore.open(store.path, "r+").upgrade()
+    old.unlock()
     before = _chunk_hashes(store.path)
     assert main(["runs", "upgrade", str(store.path)]) == 0
     assert "named the dimensions of" in capsys.readouterr().out
