@@ -322,8 +322,21 @@ def projections(volume: np.ndarray) -> dict[str, np.ndarray]:
             "yz": np.repeat(volume.max(axis=2).T, rep, axis=1)}
 
 
-def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
-    """A float32 TIFF (JSON metadata, axes ZYX) or a Zarr v3 array (attributes).
+#: Marker in the ``zarr.json`` of a volume :func:`write_volume` wrote (the group's
+#: ``diffuserlab`` attribute): such a folder may be replaced by the next one.
+VOLUME_MARKER = "recon3d-volume"
+
+
+def write_volume(path: Path, volume: np.ndarray, attrs: dict,
+                 pitch_um: float | None = None) -> None:
+    """A float32 TIFF (JSON metadata, axes ZYX) or an OME-Zarr 0.5 image (Zarr v3).
+
+    The Zarr volume is a group holding the volume as its array ``0`` (z, y, x) with
+    ``attrs`` and an ``ome`` block (:func:`instrument.ome.image_attrs`): ``z`` in
+    micrometer when ``attrs["depths_mm"]`` are evenly spaced, else a ``plane`` axis
+    with the depths in the metadata (:func:`instrument.ome.volume_axes`); ``y``/``x``
+    in micrometer with ``pitch_um`` (the reconstruction grid's pitch: sensor pitch
+    times binning), unitless without.
 
     Both are written under a temporary name in the same directory and renamed into
     place (the TIFF with :func:`recon.io.atomic_path`; a Zarr array, a directory, is
@@ -332,8 +345,9 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
 
     Raises
     ------
-    ValueError
-        ``path`` is an existing Zarr node that is not an array (e.g. a run store).
+    InputError
+        ``path`` is an existing Zarr node that is no volume written here (e.g. a run
+        store).
     """
     import tifffile
     import zarr
@@ -346,20 +360,31 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
             tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
                              metadata={**attrs, "axes": "ZYX"})
         return
+    from .ome import OmeAxis, image_attrs, volume_axes
+
     node = path / "zarr.json"
     if path.exists():
-        kind = json.loads(node.read_text()).get("node_type") if node.is_file() else None
-        if kind != "array":
+        meta = json.loads(node.read_text()) if node.is_file() else {}
+        ours = meta.get("node_type") == "array" or (  # an array: written before OME-Zarr
+            meta.get("attributes", {}).get("diffuserlab") == VOLUME_MARKER)
+        if not ours:
             raise InputError(f"--out {path} exists and is not a volume written by recon3d "
                              "(a run store?); choose another name")
+    first, meta = volume_axes(attrs.get("depths_mm"), volume.shape[0])
+    space = [OmeAxis(a, "space", *(("micrometer", float(pitch_um)) if pitch_um else ()))
+             for a in ("y", "x")]
+    axes = [first, *space]
     # written under a temporary name and renamed into place (the old volume is moved
     # aside first and removed after): never half an array under the final name
     tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
     try:
-        arr = zarr.create_array(str(tmp), shape=volume.shape, dtype="float32",
-                                chunks=(1, *volume.shape[1:]), overwrite=True, zarr_format=3)
+        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        arr = group.create_array("0", shape=volume.shape, dtype="float32",
+                                 chunks=(1, *volume.shape[1:]),
+                                 dimension_names=[a.name for a in axes])
         arr[:] = volume
-        arr.attrs.update(attrs)
+        group.attrs.update({**attrs, "diffuserlab": VOLUME_MARKER,
+                            "ome": image_attrs([("volume", "0", axes, meta)])})
         if path.exists():
             old = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old"))
             os.replace(path, old)
@@ -370,6 +395,27 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _grid_pitch_um(psf_stack: str, product: str, pitch_um: float | None,
+                   bin_factor: int) -> float | None:
+    """The pitch of the reconstruction grid, um: the sensor pitch given (``--pitch-um``)
+    or the PSF run's frame pitch (:func:`instrument.ome.frame_pitch_um`, times the
+    product's own ``bin_factor``), times the reconstruction's binning; None when
+    neither is known (a plain TIFF or .npy stack without ``--pitch-um``)."""
+    from .ome import frame_pitch_um, with_source
+    from .runstore import RunStore, is_run_store
+
+    if pitch_um:
+        return float(pitch_um) * bin_factor
+    if not is_run_store(psf_stack):
+        return None
+    store = RunStore.open(psf_stack)
+    pitch = frame_pitch_um(store.attrs)
+    if pitch is None or product not in store.products():
+        return None
+    b = with_source(store._group["products"][product].attrs, store._group["products"])
+    return pitch * float(b.get("bin_factor", 1)) * bin_factor
 
 
 def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
@@ -482,8 +528,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
              "normalised PSF stack (sum_z (sum h_z)^2 = 1)", "method": method,
              "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor),
              "orientation": DATA_ORIENTATION}
+    grid_pitch = _grid_pitch_um(psf_stack, psf_product, pitch_um, bin_factor)
     with output_group():  # the volume and its projections: all of them or none
-        write_volume(vol_path, rec.volume, attrs)
+        write_volume(vol_path, rec.volume, attrs, pitch_um=grid_pitch)
         # the projections are views: turned to scene orientation (rows and columns flipped)
         for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
             save_image(mip_paths[view], image)

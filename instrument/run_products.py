@@ -25,6 +25,7 @@ import numpy as np
 
 from diffuserlab.jsonio import jsonable
 
+from .ome import ROOT_ARRAYS, dim_sizes, product_dims, unique_dims, with_source, write_products_ome
 from .run_integrity import RunStoreError, product_crcs
 
 __all__ = ["ProductsMixin"]
@@ -48,10 +49,13 @@ class ProductsMixin:
         products = self._group["products"]
         self._delete_product(name)
         chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
-        arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype)
+        arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype,
+                                    dimension_names=self._product_dims(name, array.shape,
+                                                                       attrs))
         arr[...] = array
         arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
         self._note_product(name)
+        write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
 
     def recorded_products(self) -> list[str]:
         """Names of the products the run recorded writing (the ``written`` attribute of
@@ -176,14 +180,16 @@ class ProductsMixin:
                 f"({', '.join(differs) or 'shape/dtype'} differ); use the same settings to "
                 "resume it, or replace it (--overwrite, overwrite=True)")
         self._delete_product(name)
+        dims = self._product_dims(name, shape, want)
         arr = products.create_array(name, shape=shape, chunks=(1, *shape[1:]), dtype=dtype,
-                                    fill_value=0)
+                                    fill_value=0, dimension_names=dims)
         products.create_array(name + _CRC, shape=shape[:1], chunks=(1,), dtype="uint32",
-                              fill_value=0)
+                              fill_value=0, dimension_names=dims[:1])
         products.create_array(name + _DONE, shape=shape[:1], chunks=(1,), dtype="uint8",
-                              fill_value=0)
+                              fill_value=0, dimension_names=dims[:1])
         arr.attrs.update(want)
         self._note_product(name)
+        write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
 
     def write_product_frame(self, name: str, index: int, plane: np.ndarray) -> None:
         """Store plane ``index`` of a per-frame product: data, checksum, then done flag.
@@ -238,6 +244,16 @@ class ProductsMixin:
         return plane
 
     # ------------------------------------------------------------------ helpers
+    def _product_dims(self, name: str, shape, attrs) -> tuple[str, ...]:
+        """Dimension names of a new product (:func:`instrument.ome.product_dims`), a
+        name suffixed with the product's where another product or the frames use it
+        with another size (xarray opens ``products/`` as one dataset under the root);
+        the product is deleted before, so its old names do not count."""
+        products = self._group["products"]
+        taken = {**dim_sizes(self._group, ROOT_ARRAYS), **dim_sizes(products)}
+        attrs = with_source(attrs, products)
+        return unique_dims(product_dims(name, shape, attrs, self.attrs), shape, taken, name)
+
     def _product_array(self, name: str):
         products = self._group["products"]
         if name not in self.products():

@@ -12,7 +12,8 @@ Layout of ``RUN.zarr``::
                          id, exposure, gain, timestamps, saturation count, ...), their
                          units and dimension names in ``units`` and ``dims``
                          ({name: str}, from instrument.coords); Zarr dimension names
-                         ("frame", "coord")
+                         (the frames' first axis, "coord"; ("frame", "coord") before
+                         the OME-Zarr description)
     crc32                (n_frames,) uint32, one element per chunk: CRC-32 of the frame's
                          bytes (little-endian) then of its coordinate row (float64
                          little-endian), written before the done flag (schema 2; schema-1
@@ -28,6 +29,12 @@ Layout of ``RUN.zarr``::
     products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...);
                          attribute ``crc32``: CRC-32 per plane (first axis) of a 3-D
                          product, of the whole array otherwise
+    dimension_names, ome every array names its dimensions (the frames' first axis
+                         ``t`` for a video, named for what a sweep's points vary
+                         otherwise, shared by the per-frame arrays); the root's and
+                         ``products/``'s ``ome`` attribute describe them as OME-Zarr
+                         0.5 images (:mod:`instrument.ome`; ``runs upgrade`` adds both
+                         to a run written before)
 
 The whole layout is fixed when the run is created (the plan declares every point
 and frame up front), so the metadata never changes while frames are written. Each
@@ -65,6 +72,7 @@ import numpy as np
 
 from diffuserlab.jsonio import jsonable
 
+from .ome import describe_run, run_dims
 from .run_integrity import (
     LOCK_NAME,
     DamagedFrameError,
@@ -278,19 +286,25 @@ class RunStore(ProductsMixin):
         k = int(min(k, max(n, 1)))
         sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
                                                     "compressors": compressors}
+        dims = run_dims({"plan": {"name": plan_name, "points": list(points)}})
         group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
-                           dtype=np.dtype(frame_dtype), fill_value=0, **sharding)
+                           dtype=np.dtype(frame_dtype), fill_value=0,
+                           dimension_names=dims["frames"], **sharding)
         coords = group.create_array("coords", shape=(n, len(coord_names)),
                                     chunks=(k, len(coord_names)), dtype="float64",
-                                    fill_value=np.nan, dimension_names=("frame", "coord"))
+                                    fill_value=np.nan, dimension_names=dims["coords"])
         coords.attrs["names"] = list(coord_names)
         if coord_specs is not None:
             coords.attrs["units"] = {n: str(coord_specs[n]["unit"]) for n in coord_names}
             coords.attrs["dims"] = {n: str(coord_specs[n]["dim"]) for n in coord_names}
-        group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0)
-        group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0)
-        group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32")[:] = point_of
-        group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16")[:] = tag_of
+        group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0,
+                           dimension_names=dims["crc32"])
+        group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0,
+                           dimension_names=dims["done"])
+        group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32",
+                           dimension_names=dims["point"])[:] = point_of
+        group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16",
+                           dimension_names=dims["tag"])[:] = tag_of
         group.create_group("products")
         group.attrs.update(jsonable({
             "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
@@ -304,6 +318,7 @@ class RunStore(ProductsMixin):
         }))
         if shard_frames is not None:
             group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
+        describe_run(group)
         return cls(path, group, writable=True)
 
     @classmethod
@@ -362,6 +377,34 @@ class RunStore(ProductsMixin):
         if getattr(self, "_locked", False):
             (self.path / LOCK_NAME).unlink(missing_ok=True)
             self._locked = False
+
+    def upgrade(self) -> list[str]:
+        """Add the OME-Zarr 0.5 description (:mod:`instrument.ome`) to a run written
+        before it: dimension names on every array that lacks them, the ``ome`` blocks
+        of the root and of ``products/``. Only metadata documents (``zarr.json``) are
+        rewritten; no chunk is touched, so every checksum still holds.
+
+        Returns
+        -------
+        list of str
+            The arrays whose dimension names were set (empty when the run had them).
+
+        Raises
+        ------
+        RunStoreError
+            Read-only store, or another process writes the run (its lock).
+        """
+        import zarr
+
+        self.lock()
+        try:
+            changed = describe_run(self._group, arrays=True)
+            self._group = zarr.open_group(str(self.path), mode="r+", zarr_format=3)
+            describe_run(self._group)
+            self.attrs = dict(self._group.attrs)
+        finally:
+            self.unlock()
+        return changed
 
     def lock_owner(self) -> dict | None:
         """The writer's lock record ``{pid, host, started_utc}``, None when unlocked."""
@@ -585,6 +628,9 @@ class RunStore(ProductsMixin):
         values = jsonable(values)
         self._group.attrs.update(values)
         self.attrs.update(values)
+        if {"camera", "device_settings"} & set(values):  # the pitch or frame interval
+            describe_run(self._group)
+            self.attrs = dict(self._group.attrs)
 
     def add_warning(self, text: str) -> None:
         """Append a warning to the run's ``warnings`` attribute."""

@@ -4,8 +4,9 @@
   (``products/psf_stack``), a TIFF written by :func:`export_tiff` (depths in its
   metadata) or any TIFF/.npy with the depths given;
 * :func:`pick_depth` chooses the PSF of one depth for a 2D reconstruction;
-* :func:`export_tiff` writes a product or the raw frames as TIFF (tifffile) with
-  their coordinates as JSON metadata, for other tools;
+* :func:`export_tiff` writes a product or the raw frames as an ImageJ hyperstack or
+  an OME-TIFF (axes, pixel size, spacing, units) with their attributes or
+  coordinates as JSON metadata, for Fiji and other tools;
 * :func:`import_psf_stack` stores a stack from elsewhere as a run, so every tool
   reads PSFs one way.
 """
@@ -21,6 +22,7 @@ from recon.io import missing_dirs
 
 from .coords import coord_specs
 from .runstore import RunStore, RunStoreError, discard_partial_run
+from .tiff_export import read_tiff_metadata
 
 __all__ = ["IMPORTED_PLAN", "MIN_PLANE_PX", "dark_subtracted", "export_tiff", "import_psf_stack",
            "load_psf_stack", "pick_depth"]
@@ -113,7 +115,7 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
         try:
             with tifffile.TiffFile(path) as tif:
                 stack = tif.asarray()
-                meta = tif.shaped_metadata[0] if tif.shaped_metadata else {}
+                meta = read_tiff_metadata(tif)
         except (OSError, ValueError) as exc:
             raise RunStoreError(f"cannot read TIFF {path}: {exc}") from exc
         attrs = dict(meta or {})
@@ -186,16 +188,24 @@ def _fmt(depths) -> str:
     return ", ".join(f"{z:.4g}" for z in depths)
 
 
-def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_stack"
-                ) -> tuple[Path, list[str]]:
-    """Write a run's product (or, with ``product=None``, its frames) as a TIFF.
+def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_stack",
+                fmt: str = "auto") -> tuple[Path, list[str]]:
+    """Write a run's product (or, with ``product=None``, its frames) as a TIFF: an
+    ImageJ hyperstack or an OME-TIFF (:func:`instrument.tiff_export.write_tiff`:
+    axes, pixel size, z spacing or frame interval and units from the run's OME-Zarr
+    description, :mod:`instrument.ome`).
 
     The product's attributes (depths, exposures, units, ...), or the frames' plan
     points, tags, indices and coordinates, go into the TIFF's JSON metadata, which
     :func:`load_psf_stack` reads back. Frames: the stored frames whose checksums
     hold (:meth:`RunStore.intact_frames`: a recording killed midway exports what it
     stored; a damaged frame is left out), their run indices in the metadata
-    (``frame_indices``).
+    (``frame_indices``), one slice label per frame (index, tag, point).
+
+    Parameters
+    ----------
+    fmt : {"auto", "imagej", "ome"}
+        "auto": OME-TIFF for a ``.ome.tif(f)`` name, else an ImageJ hyperstack.
 
     Returns
     -------
@@ -208,15 +218,22 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
     RunStoreError
         No such run or product, or no intact frame.
     """
-    import tifffile
 
     from recon.io import atomic_path
 
+    from .ome import frame_axis, frame_pitch_um, product_axes, space_axes, with_source
+    from .tiff_export import tiff_format, write_tiff
+
+    fmt = tiff_format(out, fmt)
     store = RunStore.open(run)
     out = Path(out)  # its folder is made by atomic_path once the data is read
+    labels = None
     if product is not None:
         array, attrs = store.product(product)
         meta = {**attrs, "run": str(store.path), "product": product}
+        found = product_axes(product, array.shape,
+                             with_source(attrs, store._group["products"]), store.attrs)
+        axes = None if found is None else found[0]
     skipped: list[str] = []
     if product is None:
         from .runstore_records import ranges_text
@@ -235,8 +252,10 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
         meta = {"run": str(store.path), "frame_indices": keep,
                 "points": [r.point for r in records], "tags": [r.tag for r in records],
                 "coords": {k: v[keep].tolist() for k, v in coords.items()}}
+        axes = [frame_axis(store.attrs), *space_axes(frame_pitch_um(store.attrs))]
+        labels = [f"frame {r.index} {r.tag} point {r.point}" for r in records]
     with atomic_path(out) as tmp:
-        tifffile.imwrite(tmp, array, metadata=meta, photometric="minisblack")
+        write_tiff(tmp, array, axes, meta, fmt=fmt, frames=product is None, labels=labels)
     return out, skipped
 
 

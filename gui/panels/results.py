@@ -62,6 +62,7 @@ def read_result(path: str) -> dict:
         Missing or unreadable file (the message names it).
     """
     from instrument.runstore import RunStore, is_run_store
+    from instrument.tiff_export import read_tiff_metadata
     from recon.io import load_image
 
     p = Path(path)
@@ -76,8 +77,11 @@ def read_result(path: str) -> dict:
     if p.is_dir():
         import zarr
 
-        arr = zarr.open_array(str(p), mode="r")
-        attrs = dict(arr.attrs)
+        node = zarr.open(str(p), mode="r")
+        # a recon3d volume: an OME-Zarr image (the volume at 0, attributes on the
+        # group), or a bare array as written before
+        arr = node["0"] if isinstance(node, zarr.Group) else node
+        attrs = {k: v for k, v in node.attrs.items() if k != "ome"}
         return _upright({"kind": "volume", "array": np.asarray(arr[...]),
                          "depths_mm": attrs.get("depths_mm"),
                          "text": json.dumps(attrs, indent=1)}, attrs.get("orientation"))
@@ -88,7 +92,7 @@ def read_result(path: str) -> dict:
 
         with tifffile.TiffFile(p) as tif:
             array = tif.asarray()
-            meta = dict(tif.shaped_metadata[0]) if tif.shaped_metadata else {}
+            meta = read_tiff_metadata(tif)  # runs export's ImageJ / OME-TIFF too
         if array.ndim == 3 and array.shape[-1] not in (3, 4):
             return _upright({"kind": "volume", "array": array,
                              "depths_mm": meta.get("depths_mm"),

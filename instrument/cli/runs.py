@@ -1,4 +1,4 @@
-"""``diffuserlab runs {show,verify,export,import-psf}``: look into, check and convert run
+"""``diffuserlab runs {show,verify,export,upgrade,import-psf}``: look into, check and convert run
 stores."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ __all__ = ["add_subcommands", "format_summary", "run", "verify"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
-    """Add ``runs`` (with ``show``, ``verify``, ``export``, ``import-psf``) to the
+    """Add ``runs`` (with ``show``, ``verify``, ``export``, ``upgrade``, ``import-psf``) to the
     subparsers."""
     rp = sub.add_parser("runs", help="show, export or import runs (Zarr stores)")
     rsub = rp.add_subparsers(dest="runs_command", required=True)
@@ -26,9 +26,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                          "checksum; exit 0 intact, 1 damaged, 2 unreadable")
     vp.add_argument("run", help="run store directory (RUN.zarr)")
     ep = rsub.add_parser("export", help="write a product (default psf_stack) or the frames "
-                         "as TIFF")
+                         "as TIFF: an ImageJ hyperstack (Fiji) or an OME-TIFF, with axes, "
+                         "pixel size, spacing and units")
     ep.add_argument("run")
-    ep.add_argument("--out", required=True, help="TIFF file to write (.tif or .tiff)")
+    ep.add_argument("--out", required=True, help="TIFF file to write (.tif or .tiff; "
+                    ".ome.tif for an OME-TIFF)")
+    ep.add_argument("--format", choices=("auto", "imagej", "ome"), default="auto",
+                    help="imagej: an ImageJ hyperstack; ome: an OME-TIFF; auto (default): "
+                    "OME-TIFF for a .ome.tif name, else ImageJ")
     ep.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     group = ep.add_mutually_exclusive_group()
     group.add_argument("--product", default="psf_stack", help="product name (default "
@@ -37,6 +42,10 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                        help="export the raw frames instead: the stored frames whose "
                        "checksums hold (a killed recording's, a damaged frame left out; "
                        "each skipped range is listed)")
+    up = rsub.add_parser("upgrade", help="add the OME-Zarr 0.5 description (axis names, "
+                         "units, scales) to a run written before it, in place; no data "
+                         "chunk is touched")
+    up.add_argument("run", help="run store directory (RUN.zarr)")
     ip = rsub.add_parser("import-psf", help="store a PSF stack (TIFF or .npy) as a run")
     ip.add_argument("stack", help="TIFF or .npy, (depths, rows, cols) or one 2D PSF")
     ip.add_argument("--depths", default=None,
@@ -162,10 +171,17 @@ def run(args: argparse.Namespace) -> int:
         from ..stacks import export_tiff
 
         out, skipped = export_tiff(args.run, args.out,
-                                   product=None if args.frames else args.product)
+                                   product=None if args.frames else args.product,
+                                   fmt=args.format)
         print(f"wrote {out}")
         for line in skipped:
             print(f"skipped  {line}")
+    elif args.runs_command == "upgrade":
+        store = RunStore.open(args.run, "r+")
+        changed = store.upgrade()
+        print(f"{store.path}: named the dimensions of {len(changed)} arrays"
+              + (f" ({', '.join(changed)})" if changed else "")
+              + "; OME-Zarr 0.5 description written (no data chunk touched)")
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")

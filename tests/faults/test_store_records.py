@@ -129,9 +129,11 @@ def test_damage_against_the_record_is_named(runs, tmp_path, capsys, name):
     if "export" in command:
         import tifffile
 
+        from instrument.tiff_export import read_tiff_metadata
+
         with tifffile.TiffFile(tmp_path / "out" / "e.tif") as tif:
             frames = tif.asarray()
-            meta = tif.shaped_metadata[0]
+            meta = read_tiff_metadata(tif)  # (ImageJ hyperstack: its Info)
         assert frames.shape[0] == 23 and 11 not in meta["frame_indices"]
 
 

@@ -69,3 +69,22 @@ def test_a_reconstructed_tiff_is_shown_upright(qapp, wait, tmp_path):
     job = panel.open(str(tmp_path / "raw.tif"))
     wait(lambda: job.done, 30, "the raw")
     np.testing.assert_array_equal(panel.view.image, _asymmetric())
+
+
+def test_a_recon3d_volume_and_an_exported_stack_are_read_with_their_depths(tmp_path):
+    import zarr
+
+    from gui.panels.results import read_result
+    from instrument.reconstruct_files import write_volume
+
+    volume = np.stack([_asymmetric(), 2 * _asymmetric()])
+    write_volume(tmp_path / "v.zarr", volume, {"depths_mm": [1.0, 2.0],
+                                               "orientation": DATA_ORIENTATION})
+    got = read_result(str(tmp_path / "v.zarr"))  # an OME-Zarr image: the volume at 0
+    assert got["kind"] == "volume" and got["depths_mm"] == [1.0, 2.0]
+    assert got["array"].shape == volume.shape and "ome" not in got["text"]
+    old = tmp_path / "old.zarr"  # a bare array, as recon3d wrote before
+    arr = zarr.create_array(str(old), shape=volume.shape, dtype="float32")
+    arr[:] = volume
+    arr.attrs["depths_mm"] = [1.0, 2.0]
+    assert read_result(str(old))["depths_mm"] == [1.0, 2.0]

@@ -19,7 +19,7 @@ def test_write_volume_replaces_an_earlier_volume(tmp_path, name):
     path = tmp_path / name
     write_volume(path, VOLUME, {"depths_mm": [1.0, 2.0]})
     write_volume(path, 2 * VOLUME, {"depths_mm": [1.0, 2.0]})
-    data = tifffile.imread(path) if name.endswith(".tif") else zarr.open_array(str(path))[:]
+    data = tifffile.imread(path) if name.endswith(".tif") else zarr.open_group(str(path))["0"][:]
     assert np.array_equal(data, 2 * VOLUME)
     assert [p.name for p in tmp_path.iterdir()] == [name]
 
@@ -53,7 +53,8 @@ def test_write_volume_failure_leaves_no_partial_volume(tmp_path, monkeypatch, na
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
     if earlier:
         monkeypatch.undo()
-        data = tifffile.imread(path) if name.endswith(".tif") else zarr.open_array(str(path))[:]
+        data = (tifffile.imread(path) if name.endswith(".tif")
+                else zarr.open_group(str(path))["0"][:])
         assert np.array_equal(data, VOLUME)
 
 
@@ -63,3 +64,27 @@ def test_write_json_failure_keeps_the_earlier_file(tmp_path):
         write_json(path, {"a": object()})
     assert path.read_text() == '{\n "a": 1\n}\n'
     assert [p.name for p in tmp_path.iterdir()] == ["m.json"]
+
+
+def test_zarr_volume_is_an_ome_zarr_image(tmp_path):
+    from ome_zarr_models.v05.image import Image
+
+    path = tmp_path / "v.zarr"
+    write_volume(path, VOLUME, {"depths_mm": [1.0, 1.5]}, pitch_um=6.9)
+    ms = Image.from_zarr(zarr.open_group(str(path), mode="r")).ome_attributes.multiscales[0]
+    assert [(a.name, a.type, a.unit) for a in ms.axes] == [
+        ("z", "space", "micrometer"), ("y", "space", "micrometer"),
+        ("x", "space", "micrometer")]
+    assert list(ms.datasets[0].coordinateTransformations[0].scale) == [500.0, 6.9, 6.9]
+    write_volume(path, np.ones((3, 4, 5), np.float32), {"depths_mm": [1.0, 3.0, 4.0]})
+    ms = Image.from_zarr(zarr.open_group(str(path), mode="r")).ome_attributes.multiscales[0]
+    assert ms.axes[0].name == "plane"  # uneven depths: OME-Zarr has one scale per axis
+    assert ms.metadata == {"depths_mm": [1.0, 3.0, 4.0]}
+    assert ms.axes[1].unit is None
+
+
+def test_a_volume_written_before_as_an_array_is_replaced(tmp_path):
+    path = tmp_path / "v.zarr"
+    zarr.create_array(str(path), shape=VOLUME.shape, dtype="float32")[:] = VOLUME
+    write_volume(path, 2 * VOLUME, {})
+    assert np.array_equal(zarr.open_group(str(path))["0"][:], 2 * VOLUME)

@@ -141,9 +141,11 @@ def test_recon3d_npy_with_depths_to_zarr_with_binning_and_dark(problem, tmp_path
                  "--bin", 2, "--dark", "auto", "--out", out, "--metrics-json",
                  tmp_path / "m.json")
     assert status == 0
-    arr = zarr.open_array(str(out), mode="r")
+    group = zarr.open_group(str(out), mode="r")  # an OME-Zarr image, the volume at 0
+    arr = group["0"]
     assert arr.shape == (5, N // 2, N // 2)
-    assert np.allclose(arr.attrs["depths_mm"], DEPTHS)
+    assert np.allclose(group.attrs["depths_mm"], DEPTHS)
+    assert group.attrs["ome"]["multiscales"][0]["datasets"][0]["path"] == "0"
     m = json.loads((tmp_path / "m.json").read_text())
     assert m["dark_mode"] == "auto" and m["dark_level"] == pytest.approx(20.0, abs=0.5)
     assert m["bin_factor"] == 2 and m["sensor_shape"] == [N // 2, N // 2]

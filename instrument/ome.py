@@ -1,0 +1,390 @@
+"""OME-Zarr 0.5 description of run stores and their products: axes, units, scales.
+
+A run store (:mod:`instrument.runstore`) is a Zarr v3 hierarchy; this module adds what
+the field's tools (ome-zarr-py, napari, xarray, Fiji through OME-Zarr readers) need to
+show it with named axes and physical units, without touching a data chunk:
+
+- ``dimension_names`` on every array (Zarr v3 array metadata): the frames are
+  (``FRAME_AXIS``, ``y``, ``x``) where the first axis is ``t`` for a video and, for a
+  sweep, named for what its points vary (``z_mm`` for a PSF z-sweep, ``point`` when
+  several things vary); the per-frame arrays (``coords``, ``crc32``, ``done``,
+  ``point``, ``tag``) share that first axis; products name theirs by kind
+  (:func:`product_dims`);
+- an ``ome`` block (OME-Zarr 0.5 ``multiscales``, built and validated with
+  `ome-zarr-models <https://ome-zarr-models-py.readthedocs.io>`_) on the run's root
+  group (the frames) and on ``products/`` (one multiscale entry per image product):
+  axes with their types and standard unit names (``second``, ``micrometer``) and one
+  scale per axis from the bench: the camera's pixel pitch times its binning (times a
+  product's own ``bin_factor``), the frame interval ``1 / frame_rate_hz`` of a video,
+  the plane spacing of a volume whose depths are evenly spaced.
+
+OME-Zarr 0.5 has one scale per axis, so a stack whose depths are not evenly spaced
+(a PSF sweep on a 1/z grid) keeps its first axis as a ``plane`` axis (no unit) and
+lists the depths in the multiscale's ``metadata`` (``depths_mm``), as the product's
+attributes do.
+
+:func:`describe_run` writes all of it (what ``RunStore.create`` and the product
+writers call, and what ``runs upgrade`` runs on a store written before).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_run", "frame_axis",
+           "frame_pitch_um", "image_attrs", "product_axes", "product_dims", "run_dims",
+           "dim_sizes", "set_dimension_names", "space_axes", "unique_dims", "volume_axes",
+           "with_source", "write_products_ome"]
+
+#: Arrays of the run's root group that hold one element (or row) per frame.
+FRAME_ARRAYS = ("crc32", "done", "point", "tag")
+#: Unit names of the OME-Zarr specification for the units the project stores.
+OME_UNITS = {"s": "second", "ms": "millisecond", "us": "microsecond", "um": "micrometer",
+             "mm": "millimeter", "nm": "nanometer", "m": "meter"}
+_UNIT_SUFFIXES = tuple(f"_{u}" for u in OME_UNITS)
+#: Relative tolerance under which depths count as evenly spaced.
+_EVEN_RTOL = 1e-6
+
+
+@dataclass(frozen=True)
+class OmeAxis:
+    """One axis of an OME-Zarr image: ``name`` (also the array's dimension name),
+    ``type`` (``"space"``, ``"time"``, ``"channel"`` or None for a custom axis),
+    ``unit`` (an OME unit name or None) and ``scale`` (the spacing of its samples in
+    that unit; 1.0 where there is no unit)."""
+
+    name: str
+    type: str | None = None
+    unit: str | None = None
+    scale: float = 1.0
+
+
+# ---------------------------------------------------------------------- what a run holds
+def frame_pitch_um(attrs: Mapping[str, Any]) -> float | None:
+    """The pitch of a stored frame's pixels, micrometres: the camera's pixel pitch
+    (``attrs["camera"]["pixel_pitch_um"]``, written when the run started) times its
+    binning (the camera's ``binning`` setting in ``device_settings``); None when the
+    run does not record the pitch."""
+    camera = attrs.get("camera") or {}
+    pitch = camera.get("pixel_pitch_um")
+    if not isinstance(pitch, int | float) or not pitch > 0:
+        return None
+    settings = (attrs.get("device_settings") or {}).get(camera.get("id"), {})
+    binning = (settings.get("settings") or {}).get("binning", 1) if isinstance(
+        settings, Mapping) else 1
+    return float(pitch) * float(binning if isinstance(binning, int | float) else 1)
+
+
+def frame_axis(attrs: Mapping[str, Any]) -> OmeAxis:
+    """The first axis of a run's frames.
+
+    A video (plan ``video``) has ``t`` (time, second, the frame interval
+    ``1 / camera.frame_rate_hz``; scale 1 without unit if the rate is not recorded).
+    A sweep's axis is named for what its points vary: the one point key that varies
+    (``z_mm``), else ``point`` (several vary), else ``frame``; a custom axis (its
+    frames are several per point, not evenly spaced in anything).
+    """
+    from .runstore_records import VIDEO_PLAN
+
+    plan = attrs.get("plan") or {}
+    if plan.get("name") == VIDEO_PLAN:
+        rate = (attrs.get("camera") or {}).get("frame_rate_hz")
+        if isinstance(rate, int | float) and rate > 0:
+            return OmeAxis("t", "time", "second", 1.0 / float(rate))
+        return OmeAxis("t", "time")
+    points = [p for p in plan.get("points") or [] if isinstance(p, Mapping)]
+    keys = sorted({k for p in points for k in p})
+    varying = [k for k in keys if len({json.dumps(p.get(k)) for p in points}) > 1]
+    name = varying[0] if len(varying) == 1 else "point" if varying else "frame"
+    return OmeAxis(name if name not in ("y", "x") else f"{name}_point")
+
+
+def volume_axes(depths_mm: Sequence[float] | None, n_planes: int) -> tuple[OmeAxis, dict]:
+    """The first axis of a stack of planes at ``depths_mm`` and the multiscale
+    metadata that goes with it.
+
+    Evenly spaced depths give ``z`` (space, micrometer, the spacing); any other
+    stack a ``plane`` axis (custom, no unit: OME-Zarr 0.5 has one scale per axis)
+    with the depths in the metadata (``{"depths_mm": [...]}``).
+    """
+    depths = [] if depths_mm is None else [float(z) for z in np.atleast_1d(depths_mm)]
+    meta = {"depths_mm": depths} if depths else {}
+    if len(depths) == n_planes >= 2:
+        steps = np.diff(depths)
+        if steps[0] != 0 and np.allclose(steps, steps[0], rtol=_EVEN_RTOL, atol=0):
+            return OmeAxis("z", "space", "micrometer", abs(float(steps[0])) * 1000.0), meta
+    return OmeAxis("plane"), meta
+
+
+def space_axes(pitch_um: float | None, bin_factor: int = 1) -> list[OmeAxis]:
+    """The ``y``, ``x`` axes of a plane of pixels ``pitch_um`` apart (micrometer; no
+    unit when None), named ``y_binb``, ``x_binb`` for a plane binned by ``b > 1``."""
+    names = ("y", "x") if bin_factor == 1 else (f"y_bin{bin_factor}", f"x_bin{bin_factor}")
+    if pitch_um is None:
+        return [OmeAxis(a, "space") for a in names]
+    return [OmeAxis(a, "space", "micrometer", float(pitch_um)) for a in names]
+
+
+def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
+                 run_attrs: Mapping[str, Any]) -> tuple[list[OmeAxis], dict] | None:
+    """The OME axes of an image product and its multiscale metadata, or None for a
+    product that is no image (a table with ``columns``, a 1-D array, 4-D and up).
+
+    2-D: (``y``, ``x``); 3-D: a per-frame product's first axis (or one with
+    ``frame_indices``: ΔF/F) is the run's (:func:`frame_axis`), a product with
+    ``depths_mm`` has :func:`volume_axes`, a grid of PSFs (a name with ``grid``)
+    ``node``, anything else ``plane``. ``y``/``x`` are scaled by the frame pitch
+    (:func:`frame_pitch_um`) times the product's ``bin_factor`` ``b`` (its ``source``'s
+    for a ΔF/F), and named ``y_binb``/``x_binb`` when ``b > 1`` (their size differs
+    from the frames').
+    """
+    shape = tuple(int(v) for v in shape)
+    if "columns" in attrs or len(shape) not in (2, 3):
+        return None
+    pitch = frame_pitch_um(run_attrs)
+    b = attrs.get("bin_factor", 1)
+    b = int(b) if isinstance(b, int | float) and b >= 1 and b == int(b) else 1
+    if pitch is not None:
+        pitch *= b
+    meta: dict = {}
+    if len(shape) == 2:
+        return space_axes(pitch, b), meta
+    if attrs.get("per_frame") or "frame_indices" in attrs:
+        first = frame_axis(run_attrs)
+    elif attrs.get("depths_mm") is not None:
+        first, meta = volume_axes(attrs["depths_mm"], shape[0])
+    elif "grid" in name:
+        first = OmeAxis("node")
+    else:
+        first = OmeAxis("plane")
+    return [first, *space_axes(pitch, b)], meta
+
+
+def product_dims(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
+                 run_attrs: Mapping[str, Any]) -> tuple[str, ...]:
+    """Dimension names of a product array: its OME axes' names for an image
+    (:func:`product_axes`), ``("row", "column")`` for a table, ``("entry",)`` for a
+    1-D array, ``dim_0, ...`` otherwise."""
+    axes = product_axes(name, shape, attrs, run_attrs)
+    if axes is not None:
+        return tuple(a.name for a in axes[0])
+    if len(shape) == 2:
+        return ("row", "column")
+    if len(shape) == 1:
+        return ("entry",)
+    return tuple(f"dim_{k}" for k in range(len(shape)))
+
+
+def with_source(attrs: Mapping[str, Any], products) -> dict:
+    """A product's attributes with the ``bin_factor`` of the product it derives from
+    (its ``source``, e.g. the reconstruction a ΔF/F was computed from) when it
+    records none."""
+    attrs = dict(attrs)
+    source = attrs.get("source")
+    if "bin_factor" not in attrs and isinstance(source, str) and source in products:
+        node = products[source]
+        if hasattr(node, "shape") and "bin_factor" in node.attrs:
+            attrs["bin_factor"] = node.attrs["bin_factor"]
+    return attrs
+
+
+def unique_dims(dims: Sequence[str], shape: Sequence[int], taken: Mapping[str, int],
+                suffix: str) -> tuple[str, ...]:
+    """``dims`` with ``_suffix`` added to each name that ``taken`` ({name: size} of
+    the group's other arrays and of its parent's) already uses with another size: a
+    group's arrays, and a group and its parent, must agree on the size of a
+    dimension for xarray to open the run as one tree."""
+    return tuple(d if taken.get(d, n) == n else f"{d}_{suffix}"
+                 for d, n in zip(dims, shape, strict=True))
+
+
+# ---------------------------------------------------------------------- OME attributes
+def image_attrs(images: Sequence[tuple[str, str, Sequence[OmeAxis], Mapping]]) -> dict:
+    """The ``ome`` attribute (OME-Zarr 0.5) of a group holding the given images.
+
+    Parameters
+    ----------
+    images : sequence of (name, path, axes, metadata)
+        One multiscale entry per image: its name, the path of its array in the
+        group, its axes and free metadata (depths of a ``plane`` axis, ...).
+
+    Returns
+    -------
+    dict
+        ``{"version": "0.5", "multiscales": [...]}``, built and checked by
+        ``ome_zarr_models.v05`` (axis order and types, unique names, scale
+        lengths), as JSON.
+
+    Raises
+    ------
+    ValueError
+        Axes that OME-Zarr 0.5 cannot express (ome-zarr-models' message).
+    """
+    from ome_zarr_models.v05.axes import Axis
+    from ome_zarr_models.v05.image import ImageAttrs
+    from ome_zarr_models.v05.multiscales import Dataset, Multiscale
+
+    multiscales = []
+    for name, path, axes, meta in images:
+        multiscales.append(Multiscale(
+            name=name, metadata=dict(meta) or None,
+            axes=[Axis(name=a.name, type=a.type, unit=a.unit) for a in axes],
+            datasets=[Dataset.build(path=path, scale=[a.scale for a in axes],
+                                    translation=None)]))
+    attrs = ImageAttrs(version="0.5", multiscales=multiscales)
+    return attrs.model_dump(mode="json", exclude_none=True)
+
+
+def set_dimension_names(array_dir: str | Path, names: Sequence[str]) -> bool:
+    """Set the ``dimension_names`` of the Zarr v3 array at ``array_dir`` in its
+    ``zarr.json`` (the array metadata document; its chunks are not touched).
+
+    The document is rewritten under a temporary name and renamed into place.
+
+    Returns
+    -------
+    bool
+        True if the names changed.
+
+    Raises
+    ------
+    ValueError
+        ``array_dir`` is no Zarr v3 array, or ``names`` do not match its rank.
+    """
+    node = Path(array_dir) / "zarr.json"
+    meta = json.loads(node.read_text())
+    if meta.get("node_type") != "array" or meta.get("zarr_format") != 3:
+        raise ValueError(f"{array_dir} is not a Zarr v3 array")
+    names = [str(n) for n in names]
+    if len(names) != len(meta["shape"]):
+        raise ValueError(f"{array_dir} has {len(meta['shape'])} dimensions, not "
+                         f"{len(names)} ({names})")
+    if meta.get("dimension_names") == names:
+        return False
+    meta["dimension_names"] = names
+    fd, tmp = tempfile.mkstemp(dir=node.parent, prefix=".zarr.json.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            json.dump(meta, fh, indent=2)
+        os.replace(tmp, node)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return True
+
+
+# ---------------------------------------------------------------------- a run
+def run_dims(attrs: Mapping[str, Any], frames_ndim: int = 3) -> dict[str, tuple[str, ...]]:
+    """Dimension names of the run's root arrays: ``{array: names}``."""
+    first = frame_axis(attrs).name
+    return {"frames": (first, "y", "x")[:frames_ndim], "coords": (first, "coord"),
+            **{name: (first,) for name in FRAME_ARRAYS}}
+
+
+def describe_run(group, *, arrays: bool = False) -> list[str]:
+    """Write the OME-Zarr description of an open run group: the ``ome`` blocks of the
+    root (the frames) and of ``products/`` (every image product), and with
+    ``arrays=True`` the ``dimension_names`` of every array that lacks them (what a
+    store written before needs; a new store's arrays get them when created).
+
+    Parameters
+    ----------
+    group : zarr.Group
+        The run's root group, writable.
+    arrays : bool
+        Also set missing dimension names (rewrites those arrays' ``zarr.json``; no
+        chunk is touched). The group must be opened again afterwards to see them.
+
+    Returns
+    -------
+    list of str
+        The arrays whose dimension names were set.
+    """
+    attrs = dict(group.attrs)
+    path = Path(str(group.store.root)) if hasattr(group.store, "root") else None
+    changed: list[str] = []
+    if arrays and path is not None:
+        changed += _set_missing(path, group, run_dims(attrs, group["frames"].ndim))
+        products = group["products"]
+        taken = dim_sizes(group, ROOT_ARRAYS)
+        plan: dict[str, tuple[str, ...]] = {}
+        for name in sorted(products.array_keys()):
+            arr = products[name]
+            if name.endswith(("__done", "__crc32")):
+                continue
+            dims = tuple(arr.metadata.dimension_names or ()) or unique_dims(
+                product_dims(name, arr.shape, with_source(arr.attrs, products), attrs),
+                arr.shape, taken, name)
+            taken.update(zip(dims, arr.shape, strict=True))
+            plan[name] = dims
+            for hidden in ("__done", "__crc32"):
+                if name + hidden in products:
+                    plan[name + hidden] = dims[:1]
+        changed += [f"products/{n}" for n in _set_missing(path / "products", products, plan)]
+    frames = group["frames"]
+    dims = frames.metadata.dimension_names
+    if dims is not None:  # (a store written before: runs upgrade names them first)
+        found = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))][-frames.ndim:]
+        axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found, strict=True)]
+        group.attrs["ome"] = image_attrs([("frames", "frames", axes, {})])
+    write_products_ome(group["products"], attrs)
+    return changed
+
+
+#: The arrays of a run's root group.
+ROOT_ARRAYS = ("frames", "coords", *FRAME_ARRAYS)
+
+
+def dim_sizes(group, names: Sequence[str] | None = None) -> dict[str, int]:
+    """``{dimension name: size}`` over the named arrays ``names`` of one group (None:
+    all of them; a run's root is not listed, zarr would warn about its ``.lock``)."""
+    out: dict[str, int] = {}
+    for name in group.array_keys() if names is None else names:
+        dims = group[name].metadata.dimension_names
+        if dims is not None:
+            out.update(zip(dims, group[name].shape, strict=True))
+    return out
+
+
+#: Dimension names a run's ``coords`` had before the frames' axis was named.
+_LEGACY_COORD_DIMS = ("frame", "coord")
+
+
+def _set_missing(root: Path, group, dims: Mapping[str, Sequence[str]]) -> list[str]:
+    out = []
+    for name, names in dims.items():
+        have = group[name].metadata.dimension_names if name in group else ()
+        if (have is None or (name == "coords" and tuple(have) == _LEGACY_COORD_DIMS)) \
+                and set_dimension_names(root / name, names):
+            out.append(name)
+    return out
+
+
+def write_products_ome(products, run_attrs: Mapping[str, Any]) -> None:
+    """Set the ``ome`` block of a run's ``products/`` group: one multiscale per image
+    product whose array carries dimension names that match its axes (a product of a
+    store not yet upgraded is left out); no block when there is none."""
+    images = []
+    for name in sorted(products.array_keys()):
+        arr = products[name]
+        if name.endswith(("__done", "__crc32")):
+            continue
+        found = product_axes(name, arr.shape, with_source(arr.attrs, products), run_attrs)
+        dims = arr.metadata.dimension_names
+        if found is None or dims is None:
+            continue
+        axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found[0],
+                                                                      strict=True)]
+        images.append((name, name, axes, found[1]))
+    if images:
+        products.attrs["ome"] = image_attrs(images)
+    elif "ome" in products.attrs:
+        del products.attrs["ome"]
