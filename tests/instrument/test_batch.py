@@ -6,6 +6,7 @@ simulated neurons follows the truth, and bad input is one line."""
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,10 +80,14 @@ def test_batch_equals_single_frame_reconstruction_and_resumes(video, cluster, tm
     store = RunStore.open(run)
     done = store.product_frames_done("recon_admm")
     assert done.sum() == first["reconstructed"] and store.lock_owner() is None
+    # a run moved (or copied) elsewhere resumes its batch (before: "other settings")
+    run = Path(shutil.move(run, tmp_path / "moved" / "v.zarr"))
+    store = RunStore.open(run)
     second = reconstruct_run(run, psf, scheduler=cluster.scheduler_address, **OPTIONS)
     assert second["skipped"] == done.sum() and second["reconstructed"] == 12 - done.sum()
     data, attrs = RunStore.open(run).product("recon_admm")
     assert data.shape == (12, 128, 160) and attrs["iterations"] == 8
+    assert f"recon-run {run} " in attrs["resume_hint"]
     for i in (0, 7, 11):
         frame = store.frame(i).image
         expect = recon.reconstruct(psf, frame, **OPTIONS).image
