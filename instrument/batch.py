@@ -11,7 +11,9 @@ workers must see the run's path). Each result is written into the run as a
 per-frame product (:meth:`instrument.runstore.RunStore.write_product_frame`) as soon
 as it arrives, under the run's writer lock, so an interrupted batch keeps every
 finished frame and a second call with the same settings reconstructs only what is
-missing. With ``dff_percentile`` the ΔF/F of the reconstructed frames against a
+missing. A frame whose data cannot be reconstructed (a dark frame, a diverging
+solve) is left out and named with its reason; the others go on, and the next call
+tries it again. With ``dff_percentile`` the ΔF/F of the reconstructed frames against a
 per-pixel percentile baseline (Kuo 2020, Fig. 6.5b) is stored as a second product.
 
 With ``device="cuda"`` every worker process runs its solves on a GPU through
@@ -194,6 +196,11 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     return int(index), np.asarray(result.image, np.float32)
 
 
+def _frame_number(line: str) -> int:
+    """The frame index a ``failed`` line of :func:`reconstruct_run` starts with."""
+    return int(line.split()[1])
+
+
 def check_workers(workers: int | None, n_frames: int) -> int:
     """The local worker processes for ``n_frames`` frames: ``workers`` (default one per
     core), at most one per frame; refused beyond the machine's cores.
@@ -340,7 +347,9 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         ``product``, ``frames`` (first and one past the last selected),
         ``reconstructed`` (this call), ``skipped`` (already done), ``not_stored``
         (ranges of frame slots left out because nothing was stored there, default
-        selection), ``damaged`` (one line per damaged frame left out), ``cancelled``,
+        selection), ``damaged`` (one line per damaged frame left out), ``failed``
+        (one line per frame whose data cannot be reconstructed, e.g. a dark frame: its
+        index, point and the reason; left out, the others go on), ``cancelled``,
         ``seconds``, ``fps``, ``workers``, ``device`` (as asked),
         ``dff_product`` when computed and ``background_product`` with a grid's
         background estimate.
@@ -350,11 +359,13 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
     RunStoreError
         Missing, locked or damaged run, a selected frame not stored, a product clash,
         too many workers, or no scheduler at the address.
-    recon.errors.ReconInputError, recon.errors.DivergenceError
-        From a frame's reconstruction (the frames stored before it are kept); an
-        unusable ``device`` (before the run is touched).
+    recon.errors.ReconInputError
+        An unusable ``device`` or a dark frame of another shape (before the run is
+        touched). A frame's own reconstruction error leaves that frame out
+        (``failed``).
     """
     from recon.backend import resolve_device
+    from recon.errors import DivergenceError, ReconInputError
     from recon.io import DATA_ORIENTATION
     from recon.validate import as_int
 
@@ -374,6 +385,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
     cancelled = False
     client = cluster = None
     damaged: list[str] = []
+    failed: list[str] = []
     try:
         stored = store.done()
         if frames is None:  # the stored frames (a recording killed midway kept a prefix)
@@ -395,6 +407,9 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
         if shape != (rows, cols):
             raise RunStoreError(f"the PSF is {shape} but the run's frames are {rows}x{cols}; "
                                 "use a PSF calibrated at the camera's frame shape")
+        from .reconstruct_files import check_dark_frame
+
+        check_dark_frame(dark, (rows, cols), "the run's frames")  # before any frame is done
         dark_attr = None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame")
         hint = f"diffuserlab recon-run {store.path} with the same options"
         if grid is None:
@@ -439,12 +454,18 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
             psf_future = client.scatter(grid or np.asarray(psf), broadcast=True)
             futures = [client.submit(task, str(store.path), i, psf_future, options,
                                      thread_count(), pure=False) for i in todo]
+            index_of = dict(zip(futures, todo, strict=True))
             try:
                 for fut in as_completed(futures):
                     try:
                         index, image, *bg = fut.result()
                     except DamagedFrameError as exc:  # left out, as runs verify says
                         damaged.append(str(exc))
+                        continue
+                    except (ReconInputError, DivergenceError) as exc:  # this frame's data
+                        i = index_of[fut]
+                        failed.append(f"frame {i} (point {store.point_of(i)}): "
+                                      f"{' '.join(str(exc).split())}")
                         continue
                     if bg_name:
                         store.write_product_frame(bg_name, index, bg[0])
@@ -467,7 +488,8 @@ def reconstruct_run(run: str | Path, psf, *, method: str = "auto",
             "reconstructed": done_now, "skipped": skipped, "cancelled": cancelled,
             "seconds": round(elapsed, 3), "fps": done_now / elapsed if elapsed > 0 else 0.0,
             "workers": n_workers, "not_stored": ranges_text(not_stored),
-            "damaged": damaged, "device": device}
+            "damaged": damaged, "failed": sorted(failed, key=_frame_number),
+            "device": device}
         if bg_name:
             out["background_product"] = bg_name
         if dff_percentile is not None and not cancelled:

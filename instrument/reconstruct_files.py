@@ -25,7 +25,7 @@ from diffuserlab.errors import InputError
 from drivers.base import jsonable
 from recon.io import write_json
 
-__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
+__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "check_dark_frame", "dark_level", "load_psf", "output_paths",
            "projections", "run_recon", "run_recon3d", "volume_output_paths", "write_json",
            "write_volume"]
 
@@ -155,6 +155,32 @@ def dark_level(text: str, option: str = "--dark"):
     if not 0 <= level < float("inf"):
         raise ReconInputError(f"{option} {text}: give a level >= 0 DN or a dark run")
     return level
+
+
+def check_dark_frame(dark, shape, frames: str) -> None:
+    """Refuse a dark frame (2D) whose shape is not the frames' before any work.
+
+    Parameters
+    ----------
+    dark : float, ndarray or None
+        A frames' dark level (:func:`dark_level`); only a frame is checked.
+    shape : (rows, cols)
+        The frames' shape.
+    frames : str
+        What delivers the frames, for the message (``"the run's frames"``).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        A dark frame of another shape (named with both shapes and the fix).
+    """
+    from recon.errors import ReconInputError
+
+    if np.ndim(dark) == 2 and tuple(np.shape(dark)) != tuple(shape):
+        raise ReconInputError(
+            f"the dark frame is {np.shape(dark)[0]}x{np.shape(dark)[1]} but {frames} are "
+            f"{shape[0]}x{shape[1]}; give a dark frame of the same camera region (ROI and "
+            "binning), or a level in DN with --dark DN")
 
 
 def run_recon(

@@ -182,24 +182,28 @@ def _open(args: argparse.Namespace, config):
     return vb
 
 
-def _frame_dark(args: argparse.Namespace, cam, stacked: bool):
-    """The frames' dark level (float DN or a per-pixel frame), None to estimate it from
-    the PSF's corner like ``recon`` (a plain PSF image, no --dark)."""
+def _frame_dark(args: argparse.Namespace, psf_shape, stacked: bool):
+    """The frames' dark level from ``--dark`` (float DN or a per-pixel frame, checked
+    against the PSF's shape, which the camera's frames must have), ``"camera"`` for
+    the simulated camera's offset, None to estimate it from the PSF's corner like
+    ``recon`` (a plain PSF image, no --dark). Read before the bench opens."""
     from recon.errors import ReconInputError
 
-    from ..reconstruct_files import dark_level, frames_dark_text
+    from ..reconstruct_files import check_dark_frame, dark_level, frames_dark_text
 
     dark = frames_dark_text(args.dark)
     if dark is None:
         if args.simulate:
-            return float(cam.dark_offset_dn)
+            return "camera"
         if stacked:
             raise ReconInputError(
                 f"--psf {args.psf} is a calibrated (dark-subtracted) PSF stack: give the "
                 "frames' dark level with --dark DN or --dark DARK_RUN.zarr (diffuserlab "
                 "calibrate dark)")
         return None
-    return dark_level(dark)
+    level = dark_level(dark)
+    check_dark_frame(level, psf_shape, f"the PSF {args.psf} and the camera's frames")
+    return level
 
 
 def _status(t_s: float, ring, live) -> str:
@@ -212,24 +216,35 @@ def _status(t_s: float, ring, live) -> str:
             f"skipped {s['skipped']}, errors {s['errors']}")
 
 
-def _live(args: argparse.Namespace, cam):
-    """The live reconstruction the options ask for, checked against the camera; with
-    the PSF's description for the banner."""
+def _live_inputs(args: argparse.Namespace) -> tuple:
+    """The PSF, its depth and the frames' dark level (:func:`_frame_dark`), read and
+    checked before the bench opens."""
+    from ..reconstruct_files import load_psf
+
+    psf, depth = load_psf(args.psf, args.depth_mm)
+    stacked = depth is not None or Path(args.psf).is_dir()
+    return psf, depth, _frame_dark(args, psf.shape, stacked)
+
+
+def _live(args: argparse.Namespace, cam, inputs: tuple):
+    """The live reconstruction the options ask for (``inputs`` from
+    :func:`_live_inputs`), checked against the camera; with the PSF's description for
+    the banner."""
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
 
     from ..live import LiveReconstruction
-    from ..reconstruct_files import load_psf
 
     method, iterations = _method(args.method)
-    psf, depth = load_psf(args.psf, args.depth_mm)
+    psf, depth, dark = inputs
     stacked = depth is not None or Path(args.psf).is_dir()
     if tuple(cam.image_shape) != tuple(psf.shape):
         raise ReconInputError(
             f"the PSF {args.psf} is {psf.shape[0]}x{psf.shape[1]} but the camera "
             f"delivers {cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate "
             "the PSF with the camera's current ROI and binning")
-    dark = _frame_dark(args, cam, stacked)
+    if isinstance(dark, str):  # the simulated camera's offset
+        dark = float(cam.dark_offset_dn)
     if dark is not None and stacked:  # the stack's PSF is dark-subtracted already:
         psf = psf + dark  # LiveReconstructor subtracts the same dark from both
     recon = LiveReconstructor(psf, bin_factor=args.bin_factor,
@@ -255,13 +270,14 @@ def run_live(args: argparse.Namespace) -> int:
     if args.preview_png is not None:
         check_outputs([args.preview_png], {"--psf": args.psf}, args.overwrite,
                       option="--preview-png")
+    inputs = _live_inputs(args)  # the PSF and a dark frame, before the bench opens
     config = bench_config(args.bench, simulate=args.simulate, command="capture live")
     bench = _open(args, config)
     try:
         cam = bench.camera
         settings = {k: v for k, v in (("frame_rate_hz", args.fps),
                                       ("exposure_s", args.exposure_s)) if v is not None}
-        live, label = _live(args, cam)
+        live, label = _live(args, cam, inputs)
         cam.apply_settings(settings)
         print(f"live {label} on {cam.device_id} ({cam.image_shape[0]}x{cam.image_shape[1]}, "
               f"{cam.resulting_frame_rate_hz:.1f} fps); Ctrl-C stops", flush=True)
@@ -353,13 +369,14 @@ def run_video(args: argparse.Namespace) -> int:
     if args.preview_png:
         check_outputs([args.preview_png], {**inputs, "--out": args.out}, args.overwrite,
                       option="--preview-png")
+    live_inputs = _live_inputs(args) if args.method is not None else None
     config = bench_config(args.bench, simulate=args.simulate, command="capture video")
     bench = _open(args, config)
     try:
         cam = bench.camera
         live = label = None
-        if args.method is not None:
-            live, label = _live(args, cam)
+        if live_inputs is not None:
+            live, label = _live(args, cam, live_inputs)
         extra = {}
         if args.simulate:
             extra["simulated"] = {"scene": args.scene, "seed": args.seed,
