@@ -14,8 +14,6 @@ import contextlib
 import json
 import logging
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -25,9 +23,9 @@ from diffuserlab.errors import InputError
 from drivers.base import jsonable
 from recon.io import write_json
 
-__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "check_dark_frame", "dark_level", "load_psf", "output_paths",
-           "projections", "run_recon", "run_recon3d", "volume_output_paths", "write_json",
-           "write_volume"]
+__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "check_dark_frame", "dark_level", "load_psf",
+           "output_paths", "projections", "run_recon", "run_recon3d", "volume_output_paths",
+           "write_json", "write_volume"]
 
 log = logging.getLogger(__name__)
 
@@ -317,9 +315,10 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     """A float32 TIFF (JSON metadata, axes ZYX) or a Zarr v3 array (attributes).
 
     Both are written under a temporary name in the same directory and renamed into
-    place (the TIFF with :func:`recon.io.atomic_path`; a Zarr array, a directory, is
-    renamed over the old one, which is moved aside and then removed), so a failure
-    never leaves a partial volume under ``path``.
+    place (the TIFF with :func:`recon.io.atomic_path`, a Zarr array, a directory, with
+    :func:`recon.io.atomic_dir`: the old one moved aside and then removed; inside an
+    :func:`recon.io.output_group` when the group ends), so a failure never leaves a
+    partial volume under ``path``, nor its temporary folder, nor a folder made for it.
 
     Raises
     ------
@@ -329,9 +328,8 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
     import tifffile
     import zarr
 
-    from recon.io import atomic_path
+    from recon.io import atomic_dir, atomic_path
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() != ".zarr":
         with atomic_path(path) as tmp:
             tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
@@ -343,24 +341,11 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict) -> None:
         if kind != "array":
             raise InputError(f"--out {path} exists and is not a volume written by recon3d "
                              "(a run store?); choose another name")
-    # written under a temporary name and renamed into place (the old volume is moved
-    # aside first and removed after): never half an array under the final name
-    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
-    try:
+    with atomic_dir(path) as tmp:  # never half an array under the final name
         arr = zarr.create_array(str(tmp), shape=volume.shape, dtype="float32",
                                 chunks=(1, *volume.shape[1:]), overwrite=True, zarr_format=3)
         arr[:] = volume
         arr.attrs.update(attrs)
-        if path.exists():
-            old = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old"))
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,

@@ -840,24 +840,11 @@ class RunStore(ProductsMixin):
 def discard_partial_run(path: str | Path, made=(), settle_s: float = 0.1,
                         timeout_s: float = 5.0) -> None:
     """Remove a run store this process began and could not finish (whole or not at all),
-    and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty.
+    and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty
+    (:func:`recon.io.remove_tree`: until zarr's writer threads stop adding to it)."""
+    from recon.io import remove_empty_dirs, remove_tree
 
-    zarr writes chunks on a pool of threads: when one write fails (a full disk), the
-    others still finish after the error has reached the caller and may create their
-    folders again. So the folder is removed until it stays gone for ``settle_s``.
-    """
-    import shutil
-    import time
-
-    from recon.io import remove_empty_dirs
-
-    path = Path(path)
-    deadline = time.monotonic() + timeout_s
-    while True:
-        shutil.rmtree(path, ignore_errors=True)
-        time.sleep(settle_s)
-        if not path.exists() or time.monotonic() > deadline:
-            break
+    remove_tree(path, settle_s, timeout_s)
     remove_empty_dirs(made)
 
 
