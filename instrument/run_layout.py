@@ -111,15 +111,16 @@ def _recorded(path: Path) -> dict[str, dict]:
     return out
 
 
-def layout_problems(path: str | Path, plan: Mapping[str, Any]) -> dict[str, str]:
+def layout_problems(path: str | Path, attrs: Mapping[str, Any]) -> dict[str, str]:
     """Every array of the run at ``path`` whose metadata differs from its record.
 
     Parameters
     ----------
     path : str or Path
         The run store.
-    plan : Mapping
-        The run's ``plan`` attribute (its ``frames_per_point``).
+    attrs : Mapping
+        The run's attributes (its ``plan``'s ``frames_per_point``, its
+        ``schema_version``: a schema-1 run has no ``crc32``).
 
     Returns
     -------
@@ -135,9 +136,12 @@ def layout_problems(path: str | Path, plan: Mapping[str, Any]) -> dict[str, str]
     for name, want in record.items():
         have = array_layout(path / name)
         if have is None:
-            if not name.startswith("products/"):
-                problems[name] = (f"{path}/{name}/zarr.json is missing or unreadable: restore "
-                                  "it from a backup copy of the run")
+            # the open names a missing array it needs, record_problems a missing product;
+            # without crc32 a run would read as one that carries no checksums
+            if name == "crc32" and attrs.get("schema_version") != 1:
+                problems[name] = (f"{path}/crc32/zarr.json is missing or unreadable, so no "
+                                  "frame can be verified: restore crc32/ from a backup copy "
+                                  "of the run")
             continue
         differ = [k for k in LAYOUT_KEYS if k in want and have.get(k) != want[k]]
         if differ:
@@ -149,7 +153,7 @@ def layout_problems(path: str | Path, plan: Mapping[str, Any]) -> dict[str, str]
                 f"the recorded values back in {name}/zarr.json or restore it from a backup "
                 "copy of the run")
     if not any(n in record for n in RUN_ARRAYS):
-        problems.update(unrecorded_problems(path, plan))
+        problems.update(unrecorded_problems(path, attrs["plan"]))
     return problems
 
 

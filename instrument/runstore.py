@@ -175,7 +175,7 @@ class RunStore(ProductsMixin):
                 f"{self.path} is damaged: its zarr.json lacks {', '.join(missing)}; restore "
                 "zarr.json from a backup copy of the run (the frames are not affected)")
         # the arrays' metadata against the run's record, before anything is read by it
-        self.layout_damage = layout_problems(self.path, self.attrs["plan"])
+        self.layout_damage = layout_problems(self.path, self.attrs)
         unusable = [self.layout_damage[n] for n in ("point", "tag") if n in self.layout_damage]
         if unusable:
             raise RunStoreError(unusable[0])
@@ -351,7 +351,7 @@ class RunStore(ProductsMixin):
         self._group = zarr.open_group(str(self.path), mode="r+" if self.writable else "r",
                                       zarr_format=3)
         self.attrs = dict(self._group.attrs)
-        self.layout_damage = layout_problems(self.path, self.attrs["plan"])
+        self.layout_damage = layout_problems(self.path, self.attrs)
         return self.attrs
 
     # ------------------------------------------------------------------ writer lock

@@ -175,6 +175,9 @@ CASES = {
     "done-flag chunk unreadable: verify": (
         "video", _done_flags_chunk, ["runs", "verify"], 1,
         ["done flags", "done/c/1 is damaged", "backup copy"]),
+    "checksums deleted: verify": (  # before: read as a run without checksums, "intact"
+        "video", lambda run: shutil.rmtree(run / "crc32"), ["runs", "verify"], 1,
+        ["crc32/zarr.json is missing", "no frame can be verified", "backup copy"]),
     "product relabelled int32: verify": (
         "sweep", _product_dtype, ["runs", "verify"], 1,
         ["products/psf_stack/zarr.json is damaged", "data_type 'int32'",
