@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     from recon.options import GRID_L1, l1_given
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
-    from ..runstore import RunStore
+    from ..runstore import RunStore, RunStoreError
     from .recon_flags import check_device
 
     if args.iterations < 1:
@@ -163,13 +163,19 @@ def run(args: argparse.Namespace) -> int:
             overwrite=args.overwrite, psf_source=source, background=args.background,
             grid_l1=GRID_L1 if l1_given(args.l1) is None else args.l1, on_progress=progress,
             cancel=cancel, device=args.device)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (instrument.cli.interrupts)
+        from .interrupts import exit_status, signal_text
+
         for bar in bars:
             bar.close()
-        done = RunStore.open(args.run).product_info(name)
-        print(f"stopped (Ctrl-C): {done.get('planes_done', 0)} frames of {args.run} are "
-              "reconstructed; run the same command again to finish", flush=True)
-        return 130
+        try:
+            done = RunStore.open(args.run).product_info(name).get("planes_done", 0)
+        except RunStoreError:  # stopped before the product was made
+            done = 0
+        print(f"stopped ({signal_text(getattr(exc, 'signum', None))}): {done} frames of "
+              f"{args.run} are reconstructed; run the same command again to finish",
+              flush=True)
+        return exit_status(exc)
     for bar in bars:
         bar.close()
     if out["not_stored"]:
