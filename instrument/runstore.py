@@ -5,7 +5,9 @@ Layout of ``RUN.zarr``::
     zarr.json            attributes: schema and software versions, plan (name, params,
                          points, frame tags), bench config and device settings
                          snapshots, operator note, status, start/end times, resumes,
-                         warnings
+                         warnings; ``arrays``: each array's shape, dtype, chunks,
+                         codecs and fill value as written (instrument.run_layout;
+                         ``products/`` keeps the same for its products)
     frames               (n_frames, rows, cols) camera dtype, one frame per chunk
     coords               (n_frames, n_coords) float64, one row per chunk; column names
                          in its attribute ``names`` (stage positions, LED, SLM pattern
@@ -150,6 +152,10 @@ class RunStore(ProductsMixin):
     path : pathlib.Path
     attrs : dict
         The run's attributes (a snapshot; :meth:`refresh` re-reads them).
+    layout_damage : dict
+        ``{array: problem line}`` for each array whose metadata differs from what the
+        run recorded when it wrote it (:mod:`instrument.run_layout`); such arrays are
+        never read or written (:meth:`require_layout`), :meth:`verify` lists them.
     """
 
     def __init__(self, path: Path, group, writable: bool) -> None:
