@@ -26,6 +26,7 @@ another device continues the same product (the images agree to float32 rounding)
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
@@ -269,9 +270,51 @@ def _client(workers: int | None, scheduler: str | None, timeout_s: float):
             raise RunStoreError(f"--scheduler {scheduler}: no dask scheduler answered within "
                                 f"{timeout_s:g} s ({exc}); start one (dask scheduler) or "
                                 "drop --scheduler for local workers") from None
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0", host="127.0.0.1")
-    return Client(cluster, timeout=timeout_s), cluster
+    cluster = client = None
+    try:
+        with _signals_deferred():  # dask turns an interrupt mid-start into its own errors
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", host="127.0.0.1")
+            client = Client(cluster, timeout=timeout_s)
+    except BaseException:  # Ctrl-C, SIGTERM (raised as the block ends): nothing left running
+        for part in (client, cluster):
+            if part is not None:
+                part.close()
+        raise
+    return client, cluster
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """SIGINT, SIGTERM and SIGHUP held while the local cluster starts (seconds) and
+    handled as the block ends, by the handler that was in place then.
+
+    Interrupted midway, dask reports "Nanny failed to start" instead of the
+    interrupt, and its exit hook fails to close the half-started cluster with a
+    traceback; with the signal held, the caller gets the interrupt with a whole cluster
+    to close. Outside the main thread nothing changes (signals go to the main thread).
+    """
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    names = [s for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s)]
+    previous = {getattr(signal, n): signal.signal(getattr(signal, n),
+                                                  lambda signum, frame: held.append(signum))
+                for n in names}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if held:
+            handler = previous[held[0]]
+            if callable(handler):
+                handler(held[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(held[0])
 
 
 def reconstruct_run(run: str | Path, psf, *, method: str = "auto",

@@ -233,7 +233,13 @@ def main(argv: list[str] | None = None) -> int:
     """
     from diffuserlab.errors import InputError
 
-    from .interrupts import exit_status, quiet_shutdown, signal_text, terminate_like_ctrl_c
+    from .interrupts import (
+        after_the_command,
+        exit_status,
+        quiet_shutdown,
+        signal_text,
+        terminate_like_ctrl_c,
+    )
 
     try:
         args = build_parser().parse_args(argv)
@@ -244,6 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     if swallowed is not None:
         print(f"diffuserlab: interrupted ({signal_text(swallowed)}) while starting; nothing "
               "was done", file=sys.stderr)
+        after_the_command()
         return 128 + int(swallowed)
     quiet_shutdown(args.debug)
     logging.basicConfig(
@@ -264,6 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         status = _dispatch(args, input_errors, _startup_signals.count())
     if received and status == exit_status(KeyboardInterrupt()):
         status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
+    after_the_command()  # the command process: a signal while Python exits changes nothing
     return status
 
 

@@ -36,8 +36,8 @@ from collections.abc import Iterator
 
 from .startup_signals import HANDLED, Terminated, is_command_process, record
 
-__all__ = ["HANDLED", "Terminated", "exit_status", "is_command_process", "quiet_shutdown",
-           "signal_text", "terminate_like_ctrl_c"]
+__all__ = ["HANDLED", "Terminated", "after_the_command", "exit_status", "is_command_process",
+           "quiet_shutdown", "signal_text", "terminate_like_ctrl_c"]
 
 log = logging.getLogger("diffuserlab")
 
@@ -97,3 +97,14 @@ def quiet_shutdown(debug: bool) -> None:
                   unraisable.exc_value, unraisable.err_msg)
 
     sys.unraisablehook = hook
+
+
+def after_the_command() -> None:
+    """In the command process, once the command has chosen its status: SIGINT, SIGTERM
+    and SIGHUP are noted and otherwise ignored while Python shuts down (the libraries'
+    exit hooks run for a moment), so the status and the one line stand; a library
+    that re-raises an interrupt then (``_thread.interrupt_main``) is ignored too."""
+    if not is_command_process() or threading.current_thread() is not threading.main_thread():
+        return
+    for s in (signal.SIGINT, *HANDLED):
+        signal.signal(s, lambda signum, frame: record(signum))

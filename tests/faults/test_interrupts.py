@@ -190,14 +190,17 @@ def test_a_batch_stopped_by_sigterm_keeps_its_frames_and_its_run_unlocked(tmp_pa
     assert _cli(["runs", "verify", run], tmp_path).returncode == 0
 
 
-#: The console script as pip writes it, printing a mark once the interpreter is up:
-#: signals are sent at fixed delays after the mark (before it, Python itself starts,
-#: outside any project code)
+#: The console script as pip writes it (the main guard: dask's worker processes import
+#: the main module again), printing a mark once the interpreter is up: signals are sent
+#: at fixed delays after the mark (before it, Python itself starts, outside any project
+#: code)
 LAUNCHER = """import sys
-sys.stdout.write("up\\n")
-sys.stdout.flush()
+if __name__ == "__main__":
+    sys.stdout.write("up\\n")
+    sys.stdout.flush()
 from instrument.cli import main
-sys.exit(main())
+if __name__ == "__main__":
+    sys.exit(main())
 """
 
 
