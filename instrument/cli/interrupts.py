@@ -88,7 +88,8 @@ def signal_text(signum: int | None) -> str:
 def quiet_shutdown(debug: bool) -> None:
     """In the command process, errors that Python reports while it shuts down (an
     exit hook's, a finalizer's: ``sys.unraisablehook``) go to the debug log instead
-    of the console, unless ``debug``; a signal during the shutdown is such an error."""
+    of the console, and the resource tracker's leak warning of workers stopped
+    mid-start is not shown, unless ``debug``."""
     if not is_command_process() or debug:
         return
 
@@ -97,6 +98,10 @@ def quiet_shutdown(debug: bool) -> None:
                   unraisable.exc_value, unraisable.err_msg)
 
     sys.unraisablehook = hook
+    # multiprocessing's resource tracker (a process of its own, started by dask with
+    # this process's -W options) warns of the semaphores of workers stopped mid-start,
+    # which it then removes
+    sys.warnoptions.append("ignore:resource_tracker:UserWarning")
 
 
 def after_the_command() -> None:
