@@ -241,11 +241,13 @@ def main(argv: list[str] | None = None) -> int:
         terminate_like_ctrl_c,
     )
 
+    # the signals of this call (the command process: since its first line)
+    mark = 0 if _startup_signals.is_command_process() else _startup_signals.count()
     try:
         args = build_parser().parse_args(argv)
-        swallowed = _startup_signals.received()  # an import that caught the interrupt
+        swallowed = _startup_signals.received(mark)  # an import caught the interrupt
     except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM, SIGHUP) while the modules load
-        swallowed = getattr(exc, "signum", None) or _startup_signals.received() \
+        swallowed = getattr(exc, "signum", None) or _startup_signals.received(mark) \
             or signal.SIGINT
     if swallowed is not None:
         print(f"diffuserlab: interrupted ({signal_text(swallowed)}) while starting; nothing "
