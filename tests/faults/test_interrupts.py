@@ -11,7 +11,11 @@ frame rate, so a recording takes wall-clock time):
   offers no resume, ``runs verify`` calls them intact, ``runs export --frames`` and
   ``recon-run`` use them;
 * Ctrl-C (SIGINT) at moments while a recording starts never prints a traceback and
-  leaves either no run or a stopped one, unlocked.
+  leaves either no run or a stopped one, unlocked;
+* SIGINT or SIGTERM at fixed delays from 0.05 s after the interpreter is up (through a
+  console script, as installed), and at the progress point where ``recon-run`` starts
+  its dask workers: one line, 128 + the signal, no traceback, the run unlocked (the
+  full sweep of delays is marked slow).
 """
 
 from __future__ import annotations
@@ -298,3 +302,14 @@ def test_signals_at_fixed_delays_are_always_one_line(batch_run, tmp_path, sig, c
         else:
             argv, run = _recon_run(batch_run, where)
         _signal_at(argv, where, sig, delay_s, run)
+
+
+def test_an_earlier_signal_does_not_stop_the_next_command_in_process(tmp_path, capsys):
+    """In a program that calls ``main`` (the GUI, the tests), a signal handled during one
+    command is not taken for an interrupt of the next one's start."""
+    from instrument.cli import main, startup_signals
+
+    startup_signals.record(signal.SIGTERM)  # as terminate_like_ctrl_c does
+    capsys.readouterr()
+    assert main(["runs", "show", str(tmp_path / "missing.zarr")]) == 2
+    assert "interrupted" not in capsys.readouterr().err
