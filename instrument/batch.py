@@ -11,7 +11,9 @@ workers must see the run's path). Each result is written into the run as a
 per-frame product (:meth:`instrument.runstore.RunStore.write_product_frame`) as soon
 as it arrives, under the run's writer lock, so an interrupted batch keeps every
 finished frame and a second call with the same settings reconstructs only what is
-missing. With ``dff_percentile`` the ΔF/F of the reconstructed frames against a
+missing. A frame whose data cannot be reconstructed (a dark frame, a diverging
+solve) is left out and named with its reason; the others go on, and the next call
+tries it again. With ``dff_percentile`` the ΔF/F of the reconstructed frames against a
 per-pixel percentile baseline (Kuo 2020, Fig. 6.5b) is stored as a second product.
 
 With ``device="cuda"`` every worker process runs its solves on a GPU through
@@ -24,6 +26,7 @@ another device continues the same product (the images agree to float32 rounding)
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import threading
@@ -169,6 +172,11 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     return int(index), np.asarray(result.image, np.float32)
 
 
+def _frame_number(line: str) -> int:
+    """The frame index a ``failed`` line of :func:`reconstruct_run` starts with."""
+    return int(line.split()[1])
+
+
 def check_workers(workers: int | None, n_frames: int) -> int:
     """The local worker processes for ``n_frames`` frames: ``workers`` (default one per
     core), at most one per frame; refused beyond the machine's cores.
@@ -237,9 +245,51 @@ def _client(workers: int | None, scheduler: str | None, timeout_s: float):
             raise RunStoreError(f"--scheduler {scheduler}: no dask scheduler answered within "
                                 f"{timeout_s:g} s ({exc}); start one (dask scheduler) or "
                                 "drop --scheduler for local workers") from None
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0", host="127.0.0.1")
-    return Client(cluster, timeout=timeout_s), cluster
+    cluster = client = None
+    try:
+        with _signals_deferred():  # dask turns an interrupt mid-start into its own errors
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=":0", host="127.0.0.1")
+            client = Client(cluster, timeout=timeout_s)
+    except BaseException:  # Ctrl-C, SIGTERM (raised as the block ends): nothing left running
+        for part in (client, cluster):
+            if part is not None:
+                part.close()
+        raise
+    return client, cluster
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """SIGINT, SIGTERM and SIGHUP held while the local cluster starts (seconds) and
+    handled as the block ends, by the handler that was in place then.
+
+    Interrupted midway, dask reports "Nanny failed to start" instead of the
+    interrupt, and its exit hook fails to close the half-started cluster with a
+    traceback; with the signal held, the caller gets the interrupt with a whole cluster
+    to close. Outside the main thread nothing changes (signals go to the main thread).
+    """
+    import signal
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    names = [s for s in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, s)]
+    previous = {getattr(signal, n): signal.signal(getattr(signal, n),
+                                                  lambda signum, frame: held.append(signum))
+                for n in names}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if held:
+            handler = previous[held[0]]
+            if callable(handler):
+                handler(held[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(held[0])
 
 
 def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
@@ -315,7 +365,9 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
         ``product``, ``frames`` (first and one past the last selected),
         ``reconstructed`` (this call), ``skipped`` (already done), ``not_stored``
         (ranges of frame slots left out because nothing was stored there, default
-        selection), ``damaged`` (one line per damaged frame left out), ``cancelled``,
+        selection), ``damaged`` (one line per damaged frame left out), ``failed``
+        (one line per frame whose data cannot be reconstructed, e.g. a dark frame: its
+        index, point and the reason; left out, the others go on), ``cancelled``,
         ``seconds``, ``fps``, ``workers``, ``device`` (as asked),
         ``dff_product`` when computed and ``background_product`` with a grid's
         background estimate.
@@ -325,11 +377,13 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
     RunStoreError
         Missing, locked or damaged run, a selected frame not stored, a product clash,
         too many workers, or no scheduler at the address.
-    recon.errors.ReconInputError, recon.errors.DivergenceError
-        From a frame's reconstruction (the frames stored before it are kept); an
-        unusable ``device`` (before the run is touched).
+    recon.errors.ReconInputError
+        An unusable ``device`` or a dark frame of another shape (before the run is
+        touched). A frame's own reconstruction error leaves that frame out
+        (``failed``).
     """
     from recon.backend import resolve_device
+    from recon.errors import DivergenceError, ReconInputError
     from recon.io import DATA_ORIENTATION
     from recon.validate import as_int
 
@@ -349,6 +403,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
     cancelled = False
     client = cluster = None
     damaged: list[str] = []
+    failed: list[str] = []
     try:
         stored = store.done()
         if frames is None:  # the stored frames (a recording killed midway kept a prefix)
@@ -370,6 +425,9 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
         if shape != (rows, cols):
             raise RunStoreError(f"the PSF is {shape} but the run's frames are {rows}x{cols}; "
                                 "use a PSF calibrated at the camera's frame shape")
+        from .reconstruct_files import check_dark_frame
+
+        check_dark_frame(dark, (rows, cols), "the run's frames")  # before any frame is done
         dark_attr = None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame")
         hint = f"diffuserlab recon-run {store.path} with the same options"
         if grid is None:
@@ -414,12 +472,18 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
             psf_future = client.scatter(grid or np.asarray(psf), broadcast=True)
             futures = [client.submit(task, str(store.path), i, psf_future, options,
                                      thread_count(), pure=False) for i in todo]
+            index_of = dict(zip(futures, todo, strict=True))
             try:
                 for fut in as_completed(futures):
                     try:
                         index, image, *bg = fut.result()
                     except DamagedFrameError as exc:  # left out, as runs verify says
                         damaged.append(str(exc))
+                        continue
+                    except (ReconInputError, DivergenceError) as exc:  # this frame's data
+                        i = index_of[fut]
+                        failed.append(f"frame {i} (point {store.point_of(i)}): "
+                                      f"{' '.join(str(exc).split())}")
                         continue
                     if bg_name:
                         store.write_product_frame(bg_name, index, bg[0])
@@ -442,7 +506,8 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
             "reconstructed": done_now, "skipped": skipped, "cancelled": cancelled,
             "seconds": round(elapsed, 3), "fps": done_now / elapsed if elapsed > 0 else 0.0,
             "workers": n_workers, "not_stored": ranges_text(not_stored),
-            "damaged": damaged, "device": device}
+            "damaged": damaged, "failed": sorted(failed, key=_frame_number),
+            "device": device}
         if bg_name:
             out["background_product"] = bg_name
         if dff_percentile is not None and not cancelled:

@@ -14,8 +14,6 @@ import contextlib
 import json
 import logging
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -25,8 +23,9 @@ from diffuserlab.errors import InputError
 from diffuserlab.jsonio import jsonable
 from recon.io import write_json
 
-__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "dark_level", "load_psf", "output_paths",
-           "projections", "resolve_dark", "run_recon", "run_recon3d", "volume_output_paths",
+__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "check_dark_frame", "dark_level", "load_psf",
+           "output_paths", "projections", "resolve_dark", "run_recon", "run_recon3d",
+           "volume_output_paths",
            "write_json", "write_volume"]
 
 log = logging.getLogger(__name__)
@@ -210,6 +209,32 @@ def dark_level(text: str, option: str = "--dark"):
     return level
 
 
+def check_dark_frame(dark, shape, frames: str) -> None:
+    """Refuse a dark frame (2D) whose shape is not the frames' before any work.
+
+    Parameters
+    ----------
+    dark : float, ndarray or None
+        A frames' dark level (:func:`dark_level`); only a frame is checked.
+    shape : (rows, cols)
+        The frames' shape.
+    frames : str
+        What delivers the frames, for the message (``"the run's frames"``).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        A dark frame of another shape (named with both shapes and the fix).
+    """
+    from recon.errors import ReconInputError
+
+    if np.ndim(dark) == 2 and tuple(np.shape(dark)) != tuple(shape):
+        raise ReconInputError(
+            f"the dark frame is {np.shape(dark)[0]}x{np.shape(dark)[1]} but {frames} are "
+            f"{shape[0]}x{shape[1]}; give a dark frame of the same camera region (ROI and "
+            "binning), or a level in DN with --dark DN")
+
+
 def run_recon(psf_path: str, raw_path: str, options, *, out: str,
               metrics_json: str | None = None, depth_mm: float | None = None,
               psf_product: str = "psf_stack") -> dict:
@@ -339,9 +364,10 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
     times binning), unitless without.
 
     Both are written under a temporary name in the same directory and renamed into
-    place (the TIFF with :func:`recon.io.atomic_path`; a Zarr array, a directory, is
-    renamed over the old one, which is moved aside and then removed), so a failure
-    never leaves a partial volume under ``path``.
+    place (the TIFF with :func:`recon.io.atomic_path`, a Zarr array, a directory, with
+    :func:`recon.io.atomic_dir`: the old one moved aside and then removed; inside an
+    :func:`recon.io.output_group` when the group ends), so a failure never leaves a
+    partial volume under ``path``, nor its temporary folder, nor a folder made for it.
 
     Raises
     ------
@@ -352,9 +378,8 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
     import tifffile
     import zarr
 
-    from recon.io import atomic_path
+    from recon.io import atomic_dir, atomic_path
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() != ".zarr":
         with atomic_path(path) as tmp:
             tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
@@ -374,10 +399,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
     space = [OmeAxis(a, "space", *(("micrometer", float(pitch_um)) if pitch_um else ()))
              for a in ("y", "x")]
     axes = [first, *space]
-    # written under a temporary name and renamed into place (the old volume is moved
-    # aside first and removed after): never half an array under the final name
-    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
-    try:
+    with atomic_dir(path) as tmp:  # never half a volume under the final name
         group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         arr = group.create_array("0", shape=volume.shape, dtype="float32",
                                  chunks=(1, *volume.shape[1:]),
@@ -385,16 +407,6 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
         arr[:] = volume
         group.attrs.update({**attrs, "diffuserlab": VOLUME_MARKER,
                             "ome": image_attrs([("volume", "0", axes, meta)])})
-        if path.exists():
-            old = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".old"))
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
 
 def _grid_pitch_um(psf_stack: str, product: str, pitch_um: float | None,

@@ -184,8 +184,11 @@ def damaged_frames(store, on_progress=None) -> list[DamagedFrameError]:
     done = np.flatnonzero(store.done())
     if not store.has_checksums or done.size == 0:  # only unreadable chunks to find
         return _damaged_one_by_one(store, done, on_progress, 0, len(done))
-    crcs = np.asarray(store._group["crc32"][:])
-    rows = np.asarray(store._group["coords"][:], np.float64)
+    try:
+        crcs = np.asarray(store._group["crc32"][:])
+        rows = np.asarray(store._group["coords"][:], np.float64)
+    except Exception:  # a checksum or coordinate chunk fails to decode: frame by frame
+        return _damaged_one_by_one(store, done, on_progress, 0, len(done))
     frames = store._group["frames"]
     per_chunk = int((frames.shards or frames.chunks)[0])
     frame_bytes = int(np.prod(store.frame_shape)) * frames.dtype.itemsize

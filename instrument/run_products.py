@@ -27,6 +27,7 @@ from diffuserlab.jsonio import jsonable
 
 from .ome import ROOT_ARRAYS, dim_sizes, product_dims, unique_dims, with_source, write_products_ome
 from .run_integrity import RunStoreError, product_crcs
+from .run_layout import forget_layout, record_layout
 
 __all__ = ["ProductsMixin"]
 
@@ -34,6 +35,8 @@ __all__ = ["ProductsMixin"]
 _DONE, _CRC = "__done", "__crc32"
 #: Attribute of ``products/`` listing every product written (damage if one goes missing).
 _WRITTEN = "written"
+#: Attribute of a per-frame product: the command that finishes it (names the run's path).
+_HINT = "resume_hint"
 
 
 class ProductsMixin:
@@ -54,7 +57,7 @@ class ProductsMixin:
                                                                        attrs))
         arr[...] = array
         arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
-        self._note_product(name)
+        self._note_product(name, [name])
         write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
 
     def recorded_products(self) -> list[str]:
@@ -63,8 +66,10 @@ class ProductsMixin:
         here but absent from :meth:`products` was deleted."""
         return list(self._group["products"].attrs.get(_WRITTEN, []))
 
-    def _note_product(self, name: str) -> None:
+    def _note_product(self, name: str, arrays: Sequence[str]) -> None:
+        """List ``name`` as written and record the layout of its ``arrays``."""
         products = self._group["products"]
+        record_layout(products, self.path / "products", arrays)
         written = list(products.attrs.get(_WRITTEN, []))
         if name not in written:
             products.attrs[_WRITTEN] = sorted([*written, name])
@@ -78,11 +83,13 @@ class ProductsMixin:
         """``{"shape", "dtype"}`` of a product, with ``planes_done`` for a per-frame one
         and ``orientation`` where the product records it (a reconstruction: the model
         grid, :data:`recon.io.DATA_ORIENTATION`)."""
-        arr = self._product_array(name)
+        arr = self._product_array(name, check=False)
         info: dict[str, Any] = {"shape": list(arr.shape), "dtype": str(arr.dtype)}
         if "orientation" in arr.attrs:
             info["orientation"] = arr.attrs["orientation"]
-        if arr.attrs.get("per_frame"):
+        if self._product_damage(name):
+            info["damaged"] = True
+        elif arr.attrs.get("per_frame"):
             info["planes_done"] = int(self.product_frames_done(name).sum())
         return info
 
@@ -172,9 +179,13 @@ class ProductsMixin:
         if name in products and not overwrite:
             arr = products[name]
             have = {k: v for k, v in arr.attrs.items()}
-            if tuple(arr.shape) == shape and arr.dtype == np.dtype(dtype) and have == want:
+            # the hint names the run's path: a run copied or moved elsewhere resumes
+            differs = sorted(k for k in (set(have) | set(want)) - {_HINT}
+                             if have.get(k) != want.get(k))
+            if tuple(arr.shape) == shape and arr.dtype == np.dtype(dtype) and not differs:
+                if have.get(_HINT) != want.get(_HINT):
+                    arr.attrs[_HINT] = want.get(_HINT)
                 return
-            differs = sorted(k for k in set(have) | set(want) if have.get(k) != want.get(k))
             raise RunStoreError(
                 f"{self.path} already has a product {name!r} made with other settings "
                 f"({', '.join(differs) or 'shape/dtype'} differ); use the same settings to "
@@ -188,7 +199,7 @@ class ProductsMixin:
         products.create_array(name + _DONE, shape=shape[:1], chunks=(1,), dtype="uint8",
                               fill_value=0, dimension_names=dims[:1])
         arr.attrs.update(want)
-        self._note_product(name)
+        self._note_product(name, [name, name + _CRC, name + _DONE])
         write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
 
     def write_product_frame(self, name: str, index: int, plane: np.ndarray) -> None:
@@ -254,13 +265,23 @@ class ProductsMixin:
         attrs = with_source(attrs, products)
         return unique_dims(product_dims(name, shape, attrs, self.attrs), shape, taken, name)
 
-    def _product_array(self, name: str):
+    def _product_array(self, name: str, check: bool = True):
+        """The product's array; with ``check``, refused when its metadata (or that of
+        its hidden arrays) differs from the run's record (:mod:`instrument.run_layout`)."""
         products = self._group["products"]
         if name not in self.products():
             raise RunStoreError(
                 f"{self.path} has no product {name!r} (it has {self.products()}); finish "
                 "or resume the run first")
+        damage = self._product_damage(name)
+        if check and damage:
+            raise RunStoreError(damage[0])
         return products[name]
+
+    def _product_damage(self, name: str) -> list[str]:
+        """The layout problems of product ``name`` and its hidden arrays."""
+        return [self.layout_damage[f"products/{key}"] for key in (name, name + _CRC,
+                name + _DONE) if f"products/{key}" in self.layout_damage]
 
     def _per_frame(self, name: str):
         arr = self._product_array(name)
@@ -273,6 +294,9 @@ class ProductsMixin:
         for key in (name, name + _CRC, name + _DONE):
             if key in products:
                 del products[key]
+        forget_layout(products, (name, name + _CRC, name + _DONE))
+        for key in (name, name + _CRC, name + _DONE):  # replaced: its old record is gone
+            self.layout_damage.pop(f"products/{key}", None)
 
 
 def _check_name(name: str) -> None:

@@ -5,7 +5,9 @@ Layout of ``RUN.zarr``::
     zarr.json            attributes: schema and software versions, plan (name, params,
                          points, frame tags), bench config and device settings
                          snapshots, operator note, status, start/end times, resumes,
-                         warnings
+                         warnings; ``arrays``: each array's shape, dtype, chunks,
+                         codecs and fill value as written (instrument.run_layout;
+                         ``products/`` keeps the same for its products)
     frames               (n_frames, rows, cols) camera dtype, one frame per chunk
     coords               (n_frames, n_coords) float64, one row per chunk; column names
                          in its attribute ``names`` (stage positions, LED, SLM pattern
@@ -83,6 +85,7 @@ from .run_integrity import (
     read_lock,
     write_lock,
 )
+from .run_layout import FRAME_ARRAYS, RUN_ARRAYS, layout_problems, record_layout
 from .run_products import ProductsMixin
 from .runstore_records import VIDEO_PLAN, record_problems
 
@@ -157,6 +160,10 @@ class RunStore(ProductsMixin):
     path : pathlib.Path
     attrs : dict
         The run's attributes (a snapshot; :meth:`refresh` re-reads them).
+    layout_damage : dict
+        ``{array: problem line}`` for each array whose metadata differs from what the
+        run recorded when it wrote it (:mod:`instrument.run_layout`); such arrays are
+        never read or written (:meth:`require_layout`), :meth:`verify` lists them.
     """
 
     def __init__(self, path: Path, group, writable: bool) -> None:
@@ -181,6 +188,11 @@ class RunStore(ProductsMixin):
             raise RunStoreError(
                 f"{self.path} is damaged: its zarr.json lacks {', '.join(missing)}; restore "
                 "zarr.json from a backup copy of the run (the frames are not affected)")
+        # the arrays' metadata against the run's record, before anything is read by it
+        self.layout_damage = layout_problems(self.path, self.attrs)
+        unusable = [self.layout_damage[n] for n in ("point", "tag") if n in self.layout_damage]
+        if unusable:
+            raise RunStoreError(unusable[0])
         try:
             self._coord_names = list(self._group["coords"].attrs["names"])
             self._point = np.asarray(self._group["point"][:])
@@ -319,6 +331,7 @@ class RunStore(ProductsMixin):
         if shard_frames is not None:
             group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
         describe_run(group)
+        record_layout(group, path, RUN_ARRAYS)  # what every later open compares with
         return cls(path, group, writable=True)
 
     @classmethod
@@ -336,6 +349,12 @@ class RunStore(ProductsMixin):
         path = Path(path)
         if mode not in ("r", "r+"):
             raise RunStoreError(f"mode must be 'r' or 'r+', got {mode!r}")
+        outer = next((p for p in [*path.parents, *path.absolute().parents]
+                      if is_run_store(p)), None)
+        if outer is not None and not is_run_store(path):
+            raise RunStoreError(
+                f"{path} is inside the run store {outer}, not a run itself; give the run's "
+                f"folder: {outer}")
         if not (path / "zarr.json").is_file():
             raise RunStoreError(f"no run store at {path} (expected a directory with zarr.json)")
         try:
@@ -353,6 +372,7 @@ class RunStore(ProductsMixin):
         self._group = zarr.open_group(str(self.path), mode="r+" if self.writable else "r",
                                       zarr_format=3)
         self.attrs = dict(self._group.attrs)
+        self.layout_damage = layout_problems(self.path, self.attrs)
         return self.attrs
 
     # ------------------------------------------------------------------ writer lock
@@ -367,6 +387,7 @@ class RunStore(ProductsMixin):
             after checking no one writes the run).
         """
         self._require_writable()
+        self.require_layout(*RUN_ARRAYS)  # never write into arrays described otherwise
         record = {"pid": os.getpid(), "host": socket.gethostname(), "started_utc": utc_now()}
         if not write_lock(self.path, record):
             raise RunStoreError(f"cannot write {self.path}: {lock_problem(self.path)}")
@@ -464,9 +485,49 @@ class RunStore(ProductsMixin):
         Each flag is its own chunk (one file): read a range when only a point's frames
         matter.
         """
-        if frames is None:
-            return np.asarray(self._group["done"][:]).astype(bool)
-        return np.asarray(self._group["done"][frames.start:frames.stop]).astype(bool)
+        sel = slice(None) if frames is None else slice(frames.start, frames.stop)
+        return self._bookkeeping("done", sel).astype(bool)
+
+    def _bookkeeping(self, name: str, sel: slice) -> np.ndarray:
+        """``name`` (``done``, ``crc32``) read at ``sel``, its metadata checked first.
+
+        Raises
+        ------
+        RunStoreError
+            Its metadata differs from the run's record, or a chunk cannot be decoded
+            (each such chunk file named, with the repair).
+        """
+        self.require_layout(name)
+        arr = self._group[name]
+        try:
+            return np.asarray(arr[sel])
+        except Exception as exc:  # a corrupt chunk fails to decode
+            per = int(arr.chunks[0])
+            start, stop, _ = sel.indices(arr.shape[0])
+            bad = []
+            for k in range(start // per, -(-stop // per)):
+                try:
+                    arr[k * per:(k + 1) * per]
+                except Exception:
+                    bad.append(f"{name}/c/{k}")
+            what = {"done": "done flags", "crc32": "checksums"}.get(name, name)
+            raise RunStoreError(
+                f"the {what} of {self.path} cannot be read: {', '.join(bad) or name} "
+                f"{'is' if len(bad) < 2 else 'are'} damaged ({exc}); restore "
+                f"{'it' if len(bad) < 2 else 'them'} from a backup copy of the run") from exc
+
+    def require_layout(self, *names: str) -> None:
+        """Refuse to use arrays whose metadata differs from the run's record.
+
+        Raises
+        ------
+        RunStoreError
+            The first such array's problem (:mod:`instrument.run_layout`): what its
+            ``zarr.json`` says, what the run recorded, the repair.
+        """
+        for name in names:
+            if name in self.layout_damage:
+                raise RunStoreError(self.layout_damage[name])
 
     def points_done(self) -> np.ndarray:
         """(n_points,) bool: points whose frames are all written."""
@@ -615,9 +676,11 @@ class RunStore(ProductsMixin):
                                 f"one-point run of at least that many frames can be cut")
         if not self.done(range(0, n)).all():
             raise RunStoreError(f"cannot cut {self.path} to {n} frames: not all are stored")
-        for name in ("frames", "coords", "crc32", "done", "point", "tag"):
+        for name in RUN_ARRAYS:
             arr = self._group[name]
             arr.resize((n, *arr.shape[1:]))
+        record_layout(self._group, self.path, RUN_ARRAYS)
+        self.attrs = dict(self._group.attrs)
         self._point, self._tag = self._point[:n], self._tag[:n]
         plan = dict(self.attrs["plan"], frames_per_point=[n])
         self.update_attrs(plan=plan)
@@ -654,12 +717,19 @@ class RunStore(ProductsMixin):
     def _read(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """Image and coordinate row of a done frame, checksum verified."""
         index = int(index)
+        self.require_layout(*FRAME_ARRAYS)
         try:
             image = np.asarray(self._group["frames"][index])
             row = np.asarray(self._group["coords"][index], np.float64)
-            crc = int(self._group["crc32"][index]) if self.has_checksums else None
         except Exception as exc:  # a corrupt chunk fails to decode
             raise self._damage(index, f"its chunks cannot be read ({exc})") from exc
+        try:
+            crc = int(self._group["crc32"][index]) if self.has_checksums else None
+        except Exception as exc:  # a corrupt checksum chunk: the frame cannot be verified
+            chunk = f"crc32/c/{index // (self.shard_frames or 1)}"
+            raise self._damage(index, f"its checksum chunk {chunk} cannot be read ({exc}), "
+                               f"so the frame cannot be verified (restore {chunk} from a "
+                               "backup copy of the run)") from exc
         if crc is not None and crc != frame_crc(image, row):
             chunk = f"frames/c/{index // (self.shard_frames or 1)}/0/0"
             missing = not (self.path / chunk).exists()
@@ -756,8 +826,23 @@ class RunStore(ProductsMixin):
             the fix); empty when the run is intact. A schema-1 run carries no
             checksums: only unreadable chunks are found (see ``has_checksums``).
         """
-        return ([str(exc) for exc in self.damaged_frames(on_progress)]
-                + self.damaged_products() + record_problems(self))
+        problems = [line for name, line in self.layout_damage.items()
+                    if not name.startswith("products/")]
+        if not any(name in self.layout_damage for name in FRAME_ARRAYS):
+            try:
+                problems += [str(exc) for exc in self.damaged_frames(on_progress)]
+                problems += record_problems(self)
+            except RunStoreError as exc:  # its done flags cannot be read
+                problems.append(str(exc))
+        return problems + self.damaged_products()
+
+    def done_or_none(self) -> np.ndarray:
+        """:meth:`done`, or no frame done where the flags cannot be read (what a
+        summary shows of a damaged run; :meth:`verify` names the damage)."""
+        try:
+            return self.done()
+        except RunStoreError:
+            return np.zeros(self.n_frames, bool)
 
     def damaged_frames(self, on_progress: Callable[[int, int], None] | None = None,
                        ) -> list[DamagedFrameError]:
@@ -780,10 +865,12 @@ class RunStore(ProductsMixin):
         none), and ``lock`` (who writes the run, or that its lock is stale; None when
         unlocked)."""
         a = self.refresh()
-        done = self.done()
+        done = self.done_or_none()
+        points_done = np.ones(self.n_points, bool)
+        np.logical_and.at(points_done, self._point, done)
         return jsonable({
             "path": str(self.path), "plan": a["plan"]["name"], "status": a["status"],
-            "params": a["plan"]["params"], "points_done": int(self.points_done().sum()),
+            "params": a["plan"]["params"], "points_done": int(points_done.sum()),
             "points": self.n_points, "frames_done": int(done.sum()), "frames": self.n_frames,
             "frame_shape": self.frame_shape, "created_utc": a["created_utc"],
             "started_utc": a["started_utc"], "ended_utc": a["ended_utc"],
@@ -805,24 +892,11 @@ class RunStore(ProductsMixin):
 def discard_partial_run(path: str | Path, made=(), settle_s: float = 0.1,
                         timeout_s: float = 5.0) -> None:
     """Remove a run store this process began and could not finish (whole or not at all),
-    and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty.
+    and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty
+    (:func:`recon.io.remove_tree`: until zarr's writer threads stop adding to it)."""
+    from recon.io import remove_empty_dirs, remove_tree
 
-    zarr writes chunks on a pool of threads: when one write fails (a full disk), the
-    others still finish after the error has reached the caller and may create their
-    folders again. So the folder is removed until it stays gone for ``settle_s``.
-    """
-    import shutil
-    import time
-
-    from recon.io import remove_empty_dirs
-
-    path = Path(path)
-    deadline = time.monotonic() + timeout_s
-    while True:
-        shutil.rmtree(path, ignore_errors=True)
-        time.sleep(settle_s)
-        if not path.exists() or time.monotonic() > deadline:
-            break
+    remove_tree(path, settle_s, timeout_s)
     remove_empty_dirs(made)
 
 

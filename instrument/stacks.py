@@ -144,8 +144,11 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
                             "re-measure those pixels")
     if recorded is not None:
         recorded = _depths(recorded, len(stack), str(path))
-    if recorded is not None and depths_mm is not None and not np.allclose(recorded, depths_mm):
-        raise RunStoreError(f"{path} records depths {recorded} mm, not {list(depths_mm)}")
+    if recorded is not None and depths_mm is not None and (
+            len(recorded) != len(depths_mm) or not np.allclose(recorded, depths_mm)):
+        raise RunStoreError(f"{path} records depths {_fmt(recorded)} mm, not "
+                            f"{_fmt(depths_mm)}: leave out --depths (the recorded ones are "
+                            "used) or give the recorded ones")
     depths = _depths(recorded if recorded is not None else depths_mm, len(stack), str(path))
     return stack, depths, attrs
 

@@ -19,7 +19,7 @@ none of them).
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -49,12 +49,16 @@ class Backend:
         The library's device (``"cpu"``, a ``torch.device``, a CuPy device), or None.
     label : str
         Human-readable, e.g. ``"cuda:0 (torch)"``, for messages and benchmarks.
+    note : str
+        Why ``auto`` runs on the CPU although a GPU library is installed (it cannot
+        be imported, or sees no device); empty otherwise.
     """
 
     name: str
     xp: object
     device: object
     label: str
+    note: str = ""
 
     @property
     def is_numpy(self) -> bool:
@@ -77,14 +81,32 @@ def array_namespace(*arrays):
     return array_api_compat.array_namespace(*arrays)
 
 
+def _import(*names: str) -> tuple:
+    """The modules ``names``; a library that is installed but fails to import (a CuPy
+    built for another CUDA, a missing shared library) is a ReconInputError naming it.
+    """
+    import importlib
+
+    modules = []
+    for name in names:
+        try:
+            modules.append(importlib.import_module(name))
+        except Exception as exc:  # ImportError, OSError, RuntimeError of a broken build
+            lib = name.split(".")[-1]
+            text = " ".join(str(exc).split()) or type(exc).__name__
+            raise ReconInputError(
+                f"cuda requested but {lib} is installed and cannot be imported ({text}); "
+                f"reinstall it for this machine's CUDA ({GPU_INSTALL}), remove it, or use "
+                "--device cpu") from exc
+    return tuple(modules)
+
+
 def _cupy_backend():
     """CuPy on CUDA device 0, or None when CuPy is absent; raises when it is there
     but sees no device."""
     if importlib.util.find_spec("cupy") is None:
         return None
-    import array_api_compat.cupy as xp
-    import cupy
-
+    cupy, xp = _import("cupy", "array_api_compat.cupy")
     try:
         count = cupy.cuda.runtime.getDeviceCount()
     except Exception as exc:  # CUDA driver or runtime missing: CuPy raises its own types
@@ -101,15 +123,14 @@ def _torch_backend():
     when it is built with CUDA but sees no device."""
     if importlib.util.find_spec("torch") is None:
         return None
-    import torch
-
+    (torch,) = _import("torch")
     if torch.version.cuda is None:
         return None
     if not torch.cuda.is_available():
         raise ReconInputError("cuda requested but no CUDA device visible (PyTorch "
                               f"{torch.__version__} sees none); check the driver with "
                               "nvidia-smi, or use --device cpu")
-    import array_api_compat.torch as xp
+    _, xp = _import("torch", "array_api_compat.torch")
 
     return Backend("torch", xp, torch.device("cuda:0"), "cuda:0 (torch)")
 
@@ -131,7 +152,9 @@ def resolve_device(device: str = "cpu") -> Backend:
     ------
     ReconInputError
         An unknown name; ``cuda`` without CuPy or a CUDA PyTorch (names the install
-        command), or with them but no visible device.
+        command), with one that fails to import (names it), or with them but no
+        visible device. ``auto`` never raises for these: it returns the CPU backend
+        with the reason in its ``note``.
     """
     name = str(device).strip().lower()
     if name not in DEVICES:
@@ -148,6 +171,9 @@ def resolve_device(device: str = "cpu") -> Backend:
         if backend is not None:
             return backend
     if name == "auto":
+        if errors:  # installed but unusable: the CPU, and why
+            return replace(NUMPY, note="no usable GPU, running on the CPU: "
+                           + str(errors[0]).removeprefix("cuda requested but "))
         return NUMPY
     if errors:
         raise errors[0]

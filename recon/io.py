@@ -32,11 +32,13 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "BAYER_PATTERNS",
     "LOAD_EXTENSIONS",
+    "atomic_dir",
     "atomic_path",
     "free_space_text",
     "missing_dirs",
     "output_group",
     "remove_empty_dirs",
+    "remove_tree",
     "write_json",
     "SAVE_EXTENSIONS",
     "demosaic_bayer",
@@ -406,15 +408,96 @@ def output_group() -> Iterator[None]:
         yield
     except BaseException:
         for tmp, _ in pending:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+            _discard(tmp)
         remove_empty_dirs(made)
         raise
     else:
         for tmp, final in pending:
-            os.replace(tmp, final)
+            _put_in_place(tmp, final)
     finally:
         _GROUP.pending = _GROUP.made = None
+
+
+def _discard(tmp: Path) -> None:
+    """Remove a temporary output: a file, or a folder (:func:`remove_tree`)."""
+    if tmp.is_dir():
+        remove_tree(tmp)
+    else:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+
+
+def _put_in_place(tmp: Path, final: Path) -> None:
+    """Rename a finished temporary output over ``final``; a folder replacing a folder
+    moves the old one aside first (a rename cannot replace a non-empty folder) and
+    removes it after."""
+    if not (tmp.is_dir() and final.is_dir()):
+        os.replace(tmp, final)
+        return
+    old = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".old"))
+    os.replace(final, old)
+    os.replace(tmp, final)
+    remove_tree(old)
+
+
+def remove_tree(path: str | os.PathLike, settle_s: float = 0.1,
+                timeout_s: float = 5.0) -> None:
+    """Remove a folder a failed write left, until it stays gone.
+
+    zarr writes chunks on a pool of threads: when one write fails (a full disk), the
+    others still finish after the error has reached the caller and may create their
+    folders again. So the folder is removed until it stays gone for ``settle_s`` (at
+    most ``timeout_s``).
+    """
+    import shutil
+    import time
+
+    path = Path(path)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        shutil.rmtree(path, ignore_errors=True)
+        time.sleep(settle_s)
+        if not path.exists() or time.monotonic() > deadline:
+            break
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """A temporary folder next to ``path`` to write a directory output to (a Zarr
+    array); put in place on success, as :func:`atomic_path` does for a file.
+
+    On success the folder replaces ``path`` (an existing folder is moved aside and
+    removed after), or, inside an :func:`output_group`, when the group ends; when the
+    block raises, the folder (:func:`remove_tree`: also what zarr's writer threads
+    add after the error) and any parent folder it had to create are removed, and a
+    full disk is named with its free space.
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary folder (hidden, ``.NAME.XXXX.tmp``, created empty).
+    """
+    path = Path(path)
+    made = missing_dirs(path)
+    group = getattr(_GROUP, "made", None)
+    if group is not None:
+        group.extend(made)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
+    try:
+        yield tmp
+        pending = getattr(_GROUP, "pending", None)
+        if pending is None:
+            _put_in_place(tmp, path)
+        else:
+            pending.append((tmp, path))
+    except BaseException as exc:
+        remove_tree(tmp)
+        remove_empty_dirs(made)
+        full = _disk_full(path, exc) if isinstance(exc, OSError) else None
+        if full is not None:
+            raise full from exc
+        raise
 
 
 @contextlib.contextmanager

@@ -26,15 +26,22 @@ sends INFO records (DEBUG with ``-v``) to the console, and only this package pri
 
 from __future__ import annotations
 
-import argparse
-import errno
-import logging
-import sys
-import warnings
+from . import startup_signals as _startup_signals
 
-from diffuserlab.errors import DiffuserLabError
+_startup_signals.install()  # the command process: every signal from here on is one line
+# ruff: noqa: E402 (the handlers come before every other import, on purpose)
+
+import sys
 
 try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C may come
+    import argparse
+    import errno
+    import logging
+    import signal
+    import warnings
+
+    from diffuserlab.errors import DiffuserLabError
+
     from . import (
         analyze,
         bench,
@@ -47,9 +54,13 @@ try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C 
         recon_run,
         runs,
     )
-except KeyboardInterrupt:  # one line and 130, as anywhere else; nothing has run yet
-    sys.stderr.write("diffuserlab: interrupted (Ctrl-C) while starting; nothing was done\n")
-    raise SystemExit(130) from None
+except KeyboardInterrupt as _exc:  # one line and 128 + the signal; nothing has run yet
+    from .interrupts import exit_status as _status
+    from .interrupts import signal_text as _text
+
+    sys.stderr.write(f"diffuserlab: interrupted ({_text(getattr(_exc, 'signum', None))}) "
+                     "while starting; nothing was done\n")
+    raise SystemExit(_status(_exc)) from None
 
 __all__ = ["build_parser", "main", "os_error_line"]
 
@@ -222,14 +233,28 @@ def main(argv: list[str] | None = None) -> int:
     """
     from diffuserlab.errors import InputError
 
-    from .interrupts import exit_status, terminate_like_ctrl_c
+    from .interrupts import (
+        after_the_command,
+        exit_status,
+        quiet_shutdown,
+        signal_text,
+        terminate_like_ctrl_c,
+    )
 
+    # the signals of this call (the command process: since its first line)
+    mark = 0 if _startup_signals.is_command_process() else _startup_signals.count()
     try:
         args = build_parser().parse_args(argv)
-    except KeyboardInterrupt:  # Ctrl-C while the command modules load
-        print("diffuserlab: interrupted (Ctrl-C) while starting; nothing was done",
-              file=sys.stderr)
-        return 130
+        swallowed = _startup_signals.received(mark)  # an import caught the interrupt
+    except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM, SIGHUP) while the modules load
+        swallowed = getattr(exc, "signum", None) or _startup_signals.received(mark) \
+            or signal.SIGINT
+    if swallowed is not None:
+        print(f"diffuserlab: interrupted ({signal_text(swallowed)}) while starting; nothing "
+              "was done", file=sys.stderr)
+        after_the_command()
+        return 128 + int(swallowed)
+    quiet_shutdown(args.debug)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
@@ -245,9 +270,10 @@ def main(argv: list[str] | None = None) -> int:
     checked_outputs(reset=True)
     with terminate_like_ctrl_c() as received, warnings.catch_warnings():
         warnings.showwarning = _warning_as_log_record
-        status = _dispatch(args, input_errors)
+        status = _dispatch(args, input_errors, _startup_signals.count())
     if received and status == exit_status(KeyboardInterrupt()):
         status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
+    after_the_command()  # the command process: a signal while Python exits changes nothing
     return status
 
 
@@ -265,12 +291,13 @@ def _raised_class(module: str, name: str) -> type[BaseException]:
     return _NeverRaised if loaded is None else getattr(loaded, name)
 
 
-def _dispatch(args: argparse.Namespace, input_errors: tuple) -> int:
-    """Run ``args.handler`` inside the error boundary of :func:`main`; its status."""
+def _dispatch(args: argparse.Namespace, input_errors: tuple, mark: int = 0) -> int:
+    """Run ``args.handler`` inside the error boundary of :func:`main`; its status
+    (``mark``: the signals seen before it, :func:`startup_signals.count`)."""
     from drivers.errors import DeviceError, DeviceValueError, MissingDependencyError
     from recon.errors import DivergenceError
 
-    from .interrupts import exit_status
+    from .interrupts import exit_status, signal_text
 
     # the bench's error classes are looked up when an exception reaches their clause
     # (an except clause's expression is evaluated then), after the handler ran
@@ -306,6 +333,11 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple) -> int:
               file=sys.stderr)
         return 2 if bad_input else 1
     except Exception as exc:
+        signum = _startup_signals.received(mark)
+        if signum is not None and not args.debug:  # a library turned the interrupt into
+            # an error of its own (dask: "Nanny failed to start")
+            print(f"diffuserlab: interrupted ({signal_text(signum)})", file=sys.stderr)
+            return 128 + signum
         if args.debug:
             raise
         if isinstance(exc, OSError):  # the system's or the user's problem, not a bug

@@ -187,6 +187,21 @@ def _open(args: argparse.Namespace, config):
     return vb
 
 
+def _live_inputs(args: argparse.Namespace) -> tuple:
+    """The PSF, its depth and ``--dark`` read before the bench opens: a given level or
+    frame is read and a frame checked against the PSF's shape, which the camera's frames
+    must have; ``auto`` and ``none`` are passed on as they are
+    (:func:`instrument.reconstruct_files.resolve_dark` resolves them with the camera)."""
+    from ..reconstruct_files import check_dark_frame, dark_level, load_psf
+
+    psf, depth = load_psf(args.psf, args.depth_mm)
+    dark = args.dark
+    if dark is not None and str(dark).strip().lower() not in ("auto", "none"):
+        dark = dark_level(str(dark))
+        check_dark_frame(dark, psf.shape[-2:], f"the PSF {args.psf} and the camera's frames")
+    return psf, depth, dark
+
+
 def _status(t_s: float, ring, live) -> str:
     c, s = ring.counters(), live.stats()
     lat = "-" if s["latency_median_s"] is None else f"{1e3 * s['latency_median_s']:.0f} ms"
@@ -197,25 +212,26 @@ def _status(t_s: float, ring, live) -> str:
             f"skipped {s['skipped']}, errors {s['errors']}")
 
 
-def _live(args: argparse.Namespace, cam):
-    """The live reconstruction the options ask for, checked against the camera; with
-    the PSF's description for the banner."""
+def _live(args: argparse.Namespace, cam, inputs: tuple):
+    """The live reconstruction the options ask for (``inputs`` from
+    :func:`_live_inputs`), checked against the camera; with the PSF's description for
+    the banner."""
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
 
     from ..live import LiveReconstruction
-    from ..reconstruct_files import load_psf, resolve_dark
+    from ..reconstruct_files import resolve_dark
     from ..stacks import dark_subtracted
 
     method, iterations = _method(args.method)
-    psf, depth = load_psf(args.psf, args.depth_mm)
+    psf, depth, dark = inputs
     if tuple(cam.image_shape) != tuple(psf.shape):
         raise ReconInputError(
             f"the PSF {args.psf} is {psf.shape[0]}x{psf.shape[1]} but the camera "
             f"delivers {cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate "
             "the PSF with the camera's current ROI and binning")
     psf, dark = resolve_dark(  # one meaning of --dark auto (docs/cli.md)
-        args.dark, psf, calibrated=dark_subtracted(args.psf),
+        dark, psf, calibrated=dark_subtracted(args.psf),
         recorded=float(cam.dark_offset_dn) if args.simulate else None,
         what=f"--psf {args.psf}")
     recon = LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark, device=args.device)
@@ -240,13 +256,14 @@ def run_live(args: argparse.Namespace) -> int:
     if args.preview_png is not None:
         check_outputs([args.preview_png], {"--psf": args.psf}, args.overwrite,
                       option="--preview-png")
+    inputs = _live_inputs(args)  # the PSF and a dark frame, before the bench opens
     config = bench_config(args.bench, simulate=args.simulate, command="capture live")
     bench = _open(args, config)
     try:
         cam = bench.camera
         settings = {k: v for k, v in (("frame_rate_hz", args.fps),
                                       ("exposure_s", args.exposure_s)) if v is not None}
-        live, label = _live(args, cam)
+        live, label = _live(args, cam, inputs)
         cam.apply_settings(settings)
         print(f"live {label} on {cam.device_id} ({cam.image_shape[0]}x{cam.image_shape[1]}, "
               f"{cam.resulting_frame_rate_hz:.1f} fps); Ctrl-C stops", flush=True)
@@ -338,13 +355,14 @@ def run_video(args: argparse.Namespace) -> int:
     if args.preview_png:
         check_outputs([args.preview_png], {**inputs, "--out": args.out}, args.overwrite,
                       option="--preview-png")
+    live_inputs = _live_inputs(args) if args.method is not None else None
     config = bench_config(args.bench, simulate=args.simulate, command="capture video")
     bench = _open(args, config)
     try:
         cam = bench.camera
         live = label = None
-        if args.method is not None:
-            live, label = _live(args, cam)
+        if live_inputs is not None:
+            live, label = _live(args, cam, live_inputs)
         extra = {}
         if args.simulate:
             extra["simulated"] = {"scene": args.scene, "seed": args.seed,

@@ -70,8 +70,10 @@ def run(args: argparse.Namespace) -> int:
         for name, (link, tty) in bench.ports().items():
             print(f"  {name:<11} {link} -> {tty}")
         if args.bench_out:
-            with open(args.bench_out, "w", encoding="utf-8") as f:
-                f.write(bench.bench_text())
+            from recon.io import atomic_path
+
+            with atomic_path(args.bench_out) as tmp:  # whole or not at all (a full disk)
+                tmp.write_text(bench.bench_text(), encoding="utf-8")
             print(f"bench file: {args.bench_out}")
         else:
             print("bench file: examples/bench-emulated.toml" + (

@@ -10,6 +10,19 @@ aborted (safe state, status aborted, lock released), a recording stopped and cut
 its frames (status stopped), a batch reconstruction keeps its finished frames and
 releases its lock. A second one while that cleanup runs is logged and ignored (the
 cleanup is what the signal asked for; SIGKILL remains for a process that hangs).
+
+The ``diffuserlab`` process itself (the console script or ``python -m
+instrument.cli``, :func:`is_command_process`) is covered from its first line of our
+code to its exit: :mod:`instrument.cli.startup_signals` (run before the command
+modules are imported, seconds of numpy, scipy, zarr, dask) turns SIGINT, SIGTERM and
+SIGHUP into KeyboardInterrupt / :class:`Terminated` and records each, so an import
+that swallows the interrupt (a library's ``except BaseException``) is still seen and
+the command never starts, and a library that turns the interrupt into an error of
+its own (dask: "Nanny failed to start") is still reported as interrupted
+(:func:`instrument.cli.main`); and :func:`quiet_shutdown` keeps the
+errors of libraries' exit hooks (dask closing a cluster whose start was
+interrupted, zarr's event loop) off the console: the command has printed its one
+line and chosen its status by then (``-v`` logs them).
 """
 
 from __future__ import annotations
@@ -17,30 +30,16 @@ from __future__ import annotations
 import contextlib
 import logging
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 
-__all__ = ["HANDLED", "Terminated", "exit_status", "terminate_like_ctrl_c"]
+from .startup_signals import HANDLED, Terminated, is_command_process, record
+
+__all__ = ["HANDLED", "Terminated", "after_the_command", "exit_status", "is_command_process",
+           "quiet_shutdown", "signal_text", "terminate_like_ctrl_c"]
 
 log = logging.getLogger("diffuserlab")
-
-#: The signals turned into :class:`Terminated` (SIGHUP where the platform has it).
-HANDLED = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
-                if s is not None)
-
-
-class Terminated(KeyboardInterrupt):
-    """The process was asked to stop by a signal (SIGTERM, SIGHUP).
-
-    Attributes
-    ----------
-    signum : int
-        The signal received.
-    """
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"stopped by {signal.Signals(signum).name}")
-        self.signum = int(signum)
 
 
 def exit_status(exc: KeyboardInterrupt) -> int:
@@ -65,6 +64,7 @@ def terminate_like_ctrl_c() -> Iterator[list[int]]:
 
     def handler(signum, frame):
         received.append(signum)
+        record(signum)
         if len(received) == 1:
             raise Terminated(signum)
         log.warning("%s received while stopping: finishing the clean-up first",
@@ -76,3 +76,40 @@ def terminate_like_ctrl_c() -> Iterator[list[int]]:
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+
+
+def signal_text(signum: int | None) -> str:
+    """``Ctrl-C`` for SIGINT (or None), ``stopped by SIGTERM`` for the others."""
+    if signum is None or signum == signal.SIGINT:
+        return "Ctrl-C"
+    return f"stopped by {signal.Signals(signum).name}"
+
+
+def quiet_shutdown(debug: bool) -> None:
+    """In the command process, errors that Python reports while it shuts down (an
+    exit hook's, a finalizer's: ``sys.unraisablehook``) go to the debug log instead
+    of the console, and the resource tracker's leak warning of workers stopped
+    mid-start is not shown, unless ``debug``."""
+    if not is_command_process() or debug:
+        return
+
+    def hook(unraisable) -> None:
+        log.debug("while exiting: %s: %s (%s)", type(unraisable.exc_value).__name__,
+                  unraisable.exc_value, unraisable.err_msg)
+
+    sys.unraisablehook = hook
+    # multiprocessing's resource tracker (a process of its own, started by dask with
+    # this process's -W options) warns of the semaphores of workers stopped mid-start,
+    # which it then removes
+    sys.warnoptions.append("ignore:resource_tracker:UserWarning")
+
+
+def after_the_command() -> None:
+    """In the command process, once the command has chosen its status: SIGINT, SIGTERM
+    and SIGHUP are noted and otherwise ignored while Python shuts down (the libraries'
+    exit hooks run for a moment), so the status and the one line stand; a library
+    that re-raises an interrupt then (``_thread.interrupt_main``) is ignored too."""
+    if not is_command_process() or threading.current_thread() is not threading.main_thread():
+        return
+    for s in (signal.SIGINT, *HANDLED):
+        signal.signal(s, lambda signum, frame: record(signum))

@@ -118,14 +118,18 @@ def check_device(device: str) -> None:
     Raises
     ------
     recon.errors.ReconInputError
-        ``cuda`` without CuPy / a CUDA PyTorch or without a visible device (the message
-        of :func:`recon.backend.resolve_device`; exit 2).
+        ``cuda`` without CuPy / a CUDA PyTorch, with one that cannot be imported, or
+        without a visible device (the message of :func:`recon.backend.resolve_device`;
+        exit 2). ``auto`` that falls back to the CPU although a GPU library is
+        installed prints why (``diffuserlab: note: ...`` on stderr) and goes on.
     """
     if device == "cpu":
         return
     from recon.backend import resolve_device
 
-    resolve_device(device)
+    note = resolve_device(device).note
+    if note:  # auto on the CPU although a GPU library is installed
+        print(f"diffuserlab: note: --device {device}: {note}", file=sys.stderr)
 
 
 class DeprecatedAlias(argparse.Action):

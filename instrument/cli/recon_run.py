@@ -12,8 +12,11 @@
     iterations. ``--dff`` adds the ΔF/F product against a per-pixel percentile
     baseline (Kuo 2020, Fig. 6.5b: 20). ``--device cuda`` solves on a GPU in every
     worker (one local worker unless ``--workers``; a cluster's workers use their own
-    GPU); an unusable device exits 2 before the run is opened. Exit 0; 2 bad input;
-    130 Ctrl-C (the frames done are kept: run the same command again to finish).
+    GPU); an unusable device exits 2 before the run is opened. A frame whose data
+    cannot be reconstructed (a dark frame: no light) is named with its reason and
+    left out, the others go on. Exit 0; 1 when a frame failed so (the others are
+    stored); 2 bad input; 130 Ctrl-C or SIGTERM (the frames done are kept: run the
+    same command again to finish).
 
 ``diffuserlab recon-run RUN.zarr --psf-grid GRID.zarr [--model auto|convolution|local|pca]
 [--background estimate|none] ...``
@@ -104,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     from recon.options import GRID_L1, l1_given
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
-    from ..runstore import RunStore
+    from ..runstore import RunStore, RunStoreError
     from .recon_flags import check_device, check_recon_flags
 
     check_recon_flags(args)  # --iterations, --bin, --tv, --l1 against their limits
@@ -153,13 +156,19 @@ def run(args: argparse.Namespace) -> int:
             overwrite=args.overwrite, psf_source=source, background=args.background,
             grid_l1=GRID_L1 if l1_given(args.l1) is None else args.l1, on_progress=progress,
             cancel=cancel, device=args.device)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (instrument.cli.interrupts)
+        from .interrupts import exit_status, signal_text
+
         for bar in bars:
             bar.close()
-        done = RunStore.open(args.run).product_info(name)
-        print(f"stopped (Ctrl-C): {done.get('planes_done', 0)} frames of {args.run} are "
-              "reconstructed; run the same command again to finish", flush=True)
-        return 130
+        try:
+            done = RunStore.open(args.run).product_info(name).get("planes_done", 0)
+        except RunStoreError:  # stopped before the product was made
+            done = 0
+        print(f"stopped ({signal_text(getattr(exc, 'signum', None))}): {done} frames of "
+              f"{args.run} are reconstructed; run the same command again to finish",
+              flush=True)
+        return exit_status(exc)
     for bar in bars:
         bar.close()
     if out["not_stored"]:
@@ -167,12 +176,20 @@ def run(args: argparse.Namespace) -> int:
               "there)")
     for line in out["damaged"]:
         print(f"left out: {line}")
+    for line in out["failed"]:
+        print(f"failed:   {line}")
     print(f"{out['product']}: {out['reconstructed']} frames reconstructed, {out['skipped']} "
           f"already done, {out['seconds']:.1f} s ({out['fps']:.2f} frames/s with "
           f"{out['workers'] or 0} workers)"
           + (f"; backgrounds in {out['background_product']}"
              if out.get("background_product") else "")
           + (f"; ΔF/F in {out['dff_product']}" if out.get("dff_product") else ""))
+    if out["failed"]:
+        print(f"diffuserlab: error: {len(out['failed'])} frame(s) could not be reconstructed "
+              f"(listed above with the reason; the others are stored): fix their cause "
+              "and run the same command again, or leave them out with --frames",
+              file=sys.stderr)
+        return 1
     return 0
 
 

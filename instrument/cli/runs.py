@@ -133,14 +133,18 @@ def verify(path: str) -> int:
     instrument.runstore.RunStoreError
         No readable run at ``path`` (exit 2 through :func:`instrument.cli.main`).
     """
+    from ..run_layout import layout_note
     from ..runstore import RunStore
 
     store = RunStore.open(path)
     problems = store.verify()
     for p in problems:
         print(p)
-    checked = (f"{int(store.done().sum())} frames and {len(store.products())} products of "
-               f"{store.path}")
+    checked = (f"{int(store.done_or_none().sum())} frames and {len(store.products())} "
+               f"products of {store.path}")
+    note = layout_note(store.path)
+    if note:
+        print(note)
     if not store.has_checksums:
         print(f"{store.path} (run schema 1) carries no checksums: only unreadable chunks "
               "can be found, not deleted or altered ones")

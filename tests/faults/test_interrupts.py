@@ -11,7 +11,11 @@ frame rate, so a recording takes wall-clock time):
   offers no resume, ``runs verify`` calls them intact, ``runs export --frames`` and
   ``recon-run`` use them;
 * Ctrl-C (SIGINT) at moments while a recording starts never prints a traceback and
-  leaves either no run or a stopped one, unlocked.
+  leaves either no run or a stopped one, unlocked;
+* SIGINT or SIGTERM at fixed delays from 0.05 s after the interpreter is up (through a
+  console script, as installed), and at the progress point where ``recon-run`` starts
+  its dask workers: one line, 128 + the signal, no traceback, the run unlocked (the
+  full sweep of delays is marked slow).
 """
 
 from __future__ import annotations
@@ -188,3 +192,124 @@ def test_a_batch_stopped_by_sigterm_keeps_its_frames_and_its_run_unlocked(tmp_pa
     done = store.product_frames_done("recon_admm")
     assert store.lock_owner() is None and 1 <= done.sum() < 24
     assert _cli(["runs", "verify", run], tmp_path).returncode == 0
+
+
+#: The console script as pip writes it (the main guard: dask's worker processes import
+#: the main module again), printing a mark once the interpreter is up: signals are sent
+#: at fixed delays after the mark (before it, Python itself starts, outside any project
+#: code)
+LAUNCHER = """import sys
+if __name__ == "__main__":
+    sys.stdout.write("up\\n")
+    sys.stdout.flush()
+from instrument.cli import main
+if __name__ == "__main__":
+    sys.exit(main())
+"""
+
+
+def _launch(argv: list[str], cwd: Path) -> subprocess.Popen:
+    """``diffuserlab ARGV`` through a console script (the process handles its signals
+    from its first line of project code), returned once the interpreter is up."""
+    script = cwd / "bin" / "diffuserlab"
+    script.parent.mkdir(exist_ok=True)
+    script.write_text(LAUNCHER)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, str(script), *map(str, argv)], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert proc.stdout.readline() == "up\n"
+    return proc
+
+
+def _assert_stopped_in_one_line(proc: subprocess.Popen, sig: int, run: Path) -> None:
+    """Exit 128 + the signal, no traceback, at most one line on stderr (none when the
+    command's own stop message is on stdout), the run (if begun) unlocked."""
+    code, out, err = _finish(proc)
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert code == 128 + sig, (code, out, err)
+    lines = [line for line in err.replace("\r", "\n").splitlines() if line.strip()
+             and "%|" not in line and not line.startswith(("INFO ", "WARNING "))]
+    assert len(lines) == 1 or (not lines and "stopped (" in out), err
+    assert all(line.startswith("diffuserlab: interrupted (") for line in lines), err
+    if run.exists():
+        assert not (run / ".lock").exists(), "the run was left locked"
+
+
+def _signal_at(argv, tmp_path, sig, delay_s, run):
+    proc = _launch(argv, tmp_path)
+    time.sleep(delay_s)
+    proc.send_signal(sig)
+    _assert_stopped_in_one_line(proc, sig, run)
+
+
+_VIDEO = ["capture", "video", "--simulate", "--frames", "300", "--out"]
+_SIGNALS = [signal.SIGINT, signal.SIGTERM]
+
+
+@pytest.mark.parametrize("sig", _SIGNALS, ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("delay_s", [0.05, 0.4])
+def test_a_signal_while_capture_video_starts_is_one_line(tmp_path, sig, delay_s):
+    """Before: SIGTERM in the import window killed the process silently (-15), Ctrl-C
+    there printed a traceback."""
+    _signal_at([*_VIDEO, tmp_path / "v.zarr"], tmp_path, sig, delay_s, tmp_path / "v.zarr")
+
+
+@pytest.fixture(scope="module")
+def batch_run(tmp_path_factory) -> tuple[Path, Path]:
+    from instrument.cli import main
+
+    d = tmp_path_factory.mktemp("batch_signals")
+    run = d / "b.zarr"
+    assert main(["capture", "video", "--simulate", "--frames", "8", "--out", str(run)]) == 0
+    _psf_of(RunStore.open(run), d / "psf.npy")
+    return run, d / "psf.npy"
+
+
+def _recon_run(batch_run, tmp_path) -> tuple[list, Path]:
+    import shutil
+
+    run = Path(shutil.copytree(batch_run[0], tmp_path / "b.zarr"))
+    return ["recon-run", run, "--psf", batch_run[1], "--method", "admm", "--tv", "1e-4",
+            "--iterations", "300", "--workers", "1"], run
+
+
+@pytest.mark.parametrize("sig", _SIGNALS, ids=["SIGINT", "SIGTERM"])
+def test_a_signal_while_the_batch_starts_its_workers_is_one_line(batch_run, tmp_path, sig):
+    """At the progress point where recon-run starts its dask cluster (its first line is
+    printed). Before: dask's exit hook closed the half-started cluster with a traceback
+    ("AssertionError: Status.init"), or 'internal error (a bug): Nanny failed to start'."""
+    argv, run = _recon_run(batch_run, tmp_path)
+    proc = _launch(argv, tmp_path)
+    assert "local workers" in proc.stdout.readline()
+    time.sleep(0.3)
+    proc.send_signal(sig)
+    _assert_stopped_in_one_line(proc, sig, run)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", _SIGNALS, ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("command", ["capture video", "recon-run"])
+def test_signals_at_fixed_delays_are_always_one_line(batch_run, tmp_path, sig, command):
+    """The sweep: a signal at fixed delays from 0.05 s to 4 s after the interpreter is
+    up, each in a fresh process; every one ends in one line, 128 + the signal, no
+    traceback, the run unlocked (a recording stopped, a batch resumable)."""
+    for k, delay_s in enumerate((0.05, 0.1, 0.2, 0.3, 0.5, 0.8, 1.2, 1.6, 2.0, 2.5, 3.0, 4.0)):
+        where = tmp_path / str(k)
+        where.mkdir()
+        if command == "capture video":
+            argv, run = [*_VIDEO, where / "v.zarr"], where / "v.zarr"
+        else:
+            argv, run = _recon_run(batch_run, where)
+        _signal_at(argv, where, sig, delay_s, run)
+
+
+def test_an_earlier_signal_does_not_stop_the_next_command_in_process(tmp_path, capsys):
+    """In a program that calls ``main`` (the GUI, the tests), a signal handled during one
+    command is not taken for an interrupt of the next one's start."""
+    from instrument.cli import main, startup_signals
+
+    startup_signals.record(signal.SIGTERM)  # as terminate_like_ctrl_c does
+    capsys.readouterr()
+    assert main(["runs", "show", str(tmp_path / "missing.zarr")]) == 2
+    assert "interrupted" not in capsys.readouterr().err

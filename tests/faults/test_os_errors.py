@@ -206,3 +206,49 @@ def test_ctrl_c_while_capture_starts_leaves_no_run(d, capsys, monkeypatch):
 def test_ctrl_c_in_any_command_is_one_line(d, capsys, monkeypatch):
     monkeypatch.setattr(instrument.cli.recon, "run", _raising(_interrupt))
     _interrupted(["recon", "--psf", "psf.npy", "--raw", "raw.tif"], d, capsys)
+
+
+def test_emulators_bench_out_cut_by_the_system_leaves_no_file(d, tmp_path):
+    """``emulators start --bench-out``: whole or nothing (before: a cut or 0-byte file)."""
+    before = tree(d)
+    env = {**os.environ, "PYTHONPATH": str(REPO), "PYTHONDONTWRITEBYTECODE": "1",
+           "NUMBA_CACHE_DIR": str(tmp_path)}
+    proc = subprocess.run([sys.executable, "-c", FSIZE_CHILD, "300", "emulators", "start",
+                           "--dir", str(tmp_path / "em"), "--bench-out", "o/b.toml",
+                           "--duration-s", "0.1"], cwd=d, capture_output=True, text=True,
+                          timeout=180, env=env)
+    assert proc.returncode == 2, proc.stderr
+    lines = _error_lines(proc.stderr)
+    assert len(lines) == 1, proc.stderr
+    assert_one_error_line(lines[0], ["File too large", "o/b.toml"])
+    assert tree(d) == before, "a half bench file or a temporary file was left"
+
+
+def test_recon3d_zarr_on_a_full_disk_leaves_no_hidden_folder(d, capsys, monkeypatch):
+    """zarr writes chunks on threads: those still running when one fails with ENOSPC
+    created their folders again after the temporary volume was removed (a hidden
+    ``.v.zarr.XXXX.tmp`` left). Here the failing chunk fails at once and the others
+    finish 30 ms later, after the error has reached the command (within the 0.1 s
+    that :func:`recon.io.remove_tree` waits for the folder to stay gone)."""
+    import asyncio
+
+    from zarr.storage import LocalStore
+
+    write = LocalStore.set
+
+    async def full_disk(self, key, value):
+        if key.endswith("c/0/0/0"):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        if "/c/" in key or key.startswith("c/"):
+            await asyncio.sleep(0.03)
+        return await write(self, key, value)
+
+    monkeypatch.setattr(LocalStore, "set", full_disk)
+    assert_refused(["recon3d", "--psf-stack", "stack.tif", "--raw", "raw.tif", "--method",
+                    "fista", "--iterations", "2", "--out", "o/v.zarr"],
+                   ["No space left on device", "free", "o/v.zarr"], d, capsys)
+    import time
+
+    time.sleep(0.3)  # the late chunk writes have ended: still nothing left
+    assert not any(p.name.startswith(".v.zarr") for p in d.rglob("*"))
+    assert not (d / "o").exists()

@@ -18,7 +18,7 @@ import pytest
 
 from instrument.cli import main
 
-from .helpers import run_cli, tree
+from .helpers import assert_one_error_line, run_cli, tree
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +76,50 @@ def _frame_chunk(run: Path) -> None:
     chunk.write_bytes(bytes(data))
 
 
+def _edit_meta(run: Path, array: str, **fields) -> None:
+    """Edit data-defining fields of an array's zarr.json (what a careless hand does)."""
+    meta = run / array / "zarr.json"
+    doc = json.loads(meta.read_text())
+    doc.update(fields)
+    meta.write_text(json.dumps(doc))
+
+
+def _float16(run: Path) -> None:
+    _edit_meta(run, "frames", data_type="float16")
+
+
+def _fewer_frames(run: Path) -> None:
+    _edit_meta(run, "frames", shape=[16, 256, 320])
+
+
+def _flipped(path: Path, at: int = 0) -> None:
+    data = bytearray(path.read_bytes())
+    data[at] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _checksum_chunk(run: Path) -> None:
+    """The zstd frame header of the checksums of frames 8-15 broken: it cannot decode."""
+    _flipped(run / "crc32" / "c" / "1")
+
+
+def _done_flags_chunk(run: Path) -> None:
+    _flipped(run / "done" / "c" / "1")
+
+
+def _product_dtype(run: Path) -> None:
+    _edit_meta(run / "products", "psf_stack", data_type="int32")
+
+
+def _old_store_fewer_frames(run: Path) -> None:
+    """A run written before the layout record, its frames' shape then cut."""
+    meta = run / "zarr.json"
+    doc = json.loads(meta.read_text())
+    del doc["attributes"]["arrays"]
+    meta.write_text(json.dumps(doc))
+    _fewer_frames(run)
+
+
 #: (run, damage, command, exit status, words the output must hold)
 CASES = {
     "video done-flag chunk deleted: verify": (
@@ -104,6 +148,44 @@ CASES = {
     "killed video: calibrate resume": (
         "video", _killed, ["calibrate", "resume", "--simulate"], 2,
         ["is a video recording", "16 stored frames are kept"]),
+    # the arrays' metadata against what the run recorded when it wrote them (before:
+    # float16 frames verified intact and exported as garbage; fewer frames and a broken
+    # checksum chunk were "internal error (a bug)")
+    "frames relabelled float16: verify": (
+        "video", _float16, ["runs", "verify"], 1,
+        ["frames/zarr.json is damaged", "data_type 'float16'", "recorded data_type 'uint16'",
+         "put the recorded values back", "backup copy"]),
+    "frames relabelled float16: show": (
+        "video", _float16, ["runs", "show"], 0, ["complete, DAMAGED", "data_type 'float16'"]),
+    "frames relabelled float16: export refuses": (
+        "video", _float16, ["runs", "export", "--frames", "--out", "{d}/out/e.tif"], 2,
+        ["frames/zarr.json is damaged", "data_type"]),
+    "frames cut to fewer: verify": (
+        "video", _fewer_frames, ["runs", "verify"], 1,
+        ["frames/zarr.json is damaged", "shape [16,256,320]", "recorded shape [24,256,320]"]),
+    "frames cut to fewer: show": (
+        "video", _fewer_frames, ["runs", "show"], 0, ["complete, DAMAGED", "shape [16,256,320]"]),
+    "checksum chunk unreadable: verify": (
+        "video", _checksum_chunk, ["runs", "verify"], 1,
+        ["frame 8 (point 0)", "frame 15 (point 0)", "checksum chunk crc32/c/1 cannot be read",
+         "cannot be verified", "restore crc32/c/1"]),
+    "checksum chunk unreadable: export leaves its frames out": (
+        "video", _checksum_chunk, ["runs", "export", "--frames", "--out", "{d}/out/e.tif"], 0,
+        ["wrote", "skipped", "crc32/c/1"]),
+    "done-flag chunk unreadable: verify": (
+        "video", _done_flags_chunk, ["runs", "verify"], 1,
+        ["done flags", "done/c/1 is damaged", "backup copy"]),
+    "checksums deleted: verify": (  # before: read as a run without checksums, "intact"
+        "video", lambda run: shutil.rmtree(run / "crc32"), ["runs", "verify"], 1,
+        ["crc32/zarr.json is missing", "no frame can be verified", "backup copy"]),
+    "product relabelled int32: verify": (
+        "sweep", _product_dtype, ["runs", "verify"], 1,
+        ["products/psf_stack/zarr.json is damaged", "data_type 'int32'",
+         "recorded data_type 'float"]),
+    "old store without the record, frames cut: verify": (
+        "video", _old_store_fewer_frames, ["runs", "verify"], 1,
+        ["frames/zarr.json is damaged", "holds 16 frame slots", "plan records 24",
+         "written before runs recorded their array layout"]),
     "altered video frame: verify offers no re-recording": (
         "video", _frame_chunk, ["runs", "verify"], 1,
         ["frame 11 (point 0)", "restore the run from a backup", "recon-run"]),
@@ -126,7 +208,7 @@ def test_damage_against_the_record_is_named(runs, tmp_path, capsys, name):
         assert word in text, f"{word!r} not in: {text}"
     after = tree(tmp_path)
     assert {k: v for k, v in after.items() if not k.startswith("out")} == before
-    if "export" in command:
+    if "export" in command and status == 0:
         import tifffile
 
         from instrument.tiff_export import read_tiff_metadata
@@ -134,13 +216,61 @@ def test_damage_against_the_record_is_named(runs, tmp_path, capsys, name):
         with tifffile.TiffFile(tmp_path / "out" / "e.tif") as tif:
             frames = tif.asarray()
             meta = read_tiff_metadata(tif)  # (ImageJ hyperstack: its Info)
-        assert frames.shape[0] == 23 and 11 not in meta["frame_indices"]
+        left_out = {11} if damage is _frame_chunk else set(range(8, 16))
+        assert frames.shape[0] == 24 - len(left_out)
+        assert not left_out & set(meta["frame_indices"])
+    if status == 2:
+        assert not (tmp_path / "out").exists()
 
 
 def test_the_intact_runs_verify(runs, capsys):
     for which in ("video", "sweep"):
         code, out, _ = run_cli(["runs", "verify", runs / f"{which}.zarr"], capsys)
         assert code == 0 and out.startswith("intact"), out
+
+
+def test_an_old_store_without_the_layout_record_still_verifies(runs, tmp_path, capsys):
+    """A run written before the record opens and verifies, and says what its check
+    cannot see."""
+    run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
+    meta = run / "zarr.json"
+    doc = json.loads(meta.read_text())
+    del doc["attributes"]["arrays"]
+    meta.write_text(json.dumps(doc))
+    code, out, _ = run_cli(["runs", "verify", run], capsys)
+    assert code == 0 and "intact" in out and "written before runs recorded" in out, out
+
+
+def test_metadata_that_is_not_data_may_change(runs, tmp_path, capsys):
+    """Attributes and dimension names (OME-Zarr metadata added later) are no damage."""
+    run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
+    _edit_meta(run, "frames", dimension_names=["t", "y", "x"],
+               attributes={"note": "added by hand"})
+    code, out, _ = run_cli(["runs", "verify", run], capsys)
+    assert code == 0 and out.startswith("intact"), out
+
+
+def test_a_path_inside_a_store_names_the_run(runs, capsys):
+    """``runs verify RUN.zarr/frames`` calls a healthy run neither damaged nor intact."""
+    run = runs / "video.zarr"
+    for argv in (["runs", "verify", run / "frames"], ["runs", "show", run / "crc32"]):
+        code, out, err = run_cli(argv, capsys)
+        assert code == 2 and "damaged" not in err, err
+        assert_one_error_line(err, ["inside the run store", str(run)])
+
+
+def test_a_damaged_layout_is_never_written(runs, tmp_path):
+    """A writer (a resume, recon-run) refuses a run whose arrays are described otherwise."""
+    from instrument.runstore import RunStore, RunStoreError
+
+    run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
+    _float16(run)
+    store = RunStore.open(run, "r+")
+    with pytest.raises(RunStoreError, match="data_type 'float16'"):
+        store.lock()
+    with pytest.raises(RunStoreError, match="data_type 'float16'"):
+        store.frame(0)
+    assert not (run / ".lock").exists()
 
 
 def test_the_api_never_continues_a_recording(runs, tmp_path):

@@ -6,6 +6,7 @@ simulated neurons follows the truth, and bad input is one line."""
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,10 +80,14 @@ def test_batch_equals_single_frame_reconstruction_and_resumes(video, cluster, tm
     store = RunStore.open(run)
     done = store.product_frames_done("recon_admm")
     assert done.sum() == first["reconstructed"] and store.lock_owner() is None
+    # a run moved (or copied) elsewhere resumes its batch (before: "other settings")
+    run = Path(shutil.move(run, tmp_path / "moved" / "v.zarr"))
+    store = RunStore.open(run)
     second = reconstruct_run(run, psf, scheduler=cluster.scheduler_address, **OPTIONS)
     assert second["skipped"] == done.sum() and second["reconstructed"] == 12 - done.sum()
     data, attrs = RunStore.open(run).product("recon_admm")
     assert data.shape == (12, 128, 160) and attrs["iterations"] == 8
+    assert f"recon-run {run} " in attrs["resume_hint"]
     for i in (0, 7, 11):
         frame = store.frame(i).image
         expect = recon.reconstruct(psf, frame, **OPTIONS).image
@@ -207,3 +212,41 @@ def test_workers_beyond_the_machine_are_refused(monkeypatch, workers, words):
     monkeypatch.setattr("os.cpu_count", lambda: 8)
     with pytest.raises(RunStoreError, match=words):
         check_workers(workers, 2)
+
+
+def test_recon_run_refuses_a_dark_frame_of_another_shape_before_any_work(video, tmp_path,
+                                                                         capsys):
+    """Before: the batch started, made its product and failed in the first frame."""
+    import shutil
+
+    from tests.faults.helpers import tree
+
+    d, _ = video
+    run = Path(shutil.copytree(d / "v.zarr", tmp_path / "v.zarr"))
+    np.save(tmp_path / "dark.npy", np.full((32, 40), 100.0, np.float32))
+    before = tree(tmp_path)
+    assert main(["recon-run", str(run), "--psf", str(d / "psf.npy"), "--dark",
+                 str(tmp_path / "dark.npy"), "--workers", "1", "--method", "wiener"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("diffuserlab: error:") and "\n" not in err, err
+    assert "dark frame is 32x40 but the run's frames are 256x320" in err
+    assert tree(tmp_path) == before
+
+
+def test_a_dark_frame_is_named_and_the_batch_goes_on(video, tmp_path, capsys):
+    """Before: the batch stopped at the first dark frame of the video without naming it."""
+    import shutil
+
+    d, _ = video
+    run = Path(shutil.copytree(d / "v.zarr", tmp_path / "v.zarr"))
+    store = RunStore.open(run, "r+")
+    dark = np.full(store.frame_shape, 100, store.frame_dtype)  # the lens cap on
+    store.write_frame(5, dark, {})
+    assert main(["recon-run", str(run), "--psf", str(d / "psf.npy"), "--method", "wiener",
+                 "--bin", "2", "--workers", "1"]) == 1
+    out, err = capsys.readouterr()
+    assert "failed:   frame 5 (point 0): the raw is constant" in out, out
+    assert "11 frames reconstructed" in out
+    assert "1 frame(s) could not be reconstructed" in err and "Traceback" not in err
+    done = RunStore.open(run).product_frames_done("recon_wiener")
+    assert done.sum() == 11 and not done[5]

@@ -68,3 +68,26 @@ def test_capture_live_refuses_a_psf_of_another_shape(tmp_path, capsys):
                  "--seconds", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert "is 32x32 but the camera delivers 256x320" in err and "\n" not in err
+
+
+@pytest.mark.parametrize("command", [["live", "--seconds", "1"],
+                                     ["video", "--frames", "4", "--live-recon", "wiener"]])
+def test_a_dark_frame_of_another_shape_is_refused_before_the_bench_opens(
+        psf_path, tmp_path, capsys, monkeypatch, command):
+    """Before: 'internal error (a bug): ValueError: operands could not be broadcast'
+    after the bench had opened and streamed (capture live after 17 s)."""
+    import instrument.cli.capture as capture
+
+    def no_bench(*_args, **_kw):
+        raise AssertionError("the bench was opened before the dark frame was checked")
+
+    monkeypatch.setattr(capture, "_open", no_bench)
+    dark = tmp_path / "dark.npy"
+    np.save(dark, np.full((32, 40), 100.0, np.float32))
+    out = ["--out", str(tmp_path / "v.zarr")] if command[0] == "video" else []
+    assert main(["capture", command[0], "--simulate", "--psf", str(psf_path), "--dark",
+                 str(dark), *command[1:], *out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("diffuserlab: error:") and "\n" not in err, err
+    assert "dark frame is 32x40" in err and "256x320" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dark.npy"]

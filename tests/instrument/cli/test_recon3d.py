@@ -191,6 +191,7 @@ def _bad(problem, tmp_path, **over) -> list[str]:
     ({"--psf-stack": "NPY"}, "carries no depths"),
     ({"--psf-stack": "NPY", "--depths": "1,2,3"}, "5 planes but 3 depths"),
     ({"--depths": "2,3,4,5,6"}, "records depths"),
+    ({"--depths": "1,2"}, "records depths"),  # fewer than recorded (before: a ValueError)
     ({"--depths": "a,b"}, "not a comma-separated list"),
     ({"--raw": "SMALL"}, "differ in size"),
     ({"--method": "gd"}, "unknown method"),

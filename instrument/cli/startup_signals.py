@@ -1,0 +1,88 @@
+"""The first thing the ``diffuserlab`` process runs: its signals handled from the start.
+
+Importing the command modules takes seconds (numpy, scipy, zarr, dask); a Ctrl-C or
+a SIGTERM in that window must end as one line with exit 128 + the signal, like
+anywhere else, and an import that catches the interrupt itself (a library's
+``except BaseException``) must not let the command run on. So, before anything else
+is imported, :func:`install` makes SIGINT raise KeyboardInterrupt and SIGTERM and
+SIGHUP raise :class:`Terminated` (a KeyboardInterrupt) and records each
+(:func:`received`). Only the standard library's ``signal``, ``sys`` and ``os`` are
+imported here, so the window before it is as short as can be. Only the command
+process is changed (:func:`is_command_process`): the tests and the GUI, which import
+the command line, keep their own handlers.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+
+__all__ = ["HANDLED", "Terminated", "count", "install", "is_command_process", "received",
+           "record"]
+
+#: The signals besides SIGINT that stop a command like Ctrl-C (SIGHUP where it exists).
+HANDLED = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
+                if s is not None)
+
+#: The signals :func:`install`'s handler saw, in order.
+_RECEIVED: list[int] = []
+
+
+class Terminated(KeyboardInterrupt):
+    """The process was asked to stop by a signal (SIGTERM, SIGHUP).
+
+    Attributes
+    ----------
+    signum : int
+        The signal received.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"stopped by {signal.Signals(signum).name}")
+        self.signum = int(signum)
+
+
+def is_command_process() -> bool:
+    """Whether this process is the ``diffuserlab`` command (its console script, or
+    ``python -m instrument.cli``), not a program that imports the command line."""
+    argv = list(getattr(sys, "orig_argv", []))
+    if "-m" in argv[:-1] and argv[argv.index("-m") + 1] == "instrument.cli":
+        return True
+    script = next((a for a in argv[1:] if not a.startswith("-")), "")
+    return os.path.basename(script) in ("diffuserlab", "diffuserlab.exe",
+                                        "diffuserlab-script.py")
+
+
+def record(signum: int) -> None:
+    """Note a signal handled elsewhere (:func:`instrument.cli.interrupts.terminate_like_ctrl_c`)."""
+    _RECEIVED.append(int(signum))
+
+
+def _handler(signum, frame):
+    record(signum)
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise Terminated(signum)
+
+
+def install() -> None:
+    """In the command process, SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt /
+    :class:`Terminated` and are recorded from now on; elsewhere nothing changes."""
+    if not is_command_process():
+        return
+    for s in (signal.SIGINT, *HANDLED):
+        try:
+            signal.signal(s, _handler)
+        except ValueError:  # not the main thread: its signals are not ours
+            return
+
+
+def received(since: int = 0) -> int | None:
+    """The first signal the handler saw (after the first ``since`` ones), or None."""
+    return _RECEIVED[since] if len(_RECEIVED) > since else None
+
+
+def count() -> int:
+    """How many signals the handler has seen (a mark for :func:`received`)."""
+    return len(_RECEIVED)
