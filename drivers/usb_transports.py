@@ -35,7 +35,7 @@ from drivers.errors import (
     DeviceTimeoutError,
     MissingDependencyError,
 )
-from drivers.transports import import_optional, port_holders
+from drivers.transports import _holders_text, import_optional
 
 __all__ = ["HID_MODULES", "HidLink", "UsbLink", "hid_node"]
 
@@ -62,11 +62,8 @@ def _denied(node: str | None) -> bool:
 
 
 def _holders(node: str | None) -> str:
-    if not node:
-        return ""
-    found = port_holders(node)
-    return ("; held by " + ", ".join(f"process {pid} ({cmd[:60]})" for pid, cmd in found)
-            if found else "")
+    """``"; held by process ..."`` for the other processes holding ``node`` open."""
+    return _holders_text(node) if node else ""
 
 
 class _ReportLink:
