@@ -45,15 +45,24 @@ log = logging.getLogger("drivers.transports")
 HID_MODULES: dict[str, str] = {"hid": "libusb", "hidraw": "hidraw"}
 
 
-def hid_node(path: bytes | str) -> str | None:
+def hid_node(path: bytes | str, sysfs: str = "/sys/bus/usb/devices") -> str | None:
     """The device node behind a hidapi ``path``: the path itself when absolute (the
-    hidraw module's ``/dev/hidrawN``), ``/dev/bus/usb/BBB/DDD`` for the libusb module
-    (whose paths read ``bus:address:iface`` in hex); None for another form."""
+    hidraw module's ``/dev/hidrawN``); for the libusb module, whose paths name the USB
+    port and interface (``1-2.3:1.0``: bus 1, ports 2 then 3, configuration 1,
+    interface 0; hidapi 0.14 and later), ``/dev/bus/usb/BBB/DDD`` from that port's
+    ``busnum`` and ``devnum`` in sysfs; None when it cannot tell."""
     text = path.decode("utf-8", "replace") if isinstance(path, bytes) else str(path)
     if text.startswith("/"):
         return text
-    m = re.fullmatch(r"([0-9a-fA-F]{4}):([0-9a-fA-F]{4}):([0-9a-fA-F]{2})", text)
-    return usb_node(int(m.group(1), 16), int(m.group(2), 16)) if m else None
+    m = re.fullmatch(r"(\d+-[\d.]+):\d+\.\d+", text)
+    if m is None:
+        return None
+    try:
+        port = os.path.join(sysfs, m.group(1))
+        with open(os.path.join(port, "busnum")) as bus, open(os.path.join(port, "devnum")) as dev:
+            return usb_node(int(bus.read()), int(dev.read()))
+    except (OSError, ValueError):
+        return None
 
 
 def _denied(node: str | None) -> bool:

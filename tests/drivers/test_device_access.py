@@ -113,8 +113,16 @@ def test_pyusb_permission_denied_is_not_busy(locks):
         LightCrafter4500("dmd", transport="pyusb", usb_backend=usb).open()
 
 
-def test_hid_node_of_each_module():
-    assert hid_node(b"0001:000a:00") == "/dev/bus/usb/001/010"  # libusb: bus:addr:iface hex
+def test_hid_node_of_each_module(tmp_path):
+    """The libusb module's paths name the port (``bus-ports:config.interface``, as
+    cython-hidapi 0.15 formats them: ``%u-%u``, ``.%u`` per hub port, ``:%u.%u``); the
+    node is found through sysfs."""
+    port = tmp_path / "1-2.3"
+    port.mkdir()
+    (port / "busnum").write_text("1\n")
+    (port / "devnum").write_text("10\n")
+    assert hid_node(b"1-2.3:1.0", sysfs=str(tmp_path)) == "/dev/bus/usb/001/010"
+    assert hid_node(b"1-4:1.0", sysfs=str(tmp_path)) is None  # not in sysfs: unknown
     assert hid_node(b"/dev/hidraw3") == "/dev/hidraw3"
     assert hid_node(b"fake-hidraw0") is None
 
