@@ -442,13 +442,15 @@ def _connections(dev_cfg: DeviceConfig) -> set[str]:
     return out
 
 
-def independent_groups(devices: list[DeviceConfig]) -> list[list[int]]:
+def independent_groups(devices: list[DeviceConfig],
+                       shared: list[set[str]] | None = None) -> list[list[int]]:
     """Indices of ``devices`` in groups that may open concurrently: devices sharing a
-    connection (:data:`CONNECTION_PARAMS`) are in one group, in bench order."""
+    connection (:data:`CONNECTION_PARAMS`), or another key of ``shared[i]`` (e.g. one
+    simulated clock), are in one group, in bench order."""
     group_of: dict[str, int] = {}
     groups: list[list[int]] = []
     for i, dev in enumerate(devices):
-        keys = _connections(dev)
+        keys = _connections(dev) | (shared[i] if shared else set())
         hits = sorted({group_of[k] for k in keys if k in group_of})
         if not hits:
             groups.append([i])
@@ -536,7 +538,11 @@ def open_bench(
                 failures[i] = exc
                 halt.set()
 
-    groups = [] if failures else independent_groups([d for d, _ in classes])
+    # simulated devices advancing one clock are not independent: their opens would
+    # interleave the simulated time
+    clocks = [{f"clock:{id(made[i].clock)}"} if getattr(made.get(i), "clock", None)
+              is not None else set() for i in range(len(classes))]
+    groups = [] if failures else independent_groups([d for d, _ in classes], clocks)
     interrupted: BaseException | None = None
     with ThreadPoolExecutor(max_workers=max(1, min(8, len(groups))),
                             thread_name_prefix="open-bench") as pool:

@@ -436,6 +436,53 @@ def test_open_bench_cancel_and_timeout_bound_the_opens(fakes):
         assert devices["s"].is_open  # no timeout given: the device's own bounds
 
 
+class _Overlap(FakeCamera):
+    """Counts how many opens run at once; with a ``barrier``, each open waits there for
+    the others (which only concurrent opens reach)."""
+
+    active = 0
+    most = 0
+    barrier: threading.Barrier | None = None
+    lock = threading.Lock()
+
+    def _do_open(self, timeout_s: float) -> None:
+        with _Overlap.lock:
+            _Overlap.active += 1
+            _Overlap.most = max(_Overlap.most, _Overlap.active)
+        if _Overlap.barrier is not None:
+            _Overlap.barrier.wait()
+        else:
+            time.sleep(0.02)
+        with _Overlap.lock:
+            _Overlap.active -= 1
+        super()._do_open(timeout_s)
+
+
+def test_open_bench_opens_devices_on_one_clock_one_after_another(fakes):
+    """Independent devices open at once; simulated devices advancing one clock (a
+    virtual bench's construct hook gives them one) open one after another."""
+    registry.register("overlap", _Overlap)
+    bench = _bench(*(_dev(c, driver="overlap") for c in "abc"))
+    _Overlap.most, _Overlap.barrier = 0, threading.Barrier(3, timeout=30)
+    try:
+        with open_bench(bench):  # each open waits for the other two: all three at once
+            assert _Overlap.most == 3
+    finally:
+        _Overlap.barrier = None
+    shared = object()
+
+    def on_one_clock(dev_cfg, cls):
+        device = cls(dev_cfg.id, **dev_cfg.params)
+        device.clock = shared
+        return device
+
+    _Overlap.most = 0
+    with open_bench(bench, construct=on_one_clock) as devices:
+        assert list(devices) == ["a", "b", "c"]
+    assert _Overlap.most == 1
+    assert EVENTS[-6:-3] == [("open", "a"), ("open", "b"), ("open", "c")]
+
+
 def test_independent_groups_share_connections():
     from instrument.bench_setup import independent_groups
 
