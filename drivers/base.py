@@ -202,8 +202,10 @@ class Device(abc.ABC):
             for the device to answer, and the driver's own ``home_timeout_s`` for such
             a homing.
         cancel : threading.Event, optional
-            Set by another thread (a GUI's cancel button) to end the open early: every
-            wait of the open checks it; motion started at open is stopped.
+            Set by another thread (a GUI's cancel button) to end the open early: it is
+            checked before connecting, after connecting and every 0.1 s of a homing
+            at open (which it stops); the open's other waits are single replies,
+            bounded by the driver's reply timeout.
 
         Raises
         ------
