@@ -32,6 +32,7 @@ import abc
 import contextlib
 import logging
 import math
+import threading
 import time
 from collections.abc import Iterator, Mapping
 from typing import Any, ClassVar
@@ -40,6 +41,7 @@ import numpy as np
 
 from diffuserlab.jsonio import jsonable
 from drivers.errors import (
+    DeviceCancelledError,
     DeviceDisconnectedError,
     DeviceError,
     DeviceStateError,
@@ -159,13 +161,22 @@ class Device(abc.ABC):
         """True between a successful :meth:`open` and :meth:`close`."""
         return self._is_open
 
-    def open(self, timeout_s: float = 5.0) -> None:
+    def open(self, timeout_s: float | None = None, *,
+             cancel: threading.Event | None = None) -> None:
         """Connect to the device and read its fixed properties and current settings.
 
         Parameters
         ----------
-        timeout_s : float
-            Longest time to wait for the device to answer, in seconds.
+        timeout_s : float, optional
+            Longest time the whole open may take, in seconds, waits for a homing the
+            driver starts at open (``home_on_open``) included. None (the default): 5 s
+            for the device to answer, and the driver's own ``home_timeout_s`` for such
+            a homing.
+        cancel : threading.Event, optional
+            Set by another thread (a GUI's cancel button) to end the open early: it is
+            checked before connecting, after connecting and every 0.1 s of a homing
+            at open (which it stops); the open's other waits are single replies,
+            bounded by the driver's reply timeout.
 
         Raises
         ------
@@ -173,19 +184,28 @@ class Device(abc.ABC):
             The device is absent.
         DeviceTimeoutError
             The kind's timeout error: the device did not answer in time.
+        DeviceCancelledError
+            ``cancel`` was set before the open finished; the device is closed.
         """
-        timeout_s = self._check_timeout(timeout_s)
+        bounded = timeout_s is not None
+        timeout_s = self._check_timeout(5.0 if timeout_s is None else timeout_s)
         if self._is_open:
             return
-        with self._io():
-            self._do_open(timeout_s)
-            try:
-                self._info = dict(self._do_get_info())
-                self._values = dict(self._do_get_settings())
-            except BaseException:
-                with contextlib.suppress(DeviceError):
-                    self._do_close()
-                raise
+        self._open_bounds = (time.monotonic() + timeout_s if bounded else None, cancel)
+        try:
+            self._check_cancel("before opening")
+            with self._io():
+                self._do_open(timeout_s)
+                try:
+                    self._check_cancel("while opening")
+                    self._info = dict(self._do_get_info())
+                    self._values = dict(self._do_get_settings())
+                except BaseException:
+                    with contextlib.suppress(DeviceError):
+                        self._do_close()
+                    raise
+        finally:
+            self._open_bounds = (None, None)
         self._is_open = True
         self._disconnected = False
         self._on_open()
@@ -204,8 +224,8 @@ class Device(abc.ABC):
             self._is_open = False
         self._log.info("%s: closed", self.device_id)
 
-    def reconnect(self, timeout_s: float = 5.0) -> None:
-        """Close, open again and re-apply the last settings.
+    def reconnect(self, timeout_s: float | None = None) -> None:
+        """Close, open again (``open(timeout_s)``) and re-apply the last settings.
 
         The settings are the ones in effect before the reconnect (the cache the
         device kept), so a device that lost power comes back configured. Motion is
@@ -389,6 +409,17 @@ class Device(abc.ABC):
         exc = self.timeout_error(self.device_id, problem, fix)
         self._log.warning("%s: %s", self.device_id, problem)
         return exc
+
+    #: (deadline from ``time.monotonic()`` or None, cancel event or None) of the open
+    #: in progress; read by the waits a driver makes while opening.
+    _open_bounds: tuple[float | None, threading.Event | None] = (None, None)
+
+    def _check_cancel(self, doing: str) -> None:
+        """Raise :class:`DeviceCancelledError` when the open's cancel event is set."""
+        cancel = self._open_bounds[1]
+        if cancel is not None and cancel.is_set():
+            raise DeviceCancelledError(self.device_id, f"open cancelled {doing}",
+                                       "open it again when ready")
 
     def _check_timeout(self, timeout_s: Any) -> float:
         return self._float("timeout_s", timeout_s, low=0.0, low_open=True)

@@ -1,10 +1,16 @@
 """TI DLP LightCrafter 4500 (DLPC350 controller) as a :class:`~drivers.dmd.Dmd`, over USB HID.
 
 Transport: hidapi (cython-hidapi, ``pip install hidapi``), USB 0451:6401, 64-byte
-reports written with the report id 0 (:class:`~drivers.usb_transports.HidLink`); the
-kernel's hidraw driver stays bound, no detach. ``transport="pyusb"`` uses pyusb on the
-interrupt endpoints 0x01/0x81 instead (:class:`~drivers.usb_transports.UsbLink`, the
-kernel driver detached). Notes: docs/drivers/dlp-lightcrafter.md.
+reports written with the report id 0 (:class:`~drivers.usb_transports.HidLink`).
+``transport="hidapi"`` uses the package's ``hid`` module, built on libusb: it detaches
+the kernel's usbhid driver from interface 0 and claims it while open (a second
+program's claim is refused). ``transport="hidraw"`` uses the same package's ``hidraw``
+module: the kernel's hidraw driver stays bound. ``transport="pyusb"`` uses pyusb on
+the interrupt endpoints 0x01/0x81 (:class:`~drivers.usb_transports.UsbLink`, the
+kernel driver detached). Whichever transport, the unit is locked while open
+(:class:`~drivers.device_access.DeviceLock`, by its serial number): replies are
+matched by sequence number only, so a second program on the unit is refused, named.
+Notes: docs/drivers/dlp-lightcrafter.md.
 
 Message (TI DLPC350 programmer's guide): ``flags`` (bit 7 read, bit 6 reply wanted,
 bit 5 set by the device on NACK), ``sequence`` (echoed), ``length`` (u16 LE: the
@@ -100,9 +106,11 @@ class LightCrafter4500(Dmd):
         Longest wait for one reply (TI's host waits 2 s).
     validation_timeout_s : float
         Longest wait for the sequence validation to finish.
-    transport : {"hidapi", "pyusb"}
-        hidapi through the kernel's hidraw driver (default), or pyusb (libusb) on the
-        interrupt endpoints with the kernel driver detached.
+    transport : {"hidapi", "hidraw", "pyusb"}
+        hidapi's ``hid`` module (default; libusb: the kernel driver detached and the
+        interface claimed while open), hidapi's ``hidraw`` module (the kernel's hidraw
+        driver stays bound), or pyusb (libusb) on the interrupt endpoints with the
+        kernel driver detached.
     hid_backend, usb_backend : module-like, optional
         Replace ``import hid`` / ``import usb`` (tests pass an emulator's fakes).
     """
@@ -116,11 +124,12 @@ class LightCrafter4500(Dmd):
                                           low_open=True)
         self._validation_timeout = self._float("validation_timeout_s", validation_timeout_s,
                                                low=0.0, low_open=True)
-        transport = self._choice("transport", transport, ("hidapi", "pyusb"))
+        transport = self._choice("transport", transport, ("hidapi", "hidraw", "pyusb"))
         ids = {"vendor_id": VENDOR_ID, "product_id": PRODUCT_ID, "serial_number": serial_number,
                "interface": 0, "timeout_error": self.timeout_error}
-        self._link = (HidLink(device_id, hid_module=hid_backend, **ids) if transport == "hidapi"
-                      else UsbLink(device_id, usb_module=usb_backend, **ids))
+        self._link = (UsbLink(device_id, usb_module=usb_backend, **ids) if transport == "pyusb"
+                      else HidLink(device_id, hid_module=hid_backend, **ids,
+                                   module="hid" if transport == "hidapi" else "hidraw"))
         self._seq = 0
         self._command_lock = threading.RLock()
         self._hw: dict[str, Any] = {}

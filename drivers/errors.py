@@ -12,6 +12,8 @@ Hierarchy::
     |   +-- CameraTimeoutError, StageTimeoutError, LedArrayTimeoutError, SlmTimeoutError,
     |       DmdTimeoutError
     +-- DeviceDisconnectedError (also ConnectionError)
+    +-- DevicePermissionError (also PermissionError): the user may not open the port
+    +-- DeviceCancelledError        (the caller cancelled an open in progress)
     +-- DeviceStateError            (used before open, snap while streaming, ...)
     |   +-- StageMotionError        (a move ended away from its target: limit switch, stall)
     +-- DeviceValueError (also ValueError): a bad argument or setting
@@ -26,8 +28,10 @@ from diffuserlab.errors import DiffuserLabError
 
 __all__ = [
     "CameraTimeoutError",
+    "DeviceCancelledError",
     "DeviceDisconnectedError",
     "DeviceError",
+    "DevicePermissionError",
     "DeviceProtocolError",
     "DeviceStateError",
     "DeviceTimeoutError",
@@ -79,6 +83,18 @@ class DeviceDisconnectedError(DeviceError, ConnectionError):
 
     Every further call raises this error until :meth:`Device.reconnect` succeeds.
     """
+
+
+class DevicePermissionError(DeviceError, PermissionError):
+    """The operating system refused to open the device's port or node (``EACCES``):
+    the device is there, the user lacks the group or the udev rule. The message names
+    the node, its group and mode, and the group to join. Not a disconnection: waiting
+    or reconnecting does not help."""
+
+
+class DeviceCancelledError(DeviceError):
+    """The caller cancelled a blocking operation (an open) before it finished; motion
+    the operation had started was stopped and the device is left closed."""
 
 
 class DeviceStateError(DeviceError):

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import time
 from collections.abc import Iterable, Mapping
 from typing import Any, ClassVar
 
@@ -418,17 +419,34 @@ class HostTableStage(Stage):
     def _send_velocity(self, axis: str, velocity: float) -> float | None: ...
 
     def _wait_homing_at_open(self, home_timeout_s: float) -> None:
-        """Wait up to ``home_timeout_s`` seconds for the homing a driver started at open
-        (``home_on_open``); the open's own timeout does not bound it, since a long travel
-        homes in tens of seconds.
+        """Wait for the homing a driver started at open (``home_on_open``), up to
+        ``home_timeout_s`` seconds or the end of the open's own ``timeout_s`` when the
+        caller gave one, whichever comes first; the open's cancel event is checked
+        every 0.1 s.
 
         Raises
         ------
         DeviceTimeoutError
-            The kind's timeout error, naming ``home_timeout_s``; the axes keep homing.
+            The kind's timeout error, naming the bound that ended the wait; the axes
+            keep homing.
+        DeviceCancelledError
+            The open was cancelled: the axes are stopped.
         """
-        if not self._do_wait(home_timeout_s):
-            raise self._timeout(f"homing at open did not finish within home_timeout_s = "
-                                f"{home_timeout_s:g} s; the axes are still homing",
-                                "open again once homed, or raise home_timeout_s in the "
-                                "bench file")
+        now = time.monotonic()
+        deadline, cancel = self._open_bounds
+        end, bound = now + home_timeout_s, f"home_timeout_s = {home_timeout_s:g} s"
+        fix = "open again once homed, or raise home_timeout_s in the bench file"
+        if deadline is not None and deadline < end:
+            end, bound = deadline, "the open's timeout_s"
+            fix = "open again once homed, or open with a longer timeout"
+        while True:
+            if cancel is not None and cancel.is_set():
+                with contextlib.suppress(DeviceError):
+                    self._do_stop()
+                self._check_cancel("while homing (the axes were stopped)")
+            left = end - time.monotonic()
+            if self._do_wait(max(0.0, min(0.1, left))):
+                return
+            if left <= 0:
+                raise self._timeout(f"homing at open did not finish within {bound}; the "
+                                    "axes are still homing", fix)

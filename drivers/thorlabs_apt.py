@@ -31,8 +31,9 @@ that ends farther from its target than ``position_tolerance_counts`` (a hardware
 switch, a stall, an error reported by the controller) raises
 :class:`~drivers.errors.StageMotionError`. Absolute moves are refused until the axis
 is homed (``require_homed``; ``home_on_open`` homes at open, within
-``home_timeout_s``). The stored homing parameters are left as they are unless
-``home_velocity`` is given (then only the velocity changes).
+``home_timeout_s`` and the open's own ``timeout_s`` and cancel event). The stored
+homing parameters are left as they are unless ``home_velocity`` is given (then only
+the velocity changes).
 """
 
 from __future__ import annotations
@@ -125,8 +126,8 @@ class ThorlabsAptStage(HostTableStage):
     home_on_open : bool
         Home every axis that is not homed when the stage opens.
     home_timeout_s : float
-        Longest wait for that homing, s (default 120); the open's ``timeout_s`` does
-        not bound it.
+        Longest wait for that homing, s (default 120); an open given a ``timeout_s``
+        (or a cancel event) ends it sooner.
     status_updates : bool, optional
         Ask for the controller's status updates and acknowledge them; default on for
         K-cubes, off for a BSC20x (it ignores the acknowledgement).

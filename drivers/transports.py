@@ -23,7 +23,10 @@ one is a :class:`~drivers.errors.MissingDependencyError` naming the extra.
   ``exclusive=True``, which other pyserial users that ask for it respect) and marked
   ``TIOCEXCL``, so a later plain ``open()`` by another user's program fails with
   ``EBUSY`` (as thorlabs-apt-device and pylablib open ports, without asking; root
-  passes ``TIOCEXCL``).
+  passes ``TIOCEXCL``);
+- a port the user may not open (``EACCES``) is a
+  :class:`~drivers.errors.DevicePermissionError` naming the group to join
+  (:func:`drivers.device_access.permission_error`), not a disconnection.
 
 """
 
@@ -41,6 +44,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from drivers.device_access import is_permission_denied, permission_error
 from drivers.errors import (
     DeviceDisconnectedError,
     DeviceTimeoutError,
@@ -64,7 +68,7 @@ HARDWARE_EXTRA = "diffuserlab[hardware]"
 #: Where udev puts stable links to USB serial ports, named after the device's serial.
 BY_ID_DIR = "/dev/serial/by-id"
 
-_PACKAGES = {"serial": "pyserial", "hid": "hidapi", "usb": "pyusb"}
+_PACKAGES = {"serial": "pyserial", "hid": "hidapi", "hidraw": "hidapi", "usb": "pyusb"}
 
 
 def import_optional(module: str, device_id: str) -> ModuleType:
@@ -73,7 +77,7 @@ def import_optional(module: str, device_id: str) -> ModuleType:
     Parameters
     ----------
     module : str
-        ``"serial"`` (pyserial), ``"hid"`` (hidapi) or ``"usb"`` (pyusb); a dotted
+        ``"serial"`` (pyserial), ``"hid"`` or ``"hidraw"`` (hidapi) or ``"usb"`` (pyusb); a dotted
         submodule such as ``"serial.tools.list_ports"`` is allowed.
     device_id : str
         The device asking (named in the error).
@@ -334,7 +338,9 @@ class SerialLink:
         MissingDependencyError
             pyserial is not installed.
         DeviceDisconnectedError
-            The port is absent, busy (another process holds it) or not accessible.
+            The port is absent or busy (another process holds it).
+        DevicePermissionError
+            The user may not open it (the message names the group to join).
         """
         serial = import_optional("serial", self.device_id)
         path = self.resolve()
@@ -351,6 +357,9 @@ class SerialLink:
                 xonxoff=self.xonxoff, exclusive=True,
             )
         except (serial.SerialException, OSError) as exc:
+            if is_permission_denied(exc):
+                raise permission_error(self.device_id, path, "serial port", "dialout",
+                                       exc) from exc
             raise DeviceDisconnectedError(
                 self.device_id, f"cannot open serial port {path}: {exc}{_holders_text(path)}",
                 "check the cable, that no other program holds the port, and the permissions "

@@ -1,12 +1,22 @@
 """USB transports of the hardware drivers: USB HID (hidapi) and raw USB (pyusb).
 
 :class:`HidLink` does for a USB HID device what :class:`drivers.transports.SerialLink`
-does for a serial port, through cython-hidapi (the ``hidapi`` package, imported as
-``hid``): found by vendor/product id, serial number
-and interface, 64-byte reports written with the leading report id 0, reads with a
-timeout, ``IOError`` from hidapi = disconnected. :class:`UsbLink` reaches the same reports
-through pyusb (libusb) on the interrupt endpoints, detaching the kernel driver, for
-systems where hidraw is not available.
+does for a serial port, through cython-hidapi (the ``hidapi`` package): found by
+vendor/product id, serial number and interface, 64-byte reports written with the
+leading report id 0, reads with a timeout, ``IOError`` from hidapi = disconnected.
+The ``hidapi`` wheel for Linux holds two modules with one API: ``hid``, built on
+libusb (it detaches the kernel's usbhid driver from the interface and claims it while
+open, re-attaching it on close; it opens ``/dev/bus/usb/BBB/DDD``; a second claim of
+the interface is refused), and ``hidraw``, built on the kernel's hidraw driver (the
+kernel driver stays bound; it opens ``/dev/hidrawN``, which any number of programs
+may open at once). :class:`UsbLink` reaches the same reports through pyusb (libusb)
+on the interrupt endpoints, detaching the kernel driver too.
+
+Both hold a :class:`~drivers.device_access.DeviceLock` on the unit while open (its
+USB ids and serial number): replies are matched by a sequence number only, so a
+second program (or a second driver object) on the same unit is refused, naming the
+holder, whichever module or library it uses here. A node the user may not open is a
+:class:`~drivers.errors.DevicePermissionError` naming the group to join.
 
 Both are optional (the ``hardware`` extra), imported when a device opens
 (:func:`drivers.transports.import_optional`).
@@ -15,18 +25,54 @@ Both are optional (the ``hardware`` extra), imported when a device opens
 from __future__ import annotations
 
 import logging
+import os
+import re
 from typing import Any
 
+from drivers.device_access import DeviceLock, is_permission_denied, permission_error, usb_node
 from drivers.errors import (
     DeviceDisconnectedError,
     DeviceTimeoutError,
     MissingDependencyError,
 )
-from drivers.transports import import_optional
+from drivers.transports import _holders_text, import_optional
 
-__all__ = ["HidLink", "UsbLink"]
+__all__ = ["HID_MODULES", "HidLink", "UsbLink", "hid_node"]
 
 log = logging.getLogger("drivers.transports")
+
+#: The modules of the ``hidapi`` package, and what each is built on (Linux wheels).
+HID_MODULES: dict[str, str] = {"hid": "libusb", "hidraw": "hidraw"}
+
+
+def hid_node(path: bytes | str, sysfs: str = "/sys/bus/usb/devices") -> str | None:
+    """The device node behind a hidapi ``path``: the path itself when absolute (the
+    hidraw module's ``/dev/hidrawN``); for the libusb module, whose paths name the USB
+    port and interface (``1-2.3:1.0``: bus 1, ports 2 then 3, configuration 1,
+    interface 0; hidapi 0.14 and later), ``/dev/bus/usb/BBB/DDD`` from that port's
+    ``busnum`` and ``devnum`` in sysfs; None when it cannot tell."""
+    text = path.decode("utf-8", "replace") if isinstance(path, bytes) else str(path)
+    if text.startswith("/"):
+        return text
+    m = re.fullmatch(r"(\d+-[\d.]+):\d+\.\d+", text)
+    if m is None:
+        return None
+    try:
+        port = os.path.join(sysfs, m.group(1))
+        with open(os.path.join(port, "busnum")) as bus, open(os.path.join(port, "devnum")) as dev:
+            return usb_node(int(bus.read()), int(dev.read()))
+    except (OSError, ValueError):
+        return None
+
+
+def _denied(node: str | None) -> bool:
+    """True when ``node`` exists and this user may not read and write it."""
+    return bool(node) and os.path.exists(node) and not os.access(node, os.R_OK | os.W_OK)
+
+
+def _holders(node: str | None) -> str:
+    """``"; held by process ..."`` for the other processes holding ``node`` open."""
+    return _holders_text(node) if node else ""
 
 
 class _ReportLink:
@@ -46,6 +92,21 @@ class _ReportLink:
         self.report_size = int(report_size)
         self.timeout_error = timeout_error
         self._dev: Any = None
+        self._lock: DeviceLock | None = None
+
+    def _take_lock(self, serial: str | None, where: str) -> DeviceLock:
+        """Lock the unit (by its serial number, else where it is plugged in)."""
+        ids = f"{self.vendor_id:04x}-{self.product_id:04x}"
+        what = (f"USB device {ids.replace('-', ':')} "
+                + (f"serial {serial}" if serial else f"at {where}"))
+        lock = DeviceLock(self.device_id, f"usb-{ids}-{serial or where}", what)
+        lock.acquire()
+        return lock
+
+    def _drop_lock(self) -> None:
+        lock, self._lock = self._lock, None
+        if lock is not None:
+            lock.release()
 
     @property
     def is_open(self) -> bool:
@@ -71,7 +132,7 @@ class _ReportLink:
 
 
 class HidLink(_ReportLink):
-    """One USB HID device through cython-hidapi (``pip install hidapi``; imports as ``hid``).
+    """One USB HID device through cython-hidapi (``pip install hidapi``).
 
     Parameters
     ----------
@@ -87,8 +148,13 @@ class HidLink(_ReportLink):
         Bytes per report without the report id.
     timeout_error : type
         The kind's timeout error.
+    module : {"hid", "hidraw"}
+        The hidapi module: ``hid`` (libusb: the kernel driver detached and the
+        interface claimed while open) or ``hidraw`` (the kernel's hidraw driver stays
+        bound); see :data:`HID_MODULES`.
     hid_module : module-like, optional
-        Replaces ``import hid`` (an emulator providing ``enumerate`` and ``device``).
+        Replaces the import of ``module`` (an emulator providing ``enumerate`` and
+        ``device``).
     """
 
     kind = "USB HID"
@@ -96,60 +162,89 @@ class HidLink(_ReportLink):
     def __init__(
         self, device_id: str, *, vendor_id: int, product_id: int,
         serial_number: str | None = None, interface: int | None = 0, report_size: int = 64,
-        timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, hid_module: Any = None,
+        timeout_error: type[DeviceTimeoutError] = DeviceTimeoutError, module: str = "hid",
+        hid_module: Any = None,
     ) -> None:
         super().__init__(device_id, vendor_id, product_id, serial_number, report_size,
                          timeout_error)
+        if module not in HID_MODULES:
+            raise ValueError(f"module={module!r}: use one of {sorted(HID_MODULES)}")
         self.interface = interface
+        self.module = module
         self._hid_module = hid_module
         self.path: bytes | None = None
 
     def open(self) -> None:
-        """Find the device (ids, serial, interface) and open it.
+        """Find the device (ids, serial, interface), lock the unit and open it.
 
         Raises
         ------
         MissingDependencyError
             hidapi is not installed.
+        DevicePermissionError
+            The user may not open the device node (the message names the group).
         DeviceDisconnectedError
-            No such device, or it cannot be opened (permissions: see the udev rules).
+            No such device; or it is in use: by another program or driver object of
+            this project (the unit lock names it), or by another program that claimed
+            its interface (libusb module).
         """
-        hid = self._hid_module or import_optional("hid", self.device_id)
+        hid = self._hid_module or import_optional(self.module, self.device_id)
         if not hasattr(hid, "enumerate") or not hasattr(hid, "device"):
             raise MissingDependencyError(
-                self.device_id, "the module 'hid' is not cython-hidapi (the PyPI package "
-                "'hid' has the same import name)", "pip uninstall hid; pip install hidapi",
+                self.device_id, f"the module {self.module!r} is not cython-hidapi (the "
+                "PyPI package 'hid' has the same import name)",
+                "pip uninstall hid; pip install hidapi",
             )
+        listed = hid.enumerate(self.vendor_id, self.product_id)
         found = [
-            d for d in hid.enumerate(self.vendor_id, self.product_id)
+            d for d in listed
             if (self.serial_number is None or d.get("serial_number") == self.serial_number)
             and (self.interface is None or d.get("interface_number") in (self.interface, -1))
         ]
         ids = f"{self.vendor_id:04x}:{self.product_id:04x}"
         if not found:
+            unread = [d for d in listed if self.serial_number and not d.get("serial_number")]
+            if unread and _denied(hid_node(unread[0]["path"])):
+                # libusb reads the serial number by opening the device: refused, it is blank
+                raise permission_error(self.device_id, hid_node(unread[0]["path"]),
+                                       f"USB HID device {ids}", "plugdev")
             raise DeviceDisconnectedError(
                 self.device_id, f"no USB HID device {ids}"
                 + (f" with serial {self.serial_number}" if self.serial_number else "")
                 + " is plugged in", "plug it in and power it on; check lsusb and the udev rules",
             )
+        path = found[0]["path"]
+        node = hid_node(path)
+        self._lock = self._take_lock(found[0].get("serial_number") or self.serial_number,
+                                     node or repr(path))
         dev = hid.device()
         try:
-            dev.open_path(found[0]["path"])
+            dev.open_path(path)
         except OSError as exc:
+            self._drop_lock()
+            if _denied(node) or is_permission_denied(exc):
+                raise permission_error(self.device_id, node or repr(path),
+                                       f"USB HID device {ids}", "plugdev", exc) from exc
+            claim = ("it detaches the kernel's usbhid driver and claims interface "
+                     f"{self.interface}, which another program holds"
+                     if HID_MODULES[self.module] == "libusb" else "hidraw refused it")
             raise DeviceDisconnectedError(
-                self.device_id, f"cannot open HID device {ids}: {exc}",
-                "check the permissions of /dev/hidraw* (udev rule in docs/drivers/)",
+                self.device_id, f"cannot open USB HID device {ids} ({node or path!r}) with "
+                f"hidapi's {self.module!r} module: {exc}{_holders(node)}",
+                f"another program uses it ({claim}): close it (TI's GUI, a pycrafter4500 "
+                "script); or it was unplugged: plug it in",
             ) from exc
-        self._dev, self.path = dev, found[0]["path"]
+        self._dev, self.path = dev, path
 
     def close(self) -> None:
-        """Close the handle; never raises."""
+        """Close the handle and release the unit; never raises."""
         dev, self._dev = self._dev, None
         if dev is not None:
             try:
                 dev.close()
             except Exception as exc:
                 log.debug("%s: close: %s", self.device_id, exc)
+        self._drop_lock()
 
     def write(self, report: bytes) -> None:
         """Write one report (``report_size`` bytes, padded with zeros; report id 0 added).
@@ -232,9 +327,12 @@ class UsbLink(_ReportLink):
         ------
         MissingDependencyError
             pyusb is not installed.
+        DevicePermissionError
+            The user may not open the device node (the message names the group).
         DeviceDisconnectedError
-            No such device; or it cannot be claimed (permissions: the udev rules; busy:
-            another process or a kernel driver that cannot be detached).
+            No such device; or it is busy: locked by another program or driver object
+            of this project (named), claimed by another program, or held by a kernel
+            driver that cannot be detached.
         """
         usb = self._usb_module
         if usb is None:
@@ -260,6 +358,15 @@ class UsbLink(_ReportLink):
                     f" with serial {self.serial_number}" if self.serial_number else "")
                 + " is plugged in", "plug it in and power it on; check lsusb",
             )
+        node = (usb_node(dev.bus, dev.address)
+                if getattr(dev, "bus", None) is not None else None)
+        serial = self.serial_number
+        if serial is None:
+            try:
+                serial = usb.util.get_string(dev, dev.iSerialNumber) or None
+            except (usb.core.USBError, ValueError):  # no permission to read it yet
+                serial = None
+        self._lock = self._take_lock(serial, node or "?")
         try:
             try:
                 if dev.is_kernel_driver_active(self.interface):
@@ -270,9 +377,14 @@ class UsbLink(_ReportLink):
             usb.util.claim_interface(dev, self.interface)
         except usb.core.USBError as exc:
             usb.util.dispose_resources(dev)
+            self._drop_lock()
+            if is_permission_denied(exc) or _denied(node):
+                raise permission_error(self.device_id, node or "/dev/bus/usb",
+                                       f"USB device {ids}", "plugdev", exc) from exc
             raise DeviceDisconnectedError(
-                self.device_id, f"cannot claim USB device {ids}: {exc}",
-                "check the udev rule (permissions) and that no other program uses it",
+                self.device_id, f"cannot claim USB device {ids}: {exc}{_holders(node)}",
+                "another program uses it (close it: TI's GUI, a pycrafter4500 script), "
+                "or a kernel driver could not be detached",
             ) from exc
         self._dev = dev
 
@@ -289,6 +401,7 @@ class UsbLink(_ReportLink):
                 step()
             except Exception as exc:  # a vanished device, or no kernel driver to re-attach
                 log.debug("%s: close: %s", self.device_id, exc)
+        self._drop_lock()
 
     def write(self, report: bytes) -> None:
         """Write one report (padded to ``report_size``) to ``ep_out``.

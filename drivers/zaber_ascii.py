@@ -88,8 +88,8 @@ class ZaberAsciiStage(HostTableStage):
     require_homed, home_on_open : bool
         Refuse moves of an axis showing ``WR``; home such axes at open.
     home_timeout_s : float
-        Longest wait for that homing, s (default 120); the open's ``timeout_s`` does
-        not bound it.
+        Longest wait for that homing, s (default 120); an open given a ``timeout_s``
+        (or a cancel event) ends it sooner.
     reply_timeout_s, poll_s : float
         Longest wait for a reply; polling period while moving.
     checksums : bool

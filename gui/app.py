@@ -323,6 +323,8 @@ class MainWindow(QMainWindow):
     def stop_jobs(self) -> None:
         """Ask every job to stop (abort runs, stop the recording, cancel the batch)."""
         self.session.closing = True
+        if self.session.job is not None:  # a bench still opening stops (homing included)
+            self.session.job.cancel()
         self.calibration.control.abort("the GUI is closing")
         self.alignment.control.abort("the GUI is closing")
         self.record.cancel()

@@ -131,7 +131,7 @@ class Session(QObject):
 
         config = self.config()
         if not self.simulate:
-            return Bench.open(config, on_prompt=self._ask)
+            return Bench.open(config, on_prompt=self._ask, cancel=job.cancel_event)
         vb = VirtualBench(config, seed=self.seed, realtime=True).open()
         vb.led_array.all_off()
         self._set_scene(vb, self.scene_name)

@@ -19,6 +19,7 @@ mixed) and gives the plan runner what it needs beyond the devices themselves:
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -83,11 +84,15 @@ class Bench:
         self.on_prompt = on_prompt
 
     @classmethod
-    def open(cls, config: BenchConfig, *, simulate: bool = False, timeout_s: float = 10.0,
-             on_prompt: Callable[[str, str], bool] | None = None) -> Bench:
-        """Open every device of ``config`` (:func:`open_bench`); close with :meth:`close`."""
-        return cls(open_bench(config, simulate=simulate, timeout_s=timeout_s), config=config,
-                   on_prompt=on_prompt)
+    def open(cls, config: BenchConfig, *, simulate: bool = False,
+             timeout_s: float | None = None,
+             on_prompt: Callable[[str, str], bool] | None = None,
+             cancel: threading.Event | None = None) -> Bench:
+        """Open every device of ``config`` (:func:`open_bench`: concurrently where they
+        share no connection, within ``timeout_s`` if given, stopped early when
+        ``cancel`` is set); close with :meth:`close`."""
+        return cls(open_bench(config, simulate=simulate, timeout_s=timeout_s, cancel=cancel),
+                   config=config, on_prompt=on_prompt)
 
     def close(self) -> None:
         """Close every device, last opened first (idempotent)."""

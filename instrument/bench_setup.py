@@ -8,8 +8,9 @@ configuration (:mod:`instrument.config`) and the driver registry
   :func:`instrument.registry.construction_problems`);
 * :func:`simulated_twin` / :func:`with_simulated_drivers`: the simulated stand-ins of
   a bench's devices (their parameters filtered by what the twin's driver takes);
-* :func:`open_bench`: construct and open every device, closing the already-opened
-  ones if any fails, so nothing is left half-open.
+* :func:`open_bench`: construct and open every device, concurrently where they share
+  no connection, within the caller's timeout and cancel event, closing the opened ones
+  if any fails (every failure reported), so nothing is left half-open.
 
 This module imports both; neither :mod:`instrument.config` nor
 :mod:`instrument.registry` imports it or the other's dependants, so the two stay free
@@ -18,15 +19,19 @@ of cycles.
 
 from __future__ import annotations
 
+import inspect
 import logging
 import re
+import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
 from diffuserlab.errors import DiffuserLabError
+from drivers.errors import DeviceCancelledError
 
 from .config import (
     DEFAULT_TRAVEL,
@@ -53,8 +58,10 @@ from .registry import (
 )
 
 __all__ = [
+    "CONNECTION_PARAMS",
     "BenchOpenError",
     "OpenBench",
+    "independent_groups",
     "load_bench",
     "open_bench",
     "parse_bench",
@@ -335,14 +342,20 @@ def with_simulated_drivers(config: BenchConfig) -> BenchConfig:
 
 
 class BenchOpenError(DiffuserLabError, RuntimeError):
-    """A device failed to construct or open; every device opened before it was closed.
+    """Devices failed to construct or open; every device opened was closed again.
 
     Attributes
     ----------
     device_id : str
-        The device that failed.
+        The first device (in bench order) that failed.
+    driver : str
+        Its driver.
+    failures : dict[str, BaseException]
+        Every device that failed, in bench order, with its error.
+    stopped : list[str]
+        Devices whose open was stopped because another failed (or never started).
     closed : list[str]
-        Ids of the devices opened before it and closed again.
+        Ids of the devices opened and closed again.
     close_errors : dict[str, BaseException]
         Devices whose close failed during that cleanup.
     """
@@ -354,20 +367,31 @@ class BenchOpenError(DiffuserLabError, RuntimeError):
         cause: BaseException,
         closed: list[str],
         close_errors: dict[str, BaseException],
+        failures: dict[str, tuple[str, BaseException]] | None = None,
+        stopped: list[str] | None = None,
     ):
         self.device_id = device_id
         self.driver = driver
         self.closed = closed
         self.close_errors = close_errors
-        text = (
-            f"opening device {device_id!r} (driver {driver!r}) failed: "
-            f"{type(cause).__name__}: {cause}; closed again: {', '.join(closed) or 'none'}"
-        )
+        failures = failures or {device_id: (driver, cause)}
+        self.failures = {k: e for k, (_, e) in failures.items()}
+        self.stopped = list(stopped or [])
+        text = "; ".join(
+            f"opening device {dev!r} (driver {drv!r}) failed: {type(exc).__name__}: {exc}"
+            for dev, (drv, exc) in failures.items())
+        if self.stopped:
+            text += f"; not opened: {', '.join(self.stopped)}"
+        text += f"; closed again: {', '.join(closed) or 'none'}"
         if close_errors:
             text += "; close failed for: " + ", ".join(
                 f"{k} ({type(e).__name__}: {e})" for k, e in close_errors.items()
             )
         super().__init__(text)
+
+    def __reduce__(self):
+        return (type(self), (self.device_id, self.driver, self.failures.get(self.device_id),
+                             self.closed, self.close_errors, None, self.stopped))
 
 
 class OpenBench(dict[str, Any]):
@@ -401,65 +425,178 @@ def _close_all(devices: list[tuple[str, Any]]) -> dict[str, BaseException]:
     return errors
 
 
+#: Bench-file parameters that name a connection a device holds (a port, a unit's serial
+#: number, an address): devices sharing one are opened one after another, in bench order.
+CONNECTION_PARAMS = frozenset({"port", "ports", "serial_number", "serial_numbers", "address",
+                               "ip", "device", "device_path", "camera_id"})
+
+
+def _connections(dev_cfg: DeviceConfig) -> set[str]:
+    out: set[str] = set()
+    for name, value in dev_cfg.params.items():
+        if name not in CONNECTION_PARAMS:
+            continue
+        values = (value.values() if isinstance(value, dict)
+                  else value if isinstance(value, list | tuple) else [value])
+        out.update(f"{v}" for v in values if v not in (None, ""))
+    return out
+
+
+def independent_groups(devices: list[DeviceConfig],
+                       shared: list[set[str]] | None = None) -> list[list[int]]:
+    """Indices of ``devices`` in groups that may open concurrently: devices sharing a
+    connection (:data:`CONNECTION_PARAMS`), or another key of ``shared[i]`` (e.g. one
+    simulated clock), are in one group, in bench order."""
+    group_of: dict[str, int] = {}
+    groups: list[list[int]] = []
+    for i, dev in enumerate(devices):
+        keys = _connections(dev) | (shared[i] if shared else set())
+        hits = sorted({group_of[k] for k in keys if k in group_of})
+        if not hits:
+            groups.append([i])
+            target = len(groups) - 1
+        else:
+            target = hits[0]
+            for other in hits[1:]:  # this device joins groups that were apart
+                groups[target].extend(groups[other])
+                groups[other] = []
+                group_of.update({k: target for k, g in group_of.items() if g == other})
+            groups[target].append(i)
+        group_of.update(dict.fromkeys(keys, target))
+    return [sorted(g) for g in groups if g]
+
+
 def open_bench(
     config: BenchConfig,
     *,
     simulate: bool = False,
-    timeout_s: float = 10.0,
+    timeout_s: float | None = None,
     construct: Callable[[DeviceConfig, type], Any] | None = None,
+    cancel: threading.Event | None = None,
 ) -> OpenBench:
     """Construct and open every device of ``config``; usable as a context manager.
 
-    Every driver is resolved (and its kind checked) before any device is opened. Each
-    device is constructed as ``cls(device_id, **params)`` and opened with
-    ``open(timeout_s)``. If one fails (or the process is interrupted), the devices
-    already opened are closed again, last first, before the error propagates: nothing
-    is left half-open.
+    Every driver is resolved (and its kind checked) and every device constructed (as
+    ``cls(device_id, **params)``; constructor errors of all devices reported) before
+    any device is opened, with ``open(timeout_s, cancel=...)``. Devices are opened
+    concurrently, one thread per group of devices that share no connection
+    (:func:`independent_groups`; a group opens in bench order). If any fails, the
+    others are told to stop (their waits, homing included, end within 0.1 s), every
+    device that opened is closed again, last first, and one error lists every device
+    that failed: nothing is left half-open.
 
     Parameters
     ----------
     config : BenchConfig
     simulate : bool
         Swap every device for its simulated twin first (:func:`with_simulated_drivers`).
-    timeout_s : float
-        Passed to each device's ``open``.
+    timeout_s : float, optional
+        Bounds each device's whole open (homing at open included); None: each
+        device's own bounds (:meth:`drivers.base.Device.open`).
     construct : callable, optional
         ``construct(device_config, cls) -> device`` replaces the plain
         ``cls(device_id, **params)``, e.g. to couple simulated devices to a virtual
         bench; the open/close-on-failure semantics stay the same.
+    cancel : threading.Event, optional
+        Set from another thread (a GUI's cancel) to stop the open: every device's
+        waits check it, and the devices already open are closed.
 
     Raises
     ------
     RegistryError
         A driver is unknown, cannot load, or is of another kind (nothing opened).
     BenchOpenError
-        A device failed to construct or open (the others are closed again).
+        Devices failed to construct or open, or the open was cancelled (the others
+        are closed again).
     """
-    if not (timeout_s > 0):
+    if timeout_s is not None and not (timeout_s > 0):
         raise ValueError(f"timeout_s must be > 0, got {timeout_s!r}")
     if simulate:
         config = with_simulated_drivers(config)
     classes = [(d, resolve(d.driver, d.kind)) for d in config.devices]
-    bench = OpenBench()
-    for dev_cfg, cls in classes:
-        device = None
+    halt = threading.Event()  # the caller's cancel, or another device failed
+    made: dict[int, Any] = {}
+    opened: set[int] = set()
+    failures: dict[int, BaseException] = {}
+
+    for i, (dev_cfg, cls) in enumerate(classes):  # every constructor, before any open
         try:
-            if construct is None:
-                device = cls(dev_cfg.id, **dev_cfg.params)
-            else:
-                device = construct(dev_cfg, cls)
-            log.debug("opening %s (%s)", dev_cfg.id, dev_cfg.driver)
-            device.open(timeout_s)
-        except BaseException as exc:
-            pending = list(bench.items())
-            if device is not None:  # a failed open may have acquired something
-                pending.append((dev_cfg.id, device))
-            errors = _close_all(pending)
-            bench.clear()
-            if not isinstance(exc, Exception):
-                raise
-            closed = [i for i, _ in pending if i != dev_cfg.id and i not in errors]
-            errors.pop(dev_cfg.id, None)
-            raise BenchOpenError(dev_cfg.id, dev_cfg.driver, exc, closed, errors) from exc
-        bench[dev_cfg.id] = device
-    return bench
+            made[i] = cls(dev_cfg.id, **dev_cfg.params) if construct is None else (
+                construct(dev_cfg, cls))
+        except Exception as exc:
+            failures[i] = exc
+
+    def open_group(group: list[int]) -> None:
+        for i in group:
+            if halt.is_set():
+                return
+            try:
+                log.debug("opening %s (%s)", classes[i][0].id, classes[i][0].driver)
+                _open_device(made[i], timeout_s, halt)
+                opened.add(i)
+            except BaseException as exc:  # reported below, every device's
+                failures[i] = exc
+                halt.set()
+
+    # simulated devices advancing one clock are not independent: their opens would
+    # interleave the simulated time
+    clocks = [{f"clock:{id(made[i].clock)}"} if getattr(made.get(i), "clock", None)
+              is not None else set() for i in range(len(classes))]
+    groups = [] if failures else independent_groups([d for d, _ in classes], clocks)
+    interrupted: BaseException | None = None
+    with ThreadPoolExecutor(max_workers=max(1, min(8, len(groups))),
+                            thread_name_prefix="open-bench") as pool:
+        futures = [pool.submit(open_group, g) for g in groups]
+        try:
+            while not all(f.done() for f in futures):
+                if cancel is not None and cancel.is_set():
+                    halt.set()
+                wait(futures, timeout=0.05)
+        except BaseException as exc:  # Ctrl-C while waiting: stop the opens, clean up
+            interrupted = exc
+            halt.set()
+            wait(futures)
+    if cancel is not None and cancel.is_set():
+        halt.set()
+    bench = OpenBench((classes[i][0].id, made[i]) for i in range(len(classes)) if i in opened)
+    if not failures and interrupted is None and not (cancel is not None and cancel.is_set()):
+        return bench
+    pending = [(classes[i][0].id, made[i]) for i in sorted(made)]  # failed ones too
+    errors = _close_all(pending)
+    bench.clear()
+    base_exc = interrupted or next((e for e in failures.values()
+                                    if not isinstance(e, Exception)), None)
+    if base_exc is not None:
+        raise base_exc
+    cancelled = cancel is not None and cancel.is_set()
+    real = {i: e for i, e in sorted(failures.items())
+            if cancelled or not isinstance(e, DeviceCancelledError)}
+    if not real:  # cancelled before any device reported
+        real = {i: DeviceCancelledError(classes[i][0].id, "open cancelled", "open it again")
+                for i in range(len(classes)) if i not in opened}
+    first = min(real)
+    stopped = [classes[i][0].id for i in range(len(classes))
+               if i not in real and i not in opened]
+    closed = [classes[i][0].id for i in sorted(opened) if classes[i][0].id not in errors]
+    for i in real:
+        errors.pop(classes[i][0].id, None)
+    raise BenchOpenError(
+        classes[first][0].id, classes[first][0].driver, real[first], closed, errors,
+        failures={classes[i][0].id: (classes[i][0].driver, e) for i, e in real.items()},
+        stopped=stopped,
+    ) from real[first]
+
+
+def _open_device(device: Any, timeout_s: float | None, halt: threading.Event) -> None:
+    """``device.open(timeout_s, cancel=halt)``; a driver's ``open`` without a cancel
+    parameter gets the timeout only."""
+    try:
+        takes_cancel = "cancel" in inspect.signature(device.open).parameters
+    except (TypeError, ValueError):
+        takes_cancel = False
+    if takes_cancel:
+        device.open(timeout_s, cancel=halt)
+    elif timeout_s is None:
+        device.open()
+    else:
+        device.open(timeout_s)

@@ -9,7 +9,11 @@ and refuses bytes they would not send.
   (``enumerate(vid, pid)``, ``device()`` with ``open_path``, ``write``, ``read``,
   ``close``); ``write`` takes 65 bytes (report id 0 + 64) or 64; ``read(size,
   timeout_ms)`` returns a list of ints, empty on timeout, and raises ``OSError`` after
-  an unplug, like hidapi;
+  an unplug, like hidapi. As the wheel's ``hid`` module (libusb, the default
+  ``backend``), an open detaches the usbhid driver and claims the interface
+  (``usbhid_bound`` false, ``claimed`` set until closed) and a second open while it
+  is claimed fails with ``OSError("open failed")``; as the ``hidraw`` module, the
+  kernel driver stays bound and any number of handles may be open;
 - :class:`FakeUsb` has the surface of pyusb (``core.find``, ``core.USBError``,
   ``core.USBTimeoutError``, ``util.claim_interface`` ...) for the same controller on
   its interrupt endpoints 0x01 / 0x81 (``USBError`` with errno 19 after an unplug,
@@ -83,6 +87,8 @@ class Dlpc350Emulator:
         self.settle_polls = int(settle_polls)
         self.lock = threading.Lock()
         self.plugged = True
+        self.claimed: object | None = None  # the libusb handle holding interface 0
+        self.usbhid_bound = True  # the kernel's HID driver (detached by libusb)
         self.standby = False
         self.display_mode = 0  # 0 video, 1 pattern
         self.input_source = 0
@@ -120,6 +126,7 @@ class Dlpc350Emulator:
         """Disconnect: open handles fail, ``enumerate`` finds nothing."""
         with self.lock:
             self.plugged = False
+            self.claimed, self.usbhid_bound = None, True  # gone with the device
             self.cond.notify_all()
 
     def replug(self) -> None:
@@ -346,10 +353,17 @@ class Dlpc350Emulator:
 
 
 class FakeHid:
-    """A stand-in for the ``hid`` module (cython-hidapi) serving one :class:`Dlpc350Emulator`."""
+    """A stand-in for the ``hid`` module (cython-hidapi) serving one :class:`Dlpc350Emulator`.
 
-    def __init__(self, emulator: Dlpc350Emulator | None = None) -> None:
+    ``backend``: ``"libusb"`` (the wheel's ``hid`` module: exclusive claim) or
+    ``"hidraw"`` (its ``hidraw`` module: shared)."""
+
+    def __init__(self, emulator: Dlpc350Emulator | None = None,
+                 backend: str = "libusb") -> None:
+        if backend not in ("libusb", "hidraw"):
+            raise ValueError(f"backend={backend!r}: 'libusb' or 'hidraw'")
         self.emulator = emulator or Dlpc350Emulator()
+        self.backend = backend
 
     def enumerate(self, vendor_id: int = 0, product_id: int = 0) -> list[dict]:
         """Like ``hid.enumerate``: the emulated device while plugged in."""
@@ -362,18 +376,22 @@ class FakeHid:
 
     def device(self) -> _FakeDevice:
         """Like ``hid.device()``."""
-        return _FakeDevice(self.emulator)
+        return _FakeDevice(self.emulator, self.backend == "libusb")
 
 
 class _FakeDevice:
-    def __init__(self, emu: Dlpc350Emulator) -> None:
+    def __init__(self, emu: Dlpc350Emulator, claims: bool) -> None:
         self.emu = emu
+        self.claims = claims
         self.opened = False
 
     def open_path(self, path: bytes) -> None:
-        if not self.emu.plugged:
-            raise OSError("open failed")
-        self.opened = True
+        with self.emu.lock:
+            if not self.emu.plugged or (self.claims and self.emu.claimed is not None):
+                raise OSError("open failed")  # cython-hidapi's words for any refusal
+            if self.claims:
+                self.emu.claimed, self.emu.usbhid_bound = self, False
+            self.opened = True
 
     def write(self, data) -> int:
         data = bytes(data)
@@ -399,7 +417,10 @@ class _FakeDevice:
             return [] if report is None else list(report[:size])
 
     def close(self) -> None:
-        self.opened = False
+        with self.emu.lock:
+            if self.emu.claimed is self:
+                self.emu.claimed, self.emu.usbhid_bound = None, True
+            self.opened = False
 
 
 class _UsbError(OSError):

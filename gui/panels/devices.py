@@ -439,19 +439,25 @@ class DevicePanel(QWidget):
 
     def toggle_connection(self) -> None:
         self.error.setText("")
-        if self.session.connected:
+        opening = getattr(self, "_opening", None)
+        if opening is not None and opening.running:  # the button reads Cancel
+            opening.cancel()  # the bench's opens stop within 0.1 s, homing included
+            self.state.setText("cancelling ...")
+            self.connect_button.setEnabled(False)
+        elif self.session.connected:
             self.session.disconnect_bench()
         else:
             self.state.setText("connecting ...")
-            self.connect_button.setEnabled(False)
+            self.connect_button.setText("Cancel")
 
             def failed(text: str) -> None:
                 self.error.setText(text)
                 self.state.setText("not connected")
+                self.connect_button.setText("Connect")
                 self.connect_button.setEnabled(True)
 
-            self.session.connect_bench(on_error=failed,
-                                       on_open=lambda: self.connect_button.setEnabled(True))
+            self._opening = self.session.connect_bench(
+                on_error=failed, on_open=lambda: self.connect_button.setEnabled(True))
 
     def _set_scene(self) -> None:
         if self.session.is_virtual:

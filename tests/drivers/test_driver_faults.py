@@ -11,12 +11,13 @@ import errno
 import os
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
 import serial
 
-from drivers.errors import DeviceDisconnectedError
+from drivers.errors import DeviceCancelledError, DeviceDisconnectedError
 from drivers.thorlabs_apt import ThorlabsAptStage
 from drivers.thorlabs_apt_protocol import AptFramer
 from drivers.transports import port_holders
@@ -181,6 +182,32 @@ def test_home_on_open_honours_home_timeout(apt, tmp_path):
         stage.open(timeout_s=5.0)
     assert time.monotonic() - t0 < 1.5  # not the open's 5 s, nor the default 120 s
     assert apt.channels[0x50].motion.kind == "home"  # left homing, not stopped
+
+
+def test_apt_home_on_open_within_the_opens_timeout_and_cancel(apt, tmp_path):
+    """home_timeout_s is 120 s, but the caller's open(timeout_s) ends the wait, naming
+    it; a cancel event set during the homing stops the axis and leaves it closed."""
+    def homing_slowly():
+        with apt.lock:
+            ch = apt.channels[0x50]
+            ch.position, ch.homed = 800_000.0, False
+            ch.home_params = (2, 1, apt.velocity_units(0.05 * Z8, Z8)[0], 0)
+
+    homing_slowly()
+    stage = apt_stage(tmp_path, home_on_open=True)  # home_timeout_s: 120 s
+    with pytest.raises(stage.timeout_error, match="within the open's timeout_s"):
+        stage.open(timeout_s=0.5)
+    assert not stage.is_open and apt.channels[0x50].motion.kind == "home"
+    homing_slowly()
+    with apt.lock:
+        apt.channels[0x50].motion = None
+    cancel = threading.Event()
+    threading.Timer(0.3, cancel.set).start()
+    with pytest.raises(DeviceCancelledError, match="cancelled while homing"):
+        stage.open(timeout_s=60.0, cancel=cancel)
+    assert not stage.is_open
+    with apt.lock:
+        assert apt.channels[0x50].motion is None and not apt.channels[0x50].homed  # stopped
 
 
 def test_zaber_silent_device_does_not_block_the_healthy_axes():

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
 
 from drivers.errors import (
+    DeviceCancelledError,
     DeviceProtocolError,
     DeviceStateError,
     StageMotionError,
@@ -139,24 +141,48 @@ def test_unplug_mid_move_then_reconnect(emulator):
         stage.close()
 
 
-def test_homing_at_open_waits_for_home_timeout_not_the_opens_timeout():
-    """Homing a long travel takes longer than the bench's open timeout: home_on_open waits
-    up to home_timeout_s, and names that setting when it runs out."""
+def test_homing_at_open_is_bounded_by_the_callers_timeout_and_cancel():
+    """An open without a timeout waits for the homing up to home_timeout_s (a long
+    travel homes in tens of seconds); an open given a timeout_s ends within it, naming
+    it; a cancel event set during the homing stops the axes and leaves the stage
+    closed; home_timeout_s shorter than the open's timeout is named when it runs out."""
     emu = ZaberEmulator({1: 1}, time_scale=1.0)
     with emu:
-        emu.axis(1, 1).position = 1.2e-3 / 0.047625e-6  # 1.2 mm from home, at 1 mm/s
+        def far_from_home(mm: float = 20.0):
+            emu.axis(1, 1).position = mm * 1e-3 / 0.047625e-6  # homing at 1 mm/s
+            emu.axis(1, 1).flags.add("WR")
+
+        far_from_home(1.2)
         kw = {"axes": ["x"], "device_numbers": {"x": 1}, "speed_mm_s": 1.0,
               "home_on_open": True, "port": emu.port}
         stage = ZaberAsciiStage("mask", **kw)
         t0 = time.monotonic()
-        stage.open(timeout_s=0.5)  # the homing takes about 1.2 s
+        stage.open()  # no timeout given: home_timeout_s (120 s) bounds the 1.2 s homing
         try:
-            assert time.monotonic() - t0 > 0.5
+            assert time.monotonic() - t0 > 1.0
             assert stage.position("x") == pytest.approx(0.0, abs=1e-3)
         finally:
             stage.close()
-        emu.axis(1, 1).position = 1.2e-3 / 0.047625e-6
-        emu.axis(1, 1).flags.add("WR")
+
+        far_from_home()
+        with pytest.raises(StageTimeoutError, match="within the open's timeout_s"):
+            stage.open(timeout_s=0.4)
+        assert not stage.is_open
+        assert emu.axis(1, 1).position > 10e-3 / 0.047625e-6  # far from done: not waited
+
+        far_from_home()
+        cancel = threading.Event()
+        threading.Timer(0.3, cancel.set).start()
+        with pytest.raises(DeviceCancelledError, match="cancelled while homing"):
+            stage.open(timeout_s=60.0, cancel=cancel)
+        assert not stage.is_open
+        assert emu.axis(1, 1).position > 10e-3 / 0.047625e-6  # stopped far from home
+        time.sleep(0.3)
+        stopped_at = emu.axis(1, 1).position
+        time.sleep(0.2)
+        assert emu.axis(1, 1).position == stopped_at  # not still homing
+
+        far_from_home()
         short = ZaberAsciiStage("mask", home_timeout_s=0.2, **kw)
         with pytest.raises(StageTimeoutError, match="home_timeout_s = 0.2 s"):
             short.open(timeout_s=5.0)

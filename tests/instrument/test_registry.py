@@ -7,6 +7,8 @@ open and close in ``EVENTS``; the other bench tests import them.
 from __future__ import annotations
 
 import importlib.util
+import threading
+import time
 from importlib.metadata import EntryPoint
 from typing import Any
 
@@ -323,21 +325,20 @@ def test_open_bench_opens_all_and_closes_in_reverse(fakes):
         assert all(d.is_open for d in devices.values())
         assert {d.timeout_s for d in devices.values()} == {2.5}
         assert type(devices["b"]) is FakeStage and devices["b"].params == {"axes": ["x"]}
-    assert EVENTS == [("open", "a"), ("open", "b"), ("open", "c")] + [
-        ("close", "c"),
-        ("close", "b"),
-        ("close", "a"),
-    ]
+    # independent devices open concurrently (any order); closing is last first
+    assert sorted(EVENTS[:3]) == [("open", "a"), ("open", "b"), ("open", "c")]
+    assert EVENTS[3:] == [("close", "c"), ("close", "b"), ("close", "a")]
     assert not any(d.is_open for d in OPENED.values())
     assert devices == {}
 
 
 def test_open_bench_closes_opened_devices_when_a_later_one_fails(fakes):
+    """Devices on one connection (a port) open one after another, in bench order."""
     bench = _bench(
-        _dev("a"),
-        _dev("b", "stage", "fake-stage"),
-        _dev("c", "slm", "fake-slm", fail_open=True),
-        _dev("d", "led_array", "fake-led-array"),
+        _dev("a", port="/dev/ttyUSB0"),
+        _dev("b", "stage", "fake-stage", port="/dev/ttyUSB0"),
+        _dev("c", "slm", "fake-slm", fail_open=True, port="/dev/ttyUSB0"),
+        _dev("d", "led_array", "fake-led-array", port="/dev/ttyUSB0"),
     )
     with pytest.raises(BenchOpenError) as info:
         open_bench(bench, timeout_s=1.0)
@@ -347,31 +348,147 @@ def test_open_bench_closes_opened_devices_when_a_later_one_fails(fakes):
     assert "closed again: a, b" in str(err)
     assert isinstance(err.__cause__, TimeoutError)
     assert EVENTS == [("open", "a"), ("open", "b"), ("open", "c"), ("close", "b"), ("close", "a")]
-    assert "d" not in OPENED  # never constructed
+    assert not OPENED["d"].is_open and ("open", "d") not in EVENTS  # never opened
     assert not any(d.is_open for d in OPENED.values())
 
 
 def test_open_bench_failing_constructor_and_failing_close(fakes):
     bench = _bench(
-        _dev("a", fail_close=True),
-        _dev("b", "stage", "fake-stage"),
-        _dev("c", "slm", "fake-slm", fail_init=True),
+        _dev("a", fail_close=True, serial_number="1"),
+        _dev("b", "stage", "fake-stage", serial_numbers={"x": "1"}),
+        _dev("c", "slm", "fake-slm", fail_open=True, serial_number="1"),
     )
     with pytest.raises(BenchOpenError) as info:
         open_bench(bench)
     err = info.value
     assert err.device_id == "c" and err.closed == ["b"]
     assert list(err.close_errors) == ["a"] and "close failed for: a" in str(err)
-    assert "RuntimeError: constructor refused" in str(err)
     assert EVENTS[-2:] == [("close", "b"), ("close", "a")]
+    EVENTS.clear()
+    bench = _bench(_dev("a"), _dev("c", "slm", "fake-slm", fail_init=True),
+                   _dev("d", "slm", "fake-slm", fail_init=True))
+    with pytest.raises(BenchOpenError, match="RuntimeError: constructor refused") as info:
+        open_bench(bench)
+    assert list(info.value.failures) == ["c", "d"] and EVENTS == []  # nothing opened
 
 
 def test_open_bench_interrupted_closes_and_reraises(fakes):
     bench = _bench(_dev("a"), _dev("b", "stage", "fake-stage", interrupt_open=True))
     with pytest.raises(KeyboardInterrupt):
         open_bench(bench)
-    assert EVENTS == [("open", "a"), ("open", "b"), ("close", "a")]
+    assert sorted(EVENTS[:2]) == [("open", "a"), ("open", "b")]
+    assert EVENTS[2:] == [("close", "a")]
     assert not OPENED["a"].is_open
+
+
+class _Slow(FakeStage):
+    """Opens in ``open_s`` seconds of waiting on the open's bounds, as a stage homing
+    at open does (``Stage._wait_homing_at_open``: its cancel event checked, the
+    caller's deadline kept)."""
+
+    def _do_open(self, timeout_s: float) -> None:
+        super()._do_open(timeout_s)
+        deadline, cancel = self._open_bounds
+        end = time.monotonic() + self.params.get("open_s", 30.0)
+        while time.monotonic() < end:
+            self._check_cancel("while homing")
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError("homing at open did not finish within the open's timeout")
+            time.sleep(0.01)
+
+
+def test_open_bench_reports_every_failure_and_stops_the_slow_ones(fakes):
+    """Independent devices open concurrently: a failing device is reported and a
+    device still homing is stopped (not waited for 30 s) and closed; every opened
+    device is closed again."""
+    registry.register("slow-stage", _Slow)
+    bench = _bench(
+        _dev("a"),
+        _dev("slow", "stage", "slow-stage", open_s=30.0),
+        _dev("c", "slm", "fake-slm", fail_open=True),
+    )
+    with pytest.raises(BenchOpenError) as info:
+        open_bench(bench)
+    err = info.value
+    assert err.device_id == "c" and list(err.failures) == ["c"]
+    assert "opening device 'c' (driver 'fake-slm') failed: TimeoutError" in str(err)
+    assert "slow" not in err.failures and "slow" in err.stopped
+    assert not any(d.is_open for d in OPENED.values())
+    assert ("close", "a") in EVENTS or "a" in err.stopped
+
+
+def test_open_bench_cancel_and_timeout_bound_the_opens(fakes):
+    """The caller's cancel event (the GUI's cancel) stops a bench whose stages home at
+    open, and the caller's timeout bounds it; the quick devices are closed again."""
+    registry.register("slow-stage", _Slow)
+    bench = _bench(_dev("a"), _dev("slow", "stage", "slow-stage", open_s=30.0))
+    cancel = threading.Event()
+    threading.Timer(0.2, cancel.set).start()
+    with pytest.raises(BenchOpenError, match="open cancelled while homing") as info:
+        open_bench(bench, cancel=cancel)
+    assert info.value.device_id == "slow" and not OPENED["a"].is_open
+    assert ("close", "a") in EVENTS
+    EVENTS.clear()
+    with pytest.raises(BenchOpenError, match="within the open's timeout") as info:
+        open_bench(bench, timeout_s=0.3)
+    assert not OPENED["a"].is_open
+    with open_bench(_bench(_dev("s", "stage", "slow-stage", open_s=0.05))) as devices:
+        assert devices["s"].is_open  # no timeout given: the device's own bounds
+
+
+class _Overlap(FakeCamera):
+    """Counts how many opens run at once; with a ``barrier``, each open waits there for
+    the others (which only concurrent opens reach)."""
+
+    active = 0
+    most = 0
+    barrier: threading.Barrier | None = None
+    lock = threading.Lock()
+
+    def _do_open(self, timeout_s: float) -> None:
+        with _Overlap.lock:
+            _Overlap.active += 1
+            _Overlap.most = max(_Overlap.most, _Overlap.active)
+        if _Overlap.barrier is not None:
+            _Overlap.barrier.wait()
+        else:
+            time.sleep(0.02)
+        with _Overlap.lock:
+            _Overlap.active -= 1
+        super()._do_open(timeout_s)
+
+
+def test_open_bench_opens_devices_on_one_clock_one_after_another(fakes):
+    """Independent devices open at once; simulated devices advancing one clock (a
+    virtual bench's construct hook gives them one) open one after another."""
+    registry.register("overlap", _Overlap)
+    bench = _bench(*(_dev(c, driver="overlap") for c in "abc"))
+    _Overlap.most, _Overlap.barrier = 0, threading.Barrier(3, timeout=30)
+    try:
+        with open_bench(bench):  # each open waits for the other two: all three at once
+            assert _Overlap.most == 3
+    finally:
+        _Overlap.barrier = None
+    shared = object()
+
+    def on_one_clock(dev_cfg, cls):
+        device = cls(dev_cfg.id, **dev_cfg.params)
+        device.clock = shared
+        return device
+
+    _Overlap.most = 0
+    with open_bench(bench, construct=on_one_clock) as devices:
+        assert list(devices) == ["a", "b", "c"]
+    assert _Overlap.most == 1
+    assert EVENTS[-6:-3] == [("open", "a"), ("open", "b"), ("open", "c")]
+
+
+def test_independent_groups_share_connections():
+    from instrument.bench_setup import independent_groups
+
+    devices = [_dev("a", port="/dev/ttyUSB0"), _dev("b"), _dev("c", serial_numbers={"x": "7"}),
+               _dev("d", port="/dev/ttyUSB0"), _dev("e", serial_number="7"), _dev("f")]
+    assert independent_groups(devices) == [[0, 3], [1], [2, 4], [5]]
 
 
 def test_open_bench_checks_every_driver_before_opening(fakes):

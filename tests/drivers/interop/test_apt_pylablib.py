@@ -114,3 +114,30 @@ def test_our_driver_settings_read_by_pylablib(tmp_path):
             dev.close()
     sent = bytes(emu.received)
     assert struct.pack("<H", 0x0440) not in sent  # no MOT_SET_HOMEPARAMS from anyone
+
+
+@pytest.mark.parametrize("profile, scale, cpu, rack", [
+    ("kst101", "ZST", 2008645.63, False),
+    ("bsc20x", "DRV013", 409600.0, True),
+])
+def test_stepper_velocity_and_acceleration_read_by_pylablib(profile, scale, cpu, rack):
+    """The velocity and acceleration our driver sets on a stepper (KST101; a BSC20x bay)
+    are what pylablib reads through its own stepper scaling (microsteps/s x 53.68,
+    microsteps/s² x 53.68 x 204.94e-6): a 10x error in either is caught here."""
+    emu = AptEmulator(profile, time_scale=200.0, update_period_s=0.01,
+                      travel_counts=(0, round(25 * cpu)))
+    params = {"bays": {"x": 0}} if rack else {}
+    with emu:
+        stage = ThorlabsAptStage("stage", axes=["x"], port=emu.port, limits_mm={"x": [0, 25]},
+                                 counts_per_unit=cpu, speed_mm_s=1.25, acceleration=3.0,
+                                 home_on_open=True, reply_timeout_s=1.0, **params)
+        with stage:
+            stage.move_to({"x": 2.5})
+        dev = Thorlabs.KinesisMotor(("serial", emu.port), scale=scale, is_rack_system=rack)
+        try:
+            vel = dev.get_velocity_parameters()
+            assert vel.max_velocity == pytest.approx(1.25e-3, rel=1e-4)
+            assert vel.acceleration == pytest.approx(3.0e-3, rel=1e-3)
+            assert dev.get_position() == pytest.approx(2.5e-3, abs=1e-8)
+        finally:
+            dev.close()

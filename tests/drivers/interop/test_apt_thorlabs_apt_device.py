@@ -120,3 +120,50 @@ def test_kdc101_limit_and_error_report(kdc):
     rich = [m for m in parse_all(emu) if m.msg == "hw_richresponse"][-1]
     assert rich.code == 0x2A and rich.notes.rstrip(b"\0") == b"Motor overtemp"
     assert not errors
+
+
+def test_limit_bits_name_the_side():
+    """thorlabs-apt-device reads the status bits with its own parser: the reverse limit
+    at the home end of the travel, the forward limit after a move forward into a
+    switch, the reverse limit after a move back into one (a swap of the two bits in
+    the emulator, in any place it sets them, fails here). The client is told to take
+    the bits and directions as the protocol document defines them (its KDC101 class
+    swaps both names by default, for units wired the other way round)."""
+    emu = AptEmulator("kdc101", time_scale=20.0, update_period_s=0.01,
+                      travel_counts=(0, 863874))
+    with emu:
+        dev = tad.KDC101(serial_port=emu.port, home=False, invert_direction_logic=False,
+                         swap_limit_switches=False)
+        try:
+            limit_bits_session(emu, dev)
+        finally:
+            dev.close()
+            time.sleep(0.2)
+
+
+def limit_bits_session(emu, dev) -> None:
+    dev.home()
+    until(lambda: dev.status["homed"] and not dev.status["moving_reverse"], what="homed")
+    until(lambda: dev.status["reverse_limit_switch"], what="reverse limit at the home end")
+    assert not dev.status["forward_limit_switch"]
+    emu.set_limit_switch(100_000)
+    dev.move_absolute(300_000)
+    until(lambda: emu.channels[0x50].motion is None and emu.position() == 100_000,
+          what="stopped at the switch moving forward")
+    until(lambda: dev.status["position"] == 100_000 and dev.status["forward_limit_switch"],
+          what="forward limit seen by the client")
+    assert not dev.status["reverse_limit_switch"]
+    emu.set_limit_switch(50_000)
+    dev.move_absolute(0)
+    until(lambda: emu.channels[0x50].motion is None and emu.position() == 50_000,
+          what="stopped at the switch moving back")
+    until(lambda: dev.status["position"] == 50_000 and dev.status["reverse_limit_switch"],
+          what="reverse limit seen by the client")
+    assert not dev.status["forward_limit_switch"]
+    emu.set_limit_switch(None)
+    dev.move_absolute(900_000)  # past the end of the travel: stops at the end switch
+    until(lambda: emu.channels[0x50].motion is None and emu.position() == 863874,
+          what="stopped at the end of the travel")
+    until(lambda: dev.status["position"] == 863874 and dev.status["forward_limit_switch"],
+          what="forward limit at the end of the travel")
+    assert not dev.status["reverse_limit_switch"]
