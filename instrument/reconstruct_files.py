@@ -239,6 +239,25 @@ def run_recon(
 
 
 @contextlib.contextmanager
+def _slab_workers(scheduler: str | None):
+    """Context: the ``slab_group`` factory of a sharded 3D solve on ``scheduler``'s
+    workers (:class:`instrument.volume_shards.ShardedSlabs`), or None; the client is
+    closed on the way out."""
+    if scheduler is None:
+        yield None
+        return
+    from .batch import _client, check_scheduler
+    from .volume_shards import ShardedSlabs
+
+    check_scheduler(scheduler)
+    client, _ = _client(None, scheduler, 30.0)
+    try:
+        yield lambda h, psf_scale: ShardedSlabs(client, h, psf_scale)
+    finally:
+        client.close()
+
+
+@contextlib.contextmanager
 def named_pair(psf_path, raw_path):
     """Name the files in a :class:`recon.preprocess.RawSignalError` raised inside (the
     numerics speak of "the PSF" and "the raw")."""
@@ -344,7 +363,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 planes: str = "all", pitch_um: float | None = None,
                 d_mm: float | None = None, scene_range_mm=None,
                 allow_mixed_ranges: bool = False, empty_planes: str = "keep",
-                device: str = "cpu") -> dict:
+                device: str = "cpu", memory_limit_bytes: int | None = None,
+                scheduler: str | None = None, announce=print) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
     write it and its
     projections and metrics.
@@ -388,6 +408,14 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         to zero (see :func:`recon.reconstruct`).
     device : {"cpu", "cuda", "auto"}
         Where 3D ADMM runs (:func:`recon.reconstruct`).
+    memory_limit_bytes : int, optional
+        Memory the solve may use (``--memory-limit``); default what is available.
+        Above it the streamed 3D FISTA runs (:func:`recon.volume.api.reconstruct_stack`).
+    scheduler : str, optional
+        A dask.distributed scheduler address: streamed 3D FISTA with the plane slabs
+        sharded over its workers (:class:`instrument.volume_shards.ShardedSlabs`).
+    announce : callable
+        Where the memory plan and estimate go before the solve (``print``).
 
     Returns
     -------
@@ -401,7 +429,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     recon.errors.ReconInputError
         Bad files, shapes or parameters.
     instrument.runstore.RunStoreError
-        Unreadable stack, missing or mismatched depths.
+        Unreadable stack, missing or mismatched depths; no scheduler at ``scheduler``.
+    instrument.volume_shards.ShardLostError
+        A worker lost during a sharded solve (nothing is written).
     ValueError
         Bad ``--out`` name.
     recon.errors.DivergenceError
@@ -433,11 +463,12 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            bin_factor=bin_factor, dark=dark,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
-    with named_pair(psf_stack, raw_path):
+    with named_pair(psf_stack, raw_path), _slab_workers(scheduler) as slab_group:
         rec = reconstruct(PsfStack(stack, depths), raw, method, iterations=iterations,
                           tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
                           allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes,
-                          device=device)
+                          device=device, memory_limit_bytes=memory_limit_bytes,
+                          slab_group=slab_group, announce=announce)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "

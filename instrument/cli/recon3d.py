@@ -85,6 +85,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (never an input)")
+    p.add_argument("--memory-limit", default=None, metavar="SIZE",
+                   help="memory the solve may use, e.g. 16GB (default: what the machine has "
+                   "available); when the in-memory solve needs more, streamed 3D FISTA runs "
+                   "(planes transformed one at a time, the volume on the sensor's field of "
+                   "view) and says so")
+    p.add_argument("--scheduler", default=None,
+                   help="address of a dask.distributed scheduler (tcp://host:8786): streamed "
+                   "3D FISTA with the planes split into slabs over its workers")
     from .common import add_range_option
     from .grid_options import add_grid_options
 
@@ -118,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.psf_stack is None) == (args.psf_grid is None):
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
     check_device(args.device)
+    memory_limit = None if args.memory_limit is None else _size(args.memory_limit)
     if args.psf_grid:
         from .grid_options import run_grid
 
@@ -136,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
                     scene_range_mm=(None if args.scene_range is None
                                     else floats(args.scene_range, "--scene-range")),
                     allow_mixed_ranges=args.allow_mixed_ranges,
-                    empty_planes=args.empty_planes)
+                    empty_planes=args.empty_planes, memory_limit_bytes=memory_limit,
+                    scheduler=args.scheduler)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")
@@ -144,4 +154,23 @@ def run(args: argparse.Namespace) -> int:
         print(f"{auto['regulariser']} weight {auto['weight']:.3g}, planes kept "
               f"{auto['planes_kept']}: {auto['reason']}")
     print(summary_line(m))
+    mem = m.get("memory")
+    if mem:
+        print(f"peak memory {mem['peak_rss_bytes'] / 1e9:.2f} GB measured (this process), "
+              f"{mem['estimate_bytes'] / 1e9:.2f} GB estimated "
+              f"({100 * (mem['peak_over_estimate'] - 1):+.0f} %)")
     return 0
+
+
+def _size(text: str) -> int:
+    """``--memory-limit`` as bytes (``16GB``, ``500MB``, ``2GiB``, a number of bytes)."""
+    from dask.utils import parse_bytes
+
+    try:
+        n = parse_bytes(text)
+    except (ValueError, TypeError):
+        n = 0
+    if not n > 0:
+        raise InputError(f"--memory-limit {text!r}: give a positive size such as 16GB or "
+                         "500MB")
+    return int(n)
