@@ -239,25 +239,6 @@ def run_recon(
 
 
 @contextlib.contextmanager
-def _slab_workers(scheduler: str | None):
-    """Context: the ``slab_group`` factory of a sharded 3D solve on ``scheduler``'s
-    workers (:class:`instrument.volume_shards.ShardedSlabs`), or None; the client is
-    closed on the way out."""
-    if scheduler is None:
-        yield None
-        return
-    from .batch import _client, check_scheduler
-    from .volume_shards import ShardedSlabs
-
-    check_scheduler(scheduler)
-    client, _ = _client(None, scheduler, 30.0)
-    try:
-        yield lambda h, psf_scale: ShardedSlabs(client, h, psf_scale)
-    finally:
-        client.close()
-
-
-@contextlib.contextmanager
 def named_pair(psf_path, raw_path):
     """Name the files in a :class:`recon.preprocess.RawSignalError` raised inside (the
     numerics speak of "the PSF" and "the raw")."""
@@ -364,7 +345,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 d_mm: float | None = None, scene_range_mm=None,
                 allow_mixed_ranges: bool = False, empty_planes: str = "keep",
                 device: str = "cpu", memory_limit_bytes: int | None = None,
-                scheduler: str | None = None, announce=print) -> dict:
+                slab_group=None, announce=print) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
     write it and its
     projections and metrics.
@@ -411,9 +392,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     memory_limit_bytes : int, optional
         Memory the solve may use (``--memory-limit``); default what is available.
         Above it the streamed 3D FISTA runs (:func:`recon.volume.api.reconstruct_stack`).
-    scheduler : str, optional
-        A dask.distributed scheduler address: streamed 3D FISTA with the plane slabs
-        sharded over its workers (:class:`instrument.volume_shards.ShardedSlabs`).
+    slab_group : callable, optional
+        Streamed 3D FISTA with the plane slabs elsewhere
+        (:func:`instrument.volume_shards.slab_workers` of ``recon3d --scheduler``).
     announce : callable
         Where the memory plan and estimate go before the solve (``print``).
 
@@ -429,7 +410,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     recon.errors.ReconInputError
         Bad files, shapes or parameters.
     instrument.runstore.RunStoreError
-        Unreadable stack, missing or mismatched depths; no scheduler at ``scheduler``.
+        Unreadable stack, missing or mismatched depths.
     instrument.volume_shards.ShardLostError
         A worker lost during a sharded solve (nothing is written).
     ValueError
@@ -463,7 +444,7 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            bin_factor=bin_factor, dark=dark,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
-    with named_pair(psf_stack, raw_path), _slab_workers(scheduler) as slab_group:
+    with named_pair(psf_stack, raw_path):
         rec = reconstruct(PsfStack(stack, depths), raw, method, iterations=iterations,
                           tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
                           allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes,

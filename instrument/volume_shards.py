@@ -19,6 +19,7 @@ which planes, what happened); nothing is written, and a rerun rebuilds the slabs
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 from pathlib import Path
@@ -31,7 +32,8 @@ from recon.volume.operator import CHUNK_BYTES
 from recon.volume.slab import VolumeSlab
 from recon.volume.streamed import plan_slabs, slab_fista
 
-__all__ = ["ShardLostError", "ShardedSlabs", "StoredSlab", "local_cluster", "sharded_fista3d"]
+__all__ = ["ShardLostError", "ShardedSlabs", "StoredSlab", "local_cluster", "sharded_fista3d",
+           "slab_workers"]
 
 log = logging.getLogger(__name__)
 
@@ -197,6 +199,33 @@ class ShardedSlabs:
         for f in self._futures:
             f.release()
         self.actors, self._futures = [], []
+
+
+@contextlib.contextmanager
+def slab_workers(scheduler: str | None, timeout_s: float = 30.0):
+    """Context: the ``slab_group`` factory of a sharded 3D solve on the workers of the
+    dask scheduler at ``scheduler`` (``recon3d --scheduler``), or None without one.
+
+    Yields ``slab_group(h, psf_scale) -> ShardedSlabs`` (one slab per worker,
+    :func:`recon.volume.api.reconstruct_stack`); the client is closed on the way out.
+
+    Raises
+    ------
+    instrument.runstore.RunStoreError
+        Not a scheduler address, or nothing answers there
+        (:func:`instrument.batch.check_scheduler`).
+    """
+    if scheduler is None:
+        yield None
+        return
+    from .batch import _client, check_scheduler
+
+    check_scheduler(scheduler)
+    client, _ = _client(None, scheduler, timeout_s)
+    try:
+        yield lambda h, psf_scale: ShardedSlabs(client, h, psf_scale)
+    finally:
+        client.close()
 
 
 def local_cluster(workers: int, memory_limit: str | int, *, threads_per_worker: int = 1):

@@ -120,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
+    from ..volume_shards import slab_workers
     from .recon_flags import check_device, dark_for_volume
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
@@ -135,18 +136,19 @@ def run(args: argparse.Namespace) -> int:
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
-    m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
-                    tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
-                    out=args.out,
-                    depths_mm=depths,
-                    bin_factor=args.bin_factor, dark=dark,
-                    psf_product=args.psf_product, metrics_json=args.metrics_json,
-                    planes=args.planes, device=args.device, pitch_um=args.pitch_um, d_mm=args.d_mm,
-                    scene_range_mm=(None if args.scene_range is None
-                                    else floats(args.scene_range, "--scene-range")),
-                    allow_mixed_ranges=args.allow_mixed_ranges,
-                    empty_planes=args.empty_planes, memory_limit_bytes=memory_limit,
-                    scheduler=args.scheduler)
+    with slab_workers(args.scheduler) as slab_group:
+        m = run_recon3d(args.psf_stack, args.raw, method=args.method,
+                        iterations=args.iterations,
+                        tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
+                        out=args.out, depths_mm=depths, bin_factor=args.bin_factor, dark=dark,
+                        psf_product=args.psf_product, metrics_json=args.metrics_json,
+                        planes=args.planes, device=args.device, pitch_um=args.pitch_um,
+                        d_mm=args.d_mm,
+                        scene_range_mm=(None if args.scene_range is None
+                                        else floats(args.scene_range, "--scene-range")),
+                        allow_mixed_ranges=args.allow_mixed_ranges,
+                        empty_planes=args.empty_planes, memory_limit_bytes=memory_limit,
+                        slab_group=slab_group)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")
