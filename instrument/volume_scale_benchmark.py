@@ -87,7 +87,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
     with tempfile.TemporaryDirectory(dir=work_dir, prefix="volume-scale-") as tmp:
         store_path = str(Path(tmp) / "psf.zarr")
         t0 = time.perf_counter()
-        psf_scale, scales = write_psf_store(store_path, load_image(data_dir() / PSF_FILE),
+        psf_scale, depths = write_psf_store(store_path, load_image(data_dir() / PSF_FILE),
                                             sensor, planes)
         store = zarr.open_array(store_path, mode="r")
         objects = scene_objects(sensor, planes)
@@ -133,7 +133,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         "bytes_moved_per_worker_per_iteration": result.params["bytes_moved_per_iteration"],
         "final_relative_residual": result.final_relative_residual,
         "objects_at_depth": objects_at_depth(result.x, objects),
-        "psf_scales": [scales[0], scales[-1]],
+        "depths_mm": [depths[0], depths[-1]],
     })
     if compare_with:
         ref = np.load(compare_with, mmap_mode="r")

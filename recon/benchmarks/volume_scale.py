@@ -2,9 +2,10 @@
 
 :func:`write_psf_store` turns the tutorial's measured on-axis PSF
 (``diffusercam-tutorial/psf_sample.tif``) into a depth-scaled stack -- the caustic
-pattern magnified per plane as a point moves closer (planes uniform in 1/z, Eq.
-4.7: the magnification falls linearly from ``scale_near`` to 1 across the planes,
-the aperture's disc with it) -- written plane by plane to a Zarr store chunked by
+pattern shrunk and dimmed per plane as a point moves away (planes uniform in 1/z,
+about one axial resolution apart, :func:`stack_depths_mm`; the 3D auto benchmark's
+model, :func:`recon.benchmarks.volume_auto_scenes.depth_plane`)
+-- written plane by plane to a Zarr store chunked by
 plane (never whole in memory, never in the repository). :func:`scene_objects`
 places beads and extended objects (discs and textured squares) across the depths;
 :func:`render_measurement` images them through the same model the solvers use
@@ -22,7 +23,9 @@ import numpy as np
 from scipy.ndimage import map_coordinates, shift
 
 from ..preprocess import dark_level
+from ..simulate import add_camera_noise
 from ..volume.slab import VolumeSlab
+from .volume_auto_scenes import D_MM, depth_plane
 
 __all__ = ["SceneObject", "objects_at_depth", "render_measurement", "scene_objects",
            "write_psf_store"]
@@ -41,9 +44,33 @@ def _base_psf(psf: np.ndarray, n: int) -> np.ndarray:
     return out / out.max()
 
 
-def write_psf_store(path: str, psf: np.ndarray, n: int, n_z: int, *,
-                    scale_near: float = 1.6) -> tuple[float, list[float]]:
+#: Nearest depth of the generated stack, mm (8.9 mm behind the diffuser, :data:`D_MM`).
+Z_NEAR_MM = 5.0
+#: Lateral shift, pixels, of the PSF's rim between neighbouring planes: the planes are
+#: spaced about one axial resolution apart (Sec. 4.4), so "at its depth within one
+#: plane" means something.
+RIM_SHIFT_PX = 3.0
+#: A bead's light relative to one pixel of an extended object (fluorescent beads are
+#: bright: about as much light as a disc of radius 4 px).
+BEAD_BRIGHTNESS = 50.0
+
+
+def stack_depths_mm(n: int, n_z: int) -> np.ndarray:
+    """Depths (mm, nearest first, uniform in 1/z) whose PSFs, of rim radius ``0.45 n``,
+    differ in magnification by :data:`RIM_SHIFT_PX` at the rim between neighbouring
+    planes (the farthest at least 0.4 of the nearest's size)."""
+    m0 = 1 + D_MM / Z_NEAR_MM
+    s = np.maximum(1.0 - np.arange(n_z) * RIM_SHIFT_PX / (0.45 * n), 0.4)
+    return D_MM / (s * m0 - 1)
+
+
+def write_psf_store(path: str, psf: np.ndarray, n: int, n_z: int) -> tuple[float, list[float]]:
     """Write a depth-scaled PSF stack (n_z, n, n) float32 to a Zarr store, plane by plane.
+
+    The tutorial PSF resampled to ``n`` x ``n`` is the nearest plane; plane ``k`` at
+    depth :func:`stack_depths_mm` is it shrunk and dimmed by
+    :func:`~recon.benchmarks.volume_auto_scenes.depth_plane` (the 3D auto benchmark's
+    model: magnification ``1 + d/z``, light ``1/z^2``).
 
     Parameters
     ----------
@@ -54,34 +81,25 @@ def write_psf_store(path: str, psf: np.ndarray, n: int, n_z: int, *,
     n : int
         Sensor side, pixels.
     n_z : int
-        Planes; plane 0 is the farthest (magnification 1), plane ``n_z - 1`` the
-        nearest (``scale_near``).
-    scale_near : float
+        Planes, nearest first.
 
     Returns
     -------
     psf_scale : float
         ``sqrt(sum_z (sum h_z)^2)`` (:func:`recon.volume.normalize_psf_stack`'s divisor).
-    scales : list of float
-        Each plane's magnification.
+    depths_mm : list of float
     """
     import zarr
 
     base = _base_psf(psf, n)
     store = zarr.create_array(path, shape=(n_z, n, n), chunks=(1, n, n), dtype="float32")
-    c = (n - 1) / 2
-    ii, jj = np.mgrid[0:n, 0:n].astype(np.float32)
-    radius = np.hypot(ii - c, jj - c)
-    scales = list(np.linspace(1.0, scale_near, n_z))
+    z = stack_depths_mm(n, n_z)
     sums = []
-    for k, s in enumerate(scales):
-        plane = map_coordinates(base, [(ii - c) / s + c, (jj - c) / s + c], order=1,
-                                cval=0.0).astype(np.float32)
-        plane *= radius < 0.45 * n * s / scale_near  # the aperture's disc, magnified too
-        plane /= s * s  # the same light spread over a larger pattern
+    for k, zk in enumerate(z):
+        plane = depth_plane(base, zk, z[0]).astype(np.float32)
         store[k] = plane
         sums.append(float(plane.sum(dtype=np.float64)))
-    return float(np.sqrt(np.sum(np.square(sums)))), [float(s) for s in scales]
+    return float(np.sqrt(np.sum(np.square(sums)))), [float(v) for v in z]
 
 
 @dataclass
@@ -106,7 +124,7 @@ class SceneObject:
             p[r, r] = 1.0
             p = shift(p, (self.row - np.floor(self.row), self.col - np.floor(self.col)),
                       order=1)
-            return 4.0 * p, i0, j0
+            return BEAD_BRIGHTNESS * p, i0, j0
         inside = np.hypot(di, dj) < self.radius
         if self.kind == "disc":
             return inside.astype(np.float64), i0, j0
@@ -129,12 +147,12 @@ def scene_objects(n: int, n_z: int, *, beads: int = 24, extended: int = 12,
 
 
 def render_measurement(store, psf_scale: float, objects: list[SceneObject], *,
-                       photons: float = 2000.0, read_noise: float = 2.0, seed: int = 1
+                       photons: float = 5000.0, read_noise: float = 2.0, seed: int = 1
                        ) -> np.ndarray:
     """The measurement of ``objects``: the volume model (Eq. 4.4) applied by
     :class:`~recon.volume.slab.VolumeSlab` one plane at a time (only planes that hold
-    objects), then Poisson noise at ``photons`` for the brightest pixel and
-    Gaussian read noise (electrons).
+    objects), then Poisson noise at ``photons`` for the brightest pixel and Gaussian
+    read noise (:func:`recon.simulate.add_camera_noise`, electrons).
 
     Returns
     -------
@@ -152,9 +170,8 @@ def render_measurement(store, psf_scale: float, objects: list[SceneObject], *,
                 slab.y[0, i0:i0 + p.shape[0], j0:j0 + p.shape[1]] += p.astype(np.float32)
         image += slab.forward("y")
         del slab
-    image *= photons / image.max()
-    noisy = rng.poisson(np.clip(image, 0, None)) + rng.normal(0.0, read_noise, image.shape)
-    return noisy.astype(np.float32)
+    return add_camera_noise(np.clip(image, 0, None), photons, read_noise, rng)[0].astype(
+        np.float32)
 
 
 def objects_at_depth(volume: np.ndarray, objects: list[SceneObject], tolerance: int = 1
