@@ -165,7 +165,8 @@ class VolumeSlab:
                                            self.spectra[c], c.start == 0)
         return np.ascontiguousarray(irfftn(self._sum_spec, self.padded_shape)[self.crop])
 
-    def gradient_step(self, weighted_residual: np.ndarray, step: float) -> list:
+    def gradient_step(self, weighted_residual: np.ndarray, step: float,
+                      before: bool = True, after: bool = True) -> list:
         """``v = y - step A_slab^T r``, and the boundary planes the neighbours need.
 
         Parameters
@@ -173,13 +174,16 @@ class VolumeSlab:
         weighted_residual : ndarray, float32, sensor shape
             ``w * (w * A y - b)`` (the gradient's sensor image).
         step : float
+        before, after : bool
+            Whether a slab precedes / follows this one (only then are its boundary
+            planes returned).
 
         Returns
         -------
-        [v_first, v_last, y_first] : list of ndarray, float32, lateral shape
-            ``v`` of the first and last plane (the TV prox of the slabs before and
-            after) and ``y`` of the first plane (the objective's depth term of the
-            slab before).
+        [v_first, v_last, y_first] : list of ndarray (float32, lateral shape) or None
+            ``v`` of the first plane and ``y`` of the first plane for the slab before
+            (its TV prox and the objective's depth term; None without one), ``v`` of
+            the last plane for the slab after (None without one).
         """
         pad = self._pad
         pad[self.crop] = weighted_residual
@@ -194,7 +198,8 @@ class VolumeSlab:
                 back = back[(slice(None), *self.crop)]
             np.multiply(back, step32, out=self.v[c])
             np.subtract(self.y[c], self.v[c], out=self.v[c])
-        return [self.v[0].copy(), self.v[-1].copy(), self.y[0].copy()]
+        return [self.v[0].copy() if before else None, self.v[-1].copy() if after else None,
+                self.y[0].copy() if before else None]
 
     def penalty(self, which: str = "y", after: np.ndarray | None = None
                 ) -> tuple[float, float]:

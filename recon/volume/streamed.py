@@ -296,7 +296,7 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
     for k in range(iterations):
         mon.start()
         loss, r = _residual(group.call("forward", [("y",)] * n), b, w)
-        bounds = group.call("gradient_step", [(r, step)] * n)
+        bounds = group.call("gradient_step", [(r, step, i > 0, i + 1 < n) for i in range(n)])
         t_next, beta = fista_momentum(t)
         args = [(bounds[i - 1][1] if i > 0 else None,
                  bounds[i + 1][0] if i + 1 < n else None,

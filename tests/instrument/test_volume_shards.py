@@ -61,10 +61,9 @@ def test_sharded_equals_in_memory_and_counts_bytes(cluster, problem):
     moved = got.params["bytes_moved_per_iteration"]
     plane = 4 * op.padded_shape[0] * op.padded_shape[1]
     sensor = 4 * op.sensor_shape[0] * op.sensor_shape[1]
-    # per iteration: partial image up, residual down (sensor-sized), the boundary planes
-    # (3 out, 1 or 2 in): never a slab's planes; the final gather is averaged in too
-    for m in moved:
-        assert 2 * sensor + 4 * plane <= m <= 2 * sensor + 6 * plane + stack.nbytes
+    # per iteration: partial image up, residual down (sensor-sized) and the 3 boundary
+    # planes between the two slabs (v and y of slab 1's first, v of slab 0's last)
+    assert moved == [2 * sensor + 3 * plane] * 2
 
 
 def test_sharded_from_a_zarr_store(cluster, problem, tmp_path):
