@@ -68,6 +68,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         objects_at_depth,
         render_measurement,
         scene_objects,
+        window_energies,
         write_psf_store,
     )
     from recon.io import load_image
@@ -103,6 +104,21 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         rec["fft_floor_transforms"] = (f"{planes + 1} rfft2 + irfft2 pairs at "
                                        f"{padded[0]}x{padded[1]}, one plane at a time")
         cpu = []
+        energies = np.zeros((len(objects), planes))
+        ref = None if compare_with is None else np.load(compare_with, mmap_mode="r")
+        diff = [0.0, 0.0]
+        saved = (None if save_estimate is None else np.lib.format.open_memmap(
+            save_estimate, "w+", np.float32, (planes, sensor, sensor)))
+
+        def take(a, z, x):  # one slab of the estimate: scored, compared, saved, dropped
+            energies[:, a:z] = window_energies(x, objects)
+            if saved is not None:
+                saved[a:z] = x
+            if ref is not None:
+                for k in range(a, z):
+                    diff[0] += float(np.sum((x[k - a] - ref[k]) ** 2, dtype=np.float64))
+                    diff[1] += float(np.sum(np.square(ref[k], dtype=np.float64)))
+
         if workers == 0:
             est = streamed_memory_bytes((sensor, sensor), planes)
             baseline = current_rss_bytes()
@@ -115,11 +131,12 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
                                       tv=tv, on_iteration=lambda k: marks.append(
                                           time.process_time()))
             cpu = list(np.diff(marks))
-            rec["peak_rss_bytes"] = peak_rss_bytes()
+            rec["peak_rss_bytes"] = peak_rss_bytes()  # of the solve: before the save
+            take(0, planes, result.x)
             rec["peak_over_estimate"] = rec["peak_rss_bytes"] / rec["memory_estimate_bytes"]
         else:
             rec.update(_sharded(store_path, b, psf_scale, planes, sensor, iterations, tv,
-                                workers, worker_memory, announce, cpu,
+                                workers, worker_memory, announce, cpu, take,
                                 plan_slabs, streamed_memory_bytes, current_rss_bytes,
                                 peak_rss_bytes))
             result = rec.pop("result")
@@ -132,23 +149,20 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         "core_seconds_per_iteration_wall": per_iter * (rec["machine"]["cpu_count"] or 1),
         "bytes_moved_per_worker_per_iteration": result.params["bytes_moved_per_iteration"],
         "final_relative_residual": result.final_relative_residual,
-        "objects_at_depth": objects_at_depth(result.x, objects),
+        "objects_at_depth": objects_at_depth(energies, objects),
         "depths_mm": [depths[0], depths[-1]],
     })
-    if compare_with:
-        ref = np.load(compare_with, mmap_mode="r")
-        num = sum(float(np.sum((result.x[k] - ref[k]) ** 2, dtype=np.float64))
-                  for k in range(planes))
-        den = sum(float(np.sum(np.square(ref[k], dtype=np.float64))) for k in range(planes))
+    if saved is not None:
+        saved.flush()
+        del saved
+    if ref is not None:
         rec["relative_difference_to"] = {"path": str(compare_with),
-                                         "relative": float(np.sqrt(num / den))}
-    if save_estimate:
-        np.save(save_estimate, result.x)
+                                         "relative": float(np.sqrt(diff[0] / diff[1]))}
     return rec
 
 
 def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
-             worker_memory, announce, cpu, plan_slabs, streamed_memory_bytes,
+             worker_memory, announce, cpu, take, plan_slabs, streamed_memory_bytes,
              current_rss_bytes, peak_rss_bytes) -> dict:
     """The LocalCluster half of :func:`run_volume_scale`."""
     from .volume_shards import local_cluster, sharded_fista3d
@@ -169,7 +183,7 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
         marks = [cpu_now()]
         result = sharded_fista3d(client, store_path, b, psf_scale=psf_scale,
                                  iterations=iterations, tv=tv,
-                                 on_iteration=lambda k: marks.append(cpu_now()))
+                                 on_iteration=lambda k: marks.append(cpu_now()), on_slab=take)
         cpu.extend(np.diff(marks))
         peaks = client.run(peak_rss_bytes)
     finally:

@@ -255,7 +255,7 @@ def local_cluster(workers: int, memory_limit: str | int, *, threads_per_worker: 
 def sharded_fista3d(client, stack, b: np.ndarray, *, psf_scale: float = 1.0,
                     slabs: int | None = None, support: str = "sensor", sensor_weights=None,
                     padded_shape=None, chunk_bytes: int = CHUNK_BYTES,
-                    timeout_s: float = CALL_TIMEOUT_S, **solver):
+                    timeout_s: float = CALL_TIMEOUT_S, on_slab=None, **solver):
     """3D FISTA with the planes sharded over the client's workers.
 
     Parameters
@@ -271,6 +271,10 @@ def sharded_fista3d(client, stack, b: np.ndarray, *, psf_scale: float = 1.0,
     support, sensor_weights, padded_shape, chunk_bytes
         As :class:`recon.volume.slab.VolumeSlab`.
     timeout_s : float
+    on_slab : callable, optional
+        ``on_slab(start, stop, x_slab)`` for each slab's estimate in turn, instead of
+        gathering the whole volume here (``SolveResult.x`` is then None): the loop
+        never holds more than one slab of it.
     **solver
         :func:`recon.volume.streamed.slab_fista`'s keywords.
 
@@ -294,7 +298,15 @@ def sharded_fista3d(client, stack, b: np.ndarray, *, psf_scale: float = 1.0,
     log.info("sharded 3D FISTA: %d slabs %s on %s (%.1f s to build)", len(group), group.plan,
              group.workers, setup)
     try:
-        result = slab_fista(group, b, sensor_weights=w, **solver)
+        result = slab_fista(group, b, sensor_weights=w, gather=on_slab is None, **solver)
+        if on_slab is not None:
+            for i, (a, z) in enumerate(group.plan):
+                try:
+                    x = group.actors[i].estimate().result(timeout=group.timeout_s)
+                except Exception as exc:
+                    raise group._lost(i, "while the estimate was gathered", exc) from None
+                on_slab(a, z, x)
+                del x
     finally:
         group.close()
     result.params.update(workers=group.workers, slab_planes=group.plan,

@@ -28,7 +28,7 @@ from ..volume.slab import VolumeSlab
 from .volume_auto_scenes import D_MM, depth_plane
 
 __all__ = ["SceneObject", "objects_at_depth", "render_measurement", "scene_objects",
-           "write_psf_store"]
+           "stack_depths_mm", "window_energies", "write_psf_store"]
 
 
 def _base_psf(psf: np.ndarray, n: int) -> np.ndarray:
@@ -174,14 +174,25 @@ def render_measurement(store, psf_scale: float, objects: list[SceneObject], *,
         np.float32)
 
 
-def objects_at_depth(volume: np.ndarray, objects: list[SceneObject], tolerance: int = 1
-                     ) -> dict:
+def window_energies(volume: np.ndarray, objects: list[SceneObject]) -> np.ndarray:
+    """Per object and plane, the light of ``volume`` in a window of the object's size
+    about its centre (float64, (objects, n_z)); a slab of planes gives its columns."""
+    out = np.zeros((len(objects), volume.shape[0]))
+    for k, o in enumerate(objects):
+        r = int(np.ceil(o.radius)) + 3
+        i, j = int(round(o.row)), int(round(o.col))
+        window = volume[:, max(0, i - r):i + r + 1, max(0, j - r):j + r + 1]
+        out[k] = window.reshape(volume.shape[0], -1).sum(axis=1, dtype=np.float64)
+    return out
+
+
+def objects_at_depth(volume, objects: list[SceneObject], tolerance: int = 1) -> dict:
     """Which objects a volume puts at their plane: per object, the plane of most energy
-    in a window of its size about its centre.
+    in a window of its size about its centre (:func:`window_energies`).
 
     Parameters
     ----------
-    volume : ndarray, (n_z, n, n)
+    volume : ndarray, (n_z, n, n), or the (objects, n_z) energies themselves
         On the sensor grid.
     objects : list of SceneObject
     tolerance : int
@@ -193,13 +204,11 @@ def objects_at_depth(volume: np.ndarray, objects: list[SceneObject], tolerance: 
         ``found`` / ``total`` per kind and overall, and per object its true and found
         plane (JSON-ready).
     """
+    energy = (volume if volume.ndim == 2 and volume.shape[0] == len(objects)
+              else window_energies(volume, objects))
     rows = []
-    for o in objects:
-        r = int(np.ceil(o.radius)) + 3
-        i, j = int(round(o.row)), int(round(o.col))
-        window = volume[:, max(0, i - r):i + r + 1, max(0, j - r):j + r + 1]
-        energy = window.reshape(volume.shape[0], -1).sum(axis=1, dtype=np.float64)
-        found = int(np.argmax(energy))
+    for o, e in zip(objects, energy, strict=True):
+        found = int(np.argmax(e))
         rows.append({"kind": o.kind, "plane": o.plane, "found_plane": found,
                      "ok": abs(found - o.plane) <= tolerance})
     kinds = sorted({r["kind"] for r in rows})
