@@ -74,7 +74,6 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
     from recon.io import load_image
     from recon.operators import padded_grid
     from recon.sample import PSF_FILE, data_dir
-    from recon.volume.memory_plan import current_rss_bytes
     from recon.volume.streamed import (
         peak_rss_bytes,
         plan_slabs,
@@ -121,7 +120,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
 
         if workers == 0:
             est = streamed_memory_bytes((sensor, sensor), planes)
-            baseline = current_rss_bytes()
+            baseline = _warm_rss()
             rec["memory_estimate_bytes"] = baseline + est["total"]
             announce(f"estimated peak memory {rec['memory_estimate_bytes'] / 1e9:.2f} GB "
                      f"(process now {baseline / 1e9:.2f} GB + arrays {est['total'] / 1e9:.2f}"
@@ -137,8 +136,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         else:
             rec.update(_sharded(store_path, b, psf_scale, planes, sensor, iterations, tv,
                                 workers, worker_memory, announce, cpu, take,
-                                plan_slabs, streamed_memory_bytes, current_rss_bytes,
-                                peak_rss_bytes))
+                                plan_slabs, streamed_memory_bytes, peak_rss_bytes))
             result = rec.pop("result")
     per_iter = float(np.median(result.history.seconds))
     rec.update({
@@ -163,7 +161,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
 
 def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
              worker_memory, announce, cpu, take, plan_slabs, streamed_memory_bytes,
-             current_rss_bytes, peak_rss_bytes) -> dict:
+             peak_rss_bytes) -> dict:
     """The LocalCluster half of :func:`run_volume_scale`."""
     from .volume_shards import local_cluster, sharded_fista3d
 
@@ -171,7 +169,7 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
     try:
         slab = max(z - a for a, z in plan_slabs(planes, workers))
         est = streamed_memory_bytes((sensor, sensor), slab)
-        base = client.run(current_rss_bytes)
+        base = client.run(_warm_rss)
         estimate = {w: v + est["total"] for w, v in base.items()}
         announce(f"estimated peak memory per worker {max(estimate.values()) / 1e9:.2f} GB "
                  f"(worker now {max(base.values()) / 1e9:.2f} GB + arrays "
@@ -196,6 +194,15 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
             "loop_peak_rss_bytes": peak_rss_bytes(),
             "slab_planes": result.params["slab_planes"],
             "seconds_setup": result.params["seconds_setup"]}
+
+
+def _warm_rss() -> int:
+    """A worker's resident set after the slab kernels are compiled, bytes."""
+    from recon.volume.memory_plan import current_rss_bytes
+    from recon.volume.slab import warm_up
+
+    warm_up()
+    return current_rss_bytes()
 
 
 def volume_scale_table(r: dict) -> str:

@@ -29,7 +29,7 @@ from ..operators import checked_sensor_weights, padded_grid
 from . import _kernels3d
 from .operator import CHUNK_BYTES, plane_spectra
 
-__all__ = ["SUPPORTS", "VolumeSlab"]
+__all__ = ["SUPPORTS", "VolumeSlab", "warm_up"]
 
 #: Where the iterates live: on the sensor's field of view (``sensor``: the object
 #: is zero outside it; what makes the seed-size problem fit) or on the whole padded
@@ -255,3 +255,14 @@ class VolumeSlab:
     def estimate_shape(self) -> tuple[int, ...]:
         """Shape of :meth:`estimate`."""
         return self.x.shape
+
+
+def warm_up() -> None:
+    """Compile the slab's numba kernels and plan its FFTs on a tiny problem, so that a
+    process's memory and time figures taken afterwards leave compilation out (a dask
+    worker runs it before its resident set is read)."""
+    rng = np.random.default_rng(0)
+    slab = VolumeSlab(rng.random((2, 8, 8), dtype=np.float32) + 0.1, 0, 2, 1.0)
+    slab.forward("y")
+    slab.gradient_step(np.zeros((8, 8), np.float32), 0.1)
+    slab.prox(None, None, None, 0.01, 0.0, 0.5, True)
