@@ -126,9 +126,12 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
                      f"(process now {baseline / 1e9:.2f} GB + arrays {est['total'] / 1e9:.2f}"
                      " GB)")
             marks = [time.process_time()]
+            def tick(k):
+                marks.append(time.process_time())
+                announce(f"iteration {k + 1}: {marks[-1] - marks[-2]:.0f} CPU s")
+
             result = streamed_fista3d(store, b, psf_scale=psf_scale, iterations=iterations,
-                                      tv=tv, on_iteration=lambda k: marks.append(
-                                          time.process_time()))
+                                      tv=tv, on_iteration=tick)
             cpu = list(np.diff(marks))
             rec["peak_rss_bytes"] = peak_rss_bytes()  # of the solve: before the save
             take(0, planes, result.x)
@@ -179,9 +182,13 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
             return sum(client.run(time.process_time).values()) + time.process_time()
 
         marks = [cpu_now()]
+
+        def tick(k):
+            marks.append(cpu_now())
+            announce(f"iteration {k + 1}: {marks[-1] - marks[-2]:.0f} CPU s")
+
         result = sharded_fista3d(client, store_path, b, psf_scale=psf_scale,
-                                 iterations=iterations, tv=tv,
-                                 on_iteration=lambda k: marks.append(cpu_now()), on_slab=take)
+                                 iterations=iterations, tv=tv, on_iteration=tick, on_slab=take)
         cpu.extend(np.diff(marks))
         peaks = client.run(peak_rss_bytes)
     finally:
