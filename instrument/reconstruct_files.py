@@ -437,7 +437,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                 planes: str = "all", pitch_um: float | None = None,
                 d_mm: float | None = None, scene_range_mm=None,
                 allow_mixed_ranges: bool = False, empty_planes: str = "keep",
-                device: str = "cpu") -> dict:
+                device: str = "cpu", memory_limit_bytes: int | None = None,
+                slab_group=None, announce=print) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
     write it and its
     projections and metrics.
@@ -482,6 +483,14 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         to zero (see :func:`recon.reconstruct`).
     device : {"cpu", "cuda", "auto"}
         Where 3D ADMM runs (:func:`recon.reconstruct`).
+    memory_limit_bytes : int, optional
+        Memory the solve may use (``--memory-limit``); default what is available.
+        Above it the streamed 3D FISTA runs (:func:`recon.volume.api.reconstruct_stack`).
+    slab_group : callable, optional
+        Streamed 3D FISTA with the plane slabs elsewhere
+        (:func:`instrument.volume_shards.slab_workers` of ``recon3d --scheduler``).
+    announce : callable
+        Where the memory plan and estimate go before the solve (``print``).
 
     Returns
     -------
@@ -496,6 +505,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         Bad files, shapes or parameters.
     instrument.runstore.RunStoreError
         Unreadable stack, missing or mismatched depths.
+    instrument.volume_shards.ShardLostError
+        A worker lost during a sharded solve (nothing is written).
     ValueError
         Bad ``--out`` name.
     recon.errors.DivergenceError
@@ -533,7 +544,8 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         rec = reconstruct(PsfStack(stack, depths), raw, method, iterations=iterations,
                           tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
                           allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes,
-                          device=device)
+                          device=device, memory_limit_bytes=memory_limit_bytes,
+                          slab_group=slab_group, announce=announce)
     seconds_total = time.perf_counter() - t_start
     del stack
     attrs = {"depths_mm": rec.depths_mm, "units": "measurement counts per unit of the "

@@ -165,9 +165,10 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
         camera's); one PSF ``seconds``,
         ``auto_stop``, ``bayer``, ``erase``, ``erasure_mask``, ``seed``,
         ``preprocess``, ``full_scale`` and the named solver's options
-        (:func:`solver_options`); a stack ``empty_planes``; a grid ``model``, ``k``,
-        ``background``, ``depths_mm``, ``support``, ``tolerance``, ``prepared``,
-        ``two_part`` (:func:`recon.spatial.api.reconstruct_psf_grid`).
+        (:func:`solver_options`); a stack ``empty_planes``, ``memory_limit_bytes``,
+        ``slab_group``, ``announce`` (:func:`recon.volume.api.reconstruct_stack`); a
+        grid ``model``, ``k``, ``background``, ``depths_mm``, ``support``,
+        ``tolerance``, ``prepared``, ``two_part`` (:func:`recon.spatial.api.reconstruct_psf_grid`).
 
     Returns
     -------

@@ -258,7 +258,7 @@ class ReconOptions(Options):
 #: prepared model, a colour pattern), per kind.
 _PYTHON_ONLY = {
     "image": ("auto_stop", "bayer", "erasure_mask", "preprocess"),
-    "volume": (),
+    "volume": ("memory_limit_bytes", "slab_group", "announce"),
     "grid": ("depths_mm", "support", "tolerance", "prepared"),
 }
 #: Keywords every kind takes (the front door's own).

@@ -1,4 +1,4 @@
-"""``diffuserlab benchmark {recon,gpu,live,recording,batch}``.
+"""``diffuserlab benchmark {recon,gpu,live,recording,batch,volume-scale}``.
 
 ``gpu`` runs :func:`recon.benchmarks.gpu.run_gpu_benchmark` (speed per device and
 backend: the NumPy path, the array-API path on PyTorch's CPU backend and on a CUDA GPU).
@@ -11,6 +11,8 @@ simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
 ``recording`` and ``batch`` run :mod:`instrument.acquisition_benchmarks` (video
 recording at full size per compressor; recon-run's dask batch against a loop).
 ``design`` (:mod:`.benchmark_design`) compares the mask designs of Sec. 6.3.
+``volume-scale`` runs :func:`instrument.volume_scale_benchmark.run_volume_scale` (the
+seed-size 3D problem streamed or sharded: memory, speed, bytes moved).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import argparse
 from pathlib import Path
 
 __all__ = ["add_subcommands", "run_batch_benchmark", "run_gpu_benchmark", "run_live_benchmark",
-           "run_recon_benchmarks", "run_recording_benchmark"]
+           "run_recon_benchmarks", "run_recording_benchmark", "run_volume_scale_benchmark"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -108,6 +110,33 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="directory for batch.png and batch.json (default out/benchmark-batch)")
     ap.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
     ap.set_defaults(handler=run_batch_benchmark)
+    sp = bsub.add_parser("volume-scale", help="the seed-size 3D problem (2048 x 2048 x 128) "
+                         "generated on the fly, streamed in one process or sharded over dask "
+                         "workers: peak memory vs estimate, seconds per iteration vs the FFT "
+                         "floor, bytes moved per worker",
+                         description="Generates a depth-scaled PSF stack from the tutorial PSF "
+                         "(a per-plane Zarr store in a temporary directory) and a scene of "
+                         "beads and extended objects, then runs streamed 3D FISTA (--workers "
+                         "0) or the same sharded over a LocalCluster. Needs about 17 GB at the "
+                         "default size; try --sensor 512 --planes 32 first.")
+    sp.add_argument("--sensor", type=int, default=2048, help="sensor side, px (default 2048)")
+    sp.add_argument("--planes", type=int, default=128, help="depth planes (default 128)")
+    sp.add_argument("--iterations", type=int, default=4, help="FISTA iterations (default 4)")
+    sp.add_argument("--tv", type=float, default=1e-5, help="3D TV weight (default 1e-5)")
+    sp.add_argument("--workers", type=int, default=0,
+                    help="0 (default): one process; K: a LocalCluster of K workers")
+    sp.add_argument("--worker-memory", default="10GB",
+                    help="memory limit per worker (default 10GB)")
+    sp.add_argument("--work-dir", default=None,
+                    help="where the temporary PSF store goes (default the system's temp dir)")
+    sp.add_argument("--save-estimate", type=Path, default=None,
+                    help="write the volume (.npy) here, to compare another run with")
+    sp.add_argument("--compare-with", type=Path, default=None,
+                    help="an earlier run's --save-estimate: report the relative difference")
+    sp.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    sp.add_argument("--overwrite", action="store_true",
+                    help="replace an existing --json / --save-estimate")
+    sp.set_defaults(handler=run_volume_scale_benchmark)
     from .benchmark_design import add_parser as add_design
 
     add_design(bsub)  # benchmark design: the mask designs of Sec. 6.3
@@ -215,6 +244,37 @@ def run_recording_benchmark(args: argparse.Namespace) -> int:
     if args.json is not None:
         write_json(args.json, jsonable(result, nonfinite_to_none=True))
         print(f"figures in {args.json}")
+    return 0
+
+
+def run_volume_scale_benchmark(args: argparse.Namespace) -> int:
+    """Run ``benchmark volume-scale``; returns 0 (bad input exits 2 through the boundary)."""
+    from drivers.base import jsonable
+    from recon.errors import ReconInputError
+
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import write_json
+    from ..volume_scale_benchmark import run_volume_scale, volume_scale_table
+
+    if args.sensor < 16 or args.planes < 2 or args.iterations < 1 or args.workers < 0 \
+            or args.workers > args.planes:
+        raise ReconInputError(f"--sensor {args.sensor}, --planes {args.planes}, --iterations "
+                              f"{args.iterations}, --workers {args.workers}: give sensor >= 16, "
+                              "planes >= 2, iterations >= 1 and 0 <= workers <= planes")
+    outs = [p for p in (args.json, args.save_estimate) if p is not None]
+    check_outputs(outs, {"--compare-with": args.compare_with} if args.compare_with else None,
+                  args.overwrite)
+    result = run_volume_scale(sensor=args.sensor, planes=args.planes,
+                              iterations=args.iterations, tv=args.tv, workers=args.workers,
+                              worker_memory=args.worker_memory, work_dir=args.work_dir,
+                              save_estimate=(None if args.save_estimate is None
+                                             else str(args.save_estimate)),
+                              compare_with=(None if args.compare_with is None
+                                            else str(args.compare_with)),
+                              announce=lambda line: print(line, flush=True))
+    print(volume_scale_table(result))
+    if args.json is not None:
+        write_json(args.json, jsonable(result, nonfinite_to_none=True))
     return 0
 
 

@@ -64,6 +64,14 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (never an input)")
+    p.add_argument("--memory-limit", default=None, metavar="SIZE",
+                   help="memory the solve may use, e.g. 16GB (default: what the machine has "
+                   "available); when the in-memory solve needs more, streamed 3D FISTA runs "
+                   "(planes transformed one at a time, the volume on the sensor's field of "
+                   "view) and says so")
+    p.add_argument("--scheduler", default=None,
+                   help="address of a dask.distributed scheduler (tcp://host:8786): streamed "
+                   "3D FISTA with the planes split into slabs over its workers")
     from .grid_options import add_grid_options
 
     add_grid_options(p, volume=True)
@@ -88,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
+    from ..volume_shards import slab_workers
     from .recon_flags import check_device, check_recon_flags
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
@@ -95,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
     check_recon_flags(args)
     check_device(args.device)
+    memory_limit = None if args.memory_limit is None else _size(args.memory_limit)
     if args.psf_grid:
         from .grid_options import run_grid
 
@@ -103,17 +113,19 @@ def run(args: argparse.Namespace) -> int:
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
-    m = run_recon3d(args.psf_stack, args.raw, method=args.method, iterations=args.iterations,
-                    tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
-                    out=args.out,
-                    depths_mm=depths,
-                    bin_factor=args.bin_factor, dark=dark,
-                    psf_product=args.psf_product, metrics_json=args.metrics_json,
-                    planes=args.planes, device=args.device, pitch_um=args.pitch_um, d_mm=args.d_mm,
-                    scene_range_mm=(None if args.scene_range is None
-                                    else floats(args.scene_range, "--scene-range")),
-                    allow_mixed_ranges=args.allow_mixed_ranges,
-                    empty_planes=args.empty_planes)
+    with slab_workers(args.scheduler) as slab_group:
+        m = run_recon3d(args.psf_stack, args.raw, method=args.method,
+                        iterations=args.iterations,
+                        tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
+                        out=args.out, depths_mm=depths, bin_factor=args.bin_factor, dark=dark,
+                        psf_product=args.psf_product, metrics_json=args.metrics_json,
+                        planes=args.planes, device=args.device, pitch_um=args.pitch_um,
+                        d_mm=args.d_mm,
+                        scene_range_mm=(None if args.scene_range is None
+                                        else floats(args.scene_range, "--scene-range")),
+                        allow_mixed_ranges=args.allow_mixed_ranges,
+                        empty_planes=args.empty_planes, memory_limit_bytes=memory_limit,
+                        slab_group=slab_group)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")
@@ -121,4 +133,23 @@ def run(args: argparse.Namespace) -> int:
         print(f"{auto['regulariser']} weight {auto['weight']:.3g}, planes kept "
               f"{auto['planes_kept']}: {auto['reason']}")
     print(summary_line(m))
+    mem = m.get("memory")
+    if mem:
+        print(f"peak memory {mem['peak_rss_bytes'] / 1e9:.2f} GB measured (this process), "
+              f"{mem['estimate_bytes'] / 1e9:.2f} GB estimated "
+              f"({100 * (mem['peak_over_estimate'] - 1):+.0f} %)")
     return 0
+
+
+def _size(text: str) -> int:
+    """``--memory-limit`` as bytes (``16GB``, ``500MB``, ``2GiB``, a number of bytes)."""
+    from dask.utils import parse_bytes
+
+    try:
+        n = parse_bytes(text)
+    except (ValueError, TypeError):
+        n = 0
+    if not n > 0:
+        raise InputError(f"--memory-limit {text!r}: give a positive size such as 16GB or "
+                         "500MB")
+    return int(n)

@@ -40,7 +40,7 @@ from ..scenes import load_scene
 from ..simulate import add_camera_noise
 from ..volume import VolumeConvolutionOperator, normalize_psf_stack
 
-__all__ = ["KINDS", "VolumeCase", "depth_stack", "render_volume_case"]
+__all__ = ["KINDS", "VolumeCase", "depth_plane", "depth_stack", "render_volume_case"]
 
 #: Scene kinds of :func:`render_volume_case`.
 KINDS = ("beads", "extended")
@@ -75,15 +75,30 @@ def depth_stack(bin_factor: int, n_planes: int) -> np.ndarray:
         raise ReconInputError(f"n_planes must be >= 2, got {n_planes}")
     psf = np.asarray(load_sample(bin_factor).psf, np.float64)
     z = depths_mm(n_planes)
+    return np.asarray([depth_plane(psf, zk, z[0]) for zk in z], np.float32)
+
+
+def depth_plane(psf: np.ndarray, z_mm: float, z_near_mm: float) -> np.ndarray:
+    """The nearest plane's PSF as seen from depth ``z_mm``: shrunk about the array
+    centre by ``(1 + d/z) / (1 + d/z_near)`` (the caustic's magnification, Eq. 4.7;
+    linear interpolation) and its sum scaled to ``(z_near / z)^2`` of ``psf``'s.
+
+    Parameters
+    ----------
+    psf : ndarray, float64, 2D
+        The nearest plane's PSF.
+    z_mm, z_near_mm : float
+        Depth of the plane and of the nearest plane, mm (``d`` is :data:`D_MM`).
+
+    Returns
+    -------
+    ndarray, float64, ``psf.shape``
+    """
     centre = (np.array(psf.shape, np.float64) - 1) / 2
-    total = psf.sum()
-    planes = []
-    for zk in z:
-        s = (1 + D_MM / zk) / (1 + D_MM / z[0])  # <= 1: farther planes are smaller
-        h = ndimage.affine_transform(psf, np.eye(2) / s, centre - centre / s, order=1)
-        h = np.clip(h, 0, None)
-        planes.append(h * (total * (z[0] / zk) ** 2 / h.sum()))
-    return np.asarray(planes, np.float32)
+    s = (1 + D_MM / z_mm) / (1 + D_MM / z_near_mm)  # <= 1: farther planes are smaller
+    h = np.clip(ndimage.affine_transform(psf, np.eye(2) / s, centre - centre / s, order=1),
+                0, None)
+    return h * (psf.sum() * (z_near_mm / z_mm) ** 2 / h.sum())
 
 
 @dataclass

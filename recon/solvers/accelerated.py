@@ -19,7 +19,14 @@ import numpy as np
 
 from .common import History, Monitor
 
-__all__ = ["accelerated_loop"]
+__all__ = ["accelerated_loop", "fista_momentum"]
+
+
+def fista_momentum(t: float) -> tuple[float, float]:
+    """FISTA's next ``t`` and momentum: ``t' = (1 + sqrt(1 + 4 t^2)) / 2``,
+    ``beta = (t - 1) / t'`` (Kuo 2020, Algorithm 1; Beck & Teboulle 2009)."""
+    t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
+    return t_next, (t - 1.0) / t_next
 
 
 def accelerated_loop(x: np.ndarray, *, iterations: int,
@@ -104,8 +111,7 @@ def accelerated_loop(x: np.ndarray, *, iterations: int,
         monitor.start()
         loss, grad = data_term(y)
         if momentum is None:  # FISTA sequence (Algorithm 1)
-            t_next = 0.5 * (1.0 + math.sqrt(1.0 + 4.0 * t * t))
-            beta = (t - 1.0) / t_next
+            t_next, beta = fista_momentum(t)
         else:
             beta = momentum
         penalty, dot = prox_step(y, grad, x, y_next, beta)

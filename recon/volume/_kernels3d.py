@@ -117,3 +117,91 @@ def proximal_step_3d(y, grad, x, y_next, step, thr, l1thr, beta, nonneg):
         l1 += l1_row
         dot += dot_row
     return tv, l1, dot
+
+
+@njit(**PARALLEL_FAST)
+def slab_penalty(y, after, has_after):
+    """Anisotropic TV and l1 of a slab of planes ``y`` (k, n0, n1), read only.
+
+    The terms of :func:`proximal_step_3d`'s ``tv_y`` and ``l1_y`` for the planes of
+    one slab of a volume split along z: laterally circular; the depth pair of the
+    slab's last plane uses ``after`` (n0, n1), the next slab's first plane, when
+    ``has_after`` (the volume's last plane has none).
+    """
+    k, n0, n1 = y.shape
+    tv = 0.0
+    l1 = 0.0
+    for zi in prange(k * n0):
+        z = zi // n0
+        i = zi - z * n0
+        ip = i + 1 if i < n0 - 1 else 0
+        tv_row = np.float32(0.0)
+        l1_row = np.float32(0.0)
+        for j in range(n1):
+            jp = j + 1 if j < n1 - 1 else 0
+            yc = y[z, i, j]
+            t = abs(y[z, ip, j] - yc) + abs(y[z, i, jp] - yc)
+            if z + 1 < k:
+                t += abs(y[z + 1, i, j] - yc)
+            elif has_after:
+                t += abs(after[i, j] - yc)
+            tv_row += t
+            l1_row += abs(yc)
+        tv += tv_row
+        l1 += l1_row
+    return tv, l1
+
+
+@njit(**PARALLEL_FAST)
+def slab_prox(v, before, after, has_before, has_after, y, x, thr, l1thr, beta, nonneg):
+    """The proximal update of :func:`proximal_step_3d` on one slab, from ``v = y - step grad``.
+
+    ``v``, ``y``, ``x`` are (k, n0, n1) float32; ``before`` / ``after`` (n0, n1) are
+    ``v`` of the planes next to the slab (the previous slab's last, the next slab's
+    first), used when ``has_before`` / ``has_after``. Writes ``x <- x_new`` and,
+    in place, ``y <- x_new + beta (x_new - x_old)`` (each voxel of ``y`` is read
+    once, before it is written, so no second volume is needed). Same arithmetic as
+    :func:`proximal_step_3d` voxel for voxel.
+
+    Returns
+    -------
+    restart_dot : float
+        <y - x_new, x_new - x_old> over the slab.
+    """
+    k, n0, n1 = v.shape
+    lo = np.float32(0.0) if nonneg else np.float32(-np.inf)
+    thr = np.float32(thr)
+    l1thr = np.float32(l1thr)
+    beta = np.float32(beta)
+    dot = 0.0
+    for zi in prange(k * n0):
+        z = zi // n0
+        i = zi - z * n0
+        im = i - 1 if i > 0 else n0 - 1
+        ip = i + 1 if i < n0 - 1 else 0
+        dot_row = np.float32(0.0)
+        for j in range(n1):
+            jm = j - 1 if j > 0 else n1 - 1
+            jp = j + 1 if j < n1 - 1 else 0
+            zc = v[z, i, j]
+            corr = (clip(0.5 * (v[z, ip, j] - zc), thr) - clip(0.5 * (zc - v[z, im, j]), thr)
+                    + clip(0.5 * (v[z, i, jp] - zc), thr)
+                    - clip(0.5 * (zc - v[z, i, jm]), thr))
+            if z + 1 < k:
+                corr += clip(0.5 * (v[z + 1, i, j] - zc), thr)
+            elif has_after:
+                corr += clip(0.5 * (after[i, j] - zc), thr)
+            if z > 0:
+                corr -= clip(0.5 * (zc - v[z - 1, i, j]), thr)
+            elif has_before:
+                corr -= clip(0.5 * (zc - before[i, j]), thr)
+            xn = zc + corr / 6.0
+            xn = xn - clip(xn, l1thr)
+            xn = max(xn, lo)
+            xo = x[z, i, j]
+            yc = y[z, i, j]
+            x[z, i, j] = xn
+            y[z, i, j] = xn + beta * (xn - xo)
+            dot_row += (yc - xn) * (xn - xo)
+        dot += dot_row
+    return dot

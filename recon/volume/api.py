@@ -42,12 +42,14 @@ from ..solvers.device import check_device_memory, device_metrics, solve_on
 from ..validate import as_array, float_array
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
+from .memory_plan import memory_plan, solve_streamed
 from .operator import (
     VolumeConvolutionOperator,
     bin_stack,
     fft_floor_seconds,
     normalize_psf_stack,
 )
+from .streamed import streamed_fft_floor_seconds
 from .xp_admm3d import XpVolumeAdmmPlan, auto3d_extra_bytes
 from .xp_admm3d import memory_bytes as admm3d_memory
 from .xp_fista3d import memory_bytes as fista3d_memory
@@ -112,7 +114,9 @@ def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dic
     """
     op, result, inf = rec.operator, rec.result, rec.info
     if fft_floor_s is None:
-        fft_floor_s = fft_floor_seconds(op.padded_shape, op.n_z)
+        fft_floor_s = (streamed_fft_floor_seconds(op.padded_shape, op.n_z)
+                       if getattr(op, "streamed", False)
+                       else fft_floor_seconds(op.padded_shape, op.n_z))
     per_iter = float(np.median(result.history.seconds))
     info = {"dark_mode": inf.dark_mode, "dark_level": inf.dark_level,
             "bin_factor": inf.bin_factor, **inf.extra}
@@ -293,7 +297,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                       bin_factor: int = _D["bin_factor"], dark=_D["dark"],
                       allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
                       empty_planes: str = _D["empty_planes"],
-                      device: str = _D["device"]) -> Reconstruction:
+                      device: str = _D["device"], memory_limit_bytes: int | None = None,
+                      slab_group=None, announce=None) -> Reconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -340,6 +345,21 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         :func:`recon.volume.xp_fista3d.fista3d_xp`; an automatic weight's held-out
         path and final solve run there too, its plane tests on the host), or the GPU
         when one is usable. ``info["device"]`` says which ran.
+    memory_limit_bytes : int, optional
+        Memory the CPU solve may use (default: what the machine has available now).
+        When the in-memory plan needs more (:func:`recon.volume.memory_plan.memory_plan`),
+        streamed 3D FISTA runs instead (:func:`recon.volume.memory_plan.solve_streamed`:
+        planes transformed on the fly, iterates on the sensor's field of view, a
+        fixed weight -- :data:`DEFAULT_TV` -- in place of an automatic one);
+        ``info.method_reason`` and ``info.extra["memory_plan"]`` say why, and
+        ``info.extra["memory"]`` holds the estimate and the measured peak.
+    slab_group : callable, optional
+        ``slab_group(h, psf_scale) -> group``: run streamed 3D FISTA with the plane
+        slabs elsewhere (dask workers, :class:`instrument.volume_shards.ShardedSlabs`),
+        whatever the memory plan says.
+    announce : callable, optional
+        ``announce(line)``: the memory plan and the streamed solve's estimate,
+        before the solve (``recon3d`` prints them).
 
     Returns
     -------
@@ -394,6 +414,21 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raise ReconInputError("the measurement is zero after dark subtraction; check the "
                               "exposure and --dark")
     b = (raw / raw_scale).astype(np.float32)
+    if backend.is_numpy:
+        plan = memory_plan(method, auto_reg is not None, h.shape[1:], h.shape[0],
+                           memory_limit_bytes)
+        if slab_group is not None:
+            plan.update(streamed=True, reason=f"{plan['reason']}; sharded over the dask "
+                        "workers as asked")
+        if plan["streamed"]:
+            if announce is not None:
+                announce(plan["reason"])
+            held = [h]  # emptied once the slabs hold the spectra: the stack is freed
+            del h
+            return _reconstruct_streamed(
+                held, b, depths, iterations=iterations, tv=tv, l1=l1, plan=plan,
+                info={**info, "psf_scale": psf_scale}, raw_scale=raw_scale, t_start=t_start,
+                slab_group=slab_group, announce=announce)
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
@@ -437,3 +472,32 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
                           record=volume_metrics if backend.is_numpy
                           else device_metrics(volume_metrics, backend, op.n_z))
+
+
+def _reconstruct_streamed(held, b, depths, *, iterations, tv, l1, plan, info, raw_scale, t_start,
+                          slab_group, announce) -> Reconstruction:
+    """:func:`reconstruct_stack`'s streamed 3D FISTA (the in-memory plan did not fit)."""
+    notes = []
+    if tv == AUTO or l1 == AUTO:  # the automatic weight's path is the in-memory 3D ADMM
+        tv = DEFAULT_TV["fista"] if tv == AUTO else tv
+        l1 = 0.0 if l1 == AUTO else l1
+        notes.append(f"the automatic weight needs the in-memory 3D ADMM path: fixed TV "
+                     f"{tv:g}, l1 {l1:g} (recon.volume.DEFAULT_TV)")
+    if announce is not None and notes:
+        announce(notes[0])
+    result, model, memory = solve_streamed(held, b, iterations=iterations, tv=tv, l1=l1,
+                                           depths=depths, slab_group=slab_group,
+                                           announce=announce)
+    result.x *= np.float32(raw_scale)  # in place: no second volume
+    volume = np.ascontiguousarray(result.x[(slice(None), *model.estimate_crop)])
+    info_ = ReconInfo(
+        kind="volume", method="fista", method_reason="; ".join([plan["reason"], *notes]),
+        iterations=iterations, iterations_used=int(result.params["iterations_used"]),
+        tv=tv, l1=l1, auto=[], dark_mode=info.pop("dark_mode"),
+        dark_level=info.pop("dark_level"), dark_source=info.pop("dark_source"),
+        bin_factor=info.pop("bin_factor"), raw_scale=raw_scale,
+        seconds_total=time.perf_counter() - t_start, device="cpu",
+        histories=[result.history],
+        extra={**info, "memory_plan": plan, "memory": memory, "support": "sensor"})
+    return Reconstruction(volume, result.x, [result], model, info_, depths_mm=depths,
+                          record=volume_metrics)

@@ -140,9 +140,7 @@ class VolumeConvolutionOperator(SensorWeighted, LinearOperator):
     def _psf_spectra(self) -> np.ndarray:
         spectra = np.empty((self.n_z, *self.spectrum_shape), np.complex64)
         for c in self._chunks:
-            padded = np.zeros((c.stop - c.start, *self.padded_shape), np.float32)
-            padded[(slice(None), *self.crop)] = self.psf_stack[c]
-            spectra[c] = rfftn(np.fft.ifftshift(padded, axes=(-2, -1)))
+            spectra[c] = plane_spectra(self.psf_stack[c], self.padded_shape, self.crop)
         return spectra
 
     # -- composition (PixelErasure @ op: see SensorWeighted) ------------------------
@@ -248,6 +246,30 @@ class VolumeConvolutionOperator(SensorWeighted, LinearOperator):
                 "(volume: n_z planes on the padded grid; sensor image: the PSF size)"
             )
         return a
+
+
+def plane_spectra(planes: np.ndarray, padded_shape: tuple[int, int],
+                  crop: tuple[slice, slice]) -> np.ndarray:
+    """``H_z = F P h_z``: real FFTs of PSF planes zero-padded and centred (Eq. 4.4).
+
+    The one place the model's PSF spectra are made: :class:`VolumeConvolutionOperator`
+    and the plane slabs of the streamed solver (:mod:`recon.volume.slab`) call it.
+
+    Parameters
+    ----------
+    planes : ndarray, float32, shape (k, rows, cols)
+        PSF planes at sensor size (already scaled).
+    padded_shape : (P0, P1)
+    crop : (slice, slice)
+        Where the sensor sits in the padded grid (:func:`recon.operators.padded_grid`).
+
+    Returns
+    -------
+    ndarray, complex64, shape (k, P0, P1 // 2 + 1)
+    """
+    padded = np.zeros((planes.shape[0], *padded_shape), np.float32)
+    padded[(slice(None), *crop)] = planes
+    return rfftn(np.fft.ifftshift(padded, axes=(-2, -1)))
 
 
 def _check_depths(depths, n_z: int) -> np.ndarray | None:

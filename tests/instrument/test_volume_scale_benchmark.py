@@ -1,0 +1,81 @@
+"""``diffuserlab benchmark volume-scale`` at a small size: the generated problem, the
+figures it reports, and its single-process and 2-worker runs agreeing.
+
+The seed-size run (2048 x 2048 x 128, ~17 GB) is for the command line; here 64 x 64
+x 8 checks that the generated stack is what the solvers read (a per-plane Zarr store
+in a temporary directory, gone afterwards), that the peak memory, FFT floor and
+bytes per worker are reported, and that the sharded run equals the single process.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from instrument.cli import main
+from instrument.volume_scale_benchmark import run_volume_scale, volume_scale_table
+from recon.benchmarks.volume_scale import (
+    objects_at_depth,
+    scene_objects,
+    stack_depths_mm,
+    write_psf_store,
+)
+from recon.io import load_image
+from recon.sample import PSF_FILE, data_dir
+
+
+def test_generated_stack_is_depth_scaled(tmp_path):
+    zarr = pytest.importorskip("zarr")
+    scale, depths = write_psf_store(str(tmp_path / "s.zarr"), load_image(data_dir() / PSF_FILE),
+                                    96, 6)
+    store = zarr.open_array(str(tmp_path / "s.zarr"), mode="r")
+    assert store.shape == (6, 96, 96) and store.chunks == (1, 96, 96)
+    sums = np.array([float(store[k].sum(dtype=np.float64)) for k in range(6)])
+    assert scale == pytest.approx(np.sqrt(np.sum(sums**2)), rel=1e-6)
+    assert np.all(np.diff(depths) > 0) and np.all(np.diff(sums) < 0)  # farther: dimmer
+    np.testing.assert_allclose(depths, stack_depths_mm(96, 6))
+    # a farther plane is the nearer one shrunk: its light sits closer to the centre
+    c = np.arange(96) - 47.5
+    r = np.hypot(*np.meshgrid(c, c, indexing="ij"))
+    spread = [float((store[k] * r).sum() / store[k].sum()) for k in (0, 5)]
+    assert spread[1] < spread[0]
+
+
+def test_objects_at_depth_scores_the_truth():
+    objects = scene_objects(128, 8, beads=4, extended=2, seed=3)
+    vol = np.zeros((8, 128, 128), np.float32)
+    for o in objects:
+        vol[o.plane, int(round(o.row)), int(round(o.col))] = 1.0
+    assert objects_at_depth(vol, objects)["found"] == len(objects)
+    moved = vol[::-1].copy()  # every object moved to the mirrored plane
+    far = [o for o in objects if abs((7 - o.plane) - o.plane) > 1]
+    assert objects_at_depth(moved, objects)["found"] <= len(objects) - len(far)
+
+
+def test_single_and_sharded_runs_agree(tmp_path):
+    one = run_volume_scale(sensor=64, planes=8, iterations=3, workers=0,
+                           save_estimate=str(tmp_path / "x.npy"), announce=lambda s: None)
+    assert 0 < one["peak_rss_bytes"] and 0 < one["memory_estimate_bytes"]
+    assert one["fft_floor_seconds"] > 0 and one["ratio_to_fft_floor"] > 0
+    assert one["bytes_moved_per_worker_per_iteration"] == [0.0]
+    two = run_volume_scale(sensor=64, planes=8, iterations=3, workers=2, worker_memory="1GB",
+                           compare_with=str(tmp_path / "x.npy"), announce=lambda s: None)
+    assert two["relative_difference_to"]["relative"] < 1e-5
+    sensor = 4 * 64 * 64
+    # partial image up, residual down, 3 boundary planes between the two slabs
+    assert two["bytes_moved_per_worker_per_iteration"] == [5 * sensor, 5 * sensor]
+    assert len(two["peak_rss_bytes_per_worker"]) == 2
+    text = volume_scale_table(two)
+    assert "LocalCluster of 2 workers" in text and "relative difference" in text
+
+
+def test_command_writes_its_figures(tmp_path, capsys):
+    out = tmp_path / "vs.json"
+    assert main(["benchmark", "volume-scale", "--sensor", "48", "--planes", "4",
+                 "--iterations", "2", "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "estimated peak memory" in text and "x the streamed FFT floor" in text
+    assert json.loads(out.read_text())["planes"] == 4
+    assert main(["benchmark", "volume-scale", "--planes", "1"]) == 2
