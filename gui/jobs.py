@@ -172,11 +172,17 @@ def default_run_path(routine: str, folder: str = "out/runs") -> str:
 
 
 @contextmanager
-def _camera(session, user: str, *, sample_out: bool = True):
+def _camera(session, user: str, *, sample_out: bool = True, produces: tuple[str, ...] = ()):
     """Claim the camera for ``user``, and give the bench back as it was: the camera's
     settings, the stages' positions and the LEDs put back (:func:`gui.benchstate.restore`,
     also after an abort or a failure) and the live stream started again if it ran (not
     when the window is closing).
+
+    ``produces``: the devices whose state is the job's result (the mask stage of the
+    mask alignment), left as the job set them when it completes, and put back only
+    when it was aborted or failed (a half-done alignment is no pose to keep); what the
+    job changed only to take its measurement (exposure, LEDs, other stages) is put back
+    either way.
 
     ``sample_out``: on the virtual bench, take the moving scene out of the beam for the
     run (as an operator removes the sample) and put it back."""
@@ -190,13 +196,15 @@ def _camera(session, user: str, *, sample_out: bool = True):
         before = capture(bench)
         if scene is not None:
             bench.set_scene(None)
+        completed = False
         try:
             yield
+            completed = True
         finally:
             if scene is not None:
                 bench.set_scene(scene)
             if not session.closing:  # the window closes: the devices close next
-                restore(bench, before)
+                restore(bench, before.without(produces) if completed else before)
     finally:
         session.release_camera(user, resume_stream=was_streaming and not session.closing)
 
@@ -309,7 +317,8 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
                         "step": entry.get("step")})
 
     bench = session.bench
-    with _camera(session, "the mask alignment"), holography_branch(bench):
+    with _camera(session, "the mask alignment", produces=("mask_stage",)), \
+            holography_branch(bench):
         relay_na = bench.relay_na if session.is_virtual else args.relay_na
         cfg = AlignmentConfig(coarse_range_px=args.coarse_range_px, frames=args.frames,
                               rotation=not args.no_rotation, focus=not args.no_focus,
