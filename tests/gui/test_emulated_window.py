@@ -1,9 +1,14 @@
-"""A completed mask alignment leaves the mask stage where it aligned it: the bench
+"""A window on the emulated bench (the real drivers on their protocol emulators).
+
+A completed mask alignment leaves the mask stage where it aligned it: the bench
 restore after the job puts back what the job changed to take its readings (the
 camera's exposure, the LEDs), never the pose the job exists to produce, and the pose
 is still there after the window is closed and a new one opens the bench again (the
 emulated bench: the real Zaber driver on its protocol emulator, which keeps its
-position between the two windows as a stage does)."""
+position between the two windows as a stage does).
+
+Every device's state is watched the same way: an idle LED array whose port hangs up
+turns red as soon as a polled stage does."""
 
 from __future__ import annotations
 
@@ -28,14 +33,20 @@ class _FakeAligner:
 
 
 @pytest.fixture
-def emulated(tmp_path):
-    """The emulators and the bench file naming their ports."""
+def emulators(tmp_path):
+    """The running emulators (:class:`instrument.emulated_bench.EmulatedBench`)."""
     from instrument.emulated_bench import EmulatedBench
 
     with EmulatedBench(tmp_path / "ports", time_scale=50.0) as bench:
-        path = tmp_path / "bench-emulated.toml"
-        path.write_text(bench.bench_text())
-        yield str(path)
+        yield bench
+
+
+@pytest.fixture
+def emulated(emulators, tmp_path):
+    """The bench file naming the emulators' ports."""
+    path = tmp_path / "bench-emulated.toml"
+    path.write_text(emulators.bench_text())
+    return str(path)
 
 
 def _open_window(qapp, bench_file: str):
@@ -112,5 +123,27 @@ def test_an_aborted_alignment_puts_the_mask_back(qapp, wait, emulated, tmp_path,
         wait(lambda: job.done, 60, "the alignment")
         assert "stopped" in al.message.text(), al.message.text()
         assert w.session.bench.mask_stage.positions() == pytest.approx(start, abs=2e-3)
+    finally:
+        _close(qapp, w)
+
+
+def test_an_unplugged_idle_led_array_turns_red_as_a_stage_does(qapp, wait, emulators, emulated,
+                                                               tmp_path, monkeypatch):
+    """Nothing is sent to the array after the unplug: its box and the status area say
+    DISCONNECTED within the status poll's seconds (it said "open" for over a minute),
+    and the device count names it."""
+    monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(tmp_path / "gui.ini"))
+    w = _open_window(qapp, emulated)
+    try:
+        box = w.devices.boxes["led_array"]
+        wait(lambda: "open" in box.state.text(), 20, "the array's first status")
+        emulators.emulators["illuminate"].unplug()
+        wait(lambda: "DISCONNECTED" in box.state.text(), 20, "the array shown disconnected")
+        assert "DISCONNECTED" in w.device_labels["led_array"].text()
+        assert "led_array" in w.devices.state.text()
+        emulators.emulators["illuminate"].replug()
+        box.reconnect()
+        wait(lambda: "DISCONNECTED" not in box.state.text() and "open" in box.state.text(),
+             30, "the array reconnected")
     finally:
         _close(qapp, w)
