@@ -123,7 +123,7 @@ class AlignmentPanel(RunControls, QWidget):
             for c in range(GRID[1]):
                 cell = QLabel(f"section {r * GRID[1] + c}\n-")
                 cell.setAlignment(Qt.AlignmentFlag.AlignCenter)
-                cell.setMinimumSize(84, 44)
+                cell.setMinimumSize(64, 40)
                 cell.setStyleSheet("border: 1px solid #999; background: #f4f4f4;")
                 self.section_grid.addWidget(cell, r, c)
                 self.cells.append(cell)

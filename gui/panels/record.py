@@ -17,15 +17,15 @@ import datetime as _dt
 import threading
 from pathlib import Path
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
+    QBoxLayout,
     QComboBox,
     QGridLayout,
     QGroupBox,
     QLabel,
     QLineEdit,
     QPushButton,
-    QVBoxLayout,
     QWidget,
 )
 
@@ -102,7 +102,8 @@ class RecordPanel(QWidget):
         self.summary: dict | None = None
         self.batch_result: dict | None = None
         self._carried: tuple[str, str] = ("", "")
-        layout = QVBoxLayout(self)
+        layout = self._columns = QBoxLayout(QBoxLayout.Direction.TopToBottom, self)
+        layout.setContentsMargins(4, 4, 4, 4)
         rec = QGroupBox("record a video")
         g = QGridLayout(rec)
         g.addWidget(QLabel("run store:"), 0, 0)
@@ -181,7 +182,21 @@ class RecordPanel(QWidget):
         self.batch_error = error_label()
         b.addWidget(self.batch_error, 8, 0, 1, 4)
         layout.addWidget(batch)
-        layout.addStretch(1)
+        self._groups = (rec, batch)
+        layout.setAlignment(Qt.AlignmentFlag.AlignTop)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt's name)
+        """The recording and the batch side by side when the dock is wide enough for
+        both (a 1600 x 1000 screen: both fit its height then), else one above the
+        other (a laptop's narrow dock scrolls)."""
+        super().resizeEvent(event)
+        margins = self._columns.contentsMargins()
+        need = (sum(g.minimumSizeHint().width() for g in self._groups)
+                + self._columns.spacing() + margins.left() + margins.right())
+        direction = (QBoxLayout.Direction.LeftToRight if event.size().width() >= need
+                     else QBoxLayout.Direction.TopToBottom)
+        if self._columns.direction() != direction:
+            self._columns.setDirection(direction)
 
     # -- state ---------------------------------------------------------------------------
     @property
