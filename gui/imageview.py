@@ -42,7 +42,8 @@ from PySide6.QtWidgets import (
 
 from .workers import Job
 
-__all__ = ["COLORMAPS", "LEVEL_MODES", "SNAPSHOT_FOLDER", "FrameView", "image_statistics", "write_snapshot"]
+__all__ = ["COLORMAPS", "LEVEL_MODES", "SNAPSHOT_FOLDER", "FrameView", "image_statistics",
+           "write_snapshot"]
 
 #: Where snapshots go unless the operator chose another folder (created when needed).
 SNAPSHOT_FOLDER = "out/snapshots"
