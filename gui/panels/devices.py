@@ -302,6 +302,8 @@ class DeviceBox(QGroupBox):
         self.led_plot.setLabel("bottom", "x", units="mm")
         self.led_plot.setLabel("left", "y", units="mm")
         self.led_plot.setTitle("LEDs (click one to light it alone)")
+        # the wheel scrolls the Devices panel; it zooms the map once the map is clicked
+        wheel_needs_focus(self.led_plot)
         self.led_points = pg.ScatterPlotItem(pos[:, 0], pos[:, 1], size=9,
                                              data=np.arange(len(pos)))
         self.led_points.sigClicked.connect(self._led_clicked)

@@ -257,6 +257,44 @@ def test_the_wheel_changes_a_jog_step_only_when_it_has_the_focus(window):
     step.setValue(1.0)
 
 
+def test_the_wheel_over_the_led_map_scrolls_the_devices_panel(window, qapp):
+    """Scrolling the Devices panel over the LED map scrolled nothing and zoomed the map
+    out (to "y (kmm)"); the map zooms only once it was clicked."""
+    from PySide6.QtWidgets import QApplication
+
+    panel = window.devices
+    box = panel.boxes["led_array"]
+    plot = box.led_plot
+    port = plot.viewport()
+    bar = panel.area.verticalScrollBar()
+    for _ in range(50):  # the panel laid out (the map's size settles)
+        qapp.processEvents()
+    panel.area.ensureWidgetVisible(plot, 0, 0)
+    bar.setValue(min(bar.value(), bar.maximum() - 50))
+    qapp.processEvents()
+    plot.clearFocus()
+    view = plot.getViewBox()
+    view.disableAutoRange()
+    ranges = view.viewRange()
+    before = bar.value()
+
+    def wheel() -> None:
+        centre = QPointF(port.width() / 2, port.height() / 2)
+        QApplication.sendEvent(port, QWheelEvent(
+            centre, QPointF(port.mapToGlobal(centre.toPoint())), QPoint(0, 0),
+            QPoint(0, -120 * 3), Qt.MouseButton.NoButton, Qt.KeyboardModifier.NoModifier,
+            Qt.ScrollPhase.NoScrollPhase, False))
+        qapp.processEvents()
+
+    wheel()
+    assert view.viewRange() == ranges  # no zoom
+    assert bar.value() > before  # the panel scrolled
+    plot.setFocus()
+    wheel()
+    assert view.viewRange() != ranges  # clicked (focused): the wheel zooms the map
+    view.autoRange()
+
+
 def test_enter_in_a_go_to_field_moves(window, wait):
     box = window.devices.boxes["source_stage"]
     field = box.stage.targets["z"]
