@@ -40,6 +40,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from .logpane import gui_log
 from .workers import Job
 
 __all__ = ["COLORMAPS", "LEVEL_MODES", "SNAPSHOT_FOLDER", "FrameView", "image_statistics",
@@ -547,6 +548,8 @@ class FrameView(QWidget):
         image, meta = taken
         job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot")
         job.succeeded.connect(lambda p: (self.stats.setText(f"snapshot saved: {p}"),
+                                         gui_log.info("snapshot of %s saved: %s",
+                                                      self._title, p),
                                          self.snapshot_saved.emit(str(p))))
         job.failed.connect(lambda text: self.stats.setText(f"snapshot not saved: {text}"))
         self.jobs = [j for j in self.jobs if j.running] + [job]

@@ -461,6 +461,7 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     args = _recon_run_args(add_subcommands, run, options)
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
+    job.report({"kind": "start", "total": len(frames), "run": args.run})
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                   psf_product=args.psf_product, dark=args.dark)
     return reconstruct_run_in_process(

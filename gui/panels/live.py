@@ -283,6 +283,11 @@ class LivePanel(QWidget):
         self.recon_button.setText("Stop reconstruction" if self.live else
                                   "Start reconstruction")
         if self.live is not None:
+            from ..logpane import job_ended
+
+            job_ended("live reconstruction", f"started: {self.method.currentText()} on "
+                      f"{label}, PSF {self._live_settings['psf']}"
+                      + ("" if depth is None else f", plane z = {depth:g} mm"))
             self.psf_chosen.emit(self._live_settings["psf"],
                                  "" if depth is None else f"{depth:g}")
 
@@ -291,6 +296,9 @@ class LivePanel(QWidget):
         self.session.remove_consumer(CONSUMER)
         live, self.live = self.live, None
         if live is not None:
+            from ..logpane import gui_log
+
+            gui_log.info("live reconstruction stopped")
             job = Job(lambda job: live.stop(timeout_s=10.0), name="stop-live")
             job.failed.connect(self.error.setText)
             self.job = job.start()
