@@ -22,7 +22,8 @@ from ..imageview import FrameView
 from ..logpane import gui_log
 from ..workers import Job
 
-__all__ = ["ErrorLabel", "FrameView", "JobProgress", "PanelScroll", "RunControls", "depth_field",
+__all__ = ["ErrorLabel", "FrameView", "JobProgress", "PanelScroll", "RunControls", "dark_hint",
+           "depth_field",
            "error_label", "eta_text", "offer_depths"]
 
 
@@ -85,6 +86,17 @@ class PanelScroll(QScrollArea):
 def error_label() -> ErrorLabel:
     """A wrapped, red label for the messages of refused actions (:class:`ErrorLabel`)."""
     return ErrorLabel()
+
+
+def dark_hint(session) -> str:
+    """What an empty dark-level field means on this session's bench (its placeholder).
+
+    The virtual bench knows its camera's dark offset; on a real (or emulated) bench an
+    empty field estimates the level from a single PSF image's corner, and a calibrated
+    PSF stack (a PSF sweep) needs the level given: "auto" there was refused."""
+    if session.simulate or session.is_virtual:
+        return "auto: the simulated camera's offset"
+    return "DN or dark run; needed with a PSF sweep"
 
 
 def depth_field(name: str) -> QComboBox:

@@ -36,7 +36,7 @@ from PySide6.QtWidgets import (
 from ..fields import remember, wheel_needs_focus
 from ..session import Session
 from ..workers import InputError, Job, readable_error
-from .common import FrameView, depth_field, error_label, offer_depths
+from .common import FrameView, dark_hint, depth_field, error_label, offer_depths
 
 __all__ = ["LivePanel", "STALE_S"]
 
@@ -97,7 +97,11 @@ class LivePanel(QWidget):
         controls.addWidget(self.depth, 1, 2)
         controls.addWidget(QLabel("dark (DN or dark run):"), 1, 3)
         self.dark = remember(QLineEdit(), "live/dark")
-        self.dark.setPlaceholderText("auto")
+        self.dark.setPlaceholderText(dark_hint(session))
+        self.dark.setToolTip("the frames' dark level: a number in DN or a dark run (calibrate "
+                             "dark); empty on the virtual bench: its camera's offset, on a real "
+                             "bench: estimated from a single PSF image's corner (a PSF sweep "
+                             "needs it given)")
         controls.addWidget(self.dark, 1, 4)
         controls.addWidget(QLabel("method:"), 2, 1)
         self.method = QComboBox()
@@ -189,6 +193,7 @@ class LivePanel(QWidget):
         self.recon_button.setEnabled(self.session.connected)
         if not self.session.connected and self.live is not None:
             self.stop_reconstruction()
+        self.dark.setPlaceholderText(dark_hint(self.session))
 
     def toggle_stream(self) -> Job | None:
         """Start or stop the camera's stream (on a worker)."""

@@ -37,7 +37,7 @@ from ..fields import remember, wheel_needs_focus
 from ..logpane import announce_job, job_ended
 from ..session import Session
 from ..workers import InputError, Job
-from .common import JobProgress, depth_field, error_label, offer_depths
+from .common import JobProgress, dark_hint, depth_field, error_label, offer_depths
 
 __all__ = ["RecordPanel"]
 
@@ -185,7 +185,15 @@ class RecordPanel(QWidget):
         b.addWidget(self.batch_error, 8, 0, 1, 4)
         layout.addWidget(batch)
         self._groups = (rec, batch)
+        session.changed.connect(self._show_dark_hint)
+        self._show_dark_hint()
         layout.setAlignment(Qt.AlignmentFlag.AlignTop)
+
+    def _show_dark_hint(self) -> None:
+        """The batch's dark field says what empty means on this bench (:func:`dark_hint`)."""
+        field = self.batch_fields.get("--dark")
+        if isinstance(field, QLineEdit):
+            field.setPlaceholderText(dark_hint(self.session))
 
     def resizeEvent(self, event) -> None:  # noqa: N802 (Qt's name)
         """The recording and the batch side by side when the dock is wide enough for

@@ -137,6 +137,14 @@ def test_an_unplugged_idle_led_array_turns_red_as_a_stage_does(qapp, wait, emula
     try:
         box = w.devices.boxes["led_array"]
         wait(lambda: "open" in box.state.text(), 20, "the array's first status")
+        # the operator's words: no driver dicts (APT setups) or JSON in the boxes, and
+        # no "auto" dark level that this bench refuses with a PSF sweep
+        for dev_id, b in w.devices.boxes.items():
+            texts = [lab.text() for lab in b.status_labels.values()]
+            texts += [f.text() for n, f in b.fields.items() if n != "lut_rad"]
+            assert not [t for t in texts if "{" in t or "[]" in t or "'" in t], (dev_id, texts)
+        assert "auto" not in w.live.dark.placeholderText()
+        assert "dark run" in w.record.batch_fields["--dark"].placeholderText()
         emulators.emulators["illuminate"].unplug()
         wait(lambda: "DISCONNECTED" in box.state.text(), 20, "the array shown disconnected")
         assert "DISCONNECTED" in w.device_labels["led_array"].text()

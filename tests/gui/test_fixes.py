@@ -56,6 +56,24 @@ def test_library_messages_read_in_the_guis_terms():
     assert "diffuserlab" not in operator_text("run `diffuserlab calibrate resume X`")
 
 
+def test_the_dark_field_says_what_empty_means_on_the_virtual_bench(window):
+    assert "simulated camera's offset" in window.live.dark.placeholderText()
+
+
+def test_status_fields_leave_driver_setups_to_the_log():
+    from gui.device_status import status_fields
+
+    status = {"is_open": True, "positions": {"x": 1.0},
+              "axes_setup": {"x": {"profile": "kdc101", "counts_per_unit": 34554.96}},
+              "controllers": {"sn:27000001": {"port": "/dev/ttyUSB0", "model": "KDC101"}},
+              "warnings": {"x": [], "y": ["FQ"]}, "dropped_frames": 0}
+    fields = dict(status_fields("stage", status))
+    assert "axes setup" not in fields and "controllers" not in fields
+    assert fields["warnings"] == "y FQ" and fields["dropped frames"] == "0"
+    status["warnings"] = {"x": [], "y": []}
+    assert dict(status_fields("stage", status))["warnings"] == "none"
+
+
 def test_exposure_fields_take_units():
     from gui.device_settings import parse_duration_s, parse_value, value_text
     from gui.workers import InputError
