@@ -185,7 +185,7 @@ class MainWindow(QMainWindow):
         quit_action.setShortcut(QKeySequence("Ctrl+Q"))
         quit_action.triggered.connect(self.close)
         menu.addAction(quit_action)
-        acquire = self.menuBar().addMenu("&Acquire")
+        acquire = self.acquire_menu = self.menuBar().addMenu("&Acquire")
         for text, key, slot in (("Start / stop live", "F5", self.live.toggle_stream),
                                 ("Snap a frame", "F6", self.live.snap),
                                 ("Stop all motion", "Esc", self.stop_all_motion)):

@@ -153,18 +153,20 @@ class LogPane(QWidget):
         stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
         level = {logging.WARNING: "warning", logging.ERROR: "error",
                  logging.CRITICAL: "error"}.get(record.levelno, "")
+        if not record.name.startswith("gui"):  # the library's words for code, in the GUI's
+            from .messages import operator_text
+
+            message = operator_text(message)
         if record.exc_info and record.levelno >= logging.ERROR:
             message += " (traceback in the terminal log)"
         line = f"{stamp} {level + ': ' if level else ''}{message}"
         self.lines.append(line)
         if len(self.lines) > MAX_LINES + MAX_LINES // 10:
             del self.lines[:-MAX_LINES]
-        colour = {"warning": "#a06000", "error": "#b00020"}.get(level)
+        # every line with its colour: a plain line after a coloured one took its colour
+        colour = {"warning": "#a06000", "error": "#b00020"}.get(level, "#000000")
         self.text.moveCursor(QTextCursor.MoveOperation.End)
-        if colour:
-            self.text.appendHtml(f'<span style="color:{colour}">{_escape(line)}</span>')
-        else:
-            self.text.appendPlainText(line)
+        self.text.appendHtml(f'<span style="color:{colour}">{_escape(line)}</span>')
 
     def clear(self) -> None:
         self.text.clear()

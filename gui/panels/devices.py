@@ -167,8 +167,8 @@ class DeviceBox(QGroupBox):
         shows the device, never a value it refused), and the message says both."""
         self.refresh_settings(force=(name,))
         held = self.fields[name].text()
-        self.error.setText(f"{self.rows[name].label} {typed!r} refused: {text}\n"
-                           f"The device keeps {self.rows[name].label} {held}.")
+        self.error.setText(f"{self.rows[name].label} {typed!r} refused: {text}; the device "
+                           f"keeps {self.rows[name].label} {held}")
 
     def reconnect(self) -> Job:
         """Close and open the device again, its settings re-applied
