@@ -269,7 +269,13 @@ def test_the_wheel_changes_a_jog_step_only_when_it_has_the_focus(window):
 
     wheel()
     assert step.value() == 1.0
+    window.activateWindow()  # focus is given once the window is active (later under load)
     step.setFocus()
+    from PySide6.QtWidgets import QApplication as _App
+
+    from gui.workers import wait_until
+
+    wait_until(_App.instance(), step.hasFocus, 10, "the jog step's focus")
     wheel()
     assert step.value() != 1.0
     step.setValue(1.0)
@@ -307,7 +313,11 @@ def test_the_wheel_over_the_led_map_scrolls_the_devices_panel(window, qapp):
     wheel()
     assert view.viewRange() == ranges  # no zoom
     assert bar.value() > before  # the panel scrolled
+    window.activateWindow()  # focus is given once the window is active (later under load)
     plot.setFocus()
+    from gui.workers import wait_until
+
+    wait_until(qapp, plot.hasFocus, 10, "the map's focus")
     wheel()
     assert view.viewRange() != ranges  # clicked (focused): the wheel zooms the map
     view.autoRange()
