@@ -36,7 +36,7 @@ def test_a_recording_and_a_batch_log_start_outcome_and_path(window, wait, tmp_pa
         panel.batch_fields[flag].setText(text)
     panel.batch_fields["--method"].setCurrentText("wiener")
     job = panel.start_batch()
-    wait(lambda: job.done, 120, "the batch reconstruction")
+    wait(lambda: job.done, 600, "the batch reconstruction")
     assert panel.batch_result is not None, panel.batch_error.text()
     wait(lambda: "batch reconstruction finished" in _lines_since(pane, n), 10, "the log line")
     log = _lines_since(pane, n)
