@@ -162,6 +162,11 @@ class ArduinoLedArray(LedArray):
                 self._log.debug("%s: clear on close: %s", self.device_id, exc)
         self._link.close()
 
+    def _do_check_connection(self) -> None:
+        """A port whose other end hung up is a disconnected array (seen by the status
+        poll without a command sent)."""
+        self._link.check_hangup()
+
     def _do_get_info(self) -> dict[str, Any]:
         return dict(self._info_cache)
 

@@ -362,7 +362,10 @@ class Device(abc.ABC):
         -------
         dict
             ``device_id``, ``kind``, ``driver``, ``is_open``, ``disconnected`` and,
-            when open, the driver's details (counters, motion state, ...).
+            when open, the driver's details (counters, motion state, ...). The
+            connection is checked first, as before every call (a serial port whose
+            other end hung up): a device gone since the last call is reported
+            ``disconnected`` with the ``error``, whether or not it was talked to.
         """
         out: dict[str, Any] = {
             "device_id": self.device_id,
@@ -372,6 +375,12 @@ class Device(abc.ABC):
             "disconnected": self._disconnected,
         }
         if self._is_open and not self._disconnected:
+            try:  # every device's connection checked as before each call
+                with self._io():
+                    self._do_check_connection()
+            except DeviceDisconnectedError as exc:
+                out.update(disconnected=True, error=str(exc))
+                return jsonable(out)
             with self._io():
                 out.update(self._do_status())
         return jsonable(out)

@@ -188,9 +188,9 @@ class Setting:
         keys = list(info_[self.per])
         if not isinstance(value, Mapping):
             raise device._error(
-                DeviceValueError, f"{self.name}={value!r} is not a mapping of "
-                f"{self.key_name} -> value", f"pass e.g. {{'{keys[0]}': ...}} with "
-                f"{self.key_name}s from {keys}")
+                DeviceValueError, f"{self.name} {value!r} is not one value per "
+                f"{self.key_name}", f"give a value for each {self.key_name} to change "
+                f"({', '.join(keys)}), e.g. {{'{keys[0]}': ...}}")
         out = dict(pending[self.name])
         for key, v in value.items():
             if not isinstance(key, str) or key not in keys:

@@ -283,6 +283,7 @@ class TemplateStage(HostTableStage):
         if not self._link.is_open:
             raise self._error(DeviceDisconnectedError, f"serial port {self._link.path} is "
                               "closed (the device went away)", "call reconnect()")
+        self._link.check_hangup()
 
     # 6. Settings: HostTableStage keeps limits and backlash on the host and calls
     #    this for each velocity that changes; return what the controller took.

@@ -269,6 +269,9 @@ class AptController:
         if not self.link.is_open:
             raise DeviceDisconnectedError(self.device_id, "the APT controller's port is closed",
                                           "call reconnect()")
+        if self.link.hung_up():
+            raise DeviceDisconnectedError(self.device_id, "the APT controller's port hung up "
+                                          "(unplugged or powered off)", "call reconnect()")
 
     # ------------------------------------------------------------------ I/O
     def send(self, msg_id: int, dest: int, param1: int = 0, param2: int = 0,

@@ -37,6 +37,7 @@ import importlib
 import logging
 import os
 import re
+import select
 import stat
 import time
 from collections.abc import Iterable, Sequence
@@ -304,6 +305,34 @@ class SerialLink:
     def is_open(self) -> bool:
         """True while the port is open and no I/O error has been seen."""
         return self._serial is not None
+
+    def hung_up(self) -> bool:
+        """True when the port's other end went away (a yanked USB adapter, an
+        emulator's pty closed): the kernel's hang-up on the open file, seen without a
+        byte exchanged, so a device nobody talks to is seen gone as soon as one that is
+        polled. False on a closed port or where ``poll`` is not available."""
+        ser = self._serial
+        if ser is None or not hasattr(select, "poll"):
+            return False
+        try:
+            fd = ser.fileno()
+        except Exception:  # noqa: BLE001 (a port object without a descriptor)
+            return False
+        poller = select.poll()
+        poller.register(fd, select.POLLHUP | select.POLLERR)
+        return any(ev & (select.POLLHUP | select.POLLERR | select.POLLNVAL)
+                   for _, ev in poller.poll(0))
+
+    def check_hangup(self) -> None:
+        """Close the port and raise when :meth:`hung_up` (nothing when it did not).
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The other end hung up.
+        """
+        if self.hung_up():
+            self._lost(OSError(errno.EIO, "the device hung up (unplugged or powered off)"))
 
     def resolve(self) -> str:
         """The path to open now: ``port``, else the port of ``serial_number``.

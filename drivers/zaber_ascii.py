@@ -262,6 +262,7 @@ class ZaberAsciiStage(HostTableStage):
         if not self._link.is_open:
             raise self._error(DeviceDisconnectedError, f"serial port {self._link.path} is "
                               "closed (the device went away)", "call reconnect()")
+        self._link.check_hangup()
 
     def _send_velocity(self, axis: str, velocity: float) -> None:
         data = max(1, round(velocity / self._step[axis] * 1.6384))

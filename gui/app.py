@@ -32,14 +32,12 @@ from PySide6.QtWidgets import (
     QComboBox,
     QDockWidget,
     QFileDialog,
-    QFrame,
     QLabel,
     QLineEdit,
     QMainWindow,
     QMessageBox,
     QPlainTextEdit,
     QPushButton,
-    QScrollArea,
     QSlider,
     QTextEdit,
 )
@@ -50,6 +48,7 @@ from .device_status import STATE_COLOURS, device_state, status_line
 from .fields import settings
 from .logpane import LogPane, gui_log
 from .memory import configure_allocator
+from .panels.common import PanelScroll
 from .session import Session
 from .workers import settle_heap
 
@@ -144,11 +143,7 @@ class MainWindow(QMainWindow):
             if title in ("Devices", "Live view", "Log"):
                 dock.setWidget(widget)
             else:  # a small screen scrolls a task panel instead of pushing the window off it
-                area = QScrollArea()
-                area.setWidgetResizable(True)
-                area.setFrameShape(QFrame.Shape.NoFrame)
-                area.setWidget(widget)
-                dock.setWidget(area)
+                dock.setWidget(PanelScroll(widget))
             self.docks[title] = dock
         self._default_layout()
         self._menus()
@@ -190,7 +185,7 @@ class MainWindow(QMainWindow):
         quit_action.setShortcut(QKeySequence("Ctrl+Q"))
         quit_action.triggered.connect(self.close)
         menu.addAction(quit_action)
-        acquire = self.menuBar().addMenu("&Acquire")
+        acquire = self.acquire_menu = self.menuBar().addMenu("&Acquire")
         for text, key, slot in (("Start / stop live", "F5", self.live.toggle_stream),
                                 ("Snap a frame", "F6", self.live.snap),
                                 ("Stop all motion", "Esc", self.stop_all_motion)):

@@ -6,8 +6,10 @@ view drops to a few frames a second and looks white), a sweep leaves the stage a
 its last point, the runner's safe state switches the LEDs off, a recording applies
 its frame rate. :func:`capture` notes the camera's settings, every stage's position
 and the LEDs before the run, and :func:`restore` puts back whatever the run changed, also
-when the run was aborted or failed; what could not be put back is returned by
-:func:`restore` and logged, never raised over the run's own outcome.
+when the run was aborted or failed, except the state a run exists to produce
+(:meth:`BenchState.without`: the mask stage a completed alignment aligned); what
+could not be put back is returned by :func:`restore` and logged, never raised over
+the run's own outcome.
 """
 
 from __future__ import annotations
@@ -36,6 +38,14 @@ class BenchState:
     stages: dict[str, dict[str, float]] = field(default_factory=dict)
     leds: dict[str, tuple[dict[int, tuple[str, float]], str | None]] = field(
         default_factory=dict)
+
+    def without(self, device_ids) -> BenchState:
+        """This state less the devices ``device_ids`` (left as they are by
+        :func:`restore`: the state a job exists to produce, e.g. the aligned mask
+        stage)."""
+        drop = set(device_ids)
+        return BenchState(*({k: v for k, v in part.items() if k not in drop}
+                            for part in (self.camera, self.stages, self.leds)))
 
 
 def capture(bench) -> BenchState:

@@ -138,6 +138,17 @@ def array_holders(objects: list | None = None, top: int = 15, *,
     import gc
     from collections import deque
 
+    stacks = sys._current_frames() if threads else {}
+    running: dict[int, FrameType] = {}  # the frames of the running threads' stacks
+    for frame in stacks.values():
+        while frame is not None:
+            running[id(frame)] = frame
+            frame = frame.f_back
+    # a running frame (and the snapshot of its locals) can be among the collector's
+    # objects when something read the stacks before (the watchdog does when the GUI
+    # thread is late): it is named by its thread below, never as a frame kept after
+    # its function, whatever the load
+    skip = set(running) | {id(f.f_locals) for f in running.values()}
     if objects is None:
         objects = gc.get_objects()
     seen: dict[int, tuple[str, int]] = {}
@@ -156,7 +167,7 @@ def array_holders(objects: list | None = None, top: int = 15, *,
 
     containers = (dict, list, tuple, set, frozenset)
     for o in objects:  # objects' attributes first: they name the holder best
-        if isinstance(o, (*containers, type)):
+        if isinstance(o, (*containers, type)) or id(o) in skip:
             continue
         name = type(o).__name__
         if isinstance(o, FrameType):  # a traceback's or a generator's frame
@@ -171,11 +182,11 @@ def array_holders(objects: list | None = None, top: int = 15, *,
         for r in gc.get_referents(o):
             add(r, name)
     for o in objects:
-        if isinstance(o, containers):
+        if isinstance(o, containers) and id(o) not in skip:
             for r in _items(o, values=True):
                 add(r, type(o).__name__)
     names = {t.ident: t.name for t in threading.enumerate()}
-    for ident, frame in (sys._current_frames() if threads else {}).items():
+    for ident, frame in stacks.items():
         while frame is not None:
             for v in frame.f_locals.values():
                 add(v, f"{names.get(ident, ident)}: {frame.f_code.co_name}")

@@ -120,9 +120,36 @@ def limits_text(device, name: str) -> str:
     return type(device).setting(name).limits_text(device.info)
 
 
-def value_text(value: Any, name: str | None = None) -> str:
-    """A setting's value as the panel's text field shows it (JSON for mappings; a time
-    below a second in ms, with its unit)."""
+def _number_text(value: Any) -> str:
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
+
+
+def value_text(value: Any, name: str | None = None, spec=None) -> str:
+    """A setting's value as the panel's text field shows it.
+
+    A time below a second in ms, with its unit; a per-axis (per-key) setting as the
+    operator types it, each key with its value and unit (``"x 0.1 mm, y 0 mm,
+    rotation 0 deg"``; a pair as ``"x -25 to 25 mm"``: :func:`parse_value` reads it
+    back); other mappings and lists as JSON.
+
+    Parameters
+    ----------
+    value : object
+    name : str, optional
+        The setting's name (a name ending in ``_s`` is a time).
+    spec : drivers.settings.Setting, optional
+        Its declaration (the per-key units).
+    """
+    if isinstance(value, dict) and value and all(isinstance(k, str) for k in value) and all(
+            isinstance(v, int | float) or (isinstance(v, list | tuple) and len(v) == 2)
+            for v in value.values()):
+        parts = []
+        for key, v in value.items():
+            unit = spec.unit_of(key) if spec is not None and spec.per is not None else ""
+            number = (f"{_number_text(v[0])} to {_number_text(v[1])}"
+                      if isinstance(v, list | tuple) else _number_text(v))
+            parts.append(f"{key} {number} {unit}".rstrip())
+        return ", ".join(parts)
     if isinstance(value, dict | list | tuple):
         return json.dumps(value)
     if isinstance(value, float):
@@ -130,6 +157,46 @@ def value_text(value: Any, name: str | None = None) -> str:
             return f"{1e3 * value:.6g} ms" if abs(value) < 1.0 else f"{value:.6g} s"
         return f"{value:.6g}"
     return str(value)
+
+
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+#: One key of a per-key value: ``x 0.1 mm``, ``x: 0.1``, ``x = -25 to 25 mm``.
+_KEYED = re.compile(rf"^\s*(\w+)\s*[:=]?\s*({_NUM})(?:\s*(?:to|\.\.)\s*({_NUM}))?"
+                    r"\s*([^\s\d,;]*)\s*$")
+#: One value for every key: ``40``, ``0.5 mm``, ``-25 to 25``.
+_ALL_KEYS = re.compile(rf"^\s*({_NUM})(?:\s*(?:to|\.\.)\s*({_NUM}))?\s*([^\s\d,;]*)\s*$")
+
+
+def _per_key_value(text: str, spec, keys) -> dict[str, Any]:
+    """``"x 0.1 mm, y 0"`` (the keys given), or one value for every key (``"0.1"``)."""
+    from .workers import InputError
+
+    example = f"{keys[0] if keys else 'x'} 0.1, {keys[1] if len(keys) > 1 else 'y'} 0"
+    kind = spec.key_name
+
+    def number(key: str | None, low: str, high: str | None, unit: str) -> Any:
+        want = spec.unit_of(key) if key is not None else ""
+        if unit and key is not None and unit != want:
+            raise InputError(f"{spec.name} of {key}: {unit!r} is not its unit; give it in "
+                             f"{want or 'plain numbers'}")
+        return [float(low), float(high)] if high is not None else float(low)
+
+    whole = _ALL_KEYS.match(text)
+    if whole is not None:
+        if not keys:
+            raise InputError(f"{spec.name}: give a value per {kind}, e.g. {example}")
+        return {k: number(k, whole.group(1), whole.group(2), whole.group(3)) for k in keys}
+    out: dict[str, Any] = {}
+    for part in filter(str.strip, re.split(r"[,;]", text)):
+        m = _KEYED.match(part)
+        if m is None:
+            raise InputError(f"{spec.name} {part.strip()!r}: give a value per {kind}, e.g. "
+                             f"{example} (one number sets every {kind})")
+        if keys and m.group(1) not in keys:
+            raise InputError(f"{spec.name}: there is no {kind} {m.group(1)!r}; the {kind} "
+                             f"names are {', '.join(keys)}")
+        out[m.group(1)] = number(m.group(1), m.group(2), m.group(3), m.group(4))
+    return out
 
 
 #: Time units an operator may type, in seconds.
@@ -159,20 +226,30 @@ def parse_duration_s(text: str, what: str = "exposure") -> float | None:
     return float(m.group(1)) * TIME_UNITS.get(m.group(2) or "s", 1.0)
 
 
-def parse_value(text: str, name: str | None = None, spec=None) -> Any:
+def parse_value(text: str, name: str | None = None, spec=None, keys=None) -> Any:
     """The operator's text as a setting value.
 
     With the setting's declaration ``spec`` (:class:`drivers.settings.Setting`): a
     time with its unit for a setting declared in seconds (``"20 ms"``), a number for a
-    ``float``/``int`` setting, else JSON (lists, mappings), else the text itself (the
-    device interface then names what it expects). Without it, a name ending in ``_s``
-    is taken as a time.
+    ``float``/``int`` setting, per-axis values as :func:`value_text` writes them
+    (``"x 0.1 mm, y 0"``: the axes named; one number for all of ``keys``), else JSON
+    (lists, mappings), else the text itself (the device interface then names what it
+    expects). Without it, a name ending in ``_s`` is taken as a time.
+
+    Parameters
+    ----------
+    text : str
+    name : str, optional
+    spec : drivers.settings.Setting, optional
+    keys : sequence of str, optional
+        The keys of a per-key setting on the open device (its axes).
 
     Raises
     ------
     gui.workers.InputError
         A time setting that is not a time (:func:`parse_duration_s`); a number setting
-        that is not a number (the message names the setting and its limits).
+        that is not a number (the message names the setting and its limits); a per-axis
+        value with an unknown axis or the wrong unit.
     """
     from .workers import InputError
 
@@ -185,6 +262,8 @@ def parse_value(text: str, name: str | None = None, spec=None) -> Any:
         value = json.loads(text)
     except ValueError:
         value = text
+    if spec is not None and spec.per is not None and not isinstance(value, dict):
+        return _per_key_value(text, spec, list(keys or ()))
     if spec is not None and spec.per is None and spec.dtype in ("float", "int") and (
             isinstance(value, bool) or not isinstance(value, int | float)):
         what = "a whole number" if spec.dtype == "int" else "a number"

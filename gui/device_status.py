@@ -3,7 +3,8 @@
 :meth:`drivers.base.Device.status` is a dict for code (``is_open``, ``disconnected``,
 ``positions``, ``dropped_frames``, ...). :func:`device_state` turns it into the state
 the status area shows (open, streaming, moving, disconnected, closed) with its
-colour, :func:`status_fields` into labelled fields for the device's box, and
+colour, :func:`status_fields` into labelled fields for the device's box (a driver's
+nested setup dicts, e.g. the APT controllers' parameters, are left to the log), and
 :func:`status_line` into the short line of the window's permanent status area. The
 camera's exposure comes from its settings (cached by the interface: no device I/O).
 """
@@ -81,7 +82,14 @@ def status_fields(kind: str, status: dict[str, Any],
         if key in _SKIP or value is None:
             continue
         if isinstance(value, dict):
-            value = ", ".join(f"{k} {_number(v)}" for k, v in value.items())
+            if any(isinstance(v, dict) for v in value.values()):
+                continue  # a driver's setup per axis or controller: for code and the log
+            if all(isinstance(v, list | tuple) for v in value.values()):
+                # per-axis flags (a Zaber axis's warnings): the axes that have some
+                value = "; ".join(f"{k} {', '.join(map(str, v))}" for k, v in value.items()
+                                  if v) or "none"
+            else:
+                value = ", ".join(f"{k} {_number(v)}" for k, v in value.items())
         elif isinstance(value, list | tuple):
             value = ", ".join(_number(v) for v in value)
         out.append((key.replace("_", " "), _number(value)))

@@ -16,10 +16,12 @@ from typing import Any
 
 from PySide6.QtCore import QCoreApplication, QEvent, QObject, QSettings, Qt
 from PySide6.QtWidgets import (
+    QAbstractScrollArea,
     QAbstractSpinBox,
     QCheckBox,
     QComboBox,
     QDoubleSpinBox,
+    QGraphicsView,
     QLineEdit,
     QSpinBox,
     QWidget,
@@ -109,21 +111,30 @@ def store_json(key: str, value: Any) -> None:
 
 
 class _WheelNeedsFocus(QObject):
-    """Event filter: a wheel event over an unfocused field goes to its parent (the
-    scroll area behind scrolls) instead of changing the field's value."""
+    """Event filter: a wheel event over an unfocused field (its parent object, or a
+    plot whose viewport is filtered) goes to the field's parent (the scroll area behind
+    scrolls) instead of changing the field's value or zooming the plot."""
 
     def eventFilter(self, obj, event):  # noqa: N802 (Qt's name)
-        if event.type() == QEvent.Type.Wheel and not obj.hasFocus():
-            parent = obj.parentWidget()
-            if parent is not None:
-                QCoreApplication.sendEvent(parent, event)
+        owner = self.parent()
+        if event.type() == QEvent.Type.Wheel and not owner.hasFocus():
+            # to the scroll area behind, directly: an event sent (not spontaneous) is not
+            # passed on from parent to parent as the X server's own is
+            area = owner.parentWidget()
+            while area is not None and not isinstance(area, QAbstractScrollArea):
+                area = area.parentWidget()
+            if area is not None:
+                QCoreApplication.sendEvent(area.viewport(), event)
             return True
         return False
 
 
-def wheel_needs_focus(widget: QAbstractSpinBox | QComboBox) -> QWidget:
+def wheel_needs_focus(widget: QAbstractSpinBox | QComboBox | QGraphicsView) -> QWidget:
     """Let ``widget`` take the mouse wheel only when it has the focus (clicked or tabbed
-    to), so scrolling a panel over it never changes its value."""
+    to), so scrolling a panel over it never changes its value; a plot in a scrolling
+    panel (a :class:`QGraphicsView`, e.g. pyqtgraph's PlotWidget) zooms only once it
+    was clicked."""
     widget.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
-    widget.installEventFilter(_WheelNeedsFocus(widget))
+    target = widget.viewport() if isinstance(widget, QGraphicsView) else widget
+    target.installEventFilter(_WheelNeedsFocus(widget))
     return widget

@@ -40,10 +40,14 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from .logpane import gui_log
 from .workers import Job
 
-__all__ = ["COLORMAPS", "LEVEL_MODES", "FrameView", "image_statistics", "write_snapshot"]
+__all__ = ["COLORMAPS", "LEVEL_MODES", "SNAPSHOT_FOLDER", "FrameView", "image_statistics",
+           "write_snapshot"]
 
+#: Where snapshots go unless the operator chose another folder (created when needed).
+SNAPSHOT_FOLDER = "out/snapshots"
 #: Colormaps offered (pyqtgraph's bundled maps; "grey" is the plain ramp).
 COLORMAPS = ("grey", "viridis", "inferno", "magma", "plasma", "cividis", "turbo")
 #: Automatic level modes: ``{label: (low percentile, high percentile)}``; 0/100 is min/max.
@@ -504,30 +508,48 @@ class FrameView(QWidget):
         return f"{self.name}-{_dt.datetime.now():%Y%m%d-%H%M%S}.tif"
 
     def choose_snapshot(self) -> Job | None:
-        """Ask for a file name, then :meth:`save_snapshot` (the folder is remembered)."""
+        """Take the image shown and its metadata now (the click), then ask for a file
+        name and :meth:`save_snapshot` what was taken: a live view keeps streaming while
+        the dialog is open, and the snapshot is the frame that was on screen at the
+        click. The folder is remembered; the default, ``out/snapshots``, is created (a
+        folder that cannot be made is said under the image, and the dialog opens in the
+        working directory)."""
         from .fields import settings
 
         if self.image is None:
             self.stats.setText("no image to save yet")
             return None
-        folder = str(settings().value("snapshots/folder", "out/snapshots"))
+        taken = (np.array(self.image, copy=True), self.snapshot_metadata())
+        folder = Path(str(settings().value("snapshots/folder", SNAPSHOT_FOLDER)))
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            self.stats.setText(f"snapshot folder {folder} cannot be made ({exc.strerror}); "
+                               f"choose a folder in the dialog")
+            folder = Path.cwd()
         path = QFileDialog.getSaveFileName(self, "save snapshot (TIFF with metadata)",
-                                           str(Path(folder) / self.default_snapshot_name()),
+                                           str(folder / self.default_snapshot_name()),
                                            "TIFF (*.tif *.tiff)")[0]
         if not path:
             return None
         settings().setValue("snapshots/folder", str(Path(path).parent))
-        return self.save_snapshot(path)
+        return self.save_snapshot(path, taken=taken)
 
-    def save_snapshot(self, path: str | Path) -> Job | None:
-        """Write the image shown and :meth:`snapshot_metadata` to ``path`` on a worker
-        (:func:`write_snapshot`); the result or the refusal shows under the image."""
-        if self.image is None:
-            self.stats.setText("no image to save yet")
-            return None
-        image, meta = np.array(self.image, copy=True), self.snapshot_metadata()
+    def save_snapshot(self, path: str | Path,
+                      taken: tuple[np.ndarray, dict[str, Any]] | None = None) -> Job | None:
+        """Write the image shown and :meth:`snapshot_metadata` (or ``taken``: an image
+        and its metadata taken earlier) to ``path`` on a worker (:func:`write_snapshot`);
+        the result or the refusal shows under the image."""
+        if taken is None:
+            if self.image is None:
+                self.stats.setText("no image to save yet")
+                return None
+            taken = (np.array(self.image, copy=True), self.snapshot_metadata())
+        image, meta = taken
         job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot")
         job.succeeded.connect(lambda p: (self.stats.setText(f"snapshot saved: {p}"),
+                                         gui_log.info("snapshot of %s saved: %s",
+                                                      self._title, p),
                                          self.snapshot_saved.emit(str(p))))
         job.failed.connect(lambda text: self.stats.setText(f"snapshot not saved: {text}"))
         self.jobs = [j for j in self.jobs if j.running] + [job]

@@ -166,11 +166,17 @@ def default_run_path(routine: str, folder: str = "out/runs") -> str:
 
 
 @contextmanager
-def _camera(session, user: str, *, sample_out: bool = True):
+def _camera(session, user: str, *, sample_out: bool = True, produces: tuple[str, ...] = ()):
     """Claim the camera for ``user``, and give the bench back as it was: the camera's
     settings, the stages' positions and the LEDs put back (:func:`gui.benchstate.restore`,
     also after an abort or a failure) and the live stream started again if it ran (not
     when the window is closing).
+
+    ``produces``: the devices whose state is the job's result (the mask stage of the
+    mask alignment), left as the job set them when it completes, and put back only
+    when it was aborted or failed (a half-done alignment is no pose to keep); what the
+    job changed only to take its measurement (exposure, LEDs, other stages) is put back
+    either way.
 
     ``sample_out``: on the virtual bench, take the moving scene out of the beam for the
     run (as an operator removes the sample) and put it back."""
@@ -184,13 +190,15 @@ def _camera(session, user: str, *, sample_out: bool = True):
         before = capture(bench)
         if scene is not None:
             bench.set_scene(None)
+        completed = False
         try:
             yield
+            completed = True
         finally:
             if scene is not None:
                 bench.set_scene(scene)
             if not session.closing:  # the window closes: the devices close next
-                restore(bench, before)
+                restore(bench, before.without(produces) if completed else before)
     finally:
         session.release_camera(user, resume_stream=was_streaming and not session.closing)
 
@@ -303,7 +311,8 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
                         "step": entry.get("step")})
 
     bench = session.bench
-    with _camera(session, "the mask alignment"), holography_branch(bench):
+    with _camera(session, "the mask alignment", produces=("mask_stage",)), \
+            holography_branch(bench):
         relay_na = bench.relay_na if session.is_virtual else args.relay_na
         cfg = AlignmentConfig(coarse_range_px=args.coarse_range_px, frames=args.frames,
                               rotation=not args.no_rotation, focus=not args.no_focus,
@@ -430,6 +439,7 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     args = _recon_run_args(run, options)
     store = RunStore.open(args.run)
     frames = parse_frames(args.frames, store.n_frames)
+    job.report({"kind": "start", "total": len(frames), "run": args.run})
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                   psf_product=args.psf_product, dark=args.dark)
     return reconstruct_run_in_process(

@@ -25,7 +25,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-__all__ = ["LogPane", "QtLogHandler", "announce_job", "gui_log", "job_events"]
+__all__ = ["LogPane", "QtLogHandler", "announce_job", "gui_log", "job_ended", "job_events"]
 
 #: The logger of the GUI's own lines (what the operator did and was told).
 gui_log = logging.getLogger("gui.operator")
@@ -47,9 +47,18 @@ class _JobEvents(QObject):
 job_events = _JobEvents()
 
 
-def announce_job(name: str) -> None:
-    """A long job (a run, a recording, a batch, an alignment) starts."""
+def announce_job(name: str, detail: str = "") -> None:
+    """A long job (a run, a recording, a batch, an alignment) starts: a line in the
+    log (``"NAME started: DETAIL"``, e.g. where it writes) and a fresh count of repeated
+    warnings."""
     job_events.started.emit(name)
+    gui_log.info("%s started%s", name, f": {detail}" if detail else "")
+
+
+def job_ended(name: str, outcome: str, *, ok: bool = True) -> None:
+    """A long job ended: its outcome and where its output is (``"NAME OUTCOME"``; a
+    failure or a stop as a warning)."""
+    (gui_log.info if ok else gui_log.warning)("%s %s", name, outcome)
 
 
 class QtLogHandler(logging.Handler):
@@ -122,15 +131,21 @@ class LogPane(QWidget):
         logging.getLogger().removeHandler(self.handler)
 
     def new_job(self, name: str) -> None:
-        """A long job starts: its warnings show once each again."""
+        """A long job starts: its warnings show once each again (:func:`announce_job`
+        writes its line)."""
         self.repeats.clear()
-        gui_log.info("%s started", name)
 
     def add_record(self, record: logging.LogRecord) -> None:
         """Show ``record`` (a repeat of a warning in this job is counted, not shown)."""
         if record.levelno < logging.WARNING and not self.info.isChecked():
             return
-        key = (record.name, str(record.msg))
+        try:
+            message = record.getMessage()
+        except (TypeError, ValueError):
+            message = str(record.msg)
+        # a library's warning repeats with other numbers (its template is the key); the
+        # GUI's own lines ("%s" filled with what happened) are each their own
+        key = (record.name, message if record.name.startswith("gui") else str(record.msg))
         seen = self.repeats.get(key, 0)
         self.repeats[key] = seen + 1
         if seen and record.levelno < logging.ERROR:
@@ -138,22 +153,20 @@ class LogPane(QWidget):
         stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
         level = {logging.WARNING: "warning", logging.ERROR: "error",
                  logging.CRITICAL: "error"}.get(record.levelno, "")
-        try:
-            message = record.getMessage()
-        except (TypeError, ValueError):
-            message = str(record.msg)
+        if not record.name.startswith("gui"):  # the library's words for code, in the GUI's
+            from .messages import operator_text
+
+            message = operator_text(message)
         if record.exc_info and record.levelno >= logging.ERROR:
             message += " (traceback in the terminal log)"
         line = f"{stamp} {level + ': ' if level else ''}{message}"
         self.lines.append(line)
         if len(self.lines) > MAX_LINES + MAX_LINES // 10:
             del self.lines[:-MAX_LINES]
-        colour = {"warning": "#a06000", "error": "#b00020"}.get(level)
+        # every line with its colour: a plain line after a coloured one took its colour
+        colour = {"warning": "#a06000", "error": "#b00020"}.get(level, "#000000")
         self.text.moveCursor(QTextCursor.MoveOperation.End)
-        if colour:
-            self.text.appendHtml(f'<span style="color:{colour}">{_escape(line)}</span>')
-        else:
-            self.text.appendPlainText(line)
+        self.text.appendHtml(f'<span style="color:{colour}">{_escape(line)}</span>')
 
     def clear(self) -> None:
         self.text.clear()

@@ -36,6 +36,8 @@ _RANGES = (
     (re.compile(rf"({_NUMBER}) < (\w+) <= inf"), r"\2 > \1"),
     (re.compile(r"-inf\s*(?:\.\.|to)\s*inf"), "no limit"),
 )
+#: A setting refused by its range, as the device interface words it for code.
+_OUT_OF_RANGE = re.compile(r"\b([a-z_]+(?:\[\w+\])?)=(\S+) is not a number in range")
 _FLAG = re.compile(r"(?<![\w-])--([a-z][a-z0-9-]*)")
 _COMMAND = re.compile(r"`diffuserlab [^`]*`")
 
@@ -64,6 +66,7 @@ def operator_text(text: str, labels: Mapping[str, str] | None = None) -> str:
         out = pattern.sub(repl, out)
     for pattern, repl in _RANGES:
         out = pattern.sub(repl, out)
+    out = _OUT_OF_RANGE.sub(lambda m: f"{m.group(1)} {m.group(2)} is out of range", out)
 
     def flag(m: re.Match) -> str:
         name = labels.get(f"--{m.group(1)}") or m.group(1).replace("-", " ")

@@ -17,7 +17,10 @@ built-in simulated bench, drives each panel into a state worth showing and saves
 * results: the sweep's PSF stack with its depth slider and projections;
 * alignment: a finished record (``--alignment-record``, e.g. from ``diffuserlab
   align mask --simulate``, about 6 minutes), else the panel before a start;
-* log: the log pane with the session's history.
+* log: the log pane with the session's history;
+* details for the operator's guide: presets (the camera's box with saved presets),
+  positions (the source stage's box with stored positions), shortcuts (the Acquire
+  menu open, with its keys).
 """
 
 from __future__ import annotations
@@ -74,6 +77,14 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
     written: list[Path] = []
 
     t0 = time.monotonic()
+
+    def detail(name: str, widget) -> None:
+        """One widget as it is shown (a box of a panel, a menu)."""
+        _settle(app, 0.6)
+        path = out / f"gui-{name}.png"
+        if not widget.grab().save(str(path)):
+            raise RuntimeError(f"could not write {path}")
+        written.append(path)
 
     def shot(name: str, dock: str) -> None:
         log.info("screenshot %s at %.1f s", name, time.monotonic() - t0)
@@ -171,6 +182,45 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         cam_box.fields["exposure_s"].setText(f"{bench.camera.exposure_s:g}")
         job = cam_box.apply("exposure_s")
         wait_until(app, lambda: job.done, 10, "the setting")
+        # presets: the camera's settings saved under names, one applied
+        exposure = bench.camera.exposure_s
+        for name, value in (("dim scene, 40 ms", 0.04), ("bright PSF, 2 ms", 0.002)):
+            job = cam_box.run(bench.camera.apply_settings, {"exposure_s": value})
+            wait_until(app, lambda j=job: j.done, 10, "the exposure")
+            cam_box.save_preset(name)
+        job = cam_box.apply_preset("dim scene, 40 ms")
+        wait_until(app, lambda: job.done, 10, "the preset")
+        cam_box.refresh_settings()
+        cam_box.preset.setCurrentText("dim scene, 40 ms")
+        w.devices.area.ensureWidgetVisible(cam_box, 0, 0)
+        detail("presets", cam_box)
+        job = cam_box.run(bench.camera.apply_settings, {"exposure_s": exposure})
+        wait_until(app, lambda j=job: j.done, 10, "the exposure")
+        cam_box.refresh_settings()
+        # stored positions: the stage at the pinhole and at the sweep's far end
+        stage_box = w.devices.boxes["source_stage"]
+        for name, where in (("pinhole on axis", {"x": 0.0, "y": 0.0, "z": depth}),
+                            ("far end", {"x": 0.0, "y": 0.0, "z": 80.0})):
+            bench.source_stage.move_to(where)
+            job = stage_box.stage.store_position(name)
+            wait_until(app, lambda j=job: j.done, 10, "the stored position")
+        bench.source_stage.move_to({"x": 0.0, "y": 0.0, "z": depth})
+        w.devices.area.ensureWidgetVisible(stage_box, 0, 0)
+        detail("positions", stage_box)
+        # shortcuts: the Acquire menu open
+        w.raise_()
+        w.activateWindow()
+        bar = w.menuBar()
+        w.acquire_menu.popup(bar.mapToGlobal(bar.actionGeometry(
+            w.acquire_menu.menuAction()).bottomLeft()))
+        _settle(app, 0.8)
+        corner = w.mapToGlobal(w.rect().topLeft())
+        image = app.primaryScreen().grabWindow(0, corner.x(), corner.y(), 640, 260)
+        w.acquire_menu.hide()
+        path = out / "gui-shortcuts.png"
+        if not image.save(str(path)):
+            raise RuntimeError(f"could not write {path}")
+        written.append(path)
         shot("calibration", "Calibration")
         shot("live", "Live view")
         # the image tools: ROI statistics, line profile, colormap, pixel readout

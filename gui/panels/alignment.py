@@ -32,7 +32,7 @@ from PySide6.QtWidgets import (
 
 from ..fields import remember, settings, wheel_needs_focus
 from ..jobs import ALIGNMENT_STEPS, run_alignment
-from ..logpane import announce_job
+from ..logpane import announce_job, job_ended
 from ..session import Session
 from ..workers import Job
 from .common import JobProgress, RunControls
@@ -57,6 +57,7 @@ class AlignmentPanel(RunControls, QWidget):
         self.session = session
         self.job: Job | None = None
         self.readings: list[tuple[int, float, str]] = []
+        self._out = ""
         layout = QHBoxLayout(self)
         left = QVBoxLayout()
         form = QGridLayout()
@@ -123,7 +124,7 @@ class AlignmentPanel(RunControls, QWidget):
             for c in range(GRID[1]):
                 cell = QLabel(f"section {r * GRID[1] + c}\n-")
                 cell.setAlignment(Qt.AlignmentFlag.AlignCenter)
-                cell.setMinimumSize(84, 44)
+                cell.setMinimumSize(64, 40)
                 cell.setStyleSheet("border: 1px solid #999; background: #f4f4f4;")
                 self.section_grid.addWidget(cell, r, c)
                 self.cells.append(cell)
@@ -162,7 +163,8 @@ class AlignmentPanel(RunControls, QWidget):
         for label in self.step_labels.values():
             label.setText("waiting")
         self.message.setText(f"aligning; record {out}")
-        announce_job("mask alignment")
+        announce_job("mask alignment", f"record {out}")
+        self._out = out
         self.progress.start(self.expected_readings(), note="about")
         self.job = Job(run_alignment, self.session, out, self._new_control(),
                        mask_seed=self.seed.text(), frames=self.frames.value(),
@@ -263,16 +265,23 @@ class AlignmentPanel(RunControls, QWidget):
         s = report.get("summary", {})
         passed = report["steps"]["verify"]["passed"]
         t = s.get("translation_px", (0.0, 0.0))
-        self.message.setText(
-            f"completed ({'passed' if passed else 'NOT passed'}): translation "
-            f"{t[0]:+.3f}, {t[1]:+.3f} mask px, rotation {s.get('theta_rad', 0.0) * 1e3:+.3f} "
-            f"mrad, {s.get('captures')} frames")
+        text = (f"completed ({'passed' if passed else 'NOT passed'}): translation "
+                f"{t[0]:+.3f}, {t[1]:+.3f} mask px, rotation "
+                f"{s.get('theta_rad', 0.0) * 1e3:+.3f} mrad, {s.get('captures')} frames")
+        self.message.setText(text)
+        pose = s.get("stage_pose") or {}
+        where = ", ".join(f"{a} {v:+.4f} {'mm' if a in ('x', 'y', 'z') else 'deg'}"
+                          for a, v in pose.items())
+        job_ended("mask alignment", f"{text}; the mask stage stays at {where or 'its pose'}; "
+                  f"record {self._out}", ok=passed)
 
     def on_failed(self, text: str) -> None:
         self._set_running(False)
         self.progress.finish("")
         self.message.setText(f"alignment stopped: {text}\nThe record keeps every reading "
                              "taken; start a new alignment to try again.")
+        job_ended("mask alignment", f"stopped: {text}; the mask stage is back where it was; "
+                  f"record {self._out} keeps every reading", ok=False)
         for label in self.step_labels.values():
             if label.text() == "running":
                 label.setText("stopped")

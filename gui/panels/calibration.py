@@ -155,10 +155,10 @@ class CalibrationPanel(RunControls, QWidget):
                 out[flag] = w.text().strip()
         return out
 
-    def _launch(self, fn, total: int = 0) -> Job:
+    def _launch(self, fn, total: int = 0, detail: str = "") -> Job:
         self.events = []
         self.result = None
-        announce_job("calibration run")
+        announce_job("calibration run", detail)
         self.job = Job(fn, self._new_control(), name="calibration")
         self.job.progress.connect(self.on_event)
         self.job.succeeded.connect(self.on_result)
@@ -191,17 +191,19 @@ class CalibrationPanel(RunControls, QWidget):
         self.last_path = path
         total = sum(len(p.tags) for p in plan.points())
         self.light_frames = any(t != "dark" for p in plan.points() for t in p.tags)
-        self._say(f"running {routine} into {path}")
+        self.status.setText(f"running {routine} into {path}")
         return self._launch(lambda job, control: run_plan(job, self.session, plan, path,
-                                                          control), total)
+                                                          control), total,
+                            f"{routine}, {total} frames into {path}")
 
     def resume(self) -> Job | None:
         """Resume the last run (:meth:`instrument.runner.Runner.resume`)."""
         path = self.last_path
         if path is None:
             return None
-        self._say(f"resuming {path}")
-        return self._launch(lambda job, control: resume_plan(job, self.session, path, control))
+        self.status.setText(f"resuming {path}")
+        return self._launch(lambda job, control: resume_plan(job, self.session, path, control),
+                            detail=f"resuming {path}")
 
     # -- results -------------------------------------------------------------------------
     def _say(self, text: str, *, error: bool = False) -> None:
@@ -232,15 +234,15 @@ class CalibrationPanel(RunControls, QWidget):
         self._set_running(False)
         self.progress.finish()
         if result.status == "complete":
-            self._say(f"complete: {result.path}; the camera, stages and LEDs are as before "
-                      "the run")
+            self._say(f"calibration run complete: {result.path}; the camera, stages and LEDs "
+                      "are as before the run")
             return
         where = (f"at point {result.points_done + 1} of {result.points_total}"
                  if result.points_done < result.points_total else
                  f"after all {result.points_total} points (computing the products)")
         pending = "".join(f"\nnot resuming? then first: {a}" for a in result.pending_actions)
         error = operator_text(str(result.error), self.labels)
-        self._say(f"{result.status} {where}: {error}\nThe data so far is kept in "
+        self._say(f"calibration run {result.status} {where}: {error}\nThe data so far is kept in "
                   f"{result.path}; press Resume run to go on from there{pending}", error=True)
 
     def on_failed(self, text: str) -> None:

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import time
 
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import QEvent, QTimer
 from PySide6.QtWidgets import (
     QComboBox,
+    QFrame,
     QHBoxLayout,
     QLabel,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QWidget,
 )
 
@@ -20,7 +22,8 @@ from ..imageview import FrameView
 from ..logpane import gui_log
 from ..workers import Job
 
-__all__ = ["ErrorLabel", "FrameView", "JobProgress", "RunControls", "depth_field",
+__all__ = ["ErrorLabel", "FrameView", "JobProgress", "PanelScroll", "RunControls", "dark_hint",
+           "depth_field",
            "error_label", "eta_text", "offer_depths"]
 
 
@@ -39,9 +42,61 @@ class ErrorLabel(QLabel):
         super().setText(text)
 
 
+class PanelScroll(QScrollArea):
+    """A task panel in its dock: the panel fills the dock, and scrolls only when the
+    dock is smaller than the panel's *minimum* (a laptop screen).
+
+    Qt's resizable scroll area sizes a panel with word-wrapped labels by its height
+    for the width, computed from the *preferred* sizes: an image view that prefers 480
+    px once it shows a frame made the Calibration panel taller than its dock after the
+    first run, and Start, Pause, Abort and the progress bar needed a scroll. Here the
+    panel is as tall as the dock, or its minimum height for the width when that is more.
+    """
+
+    def __init__(self, panel: QWidget, parent=None) -> None:
+        super().__init__(parent)
+        self.setFrameShape(QFrame.Shape.NoFrame)
+        self.setWidgetResizable(False)
+        self.setWidget(panel)
+        panel.installEventFilter(self)
+
+    def fit(self) -> None:
+        """Size the panel to the viewport (at least its minimum for the width)."""
+        panel, port = self.widget(), self.viewport().size()
+        if panel is None:
+            return
+        layout = panel.layout()
+        width = max(port.width(), panel.minimumSizeHint().width())
+        low = (layout.totalMinimumHeightForWidth(width) if layout is not None
+               and layout.hasHeightForWidth() else panel.minimumSizeHint().height())
+        height = max(port.height(), low)
+        if panel.size().toTuple() != (width, height):
+            panel.resize(width, height)
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt's name)
+        super().resizeEvent(event)
+        self.fit()
+
+    def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
+        if obj is self.widget() and event.type() == QEvent.Type.LayoutRequest:
+            QTimer.singleShot(0, self.fit)
+        return False
+
+
 def error_label() -> ErrorLabel:
     """A wrapped, red label for the messages of refused actions (:class:`ErrorLabel`)."""
     return ErrorLabel()
+
+
+def dark_hint(session) -> str:
+    """What an empty dark-level field means on this session's bench (its placeholder).
+
+    The virtual bench knows its camera's dark offset; on a real (or emulated) bench an
+    empty field estimates the level from a single PSF image's corner, and a calibrated
+    PSF stack (a PSF sweep) needs the level given: "auto" there was refused."""
+    if session.simulate or session.is_virtual:
+        return "auto: the simulated camera's offset"
+    return "DN or dark run; needed with a PSF sweep"
 
 
 def depth_field(name: str) -> QComboBox:
@@ -115,7 +170,8 @@ class JobProgress(QWidget):
         self.bar.setFormat(f"%v / %m {unit} (%p %)")
         layout.addWidget(self.bar, 3)
         self.label = QLabel("")
-        self.label.setMinimumWidth(230)
+        self.label.setMinimumWidth(160)
+        self.label.setWordWrap(True)  # a narrow dock wraps the ETA and note
         layout.addWidget(self.label, 2)
         self.timer = QTimer(self)
         self.timer.timeout.connect(self.tick)

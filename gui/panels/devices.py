@@ -89,7 +89,7 @@ class DeviceBox(QGroupBox):
         self.limit_labels: dict[str, QLabel] = {}
         values = device.setting_values()
         for name, spec in self.rows.items():
-            edit = QLineEdit(value_text(values.get(name), name))
+            edit = QLineEdit(value_text(values.get(name), name, spec.spec))
             edit.setCursorPosition(0)
             edit.setObjectName(f"{device.device_id}.{name}")
             edit.setToolTip(spec.tooltip)
@@ -149,15 +149,26 @@ class DeviceBox(QGroupBox):
         """Apply the text of setting ``name`` through the device interface (a time
         takes its unit: ``20 ms``)."""
         edit = self.fields[name]
+        spec = self.rows[name].spec
+        typed = edit.text().strip()
         try:
-            value = parse_value(edit.text(), name, self.rows[name].spec)
+            value = parse_value(typed, name, spec,
+                                self.device.info.get(spec.per) if spec.per else None)
         except ValueError as exc:
             self.error.setText(readable_error(exc))
             return None
         edit.setModified(False)
         return self.run(self.device.apply_settings, {name: value},
                         done=lambda _: self.refresh_settings(),
-                        failed=lambda _: edit.setModified(True))  # the refused text stays
+                        failed=lambda text: self._refused(name, typed, text))
+
+    def _refused(self, name: str, typed: str, text: str) -> None:
+        """A refused value: the field goes back to what the device holds (the field
+        shows the device, never a value it refused), and the message says both."""
+        self.refresh_settings(force=(name,))
+        held = self.fields[name].text()
+        self.error.setText(f"{self.rows[name].label} {typed!r} refused: {text}; the device "
+                           f"keeps {self.rows[name].label} {held}")
 
     def reconnect(self) -> Job:
         """Close and open the device again, its settings re-applied
@@ -165,9 +176,10 @@ class DeviceBox(QGroupBox):
         self.state.setText("reconnecting ...")
         return self.run(self.device.reconnect, done=lambda _: self.refresh_settings())
 
-    def refresh_settings(self) -> None:
-        """Show the device's current settings (fields being edited are left alone; a
-        device that went away meanwhile is left as shown: its state says so)."""
+    def refresh_settings(self, force: tuple[str, ...] = ()) -> None:
+        """Show the device's current settings (fields being edited are left alone,
+        except those named in ``force``; a device that went away meanwhile is left as
+        shown: its state says so)."""
         from drivers.errors import DeviceError
 
         try:
@@ -175,8 +187,9 @@ class DeviceBox(QGroupBox):
         except DeviceError:
             return
         for name, edit in self.fields.items():
-            if not edit.hasFocus() and not edit.isModified():
-                edit.setText(value_text(values.get(name), name))
+            if name in force or (not edit.hasFocus() and not edit.isModified()):
+                edit.setText(value_text(values.get(name), name, self.rows[name].spec))
+                edit.setModified(False)
                 edit.setCursorPosition(0)
 
     def show_status(self, status: dict) -> None:
@@ -289,6 +302,8 @@ class DeviceBox(QGroupBox):
         self.led_plot.setLabel("bottom", "x", units="mm")
         self.led_plot.setLabel("left", "y", units="mm")
         self.led_plot.setTitle("LEDs (click one to light it alone)")
+        # the wheel scrolls the Devices panel; it zooms the map once the map is clicked
+        wheel_needs_focus(self.led_plot)
         self.led_points = pg.ScatterPlotItem(pos[:, 0], pos[:, 1], size=9,
                                              data=np.arange(len(pos)))
         self.led_points.sigClicked.connect(self._led_clicked)

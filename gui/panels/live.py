@@ -38,7 +38,7 @@ from recon.options import LiveOptions, ReconOptions
 from ..fields import remember, wheel_needs_focus
 from ..session import Session
 from ..workers import InputError, Job, readable_error
-from .common import FrameView, depth_field, error_label, offer_depths
+from .common import FrameView, dark_hint, depth_field, error_label, offer_depths
 
 __all__ = ["LivePanel", "STALE_S"]
 
@@ -99,7 +99,11 @@ class LivePanel(QWidget):
         controls.addWidget(self.depth, 1, 2)
         controls.addWidget(QLabel("dark (DN or dark run):"), 1, 3)
         self.dark = remember(QLineEdit(), "live/dark")
-        self.dark.setPlaceholderText(ReconOptions.defaults()["dark"])
+        self.dark.setPlaceholderText(dark_hint(session))
+        self.dark.setToolTip("the frames' dark level: a number in DN or a dark run (calibrate "
+                             "dark); empty on the virtual bench: its camera's offset, on a real "
+                             "bench: estimated from a single PSF image's corner (a PSF sweep "
+                             "needs it given)")
         controls.addWidget(self.dark, 1, 4)
         controls.addWidget(QLabel("method:"), 2, 1)
         self.method = QComboBox()
@@ -192,6 +196,7 @@ class LivePanel(QWidget):
         self.recon_button.setEnabled(self.session.connected)
         if not self.session.connected and self.live is not None:
             self.stop_reconstruction()
+        self.dark.setPlaceholderText(dark_hint(self.session))
 
     def toggle_stream(self) -> Job | None:
         """Start or stop the camera's stream (on a worker)."""
@@ -286,6 +291,11 @@ class LivePanel(QWidget):
         self.recon_button.setText("Stop reconstruction" if self.live else
                                   "Start reconstruction")
         if self.live is not None:
+            from ..logpane import job_ended
+
+            job_ended("live reconstruction", f"started: {self.method.currentText()} on "
+                      f"{label}, PSF {self._live_settings['psf']}"
+                      + ("" if depth is None else f", plane z = {depth:g} mm"))
             self.psf_chosen.emit(self._live_settings["psf"],
                                  "" if depth is None else f"{depth:g}")
 
@@ -294,6 +304,9 @@ class LivePanel(QWidget):
         self.session.remove_consumer(CONSUMER)
         live, self.live = self.live, None
         if live is not None:
+            from ..logpane import gui_log
+
+            gui_log.info("live reconstruction stopped")
             job = Job(lambda job: live.stop(timeout_s=10.0), name="stop-live")
             job.failed.connect(self.error.setText)
             self.job = job.start()

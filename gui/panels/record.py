@@ -15,17 +15,18 @@ from __future__ import annotations
 
 import datetime as _dt
 import threading
+import time
 from pathlib import Path
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
+    QBoxLayout,
     QComboBox,
     QGridLayout,
     QGroupBox,
     QLabel,
     QLineEdit,
     QPushButton,
-    QVBoxLayout,
     QWidget,
 )
 
@@ -33,10 +34,10 @@ from recon.options import ReconOptions
 
 from ..device_settings import parse_duration_s
 from ..fields import remember, wheel_needs_focus
-from ..logpane import announce_job
+from ..logpane import announce_job, job_ended
 from ..session import Session
 from ..workers import InputError, Job
-from .common import JobProgress, depth_field, error_label, offer_depths
+from .common import JobProgress, dark_hint, depth_field, error_label, offer_depths
 
 __all__ = ["RecordPanel"]
 
@@ -102,7 +103,9 @@ class RecordPanel(QWidget):
         self.summary: dict | None = None
         self.batch_result: dict | None = None
         self._carried: tuple[str, str] = ("", "")
-        layout = QVBoxLayout(self)
+        self._rate_from: tuple[float, int] | None = None  # (time, frames) of the first
+        layout = self._columns = QBoxLayout(QBoxLayout.Direction.TopToBottom, self)
+        layout.setContentsMargins(4, 4, 4, 4)
         rec = QGroupBox("record a video")
         g = QGridLayout(rec)
         g.addWidget(QLabel("run store:"), 0, 0)
@@ -183,7 +186,29 @@ class RecordPanel(QWidget):
         self.batch_error = error_label()
         b.addWidget(self.batch_error, 8, 0, 1, 4)
         layout.addWidget(batch)
-        layout.addStretch(1)
+        self._groups = (rec, batch)
+        session.changed.connect(self._show_dark_hint)
+        self._show_dark_hint()
+        layout.setAlignment(Qt.AlignmentFlag.AlignTop)
+
+    def _show_dark_hint(self) -> None:
+        """The batch's dark field says what empty means on this bench (:func:`dark_hint`)."""
+        field = self.batch_fields.get("--dark")
+        if isinstance(field, QLineEdit):
+            field.setPlaceholderText(dark_hint(self.session))
+
+    def resizeEvent(self, event) -> None:  # noqa: N802 (Qt's name)
+        """The recording and the batch side by side when the dock is wide enough for
+        both (a 1600 x 1000 screen: both fit its height then), else one above the
+        other (a laptop's narrow dock scrolls)."""
+        super().resizeEvent(event)
+        margins = self._columns.contentsMargins()
+        need = (sum(g.minimumSizeHint().width() for g in self._groups)
+                + self._columns.spacing() + margins.left() + margins.right())
+        direction = (QBoxLayout.Direction.LeftToRight if event.size().width() >= need
+                     else QBoxLayout.Direction.TopToBottom)
+        if self._columns.direction() != direction:
+            self._columns.setDirection(direction)
 
     # -- state ---------------------------------------------------------------------------
     @property
@@ -243,7 +268,9 @@ class RecordPanel(QWidget):
         tap = _LiveTap(self.session, getattr(self.live_panel, "live", None))
         self.record_progress.start(frames or 0)
         self.counters.setText("starting the recording ...")
-        announce_job("recording")
+        length = (f"{frames} frames" if frames else f"{seconds:g} s" if seconds
+                  else "until stopped")
+        announce_job("recording", f"{length} into {out}")
         self.record_job = Job(record, self.session, out, self.stop_event, frames=frames,
                               seconds=seconds, fps=fps, exposure_s=exposure_s, tap=tap,
                               name="record-video")
@@ -280,6 +307,7 @@ class RecordPanel(QWidget):
             f"({summary.get('fps', 0):.1f} fps); "
             + ("no frame lost" if not lost else f"{lost} frame(s) lost (see runs show)"))
         self.run_path.setText(summary["path"])
+        job_ended("recording", self.counters.text(), ok=not lost)
 
     def on_record_failed(self, text: str, out: str = "") -> None:
         from instrument.runstore import is_run_store
@@ -290,6 +318,8 @@ class RecordPanel(QWidget):
             self.last_run = out
             self.counters.setText(f"stopped: the frames recorded so far are kept in {out}")
             self.record_error.setText(f"recording stopped: {text}")
+            job_ended("recording", f"stopped: the frames recorded so far are kept in {out}",
+                      ok=False)
         else:
             self.counters.setText("not recording")
             self.record_error.setText(f"recording not started: {text}")
@@ -319,7 +349,9 @@ class RecordPanel(QWidget):
                    for flag, w in self.batch_fields.items()}
         self.batch_progress.start(0)
         self.batch_status.setText(f"reconstructing {run} ...")
-        announce_job("batch reconstruction")
+        announce_job("batch reconstruction",
+                     f"{run} with {options.get('--method') or 'the default method'}")
+        self._rate_from = None
 
         def reconstruct(job: Job):
             try:
@@ -337,9 +369,24 @@ class RecordPanel(QWidget):
         return self.batch_job.start()
 
     def on_batch_progress(self, p: dict) -> None:
-        remaining = int(p["total"]) - int(p["done"])
-        eta = remaining / p["fps"] if p.get("fps") else None
-        self.batch_progress.report(int(p["done"]), int(p["total"]), eta_s=eta)
+        """A batch's progress: ``{"kind": "start", "total"}`` before the workers start,
+        then one report per frame stored. The ETA is the rate since the first frame
+        (the workers' start and the first frame's compilation left out), from the
+        first frame's own rate until a second one is in."""
+        if p.get("kind") == "start":
+            self.batch_progress.report(0, int(p["total"]), note="starting the workers")
+            self.batch_status.setText(f"reconstructing {p['total']} frames of {p['run']}: "
+                                      "starting the workers; the ETA follows the first frame")
+            return
+        done, total = int(p["done"]), int(p["total"])
+        now = time.monotonic()
+        if self._rate_from is None:
+            self._rate_from = (now, done)
+            eta = (total - done) / p["fps"] if p.get("fps") else None
+        else:
+            t0, d0 = self._rate_from
+            eta = (total - done) * (now - t0) / (done - d0) if done > d0 else None
+        self.batch_progress.report(done, total, eta_s=eta, note="")
         self.batch_status.setText(f"{p['done']} of {p['total']} frames ({p['skipped']} done "
                                   f"before), {p['fps']:.2f} frames/s")
 
@@ -351,17 +398,22 @@ class RecordPanel(QWidget):
             self.batch_status.setText(
                 f"cancelled: {result['reconstructed']} frames reconstructed and kept in "
                 f"{result['product']}; press Reconstruct run again to finish")
+            job_ended("batch reconstruction", self.batch_status.text() + f" (run {run})",
+                      ok=False)
             return
         self.batch_status.setText(
             f"{result['product']}: {result['reconstructed']} frames reconstructed, "
             f"{result['skipped']} already done, {result['seconds']:.1f} s "
             f"({result['fps']:.2f} frames/s, {result['workers'] or 0} workers)")
+        job_ended("batch reconstruction", f"finished: product {result['product']} of {run}, "
+                  f"{result['reconstructed']} frames in {result['seconds']:.1f} s")
         self.result_ready.emit(run, result["product"])
 
     def on_batch_failed(self, text: str) -> None:
         self.batch_button.setText("Reconstruct run")
         self.batch_progress.finish("")
         self.batch_error.setText(text)
+        job_ended("batch reconstruction", f"failed: {text}", ok=False)
 
     def cancel(self) -> None:
         """Stop a recording and cancel a batch reconstruction (window closing)."""

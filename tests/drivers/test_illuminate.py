@@ -114,3 +114,18 @@ def test_unplug_then_reconnect_restores_leds(emulator):
         assert arr.brightness == 0.5 and arr.pattern == "dpc_left"
         assert set(emulator.lit()) == set(idx.tolist())
         assert set(emulator.lit().values()) == {(0, 128, 0)}
+
+
+def test_an_unplugged_array_shows_disconnected_in_its_status_without_a_command(emulator):
+    """Nobody talks to an idle LED array: its status sees the port's hang-up as a
+    polled stage's does (it said "open" for over a minute)."""
+    with make_array(emulator) as arr:
+        assert arr.status()["disconnected"] is False
+        emulator.unplug()
+        status = arr.status()
+        assert status["disconnected"] is True and "hung up" in status["error"]
+        with pytest.raises(DeviceDisconnectedError):
+            arr.all_off()
+        emulator.replug()
+        arr.reconnect()
+        assert arr.status()["disconnected"] is False

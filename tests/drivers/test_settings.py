@@ -108,8 +108,9 @@ def test_messages_name_the_setting_the_key_and_the_fix():
         with pytest.raises(DeviceValueError, match=r"velocity\[z\]=1000.0 is not a number in "
                            r"range.*Fix: use a finite number with 0 < velocity\[z\] <= 50"):
             stage.velocity = {"z": 1000.0}
-        with pytest.raises(DeviceValueError, match=r"not a mapping of axis -> value.*Fix: "
-                           r"pass e.g. \{'x': \.\.\.\}"):
+        with pytest.raises(DeviceValueError, match=r"velocity 2.0 is not one value per axis"
+                           r".*Fix: give a value for each axis to change \(x, y, z\), "
+                           r"e.g. \{'x': \.\.\.\}"):
             stage.velocity = 2.0
         with pytest.raises(DeviceValueError, match=r"unknown axis 'w'.*\['x', 'y', 'z'\]"):
             stage.backlash = {"w": 0.1}

@@ -116,3 +116,42 @@ def test_values_are_parsed_by_the_declared_type():
     with pytest.raises(InputError, match=r"gain 'loud' is not a number: give a number in dB"):
         parse_value("loud", "gain", gain)
     assert parse_value('{"x": 2}', "velocity", SimulatedStage.setting("velocity")) == {"x": 2}
+
+
+def test_per_axis_fields_read_as_words_with_units(qapp):
+    with SimulatedStage("stage") as stage:
+        box = _box(stage)
+        try:
+            assert box.fields["limits"].text() == ("x -25 to 25 mm, y -25 to 25 mm, "
+                                                   "z 0 to 50 mm")
+            assert box.fields["backlash"].text() == "x 0 mm, y 0 mm, z 0 mm"
+            assert box.fields["velocity"].text() == "x 5 mm/s, y 5 mm/s, z 5 mm/s"
+            assert "{" not in box.limit_labels["limits"].text()
+        finally:
+            box.deleteLater()
+
+
+def test_a_refused_value_leaves_the_field_showing_what_the_device_holds(qapp, wait):
+    """Backlash 400 mm (beyond 50) is refused: the field goes back to the device's 0,
+    and the message says what was refused and what the device keeps; one number sets
+    every axis."""
+    with SimulatedStage("stage") as stage:
+        box = _box(stage)
+        try:
+            field = box.fields["backlash"]
+            field.setText("400")
+            field.setModified(True)
+            job = box.apply("backlash")
+            wait(lambda: job.done, 10, "the refusal")
+            assert stage.backlash == {"x": 0.0, "y": 0.0, "z": 0.0}
+            assert field.text() == "x 0 mm, y 0 mm, z 0 mm"
+            assert not field.isModified()
+            assert "'400' refused" in box.error.text()
+            assert "keeps backlash x 0 mm" in box.error.text()
+            field.setText("x 0.2 mm, z 0.1")
+            job = box.apply("backlash")
+            wait(lambda: job.done, 10, "the change")
+            assert stage.backlash == {"x": 0.2, "y": 0.0, "z": 0.1}
+            assert field.text() == "x 0.2 mm, y 0 mm, z 0.1 mm" and box.error.text() == ""
+        finally:
+            box.deleteLater()

@@ -56,6 +56,24 @@ def test_library_messages_read_in_the_guis_terms():
     assert "diffuserlab" not in operator_text("run `diffuserlab calibrate resume X`")
 
 
+def test_the_dark_field_says_what_empty_means_on_the_virtual_bench(window):
+    assert "simulated camera's offset" in window.live.dark.placeholderText()
+
+
+def test_status_fields_leave_driver_setups_to_the_log():
+    from gui.device_status import status_fields
+
+    status = {"is_open": True, "positions": {"x": 1.0},
+              "axes_setup": {"x": {"profile": "kdc101", "counts_per_unit": 34554.96}},
+              "controllers": {"sn:27000001": {"port": "/dev/ttyUSB0", "model": "KDC101"}},
+              "warnings": {"x": [], "y": ["FQ"]}, "dropped_frames": 0}
+    fields = dict(status_fields("stage", status))
+    assert "axes setup" not in fields and "controllers" not in fields
+    assert fields["warnings"] == "y FQ" and fields["dropped frames"] == "0"
+    status["warnings"] = {"x": [], "y": []}
+    assert dict(status_fields("stage", status))["warnings"] == "none"
+
+
 def test_exposure_fields_take_units():
     from gui.device_settings import parse_duration_s, parse_value, value_text
     from gui.workers import InputError
@@ -251,10 +269,58 @@ def test_the_wheel_changes_a_jog_step_only_when_it_has_the_focus(window):
 
     wheel()
     assert step.value() == 1.0
+    window.activateWindow()  # focus is given once the window is active (later under load)
     step.setFocus()
+    from PySide6.QtWidgets import QApplication as _App
+
+    from gui.workers import wait_until
+
+    wait_until(_App.instance(), step.hasFocus, 10, "the jog step's focus")
     wheel()
     assert step.value() != 1.0
     step.setValue(1.0)
+
+
+def test_the_wheel_over_the_led_map_scrolls_the_devices_panel(window, qapp):
+    """Scrolling the Devices panel over the LED map scrolled nothing and zoomed the map
+    out (to "y (kmm)"); the map zooms only once it was clicked."""
+    from PySide6.QtWidgets import QApplication
+
+    panel = window.devices
+    box = panel.boxes["led_array"]
+    plot = box.led_plot
+    port = plot.viewport()
+    bar = panel.area.verticalScrollBar()
+    for _ in range(50):  # the panel laid out (the map's size settles)
+        qapp.processEvents()
+    panel.area.ensureWidgetVisible(plot, 0, 0)
+    bar.setValue(min(bar.value(), bar.maximum() - 50))
+    qapp.processEvents()
+    plot.clearFocus()
+    view = plot.getViewBox()
+    view.disableAutoRange()
+    ranges = view.viewRange()
+    before = bar.value()
+
+    def wheel() -> None:
+        centre = QPointF(port.width() / 2, port.height() / 2)
+        QApplication.sendEvent(port, QWheelEvent(
+            centre, QPointF(port.mapToGlobal(centre.toPoint())), QPoint(0, 0),
+            QPoint(0, -120 * 3), Qt.MouseButton.NoButton, Qt.KeyboardModifier.NoModifier,
+            Qt.ScrollPhase.NoScrollPhase, False))
+        qapp.processEvents()
+
+    wheel()
+    assert view.viewRange() == ranges  # no zoom
+    assert bar.value() > before  # the panel scrolled
+    window.activateWindow()  # focus is given once the window is active (later under load)
+    plot.setFocus()
+    from gui.workers import wait_until
+
+    wait_until(qapp, plot.hasFocus, 10, "the map's focus")
+    wheel()
+    assert view.viewRange() != ranges  # clicked (focused): the wheel zooms the map
+    view.autoRange()
 
 
 def test_enter_in_a_go_to_field_moves(window, wait):

@@ -19,6 +19,8 @@ import pytest
 
 PANELS = ("devices", "live", "calibration", "alignment", "record", "results", "window",
           "tools", "disconnected", "log")
+#: Details for the operator's guide: a device's box, the Acquire menu.
+DETAILS = ("presets", "positions", "shortcuts")
 
 
 def test_every_panel_renders_in_a_real_window(tmp_path):
@@ -45,6 +47,11 @@ def test_every_panel_renders_in_a_real_window(tmp_path):
         # drawn: widgets and plots, not one flat colour
         assert float(image.std()) > 20, name
         assert len(np.unique(image.reshape(-1, 3), axis=0)) > 50, name
+    for name in DETAILS:
+        image = cv2.imread(str(out / f"gui-{name}.png"))
+        assert image is not None, f"gui-{name}.png was not written"
+        assert image.shape[0] >= 150 and image.shape[1] >= 300, (name, image.shape)
+        assert float(image.std()) > 20, name
 
 
 @pytest.fixture(autouse=True)

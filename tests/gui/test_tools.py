@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -428,3 +429,29 @@ def test_led_clicks_do_not_pile_up_references(window, wait):
         QTest.qWait(50)
     gc.collect()
     assert (sys.getrefcount(None) - before) / 10 < 200
+
+
+def test_snapshot_saves_the_frame_on_screen_at_the_click(view, wait, tmp_path, monkeypatch):
+    """The live view keeps streaming while the Save dialog is open: the file holds the
+    image shown at the click, not the one shown when the dialog closes; the dialog
+    opens in out/snapshots, made if it did not exist."""
+    import tifffile
+    from PySide6.QtWidgets import QFileDialog
+
+    monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(tmp_path / "gui.ini"))
+    monkeypatch.chdir(tmp_path)
+    v, image = view
+    offered = []
+
+    def dialog(parent, title, start, filters):
+        offered.append(start)
+        for k in range(2, 6):  # frames arrive while the operator types a name
+            v.setImage(image * k)
+        return str(tmp_path / "clicked.tif"), filters
+
+    monkeypatch.setattr(QFileDialog, "getSaveFileName", staticmethod(dialog))
+    job = v.choose_snapshot()
+    wait(lambda: job.done, 10, "the snapshot")
+    assert np.array_equal(tifffile.imread(tmp_path / "clicked.tif"), image)
+    folder = tmp_path / "out" / "snapshots"
+    assert folder.is_dir() and offered[0].startswith(str(Path("out") / "snapshots"))

@@ -68,7 +68,7 @@ def test_same_volume_as_recon3d_writes(beads, tmp_path, capsys):
 @pytest.mark.parametrize("kwargs, message", [
     ({"method": "gd"}, "unknown method"),
     ({"iterations": 0}, "iterations"),
-    ({"tv": -1.0}, "--tv"),
+    ({"tv": -1.0}, "tv=-1.0 is outside its limits"),
     ({"depths": [1.0, 2.0]}, "one depth per plane"),
 ])
 def test_bad_parameters(beads, kwargs, message):
