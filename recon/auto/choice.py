@@ -35,6 +35,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..errors import ReconInputError
+from .weight import BUDGET
 
 __all__ = ["ITERATION_COST", "MIN_ITERATIONS", "NO_SIGNAL_RATIO", "MethodChoice",
            "NoSignalError", "choose_method", "check_signal"]
@@ -137,7 +138,7 @@ def choose_method(iterations: int, *, seconds: float | None = None,
             raise ReconInputError(f"time budget {seconds} s: give a positive number of seconds")
         if not fft_pair_s:
             raise ReconInputError("a time budget needs the measured FFT floor (fft_pair_s)")
-        affordable = int(seconds / (2 * ITERATION_COST * fft_pair_s))
+        affordable = int(seconds / (BUDGET * ITERATION_COST * fft_pair_s))
         if affordable < MIN_ITERATIONS:
             reasons.append(
                 f"time budget {seconds:g} s affords {affordable} automatic ADMM iterations "

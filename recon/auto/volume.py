@@ -57,8 +57,8 @@ __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
 #: weight, too few final iterations); at 60 % of 2.5x: 0.24 and 0.55. l1: the same
 #: over the span of the 3D accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade
 #: wider on each side; not measured.
-VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, path_share=0.6, budget=2.5),
-                "l1": PathRule(start=1e-2, end=1e-6, path_share=0.6, budget=2.5)}
+VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6),
+                "l1": PathRule(start=1e-2, end=1e-6)}
 #: What :func:`auto_volume` may do with planes that hold no signal.
 EMPTY_PLANES = ("keep", "drop")
 
