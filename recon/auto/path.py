@@ -14,7 +14,8 @@ each candidate runs, warm-started from the one before, in windows of
 
 * **settled**: the held-out error could fall by at most :attr:`Convergence.tolerance`
   of its standard error more (:func:`remaining_bound`: the last window's fall times
-  r / (1 - r), r the ratio of the last two windows' falls -- a geometric tail);
+  r / (1 - r), r the slower of the last two contractions of the falls -- a geometric
+  tail), or no longer falls;
 * **rising**: after :attr:`Convergence.min_iterations` (ADMM's transient after a weight
   step is over: it spiked the error once, 0.97 -> 2.0 -> 1.04, with 80 % of the pixels
   erased), the last two windows' errors are both more than one standard error above the
@@ -90,6 +91,9 @@ class Candidate:
         The runs' histories, one per window.
     params : dict
         The last run's ``params``.
+    state : object or None
+        A copy of the plan's state where this weight's run ended (kept for the best
+        weight: the chosen one runs on from it).
     """
 
     weight: float
@@ -102,6 +106,7 @@ class Candidate:
     x: object = None
     histories: list = field(default_factory=list)
     params: dict = field(default_factory=dict)
+    state: object = None
 
     @property
     def converged(self) -> bool:
@@ -121,9 +126,11 @@ class Candidate:
 def remaining_bound(errors: list[float]) -> float:
     """How much further a falling held-out error could fall (a geometric tail).
 
-    With the last two falls per window ``d0, d1`` (``d1 > 0``) and ``r = d1 / d0``: the
-    tail ``d1 r / (1 - r)``; a fall that is not slowing (``r >= 0.9``, or fewer than
-    three scores) is bounded by ``d1 * 9`` (r = 0.9); 0 when the error no longer falls.
+    With the last three falls per window ``f1, f2, f3`` all positive and
+    ``r = max(f3 / f2, f2 / f1)`` (the slower of the last two contractions): the tail
+    ``f3 r / (1 - r)``. A fall that is not yet steady (fewer than four scores, an
+    earlier window that rose -- a transient after a weight step --, or ``r >= 0.9``)
+    is bounded as ``r = 0.9``: ``9 f3``; 0 when the error no longer falls.
 
     Parameters
     ----------
@@ -133,16 +140,19 @@ def remaining_bound(errors: list[float]) -> float:
     Returns
     -------
     float
-        >= 0, in the errors' units.
+        >= 0, in the errors' units (``inf`` with fewer than two scores).
     """
     if len(errors) < 2:
         return float("inf")
-    d1 = errors[-2] - errors[-1]
-    if d1 <= 0:
+    f3 = errors[-2] - errors[-1]
+    if f3 <= 0:
         return 0.0
-    d0 = errors[-3] - errors[-2] if len(errors) >= 3 else 0.0
-    r = min(d1 / d0, 0.9) if d0 > d1 else 0.9
-    return d1 * r / (1 - r)
+    r = 0.9
+    if len(errors) >= 4:
+        f1, f2 = errors[-4] - errors[-3], errors[-3] - errors[-2]
+        if f1 > 0 and f2 > 0:
+            r = min(0.9, max(f3 / f2, f2 / f1))
+    return f3 * r / (1 - r)
 
 
 def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: float,
