@@ -1,5 +1,5 @@
-"""Automatic regularisation weight: hold-out cross-validation along a warm-started
-continuation path, then the solve at the chosen weight with automatic stopping.
+"""Automatic regularisation weight: hold-out cross-validation between settled solves
+along a warm-started continuation path; the chosen weight's solve is the result.
 
 Criterion: hold-out cross-validation (Stone 1974; the pixel-wise form of the
 generalised cross-validation of Golub, Heath & Wahba 1979) with the one-standard-
@@ -11,47 +11,47 @@ error is noise + model error + estimation error. Too large a weight leaves signa
 unexplained; too small a weight fits the noise and the model's mismatch with
 structure the held-out blocks do not share. The chosen weight is the largest whose
 prediction error is within one standard error of the best (the minimum is flat,
-its argmin noise), but at most :data:`MAX_ABOVE_MINIMUM` times the best's weight:
-the path steps by a factor of 2.7 at 200 iterations, so the one-standard-error step
-alone can land a factor of 3-7 above the minimum, which at low light cost up to
-2.4 dB against the best weight. Unlike the discrepancy principle, it needs neither the noise
+its argmin noise), but at most :data:`MAX_ABOVE_MINIMUM` times the best's weight (the
+one-standard-error step alone landed a factor of 3-7 above the minimum on the former
+path, up to 2.4 dB below the best weight at low light); with the path's steps of
+2.8x that is the held-out minimum itself. Unlike the discrepancy principle, it needs neither the noise
 level nor the model error: on the virtual bench's spatially varying diffuser the
 residual never settles at the noise level the camera predicts, and a discrepancy
 rule ran to the smallest weight (7.7 dB on the demo scene against 18.5 dB at the
 best fixed weight).
 
-The path: ADMM (:func:`recon.solvers.admm.run_admm`) from a heavily regularised
-start, the weight divided by ``factor`` (2, or more when the iterations do not afford
-the whole path from :data:`START_WEIGHT` to :data:`END_WEIGHT` at 2) every ``stage``
-iterations, each stage warm-started from the last (continuation; Hale, Yin & Zhang
-2008); the first stage is three long (ADMM's start-up transient). The path stops
-when the held-out error has risen twice by more than one standard error above the
-best so far (an error lower than the one before resets the count: ADMM's transient
-after a weight step spiked it once, 0.97 -> 2.0 -> 1.04, with 80 % of the pixels
-erased, and the path ended at its first weight, 16.2 dB against 20.5). The path and
-the final solve (warm-started at the chosen stage's estimate, usually stopping early,
-:class:`Stopping`) share a budget of 2 x ``iterations``: at most 2x a fixed-weight run
-of the same iterations. The path takes ``iterations``, or :data:`PATH_ITERATIONS`
-taken from the final solve's share when that leaves the final solve at least half its
-iterations (:func:`path_budget`); a path too short for fine steps is flagged in the
-record.
+The path compares like with like (:mod:`recon.auto.path`). ADMM
+(:func:`recon.solvers.admm.run_admm`) runs on the fit pixels from :data:`START_WEIGHT`
+down to :data:`END_WEIGHT` in steps of :data:`PATH_FACTOR` (:func:`weight_grid`), each
+weight warm-started from the state the one before ended in (continuation; Hale, Yin &
+Zhang 2008), and each runs until its held-out error has settled -- it could fall by at
+most half a standard error more, a geometric bound on the remaining fall -- or no
+longer falls, or its cap (:data:`STAGE_SHARE` of a fixed run's iterations) is reached;
+an unsettled weight's bound is recorded and accounted for. The path stops when two
+weights in a row predict the held-out pixels worse than the best by more than one
+standard error *even after the fall their solves had left*, at the smallest weight,
+or when the budget runs out: :data:`BUDGET` times a fixed run's iterations, and the
+wall-clock ``seconds`` when given. The former path ran about 20 iterations per weight
+and stopped at two rises of unsettled errors: on a dense, full-field photograph
+(camera, bin 8, 3000 e-) it stopped at 1.4e-3, 13.7 dB against 22.8 dB at the best
+fixed weight, because small weights need hundreds of iterations and their early
+errors were transients. The chosen weight then runs on, with what the budget has left
+(at most a fixed run's iterations), from the state its own path solve ended in (a copy
+kept for the best weight): where the held-out error is flat the image still improves,
+so the iterate kept is the latest within half a standard error of the best
+(:class:`recon.auto.path.Convergence`). The record (:class:`AutoWeight`) lists every
+weight with its held-out error, iterations, whether it settled and its remaining
+bound, and says why the path stopped.
 
-The final solve fits the same 90 % of the pixels and keeps watching the held-out
-ones: every 10 iterations their prediction error is measured, and the iterate that
-predicts them best is the result (cross-validated early stopping; Prechelt 1998).
-A weak weight's solve first improves, then, as it converges, fits noise into
-structure the measurements barely constrain (the fit improves while the image gets
-worse); the held-out error is lowest before most of that (a photograph at bin 8 and
-10000 photo-electrons: TV 1e-5 converges to 21.2 dB, peaking at 25.6 dB on the way;
-the kept iterate 26.4 dB). Over the failure maps this (with the transient rule
-above) raised auto's worst cell against fixed-weight ADMM from 4.5 to 0.4 dB below
-(photons x density) and from 8.3 to 3.1 dB below (photons x erased fraction); on the
-auto benchmark the 10 % of the pixels left out cost 0.1-0.3 dB where nothing was
-overfitted (mean 0.08 -> 0.16 dB below the oracle). Restarting on all pixels from the
-kept iterate was worse (ADMM's transient after a restart: 23.4 -> 18.1 dB after 10
-iterations on the camera photograph at 300 e-). With a compact PSF the held-out
-blocks would hide object pixels (:func:`holdout_coverage`), and the final solve runs
-on all pixels instead.
+The result stays on the fit pixels: cross-validated early stopping (Prechelt 1998) is
+what keeps a weak weight from fitting noise into structure the measurements barely
+constrain (a photograph at bin 8, 10000 e-: TV 1e-5 converges to 21.2 dB, peaking at
+25.6 dB on the way), and restarting on all pixels from the kept iterate lost up to 1.8
+dB in ADMM's transient after a restart (fresh duals; camera, full field, bin 8, 3000
+e-), recovered only after 100 iterations. With a
+compact PSF the held-out blocks would hide object pixels (:func:`holdout_coverage`),
+and a final solve runs on all pixels from the chosen estimate instead (automatic
+stopping, :class:`Stopping`).
 
 The machinery takes any ADMM plan with the interface of
 :class:`recon.solvers.admm.AdmmPlan` (``zeros``, ``warm``, ``run``, ``objective``): the
