@@ -14,8 +14,8 @@ prediction error is within one standard error of the best (the minimum is flat,
 its argmin noise), but at most :data:`MAX_ABOVE_MINIMUM` times the best's weight (the
 one-standard-error step alone landed a factor of 3-7 above the minimum on the former
 path, up to 2.4 dB below the best weight at low light); with the path's steps of
-2.8x that is the held-out minimum itself. Unlike the discrepancy principle, it needs neither the noise
-level nor the model error: on the virtual bench's spatially varying diffuser the
+2.8x that is the held-out minimum itself. Unlike the discrepancy principle, it needs
+neither the noise level nor the model error: on the virtual bench's spatially varying diffuser the
 residual never settles at the noise level the camera predicts, and a discrepancy
 rule ran to the smallest weight (7.7 dB on the demo scene against 18.5 dB at the
 best fixed weight).

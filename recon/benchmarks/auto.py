@@ -16,7 +16,8 @@ iteration cap (every half decade from 1e-5 to 1e-2 and no TV, then the quarter-d
 weights either side of the best: a grid of factor 1.8 where it counts), the best by
 PSNR against the ground truth; the shortfall; the default's wall time over one
 fixed-weight solve's (medians of ``timing_repeats - 1`` pairs of runs taken in turn,
-so a slow spell of the shared machine falls on both). PSNR and SSIM are gain-fitted on the sensor field of view.
+so a slow spell of the shared machine falls on both). PSNR and SSIM are gain-fitted
+on the sensor field of view.
 
 Speed against accuracy (:func:`plot_budget`): on :data:`FULL` ``budget_scenes`` the
 default runs again with ``seconds`` set to 1-3x the fixed solve's time.
@@ -225,7 +226,7 @@ def plot_budget(result: dict, path: Path) -> Path:
                if b["shortfall_db"] is not None]
         pts.append((c["auto_cost_ratio"], c["auto_shortfall_db"]))
         pts.sort()
-        line, = ax.plot(*zip(*pts), "o-", label=c["scene"])
+        line, = ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=c["scene"])
         ax.plot([c["auto_cost_ratio"]], [c["auto_shortfall_db"]], "s", ms=9, mfc="none",
                 color=line.get_color())
     ax.axhline(0.0, color="k", lw=1, label="oracle weight (fixed, same cap)")

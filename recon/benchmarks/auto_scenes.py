@@ -6,8 +6,9 @@ at bin 2, reconstruction at bin 4: a finer rendering grid, Poisson shot noise an
 Gaussian read noise, so never the "inverse crime"). Kinds:
 
 * ``photo:NAME`` - an image scikit-image ships in its package
-  (:data:`recon.scenes.BUNDLED`: photographs, dense texture, printed text) inset in the central ``inset`` of the field of view
-  on a dark surround (a lensless camera's object lies inside its field of view;
+  (:data:`recon.scenes.BUNDLED`: photographs, dense texture, printed text) inset in
+  the central ``inset`` of the field of view on a dark surround (a lensless camera's
+  object lies inside its field of view;
   a scene running past the edge is mostly cropped from the sensor, Sec. 3.1);
 * ``beads`` - sparse fluorescent beads (Gaussian spots of 1-2 fine pixels),
   ``density`` the fraction of the field they cover;
