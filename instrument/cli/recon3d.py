@@ -51,8 +51,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", default="auto", metavar="{auto," + ",".join(VOLUME_METHODS) + "}",
                    help="auto (default: admm; with --psf-grid fista), admm or fista")
     p.add_argument("--iterations", type=int, default=200,
-                   help="iterations (default 200; the automatic weight's path and final "
-                   "solve take at most 2.5x as many together)")
+                   help="iterations (default 200; the automatic weight's path, each weight "
+                   "settled, takes at most 3.5x as many)")
     p.add_argument("--tv", type=weight_arg, default="auto",
                    help="3D TV weight in the scaled problem (unitless; 0 disables), or auto "
                    "(default): hold-out cross-validation along a 3D ADMM path; every plane is "
