@@ -4,7 +4,7 @@ along a warm-started continuation path; the chosen weight's solve is the result.
 Criterion: hold-out cross-validation (Stone 1974; the pixel-wise form of the
 generalised cross-validation of Golub, Heath & Wahba 1979) with the one-standard-
 error rule (Breiman et al. 1984, Sec. 3.4.3). A random 10 % of the measured pixels,
-in 8 x 8 blocks (:data:`BLOCK`), are left out of the fits (folded into the sensor
+in 32 x 32 blocks (:data:`BLOCK`), are left out of the fits (folded into the sensor
 weights, as the erasure mask of Eq. 3.10 is); for each weight, the fit to the other
 90 % predicts the held-out pixels through the forward model, and the prediction
 error is noise + model error + estimation error. Too large a weight leaves signal
@@ -129,6 +129,31 @@ MIN_COVERAGE = 0.5
 MODEL_ERROR = 0.005
 #: Fraction of the sensor pixels held out for cross-validation.
 HOLDOUT = 0.1
+#: Side of the square blocks of pixels held out together. Single pixels are
+#: predicted from their neighbours even by a fit that follows the model's mismatch
+#: (spatially correlated): on the virtual bench's demo scene the pixel-wise held-out
+#: error kept falling to the smallest weight (13.7 dB against 18.5 dB at the best
+#: fixed weight). So did 8 x 8 blocks once each weight's solve settled: the demo's
+#: spatially varying model (PSF grid, predicted model error 0.087) errs alike over
+#: more than 8 pixels, the fits that follow it predicted 8 x 8 held-out blocks best
+#: at TV 7.2e-5 (19.1 dB; the best fixed weight, 1.9e-4, 21.4 dB at 200 iterations
+#: on all pixels), and a block-wise standard error (2.7x the pixel-wise one) with
+#: the one-standard-error rule moved the choice up on the scene suite too (camera,
+#: astronaut, text 3000 e-: 0.8-1.0 dB below their oracles). With 32 x 32 blocks the
+#: demo's held-out minimum is 1.9e-4 (20.7 dB, the result on the fit pixels), and
+#: the suite's scenes tried (points, beads, shapes, camera, astronaut, text) keep
+#: their weights, within 0.1 dB of the 8 x 8 blocks' PSNR.
+BLOCK = 32
+#: Smaller blocks tried in turn when the sensor is too small for :data:`BLOCK`
+#: (fewer than :data:`MIN_BLOCKS` whole blocks, fewer than 16 measured pixels held
+#: out, or none kept); single pixels last.
+SMALLER_BLOCKS = (8, 1)
+#: Fewest whole blocks a sensor must hold for blocks of a side to be held out: with
+#: fewer, a random 10 % of them is a few blocks (a 48 x 48 sensor: one 32 x 32 block
+#: of four, 44 % of the pixels), and the held-out fraction and the object pixels the
+#: fits still see (:func:`holdout_coverage`) swing with the draw. The demo's 256 x
+#: 320 sensor holds 80 blocks of 32 x 32.
+MIN_BLOCKS = 64
 
 
 @dataclass(frozen=True)
@@ -148,6 +173,9 @@ class PathRule:
         The path takes at most this multiple of a fixed-weight run's iterations.
     factor : float
         Factor between consecutive weights.
+    block : int
+        Side of the square blocks of sensor pixels held out together
+        (:func:`holdout_split`).
     """
 
     start: float
@@ -156,6 +184,7 @@ class PathRule:
     max_above_minimum: float = MAX_ABOVE_MINIMUM
     budget: float = BUDGET
     factor: float = PATH_FACTOR
+    block: int = BLOCK
 
 
 #: The 2D rules (:data:`START_WEIGHT`, :data:`END_WEIGHT`, :data:`SE_RULE`,
@@ -231,12 +260,6 @@ def _data_terms(hist: History, b_norm: float) -> list[float]:
     return [0.5 * (r * b_norm) ** 2 for r in hist.data_residual]
 
 
-#: Side of the square blocks of pixels held out together. Single pixels are
-#: predicted from their neighbours even by a fit that follows the model's mismatch
-#: (spatially correlated): on the virtual bench's demo scene the pixel-wise held-out
-#: error kept falling to the smallest weight (13.7 dB against 18.5 dB at the best
-#: fixed weight); with 8 x 8 blocks it picks the best weight (18.5 dB).
-BLOCK = 8
 
 
 def holdout_mask(shape, fraction: float, seed: int, block: int = BLOCK) -> np.ndarray:
@@ -273,13 +296,14 @@ def holdout_coverage(op, keep: np.ndarray) -> float:
     return float(np.min(seen_fit[lit] / seen[lit])) if np.any(lit) else 0.0
 
 
-def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
+def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0, block: int = BLOCK
                   ) -> tuple[np.ndarray, np.ndarray]:
     """The pixels the fits keep and the measured pixels they hold out.
 
-    Random :data:`BLOCK` x :data:`BLOCK` blocks (:func:`holdout_mask`), single pixels
-    when the sensor is too small for blocks (fewer than 16 measured pixels held out,
-    or none kept).
+    Random ``block`` x ``block`` blocks (:func:`holdout_mask`), smaller ones
+    (:data:`SMALLER_BLOCKS`, down to single pixels) when the sensor is too small for
+    them (fewer than :data:`MIN_BLOCKS` whole blocks, fewer than 16 measured pixels
+    held out, or none kept).
 
     Parameters
     ----------
@@ -287,17 +311,22 @@ def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
     holdout : float
         Fraction held out.
     seed : int
+    block : int
+        Side of the held-out blocks, pixels (:data:`BLOCK`).
 
     Returns
     -------
     keep, held : ndarray of bool, ``op.sensor_shape``
     """
     w = op.sensor_weights
-    keep = holdout_mask(op.sensor_shape, holdout, seed)
-    held = (w > 0) & ~keep
-    if held.sum() < 16 or not np.any(keep & (w > 0)):  # too small for blocks: pixels
-        keep = holdout_mask(op.sensor_shape, holdout, seed, block=1)
+    rows, cols = op.sensor_shape[:2]
+    for side in (block, *(b for b in SMALLER_BLOCKS if b < block)):
+        if side > 1 and (rows // side) * (cols // side) < MIN_BLOCKS:
+            continue
+        keep = holdout_mask(op.sensor_shape, holdout, seed, side)
         held = (w > 0) & ~keep
+        if held.sum() >= 16 and np.any(keep & (w > 0)):  # else too small for blocks
+            break
     return keep, held
 
 
@@ -461,7 +490,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
 
     use_tv = regulariser == "tv" or fixed > 0
     w = op.sensor_weights
-    keep, held = holdout_split(op, holdout, seed)
+    keep, held = holdout_split(op, holdout, seed, rule.block)
     # with a compact PSF the held-out blocks hide object pixels: the result is then a
     # final solve on all pixels, which takes a fixed run's iterations from the budget
     coverage = holdout_coverage(op, keep) if not path_only else None
@@ -549,8 +578,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     if settle:
         stop += f"; the chosen weight then ran on for {settle} iterations"
     reason = (f"hold-out cross-validation: {100 * holdout:g} % of the pixels held out in "
-              f"{BLOCK} x {BLOCK} blocks; each weight solved (warm-started, at most {cap} "
-              f"iterations) until its held-out error settled; the largest weight whose "
+              f"{rule.block} x {rule.block} blocks; each weight solved (warm-started, at "
+              f"most {cap} iterations) until its held-out error settled; the largest weight whose "
               f"fit predicts them within "
               f"{'one' if rule.se_rule == 1 else f'{rule.se_rule:g}'} standard "
               f"error ({best.standard_error:.3g}) of the best prediction "

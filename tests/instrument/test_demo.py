@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 import tifffile
 from skimage import data
 from skimage.transform import resize
@@ -61,9 +60,6 @@ def test_demo_run_writes_the_run_and_beats_the_psnr_bound(tmp_path):
     assert report["orientation"]["tif"].startswith("model grid")
 
 
-@pytest.mark.xfail(strict=True, reason="regression: the automatic weight that compares "
-                   "settled solves chooses TV 7.2e-5 on the demo and reaches 19.1 dB (the "
-                   "former unsettled path: 2.7e-5 stopped early at 100 iterations, 21.3 dB)")
 def test_demo_defaults_model_the_spatially_varying_field_and_reach_the_goal(tmp_path):
     """The default reconstruction uses the PSF grid: a model of its caustics chosen from
     their predicted model errors, ADMM, the TV weight by hold-out cross-validation."""
