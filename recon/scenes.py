@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["SCENES", "cell_overlap", "load_scene", "tent_weights", "usaf_target"]
+__all__ = ["BUNDLED", "SCENES", "cell_overlap", "load_scene", "tent_weights", "usaf_target"]
 
 
 def usaf_target(shape: tuple[int, int] = (256, 256)) -> np.ndarray:
@@ -73,6 +73,10 @@ def usaf_target(shape: tuple[int, int] = (256, 256)) -> np.ndarray:
 
 #: Natural test images shipped inside scikit-image's package data (no network fetch).
 SCENES: tuple[str, ...] = ("camera", "astronaut", "coffee", "chelsea")
+#: Every image :func:`load_scene` loads: :data:`SCENES` and more that scikit-image
+#: ships in its package (dense texture, printed text, coins, a star field).
+BUNDLED: tuple[str, ...] = SCENES + ("brick", "grass", "gravel", "page", "text", "coins",
+                                     "moon", "hubble_deep_field")
 
 
 def load_scene(name: str, shape: tuple[int, int]) -> np.ndarray:
@@ -85,8 +89,9 @@ def load_scene(name: str, shape: tuple[int, int]) -> np.ndarray:
     Parameters
     ----------
     name : str
-        One of :data:`SCENES` (``"camera"``, ``"astronaut"``, ``"coffee"``,
-        ``"chelsea"``); these ship with scikit-image and need no download.
+        One of :data:`BUNDLED` (:data:`SCENES`: ``"camera"``, ``"astronaut"``,
+        ``"coffee"``, ``"chelsea"``; and textures, text, coins, moon, a star field);
+        these ship with scikit-image and need no download.
     shape : (rows, cols)
         Output shape, normally the fine sensor shape.
 
@@ -104,9 +109,9 @@ def load_scene(name: str, shape: tuple[int, int]) -> np.ndarray:
     from skimage.color import rgb2gray
     from skimage.transform import resize
 
-    if name not in SCENES:
+    if name not in BUNDLED:
         raise ReconInputError(
-            f"unknown scene {name!r}; use one of {', '.join(SCENES)} (bundled with "
+            f"unknown scene {name!r}; use one of {', '.join(BUNDLED)} (bundled with "
             "scikit-image, no download)"
         )
     rows, cols = (int(s) for s in shape)

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import numbers
+import time
 
 import numpy as np
 
@@ -164,6 +165,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         Invalid weights or budget, ``seconds`` with a fixed method, or a weight path
         that does not fit in the device's free memory.
     """
+    t0 = time.perf_counter()
     w2 = np.square(op.sensor_weights, dtype=np.float64)
     # a frame too small for the noise fit (< 8 x 8) gets no noise model: no signal
     # check, and stopping on the model error alone
@@ -197,10 +199,12 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     target = 0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2)
     auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
     fixed = float(l1 if auto_reg == "tv" else tv) if auto_reg is not None else 0.0
+    # the time budget left to the weight path (the noise fit and the choice took some)
+    path_s = None if seconds is None else max(1e-3, seconds - (time.perf_counter() - t0))
     if auto_reg is not None and method == "admm" and not options and weight_path_solves:
         res, chosen = weight_path(backend, op, b, iterations=iterations,
                                   noise_energy=noise_energy, regulariser=auto_reg,
-                                  plan_of=plan_of, fixed=fixed)
+                                  plan_of=plan_of, fixed=fixed, seconds=path_s)
         record["weight"] = chosen.as_dict()
         tv, l1 = ((chosen.weight, 0.0 if l1 == AUTO else l1) if auto_reg == "tv"
                   else (tv, chosen.weight))
@@ -208,7 +212,8 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         if auto_reg is not None:
             _, chosen = weight_path(backend, op, b, iterations=iterations,
                                     noise_energy=noise_energy, regulariser=auto_reg,
-                                    path_only=True, plan_of=plan_of, fixed=fixed)
+                                    path_only=True, plan_of=plan_of, fixed=fixed,
+                                    seconds=path_s)
             record["weight"] = dict(chosen.as_dict(), chosen_by="ADMM path, used by "
                                     + method)
             if auto_reg == "tv":

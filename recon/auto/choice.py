@@ -12,8 +12,10 @@ Rules, each from a measurement of the data or of the benchmarks, in this order:
    frame is refused there), so ||b||^2 here is light, not a dark offset.
 2. **Time budget.** With ``seconds`` given, an iteration costs about
    :data:`ITERATION_COST` FFT pairs (ADMM at 300 x 400 in the speed benchmark,
-   2.7-3.2x the FFT floor) and the automatic weight up to twice the iterations, so
-   the budget affords ``seconds / (2 * ITERATION_COST * fft_pair_s)`` iterations. Below
+   2.7-3.2x the FFT floor) and the automatic weight up to
+   :data:`recon.auto.weight.BUDGET` times the iterations, so the budget affords
+   ``seconds / (BUDGET * ITERATION_COST * fft_pair_s)`` iterations (and the weight's
+   path also stops on the wall clock, :func:`recon.auto.weight.admm_auto`). Below
    :data:`MIN_ITERATIONS` (a single video frame period at 30 fps, for instance),
    the Wiener filter, one FFT pair, is the only method that fits.
 3. **Regulariser.** ADMM with the TV weight chosen by hold-out cross-validation
@@ -35,6 +37,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..errors import ReconInputError
+from .weight import BUDGET
 
 __all__ = ["ITERATION_COST", "MIN_ITERATIONS", "NO_SIGNAL_RATIO", "MethodChoice",
            "NoSignalError", "choose_method", "check_signal"]
@@ -137,7 +140,7 @@ def choose_method(iterations: int, *, seconds: float | None = None,
             raise ReconInputError(f"time budget {seconds} s: give a positive number of seconds")
         if not fft_pair_s:
             raise ReconInputError("a time budget needs the measured FFT floor (fft_pair_s)")
-        affordable = int(seconds / (2 * ITERATION_COST * fft_pair_s))
+        affordable = int(seconds / (BUDGET * ITERATION_COST * fft_pair_s))
         if affordable < MIN_ITERATIONS:
             reasons.append(
                 f"time budget {seconds:g} s affords {affordable} automatic ADMM iterations "

@@ -5,9 +5,9 @@ The weight: the 2D machinery itself (:func:`recon.auto.weight.admm_auto`) on the
 volume model through :class:`recon.volume.VolumeAdmmPlan` -- a warm-started 3D ADMM
 path from :data:`VOLUME_RULES` ``start`` down to ``end``, 10 % of the sensor pixels
 held out in 8 x 8 blocks, the largest weight within one standard error of the
-held-out minimum but at most twice its weight (the 2D rule, re-measured in 3D, where
-the path needs longer stages: :data:`VOLUME_RULES`), then the final solve on the fit
-pixels that keeps the iterate predicting the held-out pixels best. 3D FISTA takes the
+held-out minimum but at most twice its weight, each weight solved until its held-out
+error settles (:data:`VOLUME_RULES`), then the chosen weight run on from its own
+solve's state on the fit pixels (:mod:`recon.auto.path`). 3D FISTA takes the
 weight the path chose and solves on the same fit pixels.
 
 The planes: every plane is kept. Dimness is not emptiness -- a far plane of a
@@ -33,32 +33,21 @@ from .weight import HOLDOUT, PathRule, admm_auto, holdout_split
 __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
 
 #: The 3D path and rule per regulariser (normalised stack, ``sum_z (sum h_z)^2 = 1``,
-#: measurement / max): the 2D rule (one standard error, at most 2x the minimum's
-#: weight) over TV 1e-3 .. 1e-6; the path and the final solve take 2.5x a fixed run's
-#: iterations, the path 60 % of them (at 200 iterations: a 300-iteration path in
-#: 30-iteration stages, against 20 in 2D, and a final solve of at most 200). Measured
-#: with the rule study of the 3D auto benchmark
-#: (:func:`recon.benchmarks.volume_auto.rule_study`: 18 cases, beads and textured
-#: discs with far planes 3x, 10x and 30x dimmer, 300-30000 e-, 6 planes at bin 8;
-#: 200-iteration 3D ADMM at every path weight, each rule applied to the same held-out
-#: paths). With the 2D split (20-iteration stages) 3D ADMM had not settled
-#: after each weight step, the held-out minimum sat at too large or too small a weight,
-#: and the 2D rule was 0.18 dB below the best path weight on average and 1.80 at worst
-#: (the unbounded rule 0.09 and 0.51); with 30-iteration stages every rule did better:
-#: the 2D rule, a bound of 4x or 8x, or none 0.08 and 0.51, half a standard error
-#: 0.06 and 0.51, the minimum 0.11 and 0.51. The bound stays: on the external 3D sample
+#: measurement / max): the 2D machinery and rule (each weight solved until its
+#: held-out error settles, steps of 2.8x, at most 3.5x a fixed run's iterations; the
+#: held-out minimum) over TV 1e-3 .. 1e-6. The span was measured with the former
+#: path (fixed-length stages; :func:`recon.benchmarks.volume_auto.rule_study`: 18
+#: cases, beads and textured discs with far planes 3x, 10x and 30x dimmer,
+#: 300-30000 e-, 6 planes at bin 8): a path over 1e-4 .. 1e-7 did worse, and the
+#: beads' PSNR no longer changes below 1e-6. On the external 3D sample
 #: (:mod:`recon.volume.sample`, bin 2) the held-out error is flat within one standard
-#: error from 1.4e-4 down to 1e-6, where the unbounded rule takes 1.4e-4, a few flat
-#: blocks, and the bounded one 1.9e-5. A path over 1e-4 .. 1e-7 did worse (0.16 and
-#: 0.95 with 20-iteration stages and the unbounded rule; the beads' PSNR no longer
-#: changes below 1e-6). The 3D auto benchmark (:mod:`recon.benchmarks.volume_auto`,
-#: the same 18 cases) with the path at 3/4 of 2x (a final solve of at most 100): 0.43
-#: dB below the oracle on average, 1.15 at worst (discs at 30000 e-: the oracle's
-#: weight, too few final iterations); at 60 % of 2.5x: 0.24 and 0.55. l1: the same
-#: over the span of the 3D accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade
-#: wider on each side; not measured.
-VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, path_share=0.6, budget=2.5),
-                "l1": PathRule(start=1e-2, end=1e-6, path_share=0.6, budget=2.5)}
+#: error from 1.4e-4 down to 1e-6; the bound to twice the minimum's weight keeps the
+#: choice off the flat blocks of the largest. l1: the same over the span of the 3D
+#: accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade wider on each side; not
+#: measured. Held-out blocks of 8 x 8 pixels, as measured (the 2D path's 32 x 32,
+#: :data:`recon.auto.weight.BLOCK`, were measured on 2D scenes only).
+VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, block=8),
+                "l1": PathRule(start=1e-2, end=1e-6, block=8)}
 #: What :func:`auto_volume` may do with planes that hold no signal.
 EMPTY_PLANES = ("keep", "drop")
 
@@ -80,8 +69,8 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
     noise : NoiseModel
         The frame's noise model in the units of ``b`` (:meth:`NoiseModel.scaled`).
     iterations : int
-        Iterations of the fixed-weight run this replaces (the path and the final
-        solve together take at most 2.5x as many, :data:`VOLUME_RULES`,
+        Iterations of the fixed-weight run this replaces (each path weight at most
+        this many, the path with its run-on at most 3.5x as many,
         :func:`recon.auto.weight.path_budget`).
     plan_of : callable
         The volume's ADMM plan, :meth:`recon.volume.VolumeAdmmPlan.of` (passed in:
@@ -136,7 +125,7 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
     common = {"iterations": iterations, "noise_energy": noise_energy,
               "regulariser": regulariser, "plan_of": plan_of, "fixed": other,
               "rule": VOLUME_RULES[regulariser], "seed": seed}
-    keep, held = holdout_split(op, HOLDOUT, seed)
+    keep, held = holdout_split(op, HOLDOUT, seed, VOLUME_RULES[regulariser].block)
     on_device = backend is not None and not backend.is_numpy
     b_solve = b
     if on_device:  # the measurement and the path's plans on the device

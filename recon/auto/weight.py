@@ -1,57 +1,57 @@
-"""Automatic regularisation weight: hold-out cross-validation along a warm-started
-continuation path, then the solve at the chosen weight with automatic stopping.
+"""Automatic regularisation weight: hold-out cross-validation between settled solves
+along a warm-started continuation path; the chosen weight's solve is the result.
 
 Criterion: hold-out cross-validation (Stone 1974; the pixel-wise form of the
 generalised cross-validation of Golub, Heath & Wahba 1979) with the one-standard-
 error rule (Breiman et al. 1984, Sec. 3.4.3). A random 10 % of the measured pixels,
-in 8 x 8 blocks (:data:`BLOCK`), are left out of the fits (folded into the sensor
+in 32 x 32 blocks (:data:`BLOCK`), are left out of the fits (folded into the sensor
 weights, as the erasure mask of Eq. 3.10 is); for each weight, the fit to the other
 90 % predicts the held-out pixels through the forward model, and the prediction
 error is noise + model error + estimation error. Too large a weight leaves signal
 unexplained; too small a weight fits the noise and the model's mismatch with
 structure the held-out blocks do not share. The chosen weight is the largest whose
 prediction error is within one standard error of the best (the minimum is flat,
-its argmin noise), but at most :data:`MAX_ABOVE_MINIMUM` times the best's weight:
-the path steps by a factor of 2.7 at 200 iterations, so the one-standard-error step
-alone can land a factor of 3-7 above the minimum, which at low light cost up to
-2.4 dB against the best weight. Unlike the discrepancy principle, it needs neither the noise
-level nor the model error: on the virtual bench's spatially varying diffuser the
+its argmin noise), but at most :data:`MAX_ABOVE_MINIMUM` times the best's weight (the
+one-standard-error step alone landed a factor of 3-7 above the minimum on the former
+path, up to 2.4 dB below the best weight at low light); with the path's steps of
+2.8x that is the held-out minimum itself. Unlike the discrepancy principle, it needs
+neither the noise level nor the model error: on the virtual bench's spatially varying diffuser the
 residual never settles at the noise level the camera predicts, and a discrepancy
 rule ran to the smallest weight (7.7 dB on the demo scene against 18.5 dB at the
 best fixed weight).
 
-The path: ADMM (:func:`recon.solvers.admm.run_admm`) from a heavily regularised
-start, the weight divided by ``factor`` (2, or more when the iterations do not afford
-the whole path from :data:`START_WEIGHT` to :data:`END_WEIGHT` at 2) every ``stage``
-iterations, each stage warm-started from the last (continuation; Hale, Yin & Zhang
-2008); the first stage is three long (ADMM's start-up transient). The path stops
-when the held-out error has risen twice by more than one standard error above the
-best so far (an error lower than the one before resets the count: ADMM's transient
-after a weight step spiked it once, 0.97 -> 2.0 -> 1.04, with 80 % of the pixels
-erased, and the path ended at its first weight, 16.2 dB against 20.5). The path and
-the final solve (warm-started at the chosen stage's estimate, usually stopping early,
-:class:`Stopping`) share a budget of 2 x ``iterations``: at most 2x a fixed-weight run
-of the same iterations. The path takes ``iterations``, or :data:`PATH_ITERATIONS`
-taken from the final solve's share when that leaves the final solve at least half its
-iterations (:func:`path_budget`); a path too short for fine steps is flagged in the
-record.
+The path compares like with like (:mod:`recon.auto.path`). ADMM
+(:func:`recon.solvers.admm.run_admm`) runs on the fit pixels from :data:`START_WEIGHT`
+down to :data:`END_WEIGHT` in steps of :data:`PATH_FACTOR` (:func:`weight_grid`), each
+weight warm-started from the state the one before ended in (continuation; Hale, Yin &
+Zhang 2008), and each runs until its held-out error has settled -- it could fall by at
+most half a standard error more, a geometric bound on the remaining fall -- or no
+longer falls, or its cap (:data:`STAGE_SHARE` of a fixed run's iterations) is reached;
+an unsettled weight's bound is recorded and accounted for. The path stops when two
+weights in a row predict the held-out pixels worse than the best by more than one
+standard error *even after the fall their solves had left*, at the smallest weight,
+or when the budget runs out: :data:`BUDGET` times a fixed run's iterations, and the
+wall-clock ``seconds`` when given. The former path ran about 20 iterations per weight
+and stopped at two rises of unsettled errors: on a dense, full-field photograph
+(camera, bin 8, 3000 e-) it stopped at 1.4e-3, 13.7 dB against 22.8 dB at the best
+fixed weight, because small weights need hundreds of iterations and their early
+errors were transients. The chosen weight then runs on, with what the budget has left
+(at most a fixed run's iterations), from the state its own path solve ended in (a copy
+kept for the best weight): where the held-out error is flat the image still improves,
+so the iterate kept is the latest within half a standard error of the best
+(:class:`recon.auto.path.Convergence`). The record (:class:`AutoWeight`) lists every
+weight with its held-out error, iterations, whether it settled and its remaining
+bound, and says why the path stopped.
 
-The final solve fits the same 90 % of the pixels and keeps watching the held-out
-ones: every 10 iterations their prediction error is measured, and the iterate that
-predicts them best is the result (cross-validated early stopping; Prechelt 1998).
-A weak weight's solve first improves, then, as it converges, fits noise into
-structure the measurements barely constrain (the fit improves while the image gets
-worse); the held-out error is lowest before most of that (a photograph at bin 8 and
-10000 photo-electrons: TV 1e-5 converges to 21.2 dB, peaking at 25.6 dB on the way;
-the kept iterate 26.4 dB). Over the failure maps this (with the transient rule
-above) raised auto's worst cell against fixed-weight ADMM from 4.5 to 0.4 dB below
-(photons x density) and from 8.3 to 3.1 dB below (photons x erased fraction); on the
-auto benchmark the 10 % of the pixels left out cost 0.1-0.3 dB where nothing was
-overfitted (mean 0.08 -> 0.16 dB below the oracle). Restarting on all pixels from the
-kept iterate was worse (ADMM's transient after a restart: 23.4 -> 18.1 dB after 10
-iterations on the camera photograph at 300 e-). With a compact PSF the held-out
-blocks would hide object pixels (:func:`holdout_coverage`), and the final solve runs
-on all pixels instead.
+The result stays on the fit pixels: cross-validated early stopping (Prechelt 1998) is
+what keeps a weak weight from fitting noise into structure the measurements barely
+constrain (a photograph at bin 8, 10000 e-: TV 1e-5 converges to 21.2 dB, peaking at
+25.6 dB on the way), and restarting on all pixels from the kept iterate lost up to 1.8
+dB in ADMM's transient after a restart (fresh duals; camera, full field, bin 8, 3000
+e-), recovered only after 100 iterations. With a
+compact PSF the held-out blocks would hide object pixels (:func:`holdout_coverage`),
+and a final solve runs on all pixels from the chosen estimate instead (automatic
+stopping, :class:`Stopping`).
 
 The machinery takes any ADMM plan with the interface of
 :class:`recon.solvers.admm.AdmmPlan` (``zeros``, ``warm``, ``run``, ``objective``): the
@@ -62,8 +62,10 @@ to 3D).
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -71,10 +73,11 @@ import numpy as np
 from ..errors import ReconInputError
 from ..solvers.admm import AdmmPlan, check_penalties
 from ..solvers.common import History, SolveResult
+from .path import Convergence, run_candidate
 from .xp_path import PathArrays, device_plan_of
 
-__all__ = ["PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto", "holdout_split",
-           "path_budget"]
+__all__ = ["BUDGET", "PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto",
+           "holdout_split", "path_budget", "weight_grid"]
 
 log = logging.getLogger(__name__)
 
@@ -105,29 +108,53 @@ SE_RULE = 1.0
 #: (astronaut, 3000 e-: 2.7e-5 against 7.2e-5); the geometric mean of the two at
 #: worst 1.0.
 MAX_ABOVE_MINIMUM = 2.0
-#: Smallest factor between consecutive weights of the path (larger when the
-#: iterations do not allow the whole path at this factor).
-PATH_FACTOR = 2.0
-#: Iterations the path gets when the budget allows (:func:`path_budget`). With fewer,
-#: the path's steps grow (5.6x at 150 iterations) and its short stages end in the
-#: transient after each step, where a small weight has not yet fitted the noise: on
-#: the demo at 150 iterations one noise realisation's held-out error fell to 1e-5
-#: (10.5 dB against 19 dB at 3e-4).
-PATH_ITERATIONS = 200
+#: Factor between consecutive weights of the path (:func:`weight_grid`).
+PATH_FACTOR = 2 ** 1.5
+#: The path takes at most this multiple of a fixed-weight run's iterations
+#: (:func:`path_budget`); with the held-out scores every window, its wall time stays
+#: within 4x that run's.
+BUDGET = 3.5
+#: Most iterations a candidate weight runs on the path, as a share of a fixed run's
+#: (at least :attr:`Convergence.min_iterations`); one still falling then hands its
+#: state to the next weight, its remaining fall bounded and accounted for, and the
+#: chosen weight is run on with what the budget has left when it had not settled.
+STAGE_SHARE = 0.5
 #: The final solve keeps to the fit pixels (watching the held-out ones) only when
 #: every object pixel is still seen through them at least this much
 #: (:func:`holdout_coverage`).
 MIN_COVERAGE = 0.5
-#: Path steps coarser than this are flagged as unreliable in the record and the log
-#: (the demo, 2 frames averaged: at 100 iterations, steps of 5.6x, TV 1e-5 and 13.8
-#: dB; at 150, steps of 2.7x, TV 1.9e-4 and 18.3 dB).
-COARSE_FACTOR = 4.0
 #: Relative rms error of the forward model's prediction, for the noise scale of
 #: automatic stopping (:class:`Stopping`): the residual the real tutorial PSF at
 #: bin 4 leaves on scenes rendered at bin 2 without noise is 0.5-0.7 % of ||b||.
 MODEL_ERROR = 0.005
 #: Fraction of the sensor pixels held out for cross-validation.
 HOLDOUT = 0.1
+#: Side of the square blocks of pixels held out together. Single pixels are
+#: predicted from their neighbours even by a fit that follows the model's mismatch
+#: (spatially correlated): on the virtual bench's demo scene the pixel-wise held-out
+#: error kept falling to the smallest weight (13.7 dB against 18.5 dB at the best
+#: fixed weight). So did 8 x 8 blocks once each weight's solve settled: the demo's
+#: spatially varying model (PSF grid, predicted model error 0.087) errs alike over
+#: more than 8 pixels, the fits that follow it predicted 8 x 8 held-out blocks best
+#: at TV 7.2e-5 (19.1 dB; the best fixed weight, 1.9e-4, 21.4 dB at 200 iterations
+#: on all pixels), and a block-wise standard error (2.7x the pixel-wise one) with
+#: the one-standard-error rule moved the choice up on the scene suite too (camera,
+#: astronaut, text 3000 e-: 0.8-1.0 dB below their oracles). With 32 x 32 blocks the
+#: demo's held-out minimum is 1.9e-4 (20.7 dB, the result on the fit pixels), and
+#: all 15 scenes of the auto benchmark's suite keep their weights, PSNR within 0.11
+#: dB of the 8 x 8 blocks' (mean shortfall to the oracle 0.26 dB, worst shapes 0.99).
+BLOCK = 32
+#: Smaller blocks tried in turn when the sensor is too small for :data:`BLOCK`
+#: (fewer than :data:`MIN_BLOCKS` whole blocks of a side above the first of these,
+#: fewer than 16 measured pixels held out, or none kept); single pixels last.
+SMALLER_BLOCKS = (8, 1)
+#: Fewest whole blocks a sensor must hold for blocks wider than 8 x 8 (the former
+#: side, whose small-sensor cases the tests pin) to be held out: with
+#: fewer, a random 10 % of them is a few blocks (a 48 x 48 sensor: one 32 x 32 block
+#: of four, 44 % of the pixels), and the held-out fraction and the object pixels the
+#: fits still see (:func:`holdout_coverage`) swing with the draw. The demo's 256 x
+#: 320 sensor holds 80 blocks of 32 x 32.
+MIN_BLOCKS = 64
 
 
 @dataclass(frozen=True)
@@ -143,19 +170,22 @@ class PathRule:
         weight is taken.
     max_above_minimum : float
         The chosen weight is at most this multiple of the held-out minimum's weight.
-    path_share : float, optional
-        Share of the budget the path takes (:func:`path_budget`); None: the 2D split.
     budget : float
-        With ``path_share``: the path and the final solve take at most this multiple of
-        a fixed-weight run's iterations (2D: 2).
+        The path takes at most this multiple of a fixed-weight run's iterations.
+    factor : float
+        Factor between consecutive weights.
+    block : int
+        Side of the square blocks of sensor pixels held out together
+        (:func:`holdout_split`).
     """
 
     start: float
     end: float
     se_rule: float = SE_RULE
     max_above_minimum: float = MAX_ABOVE_MINIMUM
-    path_share: float | None = None
-    budget: float = 2.0
+    budget: float = BUDGET
+    factor: float = PATH_FACTOR
+    block: int = BLOCK
 
 
 #: The 2D rules (:data:`START_WEIGHT`, :data:`END_WEIGHT`, :data:`SE_RULE`,
@@ -208,6 +238,9 @@ class AutoWeight:
     kept_final_iteration: int | None = None
     holdout_coverage: float | None = None
     final_pixels: str | None = None
+    stop_reason: str = ""
+    budget_iterations: int = 0
+    seconds: float = 0.0
 
     def as_dict(self) -> dict:
         return {"regulariser": self.regulariser, "weight": self.weight,
@@ -218,19 +251,16 @@ class AutoWeight:
                 "stopped_early": self.stopped_early,
                 "kept_final_iteration": self.kept_final_iteration,
                 "holdout_coverage": self.holdout_coverage,
-                "final_pixels": self.final_pixels}
+                "final_pixels": self.final_pixels, "stop_reason": self.stop_reason,
+                "budget_iterations": self.budget_iterations,
+                "candidates_settled": sum(bool(p.get("converged")) for p in self.path),
+                "seconds": self.seconds}
 
 
 def _data_terms(hist: History, b_norm: float) -> list[float]:
     return [0.5 * (r * b_norm) ** 2 for r in hist.data_residual]
 
 
-#: Side of the square blocks of pixels held out together. Single pixels are
-#: predicted from their neighbours even by a fit that follows the model's mismatch
-#: (spatially correlated): on the virtual bench's demo scene the pixel-wise held-out
-#: error kept falling to the smallest weight (13.7 dB against 18.5 dB at the best
-#: fixed weight); with 8 x 8 blocks it picks the best weight (18.5 dB).
-BLOCK = 8
 
 
 def holdout_mask(shape, fraction: float, seed: int, block: int = BLOCK) -> np.ndarray:
@@ -267,13 +297,14 @@ def holdout_coverage(op, keep: np.ndarray) -> float:
     return float(np.min(seen_fit[lit] / seen[lit])) if np.any(lit) else 0.0
 
 
-def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
+def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0, block: int = BLOCK
                   ) -> tuple[np.ndarray, np.ndarray]:
     """The pixels the fits keep and the measured pixels they hold out.
 
-    Random :data:`BLOCK` x :data:`BLOCK` blocks (:func:`holdout_mask`), single pixels
-    when the sensor is too small for blocks (fewer than 16 measured pixels held out,
-    or none kept).
+    Random ``block`` x ``block`` blocks (:func:`holdout_mask`), smaller ones
+    (:data:`SMALLER_BLOCKS`, down to single pixels) when the sensor is too small for
+    them (fewer than :data:`MIN_BLOCKS` whole blocks wider than 8 x 8, fewer than 16
+    measured pixels held out, or none kept).
 
     Parameters
     ----------
@@ -281,17 +312,22 @@ def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0
     holdout : float
         Fraction held out.
     seed : int
+    block : int
+        Side of the held-out blocks, pixels (:data:`BLOCK`).
 
     Returns
     -------
     keep, held : ndarray of bool, ``op.sensor_shape``
     """
     w = op.sensor_weights
-    keep = holdout_mask(op.sensor_shape, holdout, seed)
-    held = (w > 0) & ~keep
-    if held.sum() < 16 or not np.any(keep & (w > 0)):  # too small for blocks: pixels
-        keep = holdout_mask(op.sensor_shape, holdout, seed, block=1)
+    rows, cols = op.sensor_shape[:2]
+    for side in (block, *(b for b in SMALLER_BLOCKS if b < block)):
+        if side > SMALLER_BLOCKS[0] and (rows // side) * (cols // side) < MIN_BLOCKS:
+            continue
+        keep = holdout_mask(op.sensor_shape, holdout, seed, side)
         held = (w > 0) & ~keep
+        if held.sum() >= 16 and np.any(keep & (w > 0)):  # else too small for blocks
+            break
     return keep, held
 
 
@@ -304,51 +340,62 @@ def _merge(histories: list[History]) -> History:
     return out
 
 
-def path_budget(iterations: int, path_share: float | None = None,
-                budget: float = 2.0) -> tuple[int, int]:
-    """``(path, final)`` iterations of :func:`admm_auto` for a fixed run's ``iterations``.
-
-    The two add up to ``2 * iterations``. The path takes ``iterations``, or
-    :data:`PATH_ITERATIONS` when that is at most half as many again (134-199
-    iterations), the final solve (which starts from the path's estimate at the chosen
-    weight and needs fewer) giving up the difference. Below that the path stays short
-    and coarse, and :func:`admm_auto` says so (:data:`COARSE_FACTOR`). With
-    ``path_share`` the two add up to ``budget * iterations`` and the path takes that
-    share of them (the volume's rule: its ADMM settles more slowly after a weight step,
-    see :data:`recon.auto.volume.VOLUME_RULES`).
+def path_budget(iterations: int, budget: float = BUDGET) -> int:
+    """Iterations the path of :func:`admm_auto` may take for a fixed run's ``iterations``.
 
     Parameters
     ----------
     iterations : int
         Iterations of the fixed-weight run that automatic ADMM replaces (>= 1).
-    path_share : float, optional
-        Share of the budget the path takes, in (0, 1).
     budget : float
-        With ``path_share``: path and final solve take at most this multiple of
-        ``iterations`` together.
+        Multiple of ``iterations`` (:data:`BUDGET`; the rule's ``budget``).
 
     Returns
     -------
-    (path, final) : (int, int)
-        Iterations of the held-out path and at most of the final solve.
+    int
+        ``max(2, round(budget * iterations))``.
     """
-    n = int(iterations)
-    if path_share is not None:
-        total = max(2, round(budget * n))
-        path = min(total - 1, max(1, round(total * path_share)))
-        return path, total - path
-    path = PATH_ITERATIONS if n < PATH_ITERATIONS <= (3 * n) // 2 else n
-    return path, 2 * n - path
+    return max(2, round(budget * int(iterations)))
+
+
+def weight_grid(start: float, end: float, factor: float = PATH_FACTOR) -> list[float]:
+    """The path's weights: ``start`` down to ``end``, geometric, steps of at most ``factor``.
+
+    Returns
+    -------
+    list of float
+        Descending, first ``start``, last ``end`` (one weight when they are equal).
+    """
+    if not (start > 0 and end > 0 and factor > 1):
+        raise ReconInputError(f"weight path {start:g} .. {end:g} by {factor:g}: give "
+                              "positive weights and a factor above 1")
+    if start <= end:
+        return [float(start)]
+    n = math.ceil(math.log(start / end) / math.log(factor) - 1e-9) + 1
+    return [float(start * (end / start) ** (k / (n - 1))) for k in range(n)]
+
+
+def _choose(cands: list, rule: PathRule) -> tuple[int, int, float]:
+    """(index of the held-out minimum, index chosen, chosen weight): the largest weight
+    within ``rule.se_rule`` standard errors of the minimum, at most
+    ``rule.max_above_minimum`` times its weight."""
+    best = min(range(len(cands)), key=lambda i: cands[i].error)
+    limit = cands[best].error + rule.se_rule * cands[best].standard_error
+    bound = rule.max_above_minimum * cands[best].weight * (1 + 1e-9)
+    k = next(i for i, c in enumerate(cands)
+             if c.error <= limit and c.weight <= bound and c.x is not None)
+    return best, k, cands[k].weight
 
 
 def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
-              regulariser: str = "tv",
-              stage: int | None = None,
-              stopping: Stopping | None = None, mu=None, model_error: float = MODEL_ERROR,
-              path_only: bool = False, holdout: float = HOLDOUT, seed: int = 0,
-              plan_of=None, fixed: float = 0.0, rule: PathRule | None = None
+              regulariser: str = "tv", stopping: Stopping | None = None, mu=None,
+              model_error: float = MODEL_ERROR, path_only: bool = False,
+              holdout: float = HOLDOUT, seed: int = 0, plan_of=None, fixed: float = 0.0,
+              rule: PathRule | None = None, seconds: float | None = None,
+              convergence: Convergence | None = None
               ) -> tuple[SolveResult | None, AutoWeight]:
-    """ADMM with its TV or l1 weight chosen by hold-out cross-validation, automatic stopping.
+    """ADMM with its TV or l1 weight chosen by hold-out cross-validation between
+    settled solves (the module docstring).
 
     Parameters
     ----------
@@ -357,28 +404,23 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         the volume model with their ``plan_of``).
     b : ndarray, float32, ``op.shape_out``
         Scaled measurement (weighted, divided by its maximum). An array of another
-        array-API backend (CuPy, PyTorch) runs the path and the final solve on its
-        device (the generic ADMM, :class:`recon.solvers.xp_admm.XpAdmmPlan`, by
-        default): iterates, warm starts and held-out scores stay there, the result's
-        ``x`` too; the held-out split and :func:`holdout_coverage` are computed on
-        the host from ``op``.
+        array-API backend (CuPy, PyTorch) runs the path on its device (the generic
+        ADMM, :class:`recon.solvers.xp_admm.XpAdmmPlan`, by default): iterates, kept
+        estimates and held-out scores stay there, the result's ``x`` too; the held-out
+        split and :func:`holdout_coverage` are computed on the host from ``op``.
     iterations : int
-        Iterations of the fixed-weight run this replaces: the path and the final solve
-        take at most twice as many together (:func:`path_budget`).
+        Iterations of the fixed-weight run this replaces: each candidate weight runs
+        at most this many, the whole path at most ``rule.budget`` times as many
+        (:func:`path_budget`).
     noise_energy : float
         E||n||^2 of the scaled measurement (from :class:`recon.auto.noise.NoiseModel`).
     regulariser : {"tv", "l1"}
         Which weight the path chooses.
     fixed : float
-        The other regulariser's weight, held fixed along the path and in the final
-        solve (default 0).
-    stage : int, optional
-        Iterations per path weight; default ``max(20, path // 10)`` (shorter
-        stages had not settled when compared: at 10 per stage the held-out error rose
-        in the transient after a weight step and the path stopped at 2.5e-3 on a
-        scene whose best weight is 1e-5, 6.4 dB below it).
+        The other regulariser's weight, held fixed along the path (default 0).
     stopping : Stopping, optional
-        Automatic stopping of the final solve (default ``Stopping()``).
+        Automatic stopping of the all-pixel final solve (only with a compact PSF,
+        :func:`holdout_coverage`; default ``Stopping()``).
     mu : (mu1, mu2, mu3), optional
         Starting ADMM penalties.
     model_error : float
@@ -402,16 +444,20 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         tv=, l1=, final=)`` and ``objective(b, x, tv=, l1=, b_norm=)``; its states
         ``x``, ``mx`` (the uncropped prediction plane) and ``mu``.
     rule : PathRule, optional
-        The path's span and choice rule; default :data:`PATH_RULES` of
+        The path's span, step, budget and choice rule; default :data:`PATH_RULES` of
         ``regulariser`` (the 2D rules).
+    seconds : float, optional
+        Wall-clock budget of the path, s: no candidate window starts after it (the
+        record says where it stopped and how settled each candidate was).
+    convergence : Convergence, optional
+        When a candidate counts as settled (default ``Convergence()``).
 
     Returns
     -------
     result : SolveResult
-        The final estimate (the final solve's iterate that predicted the held-out
-        pixels best; ``final_objective`` and ``final_relative_residual`` are that
-        estimate's, on the pixels its solve fitted); ``history`` spans the path and
-        the final solve;
+        The chosen candidate's kept iterate (the one that predicted the held-out
+        pixels best); ``final_objective`` and ``final_relative_residual`` are that
+        estimate's, on the pixels its solve fitted; ``history`` spans the path;
         ``params`` adds ``auto`` (the :class:`AutoWeight` record) and
         ``iterations_used``.
     choice : AutoWeight
@@ -419,14 +465,18 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     Raises
     ------
     ReconInputError
-        Unknown ``regulariser``.
+        Unknown ``regulariser``, a negative ``fixed`` weight or ``seconds``.
     """
+    t_start = time.perf_counter()
     stopping = stopping or Stopping()
+    conv = convergence or Convergence()
     if regulariser not in ("tv", "l1"):
         raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
+    if seconds is not None and not (seconds > 0 and math.isfinite(seconds)):
+        raise ReconInputError(f"time budget {seconds} s: give a positive number of seconds")
     rule = rule or PATH_RULES[regulariser]
-    iterations, final_budget = path_budget(iterations, rule.path_share, rule.budget)
-    stage = min(stage or max(20, iterations // 10), max(1, iterations // 3))
+    cap = max(1, int(iterations))
+    total = path_budget(cap, rule.budget)
     arrays = PathArrays(b)
     b_norm = arrays.norm(b)
     target = 0.5 * (float(noise_energy) + (model_error * b_norm) ** 2)
@@ -440,14 +490,14 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         return {"tv": w, "l1": fixed} if regulariser == "tv" else {"tv": fixed, "l1": w}
 
     use_tv = regulariser == "tv" or fixed > 0
-
-    histories, path = [], []
-    weight, used = rule.start, 0
-    # span START .. END within the budget: the first stage is 3, the others 1 stage long
-    stages = max(2, (iterations - 3 * stage) // stage + 1)
-    factor = max(PATH_FACTOR, (weight / rule.end) ** (1.0 / (stages - 1)))
     w = op.sensor_weights
-    keep, held = holdout_split(op, holdout, seed)
+    keep, held = holdout_split(op, holdout, seed, rule.block)
+    # with a compact PSF the held-out blocks hide object pixels: the result is then a
+    # final solve on all pixels, which takes a fixed run's iterations from the budget
+    coverage = holdout_coverage(op, keep) if not path_only else None
+    watch = path_only or coverage >= MIN_COVERAGE
+    if not watch:
+        total = max(1, total - cap)
     if plan_of is None:
         plan_of = AdmmPlan.of if arrays.numpy else device_plan_of(b, AdmmPlan.of)
     fit_plan = plan_of(op.with_weights(w * keep))
@@ -459,99 +509,121 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         w_on, held_on = arrays.put(w), arrays.put(held, np.float64)
     n_held = int(np.count_nonzero(held))
     state = fit_plan.zeros(check_penalties(mu), use_tv)
-    # the path's estimates from the stage before the best on: the warm start is the
-    # one nearest the chosen weight, which lies within max_above_minimum x the best's
-    best, rises, estimates = None, 0, {}
 
     def score(st) -> tuple[float, float]:
         """Held-out prediction error of a fit's state, and its standard error."""
         return arrays.held_error(w_on * arrays.clip0(st.mx[op.crop]), b, held_on, n_held)
 
-    while weight >= rule.end:
-        # the first stage rides out ADMM's start-up transient
-        n = min(3 * stage, iterations) if not path else stage
-        if used + n > iterations:
+    deadline = None if seconds is None else t_start + float(seconds)
+    grid = weight_grid(rule.start, rule.end, rule.factor)
+    stage_cap = min(cap, max(conv.min_iterations, round(STAGE_SHARE * cap)))
+    cands, used, rises, best, stop = [], 0, 0, None, None
+    for weight in grid:  # the first weight runs whatever the budget
+        if cands and used >= total:
+            stop = (f"the iteration budget ran out ({used} of {total} = {rule.budget:g}x "
+                    f"{cap}); weights below {cands[-1].weight:.3g} untried")
             break
-        res = fit_plan.run(b_fit, state, iterations=n, final=False, **weights(weight))
-        histories.append(res.history)
-        used += n
-        err, se = score(state)
-        path.append({"weight": weight, "holdout_error": err, "standard_error": se})
-        estimates[len(path) - 1] = arrays.copy(state.x)
-        if best is None or err < best[1]:
-            best, rises = (len(path) - 1, err, se), 0
-        elif err < path[-2]["holdout_error"]:  # falling again: a transient, not the end
-            rises = 0
-        elif err > best[1] + best[2]:  # a rise beyond the error's own scatter
-            rises += 1
-            if rises == 2:  # past the minimum: smaller weights only fit noise
+        if cands and deadline is not None and time.perf_counter() > deadline:
+            stop = (f"the time budget of {seconds:g} s ran out after {used} iterations; "
+                    f"weights below {cands[-1].weight:.3g} untried")
+            break
+        c = run_candidate(fit_plan, b_fit, state, weights(weight), score, arrays.copy,
+                          weight=weight, cap=min(stage_cap, total - used), conv=conv,
+                          deadline=deadline)
+        used += c.iterations
+        cands.append(c)
+        if best is None or c.error < best.error:
+            best, rises = c, 0
+            c.state = copy.deepcopy(state)  # the chosen weight runs on from here
+        elif c.error - c.remaining > best.error + best.standard_error:
+            rises += 1  # worse by more than its scatter, even after its remaining fall
+            if rises == 2:
+                stop = (f"past the held-out minimum: two weights in a row ({cands[-2].weight:.3g}, "
+                        f"{weight:.3g}) predict the held-out pixels worse than the best by "
+                        "more than one standard error, even after the fall their solves "
+                        "had left")
                 break
-        if rule.max_above_minimum <= factor:
-            for i in [i for i in estimates if i < best[0] - 1]:
-                del estimates[i]
-        weight /= factor
-    # one-standard-error rule: the largest weight whose error is within one standard
-    # error of the minimum (the minimum is flat; its argmin is noise)
-    k = next((i for i, p in enumerate(path)
-              if p["holdout_error"] <= best[1] + rule.se_rule * best[2]), best[0])
-    w_min = path[best[0]]["weight"]
-    chosen = min(path[k]["weight"], rule.max_above_minimum * w_min)
-    # warm start: the path estimate whose weight is nearest the chosen one
-    near = min(estimates, key=lambda i: abs(math.log(path[i]["weight"] / chosen)))
-    x_best = estimates[near]
-    estimates = None
+        # keep only the iterates the rule may choose: the minimum's and larger weights
+        # within max_above_minimum of it
+        for d in cands:
+            if d.weight > rule.max_above_minimum * best.weight * (1 + 1e-9) or \
+                    d.weight < best.weight:
+                d.x = None
+            if d is not best:
+                d.state = None
+    if stop is None:
+        stop = f"reached the smallest weight of the path ({grid[-1]:.3g})"
+    i_min, k, chosen = _choose(cands, rule)
+    pick = cands[k]
+    settle = 0
+    if used < total and (deadline is None or time.perf_counter() < deadline):
+        # run on at the chosen weight with what the budget has left (at most a fixed
+        # run's iterations), from the state its path solve ended in (a restart from the
+        # kept iterate with fresh duals lost 3 dB for 50 iterations; from the path's
+        # last state, at a smaller weight, 3 dB on smooth shapes): where the held-out
+        # error is flat the image still improves
+        if pick.state is not None:  # from the chosen weight's own state
+            state = pick.state
+        more = run_candidate(fit_plan, b_fit, state, weights(chosen), score, arrays.copy,
+                             weight=chosen, cap=min(cap, total - used), conv=conv,
+                             deadline=deadline, settle=False)
+        settle = more.iterations
+        used += settle
+        cands[-1].histories += more.histories
+        if more.error <= pick.error + conv.keep * pick.standard_error:
+            pick.x, pick.kept_iteration = more.x, pick.iterations + more.kept_iteration
+            pick.iterations += more.iterations
+            pick.status = "run on" if more.status == "cap" else more.status
+        more.x = None
+    unsettled = [c.weight for c in cands if not c.converged]
+    if settle:
+        stop += f"; the chosen weight then ran on for {settle} iterations"
     reason = (f"hold-out cross-validation: {100 * holdout:g} % of the pixels held out in "
-              f"{BLOCK} x {BLOCK} blocks; the "
-              f"largest weight whose fit to the others predicts them within "
+              f"{rule.block} x {rule.block} blocks; each weight solved (warm-started, at "
+              f"most {cap} iterations) until its held-out error settled; the largest weight whose "
+              f"fit predicts them within "
               f"{'one' if rule.se_rule == 1 else f'{rule.se_rule:g}'} standard "
-              f"error ({best[2]:.3g}) of the best prediction ({best[1]:.4g}, at weight "
-              f"{w_min:.3g})")
-    if chosen < path[k]["weight"]:
-        reason += (f", bounded to {rule.max_above_minimum:g}x that weight (the rule alone "
-                   f"gives {path[k]['weight']:.3g})")
-    if near == len(path) - 1 and rises == 0:
-        reason += "; the smallest weight of the path"
-    if factor > COARSE_FACTOR:
-        caution = (f"the path's {used} iterations step the weight by {factor:.1f}x, too "
-                   "coarse for a reliable choice: give 150 iterations or more")
-        reason += "; caution: " + caution
-        log.warning("automatic %s weight %.3g: %s", regulariser, chosen, caution)
+              f"error ({best.standard_error:.3g}) of the best prediction "
+              f"({best.error:.4g}, at weight {best.weight:.3g}), at most "
+              f"{rule.max_above_minimum:g}x that weight. The path stopped: {stop}")
+    if unsettled:
+        reason += ("; not settled within their iterations: "
+                   + ", ".join(f"{u:.3g}" for u in unsettled))
+    if not pick.converged:
+        log.warning("automatic %s weight %.3g: its solve had not settled (%d iterations, "
+                    "held-out error could still fall by %.3g standard errors)", regulariser,
+                    chosen, pick.iterations, pick.remaining / max(pick.standard_error, 1e-30))
+    histories = [h for c in cands for h in c.histories]
+    choice = AutoWeight(chosen, "holdout", reason, target, [c.record() for c in cands], used,
+                        0, False, regulariser, pick.kept_iteration, coverage,
+                        "fit, held-out watched", stop_reason=stop, budget_iterations=total,
+                        seconds=time.perf_counter() - t_start)
+    x, params = pick.x, cands[-1].params
+    for c in cands:
+        c.x = c.state = None
     if path_only:
-        return None, AutoWeight(chosen, "holdout", reason, target, path, used, 0, False,
-                                 regulariser)
-    # the final solve: the chosen weight on the same fit pixels, the held-out pixels
-    # watched every window, the iterate that predicts them best kept -- unless the
-    # held-out blocks hide part of the object (a compact PSF): then on all pixels
-    coverage = holdout_coverage(op, keep)
-    watch = coverage >= MIN_COVERAGE
-    final_plan, b_final = (fit_plan, b_fit) if watch else (plan_of(op), b)
-    state = final_plan.warm(x_best, check_penalties(mu), use_tv)
-    x_best = None
-    final_hist, final_data, done, stopped, kept = [], [], 0, False, None
-    while done < final_budget:
-        n = min(stopping.window, final_budget - done)
-        res = final_plan.run(b_final, state, iterations=n, final=False, **weights(chosen))
-        final_hist.append(res.history)
-        final_data += _data_terms(res.history, b_norm)
-        done += n
-        if not watch:  # the last iterate
-            kept = (None, res.x, done)
-        else:
-            err = score(state)[0]
-            if kept is None or err <= kept[0]:
-                kept = (err, arrays.copy(res.x), done)
-        if stopping.done(final_data, target):
-            stopped = done < final_budget
-            break
-    history = _merge(histories + final_hist)
+        return None, choice
+    final_plan, b_final, done = fit_plan, b_fit, 0
+    if not watch:  # a compact PSF: from the chosen estimate, on all pixels
+        final_plan, b_final = plan_of(op), b
+        state = final_plan.warm(x, check_penalties(mu), use_tv)
+        final_data = []
+        while done < cap:
+            n = min(stopping.window, cap - done)
+            res = final_plan.run(b, state, iterations=n, final=False, **weights(chosen))
+            histories.append(res.history)
+            final_data += _data_terms(res.history, b_norm)
+            done += n
+            if stopping.done(final_data, target):
+                choice.stopped_early = done < cap
+                break
+        x, params = res.x, res.params
+        choice.final_iterations, choice.kept_final_iteration = done, done
+        choice.final_pixels = "all (the held-out blocks hide object pixels)"
+    choice.seconds = time.perf_counter() - t_start
+    history = _merge(histories)
     history.extra["mu"] = [list(state.mu)]
-    choice = AutoWeight(chosen, "holdout", reason, target, path, used, done, stopped,
-                        regulariser, kept[2], coverage,
-                        "fit, held-out watched" if watch
-                        else "all (the held-out blocks hide object pixels)")
-    params = dict(res.params, auto=choice.as_dict(), iterations_used=used + done)
-    # the returned estimate's objective and residual, on the pixels its solve fitted
-    x = kept[1]
+    params = dict(params, auto=choice.as_dict(), iterations_used=used + done)
     objective, relative = final_plan.objective(b_final, x, **weights(chosen),
                                                b_norm=max(arrays.norm(b_final), 1e-30))
     return SolveResult(x, history, objective, relative, params), choice

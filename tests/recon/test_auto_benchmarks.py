@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from recon.benchmarks.auto import auto_table, run_case
+from recon.benchmarks.auto import auto_table, plot_budget, run_case
 from recon.benchmarks.auto_scenes import KINDS, make_scene
 from recon.benchmarks.failure_maps import _cell, failure_maps_table, plot_map
 
 
 def test_scene_kinds_are_non_negative_with_unit_peak():
-    for kind in ("photo:camera", *KINDS):
+    for kind in ("photo:camera", "photo:brick", *KINDS):
         s = make_scene(kind, (120, 160))
         assert s.shape == (120, 160) and s.min() >= 0 and s.max() == 1.0, kind
         assert s[:5].max() == 0  # inset: a dark surround
@@ -18,22 +18,28 @@ def test_scene_kinds_are_non_negative_with_unit_peak():
     assert np.mean(beads > 0.1) < 0.05  # sparse
 
 
-def test_run_case_reports_oracle_default_and_auto():
-    cfg = {"coarse_bin": 8, "iterations": 40, "grid": (1e-4, 3e-4), "timing_repeats": 2}
-    c = run_case("beads", 3000.0, cfg)
-    # the cost: medians of runs taken in turn, and the iterations against the fixed run's
-    assert len(c["auto"]["seconds_runs"]) == len(c["default"]["seconds_runs"]) == 2
-    assert c["auto_cost_ratio"] == c["auto"]["seconds"] / c["default"]["seconds"]
-    assert 0 < c["auto"]["iteration_ratio"] <= 2
-    assert c["oracle"]["psnr"] == max(g["psnr"] for g in c["grid"])
-    assert c["default"]["tv"] == 3e-4
+def test_run_case_reports_oracle_default_budgets_and_the_chart(tmp_path):
+    cfg = {"coarse_bin": 8, "iterations": 40, "grid": (1e-4, 1e-3), "refine": 10 ** 0.5,
+           "timing_repeats": 2, "dark_e": 100.0, "budget_scenes": ("beads",),
+           "budget_factors": (2.0,)}
+    c = run_case("beads", "beads", 3000.0, cfg)
+    # the cost: medians of runs taken in turn, over one fixed solve's
+    assert len(c["auto"]["seconds_runs"]) == 1
+    assert c["auto_cost_ratio"] == c["auto"]["seconds"] / c["fixed_seconds"]
+    # the oracle: the grid refined either side of its best
+    assert len(c["grid"]) == 4 and c["oracle"]["psnr"] == max(g["psnr"] for g in c["grid"])
     assert c["auto"]["psnr"] is not None and not c["auto"]["blank"]
+    assert c["auto"]["stop_reason"] and c["auto"]["candidates"] >= 1
     assert c["auto_shortfall_db"] == c["oracle"]["psnr"] - c["auto"]["psnr"]
-    table = auto_table({"cases": [c], "summary": {
+    (b,) = c["budgets"]
+    assert b["seconds_asked"] == 2.0 * c["fixed_seconds"] and b["psnr"] is not None
+    result = {"cases": [c], "summary": {
         "mean_shortfall_db": c["auto_shortfall_db"], "worst_shortfall_db": 0.0,
-        "mean_gain_over_default_db": 0.0, "cost_ratio_median": 1.0, "cost_ratio_max": 1.0,
-        "failures": []}, "setup": {**cfg, "fixed_default": 3e-4}})
-    assert "beads" in table and "oracle" in table
+        "cost_ratio_median": 1.0, "cost_ratio_max": 1.0, "failures": [],
+        "budget_overrun_max": 1.0}, "setup": cfg}
+    table = auto_table(result)
+    assert "beads" in table and "oracle" in table and "time budgets" in table
+    assert plot_budget(result, tmp_path / "chart.png").stat().st_size > 5000
 
 
 def test_failure_map_cell_and_figure(tmp_path):

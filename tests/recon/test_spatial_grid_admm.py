@@ -86,7 +86,10 @@ def test_automatic_weight_is_chosen_and_recorded():
     assert auto["weight"]["criterion"] == "holdout" and auto["weight"]["regulariser"] == "tv"
     assert rec.info["tv"] == auto["weight"]["weight"] > 0
     assert auto["method"]["method"] == "admm" and auto["snr_db"] > 10
-    assert 1 <= rec.info["iterations_used"] <= 300
+    # the automatic weight's budget: 3.5x the fixed run's 150 iterations, all recorded
+    assert 1 <= rec.info["iterations_used"] <= 525
+    assert auto["weight"]["stop_reason"] and all("converged" in p
+                                                 for p in auto["weight"]["path"])
     assert rec.image.shape == SHAPE and np.all(np.isfinite(rec.image))
 
 
