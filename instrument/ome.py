@@ -30,8 +30,6 @@ writers call, and what ``runs upgrade`` runs on a store written before).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -270,14 +268,9 @@ def set_dimension_names(array_dir: str | Path, names: Sequence[str]) -> bool:
     if meta.get("dimension_names") == names:
         return False
     meta["dimension_names"] = names
-    fd, tmp = tempfile.mkstemp(dir=node.parent, prefix=".zarr.json.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(meta, fh, indent=2)
-        os.replace(tmp, node)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    from recon.io import write_json
+
+    write_json(node, meta)  # whole or not at all (recon.io.atomic_path)
     return True
 
 

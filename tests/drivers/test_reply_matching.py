@@ -40,6 +40,9 @@ class ScriptedLink:
     def close(self) -> None:
         self.is_open = False
 
+    def hung_up(self) -> bool:  # a scripted link never loses its other end
+        return False
+
     def write(self, data: bytes) -> None:
         self.written.append(bytes(data))
         with self._cond:
