@@ -203,8 +203,12 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     assert probe() is None
     assert out["frozen_garbage"] >= 2 and out["frozen"] >= 2
     assert out["types"].get("Node") == 2, out["types"]
-    assert 3.8 <= out["arrays_mb"] < 3.9, out  # 4 MB (3.81 MiB) held by the cycle, once
+    # 4 MB (3.81 MiB) held by the cycle, counted once (the view b.payload is the same
+    # buffer); other threads left alive by earlier tests (a simulated camera's) may
+    # freeze a little garbage of their own beside it, so the total is a lower bound
     assert {"where": "Node.payload", "mb": 3.81, "buffers": 1} in out["array_holders"]
+    others = sum(h["mb"] for h in out["array_holders"] if h["where"] != "Node.payload")
+    assert 3.8 <= out["arrays_mb"] - others < 3.9, out
     assert not gc.garbage  # what was kept aside to be counted is freed
     assert "Node" not in out["garbage_types"] and out["garbage_arrays_mb"] < 3.8
     assert gc.get_freeze_count() == 0
