@@ -19,13 +19,16 @@ each candidate runs, warm-started from the one before, in windows of
 * **rising**: after :attr:`Convergence.min_iterations` (ADMM's transient after a weight
   step is over: it spiked the error once, 0.97 -> 2.0 -> 1.04, with 80 % of the pixels
   erased), the last two windows' errors are both more than one standard error above the
-  candidate's best -- the solve is now fitting noise into what the held-out pixels do
-  not share, and the iterate with the best held-out error is kept (cross-validated early
-  stopping, Prechelt 1998);
+  lowest of all its windows -- the solve is now fitting noise into what the held-out
+  pixels do not share, and the iterate with the best held-out error after the transient
+  is kept (cross-validated early stopping, Prechelt 1998);
 * **cap**: the candidate's iteration cap or the path's budget (iterations or seconds)
   ran out first; its remaining bound then says how far from settled it was.
 
-The candidate's score is its best held-out error; the iterate kept is the latest within
+The candidate's score is its best held-out error once the transient after the weight
+step is over (:attr:`Convergence.min_iterations`: before, the iterate is still the
+previous weight's solution moving, and scoring it there compared a blend of two weights
+with the others' own solves); the iterate kept is the latest within
 :attr:`Convergence.keep` standard errors of it (where the error is flat the image still
 improves). The chosen weight is then run on from the path's state
 (:func:`recon.auto.weight.admm_auto`), and its kept iterate is the result.
@@ -157,7 +160,7 @@ def remaining_bound(errors: list[float]) -> float:
 
 def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: float,
                   cap: int, conv: Convergence, deadline: float | None = None,
-                  settle: bool = True) -> Candidate:
+                  settle: bool = True, after_step: bool = True) -> Candidate:
     """Run one path weight from ``state`` (warm, updated in place) until it settles.
 
     Parameters
@@ -182,6 +185,15 @@ def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: flo
         ``time.perf_counter()`` value after which no further window starts.
     settle : bool
         Stop when settled (False: run to ``cap`` unless rising).
+    after_step : bool
+        ``state`` is another weight's (the path's warm start): the windows within
+        :attr:`Convergence.min_iterations` are not scored, since the iterate there is
+        still the previous weight's solution moving (a held-out dip in it is a blend
+        of the two weights that neither's solve keeps; the real 3D DiffuserCam sample
+        at bin 4 scored such a blend best and returned it after 10 iterations, with
+        half the fine structure of the settled solves). False for the path's first
+        weight (from zero: its early iterates are that weight's early-stopped solves)
+        and when running on from the weight's own state.
 
     Returns
     -------
@@ -190,8 +202,10 @@ def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: flo
     """
     errors, histories, done = [], [], 0
     best = kept = None  # (error, se), (x, iteration)
+    lowest = (float("inf"), 0.0)
     status, remaining = "cap", float("inf")
     least = min(conv.min_iterations, cap)
+    score_from = least if after_step else 0
     while done < cap:
         n = min(conv.window, cap - done)
         res = plan.run(b_fit, state, iterations=n, final=False, **weights)
@@ -199,13 +213,20 @@ def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: flo
         done += n
         err, se = score(state)
         errors.append(err)
-        if best is None or err < best[0]:
-            best = (err, se)
-        if err <= best[0] + conv.keep * best[1]:
-            kept = (copy(res.x), done)
+        # within the transient after a weight step the iterate is still the previous
+        # weight's solution moving: it is not scored as this weight's (like with like)
+        # (a dip there is the two weights' blend, which neither weight's solve keeps);
+        # the lowest error of all windows still tells a rise past the minimum
+        lowest = min(lowest, (err, se))
+        last = done >= cap or deadline is not None and time.perf_counter() > deadline
+        if done >= score_from or best is None and last:
+            if best is None or err < best[0]:
+                best = (err, se)
+            if err <= best[0] + conv.keep * best[1]:
+                kept = (copy(res.x), done)
         remaining = remaining_bound(errors)
         if done >= least and len(errors) >= 2 and \
-                min(errors[-2:]) > best[0] + best[1]:
+                min(errors[-2:]) > lowest[0] + lowest[1]:
             status, remaining = "rising", 0.0
             break
         if settle and done >= least and remaining <= conv.tolerance * best[1]:

@@ -529,7 +529,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
             break
         c = run_candidate(fit_plan, b_fit, state, weights(weight), score, arrays.copy,
                           weight=weight, cap=min(stage_cap, total - used), conv=conv,
-                          deadline=deadline)
+                          deadline=deadline, after_step=bool(cands))  # the first: from 0
         used += c.iterations
         cands.append(c)
         if best is None or c.error < best.error:
@@ -566,7 +566,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
             state = pick.state
         more = run_candidate(fit_plan, b_fit, state, weights(chosen), score, arrays.copy,
                              weight=chosen, cap=min(cap, total - used), conv=conv,
-                             deadline=deadline, settle=False)
+                             deadline=deadline, settle=False,
+                             after_step=pick.state is None)
         settle = more.iterations
         used += settle
         cands[-1].histories += more.histories

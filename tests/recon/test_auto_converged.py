@@ -65,10 +65,15 @@ def test_a_candidate_runs_until_settled_or_past_its_minimum():
     c = _scripted([1.0, 2.0, 1.0, 0.9, 0.8, 0.84, 1.0], cap=200)
     assert c.status == "settled" and c.error == 0.8 and c.kept_iteration == 60
     assert c.x[0] == 6.0 and c.iterations == 60
-    # past its minimum from the start (a weight below the best): "rising", the best kept
+    # past its minimum from the start (a weight below the best): "rising"; the dip in the
+    # transient after the weight step is the previous weight's solution, not scored as
+    # this weight's: the score and the iterate kept come from after the transient
     c = _scripted([0.5, 0.7, 0.9, 1.0], cap=200)
-    assert c.status == "rising" and c.converged and c.kept_iteration == 10
-    assert c.iterations == 30 and c.x[0] == 1.0
+    assert c.status == "rising" and c.converged and c.kept_iteration == 30
+    assert c.iterations == 30 and c.x[0] == 3.0 and c.error == 0.9
+    # running on from the weight's own state (no step): every window is scored
+    c = _scripted([0.5, 0.7, 0.9, 1.0], cap=200, after_step=False)
+    assert c.status == "rising" and c.kept_iteration == 10 and c.error == 0.5
     # the cap: unsettled, and the bound says how far from settled
     c = _scripted([3.0, 2.0, 1.0, 0.5], cap=40)
     assert c.status == "cap" and not c.converged and c.remaining > 0.4
