@@ -32,12 +32,13 @@ import logging
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterator
 
 from .startup_signals import HANDLED, Terminated, is_command_process, record
 
 __all__ = ["HANDLED", "Terminated", "after_the_command", "exit_status", "is_command_process",
-           "quiet_shutdown", "signal_text", "terminate_like_ctrl_c"]
+           "quiet_shutdown", "redeliver", "signal_text", "terminate_like_ctrl_c"]
 
 log = logging.getLogger("diffuserlab")
 
@@ -63,6 +64,9 @@ def terminate_like_ctrl_c() -> Iterator[list[int]]:
         return
 
     def handler(signum, frame):
+        if signum in _REDELIVER:  # the first one, lost in a finalizer: raised again
+            _REDELIVER.remove(signum)
+            raise Terminated(signum)
         received.append(signum)
         record(signum)
         if len(received) == 1:
@@ -78,6 +82,55 @@ def terminate_like_ctrl_c() -> Iterator[list[int]]:
             signal.signal(s, h)
 
 
+#: Signals whose interrupt a finalizer swallowed, raised again in the main thread.
+_REDELIVER: list[int] = []
+
+
+def redeliver(exc: BaseException | None) -> bool:
+    """Raise an interrupt that Python could not raise again in the main thread.
+
+    A signal whose handler runs while a finalizer (``__del__``, a weakref callback)
+    is on the stack raises its KeyboardInterrupt there, and Python hands it to
+    ``sys.unraisablehook`` and runs on: a Ctrl-C while a recording started was lost
+    that way under load (the command recorded all its frames and exited 0). The
+    command process (:func:`quiet_shutdown` installs this in its hook) sends the same
+    signal to its main thread again (``_thread.interrupt_main``), where it stops the
+    command like any Ctrl-C; before :func:`after_the_command` only.
+
+    Parameters
+    ----------
+    exc : BaseException or None
+        The exception the hook was given.
+
+    Returns
+    -------
+    bool
+        True when ``exc`` was an interrupt and was sent again.
+    """
+    import _thread
+
+    if not isinstance(exc, KeyboardInterrupt) or _AFTER:
+        return False
+    signum = exc.signum if isinstance(exc, Terminated) else int(signal.SIGINT)
+    if signum != signal.SIGINT:
+        _REDELIVER.append(signum)
+    # from another thread, a moment later: the main thread is still in the hook, where
+    # a handler's interrupt would be lost again
+    def later() -> None:
+        time.sleep(0.05)
+        _thread.interrupt_main(signum)
+
+    try:
+        threading.Thread(target=later, daemon=True, name="redeliver-interrupt").start()
+    except KeyboardInterrupt:  # another signal, here: it is the same request
+        pass
+    return True
+
+
+#: Set once the command has chosen its status (:func:`after_the_command`).
+_AFTER: list[bool] = []
+
+
 def signal_text(signum: int | None) -> str:
     """``Ctrl-C`` for SIGINT (or None), ``stopped by SIGTERM`` for the others."""
     if signum is None or signum == signal.SIGINT:
@@ -90,10 +143,16 @@ def quiet_shutdown(debug: bool) -> None:
     exit hook's, a finalizer's: ``sys.unraisablehook``) go to the debug log instead
     of the console, and the resource tracker's leak warning of workers stopped
     mid-start is not shown, unless ``debug``."""
-    if not is_command_process() or debug:
+    if not is_command_process():
+        return
+    if debug:
+        default = sys.unraisablehook
+        sys.unraisablehook = lambda u: redeliver(u.exc_value) or default(u)
         return
 
     def hook(unraisable) -> None:
+        if redeliver(unraisable.exc_value):
+            return
         log.debug("while exiting: %s: %s (%s)", type(unraisable.exc_value).__name__,
                   unraisable.exc_value, unraisable.err_msg)
 
@@ -111,5 +170,6 @@ def after_the_command() -> None:
     that re-raises an interrupt then (``_thread.interrupt_main``) is ignored too."""
     if not is_command_process() or threading.current_thread() is not threading.main_thread():
         return
+    _AFTER.append(True)
     for s in (signal.SIGINT, *HANDLED):
         signal.signal(s, lambda signum, frame: record(signum))

@@ -243,6 +243,48 @@ def _signal_at(argv, tmp_path, sig, delay_s, run):
     _assert_stopped_in_one_line(proc, sig, run)
 
 
+FINALIZER = """import gc, os, signal, sys, time
+from instrument.cli import startup_signals
+startup_signals.install()
+from instrument.cli.interrupts import quiet_shutdown, terminate_like_ctrl_c
+
+class Late:
+    def __del__(self):  # the signal's handler runs here, in a finalizer
+        os.kill(os.getpid(), int(sys.argv[1]))
+        for _ in range(1000):
+            pass
+
+quiet_shutdown(debug=sys.argv[2] == "debug")
+try:
+    with terminate_like_ctrl_c():
+        Late()
+        gc.collect()
+        for _ in range(200):
+            time.sleep(0.01)
+        print("ran on")
+except KeyboardInterrupt as exc:
+    print("stopped", getattr(exc, "signum", 2))
+"""
+
+
+@pytest.mark.parametrize("debug", ["quiet", "debug"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM],
+                         ids=["SIGINT", "SIGTERM"])
+def test_an_interrupt_raised_in_a_finalizer_still_stops_the_command(tmp_path, sig, debug):
+    """A signal whose handler ran inside a finalizer raised its KeyboardInterrupt there,
+    where Python reports it as unraisable and runs on: a Ctrl-C as a recording started
+    was lost that way under load (300 frames recorded, exit 0). The command process
+    raises it again in its main thread."""
+    script = tmp_path / "bin" / "diffuserlab"  # a command process (is_command_process)
+    script.parent.mkdir()
+    script.write_text(FINALIZER)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, str(script), str(int(sig)), debug], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.stdout.split() == ["stopped", str(int(sig))], (done.stdout, done.stderr)
+    assert "Traceback" not in done.stderr, done.stderr
+
+
 _VIDEO = ["capture", "video", "--simulate", "--frames", "300", "--out"]
 _SIGNALS = [signal.SIGINT, signal.SIGTERM]
 
