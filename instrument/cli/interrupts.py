@@ -91,8 +91,9 @@ def redeliver(exc: BaseException | None) -> bool:
 
     A signal whose handler runs while a finalizer (``__del__``, a weakref callback)
     is on the stack raises its KeyboardInterrupt there, and Python hands it to
-    ``sys.unraisablehook`` and runs on: a Ctrl-C while a recording started was lost
-    that way under load (the command recorded all its frames and exited 0). The
+    ``sys.unraisablehook`` and runs on (the likely way a Ctrl-C as a recording started
+    was once lost under load: all its frames recorded, exit 0; not reproduced on
+    demand, the finalizer case is, in the tests). The
     command process (:func:`quiet_shutdown` installs this in its hook) sends the same
     signal to its main thread again (``_thread.interrupt_main``), where it stops the
     command like any Ctrl-C; before :func:`after_the_command` only.

@@ -272,9 +272,9 @@ except KeyboardInterrupt as exc:
                          ids=["SIGINT", "SIGTERM"])
 def test_an_interrupt_raised_in_a_finalizer_still_stops_the_command(tmp_path, sig, debug):
     """A signal whose handler ran inside a finalizer raised its KeyboardInterrupt there,
-    where Python reports it as unraisable and runs on: a Ctrl-C as a recording started
-    was lost that way under load (300 frames recorded, exit 0). The command process
-    raises it again in its main thread."""
+    where Python reports it as unraisable and runs on (the likely way a Ctrl-C as a
+    recording started was once lost under load: exit 0). The command process raises
+    it again in its main thread."""
     script = tmp_path / "bin" / "diffuserlab"  # a command process (is_command_process)
     script.parent.mkdir()
     script.write_text(FINALIZER)
