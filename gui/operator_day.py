@@ -205,12 +205,17 @@ class Operator:
                 self.x.click(ext)
                 yield self.typed()
                 yield self.until(widget.isVisible, 5, "the tool bar's overflow to open")
+        before = None
         for _ in range(40):
             point = centre(widget)
             under = QApplication.widgetAt(point)
-            if under is not None and (under is widget or widget.isAncestorOf(under)):
+            # where it was a moment ago too: a panel that re-lays itself out when its dock
+            # is raised (the Record panel's columns) moves its fields after the first look
+            if under is not None and (under is widget or widget.isAncestorOf(under)) \
+                    and point == before:
                 self.target = point
                 return
+            before = point
             yield 0.1
         raise StepFailed(f"{widget.objectName() or widget} is not on the screen where the "
                          f"window says (covered or off screen): {QApplication.widgetAt(point)}")
@@ -239,6 +244,11 @@ class Operator:
         if enter:
             self.x.key("Return")
         yield self.typed()
+        if not enter and hasattr(widget, "text"):  # a line edit: what it holds now
+            name = widget.objectName() or type(widget).__name__
+            yield self.until(lambda: widget.text() == text, 10,
+                             f"{name} to hold {text!r} (it holds {widget.text()!r}, the "
+                             f"focus is on {QApplication.focusWidget()})")
 
     def choose(self, combo, text: str) -> Iterator:
         """Pick ``text`` in a combo box: click it open, click the entry in its list."""
