@@ -382,6 +382,18 @@ def missing_dirs(path: str | os.PathLike) -> list[Path]:
     return out
 
 
+def _make_parent(path: str | os.PathLike) -> tuple[Path, list[Path]]:
+    """Create ``path``'s folder; returns ``(Path(path), the folders made)``, the latter
+    also noted in the current :func:`output_group`."""
+    path = Path(path)
+    made = missing_dirs(path)
+    group = getattr(_GROUP, "made", None)
+    if group is not None:
+        group.extend(made)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path, made
+
+
 def remove_empty_dirs(dirs) -> None:
     """Remove the folders of :func:`missing_dirs` that are still empty, deepest first."""
     for d in dirs:
@@ -477,12 +489,7 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     pathlib.Path
         The temporary folder (hidden, ``.NAME.XXXX.tmp``, created empty).
     """
-    path = Path(path)
-    made = missing_dirs(path)
-    group = getattr(_GROUP, "made", None)
-    if group is not None:
-        group.extend(made)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path, made = _make_parent(path)
     tmp = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp"))
     try:
         yield tmp
@@ -528,12 +535,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     >>> with atomic_path("out/metrics.json") as tmp:  # doctest: +SKIP
     ...     tmp.write_text("{}")
     """
-    path = Path(path)
-    made = missing_dirs(path)
-    group = getattr(_GROUP, "made", None)
-    if group is not None:
-        group.extend(made)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    path, made = _make_parent(path)
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.",
                                 suffix=f".tmp{path.suffix}")
     os.close(fd)

@@ -18,8 +18,8 @@ import pytest
 
 from instrument.cli import main
 from instrument.volume_shards import ShardLostError, local_cluster, sharded_fista3d
-from recon.volume import VolumeConvolutionOperator, fista3d, normalize_psf_stack
-from tests.instrument.cli.test_recon3d import DEPTHS, bead_problem
+from recon.volume import fista3d
+from tests.instrument.cli.test_recon3d import DEPTHS, bead_problem, normalized_bead_problem
 
 
 @pytest.fixture(scope="module")
@@ -32,11 +32,7 @@ def cluster():
 
 @pytest.fixture(scope="module")
 def problem():
-    stack, raw = bead_problem()
-    h, scale = normalize_psf_stack(stack)
-    b = (raw / np.abs(raw).max()).astype(np.float32)
-    op = VolumeConvolutionOperator(h)
-    return stack, scale, b, op, op.lipschitz_bound()
+    return normalized_bead_problem()
 
 
 def _kill_worker_of_slab(client, slab: int, after: int):

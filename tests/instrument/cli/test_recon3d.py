@@ -21,7 +21,7 @@ import recon.volume
 import recon.volume.api
 from instrument.cli import main, recon3d
 from recon.io import load_image
-from recon.volume import VolumeConvolutionOperator
+from recon.volume import VolumeConvolutionOperator, normalize_psf_stack
 
 N = 48
 DEPTHS = [float(z) for z in 1.0 / np.linspace(0.5, 0.1, 5)]  # 2 ... 10 mm, uniform in 1/z
@@ -54,6 +54,16 @@ def bead_problem() -> tuple[np.ndarray, np.ndarray]:
         truth[z, top + i, left + j] = 1.0
     raw = op.forward(truth)
     return stack, raw + 0.01 * raw.max() * np.random.default_rng(1).standard_normal(raw.shape)
+
+
+def normalized_bead_problem() -> tuple:
+    """(stack, scale, b, op, L): :func:`bead_problem` with its stack normalised, the
+    raw scaled to a maximum of 1, the operator and its Lipschitz bound."""
+    stack, raw = bead_problem()
+    h, scale = normalize_psf_stack(stack)
+    b = (raw / np.abs(raw).max()).astype(np.float32)
+    op = VolumeConvolutionOperator(h)
+    return stack, scale, b, op, op.lipschitz_bound()
 
 
 @pytest.fixture(scope="module")

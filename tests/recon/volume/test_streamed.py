@@ -16,7 +16,7 @@ import pytest
 import recon
 from recon.errors import ReconInputError
 from recon.operators import LinearOperator
-from recon.volume import VolumeConvolutionOperator, fista3d, normalize_psf_stack
+from recon.volume import VolumeConvolutionOperator, fista3d
 from recon.volume.memory_plan import in_memory_bytes, memory_plan
 from recon.volume.slab import VolumeSlab
 from recon.volume.streamed import (
@@ -25,7 +25,7 @@ from recon.volume.streamed import (
     streamed_fista3d,
     streamed_memory_bytes,
 )
-from tests.instrument.cli.test_recon3d import BEADS, DEPTHS, bead_problem
+from tests.instrument.cli.test_recon3d import BEADS, DEPTHS, bead_problem, normalized_bead_problem
 
 REL = 1e-5
 
@@ -49,11 +49,7 @@ class SensorSupport(LinearOperator):
 
 @pytest.fixture(scope="module")
 def problem():
-    stack, raw = bead_problem()
-    h, scale = normalize_psf_stack(stack)
-    b = (raw / np.abs(raw).max()).astype(np.float32)
-    op = VolumeConvolutionOperator(h)
-    return stack, scale, b, op, op.lipschitz_bound()
+    return normalized_bead_problem()
 
 
 def _rel(a, b):
