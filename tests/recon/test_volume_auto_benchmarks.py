@@ -81,6 +81,22 @@ def test_volume_auto_quick(tmp_path):
     assert r["summary"]["mean_shortfall_db"] == pytest.approx(c["auto_shortfall_db"])
     assert json.loads((tmp_path / "volume_auto.json").read_text())["setup"]["rule"]["tv"]
     assert "auto below oracle" in volume_auto_table(r)
+    # without repeats the cost is over the grid's own solves
+    grid_s = [g["seconds"] for g in c["grid"]]
+    assert c["fixed_seconds"] == pytest.approx(float(np.median(grid_s)))
+    assert r["summary"]["cost_ratio_max"] == pytest.approx(c["auto_cost_ratio"])
+
+
+def test_volume_auto_times_the_default_in_turn_with_a_fixed_solve(tmp_path):
+    """The default's cost is the median of runs taken in turn with fixed solves at the
+    oracle's weight (the first, untimed-in-turn run dropped), as the 2D suite does."""
+    from recon.benchmarks.volume_auto import QUICK, run_case
+
+    c = run_case("beads", 10.0, 3000.0, QUICK | {"timing_repeats": 3})
+    assert len(c["auto"]["seconds_runs"]) == 2 and len(c["fixed_seconds_runs"]) == 2
+    assert c["fixed_seconds"] == pytest.approx(float(np.median(c["fixed_seconds_runs"])))
+    assert c["auto_cost_ratio"] == pytest.approx(c["auto"]["seconds"] / c["fixed_seconds"])
+    assert c["auto_cost_ratio"] > 1.0  # the default solves a path of weights, then one
 
 
 def test_volume_external_quick(tmp_path):
