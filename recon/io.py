@@ -452,20 +452,64 @@ def _put_in_place(tmp: Path, final: Path) -> None:
     remove_tree(old)
 
 
+def wait_for_zarr_writes(timeout_s: float = 5.0) -> bool:
+    """Wait until zarr's event loop has no task left running (its chunk writes).
+
+    zarr (3.x) runs an array's chunk writes as tasks on one event loop in its own
+    thread and gathers them; when one write fails the error reaches the caller while
+    the other writes still run and may create folders after the caller cleaned up. This
+    waits, on that loop, for every other task to end (each write's thread included).
+
+    Parameters
+    ----------
+    timeout_s : float
+        The longest wait (s).
+
+    Returns
+    -------
+    bool
+        True when no write was left running; False when zarr is not loaded, its loop
+        is not running (nothing to wait for) or the wait timed out.
+    """
+    import asyncio
+    import sys
+
+    sync = sys.modules.get("zarr.core.sync")
+    loop = getattr(sync, "loop", [None])
+    loop = loop[0] if isinstance(loop, list) and loop else None
+    if loop is None or not loop.is_running():
+        return False
+
+    async def drain() -> None:
+        me = asyncio.current_task()
+        while others := [t for t in asyncio.all_tasks() if t is not me and not t.done()]:
+            await asyncio.wait(others)
+
+    future = asyncio.run_coroutine_threadsafe(drain(), loop)
+    try:
+        future.result(timeout_s)
+    except Exception:  # timed out (or the loop stopped): the settle loop still runs
+        future.cancel()
+        return False
+    return True
+
+
 def remove_tree(path: str | os.PathLike, settle_s: float = 0.1,
                 timeout_s: float = 5.0) -> None:
     """Remove a folder a failed write left, until it stays gone.
 
     zarr writes chunks on a pool of threads: when one write fails (a full disk), the
     others still finish after the error has reached the caller and may create their
-    folders again. So the folder is removed until it stays gone for ``settle_s`` (at
-    most ``timeout_s``).
+    folders again. So zarr's writes still in flight are waited for first
+    (:func:`wait_for_zarr_writes`), then the folder is removed until it stays gone for
+    ``settle_s`` (at most ``timeout_s`` in all).
     """
     import shutil
     import time
 
     path = Path(path)
     deadline = time.monotonic() + timeout_s
+    wait_for_zarr_writes(timeout_s)
     while True:
         shutil.rmtree(path, ignore_errors=True)
         time.sleep(settle_s)

@@ -228,8 +228,10 @@ def test_recon3d_zarr_on_a_full_disk_leaves_no_hidden_folder(d, capsys, monkeypa
     """zarr writes chunks on threads: those still running when one fails with ENOSPC
     created their folders again after the temporary volume was removed (a hidden
     ``.v.zarr.XXXX.tmp`` left). Here the failing chunk fails at once and the others
-    finish 30 ms later, after the error has reached the command (within the 0.1 s
-    that :func:`recon.io.remove_tree` waits for the folder to stay gone)."""
+    finish 0.5 s later, long after the error has reached the command and past the
+    0.1 s that :func:`recon.io.remove_tree` waits for the folder to stay gone: the
+    clean-up waits for zarr's writes in flight (:func:`recon.io.wait_for_zarr_writes`),
+    not for a fixed time."""
     import asyncio
 
     from zarr.storage import LocalStore
@@ -240,7 +242,7 @@ def test_recon3d_zarr_on_a_full_disk_leaves_no_hidden_folder(d, capsys, monkeypa
         if key.endswith("c/0/0/0"):
             raise OSError(errno.ENOSPC, "No space left on device")
         if "/c/" in key or key.startswith("c/"):
-            await asyncio.sleep(0.03)
+            await asyncio.sleep(0.5)
         return await write(self, key, value)
 
     monkeypatch.setattr(LocalStore, "set", full_disk)
@@ -249,6 +251,6 @@ def test_recon3d_zarr_on_a_full_disk_leaves_no_hidden_folder(d, capsys, monkeypa
                    ["No space left on device", "free", "o/v.zarr"], d, capsys)
     import time
 
-    time.sleep(0.3)  # the late chunk writes have ended: still nothing left
+    time.sleep(1.0)  # the late chunk writes have ended: still nothing left
     assert not any(p.name.startswith(".v.zarr") for p in d.rglob("*"))
     assert not (d / "o").exists()
