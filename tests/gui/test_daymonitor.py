@@ -62,7 +62,7 @@ def test_watchdog_keeps_no_frame_of_a_stall(qapp, wait):
     def worker() -> None:
         held = _Held()
         probe.append(weakref.ref(held))
-        release.wait(10)
+        release.wait(600)  # until released below; the limit is only a hang guard
 
     thread = threading.Thread(target=worker, name="held-worker")
     thread.start()
@@ -75,7 +75,8 @@ def test_watchdog_keeps_no_frame_of_a_stall(qapp, wait):
         assert monitor.stalls, "no stall recorded"
         namespace = {"held": probe[0]()}
         release.set()
-        thread.join(5)
+        thread.join(60)
+        assert not thread.is_alive()
         assert_freed_without_the_collector(namespace, "held", "worker's local after a stall")
     finally:
         release.set()
@@ -280,13 +281,17 @@ def test_array_holders_name_the_attribute_container_or_thread_holding_each_buffe
     def grab():
         frame = np.zeros((1024, 1024), np.uint8)  # 1 MiB, a local of a running thread
         started.set()
-        release.wait(10)
+        # runs until the census is over (released in the finally below); the limit is
+        # only a hang guard: a census of a loaded test process takes over 10 s, and the
+        # thread had ended with its array before the census reached it (KeyError
+        # 'grab-test: grab' in loaded runs)
+        release.wait(600)
         return frame
 
     t = threading.Thread(target=grab, name="grab-test")
     t.start()
     try:
-        assert started.wait(10)
+        assert started.wait(120)
         # as the watchdog does when the GUI thread is late (under load): the running
         # thread's frame object and its locals' snapshot exist before the census, and
         # are among the collector's objects (the census then named the frame, not the
