@@ -11,7 +11,7 @@ sees it at incidence angle ``theta``::
 Per point: move, backlight the pinhole with every LED (``Light("all")``: the LED
 coupling of the virtual bench, and of a real diffused array, does not depend on
 where the pinhole sits within the array), auto-expose (the shared
-:data:`~calibration_routines._common.CALIBRATION_EXPOSURE`), capture
+``CALIBRATION_EXPOSURE`` of ``calibration_routines._common``), capture
 ``frames_per_point`` frames, LEDs off, as many dark frames at the same exposure.
 
 Reduction (:meth:`AngularResponsePlan.reduce`):

@@ -226,8 +226,8 @@ PARAMETERS: dict[str, type[RoutineParams]] = {
 class AlignMaskParams(Options):
     """The parameters of ``align mask`` (the SLM-mask alignment with spot feedback,
     :class:`calibration_routines.mask_alignment.MaskAligner`); ``--sim-*`` place the
-    virtual bench's mask with ``--simulate`` (:func:`calibration_routines.cli.align.
-    simulated_truth`)."""
+    virtual bench's mask with ``--simulate``
+    (``calibration_routines.cli.align.simulated_truth``)."""
 
     command: ClassVar[str] = "align mask"
 

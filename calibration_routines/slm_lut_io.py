@@ -160,7 +160,8 @@ def reference_level(plan, store) -> int:
 
 def reduce_run(plan, store) -> dict:
     """Analyse a complete run, write the ``slm_lut`` and ``slm_phase_measured``
-    products and return the summary (see :meth:`SlmLutPlan.reduce`)."""
+    products and return the summary (see
+    :meth:`SlmLutPlan.reduce <calibration_routines.slm_lut.SlmLutPlan.reduce>`)."""
     p = plan.params
     res = analyze(plan, store, passes=2)
     gray, detail = res["gray"], res["detail"]

@@ -46,7 +46,7 @@ def kept_error(exc: BaseException) -> BaseException:
     A traceback holds the frames it passed through, their local variables and so,
     most often, the object that stores the exception: a reference cycle that only the
     garbage collector frees, and never once the object was frozen
-    (:func:`gui.workers.settle_heap`). In the operator's day a stopped live
+    (``gui.workers.settle_heap``). In the operator's day a stopped live
     reconstruction kept its solver's arrays (38 MiB at a 19-minute day's end) that way.
     The type and the message stay; log the traceback before, where it is wanted.
 

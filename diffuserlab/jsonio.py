@@ -28,7 +28,7 @@ def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
         numpy scalars Python scalars; paths strings.
     nonfinite_to_none : bool
         Replace NaN and infinite floats by None, so the result is standard JSON
-        (:func:`write_json` does); False (default) keeps them, for in-memory
+        (:func:`recon.io.write_json` does); False (default) keeps them, for in-memory
         dictionaries (device status, store attributes) where they mean something.
 
     Returns

@@ -62,7 +62,7 @@ class Device(abc.ABC):
         Name of this device instance, used in every log line and error message.
     **params
         Driver-specific connection parameters (port, serial number, ...), kept in
-        :attr:`params`.
+        ``params``.
 
     Notes
     -----

@@ -81,7 +81,8 @@ class DeviceTimeoutError(DeviceError, TimeoutError):
 class DeviceDisconnectedError(DeviceError, ConnectionError):
     """The device stopped answering (unplugged, powered off, port lost).
 
-    Every further call raises this error until :meth:`Device.reconnect` succeeds.
+    Every further call raises this error until
+    :meth:`Device.reconnect <drivers.base.Device.reconnect>` succeeds.
     """
 
 

@@ -219,11 +219,11 @@ class Plan(abc.ABC):
 
     @abc.abstractmethod
     def steps(self, index: int, point: PlanPoint) -> Iterator[Step]:
-        """The steps of point ``index``; its :class:`Capture` steps must add up to
-        ``point.tags`` in order. The runner's preflight walks this generator ahead
-        without executing it (:meth:`checked_steps`), so the generator itself must
-        have no side effects: act on the bench or the plan's state in steps
-        (e.g. a :class:`Check`)."""
+        """The steps of point ``index``; its :class:`~instrument.plan.Capture` steps must
+        add up to ``point.tags`` in order. The runner's preflight walks this generator
+        ahead without executing it (:meth:`~instrument.plan.Plan.checked_steps`), so the
+        generator itself must have no side effects: act on the bench or the plan's state
+        in steps (e.g. a :class:`~instrument.plan.Check`)."""
 
     def setup(self) -> Iterator[Step]:
         """Steps before the first point (also on resume)."""

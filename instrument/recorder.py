@@ -131,7 +131,7 @@ class Recorder:
         -------
         bool
             True if queued; False if the queue was full: the frame is lost, counted
-            and its index kept in :attr:`lost_indices`.
+            and its index kept in ``lost_indices``.
 
         Raises
         ------

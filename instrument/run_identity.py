@@ -124,7 +124,7 @@ def resume_differences(attrs: Mapping[str, Any], *, stored_frame: tuple[Sequence
     Parameters
     ----------
     attrs : Mapping
-        The run store's attributes (:attr:`instrument.runstore.RunStore.attrs`).
+        The run store's attributes (``instrument.runstore.RunStore.attrs``).
     stored_frame : (shape, dtype)
         The run's frame ``(rows, cols)`` and dtype name (e.g. ``"uint16"``).
     bench_config : Mapping

@@ -591,7 +591,7 @@ class RunStore(ProductsMixin):
         images : ndarray, (m, rows, cols)
             Cast exactly to the run's dtype (as :meth:`write_frame`).
         coord_rows : ndarray, (m, n_coords) float64
-            Coordinates in :attr:`coord_names` order (NaN where unknown).
+            Coordinates in ``coord_names`` order (NaN where unknown).
 
         Raises
         ------
@@ -794,7 +794,7 @@ class RunStore(ProductsMixin):
         -------
         dict
             ``{name: {"unit": str or None, "dim": str or None}}`` in
-            :attr:`coord_names` order; None for a run written before units were
+            ``coord_names`` order; None for a run written before units were
             stored (``""``: dimensionless).
         """
         attrs = self._group["coords"].attrs

@@ -1,4 +1,5 @@
-"""A run compared with what it recorded of itself (part of :meth:`RunStore.verify`).
+"""A run compared with what it recorded of itself (part of
+:meth:`RunStore.verify <instrument.runstore.RunStore.verify>`).
 
 Checksums (:mod:`instrument.run_integrity`) catch a frame or product whose bytes
 changed. They cannot see what vanished together with its own bookkeeping: a deleted

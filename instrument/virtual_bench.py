@@ -600,7 +600,7 @@ class VirtualBench(Bench):
     @property
     def hologram(self):
         """The holography model (built on first use; its SLM response is
-        :attr:`slm_response` at the SLM's ``wavelength_nm``)."""
+        ``slm_response`` at the SLM's ``wavelength_nm``)."""
         if self._hologram is None:
             from recon.optics.holo_display import (
                 CameraMapping,

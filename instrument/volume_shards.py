@@ -213,7 +213,7 @@ def slab_workers(scheduler: str | None, timeout_s: float = 30.0):
     ------
     instrument.runstore.RunStoreError
         Not a scheduler address, or nothing answers there
-        (:func:`instrument.batch.check_scheduler`).
+        (``instrument.batch.check_scheduler``).
     """
     if scheduler is None:
         yield None

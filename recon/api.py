@@ -152,7 +152,7 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
     device : {"cpu", "cuda", "auto"}
         Where the solves run (:func:`recon.backend.resolve_device`): the CPU's NumPy
         path (default), a CUDA GPU through CuPy or PyTorch (the array-API path,
-        :mod:`recon.solvers.device`), or the GPU when one is usable. One PSF: every
+        ``recon.solvers.device``), or the GPU when one is usable. One PSF: every
         method, an automatic weight's ADMM path too. A stack: 3D ADMM and FISTA, an
         automatic weight's path too (the plane tests on the host). A grid: FISTA
         (Eq. 6.2) and ADMM; ADMM's automatic weight is chosen on the CPU

@@ -3,9 +3,9 @@ PyTorch on a CUDA GPU) and the checks before it does.
 
 The numerics that matter for speed have two implementations behind one entry: the
 NumPy one (numba kernels, :mod:`recon.solvers`, :mod:`recon.volume`) and a generic one
-written against the Python array API standard (``xp_*`` modules: :mod:`recon.xp_operators`,
-:mod:`recon.solvers.xp_admm`, :mod:`recon.solvers.xp_fista`,
-:mod:`recon.volume.xp_admm3d`; through
+written against the Python array API standard (``xp_*`` modules: ``recon.xp_operators``,
+``recon.solvers.xp_admm``, ``recon.solvers.xp_fista``,
+``recon.volume.xp_admm3d``; through
 ``array-api-compat``), which runs on any conforming array: CuPy and PyTorch (CPU or
 CUDA) arrays, or ``array-api-strict`` in the tests. The solvers dispatch on the type of
 the measurement they are given: a ``numpy.ndarray`` takes the NumPy path unchanged,
@@ -66,6 +66,10 @@ class Backend:
         return self.name == "numpy"
 
 
+#: The CPU backend: NumPy arrays and the numba kernels (``device="cpu"``, and
+#: ``"auto"`` without a usable GPU).
+#:
+#: :meta hide-value:
 NUMPY = Backend("numpy", np, "cpu", "cpu (numpy)")
 
 

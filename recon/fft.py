@@ -20,6 +20,10 @@ from collections.abc import Iterator
 import numpy as np
 import scipy.fft as sfft
 
+#: FFT threads of each transform: one per CPU (``os.cpu_count()``, so the value is the
+#: machine's), unless the calling thread caps its own (:func:`limited_threads`).
+#:
+#: :meta hide-value:
 WORKERS = os.cpu_count() or 1
 
 log = logging.getLogger(__name__)
@@ -89,7 +93,7 @@ def fix_allocator_thresholds(mmap_threshold_bytes: int) -> bool:
     """Fix glibc's mmap threshold (the heap trim threshold at twice it), and keep
     :func:`retain_freed_memory` from changing them again in this process.
 
-    For a process that runs for hours (:func:`gui.memory.configure_allocator` offers
+    For a process that runs for hours (``gui.memory.configure_allocator`` offers
     it): blocks of ``mmap_threshold_bytes`` or more are mapped on their own and given
     back when freed, so the heaps do not fragment (in the GUI's operator day, 7 MB
     free in the heaps at the passes' starts against 117-207 MB with this module's
@@ -137,6 +141,10 @@ def retain_freed_memory() -> bool:
     return ok
 
 
+#: Whether importing this module raised glibc's allocator thresholds
+#: (:func:`retain_freed_memory`; False off glibc or with ``DIFFUSERLAB_DEFAULT_MALLOC=1``).
+#:
+#: :meta hide-value:
 RETAINS_FREED_MEMORY = retain_freed_memory()
 
 
@@ -185,7 +193,7 @@ def time_ffts(shape: tuple[int, ...], *, real: bool = True, stacks: tuple[int, .
       is ``stacks=(1,)`` (:func:`fft_pair_seconds`), the 3D one
       ``stacks=(n_z, 1)`` (:func:`recon.volume.fft_floor_seconds`).
     * ``real=False``: one in-place complex64 ``fftn`` (``norm="ortho"``) per plane
-      of each stack (the hologram optimiser's unit, :mod:`recon.cgh.benchmark`).
+      of each stack (the hologram optimiser's unit, ``recon.cgh.benchmark``).
 
     All transforms use :data:`WORKERS` threads.
 

@@ -15,7 +15,7 @@ A cold single frame equals :func:`recon.reconstruct` with the same method, itera
 and weights exactly (tests/recon/test_live.py).
 
 ``device="cuda"`` (or ``"auto"`` with a usable GPU) keeps the PSF spectrum, the Wiener
-filter and the warm-start ADMM state on the GPU (:class:`recon.xp_live.DeviceLive`, the
+filter and the warm-start ADMM state on the GPU (``recon.xp_live.DeviceLive``, the
 array-API path); frames still come in and images go out as NumPy arrays.
 """
 
@@ -49,7 +49,7 @@ class LiveResult:
     ----------
     image : ndarray, float32, shape (rows, cols)
         Sensor field of view of the estimate (binned sensor shape), measurement units
-        (counts per unit PSF sum), as :attr:`recon.Reconstruction.image`.
+        (counts per unit PSF sum), as ``recon.Reconstruction.image``.
     estimate : ndarray, float32, shape (P0, P1)
         The whole padded object domain, same units (on a device: copied to the host
         when first read).
@@ -119,13 +119,13 @@ class LiveReconstructor:
         Wiener lambda in units of |H|^2. Default: estimated from the first frame
         :meth:`wiener` sees (:func:`recon.solvers.wiener.auto_regularization`, a
         wavelet noise estimate too slow for every frame) and kept afterwards
-        (:attr:`regularization`).
+        (``regularization``).
     device : {"cpu", "cuda", "auto"} or Backend
         Where the solves run (:func:`recon.backend.resolve_device`): ``cpu`` the NumPy
         path (numba); ``cuda`` a GPU through the array-API path
-        (:class:`recon.xp_live.DeviceLive`), with the PSF spectrum and the ADMM state
+        (``recon.xp_live.DeviceLive``), with the PSF spectrum and the ADMM state
         kept there between frames. A :class:`~recon.backend.Backend` is used as given
-        (PyTorch's CPU backend in benchmarks and tests). :attr:`backend` says which.
+        (PyTorch's CPU backend in benchmarks and tests). ``backend`` says which.
 
     Raises
     ------
@@ -196,13 +196,13 @@ class LiveReconstructor:
     @property
     def state(self):
         """The ADMM state the next warm frame starts from (:class:`AdmmState
-        <recon.solvers.admm.AdmmState>`, on a device :class:`XpAdmmState
-        <recon.solvers.xp_admm.XpAdmmState>` with its arrays there), or None."""
+        <recon.solvers.admm.AdmmState>`, on a device an ``XpAdmmState`` of
+        ``recon.solvers.xp_admm`` with its arrays there), or None."""
         return self._state
 
     @property
     def sensor_shape(self) -> tuple[int, int]:
-        """(rows, cols) of the binned frames and of :attr:`LiveResult.image`."""
+        """(rows, cols) of the binned frames and of ``LiveResult.image``."""
         return self.operator.sensor_shape
 
     def _convert(self, raw: np.ndarray) -> np.ndarray:

@@ -58,10 +58,10 @@ GRID_L1 = 1e-3
 MODELS = ("auto", "convolution", "local", "pca")
 #: ``--background`` choices of a PSF-grid reconstruction.
 BACKGROUNDS = ("estimate", "none")
-#: Methods of Table 7.1 in order (:mod:`recon.cgh.evaluation`).
+#: Methods of Table 7.1 in order (``recon.cgh.evaluation``).
 HOLOGRAM_METHODS = ("one-step", "l2", "frequency", "spatial")
 #: The benchmarks of ``diffuserlab benchmark recon``, in the order they run
-#: (:mod:`recon.benchmarks.run`).
+#: (``recon.benchmarks.run``).
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
               "volume_accuracy", "spatial_speed", "spatial_accuracy", "spatial_far",
               "blind_calibration", "auto", "failure_maps", "failure_map_3d", "volume_auto",

@@ -51,7 +51,7 @@ def image_metrics(rec: Reconstruction, fft_pair_s: float | None = None) -> dict:
     fft_pair_s : float, optional
         FFT floor; measured now at the padded shape if not given (on the CPU; a
         reconstruction on a device measures its device's,
-        :func:`recon.solvers.device.device_metrics`).
+        ``recon.solvers.device.device_metrics``).
     """
     info, results = rec.info, rec.results
     if fft_pair_s is None:

@@ -32,7 +32,7 @@ class ReconInfo:
     """What a reconstruction did and why: the typed record of a :class:`Reconstruction`.
 
     Frozen; ``info["name"]`` and ``info.get("name")`` read a field or, failing that,
-    an entry of :attr:`extra` (the kind's preprocessing record), so code written for
+    an entry of ``extra`` (the kind's preprocessing record), so code written for
     the former dict keeps working. :meth:`as_dict` is the flat JSON-ready mapping.
 
     Attributes
@@ -70,7 +70,7 @@ class ReconInfo:
     seconds_total : float
         Preprocessing and solve, wall-clock seconds.
     device : str
-        Where the solves ran (:attr:`recon.backend.Backend.label`): ``"cpu (numpy)"``
+        Where the solves ran (``recon.backend.Backend.label``): ``"cpu (numpy)"``
         (the NumPy path, the default), or e.g. ``"cuda:0 (cupy)"`` for the array-API
         path on a GPU (``device=`` of :func:`recon.reconstruct`).
     histories : tuple of History
@@ -197,7 +197,7 @@ class Reconstruction:
         Returns
         -------
         ndarray
-            A view of :attr:`image`, same shape and dtype.
+            A view of ``image``, same shape and dtype.
         """
         axes = (1, 2) if self.depths_mm is not None else (0, 1)
         return np.flip(self.image, axis=axes)

@@ -66,14 +66,14 @@ class AlignmentConfig:
         Run step 5 (stage z, tip, tilt).
     focus_range_mm : float or None
         Half-range of the first z sweep (default from ``relay_na``, see
-        :meth:`.focus.FocusStep.default_range_mm`); doubled at most twice.
+        ``focus.FocusStep.default_range_mm``); doubled at most twice.
     focus_steps : int
         Positions per sweep (the notes' 7-11).
     max_focus_rounds : int
     focus_min_fraction : float
         Fraction of the sections that must show a maximum inside the sweep.
     hologram_min_correlation : float
-        Step 7's test hologram (:func:`.hologram_check.hologram_check`): a correlation
+        Step 7's test hologram (``hologram_check.hologram_check``): a correlation
         with its simulation below this is reported as a warning (measured on the
         virtual bench: 0.999 aligned, 0.96 at 0.5 mask px, 0.85 at 1 px, 0.47 at 2 px).
     """

@@ -101,7 +101,7 @@ def fit_triangle(shifts, eta, k: float, rounded: bool = True) -> TriangleFit:
     docs/protocols.md, checked against the bench model in the tests).
     A relay pupil or defocus blurs the SLM pixels on the mask and rounds the apex;
     ``tri_r`` is the triangle convolved with a Gaussian of fitted width ``r``
-    (:func:`smoothed_triangle`). Fitting a sharp triangle to a rounded apex sampled at
+    (``smoothed_triangle``). Fitting a sharp triangle to a rounded apex sampled at
     integer shifts pushes ``d`` away from the nearest integer (measured on the virtual
     bench, NA 0.05 and 0.05 mm defocus: a 0.1 px stage move read as 0.18 px, which
     made the rigid loop oscillate; 0.12 px with the rounded model).

@@ -454,8 +454,8 @@ class MaskAligner:
     def focus(self) -> dict:
         """Step 5: focus and tip/tilt of the mask (stage z, tip, tilt).
 
-        Runs :class:`.focus.FocusStep` on this aligner; its :meth:`~.focus.FocusStep.run`
-        describes the result (also saved as ``steps["focus"]``) and the errors raised.
+        Runs ``focus.FocusStep`` on this aligner; its ``run`` describes the result (also
+        saved as ``steps["focus"]``) and the errors raised.
         """
         return FocusStep(self).run()
 

@@ -27,7 +27,7 @@ class SimulatedSlm(SimulatedMixin, Slm):
     pixel_pitch_um, wavelength_nm : float
         Pixel pitch (um) and LUT wavelength (nm).
     lut_rad : array_like, optional
-        Initial LUT (256 phases, rad); default linear 0..2 pi (:func:`linear_lut`).
+        Initial LUT (256 phases, rad); default linear 0..2 pi (:func:`drivers.slm.linear_lut`).
     settle_s : float
         Initial settle time in seconds.
     refresh_hz : float

@@ -39,7 +39,8 @@ class SimulatedStage(SimulatedMixin, Stage):
         Name of the stage.
     axes : Mapping[str, (float, float)] or sequence of str
         Axis names (from x, y, z, tip, tilt, rotation) and their travel ``(low, high)``;
-        a list of names takes :data:`DEFAULT_TRAVEL`. Default x, y +-25 mm, z 0..50 mm.
+        a list of names takes :data:`instrument.config.DEFAULT_TRAVEL`. Default x, y
+        +-25 mm, z 0..50 mm.
     velocity : float or Mapping[str, float]
         Initial velocity per axis, unit/s.
     max_velocity : float

@@ -144,7 +144,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         (:func:`recon.auto.weight.admm_auto` on the generic ADMM, iterates kept on the
         device between its solves; the result's ``x`` comes back to the host); None
         or :data:`recon.backend.NUMPY`: the NumPy path. ``solvers`` should then be the
-        same device's (:func:`recon.solvers.device.device_solvers`).
+        same device's (``recon.solvers.device.device_solvers``).
     **options
         Passed to a fixed method's solver.
 

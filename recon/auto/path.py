@@ -10,13 +10,13 @@ after 100 iterations, 28.4 dB after 200), so its held-out error is still falling
 the next weight begins, and a path that stops at the first rises never reaches the
 weights the scene needs (11 dB short of the best fixed weight on that photograph). Here
 each candidate runs, warm-started from the one before, in windows of
-:attr:`Convergence.window` iterations until one of:
+``Convergence.window`` iterations until one of:
 
-* **settled**: the held-out error could fall by at most :attr:`Convergence.tolerance`
+* **settled**: the held-out error could fall by at most ``Convergence.tolerance``
   of its standard error more (:func:`remaining_bound`: the last window's fall times
   r / (1 - r), r the slower of the last two contractions of the falls -- a geometric
   tail), or no longer falls;
-* **rising**: after :attr:`Convergence.min_iterations` (ADMM's transient after a weight
+* **rising**: after ``Convergence.min_iterations`` (ADMM's transient after a weight
   step is over: it spiked the error once, 0.97 -> 2.0 -> 1.04, with 80 % of the pixels
   erased), the last two windows' errors are both more than one standard error above the
   lowest of all its windows -- the solve is now fitting noise into what the held-out
@@ -26,10 +26,10 @@ each candidate runs, warm-started from the one before, in windows of
   ran out first; its remaining bound then says how far from settled it was.
 
 The candidate's score is its best held-out error once the transient after the weight
-step is over (:attr:`Convergence.min_iterations`: before, the iterate is still the
+step is over (``Convergence.min_iterations``: before, the iterate is still the
 previous weight's solution moving, and scoring it there compared a blend of two weights
 with the others' own solves); the iterate kept is the latest within
-:attr:`Convergence.keep` standard errors of it (where the error is flat the image still
+``Convergence.keep`` standard errors of it (where the error is flat the image still
 improves). The chosen weight is then run on from the path's state
 (:func:`recon.auto.weight.admm_auto`), and its kept iterate is the result.
 """
@@ -187,7 +187,7 @@ def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: flo
         Stop when settled (False: run to ``cap`` unless rising).
     after_step : bool
         ``state`` is another weight's (the path's warm start): the windows within
-        :attr:`Convergence.min_iterations` are not scored, since the iterate there is
+        ``Convergence.min_iterations`` are not scored, since the iterate there is
         still the previous weight's solution moving (a held-out dip in it is a blend
         of the two weights that neither's solve keeps; the real 3D DiffuserCam sample
         at bin 4 scored such a blend best and returned it after 10 iterations, with

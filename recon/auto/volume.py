@@ -36,11 +36,11 @@ __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
 #: measurement / max): the 2D machinery and rule (each weight solved until its
 #: held-out error settles, steps of 2.8x, at most 3.5x a fixed run's iterations; the
 #: held-out minimum) over TV 1e-3 .. 1e-6. The span was measured with the former
-#: path (fixed-length stages; :func:`recon.benchmarks.volume_auto.rule_study`: 18
+#: path (fixed-length stages; ``recon.benchmarks.volume_auto.rule_study``: 18
 #: cases, beads and textured discs with far planes 3x, 10x and 30x dimmer,
 #: 300-30000 e-, 6 planes at bin 8): a path over 1e-4 .. 1e-7 did worse, and the
 #: beads' PSNR no longer changes below 1e-6. On the external 3D sample
-#: (:mod:`recon.volume.sample`, bin 2) the held-out error is flat within one standard
+#: (``recon.volume.sample``, bin 2) the held-out error is flat within one standard
 #: error from 1.4e-4 down to 1e-6; the bound to twice the minimum's weight keeps the
 #: choice off the flat blocks of the largest. l1: the same over the span of the 3D
 #: accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade wider on each side; not
@@ -91,7 +91,7 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
         on the host).
     device_plan : type, optional
         With a device ``backend``: the generic plan class with
-        ``maker(like, plan_of)`` (:class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`).
+        ``maker(like, plan_of)`` (``recon.volume.xp_admm3d.XpVolumeAdmmPlan``).
 
     Returns
     -------

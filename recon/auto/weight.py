@@ -115,7 +115,7 @@ PATH_FACTOR = 2 ** 1.5
 #: within 4x that run's.
 BUDGET = 3.5
 #: Most iterations a candidate weight runs on the path, as a share of a fixed run's
-#: (at least :attr:`Convergence.min_iterations`); one still falling then hands its
+#: (at least ``Convergence.min_iterations``); one still falling then hands its
 #: state to the next weight, its remaining fall bounded and accounted for, and the
 #: chosen weight is run on with what the budget has left when it had not settled.
 STAGE_SHARE = 0.5
@@ -405,7 +405,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     b : ndarray, float32, ``op.shape_out``
         Scaled measurement (weighted, divided by its maximum). An array of another
         array-API backend (CuPy, PyTorch) runs the path on its device (the generic
-        ADMM, :class:`recon.solvers.xp_admm.XpAdmmPlan`, by default): iterates, kept
+        ADMM, ``recon.solvers.xp_admm.XpAdmmPlan``, by default): iterates, kept
         estimates and held-out scores stay there, the result's ``x`` too; the held-out
         split and :func:`holdout_coverage` are computed on the host from ``op``.
     iterations : int
@@ -436,7 +436,7 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     plan_of : callable, optional
         ``plan_of(op) -> plan`` for ``op`` and its copies with other sensor weights:
         default :meth:`recon.solvers.admm.AdmmPlan.of` (a convolution; with ``b`` on a
-        device its :class:`~recon.solvers.xp_admm.XpAdmmPlan`; a caller's ``plan_of``
+        device its ``recon.solvers.xp_admm.XpAdmmPlan``; a caller's ``plan_of``
         must make plans for ``b``'s backend);
         :meth:`recon.spatial.SpatialAdmmPlan.of` for a spatially varying model,
         :meth:`recon.volume.VolumeAdmmPlan.of` for a volume. A plan has ``op``,

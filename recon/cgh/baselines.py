@@ -87,7 +87,7 @@ def one_step_hologram(display: ScatteringDisplay, target, seed: int = 0,
     Raises
     ------
     ReconInputError
-        Bad display, target (:func:`recon.cgh.hologram.check_targets`), seed or slm.
+        Bad display, target (``recon.cgh.hologram.check_targets``), seed or slm.
     """
     if not isinstance(display, ScatteringDisplay):
         raise ReconInputError(f"display must be a ScatteringDisplay, got {type(display).__name__}")

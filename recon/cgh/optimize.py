@@ -284,7 +284,7 @@ def loss_and_gradient(display: ScatteringDisplay, s, target, loss: IntensityLoss
     s : numpy.ndarray or array
         Complex SLM field, ``slm_shape`` (any modulus). A NumPy array takes the NumPy
         path; an array of another array-API library (PyTorch, CuPy) the generic path
-        (:class:`recon.cgh.xp_optimize.XpEngine`) on that array's device.
+        (``recon.cgh.xp_optimize.XpEngine``) on that array's device.
     target : numpy.ndarray
         Target intensity per plane (centred frame), normalised internally to the
         power of a unit-modulus SLM field.
@@ -396,7 +396,7 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     device : {"cpu", "cuda", "auto"}
         Where it runs (:func:`recon.backend.resolve_device`): ``cpu`` the NumPy path
         (numba kernels, scipy.fft), ``cuda`` the generic path
-        (:mod:`recon.cgh.xp_optimize`) on the GPU through CuPy or PyTorch, ``auto``
+        (``recon.cgh.xp_optimize``) on the GPU through CuPy or PyTorch, ``auto``
         the GPU when one is usable. A ``target`` of another array library (a PyTorch
         tensor, a CuPy array) with ``cpu`` runs the generic path on that array's
         device. The result is on the host either way; ``params["device"]`` says where
@@ -411,7 +411,7 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     ReconInputError
         Bad display, target, parameters or init; an unusable ``device`` (names what
         is missing); a problem that does not fit in the GPU's free memory (says how
-        much it needs, :func:`recon.cgh.xp_optimize.memory_bytes`).
+        much it needs, ``recon.cgh.xp_optimize.memory_bytes``).
     DivergenceError
         The loss became NaN/inf (history and last good field attached).
     """

@@ -273,12 +273,12 @@ class ScatteringDisplay:
 
         Parameters
         ----------
-        s : array_like, :attr:`slm_shape`
+        s : array_like, ``slm_shape``
             Real or complex SLM field.
 
         Returns
         -------
-        ndarray, complex64, :attr:`slm_shape`
+        ndarray, complex64, ``slm_shape``
 
         Raises
         ------

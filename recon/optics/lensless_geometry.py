@@ -33,7 +33,7 @@ __all__ = [
 
 # ----------------------------------------------------------------------------- checks
 def positive_number(value, name: str, example: str) -> float:
-    """:func:`recon.optics.diffuser.finite_positive`, refusing bools too."""
+    """``recon.optics.diffuser.finite_positive``, refusing bools too."""
     if isinstance(value, bool):
         raise ReconInputError(f"{name} must be a number, got {value!r}; e.g. {example}")
     return finite_positive(value, name, example)

@@ -91,7 +91,7 @@ def prepare_pair(
         Default 1 (no binning); the DiffuserCam tutorial uses 4.
     dark : None, "none", float, or numpy.ndarray, optional
         ``None`` (default): estimate the dark level from `dark_region` of the
-        PSF (:func:`dark_level`; per channel for colour) and subtract it from
+        PSF (:func:`~recon.preprocess.dark_level`; per channel for colour) and subtract it from
         BOTH images, as the DiffuserCam tutorial does. ``"none"``: skip dark
         subtraction. A number: subtract it from both. An array: a per-channel
         vector (C,) or a dark frame (same shape as the images, or the 2D mosaic
@@ -104,7 +104,7 @@ def prepare_pair(
         2D uint8/uint16 inputs to RGB (:func:`recon.io.demosaic_bayer`); 3D
         inputs are left as they are. Default None (no demosaicing).
     warn_saturation : float or None, optional
-        Warn (``logging.warning`` and :class:`SaturationWarning`) when the
+        Warn (``logging.warning`` and :class:`~recon.preprocess.SaturationWarning`) when the
         fraction of samples of `psf` or `raw` at the input dtype's full scale
         exceeds this value. Default 0.001 (0.1 %). None disables the check.
         Float inputs have no known full scale and never warn.

@@ -168,7 +168,7 @@ class AdmmPlan:
 class AdmmState:
     """The ADMM iterate carried from one iteration (or one solve) to the next.
 
-    In the q-form of :func:`recon._kernels.admm_split_updates_2d` the whole state of
+    In the q-form of ``recon._kernels.admm_split_updates_2d`` the whole state of
     scaled-dual ADMM (Boyd et al. 2011, Sec. 3.1.1) is the primal ``x``, its image
     ``M x`` and, per split, q_i = z_i - a_i (split variable minus scaled dual), plus
     the penalties. All arrays float32 on the padded grid (P0, P1).
@@ -403,7 +403,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     b : ndarray, shape ``op.shape_out``, float32
         Measurement, multiplied by the sensor weights, scaled to O(1). An array of
         another array-API backend (CuPy, PyTorch: on its device) runs the generic
-        path :func:`recon.solvers.xp_admm.admm_xp` and returns ``x`` on that device.
+        path ``recon.solvers.xp_admm.admm_xp`` and returns ``x`` on that device.
     iterations : int
     tv : float
         TV weight tau (default 0, as every solver's: no term unless asked); 0 removes

@@ -112,7 +112,7 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
     b : ndarray, shape ``op.shape_out``, float32
         Measurement (scaled so its values are O(1), see :func:`recon.reconstruct`). An
         array of another array-API backend (CuPy, PyTorch) runs the generic path
-        :func:`recon.solvers.xp_fista.accelerated_xp` on its device (``op`` a
+        ``recon.solvers.xp_fista.accelerated_xp`` on its device (``op`` a
         :class:`~recon.operators.ConvolutionOperator`).
     iterations : int
     tv : float

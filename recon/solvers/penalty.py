@@ -53,7 +53,7 @@ def check_balancing(balance_every, balance_until: float, balance_ratio: float,
 
 def check_penalties(mu) -> tuple[float, float, float]:
     """ADMM penalties ``(mu1, mu2, mu3)``: three positive finite numbers, default
-    :data:`DEFAULT_MU`.
+    :data:`~recon.solvers.penalty.DEFAULT_MU`.
 
     Raises
     ------
@@ -102,7 +102,7 @@ def balanced_penalty(mu_i: float, r2: float, s2: float, n2: float, d2: float,
         Current penalty.
     r2, s2, n2, d2 : float
         Sums over the split of (a - a_old)^2, (z - z_old)^2, max(g^2, z^2), a^2 (the
-        terms of :func:`recon.jit.balance_terms`).
+        terms of ``recon.jit.balance_terms``).
     ratio, factor : float
         ``balance_ratio`` and ``balance_factor`` (> 1).
 
@@ -162,8 +162,8 @@ class AdmmPenalty:
     ----------
     mu : (mu1, mu2, mu3) or None
         Initial penalties of the crop/data, TV and non-negativity splits, positive
-        and finite; None: the solver's default (:data:`DEFAULT_MU` in 2D). Balancing
-        adapts them, so the start matters little.
+        and finite; None: the solver's default (:data:`~recon.solvers.penalty.DEFAULT_MU`
+        in 2D). Balancing adapts them, so the start matters little.
     balance : bool
         Residual balancing on (default) or off (the penalties stay at ``mu``).
     balance_every : int

@@ -51,7 +51,7 @@ def wiener(op: ConvolutionOperator, b: np.ndarray, regularization: float | None 
         Forward model (its PSF spectrum and sensor weights are used).
     b : ndarray, shape ``op.shape_out``, float32
         Measurement (already multiplied by the sensor weights). An array of another
-        array-API backend (CuPy, PyTorch) runs :func:`recon.solvers.xp_wiener.wiener_xp`
+        array-API backend (CuPy, PyTorch) runs ``recon.solvers.xp_wiener.wiener_xp``
         on its device and returns ``x`` there (the automatic lambda is estimated
         from a host copy).
     regularization : float, optional

@@ -123,7 +123,7 @@ class SpatialAdmmPlan(AdmmPlan):
 
     def device_parts(self, like):
         """The generic operator and x-update on ``like``'s backend, for
-        :func:`recon.solvers.xp_admm.admm_xp` (a measurement of another backend).
+        ``recon.solvers.xp_admm.admm_xp`` (a measurement of another backend).
 
         Returns
         -------
@@ -151,7 +151,7 @@ def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: i
     b : ndarray, float32, ``op.shape_out``
         Measurement, multiplied by the sensor weights, divided by its maximum. An
         array of another array-API backend (CuPy, PyTorch: on its device) runs the
-        generic path (:mod:`recon.spatial.xp_admm`) and returns ``x`` on that device.
+        generic path (``recon.spatial.xp_admm``) and returns ``x`` on that device.
     iterations : int
     tv, l1 : float
         Weights (scaled problem), >= 0; default 0, as every solver's.

@@ -1,7 +1,7 @@
 """A calibrated PSF grid: what :func:`recon.reconstruct` runs for a :class:`PsfGrid`.
 
 :func:`reconstruct_psf_grid` is what ``diffuserlab recon --psf-grid`` and ``recon3d
---psf-grid`` run (through :mod:`instrument.reconstruct_grid`): bin the grid and the
+--psf-grid`` run (through ``instrument.reconstruct_grid``): bin the grid and the
 raw frame alike, pick the forward model (``auto``: :func:`recon.spatial.choose_model`),
 scale as the other solvers expect (central PSF of unit sum, measurement divided by
 its maximum) and solve Eq. 6.2 with :func:`recon.spatial.fista_background`
@@ -11,7 +11,7 @@ its maximum) and solve Eq. 6.2 with :func:`recon.spatial.fista_background`
 chooses it (hold-out cross-validation, :mod:`recon.auto`). ``two_part=True`` models
 a far scene by Eq. 5.1's two parts: the grid's caustics (:func:`recon.spatial.caustic_grid`)
 in the model, the brightness divided out of the image afterwards. ``device="cuda"``
-runs the solve on a GPU through the array-API path (:mod:`recon.spatial.device`); the
+runs the solve on a GPU through the array-API path (``recon.spatial.device``); the
 model choice and ADMM's automatic weight stay on the CPU.
 """
 
@@ -245,8 +245,8 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
     device : {"cpu", "cuda", "auto"}
         Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy
         path (default), or a CUDA GPU through the array-API path (FISTA of Eq. 6.2,
-        :mod:`recon.spatial.xp_background`; ADMM, :mod:`recon.spatial.xp_admm`), after
-        a check of its free memory (:mod:`recon.spatial.device`). The model choice and
+        ``recon.spatial.xp_background``; ADMM, ``recon.spatial.xp_admm``), after
+        a check of its free memory (``recon.spatial.device``). The model choice and
         ADMM's automatic weight run on the CPU. ``info.device`` says which ran.
 
     Returns

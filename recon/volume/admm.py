@@ -65,7 +65,7 @@ def solve_x_update(spec: np.ndarray, psf_spectra: np.ndarray, d_lat: np.ndarray,
     """Solve the x-update of App. A.3 at every lateral frequency, in place.
 
     ``(mu1 conj(h) h^T + mu2 (L_z + d_lat I) + mu3 I) X = R + mu1 conj(h) Qv`` per
-    frequency (see :func:`recon.volume._admm_kernels3d.admm_xupdate_3d`; ``mu2``
+    frequency (see ``recon.volume._admm_kernels3d.admm_xupdate_3d``; ``mu2``
     is dropped when ``use_tv`` is False).
 
     Parameters
@@ -375,7 +375,7 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         Measurement (pre-weighted), scaled to O(1), with the stack normalised by
         :func:`~recon.volume.normalize_psf_stack`.
         An array of another array-API backend (CuPy, PyTorch) runs the generic path
-        :func:`recon.volume.xp_admm3d.admm3d_xp` on its device.
+        ``recon.volume.xp_admm3d.admm3d_xp`` on its device.
     iterations : int
     tv : float
         3D TV weight (default 0, as every solver's; 0 or None removes the u split).

@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 #: a fixed-weight 3D solve (``recon3d --tv`` a number), absolute in the scaled
 #: problem (stack normalised by :func:`normalize_psf_stack`, measurement divided by
 #: its maximum).
-#: Chosen with the 3D accuracy benchmark (:mod:`recon.benchmarks.volume_accuracy`:
+#: Chosen with the 3D accuracy benchmark (``recon.benchmarks.volume_accuracy``:
 #: tilted target on the virtual bench, 16 planes of 128 x 160, 200 iterations, SNR
 #: 35 dB): with ADMM, TV 1e-4 came out 1.4 dB below the best weight (1e-6; none
 #: equal), keeping 1.1 of the best's 2.5 dB over the zero volume; 1e-5 came out
@@ -99,7 +99,7 @@ def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dic
         Seconds of the FFTs one iteration needs at least
         (:func:`recon.volume.fft_floor_seconds`); measured now if not given (on the
         CPU; a reconstruction on a device measures its device's,
-        :func:`recon.solvers.device.device_metrics`).
+        ``recon.solvers.device.device_metrics``).
 
     Returns
     -------
@@ -266,7 +266,7 @@ VOLUME_DARK_SOURCES = {"auto": "the median of the planes' dark corners, rows 5:1
 
 def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
                             bin_factor: int = 1) -> None:
-    """Refuse parameters :func:`reconstruct_volume` cannot use (before any file is read).
+    """Refuse parameters :func:`recon.reconstruct_volume` cannot use (before any file is read).
 
     Raises
     ------
@@ -341,8 +341,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     device : {"cpu", "cuda", "auto"}
         Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
         (default), a CUDA GPU (the array-API paths
-        :func:`recon.volume.xp_admm3d.admm3d_xp` and
-        :func:`recon.volume.xp_fista3d.fista3d_xp`; an automatic weight's held-out
+        ``recon.volume.xp_admm3d.admm3d_xp`` and
+        ``recon.volume.xp_fista3d.fista3d_xp``; an automatic weight's held-out
         path and final solve run there too, its plane tests on the host), or the GPU
         when one is usable. ``info["device"]`` says which ran.
     memory_limit_bytes : int, optional

@@ -84,7 +84,7 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
     Each iteration: ``grad = A^T (A y_k - b)`` (the fused data term: ``2 n_z + 2``
     real 2D FFTs at the padded shape, see
     :class:`~recon.volume.operator.VolumeConvolutionOperator`); then one fused
-    numba pass (:func:`recon.volume._kernels3d.proximal_step_3d`):
+    numba pass (``recon.volume._kernels3d.proximal_step_3d``):
     ``x_{k+1} = max(S_{step l1}(TV-prox(y_k - step grad)), 0)`` with the Haar-shift
     TV prox of App. A.1 along z, y and x (threshold ``2 * 3 * step * tv`` on the
     half-differences, averaged over the 3 axes, as in 2D), ``t_{k+1} = (1 + sqrt(1 +
@@ -100,7 +100,7 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         Measurement, scaled so its values are O(1) (e.g. divided by its maximum,
         with the stack normalised by :func:`~recon.volume.normalize_psf_stack`). An
         array of another array-API backend (CuPy, PyTorch) runs the generic path
-        :func:`recon.volume.xp_fista3d.fista3d_xp` on its device and returns ``x``
+        ``recon.volume.xp_fista3d.fista3d_xp`` on its device and returns ``x``
         there (``op`` a :class:`~recon.volume.operator.VolumeConvolutionOperator`).
     iterations : int
     tv : float

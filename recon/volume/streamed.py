@@ -137,7 +137,7 @@ class StreamedModel:
     """What a streamed solve's record needs of its model (the spectra live in the slabs).
 
     Stands in for :class:`~recon.volume.VolumeConvolutionOperator` as
-    :attr:`recon.result.Reconstruction.operator` of a streamed reconstruction.
+    ``recon.result.Reconstruction.operator`` of a streamed reconstruction.
 
     Attributes
     ----------
@@ -145,7 +145,7 @@ class StreamedModel:
     sensor_shape, padded_shape : (int, int)
     crop : (slice, slice)
         The sensor in the padded grid (the iterates of ``support="sensor"`` are the
-        crop itself: ``crop`` of :attr:`lateral_shape` is then the whole plane).
+        crop itself: ``crop`` of ``lateral_shape`` is then the whole plane).
     support : str
     slabs : list of (start, stop)
     depths : list of float, optional

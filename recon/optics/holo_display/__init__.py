@@ -28,7 +28,7 @@ Grids and units
 * SLM: ``slm_shape = (R, C)`` pixels of pitch ``slm_pitch_um`` as imaged onto the mask
   plane by the relay (the relay is nominally designed so that one SLM pixel covers
   exactly ``k x k`` mask pixels; a relay magnification error is part of the mask
-  ground truth, :attr:`MaskTransform.magnification`).
+  ground truth, ``MaskTransform.magnification``).
 * Mask: pixel pitch ``Delta_m = slm_pitch_um / k``; the physical mask is larger than
   the SLM footprint by ``margin`` mask pixels on each side (so that shifts bring in
   new mask content, as on the bench). The dissertation's etendue factor (Eq. 7.10) is

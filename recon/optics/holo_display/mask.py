@@ -34,7 +34,7 @@ class StagePose:
         defocus is ``dz(x, y) = dz + rx * y - ry * x`` (x, y in mm from the axis).
     rz_rad : float
         Rotation about the optical axis (rad, counter-clockwise from +x to +y); adds
-        to :attr:`MaskTransform.theta`. The stage's z-rotation axis is taken to pass
+        to ``MaskTransform.theta``. The stage's z-rotation axis is taken to pass
         through the optical axis.
 
     Notes
@@ -343,7 +343,7 @@ class MaskModel:
 
     @property
     def model(self) -> np.ndarray:
-        """The model mask ``M`` at mask resolution: float32 +1/-1, shape of :attr:`bits`."""
+        """The model mask ``M`` at mask resolution: float32 +1/-1, shape of ``bits``."""
         return (1.0 - 2.0 * self.bits).astype(np.float32)
 
     def slm_to_plane(self, row, col) -> tuple[np.ndarray, np.ndarray]:
@@ -447,7 +447,7 @@ class MaskModel:
         Returns
         -------
         numpy.ndarray
-            complex64, :attr:`fine_shape`, read-only (cached): ``1`` for phase-0
+            complex64, ``fine_shape``, read-only (cached): ``1`` for phase-0
             pixels, ``exp(i pi (1 + phase_error))`` for phase-pi pixels, ``1`` beyond
             the physical mask.
         """
@@ -462,7 +462,7 @@ class MaskModel:
         Returns
         -------
         numpy.ndarray
-            complex64 +1/-1, :attr:`fine_shape`, read-only (cached); +1 beyond the
+            complex64 +1/-1, ``fine_shape``, read-only (cached); +1 beyond the
             modelled mask.
         """
         s = as_vec2(shift, "shift")
