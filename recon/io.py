@@ -501,7 +501,7 @@ def remove_tree(path: str | os.PathLike, settle_s: float = 0.1,
     zarr writes chunks on a pool of threads: when one write fails (a full disk), the
     others still finish after the error has reached the caller and may create their
     folders again. So zarr's writes still in flight are waited for first
-    (:func:`wait_for_zarr_writes`), then the folder is removed until it stays gone for
+    (``wait_for_zarr_writes``), then the folder is removed until it stays gone for
     ``settle_s`` (at most ``timeout_s`` in all).
     """
     import shutil
