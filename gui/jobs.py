@@ -430,6 +430,7 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     from instrument.batch import batch_psf, parse_frames
     from instrument.batch_process import reconstruct_run_in_process
     from instrument.runstore import RunStore
+    from recon.options import ReconOptions
 
     from .workers import InputError
 
@@ -443,9 +444,7 @@ def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
     psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                   psf_product=args.psf_product, dark=args.dark)
     return reconstruct_run_in_process(
-        args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
-        l1=args.l1, bin_factor=args.bin_factor, dark=dark, frames=frames,
-        product=args.product, device=args.device,
-        workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
-        overwrite=args.overwrite, psf_source=source, on_progress=job.report,
-        cancel=job.cancel_event)
+        args.run, psf, ReconOptions.from_namespace(args), dark=dark, frames=frames,
+        product=args.product, workers=args.workers, scheduler=args.scheduler,
+        dff_percentile=args.dff, overwrite=args.overwrite, psf_source=source,
+        on_progress=job.report, cancel=job.cancel_event)

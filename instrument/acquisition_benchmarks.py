@@ -174,6 +174,7 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
         worker's BLAS or thread layout sums in another order).
     """
     import recon
+    from recon.options import ReconOptions
 
     from .batch import reconstruct_run
     from .runstore import RunStore
@@ -192,6 +193,8 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
         store = RunStore.open(tmp / "v.zarr")
         raws = [store.frame(i).image for i in range(frames)]
         opts = {"method": "admm", "iterations": iterations, "dark": dark}
+        options = ReconOptions.validated({"method": "admm", "iterations": iterations},
+                                         front="python")
         recon.reconstruct(psf, raws[0], **{**opts, "iterations": 2})  # compile, warm up
         t0 = time.perf_counter()
         loop = [recon.reconstruct(psf, r, **opts).image for r in raws]
@@ -202,8 +205,9 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
         for w in workers:
             stamps: list[float] = []
             t0 = time.perf_counter()
-            reconstruct_run(tmp / "v.zarr", psf, product=f"w{w}", workers=w,
-                            on_progress=lambda p, s=stamps: s.append(time.perf_counter()), **opts)
+            reconstruct_run(tmp / "v.zarr", psf, options, dark=dark, product=f"w{w}",
+                            workers=w,
+                            on_progress=lambda p, s=stamps: s.append(time.perf_counter()))
             total = time.perf_counter() - t0
             steady = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 1 else 0.0
             data, _ = RunStore.open(tmp / "v.zarr").product(f"w{w}")

@@ -42,9 +42,6 @@ from recon.options import ReconOptions
 from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
 from .runstore import DamagedFrameError, RunStore, RunStoreError
 
-#: The declared defaults (:class:`recon.options.ReconOptions`), shared with every front end.
-_D = ReconOptions.defaults()
-
 __all__ = ["batch_psf", "check_scheduler", "check_workers", "parse_frames",
            "reconstruct_run", "reconstruct_stored_frame"]
 
@@ -292,17 +289,14 @@ def _signals_deferred():
                 signal.raise_signal(held[0])
 
 
-def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
-                    iterations: int = _D["iterations"], tv: float | str | None = _D["tv"],
-                    l1: float | str = 0.0, bin_factor: int = _D["bin_factor"],
+def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *,
                     dark: float | np.ndarray | None = None, frames: range | None = None,
                     product: str | None = None, workers: int | None = None,
                     scheduler: str | None = None, dff_percentile: float | None = None,
                     overwrite: bool = False, psf_source: str = "",
-                    background: str = "estimate", grid_l1: float = 1e-3,
                     on_progress: Callable[[dict], None] | None = None,
                     cancel: threading.Event | None = None,
-                    timeout_s: float = 60.0, device: str = _D["device"]) -> dict[str, Any]:
+                    timeout_s: float = 60.0) -> dict[str, Any]:
     """Reconstruct every selected frame of a recorded run with dask; store the results.
 
     Parameters
@@ -316,11 +310,18 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
         (:func:`instrument.batch_grid.prepare_grid_batch`; the frames are then
         reconstructed by :func:`instrument.batch_grid.reconstruct_stored_frame_grid`
         with ``background``, ``grid_l1``, ``iterations`` and ``dark``).
-    method, iterations, tv, l1, bin_factor, dark
-        As :func:`recon.reconstruct` (the defaults are ``diffuserlab recon``'s: the
-        method and weights chosen from each frame's data, at most 200 iterations).
-        With a grid, ``method``, ``tv`` and ``l1`` are not used and ``bin_factor``
-        is the grid model's.
+    options : recon.options.ReconOptions, optional
+        The reconstruction's parameters, as ``recon-run`` validates them from its flags
+        (``ReconOptions.validated(..., front="python")`` from Python; default: the
+        declared defaults, i.e. ``diffuserlab recon``'s: the method and weights chosen
+        from each frame's data, at most 200 iterations). Its ``dark`` is not read here
+        (pass the resolved ``dark``). With a grid, ``method`` and ``tv`` are not used,
+        ``bin_factor`` is the grid model's, ``background`` applies, and the l1 weight is
+        ``l1`` when given, else :data:`recon.options.GRID_L1` (Eq. 6.2); with one PSF
+        an l1 not given is 0.
+    dark : float, ndarray (rows, cols) or None
+        The dark level or frame (DN) subtracted from each frame, resolved by the
+        caller (:func:`batch_psf`); None: each frame's own estimate.
     frames : range, optional
         Frame slots to reconstruct (see :func:`parse_frames`; each must be stored).
         Default: every stored frame (a recording killed midway keeps a prefix).
@@ -343,10 +344,6 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
         product is refused; one made with the same settings is resumed).
     psf_source : str
         Where the PSF came from, stored with the product.
-    background : {"estimate", "none"}
-        With a grid: estimate each frame's smooth background jointly (Eq. 6.2).
-    grid_l1 : float
-        With a grid: the l1 weight in the scaled problem.
     on_progress : callable, optional
         Called after each stored frame with ``{"done", "total", "skipped",
         "elapsed_s", "fps"}``.
@@ -354,10 +351,9 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
         Stops the batch (queued tasks cancelled); finished frames are kept.
     timeout_s : float
         Longest wait for the scheduler and for the local cluster to come up, s.
-    device : {"cpu", "cuda", "auto"}
-        Where each worker's solves run (``device`` of :func:`recon.reconstruct`; module
-        notes); resolved here first, so an unusable one is refused before the run is
-        touched. A grid model's solves run there too (:mod:`recon.spatial.device`).
+        ``options.device`` is resolved first (:func:`recon.backend.resolve_device`), so
+        an unusable one is refused before the run is touched; each worker's solves run
+        there (module notes), a grid model's too (:mod:`recon.spatial.device`).
 
     Returns
     -------
@@ -385,10 +381,16 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
     from recon.backend import resolve_device
     from recon.errors import DivergenceError, ReconInputError
     from recon.io import DATA_ORIENTATION
+    from recon.options import GRID_L1, l1_given
     from recon.validate import as_int
 
     from .runstore_records import ranges_text
 
+    options = ReconOptions.validated({}) if options is None else options
+    method, tv, background = options.method, options.tv, options.background
+    iterations, bin_factor, device = options.iterations, options.bin_factor, options.device
+    given_l1 = l1_given(options.l1)  # not given: 0 with one PSF, GRID_L1 with a grid
+    l1, grid_l1 = (0.0, GRID_L1) if given_l1 is None else (given_l1, given_l1)
     backend = resolve_device(device)  # before the store is touched, as the scheduler
     if scheduler is not None:  # before the store is touched: nothing written on failure
         check_scheduler(scheduler)
@@ -431,7 +433,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
         dark_attr = None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame")
         hint = f"diffuserlab recon-run {store.path} with the same options"
         if grid is None:
-            options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
+            task_options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
                        "bin_factor": bin_factor, "dark": "auto" if dark is None else dark,
                        "device": device}
             settings = {"method": method, "tv": tv, "l1": l1, "psf": psf_source,
@@ -439,7 +441,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
             name, task = product or f"recon_{method}", reconstruct_stored_frame
         else:
             bin_factor = grid.bin_factor
-            options = {"background": background, "l1": grid_l1, "iterations": iterations,
+            task_options = {"background": background, "l1": grid_l1, "iterations": iterations,
                        "dark": dark, "device": device}
             settings = {**grid.settings(), "background": background, "l1": grid_l1,
                         "orientation": DATA_ORIENTATION}
@@ -470,7 +472,7 @@ def reconstruct_run(run: str | Path, psf, *, method: str = _D["method"],
             # reductions depend on it, and the results must equal `recon`'s (to float32
             # rounding: dask's workers run one BLAS thread)
             psf_future = client.scatter(grid or np.asarray(psf), broadcast=True)
-            futures = [client.submit(task, str(store.path), i, psf_future, options,
+            futures = [client.submit(task, str(store.path), i, psf_future, task_options,
                                      thread_count(), pure=False) for i in todo]
             index_of = dict(zip(futures, todo, strict=True))
             try:

@@ -80,17 +80,19 @@ def _child(kwargs: dict, messages, cancel) -> None:
                                                      "nice": os.nice(0)}}))
 
 
-def reconstruct_run_in_process(run, psf, *, on_progress: Callable[[dict], None] | None = None,
+def reconstruct_run_in_process(run, psf, options=None, *,
+                               on_progress: Callable[[dict], None] | None = None,
                                cancel: threading.Event | None = None,
                                poll_s: float = 0.2, stop_timeout_s: float = 30.0,
-                               **options: Any) -> dict[str, Any]:
+                               **keywords: Any) -> dict[str, Any]:
     """:func:`instrument.batch.reconstruct_run` in a child process.
 
     Parameters
     ----------
-    run, psf, **options
+    run, psf, options, **keywords
         As :func:`instrument.batch.reconstruct_run` (pickled to the child: a PSF
-        ``(rows, cols)`` float array or a :class:`instrument.batch_grid.GridBatchModel`).
+        ``(rows, cols)`` float array or a :class:`instrument.batch_grid.GridBatchModel`,
+        the :class:`recon.options.ReconOptions`).
     on_progress : callable, optional
         Called in this process, on the calling thread, with each progress dict of the
         batch (``done``, ``total``, ``skipped``, ``elapsed_s``, ``fps``).
@@ -121,8 +123,8 @@ def reconstruct_run_in_process(run, psf, *, on_progress: Callable[[dict], None] 
     context = multiprocessing.get_context("spawn")
     messages = context.Queue()
     stop = context.Event()
-    child = context.Process(target=_child, args=(dict(run=run, psf=psf, **options),
-                                                 messages, stop),
+    kwargs = dict(run=run, psf=psf, options=options, **keywords)
+    child = context.Process(target=_child, args=(kwargs, messages, stop),
                             name="diffuserlab-batch")
     child.start()
     outcome = None

@@ -430,14 +430,11 @@ def _grid_pitch_um(psf_stack: str, product: str, pitch_um: float | None,
     return pitch * float(b.get("bin_factor", 1)) * bin_factor
 
 
-def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
-                tv: float | str, l1: float | str, out: str, depths_mm: list[float] | None = None,
-                bin_factor: int = 1, dark="auto",
-                psf_product: str = "psf_stack", metrics_json: str | None = None,
-                planes: str = "all", pitch_um: float | None = None,
-                d_mm: float | None = None, scene_range_mm=None,
-                allow_mixed_ranges: bool = False, empty_planes: str = "keep",
-                device: str = "cpu", memory_limit_bytes: int | None = None,
+def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
+                depths_mm: list[float] | None = None, psf_product: str = "psf_stack",
+                metrics_json: str | None = None, planes: str = "all",
+                pitch_um: float | None = None, d_mm: float | None = None,
+                scene_range_mm=None, memory_limit_bytes: int | None = None,
                 slab_group=None, announce=print) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
     write it and its
@@ -450,22 +447,17 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
         :func:`instrument.stacks.load_psf_stack`).
     raw_path : str
         Raw measurement (TIFF, PNG or ``.npy``), the size of one PSF plane.
-    method : {"admm", "fista"}
-    iterations : int
-        Solver iterations (>= 1).
-    tv, l1 : float or "auto"
-        3D TV and l1 weights in the scaled problem (>= 0; 0 disables; "auto": see
-        :func:`recon.reconstruct`).
+    options : recon.options.ReconOptions
+        The reconstruction's parameters (validated: ``check_recon_flags`` of the
+        command line, or ``ReconOptions.validated``); its volume keywords (method,
+        iterations, tv, l1, bin_factor, allow_mixed_ranges, empty_planes, device) go to
+        :func:`recon.reconstruct`, its ``dark`` through :func:`resolve_dark` (then
+        :func:`recon.volume.api.prepare_volume_problem`).
     out : str
         ``OUT.tif``/``OUT.tiff`` or ``OUT.zarr``; projections go to
         ``OUT_mip_xy.png``, ``OUT_mip_xz.png`` and ``OUT_mip_yz.png``.
     depths_mm : list of float, optional
         One depth per plane when the stack does not record them.
-    bin_factor : int
-        Lateral box binning of the stack and the raw image.
-    dark : str, float, ndarray or None
-        ``--dark`` (:func:`resolve_dark`; then
-        :func:`recon.volume.api.prepare_volume_problem`).
     psf_product : str
         Product of a run store to read.
     metrics_json : str, optional
@@ -476,13 +468,6 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     pitch_um, d_mm, scene_range_mm
         Sensor pitch (um, unbinned), diffuser-to-sensor distance (mm) and the scene's
         depth span (mm, optional) for ``planes="auto"``.
-    allow_mixed_ranges : bool
-        Accept a stack and raw of different bit depths (``--allow-mixed-ranges``).
-    empty_planes : {"keep", "drop"}
-        With an automatic weight, keep every plane or set those that show no signal
-        to zero (see :func:`recon.reconstruct`).
-    device : {"cpu", "cuda", "auto"}
-        Where 3D ADMM runs (:func:`recon.reconstruct`).
     memory_limit_bytes : int, optional
         Memory the solve may use (``--memory-limit``); default what is available.
         Above it the streamed 3D FISTA runs (:func:`recon.volume.api.reconstruct_stack`).
@@ -515,19 +500,24 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
     from recon import PsfStack, reconstruct
     from recon.auto import AUTO, parse_weight
     from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
+    from recon.options import l1_given
     from recon.volume.api import check_volume_parameters
 
     from .stacks import dark_subtracted, load_psf_stack
 
-    tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    kw = options.keywords("volume")
+    if l1_given(kw["l1"]) is None:  # --l1 not given: a volume's own default is 0
+        kw["l1"] = float(kw["l1"])
+    method, tv, l1 = kw["method"], parse_weight(kw["tv"], "tv"), parse_weight(kw["l1"], "l1")
+    bin_factor = kw["bin_factor"]
     if planes not in ("all", "auto"):
         raise InputError(f"planes {planes!r}: use all or auto")
-    check_volume_parameters("admm" if method == AUTO else method, iterations,
+    check_volume_parameters("admm" if method == AUTO else method, kw["iterations"],
                             0.0 if tv == AUTO else tv, 0.0 if l1 == AUTO else l1)
     vol_path, mip_paths = volume_output_paths(out)
     t_start = time.perf_counter()
     stack, depths, _ = load_psf_stack(psf_stack, depths_mm, product=psf_product)
-    stack, dark = resolve_dark(dark, stack, calibrated=dark_subtracted(psf_stack),
+    stack, dark = resolve_dark(options.dark, stack, calibrated=dark_subtracted(psf_stack),
                                what=f"--psf-stack {psf_stack}")
     stack_shape_in = list(stack.shape)
     raw = load_image(raw_path)
@@ -541,10 +531,9 @@ def run_recon3d(psf_stack: str, raw_path: str, *, method: str, iterations: int,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
     with named_pair(psf_stack, raw_path):
-        rec = reconstruct(PsfStack(stack, depths), raw, method, iterations=iterations,
-                          tv=tv, l1=l1, bin_factor=bin_factor, dark=dark,
-                          allow_mixed_ranges=allow_mixed_ranges, empty_planes=empty_planes,
-                          device=device, memory_limit_bytes=memory_limit_bytes,
+        rec = reconstruct(PsfStack(stack, depths), raw,
+                          **{**kw, "tv": tv, "l1": l1, "dark": dark},
+                          memory_limit_bytes=memory_limit_bytes,
                           slab_group=slab_group, announce=announce)
     seconds_total = time.perf_counter() - t_start
     del stack

@@ -92,8 +92,6 @@ def run(args: argparse.Namespace) -> int:
     """Run ``recon3d`` (:func:`instrument.reconstruct_files.run_recon3d`) and print its
     summary line; returns 0 (bad input exits 2 and divergence 3 through
     :func:`instrument.cli.main`)."""
-    from recon.options import l1_given
-
     from ..output_safety import check_outputs
     from ..reconstruct_files import run_recon3d, volume_output_paths
     from ..volume_shards import slab_workers
@@ -102,30 +100,23 @@ def run(args: argparse.Namespace) -> int:
     depths = None if args.depths is None else floats(args.depths, "--depths")
     if (args.psf_stack is None) == (args.psf_grid is None):
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
-    check_recon_flags(args)
+    options = check_recon_flags(args)
     check_device(args.device)
     memory_limit = None if args.memory_limit is None else _size(args.memory_limit)
     if args.psf_grid:
         from .grid_options import run_grid
 
         return run_grid(args, volume=True, depths=depths)
-    dark = args.dark  # instrument.reconstruct_files.resolve_dark: one meaning of auto
     vol, mips = volume_output_paths(args.out)
     outputs = [vol, *mips.values(), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf-stack": args.psf_stack, "--raw": args.raw}, args.overwrite)
     with slab_workers(args.scheduler) as slab_group:
-        m = run_recon3d(args.psf_stack, args.raw, method=args.method,
-                        iterations=args.iterations,
-                        tv=args.tv, l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
-                        out=args.out, depths_mm=depths, bin_factor=args.bin_factor, dark=dark,
+        m = run_recon3d(args.psf_stack, args.raw, options, out=args.out, depths_mm=depths,
                         psf_product=args.psf_product, metrics_json=args.metrics_json,
-                        planes=args.planes, device=args.device, pitch_um=args.pitch_um,
-                        d_mm=args.d_mm,
+                        planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,
                         scene_range_mm=(None if args.scene_range is None
                                         else floats(args.scene_range, "--scene-range")),
-                        allow_mixed_ranges=args.allow_mixed_ranges,
-                        empty_planes=args.empty_planes, memory_limit_bytes=memory_limit,
-                        slab_group=slab_group)
+                        memory_limit_bytes=memory_limit, slab_group=slab_group)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")

@@ -104,13 +104,12 @@ def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from recon.errors import ReconInputError
-    from recon.options import GRID_L1, l1_given
 
     from ..batch import batch_psf, parse_frames, reconstruct_run
     from ..runstore import RunStore, RunStoreError
     from .recon_flags import check_device, check_recon_flags
 
-    check_recon_flags(args)  # --iterations, --bin, --tv, --l1 against their limits
+    options = check_recon_flags(args)  # --iterations, --bin, --tv, --l1 against their limits
     if args.workers is not None:
         from ..batch import check_workers
 
@@ -149,13 +148,10 @@ def run(args: argparse.Namespace) -> int:
     cancel = threading.Event()
     try:
         out = reconstruct_run(
-            args.run, psf, method=args.method, iterations=args.iterations, tv=args.tv,
-            l1=float(args.l1) if l1_given(args.l1) is None else args.l1,
-            bin_factor=args.bin_factor, dark=dark, frames=frames, product=args.product,
+            args.run, psf, options, dark=dark, frames=frames, product=args.product,
             workers=args.workers, scheduler=args.scheduler, dff_percentile=args.dff,
-            overwrite=args.overwrite, psf_source=source, background=args.background,
-            grid_l1=GRID_L1 if l1_given(args.l1) is None else args.l1, on_progress=progress,
-            cancel=cancel, device=args.device)
+            overwrite=args.overwrite, psf_source=source, on_progress=progress,
+            cancel=cancel)
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP (instrument.cli.interrupts)
         from .interrupts import exit_status, signal_text
 

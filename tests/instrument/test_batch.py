@@ -19,6 +19,7 @@ from instrument.video import record_video
 from instrument.video_scenes import BeadFlowScene, NeuronFieldScene
 from instrument.virtual_bench import VirtualBench
 from recon.io import load_image
+from recon.options import ReconOptions
 
 
 def assert_same_frame(batch: np.ndarray, single: np.ndarray) -> None:
@@ -33,6 +34,11 @@ def assert_same_frame(batch: np.ndarray, single: np.ndarray) -> None:
 
 
 OPTIONS = {"method": "admm", "iterations": 8, "bin_factor": 2}
+
+
+def _options(**values) -> ReconOptions:
+    """The batch's reconstruction options as Python callers build them."""
+    return ReconOptions.validated(values, front="python")
 
 
 @pytest.fixture(scope="module")
@@ -74,8 +80,8 @@ def test_batch_equals_single_frame_reconstruction_and_resumes(video, cluster, tm
         if p["done"] >= 3:
             cancel.set()
 
-    first = reconstruct_run(run, psf, scheduler=cluster.scheduler_address, cancel=cancel,
-                            on_progress=progress, **OPTIONS)
+    first = reconstruct_run(run, psf, _options(**OPTIONS), scheduler=cluster.scheduler_address,
+                            cancel=cancel, on_progress=progress)
     assert first["cancelled"] and 3 <= first["reconstructed"] < 12
     store = RunStore.open(run)
     done = store.product_frames_done("recon_admm")
@@ -83,7 +89,7 @@ def test_batch_equals_single_frame_reconstruction_and_resumes(video, cluster, tm
     # a run moved (or copied) elsewhere resumes its batch (before: "other settings")
     run = Path(shutil.move(run, tmp_path / "moved" / "v.zarr"))
     store = RunStore.open(run)
-    second = reconstruct_run(run, psf, scheduler=cluster.scheduler_address, **OPTIONS)
+    second = reconstruct_run(run, psf, _options(**OPTIONS), scheduler=cluster.scheduler_address)
     assert second["skipped"] == done.sum() and second["reconstructed"] == 12 - done.sum()
     data, attrs = RunStore.open(run).product("recon_admm")
     assert data.shape == (12, 128, 160) and attrs["iterations"] == 8
@@ -94,8 +100,8 @@ def test_batch_equals_single_frame_reconstruction_and_resumes(video, cluster, tm
         assert_same_frame(data[i], expect)
     # other settings are refused while the product exists; --overwrite replaces it
     with pytest.raises(RunStoreError, match="iterations differ"):
-        reconstruct_run(run, psf, scheduler=cluster.scheduler_address,
-                        **{**OPTIONS, "iterations": 9})
+        reconstruct_run(run, psf, _options(**{**OPTIONS, "iterations": 9}),
+                        scheduler=cluster.scheduler_address)
 
 
 def test_recon_run_cli_equals_recon_cli_on_the_same_frame(video, tmp_path, capsys):
@@ -167,7 +173,7 @@ def test_dff_of_recorded_neurons_follows_the_truth(cluster, tmp_path):
                      shard_frames=16)
     scale = 4000.0 / on_axis.max()
     psf = on_axis * scale + offset
-    out = reconstruct_run(tmp_path / "n.zarr", psf, method="admm", iterations=30,
+    out = reconstruct_run(tmp_path / "n.zarr", psf, _options(method="admm", iterations=30),
                           dark=offset, scheduler=cluster.scheduler_address,
                           dff_percentile=20.0)
     store = RunStore.open(tmp_path / "n.zarr")

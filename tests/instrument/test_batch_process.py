@@ -24,9 +24,11 @@ from instrument.batch_process import (
     reconstruct_run_in_process,
 )
 from instrument.runstore import RunStore, RunStoreError
+from recon.options import ReconOptions
 from tests.instrument.test_batch import video  # noqa: F401 (the fixture)
 
-OPTIONS = {"method": "admm", "iterations": 6, "tv": 1e-3, "bin_factor": 2, "workers": 1}
+RECON = {"method": "admm", "iterations": 6, "tv": 1e-3, "bin_factor": 2}
+OPTIONS = {"options": ReconOptions.validated(RECON, front="python"), "workers": 1}
 
 
 @pytest.fixture
@@ -47,9 +49,8 @@ def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run)
     assert [p["done"] for p in seen] == [1, 2, 3] and {p["total"] for p in seen} == {3}
     store = RunStore.open(run)
     assert store.lock_owner() is None
-    options = {k: v for k, v in OPTIONS.items() if k != "workers"}
     for i in range(3):
-        expect = recon.reconstruct(video[1], store.frame(i).image, **options).image
+        expect = recon.reconstruct(video[1], store.frame(i).image, **RECON).image
         np.testing.assert_allclose(store.product_frame("recon_admm", i), expect, rtol=0,
                                    atol=1e-5 * float(np.abs(expect).max()))
 
@@ -71,8 +72,8 @@ def test_a_cancel_stops_the_child_and_keeps_its_frames(video, run):  # noqa: F81
 def test_the_childs_error_comes_back_with_its_type_and_traceback(video, run):  # noqa: F811
     reconstruct_run_in_process(run, video[1], frames=range(0, 1), **OPTIONS)
     with pytest.raises(RunStoreError, match="iterations differ") as info:
-        reconstruct_run_in_process(run, video[1], frames=range(0, 1),
-                                   **{**OPTIONS, "iterations": 7})
+        reconstruct_run_in_process(run, video[1], ReconOptions.validated(
+            {**RECON, "iterations": 7}, front="python"), frames=range(0, 1), workers=1)
     assert any("in the batch process" in note and "Traceback" in note
                for note in info.value.__notes__)
 

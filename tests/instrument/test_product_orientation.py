@@ -12,6 +12,7 @@ from instrument.batch import reconstruct_run
 from instrument.batch_grid import GridBatchModel
 from instrument.runstore import RunStore
 from recon.io import DATA_ORIENTATION
+from recon.options import ReconOptions
 from recon.spatial.api import grid_model
 
 from ..recon.test_front_door import SENSOR, _brightest, _grid, _psf, _raw, _truth
@@ -43,12 +44,14 @@ def test_stored_frames_of_a_psf_and_a_grid_agree_with_the_front_door(tmp_path, s
                                    iterations=150, dark=DARK, model="local")
     assert _brightest(image.image) == truth == _brightest(grid_image.image)
 
-    reconstruct_run(run, psf_dn, method="fista", tv=0.0, iterations=150, dark=DARK,
-                    scheduler=scheduler, product="single")
+    options = ReconOptions.validated({"method": "fista", "tv": 0.0, "iterations": 150},
+                                     front="python")
+    reconstruct_run(run, psf_dn, options, dark=DARK, scheduler=scheduler, product="single")
     choice, op = grid_model(grid, model="local")
     model = GridBatchModel(grid, choice, op, "grid", "local", 1)
-    reconstruct_run(run, model, iterations=150, dark=DARK, background="none", grid_l1=0.0,
-                    scheduler=scheduler, product="grid")
+    options = ReconOptions.validated({"iterations": 150, "background": "none", "l1": 0.0},
+                                     front="python")
+    reconstruct_run(run, model, options, dark=DARK, scheduler=scheduler, product="grid")
     store = RunStore.open(run)
     single, single_attrs = store.product("single")
     gridded, grid_attrs = store.product("grid")
