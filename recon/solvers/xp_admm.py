@@ -284,25 +284,12 @@ class XpPlanBase(AdmmPlanBase):
         :func:`recon.auto.weight.admm_auto`."""
         return lambda op: cls(numpy_plan_of(op), like)
 
-    @property
-    def label(self) -> str:
-        """The solver's name in error messages (the NumPy plan's)."""
-        return self.plan.label
-
-    @property
-    def hint(self) -> str:
-        """The divergence error's advice (the NumPy plan's)."""
-        return self.plan.hint
-
-    @property
-    def tie_nonneg(self) -> bool:
-        """Whether mu3 is tied to mu1 without TV (the NumPy plan's)."""
-        return self.plan.tie_nonneg
-
-    @property
-    def signed(self) -> bool:
-        """Whether ``nonneg=False`` is allowed (the NumPy plan's)."""
-        return self.plan.signed
+    # the solver's name in errors, the divergence advice, the penalty tie and whether
+    # nonneg=False is allowed: the NumPy plan's (AdmmPlanBase)
+    label = property(lambda self: self.plan.label)
+    hint = property(lambda self: self.plan.hint)
+    tie_nonneg = property(lambda self: self.plan.tie_nonneg)
+    signed = property(lambda self: self.plan.signed)
 
     def ffts_per_iteration(self) -> dict:
         """As the NumPy plan's."""

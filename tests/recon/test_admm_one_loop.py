@@ -15,46 +15,23 @@ import inspect
 import numpy as np
 import pytest
 
-from recon.operators import ConvolutionOperator
 from recon.solvers import AdmmPenalty, admm
 from recon.solvers.admm import AdmmPlan, NumbaKernels2D
 from recon.solvers.admm_loop import DEFAULT_ITERATIONS, run_admm
 from recon.solvers.penalty import DEFAULT_MU
 from recon.solvers.xp_admm import XpAdmmPlan, XpKernels
 from recon.spatial import spatial_admm
-from recon.volume import VolumeAdmmPlan, VolumeConvolutionOperator, admm3d, volume_tv
+from recon.volume import VolumeAdmmPlan, admm3d, volume_tv
 from recon.volume.admm import NumbaKernels3D
 from recon.volume.xp_admm3d import XpVolumeAdmmPlan
+
+from .test_backends import _problem_2d, _problem_3d
 
 xps = pytest.importorskip("array_api_strict")
 loop_mod = importlib.import_module("recon.solvers.admm_loop")
 
 #: Relative agreement of the generic path with the numba one (float32 rounding).
 TOL = 1e-4
-
-
-def _problem_2d():
-    rng = np.random.default_rng(1)
-    psf = np.zeros((40, 48), np.float32)
-    psf[rng.integers(8, 32, 40), rng.integers(8, 40, 40)] = rng.random(40)
-    psf /= psf.sum()
-    op = ConvolutionOperator(psf)
-    truth = np.zeros(op.padded_shape, np.float32)
-    truth[30:50, 40:60] = 1.0
-    b = op.forward(truth)
-    return op, (b / b.max() + 0.01 * rng.standard_normal(b.shape)).astype(np.float32)
-
-
-def _problem_3d():
-    rng = np.random.default_rng(2)
-    stack = rng.random((4, 20, 24)).astype(np.float32) ** 8
-    stack /= np.sqrt((stack.sum(axis=(1, 2)) ** 2).sum())
-    op = VolumeConvolutionOperator(stack)
-    truth = np.zeros(op.shape_in, np.float32)
-    truth[1, 15:25, 18:30] = 1.0
-    truth[3, 20:22, 10:40] = 2.0
-    b = op.forward(truth)
-    return op, (b / b.max() + 0.01 * rng.standard_normal(b.shape)).astype(np.float32)
 
 
 PATHS = {  # name: (solver, problem, measurement on the backend, kernel set)
