@@ -8,7 +8,7 @@ scaling of :func:`recon.api.scaled_problem` and one solve:
 
 - :meth:`LiveReconstructor.wiener`: the Wiener preview (:func:`recon.solvers.wiener`).
 - :meth:`LiveReconstructor.admm`: a few ADMM iterations (Kuo 2020, Eq. 4.5 / App. A.3;
-  Boyd et al. 2011) through :func:`recon.solvers.admm.run_admm`, warm-started from the
+  Boyd et al. 2011) through :func:`recon.solvers.admm_loop.run_admm`, warm-started from the
   previous frame's ADMM state (consecutive video frames are similar).
 
 A cold single frame equals :func:`recon.reconstruct` with the same method, iterations

@@ -11,8 +11,9 @@ frame's conversion (dark, binning, scale) stays the NumPy code of
 
 - :meth:`DeviceLive.wiener`: :func:`recon.solvers.wiener` with whole-array operations
   (the same complex64 filter, computed on the host once per lambda).
-- :meth:`DeviceLive.admm`: :func:`recon.solvers.xp_admm.admm_xp` from the carried state
-  (Kuo 2020, Eq. 4.5 / App. A.3; Boyd et al. 2011).
+- :meth:`DeviceLive.admm`: the ADMM loop (:func:`recon.solvers.admm_loop.run_admm`)
+  with the generic kernel set from the carried state (Kuo 2020, Eq. 4.5 / App. A.3;
+  Boyd et al. 2011).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 
 from .backend import Backend, check_memory, free_device_bytes, to_device, to_numpy, total
 from .solvers.common import History, SolveResult
-from .solvers.xp_admm import XpAdmmPlan, XpAdmmState, admm_xp, memory_bytes
+from .solvers.xp_admm import XpAdmmPlan, XpAdmmState, memory_bytes
 
 __all__ = ["DeviceLive", "live_memory_bytes", "wiener_filter"]
 
@@ -122,7 +123,7 @@ class DeviceLive:
         Returns
         -------
         SolveResult
-            As :func:`recon.solvers.xp_admm.admm_xp`: ``x`` on the device;
+            As :func:`recon.solvers.admm_loop.run_admm`: ``x`` on the device;
             ``params["device"]`` the backend's label.
 
         Raises
@@ -130,8 +131,8 @@ class DeviceLive:
         DivergenceError, ReconInputError
             From the solve.
         """
-        res = admm_xp(self.plan, self.upload(b), iterations=iterations, tv=tv, l1=0.0,
-                      penalty=penalty, state=state)
+        res = self.xplan.run(self.upload(b), state, iterations=iterations, tv=tv,
+                             penalty=penalty)
         res.params["device"] = self.backend.label
         return res
 

@@ -21,7 +21,7 @@ rule ran to the smallest weight (7.7 dB on the demo scene against 18.5 dB at the
 best fixed weight).
 
 The path compares like with like (:mod:`recon.auto.path`). ADMM
-(:func:`recon.solvers.admm.run_admm`) runs on the fit pixels from :data:`START_WEIGHT`
+(:func:`recon.solvers.admm_loop.run_admm`) runs on the fit pixels from :data:`START_WEIGHT`
 down to :data:`END_WEIGHT` in steps of :data:`PATH_FACTOR` (:func:`weight_grid`), each
 weight warm-started from the state the one before ended in (continuation; Hale, Yin &
 Zhang 2008), and each runs until its held-out error has settled -- it could fall by at

@@ -5,6 +5,11 @@ v = M x (crop split, M the circular convolution), u = Psi x (finite differences,
 TV), w = x (non-negativity), with closed-form updates: v and w pointwise, u by
 soft thresholding, x by a diagonal solve in Fourier space. Penalties mu1..mu3 are
 balanced from the primal and dual residuals (Boyd et al. 2011, Sec. 3.4.1).
+
+The loop is the one of every ADMM (:func:`recon.solvers.admm_loop.run_admm`); this
+module is the 2D plan and state and, for NumPy arrays, its kernel set
+(:class:`NumbaKernels2D`: the fused numba passes of :mod:`recon._kernels`). Other
+array-API backends get the generic kernel set of :mod:`recon.solvers.xp_admm`.
 """
 
 from __future__ import annotations
@@ -20,11 +25,11 @@ from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
 from ..validate import as_int, nonneg_weight
+from .admm_loop import DEFAULT_ITERATIONS, AdmmPlanBase, SplitStep, run_admm
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
 from .penalty import (
     MU_RANGE,
     AdmmPenalty,
-    admm_result,
     balance_mode,
     balanced_penalty,
     check_balancing,
@@ -35,10 +40,10 @@ from .penalty import (
 )
 
 # the balancing steps live in .penalty; named here too for the 3D ADMM's imports
-__all__ = ["MU_RANGE", "AdmmPenalty", "AdmmPlan", "AdmmState", "admm", "balance_mode",
-           "balanced_penalty", "check_balancing", "check_penalties", "check_penalty_settings",
-           "difference_power",
-           "objective_of", "rescale_duals", "run_admm", "tie_nonneg_penalty"]
+__all__ = ["MU_RANGE", "AdmmPenalty", "AdmmPlan", "AdmmState", "NumbaKernels2D", "admm",
+           "balance_mode", "balanced_penalty", "check_balancing", "check_penalties",
+           "check_penalty_settings", "difference_power", "objective_of", "rescale_duals",
+           "run_admm", "tie_nonneg_penalty"]
 
 
 def difference_power(shape: tuple[int, int]) -> np.ndarray:
@@ -50,7 +55,7 @@ def difference_power(shape: tuple[int, int]) -> np.ndarray:
 
 
 @dataclass
-class AdmmPlan:
+class AdmmPlan(AdmmPlanBase):
     """What ADMM precomputes from the operator alone, reusable across measurements.
 
     Attributes
@@ -67,13 +72,14 @@ class AdmmPlan:
     d_pow : ndarray, float32, shape (P0, P1 // 2 + 1)
         |F Psi|^2 summed over the axes (finite differences).
     rhs_in_split : bool (class attribute)
-        Whether :func:`run_admm` has the split pass write the x-update's right-hand
-        side (``state.stacked[1]``) and calls :meth:`x_update` with
-        ``rhs_ready=True``; False for a plan whose x-update does not use it
+        Whether the kernel set (:class:`NumbaKernels2D`) has the split pass write the
+        x-update's right-hand side (``state.stacked[1]``) and calls :meth:`x_update`
+        with ``rhs_ready=True``; False for a plan whose x-update does not use it
         (:class:`recon.spatial.SpatialAdmmPlan`).
     """
 
     rhs_in_split: ClassVar[bool] = True
+    hint: ClassVar[str] = "try --method fista or a smaller TV weight"
 
     op: ConvolutionOperator
     shape: tuple[int, int]
@@ -120,10 +126,21 @@ class AdmmPlan:
             state.quy[...] = np.roll(x, -1, axis=0) - x
         return state
 
-    def run(self, b: np.ndarray, state: AdmmState, *, iterations: int, tv: float,
-            l1: float = 0.0, final: bool = True) -> SolveResult:
-        """:func:`run_admm` from ``state`` (updated in place)."""
-        return run_admm(self, b, state, iterations=iterations, tv=tv, l1=l1, final=final)
+    def kernels(self, b: np.ndarray, state: AdmmState, *, tv: float, l1: float,
+                nonneg: bool = True, balancing: bool = True) -> NumbaKernels2D:
+        """The kernel set of one solve on NumPy arrays (:class:`NumbaKernels2D`), for
+        :func:`~recon.solvers.admm_loop.run_admm`.
+
+        Raises
+        ------
+        ReconInputError
+            A bad measurement.
+        """
+        return NumbaKernels2D(self, b, state, tv=tv, l1=l1, nonneg=nonneg)
+
+    def ffts_per_iteration(self) -> dict:
+        """Real 2D FFTs of one iteration at the padded shape: 2 rfft2 + 2 irfft2."""
+        return {"rfft2": 2, "irfft2": 2}
 
     def objective(self, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
                   b_norm: float) -> tuple[float, float]:
@@ -147,7 +164,7 @@ class AdmmPlan:
         mu : (mu1, mu2, mu3)
         rhs_ready : bool
             ``stacked[1]`` already holds mu2 Psi^T q_u + mu3 q_w of the current q's
-            and ``mu`` (written by the split pass, :func:`run_admm`).
+            and ``mu`` (written by the split pass, :class:`NumbaKernels2D`).
 
         Returns
         -------
@@ -267,113 +284,96 @@ def objective_of(op, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
     return objective, math.sqrt(data_sq) / b_norm
 
 
-def run_admm(plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, iterations: int,
-             tv: float, l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
-             final: bool = True) -> SolveResult:
-    """Run ``iterations`` ADMM iterations from ``state`` (updated in place).
+class NumbaKernels2D:
+    """The 2D ADMM's kernel set on NumPy arrays (:class:`~recon.solvers.admm_loop.
+    AdmmKernels`): two fused numba passes and 2 rfft2 + 2 irfft2 per iteration.
 
-    The loop of :func:`admm`, which validates the parameters and calls this with
-    :meth:`AdmmState.zeros`; callers passing a warm state (the previous video
-    frame's, :mod:`recon.live`) validate them likewise. ``state.use_tv`` must equal
-    ``tv > 0``.
+    :meth:`splits` is :func:`recon._kernels.admm_split_updates_2d` -- the v (crop),
+    u (TV: soft threshold of the forward differences) and w (non-negativity, l1)
+    updates in one pass, which also writes the x-update's right-hand side except in
+    balancing iterations (mode 2: balancing may change the q's and penalties after
+    it); :meth:`x_update` is the plan's (:meth:`AdmmPlan.x_update`).
 
     Parameters
     ----------
     plan : AdmmPlan
-    b : ndarray, shape ``plan.op.shape_out``, float32
+    b : ndarray, float32, ``plan.op.shape_out``
         Scaled, weighted measurement (checked with
         :func:`~recon.solvers.common.check_measurement`).
     state : AdmmState
-        Start, with its penalties; on return the final iterate (x before the
-        non-negativity clip).
-    iterations, tv, l1
-        As in :func:`admm` (already validated).
-    penalty : AdmmPenalty, optional
-        Residual balancing settings (default ``AdmmPenalty()``); its ``mu`` is not
-        used here (the state carries the current penalties).
-    stop : callable, optional
-        ``stop(history) -> bool``, asked after every iteration (automatic stopping,
-        :class:`recon.auto.weight.Stopping`); ``iterations`` stays the maximum.
-    final : bool
-        Evaluate the returned estimate's objective and residual (one forward model);
-        False, for a caller that runs the solve in pieces, reports the last
-        iteration's from the history instead (those of the iterate entering it).
-
-    Returns
-    -------
-    SolveResult
-        As :func:`admm`; ``history.objective[0]`` is that of the starting iterate.
+        Updated in place.
+    tv, l1 : float
+        Weights (validated, >= 0).
+    nonneg : bool
+        True (the plan is not ``signed``: :func:`~recon.solvers.admm_loop.run_admm`
+        refuses False).
 
     Raises
     ------
-    DivergenceError
-        NaN/inf or an objective 100x that of the zero image.
     ReconInputError
-        Misshapen, non-finite or all-zero ``b``, or a state made for the other sign of
-        ``tv``.
+        A bad measurement.
     """
-    op = plan.op
-    penalty = AdmmPenalty() if penalty is None else penalty
-    if state.use_tv != (tv > 0):
-        raise ReconInputError(f"ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
-                              f" but tv={tv}; start from AdmmState.zeros(plan, mu, tv > 0)")
-    b = check_measurement(b, op.shape_out)
-    bp = np.zeros(plan.shape, np.float32)
-    bp[op.crop] = b
-    use_tv = state.use_tv
-    mu1, mu2, mu3 = state.mu
-    x, mx = state.x, state.mx
-    stacked, qux, quy, qw, scratch = (state.stacked, state.qux, state.quy, state.qw,
-                                      state.scratch)
-    qv = stacked[0]
-    mon = Monitor(float(np.vdot(b, b)), "ADMM")
-    mus = [(mu1, mu2, mu3)]
-    last_balance = penalty.last_balance(iterations)
-    ratio = mu3 / mu1  # kept without a TV split (tie_nonneg_penalty)
-    used = iterations
-    rhs = stacked[1] if plan.rhs_in_split else None
-    for k in range(iterations):
-        mon.start()
-        mode = penalty.mode(k, last_balance)
-        # the right-hand side comes out of the split pass except where balancing may
-        # change the q's and penalties after it (mode 2): x_update forms it then
-        s = _kernels.admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, plan.wp, mu1, mu2,
-                                           mu3, tv, use_tv, mode, *scratch, l1,
-                                           None if mode == 2 else rhs)
+
+    def __init__(self, plan: AdmmPlan, b: np.ndarray, state: AdmmState, *, tv: float,
+                 l1: float, nonneg: bool = True):
+        op = plan.op
+        self.b = check_measurement(b, op.shape_out)
+        self.bp = np.zeros(plan.shape, np.float32)
+        self.bp[op.crop] = self.b
+        self.plan, self.state, self.tv, self.l1 = plan, state, tv, l1
+        self.monitor = Monitor(float(np.vdot(self.b, self.b)), plan.label)
+        self.report = {"ffts_per_iteration": plan.ffts_per_iteration()}
+        self._rhs_ready = False
+
+    def splits(self, mode: int) -> SplitStep:
+        """One fused pass of every split's update (:func:`recon._kernels.
+        admm_split_updates_2d`); the l1 term of the entering iterate in a second pass
+        when ``l1 > 0``."""
+        st, plan = self.state, self.plan
+        mu1, mu2, mu3 = st.mu
+        rhs = st.stacked[1] if plan.rhs_in_split and mode != 2 else None
+        s = _kernels.admm_split_updates_2d(st.x, st.mx, st.stacked[0], st.qux, st.quy, st.qw,
+                                           self.bp, plan.wp, mu1, mu2, mu3, self.tv,
+                                           st.use_tv, mode, *st.scratch, self.l1, rhs)
+        self._rhs_ready = rhs is not None
+        l1_x = (self.l1 * float(np.maximum(st.x, 0).sum(dtype=np.float64)) if self.l1 > 0
+                else 0.0)
+        balance = None
         if mode == 2:
-            new = [penalty.balanced(mu1, *s[[2, 3, 8, 9]]),
-                   penalty.balanced(mu2, *s[[4, 5, 10, 11]]) if use_tv else mu2,
-                   penalty.balanced(mu3, *s[[6, 7, 12, 13]])]
-            tie_nonneg_penalty(new, ratio, use_tv)
-            if tuple(new) != (mu1, mu2, mu3):
-                rescale_duals(((qv, scratch[0], mu1, new[0]), (qux, scratch[1], mu2, new[1]),
-                               (quy, scratch[2], mu2, new[1]), (qw, scratch[3], mu3, new[2])))
-                mu1, mu2, mu3 = new
-                state.set_penalties(plan, new)
-                mus.append((mu1, mu2, mu3))
-        # the l1 term of the iterate entering this iteration, as the data and TV terms
-        l1_x = l1 * float(np.maximum(x, 0).sum(dtype=np.float64)) if l1 > 0 else 0.0
-        if rhs is not None and mode != 2:
-            x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3), rhs_ready=True)
+            balance = (s[[2, 3, 8, 9]], s[[4, 5, 10, 11]] if st.use_tv else None,
+                       s[[6, 7, 12, 13]])
+        return SplitStep(s[0], (self.tv * s[1], l1_x), balance)
+
+    def set_penalties(self, old: tuple, new: tuple) -> None:
+        """Rescale the q's by the duals the mode-1 pass stored, recompute ``inv_den``."""
+        st = self.state
+        a_v, a_ux, a_uy, a_w = st.scratch
+        rescale_duals(((st.stacked[0], a_v, old[0], new[0]), (st.qux, a_ux, old[1], new[1]),
+                       (st.quy, a_uy, old[1], new[1]), (st.qw, a_w, old[2], new[2])))
+        st.set_penalties(self.plan, new)
+
+    def end_balancing(self) -> None:
+        """Nothing to release: the dual buffers belong to the state (mapped once)."""
+
+    def x_update(self) -> None:
+        """:meth:`AdmmPlan.x_update` (with the right-hand side the split pass wrote)."""
+        st = self.state
+        if self._rhs_ready:
+            st.x, st.mx = self.plan.x_update(st, st.x, st.mx, st.mu, rhs_ready=True)
         else:
-            x, mx = plan.x_update(state, x, mx, (mu1, mu2, mu3))
-        mon.record(0.5 * s[0] + tv * s[1] + l1_x, s[0], x=x,
-                   hint="try --method fista or a smaller TV weight")
-        if stop is not None and stop(mon.history):
-            used = k + 1
-            break
-    state.x, state.mx = x, mx
-    x = np.maximum(x, 0)  # the estimate is the non-negative split w
-    if final:
-        objective, relative = objective_of(op, b, x, tv=tv, l1=l1, b_norm=mon.b_norm)
-    else:
-        objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    return admm_result(x, mon.history, objective, relative, tv=tv, l1=l1, mus=mus,
-                       penalty=penalty, iterations=iterations, used=used)
+            st.x, st.mx = self.plan.x_update(st, st.x, st.mx, st.mu)
+
+    def iterate(self) -> np.ndarray:
+        """The current x (padded grid)."""
+        return self.state.x
+
+    def estimate(self) -> np.ndarray:
+        """max(x, 0): the estimate is the non-negative split w."""
+        return np.maximum(self.state.x, 0)
 
 
-def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,
-         l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
+def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERATIONS,
+         tv: float = 0.0, l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
          plan: AdmmPlan | None = None) -> SolveResult:
     """ADMM with crop, TV, l1 and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
 
@@ -402,9 +402,11 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
         Forward model; erasure masks are folded into its sensor weights.
     b : ndarray, shape ``op.shape_out``, float32
         Measurement, multiplied by the sensor weights, scaled to O(1). An array of
-        another array-API backend (CuPy, PyTorch: on its device) runs the generic
-        path ``recon.solvers.xp_admm.admm_xp`` and returns ``x`` on that device.
+        another array-API backend (CuPy, PyTorch: on its device) runs the same loop
+        with the generic kernel set (``recon.solvers.xp_admm.XpAdmmPlan``) and
+        returns ``x`` on that device.
     iterations : int
+        Maximum iterations (default :data:`~recon.solvers.admm_loop.DEFAULT_ITERATIONS`).
     tv : float
         TV weight tau (default 0, as every solver's: no term unless asked); 0 removes
         the TV split.
@@ -427,8 +429,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     SolveResult
         ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tau TV(x_k) + l1 ||x_k||_1
         for the iterate entering iteration k (x_0 = 0); ``history.extra['mu']`` the
-        penalties used; ``params`` with ``iterations`` (the maximum) and
-        ``iterations_used``.
+        penalties used; ``params`` as every ADMM's
+        (:func:`~recon.solvers.admm_loop.run_admm`: ``iterations``, the maximum,
+        ``iterations_used``, ...).
 
     Raises
     ------
@@ -463,10 +466,9 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = 100, tv: f
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
-    if not isinstance(b, np.ndarray):  # another backend: the array-API path
-        from .xp_admm import admm_xp
+    if not isinstance(b, np.ndarray):  # another backend: the generic kernel set there
+        from .xp_admm import XpAdmmPlan
 
-        return admm_xp(plan, b, iterations=iterations, tv=tv, l1=l1, penalty=penalty, stop=stop)
-    b = check_measurement(b, op.shape_out)
-    return run_admm(plan, b, AdmmState.zeros(plan, penalty.initial(), tv > 0),
-                    iterations=iterations, tv=tv, l1=l1, penalty=penalty, stop=stop)
+        plan = XpAdmmPlan(plan, b)
+    return run_admm(plan, b, plan.zeros(penalty.initial(), tv > 0), iterations=iterations,
+                    tv=tv, l1=l1, penalty=penalty, stop=stop)

@@ -1,47 +1,52 @@
-"""2D ADMM with crop, TV, l1 and non-negativity splits on any array-API backend.
+"""The generic ADMM kernel set: every ADMM on any array-API backend (2D, 3D, PSF grids).
 
-The algorithm of :func:`recon.solvers.admm.admm` (Kuo 2020, Eq. 4.5 / App. A.3;
-Antipa et al. 2018), iteration for iteration: the same q-form splits, the same
-residual balancing (:class:`recon.solvers.AdmmPenalty`), the same diagonal x-update in
-Fourier space (2 rfft2 + 2 irfft2, batched in pairs), written with whole-array
-operations instead of the fused numba passes.
+The loop is the one of every ADMM (:func:`recon.solvers.admm_loop.run_admm`); this
+module is its kernel set for arrays of another backend (CuPy, PyTorch, or any
+array-API library): :class:`XpKernels` does the split updates of Eq. 4.5 / App. A.3
+(Kuo 2020; Antipa et al. 2018) in q-form with whole-array operations -- the same
+arithmetic in float32 as the fused numba passes of the NumPy path
+(:mod:`recon._kernels`, :mod:`recon.volume._admm_kernels3d`) -- for the 2D and the 3D
+model alike, with the plan's regulariser split (:class:`Differences`: TV) and its
+x-update.
 
-:class:`XpAdmmPlan` and :class:`XpAdmmState` are :class:`recon.solvers.admm.AdmmPlan`
-and :class:`~recon.solvers.admm.AdmmState` on a device, with the same interface
-(``zeros``, ``warm``, ``run``, ``objective``): the automatic weight's warm-started path
-(:func:`recon.auto.weight.admm_auto`) runs on them with every iterate kept on the
-device between its solves.
+:class:`XpAdmmPlan` is :class:`recon.solvers.admm.AdmmPlan` on a device (the diagonal
+x-update in Fourier space, :func:`fourier_x_update`, or a plan's own:
+:meth:`recon.spatial.SpatialAdmmPlan.device_parts`);
+:class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan` the volume's. Both have the
+interface of the automatic weight (``zeros``, ``warm``, ``run``, ``objective``,
+:func:`recon.auto.weight.admm_auto`) and one state class, :class:`XpAdmmState`, kept
+on the device between solves (the live view's warm start, the weight path).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import reduce
 
 import numpy as np
 
 from ..backend import array_namespace, device_of
-from ..errors import ReconInputError
 from ..xp_operators import XpConvolution
-from .common import SolveResult
-from .penalty import AdmmPenalty, admm_result, tie_nonneg_penalty
+from .admm_loop import AdmmPlanBase, SplitStep
 from .xp_common import (
     XpMonitor,
     balance_terms,
     check_measurement_xp,
     data_split,
+    forward_difference,
     shrink_split,
     total,
     tv_circular,
 )
 
-__all__ = ["XpAdmmPlan", "XpAdmmState", "XpPlanBase", "admm_xp", "fourier_x_update",
-           "memory_bytes", "run_admm_xp"]
+__all__ = ["Differences", "XpAdmmPlan", "XpAdmmState", "XpKernels", "XpPlanBase",
+           "fourier_x_update", "memory_bytes"]
 
 
 def memory_bytes(padded_shape: tuple[int, int]) -> int:
-    """Peak device memory of :func:`admm_xp` (bytes): about 24 float32 planes of the
-    padded grid (x, M x, five q's, four stored duals, temporaries of the split pass)
-    and 6 complex half-spectra (the batched pair and the operator's)."""
+    """Peak device memory of a 2D generic ADMM solve (bytes): about 24 float32 planes
+    of the padded grid (x, M x, five q's, four stored duals, temporaries of the split
+    pass) and 6 complex half-spectra (the batched pair and the operator's)."""
     plane = 4 * padded_shape[0] * padded_shape[1]
     return 24 * plane + 6 * plane
 
@@ -49,6 +54,34 @@ def memory_bytes(padded_shape: tuple[int, int]) -> int:
 def _rescale(q, a, old: float, new: float):
     """:func:`recon.solvers.penalty.rescale_duals` for one split, out of place."""
     return q + a * (1.0 - old / new) if old != new else q
+
+
+@dataclass(frozen=True)
+class Differences:
+    """The TV split's G_u = Psi for the generic kernel set: forward differences along
+    ``axes`` (in that order: one q per axis), circular except along ``open_axis``
+    (a volume's depth: zero across the last plane, no wrap).
+
+    The regulariser's seam on the generic path: :class:`XpKernels` soft-thresholds
+    ``apply(x)`` (the u-update) and the x-updates use ``adjoint`` (Psi^T q_u).
+    """
+
+    axes: tuple[int, ...]
+    open_axis: int | None = None
+
+    def apply(self, xp, x) -> tuple:
+        """Psi x: one difference array per axis, like ``x``."""
+        return tuple(forward_difference(xp, x, ax, ax != self.open_axis) for ax in self.axes)
+
+    def adjoint(self, xp, qs):
+        """Psi^T q: ``sum_axes roll(q, 1) - q`` (along ``open_axis`` too: its q is zero
+        on the last plane, as :meth:`apply` leaves it, so nothing wraps)."""
+        return reduce(lambda s, t: s + t,
+                      (xp.roll(q, 1, axis=ax) - q for q, ax in zip(qs, self.axes, strict=True)))
+
+
+#: Psi of the 2D image: circular forward differences along columns, then rows.
+DIFFERENCES_2D = Differences((1, 0))
 
 
 def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool):
@@ -77,7 +110,7 @@ def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool):
     # R = mu2 Psi^T q_u + mu3 q_w, then the diagonal solve
     rhs = mu3 * qw
     if use_tv:
-        rhs = rhs + mu2 * (xp.roll(qux, 1, axis=1) - qux + xp.roll(quy, 1, axis=0) - quy)
+        rhs = rhs + mu2 * DIFFERENCES_2D.adjoint(xp, (qux, quy))
     spectra = xp.fft.rfftn(xp.stack([qv, rhs]), axes=(-2, -1))
     x_hat = (mu1 * xop.spectrum_conj * spectra[0, ...] + spectra[1, ...]) * inv_den
     out = xp.fft.irfftn(xp.stack([xop.spectrum * x_hat, x_hat]), s=xop.padded_shape,
@@ -85,11 +118,164 @@ def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool):
     return out[1, ...], out[0, ...]
 
 
-class XpPlanBase:
+@dataclass
+class XpAdmmState:
+    """An ADMM iterate on a device (:class:`recon.solvers.admm.AdmmState` and
+    :class:`recon.volume.VolumeAdmmState` of the NumPy path): the arrays are replaced,
+    not written in place.
+
+    Attributes
+    ----------
+    x : array, float32, ``op.shape_in``
+        The primal iterate (before the non-negativity clip).
+    mx : array, float32, (P0, P1)
+        M x, uncropped.
+    qv : array, float32, (P0, P1)
+        q = z - a of the crop split v = M x.
+    qu : tuple of arrays like ``x``
+        q of the regulariser's splits (one per axis of :class:`Differences`).
+    qw : array like ``x``
+        q of the identity split w = x (non-negativity, l1).
+    mu : (mu1, mu2, mu3)
+    inv_den : array or None
+        The plan's x-update denominator for ``mu`` (2D: 1 / (mu1 |H|^2 [+ mu2
+        |F Psi|^2] + mu3) on the half-spectrum; None for a plan that solves per
+        frequency, the volume's).
+    use_tv : bool
+    """
+
+    x: object
+    mx: object
+    qv: object
+    qu: tuple
+    qw: object
+    mu: tuple
+    inv_den: object
+    use_tv: bool
+
+    def scale(self, factor: float) -> None:
+        """Multiply x, M x and every q by ``factor`` (:meth:`AdmmState.scale
+        <recon.solvers.admm.AdmmState.scale>`: the measurement's scale changed, a live
+        view's next frame); the penalties stay."""
+        f = float(np.float32(factor))
+        self.x, self.mx, self.qv, self.qw = (a * f for a in (self.x, self.mx, self.qv,
+                                                             self.qw))
+        self.qu = tuple(q * f for q in self.qu)
+
+    def set_penalties(self, plan, mu) -> None:
+        """Adopt ``mu`` and the plan's x-update denominator for it."""
+        self.mu = tuple(mu)
+        self.inv_den = plan.inverse_denominator(self.mu, self.use_tv)
+
+
+class XpKernels:
+    """The generic kernel set (:class:`~recon.solvers.admm_loop.AdmmKernels`) of any
+    ADMM plan on an array-API backend: whole-array split updates in q-form.
+
+    Per iteration (:meth:`splits`): v = (w b + mu1 t) / (w^2 + mu1) on the padded plane
+    (:func:`~recon.solvers.xp_common.data_split`), w = max(soft(t, l1 / mu3), 0)
+    (without ``nonneg`` the soft threshold alone), u = soft(Psi x + a_u, tv / mu2) with
+    the plan's Psi (:class:`Differences`), t = G x + a each time; then the plan's
+    x-update (``plan.x_update(state) -> (x, mx)``). The scaled duals are stored for
+    balancing (zero at the start of each solve; only mode-1 passes write what the
+    next mode-2 pass reads).
+
+    Parameters
+    ----------
+    plan : XpPlanBase
+        :class:`XpAdmmPlan` or :class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`.
+    b : array (array API), float32, ``op.shape_out``
+        Scaled, weighted measurement on the plan's device.
+    state : XpAdmmState
+    tv, l1 : float
+        Validated weights (>= 0).
+    nonneg : bool
+
+    Raises
+    ------
+    ReconInputError
+        A misshapen, non-finite or all-zero ``b``.
+    """
+
+    def __init__(self, plan, b, state: XpAdmmState, *, tv: float, l1: float, nonneg: bool):
+        xp = self.xp = plan.xp
+        self.b = check_measurement_xp(b, plan.op.shape_out)
+        self.bp, self.wp = plan.xop.pad(self.b), plan.xop.wp
+        self.plan, self.state, self.tv, self.l1, self.nonneg = plan, state, tv, l1, nonneg
+        self.monitor = XpMonitor(xp, total(xp, self.b * self.b), plan.label)
+        self.report = {"ffts_per_iteration": plan.ffts_per_iteration(), "backend": xp.__name__}
+        self.av = xp.zeros_like(state.mx)
+        self.aw = xp.zeros_like(state.x)
+        self.au = tuple(self.aw for _ in state.qu)
+
+    def splits(self, mode: int) -> SplitStep:
+        """The v, w and u updates of the state, whole arrays."""
+        xp, st = self.xp, self.state
+        mu1, mu2, mu3 = st.mu
+        qv, a_v, z_v, r = data_split(st.mx, st.qv, self.wp, self.bp, mu1)
+        qw, a_w, z_w = shrink_split(xp, st.x, st.qw, self.l1 / mu3, self.nonneg)
+        g = self.plan.differences.apply(xp, st.x)
+        tv_x = sum(total(xp, xp.abs(d)) for d in g)
+        l1_x = 0.0
+        if self.l1 > 0:  # of the estimate the entering iterate gives
+            l1_x = total(xp, xp.clip(st.x, min=0.0) if self.nonneg else xp.abs(st.x))
+        data_sq = total(xp, r * r)
+        u = ([shrink_split(xp, d, q, self.tv / mu2, False) for d, q in zip(g, st.qu,
+                                                                          strict=True)]
+             if st.use_tv else None)
+        balance = None
+        if mode == 2:
+            t_u = None
+            if u is not None:
+                t_u = reduce(lambda s, t: tuple(p + q for p, q in zip(s, t, strict=True)),
+                             (balance_terms(xp, d, q, s[1], s[2], a)
+                              for d, q, s, a in zip(g, st.qu, u, self.au, strict=True)))
+            balance = (balance_terms(xp, st.mx, st.qv, a_v, z_v, self.av), t_u,
+                       balance_terms(xp, st.x, st.qw, a_w, z_w, self.aw))
+        if mode != 0:
+            self.av, self.aw = a_v, a_w
+            if u is not None:
+                self.au = tuple(s[1] for s in u)
+        st.qv, st.qw = qv, qw
+        if u is not None:
+            st.qu = tuple(s[0] for s in u)
+        return SplitStep(data_sq, (self.tv * tv_x, self.l1 * l1_x), balance)
+
+    def set_penalties(self, old: tuple, new: tuple) -> None:
+        """Rescale the q's by the stored duals; the state adopts ``new``."""
+        st = self.state
+        st.qv = _rescale(st.qv, self.av, old[0], new[0])
+        st.qw = _rescale(st.qw, self.aw, old[2], new[2])
+        if st.use_tv:
+            st.qu = tuple(_rescale(q, a, old[1], new[1]) for q, a in zip(st.qu, self.au,
+                                                                          strict=True))
+        st.set_penalties(self.plan, new)
+
+    def end_balancing(self) -> None:
+        """Release the stored duals (no later pass reads them)."""
+        self.av = self.aw = None
+        self.au = ()
+
+    def x_update(self) -> None:
+        """The plan's x-update."""
+        self.state.x, self.state.mx = self.plan.x_update(self.state)
+
+    def iterate(self):
+        """The current x (on the device)."""
+        return self.state.x
+
+    def estimate(self):
+        """max(x, 0) with ``nonneg``, else x."""
+        return self.xp.clip(self.state.x, min=0.0) if self.nonneg else self.state.x
+
+
+class XpPlanBase(AdmmPlanBase):
     """What the 2D and 3D generic ADMM plans share (:class:`XpAdmmPlan`,
-    :class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`): the ``plan_of`` maker and the
-    warm start. A subclass has ``xp``, ``xop``, ``zeros(mu, use_tv)`` and
-    ``tv_splits(x) -> {name: G_u x}`` for its TV splits."""
+    :class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`): the ``plan_of`` maker, the cold
+    and warm states and the kernel set. A subclass has ``plan`` (the NumPy plan),
+    ``op``, ``xp``, ``xop``, ``differences`` (:class:`Differences`),
+    ``inverse_denominator(mu, use_tv)``, ``x_update(state) -> (x, mx)`` and
+    ``objective``."""
 
     @classmethod
     def maker(cls, like, numpy_plan_of):
@@ -98,7 +284,28 @@ class XpPlanBase:
         :func:`recon.auto.weight.admm_auto`."""
         return lambda op: cls(numpy_plan_of(op), like)
 
-    def warm(self, x, mu, use_tv: bool):
+    # the solver's name in errors, the divergence advice, the penalty tie and whether
+    # nonneg=False is allowed: the NumPy plan's (AdmmPlanBase)
+    label = property(lambda self: self.plan.label)
+    hint = property(lambda self: self.plan.hint)
+    tie_nonneg = property(lambda self: self.plan.tie_nonneg)
+    signed = property(lambda self: self.plan.signed)
+
+    def ffts_per_iteration(self) -> dict:
+        """As the NumPy plan's."""
+        return self.plan.ffts_per_iteration()
+
+    def zeros(self, mu, use_tv: bool) -> XpAdmmState:
+        """The cold start: everything zero, penalties ``mu``."""
+        xp, dev = self.xp, self.xop.device
+        z = xp.zeros(self.op.shape_in, dtype=xp.float32, device=dev)
+        plane = xp.zeros(self.xop.padded_shape, dtype=xp.float32, device=dev)
+        state = XpAdmmState(z, plane, plane, tuple(z for _ in self.differences.axes), z,
+                            tuple(float(m) for m in mu), None, bool(use_tv))
+        state.set_penalties(self, mu)
+        return state
+
+    def warm(self, x, mu, use_tv: bool) -> XpAdmmState:
         """A state at the primal ``x`` (the object grid, on the device or the host)
         with zero duals (q_i = G_i x, :meth:`recon.solvers.admm.AdmmPlan.warm`)."""
         state = self.zeros(mu, use_tv)
@@ -111,9 +318,13 @@ class XpPlanBase:
         state.mx = state.qv = self.xop.convolve_full(x)
         state.qw = xp.clip(x, min=0.0)
         if use_tv:
-            for name, q in self.tv_splits(x).items():
-                setattr(state, name, q)
+            state.qu = self.differences.apply(xp, x)
         return state
+
+    def kernels(self, b, state: XpAdmmState, *, tv: float, l1: float, nonneg: bool = True,
+                balancing: bool = True) -> XpKernels:
+        """The generic kernel set of one solve (:class:`XpKernels`)."""
+        return XpKernels(self, b, state, tv=tv, l1=l1, nonneg=nonneg)
 
 
 class XpAdmmPlan(XpPlanBase):
@@ -139,40 +350,39 @@ class XpAdmmPlan(XpPlanBase):
         The operator on the device.
     h_pow, d_pow : array, float32, (P0, P1 // 2 + 1)
         On the device.
-    x_update : callable
-        :func:`fourier_x_update`, or the plan's own: a plan with another x-update names
-        it (``plan.device_parts(like)`` -> operator, x-update:
+    differences : Differences
+        :data:`DIFFERENCES_2D`.
+    solve_x : callable
+        ``solve_x(xop, x, mx, (qv, qux, quy, qw), mu, inv_den, use_tv) -> (x, mx)``:
+        :func:`fourier_x_update`, or the plan's own: a plan with another x-update
+        names it (``plan.device_parts(like)`` -> operator, x-update:
         :meth:`recon.spatial.SpatialAdmmPlan.device_parts`).
     """
+
+    differences = DIFFERENCES_2D
 
     def __init__(self, plan, like):
         key = (array_namespace(like).__name__, str(device_of(like)))
         cache = plan.__dict__.setdefault("_device_copies", {})
         if key not in cache:
             parts = getattr(plan, "device_parts", None)
-            xop, x_update = (parts(like) if parts is not None
-                             else (XpConvolution(plan.op, like), fourier_x_update))
-            cache[key] = (xop, xop.asarray(plan.h_pow), xop.asarray(plan.d_pow), x_update)
+            xop, solve_x = (parts(like) if parts is not None
+                            else (XpConvolution(plan.op, like), fourier_x_update))
+            cache[key] = (xop, xop.asarray(plan.h_pow), xop.asarray(plan.d_pow), solve_x)
         self.plan, self.op = plan, plan.op
-        self.xop, self.h_pow, self.d_pow, self.x_update = cache[key]
+        self.xop, self.h_pow, self.d_pow, self.solve_x = cache[key]
         self.xp, self.shape = self.xop.xp, self.xop.padded_shape
 
-    def zeros(self, mu, use_tv: bool) -> XpAdmmState:
-        """The cold start: everything zero, penalties ``mu``."""
-        z = self.xp.zeros(self.shape, dtype=self.xp.float32, device=self.xop.device)
-        state = XpAdmmState(z, z, z, z, z, z, [z, z, z, z], tuple(mu), None, use_tv)
-        state.set_penalties(self, mu)
-        return state
+    def inverse_denominator(self, mu, use_tv: bool):
+        """1 / (mu1 |H|^2 [+ mu2 |F Psi|^2] + mu3) on the device."""
+        mu1, mu2, mu3 = mu
+        den = mu1 * self.h_pow + mu3
+        return 1.0 / (den + mu2 * self.d_pow if use_tv else den)
 
-    def tv_splits(self, x) -> dict:
-        """G_u x of the TV splits: forward differences along columns and rows."""
-        xp = self.xp
-        return {"qux": xp.roll(x, -1, axis=1) - x, "quy": xp.roll(x, -1, axis=0) - x}
-
-    def run(self, b, state: XpAdmmState, *, iterations: int, tv: float, l1: float = 0.0,
-            final: bool = True) -> SolveResult:
-        """:func:`run_admm_xp` from ``state`` (updated in place)."""
-        return run_admm_xp(self, b, state, iterations=iterations, tv=tv, l1=l1, final=final)
+    def x_update(self, state: XpAdmmState):
+        """:attr:`solve_x` from the state's q's and penalties."""
+        return self.solve_x(self.xop, state.x, state.mx, (state.qv, *state.qu, state.qw),
+                            state.mu, state.inv_den, state.use_tv)
 
     def objective(self, b, x, *, tv: float, l1: float, b_norm: float) -> tuple[float, float]:
         """:func:`recon.solvers.admm.objective_of` on the device."""
@@ -181,190 +391,3 @@ class XpAdmmPlan(XpPlanBase):
         data_sq = total(xp, r * r)
         objective = 0.5 * data_sq + tv * tv_circular(xp, x, (0, 1)) + l1 * total(xp, x)
         return objective, float(np.sqrt(data_sq)) / b_norm
-
-
-@dataclass
-class XpAdmmState:
-    """:class:`recon.solvers.admm.AdmmState` on a device: the primal ``x`` and ``mx``
-    (M x), the q's of the splits (``qv`` crop, ``qux`` / ``quy`` TV, ``qw``
-    non-negativity), the stored scaled duals ``a`` (a_v, a_ux, a_uy, a_w), the
-    penalties and ``inv_den``; arrays float32 (P0, P1) (``inv_den`` the half-spectrum).
-    The arrays are replaced, not written in place."""
-
-    x: object
-    mx: object
-    qv: object
-    qux: object
-    quy: object
-    qw: object
-    a: list
-    mu: tuple
-    inv_den: object
-    use_tv: bool
-
-    def scale(self, factor: float) -> None:
-        """Multiply x, M x and every q by ``factor`` (:meth:`AdmmState.scale
-        <recon.solvers.admm.AdmmState.scale>`: the measurement's scale changed, a live
-        view's next frame); the duals a and the penalties stay."""
-        f = float(np.float32(factor))
-        for name in ("x", "mx", "qv", "qux", "quy", "qw"):
-            setattr(self, name, getattr(self, name) * f)
-
-    def set_penalties(self, plan: XpAdmmPlan, mu) -> None:
-        """Adopt ``mu`` and recompute ``inv_den`` = 1 / (mu1 |H|^2 [+ mu2 |F Psi|^2] + mu3)."""
-        self.mu = tuple(mu)
-        mu1, mu2, mu3 = self.mu
-        den = mu1 * plan.h_pow + mu3
-        self.inv_den = 1.0 / (den + mu2 * plan.d_pow if self.use_tv else den)
-
-
-def run_admm_xp(plan: XpAdmmPlan, b, state: XpAdmmState, *, iterations: int, tv: float,
-                l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
-                final: bool = True) -> SolveResult:
-    """:func:`recon.solvers.admm.run_admm` on the device: ``iterations`` ADMM iterations
-    from ``state`` (updated: on return the last iterate, x before the clip).
-
-    Parameters
-    ----------
-    plan : XpAdmmPlan
-    b : array (array API), float32, ``op.shape_out``
-        Scaled, weighted measurement on the plan's device.
-    state : XpAdmmState
-    iterations : int
-    tv, l1 : float
-        Weights (validated, >= 0); ``state.use_tv`` must equal ``tv > 0``.
-    penalty : AdmmPenalty, optional
-        Residual balancing (default ``AdmmPenalty()``); the state carries the penalties.
-    stop : callable, optional
-        ``stop(history) -> bool`` after every iteration (automatic stopping).
-    final : bool
-        Evaluate the estimate's objective and residual (one forward model); False
-        reports the last iteration's from the history.
-
-    Returns
-    -------
-    SolveResult
-        ``x`` (P0, P1) float32 on ``b``'s device; history and parameters as the NumPy
-        path's.
-
-    Raises
-    ------
-    DivergenceError, ReconInputError
-        As :func:`recon.solvers.admm.run_admm`.
-    """
-    op, xop, xp = plan.op, plan.xop, plan.xp
-    penalty = AdmmPenalty() if penalty is None else penalty
-    if state.use_tv != (tv > 0):
-        raise ReconInputError(f"ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
-                              f" but tv={tv}; start from the plan's zeros(mu, tv > 0)")
-    b = check_measurement_xp(b, op.shape_out)
-    bp, wp = xop.pad(b), xop.wp
-    use_tv = state.use_tv
-    mu1, mu2, mu3 = state.mu
-    ratio = mu3 / mu1
-    x, mx, qv, qux, quy, qw = state.x, state.mx, state.qv, state.qux, state.quy, state.qw
-    av, aux, auy, aw = state.a
-    mon = XpMonitor(xp, total(xp, b * b), "ADMM")
-    mus = [(mu1, mu2, mu3)]
-    last_balance = penalty.last_balance(iterations)
-    used = iterations
-    for k in range(iterations):
-        mon.start()
-        mode = penalty.mode(k, last_balance)
-        thr = tv / mu2 if use_tv else 0.0
-        qv_new, a_v, z_v, r = data_split(mx, qv, wp, bp, mu1)
-        qw_new, a_w, z_w = shrink_split(xp, x, qw, l1 / mu3, True)
-        gx = xp.roll(x, -1, axis=1) - x
-        gy = xp.roll(x, -1, axis=0) - x
-        tv_x = total(xp, xp.abs(gx) + xp.abs(gy))
-        if use_tv:
-            qux_new, a_ux, z_ux = shrink_split(xp, gx, qux, thr, False)
-            quy_new, a_uy, z_uy = shrink_split(xp, gy, quy, thr, False)
-        if mode == 2:
-            tv_v = balance_terms(xp, mx, qv, a_v, z_v, av)
-            tv_w = balance_terms(xp, x, qw, a_w, z_w, aw)
-            if use_tv:
-                tx = balance_terms(xp, gx, qux, a_ux, z_ux, aux)
-                ty = balance_terms(xp, gy, quy, a_uy, z_uy, auy)
-                tv_u = tuple(p + q for p, q in zip(tx, ty, strict=True))
-        if mode != 0:
-            av, aw = a_v, a_w
-            if use_tv:
-                aux, auy = a_ux, a_uy
-        data_sq = total(xp, r * r)
-        qv, qw = qv_new, qw_new
-        if use_tv:
-            qux, quy = qux_new, quy_new
-        if mode == 2:
-            new = [penalty.balanced(mu1, *tv_v),
-                   penalty.balanced(mu2, *tv_u) if use_tv else mu2,
-                   penalty.balanced(mu3, *tv_w)]
-            tie_nonneg_penalty(new, ratio, use_tv)
-            if tuple(new) != (mu1, mu2, mu3):
-                qv = _rescale(qv, av, mu1, new[0])
-                qw = _rescale(qw, aw, mu3, new[2])
-                if use_tv:
-                    qux = _rescale(qux, aux, mu2, new[1])
-                    quy = _rescale(quy, auy, mu2, new[1])
-                mu1, mu2, mu3 = new
-                state.set_penalties(plan, new)
-                mus.append((mu1, mu2, mu3))
-        # the l1 term of the iterate entering this iteration, as the data and TV terms
-        l1_x = l1 * total(xp, xp.clip(x, min=0.0)) if l1 > 0 else 0.0
-        x, mx = plan.x_update(xop, x, mx, (qv, qux, quy, qw), (mu1, mu2, mu3), state.inv_den,
-                              use_tv)
-        mon.record(0.5 * data_sq + tv * tv_x + l1_x, data_sq, x=x,
-                   hint="try --method fista or a smaller TV weight")
-        if stop is not None and stop(mon.history):
-            used = k + 1
-            break
-    state.x, state.mx, state.qv, state.qux, state.quy, state.qw = x, mx, qv, qux, quy, qw
-    state.a = [av, aux, auy, aw]
-    x = xp.clip(x, min=0.0)
-    if final:
-        objective, relative = plan.objective(b, x, tv=tv, l1=l1, b_norm=mon.b_norm)
-    else:
-        objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    return admm_result(x, mon.history, objective, relative, tv=tv, l1=l1, mus=mus,
-                       penalty=penalty, iterations=iterations, used=used,
-                       backend=xp.__name__)
-
-
-def admm_xp(plan, b, *, iterations: int, tv: float, l1: float, penalty, stop=None,
-            state: XpAdmmState | None = None) -> SolveResult:
-    """ADMM of :func:`recon.solvers.admm.admm` on ``b``'s backend (validated parameters).
-
-    Parameters
-    ----------
-    plan : AdmmPlan
-        The NumPy path's plan (:class:`recon.solvers.admm.AdmmPlan`): its operator's
-        spectrum and weights and its power spectra are moved to ``b``'s device.
-    b : array (array API), float32, ``op.shape_out``
-        Scaled, weighted measurement on the target device.
-    iterations : int
-    tv, l1 : float
-        Weights (validated, >= 0).
-    penalty : AdmmPenalty
-    stop : callable, optional
-        ``stop(history) -> bool`` after every iteration (automatic stopping).
-    state : XpAdmmState, optional
-        Start from this iterate and its penalties (a live view's warm start; made by
-        :meth:`XpAdmmPlan.zeros` of this plan and device, updated in place); default
-        the cold start with ``penalty``'s initial penalties.
-
-    Returns
-    -------
-    SolveResult
-        ``x`` on ``b``'s device (P0, P1) float32; history and parameters as the NumPy
-        path's.
-
-    Raises
-    ------
-    DivergenceError, ReconInputError
-        As :func:`recon.solvers.admm.admm`; a ``state`` made for the other sign of
-        ``tv``.
-    """
-    xplan = XpAdmmPlan(plan, b)
-    state = xplan.zeros(penalty.initial(), tv > 0) if state is None else state
-    return run_admm_xp(xplan, b, state, iterations=iterations, tv=tv, l1=l1, penalty=penalty,
-                       stop=stop)

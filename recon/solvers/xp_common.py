@@ -14,8 +14,8 @@ from ..backend import array_namespace, to_numpy, total
 from ..errors import DivergenceError, ReconInputError
 from .common import Monitor
 
-__all__ = ["XpMonitor", "balance_terms", "check_measurement_xp", "data_split", "shrink_split",
-           "total", "tv_circular"]
+__all__ = ["XpMonitor", "balance_terms", "check_measurement_xp", "data_split",
+           "forward_difference", "shrink_split", "total", "tv_circular"]
 
 
 def shrink_split(xp, g, q, thr: float, nonneg: bool):
@@ -57,6 +57,18 @@ def balance_terms(xp, g, q, a, z, a_old) -> tuple[float, float, float, float]:
     e = z - q - a_old
     return (total(xp, d * d), total(xp, e * e), total(xp, xp.maximum(g * g, z * z)),
             total(xp, a * a))
+
+
+def forward_difference(xp, z, axis: int, wrap: bool = True):
+    """``z[i + 1] - z[i]`` along ``axis``: circular (``wrap``), or open (zero across the
+    last slice: a volume's depth, which does not wrap), like ``z``."""
+    if wrap:
+        return xp.roll(z, -1, axis=axis) - z
+    lo = [slice(None)] * z.ndim
+    hi = [slice(None)] * z.ndim
+    edge = [slice(None)] * z.ndim
+    lo[axis], hi[axis], edge[axis] = slice(0, -1), slice(1, None), slice(0, 1)
+    return xp.concat([z[tuple(hi)] - z[tuple(lo)], xp.zeros_like(z[tuple(edge)])], axis=axis)
 
 
 def tv_circular(xp, x, axes) -> float:

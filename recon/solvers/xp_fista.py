@@ -18,31 +18,15 @@ from ..operators import ConvolutionOperator
 from ..xp_operators import XpConvolution
 from .accelerated import accelerated_loop
 from .common import SolveResult
-from .xp_common import XpMonitor, check_measurement_xp, total, tv_circular
+from .xp_common import XpMonitor, check_measurement_xp, forward_difference, total, tv_circular
 
 __all__ = ["accelerated_xp", "device_problem", "proximal_step", "tv_open"]
-
-
-def _differences(xp, z, axis: int, wrap: bool):
-    """Forward and backward differences of ``z`` along ``axis``: circular (``wrap``)
-    or open (zero across the first and last slice: the depth of a volume)."""
-    if wrap:
-        return xp.roll(z, -1, axis=axis) - z, z - xp.roll(z, 1, axis=axis)
-    n = z.shape[axis]
-    lo = [slice(None)] * z.ndim
-    hi = [slice(None)] * z.ndim
-    lo[axis], hi[axis] = slice(0, n - 1), slice(1, n)
-    d = z[tuple(hi)] - z[tuple(lo)]
-    edge = [slice(None)] * z.ndim
-    edge[axis] = slice(0, 1)
-    zero = xp.zeros_like(z[tuple(edge)])
-    return xp.concat([d, zero], axis=axis), xp.concat([zero, d], axis=axis)
 
 
 def tv_open(xp, y, open_axis: int | None = None) -> float:
     """Anisotropic TV of ``y``: |forward differences| along every axis, circular but
     along ``open_axis`` (a volume's depth: no wrap)."""
-    return sum(total(xp, xp.abs(_differences(xp, y, ax, ax != open_axis)[0]))
+    return sum(total(xp, xp.abs(forward_difference(xp, y, ax, ax != open_axis)))
                for ax in range(y.ndim))
 
 
@@ -70,7 +54,8 @@ def proximal_step(xp, y, grad, x, step: float, thr: float, beta: float, nonneg: 
     if thr > 0:
         corr = None
         for ax in range(z.ndim):
-            fwd, bwd = _differences(xp, z, ax, ax != open_axis)
+            fwd = forward_difference(xp, z, ax, ax != open_axis)
+            bwd = xp.roll(fwd, 1, axis=ax)  # z - z[i-1]; zero first slice when open
             term = (xp.clip(0.5 * fwd, min=-thr, max=thr)
                     - xp.clip(0.5 * bwd, min=-thr, max=thr))
             corr = term if corr is None else corr + term

@@ -46,6 +46,7 @@ import numpy as np
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..solvers.admm import AdmmPlan, AdmmState, admm, difference_power
+from ..solvers.admm_loop import DEFAULT_ITERATIONS
 from ..solvers.common import SolveResult
 from . import _kernels as _spatial_kernels
 from .operator import SpatialConvolutionOperator
@@ -121,9 +122,15 @@ class SpatialAdmmPlan(AdmmPlan):
         x = x - irfftn(step, self.shape)
         return x, self.op.convolve_full(x)
 
+    def ffts_per_iteration(self) -> dict:
+        """Real 2D FFTs of one iteration at the padded shape (module docstring):
+        ``K + 2`` rfft2 and ``K + 2`` irfft2, ``K`` the model's kernels."""
+        k = int(self.op.spectra.shape[0])
+        return {"rfft2": k + 2, "irfft2": k + 2}
+
     def device_parts(self, like):
         """The generic operator and x-update on ``like``'s backend, for
-        ``recon.solvers.xp_admm.admm_xp`` (a measurement of another backend).
+        ``recon.solvers.xp_admm.XpAdmmPlan`` (a measurement of another backend).
 
         Returns
         -------
@@ -135,8 +142,9 @@ class SpatialAdmmPlan(AdmmPlan):
         return XpSpatialConvolution(self.op, like), linearized_x_update
 
 
-def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
-                 tv: float = 0.0, l1: float = 0.0, **options) -> SolveResult:
+def spatial_admm(op: SpatialConvolutionOperator, b: np.ndarray, *,
+                 iterations: int = DEFAULT_ITERATIONS, tv: float = 0.0, l1: float = 0.0,
+                 **options) -> SolveResult:
     """ADMM with TV, l1 and non-negativity for a 2D spatially varying model.
 
     :func:`recon.solvers.admm` with the linearized x-update of this module

@@ -1,8 +1,9 @@
 """The linearized ADMM of the spatially varying models on any array-API backend.
 
 :func:`recon.spatial.spatial_admm` given a measurement of another backend (CuPy,
-PyTorch) runs the generic 2D ADMM loop (:func:`recon.solvers.xp_admm.admm_xp`: the
-same splits and residual balancing) with this module's x-update, the preconditioned
+PyTorch) runs the ADMM loop of every ADMM with the generic kernel set
+(:class:`recon.solvers.xp_admm.XpAdmmPlan`: the same splits and residual balancing)
+with this module's x-update, the preconditioned
 gradient step of :mod:`recon.spatial.admm` (Deng & Yin 2016) written with whole-array
 operations on :class:`~recon.spatial.xp_operator.XpSpatialConvolution`:
 

@@ -5,7 +5,7 @@
 (3D TV by Haar shifts, l1, non-negativity).
 """
 
-from .admm import VolumeAdmmPlan, VolumeAdmmState, admm3d, run_admm3d
+from .admm import VolumeAdmmPlan, VolumeAdmmState, admm3d
 from .api import DEFAULT_TV, reconstruct_stack
 from .fista import fista3d, volume_tv
 from .operator import (
@@ -28,6 +28,5 @@ __all__ = [
     "fft_floor_seconds",
     "normalize_psf_stack",
     "reconstruct_stack",
-    "run_admm3d",
     "volume_tv",
 ]

@@ -109,7 +109,7 @@ def _vox(x, quz, quy, qux, qw, auz, auy, aux, aw, z, i, j, ip, jp, hz, l1thr, tv
                 ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
             if mode != 0:
                 auz[z, i, j] = a
-    return (tv, abs(g), ru, su, nu, du, rw, sw, nw, dw)
+    return (tv, max(g, zero) if lo == zero else abs(g), ru, su, nu, du, rw, sw, nw, dw)
 
 
 @njit(inline="always")
@@ -133,7 +133,8 @@ def admm_split_volume(x, quz, quy, qux, qw, l1thr, tvthr, use_tv, nonneg, mode,
     Returns
     -------
     ndarray, shape (10,), float64
-        [TV(x), ||x||_1, then for u and w: r^2, s^2, sum max(g^2, z^2), ||a||^2]
+        [TV(x), ||x_+||_1 (x_+ = max(x, 0) with ``nonneg``, else x: the l1 norm of the
+        estimate x gives), then for u and w: r^2, s^2, sum max(g^2, z^2), ||a||^2]
         (the balancing terms in mode 2 only).
     """
     nz, n0, n1 = x.shape

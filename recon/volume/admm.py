@@ -19,12 +19,19 @@ lateral frequency the n_z x n_z system is ``mu1 conj(h) h^T + mu2 (L_z + d_lat I
 mu3 I`` with ``L_z`` tridiagonal, solved by one Thomas sweep plus Sherman-Morrison
 for the rank-one data term (``M^H M`` at one lateral frequency is ``conj(h) h^T``,
 ``h = (H_z(f))_z``): O(n_z) per frequency, no 3D FFT along z needed.
+
+The loop is the one of every ADMM (:func:`recon.solvers.admm_loop.run_admm`: stopping
+rule, residual balancing, history); this module is the volume's plan and state and,
+for NumPy arrays, its kernel set (:class:`NumbaKernels3D`, the fused passes of
+:mod:`recon.volume._admm_kernels3d`). Other array-API backends run the generic kernel
+set with the volume's plan (:class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import scipy.fft as sfft
@@ -32,32 +39,14 @@ from numba import get_num_threads
 
 from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
+from ..solvers.admm import difference_power
+from ..solvers.admm_loop import DEFAULT_ITERATIONS, AdmmPlanBase, SplitStep, run_admm
 from ..solvers.common import Monitor, SolveResult, check_measurement
-from ..solvers.penalty import (
-    AdmmPenalty,
-    admm_result,
-    check_penalty_settings,
-    rescale_duals,
-)
+from ..solvers.penalty import AdmmPenalty, check_penalty_settings, rescale_duals
 from ..validate import as_int, nonneg_weight
 from . import _admm_kernels3d as _k
 from .fista import final_objective
 from .operator import VolumeConvolutionOperator
-
-#: Default initial penalties (mu1, mu2, mu3) for the scaled problem (stack
-#: normalised by :func:`~recon.volume.normalize_psf_stack`, |b| <= 1).
-DEFAULT_MU = (2e-3, 2e-3, 2e-3)
-
-
-def lateral_difference_power(padded_shape: tuple[int, int]) -> np.ndarray:
-    """``|F Psi_lat|^2`` on the rfft grid: ``sum_a (2 - 2 cos(2 pi k_a / N_a))``, float32.
-
-    The lateral part of ``Psi^T Psi`` for circular forward differences along y and x.
-    """
-    k0 = np.fft.fftfreq(padded_shape[0])[:, None]
-    k1 = np.fft.rfftfreq(padded_shape[1])[None, :]
-    return ((2 - 2 * np.cos(2 * np.pi * k0)) + (2 - 2 * np.cos(2 * np.pi * k1))).astype(
-        np.float32)
 
 
 def solve_x_update(spec: np.ndarray, psf_spectra: np.ndarray, d_lat: np.ndarray,
@@ -89,11 +78,11 @@ def solve_x_update(spec: np.ndarray, psf_spectra: np.ndarray, d_lat: np.ndarray,
 
 
 @dataclass
-class VolumeAdmmPlan:
+class VolumeAdmmPlan(AdmmPlanBase):
     """What 3D ADMM precomputes from the operator (the 3D counterpart of
     :class:`recon.solvers.admm.AdmmPlan`, with the same interface for the automatic
     weight, :func:`recon.auto.weight.admm_auto`: ``zeros``, ``warm``, ``run``,
-    ``objective``).
+    ``objective``, and ``kernels`` for the loop).
 
     Attributes
     ----------
@@ -103,8 +92,15 @@ class VolumeAdmmPlan:
     wp : ndarray, float32, (P0, P1)
         Sensor weights zero-padded to the lateral object domain.
     d_lat : ndarray, float32, (P0, P1 // 2 + 1)
-        Lateral ``|F Psi|^2`` (:func:`lateral_difference_power`).
+        Lateral ``|F Psi|^2`` (:func:`recon.solvers.admm.difference_power`).
     """
+
+    label: ClassVar[str] = "3D ADMM"
+    hint: ClassVar[str] = "try method fista3d or smaller TV / l1 weights"
+    #: mu3 is balanced without TV too (measured: :func:`~recon.solvers.penalty.
+    #: tie_nonneg_penalty`).
+    tie_nonneg: ClassVar[bool] = False
+    signed: ClassVar[bool] = True  # nonneg=False drops x >= 0 from the w split
 
     op: VolumeConvolutionOperator
     shape: tuple[int, int]
@@ -126,7 +122,7 @@ class VolumeAdmmPlan:
                 "per-frequency x-update); use fista3d for other volume operators")
         wp = np.zeros(op.padded_shape, np.float32)
         wp[op.crop] = op.sensor_weights
-        return cls(op, op.padded_shape, wp, lateral_difference_power(op.padded_shape))
+        return cls(op, op.padded_shape, wp, difference_power(op.padded_shape))
 
     def zeros(self, mu, use_tv: bool) -> VolumeAdmmState:
         """The cold start (x_0 = 0, every q zero), penalties ``mu``."""
@@ -155,10 +151,18 @@ class VolumeAdmmPlan:
             state.qux[...] = np.roll(x, -1, axis=2) - x
         return state
 
-    def run(self, b: np.ndarray, state: VolumeAdmmState, *, iterations: int, tv: float,
-            l1: float = 0.0, final: bool = True) -> SolveResult:
-        """:func:`run_admm3d` from ``state`` (updated in place)."""
-        return run_admm3d(self, b, state, iterations=iterations, tv=tv, l1=l1, final=final)
+    def kernels(self, b: np.ndarray, state: VolumeAdmmState, *, tv: float, l1: float,
+                nonneg: bool = True, balancing: bool = True) -> NumbaKernels3D:
+        """The kernel set of one solve on NumPy arrays (:class:`NumbaKernels3D`), for
+        :func:`~recon.solvers.admm_loop.run_admm`; ``balancing`` False allocates no
+        dual volumes."""
+        return NumbaKernels3D(self, b, state, tv=tv, l1=l1, nonneg=nonneg,
+                              balancing=balancing)
+
+    def ffts_per_iteration(self) -> dict:
+        """Real 2D FFTs of one iteration at the padded shape: ``n_z + 1`` of each."""
+        n = self.op.n_z + 1
+        return {"rfft2": n, "irfft2": n}
 
     def objective(self, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
                   b_norm: float) -> tuple[float, float]:
@@ -169,7 +173,8 @@ class VolumeAdmmPlan:
 
 @dataclass
 class VolumeAdmmState:
-    """The 3D ADMM iterate, carried from one call of :func:`run_admm3d` to the next.
+    """The 3D ADMM iterate, carried from one solve (:func:`~recon.solvers.admm_loop.
+    run_admm`) to the next.
 
     In q-form (q_i = z_i - a_i) the state is the primal ``x``, ``M x`` and one q per
     split, plus the penalties; float32 on the padded grid.
@@ -209,128 +214,118 @@ class VolumeAdmmState:
         return self.stack[-1]
 
 
-def run_admm3d(plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
-               iterations: int, tv: float, l1: float = 0.0, nonneg: bool = True,
-               penalty: AdmmPenalty | None = None, final: bool = True) -> SolveResult:
-    """Run ``iterations`` 3D ADMM iterations from ``state`` (updated in place).
+class NumbaKernels3D:
+    """The 3D ADMM's kernel set on NumPy arrays (:class:`~recon.solvers.admm_loop.
+    AdmmKernels`): three fused numba passes and ``n_z + 1`` rfft2 + irfft2 per
+    iteration.
 
-    The loop of :func:`admm3d`, which validates the parameters and starts from
-    :meth:`VolumeAdmmPlan.zeros`; the automatic weight continues a state along its
-    path of weights (:func:`recon.auto.weight.admm_auto`). Balancing runs over the
-    first ``balance_until`` of this call's iterations.
+    :meth:`splits` runs :func:`~recon.volume._admm_kernels3d.admm_split_plane` (v,
+    the crop split on the padded plane) and :func:`~recon.volume._admm_kernels3d.
+    admm_split_volume` (w: non-negativity and l1; u: 3D TV, soft thresholds of the z, y,
+    x forward differences); :meth:`x_update` forms R = mu2 Psi^T q_u + mu3 q_w over x
+    (:func:`~recon.volume._admm_kernels3d.admm_rhs_3d`), transforms [R, q_v] in one
+    batch, solves per lateral frequency (:func:`solve_x_update`) and transforms back.
 
     Parameters
     ----------
     plan : VolumeAdmmPlan
     b : ndarray, float32, ``plan.op.shape_out``
+        Scaled, weighted measurement (checked).
     state : VolumeAdmmState
-        ``state.use_tv`` must equal ``tv > 0``.
-    iterations, tv, l1, nonneg, penalty
-        As :func:`admm3d` (validated by the caller); the state's penalties are the
-        initial ones (``penalty.mu`` is used only by :func:`admm3d`).
-    final : bool
-        Evaluate the returned estimate's objective and residual (one forward model);
-        False reports the last iteration's from the history.
-
-    Returns
-    -------
-    SolveResult
-        As :func:`admm3d`.
+        Updated in place.
+    tv, l1 : float
+        Weights (validated, >= 0).
+    nonneg : bool
+    balancing : bool
+        Allocate the dual volumes the balancing passes store (released when
+        balancing ends, :meth:`end_balancing`).
 
     Raises
     ------
-    DivergenceError
-        NaN/inf or an objective 100x that of the zero volume.
     ReconInputError
-        A bad measurement, or a state made for the other sign of ``tv``.
+        A bad measurement.
     """
-    op = plan.op
-    tv_w, l1_w = float(tv), float(l1)
-    if state.use_tv != (tv_w > 0):
-        raise ReconInputError(f"3D ADMM state was made for tv {'> 0' if state.use_tv else '= 0'}"
-                              f" but tv={tv_w}; start from VolumeAdmmPlan.zeros(mu, tv > 0)")
-    b = check_measurement(b, op.shape_out)
-    penalty = check_penalty_settings(penalty)
-    use_tv = state.use_tv
-    mu1, mu2, mu3 = state.mu
-    nz = op.n_z
-    shape = plan.shape
-    wp = plan.wp
-    bp = np.zeros(shape, np.float32)
-    bp[op.crop] = b
-    d_lat = plan.d_lat
-    spectra = op.spectra
-    stack, qv, qw, quz, quy, qux = (state.stack, state.qv, state.qw, state.quz, state.quy,
-                                    state.qux)
-    dummy3 = np.zeros((1, 1, 1), np.float32)
-    last_balance = penalty.last_balance(iterations)
-    if last_balance > 0:
-        av = np.zeros(shape, np.float32)
-        aw = np.zeros(op.shape_in, np.float32)
-        auz, auy, aux = ((np.zeros(op.shape_in, np.float32) for _ in range(3))
-                         if use_tv else (dummy3, dummy3, dummy3))
-    else:
-        av = np.zeros((1, 1), np.float32)
-        aw = auz = auy = aux = dummy3
 
-    rows = np.zeros((nz * shape[0], 10))  # per-row sums of the volume split pass
-    mon = Monitor(float(np.vdot(b, b)), "3D ADMM")
-    hint = "try method fista3d or smaller TV / l1 weights"
-    mus = [(mu1, mu2, mu3)]
-    for k in range(iterations):
-        mon.start()
-        if k == last_balance and k > 0:  # balancing over: drop the stored duals
-            av = np.zeros((1, 1), np.float32)
-            aw = auz = auy = aux = dummy3
-        mode = penalty.mode(k, last_balance)
-        x, mx = stack[:nz], stack[nz]
-        sv = _k.admm_split_plane(mx, qv, bp, wp, mu1, mode, av)
-        su = _k.admm_split_volume(x, quz, quy, qux, qw, l1_w / mu3,
-                                  tv_w / mu2 if use_tv else 0.0, use_tv, nonneg, mode,
-                                  auz, auy, aux, aw, rows)
-        data_sq, tv_x, l1_x = sv[0], su[0], su[1]
-        if mode == 2:
-            new = [penalty.balanced(mu1, *sv[1:]),
-                   penalty.balanced(mu2, *su[2:6]) if use_tv else mu2,
-                   penalty.balanced(mu3, *su[6:10])]
-            if tuple(new) != (mu1, mu2, mu3):
-                splits = [(qv, av, mu1, new[0]), (qw, aw, mu3, new[2])]
-                if use_tv:
-                    splits += [(q, a, mu2, new[1]) for q, a in ((quz, auz), (quy, auy),
-                                                                (qux, aux))]
-                rescale_duals(splits)
-                mu1, mu2, mu3 = new
-                mus.append((mu1, mu2, mu3))
-        # objective of the iterate entering this iteration (before x is overwritten)
-        objective = 0.5 * data_sq + tv_w * tv_x + l1_w * l1_x
-        _k.admm_rhs_3d(quz, quy, qux, qw, x, mu2, mu3, use_tv)  # R over x
-        np.copyto(mx, qv)
+    def __init__(self, plan: VolumeAdmmPlan, b: np.ndarray, state: VolumeAdmmState, *,
+                 tv: float, l1: float, nonneg: bool = True, balancing: bool = True):
+        op = plan.op
+        self.b = check_measurement(b, op.shape_out)
+        self.bp = np.zeros(plan.shape, np.float32)
+        self.bp[op.crop] = self.b
+        self.plan, self.state = plan, state
+        self.tv, self.l1, self.nonneg = float(tv), float(l1), bool(nonneg)
+        self.monitor = Monitor(float(np.vdot(self.b, self.b)), plan.label)
+        self.report = {"ffts_per_iteration": plan.ffts_per_iteration()}
+        self._rows = np.zeros((op.n_z * plan.shape[0], 10))  # per-row sums of the volume pass
+        self.end_balancing()
+        if balancing:
+            self.av = np.zeros(plan.shape, np.float32)
+            self.aw = np.zeros(op.shape_in, np.float32)
+            if state.use_tv:
+                self.auz, self.auy, self.aux = (np.zeros(op.shape_in, np.float32)
+                                                for _ in range(3))
+
+    def splits(self, mode: int) -> SplitStep:
+        """The v pass on the plane and the fused u and w pass on the volume."""
+        st = self.state
+        mu1, mu2, mu3 = st.mu
+        nz = self.plan.op.n_z
+        sv = _k.admm_split_plane(st.stack[nz], st.qv, self.bp, self.plan.wp, mu1, mode,
+                                 self.av)
+        su = _k.admm_split_volume(st.stack[:nz], st.quz, st.quy, st.qux, st.qw,
+                                  self.l1 / mu3, self.tv / mu2 if st.use_tv else 0.0,
+                                  st.use_tv, self.nonneg, mode, self.auz, self.auy, self.aux,
+                                  self.aw, self._rows)
+        balance = (sv[1:], su[2:6] if st.use_tv else None, su[6:10]) if mode == 2 else None
+        return SplitStep(sv[0], (self.tv * su[0], self.l1 * su[1]), balance)
+
+    def set_penalties(self, old: tuple, new: tuple) -> None:
+        """Rescale the q's by the stored duals; the state adopts ``new``."""
+        st = self.state
+        splits = [(st.qv, self.av, old[0], new[0]), (st.qw, self.aw, old[2], new[2])]
+        if st.use_tv:
+            splits += [(q, a, old[1], new[1]) for q, a in ((st.quz, self.auz),
+                                                           (st.quy, self.auy),
+                                                           (st.qux, self.aux))]
+        rescale_duals(splits)
+        st.mu = tuple(new)
+
+    def end_balancing(self) -> None:
+        """Drop the stored duals (never indexed in mode 0: placeholders)."""
+        dummy = np.zeros((1, 1, 1), np.float32)
+        self.av = np.zeros((1, 1), np.float32)
+        self.aw = self.auz = self.auy = self.aux = dummy
+
+    def x_update(self) -> None:
+        """R over x, q_v over M x, one batched rfft2, the per-frequency solve, one
+        batched irfft2 (a new stack)."""
+        st, plan = self.state, self.plan
+        nz = plan.op.n_z
+        mu1, mu2, mu3 = st.mu
+        stack = st.stack
+        _k.admm_rhs_3d(st.quz, st.quy, st.qux, st.qw, stack[:nz], mu2, mu3, st.use_tv)
+        np.copyto(stack[nz], st.qv)
         spec = rfftn(stack)
-        del x, mx
-        stack = None  # let the allocator recycle it for the inverse transform
-        solve_x_update(spec, spectra, d_lat, (mu1, mu2, mu3), use_tv)
-        stack = sfft.irfftn(spec, s=shape, axes=(-2, -1), workers=WORKERS, overwrite_x=True)
-        spec = None
-        state.stack = stack  # the state stays whole even if the next iteration diverges
-        mon.record(objective, data_sq, x=stack[:nz], hint=hint)
-    state.mu = (mu1, mu2, mu3)
-    x = stack[:nz]
-    if nonneg:
-        x = np.maximum(x, 0)  # the estimate is the non-negative split
-    x = np.ascontiguousarray(x)
-    if final:
-        objective, data_sq = final_objective(op, x, b, tv_w, l1_w)
-        relative = math.sqrt(data_sq) / mon.b_norm
-    else:
-        objective, relative = mon.history.objective[-1], mon.history.data_residual[-1]
-    return admm_result(x, mon.history, objective, relative, tv=tv_w, l1=l1_w, mus=mus,
-                       penalty=penalty, iterations=iterations, used=iterations,
-                       nonneg=nonneg, ffts_per_iteration={"rfft2": nz + 1, "irfft2": nz + 1})
+        del stack
+        solve_x_update(spec, plan.op.spectra, plan.d_lat, st.mu, st.use_tv)
+        # the state stays whole (the old stack) until the new one exists
+        st.stack = sfft.irfftn(spec, s=plan.shape, axes=(-2, -1), workers=WORKERS,
+                               overwrite_x=True)
+
+    def iterate(self) -> np.ndarray:
+        """The current x (a view of the stack)."""
+        return self.state.x
+
+    def estimate(self) -> np.ndarray:
+        """max(x, 0) with ``nonneg`` (the estimate is the non-negative split), else a
+        copy of x; C-contiguous."""
+        x = self.state.x
+        return np.ascontiguousarray(np.maximum(x, 0) if self.nonneg else x)
 
 
-def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 100,
-           tv: float = 0.0, l1: float = 0.0, nonneg: bool = True,
-           penalty: AdmmPenalty | None = None) -> SolveResult:
+def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *,
+           iterations: int = DEFAULT_ITERATIONS, tv: float = 0.0, l1: float = 0.0,
+           nonneg: bool = True, penalty: AdmmPenalty | None = None, stop=None) -> SolveResult:
     r"""ADMM on a volume with 3D TV, l1 and non-negativity (Eq. 4.5, App. A.3).
 
     Per iteration, in scaled-dual q-form (q_i = z_i - a_i kept between
@@ -351,12 +346,16 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     shape -- the same as one FISTA data term and exactly what
     :func:`~recon.volume.fft_floor_seconds` times.
 
-    Residual balancing (Boyd et al. 2011, Sec. 3.4.1, with the normalised residuals
-    of Wohlberg 2017, as the 2D ADMM): every ``balance_every`` iterations, for each
-    split, r_i = ||G_i x - z_i|| / max(||G_i x||, ||z_i||), s_i = ||z_i - z_i^prev||
-    / ||a_i||; mu_i is multiplied by ``balance_factor`` when r_i > ratio s_i and
-    divided when s_i > ratio r_i, within :data:`recon.solvers.admm.MU_RANGE`, the
-    scaled duals rescaled; it stops after ``balance_until`` of the iterations.
+    The loop, its residual balancing and its stopping rule are those of every ADMM
+    (:func:`recon.solvers.admm_loop.run_admm`; Boyd et al. 2011, Sec. 3.4.1, with the
+    normalised residuals of Wohlberg 2017): every ``balance_every`` iterations, for
+    each split, r_i = ||G_i x - z_i|| / max(||G_i x||, ||z_i||), s_i = ||z_i -
+    z_i^prev|| / ||a_i||; mu_i is multiplied by ``balance_factor`` when r_i > ratio s_i
+    and divided when s_i > ratio r_i, within :data:`recon.solvers.admm.MU_RANGE`, the
+    scaled duals rescaled; it stops after ``balance_until`` of the iterations. Unlike
+    the 2D ADMM, mu3 is balanced without TV too (the tie of
+    :func:`~recon.solvers.penalty.tie_nonneg_penalty` damped the 3D fit: measured
+    there).
 
     Memory (float32 volumes of ``op.shape_in``): the stacked [x, M x] buffer and the
     complex spectrum stack (about one volume each), q_w, and with TV q_uz, q_uy,
@@ -374,9 +373,11 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     b : ndarray, shape ``op.shape_out``, float32
         Measurement (pre-weighted), scaled to O(1), with the stack normalised by
         :func:`~recon.volume.normalize_psf_stack`.
-        An array of another array-API backend (CuPy, PyTorch) runs the generic path
-        ``recon.volume.xp_admm3d.admm3d_xp`` on its device.
+        An array of another array-API backend (CuPy, PyTorch) runs the same loop
+        with the generic kernel set on its device
+        (``recon.volume.xp_admm3d.XpVolumeAdmmPlan``).
     iterations : int
+        Maximum iterations (default :data:`~recon.solvers.admm_loop.DEFAULT_ITERATIONS`).
     tv : float
         3D TV weight (default 0, as every solver's; 0 or None removes the u split).
     l1 : float
@@ -385,16 +386,21 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
         Constrain x >= 0 (the w split).
     penalty : AdmmPenalty, optional
         The initial penalties ``mu`` of the v, u and w splits (default
-        :data:`DEFAULT_MU`) and the residual balancing settings (see above), as for
-        the 2D ADMM (:class:`recon.solvers.AdmmPenalty`).
+        :data:`recon.solvers.penalty.DEFAULT_MU`) and the residual balancing settings
+        (see above), as for the 2D ADMM (:class:`recon.solvers.AdmmPenalty`).
+    stop : callable, optional
+        ``stop(history) -> bool`` after every iteration (automatic stopping), as for
+        the 2D ADMM.
 
     Returns
     -------
     SolveResult
         ``x``: the volume (n_z, P0, P1) float32 (max(x, 0) with ``nonneg``);
-        ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tv TV(x_k) + l1 ||x_k||_1
-        for the iterate entering iteration k (x_0 = 0); ``final_objective`` exact
-        at the returned x; ``history.extra['mu']`` the penalties used.
+        ``history.objective[k]`` = 1/2 ||D M x_k - b||^2 + tv TV(x_k) + l1 ||x_k+||_1
+        for the iterate entering iteration k (x_0 = 0; x_k+ = max(x_k, 0) with
+        ``nonneg``, else x_k); ``final_objective`` exact at the returned x;
+        ``history.extra['mu']`` the penalties used; ``params`` as every ADMM's
+        (:func:`~recon.solvers.admm_loop.run_admm`).
 
     Raises
     ------
@@ -408,11 +414,9 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *, iterations: int = 10
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
-    if not isinstance(b, np.ndarray):  # another backend: the array-API path
-        from .xp_admm3d import admm3d_xp
+    if not isinstance(b, np.ndarray):  # another backend: the generic kernel set there
+        from .xp_admm3d import XpVolumeAdmmPlan
 
-        return admm3d_xp(plan, b, iterations=iterations, tv=tv_w, l1=l1_w, nonneg=nonneg,
-                         penalty=penalty, mu0=penalty.initial(DEFAULT_MU))
-    b = check_measurement(b, op.shape_out)
-    return run_admm3d(plan, b, plan.zeros(penalty.initial(DEFAULT_MU), tv_w > 0),
-                      iterations=iterations, tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty)
+        plan = XpVolumeAdmmPlan(plan, b)
+    return run_admm(plan, b, plan.zeros(penalty.initial(), tv_w > 0), iterations=iterations,
+                    tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty, stop=stop)

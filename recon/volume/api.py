@@ -340,8 +340,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         which, why, and what the held-out error and the residual did.
     device : {"cpu", "cuda", "auto"}
         Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
-        (default), a CUDA GPU (the array-API paths
-        ``recon.volume.xp_admm3d.admm3d_xp`` and
+        (default), a CUDA GPU (the array-API paths: 3D ADMM's generic kernel set,
+        ``recon.volume.xp_admm3d.XpVolumeAdmmPlan``, and
         ``recon.volume.xp_fista3d.fista3d_xp``; an automatic weight's held-out
         path and final solve run there too, its plane tests on the host), or the GPU
         when one is usable. ``info["device"]`` says which ran.

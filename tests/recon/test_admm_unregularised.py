@@ -27,7 +27,7 @@ def test_admm_tv0_within_half_a_db_of_fista_tv0_at_equal_iterations():
 
 def test_without_the_tie_admm_tv0_falls_far_below(monkeypatch):
     """The failure the tie removes (so the test above can fail)."""
-    module = sys.modules["recon.solvers.admm"]
+    module = sys.modules["recon.solvers.penalty"]
     monkeypatch.setattr(module, "tie_nonneg_penalty", lambda *a: None)
     case = render_case("photo:camera", 3000.0, coarse_bin=8, read_noise_e=3.0)
     p_fista = psnr(fista(case.op, case.b, iterations=100, tv=0.0).x[case.op.crop], case.truth)

@@ -253,9 +253,8 @@ def test_a_fixed_l1_weight_is_used_along_the_automatic_tv_path(conv_problem, mon
     has l1 0.05 (it was dropped, while the record said 0.05), and the record says it."""
     import importlib
 
-    # the plan's run calls run_admm in its module (the package's name "admm" is the
-    # function)
-    admm_module = importlib.import_module("recon.solvers.admm")
+    # every plan's run calls run_admm in the loop's module
+    admm_module = importlib.import_module("recon.solvers.admm_loop")
 
     seen = []
     real = admm_module.run_admm

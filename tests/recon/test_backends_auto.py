@@ -76,7 +76,7 @@ def _both_paths(monkeypatch, name: str, method: str):
     op, b, raw, scale = _scene()
     ref = solve_channel(op, b, raw, scale, method=method, iterations=150, tv="auto", l1=0.0)
     seen = _spy_on_device_runs(monkeypatch, backend)
-    _forbid(monkeypatch, admm_mod, "run_admm")  # the NumPy ADMM loop
+    _forbid(monkeypatch, admm_mod, "NumbaKernels2D")  # the NumPy path's ADMM kernels
     got = solve_channel(op, b, raw, scale, method=method, iterations=150, tv="auto", l1=0.0,
                         solvers=device_solvers(backend), backend=backend)
     return backend, seen, ref, got
@@ -114,7 +114,7 @@ def test_reconstruct_with_automatic_choices_on_a_device_equals_the_cpu(monkeypat
     psf, raw = _pair()
     ref = recon.reconstruct(psf, raw, iterations=150)  # method and tv "auto"
     standin = _stand_in(monkeypatch, "torch-cpu")
-    _forbid(monkeypatch, admm_mod, "run_admm")
+    _forbid(monkeypatch, admm_mod, "NumbaKernels2D")
     got = recon.reconstruct(psf, raw, iterations=150, device="cuda")
     assert got.info.device == standin.label
     assert got.results[0].params["device"] == standin.label
@@ -233,7 +233,7 @@ def test_the_automatic_3d_weight_runs_on_the_device_and_chooses_as_numpy(monkeyp
         return real(self, b, state, **kwargs)
 
     monkeypatch.setattr(XpVolumeAdmmPlan, "run", run)
-    _forbid(monkeypatch, admm3d_mod, "run_admm3d")  # the NumPy 3D ADMM loop
+    _forbid(monkeypatch, admm3d_mod, "NumbaKernels3D")  # the NumPy path's 3D ADMM kernels
     _forbid(monkeypatch, fista3d_mod._kernels3d, "proximal_step_3d")
     got = recon.reconstruct(recon.PsfStack(stack, depths), raw, method, iterations=150,
                             device="cuda")

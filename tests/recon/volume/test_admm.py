@@ -17,8 +17,9 @@ import scipy.fft as sfft
 from recon.errors import DivergenceError, ReconInputError
 from recon.operators import ConvolutionOperator
 from recon.solvers import AdmmPenalty
+from recon.solvers.admm import difference_power
 from recon.volume import VolumeConvolutionOperator, admm3d, fista3d, normalize_psf_stack
-from recon.volume.admm import lateral_difference_power, solve_x_update
+from recon.volume.admm import solve_x_update
 
 from .test_fista import BEADS, _bead_planes, bead_problem, caustic_stack  # noqa: F401
 
@@ -105,7 +106,7 @@ def test_x_update_minimises_the_augmented_lagrangian():
     stack[:nz] = mu2 * psi_t(qu) + mu3 * qw
     stack[nz] = qv
     spec = sfft.rfftn(stack, axes=(-2, -1))
-    solve_x_update(spec, op.spectra, lateral_difference_power(shape), (mu1, mu2, mu3), True)
+    solve_x_update(spec, op.spectra, difference_power(shape), (mu1, mu2, mu3), True)
     out = sfft.irfftn(spec, s=shape, axes=(-2, -1))
     x = out[:nz].astype(np.float64)
     m = lambda v: sfft.irfftn(op.sum_spectrum(v.astype(np.float32)), s=shape)  # noqa: E731
@@ -228,17 +229,17 @@ def test_bad_operator_and_measurement_are_refused(bead_problem):  # noqa: F811
 
 
 def test_run_in_pieces_equals_one_run(clean_problem):
-    """Without balancing, 3D ADMM continued from its state (run_admm3d, what the
+    """Without balancing, 3D ADMM continued from its state (run_admm, what the
     automatic weight's path does) is the same iteration as one call of admm3d."""
-    from recon.volume import VolumeAdmmPlan, run_admm3d
+    from recon.solvers.admm_loop import run_admm
+    from recon.volume import VolumeAdmmPlan
 
     op, b = clean_problem
     whole = admm3d(op, b, iterations=12, tv=1e-4, penalty=AdmmPenalty(balance=False))
     plan = VolumeAdmmPlan.of(op)
     state = plan.zeros((2e-3, 2e-3, 2e-3), True)
-    run_admm3d(plan, b, state, iterations=5, tv=1e-4, penalty=AdmmPenalty(balance=False))
-    last = run_admm3d(plan, b, state, iterations=7, tv=1e-4,
-                      penalty=AdmmPenalty(balance=False))
+    run_admm(plan, b, state, iterations=5, tv=1e-4, penalty=AdmmPenalty(balance=False))
+    last = run_admm(plan, b, state, iterations=7, tv=1e-4, penalty=AdmmPenalty(balance=False))
     assert np.allclose(last.x, whole.x, rtol=1e-5, atol=1e-6 * float(whole.x.max()))
     assert last.history.objective[-1] == pytest.approx(whole.history.objective[-1], rel=1e-5)
 
