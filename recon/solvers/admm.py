@@ -8,8 +8,8 @@ balanced from the primal and dual residuals (Boyd et al. 2011, Sec. 3.4.1).
 
 The loop is the one of every ADMM (:func:`recon.solvers.admm_loop.run_admm`); this
 module is the 2D plan and state and, for NumPy arrays, its kernel set
-(:class:`NumbaKernels2D`: the fused numba passes of :mod:`recon._kernels`). Other
-array-API backends get the generic kernel set of :mod:`recon.solvers.xp_admm`.
+(:class:`NumbaKernels2D`: the fused numba passes of ``recon._kernels``). Other
+array-API backends get the generic kernel set of ``recon.solvers.xp_admm``.
 """
 
 from __future__ import annotations
@@ -285,10 +285,11 @@ def objective_of(op, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
 
 
 class NumbaKernels2D:
-    """The 2D ADMM's kernel set on NumPy arrays (:class:`~recon.solvers.admm_loop.
-    AdmmKernels`): two fused numba passes and 2 rfft2 + 2 irfft2 per iteration.
+    """The 2D ADMM's kernel set on NumPy arrays
+    (:class:`~recon.solvers.admm_loop.AdmmKernels`): two fused numba passes and 2 rfft2
+    + 2 irfft2 per iteration.
 
-    :meth:`splits` is :func:`recon._kernels.admm_split_updates_2d` -- the v (crop),
+    :meth:`splits` is ``recon._kernels.admm_split_updates_2d`` -- the v (crop),
     u (TV: soft threshold of the forward differences) and w (non-negativity, l1)
     updates in one pass, which also writes the x-update's right-hand side except in
     balancing iterations (mode 2: balancing may change the q's and penalties after
@@ -326,9 +327,9 @@ class NumbaKernels2D:
         self._rhs_ready = False
 
     def splits(self, mode: int) -> SplitStep:
-        """One fused pass of every split's update (:func:`recon._kernels.
-        admm_split_updates_2d`); the l1 term of the entering iterate in a second pass
-        when ``l1 > 0``."""
+        """One fused pass of every split's update
+        (``recon._kernels.admm_split_updates_2d``); the l1 term of the entering iterate
+        in a second pass when ``l1 > 0``."""
         st, plan = self.state, self.plan
         mu1, mu2, mu3 = st.mu
         rhs = st.stacked[1] if plan.rhs_in_split and mode != 2 else None

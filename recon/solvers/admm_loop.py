@@ -10,17 +10,17 @@ penalty mu1, u = Psi x the regulariser's split (TV today) with mu2, w = x the
 non-negativity (and l1) split with mu3. It owns what every ADMM shares: the
 residual-balancing schedule and rule (:class:`~recon.solvers.penalty.AdmmPenalty`,
 Boyd et al. 2011 Sec. 3.4.1 with Wohlberg 2017's normalised residuals, and for the 2D
-models mu3 tied to mu1 without a u split, :func:`~recon.solvers.penalty.
-tie_nonneg_penalty`), the
+models mu3 tied to mu1 without a u split,
+:func:`~recon.solvers.penalty.tie_nonneg_penalty`), the
 objective and history of each iterate, the divergence check
 (:class:`~recon.solvers.common.Monitor`), the stopping rule (``stop(history)`` after
-every iteration) and the result (:func:`~recon.solvers.penalty.admm_result`).
+every iteration) and the result (``recon.solvers.penalty.admm_result``).
 
 What differs between models and backends is a *kernel set*
 (:class:`AdmmKernels`), made by the plan for one solve (``plan.kernels(...)``):
 fused numba passes on NumPy arrays (:mod:`recon.solvers.admm`,
 :mod:`recon.volume.admm`), whole-array operations on any array-API backend
-(:mod:`recon.solvers.xp_admm`, shared by the 2D and 3D generic plans). Its
+(``recon.solvers.xp_admm``, shared by the 2D and 3D generic plans). Its
 :meth:`AdmmKernels.splits` is the seam for the priors: every split-variable update --
 the proximal step z_i = prox_{g_i / mu_i}(G_i x + a_i) of each g_i and its dual
 update -- happens there and nowhere else, and the loop sees only their results (the
@@ -84,7 +84,7 @@ class AdmmKernels(Protocol):
         The validated measurement (the plan's backend).
     monitor : Monitor
         History and divergence check (on a device an
-        :class:`~recon.solvers.xp_common.XpMonitor`).
+        ``recon.solvers.xp_common.XpMonitor``).
     report : dict
         Extra parameters of the result (``ffts_per_iteration``; ``backend`` on the
         generic path).
@@ -205,8 +205,8 @@ def run_admm(plan, b, state, *, iterations: int, tv: float, l1: float = 0.0,
     plan
         An ADMM plan: :class:`recon.solvers.admm.AdmmPlan` (and
         :class:`recon.spatial.SpatialAdmmPlan`), :class:`recon.volume.VolumeAdmmPlan`,
-        or their generic forms :class:`recon.solvers.xp_admm.XpAdmmPlan`,
-        :class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`; its ``kernels(b, state,
+        or their generic forms ``recon.solvers.xp_admm.XpAdmmPlan``,
+        ``recon.volume.xp_admm3d.XpVolumeAdmmPlan``; its ``kernels(b, state,
         tv=, l1=, nonneg=, balancing=)`` makes the kernel set.
     b : array, float32, ``plan.op.shape_out``
         Scaled, weighted measurement on the plan's backend (checked there).
@@ -286,8 +286,9 @@ class AdmmPlanBase:
     hint = ""
     #: Whether the w split may drop x >= 0 (``nonneg=False``): the volume's plans.
     signed = False
-    #: Without a u split, tie mu3 to mu1 (:func:`~recon.solvers.penalty.
-    #: tie_nonneg_penalty`): measured for the 2D models; the volume's plan does not.
+    #: Without a u split, tie mu3 to mu1
+    #: (:func:`~recon.solvers.penalty.tie_nonneg_penalty`): measured for the 2D models;
+    #: the volume's plan does not.
     tie_nonneg = True
 
     def run(self, b, state, *, iterations: int, tv: float, l1: float = 0.0,

@@ -134,7 +134,7 @@ def tie_nonneg_penalty(new: list, ratio: float, regularised: bool) -> None:
     below FISTA. So mu3 keeps its starting ratio to mu1 (``new[2] = ratio * new[0]``),
     in place, when ``regularised`` is False.
 
-    The volume's ADMM does not tie (:attr:`recon.volume.VolumeAdmmPlan.tie_nonneg`):
+    The volume's ADMM does not tie (``VolumeAdmmPlan.tie_nonneg``):
     there the data term is rank one per lateral frequency and mu3 I regularises the
     other n_z - 1 directions; tied, mu3 rose with mu1 and damped the fit. Measured on
     the 3D bead problem of the tests (5 planes of 128 x 128, 7 beads, 2 % noise), ADMM

@@ -23,8 +23,8 @@ for the rank-one data term (``M^H M`` at one lateral frequency is ``conj(h) h^T`
 The loop is the one of every ADMM (:func:`recon.solvers.admm_loop.run_admm`: stopping
 rule, residual balancing, history); this module is the volume's plan and state and,
 for NumPy arrays, its kernel set (:class:`NumbaKernels3D`, the fused passes of
-:mod:`recon.volume._admm_kernels3d`). Other array-API backends run the generic kernel
-set with the volume's plan (:class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`).
+``recon.volume._admm_kernels3d``). Other array-API backends run the generic kernel
+set with the volume's plan (``recon.volume.xp_admm3d.XpVolumeAdmmPlan``).
 """
 
 from __future__ import annotations
@@ -97,8 +97,8 @@ class VolumeAdmmPlan(AdmmPlanBase):
 
     label: ClassVar[str] = "3D ADMM"
     hint: ClassVar[str] = "try method fista3d or smaller TV / l1 weights"
-    #: mu3 is balanced without TV too (measured: :func:`~recon.solvers.penalty.
-    #: tie_nonneg_penalty`).
+    #: mu3 is balanced without TV too (measured:
+    #: :func:`~recon.solvers.penalty.tie_nonneg_penalty`).
     tie_nonneg: ClassVar[bool] = False
     signed: ClassVar[bool] = True  # nonneg=False drops x >= 0 from the w split
 
@@ -173,8 +173,8 @@ class VolumeAdmmPlan(AdmmPlanBase):
 
 @dataclass
 class VolumeAdmmState:
-    """The 3D ADMM iterate, carried from one solve (:func:`~recon.solvers.admm_loop.
-    run_admm`) to the next.
+    """The 3D ADMM iterate, carried from one solve (
+    :func:`~recon.solvers.admm_loop.run_admm`) to the next.
 
     In q-form (q_i = z_i - a_i) the state is the primal ``x``, ``M x`` and one q per
     split, plus the penalties; float32 on the padded grid.
@@ -215,15 +215,15 @@ class VolumeAdmmState:
 
 
 class NumbaKernels3D:
-    """The 3D ADMM's kernel set on NumPy arrays (:class:`~recon.solvers.admm_loop.
-    AdmmKernels`): three fused numba passes and ``n_z + 1`` rfft2 + irfft2 per
-    iteration.
+    """The 3D ADMM's kernel set on NumPy arrays
+    (:class:`~recon.solvers.admm_loop.AdmmKernels`): three fused numba passes and
+    ``n_z + 1`` rfft2 + irfft2 per iteration.
 
-    :meth:`splits` runs :func:`~recon.volume._admm_kernels3d.admm_split_plane` (v,
-    the crop split on the padded plane) and :func:`~recon.volume._admm_kernels3d.
-    admm_split_volume` (w: non-negativity and l1; u: 3D TV, soft thresholds of the z, y,
-    x forward differences); :meth:`x_update` forms R = mu2 Psi^T q_u + mu3 q_w over x
-    (:func:`~recon.volume._admm_kernels3d.admm_rhs_3d`), transforms [R, q_v] in one
+    :meth:`splits` runs ``recon.volume._admm_kernels3d.admm_split_plane`` (v, the crop
+    split on the padded plane) and ``recon.volume._admm_kernels3d.admm_split_volume``
+    (w: non-negativity and l1; u: 3D TV, soft thresholds of the z, y, x forward
+    differences); :meth:`x_update` forms R = mu2 Psi^T q_u + mu3 q_w over x
+    (``recon.volume._admm_kernels3d.admm_rhs_3d``), transforms [R, q_v] in one
     batch, solves per lateral frequency (:func:`solve_x_update`) and transforms back.
 
     Parameters
