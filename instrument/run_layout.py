@@ -99,6 +99,29 @@ def _short(value: Any) -> str:
     return repr(value)
 
 
+def _first_difference(have: Any, want: Any, where: str) -> tuple[str, Any, Any]:
+    """The first place two metadata values differ: ``(path, have, want)``, the path
+    written as ``codecs[1].configuration.level`` (a long value's head can hide it)."""
+    if isinstance(have, Mapping) and isinstance(want, Mapping):
+        for k in [*want, *(k for k in have if k not in want)]:
+            if have.get(k) != want.get(k):
+                return _first_difference(have.get(k), want.get(k), f"{where}.{k}")
+    elif isinstance(have, list) and isinstance(want, list) and len(have) == len(want):
+        for i, (a, b) in enumerate(zip(have, want, strict=True)):
+            if a != b:
+                return _first_difference(a, b, f"{where}[{i}]")
+    return where, have, want
+
+
+def _difference_text(key: str, have: Any, want: Any) -> tuple[str, str]:
+    """``(what it says, what was recorded)`` for one metadata key: whole when short,
+    else down to the first differing entry of the nested value."""
+    if not (_short(have).endswith("...") or _short(want).endswith("...")):
+        return f"{key} {_short(have)}", f"{key} {_short(want)}"
+    where, a, b = _first_difference(have, want, key)
+    return f"{where} {_short(a)}", f"{where} {_short(b)}"
+
+
 def _recorded(path: Path) -> dict[str, dict]:
     """The record of the run at ``path``: ``{name: layout}`` for its own arrays and
     ``{"products/NAME": layout}`` for products (empty where none was kept)."""
@@ -145,8 +168,9 @@ def layout_problems(path: str | Path, attrs: Mapping[str, Any]) -> dict[str, str
             continue
         differ = [k for k in LAYOUT_KEYS if k in want and have.get(k) != want[k]]
         if differ:
-            now = ", ".join(f"{k} {_short(have.get(k))}" for k in differ)
-            then = ", ".join(f"{k} {_short(want[k])}" for k in differ)
+            pairs = [_difference_text(k, have.get(k), want[k]) for k in differ]
+            now = ", ".join(a for a, _ in pairs)
+            then = ", ".join(b for _, b in pairs)
             problems[name] = (
                 f"{path}/{name}/zarr.json is damaged: it says {now}, but the run recorded "
                 f"{then} when it wrote the array, so its data cannot be read as stored; put "

@@ -107,6 +107,25 @@ def _done_flags_chunk(run: Path) -> None:
     _flipped(run / "done" / "c" / "1")
 
 
+def _compression_level(run: Path) -> None:
+    """The frames' compression level edited deep inside their codecs (a long value)."""
+    meta = run / "frames" / "zarr.json"
+    doc = json.loads(meta.read_text())
+
+    def edit(codecs):
+        for c in codecs:
+            conf = c.get("configuration") or {}
+            if "clevel" in conf:  # blosc's
+                conf["clevel"] = (int(conf["clevel"]) + 3) % 10
+                return True
+            if edit(conf.get("codecs") or []):
+                return True
+        return False
+
+    assert edit(doc["codecs"]), doc["codecs"]
+    meta.write_text(json.dumps(doc))
+
+
 def _product_dtype(run: Path) -> None:
     _edit_meta(run / "products", "psf_stack", data_type="int32")
 
@@ -165,6 +184,10 @@ CASES = {
         ["frames/zarr.json is damaged", "shape [16,256,320]", "recorded shape [24,256,320]"]),
     "frames cut to fewer: show": (
         "video", _fewer_frames, ["runs", "show"], 0, ["complete, DAMAGED", "shape [16,256,320]"]),
+    # a long value is shown down to the entry that differs (its head alone hid it)
+    "frames' compression level edited: verify": (
+        "video", _compression_level, ["runs", "verify"], 1,
+        ["frames/zarr.json is damaged", ".configuration.clevel 8", "recorded codecs["]),
     "checksum chunk unreadable: verify": (
         "video", _checksum_chunk, ["runs", "verify"], 1,
         ["frame 8 (point 0)", "frame 15 (point 0)", "checksum chunk crc32/c/1 cannot be read",
