@@ -267,6 +267,9 @@ def test_upgrade_adds_the_description_without_touching_a_chunk(tmp_path, capsys)
     old.write_frame(5, np.full((16, 20), 5, np.uint16), {"exposure_s": 0.01})
     old.write_product_frame("recon_admm", 1, np.ones((8, 10)))
     assert (store.path / "products/recon_admm/c/1/0/0").is_file()  # where it was
+    with _export(store.path, tmp_path / "psf.tif") as tif:  # runs export reads it there
+        assert tif.series[0].axes == "ZYX"
+        assert tif.imagej_metadata["spacing"] == pytest.approx(1000.0)
     with pytest.raises(ValueError):
         Image.from_zarr(zarr.open_group(store.path, mode="r"))
     old.lock()  # a run another process writes is refused, unchanged
