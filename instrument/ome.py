@@ -12,19 +12,23 @@ show it with named axes and physical units, without touching a data chunk:
   (:func:`product_dims`);
 - an ``ome`` block (OME-Zarr 0.5 ``multiscales``, built and validated with
   `ome-zarr-models <https://ome-zarr-models-py.readthedocs.io>`_) on the run's root
-  group (the frames) and on ``products/`` (one multiscale entry per image product):
-  axes with their types and standard unit names (``second``, ``micrometer``) and one
-  scale per axis from the bench: the camera's pixel pitch times its binning (times a
-  product's own ``bin_factor``), the frame interval ``1 / frame_rate_hz`` of a video,
-  the plane spacing of a volume whose depths are evenly spaced.
+  group (the frames) and on each image product's own group ``products/NAME`` (its
+  array at ``products/NAME/0``, :mod:`instrument.product_nodes`): axes with their
+  types and standard unit names (``second``, ``micrometer``) and one scale per axis
+  from the bench: the camera's pixel pitch times its binning (times a product's own
+  ``bin_factor``), the frame interval ``1 / frame_rate_hz`` of a video, the plane
+  spacing of a volume whose depths are evenly spaced. (A run written before the
+  image groups kept its products as arrays of ``products/``, described by one block
+  there listing each; ``runs upgrade`` moves them into their groups.)
 
 OME-Zarr 0.5 has one scale per axis, so a stack whose depths are not evenly spaced
 (a PSF sweep on a 1/z grid) keeps its first axis as a ``plane`` axis (no unit) and
 lists the depths in the multiscale's ``metadata`` (``depths_mm``), as the product's
 attributes do.
 
-:func:`describe_run` writes all of it (what ``RunStore.create`` and the product
-writers call, and what ``runs upgrade`` runs on a store written before).
+:func:`describe_run` writes all of it (what ``RunStore.create`` calls, and what
+``runs upgrade`` runs on a store written before); :func:`describe_products` the
+products' blocks (what the product writers call).
 """
 
 from __future__ import annotations
@@ -37,10 +41,13 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_run", "frame_axis",
-           "frame_pitch_um", "image_attrs", "product_axes", "product_dims", "run_dims",
-           "dim_sizes", "set_dimension_names", "space_axes", "unique_dims", "volume_axes",
-           "with_source", "write_products_ome"]
+from .product_nodes import IMAGE_ARRAY, array_keys, product_array, product_arrays
+
+__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_products",
+           "describe_run", "dim_sizes", "frame_axis", "frame_pitch_um", "image_attrs",
+           "product_axes", "product_dim_sizes", "product_dims", "run_dims",
+           "set_dimension_names", "space_axes", "stored_axes", "unique_dims", "volume_axes",
+           "with_source"]
 
 #: Arrays of the run's root group that hold one element (or row) per frame.
 FRAME_ARRAYS = ("crc32", "done", "point", "tag")
@@ -183,13 +190,13 @@ def product_dims(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
 
 def with_source(attrs: Mapping[str, Any], products) -> dict:
     """A product's attributes with the ``bin_factor`` of the product it derives from
-    (its ``source``, e.g. the reconstruction a ΔF/F was computed from) when it
-    records none."""
+    (its ``source`` in the ``products/`` group ``products``, e.g. the reconstruction a
+    ΔF/F was computed from) when it records none."""
     attrs = dict(attrs)
     source = attrs.get("source")
-    if "bin_factor" not in attrs and isinstance(source, str) and source in products:
-        node = products[source]
-        if hasattr(node, "shape") and "bin_factor" in node.attrs:
+    if "bin_factor" not in attrs and isinstance(source, str):
+        node = product_array(products, source)
+        if node is not None and "bin_factor" in node.attrs:
             attrs["bin_factor"] = node.attrs["bin_factor"]
     return attrs
 
@@ -284,7 +291,7 @@ def run_dims(attrs: Mapping[str, Any], frames_ndim: int = 3) -> dict[str, tuple[
 
 def describe_run(group, *, arrays: bool = False) -> list[str]:
     """Write the OME-Zarr description of an open run group: the ``ome`` blocks of the
-    root (the frames) and of ``products/`` (every image product), and with
+    root (the frames) and of every image product (:func:`describe_products`), and with
     ``arrays=True`` the ``dimension_names`` of every array that lacks them (what a
     store written before needs; a new store's arrays get them when created).
 
@@ -299,7 +306,7 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
     Returns
     -------
     list of str
-        The arrays whose dimension names were set.
+        The arrays whose dimension names were set (``frames``, ``products/NAME``).
     """
     attrs = dict(group.attrs)
     path = Path(str(group.store.root)) if hasattr(group.store, "root") else None
@@ -309,15 +316,12 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
         products = group["products"]
         taken = dim_sizes(group, ROOT_ARRAYS)
         plan: dict[str, tuple[str, ...]] = {}
-        for name in sorted(products.array_keys()):
-            arr = products[name]
-            if name.endswith(("__done", "__crc32")):
-                continue
+        for name, (key, arr) in product_arrays(products).items():
             dims = tuple(arr.metadata.dimension_names or ()) or unique_dims(
                 product_dims(name, arr.shape, with_source(arr.attrs, products), attrs),
                 arr.shape, taken, name)
             taken.update(zip(dims, arr.shape, strict=True))
-            plan[name] = dims
+            plan[key] = dims
             for hidden in ("__done", "__crc32"):
                 if name + hidden in products:
                     plan[name + hidden] = dims[:1]
@@ -328,7 +332,7 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
         found = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))][-frames.ndim:]
         axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found, strict=True)]
         group.attrs["ome"] = image_attrs([("frames", "frames", axes, {})])
-    write_products_ome(group["products"], attrs)
+    describe_products(group["products"], attrs)
     return changed
 
 
@@ -337,14 +341,21 @@ ROOT_ARRAYS = ("frames", "coords", *FRAME_ARRAYS)
 
 
 def dim_sizes(group, names: Sequence[str] | None = None) -> dict[str, int]:
-    """``{dimension name: size}`` over the named arrays ``names`` of one group (None:
-    all of them; a run's root is not listed, zarr would warn about its ``.lock``)."""
+    """``{dimension name: size}`` over the arrays ``names`` of one group (paths in it,
+    such as ``NAME/0``; None: its own arrays; a run's root is not listed, zarr would
+    warn about its ``.lock``)."""
     out: dict[str, int] = {}
     for name in group.array_keys() if names is None else names:
         dims = group[name].metadata.dimension_names
         if dims is not None:
             out.update(zip(dims, group[name].shape, strict=True))
     return out
+
+
+def product_dim_sizes(products) -> dict[str, int]:
+    """:func:`dim_sizes` over every array of a run's ``products/`` group, both layouts
+    (:func:`instrument.product_nodes.array_keys`)."""
+    return dim_sizes(products, array_keys(products))
 
 
 #: Dimension names a run's ``coords`` had before the frames' axis was named.
@@ -361,23 +372,75 @@ def _set_missing(root: Path, group, dims: Mapping[str, Sequence[str]]) -> list[s
     return out
 
 
-def write_products_ome(products, run_attrs: Mapping[str, Any]) -> None:
-    """Set the ``ome`` block of a run's ``products/`` group: one multiscale per image
-    product whose array carries dimension names that match its axes (a product of a
-    store not yet upgraded is left out); no block when there is none."""
-    images = []
-    for name in sorted(products.array_keys()):
-        arr = products[name]
-        if name.endswith(("__done", "__crc32")):
+def stored_axes(name: str, arr, products, run_attrs: Mapping[str, Any],
+                ) -> tuple[list[OmeAxis], dict] | None:
+    """The OME axes of a stored image product, named as its array's dimensions.
+
+    Parameters
+    ----------
+    name : str
+        The product's name.
+    arr : zarr.Array
+        Its array (:func:`instrument.product_nodes.product_array`).
+    products : zarr.Group
+        The run's ``products/`` group (for the ``source`` of a ΔF/F).
+    run_attrs : Mapping
+        The run's attributes.
+
+    Returns
+    -------
+    (list of OmeAxis, dict) or None
+        :func:`product_axes` with each axis renamed to the array's dimension name
+        (a name suffixed where it clashed, :func:`unique_dims`; the computed names
+        for an array without dimension names, a run written before them), and the
+        multiscale metadata; None for a product that is no image.
+    """
+    found = product_axes(name, arr.shape, with_source(arr.attrs, products), run_attrs)
+    if found is None:
+        return None
+    dims = arr.metadata.dimension_names or [a.name for a in found[0]]
+    return ([OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found[0], strict=True)],
+            found[1])
+
+
+def describe_products(products, run_attrs: Mapping[str, Any],
+                      names: Sequence[str] | None = None) -> None:
+    """Write the ``ome`` blocks of a run's image products.
+
+    An image group ``products/NAME`` gets its own block (one multiscale, its array
+    ``0``); an image product of a run written before the image groups (an array of
+    ``products/``) is listed in the block of ``products/`` as it was then, which is
+    removed once no such product is left. A block that would not change is not
+    written again.
+
+    Parameters
+    ----------
+    products : zarr.Group
+        The run's ``products/`` group, writable.
+    run_attrs : Mapping
+        The run's attributes (pitch, binning, frame interval).
+    names : sequence of str, optional
+        Only these products' groups (the one just written); None: all of them.
+    """
+    found = product_arrays(products)
+    legacy = []
+    for name, (key, arr) in found.items():
+        # (an array without dimension names, of a run not upgraded yet: none)
+        axes = None if arr.metadata.dimension_names is None else stored_axes(
+            name, arr, products, run_attrs)
+        if key == name:  # an array of products/: a table, or a run written before
+            if axes is not None:
+                legacy.append((name, name, *axes))
             continue
-        found = product_axes(name, arr.shape, with_source(arr.attrs, products), run_attrs)
-        dims = arr.metadata.dimension_names
-        if found is None or dims is None:
+        if names is not None and name not in names:
             continue
-        axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found[0],
-                                                                      strict=True)]
-        images.append((name, name, axes, found[1]))
-    if images:
-        products.attrs["ome"] = image_attrs(images)
+        group = products[name]
+        want = None if axes is None else image_attrs([(name, IMAGE_ARRAY, *axes)])
+        if want is not None and group.attrs.get("ome") != want:
+            group.attrs["ome"] = want
+    if legacy:
+        block = image_attrs(legacy)
+        if products.attrs.get("ome") != block:
+            products.attrs["ome"] = block
     elif "ome" in products.attrs:
         del products.attrs["ome"]

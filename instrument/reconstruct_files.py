@@ -415,7 +415,7 @@ def _grid_pitch_um(psf_stack: str, product: str, pitch_um: float | None,
     or the PSF run's frame pitch (:func:`instrument.ome.frame_pitch_um`, times the
     product's own ``bin_factor``), times the reconstruction's binning; None when
     neither is known (a plain TIFF or .npy stack without ``--pitch-um``)."""
-    from .ome import frame_pitch_um, with_source
+    from .ome import frame_pitch_um
     from .runstore import RunStore, is_run_store
 
     if pitch_um:
@@ -426,8 +426,8 @@ def _grid_pitch_um(psf_stack: str, product: str, pitch_um: float | None,
     pitch = frame_pitch_um(store.attrs)
     if pitch is None or product not in store.products():
         return None
-    b = with_source(store._group["products"][product].attrs, store._group["products"])
-    return pitch * float(b.get("bin_factor", 1)) * bin_factor
+    b = store.product_attrs(product).get("bin_factor", 1)
+    return pitch * float(b) * bin_factor
 
 
 def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,

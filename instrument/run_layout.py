@@ -14,7 +14,11 @@ metadata when it creates it, and every open compares the files with that record:
 * the run's own arrays in the root attribute ``arrays`` (written by
   :meth:`RunStore.create <instrument.runstore.RunStore.create>`, again when a video
   is cut to the frames it holds), products in the ``arrays`` attribute of
-  ``products/`` (written with each product).
+  ``products/`` (written with each product), keyed by the array's path there:
+  ``NAME/0`` for an image product's group, ``NAME`` for a table, a LUT, a per-frame
+  product's hidden arrays and every product of a run written before the image
+  groups (``runs upgrade`` renames the key when it moves the array,
+  :func:`instrument.product_nodes.regroup`).
 
 A run written before the record was kept is checked for what can be known without
 it (:func:`unrecorded_problems`): the per-frame arrays agree on the number of frames

@@ -1,6 +1,9 @@
 """Products of a run store: arrays derived from its frames (:mod:`instrument.runstore`).
 
-Two kinds, both under ``RUN.zarr/products/``:
+Each image product is its own OME-Zarr image group ``RUN.zarr/products/NAME`` with
+its array at ``products/NAME/0``; a table or LUT is an array ``products/NAME``; a run
+written before the image groups holds every product as an array ``products/NAME``
+(:mod:`instrument.product_nodes` finds a product's array in either layout). Two kinds:
 
 * a *whole* product (a PSF stack, a dark frame, a LUT) is written at once by
   :meth:`ProductsMixin.write_product`; its attribute ``crc32`` holds one CRC-32 per
@@ -25,7 +28,24 @@ import numpy as np
 
 from diffuserlab.jsonio import jsonable
 
-from .ome import ROOT_ARRAYS, dim_sizes, product_dims, unique_dims, with_source, write_products_ome
+from .ome import (
+    ROOT_ARRAYS,
+    describe_products,
+    dim_sizes,
+    product_axes,
+    product_dim_sizes,
+    product_dims,
+    unique_dims,
+    with_source,
+)
+from .product_nodes import (
+    HIDDEN_SUFFIXES,
+    IMAGE_ARRAY,
+    MOVING,
+    array_key,
+    product_array,
+    product_arrays,
+)
 from .run_integrity import RunStoreError, product_crcs
 from .run_layout import forget_layout, record_layout
 
@@ -45,20 +65,34 @@ class ProductsMixin:
 
     # ------------------------------------------------------------------ whole products
     def write_product(self, name: str, array: np.ndarray, **attrs: Any) -> None:
-        """Store a derived array ``products/name`` (replacing it) with attributes."""
+        """Store a derived array as product ``name`` (replacing it) with attributes: an
+        image as the group ``products/name`` holding the array ``0`` and its ``ome``
+        block, a table or LUT as the array ``products/name``."""
         self._require_writable()
         _check_name(name)
         array = np.asarray(array)
-        products = self._group["products"]
         self._delete_product(name)
         chunks = (1, *array.shape[1:]) if array.ndim == 3 else array.shape or (1,)
-        arr = products.create_array(name, shape=array.shape, chunks=chunks, dtype=array.dtype,
-                                    dimension_names=self._product_dims(name, array.shape,
-                                                                       attrs))
+        key, arr = self._create_product_array(name, array.shape, attrs, chunks=chunks,
+                                              dtype=array.dtype)
         arr[...] = array
         arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
-        self._note_product(name, [name])
-        write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
+        self._note_product(name, [key])
+        describe_products(self._group["products"], self.attrs, [name])  # (attrs re-read)
+
+    def _create_product_array(self, name: str, shape, attrs, **kwargs) -> tuple[str, Any]:
+        """Create product ``name``'s array (:mod:`instrument.product_nodes`): in its own
+        image group for an image (:func:`instrument.ome.product_axes`), else directly
+        in ``products/``; its key there and the array."""
+        products = self._group["products"]
+        image = product_axes(name, shape, attrs, self.attrs) is not None
+        dims = self._product_dims(name, shape, attrs, image)
+        if not image:
+            return name, products.create_array(name, shape=shape, dimension_names=dims,
+                                               **kwargs)
+        arr = products.create_group(name).create_array(IMAGE_ARRAY, shape=shape,
+                                                       dimension_names=dims, **kwargs)
+        return f"{name}/{IMAGE_ARRAY}", arr
 
     def recorded_products(self) -> list[str]:
         """Names of the products the run recorded writing (the ``written`` attribute of
@@ -76,8 +110,7 @@ class ProductsMixin:
 
     def products(self) -> list[str]:
         """Names of the stored products (the hidden arrays of per-frame ones left out)."""
-        return sorted(k for k in self._group["products"].array_keys()
-                      if not k.endswith((_DONE, _CRC)))
+        return list(product_arrays(self._group["products"]))
 
     def product_info(self, name: str) -> dict[str, Any]:
         """``{"shape", "dtype"}`` of a product, with ``planes_done`` for a per-frame one
@@ -176,8 +209,8 @@ class ProductsMixin:
         shape = (int(n_planes), *(int(v) for v in plane_shape))
         want = jsonable({**attrs, "per_frame": True})
         products = self._group["products"]
-        if name in products and not overwrite:
-            arr = products[name]
+        arr = product_array(products, name)
+        if arr is not None and not overwrite:
             have = {k: v for k, v in arr.attrs.items()}
             # the hint names the run's path: a run copied or moved elsewhere resumes
             differs = sorted(k for k in (set(have) | set(want)) - {_HINT}
@@ -191,16 +224,16 @@ class ProductsMixin:
                 f"({', '.join(differs) or 'shape/dtype'} differ); use the same settings to "
                 "resume it, or replace it (--overwrite, overwrite=True)")
         self._delete_product(name)
-        dims = self._product_dims(name, shape, want)
-        arr = products.create_array(name, shape=shape, chunks=(1, *shape[1:]), dtype=dtype,
-                                    fill_value=0, dimension_names=dims)
+        key, arr = self._create_product_array(name, shape, want, chunks=(1, *shape[1:]),
+                                              dtype=dtype, fill_value=0)
+        dims = arr.metadata.dimension_names
         products.create_array(name + _CRC, shape=shape[:1], chunks=(1,), dtype="uint32",
                               fill_value=0, dimension_names=dims[:1])
         products.create_array(name + _DONE, shape=shape[:1], chunks=(1,), dtype="uint8",
                               fill_value=0, dimension_names=dims[:1])
         arr.attrs.update(want)
-        self._note_product(name, [name, name + _CRC, name + _DONE])
-        write_products_ome(self._group["products"], self.attrs)  # (attrs re-read)
+        self._note_product(name, [key, name + _CRC, name + _DONE])
+        describe_products(self._group["products"], self.attrs, [name])  # (attrs re-read)
 
     def write_product_frame(self, name: str, index: int, plane: np.ndarray) -> None:
         """Store plane ``index`` of a per-frame product: data, checksum, then done flag.
@@ -255,33 +288,68 @@ class ProductsMixin:
         return plane
 
     # ------------------------------------------------------------------ helpers
-    def _product_dims(self, name: str, shape, attrs) -> tuple[str, ...]:
+    def _product_dims(self, name: str, shape, attrs, image: bool) -> tuple[str, ...]:
         """Dimension names of a new product (:func:`instrument.ome.product_dims`), a
-        name suffixed with the product's where another product or the frames use it
-        with another size (xarray opens ``products/`` as one dataset under the root);
-        the product is deleted before, so its old names do not count."""
+        name suffixed with the product's where an array it must agree with uses it
+        with another size: xarray opens the run as one tree, whose every node must
+        agree with its ancestors' arrays. An image (its own group) agrees with the
+        frames and the arrays of ``products/``; an array of ``products/`` (a table, a
+        LUT) with those and every image group below it. The product is deleted
+        before, so its old names do not count."""
         products = self._group["products"]
-        taken = {**dim_sizes(self._group, ROOT_ARRAYS), **dim_sizes(products)}
+        taken = {**dim_sizes(self._group, ROOT_ARRAYS),
+                 **(dim_sizes(products) if image else product_dim_sizes(products))}
         attrs = with_source(attrs, products)
         return unique_dims(product_dims(name, shape, attrs, self.attrs), shape, taken, name)
 
     def _product_array(self, name: str, check: bool = True):
-        """The product's array; with ``check``, refused when its metadata (or that of
-        its hidden arrays) differs from the run's record (:mod:`instrument.run_layout`)."""
+        """The product's array, wherever it is (:func:`instrument.product_nodes.
+        product_array`); with ``check``, refused when its metadata (or that of its
+        hidden arrays) differs from the run's record (:mod:`instrument.run_layout`)."""
         products = self._group["products"]
-        if name not in self.products():
+        key = array_key(products, name)
+        if key is None:
             raise RunStoreError(
                 f"{self.path} has no product {name!r} (it has {self.products()}); finish "
                 "or resume the run first")
-        damage = self._product_damage(name)
+        damage = self._product_damage(name, key)
         if check and damage:
             raise RunStoreError(damage[0])
-        return products[name]
+        return products[key]
 
-    def _product_damage(self, name: str) -> list[str]:
-        """The layout problems of product ``name`` and its hidden arrays."""
-        return [self.layout_damage[f"products/{key}"] for key in (name, name + _CRC,
-                name + _DONE) if f"products/{key}" in self.layout_damage]
+    def product_attrs(self, name: str) -> dict[str, Any]:
+        """A product's stored attributes, with its ``source``'s ``bin_factor`` where it
+        records none (:func:`instrument.ome.with_source`); not verified (no data read).
+
+        Raises
+        ------
+        RunStoreError
+            No such product.
+        """
+        return with_source(self._product_array(name, check=False).attrs,
+                           self._group["products"])
+
+    def product_axes(self, name: str):
+        """A product's OME axes as stored (:func:`instrument.ome.stored_axes`: named as
+        its array's dimensions, with units and scales) and its multiscale metadata;
+        None for a table or LUT.
+
+        Raises
+        ------
+        RunStoreError
+            No such product.
+        """
+        from .ome import stored_axes
+
+        return stored_axes(name, self._product_array(name, check=False),
+                           self._group["products"], self.attrs)
+
+    def _product_damage(self, name: str, key: str | None = None) -> list[str]:
+        """The layout problems of product ``name``'s array (at ``key`` in ``products/``,
+        found when not given) and its hidden arrays."""
+        key = key or array_key(self._group["products"], name) or name
+        return [self.layout_damage[f"products/{k}"] for k in (key, name + _CRC,
+                name + _DONE) if f"products/{k}" in self.layout_damage]
 
     def _per_frame(self, name: str):
         arr = self._product_array(name)
@@ -290,17 +358,21 @@ class ProductsMixin:
         return arr
 
     def _delete_product(self, name: str) -> None:
+        """Remove product ``name`` (its group or array, its hidden arrays) and its
+        layout record."""
         products = self._group["products"]
-        for key in (name, name + _CRC, name + _DONE):
+        for key in (name, name + _CRC, name + _DONE, name + MOVING):
             if key in products:
                 del products[key]
-        forget_layout(products, (name, name + _CRC, name + _DONE))
-        for key in (name, name + _CRC, name + _DONE):  # replaced: its old record is gone
+        keys = (name, f"{name}/{IMAGE_ARRAY}", name + _CRC, name + _DONE)
+        forget_layout(products, keys)
+        for key in keys:  # replaced: its old record is gone
             self.layout_damage.pop(f"products/{key}", None)
 
 
 def _check_name(name: str) -> None:
     if not isinstance(name, str) or not name or "/" in name or name.startswith("__") \
-            or name.endswith((_DONE, _CRC)):
+            or name.endswith(HIDDEN_SUFFIXES):
         raise RunStoreError(f"product name {name!r} is invalid; use a plain name such as "
-                            "'recon_admm' (no '/', not ending in __done or __crc32)")
+                            "'recon_admm' (no '/', not ending in "
+                            f"{', '.join(HIDDEN_SUFFIXES)})")

@@ -28,15 +28,20 @@ Layout of ``RUN.zarr``::
                          "compressor": NAME}; see "Sharded runs" below
     .lock                JSON {pid, host, started_utc} while a process writes the run
                          (:meth:`RunStore.lock`); not part of the Zarr hierarchy
-    products/NAME        arrays a plan derives from the frames (PSF stack, maps, ...);
-                         attribute ``crc32``: CRC-32 per plane (first axis) of a 3-D
-                         product, of the whole array otherwise
+    products/NAME/0      what a plan derives from the frames (PSF stack, maps, ...):
+                         an image product is an OME-Zarr image group ``products/NAME``
+                         (its ``ome`` block) holding its array ``0``; a table or LUT is
+                         an array ``products/NAME`` (as every product of a run written
+                         before the image groups; :mod:`instrument.product_nodes` reads
+                         either); the array's attribute ``crc32``: CRC-32 per plane
+                         (first axis) of a 3-D product, of the whole array otherwise
     dimension_names, ome every array names its dimensions (the frames' first axis
                          ``t`` for a video, named for what a sweep's points vary
-                         otherwise, shared by the per-frame arrays); the root's and
-                         ``products/``'s ``ome`` attribute describe them as OME-Zarr
-                         0.5 images (:mod:`instrument.ome`; ``runs upgrade`` adds both
-                         to a run written before)
+                         otherwise, shared by the per-frame arrays); the root's and each
+                         product group's ``ome`` attribute describe them as OME-Zarr
+                         0.5 images (:mod:`instrument.ome`; ``runs upgrade`` adds them
+                         to a run written before and moves its image products into
+                         their groups)
 
 The whole layout is fixed when the run is created (the plan declares every point
 and frame up front), so the metadata never changes while frames are written. Each
@@ -90,8 +95,8 @@ from .run_products import ProductsMixin
 from .runstore_records import VIDEO_PLAN, record_problems
 
 __all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "RunStore",
-           "RunStoreError", "discard_partial_run", "is_run_store", "software_version",
-           "utc_now"]
+           "RunStoreError", "discard_partial_run", "is_run_store", "product_location",
+           "software_version", "utc_now"]
 
 log = logging.getLogger(__name__)
 
@@ -399,16 +404,25 @@ class RunStore(ProductsMixin):
             (self.path / LOCK_NAME).unlink(missing_ok=True)
             self._locked = False
 
-    def upgrade(self) -> list[str]:
-        """Add the OME-Zarr 0.5 description (:mod:`instrument.ome`) to a run written
-        before it: dimension names on every array that lacks them, the ``ome`` blocks
-        of the root and of ``products/``. Only metadata documents (``zarr.json``) are
-        rewritten; no chunk is touched, so every checksum still holds.
+    def upgrade(self) -> dict[str, list[str]]:
+        """Bring a run written before to the current OME-Zarr 0.5 layout, in place.
+
+        Dimension names go on every array that lacks them; each image product stored
+        as an array ``products/NAME`` moves into its own image group as
+        ``products/NAME/0`` (:func:`instrument.product_nodes.regroup`: directories
+        renamed, the run's record of the array's layout renamed with it); the ``ome``
+        blocks of the root and of each product group are written, and the one block of
+        ``products/`` that listed the images before is removed. Only metadata
+        documents (``zarr.json``) are written and directories renamed: no chunk file
+        is rewritten, so every checksum still holds. Running it again changes
+        nothing (and finishes a move an interruption cut short).
 
         Returns
         -------
-        list of str
-            The arrays whose dimension names were set (empty when the run had them).
+        dict
+            ``{"named": [...], "moved": [...]}``: the arrays whose dimension names
+            were set (``frames``, ``products/NAME``) and the products moved into
+            their groups; both empty for a run already in the current layout.
 
         Raises
         ------
@@ -417,15 +431,24 @@ class RunStore(ProductsMixin):
         """
         import zarr
 
+        from .ome import product_axes
+        from .product_nodes import product_arrays, regroup
+
         self.lock()
         try:
-            changed = describe_run(self._group, arrays=True)
+            named = describe_run(self._group, arrays=True)
+            products = zarr.open_group(str(self.path / "products"), mode="r+",
+                                       zarr_format=3)
+            images = [name for name, (key, arr) in product_arrays(products).items()
+                      if key == name and product_axes(name, arr.shape, arr.attrs,
+                                                      self.attrs) is not None]
+            moved = regroup(products, self.path / "products", images)
             self._group = zarr.open_group(str(self.path), mode="r+", zarr_format=3)
             describe_run(self._group)
-            self.attrs = dict(self._group.attrs)
+            self.refresh()
         finally:
             self.unlock()
-        return changed
+        return {"named": named, "moved": moved}
 
     def lock_owner(self) -> dict | None:
         """The writer's lock record ``{pid, host, started_utc}``, None when unlocked."""
@@ -911,3 +934,30 @@ def is_run_store(path: str | Path) -> bool:
     attrs = meta.get("attributes") if isinstance(meta, dict) else None
     return Path(path).is_dir() and isinstance(attrs, dict) and \
         attrs.get("schema") == "diffuserlab-run"
+
+
+def product_location(path: str | Path) -> tuple[Path, str] | None:
+    """The run and the product name of a product's own folder, None for any other path.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``RUN.zarr/products/NAME`` (an image product's group, or the array of a table
+        or of a run written before the image groups) or ``RUN.zarr/products/NAME/0``
+        (an image product's array).
+
+    Returns
+    -------
+    (Path, str) or None
+        ``(RUN.zarr, NAME)`` when ``path`` is such a folder of a run store (read it
+        through :meth:`RunStore.product`, verified); None otherwise (never raises).
+    """
+    from .product_nodes import HIDDEN_SUFFIXES, IMAGE_ARRAY
+
+    p = Path(path)
+    if p.name == IMAGE_ARRAY and p.parent.parent.name == "products":
+        p = p.parent
+    if p.parent.name != "products" or p.name.endswith(HIDDEN_SUFFIXES) \
+            or not (p / "zarr.json").is_file() or not is_run_store(p.parent.parent):
+        return None
+    return p.parent.parent, p.name

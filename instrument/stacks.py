@@ -224,7 +224,7 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
 
     from recon.io import atomic_path
 
-    from .ome import frame_axis, frame_pitch_um, product_axes, space_axes, with_source
+    from .ome import frame_axis, frame_pitch_um, product_axes, space_axes
     from .tiff_export import tiff_format, write_tiff
 
     fmt = tiff_format(out, fmt)
@@ -234,8 +234,8 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
     if product is not None:
         array, attrs = store.product(product)
         meta = {**attrs, "run": str(store.path), "product": product}
-        found = product_axes(product, array.shape,
-                             with_source(attrs, store._group["products"]), store.attrs)
+        found = product_axes(product, array.shape, store.product_attrs(product),
+                             store.attrs)
         axes = None if found is None else found[0]
     skipped: list[str] = []
     if product is None:

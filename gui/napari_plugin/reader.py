@@ -1,12 +1,16 @@
-"""napari reader: a run store or a recon3d volume as layers with axes, scales and units.
+"""napari reader: a run store, one of its products or a recon3d volume as layers with
+axes, scales and units.
 
 A run gives one image layer for its frames (lazy: a frame is read, and its checksum
 verified, when napari shows it; a frame not stored, or damaged, shows as zeros and is
 named in the log) with each frame's tag, plan point and coordinates in the layer's
 ``metadata``, then one layer per image product (a per-frame product lazily, plane by
-plane, like the frames). A recon3d volume (``recon3d --out V.zarr``) gives one layer.
-Axis names, units and scales are those of the run's OME-Zarr description
-(:mod:`instrument.ome`), computed the same way for a run written before it.
+plane, like the frames). A product's own folder (``RUN.zarr/products/NAME``, an
+OME-Zarr image group) gives that product's layer, read through its run (verified).
+A recon3d volume (``recon3d --out V.zarr``) gives one layer. Axis names, units and
+scales are those of the run's OME-Zarr description (:mod:`instrument.ome`), computed
+the same way for a run written before it; products are found in either layout of
+``products/`` (:mod:`instrument.product_nodes`).
 """
 
 from __future__ import annotations
@@ -20,19 +24,22 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["get_reader", "read_run", "read_volume"]
+__all__ = ["get_reader", "read_product", "read_run", "read_volume"]
 
 
 def get_reader(path: str | Sequence[str]) -> Callable | None:
-    """npe2 reader hook: :func:`read_path` for a run store or a recon3d volume, None
-    for anything else (napari then asks another reader)."""
+    """npe2 reader hook: :func:`read_run` for a run store, :func:`read_product` for a
+    product's folder in one, :func:`read_volume` for a recon3d volume, None for
+    anything else (napari then asks another reader)."""
     if not isinstance(path, str | Path):
         return None
     from instrument.reconstruct_files import VOLUME_MARKER
-    from instrument.runstore import is_run_store
+    from instrument.runstore import is_run_store, product_location
 
     if is_run_store(path):
         return read_run
+    if product_location(path) is not None:
+        return read_product
     if _attrs(Path(path)).get("diffuserlab") == VOLUME_MARKER:
         return read_volume
     return None
@@ -78,15 +85,9 @@ def read_run(path: str) -> list[tuple]:
     instrument.runstore.RunStoreError
         No readable run at ``path``.
     """
-    from instrument.ome import (
-        frame_axis,
-        frame_pitch_um,
-        product_axes,
-        space_axes,
-        with_source,
-    )
+    from instrument.ome import frame_axis, frame_pitch_um, space_axes
     from instrument.run_integrity import DamagedFrameError
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runstore import RunStore
 
     store = RunStore.open(path)
     attrs, done = store.attrs, store.done()
@@ -110,37 +111,68 @@ def read_run(path: str) -> list[tuple]:
     axes = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))]
     layers = [(_lazy(frame, store.n_frames, shape, dtype),
                _layer_kwargs(f"{run} frames", axes, meta), "image")]
-    products = store._group["products"]
     for name in store.products():
-        arr = products[name]
-        pattrs = dict(arr.attrs)
-        found = product_axes(name, arr.shape, with_source(pattrs, products), attrs)
-        if found is None:  # a table or a LUT: no image
-            continue
-        p_axes, p_meta = found
-        dims = arr.metadata.dimension_names
-        if dims is not None:
-            p_axes = [type(a)(d, a.type, a.unit, a.scale) for d, a in zip(dims, p_axes,
-                                                                           strict=True)]
-        meta = {**{k: v for k, v in pattrs.items() if k != "crc32"}, **p_meta,
-                "run": str(store.path), "product": name}
-        try:
-            if pattrs.get("per_frame"):
-                plane_done = store.product_frames_done(name)
-
-                def plane(i, name=name, plane_done=plane_done, arr=arr):
-                    if not plane_done[i]:
-                        return np.zeros(arr.shape[1:], arr.dtype)
-                    return store.product_frame(name, i)
-
-                data = _lazy(plane, arr.shape[0], arr.shape[1:], arr.dtype)
-            else:
-                data = store.product(name)[0]
-        except RunStoreError as exc:  # a damaged product: named, the others still shown
-            log.warning("%s", exc)
-            continue
-        layers.append((data, _layer_kwargs(f"{run} {name}", p_axes, meta), "image"))
+        layer = _product_layer(store, name)
+        if layer is not None:
+            layers.append(layer)
     return layers
+
+
+def read_product(path: str) -> list[tuple]:
+    """The layer of one product, given its folder ``RUN.zarr/products/NAME``
+    (:func:`instrument.runstore.product_location`), read through its run as
+    :func:`read_run` reads it.
+
+    Returns
+    -------
+    list of (data, kwargs, "image")
+        One layer; none for a table or LUT, or a damaged product (named in the log).
+
+    Raises
+    ------
+    instrument.runstore.RunStoreError
+        ``path`` is no product folder of a readable run.
+    """
+    from instrument.runstore import RunStore, RunStoreError, product_location
+
+    where = product_location(path)
+    if where is None:
+        raise RunStoreError(f"{path} is no product folder of a run (RUN.zarr/products/NAME)")
+    store = RunStore.open(where[0])
+    layer = _product_layer(store, where[1])
+    return [] if layer is None else [layer]
+
+
+def _product_layer(store, name: str) -> tuple | None:
+    """The image layer of product ``name`` of an open run (a per-frame one lazily,
+    plane by plane); None for a table or LUT, or a damaged product (logged)."""
+    from instrument.runstore import RunStoreError
+
+    found = store.product_axes(name)
+    if found is None:  # a table or a LUT: no image
+        return None
+    p_axes, p_meta = found
+    info = store.product_info(name)
+    pattrs = store.product_attrs(name)
+    meta = {**{k: v for k, v in pattrs.items() if k != "crc32"}, **p_meta,
+            "run": str(store.path), "product": name}
+    try:
+        if pattrs.get("per_frame"):
+            plane_done = store.product_frames_done(name)
+            plane_shape, dtype = info["shape"][1:], np.dtype(info["dtype"])
+
+            def plane(i):
+                if not plane_done[i]:
+                    return np.zeros(plane_shape, dtype)
+                return store.product_frame(name, i)
+
+            data = _lazy(plane, info["shape"][0], plane_shape, dtype)
+        else:
+            data = store.product(name)[0]
+    except RunStoreError as exc:  # a damaged product: named, the others still shown
+        log.warning("%s", exc)
+        return None
+    return data, _layer_kwargs(f"{Path(store.path).name} {name}", p_axes, meta), "image"
 
 
 def read_volume(path: str) -> list[tuple]:

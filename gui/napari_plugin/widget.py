@@ -7,7 +7,9 @@ TIFF/.npy stack, :func:`instrument.stacks.load_psf_stack`), and runs
 :func:`recon.reconstruct`: with one depth (``depth_mm``, or a stack of one plane) an
 image, else the whole stack as a volume. The result comes back as a new layer, on the
 model grid (:data:`recon.io.DATA_ORIENTATION`), scaled by the layer's pixel size
-times the binning.
+times the binning; a volume's first axis is that of a stored volume
+(:func:`instrument.ome.volume_axes`: ``z`` in micrometer for evenly spaced depths,
+else ``plane``).
 """
 
 # (no ``from __future__ import annotations``: magicgui builds the form from the
@@ -78,6 +80,7 @@ def reconstruct_layer(layer: "napari.layers.Image", psf_run: Path,  # noqa: F821
     recon.errors.ReconInputError
         A measurement that does not fit the PSF (napari shows the message).
     """
+    from instrument.ome import volume_axes
     from instrument.stacks import load_psf_stack, pick_depth
     from recon import PsfStack, reconstruct
     from recon.io import DATA_ORIENTATION
@@ -97,8 +100,10 @@ def reconstruct_layer(layer: "napari.layers.Image", psf_run: Path,  # noqa: F821
                  "axis_labels": ["y", "x"], "units": units, "metadata": meta}, "image")
     rec = reconstruct(PsfStack(stack, depths), raw, method if method != "wiener" else "admm",
                       iterations=iterations, bin_factor=bin_factor)
+    volume = np.asarray(rec.volume, np.float32)
+    first, _ = volume_axes(rec.depths_mm, volume.shape[0])  # as a stored volume's
     meta.update(depths_mm=list(rec.depths_mm), method_used=rec.info.method)
-    return (np.asarray(rec.volume, np.float32),
-            {"name": f"{layer.name} volume", "scale": [1.0, *pitch],
-             "axis_labels": ["plane", "y", "x"], "units": ["pixel", *units],
+    return (volume,
+            {"name": f"{layer.name} volume", "scale": [first.scale, *pitch],
+             "axis_labels": [first.name, "y", "x"], "units": [first.unit or "pixel", *units],
              "metadata": meta}, "image")

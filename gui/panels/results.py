@@ -1,5 +1,6 @@
 """Results viewer: 2D images, 3D volumes (slices with a depth slider, maximum-intensity
-projections), a run store's frames and products, and metrics JSON.
+projections), a run store's frames and products (a product's own folder
+``RUN.zarr/products/NAME`` too), and metrics JSON.
 
 Nothing that reads a file or a store runs on the GUI thread: files are read on a
 worker through the library's readers (:func:`recon.io.load_image`,
@@ -61,7 +62,7 @@ def read_result(path: str) -> dict:
     OSError, ValueError, instrument.runstore.RunStoreError
         Missing or unreadable file (the message names it).
     """
-    from instrument.runstore import RunStore, is_run_store
+    from instrument.runstore import RunStore, is_run_store, product_location
     from instrument.tiff_export import read_tiff_metadata
     from recon.io import load_image
 
@@ -74,6 +75,9 @@ def read_result(path: str) -> dict:
         summary = store.summary(verify=False)
         return {"kind": "run", "store": store, "summary": summary,
                 "text": json.dumps(summary, indent=1)}
+    where = product_location(p) if p.is_dir() else None
+    if where is not None:  # a product's own folder: read through its run, verified
+        return _product(RunStore.open(where[0]), where[1])
     if p.is_dir():
         import zarr
 

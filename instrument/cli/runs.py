@@ -42,9 +42,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                        help="export the raw frames instead: the stored frames whose "
                        "checksums hold (a killed recording's, a damaged frame left out; "
                        "each skipped range is listed)")
-    up = rsub.add_parser("upgrade", help="add the OME-Zarr 0.5 description (axis names, "
-                         "units, scales) to a run written before it, in place; no data "
-                         "chunk is touched")
+    up = rsub.add_parser("upgrade", help="bring a run written before to the OME-Zarr 0.5 "
+                         "layout in place: axis names, units, scales, each image product "
+                         "its own image group; no data chunk is touched")
     up.add_argument("run", help="run store directory (RUN.zarr)")
     ip = rsub.add_parser("import-psf", help="store a PSF stack (TIFF or .npy) as a run")
     ip.add_argument("stack", help="TIFF or .npy, (depths, rows, cols) or one 2D PSF")
@@ -183,8 +183,11 @@ def run(args: argparse.Namespace) -> int:
     elif args.runs_command == "upgrade":
         store = RunStore.open(args.run, "r+")
         changed = store.upgrade()
-        print(f"{store.path}: named the dimensions of {len(changed)} arrays"
-              + (f" ({', '.join(changed)})" if changed else "")
+        named, moved = changed["named"], changed["moved"]
+        print(f"{store.path}: named the dimensions of {len(named)} arrays"
+              + (f" ({', '.join(named)})" if named else "")
+              + f"; moved {len(moved)} image products into their own groups"
+              + (f" ({', '.join(f'products/{n}/0' for n in moved)})" if moved else "")
               + "; OME-Zarr 0.5 description written (no data chunk touched)")
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides

@@ -114,7 +114,7 @@ def _stores(d: Path) -> None:
     def copy(src: str, name: str) -> Path:
         return Path(shutil.copytree(d / src, d / name))
 
-    chunk = Path("products", "psf_stack", "c", "1", "0", "0")
+    chunk = Path("products", "psf_stack", "0", "c", "1", "0", "0")
     (copy("run.zarr", "deleted_chunk.zarr") / chunk).unlink()
     altered = copy("run.zarr", "altered_chunk.zarr") / chunk
     data = bytearray(altered.read_bytes())

@@ -127,7 +127,7 @@ def _compression_level(run: Path) -> None:
 
 
 def _product_dtype(run: Path) -> None:
-    _edit_meta(run / "products", "psf_stack", data_type="int32")
+    _edit_meta(run / "products" / "psf_stack", "0", data_type="int32")
 
 
 def _old_store_fewer_frames(run: Path) -> None:
@@ -203,7 +203,7 @@ CASES = {
         ["crc32/zarr.json is missing", "no frame can be verified", "backup copy"]),
     "product relabelled int32: verify": (
         "sweep", _product_dtype, ["runs", "verify"], 1,
-        ["products/psf_stack/zarr.json is damaged", "data_type 'int32'",
+        ["products/psf_stack/0/zarr.json is damaged", "data_type 'int32'",
          "recorded data_type 'float"]),
     "old store without the record, frames cut: verify": (
         "video", _old_store_fewer_frames, ["runs", "verify"], 1,

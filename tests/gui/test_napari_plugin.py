@@ -1,5 +1,7 @@
-"""The napari plugin, headless: its npe2 manifest, the reader on a sweep, a video and a
-recon3d volume through napari's reader API, the reconstruction widget."""
+"""The napari plugin, headless: its npe2 manifest, the reader on a sweep, a video, a
+product's own folder, a run of the layout before the image groups and a recon3d
+volume through napari's reader API, napari's own reader on a product, the
+reconstruction widget (one depth and a stack)."""
 
 from __future__ import annotations
 
@@ -12,7 +14,14 @@ npe2 = pytest.importorskip("npe2")
 from gui.napari_plugin import MANIFEST  # noqa: E402
 from gui.napari_plugin.widget import reconstruct_layer  # noqa: E402
 from instrument.reconstruct_files import write_volume  # noqa: E402
-from tests.instrument.test_ome import FPS, PITCH_UM, _sweep, _video  # noqa: E402
+from tests.instrument.test_ome import (  # noqa: E402
+    FPS,
+    PITCH_UM,
+    _strip_to_legacy,
+    _sweep,
+    _to_old_layout,
+    _video,
+)
 
 
 @pytest.fixture(scope="module")
@@ -70,6 +79,84 @@ def test_reader_on_a_video_with_its_time_axis(tmp_path, plugin):
     assert recon.data.shape == (6, 6, 8) and recon.scale[-1] == pytest.approx(2 * PITCH_UM)
     assert float(np.asarray(recon.data[0])[0, 0]) == 7.0
     assert float(np.asarray(recon.data[1]).max()) == 0.0  # not computed yet
+
+
+def test_reader_on_a_products_own_folder(tmp_path, plugin):
+    """``RUN.zarr/products/NAME`` (an OME-Zarr image group) opens as that product's
+    layer, read through its run (verified); a table's folder gives none."""
+    store = _video(tmp_path / "v.zarr")
+    store.create_frame_product("recon_admm", store.n_frames, (6, 8), bin_factor=2)
+    store.write_product_frame("recon_admm", 2, np.full((6, 8), 5.0))
+    store.write_product("lut", np.arange(9.0))
+    for folder in ("products/recon_admm", "products/recon_admm/0"):
+        _, layers = _open(store.path / folder, plugin)
+        (layer,) = layers.values()
+        assert layer.name == "v.zarr recon_admm" and layer.data.shape == (6, 6, 8)
+        assert list(layer.axis_labels) == ["t", "y_bin2", "x_bin2"]
+        assert str(layer.units[0]) == "second" and layer.scale[0] == pytest.approx(1 / FPS)
+        assert float(np.asarray(layer.data[2])[0, 0]) == 5.0
+    from gui.napari_plugin.reader import get_reader, read_product
+
+    assert get_reader(str(store.path / "products/lut")) is read_product
+    assert read_product(str(store.path / "products/lut")) == []
+    assert get_reader(str(store.path / "products")) is None
+    assert get_reader(str(store.path / "products/recon_admm__done")) is None
+
+
+def test_napari_own_reader_shows_a_product_as_one_image(tmp_path, plugin):
+    """napari's builtin reader (no plugin of ours) opens a product's group as one image,
+    not the products as levels of a pyramid. (Its layer data, through npe2: with its
+    layers made in a ViewerModel here, a later test of the GUI folder crashed.)"""
+    pm = npe2.PluginManager.instance()
+    registered = "napari" in pm._manifests
+    if not registered:  # the builtins alone (discovering every plugin installed is not
+        # this test's business, and leaves them loaded for the tests after it)
+        pm.register(npe2.PluginManifest.from_distribution("napari"))
+    try:
+        _napari_reads_one_image(tmp_path)
+    finally:
+        if not registered:
+            pm.unregister("napari")
+
+
+def _napari_reads_one_image(tmp_path):
+    store = _sweep(tmp_path / "s.zarr")
+    store.write_product("psf_stack", np.ones((3, 16, 20), np.float32),
+                        depths_mm=[10.0, 10.5, 11.0])
+    store.write_product("dark_mean", np.full((16, 20), 3, np.float32))
+    def levels(name):  # the layer data napari's reader gives: its pyramid levels
+        (layer,) = npe2.read([str(store.path / "products" / name)], plugin_name="napari",
+                             stack=False)
+        assert layer[2:] in ((), ("image",))  # an image
+        return layer[0] if isinstance(layer[0], list) else [layer[0]]
+
+    # one level: the product's array, not every array of products/ as a pyramid
+    assert [level.shape for level in levels("psf_stack")] == [(3, 16, 20)]
+    (dark,) = levels("dark_mean")
+    assert float(np.asarray(dark)[0, 0]) == 3.0
+
+
+def test_reader_on_a_run_of_the_layout_before(tmp_path, plugin):
+    """A run written before the image groups (and before the OME-Zarr description):
+    the same layers, axes computed as for a new run; after runs upgrade, the same."""
+    store = _sweep(tmp_path / "s.zarr")
+    store.write_product("psf_stack", np.full((3, 16, 20), 2, np.float32),
+                        depths_mm=[10.0, 10.5, 11.0])
+    store.write_product("dark_mean", np.full((16, 20), 3, np.float32))
+    _to_old_layout(store.path)
+    _strip_to_legacy(store.path)
+    _, old = _open(store.path, plugin)
+    assert sorted(old) == ["s.zarr dark_mean", "s.zarr frames", "s.zarr psf_stack"]
+    assert list(old["s.zarr psf_stack"].axis_labels) == ["z", "y", "x"]
+    assert float(np.asarray(old["s.zarr psf_stack"].data)[1, 0, 0]) == 2.0
+    from instrument.runstore import RunStore
+
+    RunStore.open(store.path, "r+").upgrade()
+    _, new = _open(store.path, plugin)
+    assert sorted(new) == sorted(old)
+    for name, layer in new.items():
+        assert list(layer.axis_labels) == list(old[name].axis_labels)
+        assert list(layer.scale) == pytest.approx(list(old[name].scale))
 
 
 def test_reader_on_a_recon3d_volume(tmp_path, plugin):
@@ -143,3 +230,35 @@ def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
     widget.method.value = "wiener"
     data, kwargs, kind = widget()
     assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
+
+
+def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
+    """A run's PSF stack of several depths and no depth asked for: the whole stack, a
+    volume layer whose first axis is the depths' (``z`` in micrometer when evenly
+    spaced, as a stored volume's; else ``plane`` with the depths in its metadata)."""
+    from napari.layers import Image
+    from scipy.signal import fftconvolve
+
+    rng = np.random.default_rng(3)
+    n, pitch = 32, 3.45
+    psfs = np.zeros((3, n, n), np.float32)
+    for k in range(3):
+        psfs[k, rng.integers(4, n - 4, 6 + 2 * k), rng.integers(4, n - 4, 6 + 2 * k)] = 1.0
+    scene = np.zeros((3, n, n), np.float32)
+    scene[1, 12:18, 10:14] = 1.0
+    raw = sum(fftconvolve(scene[k], psfs[k], mode="same") for k in range(3)) * 500 + 20
+    layer = Image(raw.astype(np.float32), name="raw", scale=(pitch, pitch))
+    for depths, first in (([10.0, 10.5, 11.0], ("z", 500.0, "micrometer")),
+                          ([10.0, 11.0, 13.0], ("plane", 1.0, "pixel"))):
+        store = _sweep(tmp_path / f"psf{depths[-1]:g}.zarr", n_points=1, shape=(n, n))
+        store.write_product("psf_stack", psfs, depths_mm=depths)
+        data, kwargs, kind = reconstruct_layer(layer, store.path, method="admm",
+                                               iterations=5)
+        assert kind == "image" and data.shape == (3, n, n) and data.dtype == np.float32
+        assert kwargs["name"] == "raw volume"
+        assert kwargs["axis_labels"] == [first[0], "y", "x"]
+        assert kwargs["scale"] == pytest.approx([first[1], pitch, pitch])
+        assert kwargs["units"][0] == first[2]
+        assert kwargs["metadata"]["depths_mm"] == depths
+        volume = Image(data, **{k: kwargs[k] for k in ("scale", "axis_labels", "units")})
+        assert list(volume.axis_labels) == [first[0], "y", "x"]

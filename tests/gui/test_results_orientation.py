@@ -5,7 +5,9 @@ PSFs, which carry no such orientation, as the sensor saw them."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from instrument.runstore import RunStoreError
 from recon.io import DATA_ORIENTATION
 
 
@@ -88,3 +90,19 @@ def test_a_recon3d_volume_and_an_exported_stack_are_read_with_their_depths(tmp_p
     arr[:] = volume
     arr.attrs["depths_mm"] = [1.0, 2.0]
     assert read_result(str(old))["depths_mm"] == [1.0, 2.0]
+
+
+def test_a_products_own_folder_is_read_through_its_run(tmp_path):
+    """``RUN.zarr/products/NAME`` (an OME-Zarr image group) shows that product as the
+    run's product list does: verified, a reconstruction upright."""
+    from gui.panels.results import read_result
+
+    store = _run(tmp_path / "v.zarr")
+    got = read_result(str(store.path / "products" / "recon_admm"))
+    assert got["kind"] == "volume" and got["upright"]
+    np.testing.assert_array_equal(got["array"][0], _asymmetric()[::-1, ::-1])
+    got = read_result(str(store.path / "products" / "psf_stack"))
+    assert got["depths_mm"] == [1.0, 2.0] and "upright" not in got
+    (store.path / "products/psf_stack/0/c/1/0/0").unlink()  # a plane deleted: named
+    with pytest.raises(RunStoreError, match="product 'psf_stack'.*plane 1"):
+        read_result(str(store.path / "products" / "psf_stack"))

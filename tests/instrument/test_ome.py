@@ -1,19 +1,23 @@
-"""Runs and products as OME-Zarr 0.5: validated by ome-zarr-models, opened by xarray,
-upgraded in place without touching a data chunk."""
+"""Runs and products as OME-Zarr 0.5 (each image product its own image group):
+validated by ome-zarr-models, opened by xarray, runs of the layout before opened,
+verified, resumed and upgraded in place without touching a data chunk."""
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zarr
+from ome_zarr_models import open_ome_zarr
 from ome_zarr_models.v05.image import Image
 
 from instrument.cli import main
-from instrument.ome import volume_axes
+from instrument.ome import describe_products, volume_axes
 from instrument.runstore import RunStore, RunStoreError
 from instrument.runstore_records import VIDEO_PLAN
 
@@ -49,6 +53,19 @@ def _multiscale(group, name):
     return next(m for m in image.ome_attributes.multiscales if m.name == name)
 
 
+def _product_image(run, name):
+    """The one multiscale of product ``name``'s own image group ``products/NAME``,
+    validated by ome-zarr-models (the group as an OME-Zarr 0.5 image, its array ``0``
+    named as its axes)."""
+    group = zarr.open_group(Path(run) / "products" / name, mode="r")
+    image = open_ome_zarr(group, version="0.5")  # what it is, found by validation
+    assert isinstance(image, Image)
+    (ms,) = image.ome_attributes.multiscales
+    assert ms.name == name and [d.path for d in ms.datasets] == ["0"]
+    assert sorted(group.array_keys()) == ["0"]  # one image: no other array as a level
+    return ms
+
+
 def _axes(ms):
     return [(a.name, a.type, a.unit) for a in ms.axes]
 
@@ -57,8 +74,9 @@ def _scale(ms):
     return list(ms.datasets[0].coordinateTransformations[0].scale)
 
 
-def test_sweep_frames_and_every_product_kind_validate(tmp_path):
-    store = _sweep(tmp_path / "s.zarr")
+def _every_product_kind(store):
+    """Every kind of product a run holds (images of each axis kind, a table, a LUT,
+    a per-frame reconstruction) written to ``store``; the image products' names."""
     rng = np.random.default_rng(0)
     store.write_product("psf_stack", rng.random((3, 16, 20), np.float32),
                         depths_mm=[10.0, 11.0, 12.0])
@@ -67,9 +85,18 @@ def test_sweep_frames_and_every_product_kind_validate(tmp_path):
     store.write_product("dark_mean", rng.random((16, 20), np.float32), units="DN")
     store.write_product("hot_pixel_map", np.zeros((16, 20), np.uint8))
     store.write_product("psf_grid_registered", rng.random((4, 16, 20), np.float32))
+    store.write_product("bead_images", rng.random((4, 16, 20), np.float32), bin_factor=1)
     store.write_product("angular_response", rng.random((5, 4)), columns=list("abcd"))
     store.write_product("slm_lut", rng.random(256))
     store.create_frame_product("recon_admm", store.n_frames, (8, 10), bin_factor=2)
+    store.write_product_frame("recon_admm", 0, np.ones((8, 10)))
+    return ["bead_images", "dark_mean", "hot_pixel_map", "psf_grid_registered",
+            "psf_stack", "psf_stack_raw", "recon_admm"]
+
+
+def test_sweep_frames_and_every_product_kind_validate(tmp_path):
+    store = _sweep(tmp_path / "s.zarr")
+    images = _every_product_kind(store)
     group = zarr.open_group(store.path, mode="r")
     frames = _multiscale(group, "frames")
     pitch = PITCH_UM * BINNING
@@ -79,24 +106,44 @@ def test_sweep_frames_and_every_product_kind_validate(tmp_path):
     assert _scale(frames) == pytest.approx([1.0, pitch, pitch])
     for name in ("coords", "crc32", "done", "point", "tag"):
         assert group[name].metadata.dimension_names[0] == "z_mm"
+    # each image product is its own OME-Zarr image: products/NAME with its array at 0
     products = group["products"]
-    even = _multiscale(products, "psf_stack")
+    assert sorted(products.group_keys()) == images
+    assert "ome" not in products.attrs  # a plain group: no multiscales of several images
+    for name in images:
+        _product_image(store.path, name)
+        attrs = products[f"{name}/0"].attrs  # the product's attributes go with its array
+        assert "crc32" in attrs or attrs["per_frame"]
+    even = _product_image(store.path, "psf_stack")
     assert _axes(even)[0] == ("z", "space", "micrometer")
     assert _scale(even) == pytest.approx([1000.0, pitch, pitch])
-    uneven = _multiscale(products, "psf_stack_raw")  # OME-Zarr has one scale per axis
+    uneven = _product_image(store.path, "psf_stack_raw")  # one scale per axis
     assert _axes(uneven)[0] == ("plane", None, None)
     assert uneven.metadata == {"depths_mm": [10.0, 12.0, 20.0]}
-    assert _axes(_multiscale(products, "dark_mean"))[0][1:] == ("space", "micrometer")
-    assert _multiscale(products, "hot_pixel_map")
-    assert _axes(_multiscale(products, "psf_grid_registered"))[0][0] == "node"
-    recon = _multiscale(products, "recon_admm")
+    assert _axes(_product_image(store.path, "dark_mean"))[0][1:] == ("space", "micrometer")
+    assert _axes(_product_image(store.path, "psf_grid_registered"))[0][0] == "node"
+    beads = _product_image(store.path, "bead_images")  # 3-D without depths: planes
+    assert _axes(beads) == [("plane", None, None), ("y", "space", "micrometer"),
+                            ("x", "space", "micrometer")]
+    assert _scale(beads) == pytest.approx([1.0, pitch, pitch])
+    recon = _product_image(store.path, "recon_admm")
     assert _axes(recon)[0][0] == "z_mm" and _scale(recon)[1] == pytest.approx(2 * pitch)
-    names = [m.name for m in Image.from_zarr(products).ome_attributes.multiscales]
-    assert "angular_response" not in names and "slm_lut" not in names  # no images
+    # tables and LUTs are no images: arrays of products/, as the per-frame bookkeeping
+    assert sorted(products.array_keys()) == ["angular_response", "recon_admm__crc32",
+                                             "recon_admm__done", "slm_lut"]
     assert products["angular_response"].metadata.dimension_names == ("row", "column")
     assert products["slm_lut"].metadata.dimension_names == ("entry",)
     assert products["recon_admm__done"].metadata.dimension_names == ("z_mm",)
+    assert sorted(store.products()) == sorted([*images, "angular_response", "slm_lut"])
     assert store.verify() == []
+    assert store.product("bead_images")[0].shape == (4, 16, 20)
+    assert store.product_frame("recon_admm", 0)[0, 0] == 1.0
+    # xarray: one node per image; siblings need not agree (4 bead planes, 3 PSF planes)
+    xr = pytest.importorskip("xarray")
+    tree = xr.open_datatree(store.path, engine="zarr", consolidated=False)
+    assert tree["products/bead_images"].to_dataset()["0"].sizes == {
+        "plane": 4, "y": 16, "x": 20}
+    assert tree["products/psf_stack_raw"].to_dataset()["0"].sizes["plane"] == 3
 
 
 def test_video_time_axis_in_seconds(tmp_path):
@@ -123,21 +170,30 @@ def test_xarray_opens_a_run_as_a_tree(tmp_path):
     store.write_product("recon_wiener_dff_baseline", np.ones((6, 8), np.float32),
                         source="recon_wiener")
     store.write_product("flat", np.ones((5, 5), np.float32))  # another size: own names
+    store.write_product("lut", np.arange(7.0))  # no image: an array of products/
     tree = xr.open_datatree(store.path, engine="zarr", consolidated=False)
     root = tree.to_dataset()
     assert root["frames"].dims == ("t", "y", "x") and root["coords"].dims == ("t", "coord")
     assert root["done"].dims == ("t",) and root.sizes["t"] == 6
     products = tree["products"].to_dataset()
-    assert products["recon_wiener"].dims == ("t", "y_bin2", "x_bin2")
-    assert products["recon_wiener"].shape == (6, 6, 8)
-    assert products["recon_wiener_dff"].dims == ("t_recon_wiener_dff", "y_bin2", "x_bin2")
-    assert products["recon_wiener_dff_baseline"].dims == ("y_bin2", "x_bin2")
-    assert products["flat"].dims == ("y_flat", "x_flat")
-    group = zarr.open_group(store.path, mode="r")["products"]
-    dff = _multiscale(group, "recon_wiener_dff")
+    assert products["recon_wiener__done"].dims == ("t",)
+    assert products["lut"].dims == ("entry",)
+
+    def image(name):  # each image product: a node of its own, its array "0"
+        return tree[f"products/{name}"].to_dataset()["0"]
+
+    assert image("recon_wiener").dims == ("t", "y_bin2", "x_bin2")
+    assert image("recon_wiener").shape == (6, 6, 8)
+    assert image("recon_wiener").attrs["per_frame"] is True
+    assert image("recon_wiener_dff").dims == ("t_recon_wiener_dff", "y_bin2", "x_bin2")
+    assert image("recon_wiener_dff_baseline").dims == ("y_bin2", "x_bin2")
+    assert image("flat").dims == ("y_flat", "x_flat")
+    assert tree["products/flat"].attrs["ome"]["multiscales"][0]["name"] == "flat"
+    dff = _product_image(store.path, "recon_wiener_dff")
     assert _axes(dff)[0] == ("t_recon_wiener_dff", "time", "second")
     assert _scale(dff) == pytest.approx([1 / FPS, 2 * PITCH_UM, 2 * PITCH_UM])
     np.testing.assert_array_equal(root["frames"].values, store._group["frames"][:])
+    np.testing.assert_array_equal(image("flat").values, np.ones((5, 5)))
 
 
 def _strip_to_legacy(path: Path) -> None:
@@ -153,43 +209,165 @@ def _strip_to_legacy(path: Path) -> None:
         meta.write_text(json.dumps(doc))
 
 
-def _chunk_hashes(path: Path) -> dict[str, str]:
-    return {str(p.relative_to(path)): hashlib.sha256(p.read_bytes()).hexdigest()
+def _to_old_layout(path: Path) -> None:
+    """Make ``path``'s products what a run written before the image groups held: each
+    image product's array moved back to ``products/NAME`` (its group gone, no chunk
+    rewritten), the run's layout record keyed ``NAME`` again, and ``products/``
+    holding one ``ome`` block listing every image (what runs wrote then)."""
+    products = path / "products"
+    for array in sorted(products.glob("*/0")):
+        name = array.parent.name
+        os.replace(array, products / f"{name}.old")
+        shutil.rmtree(products / name)
+        os.replace(products / f"{name}.old", products / name)
+    doc = json.loads((products / "zarr.json").read_text())
+    record = doc["attributes"]["arrays"]
+    doc["attributes"]["arrays"] = {k.removesuffix("/0"): v for k, v in record.items()}
+    (products / "zarr.json").write_text(json.dumps(doc))
+    group = zarr.open_group(path, mode="r+")
+    describe_products(group["products"], dict(group.attrs))
+    assert "ome" in group["products"].attrs and not list(group["products"].group_keys())
+
+
+def _chunks(path: Path) -> dict[str, tuple[str, int]]:
+    """Every file of ``path`` but the metadata documents: its bytes' hash and inode."""
+    return {str(p.relative_to(path)): (hashlib.sha256(p.read_bytes()).hexdigest(),
+                                       p.stat().st_ino)
             for p in path.rglob("*") if p.is_file() and p.name != "zarr.json"}
+
+
+def _moved(chunks: dict, names) -> dict:
+    """``chunks`` with each file of the products ``names`` where the upgrade puts it:
+    ``products/NAME/...`` under ``products/NAME/0/...``."""
+    out = {}
+    for key, value in chunks.items():
+        parts = key.split("/")
+        if len(parts) > 2 and parts[0] == "products" and parts[1] in names:
+            key = "/".join([*parts[:2], "0", *parts[2:]])
+        out[key] = value
+    return out
 
 
 def test_upgrade_adds_the_description_without_touching_a_chunk(tmp_path, capsys):
     store = _sweep(tmp_path / "old.zarr", shape=(16, 20))
     store.write_product("psf_stack", np.ones((3, 16, 20), np.float32),
                         depths_mm=[10.0, 11.0, 12.0])
+    store.write_product("bead_images", np.full((2, 16, 20), 2, np.float32), bin_factor=1)
+    store.write_product("slm_lut", np.arange(256.0))
     store.create_frame_product("recon_admm", store.n_frames, (8, 10), bin_factor=2)
     store.write_product_frame("recon_admm", 0, np.ones((8, 10)))
+    _to_old_layout(store.path)
     _strip_to_legacy(store.path)
     # a run written before still opens, verifies and is written to (resume)
     old = RunStore.open(store.path, "r+")
     assert old.verify() == []
+    assert old.products() == ["bead_images", "psf_stack", "recon_admm", "slm_lut"]
     old.clear_point(2)
     old.write_frame(4, np.full((16, 20), 4, np.uint16), {"exposure_s": 0.01})
     old.write_frame(5, np.full((16, 20), 5, np.uint16), {"exposure_s": 0.01})
     old.write_product_frame("recon_admm", 1, np.ones((8, 10)))
+    assert (store.path / "products/recon_admm/c/1/0/0").is_file()  # where it was
+    with _export(store.path, tmp_path / "psf.tif") as tif:  # runs export reads it there
+        assert tif.series[0].axes == "ZYX"
+        assert tif.imagej_metadata["spacing"] == pytest.approx(1000.0)
     with pytest.raises(ValueError):
         Image.from_zarr(zarr.open_group(store.path, mode="r"))
     old.lock()  # a run another process writes is refused, unchanged
     with pytest.raises(RunStoreError, match="lock|writ"):
         RunStore.open(store.path, "r+").upgrade()
     old.unlock()
-    before = _chunk_hashes(store.path)
+    before = _chunks(store.path)
     assert main(["runs", "upgrade", str(store.path)]) == 0
-    assert "named the dimensions of" in capsys.readouterr().out
-    assert _chunk_hashes(store.path) == before  # every chunk file byte for byte
+    out = capsys.readouterr().out
+    assert "named the dimensions of" in out and "moved 3 image products" in out
+    images = ("bead_images", "psf_stack", "recon_admm")
+    # every chunk file byte for byte, the same file (renamed with its folder)
+    assert _chunks(store.path) == _moved(before, images)
     group = zarr.open_group(store.path, mode="r")
     assert _axes(_multiscale(group, "frames"))[0][0] == "z_mm"
     assert group["coords"].metadata.dimension_names == ("z_mm", "coord")
-    assert _axes(_multiscale(group["products"], "psf_stack"))[0][0] == "z"
-    assert _axes(_multiscale(group["products"], "recon_admm"))[0][0] == "z_mm"
+    assert "ome" not in group["products"].attrs
+    assert _axes(_product_image(store.path, "psf_stack"))[0][0] == "z"
+    assert _axes(_product_image(store.path, "recon_admm"))[0][0] == "z_mm"
+    assert _axes(_product_image(store.path, "bead_images"))[0][0] == "plane"
+    assert sorted(group["products"].array_keys()) == ["recon_admm__crc32",
+                                                      "recon_admm__done", "slm_lut"]
     again = RunStore.open(store.path, "r+")
-    assert again.verify() == [] and again.upgrade() == []
+    assert again.verify() == [] and again.layout_damage == {}
+    assert again.upgrade() == {"named": [], "moved": []}  # idempotent
+    assert _chunks(store.path) == _moved(before, images)
     assert again.frame(5).image[0, 0] == 5
+    assert again.product("bead_images")[0][1, 0, 0] == 2.0
+    assert again.product_frames_done("recon_admm").tolist()[:3] == [True, True, False]
+    assert main(["runs", "verify", str(store.path)]) == 0
+    assert "intact" in capsys.readouterr().out
+
+
+def test_a_run_of_the_layout_before_opens_resumes_and_upgrades(tmp_path, capsys):
+    """A run written just before the image groups (its products arrays of products/,
+    which held one ome block listing them) is read and resumed as it was, a product
+    added to it goes into a group of its own, and the upgrade moves the rest."""
+    store = _video(tmp_path / "v.zarr")
+    store.create_frame_product("recon_wiener", store.n_frames, (6, 8), bin_factor=2)
+    for i in range(3):
+        store.write_product_frame("recon_wiener", i, np.full((6, 8), i, np.float32))
+    store.write_product("flat", np.ones((5, 5), np.float32))
+    _to_old_layout(store.path)
+    old = RunStore.open(store.path, "r+")
+    assert old.verify() == [] and old.products() == ["flat", "recon_wiener"]
+    assert [m.name for m in Image.from_zarr(old._group["products"]).ome_attributes
+            .multiscales] == ["flat", "recon_wiener"]
+    # resumed: the per-frame product of the layout before is kept and finished
+    old.create_frame_product("recon_wiener", old.n_frames, (6, 8), bin_factor=2)
+    for i in range(3, 6):
+        old.write_product_frame("recon_wiener", i, np.full((6, 8), i, np.float32))
+    assert old.product("recon_wiener")[0][:, 0, 0].tolist() == [0, 1, 2, 3, 4, 5]
+    old.write_product("recon_wiener_dff", np.ones((4, 6, 8), np.float32),
+                      frame_indices=[0, 1, 2, 3], source="recon_wiener")
+    assert _axes(_product_image(old.path, "recon_wiener_dff"))[1] == (
+        "y_bin2", "space", "micrometer")  # the source's binning, found in either layout
+    old.write_product("flat", np.full((5, 5), 2, np.float32))  # replaced: a group now
+    _product_image(old.path, "flat")
+    assert [m.name for m in Image.from_zarr(old._group["products"]).ome_attributes
+            .multiscales] == ["recon_wiener"]  # the block lists what is left there
+    assert old.verify() == []
+    assert main(["runs", "show", str(old.path)]) == 0
+    shown = capsys.readouterr().out
+    assert "product  recon_wiener: 6x6x8 float32  (6 of 6 frames done)" in shown
+    assert "product  flat: 5x5 float32" in shown
+    before = _chunks(old.path)
+    assert old.upgrade() == {"named": [], "moved": ["recon_wiener"]}
+    assert _chunks(old.path) == _moved(before, ("recon_wiener",))
+    assert "ome" not in zarr.open_group(old.path / "products", mode="r").attrs
+    new = RunStore.open(old.path)
+    assert new.verify() == [] and new.layout_damage == {}
+    assert new.products() == ["flat", "recon_wiener", "recon_wiener_dff"]
+    assert new.product("recon_wiener")[0][:, 0, 0].tolist() == [0, 1, 2, 3, 4, 5]
+    assert new.product_info("recon_wiener")["planes_done"] == 6
+
+
+def test_upgrade_finishes_a_move_cut_short(tmp_path):
+    """An upgrade killed between its renames: the array already in its temporary group
+    (the product missing from the run meanwhile, so verify names it), the record not
+    yet renamed; the next upgrade finishes the move and the run is intact."""
+    store = _sweep(tmp_path / "s.zarr")
+    store.write_product("psf_stack", np.ones((3, 16, 20), np.float32),
+                        depths_mm=[10.0, 11.0, 12.0])
+    _to_old_layout(store.path)
+    products = store.path / "products"
+    zarr.open_group(store.path / "products", mode="r+").create_group("psf_stack__moving")
+    os.replace(products / "psf_stack", products / "psf_stack__moving" / "0")
+    cut = RunStore.open(store.path, "r+")
+    assert cut.products() == []
+    assert any("'psf_stack'" in p and "missing" in p for p in cut.verify())
+    before = _chunks(store.path)
+    assert cut.upgrade()["moved"] == ["psf_stack"]
+    assert not (products / "psf_stack__moving").exists()
+    assert _chunks(store.path) == {k.replace("psf_stack__moving/0", "psf_stack/0"): v
+                                   for k, v in before.items()}
+    done = RunStore.open(store.path)
+    assert done.verify() == [] and done.layout_damage == {}
+    _product_image(store.path, "psf_stack")
 
 
 def _export(run, out, *extra):

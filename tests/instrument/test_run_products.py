@@ -56,7 +56,7 @@ def test_altered_or_deleted_product_plane_is_named(tmp_path):
     store.create_frame_product("p", 6, (6, 8))
     for i in range(6):
         store.write_product_frame("p", i, np.full((6, 8), i + 1.0, np.float32))
-    (tmp_path / "v.zarr" / "products" / "p" / "c" / "3" / "0" / "0").unlink()
+    (tmp_path / "v.zarr" / "products" / "p" / "0" / "c" / "3" / "0" / "0").unlink()
     problems = RunStore.open(tmp_path / "v.zarr").verify()
     assert len(problems) == 1 and "plane 3 differs from the checksum" in problems[0]
     with pytest.raises(RunStoreError, match="plane 3"):

@@ -59,7 +59,7 @@ def test_altered_frame_chunk_is_reported(tmp_path):
 
 def test_damaged_product_plane_is_reported(tmp_path):
     _run(tmp_path / "r.zarr")
-    (tmp_path / "r.zarr/products/psf_stack/c/1/0/0").unlink()
+    (tmp_path / "r.zarr/products/psf_stack/0/c/1/0/0").unlink()
     store = RunStore.open(tmp_path / "r.zarr")
     with pytest.raises(RunStoreError, match="product 'psf_stack'.*plane 1"):
         store.product("psf_stack")

@@ -74,7 +74,7 @@ def test_runs_verify_and_show(sweep, tmp_path, capsys):
     assert "intact:" in capsys.readouterr().out
     index = _frame_of_point(sweep, 2)
     (sweep / f"frames/c/{index}/0/0").unlink()
-    (sweep / "products/psf_stack/c/0/0/0").unlink()
+    (sweep / "products/psf_stack/0/c/0/0/0").unlink()
     assert main(["runs", "verify", str(sweep)]) == 1
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith(f"frame {index} (point 2)") and "missing" in lines[0]
