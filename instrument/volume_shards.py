@@ -181,14 +181,15 @@ class ShardedSlabs:
             self.iteration += 1
         return out
 
-    def gather(self, out: np.ndarray | None) -> np.ndarray:
-        """The estimate: each slab's ``x`` fetched in turn into ``out`` (n_z, L0, L1)."""
+    def gather(self, out: np.ndarray | None, which: str = "x") -> np.ndarray:
+        """The estimate: each slab's ``x`` (or saved copy ``which``) fetched in turn into
+        ``out`` (n_z, L0, L1)."""
         parts = self.call("estimate_shape")
         if out is None:
             out = np.empty((sum(p[0] for p in parts), *parts[0][1:]), np.float32)
         for i, ((a, z), actor) in enumerate(zip(self.plan, self.actors, strict=True)):
             try:
-                out[a:z] = actor.estimate().result(timeout=self.timeout_s)
+                out[a:z] = actor.estimate(which).result(timeout=self.timeout_s)
             except Exception as exc:
                 raise self._lost(i, "while the estimate was gathered", exc) from None
             self.bytes_moved[i] += out[a:z].nbytes
