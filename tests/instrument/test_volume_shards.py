@@ -10,6 +10,7 @@ streamed solver in one process and says so.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 
@@ -113,6 +114,26 @@ def test_recon3d_memory_limit_streams_and_says_so(files, capsys):
     assert (files / "v.tif").exists()
     assert _recon3d(files, "--memory-limit", "lots", "--overwrite") == 2
     assert "--memory-limit 'lots'" in capsys.readouterr().err
+
+
+def test_recon3d_memory_limit_chooses_the_default_weight_streamed(files, capsys):
+    """``--tv`` left at its default (auto) on a problem that streams: the held-out path
+    over the slabs chooses the weight, and the metrics record it."""
+    assert main(["recon3d", "--psf-stack", str(files / "stack.npy"), "--depths",
+                 ",".join(map(str, DEPTHS)), "--raw", str(files / "raw.npy"),
+                 "--iterations", "15", "--out", str(files / "v.tif"), "--memory-limit", "1MB",
+                 "--metrics-json", str(files / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "automatic tv weight: the held-out path of recon.auto over the slabs" in out
+    assert "4 copies of the iterates" in out
+    m = json.loads((files / "m.json").read_text())
+    assert m["method"] == "fista" and m["memory_plan"]["streamed"]
+    auto = m["auto"]
+    assert auto["regulariser"] == "tv" and auto["weight"] == m["tv"]
+    assert f"tv weight {auto['weight']:.3g}, planes kept" in out
+    choice = auto["weight_choice"]
+    assert choice["path"] and choice["stop_reason"] and "candidates_settled" in choice
+    assert m["memory"]["path_copies_peak_bytes"] == m["memory"]["arrays"]["path_copies"]
 
 
 def test_recon3d_sharded_lost_worker_writes_nothing(files, capsys, monkeypatch):

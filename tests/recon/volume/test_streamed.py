@@ -260,23 +260,55 @@ def test_memory_plan_says_what_fits():
         memory_plan("fista", False, (64, 64), 5, 0)
 
 
+def _found(volume: np.ndarray) -> set:
+    brightest = np.argsort(volume.ravel())[::-1][:3]
+    return {tuple(int(a) for a in np.unravel_index(k, volume.shape)) for k in brightest}
+
+
 def test_reconstruct_streams_when_the_plan_does_not_fit():
+    """The default weight (auto) on a problem that streams: the held-out path over the
+    slabs chooses it, says so, and records it; its copies are those estimated."""
     stack, raw = bead_problem()
     lines = []
     rec = recon.reconstruct_volume(stack, DEPTHS, raw, method="admm", iterations=60,
                                    memory_limit_bytes=1_000_000, announce=lines.append)
     assert rec.info.method == "fista" and "streamed 3D FISTA" in rec.info.method_reason
-    assert "automatic weight" in rec.info.method_reason  # tv="auto" became a fixed weight
-    assert any("estimated peak memory" in line for line in lines)
+    assert "automatic tv weight: the held-out path" in rec.info.method_reason
+    assert any("automatic tv weight: the held-out path" in line for line in lines)
+    assert any("estimated peak memory" in line and "4 copies of the iterates" in line
+               for line in lines)
+    auto = rec.info.auto[0]
+    assert auto["weight"] == rec.info.tv and auto["regulariser"] == "tv"
+    choice = auto["weight_choice"]
+    assert choice["criterion"] == "holdout" and choice["stop_reason"]
+    # 3.5 x 60, less the final solve's 60 on every pixel (the caustics are compact: the
+    # held-out blocks hide object pixels)
+    assert 0 < choice["path_iterations"] <= choice["budget_iterations"] == 150
+    assert choice["final_pixels"].startswith("all") and choice["final_iterations"] <= 60
+    assert all({"weight", "holdout_error", "status", "converged",
+                "remaining_in_standard_errors"} <= set(p) for p in choice["path"])
+    assert auto["planes_kept"] == list(range(len(DEPTHS))) and "not tested" in auto["reason"]
+    assert auto["noise"] and "8 x 8 blocks" in auto["reason"]
     assert rec.volume.shape == stack.shape
-    brightest = np.argsort(rec.volume.ravel())[::-1][:3]
-    found = {tuple(int(a) for a in np.unravel_index(k, rec.volume.shape)) for k in brightest}
-    assert found == set(BEADS)
+    assert _found(rec.volume) == set(BEADS)
     m = rec.metrics(floor_s=1.0)
+    assert m["auto"]["weight"] == m["tv"]
     mem = m["memory"]
     assert mem["peak_rss_bytes"] == peak_rss_bytes() or mem["peak_rss_bytes"] > 0
     assert mem["estimate_bytes"] > mem["arrays"]["total"]
+    # the path's copies of the iterates: at their most, exactly the estimate's
+    assert mem["path_copies_peak_bytes"] == mem["arrays"]["path_copies"] > 0
     assert m["memory_plan"]["streamed"] and m["support"] == "sensor"
+
+
+def test_reconstruct_streams_a_fixed_weight_as_given():
+    stack, raw = bead_problem()
+    rec = recon.reconstruct_volume(stack, DEPTHS, raw, method="fista", iterations=60,
+                                   tv=1e-4, memory_limit_bytes=1_000_000)
+    assert rec.info.tv == 1e-4 and not rec.info.auto
+    assert "automatic" not in rec.info.method_reason
+    assert "path_copies" not in rec.metrics(floor_s=1.0)["memory"]["arrays"]
+    assert _found(rec.volume) == set(BEADS)
 
 
 @pytest.mark.parametrize("case", ["beads", "wide"])
