@@ -15,6 +15,16 @@ once when the actors are made.
 
 A worker lost mid-solve stops the solve with :class:`ShardLostError` (which worker,
 which planes, what happened); nothing is written, and a rerun rebuilds the slabs.
+
+The automatic weight's held-out path (:func:`recon.volume.streamed_auto.auto_streamed`,
+what ``recon3d --scheduler`` runs with its default ``--tv auto``) takes a
+:class:`ShardedSlabs` as it takes slabs in one process: the held-out mask stays in the
+loop (it weights the summed image and the residual there, never sent), the path's
+copies of the iterates stay in each worker beside its planes
+(:meth:`recon.volume.slab.VolumeSlab.save`; a worker then holds
+:func:`recon.volume.streamed.streamed_memory_bytes` of its slab with
+``path_copies``), and per window of 10 iterations only the held-out score's partial
+images and the copies' names cross besides the iterations' images.
 """
 
 from __future__ import annotations
