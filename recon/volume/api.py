@@ -506,7 +506,8 @@ def _reconstruct_streamed(held, b, depths, *, iterations, tv, l1, plan, info, ra
         announce(note)
     result, model, memory, record = solve_streamed(
         held, b, iterations=iterations, tv=tv, l1=l1, depths=depths,
-        slab_group=slab_group, announce=announce, auto=run_auto)
+        slab_group=slab_group, announce=announce, auto=run_auto,
+        limit_bytes=plan["limit_bytes"])
     records = []
     if record is not None:
         records = [dict(record, noise=auto["noise"].as_dict())]

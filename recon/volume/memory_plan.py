@@ -124,8 +124,8 @@ def memory_plan(method: str, auto: bool, sensor_shape: tuple[int, int], n_z: int
 
 
 def solve_streamed(held: list, b: np.ndarray, *, iterations: int, tv: float, l1: float,
-                   depths=None, slab_group=None, announce=None, auto: dict | None = None
-                   ) -> tuple:
+                   depths=None, slab_group=None, announce=None, auto: dict | None = None,
+                   limit_bytes: int | None = None) -> tuple:
     """Streamed 3D FISTA on a normalised stack, with its memory estimate and peak; with
     ``auto``, its weight chosen by the held-out path over the slabs.
 
@@ -153,6 +153,10 @@ def solve_streamed(held: list, b: np.ndarray, *, iterations: int, tv: float, l1:
         The automatic weight: ``noise`` (the frame's :class:`recon.auto.noise.NoiseModel`
         in the units of ``b``), ``regulariser`` ("tv" or "l1") and ``other`` (the other
         weight, fixed), for :func:`recon.volume.streamed_auto.auto_streamed`.
+    limit_bytes : int, optional
+        The memory the solve may use (:func:`memory_plan`'s ``limit_bytes``): the
+        estimate line says when the slabs' arrays alone exceed it (and, with
+        ``auto``, what a fixed weight's would need); the solve runs all the same.
 
     Returns
     -------
@@ -203,6 +207,10 @@ def solve_streamed(held: list, b: np.ndarray, *, iterations: int, tv: float, l1:
             f"{arrays['iterates'] / 1e9:.2f} GB{path}, buffers "
             f"{(arrays['total'] - other) / 1e9:.2f} GB; "
             f"process before {baseline / 1e9:.2f} GB)")
+    if limit_bytes is not None and slab_group is None and arrays["total"] > limit_bytes:
+        fixed = streamed_memory_bytes((rows, cols), n_z)["total"]
+        line += (f"; its arrays alone are more than the {limit_bytes / 1e9:.2f} GB limit"
+                 + ("" if auto is None else f" (with a fixed --tv, {fixed / 1e9:.2f} GB)"))
     if announce is not None:
         announce(line)
     held.clear()

@@ -276,7 +276,7 @@ def test_reconstruct_streams_when_the_plan_does_not_fit():
     assert "automatic tv weight: the held-out path" in rec.info.method_reason
     assert any("automatic tv weight: the held-out path" in line for line in lines)
     assert any("estimated peak memory" in line and "4 copies of the iterates" in line
-               for line in lines)
+               and "more than the 0.00 GB limit (with a fixed --tv" in line for line in lines)
     auto = rec.info.auto[0]
     assert auto["weight"] == rec.info.tv and auto["regulariser"] == "tv"
     choice = auto["weight_choice"]
