@@ -53,8 +53,8 @@ from ..operators import checked_sensor_weights
 from ..solvers.common import SolveResult
 from .streamed import final_objective, gather_estimate, slab_fista
 
-__all__ = ["SlabModel", "SlabPath", "StreamedFistaPlan", "StreamedState", "auto_streamed",
-           "path_copies"]
+__all__ = ["SlabIterate", "SlabModel", "SlabPath", "StreamedFistaPlan", "StreamedState",
+           "auto_streamed", "path_copies"]
 
 
 def path_copies(rule: PathRule) -> int:
@@ -156,9 +156,17 @@ class SlabPath:
 class SlabIterate:
     """An iterate held by the slabs: their ``x``, or a copy they keep under ``name``.
 
-    ``copy()`` makes a new copy in the slabs (what
-    :meth:`recon.auto.xp_path.PathArrays.copy` calls on the path's iterates); an owned
-    copy is dropped from the slabs once this handle is gone.
+    ``copy()`` makes a new copy in the slabs (what the path's ``PathArrays.copy``,
+    ``recon.auto.xp_path``, calls on its iterates); an owned copy is dropped from the
+    slabs once this handle is gone.
+
+    Parameters
+    ----------
+    path : SlabPath
+    name : str
+        ``"x"`` (the slabs' own iterate) or a copy's name.
+    owned : bool
+        A copy this handle owns (dropped with it).
     """
 
     def __init__(self, path: SlabPath, name: str, owned: bool = False):
