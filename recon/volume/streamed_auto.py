@@ -266,12 +266,13 @@ class SlabModel:
 
 class StreamedFistaPlan:
     """Streamed 3D FISTA with the plan interface of :func:`recon.auto.weight.admm_auto`
-    (``zeros``, ``warm``, ``run``, ``objective``), on one set of sensor weights.
+    (``zeros``, ``warm``, ``run``, ``objective``) on a model's slabs and sensor weights;
+    the class is the path's ``plan_of``.
 
     Parameters
     ----------
-    path : SlabPath
-    sensor_weights : ndarray, float32, sensor shape
+    model : SlabModel
+        The slabs, and the sensor weights of the fits (the fit pixels' or all).
 
     Attributes
     ----------
@@ -280,15 +281,10 @@ class StreamedFistaPlan:
         :func:`~recon.volume.streamed.slab_fista` computes it).
     """
 
-    def __init__(self, path: SlabPath, sensor_weights: np.ndarray):
-        self.path = path
-        self.weights = sensor_weights
-        self.lipschitz = path.power_max * float(sensor_weights.max()) ** 2
-
-    @classmethod
-    def maker(cls, path: SlabPath):
-        """``plan_of(model) -> plan`` for :func:`recon.auto.weight.admm_auto`."""
-        return lambda model: cls(path, model.sensor_weights)
+    def __init__(self, model: SlabModel):
+        self.path = model.path
+        self.weights = model.sensor_weights
+        self.lipschitz = self.path.power_max * float(self.weights.max()) ** 2
 
     def zeros(self, mu=None, use_tv: bool = True) -> StreamedState:
         """The cold start: the slabs' ``x`` and ``y`` zero (``mu``, ``use_tv``: unused)."""
@@ -389,8 +385,10 @@ def auto_streamed(group, b: np.ndarray, *, noise: NoiseModel, iterations: int,
     result, choice = admm_auto(model, b, iterations=iterations, noise_energy=energy,
                                regulariser=regulariser, fixed=other, seed=seed,
                                rule=VOLUME_RULES[regulariser],
-                               plan_of=StreamedFistaPlan.maker(path))
+                               plan_of=StreamedFistaPlan)
     result.x = gather_estimate(group, result.x.name)
+    path.flush()
+    path.live = None  # no cycle (state -> path -> state): the slabs go with the last name
     n_z = result.x.shape[0]
     solver = ("streamed 3D FISTA (the path's solves and the result), the held-out pixels "
               "masked from the data term on the sensor")
