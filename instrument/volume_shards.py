@@ -15,6 +15,16 @@ once when the actors are made.
 
 A worker lost mid-solve stops the solve with :class:`ShardLostError` (which worker,
 which planes, what happened); nothing is written, and a rerun rebuilds the slabs.
+
+The automatic weight's held-out path (:func:`recon.volume.streamed_auto.auto_streamed`,
+what ``recon3d --scheduler`` runs with its default ``--tv auto``) takes a
+:class:`ShardedSlabs` as it takes slabs in one process: the held-out mask stays in the
+loop (it weights the summed image and the residual there, never sent), the path's
+copies of the iterates stay in each worker beside its planes
+(:meth:`recon.volume.slab.VolumeSlab.save`; a worker then holds
+:func:`recon.volume.streamed.streamed_memory_bytes` of its slab with
+``path_copies``), and per window of 10 iterations only the held-out score's partial
+images and the copies' names cross besides the iterations' images.
 """
 
 from __future__ import annotations
@@ -181,14 +191,15 @@ class ShardedSlabs:
             self.iteration += 1
         return out
 
-    def gather(self, out: np.ndarray | None) -> np.ndarray:
-        """The estimate: each slab's ``x`` fetched in turn into ``out`` (n_z, L0, L1)."""
+    def gather(self, out: np.ndarray | None, which: str = "x") -> np.ndarray:
+        """The estimate: each slab's ``x`` (or saved copy ``which``) fetched in turn into
+        ``out`` (n_z, L0, L1)."""
         parts = self.call("estimate_shape")
         if out is None:
             out = np.empty((sum(p[0] for p in parts), *parts[0][1:]), np.float32)
         for i, ((a, z), actor) in enumerate(zip(self.plan, self.actors, strict=True)):
             try:
-                out[a:z] = actor.estimate().result(timeout=self.timeout_s)
+                out[a:z] = actor.estimate(which).result(timeout=self.timeout_s)
             except Exception as exc:
                 raise self._lost(i, "while the estimate was gathered", exc) from None
             self.bytes_moved[i] += out[a:z].nbytes

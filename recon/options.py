@@ -230,7 +230,8 @@ class ReconOptions(Options):
         label="saturation level")
     empty_planes: Literal["keep", "drop"] = option(
         "keep", help="with an automatic weight: keep every plane, or set those that show "
-        "no signal in the held-out pixels to zero (reported)",
+        "no signal in the held-out pixels to zero (reported; in memory only: a streamed "
+        "solve keeps every plane and says so)",
         kinds=("volume",), label="empty planes")
     model: Literal["auto", "convolution", "local", "pca"] = option(
         "auto", help="forward model of a grid: auto (the cheapest whose predicted model "

@@ -223,6 +223,7 @@ def run_candidate(plan, b_fit, state, weights: dict, score, copy, *, weight: flo
             if best is None or err < best[0]:
                 best = (err, se)
             if err <= best[0] + conv.keep * best[1]:
+                kept = None  # the former copy goes before the new one is made
                 kept = (copy(res.x), done)
         remaining = remaining_bound(errors)
         if done >= least and len(errors) >= 2 and \

@@ -30,7 +30,7 @@ from .noise import NoiseModel
 from .planes import plane_tests, planes_record
 from .weight import HOLDOUT, PathRule, admm_auto, holdout_split
 
-__all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume"]
+__all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume", "weighted_variance"]
 
 #: The 3D path and rule per regulariser (normalised stack, ``sum_z (sum h_z)^2 = 1``,
 #: measurement / max): the 2D machinery and rule (each weight solved until its
@@ -50,6 +50,26 @@ VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, block=8),
                 "l1": PathRule(start=1e-2, end=1e-6, block=8)}
 #: What :func:`auto_volume` may do with planes that hold no signal.
 EMPTY_PLANES = ("keep", "drop")
+
+
+def weighted_variance(weights: np.ndarray, noise: NoiseModel, b: np.ndarray) -> np.ndarray:
+    """Noise variance of each weighted sensor pixel, ``w^2 var(b)``.
+
+    Parameters
+    ----------
+    weights : ndarray, float32, sensor shape
+        Sensor weights ``w`` (Eq. 3.10).
+    noise : NoiseModel
+        The frame's noise model in the units of ``b``.
+    b : ndarray, float32, sensor shape
+        Scaled measurement.
+
+    Returns
+    -------
+    ndarray, float64, sensor shape
+        Its sum is the ``noise_energy`` of :func:`recon.auto.weight.admm_auto`.
+    """
+    return np.square(weights, dtype=np.float64) * noise.variance(b)
 
 
 def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations: int,
@@ -119,8 +139,7 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
                               f"{', '.join(EMPTY_PLANES)}")
     if regulariser not in VOLUME_RULES:
         raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
-    w2 = np.square(op.sensor_weights, dtype=np.float64)
-    variance = w2 * noise.variance(b)
+    variance = weighted_variance(op.sensor_weights, noise, b)
     noise_energy = float(variance.sum())
     common = {"iterations": iterations, "noise_energy": noise_energy,
               "regulariser": regulariser, "plan_of": plan_of, "fixed": other,

@@ -77,7 +77,7 @@ from .path import Convergence, run_candidate
 from .xp_path import PathArrays, device_plan_of
 
 __all__ = ["BUDGET", "PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto",
-           "holdout_split", "path_budget", "weight_grid"]
+           "coverage_ratio", "holdout_split", "path_budget", "weight_grid"]
 
 log = logging.getLogger(__name__)
 
@@ -148,6 +148,9 @@ BLOCK = 32
 #: (fewer than :data:`MIN_BLOCKS` whole blocks of a side above the first of these,
 #: fewer than 16 measured pixels held out, or none kept); single pixels last.
 SMALLER_BLOCKS = (8, 1)
+#: An object pixel counts as seen by the camera where ``A^T w`` is above this fraction
+#: of its largest value (:func:`holdout_coverage`).
+SEEN = 1e-3
 #: Fewest whole blocks a sensor must hold for blocks wider than 8 x 8 (the former
 #: side, whose small-sensor cases the tests pin) to be held out: with
 #: fewer, a random 10 % of them is a few blocks (a 48 x 48 sensor: one 32 x 32 block
@@ -283,18 +286,42 @@ def holdout_coverage(op, keep: np.ndarray) -> float:
     Parameters
     ----------
     op : ConvolutionOperator or VolumeConvolutionOperator
-        (a volume: the smallest ratio over every plane's object pixels)
+        (a volume: the smallest ratio over every plane's object pixels); or a model
+        with its own ``coverage(keep)`` that computes the same where its planes live
+        (the streamed volume's slabs, :class:`recon.volume.streamed_auto.SlabModel`).
     keep : ndarray of bool, ``op.shape_out``
 
     Returns
     -------
     float
     """
+    if hasattr(op, "coverage"):
+        return float(op.coverage(keep))
     fov = (Ellipsis, *op.crop)  # a volume operator: every plane's field of view
     seen = op.adjoint(np.ones(op.shape_out, np.float32))[fov]
     seen_fit = op.adjoint(np.asarray(keep, np.float32))[fov]
-    lit = seen > 1e-3 * float(seen.max())
-    return float(np.min(seen_fit[lit] / seen[lit])) if np.any(lit) else 0.0
+    ratio = coverage_ratio(seen, seen_fit, float(seen.max()))
+    return ratio if math.isfinite(ratio) else 0.0
+
+
+def coverage_ratio(seen: np.ndarray, seen_fit: np.ndarray, peak: float) -> float:
+    """The smallest ``seen_fit / seen`` over the object pixels the camera sees: those
+    where ``seen`` (``A^T w``) is above :data:`SEEN` times ``peak`` (its largest value).
+
+    Parameters
+    ----------
+    seen, seen_fit : ndarray, float32, same shape
+        ``A^T w`` and ``A^T (w keep)`` over (part of) the field of view.
+    peak : float
+        Largest ``A^T w`` over the whole field of view.
+
+    Returns
+    -------
+    float
+        ``inf`` when no pixel here is seen.
+    """
+    lit = seen > SEEN * peak
+    return float(np.min(seen_fit[lit] / seen[lit])) if np.any(lit) else math.inf
 
 
 def holdout_split(op, holdout: float = HOLDOUT, seed: int = 0, block: int = BLOCK
@@ -532,9 +559,9 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
                           deadline=deadline, after_step=bool(cands))  # the first: from 0
         used += c.iterations
         cands.append(c)
-        if best is None or c.error < best.error:
+        improved = best is None or c.error < best.error
+        if improved:
             best, rises = c, 0
-            c.state = copy.deepcopy(state)  # the chosen weight runs on from here
         elif c.error - c.remaining > best.error + best.standard_error:
             rises += 1  # worse by more than its scatter, even after its remaining fall
             if rises == 2:
@@ -551,6 +578,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
                 d.x = None
             if d is not best:
                 d.state = None
+        if improved:  # the chosen weight runs on from here (copied once the copies of
+            c.state = copy.deepcopy(state)  # the former best are dropped: a lower peak)
     if stop is None:
         stop = f"reached the smallest weight of the path ({grid[-1]:.3g})"
     i_min, k, chosen = _choose(cands, rule)

@@ -349,8 +349,9 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         Memory the CPU solve may use (default: what the machine has available now).
         When the in-memory plan needs more (:func:`recon.volume.memory_plan.memory_plan`),
         streamed 3D FISTA runs instead (:func:`recon.volume.memory_plan.solve_streamed`:
-        planes transformed on the fly, iterates on the sensor's field of view, a
-        fixed weight -- :data:`DEFAULT_TV` -- in place of an automatic one);
+        planes transformed on the fly, iterates on the sensor's field of view; an
+        automatic weight by the same held-out path over the slabs,
+        :func:`recon.volume.streamed_auto.auto_streamed`, every plane kept);
         ``info.method_reason`` and ``info.extra["memory_plan"]`` say why, and
         ``info.extra["memory"]`` holds the estimate and the measured peak.
     slab_group : callable, optional
@@ -425,10 +426,16 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                 announce(plan["reason"])
             held = [h]  # emptied once the slabs hold the spectra: the stack is freed
             del h
+            auto = None
+            if auto_reg is not None:
+                noise = _frame_noise(raw)
+                auto = {"noise": noise, "regulariser": auto_reg,
+                        "other": l1 if auto_reg == "tv" else tv}
             return _reconstruct_streamed(
                 held, b, depths, iterations=iterations, tv=tv, l1=l1, plan=plan,
                 info={**info, "psf_scale": psf_scale}, raw_scale=raw_scale, t_start=t_start,
-                slab_group=slab_group, announce=announce)
+                slab_group=slab_group, announce=announce, auto=auto,
+                empty_planes=empty_planes)
     op = VolumeConvolutionOperator(h, depths=depths)
     log.info("recon3d: %s, %d planes of %dx%d (padded %s), %d iterations", method, op.n_z,
              *op.sensor_shape, op.padded_shape, iterations)
@@ -443,8 +450,7 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     elif auto_reg is None:
         result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
     else:
-        # the frame's Poisson-Gaussian noise (too small a frame: none known)
-        noise = estimate_noise(raw) if min(raw.shape) >= 8 else NoiseModel(0.0, 0.0, [])
+        noise = _frame_noise(raw)
         on_device = {}
         if not backend.is_numpy:
             # the path's 3D ADMM, its kept estimates and the fit plan's second spectra
@@ -474,26 +480,47 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                           else device_metrics(volume_metrics, backend, op.n_z))
 
 
+def _frame_noise(raw: np.ndarray) -> NoiseModel:
+    """The frame's Poisson-Gaussian noise (:func:`recon.auto.noise.estimate_noise`; too
+    small a frame: none known), for an automatic weight."""
+    return estimate_noise(raw) if min(raw.shape) >= 8 else NoiseModel(0.0, 0.0, [])
+
+
 def _reconstruct_streamed(held, b, depths, *, iterations, tv, l1, plan, info, raw_scale, t_start,
-                          slab_group, announce) -> Reconstruction:
-    """:func:`reconstruct_stack`'s streamed 3D FISTA (the in-memory plan did not fit)."""
-    notes = []
-    if tv == AUTO or l1 == AUTO:  # the automatic weight's path is the in-memory 3D ADMM
-        tv = DEFAULT_TV["fista"] if tv == AUTO else tv
-        l1 = 0.0 if l1 == AUTO else l1
-        notes.append(f"the automatic weight needs the in-memory 3D ADMM path: fixed TV "
-                     f"{tv:g}, l1 {l1:g} (recon.volume.DEFAULT_TV)")
-    if announce is not None and notes:
-        announce(notes[0])
-    result, model, memory = solve_streamed(held, b, iterations=iterations, tv=tv, l1=l1,
-                                           depths=depths, slab_group=slab_group,
-                                           announce=announce)
+                          slab_group, announce, auto=None, empty_planes="keep"
+                          ) -> Reconstruction:
+    """:func:`reconstruct_stack`'s streamed 3D FISTA (the in-memory plan did not fit);
+    ``auto`` (the frame's ``noise``, ``regulariser``, ``other``): its weight chosen by
+    the held-out path over the slabs (:mod:`recon.volume.streamed_auto`)."""
+    notes, run_auto = [], None
+    if auto is not None:
+        reg = auto["regulariser"]
+        notes.append(f"automatic {reg} weight: the held-out path of recon.auto over the "
+                     "slabs (streamed 3D FISTA, the held-out pixels masked from the data "
+                     "term on the sensor; recon.volume.streamed_auto)")
+        if empty_planes != "keep":
+            notes.append(f"empty_planes {empty_planes!r} not applied: the planes' held-out "
+                         "test runs on the in-memory path only; every plane kept")
+        run_auto = dict(auto, noise=auto["noise"].scaled(raw_scale))
+    for note in notes if announce is not None else ():
+        announce(note)
+    result, model, memory, record = solve_streamed(
+        held, b, iterations=iterations, tv=tv, l1=l1, depths=depths,
+        slab_group=slab_group, announce=announce, auto=run_auto,
+        limit_bytes=plan["limit_bytes"])
+    records = []
+    if record is not None:
+        records = [dict(record, noise=auto["noise"].as_dict())]
+        if auto["regulariser"] == "tv":
+            tv = record["weight"]
+        else:
+            l1 = record["weight"]
     result.x *= np.float32(raw_scale)  # in place: no second volume
     volume = np.ascontiguousarray(result.x[(slice(None), *model.estimate_crop)])
     info_ = ReconInfo(
         kind="volume", method="fista", method_reason="; ".join([plan["reason"], *notes]),
         iterations=iterations, iterations_used=int(result.params["iterations_used"]),
-        tv=tv, l1=l1, auto=[], dark_mode=info.pop("dark_mode"),
+        tv=tv, l1=l1, auto=records, dark_mode=info.pop("dark_mode"),
         dark_level=info.pop("dark_level"), dark_source=info.pop("dark_source"),
         bin_factor=info.pop("bin_factor"), raw_scale=raw_scale,
         seconds_total=time.perf_counter() - t_start, device="cpu",

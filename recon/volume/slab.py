@@ -16,6 +16,11 @@ Each plane is padded to the FFT grid and transformed on the fly, one chunk of
 planes at a time, so nothing of the padded volume's size is ever held unless the
 iterates live on the padded grid (``support="padded"``, for comparison with the
 in-memory solver).
+
+For the automatic weight's held-out path (:mod:`recon.volume.streamed_auto`) a slab
+also keeps named copies of its planes of an iterate (:meth:`VolumeSlab.save`): the
+path's kept estimates and the warm state it returns to stay with the planes they
+belong to (in a dask worker, in that worker), and only their names cross.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft as sfft
 
+from ..auto.weight import coverage_ratio
 from ..errors import ReconInputError
 from ..fft import fft_workers, irfftn, rfftn
 from ..operators import checked_sensor_weights, padded_grid
@@ -66,6 +72,8 @@ class VolumeSlab:
         The iterates' planes: the sensor shape or the padded shape.
     x, y, v : ndarray, float32, shape (k, L0, L1)
     spectra : ndarray, complex64, shape (k, P0, P1 // 2 + 1)
+    peak_saved_bytes : int
+        The most bytes the saved copies (:meth:`save`) held at once so far.
 
     Raises
     ------
@@ -117,6 +125,8 @@ class VolumeSlab:
         self._in = (np.zeros((per, *self.padded_shape), np.float32)
                     if support == "sensor" else None)
         self._conj = np.empty((per, *self.spectrum_shape), np.complex64)
+        self._saved: dict[str, tuple[np.ndarray, ...]] = {}
+        self.peak_saved_bytes = 0
 
     @property
     def n_planes(self) -> int:
@@ -127,7 +137,107 @@ class VolumeSlab:
         """Bytes of the arrays the slab holds (spectra, iterates, buffers)."""
         held = [self.spectra, self.x, self.y, self.v, self._sum_spec, self._pad, self._conj,
                 self.sensor_weights] + ([self._in] if self._in is not None else [])
-        return int(sum(a.nbytes for a in held))
+        return int(sum(a.nbytes for a in held)) + self.saved_bytes()
+
+    # -- named copies of the iterates (the automatic weight's path) -------------------
+    def _array(self, which: str) -> np.ndarray:
+        """The slab's planes of ``which``: ``"x"``, ``"y"`` or a saved copy's name (its
+        ``x``)."""
+        if which == "x":
+            return self.x
+        if which == "y":
+            return self.y
+        return self._saved[which][0]
+
+    def save(self, name: str, source: str = "x", state: bool = False) -> None:
+        """Keep a copy of the slab's planes of an iterate under ``name``.
+
+        Parameters
+        ----------
+        name : str
+            New name (refused if taken).
+        source : str
+            What to copy: ``"x"``, ``"y"`` or another saved copy's name.
+        state : bool
+            Copy ``x`` and ``y`` together (a warm state for :meth:`restore`): the
+            slab's own (``source`` ``"x"``) or a saved state's.
+        """
+        if name in self._saved or name in ("x", "y"):
+            raise ReconInputError(f"slab copy {name!r} exists already")
+        if not state:
+            self._saved[name] = (self._array(source).copy(),)
+        elif source == "x":
+            self._saved[name] = (self.x.copy(), self.y.copy())
+        else:
+            self._saved[name] = tuple(a.copy() for a in self._saved[source])
+        self.peak_saved_bytes = max(self.peak_saved_bytes, self.saved_bytes())
+
+    def restore(self, name: str) -> None:
+        """Set ``x`` (and ``y``: the saved one, else ``x``) from the copy ``name``."""
+        saved = self._saved[name]
+        np.copyto(self.x, saved[0])
+        np.copyto(self.y, saved[-1])
+
+    def release(self, names) -> None:
+        """Drop the saved copies ``names`` (missing names are ignored)."""
+        for name in names:
+            self._saved.pop(name, None)
+
+    def saved_bytes(self) -> int:
+        """Bytes the saved copies hold now."""
+        return int(sum(a.nbytes for saved in self._saved.values() for a in saved))
+
+    def reset(self) -> None:
+        """Zero the iterates ``x`` and ``y`` (a cold start)."""
+        self.x.fill(0.0)
+        self.y.fill(0.0)
+
+    def coverage(self, weights: np.ndarray, fit_weights: np.ndarray | None = None,
+                 peak: float | None = None) -> float:
+        """How well ``fit_weights`` still see the slab's object pixels, against
+        ``weights`` (:func:`recon.auto.weight.holdout_coverage`, plane by plane).
+
+        Parameters
+        ----------
+        weights, fit_weights : ndarray, float32, sensor shape
+            The sensor weights ``w`` and those of the fit pixels, ``w keep`` (needed
+            with ``peak`` only).
+        peak : float, optional
+            Largest ``A^T w`` over every slab's field of view; None: return this
+            slab's (the first of the two passes).
+
+        Returns
+        -------
+        float
+            Without ``peak``: the largest ``A^T w`` over the slab's planes within the
+            sensor's field of view; with it: the smallest ratio ``A^T (w keep) / A^T
+            w`` over those seen (:func:`recon.auto.weight.coverage_ratio`; ``inf``
+            when none is).
+        """
+        out = -np.inf if peak is None else np.inf
+        specs = [self._spectrum_of(weights)]
+        if peak is not None:
+            specs.append(self._spectrum_of(fit_weights))
+        for c in self._chunks:
+            backs = [self._back(spec, c) for spec in specs]
+            for k in range(c.stop - c.start):
+                seen = backs[0][(k, *self.crop)]
+                out = (max(out, float(seen.max())) if peak is None
+                       else min(out, coverage_ratio(seen, backs[1][(k, *self.crop)], peak)))
+        return out
+
+    def _spectrum_of(self, image: np.ndarray) -> np.ndarray:
+        """rfft2 of a sensor image zero-padded to the FFT grid."""
+        self._pad[self.crop] = image
+        return rfftn(self._pad)
+
+    def _back(self, spec: np.ndarray, c: slice) -> np.ndarray:
+        """The chunk ``c`` of planes' ``H_z^*`` times ``spec``, back on the padded grid
+        (float32, (len(c), P0, P1))."""
+        g = self._conj[:c.stop - c.start]
+        _kernels3d.conj_products(g, spec, self.spectra[c])
+        return sfft.irfftn(g, s=self.padded_shape, axes=(-2, -1), workers=fft_workers(),
+                           overwrite_x=True)
 
     def power_spectrum(self) -> np.ndarray:
         """``sum_z |H_z(f)|^2`` over the slab's planes (float64, the spectrum's shape):
@@ -151,7 +261,8 @@ class VolumeSlab:
 
         Parameters
         ----------
-        which : {"y", "x"}
+        which : str
+            ``"y"``, ``"x"`` or a saved copy's name (:meth:`save`).
 
         Returns
         -------
@@ -159,7 +270,7 @@ class VolumeSlab:
             Unweighted; the sum over slabs is the model's sensor image before the
             sensor weights.
         """
-        a = self.y if which == "y" else self.x
+        a = self._array(which)
         for c in self._chunks:
             _kernels3d.accumulate_products(self._sum_spec, rfftn(self._padded(a, c)),
                                            self.spectra[c], c.start == 0)
@@ -185,15 +296,10 @@ class VolumeSlab:
             (its TV prox and the objective's depth term; None without one), ``v`` of
             the last plane for the slab after (None without one).
         """
-        pad = self._pad
-        pad[self.crop] = weighted_residual
-        spec = rfftn(pad)
+        spec = self._spectrum_of(weighted_residual)
         step32 = np.float32(step)
         for c in self._chunks:
-            g = self._conj[:c.stop - c.start]
-            _kernels3d.conj_products(g, spec, self.spectra[c])
-            back = sfft.irfftn(g, s=self.padded_shape, axes=(-2, -1), workers=fft_workers(),
-                               overwrite_x=True)
+            back = self._back(spec, c)
             if self.support == "sensor":
                 back = back[(slice(None), *self.crop)]
             np.multiply(back, step32, out=self.v[c])
@@ -203,9 +309,10 @@ class VolumeSlab:
 
     def penalty(self, which: str = "y", after: np.ndarray | None = None
                 ) -> tuple[float, float]:
-        """(TV, l1) of the slab's planes of ``which``; ``after``: the next slab's first
-        plane of it (None for the volume's last slab)."""
-        a = self.y if which == "y" else self.x
+        """(TV, l1) of the slab's planes of ``which`` (``"y"``, ``"x"`` or a saved
+        copy's name); ``after``: the next slab's first plane of it (None for the
+        volume's last slab)."""
+        a = self._array(which)
         tv, l1 = _kernels3d.slab_penalty(a, a[0] if after is None else after,
                                          after is not None)
         return float(tv), float(l1)
@@ -245,12 +352,14 @@ class VolumeSlab:
         np.copyto(self.y, self.x)
 
     def first_plane(self, which: str = "x") -> np.ndarray:
-        """A copy of the first plane of ``which`` (the previous slab's ``after``)."""
-        return (self.x if which == "x" else self.y)[0].copy()
+        """A copy of the first plane of ``which`` (``"x"``, ``"y"`` or a saved copy's
+        name; the previous slab's ``after``)."""
+        return self._array(which)[0].copy()
 
-    def estimate(self) -> np.ndarray:
-        """The slab's planes of ``x`` (float32, (k, L0, L1); the array itself)."""
-        return self.x
+    def estimate(self, which: str = "x") -> np.ndarray:
+        """The slab's planes of ``x`` or of a saved copy (float32, (k, L0, L1); the
+        array itself)."""
+        return self._array(which)
 
     def estimate_shape(self) -> tuple[int, ...]:
         """Shape of :meth:`estimate`."""

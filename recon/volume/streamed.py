@@ -37,8 +37,16 @@ from ..validate import as_int, nonneg_weight, positive
 from .operator import CHUNK_BYTES
 from .slab import SUPPORTS, VolumeSlab
 
-__all__ = ["LocalSlabs", "StreamedModel", "peak_rss_bytes", "plan_slabs", "slab_fista",
+__all__ = ["PATH_SENSOR_IMAGES", "LocalSlabs", "StreamedModel", "final_objective",
+           "gather_estimate", "peak_rss_bytes", "plan_slabs", "slab_fista",
            "streamed_fft_floor_seconds", "streamed_fista3d", "streamed_memory_bytes"]
+
+#: Sensor-sized float32 images the automatic weight's path holds in the loop's process
+#: beside the solve's own (:mod:`recon.volume.streamed_auto`): the fit pixels' weights
+#: and measurement, the kept and held-out masks (one byte a pixel each, 1/2 together),
+#: the prediction of ``x`` and, while a candidate is scored, the weighted prediction,
+#: its difference from the measurement and that difference squared in float64 (2).
+PATH_SENSOR_IMAGES = 7.5
 
 
 def plan_slabs(n_z: int, n_slabs: int) -> list[tuple[int, int]]:
@@ -62,10 +70,11 @@ def plan_slabs(n_z: int, n_slabs: int) -> list[tuple[int, int]]:
 
 
 def streamed_memory_bytes(sensor_shape: tuple[int, int], n_z: int, *,
-                          support: str = "sensor", chunk_bytes: int = CHUNK_BYTES
-                          ) -> dict[str, int]:
+                          support: str = "sensor", chunk_bytes: int = CHUNK_BYTES,
+                          path_copies: int = 0) -> dict[str, int]:
     """Bytes of arrays one process holds at the peak of :func:`slab_fista` on ``n_z``
-    planes (all of one process's slabs together; a dask worker's slab: its planes).
+    planes (all of one process's slabs together; a dask worker's slab: its planes),
+    or of the automatic weight's path over them (``path_copies``).
 
     Parameters
     ----------
@@ -75,6 +84,10 @@ def streamed_memory_bytes(sensor_shape: tuple[int, int], n_z: int, *,
     support : {"sensor", "padded"}
         Lateral grid of the iterates.
     chunk_bytes : int
+    path_copies : int
+        Copies of the iterates the automatic weight's path keeps at its peak
+        (:func:`recon.volume.streamed_auto.path_copies`: 4 with the volume's rule);
+        0 for a fixed weight.
 
     Returns
     -------
@@ -84,9 +97,12 @@ def streamed_memory_bytes(sensor_shape: tuple[int, int], n_z: int, *,
         rfft2, the conjugate products and their irfft2), ``plane_buffers`` (the summed
         and the residual spectrum, the padded residual and the summed image's
         irfft2), ``sensor_images`` (measurement, weights, partial and summed images,
-        residuals and the three boundary planes of each kind, 12 in all) and ``total``.
-        For 2048 x 2048 and 128 planes (padded 4096 x 4096): spectra 8.6e9, iterates
-        6.4e9, total ~15.5e9 bytes.
+        residuals and the three boundary planes of each kind, 12 in all); with
+        ``path_copies``, ``path_copies`` (those copies, float32 volumes on the
+        iterates' grid) and ``path_sensor_images`` (:data:`PATH_SENSOR_IMAGES`; in
+        the loop's process); and ``total``. For 2048 x 2048 and 128 planes (padded
+        4096 x 4096): spectra 8.6e9, iterates 6.4e9, total ~15.5e9 bytes; the
+        automatic weight's path adds 4 copies, 8.6e9 (total ~24.2e9).
     """
     p0, p1 = padded_grid(tuple(sensor_shape))[0]
     if support not in SUPPORTS:
@@ -102,6 +118,10 @@ def streamed_memory_bytes(sensor_shape: tuple[int, int], n_z: int, *,
         "plane_buffers": 2 * spec_plane + 2 * real_plane,
         "sensor_images": 12 * 4 * sensor_shape[0] * sensor_shape[1],
     }
+    if path_copies:
+        est["path_copies"] = int(path_copies) * 4 * n_z * lat[0] * lat[1]
+        est["path_sensor_images"] = int(PATH_SENSOR_IMAGES * 4 * sensor_shape[0]
+                                        * sensor_shape[1])
     est["total"] = sum(est.values())
     return est
 
@@ -196,14 +216,14 @@ class LocalSlabs:
         args = args if args is not None else [()] * len(self.slabs)
         return [getattr(s, method)(*a) for s, a in zip(self.slabs, args, strict=True)]
 
-    def gather(self, out: np.ndarray) -> np.ndarray:
-        """The estimate: each slab's ``x`` copied into ``out`` (n_z, L0, L1); the single
-        slab's ``x`` itself when ``out`` is None."""
+    def gather(self, out: np.ndarray | None, which: str = "x") -> np.ndarray:
+        """The estimate: each slab's ``x`` (or saved copy ``which``) copied into ``out``
+        (n_z, L0, L1); the single slab's array itself when ``out`` is None."""
         if out is None:
-            return self.slabs[0].x
+            return self.slabs[0].estimate(which)
         start = 0
         for s in self.slabs:
-            out[start:start + s.n_planes] = s.x
+            out[start:start + s.n_planes] = s.estimate(which)
             start += s.n_planes
         return out
 
@@ -212,7 +232,8 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
                tv: float = 0.0, l1: float = 0.0, nonneg: bool = True,
                step: float | None = None, step_scale: float = 1.0,
                lipschitz: float | None = None, restart: bool = True, stop=None,
-               on_iteration=None, gather: bool = True) -> SolveResult:
+               on_iteration=None, gather: bool = True, t: float = 1.0,
+               final: bool = True) -> SolveResult:
     """3D FISTA over plane slabs: :func:`recon.volume.fista3d`'s iteration, streamed.
 
     Each iteration: every slab returns its partial image of ``A y``; the loop sums
@@ -250,6 +271,14 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
     gather : bool
         Bring the estimate into this process (``SolveResult.x``); False leaves it in
         the slabs (``x`` is None).
+    t : float
+        FISTA's momentum sequence at the start (1: a fresh start; the ``t`` a former
+        run returned, with the slabs' ``x`` and ``y`` as it left them: its
+        continuation, iterate for iterate -- the automatic weight's path runs a
+        solve in windows, :mod:`recon.volume.streamed_auto`).
+    final : bool
+        Evaluate the objective and residual at the returned ``x`` (one forward
+        model); False reports the last iteration's from the history instead.
 
     Returns
     -------
@@ -257,9 +286,10 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
         ``x`` (n_z, L0, L1) float32 on the slabs' lateral grid; the history as
         :func:`~recon.volume.fista3d`'s (objective at ``y_k``), ``final_objective``
         exact at ``x``; ``params`` with the step, weights, ``slabs``,
-        ``bytes_moved_per_iteration`` (per slab, mean over iterations) and
-        ``iterations_used``. No snapshot of the estimate is kept for a divergence
-        error (it would cost a volume): ``DivergenceError.last_good`` is None.
+        ``bytes_moved_per_iteration`` (per slab, mean over iterations),
+        ``iterations_used`` and ``t`` (the momentum sequence where it stopped). No
+        snapshot of the estimate is kept for a divergence error (it would cost a
+        volume): ``DivergenceError.last_good`` is None.
 
     Raises
     ------
@@ -292,7 +322,7 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
     hint = ("the step is too large: use step=None (1/L) or a step scale <= 1"
             if step_scale > 1 else "check the PSF stack and measurement scaling")
     moved0 = list(group.bytes_moved)
-    t, used, restarts = 1.0, iterations, []
+    t, used, restarts = positive(t, "t"), iterations, []
     for k in range(iterations):
         mon.start()
         loss, r = _residual(group.call("forward", [("y",)] * n), b, w)
@@ -318,19 +348,33 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
             used = k + 1
             break
     moved = [(m - m0) / used for m, m0 in zip(group.bytes_moved, moved0, strict=True)]
-    final, data_sq = _final_objective(group, b, w, tv_w, l1_w)
+    if final:
+        final, data_sq = final_objective(group, b, w, tv_w, l1_w)
+        relative = math.sqrt(data_sq) / mon.b_norm
+    else:
+        final, relative = mon.history.objective[-1], mon.history.data_residual[-1]
     mon.history.extra["restarts"] = restarts
-    x = None
-    if gather:
-        shapes = group.call("estimate_shape")
-        x = group.gather(None if n == 1 else np.empty(
-            (sum(s[0] for s in shapes), *shapes[0][1:]), np.float32))
-    return SolveResult(x, mon.history, final, math.sqrt(data_sq) / mon.b_norm,
+    x = gather_estimate(group) if gather else None
+    return SolveResult(x, mon.history, final, relative,
                        {"step": step, "lipschitz": lip, "tv": tv_w, "l1": l1_w,
                         "tv_threshold": thr, "l1_threshold": l1thr, "nonneg": nonneg,
                         "restart": restart, "iterations": iterations,
                         "iterations_used": used, "slabs": n,
-                        "bytes_moved_per_iteration": moved})
+                        "bytes_moved_per_iteration": moved, "t": t})
+
+
+def gather_estimate(group, which: str = "x") -> np.ndarray:
+    """The slabs' estimate ``which`` (``"x"`` or a saved copy's name) in this process.
+
+    Returns
+    -------
+    ndarray, float32, (n_z, L0, L1)
+        A new volume; with a single slab here (:class:`LocalSlabs`), the slab's own
+        array (no copy).
+    """
+    shapes = group.call("estimate_shape")
+    return group.gather(None if len(group) == 1 else np.empty(
+        (sum(s[0] for s in shapes), *shapes[0][1:]), np.float32), which)
 
 
 def _residual(partials: list, b: np.ndarray, w: np.ndarray) -> tuple[float, np.ndarray]:
@@ -342,14 +386,35 @@ def _residual(partials: list, b: np.ndarray, w: np.ndarray) -> tuple[float, np.n
     return 0.5 * float(np.vdot(d.ravel(), d.ravel()).real), (w * d).astype(np.float32)
 
 
-def _final_objective(group, b, w, tv_w, l1_w) -> tuple[float, float]:
+def final_objective(group, b: np.ndarray, w: np.ndarray, tv_w: float, l1_w: float,
+                    which: str = "x") -> tuple[float, float]:
+    """Objective of Eq. 4.5 at an estimate held in the slabs, and its squared data
+    residual (:func:`recon.volume.fista.final_objective` over slabs).
+
+    Parameters
+    ----------
+    group : LocalSlabs or instrument.volume_shards.ShardedSlabs
+    b : ndarray, float32, sensor shape
+        The measurement the estimate was fitted to.
+    w : ndarray, float32, sensor shape
+        Its sensor weights.
+    tv_w, l1_w : float
+        Weights (0 leaves the term out).
+    which : str
+        The estimate: ``"x"`` or a copy the slabs saved
+        (:meth:`recon.volume.slab.VolumeSlab.save`).
+
+    Returns
+    -------
+    objective, data_sq : float
+    """
     n = len(group)
-    loss, _ = _residual(group.call("forward", [("x",)] * n), b, w)
+    loss, _ = _residual(group.call("forward", [(which,)] * n), b, w)
     data_sq = 2.0 * loss
     final = loss
     if tv_w or l1_w:
-        firsts = group.call("first_plane", [("x",)] * n)
-        pens = group.call("penalty", [("x", firsts[i + 1] if i + 1 < n else None)
+        firsts = group.call("first_plane", [(which,)] * n)
+        pens = group.call("penalty", [(which, firsts[i + 1] if i + 1 < n else None)
                                       for i in range(n)])
         final += tv_w * sum(p[0] for p in pens) + l1_w * sum(p[1] for p in pens)
     return final, data_sq

@@ -10,15 +10,21 @@ streamed solver in one process and says so.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 
 import numpy as np
 import pytest
 
+import recon
 from instrument.cli import main
-from instrument.volume_shards import ShardLostError, local_cluster, sharded_fista3d
+from instrument.volume_shards import ShardedSlabs, ShardLostError, local_cluster, sharded_fista3d
+from recon.auto.noise import NoiseModel
 from recon.volume import fista3d
+from recon.volume.slab import VolumeSlab
+from recon.volume.streamed import LocalSlabs
+from recon.volume.streamed_auto import auto_streamed
 from tests.instrument.cli.test_recon3d import DEPTHS, bead_problem, normalized_bead_problem
 
 
@@ -60,6 +66,49 @@ def test_sharded_equals_in_memory_and_counts_bytes(cluster, problem):
     # per iteration: partial image up, residual down (sensor-sized) and the 3 boundary
     # planes between the two slabs (v and y of slab 1's first, v of slab 0's last)
     assert moved == [2 * sensor + 3 * plane] * 2
+
+
+def test_sharded_automatic_weight_equals_the_single_process(cluster, problem):
+    """The held-out path over slabs in two workers: the mask stays in the loop (only
+    sensor images cross), the copies stay in the workers; the same choice and volume
+    as the slabs in one process."""
+    stack, scale, b, op, lip = problem
+    noise = NoiseModel(1e-4, 1e-6, [])
+    ref, ref_rec = auto_streamed(LocalSlabs([VolumeSlab(stack, 0, len(stack), scale)]), b,
+                                 noise=noise, iterations=30)
+    group = ShardedSlabs(cluster, stack, scale)
+    try:
+        got, rec = auto_streamed(group, b, noise=noise, iterations=30)
+        moved = group.bytes_moved
+    finally:
+        group.close()
+    assert rec["weight"] == ref_rec["weight"]
+    assert [p["status"] for p in rec["weight_choice"]["path"]] == \
+        [p["status"] for p in ref_rec["weight_choice"]["path"]]
+    assert float(np.linalg.norm(got.x - ref.x) / np.linalg.norm(ref.x)) < 1e-5
+    # per iteration the fixed weight's 5 sensor images (partial image, residual, 3
+    # boundary planes) and, a window of 10 iterations apart, the held-out score's
+    # partial images and the copies' names (measured: 5.19 in all); besides, the
+    # stack's planes once and the estimate's once (at most 3 planes a slab)
+    iterations = rec["weight_choice"]["path_iterations"] + \
+        rec["weight_choice"]["final_iterations"]
+    sensor = 4 * op.sensor_shape[0] * op.sensor_shape[1]
+    assert all(m < iterations * 5.5 * sensor + 2 * 3 * sensor for m in moved)
+
+
+def test_reconstruct_sharded_chooses_the_weight_over_the_workers(cluster):
+    stack, raw = bead_problem()
+    lines = []
+    rec = recon.reconstruct_volume(stack, DEPTHS, raw, iterations=30, announce=lines.append,
+                                   slab_group=lambda h, scale: ShardedSlabs(cluster, h, scale))
+    auto = rec.info.auto[0]
+    assert auto["weight"] == rec.info.tv and "sharded over the dask workers" in \
+        rec.info.method_reason
+    assert any("slabs' workers" in line and "4 copies of the iterates" in line
+               for line in lines)
+    mem = rec.metrics(floor_s=1.0)["memory"]
+    assert mem["slabs_elsewhere"] and "path_copies_peak_bytes" not in mem
+    assert rec.volume.shape == stack.shape
 
 
 def test_sharded_from_a_zarr_store(cluster, problem, tmp_path):
@@ -113,6 +162,26 @@ def test_recon3d_memory_limit_streams_and_says_so(files, capsys):
     assert (files / "v.tif").exists()
     assert _recon3d(files, "--memory-limit", "lots", "--overwrite") == 2
     assert "--memory-limit 'lots'" in capsys.readouterr().err
+
+
+def test_recon3d_memory_limit_chooses_the_default_weight_streamed(files, capsys):
+    """``--tv`` left at its default (auto) on a problem that streams: the held-out path
+    over the slabs chooses the weight, and the metrics record it."""
+    assert main(["recon3d", "--psf-stack", str(files / "stack.npy"), "--depths",
+                 ",".join(map(str, DEPTHS)), "--raw", str(files / "raw.npy"),
+                 "--iterations", "15", "--out", str(files / "v.tif"), "--memory-limit", "1MB",
+                 "--metrics-json", str(files / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert "automatic tv weight: the held-out path of recon.auto over the slabs" in out
+    assert "4 copies of the iterates" in out
+    m = json.loads((files / "m.json").read_text())
+    assert m["method"] == "fista" and m["memory_plan"]["streamed"]
+    auto = m["auto"]
+    assert auto["regulariser"] == "tv" and auto["weight"] == m["tv"]
+    assert f"tv weight {auto['weight']:.3g}, planes kept" in out
+    choice = auto["weight_choice"]
+    assert choice["path"] and choice["stop_reason"] and "candidates_settled" in choice
+    assert m["memory"]["path_copies_peak_bytes"] == m["memory"]["arrays"]["path_copies"]
 
 
 def test_recon3d_sharded_lost_worker_writes_nothing(files, capsys, monkeypatch):
