@@ -950,7 +950,8 @@ def product_location(path: str | Path) -> tuple[Path, str] | None:
     -------
     (Path, str) or None
         ``(RUN.zarr, NAME)`` when ``path`` is such a folder of a run store (read it
-        through :meth:`RunStore.product`, verified); None otherwise (never raises).
+        through ``RunStore.product``, verified); None
+        otherwise (never raises).
     """
     from .product_nodes import HIDDEN_SUFFIXES, IMAGE_ARRAY
 
