@@ -176,7 +176,8 @@ class Device(abc.ABC):
             Set by another thread (a GUI's cancel button) to end the open early: it is
             checked before connecting, after connecting and every 0.1 s of a homing
             at open (which it stops); the open's other waits are single replies,
-            bounded by the driver's reply timeout.
+            each bounded by the driver's reply timeout cut to what is left of
+            ``timeout_s``.
 
         Raises
         ------
@@ -422,6 +423,25 @@ class Device(abc.ABC):
     #: (deadline from ``time.monotonic()`` or None, cancel event or None) of the open
     #: in progress; read by the waits a driver makes while opening.
     _open_bounds: tuple[float | None, threading.Event | None] = (None, None)
+
+    #: The shortest reply wait an open's deadline leaves (s): a wait that runs out this
+    #: close to the deadline ends as the kind's timeout error.
+    _LAST_WAIT_S = 0.05
+
+    @property
+    def _reply_timeout(self) -> float:
+        """The driver's reply timeout (``reply_timeout_s``, s), cut to what is left of an
+        open's ``timeout_s`` while one is in progress, so the caller's timeout bounds
+        each single reply of the open too (not only a homing at open)."""
+        wait = self.__dict__.get("_reply_timeout_s", 2.0)
+        deadline = self._open_bounds[0]
+        if deadline is None:
+            return wait
+        return min(wait, max(self._LAST_WAIT_S, deadline - time.monotonic()))
+
+    @_reply_timeout.setter
+    def _reply_timeout(self, seconds: float) -> None:
+        self.__dict__["_reply_timeout_s"] = seconds
 
     def _check_cancel(self, doing: str) -> None:
         """Raise :class:`DeviceCancelledError` when the open's cancel event is set."""

@@ -127,6 +127,23 @@ def test_silent_device_times_out_with_kind_error(emulator):
         stage.positions()
 
 
+def test_open_timeout_bounds_each_reply_of_the_open(emulator):
+    """A device silent at open: the open given timeout_s ends within it, though the
+    driver's reply timeout is longer (before, each reply waited its full 3 s); without
+    a timeout_s the reply timeout applies, and afterwards it is the driver's again."""
+    emulator.silence(2)
+    stage = make_stage(emulator, reply_timeout_s=3.0)
+    t0 = time.monotonic()
+    with pytest.raises(stage.timeout_error):
+        stage.open(timeout_s=0.4)
+    assert time.monotonic() - t0 < 1.5, time.monotonic() - t0
+    assert not stage.is_open and stage._reply_timeout == 3.0
+    t0 = time.monotonic()
+    with pytest.raises(stage.timeout_error):
+        stage.open()
+    assert time.monotonic() - t0 >= 2.9
+
+
 def test_unplug_mid_move_then_reconnect(emulator):
     stage = make_stage(emulator, home_on_open=True)
     stage.open()
