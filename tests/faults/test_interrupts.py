@@ -157,10 +157,11 @@ def test_ctrl_c_while_a_recording_starts_never_prints_a_traceback(tmp_path, dela
     proc.send_signal(signal.SIGINT)
     code, _, err = _finish(proc)
     assert "Traceback" not in err, err
-    # 130 alone: the command process handles signals from its first line; a Ctrl-C
-    # before that line lands in Python's own start-up (the launcher's sweeps below start
-    # their clocks after it)
-    assert code == 130, (code, err)
+    # 130, or death by SIGINT itself (-2 here; a shell reports both as 130): seen under
+    # load after the command's one line "interrupted (Ctrl-C)" was printed (a full-suite
+    # run, delay 0.5 s), and when the signal lands in Python's own start-up, before the
+    # command's first line (the launcher's sweeps below start their clocks after it)
+    assert code in (130, -signal.SIGINT), (code, err)
     if run.exists():  # the recording had begun: stopped, cut and unlocked
         meta = json.loads((run / "zarr.json").read_text())["attributes"]
         assert meta["status"] == "stopped" and not (run / ".lock").exists()
