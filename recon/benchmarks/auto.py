@@ -41,7 +41,7 @@ from . import fmt, format_table, write_json
 from .auto_scenes import render_case
 
 __all__ = ["FULL", "GOAL_MEAN_DB", "GOAL_WORST_DB", "QUICK", "SUITE", "auto_table",
-           "goal_summary", "plot_budget", "run_auto", "run_case"]
+           "cost_in_turn", "goal_summary", "plot_budget", "run_auto", "run_case"]
 
 log = logging.getLogger(__name__)
 
@@ -118,23 +118,54 @@ def _auto(case, cfg: dict, seconds: float | None = None, fft_pair_s: float | Non
             "blank": bool(np.max(x) <= 0)}
 
 
+def cost_in_turn(auto: dict, grid: list[dict], repeats: int, fixed, rerun) -> tuple[float, list]:
+    """The default's time and one fixed-weight solve's, taken in turn.
+
+    With ``repeats`` > 1, ``repeats - 1`` pairs run one after the other, a fixed solve
+    (``fixed()``) then the default (``rerun()``), so a slow spell of the shared machine
+    hits both; the default's first run (``auto``, not in turn) is dropped. Without
+    repeats the fixed time is the median of the grid's own solves.
+
+    Parameters
+    ----------
+    auto : dict
+        The default's record (``seconds``); its ``seconds`` become the median of the
+        runs in turn, ``seconds_runs`` those runs (s).
+    grid : list of dict
+        The oracle grid's records (``seconds``, absent or None for a diverged one).
+    repeats : int
+        ``timing_repeats`` of the configuration.
+    fixed, rerun : callable
+        ``() -> dict`` with ``seconds``: one fixed solve at the oracle's weight, one
+        run of the default.
+
+    Returns
+    -------
+    (float, list of float)
+        The median fixed-solve time (s; NaN when none finished) and those times.
+    """
+    fixed_s = [] if repeats > 1 else [g["seconds"] for g in grid if g.get("seconds")]
+    auto_s = [auto["seconds"]]
+    for _ in range(repeats - 1):
+        fixed_s.append(fixed().get("seconds"))
+        auto_s.append(rerun()["seconds"])
+    auto_s = auto_s[1:] or auto_s
+    fixed_s = [f for f in fixed_s if f] or [math.nan]
+    auto["seconds"], auto["seconds_runs"] = float(np.median(auto_s)), auto_s
+    return float(np.median(fixed_s)), fixed_s
+
+
 def run_case(name: str, kind: str, photons: float, cfg: dict, seed: int = 0) -> dict:
     """One scene: the oracle grid, the default, its cost and (``budget_scenes``) its
     accuracy at time budgets."""
     case = render_case(kind, photons, coarse_bin=cfg["coarse_bin"], seed=seed,
                        read_noise_e=cfg.get("read_noise_e", 3.0), dark_e=cfg.get("dark_e", 0))
     grid, oracle = _oracle(case, cfg)
-    fixed_s = [] if cfg.get("timing_repeats", 1) > 1 else \
-        [g["seconds"] for g in grid if g.get("seconds")]
     auto = _auto(case, cfg)
-    auto_s = [auto["seconds"]]
-    for _ in range(cfg.get("timing_repeats", 1) - 1):  # in turn: a slow spell hits both
-        fixed_s.append(_fixed(case, oracle["tv"] if oracle else 0.0,
-                              cfg["iterations"])["seconds"])
-        auto_s.append(_auto(case, cfg)["seconds"])
-    auto_s = auto_s[1:] or auto_s  # with repeats: the runs taken in turn with fixed ones
-    one_fixed = float(np.median(fixed_s))
-    auto["seconds"], auto["seconds_runs"] = float(np.median(auto_s)), auto_s
+    one_fixed, _ = cost_in_turn(
+        auto, grid, cfg.get("timing_repeats", 1),
+        lambda: _fixed(case, oracle["tv"] if oracle else 0.0, cfg["iterations"]),
+        lambda: _auto(case, cfg))
     out = {"scene": name, "kind": kind, "photons": photons, "snr_db": case.sim.snr_db,
            "grid": grid, "oracle": oracle, "auto": auto, "fixed_seconds": one_fixed,
            "auto_shortfall_db": (oracle["psnr"] - auto["psnr"]

@@ -39,7 +39,14 @@ from ..auto.weight import PathRule, admm_auto
 from ..errors import DivergenceError
 from ..volume import VolumeAdmmPlan, admm3d, fista3d
 from . import fmt, format_table, machine_record, write_json
-from .auto import GOAL_MEAN_DB, GOAL_TIME_RATIO, GOAL_WORST_DB, goal_summary, setup_record
+from .auto import (
+    GOAL_MEAN_DB,
+    GOAL_TIME_RATIO,
+    GOAL_WORST_DB,
+    cost_in_turn,
+    goal_summary,
+    setup_record,
+)
 from .volume_accuracy import volume_psnr
 from .volume_auto_scenes import VolumeCase, render_volume_case
 
@@ -123,19 +130,9 @@ def run_case(kind: str, dim: float, photons: float, cfg: dict, seed: int = 0) ->
     ok = [g for g in grid if g["psnr"] is not None]
     oracle = max(ok, key=lambda g: g["psnr"]) if ok else None
     auto = _auto(case, it)
-    # the cost, as in 2D (recon.benchmarks.auto.run_case): medians of runs taken in turn,
-    # a fixed solve at the oracle's weight then the default, so a slow spell of the
-    # shared machine hits both; without repeats, the grid's own solves
-    fixed_s = [] if cfg.get("timing_repeats", 1) > 1 else \
-        [g["seconds"] for g in grid if g.get("seconds")]
-    auto_s = [auto["seconds"]]
-    for _ in range(cfg.get("timing_repeats", 1) - 1):
-        fixed_s.append(_fixed(case, oracle["tv"] if oracle else 0.0, it).get("seconds"))
-        auto_s.append(_auto(case, it)["seconds"])
-    auto_s = auto_s[1:] or auto_s
-    fixed_s = [f for f in fixed_s if f] or [math.nan]
-    one_fixed = float(np.median(fixed_s))
-    auto["seconds"], auto["seconds_runs"] = float(np.median(auto_s)), auto_s
+    one_fixed, fixed_s = cost_in_turn(
+        auto, grid, cfg.get("timing_repeats", 1),
+        lambda: _fixed(case, oracle["tv"] if oracle else 0.0, it), lambda: _auto(case, it))
     return {"scene": kind, "dim": dim, "photons": photons, "snr_db": case.info["snr_db"],
             "grid": grid, "oracle": oracle, "auto": auto, "fixed_seconds": one_fixed,
             "fixed_seconds_runs": fixed_s, "auto_cost_ratio": auto["seconds"] / one_fixed,
