@@ -27,7 +27,7 @@ import shutil
 from pathlib import Path
 
 __all__ = ["HIDDEN_SUFFIXES", "IMAGE_ARRAY", "MOVING", "array_key", "array_keys",
-           "product_array", "product_arrays", "product_location", "regroup"]
+           "product_array", "product_arrays", "regroup"]
 
 #: The path of an image product's array inside its group (the one multiscale level).
 IMAGE_ARRAY = "0"
@@ -206,31 +206,3 @@ def _follow_records(products) -> None:
         renamed[where if where is not None else key] = value
     if renamed != record:
         products.attrs[ATTR] = renamed
-
-
-def product_location(path: str | Path) -> tuple[Path, str] | None:
-    """The run and the product name of a product's own folder, None for any other path.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``RUN.zarr/products/NAME`` (an image product's group, or the array of a table
-        or of a run written before the image groups) or ``RUN.zarr/products/NAME/0``
-        (an image product's array).
-
-    Returns
-    -------
-    (Path, str) or None
-        ``(RUN.zarr, NAME)`` when ``path`` is such a folder of a run store (read it
-        through ``RunStore.product``, verified); None
-        otherwise (never raises).
-    """
-    from .runstore import is_run_store
-
-    p = Path(path)
-    if p.name == IMAGE_ARRAY and p.parent.parent.name == "products":
-        p = p.parent
-    if p.parent.name != "products" or p.name.endswith(HIDDEN_SUFFIXES) \
-            or not (p / "zarr.json").is_file() or not is_run_store(p.parent.parent):
-        return None
-    return p.parent.parent, p.name

@@ -95,7 +95,7 @@ from .run_products import ProductsMixin
 from .runstore_records import VIDEO_PLAN, record_problems
 
 __all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "RunStore",
-           "RunStoreError", "discard_partial_run", "is_run_store",
+           "RunStoreError", "discard_partial_run", "is_run_store", "product_location",
            "software_version", "utc_now"]
 
 log = logging.getLogger(__name__)
@@ -934,3 +934,31 @@ def is_run_store(path: str | Path) -> bool:
     attrs = meta.get("attributes") if isinstance(meta, dict) else None
     return Path(path).is_dir() and isinstance(attrs, dict) and \
         attrs.get("schema") == "diffuserlab-run"
+
+
+def product_location(path: str | Path) -> tuple[Path, str] | None:
+    """The run and the product name of a product's own folder, None for any other path.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``RUN.zarr/products/NAME`` (an image product's group, or the array of a table
+        or of a run written before the image groups) or ``RUN.zarr/products/NAME/0``
+        (an image product's array).
+
+    Returns
+    -------
+    (Path, str) or None
+        ``(RUN.zarr, NAME)`` when ``path`` is such a folder of a run store (read it
+        through ``RunStore.product``, verified); None
+        otherwise (never raises).
+    """
+    from .product_nodes import HIDDEN_SUFFIXES, IMAGE_ARRAY
+
+    p = Path(path)
+    if p.name == IMAGE_ARRAY and p.parent.parent.name == "products":
+        p = p.parent
+    if p.parent.name != "products" or p.name.endswith(HIDDEN_SUFFIXES) \
+            or not (p / "zarr.json").is_file() or not is_run_store(p.parent.parent):
+        return None
+    return p.parent.parent, p.name

@@ -33,9 +33,8 @@ def get_reader(path: str | Sequence[str]) -> Callable | None:
     anything else (napari then asks another reader)."""
     if not isinstance(path, str | Path):
         return None
-    from instrument.product_nodes import product_location
     from instrument.reconstruct_files import VOLUME_MARKER
-    from instrument.runstore import is_run_store
+    from instrument.runstore import is_run_store, product_location
 
     if is_run_store(path):
         return read_run
@@ -121,7 +120,7 @@ def read_run(path: str) -> list[tuple]:
 
 def read_product(path: str) -> list[tuple]:
     """The layer of one product, given its folder ``RUN.zarr/products/NAME``
-    (:func:`instrument.product_nodes.product_location`), read through its run as
+    (:func:`instrument.runstore.product_location`), read through its run as
     :func:`read_run` reads it.
 
     Returns
@@ -134,8 +133,7 @@ def read_product(path: str) -> list[tuple]:
     instrument.runstore.RunStoreError
         ``path`` is no product folder of a readable run.
     """
-    from instrument.product_nodes import product_location
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runstore import RunStore, RunStoreError, product_location
 
     where = product_location(path)
     if where is None:

@@ -62,8 +62,7 @@ def read_result(path: str) -> dict:
     OSError, ValueError, instrument.runstore.RunStoreError
         Missing or unreadable file (the message names it).
     """
-    from instrument.product_nodes import product_location
-    from instrument.runstore import RunStore, is_run_store
+    from instrument.runstore import RunStore, is_run_store, product_location
     from instrument.tiff_export import read_tiff_metadata
     from recon.io import load_image
 
