@@ -222,14 +222,18 @@ def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
     store.write_product("psf_stack", psf[None], depths_mm=[10.0])
     contribution = npe2.PluginManager.instance().get_manifest(plugin).contributions.widgets[0]
     widget = contribution.get_callable()()  # autogenerate: a magicgui factory
-    assert list(widget.method.choices) == ["auto", "admm", "fista", "wiener"]
-    layer = Image(rng.random((n, n)).astype(np.float32) * 100 + 10, name="raw")
-    widget.layer.choices = [layer]  # (napari fills it with the viewer's image layers)
-    widget.layer.value = layer
-    widget.psf_run.value = store.path
-    widget.method.value = "wiener"
-    data, kwargs, kind = widget()
-    assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
+    try:
+        assert list(widget.method.choices) == ["auto", "admm", "fista", "wiener"]
+        layer = Image(rng.random((n, n)).astype(np.float32) * 100 + 10, name="raw")
+        widget.layer.choices = [layer]  # (napari fills it with the viewer's image layers)
+        widget.layer.value = layer
+        widget.psf_run.value = store.path
+        widget.method.value = "wiener"
+        data, kwargs, kind = widget()
+        assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
+    finally:  # deleted here, on the GUI thread (see tests/gui/conftest.py)
+        widget.native.close()
+        widget.native.deleteLater()
 
 
 def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
