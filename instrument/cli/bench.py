@@ -10,11 +10,17 @@
     with its simulated twin, so a lab file validates on a machine without the
     hardware drivers; the swaps are listed.
 
-``diffuserlab devices [BENCH.toml] [--simulate] [--timeout S]``
+``diffuserlab devices [BENCH.toml] [--simulate] [--timeout S] [--settings] [--json]``
     Open every device of the bench (without a file: the built-in simulated bench),
     print one line per device (id, kind, driver, status) and close them again.
-    Exit 2 on a bad bench file or driver, 1 if a device fails to open (the ones
-    opened before it are closed again).
+    ``--settings`` adds each device's settings under it: value, unit and limits, read
+    from the open device (:meth:`drivers.base.Device.setting_specs` with its
+    ``info``). ``--json`` prints one JSON document instead, for other programs: per
+    device its status, its settings' values, their declarations with the device's
+    limits, and a JSON schema of the writable settings
+    (:func:`drivers.settings.settings_model`) that a settings table for the device
+    must satisfy. Exit 2 on a bad bench file or driver, 1 if a device fails to open
+    (the ones opened before it are closed again).
 """
 
 from __future__ import annotations
@@ -69,6 +75,11 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
         dest="timeout_s",
         help="seconds each device may take to open (default 10)",
     )
+    dp.add_argument("--settings", action="store_true",
+                    help="list each device's settings: value, unit and limits")
+    dp.add_argument("--json", action="store_true",
+                    help="print one JSON document (status, settings, their declarations "
+                    "and a JSON schema per device) instead of text")
     dp.set_defaults(handler=run_devices)
 
 
@@ -79,7 +90,8 @@ def run_validate(args: argparse.Namespace) -> int:
 
 def run_devices(args: argparse.Namespace) -> int:
     """Run ``devices``; returns the exit status (module docstring)."""
-    return _devices(args.bench, simulate=args.simulate, timeout_s=args.timeout_s)
+    return _devices(args.bench, simulate=args.simulate, timeout_s=args.timeout_s,
+                    settings=args.settings, as_json=args.json)
 
 
 def _report(exc: BenchConfigError) -> int:
@@ -143,7 +155,8 @@ def _status_text(status: dict[str, Any]) -> str:
     return f"{state} {rest}".rstrip()
 
 
-def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
+def _devices(path: str | None, *, simulate: bool, timeout_s: float, settings: bool = False,
+             as_json: bool = False) -> int:
     from ..bench_setup import BenchOpenError, open_bench
     from ..config import BenchConfigError
     from ..registry import RegistryError
@@ -166,6 +179,17 @@ def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
         return 1
     failed = 0
     with bench:
+        if as_json:
+            records = []
+            for dev in driven.devices:
+                record = _device_record(bench[dev.id], dev)
+                failed += "error" in record
+                records.append(record)
+            from diffuserlab.jsonio import json_text
+
+            print(json_text({"bench": config.name, "source": source, "simulated": simulate,
+                             "devices": records}, default=str))
+            return 1 if failed else 0
         print(f"{_summary(config)} from {source}{' (simulated twins)' if simulate else ''}:")
         w_id = max(len(d.id) for d in driven.devices)
         w_drv = max(len(d.driver) for d in driven.devices)
@@ -176,4 +200,45 @@ def _devices(path: str | None, *, simulate: bool, timeout_s: float) -> int:
                 status = f"status failed: {type(exc).__name__}: {exc}"
                 failed += 1
             print(f"  {dev.id:<{w_id}}  {dev.kind:<9}  {dev.driver:<{w_drv}}  {status}")
+            if settings:
+                failed += _print_settings(bench[dev.id])
     return 1 if failed else 0
+
+
+def _declared(device: Any) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """(declarations with the open device's limits, current values)."""
+    return device.setting_specs(device.info), device.settings()
+
+
+def _print_settings(device: Any) -> int:
+    """Print ``device``'s settings under its line; 1 if they could not be read."""
+    try:
+        specs, values = _declared(device)
+    except Exception as exc:  # report it, keep listing the others
+        print(f"      settings failed: {type(exc).__name__}: {exc}")
+        return 1
+    width = max((len(s["name"]) for s in specs), default=0)
+    for spec in specs:
+        value = _value(values.get(spec["name"]), 40)
+        unit = f" {spec['unit']}" if spec["unit"] else ""
+        notes = [spec["limits"]] if spec["limits"] else []
+        notes += ["read-only"] if spec["read_only"] else []
+        note = f"  ({'; '.join(notes)})" if notes else ""
+        print(f"      {spec['name']:<{width}} = {value}{unit}{note}")
+    return 0
+
+
+def _device_record(device: Any, dev: Any) -> dict[str, Any]:
+    """One device of ``devices --json``: its status, settings, declarations and the
+    JSON schema of its writable settings; ``error`` where they could not be read."""
+    from drivers.settings import settings_model
+
+    record: dict[str, Any] = {"id": dev.id, "kind": dev.kind, "driver": dev.driver}
+    try:
+        record["status"] = device.status()
+        specs, values = _declared(device)
+        record.update(settings=values, declarations=specs,
+                      schema=settings_model(type(device)).model_json_schema())
+    except Exception as exc:  # report it, keep listing the others
+        record["error"] = f"{type(exc).__name__}: {exc}"
+    return record

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -191,6 +192,39 @@ def test_devices_default_bench(capsys):
         ["mask_stage", "stage", "simulated-stage", "open"],
     ]
     assert 'positions={"x":0.0,"y":0.0,"z":0.0}' in rows[1]
+
+
+def test_devices_settings_lists_values_units_and_the_open_devices_limits(capsys):
+    assert main(["devices", "--settings"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    camera = out.index(next(line for line in out if line.startswith("  camera ")))
+    assert out[camera + 1].split()[:3] == ["pixel_format", "=", "mono12"]
+    exposure = next(line for line in out if line.split()[0] == "exposure_s")
+    # the simulated camera's range, read from its info, not the kind's declaration
+    assert exposure.split("=", 1)[1].strip() == "0.01 s  (1e-06 to 60 s)"
+    slm = out.index(next(line for line in out if line.startswith("  slm ")))
+    assert [line.split()[0] for line in out[slm + 1:slm + 3]] == ["lut_rad", "settle_s"]
+
+
+def test_devices_json_declares_settings_with_a_schema_other_tools_check(capsys):
+    jsonschema = pytest.importorskip("jsonschema")  # with napari (the napari extra)
+
+    assert main(["devices", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [d["id"] for d in doc["devices"]] == [
+        "camera", "source_stage", "led_array", "slm", "mask_stage"]
+    camera = doc["devices"][0]
+    assert camera["status"]["is_open"] and camera["settings"]["exposure_s"] == 0.01
+    spec = {d["name"]: d for d in camera["declarations"]}["exposure_s"]
+    assert (spec["unit"], spec["low"], spec["high"]) == ("s", 1e-06, 60.0)
+    for device in doc["devices"]:  # each device's own values satisfy its schema
+        writable = {d["name"] for d in device["declarations"] if not d["read_only"]}
+        jsonschema.validate({k: v for k, v in device["settings"].items() if k in writable},
+                            device["schema"])
+    with pytest.raises(jsonschema.ValidationError):  # and an unknown or bad one fails
+        jsonschema.validate({"exposure": 0.01}, camera["schema"])
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"trigger_mode": "sometimes"}, camera["schema"])
 
 
 def test_devices_opens_and_closes_every_device(fakes, capsys):
