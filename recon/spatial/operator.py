@@ -183,6 +183,13 @@ class SpatialConvolutionOperator(SensorWeighted, LinearOperator):
         return total
 
     # -- composition -----------------------------------------------------------------
+    @property
+    def final_on_all_pixels(self) -> bool:
+        """Whether the automatic weight's result is a final solve on all pixels from
+        the chosen estimate (2D; ``recon.auto.weight.FINAL_ON_ALL_PIXELS``) rather than
+        its fit-pixel iterate (a volume, like a convolution)."""
+        return not self.volume
+
     def with_weights(self, sensor_weights) -> SpatialConvolutionOperator:
         """A copy with other sensor weights, sharing the kernel spectra."""
         sup = None if self.support is None else self.support.reshape(self.shape_in)
