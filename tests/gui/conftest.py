@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import gc
 import os
-import sys
 
 import pytest
 
@@ -19,21 +18,17 @@ os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 @pytest.fixture(autouse=True)
 def _qt_garbage_dies_on_the_gui_thread():
-    """After each test, delete the widgets it let go of here, on the GUI thread.
+    """After each test, collect the garbage it left, here on the GUI thread.
 
     A Qt widget's wrapper left to the garbage collector may be collected on any thread
     that happens to start a collection (zarr's event loop, a worker); PySide6 then
     queues the C++ deletion for the main thread, and such a deletion crashed a later
     test's process (segfault in ``Shiboken::BindingManager::runDeletionInMainThread``),
-    which under pytest-xdist's ``--dist loadfile`` hung the whole run.
+    which under pytest-xdist's ``--dist loadfile`` hung the whole run. (Widgets given
+    ``deleteLater`` are left to the event loop, as in the window: deleting them here
+    would run their pending jobs' callbacks on deleted widgets.)
     """
     yield
-    widgets = sys.modules.get("PySide6.QtWidgets")
-    app = widgets.QApplication.instance() if widgets is not None else None
-    if app is not None:
-        from PySide6.QtCore import QEvent
-
-        app.sendPostedEvents(None, QEvent.Type.DeferredDelete)
     gc.collect()
 
 
