@@ -228,12 +228,13 @@ def _print_settings(device: Any) -> int:
     return 0
 
 
-def _device_record(device: Any, dev: Any) -> dict[str, Any]:
-    """One device of ``devices --json``: its status, settings, declarations and the
-    JSON schema of its writable settings; ``error`` where they could not be read."""
+def _device_record(device: Any, entry: Any) -> dict[str, Any]:
+    """One device of ``devices --json`` (the open ``device``, its bench file ``entry``):
+    its status, settings, declarations and the JSON schema of its writable settings;
+    ``error`` where they could not be read."""
     from drivers.settings import settings_model
 
-    record: dict[str, Any] = {"id": dev.id, "kind": dev.kind, "driver": dev.driver}
+    record: dict[str, Any] = {"id": entry.id, "kind": entry.kind, "driver": entry.driver}
     try:
         record["status"] = device.status()
         specs, values = _declared(device)

@@ -50,9 +50,9 @@ from fitting noise into structure the measurements barely constrain (a photograp
 bin 8, 10000 e-: TV 1e-5 converges to 21.2 dB, peaking at 25.6 dB on the way), and
 restarting on all pixels from the kept iterate lost 0.6-0.7 dB in ADMM's transient
 after the restart (fresh duals; camera and shapes, full field, bin 8, 3000 e-; 1.8 dB
-with an earlier version of the path). The 2D spatially varying model gains from a final solve on all
-pixels from the chosen estimate (the virtual bench's demo: 0.6-1.2 dB). With a
-compact PSF the held-out blocks would hide object pixels (:func:`holdout_coverage`),
+with an earlier version of the path). The 2D spatially varying model gains from a
+final solve on all pixels from the chosen estimate (the virtual bench's demo: 0.6-1.2
+dB). With a compact PSF the held-out blocks would hide object pixels (:func:`holdout_coverage`),
 and the final solve runs on all pixels whatever the model (automatic stopping,
 :class:`Stopping`).
 
@@ -538,8 +538,9 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     use_tv = regulariser == "tv" or fixed > 0
     w = op.sensor_weights
     keep, held = holdout_split(op, holdout, seed, rule.block)
-    # with a compact PSF the held-out blocks hide object pixels: the result is then a
-    # final solve on all pixels, which takes a fixed run's iterations from the budget
+    # the result is a final solve on all pixels, which takes a fixed run's iterations
+    # from the budget, with a compact PSF (the held-out blocks hide object pixels) or
+    # where the model asks for it (FINAL_ON_ALL_PIXELS)
     coverage = holdout_coverage(op, keep) if not path_only else None
     compact = coverage is not None and coverage < MIN_COVERAGE
     watch = path_only or not (compact or getattr(op, FINAL_ON_ALL_PIXELS, False))

@@ -231,7 +231,8 @@ def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
         widget.method.value = "wiener"
         data, kwargs, kind = widget()
         assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
-    finally:  # deleted here, on the GUI thread (see tests/gui/conftest.py)
+    finally:  # not left to the collector (see tests/gui/conftest.py): deleted by the
+        # GUI thread's event loop
         widget.native.close()
         widget.native.deleteLater()
 
