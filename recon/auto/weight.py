@@ -149,7 +149,7 @@ MODEL_ERROR = 0.005
 #: keeps its fit pixels: with the final solve taken from the budget, the
 #: path stopped short of the weights sparse scenes need (beads 35.25 -> 34.14 dB,
 #: points 38.23 -> 37.78); with the final solve added to the budget instead, the
-#: suite's scenes gained 0.0-0.27 dB, but up to a fixed run's iterations more would
+#: suite's scenes gained 0.02-0.25 dB, but up to a fixed run's iterations more would
 #: take the slowest (3.7x one fixed solve) past the 4x goal (not timed), and
 #: full-field photographs at bin 8 lost 0.6-0.7 dB in ADMM's transient after the
 #: restart. A volume keeps its fit pixels (not measured with the final solve).
