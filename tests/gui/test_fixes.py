@@ -337,24 +337,32 @@ def test_enter_in_a_go_to_field_moves(window, wait):
 
 def test_camera_fps_follows_a_change_of_rate_within_seconds(window, wait):
     """The rate shown is the last 2 s's (a rate since the stream started showed 11 fps
-    while the camera delivered 30)."""
+    while the camera delivered 30). Each rate is compared with the frames that arrived
+    in the last 2 s, so a loaded machine that delivers fewer than the 30 asked for
+    (6 fps measured in a loaded full-suite run) is judged by what it delivered."""
     session = window.session
     cam = session.bench.camera
-    session.start_stream()
-    try:
-        QTest.qWait(3000)
-        fast = session.stream_counters()["fps"]
-        cam.apply_settings({"frame_rate_hz": 3.0})
-        QTest.qWait(3000)
+
+    def shown_and_delivered() -> tuple[float, float]:
         n0, t0 = session.frames_seen, time.monotonic()
         QTest.qWait(2000)
-        actual = (session.frames_seen - n0) / (time.monotonic() - t0)
-        slow = session.stream_counters()["fps"]
+        delivered = (session.frames_seen - n0) / (time.monotonic() - t0)
+        return session.stream_counters()["fps"], delivered
+
+    session.start_stream()
+    try:
+        QTest.qWait(1000)
+        fast, fast_delivered = shown_and_delivered()
+        cam.apply_settings({"frame_rate_hz": 3.0})
+        QTest.qWait(3000)
+        slow, slow_delivered = shown_and_delivered()
     finally:
         cam.apply_settings({"frame_rate_hz": 30.0})
         session.stop_stream()
-    assert fast > 8 and slow == pytest.approx(actual, rel=0.35, abs=0.5), (fast, slow, actual)
-    assert slow < 0.6 * fast
+    rates = (fast, fast_delivered, slow, slow_delivered)
+    assert fast == pytest.approx(fast_delivered, rel=0.35, abs=0.5), rates
+    assert slow == pytest.approx(slow_delivered, rel=0.35, abs=0.5), rates
+    assert slow < 0.6 * fast, rates
 
 
 def test_job_progress_ticks_between_reports():
