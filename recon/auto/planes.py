@@ -14,7 +14,9 @@ absorb what every plane's estimate shares: a weakly regularised estimate clipped
 non-negative values over-predicts every pixel a little. A plane shows signal when
 ``a_k`` is :data:`SIGNAL_SNR` standard errors above zero (its prediction explains
 held-out data the other planes do not), or when removing it makes the held-out error
-worse. Nothing is compared with the brightest plane.
+worse by :data:`SIGNAL_SNR` standard errors of that change (a plane of noise
+worsens it as often as it improves it, so "any worsening" would pass half of the
+empty planes). Nothing is compared with the brightest plane.
 
 The test can confirm signal; it cannot always confirm emptiness. Where the model's
 mismatch with the brightest planes is larger than a dim plane's whole contribution,
@@ -36,8 +38,9 @@ from ..fft import irfftn, rfftn
 
 __all__ = ["SIGNAL_SNR", "joint_drop", "plane_predictions", "plane_tests", "planes_record"]
 
-#: Standard errors a plane's held-out regression coefficient must reach (one-sided:
-#: a plane of fitted noise passes with probability 0.13 %, and is then kept).
+#: Standard errors a plane's held-out regression coefficient, or the held-out error its
+#: removal adds, must reach (one-sided: a plane of fitted noise passes either with
+#: probability 0.13 % each, and is then kept).
 SIGNAL_SNR = 3.0
 
 
@@ -109,7 +112,10 @@ def plane_tests(op, x: np.ndarray, b: np.ndarray, variance: np.ndarray,
     dict
         Per plane: ``t`` (its held-out coefficient in standard errors; NaN for a
         plane that predicts nothing), ``coefficient``, ``removal_worsens_by`` (the
-        held-out squared error added by removing it), ``holds_signal``;
+        held-out squared error added by removing it), ``removal_z`` (that error in
+        standard errors of its change where the plane's prediction is uncorrelated
+        with the residual: ``2 s |p_k|``, ``s`` the held-out residual's RMS; NaN for a
+        plane that predicts nothing), ``holds_signal``;
         ``predictions`` (per plane, float32 (n_z, rows, cols)); ``residual`` (``b``
         minus their sum); ``held`` (what :func:`joint_drop` needs).
     """
@@ -122,14 +128,20 @@ def plane_tests(op, x: np.ndarray, b: np.ndarray, variance: np.ndarray,
     cols = p[:, held].astype(np.float64)
     total = cols.sum(axis=0)
     rh = r[held].astype(np.float64)
-    t, coef, worse, signal = [], [], [], []
+    scale = math.sqrt(max(float(np.dot(rh, rh)) / max(rh.size, 1), 1e-300))
+    t, coef, worse, worse_z, signal = [], [], [], [], []
     for k in range(op.n_z):
         a, tk = _regress(y, sw, total - cols[k], cols[k])
         t.append(tk)
         coef.append(a)
         worse.append(float(np.dot(rh + cols[k], rh + cols[k]) - np.dot(rh, rh)))
-        signal.append(bool((not math.isnan(tk) and tk >= SIGNAL_SNR) or worse[-1] > 0))
+        spread = 2.0 * scale * float(np.linalg.norm(cols[k]))
+        zk = worse[-1] / spread if spread > 0 else math.nan
+        worse_z.append(zk)
+        signal.append(bool((not math.isnan(tk) and tk >= SIGNAL_SNR)
+                           or (not math.isnan(zk) and zk >= SIGNAL_SNR)))
     return {"t": t, "coefficient": coef, "removal_worsens_by": worse,
+            "removal_z": worse_z,
             "holds_signal": signal, "predictions": p, "residual": r,
             "held": {"y": y, "sw": sw, "columns": cols}}
 
@@ -182,7 +194,8 @@ def planes_record(op, x: np.ndarray, b: np.ndarray, tests: dict, held: np.ndarra
     planes : list of dict
         Per plane: ``plane``, ``depth_mm``, ``energy`` and ``energy_share`` (of the
         field of view), ``holdout_t``, ``holdout_coefficient``,
-        ``removal_worsens_holdout_by``, ``shows_signal``.
+        ``removal_worsens_holdout_by``, ``removal_worsens_holdout_z`` (in standard
+        errors), ``shows_signal``.
     kept : list of int
     drop : dict
         ``planes`` (without evidence, alone and together), ``applied`` (set to
@@ -202,6 +215,7 @@ def planes_record(op, x: np.ndarray, b: np.ndarray, tests: dict, held: np.ndarra
                "holdout_t": num(tests["t"][k]),
                "holdout_coefficient": tests["coefficient"][k],
                "removal_worsens_holdout_by": tests["removal_worsens_by"][k],
+               "removal_worsens_holdout_z": num(tests["removal_z"][k]),
                "shows_signal": tests["holds_signal"][k]} for k in range(op.n_z)]
     candidates = [k for k in range(op.n_z) if not tests["holds_signal"][k]]
     empty, joint = joint_drop(tests, candidates) if candidates else ([], {"t": None})
@@ -216,7 +230,7 @@ def planes_record(op, x: np.ndarray, b: np.ndarray, tests: dict, held: np.ndarra
             "relative_residual_without": float(np.linalg.norm(without)) / b_norm}
     why = (f"a plane shows signal when its prediction of the held-out pixels, beside the "
            f"other planes', is {SIGNAL_SNR:g} standard errors above zero, or removing it "
-           "worsens their prediction")
+           f"worsens their prediction by {SIGNAL_SNR:g} standard errors")
     effect = (f"held-out error {drop['holdout_error_all_planes']:.4g} -> "
               f"{drop['holdout_error_without']:.4g}, relative residual "
               f"{drop['relative_residual_all_planes']:.4f} -> "
