@@ -74,6 +74,7 @@ class PtyEmulator:
         self.lock = threading.RLock()
         self.received = bytearray()  # everything the driver wrote, for byte-exact tests
         self.sent = bytearray()      # everything the emulator wrote
+        self._sending = threading.Lock()  # one writer of the pty and of ``sent`` at a time
         self._master: int | None = None
         self._slave: int | None = None
         self.tty: str | None = None
@@ -167,15 +168,23 @@ class PtyEmulator:
         view = memoryview(bytes(data))
         deadline = time.monotonic() + 1.0  # a reader that stops reading: give up then
         while view and time.monotonic() < deadline:
-            try:
-                n = os.write(fd, view)
-            except BlockingIOError:
+            with self._sending:  # recorded before the driver can read it, the unwritten
+                mark = len(self.sent)  # tail taken back after
+                self.sent += view
+                try:
+                    n = os.write(fd, view)
+                except OSError as exc:
+                    del self.sent[mark:]
+                    if isinstance(exc, BlockingIOError):
+                        n = None
+                    else:
+                        log.debug("%s: write lost: %s", type(self).__name__, exc)
+                        return
+                else:
+                    del self.sent[mark + n:]
+            if n is None:
                 select.select([], [fd], [], 0.05)
                 continue
-            except OSError as exc:
-                log.debug("%s: write lost: %s", type(self).__name__, exc)
-                return
-            self.sent += view[:n]
             view = view[n:]
         if view:
             log.debug("%s: %d bytes lost (nobody reads)", type(self).__name__, len(view))
