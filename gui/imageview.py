@@ -546,7 +546,8 @@ class FrameView(QWidget):
                 return None
             taken = (np.array(self.image, copy=True), self.snapshot_metadata())
         image, meta = taken
-        job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot")
+        job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot",
+                  owner=self)
         job.succeeded.connect(lambda p: (self.stats.setText(f"snapshot saved: {p}"),
                                          gui_log.info("snapshot of %s saved: %s",
                                                       self._title, p),

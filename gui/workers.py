@@ -24,6 +24,7 @@ import warnings
 from collections.abc import Callable
 from typing import Any
 
+import shiboken6
 from PySide6.QtCore import QObject, QTimer, Signal
 
 import diffuserlab.errors
@@ -159,18 +160,35 @@ class Job(QObject):
         ``fn(job, *args, **kwargs)``; checks :attr:`cancelled` between steps.
     name : str
         Thread name (shows in logs).
+    owner : QObject, optional
+        The widget whose slots the job's signals serve: once its C++ object is
+        deleted (a closed window, a replaced panel), ``progress``, ``succeeded`` and
+        ``failed`` and ``finished`` are no longer emitted (their slots would touch
+        deleted widgets and raise ``RuntimeError``) and the job is cancelled; it is
+        still marked :attr:`done` and let go as usual.
     """
 
     progress = Signal(object)
     succeeded = Signal(object)
     failed = Signal(str)
     finished = Signal()
+    # emitted on the worker thread, relayed to the public ones on the GUI thread (where
+    # the owner is checked first)
+    _progress = Signal(object)
+    _succeeded = Signal(object)
+    _failed = Signal(str)
+    _finished = Signal()
 
     def __init__(self, fn: Callable[..., Any], *args: Any, name: str = "gui-job",
-                 **kwargs: Any) -> None:
+                 owner: QObject | None = None, **kwargs: Any) -> None:
         super().__init__()
         self._fn, self._args, self._kwargs = fn, args, kwargs
         self.name = name
+        self._owner = owner
+        self._progress.connect(self._relay_progress)
+        self._succeeded.connect(self._relay_succeeded)
+        self._failed.connect(self._relay_failed)
+        self._finished.connect(self._relay_finished)
         self.cancel_event = threading.Event()
         self._thread: threading.Thread | None = None
         self._started = False
@@ -181,6 +199,31 @@ class Job(QObject):
         #: True once ``finished`` was delivered on the GUI thread (its slots have run).
         self.done = False
         self.finished.connect(self._mark_done)
+
+    def _owner_gone(self) -> bool:
+        """True once the owner's C++ object is deleted (then the job is cancelled)."""
+        if self._owner is None or shiboken6.isValid(self._owner):
+            return False
+        self.cancel_event.set()
+        return True
+
+    def _relay_progress(self, value: Any) -> None:
+        if not self._owner_gone():
+            self.progress.emit(value)
+
+    def _relay_succeeded(self, value: Any) -> None:
+        if not self._owner_gone():
+            self.succeeded.emit(value)
+
+    def _relay_failed(self, text: str) -> None:
+        if not self._owner_gone():
+            self.failed.emit(text)
+
+    def _relay_finished(self) -> None:
+        if self._owner_gone():
+            self._mark_done()  # the job's own bookkeeping, without the owner's slots
+        else:
+            self.finished.emit()
 
     def _mark_done(self) -> None:
         self.done = True
@@ -202,7 +245,8 @@ class Job(QObject):
             return
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            for signal in (self.progress, self.succeeded, self.failed, self.finished):
+            for signal in (self.progress, self.succeeded, self.failed, self.finished,
+                           self._progress, self._succeeded, self._failed, self._finished):
                 with contextlib.suppress(RuntimeError, TypeError):
                     signal.disconnect()
         _LIVE_JOBS.discard(self)
@@ -235,8 +279,8 @@ class Job(QObject):
         self.cancel_event.set()
 
     def report(self, value: Any) -> None:
-        """Emit ``progress(value)`` (call from ``fn``)."""
-        self.progress.emit(value)
+        """Emit ``progress(value)`` (call from ``fn``; delivered on the GUI thread)."""
+        self._progress.emit(value)
 
     def wait(self, timeout_s: float) -> bool:
         """Join the worker thread (tests and shutdown only; True if it ended)."""
@@ -258,11 +302,11 @@ class Job(QObject):
             self.result = self._fn(self, *self._args, **self._kwargs)
         except BaseException as exc:  # noqa: BLE001 (every error becomes a message)
             self.error = readable_error(exc)
-            self.failed.emit(self.error)
+            self._failed.emit(self.error)
         else:
-            self.succeeded.emit(self.result)
+            self._succeeded.emit(self.result)
         finally:
-            self.finished.emit()
+            self._finished.emit()
             self._ended.set()
 
 
@@ -295,8 +339,8 @@ def _launch_jobs() -> None:
             thread.start()
         except RuntimeError as exc:  # "can't start new thread": the job fails, reported
             job.error = readable_error(exc)
-            job.failed.emit(job.error)
-            job.finished.emit()
+            job._failed.emit(job.error)
+            job._finished.emit()
             job._ended.set()
         del job, thread
         launched.set()

@@ -115,7 +115,7 @@ def offer_depths(box: QComboBox, psf_path: str) -> Job:
     ``box`` (the text typed stays; the first depth is filled in if none was)."""
     from ..jobs import stack_depths
 
-    job = Job(lambda job: stack_depths(psf_path), name="stack-depths")
+    job = Job(lambda job: stack_depths(psf_path), name="stack-depths", owner=box)
 
     def show(depths: list[float]) -> None:
         text = box.currentText()

@@ -135,7 +135,8 @@ class DeviceBox(QGroupBox):
     def run(self, fn, *args, done=None, failed=None) -> Job:
         """Run ``fn(*args)`` on a worker; a refusal shows in :attr:`error`."""
         self.jobs = [j for j in self.jobs if j.running]
-        job = Job(lambda job: fn(*args), name=f"device-{self.device.device_id}")
+        job = Job(lambda job: fn(*args), name=f"device-{self.device.device_id}",
+                  owner=self)
         job.failed.connect(self.error.setText)
         job.succeeded.connect(lambda _: self.error.setText(""))
         if done is not None:
@@ -542,7 +543,7 @@ class DevicePanel(QWidget):
                     out[k] = {"is_open": d.is_open, "disconnected": True, "error": str(exc)}
             return out
 
-        self.poll_job = Job(read, name="device-status")
+        self.poll_job = Job(read, name="device-status", owner=self)
         self.poll_job.succeeded.connect(self._show_status)
         self.poll_job.start()
 

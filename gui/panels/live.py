@@ -263,7 +263,7 @@ class LivePanel(QWidget):
             live.start()  # its thread started here: Thread.start waits for a core
             return live, depth_used
 
-        self.job = Job(build, name="build-live")
+        self.job = Job(build, name="build-live", owner=self)
         self._live_settings = {"psf": psf, "depth_requested_mm": depth, "dark": dark,
                                "device_requested": device}
         self.job.succeeded.connect(self._live_ready)

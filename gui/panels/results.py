@@ -304,7 +304,7 @@ class ResultsPanel(QWidget):
         self.error.setText("")
         if self.verify_job is not None:
             self.verify_job.cancel()
-        job = Job(lambda job: read_result(path), name="read-result")
+        job = Job(lambda job: read_result(path), name="read-result", owner=self)
         self.job = job
 
         def show(result: dict) -> None:
@@ -367,7 +367,7 @@ class ResultsPanel(QWidget):
             except _Cancelled:
                 return None
 
-        job = Job(check, name="verify-run")
+        job = Job(check, name="verify-run", owner=self)
         self.verify_job = job
 
         def progress(kn) -> None:
@@ -446,7 +446,7 @@ class ResultsPanel(QWidget):
         store, index = self.store, self._wanted_frame
         if store is None or index is None:
             return
-        job = Job(lambda job: _frame(store, index), name="read-frame")
+        job = Job(lambda job: _frame(store, index), name="read-frame", owner=self)
         self.frame_job = job
         job.succeeded.connect(lambda result: self._frame_read(store, result))
         job.failed.connect(self.error.setText)
@@ -487,7 +487,7 @@ class ResultsPanel(QWidget):
         if store is None or not name:
             return None
         self._wanted_frame = None
-        job = Job(lambda job: _product(store, name), name="read-product")
+        job = Job(lambda job: _product(store, name), name="read-product", owner=self)
         self.job = job
 
         def show(result: dict) -> None:

@@ -270,7 +270,7 @@ class StageControls(QWidget):
         if not name:
             self.on_error("type a name for the position, then press Store here")
             return None
-        job = Job(lambda job: self.stage.positions(), name="read-position")
+        job = Job(lambda job: self.stage.positions(), name="read-position", owner=self)
         job.succeeded.connect(lambda pos: self._stored(name, pos))
         job.failed.connect(self.on_error)
         self.jobs = [j for j in self.jobs if j.running] + [job]
