@@ -25,6 +25,7 @@ import json
 import os
 import sys
 import threading
+import time
 
 import numpy as np
 
@@ -105,6 +106,31 @@ class _Reader(QtCore.QObject):
             self.finished.emit()
 
 
+#: Seconds the window may take to be mapped and exposed by the X server: a pattern
+#: painted before that is not on screen (a loaded machine answered "shown" to a first
+#: pattern while the screen was still black).
+EXPOSE_TIMEOUT_S = 10.0
+
+
+def _wait_exposed(app: QtWidgets.QApplication, window: QtWidgets.QWidget,
+                  timeout_s: float) -> bool:
+    """Process events until ``window`` is exposed (mapped and visible on its screen),
+    then paint it; False after ``timeout_s``."""
+    handle = window.windowHandle()
+    deadline = time.monotonic() + timeout_s
+    waited = False
+    while handle is None or not handle.isExposed():
+        if time.monotonic() > deadline:
+            return False
+        waited = True
+        app.processEvents(QtCore.QEventLoop.AllEvents, 50)
+        time.sleep(0.005)
+        handle = window.windowHandle()
+    if waited:
+        window.repaint()
+    return True
+
+
 def main(argv: list[str]) -> int:
     """Run the window: ``argv = [screen, rows, cols]``; returns the exit status."""
     screen_index, rows, cols = (int(v) for v in argv)
@@ -137,6 +163,11 @@ def main(argv: list[str]) -> int:
     window.setGeometry(geo)  # no window manager (a bare X screen): place it ourselves
     window.repaint()
     app.processEvents()
+    if not _wait_exposed(app, window, EXPOSE_TIMEOUT_S):
+        _write({"error": f"the SLM window was not mapped on screen {screen_index} within "
+                f"{EXPOSE_TIMEOUT_S:g} s (the X server or window manager did not show it)",
+                "facts": facts})
+        return 2
 
     def on_removed(gone: QtGui.QScreen) -> None:
         if gone is screen:
@@ -147,6 +178,10 @@ def main(argv: list[str]) -> int:
     reader = _Reader(rows, cols)
 
     def show(pattern_id: int, gray: np.ndarray) -> None:
+        if not _wait_exposed(app, window, EXPOSE_TIMEOUT_S):  # hidden since (unmapped)
+            _write({"error": f"the SLM window is not on screen {screen_index}: pattern "
+                    f"{pattern_id} was not shown"})
+            return
         window.set_gray(gray)
         app.sync()  # the X server has processed the drawing before we answer
         _write({"shown": pattern_id})

@@ -12,7 +12,10 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
+import textwrap
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +24,8 @@ from drivers.errors import DeviceDisconnectedError, DeviceValueError, SlmTimeout
 from drivers.slm import TWO_PI
 from drivers.slm_window import FullscreenSlm
 from tests.drivers.conformance import SlmConformance
+
+ROOT = Path(__file__).resolve().parents[2]
 
 SCREEN0 = (240, 320)  # (rows, cols) of the virtual monitors
 SLM = (150, 200)
@@ -231,3 +236,25 @@ def test_constructor_refuses_bad_parameters():
         FullscreenSlm("slm", screen=-1)
     with pytest.raises(DeviceValueError, match="shape_px"):
         FullscreenSlm("slm", shape_px=[0, 10])
+
+
+def test_the_window_process_waits_for_the_window_to_be_on_screen(xscreens):
+    """A pattern painted before the X server has mapped and exposed the window is not
+    on screen, yet was answered "shown" (a loaded full-suite run grabbed a black screen
+    after it). The window process waits for the exposure, and says when it never comes."""
+    script = textwrap.dedent("""
+        import sys
+        from PySide6 import QtWidgets
+        from drivers.slm_window_app import _wait_exposed
+        app = QtWidgets.QApplication(["t"])
+        w = QtWidgets.QWidget()
+        hidden = _wait_exposed(app, w, 0.3)
+        w.setGeometry(0, 0, 64, 48)
+        w.show()
+        shown = _wait_exposed(app, w, 10.0)
+        print(hidden, shown, w.windowHandle().isExposed())
+    """)
+    env = {**os.environ, "DISPLAY": xscreens.display, "QT_QPA_PLATFORM": "xcb"}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                         text=True, timeout=60, cwd=ROOT)
+    assert out.stdout.split() == ["False", "True", "True"], out.stderr
