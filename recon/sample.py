@@ -67,7 +67,12 @@ def load_sample(bin_factor: int) -> Prepared:
     Returns
     -------
     Prepared
-        Cached; do not modify the arrays.
+        Cached and shared by every caller, so its ``psf`` and ``raw`` are read-only
+        (a caller that changed them in place changed every later caller's sample);
+        copy them to modify.
     """
     psf, raw = _raw_pair()
-    return prepare_pair(psf, raw, bin_factor=bin_factor)
+    prepared = prepare_pair(psf, raw, bin_factor=bin_factor)
+    prepared.psf.setflags(write=False)
+    prepared.raw.setflags(write=False)
+    return prepared

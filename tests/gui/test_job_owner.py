@@ -12,8 +12,11 @@ from PySide6.QtCore import QCoreApplication, QEvent
 
 
 def _delete_now(qapp, widget) -> None:
+    """Delete ``widget`` now, and only it: flushing every deferred deletion
+    (``sendPostedEvents(None, ...)``) also ran those of the earlier tests' windows in
+    this process, which took over 10 s in CI (the held read timed out first)."""
     widget.deleteLater()
-    QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)
+    QCoreApplication.sendPostedEvents(widget, QEvent.Type.DeferredDelete)
     assert not shiboken6.isValid(widget)
 
 
@@ -26,7 +29,7 @@ def test_a_results_panel_deleted_mid_read_gets_no_result(qapp, wait, tmp_path, m
     gate, real = threading.Event(), results.read_result
 
     def held(p):  # the read ends only after the panel is gone
-        assert gate.wait(10.0)
+        assert gate.wait(120.0)  # set right after the deletion
         return real(p)
 
     monkeypatch.setattr(results, "read_result", held)

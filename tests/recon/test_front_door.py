@@ -12,6 +12,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 import recon
+import recon.api  # its module, not only the names recon re-exports lazily
 from diffuserlab.jsonio import json_text
 from recon.errors import ReconInputError
 from recon.operators import ConvolutionOperator, padded_grid
