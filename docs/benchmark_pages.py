@@ -1,16 +1,17 @@
 """Sphinx extension: the benchmark pages, generated from stored benchmark output.
 
 Each directory under ``docs/benchmarks/results/`` is the ``--out`` directory of one
-``diffuserlab benchmark recon`` run; :func:`recon.benchmarks.report.markdown_page`
-turns it into ``docs/benchmarks/run-<name>.md`` when the build starts (those files are
-generated, not kept in git).
+``python -m benchmarks`` run (or of a ``diffuserlab benchmark`` command);
+:func:`benchmarks.report.markdown_page` turns it into
+``docs/benchmarks/run-<name>.md`` when the build starts (those files are generated,
+not kept in git).
 """
 
 from pathlib import Path
 
 
 def _generate(app) -> None:
-    from recon.benchmarks.report import markdown_page
+    from benchmarks.report import markdown_page
 
     here = Path(app.srcdir) / "benchmarks"
     for run in sorted((here / "results").iterdir()):

@@ -8,7 +8,7 @@ import pytest
 
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
 MODULES = ("diffuserlab.jsonio", "recon.io", "recon.operators", "recon.metrics", "recon.live",
-           "recon.benchmarks.report", "recon.api", "recon.solvers.admm",
+           "benchmarks.report", "recon.api", "recon.solvers.admm",
            "recon.solvers.gradient")
 
 

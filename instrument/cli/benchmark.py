@@ -3,14 +3,14 @@
 ``gpu`` runs :func:`recon.benchmarks.gpu.run_gpu_benchmark` (speed per device and
 backend: the NumPy path, the array-API path on PyTorch's CPU backend and on a CUDA GPU).
 
-``recon`` runs :func:`recon.benchmarks.run.run_benchmarks` (speed vs the FFT floor,
-accuracy, stability, compressed sensing; 3D speed, memory and accuracy), prints each
-benchmark's table as it finishes and the summary at the end. ``live`` runs
+``recon`` runs :func:`recon.benchmarks.run.run_benchmarks` (2D and 3D speed against
+the FFT floor, 3D memory), prints each benchmark's table as it finishes and the
+summary at the end; the accuracy and method studies run from a checkout
+(``python -m benchmarks``). ``live`` runs
 :func:`instrument.live.run_live_benchmark` (live reconstruction on the real-time
 simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
 ``recording`` and ``batch`` run :mod:`instrument.acquisition_benchmarks` (video
 recording at full size per compressor; recon-run's dask batch against a loop).
-``design`` (:mod:`.benchmark_design`) compares the mask designs of Sec. 6.3.
 ``volume-scale`` runs :func:`instrument.volume_scale_benchmark.run_volume_scale` (the
 seed-size 3D problem streamed or sharded: memory, speed, bytes moved).
 """
@@ -30,15 +30,15 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
     bp = sub.add_parser("benchmark", help="benchmarks (speed vs FFT floor, accuracy, ...)")
     bsub = bp.add_subparsers(dest="suite", required=True)
-    rp = bsub.add_parser("recon", help="speed, accuracy, stability and erasure benchmarks of "
-                         "the reconstruction layer, 2D and 3D",
-                         description="Speed, accuracy, stability and erasure benchmarks of "
-                         "the reconstruction layer, 2D and 3D.")
+    rp = bsub.add_parser("recon", help="this machine's reconstruction speed against its FFT "
+                         "floor, 2D and 3D",
+                         description="This machine's reconstruction speed against its FFT "
+                         "floor, 2D and 3D, and the 3D solvers' memory. The accuracy and "
+                         "method studies run from a checkout: python -m benchmarks.")
     rp.add_argument("--out", type=Path, default=Path("out/benchmark"),
                     help="output directory (default out/benchmark)")
     rp.add_argument("--quick", action="store_true",
-                    help="fewer iterations and sweep points, small 3D problems (tests/CI, "
-                    "about 1 min)")
+                    help="fewer sizes and repeats (tests/CI)")
     rp.add_argument("--only", choices=BENCHMARKS, help="run a single benchmark")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace the results of an earlier run in --out")
@@ -137,9 +137,6 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("--overwrite", action="store_true",
                     help="replace an existing --json / --save-estimate")
     sp.set_defaults(handler=run_volume_scale_benchmark)
-    from .benchmark_design import add_parser as add_design
-
-    add_design(bsub)  # benchmark design: the mask designs of Sec. 6.3
 
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:

@@ -36,7 +36,7 @@ __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume", "weighted_variance"]
 #: measurement / max): the 2D machinery and rule (each weight solved until its
 #: held-out error settles, steps of 2.8x, at most 3.5x a fixed run's iterations; the
 #: held-out minimum) over TV 1e-3 .. 1e-6. The span was measured with the former
-#: path (fixed-length stages; ``recon.benchmarks.volume_auto.rule_study``: 18
+#: path (fixed-length stages; ``benchmarks.volume_auto.rule_study``: 18
 #: cases, beads and textured discs with far planes 3x, 10x and 30x dimmer,
 #: 300-30000 e-, 6 planes at bin 8): a path over 1e-4 .. 1e-7 did worse, and the
 #: beads' PSNR no longer changes below 1e-6. On the external 3D sample

@@ -140,7 +140,7 @@ MODEL_ERROR = 0.005
 #: bench's demo, seeds 0-3, the final solve gives 21.80, 21.29, 21.43, 20.58 dB against
 #: 20.65, 20.62, 20.19, 19.96 for the fit-pixel iterate, so that model takes it.
 #: Checked on scenes it was not chosen on (the far-scene camera of
-#: ``recon.benchmarks.spatial_far``, full field, binned 2 x 2, 200 iterations; oracle:
+#: ``benchmarks.spatial_far``, full field, binned 2 x 2, 200 iterations; oracle:
 #: the best of fixed TV 3e-5, 7.2e-5, 1.9e-4, 5.2e-4, 1.4e-3): shortfall to the oracle
 #: with the final solve / with the fit-pixel iterate, dB: camera 0.26 / 1.66, beads 0.23
 #: / 0.23, brick 0.13 / 0.34, text 0.05 / 0.08, camera at 300 e- 0.01 / 0.42, coffee at

@@ -66,7 +66,7 @@ log = logging.getLogger(__name__)
 #: a fixed-weight 3D solve (``recon3d --tv`` a number), absolute in the scaled
 #: problem (stack normalised by :func:`normalize_psf_stack`, measurement divided by
 #: its maximum).
-#: Chosen with the 3D accuracy benchmark (``recon.benchmarks.volume_accuracy``:
+#: Chosen with the 3D accuracy benchmark (``benchmarks.volume_accuracy``:
 #: tilted target on the virtual bench, 16 planes of 128 x 160, 200 iterations, SNR
 #: 35 dB): with ADMM, TV 1e-4 came out 1.4 dB below the best weight (1e-6; none
 #: equal), keeping 1.1 of the best's 2.5 dB over the zero volume; 1e-5 came out
@@ -381,7 +381,7 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     reason = "given"
     if method == AUTO:  # 3D ADMM: the best localisation and PSNR of the 3D benchmark
         method, reason = "admm", ("3D ADMM: the best localisation and PSNR of the 3D "
-                                  "accuracy benchmark (recon.benchmarks.volume_accuracy)")
+                                  "accuracy benchmark (benchmarks.volume_accuracy)")
     tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
     auto_reg = "l1" if l1 == AUTO else "tv" if tv == AUTO else None
     if auto_reg == "l1" and tv == AUTO:

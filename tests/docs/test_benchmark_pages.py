@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from recon.benchmarks.report import markdown_page
-from recon.benchmarks.run import BENCHMARKS, format_result
+from benchmarks.report import markdown_page
+from benchmarks.run import BENCHMARKS, format_result
 from recon.errors import ReconInputError
 
 RESULTS = Path(__file__).resolve().parents[2] / "docs/benchmarks/results"

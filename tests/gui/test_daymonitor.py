@@ -16,8 +16,8 @@ def _held_up_in_a_slot(seconds: float) -> None:
 def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     from PySide6.QtCore import QTimer
 
-    from gui.daymonitor import DayMonitor
-    from gui.soak import summarise
+    from benchmarks.window.daymonitor import DayMonitor
+    from benchmarks.window.soak import summarise
 
     monitor = DayMonitor(sample_s=0.2)
     monitor.start()
@@ -53,7 +53,7 @@ def test_watchdog_keeps_no_frame_of_a_stall(qapp, wait):
 
     from PySide6.QtCore import QTimer
 
-    from gui.daymonitor import DayMonitor
+    from benchmarks.window.daymonitor import DayMonitor
     from tests.refcycles import assert_freed_without_the_collector
 
     probe: list = []
@@ -100,7 +100,7 @@ def _day(leak_per_pass: int, shown_per_s: int) -> dict:
 def test_drift_is_measured_from_pass_to_pass_not_within_a_pass():
     """Data a pass puts on display is not a leak: the drift is taken at the passes'
     starts (the same state each time), and a real leak per pass still shows."""
-    from gui.soak import GOALS, summarise
+    from benchmarks.window.soak import GOALS, summarise
 
     shown = summarise(_day(leak_per_pass=0, shown_per_s=100))
     assert shown["drift_basis"] == "the starts of passes 2-5"
@@ -115,7 +115,7 @@ def test_the_summary_splits_each_pass_starts_memory_by_the_allocators_heaps(caps
     """The allocator's figures sampled by the monitor reach the summary per pass, so a
     long day's growth reads as memory in use (kept) or free in the heaps (not given
     back)."""
-    from gui.soak import print_summary, summarise
+    from benchmarks.window.soak import print_summary, summarise
 
     day = _day(leak_per_pass=0, shown_per_s=0)
     for s in day["samples"]:
@@ -129,7 +129,7 @@ def test_the_summary_splits_each_pass_starts_memory_by_the_allocators_heaps(caps
 def test_the_summary_names_the_array_holders_that_grew_between_censuses(capsys):
     """With DIFFUSERLAB_DAY_CENSUS set, each pass's census of live arrays reaches the
     summary, and the holders that changed most from the second census to the last."""
-    from gui.soak import print_summary, summarise
+    from benchmarks.window.soak import print_summary, summarise
 
     day = _day(leak_per_pass=0, shown_per_s=0)
     day["notes"] = {"census": [
@@ -144,7 +144,7 @@ def test_the_summary_names_the_array_holders_that_grew_between_censuses(capsys):
 
 
 def test_the_monitor_samples_the_allocators_heaps(qapp):
-    from gui.daymonitor import DayMonitor
+    from benchmarks.window.daymonitor import DayMonitor
     from gui.memory import heap_mb
 
     s = DayMonitor().sample()
@@ -160,7 +160,7 @@ def test_heap_tracker_names_where_the_heap_grew_between_passes(monkeypatch):
 
     import numpy as np
 
-    from gui.daymonitor import HeapTracker
+    from benchmarks.window.daymonitor import HeapTracker
 
     monkeypatch.delenv("DIFFUSERLAB_TRACEMALLOC", raising=False)
     off = HeapTracker()
@@ -185,7 +185,7 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     frozen_garbage() says how much the freezes kept, and frees it."""
     import gc
 
-    from gui.daymonitor import frozen_garbage
+    from benchmarks.window.daymonitor import frozen_garbage
 
     class Node:
         pass
@@ -217,7 +217,7 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
 
 
 def test_census_counts_live_objects_and_names_the_biggest_containers():
-    from gui.daymonitor import census
+    from benchmarks.window.daymonitor import census
 
     class Marker:
         pass
@@ -235,7 +235,7 @@ def test_census_counts_the_frozen_objects_and_their_arrays_too():
     leaves it frozen."""
     import gc
 
-    from gui.daymonitor import census
+    from benchmarks.window.daymonitor import census
 
     class FrozenHolder:
         pass
@@ -261,7 +261,7 @@ def test_census_counts_the_frozen_objects_and_their_arrays_too():
 def test_array_holders_name_the_attribute_container_or_thread_holding_each_buffer():
     import threading
 
-    from gui.daymonitor import array_holders
+    from benchmarks.window.daymonitor import array_holders
 
     class PsfCache:
         def __init__(self):
@@ -322,7 +322,7 @@ def test_array_holders_survive_other_threads_changing_what_they_walk():
     'dictionary changed size during iteration' from the census)."""
     import threading
 
-    from gui.daymonitor import _items, array_holders
+    from benchmarks.window.daymonitor import _items, array_holders
 
     class Flaky(dict):
         calls = 0
@@ -371,10 +371,11 @@ def test_the_monitor_keeps_a_firing_in_a_few_bytes(qapp, monkeypatch):
     Python floats took 32 bytes a firing: ~11 MB an hour)."""
     import tracemalloc
 
-    import gui.daymonitor
-    from gui.daymonitor import DayMonitor
+    import benchmarks.window.daymonitor
+    from benchmarks.window.daymonitor import DayMonitor
 
-    monkeypatch.setattr(gui.daymonitor, "TIMER_MS", 0)  # every firing late: a new float
+    # every firing late: a new float
+    monkeypatch.setattr(benchmarks.window.daymonitor, "TIMER_MS", 0)
     m = DayMonitor()
     m.clock.start()
     m.set_phase("stream")
@@ -394,7 +395,7 @@ def test_the_monitor_keeps_a_firing_in_a_few_bytes(qapp, monkeypatch):
 def test_array_holders_name_the_function_of_a_kept_frame():
     """A frame kept by a traceback (an error stored with its traceback) is named by its
     function, the place to look for the cycle."""
-    from gui.daymonitor import array_holders
+    from benchmarks.window.daymonitor import array_holders
 
     def solve():
         scratch = np.zeros(2**20, np.uint8)  # 1 MiB, a local of the failing frame

@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from recon.benchmarks.auto_scenes import render_case
+from benchmarks.auto_scenes import render_case
 from recon.metrics import psnr
 from recon.solvers import admm, fista
 

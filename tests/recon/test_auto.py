@@ -67,8 +67,8 @@ def test_holdout_weight_on_a_denoising_problem_with_a_computable_optimum():
 def test_auto_within_bound_of_the_oracle_on_small_scenes(kind, photons):
     """Chelsea at 300 e- is where the one-standard-error rule alone takes the path's
     first weight (1e-2, 20x the held-out minimum's); the bound keeps it within 2x."""
+    from benchmarks.auto_scenes import render_case
     from recon.auto.weight import MAX_ABOVE_MINIMUM
-    from recon.benchmarks.auto_scenes import render_case
 
     case = render_case(kind, photons, coarse_bin=8)
     grid = [psnr(admm(case.op, case.b, iterations=200, tv=w).x[case.op.crop], case.truth)
@@ -207,7 +207,7 @@ def test_final_solve_stops_where_the_held_out_pixels_say_the_noise_starts():
     1e-5, whose solve peaks on the way and converges to 21 dB (noise fitted into the
     null space); the watched final solve keeps the iterate before that (26.4 dB
     measured) -- within 1 dB of fixed ADMM at the former default (25.7 dB)."""
-    from recon.benchmarks.auto_scenes import render_case
+    from benchmarks.auto_scenes import render_case
 
     case = render_case("photo:camera", 10000.0, coarse_bin=8)
     fixed = psnr(admm(case.op, case.b, iterations=200, tv=3e-4).x[case.op.crop], case.truth)
@@ -235,7 +235,7 @@ def test_a_transient_after_a_weight_step_does_not_end_the_path():
     pixels erased: after the first step the held-out error spikes (0.97 -> 2.0) and
     falls back (1.04) while still above the first weight's; counting both as rises
     ended the path at 1e-2 (16.2 dB). A falling error is not a rise."""
-    from recon.benchmarks.auto_scenes import render_case
+    from benchmarks.auto_scenes import render_case
 
     case = render_case("photo:camera", 1000.0, coarse_bin=8)
     rng = np.random.default_rng(1)  # the failure map's tenth erasure mask

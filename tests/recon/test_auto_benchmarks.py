@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from recon.benchmarks.auto import auto_table, plot_budget, run_case
-from recon.benchmarks.auto_scenes import KINDS, make_scene
-from recon.benchmarks.failure_maps import _cell, failure_maps_table, plot_map
+from benchmarks.auto import auto_table, plot_budget, run_case
+from benchmarks.auto_scenes import KINDS, make_scene
+from benchmarks.failure_maps import _cell, failure_maps_table, plot_map
 
 
 def test_scene_kinds_are_non_negative_with_unit_peak():
@@ -43,7 +43,7 @@ def test_run_case_reports_oracle_default_budgets_and_the_chart(tmp_path):
 
 
 def test_failure_map_cell_and_figure(tmp_path):
-    from recon.benchmarks.auto_scenes import render_case
+    from benchmarks.auto_scenes import render_case
 
     case = render_case("beads", 300.0, coarse_bin=8)
     cell = _cell(case, None, ["wiener", "admm"], 20)
@@ -64,7 +64,7 @@ def test_failure_map_cell_and_figure(tmp_path):
 
 
 def test_failure_map_3d_quick(tmp_path):
-    from recon.benchmarks.failure_map_3d import failure_map_3d_table, run_failure_map_3d
+    from benchmarks.failure_map_3d import failure_map_3d_table, run_failure_map_3d
 
     r = run_failure_map_3d(quick=True, out=tmp_path)
     cell = r["cells"][0][0]

@@ -93,7 +93,7 @@ def test_the_time_budget_stops_the_path_and_the_record_says_so(conv_problem):
 def test_a_dense_full_field_scene_reaches_the_small_weights_it_needs():
     from skimage.transform import downscale_local_mean
 
-    from recon.benchmarks.auto_scenes import make_scene
+    from benchmarks.auto_scenes import make_scene
     from recon.sample import load_sample
     from recon.simulate import simulate_measurement
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 import recon
-from recon.benchmarks.volume_auto import object_metrics
+from benchmarks.volume_auto import object_metrics
 from recon.benchmarks.volume_auto_scenes import depth_stack, depths_mm, render_volume_case
 
 #: Peak photo-electrons of the dim-plane tests and their brightness tolerance: an
 #: object's light within +-1 plane of its depth, over the truth's, relative to the
-#: nearest object's. Measured at 30000 e- (recon.benchmarks.volume_auto): beads
+#: nearest object's. Measured at 30000 e- (benchmarks.volume_auto): beads
 #: 0.77-1.08, extended objects 0.37-1.09 (the farthest disc at 30x loses most: its
 #: PSF is nearly the next plane's and 3D TV splits its light between the two).
 PHOTONS = 30000.0

@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from recon.benchmarks.blind import METHODS, PRESETS, run_blind_calibration
-from recon.benchmarks.run import BENCHMARKS, format_result
+from benchmarks.blind import METHODS, PRESETS, run_blind_calibration
+from benchmarks.run import BENCHMARKS, format_result
 from recon.errors import ReconInputError
 
 

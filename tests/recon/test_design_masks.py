@@ -103,7 +103,7 @@ def test_predictor_ghosts_separate_regular_from_random():
 
 
 def test_design_benchmark_small_run(tmp_path):
-    from recon.benchmarks.design import design_table, run_design
+    from benchmarks.design import design_table, run_design
 
     r = run_design(True, tmp_path, settings={"size": 48, "photons": (1e4,), "gaussian": (1.0,),
                                              "iterations": 15, "l1": (0.03,)})

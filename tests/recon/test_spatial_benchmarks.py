@@ -2,8 +2,8 @@
 
 import json
 
-from recon.benchmarks.run import BENCHMARKS, format_result
-from recon.benchmarks.spatial import run_spatial_speed
+from benchmarks.run import BENCHMARKS, format_result
+from benchmarks.spatial import run_spatial_speed
 
 
 def test_spatial_speed_quick_reports_ratios_and_memory(tmp_path):
@@ -35,8 +35,8 @@ def _far_result():
 
 
 def test_spatial_far_table_summary_and_figure(tmp_path):
-    from recon.benchmarks.run import summarise
-    from recon.benchmarks.spatial_far import plot_spatial_far
+    from benchmarks.run import summarise
+    from benchmarks.spatial_far import plot_spatial_far
 
     assert "spatial_far" in BENCHMARKS
     r = _far_result()

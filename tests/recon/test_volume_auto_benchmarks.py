@@ -1,5 +1,5 @@
-"""The 3D auto benchmark (recon.benchmarks.volume_auto) and the external-data benchmark
-(recon.benchmarks.volume_external): their metrics on known inputs, and one quick run
+"""The 3D auto benchmark (benchmarks.volume_auto) and the external-data benchmark
+(benchmarks.volume_external): their metrics on known inputs, and one quick run
 each. No timing thresholds (the machine is shared)."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ import math
 import numpy as np
 import pytest
 
-from recon.benchmarks.volume_auto import (
+from benchmarks.volume_auto import (
     _apply_rule,
     object_metrics,
     run_volume_auto,
     volume_auto_table,
 )
+from benchmarks.volume_external import fine_structure, fine_structure_share
 from recon.benchmarks.volume_auto_scenes import render_volume_case
-from recon.benchmarks.volume_external import fine_structure, fine_structure_share
 from recon.errors import ReconInputError
 
 
@@ -90,7 +90,7 @@ def test_volume_auto_quick(tmp_path):
 def test_volume_auto_times_the_default_in_turn_with_a_fixed_solve(tmp_path):
     """The default's cost is the median of runs taken in turn with fixed solves at the
     oracle's weight (the first, untimed-in-turn run dropped), as the 2D suite does."""
-    from recon.benchmarks.volume_auto import QUICK, run_case
+    from benchmarks.volume_auto import QUICK, run_case
 
     c = run_case("beads", 10.0, 3000.0, QUICK | {"timing_repeats": 3})
     assert len(c["auto"]["seconds_runs"]) == 2 and len(c["fixed_seconds_runs"]) == 2
@@ -100,7 +100,7 @@ def test_volume_auto_times_the_default_in_turn_with_a_fixed_solve(tmp_path):
 
 
 def test_volume_external_quick(tmp_path):
-    from recon.benchmarks.volume_external import run_volume_external, volume_external_table
+    from benchmarks.volume_external import run_volume_external, volume_external_table
 
     r = run_volume_external(quick=True, out=tmp_path)
     for name in ("fista3d", "admm3d"):

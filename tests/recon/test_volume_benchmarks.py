@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 from scipy.signal import fftconvolve
 
-from recon.benchmarks.volume_accuracy import (
+from benchmarks.volume_accuracy import (
     METHODS3D,
     RECON3D_DEFAULT,
     run_volume_accuracy,
     volume_psnr,
     volume_ssim,
 )
-from recon.benchmarks.volume_scenes import make_bench, target_truth
+from benchmarks.volume_scenes import make_bench, target_truth
 from recon.errors import ReconInputError
 from recon.preprocess import box_bin
 

@@ -1,4 +1,4 @@
-"""``diffuserlab analyze design`` and ``benchmark design``: a small successful run, bad
+"""``diffuserlab analyze design`` and ``python -m benchmarks.design``: a small successful run, bad
 options (one line, exit 2, nothing written) and existing outputs kept."""
 
 from __future__ import annotations
@@ -64,7 +64,9 @@ def test_benchmark_design_keeps_earlier_results(tmp_path, capsys):
     out = tmp_path / "b"
     out.mkdir()
     (out / "design.json").write_text("{}")
-    assert main(["benchmark", "design", "--quick", "--out", str(out)]) == 2
+    from benchmarks.design import main as design
+
+    assert design(["--quick", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "exists" in err[0]
     assert (out / "design.json").read_text() == "{}" and not (out / "design.png").exists()

@@ -1,4 +1,5 @@
-"""Smoke test of the benchmark suite (``diffuserlab benchmark recon --quick``): files and figures.
+"""Smoke test of the benchmark suite (``python -m benchmarks --quick``: the package's
+speed benchmarks, ``diffuserlab benchmark recon``, and the studies): files and figures.
 
 No timing thresholds: the machine is shared and noisy; only that every figure exists
 and is finite.
@@ -32,13 +33,14 @@ pytestmark = pytest.mark.skipif(not _data_available(),
 def quick_run(tmp_path_factory):
     """Every benchmark in quick mode but ``blind_calibration`` (74 s of the run's 160 s;
     its own test, tests/recon/test_blind_benchmark.py, is marked slow)."""
-    import recon.benchmarks.run as run
+    import benchmarks.run as run
+    from benchmarks.__main__ import main as studies
 
     out = tmp_path_factory.mktemp("benchmark")
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(run, "BENCHMARKS", tuple(b for b in run.BENCHMARKS
                                             if b != "blind_calibration"))
-        status = main(["benchmark", "recon", "--quick", "--out", str(out)])
+        status = studies(["--quick", "--out", str(out)])
     return status, out
 
 
@@ -124,7 +126,7 @@ def _png_width(path) -> int:
 
 
 def test_chart_has_a_3d_panel(quick_run, tmp_path):
-    from recon.benchmarks.accuracy import plot_accuracy
+    from benchmarks.accuracy import plot_accuracy
 
     _, out = quick_run
     acc = _load(out, "accuracy.json")
@@ -145,6 +147,29 @@ def test_summary_and_only_flag(quick_run, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["benchmark", "recon", "--only", "nonsense"])
     capsys.readouterr()
+
+
+def test_the_package_benchmark_is_speed_and_the_studies_run_from_the_checkout(tmp_path,
+                                                                               capsys):
+    """``diffuserlab benchmark recon`` runs this machine's speed benchmarks only; a study
+    asked of it is refused with where it runs; the studies' command keeps an earlier
+    run's results unless told to overwrite."""
+    from benchmarks.__main__ import main as studies
+    from recon.benchmarks.run import BENCHMARKS
+
+    assert BENCHMARKS == ("speed", "volume_speed")
+    with pytest.raises(SystemExit):
+        main(["benchmark", "recon", "--only", "accuracy"])
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main(["benchmark", "recon", "--help"])
+    assert "python -m benchmarks" in " ".join(capsys.readouterr().out.split())
+    (tmp_path / "summary.json").write_text("{}")
+    assert studies(["--quick", "--only", "accuracy", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists" in err[0]
+    assert (tmp_path / "summary.json").read_text() == "{}"
+    assert not (tmp_path / "accuracy.json").exists()
 
 
 def test_volume_benchmark_quick_writes_ratios(tmp_path, capsys):

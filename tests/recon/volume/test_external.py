@@ -12,7 +12,7 @@ from __future__ import annotations
 import pytest
 
 import recon
-from recon.benchmarks.volume_external import fine_structure_share
+from benchmarks.volume_external import fine_structure_share
 from recon.volume.sample import load_volume_sample
 
 #: What the default must reach at bin 4 and 150 iterations. Measured there: TV 1.0e-4

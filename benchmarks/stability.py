@@ -1,7 +1,7 @@
 """Stability: where each method breaks as noise grows and pixels are erased.
 
 Two sweeps on one simulated scene (real PSF rendered at bin 2, reconstructed at bin
-4, see :mod:`recon.benchmarks.accuracy`): peak photons from high to very low (read
+4, see :mod:`benchmarks.accuracy`): peak photons from high to very low (read
 noise fixed), and the erased fraction of sensor pixels (Eq. 3.10) from 0 to 0.95 at
 a fixed photon count. Every method runs a fixed iteration budget with its weight
 (from the accuracy sweep, or :data:`recon.benchmarks.DEFAULT_WEIGHTS`); with
@@ -28,12 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DivergenceError
-from ..metrics import psnr, ssim
-from ..operators import PixelErasure
-from ..scenes import load_scene
-from ..simulate import simulate_measurement
-from . import (
+from recon.benchmarks import (
     DEFAULT_WEIGHTS,
     METHODS,
     fmt,
@@ -44,6 +39,11 @@ from . import (
     solve,
     write_json,
 )
+from recon.errors import DivergenceError
+from recon.metrics import psnr, ssim
+from recon.operators import PixelErasure
+from recon.scenes import load_scene
+from recon.simulate import simulate_measurement
 
 #: Absolute quality bound. At the stability budget (300 iterations) the methods reach
 #: 14-16 dB on this scene at high SNR (Wiener ~10 dB), so 12 dB is ~3 dB below the best.

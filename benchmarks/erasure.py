@@ -26,12 +26,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..metrics import fit_gain, psnr, ssim
-from ..operators import PixelErasure
-from ..scenes import load_scene
-from ..simulate import simulate_measurement
-from ..solvers import admm, fista
-from . import (
+from recon.benchmarks import (
     DEFAULT_WEIGHTS,
     fmt,
     format_table,
@@ -40,6 +35,11 @@ from . import (
     scaled_problem,
     write_json,
 )
+from recon.metrics import fit_gain, psnr, ssim
+from recon.operators import PixelErasure
+from recon.scenes import load_scene
+from recon.simulate import simulate_measurement
+from recon.solvers import admm, fista
 
 ERASED = 0.8
 SEED = 0

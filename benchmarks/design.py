@@ -1,6 +1,6 @@
 """Mask design comparison of the diffuser microscope (Kuo 2020, Sec. 6.3, Fig. 6.2-6.3).
 
-``diffuserlab benchmark design`` runs :func:`run_design`: the four designs of
+``python -m benchmarks.design`` runs :func:`run_design`: the four designs of
 :mod:`recon.optics.design_masks` (objective lens, smooth diffuser, regular
 microlens array, random microlens diffuser), each imaging the same sparse
 fluorescent test objects on a small patch of the field (one PSF per depth, as the
@@ -38,11 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ReconInputError
-from ..metrics import psnr
-from ..optics.design_masks import DESIGNS, MaskDesign, bin_fine
-from ..volume import VolumeConvolutionOperator, fista3d, normalize_psf_stack
-from . import fmt, format_table, log_x_axis, save_figure, write_json
+from recon.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
+from recon.errors import ReconInputError
+from recon.metrics import psnr
+from recon.optics.design_masks import DESIGNS, MaskDesign, bin_fine
+from recon.volume import VolumeConvolutionOperator, fista3d, normalize_psf_stack
 
 __all__ = ["design_table", "plot_design", "run_design"]
 
@@ -368,3 +368,42 @@ def plot_design(result: dict, path: Path) -> Path:
         ax.set_xticks([])
         ax.set_yticks([])
     return save_figure(fig, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m benchmarks.design``: run :func:`run_design`, print its table and the
+    ordering it found, write ``OUT/design.json`` and ``OUT/design.png``; returns the
+    exit status (2 for bad input or an ``--out`` holding earlier results)."""
+    import argparse
+    import sys
+
+    from diffuserlab.errors import DiffuserLabError
+    from instrument.output_safety import check_outputs
+
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.design",
+        description="Reconstruct sparse fluorescent objects (2D, and 3 depths) imaged by an "
+        "objective lens, a smooth diffuser, a regular microlens array and a random microlens "
+        "diffuser over sweeps of collected photons (shot noise) and Gaussian noise; print "
+        "the PSNR table and the ordering, write design.json and design.png.")
+    p.add_argument("--out", type=Path, default=Path("out/benchmark-design"),
+                   help="directory for design.json and design.png (default "
+                   "out/benchmark-design)")
+    p.add_argument("--quick", action="store_true",
+                   help="64 x 64 patch, 2 levels per sweep, 40 iterations (tests, ~30 s)")
+    p.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
+    args = p.parse_args(argv)
+    try:
+        check_outputs([args.out / "design.json", args.out / "design.png"], None,
+                      args.overwrite, directory=args.out)
+        result = run_design(args.quick, args.out)
+    except DiffuserLabError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(design_table(result))
+    print(f"({result['seconds']:.0f} s) results in {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

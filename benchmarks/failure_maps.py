@@ -1,7 +1,7 @@
 """Failure maps: PSNR of every method over photon count x scene density and photon
 count x erased fraction, with the contour where it fails and the auto choice on top.
 
-Scenes (:mod:`recon.benchmarks.auto_scenes`, real PSF rendered at bin 4 and
+Scenes (:mod:`benchmarks.auto_scenes`, real PSF rendered at bin 4 and
 reconstructed at bin 8 for speed: model mismatch, Poisson + 3 e- read noise): sparse
 beads at growing density up to a dense natural photograph (camera), and the camera
 photograph with a growing fraction of erased sensor pixels (Eq. 3.10). Methods at
@@ -23,10 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..auto import solve_channel
-from ..errors import DivergenceError, ReconInputError
-from ..metrics import psnr
-from . import DEFAULT_WEIGHTS, METHODS, fmt, save_figure, solve, write_json
+from recon.auto import solve_channel
+from recon.benchmarks import DEFAULT_WEIGHTS, METHODS, fmt, save_figure, solve, write_json
+from recon.errors import DivergenceError, ReconInputError
+from recon.metrics import psnr
+
 from .auto_scenes import render_case
 
 #: PSNR below this fails (dB, gain-fitted, bin 8).

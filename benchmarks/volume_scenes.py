@@ -1,6 +1,6 @@
 """3D test scenes on the virtual bench's diffuser, rendered with model mismatch.
 
-The volume accuracy benchmark (:mod:`recon.benchmarks.volume_accuracy`) reconstructs
+The volume accuracy benchmark (:mod:`benchmarks.volume_accuracy`) reconstructs
 with the 3D model of Eq. 4.4 (on-axis PSFs at the reconstruction planes, shifted
 laterally) but renders its measurements with the ray-traced optics of
 :mod:`recon.optics.lensless`, never with the reconstruction operator itself:
@@ -33,12 +33,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ReconInputError
-from ..optics.lensless import LenslessModel, default_geometry
-from ..preprocess import box_bin
-from ..scenes import cell_overlap, usaf_target
-from ..simulate import add_camera_noise
-from ..volume import VolumeConvolutionOperator, bin_stack, normalize_psf_stack
+from recon.errors import ReconInputError
+from recon.optics.lensless import LenslessModel, default_geometry
+from recon.preprocess import box_bin
+from recon.scenes import cell_overlap, usaf_target
+from recon.simulate import add_camera_noise
+from recon.volume import VolumeConvolutionOperator, bin_stack, normalize_psf_stack
 
 #: Peak photo-electrons of an averaged calibration PSF (about 8 frames at 60 % of a
 #: 4000 e- well) and of a scene measurement; read noise in electrons.

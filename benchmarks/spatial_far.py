@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import fmt, format_table, log_x_axis, save_figure, write_json
+from recon.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
 
 __all__ = ["plot_spatial_far", "run_spatial_far", "spatial_far_table"]
 
@@ -53,7 +53,7 @@ RENDER_PATCHES = 5
 
 
 def _camera(seed: int):
-    from ..optics.lensless import LenslessModel, default_geometry
+    from recon.optics.lensless import LenslessModel, default_geometry
 
     model = LenslessModel(default_geometry("smooth", seed))
     geo = model.geometry
@@ -63,7 +63,7 @@ def _camera(seed: int):
 
 def _calibration(model, width: float, rng):
     """3 x 3 ray-traced pinhole PSFs spanning the scene, noisy, registered."""
-    from ..spatial import PsfGrid
+    from recon.spatial import PsfGrid
 
     half = width / 2
     positions = [(x, y) for y in (-half, 0.0, half) for x in (-half, 0.0, half)]
@@ -81,15 +81,15 @@ def _measurement(model, scene, width: float, photons: float, rng):
 
 
 def _score(image, truth) -> dict:
-    from ..metrics import psnr, register_truth, ssim
+    from recon.metrics import psnr, register_truth, ssim
 
     _, t = register_truth(image, truth)
     return {"psnr_db": psnr(image, t), "ssim": ssim(image, t)}
 
 
 def _bin(grid, raw, truth, factor: int):
-    from ..preprocess import box_bin
-    from ..spatial.api import bin_grid
+    from recon.preprocess import box_bin
+    from recon.spatial.api import bin_grid
 
     if factor == 1:
         return grid, raw, truth
@@ -98,8 +98,8 @@ def _bin(grid, raw, truth, factor: int):
 
 
 def _methods(grid, raw, truth, iterations: int, models=("auto", "local")) -> dict:
-    from ..api import reconstruct
-    from ..spatial import correct_brightness
+    from recon.api import reconstruct
+    from recon.spatial import correct_brightness
 
     out = {}
     t0 = time.perf_counter()
@@ -132,9 +132,9 @@ def _convergence(grid, raw, truth, admm_its, fista_its,
     automatic weight's final solve stops early, so at its weight the converged
     minimiser can be worse than the kept iterate: both solvers are compared on one
     objective whose minimiser is good)."""
-    from ..solvers import fista
-    from ..spatial import spatial_admm
-    from ..spatial.api import grid_model
+    from recon.solvers import fista
+    from recon.spatial import spatial_admm
+    from recon.spatial.api import grid_model
 
     _, op = grid_model(grid, model="local", two_part=True)
     scale = float(np.max(raw))
@@ -178,7 +178,7 @@ def run_spatial_far(quick: bool, out: Path) -> dict:
         ``cases`` (scene, photons, per method PSNR, SSIM, seconds, model, weight,
         iterations), ``convergence`` (ADMM and FISTA curves), settings.
     """
-    from ..scenes import load_scene
+    from recon.scenes import load_scene
 
     rng = np.random.default_rng(0)
     model, width = _camera(seed=0)

@@ -4,7 +4,7 @@ emulators, the GUI process, and how it ended.
 :func:`run_day` starts Xvfb (unless told to use a display) and a window manager
 (openbox, else fluxbox), and for the emulated bench the protocol emulators
 (:class:`instrument.emulated_bench.EmulatedBench`, as ``diffuserlab emulators start``
-runs them) with their bench file; then it runs ``python -m gui.operator_day`` (the
+runs them) with their bench file; then it runs ``python -m benchmarks.window.operator_day`` (the
 real ``diffuserlab gui`` on the xcb platform, driven through xdotool), unplugs and
 plugs back an emulated device when the operator asks, and waits for the process to
 end. It returns the operator's report with what only the outside sees: the exit
@@ -132,7 +132,7 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
     Returns
     -------
     dict
-        The operator's report (:mod:`gui.operator_day`) plus ``returncode``,
+        The operator's report (:mod:`benchmarks.window.operator_day`) plus ``returncode``,
         ``crashed`` (bool), ``stderr_tail``, ``window_manager``, ``quit_run`` (the
         recording's run status and lock after Ctrl+Q) and ``load_avg``.
     """
@@ -142,13 +142,13 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
     work_dir.mkdir(parents=True, exist_ok=True)
     report_path = work_dir / "report.json"
     timeout_s = timeout_s or minutes * 60 + 600
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]  # the checkout (benchmarks is not installed)
     env = {**os.environ, "QT_QPA_PLATFORM": "xcb",
            "DIFFUSERLAB_GUI_SETTINGS": str(work_dir / "gui.ini"),
            "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "gui.operator_day", "--work", str(work_dir / "runs"),
-           "--report", str(report_path), "--minutes", str(minutes),
-           "--alignment-s", str(alignment_s)]
+    cmd = [sys.executable, "-m", "benchmarks.window.operator_day",
+           "--work", str(work_dir / "runs"), "--report", str(report_path),
+           "--minutes", str(minutes), "--alignment-s", str(alignment_s)]
     bench = None
     pass_fds: tuple[int, ...] = ()
     ours = theirs = None
@@ -207,7 +207,7 @@ def _run_state(path: str) -> dict:
 
 def _print_array_census(taken: list[dict]) -> None:
     """The NumPy arrays alive at each pass's stream phase (``DIFFUSERLAB_DAY_CENSUS``
-    set: :func:`gui.daymonitor.array_holders`), and the holders that changed most
+    set: :func:`benchmarks.window.daymonitor.array_holders`), and the holders that changed most
     between the second census and the last."""
     taken = [c["arrays"] for c in taken if "arrays" in c]
     if len(taken) < 2:

@@ -37,11 +37,11 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from ..api import PsfStack, reconstruct
-from ..volume import admm3d, fft_floor_seconds, fista3d, normalize_psf_stack
-from ..volume.operator import VolumeConvolutionOperator
-from ..volume.sample import load_volume_sample
-from . import fmt, format_table, save_figure, write_json
+from recon.api import PsfStack, reconstruct
+from recon.benchmarks import fmt, format_table, save_figure, write_json
+from recon.volume import admm3d, fft_floor_seconds, fista3d, normalize_psf_stack
+from recon.volume.operator import VolumeConvolutionOperator
+from recon.volume.sample import load_volume_sample
 
 FULL = {"bin_factor": 2, "iterations": 200, "chunk": 10}
 QUICK = {"bin_factor": 4, "iterations": 20, "chunk": 5}

@@ -43,8 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ReconInputError
-from . import format_table, save_figure, write_json
+from recon.benchmarks import format_table, save_figure, write_json
+from recon.errors import ReconInputError
 
 __all__ = ["blind_calibration_table", "plot_blind_calibration", "run_blind_calibration"]
 
@@ -88,8 +88,8 @@ def _anchor(grid, true_central):
     """The grid translated so its central PSF registers to the true one."""
     from scipy.ndimage import shift
 
-    from ..analysis import register_shift
-    from ..spatial import PsfGrid
+    from recon.analysis import register_shift
+    from recon.spatial import PsfGrid
 
     s = np.asarray(register_shift(true_central, grid.psfs[grid.central]))
     psfs = np.maximum(np.stack([shift(h, -s, order=1) for h in grid.psfs]), 0)
@@ -139,10 +139,10 @@ def run_blind_calibration(quick: bool, out: Path, *, preset: str | None = None,
     ReconInputError
         A preset whose image count is not an odd square or whose node count is even.
     """
-    from ..analysis import lateral_calibration_spacing_mm
-    from ..optics.lensless import LenslessModel, microscope_geometry
-    from ..scenes import cell_overlap
-    from ..spatial import (
+    from recon.analysis import lateral_calibration_spacing_mm
+    from recon.optics.lensless import LenslessModel, microscope_geometry
+    from recon.scenes import cell_overlap
+    from recon.spatial import (
         PsfGrid,
         blind_calibration,
         build_operator,

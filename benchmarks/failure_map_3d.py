@@ -1,12 +1,12 @@
 """The 3D failure map: bead localisation over bead count x photon count.
 
 Beads ray-traced at random 3D positions on the virtual bench's diffuser
-(:func:`recon.benchmarks.volume_scenes.bead_scene`: off-axis effects, noise; the
+(:func:`benchmarks.volume_scenes.bead_scene`: off-axis effects, noise; the
 reconstruction uses on-axis PSFs, so model mismatch), reconstructed by 3D FISTA and
 3D ADMM at ``recon3d``'s former fixed TV (:data:`recon.volume.DEFAULT_TV`) and by
 the automatic weight (:func:`recon.auto.volume.auto_volume`, every plane kept). A cell fails
 when a bead is missed, a spurious one is found, or a bead lands more than one plane
-off (:func:`recon.benchmarks.volume_accuracy.bead_metrics`), or the solve diverges.
+off (:func:`benchmarks.volume_accuracy.bead_metrics`), or the solve diverges.
 One figure: a panel per method, the fraction of beads found within one plane as
 colour, failed cells crossed, auto's failed cells outlined on every panel.
 """
@@ -18,11 +18,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..auto.noise import estimate_noise
-from ..auto.volume import auto_volume
-from ..errors import DivergenceError
-from ..volume import DEFAULT_TV, VolumeAdmmPlan, fista3d
-from . import save_figure, write_json
+from recon.auto.noise import estimate_noise
+from recon.auto.volume import auto_volume
+from recon.benchmarks import save_figure, write_json
+from recon.errors import DivergenceError
+from recon.volume import DEFAULT_TV, VolumeAdmmPlan, fista3d
+
 from .volume_accuracy import METHODS3D, bead_metrics
 from .volume_scenes import bead_scene, make_bench
 

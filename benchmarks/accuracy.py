@@ -18,11 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DivergenceError
-from ..metrics import psnr, ssim
-from ..scenes import load_scene
-from ..simulate import simulate_measurement
-from . import (
+from recon.benchmarks import (
     METHODS,
     fmt,
     format_table,
@@ -33,6 +29,10 @@ from . import (
     solve,
     write_json,
 )
+from recon.errors import DivergenceError
+from recon.metrics import psnr, ssim
+from recon.scenes import load_scene
+from recon.simulate import simulate_measurement
 
 FULL = {
     "scenes": ("camera", "astronaut", "coffee"),
@@ -229,13 +229,13 @@ def plot_accuracy(result: dict, path: Path, volume: dict | None = None,
     path : Path
         PNG to write.
     volume : dict, optional
-        A :func:`recon.benchmarks.volume_accuracy.run_volume_accuracy` result: adds a
+        A :func:`benchmarks.volume_accuracy.run_volume_accuracy` result: adds a
         last panel with the 3D methods (tilted-target volume PSNR against seconds,
-        :func:`recon.benchmarks.volume_plots.plot_volume_panel`).
+        :func:`benchmarks.volume_plots.plot_volume_panel`).
     spatial : dict, optional
-        A :func:`recon.benchmarks.spatial.run_spatial_accuracy` result: adds a panel
+        A :func:`benchmarks.spatial.run_spatial_accuracy` result: adds a panel
         with the spatially varying models on the virtual microscope
-        (:func:`recon.benchmarks.spatial.plot_spatial_panel`).
+        (:func:`benchmarks.spatial.plot_spatial_panel`).
 
     Returns
     -------

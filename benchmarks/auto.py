@@ -1,7 +1,7 @@
 """The default reconstruction (automatic TV weight) against the oracle fixed weight,
 over a suite of scenes of every kind, and its speed against accuracy.
 
-Scenes (:data:`SUITE`, :mod:`recon.benchmarks.auto_scenes`): sparse points and beads,
+Scenes (:data:`SUITE`, :mod:`benchmarks.auto_scenes`): sparse points and beads,
 smooth shapes, four natural photographs, dense texture (brick, gravel), printed text
 and a bar chart, line patterns (a Siemens star and gratings), a star field, a dark
 scene at 300 and a bright one at 30000 peak photo-electrons (the others 3000), each
@@ -32,12 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..auto import solve_channel
-from ..errors import DivergenceError, ReconInputError
-from ..fft import fft_pair_seconds
-from ..metrics import psnr, ssim
-from ..solvers import admm
-from . import fmt, format_table, write_json
+from recon.auto import solve_channel
+from recon.benchmarks import fmt, format_table, write_json
+from recon.errors import DivergenceError, ReconInputError
+from recon.fft import fft_pair_seconds
+from recon.metrics import psnr, ssim
+from recon.solvers import admm
+
 from .auto_scenes import render_case
 
 __all__ = ["FULL", "GOAL_MEAN_DB", "GOAL_WORST_DB", "QUICK", "SUITE", "auto_table",

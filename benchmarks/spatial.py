@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import fmt, format_table, log_x_axis, save_figure, write_json
+from recon.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
 
 __all__ = ["plot_spatial_panel", "run_spatial_accuracy", "run_spatial_speed",
            "spatial_accuracy_table", "spatial_speed_table"]
@@ -52,7 +52,7 @@ def _median_seconds(fn, repeats: int) -> float:
 
 
 def _synthetic_grid(shape, n, seed=0):
-    from ..spatial import PsfGrid
+    from recon.spatial import PsfGrid
 
     rng = np.random.default_rng(seed)
     base = (rng.random(shape) > 0.995).astype(np.float32)
@@ -74,8 +74,8 @@ def run_spatial_speed(quick: bool, out: Path) -> dict:
         1080 x 1920, 5 x 5 grid, 10 depths; ``estimate_check``: estimate against a
         built operator.
     """
-    from ..spatial import local_convolution_operator, pca_operator, spatial_memory_bytes
-    from ..volume import fft_floor_seconds
+    from recon.spatial import local_convolution_operator, pca_operator, spatial_memory_bytes
+    from recon.volume import fft_floor_seconds
 
     shapes = [(96, 128)] if quick else [(270, 480), (540, 960)]
     repeats = 3 if quick else 7
@@ -197,9 +197,9 @@ def run_spatial_accuracy(quick: bool, out: Path) -> dict:
         iteration and convolutions; ``choice``: what :func:`choose_model` picks;
         ``setup``: the numbers of the simulation.
     """
-    from ..analysis import lateral_calibration_spacing_mm
-    from ..optics.lensless import LenslessModel, microscope_geometry
-    from ..spatial import PsfGrid, build_operator, choose_model, fista_background
+    from recon.analysis import lateral_calibration_spacing_mm
+    from recon.optics.lensless import LenslessModel, microscope_geometry
+    from recon.spatial import PsfGrid, build_operator, choose_model, fista_background
 
     z = 2.4
     n_grid = 3 if quick else 5

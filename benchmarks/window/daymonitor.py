@@ -30,7 +30,7 @@ from types import FrameType
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
-from .memory import rss_mb
+from gui.memory import rss_mb
 
 __all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage"]
 
@@ -284,7 +284,7 @@ def frozen_garbage(top: int = 12) -> dict:
     """
     import gc
 
-    from .memory import trim_now
+    from gui.memory import trim_now
 
     before = rss_mb()
     frozen = gc.get_freeze_count()
@@ -428,7 +428,7 @@ class DayMonitor(QObject):
 
     def sample(self) -> dict:
         """Take one refcount and memory sample (also at every phase change)."""
-        from .memory import heap_mb
+        from gui.memory import heap_mb
 
         s = {"t_s": time.monotonic() - self.t0, "phase": self.phase, "loop": self.loop,
              "none_refs": sys.getrefcount(None), "true_refs": sys.getrefcount(True),

@@ -1,6 +1,6 @@
 """Screenshots of every panel, driven on the virtual bench (docs/images/ holds them).
 
-``python -m gui.screenshots OUT_DIR [--alignment-record DIR]`` (under an X display,
+``python -m benchmarks.window.screenshots OUT_DIR [--alignment-record DIR]`` (under an X display,
 e.g. ``xvfb-run -a``; the screenshot test runs it so) opens the window on the
 built-in simulated bench, drives each panel into a state worth showing and saves
 ``gui-<panel>.png`` of each dock:
@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-from .workers import wait_until
+from gui.workers import wait_until
 
 __all__ = ["take_screenshots"]
 
@@ -61,8 +61,8 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
                           str(Path(tempfile.mkdtemp(prefix="gui-shots-")) / "gui.ini"))
     from PySide6.QtWidgets import QApplication
 
-    from .app import MainWindow, configure
-    from .session import Session
+    from gui.app import MainWindow, configure
+    from gui.session import Session
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
     configure()
@@ -277,7 +277,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gui.screenshots",
+    p = argparse.ArgumentParser(prog="python -m benchmarks.window.screenshots",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("out_dir", help="folder for the PNG files (e.g. docs/images)")
     p.add_argument("--alignment-record", default=None,
@@ -293,6 +293,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from .cli import exit_now
+    from gui.cli import exit_now
 
     exit_now(main())

@@ -1,4 +1,4 @@
-"""Figures of the 3D accuracy benchmark (:mod:`recon.benchmarks.volume_accuracy`).
+"""Figures of the 3D accuracy benchmark (:mod:`benchmarks.volume_accuracy`).
 
 :func:`plot_volume_panel` draws the 3D methods' tilted-target PSNR against seconds
 on one axes (the 3D panel of the speed-vs-accuracy chart,
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import log_x_axis, save_figure
+from recon.benchmarks import log_x_axis, save_figure
 
 
 def _xy(points: list[dict], key: str) -> tuple[list[float], list[float]]:
@@ -27,7 +27,7 @@ def plot_volume_panel(ax, result: dict) -> None:
     ----------
     ax : matplotlib.axes.Axes
     result : dict
-        A :func:`recon.benchmarks.volume_accuracy.run_volume_accuracy` result.
+        A :func:`benchmarks.volume_accuracy.run_volume_accuracy` result.
     """
     for m, pts in result["curves"]["target"].items():
         w = result["chosen"]["target"][m]

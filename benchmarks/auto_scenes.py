@@ -30,12 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..api import scaled_problem
-from ..errors import ReconInputError
-from ..operators import ConvolutionOperator
-from ..sample import load_sample
-from ..scenes import BUNDLED, load_scene, usaf_target
-from ..simulate import Simulation, simulate_measurement
+from recon.api import scaled_problem
+from recon.errors import ReconInputError
+from recon.operators import ConvolutionOperator
+from recon.sample import load_sample
+from recon.scenes import BUNDLED, load_scene, usaf_target
+from recon.simulate import Simulation, simulate_measurement
 
 __all__ = ["KINDS", "Case", "make_scene", "render_case"]
 

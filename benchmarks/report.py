@@ -12,7 +12,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ..errors import ReconInputError
+from recon.errors import ReconInputError
+
 from .run import BENCHMARKS, format_result
 
 __all__ = ["markdown_page"]

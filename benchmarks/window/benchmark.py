@@ -1,8 +1,8 @@
 """Responsiveness benchmark of the GUI: the Qt event loop's latency under load.
 
-``python -m gui.benchmark [--seconds 20] [--method admm:5] [--json OUT.json]``
-(``python -m gui.benchmark soak [--minutes 60] [--emulated]``: the operator's day in a
-real window, :mod:`gui.soak`)
+``python -m benchmarks.window.benchmark [--seconds 20] [--method admm:5] [--json OUT.json]``
+(``python -m benchmarks.window.benchmark soak [--minutes 60] [--emulated]``: the operator's day in a
+real window, :mod:`benchmarks.window.soak`)
 
 Measures how late a 10 ms timer fires on the GUI thread (its lateness: the interval
 between two firings minus 10 ms), first with the window idle (the reference), then
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .workers import wait_until
+from gui.workers import wait_until
 
 __all__ = ["measure_lateness", "run_benchmark"]
 
@@ -86,9 +86,9 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
     os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     from PySide6.QtWidgets import QApplication
 
-    from .app import MainWindow, configure
-    from .panels.calibration import CalibrationPanel
-    from .session import Session
+    from gui.app import MainWindow, configure
+    from gui.panels.calibration import CalibrationPanel
+    from gui.session import Session
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
     configure()
@@ -167,12 +167,12 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
 
 
 def soak(argv: list[str]) -> int:
-    """``python -m gui.benchmark soak [--minutes 60] [--emulated] [--json OUT]``: the
-    operator's day in a real window for ``--minutes`` (:func:`gui.soak.run_day`), its
-    figures against the goals (:func:`gui.soak.summarise`)."""
+    """``python -m benchmarks.window.benchmark soak [--minutes 60] [--emulated] [--json OUT]``: the
+    operator's day in a real window for ``--minutes`` (:func:`benchmarks.window.soak.run_day`), its
+    figures against the goals (:func:`benchmarks.window.soak.summarise`)."""
     from .soak import print_summary, run_day, summarise
 
-    p = argparse.ArgumentParser(prog="python -m gui.benchmark soak",
+    p = argparse.ArgumentParser(prog="python -m benchmarks.window.benchmark soak",
                                 description=soak.__doc__.split("\n\n")[0])
     p.add_argument("--minutes", type=float, default=60.0, help="length of the day")
     p.add_argument("--emulated", action="store_true",
@@ -199,8 +199,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["soak"]:
         return soak(argv[1:])
-    p = argparse.ArgumentParser(prog="python -m gui.benchmark", description=__doc__.split(
-        "\n\n")[0], epilog="python -m gui.benchmark soak --help: the operator's day in a "
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.window.benchmark", description=__doc__.split("\n\n")[0],
+        epilog="python -m benchmarks.window.benchmark soak --help: the operator's day in a "
         "real window (60 minutes by default)")
     p.add_argument("--seconds", type=float, default=20.0, help="length of each phase, s")
     p.add_argument("--method", default="wiener", help="wiener or admm:K")
@@ -234,6 +235,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from .cli import exit_now
+    from gui.cli import exit_now
 
     exit_now(main())

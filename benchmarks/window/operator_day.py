@@ -1,9 +1,9 @@
 """An operator's day, driven through the real ``diffuserlab gui`` in a real X window.
 
-``python -m gui.operator_day --report OUT.json [--bench FILE | --simulate] [--minutes M]``
-runs the ``diffuserlab gui`` command itself (:func:`instrument.cli.main`, the window
+``python -m benchmarks.window.operator_day --report OUT.json [--bench FILE | --simulate]
+[--minutes M]`` runs the ``diffuserlab gui`` command itself (:func:`instrument.cli.main`, the window
 and event loop as an operator gets them) with an :class:`Operator` on its event loop.
-The operator clicks, types and presses keys through the X server (:mod:`gui.xinput`,
+The operator clicks, types and presses keys through the X server (:mod:`benchmarks.window.xinput`,
 xdotool), finds what to click by the widgets' names, and waits for what the window
 shows, never blocking the event loop. The day:
 
@@ -15,9 +15,9 @@ image tools and a snapshot; an LED array unplugged and reconnected; Esc during a
 move and Snap (F6); then, when the day's minutes are not used up, the day's middle
 again; at the end Ctrl+Q during a recording, answered Yes.
 
-:class:`gui.daymonitor.DayMonitor` measures the GUI thread's lateness per phase, the
+:class:`benchmarks.window.daymonitor.DayMonitor` measures the GUI thread's lateness per phase, the
 reference counts of None and True and the memory; the report (JSON) is written before
-the window closes. ``gui.soak`` starts Xvfb, a window manager and the emulators, runs
+the window closes. ``benchmarks.window.soak`` starts Xvfb, a window manager and the emulators, runs
 this, and checks how the process ended.
 """
 
@@ -724,7 +724,7 @@ class _Control:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m gui.operator_day",
+    p = argparse.ArgumentParser(prog="python -m benchmarks.window.operator_day",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--bench", default=None, help="bench file (default: --simulate)")
     p.add_argument("--simulate", action="store_true", help="the built-in simulated bench")
@@ -739,7 +739,7 @@ def main(argv: list[str] | None = None) -> int:
     app = QApplication.instance() or QApplication(sys.argv[:1])
 
     def begin() -> None:
-        from .app import MainWindow
+        from gui.app import MainWindow
 
         windows = [w for w in app.topLevelWidgets() if isinstance(w, MainWindow)]
         if not windows:

@@ -15,7 +15,7 @@ exactly as :func:`recon.reconstruct` runs it for a :class:`recon.PsfStack`
 (:func:`recon.auto.volume.auto_volume`:
 noise model fitted to the frame, the held-out path, the watched final solve, every
 plane kept). Reported: auto's shortfall against the oracle (mean and worst; goals
-:data:`recon.benchmarks.auto.GOAL_MEAN_DB`, ``GOAL_WORST_DB``: the 2D goals), and for
+:data:`benchmarks.auto.GOAL_MEAN_DB`, ``GOAL_WORST_DB``: the 2D goals), and for
 every object whether it sits
 at its depth (+-1 plane) and its brightness (its light within +-1 plane of its depth
 over the truth's, relative to the nearest object's).
@@ -33,12 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..auto.noise import estimate_noise
-from ..auto.volume import VOLUME_RULES, auto_volume
-from ..auto.weight import PathRule, admm_auto
-from ..errors import DivergenceError
-from ..volume import VolumeAdmmPlan, admm3d, fista3d
-from . import fmt, format_table, machine_record, write_json
+from recon.auto.noise import estimate_noise
+from recon.auto.volume import VOLUME_RULES, auto_volume
+from recon.auto.weight import PathRule, admm_auto
+from recon.benchmarks import fmt, format_table, machine_record, write_json
+from recon.benchmarks.volume_auto_scenes import VolumeCase, render_volume_case
+from recon.errors import DivergenceError
+from recon.volume import VolumeAdmmPlan, admm3d, fista3d
+
 from .auto import (
     GOAL_MEAN_DB,
     GOAL_TIME_RATIO,
@@ -48,7 +50,6 @@ from .auto import (
     setup_record,
 )
 from .volume_accuracy import volume_psnr
-from .volume_auto_scenes import VolumeCase, render_volume_case
 
 FULL = {"scenes": (("beads", 3.0), ("beads", 30.0), ("extended", 3.0), ("extended", 10.0),
                    ("extended", 30.0), ("beads", 10.0)),
@@ -57,7 +58,7 @@ FULL = {"scenes": (("beads", 3.0), ("beads", 30.0), ("extended", 3.0), ("extende
         "grid": (0.0, 1e-7, 3e-7, 1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3)}
 QUICK = {"scenes": (("beads", 10.0),), "photons": (3000.0,), "n_planes": 4, "coarse_bin": 8,
          "iterations": 40, "grid": (0.0, 1e-6, 1e-5)}
-#: The four cases the docs quote (``python -m recon.benchmarks.volume_auto --subset``):
+#: The four cases the docs quote (``python -m benchmarks.volume_auto --subset``):
 #: beads with far planes 10x dimmer at 3000 e- and 30x dimmer at 300 e-, textured discs
 #: 10x dimmer at 3000 e- and 3x dimmer at 30000 e-; FULL's grid and iterations.
 SUBSET = FULL | {"cases": (("beads", 10.0, 3000.0), ("extended", 10.0, 3000.0),
@@ -174,7 +175,7 @@ def run_volume_auto(quick: bool = False, out: Path | None = None, *,
     dict
         ``cases`` (:func:`run_case` records), ``summary`` (mean and worst shortfall,
         the default's time over one fixed-weight solve's (median and max, goal
-        :data:`recon.benchmarks.auto.GOAL_TIME_RATIO`), objects off their depth,
+        :data:`benchmarks.auto.GOAL_TIME_RATIO`), objects off their depth,
         failures), ``setup``.
     """
     cfg = QUICK if quick else SUBSET if subset else FULL
@@ -283,11 +284,11 @@ def rule_study(cfg: dict | None = None, rules=((1.0, math.inf), (1.0, 2.0), (1.0
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m recon.benchmarks.volume_auto [--subset] [--quick] [--out DIR]``: run
+    """``python -m benchmarks.volume_auto [--subset] [--quick] [--out DIR]``: run
     the benchmark, print its table and write its JSON to ``DIR``."""
     import argparse
 
-    parser = argparse.ArgumentParser(prog="python -m recon.benchmarks.volume_auto",
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.volume_auto",
                                      description=main.__doc__)
     parser.add_argument("--subset", action="store_true",
                         help="only the four cases the docs quote (about 12 minutes)")

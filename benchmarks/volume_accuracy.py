@@ -2,7 +2,7 @@
 
 Run with ``diffuserlab benchmark recon --only volume_accuracy [--quick] [--out DIR]``.
 
-On the virtual bench's diffuser (:mod:`recon.benchmarks.volume_scenes`: ray-traced,
+On the virtual bench's diffuser (:mod:`benchmarks.volume_scenes`: ray-traced,
 spatially varying rendering on a finer grid with camera noise; reconstruction from
 noisy on-axis calibration PSFs at the planes, so never the inverse crime), two scenes
 are reconstructed with 3D FISTA and 3D ADMM (Eq. 4.4-4.5, App. A.1/A.3):
@@ -41,12 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis import condition_vs_k, condition_vs_k_axial
-from ..errors import DivergenceError, ReconInputError
-from ..metrics import fit_gain, psnr
-from ..volume import DEFAULT_TV, admm3d, fft_floor_seconds, fista3d
-from ..volume.localize import detect_peaks, match_peaks
-from . import fmt, format_table, write_json
+from recon.analysis import condition_vs_k, condition_vs_k_axial
+from recon.benchmarks import fmt, format_table, write_json
+from recon.errors import DivergenceError, ReconInputError
+from recon.metrics import fit_gain, psnr
+from recon.volume import DEFAULT_TV, admm3d, fft_floor_seconds, fista3d
+from recon.volume.localize import detect_peaks, match_peaks
+
 from .volume_scenes import VolumeBench, VolumeScene, bead_scene, make_bench, tilted_target_scene
 
 log = logging.getLogger(__name__)
