@@ -370,15 +370,27 @@ def plot_design(result: dict, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m benchmarks.design``: run :func:`run_design`, print its table and the
-    ordering it found, write ``OUT/design.json`` and ``OUT/design.png``; returns the
-    exit status (2 for bad input or an ``--out`` holding earlier results)."""
-    import argparse
-    import sys
-
-    from diffuserlab.errors import DiffuserLabError
+def run_design_benchmark(args) -> int:
+    """Run the design comparison ``args`` ask for (``out``, ``quick``, ``overwrite``),
+    print its table and the ordering it found; returns 0."""
     from instrument.output_safety import check_outputs
+
+    check_outputs([args.out / "design.json", args.out / "design.png"], None,
+                  args.overwrite, directory=args.out)
+    result = run_design(args.quick, args.out)
+    print(design_table(result))
+    print(f"({result['seconds']:.0f} s) results in {args.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m benchmarks.design``: :func:`run_design_benchmark` inside the
+    ``diffuserlab`` error boundary (:func:`instrument.cli.run_handler`: 2 and one line
+    for bad input, an OS error or an ``--out`` holding earlier results); returns the
+    exit status."""
+    import argparse
+
+    from instrument.cli import run_handler
 
     p = argparse.ArgumentParser(
         prog="python -m benchmarks.design",
@@ -392,17 +404,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true",
                    help="64 x 64 patch, 2 levels per sweep, 40 iterations (tests, ~30 s)")
     p.add_argument("--overwrite", action="store_true", help="replace earlier results in --out")
-    args = p.parse_args(argv)
-    try:
-        check_outputs([args.out / "design.json", args.out / "design.png"], None,
-                      args.overwrite, directory=args.out)
-        result = run_design(args.quick, args.out)
-    except DiffuserLabError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(design_table(result))
-    print(f"({result['seconds']:.0f} s) results in {args.out}")
-    return 0
+    p.add_argument("--debug", action="store_true", help="show a bug's traceback")
+    p.set_defaults(handler=run_design_benchmark)
+    return run_handler(p.parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -138,14 +138,17 @@ class FullscreenSlm(Slm):
         if "error" in reply:
             self._kill()
             text = reply["error"]
-            fix = ("set params.shape_px to the screen's size, or pick the SLM's screen "
-                   "with params.screen" if "rows x cols" in text else
-                   "check that the SLM's screen is on and that the display accepts new "
-                   "windows, then reconnect" if "not mapped" in text else
-                   "set the SLM's desktop scaling to 100 % and its colour depth to 24 bits, "
-                   "or pick another params.screen")
-            raise self._error(DeviceValueError if "exist" not in text and "not mapped" not in text
-                              else DeviceDisconnectedError, text, fix)
+            if "rows x cols" in text:
+                fix = ("set params.shape_px to the screen's size, or pick the SLM's screen "
+                       "with params.screen")
+            elif "not mapped" in text:
+                fix = ("check that the SLM's screen is on and that the display accepts new "
+                       "windows, then reconnect")
+            else:
+                fix = ("set the SLM's desktop scaling to 100 % and its colour depth to 24 "
+                       "bits, or pick another params.screen")
+            gone = "exist" in text or "not mapped" in text  # no screen, or never shown
+            raise self._error(DeviceDisconnectedError if gone else DeviceValueError, text, fix)
         self._facts = reply["ready"]
         self._res = (rows, cols)
         self._hw = {"lut_rad": self._lut0, "settle_s": self._settle0}

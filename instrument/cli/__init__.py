@@ -62,7 +62,7 @@ except KeyboardInterrupt as _exc:  # one line and 128 + the signal; nothing has 
                      "while starting; nothing was done\n")
     raise SystemExit(_status(_exc)) from None
 
-__all__ = ["build_parser", "main", "os_error_line"]
+__all__ = ["build_parser", "main", "os_error_line", "run_handler"]
 
 log = logging.getLogger("diffuserlab")
 
@@ -275,6 +275,29 @@ def main(argv: list[str] | None = None) -> int:
         status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
     after_the_command()  # the command process: a signal while Python exits changes nothing
     return status
+
+
+def run_handler(args: argparse.Namespace) -> int:
+    """Run ``args.handler(args)`` inside the error boundary of :func:`main` (the same
+    exit statuses and one-line messages), for a command parsed by its own parser: the
+    studies of the repository's ``benchmarks/``, which are not ``diffuserlab``
+    subcommands.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        With ``handler`` (called with ``args``, returns the status or None) and
+        ``debug`` (True: a bug raises with its traceback); ``input_errors``, if
+        present, adds exception classes reported as bad input.
+
+    Returns
+    -------
+    int
+        The handler's status, or the boundary's (see :func:`main`).
+    """
+    from diffuserlab.errors import InputError
+
+    return _dispatch(args, (InputError, *getattr(args, "input_errors", ())))
 
 
 class _NeverRaised(DiffuserLabError):

@@ -88,12 +88,18 @@ def clusters(shape: tuple[int, int], held: np.ndarray, tiles: int = CLUSTER_TILE
     return (r[:, None] * tiles + c[None, :])[held]
 
 
-def _wls(columns: list, y: np.ndarray, sw: np.ndarray, groups: np.ndarray
+def _dense(groups: np.ndarray) -> tuple[np.ndarray, int]:
+    """Cluster labels renumbered 0 .. G-1 (the tiles holding held-out pixels) and G."""
+    ids, dense = np.unique(groups, return_inverse=True)
+    return dense.ravel(), int(ids.size)
+
+
+def _wls(columns: list, y: np.ndarray, sw: np.ndarray, groups: tuple[np.ndarray, int]
          ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least squares ``y ~ X a`` (rows weighted by ``sw``) with
     cluster-robust standard errors (the sandwich ``B M B``, ``B = (X'X)^-1``,
     ``M = sum_g (X_g' e_g)(X_g' e_g)'`` over the clusters ``groups``, scaled by
-    ``G / (G - 1)``; Liang & Zeger 1986).
+    ``G / (G - 1)``; Liang & Zeger 1986). ``groups``: :func:`_dense`'s labels and G.
 
     Returns the coefficients and their t statistics (NaN with fewer than 2 clusters).
     """
@@ -101,18 +107,18 @@ def _wls(columns: list, y: np.ndarray, sw: np.ndarray, groups: np.ndarray
     yw = y * sw
     coef, *_ = np.linalg.lstsq(X, yw, rcond=None)
     e = yw - X @ coef
-    ids, g = np.unique(groups, return_inverse=True)
-    if ids.size < 2:
+    g, n = groups
+    if n < 2:
         return coef, np.full_like(coef, math.nan)
-    scores = np.stack([np.bincount(g, X[:, j] * e, minlength=ids.size)
+    scores = np.stack([np.bincount(g, X[:, j] * e, minlength=n)
                        for j in range(X.shape[1])], axis=1)
     bread = np.linalg.pinv(X.T @ X)
-    cov = bread @ (scores.T @ scores) @ bread * (ids.size / (ids.size - 1))
+    cov = bread @ (scores.T @ scores) @ bread * (n / (n - 1))
     se = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     return coef, coef / se
 
 
-def _regress(y: np.ndarray, sw: np.ndarray, groups: np.ndarray, rest: np.ndarray,
+def _regress(y: np.ndarray, sw: np.ndarray, groups: tuple[np.ndarray, int], rest: np.ndarray,
              q: np.ndarray) -> tuple:
     """``y ~ c + g rest + a q`` by weighted least squares: ``(a, t of a)``."""
     if not np.any(q):
@@ -121,14 +127,16 @@ def _regress(y: np.ndarray, sw: np.ndarray, groups: np.ndarray, rest: np.ndarray
     return float(coef[2]), float(t[2])
 
 
-def _removal_z(rh: np.ndarray, q: np.ndarray, groups: np.ndarray) -> tuple[float, float]:
+def _removal_z(rh: np.ndarray, q: np.ndarray, groups: tuple[np.ndarray, int]
+               ) -> tuple[float, float]:
     """The held-out squared error added by removing the prediction ``q`` and that
-    change in standard errors of its sum over the clusters (NaN when undefined)."""
-    ids, g = np.unique(groups, return_inverse=True)
-    d = np.bincount(g, np.square(rh + q) - np.square(rh), minlength=ids.size)
+    change in standard errors of its sum over the clusters (``groups``: :func:`_dense`'s
+    labels and G; NaN when undefined)."""
+    g, n = groups
+    d = np.bincount(g, np.square(rh + q) - np.square(rh), minlength=n)
     worse = float(d.sum())
-    sd = float(np.std(d, ddof=1)) if ids.size > 1 else 0.0
-    return worse, (worse / (math.sqrt(ids.size) * sd) if sd > 0 and np.any(q) else math.nan)
+    sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
+    return worse, (worse / (math.sqrt(n) * sd) if sd > 0 and np.any(q) else math.nan)
 
 
 def plane_tests(op, x: np.ndarray, b: np.ndarray, variance: np.ndarray,
@@ -168,7 +176,7 @@ def plane_tests(op, x: np.ndarray, b: np.ndarray, variance: np.ndarray,
     v = variance[held].astype(np.float64)
     sw = (1.0 / np.sqrt(np.maximum(v, v[v > 0].min())) if np.any(v > 0)
           else np.ones_like(y))
-    groups = clusters(b.shape[-2:], held)
+    groups = _dense(clusters(b.shape[-2:], held))  # labelled once for every test
     cols = p[:, held].astype(np.float64)
     total = cols.sum(axis=0)
     rh = r[held].astype(np.float64)

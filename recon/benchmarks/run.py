@@ -26,7 +26,8 @@ from ..errors import ReconInputError
 from ..options import BENCHMARKS  # the benchmarks, in the order they run
 from . import METHODS, machine_record, write_json
 
-__all__ = ["BENCHMARKS", "format_result", "run_benchmarks", "run_each", "summarise"]
+__all__ = ["BENCHMARKS", "TABLES", "format_result", "run_benchmarks", "run_each", "run_one",
+           "summarise"]
 
 log = logging.getLogger(__name__)
 
