@@ -11,8 +11,12 @@ to ``None`` after each batch and 87 MB more after the first.
 :func:`reconstruct_run_in_process` runs the same call in a child process (``spawn``,
 so it shares no lock state or thread with the caller) and gives back what it would
 have: the result dict, the progress reports as they come, and the exception it
-raised. The child runs :data:`BATCH_NICE` lower in the OS scheduler than its caller,
-so on a machine short of cores the caller's window comes first. Cancelling sets an
+raised. The child runs :data:`BATCH_NICE` lower in the OS scheduler than its caller's
+process (its main thread), so on a machine short of cores the caller's window comes
+first. Lower than the process, not than the calling thread: a child inherits the nice
+value of the thread that starts it, and the GUI starts the batch from a job thread that
+already runs at nice 10; ten more put the batch at 19, where beside two busy loops a
+4 s batch of two frames had not finished after 600 s. Cancelling sets an
 event the child's batch checks between frames (every finished frame is kept, as in
 the same process); a child that does not end within ``stop_timeout_s`` of its result
 or of a cancel is terminated.
@@ -33,7 +37,7 @@ from typing import Any
 
 from diffuserlab.errors import DiffuserLabError, InputError
 
-__all__ = ["BATCH_NICE", "BatchProcessError", "reconstruct_run_in_process"]
+__all__ = ["BATCH_NICE", "BatchProcessError", "batch_nice", "reconstruct_run_in_process"]
 
 log = logging.getLogger(__name__)
 
@@ -62,13 +66,20 @@ def _portable(exc: BaseException) -> BaseException:
     return portable
 
 
-def _child(kwargs: dict, messages, cancel) -> None:
-    """The child's work: ``reconstruct_run(**kwargs)``, reporting on ``messages``."""
+def batch_nice() -> int:
+    """The nice value the batch process runs at: :data:`BATCH_NICE` above the calling
+    process's (its main thread's, whatever the calling thread's), at most 19."""
+    return min(19, os.getpriority(os.PRIO_PROCESS, os.getpid()) + BATCH_NICE)
+
+
+def _child(kwargs: dict, messages, cancel, nice: int) -> None:
+    """The child's work at nice value ``nice`` (inherited by the dask workers it
+    starts): ``reconstruct_run(**kwargs)``, reporting on ``messages``."""
     from .batch import reconstruct_run
 
-    try:
-        os.nice(BATCH_NICE)  # inherited by the dask workers it starts
-    except OSError:  # pragma: no cover - a platform without nice
+    try:  # from the starting thread's value; lowering it needs privileges
+        os.nice(nice - os.nice(0))
+    except OSError:  # a platform without nice, or an unprivileged raise
         pass
     try:
         result = reconstruct_run(**kwargs, cancel=cancel,
@@ -108,8 +119,8 @@ def reconstruct_run_in_process(run, psf, options=None, *,
     -------
     dict
         The batch's result (as :func:`~instrument.batch.reconstruct_run`), and
-        ``process``: the child's ``pid`` and ``nice`` value (:data:`BATCH_NICE` above
-        the caller's, at most 19).
+        ``process``: the child's ``pid`` and ``nice`` value (:func:`batch_nice`:
+        :data:`BATCH_NICE` above the calling process's, at most 19).
 
     Raises
     ------
@@ -124,7 +135,7 @@ def reconstruct_run_in_process(run, psf, options=None, *,
     messages = context.Queue()
     stop = context.Event()
     kwargs = dict(run=run, psf=psf, options=options, **keywords)
-    child = context.Process(target=_child, args=(kwargs, messages, stop),
+    child = context.Process(target=_child, args=(kwargs, messages, stop, batch_nice()),
                             name="diffuserlab-batch")
     child.start()
     outcome = None

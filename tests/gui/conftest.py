@@ -53,11 +53,28 @@ def window(qapp, tmp_path_factory):
     qapp.processEvents()
 
 
+#: The tests' timeouts are what an idle machine needs, with a margin; they guard against
+#: a hang and are stretched by this factor (at most :data:`HANG_S`): the window's jobs
+#: run at nice 10 (:data:`gui.workers.BACKGROUND_NICE`), so a machine busy at nice 0
+#: gives them about a tenth of their idle share (CFS weights 110 against 1024), and the
+#: README's command beside two busy loops ran a 4 s batch past 120 s.
+HANG_FACTOR = 10.0
+#: The longest a test waits for anything, s.
+HANG_S = 600.0
+
+
+def hang_guard(timeout_s: float) -> float:
+    """The wait that guards a step an idle machine does within ``timeout_s``, s."""
+    return max(timeout_s, min(timeout_s * HANG_FACTOR, HANG_S))
+
+
 def wait_for(qapp, condition, timeout_s: float, what: str) -> None:
-    """Process Qt events until ``condition()`` holds (fails naming ``what``)."""
+    """Process Qt events until ``condition()`` holds (fails naming ``what``) or
+    :func:`hang_guard` of ``timeout_s`` has passed: no test waits for a timeout, so a
+    longer wait costs only when something hangs."""
     from gui.workers import wait_until
 
-    wait_until(qapp, condition, timeout_s, what)
+    wait_until(qapp, condition, hang_guard(timeout_s), what)
 
 
 @pytest.fixture

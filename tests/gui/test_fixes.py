@@ -273,9 +273,9 @@ def test_the_wheel_changes_a_jog_step_only_when_it_has_the_focus(window):
     step.setFocus()
     from PySide6.QtWidgets import QApplication as _App
 
-    from gui.workers import wait_until
+    from tests.gui.conftest import wait_for
 
-    wait_until(_App.instance(), step.hasFocus, 10, "the jog step's focus")
+    wait_for(_App.instance(), step.hasFocus, 10, "the jog step's focus")
     wheel()
     assert step.value() != 1.0
     step.setValue(1.0)
@@ -315,9 +315,9 @@ def test_the_wheel_over_the_led_map_scrolls_the_devices_panel(window, qapp):
     assert bar.value() > before  # the panel scrolled
     window.activateWindow()  # focus is given once the window is active (later under load)
     plot.setFocus()
-    from gui.workers import wait_until
+    from tests.gui.conftest import wait_for
 
-    wait_until(qapp, plot.hasFocus, 10, "the map's focus")
+    wait_for(qapp, plot.hasFocus, 10, "the map's focus")
     wheel()
     assert view.viewRange() != ranges  # clicked (focused): the wheel zooms the map
     view.autoRange()

@@ -55,6 +55,26 @@ def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run)
                                    atol=1e-5 * float(np.abs(expect).max()))
 
 
+def test_a_child_started_from_a_lowered_thread_is_lowered_from_the_process(video, run):  # noqa: F811
+    """The GUI starts the batch from a job thread already at nice 10: the child runs
+    ``BATCH_NICE`` above the process, not above that thread (it ran at 19, starved)."""
+    from instrument.live import lower_thread_priority
+
+    process_nice = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    out = {}
+
+    def from_a_job_thread():
+        lower_thread_priority(10)
+        out.update(reconstruct_run_in_process(run, video[1], frames=range(0, 1), **OPTIONS))
+
+    t = threading.Thread(target=from_a_job_thread)
+    t.start()
+    t.join(300)
+    assert out["reconstructed"] == 1
+    assert out["process"]["nice"] == min(19, process_nice + BATCH_NICE)
+    assert os.getpriority(os.PRIO_PROCESS, os.getpid()) == process_nice
+
+
 def test_a_cancel_stops_the_child_and_keeps_its_frames(video, run):  # noqa: F811
     cancel = threading.Event()
 

@@ -12,7 +12,12 @@ import numpy as np
 import pytest
 
 from drivers.camera import Frame, FrameRing
-from instrument.live import LatestFrameSlot, LiveReconstruction, LiveReconstructionError
+from instrument.live import (
+    LatestFrameSlot,
+    LiveReconstruction,
+    LiveReconstructionError,
+    lower_thread_priority,
+)
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor, LiveResult
 from tests.refcycles import assert_freed_without_the_collector
@@ -247,6 +252,31 @@ def test_nice_lowers_the_worker_thread_and_nothing_else():
         live.stop(timeout_s=2.0)
     with pytest.raises(ReconInputError, match="nice"):
         LiveReconstruction(probe, nice=-1)
+
+
+@pytest.mark.skipif(not hasattr(os, "getpriority") or not sys.platform.startswith("linux"),
+                    reason="per-thread priorities are Linux's")
+def test_started_from_a_lowered_thread_the_worker_is_counted_from_the_process():
+    """The GUI starts the live reconstruction from a job thread already at nice 10: the
+    worker runs ``nice`` below the process, not below that thread (it ran at 19)."""
+    process = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    probe = NiceProbe(0.0)
+    live = LiveReconstruction(probe, nice=10)
+
+    def from_a_job_thread():
+        assert lower_thread_priority(10)
+        assert not lower_thread_priority(10)  # already that low: left as it is
+        live.start()
+
+    t = threading.Thread(target=from_a_job_thread)
+    t.start()
+    t.join(30)
+    try:
+        live.offer(_frame(1))
+        _wait_for(lambda: live.stats()["reconstructed"] == 1)
+        assert probe.nice == min(process + 10, 19)
+    finally:
+        live.stop(timeout_s=2.0)
 
 
 def test_a_stopped_live_reconstruction_with_an_error_is_freed_without_the_collector():
