@@ -25,7 +25,7 @@ from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
-from .workers import CameraBusy, Job
+from .workers import DEVICE_NICE, CameraBusy, Job
 
 __all__ = ["CameraBusy", "RATE_WINDOW_S", "SCENES", "Session"]
 
@@ -115,7 +115,7 @@ class Session(QObject):
                       on_open: Callable[[], None] | None = None) -> Job:
         """Open the bench on a worker thread; ``changed`` fires when it is open, then
         ``on_open()``; ``on_error(message)`` is called if it cannot be opened."""
-        job = Job(self._open, name="open-bench")
+        job = Job(self._open, name="open-bench", nice=DEVICE_NICE)
         job.succeeded.connect(self._opened)
         job.failed.connect(lambda text: self.message.emit(f"could not connect: {text}"))
         if on_error is not None:
@@ -157,7 +157,7 @@ class Session(QObject):
             self.stop_stream(bench=bench)
             bench.close()
 
-        job = Job(close, name="close-bench")
+        job = Job(close, name="close-bench", nice=DEVICE_NICE)
         job.succeeded.connect(lambda _: self.message.emit("disconnected"))
         job.failed.connect(lambda text: self.message.emit(f"disconnect: {text}"))
         if then is not None:
@@ -249,7 +249,8 @@ class Session(QObject):
                 self.stop_stream()
             return None if then is None else then()
 
-        job = Job(work, name="stream-on" if on else "stream-off")
+        job = Job(work, name="stream-on" if on else "stream-off",
+                  nice=DEVICE_NICE)
         if on_error is not None:
             job.failed.connect(on_error)
         if done is not None:

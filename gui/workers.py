@@ -30,8 +30,8 @@ from PySide6.QtCore import QObject, QTimer, Signal
 import diffuserlab.errors
 from diffuserlab.errors import DiffuserLabError
 
-__all__ = ["BACKGROUND_NICE", "HEAP_SETTLING_JOBS", "CameraBusy", "InputError", "Job",
-           "readable_error", "settle_heap", "wait_until"]
+__all__ = ["BACKGROUND_NICE", "DEVICE_NICE", "HEAP_SETTLING_JOBS", "CameraBusy", "InputError",
+           "Job", "readable_error", "settle_heap", "wait_until"]
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,13 @@ log = logging.getLogger(__name__)
 #: ``python -m benchmarks.window.benchmark`` with ADMM x5 live and a PSF sweep: p99 lateness 51 ms
 #: at +5, 29-35 ms at +10.
 BACKGROUND_NICE = 10
+#: Nice increment of the jobs that wait on hardware with a timeout (opening and closing
+#: the bench, device commands and polls, moves, the stream, recordings, calibration
+#: runs and the mask alignment): none. A reply timeout counts wall time, and a thread
+#: at +10 waits for a core behind every program at normal priority: the emulated
+#: day beside three busy loops (load 10 on 2 cores) failed to open the bench, a Zaber
+#: reply's first byte read and the rest past the driver's 1 s.
+DEVICE_NICE = 0
 
 
 class CameraBusy(DiffuserLabError, RuntimeError):
@@ -166,6 +173,10 @@ class Job(QObject):
         ``failed`` and ``finished`` are no longer emitted (their slots would touch
         deleted widgets and raise ``RuntimeError``) and the job is cancelled; it is
         still marked :attr:`done` and let go as usual.
+    nice : int
+        Nice levels below the GUI's process the worker thread runs at:
+        :data:`BACKGROUND_NICE` (compute, the default) or :data:`DEVICE_NICE` (a job
+        that waits on hardware with a timeout).
     """
 
     progress = Signal(object)
@@ -180,8 +191,10 @@ class Job(QObject):
     _finished = Signal()
 
     def __init__(self, fn: Callable[..., Any], *args: Any, name: str = "gui-job",
-                 owner: QObject | None = None, **kwargs: Any) -> None:
+                 owner: QObject | None = None, nice: int = BACKGROUND_NICE,
+                 **kwargs: Any) -> None:
         super().__init__()
+        self.nice = nice
         self._fn, self._args, self._kwargs = fn, args, kwargs
         self.name = name
         self._owner = owner
@@ -297,7 +310,7 @@ class Job(QObject):
     def _run(self) -> None:
         from instrument.live import lower_thread_priority
 
-        lower_thread_priority(BACKGROUND_NICE)
+        lower_thread_priority(self.nice)
         try:
             self.result = self._fn(self, *self._args, **self._kwargs)
         except BaseException as exc:  # noqa: BLE001 (every error becomes a message)

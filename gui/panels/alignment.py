@@ -34,7 +34,7 @@ from ..fields import remember, settings, wheel_needs_focus
 from ..jobs import ALIGNMENT_STEPS, run_alignment
 from ..logpane import announce_job, job_ended
 from ..session import Session
-from ..workers import Job
+from ..workers import DEVICE_NICE, Job
 from .common import JobProgress, RunControls
 
 __all__ = ["AlignmentPanel"]
@@ -168,7 +168,8 @@ class AlignmentPanel(RunControls, QWidget):
         self.progress.start(self.expected_readings(), note="about")
         self.job = Job(run_alignment, self.session, out, self._new_control(),
                        mask_seed=self.seed.text(), frames=self.frames.value(),
-                       focus=self.focus.isChecked(), name="alignment")
+                       focus=self.focus.isChecked(), name="alignment",
+                       nice=DEVICE_NICE)
         self.job.progress.connect(self.on_progress)
         self.job.succeeded.connect(self.on_report)
         self.job.failed.connect(self.on_failed)

@@ -33,7 +33,7 @@ from ..jobs import ROUTINES, build_plan, default_run_path, resume_plan, routine_
 from ..logpane import announce_job
 from ..messages import operator_text
 from ..session import Session
-from ..workers import Job, readable_error
+from ..workers import DEVICE_NICE, Job, readable_error
 from .common import FrameView, JobProgress, RunControls
 
 __all__ = ["CalibrationPanel"]
@@ -159,7 +159,7 @@ class CalibrationPanel(RunControls, QWidget):
         self.events = []
         self.result = None
         announce_job("calibration run", detail)
-        self.job = Job(fn, self._new_control(), name="calibration")
+        self.job = Job(fn, self._new_control(), name="calibration", nice=DEVICE_NICE)
         self.job.progress.connect(self.on_event)
         self.job.succeeded.connect(self.on_result)
         self.job.failed.connect(self.on_failed)

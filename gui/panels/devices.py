@@ -34,7 +34,7 @@ from ..device_settings import parse_value, rows, value_text
 from ..device_status import STATE_COLOURS, device_state, status_fields
 from ..fields import bench_key, load_json, store_json, wheel_needs_focus
 from ..session import SCENES, Session
-from ..workers import Job, readable_error
+from ..workers import DEVICE_NICE, Job, readable_error
 from .common import error_label
 from .stage import MotionQueue, StageControls
 
@@ -136,7 +136,7 @@ class DeviceBox(QGroupBox):
         """Run ``fn(*args)`` on a worker; a refusal shows in :attr:`error`."""
         self.jobs = [j for j in self.jobs if j.running]
         job = Job(lambda job: fn(*args), name=f"device-{self.device.device_id}",
-                  owner=self)
+                  owner=self, nice=DEVICE_NICE)
         job.failed.connect(self.error.setText)
         job.succeeded.connect(lambda _: self.error.setText(""))
         if done is not None:
@@ -543,7 +543,7 @@ class DevicePanel(QWidget):
                     out[k] = {"is_open": d.is_open, "disconnected": True, "error": str(exc)}
             return out
 
-        self.poll_job = Job(read, name="device-status", owner=self)
+        self.poll_job = Job(read, name="device-status", owner=self, nice=DEVICE_NICE)
         self.poll_job.succeeded.connect(self._show_status)
         self.poll_job.start()
 

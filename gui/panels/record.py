@@ -36,7 +36,7 @@ from ..device_settings import parse_duration_s
 from ..fields import remember, wheel_needs_focus
 from ..logpane import announce_job, job_ended
 from ..session import Session
-from ..workers import InputError, Job
+from ..workers import DEVICE_NICE, InputError, Job
 from .common import JobProgress, dark_hint, depth_field, error_label, offer_depths
 
 __all__ = ["RecordPanel"]
@@ -273,7 +273,7 @@ class RecordPanel(QWidget):
         announce_job("recording", f"{length} into {out}")
         self.record_job = Job(record, self.session, out, self.stop_event, frames=frames,
                               seconds=seconds, fps=fps, exposure_s=exposure_s, tap=tap,
-                              name="record-video")
+                              name="record-video", nice=DEVICE_NICE)
         self.record_job.progress.connect(lambda p: self.on_record_progress(p, out))
         self.record_job.succeeded.connect(self.on_recorded)
         self.record_job.failed.connect(lambda text: self.on_record_failed(text, out))

@@ -28,7 +28,7 @@ from PySide6.QtWidgets import (
 
 from ..device_settings import parse_value
 from ..fields import load_json, store_json, wheel_needs_focus
-from ..workers import InputError, Job
+from ..workers import DEVICE_NICE, InputError, Job
 
 __all__ = ["JogButton", "MotionQueue", "StageControls"]
 
@@ -88,7 +88,8 @@ class MotionQueue(QObject):
         with self._lock:
             self._ops.clear()
             self._goal = None
-        job = Job(lambda job: self.stage.stop(), name=f"stop-{self.stage.device_id}")
+        job = Job(lambda job: self.stage.stop(), name=f"stop-{self.stage.device_id}",
+                  nice=DEVICE_NICE)
         job.failed.connect(self.failed)
         return job.start()
 
@@ -97,7 +98,7 @@ class MotionQueue(QObject):
             if self._active:
                 return self.job
             self._active = True
-        self.job = Job(self._run, name=f"motion-{self.stage.device_id}")
+        self.job = Job(self._run, name=f"motion-{self.stage.device_id}", nice=DEVICE_NICE)
         self.job.failed.connect(self.failed)
         self.job.finished.connect(self.idle)
         return self.job.start()
@@ -270,7 +271,8 @@ class StageControls(QWidget):
         if not name:
             self.on_error("type a name for the position, then press Store here")
             return None
-        job = Job(lambda job: self.stage.positions(), name="read-position", owner=self)
+        job = Job(lambda job: self.stage.positions(), name="read-position", owner=self,
+                  nice=DEVICE_NICE)
         job.succeeded.connect(lambda pos: self._stored(name, pos))
         job.failed.connect(self.on_error)
         self.jobs = [j for j in self.jobs if j.running] + [job]

@@ -251,6 +251,39 @@ def test_quick_jog_clicks_add_to_the_target_not_the_position(window, wait):
         stage.move_to({"x": 0.0})
 
 
+def test_jobs_that_wait_on_hardware_run_at_the_process_priority(window, wait, monkeypatch):
+    """A device's reply timeout counts wall time: its jobs (moves, device commands and
+    polls, the bench's opening, streaming, recording, calibration, alignment) are not
+    lowered, as compute jobs are (the emulated day beside three busy loops failed to
+    open the bench: a Zaber reply past the 1 s timeout)."""
+    import os
+
+    import instrument.live
+    from gui.workers import BACKGROUND_NICE, Job
+
+    ran: dict[str, int] = {}
+    lower = instrument.live.lower_thread_priority
+
+    def recording(increment):
+        changed = lower(increment)
+        ran[threading.current_thread().name] = os.getpriority(os.PRIO_PROCESS,
+                                                              threading.get_native_id())
+        return changed
+
+    monkeypatch.setattr(instrument.live, "lower_thread_priority", recording)
+    process = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    box = window.devices.boxes["source_stage"]
+    box.stage.jog_steps["x"].setValue(0.5)
+    QTest.mouseClick(box.findChild(type(box.reconnect_button), "source_stage.jog.x+"),
+                     Qt.MouseButton.LeftButton)
+    wait(lambda: not box.queue.busy, 20, "the jog")
+    window.session.bench.source_stage.move_to({"x": 0.0})
+    compute = Job(lambda job: None, name="compute").start()
+    wait(lambda: compute.done and "motion-source_stage" in ran, 20, "the jobs")
+    assert ran["motion-source_stage"] == process
+    assert ran["compute"] == min(19, process + BACKGROUND_NICE)
+
+
 def test_the_wheel_changes_a_jog_step_only_when_it_has_the_focus(window):
     box = window.devices.boxes["source_stage"]
     step = box.stage.jog_steps["x"]

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.auto import auto_table, plot_budget, run_case
+import math
+
+from benchmarks.auto import auto_table, cost_in_turn, plot_budget, run_case
 from benchmarks.auto_scenes import KINDS, make_scene
 from benchmarks.failure_maps import _cell, failure_maps_table, plot_map
 
@@ -23,9 +25,13 @@ def test_run_case_reports_oracle_default_budgets_and_the_chart(tmp_path):
            "timing_repeats": 2, "dark_e": 100.0, "budget_scenes": ("beads",),
            "budget_factors": (2.0,)}
     c = run_case("beads", "beads", 3000.0, cfg)
-    # the cost: medians of runs taken in turn, over one fixed solve's
-    assert len(c["auto"]["seconds_runs"]) == 1
+    # the cost: each pair's ratio (a fixed solve, then the default, in turn), in wall
+    # and in CPU time; with one pair its ratio
+    assert len(c["auto"]["seconds_runs"]) == 1 and len(c["fixed_seconds_runs"]) == 1
     assert c["auto_cost_ratio"] == c["auto"]["seconds"] / c["fixed_seconds"]
+    assert c["auto_cost_ratio_runs"] == [c["auto_cost_ratio"]]
+    assert c["auto_cost_ratio_cpu"] > 1.0 and c["auto_cost_ratio_cpu_runs"] == [
+        c["auto_cost_ratio_cpu"]]
     # the oracle: the grid refined either side of its best
     assert len(c["grid"]) == 4 and c["oracle"]["psnr"] == max(g["psnr"] for g in c["grid"])
     assert c["auto"]["psnr"] is not None and not c["auto"]["blank"]
@@ -40,6 +46,28 @@ def test_run_case_reports_oracle_default_budgets_and_the_chart(tmp_path):
     table = auto_table(result)
     assert "beads" in table and "oracle" in table and "time budgets" in table
     assert plot_budget(result, tmp_path / "chart.png").stat().st_size > 5000
+
+
+def test_the_cost_is_the_median_of_the_pairs_ratios():
+    """Each pair (a fixed solve, then the default, taken in turn) gives a ratio; the
+    cost is their median, not a ratio of medians of runs minutes apart."""
+    fixed = iter([{"seconds": 1.0, "cpu_seconds": 2.0}, {"seconds": 4.0, "cpu_seconds": 2.0},
+                  {"seconds": 2.0, "cpu_seconds": 2.0}])
+    auto = iter([{"seconds": 3.0, "cpu_seconds": 7.0}, {"seconds": 12.0, "cpu_seconds": 7.2},
+                 {"seconds": 7.0, "cpu_seconds": 6.8}])
+    first = {"seconds": 99.0, "cpu_seconds": 99.0}
+    cost = cost_in_turn(first, [], 4, lambda: next(fixed), lambda: next(auto))
+    assert cost["ratio_runs"] == [3.0, 3.0, 3.5] and cost["ratio"] == 3.0
+    # a ratio of medians would be 7 / 2 = 3.5
+    assert cost["cpu_ratio"] == 3.5 and cost["fixed_seconds"] == 2.0
+    assert first["seconds"] == 7.0 and first["seconds_runs"] == [3.0, 12.0, 7.0]
+    # without repeats: over the median of the grid's solves
+    grid = [{"seconds": 1.0, "cpu_seconds": 1.0}, {"seconds": 3.0, "cpu_seconds": 2.0},
+            {"psnr": None}]
+    cost = cost_in_turn({"seconds": 8.0, "cpu_seconds": 6.0}, grid, 1, None, None)
+    assert cost["ratio"] == 4.0 and cost["cpu_ratio"] == 4.0
+    assert math.isnan(cost_in_turn({"seconds": 1.0, "cpu_seconds": 1.0}, [{}], 1, None,
+                                   None)["ratio"])
 
 
 def test_failure_map_cell_and_figure(tmp_path):

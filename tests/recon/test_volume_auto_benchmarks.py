@@ -95,8 +95,12 @@ def test_volume_auto_times_the_default_in_turn_with_a_fixed_solve(tmp_path):
     c = run_case("beads", 10.0, 3000.0, QUICK | {"timing_repeats": 3})
     assert len(c["auto"]["seconds_runs"]) == 2 and len(c["fixed_seconds_runs"]) == 2
     assert c["fixed_seconds"] == pytest.approx(float(np.median(c["fixed_seconds_runs"])))
-    assert c["auto_cost_ratio"] == pytest.approx(c["auto"]["seconds"] / c["fixed_seconds"])
+    pairs = [a / f for a, f in zip(c["auto"]["seconds_runs"], c["fixed_seconds_runs"],
+                                   strict=True)]
+    assert c["auto_cost_ratio_runs"] == pytest.approx(pairs)
+    assert c["auto_cost_ratio"] == pytest.approx(float(np.median(pairs)))
     assert c["auto_cost_ratio"] > 1.0  # the default solves a path of weights, then one
+    assert len(c["auto_cost_ratio_cpu_runs"]) == 2 and c["auto_cost_ratio_cpu"] > 1.0
 
 
 def test_volume_external_quick(tmp_path):
