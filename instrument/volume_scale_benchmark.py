@@ -9,7 +9,8 @@ the same process, and solves with streamed 3D FISTA in this process
 (:mod:`instrument.volume_shards`). Reports the peak resident set against the
 estimate printed before the solve, seconds per iteration against the floor,
 CPU seconds per iteration, the bytes each worker moved per iteration, and which
-objects sit at their depth (within one plane). Nothing is kept unless asked
+objects sit at their depth (within one plane, and within one axial resolution,
+:func:`recon.benchmarks.volume_scale.axial_resolution_planes`). Nothing is kept unless asked
 (``save_estimate``).
 """
 
@@ -65,6 +66,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
 
     from recon.benchmarks import machine_record
     from recon.benchmarks.volume_scale import (
+        axial_resolution_planes,
         objects_at_depth,
         render_measurement,
         scene_objects,
@@ -95,6 +97,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         b = (raw / np.abs(raw).max()).astype(np.float32)
         del raw
         rec["seconds_generate"] = time.perf_counter() - t0
+        rec["axial_resolution"] = axial_resolution_planes(store, depths)
         padded = padded_grid((sensor, sensor))[0]
         rec["padded_shape"] = list(padded)
         announce(f"generated {planes} planes of {sensor}x{sensor} (padded {padded[0]}x"
@@ -153,7 +156,8 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         "core_seconds_per_iteration_wall": per_iter * (rec["machine"]["cpu_count"] or 1),
         "bytes_moved_per_worker_per_iteration": result.params["bytes_moved_per_iteration"],
         "final_relative_residual": result.final_relative_residual,
-        "objects_at_depth": objects_at_depth(energies, objects),
+        "objects_at_depth": objects_at_depth(
+            energies, objects, resolution_planes=rec["axial_resolution"]["planes"]),
         "depths_mm": [depths[0], depths[-1]],
     })
     if saved is not None:
@@ -259,6 +263,17 @@ def volume_scale_table(r: dict) -> str:
         f"objects at their depth (+-{depth['tolerance_planes']} plane): {depth['found']} of "
         f"{depth['total']} ({kinds})",
     ]
+    if "found_within_resolution" in depth:
+        ax = r["axial_resolution"]
+        per = ax["planes"]
+        lines.append(
+            f"objects within one axial resolution of their depth (one resolution = "
+            f"{min(per):.1f}-{max(per):.1f} planes: the 1/z step at inner product "
+            f"{ax['threshold']:g}, Sec. 6.4, measured on planes "
+            f"{', '.join(str(m['plane']) for m in ax['measured'])}): "
+            f"{depth['found_within_resolution']} of {depth['total']} ("
+            + ", ".join(f"{k} {v[0]}/{v[1]}"
+                        for k, v in depth["by_kind_within_resolution"].items()) + ")")
     if "relative_difference_to" in r:
         lines.append(f"relative difference to {r['relative_difference_to']['path']}: "
                      f"{r['relative_difference_to']['relative']:.2e}")

@@ -17,6 +17,7 @@ import pytest
 from instrument.cli import main
 from instrument.volume_scale_benchmark import run_volume_scale, volume_scale_table
 from recon.benchmarks.volume_scale import (
+    axial_resolution_planes,
     objects_at_depth,
     scene_objects,
     stack_depths_mm,
@@ -52,6 +53,39 @@ def test_objects_at_depth_scores_the_truth():
     moved = vol[::-1].copy()  # every object moved to the mirrored plane
     far = [o for o in objects if abs((7 - o.plane) - o.plane) > 1]
     assert objects_at_depth(moved, objects)["found"] <= len(objects) - len(far)
+
+
+def test_objects_within_one_resolution_take_its_planes_as_slack():
+    objects = scene_objects(128, 8, beads=4, extended=2, seed=3)
+    vol = np.zeros((8, 128, 128), np.float32)
+    for o in objects:  # every object two planes off (nearer where it can)
+        vol[o.plane - 2 if o.plane >= 2 else o.plane + 2, int(round(o.row)),
+            int(round(o.col))] = 1.0
+    r = objects_at_depth(vol, objects, resolution_planes=[2.5] * 8)
+    assert r["found"] == 0 and r["found_within_resolution"] == len(objects)
+    assert sum(v[0] for v in r["by_kind_within_resolution"].values()) == len(objects)
+    r = objects_at_depth(vol, objects, resolution_planes=[1.5] * 8)
+    assert r["found_within_resolution"] == 0
+    assert "found_within_resolution" not in objects_at_depth(vol, objects)
+
+
+def test_one_axial_resolution_spans_more_planes_on_a_finer_stack(tmp_path):
+    """The stack's planes are a fixed rim shift apart while the caustic's lines widen
+    with the sensor, so a larger sensor puts more planes in one resolution; the near
+    planes are resolved more coarsely in 1/z than the far ones (Eq. 4.7)."""
+    zarr = pytest.importorskip("zarr")
+    psf = load_image(data_dir() / PSF_FILE)
+    spans = []
+    for n, n_z in ((128, 8), (256, 16)):
+        _, depths = write_psf_store(str(tmp_path / f"{n}.zarr"), psf, n, n_z)
+        ax = axial_resolution_planes(zarr.open_array(str(tmp_path / f"{n}.zarr"), mode="r"),
+                                     depths)
+        assert len(ax["planes"]) == n_z and [m["plane"] for m in ax["measured"]] == [
+            0, n_z // 2, n_z - 1][:len(ax["measured"])]
+        steps = [m["step_per_mm"] for m in ax["measured"]]
+        assert steps[0] > steps[-1] > 0
+        spans.append(float(np.median(ax["planes"])))
+    assert spans[1] > 1.3 * spans[0]
 
 
 def test_single_and_sharded_runs_agree(tmp_path):
