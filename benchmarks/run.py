@@ -116,7 +116,8 @@ def summarise(results: dict) -> tuple[dict, str]:
         lines.append(f"auto TV weight: {fmt(a['mean_shortfall_db'])} dB below the oracle on "
                      f"average, {fmt(a['worst_shortfall_db'])} at worst; time "
                      f"x{fmt(a['cost_ratio_median'])} of a fixed run (median), "
-                     f"x{fmt(a['cost_ratio_max'])} at most")
+                     f"x{fmt(a['cost_ratio_max'])} at most (CPU time "
+                     f"x{fmt(a.get('cost_ratio_cpu_median'))} median)")
     if "spatial_far" in results:
         cases = results["spatial_far"]["cases"]
         gains = [c["methods"]["two-part auto"]["psnr_db"] - c["methods"]["on-axis"]["psnr_db"]

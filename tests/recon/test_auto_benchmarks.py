@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 import math
+
+import numpy as np
 
 from benchmarks.auto import auto_table, cost_in_turn, plot_budget, run_case
 from benchmarks.auto_scenes import KINDS, make_scene
