@@ -43,8 +43,8 @@ from recon.solvers import admm
 from .auto_scenes import render_case
 
 __all__ = ["FULL", "GOAL_MEAN_DB", "GOAL_WORST_DB", "QUICK", "SUITE", "auto_table",
-           "cost_in_turn", "cost_summary", "goal_summary", "plot_budget", "run_auto", "run_case",
-           "timed"]
+           "cost_in_turn", "cost_record", "cost_summary", "goal_summary", "plot_budget",
+           "run_auto", "run_case", "timed"]
 
 log = logging.getLogger(__name__)
 
@@ -102,12 +102,14 @@ def _auto(case, cfg: dict, seconds: float | None = None, fft_pair_s: float | Non
     scale = float(np.max(np.abs(case.raw_e)))
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        (res, rec), dt, cpu = timed(lambda: solve_channel(
-            case.op, case.b, case.raw_e, scale, method="auto", iterations=cfg["iterations"],
-            tv="auto", l1=0.0, seconds=seconds, fft_pair_s=fft_pair_s))
+        res, rec = solve_channel(case.op, case.b, case.raw_e, scale, method="auto",
+                                 iterations=cfg["iterations"], tv="auto", l1=0.0,
+                                 seconds=seconds, fft_pair_s=fft_pair_s)
     except (DivergenceError, ReconInputError) as exc:
-        return {"psnr": None, "error": str(exc), "seconds": time.perf_counter() - t0,
-                "cpu_seconds": time.process_time() - c0}
+        res, rec = None, {"error": str(exc)}
+    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+    if res is None:
+        return {"psnr": None, "error": rec["error"], "seconds": dt, "cpu_seconds": cpu}
     x = res.x[case.op.crop]
     w = rec.get("weight") or {}
     return {"psnr": psnr(x, case.truth), "ssim": ssim(x, case.truth), "seconds": dt,
@@ -180,8 +182,25 @@ def cost_in_turn(auto: dict, grid: list[dict], repeats: int, fixed, rerun) -> di
             "cpu_ratio_runs": cpu_runs}
 
 
+def cost_record(cost: dict) -> dict:
+    """A case's cost fields from :func:`cost_in_turn`'s result: ``fixed_seconds`` and its
+    runs, ``auto_cost_ratio`` (wall) and ``auto_cost_ratio_cpu`` with their per-pair
+    runs."""
+    return {"fixed_seconds": cost["fixed_seconds"],
+            "fixed_seconds_runs": cost["fixed_seconds_runs"],
+            "auto_cost_ratio": cost["ratio"], "auto_cost_ratio_runs": cost["ratio_runs"],
+            "auto_cost_ratio_cpu": cost["cpu_ratio"],
+            "auto_cost_ratio_cpu_runs": cost["cpu_ratio_runs"]}
+
+
 def timed(fn) -> tuple[object, float, float]:
-    """``fn()``, its wall time and the process's CPU time (s)."""
+    """Run ``fn()``.
+
+    Returns
+    -------
+    (object, float, float)
+        Its result, its wall time and the process's CPU time (every thread's), s.
+    """
     t0, c0 = time.perf_counter(), time.process_time()
     out = fn()
     return out, time.perf_counter() - t0, time.process_time() - c0
@@ -211,13 +230,10 @@ def run_case(name: str, kind: str, photons: float, cfg: dict, seed: int = 0) -> 
         lambda: _auto(case, cfg))
     one_fixed = cost["fixed_seconds"]
     out = {"scene": name, "kind": kind, "photons": photons, "snr_db": case.sim.snr_db,
-           "grid": grid, "oracle": oracle, "auto": auto, "fixed_seconds": one_fixed,
-           "fixed_seconds_runs": cost["fixed_seconds_runs"],
+           "grid": grid, "oracle": oracle, "auto": auto,
            "auto_shortfall_db": (oracle["psnr"] - auto["psnr"]
                                  if oracle and auto.get("psnr") is not None else None),
-           "auto_cost_ratio": cost["ratio"], "auto_cost_ratio_runs": cost["ratio_runs"],
-           "auto_cost_ratio_cpu": cost["cpu_ratio"],
-           "auto_cost_ratio_cpu_runs": cost["cpu_ratio_runs"]}
+           **cost_record(cost)}
     if name in cfg.get("budget_scenes", ()):
         pair = fft_pair_seconds(case.op.padded_shape)
         out["budgets"] = []

@@ -46,6 +46,7 @@ from .auto import (
     GOAL_TIME_RATIO,
     GOAL_WORST_DB,
     cost_in_turn,
+    cost_record,
     cost_summary,
     goal_summary,
     setup_record,
@@ -136,12 +137,7 @@ def run_case(kind: str, dim: float, photons: float, cfg: dict, seed: int = 0) ->
         auto, grid, cfg.get("timing_repeats", 1),
         lambda: _fixed(case, oracle["tv"] if oracle else 0.0, it), lambda: _auto(case, it))
     return {"scene": kind, "dim": dim, "photons": photons, "snr_db": case.info["snr_db"],
-            "grid": grid, "oracle": oracle, "auto": auto,
-            "fixed_seconds": cost["fixed_seconds"],
-            "fixed_seconds_runs": cost["fixed_seconds_runs"],
-            "auto_cost_ratio": cost["ratio"], "auto_cost_ratio_runs": cost["ratio_runs"],
-            "auto_cost_ratio_cpu": cost["cpu_ratio"],
-            "auto_cost_ratio_cpu_runs": cost["cpu_ratio_runs"],
+            "grid": grid, "oracle": oracle, "auto": auto, **cost_record(cost),
             "auto_shortfall_db": (oracle["psnr"] - auto["psnr"]
                                   if oracle and auto.get("psnr") is not None else None)}
 
@@ -150,12 +146,14 @@ def _auto(case: VolumeCase, iterations: int) -> dict:
     """The default on one case, exactly as :func:`recon.reconstruct` runs it."""
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        (res, rec), dt, cpu = timed(lambda: auto_volume(
-            "admm", case.op, case.b, noise=_noise(case), iterations=iterations,
-            plan_of=VolumeAdmmPlan.of, fista=fista3d))
+        res, rec = auto_volume("admm", case.op, case.b, noise=_noise(case),
+                               iterations=iterations, plan_of=VolumeAdmmPlan.of,
+                               fista=fista3d)
     except DivergenceError as exc:
-        return {"psnr": None, "error": str(exc)[:200], "seconds": time.perf_counter() - t0,
-                "cpu_seconds": time.process_time() - c0}
+        res, rec = None, {"error": str(exc)[:200]}
+    dt, cpu = time.perf_counter() - t0, time.process_time() - c0
+    if res is None:
+        return {"psnr": None, "error": rec["error"], "seconds": dt, "cpu_seconds": cpu}
     vol = _fov(case, res.x)
     return {"psnr": volume_psnr(vol, case.truth), "tv": rec["weight"],
             "iterations_used": int(res.params["iterations_used"]),

@@ -67,8 +67,14 @@ def _portable(exc: BaseException) -> BaseException:
 
 
 def batch_nice() -> int:
-    """The nice value the batch process runs at: :data:`BATCH_NICE` above the calling
-    process's (its main thread's, whatever the calling thread's), at most 19."""
+    """The nice value the batch process runs at.
+
+    Returns
+    -------
+    int
+        :data:`BATCH_NICE` above the calling process's nice value (its main thread's,
+        whatever the calling thread's), at most 19.
+    """
     return min(19, os.getpriority(os.PRIO_PROCESS, os.getpid()) + BATCH_NICE)
 
 
