@@ -51,17 +51,17 @@ class BatchProcessError(DiffuserLabError, RuntimeError):
     finished are stored in the run; starting the batch again does the rest."""
 
 
-def _portable(exc: BaseException) -> BaseException:
+def _portable(exc: BaseException, where: str = "the batch process") -> BaseException:
     """``exc`` if it survives pickling, else the nearest of the project's error types
     (or :class:`BatchProcessError`) with its message, and the child's traceback as a
-    note either way (the caller's log shows it for a bug)."""
+    note either way, headed "in ``where``" (the caller's log shows it for a bug)."""
     try:
         portable = pickle.loads(pickle.dumps(exc))
     except Exception:  # an exception type whose arguments do not round-trip
         kind = (InputError if isinstance(exc, InputError) else
                 DiffuserLabError if isinstance(exc, DiffuserLabError) else BatchProcessError)
         portable = kind(str(exc) or type(exc).__name__)
-    portable.add_note("in the batch process:\n" + "".join(
+    portable.add_note(f"in {where}:\n" + "".join(
         traceback.format_exception(type(exc), exc, exc.__traceback__)))
     return portable
 

@@ -217,6 +217,11 @@ class LiveReconstruction:
         Raise the worker thread's nice value by this much
         (:func:`lower_thread_priority`; default 0, unchanged): a preview beside a
         recorder or a GUI then takes the CPU only when they leave it.
+    on_result : callable, optional
+        Called on the worker thread with each published :class:`LivePreview`
+        (:class:`instrument.live_process.LiveReconstructionProcess`'s child sends it on).
+    on_error : callable, optional
+        Called on the thread that met it with each error's one-line description.
 
     Raises
     ------
@@ -227,8 +232,9 @@ class LiveReconstruction:
 
     def __init__(self, reconstructor, *, method: str = "wiener", iterations: int = 5,
                  warm_start: bool = True, window_s: float = 2.0, threads: int | None = None,
-                 nice: int = 0):
+                 nice: int = 0, on_result=None, on_error=None):
         self.reconstructor = reconstructor
+        self.on_result, self.on_error = on_result, on_error
         self._method, self._iterations = _method(method, iterations)
         self.warm_start = bool(warm_start)
         self.window_s = positive(window_s, "window_s")
@@ -321,6 +327,11 @@ class LiveReconstruction:
         self.stop()
 
     @property
+    def backend_label(self) -> str:
+        """Where the solves run (the reconstructor's ``backend.label``)."""
+        return self.reconstructor.backend.label
+
+    @property
     def running(self) -> bool:
         """Whether the worker thread is alive."""
         return bool(self._threads) and self._threads[0].is_alive()
@@ -393,11 +404,9 @@ class LiveReconstruction:
             with self._lock:
                 self._latest = preview
                 self.reconstructed += 1
-                self._recent.append((done, preview.latency_s))
-                while self._recent and self._recent[0][0] < done - self.window_s:
-                    self._recent.popleft()
-                self._latencies.append(preview.latency_s)
-                self._compute.append(preview.compute_s)
+                note_result(self, done, preview.latency_s, preview.compute_s)
+            if self.on_result is not None:
+                self.on_result(preview)
 
     def _record_error(self, exc: BaseException, what: str) -> None:
         with self._lock:
@@ -405,6 +414,8 @@ class LiveReconstruction:
             self.error = kept_error(exc)  # its traceback would hold this object: a cycle
             self.last_error = f"{what}: {type(exc).__name__}: {exc}"
         log.warning("live reconstruction: %s", self.last_error)
+        if self.on_error is not None:
+            self.on_error(self.last_error)
 
     # -- results -------------------------------------------------------------------
     def latest(self) -> LivePreview | None:
@@ -432,12 +443,7 @@ class LiveReconstruction:
                    "last_error": self.last_error, "method": self._method,
                    "iterations": self._iterations,
                    "latency_s": None if self._latest is None else self._latest.latency_s}
-        span = recent[-1][0] - recent[0][0] if len(recent) >= 2 else 0.0
-        out["fps"] = (len(recent) - 1) / span if span > 0 else 0.0
-        lat = [r[1] for r in recent]
-        out["latency_median_s"] = float(np.median(lat)) if lat else None
-        out["latency_p95_s"] = float(np.percentile(lat, 95)) if lat else None
-        out["running"] = self.running
+        out.update(window_rates(recent), running=self.running)
         return out
 
     def latency_summary(self) -> dict:
@@ -446,12 +452,37 @@ class LiveReconstruction:
         could sustain); None without results."""
         with self._lock:
             lat, comp = np.array(self._latencies), np.array(self._compute)
-        if not lat.size:
-            return {"count": 0, "median_s": None, "p95_s": None, "max_s": None,
-                    "compute_median_s": None}
-        return {"count": int(lat.size), "median_s": float(np.median(lat)),
-                "p95_s": float(np.percentile(lat, 95)), "max_s": float(lat.max()),
-                "compute_median_s": float(np.median(comp))}
+        return whole_run_summary(lat, comp)
+
+
+def note_result(live, done: float, latency_s: float, compute_s: float) -> None:
+    """Add one result to ``live``'s statistics (its ``_recent`` window of ``window_s``,
+    ``_latencies``, ``_compute``); the caller holds its lock."""
+    live._recent.append((done, latency_s))
+    while live._recent and live._recent[0][0] < done - live.window_s:
+        live._recent.popleft()
+    live._latencies.append(latency_s)
+    live._compute.append(compute_s)
+
+
+def window_rates(recent: list[tuple[float, float]]) -> dict:
+    """``fps``, ``latency_median_s`` and ``latency_p95_s`` of the (result time, latency)
+    pairs of the statistics' window (0 fps with fewer than 2; None without results)."""
+    span = recent[-1][0] - recent[0][0] if len(recent) >= 2 else 0.0
+    lat = [r[1] for r in recent]
+    return {"fps": (len(recent) - 1) / span if span > 0 else 0.0,
+            "latency_median_s": float(np.median(lat)) if lat else None,
+            "latency_p95_s": float(np.percentile(lat, 95)) if lat else None}
+
+
+def whole_run_summary(lat: np.ndarray, comp: np.ndarray) -> dict:
+    """:meth:`LiveReconstruction.latency_summary` of the latencies and compute times."""
+    if not lat.size:
+        return {"count": 0, "median_s": None, "p95_s": None, "max_s": None,
+                "compute_median_s": None}
+    return {"count": int(lat.size), "median_s": float(np.median(lat)),
+            "p95_s": float(np.percentile(lat, 95)), "max_s": float(lat.max()),
+            "compute_median_s": float(np.median(comp))}
 
 
 def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
@@ -468,7 +499,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
     (scaled to 4000 DN above the dark offset); frames and PSF have the camera's dark
     offset subtracted. One run per mode (Wiener preview; warm ADMM with
     ``admm_iterations``) of ``seconds`` each. The PSNR part is
-    :func:`recon.benchmarks.live.warm_vs_cold` on the real DiffuserCam PSF (moving
+    ``recon.benchmarks.live.warm_vs_cold`` on the real DiffuserCam PSF (moving
     natural scene, ``psnr_frames`` frames, 300 x 400).
 
     Parameters

@@ -9,7 +9,7 @@ import pytest
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
 MODULES = ("diffuserlab.jsonio", "recon.io", "recon.operators", "recon.metrics", "recon.live",
            "benchmarks.report", "recon.api", "recon.solvers.admm",
-           "recon.solvers.gradient")
+           "recon.solvers.gradient", "instrument.shared_slot")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -1,0 +1,230 @@
+"""The live reconstruction in a process of its own (instrument.live_process) and the
+shared-memory slot its frames and results go through (instrument.shared_slot): the
+same results as on a thread, the child's errors back with their type, a killed child
+reported while the caller goes on, its priority below the caller's, and a slot that
+never hands out a half-written image while another process writes it."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.camera import Frame
+from instrument.live import LiveReconstruction, LiveReconstructionError
+from instrument.live_process import LiveReconstructionProcess
+from instrument.shared_slot import META_FIELDS, SharedImageSlot
+from recon.errors import ReconInputError
+from recon.live import LiveReconstructor
+from recon.operators import ConvolutionOperator
+
+# -- the slot ---------------------------------------------------------------------------
+
+
+def test_a_slot_hands_over_the_newest_image_with_its_metadata():
+    slot = SharedImageSlot(4 * 6 * 8 * 3)
+    other = SharedImageSlot(4 * 6 * 8 * 3, name=slot.name)
+    try:
+        assert other.read() is None and slot.sequence == 0
+        first = np.arange(24, dtype=np.uint16).reshape(4, 6)
+        assert slot.write(first, meta=[3.0, 1.5]) == 1
+        colour = np.random.default_rng(0).random((4, 6, 3))
+        assert slot.write(colour, meta=np.arange(META_FIELDS)) == 2
+        got = other.read()
+        assert got.sequence == 2 and got.image.dtype == np.float64
+        np.testing.assert_array_equal(got.image, colour)
+        np.testing.assert_array_equal(got.meta, np.arange(META_FIELDS))
+        assert other.read(after=2) is None  # nothing newer
+        slot.write(first, meta=[3.0])
+        got = other.read(after=2)
+        np.testing.assert_array_equal(got.image, first)
+        assert got.meta[0] == 3.0 and got.meta[1] == 0.0  # unset fields are 0
+        got.image[0, 0] = 99  # a private copy
+        assert other.read().image[0, 0] == 0
+    finally:
+        other.close()
+        slot.close()
+    assert not Path("/dev/shm", slot.name).exists()  # the maker removed it
+
+
+def test_a_slot_refuses_what_it_cannot_hold():
+    slot = SharedImageSlot(64)
+    try:
+        with pytest.raises(ValueError, match="at most 64 bytes"):
+            slot.write(np.zeros((5, 5), np.float32))
+        with pytest.raises(ValueError, match="uint8, uint16, float32 or float64"):
+            slot.write(np.zeros((2, 2), np.int32))
+        with pytest.raises(ValueError, match="at most 12 metadata"):
+            slot.write(np.zeros((2, 2), np.uint8), meta=range(13))
+        assert slot.sequence == 0
+    finally:
+        slot.close()
+    with pytest.raises(ValueError, match="at least 1 byte"):
+        SharedImageSlot(0)
+
+
+def test_a_read_that_races_the_writer_on_its_buffer_is_discarded():
+    slot = SharedImageSlot(64)
+    try:
+        slot.write(np.ones((2, 2), np.float32))
+        slot.write(np.full((2, 2), 2, np.float32))
+        n = slot.sequence
+        slot._counters[1] = n + 1  # the writer fills the other buffer: this copy is good
+        assert slot.read().image[0, 0] == 2
+        slot._counters[1] = n + 2  # the writer is overwriting this very buffer
+        assert slot.read(attempts=3) is None
+    finally:
+        slot.close()
+
+
+def _write_uniform(name: str, capacity: int, n: int) -> None:
+    slot = SharedImageSlot(capacity, name=name)
+    for k in range(1, n + 1):
+        slot.write(np.full((256, 256), k, np.float32), meta=[k])
+    slot.close()
+
+
+def test_no_torn_image_while_another_process_writes():
+    """Every image read while a child writes 3000 of them as fast as it can is one
+    whole image: all its pixels and its metadata carry the same number."""
+    slot = SharedImageSlot(256 * 256 * 4)
+    writer = multiprocessing.get_context("spawn").Process(
+        target=_write_uniform, args=(slot.name, slot.capacity, 3000))
+    try:
+        writer.start()
+        reads, last = 0, 0
+        deadline = time.monotonic() + 120
+        while (writer.is_alive() or last < 3000) and time.monotonic() < deadline:
+            got = slot.read(after=last)
+            if got is None:
+                continue
+            k = got.meta[0]
+            assert got.image.min() == got.image.max() == k, "a torn image"
+            assert got.sequence >= last and k == got.sequence
+            last, reads = got.sequence, reads + 1
+        assert last == 3000 and reads > 10
+    finally:
+        writer.join(30)
+        slot.close()
+
+
+# -- the live reconstruction in a child process --------------------------------------------
+
+
+def _problem():
+    rng = np.random.default_rng(1)
+    psf = 100.0 * (rng.random((48, 64)) > 0.97)
+    scene = np.zeros((96, 128), np.float32)
+    scene[40:56, 50:70] = 1.0
+    return psf, ConvolutionOperator(psf).forward(scene).astype(np.float32)
+
+
+def _frame(image, index):
+    return Frame(image, index, 0.01 * index, time.time(), 0.01, 0.0, 0)
+
+
+def _index(live) -> int:
+    latest = live.latest()
+    return -1 if latest is None else latest.frame_index
+
+
+def _until(condition, timeout_s, what):
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.02)
+
+
+def test_the_child_gives_what_the_thread_gives():
+    psf, image = _problem()
+    thread = LiveReconstruction(LiveReconstructor(psf, dark=0.0), method="admm", iterations=4)
+    thread.start()
+    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0},
+                                     method="admm", iterations=4)
+    proc.start()
+    try:
+        assert proc.backend_label == "cpu (numpy)" and proc.sensor_shape == (48, 64)
+        for k in range(3):  # each frame waits for its result: warm starts match
+            for live in (thread, proc):
+                live.offer(_frame(image, k))
+                _until(lambda live=live, k=k: _index(live) == k, 60, f"frame {k}")
+        a, b = thread.latest(), proc.latest()
+        assert (b.method, b.iterations, b.warm) == ("admm", 4, True)
+        np.testing.assert_array_equal(a.image, b.image)
+        proc.set_method("wiener")
+        proc.offer(_frame(image, 7))
+        _until(lambda: proc.latest().frame_index == 7, 60, "the Wiener frame")
+        assert proc.latest().method == "wiener"
+        s = proc.stats()
+        assert (s["received"], s["reconstructed"], s["errors"], s["skipped"]) == (4, 4, 0, 0)
+        assert s["running"] and s["method"] == "wiener"
+    finally:
+        thread.stop()
+        proc.stop()
+    assert not proc.running and proc.latency_summary()["count"] == 4
+
+
+def test_the_childs_build_error_comes_back_with_its_type():
+    psf, _ = _problem()
+    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0,
+                                                                 "bin_factor": 0})
+    with pytest.raises(ReconInputError, match="bin"):
+        proc.start()
+    assert not proc.running
+    proc.stop()  # nothing to stop: no error
+
+
+def test_a_killed_child_is_reported_and_the_caller_goes_on():
+    psf, image = _problem()
+    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0})
+    proc.start()
+    pid = proc.child_info["pid"]
+    proc.offer(_frame(image, 0))
+    _until(lambda: proc.latest() is not None, 60, "a result")
+    os.kill(pid, signal.SIGKILL)
+    _until(lambda: not proc.running, 30, "the child's end to be seen")
+    _until(lambda: proc.stats()["last_error"] is not None, 30, "the report")
+    s = proc.stats()
+    assert "process ended" in s["last_error"] and "start the reconstruction again" in (
+        s["last_error"])
+    assert s["errors"] == 1 and proc.latest().frame_index == 0  # the last result stays
+    proc.offer(_frame(image, 1))  # the stream's consumer is not hurt
+    proc.stop()
+
+
+def test_the_child_runs_below_the_callers_priority():
+    psf, _ = _problem()
+    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0}, nice=5)
+    proc.start()
+    try:
+        process = os.getpriority(os.PRIO_PROCESS, os.getpid())
+        assert proc.child_info["nice"] == min(19, process + 5)
+    finally:
+        proc.stop()
+
+
+def test_a_frame_of_another_shape_is_an_error_not_a_crash():
+    psf, image = _problem()
+    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0})
+    proc.start()
+    try:
+        proc.offer(_frame(np.zeros((480, 640), np.float64), 0))  # larger than the slot
+        assert "does not fit the slot" in proc.stats()["last_error"]
+        proc.offer(_frame(np.zeros((24, 32), np.float32), 1))  # fits, wrong for the PSF
+        _until(lambda: proc.stats()["errors"] == 2, 60, "the child's error")
+        assert "frame 1" in proc.stats()["last_error"]
+        proc.offer(_frame(image, 2))
+        _until(lambda: proc.latest() is not None, 60, "a result after the errors")
+        assert proc.running
+    finally:
+        proc.stop()
+    with pytest.raises(LiveReconstructionError, match="already running"):
+        proc.start()
+        proc.start()
+    proc.stop()
