@@ -1,8 +1,9 @@
 """What the panels run on their workers: thin calls into the library.
 
-* :func:`build_live` - a :class:`instrument.live.LiveReconstruction` for the session's
-  camera and a PSF from a file or run store (:func:`instrument.reconstruct_files.load_psf`),
-  with the frames' dark level as ``capture live`` takes it.
+* :func:`build_live` - a live reconstruction for the session's camera, in a process of
+  its own (:class:`instrument.live_process.LiveReconstructionProcess`), and a PSF from a
+  file or run store (:func:`instrument.reconstruct_files.load_psf`), with the frames'
+  dark level as ``capture live`` takes it.
 * :func:`routine_options` / :func:`build_plan` - a calibration routine's parameters
   are its typed model (:mod:`calibration_routines.parameters`), from which the
   ``calibrate`` command's options are generated too; the form's texts become the
@@ -26,6 +27,12 @@ from typing import Any
 __all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_reconstruct", "build_live",
            "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
            "run_alignment", "run_plan", "section_summary", "stack_depths"]
+
+#: Whether :func:`build_live` runs the live reconstruction in a child process (the
+#: default: the window's process then shares its interpreter lock with no solver) or,
+#: False, on a thread of the window's process (tests that replace the reconstructor's
+#: device in this process).
+LIVE_IN_PROCESS = True
 
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
@@ -60,7 +67,10 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
 
     Returns
     -------
-    live : instrument.live.LiveReconstruction
+    live : instrument.live_process.LiveReconstructionProcess
+        Not started: its ``start()`` builds the reconstructor in the child and raises
+        what building raised. With :data:`LIVE_IN_PROCESS` False an
+        :class:`instrument.live.LiveReconstruction` built here.
     depth_mm : float or None
         The depth of the stack's plane used (the nearest to ``depth_mm``); None for a
         single PSF image.
@@ -71,10 +81,12 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         No PSF given.
     recon.errors.ReconInputError
         Unreadable PSF, a PSF whose shape is not the camera's frames, a calibrated
-        stack without a dark level on a real bench; an unusable ``device`` (what is
-        missing) or a GPU without the memory the live reconstruction needs.
+        stack without a dark level on a real bench (the unusable ``device``, what is
+        missing, or a GPU without the memory the live reconstruction needs: from the
+        process's ``start()``).
     """
     from instrument.live import LiveReconstruction
+    from instrument.live_process import LiveReconstructionProcess
     from instrument.reconstruct_files import load_psf, resolve_dark
     from instrument.stacks import dark_subtracted
     from recon.errors import ReconInputError
@@ -98,9 +110,15 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         dark.strip() or ReconOptions.defaults()["dark"], psf,
         calibrated=dark_subtracted(psf_path), recorded=getattr(cam, "dark_offset_dn", None),
         what=psf_path)
-    live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),
-                              method=method, iterations=iterations, threads=threads,
-                              nice=BACKGROUND_NICE)
+    if not LIVE_IN_PROCESS:
+        live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),
+                                  method=method, iterations=iterations, threads=threads,
+                                  nice=BACKGROUND_NICE)
+        return live, depth
+    live = LiveReconstructionProcess(psf, reconstructor_options={"dark": level,
+                                                                 "device": device},
+                                     method=method, iterations=iterations, threads=threads,
+                                     nice=BACKGROUND_NICE)
     return live, depth
 
 

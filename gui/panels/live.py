@@ -1,8 +1,10 @@
 """Live view: the raw camera frame (histogram, saturation overlay, fps) beside the live
 reconstruction (its own fps, latency, skipped and error counters), Snap.
 
-The session's stream hands every frame to :class:`instrument.live.LiveReconstruction`
-(Wiener preview or warm-started ADMM with a few iterations per frame; PSF from a file
+The session's stream hands every frame to the live reconstruction, which runs in a
+process of its own (:class:`instrument.live_process.LiveReconstructionProcess`: frames
+and results through shared memory, so the window shares its interpreter lock with no
+solver; Wiener preview or warm-started ADMM with a few iterations per frame; PSF from a file
 or a run store, :func:`gui.jobs.build_live`); a 20 Hz timer shows the newest frame
 and the newest reconstruction and the counters. Nothing here waits on the camera or
 the solver. The PSF, depth, dark level, method, iterations and device (cpu, cuda or
@@ -260,7 +262,7 @@ class LivePanel(QWidget):
         def build(job):
             live, depth_used = build_live(self.session, psf, depth_mm=depth, method=method,
                                           iterations=iterations, dark=dark, device=device)
-            live.start()  # its thread started here: Thread.start waits for a core
+            live.start()  # its process or thread started here (waits for a core)
             return live, depth_used
 
         self.job = Job(build, name="build-live", owner=self)
@@ -275,7 +277,7 @@ class LivePanel(QWidget):
         live, depth = result
         self.depth_used = depth
         self._live_settings["depth_used_mm"] = depth
-        label = live.reconstructor.backend.label
+        label = live.backend_label
         self._live_settings["device"] = label
         self.device_used.setText(f"running on {label}")
         self.plane.setText("" if depth is None else f"plane used: z = {depth:g} mm")

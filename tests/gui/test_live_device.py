@@ -83,6 +83,7 @@ def test_the_chosen_device_runs_the_live_reconstruction(window, wait, psf_file, 
         return standin if name == "cuda" else resolve_device(name)
 
     monkeypatch.setattr(recon.live, "resolve_device", resolve)  # the GPU's stand-in
+    monkeypatch.setattr("gui.jobs.LIVE_IN_PROCESS", False)  # the stand-in is in this process
     live = window.live
     live.psf.setText(psf_file)
     live.depth.setEditText("")
