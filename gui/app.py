@@ -45,7 +45,7 @@ from PySide6.QtWidgets import (
 from .binding import BindingLeakError, check_binding
 from .colorleak import install as install_color_fix
 from .device_status import STATE_COLOURS, device_state, status_line
-from .fields import settings
+from .fields import flush, settings
 from .logpane import LogPane, gui_log
 from .memory import configure_allocator
 from .panels.common import PanelScroll
@@ -388,7 +388,9 @@ class MainWindow(QMainWindow):
                 dock.activateWindow()
 
     def save(self) -> None:
-        """Store the geometry, dock layout and bench file."""
+        """Store the geometry, dock layout and bench file, and write every stored
+        change (:func:`gui.fields.flush`; the window is closing)."""
+        flush()
         s = settings()
         s.setValue("window/geometry", self.saveGeometry())
         s.setValue("window/state", self.saveState(LAYOUT_VERSION))

@@ -514,13 +514,13 @@ class FrameView(QWidget):
         click. The folder is remembered; the default, ``out/snapshots``, is created (a
         folder that cannot be made is said under the image, and the dialog opens in the
         working directory)."""
-        from .fields import settings
+        from .fields import read, store
 
         if self.image is None:
             self.stats.setText("no image to save yet")
             return None
         taken = (np.array(self.image, copy=True), self.snapshot_metadata())
-        folder = Path(str(settings().value("snapshots/folder", SNAPSHOT_FOLDER)))
+        folder = Path(str(read("snapshots/folder", SNAPSHOT_FOLDER)))
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -532,7 +532,7 @@ class FrameView(QWidget):
                                            "TIFF (*.tif *.tiff)")[0]
         if not path:
             return None
-        settings().setValue("snapshots/folder", str(Path(path).parent))
+        store("snapshots/folder", str(Path(path).parent))
         return self.save_snapshot(path, taken=taken)
 
     def save_snapshot(self, path: str | Path,

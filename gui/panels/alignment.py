@@ -30,7 +30,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from ..fields import remember, settings, wheel_needs_focus
+from ..fields import read, remember, store, wheel_needs_focus
 from ..jobs import ALIGNMENT_STEPS, run_alignment
 from ..logpane import announce_job, job_ended
 from ..session import Session
@@ -146,7 +146,7 @@ class AlignmentPanel(RunControls, QWidget):
     def expected_readings(self) -> int:
         """Readings the whole alignment is expected to take: the last finished one's on
         this machine with the same focus setting, else :data:`EXPECTED_READINGS`."""
-        stored = settings().value(self._readings_key())
+        stored = read(self._readings_key())
         try:
             return max(int(stored), 1)
         except (TypeError, ValueError):
@@ -260,7 +260,7 @@ class AlignmentPanel(RunControls, QWidget):
 
     def on_report(self, report: dict) -> None:
         self._set_running(False)
-        settings().setValue(self._readings_key(), len(self.readings))
+        store(self._readings_key(), len(self.readings))
         self.progress.report(len(self.readings), len(self.readings))
         self.progress.finish()
         s = report.get("summary", {})

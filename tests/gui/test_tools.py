@@ -169,6 +169,45 @@ def test_every_image_view_of_the_window_has_the_tools(window):
 # -- nothing typed twice ----------------------------------------------------------------------
 
 
+def test_a_remembered_field_is_written_off_the_gui_thread(qapp, tmp_path, monkeypatch, wait):
+    """Typing into a remembered field stores each change at once (read sees it) and the
+    file is written by the settings writer's thread, never by the GUI thread: a sync
+    calls fdatasync twice, which held key presses' repaints up to 276 ms."""
+    import configparser
+    import threading
+
+    from PySide6.QtWidgets import QLineEdit
+
+    import gui.fields as fields
+
+    path = tmp_path / "gui.ini"
+    monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(path))
+    synced_on: list[str] = []
+    real_sync = fields.QSettings.sync
+
+    def sync(self):
+        synced_on.append(threading.current_thread().name)
+        real_sync(self)
+
+    monkeypatch.setattr(fields.QSettings, "sync", sync)
+    field = fields.remember(QLineEdit(), "test/dark")
+    for text in ("6", "64", "64x", "64"):
+        field.setText(text)
+        assert fields.read("fields/test/dark") == text  # at once, written or not
+    qapp.processEvents()
+    wait(lambda: "settings-writer" in synced_on, 10, "the settings writer")
+    assert threading.main_thread().name not in synced_on
+    wait(lambda: path.exists(), 10, "the file")
+    ini = configparser.ConfigParser()
+    ini.read(path)
+    assert ini["fields"]["test\\dark"] == "64"
+    fields.store("fields/test/dark", "65")
+    fields.flush()  # the window's close: written on the caller's thread, now
+    ini.read(path)
+    assert ini["fields"]["test\\dark"] == "65"
+    assert fields.read("fields/test/dark") == "65"
+
+
 def test_fields_are_remembered_across_sessions(qapp, tmp_path, monkeypatch):
     monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(tmp_path / "gui.ini"))
     from gui.app import MainWindow
