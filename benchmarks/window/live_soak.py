@@ -1,0 +1,403 @@
+"""An hour of live view with live ADMM in a real window, and what an operator sees of it.
+
+``python -m benchmarks.window.live_soak [--minutes 60] [--probe-s 30] [--json OUT]``
+starts Xvfb and a window manager (:func:`benchmarks.window.soak.x_display`) and runs
+the real ``diffuserlab gui`` on the simulated bench (beads flowing, the xcb platform).
+Inside the GUI process an :class:`~benchmarks.window.operator_day.Operator` whose day is
+:meth:`LiveSoak.day` presses F5, starts the live ADMM reconstruction (5 iterations per
+frame) with the bench's PSF through the Live panel, and then leaves the window alone
+while :class:`~benchmarks.window.daymonitor.DayMonitor` measures the GUI thread's
+lateness (a 10 ms timer) and its watchdog records what ran during stalls.
+
+From *outside* the GUI process, every ``--probe-s`` seconds a probing process of its
+own (``python -m benchmarks.window.live_soak probe``) sends a key and a click through
+the X server (xdotool) and times when the screen shows them: it
+types a character into the Live panel's dark field (then BackSpace) and clicks the
+method box open (then Esc), grabbing the field's or box's pixels from the X server
+(Qt's ``QScreen.grabWindow`` on a display connection of its own) every 2 ms until
+they change. That delay is what an operator waits for a key or a click to show:
+input through the X server, the event loop, the repaint and the X server's copy.
+
+Printed and written (``--json``): the lateness over the soak (p50, p99, max, the
+stalls), each probe's delay (p50, p99, max, per kind), the live reconstruction's rate
+and errors, the camera's frames and the machine's load average (1 min) sampled at
+every probe. Goals: max lateness < 250 ms, p99 < 50 ms, every probe visible within
+100 ms, at a load average <= 4.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["GOALS", "LiveSoak", "ScreenProbe", "run_live_soak"]
+
+#: Goals of the soak (lateness of the GUI thread, delay of what an operator sees).
+GOALS = {"max_ms": 250.0, "p99_ms": 50.0, "visible_ms": 100.0, "load": 4.0}
+#: Seconds of live ADMM before the soak's measurement starts (numba compiled, caches).
+SETTLE_S = 30.0
+
+
+def _operator_class():
+    from .operator_day import Operator, StepFailed
+
+    class LiveSoak(Operator):
+        """The soak's day inside the GUI process (module docstring)."""
+
+        def day(self) -> Iterator:
+            from PySide6.QtWidgets import QApplication
+
+            w = self.w
+            QApplication.setCursorFlashTime(0)  # a steady text cursor: the probes' pixels
+            self.phase("connect")
+            yield self.until(lambda: w.session.connected, 300, "the bench to open")
+            self.x.click(w.live.raw_view.glw)
+            self.x.key("F5")
+            yield self.typed()
+            yield self.until(lambda: w.live._shown_raw > 10, 60, "frames in the live view")
+            bench = w.session.bench
+            psf = bench.psf((0.0, 0.0, 60.0))  # the scene's depth, as the camera records
+            psf = psf / psf.max() * 1000.0 + float(bench.camera.dark_offset_dn)
+            path = Path(self.o.work) / "psf.npy"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            np.save(path, psf.astype(np.float32))
+            live = w.live
+            yield from self.fill(live.psf, str(path), enter=True)
+            yield from self.fill(live.depth.lineEdit(), "")
+            yield from self.fill(live.dark, f"{float(bench.camera.dark_offset_dn):g}")
+            yield from self.choose(live.method, "admm")
+            live.iterations.setValue(5)
+            yield from self.click(live.recon_button)
+            yield self.until(lambda: live.live is not None or live.error.text(), 300,
+                             "the live reconstruction")
+            if live.live is None:
+                raise StepFailed(f"live reconstruction: {live.error.text()}")
+            yield self.until(lambda: live.live.stats()["reconstructed"] > 10, 300,
+                             "ADMM reconstructions")
+            yield SETTLE_S
+            self.done("live ADMM started")
+            yield from self.aim(live.dark)
+            probe = {"pid": os.getpid(),
+                     "key_field": _rect(live.dark), "click_box": _rect(live.method)}
+            Path(self.o.probe).write_text(json.dumps(probe))
+            self.phase("soak")
+            start = {"frames": w.session.frames_seen, **live.live.stats()}
+            t_end = self.t0 + 60.0 * self.o.minutes
+            while time.monotonic() < t_end:
+                yield 5.0
+            end = live.live.stats()
+            self.notes["live"] = {
+                "start": start, "end": end,
+                "frames_shown": w.session.frames_seen - start["frames"],
+                "reconstructed": end["reconstructed"] - start["reconstructed"],
+                "skipped": end["skipped"] - start["skipped"],
+                "errors": end["errors"] - start["errors"], "last_error": end["last_error"],
+                "latency": live.live.latency_summary(),
+                "child": getattr(live.live, "child_info", None), "gui_pid": os.getpid(),
+                "in_process": type(live.live).__name__}
+            self.done("soak")
+            self.phase("end")
+            Path(self.o.probe).write_text(json.dumps({"done": True}))
+            self._finish()
+
+    return LiveSoak
+
+
+LiveSoak = None  # the class, made on first use (it needs the Qt binding)
+
+
+def _rect(widget) -> list[int]:
+    """``widget``'s rectangle on the screen: x, y, width, height (px)."""
+    top_left = widget.mapToGlobal(widget.rect().topLeft())
+    return [top_left.x(), top_left.y(), widget.width(), widget.height()]
+
+
+def inside(argv: list[str]) -> int:
+    """The GUI process: ``diffuserlab gui`` with :class:`LiveSoak` on its event loop."""
+    from PySide6.QtCore import QTimer
+    from PySide6.QtWidgets import QApplication
+
+    p = argparse.ArgumentParser(prog="python -m benchmarks.window.live_soak inside")
+    p.add_argument("--minutes", type=float, required=True)
+    p.add_argument("--work", required=True)
+    p.add_argument("--report", required=True)
+    p.add_argument("--probe", required=True)
+    args = p.parse_args(argv)
+    args.simulate, args.alignment_s = True, 0.0
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    soak = _operator_class()
+
+    def begin() -> None:
+        from gui.app import MainWindow
+
+        windows = [w for w in app.topLevelWidgets() if isinstance(w, MainWindow)]
+        if not windows:
+            QTimer.singleShot(100, begin)
+            return
+        app._operator = soak(windows[0], args)
+        app._operator.start()
+
+    QTimer.singleShot(0, begin)
+    from instrument.cli import main as diffuserlab
+
+    return diffuserlab(["gui", "--scene", "beads-flow", "--simulate"])
+
+
+class ScreenProbe:
+    """Times, from outside the GUI process, how long a key or a click takes to show.
+
+    Parameters
+    ----------
+    display : str
+        The X display (``:N``). Run it in a process of its own (Qt ends a process
+        whose X connection breaks, as when the display is stopped).
+
+    Raises
+    ------
+    FileNotFoundError
+        xdotool is not installed.
+    """
+
+    def __init__(self, display: str) -> None:
+        import shutil
+
+        os.environ["DISPLAY"] = display
+        os.environ["QT_QPA_PLATFORM"] = "xcb"
+        from PySide6.QtGui import QGuiApplication
+
+        self.app = QGuiApplication.instance() or QGuiApplication(["probe"])
+        self.screen = QGuiApplication.primaryScreen()
+        self.xdotool = shutil.which("xdotool")
+        if self.xdotool is None:
+            raise FileNotFoundError(2, "xdotool is not installed (scripts/system-deps.sh)",
+                                    "xdotool")
+
+    def grab(self, rect) -> bytes:
+        """The pixels of ``rect`` (x, y, width, height) as the X server holds them."""
+        x, y, w, h = rect
+        image = self.screen.grabWindow(0, x, y, w, h).toImage()
+        return bytes(image.constBits())
+
+    def xdo(self, *args: str) -> None:
+        subprocess.run([self.xdotool, *args], check=True, timeout=10)
+
+    def timed(self, rect, *args: str, timeout_s: float = 5.0) -> float:
+        """Send ``xdotool args`` and return the seconds until ``rect``'s pixels change
+        (``inf`` if they did not within ``timeout_s``)."""
+        before = self.grab(rect)
+        t0 = time.perf_counter()
+        subprocess.Popen([self.xdotool, *args])  # the send time counts, as an operator's
+        while time.perf_counter() - t0 < timeout_s:
+            if self.grab(rect) != before:
+                return time.perf_counter() - t0
+            time.sleep(0.002)
+        return float("inf")
+
+    def probe(self, target: dict) -> dict:
+        """One key probe (a character typed, then BackSpace) and one click probe (the
+        method box opened, then Esc); delays in ms."""
+        fx, fy, fw, fh = target["key_field"]
+        self.xdo("mousemove", str(fx + fw - 6), str(fy + fh // 2), "click", "1")
+        time.sleep(0.5)  # the focus moved in; its frame repainted
+        out = {"key_ms": 1e3 * self.timed(target["key_field"], "key", "x")}
+        time.sleep(0.3)
+        out["backspace_ms"] = 1e3 * self.timed(target["key_field"], "key", "BackSpace")
+        time.sleep(0.3)
+        bx, by, bw, bh = target["click_box"]
+        self.xdo("mousemove", str(bx + bw // 2), str(by + bh // 2))
+        time.sleep(0.3)  # the hover highlight
+        out["click_ms"] = 1e3 * self.timed(target["click_box"], "click", "1")
+        time.sleep(0.3)
+        out["escape_ms"] = 1e3 * self.timed(target["click_box"], "key", "Escape")
+        out["load_1min"] = os.getloadavg()[0]
+        return out
+
+
+def probe_main(argv: list[str]) -> int:
+    """The probing process: waits for the window's targets, then every ``--every`` s a
+    round of :meth:`ScreenProbe.probe`, each a JSON line of ``--out`` (with its start
+    and end times), until the window says it is done."""
+    p = argparse.ArgumentParser(prog="python -m benchmarks.window.live_soak probe")
+    p.add_argument("--target", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--every", type=float, required=True)
+    args = p.parse_args(argv)
+    target_path = Path(args.target)
+    screen = ScreenProbe(os.environ["DISPLAY"])
+    with open(args.out, "a") as out:
+        while True:
+            if not target_path.exists():
+                time.sleep(1.0)
+                continue
+            target = json.loads(target_path.read_text())
+            if target.get("done"):
+                return 0
+            start = time.time()
+            probe = screen.probe(target)
+            if json.loads(target_path.read_text()).get("done"):
+                return 0  # the window was closing: not a measurement of it
+            out.write(json.dumps({"start_time": start, "end_time": time.time(), **{
+                k: (None if v == float("inf") else v) for k, v in probe.items()}}) + "\n")
+            out.flush()
+            time.sleep(args.every)
+
+
+def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
+                  work: str | None = None) -> dict:
+    """Run the soak (module docstring); returns the report and its figures.
+
+    Parameters
+    ----------
+    minutes : float
+        Length of the GUI's day (the soak is what follows the set-up, about a minute).
+    probe_s : float
+        Seconds between two rounds of probes.
+    work : str, optional
+        Folder for the report, the PSF and the GUI's log (default a temporary one).
+    """
+    from .soak import x_display
+
+    work_dir = Path(work or tempfile.mkdtemp(prefix="live-soak-"))
+    work_dir.mkdir(parents=True, exist_ok=True)
+    report_path, probe_path = work_dir / "report.json", work_dir / "probe.json"
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "QT_QPA_PLATFORM": "xcb",
+           "DIFFUSERLAB_GUI_SETTINGS": str(work_dir / "gui.ini"),
+           "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "benchmarks.window.live_soak", "inside", "--minutes",
+           str(minutes), "--work", str(work_dir / "runs"), "--report", str(report_path),
+           "--probe", str(probe_path)]
+    probes_path = work_dir / "probes.jsonl"
+    t0 = time.time()
+    with x_display() as (display, wm):
+        env["DISPLAY"] = display
+        with open(work_dir / "gui-stderr.log", "w") as err, \
+                open(work_dir / "probe-stderr.log", "w") as probe_err:
+            proc = subprocess.Popen(cmd, env=env, cwd=work_dir, stdout=subprocess.DEVNULL,
+                                    stderr=err)
+            # the probe is a process of its own: a display connection of ours would
+            # outlive the X server (Qt ends a process whose X connection breaks)
+            prober = subprocess.Popen(
+                [sys.executable, "-m", "benchmarks.window.live_soak", "probe", "--target",
+                 str(probe_path), "--out", str(probes_path), "--every", str(probe_s)],
+                env=env, cwd=work_dir, stdout=subprocess.DEVNULL, stderr=probe_err)
+            try:
+                rc = proc.wait(60.0 * minutes + 900)
+            except BaseException:
+                proc.kill()
+                proc.wait()
+                raise
+            finally:
+                ended = time.time()
+                prober.terminate()
+                prober.wait(30)
+    probes = []
+    if probes_path.exists():  # rounds that met the window closing are not the window's
+        probes = [p for p in map(json.loads, probes_path.read_text().splitlines())
+                  if p.pop("end_time") < ended]
+    for p in probes:
+        p["t_s"] = p.pop("start_time") - t0
+    loads = [p["load_1min"] for p in probes]
+    report = json.loads(report_path.read_text()) if report_path.exists() else {
+        "failure": "no report written (the GUI process ended first)"}
+    stderr = (work_dir / "gui-stderr.log").read_text(errors="replace")
+    report.update(returncode=rc, window_manager=wm, probes=probes, work=str(work_dir),
+                  crashed=rc != 0 or "Fatal Python error" in stderr,
+                  stderr_tail=stderr[-3000:], load_1min=loads,
+                  probe_stderr_tail=(work_dir / "probe-stderr.log").read_text(
+                      errors="replace")[-2000:])
+    report["figures"] = figures(report)
+    return report
+
+
+def figures(report: dict) -> dict:
+    """The soak's figures against :data:`GOALS`."""
+    soak = report.get("phases", {}).get("soak", {})
+    probes = report.get("probes", [])
+    out: dict = {"soak_s": soak.get("seconds"), "firings": soak.get("firings"),
+                 "p50_ms": soak.get("p50_ms"), "p99_ms": soak.get("p99_ms"),
+                 "max_ms": soak.get("max_ms"), "probe_rounds": len(probes)}
+    for kind in ("key_ms", "backspace_ms", "click_ms", "escape_ms"):
+        # None: not seen within the probe's timeout (JSON has no infinity)
+        ms = np.array([np.inf if p[kind] is None else p[kind] for p in probes], float)
+        out[kind] = None if not ms.size else {
+            "p50": float(np.percentile(ms, 50, method="nearest")),
+            "p99": float(np.percentile(ms, 99, method="nearest")),
+            "max": float(ms.max()), "over_100": int((ms > GOALS["visible_ms"]).sum())}
+    load = [p["load_1min"] for p in probes]
+    out["load_1min"] = None if not load else {"min": min(load), "median": float(
+        np.median(load)), "max": max(load)}
+    out["live"] = report.get("notes", {}).get("live")
+    out["stalls"] = len([s for s in report.get("stalls", []) if s.get("phase") == "soak"])
+    visible = [out[k]["max"] for k in ("key_ms", "backspace_ms", "click_ms", "escape_ms")
+               if out[k]]
+    out["goals_met"] = {
+        "max_ms": soak.get("max_ms") is not None and soak["max_ms"] < GOALS["max_ms"],
+        "p99_ms": soak.get("p99_ms") is not None and soak["p99_ms"] < GOALS["p99_ms"],
+        "visible_ms": bool(visible) and max(visible) < GOALS["visible_ms"],
+        "load": bool(load) and max(load) <= GOALS["load"],
+        "no_crash": not report.get("crashed") and not report.get("failure")}
+    return out
+
+
+def print_figures(f: dict) -> None:
+    """The figures as text."""
+    print(f"soak: {f['soak_s']} s of live ADMM, {f['firings']} timer firings; GUI thread "
+          f"lateness p50 {f['p50_ms']:.1f} ms, p99 {f['p99_ms']:.1f} ms (goal < 50), max "
+          f"{f['max_ms']:.1f} ms (goal < 250); {f['stalls']} stalls over 100 ms")
+    for kind in ("key_ms", "backspace_ms", "click_ms", "escape_ms"):
+        d = f[kind]
+        if d:
+            print(f"  {kind[:-3]:<9} visible after p50 {d['p50']:.1f} ms, p99 {d['p99']:.1f} "
+                  f"ms, max {d['max']:.1f} ms; {d['over_100']} of {f['probe_rounds']} over "
+                  "100 ms")
+    if f["load_1min"]:
+        ld = f["load_1min"]
+        print(f"  load average (1 min) at the probes: {ld['min']:.2f}-{ld['max']:.2f} "
+              f"(median {ld['median']:.2f})")
+    live = f["live"] or {}
+    if live:
+        lat = live["latency"]["median_s"]
+        print(f"  live ADMM ({live['in_process']}): {live['reconstructed']} reconstructed, "
+              f"{live['skipped']} skipped, {live['errors']} errors; latency median "
+              f"{'-' if lat is None else f'{1e3 * lat:.0f}'} ms; {live['frames_shown']} "
+              "camera frames")
+    print("  goals: " + ", ".join(f"{k} {'met' if v else 'NOT met'}"
+                                  for k, v in f["goals_met"].items()))
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["inside"]:
+        return inside(argv[1:])
+    if argv[:1] == ["probe"]:
+        return probe_main(argv[1:])
+    p = argparse.ArgumentParser(prog="python -m benchmarks.window.live_soak",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--minutes", type=float, default=60.0, help="length of the day")
+    p.add_argument("--probe-s", type=float, default=30.0, help="seconds between probes")
+    p.add_argument("--work", default=None, help="folder for the report and the GUI's log")
+    p.add_argument("--json", default=None, help="also write the report and figures here")
+    args = p.parse_args(argv)
+    report = run_live_soak(args.minutes, args.probe_s, args.work)
+    print_figures(report["figures"])
+    if report.get("failure"):
+        print(f"  failure: {report['failure']}")
+    if args.json:
+        from recon.io import write_json
+
+        write_json(args.json, report, default=str)
+    return 0 if all(report["figures"]["goals_met"].values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

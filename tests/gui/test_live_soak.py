@@ -1,0 +1,80 @@
+"""Live ADMM in a real window, measured from outside (:mod:`benchmarks.window.live_soak`):
+Xvfb with the xcb platform, openbox, the real ``diffuserlab gui`` with its live
+reconstruction in a process of its own, and a key and a click sent through the X
+server every few seconds whose effect this test's process sees on the screen.
+
+The lateness and delay goals are the hour-long soak's (``python -m
+benchmarks.window.live_soak``, figures in the operator guide); here a crash, a live
+reconstruction in the window's process, an error, a key or a click that never shows,
+or a window that hangs fail the test. The delays are printed, not judged: they depend
+on the machine's load."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from tests.gui.conftest import HANG_FACTOR
+
+
+def test_live_admm_in_a_real_window_answers_keys_and_clicks(tmp_path, monkeypatch):
+    monkeypatch.delenv("QT_QPA_PLATFORM", raising=False)
+    from benchmarks.window.live_soak import print_figures, run_live_soak
+
+    report = run_live_soak(minutes=2.0, probe_s=5.0, work=str(tmp_path / "soak"))
+    f = report["figures"]
+    print_figures(f)
+    assert not report["crashed"] and not report.get("failure"), (
+        report.get("failure"), report["stderr_tail"])
+    assert report["completed"] == ["live ADMM started", "soak"]
+    live = f["live"]
+    assert live["in_process"] == "LiveReconstructionProcess"  # not a thread of the window
+    assert live["child"]["pid"] != live["gui_pid"] and live["errors"] == 0
+    assert live["reconstructed"] > 10 and live["frames_shown"] > 10
+    assert f["probe_rounds"] >= 3
+    for kind in ("key_ms", "backspace_ms", "click_ms", "escape_ms"):
+        # each shows on the screen (inf: not within the probe's 5 s)
+        assert math.isfinite(f[kind]["max"]), (kind, report["probes"])
+    assert f["max_ms"] < 1000.0 * HANG_FACTOR, "the window hung"
+
+
+def test_the_figures_judge_each_goal():
+    from benchmarks.window.live_soak import GOALS, figures
+
+    probe = {"key_ms": 12.0, "backspace_ms": 9.0, "click_ms": 20.0, "escape_ms": 8.0,
+             "load_1min": 2.5}
+    report = {"phases": {"soak": {"seconds": 60.0, "firings": 5000, "p50_ms": 0.2,
+                                  "p99_ms": 30.0, "max_ms": 120.0}},
+              "probes": [probe, {**probe, "click_ms": 150.0, "load_1min": 4.5}],
+              "crashed": False}
+    f = figures(report)
+    assert f["goals_met"] == {"max_ms": True, "p99_ms": True, "visible_ms": False,
+                              "load": False, "no_crash": True}
+    assert f["click_ms"]["over_100"] == 1 and f["click_ms"]["max"] == 150.0
+    assert f["load_1min"] == {"min": 2.5, "median": 3.5, "max": 4.5}
+    report["probes"].append({**probe, "key_ms": None})  # never seen: JSON's null
+    f = figures(report)
+    assert f["key_ms"]["max"] == math.inf and f["key_ms"]["over_100"] == 1
+    assert not f["goals_met"]["visible_ms"]
+    report["phases"]["soak"]["max_ms"] = GOALS["max_ms"]
+    assert not figures(report)["goals_met"]["max_ms"]
+    report["failure"] = "StepFailed: the bench did not open"
+    assert not figures(report)["goals_met"]["no_crash"]
+
+
+@pytest.mark.parametrize("missing", ["phases", "probes"])
+def test_a_soak_without_measurements_meets_no_goal(missing):
+    from benchmarks.window.live_soak import figures
+
+    report = {"phases": {"soak": {"seconds": 60.0, "firings": 5000, "p50_ms": 0.2,
+                                  "p99_ms": 30.0, "max_ms": 120.0}},
+              "probes": [{"key_ms": 12.0, "backspace_ms": 9.0, "click_ms": 20.0,
+                          "escape_ms": 8.0, "load_1min": 1.0}]}
+    report[missing] = {} if missing == "phases" else []
+    met = figures(report)["goals_met"]
+    assert not all(met.values())
+    if missing == "phases":
+        assert not met["max_ms"] and not met["p99_ms"]
+    else:
+        assert not met["visible_ms"] and not met["load"]
