@@ -228,3 +228,20 @@ def test_a_frame_of_another_shape_is_an_error_not_a_crash():
         proc.start()
         proc.start()
     proc.stop()
+
+
+def test_the_child_is_fed_from_a_camera_ring():
+    from drivers.camera import FrameRing
+
+    psf, image = _problem()
+    ring = FrameRing(8)
+    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0})
+    proc.start(ring=ring)
+    try:
+        ring.put(_frame(image, 3))
+        _until(lambda: _index(proc) == 3, 60, "the ring's frame reconstructed")
+        ring.fail(RuntimeError("the camera was unplugged"))
+        _until(lambda: proc.stats()["last_error"] is not None, 30, "the ring's error")
+        assert "the camera was unplugged" in proc.stats()["last_error"]
+    finally:
+        proc.stop()
