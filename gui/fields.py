@@ -22,6 +22,7 @@ import atexit
 import json
 import os
 import threading
+import time
 from typing import Any
 
 from PySide6.QtCore import QCoreApplication, QEvent, QObject, QSettings, Qt
@@ -75,7 +76,7 @@ class _Writer:
             self.wake.wait()
             while self.wake.is_set():  # until the changes pause for WRITE_DELAY_S
                 self.wake.clear()
-                threading.Event().wait(WRITE_DELAY_S)
+                time.sleep(WRITE_DELAY_S)
             self.flush()
 
     def flush(self) -> None:

@@ -360,16 +360,9 @@ class LiveReconstruction:
 
     def _feed(self, ready: threading.Event) -> None:
         ready.set()
-        ring = self.ring
-        while not self._stop.is_set():
-            try:
-                frame = ring.get(timeout_s=0.05)
-            except CameraTimeoutError:
-                continue
-            except Exception as exc:  # a producer error reported through the ring
-                self._record_error(exc, "feeding from the camera ring")
-                return
-            self.slot.offer(frame)
+        error = drain_ring(self.ring, self._stop, self.slot.offer)
+        if error is not None:
+            self._record_error(error, "feeding from the camera ring")
 
     # -- worker --------------------------------------------------------------------
     def _work(self, ready: threading.Event) -> None:
@@ -453,6 +446,27 @@ class LiveReconstruction:
         with self._lock:
             lat, comp = np.array(self._latencies), np.array(self._compute)
         return whole_run_summary(lat, comp)
+
+
+def drain_ring(ring: FrameRing, stop: threading.Event, offer) -> BaseException | None:
+    """Hand every frame of ``ring`` to ``offer`` until ``stop`` is set (the feeder of a
+    live reconstruction started with ``ring=``).
+
+    Returns
+    -------
+    BaseException or None
+        The producer's error the ring reported (the feeding then ends), None when
+        stopped.
+    """
+    while not stop.is_set():
+        try:
+            frame = ring.get(timeout_s=0.05)
+        except CameraTimeoutError:
+            continue
+        except Exception as exc:  # a producer error reported through the ring
+            return exc
+        offer(frame)
+    return None
 
 
 def note_result(live, done: float, latency_s: float, compute_s: float) -> None:

@@ -35,15 +35,17 @@ import numpy as np
 
 from diffuserlab.errors import kept_error
 from drivers.camera import Frame, FrameRing
-from drivers.errors import CameraTimeoutError
+from recon.fft import check_threads
 from recon.validate import as_int, positive
 
 from .batch_process import _portable
 from .live import (
+    LIVE_METHODS,
     LivePreview,
     LiveReconstruction,
     LiveReconstructionError,
     _method,
+    drain_ring,
     note_result,
     whole_run_summary,
     window_rates,
@@ -53,9 +55,6 @@ from .shared_slot import SharedImageSlot
 __all__ = ["LiveReconstructionProcess"]
 
 log = logging.getLogger(__name__)
-
-_METHODS = ("wiener", "admm")
-
 
 def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str, int, int],
            nice: int) -> None:
@@ -72,6 +71,10 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
             frames = SharedImageSlot(slots[2], name=slots[0])
             results = SharedImageSlot(slots[3], name=slots[1])
             recon = LiveReconstructor(psf, **options)
+            live = LiveReconstruction(recon, method=settings["method"],
+                                      iterations=settings["iterations"],
+                                      warm_start=settings["warm_start"],
+                                      threads=settings["threads"])
         except BaseException as exc:  # every failure goes back to the caller
             conn.send(("failed", _portable(exc, "the live reconstruction process")))
             return
@@ -86,7 +89,7 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
 
         def published(preview: LivePreview) -> None:
             meta = (preview.frame_index, preview.host_timestamp_s, preview.result_time_s,
-                    preview.latency_s, preview.compute_s, _METHODS.index(preview.method),
+                    preview.latency_s, preview.compute_s, LIVE_METHODS.index(preview.method),
                     preview.iterations, float(preview.warm))
             results.write(np.asarray(preview.image, np.float32), meta)
             send(("result", meta, live.slot.taken))
@@ -94,10 +97,7 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
         def failed(message: str) -> None:
             send(("error", message))
 
-        live = LiveReconstruction(recon, method=settings["method"],
-                                  iterations=settings["iterations"],
-                                  warm_start=settings["warm_start"], threads=settings["threads"],
-                                  on_result=published, on_error=failed)
+        live.on_result, live.on_error = published, failed
         stop = threading.Event()
 
         def feed() -> None:
@@ -162,8 +162,9 @@ class LiveReconstructionProcess:
     Raises
     ------
     ReconInputError
-        Unknown method, iterations < 1, or a window that is not > 0 (the
-        reconstructor's own errors are raised by :meth:`start`).
+        Unknown method, iterations < 1, a window that is not > 0, or ``threads``
+        outside 1..os.cpu_count() (the reconstructor's own errors are raised by
+        :meth:`start`).
     """
 
     def __init__(self, psf: np.ndarray, *, reconstructor_options: dict | None = None,
@@ -174,7 +175,7 @@ class LiveReconstructionProcess:
         self._method, self._iterations = _method(method, iterations)
         self.warm_start = bool(warm_start)
         self.window_s = positive(window_s, "window_s")
-        self.threads = threads
+        self.threads = None if threads is None else check_threads(threads)
         self.nice = as_int(nice, "nice", 0)
         self.backend_label: str | None = None
         self.sensor_shape: tuple[int, int] | None = None
@@ -352,17 +353,11 @@ class LiveReconstructionProcess:
         self._wake.release()
 
     def _feed(self, ring: FrameRing) -> None:
-        while not self._stopping.is_set():
-            try:
-                frame = ring.get(timeout_s=0.05)
-            except CameraTimeoutError:
-                continue
-            except Exception as exc:  # a producer error reported through the ring
-                self.error = kept_error(exc)
-                self._record_error(f"feeding from the camera ring: {type(exc).__name__}: "
-                                   f"{exc}")
-                return
-            self.offer(frame)
+        error = drain_ring(ring, self._stopping, self.offer)
+        if error is not None:
+            self.error = kept_error(error)
+            self._record_error(f"feeding from the camera ring: {type(error).__name__}: "
+                               f"{error}")
 
     def _read(self) -> None:
         conn = self._conn
@@ -407,7 +402,7 @@ class LiveReconstructionProcess:
             if got is not None:
                 m = got.meta
                 previous = LivePreview(got.image, int(m[0]), float(m[1]), float(m[2]),
-                                       float(m[3]), float(m[4]), _METHODS[int(m[5])],
+                                       float(m[3]), float(m[4]), LIVE_METHODS[int(m[5])],
                                        int(m[6]), bool(m[7]))
                 self._latest, self._latest_sequence = previous, got.sequence
         return previous

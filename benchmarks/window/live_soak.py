@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .operator_day import Operator, StepFailed
+
 __all__ = ["GOALS", "LiveSoak", "ScreenProbe", "run_live_soak"]
 
 #: Goals of the soak (lateness of the GUI thread, delay of what an operator sees).
@@ -47,72 +49,64 @@ GOALS = {"max_ms": 250.0, "p99_ms": 50.0, "visible_ms": 100.0, "load": 4.0}
 SETTLE_S = 30.0
 
 
-def _operator_class():
-    from .operator_day import Operator, StepFailed
+class LiveSoak(Operator):
+    """The soak's day inside the GUI process (module docstring)."""
 
-    class LiveSoak(Operator):
-        """The soak's day inside the GUI process (module docstring)."""
+    def day(self) -> Iterator:
+        from PySide6.QtWidgets import QApplication
 
-        def day(self) -> Iterator:
-            from PySide6.QtWidgets import QApplication
-
-            w = self.w
-            QApplication.setCursorFlashTime(0)  # a steady text cursor: the probes' pixels
-            self.phase("connect")
-            yield self.until(lambda: w.session.connected, 300, "the bench to open")
-            self.x.click(w.live.raw_view.glw)
-            self.x.key("F5")
-            yield self.typed()
-            yield self.until(lambda: w.live._shown_raw > 10, 60, "frames in the live view")
-            bench = w.session.bench
-            psf = bench.psf((0.0, 0.0, 60.0))  # the scene's depth, as the camera records
-            psf = psf / psf.max() * 1000.0 + float(bench.camera.dark_offset_dn)
-            path = Path(self.o.work) / "psf.npy"
-            path.parent.mkdir(parents=True, exist_ok=True)
-            np.save(path, psf.astype(np.float32))
-            live = w.live
-            yield from self.fill(live.psf, str(path), enter=True)
-            yield from self.fill(live.depth.lineEdit(), "")
-            yield from self.fill(live.dark, f"{float(bench.camera.dark_offset_dn):g}")
-            yield from self.choose(live.method, "admm")
-            live.iterations.setValue(5)
-            yield from self.click(live.recon_button)
-            yield self.until(lambda: live.live is not None or live.error.text(), 300,
-                             "the live reconstruction")
-            if live.live is None:
-                raise StepFailed(f"live reconstruction: {live.error.text()}")
-            yield self.until(lambda: live.live.stats()["reconstructed"] > 10, 300,
-                             "ADMM reconstructions")
-            yield SETTLE_S
-            self.done("live ADMM started")
-            yield from self.aim(live.dark)
-            probe = {"pid": os.getpid(),
-                     "key_field": _rect(live.dark), "click_box": _rect(live.method)}
-            Path(self.o.probe).write_text(json.dumps(probe))
-            self.phase("soak")
-            start = {"frames": w.session.frames_seen, **live.live.stats()}
-            t_end = self.t0 + 60.0 * self.o.minutes
-            while time.monotonic() < t_end:
-                yield 5.0
-            end = live.live.stats()
-            self.notes["live"] = {
-                "start": start, "end": end,
-                "frames_shown": w.session.frames_seen - start["frames"],
-                "reconstructed": end["reconstructed"] - start["reconstructed"],
-                "skipped": end["skipped"] - start["skipped"],
-                "errors": end["errors"] - start["errors"], "last_error": end["last_error"],
-                "latency": live.live.latency_summary(),
-                "child": getattr(live.live, "child_info", None), "gui_pid": os.getpid(),
-                "in_process": type(live.live).__name__}
-            self.done("soak")
-            self.phase("end")
-            Path(self.o.probe).write_text(json.dumps({"done": True}))
-            self._finish()
-
-    return LiveSoak
-
-
-LiveSoak = None  # the class, made on first use (it needs the Qt binding)
+        w = self.w
+        QApplication.setCursorFlashTime(0)  # a steady text cursor: the probes' pixels
+        self.phase("connect")
+        yield self.until(lambda: w.session.connected, 300, "the bench to open")
+        self.x.click(w.live.raw_view.glw)
+        self.x.key("F5")
+        yield self.typed()
+        yield self.until(lambda: w.live._shown_raw > 10, 60, "frames in the live view")
+        bench = w.session.bench
+        psf = bench.psf((0.0, 0.0, 60.0))  # the scene's depth, as the camera records
+        psf = psf / psf.max() * 1000.0 + float(bench.camera.dark_offset_dn)
+        path = Path(self.o.work) / "psf.npy"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.save(path, psf.astype(np.float32))
+        live = w.live
+        yield from self.fill(live.psf, str(path), enter=True)
+        yield from self.fill(live.depth.lineEdit(), "")
+        yield from self.fill(live.dark, f"{float(bench.camera.dark_offset_dn):g}")
+        yield from self.choose(live.method, "admm")
+        live.iterations.setValue(5)
+        yield from self.click(live.recon_button)
+        yield self.until(lambda: live.live is not None or live.error.text(), 300,
+                         "the live reconstruction")
+        if live.live is None:
+            raise StepFailed(f"live reconstruction: {live.error.text()}")
+        yield self.until(lambda: live.live.stats()["reconstructed"] > 10, 300,
+                         "ADMM reconstructions")
+        yield SETTLE_S
+        self.done("live ADMM started")
+        yield from self.aim(live.dark)
+        probe = {"pid": os.getpid(),
+                 "key_field": _rect(live.dark), "click_box": _rect(live.method)}
+        Path(self.o.probe).write_text(json.dumps(probe))
+        self.phase("soak")
+        start = {"frames": w.session.frames_seen, **live.live.stats()}
+        t_end = self.t0 + 60.0 * self.o.minutes
+        while time.monotonic() < t_end:
+            yield 5.0
+        end = live.live.stats()
+        self.notes["live"] = {
+            "start": start, "end": end,
+            "frames_shown": w.session.frames_seen - start["frames"],
+            "reconstructed": end["reconstructed"] - start["reconstructed"],
+            "skipped": end["skipped"] - start["skipped"],
+            "errors": end["errors"] - start["errors"], "last_error": end["last_error"],
+            "latency": live.live.latency_summary(),
+            "child": getattr(live.live, "child_info", None), "gui_pid": os.getpid(),
+            "in_process": type(live.live).__name__}
+        self.done("soak")
+        self.phase("end")
+        Path(self.o.probe).write_text(json.dumps({"done": True}))
+        self._finish()
 
 
 def _rect(widget) -> list[int]:
@@ -134,8 +128,6 @@ def inside(argv: list[str]) -> int:
     args = p.parse_args(argv)
     args.simulate, args.alignment_s = True, 0.0
     app = QApplication.instance() or QApplication(sys.argv[:1])
-    soak = _operator_class()
-
     def begin() -> None:
         from gui.app import MainWindow
 
@@ -143,7 +135,7 @@ def inside(argv: list[str]) -> int:
         if not windows:
             QTimer.singleShot(100, begin)
             return
-        app._operator = soak(windows[0], args)
+        app._operator = LiveSoak(windows[0], args)
         app._operator.start()
 
     QTimer.singleShot(0, begin)

@@ -245,3 +245,9 @@ def test_the_child_is_fed_from_a_camera_ring():
         assert "the camera was unplugged" in proc.stats()["last_error"]
     finally:
         proc.stop()
+
+
+def test_a_thread_count_the_machine_has_not_is_refused_before_the_child_starts():
+    psf, _ = _problem()
+    with pytest.raises(ReconInputError, match="threads"):
+        LiveReconstructionProcess(psf, threads=0)
