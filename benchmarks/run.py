@@ -45,8 +45,8 @@ from recon.errors import ReconInputError
 #: among them).
 BENCHMARKS = ("speed", "accuracy", "stability", "erasure", "volume_speed",
               "volume_accuracy", "spatial_speed", "spatial_accuracy", "spatial_far",
-              "blind_calibration", "auto", "failure_maps", "failure_map_3d", "volume_auto",
-              "volume_external")
+              "blind_calibration", "auto", "priors", "failure_maps", "failure_map_3d",
+              "volume_auto", "volume_external")
 
 __all__ = ["BENCHMARKS", "format_result", "run_benchmarks", "summarise"]
 
@@ -64,6 +64,7 @@ _TABLES = {"accuracy": ("accuracy", "accuracy_table"),
            "spatial_far": ("spatial_far", "spatial_far_table"),
            "blind_calibration": ("blind", "blind_calibration_table"),
            "auto": ("auto", "auto_table"),
+           "priors": ("priors", "priors_table"),
            "failure_maps": ("failure_maps", "failure_maps_table"),
            "failure_map_3d": ("failure_map_3d", "failure_map_3d_table"),
            "volume_auto": ("volume_auto", "volume_auto_table"),
@@ -118,6 +119,13 @@ def summarise(results: dict) -> tuple[dict, str]:
                      f"x{fmt(a['cost_ratio_median'])} of a fixed run (median), "
                      f"x{fmt(a['cost_ratio_max'])} at most (CPU time "
                      f"x{fmt(a.get('cost_ratio_cpu_median'))} median)")
+    if "priors" in results:
+        p = results["priors"]["summary"]
+        summary["priors"] = p
+        lines.append(f"automatic prior: {fmt(p['mean_gain_over_tv_oracle_db'])} dB over the "
+                     f"oracle TV weight on average (natural and textured scenes), "
+                     f"{fmt(p['worst_gain_over_tv_oracle_db'])} at worst; chose "
+                     + ", ".join(f"{k} {v}" for k, v in p["chosen"].items()))
     if "spatial_far" in results:
         cases = results["spatial_far"]["cases"]
         gains = [c["methods"]["two-part auto"]["psnr_db"] - c["methods"]["on-axis"]["psnr_db"]
@@ -205,11 +213,12 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
             return run_stability(quick, out, weights)
         if name == "erasure":
             return run_erasure(quick, out, weights)
-        if name in ("auto", "failure_maps", "failure_map_3d", "volume_auto",
+        if name in ("auto", "priors", "failure_maps", "failure_map_3d", "volume_auto",
                     "volume_external"):
-            from . import auto, failure_map_3d, failure_maps, volume_auto, volume_external
+            from . import auto, failure_map_3d, failure_maps, priors, volume_auto, volume_external
 
-            return {"auto": auto.run_auto, "failure_maps": failure_maps.run_failure_maps,
+            return {"auto": auto.run_auto, "priors": priors.run_priors,
+                    "failure_maps": failure_maps.run_failure_maps,
                     "failure_map_3d": failure_map_3d.run_failure_map_3d,
                     "volume_auto": volume_auto.run_volume_auto,
                     "volume_external": volume_external.run_volume_external}[name](quick, out)

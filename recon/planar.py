@@ -66,6 +66,8 @@ def image_metrics(rec: Reconstruction, fft_pair_s: float | None = None) -> dict:
         "tv": info.tv,
         "l1": info.l1,
         "auto": list(info.auto),
+        # the image prior: TV unless asked (a method without one, Wiener: None)
+        "prior": info.get("prior", "tv"),
         "shape": list(rec.image.shape),
         "padded_shape": list(rec.operator.padded_shape),
         "channels": len(results),
@@ -146,7 +148,7 @@ def solver_options(method: str) -> tuple[str, ...]:
     """
     params = inspect.signature(SOLVERS[method].solve).parameters
     return tuple(n for n, p in list(params.items())[2:]
-                 if n not in ("iterations", "tv") and p.kind is not p.VAR_KEYWORD)
+                 if n not in ("iterations", "tv", "prior") and p.kind is not p.VAR_KEYWORD)
 
 
 def check_options(method: str, options: dict) -> None:
@@ -207,6 +209,7 @@ def reconstruct_image(
     full_scale: float | None = _D["full_scale"],
     allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
     device: str = _D["device"],
+    prior: str = _D["prior"],
     **solver_options,
 ) -> Reconstruction:
     """Reconstruct an image from one PSF: :func:`recon.reconstruct` for a PSF array.
@@ -218,7 +221,7 @@ def reconstruct_image(
         One PSF for all channels, or one per channel.
     raw : ndarray, (rows, cols) or (rows, cols, C)
         Raw measurement (sensor counts).
-    method, iterations, tv, l1, bin_factor, dark, allow_mixed_ranges, device
+    method, iterations, tv, l1, bin_factor, dark, allow_mixed_ranges, device, prior
         As :func:`recon.reconstruct` (``dark`` already checked there:
         ``"auto"``, ``"none"``, a number or an array).
     seconds : float, optional
@@ -330,7 +333,7 @@ def reconstruct_image(
             fft_s = fft_pair_seconds_on(backend, op.padded_shape)
         res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
                                     iterations=iterations, tv=tv, l1=l1, seconds=seconds,
-                                    fft_pair_s=fft_s, auto_stop=auto_stop,
+                                    fft_pair_s=fft_s, auto_stop=auto_stop, prior=prior,
                                     **on_device, **solver_options)
         results.append(res)
         records.append(record)
@@ -355,7 +358,9 @@ def reconstruct_image(
         seconds_total=time.perf_counter() - t_start, device=backend.label,
         histories=[r.history for r in results],
         extra={**info, "erased_fraction": 0.0 if mask is None
-               else float(1 - op0.sensor_weights.mean())})
+               else float(1 - op0.sensor_weights.mean()),
+               "prior": records[0].get("prior", {}).get("prior", "tv")
+               if SOLVERS[chosen].iterative else None})
     return Reconstruction(image.astype(np.float32), estimate.astype(np.float32), results, op0,
                           info_, record=image_metrics if backend.is_numpy
                           else device_metrics(image_metrics, backend))

@@ -9,7 +9,8 @@ import pytest
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
 MODULES = ("diffuserlab.jsonio", "recon.io", "recon.operators", "recon.metrics", "recon.live",
            "benchmarks.report", "recon.api", "recon.solvers.admm",
-           "recon.solvers.gradient", "instrument.shared_slot")
+           "recon.solvers.gradient", "instrument.shared_slot", "recon.priors.base",
+           "recon.priors.wavelet", "recon.priors.dncnn")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -29,11 +29,11 @@ __all__ = ["COMMAND_FIELDS", "DeprecatedAlias", "add_deprecated", "add_device_op
 #: are added by :func:`instrument.cli.grid_options.add_grid_options`), and the
 #: :class:`recon.options.LiveOptions` of ``capture live``.
 COMMAND_FIELDS = {
-    "recon": ("method", "iterations", "seconds", "bin_factor", "tv", "l1", "erase", "seed",
-              "full_scale", "dark", "allow_mixed_ranges", "device"),
-    "recon3d": ("method", "iterations", "tv", "empty_planes", "l1", "bin_factor", "dark",
-                "allow_mixed_ranges", "device"),
-    "recon-run": ("method", "iterations", "tv", "l1", "bin_factor", "dark", "device"),
+    "recon": ("method", "iterations", "seconds", "bin_factor", "tv", "prior", "l1", "erase",
+              "seed", "full_scale", "dark", "allow_mixed_ranges", "device"),
+    "recon3d": ("method", "iterations", "tv", "prior", "empty_planes", "l1", "bin_factor",
+                "dark", "allow_mixed_ranges", "device"),
+    "recon-run": ("method", "iterations", "tv", "prior", "l1", "bin_factor", "dark", "device"),
     "capture live": ("dark", "device", "bin_factor"),
 }
 #: The ``--psf-grid`` fields of each command (:func:`instrument.cli.grid_options.add_grid_options`).

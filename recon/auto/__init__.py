@@ -3,7 +3,9 @@
 * :mod:`recon.auto.noise` - the Poisson-Gaussian noise model fitted to one frame;
 * :mod:`recon.auto.weight` - the TV / l1 weight by hold-out cross-validation along a
   warm-started continuation path, and automatic stopping;
-* :mod:`recon.auto.choice` - the method for ``method="auto"`` and the no-signal check.
+* :mod:`recon.auto.choice` - the method for ``method="auto"`` and the no-signal check;
+* :mod:`recon.auto.prior` - the prior (TV, wavelet, DnCNN) by the same held-out
+  procedure, for ``prior="auto"``.
 
 :func:`solve_channel` is what :func:`recon.reconstruct` runs per colour channel.
 """
@@ -16,14 +18,17 @@ import time
 import numpy as np
 
 from ..errors import ReconInputError
-from ..options import weight_arg  # moved there (a light module for the parsers)
+from ..options import weight_arg
+from ..priors import PRIORS, prior_of  # moved there (a light module for the parsers)
 from ..solvers import SOLVERS, SolveResult
 from .choice import NoSignalError, check_signal, choose_method
 from .noise import NoiseModel, estimate_noise
+from .prior import PRIOR_RULES, choose_prior, prior_plan_of
 from .weight import MODEL_ERROR, AutoWeight, Stopping, admm_auto
 
 __all__ = ["AUTO", "AutoWeight", "NoSignalError", "NoiseModel", "Stopping", "estimate_noise",
-           "parse_weight", "solve_channel", "weight_arg", "weight_path"]
+           "noise_energy_of", "parse_weight", "prior_path", "solve_channel", "weight_arg",
+           "weight_path"]
 
 #: The value that asks for an automatic choice (``method``, ``tv``, ``l1``).
 AUTO = "auto"
@@ -95,11 +100,31 @@ def weight_path(backend, op, b: np.ndarray, **kwargs) -> tuple[SolveResult | Non
     return res, chosen
 
 
+def noise_energy_of(op, raw: np.ndarray, raw_scale: float) -> tuple[NoiseModel, float]:
+    """The noise model fitted to one channel's frame and E||n||^2 of the scaled,
+    weighted measurement (``b = raw * weights / raw_scale``).
+
+    A frame too small for the noise fit (< 8 x 8) gets no noise model (zero energy:
+    no signal check, and stopping on the model error alone).
+
+    Returns
+    -------
+    noise : NoiseModel
+    energy : float
+        sum(w^2 var(raw / raw_scale)), in the scaled problem's units.
+    """
+    w2 = np.square(op.sensor_weights, dtype=np.float64)
+    noise = (estimate_noise(raw) if min(np.shape(raw)[:2]) >= 8
+             else NoiseModel(0.0, 0.0, []))
+    scaled = noise.scaled(raw_scale)
+    return noise, float(np.sum(w2 * scaled.variance(np.asarray(raw) / raw_scale)))
+
+
 def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
                   iterations: int, tv, l1, seconds: float | None = None,
                   fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
-                  plan_of=None, weight_path_solves: bool = True, backend=None, **options
-                  ) -> tuple[SolveResult, dict]:
+                  plan_of=None, weight_path_solves: bool = True, backend=None,
+                  prior: str = "tv", **options) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
     Parameters
@@ -145,6 +170,12 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         device between its solves; the result's ``x`` comes back to the host); None
         or :data:`recon.backend.NUMPY`: the NumPy path. ``solvers`` should then be the
         same device's (``recon.solvers.device.device_solvers``).
+    prior : {"tv", "wavelet", "dncnn", "auto"} or Prior
+        The image prior of ADMM (:mod:`recon.priors`); ``tv`` is its weight. Another
+        prior than TV needs ADMM (a method that resolves to Wiener ignores it and the
+        record says so); ``"auto"`` runs every prior's weight path and keeps the
+        simplest that predicts the held-out pixels within one standard error of the
+        best (:func:`recon.auto.prior.choose_prior`; ``tv`` must be ``"auto"``).
     **options
         Passed to a fixed method's solver.
 
@@ -155,24 +186,22 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     record : dict
         JSON-ready: ``noise`` (the fitted model), ``snr_db``, ``method`` (chosen and
         why), ``weight`` (the :class:`AutoWeight` record when a weight was chosen),
-        ``tv``, ``l1``, ``iterations_used``.
+        ``tv``, ``l1``, ``iterations_used``; ``prior`` with a prior other than TV
+        (its settings; for ``"auto"`` the :class:`~recon.auto.prior.PriorChoice`).
 
     Raises
     ------
     NoSignalError
         ``method="auto"`` on a frame that holds only noise.
     ReconInputError
-        Invalid weights or budget, ``seconds`` with a fixed method, or a weight path
-        that does not fit in the device's free memory.
+        Invalid weights or budget, ``seconds`` with a fixed method, a weight path
+        that does not fit in the device's free memory, an unknown prior, a prior other
+        than TV with a method other than ADMM or with ``l1="auto"``, or
+        ``prior="auto"`` with a fixed ``tv``.
     """
+    prior_name = AUTO if prior == AUTO else prior_of(prior).name
     t0 = time.perf_counter()
-    w2 = np.square(op.sensor_weights, dtype=np.float64)
-    # a frame too small for the noise fit (< 8 x 8) gets no noise model: no signal
-    # check, and stopping on the model error alone
-    noise = (estimate_noise(raw) if min(np.shape(raw)[:2]) >= 8
-             else NoiseModel(0.0, 0.0, []))
-    scaled = noise.scaled(raw_scale)
-    noise_energy = float(np.sum(w2 * scaled.variance(np.asarray(raw) / raw_scale)))
+    noise, noise_energy = noise_energy_of(op, raw, raw_scale)
     b_norm = float(np.linalg.norm(b))
     record = {"noise": noise.as_dict(), "noise_energy_scaled": noise_energy,
               "model_error": MODEL_ERROR}
@@ -195,7 +224,15 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
     if not spec.iterative:
         res = spec.solve(op, b, **options)
         record.update(tv=0.0, l1=0.0, iterations_used=1)
+        if prior_name != "tv":
+            record["prior"] = {"prior": None, "reason": f"{method} has no prior"}
         return res, record
+    if prior_name != "tv":
+        return _solve_prior(op, b, prior if prior_name != AUTO else AUTO, spec, record,
+                            method=method, iterations=iterations, tv=tv, l1=l1,
+                            noise_energy=noise_energy, b_norm=b_norm, auto_stop=auto_stop,
+                            backend=backend, seconds=(None if seconds is None else max(
+                                1e-3, seconds - (time.perf_counter() - t0))), **options)
     target = 0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2)
     auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
     fixed = float(l1 if auto_reg == "tv" else tv) if auto_reg is not None else 0.0
@@ -223,6 +260,80 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         stop = Stopping().hook(target, b_norm) if auto_stop else None
         extra = {"l1": l1} if l1 else {}
         res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options)
+    record.update(tv=float(tv), l1=float(l1),
+                  iterations_used=int(res.params.get("iterations_used", iterations)))
+    return res, record
+
+
+def prior_path(op, b: np.ndarray, *, iterations: int, noise_energy: float, fixed: float = 0.0,
+               backend=None, seconds: float | None = None):
+    """``path(name, rule) -> (result, AutoWeight)``: one prior's automatic weight on this
+    measurement (:func:`weight_path` with the prior's plans, :func:`~recon.auto.prior.
+    prior_plan_of`), the argument of :func:`~recon.auto.prior.choose_prior`.
+
+    Parameters
+    ----------
+    op, b, iterations, noise_energy, backend
+        As :func:`weight_path` / :func:`~recon.auto.weight.admm_auto`.
+    fixed : float
+        The l1 weight held fixed.
+    seconds : float, optional
+        Each prior's path's wall-clock budget, s.
+    """
+    like = b
+    if backend is not None and not backend.is_numpy:
+        from ..backend import to_device
+
+        like = to_device(np.zeros((1, 1), np.float32), backend)
+
+    def path(name: str, rule):
+        return weight_path(backend, op, b, iterations=iterations, noise_energy=noise_energy,
+                           regulariser="tv", plan_of=prior_plan_of(name, like), fixed=fixed,
+                           rule=rule, seconds=seconds)
+
+    return path
+
+
+def _solve_prior(op, b, prior, spec, record: dict, *, method: str, iterations: int, tv, l1,
+                 noise_energy: float, b_norm: float, auto_stop: bool, backend, seconds,
+                 **options) -> tuple[SolveResult, dict]:
+    """:func:`solve_channel`'s ADMM with a prior other than TV, or the priors' choice."""
+    name = AUTO if prior == AUTO else prior_of(prior).name
+    if method != "admm":
+        raise ReconInputError(f"the {name} prior runs in ADMM; use method admm or auto, or "
+                              "prior tv with this method")
+    if l1 == AUTO:
+        raise ReconInputError("an automatic l1 weight is chosen with TV only; give a fixed l1 "
+                              "or prior tv")
+    if name == AUTO and tv != AUTO:
+        raise ReconInputError(f"prior auto chooses each prior's weight as well; leave tv at "
+                              f"auto (got {tv!r}) or name one of {', '.join(PRIORS)}")
+    path = prior_path(op, b, iterations=iterations, noise_energy=noise_energy, fixed=l1,
+                      backend=backend, seconds=seconds)
+    if name == AUTO:
+        res, chosen, pchoice = choose_prior(
+            prior_path(op, b, iterations=iterations, noise_energy=noise_energy, fixed=l1,
+                       backend=backend, seconds=None if seconds is None
+                       else seconds / len(PRIORS)))
+        record["prior"] = pchoice.as_dict()
+        record["weight"] = chosen.as_dict()
+        tv = chosen.weight
+    elif tv == AUTO:
+        p = prior_of(prior)
+        res, chosen = path(p.name, PRIOR_RULES[p.name])
+        chosen.regulariser = p.name
+        res.params["prior"] = p.record()
+        record["prior"] = p.record()
+        record["weight"] = chosen.as_dict()
+        tv = chosen.weight
+    else:
+        p = prior_of(prior)
+        stop = Stopping().hook(0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2), b_norm
+                               ) if auto_stop else None
+        extra = {"l1": l1} if l1 else {}
+        res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, prior=p, **extra,
+                         **options)
+        record["prior"] = p.record()
     record.update(tv=float(tv), l1=float(l1),
                   iterations_used=int(res.params.get("iterations_used", iterations)))
     return res, record

@@ -375,7 +375,7 @@ class NumbaKernels2D:
 
 def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERATIONS,
          tv: float = 0.0, l1: float = 0.0, penalty: AdmmPenalty | None = None, stop=None,
-         plan: AdmmPlan | None = None) -> SolveResult:
+         plan: AdmmPlan | None = None, prior=None) -> SolveResult:
     """ADMM with crop, TV, l1 and non-negativity splits (Eq. 4.5, App. A.3, in 2D).
 
     Per iteration, in scaled-dual form with q_i = z_i - a_i kept between iterations:
@@ -424,6 +424,13 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
         Precomputed for ``op`` (default :meth:`AdmmPlan.of`); a subclass with another
         x-update serves other forward models (:class:`recon.spatial.SpatialAdmmPlan`:
         the local convolution model, ``op`` a ``SpatialConvolutionOperator``).
+    prior : str or Prior, optional
+        The u split's prior (:mod:`recon.priors`): ``"tv"`` (default, the fused numba
+        passes on NumPy), ``"wavelet"`` or ``"dncnn"`` (or a
+        :class:`~recon.priors.Prior`), which run the generic kernel set
+        (``recon.solvers.xp_admm.XpAdmmPlan``) on any backend with u = x; ``tv`` is
+        then that prior's weight (the wavelet's l1 weight; the denoiser's noise level
+        relative to the iterate's scale). ``params['prior']`` records it.
 
     Returns
     -------
@@ -467,9 +474,13 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
-    if not isinstance(b, np.ndarray):  # another backend: the generic kernel set there
+    other_prior = prior is not None and getattr(prior, "name", prior) != "tv"
+    if other_prior or not isinstance(b, np.ndarray):  # the generic kernel set
         from .xp_admm import XpAdmmPlan
 
-        plan = XpAdmmPlan(plan, b)
-    return run_admm(plan, b, plan.zeros(penalty.initial(), tv > 0), iterations=iterations,
-                    tv=tv, l1=l1, penalty=penalty, stop=stop)
+        plan = XpAdmmPlan(plan, b, prior=prior)
+    res = run_admm(plan, b, plan.zeros(penalty.initial(), tv > 0), iterations=iterations,
+                   tv=tv, l1=l1, penalty=penalty, stop=stop)
+    if other_prior:
+        res.params["prior"] = plan.prior.record()
+    return res

@@ -26,6 +26,8 @@ from functools import reduce
 import numpy as np
 
 from ..backend import array_namespace, device_of
+from ..errors import ReconInputError
+from ..priors import Prior, TotalVariation, prior_of
 from ..xp_operators import XpConvolution
 from .admm_loop import AdmmPlanBase, SplitStep
 from .xp_common import (
@@ -39,8 +41,8 @@ from .xp_common import (
     tv_circular,
 )
 
-__all__ = ["Differences", "XpAdmmPlan", "XpAdmmState", "XpKernels", "XpPlanBase",
-           "fourier_x_update", "memory_bytes"]
+__all__ = ["IDENTITY", "Differences", "IdentitySplit", "XpAdmmPlan", "XpAdmmState",
+           "XpKernels", "XpPlanBase", "fourier_x_update", "memory_bytes"]
 
 
 def memory_bytes(padded_shape: tuple[int, int]) -> int:
@@ -69,6 +71,11 @@ class Differences:
     axes: tuple[int, ...]
     open_axis: int | None = None
 
+    @property
+    def count(self) -> int:
+        """Split arrays (one per axis)."""
+        return len(self.axes)
+
     def apply(self, xp, x) -> tuple:
         """Psi x: one difference array per axis, like ``x``."""
         return tuple(forward_difference(xp, x, ax, ax != self.open_axis) for ax in self.axes)
@@ -84,7 +91,29 @@ class Differences:
 DIFFERENCES_2D = Differences((1, 0))
 
 
-def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool):
+@dataclass(frozen=True)
+class IdentitySplit:
+    """G_u = I for the priors that act on the image itself (:class:`recon.priors.WaveletPrior`,
+    :class:`recon.priors.DncnnPrior`): one split array u = x; |F G_u|^2 = 1 in the
+    x-update's denominator."""
+
+    count = 1
+
+    def apply(self, xp, x) -> tuple:
+        """(x,)."""
+        return (x,)
+
+    def adjoint(self, xp, qs):
+        """q itself."""
+        (q,) = qs
+        return q
+
+
+#: The identity split (:class:`IdentitySplit`).
+IDENTITY = IdentitySplit()
+
+
+def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool, differences=DIFFERENCES_2D):
     """The exact x-update of App. A.3 (:meth:`recon.solvers.admm.AdmmPlan.x_update`):
     a diagonal solve in Fourier space, 2 rfft2 + 2 irfft2 batched in pairs.
 
@@ -93,24 +122,27 @@ def fourier_x_update(xop, x, mx, q, mu, inv_den, use_tv: bool):
     xop : XpConvolution
     x, mx : arrays, float32, (P0, P1)
         Not used (the solve is exact); the signature of every plan's x-update.
-    q : (qv, qux, quy, qw)
-        The splits' q's.
+    q : (qv, *qu, qw)
+        The splits' q's (qu: qux, quy for TV; one array for an identity split).
     mu : (mu1, mu2, mu3)
     inv_den : array, float32, (P0, P1 // 2 + 1)
-        1 / (mu1 |H|^2 + mu2 |F Psi|^2 + mu3).
+        1 / (mu1 |H|^2 + mu2 |F G_u|^2 + mu3).
     use_tv : bool
+        Whether there is a u split.
+    differences : Differences or IdentitySplit
+        G_u of the u split (default the TV's :data:`DIFFERENCES_2D`).
 
     Returns
     -------
     (x, mx) : arrays, float32, (P0, P1)
     """
     xp = xop.xp
-    qv, qux, quy, qw = q
+    qv, *qu, qw = q
     mu1, mu2, mu3 = mu
-    # R = mu2 Psi^T q_u + mu3 q_w, then the diagonal solve
+    # R = mu2 G_u^T q_u + mu3 q_w, then the diagonal solve
     rhs = mu3 * qw
     if use_tv:
-        rhs = rhs + mu2 * DIFFERENCES_2D.adjoint(xp, (qux, quy))
+        rhs = rhs + mu2 * differences.adjoint(xp, qu)
     spectra = xp.fft.rfftn(xp.stack([qv, rhs]), axes=(-2, -1))
     x_hat = (mu1 * xop.spectrum_conj * spectra[0, ...] + spectra[1, ...]) * inv_den
     out = xp.fft.irfftn(xp.stack([xop.spectrum * x_hat, x_hat]), s=xop.padded_shape,
@@ -174,8 +206,10 @@ class XpKernels:
 
     Per iteration (:meth:`splits`): v = (w b + mu1 t) / (w^2 + mu1) on the padded plane
     (:func:`~recon.solvers.xp_common.data_split`), w = max(soft(t, l1 / mu3), 0)
-    (without ``nonneg`` the soft threshold alone), u = soft(Psi x + a_u, tv / mu2) with
-    the plan's Psi (:class:`Differences`), t = G x + a each time; then the plan's
+    (without ``nonneg`` the soft threshold alone), u = the plan's prior's prox of
+    G_u x + a_u (:attr:`XpPlanBase.prior`; TV: soft(Psi x + a_u, tv / mu2) with the
+    plan's Psi, :class:`Differences`; ``tv`` is the prior's weight), t = G x + a each
+    time; then the plan's
     x-update (``plan.x_update(state) -> (x, mx)``). The scaled duals are stored for
     balancing (zero at the start of each solve; only mode-1 passes write what the
     next mode-2 pass reads).
@@ -214,15 +248,19 @@ class XpKernels:
         mu1, mu2, mu3 = st.mu
         qv, a_v, z_v, r = data_split(st.mx, st.qv, self.wp, self.bp, mu1)
         qw, a_w, z_w = shrink_split(xp, st.x, st.qw, self.l1 / mu3, self.nonneg)
+        prior = self.plan.prior
         g = self.plan.differences.apply(xp, st.x)
-        tv_x = sum(total(xp, xp.abs(d)) for d in g)
+        tv_x = prior.value(xp, st.x, g) if self.tv > 0 else 0.0
         l1_x = 0.0
         if self.l1 > 0:  # of the estimate the entering iterate gives
             l1_x = total(xp, xp.clip(st.x, min=0.0) if self.nonneg else xp.abs(st.x))
         data_sq = total(xp, r * r)
-        u = ([shrink_split(xp, d, q, self.tv / mu2, False) for d, q in zip(g, st.qu,
-                                                                          strict=True)]
-             if st.use_tv else None)
+        u = None
+        if st.use_tv:  # the prior's u-update: z = prox(G_u x + a_u), q = z - a_u
+            a_u = tuple(d - q for d, q in zip(g, st.qu, strict=True))
+            z_u = prior.prox(xp, tuple(d + a for d, a in zip(g, a_u, strict=True)),
+                             self.tv, mu2)
+            u = [(z - a, a, z) for z, a in zip(z_u, a_u, strict=True)]
         balance = None
         if mode == 2:
             t_u = None
@@ -273,16 +311,19 @@ class XpPlanBase(AdmmPlanBase):
     """What the 2D and 3D generic ADMM plans share (:class:`XpAdmmPlan`,
     :class:`recon.volume.xp_admm3d.XpVolumeAdmmPlan`): the ``plan_of`` maker, the cold
     and warm states and the kernel set. A subclass has ``plan`` (the NumPy plan),
-    ``op``, ``xp``, ``xop``, ``differences`` (:class:`Differences`),
-    ``inverse_denominator(mu, use_tv)``, ``x_update(state) -> (x, mx)`` and
-    ``objective``."""
+    ``op``, ``xp``, ``xop``, ``differences`` (:class:`Differences`, or
+    :data:`IDENTITY` for a prior on the image itself), ``inverse_denominator(mu,
+    use_tv)``, ``x_update(state) -> (x, mx)`` and ``objective``."""
+
+    #: The u split's prior (:mod:`recon.priors`); a plan made with another sets its own.
+    prior: Prior = TotalVariation()
 
     @classmethod
-    def maker(cls, like, numpy_plan_of):
+    def maker(cls, like, numpy_plan_of, **options):
         """``plan_of(op) -> plan`` on ``like``'s device from the NumPy plans of
         ``numpy_plan_of`` (e.g. :meth:`recon.solvers.admm.AdmmPlan.of`), for
-        :func:`recon.auto.weight.admm_auto`."""
-        return lambda op: cls(numpy_plan_of(op), like)
+        :func:`recon.auto.weight.admm_auto`; ``options`` go to the plan (``prior``)."""
+        return lambda op: cls(numpy_plan_of(op), like, **options)
 
     # the solver's name in errors, the divergence advice, the penalty tie and whether
     # nonneg=False is allowed: the NumPy plan's (AdmmPlanBase)
@@ -300,7 +341,7 @@ class XpPlanBase(AdmmPlanBase):
         xp, dev = self.xp, self.xop.device
         z = xp.zeros(self.op.shape_in, dtype=xp.float32, device=dev)
         plane = xp.zeros(self.xop.padded_shape, dtype=xp.float32, device=dev)
-        state = XpAdmmState(z, plane, plane, tuple(z for _ in self.differences.axes), z,
+        state = XpAdmmState(z, plane, plane, tuple(z for _ in range(self.differences.count)), z,
                             tuple(float(m) for m in mu), None, bool(use_tv))
         state.set_penalties(self, mu)
         return state
@@ -328,11 +369,12 @@ class XpPlanBase(AdmmPlanBase):
 
 
 class XpAdmmPlan(XpPlanBase):
-    """:class:`recon.solvers.admm.AdmmPlan` on the device of ``like``.
+    """:class:`recon.solvers.admm.AdmmPlan` on the device of ``like``, with a prior.
 
     The operator's spectrum and weights and the power spectra are copied to the
     device once per NumPy plan and device (kept on the plan: a live view reuses its
-    plan frame after frame).
+    plan frame after frame). On NumPy arrays this is the path of the priors other
+    than TV (the fused numba passes do TV only).
 
     Parameters
     ----------
@@ -340,6 +382,8 @@ class XpAdmmPlan(XpPlanBase):
         The NumPy path's plan.
     like : array
         Any array of the target backend and device.
+    prior : Prior or str, optional
+        The u split's prior (:mod:`recon.priors`; default TV).
 
     Attributes
     ----------
@@ -350,22 +394,34 @@ class XpAdmmPlan(XpPlanBase):
         The operator on the device.
     h_pow, d_pow : array, float32, (P0, P1 // 2 + 1)
         On the device.
-    differences : Differences
-        :data:`DIFFERENCES_2D`.
+    prior : Prior
+    differences : Differences or IdentitySplit
+        G_u: :data:`DIFFERENCES_2D` for TV, :data:`IDENTITY` for a prior on the image.
     solve_x : callable
-        ``solve_x(xop, x, mx, (qv, qux, quy, qw), mu, inv_den, use_tv) -> (x, mx)``:
+        ``solve_x(xop, x, mx, (qv, *qu, qw), mu, inv_den, use_tv) -> (x, mx)``:
         :func:`fourier_x_update`, or the plan's own: a plan with another x-update
         names it (``plan.device_parts(like)`` -> operator, x-update:
-        :meth:`recon.spatial.SpatialAdmmPlan.device_parts`).
+        :meth:`recon.spatial.SpatialAdmmPlan.device_parts`; TV only).
+
+    Raises
+    ------
+    ReconInputError
+        An unknown prior, or a prior other than TV with a plan of its own x-update.
     """
 
     differences = DIFFERENCES_2D
 
-    def __init__(self, plan, like):
+    def __init__(self, plan, like, prior=None):
         key = (array_namespace(like).__name__, str(device_of(like)))
         cache = plan.__dict__.setdefault("_device_copies", {})
+        parts = getattr(plan, "device_parts", None)
+        self.prior = prior_of(prior if prior is not None else "tv")
+        if self.prior.identity_split:
+            if parts is not None:
+                raise ReconInputError(f"the {self.prior.name} prior needs a convolution model; "
+                                      "the spatially varying model takes TV (--prior tv)")
+            self.differences = IDENTITY
         if key not in cache:
-            parts = getattr(plan, "device_parts", None)
             xop, solve_x = (parts(like) if parts is not None
                             else (XpConvolution(plan.op, like), fourier_x_update))
             cache[key] = (xop, xop.asarray(plan.h_pow), xop.asarray(plan.d_pow), solve_x)
@@ -374,20 +430,31 @@ class XpAdmmPlan(XpPlanBase):
         self.xp, self.shape = self.xop.xp, self.xop.padded_shape
 
     def inverse_denominator(self, mu, use_tv: bool):
-        """1 / (mu1 |H|^2 [+ mu2 |F Psi|^2] + mu3) on the device."""
+        """1 / (mu1 |H|^2 [+ mu2 |F G_u|^2] + mu3) on the device (|F G_u|^2 = 1 for the
+        identity split)."""
         mu1, mu2, mu3 = mu
         den = mu1 * self.h_pow + mu3
-        return 1.0 / (den + mu2 * self.d_pow if use_tv else den)
+        if not use_tv:
+            return 1.0 / den
+        return 1.0 / (den + (mu2 if self.prior.identity_split else mu2 * self.d_pow))
 
     def x_update(self, state: XpAdmmState):
         """:attr:`solve_x` from the state's q's and penalties."""
-        return self.solve_x(self.xop, state.x, state.mx, (state.qv, *state.qu, state.qw),
-                            state.mu, state.inv_den, state.use_tv)
+        q = (state.qv, *state.qu, state.qw)
+        if self.solve_x is fourier_x_update:
+            return fourier_x_update(self.xop, state.x, state.mx, q, state.mu, state.inv_den,
+                                    state.use_tv, self.differences)
+        return self.solve_x(self.xop, state.x, state.mx, q, state.mu, state.inv_den,
+                            state.use_tv)
 
     def objective(self, b, x, *, tv: float, l1: float, b_norm: float) -> tuple[float, float]:
-        """:func:`recon.solvers.admm.objective_of` on the device."""
+        """:func:`recon.solvers.admm.objective_of` on the device, with the prior's term."""
         xp = self.xp
         r = self.xop.forward(x) - b
         data_sq = total(xp, r * r)
-        objective = 0.5 * data_sq + tv * tv_circular(xp, x, (0, 1)) + l1 * total(xp, x)
+        reg = 0.0
+        if tv > 0:
+            reg = (tv_circular(xp, x, (0, 1)) if not self.prior.identity_split
+                   else self.prior.value(xp, x, (x,)))
+        objective = 0.5 * data_sq + tv * reg + l1 * total(xp, x)
         return objective, float(np.sqrt(data_sq)) / b_norm

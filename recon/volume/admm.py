@@ -325,7 +325,8 @@ class NumbaKernels3D:
 
 def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *,
            iterations: int = DEFAULT_ITERATIONS, tv: float = 0.0, l1: float = 0.0,
-           nonneg: bool = True, penalty: AdmmPenalty | None = None, stop=None) -> SolveResult:
+           nonneg: bool = True, penalty: AdmmPenalty | None = None, stop=None,
+           prior=None) -> SolveResult:
     r"""ADMM on a volume with 3D TV, l1 and non-negativity (Eq. 4.5, App. A.3).
 
     Per iteration, in scaled-dual q-form (q_i = z_i - a_i kept between
@@ -391,6 +392,11 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *,
     stop : callable, optional
         ``stop(history) -> bool`` after every iteration (automatic stopping), as for
         the 2D ADMM.
+    prior : str or Prior, optional
+        The u split's prior (:mod:`recon.priors`): 3D TV (default) or a prior on the
+        volume itself, plane by plane (``"wavelet"``, ``"dncnn"``), which runs the
+        generic kernel set (``recon.volume.xp_admm3d.XpVolumeAdmmPlan``; u = x, no
+        coupling between planes in the x-update); ``tv`` is then its weight.
 
     Returns
     -------
@@ -414,9 +420,13 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *,
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
-    if not isinstance(b, np.ndarray):  # another backend: the generic kernel set there
+    other_prior = prior is not None and getattr(prior, "name", prior) != "tv"
+    if other_prior or not isinstance(b, np.ndarray):  # the generic kernel set
         from .xp_admm3d import XpVolumeAdmmPlan
 
-        plan = XpVolumeAdmmPlan(plan, b)
-    return run_admm(plan, b, plan.zeros(penalty.initial(), tv_w > 0), iterations=iterations,
-                    tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty, stop=stop)
+        plan = XpVolumeAdmmPlan(plan, b, prior=prior)
+    res = run_admm(plan, b, plan.zeros(penalty.initial(), tv_w > 0), iterations=iterations,
+                   tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty, stop=stop)
+    if other_prior:
+        res.params["prior"] = plan.prior.record()
+    return res

@@ -37,6 +37,7 @@ from ..preprocess import (
     validate_measurement,
     validate_psf,
 )
+from ..priors import prior_of
 from ..result import ReconInfo, Reconstruction
 from ..solvers.device import check_device_memory, device_metrics, solve_on
 from ..validate import as_array, float_array
@@ -126,6 +127,7 @@ def volume_metrics(rec: Reconstruction, fft_floor_s: float | None = None) -> dic
     return {
         "method": inf.method, "device": inf.device, "iterations": inf.iterations,
         "iterations_used": inf.iterations_used, "tv": inf.tv, "l1": inf.l1,
+        "prior": inf.get("prior"),
         "shape": list(rec.image.shape),
         "sensor_shape": list(op.sensor_shape),
         "padded_shape": list(op.padded_shape),
@@ -298,7 +300,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                       allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
                       empty_planes: str = _D["empty_planes"],
                       device: str = _D["device"], memory_limit_bytes: int | None = None,
-                      slab_group=None, announce=None) -> Reconstruction:
+                      slab_group=None, announce=None, prior: str = _D["prior"]
+                      ) -> Reconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -361,6 +364,9 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     announce : callable, optional
         ``announce(line)``: the memory plan and the streamed solve's estimate,
         before the solve (``recon3d`` prints them).
+    prior : {"tv", "wavelet", "dncnn"}
+        The prior of 3D ADMM (:mod:`recon.priors`): 3D TV (default), or a prior on
+        each plane (``tv`` its fixed weight; in memory, on the CPU or a device).
 
     Returns
     -------
@@ -373,7 +379,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     ------
     ReconInputError
         Bad images, shapes or parameters; an unusable ``device``, or a volume that
-        does not fit in its free memory.
+        does not fit in its free memory; a prior other than TV with FISTA, an
+        automatic weight, ``"auto"`` or a streamed or sharded solve.
     recon.errors.DivergenceError
         The solver diverged.
     """
@@ -388,6 +395,7 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         tv = 0.0
     check_volume_parameters(method, iterations, 0.0 if tv == AUTO else tv,
                             0.0 if l1 == AUTO else l1, bin_factor)
+    prior = _volume_prior(prior, method, tv, l1, slab_group)
     if empty_planes not in EMPTY_PLANES:
         raise ReconInputError(f"empty_planes {empty_planes!r}: use keep (every plane) or "
                               "drop (planes that show no signal set to zero, reported)")
@@ -421,6 +429,10 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         if slab_group is not None:
             plan.update(streamed=True, reason=f"{plan['reason']}; sharded over the dask "
                         "workers as asked")
+        if plan["streamed"] and prior is not None:
+            raise ReconInputError(f"the {prior} prior runs in the in-memory 3D ADMM, which "
+                                  f"does not fit here ({plan['reason']}); use --prior tv "
+                                  "(streamed 3D FISTA) or more memory (--memory-limit)")
         if plan["streamed"]:
             if announce is not None:
                 announce(plan["reason"])
@@ -445,10 +457,12 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
                   else fista3d_memory(op.n_z, op.padded_shape))
         result = solve_on(backend, SOLVERS[method], op, b, iterations=iterations, tv=tv,
                           l1=l1, nonneg=True, needed_bytes=needed,
+                          **({"prior": prior} if prior is not None else {}),
                           what=f"3D {'ADMM' if method == 'admm' else 'FISTA'} on {op.n_z} "
                                f"planes of {op.sensor_shape[0]} x {op.sensor_shape[1]}")
     elif auto_reg is None:
-        result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True)
+        result = SOLVERS[method](op, b, iterations=iterations, tv=tv, l1=l1, nonneg=True,
+                                 **({"prior": prior} if prior is not None else {}))
     else:
         noise = _frame_noise(raw)
         on_device = {}
@@ -474,10 +488,40 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         auto=auto, dark_mode=info.pop("dark_mode"), dark_level=info.pop("dark_level"),
         dark_source=info.pop("dark_source"), bin_factor=info.pop("bin_factor"),
         raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
-        device=backend.label, histories=[result.history], extra={**info, "psf_scale": psf_scale})
+        device=backend.label, histories=[result.history],
+        extra={**info, "psf_scale": psf_scale,
+               "prior": prior or ("tv" if method == "admm" else None)})
     return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
                           record=volume_metrics if backend.is_numpy
                           else device_metrics(volume_metrics, backend, op.n_z))
+
+
+def _volume_prior(prior, method: str, tv, l1, slab_group) -> str | None:
+    """The prior other than 3D TV asked of a volume (None for TV), or why it cannot run.
+
+    Raises
+    ------
+    ReconInputError
+        An unknown prior, ``"auto"``, FISTA, an automatic weight or a sharded solve.
+    """
+    if prior == "tv" or prior is None:
+        return None
+    if prior == AUTO:
+        raise ReconInputError("prior auto chooses among priors for a 2D image; a volume takes "
+                              "one named prior (--prior tv|wavelet|dncnn)")
+    name = prior_of(prior).name
+    if name == "tv":
+        return None
+    if method != "admm":
+        raise ReconInputError(f"the {name} prior runs in 3D ADMM; use --method admm or "
+                              "--prior tv")
+    if AUTO in (tv, l1):
+        raise ReconInputError(f"a volume's automatic weight is chosen with 3D TV; give the "
+                              f"{name} prior a fixed weight (--tv W) or use --prior tv")
+    if slab_group is not None:
+        raise ReconInputError(f"the {name} prior runs in one process; a sharded solve is "
+                              "3D FISTA with TV (--prior tv)")
+    return name
 
 
 def _frame_noise(raw: np.ndarray) -> NoiseModel:

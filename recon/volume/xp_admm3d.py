@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 
 from ..backend import total
-from ..solvers.xp_admm import Differences, XpAdmmState, XpPlanBase
+from ..priors import prior_of
+from ..solvers.xp_admm import IDENTITY, Differences, XpAdmmState, XpPlanBase
 from ..xp_operators import XpVolumeConvolution
 
 __all__ = ["DIFFERENCES_3D", "XpVolumeAdmmPlan", "auto3d_extra_bytes", "memory_bytes",
@@ -119,17 +120,28 @@ class XpVolumeAdmmPlan(XpPlanBase):
     xop : XpVolumeConvolution
         The operator on the device (its PSF spectra copied there).
     d_lat : array, float32, (P0, P1 // 2 + 1)
-    differences : Differences
-        :data:`DIFFERENCES_3D`.
+    prior : Prior
+        The u split's prior (:mod:`recon.priors`; default 3D TV).
+    differences : Differences or IdentitySplit
+        :data:`DIFFERENCES_3D`, or ``IDENTITY`` for a prior on the volume itself
+        (plane by plane).
+
+    Raises
+    ------
+    ReconInputError
+        An unknown prior.
     """
 
     differences = DIFFERENCES_3D
 
-    def __init__(self, plan, like):
+    def __init__(self, plan, like, prior=None):
         self.plan, self.op = plan, plan.op
         self.xop = XpVolumeConvolution(plan.op, like)
         self.xp = self.xop.xp
         self.d_lat = self.xop.asarray(plan.d_lat)
+        self.prior = prior_of(prior if prior is not None else "tv")
+        if self.prior.identity_split:
+            self.differences = IDENTITY
 
     def inverse_denominator(self, mu, use_tv: bool) -> None:
         """None: the x-update solves per lateral frequency (no fixed denominator)."""
@@ -144,15 +156,22 @@ class XpVolumeAdmmPlan(XpPlanBase):
         if state.use_tv:
             rhs = rhs + mu2 * self.differences.adjoint(xp, state.qu)
         spec = xp.fft.rfftn(xp.concat([rhs, state.qv[None, ...]], axis=0), axes=(-2, -1))
-        spec = x_update(xp, spec, self.xop.spectra, self.d_lat, mu1,
-                        mu2 if state.use_tv else 0.0, mu3)
+        if state.use_tv and self.prior.identity_split:  # u = x: mu2 joins mu3, no coupling
+            spec = x_update(xp, spec, self.xop.spectra, self.d_lat, mu1, 0.0, mu3 + mu2)
+        else:
+            spec = x_update(xp, spec, self.xop.spectra, self.d_lat, mu1,
+                            mu2 if state.use_tv else 0.0, mu3)
         stack = xp.fft.irfftn(spec, s=self.xop.padded_shape, axes=(-2, -1))
         return stack[:nz, ...], stack[nz, ...]
 
     def objective(self, b, x, *, tv: float, l1: float, b_norm: float) -> tuple[float, float]:
         """Objective of Eq. 4.5 at ``x`` and its relative data residual against ``b``
         (:meth:`recon.volume.VolumeAdmmPlan.objective` on the device)."""
-        final, data_sq = _final_objective(self.xp, self.xop, x, b, tv, l1)
+        if self.prior.identity_split:  # the prior's term instead of 3D TV's
+            final, data_sq = _final_objective(self.xp, self.xop, x, b, 0.0, l1)
+            final += tv * self.prior.value(self.xp, x, (x,)) if tv > 0 else 0.0
+        else:
+            final, data_sq = _final_objective(self.xp, self.xop, x, b, tv, l1)
         return final, math.sqrt(data_sq) / b_norm
 
 

@@ -122,7 +122,7 @@ def test_a_live_view_too_large_for_the_device_is_refused_before_anything_moves(
     text = str(info.value)
     assert (f"live reconstruction at 600 x 800 (binned) needs {needed / 2**30:.2f} GiB on "
             f"{backend.label}, 0.00 GiB are free") in text
-    assert "--bin" in text and "--device cpu" in text
+    assert "--bin" in text and "(device cpu)" in text
     # what fits is accepted
     monkeypatch.undo()
     monkeypatch.setattr(recon.xp_live, "free_device_bytes", lambda b: needed)

@@ -1,0 +1,164 @@
+"""The prior chosen by the data: each prior's held-out path, then the simplest that
+predicts the held-out pixels as well as the best.
+
+"Model no more than a scene needs" for the prior itself, not only its weight. For each
+prior of :data:`recon.priors.PRIORS` (TV, wavelet, DnCNN) the automatic weight's
+hold-out cross-validation (:func:`recon.auto.weight.admm_auto`: the same held-out
+blocks, the same seed, warm-started continuation, each candidate run until its
+held-out error settles) chooses the prior's weight along its own path
+(:data:`PRIOR_RULES`); each chosen candidate's held-out prediction error and its
+standard error are then compared across priors. The data choose the *simplest*
+prior (in :data:`~recon.priors.PRIORS` order) whose held-out error is within
+``se_rule`` standard errors of the best prior's -- the one-standard-error rule of
+Breiman et al. 1984 (Sec. 3.4.3) applied between models of increasing complexity, as
+the weight path applies it between weights -- and its path's result is the result.
+The record (:class:`PriorChoice`) lists every prior's weight, held-out error,
+standard error, iterations and seconds, and says why.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+from ..errors import ReconInputError
+from ..priors import PRIORS, prior_of
+from .weight import PATH_FACTOR, PATH_RULES, SE_RULE, PathRule
+
+__all__ = ["PRIOR_RULES", "PriorChoice", "choose_prior", "prior_plan_of"]
+
+#: The weight path of each prior. TV: the 2D rule. Wavelet: the same span (its
+#: weight, like TV's, is an l1 weight on a linear transform of the scaled image, and
+#: thresholds at weight / mu2). DnCNN: the weight is the denoiser's noise level
+#: relative to the iterate's scale, from 0.2 (heavy smoothing) to 0.005 (about the
+#: network's floor), in the path's usual steps: 4 candidates.
+PRIOR_RULES = {"tv": PATH_RULES["tv"], "wavelet": PathRule(1e-2, 1e-5),
+               "dncnn": PathRule(0.2, 0.005, factor=PATH_FACTOR)}
+
+
+def prior_plan_of(prior, like):
+    """``plan_of(op)`` for the automatic weight with ``prior`` on ``like``'s backend:
+    None for TV on NumPy (the default fused plan), else the generic plans
+    (:class:`recon.solvers.xp_admm.XpAdmmPlan`) with the prior."""
+    import numpy as np
+
+    from ..solvers.admm import AdmmPlan
+    from ..solvers.xp_admm import XpAdmmPlan
+
+    p = prior_of(prior)
+    if p.name == "tv" and isinstance(like, np.ndarray):
+        return None
+    return XpAdmmPlan.maker(like, AdmmPlan.of, prior=p)
+
+
+@dataclass
+class PriorChoice:
+    """How the prior was chosen (the record's ``prior``).
+
+    Attributes
+    ----------
+    prior : str
+        The chosen prior's name.
+    reason : str
+        Why, in words.
+    candidates : list of dict
+        Per prior tried: ``prior``, ``weight`` (its path's choice), ``holdout_error``,
+        ``standard_error``, ``iterations``, ``seconds``; or ``error`` when its path
+        failed (diverged).
+    se_rule : float
+    results : dict
+        Every finished prior's path result by name (not in the record: for a caller
+        that compares them, the benchmark).
+    """
+
+    prior: str
+    reason: str
+    candidates: list = field(default_factory=list)
+    se_rule: float = SE_RULE
+    results: dict = field(default_factory=dict, repr=False)
+
+    def as_dict(self) -> dict:
+        return {"prior": self.prior, "criterion": "holdout", "reason": self.reason,
+                "se_rule": self.se_rule, "candidates": self.candidates}
+
+
+def _chosen_score(choice) -> tuple[float, float]:
+    """The held-out error and standard error of a path's chosen weight."""
+    for p in choice.path:
+        if p["weight"] == choice.weight:
+            return float(p["holdout_error"]), float(p["standard_error"])
+    raise ReconInputError("the weight path's record lacks its chosen weight")  # defensive
+
+
+def choose_prior(path, priors=PRIORS, se_rule: float = SE_RULE):
+    """Run ``path(prior_name, rule)`` for each prior and choose between them.
+
+    Parameters
+    ----------
+    path : callable
+        ``path(name, rule) -> (result, AutoWeight)``: one prior's automatic weight
+        (:func:`recon.auto.weight_path` with that prior's plans and rule), on the same
+        measurement and held-out blocks for every prior.
+    priors : sequence of str
+        Names from :data:`recon.priors.PRIORS`, simplest first.
+    se_rule : float
+        Multiple of the best prior's standard error within which a simpler prior is
+        taken.
+
+    Returns
+    -------
+    result : SolveResult
+        The chosen prior's path result (``params['prior']`` names it).
+    weight : AutoWeight
+        Its weight record.
+    choice : PriorChoice
+
+    Raises
+    ------
+    ReconInputError
+        An unknown prior name, or none of the priors' paths finished (each error
+        named).
+    recon.errors.DivergenceError
+        Not raised for one prior: a diverged path is recorded and the others compared.
+    """
+    from ..errors import DivergenceError
+
+    names = [prior_of(p).name for p in priors]
+    if not names:
+        raise ReconInputError("choose among at least one prior")
+    done, cands = [], []
+    for name in names:
+        t0 = time.perf_counter()
+        try:
+            res, weight = path(name, PRIOR_RULES[name])
+        except DivergenceError as exc:
+            cands.append({"prior": name, "error": str(exc),
+                          "seconds": time.perf_counter() - t0})
+            continue
+        err, se = _chosen_score(weight)
+        weight.regulariser = name
+        cands.append({"prior": name, "weight": weight.weight, "holdout_error": err,
+                      "standard_error": se, "iterations": weight.path_iterations,
+                      "seconds": time.perf_counter() - t0})
+        done.append((name, res, weight, err, se))
+    if not done:
+        raise ReconInputError("no prior's path finished: " + "; ".join(
+            f"{c['prior']}: {c['error']}" for c in cands))
+    best = min(done, key=lambda d: d[3])
+    limit = best[3] + se_rule * best[4]
+    pick = next(d for d in done if d[3] <= limit)  # the simplest within the limit
+    scores = ", ".join(f"{d[0]} {d[3]:.4g} (weight {d[2].weight:.3g})" for d in done)
+    if pick is best:
+        why = f"{pick[0]} predicts the held-out pixels best"
+    else:
+        why = (f"{pick[0]} is the simplest prior within {se_rule:g} standard error "
+               f"({best[4]:.3g}) of the best, {best[0]}")
+    reason = (f"hold-out cross-validation between priors, each at the weight its own path "
+              f"chose: {why}. Held-out errors: {scores}")
+    if len(done) < len(names):
+        reason += "; failed: " + ", ".join(c["prior"] for c in cands if "error" in c)
+    name, res, weight = pick[0], pick[1], pick[2]
+    if res is not None:
+        res.params["prior"] = prior_of(name).record()
+    return res, weight, PriorChoice(name, reason, cands, se_rule,
+                                    {d[0]: d[1] for d in done})
