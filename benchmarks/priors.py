@@ -101,7 +101,8 @@ def run_scene(name: str, cfg: dict, seed: int = 0) -> dict:
     for c in choice.candidates:
         p = c["prior"]
         r = choice.results.get(p)
-        priors[p] = {"oracle": _oracle(case, p, cfg["grids"][p], it)["best"],
+        oracle = _oracle(case, p, cfg["grids"][p], it)
+        priors[p] = {"oracle": oracle["best"], "grid": oracle["grid"],
                      "auto": dict(c, **(_score(case, r.x) if r is not None else {}),
                                   time_ratio=c["seconds"] / t_default)}
     ref = priors["tv"]["oracle"]["psnr"]

@@ -435,9 +435,9 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
         if grid is None:
             task_options = {"method": method, "iterations": iterations, "tv": tv, "l1": l1,
                        "bin_factor": bin_factor, "dark": "auto" if dark is None else dark,
-                       "device": device}
-            settings = {"method": method, "tv": tv, "l1": l1, "psf": psf_source,
-                        "orientation": DATA_ORIENTATION}
+                       "device": device, "prior": options.prior}
+            settings = {"method": method, "tv": tv, "l1": l1, "prior": options.prior,
+                        "psf": psf_source, "orientation": DATA_ORIENTATION}
             name, task = product or f"recon_{method}", reconstruct_stored_frame
         else:
             bin_factor = grid.bin_factor

@@ -129,6 +129,27 @@ def test_recon_run_cli_equals_recon_cli_on_the_same_frame(video, tmp_path, capsy
     assert dff.shape == (3, 128, 160) and attrs["percentile"] == 20
 
 
+def test_recon_run_takes_the_prior_and_records_it(video, tmp_path, capsys):
+    """``--prior`` reaches every frame's ADMM and the product's settings: a frame equals
+    ``recon`` with the same prior."""
+    import shutil
+
+    import tifffile
+
+    d, _ = video
+    run = tmp_path / "v.zarr"
+    shutil.copytree(d / "v.zarr", run)
+    argv = ["--psf", str(d / "psf.npy"), "--method", "admm", "--tv", "1e-3", "--prior",
+            "wavelet", "--iterations", "6", "--bin", "2"]
+    assert main(["recon-run", str(run), *argv, "--frames", "3:4", "--workers", "1"]) == 0
+    store = RunStore.open(run)
+    assert store.product_attrs("recon_admm")["prior"] == "wavelet"
+    tifffile.imwrite(tmp_path / "raw.tif", store.frame(3).image)
+    assert main(["recon", *argv, "--raw", str(tmp_path / "raw.tif"),
+                 "--out", str(tmp_path / "one")]) == 0
+    assert_same_frame(store.product_frame("recon_admm", 3), load_image(tmp_path / "one.tif"))
+
+
 @pytest.mark.parametrize("argv, words", [
     (["--frames", "5:2"], "selects no frame"),
     (["--frames", "x"], "give A:B"),
