@@ -56,7 +56,7 @@ def hand(out: Path, iterations: int = 200) -> dict:
     res, weight, choice = choose_prior(prior_path(op, b, iterations=iterations,
                                                   noise_energy=energy))
     seconds = time.perf_counter() - t0
-    fig = Figure(figsize=(12, 6.4))
+    fig = Figure(figsize=(12, 6.8), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, len(PRIORS))
     record = {"chosen": choice.prior, "reason": choice.reason, "seconds": seconds,
@@ -73,7 +73,6 @@ def hand(out: Path, iterations: int = 200) -> dict:
     fig.suptitle(f"tutorial hand, bin 4, ADMM <= {iterations} iterations per weight: each "
                  f"prior at its automatic weight; the automatic prior chose {choice.prior}",
                  fontsize=9)
-    fig.tight_layout()
     fig.savefig(out / "priors_hand.png", dpi=100)
     return record
 
@@ -98,7 +97,7 @@ def volume(out: Path, iterations: int = 100) -> dict:
         runs[p] = reconstruct(model, raw, "admm", bin_factor=2, iterations=iterations, dark="none",
                               tv=weights[p], prior=p)
         times[p] = time.perf_counter() - t0
-    fig = Figure(figsize=(12, 3.8))
+    fig = Figure(figsize=(12, 3.8), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, 3)
     for ax, p in zip(axes, ("tv", "wavelet", "dncnn"), strict=True):
@@ -107,7 +106,6 @@ def volume(out: Path, iterations: int = 100) -> dict:
                         f"{weights[p]:.3g}, {times[p]:.0f} s")
     fig.suptitle(f"3D sample, every 4th plane ({len(stack)}), bin 2, 3D ADMM {iterations} "
                  "iterations: maximum projections along depth", fontsize=9)
-    fig.tight_layout()
     fig.savefig(out / "priors_3d.png", dpi=100)
     return {"planes": len(stack), "weights": weights, "seconds": times}
 

@@ -268,8 +268,9 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
 def prior_path(op, b: np.ndarray, *, iterations: int, noise_energy: float, fixed: float = 0.0,
                backend=None, seconds: float | None = None):
     """``path(name, rule) -> (result, AutoWeight)``: one prior's automatic weight on this
-    measurement (:func:`weight_path` with the prior's plans, :func:`~recon.auto.prior.
-    prior_plan_of`), the argument of :func:`~recon.auto.prior.choose_prior`.
+    measurement (:func:`weight_path` with the prior's plans,
+    :func:`~recon.auto.prior.prior_plan_of`), the argument of
+    :func:`~recon.auto.prior.choose_prior`.
 
     Parameters
     ----------

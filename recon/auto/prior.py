@@ -45,7 +45,7 @@ PRIOR_RULES = {"tv": PATH_RULES["tv"], "wavelet": PathRule(1e-2, 1e-5),
 def prior_plan_of(prior, like):
     """``plan_of(op)`` for the automatic weight with ``prior`` on ``like``'s backend:
     None for TV on NumPy (the default fused plan), else the generic plans
-    (:class:`recon.solvers.xp_admm.XpAdmmPlan`) with the prior."""
+    (``recon.solvers.xp_admm.XpAdmmPlan``) with the prior."""
     import numpy as np
 
     from ..solvers.admm import AdmmPlan
