@@ -154,12 +154,18 @@ class RecordPanel(QWidget):
         method.addItems(ReconOptions.spec("method").choices)
         method.setCurrentText(ReconOptions.defaults()["method"])
         wheel_needs_focus(method)
+        prior = QComboBox()
+        prior.addItems(ReconOptions.spec("prior").choices)
+        prior.setCurrentText(ReconOptions.defaults()["prior"])
+        prior.setToolTip(ReconOptions.spec("prior").help)
+        wheel_needs_focus(prior)
         psf = QLineEdit()
         psf.editingFinished.connect(lambda: offer_depths(self.batch_fields["--depth"],
                                                          psf.text()))
         rows = (("--psf", "PSF (image, stack or run):", psf, ""),
                 ("--depth", "depth (mm):", depth_field("batch--depth"), ""),
                 ("--method", "method:", method, ""),
+                ("--prior", "prior:", prior, ""),
                 ("--iterations", "iterations:",
                  QLineEdit(str(ReconOptions.defaults()["iterations"])), ""),
                 ("--frames", "frames (A:B):", QLineEdit(), "all"),

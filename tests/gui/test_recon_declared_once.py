@@ -62,10 +62,17 @@ def test_cli_gui_and_api_defaults_are_the_declared_objects(forms):
     for name in ("method", "iterations", "tv", "l1", "bin_factor", "dark", "device"):
         assert api[name].default is declared[name], name
         assert getattr(gui, name) is declared[name], name  # an empty field: the default
+    assert gui.prior == declared["prior"] == "tv"
     record, live = forms
     batch = record.batch_fields
     assert batch["--method"].currentText() is declared["method"] or (
         batch["--method"].currentText() == declared["method"])
+    # the prior: the declared choices and default, and what the form holds reaches recon-run
+    prior = batch["--prior"]
+    assert [prior.itemText(i) for i in range(prior.count())] == list(
+        ReconOptions.spec("prior").choices)
+    assert prior.currentText() == declared["prior"]
+    assert _recon_run_args("RUN.zarr", {"--psf": "p.npy", "--prior": "dncnn"}).prior == "dncnn"
     assert int(batch["--iterations"].text()) == declared["iterations"] == 200
     # the placeholder names the default and what it means on this bench ("auto: ...")
     assert batch["--dark"].placeholderText().split(":")[0] == declared["dark"]
