@@ -280,6 +280,14 @@ def prior_path(op, b: np.ndarray, *, iterations: int, noise_energy: float, fixed
         The l1 weight held fixed.
     seconds : float, optional
         Each prior's path's wall-clock budget, s.
+
+    Returns
+    -------
+    callable
+        ``path(name, rule)``: :func:`weight_path` with ``regulariser="tv"`` (the u
+        split's weight), the plans of :func:`~recon.auto.prior.prior_plan_of` for prior
+        ``name`` and the :class:`~recon.auto.weight.PathRule` ``rule``; it returns
+        ``(result, AutoWeight)`` and raises what :func:`weight_path` raises.
     """
     like = b
     if backend is not None and not backend.is_numpy:
