@@ -228,20 +228,30 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
             record["prior"] = {"prior": None, "reason": f"{method} has no prior"}
         return res, record
     if prior_name != "tv":
-        return _solve_prior(op, b, prior if prior_name != AUTO else AUTO, spec, record,
-                            method=method, iterations=iterations, tv=tv, l1=l1,
-                            noise_energy=noise_energy, b_norm=b_norm, auto_stop=auto_stop,
-                            backend=backend, seconds=(None if seconds is None else max(
-                                1e-3, seconds - (time.perf_counter() - t0))), **options)
+        _check_prior(prior_name, method, tv, l1)
+    named = prior_of(prior) if prior_name not in ("tv", AUTO) else None
     target = 0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2)
     auto_reg = "tv" if tv == AUTO else "l1" if l1 == AUTO else None
     fixed = float(l1 if auto_reg == "tv" else tv) if auto_reg is not None else 0.0
     # the time budget left to the weight path (the noise fit and the choice took some)
     path_s = None if seconds is None else max(1e-3, seconds - (time.perf_counter() - t0))
-    if auto_reg is not None and method == "admm" and not options and weight_path_solves:
+    # a named prior's weight path: its plans and its rule; its solve: the prior keyword
+    path_kw = ({"plan_of": plan_of} if named is None else
+               {"plan_of": prior_plan_of(named, _like(b, backend)),
+                "rule": PRIOR_RULES[named.name]})
+    solve_kw = {} if named is None else {"prior": named}
+    if prior_name == AUTO:  # every prior's path, then the simplest within one SE
+        res, chosen, pchoice = choose_prior(prior_path(
+            op, b, iterations=iterations, noise_energy=noise_energy, fixed=fixed,
+            backend=backend, seconds=None if path_s is None else path_s / len(PRIORS)))
+        record.update(prior=pchoice.as_dict(), weight=chosen.as_dict())
+        tv = chosen.weight
+    elif auto_reg is not None and method == "admm" and not options and weight_path_solves:
         res, chosen = weight_path(backend, op, b, iterations=iterations,
                                   noise_energy=noise_energy, regulariser=auto_reg,
-                                  plan_of=plan_of, fixed=fixed, seconds=path_s)
+                                  fixed=fixed, seconds=path_s, **path_kw)
+        if named is not None:
+            chosen.regulariser = named.name
         record["weight"] = chosen.as_dict()
         tv, l1 = ((chosen.weight, 0.0 if l1 == AUTO else l1) if auto_reg == "tv"
                   else (tv, chosen.weight))
@@ -249,8 +259,9 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         if auto_reg is not None:
             _, chosen = weight_path(backend, op, b, iterations=iterations,
                                     noise_energy=noise_energy, regulariser=auto_reg,
-                                    path_only=True, plan_of=plan_of, fixed=fixed,
-                                    seconds=path_s)
+                                    path_only=True, fixed=fixed, seconds=path_s, **path_kw)
+            if named is not None:
+                chosen.regulariser = named.name
             record["weight"] = dict(chosen.as_dict(), chosen_by="ADMM path, used by "
                                     + method)
             if auto_reg == "tv":
@@ -259,7 +270,11 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
                 tv, l1 = (0.0 if tv == AUTO else tv), chosen.weight
         stop = Stopping().hook(target, b_norm) if auto_stop else None
         extra = {"l1": l1} if l1 else {}
-        res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options)
+        res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options,
+                         **solve_kw)
+    if named is not None:
+        record["prior"] = named.record()
+        res.params.setdefault("prior", named.record())
     record.update(tv=float(tv), l1=float(l1),
                   iterations_used=int(res.params.get("iterations_used", iterations)))
     return res, record
@@ -289,11 +304,7 @@ def prior_path(op, b: np.ndarray, *, iterations: int, noise_energy: float, fixed
         ``name`` and the :class:`~recon.auto.weight.PathRule` ``rule``; it returns
         ``(result, AutoWeight)`` and raises what :func:`weight_path` raises.
     """
-    like = b
-    if backend is not None and not backend.is_numpy:
-        from ..backend import to_device
-
-        like = to_device(np.zeros((1, 1), np.float32), backend)
+    like = _like(b, backend)
 
     def path(name: str, rule):
         return weight_path(backend, op, b, iterations=iterations, noise_energy=noise_energy,
@@ -303,11 +314,15 @@ def prior_path(op, b: np.ndarray, *, iterations: int, noise_energy: float, fixed
     return path
 
 
-def _solve_prior(op, b, prior, spec, record: dict, *, method: str, iterations: int, tv, l1,
-                 noise_energy: float, b_norm: float, auto_stop: bool, backend, seconds,
-                 **options) -> tuple[SolveResult, dict]:
-    """:func:`solve_channel`'s ADMM with a prior other than TV, or the priors' choice."""
-    name = AUTO if prior == AUTO else prior_of(prior).name
+def _check_prior(name: str, method: str, tv, l1) -> None:
+    """What a prior other than TV (``name``, or ``"auto"``) asks of the solve.
+
+    Raises
+    ------
+    ReconInputError
+        A method other than ADMM, an automatic l1 weight, or ``"auto"`` with a fixed
+        ``tv`` (the message names the fix).
+    """
     if method != "admm":
         raise ReconInputError(f"the {name} prior runs in ADMM; use method admm or auto, or "
                               "prior tv with this method")
@@ -317,32 +332,12 @@ def _solve_prior(op, b, prior, spec, record: dict, *, method: str, iterations: i
     if name == AUTO and tv != AUTO:
         raise ReconInputError(f"prior auto chooses each prior's weight as well; leave tv at "
                               f"auto (got {tv!r}) or name one of {', '.join(PRIORS)}")
-    path = prior_path(op, b, iterations=iterations, noise_energy=noise_energy, fixed=l1,
-                      backend=backend, seconds=seconds)
-    if name == AUTO:
-        res, chosen, pchoice = choose_prior(
-            prior_path(op, b, iterations=iterations, noise_energy=noise_energy, fixed=l1,
-                       backend=backend, seconds=None if seconds is None
-                       else seconds / len(PRIORS)))
-        record["prior"] = pchoice.as_dict()
-        record["weight"] = chosen.as_dict()
-        tv = chosen.weight
-    elif tv == AUTO:
-        p = prior_of(prior)
-        res, chosen = path(p.name, PRIOR_RULES[p.name])
-        chosen.regulariser = p.name
-        res.params["prior"] = p.record()
-        record["prior"] = p.record()
-        record["weight"] = chosen.as_dict()
-        tv = chosen.weight
-    else:
-        p = prior_of(prior)
-        stop = Stopping().hook(0.5 * (noise_energy + (MODEL_ERROR * b_norm) ** 2), b_norm
-                               ) if auto_stop else None
-        extra = {"l1": l1} if l1 else {}
-        res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, prior=p, **extra,
-                         **options)
-        record["prior"] = p.record()
-    record.update(tv=float(tv), l1=float(l1),
-                  iterations_used=int(res.params.get("iterations_used", iterations)))
-    return res, record
+
+
+def _like(b: np.ndarray, backend):
+    """An array of the backend the weight path runs on (``b`` itself on the host)."""
+    if backend is None or backend.is_numpy:
+        return b
+    from ..backend import to_device
+
+    return to_device(np.zeros((1, 1), np.float32), backend)

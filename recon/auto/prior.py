@@ -43,9 +43,28 @@ PRIOR_RULES = {"tv": PATH_RULES["tv"], "wavelet": PathRule(1e-2, 1e-5),
 
 
 def prior_plan_of(prior, like):
-    """``plan_of(op)`` for the automatic weight with ``prior`` on ``like``'s backend:
-    None for TV on NumPy (the default fused plan), else the generic plans
-    (``recon.solvers.xp_admm.XpAdmmPlan``) with the prior."""
+    """``plan_of(op)`` for the automatic weight with ``prior`` on ``like``'s backend.
+
+    Parameters
+    ----------
+    prior : str or Prior
+        A name of :data:`recon.priors.PRIORS` or a prior.
+    like : array
+        Any array of the backend the path runs on (NumPy: the host).
+
+    Returns
+    -------
+    callable or None
+        None for TV on NumPy (:func:`~recon.auto.weight.admm_auto` then takes the
+        fused plan, :meth:`recon.solvers.admm.AdmmPlan.of`); else ``op -> plan``
+        making the generic plans (``recon.solvers.xp_admm.XpAdmmPlan``) with the
+        prior.
+
+    Raises
+    ------
+    ReconInputError
+        An unknown prior name.
+    """
     import numpy as np
 
     from ..solvers.admm import AdmmPlan
@@ -84,6 +103,7 @@ class PriorChoice:
     results: dict = field(default_factory=dict, repr=False)
 
     def as_dict(self) -> dict:
+        """The record (JSON-ready; without :attr:`results`)."""
         return {"prior": self.prior, "criterion": "holdout", "reason": self.reason,
                 "se_rule": self.se_rule, "candidates": self.candidates}
 

@@ -41,8 +41,8 @@ PRIORS: tuple[str, ...] = ("tv", "wavelet", "dncnn")
 
 
 def prior_of(name) -> Prior:
-    """The prior named ``name`` (one of :data:`PRIORS`), or ``name`` itself when it is a
-    :class:`Prior` already.
+    """The prior named ``name`` (one of :data:`PRIORS`), ``name`` itself when it is a
+    :class:`Prior` already, or TV for None (the solvers' default).
 
     Raises
     ------
@@ -51,6 +51,8 @@ def prior_of(name) -> Prior:
     """
     if isinstance(name, Prior):
         return name
+    if name is None:
+        return TotalVariation()
     makers = {"tv": TotalVariation, "wavelet": WaveletPrior, "dncnn": DncnnPrior}
     if name not in makers:
         raise ReconInputError(f"prior {name!r}: use one of {', '.join(PRIORS)} (or 'auto' "

@@ -10,12 +10,14 @@ __all__ = ["Prior", "TotalVariation", "on_host", "put_like"]
 
 
 def on_host(t) -> np.ndarray:
-    """``t`` (any array-API array) as a float32 NumPy array (a copy off a device)."""
+    """``t`` (any array-API array, any shape) as a C-contiguous float32 NumPy array of
+    the same shape (a copy off a device; ``t`` itself when it is one already)."""
     return np.ascontiguousarray(to_numpy(t), np.float32)
 
 
 def put_like(xp, a: np.ndarray, like):
-    """NumPy ``a`` on the backend and device of ``like`` (a no-op for NumPy)."""
+    """NumPy ``a`` (any shape and dtype) as an array of namespace ``xp`` on the device of
+    ``like``; ``a`` itself when ``like`` is a NumPy array."""
     if isinstance(like, np.ndarray):
         return a
     return xp.asarray(a, device=device_of(like))

@@ -119,9 +119,9 @@ class DncnnPrior(Prior):
 
     def prox(self, xp, t: tuple, weight: float, mu2: float) -> tuple:
         (s,) = t
-        a = on_host(s)
         if weight <= 0:
             return (s,)
+        a = on_host(s)
         scale = float(np.quantile(a, SCALE_QUANTILE)) if a.size else 0.0
         if not scale > 0:
             scale = float(np.max(np.abs(a))) or 1.0

@@ -75,6 +75,7 @@ class WaveletPrior(Prior):
             raise ReconInputError(f"wavelet levels {levels} / shifts {shifts}: levels >= 1, "
                                   "shifts 1, 2 or 4")
         self.wavelet, self.levels, self.shifts = wavelet, int(levels), int(shifts)
+        self._filters = w
         h = 2 ** (self.levels - 1)
         self._offsets = ((0, 0), (h, h), (0, h), (h, 0))[:self.shifts]
 
@@ -82,9 +83,8 @@ class WaveletPrior(Prior):
         import pywt
 
         # no more levels than the plane holds (a small plane: fewer, none below 1)
-        level = max(1, min(self.levels, pywt.dwt_max_level(min(a.shape[-2:]),
-                                                           pywt.Wavelet(self.wavelet))))
-        return pywt.wavedec2(np.roll(a, shift, axis=(-2, -1)), self.wavelet,
+        level = max(1, min(self.levels, pywt.dwt_max_level(min(a.shape[-2:]), self._filters)))
+        return pywt.wavedec2(np.roll(a, shift, axis=(-2, -1)), self._filters,
                              mode="periodization", level=level, axes=(-2, -1))
 
     def prox(self, xp, t: tuple, weight: float, mu2: float) -> tuple:
@@ -98,7 +98,7 @@ class WaveletPrior(Prior):
             c = self._coefficients(a, shift)
             c = [c[0]] + [tuple(pywt.threshold(d, thr, "soft") for d in band)
                           for band in c[1:]]
-            rec = pywt.waverec2(c, self.wavelet, mode="periodization", axes=(-2, -1))
+            rec = pywt.waverec2(c, self._filters, mode="periodization", axes=(-2, -1))
             rec = rec[..., :a.shape[-2], :a.shape[-1]]
             out += np.roll(rec, (-shift[0], -shift[1]), axis=(-2, -1)).astype(np.float32)
         out *= np.float32(1.0 / len(self._offsets))

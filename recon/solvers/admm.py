@@ -24,6 +24,7 @@ from .. import _kernels
 from ..errors import ReconInputError
 from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator
+from ..priors import prior_of
 from ..validate import as_int, nonneg_weight
 from .admm_loop import DEFAULT_ITERATIONS, AdmmPlanBase, SplitStep, run_admm
 from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
@@ -474,13 +475,13 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
-    other_prior = prior is not None and getattr(prior, "name", prior) != "tv"
-    if other_prior or not isinstance(b, np.ndarray):  # the generic kernel set
+    prior = prior_of(prior)
+    if prior.name != "tv" or not isinstance(b, np.ndarray):  # the generic kernel set
         from .xp_admm import XpAdmmPlan
 
         plan = XpAdmmPlan(plan, b, prior=prior)
     res = run_admm(plan, b, plan.zeros(penalty.initial(), tv > 0), iterations=iterations,
                    tv=tv, l1=l1, penalty=penalty, stop=stop)
-    if other_prior:
-        res.params["prior"] = plan.prior.record()
+    if prior.name != "tv":
+        res.params["prior"] = prior.record()
     return res

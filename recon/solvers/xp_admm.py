@@ -315,8 +315,23 @@ class XpPlanBase(AdmmPlanBase):
     :data:`IDENTITY` for a prior on the image itself), ``inverse_denominator(mu,
     use_tv)``, ``x_update(state) -> (x, mx)`` and ``objective``."""
 
-    #: The u split's prior (:mod:`recon.priors`); a plan made with another sets its own.
+    #: The u split's prior (:mod:`recon.priors`); a plan made with another sets its own
+    #: (:meth:`adopt_prior`).
     prior: Prior = TotalVariation()
+
+    def adopt_prior(self, prior) -> None:
+        """Take ``prior`` (a name, a :class:`~recon.priors.Prior` or None for TV) as the
+        u split's: a prior on the image itself makes the split the identity
+        (:data:`IDENTITY`), TV keeps the plan's differences.
+
+        Raises
+        ------
+        ReconInputError
+            An unknown prior name.
+        """
+        self.prior = prior_of(prior)
+        if self.prior.identity_split:
+            self.differences = IDENTITY
 
     @classmethod
     def maker(cls, like, numpy_plan_of, **options):
@@ -415,12 +430,10 @@ class XpAdmmPlan(XpPlanBase):
         key = (array_namespace(like).__name__, str(device_of(like)))
         cache = plan.__dict__.setdefault("_device_copies", {})
         parts = getattr(plan, "device_parts", None)
-        self.prior = prior_of(prior if prior is not None else "tv")
-        if self.prior.identity_split:
-            if parts is not None:
-                raise ReconInputError(f"the {self.prior.name} prior needs a convolution model; "
-                                      "the spatially varying model takes TV (--prior tv)")
-            self.differences = IDENTITY
+        self.adopt_prior(prior)
+        if self.prior.identity_split and parts is not None:
+            raise ReconInputError(f"the {self.prior.name} prior needs a convolution model; "
+                                  "the spatially varying model takes TV (--prior tv)")
         if key not in cache:
             xop, solve_x = (parts(like) if parts is not None
                             else (XpConvolution(plan.op, like), fourier_x_update))

@@ -39,6 +39,7 @@ from numba import get_num_threads
 
 from ..errors import ReconInputError
 from ..fft import WORKERS, rfftn
+from ..priors import prior_of
 from ..solvers.admm import difference_power
 from ..solvers.admm_loop import DEFAULT_ITERATIONS, AdmmPlanBase, SplitStep, run_admm
 from ..solvers.common import Monitor, SolveResult, check_measurement
@@ -420,13 +421,13 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *,
     tv_w = nonneg_weight(tv, "TV")
     l1_w = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
-    other_prior = prior is not None and getattr(prior, "name", prior) != "tv"
-    if other_prior or not isinstance(b, np.ndarray):  # the generic kernel set
+    prior = prior_of(prior)
+    if prior.name != "tv" or not isinstance(b, np.ndarray):  # the generic kernel set
         from .xp_admm3d import XpVolumeAdmmPlan
 
         plan = XpVolumeAdmmPlan(plan, b, prior=prior)
     res = run_admm(plan, b, plan.zeros(penalty.initial(), tv_w > 0), iterations=iterations,
                    tv=tv_w, l1=l1_w, nonneg=nonneg, penalty=penalty, stop=stop)
-    if other_prior:
-        res.params["prior"] = plan.prior.record()
+    if prior.name != "tv":
+        res.params["prior"] = prior.record()
     return res

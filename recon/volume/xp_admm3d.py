@@ -15,8 +15,7 @@ from __future__ import annotations
 import math
 
 from ..backend import total
-from ..priors import prior_of
-from ..solvers.xp_admm import IDENTITY, Differences, XpAdmmState, XpPlanBase
+from ..solvers.xp_admm import Differences, XpAdmmState, XpPlanBase
 from ..xp_operators import XpVolumeConvolution
 
 __all__ = ["DIFFERENCES_3D", "XpVolumeAdmmPlan", "auto3d_extra_bytes", "memory_bytes",
@@ -139,9 +138,7 @@ class XpVolumeAdmmPlan(XpPlanBase):
         self.xop = XpVolumeConvolution(plan.op, like)
         self.xp = self.xop.xp
         self.d_lat = self.xop.asarray(plan.d_lat)
-        self.prior = prior_of(prior if prior is not None else "tv")
-        if self.prior.identity_split:
-            self.differences = IDENTITY
+        self.adopt_prior(prior)
 
     def inverse_denominator(self, mu, use_tv: bool) -> None:
         """None: the x-update solves per lateral frequency (no fixed denominator)."""
