@@ -103,7 +103,7 @@ class PriorChoice:
     results: dict = field(default_factory=dict, repr=False)
 
     def as_dict(self) -> dict:
-        """The record (JSON-ready; without :attr:`results`)."""
+        """The record (JSON-ready; without ``results``)."""
         return {"prior": self.prior, "criterion": "holdout", "reason": self.reason,
                 "se_rule": self.se_rule, "candidates": self.candidates}
 
