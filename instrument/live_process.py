@@ -17,9 +17,10 @@ no lock with the caller):
   :meth:`~LiveReconstructionProcess.latest` reads without waiting; each result's
   timings and the child's counters come back on a pipe, read by a thread of the
   caller that keeps the statistics :meth:`~LiveReconstructionProcess.stats` returns.
-* Control (method, stop) goes down the pipe. The child runs ``nice`` levels below the
-  caller's process; a child that dies is reported in ``stats()["last_error"]`` and
-  ``running`` turns False (the stream goes on).
+* The method and iterations travel with each frame (so a switch applies to every frame
+  offered after it, never to one before); stop goes down the pipe. The child runs
+  ``nice`` levels below the caller's process; a child that dies is reported in
+  ``stats()["last_error"]`` and ``running`` turns False (the stream goes on).
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
         stop = threading.Event()
 
         def feed() -> None:
-            seen = 0
+            seen, applied = 0, (settings["method"], settings["iterations"])
             while not stop.is_set():
                 if not wake.acquire(timeout=0.1):
                     continue
@@ -110,6 +111,13 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
                     continue
                 seen = got.sequence
                 m = got.meta
+                wanted = (LIVE_METHODS[int(m[6])], int(m[7]))
+                if wanted != applied:  # the settings the frame was offered under
+                    try:
+                        live.set_method(*wanted)
+                        applied = wanted
+                    except Exception as exc:  # noqa: BLE001 (reported, the child goes on)
+                        failed(f"set_method: {exc}")
                 live.offer(Frame(got.image, int(m[0]), float(m[1]), float(m[2]), float(m[3]),
                                  float(m[4]), int(m[5])))
 
@@ -124,12 +132,7 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
                 message = conn.recv()
             except (EOFError, OSError):  # the caller is gone
                 break
-            if message[0] == "method":
-                try:
-                    live.set_method(message[1], message[2])
-                except Exception as exc:  # noqa: BLE001 (reported, the child goes on)
-                    failed(f"set_method: {exc}")
-            elif message[0] == "stop":
+            if message[0] == "stop":
                 break
         stop.set()
         feeder.join(1.0)
@@ -323,18 +326,17 @@ class LiveReconstructionProcess:
         return child is not None and child.is_alive() and not self._stopping.is_set()
 
     def set_method(self, method: str, iterations: int | None = None) -> None:
-        """Switch between the Wiener preview and ADMM (from the child's next frame).
+        """Switch between the Wiener preview and ADMM: every frame offered after this call
+        is solved with the new settings (they travel with the frame, so a frame never
+        overtakes the switch).
 
         Raises
         ------
         ReconInputError
             Unknown method or iterations < 1.
         """
-        m, k = _method(method, self._iterations if iterations is None else iterations)
-        self._method, self._iterations = m, k
-        if self.running:
-            with self._lock:
-                self._conn.send(("method", m, k))
+        self._method, self._iterations = _method(
+            method, self._iterations if iterations is None else iterations)
 
     # -- producer side -------------------------------------------------------------
     def offer(self, frame: Frame) -> None:
@@ -346,7 +348,8 @@ class LiveReconstructionProcess:
         try:
             slot.write(frame.image, (frame.index, frame.device_timestamp_s,
                                      frame.host_timestamp_s, frame.exposure_s, frame.gain,
-                                     frame.saturated_pixels))
+                                     frame.saturated_pixels,
+                                     LIVE_METHODS.index(self._method), self._iterations))
         except ValueError as exc:
             self._record_error(f"frame {frame.index}: {exc}")
             return

@@ -170,6 +170,21 @@ def test_the_child_gives_what_the_thread_gives():
     assert not proc.running and proc.latency_summary()["count"] == 4
 
 
+def test_a_switch_applies_to_the_very_next_frame():
+    # the settings travel with the frame: a switch is never overtaken by the frame after it
+    psf, image = _problem()
+    with LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0},
+                                   method="admm", iterations=2) as proc:
+        proc.start()
+        for k in range(8):
+            method = ("wiener", "admm")[k % 2]
+            proc.set_method(method)
+            proc.offer(_frame(image, k))
+            _until(lambda k=k: _index(proc) == k, 60, f"frame {k}")
+            assert proc.latest().method == method, f"frame {k}"
+        assert proc.stats()["errors"] == 0
+
+
 def test_the_childs_build_error_comes_back_with_its_type():
     psf, _ = _problem()
     proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0,
