@@ -56,6 +56,7 @@ __all__ = [
     "BY_ID_DIR",
     "HARDWARE_EXTRA",
     "SerialLink",
+    "WRITE_TIMEOUT_S",
     "find_serial_port",
     "import_optional",
     "port_holders",
@@ -63,6 +64,15 @@ __all__ = [
 ]
 
 log = logging.getLogger("drivers.transports")
+
+#: Longest a serial write may wait for the port to take its bytes, s: a device that
+#: stopped reading (flow control held) fails within it. Generous, because pyserial
+#: also raises "Write timeout" when the *writing thread* was descheduled this long
+#: after the bytes went out (it checks the clock after the write): on a loaded
+#: machine (two busy loops and the test suite on 2 cores) the window's threads waited
+#: over 5 s for a core, and a 2 s limit called a working stage unplugged. A device
+#: that stops answering is caught sooner by its reply timeouts.
+WRITE_TIMEOUT_S = 10.0
 
 #: The pip extra holding pyserial, pyusb and hidapi.
 HARDWARE_EXTRA = "diffuserlab[hardware]"
@@ -382,7 +392,7 @@ class SerialLink:
         try:
             ser = serial.Serial(
                 path, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
-                timeout=self.poll_s, write_timeout=2.0, rtscts=self.rtscts,
+                timeout=self.poll_s, write_timeout=WRITE_TIMEOUT_S, rtscts=self.rtscts,
                 xonxoff=self.xonxoff, exclusive=True,
             )
         except (serial.SerialException, OSError) as exc:
@@ -480,6 +490,9 @@ class SerialLink:
                 self._buffer[:0] = data[end:]
                 return bytes(data[:end])
             if time.monotonic() > deadline:
+                data += self._last_look()
+                if data.find(terminator) >= 0:
+                    continue
                 self._buffer[:0] = data
                 raise self.timeout_error(
                     self.device_id,
@@ -496,6 +509,9 @@ class SerialLink:
         data = bytearray()
         while len(data) < n:
             if time.monotonic() > deadline:
+                data += self._last_look()
+                if len(data) >= n:
+                    break
                 self._buffer[:0] = data
                 raise self.timeout_error(
                     self.device_id,
@@ -505,6 +521,20 @@ class SerialLink:
             data += self.read_some()
         self._buffer[:0] = data[n:]
         return bytes(data[:n])
+
+    def _last_look(self) -> bytes:
+        """What has arrived and not been read, without waiting: a reader whose thread was
+        descheduled past its deadline (a loaded machine) takes what came meanwhile
+        before calling the device silent."""
+        kept = bytes(self._buffer)
+        self._buffer.clear()
+        ser = self._require()
+        try:
+            n = ser.in_waiting
+            return kept + (bytes(ser.read(n)) if n else b"")
+        except Exception as exc:
+            self._lost(exc)
+        return b""  # not reached
 
     def discard_input(self) -> bytes:
         """Drop and return whatever has been received and not read yet."""

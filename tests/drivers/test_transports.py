@@ -105,3 +105,51 @@ def test_hid_module_of_the_other_package_is_named():
     link = HidLink("dmd", vendor_id=0x0451, product_id=0x6401, hid_module=other_hid)
     with pytest.raises(MissingDependencyError, match="pip install hidapi"):
         link.open()
+
+
+def _pty_link():
+    master, slave = os.openpty()
+    link = SerialLink("stage", port=os.ttyname(slave), timeout_error=LedArrayTimeoutError)
+    link.open()
+    return master, slave, link
+
+
+def test_a_reader_late_past_its_deadline_takes_what_came_meanwhile():
+    # a thread descheduled past its deadline (a loaded machine) must not call a device
+    # silent whose reply is waiting in the port: it looks once more before the timeout
+    master, slave, link = _pty_link()
+    try:
+        os.write(master, b"ok\nabcd")
+        time.sleep(0.1)  # both replies arrived; the deadline (0 s) has passed
+        assert link.read_until(b"\n", 0.0) == b"ok\n"
+        assert link.read_exactly(4, 0.0) == b"abcd"
+        with pytest.raises(LedArrayTimeoutError, match="within 0 s"):
+            link.read_until(b"\n", 0.0)  # nothing came: still a timeout
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_writer_descheduled_after_its_bytes_went_out_is_not_a_lost_port(monkeypatch):
+    # pyserial checks its write timeout after the bytes went out: a writing thread that
+    # waited 2.5 s for a core (measured: over 5 s beside two busy loops) used to turn a
+    # working stage into "unplugged: Write timeout"
+    master, slave, link = _pty_link()
+    real_write, port_fd = os.write, link._serial.fileno()
+
+    def stalled(fd, data):
+        n = real_write(fd, data)
+        if fd == port_fd:
+            time.sleep(2.5)
+        return n
+
+    try:
+        monkeypatch.setattr(os, "write", stalled)
+        link.write(b"hello\n")
+        monkeypatch.setattr(os, "write", real_write)
+        assert link.is_open and os.read(master, 64) == b"hello\n"
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
