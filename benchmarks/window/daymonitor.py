@@ -8,7 +8,9 @@
 * a watchdog thread that, when the timer is more than 100 ms overdue, records what
   the GUI thread was running then (its innermost Python frames, or "waiting in the
   event loop" when none of ours: the process waited for a core or for the GIL held
-  by a worker), so a slow firing can be told from the machine's load;
+  by a worker), and once the timer fires again where the GUI thread's time went from
+  the kernel's per-thread figures (on a core, waiting for one, blocked;
+  :func:`stall_time`), so a slow firing can be told from the machine's load;
 * every few seconds, ``sys.getrefcount(None)`` and ``sys.getrefcount(True)`` (a
   leaking Qt binding drains them: -860 a second while streaming under PySide6
   6.12.0) and the process's resident memory.
@@ -25,6 +27,7 @@ import threading
 import time
 import traceback
 from array import array
+from collections import deque
 from types import FrameType
 
 import numpy as np
@@ -302,6 +305,54 @@ def frozen_garbage(top: int = 12) -> dict:
             "rss_mb_collected": collected, "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
+def schedstat(tid: int) -> tuple[int, int] | None:
+    """(ns on a core, ns runnable but waiting for one) of a thread of this process so
+    far (Linux's ``/proc/self/task/TID/schedstat``); None where the kernel gives none."""
+    try:
+        with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
+            on_cpu, waiting = f.read().split()[:2]
+        return int(on_cpu), int(waiting)
+    except (OSError, ValueError):
+        return None
+
+
+def thread_waits(skip: set[int]) -> dict[int, int]:
+    """ns each thread of this process (but ``skip``) has waited for a core so far."""
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return {}
+    out = {}
+    for tid in tids:
+        st = None if tid in skip else schedstat(tid)
+        if st is not None:
+            out[tid] = st[1]
+    return out
+
+
+def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict) -> dict:
+    """Where a stall's time went, from the kernel's figures at its start and end.
+
+    ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's); ``gui_runqueue_ms``:
+    runnable, waiting for a core (the machine); the rest it was blocked (a lock, the GIL,
+    a call). ``others_runqueue_ms``: the longest any other thread of the process waited
+    for a core meanwhile (a GIL holder descheduled makes the GUI thread's block the
+    machine's too). ``ours_ms``: the stall less the machine's share, what a freeze of
+    ours would show whatever the load. Only ``ms`` where the kernel gives no figures.
+    """
+    out = {"ms": round(ms, 1)}
+    if gui0 is None or gui1 is None:
+        return out
+    cpu, queue = (gui1[0] - gui0[0]) / 1e6, (gui1[1] - gui0[1]) / 1e6
+    others = max((others1[t] - w for t, w in others0.items() if t in others1), default=0)
+    others /= 1e6
+    blocked = max(0.0, ms - cpu - queue)
+    out.update(gui_cpu_ms=round(cpu, 1), gui_runqueue_ms=round(queue, 1),
+               others_runqueue_ms=round(others, 1),
+               ours_ms=round(max(0.0, ms - queue - min(blocked, others)), 1))
+    return out
+
+
 class DayMonitor(QObject):
     """Lateness per phase and reference-count / memory samples (module docstring).
 
@@ -339,7 +390,9 @@ class DayMonitor(QObject):
         #: What the GUI thread ran during stalls (:meth:`_watch`), in time order.
         self.stalls: list[dict] = []
         self._gui_thread = threading.get_ident()
+        self._gui_tid = threading.get_native_id()
         self._last_fired = time.monotonic()
+        self._gaps: deque[tuple[float, float]] = deque()  # (fired before, fired after)
         self._watching = threading.Event()
 
     def _gc(self, phase: str, info: dict) -> None:
@@ -365,18 +418,42 @@ class DayMonitor(QObject):
         self.sampler.start()
         self.sample()
         self._gui_thread = threading.get_ident()
+        self._gui_tid = threading.get_native_id()
         self._watching.set()
         threading.Thread(target=self._watch, name="day-watchdog", daemon=True).start()
 
     def _watch(self) -> None:
         """Every 20 ms: when the timer is over 100 ms overdue, record the GUI thread's
         innermost frames once per stall (the threads' names that were running Python
-        too), in :attr:`stalls`."""
+        too), in :attr:`stalls`; once it has fired again, the stall's length and where
+        the GUI thread's time went (:func:`stall_time`), also for a stall the watchdog
+        could not see live (it waits for the GIL too: a GUI thread descheduled holding
+        it holds the watchdog)."""
+        gui_tid, own_tid = self._gui_tid, threading.get_native_id()
+        quiet: deque = deque(maxlen=16)  # (time, GUI schedstat, others' waits) between stalls
+        seen: dict[float, dict] = {}  # the records opened live, by the firing before them
         sampled_for = None
         while self._watching.is_set():
             time.sleep(0.02)
-            last = self._last_fired
-            if time.monotonic() - last < 0.1 + TIMER_MS / 1000.0 or sampled_for == last:
+            gaps = []
+            while self._gaps:
+                gaps.append(self._gaps.popleft())
+            now, last = time.monotonic(), self._last_fired
+            tick = (now, schedstat(gui_tid), thread_waits({gui_tid, own_tid}))
+            for t0, t1 in gaps:
+                record = seen.pop(t0, None)
+                if record is None and len(self.stalls) < 2000:
+                    record = {"t_s": round(t0 - self.t0, 2), "phase": self.phase,
+                              "gui_stack": [], "threads": [], "seen_live": False}
+                    self.stalls.append(record)
+                if record is not None:
+                    base = [q for q in quiet if q[0] <= t0] or list(quiet)[:1] or [tick]
+                    record.update(stall_time(1e3 * (t1 - t0), base[-1][1], tick[1],
+                                             base[-1][2], tick[2]))
+            if now - last < 0.1 + TIMER_MS / 1000.0:
+                quiet.append(tick)
+                continue
+            if sampled_for == last:
                 continue
             sampled_for = last
             stacks = _thread_stacks()
@@ -392,9 +469,10 @@ class DayMonitor(QObject):
                     busy.append(f"{names.get(ident, ident)}@{_short_path(top.filename)}:"
                                 f"{top.lineno}:{top.name}")
             if len(self.stalls) < 2000:
-                self.stalls.append({"t_s": round(time.monotonic() - self.t0, 2),
-                                    "phase": self.phase, "gui_stack": where,
-                                    "threads": busy})
+                record = {"t_s": round(time.monotonic() - self.t0, 2),
+                          "phase": self.phase, "gui_stack": where, "threads": busy}
+                self.stalls.append(record)
+                seen[last] = record
 
     def stop(self) -> None:
         import gc
@@ -415,7 +493,10 @@ class DayMonitor(QObject):
         self.sample()
 
     def _fired(self) -> None:
-        self._last_fired = time.monotonic()
+        fired, before = time.monotonic(), self._last_fired
+        self._last_fired = fired
+        if fired - before >= 0.1 + TIMER_MS / 1000.0:
+            self._gaps.append((before, fired))  # a stall: the watchdog measures it
         now = self.clock.nsecsElapsed()
         if self._last_ns is not None:
             late = max((now - self._last_ns) / 1e9 - TIMER_MS / 1000.0, 0.0)

@@ -316,7 +316,9 @@ def _stall_causes(stalls: list[dict]) -> list[tuple[str, int]]:
         stack = st.get("gui_stack") or []
         inner = stack[-1] if stack else ""
         parts = inner.split(":")
-        if len(parts) >= 3 and parts[0].endswith(_EVENT_LOOP[0]) and parts[2] == _EVENT_LOOP[1]:
+        if not stack:
+            what = "not seen live (the watchdog waited for the GIL or a core too)"
+        elif len(parts) >= 3 and parts[0].endswith(_EVENT_LOOP[0]) and parts[2] == _EVENT_LOOP[1]:
             what = "event loop (waiting for a core or the GIL)"
             busy = ", ".join(sorted({t.split("@")[0] for t in st.get("threads", [])}))
             if busy:
