@@ -36,6 +36,7 @@ from drivers.transports import SerialLink
 __all__ = [
     "HOST",
     "INBOUND",
+    "LATE_READER_S",
     "MSG",
     "STATUS",
     "AptController",
@@ -45,6 +46,12 @@ __all__ = [
 ]
 
 log = logging.getLogger("drivers.thorlabs_apt")
+
+#: Longest a request past its deadline waits for the reader thread to read the port
+#: once more, s: a reply is called missing only after the reader has looked after the
+#: deadline, so a reader kept from a core (a loaded machine) is not a silent controller;
+#: a reader that cannot run for this long is a failure too.
+LATE_READER_S = 10.0
 
 HOST = 0x01
 RACK = 0x11
@@ -231,6 +238,10 @@ class AptController:
         self._lost: DeviceDisconnectedError | None = None
         self._updates_dest: tuple[int, ...] = ()
         self._last_ack = 0.0
+        #: Reads of the port the reader thread has completed, and the requests past
+        #: their deadline waiting for one more (:data:`LATE_READER_S`).
+        self._polls = 0
+        self._late = 0
 
     # ------------------------------------------------------------------ lifecycle
     def open(self) -> None:
@@ -311,13 +322,24 @@ class AptController:
             except BaseException:
                 self._forget(key, box)
                 raise
+        late_at = None  # the reader's polls when the deadline passed
         try:
             deadline = time.monotonic() + timeout_s
             with self._cond:
                 while not box:
                     if self._lost is not None:
                         raise self._lost
-                    left = deadline - time.monotonic()
+                    now = time.monotonic()
+                    left = deadline - now
+                    if left <= 0 and late_at is None:
+                        late_at = self._polls
+                        self._late += 1
+                    if left <= 0 and self._polls < late_at + 2 and \
+                            now < deadline + LATE_READER_S:
+                        # the reader has not read the port since the deadline (kept
+                        # from a core on a loaded machine): the reply may be there
+                        self._cond.wait(0.05)
+                        continue
                     if left <= 0:
                         raise self.timeout_error(
                             self.device_id,
@@ -329,6 +351,9 @@ class AptController:
                     self._cond.wait(left)
                 return box[0]
         finally:
+            if late_at is not None:
+                with self._cond:
+                    self._late -= 1
             self._forget(key, box)
 
     def _forget(self, key: tuple[int, int], box: list[AptMessage]) -> None:
@@ -370,10 +395,12 @@ class AptController:
                     self._lost = exc
                     self._cond.notify_all()
                 return
-            if not chunk:
-                continue
-            for msg in self.framer.feed(chunk):
+            for msg in self.framer.feed(chunk) if chunk else ():
                 self._route(msg)
+            self._polls += 1  # only this thread writes it
+            if self._late:
+                with self._cond:
+                    self._cond.notify_all()
 
     def _route(self, msg: AptMessage) -> None:
         with self._cond:

@@ -132,3 +132,37 @@ def test_dlpc350_same_read_from_many_threads():
 
         errors = hammer(reads)
         assert not errors, errors[:3]
+
+
+def test_apt_reply_read_late_by_a_starved_reader_is_not_a_timeout(tmp_path):
+    """The reader thread kept from a core past the request's deadline (a loaded machine)
+    while the reply waits in the port: the request gets it; a reply that never comes
+    is still a timeout, a few reads after the deadline."""
+    import time
+
+    with AptEmulator("kdc101", time_scale=200.0, update_period_s=0.01) as emu:
+        stage = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
+                                 speed_mm_s=2.0, reply_timeout_s=0.3)
+        with stage:
+            ctrl = next(iter(stage._ctrl.values()))
+            read_some, stall = ctrl.link.read_some, threading.Event()
+
+            def starved(*args, **kwargs):
+                if stall.is_set():
+                    stall.clear()
+                    time.sleep(1.0)  # the reply arrives meanwhile
+                return read_some(*args, **kwargs)
+
+            ctrl.link.read_some = starved
+            stall.set()
+            time.sleep(0.05)  # the reader is in its stalled read
+            reply = ctrl.request(MSG["MOT_REQ_STATUSBITS"], MSG["MOT_GET_STATUSBITS"], 0x50,
+                                 param1=1, timeout_s=0.3)
+            assert reply.msg_id == MSG["MOT_GET_STATUSBITS"]
+            emu.drop_replies(1)
+            t0 = time.monotonic()
+            with pytest.raises(stage.timeout_error):
+                ctrl.request(MSG["MOT_REQ_STATUSBITS"], MSG["MOT_GET_STATUSBITS"], 0x50,
+                             param1=1, timeout_s=0.3)
+            assert time.monotonic() - t0 < 1.0
+            assert ctrl._late == 0
