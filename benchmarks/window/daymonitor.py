@@ -305,29 +305,41 @@ def frozen_garbage(top: int = 12) -> dict:
             "rss_mb_collected": collected, "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
-def schedstat(tid: int) -> tuple[int, int] | None:
-    """(ns on a core, ns runnable but waiting for one) of a thread of this process so
-    far (Linux's ``/proc/self/task/TID/schedstat``); None where the kernel gives none."""
+#: Processes whose threads the GUI thread may wait on (the X server: a round trip to a
+#: server kept from a core blocks the GUI thread), ``pid,pid``; set by the day's runner.
+PEERS_ENV = "DIFFUSERLAB_DAY_PEER_PIDS"
+
+
+def schedstat(tid: int, pid: str = "self") -> tuple[int, int] | None:
+    """(ns on a core, ns runnable but waiting for one) of a thread so far (Linux's
+    ``/proc/PID/task/TID/schedstat``); None where the kernel gives none."""
     try:
-        with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
+        with open(f"/proc/{pid}/task/{tid}/schedstat", "rb") as f:
             on_cpu, waiting = f.read().split()[:2]
         return int(on_cpu), int(waiting)
     except (OSError, ValueError):
         return None
 
 
-def thread_waits(skip: set[int]) -> dict[int, int]:
-    """ns each thread of this process (but ``skip``) has waited for a core so far."""
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        return {}
+def thread_waits(skip: set[int], peers: tuple[str, ...] = ()) -> dict[tuple[str, int], int]:
+    """ns each thread of this process (but ``skip``) and of the ``peers`` processes has
+    waited for a core so far, by (process, thread)."""
     out = {}
-    for tid in tids:
-        st = None if tid in skip else schedstat(tid)
-        if st is not None:
-            out[tid] = st[1]
+    for pid in ("self", *peers):
+        try:
+            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        except OSError:
+            continue
+        for tid in tids:
+            st = None if pid == "self" and tid in skip else schedstat(tid, pid)
+            if st is not None:
+                out[pid, tid] = st[1]
     return out
+
+
+def peer_pids() -> tuple[str, ...]:
+    """The pids of :data:`PEERS_ENV`."""
+    return tuple(p for p in os.environ.get(PEERS_ENV, "").split(",") if p.strip().isdigit())
 
 
 def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict) -> dict:
@@ -335,8 +347,9 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict) -> dict:
 
     ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's); ``gui_runqueue_ms``:
     runnable, waiting for a core (the machine); the rest it was blocked (a lock, the GIL,
-    a call). ``others_runqueue_ms``: the longest any other thread of the process waited
-    for a core meanwhile (a GIL holder descheduled makes the GUI thread's block the
+    a call). ``others_runqueue_ms``: the longest any other thread of the process (or
+    of a peer such as the X server) waited for a core meanwhile (a GIL holder, or a
+    server the GUI thread waits on, descheduled makes the GUI thread's block the
     machine's too). ``ours_ms``: the stall less the machine's share, what a freeze of
     ours would show whatever the load. Only ``ms`` where the kernel gives no figures.
     """
@@ -429,7 +442,7 @@ class DayMonitor(QObject):
         the GUI thread's time went (:func:`stall_time`), also for a stall the watchdog
         could not see live (it waits for the GIL too: a GUI thread descheduled holding
         it holds the watchdog)."""
-        gui_tid, own_tid = self._gui_tid, threading.get_native_id()
+        gui_tid, own_tid, peers = self._gui_tid, threading.get_native_id(), peer_pids()
         quiet: deque = deque(maxlen=16)  # (time, GUI schedstat, others' waits) between stalls
         seen: dict[float, dict] = {}  # the records opened live, by the firing before them
         sampled_for = None
@@ -439,7 +452,7 @@ class DayMonitor(QObject):
             while self._gaps:
                 gaps.append(self._gaps.popleft())
             now, last = time.monotonic(), self._last_fired
-            tick = (now, schedstat(gui_tid), thread_waits({gui_tid, own_tid}))
+            tick = (now, schedstat(gui_tid), thread_waits({gui_tid, own_tid}, peers))
             for t0, t1 in gaps:
                 record = seen.pop(t0, None)
                 if record is None and len(self.stalls) < 2000:

@@ -256,7 +256,7 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
     work : str, optional
         Folder for the report, the PSF and the GUI's log (default a temporary one).
     """
-    from .soak import x_display
+    from .soak import peer_env, x_display
 
     work_dir = Path(work or tempfile.mkdtemp(prefix="live-soak-"))
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -272,6 +272,7 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
     t0 = time.time()
     with x_display() as (display, wm):
         env["DISPLAY"] = display
+        env.update(peer_env(display))
         with open(work_dir / "gui-stderr.log", "w") as err, \
                 open(work_dir / "probe-stderr.log", "w") as probe_err:
             proc = subprocess.Popen(cmd, env=env, cwd=work_dir, stdout=subprocess.DEVNULL,

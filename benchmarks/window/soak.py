@@ -45,6 +45,18 @@ WARMUP_S = 120.0
 WINDOW_MANAGERS = ("openbox", "fluxbox")
 
 
+#: The pid of the Xvfb each open :func:`x_display` started, by display.
+X_SERVER_PIDS: dict[str, int | None] = {}
+
+
+def peer_env(display: str) -> dict[str, str]:
+    """The environment that tells the day's monitor which X server its GUI waits on."""
+    from benchmarks.window.daymonitor import PEERS_ENV
+
+    pid = X_SERVER_PIDS.get(display)
+    return {PEERS_ENV: str(pid)} if pid else {}
+
+
 @contextlib.contextmanager
 def x_display(display: str | None = None, size: str = "1600x1000x24"):
     """Context manager: an X display with a window manager running on it, as
@@ -81,8 +93,10 @@ def x_display(display: str | None = None, size: str = "1600x1000x24"):
         procs.append(subprocess.Popen([wm], env=env, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL))
         time.sleep(1.0)
+        X_SERVER_PIDS[display] = procs[0].pid if len(procs) == 2 else None
         yield display, Path(wm).name
     finally:
+        X_SERVER_PIDS.pop(display, None)
         for p in reversed(procs):
             p.terminate()
             try:
@@ -157,6 +171,7 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
     with contextlib.ExitStack() as stack:
         display, wm = stack.enter_context(x_display(display))
         env["DISPLAY"] = display
+        env.update(peer_env(display))
         if emulated:
             bench = stack.enter_context(EmulatedBench(work_dir / "ports", time_scale=20.0))
             bench_file = work_dir / "bench-emulated.toml"

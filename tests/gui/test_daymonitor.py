@@ -415,10 +415,10 @@ def test_array_holders_name_the_function_of_a_kept_frame():
     del kept
 
 
-def _spin(seconds: float) -> None:
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < seconds:
-        pass  # stands for computing on the GUI thread
+def _spin(cpu_s: float) -> None:
+    t0 = time.thread_time()
+    while time.thread_time() - t0 < cpu_s:
+        pass  # stands for computing on the GUI thread (its own CPU time: load-proof)
 
 
 def test_a_stall_on_a_core_is_ours(qapp, wait):
@@ -428,13 +428,16 @@ def test_a_stall_on_a_core_is_ours(qapp, wait):
 
     monitor = DayMonitor(sample_s=0.2)
     monitor.start()
-    QTimer.singleShot(50, lambda: _spin(0.5))
+    spun = []
+    QTimer.singleShot(50, lambda: (_spin(0.4), spun.append(True)))
+    wait(lambda: spun, 30, "the spin")
     t0 = time.monotonic()
-    wait(lambda: time.monotonic() - t0 > 1.0, 5, "a second")
+    wait(lambda: time.monotonic() - t0 > 0.3, 5, "the watchdog's next look")
     monitor.stop()
-    (stall,) = [st for st in monitor.report()["stalls"] if "ms" in st]
-    assert stall["gui_cpu_ms"] > 0.5 * (stall["ms"] - stall["gui_runqueue_ms"]), stall
-    assert stall["ours_ms"] >= stall["ms"] - stall["gui_runqueue_ms"] - 1.0, stall
+    stall = max((st for st in monitor.report()["stalls"] if "ms" in st),
+                key=lambda st: st["ms"])
+    assert stall["gui_cpu_ms"] >= 390, stall  # the 0.4 s of CPU, whatever the load
+    assert stall["ours_ms"] >= 390, stall
 
 
 def test_where_a_stalls_time_went():
