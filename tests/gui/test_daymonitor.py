@@ -472,7 +472,9 @@ def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
     if len(mask) < 2:
         pytest.skip("needs two cores: the watchdog must run while the GUI thread cannot")
     core, gui_tid = min(mask), threading.get_native_id()
-    spin = ("import os, time\nos.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))\n"
+    spin = ("import os, sys, time\ntry:\n"
+            "    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))\n"
+            "except PermissionError:\n    sys.exit(3)\n"
             "t = time.monotonic()\nwhile time.monotonic() - t < 0.6: pass")  # real-time
     hog = None
     monitor = DayMonitor(sample_s=0.2)
@@ -490,6 +492,9 @@ def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
         os.sched_setaffinity(gui_tid, mask)
         if hog is not None and hog.poll() is None:
             hog.kill()
+    if hog.returncode == 3:
+        pytest.skip("real-time scheduling is not permitted here (CAP_SYS_NICE)")
+    assert hog.returncode == 0, hog.returncode
     stalls = [st for st in monitor.report()["stalls"] if "ours_ms" in st]
     assert stalls, monitor.report()["stalls"]
     assert max(st["ms"] for st in stalls) > 400, stalls
