@@ -330,25 +330,24 @@ class AptController:
                     if self._lost is not None:
                         raise self._lost
                     now = time.monotonic()
-                    left = deadline - now
-                    if left <= 0 and late_at is None:
+                    if now < deadline:
+                        self._cond.wait(deadline - now)
+                        continue
+                    if late_at is None:
                         late_at = self._polls
                         self._late += 1
-                    if left <= 0 and self._polls < late_at + 2 and \
-                            now < deadline + LATE_READER_S:
+                    if self._polls < late_at + 2 and now < deadline + LATE_READER_S:
                         # the reader has not read the port since the deadline (kept
                         # from a core on a loaded machine): the reply may be there
                         self._cond.wait(0.05)
                         continue
-                    if left <= 0:
-                        raise self.timeout_error(
-                            self.device_id,
-                            f"the APT controller on {self.link.path} did not answer message "
-                            f"0x{msg_id:04x} (to 0x{dest:02x}) within {timeout_s:g} s",
-                            "check that the controller is powered and its USB cable; "
-                            "raise reply_timeout_s for a slow controller",
-                        )
-                    self._cond.wait(left)
+                    raise self.timeout_error(
+                        self.device_id,
+                        f"the APT controller on {self.link.path} did not answer message "
+                        f"0x{msg_id:04x} (to 0x{dest:02x}) within {timeout_s:g} s",
+                        "check that the controller is powered and its USB cable; "
+                        "raise reply_timeout_s for a slow controller",
+                    )
                 return box[0]
         finally:
             if late_at is not None:

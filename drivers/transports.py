@@ -490,8 +490,8 @@ class SerialLink:
                 self._buffer[:0] = data[end:]
                 return bytes(data[:end])
             if time.monotonic() > deadline:
-                data += self._last_look()
-                if data.find(terminator) >= 0:
+                data += self.discard_input()  # a reader late past its deadline (a
+                if data.find(terminator) >= 0:    # loaded machine) takes what came
                     continue
                 self._buffer[:0] = data
                 raise self.timeout_error(
@@ -509,7 +509,7 @@ class SerialLink:
         data = bytearray()
         while len(data) < n:
             if time.monotonic() > deadline:
-                data += self._last_look()
+                data += self.discard_input()  # as read_until: what came meanwhile
                 if len(data) >= n:
                     break
                 self._buffer[:0] = data
@@ -521,20 +521,6 @@ class SerialLink:
             data += self.read_some()
         self._buffer[:0] = data[n:]
         return bytes(data[:n])
-
-    def _last_look(self) -> bytes:
-        """What has arrived and not been read, without waiting: a reader whose thread was
-        descheduled past its deadline (a loaded machine) takes what came meanwhile
-        before calling the device silent."""
-        kept = bytes(self._buffer)
-        self._buffer.clear()
-        ser = self._require()
-        try:
-            n = ser.in_waiting
-            return kept + (bytes(ser.read(n)) if n else b"")
-        except Exception as exc:
-            self._lost(exc)
-        return b""  # not reached
 
     def discard_input(self) -> bytes:
         """Drop and return whatever has been received and not read yet."""

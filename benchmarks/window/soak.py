@@ -46,7 +46,7 @@ WINDOW_MANAGERS = ("openbox", "fluxbox")
 
 
 #: The pid of the Xvfb each open :func:`x_display` started, by display.
-X_SERVER_PIDS: dict[str, int | None] = {}
+X_SERVER_PIDS: dict[str, int] = {}
 
 
 def peer_env(display: str) -> dict[str, str]:
@@ -85,6 +85,7 @@ def x_display(display: str | None = None, size: str = "1600x1000x24"):
             if not number:
                 raise RuntimeError("Xvfb did not start")
             display = f":{number}"
+            X_SERVER_PIDS[display] = procs[0].pid
         env = {**os.environ, "DISPLAY": display}
         wm = next((shutil.which(name) for name in WINDOW_MANAGERS if shutil.which(name)), None)
         if wm is None:
@@ -93,7 +94,6 @@ def x_display(display: str | None = None, size: str = "1600x1000x24"):
         procs.append(subprocess.Popen([wm], env=env, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL))
         time.sleep(1.0)
-        X_SERVER_PIDS[display] = procs[0].pid if len(procs) == 2 else None
         yield display, Path(wm).name
     finally:
         X_SERVER_PIDS.pop(display, None)
