@@ -123,6 +123,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("--planes", type=int, default=128, help="depth planes (default 128)")
     sp.add_argument("--iterations", type=int, default=4, help="FISTA iterations (default 4)")
     sp.add_argument("--tv", type=float, default=1e-5, help="3D TV weight (default 1e-5)")
+    sp.add_argument("--bead-light", type=float, default=None,
+                    help="each bead's light in pixels of an extended object (default 50 x "
+                    "(sensor/512)^2: the same scene at every sensor size)")
     sp.add_argument("--workers", type=int, default=0,
                     help="0 (default): one process; K: a LocalCluster of K workers")
     sp.add_argument("--worker-memory", default="10GB",
@@ -253,6 +256,10 @@ def run_volume_scale_benchmark(args: argparse.Namespace) -> int:
     from ..reconstruct_files import write_json
     from ..volume_scale_benchmark import run_volume_scale, volume_scale_table
 
+    if args.bead_light is not None and not args.bead_light > 0:
+        raise ReconInputError(f"--bead-light {args.bead_light}: give a positive light (pixels "
+                              "of an extended object; leave it out for the scale-consistent "
+                              "default)")
     if args.sensor < 16 or args.planes < 2 or args.iterations < 1 or args.workers < 0 \
             or args.workers > args.planes:
         raise ReconInputError(f"--sensor {args.sensor}, --planes {args.planes}, --iterations "
@@ -268,6 +275,7 @@ def run_volume_scale_benchmark(args: argparse.Namespace) -> int:
                                              else str(args.save_estimate)),
                               compare_with=(None if args.compare_with is None
                                             else str(args.compare_with)),
+                              bead_light=args.bead_light,
                               announce=lambda line: print(line, flush=True))
     print(volume_scale_table(result))
     if args.json is not None:

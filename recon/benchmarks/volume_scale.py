@@ -27,8 +27,9 @@ from ..simulate import add_camera_noise
 from ..volume.slab import VolumeSlab
 from .volume_auto_scenes import D_MM, depth_plane
 
-__all__ = ["SceneObject", "axial_resolution_planes", "objects_at_depth", "render_measurement",
-           "scene_objects", "stack_depths_mm", "window_energies", "write_psf_store"]
+__all__ = ["SceneObject", "axial_resolution_planes", "bead_light", "objects_at_depth",
+           "render_measurement", "scene_objects", "stack_depths_mm", "window_energies",
+           "write_psf_store"]
 
 
 def _base_psf(psf: np.ndarray, n: int) -> np.ndarray:
@@ -50,9 +51,32 @@ Z_NEAR_MM = 5.0
 #: spaced about one axial resolution apart (Sec. 4.4), so "at its depth within one
 #: plane" means something.
 RIM_SHIFT_PX = 3.0
-#: A bead's light relative to one pixel of an extended object (fluorescent beads are
-#: bright: about as much light as a disc of radius 4 px).
-BEAD_BRIGHTNESS = 50.0
+#: A bead's light relative to one pixel of an extended object on a 512-pixel sensor
+#: (fluorescent beads are bright: about as much light as a disc of radius 4 px there).
+BEAD_LIGHT_512 = 50.0
+
+
+def bead_light(n: int) -> float:
+    """A bead's light on an ``n``-pixel sensor, relative to one pixel of an extended object.
+
+    The scene is the same at every sensor size, sampled more or less finely: the discs'
+    radii grow with ``n`` (:func:`scene_objects`), so their light grows as ``n^2``, and a
+    bead -- a point, one pixel at any sampling -- carries :data:`BEAD_LIGHT_512`
+    ``(n / 512)^2`` to keep its share of the scene's light (804 at 2048: a disc of radius
+    16 px there, 4 px at 512). A fixed bead light would make the beads 16 times fainter
+    beside the discs at 2048 than at 512 (measured at 512 x 512 x 32, 80 iterations:
+    beads at their plane 20 of 24 at light 50, 4 of 24 at 50/16).
+
+    Parameters
+    ----------
+    n : int
+        Sensor side, pixels.
+
+    Returns
+    -------
+    float
+    """
+    return BEAD_LIGHT_512 * (n / 512.0) ** 2
 
 
 def stack_depths_mm(n: int, n_z: int) -> np.ndarray:
@@ -149,13 +173,15 @@ def axial_resolution_planes(store, depths_mm, samples: int = 3,
 @dataclass
 class SceneObject:
     """One object of the scene: ``kind`` (bead, disc or texture), its plane, centre
-    (row, col; sub-pixel) and radius (pixels)."""
+    (row, col; sub-pixel), radius (pixels) and a bead's light (relative to one pixel of
+    an extended object; :func:`bead_light`)."""
 
     kind: str
     plane: int
     row: float
     col: float
     radius: float
+    light: float = BEAD_LIGHT_512
 
     def patch(self, rng: np.random.Generator) -> tuple[np.ndarray, int, int]:
         """The object's brightness on a small patch and the patch's top-left pixel."""
@@ -168,7 +194,7 @@ class SceneObject:
             p[r, r] = 1.0
             p = shift(p, (self.row - np.floor(self.row), self.col - np.floor(self.col)),
                       order=1)
-            return BEAD_BRIGHTNESS * p, i0, j0
+            return self.light * p, i0, j0
         inside = np.hypot(di, dj) < self.radius
         if self.kind == "disc":
             return inside.astype(np.float64), i0, j0
@@ -176,17 +202,21 @@ class SceneObject:
 
 
 def scene_objects(n: int, n_z: int, *, beads: int = 24, extended: int = 12,
-                  seed: int = 0) -> list[SceneObject]:
+                  seed: int = 0, light: float | None = None) -> list[SceneObject]:
     """Beads and extended objects (discs, textured discs of radius 6-24 px at 2048)
-    at random planes and positions inside the central 80 % of the field of view."""
+    at random planes and positions inside the central 80 % of the field of view.
+
+    ``light`` is each bead's light (default :func:`bead_light` of ``n``: the same scene
+    at every sensor size); the positions and planes do not depend on it."""
     rng = np.random.default_rng(seed)
+    light = bead_light(n) if light is None else float(light)
     out = []
     for k in range(beads + extended):
         kind = "bead" if k < beads else ("disc" if k % 2 else "texture")
         radius = 0.0 if kind == "bead" else float(rng.uniform(6, 24) * n / 2048 + 1)
         out.append(SceneObject(kind, int(rng.integers(0, n_z)),
                                float(rng.uniform(0.1, 0.9) * n), float(rng.uniform(0.1, 0.9) * n),
-                               radius))
+                               radius, light))
     return out
 
 

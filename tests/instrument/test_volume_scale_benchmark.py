@@ -17,7 +17,9 @@ import pytest
 from instrument.cli import main
 from instrument.volume_scale_benchmark import run_volume_scale, volume_scale_table
 from recon.benchmarks.volume_scale import (
+    BEAD_LIGHT_512,
     axial_resolution_planes,
+    bead_light,
     objects_at_depth,
     scene_objects,
     stack_depths_mm,
@@ -53,6 +55,32 @@ def test_objects_at_depth_scores_the_truth():
     moved = vol[::-1].copy()  # every object moved to the mirrored plane
     far = [o for o in objects if abs((7 - o.plane) - o.plane) > 1]
     assert objects_at_depth(moved, objects)["found"] <= len(objects) - len(far)
+
+
+def _light_shares(n: int, light: float | None = None) -> float:
+    """The beads' share of the scene's light at sensor side ``n``."""
+    rng = np.random.default_rng(0)
+    objects = scene_objects(n, 8, light=light)
+    light = {"bead": 0.0, "other": 0.0}
+    for o in objects:
+        light["bead" if o.kind == "bead" else "other"] += float(o.patch(rng)[0].sum())
+    return light["bead"] / (light["bead"] + light["other"])
+
+
+def test_the_scene_is_the_same_at_every_sensor_size():
+    """A bead keeps its share of the scene's light as the sensor is sampled more finely
+    (the discs' radii grow with n, so a bead's light grows as n^2); with the fixed light
+    of earlier runs the beads' share fell about 16-fold from 512 to 2048."""
+    assert bead_light(512) == BEAD_LIGHT_512 and bead_light(2048) == 16 * BEAD_LIGHT_512
+    shares = [_light_shares(n) for n in (512, 1024, 2048)]
+    assert max(shares) / min(shares) < 1.25, shares
+    fixed = [_light_shares(n, BEAD_LIGHT_512) for n in (512, 2048)]
+    assert fixed[0] == pytest.approx(shares[0]) and fixed[1] < fixed[0] / 5
+    # the light changes nothing else: same kinds, planes and positions
+    a, b = scene_objects(512, 8), scene_objects(512, 8, light=3.0)
+    assert [(o.kind, o.plane, o.row, o.col, o.radius) for o in a] == [
+        (o.kind, o.plane, o.row, o.col, o.radius) for o in b]
+    assert {o.light for o in b} == {3.0}
 
 
 def test_objects_within_one_resolution_take_its_planes_as_slack():
