@@ -62,7 +62,7 @@ def bead_light(n: int) -> float:
     The scene is the same at every sensor size, sampled more or less finely: the discs'
     radii grow with ``n`` (:func:`scene_objects`), so their light grows as ``n^2``, and a
     bead -- a point, one pixel at any sampling -- carries :data:`BEAD_LIGHT_512`
-    ``(n / 512)^2`` to keep its share of the scene's light (804 at 2048: a disc of radius
+    ``(n / 512)^2`` to keep its share of the scene's light (800 at 2048: about a disc of radius
     16 px there, 4 px at 512). A fixed bead light would make the beads 16 times fainter
     beside the discs at 2048 than at 512 (measured at 512 x 512 x 32, 80 iterations:
     beads at their plane 20 of 24 at light 50, 4 of 24 at 50/16).

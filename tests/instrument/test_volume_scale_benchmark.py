@@ -139,5 +139,8 @@ def test_command_writes_its_figures(tmp_path, capsys):
                  "--iterations", "2", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "estimated peak memory" in text and "x the streamed FFT floor" in text
-    assert json.loads(out.read_text())["planes"] == 4
+    figures = json.loads(out.read_text())
+    assert figures["planes"] == 4 and figures["bead_light"] == pytest.approx(bead_light(48))
     assert main(["benchmark", "volume-scale", "--planes", "1"]) == 2
+    assert main(["benchmark", "volume-scale", "--bead-light", "0"]) == 2
+    assert "--bead-light 0.0: give a positive light" in capsys.readouterr().err
