@@ -98,7 +98,7 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
                                             sensor, planes)
         store = zarr.open_array(store_path, mode="r")
         objects = scene_objects(sensor, planes, light=bead_light)
-        rec["bead_light"] = objects[0].light if objects else None
+        rec["bead_light"] = objects[0].light
         raw = render_measurement(store, psf_scale, objects)
         b = (raw / np.abs(raw).max()).astype(np.float32)
         del raw
@@ -267,7 +267,7 @@ def volume_scale_table(r: dict) -> str:
         "bytes moved per worker per iteration: "
         + ", ".join(f"{m / 1e6:.1f} MB" for m in r["bytes_moved_per_worker_per_iteration"]),
         f"objects at their depth (+-{depth['tolerance_planes']} plane): {depth['found']} of "
-        f"{depth['total']} ({kinds}; a bead's light {r.get('bead_light', 50.0):g} pixels' worth)",
+        f"{depth['total']} ({kinds}; a bead's light {r['bead_light']:g} pixels' worth)",
     ]
     if "found_within_resolution" in depth:
         ax = r["axial_resolution"]

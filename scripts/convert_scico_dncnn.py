@@ -33,7 +33,26 @@ BN_EPSILON = 1e-5  # scico.flax DnCNNNet's BatchNorm epsilon
 
 
 def load_flax(wheel: Path, variant: str) -> dict:
-    """The parameters and batch statistics of ``scico/data/flax/dncnn<variant>.mpk``."""
+    """The parameters and batch statistics of ``scico/data/flax/dncnn<variant>.mpk``.
+
+    Parameters
+    ----------
+    wheel : Path
+        scico's wheel (a zip file).
+    variant : str
+        ``"6N"`` or ``"17N"``.
+
+    Returns
+    -------
+    dict
+        flax's tree: ``params`` (kernels HWIO, batch-norm scale and bias) and
+        ``batch_stats`` (running mean and var), float32 arrays.
+
+    Raises
+    ------
+    KeyError
+        The wheel holds no such model.
+    """
     import msgpack
 
     def ext_hook(code, data):  # flax.serialization: ndarray as (shape, dtype, bytes)
@@ -47,14 +66,32 @@ def load_flax(wheel: Path, variant: str) -> dict:
     return msgpack.unpackb(raw, ext_hook=ext_hook, raw=False, strict_map_key=False)
 
 
+def _blocks(params: dict) -> list[str]:
+    """The names of the convolution-batch-norm blocks in the network's order."""
+    return sorted((k for k in params if k.startswith("ConvBNBlock_")), key=lambda k: int(k[12:]))
+
+
 def layers(state: dict) -> list[tuple[np.ndarray, np.ndarray, bool]]:
-    """(weight OIHW, bias, ReLU after) per convolution, batch normalisation folded in."""
+    """The network as convolutions, each batch normalisation folded into the one before.
+
+    Parameters
+    ----------
+    state : dict
+        flax's tree (:func:`load_flax`).
+
+    Returns
+    -------
+    list of (weight, bias, relu)
+        Per convolution: weight (out, in, 3, 3) float32 (ONNX's OIHW, from flax's
+        HWIO), bias (out,) float32, and whether a ReLU follows. A block's batch norm
+        ``(y - mean) / sqrt(var + eps) * scale + bias`` becomes ``W g`` and
+        ``bias - mean g`` with ``g = scale / sqrt(var + eps)``.
+    """
     p, stats = state["params"], state["batch_stats"]
-    blocks = sorted((k for k in p if k.startswith("ConvBNBlock_")), key=lambda k: int(k[12:]))
     out = []
     w = p["conv_start"]["kernel"]
     out.append((w.transpose(3, 2, 0, 1), np.zeros(w.shape[3], np.float32), True))
-    for name in blocks:
+    for name in _blocks(p):
         w = p[name]["Conv_0"]["kernel"].astype(np.float64)
         bn, st = p[name]["BatchNorm_0"], stats[name]["BatchNorm_0"]
         g = bn["scale"] / np.sqrt(st["var"].astype(np.float64) + BN_EPSILON)
@@ -66,7 +103,25 @@ def layers(state: dict) -> list[tuple[np.ndarray, np.ndarray, bool]]:
 
 
 def build_onnx(convs: list, name: str):
-    """The ONNX model: wrap-pad, convolve, ReLU per layer; input minus residual, channel 0."""
+    """The ONNX model of :func:`layers`' convolutions.
+
+    Per layer a circular pad of one pixel (``Pad`` mode ``wrap``, opset 19), the 3 x 3
+    convolution and, where marked, a ReLU; the output is the input minus the residual,
+    channel 0.
+
+    Parameters
+    ----------
+    convs : list of (weight, bias, relu)
+        From :func:`layers`.
+    name : str
+        The graph's name.
+
+    Returns
+    -------
+    onnx.ModelProto
+        Input ``input`` (N, 2, H, W) float32 (image, sigma map), output ``output``
+        (N, 1, H, W) float32; checked by ``onnx.checker``.
+    """
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
@@ -100,7 +155,23 @@ def build_onnx(convs: list, name: str):
 
 
 def numpy_reference(state: dict, image: np.ndarray, sigma: float) -> np.ndarray:
-    """The network evaluated from the stored flax parameters (no folding), float64."""
+    """The network evaluated from the stored flax parameters as scico's ``DnCNNNet`` reads
+    them (no folding; circular cross-correlation), for checking the conversion.
+
+    Parameters
+    ----------
+    state : dict
+        flax's tree (:func:`load_flax`).
+    image : ndarray, (H, W)
+        In [0, 1].
+    sigma : float
+        Noise level, same unit.
+
+    Returns
+    -------
+    ndarray, float64, (H, W)
+        The denoised image.
+    """
     from scipy.ndimage import correlate
 
     p, stats = state["params"], state["batch_stats"]
@@ -114,8 +185,7 @@ def numpy_reference(state: dict, image: np.ndarray, sigma: float) -> np.ndarray:
 
     x0 = np.stack([image, np.full_like(image, sigma)]).astype(np.float64)
     y = np.maximum(conv(x0, p["conv_start"]["kernel"]), 0)
-    blocks = sorted((k for k in p if k.startswith("ConvBNBlock_")), key=lambda k: int(k[12:]))
-    for name in blocks:
+    for name in _blocks(p):
         y = conv(y, p[name]["Conv_0"]["kernel"])
         bn, st = p[name]["BatchNorm_0"], stats[name]["BatchNorm_0"]
         y = ((y - st["mean"][:, None, None]) / np.sqrt(st["var"][:, None, None] + BN_EPSILON)
@@ -140,7 +210,7 @@ def main() -> int:
     model = build_onnx(layers(state), f"dncnn{a.variant}")
     onnx.save(model, str(a.out))
     meta = {"network": f"DnCNN (Zhang et al. 2017), scico's dncnn{a.variant}: "
-            f"{2 + len([k for k in state['params'] if k.startswith('ConvBNBlock_')])} layers "
+            f"{2 + len(_blocks(state['params']))} layers "
             "of 64 channels, batch normalisation folded, circular padding, noise-level channel",
             "source": f"{a.wheel.name} (scico, BSD-3-Clause, Copyright (c) 2021-2025 Los "
             "Alamos National Laboratory): scico/data/flax/dncnn" + a.variant + ".mpk",

@@ -24,8 +24,10 @@ def _random_state(depth: int, features: int, rng) -> dict:
                             "bias": rng.normal(0, 0.1, features)}}
         stats[f"ConvBNBlock_{k}"] = {"BatchNorm_0": {"mean": rng.normal(0, 0.2, features),
                                                      "var": rng.uniform(0.2, 2.0, features)}}
-    cast = lambda t: {k: cast(v) if isinstance(v, dict) else v.astype(np.float32)  # noqa: E731
-                      for k, v in t.items()}
+    def cast(tree: dict) -> dict:  # flax stores float32
+        return {k: cast(v) if isinstance(v, dict) else v.astype(np.float32)
+                for k, v in tree.items()}
+
     return {"params": cast(params), "batch_stats": cast(stats)}
 
 
