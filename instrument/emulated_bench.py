@@ -59,6 +59,9 @@ BENCH_TEMPLATE = string.Template('''\
 # The ports are links in $dir that follow the emulators' ptys
 # (named like /dev/serial/by-id entries); `diffuserlab emulators start --dir DIR
 # --bench-out FILE` runs them elsewhere and writes this file for that directory.
+# The emulators are a Python process on this computer: on a loaded machine a reply can
+# come a second or more late, so the serial drivers wait up to 5 s for one here (a real
+# controller answers within the drivers' default of 1-2 s).
 
 name = "emulated"
 description = "Real drivers on emulated hardware (APT, Zaber, illuminate, Aravis fake camera)."
@@ -104,6 +107,7 @@ limits_mm = { x = [0, 25], y = [0, 25], z = [0, 100] }
 counts_per_unit = 34554.96
 speed_mm_s = 2.5
 home_on_open = true
+reply_timeout_s = 5.0
 
 [[devices]]
 id = "led_array"
@@ -113,6 +117,7 @@ driver = "illuminate"
 [devices.params]
 port = "$dir/usb-Teensyduino_USB_Serial_IL0042-if00"
 shape = [32, 32]
+reply_timeout_s = 5.0
 
 [[devices]]
 id = "slm"
@@ -136,6 +141,7 @@ device_numbers = { x = 1, y = 2, z = 3, tip = 4, tilt = 5, rotation = 6 }
 speed_mm_s = 2.0
 speed_deg_s = 5.0
 home_on_open = true
+reply_timeout_s = 5.0
 ''')
 
 

@@ -83,6 +83,7 @@ class PtyEmulator:
         self._unplug_request = threading.Event()
         self._unplugged = threading.Event()
         self._drop = 0
+        self._delays: list[float] = []
         self._prefix = b""
         self.plug_count = 0
 
@@ -152,6 +153,13 @@ class PtyEmulator:
             log.debug("%s: reply dropped: %r", type(self).__name__, bytes(data))
             return
         prefix, self._prefix = self._prefix, b""
+        if self._delays:
+            delay_s = self._delays.pop(0)
+            log.debug("%s: reply delayed %g s: %r", type(self).__name__, delay_s, bytes(data))
+            late = threading.Timer(delay_s, self.emit, args=(prefix + bytes(data),))
+            late.daemon = True
+            late.start()
+            return
         self.emit(prefix + bytes(data))
 
     def stray_before_reply(self, data: bytes) -> None:
@@ -193,6 +201,14 @@ class PtyEmulator:
         """Lose the replies to the next ``n`` commands (the driver's reads time out)."""
         with self.lock:
             self._drop += int(n)
+
+    def delay_replies(self, delay_s: float, n: int = 1) -> None:
+        """Send the replies to the next ``n`` commands ``delay_s`` seconds late, as an
+        emulator process starved of the CPU on a loaded host would."""
+        if not delay_s >= 0:
+            raise ValueError(f"delay_s must be >= 0, got {delay_s!r}")
+        with self.lock:
+            self._delays += [float(delay_s)] * int(n)
 
     def now(self) -> float:
         """Model time in seconds (real monotonic time times ``time_scale``)."""

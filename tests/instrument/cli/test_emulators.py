@@ -122,3 +122,29 @@ def test_psf_sweep_survives_an_unplugged_stage_controller(tmp_path, capsys):
         assert z.plug_count == 2  # it really was unplugged and plugged back
         assert RunStore.open(run).summary()["status"] == "complete"
         assert z.position() == round(40.0 * 34554.96)
+
+
+def test_the_emulated_bench_opens_though_its_emulators_answer_late(tmp_path):
+    """On a loaded computer the emulators' process can answer a second or more late
+    (a bench open failed so, at load 5, on the Zaber's 1 s reply timeout). The bench file
+    waits up to 5 s for a reply from each serial device: the bench opens with the first
+    reply of every serial controller 2 s late, where the drivers' defaults time out."""
+    from instrument.bench_setup import BenchOpenError, load_bench, open_bench
+
+    late = ("apt-z", "zaber", "illuminate")
+    with EmulatedBench(tmp_path / "links", time_scale=50.0) as emulated:
+        text = emulated.bench_text()
+        assert text.count("reply_timeout_s = 5.0") == 3
+        bench = tmp_path / "bench.toml"
+        bench.write_text(text)
+        for name in late:
+            emulated.emulators[name].delay_replies(2.0)
+        with open_bench(load_bench(bench)) as opened:
+            assert len(opened) == 5 and all(dev.is_open for dev in opened.values())
+
+        strict = tmp_path / "strict.toml"
+        strict.write_text(text.replace("reply_timeout_s = 5.0\n", ""))
+        time.sleep(2.5)  # the late replies of the last open have come and gone
+        emulated.emulators["zaber"].delay_replies(2.0)
+        with pytest.raises(BenchOpenError, match="mask_stage.*no reply to"):
+            open_bench(load_bench(strict))
