@@ -24,6 +24,7 @@ from scipy.ndimage import map_coordinates, shift
 
 from ..preprocess import dark_level
 from ..simulate import add_camera_noise
+from ..validate import positive
 from ..volume.slab import VolumeSlab
 from .volume_auto_scenes import D_MM, depth_plane
 
@@ -207,9 +208,15 @@ def scene_objects(n: int, n_z: int, *, beads: int = 24, extended: int = 12,
     at random planes and positions inside the central 80 % of the field of view.
 
     ``light`` is each bead's light (default :func:`bead_light` of ``n``: the same scene
-    at every sensor size); the positions and planes do not depend on it."""
+    at every sensor size); the positions and planes do not depend on it.
+
+    Raises
+    ------
+    ReconInputError
+        ``light`` not a finite number > 0.
+    """
     rng = np.random.default_rng(seed)
-    light = bead_light(n) if light is None else float(light)
+    light = bead_light(n) if light is None else positive(light, "light")
     out = []
     for k in range(beads + extended):
         kind = "bead" if k < beads else ("disc" if k % 2 else "texture")

@@ -25,6 +25,7 @@ from recon.benchmarks.volume_scale import (
     stack_depths_mm,
     write_psf_store,
 )
+from recon.errors import ReconInputError
 from recon.io import load_image
 from recon.sample import PSF_FILE, data_dir
 
@@ -81,6 +82,9 @@ def test_the_scene_is_the_same_at_every_sensor_size():
     assert [(o.kind, o.plane, o.row, o.col, o.radius) for o in a] == [
         (o.kind, o.plane, o.row, o.col, o.radius) for o in b]
     assert {o.light for o in b} == {3.0}
+    for bad in (0.0, -1.0, float("nan"), "bright"):
+        with pytest.raises(ReconInputError, match="light must be"):
+            scene_objects(512, 8, light=bad)
 
 
 def test_objects_within_one_resolution_take_its_planes_as_slack():
