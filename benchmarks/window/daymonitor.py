@@ -10,7 +10,9 @@
   event loop" when none of ours: the process waited for a core or for the GIL held
   by a worker), and once the timer fires again where the GUI thread's time went from
   the kernel's per-thread figures (on a core, waiting for one, blocked;
-  :func:`stall_time`), so a slow firing can be told from the machine's load;
+  :func:`stall_time`), so a slow firing can be told from the machine's load (and
+  from a machine that did not run at all: a virtual machine its host paused, time the
+  kernel's CPU counters never saw, :func:`accounted_s`);
 * every few seconds, ``sys.getrefcount(None)`` and ``sys.getrefcount(True)`` (a
   leaking Qt binding drains them: -860 a second while streaming under PySide6
   6.12.0) and the process's resident memory.
@@ -342,7 +344,24 @@ def peer_pids() -> tuple[str, ...]:
     return tuple(p for p in os.environ.get(PEERS_ENV, "").split(",") if p.strip().isdigit())
 
 
-def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict) -> dict:
+def accounted_s() -> float | None:
+    """Seconds each CPU has been accounted for so far (every state of ``/proc/stat``'s
+    ``cpu`` line, idle and steal included, over the CPUs); None where there is none.
+
+    Between two readings it grows as the wall clock does, unless the machine did not
+    run: a virtual machine paused by its host (the kernel then logs "workqueue lockup
+    ... stuck for 42s") misses those seconds while its CPUs were busy.
+    """
+    try:
+        with open("/proc/stat", "rb") as f:
+            fields = f.readline().split()[1:9]
+        return sum(int(v) for v in fields) / os.sysconf("SC_CLK_TCK") / (os.cpu_count() or 1)
+    except (OSError, ValueError):
+        return None
+
+
+def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
+               paused_ms: float = 0.0) -> dict:
     """Where a stall's time went, from the kernel's figures at its start and end.
 
     ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's); ``gui_runqueue_ms``:
@@ -350,10 +369,16 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict) -> dict:
     a call). ``others_runqueue_ms``: the longest any other thread of the process (or
     of a peer such as the X server) waited for a core meanwhile (a GIL holder, or a
     server the GUI thread waits on, descheduled makes the GUI thread's block the
-    machine's too). ``ours_ms``: the stall less the machine's share, what a freeze of
-    ours would show whatever the load. Only ``ms`` where the kernel gives no figures.
+    machine's too). ``paused_ms``: the time the machine did not run at all (its CPUs
+    unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall less
+    the machine's share, what a freeze of ours would show whatever the load, and never
+    more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the
+    kernel gives no per-thread figures.
     """
     out = {"ms": round(ms, 1)}
+    paused = min(max(0.0, paused_ms), ms)
+    if paused:
+        out["paused_ms"] = round(paused, 1)
     if gui0 is None or gui1 is None:
         return out
     cpu, queue = (gui1[0] - gui0[0]) / 1e6, (gui1[1] - gui0[1]) / 1e6
@@ -362,7 +387,8 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict) -> dict:
     blocked = max(0.0, ms - cpu - queue)
     out.update(gui_cpu_ms=round(cpu, 1), gui_runqueue_ms=round(queue, 1),
                others_runqueue_ms=round(others, 1),
-               ours_ms=round(max(0.0, ms - queue - min(blocked, others)), 1))
+               ours_ms=round(max(0.0, min(ms - queue - min(blocked, others),
+                                          ms - paused)), 1))
     return out
 
 
@@ -443,7 +469,8 @@ class DayMonitor(QObject):
         could not see live (it waits for the GIL too: a GUI thread descheduled holding
         it holds the watchdog)."""
         gui_tid, own_tid, peers = self._gui_tid, threading.get_native_id(), peer_pids()
-        quiet: deque = deque(maxlen=16)  # (time, GUI schedstat, others' waits) between stalls
+        quiet: deque = deque(maxlen=16)  # ticks between stalls: (time, GUI schedstat,
+        # others' waits, accounted CPU seconds)
         seen: dict[float, dict] = {}  # the records opened live, by the firing before them
         sampled_for = None
         while self._watching.is_set():
@@ -452,7 +479,8 @@ class DayMonitor(QObject):
             while self._gaps:
                 gaps.append(self._gaps.popleft())
             now, last = time.monotonic(), self._last_fired
-            tick = (now, schedstat(gui_tid), thread_waits({gui_tid, own_tid}, peers))
+            tick = (now, schedstat(gui_tid), thread_waits({gui_tid, own_tid}, peers),
+                    accounted_s())
             for t0, t1 in gaps:
                 record = seen.pop(t0, None)
                 if record is None and len(self.stalls) < 2000:
@@ -461,8 +489,12 @@ class DayMonitor(QObject):
                     self.stalls.append(record)
                 if record is not None:
                     base = [q for q in quiet if q[0] <= t0] or list(quiet)[:1] or [tick]
-                    record.update(stall_time(1e3 * (t1 - t0), base[-1][1], tick[1],
-                                             base[-1][2], tick[2]))
+                    before = base[-1]
+                    paused = 0.0  # wall time between the ticks the CPUs were not accounted
+                    if before[3] is not None and tick[3] is not None:
+                        paused = 1e3 * ((tick[0] - before[0]) - (tick[3] - before[3]))
+                    record.update(stall_time(1e3 * (t1 - t0), before[1], tick[1],
+                                             before[2], tick[2], paused_ms=paused))
             if now - last < 0.1 + TIMER_MS / 1000.0:
                 quiet.append(tick)
                 continue

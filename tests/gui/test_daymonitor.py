@@ -454,6 +454,28 @@ def test_where_a_stalls_time_went():
     assert stall_time(1000.0, (0, 0), (100 * ms, 0), {7: 0}, {7: 0})["ours_ms"] == 1000.0
     # no kernel figures: the length only
     assert stall_time(120.0, None, None, {}, {}) == {"ms": 120.0}
+    # the machine itself did not run for 700 of the 1000 ms (a paused virtual machine):
+    # at most the 300 ms it ran are ours, though the GUI thread shows no wait for a core
+    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: 0}, {7: 0}, paused_ms=700.0)
+    assert (t["paused_ms"], t["ours_ms"]) == (700.0, 300.0)
+    assert stall_time(1000.0, (0, 0), (100 * ms, 0), {}, {}, paused_ms=5000.0)["ours_ms"] == 0
+    assert stall_time(120.0, None, None, {}, {}, paused_ms=50.0) == {"ms": 120.0,
+                                                                      "paused_ms": 50.0}
+
+
+def test_the_cpus_are_accounted_as_the_wall_clock_runs():
+    """The machine's accounted CPU time (every state, per CPU) grows with the wall clock
+    while it runs, busy or idle, so a shortfall is time it did not run."""
+    from benchmarks.window.daymonitor import accounted_s
+
+    ratios = []
+    for _ in range(5):  # one window that ran is enough (a host may pause another)
+        a0, t0 = accounted_s(), time.monotonic()
+        time.sleep(0.3)
+        a1, t1 = accounted_s(), time.monotonic()
+        assert a1 - a0 < (t1 - t0) + 0.03, (a1 - a0, t1 - t0)  # never more than ran
+        ratios.append((a1 - a0) / (t1 - t0))
+    assert max(ratios) > 0.8, ratios
 
 
 def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
