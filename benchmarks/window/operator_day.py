@@ -5,7 +5,7 @@
 and event loop as an operator gets them) with an :class:`Operator` on its event loop.
 The operator clicks, types and presses keys through the X server (:mod:`benchmarks.window.xinput`,
 xdotool), finds what to click by the widgets' names, and waits for what the window
-shows, never blocking the event loop. The day:
+shows, never blocking the event loop (:class:`benchmarks.window.driver.WindowDriver`). The day:
 
 connect; stream (F5); stage jogs, go-to with Enter, a stored position recalled; LEDs;
 dark and PSF sweep (paused, continued, aborted, resumed); live Wiener then ADMM with
@@ -30,20 +30,19 @@ import socket
 import sys
 import threading
 import time
-import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from PySide6.QtCore import QPoint, QPointF, QTimer
-from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox, QToolButton
+from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 
 from recon.io import write_json
 
 from .daymonitor import DayMonitor, HeapTracker, census
-from .xinput import XInput, centre
+from .driver import StepFailed, WindowDriver
 
-__all__ = ["Operator", "main"]
+__all__ = ["Operator", "StepFailed", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -51,17 +50,7 @@ log = logging.getLogger(__name__)
 CONTROL_ENV = "DIFFUSERLAB_DAY_CONTROL"
 
 
-class StepFailed(RuntimeError):
-    """A step of the day did not show what it should have (the message says what)."""
-
-
-class _Wait:
-    def __init__(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
-        self.condition, self.timeout_s, self.what = condition, timeout_s, what
-        self.deadline = time.monotonic() + timeout_s
-
-
-class Operator:
+class Operator(WindowDriver):
     """The day's steps as a generator stepped by the event loop (module docstring).
 
     Parameters
@@ -73,26 +62,20 @@ class Operator:
     """
 
     def __init__(self, window, options) -> None:
-        self.w = window
+        super().__init__(window)
         self.o = options
-        self.app = QApplication.instance()
-        self.x = XInput()
         self.monitor = DayMonitor()
         self.work = Path(options.work)
         self.work.mkdir(parents=True, exist_ok=True)
         self.completed: list[str] = []
-        self.failure: str | None = None
         self.records: list[dict] = []
         self.notes: dict[str, Any] = {}
         self.loops = 0
         self.heap = HeapTracker()
         self.t0 = time.monotonic()
-        self._gen: Iterator | None = None
         self._answered: set = set()
-        self.target = None
         self._control = _Control.from_env()
 
-    # -- stepping ---------------------------------------------------------------------------
     def start(self) -> None:
         self.monitor.start()
         self._gen = self.day()
@@ -111,60 +94,6 @@ class Operator:
                 self.notes.setdefault("prompts", []).append(box.text())
                 self.x.click(box.button(QMessageBox.StandardButton.Ok))
 
-    def _step(self, value: Any = None) -> None:
-        try:
-            item = self._gen.send(value) if value is not None else next(self._gen)
-        except StopIteration:
-            return
-        except Exception as exc:  # noqa: BLE001 (a failed step ends the day, reported)
-            self.failure = f"{type(exc).__name__}: {exc}"
-            log.error("operator day failed: %s\n%s", exc, traceback.format_exc())
-            self._finish()
-            return
-        if isinstance(item, int | float):
-            QTimer.singleShot(int(item * 1000), self._step)
-        elif isinstance(item, _Wait):
-            self._poll(item)
-        else:
-            QTimer.singleShot(0, self._step)
-
-    def _poll(self, wait: _Wait) -> None:
-        try:
-            ok = bool(wait.condition())
-        except Exception as exc:  # noqa: BLE001 (the condition itself failed)
-            self._throw(StepFailed(f"while waiting for {wait.what}: {exc}"))
-            return
-        if ok:
-            QTimer.singleShot(0, self._step)
-        elif time.monotonic() > wait.deadline:
-            self._throw(StepFailed(f"timed out after {wait.timeout_s:g} s waiting for "
-                                   f"{wait.what}"))
-        else:
-            QTimer.singleShot(50, lambda: self._poll(wait))
-
-    def _throw(self, exc: Exception) -> None:
-        try:
-            item = self._gen.throw(exc)
-        except StopIteration:
-            return
-        except Exception as err:  # noqa: BLE001
-            self.failure = f"{type(err).__name__}: {err}"
-            log.error("operator day failed: %s", err)
-            self._finish()
-            return
-        if isinstance(item, int | float):
-            QTimer.singleShot(int(item * 1000), self._step)
-        elif isinstance(item, _Wait):
-            self._poll(item)
-
-    @staticmethod
-    def until(condition: Callable[[], bool], timeout_s: float, what: str) -> _Wait:
-        return _Wait(condition, timeout_s, what)
-
-    def typed(self) -> _Wait:
-        """Wait until xdotool has carried out what was sent."""
-        return _Wait(self.x.idle, 60, "the X input to be carried out")
-
     def phase(self, name: str) -> None:
         if name == "stream" and os.environ.get("DIFFUSERLAB_DAY_CENSUS"):
             self.notes.setdefault("census", []).append(census())
@@ -173,98 +102,6 @@ class Operator:
 
     def done(self, name: str) -> None:
         self.completed.append(name)
-
-    def find(self, cls, name: str):
-        widget = self.w.findChild(cls, name)
-        if widget is None:
-            raise StepFailed(f"no {cls.__name__} named {name!r} in the window")
-        return widget
-
-    def button(self, name: str):
-        from PySide6.QtWidgets import QPushButton
-
-        return self.find(QPushButton, name)
-
-    def tool(self, view, action) -> QToolButton:
-        return view.toolbar.widgetForAction(action)
-
-    def dock(self, title: str) -> None:
-        self.w.docks[title].raise_()
-
-    def aim(self, widget) -> Iterator:
-        """Scroll ``widget`` into view and wait until the window shows it where it will
-        be clicked (nothing covering it, the layout settled); the point is in
-        :attr:`target`. A tool hidden in a narrow tool bar's overflow is shown first
-        (its ">>" button clicked)."""
-        from PySide6.QtWidgets import QToolBar
-
-        bar = widget.parentWidget()
-        if isinstance(bar, QToolBar) and not widget.isVisible():
-            ext = bar.findChild(QToolButton, "qt_toolbar_ext_button")
-            if ext is not None and ext.isVisible():
-                self.x.click(ext)
-                yield self.typed()
-                yield self.until(widget.isVisible, 5, "the tool bar's overflow to open")
-        before = None
-        for _ in range(40):
-            point = centre(widget)
-            under = QApplication.widgetAt(point)
-            # where it was a moment ago too: a panel that re-lays itself out when its dock
-            # is raised (the Record panel's columns) moves its fields after the first look
-            if under is not None and (under is widget or widget.isAncestorOf(under)) \
-                    and point == before:
-                self.target = point
-                return
-            before = point
-            yield 0.1
-        raise StepFailed(f"{widget.objectName() or widget} is not on the screen where the "
-                         f"window says (covered or off screen): {QApplication.widgetAt(point)}")
-
-    def click(self, widget, times: int = 1) -> Iterator:
-        """Click ``widget``'s centre (``times`` quick clicks) once it shows there."""
-        yield from self.aim(widget)
-        for _ in range(times):
-            self.x.click_at(self.target)
-        yield self.typed()
-
-    @staticmethod
-    def _focused(widget) -> bool:
-        focus = QApplication.focusWidget()
-        return focus is not None and (focus is widget or widget.isAncestorOf(focus)
-                                      or focus.isAncestorOf(widget))
-
-    def fill(self, widget, text: str, enter: bool = False) -> Iterator:
-        """Click ``field``, check it took the focus, type ``text`` over what it held."""
-        yield from self.click(widget)
-        yield self.until(lambda: self._focused(widget), 5,
-                         f"the field {widget.objectName() or widget} to take the focus")
-        self.x.key("ctrl+a", "BackSpace")
-        if text:
-            self.x.type(text)
-        if enter:
-            self.x.key("Return")
-        yield self.typed()
-        if not enter and hasattr(widget, "text"):  # a line edit: what it holds now
-            name = widget.objectName() or type(widget).__name__
-            yield self.until(lambda: widget.text() == text, 10,
-                             f"{name} to hold {text!r} (it holds {widget.text()!r}, the "
-                             f"focus is on {QApplication.focusWidget()})")
-
-    def choose(self, combo, text: str) -> Iterator:
-        """Pick ``text`` in a combo box: click it open, click the entry in its list."""
-        if combo.currentText() == text:
-            return
-        index = combo.findText(text)
-        if index < 0:
-            raise StepFailed(f"{combo.objectName()} offers no {text!r}")
-        yield from self.click(combo)
-        yield self.until(lambda: QApplication.activePopupWidget() is not None, 10,
-                         f"{combo.objectName()}'s list to open")
-        view = combo.view()
-        rect = view.visualRect(view.model().index(index, combo.modelColumn()))
-        self.x.click_at(view.viewport().mapToGlobal(rect.center()))
-        yield self.typed()
-        yield self.until(lambda: combo.currentText() == text, 10, f"{text!r} chosen")
 
     def remaining_s(self) -> float:
         return self.o.minutes * 60.0 - (time.monotonic() - self.t0)

@@ -1,0 +1,206 @@
+"""Driving the real window from its own event loop: a generator of steps stepped by
+Qt timers, never blocking the loop, and the widget helpers an operator's hands need
+(find a widget by name, scroll it into view, click it, type into it, pick from a
+combo box) through the X server (:mod:`benchmarks.window.xinput`, xdotool).
+
+:class:`WindowDriver` is the base of :class:`benchmarks.window.operator_day.Operator`
+(the operator's day) and of the live soak's day.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from PySide6.QtCore import QTimer
+from PySide6.QtWidgets import QApplication, QToolButton
+
+from .xinput import XInput, centre
+
+__all__ = ["StepFailed", "WindowDriver"]
+
+log = logging.getLogger(__name__)
+
+
+class StepFailed(RuntimeError):
+    """A step of the day did not show what it should have (the message says what)."""
+
+
+class _Wait:
+    def __init__(self, condition: Callable[[], bool], timeout_s: float, what: str) -> None:
+        self.condition, self.timeout_s, self.what = condition, timeout_s, what
+        self.deadline = time.monotonic() + timeout_s
+
+
+class WindowDriver:
+    """A generator of steps (``self._gen``) on the window's event loop: it yields a
+    number (wait that many seconds), an :meth:`until` (wait for a condition, polled
+    every 50 ms, :class:`StepFailed` thrown into it at the timeout) or anything else
+    (step again at once). A step that raises ends the run: ``failure`` names it and
+    :meth:`_finish` is called (the subclass ends its run there).
+
+    Parameters
+    ----------
+    window : gui.app.MainWindow
+    """
+
+    def __init__(self, window) -> None:
+        self.w = window
+        self.app = QApplication.instance()
+        self.x = XInput()
+        self.failure: str | None = None
+        self.target = None
+        self._gen: Iterator | None = None
+
+    def _finish(self, quit: bool = False) -> None:
+        """End the run (a failed step calls it; the subclass writes its report)."""
+        raise NotImplementedError
+
+    def _step(self, value: Any = None) -> None:
+        try:
+            item = self._gen.send(value) if value is not None else next(self._gen)
+        except StopIteration:
+            return
+        except Exception as exc:  # noqa: BLE001 (a failed step ends the day, reported)
+            self.failure = f"{type(exc).__name__}: {exc}"
+            log.error("operator day failed: %s\n%s", exc, traceback.format_exc())
+            self._finish()
+            return
+        if isinstance(item, int | float):
+            QTimer.singleShot(int(item * 1000), self._step)
+        elif isinstance(item, _Wait):
+            self._poll(item)
+        else:
+            QTimer.singleShot(0, self._step)
+
+    def _poll(self, wait: _Wait) -> None:
+        try:
+            ok = bool(wait.condition())
+        except Exception as exc:  # noqa: BLE001 (the condition itself failed)
+            self._throw(StepFailed(f"while waiting for {wait.what}: {exc}"))
+            return
+        if ok:
+            QTimer.singleShot(0, self._step)
+        elif time.monotonic() > wait.deadline:
+            self._throw(StepFailed(f"timed out after {wait.timeout_s:g} s waiting for "
+                                   f"{wait.what}"))
+        else:
+            QTimer.singleShot(50, lambda: self._poll(wait))
+
+    def _throw(self, exc: Exception) -> None:
+        try:
+            item = self._gen.throw(exc)
+        except StopIteration:
+            return
+        except Exception as err:  # noqa: BLE001
+            self.failure = f"{type(err).__name__}: {err}"
+            log.error("operator day failed: %s", err)
+            self._finish()
+            return
+        if isinstance(item, int | float):
+            QTimer.singleShot(int(item * 1000), self._step)
+        elif isinstance(item, _Wait):
+            self._poll(item)
+
+    @staticmethod
+    def until(condition: Callable[[], bool], timeout_s: float, what: str) -> _Wait:
+        return _Wait(condition, timeout_s, what)
+
+    def typed(self) -> _Wait:
+        """Wait until xdotool has carried out what was sent."""
+        return _Wait(self.x.idle, 60, "the X input to be carried out")
+
+    def find(self, cls, name: str):
+        widget = self.w.findChild(cls, name)
+        if widget is None:
+            raise StepFailed(f"no {cls.__name__} named {name!r} in the window")
+        return widget
+
+    def button(self, name: str):
+        from PySide6.QtWidgets import QPushButton
+
+        return self.find(QPushButton, name)
+
+    def tool(self, view, action) -> QToolButton:
+        return view.toolbar.widgetForAction(action)
+
+    def dock(self, title: str) -> None:
+        self.w.docks[title].raise_()
+
+    def aim(self, widget) -> Iterator:
+        """Scroll ``widget`` into view and wait until the window shows it where it will
+        be clicked (nothing covering it, the layout settled); the point is in
+        :attr:`target`. A tool hidden in a narrow tool bar's overflow is shown first
+        (its ">>" button clicked)."""
+        from PySide6.QtWidgets import QToolBar
+
+        bar = widget.parentWidget()
+        if isinstance(bar, QToolBar) and not widget.isVisible():
+            ext = bar.findChild(QToolButton, "qt_toolbar_ext_button")
+            if ext is not None and ext.isVisible():
+                self.x.click(ext)
+                yield self.typed()
+                yield self.until(widget.isVisible, 5, "the tool bar's overflow to open")
+        before = None
+        for _ in range(40):
+            point = centre(widget)
+            under = QApplication.widgetAt(point)
+            # where it was a moment ago too: a panel that re-lays itself out when its dock
+            # is raised (the Record panel's columns) moves its fields after the first look
+            if under is not None and (under is widget or widget.isAncestorOf(under)) \
+                    and point == before:
+                self.target = point
+                return
+            before = point
+            yield 0.1
+        raise StepFailed(f"{widget.objectName() or widget} is not on the screen where the "
+                         f"window says (covered or off screen): {QApplication.widgetAt(point)}")
+
+    def click(self, widget, times: int = 1) -> Iterator:
+        """Click ``widget``'s centre (``times`` quick clicks) once it shows there."""
+        yield from self.aim(widget)
+        for _ in range(times):
+            self.x.click_at(self.target)
+        yield self.typed()
+
+    @staticmethod
+    def _focused(widget) -> bool:
+        focus = QApplication.focusWidget()
+        return focus is not None and (focus is widget or widget.isAncestorOf(focus)
+                                      or focus.isAncestorOf(widget))
+
+    def fill(self, widget, text: str, enter: bool = False) -> Iterator:
+        """Click ``field``, check it took the focus, type ``text`` over what it held."""
+        yield from self.click(widget)
+        yield self.until(lambda: self._focused(widget), 5,
+                         f"the field {widget.objectName() or widget} to take the focus")
+        self.x.key("ctrl+a", "BackSpace")
+        if text:
+            self.x.type(text)
+        if enter:
+            self.x.key("Return")
+        yield self.typed()
+        if not enter and hasattr(widget, "text"):  # a line edit: what it holds now
+            name = widget.objectName() or type(widget).__name__
+            yield self.until(lambda: widget.text() == text, 10,
+                             f"{name} to hold {text!r} (it holds {widget.text()!r}, the "
+                             f"focus is on {QApplication.focusWidget()})")
+
+    def choose(self, combo, text: str) -> Iterator:
+        """Pick ``text`` in a combo box: click it open, click the entry in its list."""
+        if combo.currentText() == text:
+            return
+        index = combo.findText(text)
+        if index < 0:
+            raise StepFailed(f"{combo.objectName()} offers no {text!r}")
+        yield from self.click(combo)
+        yield self.until(lambda: QApplication.activePopupWidget() is not None, 10,
+                         f"{combo.objectName()}'s list to open")
+        view = combo.view()
+        rect = view.visualRect(view.model().index(index, combo.modelColumn()))
+        self.x.click_at(view.viewport().mapToGlobal(rect.center()))
+        yield self.typed()
+        yield self.until(lambda: combo.currentText() == text, 10, f"{text!r} chosen")
