@@ -60,8 +60,15 @@ class WindowDriver:
         raise NotImplementedError
 
     def _step(self, value: Any = None) -> None:
+        self._advance(lambda: self._gen.send(value) if value is not None else next(self._gen))
+
+    def _throw(self, exc: Exception) -> None:
+        self._advance(lambda: self._gen.throw(exc))
+
+    def _advance(self, resume: Callable[[], Any]) -> None:
+        """Run the day to its next yield (``resume``) and schedule what it asks for."""
         try:
-            item = self._gen.send(value) if value is not None else next(self._gen)
+            item = resume()
         except StopIteration:
             return
         except Exception as exc:  # noqa: BLE001 (a failed step ends the day, reported)
@@ -89,21 +96,6 @@ class WindowDriver:
                                    f"{wait.what}"))
         else:
             QTimer.singleShot(50, lambda: self._poll(wait))
-
-    def _throw(self, exc: Exception) -> None:
-        try:
-            item = self._gen.throw(exc)
-        except StopIteration:
-            return
-        except Exception as err:  # noqa: BLE001
-            self.failure = f"{type(err).__name__}: {err}"
-            log.error("operator day failed: %s", err)
-            self._finish()
-            return
-        if isinstance(item, int | float):
-            QTimer.singleShot(int(item * 1000), self._step)
-        elif isinstance(item, _Wait):
-            self._poll(item)
 
     @staticmethod
     def until(condition: Callable[[], bool], timeout_s: float, what: str) -> _Wait:
