@@ -312,7 +312,7 @@ BENCH_FIELDS = [
     case("validate l_serial.toml --simulate", "bench-field", "two axes on one serial number",
          "l_serial.toml:63|axes x, y share serial number '27500101'"),
     case("validate e_counts.toml --simulate", "bench-field", "counts_per_unit 0",
-         "e_counts.toml:55|counts_per_unit = 0|> 0"),
+         "e_counts.toml:58|counts_per_unit = 0|> 0"),
     case("devices b_metres.toml", "bench-field", "devices: distance in metres",
          "b_metres.toml:25|metres"),
     case("calibrate dark b_gain.toml --simulate --frames 2 --out o/c.zarr", "bench-field",
