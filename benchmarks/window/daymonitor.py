@@ -30,7 +30,9 @@ import time
 import traceback
 from array import array
 from collections import deque
+from collections.abc import Callable
 from types import FrameType
+from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
@@ -323,9 +325,10 @@ def schedstat(tid: int, pid: str = "self") -> tuple[int, int] | None:
         return None
 
 
-def thread_waits(skip: set[int], peers: tuple[str, ...] = ()) -> dict[tuple[str, int], int]:
-    """ns each thread of this process (but ``skip``) and of the ``peers`` processes has
-    waited for a core so far, by (process, thread)."""
+def thread_times(skip: set[int], peers: tuple[str, ...] = ()
+                 ) -> dict[tuple[str, int], tuple[int, int]]:
+    """(ns on a core, ns waiting for one) so far of each thread of this process (but
+    ``skip``) and of the ``peers`` processes, by (process, thread)."""
     out = {}
     for pid in ("self", *peers):
         try:
@@ -335,8 +338,49 @@ def thread_waits(skip: set[int], peers: tuple[str, ...] = ()) -> dict[tuple[str,
         for tid in tids:
             st = None if pid == "self" and tid in skip else schedstat(tid, pid)
             if st is not None:
-                out[pid, tid] = st[1]
+                out[pid, tid] = st
     return out
+
+
+def thread_name(pid: str, tid: int) -> str:
+    """A thread's name: its Python name in this process, else the kernel's (``comm``),
+    prefixed by the process's for a peer; the number where neither can be read."""
+    if pid == "self":
+        for t in threading.enumerate():
+            if t.native_id == tid:
+                return t.name
+    try:
+        with open(f"/proc/{pid}/task/{tid}/comm") as f:
+            name = f.read().strip()
+        if pid != "self":
+            with open(f"/proc/{pid}/comm") as f:
+                name = f"{f.read().strip()}/{name}"
+        return name
+    except OSError:
+        return str(tid)
+
+
+#: x86-64 system call numbers a blocked GUI thread is seen in (``/proc/.../syscall``).
+_SYSCALLS = {"0": "read", "1": "write", "7": "poll", "23": "select", "202": "futex",
+             "232": "epoll_wait", "270": "pselect6", "271": "ppoll", "281": "epoll_pwait",
+             "230": "clock_nanosleep", "35": "nanosleep"}
+
+
+def kernel_state(tid: int) -> str | None:
+    """Where a thread of this process is in the kernel now: ``running``, or the system
+    call it waits in (``futex``: a lock, the GIL or a mutex; ``poll``: a socket, the X
+    server's) with its wait channel; None where Linux does not say."""
+    try:
+        with open(f"/proc/self/task/{tid}/syscall") as f:
+            call = f.read().split()
+        with open(f"/proc/self/task/{tid}/wchan") as f:
+            wchan = f.read().strip()
+    except OSError:
+        return None
+    if not call or call[0] == "running":
+        return "running"
+    name = _SYSCALLS.get(call[0], f"syscall {call[0]}")
+    return f"{name} ({wchan})" if wchan and wchan != "0" else name
 
 
 def peer_pids() -> tuple[str, ...]:
@@ -360,8 +404,13 @@ def accounted_s() -> float | None:
         return None
 
 
+def _times(v) -> tuple[int, int]:
+    """(ns on a core, ns waiting) from :func:`thread_times`' tuple or a wait alone."""
+    return (int(v[0]), int(v[1])) if isinstance(v, tuple) else (0, int(v))
+
+
 def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
-               paused_ms: float = 0.0) -> dict:
+               paused_ms: float = 0.0, names: Callable[[Any], str] | None = None) -> dict:
     """Where a stall's time went, from the kernel's figures at its start and end.
 
     ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's); ``gui_runqueue_ms``:
@@ -369,11 +418,14 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
     a call). ``others_runqueue_ms``: the longest any other thread of the process (or
     of a peer such as the X server) waited for a core meanwhile (a GIL holder, or a
     server the GUI thread waits on, descheduled makes the GUI thread's block the
-    machine's too). ``paused_ms``: the time the machine did not run at all (its CPUs
-    unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall less
-    the machine's share, what a freeze of ours would show whatever the load, and never
-    more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the
-    kernel gives no per-thread figures.
+    machine's too). ``busiest``: the other thread that was on a core longest meanwhile
+    and for how long (``names(key)`` names it; the likeliest holder of what the GUI
+    thread waited for). ``paused_ms``: the time the machine did not run at all (its
+    CPUs unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall
+    less the machine's share, what a freeze of ours would show whatever the load, and
+    never more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the
+    kernel gives no per-thread figures. ``others0``/``others1`` map a thread to
+    :func:`thread_times`' (ns on a core, ns waiting) or to its wait alone.
     """
     out = {"ms": round(ms, 1)}
     paused = min(max(0.0, paused_ms), ms)
@@ -382,13 +434,19 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
     if gui0 is None or gui1 is None:
         return out
     cpu, queue = (gui1[0] - gui0[0]) / 1e6, (gui1[1] - gui0[1]) / 1e6
-    others = max((others1[t] - w for t, w in others0.items() if t in others1), default=0)
-    others /= 1e6
+    deltas = {t: [b - a for a, b in zip(_times(v), _times(others1[t]), strict=True)]
+              for t, v in others0.items() if t in others1}
+    others = max((d[1] for d in deltas.values()), default=0) / 1e6
     blocked = max(0.0, ms - cpu - queue)
     out.update(gui_cpu_ms=round(cpu, 1), gui_runqueue_ms=round(queue, 1),
                others_runqueue_ms=round(others, 1),
                ours_ms=round(max(0.0, min(ms - queue - min(blocked, others),
                                           ms - paused)), 1))
+    if deltas:
+        key = max(deltas, key=lambda t: deltas[t][0])
+        if deltas[key][0] > 0:
+            who = names(key) if names is not None else str(key)
+            out["busiest"] = f"{who} {deltas[key][0] / 1e6:.1f} ms on a core"
     return out
 
 
@@ -470,7 +528,7 @@ class DayMonitor(QObject):
         it holds the watchdog)."""
         gui_tid, own_tid, peers = self._gui_tid, threading.get_native_id(), peer_pids()
         quiet: deque = deque(maxlen=16)  # ticks between stalls: (time, GUI schedstat,
-        # others' waits, accounted CPU seconds)
+        # others' (on a core, waiting), accounted CPU seconds)
         seen: dict[float, dict] = {}  # the records opened live, by the firing before them
         sampled_for = None
         while self._watching.is_set():
@@ -479,7 +537,7 @@ class DayMonitor(QObject):
             while self._gaps:
                 gaps.append(self._gaps.popleft())
             now, last = time.monotonic(), self._last_fired
-            tick = (now, schedstat(gui_tid), thread_waits({gui_tid, own_tid}, peers),
+            tick = (now, schedstat(gui_tid), thread_times({gui_tid, own_tid}, peers),
                     accounted_s())
             for t0, t1 in gaps:
                 record = seen.pop(t0, None)
@@ -494,7 +552,8 @@ class DayMonitor(QObject):
                     if before[3] is not None and tick[3] is not None:
                         paused = 1e3 * ((tick[0] - before[0]) - (tick[3] - before[3]))
                     record.update(stall_time(1e3 * (t1 - t0), before[1], tick[1],
-                                             before[2], tick[2], paused_ms=paused))
+                                             before[2], tick[2], paused_ms=paused,
+                                             names=lambda key: thread_name(*key)))
             if now - last < 0.1 + TIMER_MS / 1000.0:
                 quiet.append(tick)
                 continue
@@ -515,7 +574,8 @@ class DayMonitor(QObject):
                                 f"{top.lineno}:{top.name}")
             if len(self.stalls) < 2000:
                 record = {"t_s": round(time.monotonic() - self.t0, 2),
-                          "phase": self.phase, "gui_stack": where, "threads": busy}
+                          "phase": self.phase, "gui_stack": where, "threads": busy,
+                          "gui_kernel": kernel_state(gui_tid)}
                 self.stalls.append(record)
                 seen[last] = record
 

@@ -3,6 +3,8 @@ the GUI thread ran when it was late (our code, or the event loop waiting for a c
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 import weakref
 
@@ -461,6 +463,59 @@ def test_where_a_stalls_time_went():
     assert stall_time(1000.0, (0, 0), (100 * ms, 0), {}, {}, paused_ms=5000.0)["ours_ms"] == 0
     assert stall_time(120.0, None, None, {}, {}, paused_ms=50.0) == {"ms": 120.0,
                                                                       "paused_ms": 50.0}
+    # with each other thread's time on a core: the one that ran longest is named
+    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {("self", 7): (0, 0), ("self", 8): (0, 0)},
+                   {("self", 7): (20 * ms, 0), ("self", 8): (870 * ms, 30 * ms)},
+                   names=lambda key: f"worker-{key[1]}")
+    assert t["busiest"] == "worker-8 870.0 ms on a core" and t["others_runqueue_ms"] == 30.0
+
+
+def test_a_blocked_thread_is_seen_in_its_system_call():
+    """A thread waiting on a lock shows ``futex``, one in ``poll`` shows ``poll`` (what a
+    stall's record says the GUI thread was doing)."""
+    import select
+
+    from benchmarks.window.daymonitor import kernel_state, thread_name
+
+    lock, ready = threading.Lock(), threading.Event()
+    lock.acquire()
+    r, w = os.pipe()
+    ids = {}
+
+    def locked():
+        ids["lock"] = threading.get_native_id()
+        ready.set()
+        lock.acquire()
+
+    def polled():
+        ids["poll"] = threading.get_native_id()
+        p = select.poll()
+        p.register(r, select.POLLIN)
+        p.poll(10_000)
+
+    threads = [threading.Thread(target=locked, name="held-by-a-lock"),
+               threading.Thread(target=polled, name="in-poll")]
+    for t in threads:
+        t.start()
+    try:
+        ready.wait(5)
+        states = {}
+        for _ in range(100):  # until both are inside their calls
+            states = {k: kernel_state(tid) or "" for k, tid in ids.items()}
+            if len(states) == 2 and states["lock"].startswith("futex") and \
+                    states["poll"].startswith("poll"):
+                break
+            time.sleep(0.05)
+        assert states["lock"].startswith("futex"), states
+        assert states["poll"].startswith("poll"), states
+        assert thread_name("self", ids["lock"]) == "held-by-a-lock"
+    finally:
+        lock.release()
+        os.write(w, b"x")
+        for t in threads:
+            t.join(5)
+        os.close(r)
+        os.close(w)
 
 
 def test_the_cpus_are_accounted_as_the_wall_clock_runs():
