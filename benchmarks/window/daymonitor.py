@@ -360,20 +360,24 @@ def thread_name(pid: str, tid: int) -> str:
         return str(tid)
 
 
+#: Most samples a long stall's record takes after the first, one a second.
+LATER_SAMPLES = 30
+
 #: x86-64 system call numbers a blocked GUI thread is seen in (``/proc/.../syscall``).
 _SYSCALLS = {"0": "read", "1": "write", "7": "poll", "23": "select", "202": "futex",
              "232": "epoll_wait", "270": "pselect6", "271": "ppoll", "281": "epoll_pwait",
              "230": "clock_nanosleep", "35": "nanosleep"}
 
 
-def kernel_state(tid: int) -> str | None:
-    """Where a thread of this process is in the kernel now: ``running``, or the system
-    call it waits in (``futex``: a lock, the GIL or a mutex; ``poll``: a socket, the X
-    server's) with its wait channel; None where Linux does not say."""
+def kernel_state(tid: int, pid: str = "self") -> str | None:
+    """Where a thread (of this process, or of process ``pid``) is in the kernel now:
+    ``running``, or the system call it waits in (``futex``: a lock, the GIL or a mutex;
+    ``poll``: a socket, the X server's) with its wait channel; None where Linux does
+    not say."""
     try:
-        with open(f"/proc/self/task/{tid}/syscall") as f:
+        with open(f"/proc/{pid}/task/{tid}/syscall") as f:
             call = f.read().split()
-        with open(f"/proc/self/task/{tid}/wchan") as f:
+        with open(f"/proc/{pid}/task/{tid}/wchan") as f:
             wchan = f.read().strip()
     except OSError:
         return None
@@ -557,7 +561,8 @@ class DayMonitor(QObject):
             if now - last < 0.1 + TIMER_MS / 1000.0:
                 quiet.append(tick)
                 continue
-            if sampled_for == last:
+            if sampled_for == last:  # the same stall: where things are, once a second
+                self._resample(seen.get(last), now - last, gui_tid, peers)
                 continue
             sampled_for = last
             stacks = _thread_stacks()
@@ -575,9 +580,25 @@ class DayMonitor(QObject):
             if len(self.stalls) < 2000:
                 record = {"t_s": round(time.monotonic() - self.t0, 2),
                           "phase": self.phase, "gui_stack": where, "threads": busy,
-                          "gui_kernel": kernel_state(gui_tid)}
+                          "gui_kernel": kernel_state(gui_tid), "later": []}
                 self.stalls.append(record)
                 seen[last] = record
+
+    def _resample(self, record: dict | None, into_s: float, gui_tid: int,
+                  peers: tuple[str, ...]) -> None:
+        """Add to a long stall's record, once a second (at most :data:`LATER_SAMPLES`),
+        where the GUI thread is then (its system call and innermost frame) and where
+        each peer process's main thread is (the X server's)."""
+        later = None if record is None else record.get("later")
+        if later is None or len(later) >= LATER_SAMPLES or \
+                into_s < (len(later) + 1) * 1.0:
+            return
+        frames = _thread_stacks().get(self._gui_thread, [])
+        later.append({"after_s": round(into_s, 1), "gui": kernel_state(gui_tid),
+                      "gui_frame": (f"{_short_path(frames[-1].filename)}:{frames[-1].lineno}:"
+                                    f"{frames[-1].name}") if frames else None,
+                      "peers": {thread_name(p, int(p)): kernel_state(int(p), p)
+                                for p in peers}})
 
     def stop(self) -> None:
         import gc

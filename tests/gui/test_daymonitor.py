@@ -470,6 +470,29 @@ def test_where_a_stalls_time_went():
     assert t["busiest"] == "worker-8 870.0 ms on a core" and t["others_runqueue_ms"] == 30.0
 
 
+def test_a_long_stall_is_looked_at_again_each_second(qapp, wait, monkeypatch):
+    """A stall of 2.5 s: after the first look, where the GUI thread is once a second (its
+    system call, here a sleep, and its innermost frame), and where the peers' main
+    threads are (this process stands in for the X server)."""
+    from PySide6.QtCore import QTimer
+
+    from benchmarks.window import daymonitor
+
+    monkeypatch.setenv(daymonitor.PEERS_ENV, str(os.getpid()))
+    monitor = daymonitor.DayMonitor(sample_s=1.0)
+    monitor.start()
+    QTimer.singleShot(100, lambda: _held_up_in_a_slot(2.5))
+    t0 = time.monotonic()
+    wait(lambda: time.monotonic() - t0 > 3.5, 10, "the stall and after")
+    monitor.stop()
+    stall = max(monitor.report()["stalls"], key=lambda st: st.get("ms", 0))
+    later = stall["later"]
+    assert 1 <= len(later) <= 3 and all(s["after_s"] >= 1.0 for s in later), stall
+    assert all("sleep" in (s["gui"] or "") for s in later), later
+    assert all(s["gui_frame"].endswith("_held_up_in_a_slot") for s in later), later
+    assert all(len(s["peers"]) == 1 for s in later), later
+
+
 def test_a_blocked_thread_is_seen_in_its_system_call():
     """A thread waiting on a lock shows ``futex``, one in ``poll`` shows ``poll`` (what a
     stall's record says the GUI thread was doing)."""
