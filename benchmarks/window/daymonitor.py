@@ -10,9 +10,9 @@
   event loop" when none of ours: the process waited for a core or for the GIL held
   by a worker), and once the timer fires again where the GUI thread's time went from
   the kernel's per-thread figures (on a core, waiting for one, blocked;
-  :func:`stall_time`), so a slow firing can be told from the machine's load (and
-  from a machine that did not run at all: a virtual machine its host paused, time the
-  kernel's CPU counters never saw, :func:`accounted_s`);
+  :func:`benchmarks.window.kernelstats.stall_time`), so a slow firing can be told
+  from the machine's load (and from a machine that did not run at all: a virtual
+  machine its host paused, time the kernel's CPU counters never saw);
 * every few seconds, ``sys.getrefcount(None)`` and ``sys.getrefcount(True)`` (a
   leaking Qt binding drains them: -860 a second while streaming under PySide6
   6.12.0) and the process's resident memory.
@@ -30,14 +30,23 @@ import time
 import traceback
 from array import array
 from collections import deque
-from collections.abc import Callable
 from types import FrameType
-from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
 from gui.memory import rss_mb
+
+from .kernelstats import (
+    LATER_SAMPLES,
+    accounted_s,
+    kernel_state,
+    peer_pids,
+    schedstat,
+    stall_time,
+    thread_name,
+    thread_times,
+)
 
 __all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage"]
 
@@ -309,151 +318,6 @@ def frozen_garbage(top: int = 12) -> dict:
             "rss_mb_collected": collected, "rss_mb_after": rss_mb(), "collect_s": collect_s}
 
 
-#: Processes whose threads the GUI thread may wait on (the X server: a round trip to a
-#: server kept from a core blocks the GUI thread), ``pid,pid``; set by the day's runner.
-PEERS_ENV = "DIFFUSERLAB_DAY_PEER_PIDS"
-
-
-def schedstat(tid: int, pid: str = "self") -> tuple[int, int] | None:
-    """(ns on a core, ns runnable but waiting for one) of a thread so far (Linux's
-    ``/proc/PID/task/TID/schedstat``); None where the kernel gives none."""
-    try:
-        with open(f"/proc/{pid}/task/{tid}/schedstat", "rb") as f:
-            on_cpu, waiting = f.read().split()[:2]
-        return int(on_cpu), int(waiting)
-    except (OSError, ValueError):
-        return None
-
-
-def thread_times(skip: set[int], peers: tuple[str, ...] = ()
-                 ) -> dict[tuple[str, int], tuple[int, int]]:
-    """(ns on a core, ns waiting for one) so far of each thread of this process (but
-    ``skip``) and of the ``peers`` processes, by (process, thread)."""
-    out = {}
-    for pid in ("self", *peers):
-        try:
-            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-        except OSError:
-            continue
-        for tid in tids:
-            st = None if pid == "self" and tid in skip else schedstat(tid, pid)
-            if st is not None:
-                out[pid, tid] = st
-    return out
-
-
-def thread_name(pid: str, tid: int) -> str:
-    """A thread's name: its Python name in this process, else the kernel's (``comm``),
-    prefixed by the process's for a peer; the number where neither can be read."""
-    if pid == "self":
-        for t in threading.enumerate():
-            if t.native_id == tid:
-                return t.name
-    try:
-        with open(f"/proc/{pid}/task/{tid}/comm") as f:
-            name = f.read().strip()
-        if pid != "self":
-            with open(f"/proc/{pid}/comm") as f:
-                name = f"{f.read().strip()}/{name}"
-        return name
-    except OSError:
-        return str(tid)
-
-
-#: Most samples a long stall's record takes after the first, one a second.
-LATER_SAMPLES = 30
-
-#: x86-64 system call numbers a blocked GUI thread is seen in (``/proc/.../syscall``).
-_SYSCALLS = {"0": "read", "1": "write", "7": "poll", "23": "select", "202": "futex",
-             "232": "epoll_wait", "270": "pselect6", "271": "ppoll", "281": "epoll_pwait",
-             "230": "clock_nanosleep", "35": "nanosleep"}
-
-
-def kernel_state(tid: int, pid: str = "self") -> str | None:
-    """Where a thread (of this process, or of process ``pid``) is in the kernel now:
-    ``running``, or the system call it waits in (``futex``: a lock, the GIL or a mutex;
-    ``poll``: a socket, the X server's) with its wait channel; None where Linux does
-    not say."""
-    try:
-        with open(f"/proc/{pid}/task/{tid}/syscall") as f:
-            call = f.read().split()
-        with open(f"/proc/{pid}/task/{tid}/wchan") as f:
-            wchan = f.read().strip()
-    except OSError:
-        return None
-    if not call or call[0] == "running":
-        return "running"
-    name = _SYSCALLS.get(call[0], f"syscall {call[0]}")
-    return f"{name} ({wchan})" if wchan and wchan != "0" else name
-
-
-def peer_pids() -> tuple[str, ...]:
-    """The pids of :data:`PEERS_ENV`."""
-    return tuple(p for p in os.environ.get(PEERS_ENV, "").split(",") if p.strip().isdigit())
-
-
-def accounted_s() -> float | None:
-    """Seconds each CPU has been accounted for so far (every state of ``/proc/stat``'s
-    ``cpu`` line, idle and steal included, over the CPUs); None where there is none.
-
-    Between two readings it grows as the wall clock does, unless the machine did not
-    run: a virtual machine paused by its host (the kernel then logs "workqueue lockup
-    ... stuck for 42s") misses those seconds while its CPUs were busy.
-    """
-    try:
-        with open("/proc/stat", "rb") as f:
-            fields = f.readline().split()[1:9]
-        return sum(int(v) for v in fields) / os.sysconf("SC_CLK_TCK") / (os.cpu_count() or 1)
-    except (OSError, ValueError):
-        return None
-
-
-def _times(v) -> tuple[int, int]:
-    """(ns on a core, ns waiting) from :func:`thread_times`' tuple or a wait alone."""
-    return (int(v[0]), int(v[1])) if isinstance(v, tuple) else (0, int(v))
-
-
-def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
-               paused_ms: float = 0.0, names: Callable[[Any], str] | None = None) -> dict:
-    """Where a stall's time went, from the kernel's figures at its start and end.
-
-    ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's); ``gui_runqueue_ms``:
-    runnable, waiting for a core (the machine); the rest it was blocked (a lock, the GIL,
-    a call). ``others_runqueue_ms``: the longest any other thread of the process (or
-    of a peer such as the X server) waited for a core meanwhile (a GIL holder, or a
-    server the GUI thread waits on, descheduled makes the GUI thread's block the
-    machine's too). ``busiest``: the other thread that was on a core longest meanwhile
-    and for how long (``names(key)`` names it; the likeliest holder of what the GUI
-    thread waited for). ``paused_ms``: the time the machine did not run at all (its
-    CPUs unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall
-    less the machine's share, what a freeze of ours would show whatever the load, and
-    never more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the
-    kernel gives no per-thread figures. ``others0``/``others1`` map a thread to
-    :func:`thread_times`' (ns on a core, ns waiting) or to its wait alone.
-    """
-    out = {"ms": round(ms, 1)}
-    paused = min(max(0.0, paused_ms), ms)
-    if paused:
-        out["paused_ms"] = round(paused, 1)
-    if gui0 is None or gui1 is None:
-        return out
-    cpu, queue = (gui1[0] - gui0[0]) / 1e6, (gui1[1] - gui0[1]) / 1e6
-    deltas = {t: [b - a for a, b in zip(_times(v), _times(others1[t]), strict=True)]
-              for t, v in others0.items() if t in others1}
-    others = max((d[1] for d in deltas.values()), default=0) / 1e6
-    blocked = max(0.0, ms - cpu - queue)
-    out.update(gui_cpu_ms=round(cpu, 1), gui_runqueue_ms=round(queue, 1),
-               others_runqueue_ms=round(others, 1),
-               ours_ms=round(max(0.0, min(ms - queue - min(blocked, others),
-                                          ms - paused)), 1))
-    if deltas:
-        key = max(deltas, key=lambda t: deltas[t][0])
-        if deltas[key][0] > 0:
-            who = names(key) if names is not None else str(key)
-            out["busiest"] = f"{who} {deltas[key][0] / 1e6:.1f} ms on a core"
-    return out
-
-
 class DayMonitor(QObject):
     """Lateness per phase and reference-count / memory samples (module docstring).
 
@@ -586,7 +450,8 @@ class DayMonitor(QObject):
 
     def _resample(self, record: dict | None, into_s: float, gui_tid: int,
                   peers: tuple[str, ...]) -> None:
-        """Add to a long stall's record, once a second (at most :data:`LATER_SAMPLES`),
+        """Add to a long stall's record, once a second (at most
+        :data:`~benchmarks.window.kernelstats.LATER_SAMPLES`),
         where the GUI thread is then (its system call and innermost frame) and where
         each peer process's main thread is (the X server's)."""
         later = None if record is None else record.get("later")

@@ -51,7 +51,7 @@ X_SERVER_PIDS: dict[str, int] = {}
 
 def peer_env(display: str) -> dict[str, str]:
     """The environment that tells the day's monitor which X server its GUI waits on."""
-    from benchmarks.window.daymonitor import PEERS_ENV
+    from benchmarks.window.kernelstats import PEERS_ENV
 
     pid = X_SERVER_PIDS.get(display)
     return {PEERS_ENV: str(pid)} if pid else {}

@@ -443,22 +443,25 @@ def test_a_stall_on_a_core_is_ours(qapp, wait):
 
 
 def test_where_a_stalls_time_went():
-    from benchmarks.window.daymonitor import stall_time
+    from benchmarks.window.kernelstats import stall_time
 
     ms = 1e6  # ns per ms
     # the GUI thread waited 900 of 1000 ms for a core: the machine's, 100 ms ours
     t = stall_time(1000.0, (0, 0), (100 * ms, 900 * ms), {}, {})
     assert (t["gui_cpu_ms"], t["gui_runqueue_ms"], t["ours_ms"]) == (100.0, 900.0, 100.0)
     # blocked 900 ms (the GIL) while the thread holding it waited 850 ms for a core
-    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: 0, 8: 0}, {7: 850 * ms, 8: 5 * ms})
+    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: (0, 0), 8: (0, 0)},
+                   {7: (0, 850 * ms), 8: (0, 5 * ms)})
     assert (t["others_runqueue_ms"], t["ours_ms"]) == (850.0, 150.0)
     # blocked 900 ms with every other thread on a core or asleep: ours
-    assert stall_time(1000.0, (0, 0), (100 * ms, 0), {7: 0}, {7: 0})["ours_ms"] == 1000.0
+    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: (0, 0)}, {7: (0, 0)})
+    assert t["ours_ms"] == 1000.0
     # no kernel figures: the length only
     assert stall_time(120.0, None, None, {}, {}) == {"ms": 120.0}
     # the machine itself did not run for 700 of the 1000 ms (a paused virtual machine):
     # at most the 300 ms it ran are ours, though the GUI thread shows no wait for a core
-    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: 0}, {7: 0}, paused_ms=700.0)
+    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: (0, 0)}, {7: (0, 0)},
+                   paused_ms=700.0)
     assert (t["paused_ms"], t["ours_ms"]) == (700.0, 300.0)
     assert stall_time(1000.0, (0, 0), (100 * ms, 0), {}, {}, paused_ms=5000.0)["ours_ms"] == 0
     assert stall_time(120.0, None, None, {}, {}, paused_ms=50.0) == {"ms": 120.0,
@@ -476,9 +479,9 @@ def test_a_long_stall_is_looked_at_again_each_second(qapp, wait, monkeypatch):
     threads are (this process stands in for the X server)."""
     from PySide6.QtCore import QTimer
 
-    from benchmarks.window import daymonitor
+    from benchmarks.window import daymonitor, kernelstats
 
-    monkeypatch.setenv(daymonitor.PEERS_ENV, str(os.getpid()))
+    monkeypatch.setenv(kernelstats.PEERS_ENV, str(os.getpid()))
     monitor = daymonitor.DayMonitor(sample_s=1.0)
     monitor.start()
     QTimer.singleShot(100, lambda: _held_up_in_a_slot(2.5))
@@ -498,7 +501,7 @@ def test_a_blocked_thread_is_seen_in_its_system_call():
     stall's record says the GUI thread was doing)."""
     import select
 
-    from benchmarks.window.daymonitor import kernel_state, thread_name
+    from benchmarks.window.kernelstats import kernel_state, thread_name
 
     lock, ready = threading.Lock(), threading.Event()
     lock.acquire()
@@ -544,7 +547,7 @@ def test_a_blocked_thread_is_seen_in_its_system_call():
 def test_the_cpus_are_accounted_as_the_wall_clock_runs():
     """The machine's accounted CPU time (every state, per CPU) grows with the wall clock
     while it runs, busy or idle, so a shortfall is time it did not run."""
-    from benchmarks.window.daymonitor import accounted_s
+    from benchmarks.window.kernelstats import accounted_s
 
     ratios = []
     for _ in range(5):  # one window that ran is enough (a host may pause another)
