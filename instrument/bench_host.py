@@ -1,0 +1,400 @@
+"""The bench's owner in a process of its own: devices, camera stream and jobs.
+
+The operator's window keeps nothing of the bench in its own process: a
+:class:`BenchHost` owns the open :class:`~instrument.bench.Bench` (or virtual bench),
+streams its camera and runs the jobs that use the devices (a calibration run, the
+mask alignment, a recording), in the child process that
+:class:`instrument.bench_process.BenchProcess` starts. Compute and device waits of
+the host then never take the window's interpreter lock or its cores' time slices
+(the pattern of Micro-Manager's core and PyMoDAQ's hardware workers, here as a
+process). The same class also runs in the caller's process
+(:class:`instrument.bench_process.LocalBench`), with the same frame and event
+channels, so the one code path is tested both ways.
+
+What crosses between the processes:
+
+* device calls: :meth:`BenchHost.get`, :meth:`BenchHost.set` and
+  :meth:`BenchHost.call` on an object named by its *path* from the bench
+  (``("camera",)``, ``("devices", "source_stage")``); plain data goes back as values,
+  any other object as a :class:`Ref` (the client makes it a proxy), a method as
+  :data:`METHOD`.
+* frames: the stream's frames (and a recording's) go into a
+  :class:`~instrument.shared_slot.SharedImageSlot` (newest only) and a byte down a pipe
+  wakes the reader (:class:`FrameWaker`); each carries its metadata and the ring's
+  counters (:data:`FRAME_META`).
+* events: ``(kind, ...)`` tuples down a pipe (:class:`EventChannel`): a job's progress,
+  result or error (``("job", id, "progress" | "done" | "failed", value)``), a prompt
+  for the operator (``("prompt", id, action, message)``), a new frame slot (``("slot", name,
+  capacity)``), the stream's end on an error (``("stream_ended", text)``).
+* jobs: :meth:`BenchHost.start_job` runs ``module:function(ctx, **kwargs)`` on a thread
+  of the host with a :class:`JobContext` (the bench, progress, pause/abort, stop and
+  cancel events); :meth:`BenchHost.job_control` pauses, resumes, aborts, stops or
+  cancels it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import itertools
+import logging
+import os
+import threading
+from collections.abc import Mapping
+from pathlib import PurePath
+from typing import Any
+
+import numpy as np
+
+from .runner import RunControl
+from .shared_slot import SharedImageSlot
+
+__all__ = ["FRAME_META", "METHOD", "BenchHost", "BenchHostError", "EventChannel",
+           "FrameWaker", "JobContext", "Ref", "is_plain"]
+
+log = logging.getLogger(__name__)
+
+#: The metadata each published frame carries in its slot, in order.
+FRAME_META = ("index", "device_timestamp_s", "host_timestamp_s", "exposure_s", "gain",
+              "saturated_pixels", "acquired", "read", "skipped", "dropped", "bit_depth")
+
+#: What :meth:`BenchHost.get` returns for a method (the client calls it by name).
+METHOD = "<method>"
+
+
+class BenchHostError(RuntimeError):
+    """A call the bench host cannot serve: no bench open, an unknown path or job."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Ref:
+    """An object of the host that stays there: ``path`` from the bench, the ``module``
+    and ``qualname`` of its class (the client reads class-level declarations, such as
+    a driver's ``SETTINGS``, from its own import of the class)."""
+
+    path: tuple
+    module: str
+    qualname: str
+
+
+_PLAIN = (type(None), bool, int, float, complex, str, bytes, np.ndarray, np.generic,
+          PurePath, range, slice)
+
+
+def is_plain(value: Any, depth: int = 0) -> bool:
+    """Whether ``value`` is data that may be copied to another process (numbers,
+    strings, arrays, paths, and lists, tuples, sets and dicts of those, dataclass
+    instances and exceptions), not an object with state of its own (a device)."""
+    if isinstance(value, _PLAIN) or isinstance(value, BaseException):
+        return True
+    if depth > 8:
+        return False
+    if isinstance(value, list | tuple | set | frozenset):
+        return all(is_plain(v, depth + 1) for v in value)
+    if isinstance(value, Mapping):
+        return all(is_plain(k, depth + 1) and is_plain(v, depth + 1)
+                   for k, v in value.items())
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return all(is_plain(getattr(value, f.name), depth + 1)
+                   for f in dataclasses.fields(value))
+    return False
+
+
+def _export(value: Any, path: tuple, devices: Mapping | None = None) -> Any:
+    """``value`` as it goes to the client: plain data as is, a mapping or sequence of
+    objects item by item, any other object as a :class:`Ref` at ``path`` (a device of
+    ``devices`` at ``("devices", id)`` however it was reached, so one device is one
+    proxy)."""
+    if is_plain(value):
+        return value
+    if isinstance(value, Mapping):
+        return {k: _export(v, (*path, k), devices) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_export(v, (*path, i), devices) for i, v in enumerate(value))
+    device_id = getattr(value, "device_id", None)
+    if devices is not None and isinstance(device_id, str) and devices.get(device_id) is value:
+        path = ("devices", device_id)
+    cls = type(value)
+    return Ref(tuple(path), cls.__module__, cls.__qualname__)
+
+
+class JobContext:
+    """What a job running in the host gets: ``bench``, ``report(value)`` (progress to
+    the client), ``control`` (:class:`~instrument.runner.RunControl`), ``stop`` and
+    ``cancel`` (:class:`threading.Event`), ``publish(frame)`` (show a frame the job
+    took in the window, as the stream does) and ``host`` (its :class:`BenchHost`)."""
+
+    def __init__(self, host: BenchHost, job_id: int) -> None:
+        self.host, self.job_id = host, job_id
+        self.control = RunControl()
+        self.stop = threading.Event()
+        self.cancel = threading.Event()
+
+    @property
+    def bench(self):
+        return self.host.bench
+
+    def report(self, value: Any) -> None:
+        self.host.events.put(("job", self.job_id, "progress", value))
+
+    def publish(self, frame) -> None:
+        self.host.publish(frame)
+
+
+class EventChannel:
+    """The host's end of the event pipe: :meth:`put` sends one event (any thread)."""
+
+    def __init__(self, conn) -> None:
+        self.conn = conn
+        self._lock = threading.Lock()
+
+    def put(self, event: tuple) -> None:
+        with self._lock:
+            try:
+                self.conn.send(event)
+            except (OSError, ValueError):  # the window is gone: nobody to tell
+                log.debug("event %s not sent: the window's end is closed", event[0])
+
+
+class FrameWaker:
+    """The host's end of the frame pipe: :meth:`release` writes one byte, never
+    waiting (a reader that fell behind finds the pipe full and reads the newest frame
+    anyway)."""
+
+    def __init__(self, conn) -> None:
+        self.conn = conn
+        os.set_blocking(conn.fileno(), False)
+
+    def release(self) -> None:
+        try:
+            os.write(self.conn.fileno(), b"\0")
+        except (BlockingIOError, OSError):
+            pass
+
+
+class BenchHost:
+    """The open bench, its camera stream and its jobs (see the module docstring).
+
+    Parameters
+    ----------
+    events : EventChannel
+        Where events go (``put((kind, ...))``).
+    wake : FrameWaker
+        Released once per published frame.
+    """
+
+    def __init__(self, events, wake) -> None:
+        self.events, self.wake = events, wake
+        self.bench = None
+        #: True while the window closes: jobs leave the bench as it is.
+        self.closing = False
+        self._slot: SharedImageSlot | None = None
+        self._publish_lock = threading.Lock()
+        self._stream: tuple[Any, threading.Thread, threading.Event] | None = None
+        self._stream_lock = threading.RLock()
+        self._jobs: dict[int, JobContext] = {}
+        self._ids = itertools.count(1)
+        self._prompts: dict[int, tuple[threading.Event, dict]] = {}
+
+    # -- objects of the bench -------------------------------------------------------
+    def _resolve(self, path) -> Any:
+        if self.bench is None:
+            raise BenchHostError("no bench is open; press Connect first")
+        obj = self.bench
+        for step in path:
+            try:
+                obj = obj[step] if isinstance(obj, Mapping | list | tuple) else getattr(obj, step)
+            except (KeyError, IndexError, AttributeError, TypeError):
+                raise BenchHostError(f"the bench has no {'.'.join(map(str, path))}") from None
+        return obj
+
+    def get(self, path, name: str) -> Any:
+        """Attribute ``name`` of the object at ``path``: a value, a :class:`Ref`, or
+        :data:`METHOD` for a method."""
+        value = getattr(self._resolve(path), name)
+        if callable(value) and not isinstance(value, type) and not is_plain(value):
+            return METHOD
+        return _export(value, (*path, name), self.bench.devices)
+
+    def set(self, path, name: str, value: Any) -> None:
+        """Set attribute ``name`` of the object at ``path``."""
+        setattr(self._resolve(path), name, value)
+
+    def call(self, path, name: str, args=(), kwargs=None) -> Any:
+        """Call method ``name`` of the object at ``path``; the result exported (an
+        object a method returns other than a device of the bench is addressed by the
+        call's path, to read once: calling the method again makes another)."""
+        result = getattr(self._resolve(path), name)(*args, **(kwargs or {}))
+        devices = self.bench.devices if self.bench is not None else None
+        return _export(result, (*path, name, "<result>"), devices)
+
+    def describe(self) -> dict:
+        """``{"bench": Ref, "devices": {id: Ref}, "virtual": bool}`` of the open bench
+        (None: none)."""
+        if self.bench is None:
+            return None
+        return {"bench": _export(self.bench, ()),
+                "devices": _export(dict(self.bench.devices), ("devices",), self.bench.devices),
+                "virtual": hasattr(self.bench, "set_scene")}
+
+    def set_closing(self, closing: bool) -> None:
+        self.closing = bool(closing)
+
+    # -- operator prompts ------------------------------------------------------------
+    def ask(self, action: str, message: str) -> bool:
+        """Ask the operator (a plan's prompt on a real bench) and wait for
+        :meth:`answer`."""
+        prompt_id = next(self._ids)
+        done, answer = threading.Event(), {}
+        self._prompts[prompt_id] = (done, answer)
+        self.events.put(("prompt", prompt_id, action, message))
+        done.wait()
+        self._prompts.pop(prompt_id, None)
+        return bool(answer.get("ok"))
+
+    def answer(self, prompt_id: int, ok: bool) -> None:
+        done, answer = self._prompts.get(int(prompt_id), (None, None))
+        if done is not None:
+            answer["ok"] = bool(ok)
+            done.set()
+
+    # -- frames ----------------------------------------------------------------------
+    def publish(self, frame, ring=None) -> None:
+        """Put ``frame`` (a :class:`drivers.camera.Frame`) in the frame slot with its
+        metadata and ``ring``'s counters, and wake the reader."""
+        image = frame.image
+        with self._publish_lock:
+            if self._slot is None or image.nbytes > self._slot.capacity:
+                old, self._slot = self._slot, SharedImageSlot(max(image.nbytes, 1 << 20))
+                self.events.put(("slot", self._slot.name, self._slot.capacity))
+                if old is not None:
+                    old.close()
+            counters = ((ring.acquired, ring.read, ring.skipped, ring.dropped)
+                        if ring is not None else (0, 0, 0, 0))
+            cam = getattr(self.bench, "camera", None)
+            bit_depth = getattr(cam, "bit_depth", 16) if cam is not None else 16
+            self._slot.write(image, (frame.index, frame.device_timestamp_s,
+                                     frame.host_timestamp_s, frame.exposure_s, frame.gain,
+                                     frame.saturated_pixels, *counters, bit_depth))
+        self.wake.release()
+
+    @property
+    def streaming(self) -> bool:
+        stream = self._stream
+        return stream is not None and stream[1].is_alive()
+
+    def start_stream(self, ring_frames: int = 64) -> None:
+        """Start the camera's free-run stream and the thread that publishes its frames.
+
+        Raises
+        ------
+        BenchHostError
+            No bench is open.
+        drivers.errors.DeviceError
+            The camera refused to stream.
+        """
+        from drivers.camera import FrameRing
+
+        with self._stream_lock:
+            if self.streaming:
+                return
+            cam = self._resolve(("camera",))
+            ring = FrameRing(ring_frames)
+            cam.start_stream(ring)
+            stop = threading.Event()
+            pump = threading.Thread(target=self._pump, args=(ring, stop),
+                                    name="bench-stream", daemon=True)
+            self._stream = (ring, pump, stop)
+            pump.start()
+
+    def stop_stream(self, timeout_s: float = 2.0) -> None:
+        """Stop the stream (idempotent); waits for the camera's grab thread."""
+        with self._stream_lock:
+            if self._stream is None:
+                return
+            _, pump, stop = self._stream
+            stop.set()
+            try:
+                if self.bench is not None:
+                    self.bench.camera.stop_stream()
+            finally:
+                pump.join(timeout_s)
+                self._stream = None
+
+    def _pump(self, ring, stop: threading.Event) -> None:
+        from drivers.errors import CameraTimeoutError
+
+        while not stop.is_set():
+            try:
+                frame = ring.get(timeout_s=0.05)
+            except CameraTimeoutError:
+                continue
+            except Exception as exc:  # noqa: BLE001 (a producer error, reported once)
+                self.events.put(("stream_ended", f"camera stream stopped: {exc}"))
+                return
+            self.publish(frame, ring)
+
+    # -- jobs ------------------------------------------------------------------------
+    def start_job(self, target: str, kwargs: dict | None = None) -> int:
+        """Run ``target`` (``"module:function"``) as ``function(ctx, **kwargs)`` on a
+        thread; returns the job's id. Its end is an event ``("job", id, "done",
+        result)`` or ``("job", id, "failed", error)``."""
+        module, _, name = target.partition(":")
+        fn = getattr(importlib.import_module(module), name)
+        job_id = next(self._ids)
+        ctx = JobContext(self, job_id)
+        self._jobs[job_id] = ctx
+
+        def run() -> None:
+            from .batch_process import _portable
+
+            try:
+                result = fn(ctx, **(kwargs or {}))
+            except BaseException as exc:  # noqa: BLE001 (every failure goes back)
+                self.events.put(("job", job_id, "failed", _portable(exc, "the bench process")))
+            else:
+                self.events.put(("job", job_id, "done", result))
+            finally:
+                self._jobs.pop(job_id, None)
+
+        threading.Thread(target=run, name=f"bench-job-{name}", daemon=True).start()
+        return job_id
+
+    def job_control(self, job_id: int, action: str, reason: str = "") -> None:
+        """``pause``, ``resume``, ``abort`` (with ``reason``), ``stop`` or ``cancel`` job
+        ``job_id`` (a job that ended already: nothing)."""
+        ctx = self._jobs.get(int(job_id))
+        if ctx is None:
+            return
+        if action == "pause":
+            ctx.control.pause()
+        elif action == "resume":
+            ctx.control.resume()
+        elif action == "abort":
+            ctx.control.abort(reason or "aborted by the operator")
+        elif action in ("stop", "cancel"):
+            getattr(ctx, action).set()
+        else:
+            raise BenchHostError(f"unknown job action {action!r}; use pause, resume, abort, "
+                                 "stop or cancel")
+
+    def open_bench(self, bench) -> None:
+        """Make ``bench`` (opened by a job) the host's bench."""
+        self.bench = bench
+
+    def close(self) -> None:
+        """Stop the stream, abort every job and close the bench and the frame slot."""
+        for ctx in list(self._jobs.values()):
+            ctx.control.abort("the bench is closing")
+            ctx.stop.set()
+            ctx.cancel.set()
+        try:
+            self.stop_stream()
+        finally:
+            bench, self.bench = self.bench, None
+            if bench is not None:
+                bench.close()
+            with self._publish_lock:
+                if self._slot is not None:
+                    self._slot.close()
+                    self._slot = None

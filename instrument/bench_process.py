@@ -1,0 +1,394 @@
+"""The client of a :class:`~instrument.bench_host.BenchHost`: in a child process or here.
+
+:class:`BenchClient` starts the host in a process of its own (``spawn``, served by
+:class:`multiprocessing.managers.BaseManager`, which gives every calling thread its own
+connection and serves each on a thread of the host, so a long stage move does not hold
+up a status read) or, with ``in_process``, in the caller's process; the rest is the
+same either way:
+
+* :attr:`BenchClient.bench` - the bench as the caller uses it: in a child process a
+  :class:`RemoteObject` (attribute reads, writes and method calls go to the host; a
+  device comes back as another :class:`RemoteObject`, plain data as a copy), in this
+  process the bench itself.
+* :meth:`BenchClient.run_job` - a job run by the host (``module:function(ctx,
+  **kwargs)``, :class:`~instrument.bench_host.JobContext`), its progress handed to
+  ``report``; a :class:`~instrument.runner.RunControl`, a stop and a cancel event of the
+  caller are forwarded while it runs; returns its result or raises its error.
+* frames: ``on_frame(frame, counters)`` on a reader thread for every frame the host
+  publishes (newest only: a reader that falls behind skips, the counters say so).
+* ``on_message(text)`` and ``on_prompt(action, message, reply)`` for the host's other
+  events.
+
+The host process watches its parent and closes the bench when the parent is gone
+(an operator's window that crashed leaves no stage moving and no camera held).
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import multiprocessing
+import os
+import queue
+import select
+import threading
+import time
+from collections.abc import Callable
+from multiprocessing.managers import BaseManager
+from typing import Any
+
+from .bench_host import (
+    FRAME_META,
+    METHOD,
+    BenchHost,
+    BenchHostError,
+    EventChannel,
+    FrameWaker,
+    Ref,
+)
+from .shared_slot import SharedImageSlot
+
+__all__ = ["BenchClient", "RemoteObject", "device_class"]
+
+log = logging.getLogger(__name__)
+
+_SERVER: dict[str, Any] = {}
+
+
+def _serve_init(events, wake, parent_pid: int) -> None:
+    """In the host process: keep the channels, and close the bench if the parent dies."""
+    _SERVER.update(events=EventChannel(events), wake=FrameWaker(wake))
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        host = _SERVER.get("host")
+        try:
+            if host is not None:
+                host.close()
+        finally:
+            os._exit(0)
+
+    threading.Thread(target=watch, name="bench-parent-watch", daemon=True).start()
+
+
+def _the_host() -> BenchHost:
+    if "host" not in _SERVER:
+        _SERVER["host"] = BenchHost(_SERVER["events"], _SERVER["wake"])
+    return _SERVER["host"]
+
+
+class _Manager(BaseManager):
+    pass
+
+
+_Manager.register("BenchHost", _the_host)
+
+
+def _imported(host, value: Any) -> Any:
+    """``value`` from the host with each :class:`Ref` made a :class:`RemoteObject`."""
+    if isinstance(value, Ref):
+        return RemoteObject(host, value)
+    if isinstance(value, dict):
+        return {k: _imported(host, v) for k, v in value.items()}
+    if isinstance(value, list | tuple) and any(isinstance(v, Ref | dict) for v in value):
+        return type(value)(_imported(host, v) for v in value)
+    return value
+
+
+def _all_objects(value: Any) -> bool:
+    """Whether ``value`` is a :class:`RemoteObject` or a non-empty dict of them."""
+    if isinstance(value, RemoteObject):
+        return True
+    return isinstance(value, dict) and bool(value) and all(
+        isinstance(v, RemoteObject) for v in value.values())
+
+
+def _class_of(ref: Ref) -> type | None:
+    try:
+        obj = importlib.import_module(ref.module)
+        for part in ref.qualname.split("."):
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError):
+        return None
+    return obj if isinstance(obj, type) else None
+
+
+class RemoteObject:
+    """An object of the bench process, used as if it were here.
+
+    Reading an attribute asks the host (:meth:`BenchHost.get`): plain data comes back
+    as a copy, a method as a function that calls it there, another object as another
+    :class:`RemoteObject` (kept: ``bench.camera is bench.camera``, and read once: the
+    objects of a bench, addressed by their path, stay while it is open); setting an
+    attribute sets it there. ``remote_class`` is the
+    object's class as imported here (class-level declarations, such as a driver's
+    ``SETTINGS``, are read from it), ``remote_path`` its path from the bench.
+    """
+
+    __slots__ = ("_host", "remote_path", "remote_class", "_ref", "_objects")
+
+    def __init__(self, host, ref: Ref) -> None:
+        object.__setattr__(self, "_host", host)
+        object.__setattr__(self, "_objects", {})
+        object.__setattr__(self, "_ref", ref)
+        object.__setattr__(self, "remote_path", tuple(ref.path))
+        object.__setattr__(self, "remote_class", _class_of(ref))
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        if name in self._objects:
+            return self._objects[name]
+        value = self._host.get(self.remote_path, name)
+        if isinstance(value, str) and value == METHOD:
+            host, path = self._host, self.remote_path
+
+            def method(*args, **kwargs):
+                return _imported(host, host.call(path, name, args, kwargs))
+
+            method.__name__ = name
+            return method
+        value = _imported(self._host, value)
+        if _all_objects(value):  # the bench's structure: one proxy per object, kept
+            self._objects[name] = value
+        return value
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in RemoteObject.__slots__:
+            raise AttributeError(f"{name} of a remote object cannot be set")
+        self._host.set(self.remote_path, name, value)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, RemoteObject) and other.remote_path == self.remote_path
+
+    def __hash__(self) -> int:
+        return hash(self.remote_path)
+
+    def __repr__(self) -> str:
+        return (f"<remote {self._ref.qualname} at bench."
+                f"{'.'.join(map(str, self.remote_path)) or '(bench)'}>")
+
+
+def device_class(device) -> type:
+    """The class of ``device``: its driver class, also for a :class:`RemoteObject`."""
+    if isinstance(device, RemoteObject):
+        return device.remote_class or RemoteObject
+    return type(device)
+
+
+class BenchClient:
+    """A bench host and its channels (see the module docstring).
+
+    Parameters
+    ----------
+    in_process : bool
+        Run the host in this process (no child), e.g. for tests that replace code the
+        host runs.
+    on_frame : callable, optional
+        ``on_frame(frame, counters)``: every frame read (a
+        :class:`drivers.camera.Frame`, its ``counters`` dict of :data:`FRAME_META`,
+        ``published``: the frame's number in the slot, ``missed``: frames published
+        since the last one read and not read).
+    on_message, on_prompt, on_stream_ended : callable, optional
+        ``on_message(text)``; ``on_prompt(action, message, reply)`` where
+        ``reply(ok)`` answers the host; ``on_stream_ended()`` when the camera's stream
+        stopped on an error (after ``on_message`` says which).
+
+    Raises
+    ------
+    EOFError
+        The host process ended while starting.
+    """
+
+    def __init__(self, *, in_process: bool = False,
+                 on_frame: Callable[[Any, dict], None] | None = None,
+                 on_message: Callable[[str], None] | None = None,
+                 on_prompt: Callable[[str, str, Callable[[bool], None]], None] | None = None,
+                 on_stream_ended: Callable[[], None] | None = None) -> None:
+        self.in_process = bool(in_process)
+        self.on_frame, self.on_message, self.on_prompt = on_frame, on_message, on_prompt
+        self.on_stream_ended = on_stream_ended
+        ctx = multiprocessing.get_context("spawn")
+        # pipes, not queues or semaphores: nothing for the resource tracker to find
+        # "leaked" when the window ends with os._exit
+        self._events, events = ctx.Pipe(duplex=False)
+        self._wake, wake = ctx.Pipe(duplex=False)
+        self._manager = None
+        if self.in_process:
+            self.host = BenchHost(EventChannel(events), FrameWaker(wake))
+        else:
+            self._manager = _Manager(ctx=ctx)
+            self._manager.start(_serve_init, (events, wake, os.getpid()))
+            events.close()
+            wake.close()
+            self.host = self._manager.BenchHost()
+        self._lock = threading.Lock()
+        self._jobs: dict[int, queue.SimpleQueue] = {}
+        self._early: dict[int, list] = {}
+        self._slot: SharedImageSlot | None = None
+        self._next_slot: tuple[str, int] | None = None
+        self._seen = 0
+        self._closed = threading.Event()
+        self._threads = [threading.Thread(target=self._dispatch, name="bench-events",
+                                          daemon=True),
+                         threading.Thread(target=self._read_frames, name="bench-frames",
+                                          daemon=True)]
+        for t in self._threads:
+            t.start()
+
+    # -- the bench -------------------------------------------------------------------
+    @property
+    def bench(self):
+        """The open bench (None before :meth:`run_job` opened one)."""
+        if self.in_process:
+            return self.host.bench
+        described = self.host.describe()
+        return None if described is None else RemoteObject(self.host, described["bench"])
+
+    def alive(self) -> bool:
+        """Whether the host can still answer (its process runs)."""
+        if self.in_process:
+            return True
+        process = getattr(self._manager, "_process", None)
+        return process is not None and process.is_alive()
+
+    # -- jobs ------------------------------------------------------------------------
+    def run_job(self, target: str, kwargs: dict | None = None, *,
+                report: Callable[[Any], None] | None = None, control=None,
+                stop: threading.Event | None = None, cancel: threading.Event | None = None,
+                poll_s: float = 0.05) -> Any:
+        """Run ``target`` in the host and wait for it (see the module docstring).
+
+        Raises
+        ------
+        BaseException
+            What the job raised (its type kept when it can be pickled).
+        instrument.bench_host.BenchHostError
+            The host process ended while the job ran.
+        """
+        events: queue.SimpleQueue = queue.SimpleQueue()
+        job_id = self.host.start_job(target, kwargs or {})
+        with self._lock:
+            self._jobs[job_id] = events
+            for msg in self._early.pop(job_id, []):
+                events.put(msg)
+        sent = {"paused": False, "abort": None, "stop": False, "cancel": False}
+        try:
+            while True:
+                self._forward(job_id, sent, control, stop, cancel)
+                try:
+                    kind, value = events.get(timeout=poll_s)
+                except queue.Empty:
+                    if not self.alive():
+                        raise BenchHostError("the bench process ended while the job ran; "
+                                             "connect again") from None
+                    continue
+                if kind == "progress":
+                    if report is not None:
+                        report(value)
+                elif kind == "done":
+                    return value
+                else:
+                    raise value
+        finally:
+            with self._lock:
+                self._jobs.pop(job_id, None)
+
+    def _forward(self, job_id: int, sent: dict, control, stop, cancel) -> None:
+        """Send the host the changes of the caller's control, stop and cancel."""
+        if control is not None:
+            if control.abort_reason is not None and sent["abort"] is None:
+                sent["abort"] = control.abort_reason
+                self.host.job_control(job_id, "abort", control.abort_reason)
+            if control.paused != sent["paused"]:
+                sent["paused"] = control.paused
+                self.host.job_control(job_id, "pause" if control.paused else "resume")
+        for name, event in (("stop", stop), ("cancel", cancel)):
+            if event is not None and event.is_set() and not sent[name]:
+                sent[name] = True
+                self.host.job_control(job_id, name)
+
+    # -- channels --------------------------------------------------------------------
+    def _dispatch(self) -> None:
+        while not self._closed.is_set():
+            try:
+                if not self._events.poll(0.2):
+                    continue
+                msg = self._events.recv()
+            except (EOFError, OSError):
+                return
+            kind = msg[0]
+            if kind == "job":
+                _, job_id, what, value = msg
+                with self._lock:
+                    events = self._jobs.get(job_id)
+                    if events is None:
+                        self._early.setdefault(job_id, []).append((what, value))
+                        continue
+                events.put((what, value))
+            elif kind == "slot":
+                with self._lock:
+                    self._next_slot = (msg[1], msg[2])
+            elif kind == "stream_ended":
+                if self.on_message is not None:
+                    self.on_message(msg[1])
+                if self.on_stream_ended is not None:
+                    self.on_stream_ended()
+            elif kind == "prompt" and self.on_prompt is not None:
+                prompt_id = msg[1]
+                self.on_prompt(msg[2], msg[3],
+                               lambda ok, i=prompt_id: self.host.answer(i, bool(ok)))
+            elif kind == "message" and self.on_message is not None:
+                self.on_message(msg[1])
+
+    def _read_frames(self) -> None:
+        from drivers.camera import Frame
+
+        while not self._closed.is_set():
+            # a frame published before its slot's event arrived is read at the next
+            # look (at most 0.1 s later)
+            try:
+                if select.select([self._wake], [], [], 0.1)[0]:
+                    os.read(self._wake.fileno(), 65536)
+            except (OSError, ValueError):
+                return
+            with self._lock:
+                attach, self._next_slot = self._next_slot, None
+            if attach is not None:  # the host made a larger slot: only this thread reads
+                old, self._slot, self._seen = self._slot, SharedImageSlot(attach[1],
+                                                                           name=attach[0]), 0
+                if old is not None:
+                    old.close()
+            got = self._slot.read(after=self._seen) if self._slot is not None else None
+            if got is None:
+                continue
+            meta = dict(zip(FRAME_META, (float(v) for v in got.meta), strict=False))
+            meta["published"] = got.sequence
+            meta["missed"] = got.sequence - self._seen - 1
+            self._seen = got.sequence
+            frame = Frame(got.image, int(meta["index"]), meta["device_timestamp_s"],
+                          meta["host_timestamp_s"], meta["exposure_s"], meta["gain"],
+                          int(meta["saturated_pixels"]))
+            if self.on_frame is not None:
+                self.on_frame(frame, meta)
+
+    def close(self, timeout_s: float = 10.0) -> None:
+        """Close the bench (if open) and end the host process and the threads."""
+        try:
+            if self.in_process or self.alive():
+                self.host.close()
+        finally:
+            self._closed.set()
+            for t in self._threads:
+                t.join(timeout_s)
+            if self._manager is not None:
+                self._manager.shutdown()
+            if self._slot is not None:
+                self._slot.close()
+                self._slot = None
+            if self.in_process:
+                self.host.events.conn.close()
+                self.host.wake.conn.close()
+            self._events.close()
+            self._wake.close()

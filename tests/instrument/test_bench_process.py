@@ -1,0 +1,198 @@
+"""The bench host in a process of its own (and in this one): devices, stream, jobs."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import pytest
+
+from instrument.bench_process import BenchClient, RemoteObject, device_class
+from instrument.runner import RunAborted, RunControl
+
+OPEN = {"bench_path": None, "simulate": True, "seed": 0, "scene": "none"}
+
+
+# -- jobs the host runs in these tests (imported there by name) ---------------------------
+def whose_process(ctx) -> dict:
+    """Where the job runs, and whether the camera's grab thread is there."""
+    return {"pid": os.getpid(), "threads": [t.name for t in threading.enumerate()]}
+
+
+def counting(ctx, *, n: int) -> int:
+    """Report 0..n-1, waiting for pause/abort between; returns n."""
+    for i in range(n):
+        ctx.control.wait_while_paused()
+        ctx.report(i)
+        time.sleep(0.05)
+    return n
+
+
+def until_stopped(ctx) -> str:
+    """Wait for the client's stop or cancel event (at most 20 s)."""
+    for _ in range(400):
+        if ctx.stop.is_set():
+            return "stopped"
+        if ctx.cancel.is_set():
+            return "cancelled"
+        time.sleep(0.05)
+    return "timed out"
+
+
+def failing(ctx) -> None:
+    from drivers.errors import StageLimitError
+
+    raise StageLimitError("source_stage", "x=99 mm is outside 0..25 mm", "move within them")
+
+
+@pytest.fixture(params=[False, True], ids=["child-process", "in-process"])
+def client(request):
+    frames: list = []
+    c = BenchClient(in_process=request.param, on_frame=lambda f, m: frames.append((f, m)))
+    c.frames = frames
+    try:
+        c.run_job("gui.bench_jobs:open_bench", OPEN)
+        yield c
+    finally:
+        c.close()
+
+
+def test_devices_are_read_set_and_called_in_the_bench_process(client):
+    bench = client.bench
+    stage = bench.source_stage
+    if not client.in_process:
+        assert isinstance(stage, RemoteObject) and isinstance(bench.camera, RemoteObject)
+    assert device_class(stage).__name__ == "SimulatedStage"
+    # one proxy per object, kept (the window compares its boxes' devices by identity)
+    assert bench.camera is bench.camera and bench.devices is bench.devices
+    assert bench.devices["camera"] == bench.camera
+    assert device_class(bench.camera).SETTINGS  # class-level declarations, read here
+    assert sorted(bench.devices) == sorted(["camera", "source_stage", "led_array", "slm",
+                                            "mask_stage"])
+    stage.move_to({"x": 0.5})
+    assert stage.positions()["x"] == pytest.approx(0.5)
+    assert bench.devices["source_stage"].positions()["x"] == pytest.approx(0.5)
+    assert bench.camera.image_shape == (256, 320)
+    lo, hi = bench.camera.info["exposure_range_s"]
+    assert 0 < lo < hi
+    snap = bench.camera.snap()
+    assert snap.image.shape == (256, 320) and snap.image.dtype.name == "uint16"
+
+
+def test_a_device_error_comes_back_with_its_type(client):
+    from drivers.errors import StageLimitError
+
+    with pytest.raises(StageLimitError):
+        client.bench.source_stage.move_to({"x": 1e6})
+    with pytest.raises(AttributeError, match="no_such_device"):
+        client.bench.no_such_device.positions()
+
+
+def test_the_stream_runs_in_the_bench_process_and_its_frames_arrive_here(client):
+    client.host.start_stream(16)
+    try:
+        deadline = time.monotonic() + 20
+        while len(client.frames) < 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        client.host.stop_stream(2.0)
+    assert len(client.frames) >= 5
+    indices = [f.index for f, _ in client.frames]
+    assert indices == sorted(indices) and len(set(indices)) == len(indices)
+    frame, meta = client.frames[-1]
+    assert frame.image.shape == (256, 320) and meta["bit_depth"] == 12
+    assert meta["acquired"] >= meta["read"] >= 1
+    where = client.run_job(f"{__name__}:whose_process")
+    if not client.in_process:
+        assert where["pid"] != os.getpid()
+        assert not any("bench-stream" in t for t in
+                       (t.name for t in threading.enumerate()))
+
+
+def test_a_job_reports_pauses_and_aborts(client):
+    seen: list = []
+    assert client.run_job(f"{__name__}:counting", {"n": 4}, report=seen.append) == 4
+    assert seen == [0, 1, 2, 3]
+
+    control, seen = RunControl(), []
+
+    def pause_then_abort() -> None:
+        while not seen:
+            time.sleep(0.01)
+        control.pause()
+        time.sleep(0.5)
+        paused_at = len(seen)
+        control.abort("stop here")
+        seen.append(("paused at", paused_at))
+
+    helper = threading.Thread(target=pause_then_abort)
+    helper.start()
+    with pytest.raises(RunAborted, match="stop here"):
+        client.run_job(f"{__name__}:counting", {"n": 200}, report=seen.append,
+                       control=control)
+    helper.join()
+    assert len([s for s in seen if isinstance(s, int)]) < 20  # paused within a step or two
+
+
+def test_stop_and_cancel_reach_the_job(client):
+    for name in ("stop", "cancel"):
+        event = threading.Event()
+        threading.Timer(0.3, event.set).start()
+        got = client.run_job(f"{__name__}:until_stopped", **{name: event})
+        assert got == ("stopped" if name == "stop" else "cancelled")
+
+
+def test_a_failed_job_raises_its_error_here(client):
+    from drivers.errors import StageLimitError
+
+    with pytest.raises(StageLimitError, match="outside"):
+        client.run_job(f"{__name__}:failing")
+
+
+def test_the_bench_process_closes_the_bench_when_its_parent_dies(tmp_path):
+    """A window killed outright leaves no bench process holding the devices."""
+    script = textwrap.dedent(f"""
+        import sys, time
+        sys.path[:0] = {sys.path!r}
+        from instrument.bench_process import BenchClient
+        if __name__ == "__main__":
+            c = BenchClient()
+            c.run_job("gui.bench_jobs:open_bench", {OPEN!r})
+            print(c._manager._process.pid, flush=True)
+            time.sleep(120)
+        """)
+    (tmp_path / "window.py").write_text(script)
+    parent = subprocess.Popen([sys.executable, str(tmp_path / "window.py")],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        host_pid = int(parent.stdout.readline())
+        os.kill(parent.pid, signal.SIGKILL)
+        parent.wait(10)
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            try:
+                os.kill(host_pid, 0)
+            except ProcessLookupError:
+                break
+            if _zombie(host_pid):
+                break
+            time.sleep(0.1)
+        else:
+            os.kill(host_pid, signal.SIGKILL)
+            pytest.fail("the bench process outlived its parent by 20 s")
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
