@@ -223,23 +223,21 @@ class MainWindow(QMainWindow):
             self.statusBar().insertPermanentWidget(len(self.device_labels), label)
             self.device_labels[dev_id] = label
 
-    def _show_statuses(self, statuses: dict) -> None:
+    def _show_statuses(self, polled: dict) -> None:
+        """The status bar's line per device, from the Devices panel's poll
+        (:class:`gui.panels.devices.PolledDevice`: read on a worker)."""
         if not self.session.connected:
             return
-        bench = self.session.bench
-        for dev_id, status in statuses.items():
+        for dev_id, p in polled.items():
             label = self.device_labels.get(dev_id)
-            dev = bench.devices.get(dev_id)
-            if label is None or dev is None:
+            box = self.devices.boxes.get(dev_id)
+            if label is None or box is None:
                 continue
-            state = device_state(status)
-            try:
-                values = dev.settings() if state not in ("disconnected", "closed") else None
-            except Exception:  # noqa: BLE001 (gone between the poll and now)
-                values = None
+            state = device_state(p.status)
+            values = p.settings if state not in ("disconnected", "closed") else None
             colour = STATE_COLOURS.get(state, "#000")
             label.setText(f'<span style="color:{colour}">'
-                          f'{status_line(dev_id, dev.kind, status, values)}</span>')
+                          f'{status_line(dev_id, box.kind, p.status, values)}</span>')
 
     # -- messages and prompts ----------------------------------------------------------------
     def say(self, text: str) -> None:

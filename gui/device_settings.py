@@ -1,7 +1,7 @@
 """What the device panel shows about each setting, generated from the declarations.
 
 Each row of a device's box is one :class:`~drivers.settings.Setting` its class
-declares (``type(device).SETTINGS``, in the order they apply): its label comes from
+declares (``device_class(device).SETTINGS``, in the order they apply): its label comes from
 the name, its unit, limits (numbers read from the open device's
 :attr:`~drivers.base.Device.info`), description and read-only flag from the
 declaration, so a new device kind or setting needs no edit here. Whether a value is
@@ -15,6 +15,8 @@ import json
 import re
 from dataclasses import dataclass
 from typing import Any
+
+from instrument.bench_process import device_class
 
 __all__ = ["Row", "label_of", "limits_text", "parse_duration_s", "parse_value", "rows",
            "value_text"]
@@ -84,7 +86,7 @@ def rows(device) -> list[Row]:
     """
     info = device.info
     out = []
-    for s in type(device).SETTINGS:
+    for s in device_class(device).SETTINGS:
         if s.per is None:
             unit = s.unit_of()
         elif "{unit}" in s.unit:
@@ -117,7 +119,7 @@ def limits_text(device, name: str) -> str:
     KeyError
         The device declares no setting ``name``.
     """
-    return type(device).setting(name).limits_text(device.info)
+    return device_class(device).setting(name).limits_text(device.info)
 
 
 def _number_text(value: Any) -> str:

@@ -4,29 +4,36 @@
   its own (:class:`instrument.live_process.LiveReconstructionProcess`), and a PSF from a
   file or run store (:func:`instrument.reconstruct_files.load_psf`), with the frames'
   dark level as ``capture live`` takes it.
-* :func:`routine_options` / :func:`build_plan` - a calibration routine's parameters
+* :func:`routine_options` / :func:`check_values` - a calibration routine's parameters
   are its typed model (:mod:`calibration_routines.parameters`), from which the
   ``calibrate`` command's options are generated too; the form's texts become the
-  model, and the model builds the plan.
+  model, and the model builds the plan (:func:`gui.bench_jobs.build_plan`, in the
+  bench process).
 * :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
-  job's progress and a :class:`~instrument.runner.RunControl`.
-* :func:`run_alignment` - the mask alignment as ``align mask`` runs it.
+  job's progress and a :class:`~instrument.runner.RunControl`, run in the bench
+  process (:mod:`gui.bench_jobs`) with the camera claimed.
+* :func:`run_alignment` - the mask alignment as ``align mask`` runs it (in the bench
+  process).
 * :func:`record` / :func:`batch_reconstruct` - a video recording
-  (:func:`instrument.video.record_video`) and the batch reconstruction of a run
-  (:func:`instrument.batch.reconstruct_run`, options as ``recon-run`` takes them).
+  (:func:`instrument.video.record_video`, in the bench process) and the batch
+  reconstruction of a run (:func:`instrument.batch.reconstruct_run`, options as
+  ``recon-run`` takes them, in a process of its own).
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime as _dt
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+# the bodies the bench process runs, re-exported for the panels and the tests
+from .bench_jobs import ALIGNMENT_STEPS, build_plan, section_summary
+
 __all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_reconstruct", "build_live",
-           "build_plan", "default_run_path", "record", "resume_plan", "routine_options",
-           "run_alignment", "run_plan", "section_summary", "stack_depths"]
+           "build_plan", "check_values", "default_run_path", "record", "resume_plan",
+           "routine_options", "run_alignment", "run_plan", "section_summary",
+           "stack_depths"]
 
 #: Whether :func:`build_live` runs the live reconstruction in a child process (the
 #: default: the window's process then shares its interpreter lock with no solver) or,
@@ -151,31 +158,19 @@ def routine_options(routine: str) -> list:
     return PARAMETERS[routine].specs()
 
 
-def build_plan(bench, routine: str, values: dict[str, Any]):
-    """The plan ``calibrate ROUTINE`` would run with ``values``: the routine's parameter
-    model built from the form's texts, handed to its plan.
-
-    Parameters
-    ----------
-    bench : instrument.bench.Bench
-        Open.
-    routine : str
-        One of :data:`ROUTINES`.
-    values : dict
-        ``{option flag: text}`` for the options the operator set (empty text: the
-        default); flags map to True/False.
+def check_values(routine: str, values: dict[str, Any]) -> None:
+    """Check the form's texts against ``calibrate ROUTINE``'s parameter model (no
+    bench needed: on the GUI thread, before the run starts).
 
     Raises
     ------
     diffuserlab.errors.InputError
         A value the option does not accept (the message names the option and its
         limits).
-    instrument.plan.PlanError
-        Parameters the plan refuses.
     """
     from calibration_routines.parameters import PARAMETERS
 
-    return PARAMETERS[routine].from_text(values).plan(bench)
+    PARAMETERS[routine].from_text(values)
 
 
 def default_run_path(routine: str, folder: str = "out/runs") -> str:
@@ -183,116 +178,51 @@ def default_run_path(routine: str, folder: str = "out/runs") -> str:
     return str(Path(folder) / f"{routine}-{_dt.datetime.now():%Y%m%d-%H%M%S}.zarr")
 
 
-@contextmanager
-def _camera(session, user: str, *, sample_out: bool = True, produces: tuple[str, ...] = ()):
-    """Claim the camera for ``user``, and give the bench back as it was: the camera's
-    settings, the stages' positions and the LEDs put back (:func:`gui.benchstate.restore`,
-    also after an abort or a failure) and the live stream started again if it ran (not
-    when the window is closing).
-
-    ``produces``: the devices whose state is the job's result (the mask stage of the
-    mask alignment), left as the job set them when it completes, and put back only
-    when it was aborted or failed (a half-done alignment is no pose to keep); what the
-    job changed only to take its measurement (exposure, LEDs, other stages) is put back
-    either way.
-
-    ``sample_out``: on the virtual bench, take the moving scene out of the beam for the
-    run (as an operator removes the sample) and put it back."""
-    from .benchstate import capture, restore
-
-    was_streaming = session.streaming
-    session.claim_camera(user)
-    bench = session.bench
-    scene = getattr(bench, "scene", None) if sample_out else None
-    try:
-        before = capture(bench)
-        if scene is not None:
-            bench.set_scene(None)
-        completed = False
-        try:
-            yield
-            completed = True
-        finally:
-            if scene is not None:
-                bench.set_scene(scene)
-            if not session.closing:  # the window closes: the devices close next
-                restore(bench, before.without(produces) if completed else before)
-    finally:
-        session.release_camera(user, resume_stream=was_streaming and not session.closing)
-
-
-def _tagged(report, tags_of_point):
-    """The runner's event handler: ``report(event)`` with ``event.tag``, the plan's tag
-    of each captured frame (``psf``, ``dark``, ...; None on other events), so the panel
-    can show the frames of interest as they are taken."""
-    seen = {"point": None, "k": 0}
-
-    def on_event(e) -> None:
-        e.tag = None
-        if e.kind == "frame" and e.point is not None:
-            if e.point != seen["point"]:
-                seen.update(point=e.point, k=0)
-            tags = tags_of_point(e.point)
-            e.tag = tags[seen["k"]] if seen["k"] < len(tags) else None
-            seen["k"] += 1
-        report(e)
-
-    return on_event
-
-
-def run_plan(job, session, plan, path: str, control, *, overwrite: bool = False):
-    """Run ``plan`` into a new store at ``path`` (progress: the runner's events).
+def run_plan(job, session, routine: str, values: dict[str, Any], path: str, control, *,
+             overwrite: bool = False):
+    """Run ``routine``'s plan, built from the form's ``values``, into a new store at
+    ``path``, in the bench process (:func:`gui.bench_jobs.run_plan`) with the camera
+    claimed; progress: ``{"kind": "planned", ...}``, then the runner's events.
 
     Returns
     -------
     instrument.runner.RunResult
-    """
-    from instrument.output_safety import check_outputs
-    from instrument.runner import Runner
 
-    check_outputs([path], {}, overwrite, store=True)
-    points = plan.points()
-    with _camera(session, "the calibration run"):
-        runner = Runner(session.bench, control=control,
-                        on_event=_tagged(job.report, lambda i: points[i].tags))
-        return runner.run(plan, path, overwrite=overwrite)
+    Raises
+    ------
+    instrument.plan.PlanError, diffuserlab.errors.InputError
+        Parameters the plan refuses; a store at ``path`` already.
+    """
+    with session.camera_claimed("the calibration run"):
+        return session.run_on_bench(
+            "gui.bench_jobs:run_plan", {"routine": routine, "values": values, "path": path,
+                                        "overwrite": overwrite},
+            report=job.report, control=control)
 
 
 def resume_plan(job, session, path: str, control, *, accept_differences: bool = False):
-    """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
-    from calibration_routines import register_plans
-    from instrument.runner import Runner
-    from instrument.runstore import RunStore
-
-    register_plans()  # resuming rebuilds the plan from its recorded name
-
-    store = RunStore.open(path)
-
-    def tags_of_point(point: int) -> list[str]:
-        return [store.tag_of(i) for i in store.frame_range(point)]
-
-    with _camera(session, "the calibration run"):
-        runner = Runner(session.bench, control=control,
-                        on_event=_tagged(job.report, tags_of_point))
-        return runner.resume(path, accept_differences=accept_differences)
-
-
-#: The mask alignment's steps, in order (the names its events and record use).
-ALIGNMENT_STEPS = ("preflight", "coarse", "translation", "rigid", "focus", "piecewise",
-                   "verify")
+    """Resume the run at ``path`` in the bench process
+    (:meth:`instrument.runner.Runner.resume`, :func:`gui.bench_jobs.resume_plan`)."""
+    with session.camera_claimed("the calibration run"):
+        return session.run_on_bench(
+            "gui.bench_jobs:resume_plan", {"path": path,
+                                           "accept_differences": accept_differences},
+            report=job.report, control=control)
 
 
 def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frames: int = 3,
                   focus: bool = True):
     """The mask alignment (:class:`calibration_routines.mask_alignment.MaskAligner`) on
-    the session's bench, recorded in ``out``; progress: ``{"kind": "event", ...}`` per
-    step message and ``{"kind": "reading", ...}`` per spot reading.
+    the session's bench, run in the bench process (:func:`gui.bench_jobs.run_alignment`)
+    and recorded in ``out``; progress: ``{"kind": "event", ...}`` per step message and
+    ``{"kind": "reading", ...}`` per spot reading.
 
     The parameters are ``align mask``'s model
     (:class:`calibration_routines.parameters.AlignMaskParams`), built from the panel's
     values. On the virtual bench the mask is misplaced as ``align mask --simulate``
     places it by default (the model's ``sim_*`` defaults), so there is something to
-    align.
+    align. The aligned mask stage stays where the alignment put it (the rest of the
+    bench is put back).
 
     Returns
     -------
@@ -309,86 +239,39 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
     instrument.runner.RunAborted
         Aborted (the record keeps every reading).
     """
-    from calibration_routines.cli.align import simulated_truth
-    from calibration_routines.holo_bench import holography_branch
-    from calibration_routines.mask_alignment import AlignmentConfig, AlignmentRecord, MaskAligner
-    from calibration_routines.parameters import AlignMaskParams
-    from instrument.plan import PlanError
-    from recon.optics.holo_display import MaskModel
-
-    args = AlignMaskParams.from_text({"--mask-seed": mask_seed, "--frames": str(frames),
-                                      "--no-focus": not focus})
-    if not session.is_virtual and args.mask_seed is None:
-        raise PlanError("on a real bench, give the installed mask's seed (or run `diffuserlab "
-                        "align mask --mask-pattern FILE.npy`)")
-
-    class _Record(AlignmentRecord):
-        def log(self, entry: dict) -> None:
-            super().log(entry)
-            job.report({"kind": "reading", "eta": entry.get("eta"), "pose": entry.get("pose"),
-                        "step": entry.get("step")})
-
-    bench = session.bench
-    with _camera(session, "the mask alignment", produces=("mask_stage",)), \
-            holography_branch(bench):
-        relay_na = bench.relay_na if session.is_virtual else args.relay_na
-        cfg = AlignmentConfig(coarse_range_px=args.coarse_range_px, frames=args.frames,
-                              rotation=not args.no_rotation, focus=not args.no_focus,
-                              relay_na=relay_na, focus_range_mm=args.focus_range_mm)
-        if session.is_virtual:
-            bench.hologram.mask.truth = simulated_truth(args)
-            seed = bench.hologram.mask.seed if args.mask_seed is None else args.mask_seed
-        else:
-            seed = args.mask_seed
-        slm = bench.slm
-        model = MaskModel(slm.resolution, slm.pixel_pitch_um, args.k, 4, seed,
-                          margin=args.mask_margin)
-        record = _Record(out)
-        aligner = None
-
-        def on_event(step: str, message: str, data: dict) -> None:
-            steps = aligner.state["steps"] if aligner is not None else {}
-            job.report({"kind": "event", "step": step, "message": message,
-                        "done": list(steps), "steps": section_summary(steps)})
-
-        aligner = MaskAligner(bench, model, cfg, record=record, control=control,
-                              on_event=on_event)
-        report = aligner.run()
-        job.report({"kind": "event", "step": "verify", "message": "completed",
-                    "done": list(report["steps"]), "steps": section_summary(report["steps"])})
-        return report
-
-
-def section_summary(steps: dict) -> dict:
-    """Per-section offsets (rigid step, mask px), integer shifts (piecewise) and
-    efficiency ratios (verify) found so far."""
-    out: dict = {}
-    rigid = steps.get("rigid")
-    if rigid and rigid.get("rounds"):
-        out["offsets_px"] = [list(map(float, s["offset"])) for s in rigid["rounds"][-1]["sections"]]
-    if "verify" in steps:
-        out["eta_ratio"] = [float(v) for v in steps["verify"]["eta_ratio"]]
-    return out
+    with session.camera_claimed("the mask alignment"):
+        return session.run_on_bench(
+            "gui.bench_jobs:run_alignment", {"out": out, "mask_seed": mask_seed,
+                                             "frames": frames, "focus": focus},
+            report=job.report, control=control)
 
 
 def record(job, session, out: str, stop, *, frames: int | None, seconds: float | None,
-           fps: float | None, exposure_s: float | None, tap=None) -> dict:
-    """Record a video run (:func:`instrument.video.record_video`) with the camera claimed
-    (its settings put back and the live stream resumed afterwards); on the virtual bench
-    the run records the scene, seed and the camera's dark offset, as ``capture video
-    --simulate`` does (``recon-run`` takes the dark level from it)."""
-    from instrument.video import record_video
-
-    bench = session.bench
-    attrs = {}
-    if session.is_virtual:
-        attrs["simulated"] = {"scene": session.scene_name, "seed": session.seed,
-                              "dark_offset_dn": float(bench.camera.dark_offset_dn)}
+           fps: float | None, exposure_s: float | None, live=None) -> dict:
+    """Record a video run (:func:`instrument.video.record_video`) in the bench process
+    (:func:`gui.bench_jobs.record`) with the camera claimed (its settings put back and
+    the live stream resumed afterwards). Its frames come to the window as the stream's
+    do (the display and the live reconstruction, if running, take them); ``live``: that
+    reconstruction, whose statistics each progress report carries as ``live``. On the
+    virtual bench the run records the scene, seed and the camera's dark offset, as
+    ``capture video --simulate`` does (``recon-run`` takes the dark level from it)."""
+    simulated = ({"scene": session.scene_name, "seed": session.seed}
+                 if session.is_virtual else None)
     options = {k: v for k, v in (("fps", fps), ("exposure_s", exposure_s)) if v is not None}
-    with _camera(session, "the video recording", sample_out=False):
-        return record_video(bench, out, frames=frames, seconds=seconds, stop=stop,
-                            on_progress=job.report, progress_every_s=0.25, live=tap,
-                            **options, **attrs)
+
+    def report(p: dict) -> None:
+        if live is not None:
+            p["live"] = live.stats()
+        job.report(p)
+
+    with session.camera_claimed("the video recording"):
+        result = session.run_on_bench(
+            "gui.bench_jobs:record", {"out": out, "frames": frames, "seconds": seconds,
+                                      "options": options, "simulated": simulated},
+            report=report, stop=stop)
+    if live is not None and isinstance(result, dict):
+        result["live"] = live.stats()
+    return result
 
 
 def _recon_run_args(run: str, options: dict[str, str]) -> argparse.Namespace:

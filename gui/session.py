@@ -1,17 +1,27 @@
 """The GUI's bench session: the open bench, the camera stream and who uses the camera.
 
-One :class:`Session` per window. It opens the bench of a bench file (or, with
-``simulate``, the virtual bench streaming in real time, as ``capture live
---simulate`` does) on a worker thread, and owns the camera's stream: a grab thread
-fills a :class:`drivers.camera.FrameRing`, and one fan-out thread reads every frame
-in order, keeps the newest for the displays and hands each frame to the consumers
-(the live reconstruction's :meth:`~instrument.live.LiveReconstruction.offer`, the
-recorder's :meth:`~instrument.recorder.Recorder.offer`), which never block.
+One :class:`Session` per window. The bench lives in a process of its own (a
+:class:`instrument.bench_host.BenchHost` served to the window by
+:class:`instrument.bench_process.BenchClient`): the devices, the camera's stream and
+the jobs that use them (calibration runs, the mask alignment, recordings; bodies in
+:mod:`gui.bench_jobs`) run there, so their compute and device waits never take this
+process's interpreter lock. ``session.bench`` is that bench seen from here (device
+reads, writes and calls go to the bench process). The bench file's bench is opened,
+or with ``simulate`` the virtual bench streaming in real time, as ``capture live
+--simulate`` does.
+
+The stream's frames come through shared memory to a reader thread here, which keeps
+the newest for the displays and hands each frame to the consumers (the live
+reconstruction's :meth:`~instrument.live_process.LiveReconstructionProcess.offer`),
+which never block.
 
 A camera cannot stream and snap at once, so jobs that take frames themselves (a
 calibration run, the mask alignment, a video recording that streams on its own)
 claim the camera first (:meth:`Session.claim_camera`): the stream stops, and
 another claimant is refused with a message naming the job that holds it.
+
+:data:`BENCH_IN_PROCESS` runs the same host in the window's process instead (tests
+that replace code the host runs).
 """
 
 from __future__ import annotations
@@ -20,7 +30,8 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
@@ -36,6 +47,9 @@ RATE_WINDOW_S = 2.0
 
 #: Moving scenes the virtual bench can put in front of the camera (``--simulate``).
 SCENES = ("beads-flow", "neurons", "none")
+
+#: Run the bench host in the window's process (False: in a process of its own).
+BENCH_IN_PROCESS = False
 
 
 class Session(QObject):
@@ -68,6 +82,7 @@ class Session(QObject):
     message = Signal(str)
     prompt = Signal(str, str, object)
     _resume = Signal()
+    _stream_ended = Signal()
 
     def __init__(self, bench_path: str | None = None, *, simulate: bool = False,
                  seed: int = 0, scene: str = "beads-flow") -> None:
@@ -75,25 +90,27 @@ class Session(QObject):
         self.bench_path = bench_path
         self.simulate = bool(simulate)
         self.seed = int(seed)
+        #: The open bench as seen from here (None: not connected).
         self.bench = None
+        #: The bench host's client (None: not connected).
+        self.client = None
+        self._virtual = False
         if scene not in SCENES:
             raise ValueError(f"scene {scene!r} is unknown; use one of {', '.join(SCENES)}")
         self.scene_name = scene
         self.camera_user: str | None = None
-        #: True while the window closes (jobs then leave the bench as it is).
-        self.closing = False
-        self.ring = None
+        self._closing = False
         self._consumers: dict[str, Callable[[Any], None]] = {}
         self._latest = None
-        self._fanout: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._counters: dict[str, float] = {}
+        self._streaming = False
         self._lock = threading.Lock()
         self._stream_lock = threading.RLock()  # one start or stop at a time
         self.frames_seen = 0
-        self._stream_t0 = 0.0
         self._rate: deque[tuple[float, int]] = deque()
         self.job: Job | None = None
         self._resume.connect(self._resume_stream)
+        self._stream_ended.connect(self.changed.emit)
 
     # -- connection -----------------------------------------------------------------------
     @property
@@ -103,7 +120,22 @@ class Session(QObject):
     @property
     def is_virtual(self) -> bool:
         """The bench is the virtual bench (``simulate``)."""
-        return self.bench is not None and hasattr(self.bench, "set_scene")
+        return self.bench is not None and self._virtual
+
+    @property
+    def closing(self) -> bool:
+        """True while the window closes (jobs then leave the bench as it is)."""
+        return self._closing
+
+    @closing.setter
+    def closing(self, value: bool) -> None:
+        self._closing = bool(value)
+        client = self.client
+        if client is not None:
+            try:
+                client.host.set_closing(self._closing)
+            except Exception as exc:  # noqa: BLE001 (a bench process already gone)
+                log.warning("could not tell the bench process the window closes: %s", exc)
 
     def config(self):
         """The bench configuration (:func:`instrument.cli.common.bench_config`)."""
@@ -126,36 +158,43 @@ class Session(QObject):
         return job.start()
 
     def _open(self, job: Job):
-        from instrument.bench import Bench
-        from instrument.virtual_bench import VirtualBench
+        from instrument.bench_process import BenchClient
 
-        config = self.config()
-        if not self.simulate:
-            return Bench.open(config, on_prompt=self._ask, cancel=job.cancel_event)
-        vb = VirtualBench(config, seed=self.seed, realtime=True).open()
-        vb.led_array.all_off()
-        self._set_scene(vb, self.scene_name)
-        return vb
+        client = BenchClient(in_process=BENCH_IN_PROCESS, on_frame=self._on_frame,
+                             on_message=self.message.emit, on_prompt=self.prompt.emit,
+                             on_stream_ended=self._on_stream_ended)
+        try:
+            described = client.run_job(
+                "gui.bench_jobs:open_bench",
+                {"bench_path": self.bench_path, "simulate": self.simulate,
+                 "seed": self.seed, "scene": self.scene_name}, cancel=job.cancel_event)
+            bench = client.bench
+        except BaseException:
+            client.close()
+            raise
+        return client, described, bench
 
-    def _opened(self, bench) -> None:
-        self.bench = bench
+    def _opened(self, opened) -> None:
+        self.client, described, self.bench = opened
+        self._virtual = bool(described["virtual"])
         where = "built-in simulated bench" if self.bench_path is None else self.bench_path
         self.message.emit(f"connected: {where}{' (simulated)' if self.simulate else ''}, "
-                          f"devices {', '.join(bench.devices)}")
+                          f"devices {', '.join(described['devices'])}")
         self.changed.emit()
 
     def disconnect_bench(self, then: Callable[[], None] | None = None) -> Job | None:
-        """Stop the stream and close every device on a worker thread (``changed`` fires
-        at once: the panels stop using the bench); ``then()`` once they are closed."""
+        """Stop the stream and close every device and the bench process on a worker
+        thread (``changed`` fires at once: the panels stop using the bench); ``then()``
+        once they are closed."""
         if self.bench is None:
             return None
-        bench, self.bench = self.bench, None
+        client, self.client, self.bench = self.client, None, None
         self.camera_user = None
+        self._streaming = False
         self.changed.emit()
 
         def close(job: Job) -> None:
-            self.stop_stream(bench=bench)
-            bench.close()
+            client.close()
 
         job = Job(close, name="close-bench", nice=DEVICE_NICE)
         job.succeeded.connect(lambda _: self.message.emit("disconnected"))
@@ -165,36 +204,30 @@ class Session(QObject):
         self.job = job
         return job.start()
 
-    def _ask(self, action: str, message: str) -> bool:
-        """A plan's operator prompt on a real bench: asked in the GUI, answered there."""
-        answer: dict[str, bool] = {}
-        done = threading.Event()
+    def run_on_bench(self, target: str, kwargs: dict | None = None, **channels) -> Any:
+        """Run ``target`` (a :mod:`gui.bench_jobs` function) in the bench process and
+        wait for it (:meth:`instrument.bench_process.BenchClient.run_job`; ``report``,
+        ``control``, ``stop``, ``cancel``). Call it on a worker.
 
-        def reply(ok: bool) -> None:
-            answer["ok"] = bool(ok)
-            done.set()
-
-        self.prompt.emit(action, message, reply)
-        done.wait()
-        return answer["ok"]
+        Raises
+        ------
+        CameraBusy
+            No bench is connected.
+        """
+        client = self.client
+        if client is None:
+            raise CameraBusy("no bench is connected; press Connect first")
+        return client.run_job(target, kwargs, **channels)
 
     # -- the virtual bench's scene ---------------------------------------------------------
-    @staticmethod
-    def _set_scene(vb, name: str) -> None:
-        from instrument.bench_scenes import show_video_scene
-
-        if name == "none":
-            vb.set_scene(None)
-            return
-        show_video_scene(vb, name, seed=vb.seed)  # as `capture --simulate --scene`
-
     def set_scene(self, name: str, on_error: Callable[[str], None] | None = None) -> Job:
         """Put a moving scene (:data:`SCENES`) in front of the virtual bench's camera
-        (rendered ahead on a worker thread)."""
+        (rendered ahead in the bench process)."""
         if name not in SCENES:
             raise ValueError(f"scene {name!r} is unknown; use one of {', '.join(SCENES)}")
         self.scene_name = name
-        job = Job(lambda job: self._set_scene(self.bench, name), name="scene")
+        job = Job(lambda job: self.run_on_bench("gui.bench_jobs:set_scene", {"name": name}),
+                  name="scene")
         job.failed.connect(lambda text: self.message.emit(f"scene: {text}"))
         if on_error is not None:
             job.failed.connect(on_error)
@@ -228,6 +261,18 @@ class Session(QObject):
             if resume_stream:
                 self._resume.emit()
 
+    @contextmanager
+    def camera_claimed(self, user: str) -> Iterator[None]:
+        """:meth:`claim_camera` for the block, then :meth:`release_camera`, the live
+        stream started again if it ran (not when the window is closing). Call it on a
+        worker (stopping the stream waits for the camera)."""
+        was_streaming = self.streaming
+        self.claim_camera(user)
+        try:
+            yield
+        finally:
+            self.release_camera(user, resume_stream=was_streaming and not self.closing)
+
     def _resume_stream(self) -> None:
         if self.bench is None or self.camera_user is not None or self.streaming:
             return
@@ -238,9 +283,9 @@ class Session(QObject):
                    on_error: Callable[[str], None] | None = None,
                    done: Callable[[Any], None] | None = None) -> Job:
         """Start (``on``) or stop the stream on a worker, then ``then()`` there too
-        (stopping joins the camera's grab thread, which may be rendering or reading a
-        frame: never on the GUI thread); ``done(then's result)`` and ``on_error(text)``
-        on the GUI thread. Returns the started job."""
+        (stopping waits for the camera's grab thread in the bench process: never on
+        the GUI thread); ``done(then's result)`` and ``on_error(text)`` on the GUI
+        thread. Returns the started job."""
 
         def work(job: Job):
             if on:
@@ -260,10 +305,10 @@ class Session(QObject):
     # -- the stream ------------------------------------------------------------------------
     @property
     def streaming(self) -> bool:
-        return self._fanout is not None and self._fanout.is_alive()
+        return self._streaming
 
     def start_stream(self, ring_frames: int = 64) -> None:
-        """Start the camera's free-run stream and the fan-out thread.
+        """Start the camera's free-run stream in the bench process.
 
         Raises
         ------
@@ -272,48 +317,42 @@ class Session(QObject):
         drivers.errors.DeviceError
             The camera refused to stream.
         """
-        from drivers.camera import FrameRing
-
         with self._stream_lock:
-            if self.bench is None:
+            client = self.client
+            if self.bench is None or client is None:
                 raise CameraBusy("no bench is connected; press Connect first")
             if self.camera_user is not None:
                 raise CameraBusy(f"the camera is busy with {self.camera_user}; the live "
                                  "view starts again when it ends")
-            if self.streaming:
+            if self._streaming:
                 return
-            self._start(self.bench.camera, FrameRing(ring_frames))
+            self.frames_seen = 0
+            self._counters = {}
+            self._rate.clear()
+            client.host.start_stream(ring_frames)
+            self._streaming = True
+            self.changed.emit()
 
-    def _start(self, cam, ring) -> None:
-        self.ring = ring
-        cam.start_stream(self.ring)
-        self._stop.clear()
-        self.frames_seen = 0
-        self._stream_t0 = time.monotonic()
-        self._rate.clear()
-        self._fanout = threading.Thread(target=self._fan_out, args=(self.ring,),
-                                        name="gui-stream", daemon=True)
-        self._fanout.start()
-        self.changed.emit()
-
-    def stop_stream(self, timeout_s: float = 2.0, *, bench=None) -> None:
-        """Stop the stream (idempotent); the ring keeps its counters. Waits for the
+    def stop_stream(self, timeout_s: float = 2.0) -> None:
+        """Stop the stream (idempotent); the counters shown stay. Waits for the
         camera's grab thread: call it on a worker (:meth:`stream_job`)."""
         with self._stream_lock:
-            if self._fanout is None:
+            client = self.client
+            if not self._streaming:
                 return
-            bench = bench if bench is not None else self.bench
-            self._stop.set()
             try:
-                if bench is not None:
-                    bench.camera.stop_stream()
+                if client is not None:
+                    client.host.stop_stream(timeout_s)
             finally:
-                self._fanout.join(timeout_s)
-                self._fanout = None
+                self._streaming = False
                 self.changed.emit()
 
+    def _on_stream_ended(self) -> None:
+        self._streaming = False
+        self._stream_ended.emit()
+
     def add_consumer(self, name: str, offer: Callable[[Any], None]) -> None:
-        """Hand every streamed frame to ``offer(frame)`` (must return at once)."""
+        """Hand every frame read to ``offer(frame)`` (must return at once)."""
         with self._lock:
             self._consumers[name] = offer
 
@@ -322,34 +361,37 @@ class Session(QObject):
             self._consumers.pop(name, None)
 
     def show_frame(self, frame) -> None:
-        """Make ``frame`` the newest for the displays (a job streaming the camera itself,
-        e.g. a recording, shows its frames so)."""
+        """Make ``frame`` the newest for the displays (a snapshot the camera took)."""
         self._latest = frame
         self.frames_seen += 1
 
     def latest_frame(self):
-        """The newest streamed :class:`drivers.camera.Frame` (None before the first)."""
+        """The newest :class:`drivers.camera.Frame` read (None before the first)."""
         return self._latest
 
-    def stream_counters(self) -> dict[str, float]:
-        """The ring's counters (acquired, read, skipped, dropped) and ``fps``: the rate
-        of the frames delivered over the last :data:`RATE_WINDOW_S` seconds (not since
-        the stream started: a change of exposure shows within seconds).
+    def frame_bit_depth(self) -> int:
+        """The camera's bit depth when the newest frame was published (16 before)."""
+        return int(self._counters.get("bit_depth", 16) or 16)
 
-        Read without the ring's lock (each counter is one int, read whole): the GUI
-        thread never waits for the grab thread, which on a loaded machine held it while
-        descheduled (the operator's day's watchdog found the event loop there); the
-        numbers shown may be one frame apart."""
-        ring = self.ring
-        if ring is None:
+    def stream_counters(self) -> dict[str, float]:
+        """The camera ring's counters (acquired, read, skipped, dropped) as the bench
+        process published them with the newest frame, ``missed``: frames published
+        that this window's reader did not take (it takes the newest), and ``fps``: the
+        rate of the frames published over the last :data:`RATE_WINDOW_S` seconds (not
+        since the stream started: a change of exposure shows within seconds). Never
+        waits: the GUI thread reads what the reader thread stored. Empty when no frame
+        was published and the stream is stopped; zeros while the first is awaited."""
+        c = self._counters
+        if not c and not self.streaming:
             return {}
-        out: dict[str, float] = {"acquired": ring.acquired, "read": ring.read,
-                                 "skipped": ring.skipped, "dropped": ring.dropped}
+        out: dict[str, float] = {k: int(c.get(k, 0)) for k in
+                                 ("acquired", "read", "skipped", "dropped")}
+        out["missed"] = int(c.get("missed_total", 0))
         out["fps"] = self.frame_rate() if self.streaming else 0.0
         return out
 
     def frame_rate(self) -> float:
-        """Frames delivered per second over the last :data:`RATE_WINDOW_S` seconds."""
+        """Frames published per second over the last :data:`RATE_WINDOW_S` seconds."""
         now = time.monotonic()
         rate = self._rate
         rate.append((now, self.frames_seen))
@@ -360,20 +402,14 @@ class Session(QObject):
             return 0.0
         return (n1 - n0) / (t1 - t0)
 
-    def _fan_out(self, ring) -> None:
-        from drivers.errors import CameraTimeoutError
-
-        while not self._stop.is_set():
-            try:
-                frame = ring.get(timeout_s=0.05)
-            except CameraTimeoutError:
-                continue
-            except Exception as exc:  # noqa: BLE001 (a producer error, reported once)
-                self.message.emit(f"camera stream stopped: {exc}")
-                return
-            self._latest = frame
-            self.frames_seen += 1
-            with self._lock:
-                consumers = list(self._consumers.values())
-            for offer in consumers:
-                offer(frame)
+    def _on_frame(self, frame, meta: dict) -> None:
+        """The reader thread's hand-off: the newest frame, its counters, the consumers."""
+        missed = max(int(meta.get("missed", 0)), 0)
+        meta["missed_total"] = self._counters.get("missed_total", 0) + missed
+        self._counters = meta
+        self._latest = frame
+        self.frames_seen += 1 + missed
+        with self._lock:
+            consumers = list(self._consumers.values())
+        for offer in consumers:
+            offer(frame)

@@ -5,8 +5,8 @@ and each frame shown as it is taken.
 The parameters are the routine's typed model, from which the ``calibrate`` command's
 options are generated too (:func:`gui.jobs.routine_options`, remembered between
 sessions); the form's texts become the model, which builds the plan
-(:func:`gui.jobs.build_plan`), and the run is :class:`instrument.runner.Runner` on a
-worker, controlled through a :class:`~instrument.runner.RunControl`. The bench is
+(:func:`gui.bench_jobs.build_plan`), and the run is :class:`instrument.runner.Runner` in
+the bench process, controlled through a :class:`~instrument.runner.RunControl`. The bench is
 given back as it was (camera settings, stage positions, LEDs, the live stream). A
 run that ends aborted or failed keeps its data and says how to resume it.
 """
@@ -29,7 +29,14 @@ from PySide6.QtWidgets import (
 )
 
 from ..fields import remember, wheel_needs_focus
-from ..jobs import ROUTINES, build_plan, default_run_path, resume_plan, routine_options, run_plan
+from ..jobs import (
+    ROUTINES,
+    check_values,
+    default_run_path,
+    resume_plan,
+    routine_options,
+    run_plan,
+)
 from ..logpane import announce_job
 from ..messages import operator_text
 from ..session import Session
@@ -182,19 +189,19 @@ class CalibrationPanel(RunControls, QWidget):
         if not self.session.connected:
             self._say("no bench is connected; press Connect on the Devices panel", error=True)
             return None
+        values = self._values(routine)
         try:
-            plan = build_plan(self.session.bench, routine, self._values(routine))
+            check_values(routine, values)
         except Exception as exc:  # noqa: BLE001 (shown, never raised)
             self._say(readable_error(exc, self.labels), error=True)
             return None
         path = self.out.text().strip() or default_run_path(routine)
         self.last_path = path
-        total = sum(len(p.tags) for p in plan.points())
-        self.light_frames = any(t != "dark" for p in plan.points() for t in p.tags)
+        self.light_frames = True
         self.status.setText(f"running {routine} into {path}")
-        return self._launch(lambda job, control: run_plan(job, self.session, plan, path,
-                                                          control), total,
-                            f"{routine}, {total} frames into {path}")
+        return self._launch(lambda job, control: run_plan(job, self.session, routine, values,
+                                                          path, control),
+                            detail=f"{routine} into {path}")
 
     def resume(self) -> Job | None:
         """Resume the last run (:meth:`instrument.runner.Runner.resume`)."""
@@ -214,7 +221,12 @@ class CalibrationPanel(RunControls, QWidget):
         (gui_log.warning if error else gui_log.info)("%s", text)
 
     def on_event(self, e) -> None:
-        """Show a :class:`instrument.runner.RunEvent`."""
+        """Show a :class:`instrument.runner.RunEvent` (or the plan's size, first)."""
+        if isinstance(e, dict) and e.get("kind") == "planned":
+            self.light_frames = bool(e["light_frames"])
+            self.progress.start(int(e["total"]))
+            self._say(f"{self.status.text()}: {e['total']} frames")
+            return
         self.events.append(e.kind)
         point = "" if e.point is None else f"point {e.point + 1}/{e.points_total}"
         self.progress.report(e.frames_done, e.frames_total, eta_s=e.eta_s, note=point)

@@ -13,6 +13,8 @@ kept between sessions (:mod:`gui.fields`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import Qt, QTimer, Signal
@@ -29,6 +31,8 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+
+from instrument.bench_process import device_class
 
 from ..device_settings import parse_value, rows, value_text
 from ..device_status import STATE_COLOURS, device_state, status_fields
@@ -51,6 +55,17 @@ def _led_brushes():
     return _BRUSHES
 
 
+@dataclass
+class PolledDevice:
+    """One device as the once-a-second poll read it on a worker: its ``status()``, and
+    for an open device its ``settings()`` and ``setting_values()`` (None when not
+    read)."""
+
+    status: dict
+    settings: dict | None = None
+    values: dict | None = None
+
+
 class DeviceBox(QGroupBox):
     """One device: state and Reconnect, status fields, settings (unit, limits, Apply),
     presets, and its kind's controls.
@@ -63,8 +78,11 @@ class DeviceBox(QGroupBox):
     """
 
     def __init__(self, device, bench: str = "bench/default", parent=None) -> None:
-        super().__init__(f"{device.device_id} ({device.kind}, {type(device).__name__})", parent)
+        super().__init__(f"{device.device_id} ({device.kind}, {device_class(device).__name__})",
+                         parent)
         self.device = device
+        #: The device's kind (read once: the window shows it at every poll).
+        self.kind = device.kind
         self.bench = bench
         self.jobs: list[Job] = []
         self.last_status: dict = {}
@@ -177,35 +195,35 @@ class DeviceBox(QGroupBox):
         self.state.setText("reconnecting ...")
         return self.run(self.device.reconnect, done=lambda _: self.refresh_settings())
 
-    def refresh_settings(self, force: tuple[str, ...] = ()) -> None:
+    def refresh_settings(self, force: tuple[str, ...] = (), values: dict | None = None) -> None:
         """Show the device's current settings (fields being edited are left alone,
         except those named in ``force``; a device that went away meanwhile is left as
-        shown: its state says so)."""
+        shown: its state says so); ``values``: its ``setting_values()`` as a worker read
+        them (the poll), else read here."""
         from drivers.errors import DeviceError
 
-        try:
-            values = self.device.setting_values()
-        except DeviceError:
-            return
+        if values is None:
+            try:
+                values = self.device.setting_values()
+            except DeviceError:
+                return
         for name, edit in self.fields.items():
             if name in force or (not edit.hasFocus() and not edit.isModified()):
                 edit.setText(value_text(values.get(name), name, self.rows[name].spec))
                 edit.setModified(False)
                 edit.setCursorPosition(0)
 
-    def show_status(self, status: dict) -> None:
-        """Show a :meth:`drivers.base.Device.status` dict (from the poller) as fields."""
+    def show_status(self, status: dict, settings: dict | None = None) -> None:
+        """Show a :meth:`drivers.base.Device.status` dict and the ``settings()`` read with
+        it (the poller's, on a worker; None: not read, the device gone) as fields."""
         self.last_status = status
         state = device_state(status)
-        try:
-            settings = self.device.settings() if state not in ("disconnected", "closed") \
-                else None
-        except Exception:  # noqa: BLE001 (a device gone between the poll and now)
+        if state in ("disconnected", "closed"):
             settings = None
         colour = STATE_COLOURS.get(state, "#000")
         text = "DISCONNECTED: press Reconnect" if state == "disconnected" else state
         self.state.setText(f'<b style="color:{colour}">{text}</b>')
-        rows = status_fields(self.device.kind, status, settings)[1:]
+        rows = status_fields(self.kind, status, settings)[1:]
         for label, value in rows:
             if label not in self.status_labels:
                 widget = QLabel(value)
@@ -535,25 +553,36 @@ class DevicePanel(QWidget):
         devices = {k: b.device for k, b in self.boxes.items()}
 
         def read(job: Job) -> dict:
+            # everything shown is read here, on the worker: each read is a message to
+            # the bench process, which the GUI thread never waits for
             out = {}
             for k, d in devices.items():
                 try:
-                    out[k] = d.status()
+                    status = d.status()
                 except Exception as exc:  # noqa: BLE001 (shown as the device's state)
-                    out[k] = {"is_open": d.is_open, "disconnected": True, "error": str(exc)}
+                    out[k] = PolledDevice({"is_open": d.is_open, "disconnected": True,
+                                           "error": str(exc)})
+                    continue
+                settings = values = None
+                if status.get("is_open") and not status.get("disconnected"):
+                    try:
+                        settings, values = d.settings(), d.setting_values()
+                    except Exception:  # noqa: BLE001 (gone between the reads: shown so)
+                        pass
+                out[k] = PolledDevice(status, settings, values)
             return out
 
         self.poll_job = Job(read, name="device-status", owner=self, nice=DEVICE_NICE)
         self.poll_job.succeeded.connect(self._show_status)
         self.poll_job.start()
 
-    def _show_status(self, statuses: dict) -> None:
-        for dev_id, status in statuses.items():
+    def _show_status(self, polled: dict[str, PolledDevice]) -> None:
+        for dev_id, p in polled.items():
             if dev_id in self.boxes:
                 box = self.boxes[dev_id]
-                box.show_status(status)
-                if status.get("is_open") and not status.get("disconnected"):
-                    box.refresh_settings()
-        self.last_statuses = statuses
+                box.show_status(p.status, p.settings)
+                if p.values is not None:
+                    box.refresh_settings(values=p.values)
+        self.last_statuses = {k: p.status for k, p in polled.items()}
         self._show_count()
-        self.statuses.emit(statuses)
+        self.statuses.emit(polled)

@@ -359,9 +359,8 @@ class LivePanel(QWidget):
             self._shown_raw = frame.index
             image = frame.image
             self.raw_view.setImage(image, autoLevels=first or not self.raw_view.levels_locked)
-            cam = self.session.bench.camera if self.session.connected else None
-            if cam is not None:
-                sat = image >= 2 ** int(cam.bit_depth) - 1
+            if self.session.connected:
+                sat = image >= 2 ** self.session.frame_bit_depth() - 1
                 if sat.any() or self._saturation_shown:
                     overlay = np.zeros(image.shape + (4,), np.uint8)
                     overlay[sat] = (255, 0, 0, 255)

@@ -58,28 +58,6 @@ def _number(text: str, what: str, kind=float):
         raise InputError(f"{what} {text!r}: give a number or leave it empty") from None
 
 
-class _LiveTap:
-    """What :func:`instrument.video.record_video` offers every frame to: the session's
-    display (newest frame) and the live panel's reconstruction, if running."""
-
-    def __init__(self, session: Session, live) -> None:
-        self.session, self.live = session, live
-
-    def start(self) -> None:  # the live reconstruction, if any, runs already
-        pass
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        pass
-
-    def offer(self, frame) -> None:
-        self.session.show_frame(frame)
-        if self.live is not None:
-            self.live.offer(frame)
-
-    def stats(self) -> dict | None:
-        return None if self.live is None else self.live.stats()
-
-
 class RecordPanel(QWidget):
     """See the module docstring.
 
@@ -271,14 +249,14 @@ class RecordPanel(QWidget):
             frames = None
         out = self.out.text().strip() or f"out/runs/video-{_dt.datetime.now():%Y%m%d-%H%M%S}.zarr"
         self.stop_event = threading.Event()
-        tap = _LiveTap(self.session, getattr(self.live_panel, "live", None))
         self.record_progress.start(frames or 0)
         self.counters.setText("starting the recording ...")
         length = (f"{frames} frames" if frames else f"{seconds:g} s" if seconds
                   else "until stopped")
         announce_job("recording", f"{length} into {out}")
         self.record_job = Job(record, self.session, out, self.stop_event, frames=frames,
-                              seconds=seconds, fps=fps, exposure_s=exposure_s, tap=tap,
+                              seconds=seconds, fps=fps, exposure_s=exposure_s,
+                              live=getattr(self.live_panel, "live", None),
                               name="record-video", nice=DEVICE_NICE)
         self.record_job.progress.connect(lambda p: self.on_record_progress(p, out))
         self.record_job.succeeded.connect(self.on_recorded)

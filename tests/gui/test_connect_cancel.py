@@ -46,6 +46,7 @@ def test_connect_button_cancels_an_open_in_progress(qapp, tmp_path, monkeypatch,
     from gui.session import Session
 
     monkeypatch.setattr(registry, "_local", {})
+    monkeypatch.setattr("gui.session.BENCH_IN_PROCESS", True)  # the driver is registered here
     registry.register("homing-stage", HomingStage)
     bench = default_bench()  # the simulated bench, its source stage homing at open
     bench = bench.model_copy(update={"devices": [

@@ -77,6 +77,7 @@ def test_a_completed_alignment_keeps_the_mask_at_the_aligned_pose(qapp, wait, em
 
     monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(tmp_path / "gui.ini"))
     monkeypatch.setattr(mask_alignment, "MaskAligner", _FakeAligner)
+    monkeypatch.setattr("gui.session.BENCH_IN_PROCESS", True)  # the fake runs here
     w = _open_window(qapp, emulated)
     try:
         bench = w.session.bench
@@ -113,6 +114,7 @@ def test_an_aborted_alignment_puts_the_mask_back(qapp, wait, emulated, tmp_path,
 
     monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(tmp_path / "gui.ini"))
     monkeypatch.setattr(mask_alignment, "MaskAligner", _Aborted)
+    monkeypatch.setattr("gui.session.BENCH_IN_PROCESS", True)  # the fake runs here
     w = _open_window(qapp, emulated)
     try:
         start = w.session.bench.mask_stage.positions()

@@ -5,6 +5,9 @@ reconstruction with the sweep's PSF, the results viewer on the run."""
 
 from __future__ import annotations
 
+import gc
+import threading
+
 import numpy as np
 import pytest
 
@@ -114,10 +117,22 @@ def sweep(window, tmp_path_factory, qapp):
         fields[flag].setText(value)
     path = str(tmp_path_factory.mktemp("runs") / "sweep.zarr")
     panel.out.setText(path)
-    record = {"path": path}
-    job = panel.start()
-    assert job is not None, panel.status.text()
-    wait(lambda: "frame" in panel.events, 60, "the first frame")
+    record = {"path": path, "runners_here": []}
+    from instrument.runner import Runner
+
+    init = Runner.__init__
+
+    def noted(self, *a, **k):  # a runner made in the window's process
+        record["runners_here"].append(threading.current_thread().name)
+        init(self, *a, **k)
+
+    Runner.__init__ = noted
+    try:
+        job = panel.start()
+        assert job is not None, panel.status.text()
+        wait(lambda: "frame" in panel.events, 60, "the first frame")
+    finally:
+        Runner.__init__ = init
     panel.toggle_pause()
     wait(lambda: "paused" in panel.events, 30, "the pause")
     done = panel.progress.value()
@@ -133,6 +148,25 @@ def sweep(window, tmp_path_factory, qapp):
     record["resumed"] = panel.result
     record["final_message"] = panel.status.text()
     return record
+
+
+def test_the_devices_the_stream_and_the_runs_live_in_the_bench_process(window, wait, sweep):
+    """No device object, grab thread or calibration runner in the window's process."""
+    from drivers.base import Device
+
+    session = window.session
+    assert not session.client.in_process and session.client.alive()
+    assert sweep["runners_here"] == []  # the sweep's runner ran in the bench process
+    window.live.toggle_stream()
+    wait(lambda: session.streaming and session.frames_seen > 3, 10, "frames")
+    try:
+        assert not [o for o in gc.get_objects() if isinstance(o, Device)]
+        names = {t.name for t in threading.enumerate()}
+        assert "bench-frames" in names and "bench-stream" not in names
+        assert session.stream_counters()["acquired"] >= 3
+    finally:
+        window.live.toggle_stream()
+        wait(lambda: not session.streaming, 5, "the stream to stop")
 
 
 def test_psf_sweep_pause_abort_resume(sweep):
@@ -277,12 +311,12 @@ def test_alignment_shows_readings_pose_and_steps_then_aborts(window, wait, tmp_p
 @pytest.mark.parametrize("name", ["beads-flow", "neurons", "none"])
 def test_every_scene_of_the_gui_shows_on_the_virtual_bench(name):
     """The GUI's scenes are `capture --simulate --scene`'s (neurons failed to prerender)."""
-    from gui.session import Session
+    from gui.bench_jobs import show_scene
     from instrument.virtual_bench import VirtualBench
 
     vb = VirtualBench(seed=0, realtime=True).open()
     try:
-        Session._set_scene(vb, name)
+        show_scene(vb, name)
         assert (vb.scene is None) == (name == "none")
         if name == "neurons":
             assert type(vb.scene).__name__ == "NeuronFieldScene"
