@@ -46,6 +46,8 @@ from typing import Any
 
 import numpy as np
 
+from diffuserlab.errors import DiffuserLabError
+
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
 
@@ -62,7 +64,7 @@ FRAME_META = ("index", "device_timestamp_s", "host_timestamp_s", "exposure_s", "
 METHOD = "<method>"
 
 
-class BenchHostError(RuntimeError):
+class BenchHostError(DiffuserLabError, RuntimeError):
     """A call the bench host cannot serve: no bench open, an unknown path or job."""
 
 

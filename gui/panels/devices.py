@@ -560,7 +560,11 @@ class DevicePanel(QWidget):
                 try:
                     status = d.status()
                 except Exception as exc:  # noqa: BLE001 (shown as the device's state)
-                    out[k] = PolledDevice({"is_open": d.is_open, "disconnected": True,
+                    try:
+                        is_open = d.is_open
+                    except Exception:  # noqa: BLE001 (the bench closed meanwhile)
+                        is_open = False
+                    out[k] = PolledDevice({"is_open": is_open, "disconnected": True,
                                            "error": str(exc)})
                     continue
                 settings = values = None
