@@ -6,6 +6,8 @@ connection and serves each on a thread of the host, so a long stage move does no
 up a status read) or, with ``in_process``, in the caller's process; the rest is the
 same either way:
 
+* calls go over a small pool of connections (:class:`_PooledHost`), not one per calling
+  thread.
 * :attr:`BenchClient.bench` - the bench as the caller uses it: in a child process a
   :class:`RemoteObject` (attribute reads, writes and method calls go to the host; a
   device comes back as another :class:`RemoteObject`, plain data as a copy), in this
@@ -80,6 +82,63 @@ def _the_host() -> BenchHost:
 
 class _Manager(BaseManager):
     pass
+
+
+class _PooledHost:
+    """The host's methods called over a pool of connections, in the manager's own
+    protocol (``(id, method, args, kwargs)`` -> ``(kind, result)``).
+
+    The manager's proxy keeps one connection per calling thread in a
+    ``multiprocessing.util.ForkAwareLocal``, whose ``__init__`` runs again in every new
+    thread and each time adds an entry that is never removed to the after-fork registry:
+    a window that starts a thread per job (one a second for the device poll) grew by
+    ~19000 references an hour. A connection here is taken from the pool for one call
+    and put back; one that failed mid-call is closed.
+    """
+
+    def __init__(self, proxy) -> None:
+        from multiprocessing import managers
+
+        self._managers = managers
+        self._proxy = proxy  # holds the host's reference count in the server
+        self._token, self._authkey, self._client = proxy._token, proxy._authkey, proxy._Client
+        self._free: list = []
+        self._lock = threading.Lock()
+
+    def _take(self):
+        with self._lock:
+            if self._free:
+                return self._free.pop()
+        conn = self._client(self._token.address, authkey=self._authkey)
+        self._managers.dispatch(conn, None, "accept_connection", ("bench-client",))
+        return conn
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+
+        def call(*args, **kwargs):
+            conn = self._take()
+            try:
+                conn.send((self._token.id, name, args, kwargs))
+                kind, result = conn.recv()
+            except BaseException:
+                conn.close()
+                raise
+            with self._lock:
+                self._free.append(conn)
+            if kind == "#RETURN":
+                return result
+            raise self._managers.convert_to_error(kind, result)
+
+        call.__name__ = name
+        return call
+
+    def close(self) -> None:
+        with self._lock:
+            free, self._free = self._free, []
+        for conn in free:
+            conn.close()
 
 
 _Manager.register("BenchHost", _the_host)
@@ -222,7 +281,7 @@ class BenchClient:
             self._manager.start(_serve_init, (events, wake, os.getpid()))
             events.close()
             wake.close()
-            self.host = self._manager.BenchHost()
+            self.host = _PooledHost(self._manager.BenchHost())
         self._lock = threading.Lock()
         self._jobs: dict[int, queue.SimpleQueue] = {}
         self._early: dict[int, list] = {}
@@ -383,6 +442,7 @@ class BenchClient:
             for t in self._threads:
                 t.join(timeout_s)
             if self._manager is not None:
+                self.host.close()
                 self._manager.shutdown()
             if self._slot is not None:
                 self._slot.close()
