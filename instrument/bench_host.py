@@ -4,11 +4,11 @@ The operator's window keeps nothing of the bench in its own process: a
 :class:`BenchHost` owns the open :class:`~instrument.bench.Bench` (or virtual bench),
 streams its camera and runs the jobs that use the devices (a calibration run, the
 mask alignment, a recording), in the child process that
-:class:`instrument.bench_process.BenchProcess` starts. Compute and device waits of
+:class:`instrument.bench_process.BenchClient` starts. Compute and device waits of
 the host then never take the window's interpreter lock or its cores' time slices
 (the pattern of Micro-Manager's core and PyMoDAQ's hardware workers, here as a
 process). The same class also runs in the caller's process
-(:class:`instrument.bench_process.LocalBench`), with the same frame and event
+(``BenchClient(in_process=True)``), with the same frame and event
 channels, so the one code path is tested both ways.
 
 What crosses between the processes:
@@ -123,7 +123,7 @@ def _export(value: Any, path: tuple, devices: Mapping | None = None) -> Any:
 class JobContext:
     """What a job running in the host gets: ``bench``, ``report(value)`` (progress to
     the client), ``control`` (:class:`~instrument.runner.RunControl`), ``stop`` and
-    ``cancel`` (:class:`threading.Event`), ``publish(frame)`` (show a frame the job
+    ``cancel`` (``threading.Event``), ``publish(frame)`` (show a frame the job
     took in the window, as the stream does) and ``host`` (its :class:`BenchHost`)."""
 
     def __init__(self, host: BenchHost, job_id: int) -> None:
@@ -144,7 +144,7 @@ class JobContext:
 
 
 class EventChannel:
-    """The host's end of the event pipe: :meth:`put` sends one event (any thread)."""
+    """The host's end of the event pipe: ``put`` sends one event (any thread)."""
 
     def __init__(self, conn) -> None:
         self.conn = conn
@@ -159,7 +159,7 @@ class EventChannel:
 
 
 class FrameWaker:
-    """The host's end of the frame pipe: :meth:`release` writes one byte, never
+    """The host's end of the frame pipe: ``release`` writes one byte, never
     waiting (a reader that fell behind finds the pipe full and reads the newest frame
     anyway)."""
 
@@ -245,7 +245,7 @@ class BenchHost:
     # -- operator prompts ------------------------------------------------------------
     def ask(self, action: str, message: str) -> bool:
         """Ask the operator (a plan's prompt on a real bench) and wait for
-        :meth:`answer`."""
+        ``answer``."""
         prompt_id = next(self._ids)
         done, answer = threading.Event(), {}
         self._prompts[prompt_id] = (done, answer)

@@ -1,12 +1,12 @@
 """The client of a :class:`~instrument.bench_host.BenchHost`: in a child process or here.
 
 :class:`BenchClient` starts the host in a process of its own (``spawn``, served by
-:class:`multiprocessing.managers.BaseManager`, which gives every calling thread its own
+``multiprocessing.managers.BaseManager``, which gives every calling thread its own
 connection and serves each on a thread of the host, so a long stage move does not hold
 up a status read) or, with ``in_process``, in the caller's process; the rest is the
 same either way:
 
-* calls go over a small pool of connections (:class:`_PooledHost`), not one per calling
+* calls go over a small pool of connections (``_PooledHost``), not one per calling
   thread.
 * :attr:`BenchClient.bench` - the bench as the caller uses it: in a child process a
   :class:`RemoteObject` (attribute reads, writes and method calls go to the host; a
