@@ -137,12 +137,6 @@ class Session(QObject):
             except Exception as exc:  # noqa: BLE001 (a bench process already gone)
                 log.warning("could not tell the bench process the window closes: %s", exc)
 
-    def config(self):
-        """The bench configuration (:func:`instrument.cli.common.bench_config`)."""
-        from instrument.cli.common import bench_config
-
-        return bench_config(self.bench_path, simulate=self.simulate, command="gui")
-
     def connect_bench(self, on_error: Callable[[str], None] | None = None,
                       on_open: Callable[[], None] | None = None) -> Job:
         """Open the bench on a worker thread; ``changed`` fires when it is open, then
