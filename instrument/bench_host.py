@@ -40,6 +40,7 @@ import itertools
 import logging
 import os
 import threading
+import time
 from collections.abc import Mapping
 from pathlib import PurePath
 from typing import Any
@@ -51,8 +52,8 @@ from diffuserlab.errors import DiffuserLabError
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
 
-__all__ = ["FRAME_META", "METHOD", "BenchHost", "BenchHostError", "EventChannel",
-           "FrameWaker", "JobContext", "Ref", "is_plain"]
+__all__ = ["FRAME_META", "JOBS_CLOSE_TIMEOUT_S", "METHOD", "BenchHost", "BenchHostError",
+           "EventChannel", "FrameWaker", "JobContext", "Ref", "is_plain"]
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +63,10 @@ FRAME_META = ("index", "device_timestamp_s", "host_timestamp_s", "exposure_s", "
 
 #: What :meth:`BenchHost.get` returns for a method (the client calls it by name).
 METHOD = "<method>"
+
+#: Longest wait, s, for the jobs to end when the bench closes (a recording writes what
+#: it has queued and closes its run first).
+JOBS_CLOSE_TIMEOUT_S = 60.0
 
 
 class BenchHostError(DiffuserLabError, RuntimeError):
@@ -131,6 +136,7 @@ class JobContext:
         self.control = RunControl()
         self.stop = threading.Event()
         self.cancel = threading.Event()
+        self.thread: threading.Thread | None = None
 
     @property
     def bench(self):
@@ -359,7 +365,8 @@ class BenchHost:
             finally:
                 self._jobs.pop(job_id, None)
 
-        threading.Thread(target=run, name=f"bench-job-{name}", daemon=True).start()
+        ctx.thread = threading.Thread(target=run, name=f"bench-job-{name}", daemon=True)
+        ctx.thread.start()
         return job_id
 
     def job_control(self, job_id: int, action: str, reason: str = "") -> None:
@@ -384,12 +391,31 @@ class BenchHost:
         """Make ``bench`` (opened by a job) the host's bench."""
         self.bench = bench
 
-    def close(self) -> None:
-        """Stop the stream, abort every job and close the bench and the frame slot."""
-        for ctx in list(self._jobs.values()):
+    def close(self, jobs_timeout_s: float = JOBS_CLOSE_TIMEOUT_S) -> None:
+        """End every job and close the stream, the bench and the frame slot.
+
+        Each job is aborted, stopped and cancelled (a recording stops as on Ctrl-C:
+        status ``stopped``, its lock released; a calibration run aborts to the safe
+        state) and a prompt waiting for the operator is refused; the bench closes once
+        the jobs have ended (the job calling this excepted), or after
+        ``jobs_timeout_s`` (a job stuck in a device call: logged, the bench closed
+        under it).
+        """
+        current = threading.current_thread()
+        jobs = [ctx for ctx in list(self._jobs.values()) if ctx.thread is not current]
+        for ctx in jobs:
             ctx.control.abort("the bench is closing")
             ctx.stop.set()
             ctx.cancel.set()
+        for prompt_id in list(self._prompts):
+            self.answer(prompt_id, False)
+        deadline = time.monotonic() + jobs_timeout_s
+        for ctx in jobs:
+            if ctx.thread is not None:
+                ctx.thread.join(max(0.0, deadline - time.monotonic()))
+                if ctx.thread.is_alive():
+                    log.warning("job %s did not end within %.0f s of the bench closing; "
+                                "closing the bench under it", ctx.thread.name, jobs_timeout_s)
         try:
             self.stop_stream()
         finally:

@@ -21,8 +21,11 @@ same either way:
 * ``on_message(text)`` and ``on_prompt(action, message, reply)`` for the host's other
   events.
 
-The host process watches its parent and closes the bench when the parent is gone
-(an operator's window that crashed leaves no stage moving and no camera held).
+The host process owns what its jobs write: when its parent is gone (an operator's
+window that crashed or was killed) or it is sent SIGTERM or SIGHUP, it ends its jobs as
+:meth:`~instrument.bench_host.BenchHost.close` does (a recording stopped as on Ctrl-C:
+its run ``stopped``, its lock released), closes the bench (no stage moving, no camera
+held) and exits.
 """
 
 from __future__ import annotations
@@ -33,8 +36,8 @@ import multiprocessing
 import os
 import queue
 import select
+import signal
 import threading
-import time
 from collections.abc import Callable
 from multiprocessing.managers import BaseManager
 from typing import Any
@@ -50,26 +53,45 @@ from .bench_host import (
 )
 from .shared_slot import SharedImageSlot
 
-__all__ = ["BenchClient", "RemoteObject", "device_class"]
+__all__ = ["ENDING_SIGNALS", "BenchClient", "RemoteObject", "device_class"]
 
 log = logging.getLogger(__name__)
 
 _SERVER: dict[str, Any] = {}
 
 
+#: The signals that end the host process as its parent's death does (SIGINT is
+#: ignored there: a Ctrl-C in the window's terminal is the window's to handle).
+ENDING_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
 def _serve_init(events, wake, parent_pid: int) -> None:
-    """In the host process: keep the channels, and close the bench if the parent dies."""
+    """In the host process: keep the channels; when the parent dies or an
+    :data:`ENDING_SIGNALS` signal comes, end the jobs, close the bench and exit."""
     _SERVER.update(events=EventChannel(events), wake=FrameWaker(wake))
+    ended: list[int] = []
+    wakeup = threading.Event()
+
+    def on_signal(signum, frame) -> None:  # the main thread (the manager's): note it only
+        ended.append(signum)
+        wakeup.set()
+
+    for signum in ENDING_SIGNALS:
+        signal.signal(signum, on_signal)
 
     def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(0.5)
+        while os.getppid() == parent_pid and not wakeup.wait(0.5):
+            pass
+        why = (f"{signal.Signals(ended[0]).name} received" if ended
+               else "the window's process is gone")
+        log.warning("bench process: %s; ending the jobs and closing the bench", why)
         host = _SERVER.get("host")
         try:
             if host is not None:
+                host.set_closing(True)  # nobody to give the bench back to
                 host.close()
         finally:
-            os._exit(0)
+            os._exit(128 + ended[0] if ended else 0)
 
     threading.Thread(target=watch, name="bench-parent-watch", daemon=True).start()
 
