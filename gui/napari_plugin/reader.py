@@ -178,17 +178,55 @@ def _product_layer(store, name: str) -> tuple | None:
 def read_volume(path: str) -> list[tuple]:
     """The layer of a recon3d volume (an OME-Zarr image written by
     :func:`instrument.reconstruct_files.write_volume`), axes and units from its
-    ``ome`` block."""
-    import zarr
+    ``ome`` block.
 
-    from instrument.ome import OmeAxis
+    Returns
+    -------
+    list of (data, kwargs, "image")
+        One layer: the volume (z, y, x) as stored.
+
+    Raises
+    ------
+    diffuserlab.errors.InputError
+        The ``ome`` block is missing or damaged: no multiscale image, axes and scales
+        that do not match each other or the array, or a dataset that is not there
+        (one line naming what is wrong and the fix).
+    """
+    import zarr
 
     group = zarr.open_group(str(path), mode="r")
     attrs = dict(group.attrs)
-    ms = attrs["ome"]["multiscales"][0]
-    scale = ms["datasets"][0]["coordinateTransformations"][0]["scale"]
-    axes = [OmeAxis(a["name"], a.get("type"), a.get("unit"), float(s))
-            for a, s in zip(ms["axes"], scale, strict=True)]
+    key, axes = _volume_layout(Path(path), attrs, group)
     meta = {k: v for k, v in attrs.items() if k != "ome"}
-    data = np.asarray(group[ms["datasets"][0]["path"]][...])
+    data = np.asarray(group[key][...])
     return [(data, _layer_kwargs(Path(path).name, axes, meta), "image")]
+
+
+def _volume_layout(path: Path, attrs: dict, group) -> tuple[str, list]:
+    """The array key and the axes a volume's ``ome`` block describes (checked against
+    the stored array); InputError as :func:`read_volume`."""
+    from diffuserlab.errors import InputError
+    from instrument.ome import OmeAxis
+
+    def refuse(what: str) -> InputError:
+        return InputError(f"{path}: the volume's OME description {what}; write the volume "
+                          "again (diffuserlab recon3d --out ... --overwrite)")
+
+    try:
+        ms = attrs["ome"]["multiscales"][0]
+        dataset = ms["datasets"][0]
+        key = str(dataset["path"])
+        scale = [float(s) for s in next(t["scale"] for t in dataset["coordinateTransformations"]
+                                         if t.get("type") == "scale")]
+        named = [(str(a["name"]), a.get("type"), a.get("unit")) for a in ms["axes"]]
+    except (KeyError, IndexError, TypeError, ValueError, AttributeError, StopIteration) as exc:
+        what = {KeyError: f"lacks {exc}", IndexError: "has an empty list",
+                StopIteration: "has no scale"}.get(type(exc))
+        raise refuse(what or f"is malformed ({' '.join(str(exc).split())})") from None
+    if key not in group or not hasattr(group[key], "shape"):
+        raise refuse(f"names dataset {key!r}, which the volume does not hold")
+    ndim = group[key].ndim
+    if not len(named) == len(scale) == ndim:
+        raise refuse(f"has {len(named)} axes and {len(scale)} scales for an array of {ndim} "
+                     "dimensions")
+    return key, [OmeAxis(*a, s) for a, s in zip(named, scale, strict=True)]
