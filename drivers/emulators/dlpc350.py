@@ -7,13 +7,17 @@ and refuses bytes they would not send.
 
 - :class:`FakeHid` has the surface of cython-hidapi's ``hid`` module
   (``enumerate(vid, pid)``, ``device()`` with ``open_path``, ``write``, ``read``,
-  ``close``); ``write`` takes 65 bytes (report id 0 + 64) or 64; ``read(size,
-  timeout_ms)`` returns a list of ints, empty on timeout, and raises ``OSError`` after
-  an unplug, like hidapi. As the wheel's ``hid`` module (libusb, the default
-  ``backend``), an open detaches the usbhid driver and claims the interface
-  (``usbhid_bound`` false, ``claimed`` set until closed) and a second open while it
-  is claimed fails with ``OSError("open failed")``; as the ``hidraw`` module, the
-  kernel driver stays bound and any number of handles may be open;
+  ``close``); ``write`` is hidapi's ``hid_write``: the first byte is the report id,
+  which the DLPC350 (no numbered reports) takes as 0 and hidapi does not send, while a
+  non-zero first byte is sent as data; what is sent reaches the controller as reports
+  of at most 64 bytes (the interrupt OUT packets), a shorter one as it is, so a write
+  without its report id loses a leading 0 byte; ``read(size, timeout_ms)`` returns a
+  list of ints, empty on timeout, and raises ``OSError`` after an unplug, like hidapi.
+  As the wheel's ``hid`` module (libusb, the default ``backend``), an open detaches
+  the usbhid driver and claims the interface (``usbhid_bound`` false, ``claimed`` set
+  until closed) and a second open while it is claimed fails with ``OSError("open
+  failed")``; as the ``hidraw`` module, the kernel driver stays bound and any number of
+  handles may be open;
 - :class:`FakeUsb` has the surface of pyusb (``core.find``, ``core.USBError``,
   ``core.USBTimeoutError``, ``util.claim_interface`` ...) for the same controller on
   its interrupt endpoints 0x01 / 0x81 (``USBError`` with errno 19 after an unplug,
@@ -44,6 +48,7 @@ and refuses bytes they would not send.
 
 from __future__ import annotations
 
+import math
 import struct
 import threading
 import time
@@ -52,6 +57,8 @@ from collections import deque
 __all__ = ["Dlpc350Emulator", "FakeHid", "FakeUsb"]
 
 VID, PID = 0x0451, 0x6401
+#: Bytes of the controller's HID reports (in and out), the interrupt endpoints' packet size.
+REPORT_SIZE = 64
 #: Payload length of each command the emulator knows, by command word (CMD2 << 8 | CMD3).
 #: ``None``: variable (the mailbox data).
 PAYLOAD: dict[int, int | None] = {
@@ -119,6 +126,7 @@ class Dlpc350Emulator:
         self._partial: bytearray | None = None
         self._partial_need = 0
         self.drop = 0
+        self.held = 0  # replies still to be held back (hold_replies)
         self.cond = threading.Condition(self.lock)
 
     # ------------------------------------------------------------------ faults
@@ -140,6 +148,20 @@ class Dlpc350Emulator:
         with self.lock:
             self.drop += int(n)
 
+    def hold_replies(self, n: int = 1) -> None:
+        """Hold the next ``n`` replies back until :meth:`release_replies`: a controller
+        answering after the driver's read timed out (the reply arrives late, ahead of the
+        replies to later commands)."""
+        with self.lock:
+            self.held += int(n)
+
+    def release_replies(self) -> None:
+        """Make the held replies readable now, in the order they were queued."""
+        with self.lock:
+            now = time.monotonic()
+            self.replies = deque((now if t == math.inf else t, r) for t, r in self.replies)
+            self.cond.notify_all()
+
     def next_reply(self, deadline: float) -> bytes | None:
         """Wait (holding :attr:`cond`) for the oldest reply until ``deadline``
         (``time.monotonic()``); None on timeout. Raises OSError once unplugged."""
@@ -158,7 +180,7 @@ class Dlpc350Emulator:
 
     # ------------------------------------------------------------------ transport
     def feed(self, report: bytes) -> None:
-        """One report from the host (64 bytes, report id removed)."""
+        """One report from the host as it arrived (64 bytes; a short packet as it is)."""
         self.reports.append(bytes(report))
         if self._partial is not None:  # continuation of a long message
             self._partial += report
@@ -167,6 +189,8 @@ class Dlpc350Emulator:
                 self._partial = None
                 self._message(msg)
             return
+        if len(report) < 4:
+            return  # no header: nothing the firmware can frame
         need = 4 + struct.unpack_from("<H", report, 2)[0]
         if need > len(report):
             self._partial, self._partial_need = bytearray(report), need
@@ -191,7 +215,11 @@ class Dlpc350Emulator:
             self.drop -= 1
             return
         out = bytes([flags | (0x20 if nack else 0), seq]) + struct.pack("<H", len(data)) + data
-        self.replies.append((time.monotonic() + self.reply_latency_s, out.ljust(64, b"\0")))
+        ready = time.monotonic() + self.reply_latency_s
+        if self.held > 0:
+            self.held -= 1
+            ready = math.inf
+        self.replies.append((ready, out.ljust(64, b"\0")))
         self.cond.notify_all()
 
     # ------------------------------------------------------------------ commands
@@ -398,12 +426,14 @@ class _FakeDevice:
         with self.emu.lock:
             if not (self.opened and self.emu.plugged):
                 raise OSError("write error")
-            if len(data) == 65:
-                data = data[1:]  # the report id
-            if len(data) != 64:
-                return -1
-            self.emu.feed(data)
-        return 65
+            if not data:
+                return -1  # hidapi: "Zero buffer/length"
+            # hid_write: data[0] is the report id; 0 (no numbered reports) is not sent,
+            # anything else is (hidapi strips only a 0)
+            wire = data[1:] if data[0] == 0 else data
+            for k in range(0, len(wire), REPORT_SIZE):  # interrupt OUT packets
+                self.emu.feed(wire[k:k + REPORT_SIZE])
+        return len(data)
 
     def read(self, size: int, timeout_ms: int = 0) -> list[int]:
         deadline = time.monotonic() + timeout_ms / 1000

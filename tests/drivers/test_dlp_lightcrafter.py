@@ -182,6 +182,54 @@ def test_long_message_is_continued_in_a_second_report(hid):
         assert len(emu.reports) == 2 and emu.log[-1] == (0x1A98, bytes(range(70)))
 
 
+def test_fake_hid_writes_as_hidapi_does(hid):
+    """FakeHid's write is hidapi's hid_write (hidapi.h: "the first byte of data[] must
+    contain the Report ID; for devices which only support a single report, this must be
+    set to 0x0"; libusb/hid.c skips a 0 report id and sends the rest on the interrupt
+    OUT endpoint): a leading 0 is not sent, a non-zero first byte is, and what is sent
+    reaches the controller in reports of at most 64 bytes."""
+    emu = hid.emulator
+    dev = hid.device()
+    dev.open_path(hid.enumerate()[0]["path"])
+    report = bytes([0x40, 1, 2, 0, 0x99, 0x1A]).ljust(64, b"\xAA")
+    emu.reports.clear()
+    assert dev.write(b"\0" + report) == 65
+    assert emu.reports == [report]  # the report id 0 stripped, 64 bytes sent
+    emu.reports.clear()
+    dev.write(bytes(1) + report[:63])  # 64 bytes without a report id: the first is taken
+    assert emu.reports == [report[:63]]  # as the id 0 and not sent: 63 bytes arrive
+    emu.reports.clear()
+    dev.write(report)  # a non-zero first byte is sent as data
+    assert emu.reports == [report]
+    emu.reports.clear()
+    dev.write(b"\0" + report + report[:10])  # longer than a report: two packets
+    assert emu.reports == [report, report[:10]]
+    assert dev.write(b"") == -1
+    dev.close()
+
+
+def test_pattern_lut_of_60_entries_arrives_whole(hid):
+    """A 60-entry LUT is one 186-byte message, continued in a second and a third
+    report. The third starts with entry 40's last byte, 0 (no invert, no buffer swap):
+    a write without the report id would lose it (hidapi takes it for the id), shifting
+    every entry after it; with the id, the controller holds all 60 as sent."""
+    emu = hid.emulator
+    entries = [PatternEntry(i // 24, i % 24, colour=("red", "green", "blue")[i % 3])
+               for i in range(60)]
+    lut = b"".join(pattern_lut_entry(e, first_of_image=e.bit == 0) for e in entries)
+    assert lut[128 - 6] == 0  # the third report's first byte (after the 6-byte header)
+    with make(hid) as dmd:
+        dmd.load_sequence(entries)
+        assert (0x1A34, lut) in emu.log
+        assert emu.pattern_config == (59, 1, 59, 2) and emu.written[2] == 60
+        assert emu.lut_entries() == [
+            {"pattern": e.bit, "trigger": 0 if e.bit == 0 else 3, "bit_depth": 1,
+             "leds": {"red": 1, "green": 2, "blue": 4}[e.colour], "invert": 0,
+             "swap": int(e.bit == 0)} for e in entries]
+        dmd.start()
+        assert emu.running
+
+
 def test_unplug_then_reconnect(hid):
     emu = hid.emulator
     with make(hid) as dmd:

@@ -3,7 +3,9 @@
 Each test feeds the driver a reply it must refuse next to the one it must take, at the
 byte level, through a scripted link in place of the serial port: an APT reply from
 another bay of a rack, a late Zaber reply to an earlier (timed-out) command, a Zaber
-reply whose checksum fails. The limit bits of the APT emulator are read by a client
+reply from another device or axis with the same message id, a Zaber reply whose
+checksum fails; and, through the DLPC350 emulator's HID reports, a LightCrafter reply
+that comes after its read timed out. The limit bits of the APT emulator are read by a client
 written independently of ours (thorlabs-apt-device) in
 ``tests/drivers/interop/test_apt_thorlabs_apt_device.py``.
 """
@@ -16,9 +18,11 @@ from collections.abc import Callable
 
 import pytest
 
-from drivers.errors import DeviceProtocolError, StageTimeoutError
+from drivers.dlp_lightcrafter import LightCrafter4500
+from drivers.errors import DeviceProtocolError, DmdTimeoutError, StageTimeoutError
 from drivers.thorlabs_apt_protocol import HOST, MSG, AptController, pack_message
 from drivers.zaber_ascii import ZaberAsciiStage, lrc
+from tests.mocks import Dlpc350Emulator, FakeHid
 
 
 class ScriptedLink:
@@ -127,6 +131,19 @@ def test_zaber_late_reply_with_an_earlier_id_is_skipped():
     assert [sent_id(w) for w in link.written] == [1, 2]
 
 
+@pytest.mark.parametrize("device, axis", [(2, 1), (1, 2)])
+def test_zaber_reply_from_another_address_with_the_same_id_is_skipped(device, axis):
+    """Daisy-chained devices number their message ids alike: a reply from device 2 (or
+    from axis 2 of device 1) carrying the id just sent is not the reply to device 1
+    axis 1; the driver reads on to the addressed one."""
+    def respond(data: bytes) -> bytes:
+        mid = sent_id(data)
+        return zaber_reply(device, axis, mid, "999") + zaber_reply(1, 1, mid, "5")
+
+    stage, _ = zaber_stage(respond)
+    assert stage.command(1, 1, "get pos") == ("IDLE", "--", "5")
+
+
 def test_zaber_reply_without_its_message_id_is_skipped():
     def respond(data: bytes) -> bytes:
         return (f"@01 1 OK IDLE -- 999:{lrc('01 1 OK IDLE -- 999')}\r\n".encode()
@@ -147,3 +164,35 @@ def test_zaber_reply_failing_its_checksum_is_refused():
     stage, _ = zaber_stage(respond)
     with pytest.raises(DeviceProtocolError, match="fails its checksum"):
         stage.command(1, 1, "get pos")
+
+
+# ------------------------------------------------------------------ DLPC350: the sequence
+@pytest.fixture
+def late_led_reply():
+    """A LightCrafter whose LED currents read (0x0B01) timed out; the emulator then
+    releases the reply it held back, which now waits ahead of the next command's."""
+    emu = Dlpc350Emulator()
+    with LightCrafter4500("dmd", hid_backend=FakeHid(emu), reply_timeout_s=60.0) as dmd:
+        emu.hold_replies(1)
+        with pytest.raises(DmdTimeoutError):
+            dmd.command(0x0B01, read=True, timeout_s=0.05)
+        emu.release_replies()
+        yield dmd, emu
+
+
+def test_lightcrafter_late_reply_to_a_timed_out_read_is_skipped(late_led_reply):
+    """The driver takes the reply whose sequence byte is its request's: the main
+    status, not the late LED bytes (104, 135, 130)."""
+    dmd, emu = late_led_reply
+    assert dmd.main_status() == 0x00  # parked, running, frozen, gamma: all off
+    assert struct.unpack("<II", dmd.command(0x1A29, read=True)[:8]) == (8333, 8333)
+    assert not emu.replies  # the late reply was read and dropped
+
+
+def test_lightcrafter_only_a_late_reply_is_a_timeout(late_led_reply):
+    """A late reply followed by none to the request: the read times out rather than
+    returning the late reply's bytes."""
+    dmd, emu = late_led_reply
+    emu.drop_replies(1)
+    with pytest.raises(DmdTimeoutError):
+        dmd.command(0x1A0C, read=True, timeout_s=0.3)
