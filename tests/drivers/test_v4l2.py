@@ -7,29 +7,32 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import time
 
 import cv2
 import numpy as np
 import pytest
 
+from drivers import v4l2_camera
 from drivers.camera import FrameRing
 from drivers.errors import (
     CameraTimeoutError,
     DeviceDisconnectedError,
     DeviceValueError,
 )
-from drivers.v4l2_camera import (
-    AUTO_EXPOSURE,
+from drivers.v4l2_camera import V4l2Camera
+from tests.drivers.conformance import CameraConformance
+from tests.mocks.v4l2 import (
     CONVERT_RGB,
-    EXPOSURE,
     FOURCC,
-    GAIN,
-    V4l2Camera,
+    V4L2_CID_EXPOSURE_ABSOLUTE,
+    V4L2_CID_EXPOSURE_AUTO,
+    V4L2_CID_GAIN,
+    V4L2_CONTROL,
+    FakeV4l2Capture,
     fourcc_text,
 )
-from tests.drivers.conformance import CameraConformance
-from tests.mocks.v4l2 import FakeV4l2Capture
 
 SERIAL = "SN0042"
 LINK = f"usb-Acme_Fake_UVC_Cam_{SERIAL}-video-index0"
@@ -128,18 +131,62 @@ def test_found_by_serial_number_in_by_id(recording, by_id):
 
 
 # --------------------------------------------------------------------- control mapping
+def test_property_ids_are_opencvs_and_reach_the_kernel_controls():
+    """The driver's property ids against OpenCV's own constants, and, through OpenCV's
+    V4L2 backend (cap_v4l.cpp: CAP_PROP_GAIN -> V4L2_CID_GAIN, CAP_PROP_EXPOSURE ->
+    V4L2_CID_EXPOSURE_ABSOLUTE, CAP_PROP_AUTO_EXPOSURE -> V4L2_CID_EXPOSURE_AUTO), the
+    kernel controls they set (ids from linux/v4l2-controls.h, as in tests/mocks/v4l2.py)."""
+    ids = {name: getattr(v4l2_camera, name) for name in (
+        "POS_MSEC", "FOURCC", "FRAME_WIDTH", "FRAME_HEIGHT", "FPS", "GAIN", "EXPOSURE",
+        "CONVERT_RGB", "AUTO_EXPOSURE", "BUFFERSIZE")}
+    assert ids == {name: getattr(cv2, f"CAP_PROP_{name}") for name in ids}
+    assert {V4L2_CONTROL[ids[n]] for n in ("GAIN", "EXPOSURE", "AUTO_EXPOSURE")} == {
+        0x00980913, 0x009A0902, 0x009A0901}
+    assert V4L2_CONTROL[ids["GAIN"]] == V4L2_CID_GAIN == 0x00980913
+    assert V4L2_CONTROL[ids["EXPOSURE"]] == V4L2_CID_EXPOSURE_ABSOLUTE == 0x009A0902
+    assert V4L2_CONTROL[ids["AUTO_EXPOSURE"]] == V4L2_CID_EXPOSURE_AUTO == 0x009A0901
+
+
+def test_kernel_control_ids_match_the_installed_header():
+    """The mock's V4L2 control ids against linux/v4l2-controls.h where it is installed
+    (linux-libc-dev); the values are written out in the mock for machines without it."""
+    header = "/usr/include/linux/v4l2-controls.h"
+    if not os.path.exists(header):
+        pytest.skip(f"{header} is not installed (linux-libc-dev)")
+    with open(header) as f:
+        defines = dict(re.findall(r"^#define[ \t]+(V4L2_\w+)[ \t]+([\w \t|+()]+)", f.read(),
+                                  re.MULTILINE))
+
+    def value(name: str) -> int:
+        """A define's value: names, numbers, "+" and "|" (as C binds them)."""
+        expr = defines[name].replace("(", " ").replace(")", " ")
+        total = 0
+        for term in expr.split("|"):
+            total |= sum(value(t.strip()) if t.strip().startswith("V4L2_") else
+                         int(t.strip(), 0) for t in term.split("+"))
+        return total
+
+    assert value("V4L2_CID_GAIN") == V4L2_CID_GAIN
+    assert value("V4L2_CID_EXPOSURE_ABSOLUTE") == V4L2_CID_EXPOSURE_ABSOLUTE
+    assert value("V4L2_CID_EXPOSURE_AUTO") == V4L2_CID_EXPOSURE_AUTO
+
+
 def test_exposure_is_manual_in_100_us_units_and_read_back(recording, by_id, caplog):
     cam, bench = make(recording, by_id)
     with cam:
         fake = bench.fake
-        assert fake.props[AUTO_EXPOSURE] == 1  # the camera came up in aperture priority (3)
+        # the camera came up in aperture priority (3); the driver made it manual (1)
+        assert fake.control(V4L2_CID_EXPOSURE_AUTO) == 1
         fake.set_log.clear()
         cam.exposure_s = 0.0123
-        assert fake.set_log[:2] == [(AUTO_EXPOSURE, 1), (EXPOSURE, 123)]
+        assert fake.set_log[:2] == [(cv2.CAP_PROP_AUTO_EXPOSURE, 1),
+                                    (cv2.CAP_PROP_EXPOSURE, 123)]
+        assert fake.control(V4L2_CID_EXPOSURE_ABSOLUTE) == 123
         assert cam.exposure_s == pytest.approx(0.0123)
         with caplog.at_level(logging.WARNING, logger="drivers.camera"):
             cam.exposure_s = 0.8  # the camera's maximum is 5000 x 100 us: clamped silently
-        assert cam.exposure_s == pytest.approx(0.5) and fake.props[EXPOSURE] == 5000
+        assert cam.exposure_s == pytest.approx(0.5)
+        assert fake.control(V4L2_CID_EXPOSURE_ABSOLUTE) == 5000
         assert "took 0.5" in caplog.text
 
 
@@ -147,8 +194,10 @@ def test_gain_frame_rate_and_fourcc_read_back(recording, by_id):
     cam, bench = make(recording, by_id)
     with cam:
         fake = bench.fake
+        exposure = fake.control(V4L2_CID_EXPOSURE_ABSOLUTE)
         cam.gain = 3.0
-        assert fake.props[GAIN] == 3 and cam.gain == 3.0
+        assert fake.control(V4L2_CID_GAIN) == 3 and cam.gain == 3.0
+        assert fake.control(V4L2_CID_EXPOSURE_ABSOLUTE) == exposure  # untouched
         cam.frame_rate_hz = 27.0  # the camera offers 25 and 30
         assert cam.frame_rate_hz == 25.0
         assert cam.info["fourcc"] == {"mono8": "YUYV", "mono12": "Y16 ", "mono16": "Y16 "}
@@ -225,7 +274,7 @@ def test_stale_frames_after_a_change_are_flushed(recording, by_id):
             cam.stop_stream()
         fake = bench.fake
         with fake._lock:
-            t_change = next(t for t, p in fake._history if p[EXPOSURE] == 90)
+            t_change = next(t for t, p in fake._history if p[cv2.CAP_PROP_EXPOSURE] == 90)
             straddling = [end for start, end, _ in fake.produced if start < t_change < end]
     delivered = []
     while len(ring):
@@ -284,7 +333,8 @@ def test_unplug_mid_stream_then_reconnect_restores_settings(recording, by_id):
         cam.reconnect()
         fresh = bench.fake
         assert len(bench.fakes) == 2 and cam.settings() == before
-        assert fresh.props[EXPOSURE] == 70 and fresh.props[GAIN] == 4
+        assert fresh.control(V4L2_CID_EXPOSURE_ABSOLUTE) == 70
+        assert fresh.control(V4L2_CID_GAIN) == 4
         assert fourcc_text(fresh.props[FOURCC]) == "Y16 "
         frame = cam.snap()
         assert frame.image.shape == (20, 30) and frame.image.dtype == np.uint16

@@ -15,7 +15,10 @@
   exposure refused while auto), exposure in 100 us units clamped to its range, gain in
   raw units (the fake's unit is 1 dB) clamped, FPS snapped to the offered rates,
   FOURCC among YUYV/GREY/"Y16 " (others refused), frame size snapped to the offered
-  sizes (width and height as a pair); FOURCC, size and buffer count restart the stream.
+  sizes (width and height as a pair); FOURCC, size and buffer count restart the stream;
+- the property ids are OpenCV's (``cv2.CAP_PROP_*``), and :meth:`FakeV4l2Capture.control`
+  reads exposure, auto-exposure and gain by the kernel's V4L2 control ids, through the
+  property each maps to in OpenCV's V4L2 backend (:data:`V4L2_CONTROL`).
 """
 
 from __future__ import annotations
@@ -28,22 +31,37 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.v4l2_camera import (
-    AUTO_EXPOSURE,
-    BUFFERSIZE,
-    CONVERT_RGB,
-    EXPOSURE,
-    FOURCC,
-    FPS,
-    FRAME_HEIGHT,
-    FRAME_WIDTH,
-    GAIN,
-    POS_MSEC,
-    fourcc_code,
-    fourcc_text,
-)
+__all__ = ["V4L2_CID_EXPOSURE_ABSOLUTE", "V4L2_CID_EXPOSURE_AUTO", "V4L2_CID_GAIN",
+           "V4L2_CONTROL", "FakeV4l2Capture"]
 
-__all__ = ["FakeV4l2Capture"]
+# The property ids as OpenCV defines them, taken from cv2 itself and never from the
+# driver under test: a driver that swapped two ids would set one control for another.
+POS_MSEC, FOURCC, FPS = cv2.CAP_PROP_POS_MSEC, cv2.CAP_PROP_FOURCC, cv2.CAP_PROP_FPS
+FRAME_WIDTH, FRAME_HEIGHT = cv2.CAP_PROP_FRAME_WIDTH, cv2.CAP_PROP_FRAME_HEIGHT
+GAIN, EXPOSURE, AUTO_EXPOSURE = cv2.CAP_PROP_GAIN, cv2.CAP_PROP_EXPOSURE, cv2.CAP_PROP_AUTO_EXPOSURE
+CONVERT_RGB, BUFFERSIZE = cv2.CAP_PROP_CONVERT_RGB, cv2.CAP_PROP_BUFFERSIZE
+
+# The kernel's V4L2 control ids (include/uapi/linux/v4l2-controls.h): V4L2_CID_BASE =
+# V4L2_CTRL_CLASS_USER (0x00980000) | 0x900, V4L2_CID_GAIN = V4L2_CID_BASE + 19;
+# V4L2_CID_CAMERA_CLASS_BASE = V4L2_CTRL_CLASS_CAMERA (0x009a0000) | 0x900,
+# V4L2_CID_EXPOSURE_AUTO = that + 1, V4L2_CID_EXPOSURE_ABSOLUTE = that + 2.
+V4L2_CID_GAIN = 0x00980913
+V4L2_CID_EXPOSURE_AUTO = 0x009A0901
+V4L2_CID_EXPOSURE_ABSOLUTE = 0x009A0902
+#: The V4L2 control each OpenCV property sets on a camera (OpenCV's V4L2 backend,
+#: ``capPropertyToV4L2`` in modules/videoio/src/cap_v4l.cpp).
+V4L2_CONTROL: dict[int, int] = {AUTO_EXPOSURE: V4L2_CID_EXPOSURE_AUTO,
+                                EXPOSURE: V4L2_CID_EXPOSURE_ABSOLUTE, GAIN: V4L2_CID_GAIN}
+
+
+def fourcc_code(text: str) -> int:
+    """OpenCV's FOURCC code of a 4-character format name."""
+    return cv2.VideoWriter_fourcc(*text)
+
+
+def fourcc_text(code: float) -> str:
+    """The format name of a FOURCC code (its 4 bytes, least significant first)."""
+    return int(code).to_bytes(4, "little").decode("ascii", errors="replace")
 
 
 class FakeV4l2Capture:
@@ -202,6 +220,12 @@ class FakeV4l2Capture:
         else:
             self._history.append((now, dict(p)))
         return True
+
+    def control(self, cid: int) -> int:
+        """The value of the camera's V4L2 control ``cid`` (a kernel id such as
+        :data:`V4L2_CID_GAIN`), set through the OpenCV property that maps to it."""
+        prop = {c: p for p, c in V4L2_CONTROL.items()}[cid]
+        return int(self.props[prop])
 
     def release(self) -> None:
         self.opened = False
