@@ -18,7 +18,9 @@ hardware-protocols.md, section 1a, and its emulator spec:
   limit switch, stop at the switch with the limit bit set and MOVE_STOPPED;
 - the messages third-party clients send (thorlabs-apt-device, pylablib): jog
   parameters and MOVE_JOG (single step or continuous, jog status bits), MOVE_VELOCITY
-  (to the end of the travel), power, limit-switch and trigger parameters (stored and
+  (to the end of the travel), direction 1 forward to larger counts and 2 reverse, as
+  the protocol document defines them (both clients' KDC101 defaults take them the other
+  way: docs/drivers/thorlabs-apt.md), power, limit-switch and trigger parameters (stored and
   read back); messages the model does not know are ignored without a reply, as a
   controller does (listed in :attr:`AptEmulator.unknown`);
 - HW_GET_INFO carries the model string (``model`` overrides the profile's, e.g. a

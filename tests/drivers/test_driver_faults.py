@@ -157,8 +157,15 @@ def test_apt_moving_after_reconnect_is_stopped_and_reported(apt, tmp_path, caplo
         time.sleep(0.1)
         apt.replug()
         assert apt.channels[0x50].motion is not None  # the controller went on moving
+        with apt.lock:
+            apt.received.clear()
         stage.reconnect()
         assert apt.channels[0x50].motion is None  # stopped at open
+        with apt.lock:
+            sent = bytes(apt.received)
+        # MGMSG_MOT_MOVE_STOP, channel 1, stop mode 2: profiled (1 would be immediate)
+        assert bytes.fromhex("65 04 01 02 50 01") in sent
+        assert bytes.fromhex("65 04 01 01 50 01") not in sent
         stopped = stage.status()["stopped_at_open"]["z"]
         assert 0.0 < stopped < 20.0
         assert stage.position("z") == pytest.approx(apt.position() / Z8, abs=1e-6)

@@ -7,6 +7,7 @@ parameters in metres, from a scaling written independently of ours.
 from __future__ import annotations
 
 import struct
+import time
 
 import pytest
 
@@ -55,11 +56,21 @@ def test_kdc101_session_with_the_stage_it_reports(tmp_path):
             assert vel.max_velocity == pytest.approx(1e-3, rel=1e-5)
             assert abs(emu.channels[0x50].velocity[2] - Z8_PYLABLIB * 2048 / 6e6 * 65536) <= 1
             dev.setup_jog(mode="step", step_size=1e-4)
+            # pylablib's KinesisMotor sends direction 2 for "+" and 1 for "-" (its
+            # _forward_positive = False); the emulator takes 1 as forward, to larger
+            # counts, as the protocol document defines it (docs/drivers/thorlabs-apt.md,
+            # "Which way is forward"): "+" moves it back, "-" on
             p = emu.position()
             dev.jog("+", kind="builtin")
             dev.wait_move(timeout=10)
-            assert abs(emu.position() - p) == round(0.1 * Z8_PYLABLIB)
+            assert emu.position() - p == -round(0.1 * Z8_PYLABLIB)
+            p = emu.position()
             dev.jog("-", kind="continuous")  # MOVE_VELOCITY, until stopped or at the end
+            deadline = time.monotonic() + 60.0  # a hang guard: the move starts at once
+            while (moved := emu.position() - p) == 0:
+                assert time.monotonic() < deadline, "no move at velocity"
+                time.sleep(0.005)
+            assert moved > 0  # direction 1: forward
             dev.stop(sync=True, timeout=10)
             assert not dev.is_moving() and emu.channels[0x50].motion is None
             assert dev.get_homing_parameters().home_direction == "reverse"
