@@ -16,17 +16,35 @@ The counters are 8-byte aligned integers written after (``published``) and befor
 x86-64 keeps for plain stores and loads (total store order); on weakly ordered
 processors (ARM) a torn image could pass the check. Every image carries its frame's
 metadata (index, timestamps, and up to :data:`META_FIELDS` numbers).
+
+A slot's name says which process made it: ``dlab-<pid>-<start>-<token>``, ``start``
+being the process's start time (clock ticks after boot, ``/proc/<pid>/stat``; 0 where
+there is no ``/proc``), so a process that later gets the same pid is not taken for
+it. A process killed outright (a window, a live view, a test) leaves its slots in
+``/dev/shm`` when multiprocessing's resource tracker died with it; every new slot
+first removes those whose maker is gone (:func:`reclaim_orphaned_slots`; this user's
+only, never a running process's).
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
+import re
 import secrets
-from multiprocessing import shared_memory
+from multiprocessing import resource_tracker, shared_memory
 
 import numpy as np
 
-__all__ = ["META_FIELDS", "SharedImageSlot", "SlotImage"]
+__all__ = ["META_FIELDS", "SHM_DIR", "SharedImageSlot", "SlotImage", "reclaim_orphaned_slots",
+           "slot_owner"]
+
+log = logging.getLogger(__name__)
+
+#: Where POSIX shared memory is listed (Linux).
+SHM_DIR = "/dev/shm"
+_NAME = re.compile(r"dlab-(\d+)-(\d+)-[0-9a-f]+")
 
 #: Numbers of metadata each image carries (float64).
 META_FIELDS = 12
@@ -34,6 +52,94 @@ _DTYPES = (np.dtype(np.uint8), np.dtype(np.uint16), np.dtype(np.float32),
            np.dtype(np.float64))
 _HEADER = 5  # ndim, rows, cols, channels, dtype code
 _ROW = _HEADER + META_FIELDS
+
+
+def _process_start(pid: int) -> tuple[int, str] | None:
+    """``(start, state)`` of process ``pid`` from ``/proc/<pid>/stat`` (start: clock
+    ticks after boot; state: ``R``, ``S``, ``Z``...), None when there is no such
+    process (or no ``/proc``)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+    return int(fields[19]), fields[0].decode()  # fields 22 and 3 of proc(5)
+
+
+def _new_name() -> str:
+    pid = os.getpid()
+    start = _process_start(pid)
+    return f"dlab-{pid}-{start[0] if start else 0}-{secrets.token_hex(4)}"
+
+
+def slot_owner(name: str) -> tuple[int, int] | None:
+    """``(pid, start)`` of the process that made slot ``name`` (``start``: its start
+    time, clock ticks after boot, 0 where unknown); None for a name that does not say
+    (another program's, or a slot made before names said)."""
+    match = _NAME.fullmatch(name)
+    return None if match is None else (int(match[1]), int(match[2]))
+
+
+def _owner_alive(pid: int, start: int) -> bool:
+    """Whether the maker ``(pid, start)`` of a slot runs (without ``/proc``: assumed)."""
+    now = _process_start(pid)
+    if now is None:
+        return not os.path.isdir("/proc")
+    return now[1] not in "ZX" and (start == 0 or now[0] == start)
+
+
+def _unlink(entry: os.DirEntry) -> None:
+    """Remove the shared memory ``entry``: attached, then unlinked, so this process's
+    resource tracker registers and unregisters it (a bare unlink would unregister a
+    name it never had: an error in the tracker's output)."""
+    try:
+        shm = shared_memory.SharedMemory(name=entry.name)
+    except ValueError:  # empty: its maker died before sizing it, before registering it
+        os.unlink(entry.path)
+        return
+    try:
+        shm.unlink()
+    except FileNotFoundError:  # another process removed it meanwhile, after we attached
+        resource_tracker.unregister(f"/{entry.name}", "shared_memory")
+        raise
+    finally:
+        shm.close()
+
+
+def reclaim_orphaned_slots() -> list[str]:
+    """Remove the slots whose maker has ended (see the module docstring).
+
+    Only slots named as :class:`SharedImageSlot` names them, owned by this user, whose
+    maker is not running (no such process, a zombie, or another process that got its
+    pid since: its start time differs). A process still attached to one keeps its
+    mapping; the name goes. Where the system lists no shared memory in
+    :data:`SHM_DIR` (not Linux), nothing is done.
+
+    Returns
+    -------
+    list of str
+        The names removed.
+    """
+    try:
+        entries = list(os.scandir(SHM_DIR))
+    except OSError:
+        return []
+    removed = []
+    uid = os.geteuid()
+    for entry in entries:
+        owner = slot_owner(entry.name)
+        try:
+            if owner is None or entry.stat().st_uid != uid or _owner_alive(*owner):
+                continue
+            _unlink(entry)
+        except OSError as exc:  # removed meanwhile, or not ours to remove
+            log.debug("shared slot %s left: %s", entry.name, exc)
+            continue
+        removed.append(entry.name)
+    if removed:
+        log.info("removed %d shared slot(s) of ended processes: %s", len(removed),
+                 ", ".join(removed))
+    return removed
 
 
 class SlotImage:
@@ -55,7 +161,8 @@ class SharedImageSlot:
         Largest image (``nbytes``) the slot takes.
     name : str, optional
         Attach to the slot of this name (made by another process); default: make a
-        new one (the maker unlinks it on :meth:`close`).
+        new one, named after this process (the maker unlinks it on :meth:`close`; the
+        slots of ended makers are removed first, :func:`reclaim_orphaned_slots`).
 
     Raises
     ------
@@ -86,7 +193,8 @@ class SharedImageSlot:
         size = header + 2 * self.capacity
         self._owner = name is None
         if self._owner:
-            name = f"dlab-{secrets.token_hex(6)}"
+            reclaim_orphaned_slots()
+            name = _new_name()
             self._shm = shared_memory.SharedMemory(name=name, create=True, size=size)
         else:
             self._shm = shared_memory.SharedMemory(name=name)

@@ -19,6 +19,8 @@ import pytest
 
 from instrument.runstore import RunStore
 
+from .test_bench_process import _zombie
+
 OPEN = {"bench_path": None, "simulate": True, "seed": 0, "scene": "none"}
 
 #: A recording far longer than any test: 2400 frames at 20 fps (2 min), so it is
@@ -56,16 +58,6 @@ def _window_script(tmp_path) -> str:
     return str(path)
 
 
-def _gone(pid: int) -> bool:
-    """Whether process ``pid`` has ended (no longer listed, or a zombie not yet reaped:
-    when its parent died first, the container's init may never reap it)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] in "ZX"
-    except OSError:
-        return True
-
-
 def _recording_window(tmp_path):
     """The window process, the bench process's pid, the run's path and the frames
     recorded when the run first held some (read from the window's progress)."""
@@ -91,7 +83,7 @@ def _recording_window(tmp_path):
 
 def _wait_gone(pid: int) -> None:
     deadline = time.monotonic() + HANG_S
-    while not _gone(pid):
+    while not _zombie(pid):  # ended: gone, or not reaped (its parent died first)
         if time.monotonic() > deadline:
             os.kill(pid, signal.SIGKILL)
             pytest.fail(f"the bench process was still running {HANG_S:.0f} s later")
