@@ -435,7 +435,7 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
                 metrics_json: str | None = None, planes: str = "all",
                 pitch_um: float | None = None, d_mm: float | None = None,
                 scene_range_mm=None, memory_limit_bytes: int | None = None,
-                slab_group=None, announce=print) -> dict:
+                slab_group=None, announce=print, overwrite: bool = True) -> dict:
     """Load, reconstruct a volume (:func:`recon.reconstruct` of a :class:`recon.PsfStack`),
     write it and its
     projections and metrics.
@@ -476,6 +476,10 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
         (:func:`instrument.volume_shards.slab_workers` of ``recon3d --scheduler``).
     announce : callable
         Where the memory plan and estimate go before the solve (``print``).
+    overwrite : bool
+        Replace existing outputs; False (``recon3d`` without ``--overwrite``): an
+        output another process wrote meanwhile is kept and this call refused
+        (:func:`recon.io.output_group`).
 
     Returns
     -------
@@ -542,7 +546,7 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
              "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor),
              "orientation": DATA_ORIENTATION}
     grid_pitch = _grid_pitch_um(psf_stack, psf_product, pitch_um, bin_factor)
-    with output_group():  # the volume and its projections: all of them or none
+    with output_group(replace=overwrite):  # the volume and its projections: all or none
         write_volume(vol_path, rec.volume, attrs, pitch_um=grid_pitch)
         # the projections are views: turned to scene orientation (rows and columns flipped)
         for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
@@ -561,6 +565,7 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
                "planes": plane_record}
     metrics = jsonable(metrics, nonfinite_to_none=True)
     if metrics_json:
-        write_json(metrics_json, metrics)
+        with output_group(replace=overwrite):
+            write_json(metrics_json, metrics)
     log.debug("recon3d: wrote %s and %s", vol_path, ", ".join(map(str, mip_paths.values())))
     return metrics

@@ -69,7 +69,7 @@ def load_psf_grid(path: str | Path):
 
 def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
                    metrics_json: str | None = None, depths_mm=None,
-                   volume: bool = False) -> dict:
+                   volume: bool = False, overwrite: bool = True) -> dict:
     """Load grids and a frame, reconstruct, write outputs; return the metrics.
 
     Parameters
@@ -90,6 +90,9 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
     metrics_json : str, optional
     volume : bool
         Reconstruct a volume (``recon3d``) even from one grid.
+    overwrite : bool
+        Replace existing outputs; False: an output another process wrote meanwhile
+        is kept and this call refused (:func:`recon.io.output_group`).
 
     Returns
     -------
@@ -115,7 +118,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])
-    with output_group():  # every output of the reconstruction, or none
+    with output_group(replace=overwrite):  # every output of the reconstruction, or none
         if rec.operator.volume:
             vol_path, mips = volume_output_paths(out)
             write_volume(vol_path, rec.image, {"depths_mm": metrics["depths_mm"],

@@ -216,7 +216,16 @@ class Runner:
         Times a point is redone after device timeouts before the run fails.
     frame_timeout_s : float
         Timeout of each camera snap, s.
+
+    Attributes
+    ----------
+    created : RunStore or None
+        The store the last :meth:`run` created (None before, or when it created
+        none): its ``creation_token`` lets the caller remove that run, and only it,
+        when it failed (:func:`instrument.run_paths.discard_partial_run`).
     """
+
+    created: RunStore | None = None
 
     def __init__(self, bench: Bench, *, on_event: Callable[[RunEvent], None] | None = None,
                  control: RunControl | None = None, reconnect_timeout_s: float = 30.0,
@@ -247,6 +256,7 @@ class Runner:
         RunStoreError
             ``path`` exists and ``overwrite`` is False.
         """
+        self.created = None
         points = plan.points()
         if not points:
             raise PlanError(f"plan {plan.name!r} has no points; check its parameters")
@@ -261,6 +271,7 @@ class Runner:
             coord_names=names, coord_specs=coord_specs(names, self.bench.devices),
             bench_config=config,
             device_settings=self.bench.settings_snapshot(), note=note, overwrite=overwrite)
+        self.created = store
         store.lock()
         try:
             store.update_attrs(camera={"id": cam.device_id, "bit_depth": cam.bit_depth,

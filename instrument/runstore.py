@@ -5,9 +5,11 @@ Layout of ``RUN.zarr``::
     zarr.json            attributes: schema and software versions, plan (name, params,
                          points, frame tags), bench config and device settings
                          snapshots, operator note, status, start/end times, resumes,
-                         warnings; ``arrays``: each array's shape, dtype, chunks,
-                         codecs and fill value as written (instrument.run_layout;
-                         ``products/`` keeps the same for its products)
+                         warnings, ``created_by`` (the creating process: pid, host,
+                         token; instrument.run_paths); ``arrays``: each array's
+                         shape, dtype, chunks, codecs and fill value as written
+                         (instrument.run_layout; ``products/`` keeps the same for
+                         its products)
     frames               (n_frames, rows, cols) camera dtype, one frame per chunk
     coords               (n_frames, n_coords) float64, one row per chunk; column names
                          in its attribute ``names`` (stage positions, LED, SLM pattern
@@ -88,7 +90,14 @@ from .run_integrity import (
     write_lock,
 )
 from .run_layout import RUN_ARRAYS, layout_problems, record_layout
-from .run_paths import discard_partial_run, is_run_store, product_location
+from .run_paths import (
+    CREATOR_ATTR,
+    claim_run_dir,
+    discard_partial_run,
+    is_run_store,
+    product_location,
+    remove_replaced_run,
+)
 from .run_products import ProductsMixin
 from .run_reading import FrameRecord, RunReadingMixin
 
@@ -141,6 +150,13 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
+def _exists_text(path: Path, meanwhile: bool = False) -> str:
+    """The refusal of a new run at an existing ``path`` (one line)."""
+    how = " (another process created it meanwhile)" if meanwhile else ""
+    return (f"{path} already exists{how}; choose another --out or pass --overwrite to "
+            "replace it")
+
+
 class RunStore(ProductsMixin, RunReadingMixin):
     """A run's Zarr v3 store: create, write frames, read (also while being written).
 
@@ -155,7 +171,14 @@ class RunStore(ProductsMixin, RunReadingMixin):
         ``{array: problem line}`` for each array whose metadata differs from what the
         run recorded when it wrote it (:mod:`instrument.run_layout`); such arrays are
         never read or written (:meth:`require_layout`), :meth:`verify` lists them.
+    creation_token : str or None
+        Set on the store :meth:`create` returns: the token its run records as its
+        creator's (:data:`instrument.run_paths.CREATOR_ATTR`), the proof
+        :func:`instrument.run_paths.discard_partial_run` asks for; None on a store
+        opened with :meth:`open`.
     """
+
+    creation_token: str | None = None
 
     def __init__(self, path: Path, group, writable: bool) -> None:
         self.path = Path(path)
@@ -233,6 +256,11 @@ class RunStore(ProductsMixin, RunReadingMixin):
         overwrite : bool
             Replace an existing run store at ``path`` (recognised by the schema
             marker in its ``zarr.json``; nothing else is deleted).
+
+            The run's directory is created atomically (:func:`instrument.run_paths.claim_run_dir`):
+            of processes creating the same path at once one succeeds, the others are
+            refused and touch nothing. A failure while the layout is written removes
+            the run again (only this call's own).
         shard_frames : int, optional
             Store ``k`` frames per shard file (video runs; see "Sharded runs" in
             the module notes). None (default): one frame per file, as before.
@@ -247,7 +275,8 @@ class RunStore(ProductsMixin, RunReadingMixin):
         Raises
         ------
         RunStoreError
-            ``path`` exists (and ``overwrite`` is False), ``path`` exists and is not
+            ``path`` exists (and ``overwrite`` is False) or was created by another
+            process meanwhile, ``path`` exists and is not
             a run store (a file or another directory: never replaced), the run at
             ``path`` is locked by a writer, the layout is empty, ``shard_frames``
             is not a positive integer or ``compressor`` is unknown, ``coord_specs``
@@ -257,8 +286,7 @@ class RunStore(ProductsMixin, RunReadingMixin):
 
         path = Path(path)
         if path.exists() and not overwrite:
-            raise RunStoreError(
-                f"{path} already exists; resume it, choose another name or pass overwrite")
+            raise RunStoreError(_exists_text(path))
         if path.exists() and not is_run_store(path):
             raise RunStoreError(
                 f"not replacing {path}: it is not a diffuserlab run store (only a run's "
@@ -285,45 +313,58 @@ class RunStore(ProductsMixin, RunReadingMixin):
         tag_of = np.array([tags.index(t) for per in frame_tags for t in per], np.int16)
         n = int(point_of.size)
         rows, cols = (int(v) for v in frame_shape)
-        group = zarr.open_group(str(path), mode="w", zarr_format=3)
-        k = int(min(k, max(n, 1)))
-        sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
-                                                    "compressors": compressors}
-        dims = run_dims({"plan": {"name": plan_name, "points": list(points)}})
-        group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
-                           dtype=np.dtype(frame_dtype), fill_value=0,
-                           dimension_names=dims["frames"], **sharding)
-        coords = group.create_array("coords", shape=(n, len(coord_names)),
-                                    chunks=(k, len(coord_names)), dtype="float64",
-                                    fill_value=np.nan, dimension_names=dims["coords"])
-        coords.attrs["names"] = list(coord_names)
-        if coord_specs is not None:
-            coords.attrs["units"] = {n: str(coord_specs[n]["unit"]) for n in coord_names}
-            coords.attrs["dims"] = {n: str(coord_specs[n]["dim"]) for n in coord_names}
-        group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0,
-                           dimension_names=dims["crc32"])
-        group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0,
-                           dimension_names=dims["done"])
-        group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32",
-                           dimension_names=dims["point"])[:] = point_of
-        group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16",
-                           dimension_names=dims["tag"])[:] = tag_of
-        group.create_group("products")
-        group.attrs.update(jsonable({
-            "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
-            "software_version": software_version(), "created_utc": utc_now(),
-            "started_utc": None, "ended_utc": None, "status": "created",
-            "plan": {"name": plan_name, "params": dict(plan_params), "points": list(points),
-                     "frames_per_point": [len(per) for per in frame_tags]},
-            "tags": tags, "bench_config": dict(bench_config or {}),
-            "device_settings": dict(device_settings or {}), "note": note,
-            "resumes": [], "warnings": [], "error": None, "summary": {},
-        }))
-        if shard_frames is not None:
-            group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
-        describe_run(group)
-        record_layout(group, path, RUN_ARRAYS)  # what every later open compares with
-        return cls(path, group, writable=True)
+        if overwrite and path.exists():  # the run checked above: renamed aside, removed
+            remove_replaced_run(path)
+        try:
+            creator = claim_run_dir(path)
+        except FileExistsError:  # another process created it since the check above
+            raise RunStoreError(_exists_text(path, meanwhile=True)) from None
+        try:  # the layout; a failure removes this call's own half-made run
+            group = zarr.open_group(str(path), mode="w-", zarr_format=3)
+            k = int(min(k, max(n, 1)))
+            sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
+                                                        "compressors": compressors}
+            dims = run_dims({"plan": {"name": plan_name, "points": list(points)}})
+            group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
+                               dtype=np.dtype(frame_dtype), fill_value=0,
+                               dimension_names=dims["frames"], **sharding)
+            coords = group.create_array("coords", shape=(n, len(coord_names)),
+                                        chunks=(k, len(coord_names)), dtype="float64",
+                                        fill_value=np.nan, dimension_names=dims["coords"])
+            coords.attrs["names"] = list(coord_names)
+            if coord_specs is not None:
+                coords.attrs["units"] = {n: str(coord_specs[n]["unit"]) for n in coord_names}
+                coords.attrs["dims"] = {n: str(coord_specs[n]["dim"]) for n in coord_names}
+            group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0,
+                               dimension_names=dims["crc32"])
+            group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0,
+                               dimension_names=dims["done"])
+            group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32",
+                               dimension_names=dims["point"])[:] = point_of
+            group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16",
+                               dimension_names=dims["tag"])[:] = tag_of
+            group.create_group("products")
+            group.attrs.update(jsonable({
+                "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
+                "software_version": software_version(), "created_utc": utc_now(),
+                "started_utc": None, "ended_utc": None, "status": "created",
+                "plan": {"name": plan_name, "params": dict(plan_params), "points": list(points),
+                         "frames_per_point": [len(per) for per in frame_tags]},
+                "tags": tags, "bench_config": dict(bench_config or {}),
+                "device_settings": dict(device_settings or {}), "note": note,
+                "resumes": [], "warnings": [], "error": None, "summary": {},
+                CREATOR_ATTR: creator,
+            }))
+            if shard_frames is not None:
+                group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
+            describe_run(group)
+            record_layout(group, path, RUN_ARRAYS)  # what every later open compares with
+            store = cls(path, group, writable=True)
+        except BaseException:
+            discard_partial_run(path, token=creator["token"], claimed=True)
+            raise
+        store.creation_token = creator["token"]
+        return store
 
     @classmethod
     def open(cls, path: str | Path, mode: str = "r") -> RunStore:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.io import missing_dirs
+from recon.io import missing_dirs, remove_empty_dirs
 
 from .coords import coord_specs
 from .runstore import RunStore, RunStoreError, discard_partial_run
@@ -280,8 +280,8 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
     stack, depths, attrs = load_psf_stack(source, depths_mm)
     order = np.argsort(depths)
     stack, depths = stack[order], [depths[i] for i in order]
-    existed, store, made = Path(out).exists(), None, missing_dirs(out)
-    try:  # whole or not at all: a run this call began is removed when it fails
+    store, made = None, missing_dirs(out)
+    try:  # whole or not at all: a run this call created is removed when it fails
         store = RunStore.create(out, plan_name=IMPORTED_PLAN,
                                 plan_params={"source": str(source)},
                                 points=[{"z_mm": z} for z in depths],
@@ -293,8 +293,10 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
                             units=attrs.get("units", "as imported"))
         store.update_attrs(status="complete",
                            summary={"depths_mm": depths, "source": str(source)})
-    except BaseException:
-        if store is not None or (not existed and Path(out).exists()):
-            discard_partial_run(out, made)
+    except BaseException:  # never a run another process created at ``out`` meanwhile
+        if store is not None:
+            discard_partial_run(out, made, token=store.creation_token)
+        else:  # refused, or RunStore.create removed its own half-made run
+            remove_empty_dirs(made)
         raise
     return store

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from drivers.camera import FrameRing
-from recon.io import missing_dirs
+from recon.io import missing_dirs, remove_empty_dirs
 
 from .coords import coord_specs
 from .recorder import VIDEO_COORDS, Recorder, record_from_ring
@@ -136,12 +136,16 @@ def create_video_run(path: str | Path, camera, n_frames: int, *,
         bench_config=bench_config,
         device_settings=device_settings, note=note, overwrite=overwrite,
         shard_frames=int(shard_frames), compressor=compressor)
-    store.update_attrs(camera={"id": camera.device_id, "bit_depth": camera.bit_depth,
-                               "full_scale_dn": 2 ** int(camera.bit_depth) - 1,
-                               "pixel_pitch_um": camera.pixel_pitch_um,
-                               "frame_rate_hz": camera.resulting_frame_rate_hz,
-                               "exposure_s": camera.exposure_s, "gain": camera.gain},
-                       **attrs)
+    try:
+        store.update_attrs(camera={"id": camera.device_id, "bit_depth": camera.bit_depth,
+                                   "full_scale_dn": 2 ** int(camera.bit_depth) - 1,
+                                   "pixel_pitch_um": camera.pixel_pitch_um,
+                                   "frame_rate_hz": camera.resulting_frame_rate_hz,
+                                   "exposure_s": camera.exposure_s, "gain": camera.gain},
+                           **attrs)
+    except BaseException:  # the run this call created, never finished: removed
+        discard_partial_run(store.path, token=store.creation_token)
+        raise
     return store
 
 
@@ -226,7 +230,7 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     n = video_frame_count(frames=frames, seconds=seconds, rate_hz=rate)
     check_disk_space(out, n, cam.image_shape, cam.dtype)
     config = getattr(bench, "config", None)
-    store, existed, made = None, Path(out).exists(), missing_dirs(out)
+    store, made = None, missing_dirs(out)
     try:  # until the recorder holds the run, a failure (Ctrl-C too) leaves no run behind
         store = create_video_run(
             out, cam, n,
@@ -236,9 +240,12 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
         rec = Recorder(store, queue_frames=queue_frames)
         ring = FrameRing(ring_frames)
         rec.start()
-    except BaseException:
-        if store is not None or (not existed and Path(out).exists()):
-            discard_partial_run(out, made)  # the empty run this call created
+    except BaseException:  # the empty run this call created, never another's (a run
+        # created at ``out`` by another process meanwhile refuses this one: kept)
+        if store is not None:
+            discard_partial_run(out, made, token=store.creation_token)
+        else:  # refused, or create_video_run removed its own half-made run
+            remove_empty_dirs(made)
         raise
     stop = stop or threading.Event()
     timeout_s = frame_timeout_s if frame_timeout_s is not None else 10.0 / rate + 5.0

@@ -111,15 +111,31 @@ def remove_empty_dirs(dirs) -> None:
 
 
 @contextlib.contextmanager
-def output_group() -> Iterator[None]:
+def output_group(replace: bool = True) -> Iterator[None]:
     """Several outputs written whole or not at all, together.
 
-    Inside the block, every :func:`atomic_path` (so :func:`save_image` too) keeps its
-    finished temporary file instead of renaming it; when the block ends normally all
-    of them are renamed into place, when it raises all of them are removed. So a
-    command that writes ``OUT.png``, ``OUT.tif`` and a JSON never leaves the PNG alone
-    when the TIFF fails (a full disk), which would block its retry ("exists").
-    Groups do not nest (an inner one joins the outer).
+    Inside the block, every :func:`atomic_path` (so :func:`save_image` too) and
+    :func:`atomic_dir` keeps its finished temporary output instead of renaming it;
+    when the block ends normally all of them are renamed into place, when it raises
+    (or a rename fails) those not yet in place are removed. So a command that writes
+    ``OUT.png``, ``OUT.tif`` and a JSON never leaves the PNG alone when the TIFF fails
+    (a full disk), which would block its retry ("exists"). Groups do not nest (an
+    inner one joins the outer, its ``replace`` ignored).
+
+    Parameters
+    ----------
+    replace : bool
+        True: outputs replace existing files or folders of their names (the
+        command's ``--overwrite``). False: each output takes a name that is still
+        free, atomically (a folder claimed with ``os.mkdir``, a file hard-linked into
+        place); when another process wrote one of the names since the command
+        checked its outputs, that process's output is kept and none of the group's
+        is put in place.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        ``replace`` is False and an output's name is taken (one line naming it).
     """
     if getattr(_GROUP, "pending", None) is not None:
         yield
@@ -127,16 +143,66 @@ def output_group() -> Iterator[None]:
     _GROUP.pending, _GROUP.made = pending, made = [], []
     try:
         yield
+        if replace:
+            for tmp, final in pending:
+                _put_in_place(tmp, final)
+        else:
+            _put_all_new(pending)
     except BaseException:
-        for tmp, _ in pending:
+        for tmp, _ in pending:  # what is in place is gone from its temporary name
             _discard(tmp)
         remove_empty_dirs(made)
         raise
-    else:
-        for tmp, final in pending:
-            _put_in_place(tmp, final)
     finally:
         _GROUP.pending = _GROUP.made = None
+
+
+def _claim_new(tmp: Path, final: Path) -> tuple[str, int]:
+    """Take the free name ``final`` for ``tmp`` atomically (FileExistsError when taken):
+    a folder gets an empty folder of that name (replaced by ``tmp`` after), a file a
+    hard link to ``tmp`` (in place at once) or, where the file system has none, an
+    empty file created exclusively (replaced after). Returns how, and the inode."""
+    if tmp.is_dir():
+        os.mkdir(final)
+        return "dir", os.stat(final).st_ino
+    try:
+        os.link(tmp, final)
+        return "link", os.stat(final).st_ino
+    except FileExistsError:
+        raise
+    except OSError:  # no hard links here (some network or FAT file systems)
+        os.close(os.open(final, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        return "file", os.stat(final).st_ino
+
+
+def _put_all_new(pending: list[tuple[Path, Path]]) -> None:
+    """Put the finished outputs of a group in place under names that must be free:
+    every name is claimed first (:func:`_claim_new`); when one is taken, the claims
+    made are released (each only if still this process's: its inode) and nothing is
+    put in place, else the outputs replace their claims."""
+    from .errors import ReconInputError
+
+    claimed: list[tuple[Path, Path, str, int]] = []
+    for tmp, final in pending:
+        try:
+            claimed.append((tmp, final, *_claim_new(tmp, final)))
+        except FileExistsError:
+            for _, mine, _, ino in claimed:
+                with contextlib.suppress(OSError):
+                    if os.stat(mine).st_ino != ino:
+                        continue
+                    if mine.is_dir():
+                        os.rmdir(mine)
+                    else:
+                        os.unlink(mine)
+            raise ReconInputError(
+                f"{final} already exists (another process wrote it meanwhile; it is kept); "
+                "choose another --out or pass --overwrite to replace it") from None
+    for tmp, final, how, _ in claimed:
+        if how == "link":
+            tmp.unlink()
+        else:  # over the empty folder or file this process made
+            os.replace(tmp, final)
 
 
 def _discard(tmp: Path) -> None:

@@ -216,22 +216,27 @@ def _apply_lut(bench, plan, path) -> bool:
 
 def _run_whole_or_nothing(runner, plan, out, **options):
     """``runner.run(plan, out)``; a new run that fails before it stored a frame (a full
-    disk while its layout is written, say) is removed instead of left half-made. A run
-    holding frames is kept (its data are the operator's; it resumes)."""
-    from instrument.runstore import RunStore, RunStoreError, discard_partial_run
-    from recon.io import missing_dirs
+    disk while its camera record is written, say) is removed instead of left half-made.
+    A run holding frames is kept (its data are the operator's; it resumes), and so is
+    a run this process did not create (another process's, created at ``out``
+    meanwhile: this one is refused)."""
+    from instrument.runstore import RunStoreError, discard_partial_run
+    from recon.io import missing_dirs, remove_empty_dirs
 
-    existed, made = Path(out).exists(), missing_dirs(out)
+    made = missing_dirs(out)
     try:
         return runner.run(plan, out, **options)
     except BaseException:
-        if not existed and Path(out).exists():
-            try:
-                empty = not RunStore.open(out).done().any()
-            except RunStoreError:  # its description was not even written whole
-                empty = True
-            if empty:
-                discard_partial_run(out, made)
+        store = runner.created  # None: refused, or create removed its own half-made run
+        if store is None:
+            remove_empty_dirs(made)
+            raise
+        try:
+            empty = not store.done().any()
+        except RunStoreError:  # its bookkeeping was not even written whole
+            empty = True
+        if empty:
+            discard_partial_run(out, made, token=store.creation_token)
         raise
 
 

@@ -67,7 +67,8 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     check_outputs(outputs, {**inputs, "--raw": args.raw}, args.overwrite)
     options = ReconOptions.from_namespace(args).replace(method=method, dark=dark)
     m = run_recon_grid(args.psf_grid, args.raw, options, out=args.out,
-                       metrics_json=args.metrics_json, depths_mm=depths, volume=volume)
+                       metrics_json=args.metrics_json, depths_mm=depths, volume=volume,
+                       overwrite=args.overwrite)
     where = m.get("output_volume") or m["output_png"]
     weight = (m.get("auto") or {}).get("weight")
     if weight:

@@ -116,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
                         planes=args.planes, pitch_um=args.pitch_um, d_mm=args.d_mm,
                         scene_range_mm=(None if args.scene_range is None
                                         else floats(args.scene_range, "--scene-range")),
-                        memory_limit_bytes=memory_limit, slab_group=slab_group)
+                        memory_limit_bytes=memory_limit, slab_group=slab_group,
+                        overwrite=args.overwrite)
     if m.get("planes"):
         print(m["planes"]["reason"])
     auto = m.get("auto")

@@ -133,7 +133,6 @@ def verify(path: str) -> int:
     instrument.runstore.RunStoreError
         No readable run at ``path`` (exit 2 through :func:`instrument.cli.main`).
     """
-    from ..run_description import description_note
     from ..run_layout import layout_note
     from ..runstore import RunStore
 
@@ -143,9 +142,9 @@ def verify(path: str) -> int:
         print(p)
     checked = (f"{int(store.done_or_none().sum())} frames and {len(store.products())} "
                f"products of {store.path}")
-    for note in (layout_note(store.path), description_note(store.path)):
-        if note:
-            print(note)
+    note = layout_note(store.path)
+    if note:
+        print(note)
     if not store.has_checksums:
         print(f"{store.path} (run schema 1) carries no checksums: only unreadable chunks "
               "can be found, not deleted or altered ones")
