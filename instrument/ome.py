@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from .product_nodes import IMAGE_ARRAY, array_keys, product_array, product_arrays
+from .run_description import SELF, as_recorded, record_description
 
 __all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_products",
            "describe_run", "dim_sizes", "frame_axis", "frame_pitch_um", "image_attrs",
@@ -309,10 +310,13 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
         The arrays whose dimension names were set (``frames``, ``products/NAME``).
     """
     attrs = dict(group.attrs)
-    path = Path(str(group.store.root)) if hasattr(group.store, "root") else None
+    path = _folder(group)
     changed: list[str] = []
     if arrays and path is not None:
         changed += _set_missing(path, group, run_dims(attrs, group["frames"].ndim))
+        # what it wrote is recorded, and what a run written before lacks as it is now
+        record_description(group, path, changed)
+        record_description(group, path, ROOT_ARRAYS, missing_only=True)
         products = group["products"]
         taken = dim_sizes(group, ROOT_ARRAYS)
         plan: dict[str, tuple[str, ...]] = {}
@@ -325,15 +329,27 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
             for hidden in ("__done", "__crc32"):
                 if name + hidden in products:
                     plan[name + hidden] = dims[:1]
-        changed += [f"products/{n}" for n in _set_missing(path / "products", products, plan)]
+        named = _set_missing(path / "products", products, plan)
+        products = group["products"]
+        record_description(products, path / "products", named)
+        record_description(products, path / "products", plan, missing_only=True)
+        changed += [f"products/{n}" for n in named]
     frames = group["frames"]
     dims = frames.metadata.dimension_names
     if dims is not None:  # (a store written before: runs upgrade names them first)
         found = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))][-frames.ndim:]
         axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found, strict=True)]
         group.attrs["ome"] = image_attrs([("frames", "frames", axes, {})])
+        if path is not None and as_recorded(group, path, "frames"):
+            record_description(group, path, [SELF])
     describe_products(group["products"], attrs)
     return changed
+
+
+def _folder(group) -> Path | None:
+    """The folder of a group of a local store (None for another store)."""
+    root = getattr(group.store, "root", None)
+    return None if root is None else Path(str(root)) / group.path
 
 
 #: The arrays of a run's root group.
@@ -423,7 +439,7 @@ def describe_products(products, run_attrs: Mapping[str, Any],
         Only these products' groups (the one just written); None: all of them.
     """
     found = product_arrays(products)
-    legacy = []
+    legacy, described = [], []
     for name, (key, arr) in found.items():
         # (an array without dimension names, of a run not upgraded yet: none)
         axes = None if arr.metadata.dimension_names is None else stored_axes(
@@ -438,9 +454,15 @@ def describe_products(products, run_attrs: Mapping[str, Any],
         want = None if axes is None else image_attrs([(name, IMAGE_ARRAY, *axes)])
         if want is not None and group.attrs.get("ome") != want:
             group.attrs["ome"] = want
+        if want is not None:
+            described.append((name, key))
     if legacy:
         block = image_attrs(legacy)
         if products.attrs.get("ome") != block:
             products.attrs["ome"] = block
     elif "ome" in products.attrs:
         del products.attrs["ome"]
+    folder = _folder(products)
+    if folder is not None:  # what the run wrote, compared by runs verify
+        record_description(products, folder, [SELF, *(
+            name for name, key in described if as_recorded(products, folder, key))])

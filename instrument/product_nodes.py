@@ -124,9 +124,10 @@ def regroup(products, root: str | Path, names) -> list[str]:
     group into place: directories are renamed, no chunk file is read or rewritten, so
     every checksum still holds. Then the run's record of each moved array's layout
     (``products/``'s ``arrays`` attribute, :mod:`instrument.run_layout`) is renamed
-    from ``NAME`` to ``NAME/0``. A move a crash cut short is finished (or undone) and
-    its record renamed the next time. The groups' ``ome`` blocks are written
-    afterwards (:func:`instrument.ome.describe_products`).
+    from ``NAME`` to ``NAME/0``, and so is its record of the array's dimension names
+    (:func:`instrument.run_description.follow_moves`). A move a crash cut short is
+    finished (or undone) and its records renamed the next time. The groups' ``ome``
+    blocks are written afterwards (:func:`instrument.ome.describe_products`).
 
     Parameters
     ----------
@@ -162,6 +163,9 @@ def regroup(products, root: str | Path, names) -> list[str]:
         moved.append(name)
     _fsync_dir(root)
     _follow_records(products)
+    from .run_description import follow_moves
+
+    follow_moves(products)
     return sorted(set(moved))
 
 

@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["FRAME_ARRAYS", "LAYOUT_KEYS", "RUN_ARRAYS", "array_layout", "layout_note",
-           "layout_problems", "record_layout", "unrecorded_problems"]
+           "layout_problems", "node_metadata", "record_layout", "unrecorded_problems"]
 
 #: The fields of an array's ``zarr.json`` that define how its bytes are read.
 LAYOUT_KEYS = ("shape", "data_type", "chunk_grid", "chunk_key_encoding", "codecs",
@@ -51,8 +51,9 @@ _FIXED_DTYPES = {"coords": "float64", "crc32": "uint32", "done": "uint8", "point
 ATTR = "arrays"
 
 
-def _metadata(path: Path) -> dict | None:
-    """An array's ``zarr.json`` as a dict; None when missing, unreadable or not JSON."""
+def node_metadata(path: str | Path) -> dict | None:
+    """The ``zarr.json`` of the node (array or group) at ``path`` as a dict; None when
+    missing, unreadable or not a JSON object."""
     try:
         meta = json.loads(Path(path, "zarr.json").read_text())
     except (OSError, ValueError):
@@ -74,7 +75,7 @@ def array_layout(path: str | Path) -> dict[str, Any] | None:
         ``{key: value}`` as the file holds them (JSON values); None when the file is
         missing or unreadable.
     """
-    meta = _metadata(Path(path))
+    meta = node_metadata(path)
     return None if meta is None else {k: meta.get(k) for k in LAYOUT_KEYS}
 
 
@@ -131,7 +132,7 @@ def _recorded(path: Path) -> dict[str, dict]:
     ``{"products/NAME": layout}`` for products (empty where none was kept)."""
     out: dict[str, dict] = {}
     for prefix, folder in (("", path), ("products/", path / "products")):
-        meta = _metadata(folder) or {}
+        meta = node_metadata(folder) or {}
         record = (meta.get("attributes") or {}).get(ATTR) or {}
         if isinstance(record, Mapping):
             out.update({prefix + k: v for k, v in record.items() if isinstance(v, Mapping)})

@@ -46,6 +46,7 @@ from .product_nodes import (
     product_array,
     product_arrays,
 )
+from .run_description import forget_description, record_description
 from .run_integrity import RunStoreError, product_crcs
 from .run_layout import forget_layout, record_layout
 
@@ -101,9 +102,11 @@ class ProductsMixin:
         return list(self._group["products"].attrs.get(_WRITTEN, []))
 
     def _note_product(self, name: str, arrays: Sequence[str]) -> None:
-        """List ``name`` as written and record the layout of its ``arrays``."""
+        """List ``name`` as written and record the layout and dimension names of its
+        ``arrays`` (:mod:`instrument.run_layout`, :mod:`instrument.run_description`)."""
         products = self._group["products"]
         record_layout(products, self.path / "products", arrays)
+        record_description(products, self.path / "products", arrays)
         written = list(products.attrs.get(_WRITTEN, []))
         if name not in written:
             products.attrs[_WRITTEN] = sorted([*written, name])
@@ -366,6 +369,7 @@ class ProductsMixin:
                 del products[key]
         keys = (name, f"{name}/{IMAGE_ARRAY}", name + _CRC, name + _DONE)
         forget_layout(products, keys)
+        forget_description(products, keys)
         for key in keys:  # replaced: its old record is gone
             self.layout_damage.pop(f"products/{key}", None)
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from diffuserlab.jsonio import jsonable
 
+from .run_description import description_problems
 from .run_integrity import (
     DamagedFrameError,
     RunStoreError,
@@ -155,7 +156,9 @@ class RunReadingMixin:
         """Check every done frame and every product (every written plane of a per-frame
         product) against its checksum, and the store against what the run recorded of
         itself (:func:`instrument.runstore_records.record_problems`: done flags of a
-        finished run, frame counts, products written, keys doubled in ``zarr.json``).
+        finished run, frame counts, products written, keys doubled in ``zarr.json``;
+        :func:`instrument.run_description.description_problems`: the ``ome`` blocks and
+        dimension names other tools read).
 
         Parameters
         ----------
@@ -178,7 +181,7 @@ class RunReadingMixin:
                 problems += record_problems(self)
             except RunStoreError as exc:  # its done flags cannot be read
                 problems.append(str(exc))
-        return problems + self.damaged_products()
+        return problems + self.damaged_products() + description_problems(self.path)
 
     def done_or_none(self) -> np.ndarray:
         """:meth:`~instrument.runstore.RunStore.done`, or no frame done where the flags

@@ -133,6 +133,7 @@ def verify(path: str) -> int:
     instrument.runstore.RunStoreError
         No readable run at ``path`` (exit 2 through :func:`instrument.cli.main`).
     """
+    from ..run_description import description_note
     from ..run_layout import layout_note
     from ..runstore import RunStore
 
@@ -142,9 +143,9 @@ def verify(path: str) -> int:
         print(p)
     checked = (f"{int(store.done_or_none().sum())} frames and {len(store.products())} "
                f"products of {store.path}")
-    note = layout_note(store.path)
-    if note:
-        print(note)
+    for note in (layout_note(store.path), description_note(store.path)):
+        if note:
+            print(note)
     if not store.has_checksums:
         print(f"{store.path} (run schema 1) carries no checksums: only unreadable chunks "
               "can be found, not deleted or altered ones")

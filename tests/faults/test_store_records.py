@@ -265,7 +265,8 @@ def test_an_old_store_without_the_layout_record_still_verifies(runs, tmp_path, c
 
 
 def test_metadata_that_is_not_data_may_change(runs, tmp_path, capsys):
-    """Attributes and dimension names (OME-Zarr metadata added later) are no damage."""
+    """An array's own attributes are no damage, nor its dimension names written again
+    as they were (changed ones are: tests/faults/test_description_record.py)."""
     run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
     _edit_meta(run, "frames", dimension_names=["t", "y", "x"],
                attributes={"note": "added by hand"})

@@ -198,10 +198,12 @@ def test_xarray_opens_a_run_as_a_tree(tmp_path):
 
 def _strip_to_legacy(path: Path) -> None:
     """Make ``path`` what a run written before this description looked like: no
-    ``ome`` blocks, no dimension names (``coords`` had ("frame", "coord"))."""
+    ``ome`` blocks, no dimension names (``coords`` had ("frame", "coord")), no record
+    of them."""
     for meta in path.rglob("zarr.json"):
         doc = json.loads(meta.read_text())
         doc.get("attributes", {}).pop("ome", None)
+        doc.get("attributes", {}).pop("described", None)
         if doc.get("node_type") == "array":
             doc.pop("dimension_names", None)
             if meta.parent.name == "coords":
@@ -212,8 +214,9 @@ def _strip_to_legacy(path: Path) -> None:
 def _to_old_layout(path: Path) -> None:
     """Make ``path``'s products what a run written before the image groups held: each
     image product's array moved back to ``products/NAME`` (its group gone, no chunk
-    rewritten), the run's layout record keyed ``NAME`` again, and ``products/``
-    holding one ``ome`` block listing every image (what runs wrote then)."""
+    rewritten), the run's layout record keyed ``NAME`` again, ``products/``
+    holding one ``ome`` block listing every image, and no record of the ``ome``
+    blocks and dimension names (what runs wrote then)."""
     products = path / "products"
     for array in sorted(products.glob("*/0")):
         name = array.parent.name
@@ -227,6 +230,8 @@ def _to_old_layout(path: Path) -> None:
     group = zarr.open_group(path, mode="r+")
     describe_products(group["products"], dict(group.attrs))
     assert "ome" in group["products"].attrs and not list(group["products"].group_keys())
+    for node in (group, group["products"]):
+        del node.attrs["described"]
 
 
 def _chunks(path: Path) -> dict[str, tuple[str, int]]:
