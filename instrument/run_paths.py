@@ -18,7 +18,7 @@ log = logging.getLogger(__name__)
 
 #: The run attribute that names the process which created the run: ``{"pid", "host",
 #: "token"}``; the token, random, proves to that process (it keeps it in memory,
-#: :attr:`instrument.runstore.RunStore.creation_token`) that the run is its own.
+#: ``RunStore.creation_token``) that the run is its own.
 CREATOR_ATTR = "created_by"
 
 
