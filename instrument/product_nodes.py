@@ -125,7 +125,7 @@ def regroup(products, root: str | Path, names) -> list[str]:
     every checksum still holds. Then the run's record of each moved array's layout
     (``products/``'s ``arrays`` attribute, :mod:`instrument.run_layout`) is renamed
     from ``NAME`` to ``NAME/0``, and so is its record of the array's dimension names
-    (:func:`instrument.run_description.follow_moves`). A move a crash cut short is
+    (:mod:`instrument.run_description`). A move a crash cut short is
     finished (or undone) and its records renamed the next time. The groups' ``ome``
     blocks are written afterwards (:func:`instrument.ome.describe_products`).
 
@@ -163,9 +163,6 @@ def regroup(products, root: str | Path, names) -> list[str]:
         moved.append(name)
     _fsync_dir(root)
     _follow_records(products)
-    from .run_description import follow_moves
-
-    follow_moves(products)
     return sorted(set(moved))
 
 
@@ -198,15 +195,21 @@ def _fsync_dir(path: Path) -> None:
 
 
 def _follow_records(products) -> None:
-    """Rename each key of ``products/``'s layout record (:mod:`instrument.run_layout`)
-    whose array :func:`regroup` moved (``NAME``, now a group) to where the array is now
-    (``NAME/0``); the recorded values stay, as the array's metadata did."""
-    from .run_layout import ATTR
+    """Rename each key of ``products/``'s records of an array that :func:`regroup`
+    moved (``NAME``, now a group) to where the array is now (``NAME/0``): in the layout
+    record (:mod:`instrument.run_layout`) every key, in the record of what other tools
+    read (:mod:`instrument.run_description`) an array's dimension names (an entry
+    ``NAME`` holding a group's ``ome`` block stays). The recorded values stay, as the
+    array's metadata did."""
+    from .run_description import ATTR as DESCRIBED
+    from .run_layout import ATTR as LAYOUT
 
-    record = dict(products.attrs.get(ATTR) or {})
-    renamed = {}
-    for key, value in record.items():
-        where = array_key(products, key) if "/" not in key else None
-        renamed[where if where is not None else key] = value
-    if renamed != record:
-        products.attrs[ATTR] = renamed
+    for attr in (LAYOUT, DESCRIBED):
+        record = dict(products.attrs.get(attr) or {})
+        renamed = {}
+        for key, value in record.items():
+            array = attr == LAYOUT or (isinstance(value, dict) and "dimension_names" in value)
+            where = array_key(products, key) if array and "/" not in key else None
+            renamed[where if where is not None else key] = value
+        if renamed != record:
+            products.attrs[attr] = renamed

@@ -22,10 +22,9 @@ other sizes or axes. So each time the run writes that metadata it records it, an
   :func:`instrument.ome.describe_products` (the ``ome`` blocks, and the dimension
   names ``runs upgrade`` sets; a block derived from dimension names that differ from
   their record is written but not recorded, :func:`as_recorded`); a product replaced
-  or deleted by the run drops its
-  entries, an array ``runs upgrade`` moves into its group takes its entry along
-  (:func:`follow_moves`), and ``runs upgrade`` records what a run written before
-  lacks, as it is then.
+  or deleted by the run drops its entries, an array ``runs upgrade`` moves into its
+  group takes its entry along (:func:`instrument.product_nodes.regroup`), and ``runs
+  upgrade`` records what a run written before lacks, as it is then.
 
 Only what was recorded is compared: a run written before the record (see
 :func:`description_note`) verifies as it did.
@@ -41,7 +40,7 @@ from typing import Any
 from .run_layout import node_metadata
 
 __all__ = ["ATTR", "SELF", "as_recorded", "description_note", "description_problems",
-           "follow_moves", "forget_description", "node_description", "record_description"]
+           "forget_description", "node_description", "record_description"]
 
 #: Attribute (of the root group and of ``products/``) holding the record.
 ATTR = "described"
@@ -125,22 +124,6 @@ def forget_description(group, names: Iterable[str]) -> None:
     names = set(names)
     if names & set(record):
         group.attrs[ATTR] = {k: v for k, v in record.items() if k not in names}
-
-
-def follow_moves(products) -> None:
-    """Move the entry of each array :func:`instrument.product_nodes.regroup` moved
-    (recorded as ``NAME``, an array's entry, now the array ``NAME/0`` of a group) to
-    ``NAME/0``; the recorded values stay, as the array's metadata did."""
-    from .product_nodes import array_key
-
-    record = _record(products)
-    moved = {}
-    for key, value in record.items():
-        where = array_key(products, key) if "/" not in key and key != SELF else None
-        array = isinstance(value, Mapping) and "dimension_names" in value
-        moved[where if array and where is not None else key] = value
-    if moved != record:
-        products.attrs[ATTR] = moved
 
 
 def _differences(have: Any, want: Any, where: tuple) -> Iterator[tuple[tuple, Any, Any]]:
