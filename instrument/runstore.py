@@ -9,7 +9,9 @@ Layout of ``RUN.zarr``::
                          token; instrument.run_paths); ``arrays``: each array's
                          shape, dtype, chunks, codecs and fill value as written
                          (instrument.run_layout; ``products/`` keeps the same for
-                         its products)
+                         its products); ``described``: the ``ome`` block and the
+                         arrays' dimension names as written
+                         (instrument.run_description; likewise)
     frames               (n_frames, rows, cols) camera dtype, one frame per chunk
     coords               (n_frames, n_coords) float64, one row per chunk; column names
                          in its attribute ``names`` (stage positions, LED, SLM pattern
@@ -80,6 +82,7 @@ import numpy as np
 from diffuserlab.jsonio import jsonable
 
 from .ome import describe_run, run_dims
+from .run_description import record_description
 from .run_integrity import (
     LOCK_NAME,
     DamagedFrameError,
@@ -359,6 +362,7 @@ class RunStore(ProductsMixin, RunReadingMixin):
                 group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
             describe_run(group)
             record_layout(group, path, RUN_ARRAYS)  # what every later open compares with
+            record_description(group, path, RUN_ARRAYS)  # what runs verify compares with
             store = cls(path, group, writable=True)
         except BaseException:
             discard_partial_run(path, token=creator["token"], claimed=True)
