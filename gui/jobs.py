@@ -7,11 +7,12 @@
 * :func:`routine_options` / :func:`check_values` - a calibration routine's parameters
   are its typed model (:mod:`calibration_routines.parameters`), from which the
   ``calibrate`` command's options are generated too; the form's texts become the
-  model, and the model builds the plan (:func:`gui.bench_jobs.build_plan`, in the
+  model, and the model builds the plan (:func:`calibration_routines.bench_jobs.build_plan`, in the
   bench process).
 * :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
   job's progress and a :class:`~instrument.runner.RunControl`, run in the bench
-  process (:mod:`gui.bench_jobs`) with the camera claimed.
+  process (:mod:`calibration_routines.bench_jobs`, :mod:`instrument.bench_jobs`) with
+  the camera claimed.
 * :func:`run_alignment` - the mask alignment as ``align mask`` runs it (in the bench
   process).
 * :func:`record` / :func:`batch_reconstruct` - a video recording
@@ -28,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 # the bodies the bench process runs, re-exported for the panels and the tests
-from .bench_jobs import ALIGNMENT_STEPS, build_plan, section_summary
+from calibration_routines.bench_jobs import ALIGNMENT_STEPS, build_plan, section_summary
 
 __all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_reconstruct", "build_live",
            "build_plan", "check_values", "default_run_path", "record", "resume_plan",
@@ -181,8 +182,8 @@ def default_run_path(routine: str, folder: str = "out/runs") -> str:
 def run_plan(job, session, routine: str, values: dict[str, Any], path: str, control, *,
              overwrite: bool = False):
     """Run ``routine``'s plan, built from the form's ``values``, into a new store at
-    ``path``, in the bench process (:func:`gui.bench_jobs.run_plan`) with the camera
-    claimed; progress: ``{"kind": "planned", ...}``, then the runner's events.
+    ``path``, in the bench process (:func:`calibration_routines.bench_jobs.run_plan`)
+    with the camera claimed; progress: ``{"kind": "planned", ...}``, then the runner's events.
 
     Returns
     -------
@@ -195,17 +196,18 @@ def run_plan(job, session, routine: str, values: dict[str, Any], path: str, cont
     """
     with session.camera_claimed("the calibration run"):
         return session.run_on_bench(
-            "gui.bench_jobs:run_plan", {"routine": routine, "values": values, "path": path,
+            "run_plan", {"routine": routine, "values": values, "path": path,
                                         "overwrite": overwrite},
             report=job.report, control=control)
 
 
 def resume_plan(job, session, path: str, control, *, accept_differences: bool = False):
     """Resume the run at ``path`` in the bench process
-    (:meth:`instrument.runner.Runner.resume`, :func:`gui.bench_jobs.resume_plan`)."""
+    (:meth:`instrument.runner.Runner.resume`,
+    :func:`calibration_routines.bench_jobs.resume_plan`)."""
     with session.camera_claimed("the calibration run"):
         return session.run_on_bench(
-            "gui.bench_jobs:resume_plan", {"path": path,
+            "resume_plan", {"path": path,
                                            "accept_differences": accept_differences},
             report=job.report, control=control)
 
@@ -213,9 +215,10 @@ def resume_plan(job, session, path: str, control, *, accept_differences: bool = 
 def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frames: int = 3,
                   focus: bool = True):
     """The mask alignment (:class:`calibration_routines.mask_alignment.MaskAligner`) on
-    the session's bench, run in the bench process (:func:`gui.bench_jobs.run_alignment`)
-    and recorded in ``out``; progress: ``{"kind": "event", ...}`` per step message and
-    ``{"kind": "reading", ...}`` per spot reading.
+    the session's bench, run in the bench process
+    (:func:`calibration_routines.bench_jobs.run_alignment`) and recorded in ``out``;
+    progress: ``{"kind": "event", ...}`` per step message and ``{"kind": "reading",
+    ...}`` per spot reading.
 
     The parameters are ``align mask``'s model
     (:class:`calibration_routines.parameters.AlignMaskParams`), built from the panel's
@@ -241,7 +244,7 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
     """
     with session.camera_claimed("the mask alignment"):
         return session.run_on_bench(
-            "gui.bench_jobs:run_alignment", {"out": out, "mask_seed": mask_seed,
+            "run_alignment", {"out": out, "mask_seed": mask_seed,
                                              "frames": frames, "focus": focus},
             report=job.report, control=control)
 
@@ -249,7 +252,7 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
 def record(job, session, out: str, stop, *, frames: int | None, seconds: float | None,
            fps: float | None, exposure_s: float | None, live=None) -> dict:
     """Record a video run (:func:`instrument.video.record_video`) in the bench process
-    (:func:`gui.bench_jobs.record`) with the camera claimed (its settings put back and
+    (:func:`instrument.bench_jobs.record`) with the camera claimed (its settings put back and
     the live stream resumed afterwards). Its frames come to the window as the stream's
     do (the display and the live reconstruction, if running, take them); ``live``: that
     reconstruction, whose statistics each progress report carries as ``live``. On the
@@ -266,7 +269,7 @@ def record(job, session, out: str, stop, *, frames: int | None, seconds: float |
 
     with session.camera_claimed("the video recording"):
         result = session.run_on_bench(
-            "gui.bench_jobs:record", {"out": out, "frames": frames, "seconds": seconds,
+            "record", {"out": out, "frames": frames, "seconds": seconds,
                                       "options": options, "simulated": simulated},
             report=report, stop=stop)
     if live is not None and isinstance(result, dict):

@@ -4,9 +4,10 @@ One :class:`Session` per window. The bench lives in a process of its own (a
 :class:`instrument.bench_host.BenchHost` served to the window by
 :class:`instrument.bench_process.BenchClient`): the devices, the camera's stream and
 the jobs that use them (calibration runs, the mask alignment, recordings; bodies in
-:mod:`gui.bench_jobs`) run there, so their compute and device waits never take this
-process's interpreter lock. ``session.bench`` is that bench seen from here (device
-reads, writes and calls go to the bench process). The bench file's bench is opened,
+:mod:`instrument.bench_jobs` and :mod:`calibration_routines.bench_jobs`) run there, so
+their compute and device waits never take this process's interpreter lock.
+``session.bench`` is that bench seen from here (device reads, writes and calls go to
+the bench process). The bench file's bench is opened,
 or with ``simulate`` the virtual bench streaming in real time, as ``capture live
 --simulate`` does.
 
@@ -152,14 +153,15 @@ class Session(QObject):
         return job.start()
 
     def _open(self, job: Job):
+        from calibration_routines.bench_jobs import JOBS
         from instrument.bench_process import BenchClient
 
-        client = BenchClient(in_process=BENCH_IN_PROCESS, on_frame=self._on_frame,
+        client = BenchClient(in_process=BENCH_IN_PROCESS, jobs=JOBS, on_frame=self._on_frame,
                              on_message=self.message.emit, on_prompt=self.prompt.emit,
                              on_stream_ended=self._on_stream_ended)
         try:
             described = client.run_job(
-                "gui.bench_jobs:open_bench",
+                "open_bench",
                 {"bench_path": self.bench_path, "simulate": self.simulate,
                  "seed": self.seed, "scene": self.scene_name}, cancel=job.cancel_event)
             bench = client.bench
@@ -199,7 +201,8 @@ class Session(QObject):
         return job.start()
 
     def run_on_bench(self, target: str, kwargs: dict | None = None, **channels) -> Any:
-        """Run ``target`` (a :mod:`gui.bench_jobs` function) in the bench process and
+        """Run job ``target`` (by name: :data:`instrument.bench_jobs.JOBS`,
+        :data:`calibration_routines.bench_jobs.JOBS`) in the bench process and
         wait for it (:meth:`instrument.bench_process.BenchClient.run_job`; ``report``,
         ``control``, ``stop``, ``cancel``). Call it on a worker.
 
@@ -220,7 +223,7 @@ class Session(QObject):
         if name not in SCENES:
             raise ValueError(f"scene {name!r} is unknown; use one of {', '.join(SCENES)}")
         self.scene_name = name
-        job = Job(lambda job: self.run_on_bench("gui.bench_jobs:set_scene", {"name": name}),
+        job = Job(lambda job: self.run_on_bench("set_scene", {"name": name}),
                   name="scene")
         job.failed.connect(lambda text: self.message.emit(f"scene: {text}"))
         if on_error is not None:

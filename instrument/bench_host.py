@@ -26,29 +26,30 @@ What crosses between the processes:
   result or error (``("job", id, "progress" | "done" | "failed", value)``), a prompt
   for the operator (``("prompt", id, action, message)``), a new frame slot (``("slot", name,
   capacity)``), the stream's end on an error (``("stream_ended", text)``).
-* jobs: :meth:`BenchHost.start_job` runs ``module:function(ctx, **kwargs)`` on a thread
-  of the host with a :class:`JobContext` (the bench, progress, pause/abort, stop and
-  cancel events); :meth:`BenchHost.job_control` pauses, resumes, aborts, stops or
-  cancels it.
+* jobs: :meth:`BenchHost.start_job` runs a job by its name (:data:`instrument.bench_jobs.JOBS`
+  and those given to :meth:`BenchHost.register_jobs`) as ``function(ctx, **kwargs)`` on
+  a thread of the host with a :class:`JobContext` (the bench, progress, pause/abort,
+  stop and cancel events); :meth:`BenchHost.job_control` pauses, resumes, aborts, stops
+  or cancels it.
+* the typed commands and the pushed device events of
+  :class:`~instrument.bench_service.BenchService`, which the host is.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import itertools
 import logging
 import os
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import PurePath
 from typing import Any
 
 import numpy as np
 
-from diffuserlab.errors import DiffuserLabError
-
+from .bench_service import BenchService, BenchServiceError, EventLog
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
 
@@ -69,7 +70,7 @@ METHOD = "<method>"
 JOBS_CLOSE_TIMEOUT_S = 60.0
 
 
-class BenchHostError(DiffuserLabError, RuntimeError):
+class BenchHostError(BenchServiceError):
     """A call the bench host cannot serve: no bench open, an unknown path or job."""
 
 
@@ -180,7 +181,7 @@ class FrameWaker:
             pass
 
 
-class BenchHost:
+class BenchHost(BenchService):
     """The open bench, its camera stream and its jobs (see the module docstring).
 
     Parameters
@@ -203,6 +204,13 @@ class BenchHost:
         self._jobs: dict[int, JobContext] = {}
         self._ids = itertools.count(1)
         self._prompts: dict[int, tuple[threading.Event, dict]] = {}
+        #: The jobs :meth:`start_job` runs, by name.
+        self.jobs: dict[str, Callable] = {}
+        from .bench_jobs import JOBS
+
+        self.register_jobs(JOBS)
+        self.device_events = EventLog()
+        self._watcher: tuple[threading.Thread, threading.Event] | None = None
 
     # -- objects of the bench -------------------------------------------------------
     def _resolve(self, path) -> Any:
@@ -343,12 +351,24 @@ class BenchHost:
             self.publish(frame, ring)
 
     # -- jobs ------------------------------------------------------------------------
-    def start_job(self, target: str, kwargs: dict | None = None) -> int:
-        """Run ``target`` (``"module:function"``) as ``function(ctx, **kwargs)`` on a
-        thread; returns the job's id. Its end is an event ``("job", id, "done",
-        result)`` or ``("job", id, "failed", error)``."""
-        module, _, name = target.partition(":")
-        fn = getattr(importlib.import_module(module), name)
+    def register_jobs(self, jobs: Mapping[str, Callable]) -> None:
+        """Add ``{name: function(ctx, **kwargs)}`` to the jobs :meth:`start_job` runs."""
+        self.jobs.update(jobs)
+
+    def start_job(self, name: str, kwargs: dict | None = None) -> int:
+        """Run job ``name`` as ``function(ctx, **kwargs)`` on a thread; returns the job's
+        id. Its end is an event ``("job", id, "done", result)`` or ``("job", id,
+        "failed", error)``.
+
+        Raises
+        ------
+        BenchHostError
+            No job of that name.
+        """
+        fn = self.jobs.get(name)
+        if fn is None:
+            raise BenchHostError(f"the bench process has no job {name!r}; its jobs are "
+                                 f"{', '.join(sorted(self.jobs))}")
         job_id = next(self._ids)
         ctx = JobContext(self, job_id)
         self._jobs[job_id] = ctx
@@ -388,8 +408,23 @@ class BenchHost:
                                  "stop or cancel")
 
     def open_bench(self, bench) -> None:
-        """Make ``bench`` (opened by a job) the host's bench."""
+        """Make ``bench`` (opened by a job) the host's bench, and start watching its
+        devices for changes (:class:`~instrument.bench_service.BenchService`)."""
+        self._stop_watch()
         self.bench = bench
+        stop = threading.Event()
+        watcher = threading.Thread(target=self._watch, args=(stop,), name="bench-watch",
+                                   daemon=True)
+        self._watcher = (watcher, stop)
+        self.device_events.put("bench", None, {"open": True, "devices": list(bench.devices)})
+        watcher.start()
+
+    def _stop_watch(self) -> None:
+        watcher, self._watcher = self._watcher, None
+        if watcher is not None:
+            watcher[1].set()
+            if watcher[0] is not threading.current_thread():
+                watcher[0].join(10.0)
 
     def close(self, jobs_timeout_s: float = JOBS_CLOSE_TIMEOUT_S) -> None:
         """End every job and close the stream, the bench and the frame slot.
@@ -417,11 +452,13 @@ class BenchHost:
                     log.warning("job %s did not end within %.0f s of the bench closing; "
                                 "closing the bench under it", ctx.thread.name, jobs_timeout_s)
         try:
+            self._stop_watch()
             self.stop_stream()
         finally:
             bench, self.bench = self.bench, None
             if bench is not None:
                 bench.close()
+                self.device_events.put("bench", None, {"open": False, "devices": []})
             with self._publish_lock:
                 if self._slot is not None:
                     self._slot.close()

@@ -38,7 +38,7 @@ import queue
 import select
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from multiprocessing.managers import BaseManager
 from typing import Any
 
@@ -51,6 +51,7 @@ from .bench_host import (
     FrameWaker,
     Ref,
 )
+from .bench_service import BenchEvent, CameraFormat, DeviceInfo
 from .shared_slot import SharedImageSlot
 
 __all__ = ["ENDING_SIGNALS", "BenchClient", "RemoteObject", "device_class"]
@@ -65,10 +66,10 @@ _SERVER: dict[str, Any] = {}
 ENDING_SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
 
 
-def _serve_init(events, wake, parent_pid: int) -> None:
-    """In the host process: keep the channels; when the parent dies or an
+def _serve_init(events, wake, parent_pid: int, jobs: Mapping[str, Callable]) -> None:
+    """In the host process: keep the channels and the jobs; when the parent dies or an
     :data:`ENDING_SIGNALS` signal comes, end the jobs, close the bench and exit."""
-    _SERVER.update(events=EventChannel(events), wake=FrameWaker(wake))
+    _SERVER.update(events=EventChannel(events), wake=FrameWaker(wake), jobs=dict(jobs))
     ended: list[int] = []
     wakeup = threading.Event()
 
@@ -99,6 +100,7 @@ def _serve_init(events, wake, parent_pid: int) -> None:
 def _the_host() -> BenchHost:
     if "host" not in _SERVER:
         _SERVER["host"] = BenchHost(_SERVER["events"], _SERVER["wake"])
+        _SERVER["host"].register_jobs(_SERVER["jobs"])
     return _SERVER["host"]
 
 
@@ -266,6 +268,10 @@ class BenchClient:
     in_process : bool
         Run the host in this process (no child), e.g. for tests that replace code the
         host runs.
+    jobs : dict, optional
+        ``{name: function(ctx, **kwargs)}``: jobs of the packages above the instrument
+        the host may run besides :data:`instrument.bench_jobs.JOBS` (the functions are
+        sent by reference: the bench process imports their modules).
     on_frame : callable, optional
         ``on_frame(frame, counters)``: every frame read (a
         :class:`drivers.camera.Frame`, its ``counters`` dict of :data:`FRAME_META`,
@@ -275,32 +281,59 @@ class BenchClient:
         ``on_message(text)``; ``on_prompt(action, message, reply)`` where
         ``reply(ok)`` answers the host; ``on_stream_ended()`` when the camera's stream
         stopped on an error (after ``on_message`` says which).
+    on_event : callable, optional
+        ``on_event(event)``: each :class:`~instrument.bench_service.BenchEvent` the
+        bench logs (settings, positions, status, the bench opened or closed), on a
+        thread of this client.
+    address, authkey : optional
+        Connect to the bench process another client started (its :attr:`address` and
+        :attr:`authkey`) instead of starting one: the devices' commands, the events
+        and the stream's start and stop; the jobs and the frames stay with the client
+        that started it, and closing this client leaves the bench open.
 
     Raises
     ------
     EOFError
         The host process ended while starting.
+    ConnectionRefusedError
+        No bench process at ``address``.
+    multiprocessing.AuthenticationError
+        ``authkey`` is not that bench process's.
     """
 
-    def __init__(self, *, in_process: bool = False,
+    def __init__(self, *, in_process: bool = False, jobs: Mapping[str, Callable] | None = None,
                  on_frame: Callable[[Any, dict], None] | None = None,
                  on_message: Callable[[str], None] | None = None,
                  on_prompt: Callable[[str, str, Callable[[bool], None]], None] | None = None,
-                 on_stream_ended: Callable[[], None] | None = None) -> None:
+                 on_stream_ended: Callable[[], None] | None = None,
+                 on_event: Callable[[BenchEvent], None] | None = None,
+                 address: Any = None, authkey: bytes | None = None) -> None:
         self.in_process = bool(in_process)
+        self.attached = address is not None
         self.on_frame, self.on_message, self.on_prompt = on_frame, on_message, on_prompt
-        self.on_stream_ended = on_stream_ended
+        self.on_stream_ended, self.on_event = on_stream_ended, on_event
+        #: Where a second client connects (None in process) and the key it needs.
+        self.address, self.authkey = address, authkey
         ctx = multiprocessing.get_context("spawn")
-        # pipes, not queues or semaphores: nothing for the resource tracker to find
-        # "leaked" when the window ends with os._exit
-        self._events, events = ctx.Pipe(duplex=False)
-        self._wake, wake = ctx.Pipe(duplex=False)
         self._manager = None
+        self._events = self._wake = None
+        if self.attached:
+            self._manager = _Manager(address=address, authkey=authkey)
+            self._manager.connect()
+            self.host = _PooledHost(self._manager.BenchHost())
+        else:
+            # pipes, not queues or semaphores: nothing for the resource tracker to find
+            # "leaked" when the window ends with os._exit
+            self._events, events = ctx.Pipe(duplex=False)
+            self._wake, wake = ctx.Pipe(duplex=False)
         if self.in_process:
             self.host = BenchHost(EventChannel(events), FrameWaker(wake))
-        else:
-            self._manager = _Manager(ctx=ctx)
-            self._manager.start(_serve_init, (events, wake, os.getpid()))
+            self.host.register_jobs(jobs or {})
+        elif not self.attached:
+            self.authkey = os.urandom(32)
+            self._manager = _Manager(ctx=ctx, authkey=self.authkey)
+            self._manager.start(_serve_init, (events, wake, os.getpid(), dict(jobs or {})))
+            self.address = self._manager.address
             events.close()
             wake.close()
             self.host = _PooledHost(self._manager.BenchHost())
@@ -311,12 +344,110 @@ class BenchClient:
         self._next_slot: tuple[str, int] | None = None
         self._seen = 0
         self._closed = threading.Event()
-        self._threads = [threading.Thread(target=self._dispatch, name="bench-events",
-                                          daemon=True),
-                         threading.Thread(target=self._read_frames, name="bench-frames",
-                                          daemon=True)]
+        self._threads = []
+        if not self.attached:
+            self._threads += [threading.Thread(target=self._dispatch, name="bench-events",
+                                               daemon=True),
+                              threading.Thread(target=self._read_frames, name="bench-frames",
+                                               daemon=True)]
+        if on_event is not None:
+            first = self.host.events_after(None)[0] if self.attached else 0
+            self._threads.append(threading.Thread(target=self._listen, args=(first,),
+                                                  name="bench-device-events", daemon=True))
         for t in self._threads:
             t.start()
+
+    # -- the typed commands (instrument.bench_service.BenchService) ------------------
+    def devices(self) -> list[DeviceInfo]:
+        """:meth:`~instrument.bench_service.BenchService.devices`."""
+        return self.host.devices()
+
+    def is_virtual(self) -> bool:
+        """:meth:`~instrument.bench_service.BenchService.is_virtual`."""
+        return self.host.is_virtual()
+
+    def status(self, device: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.status`."""
+        return self.host.status(device)
+
+    def settings(self, device: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.settings`."""
+        return self.host.settings(device)
+
+    def setting_values(self, device: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.setting_values`."""
+        return self.host.setting_values(device)
+
+    def settings_snapshot(self) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.settings_snapshot`."""
+        return self.host.settings_snapshot()
+
+    def apply_settings(self, device: str, values: Mapping[str, Any]) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.apply_settings`."""
+        return self.host.apply_settings(device, dict(values))
+
+    def reconnect(self, device: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.reconnect`."""
+        return self.host.reconnect(device)
+
+    def positions(self, stage: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.positions`."""
+        return self.host.positions(stage)
+
+    def move(self, stage: str, targets: Mapping[str, float], *, relative: bool = False,
+             timeout_s: float = 30.0) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.move`."""
+        return self.host.move(stage, dict(targets), relative=relative, timeout_s=timeout_s)
+
+    def stop_motion(self, stage: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.stop_motion`."""
+        return self.host.stop_motion(stage)
+
+    def show(self, device: str, pattern: Any) -> Any:
+        """:meth:`~instrument.bench_service.BenchService.show`."""
+        return self.host.show(device, pattern)
+
+    def lit(self, led_array: str) -> dict:
+        """:meth:`~instrument.bench_service.BenchService.lit`."""
+        return self.host.lit(led_array)
+
+    def camera_format(self) -> CameraFormat:
+        """:meth:`~instrument.bench_service.BenchService.camera_format`."""
+        return self.host.camera_format()
+
+    def snap(self):
+        """:meth:`~instrument.bench_service.BenchService.snap`."""
+        return self.host.snap()
+
+    def start_stream(self, ring_frames: int = 64) -> None:
+        """:meth:`~instrument.bench_host.BenchHost.start_stream` (frames: to the client
+        that started the bench process)."""
+        self.host.start_stream(ring_frames)
+
+    def stop_stream(self, timeout_s: float = 2.0) -> None:
+        """:meth:`~instrument.bench_host.BenchHost.stop_stream`."""
+        self.host.stop_stream(timeout_s)
+
+    def set_closing(self, closing: bool) -> None:
+        """Tell the bench the window closes (jobs then leave the bench as it is)."""
+        self.host.set_closing(closing)
+
+    def _listen(self, seq: int) -> None:
+        """Hand each logged event to ``on_event`` (a long poll: the host answers as
+        soon as one is logged)."""
+        while not self._closed.is_set():
+            try:
+                seq, events = self.host.events_after(seq, 0.5)
+            except Exception:  # noqa: BLE001 (the bench process ended or is ending)
+                if self._closed.is_set() or not self.alive():
+                    return
+                self._closed.wait(0.5)
+                continue
+            for event in events:
+                try:
+                    self.on_event(event)
+                except Exception:  # noqa: BLE001 (a subscriber's fault: logged, not fatal)
+                    log.exception("bench event %s: the subscriber failed", event.kind)
 
     # -- the bench -------------------------------------------------------------------
     @property
@@ -331,15 +462,21 @@ class BenchClient:
         """Whether the host can still answer (its process runs)."""
         if self.in_process:
             return True
+        if self.attached:
+            try:
+                self.host.events_after(None)
+            except (OSError, EOFError):
+                return False
+            return True
         process = getattr(self._manager, "_process", None)
         return process is not None and process.is_alive()
 
     # -- jobs ------------------------------------------------------------------------
-    def run_job(self, target: str, kwargs: dict | None = None, *,
+    def run_job(self, name: str, kwargs: dict | None = None, *,
                 report: Callable[[Any], None] | None = None, control=None,
                 stop: threading.Event | None = None, cancel: threading.Event | None = None,
                 poll_s: float = 0.05) -> Any:
-        """Run ``target`` in the host and wait for it (see the module docstring).
+        """Run job ``name`` in the host and wait for it (see the module docstring).
 
         Raises
         ------
@@ -348,8 +485,11 @@ class BenchClient:
         instrument.bench_host.BenchHostError
             The host process ended while the job ran.
         """
+        if self.attached:
+            raise BenchHostError("jobs run from the client that started the bench process "
+                                 "(the window); run this one there")
         events: queue.SimpleQueue = queue.SimpleQueue()
-        job_id = self.host.start_job(target, kwargs or {})
+        job_id = self.host.start_job(name, kwargs or {})
         with self._lock:
             self._jobs[job_id] = events
             for msg in self._early.pop(job_id, []):
@@ -455,7 +595,14 @@ class BenchClient:
                 self.on_frame(frame, meta)
 
     def close(self, timeout_s: float = 10.0) -> None:
-        """Close the bench (if open) and end the host process and the threads."""
+        """Close the bench (if open) and end the host process and the threads (a client
+        connected by ``address``: only its own connections and threads)."""
+        if self.attached:
+            self._closed.set()
+            for t in self._threads:
+                t.join(timeout_s)
+            self.host.close()
+            return
         try:
             if self.in_process or self.alive():
                 self.host.close()

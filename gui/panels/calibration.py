@@ -5,7 +5,7 @@ and each frame shown as it is taken.
 The parameters are the routine's typed model, from which the ``calibrate`` command's
 options are generated too (:func:`gui.jobs.routine_options`, remembered between
 sessions); the form's texts become the model, which builds the plan
-(:func:`gui.bench_jobs.build_plan`), and the run is :class:`instrument.runner.Runner` in
+(:func:`calibration_routines.bench_jobs.build_plan`), and the run is :class:`instrument.runner.Runner` in
 the bench process, controlled through a :class:`~instrument.runner.RunControl`. The bench is
 given back as it was (camera settings, stage positions, LEDs, the live stream). A
 run that ends aborted or failed keeps its data and says how to resume it.

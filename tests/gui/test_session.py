@@ -311,7 +311,7 @@ def test_alignment_shows_readings_pose_and_steps_then_aborts(window, wait, tmp_p
 @pytest.mark.parametrize("name", ["beads-flow", "neurons", "none"])
 def test_every_scene_of_the_gui_shows_on_the_virtual_bench(name):
     """The GUI's scenes are `capture --simulate --scene`'s (neurons failed to prerender)."""
-    from gui.bench_jobs import show_scene
+    from instrument.bench_jobs import show_scene
     from instrument.virtual_bench import VirtualBench
 
     vb = VirtualBench(seed=0, realtime=True).open()

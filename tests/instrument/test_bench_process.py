@@ -9,6 +9,7 @@ import sys
 import textwrap
 import threading
 import time
+from contextlib import contextmanager
 
 import pytest
 
@@ -50,16 +51,29 @@ def failing(ctx) -> None:
     raise StageLimitError("source_stage", "x=99 mm is outside 0..25 mm", "move within them")
 
 
-@pytest.fixture(params=[False, True], ids=["child-process", "in-process"])
-def client(request):
-    frames: list = []
-    c = BenchClient(in_process=request.param, on_frame=lambda f, m: frames.append((f, m)))
-    c.frames = frames
+#: The jobs of these tests, handed to the bench process by reference.
+JOBS = {"whose_process": whose_process, "counting": counting,
+        "until_stopped": until_stopped, "failing": failing}
+
+
+@contextmanager
+def opened_bench(**options):
+    """A :class:`BenchClient` made with ``options``, the simulated bench open in it."""
+    c = BenchClient(**options)
     try:
-        c.run_job("gui.bench_jobs:open_bench", OPEN)
+        c.run_job("open_bench", OPEN)
         yield c
     finally:
         c.close()
+
+
+@pytest.fixture(params=[False, True], ids=["child-process", "in-process"])
+def client(request):
+    frames: list = []
+    with opened_bench(in_process=request.param, jobs=JOBS,
+                      on_frame=lambda f, m: frames.append((f, m))) as c:
+        c.frames = frames
+        yield c
 
 
 def test_devices_are_read_set_and_called_in_the_bench_process(client):
@@ -107,7 +121,7 @@ def test_the_stream_runs_in_the_bench_process_and_its_frames_arrive_here(client)
     frame, meta = client.frames[-1]
     assert frame.image.shape == (256, 320) and meta["bit_depth"] == 12
     assert meta["acquired"] >= meta["read"] >= 1
-    where = client.run_job(f"{__name__}:whose_process")
+    where = client.run_job("whose_process")
     if not client.in_process:
         assert where["pid"] != os.getpid()
         assert not any("bench-stream" in t for t in
@@ -116,7 +130,7 @@ def test_the_stream_runs_in_the_bench_process_and_its_frames_arrive_here(client)
 
 def test_a_job_reports_pauses_and_aborts(client):
     seen: list = []
-    assert client.run_job(f"{__name__}:counting", {"n": 4}, report=seen.append) == 4
+    assert client.run_job("counting", {"n": 4}, report=seen.append) == 4
     assert seen == [0, 1, 2, 3]
 
     control, seen = RunControl(), []
@@ -133,7 +147,7 @@ def test_a_job_reports_pauses_and_aborts(client):
     helper = threading.Thread(target=pause_then_abort)
     helper.start()
     with pytest.raises(RunAborted, match="stop here"):
-        client.run_job(f"{__name__}:counting", {"n": 200}, report=seen.append,
+        client.run_job("counting", {"n": 200}, report=seen.append,
                        control=control)
     helper.join()
     assert len([s for s in seen if isinstance(s, int)]) < 20  # paused within a step or two
@@ -143,7 +157,7 @@ def test_stop_and_cancel_reach_the_job(client):
     for name in ("stop", "cancel"):
         event = threading.Event()
         threading.Timer(0.3, event.set).start()
-        got = client.run_job(f"{__name__}:until_stopped", **{name: event})
+        got = client.run_job("until_stopped", **{name: event})
         assert got == ("stopped" if name == "stop" else "cancelled")
 
 
@@ -151,7 +165,7 @@ def test_a_failed_job_raises_its_error_here(client):
     from drivers.errors import StageLimitError
 
     with pytest.raises(StageLimitError, match="outside"):
-        client.run_job(f"{__name__}:failing")
+        client.run_job("failing")
 
 
 def test_the_bench_process_closes_the_bench_when_its_parent_dies(tmp_path):
@@ -162,7 +176,7 @@ def test_the_bench_process_closes_the_bench_when_its_parent_dies(tmp_path):
         from instrument.bench_process import BenchClient
         if __name__ == "__main__":
             c = BenchClient()
-            c.run_job("gui.bench_jobs:open_bench", {OPEN!r})
+            c.run_job("open_bench", {OPEN!r})
             print(c._manager._process.pid, flush=True)
             time.sleep(120)
         """)

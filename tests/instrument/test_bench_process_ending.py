@@ -42,11 +42,11 @@ def _window_script(tmp_path) -> str:
         from instrument.bench_process import BenchClient
         if __name__ == "__main__":
             c = BenchClient()
-            c.run_job("gui.bench_jobs:open_bench", {OPEN!r})
+            c.run_job("open_bench", {OPEN!r})
             print(json.dumps({{"host_pid": c._manager._process.pid}}), flush=True)
             report = lambda p: print(json.dumps({{"recorded": p["recorded"]}}), flush=True)
             try:
-                got = c.run_job("gui.bench_jobs:record", dict(out=sys.argv[1], **{RECORD!r}),
+                got = c.run_job("record", dict(out=sys.argv[1], **{RECORD!r}),
                                 report=report)
                 print(json.dumps({{"status": got["status"]}}), flush=True)
             except Exception as exc:

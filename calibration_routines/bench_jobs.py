@@ -1,105 +1,27 @@
-"""The window's jobs as the bench process runs them (no Qt here).
+"""The calibration runs and the mask alignment as the bench process runs them (no Qt).
 
-Each function is ``function(ctx, **kwargs)`` with an
-:class:`instrument.bench_host.JobContext` (``ctx.bench``, ``ctx.report``,
-``ctx.control``, ``ctx.stop``, ``ctx.cancel``, ``ctx.publish``), started by
-:meth:`instrument.bench_process.BenchClient.run_job` from :mod:`gui.jobs` and
-:mod:`gui.session`: opening and closing the bench, the virtual bench's scene, a
-calibration run (:class:`instrument.runner.Runner`), the mask alignment
-(:class:`calibration_routines.mask_alignment.MaskAligner`) and a video recording
-(:func:`instrument.video.record_video`). They run where the devices are, so their
-compute and device waits never share the window's interpreter lock.
-
-A job that changes the bench to take its measurement gives it back as it was
-(:func:`kept`, :mod:`gui.benchstate`), except the state it exists to produce.
+Jobs of :class:`instrument.bench_host.BenchHost` (``function(ctx, **params)``, see
+:mod:`instrument.bench_jobs`): a calibration run (:class:`instrument.runner.Runner`),
+its resumption and the mask alignment
+(:class:`calibration_routines.mask_alignment.MaskAligner`). The client that starts
+the bench process hands them over by name (:data:`JOBS`, ``BenchClient(jobs=JOBS)``;
+the window's :class:`gui.session.Session` does), since the instrument layer does not
+import this package.
 """
 
 from __future__ import annotations
 
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any
 
-__all__ = ["ALIGNMENT_STEPS", "build_plan", "close_bench", "kept", "open_bench", "record",
-           "resume_plan", "run_alignment", "run_plan", "section_summary", "set_scene"]
+from instrument.bench_jobs import kept
+
+__all__ = ["ALIGNMENT_STEPS", "JOBS", "build_plan", "resume_plan", "run_alignment",
+           "run_plan", "section_summary"]
 
 #: The mask alignment's steps, in order (the names its events and record use).
 ALIGNMENT_STEPS = ("preflight", "coarse", "translation", "rigid", "focus", "piecewise",
                    "verify")
-
-
-def open_bench(ctx, *, bench_path: str | None, simulate: bool, seed: int,
-               scene: str) -> dict:
-    """Open the bench of ``bench_path`` (``simulate``: the real-time virtual bench with
-    ``scene`` in front of its camera) and make it the host's; returns
-    :meth:`~instrument.bench_host.BenchHost.describe`. A real bench's prompts go to the
-    operator (:meth:`~instrument.bench_host.BenchHost.ask`); ``ctx.cancel`` stops the
-    opening (homing included)."""
-    from instrument.bench import Bench
-    from instrument.cli.common import bench_config
-    from instrument.virtual_bench import VirtualBench
-
-    config = bench_config(bench_path, simulate=simulate, command="gui")
-    if not simulate:
-        bench = Bench.open(config, on_prompt=ctx.host.ask, cancel=ctx.cancel)
-    else:
-        bench = VirtualBench(config, seed=seed, realtime=True).open()
-        bench.led_array.all_off()
-        show_scene(bench, scene)
-    ctx.host.open_bench(bench)
-    return ctx.host.describe()
-
-
-def close_bench(ctx) -> None:
-    """Stop the stream and every job, and close the devices."""
-    ctx.host.close()
-
-
-def show_scene(bench, name: str) -> None:
-    """Put the moving scene ``name`` (``"none"``: nothing) in front of the virtual
-    bench's camera, as ``capture --simulate --scene`` does."""
-    from instrument.bench_scenes import show_video_scene
-
-    if name == "none":
-        bench.set_scene(None)
-        return
-    show_video_scene(bench, name, seed=bench.seed)
-
-
-def set_scene(ctx, *, name: str) -> None:
-    """:func:`show_scene` on the host's bench (rendered ahead here)."""
-    show_scene(ctx.bench, name)
-
-
-@contextmanager
-def kept(ctx, *, sample_out: bool = True, produces: tuple[str, ...] = ()):
-    """Give the bench back as it was: the camera's settings, the stages' positions and
-    the LEDs put back (:func:`gui.benchstate.restore`, also after an abort or a
-    failure; not while the window closes: the devices close next).
-
-    ``produces``: the devices whose state is the job's result (the mask stage of the
-    mask alignment), left as the job set them when it completes, and put back only
-    when it was aborted or failed (a half-done alignment is no pose to keep); what the
-    job changed only to take its measurement (exposure, LEDs, other stages) is put back
-    either way.
-
-    ``sample_out``: on the virtual bench, take the moving scene out of the beam for the
-    run (as an operator removes the sample) and put it back."""
-    from .benchstate import capture, restore
-
-    bench = ctx.bench
-    scene = getattr(bench, "scene", None) if sample_out else None
-    before = capture(bench)
-    if scene is not None:
-        bench.set_scene(None)
-    completed = False
-    try:
-        yield
-        completed = True
-    finally:
-        if scene is not None:
-            bench.set_scene(scene)
-        if not ctx.host.closing:
-            restore(bench, before.without(produces) if completed else before)
 
 
 def build_plan(bench, routine: str, values: dict[str, Any]):
@@ -124,7 +46,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
     instrument.plan.PlanError
         Parameters the plan refuses.
     """
-    from calibration_routines.parameters import PARAMETERS
+    from .parameters import PARAMETERS
 
     return PARAMETERS[routine].from_text(values).plan(bench)
 
@@ -174,9 +96,10 @@ def run_plan(ctx, *, routine: str, values: dict[str, Any], path: str,
 
 def resume_plan(ctx, *, path: str, accept_differences: bool = False):
     """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
-    from calibration_routines import register_plans
     from instrument.runner import Runner
     from instrument.runstore import RunStore
+
+    from . import register_plans
 
     register_plans()  # resuming rebuilds the plan from its recorded name
     store = RunStore.open(path)
@@ -196,12 +119,13 @@ def run_alignment(ctx, *, out: str, mask_seed: str = "", frames: int = 3,
     the host's bench, recorded in ``out``; progress: ``{"kind": "event", ...}`` per
     step message and ``{"kind": "reading", ...}`` per spot reading. See
     :func:`gui.jobs.run_alignment`."""
-    from calibration_routines import mask_alignment
-    from calibration_routines.cli.align import simulated_truth
-    from calibration_routines.holo_bench import holography_branch
-    from calibration_routines.parameters import AlignMaskParams
     from instrument.plan import PlanError
     from recon.optics.holo_display import MaskModel
+
+    from . import mask_alignment
+    from .cli.align import simulated_truth
+    from .holo_bench import holography_branch
+    from .parameters import AlignMaskParams
 
     bench = ctx.bench
     virtual = hasattr(bench, "set_scene")
@@ -259,39 +183,6 @@ def section_summary(steps: dict) -> dict:
     return out
 
 
-class _Publisher:
-    """What :func:`instrument.video.record_video` offers each recorded frame to: the
-    window (:meth:`~instrument.bench_host.JobContext.publish`), whose reader hands it
-    to the display and the live reconstruction as it does the stream's."""
-
-    def __init__(self, ctx) -> None:
-        self.ctx = ctx
-
-    def start(self) -> None:
-        pass
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        pass
-
-    def offer(self, frame) -> None:
-        self.ctx.publish(frame)
-
-    def stats(self) -> None:
-        return None
-
-
-def record(ctx, *, out: str, frames: int | None, seconds: float | None,
-           options: dict[str, float], simulated: dict | None = None) -> dict:
-    """Record a video run (:func:`instrument.video.record_video`), the bench given back
-    after (the sample stays); ``simulated``: the virtual bench's scene and seed, with
-    the camera's dark offset added here, as ``capture video --simulate`` records."""
-    from instrument.video import record_video
-
-    attrs = {}
-    if simulated is not None:
-        attrs["simulated"] = {**simulated,
-                              "dark_offset_dn": float(ctx.bench.camera.dark_offset_dn)}
-    with kept(ctx, sample_out=False):
-        return record_video(ctx.bench, out, frames=frames, seconds=seconds, stop=ctx.stop,
-                            on_progress=ctx.report, progress_every_s=0.25,
-                            live=_Publisher(ctx), **options, **attrs)
+#: The jobs of this module by name (:meth:`instrument.bench_host.BenchHost.start_job`).
+JOBS: dict[str, Callable] = {"run_plan": run_plan, "resume_plan": resume_plan,
+                             "run_alignment": run_alignment}
