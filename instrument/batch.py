@@ -42,7 +42,7 @@ from recon.options import ReconOptions
 from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
 from .runstore import DamagedFrameError, RunStore, RunStoreError
 
-__all__ = ["batch_psf", "check_scheduler", "check_workers", "parse_frames",
+__all__ = ["batch_psf", "check_dark_level", "check_scheduler", "check_workers", "parse_frames",
            "reconstruct_run", "reconstruct_stored_frame"]
 
 log = logging.getLogger(__name__)
@@ -167,6 +167,57 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     with limited_threads(threads) if threads else nullcontext():
         result = reconstruct(psf, raw, **options)
     return int(index), np.asarray(result.image, np.float32)
+
+
+def check_dark_level(store: RunStore, index: int, psf: np.ndarray, dark,
+                     bin_factor: int = 1) -> None:
+    """Refuse, before any frame is reconstructed, a dark level with which no frame can
+    be: one that leaves the PSF without signal (:func:`recon.preprocess.check_psf_signal`)
+    or that frame ``index`` lies below (:class:`recon.preprocess.RawBelowDarkError`: a
+    pixel cannot read below its dark level, so that level is not the camera's). The
+    checks are those of ``diffuserlab recon`` (:func:`recon.preprocess.prepare_pair`);
+    what is wrong with that frame's own data (no light, a constant frame, a damaged
+    one) is left to the batch, which names the frame and goes on.
+
+    Parameters
+    ----------
+    store : RunStore
+        The run.
+    index : int
+        A frame to check the dark level against (the first of the batch).
+    psf : ndarray, (rows, cols)
+        The batch's PSF.
+    dark : float, ndarray (rows, cols) or None
+        As :func:`reconstruct_run`'s (None: each frame's estimate from the PSF).
+    bin_factor : int
+        The reconstruction's binning.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        The PSF has no signal above the dark level, or the frame lies below it (the
+        message names the frame, both levels and the fix).
+    """
+    import warnings
+
+    from recon.errors import ReconInputError
+    from recon.preprocess import RawBelowDarkError, check_psf_signal, prepare_pair
+    from recon.preprocess.dark import front_door_dark
+
+    level = front_door_dark("auto" if dark is None else dark)  # as each frame's solve
+    check_psf_signal(psf, dark=level, bin_factor=bin_factor)
+    try:
+        raw = store.frame(int(index)).image
+    except RunStoreError:  # damaged: the batch names it
+        return
+    try:
+        with warnings.catch_warnings():  # each frame's warnings come with its solve
+            warnings.simplefilter("ignore")
+            prepare_pair(psf, raw, dark=level, bin_factor=bin_factor)
+    except RawBelowDarkError as exc:
+        raise ReconInputError(f"frame {index} of {store.path}: {exc}") from None
+    except ReconInputError:  # that frame's own data: the batch names it and goes on
+        pass
 
 
 def _frame_number(line: str) -> int:
@@ -430,6 +481,8 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
         from .reconstruct_files import check_dark_frame
 
         check_dark_frame(dark, (rows, cols), "the run's frames")  # before any frame is done
+        if grid is None:  # a level above the signal fails every frame: refused now
+            check_dark_level(store, frames[0], psf, dark, bin_factor)
         dark_attr = None if dark is None else (float(dark) if np.ndim(dark) == 0 else "frame")
         hint = f"diffuserlab recon-run {store.path} with the same options"
         if grid is None:

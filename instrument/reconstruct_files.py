@@ -210,29 +210,30 @@ def dark_level(text: str, option: str = "--dark"):
 
 
 def check_dark_frame(dark, shape, frames: str) -> None:
-    """Refuse a dark frame (2D) whose shape is not the frames' before any work.
+    """Refuse a dark frame whose shape is not the frames' before any work.
 
     Parameters
     ----------
     dark : float, ndarray or None
-        A frames' dark level (:func:`dark_level`); only a frame is checked.
+        A frames' dark level (:func:`dark_level`); only a frame (an array) is checked.
     shape : (rows, cols)
-        The frames' shape.
+        The frames' shape (one camera's monochrome frames).
     frames : str
         What delivers the frames, for the message (``"the run's frames"``).
 
     Raises
     ------
     recon.errors.ReconInputError
-        A dark frame of another shape (named with both shapes and the fix).
+        A dark frame of another shape, a colour image (rows, cols, C) included (named
+        with both shapes and the fix).
     """
     from recon.errors import ReconInputError
 
-    if np.ndim(dark) == 2 and tuple(np.shape(dark)) != tuple(shape):
+    if np.ndim(dark) >= 1 and tuple(np.shape(dark)) != tuple(shape):
         raise ReconInputError(
-            f"the dark frame is {np.shape(dark)[0]}x{np.shape(dark)[1]} but {frames} are "
-            f"{shape[0]}x{shape[1]}; give a dark frame of the same camera region (ROI and "
-            "binning), or a level in DN with --dark DN")
+            f"the dark frame is {'x'.join(map(str, np.shape(dark)))} but {frames} are "
+            f"{'x'.join(map(str, shape))}; give a dark frame of the same camera region "
+            "(ROI and binning), or a level in DN with --dark DN")
 
 
 def run_recon(psf_path: str, raw_path: str, options, *, out: str,

@@ -22,8 +22,9 @@ what is wrong and how to fix it.
 
 from .binning import box_bin
 from .dark import DEFAULT_DARK_REGION, dark_argument, dark_level, subtract_dark
-from .pair import Prepared, normalize, prepare_pair
+from .pair import Prepared, check_psf_signal, normalize, prepare_pair
 from .signal import (
+    RawBelowDarkError,
     RawSignalError,
     check_measured_fraction,
     check_pair_ranges,
@@ -41,10 +42,12 @@ __all__ = [
     "DEFAULT_DARK_REGION",
     "dark_argument",
     "Prepared",
+    "RawBelowDarkError",
     "RawSignalError",
     "SaturationWarning",
     "box_bin",
     "check_measured_fraction",
+    "check_psf_signal",
     "check_pair_ranges",
     "check_raw_signal",
     "dark_level",

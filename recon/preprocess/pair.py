@@ -2,7 +2,8 @@
 normalisation left to the solver layer.
 
 :func:`prepare_pair` validates, demosaics, subtracts the dark level (:mod:`.dark`),
-bins (:mod:`.binning`) and clips; :func:`normalize` scales an image by its L2 norm,
+bins (:mod:`.binning`) and clips; :func:`check_psf_signal` is its check of the PSF
+alone (a PSF with signal above its dark level); :func:`normalize` scales an image by its L2 norm,
 maximum or sum.
 """
 
@@ -32,7 +33,7 @@ from .validation import (
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Prepared", "normalize", "prepare_pair"]
+__all__ = ["Prepared", "check_psf_signal", "normalize", "prepare_pair"]
 
 _NORMALIZE_MODES = ("l2", "max", "sum")
 
@@ -215,36 +216,11 @@ def prepare_pair(
     info["dark_region"] = (
         tuple((s.start, s.stop) for s in dark_region) if mode == "psf_region" else None
     )
-    if mode == "none":
-        psf_d = psf.astype(np.float32)
-        raw_d = raw.astype(np.float32)
-        info["dark_level"] = None
-    else:
-        psf_d = subtract_dark(psf, level)
-        raw_d = subtract_dark(raw, level)
-        if mode == "frame":
-            info["dark_level"] = float(np.mean(level, dtype=np.float64))
-        else:
-            info["dark_level"] = level_for_info(level)
+    info["dark_level"] = _level_info(mode, level)
     logger.debug("dark subtraction: mode %s, level %s", mode, info["dark_level"])
-
-    psf_b = box_bin(psf_d, bin_factor)
+    psf_b, info["psf_clipped_fraction"] = _psf_above_dark(psf, mode, level, bin_factor)
+    raw_d = raw.astype(np.float32) if mode == "none" else subtract_dark(raw, level)
     raw_b = box_bin(raw_d, bin_factor)
-    del psf_d
-
-    negative = psf_b < 0
-    info["psf_clipped_fraction"] = float(np.count_nonzero(negative)) / psf_b.size
-    psf_b[negative] = 0.0
-
-    energies = psf_b.reshape(-1, channel_count(psf_b)).sum(axis=0, dtype=np.float64)
-    empty = [i for i, e in enumerate(energies) if not e > 0]
-    if empty:
-        where = "" if psf_b.ndim == 2 else f" in channel(s) {empty}"
-        raise ReconInputError(
-            f"PSF has no signal above the dark level{where} after dark subtraction "
-            f"(dark mode {mode}, level {info['dark_level']}); check the dark setting "
-            "(try dark='none' or a smaller value) or recapture a brighter PSF"
-        )
 
     info["raw_levels"] = check_raw_signal(
         raw_in, raw_d, dark_level=level, dark_source=_dark_source(mode, dark_region),
@@ -257,6 +233,77 @@ def prepare_pair(
     info["raw_shape"] = tuple(raw_b.shape)
     logger.debug("prepare_pair: %s", info)
     return Prepared(psf=psf_b, raw=raw_b, info=info)
+
+
+def check_psf_signal(
+    psf: np.ndarray,
+    *,
+    bin_factor: int = 1,
+    dark: None | str | float | np.ndarray = None,
+    dark_region: tuple[slice, slice] = DEFAULT_DARK_REGION,
+    bayer: str | None = None,
+) -> None:
+    """Refuse a dark level that leaves the PSF without signal: :func:`prepare_pair`'s
+    check of the PSF alone, for a caller that pairs one PSF with many frames (a batch
+    checks it once, before any frame is reconstructed).
+
+    Parameters
+    ----------
+    psf : numpy.ndarray
+        (H, W) or (H, W, C), any real dtype.
+    bin_factor, dark, dark_region, bayer
+        As :func:`prepare_pair`.
+
+    Raises
+    ------
+    ReconInputError
+        As :func:`prepare_pair` for the PSF: an invalid PSF, `dark`, `dark_region`,
+        `bayer` or `bin_factor`, or no signal above the dark level (the message names
+        the dark mode and level and the fix).
+    """
+    psf = as_array(psf, "PSF")
+    validate_psf(psf)
+    bin_factor = check_bin_factor(bin_factor)
+    if bayer is not None and psf.ndim == 2:
+        psf = demosaic_bayer(psf, bayer)
+    mode, level = resolve_dark(dark, psf, dark_region, bayer)
+    _psf_above_dark(psf, mode, level, bin_factor)
+
+
+def _level_info(mode: str, level) -> float | list[float] | None:
+    """The dark level of :func:`prepare_pair`'s ``info`` (a frame: its mean)."""
+    if mode == "none":
+        return None
+    if mode == "frame":
+        return float(np.mean(level, dtype=np.float64))
+    return level_for_info(level)
+
+
+def _psf_above_dark(psf: np.ndarray, mode: str, level, bin_factor: int
+                    ) -> tuple[np.ndarray, float]:
+    """The PSF after its dark level, binned and clipped at 0, and the fraction clipped.
+
+    Raises
+    ------
+    ReconInputError
+        No signal left (in some channel).
+    """
+    psf_d = psf.astype(np.float32) if mode == "none" else subtract_dark(psf, level)
+    psf_b = box_bin(psf_d, bin_factor)
+    del psf_d
+    negative = psf_b < 0
+    clipped = float(np.count_nonzero(negative)) / psf_b.size
+    psf_b[negative] = 0.0
+    energies = psf_b.reshape(-1, channel_count(psf_b)).sum(axis=0, dtype=np.float64)
+    empty = [i for i, e in enumerate(energies) if not e > 0]
+    if empty:
+        where = "" if psf_b.ndim == 2 else f" in channel(s) {empty}"
+        raise ReconInputError(
+            f"PSF has no signal above the dark level{where} after dark subtraction "
+            f"(dark mode {mode}, level {_level_info(mode, level)}); check the dark setting "
+            "(try dark='none' or a smaller value) or recapture a brighter PSF"
+        )
+    return psf_b, clipped
 
 
 def _dark_source(mode: str, region: tuple[slice, slice]) -> str:

@@ -50,9 +50,9 @@ from recon.errors import ReconInputError
 log = logging.getLogger(__name__)
 
 __all__ = ["BELOW_DARK_FRACTION", "MAX_SATURATED", "MIN_MEASURED_FRACTION", "NOISE_MARGIN",
-           "OUTLIER_RATIO", "RANGE_TOLERANCE", "RawSignalError", "WARN_BELOW_FRACTION",
-           "check_measured_fraction", "check_pair_ranges", "check_raw_signal", "noise_sigma",
-           "raw_levels"]
+           "OUTLIER_RATIO", "RANGE_TOLERANCE", "RawBelowDarkError", "RawSignalError",
+           "WARN_BELOW_FRACTION", "check_measured_fraction", "check_pair_ranges",
+           "check_raw_signal", "noise_sigma", "raw_levels"]
 
 #: A raw saturated over this fraction of its samples (or more) is refused.
 MAX_SATURATED = 0.5
@@ -78,6 +78,12 @@ MIN_MEASURED_FRACTION = 0.01
 class RawSignalError(ReconInputError):
     """The raw measurement holds nothing to reconstruct after its dark level, or does not
     belong with its PSF; the message names both levels and their sources."""
+
+
+class RawBelowDarkError(RawSignalError):
+    """The raw lies below the dark level it is given by more than its noise: that level
+    does not belong to the raw's camera (a pixel cannot read below its dark level),
+    whatever the scene, so no frame of that camera can be reconstructed with it."""
 
 
 def noise_sigma(image: np.ndarray) -> float:
@@ -202,7 +208,8 @@ def check_raw_signal(raw_in: np.ndarray, raw_dark: np.ndarray, *, dark_level,
     ------
     RawSignalError
         One of the refusals of the module notes; the message names the raw's levels,
-        the dark level and their sources, and the fix.
+        the dark level and their sources, and the fix; :class:`RawBelowDarkError` for
+        a raw below its dark level.
     """
     raw_in = np.asarray(raw_in)
     levels = raw_levels(raw_in)
@@ -256,7 +263,7 @@ def check_raw_signal(raw_in: np.ndarray, raw_dark: np.ndarray, *, dark_level,
                 f"the {dark}; {raw_text}: a pixel cannot read below its dark level by more "
                 "than its noise, so this dark level does not belong to this raw")
         if below >= BELOW_DARK_FRACTION:
-            raise RawSignalError(
+            raise RawBelowDarkError(
                 f"{fact} (an 8-bit export beside a 16-bit PSF, a background-subtracted "
                 "frame, another camera); give the raw's own dark level with --dark LEVEL "
                 "(--dark none for a raw already dark-subtracted), or use a PSF and raw of "

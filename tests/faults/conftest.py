@@ -183,12 +183,14 @@ def _colour(d: Path) -> None:
 
 
 def _frame_psf(d: Path) -> None:
-    """frame_psf.npy: a PSF at the simulated camera's frame shape (dark.zarr's frames)."""
+    """frame_psf.npy: a PSF at the simulated camera's frame shape (dark.zarr's frames);
+    rgb_dark.npy: a colour dark image of that region (not the monochrome frames')."""
     from instrument.runstore import RunStore
 
     rows, cols = RunStore.open(d / "dark.zarr").frame_shape
     rng = np.random.default_rng(5)
     np.save(d / "frame_psf.npy", (100 + 1000 * rng.random((rows, cols))).astype(np.float32))
+    np.save(d / "rgb_dark.npy", np.full((rows, cols, 3), 64.0, np.float32))
 
 
 def _bench_fields(d: Path) -> None:
