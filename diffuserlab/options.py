@@ -382,7 +382,8 @@ class Options:
         ------
         diffuserlab.errors.InputError
             A value outside its limits, of the wrong type, not among the choices, or a
-            required one missing; the message names the option, its limits and unit.
+            required one missing; the message names the option, its limits and unit;
+            values that cannot be used together (:meth:`check_together`).
         """
         import pydantic
 
@@ -394,7 +395,27 @@ class Options:
         for name, value in data.items():  # a parsed value keeps its own type (DarkOption)
             if name in cls._fields and cls._fields[name][1].parse is not None:
                 values[name] = value
+        cls.check_together(values, front=front)
         return cls(**values)
+
+    @classmethod
+    def check_together(cls, values: Mapping[str, Any], *, front: str = "cli") -> None:
+        """The checks between fields (what one option's value asks of another's), run by
+        :meth:`validated` after each field's own; a model with such rules overrides
+        this (here: none).
+
+        Parameters
+        ----------
+        values : Mapping
+            ``{field: value}``; a field left out has its declared default.
+        front : {"cli", "python"}
+            How a message names the options (as :meth:`validated`).
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            Values that cannot be used together (the message names both and the fix).
+        """
 
     @classmethod
     def _message(cls, err: Mapping[str, Any], front: str = "cli") -> str:

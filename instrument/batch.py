@@ -426,8 +426,9 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
         too many workers, or no scheduler at the address.
     recon.errors.ReconInputError
         An unusable ``device`` or a dark frame of another shape (before the run is
-        touched). A frame's own reconstruction error leaves that frame out
-        (``failed``).
+        touched), a dark level with which no frame can be reconstructed
+        (:func:`check_dark_level`, before any frame is). A frame's own reconstruction
+        error leaves that frame out (``failed``).
     """
     from recon.backend import resolve_device
     from recon.errors import DivergenceError, ReconInputError

@@ -231,7 +231,8 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
         raise ReconInputError(
             f"a {_KIND_WORDS[kind]} takes no option {', '.join(map(repr, sorted(extra)))}; its "
             f"own options are {', '.join(allowed)}")
-    check_values(iterations=iterations, tv=tv, l1=l1, bin_factor=bin_factor, **options)
+    check_values(method=method, iterations=iterations, tv=tv, l1=l1, bin_factor=bin_factor,
+                 **options)
     l1 = l1_given(l1)  # None: the model's own default (0, FISTA on a grid 1e-3)
     if kind == "image":
         from .planar import reconstruct_image
@@ -256,13 +257,15 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
 
 def check_values(**values) -> None:
     """Check the keywords of :func:`reconstruct` against their declarations
-    (:class:`recon.options.ReconOptions`: type and limits), before any work.
+    (:class:`recon.options.ReconOptions`: type and limits, and the checks between them,
+    :meth:`~recon.options.ReconOptions.check_together`), before any work.
 
     Raises
     ------
     ReconInputError
         A value outside its limits or of the wrong type, named as the Python keyword
-        (``tv=-1 is outside its limits: TV weight must be >= 0``).
+        (``tv=-1 is outside its limits: TV weight must be >= 0``), or values that
+        cannot be used together (``prior='dncnn'`` with ``method='wiener'``).
     """
     given = {k: v for k, v in values.items() if k in _CHECKED
              and not (k in ("tv", "l1") and v is None)
@@ -270,8 +273,10 @@ def check_values(**values) -> None:
     if any(isinstance(v, bool) for k, v in given.items() if k != "seed"):
         name = next(k for k, v in given.items() if isinstance(v, bool))
         raise ReconInputError(f"{name}={given[name]!r}: give a number, not a truth value")
+    together = {k: values[k] for k in ("method", "prior") if k in values}
     try:
         ReconOptions.validated(given, front="python")
+        ReconOptions.check_together(together, front="python")
     except ValueError as exc:  # diffuserlab.errors.InputError: as the numerics' error
         raise ReconInputError(str(exc)) from None
 

@@ -22,6 +22,7 @@ import argparse
 import math
 from typing import Literal
 
+from diffuserlab.errors import InputError
 from diffuserlab.options import Options, option
 
 __all__ = ["AUTO", "BACKGROUNDS", "BENCHMARKS", "DEVICES", "DarkOption", "GRID_L1", "GRID_METHODS",
@@ -254,6 +255,33 @@ class ReconOptions(Options):
         False, help="a far scene (Eq. 5.1): model each grid PSF over its brightness and "
         "divide the image by the brightness map measured from the grid",
         kinds=("grid",), label="two-part model")
+
+    @classmethod
+    def check_together(cls, values, *, front: str = "cli") -> None:
+        """A prior other than TV with a method that takes none (Wiener, GD, FISTA: the
+        priors run in ADMM, the ``prior`` declaration's ``methods``) is refused, for the
+        command line, the GUI's forms and :func:`recon.reconstruct` alike; the prior
+        would be ignored or fail only after the data are read.
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            The prior and the method named, with the methods that take it.
+        """
+        spec, method_spec = cls.spec("prior"), cls.spec("method")
+        prior = values.get("prior", spec.default)
+        prior = prior if isinstance(prior, str) else getattr(prior, "name", spec.default)
+        method = values.get("method", method_spec.default)
+        if prior == spec.default or not isinstance(method, str) or method in spec.methods:
+            return
+
+        def given(s, value) -> str:
+            return f"{s.name(front)}{value!r}" if front == "python" else f"{s.flag} {value}"
+
+        takers = " or ".join(given(method_spec, m) for m in reversed(spec.methods))
+        raise InputError(f"{given(spec, prior)}: {given(method_spec, method)} takes no image "
+                         f"prior (the priors run in ADMM); use {takers}, or "
+                         f"{given(spec, spec.default)} with this method")
 
     def keywords(self, kind: str) -> dict:
         """The keywords of :func:`recon.reconstruct` for a model of ``kind`` (``"image"``,

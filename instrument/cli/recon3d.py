@@ -134,11 +134,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _size(text: str) -> int:
-    """``--memory-limit`` as bytes (``16GB``, ``500MB``, ``2GiB``, a number of bytes)."""
+    """``--memory-limit`` as bytes (``16GB``, ``500MB``, ``2GiB``, a number of bytes);
+    a size starts with its number (dask reads ``''`` and ``GB`` alone as 1 B and 1 GB)."""
     from dask.utils import parse_bytes
 
+    lead = str(text).strip()[:1]
     try:
-        n = parse_bytes(text)
+        n = parse_bytes(text) if lead.isdigit() or lead == "." else 0
     except (ValueError, TypeError):
         n = 0
     if not n > 0:

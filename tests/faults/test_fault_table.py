@@ -211,6 +211,12 @@ RECON3D = [
     case(f"{V2} --dark nan", "number", "dark nan", "dark"),
     case(f"{V2} --dark bright", "number", "dark word", "dark"),
     case(f"{V2} --method newton", "number", "method", "newton"),
+    # dask reads '' as 1 byte and a unit alone as one of it
+    case(f"{V2} --memory-limit ''", "number", "memory limit empty", "--memory-limit ''"),
+    case(f"{V2} --memory-limit GB", "number", "memory limit without a number",
+         "--memory-limit 'GB'"),
+    case(f"{V2} --method fista --prior wavelet --tv 1e-3", "ignored-option",
+         "recon3d prior with fista", "--prior wavelet|--method fista|--method admm"),
     case(f"{V} --psf-stack deleted_chunk.zarr --raw raw.tif", "corrupt-store",
          "deleted chunk", "deleted_chunk.zarr"),
     case(f"{V} --psf-stack altered_chunk.zarr --raw raw.tif", "corrupt-store",
@@ -417,6 +423,9 @@ RESOURCE = [
 
 #: options a command would otherwise ignore
 IGNORED = [
+    # before: Wiener ran without the prior, silently
+    case(f"{R2} --method wiener --prior dncnn", "ignored-option", "prior with wiener",
+         "--prior dncnn|--method wiener|--method admm"),
     case("emulators start --duration-s nan", "ignored-option", "duration nan",
          "--duration-s|nan"),
     case("emulators start --duration-s -1", "ignored-option", "duration negative",
@@ -611,6 +620,15 @@ VIDEO = [
     case(f"{RR} --psf psf.npy", "shape", "psf of another shape", "32|frames are"),
     case(f"{RR} --psf psf.npy --frames x", "number", "frames x", "--frames 'x'"),
     case(f"{RR} --psf psf.npy --dff 120", "number", "dff 120", "--dff 120"),
+    # before: each frame failed in its worker (exit 1) and the product was made
+    case(f"{RR} --psf frame_psf.npy --dark rgb_dark.npy", "shape", "colour dark frame",
+         "x3 but the run's frames are"),
+    case(f"{RR} --psf frame_psf.npy --dark 1e6", "no-signal", "dark level above the psf",
+         "PSF has no signal above the dark level|1000000"),
+    case(f"{RR} --psf frame_psf.npy --dark 500", "no-signal", "dark level above the frames",
+         "frame 0 of dark.zarr|below the dark level 500"),
+    case(f"{RR} --psf frame_psf.npy --method wiener --prior dncnn", "ignored-option",
+         "prior with wiener", "--prior dncnn|--method wiener|--method admm"),
     # a calibration run's dark-subtracted PSF without a dark level: test_calibrate's
     # test_recon_takes_one_depth_of_a_run and test_recon_flags' test_dark_has_one_meaning
     # (a TIFF stack is a PSF as measured: its dark corner, as in every command)

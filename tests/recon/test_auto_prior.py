@@ -93,6 +93,25 @@ def case():
     return psf.astype(np.float32) * 1000, raw
 
 
+@pytest.mark.parametrize("method", ["wiener", "gd", "fista"])
+def test_a_prior_with_a_method_that_takes_none_is_refused_before_any_work(case, method):
+    """The declaration's check between ``prior`` and ``method``, shared by
+    :func:`recon.reconstruct` and the forms and flags generated from ReconOptions.
+    Before: Wiener ran without the prior, silently; GD and FISTA refused it only inside
+    the solve, after the data were prepared."""
+    from diffuserlab.errors import InputError
+    from recon.options import ReconOptions
+
+    psf, raw = case
+    with pytest.raises(ReconInputError, match=f"prior='dncnn': method='{method}' takes no "
+                       "image prior.*method='admm'"):
+        recon.reconstruct(psf, raw, method, prior="dncnn", tv=1e-3, iterations=5,
+                          dark="none")
+    with pytest.raises(InputError, match=f"--prior wavelet: --method {method} takes no"):
+        ReconOptions.from_text({"--method": method, "--prior": "wavelet"})  # a GUI form
+    assert ReconOptions.validated({"method": method, "prior": "tv"}).prior == "tv"
+
+
 def test_solve_channel_refuses_what_a_prior_cannot_do(case):
     op = ConvolutionOperator(case[0] / case[0].sum())
     raw = case[1].astype(np.float32)
@@ -176,7 +195,7 @@ def test_a_volume_takes_a_named_prior_with_a_fixed_weight(case):
     for kwargs, words in (({"prior": "auto", "tv": 1e-3}, "a volume takes one named prior"),
                           ({"prior": "dncnn", "tv": "auto"}, "chosen with 3D TV"),
                           ({"prior": "dncnn", "tv": 1e-3, "method": "fista"},
-                           "runs in 3D ADMM")):
+                           "method=.fista. takes no image prior")):
         kw = {"method": "admm", **kwargs}
         with pytest.raises(ReconInputError, match=words):
             recon.reconstruct(stack, raw, kw.pop("method"), iterations=5, dark="none", **kw)
