@@ -26,14 +26,14 @@ sends INFO records (DEBUG with ``-v``) to the console, and only this package pri
 
 from __future__ import annotations
 
-from . import startup_signals as _startup_signals
+# the first line of the package: Ctrl-C while the handlers are imported (Python's own
+# KeyboardInterrupt) or while the command modules pull in numpy, scipy, zarr (seconds)
+try:
+    import sys
 
-_startup_signals.install()  # the command process: every signal from here on is one line
-# ruff: noqa: E402 (the handlers come before every other import, on purpose)
+    from . import startup_signals as _startup_signals
 
-import sys
-
-try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C may come
+    _startup_signals.install()  # the command process: every signal from here on is one line
     import argparse
     import errno
     import logging
@@ -55,12 +55,12 @@ try:  # the command modules pull in numpy, scipy, zarr: seconds in which Ctrl-C 
         runs,
     )
 except KeyboardInterrupt as _exc:  # one line and 128 + the signal; nothing has run yet
-    from .interrupts import exit_status as _status
-    from .interrupts import signal_text as _text
+    # (nothing imported here: the interrupt may have come in any module's import)
+    import sys
 
-    sys.stderr.write(f"diffuserlab: interrupted ({_text(getattr(_exc, 'signum', None))}) "
-                     "while starting; nothing was done\n")
-    raise SystemExit(_status(_exc)) from None
+    sys.stderr.write(f"diffuserlab: interrupted ({str(_exc) or 'Ctrl-C'}) while starting; "
+                     "nothing was done\n")  # a Terminated names its signal
+    raise SystemExit(128 + getattr(_exc, "signum", 2)) from None  # 2: SIGINT
 
 __all__ = ["build_parser", "main", "os_error_line", "run_handler"]
 
@@ -227,33 +227,58 @@ def main(argv: list[str] | None = None) -> int:
         space, read-only file system, I/O error, ...), 2 on a MemoryError (what failed
         to allocate, the machine's memory) and an OverflowError; 130 on Ctrl-C, 143 on
         SIGTERM and 129 on SIGHUP, which are handled like Ctrl-C
-        (:mod:`instrument.cli.interrupts`: runs aborted or stopped, locks released);
+        (:mod:`instrument.cli.interrupts`: runs aborted or stopped, locks released),
+        from the package's first line on (before the command runs: one line
+        ``interrupted (...) while starting; nothing was done``);
         1 and one line saying it is a bug on any other exception, whose traceback
         ``--debug`` shows instead.
     """
     from diffuserlab.errors import InputError
 
-    from .interrupts import (
-        after_the_command,
-        exit_status,
-        quiet_shutdown,
-        signal_text,
-        terminate_like_ctrl_c,
-    )
+    from .interrupts import after_the_command, exit_status, signal_text, terminate_like_ctrl_c
 
     # the signals of this call (the command process: since its first line)
     mark = 0 if _startup_signals.is_command_process() else _startup_signals.count()
+    chosen: list[int] = []  # the command's status, once chosen
     try:
-        args = build_parser().parse_args(argv)
-        swallowed = _startup_signals.received(mark)  # an import caught the interrupt
-    except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM, SIGHUP) while the modules load
-        swallowed = getattr(exc, "signum", None) or _startup_signals.received(mark) \
-            or signal.SIGINT
-    if swallowed is not None:
-        print(f"diffuserlab: interrupted ({signal_text(swallowed)}) while starting; nothing "
-              "was done", file=sys.stderr)
-        after_the_command()
-        return 128 + int(swallowed)
+        try:  # up to the command's error boundary, nothing is done
+            args = build_parser().parse_args(argv)
+            swallowed = _startup_signals.received(mark)  # an import caught the interrupt
+            if swallowed is None:
+                _console(args)
+                input_errors = (InputError, *getattr(args, "input_errors", ()))
+        except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM, SIGHUP) while the modules load
+            # or the console is set up
+            swallowed = getattr(exc, "signum", None) or _startup_signals.received(mark) \
+                or signal.SIGINT
+        if swallowed is not None:
+            print(f"diffuserlab: interrupted ({signal_text(swallowed)}) while starting; "
+                  "nothing was done", file=sys.stderr)
+            chosen.append(128 + int(swallowed))
+        else:
+            with terminate_like_ctrl_c() as received, warnings.catch_warnings():
+                warnings.showwarning = _warning_as_log_record
+                status = _dispatch(args, input_errors, _startup_signals.count())
+            if received and status == exit_status(KeyboardInterrupt()):
+                status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
+            chosen.append(status)
+    except KeyboardInterrupt as exc:  # as the error boundary is entered or left (the
+        # command's own interrupts end inside it)
+        if not chosen:  # once chosen, the status stands
+            print(f"diffuserlab: interrupted ({signal_text(getattr(exc, 'signum', None))})",
+                  file=sys.stderr)
+            chosen.append(exit_status(exc))
+    after_the_command()  # the command process: a signal while Python exits changes nothing
+    return chosen[0]
+
+
+def _console(args: argparse.Namespace) -> None:
+    """Before a command: the exit hooks quiet
+    (:func:`instrument.cli.interrupts.quiet_shutdown`), the console's log records (INFO,
+    DEBUG with ``-v``; other libraries' only with ``-v``) and the outputs' record reset."""
+    from ..output_safety import checked_outputs
+    from .interrupts import quiet_shutdown
+
     quiet_shutdown(args.debug)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
@@ -264,17 +289,7 @@ def main(argv: list[str] | None = None) -> int:
             handler.removeFilter(_project_record)
         elif _project_record not in handler.filters:
             handler.addFilter(_project_record)
-    input_errors = (InputError, *getattr(args, "input_errors", ()))
-    from ..output_safety import checked_outputs
-
     checked_outputs(reset=True)
-    with terminate_like_ctrl_c() as received, warnings.catch_warnings():
-        warnings.showwarning = _warning_as_log_record
-        status = _dispatch(args, input_errors, _startup_signals.count())
-    if received and status == exit_status(KeyboardInterrupt()):
-        status = 128 + received[0]  # a handler's own Ctrl-C status, for SIGTERM/SIGHUP
-    after_the_command()  # the command process: a signal while Python exits changes nothing
-    return status
 
 
 def run_handler(args: argparse.Namespace) -> int:
