@@ -65,10 +65,12 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace existing output files (never an input)")
     p.add_argument("--memory-limit", default=None, metavar="SIZE",
-                   help="memory the solve may use, e.g. 16GB (default: what the machine has "
-                   "available); when the in-memory solve needs more, streamed 3D FISTA runs "
-                   "(planes transformed one at a time, the volume on the sensor's field of "
-                   "view) and says so")
+                   help="the most this process's memory may reach, e.g. 16GB (default: what "
+                   "it holds plus what the machine has available); when the in-memory solve "
+                   "needs more, streamed 3D FISTA runs (planes transformed a chunk or one at "
+                   "a time, the volume on the sensor's field of view) and says so; below "
+                   "every plan, refused before any work with the smallest limit that would "
+                   "do")
     p.add_argument("--scheduler", default=None,
                    help="address of a dask.distributed scheduler (tcp://host:8786): streamed "
                    "3D FISTA with the planes split into slabs over its workers")

@@ -43,7 +43,7 @@ from ..solvers.device import check_device_memory, device_metrics, solve_on
 from ..validate import as_array, float_array
 from .admm import VolumeAdmmPlan, admm3d
 from .fista import fista3d
-from .memory_plan import memory_plan, solve_streamed
+from .memory_plan import memory_plan, process_baseline_bytes, solve_streamed
 from .operator import (
     VolumeConvolutionOperator,
     bin_stack,
@@ -349,13 +349,16 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         path and final solve run there too, its plane tests on the host), or the GPU
         when one is usable. ``info["device"]`` says which ran.
     memory_limit_bytes : int, optional
-        Memory the CPU solve may use (default: what the machine has available now).
-        When the in-memory plan needs more (:func:`recon.volume.memory_plan.memory_plan`),
-        streamed 3D FISTA runs instead (:func:`recon.volume.memory_plan.solve_streamed`:
-        planes transformed on the fly, iterates on the sensor's field of view; an
-        automatic weight by the same held-out path over the slabs,
-        :func:`recon.volume.streamed_auto.auto_streamed`, every plane kept);
-        ``info.method_reason`` and ``info.extra["memory_plan"]`` say why, and
+        The most this process's resident set may reach during a CPU solve (default:
+        what it holds plus what the machine has available now). The first plan whose
+        estimate fits runs (:func:`recon.volume.memory_plan.memory_plan`): the
+        in-memory solver, else streamed 3D FISTA
+        (:func:`recon.volume.memory_plan.solve_streamed`: planes transformed on the
+        fly, a chunk or one plane at a time, iterates on the sensor's field of view;
+        an automatic weight by the same held-out path over the slabs,
+        :func:`recon.volume.streamed_auto.auto_streamed`, every plane kept); a limit
+        below every plan is refused before any solver work. ``info.method_reason``
+        and ``info.extra["memory_plan"]`` say which plan and why, and, streamed,
         ``info.extra["memory"]`` holds the estimate and the measured peak.
     slab_group : callable, optional
         ``slab_group(h, psf_scale) -> group``: run streamed 3D FISTA with the plane
@@ -379,7 +382,9 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     ------
     ReconInputError
         Bad images, shapes or parameters; an unusable ``device``, or a volume that
-        does not fit in its free memory; a prior other than TV with FISTA, an
+        does not fit in its free memory; a ``memory_limit_bytes`` below every plan's
+        estimate (the message names the smallest limit that would do and what lowers
+        it); a prior other than TV with FISTA, an
         automatic weight, ``"auto"`` or a streamed or sharded solve.
     recon.errors.DivergenceError
         The solver diverged.
@@ -423,19 +428,19 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raise ReconInputError("the measurement is zero after dark subtraction; check the "
                               "exposure and --dark")
     b = (raw / raw_scale).astype(np.float32)
+    plan = None
     if backend.is_numpy:
-        plan = memory_plan(method, auto_reg is not None, h.shape[1:], h.shape[0],
-                           memory_limit_bytes)
-        if slab_group is not None:
-            plan.update(streamed=True, reason=f"{plan['reason']}; sharded over the dask "
-                        "workers as asked")
-        if plan["streamed"] and prior is not None:
+        plan = memory_plan(method, auto_reg, h.shape[1:], h.shape[0], memory_limit_bytes,
+                           baseline_bytes=process_baseline_bytes(), stack_bytes=h.nbytes,
+                           bin_factor=bin_factor, sharded=slab_group is not None,
+                           streamable=prior is None)
+        if not plan["fits"] and prior is not None:
             raise ReconInputError(f"the {prior} prior runs in the in-memory 3D ADMM, which "
                                   f"does not fit here ({plan['reason']}); use --prior tv "
                                   "(streamed 3D FISTA) or more memory (--memory-limit)")
+        if announce is not None and (plan["streamed"] or memory_limit_bytes is not None):
+            announce(plan["reason"])
         if plan["streamed"]:
-            if announce is not None:
-                announce(plan["reason"])
             held = [h]  # emptied once the slabs hold the spectra: the stack is freed
             del h
             auto = None
@@ -490,7 +495,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         raw_scale=raw_scale, seconds_total=time.perf_counter() - t_start,
         device=backend.label, histories=[result.history],
         extra={**info, "psf_scale": psf_scale,
-               "prior": prior or ("tv" if method == "admm" else None)})
+               "prior": prior or ("tv" if method == "admm" else None),
+               **({} if plan is None else {"memory_plan": plan})})
     return Reconstruction(volume, estimate, [result], op, info_, depths_mm=depths,
                           record=volume_metrics if backend.is_numpy
                           else device_metrics(volume_metrics, backend, op.n_z))
@@ -551,7 +557,8 @@ def _reconstruct_streamed(held, b, depths, *, iterations, tv, l1, plan, info, ra
     result, model, memory, record = solve_streamed(
         held, b, iterations=iterations, tv=tv, l1=l1, depths=depths,
         slab_group=slab_group, announce=announce, auto=run_auto,
-        limit_bytes=plan["limit_bytes"])
+        **({} if slab_group is not None else
+           {"chunk_bytes": plan["chunk_bytes"], "baseline_bytes": plan["baseline_bytes"]}))
     records = []
     if record is not None:
         records = [dict(record, noise=auto["noise"].as_dict())]

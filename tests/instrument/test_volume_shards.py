@@ -11,6 +11,7 @@ streamed solver in one process and says so.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 
@@ -26,6 +27,7 @@ from recon.volume.slab import VolumeSlab
 from recon.volume.streamed import LocalSlabs
 from recon.volume.streamed_auto import auto_streamed
 from tests.instrument.cli.test_recon3d import DEPTHS, bead_problem, normalized_bead_problem
+from tests.recon.volume.test_memory_plan import bead_limit, bead_plans, fix_baseline
 
 
 @pytest.fixture(scope="module")
@@ -153,23 +155,43 @@ def _recon3d(d, *extra):
                  "--tv", "1e-4", "--iterations", "15", "--out", str(d / "v.tif"), *extra])
 
 
-def test_recon3d_memory_limit_streams_and_says_so(files, capsys):
-    assert _recon3d(files, "--memory-limit", "1MB", "--metrics-json",
+def test_recon3d_memory_limit_streams_and_says_so(files, capsys, monkeypatch):
+    fix_baseline(monkeypatch)
+    limit = bead_limit("streamed", None, "fista")
+    assert _recon3d(files, "--memory-limit", str(limit), "--metrics-json",
                     str(files / "m.json")) == 0
     out = capsys.readouterr().out
-    assert "more than the 0.0 GB given by --memory-limit: streamed 3D FISTA" in out
+    assert (f"more than the {limit / 1e9:.2f} GB given by --memory-limit: streamed 3D "
+            "FISTA (planes transformed a chunk at a time") in out
     assert "estimated peak memory" in out and "peak memory" in out
     assert (files / "v.tif").exists()
     assert _recon3d(files, "--memory-limit", "lots", "--overwrite") == 2
     assert "--memory-limit 'lots'" in capsys.readouterr().err
 
 
-def test_recon3d_memory_limit_chooses_the_default_weight_streamed(files, capsys):
+def test_recon3d_below_every_plan_exits_2_and_writes_nothing(files, capsys, monkeypatch):
+    """A limit below every plan: one line naming the smallest limit that would do, exit
+    status 2, before any solve (nothing written)."""
+    fix_baseline(monkeypatch)
+    smallest = min(p["estimate_bytes"] for p in bead_plans(None, "fista"))
+    assert _recon3d(files, "--memory-limit", str(smallest - 1), "--metrics-json",
+                    str(files / "m.json")) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert "\n" not in err and "Traceback" not in err
+    assert f"give --memory-limit {math.ceil(smallest / 1e7) / 100:.2f}GB or more" in err
+    assert "estimated peak memory" not in captured.out and not any(files.glob("v*"))
+    assert not (files / "m.json").exists()
+
+
+def test_recon3d_memory_limit_chooses_the_default_weight_streamed(files, capsys, monkeypatch):
     """``--tv`` left at its default (auto) on a problem that streams: the held-out path
     over the slabs chooses the weight, and the metrics record it."""
+    fix_baseline(monkeypatch)
     assert main(["recon3d", "--psf-stack", str(files / "stack.npy"), "--depths",
                  ",".join(map(str, DEPTHS)), "--raw", str(files / "raw.npy"),
-                 "--iterations", "15", "--out", str(files / "v.tif"), "--memory-limit", "1MB",
+                 "--iterations", "15", "--out", str(files / "v.tif"), "--memory-limit",
+                 str(bead_limit("streamed", "tv")),
                  "--metrics-json", str(files / "m.json")]) == 0
     out = capsys.readouterr().out
     assert "automatic tv weight: the held-out path of recon.auto over the slabs" in out

@@ -50,6 +50,7 @@ from recon.volume.streamed import (
 )
 from recon.volume.streamed_auto import auto_streamed, path_copies
 from tests.instrument.cli.test_recon3d import BEADS, DEPTHS, bead_problem, normalized_bead_problem
+from tests.recon.volume.test_memory_plan import BASELINE, bead_limit, fix_baseline
 
 REL = 1e-5
 #: A noise model in the units of the scaled measurement (its energy only scales the
@@ -253,7 +254,9 @@ def test_bad_slabs_are_refused(problem):
 def test_memory_plan_says_what_fits():
     small = memory_plan("fista", False, (64, 64), 5, None)
     assert not small["streamed"] and small["limit_source"] == "available"
-    tight = memory_plan("admm", True, (64, 64), 5, 1_000_000)
+    streamed = small["plans"][1]["estimate_bytes"] - small["baseline_bytes"]
+    tight = memory_plan("admm", True, (64, 64), 5, BASELINE + streamed,
+                        baseline_bytes=BASELINE)
     assert tight["streamed"] and "--memory-limit" in tight["reason"]
     assert "streamed 3D FISTA" in tight["reason"]
     with pytest.raises(ReconInputError, match="--memory-limit 16GB"):
@@ -265,18 +268,22 @@ def _found(volume: np.ndarray) -> set:
     return {tuple(int(a) for a in np.unravel_index(k, volume.shape)) for k in brightest}
 
 
-def test_reconstruct_streams_when_the_plan_does_not_fit():
+def test_reconstruct_streams_when_the_plan_does_not_fit(monkeypatch):
     """The default weight (auto) on a problem that streams: the held-out path over the
     slabs chooses it, says so, and records it; its copies are those estimated."""
+    fix_baseline(monkeypatch)
     stack, raw = bead_problem()
     lines = []
+    limit = bead_limit("streamed", "tv")
     rec = recon.reconstruct_volume(stack, DEPTHS, raw, method="admm", iterations=60,
-                                   memory_limit_bytes=1_000_000, announce=lines.append)
+                                   memory_limit_bytes=limit, announce=lines.append)
     assert rec.info.method == "fista" and "streamed 3D FISTA" in rec.info.method_reason
     assert "automatic tv weight: the held-out path" in rec.info.method_reason
     assert any("automatic tv weight: the held-out path" in line for line in lines)
-    assert any("estimated peak memory" in line and "4 copies of the iterates" in line
-               and "more than the 0.00 GB limit (with a fixed --tv" in line for line in lines)
+    estimate = rec.info.extra["memory"]["estimate_bytes"]
+    assert estimate == rec.info.extra["memory_plan"]["estimate_bytes"] <= limit
+    assert any(f"estimated peak memory {estimate / 1e9:.2f} GB" in line
+               and "4 copies of the iterates" in line for line in lines)
     auto = rec.info.auto[0]
     assert auto["weight"] == rec.info.tv and auto["regulariser"] == "tv"
     choice = auto["weight_choice"]
@@ -301,10 +308,12 @@ def test_reconstruct_streams_when_the_plan_does_not_fit():
     assert m["memory_plan"]["streamed"] and m["support"] == "sensor"
 
 
-def test_reconstruct_streams_a_fixed_weight_as_given():
+def test_reconstruct_streams_a_fixed_weight_as_given(monkeypatch):
+    fix_baseline(monkeypatch)
     stack, raw = bead_problem()
     rec = recon.reconstruct_volume(stack, DEPTHS, raw, method="fista", iterations=60,
-                                   tv=1e-4, memory_limit_bytes=1_000_000)
+                                   tv=1e-4, memory_limit_bytes=bead_limit("streamed", None,
+                                                                          "fista"))
     assert rec.info.tv == 1e-4 and not rec.info.auto
     assert "automatic" not in rec.info.method_reason
     assert "path_copies" not in rec.metrics(floor_s=1.0)["memory"]["arrays"]
