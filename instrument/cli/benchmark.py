@@ -1,4 +1,4 @@
-"""``diffuserlab benchmark {recon,gpu,live,recording,batch,volume-scale}``.
+"""``diffuserlab benchmark {recon,gpu,live,recording,batch,volume-scale,memory-limit}``.
 
 ``gpu`` runs :func:`recon.benchmarks.gpu.run_gpu_benchmark` (speed per device and
 backend: the NumPy path, the array-API path on PyTorch's CPU backend and on a CUDA GPU).
@@ -13,6 +13,9 @@ simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
 recording at full size per compressor; recon-run's dask batch against a loop).
 ``volume-scale`` runs :func:`instrument.volume_scale_benchmark.run_volume_scale` (the
 seed-size 3D problem streamed or sharded: memory, speed, bytes moved).
+``memory-limit`` runs :func:`instrument.memory_limit_benchmark.run_memory_limit`
+(``recon3d --memory-limit`` below, at and above each plan's estimate: refused below
+every plan, the measured peak within the limit otherwise).
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ import argparse
 from pathlib import Path
 
 __all__ = ["add_subcommands", "run_batch_benchmark", "run_gpu_benchmark", "run_live_benchmark",
-           "run_recon_benchmarks", "run_recording_benchmark", "run_volume_scale_benchmark"]
+           "run_memory_limit_benchmark", "run_recon_benchmarks", "run_recording_benchmark",
+           "run_volume_scale_benchmark"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -140,6 +144,24 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("--overwrite", action="store_true",
                     help="replace an existing --json / --save-estimate")
     sp.set_defaults(handler=run_volume_scale_benchmark)
+    mp = bsub.add_parser("memory-limit", help="recon3d under --memory-limit: refused below "
+                         "every plan's estimate, the measured peak within the limit at each "
+                         "plan (two sizes, automatic and fixed weight)",
+                         description="Runs recon3d in fresh processes on a synthetic problem "
+                         "per size, with the automatic and a fixed weight: with a limit below "
+                         "every plan (refused, exit status 2, naming the smallest limit), "
+                         "just below that limit (refused), at it and at every other plan's "
+                         "estimate (solved; the process's peak resident set must be within "
+                         "the limit). About 5 minutes at the default sizes.")
+    mp.add_argument("--sizes", default="256x8,512x16",
+                    help="comma-separated SIDExPLANES problems (default 256x8,512x16)")
+    mp.add_argument("--iterations", type=int, default=10,
+                    help="iterations of each solve (default 10)")
+    mp.add_argument("--work-dir", default=None,
+                    help="where the temporary problem files go (default the system's temp dir)")
+    mp.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    mp.add_argument("--overwrite", action="store_true", help="replace an existing --json")
+    mp.set_defaults(handler=run_memory_limit_benchmark)
 
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:
@@ -280,6 +302,35 @@ def run_volume_scale_benchmark(args: argparse.Namespace) -> int:
     print(volume_scale_table(result))
     if args.json is not None:
         write_json(args.json, jsonable(result, nonfinite_to_none=True))
+    return 0
+
+
+def run_memory_limit_benchmark(args: argparse.Namespace) -> int:
+    """Run ``benchmark memory-limit``; returns 0 (bad input exits 2 through the boundary)."""
+    from diffuserlab.jsonio import jsonable
+    from recon.errors import ReconInputError
+
+    from ..memory_limit_benchmark import memory_limit_table, run_memory_limit
+    from ..output_safety import check_outputs
+    from ..reconstruct_files import write_json
+
+    sizes = []
+    for item in args.sizes.split(","):
+        side, _, planes = item.strip().lower().partition("x")
+        if not (side.isdigit() and planes.isdigit() and int(side) >= 16 and int(planes) >= 2):
+            raise ReconInputError(f"--sizes {args.sizes!r}: give SIDExPLANES items, side >= 16 "
+                                  "and planes >= 2, e.g. 256x8,512x16")
+        sizes.append((int(side), int(planes)))
+    if args.iterations < 1:
+        raise ReconInputError(f"--iterations {args.iterations}: give 1 or more")
+    if args.json is not None:
+        check_outputs([args.json], None, args.overwrite, option="--json")
+    result = run_memory_limit(sizes=sizes, iterations=args.iterations, work_dir=args.work_dir,
+                              announce=lambda line: print(line, flush=True))
+    print(memory_limit_table(result).splitlines()[-1])
+    if args.json is not None:
+        write_json(args.json, jsonable(result, nonfinite_to_none=True))
+        print(f"figures in {args.json}")
     return 0
 
 
