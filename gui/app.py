@@ -209,7 +209,7 @@ class MainWindow(QMainWindow):
         self._rebuild_status()
 
     def _rebuild_status(self) -> None:
-        devices = list(self.session.bench.devices) if self.session.connected else []
+        devices = list(self.session.devices)
         if list(self.device_labels) == devices:
             return
         for label in self.device_labels.values():
@@ -224,8 +224,8 @@ class MainWindow(QMainWindow):
             self.device_labels[dev_id] = label
 
     def _show_statuses(self, polled: dict) -> None:
-        """The status bar's line per device, from the Devices panel's poll
-        (:class:`gui.panels.devices.PolledDevice`: read on a worker)."""
+        """The status bar's line per device, from the statuses the bench process pushed
+        (:class:`gui.panels.devices.PolledDevice`)."""
         if not self.session.connected:
             return
         for dev_id, p in polled.items():

@@ -1,9 +1,9 @@
 """What the device panel shows about each setting, generated from the declarations.
 
 Each row of a device's box is one :class:`~drivers.settings.Setting` its class
-declares (``device_class(device).SETTINGS``, in the order they apply): its label comes from
-the name, its unit, limits (numbers read from the open device's
-:attr:`~drivers.base.Device.info`), description and read-only flag from the
+declares (:attr:`instrument.bench_service.DeviceInfo.settings_declared`, in the order
+they apply): its label comes from the name, its unit, limits (numbers read from the open
+device's :attr:`~drivers.base.Device.info`), description and read-only flag from the
 declaration, so a new device kind or setting needs no edit here. Whether a value is
 accepted is decided by the device interface (:meth:`drivers.base.Device.apply_settings`),
 whose message the panel shows when it refuses one.
@@ -15,8 +15,6 @@ import json
 import re
 from dataclasses import dataclass
 from typing import Any
-
-from instrument.bench_process import device_class
 
 __all__ = ["Row", "label_of", "limits_text", "parse_duration_s", "parse_value", "rows",
            "value_text"]
@@ -77,7 +75,7 @@ def rows(device) -> list[Row]:
 
     Parameters
     ----------
-    device : drivers.base.Device
+    device : instrument.bench_service.DeviceInfo
         An open device (its info gives the limits' numbers).
 
     Returns
@@ -86,7 +84,7 @@ def rows(device) -> list[Row]:
     """
     info = device.info
     out = []
-    for s in device_class(device).SETTINGS:
+    for s in device.settings_declared:
         if s.per is None:
             unit = s.unit_of()
         elif "{unit}" in s.unit:
@@ -105,8 +103,9 @@ def rows(device) -> list[Row]:
 
 
 def limits_text(device, name: str) -> str:
-    """The limits of setting ``name`` of an open ``device``, as the panel shows them
-    (from its declaration, :meth:`drivers.settings.Setting.limits_text`).
+    """The limits of setting ``name`` of an open ``device`` (a
+    :class:`~instrument.bench_service.DeviceInfo`), as the panel shows them (from its
+    declaration, :meth:`drivers.settings.Setting.limits_text`).
 
     Returns
     -------
@@ -119,7 +118,7 @@ def limits_text(device, name: str) -> str:
     KeyError
         The device declares no setting ``name``.
     """
-    return device_class(device).setting(name).limits_text(device.info)
+    return device.driver_class.setting(name).limits_text(device.info)
 
 
 def _number_text(value: Any) -> str:

@@ -106,7 +106,7 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         raise InputError("give the PSF: an image, a PSF stack or a calibration run (PSF "
                          "sweep); Browse... picks one")
     psf, depth = load_psf(psf_path, depth_mm)
-    cam = session.bench.camera
+    cam = session.service.camera_format()
     if tuple(cam.image_shape) != tuple(psf.shape):
         raise ReconInputError(
             f"the PSF {psf_path} is {psf.shape[0]}x{psf.shape[1]} but the camera delivers "
@@ -116,7 +116,7 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
 
     psf, level = resolve_dark(  # one meaning of an empty (auto) dark field, as the CLI's
         dark.strip() or ReconOptions.defaults()["dark"], psf,
-        calibrated=dark_subtracted(psf_path), recorded=getattr(cam, "dark_offset_dn", None),
+        calibrated=dark_subtracted(psf_path), recorded=cam.dark_offset_dn,
         what=psf_path)
     if not LIVE_IN_PROCESS:
         live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),

@@ -6,8 +6,11 @@ One :class:`Session` per window. The bench lives in a process of its own (a
 the jobs that use them (calibration runs, the mask alignment, recordings; bodies in
 :mod:`instrument.bench_jobs` and :mod:`calibration_routines.bench_jobs`) run there, so
 their compute and device waits never take this process's interpreter lock.
-``session.bench`` is that bench seen from here (device reads, writes and calls go to
-the bench process). The bench file's bench is opened,
+``session.service`` is that bench's typed service
+(:class:`~instrument.bench_service.BenchService` commands by device id, with plain
+data), ``session.devices`` its devices (:class:`~instrument.bench_service.DeviceInfo`),
+and the changes the bench process pushes (settings, positions, statuses) come as the
+``device_event`` signal. The bench file's bench is opened,
 or with ``simulate`` the virtual bench streaming in real time, as ``capture live
 --simulate`` does.
 
@@ -22,7 +25,8 @@ claim the camera first (:meth:`Session.claim_camera`): the stream stops, and
 another claimant is refused with a message naming the job that holds it.
 
 :data:`BENCH_IN_PROCESS` runs the same host in the window's process instead (tests
-that replace code the host runs).
+that replace code the host runs); :data:`BENCH_JOBS` are the jobs the bench process may
+run besides the instrument's own.
 """
 
 from __future__ import annotations
@@ -36,6 +40,8 @@ from contextlib import contextmanager
 from typing import Any
 
 from PySide6.QtCore import QObject, Signal
+
+from calibration_routines.bench_jobs import JOBS as CALIBRATION_JOBS
 
 from .workers import DEVICE_NICE, CameraBusy, Job
 
@@ -51,6 +57,10 @@ SCENES = ("beads-flow", "neurons", "none")
 
 #: Run the bench host in the window's process (False: in a process of its own).
 BENCH_IN_PROCESS = False
+
+#: The jobs the bench process may run besides :data:`instrument.bench_jobs.JOBS`, by
+#: name (tests add theirs before the bench opens).
+BENCH_JOBS: dict[str, Callable] = dict(CALIBRATION_JOBS)
 
 
 class Session(QObject):
@@ -77,11 +87,14 @@ class Session(QObject):
     prompt(str, str, object)
         ``(action, message, reply)``: a plan asks the operator to do something on a
         real bench; the GUI answers with ``reply(bool)``.
+    device_event(object)
+        A :class:`~instrument.bench_service.BenchEvent` the bench process pushed.
     """
 
     changed = Signal()
     message = Signal(str)
     prompt = Signal(str, str, object)
+    device_event = Signal(object)
     _resume = Signal()
     _stream_ended = Signal()
 
@@ -91,10 +104,14 @@ class Session(QObject):
         self.bench_path = bench_path
         self.simulate = bool(simulate)
         self.seed = int(seed)
-        #: The open bench as seen from here (None: not connected).
-        self.bench = None
-        #: The bench host's client (None: not connected).
-        self.client = None
+        #: The open bench's typed service, a
+        #: :class:`~instrument.bench_process.BenchClient` (None: not connected).
+        self.service = None
+        #: ``{device id: DeviceInfo}`` of the open bench (empty: not connected).
+        self.devices: dict = {}
+        #: ``{device id: data}`` of the last ``status`` event of each device (what a
+        #: panel built after the event shows first).
+        self.device_states: dict[str, dict] = {}
         self._virtual = False
         if scene not in SCENES:
             raise ValueError(f"scene {scene!r} is unknown; use one of {', '.join(SCENES)}")
@@ -111,17 +128,18 @@ class Session(QObject):
         self._rate: deque[tuple[float, int]] = deque()
         self.job: Job | None = None
         self._resume.connect(self._resume_stream)
+        self.device_event.connect(self._note_event)
         self._stream_ended.connect(self.changed.emit)
 
     # -- connection -----------------------------------------------------------------------
     @property
     def connected(self) -> bool:
-        return self.bench is not None
+        return self.service is not None
 
     @property
     def is_virtual(self) -> bool:
         """The bench is the virtual bench (``simulate``)."""
-        return self.bench is not None and self._virtual
+        return self.service is not None and self._virtual
 
     @property
     def closing(self) -> bool:
@@ -131,10 +149,10 @@ class Session(QObject):
     @closing.setter
     def closing(self, value: bool) -> None:
         self._closing = bool(value)
-        client = self.client
-        if client is not None:
+        service = self.service
+        if service is not None:
             try:
-                client.host.set_closing(self._closing)
+                service.set_closing(self._closing)
             except Exception as exc:  # noqa: BLE001 (a bench process already gone)
                 log.warning("could not tell the bench process the window closes: %s", exc)
 
@@ -142,6 +160,7 @@ class Session(QObject):
                       on_open: Callable[[], None] | None = None) -> Job:
         """Open the bench on a worker thread; ``changed`` fires when it is open, then
         ``on_open()``; ``on_error(message)`` is called if it cannot be opened."""
+        self.device_states = {}
         job = Job(self._open, name="open-bench", nice=DEVICE_NICE)
         job.succeeded.connect(self._opened)
         job.failed.connect(lambda text: self.message.emit(f"could not connect: {text}"))
@@ -153,38 +172,39 @@ class Session(QObject):
         return job.start()
 
     def _open(self, job: Job):
-        from calibration_routines.bench_jobs import JOBS
         from instrument.bench_process import BenchClient
 
-        client = BenchClient(in_process=BENCH_IN_PROCESS, jobs=JOBS, on_frame=self._on_frame,
+        client = BenchClient(in_process=BENCH_IN_PROCESS, jobs=BENCH_JOBS,
+                             on_frame=self._on_frame,
                              on_message=self.message.emit, on_prompt=self.prompt.emit,
-                             on_stream_ended=self._on_stream_ended)
+                             on_stream_ended=self._on_stream_ended,
+                             on_event=self.device_event.emit)
         try:
-            described = client.run_job(
-                "open_bench",
-                {"bench_path": self.bench_path, "simulate": self.simulate,
-                 "seed": self.seed, "scene": self.scene_name}, cancel=job.cancel_event)
-            bench = client.bench
+            client.run_job("open_bench", {"bench_path": self.bench_path,
+                                          "simulate": self.simulate, "seed": self.seed,
+                                          "scene": self.scene_name}, cancel=job.cancel_event)
+            devices = {d.name: d for d in client.devices()}
+            virtual = client.is_virtual()
         except BaseException:
             client.close()
             raise
-        return client, described, bench
+        return client, devices, virtual
 
     def _opened(self, opened) -> None:
-        self.client, described, self.bench = opened
-        self._virtual = bool(described["virtual"])
+        self.service, self.devices, self._virtual = opened
         where = "built-in simulated bench" if self.bench_path is None else self.bench_path
         self.message.emit(f"connected: {where}{' (simulated)' if self.simulate else ''}, "
-                          f"devices {', '.join(described['devices'])}")
+                          f"devices {', '.join(self.devices)}")
         self.changed.emit()
 
     def disconnect_bench(self, then: Callable[[], None] | None = None) -> Job | None:
         """Stop the stream and close every device and the bench process on a worker
         thread (``changed`` fires at once: the panels stop using the bench); ``then()``
         once they are closed."""
-        if self.bench is None:
+        if self.service is None:
             return None
-        client, self.client, self.bench = self.client, None, None
+        client, self.service, self.devices = self.service, None, {}
+        self.device_states = {}
         self.camera_user = None
         self._streaming = False
         self.changed.emit()
@@ -200,6 +220,10 @@ class Session(QObject):
         self.job = job
         return job.start()
 
+    def _note_event(self, event) -> None:
+        if event.kind == "status":
+            self.device_states[event.device] = event.data
+
     def run_on_bench(self, target: str, kwargs: dict | None = None, **channels) -> Any:
         """Run job ``target`` (by name: :data:`instrument.bench_jobs.JOBS`,
         :data:`calibration_routines.bench_jobs.JOBS`) in the bench process and
@@ -211,10 +235,10 @@ class Session(QObject):
         CameraBusy
             No bench is connected.
         """
-        client = self.client
-        if client is None:
+        service = self.service
+        if service is None:
             raise CameraBusy("no bench is connected; press Connect first")
-        return client.run_job(target, kwargs, **channels)
+        return service.run_job(target, kwargs, **channels)
 
     # -- the virtual bench's scene ---------------------------------------------------------
     def set_scene(self, name: str, on_error: Callable[[str], None] | None = None) -> Job:
@@ -240,7 +264,7 @@ class Session(QObject):
         CameraBusy
             Another job holds it.
         """
-        if self.bench is None:
+        if self.service is None:
             raise CameraBusy("no bench is connected; press Connect first")
         if self.camera_user not in (None, user):
             raise CameraBusy(f"the camera is busy with {self.camera_user}; wait for it to "
@@ -271,7 +295,7 @@ class Session(QObject):
             self.release_camera(user, resume_stream=was_streaming and not self.closing)
 
     def _resume_stream(self) -> None:
-        if self.bench is None or self.camera_user is not None or self.streaming:
+        if self.service is None or self.camera_user is not None or self.streaming:
             return
         self.stream_job(True, on_error=lambda text: self.message.emit(
             f"the live stream could not start again: {text}"))
@@ -315,8 +339,8 @@ class Session(QObject):
             The camera refused to stream.
         """
         with self._stream_lock:
-            client = self.client
-            if self.bench is None or client is None:
+            service = self.service
+            if service is None:
                 raise CameraBusy("no bench is connected; press Connect first")
             if self.camera_user is not None:
                 raise CameraBusy(f"the camera is busy with {self.camera_user}; the live "
@@ -326,7 +350,7 @@ class Session(QObject):
             self.frames_seen = 0
             self._counters = {}
             self._rate.clear()
-            client.host.start_stream(ring_frames)
+            service.start_stream(ring_frames)
             self._streaming = True
             self.changed.emit()
 
@@ -334,12 +358,12 @@ class Session(QObject):
         """Stop the stream (idempotent); the counters shown stay. Waits for the
         camera's grab thread: call it on a worker (:meth:`stream_job`)."""
         with self._stream_lock:
-            client = self.client
+            service = self.service
             if not self._streaming:
                 return
             try:
-                if client is not None:
-                    client.host.stop_stream(timeout_s)
+                if service is not None:
+                    service.stop_stream(timeout_s)
             finally:
                 self._streaming = False
                 self.changed.emit()

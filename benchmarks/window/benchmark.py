@@ -37,6 +37,8 @@ import numpy as np
 
 from gui.workers import wait_until
 
+from .device_jobs import twin_psf
+
 __all__ = ["measure_lateness", "run_benchmark"]
 
 TIMER_MS = 10
@@ -105,13 +107,12 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
         wait_until(app, lambda: window.session.connected and sweep_session.connected, 300,
               "the benches to open (the moving scene is rendered ahead)")
         idle = measure_lateness(app, seconds)
-        vb = window.session.bench
-        psf = vb.psf((0.0, 0.0, 60.0))  # the noise-free PSF, as 1000 DN at its peak
-        psf = (1000.0 * psf / psf.max() + float(vb.camera.dark_offset_dn)).astype(np.float32)
+        psf, dark = twin_psf(window.session, (0.0, 0.0, 60.0))
+        psf = (1000.0 * psf / psf.max() + dark).astype(np.float32)  # 1000 DN at its peak
         np.save(work / "psf.npy", psf)
         live = window.live
         live.psf.setText(str(work / "psf.npy"))
-        live.dark.setText(f"{float(vb.camera.dark_offset_dn):g}")
+        live.dark.setText(f"{dark:g}")
         live.method.setCurrentText(method)
         live.iterations.setValue(iterations)
         job = live.start_reconstruction()
@@ -120,8 +121,9 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
             raise RuntimeError(f"live reconstruction: {live.error.text()}")
         wait_until(app, lambda: live._shown_recon >= 0, 180, "the first reconstruction")
         live_only = measure_lateness(app, seconds)
-        stage = sweep_session.bench.source_stage
-        stage.apply_settings({"velocity": dict.fromkeys(stage.axes, 50.0)})
+        axes = sweep_session.devices["source_stage"].axes
+        sweep_session.service.apply_settings("source_stage",
+                                             {"velocity": dict.fromkeys(axes, 50.0)})
         sweep_panel.routine.setCurrentText("psf-sweep")
         fields = sweep_panel.fields["psf-sweep"]
         for flag, value in (("--z-min", "30"), ("--z-max", "200"), ("--n-depths", "64"),
@@ -151,7 +153,7 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
             "reconstruction_skipped": stats["skipped"],
             "sweep_frames_during": after[2] - before[2],
             "sweep_still_running_at_end": sweep_running,
-            "frame_shape": list(vb.camera.image_shape),
+            "frame_shape": list(psf.shape),
         }
         out["p99_ratio_loaded_to_idle"] = out["loaded"]["p99_ms"] / max(out["idle"]["p99_ms"],
                                                                         1e-3)

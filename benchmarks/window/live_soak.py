@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .device_jobs import twin_psf
 from .operator_day import Operator, StepFailed
 
 __all__ = ["GOALS", "LiveSoak", "ScreenProbe", "run_live_soak"]
@@ -63,16 +64,15 @@ class LiveSoak(Operator):
         self.x.key("F5")
         yield self.typed()
         yield self.until(lambda: w.live._shown_raw > 10, 60, "frames in the live view")
-        bench = w.session.bench
-        psf = bench.psf((0.0, 0.0, 60.0))  # the scene's depth, as the camera records
-        psf = psf / psf.max() * 1000.0 + float(bench.camera.dark_offset_dn)
+        psf, dark = twin_psf(w.session, (0.0, 0.0, 60.0))  # the scene's depth
+        psf = psf / psf.max() * 1000.0 + dark  # as the camera records it
         path = Path(self.o.work) / "psf.npy"
         path.parent.mkdir(parents=True, exist_ok=True)
         np.save(path, psf.astype(np.float32))
         live = w.live
         yield from self.fill(live.psf, str(path), enter=True)
         yield from self.fill(live.depth.lineEdit(), "")
-        yield from self.fill(live.dark, f"{float(bench.camera.dark_offset_dn):g}")
+        yield from self.fill(live.dark, f"{dark:g}")
         yield from self.choose(live.method, "admm")
         live.iterations.setValue(5)
         yield from self.click(live.recon_button)

@@ -116,11 +116,10 @@ class Operator(WindowDriver):
         w = self.w
         self.phase("connect")
         yield self.until(lambda: w.session.connected, 300, "the bench to open")
-        bench = w.session.bench
         if self.o.simulate:
             for name in ("source_stage", "mask_stage"):
-                dev = bench.device(name)
-                dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 20.0)})
+                axes = w.session.devices[name].axes
+                w.session.service.apply_settings(name, {"velocity": dict.fromkeys(axes, 20.0)})
         self.done("connect")
         yield from self.stream_and_stage()
         yield from self.calibrate(pause_and_resume=True)
@@ -162,7 +161,7 @@ class Operator(WindowDriver):
         self.done("stream")
         self.phase("stage")
         box = w.devices.boxes["source_stage"]
-        stage = box.device
+        stage = _Stage(w.session.service, "source_stage")
         if self.o.simulate and self.loops == 0:  # the pinhole in front of the diffuser
             yield from self.fill(box.stage.targets["z"], "60", enter=True)
             yield self.until(lambda: not box.queue.busy and abs(stage.position("z") - 60) < 1e-3,
@@ -214,19 +213,20 @@ class Operator(WindowDriver):
         self.phase("leds")
         leds = w.devices.boxes["led_array"]
         yield from self.click(self.button("led_array.all-off"))
-        yield self.until(lambda: not leds.device.lit(), 20, "All off")
+        yield self.until(lambda: not w.session.service.lit("led_array"), 20, "All off")
         if self.o.simulate:  # the LED behind the pinhole, clicked on the array's map
             import numpy as np
 
             yield from self.aim(leds.led_plot.viewport())  # scrolled into view
-            pos = leds.device.positions_mm
+            pos = leds.device.led_positions_mm
             i = int(np.argmin(np.hypot(*pos.T)))
             vb = leds.led_plot.getViewBox()
             scene = vb.mapViewToScene(QPointF(float(pos[i, 0]), float(pos[i, 1])))
             local = leds.led_plot.mapFromScene(scene)
             self.x.click_at(leds.led_plot.viewport().mapToGlobal(local))
             yield self.typed()
-            yield self.until(lambda: list(leds.device.lit()) == [i], 20, "the LED clicked")
+            yield self.until(lambda: list(w.session.service.lit("led_array")) == [i], 20,
+                             "the LED clicked")
         self.done("leds")
         self.check_no_bug("stage and LEDs")
 
@@ -440,7 +440,8 @@ class Operator(WindowDriver):
             self._control.ask("unplug illuminate")
             yield self.until(self._control.answered, 30, "the emulator unplugged")
         else:
-            box.device.faults.disconnect()
+            w.session.service.run_job("device_fault", {"device": "led_array",
+                                                       "action": "disconnect"})
         yield from self.click(self.button("led_array.all-off"))
         yield self.until(lambda: "DISCONNECTED" in w.device_labels["led_array"].text(), 30,
                          "the status area to show the LED array disconnected")
@@ -450,7 +451,8 @@ class Operator(WindowDriver):
             self._control.ask("replug illuminate")
             yield self.until(self._control.answered, 30, "the emulator plugged back")
         else:
-            box.device.faults.allow_reconnect()
+            w.session.service.run_job("device_fault", {"device": "led_array",
+                                                       "action": "allow_reconnect"})
         yield from self.click(box.reconnect_button)
         yield self.until(lambda: "DISCONNECTED" not in w.device_labels["led_array"].text()
                          and "disconnected" not in w.devices.state.text(), 60,
@@ -461,15 +463,16 @@ class Operator(WindowDriver):
         w = self.w
         self.phase("shortcuts")
         box = w.devices.boxes["source_stage"]
-        stage = box.device
-        far = {a: (lo + hi) / 2 for a, (lo, hi) in stage.travel.items() if a == "z"}
+        far = {a: (lo + hi) / 2 for a, (lo, hi) in box.device.travel.items() if a == "z"}
+        service, moving = w.session.service, {"stage": "source_stage"}
         self.x.click(w.live.raw_view.glw)
         yield self.typed()
-        stage.move_to(far, wait=False)  # a long move, then Esc
+        service.run_job("start_move", {**moving, "targets": far})  # a long move, then Esc
         yield 0.2
         self.x.key("Escape")
         yield self.typed()
-        yield self.until(lambda: not stage.is_moving(), 10, "Esc to stop the stage")
+        yield self.until(lambda: not service.run_job("is_moving", moving), 10,
+                         "Esc to stop the stage")
         before = w.session.frames_seen
         self.x.key("F6")
         yield self.typed()
@@ -533,6 +536,19 @@ class Operator(WindowDriver):
             QTimer.singleShot(500, self._answer_yes)
 
 
+class _Stage:
+    """A stage's position as the bench's service reads it."""
+
+    def __init__(self, service, name: str) -> None:
+        self.service, self.name = service, name
+
+    def positions(self) -> dict[str, float]:
+        return self.service.positions(self.name)
+
+    def position(self, axis: str) -> float:
+        return self.positions()[axis]
+
+
 class _Control:
     """Requests to the process that runs the emulators (unplug / replug a device)."""
 
@@ -587,7 +603,12 @@ def main(argv: list[str] | None = None) -> int:
         operator.start()
 
     QTimer.singleShot(0, begin)
+    from gui.session import BENCH_JOBS
     from instrument.cli import main as diffuserlab
+
+    from .device_jobs import JOBS
+
+    BENCH_JOBS.update(JOBS)  # a simulated device's faults, a move not waited for
 
     command = ["gui", "--scene", "beads-flow"] + (
         ["--simulate"] if args.bench is None else [args.bench])

@@ -5,10 +5,11 @@ and each frame shown as it is taken.
 The parameters are the routine's typed model, from which the ``calibrate`` command's
 options are generated too (:func:`gui.jobs.routine_options`, remembered between
 sessions); the form's texts become the model, which builds the plan
-(:func:`calibration_routines.bench_jobs.build_plan`), and the run is :class:`instrument.runner.Runner` in
-the bench process, controlled through a :class:`~instrument.runner.RunControl`. The bench is
-given back as it was (camera settings, stage positions, LEDs, the live stream). A
-run that ends aborted or failed keeps its data and says how to resume it.
+(:func:`calibration_routines.bench_jobs.build_plan`), and the run is
+:class:`instrument.runner.Runner` in the bench process, controlled through a
+:class:`~instrument.runner.RunControl`. The bench is given back as it was (camera
+settings, stage positions, LEDs, the live stream). A run that ends aborted or failed
+keeps its data and says how to resume it.
 """
 
 from __future__ import annotations
@@ -178,7 +179,7 @@ class CalibrationPanel(RunControls, QWidget):
         out = {"kind": "calibration frame", "routine": self.routine.currentText(),
                "run": self.last_path, "parameters": self._values(self.routine.currentText())}
         if self.session.connected:
-            out["device_settings"] = self.session.bench.settings_snapshot()
+            out["device_settings"] = self.session.service.settings_snapshot()
         return out
 
     # -- actions -------------------------------------------------------------------------

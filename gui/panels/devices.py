@@ -2,11 +2,15 @@
 Reconnect, stage jog, go-to and stored positions, the LED picker on the array's
 geometry, the SLM pattern picker.
 
-Every device call runs in a :class:`~gui.workers.Job`; values are validated by the
-device interfaces (:meth:`drivers.base.Device.apply_settings`), whose message shows
-under the device when one is refused. Statuses are read once a second on a worker
-(never overlapping) and shown as named fields (:mod:`gui.device_status`); the
-``statuses`` signal hands them to the window's status area. Presets (a device's
+Each box holds a device's id and its :class:`~instrument.bench_service.DeviceInfo`;
+every command goes to the bench's typed service (``session.service``,
+:class:`~instrument.bench_service.BenchService`) in a :class:`~gui.workers.Job`; values
+are validated by the device interfaces (:meth:`drivers.base.Device.apply_settings`),
+whose message shows under the device when one is refused. Statuses, settings and
+positions are pushed by the bench process when they change
+(:class:`~instrument.bench_service.BenchEvent`, read there once a second; no poll from
+here) and shown as named fields (:mod:`gui.device_status`); the ``statuses`` signal
+hands them to the window's status area. Presets (a device's
 settings under a name) and stored stage positions belong to the bench file and are
 kept between sessions (:mod:`gui.fields`).
 """
@@ -17,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import Qt, QTimer, Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QComboBox,
     QFormLayout,
@@ -31,8 +35,6 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
-
-from instrument.bench_process import device_class
 
 from ..device_settings import parse_value, rows, value_text
 from ..device_status import STATE_COLOURS, device_state, status_fields
@@ -57,9 +59,9 @@ def _led_brushes():
 
 @dataclass
 class PolledDevice:
-    """One device as the once-a-second poll read it on a worker: its ``status()``, and
-    for an open device its ``settings()`` and ``setting_values()`` (None when not
-    read)."""
+    """One device as the bench process last pushed it (a ``status`` event): its
+    ``status()``, and for an open device its ``settings()`` and ``setting_values()``
+    (None when not read)."""
 
     status: dict
     settings: dict | None = None
@@ -72,15 +74,16 @@ class DeviceBox(QGroupBox):
 
     Parameters
     ----------
-    device : drivers.base.Device
+    device : instrument.bench_service.DeviceInfo
+    service : instrument.bench_process.BenchClient
+        The bench's typed service (the commands go there by the device's id).
     bench : str
         The bench's settings group (:func:`gui.fields.bench_key`).
     """
 
-    def __init__(self, device, bench: str = "bench/default", parent=None) -> None:
-        super().__init__(f"{device.device_id} ({device.kind}, {device_class(device).__name__})",
-                         parent)
-        self.device = device
+    def __init__(self, device, service, bench: str = "bench/default", parent=None) -> None:
+        super().__init__(f"{device.name} ({device.kind}, {device.driver_name})", parent)
+        self.device, self.service, self.name = device, service, device.name
         #: The device's kind (read once: the window shows it at every poll).
         self.kind = device.kind
         self.bench = bench
@@ -89,10 +92,10 @@ class DeviceBox(QGroupBox):
         layout = QVBoxLayout(self)
         head = QHBoxLayout()
         self.state = QLabel("open")
-        self.state.setObjectName(f"{device.device_id}.state")
+        self.state.setObjectName(f"{device.name}.state")
         head.addWidget(self.state, 1)
         self.reconnect_button = QPushButton("Reconnect")
-        self.reconnect_button.setObjectName(f"{device.device_id}.reconnect")
+        self.reconnect_button.setObjectName(f"{device.name}.reconnect")
         self.reconnect_button.setToolTip("close the device, open it again and re-apply its "
                                          "settings (after a cable or power problem)")
         self.reconnect_button.clicked.connect(self.reconnect)
@@ -105,11 +108,11 @@ class DeviceBox(QGroupBox):
         self.fields: dict[str, QLineEdit] = {}
         self.rows = {row.name: row for row in rows(device)}  # from the declarations
         self.limit_labels: dict[str, QLabel] = {}
-        values = device.setting_values()
+        values = service.setting_values(device.name)
         for name, spec in self.rows.items():
             edit = QLineEdit(value_text(values.get(name), name, spec.spec))
             edit.setCursorPosition(0)
-            edit.setObjectName(f"{device.device_id}.{name}")
+            edit.setObjectName(f"{device.name}.{name}")
             edit.setToolTip(spec.tooltip)
             row = QHBoxLayout()
             row.addWidget(edit, 1)
@@ -118,14 +121,14 @@ class DeviceBox(QGroupBox):
             else:
                 edit.returnPressed.connect(lambda n=name: self.apply(n))
                 button = QPushButton("Apply")
-                button.setObjectName(f"{device.device_id}.{name}.apply")
+                button.setObjectName(f"{device.name}.{name}.apply")
                 button.clicked.connect(lambda _=False, n=name: self.apply(n))
                 row.addWidget(button)
             cell = QVBoxLayout()
             cell.setSpacing(1)
             cell.addLayout(row)
             limits = QLabel(f"limits: {spec.limits}" if spec.limits else "")
-            limits.setObjectName(f"{device.device_id}.{name}.limits")
+            limits.setObjectName(f"{device.name}.{name}.limits")
             limits.setWordWrap(True)
             limits.setStyleSheet("color: #555; font-size: 11px;")
             cell.addWidget(limits)
@@ -139,7 +142,7 @@ class DeviceBox(QGroupBox):
         self.stage: StageControls | None = None
         self.error = error_label()
         if device.kind == "stage":
-            self.queue = MotionQueue(device)
+            self.queue = MotionQueue(service, device.name)
             self.queue.failed.connect(self.error.setText)
             self.stage = StageControls(device, self.queue, bench, self.error.setText)
             layout.addWidget(self.stage)
@@ -153,7 +156,7 @@ class DeviceBox(QGroupBox):
     def run(self, fn, *args, done=None, failed=None) -> Job:
         """Run ``fn(*args)`` on a worker; a refusal shows in :attr:`error`."""
         self.jobs = [j for j in self.jobs if j.running]
-        job = Job(lambda job: fn(*args), name=f"device-{self.device.device_id}",
+        job = Job(lambda job: fn(*args), name=f"device-{self.name}",
                   owner=self, nice=DEVICE_NICE)
         job.failed.connect(self.error.setText)
         job.succeeded.connect(lambda _: self.error.setText(""))
@@ -177,8 +180,8 @@ class DeviceBox(QGroupBox):
             self.error.setText(readable_error(exc))
             return None
         edit.setModified(False)
-        return self.run(self.device.apply_settings, {name: value},
-                        done=lambda _: self.refresh_settings(),
+        return self.run(self.service.apply_settings, self.name, {name: value},
+                        done=lambda values: self.refresh_settings(values=values),
                         failed=lambda text: self._refused(name, typed, text))
 
     def _refused(self, name: str, typed: str, text: str) -> None:
@@ -193,19 +196,21 @@ class DeviceBox(QGroupBox):
         """Close and open the device again, its settings re-applied
         (:meth:`drivers.base.Device.reconnect`)."""
         self.state.setText("reconnecting ...")
-        return self.run(self.device.reconnect, done=lambda _: self.refresh_settings())
+        return self.run(self.service.reconnect, self.name,
+                        done=lambda values: self.refresh_settings(values=values))
 
     def refresh_settings(self, force: tuple[str, ...] = (), values: dict | None = None) -> None:
         """Show the device's current settings (fields being edited are left alone,
         except those named in ``force``; a device that went away meanwhile is left as
-        shown: its state says so); ``values``: its ``setting_values()`` as a worker read
-        them (the poll), else read here."""
+        shown: its state says so); ``values``: its ``setting_values()`` as the bench
+        process pushed or returned them, else read here."""
         from drivers.errors import DeviceError
+        from instrument.bench_service import BenchServiceError
 
         if values is None:
             try:
-                values = self.device.setting_values()
-            except DeviceError:
+                values = self.service.setting_values(self.name)
+            except (DeviceError, BenchServiceError):
                 return
         for name, edit in self.fields.items():
             if name in force or (not edit.hasFocus() and not edit.isModified()):
@@ -215,7 +220,8 @@ class DeviceBox(QGroupBox):
 
     def show_status(self, status: dict, settings: dict | None = None) -> None:
         """Show a :meth:`drivers.base.Device.status` dict and the ``settings()`` read with
-        it (the poller's, on a worker; None: not read, the device gone) as fields."""
+        it (as the bench process pushed them; None: not read, the device gone) as
+        fields."""
         self.last_status = status
         state = device_state(status)
         if state in ("disconnected", "closed"):
@@ -237,7 +243,7 @@ class DeviceBox(QGroupBox):
     # -- presets ---------------------------------------------------------------------------
     @property
     def _preset_key(self) -> str:
-        return f"{self.bench}/presets/{self.device.device_id}"
+        return f"{self.bench}/presets/{self.name}"
 
     def presets(self) -> dict[str, dict]:
         """``{name: settings}`` saved for this device on this bench."""
@@ -247,7 +253,7 @@ class DeviceBox(QGroupBox):
         form = QFormLayout()
         row = QHBoxLayout()
         self.preset = QComboBox()
-        self.preset.setObjectName(f"{self.device.device_id}.preset")
+        self.preset.setObjectName(f"{self.name}.preset")
         self.preset.setMinimumWidth(110)
         wheel_needs_focus(self.preset)
         self.preset.addItems(list(self.presets()))
@@ -263,7 +269,7 @@ class DeviceBox(QGroupBox):
         save_row = QHBoxLayout()
         self.preset_name = QLineEdit()
         self.preset_name.setPlaceholderText("name for the current settings")
-        self.preset_name.setObjectName(f"{self.device.device_id}.preset-name")
+        self.preset_name.setObjectName(f"{self.name}.preset-name")
         self.preset_name.returnPressed.connect(lambda: self.save_preset(self.preset_name.text()))
         save_row.addWidget(self.preset_name, 1)
         save = QPushButton("Save as preset")
@@ -278,7 +284,7 @@ class DeviceBox(QGroupBox):
         if not name:
             self.error.setText("type a name for the preset, then press Save as preset")
             return
-        values = self.device.settings()
+        values = self.service.settings(self.name)
         presets = self.presets()
         presets[name] = {k: values[k] for k in self.fields
                          if k in values and not self.rows[k].read_only}
@@ -292,8 +298,8 @@ class DeviceBox(QGroupBox):
         if preset is None:
             self.error.setText("choose a saved preset (or save the settings as one first)")
             return None
-        return self.run(self.device.apply_settings, preset,
-                        done=lambda _: self.refresh_settings())
+        return self.run(self.service.apply_settings, self.name, preset,
+                        done=lambda values: self.refresh_settings(values=values))
 
     def delete_preset(self, name: str) -> None:
         presets = self.presets()
@@ -314,7 +320,7 @@ class DeviceBox(QGroupBox):
         box = QWidget()
         layout = QVBoxLayout(box)
         layout.setContentsMargins(0, 0, 0, 0)
-        pos = self.device.positions_mm
+        pos = self.device.led_positions_mm
         self.led_plot = pg.PlotWidget()
         self.led_plot.setMinimumHeight(260)
         self.led_plot.setAspectLocked(True)
@@ -335,12 +341,13 @@ class DeviceBox(QGroupBox):
         row.addWidget(QLabel("pattern:"))
         row.addWidget(self.pattern)
         show = QPushButton("Show pattern")
-        show.clicked.connect(lambda: self.run(self.device.set_pattern, self.pattern.currentText(),
-                                              done=lambda _: self.show_lit()))
+        show.clicked.connect(lambda: self.run(self.service.show, self.name,
+                                              self.pattern.currentText(), done=self.show_lit))
         row.addWidget(show)
         off = QPushButton("All off")
-        off.setObjectName(f"{self.device.device_id}.all-off")
-        off.clicked.connect(lambda: self.run(self.device.all_off, done=lambda _: self.show_lit()))
+        off.setObjectName(f"{self.name}.all-off")
+        off.clicked.connect(lambda: self.run(self.service.show, self.name, "off",
+                                             done=self.show_lit))
         row.addWidget(off)
         layout.addLayout(row)
         self.show_lit()
@@ -352,23 +359,25 @@ class DeviceBox(QGroupBox):
 
     def light_led(self, index: int) -> Job:
         """Light LED ``index`` alone at the array's brightness and colour settings."""
-        dev = self.device
-        return self.run(lambda: dev.set_leds([index], dev.colour, dev.brightness),
-                        done=lambda _: self.show_lit())
+        return self.run(self.service.show, self.name, [int(index)], done=self.show_lit)
 
-    def show_lit(self) -> None:
-        """Colour the lit LEDs on the map (only when the set changed; two brushes shared
-        by every point: a fresh QBrush per point and call kept ~6000 references per
-        call alive in pyqtgraph's scatter plot)."""
-        try:
-            lit = set(self.device.lit())
-        except Exception:  # noqa: BLE001 (disconnected: the state line says so)
-            lit = set()
+    def show_lit(self, lit: dict | None = None) -> None:
+        """Colour the lit LEDs on the map (``lit``: ``{index: look}`` as the bench
+        returned it, else read; only when the set changed; two brushes shared by every
+        point: a fresh QBrush per point and call kept ~6000 references per call alive
+        in pyqtgraph's scatter plot)."""
+        if lit is None:
+            try:
+                lit = self.service.lit(self.name)
+            except Exception:  # noqa: BLE001 (disconnected: the state line says so)
+                lit = {}
+        lit = {int(i) for i in lit}
         if lit == getattr(self, "_lit_shown", None):
             return
         self._lit_shown = lit
         on, off = _led_brushes()
-        self.led_points.setBrush([on if i in lit else off for i in range(self.device.n_leds)])
+        self.led_points.setBrush([on if i in lit else off
+                                  for i in range(len(self.device.led_positions_mm))])
 
     # -- SLM -----------------------------------------------------------------------------
     def _slm_controls(self) -> QWidget:
@@ -395,8 +404,7 @@ class DeviceBox(QGroupBox):
         """Show the chosen phase pattern (:meth:`drivers.slm.Slm.show_phase`)."""
         from calibration_routines.mask_alignment import blazed_phase
 
-        dev = self.device
-        rows, cols = dev.resolution
+        rows, cols = self.device.resolution
         choice = self.slm_pattern.currentIndex()
         if choice == 0:
             phase = np.zeros((rows, cols))
@@ -404,7 +412,7 @@ class DeviceBox(QGroupBox):
             phase = blazed_phase((rows, cols), (cols / self.slm_period.value(), 0.0))
         else:
             phase = np.random.default_rng(0).uniform(0, 2 * np.pi, (rows, cols))
-        return self.run(dev.show_phase, phase)
+        return self.run(self.service.show, self.name, phase)
 
 
 class DevicePanel(QWidget):
@@ -413,7 +421,8 @@ class DevicePanel(QWidget):
     Signals
     -------
     statuses(dict)
-        ``{device id: status}`` after each poll (the window's status area shows them).
+        ``{device id: PolledDevice}`` each time the bench process pushed a device's
+        status (the window's status area shows them).
     """
 
     statuses = Signal(dict)
@@ -461,10 +470,7 @@ class DevicePanel(QWidget):
         self.area.setWidget(self.inner)
         outer.addWidget(self.area, 1)
         session.changed.connect(self.rebuild)
-        self.poll_job: Job | None = None
-        self.timer = QTimer(self)
-        self.timer.timeout.connect(self.poll)
-        self.timer.start(1000)
+        session.device_event.connect(self.on_event)
         self.rebuild()
 
     @property
@@ -499,7 +505,7 @@ class DevicePanel(QWidget):
 
     def rebuild(self) -> None:
         """One box per device when the set of open devices changed."""
-        devices = dict(self.session.bench.devices) if self.session.connected else {}
+        devices = dict(self.session.devices)
         self.connect_button.setText("Disconnect" if devices else "Connect")
         if devices:
             self.connect_button.setEnabled(True)
@@ -516,12 +522,16 @@ class DevicePanel(QWidget):
         self.boxes = {}
         self.last_statuses = {}
         for index, (dev_id, dev) in enumerate(devices.items()):
-            box = DeviceBox(dev, self.bench_key)
+            box = DeviceBox(dev, self.session.service, self.bench_key)
             self.inner_layout.insertWidget(index, box)
             self.boxes[dev_id] = box
         self.arrow_stage.clear()
         self.arrow_stage.addItems([k for k, b in self.boxes.items()
                                    if b.stage is not None and "x" in b.device.axes])
+        known = {k: PolledDevice(d["status"], d["settings"], d["values"])
+                 for k, d in self.session.device_states.items() if k in self.boxes}
+        if known:  # pushed before the boxes were built
+            self._show_status(known)
         self._show_count()
 
     def _show_count(self) -> None:
@@ -546,39 +556,20 @@ class DevicePanel(QWidget):
         """Stop every stage now (queued moves dropped)."""
         return [b.queue.stop() for b in self.boxes.values() if b.queue is not None]
 
-    def poll(self) -> None:
-        """Read every device's status on a worker (once a second, never overlapping)."""
-        if not self.boxes or (self.poll_job is not None and self.poll_job.running):
+    def on_event(self, event) -> None:
+        """Show what the bench process pushed (a
+        :class:`~instrument.bench_service.BenchEvent`) in the device's box."""
+        box = self.boxes.get(event.device)
+        if box is None:
             return
-        devices = {k: b.device for k, b in self.boxes.items()}
-
-        def read(job: Job) -> dict:
-            # everything shown is read here, on the worker: each read is a message to
-            # the bench process, which the GUI thread never waits for
-            out = {}
-            for k, d in devices.items():
-                try:
-                    status = d.status()
-                except Exception as exc:  # noqa: BLE001 (shown as the device's state)
-                    try:
-                        is_open = d.is_open
-                    except Exception:  # noqa: BLE001 (the bench closed meanwhile)
-                        is_open = False
-                    out[k] = PolledDevice({"is_open": is_open, "disconnected": True,
-                                           "error": str(exc)})
-                    continue
-                settings = values = None
-                if status.get("is_open") and not status.get("disconnected"):
-                    try:
-                        settings, values = d.settings(), d.setting_values()
-                    except Exception:  # noqa: BLE001 (gone between the reads: shown so)
-                        pass
-                out[k] = PolledDevice(status, settings, values)
-            return out
-
-        self.poll_job = Job(read, name="device-status", owner=self, nice=DEVICE_NICE)
-        self.poll_job.succeeded.connect(self._show_status)
-        self.poll_job.start()
+        if event.kind == "status":
+            data = event.data
+            self._show_status({event.device: PolledDevice(data["status"], data["settings"],
+                                                          data["values"])})
+        elif event.kind == "settings":
+            box.refresh_settings(values=event.data)
+        elif event.kind == "positions" and box.stage is not None:
+            box.stage.show_positions(event.data)
 
     def _show_status(self, polled: dict[str, PolledDevice]) -> None:
         for dev_id, p in polled.items():
@@ -587,6 +578,6 @@ class DevicePanel(QWidget):
                 box.show_status(p.status, p.settings)
                 if p.values is not None:
                     box.refresh_settings(values=p.values)
-        self.last_statuses = {k: p.status for k, p in polled.items()}
+        self.last_statuses.update({k: p.status for k, p in polled.items()})
         self._show_count()
         self.statuses.emit(polled)

@@ -219,8 +219,7 @@ class LivePanel(QWidget):
         if self.session.camera_user is not None:
             self.error.setText(f"the camera is busy with {self.session.camera_user}")
             return None
-        cam = self.session.bench.camera
-        self.stream_job = self.session.stream_job(False, then=cam.snap,
+        self.stream_job = self.session.stream_job(False, then=self.session.service.snap,
                                                   on_error=self.error.setText,
                                                   done=self.session.show_frame)
         return self.stream_job
@@ -331,7 +330,7 @@ class LivePanel(QWidget):
             out["frame"] = {"index": int(frame.index),
                             "timestamp_s": float(getattr(frame, "timestamp_s", 0.0) or 0.0)}
         if self.session.connected:
-            out["device_settings"] = self.session.bench.settings_snapshot()
+            out["device_settings"] = self.session.service.settings_snapshot()
             out["bench"] = self.session.bench_path or "built-in simulated bench"
         return out
 

@@ -1,11 +1,12 @@
 """A stage's controls: jog, go-to, stop, and named positions recalled with one click.
 
-Every move goes through the stage's :class:`MotionQueue`: one worker moves the stage
-at a time, in the order asked. Jogs add to the *target* of the jogs before them, not
-to wherever the stage happens to be while it moves: three quick +1 mm clicks end 3 mm
-from where the first started. Stop empties the queue and stops the stage at once (on
-its own worker, not behind the move). Stored positions belong to the bench file
-(:func:`gui.fields.bench_key`) and survive the session.
+Every move goes through the stage's :class:`MotionQueue`, which asks the bench's
+service to move the stage by its id (:meth:`instrument.bench_service.BenchService.move`):
+one worker moves the stage at a time, in the order asked. Jogs add to the *target* of
+the jogs before them, not to wherever the stage happens to be while it moves: three
+quick +1 mm clicks end 3 mm from where the first started. Stop empties the queue and
+stops the stage at once (on its own worker, not behind the move). Stored positions
+belong to the bench file (:func:`gui.fields.bench_key`) and survive the session.
 """
 
 from __future__ import annotations
@@ -38,7 +39,10 @@ class MotionQueue(QObject):
 
     Parameters
     ----------
-    stage : drivers.stage.Stage
+    service : instrument.bench_process.BenchClient
+        The bench's typed service.
+    stage : str
+        The stage's device id.
 
     Signals
     -------
@@ -51,9 +55,9 @@ class MotionQueue(QObject):
     failed = Signal(str)
     idle = Signal()
 
-    def __init__(self, stage) -> None:
+    def __init__(self, service, stage: str) -> None:
         super().__init__()
-        self.stage = stage
+        self.service, self.stage = service, stage
         self._lock = threading.Lock()
         self._ops: list[tuple[str, dict[str, float]]] = []
         self._goal: dict[str, float] | None = None
@@ -88,7 +92,7 @@ class MotionQueue(QObject):
         with self._lock:
             self._ops.clear()
             self._goal = None
-        job = Job(lambda job: self.stage.stop(), name=f"stop-{self.stage.device_id}",
+        job = Job(lambda job: self.service.stop_motion(self.stage), name=f"stop-{self.stage}",
                   nice=DEVICE_NICE)
         job.failed.connect(self.failed)
         return job.start()
@@ -98,7 +102,7 @@ class MotionQueue(QObject):
             if self._active:
                 return self.job
             self._active = True
-        self.job = Job(self._run, name=f"motion-{self.stage.device_id}", nice=DEVICE_NICE)
+        self.job = Job(self._run, name=f"motion-{self.stage}", nice=DEVICE_NICE)
         self.job.failed.connect(self.failed)
         self.job.finished.connect(self.idle)
         return self.job.start()
@@ -114,12 +118,12 @@ class MotionQueue(QObject):
                     kind, values = self._ops.pop(0)
                     goal = self._goal
                 if goal is None:
-                    goal = self.stage.positions()
+                    goal = self.service.positions(self.stage)
                 if kind == "by":
                     targets = {a: goal[a] + d for a, d in values.items()}
                 else:
                     targets = dict(values)
-                self.stage.move_to(targets)
+                self.service.move(self.stage, targets)
                 with self._lock:
                     self._goal = {**goal, **targets}
         except BaseException:
@@ -143,8 +147,8 @@ class StageControls(QWidget):
 
     Parameters
     ----------
-    stage : drivers.stage.Stage
-        Open.
+    stage : instrument.bench_service.DeviceInfo
+        An open stage (its axes, their units and travel).
     queue : MotionQueue
     bench_key : str
         Settings group of the bench (stored positions belong to it).
@@ -155,11 +159,9 @@ class StageControls(QWidget):
     def __init__(self, stage, queue: MotionQueue, bench_key: str,
                  on_error: Callable[[str], None], parent=None) -> None:
         super().__init__(parent)
-        from drivers.stage import AXIS_UNITS
-
         self.stage, self.queue, self.on_error = stage, queue, on_error
-        self.key = f"{bench_key}/positions/{stage.device_id}"
-        dev_id = stage.device_id
+        self.key = f"{bench_key}/positions/{stage.name}"
+        dev_id = stage.name
         outer = QVBoxLayout(self)
         outer.setContentsMargins(0, 0, 0, 0)
         grid = QGridLayout()
@@ -171,7 +173,7 @@ class StageControls(QWidget):
         self.targets: dict[str, QLineEdit] = {}
         travel = stage.travel
         for row, axis in enumerate(stage.axes, start=1):
-            unit = AXIS_UNITS[axis]
+            unit = stage.units[axis]
             grid.addWidget(QLabel(f"{axis} ({unit})"), row, 0)
             self.positions[axis] = QLabel("-")
             self.positions[axis].setObjectName(f"{dev_id}.position.{axis}")
@@ -247,7 +249,7 @@ class StageControls(QWidget):
         value = parse_value(text)
         if not isinstance(value, int | float) or isinstance(value, bool):
             self.on_error(f"go to {axis}: {text!r} is not a number; type the position in "
-                          f"{self.stage.units(axis)}")
+                          f"{self.stage.units[axis]}")
             return None
         return self.queue.move_to({axis: float(value)})
 
@@ -271,7 +273,8 @@ class StageControls(QWidget):
         if not name:
             self.on_error("type a name for the position, then press Store here")
             return None
-        job = Job(lambda job: self.stage.positions(), name="read-position", owner=self,
+        job = Job(lambda job: self.queue.service.positions(self.stage.name),
+                  name="read-position", owner=self,
                   nice=DEVICE_NICE)
         job.succeeded.connect(lambda pos: self._stored(name, pos))
         job.failed.connect(self.on_error)
@@ -313,7 +316,7 @@ class StageControls(QWidget):
         self.stored_buttons = {}
         for name, pos in self.stored().items():
             b = QPushButton(name)
-            b.setObjectName(f"{self.stage.device_id}.recall.{name}")
+            b.setObjectName(f"{self.stage.name}.recall.{name}")
             b.setToolTip("go to " + ", ".join(f"{a} {v:.4g}" for a, v in pos.items())
                          + " (right click: forget)")
             b.clicked.connect(lambda _=False, n=name: self.recall(n))

@@ -36,8 +36,11 @@ def _qt_garbage_dies_on_the_gui_thread():
 def window(qapp, tmp_path_factory):
     """A connected :class:`gui.app.MainWindow` on the virtual bench (no scene)."""
     os.environ["DIFFUSERLAB_GUI_SETTINGS"] = str(tmp_path_factory.mktemp("qt") / "gui.ini")
+    from benchmarks.window.device_jobs import JOBS
     from gui.app import MainWindow
-    from gui.session import Session
+    from gui.session import BENCH_JOBS, Session
+
+    BENCH_JOBS.update(JOBS)
 
     w = MainWindow(Session(None, simulate=True, scene="none"))
     w.show()
@@ -45,8 +48,8 @@ def window(qapp, tmp_path_factory):
     wait_for(qapp, lambda: w.session.connected, 120.0, "the bench to open")
     # moves of tens of mm at the stage's default 5 mm/s would take seconds of wall time
     for stage in ("source_stage", "mask_stage"):
-        dev = w.session.bench.device(stage)
-        dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 50.0)})
+        axes = w.session.devices[stage].axes
+        w.session.service.apply_settings(stage, {"velocity": dict.fromkeys(axes, 50.0)})
     yield w
     w.shutdown()
     w.deleteLater()

@@ -66,25 +66,24 @@ def test_runs_give_the_bench_back_and_the_stream_resumes(own_window, wait, tmp_p
     stages, the LEDs and the live stream as they were (they used to leave the run's
     auto-exposure, the sweep's last stage point and the stream stopped)."""
     w = own_window
-    bench = w.session.bench
+    service, devices = w.session.service, w.session.devices
     for name in ("source_stage", "mask_stage"):
-        dev = bench.device(name)
-        dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 50.0)})
-    cam, stage, leds = bench.camera, bench.source_stage, bench.led_array
-    cam.apply_settings({"exposure_s": 0.012})
-    stage.move_to({"x": 1.0, "z": 40.0})
-    centre = int(abs(leds.positions_mm).sum(axis=1).argmin())
-    leds.set_leds([centre], "white", 0.5)
-    lit = leds.lit()
+        service.apply_settings(name, {"velocity": dict.fromkeys(devices[name].axes, 50.0)})
+    service.apply_settings("camera", {"exposure_s": 0.012})
+    service.move("source_stage", {"x": 1.0, "z": 40.0})
+    centre = int(abs(devices["led_array"].led_positions_mm).sum(axis=1).argmin())
+    service.apply_settings("led_array", {"colour": "white", "brightness": 0.5})
+    lit = service.show("led_array", [centre])
     w.session.start_stream()
-    before = (cam.settings(), stage.positions(), mask := bench.mask_stage.positions())
+    before = (service.settings("camera"), service.positions("source_stage"),
+              mask := service.positions("mask_stage"))
 
     def check(what: str) -> None:
         wait(lambda: w.session.streaming, 15, f"the stream to resume after {what}")
-        assert cam.settings() == before[0], what
-        assert stage.positions() == pytest.approx(before[1], abs=1e-6), what
-        assert bench.mask_stage.positions() == pytest.approx(mask, abs=1e-6), what
-        assert leds.lit() == lit, what
+        assert service.settings("camera") == before[0], what
+        assert service.positions("source_stage") == pytest.approx(before[1], abs=1e-6), what
+        assert service.positions("mask_stage") == pytest.approx(mask, abs=1e-6), what
+        assert service.lit("led_array") == lit, what
         w.live.refresh()
         assert "busy" not in w.live.raw_stats.text(), what
 

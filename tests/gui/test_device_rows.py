@@ -27,9 +27,16 @@ SIMULATED = {"camera": SimulatedCamera, "stage": SimulatedStage,
 
 
 def _box(device):
-    from gui.panels.devices import DeviceBox
+    """A device's box, its commands served here by a bench of that one device."""
+    from types import SimpleNamespace
 
-    return DeviceBox(device, "bench/test-rows")
+    from gui.panels.devices import DeviceBox
+    from instrument.bench_service import BenchService, EventLog, device_info
+
+    service = BenchService()
+    service.bench = SimpleNamespace(devices={device.device_id: device})
+    service.device_events = EventLog()
+    return DeviceBox(device_info(device.device_id, device), service, "bench/test-rows")
 
 
 def test_every_kind_has_a_simulated_driver_here():

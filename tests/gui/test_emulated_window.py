@@ -80,9 +80,9 @@ def test_a_completed_alignment_keeps_the_mask_at_the_aligned_pose(qapp, wait, em
     monkeypatch.setattr("gui.session.BENCH_IN_PROCESS", True)  # the fake runs here
     w = _open_window(qapp, emulated)
     try:
-        bench = w.session.bench
-        exposure = bench.camera.settings()["exposure_s"]
-        start = bench.mask_stage.positions()
+        service = w.session.service
+        exposure = service.settings("camera")["exposure_s"]
+        start = service.positions("mask_stage")
         assert start != pytest.approx(ALIGNED, abs=1e-3)
         al = w.alignment
         al.out.setText(str(tmp_path / "mask.align"))
@@ -90,14 +90,15 @@ def test_a_completed_alignment_keeps_the_mask_at_the_aligned_pose(qapp, wait, em
         job = al.start()
         wait(lambda: job.done, 60, "the alignment")
         assert "completed (passed)" in al.message.text(), al.message.text()
-        assert bench.mask_stage.positions() == pytest.approx(ALIGNED, abs=2e-3)
+        assert service.positions("mask_stage") == pytest.approx(ALIGNED, abs=2e-3)
         # what the job changed only to take its readings is put back
-        assert bench.camera.settings()["exposure_s"] == pytest.approx(exposure)
+        assert service.settings("camera")["exposure_s"] == pytest.approx(exposure)
     finally:
         _close(qapp, w)
     again = _open_window(qapp, emulated)
     try:
-        assert again.session.bench.mask_stage.positions() == pytest.approx(ALIGNED, abs=2e-3)
+        assert again.session.service.positions("mask_stage") == pytest.approx(ALIGNED,
+                                                                              abs=2e-3)
     finally:
         _close(qapp, again)
 
@@ -117,14 +118,14 @@ def test_an_aborted_alignment_puts_the_mask_back(qapp, wait, emulated, tmp_path,
     monkeypatch.setattr("gui.session.BENCH_IN_PROCESS", True)  # the fake runs here
     w = _open_window(qapp, emulated)
     try:
-        start = w.session.bench.mask_stage.positions()
+        start = w.session.service.positions("mask_stage")
         al = w.alignment
         al.out.setText(str(tmp_path / "mask.align"))
         al.seed.setText("7")
         job = al.start()
         wait(lambda: job.done, 60, "the alignment")
         assert "stopped" in al.message.text(), al.message.text()
-        assert w.session.bench.mask_stage.positions() == pytest.approx(start, abs=2e-3)
+        assert w.session.service.positions("mask_stage") == pytest.approx(start, abs=2e-3)
     finally:
         _close(qapp, w)
 

@@ -235,20 +235,20 @@ def test_a_refused_recording_neither_says_recording_nor_becomes_the_last(window,
 
 def test_quick_jog_clicks_add_to_the_target_not_the_position(window, wait):
     box = window.devices.boxes["source_stage"]
-    stage = window.session.bench.source_stage
-    stage.apply_settings({"velocity": {"x": 2.0, "y": 2.0, "z": 2.0}})  # 0.5 s per mm
-    try:
-        x0 = stage.position("x")
+    service = window.session.service
+    service.apply_settings("source_stage", {"velocity": {"x": 2.0, "y": 2.0, "z": 2.0}})
+    try:  # 0.5 s per mm
+        x0 = service.positions("source_stage")["x"]
         box.stage.jog_steps["x"].setValue(1.0)
         plus = box.findChild(type(box.reconnect_button), "source_stage.jog.x+")
         for _ in range(3):
             QTest.mouseClick(plus, Qt.MouseButton.LeftButton)
             QTest.qWait(60)  # mid-move
         wait(lambda: not box.queue.busy, 20, "the jogs")
-        assert stage.position("x") == pytest.approx(x0 + 3.0, abs=1e-6)
+        assert service.positions("source_stage")["x"] == pytest.approx(x0 + 3.0, abs=1e-6)
     finally:
-        stage.apply_settings({"velocity": dict.fromkeys(stage.axes, 50.0)})
-        stage.move_to({"x": 0.0})
+        service.apply_settings("source_stage", {"velocity": dict.fromkeys("xyz", 50.0)})
+        service.move("source_stage", {"x": 0.0})
 
 
 def test_jobs_that_wait_on_hardware_run_at_the_process_priority(window, wait, monkeypatch):
@@ -277,7 +277,7 @@ def test_jobs_that_wait_on_hardware_run_at_the_process_priority(window, wait, mo
     QTest.mouseClick(box.findChild(type(box.reconnect_button), "source_stage.jog.x+"),
                      Qt.MouseButton.LeftButton)
     wait(lambda: not box.queue.busy, 20, "the jog")
-    window.session.bench.source_stage.move_to({"x": 0.0})
+    window.session.service.move("source_stage", {"x": 0.0})
     compute = Job(lambda job: None, name="compute").start()
     wait(lambda: compute.done and "motion-source_stage" in ran, 20, "the jobs")
     assert ran["motion-source_stage"] == process
@@ -362,7 +362,7 @@ def test_enter_in_a_go_to_field_moves(window, wait):
     field.setText("42")
     QTest.keyClick(field, Qt.Key.Key_Return)
     wait(lambda: not box.queue.busy, 10, "the move")
-    assert window.session.bench.source_stage.position("z") == pytest.approx(42.0)
+    assert window.session.service.positions("source_stage")["z"] == pytest.approx(42.0)
 
 
 # -- 8. numbers that follow what happens now --------------------------------------------------
@@ -374,7 +374,6 @@ def test_camera_fps_follows_a_change_of_rate_within_seconds(window, wait):
     in the last 2 s, so a loaded machine that delivers fewer than the 30 asked for
     (6 fps measured in a loaded full-suite run) is judged by what it delivered."""
     session = window.session
-    cam = session.bench.camera
 
     def shown_and_delivered() -> tuple[float, float]:
         n0, t0 = session.frames_seen, time.monotonic()
@@ -386,11 +385,11 @@ def test_camera_fps_follows_a_change_of_rate_within_seconds(window, wait):
     try:
         QTest.qWait(1000)
         fast, fast_delivered = shown_and_delivered()
-        cam.apply_settings({"frame_rate_hz": 3.0})
+        session.service.apply_settings("camera", {"frame_rate_hz": 3.0})
         QTest.qWait(3000)
         slow, slow_delivered = shown_and_delivered()
     finally:
-        cam.apply_settings({"frame_rate_hz": 30.0})
+        session.service.apply_settings("camera", {"frame_rate_hz": 30.0})
         session.stop_stream()
     rates = (fast, fast_delivered, slow, slow_delivered)
     assert fast == pytest.approx(fast_delivered, rel=0.35, abs=0.5), rates

@@ -35,10 +35,11 @@ def test_the_device_choice_is_remembered_across_sessions(qapp, tmp_path, monkeyp
 @pytest.fixture(scope="module")
 def psf_file(window, tmp_path_factory):
     """The bench's on-axis PSF as its camera would record it (with the dark offset)."""
-    bench = window.session.bench
-    h = bench.psf((0.0, 0.0, 40.0))
+    from benchmarks.window.device_jobs import twin_psf
+
+    h, dark = twin_psf(window.session, (0.0, 0.0, 40.0))
     path = tmp_path_factory.mktemp("live-device") / "psf.npy"
-    np.save(path, (h / h.max() * 4000.0 + bench.camera.dark_offset_dn).astype(np.float32))
+    np.save(path, (h / h.max() * 4000.0 + dark).astype(np.float32))
     return str(path)
 
 
@@ -104,7 +105,7 @@ def test_the_chosen_device_runs_the_live_reconstruction(window, wait, psf_file, 
         wait(lambda: live._shown_recon > first, 60, "the next reconstruction")
         assert type(reconstructor.state.x).__module__ == "torch"  # the warm state's device
         assert "errors 0" in live.recon_stats.text()
-        assert live.recon_view.image.shape == window.session.bench.camera.image_shape
+        assert live.recon_view.image.shape == window.session.service.camera_format().image_shape
         meta = live.recon_view.snapshot_metadata()["reconstruction"]
         assert meta["device"] == standin.label and meta["device_requested"] == "cuda"
     finally:

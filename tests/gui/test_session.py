@@ -16,23 +16,23 @@ from gui.messages import operator_text
 
 
 def test_connect_opens_every_device_with_a_box(window):
-    assert list(window.devices.boxes) == list(window.session.bench.devices)
+    assert list(window.devices.boxes) == list(window.session.devices)
     assert window.devices.connect_button.text() == "Disconnect"
     box = window.devices.boxes["camera"]
     # units and limits come from the device interface's info
     from PySide6.QtWidgets import QLabel
 
     limits = [w.text() for w in box.findChildren(QLabel) if "limits:" in w.text()]
-    lo, hi = window.session.bench.camera.info["exposure_range_s"]
+    lo, hi = window.session.devices["camera"].info["exposure_range_s"]
     assert f"limits: {lo:g} to {hi:g} s" in limits
 
 
 def test_refused_setting_shows_the_interfaces_message(window, wait):
     box = window.devices.boxes["camera"]
-    cam = window.session.bench.camera
-    before = cam.exposure_s
+    service = window.session.service
+    before = service.settings("camera")["exposure_s"]
     with pytest.raises(DeviceValueError) as refused:
-        cam.check_settings({"exposure_s": -1e-3})
+        service.apply_settings("camera", {"exposure_s": -1e-3})
     box.fields["exposure_s"].setText("-1 ms")
     job = box.apply("exposure_s")
     wait(lambda: job.done and box.error.text(), 10, "the refusal")
@@ -41,39 +41,43 @@ def test_refused_setting_shows_the_interfaces_message(window, wait):
     assert operator_text(str(refused.value)) in box.error.text()
     assert "the device keeps" in box.error.text()
     assert "inf" not in box.error.text() and "exposure_s > 0" in box.error.text()
-    assert cam.exposure_s == before  # nothing applied
+    assert service.settings("camera")["exposure_s"] == before  # nothing applied
     box.fields["exposure_s"].setText("0.02")
     job = box.apply("exposure_s")
     wait(lambda: job.done and box.error.text() == "", 10, "the setting")
-    assert cam.exposure_s == pytest.approx(0.02)
+    assert service.settings("camera")["exposure_s"] == pytest.approx(0.02)
+
+
+def _position(window, axis: str, stage: str = "source_stage") -> float:
+    return window.session.service.positions(stage)[axis]
 
 
 def test_stage_jog_go_to_and_a_target_beyond_the_limits(window, wait):
     box = window.devices.boxes["source_stage"]
     controls = box.stage
-    stage = window.session.bench.source_stage
-    z0 = stage.position("z")
+    z0 = _position(window, "z")
     controls.jog_steps["z"].setValue(2.0)
     controls.jog("z", +1)
     wait(lambda: not box.queue.busy, 10, "the jog")
-    assert stage.position("z") == pytest.approx(z0 + 2.0)
+    assert _position(window, "z") == pytest.approx(z0 + 2.0)
     controls.targets["z"].setText("30")
     controls.go_to("z")
     wait(lambda: not box.queue.busy, 10, "the move")
-    assert stage.position("z") == pytest.approx(30.0)
+    assert _position(window, "z") == pytest.approx(30.0)
     controls.targets["z"].setText("1000")
     controls.go_to("z")
     wait(lambda: not box.queue.busy and box.error.text(), 10, "the refusal")
-    assert "outside the limits" in box.error.text() and stage.position("z") == pytest.approx(30)
+    assert "outside the limits" in box.error.text()
+    assert _position(window, "z") == pytest.approx(30)
 
 
 def test_led_picker_lights_the_clicked_led(window, wait):
     box = window.devices.boxes["led_array"]
-    leds = window.session.bench.led_array
-    centre = int(np.argmin(np.hypot(*leds.positions_mm.T)))
+    positions_mm = window.session.devices["led_array"].led_positions_mm
+    centre = int(np.argmin(np.hypot(*positions_mm.T)))
     job = box.light_led(centre)
     wait(lambda: job.done, 10, "the LED")
-    assert list(leds.lit()) == [centre]
+    assert list(window.session.service.lit("led_array")) == [centre]
     brushes = box.led_points.data["brush"]
     assert brushes[centre].color().name() == "#ffb000"
 
@@ -90,13 +94,12 @@ def test_live_view_shows_frames_that_change(window, wait):
     i1, a = _frame(window, wait, -1)
     i2, b = _frame(window, wait, i1)
     noise = np.abs(b - a).mean()
-    stage = window.session.bench.source_stage
-    stage.move_to({"x": 3.0})
+    window.session.service.move("source_stage", {"x": 3.0})
     i3, c = _frame(window, wait, i2 + 1)
     assert i1 < i2 < i3
     assert np.abs(c - b).mean() > 3 * noise  # the PSF moved
     assert "fps" in window.live.raw_stats.text() and "dropped" in window.live.raw_stats.text()
-    stage.move_to({"x": 0.0})
+    window.session.service.move("source_stage", {"x": 0.0})
     window.live.toggle_stream()
     wait(lambda: not window.session.streaming, 5, "the stream to stop")
 
@@ -155,7 +158,7 @@ def test_the_devices_the_stream_and_the_runs_live_in_the_bench_process(window, w
     from drivers.base import Device
 
     session = window.session
-    assert not session.client.in_process and session.client.alive()
+    assert not session.service.in_process and session.service.alive()
     assert sweep["runners_here"] == []  # the sweep's runner ran in the bench process
     window.live.toggle_stream()
     wait(lambda: session.streaming and session.frames_seen > 3, 10, "frames")
@@ -201,7 +204,7 @@ def test_live_reconstruction_with_the_sweeps_psf(window, wait, sweep):
         wait(lambda: live._shown_recon > first, 30, "the next reconstruction")
         text = live.recon_stats.text()
         assert "admm x3" in text and "latency" in text and "skipped" in text
-        assert live.recon_view.image.shape == window.session.bench.camera.image_shape
+        assert live.recon_view.image.shape == window.session.service.camera_format().image_shape
     finally:
         live.stop_reconstruction()
         window.session.stop_stream()
@@ -216,7 +219,7 @@ def test_results_viewer_shows_the_runs_frames_and_psf_stack(window, wait, sweep)
     assert "psf_stack" in [results.products.itemText(i) for i in range(results.products.count())]
     results.frame_slider.setValue(1)
     wait(lambda: results.frame_shown == 1, 10, "frame 2")
-    assert results.view.image.shape == window.session.bench.camera.image_shape
+    assert results.view.image.shape == window.session.service.camera_format().image_shape
     job = results.show_product("psf_stack")
     wait(lambda: job.done, 10, "the product")
     assert results.volume is not None and len(results.volume) == 3

@@ -278,17 +278,17 @@ def test_a_disconnected_device_shows_red_everywhere_and_reconnects(window, wait)
     from drivers.errors import DeviceDisconnectedError
 
     panel = window.devices
-    leds = window.session.bench.led_array
-    wait(lambda: "5 open" in panel.state.text(), 10, "the first poll")
-    leds.faults.disconnect()
+    service = window.session.service
+    wait(lambda: "5 open" in panel.state.text(), 10, "the first status")
+    service.run_job("device_fault", {"device": "led_array", "action": "disconnect"})
     with pytest.raises(DeviceDisconnectedError):
-        leds.all_off()
+        service.show("led_array", "off")
     wait(lambda: "disconnected" in panel.state.text(), 10, "the poll to see it")
     box = panel.boxes["led_array"]
     assert "DISCONNECTED" in box.state.text() and "#c00020" in box.state.text()
     assert "DISCONNECTED" in window.device_labels["led_array"].text()
     assert "4 open" in panel.state.text() and "led_array" in panel.state.text()
-    leds.faults.allow_reconnect()
+    service.run_job("device_fault", {"device": "led_array", "action": "allow_reconnect"})
     job = box.reconnect()
     wait(lambda: job.done, 10, "the reconnect")
     assert box.error.text() == ""
@@ -307,30 +307,31 @@ def test_status_is_named_fields_not_a_dict(window, wait):
 
 def test_presets_save_and_apply_device_settings(window, wait):
     box = window.devices.boxes["camera"]
-    cam = window.session.bench.camera
-    cam.apply_settings({"exposure_s": 0.005, "gain": 2.0})
+    service = window.session.service
+    service.apply_settings("camera", {"exposure_s": 0.005, "gain": 2.0})
     box.save_preset("bright sample")
-    cam.apply_settings({"exposure_s": 0.05, "gain": 0.0})
+    service.apply_settings("camera", {"exposure_s": 0.05, "gain": 0.0})
     assert box.preset.currentText() == "bright sample"
     job = box.apply_preset("bright sample")
     wait(lambda: job.done, 10, "the preset")
-    assert cam.exposure_s == pytest.approx(0.005) and cam.gain == pytest.approx(2.0)
+    held = service.settings("camera")
+    assert held["exposure_s"] == pytest.approx(0.005) and held["gain"] == pytest.approx(2.0)
     assert box.fields["exposure_s"].text() == "5 ms"
     box.delete_preset("bright sample")
     assert box.preset.count() == 0
-    cam.apply_settings({"exposure_s": 0.01, "gain": 0.0})
+    service.apply_settings("camera", {"exposure_s": 0.01, "gain": 0.0})
 
 
 def test_stored_positions_recall_with_one_click_and_persist(window, wait):
     box = window.devices.boxes["source_stage"]
-    stage = window.session.bench.source_stage
-    stage.move_to({"x": 2.0, "y": -1.0, "z": 35.0})
+    service = window.session.service
+    service.move("source_stage", {"x": 2.0, "y": -1.0, "z": 35.0})
     job = box.stage.store_position("focus bead")
     wait(lambda: job.done and "focus bead" in box.stage.stored_buttons, 10, "the store")
-    stage.move_to({"x": 0.0, "y": 0.0, "z": 60.0})
+    service.move("source_stage", {"x": 0.0, "y": 0.0, "z": 60.0})
     QTest.mouseClick(box.stage.stored_buttons["focus bead"], Qt.MouseButton.LeftButton)
     wait(lambda: not box.queue.busy, 10, "the recall")
-    assert stage.positions() == pytest.approx({"x": 2.0, "y": -1.0, "z": 35.0})
+    assert service.positions("source_stage") == pytest.approx({"x": 2.0, "y": -1.0, "z": 35.0})
     from gui.fields import load_json
 
     assert "focus bead" in load_json(box.stage.key, {})
@@ -351,23 +352,24 @@ def test_shortcuts_start_live_snap_and_stop_motion(window, wait):
     before = window.session.frames_seen
     QTest.keyClick(window, Qt.Key.Key_F6)
     wait(lambda: window.session.frames_seen > before, 10, "F6 to snap a frame")
-    stage = window.session.bench.source_stage
-    stage.apply_settings({"velocity": dict.fromkeys(stage.axes, 1.0)})
+    service = window.session.service
+    service.apply_settings("source_stage", {"velocity": dict.fromkeys("xyz", 1.0)})
     try:
-        stage.move_to({"z": 80.0}, wait=False)
+        service.run_job("start_move", {"stage": "source_stage", "targets": {"z": 80.0}})
         QTest.keyClick(window, Qt.Key.Key_Escape)
-        wait(lambda: not stage.is_moving(), 5, "Esc to stop the stage")
-        assert stage.position("z") < 79.0
+        wait(lambda: not service.run_job("is_moving", {"stage": "source_stage"}), 5,
+             "Esc to stop the stage")
+        assert service.positions("source_stage")["z"] < 79.0
     finally:
-        stage.apply_settings({"velocity": dict.fromkeys(stage.axes, 50.0)})
+        service.apply_settings("source_stage", {"velocity": dict.fromkeys("xyz", 50.0)})
 
 
 def test_arrow_keys_jog_the_chosen_stage_unless_a_field_has_the_focus(window, wait):
     panel = window.devices
     panel.arrow_stage.setCurrentText("source_stage")
     box = panel.boxes["source_stage"]
-    stage = window.session.bench.source_stage
-    stage.move_to({"x": 0.0, "y": 0.0})
+    service = window.session.service
+    service.move("source_stage", {"x": 0.0, "y": 0.0})
     box.stage.jog_steps["x"].setValue(0.5)
     box.stage.jog_steps["y"].setValue(0.25)
     window.activateWindow()
@@ -375,13 +377,13 @@ def test_arrow_keys_jog_the_chosen_stage_unless_a_field_has_the_focus(window, wa
     QTest.keyClick(window.live.raw_view.glw, Qt.Key.Key_Right)
     QTest.keyClick(window.live.raw_view.glw, Qt.Key.Key_Up)
     wait(lambda: not box.queue.busy, 10, "the jogs")
-    assert stage.positions()["x"] == pytest.approx(0.5) and stage.positions()["y"] == \
-        pytest.approx(0.25)
+    positions = service.positions("source_stage")
+    assert positions["x"] == pytest.approx(0.5) and positions["y"] == pytest.approx(0.25)
     field = window.live.psf
     field.setFocus()
     QTest.keyClick(field, Qt.Key.Key_Right)  # moves the text cursor, not the stage
     QTest.qWait(300)
-    assert stage.positions()["x"] == pytest.approx(0.5)
+    assert service.positions("source_stage")["x"] == pytest.approx(0.5)
 
 
 # -- log pane and layout ------------------------------------------------------------------------
