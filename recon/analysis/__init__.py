@@ -25,6 +25,8 @@ UC Berkeley, 2020):
   in 1/z and lateral binning, only over the depths a scene spans).
 - :mod:`recon.analysis.activity` -- ΔF/F of a fluorescence video against a per-pixel
   percentile baseline (Fig. 6.5b).
+- :mod:`recon.analysis.psf_from_scenes` -- the PSF per colour channel from known
+  scenes and their measurements (non-negative least squares), with held-out residuals.
 - :mod:`recon.analysis.reports` -- the numbers of ``diffuserlab analyze`` for a
   whole PSF stack (stack preparation, resolution per depth, lateral and axial
   conditioning, distinguishability, field of view per depth).
