@@ -32,12 +32,17 @@ from drivers.camera import Frame, FrameRing
 from drivers.errors import CameraTimeoutError
 from recon.errors import ReconInputError
 from recon.fft import check_threads, limited_threads
+from recon.options import LiveOptions
 from recon.validate import as_int, positive
 
 __all__ = ["LatestFrameSlot", "LivePreview", "LiveReconstruction", "LiveReconstructionError",
            "lower_thread_priority", "run_live_benchmark"]
 
 log = logging.getLogger(__name__)
+
+#: The declared defaults of the live worker's method and iterations per frame
+#: (:class:`recon.options.LiveOptions`, stated there once).
+_LIVE = LiveOptions.defaults()
 
 #: Methods of the worker: the Wiener preview, or ADMM iterations per frame.
 LIVE_METHODS = ("wiener", "admm")
@@ -230,7 +235,8 @@ class LiveReconstruction:
         outside 1..os.cpu_count().
     """
 
-    def __init__(self, reconstructor, *, method: str = "wiener", iterations: int = 5,
+    def __init__(self, reconstructor, *, method: str = _LIVE["method"],
+                 iterations: int = _LIVE["iterations"],
                  warm_start: bool = True, window_s: float = 2.0, threads: int | None = None,
                  nice: int = 0, on_result=None, on_error=None):
         self.reconstructor = reconstructor

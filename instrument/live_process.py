@@ -37,6 +37,7 @@ import numpy as np
 from diffuserlab.errors import kept_error
 from drivers.camera import Frame, FrameRing
 from recon.fft import check_threads
+from recon.options import LiveOptions
 from recon.validate import as_int, positive
 
 from .batch_process import _portable
@@ -56,6 +57,11 @@ from .shared_slot import SharedImageSlot
 __all__ = ["LiveReconstructionProcess"]
 
 log = logging.getLogger(__name__)
+
+#: The declared defaults of the method and iterations per frame
+#: (:class:`recon.options.LiveOptions`).
+_LIVE = LiveOptions.defaults()
+
 
 def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str, int, int],
            nice: int) -> None:
@@ -171,7 +177,8 @@ class LiveReconstructionProcess:
     """
 
     def __init__(self, psf: np.ndarray, *, reconstructor_options: dict | None = None,
-                 method: str = "wiener", iterations: int = 5, warm_start: bool = True,
+                 method: str = _LIVE["method"], iterations: int = _LIVE["iterations"],
+                 warm_start: bool = True,
                  window_s: float = 2.0, threads: int | None = 1, nice: int = 0):
         self.psf = np.asarray(psf)
         self.reconstructor_options = dict(reconstructor_options or {})

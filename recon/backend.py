@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import ReconInputError
-from .options import DEVICES
+from .options import DEVICES, ReconOptions
 
 __all__ = ["DEVICES", "NUMPY", "Backend", "GPU_INSTALL", "array_namespace", "check_memory",
            "device_of", "free_device_bytes", "is_numpy", "resolve_device", "to_device", "to_numpy",
@@ -139,7 +139,7 @@ def _torch_backend():
     return Backend("torch", xp, torch.device("cuda:0"), "cuda:0 (torch)")
 
 
-def resolve_device(device: str = "cpu") -> Backend:
+def resolve_device(device: str = ReconOptions.defaults()["device"]) -> Backend:
     """The backend of a ``--device`` / ``device=`` value.
 
     Parameters

@@ -28,6 +28,7 @@ import numpy as np
 
 from .backend import Backend, resolve_device, to_numpy
 from .errors import ReconInputError
+from .options import LiveOptions, ReconOptions
 from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
 from .preprocess.dark import DEFAULT_DARK_REGION, front_door_dark, resolve_dark
@@ -37,6 +38,11 @@ from .solvers.admm import AdmmPlan, AdmmState, run_admm
 from .solvers.penalty import AdmmPenalty, check_penalty_settings
 from .solvers.wiener import auto_regularization
 from .validate import as_int, nonneg_weight, positive
+
+#: The declared defaults: the live reconstructor's own (:class:`recon.options.LiveOptions`:
+#: method, iterations per frame) and the reconstruction's it shares
+#: (:class:`recon.options.ReconOptions`: binning, dark level, device).
+_LIVE, _D = LiveOptions.defaults(), ReconOptions.defaults()
 
 __all__ = ["LiveReconstructor", "LiveResult"]
 
@@ -164,9 +170,9 @@ class LiveReconstructor:
     dtype('float32')
     """
 
-    def __init__(self, psf: np.ndarray, *, bin_factor: int = 1, dark="auto",
+    def __init__(self, psf: np.ndarray, *, bin_factor: int = _D["bin_factor"], dark=_D["dark"],
                  tv: float | None = None, penalty: AdmmPenalty | None = None,
-                 regularization: float | None = None, device: str | Backend = "cpu"):
+                 regularization: float | None = None, device: str | Backend = _D["device"]):
         psf = as_array(psf, "PSF")
         validate_psf(psf)
         if psf.ndim != 2:
@@ -281,15 +287,16 @@ class LiveReconstructor:
                if self._device is None else self._device.wiener(b, self.regularization))
         return self._result(res, "wiener", 1, False, scale, t0)
 
-    def admm(self, raw: np.ndarray, iterations: int = 5, warm_start: bool = True
-             ) -> LiveResult:
+    def admm(self, raw: np.ndarray, iterations: int = _LIVE["iterations"],
+             warm_start: bool = True) -> LiveResult:
         """``iterations`` ADMM iterations on one frame, warm-started by default.
 
         Parameters
         ----------
         raw : ndarray, ``raw_shape``, any real dtype
         iterations : int
-            >= 1.
+            >= 1 (default the declared per-frame count,
+            :class:`recon.options.LiveOptions`' ``iterations``).
         warm_start : bool
             Start from the state left by the previous :meth:`admm` call (see the class
             notes); False, or no previous call, starts cold (x_0 = 0, the initial

@@ -408,7 +408,7 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
         with the generic kernel set (``recon.solvers.xp_admm.XpAdmmPlan``) and
         returns ``x`` on that device.
     iterations : int
-        Maximum iterations (default :data:`~recon.solvers.admm_loop.DEFAULT_ITERATIONS`).
+        Maximum iterations (default :data:`~recon.solvers.common.DEFAULT_ITERATIONS`).
     tv : float
         TV weight tau (default 0, as every solver's: no term unless asked); 0 removes
         the TV split.

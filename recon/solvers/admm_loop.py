@@ -36,17 +36,16 @@ from collections.abc import Callable
 from typing import NamedTuple, Protocol
 
 from ..errors import ReconInputError
-from .common import History, Monitor, SolveResult
+from .common import DEFAULT_ITERATIONS, History, Monitor, SolveResult
 from .penalty import AdmmPenalty, admm_result, check_penalty_settings
 
 __all__ = ["DEFAULT_ITERATIONS", "AdmmKernels", "AdmmPlanBase", "SplitStep", "admm_loop",
            "run_admm"]
 
-#: Default iterations of every ADMM entry point (:func:`recon.solvers.admm`,
-#: :func:`recon.volume.admm3d`, :func:`recon.spatial.spatial_admm`); their TV and l1
-#: weights default to 0 and their penalties to ``AdmmPenalty()``
-#: (:data:`~recon.solvers.penalty.DEFAULT_MU`, balanced).
-DEFAULT_ITERATIONS = 100
+# The ADMM entry points (:func:`recon.solvers.admm`, :func:`recon.volume.admm3d`,
+# :func:`recon.spatial.spatial_admm`) default to :data:`recon.solvers.common.DEFAULT_ITERATIONS`
+# (the declared one, re-exported here); their TV and l1 weights default to 0 and their
+# penalties to ``AdmmPenalty()`` (:data:`~recon.solvers.penalty.DEFAULT_MU`, balanced).
 
 
 class SplitStep(NamedTuple):

@@ -1,4 +1,5 @@
-"""Shared solver plumbing: the result/history record and divergence detection."""
+"""Shared solver plumbing: the result/history record, divergence detection and the
+iterative solvers' declared iteration default."""
 
 from __future__ import annotations
 
@@ -9,6 +10,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import DivergenceError, ReconInputError
+from ..options import ReconOptions
+
+#: Default iterations of every iterative solver (:func:`recon.solvers.admm`,
+#: :func:`recon.solvers.fista`, :func:`recon.solvers.gradient_descent`,
+#: :func:`recon.volume.admm3d`, :func:`recon.volume.fista3d`,
+#: :func:`recon.spatial.spatial_admm`, :func:`recon.spatial.fista_background`): the
+#: declared ``iterations`` of :class:`recon.options.ReconOptions`, what
+#: :func:`recon.reconstruct` and the commands default to (stated there, once).
+DEFAULT_ITERATIONS: int = ReconOptions.defaults()["iterations"]
 
 
 @dataclass

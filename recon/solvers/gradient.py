@@ -17,7 +17,13 @@ from ..errors import ReconInputError
 from ..operators import LinearOperator
 from ..validate import as_int, finite_float, nonneg_weight, positive
 from .accelerated import accelerated_loop
-from .common import Monitor, SolveResult, anisotropic_tv, check_measurement
+from .common import (
+    DEFAULT_ITERATIONS,
+    Monitor,
+    SolveResult,
+    anisotropic_tv,
+    check_measurement,
+)
 
 
 def prox_threshold(step: float, tau: float, ndim: int) -> float:
@@ -93,8 +99,8 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
                         "l1": l1, "iterations": iterations, "iterations_used": used})
 
 
-def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float = 0.0,
-          nonneg: bool = True, step_scale: float = 1.0, restart: bool = True,
+def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERATIONS,
+          tv: float = 0.0, nonneg: bool = True, step_scale: float = 1.0, restart: bool = True,
           lipschitz: float | None = None, l1: float = 0.0, stop=None,
           x0: np.ndarray | None = None) -> SolveResult:
     """FISTA (Kuo 2020, Algorithm 1; Beck & Teboulle 2009) with non-negativity and TV.
@@ -115,6 +121,8 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
         ``recon.solvers.xp_fista.accelerated_xp`` on its device (``op`` a
         :class:`~recon.operators.ConvolutionOperator`).
     iterations : int
+        Maximum iterations (default :data:`~recon.solvers.common.DEFAULT_ITERATIONS`, the
+        declared one).
     tv : float
         TV weight tau (default 0, as every solver's; 0 disables TV).
     nonneg : bool
@@ -163,7 +171,8 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = 100, tv: float
                         lipschitz, l1, stop, x0)
 
 
-def gradient_descent(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
+def gradient_descent(op: LinearOperator, b: np.ndarray, *,
+                     iterations: int = DEFAULT_ITERATIONS,
                      tv: float = 0.0, nonneg: bool = True, momentum: float = 0.9,
                      step_scale: float = 1.0, lipschitz: float | None = None,
                      l1: float = 0.0, stop=None) -> SolveResult:

@@ -28,6 +28,7 @@ from ..options import (  # ``--background``, ``method`` choices
     BACKGROUNDS,
     GRID_METHODS,
     ReconOptions,
+    l1_given,
 )
 from ..preprocess import box_bin, check_raw_signal, dark_argument
 from ..result import ReconInfo, Reconstruction
@@ -188,7 +189,7 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
 
 def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
                          k: int | None = _D["k"], background: str = _D["background"],
-                         l1=None, iterations: int = _D["iterations"], depths_mm=None,
+                         l1=_D["l1"], iterations: int = _D["iterations"], depths_mm=None,
                          bin_factor: int = _D["bin_factor"], dark=_D["dark"], support=None,
                          tolerance: float | None = None, prepared: tuple | None = None,
                          method: str = _D["method"], tv=_D["tv"],
@@ -208,7 +209,8 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
     background : {"estimate", "none"}
         Eq. 6.2's joint background, or none (``"none"`` with ``method="admm"``).
     l1 : float or "auto", optional
-        l1 weight in the scaled problem; default 1e-3 with FISTA (Eq. 6.2's sparse
+        l1 weight in the scaled problem; not given (the declared default,
+        :data:`recon.options.L1_DEFAULT`) or None: 1e-3 with FISTA (Eq. 6.2's sparse
         object), 0 with ADMM; ``"auto"`` (``method="admm"`` only) chooses it by hold-out
         cross-validation.
     iterations : int
@@ -279,6 +281,7 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
         raise ReconInputError(f"unknown method {method!r} for a PSF grid; choose "
                               f"{' or '.join(GRID_METHODS)}")
     iterations = as_int(iterations, "iterations", 1)
+    l1 = l1_given(l1)  # None: not given, the method's own default
     if method == "admm":
         if background != "none":
             raise ReconInputError("the joint background of Eq. 6.2 is estimated by FISTA; with "

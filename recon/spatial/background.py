@@ -25,7 +25,7 @@ import numpy as np
 
 from ..operators import LinearOperator
 from ..solvers.accelerated import accelerated_loop
-from ..solvers.common import Monitor, SolveResult, check_measurement
+from ..solvers.common import DEFAULT_ITERATIONS, Monitor, SolveResult, check_measurement
 from ..validate import as_int, nonneg_weight, positive
 from .joint import LowFrequency, dct_basis, joint_lipschitz, joint_result, low_frequency
 
@@ -49,7 +49,7 @@ def lowpass_background(b: np.ndarray, n_low: int = 5) -> np.ndarray:
     return np.maximum(LowFrequency(b.shape, n_low).project(b), 0.0)
 
 
-def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
+def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERATIONS,
                      l1: float = 0.0, n_low: int = 5, restart: bool = True,
                      lipschitz: float | None = None, estimate_background: bool = True,
                      stop=None) -> SolveResult:
@@ -64,6 +64,7 @@ def fista_background(op: LinearOperator, b: np.ndarray, *, iterations: int = 100
     b : ndarray, ``op.shape_out``, float32
         Measurement scaled to O(1) (divided by its maximum).
     iterations : int
+        Maximum iterations (default :data:`~recon.solvers.common.DEFAULT_ITERATIONS`).
     l1 : float
         tau, the l1 weight (>= 0; default 0, as every solver's: Eq. 6.2's sparse
         object takes e.g. 1e-3, what :func:`recon.reconstruct` uses for a grid).

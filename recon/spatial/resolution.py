@@ -19,6 +19,7 @@ import numpy as np
 from ..analysis import dip_between
 from ..analysis.distinguishability import DIP_CRITERION
 from ..errors import ReconInputError
+from ..solvers.common import DEFAULT_ITERATIONS
 from .background import fista_background
 
 __all__ = ["ray_traced_pair", "two_point_resolution"]
@@ -79,7 +80,7 @@ def ray_traced_pair(model, z_mm: float, shape_in, *, reference_mm=(0.0, 0.0),
 
 
 def two_point_resolution(op, field_px, separations_px, *, truth_op=None, truth_images=None,
-                         axis: str = "x", iterations: int = 200, l1: float = 1e-4,
+                         axis: str = "x", iterations: int = DEFAULT_ITERATIONS, l1: float = 1e-4,
                          noise_std: float = 0.01, seed: int = 0) -> list[dict]:
     """Two-point resolution of a 2D model at field positions (module docstring).
 

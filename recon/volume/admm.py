@@ -379,7 +379,7 @@ def admm3d(op: VolumeConvolutionOperator, b: np.ndarray, *,
         with the generic kernel set on its device
         (``recon.volume.xp_admm3d.XpVolumeAdmmPlan``).
     iterations : int
-        Maximum iterations (default :data:`~recon.solvers.admm_loop.DEFAULT_ITERATIONS`).
+        Maximum iterations (default :data:`~recon.solvers.common.DEFAULT_ITERATIONS`).
     tv : float
         3D TV weight (default 0, as every solver's; 0 or None removes the u split).
     l1 : float

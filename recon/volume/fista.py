@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import ReconInputError
 from ..operators import LinearOperator
 from ..solvers.accelerated import accelerated_loop
-from ..solvers.common import Monitor, SolveResult, check_measurement
+from ..solvers.common import DEFAULT_ITERATIONS, Monitor, SolveResult, check_measurement
 from ..solvers.gradient import prox_threshold
 from ..validate import as_int, nonneg_weight, positive
 from . import _kernels3d
@@ -75,7 +75,7 @@ def final_objective(op: LinearOperator, x: np.ndarray, b: np.ndarray, tv_w: floa
     return final, data_sq
 
 
-def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
+def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERATIONS,
             tv: float = 0.0, l1: float = 0.0, nonneg: bool = True,
             step: float | None = None, step_scale: float = 1.0, restart: bool = True,
             lipschitz: float | None = None, stop=None) -> SolveResult:
@@ -103,6 +103,8 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = 100,
         ``recon.volume.xp_fista3d.fista3d_xp`` on its device and returns ``x``
         there (``op`` a :class:`~recon.volume.operator.VolumeConvolutionOperator`).
     iterations : int
+        Maximum iterations (default :data:`~recon.solvers.common.DEFAULT_ITERATIONS`, the
+        declared one).
     tv : float
         3D TV weight (default 0, as every solver's; 0 or None disables TV).
     l1 : float

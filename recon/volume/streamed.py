@@ -31,7 +31,7 @@ from ..errors import ReconInputError
 from ..fft import fft_pair_seconds
 from ..operators import checked_sensor_weights, padded_grid
 from ..solvers.accelerated import fista_momentum
-from ..solvers.common import Monitor, SolveResult, check_measurement
+from ..solvers.common import DEFAULT_ITERATIONS, Monitor, SolveResult, check_measurement
 from ..solvers.gradient import prox_threshold
 from ..validate import as_int, nonneg_weight, positive
 from .operator import CHUNK_BYTES
@@ -228,7 +228,7 @@ class LocalSlabs:
         return out
 
 
-def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 100,
+def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = DEFAULT_ITERATIONS,
                tv: float = 0.0, l1: float = 0.0, nonneg: bool = True,
                step: float | None = None, step_scale: float = 1.0,
                lipschitz: float | None = None, restart: bool = True, stop=None,
@@ -254,6 +254,7 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = 1
     sensor_weights : ndarray, sensor shape, optional
         The slabs' sensor weights (the same on every slab).
     iterations : int
+        Maximum iterations (default :data:`~recon.solvers.common.DEFAULT_ITERATIONS`).
     tv, l1 : float
         3D TV and l1 weights (>= 0).
     nonneg : bool

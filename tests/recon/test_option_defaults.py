@@ -1,0 +1,159 @@
+"""Each reconstruction option's default is stated once, in its declaration.
+
+:class:`recon.options.ReconOptions` (and :class:`recon.options.LiveOptions` for the
+live reconstructor) declare every parameter's default; the layers below the front
+door (the kinds' paths, the automatic choices, the solvers, the live reconstructor and
+the live workers of ``instrument``) take theirs from there. This scan finds every
+function and method of those layers with a parameter named after a declared option and
+checks that its default *is* the declared one (by value), and for the counts and
+choices that had drifted (``iterations`` 200 at the front door, 100 in the solvers, 5
+restated in four live signatures) that the default names the declaration instead of
+restating a literal.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import inspect
+import pkgutil
+import textwrap
+
+import recon
+from recon.options import LiveOptions, ReconOptions
+
+#: Packages and modules of recon that are no reconstruction layer (hologram design,
+#: optics models, analyses and studies, simulated measurements): their ``iterations``,
+#: ``seed`` or ``model`` are their own quantities.
+NOT_RECONSTRUCTION = ("recon.cgh", "recon.optics", "recon.analysis", "recon.benchmarks",
+                      "recon.simulate", "recon.scenes", "recon.sample", "recon.priors")
+#: The live layers: their method and iterations per frame are LiveOptions'.
+LIVE_MODULES = ("recon.live", "recon.xp_live", "instrument.live", "instrument.live_process")
+
+#: (function's qualified name, parameter): why its default is not the declared one.
+OWN_DEFAULTS = {
+    ("lipschitz", "iterations"): "power iterations of ||A||^2, not a solve's",
+    ("measure_models", "iterations"): "the model choice's own scoring solve (a study)",
+    ("measure_models", "l1"): "the model choice's own scoring solve (a study)",
+    ("blind_calibration", "l1"): "the blind calibration's sparse scene, not the image's",
+    ("two_point_resolution", "l1"): "a resolution study's fixed weight",
+    ("prepare_pair", "dark"): "None: the resolved spelling of the estimate (below the "
+                              "front door's 'auto')",
+    ("check_psf_signal", "dark"): "as prepare_pair",
+    ("set_method", "iterations"): "None: the live worker keeps its current count",
+    ("LiveReconstructor.__init__", "tv"): "None: a fixed weight, recon.planar.DEFAULT_TV's "
+                                          "(the live solve chooses none)",
+}
+#: A solver takes fixed weights (0: no such term) and the built-in TV split (None); the
+#: automatic choices ("auto", the declared default) are made above it.
+SOLVER_SPELLINGS = {"tv": (0.0,), "l1": (0.0,), "prior": (None,)}
+#: The options whose defaults had been restated as literals: they must name the
+#: declaration (``_D["iterations"]``, ``DEFAULT_ITERATIONS``), not repeat its value.
+NAMED = ("iterations", "method", "device")
+
+
+def _modules():
+    names = [m.name for m in pkgutil.walk_packages(recon.__path__, "recon.")]
+    names += ["instrument.live", "instrument.live_process"]
+    for name in sorted(names):
+        if name.startswith(NOT_RECONSTRUCTION) or name.rsplit(".", 1)[-1].startswith("_"):
+            continue
+        yield importlib.import_module(name)
+
+
+def _functions(module):
+    """Every function and method defined in ``module`` (qualname, object)."""
+    for name, obj in vars(module).items():
+        if inspect.isfunction(obj) and obj.__module__ == module.__name__:
+            yield name, obj
+        elif inspect.isclass(obj) and obj.__module__ == module.__name__:
+            for attr, member in vars(obj).items():
+                if isinstance(member, staticmethod | classmethod):
+                    member = member.__func__
+                if inspect.isfunction(member):
+                    yield f"{name}.{attr}", member
+
+
+def _declared(module_name: str) -> dict:
+    defaults = dict(ReconOptions.defaults())
+    if module_name in LIVE_MODULES:
+        defaults.update(LiveOptions.defaults())
+    return defaults
+
+
+def _literal_defaults(func) -> dict:
+    """``{parameter: True}`` for each default written as a literal constant."""
+    try:
+        source = textwrap.dedent(inspect.getsource(func))
+    except (OSError, TypeError):
+        return {}
+    node = ast.parse(source).body[0]
+    args = node.args
+    positional = args.posonlyargs + args.args
+    pairs = list(zip(positional[len(positional) - len(args.defaults):], args.defaults, strict=True))
+    pairs += [(a, d) for a, d in zip(args.kwonlyargs, args.kw_defaults, strict=True)
+              if d is not None]
+    return {a.arg: isinstance(d, ast.Constant) for a, d in pairs}
+
+
+def _offences():
+    wrong, restated = [], []
+    for module in _modules():
+        declared = _declared(module.__name__)
+        for qualname, func in _functions(module):
+            if func.__code__.co_filename == "<string>":
+                continue  # a dataclass's __init__: record fields, not parameters
+            params = inspect.signature(func).parameters
+            literal = None
+            for name, param in params.items():
+                if name not in declared or param.default is inspect.Parameter.empty:
+                    continue
+                short = qualname.rsplit(".", 1)[-1]
+                if (short, name) in OWN_DEFAULTS or (qualname, name) in OWN_DEFAULTS:
+                    continue
+                value, want = param.default, declared[name]
+                where = f"{module.__name__}.{qualname}({name}={value!r})"
+                if not (value == want or value in SOLVER_SPELLINGS.get(name, ())):
+                    wrong.append(f"{where}: declared {want!r}")
+                    continue
+                if name in NAMED:
+                    literal = _literal_defaults(func) if literal is None else literal
+                    if literal.get(name):
+                        restated.append(where)
+    return wrong, restated
+
+
+def test_every_layer_defaults_to_the_declared_value():
+    """A parameter named after a declared option defaults to the declaration's value
+    in every reconstruction layer (solvers: 200 iterations like the front door, not
+    100), except the table of quantities that only share the name."""
+    wrong, _ = _offences()
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_counts_and_choices_name_their_declaration():
+    """``iterations``, ``method`` and ``device`` defaults are the
+    declared objects, not literals restating them (the live reconstructor's 5
+    iterations per frame is LiveOptions', in recon.live and instrument's workers)."""
+    _, restated = _offences()
+    assert not restated, "\n".join(restated)
+
+
+def test_the_scan_sees_the_layers_it_guards():
+    """The scan reaches the solvers, the kinds' paths and the live workers (a test
+    that found no function would pass whatever the defaults)."""
+    seen = {f"{m.__name__}.{q}" for m in _modules() for q, _ in _functions(m)}
+    for name in ("recon.solvers.gradient.fista", "recon.solvers.admm.admm",
+                 "recon.volume.fista.fista3d", "recon.planar.reconstruct_image",
+                 "recon.live.LiveReconstructor.admm",
+                 "instrument.live.LiveReconstruction.__init__",
+                 "instrument.live_process.LiveReconstructionProcess.__init__"):
+        assert name in seen, name
+
+
+def test_the_solvers_shared_default_is_the_declaration():
+    """The iterative solvers' one default (their signatures name it) is the declared
+    ``iterations``: one number to change."""
+    from recon.solvers.common import DEFAULT_ITERATIONS
+
+    assert DEFAULT_ITERATIONS == ReconOptions.defaults()["iterations"]
