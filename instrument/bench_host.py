@@ -13,11 +13,9 @@ channels, so the one code path is tested both ways.
 
 What crosses between the processes:
 
-* device calls: :meth:`BenchHost.get`, :meth:`BenchHost.set` and
-  :meth:`BenchHost.call` on an object named by its *path* from the bench
-  (``("camera",)``, ``("devices", "source_stage")``); plain data goes back as values,
-  any other object as a :class:`Ref` (the client makes it a proxy), a method as
-  :data:`METHOD`.
+* commands on the devices by their ids, plain data in and out, and the events that
+  say what changed: the host is a :class:`~instrument.bench_service.BenchService`. No
+  device object leaves the host.
 * frames: the stream's frames (and a recording's) go into a
   :class:`~instrument.shared_slot.SharedImageSlot` (newest only) and a byte down a pipe
   wakes the reader (:class:`FrameWaker`); each carries its metadata and the ring's
@@ -31,30 +29,24 @@ What crosses between the processes:
   a thread of the host with a :class:`JobContext` (the bench, progress, pause/abort,
   stop and cancel events); :meth:`BenchHost.job_control` pauses, resumes, aborts, stops
   or cancels it.
-* the typed commands and the pushed device events of
-  :class:`~instrument.bench_service.BenchService`, which the host is.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import logging
 import os
 import threading
 import time
 from collections.abc import Callable, Mapping
-from pathlib import PurePath
 from typing import Any
-
-import numpy as np
 
 from .bench_service import BenchService, BenchServiceError, EventLog
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
 
-__all__ = ["FRAME_META", "JOBS_CLOSE_TIMEOUT_S", "METHOD", "BenchHost", "BenchHostError",
-           "EventChannel", "FrameWaker", "JobContext", "Ref", "is_plain"]
+__all__ = ["FRAME_META", "JOBS_CLOSE_TIMEOUT_S", "BenchHost", "BenchHostError",
+           "EventChannel", "FrameWaker", "JobContext"]
 
 log = logging.getLogger(__name__)
 
@@ -62,68 +54,13 @@ log = logging.getLogger(__name__)
 FRAME_META = ("index", "device_timestamp_s", "host_timestamp_s", "exposure_s", "gain",
               "saturated_pixels", "acquired", "read", "skipped", "dropped", "bit_depth")
 
-#: What :meth:`BenchHost.get` returns for a method (the client calls it by name).
-METHOD = "<method>"
-
 #: Longest wait, s, for the jobs to end when the bench closes (a recording writes what
 #: it has queued and closes its run first).
 JOBS_CLOSE_TIMEOUT_S = 60.0
 
 
 class BenchHostError(BenchServiceError):
-    """A call the bench host cannot serve: no bench open, an unknown path or job."""
-
-
-@dataclasses.dataclass(frozen=True)
-class Ref:
-    """An object of the host that stays there: ``path`` from the bench, the ``module``
-    and ``qualname`` of its class (the client reads class-level declarations, such as
-    a driver's ``SETTINGS``, from its own import of the class)."""
-
-    path: tuple
-    module: str
-    qualname: str
-
-
-_PLAIN = (type(None), bool, int, float, complex, str, bytes, np.ndarray, np.generic,
-          PurePath, range, slice)
-
-
-def is_plain(value: Any, depth: int = 0) -> bool:
-    """Whether ``value`` is data that may be copied to another process (numbers,
-    strings, arrays, paths, and lists, tuples, sets and dicts of those, dataclass
-    instances and exceptions), not an object with state of its own (a device)."""
-    if isinstance(value, _PLAIN) or isinstance(value, BaseException):
-        return True
-    if depth > 8:
-        return False
-    if isinstance(value, list | tuple | set | frozenset):
-        return all(is_plain(v, depth + 1) for v in value)
-    if isinstance(value, Mapping):
-        return all(is_plain(k, depth + 1) and is_plain(v, depth + 1)
-                   for k, v in value.items())
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return all(is_plain(getattr(value, f.name), depth + 1)
-                   for f in dataclasses.fields(value))
-    return False
-
-
-def _export(value: Any, path: tuple, devices: Mapping | None = None) -> Any:
-    """``value`` as it goes to the client: plain data as is, a mapping or sequence of
-    objects item by item, any other object as a :class:`Ref` at ``path`` (a device of
-    ``devices`` at ``("devices", id)`` however it was reached, so one device is one
-    proxy)."""
-    if is_plain(value):
-        return value
-    if isinstance(value, Mapping):
-        return {k: _export(v, (*path, k), devices) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return type(value)(_export(v, (*path, i), devices) for i, v in enumerate(value))
-    device_id = getattr(value, "device_id", None)
-    if devices is not None and isinstance(device_id, str) and devices.get(device_id) is value:
-        path = ("devices", device_id)
-    cls = type(value)
-    return Ref(tuple(path), cls.__module__, cls.__qualname__)
+    """A call the bench host cannot serve: no bench open, an unknown job."""
 
 
 class JobContext:
@@ -212,46 +149,11 @@ class BenchHost(BenchService):
         self.device_events = EventLog()
         self._watcher: tuple[threading.Thread, threading.Event] | None = None
 
-    # -- objects of the bench -------------------------------------------------------
-    def _resolve(self, path) -> Any:
-        if self.bench is None:
-            raise BenchHostError("no bench is open; press Connect first")
-        obj = self.bench
-        for step in path:
-            try:
-                obj = obj[step] if isinstance(obj, Mapping | list | tuple) else getattr(obj, step)
-            except (KeyError, IndexError, AttributeError, TypeError):
-                raise BenchHostError(f"the bench has no {'.'.join(map(str, path))}") from None
-        return obj
-
-    def get(self, path, name: str) -> Any:
-        """Attribute ``name`` of the object at ``path``: a value, a :class:`Ref`, or
-        :data:`METHOD` for a method."""
-        value = getattr(self._resolve(path), name)
-        if callable(value) and not isinstance(value, type) and not is_plain(value):
-            return METHOD
-        return _export(value, (*path, name), self.bench.devices)
-
-    def set(self, path, name: str, value: Any) -> None:
-        """Set attribute ``name`` of the object at ``path``."""
-        setattr(self._resolve(path), name, value)
-
-    def call(self, path, name: str, args=(), kwargs=None) -> Any:
-        """Call method ``name`` of the object at ``path``; the result exported (an
-        object a method returns other than a device of the bench is addressed by the
-        call's path, to read once: calling the method again makes another)."""
-        result = getattr(self._resolve(path), name)(*args, **(kwargs or {}))
-        devices = self.bench.devices if self.bench is not None else None
-        return _export(result, (*path, name, "<result>"), devices)
-
-    def describe(self) -> dict:
-        """``{"bench": Ref, "devices": {id: Ref}, "virtual": bool}`` of the open bench
-        (None: none)."""
+    def describe(self) -> dict | None:
+        """``{"devices": [ids], "virtual": bool}`` of the open bench (None: none)."""
         if self.bench is None:
             return None
-        return {"bench": _export(self.bench, ()),
-                "devices": _export(dict(self.bench.devices), ("devices",), self.bench.devices),
-                "virtual": hasattr(self.bench, "set_scene")}
+        return {"devices": list(self.bench.devices), "virtual": self.is_virtual()}
 
     def set_closing(self, closing: bool) -> None:
         self.closing = bool(closing)
@@ -314,7 +216,7 @@ class BenchHost(BenchService):
         with self._stream_lock:
             if self.streaming:
                 return
-            cam = self._resolve(("camera",))
+            cam = self._camera()
             ring = FrameRing(ring_frames)
             cam.start_stream(ring)
             stop = threading.Event()

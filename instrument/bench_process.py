@@ -8,12 +8,15 @@ same either way:
 
 * calls go over a small pool of connections (``_PooledHost``), not one per calling
   thread.
-* :attr:`BenchClient.bench` - the bench as the caller uses it: in a child process a
-  :class:`RemoteObject` (attribute reads, writes and method calls go to the host; a
-  device comes back as another :class:`RemoteObject`, plain data as a copy), in this
-  process the bench itself.
-* :meth:`BenchClient.run_job` - a job run by the host (``module:function(ctx,
-  **kwargs)``, :class:`~instrument.bench_host.JobContext`), its progress handed to
+* the bench's typed commands (:class:`~instrument.bench_service.BenchService`:
+  :meth:`BenchClient.devices`, :meth:`BenchClient.apply_settings`,
+  :meth:`BenchClient.move`, ...), by device id with plain data; no device object comes
+  here.
+* ``on_event(event)`` for each :class:`~instrument.bench_service.BenchEvent` (settings,
+  positions, statuses, the bench opened or closed), long-polled from the host.
+* :meth:`BenchClient.run_job` - a job run by the host by its name
+  (:data:`instrument.bench_jobs.JOBS` and the ``jobs`` given to the client,
+  :class:`~instrument.bench_host.JobContext`), its progress handed to
   ``report``; a :class:`~instrument.runner.RunControl`, a stop and a cancel event of the
   caller are forwarded while it runs; returns its result or raises its error.
 * frames: ``on_frame(frame, counters)`` on a reader thread for every frame the host
@@ -30,7 +33,6 @@ held) and exits.
 
 from __future__ import annotations
 
-import importlib
 import logging
 import multiprocessing
 import os
@@ -42,19 +44,11 @@ from collections.abc import Callable, Mapping
 from multiprocessing.managers import BaseManager
 from typing import Any
 
-from .bench_host import (
-    FRAME_META,
-    METHOD,
-    BenchHost,
-    BenchHostError,
-    EventChannel,
-    FrameWaker,
-    Ref,
-)
+from .bench_host import FRAME_META, BenchHost, BenchHostError, EventChannel, FrameWaker
 from .bench_service import BenchEvent, CameraFormat, DeviceInfo
 from .shared_slot import SharedImageSlot
 
-__all__ = ["ENDING_SIGNALS", "BenchClient", "RemoteObject", "device_class"]
+__all__ = ["ENDING_SIGNALS", "BenchClient"]
 
 log = logging.getLogger(__name__)
 
@@ -166,98 +160,6 @@ class _PooledHost:
 
 
 _Manager.register("BenchHost", _the_host)
-
-
-def _imported(host, value: Any) -> Any:
-    """``value`` from the host with each :class:`Ref` made a :class:`RemoteObject`."""
-    if isinstance(value, Ref):
-        return RemoteObject(host, value)
-    if isinstance(value, dict):
-        return {k: _imported(host, v) for k, v in value.items()}
-    if isinstance(value, list | tuple) and any(isinstance(v, Ref | dict) for v in value):
-        return type(value)(_imported(host, v) for v in value)
-    return value
-
-
-def _all_objects(value: Any) -> bool:
-    """Whether ``value`` is a :class:`RemoteObject` or a non-empty dict of them."""
-    if isinstance(value, RemoteObject):
-        return True
-    return isinstance(value, dict) and bool(value) and all(
-        isinstance(v, RemoteObject) for v in value.values())
-
-
-def _class_of(ref: Ref) -> type | None:
-    try:
-        obj = importlib.import_module(ref.module)
-        for part in ref.qualname.split("."):
-            obj = getattr(obj, part)
-    except (ImportError, AttributeError):
-        return None
-    return obj if isinstance(obj, type) else None
-
-
-class RemoteObject:
-    """An object of the bench process, used as if it were here.
-
-    Reading an attribute asks the host (:meth:`BenchHost.get`): plain data comes back
-    as a copy, a method as a function that calls it there, another object as another
-    :class:`RemoteObject` (kept: ``bench.camera is bench.camera``, and read once: the
-    objects of a bench, addressed by their path, stay while it is open); setting an
-    attribute sets it there. ``remote_class`` is the
-    object's class as imported here (class-level declarations, such as a driver's
-    ``SETTINGS``, are read from it), ``remote_path`` its path from the bench.
-    """
-
-    __slots__ = ("_host", "remote_path", "remote_class", "_ref", "_objects")
-
-    def __init__(self, host, ref: Ref) -> None:
-        object.__setattr__(self, "_host", host)
-        object.__setattr__(self, "_objects", {})
-        object.__setattr__(self, "_ref", ref)
-        object.__setattr__(self, "remote_path", tuple(ref.path))
-        object.__setattr__(self, "remote_class", _class_of(ref))
-
-    def __getattr__(self, name: str) -> Any:
-        if name.startswith("_"):
-            raise AttributeError(name)
-        if name in self._objects:
-            return self._objects[name]
-        value = self._host.get(self.remote_path, name)
-        if isinstance(value, str) and value == METHOD:
-            host, path = self._host, self.remote_path
-
-            def method(*args, **kwargs):
-                return _imported(host, host.call(path, name, args, kwargs))
-
-            method.__name__ = name
-            return method
-        value = _imported(self._host, value)
-        if _all_objects(value):  # the bench's structure: one proxy per object, kept
-            self._objects[name] = value
-        return value
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name in RemoteObject.__slots__:
-            raise AttributeError(f"{name} of a remote object cannot be set")
-        self._host.set(self.remote_path, name, value)
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, RemoteObject) and other.remote_path == self.remote_path
-
-    def __hash__(self) -> int:
-        return hash(self.remote_path)
-
-    def __repr__(self) -> str:
-        return (f"<remote {self._ref.qualname} at bench."
-                f"{'.'.join(map(str, self.remote_path)) or '(bench)'}>")
-
-
-def device_class(device) -> type:
-    """The class of ``device``: its driver class, also for a :class:`RemoteObject`."""
-    if isinstance(device, RemoteObject):
-        return device.remote_class or RemoteObject
-    return type(device)
 
 
 class BenchClient:
@@ -449,15 +351,7 @@ class BenchClient:
                 except Exception:  # noqa: BLE001 (a subscriber's fault: logged, not fatal)
                     log.exception("bench event %s: the subscriber failed", event.kind)
 
-    # -- the bench -------------------------------------------------------------------
-    @property
-    def bench(self):
-        """The open bench (None before :meth:`run_job` opened one)."""
-        if self.in_process:
-            return self.host.bench
-        described = self.host.describe()
-        return None if described is None else RemoteObject(self.host, described["bench"])
-
+    # -- the bench process ---------------------------------------------------------
     def alive(self) -> bool:
         """Whether the host can still answer (its process runs)."""
         if self.in_process:
