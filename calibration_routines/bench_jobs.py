@@ -5,7 +5,7 @@ Jobs of :class:`instrument.bench_host.BenchHost` (``function(ctx, **params)``, s
 its resumption and the mask alignment
 (:class:`calibration_routines.mask_alignment.MaskAligner`). The client that starts
 the bench process hands them over by name (:data:`JOBS`, ``BenchClient(jobs=JOBS)``;
-the window's :class:`gui.session.Session` does), since the instrument layer does not
+the window's ``gui.session.Session`` does), since the instrument layer does not
 import this package.
 """
 
@@ -33,7 +33,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
     bench : instrument.bench.Bench
         Open.
     routine : str
-        One of :data:`gui.jobs.ROUTINES`.
+        One of ``gui.jobs.ROUTINES``.
     values : dict
         ``{option flag: text}`` for the options the operator set (empty text: the
         default); flags map to True/False.
@@ -80,8 +80,8 @@ def run_plan(ctx, *, routine: str, values: dict[str, Any], path: str,
     -------
     instrument.runner.RunResult
     """
-    from instrument.output_safety import check_outputs
     from instrument.runner import Runner
+    from instrument.writer.guards import check_outputs
 
     plan = build_plan(ctx.bench, routine, values)
     points = plan.points()
@@ -118,7 +118,7 @@ def run_alignment(ctx, *, out: str, mask_seed: str = "", frames: int = 3,
     """The mask alignment (:class:`calibration_routines.mask_alignment.MaskAligner`) on
     the host's bench, recorded in ``out``; progress: ``{"kind": "event", ...}`` per
     step message and ``{"kind": "reading", ...}`` per spot reading. See
-    :func:`gui.jobs.run_alignment`."""
+    ``gui.jobs.run_alignment``."""
     from instrument.plan import PlanError
     from recon.optics.holo_display import MaskModel
 
