@@ -33,11 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.auto import solve_channel
+from recon.auto import ChannelProblem, solve_channel
 from recon.benchmarks import fmt, format_table, write_json
 from recon.errors import DivergenceError, ReconInputError
 from recon.fft import fft_pair_seconds
 from recon.metrics import psnr, ssim
+from recon.options import ReconOptions
 from recon.solvers import admm
 
 from .auto_scenes import render_case
@@ -102,9 +103,10 @@ def _auto(case, cfg: dict, seconds: float | None = None, fft_pair_s: float | Non
     scale = float(np.max(np.abs(case.raw_e)))
     t0, c0 = time.perf_counter(), time.process_time()
     try:
-        res, rec = solve_channel(case.op, case.b, case.raw_e, scale, method="auto",
-                                 iterations=cfg["iterations"], tv="auto", l1=0.0,
-                                 seconds=seconds, fft_pair_s=fft_pair_s)
+        res, rec = solve_channel(
+            ChannelProblem(case.op, case.b, case.raw_e, scale),
+            ReconOptions.from_defaults(iterations=cfg["iterations"], tv="auto", l1=0.0,
+                                       seconds=seconds), fft_pair_s=fft_pair_s)
     except (DivergenceError, ReconInputError) as exc:
         res, rec = None, {"error": str(exc)}
     dt, cpu = time.perf_counter() - t0, time.process_time() - c0

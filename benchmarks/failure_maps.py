@@ -23,10 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.auto import solve_channel
+from recon.auto import ChannelProblem, solve_channel
 from recon.benchmarks import DEFAULT_WEIGHTS, METHODS, fmt, save_figure, solve, write_json
 from recon.errors import DivergenceError, ReconInputError
 from recon.metrics import psnr
+from recon.options import ReconOptions
 
 from .auto_scenes import render_case
 
@@ -53,8 +54,9 @@ def _cell(case, weights_mask, methods, iterations) -> dict:
         try:
             if m == "auto":
                 scale = float(np.max(np.abs(case.raw_e)))
-                res, rec = solve_channel(op, b, case.raw_e, scale, method="auto",
-                                         iterations=iterations, tv="auto", l1=0.0)
+                res, rec = solve_channel(
+                    ChannelProblem(op, b, case.raw_e, scale),
+                    ReconOptions.from_defaults(iterations=iterations, tv="auto", l1=0.0))
                 extra = {"tv": rec["tv"], "chose": rec["method"]["method"]}
             else:
                 res, extra = solve(m, op, b, iterations, DEFAULT_WEIGHTS[m]), {}

@@ -27,11 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.auto import noise_energy_of, prior_path, solve_channel
+from recon.auto import ChannelProblem, noise_energy_of, prior_path, solve_channel
 from recon.auto.prior import choose_prior
 from recon.benchmarks import fmt, format_table, write_json
 from recon.errors import DivergenceError
 from recon.metrics import psnr, ssim
+from recon.options import ReconOptions
 from recon.priors import PRIORS
 from recon.solvers import admm
 
@@ -91,7 +92,8 @@ def run_scene(name: str, cfg: dict, seed: int = 0) -> dict:
     it = cfg["iterations"]
     scale = float(np.max(np.abs(case.raw_e)))
     (default, _), t_default, _ = timed(lambda: solve_channel(
-        case.op, case.b, case.raw_e, scale, method="admm", iterations=it, tv="auto", l1=0.0))
+        ChannelProblem(case.op, case.b, case.raw_e, scale),
+        ReconOptions.from_defaults(method="admm", iterations=it, tv="auto", l1=0.0)))
     t0 = time.perf_counter()
     _, energy = noise_energy_of(case.op, case.raw_e, scale)
     path = prior_path(case.op, case.b, iterations=it, noise_energy=energy)

@@ -286,6 +286,22 @@ class Options:
         return type(self)(**{**self._values, **changes})
 
     @classmethod
+    def from_defaults(cls, **changes: Any):
+        """The declared defaults with ``changes``: the options a library call below the
+        front door starts from (values checked where they are used, not validated
+        here, as :meth:`replace`).
+
+        Raises
+        ------
+        TypeError
+            A name that is no field.
+        """
+        unknown = set(changes) - set(cls._fields)
+        if unknown:
+            raise TypeError(f"{cls.__name__} has no field {sorted(unknown)}")
+        return cls(**{**cls.defaults(), **changes})
+
+    @classmethod
     def _model(cls):
         """The pydantic model that validates (made on first use)."""
         if cls.__dict__.get("_pydantic") is None:

@@ -237,9 +237,12 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
     if kind == "image":
         from .planar import reconstruct_image
 
-        return reconstruct_image(model, raw, method, iterations=iterations, tv=tv,
-                                 l1=0.0 if l1 is None else l1, bin_factor=bin_factor,
-                                 dark=_image_dark(dark), device=device, **options)
+        declared = {k: v for k, v in options.items() if k in _D}
+        chosen = ReconOptions.from_defaults(
+            method=method, iterations=iterations, tv=tv, l1=0.0 if l1 is None else l1,
+            bin_factor=bin_factor, dark=_image_dark(dark), device=device, **declared)
+        return reconstruct_image(model, raw, chosen,
+                                 **{k: v for k, v in options.items() if k not in _D})
     if kind == "volume":
         from .volume.api import reconstruct_stack
 

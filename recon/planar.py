@@ -15,12 +15,12 @@ import numpy as np
 
 from diffuserlab.jsonio import jsonable
 
-from .auto import AUTO, parse_weight, solve_channel
+from .auto import AUTO, ChannelProblem, parse_weight, solve_channel
 from .backend import resolve_device
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
-from .options import ReconOptions
+from .options import ReconOptions, l1_given
 from .preprocess import (
     check_measured_fraction,
     check_raw_signal,
@@ -32,9 +32,6 @@ from .result import ReconInfo, Reconstruction
 from .solvers import SOLVERS, SolveResult
 from .solvers.device import device_metrics, device_solvers, fft_pair_seconds_on
 from .validate import as_array, as_int, finite_float
-
-#: The declared defaults (:class:`recon.options.ReconOptions`), shared with the front door.
-_D = ReconOptions.defaults()
 
 #: Default TV weight per method, absolute in the scaled problem (unit-sum PSF,
 #: measurement divided by its maximum); from :data:`recon.solvers.SOLVERS`.
@@ -189,29 +186,10 @@ def solve(
     return spec.solve(op, b, iterations=iterations, tv=tv, **options)
 
 
-def reconstruct_image(
-    psf: np.ndarray,
-    raw: np.ndarray,
-    method: str = _D["method"],
-    *,
-    iterations: int = _D["iterations"],
-    tv: float | str | None = _D["tv"],
-    l1: float | str = 0.0,
-    seconds: float | None = _D["seconds"],
-    auto_stop: bool = True,
-    bin_factor: int = _D["bin_factor"],
-    dark=_D["dark"],
-    bayer=None,
-    erase: float = _D["erase"],
-    erasure_mask: np.ndarray | None = None,
-    seed: int = _D["seed"],
-    preprocess: bool = True,
-    full_scale: float | None = _D["full_scale"],
-    allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
-    device: str = _D["device"],
-    prior: str = _D["prior"],
-    **solver_options,
-) -> Reconstruction:
+def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | None = None, *,
+                      auto_stop: bool = True, bayer=None,
+                      erasure_mask: np.ndarray | None = None, preprocess: bool = True,
+                      **solver_options) -> Reconstruction:
     """Reconstruct an image from one PSF: :func:`recon.reconstruct` for a PSF array.
 
     Parameters
@@ -221,32 +199,29 @@ def reconstruct_image(
         One PSF for all channels, or one per channel.
     raw : ndarray, (rows, cols) or (rows, cols, C)
         Raw measurement (sensor counts).
-    method, iterations, tv, l1, bin_factor, dark, allow_mixed_ranges, device, prior
-        As :func:`recon.reconstruct` (``dark`` already checked there:
-        ``"auto"``, ``"none"``, a number or an array).
-    seconds : float, optional
-        Time budget of each channel's solve, for ``method="auto"`` (Wiener when it
-        affords too few iterations).
+    options : recon.options.ReconOptions, optional
+        The reconstruction's options, as :func:`recon.reconstruct` passes them
+        (checked there; ``dark`` then ``"auto"``, ``"none"``, a number or an array);
+        default the declared ones (:meth:`~diffuserlab.options.Options.from_defaults`).
+        This path reads ``method``, ``iterations``, ``tv``, ``l1``, ``bin_factor``,
+        ``dark``, ``allow_mixed_ranges``, ``device``, ``prior``, ``seconds`` (the time
+        budget of each channel's solve, for ``method="auto"``: Wiener when it affords
+        too few iterations), ``erase`` (the fraction of sensor pixels erased at
+        random, compressed sensing, Eq. 3.10), ``seed`` (of that mask) and
+        ``full_scale``.
     auto_stop : bool
         Automatic stopping of a fixed-weight solve (default); False runs exactly
         ``iterations`` (the automatic weight always stops by itself).
     bayer : str, optional
         Bayer pattern of a raw mosaic (:func:`recon.preprocess.prepare_pair`).
-    erase : float
-        Fraction of sensor pixels to erase at random (compressed sensing, Eq. 3.10).
     erasure_mask : ndarray, optional
         Explicit mask at the binned sensor shape (1 measured, 0 erased); overrides
         ``erase``.
-    seed : int
-        Seed of the random erasure mask.
     preprocess : bool
         False when psf and raw are already dark-subtracted float arrays of equal
         shape (``dark`` and ``bin_factor`` then unused); they are still checked like
         :func:`recon.preprocess.validate_psf` and
         :func:`recon.preprocess.validate_measurement` do.
-    full_scale : float, optional
-        Saturation level of the input when below the dtype maximum (e.g. 65520 for
-        12-bit data shifted into uint16); used for the saturation warning.
     **solver_options
         Passed to the solver (e.g. ``step_scale``, ``penalty``, ``regularization``);
         :func:`solver_options` lists what a method takes.
@@ -269,24 +244,28 @@ def reconstruct_image(
     DivergenceError
         The solver diverged (history and last good estimate attached).
     """
+    o = ReconOptions.from_defaults() if options is None else options
+    method, tv, bin_factor, dark = o.method, o.tv, o.bin_factor, o.dark
+    full_scale = o.full_scale
+    l1 = l1_given(o.l1)
     if method != AUTO and method not in SOLVERS:
         raise ReconInputError(f"unknown method {method!r}; choose one of auto, "
                               f"{', '.join(SOLVERS)}")
-    iterations = as_int(iterations, "iterations", 1)
+    iterations = as_int(o.iterations, "iterations", 1)
     bin_factor = as_int(bin_factor, "bin_factor", 1)
-    seed = as_int(seed, "seed", 0)
-    erase = finite_float(erase, "erase")
+    seed = as_int(o.seed, "seed", 0)
+    erase = finite_float(o.erase, "erase")
     if not 0.0 <= erase < 1.0:  # the message of PixelErasure.random
         raise ReconInputError(f"erased fraction {erase} is outside [0, 1); use e.g. 0.8 to "
                               "erase 80 % of the pixels")
     check_measured_fraction(erase)
-    tv, l1 = parse_weight(tv, "tv"), parse_weight(l1, "l1")
+    tv, l1 = parse_weight(tv, "tv"), parse_weight(0.0 if l1 is None else l1, "l1")
     if method == AUTO and solver_options:
         raise ReconInputError(f"method 'auto' takes no solver options ({', '.join(solver_options)}"
                               "); name a method to pass them")
     if method != AUTO:
         check_options(method, solver_options)
-    backend = resolve_device(device)
+    backend = resolve_device(o.device)
     on_device = ({} if backend.is_numpy else
                  {"solvers": device_solvers(backend), "backend": backend})
     fft_s = None
@@ -295,7 +274,7 @@ def reconstruct_image(
         prepared = prepare_pair(  # its dark=None is the estimate from the PSF's corner
             psf, raw, bin_factor=bin_factor, dark=None if _is(dark, "auto") else dark,
             bayer=bayer, full_scale=full_scale,
-            allow_mixed_ranges=allow_mixed_ranges,
+            allow_mixed_ranges=o.allow_mixed_ranges,
         )
         p, b, info = prepared.psf, prepared.raw, dict(prepared.info)
     else:
@@ -323,18 +302,19 @@ def reconstruct_image(
     raw_scale = float(np.max(np.abs(b)))
     if not raw_scale > 0:
         raise ReconInputError("measurement is zero after dark subtraction; check the exposure")
+    # the options as checked here (the weights parsed), what each channel's solve reads
+    solved = o.replace(method=method, iterations=iterations, tv=tv, l1=l1)
     results, estimates, op0, records = [], [], None, []
     for c in range(channels):
         pc = p if p.ndim == 2 else p[..., c]
         bc = b if b.ndim == 2 else b[..., c]
         op, scaled = scaled_problem(pc, bc, None if mask is None else mask.mask,
                                     b_scale=raw_scale)
-        if seconds is not None and fft_s is None:  # the budget's unit, measured now
+        if o.seconds is not None and fft_s is None:  # the budget's unit, measured now
             fft_s = fft_pair_seconds_on(backend, op.padded_shape)
-        res, record = solve_channel(op, scaled, bc, raw_scale, method=method,
-                                    iterations=iterations, tv=tv, l1=l1, seconds=seconds,
-                                    fft_pair_s=fft_s, auto_stop=auto_stop, prior=prior,
-                                    **on_device, **solver_options)
+        res, record = solve_channel(ChannelProblem(op, scaled, bc, raw_scale), solved,
+                                    fft_pair_s=fft_s, auto_stop=auto_stop, **on_device,
+                                    **solver_options)
         results.append(res)
         records.append(record)
         estimates.append(res.x * raw_scale)

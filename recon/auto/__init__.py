@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import numbers
 import time
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..errors import ReconInputError
-from ..options import weight_arg
+from ..options import ReconOptions, l1_given, weight_arg
 from ..priors import PRIORS, prior_of  # moved there (a light module for the parsers)
 from ..solvers import SOLVERS, SolveResult
 from .choice import NoSignalError, check_signal, choose_method
@@ -26,7 +28,8 @@ from .noise import NoiseModel, estimate_noise
 from .prior import PRIOR_RULES, choose_prior, prior_plan_of
 from .weight import MODEL_ERROR, AutoWeight, Stopping, admm_auto
 
-__all__ = ["AUTO", "AutoWeight", "NoSignalError", "NoiseModel", "Stopping", "estimate_noise",
+__all__ = ["AUTO", "AutoWeight", "ChannelProblem", "NoSignalError", "NoiseModel", "Stopping",
+           "estimate_noise",
            "noise_energy_of", "parse_weight", "prior_path", "solve_channel", "weight_arg",
            "weight_path"]
 
@@ -120,34 +123,55 @@ def noise_energy_of(op, raw: np.ndarray, raw_scale: float) -> tuple[NoiseModel, 
     return noise, float(np.sum(w2 * scaled.variance(np.asarray(raw) / raw_scale)))
 
 
-def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, method: str,
-                  iterations: int, tv, l1, seconds: float | None = None,
-                  fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
-                  plan_of=None, weight_path_solves: bool = True, backend=None,
-                  prior: str = "tv", **options) -> tuple[SolveResult, dict]:
-    """Solve one channel with automatic choices where asked, fixed ones elsewhere.
+@dataclass(frozen=True)
+class ChannelProblem:
+    """One colour channel's prepared problem, in the solvers' scaling
+    (:func:`recon.planar.scaled_problem`): what :func:`solve_channel` solves.
 
-    Parameters
+    Attributes
     ----------
     op : ConvolutionOperator or SpatialConvolutionOperator
         Scaled forward model (unit-sum PSF, erasure weights folded in).
     b : ndarray, float32, ``op.shape_out``
         Scaled, weighted measurement (``raw * weights / raw_scale``).
     raw : ndarray, ``op.shape_out``
-        The channel's dark-subtracted measurement before scaling (the noise model is
-        fitted to it).
+        The channel's dark-subtracted measurement before scaling, DN (the noise model
+        is fitted to it).
     raw_scale : float
-        ``b = raw * weights / raw_scale``.
-    method : str
-        ``"auto"`` or a key of :data:`recon.solvers.SOLVERS`.
-    iterations : int
-        Maximum iterations (automatic stopping ends earlier when the fit settles).
-    tv, l1 : "auto" or float
-        Weights; ``"auto"`` chooses by hold-out cross-validation, the other weight held
-        fixed along the way. With ``l1="auto"`` an automatic ``tv`` is 0 (one weight is
-        chosen at a time).
-    seconds : float, optional
-        Time budget of the solve (``method="auto"`` only).
+        ``b = raw * weights / raw_scale``, DN.
+    """
+
+    op: Any
+    b: np.ndarray
+    raw: np.ndarray
+    raw_scale: float
+
+
+def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
+                  fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
+                  plan_of=None, weight_path_solves: bool = True, backend=None,
+                  **solver_options) -> tuple[SolveResult, dict]:
+    """Solve one channel with automatic choices where asked, fixed ones elsewhere.
+
+    Parameters
+    ----------
+    problem : ChannelProblem
+        The scaled forward model and measurement, and the raw channel they came from.
+    options : recon.options.ReconOptions
+        The reconstruction's options (:meth:`ReconOptions.from_defaults
+        <diffuserlab.options.Options.from_defaults>` for a library call); this layer
+        reads ``method`` (``"auto"`` or a key of ``solvers``), ``iterations`` (the
+        maximum: automatic stopping ends earlier when the fit settles), ``tv`` and
+        ``l1`` (``"auto"`` chooses by hold-out cross-validation, the other weight held
+        fixed along the way; with ``l1="auto"`` an automatic ``tv`` is 0, one weight
+        is chosen at a time; ``tv`` None is ``"auto"``, ``l1`` not given is 0),
+        ``seconds`` (time budget, ``method="auto"`` only) and ``prior``
+        (``"tv"``, ``"wavelet"``, ``"dncnn"``, ``"auto"`` or a
+        :class:`recon.priors.Prior`: the image prior of ADMM, ``tv`` its weight; another
+        prior than TV needs ADMM, a method that resolves to Wiener ignores it and the
+        record says so; ``"auto"`` runs every prior's weight path and keeps the
+        simplest that predicts the held-out pixels within one standard error of the
+        best, :func:`recon.auto.prior.choose_prior`, ``tv`` then ``"auto"``).
     fft_pair_s : float, optional
         Measured FFT floor (needed with ``seconds``).
     auto_stop : bool
@@ -170,13 +194,7 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         device between its solves; the result's ``x`` comes back to the host); None
         or :data:`recon.backend.NUMPY`: the NumPy path. ``solvers`` should then be the
         same device's (``recon.solvers.device.device_solvers``).
-    prior : {"tv", "wavelet", "dncnn", "auto"} or Prior
-        The image prior of ADMM (:mod:`recon.priors`); ``tv`` is its weight. Another
-        prior than TV needs ADMM (a method that resolves to Wiener ignores it and the
-        record says so); ``"auto"`` runs every prior's weight path and keeps the
-        simplest that predicts the held-out pixels within one standard error of the
-        best (:func:`recon.auto.prior.choose_prior`; ``tv`` must be ``"auto"``).
-    **options
+    **solver_options
         Passed to a fixed method's solver.
 
     Returns
@@ -199,6 +217,11 @@ def solve_channel(op, b: np.ndarray, raw: np.ndarray, raw_scale: float, *, metho
         than TV with a method other than ADMM or with ``l1="auto"``, or
         ``prior="auto"`` with a fixed ``tv``.
     """
+    op, b, raw, raw_scale = problem.op, problem.b, problem.raw, problem.raw_scale
+    method, iterations, seconds = options.method, options.iterations, options.seconds
+    l1 = l1_given(options.l1)
+    tv, l1 = parse_weight(options.tv, "tv"), parse_weight(0.0 if l1 is None else l1, "l1")
+    prior, options = options.prior, solver_options
     prior_name = AUTO if prior == AUTO else prior_of(prior).name
     t0 = time.perf_counter()
     noise, noise_energy = noise_energy_of(op, raw, raw_scale)

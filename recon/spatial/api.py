@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from ..auto import AUTO, parse_weight, solve_channel
+from ..auto import AUTO, ChannelProblem, parse_weight, solve_channel
 from ..backend import resolve_device
 from ..errors import ReconInputError
 from ..options import (  # ``--background``, ``method`` choices
@@ -322,8 +322,9 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
                                   "reconstruct a volume with method 'fista'")
         # on a GPU the automatic weight's path runs on the CPU, the chosen weight's
         # ADMM on the GPU (as for one PSF, recon.planar)
-        res, record = solve_channel(op, (b / scale).astype(np.float32), b, scale,
-                                    method=AUTO, iterations=iterations, tv=tv, l1=l1,
+        problem = ChannelProblem(op, (b / scale).astype(np.float32), b, scale)
+        chosen = ReconOptions.from_defaults(method=AUTO, iterations=iterations, tv=tv, l1=l1)
+        res, record = solve_channel(problem, chosen,
                                     solvers=device_grid_solvers(backend, GRID_SOLVERS),
                                     plan_of=SpatialAdmmPlan.of,
                                     weight_path_solves=backend.is_numpy)

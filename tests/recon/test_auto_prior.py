@@ -10,11 +10,12 @@ import pytest
 
 import recon
 from instrument.cli import main
-from recon.auto import solve_channel
+from recon.auto import ChannelProblem, solve_channel
 from recon.auto.prior import PRIOR_RULES, choose_prior
 from recon.auto.weight import AutoWeight
 from recon.errors import DivergenceError, ReconInputError
 from recon.operators import ConvolutionOperator
+from recon.options import ReconOptions
 from recon.solvers import admm
 from recon.solvers.common import History
 
@@ -100,7 +101,6 @@ def test_a_prior_with_a_method_that_takes_none_is_refused_before_any_work(case, 
     Before: Wiener ran without the prior, silently; GD and FISTA refused it only inside
     the solve, after the data were prepared."""
     from diffuserlab.errors import InputError
-    from recon.options import ReconOptions
 
     psf, raw = case
     with pytest.raises(ReconInputError, match=f"prior='dncnn': method='{method}' takes no "
@@ -116,18 +116,20 @@ def test_solve_channel_refuses_what_a_prior_cannot_do(case):
     op = ConvolutionOperator(case[0] / case[0].sum())
     raw = case[1].astype(np.float32)
     b = raw / raw.max()
-    kw = {"iterations": 5, "l1": 0.0}
+    problem = ChannelProblem(op, b, raw, raw.max())
+
+    def options(**values):  # what a library call passes (not validated: the solve checks)
+        return ReconOptions.from_defaults(**{"iterations": 5, "l1": 0.0, **values})
+
     with pytest.raises(ReconInputError, match="prior auto chooses each prior's weight"):
-        solve_channel(op, b, raw, raw.max(), method="admm", tv=1e-4, prior="auto", **kw)
+        solve_channel(problem, options(method="admm", tv=1e-4, prior="auto"))
     with pytest.raises(ReconInputError, match="the wavelet prior runs in ADMM"):
-        solve_channel(op, b, raw, raw.max(), method="fista", tv=1e-4, prior="wavelet", **kw)
+        solve_channel(problem, options(method="fista", tv=1e-4, prior="wavelet"))
     with pytest.raises(ReconInputError, match="use one of tv, wavelet, dncnn"):
-        solve_channel(op, b, raw, raw.max(), method="admm", tv=1e-4, prior="bm3d", **kw)
+        solve_channel(problem, options(method="admm", tv=1e-4, prior="bm3d"))
     with pytest.raises(ReconInputError, match="automatic l1 weight is chosen with TV only"):
-        solve_channel(op, b, raw, raw.max(), method="admm", tv=1e-4, prior="wavelet",
-                      iterations=5, l1="auto")
-    res, rec = solve_channel(op, b, raw, raw.max(), method="wiener", tv=0.0,
-                             prior="wavelet", **kw)
+        solve_channel(problem, options(method="admm", tv=1e-4, prior="wavelet", l1="auto"))
+    res, rec = solve_channel(problem, options(method="wiener", tv=0.0, prior="wavelet"))
     assert rec["prior"] == {"prior": None, "reason": "wiener has no prior"}
 
 

@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 
 import recon
-from recon.auto import solve_channel
+from recon.auto import ChannelProblem, solve_channel
 from recon.errors import ReconInputError
+from recon.options import ReconOptions
 from recon.planar import scaled_problem
 from recon.solvers import wiener
 from recon.solvers.device import device_solvers, fft_pair_seconds_on
@@ -74,11 +75,12 @@ def _both_paths(monkeypatch, name: str, method: str):
     (the NumPy ADMM loop forbidden there); the device's ADMM runs recorded."""
     backend = _backend(name)
     op, b, raw, scale = _scene()
-    ref = solve_channel(op, b, raw, scale, method=method, iterations=150, tv="auto", l1=0.0)
+    problem = ChannelProblem(op, b, raw, scale)
+    options = ReconOptions.from_defaults(method=method, iterations=150, tv="auto", l1=0.0)
+    ref = solve_channel(problem, options)
     seen = _spy_on_device_runs(monkeypatch, backend)
     _forbid(monkeypatch, admm_mod, "NumbaKernels2D")  # the NumPy path's ADMM kernels
-    got = solve_channel(op, b, raw, scale, method=method, iterations=150, tv="auto", l1=0.0,
-                        solvers=device_solvers(backend), backend=backend)
+    got = solve_channel(problem, options, solvers=device_solvers(backend), backend=backend)
     return backend, seen, ref, got
 
 
@@ -266,8 +268,8 @@ def test_the_numpy_path_of_the_weight_path_is_untouched(monkeypatch):
         raise AssertionError("a generic plan on the NumPy path")
 
     monkeypatch.setattr(weight_mod, "device_plan_of", refuse)
-    res, rec = solve_channel(op, b, raw, scale, method="auto", iterations=60, tv="auto",
-                             l1=0.0)
+    res, rec = solve_channel(ChannelProblem(op, b, raw, scale),
+                             ReconOptions.from_defaults(iterations=60, tv="auto", l1=0.0))
     assert isinstance(res.x, np.ndarray) and "device" not in res.params
 
 

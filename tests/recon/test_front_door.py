@@ -16,6 +16,7 @@ import recon.api  # its module, not only the names recon re-exports lazily
 from diffuserlab.jsonio import json_text
 from recon.errors import ReconInputError
 from recon.operators import ConvolutionOperator, padded_grid
+from recon.options import ReconOptions
 from recon.planar import reconstruct_image
 from recon.spatial import PsfGrid
 from recon.spatial.api import reconstruct_psf_grid
@@ -79,19 +80,26 @@ def test_the_model_kind_picks_the_path_with_the_same_defaults(kind, monkeypatch)
                "volume": ("recon.volume.api", "reconstruct_stack"),
                "grid": ("recon.spatial.api", "reconstruct_psf_grid")}
     module, name = engines[kind]
-    monkeypatch.setattr(f"{module}.{name}", lambda *a, **kw: seen.update(kw) or "called")
+
+    def engine(*args, **kw):  # the 2D path takes the options object (ReconOptions)
+        chosen = [a for a in args if isinstance(a, ReconOptions)]
+        seen.update(chosen[0].model_dump() if chosen else kw)
+        return "called"
+
+    monkeypatch.setattr(f"{module}.{name}", engine)
     assert recon.reconstruct(_models(psf)[kind], _raw(psf)) == "called"
     assert recon.api.model_kind(_models(psf)[kind]) == kind
-    method = seen.get("method", "auto")  # the 2D path takes it positionally
-    assert (method, seen["tv"], seen["iterations"], seen["bin_factor"]) == ("auto", "auto",
-                                                                            200, 1)
+    assert (seen["method"], seen["tv"], seen["iterations"], seen["bin_factor"]) == (
+        "auto", "auto", 200, 1)
     assert seen["dark"] == "auto"
 
 
 def test_the_three_paths_declare_the_same_defaults():
-    """The kinds' own functions default to what the front door passes."""
+    """The kinds' own functions default to what the front door passes (the 2D path
+    takes the options object, whose defaults are the declared ones)."""
     door = inspect.signature(recon.reconstruct).parameters
-    for engine in (reconstruct_image, reconstruct_stack, reconstruct_psf_grid):
+    assert inspect.signature(reconstruct_image).parameters["options"].default is None
+    for engine in (reconstruct_stack, reconstruct_psf_grid):
         params = inspect.signature(engine).parameters
         for name in ("method", "iterations", "tv", "bin_factor", "dark"):
             assert params[name].default == door[name].default, (engine.__name__, name)

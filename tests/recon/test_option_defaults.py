@@ -157,3 +157,20 @@ def test_the_solvers_shared_default_is_the_declaration():
     from recon.solvers.common import DEFAULT_ITERATIONS
 
     assert DEFAULT_ITERATIONS == ReconOptions.defaults()["iterations"]
+
+
+#: The layers that decide and the most parameters each takes (the options object and
+#: the prepared problem, and their own objects: a mask, a colour pattern, plans).
+DECIDING = {"recon.planar.reconstruct_image": 8, "recon.auto.solve_channel": 9}
+
+
+def test_the_deciding_layers_take_the_options_object():
+    """The 2D path and each channel's solve take the options (ReconOptions) instead of
+    loose keywords: no parameter named after a declared option, and a short
+    signature (they took 19 and 16)."""
+    for dotted, most in DECIDING.items():
+        module, name = dotted.rsplit(".", 1)
+        params = inspect.signature(getattr(importlib.import_module(module), name)).parameters
+        loose = sorted(set(params) & set(ReconOptions.defaults()))
+        assert not loose, f"{dotted} takes {loose} loose; read them from its options"
+        assert "options" in params and len(params) <= most, (dotted, list(params))
