@@ -17,9 +17,11 @@ from collections.abc import Callable
 from typing import ClassVar, Literal
 
 from instrument.options import Options, option
+from recon.scenes import BUNDLED
 
 __all__ = ["PARAMETERS", "AlignMaskParams", "AngularResponseParams", "DarkParams", "PsfBlindParams",
-           "PsfGridParams", "PsfSweepParams", "RoutineParams", "SlmLutParams"]
+           "PsfFromScenesParams", "PsfGridParams", "PsfSweepParams", "RoutineParams",
+           "SlmLutParams"]
 
 
 class RoutineParams(Options, ABC):
@@ -217,10 +219,32 @@ class SlmLutParams(RoutineParams):
                                     **self._frames())
 
 
+class PsfFromScenesParams(RoutineParams):
+    routine: ClassVar[str] = "psf-from-scenes"
+    summary: ClassVar[str] = ("PSF from known scenes shown on the display device (or from "
+                              "scene/measurement files), by non-negative least squares")
+    command: ClassVar[str] = "calibrate psf-from-scenes"
+
+    z_mm: float = option(..., gt=0, help="distance of the scenes (the display) from the "
+                         "diffuser", unit="mm")
+    images: int = option(4, ge=2, le=len(BUNDLED), help="scenes shown: scikit-image's "
+                         "bundled photographs, in order")
+    display: str = option("slm", help="the display's device id or role (an SLM or the "
+                          "full-screen monitor driver)")
+    iterations: int = option(20, ge=1, help="ADMM iterations of the estimate")
+
+    def plan(self, bench, *, seed: int = 0, say: Callable[[str], None] = print):
+        from .psf_from_scenes import PsfFromScenesPlan
+
+        return PsfFromScenesPlan.for_bench(bench, images=self.images, z_mm=self.z_mm,
+                                           display=self.display, iterations=self.iterations,
+                                           **self._frames())
+
+
 #: ``{routine: model}`` in the order ``calibrate`` lists them.
 PARAMETERS: dict[str, type[RoutineParams]] = {
     m.routine: m for m in (DarkParams, PsfSweepParams, PsfGridParams, PsfBlindParams,
-                           AngularResponseParams, SlmLutParams)}
+                           AngularResponseParams, SlmLutParams, PsfFromScenesParams)}
 
 
 class AlignMaskParams(Options):

@@ -35,6 +35,10 @@ def page() -> str:
         if name == "psf-grid":
             lines += ["`--falloff-run RUN.zarr` (an angular-response run) gives the fall-off "
                       "sigma instead of `--falloff-sigma-deg`.", ""]
+        if name == "psf-from-scenes":
+            lines += ["`--scenes PATH... --measurements PATH...` (files or directories of "
+                      ".npy, .tif, .png, matched by name) estimate the PSF from those pairs "
+                      "instead, with no bench.", ""]
         if name == "slm-lut":
             lines += ["`--apply` loads the new LUT onto the SLM at the end and compares a "
                       "blazed grating's first-order efficiency with the previous LUT.", ""]

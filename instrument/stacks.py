@@ -93,6 +93,8 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
     Returns
     -------
     stack : ndarray, float32, (n_depths, rows, cols)
+        Or (n_depths, rows, cols, channels): a colour PSF of a run store, whose
+        product records its ``channels`` (``calibrate psf-from-scenes``).
     depths_mm : list of float
     attrs : dict
         The stored attributes (empty for plain files).
@@ -131,10 +133,11 @@ def load_psf_stack(path: str | Path, depths_mm: Sequence[float] | None = None,
     stack = _real_stack(np.asarray(stack), path)
     if stack.ndim == 2:
         stack = stack[None]
-    if stack.ndim != 3:
+    colour = stack.ndim == 4 and len(attrs.get("channels") or ()) == stack.shape[3]
+    if stack.ndim != 3 and not colour:
         raise RunStoreError(f"{path} holds a {stack.ndim}-D array; a PSF stack is "
                             "(depths, rows, cols)")
-    if min(stack.shape[1:]) < MIN_PLANE_PX:
+    if min(stack.shape[1:3]) < MIN_PLANE_PX:
         raise RunStoreError(f"{path} holds planes of {stack.shape[1]}x{stack.shape[2]} pixels; "
                             f"a PSF needs at least {MIN_PLANE_PX}x{MIN_PLANE_PX} (wrong file "
                             "or wrong axis order?)")

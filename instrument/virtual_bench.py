@@ -8,8 +8,9 @@ SLM do (docs/architecture.md, "A simulated device is a driver like any other"):
   diffuser camera (:class:`recon.optics.lensless.LenslessModel`, shifting with
   lateral position by m = d/z, Eq. 3.1, and scaling with depth, Fig. 4.2); a scene
   (a plane at a depth, beads in 3D) adds its rendered image (local convolution
-  model with spatial variance, Ch. 5). Stage ``z`` is the source's distance from
-  the diffuser, mm.
+  model with spatial variance, Ch. 5); a display in front of the camera
+  (:class:`DisplayScene`) is such a plane showing the display's current image. Stage
+  ``z`` is the source's distance from the diffuser, mm.
 * holography branch: the SLM's displayed image through the relay, the random mask
   on the 6-axis mask stage and the Fourier lens
   (:class:`recon.optics.holo_display.HolographicDisplayModel`). The SLM's physical
@@ -92,6 +93,18 @@ class PlanarScene:
     image: np.ndarray
     z_mm: float
     width_mm: float
+    radiance: float = 2e9
+
+
+@dataclass(frozen=True)
+class DisplayScene:
+    """A display device (an SLM or monitor driven by :class:`drivers.slm.Slm`) facing
+    the camera at depth ``z_mm``: whatever it shows is a :class:`PlanarScene` of its
+    panel's size (resolution times pixel pitch), radiance linear in the gray level
+    (``radiance`` at gray 255, no gamma). ``device``: the display's id or role."""
+
+    z_mm: float
+    device: str = "slm"
     radiance: float = 2e9
 
 
@@ -261,7 +274,8 @@ class VirtualBench(Bench):
         self.relay_na = None if relay_na is None else float(relay_na)
         self.laser_drift_per_sqrt_s = float(laser_drift_per_sqrt_s)
         self.branch = "lensless"
-        self.scene: PlanarScene | BeadScene | TiltedTargetScene | VideoScene | None = None
+        self.scene: (PlanarScene | DisplayScene | BeadScene | TiltedTargetScene | VideoScene
+                     | None) = None
         self.state = {"camera_capped": False, "diffuser_installed": True,
                       "pinhole_installed": True, "nd_filter_installed": False}
         self._scene_version = 0
@@ -329,19 +343,19 @@ class VirtualBench(Bench):
         log.info("virtual bench: %s", message)
 
     # -- the world ---------------------------------------------------------------------
-    def set_scene(self, scene: PlanarScene | BeadScene | TiltedTargetScene | VideoScene | None
-                  ) -> None:
+    def set_scene(self, scene: PlanarScene | DisplayScene | BeadScene | TiltedTargetScene
+                  | VideoScene | None) -> None:
         """Put a scene in front of the camera (None removes it).
 
         A :class:`~instrument.video_scenes.VideoScene` changes with time: each frame
         shows it at the frame's :attr:`~drivers.simulated.SimulatedCamera.frame_time_s`
         (the middle of the exposure), see :meth:`irradiance`.
         """
-        if scene is not None and not isinstance(scene, PlanarScene | BeadScene
+        if scene is not None and not isinstance(scene, PlanarScene | DisplayScene | BeadScene
                                                 | TiltedTargetScene | VideoScene):
             raise ReconInputError(
-                "scene must be a PlanarScene, a BeadScene, a TiltedTargetScene, a video "
-                "scene (instrument.video_scenes) or None")
+                "scene must be a PlanarScene, a DisplayScene, a BeadScene, a "
+                "TiltedTargetScene, a video scene (instrument.video_scenes) or None")
         self.scene = scene
         self._scene_version += 1
 
@@ -492,7 +506,9 @@ class VirtualBench(Bench):
             sources = () if self.state["camera_capped"] else self.point_sources()
             slide = (self.source_position_mm() if isinstance(self.scene, BeadScene)
                      and self.scene.on_stage else None)
-            key = ("lensless", sources, state, self._scene_version, slide,
+            shown = (self.device(self.scene.device).pattern_id
+                     if isinstance(self.scene, DisplayScene) else None)
+            key = ("lensless", sources, state, self._scene_version, slide, shown,
                    self._scene_time(camera))
         drift = 1.0
         if self.branch == "holography":  # the laser's power walks with bench time
@@ -585,6 +601,8 @@ class VirtualBench(Bench):
                 if power > 0:
                     out += power * self.psf(pos)
             return out
+        if isinstance(s, DisplayScene):
+            s = self._displayed(s)
         if isinstance(s, PlanarScene):
             return s.radiance * self.model.render(np.asarray(s.image, float), s.z_mm,
                                                   s.width_mm)
@@ -595,6 +613,13 @@ class VirtualBench(Bench):
         if s.on_stage:
             points = points + np.asarray(self.source_position_mm())
         return self.model.render_points(points, np.asarray(s.powers_photons_per_s, float))
+
+    def _displayed(self, scene: DisplayScene) -> PlanarScene:
+        """The planar scene a display shows now (gray / 255 over its panel)."""
+        display = self.device(scene.device)
+        width_mm = display.resolution[1] * display.pixel_pitch_um * 1e-3
+        return PlanarScene(display.current_image() / 255.0, scene.z_mm, width_mm,
+                           scene.radiance)
 
     # -- holography branch --------------------------------------------------------------
     @property

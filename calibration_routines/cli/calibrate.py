@@ -64,6 +64,12 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                               help="angular-response run to take the fall-off sigma from")
         else:
             model.add_arguments(rp)
+        if name == "psf-from-scenes":  # pairs from files instead of the bench
+            rp.add_argument("--scenes", nargs="+", default=None, metavar="PATH",
+                            help="known scenes on the sensor grid: image files or "
+                            "directories (.npy, .tif, .png); with --measurements, no bench")
+            rp.add_argument("--measurements", nargs="+", default=None, metavar="PATH",
+                            help="their measurements (dark-subtracted), matched by file name")
         if name == "slm-lut":
             rp.add_argument("--apply", action="store_true",
                             help="load the new LUT onto the SLM and compare a blazed "
@@ -133,6 +139,28 @@ def _bead_slide(bench, args) -> None:
     xy = rng.uniform(-half, half, (8, 2))
     points = np.column_stack([xy, np.zeros(8)])
     bench.set_scene(BeadScene(points, np.full(8, bench.source_power), on_stage=True))
+
+
+def _display_scene(bench, args) -> None:
+    """The virtual bench's display facing the camera at ``--z-mm`` for
+    ``psf-from-scenes --simulate`` (and for resuming such a run): what the display
+    device shows is the scene. Nothing for the other routines."""
+    from instrument.runstore import RunStore, RunStoreError
+    from instrument.virtual_bench import DisplayScene
+
+    if args.routine == "psf-from-scenes":
+        z_mm, display = args.z_mm, args.display
+    elif args.routine == "resume":
+        try:
+            plan = RunStore.open(args.run).attrs["plan"]
+        except (RunStoreError, OSError):
+            return  # the resume itself reports an unreadable run
+        if plan.get("name") != "psf-from-scenes":
+            return
+        z_mm, display = plan["params"]["z_mm"], plan["params"]["display"]
+    else:
+        return
+    bench.set_scene(DisplayScene(z_mm, display))
 
 
 def _falloff_sigma_deg(path: str) -> float:
@@ -214,6 +242,40 @@ def _apply_lut(bench, plan, path) -> bool:
     return True
 
 
+def _psf_from_files(args, check_outputs) -> int:
+    """``calibrate psf-from-scenes --scenes ... --measurements ...``: no bench; one line
+    per pair (its fit and held-out residuals per channel), then the run's summary
+    (``check_outputs``: the outputs' guard of :func:`run`)."""
+    from diffuserlab.errors import InputError
+    from instrument.cli.runs import format_summary
+
+    from ..psf_from_scenes import psf_run_from_files
+
+    if not args.scenes or not args.measurements:
+        raise InputError("psf-from-scenes from files takes both --scenes and --measurements "
+                         "(or neither, to show the scenes on the bench's display)")
+    if args.bench is not None or args.simulate:
+        raise InputError("psf-from-scenes from files opens no bench: leave out the bench "
+                         "file and --simulate, or --scenes and --measurements")
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(args.out or f"out/runs/{args.routine}-{stamp}.zarr")
+    inputs = {f"{option} {path}": path for option, paths in (
+        ("--scenes", args.scenes), ("--measurements", args.measurements)) for path in paths}
+    check_outputs([out], inputs, args.overwrite, store=True)
+    params = PARAMETERS[args.routine].from_namespace(args)
+
+    def on_pair(name, fit, held) -> None:
+        held_text = ("" if held is None else
+                     "  held-out " + " ".join(f"{v:.3f}" for v in held))
+        print(f"{name}: fit {' '.join(f'{v:.3f}' for v in fit)}{held_text}")
+
+    store = psf_run_from_files(args.scenes, args.measurements, out, z_mm=params.z_mm,
+                               note=args.note, overwrite=args.overwrite, on_pair=on_pair,
+                               iterations=params.iterations)
+    print(format_summary(store.summary()))
+    return 0
+
+
 def _run_whole_or_nothing(runner, plan, out, **options):
     """``runner.run(plan, out)``; a new run that fails before it stored a frame (a full
     disk while its camera record is written, say) is removed instead of left half-made.
@@ -253,6 +315,8 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.reconnect_timeout_s < float("inf"):  # NaN fails; every wait ends
         raise InputError(f"--reconnect-timeout {args.reconnect_timeout_s}: give the seconds "
                          "to keep reconnecting a device, finite and >= 0")
+    if getattr(args, "scenes", None) is not None or getattr(args, "measurements", None):
+        return _psf_from_files(args, check_outputs)
     out = None
     if args.routine != "resume":  # outputs and input runs checked before the bench opens
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
@@ -280,6 +344,7 @@ def run(args: argparse.Namespace) -> int:
     if args.simulate:
         bench.open()
         _bead_slide(bench, args)
+        _display_scene(bench, args)
     applied = True  # slm-lut --apply: False if loading the LUT onto the SLM failed
     bars = None
     try:

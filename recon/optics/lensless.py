@@ -74,6 +74,7 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "LenslessGeometry",
     "LenslessModel",
+    "plane_on_object_grid",
     "default_geometry",
     "diffuser_for_sensor",
     "microscope_geometry",
@@ -438,23 +439,9 @@ class LenslessModel:
         -------
         ndarray, float64, ``sensor_shape``
         """
-        from skimage.transform import resize
-
         geo = self.geometry
-        rows, cols = sensor_shape or geo.sensor_shape
-        z = positive_number(z_mm, "scene depth z_mm", "30.0")
-        width = positive_number(width_mm, "scene width_mm", "10.0")
-        spacing_mm = geo.sensor_pitch_um * 1e-3 * z / geo.d_mm
-        img = np.asarray(scene, float)
-        h_mm = width * img.shape[0] / img.shape[1]
-        shape = (max(1, round(h_mm / spacing_mm)), max(1, round(width / spacing_mm)))
-        small = resize(img, shape, anti_aliasing=True)[::-1, ::-1]
-        out = np.zeros((rows, cols))
-        r0, c0 = (rows - shape[0]) // 2, (cols - shape[1]) // 2
-        rs = slice(max(r0, 0), min(r0 + shape[0], rows))
-        cs = slice(max(c0, 0), min(c0 + shape[1], cols))
-        out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
-        return out
+        return plane_on_object_grid(scene, z_mm, width_mm, geo.d_mm, geo.sensor_pitch_um,
+                                    sensor_shape or geo.sensor_shape)
 
     def render_tilted_target(self, z_near_mm: float, z_far_mm: float, field_of_view_mm,
                              target: np.ndarray | None = None, slices: int = 4,
@@ -503,3 +490,56 @@ class LenslessModel:
             if np.any(part):
                 out += self.render(part, float(zk), field_of_view_mm, oversample, patches)
         return out
+
+
+def plane_on_object_grid(scene, z_mm: float, width_mm: float, d_mm: float,
+                         sensor_pitch_um: float, sensor_shape: tuple[int, int]) -> np.ndarray:
+    """A planar scene on the object grid of Eq. 3.3, cropped to the sensor's shape.
+
+    The object grid samples the plane at ``pitch z / d`` with the image inverted
+    (u = -m x); the scene, centred on the axis, is area-resampled onto it
+    (anti-aliased), flipped and centred in the sensor's field of view: the object a
+    reconstruction with the on-axis PSF shows, and the known scene of a PSF
+    calibrated from displayed images (:mod:`recon.analysis.psf_from_scenes`).
+
+    Parameters
+    ----------
+    scene : ndarray, (rows_s, cols_s)
+        Radiance (any unit).
+    z_mm : float
+        Depth of the scene plane in front of the diffuser, mm.
+    width_mm : float
+        Lateral width the scene covers, mm (its height from square pixels).
+    d_mm : float
+        Diffuser-sensor distance, mm.
+    sensor_pitch_um : float
+        Sensor pixel pitch, um.
+    sensor_shape : (rows, cols)
+
+    Returns
+    -------
+    ndarray, float64, ``sensor_shape``
+
+    Raises
+    ------
+    ReconInputError
+        A depth, width, distance or pitch that is not a finite number > 0.
+    """
+    from skimage.transform import resize
+
+    rows, cols = sensor_shape
+    z = positive_number(z_mm, "scene depth z_mm", "30.0")
+    width = positive_number(width_mm, "scene width_mm", "10.0")
+    d = positive_number(d_mm, "diffuser-sensor distance d_mm", "8.9")
+    spacing_mm = positive_number(sensor_pitch_um, "sensor pitch", "13.0") * 1e-3 * z / d
+    img = np.asarray(scene, float)
+    h_mm = width * img.shape[0] / img.shape[1]
+    shape = (max(1, round(h_mm / spacing_mm)), max(1, round(width / spacing_mm)))
+    small = resize(img, shape, anti_aliasing=True)[::-1, ::-1]
+    out = np.zeros((rows, cols))
+    # the axis at pixel (rows // 2, cols // 2): where the convolution model's PSF is centred
+    r0, c0 = rows // 2 - shape[0] // 2, cols // 2 - shape[1] // 2
+    rs = slice(max(r0, 0), min(r0 + shape[0], rows))
+    cs = slice(max(c0, 0), min(c0 + shape[1], cols))
+    out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+    return out

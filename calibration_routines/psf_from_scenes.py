@@ -1,0 +1,331 @@
+"""The PSF calibrated from known scenes, for a lab without a point source.
+
+The convolution model is linear in the PSF once the scene is known
+(:mod:`recon.analysis.psf_from_scenes`: non-negative least squares per colour
+channel, with each pair's held-out residual). Two sources of pairs:
+
+* files (:func:`psf_run_from_files`): scene images on the sensor grid and their
+  measurements, matched by name, e.g. photographs shown on a monitor and captured by
+  the lensless camera and, registered, by a lensed one;
+* the bench (:class:`PsfFromScenesPlan`): the display device (an SLM or monitor
+  driven by :class:`drivers.slm.Slm`, e.g. the full-screen window of
+  :class:`drivers.slm_window.FullscreenSlm`) at depth ``z_mm`` in front of the camera
+  shows each scene, scikit-image's bundled photographs (:data:`recon.scenes.BUNDLED`,
+  no download) at the panel's resolution, auto-exposed, then a black frame at the
+  same exposure as its dark. The known scene on the sensor grid is the displayed
+  image inverted and scaled by the magnification ``d / z`` about the axis
+  (:func:`recon.optics.lensless.plane_on_object_grid`), the display centred on the
+  camera's axis; its radiance is taken as linear in the gray level (set the
+  monitor's gamma to 1, or calibrate it).
+
+Both write a run holding ``psf_stack``: (1, rows, cols), or (1, rows, cols, channels)
+with its ``channels`` recorded, at ``depths_mm = [z_mm]``, which ``recon --psf RUN``
+and ``recon-run --psf RUN`` take (a dark-subtracted PSF: give the frames' dark level
+with ``--dark``); the run's summary records each pair's held-out relative residual.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from instrument.coords import coord_specs
+from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
+from instrument.runstore import RunStore, discard_partial_run
+from instrument.writer.atomic import missing_dirs, remove_empty_dirs
+from recon.analysis.psf_from_scenes import (
+    PsfEstimate,
+    check_pairs,
+    estimate_psf_from_scenes,
+    leave_one_out,
+)
+from recon.io import load_image
+from recon.optics.lensless import plane_on_object_grid
+from recon.scenes import BUNDLED, load_scene
+
+from ._common import CALIBRATION_EXPOSURE, sensor_geometry, signal_minus_dark
+
+__all__ = ["FILES_PLAN", "PsfFromScenesPlan", "display_gray", "match_pairs",
+           "psf_run_from_files", "write_psf"]
+
+#: The plan name of a run made from files (no frames; nothing to resume).
+FILES_PLAN = "psf-from-scene-files"
+#: Image files the file source reads.
+SUFFIXES = (".npy", ".tif", ".tiff", ".png")
+
+
+def display_gray(name: str, shape: tuple[int, int]) -> np.ndarray:
+    """Bundled photograph ``name`` as the display shows it: uint8 gray, ``shape``."""
+    return np.round(load_scene(name, shape) * 255.0).astype(np.uint8)
+
+
+def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | None,
+              names: Sequence[str], z_mm: float, units: str) -> dict:
+    """Write ``psf_stack`` and return the run's summary (module docstring).
+
+    Parameters
+    ----------
+    store : RunStore
+    estimate : PsfEstimate
+        From every pair.
+    held_out : ndarray (n_pairs, channels) or None
+        Leave-one-out residuals (None for a single pair).
+    names : sequence of str
+        The pairs' names.
+    z_mm : float
+        Depth of the scenes, mm.
+    units : str
+        The PSF's unit.
+
+    Returns
+    -------
+    dict
+        JSON-able: per pair the training and held-out residuals, their mean, the method.
+    """
+    psf = estimate.psf
+    attrs = {"depths_mm": [float(z_mm)], "units": units, "method": estimate.method,
+             "pairs": list(names)}
+    if psf.ndim == 3:
+        attrs["channels"] = ["R", "G", "B"][:psf.shape[2]] if psf.shape[2] <= 3 else [
+            f"c{c}" for c in range(psf.shape[2])]
+    store.write_product("psf_stack", psf[None].astype(np.float32), **attrs)
+    summary = {"z_mm": float(z_mm), "method": estimate.method,
+               "fit_residual": {n: [round(float(v), 4) for v in estimate.residuals[k]]
+                                for k, n in enumerate(names)}}
+    if held_out is not None:
+        summary["held_out_residual"] = {n: [round(float(v), 4) for v in held_out[k]]
+                                        for k, n in enumerate(names)}
+        summary["held_out_mean"] = round(float(np.mean(held_out)), 4)
+    return summary
+
+
+def _files(spec: Sequence[str], what: str) -> dict[str, Path]:
+    """``{name: file}`` of the images a list of files or directories holds."""
+    found: dict[str, Path] = {}
+    for entry in spec:
+        p = Path(entry)
+        files = (sorted(f for f in p.iterdir() if f.suffix.lower() in SUFFIXES)
+                 if p.is_dir() else [p])
+        if p.is_dir() and not files:
+            raise PlanError(f"{what} {p} holds no .npy, .tif or .png image; give the "
+                            "directory of the images or the files themselves")
+        for f in files:
+            if not f.is_file():
+                raise PlanError(f"{what} {f} does not exist; give existing images or "
+                                "directories")
+            if f.stem in found:
+                raise PlanError(f"{what}: two images are named {f.stem!r} ({found[f.stem]} "
+                                f"and {f}); scenes and measurements are matched by name")
+            found[f.stem] = f
+    return found
+
+
+def match_pairs(scenes: Sequence[str], measurements: Sequence[str]
+                ) -> list[tuple[str, Path, Path]]:
+    """Scene and measurement files matched by name (the file name without suffix).
+
+    Parameters
+    ----------
+    scenes, measurements : sequence of str
+        Files, or directories of ``.npy``/``.tif``/``.png`` images.
+
+    Returns
+    -------
+    list of (name, scene file, measurement file), sorted by name
+
+    Raises
+    ------
+    PlanError
+        A missing file, an empty directory, a name twice, or a name on one side only.
+    """
+    xs, bs = _files(scenes, "--scenes"), _files(measurements, "--measurements")
+    alone = sorted(set(xs) ^ set(bs))
+    if alone:
+        raise PlanError(f"no {'measurement' if alone[0] in xs else 'scene'} named "
+                        f"{alone[0]!r} ({len(alone)} name(s) on one side only: "
+                        f"{', '.join(alone[:5])}); give each scene and its measurement the "
+                        "same file name")
+    return [(n, xs[n], bs[n]) for n in sorted(xs)]
+
+
+def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, *,
+                       z_mm: float, note: str = "", overwrite: bool = False,
+                       on_pair=None, **options) -> RunStore:
+    """Estimate the PSF from scene and measurement files and store it as a run.
+
+    Parameters
+    ----------
+    scenes, measurements : sequence of str
+        Files or directories (:func:`match_pairs`); the scenes on the sensor grid,
+        the measurements dark-subtracted, each pair the same shape.
+    out : str or Path
+        The run store to create.
+    z_mm : float
+        Depth of the scenes in front of the diffuser, mm (> 0; recorded with the PSF).
+    note : str
+    overwrite : bool
+    on_pair : callable, optional
+        Called ``on_pair(name, fit_residuals, held_out_residuals)`` per pair (rows of
+        channels; held-out None for a single pair).
+    **options
+        Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
+
+    Returns
+    -------
+    RunStore
+        Complete, with ``psf_stack`` and the summary of :func:`write_psf`.
+
+    Raises
+    ------
+    PlanError
+        Files that cannot be matched, or a depth that is not > 0.
+    recon.errors.ReconInputError
+        Unreadable images, or pairs the estimate refuses (shapes).
+    instrument.runstore.RunStoreError
+        ``out`` exists (without ``overwrite``).
+    """
+    if not (np.isfinite(z_mm) and z_mm > 0):
+        raise PlanError(f"--z-mm {z_mm}: give the scenes' distance from the diffuser, > 0 mm")
+    pairs = match_pairs(scenes, measurements)
+    names = [n for n, _, _ in pairs]
+    xs = [load_image(x) for _, x, _ in pairs]
+    bs = [load_image(b) for _, _, b in pairs]
+    check_pairs(xs, bs)
+    estimate = estimate_psf_from_scenes(xs, bs, **options)
+    held = leave_one_out(xs, bs, **options).residuals if len(xs) > 1 else None
+    if on_pair is not None:
+        for k, n in enumerate(names):
+            on_pair(n, estimate.residuals[k], None if held is None else held[k])
+    store, made = None, missing_dirs(out)
+    try:  # whole or not at all: a run this call created is removed when it fails
+        store = RunStore.create(
+            out, plan_name=FILES_PLAN,
+            plan_params={"scenes": [str(x) for _, x, _ in pairs],
+                         "measurements": [str(b) for _, _, b in pairs], "z_mm": float(z_mm),
+                         **{k: v for k, v in options.items() if v is not None}},
+            points=[{"pair": n} for n in names], frame_tags=[[] for _ in names],
+            frame_shape=xs[0].shape[:2], frame_dtype=np.float32,
+            coord_names=["exposure_s"], coord_specs=coord_specs(["exposure_s"]), note=note,
+            overwrite=overwrite)
+        summary = write_psf(store, estimate, held, names, z_mm,
+                            "measurement units per scene unit")
+        store.update_attrs(status="complete", summary=summary)
+    except BaseException:  # never a run another process created at ``out`` meanwhile
+        if store is not None:
+            discard_partial_run(out, made, token=store.creation_token)
+        else:
+            remove_empty_dirs(made)
+        raise
+    return store
+
+
+@register_plan
+class PsfFromScenesPlan(Plan):
+    """Known scenes shown on the display device and the PSF they calibrate (module
+    docstring).
+
+    Parameters
+    ----------
+    scene_names : list of str
+        Photographs of :data:`recon.scenes.BUNDLED`, shown in order (at least 2).
+    z_mm : float
+        Distance of the display from the diffuser, mm.
+    display : str
+        Device id or role of the display (an :class:`drivers.slm.Slm`).
+    display_shape : (rows, cols)
+        The display's resolution.
+    display_pitch_um : float
+        The display's pixel pitch, um.
+    d_mm, pitch_mm : float
+        Diffuser-sensor distance and sensor pitch, mm.
+    frames_per_point : int
+        Frames averaged per scene (and as many darks).
+    iterations : int
+        ADMM iterations of the estimate.
+    """
+
+    name = "psf-from-scenes"
+
+    def __init__(self, *, scene_names, z_mm: float, display: str = "slm", display_shape,
+                 display_pitch_um: float, d_mm: float, pitch_mm: float,
+                 frames_per_point: int = 4, iterations: int = 20) -> None:
+        names = [str(n) for n in scene_names]
+        unknown = [n for n in names if n not in BUNDLED]
+        if len(names) < 2 or unknown:
+            raise PlanError(f"scenes {names}: give at least 2 of {', '.join(BUNDLED)}")
+        if not (z_mm > 0 and display_pitch_um > 0 and frames_per_point >= 1):
+            raise PlanError("z_mm and display_pitch_um must be > 0, frames_per_point >= 1")
+        super().__init__(scene_names=names, z_mm=float(z_mm), display=str(display),
+                         display_shape=[int(v) for v in display_shape],
+                         display_pitch_um=float(display_pitch_um), d_mm=float(d_mm),
+                         pitch_mm=float(pitch_mm), frames_per_point=int(frames_per_point),
+                         iterations=int(iterations))
+
+    @classmethod
+    def for_bench(cls, bench, *, images: int = 4, z_mm: float, display: str = "slm",
+                  **params) -> PsfFromScenesPlan:
+        """``images`` bundled photographs on the bench's ``display`` at ``z_mm``.
+
+        Raises
+        ------
+        PlanError
+            Fewer than 2 or more than the bundled images, or a display that is not
+            an SLM/monitor of the bench.
+        """
+        if not isinstance(images, int) or not 2 <= images <= len(BUNDLED):
+            raise PlanError(f"--images {images!r}: give a whole number from 2 to "
+                            f"{len(BUNDLED)}")
+        try:
+            panel = bench.device(display)
+            shape, pitch = panel.resolution, panel.pixel_pitch_um
+        except (KeyError, AttributeError, LookupError):
+            raise PlanError(f"--display {display!r}: the bench has no display of that id or "
+                            "role; give an SLM or monitor device of the bench file") from None
+        d_mm, pitch_mm, _ = sensor_geometry(bench.config)
+        params.setdefault("frames_per_point", bench.config.calibration.frames_per_point)
+        return cls(scene_names=list(BUNDLED[:images]), z_mm=z_mm, display=display,
+                   display_shape=shape, display_pitch_um=pitch, d_mm=d_mm, pitch_mm=pitch_mm,
+                   **params)
+
+    def points(self) -> list[PlanPoint]:
+        n = self.params["frames_per_point"]
+        return [PlanPoint({"scene": name}, ("scene",) * n + ("dark",) * n)
+                for name in self.params["scene_names"]]
+
+    def steps(self, index, point):
+        p = self.params
+        name = point.coords["scene"]
+        gray = display_gray(name, tuple(p["display_shape"]))
+        yield ShowSlm(gray=gray, label=name, device=p["display"])
+        yield Expose(auto=CALIBRATION_EXPOSURE)
+        yield Capture(p["frames_per_point"], "scene")
+        yield ShowSlm(gray=np.zeros_like(gray), label="black", device=p["display"])
+        yield Capture(p["frames_per_point"], "dark")
+
+    def known_scene(self, name: str, sensor_shape: tuple[int, int]) -> np.ndarray:
+        """Scene ``name`` as displayed, on the sensor grid (radiance 1 at gray 255)."""
+        p = self.params
+        gray = display_gray(name, tuple(p["display_shape"])) / 255.0
+        width_mm = p["display_shape"][1] * p["display_pitch_um"] * 1e-3
+        return plane_on_object_grid(gray, p["z_mm"], width_mm, p["d_mm"],
+                                    p["pitch_mm"] * 1e3, sensor_shape)
+
+    def reduce(self, store) -> dict:
+        """Estimate the PSF from the scenes and their dark-subtracted measurements
+        (DN/s); write ``psf_stack`` and return the summary of :func:`write_psf`."""
+        p = self.params
+        names = p["scene_names"]
+        measurements = [signal_minus_dark(store, i, "scene", "dark")[0].astype(np.float32)
+                        for i in range(store.n_points)]
+        shape = measurements[0].shape
+        scenes = [self.known_scene(n, shape).astype(np.float32) for n in names]
+        if max(float(np.abs(b).max()) for b in measurements) == 0.0:
+            raise PlanError("the displayed scenes left no signal on the camera; put the "
+                            f"display ({p['display']}) in front of the camera, facing it")
+        options = {"iterations": p["iterations"]}
+        estimate = estimate_psf_from_scenes(scenes, measurements, **options)
+        held = leave_one_out(scenes, measurements, **options).residuals
+        return write_psf(store, estimate, held, names, p["z_mm"],
+                         "DN/s per unit display radiance")
