@@ -24,6 +24,11 @@ from tests.refcycles import assert_freed_without_the_collector
 
 SHAPE = (32, 40)
 
+#: How long a wait for the worker's progress may take before it is called a hang (s):
+#: not a speed check (beside busy processes a thread at nice 10 gets about 1 % of a
+#: core); a wait ends as soon as its condition holds.
+HANG_S = 120.0
+
 
 def _frame(index: int, value: float = 1.0) -> Frame:
     image = np.full(SHAPE, 100 + value, np.uint16)
@@ -58,11 +63,30 @@ class SlowReconstructor:
         self.resets += 1
 
 
-def _wait_for(condition, timeout_s=3.0):
+class GatedReconstructor(SlowReconstructor):
+    """A SlowReconstructor whose solves wait until the test opens ``gate``: the test,
+    not the machine's speed, decides when a solve ends (a solve left waiting
+    :data:`HANG_S` goes on, so a test that fails does not hang)."""
+
+    def __init__(self, seconds: float):
+        super().__init__(seconds)
+        self.gate = threading.Event()
+
+    def _run(self, raw, method, iterations, warm):
+        self.gate.wait(HANG_S)
+        return super()._run(raw, method, iterations, warm)
+
+
+def _wait_for(condition, timeout_s=HANG_S):
     deadline = time.monotonic() + timeout_s
     while not condition():
-        assert time.monotonic() < deadline, "condition not reached in time"
+        assert time.monotonic() < deadline, f"condition not reached in {timeout_s:g} s: a hang"
         time.sleep(0.005)
+
+
+def _join(thread: threading.Thread) -> None:
+    thread.join(HANG_S)
+    assert not thread.is_alive(), f"{thread.name} still running after {HANG_S:g} s: a hang"
 
 
 def test_slot_keeps_the_newest_frame_and_counts_overwrites():
@@ -74,40 +98,48 @@ def test_slot_keeps_the_newest_frame_and_counts_overwrites():
     assert slot.take(0.0).index == 2
     assert slot.take(0.01) is None
     got = []
-    t = threading.Thread(target=lambda: got.append(slot.take(2.0)))
+    t = threading.Thread(target=lambda: got.append(slot.take(HANG_S)))
     t.start()
     slot.offer(_frame(7))
-    t.join(2.0)
+    _join(t)
     assert got[0].index == 7 and slot.counters()["skipped"] == 2
+    # close wakes a take that waits (for an hour here): stop() does not wait out a poll
+    t = threading.Thread(target=lambda: got.append(slot.take(3600.0)), name="waiting take")
+    t.start()
+    _wait_for(lambda: len(slot._cond._waiters) == 1)  # it waits (CPython's Condition)
     slot.close()
+    _join(t)
+    assert got[1] is None
     assert slot.take(5.0) is None  # closed: returns at once
 
 
 def test_worker_fed_faster_than_it_works_takes_the_newest_and_counts_skips():
-    slow = SlowReconstructor(0.04)
-    live = LiveReconstruction(slow, window_s=10.0)
-    live.start()
-    offer_s = []
-    for i in range(40):  # 200 fps offered, 25 fps possible
-        frame = _frame(i, value=i)
-        t0 = time.perf_counter()
-        live.offer(frame)
-        offer_s.append(time.perf_counter() - t0)
-        time.sleep(0.005)
-    assert max(offer_s) < 0.03  # offer never waited for a 40 ms solve
+    # frame 0's solve is held while 39 more frames are offered: offer returns while the
+    # worker is busy, and the worker then takes the newest, counting the rest as skipped
+    slow = GatedReconstructor(0.04)
+    live = LiveReconstruction(slow, window_s=HANG_S)
+    live.start(timeout_s=HANG_S)
+    live.offer(_frame(0, value=0))
+    _wait_for(lambda: live.slot.counters()["taken"] == 1)  # frame 0 is being solved
+    first_offered = time.time()
+    for i in range(1, 40):
+        live.offer(_frame(i, value=i))
+    assert slow.seen == [] and not slow.gate.is_set()  # no offer waited for the solve
+    opened = time.time()
+    slow.gate.set()
     _wait_for(lambda: live.latest() is not None and live.latest().frame_index == 39)
-    live.stop(timeout_s=1.0)
+    live.stop(timeout_s=HANG_S)
     s = live.stats()
-    assert s["received"] == 40
-    assert s["reconstructed"] == len(slow.seen) < 20
-    assert s["skipped"] == 40 - s["reconstructed"] > 20  # every frame accounted for
-    assert slow.seen == sorted(slow.seen) and slow.seen[-1] == 39
+    assert s["received"] == 40 and slow.seen == [0, 39]
+    assert s["reconstructed"] == 2 and s["skipped"] == 38  # every frame accounted for
     assert s["errors"] == 0 and s["last_error"] is None and not s["running"]
-    assert 10 < s["fps"] < 30  # ~25 fps of 40 ms solves
+    # two results 40 ms of solving apart: at most 25 per second (a lower bound would be a
+    # speed check: run_live_benchmark measures the rate)
+    assert 0 < s["fps"] < 26
     assert s["latency_median_s"] >= 0.04 and s["latency_p95_s"] >= s["latency_median_s"]
     summary = live.latency_summary()
-    assert summary["count"] == s["reconstructed"]
-    assert summary["compute_median_s"] == pytest.approx(0.04)
+    assert summary["count"] == 2 and summary["max_s"] >= opened - first_offered
+    assert summary["compute_median_s"] == pytest.approx(0.04)  # the solver's own figure
 
 
 def test_worker_on_a_ring_with_the_real_reconstructor():
@@ -120,18 +152,17 @@ def test_worker_on_a_ring_with_the_real_reconstructor():
     for i in range(5):
         ring.put(_frame(i, value=i))
         time.sleep(0.02)
-    # generous: the first frame compiles the kernels (a wait, not a speed check)
-    _wait_for(lambda: live.stats()["reconstructed"] >= 1
-              and live.stats()["received"] == 5, timeout_s=60.0)
+    # the first frame compiles the kernels (a wait, not a speed check)
+    _wait_for(lambda: live.stats()["reconstructed"] >= 1 and live.stats()["received"] == 5)
     preview = live.latest()
     assert preview.method == "wiener" and preview.image.shape == SHAPE
     assert preview.latency_s > 0 and preview.result_time_s > preview.host_timestamp_s
     live.set_method("admm", iterations=3)
     ring.put(_frame(5))
     ring.put(_frame(6))
-    _wait_for(lambda: live.latest().frame_index == 6, timeout_s=60.0)
+    _wait_for(lambda: live.latest().frame_index == 6)
     assert live.latest().method == "admm" and live.latest().iterations == 3
-    live.stop(timeout_s=2.0)
+    live.stop(timeout_s=HANG_S)
     s = live.stats()
     assert s["received"] == 7 == s["reconstructed"] + s["skipped"]
     assert ring.counters()["read"] == 7 and s["latency_s"] is not None
@@ -160,26 +191,26 @@ def test_a_failed_ring_is_reported():
     live.start(ring=ring)
     ring.fail(ConnectionError("camera unplugged"))
     _wait_for(lambda: live.stats()["errors"] == 1)
-    live.stop(timeout_s=1.0)
+    live.stop(timeout_s=HANG_S)
     assert "camera unplugged" in live.stats()["last_error"]
 
 
 def test_stop_returns_within_its_timeout_or_says_why():
-    live = LiveReconstruction(SlowReconstructor(0.3))
-    live.start()
-    t0 = time.monotonic()
-    live.stop(timeout_s=1.0)  # idle worker: wakes at once
-    assert time.monotonic() - t0 < 0.5
-    live.start()
+    slow = GatedReconstructor(0.0)
+    live = LiveReconstruction(slow)
+    live.start(timeout_s=HANG_S)
+    live.stop(timeout_s=HANG_S)  # idle worker: woken by the slot's close, ends
+    assert not live.running
+    live.start(timeout_s=HANG_S)
     live.offer(_frame(0))
-    _wait_for(lambda: live.slot.counters()["taken"] == 1)
-    t0 = time.monotonic()
+    _wait_for(lambda: live.slot.counters()["taken"] == 1)  # its solve waits on the gate
     with pytest.raises(LiveReconstructionError, match="longer than one frame"):
-        live.stop(timeout_s=0.05)  # busy for 0.3 s
-    assert time.monotonic() - t0 < 0.2
+        live.stop(timeout_s=0.05)
+    assert not slow.gate.is_set() and slow.seen == []  # it returned, the solve still held
     with pytest.raises(LiveReconstructionError, match="already running"):
         live.start()
-    live.stop(timeout_s=1.0)
+    slow.gate.set()
+    live.stop(timeout_s=HANG_S)
     assert not live.running and live.stats()["reconstructed"] == 1
 
 
@@ -210,7 +241,7 @@ def test_threads_caps_the_worker_and_nothing_else():
         assert probe.threads_seen == (1, 1)
         assert (fft_workers(), thread_count()) == before  # this thread keeps all cores
     finally:
-        live.stop(timeout_s=2.0)
+        live.stop(timeout_s=HANG_S)
 
 
 def test_limited_threads_restores_the_caller():
@@ -242,14 +273,14 @@ def test_nice_lowers_the_worker_thread_and_nothing_else():
     mine = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
     probe = NiceProbe(0.0)
     live = LiveReconstruction(probe, nice=5)
-    live.start()
+    live.start(timeout_s=HANG_S)
     try:
         live.offer(_frame(1))
         _wait_for(lambda: live.stats()["reconstructed"] == 1)
         assert probe.nice == min(mine + 5, 19)
         assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == mine
     finally:
-        live.stop(timeout_s=2.0)
+        live.stop(timeout_s=HANG_S)
     with pytest.raises(ReconInputError, match="nice"):
         LiveReconstruction(probe, nice=-1)
 
@@ -263,20 +294,27 @@ def test_started_from_a_lowered_thread_the_worker_is_counted_from_the_process():
     probe = NiceProbe(0.0)
     live = LiveReconstruction(probe, nice=10)
 
-    def from_a_job_thread():
-        assert lower_thread_priority(10)
-        assert not lower_thread_priority(10)  # already that low: left as it is
-        live.start()
+    failed: list[BaseException] = []
 
-    t = threading.Thread(target=from_a_job_thread)
+    def from_a_job_thread():
+        try:
+            assert lower_thread_priority(10)
+            assert not lower_thread_priority(10)  # already that low: left as it is
+            live.start(timeout_s=HANG_S)  # at nice 10 beside busy processes: slow to come up
+        except BaseException as exc:  # raised again in the test's own thread
+            failed.append(exc)
+
+    t = threading.Thread(target=from_a_job_thread, name="job")
     t.start()
-    t.join(30)
+    _join(t)
+    if failed:
+        raise failed[0]
     try:
         live.offer(_frame(1))
         _wait_for(lambda: live.stats()["reconstructed"] == 1)
         assert probe.nice == min(process + 10, 19)
     finally:
-        live.stop(timeout_s=2.0)
+        live.stop(timeout_s=HANG_S)
 
 
 def test_a_stopped_live_reconstruction_with_an_error_is_freed_without_the_collector():
@@ -291,7 +329,7 @@ def test_a_stopped_live_reconstruction_with_an_error_is_freed_without_the_collec
     assert "frame 0" in live.stats()["last_error"]
     ring.fail(ConnectionError("camera unplugged"))
     _wait_for(lambda lr=live: lr.stats()["errors"] == 2)
-    live.stop(timeout_s=2.0)
+    live.stop(timeout_s=HANG_S)
     assert isinstance(live.error, ConnectionError) and "frame 0" not in live.stats()["last_error"]
     held = {"live": live}
     del live
