@@ -234,28 +234,26 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
     check_values(method=method, iterations=iterations, tv=tv, l1=l1, bin_factor=bin_factor,
                  **options)
     l1 = l1_given(l1)  # None: the model's own default (0, FISTA on a grid 1e-3)
+    # the options object every kind's path reads (checked above; the dark level as the
+    # kind takes it), and the kind's own objects beside it
+    chosen = ReconOptions.from_defaults(
+        method=method, iterations=iterations, tv=tv,
+        l1=l1 if kind == "grid" else 0.0 if l1 is None else l1, bin_factor=bin_factor,
+        dark=_image_dark(dark) if kind == "image" else dark, device=device,
+        **{k: v for k, v in options.items() if k in _D})
+    own = {k: v for k, v in options.items() if k not in _D}
     if kind == "image":
         from .planar import reconstruct_image
 
-        declared = {k: v for k, v in options.items() if k in _D}
-        chosen = ReconOptions.from_defaults(
-            method=method, iterations=iterations, tv=tv, l1=0.0 if l1 is None else l1,
-            bin_factor=bin_factor, dark=_image_dark(dark), device=device, **declared)
-        return reconstruct_image(model, raw, chosen,
-                                 **{k: v for k, v in options.items() if k not in _D})
+        return reconstruct_image(model, raw, chosen, **own)
     if kind == "volume":
         from .volume.api import reconstruct_stack
 
-        return reconstruct_stack(model.psf, model.depths_mm, raw, method=method,
-                                 iterations=iterations, tv=tv, l1=0.0 if l1 is None else l1,
-                                 bin_factor=bin_factor, dark=dark, device=device,
-                                 **options)
+        return reconstruct_stack(model.psf, model.depths_mm, raw, chosen, **own)
     from .spatial.api import reconstruct_psf_grid
 
     grids = model if not isinstance(model, tuple) else list(model)
-    return reconstruct_psf_grid(grids, raw, method=method, iterations=iterations, tv=tv,
-                                l1=l1, bin_factor=bin_factor, dark=dark, device=device,
-                                **options)
+    return reconstruct_psf_grid(grids, raw, chosen, **own)
 
 
 def check_values(**values) -> None:

@@ -41,9 +41,6 @@ from .choice import MODELS, ModelChoice, build_operator, choose_model, predicted
 from .device import BACKGROUND_PLANES, device_grid_solvers, solve_grid_on
 from .grid import PsfGrid
 
-#: The declared defaults (:class:`recon.options.ReconOptions`), shared with the front door.
-_D = ReconOptions.defaults()
-
 __all__ = ["BACKGROUNDS", "GRID_METHODS", "GRID_SOLVERS", "bin_grid", "grid_dark",
            "grid_metrics", "grid_model", "reconstruct_psf_grid"]
 
@@ -187,14 +184,9 @@ def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=No
     return choice, op
 
 
-def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
-                         k: int | None = _D["k"], background: str = _D["background"],
-                         l1=_D["l1"], iterations: int = _D["iterations"], depths_mm=None,
-                         bin_factor: int = _D["bin_factor"], dark=_D["dark"], support=None,
-                         tolerance: float | None = None, prepared: tuple | None = None,
-                         method: str = _D["method"], tv=_D["tv"],
-                         two_part: bool = _D["two_part"],
-                         device: str = _D["device"]) -> Reconstruction:
+def reconstruct_psf_grid(grids, raw: np.ndarray, options: ReconOptions | None = None, *,
+                         depths_mm=None, support=None, tolerance: float | None = None,
+                         prepared: tuple | None = None) -> Reconstruction:
     """Reconstruct an image (one grid) or a volume (several grids) from one frame.
 
     Parameters
@@ -203,39 +195,38 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
         Registered calibration grids (one: 2D; a list, one per depth: 3D).
     raw : ndarray, (rows, cols)
         The frame, same shape as the PSFs.
-    model : {"auto", "convolution", "local", "pca"}
-    k : int, optional
-        PCA components (default from the explained energy).
-    background : {"estimate", "none"}
-        Eq. 6.2's joint background, or none (``"none"`` with ``method="admm"``).
-    l1 : float or "auto", optional
-        l1 weight in the scaled problem; not given (the declared default,
-        :data:`recon.options.L1_DEFAULT`) or None: 1e-3 with FISTA (Eq. 6.2's sparse
-        object), 0 with ADMM; ``"auto"`` (``method="admm"`` only) chooses it by hold-out
-        cross-validation.
-    iterations : int
-        FISTA's iterations; ADMM's maximum (it stops when the fit settles, and the
-        automatic weight takes at most twice as many, :mod:`recon.auto.weight`).
-    method : {"auto", "fista", "admm"}
-        ``"auto"`` (default) is FISTA: the grid solver that estimates Eq. 6.2's
-        background and serves a volume. FISTA on Eq. 6.2 (l1, non-negativity, the
-        optional background), or ADMM with TV, l1 and non-negativity
-        (:func:`recon.spatial.spatial_admm`; 2D, without a background): converged
-        in a few hundred iterations where FISTA takes thousands.
-    tv : float or "auto"
-        TV weight of ``method="admm"`` (scaled problem); ``"auto"`` (default) by hold-out
-        cross-validation, the record in ``info.auto``.
-    two_part : bool
-        A far scene (Eq. 5.1): model the caustics (each PSF over its brightness,
-        :func:`recon.spatial.caustic_grid`) and divide the image by the brightness map
-        (:func:`recon.spatial.brightness_map`); 2D only. The kernels then carry equal
-        light, which is also what lets ADMM's preconditioner fit.
+    options : recon.options.ReconOptions, optional
+        The reconstruction's options, as :func:`recon.reconstruct` passes them; default
+        the declared ones (:meth:`~diffuserlab.options.Options.from_defaults`). This
+        path reads ``model`` (``"auto"``, ``"convolution"``, ``"local"``, ``"pca"``),
+        ``k`` (PCA components; None: from the explained energy), ``background``
+        (``"estimate"``: Eq. 6.2's joint background, or ``"none"``, which
+        ``method="admm"`` needs), ``l1`` (l1 weight in the scaled problem; not given,
+        the declared default :data:`recon.options.L1_DEFAULT`, or None: 1e-3 with FISTA,
+        Eq. 6.2's sparse object, 0 with ADMM; ``"auto"``, ``method="admm"`` only,
+        chooses it by hold-out cross-validation), ``iterations`` (FISTA's iterations;
+        ADMM's maximum: it stops when the fit settles, and the automatic weight takes at
+        most twice as many, :mod:`recon.auto.weight`), ``method`` (``"auto"`` is FISTA:
+        the grid solver that estimates Eq. 6.2's background and serves a volume;
+        ``"fista"``: FISTA on Eq. 6.2, l1, non-negativity, the optional background;
+        ``"admm"``: ADMM with TV, l1 and non-negativity,
+        :func:`recon.spatial.spatial_admm`, 2D, without a background, converged in a few
+        hundred iterations where FISTA takes thousands), ``tv`` (TV weight of
+        ``method="admm"``, scaled problem; ``"auto"`` by hold-out cross-validation, the
+        record in ``info.auto``), ``two_part`` (a far scene, Eq. 5.1: model the
+        caustics, each PSF over its brightness, :func:`recon.spatial.caustic_grid`, and
+        divide the image by the brightness map, :func:`recon.spatial.brightness_map`;
+        2D only; the kernels then carry equal light, which is also what lets ADMM's
+        preconditioner fit), ``bin_factor``, ``dark`` (subtracted from the raw frame
+        only, :func:`grid_dark`: the grid's PSFs are dark-subtracted; ``"auto"`` and
+        ``"none"`` subtract nothing; a level or a (rows, cols) frame) and ``device``
+        (:func:`recon.backend.resolve_device`: the CPU's NumPy path, or a CUDA GPU
+        through the array-API path, FISTA of Eq. 6.2, ``recon.spatial.xp_background``,
+        ADMM, ``recon.spatial.xp_admm``, after a check of its free memory,
+        ``recon.spatial.device``; the model choice and ADMM's automatic weight run on
+        the CPU; ``info.device`` says which ran).
     depths_mm : array_like, optional
         3D reconstruction depths (grids synthesised, Sec. 5.2); default the grids'.
-    bin_factor : int
-    dark : "auto", "none", None, float or ndarray (rows, cols)
-        Subtracted from the raw frame only (:func:`grid_dark`: the grid's PSFs are
-        dark-subtracted; ``"auto"`` and ``"none"`` subtract nothing).
     support : ndarray of bool, optional
         Object support on the model's object grid (after binning).
     tolerance : float, optional
@@ -244,12 +235,6 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
         :func:`grid_model`'s result for these grids and ``bin_factor``, made once for
         a batch of frames (then ``model``, ``k``, ``depths_mm``, ``support`` and
         ``tolerance`` are not used).
-    device : {"cpu", "cuda", "auto"}
-        Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy
-        path (default), or a CUDA GPU through the array-API path (FISTA of Eq. 6.2,
-        ``recon.spatial.xp_background``; ADMM, ``recon.spatial.xp_admm``), after
-        a check of its free memory (``recon.spatial.device``). The model choice and
-        ADMM's automatic weight run on the CPU. ``info.device`` says which ran.
 
     Returns
     -------
@@ -268,7 +253,11 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
     recon.auto.NoSignalError
         ``method="admm"`` on a frame that holds only noise.
     """
-    backend = resolve_device(device)
+    o = ReconOptions.from_defaults() if options is None else options
+    model, k, background, iterations, method = (o.model, o.k, o.background, o.iterations,
+                                                o.method)
+    tv, bin_factor, dark, two_part = o.tv, o.bin_factor, o.dark, o.two_part
+    backend = resolve_device(o.device)
     if model not in MODELS:
         raise ReconInputError(f"unknown model {model!r}; choose one of {', '.join(MODELS)}")
     if background not in BACKGROUNDS:
@@ -281,7 +270,7 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, *, model: str = _D["model"],
         raise ReconInputError(f"unknown method {method!r} for a PSF grid; choose "
                               f"{' or '.join(GRID_METHODS)}")
     iterations = as_int(iterations, "iterations", 1)
-    l1 = l1_given(l1)  # None: not given, the method's own default
+    l1 = l1_given(o.l1)  # None: not given, the method's own default
     if method == "admm":
         if background != "none":
             raise ReconInputError("the joint background of Eq. 6.2 is estimated by FISTA; with "

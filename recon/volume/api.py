@@ -25,7 +25,7 @@ from ..auto.noise import NoiseModel, estimate_noise
 from ..auto.volume import EMPTY_PLANES, auto_volume
 from ..backend import resolve_device
 from ..errors import ReconInputError
-from ..options import ReconOptions
+from ..options import ReconOptions, l1_given
 from ..preprocess import (
     box_bin,
     check_pair_ranges,
@@ -54,9 +54,6 @@ from .streamed import streamed_fft_floor_seconds
 from .xp_admm3d import XpVolumeAdmmPlan, auto3d_extra_bytes
 from .xp_admm3d import memory_bytes as admm3d_memory
 from .xp_fista3d import memory_bytes as fista3d_memory
-
-#: The declared defaults (:class:`recon.options.ReconOptions`), shared with the front door.
-_D = ReconOptions.defaults()
 
 __all__ = ["DEFAULT_TV", "METHODS", "SATURATION_WARN", "SOLVERS", "check_volume_parameters",
            "depth_profile", "prepare_volume_problem", "reconstruct_stack", "volume_metrics"]
@@ -293,15 +290,10 @@ def check_volume_parameters(method: str, iterations: int, tv: float, l1: float,
             raise ReconInputError(f"{name} must be a finite number >= 0, got {w!r}")
 
 
-def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
-                      method: str = _D["method"], iterations: int = _D["iterations"],
-                      tv: float | str | None = _D["tv"], l1: float | str = 0.0,
-                      bin_factor: int = _D["bin_factor"], dark=_D["dark"],
-                      allow_mixed_ranges: bool = _D["allow_mixed_ranges"],
-                      empty_planes: str = _D["empty_planes"],
-                      device: str = _D["device"], memory_limit_bytes: int | None = None,
-                      slab_group=None, announce=None, prior: str = _D["prior"]
-                      ) -> Reconstruction:
+def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray,
+                      options: ReconOptions | None = None, *,
+                      memory_limit_bytes: int | None = None, slab_group=None,
+                      announce=None) -> Reconstruction:
     """Reconstruct a volume from one DiffuserCam measurement and a PSF stack (Eq. 4.4-4.5).
 
     Parameters
@@ -312,42 +304,34 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
         Depth of every plane, mm.
     raw : ndarray, shape (rows, cols), real
         The measurement (sensor counts), the size of one plane.
-    method : {"admm", "fista", "auto"}
-        3D ADMM (:func:`recon.volume.admm3d`) or 3D FISTA
-        (:func:`recon.volume.fista3d`); ``"auto"`` is ADMM (the 3D accuracy
-        benchmark's best).
-    iterations : int
-        Solver iterations (>= 1); with an automatic weight, those of the fixed-weight
-        run it replaces (the path and the final solve take at most 2.5x as many,
-        :data:`recon.auto.volume.VOLUME_RULES`; with few iterations the path's steps
-        are coarse and the record says so).
-    tv : "auto" or float
-        3D TV weight in the scaled problem (>= 0; 0 disables); ``"auto"`` (default)
-        chooses it by hold-out cross-validation along a warm-started 3D ADMM path and
-        tests every plane for signal against the held-out pixels and the frame's
-        noise model (:func:`recon.auto.volume.auto_volume`; ``info["auto"]`` says
-        what and why); ``None`` gives :data:`DEFAULT_TV` for the method.
-    l1 : "auto" or float
-        l1 (native sparsity) weight in the scaled problem (>= 0; 0 disables); with
-        ``"auto"`` it is the weight chosen (TV then fixed, 0 if ``tv`` is ``"auto"``).
-    bin_factor : int
-        Lateral box binning of the stack and the raw image.
-    dark : "auto", "none", None, float or ndarray
-        Dark level handling (:func:`prepare_volume_problem`).
-    allow_mixed_ranges : bool
-        Accept a stack and raw of different bit depths (:func:`prepare_volume_problem`).
-    empty_planes : {"keep", "drop"}
-        With an automatic weight: keep every plane (default), or set those that show
-        no signal in the held-out pixels, alone or together
-        (:func:`recon.auto.planes.plane_tests`), to zero; ``info["auto"]`` says
-        which, why, and what the held-out error and the residual did.
-    device : {"cpu", "cuda", "auto"}
-        Where the solve runs (:func:`recon.backend.resolve_device`): the CPU's NumPy path
-        (default), a CUDA GPU (the array-API paths: 3D ADMM's generic kernel set,
+    options : recon.options.ReconOptions, optional
+        The reconstruction's options, as :func:`recon.reconstruct` passes them; default
+        the declared ones (:meth:`~diffuserlab.options.Options.from_defaults`). This
+        path reads ``method`` (``"admm"``: 3D ADMM, :func:`recon.volume.admm3d`;
+        ``"fista"``: 3D FISTA, :func:`recon.volume.fista3d`; ``"auto"`` is ADMM, the
+        3D accuracy benchmark's best), ``iterations`` (>= 1; with an automatic weight,
+        those of the fixed-weight run it replaces: the path and the final solve take at
+        most 2.5x as many, :data:`recon.auto.volume.VOLUME_RULES`; with few iterations
+        the path's steps are coarse and the record says so), ``tv`` (3D TV weight in
+        the scaled problem, >= 0, 0 disables; ``"auto"`` or None chooses it by hold-out
+        cross-validation along a warm-started 3D ADMM path and tests every plane for
+        signal against the held-out pixels and the frame's noise model,
+        :func:`recon.auto.volume.auto_volume`, ``info["auto"]`` says what and why),
+        ``l1`` (native sparsity weight, >= 0; ``"auto"``: the weight chosen, TV then
+        fixed, 0 if ``tv`` is ``"auto"``; not given: 0), ``bin_factor`` (lateral box
+        binning of the stack and the raw image), ``dark`` and ``allow_mixed_ranges``
+        (:func:`prepare_volume_problem`), ``empty_planes`` (with an automatic weight:
+        ``"keep"`` every plane, or ``"drop"``: those that show no signal in the
+        held-out pixels, alone or together, :func:`recon.auto.planes.plane_tests`, set
+        to zero; ``info["auto"]`` says which, why, and what the held-out error and the
+        residual did), ``device`` (:func:`recon.backend.resolve_device`: the CPU's
+        NumPy path, a CUDA GPU, the array-API paths: 3D ADMM's generic kernel set,
         ``recon.volume.xp_admm3d.XpVolumeAdmmPlan``, and
-        ``recon.volume.xp_fista3d.fista3d_xp``; an automatic weight's held-out
-        path and final solve run there too, its plane tests on the host), or the GPU
-        when one is usable. ``info["device"]`` says which ran.
+        ``recon.volume.xp_fista3d.fista3d_xp``, an automatic weight's held-out path
+        and final solve there too, its plane tests on the host, or the GPU when one is
+        usable; ``info["device"]`` says which ran) and ``prior`` (the prior of 3D ADMM,
+        :mod:`recon.priors`: 3D TV, or ``"wavelet"`` or ``"dncnn"`` on each plane,
+        ``tv`` its fixed weight; in memory, on the CPU or a device).
     memory_limit_bytes : int, optional
         The most this process's resident set may reach during a CPU solve (default:
         what it holds plus what the machine has available now). The first plan whose
@@ -367,9 +351,6 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     announce : callable, optional
         ``announce(line)``: the memory plan and the streamed solve's estimate,
         before the solve (``recon3d`` prints them).
-    prior : {"tv", "wavelet", "dncnn"}
-        The prior of 3D ADMM (:mod:`recon.priors`): 3D TV (default), or a prior on
-        each plane (``tv`` its fixed weight; in memory, on the CPU or a device).
 
     Returns
     -------
@@ -389,7 +370,13 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray, *,
     recon.errors.DivergenceError
         The solver diverged.
     """
-    backend = resolve_device(device)
+    o = ReconOptions.from_defaults() if options is None else options
+    method, iterations, tv, bin_factor, dark = (o.method, o.iterations, o.tv, o.bin_factor,
+                                                o.dark)
+    allow_mixed_ranges, empty_planes, prior = o.allow_mixed_ranges, o.empty_planes, o.prior
+    l1 = l1_given(o.l1)
+    l1 = 0.0 if l1 is None else l1
+    backend = resolve_device(o.device)
     reason = "given"
     if method == AUTO:  # 3D ADMM: the best localisation and PSNR of the 3D benchmark
         method, reason = "admm", ("3D ADMM: the best localisation and PSNR of the 3D "

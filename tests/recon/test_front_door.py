@@ -95,14 +95,14 @@ def test_the_model_kind_picks_the_path_with_the_same_defaults(kind, monkeypatch)
 
 
 def test_the_three_paths_declare_the_same_defaults():
-    """The kinds' own functions default to what the front door passes (the 2D path
-    takes the options object, whose defaults are the declared ones)."""
+    """The kinds' own functions take the options object the front door passes, and
+    without one the declared defaults, the front door's."""
     door = inspect.signature(recon.reconstruct).parameters
-    assert inspect.signature(reconstruct_image).parameters["options"].default is None
-    for engine in (reconstruct_stack, reconstruct_psf_grid):
-        params = inspect.signature(engine).parameters
-        for name in ("method", "iterations", "tv", "bin_factor", "dark"):
-            assert params[name].default == door[name].default, (engine.__name__, name)
+    for engine in (reconstruct_image, reconstruct_stack, reconstruct_psf_grid):
+        assert inspect.signature(engine).parameters["options"].default is None
+    defaults = ReconOptions.from_defaults()
+    for name in ("method", "iterations", "tv", "bin_factor", "dark"):
+        assert getattr(defaults, name) == door[name].default, name
 
 
 def test_a_list_of_grids_is_a_grid_model_and_aliases_reach_the_front_door():

@@ -23,10 +23,10 @@ import recon
 from recon.options import LiveOptions, ReconOptions
 
 #: Packages and modules of recon that are no reconstruction layer (hologram design,
-#: optics models, analyses and studies, simulated measurements): their ``iterations``,
-#: ``seed`` or ``model`` are their own quantities.
-NOT_RECONSTRUCTION = ("recon.cgh", "recon.optics", "recon.analysis", "recon.benchmarks",
-                      "recon.simulate", "recon.scenes", "recon.sample", "recon.priors")
+#: optics models, analyses, simulated measurements): their ``iterations``, ``seed`` or
+#: ``model`` are their own quantities.
+NOT_RECONSTRUCTION = ("recon.cgh", "recon.optics", "recon.analysis", "recon.simulate",
+                      "recon.scenes", "recon.sample", "recon.priors")
 #: The live layers: their method and iterations per frame are LiveOptions'.
 LIVE_MODULES = ("recon.live", "recon.xp_live", "instrument.live", "instrument.live_process")
 
@@ -161,13 +161,14 @@ def test_the_solvers_shared_default_is_the_declaration():
 
 #: The layers that decide and the most parameters each takes (the options object and
 #: the prepared problem, and their own objects: a mask, a colour pattern, plans).
-DECIDING = {"recon.planar.reconstruct_image": 8, "recon.auto.solve_channel": 9}
+DECIDING = {"recon.planar.reconstruct_image": 8, "recon.auto.solve_channel": 9,
+            "recon.volume.api.reconstruct_stack": 7, "recon.spatial.api.reconstruct_psf_grid": 7}
 
 
 def test_the_deciding_layers_take_the_options_object():
-    """The 2D path and each channel's solve take the options (ReconOptions) instead of
-    loose keywords: no parameter named after a declared option, and a short
-    signature (they took 19 and 16)."""
+    """The kinds' paths and each channel's solve take the options (ReconOptions)
+    instead of loose keywords: no parameter named after a declared option, and a short
+    signature (they took 19, 16, 15 and 16)."""
     for dotted, most in DECIDING.items():
         module, name = dotted.rsplit(".", 1)
         params = inspect.signature(getattr(importlib.import_module(module), name)).parameters
