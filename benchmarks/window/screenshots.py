@@ -62,7 +62,11 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
     from PySide6.QtWidgets import QApplication
 
     from gui.app import MainWindow, configure
-    from gui.session import Session
+    from gui.session import BENCH_JOBS, Session
+
+    from .device_jobs import JOBS
+
+    BENCH_JOBS.update(JOBS)  # a simulated device's faults
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
     configure()
@@ -117,10 +121,9 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         s = w.session
         s.connect_bench()
         wait_until(app, lambda: s.connected, 120, "the bench to open")
-        bench = s.bench
+        bench = s.service
         for stage in ("source_stage", "mask_stage"):
-            dev = bench.device(stage)
-            dev.apply_settings({"velocity": dict.fromkeys(dev.axes, 50.0)})
+            bench.apply_settings(stage, {"velocity": dict.fromkeys(s.devices[stage].axes, 50.0)})
         # calibration: a short PSF sweep
         cal = w.calibration
         cal.routine.setCurrentText("psf-sweep")
@@ -136,14 +139,14 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         box = w.devices.boxes["led_array"]
         import numpy as np
 
-        centre = int(np.argmin(np.hypot(*bench.led_array.positions_mm.T)))
+        centre = int(np.argmin(np.hypot(*s.devices["led_array"].led_positions_mm.T)))
         job = box.light_led(centre)
         wait_until(app, lambda: job.done, 10, "the LED")
         from instrument.runstore import RunStore
 
         depths = RunStore.open(sweep).product("psf_stack")[1]["depths_mm"]
         depth = depths[len(depths) // 2]
-        bench.source_stage.move_to({"x": 0.0, "y": 0.0, "z": depth})
+        bench.move("source_stage", {"x": 0.0, "y": 0.0, "z": depth})
         # live view: the stream and the live reconstruction with the sweep's PSF
         live = w.live
         live.psf.setText(sweep)
@@ -161,15 +164,14 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         # leaves the window's layout overlapping under the window manager
         shot("window", "Live view")
         # a device unplugged: red in its box, the status area and the device count
-        leds = bench.led_array
-        leds.faults.disconnect()
+        bench.run_job("device_fault", {"device": "led_array", "action": "disconnect"})
         job = box.light_led(centre)
         wait_until(app, lambda: job.done, 10, "the refused LED")
         wait_until(app, lambda: "disconnected" in w.devices.state.text(), 10, "the poll")
         w.devices.area.ensureWidgetVisible(box, 0, 0)
         _settle(app, 1.5)
         shot("disconnected", "Devices")
-        leds.faults.allow_reconnect()
+        bench.run_job("device_fault", {"device": "led_array", "action": "allow_reconnect"})
         job = box.reconnect()
         wait_until(app, lambda: job.done, 10, "the reconnect")
         # devices: a refused setting shows the interface's message
@@ -179,13 +181,13 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         job = cam_box.apply("exposure_s")
         wait_until(app, lambda: job.done, 10, "the refusal")
         shot("devices", "Devices")
-        cam_box.fields["exposure_s"].setText(f"{bench.camera.exposure_s:g}")
+        cam_box.fields["exposure_s"].setText(f"{bench.settings('camera')['exposure_s']:g}")
         job = cam_box.apply("exposure_s")
         wait_until(app, lambda: job.done, 10, "the setting")
         # presets: the camera's settings saved under names, one applied
-        exposure = bench.camera.exposure_s
+        exposure = bench.settings("camera")["exposure_s"]
         for name, value in (("dim scene, 40 ms", 0.04), ("bright PSF, 2 ms", 0.002)):
-            job = cam_box.run(bench.camera.apply_settings, {"exposure_s": value})
+            job = cam_box.run(bench.apply_settings, "camera", {"exposure_s": value})
             wait_until(app, lambda j=job: j.done, 10, "the exposure")
             cam_box.save_preset(name)
         job = cam_box.apply_preset("dim scene, 40 ms")
@@ -194,17 +196,17 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         cam_box.preset.setCurrentText("dim scene, 40 ms")
         w.devices.area.ensureWidgetVisible(cam_box, 0, 0)
         detail("presets", cam_box)
-        job = cam_box.run(bench.camera.apply_settings, {"exposure_s": exposure})
+        job = cam_box.run(bench.apply_settings, "camera", {"exposure_s": exposure})
         wait_until(app, lambda j=job: j.done, 10, "the exposure")
         cam_box.refresh_settings()
         # stored positions: the stage at the pinhole and at the sweep's far end
         stage_box = w.devices.boxes["source_stage"]
         for name, where in (("pinhole on axis", {"x": 0.0, "y": 0.0, "z": depth}),
                             ("far end", {"x": 0.0, "y": 0.0, "z": 80.0})):
-            bench.source_stage.move_to(where)
+            bench.move("source_stage", where)
             job = stage_box.stage.store_position(name)
             wait_until(app, lambda j=job: j.done, 10, "the stored position")
-        bench.source_stage.move_to({"x": 0.0, "y": 0.0, "z": depth})
+        bench.move("source_stage", {"x": 0.0, "y": 0.0, "z": depth})
         w.devices.area.ensureWidgetVisible(stage_box, 0, 0)
         detail("positions", stage_box)
         # shortcuts: the Acquire menu open
