@@ -28,7 +28,7 @@ from ..backend import to_device, to_numpy
 from ..errors import ReconInputError
 from .noise import NoiseModel
 from .planes import plane_tests, planes_record
-from .weight import HOLDOUT, PathRule, admm_auto, holdout_split
+from .weight import HOLDOUT, PathRule, PathTuning, admm_auto, holdout_split
 
 __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume", "weighted_variance"]
 
@@ -143,7 +143,7 @@ def auto_volume(method: str, op, b: np.ndarray, *, noise: NoiseModel, iterations
     noise_energy = float(variance.sum())
     common = {"iterations": iterations, "noise_energy": noise_energy,
               "regulariser": regulariser, "plan_of": plan_of, "fixed": other,
-              "rule": VOLUME_RULES[regulariser], "seed": seed}
+              "rule": VOLUME_RULES[regulariser], "tuning": PathTuning(seed=seed)}
     keep, held = holdout_split(op, HOLDOUT, seed, VOLUME_RULES[regulariser].block)
     on_device = backend is not None and not backend.is_numpy
     b_solve = b

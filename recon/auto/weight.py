@@ -79,7 +79,7 @@ from ..solvers.common import History, SolveResult
 from .path import Convergence, run_candidate
 from .xp_path import PathArrays, device_plan_of
 
-__all__ = ["BUDGET", "PATH_RULES", "AutoWeight", "PathRule", "Stopping", "admm_auto",
+__all__ = ["BUDGET", "PATH_RULES", "AutoWeight", "PathRule", "PathTuning", "Stopping", "admm_auto",
            "coverage_ratio", "holdout_split", "path_budget", "weight_grid"]
 
 log = logging.getLogger(__name__)
@@ -250,6 +250,37 @@ class Stopping:
         if len(data) <= self.window or not target > 0:
             return False
         return abs(data[-1 - self.window] - data[-1]) < self.tolerance * target
+
+
+@dataclass(frozen=True)
+class PathTuning:
+    """The automatic weight's settings a reconstruction leaves at their defaults (the
+    tuning of :func:`admm_auto`, one object instead of six keywords).
+
+    Attributes
+    ----------
+    stopping : Stopping
+        Automatic stopping of the all-pixel final solve (only with a compact PSF,
+        :func:`holdout_coverage`).
+    mu : (mu1, mu2, mu3) or None
+        Starting ADMM penalties (None: the solver's).
+    model_error : float
+        Relative rms error of the forward model; with the noise it sets the scale of
+        automatic stopping: 1/2 (E||n||^2 + (model_error ||b||)^2).
+    holdout : float
+        Fraction of the (measured) pixels held out of the path's fits.
+    seed : int
+        Seed of the held-out pixels (:func:`holdout_split`).
+    convergence : Convergence
+        When a candidate counts as settled.
+    """
+
+    stopping: Stopping = field(default_factory=Stopping)
+    mu: tuple | None = None
+    model_error: float = MODEL_ERROR
+    holdout: float = HOLDOUT
+    seed: int = 0
+    convergence: Convergence = field(default_factory=Convergence)
 
 
 @dataclass
@@ -442,12 +473,9 @@ def _choose(cands: list, rule: PathRule) -> tuple[int, int, float]:
 
 
 def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
-              regulariser: str = "tv", stopping: Stopping | None = None, mu=None,
-              model_error: float = MODEL_ERROR, path_only: bool = False,
-              holdout: float = HOLDOUT, seed: int = 0, plan_of=None, fixed: float = 0.0,
-              rule: PathRule | None = None, seconds: float | None = None,
-              convergence: Convergence | None = None
-              ) -> tuple[SolveResult | None, AutoWeight]:
+              regulariser: str = "tv", fixed: float = 0.0, path_only: bool = False,
+              plan_of=None, rule: PathRule | None = None, seconds: float | None = None,
+              tuning: PathTuning | None = None) -> tuple[SolveResult | None, AutoWeight]:
     """ADMM with its TV or l1 weight chosen by hold-out cross-validation between
     settled solves (the module docstring).
 
@@ -472,18 +500,6 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Which weight the path chooses.
     fixed : float
         The other regulariser's weight, held fixed along the path (default 0).
-    stopping : Stopping, optional
-        Automatic stopping of the all-pixel final solve (only with a compact PSF,
-        :func:`holdout_coverage`; default ``Stopping()``).
-    mu : (mu1, mu2, mu3), optional
-        Starting ADMM penalties.
-    model_error : float
-        Relative rms error of the forward model; with the noise it sets the scale
-        of automatic stopping: 1/2 (E||n||^2 + (model_error ||b||)^2).
-    holdout : float
-        Fraction of the (measured) pixels held out of the path's fits.
-    seed : int
-        Seed of the held-out pixels (:func:`holdout_split`).
     path_only : bool
         Return after choosing the weight (``result`` None), for another solver to
         use it.
@@ -503,8 +519,10 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     seconds : float, optional
         Wall-clock budget of the path, s: no candidate window starts after it (the
         record says where it stopped and how settled each candidate was).
-    convergence : Convergence, optional
-        When a candidate counts as settled (default ``Convergence()``).
+    tuning : PathTuning, optional
+        The final solve's stopping, the starting penalties, the model error, the
+        held-out fraction and its seed, and when a candidate counts as settled
+        (default ``PathTuning()``).
 
     Returns
     -------
@@ -522,8 +540,9 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
         Unknown ``regulariser``, a negative ``fixed`` weight or ``seconds``.
     """
     t_start = time.perf_counter()
-    stopping = stopping or Stopping()
-    conv = convergence or Convergence()
+    tuning = tuning or PathTuning()
+    stopping, mu, conv = tuning.stopping, tuning.mu, tuning.convergence
+    model_error, holdout, seed = tuning.model_error, tuning.holdout, tuning.seed
     if regulariser not in ("tv", "l1"):
         raise ReconInputError(f"regulariser {regulariser!r}: use 'tv' or 'l1'")
     if seconds is not None and not (seconds > 0 and math.isfinite(seconds)):

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..auto.noise import NoiseModel
 from ..auto.volume import VOLUME_RULES, weighted_variance
-from ..auto.weight import PathRule, admm_auto, weight_grid
+from ..auto.weight import PathRule, PathTuning, admm_auto, weight_grid
 from ..errors import ReconInputError
 from ..operators import checked_sensor_weights
 from ..solvers.common import SolveResult
@@ -383,7 +383,8 @@ def auto_streamed(group, b: np.ndarray, *, noise: NoiseModel, iterations: int,
     model = SlabModel(path, w)
     energy = float(weighted_variance(w, noise, b).sum())
     result, choice = admm_auto(model, b, iterations=iterations, noise_energy=energy,
-                               regulariser=regulariser, fixed=other, seed=seed,
+                               regulariser=regulariser, fixed=other,
+                               tuning=PathTuning(seed=seed),
                                rule=VOLUME_RULES[regulariser],
                                plan_of=StreamedFistaPlan)
     result.x = gather_estimate(group, result.x.name)

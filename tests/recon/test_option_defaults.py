@@ -175,3 +175,13 @@ def test_the_deciding_layers_take_the_options_object():
         loose = sorted(set(params) & set(ReconOptions.defaults()))
         assert not loose, f"{dotted} takes {loose} loose; read them from its options"
         assert "options" in params and len(params) <= most, (dotted, list(params))
+
+
+def test_the_automatic_weight_takes_its_tuning_as_one_object():
+    """admm_auto keeps plain keywords for what a caller chooses (iterations, noise,
+    which weight, plans, budget) and takes the path's rarely changed settings as one
+    PathTuning (it took 16 parameters)."""
+    from recon.auto.weight import admm_auto
+
+    params = inspect.signature(admm_auto).parameters
+    assert "tuning" in params and len(params) <= 11, list(params)
