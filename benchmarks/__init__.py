@@ -8,7 +8,7 @@ the external 3D comparison) and the operator's window measured in a real X sessi
 (:mod:`benchmarks.window`: the operator's day, the soak, responsiveness,
 screenshots). They may import every layer of the package; ``lint-imports`` keeps the
 package from importing them. What an operator runs to qualify a machine stays a
-``diffuserlab benchmark`` command (:mod:`recon.benchmarks`).
+``diffuserlab benchmark`` command (:mod:`instrument.benchmarks`).
 
 Run from the repository's root::
 

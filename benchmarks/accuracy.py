@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import (
+from instrument.benchmarks import (
     METHODS,
     fmt,
     format_table,

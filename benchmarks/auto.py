@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.benchmarks import fmt, format_table, write_json
 from recon.auto import ChannelProblem, solve_channel
-from recon.benchmarks import fmt, format_table, write_json
 from recon.errors import DivergenceError, ReconInputError
 from recon.fft import fft_pair_seconds
 from recon.metrics import psnr, ssim

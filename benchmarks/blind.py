@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import format_table, save_figure, write_json
+from instrument.benchmarks import format_table, save_figure, write_json
 from recon.errors import ReconInputError
 
 __all__ = ["blind_calibration_table", "plot_blind_calibration", "run_blind_calibration"]

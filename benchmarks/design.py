@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
+from instrument.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
 from recon.errors import ReconInputError
 from recon.metrics import psnr
 from recon.optics.design_masks import DESIGNS, MaskDesign, bin_fine

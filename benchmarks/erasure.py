@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from recon.benchmarks import (
+from instrument.benchmarks import (
     DEFAULT_WEIGHTS,
     fmt,
     format_table,
@@ -136,7 +136,7 @@ def run_erasure(quick: bool = False, out: Path | None = None,
         Directory for ``erasure.json`` and ``erasure.png``.
     weights : dict, optional
         TV weights for the simulated scene (``fista``, ``admm`` keys), e.g. from the
-        accuracy sweep; default :data:`recon.benchmarks.DEFAULT_WEIGHTS`. The real
+        accuracy sweep; default :data:`instrument.benchmarks.DEFAULT_WEIGHTS`. The real
         hand uses :data:`REAL_TV`.
 
     Returns

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.benchmarks import save_figure, write_json
 from recon.auto.noise import estimate_noise
 from recon.auto.volume import auto_volume
-from recon.benchmarks import save_figure, write_json
 from recon.errors import DivergenceError
 from recon.volume import DEFAULT_TV, VolumeAdmmPlan, fista3d
 

@@ -5,7 +5,7 @@ Scenes (:mod:`benchmarks.auto_scenes`, real PSF rendered at bin 4 and
 reconstructed at bin 8 for speed: model mismatch, Poisson + 3 e- read noise): sparse
 beads at growing density up to a dense natural photograph (camera), and the camera
 photograph with a growing fraction of erased sensor pixels (Eq. 3.10). Methods at
-their fixed default weights (:data:`recon.benchmarks.DEFAULT_WEIGHTS`, ``iterations``
+their fixed default weights (:data:`instrument.benchmarks.DEFAULT_WEIGHTS`, ``iterations``
 each) and ``method="auto"`` (:func:`recon.auto.solve_channel`).
 
 A cell fails when PSNR < :data:`BOUND_DB` or the solve stops converging (diverged,
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.benchmarks import DEFAULT_WEIGHTS, METHODS, fmt, save_figure, solve, write_json
 from recon.auto import ChannelProblem, solve_channel
-from recon.benchmarks import DEFAULT_WEIGHTS, METHODS, fmt, save_figure, solve, write_json
 from recon.errors import DivergenceError, ReconInputError
 from recon.metrics import psnr
 from recon.options import ReconOptions

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.benchmarks import fmt, format_table, write_json
 from recon.auto import ChannelProblem, noise_energy_of, prior_path, solve_channel
 from recon.auto.prior import choose_prior
-from recon.benchmarks import fmt, format_table, write_json
 from recon.errors import DivergenceError
 from recon.metrics import psnr, ssim
 from recon.options import ReconOptions

@@ -3,7 +3,7 @@
 The documentation's benchmark pages are generated from the files a benchmark run
 wrote (``diffuserlab benchmark recon --out DIR``), never typed by hand: each
 result JSON is rendered by the same table function the command prints
-(:func:`recon.benchmarks.run.format_result`), with the run's machine record and its
+(:func:`instrument.benchmarks.run.format_result`), with the run's machine record and its
 charts.
 """
 
@@ -51,7 +51,7 @@ def markdown_page(results_dir: str | Path, title: str, *, figures_prefix: str = 
     ----------
     results_dir : str or Path
         What ``diffuserlab benchmark recon --out DIR`` wrote: ``summary.json`` and
-        one ``NAME.json`` per benchmark of :data:`recon.benchmarks.run.BENCHMARKS`,
+        one ``NAME.json`` per benchmark of :data:`instrument.benchmarks.run.BENCHMARKS`,
         and its PNG charts.
     title : str
         The page's first heading.

@@ -4,10 +4,10 @@
 ``python -m benchmarks [--out DIR] [--quick] [--only NAME]`` (from a checkout) calls it
 and prints every benchmark's table (:func:`format_result`) and the summary; the two
 speed benchmarks are the package's (``diffuserlab benchmark recon``,
-:mod:`recon.benchmarks.run`). It writes
+:mod:`instrument.benchmarks.run`). It writes
 ``speed.json``, ``accuracy.json`` + ``accuracy_psnr_vs_seconds.png``,
 ``stability.json`` + ``stability.png``, ``erasure.json`` + ``erasure.png``, the 3D
-benchmarks' ``volume_speed.json`` (:mod:`recon.benchmarks.volume`) and
+benchmarks' ``volume_speed.json`` (:mod:`instrument.benchmarks.volume`) and
 ``volume_accuracy.json`` + ``volume_accuracy.png``
 (:mod:`benchmarks.volume_accuracy`), the spatially varying models'
 ``spatial_speed.json`` and ``spatial_accuracy.json`` + ``spatial_psnr_vs_seconds.png``
@@ -22,7 +22,7 @@ beside LenslessPiCam's on the external 3D sample's ``volume_external.json`` +
 ``summary.json`` under ``out`` and
 returns a compact summary. The weights chosen by the accuracy sweep are used by the
 stability and erasure benchmarks when they run in the same invocation; otherwise
-:data:`recon.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run
+:data:`instrument.benchmarks.DEFAULT_WEIGHTS`. When the 2D and 3D accuracy benchmarks run
 together, the speed-vs-accuracy chart ``accuracy_psnr_vs_seconds.png`` gets a
 panel with the 3D methods (tilted-target volume PSNR against seconds), and one with
 the spatially varying models when ``spatial_accuracy`` ran.
@@ -37,8 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import DEFAULT_WEIGHTS, METHODS, fmt, machine_record, write_json
-from recon.benchmarks import run as speed_run
+from instrument.benchmarks import DEFAULT_WEIGHTS, METHODS, fmt, machine_record, write_json
+from instrument.benchmarks import run as speed_run
 from recon.errors import ReconInputError
 
 #: The benchmarks and studies, in the order they run (the package's speed benchmarks
@@ -72,7 +72,7 @@ _TABLES = {"accuracy": ("accuracy", "accuracy_table"),
 
 
 def format_result(name: str, result: dict) -> str:
-    """:func:`recon.benchmarks.run.format_result` for every name of :data:`BENCHMARKS`."""
+    """:func:`instrument.benchmarks.run.format_result` for every name of :data:`BENCHMARKS`."""
     if name in speed_run.TABLES:
         return speed_run.format_result(name, result)
     module, function = _TABLES[name]
@@ -180,11 +180,11 @@ def run_benchmarks(out: Path, *, quick: bool = False, only: str | None = None,
                    on_result: Callable[[str, dict, float], None] | None = None
                    ) -> tuple[dict, str]:
     """Run the selected benchmarks and studies and write their files and
-    ``summary.json``: :func:`recon.benchmarks.run.run_benchmarks` (the same parameters,
+    ``summary.json``: :func:`instrument.benchmarks.run.run_benchmarks` (the same parameters,
     returns and errors) over every name of :data:`BENCHMARKS`.
 
     The weights chosen by the accuracy sweep are used by the stability and erasure
-    benchmarks of the same call (otherwise :data:`recon.benchmarks.DEFAULT_WEIGHTS`);
+    benchmarks of the same call (otherwise :data:`instrument.benchmarks.DEFAULT_WEIGHTS`);
     ``summary.json`` also holds ``weights_used``. ``quick``: fewer iterations and sweep
     points, small 3D problems (tests/CI, about 1 min each).
     """

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
+from instrument.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
 
 __all__ = ["plot_spatial_panel", "run_spatial_accuracy", "run_spatial_speed",
            "spatial_accuracy_table", "spatial_speed_table"]

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
+from instrument.benchmarks import fmt, format_table, log_x_axis, save_figure, write_json
 
 __all__ = ["plot_spatial_far", "run_spatial_far", "spatial_far_table"]
 

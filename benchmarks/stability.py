@@ -4,7 +4,7 @@ Two sweeps on one simulated scene (real PSF rendered at bin 2, reconstructed at 
 4, see :mod:`benchmarks.accuracy`): peak photons from high to very low (read
 noise fixed), and the erased fraction of sensor pixels (Eq. 3.10) from 0 to 0.95 at
 a fixed photon count. Every method runs a fixed iteration budget with its weight
-(from the accuracy sweep, or :data:`recon.benchmarks.DEFAULT_WEIGHTS`); with
+(from the accuracy sweep, or :data:`instrument.benchmarks.DEFAULT_WEIGHTS`); with
 erasures the TV weight is scaled by the measured fraction (1 - erased) so the
 balance between the data term (a sum over measured pixels) and the prior is kept.
 
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import (
+from instrument.benchmarks import (
     DEFAULT_WEIGHTS,
     METHODS,
     fmt,
@@ -136,7 +136,7 @@ def run_stability(quick: bool = False, out: Path | None = None,
         Directory for ``stability.json`` and ``stability.png``.
     weights : dict, optional
         Per-method weights (e.g. ``run_accuracy(...)["chosen_weights"]``); default
-        :data:`recon.benchmarks.DEFAULT_WEIGHTS`.
+        :data:`instrument.benchmarks.DEFAULT_WEIGHTS`.
 
     Returns
     -------

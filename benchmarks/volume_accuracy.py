@@ -41,8 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.benchmarks import fmt, format_table, write_json
 from recon.analysis import condition_vs_k, condition_vs_k_axial
-from recon.benchmarks import fmt, format_table, write_json
 from recon.errors import DivergenceError, ReconInputError
 from recon.metrics import fit_gain, psnr
 from recon.volume import DEFAULT_TV, admm3d, fft_floor_seconds, fista3d

@@ -2,7 +2,7 @@
 
 Run with ``diffuserlab benchmark recon --only volume_auto [--quick] [--out DIR]``.
 
-Scenes (:mod:`recon.benchmarks.volume_auto_scenes`): one bead or one textured disc per
+Scenes (:mod:`instrument.benchmarks.volume_auto_scenes`): one bead or one textured disc per
 plane through the real tutorial PSF scaled per depth, the far planes' sources 3x, 10x
 or 30x dimmer than the nearest (and the PSF's own light model dims them further),
 rendered on a 2x finer grid with Poisson and read noise at 300, 3000 and 30000 peak
@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.benchmarks import fmt, format_table, machine_record, write_json
+from instrument.benchmarks.volume_auto_scenes import VolumeCase, render_volume_case
 from recon.auto.noise import estimate_noise
 from recon.auto.volume import VOLUME_RULES, auto_volume
 from recon.auto.weight import PathRule, admm_auto
-from recon.benchmarks import fmt, format_table, machine_record, write_json
-from recon.benchmarks.volume_auto_scenes import VolumeCase, render_volume_case
 from recon.errors import DivergenceError
 from recon.volume import VolumeAdmmPlan, admm3d, fista3d
 

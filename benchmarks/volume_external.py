@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from instrument.benchmarks import fmt, format_table, save_figure, write_json
 from recon.api import PsfStack, reconstruct
-from recon.benchmarks import fmt, format_table, save_figure, write_json
 from recon.volume import admm3d, fft_floor_seconds, fista3d, normalize_psf_stack
 from recon.volume.operator import VolumeConvolutionOperator
 from recon.volume.sample import load_volume_sample

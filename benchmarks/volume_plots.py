@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.benchmarks import log_x_axis, save_figure
+from instrument.benchmarks import log_x_axis, save_figure
 
 
 def _xy(points: list[dict], key: str) -> tuple[list[float], list[float]]:

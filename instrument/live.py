@@ -12,7 +12,8 @@ and publishes the result (:meth:`LiveReconstruction.latest`) with its statistics
 (:meth:`LiveReconstruction.stats`). Frames overwritten in the slot before the worker
 took them are counted as skipped, never silently.
 
-:func:`run_live_benchmark` measures the worker on the real-time simulated camera.
+``diffuserlab benchmark live`` (``instrument.benchmarks.live``) measures the worker on the
+real-time simulated camera.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from recon.options import LiveOptions
 from recon.validate import as_int, positive
 
 __all__ = ["LatestFrameSlot", "LivePreview", "LiveReconstruction", "LiveReconstructionError",
-           "lower_thread_priority", "run_live_benchmark"]
+           "lower_thread_priority"]
 
 log = logging.getLogger(__name__)
 
@@ -503,107 +504,3 @@ def whole_run_summary(lat: np.ndarray, comp: np.ndarray) -> dict:
     return {"count": int(lat.size), "median_s": float(np.median(lat)),
             "p95_s": float(np.percentile(lat, 95)), "max_s": float(lat.max()),
             "compute_median_s": float(np.median(comp))}
-
-
-def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
-                       sensor_shape: tuple[int, int] = (300, 400),
-                       admm_iterations: int = 5, psnr_frames: int = 8,
-                       threads: int | None = None) -> dict:
-    """Live throughput, latency and drops on the real-time simulated camera, and
-    the PSNR warm start buys (``diffuserlab benchmark live``).
-
-    A :class:`~instrument.virtual_bench.VirtualBench` with ``realtime=True`` and a
-    ``sensor_shape`` sensor streams a prerendered bead-flow scene at ``fps`` into a
-    ring; :meth:`LiveReconstruction.start` with ``ring=`` feeds the worker. The PSF is
-    the bench's ray-traced on-axis PSF at the scene depth, as the camera would record it
-    (scaled to 4000 DN above the dark offset); frames and PSF have the camera's dark
-    offset subtracted. One run per mode (Wiener preview; warm ADMM with
-    ``admm_iterations``) of ``seconds`` each. The PSNR part is
-    ``recon.benchmarks.live.warm_vs_cold`` on the real DiffuserCam PSF (moving
-    natural scene, ``psnr_frames`` frames, 300 x 400).
-
-    Parameters
-    ----------
-    seconds : float
-        Duration of each streaming run, s.
-    fps : float
-        Camera frame rate, Hz (the simulated camera allows up to 30).
-    sensor_shape : (rows, cols)
-        Simulated sensor.
-    admm_iterations : int
-        K of the ADMM run and of the PSNR table.
-    psnr_frames : int
-        Frames of the warm/cold PSNR comparison (>= 2).
-    threads : int, optional
-        Thread cap of the live worker (:class:`LiveReconstruction`); None: all cores.
-
-    Returns
-    -------
-    dict
-        ``runs``: per mode the worker's ``stats()`` at the end, ``latency`` (whole-run
-        summary, with the compute time that bounds the worker's rate), ``ring`` counters
-        and ``camera_fps``; ``psnr``: the warm/cold table.
-    """
-    from instrument.config import default_bench
-    from instrument.video_scenes import BeadFlowScene
-    from instrument.virtual_bench import VirtualBench
-    from recon.benchmarks import load_sample
-    from recon.benchmarks.live import moving_scene, warm_vs_cold, warm_vs_cold_table
-    from recon.live import LiveReconstructor
-
-    cfg = default_bench()
-    geo = cfg.geometry.model_copy(update={"sensor_shape_px": tuple(sensor_shape)})
-    result: dict = {"sensor_shape": list(sensor_shape), "camera_fps_set": fps, "runs": {},
-                    "threads": threads}
-    with VirtualBench(cfg.model_copy(update={"geometry": geo}), seed=1, realtime=True,
-                      render_cache_size=8) as vb:
-        vb.led_array.all_off()
-        scene = BeadFlowScene(seed=2, time_step_s=0.5)  # 8 states of the 4 s period
-        vb.set_scene(scene)
-        vb.prerender()
-        cam = vb.camera
-        cam.apply_settings({"exposure_s": 0.005, "frame_rate_hz": fps})
-        h = vb.psf((0.0, 0.0, scene.z_mm))
-        psf = h / h.max() * 4000.0 + cam.dark_offset_dn
-        for mode in ("wiener", f"admm:{admm_iterations}"):
-            method, _, k = mode.partition(":")
-            live = LiveReconstruction(
-                LiveReconstructor(psf, dark=cam.dark_offset_dn, regularization=1e-2),
-                method=method, iterations=int(k or 1), window_s=seconds, threads=threads)
-            ring = FrameRing(64)
-            cam.start_stream(ring)
-            live.start(ring=ring)
-            t0 = time.monotonic()
-            time.sleep(seconds)
-            cam.stop_stream()
-            elapsed = time.monotonic() - t0
-            live.stop(timeout_s=5.0)
-            counters = ring.counters()
-            result["runs"][mode] = {"stats": live.stats(), "latency": live.latency_summary(),
-                                    "ring": counters,
-                                    "camera_fps": counters["acquired"] / elapsed}
-    fine = load_sample(2).psf
-    result["psnr"] = warm_vs_cold(fine, moving_scene(fine, psnr_frames, shift_px=4),
-                                  admm_iterations)
-    result["text"] = live_benchmark_table(result) + "\n" + warm_vs_cold_table(result["psnr"])
-    return result
-
-
-def live_benchmark_table(result: dict) -> str:
-    """Text table of the streaming part of :func:`run_live_benchmark`."""
-    rows, cols = result["sensor_shape"]
-    lines = [f"live reconstruction on the real-time simulated camera, {rows}x{cols}, camera "
-             f"set to {result['camera_fps_set']:g} fps, worker threads "
-             f"{result.get('threads') or 'all'}",
-             "mode      camera fps  live fps  received  recon'd  skipped  errors  "
-             "latency med ms  p95 ms  ring dropped  capacity fps"]
-    for mode, r in result["runs"].items():
-        s, lat = r["stats"], r["latency"]
-        med = "-" if lat["median_s"] is None else f"{1e3 * lat['median_s']:.1f}"
-        p95 = "-" if lat["p95_s"] is None else f"{1e3 * lat['p95_s']:.1f}"
-        cap = "-" if lat["compute_median_s"] is None else f"{1 / lat['compute_median_s']:.1f}"
-        lines.append(f"{mode:<8}  {r['camera_fps']:10.1f}  {s['fps']:8.1f}  "
-                     f"{s['received']:8d}  {s['reconstructed']:7d}  {s['skipped']:7d}  "
-                     f"{s['errors']:6d}  {med:>14}  {p95:>6}  {r['ring']['dropped']:12d}  "
-                     f"{cap:>12}")
-    return "\n".join(lines)

@@ -193,7 +193,7 @@ def time_ffts(shape: tuple[int, ...], *, real: bool = True, stacks: tuple[int, .
       is ``stacks=(1,)`` (:func:`fft_pair_seconds`), the 3D one
       ``stacks=(n_z, 1)`` (:func:`recon.volume.fft_floor_seconds`).
     * ``real=False``: one in-place complex64 ``fftn`` (``norm="ortho"``) per plane
-      of each stack (the hologram optimiser's unit, ``recon.cgh.benchmark``).
+      of each stack (the hologram optimiser's unit, ``instrument.benchmarks.hologram``).
 
     All transforms use :data:`WORKERS` threads.
 

@@ -62,7 +62,7 @@ BACKGROUNDS = ("estimate", "none")
 #: Methods of Table 7.1 in order (``recon.cgh.evaluation``).
 HOLOGRAM_METHODS = ("one-step", "l2", "frequency", "spatial")
 #: The benchmarks of ``diffuserlab benchmark recon``, in the order they run
-#: (``recon.benchmarks.run``): this machine's speed against its FFT floor, 2D and 3D.
+#: (``instrument.benchmarks.run``): this machine's speed against its FFT floor, 2D and 3D.
 #: The accuracy and method studies run from a checkout (``python -m benchmarks``).
 BENCHMARKS = ("speed", "volume_speed")
 

@@ -1,19 +1,19 @@
 """``diffuserlab benchmark {recon,gpu,live,recording,batch,volume-scale,memory-limit}``.
 
-``gpu`` runs :func:`recon.benchmarks.gpu.run_gpu_benchmark` (speed per device and
+``gpu`` runs :func:`instrument.benchmarks.gpu.run_gpu_benchmark` (speed per device and
 backend: the NumPy path, the array-API path on PyTorch's CPU backend and on a CUDA GPU).
 
-``recon`` runs :func:`recon.benchmarks.run.run_benchmarks` (2D and 3D speed against
+``recon`` runs :func:`instrument.benchmarks.run.run_benchmarks` (2D and 3D speed against
 the FFT floor, 3D memory), prints each benchmark's table as it finishes and the
 summary at the end; the accuracy and method studies run from a checkout
 (``python -m benchmarks``). ``live`` runs
-:func:`instrument.live.run_live_benchmark` (live reconstruction on the real-time
+:func:`instrument.benchmarks.live.run_live_benchmark` (live reconstruction on the real-time
 simulated camera: fps, latency, skipped frames; PSNR of warm vs cold ADMM).
-``recording`` and ``batch`` run :mod:`instrument.acquisition_benchmarks` (video
+``recording`` and ``batch`` run :mod:`instrument.benchmarks.acquisition` (video
 recording at full size per compressor; recon-run's dask batch against a loop).
-``volume-scale`` runs :func:`instrument.volume_scale_benchmark.run_volume_scale` (the
+``volume-scale`` runs :func:`instrument.benchmarks.volume_scale.run_volume_scale` (the
 seed-size 3D problem streamed or sharded: memory, speed, bytes moved).
-``memory-limit`` runs :func:`instrument.memory_limit_benchmark.run_memory_limit`
+``memory-limit`` runs :func:`instrument.benchmarks.memory_limit.run_memory_limit`
 (``recon3d --memory-limit`` below, at and above each plan's estimate: refused below
 every plan, the measured peak within the limit otherwise).
 """
@@ -166,7 +166,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 def run_recon_benchmarks(args: argparse.Namespace) -> int:
     """Run ``benchmark recon``; returns 0 (bad input exits 2 through the boundary)."""
-    from recon.benchmarks.run import format_result, run_benchmarks
+    from instrument.benchmarks.run import format_result, run_benchmarks
 
     from ..output_safety import check_outputs
 
@@ -184,9 +184,9 @@ def run_recon_benchmarks(args: argparse.Namespace) -> int:
 
 
 def run_gpu_benchmark(args: argparse.Namespace) -> int:
-    """Run ``benchmark gpu`` (:func:`recon.benchmarks.gpu.run_gpu_benchmark`); returns 0."""
+    """Run ``benchmark gpu`` (:func:`instrument.benchmarks.gpu.run_gpu_benchmark`); returns 0."""
     from diffuserlab.jsonio import jsonable
-    from recon.benchmarks.gpu import run_gpu_benchmark as run
+    from instrument.benchmarks.gpu import run_gpu_benchmark as run
     from recon.errors import ReconInputError
 
     from ..output_safety import check_outputs
@@ -215,7 +215,7 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
     from recon.errors import ReconInputError
     from recon.fft import check_threads
 
-    from .. import live
+    from ..benchmarks.live import run_live_benchmark as run
     from ..output_safety import check_outputs
     from ..reconstruct_files import write_json
 
@@ -227,8 +227,8 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
         check_threads(args.threads)
     if args.json is not None:
         check_outputs([args.json], None, args.overwrite, option="--json")
-    result = live.run_live_benchmark(args.seconds, args.fps,
-                                     admm_iterations=args.iterations, threads=args.threads)
+    result = run(args.seconds, args.fps, admm_iterations=args.iterations,
+                 threads=args.threads)
     print(result["text"])
     if args.json is not None:
         figures = {k: v for k, v in result.items() if k != "text"}
@@ -242,8 +242,8 @@ def run_recording_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
-    from ..acquisition_benchmarks import recording_table
-    from ..acquisition_benchmarks import run_recording_benchmark as run
+    from ..benchmarks.acquisition import recording_table
+    from ..benchmarks.acquisition import run_recording_benchmark as run
     from ..output_safety import check_outputs
     from ..reconstruct_files import write_json
     from ..runstore import FRAME_COMPRESSORS
@@ -274,9 +274,9 @@ def run_volume_scale_benchmark(args: argparse.Namespace) -> int:
     from drivers.base import jsonable
     from recon.errors import ReconInputError
 
+    from ..benchmarks.volume_scale import run_volume_scale, volume_scale_table
     from ..output_safety import check_outputs
     from ..reconstruct_files import write_json
-    from ..volume_scale_benchmark import run_volume_scale, volume_scale_table
 
     if args.bead_light is not None and not args.bead_light > 0:
         raise ReconInputError(f"--bead-light {args.bead_light}: give a positive light (pixels "
@@ -310,7 +310,7 @@ def run_memory_limit_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
-    from ..memory_limit_benchmark import memory_limit_table, run_memory_limit
+    from ..benchmarks.memory_limit import memory_limit_table, run_memory_limit
     from ..output_safety import check_outputs
     from ..reconstruct_files import write_json
 
@@ -339,8 +339,8 @@ def run_batch_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
-    from ..acquisition_benchmarks import batch_table
-    from ..acquisition_benchmarks import run_batch_benchmark as run
+    from ..benchmarks.acquisition import batch_table
+    from ..benchmarks.acquisition import run_batch_benchmark as run
     from ..output_safety import check_outputs
     from ..reconstruct_files import write_json
 

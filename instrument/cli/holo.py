@@ -4,7 +4,7 @@
 ``records.csv``, ``summary.json``, ``table.md``, ``psnr_vs_seconds.png`` under
 ``--out``; prints the table); exit 1 with ``--strict`` when an acceptance rule
 fails. ``holo benchmark`` times one full-size hologram against the FFT floor
-(:func:`recon.cgh.benchmark.run_benchmark`) and prints the report. Both take
+(:func:`instrument.benchmarks.hologram.run_benchmark`) and prints the report. Both take
 ``--device cpu|cuda|auto`` (the optimiser on the CPU's NumPy path or a GPU's generic
 path); an unusable device, or a hologram too large for the GPU's free memory, exits 2
 before anything is read or written.
@@ -190,8 +190,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
 def run_benchmark(args: argparse.Namespace) -> int:
     """Run ``holo benchmark`` and print the report; returns 0 (bad input exits 2
     through :func:`instrument.cli.main`)."""
-    from recon.cgh.benchmark import format_report
-    from recon.cgh.benchmark import run_benchmark as time_hologram
+    from instrument.benchmarks.hologram import format_report
+    from instrument.benchmarks.hologram import run_benchmark as time_hologram
     from recon.errors import ReconInputError
 
     from .common import check_memory

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from instrument.acquisition_benchmarks import (
+from instrument.benchmarks.acquisition import (
     batch_table,
     recording_table,
     run_batch_benchmark,

@@ -7,8 +7,8 @@ are within the limits is the benchmark's verdict (a measurement), not this test'
 
 from __future__ import annotations
 
+from instrument.benchmarks.memory_limit import memory_limit_table, run_memory_limit
 from instrument.cli import main
-from instrument.memory_limit_benchmark import memory_limit_table, run_memory_limit
 
 
 def test_refused_below_and_solved_at_the_named_limit(tmp_path):

@@ -14,9 +14,8 @@ import json
 import numpy as np
 import pytest
 
-from instrument.cli import main
-from instrument.volume_scale_benchmark import run_volume_scale, volume_scale_table
-from recon.benchmarks.volume_scale import (
+from instrument.benchmarks.volume_scale import run_volume_scale, volume_scale_table
+from instrument.benchmarks.volume_scale_scenes import (
     BEAD_LIGHT_512,
     axial_resolution_planes,
     bead_light,
@@ -25,6 +24,7 @@ from recon.benchmarks.volume_scale import (
     stack_depths_mm,
     write_psf_store,
 )
+from instrument.cli import main
 from recon.errors import ReconInputError
 from recon.io import load_image
 from recon.sample import PSF_FILE, data_dir

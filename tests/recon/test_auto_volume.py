@@ -1,7 +1,7 @@
 """3D automatic weight and planes (recon.auto.volume, recon.auto.planes).
 
 Scenes: one object per plane through the real tutorial PSF scaled per depth, far
-planes dimmer (recon.benchmarks.volume_auto_scenes: rendered on a 2x finer grid with
+planes dimmer (instrument.benchmarks.volume_auto_scenes: rendered on a 2x finer grid with
 Poisson and read noise). The former default kept only planes whose first-estimate peak
 reached half the brightest plane's: on these scenes it kept 2 of 6 planes and put the
 dropped planes' beads on plane 1.
@@ -16,7 +16,7 @@ import pytest
 
 import recon
 from benchmarks.volume_auto import object_metrics
-from recon.benchmarks.volume_auto_scenes import depth_stack, depths_mm, render_volume_case
+from instrument.benchmarks.volume_auto_scenes import depth_stack, depths_mm, render_volume_case
 
 #: Peak photo-electrons of the dim-plane tests and their brightness tolerance: an
 #: object's light within +-1 plane of its depth, over the truth's, relative to the

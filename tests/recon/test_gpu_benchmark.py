@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
+from instrument.benchmarks.gpu import CASES, Case, _measure, format_table, run_gpu_benchmark
 from recon.backend import torch_cpu
-from recon.benchmarks.gpu import CASES, Case, _measure, format_table, run_gpu_benchmark
 
 SMALL = (Case("2D ADMM 32x40", "admm2d", (32, 40)), Case("3D ADMM 16x20x3", "admm3d",
                                                         (16, 20, 3)),
@@ -46,7 +46,7 @@ def test_rows_for_every_backend_with_ratios_and_speedups():
 
 
 def test_the_hologram_runs_the_optimiser_on_every_backend(monkeypatch):
-    import recon.cgh.benchmark as holo_bench
+    import instrument.benchmarks.hologram as holo_bench
 
     ran = []
     real = holo_bench.optimize_hologram

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import recon
-from recon.benchmarks.live import moving_scene, warm_vs_cold
+from instrument.benchmarks.live import moving_scene, warm_vs_cold
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor
 from recon.solvers import AdmmPenalty

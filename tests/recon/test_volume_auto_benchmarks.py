@@ -17,7 +17,7 @@ from benchmarks.volume_auto import (
     volume_auto_table,
 )
 from benchmarks.volume_external import fine_structure, fine_structure_share
-from recon.benchmarks.volume_auto_scenes import render_volume_case
+from instrument.benchmarks.volume_auto_scenes import render_volume_case
 from recon.errors import ReconInputError
 
 

@@ -12,8 +12,8 @@ import math
 
 import pytest
 
+from instrument.benchmarks import METHODS, data_dir
 from instrument.cli import main
-from recon.benchmarks import METHODS, data_dir
 from recon.errors import ReconInputError
 
 
@@ -155,7 +155,7 @@ def test_the_package_benchmark_is_speed_and_the_studies_run_from_the_checkout(tm
     asked of it is refused with where it runs; the studies' command keeps an earlier
     run's results unless told to overwrite."""
     from benchmarks.__main__ import main as studies
-    from recon.benchmarks.run import BENCHMARKS
+    from instrument.benchmarks.run import BENCHMARKS
 
     assert BENCHMARKS == ("speed", "volume_speed")
     with pytest.raises(SystemExit):

@@ -201,7 +201,7 @@ def test_cli_bad_input_exits_2(tmp_path, capsys, case):
 
 def test_benchmark_recon_runs_the_3d_benchmarks(tmp_path, capsys):
     from benchmarks.run import BENCHMARKS as STUDIES
-    from recon.benchmarks.run import BENCHMARKS
+    from instrument.benchmarks.run import BENCHMARKS
 
     assert "volume_speed" in BENCHMARKS and {"volume_speed", "volume_accuracy"} <= set(STUDIES)
     assert main(["benchmark", "recon", "--quick", "--only", "volume_speed",

@@ -1,7 +1,7 @@
 """Benchmarks of the reconstruction layer: speed, accuracy, stability, erasures.
 
 Each benchmark is a plain function returning a JSON-ready dict, with a function
-formatting its small table; :func:`recon.benchmarks.run.run_benchmarks` runs them
+formatting its small table; :func:`instrument.benchmarks.run.run_benchmarks` runs them
 all and writes JSON/PNG files under ``out`` (``diffuserlab benchmark recon
 [--quick]`` runs it and prints the tables).
 
@@ -20,13 +20,12 @@ from typing import Any
 import numpy as np
 
 from diffuserlab.jsonio import jsonable
-
-from ..api import DEFAULT_TV, scaled_problem
-from ..api import solve as api_solve
-from ..io import write_json
-from ..operators import ConvolutionOperator
-from ..sample import DATA_ENV, data_dir, load_sample
-from ..solvers import METHODS, SOLVERS, SolveResult
+from recon.api import DEFAULT_TV, scaled_problem
+from recon.api import solve as api_solve
+from recon.io import write_json
+from recon.operators import ConvolutionOperator
+from recon.sample import DATA_ENV, data_dir, load_sample
+from recon.solvers import METHODS, SOLVERS, SolveResult
 
 __all__ = [
     "DATA_ENV",
@@ -99,7 +98,7 @@ def save_figure(fig, path: Path) -> Path:
     """Save a :class:`matplotlib.figure.Figure` (no pyplot state involved)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from ..io import atomic_path
+    from recon.io import atomic_path
 
     path = Path(path)
     FigureCanvasAgg(fig)

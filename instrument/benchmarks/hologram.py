@@ -20,13 +20,13 @@ import tracemalloc
 
 import numpy as np
 
-from ..backend import NUMPY, Backend, to_device
-from ..errors import ReconInputError
-from ..fft import WORKERS, time_ffts
-from .losses import IntensityLoss
-from .optimize import optimize_hologram
-from .protocol import load_bundled, prepare_target
-from .scattering_display import ScatteringDisplay
+from recon.backend import NUMPY, Backend, to_device
+from recon.cgh.losses import IntensityLoss
+from recon.cgh.optimize import optimize_hologram
+from recon.cgh.protocol import load_bundled, prepare_target
+from recon.cgh.scattering_display import ScatteringDisplay
+from recon.errors import ReconInputError
+from recon.fft import WORKERS, time_ffts
 
 __all__ = ["GOALS", "fft_seconds", "format_report", "goal_seconds", "run_benchmark"]
 

@@ -3,7 +3,7 @@
 A limit is the most the ``recon3d`` process's resident set may reach
 (:func:`recon.volume.memory_plan.memory_plan`). For each problem size (by default 8
 planes of 256 x 256 and 16 of 512 x 512: the synthetic caustic stack and bead
-measurement of :func:`recon.benchmarks.volume.synthetic_problem`, written as ``.npy``
+measurement of :func:`instrument.benchmarks.volume.synthetic_problem`, written as ``.npy``
 files to a temporary directory) and each weight (the automatic one and a fixed
 ``--tv``), ``recon3d`` runs in fresh processes:
 
@@ -70,7 +70,7 @@ def run_memory_limit(*, sizes=((256, 8), (512, 16)), weights=("auto", "1e-4"),
         ``peak_bytes`` (the process's VmHWM), ``within`` (a solve: peak <= limit; a
         refusal: exit status 2), ``seconds``) and ``all_within``.
     """
-    from recon.benchmarks import machine_record
+    from instrument.benchmarks import machine_record
 
     runs: list[dict] = []
     with tempfile.TemporaryDirectory(dir=work_dir, prefix="memory-limit-") as tmp:
@@ -110,7 +110,7 @@ def _limit_runs(tmp: Path, inputs: dict, tv: str, iterations: int, announce) -> 
 
 def _write_problem(tmp: Path, side: int, planes: int) -> dict:
     """The synthetic stack (float32, normalised) and raw (scaled to 1000) as ``.npy``."""
-    from recon.benchmarks.volume import synthetic_problem
+    from instrument.benchmarks.volume import synthetic_problem
 
     op, b = synthetic_problem(side, side, planes)
     stack, raw = tmp / f"stack_{side}_{planes}.npy", tmp / f"raw_{side}_{planes}.npy"
@@ -157,13 +157,13 @@ def _recon3d(tmp: Path, inputs: dict, tv: str, limit: str, iterations: int) -> d
 
 #: What the ``recon3d`` process runs: ``diffuserlab`` with ``sys.argv[2:]``, then its
 #: peak resident set written to ``sys.argv[1]`` (bytes,
-#: :func:`recon.benchmarks.volume.peak_rss_bytes`: ``VmHWM``, which starts afresh with
+#: :func:`instrument.benchmarks.volume.peak_rss_bytes`: ``VmHWM``, which starts afresh with
 #: the process, unlike a child's ``ru_maxrss``, which carries its parent's).
 CHILD_CODE = """
 import sys
 from pathlib import Path
 from instrument.cli import main
-from recon.benchmarks.volume import peak_rss_bytes
+from instrument.benchmarks.volume import peak_rss_bytes
 status = 1
 try:
     status = main(sys.argv[2:])

@@ -33,12 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ..errors import ReconInputError
-from ..preprocess import box_bin
-from ..sample import load_sample
-from ..scenes import load_scene
-from ..simulate import add_camera_noise
-from ..volume import VolumeConvolutionOperator, normalize_psf_stack
+from recon.errors import ReconInputError
+from recon.preprocess import box_bin
+from recon.sample import load_sample
+from recon.scenes import load_scene
+from recon.simulate import add_camera_noise
+from recon.volume import VolumeConvolutionOperator, normalize_psf_stack
 
 __all__ = ["KINDS", "VolumeCase", "depth_plane", "depth_stack", "render_volume_case"]
 

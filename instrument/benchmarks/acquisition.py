@@ -93,7 +93,7 @@ def run_recording_benchmark(seconds: float = 120.0, fps: float = 20.0,
         whole process while recording),
         ``recorder_thread_cpu_s``, ``files_per_1000_frames``.
     """
-    from .video import DEFAULT_SHARD_FRAMES, record_video
+    from ..video import DEFAULT_SHARD_FRAMES, record_video
 
     shard = shard_frames or DEFAULT_SHARD_FRAMES
     tmp = Path(directory) if directory is not None else Path(tempfile.mkdtemp(prefix="rec"))
@@ -176,9 +176,9 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
     import recon
     from recon.options import ReconOptions
 
-    from .batch import reconstruct_run
-    from .runstore import RunStore
-    from .video import record_video
+    from ..batch import reconstruct_run
+    from ..runstore import RunStore
+    from ..video import record_video
 
     tmp = Path(tempfile.mkdtemp(prefix="batch"))
     try:

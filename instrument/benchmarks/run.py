@@ -2,9 +2,9 @@
 
 ``diffuserlab benchmark recon [--out DIR] [--quick] [--only NAME]`` calls it and
 prints each benchmark's table (:func:`format_result`) and the summary. It writes
-``speed.json`` (2D solvers against the FFT floor, :mod:`recon.benchmarks.speed`),
+``speed.json`` (2D solvers against the FFT floor, :mod:`instrument.benchmarks.speed`),
 ``volume_speed.json`` (3D solvers against the 3D FFT floor and their memory,
-:mod:`recon.benchmarks.volume`) and ``summary.json`` under ``out``, and returns a
+:mod:`instrument.benchmarks.volume`) and ``summary.json`` under ``out``, and returns a
 compact summary: can this computer reconstruct at the rates the docs state.
 
 The accuracy and method studies that chose the defaults (accuracy, stability,
@@ -22,8 +22,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ..errors import ReconInputError
-from ..options import BENCHMARKS  # the benchmarks, in the order they run
+from recon.errors import ReconInputError
+from recon.options import BENCHMARKS  # the benchmarks, in the order they run
+
 from . import METHODS, machine_record, write_json
 
 __all__ = ["BENCHMARKS", "TABLES", "format_result", "run_benchmarks", "run_each", "run_one",
@@ -32,8 +33,8 @@ __all__ = ["BENCHMARKS", "TABLES", "format_result", "run_benchmarks", "run_each"
 log = logging.getLogger(__name__)
 
 #: (module, function) of each benchmark's text table.
-TABLES = {"speed": ("recon.benchmarks.speed", "speed_table"),
-          "volume_speed": ("recon.benchmarks.volume", "volume_speed_table")}
+TABLES = {"speed": ("instrument.benchmarks.speed", "speed_table"),
+          "volume_speed": ("instrument.benchmarks.volume", "volume_speed_table")}
 
 
 def format_result(name: str, result: dict) -> str:

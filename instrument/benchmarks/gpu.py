@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..backend import (
+from recon.backend import (
     NUMPY,
     Backend,
     check_memory,
@@ -32,7 +32,7 @@ from ..backend import (
     to_device,
     torch_cpu,
 )
-from ..errors import ReconInputError
+from recon.errors import ReconInputError
 
 __all__ = ["CASES", "Case", "format_table", "run_gpu_benchmark"]
 
@@ -87,7 +87,7 @@ def fft_floor(backend: Backend, shape: tuple[int, int], n_z: int = 0,
     at ``shape`` (2D), or a batched pair on ``n_z`` planes plus one plane (3D ADMM's
     ``n_z + 1`` pairs), float32 (:func:`recon.fft.time_ffts` on the NumPy path)."""
     if backend.is_numpy:
-        from ..fft import time_ffts
+        from recon.fft import time_ffts
 
         return time_ffts(shape, stacks=(n_z, 1) if n_z else (1,), repeats=repeats)
     xp = backend.xp
@@ -124,9 +124,9 @@ def _median(seconds) -> float:
 
 
 def _admm2d(backend: Backend, shape, iterations: int) -> tuple[float, float]:
-    from ..operators import ConvolutionOperator
-    from ..solvers import admm
-    from ..solvers.xp_admm import memory_bytes
+    from recon.operators import ConvolutionOperator
+    from recon.solvers import admm
+    from recon.solvers.xp_admm import memory_bytes
 
     rng = np.random.default_rng(0)
     op = ConvolutionOperator(_psf(shape, rng))
@@ -140,8 +140,8 @@ def _admm2d(backend: Backend, shape, iterations: int) -> tuple[float, float]:
 
 
 def _admm3d(backend: Backend, shape, iterations: int) -> tuple[float, float]:
-    from ..volume import VolumeConvolutionOperator, admm3d
-    from ..volume.xp_admm3d import memory_bytes
+    from recon.volume import VolumeConvolutionOperator, admm3d
+    from recon.volume.xp_admm3d import memory_bytes
 
     rows, cols, n_z = shape
     rng = np.random.default_rng(0)
@@ -166,7 +166,7 @@ def _live(backend: Backend, shape, frames: int) -> tuple[float, float]:
     iterations warm-started from the previous frame's state (kept on the device), on a
     new frame each time (raw conversion on the host, the frame moved to the device and
     the sensor image back included), and the 2D floor."""
-    from ..live import LiveReconstructor
+    from recon.live import LiveReconstructor
 
     rng = np.random.default_rng(1)
     psf = _psf(shape, rng)
@@ -187,8 +187,8 @@ def _hologram(backend: Backend, shape, iterations: int) -> tuple[float, float]:
     """Median seconds per iteration of the hologram optimiser (frequency loss, the
     bundled astronaut as target) on ``backend`` for an SLM of ``shape[:2]`` at
     ``shape[2]^2`` x, and that device's floor: one complex64 FFT at the grid
-    (:func:`recon.cgh.benchmark.run_benchmark`)."""
-    from ..cgh.benchmark import run_benchmark
+    (:func:`instrument.benchmarks.hologram.run_benchmark`)."""
+    from instrument.benchmarks.hologram import run_benchmark
 
     rows, cols, k = shape
     rep = run_benchmark(slm_shape=(rows, cols), k=k, iterations=iterations, fft_repeats=5,

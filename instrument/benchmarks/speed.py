@@ -28,8 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fft import fft_pair_seconds
-from ..solvers import SOLVERS
+from recon.fft import fft_pair_seconds
+from recon.solvers import SOLVERS
+
 from . import (
     DEFAULT_WEIGHTS,
     METHODS,
@@ -163,7 +164,7 @@ def run_speed(quick: bool = False, out: Path | None = None,
         Directory for ``speed.json``.
     weights : dict, optional
         Per-method weights (only TV on/off matters for the speed); default
-        :data:`recon.benchmarks.DEFAULT_WEIGHTS`.
+        :data:`instrument.benchmarks.DEFAULT_WEIGHTS`.
 
     Returns
     -------

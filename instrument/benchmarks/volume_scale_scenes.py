@@ -4,7 +4,7 @@
 (``diffusercam-tutorial/psf_sample.tif``) into a depth-scaled stack -- the caustic
 pattern shrunk and dimmed per plane as a point moves away (planes uniform in 1/z,
 about one axial resolution apart, :func:`stack_depths_mm`; the 3D auto benchmark's
-model, :func:`recon.benchmarks.volume_auto_scenes.depth_plane`)
+model, :func:`instrument.benchmarks.volume_auto_scenes.depth_plane`)
 -- written plane by plane to a Zarr store chunked by
 plane (never whole in memory, never in the repository). :func:`scene_objects`
 places beads and extended objects (discs and textured squares) across the depths;
@@ -22,10 +22,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import map_coordinates, shift
 
-from ..preprocess import dark_level
-from ..simulate import add_camera_noise
-from ..validate import positive
-from ..volume.slab import VolumeSlab
+from recon.preprocess import dark_level
+from recon.simulate import add_camera_noise
+from recon.validate import positive
+from recon.volume.slab import VolumeSlab
+
 from .volume_auto_scenes import D_MM, depth_plane
 
 __all__ = ["SceneObject", "axial_resolution_planes", "bead_light", "objects_at_depth",
@@ -94,7 +95,7 @@ def write_psf_store(path: str, psf: np.ndarray, n: int, n_z: int) -> tuple[float
 
     The tutorial PSF resampled to ``n`` x ``n`` is the nearest plane; plane ``k`` at
     depth :func:`stack_depths_mm` is it shrunk and dimmed by
-    :func:`~recon.benchmarks.volume_auto_scenes.depth_plane` (the 3D auto benchmark's
+    :func:`~instrument.benchmarks.volume_auto_scenes.depth_plane` (the 3D auto benchmark's
     model: magnification ``1 + d/z``, light ``1/z^2``).
 
     Parameters
@@ -158,7 +159,7 @@ def axial_resolution_planes(store, depths_mm, samples: int = 3,
         ``planes`` (float list, per plane: planes per resolvable step), ``measured``
         (the sampled planes' index, depth in mm and ``c`` in 1/mm), ``threshold``.
     """
-    from ..analysis.sampling import inverse_depth_step_per_mm
+    from recon.analysis.sampling import inverse_depth_step_per_mm
 
     z = np.asarray(depths_mm, np.float64)
     idx = np.unique(np.linspace(0, z.size - 1, max(2, samples)).round().astype(int))

@@ -1,6 +1,6 @@
 """``diffuserlab benchmark volume-scale``: the seed-size 3D problem, streamed or sharded.
 
-Generates the problem on the fly (:mod:`recon.benchmarks.volume_scale`: a depth-scaled
+Generates the problem on the fly (:mod:`instrument.benchmarks.volume_scale_scenes`: a depth-scaled
 stack from the tutorial PSF in a per-plane-chunked Zarr store under a temporary
 directory, a scene of beads and extended objects, its noisy measurement), measures
 the streamed FFT floor (:func:`recon.volume.streamed.streamed_fft_floor_seconds`) in
@@ -10,8 +10,8 @@ the same process, and solves with streamed 3D FISTA in this process
 estimate printed before the solve, seconds per iteration against the floor,
 CPU seconds per iteration, the bytes each worker moved per iteration, and which
 objects sit at their depth (within one plane, and within one axial resolution,
-:func:`recon.benchmarks.volume_scale.axial_resolution_planes`). Nothing is kept unless asked
-(``save_estimate``).
+:func:`instrument.benchmarks.volume_scale_scenes.axial_resolution_planes`). Nothing is
+kept unless asked (``save_estimate``).
 """
 
 from __future__ import annotations
@@ -57,8 +57,9 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
         An earlier run's estimate: the relative difference is reported.
     bead_light : float, optional
         Each bead's light relative to one pixel of an extended object (default
-        :func:`recon.benchmarks.volume_scale.bead_light` of ``sensor``: the same scene at
-        every size; the fixed 50 of earlier runs makes beads 16x fainter at 2048 than at 512).
+        :func:`instrument.benchmarks.volume_scale_scenes.bead_light` of ``sensor``: the
+        same scene at every size; the fixed 50 of earlier runs makes beads 16x fainter at
+        2048 than at 512).
     announce : callable
         Progress and the memory estimate, before the solve.
 
@@ -69,8 +70,8 @@ def run_volume_scale(*, sensor: int = 2048, planes: int = 128, iterations: int =
     """
     import zarr
 
-    from recon.benchmarks import machine_record
-    from recon.benchmarks.volume_scale import (
+    from instrument.benchmarks import machine_record
+    from instrument.benchmarks.volume_scale_scenes import (
         axial_resolution_planes,
         objects_at_depth,
         render_measurement,
@@ -179,7 +180,7 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
              worker_memory, announce, cpu, take, plan_slabs, streamed_memory_bytes,
              peak_rss_bytes) -> dict:
     """The LocalCluster half of :func:`run_volume_scale`."""
-    from .volume_shards import local_cluster, sharded_fista3d
+    from ..volume_shards import local_cluster, sharded_fista3d
 
     client, cluster = local_cluster(workers, worker_memory)
     try:
