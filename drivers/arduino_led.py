@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DeviceProtocolError
-from drivers.led_array import LedArray, grid_positions
+from drivers.led_array import SerialLedArray, grid_positions
 from drivers.transports import BY_ID_DIR, SerialLink
 
 __all__ = ["ArduinoLedArray"]
@@ -29,7 +29,7 @@ _IDN_RE = re.compile(r"^OK LEDMX,([^,]*),(\d+)x(\d+),([13]),(\S+)$")
 DEFAULT_WAVELENGTHS_NM: dict[str, float] = {"red": 625.0, "green": 522.0, "blue": 465.0}
 
 
-class ArduinoLedArray(LedArray):
+class ArduinoLedArray(SerialLedArray):
     """A DIY LED grid on a serial port, speaking LEDMX.
 
     Parameters
@@ -154,24 +154,11 @@ class ArduinoLedArray(LedArray):
                             "check the port, that the sketch speaks LEDMX and has booted, "
                             "and raise ready_timeout_s for a slow board")
 
-    def _do_close(self) -> None:
-        if self._link.is_open:
-            try:
-                self._send_frame({})
-            except Exception as exc:  # closing a vanished array is fine
-                self._log.debug("%s: clear on close: %s", self.device_id, exc)
-        self._link.close()
-
-    def _do_check_connection(self) -> None:
-        """A port whose other end hung up is a disconnected array (seen by the status
-        poll without a command sent)."""
-        self._link.check_hangup()
+    def _clear(self) -> None:
+        self._send_frame({})
 
     def _do_get_info(self) -> dict[str, Any]:
         return dict(self._info_cache)
-
-    def _do_get_settings(self) -> dict[str, Any]:
-        return dict(self._hw)
 
     def _do_apply(self, name: str, value: Any) -> Any:
         self._hw[name] = value  # pattern defaults: the board has no such setting

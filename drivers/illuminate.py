@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DeviceError, DeviceProtocolError, DeviceValueError
-from drivers.led_array import LedArray
+from drivers.led_array import SerialLedArray
 from drivers.transports import BY_ID_DIR, SerialLink
 
 __all__ = ["IlluminateLedArray"]
@@ -37,7 +37,7 @@ _CHANNEL_NAMES = {"r": "red", "g": "green", "b": "blue"}
 _MAX_ARGS = 200  # LEDs per "l" command (the firmware takes up to 1500 arguments)
 
 
-class IlluminateLedArray(LedArray):
+class IlluminateLedArray(SerialLedArray):
     """An LED array running the illuminate firmware, on a (USB CDC) serial port.
 
     Parameters
@@ -168,24 +168,11 @@ class IlluminateLedArray(LedArray):
                           "distance_mm": self._distance or float(np.median(xyz[:, 2])),
                           "colours": colours}
 
-    def _do_close(self) -> None:
-        if self._link.is_open:
-            try:
-                self.command("x", 0.5)
-            except Exception as exc:  # closing a vanished array is fine
-                self._log.debug("%s: clear on close: %s", self.device_id, exc)
-        self._link.close()
-
-    def _do_check_connection(self) -> None:
-        """A port whose other end hung up is a disconnected array (seen by the status
-        poll without a command sent)."""
-        self._link.check_hangup()
+    def _clear(self) -> None:
+        self.command("x", 0.5)
 
     def _do_get_info(self) -> dict[str, Any]:
         return dict(self._geometry)
-
-    def _do_get_settings(self) -> dict[str, Any]:
-        return dict(self._hw)
 
     def _do_apply(self, name: str, value: Any) -> Any:
         if name == "na_illum" and value < 1.0:  # keep the firmware's own patterns in step

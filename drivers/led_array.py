@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import abc
 from collections.abc import Iterable
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -32,7 +32,10 @@ from drivers.base import Device
 from drivers.errors import DeviceValueError, LedArrayTimeoutError
 from drivers.settings import Setting, info
 
-__all__ = ["PATTERNS", "LedArray", "grid_positions"]
+if TYPE_CHECKING:
+    from drivers.transports import SerialLink
+
+__all__ = ["PATTERNS", "LedArray", "SerialLedArray", "grid_positions"]
 
 #: Pattern names understood by :meth:`LedArray.set_pattern`.
 PATTERNS: tuple[str, ...] = (
@@ -318,3 +321,36 @@ class LedArray(Device):
     # ----------------------------------------------------------- hooks
     @abc.abstractmethod
     def _do_show(self, state: dict[int, tuple[str, float]], timeout_s: float) -> None: ...
+
+
+class SerialLedArray(LedArray):
+    """An LED array board on a serial port whose settings are kept on the host.
+
+    For the drivers of real boards: the subclass opens ``self._link`` and fills
+    ``self._hw`` (the pattern defaults) at open, and implements :meth:`_clear`.
+    Closing clears the board (a board that went away is only logged) and closes the
+    port; a port whose other end hung up is a disconnected array.
+    """
+
+    _link: SerialLink
+    _hw: dict[str, Any]
+
+    @abc.abstractmethod
+    def _clear(self) -> None:
+        """Turn every LED off (one command to the board); may raise if it is gone."""
+
+    def _do_close(self) -> None:
+        if self._link.is_open:
+            try:
+                self._clear()
+            except Exception as exc:  # closing a vanished array is fine
+                self._log.debug("%s: clear on close: %s", self.device_id, exc)
+        self._link.close()
+
+    def _do_check_connection(self) -> None:
+        """A port whose other end hung up is a disconnected array (seen by the status
+        poll without a command sent)."""
+        self._link.check_hangup()
+
+    def _do_get_settings(self) -> dict[str, Any]:
+        return dict(self._hw)

@@ -29,7 +29,7 @@ from drivers.base import Device
 from drivers.errors import DeviceError, DeviceValueError, StageLimitError, StageTimeoutError
 from drivers.settings import Setting, info
 
-__all__ = ["AXIS_UNITS", "HostTableStage", "Stage"]
+__all__ = ["AXIS_UNITS", "HostTableStage", "Stage", "axes_info"]
 
 #: Allowed axis names and their units.
 AXIS_UNITS: dict[str, str] = {
@@ -381,6 +381,25 @@ class Stage(Device):
     def _do_stop(self) -> None: ...
 
 
+def axes_info(travel: Mapping[str, tuple[float, float]], max_velocity: float
+              ) -> dict[str, Any]:
+    """The ``_do_get_info()`` of a stage whose axes share one top speed.
+
+    Parameters
+    ----------
+    travel : mapping of str to (float, float)
+        Each axis's travel ``(low, high)``, in the axis's unit (mm or deg).
+    max_velocity : float
+        Top speed of every axis, unit/s.
+
+    Returns
+    -------
+    dict
+        ``{"axes": {axis: {"travel": (low, high), "max_velocity": max_velocity}}}``.
+    """
+    return {"axes": {a: {"travel": t, "max_velocity": max_velocity} for a, t in travel.items()}}
+
+
 class HostTableStage(Stage):
     """A hardware stage whose travel and settings are kept in host-side tables.
 
@@ -397,8 +416,7 @@ class HostTableStage(Stage):
     _hw: dict[str, Any]
 
     def _do_get_info(self) -> dict[str, Any]:
-        return {"axes": {a: {"travel": t, "max_velocity": self._vmax}
-                         for a, t in self._travel.items()}}
+        return axes_info(self._travel, self._vmax)
 
     def _do_get_settings(self) -> dict[str, Any]:
         return {k: dict(v) for k, v in self._hw.items()}

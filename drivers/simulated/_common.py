@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 from drivers.simulated.clock import SimClock
 from drivers.simulated.faults import DeviceFaults
 
@@ -15,6 +18,9 @@ class SimulatedMixin:
 
     clock: SimClock
     faults: DeviceFaults
+    #: The device's settings as set (``_do_open`` fills it); a dict value (a stage's
+    #: per-axis limits, a DMD's currents per colour) is kept and returned as a copy.
+    _hw: dict[str, Any]
 
     def _sim_setup(self, clock: SimClock | None, faults: DeviceFaults) -> None:
         if clock is not None and not isinstance(clock, SimClock):
@@ -24,6 +30,14 @@ class SimulatedMixin:
 
     def _do_check_connection(self) -> None:
         self.faults._check_connected()
+
+    def _do_get_settings(self) -> dict[str, Any]:
+        return {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in self._hw.items()}
+
+    def _do_apply(self, name: str, value: Any) -> Any:
+        self.faults._check_connected()
+        self._hw[name] = dict(value) if isinstance(value, Mapping) else value
+        return None
 
     def _now_s(self) -> float:
         return self.clock.now_s

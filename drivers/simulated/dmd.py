@@ -71,14 +71,6 @@ class SimulatedDmd(SimulatedMixin, Dmd):
                 "max_entries": self._max_entries, "max_image": self._max_image,
                 "sources": ("flash", "video")}
 
-    def _do_get_settings(self) -> dict[str, Any]:
-        return {k: (dict(v) if isinstance(v, dict) else v) for k, v in self._hw.items()}
-
-    def _do_apply(self, name: str, value: Any) -> Any:
-        self.faults._check_connected()
-        self._hw[name] = dict(value) if isinstance(value, dict) else value
-        return None
-
     def _do_load(self, entries, repeat, source, timeout_s) -> None:
         self._raise_fault_timeout("DMD sequence load", timeout_s)
         self._t_start = None

@@ -83,14 +83,6 @@ class SimulatedLedArray(SimulatedMixin, LedArray):
             "distance_mm": self._distance, "colours": dict(self._colours),
         }
 
-    def _do_get_settings(self) -> dict[str, Any]:
-        return dict(self._hw)
-
-    def _do_apply(self, name: str, value: Any) -> Any:
-        self.faults._check_connected()
-        self._hw[name] = value
-        return None
-
     def _do_show(self, state: dict[int, tuple[str, float]], timeout_s: float) -> None:
         self._raise_fault_timeout("LED command", timeout_s)
         self.clock.advance(self._latency)

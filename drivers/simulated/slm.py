@@ -68,14 +68,6 @@ class SimulatedSlm(SimulatedMixin, Slm):
         return {"resolution": self._res, "pixel_pitch_um": self._pitch,
                 "wavelength_nm": self._wl}
 
-    def _do_get_settings(self) -> dict[str, Any]:
-        return dict(self._hw)
-
-    def _do_apply(self, name: str, value: Any) -> Any:
-        self.faults._check_connected()
-        self._hw[name] = value
-        return None
-
     def _do_show(self, gray: np.ndarray, timeout_s: float) -> None:
         self._raise_fault_timeout("SLM display", timeout_s)
         self.clock.advance(self._frame_s)

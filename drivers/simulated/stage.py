@@ -12,7 +12,7 @@ from drivers.errors import DeviceValueError
 from drivers.simulated._common import SimulatedMixin
 from drivers.simulated.clock import SimClock
 from drivers.simulated.faults import StageFaults
-from drivers.stage import AXIS_UNITS, Stage
+from drivers.stage import AXIS_UNITS, Stage, axes_info
 
 __all__ = ["DEFAULT_TRAVEL", "SimulatedStage"]
 
@@ -109,16 +109,7 @@ class SimulatedStage(SimulatedMixin, Stage):
         self._freeze(list(self._motion))
 
     def _do_get_info(self) -> dict[str, Any]:
-        return {"axes": {a: {"travel": t, "max_velocity": self._vmax}
-                         for a, t in self._travel.items()}}
-
-    def _do_get_settings(self) -> dict[str, Any]:
-        return {k: dict(v) for k, v in self._hw.items()}
-
-    def _do_apply(self, name: str, value: Any) -> Any:
-        self.faults._check_connected()
-        self._hw[name] = dict(value)
-        return None
+        return axes_info(self._travel, self._vmax)
 
     # ----------------------------------------------------------- motion hooks
     def _do_move(self, targets: dict[str, float]) -> None:
