@@ -192,13 +192,15 @@ class ReconOptions(Options):
         L1_DEFAULT, help=f"l1 weight (sparse scenes) {_WEIGHT}; 0, and with a PSF grid and "
         f"FISTA {GRID_L1:g} (Eq. 6.2)", unit="unitless", parse=weight_arg, metavar="L1|auto",
         ge=0, allow_inf_nan=False, label="l1 weight")
-    prior: Literal["tv", "wavelet", "dncnn", "auto"] = option(
-        "tv", help="image prior of ADMM, weighted by --tv: tv (total variation), wavelet (l1 "
+    prior: Literal["tv", "tv-iso", "tgv", "wavelet", "dncnn", "auto"] = option(
+        "tv", help="image prior of ADMM, weighted by --tv: tv (total variation), tv-iso "
+        "(isotropic TV), tgv (second-order total generalised variation), wavelet (l1 "
         "of symlet-4 wavelet details, cycle-spun), dncnn (plug-and-play: the shipped "
         "DnCNN denoiser, --tv its noise level relative to the image's scale; slower on a "
-        "CPU), or auto (each prior's weight path, then the simplest that predicts held-out "
-        "pixels within one standard error of the best; 2D only); a volume takes tv, or "
-        "wavelet or dncnn on each plane with a fixed --tv", kinds=("image", "volume"),
+        "CPU), or auto (the weight paths of tv, wavelet and dncnn, then the simplest that "
+        "predicts held-out pixels within one standard error of the best; 2D only); a "
+        "volume takes tv, or another prior (tgv, wavelet, dncnn on each plane) with a "
+        "fixed --tv", kinds=("image", "volume"),
         methods=("auto", "admm"), label="prior")
     bin_factor: int = option(
         1, help="box binning of PSF and raw, pixels per side (4: 1200x1600 -> 300x400)",

@@ -7,10 +7,11 @@ import importlib
 import pytest
 
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
-MODULES = ("diffuserlab.jsonio", "recon.io", "recon.operators", "recon.metrics", "recon.live",
-           "benchmarks.report", "recon.api", "recon.solvers.admm",
+MODULES = ("diffuserlab.jsonio", "instrument.writer.files", "recon.operators",
+           "recon.metrics", "recon.live", "benchmarks.report", "recon.api", "recon.solvers.admm",
            "recon.solvers.gradient", "instrument.shared_slot", "recon.priors.base",
-           "recon.priors.wavelet", "recon.priors.dncnn")
+           "recon.priors.wavelet", "recon.priors.dncnn", "recon.priors.tv_iso",
+           "recon.priors.tgv")
 
 
 @pytest.mark.parametrize("name", MODULES)

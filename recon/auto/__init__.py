@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import ReconInputError
 from ..options import ReconOptions, l1_given, weight_arg
-from ..priors import PRIORS, prior_of  # moved there (a light module for the parsers)
+from ..priors import AUTO_PRIORS, PRIORS, prior_of  # moved there (a light module for the parsers)
 from ..solvers import SOLVERS, SolveResult
 from .choice import NoSignalError, check_signal, choose_method
 from .noise import NoiseModel, estimate_noise
@@ -266,7 +266,7 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
     if prior_name == AUTO:  # every prior's path, then the simplest within one SE
         res, chosen, pchoice = choose_prior(prior_path(
             op, b, iterations=iterations, noise_energy=noise_energy, fixed=fixed,
-            backend=backend, seconds=None if path_s is None else path_s / len(PRIORS)))
+            backend=backend, seconds=None if path_s is None else path_s / len(AUTO_PRIORS)))
         record.update(prior=pchoice.as_dict(), weight=chosen.as_dict())
         tv = chosen.weight
     elif auto_reg is not None and method == "admm" and not options and weight_path_solves:

@@ -2,13 +2,13 @@
 predicts the held-out pixels as well as the best.
 
 "Model no more than a scene needs" for the prior itself, not only its weight. For each
-prior of :data:`recon.priors.PRIORS` (TV, wavelet, DnCNN) the automatic weight's
+prior of :data:`recon.priors.AUTO_PRIORS` (TV, wavelet, DnCNN) the automatic weight's
 hold-out cross-validation (:func:`recon.auto.weight.admm_auto`: the same held-out
 blocks, the same seed, warm-started continuation, each candidate run until its
 held-out error settles) chooses the prior's weight along its own path
 (:data:`PRIOR_RULES`); each chosen candidate's held-out prediction error and its
 standard error are then compared across priors. The data choose the *simplest*
-prior (in :data:`~recon.priors.PRIORS` order) whose held-out error is within
+prior (in :data:`~recon.priors.AUTO_PRIORS` order) whose held-out error is within
 ``se_rule`` standard errors of the best prior's -- the one-standard-error rule of
 Breiman et al. 1984 (Sec. 3.4.3) applied between models of increasing complexity, as
 the weight path applies it between weights -- and its path's result is the result.
@@ -22,14 +22,15 @@ import time
 from dataclasses import dataclass, field
 
 from ..errors import ReconInputError
-from ..priors import PRIORS, prior_of
+from ..priors import AUTO_PRIORS, prior_of
 from .weight import PATH_RULES, SE_RULE, PathRule
 
 __all__ = ["PRIOR_RULES", "PriorChoice", "choose_prior", "prior_plan_of"]
 
-#: The weight path of each prior. TV: the 2D rule. Wavelet: the same span (its
-#: weight, like TV's, is an l1 weight on a linear transform of the scaled image, and
-#: thresholds at weight / mu2). DnCNN: the weight is the denoiser's noise level
+#: The weight path of each prior. TV: the 2D rule; isotropic TV and TGV (a1 = 1) too,
+#: their weights being on TV's scale (both at most an image's anisotropic TV). Wavelet:
+#: the same span (its weight, like TV's, is an l1 weight on a linear transform of the
+#: scaled image, and thresholds at weight / mu2). DnCNN: the weight is the denoiser's noise level
 #: relative to the iterate's scale, from 0.3 down to 0.15 in steps of sqrt(2) (3
 #: candidates). Measured on the priors benchmark (bin 8, 200 iterations): a path
 #: from 0.2 down to 0.005 in the usual steps chose 0.08 on five of the six natural and
@@ -38,7 +39,8 @@ __all__ = ["PRIOR_RULES", "PriorChoice", "choose_prior", "prior_plan_of"]
 #: 0.2; the camera 18.3 at 0.1) while its held-out prediction error still fell: the
 #: held-out blocks do not see that noise. Every scene's best fixed level was 0.2 or
 #: 0.25, the sparse ones' (beads, text) 0.1.
-PRIOR_RULES = {"tv": PATH_RULES["tv"], "wavelet": PathRule(1e-2, 1e-5),
+PRIOR_RULES = {"tv": PATH_RULES["tv"], "tv-iso": PATH_RULES["tv"], "tgv": PATH_RULES["tv"],
+               "wavelet": PathRule(1e-2, 1e-5),
                "dncnn": PathRule(0.3, 0.15, factor=2 ** 0.5)}
 
 
@@ -116,7 +118,7 @@ def _chosen_score(choice) -> tuple[float, float]:
     raise ReconInputError("the weight path's record lacks its chosen weight")  # defensive
 
 
-def choose_prior(path, priors=PRIORS, se_rule: float = SE_RULE):
+def choose_prior(path, priors=AUTO_PRIORS, se_rule: float = SE_RULE):
     """Run ``path(prior_name, rule)`` for each prior and choose between them.
 
     Parameters
@@ -126,7 +128,8 @@ def choose_prior(path, priors=PRIORS, se_rule: float = SE_RULE):
         (:func:`recon.auto.weight_path` with that prior's plans and rule), on the same
         measurement and held-out blocks for every prior.
     priors : sequence of str
-        Names from :data:`recon.priors.PRIORS`, simplest first.
+        Names from :data:`recon.priors.PRIORS`, simplest first (default
+        :data:`~recon.priors.AUTO_PRIORS`).
     se_rule : float
         Multiple of the best prior's standard error within which a simpler prior is
         taken.

@@ -8,6 +8,12 @@ penalty balancing (:func:`recon.solvers.admm_loop.run_admm`):
 
 * :class:`TotalVariation` -- anisotropic TV (Eq. 3.9): G_u the finite differences,
   prox the soft threshold at ``weight / mu2`` (the project's default prior).
+* :class:`IsotropicTV` -- isotropic TV: the same G_u, prox the group soft threshold
+  of each pixel's difference vector (no preference for the grid's axes).
+* :class:`TgvPrior` -- second-order total generalised variation (Bredies, Kunisch &
+  Pock 2010), a0/a1 = 2: G_u the identity, the prox the TGV denoising step solved by
+  a few primal-dual iterations (Chambolle & Pock 2011); piecewise-affine images
+  without TV's staircase.
 * :class:`WaveletPrior` -- l1 of orthonormal wavelet detail coefficients
   (symlets, PyWavelets), G_u the identity, prox the soft threshold of the
   coefficients averaged over a few circular shifts (translation-invariant
@@ -22,7 +28,7 @@ penalty balancing (:func:`recon.solvers.admm_loop.run_admm`):
 The priors whose G_u is the identity are applied over the whole padded object grid
 (the field of view and the rim the crop split leaves free), as the TV split is.
 
-:data:`PRIORS` names them for the command line (``--prior tv|wavelet|dncnn|auto``);
+:data:`PRIORS` names them for the command line (``--prior tv|tv-iso|tgv|wavelet|dncnn|auto``);
 :func:`prior_of` makes one from its name.
 """
 
@@ -31,13 +37,20 @@ from __future__ import annotations
 from ..errors import ReconInputError
 from .base import Prior, TotalVariation
 from .dncnn import DncnnPrior
+from .tgv import TgvPrior
+from .tv_iso import IsotropicTV
 from .wavelet import WaveletPrior
 
-__all__ = ["PRIORS", "DncnnPrior", "Prior", "TotalVariation", "WaveletPrior", "prior_of"]
+__all__ = ["AUTO_PRIORS", "PRIORS", "DncnnPrior", "IsotropicTV", "Prior", "TgvPrior",
+           "TotalVariation", "WaveletPrior", "prior_of"]
 
-#: The priors by name, simplest first (the automatic choice prefers the earlier of
-#: priors that predict the held-out pixels equally well).
-PRIORS: tuple[str, ...] = ("tv", "wavelet", "dncnn")
+#: The priors by name, simplest first.
+PRIORS: tuple[str, ...] = ("tv", "tv-iso", "tgv", "wavelet", "dncnn")
+
+#: The candidates of the automatic choice (``--prior auto``), simplest first: it
+#: prefers the earlier of priors that predict the held-out pixels equally well.
+#: Isotropic TV and TGV are not among them (not measured in that choice).
+AUTO_PRIORS: tuple[str, ...] = ("tv", "wavelet", "dncnn")
 
 
 def prior_of(name) -> Prior:
@@ -53,7 +66,8 @@ def prior_of(name) -> Prior:
         return name
     if name is None:
         return TotalVariation()
-    makers = {"tv": TotalVariation, "wavelet": WaveletPrior, "dncnn": DncnnPrior}
+    makers = {"tv": TotalVariation, "tv-iso": IsotropicTV, "tgv": TgvPrior,
+              "wavelet": WaveletPrior, "dncnn": DncnnPrior}
     if name not in makers:
         raise ReconInputError(f"prior {name!r}: use one of {', '.join(PRIORS)} (or 'auto' "
                               "where the command chooses)")

@@ -82,6 +82,10 @@ class TotalVariation(Prior):
         thr = weight / mu2
         if thr <= 0:
             return tuple(t)
+        return self.shrink(xp, t, thr)
+
+    def shrink(self, xp, t: tuple, thr: float) -> tuple:
+        """The prox at threshold ``thr`` > 0: each array soft-thresholded."""
         return tuple(s - xp.clip(s, min=-thr, max=thr) for s in t)
 
     def value(self, xp, x, g: tuple) -> float:

@@ -467,7 +467,7 @@ class XpAdmmPlan(XpPlanBase):
         data_sq = total(xp, r * r)
         reg = 0.0
         if tv > 0:
-            reg = (tv_circular(xp, x, (0, 1)) if not self.prior.identity_split
-                   else self.prior.value(xp, x, (x,)))
+            reg = (tv_circular(xp, x, (0, 1)) if self.prior.name == "tv"
+                   else self.prior.value(xp, x, self.differences.apply(xp, x)))
         objective = 0.5 * data_sq + tv * reg + l1 * total(xp, x)
         return objective, float(np.sqrt(data_sq)) / b_norm

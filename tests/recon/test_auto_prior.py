@@ -125,7 +125,7 @@ def test_solve_channel_refuses_what_a_prior_cannot_do(case):
         solve_channel(problem, options(method="admm", tv=1e-4, prior="auto"))
     with pytest.raises(ReconInputError, match="the wavelet prior runs in ADMM"):
         solve_channel(problem, options(method="fista", tv=1e-4, prior="wavelet"))
-    with pytest.raises(ReconInputError, match="use one of tv, wavelet, dncnn"):
+    with pytest.raises(ReconInputError, match="use one of tv, tv-iso, tgv, wavelet, dncnn"):
         solve_channel(problem, options(method="admm", tv=1e-4, prior="bm3d"))
     with pytest.raises(ReconInputError, match="automatic l1 weight is chosen with TV only"):
         solve_channel(problem, options(method="admm", tv=1e-4, prior="wavelet", l1="auto"))

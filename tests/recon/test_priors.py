@@ -33,12 +33,12 @@ def problem():
 
 
 def test_names_and_unknown_prior():
-    assert PRIORS == ("tv", "wavelet", "dncnn")
+    assert PRIORS == ("tv", "tv-iso", "tgv", "wavelet", "dncnn")
     assert isinstance(prior_of("wavelet"), WaveletPrior)
     assert isinstance(prior_of(None), TotalVariation)  # the solvers' default
     p = TotalVariation()
     assert prior_of(p) is p
-    with pytest.raises(ReconInputError, match="tv, wavelet, dncnn"):
+    with pytest.raises(ReconInputError, match="tv, tv-iso, tgv, wavelet, dncnn"):
         prior_of("bm3d")
 
 
