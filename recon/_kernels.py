@@ -115,8 +115,24 @@ def proximal_step_2d(y, grad, x, y_next, step, thr, beta, nonneg):
 
 
 @njit(inline="always")
+def _group_shrink_split(gx, gy, qx, qy, thr):
+    """The isotropic TV split of one pixel in q-form (:func:`recon.jit.shrink_split`
+    with the group soft threshold of the 2-vector t = g + a at ``thr``): returns
+    (q_new, a, z) for x, then for y."""
+    ax = gx - qx
+    ay = gy - qy
+    tx = gx + ax
+    ty = gy + ay
+    n = np.sqrt(tx * tx + ty * ty)
+    s = max(np.float32(1.0) - thr / n, np.float32(0.0)) if n > 0 else np.float32(0.0)
+    zx = tx * s
+    zy = ty * s
+    return zx - ax, ax, zx, zy - ay, ay, zy
+
+
+@njit(inline="always")
 def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
-             av, aux, auy, aw, l1thr):
+             av, aux, auy, aw, l1thr, iso):
     """One pixel of :func:`admm_split_updates_2d`; returns its reduction terms."""
     zero = np.float32(0.0)
     ninf = np.float32(-np.inf)
@@ -141,10 +157,23 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
     if mode != 0:
         aw[i, j] = a
     qw[i, j] = qn
-    # u split (anisotropic TV)
+    # u split (anisotropic TV; isotropic with ``iso``)
     gx = x[i, jp] - g
     gy = x[ip, j] - g
-    if use_tv:
+    if use_tv and iso:
+        qx = qux[i, j]
+        qy = quy[i, j]
+        qnx, a, z, qny, a2, z2 = _group_shrink_split(gx, gy, qx, qy, thr)
+        if mode == 2:
+            ru, su, nu, du = balance_terms(gx, qx, a, z, aux[i, j])
+            r2, s2, n2, d2 = balance_terms(gy, qy, a2, z2, auy[i, j])
+            ru, su, nu, du = ru + r2, su + s2, nu + n2, du + d2
+        if mode != 0:
+            aux[i, j] = a
+            auy[i, j] = a2
+        qux[i, j] = qnx
+        quy[i, j] = qny
+    elif use_tv:
         q = qux[i, j]
         qn, a, z = shrink_split(gx, q, thr, ninf)
         if mode == 2:
@@ -160,20 +189,22 @@ def _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mo
         if mode != 0:
             auy[i, j] = a
         quy[i, j] = qn
-    return (res, abs(gx) + abs(gy), rv, sv, ru, su, rw, sw, nv, dv, nu, du, nw, dw)
+    tv = np.sqrt(gx * gx + gy * gy) if iso else abs(gx) + abs(gy)
+    return (res, tv, rv, sv, ru, su, rw, sw, nv, dv, nu, du, nw, dw)
 
 
 @njit(**PARALLEL_FAST)
 def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
                           mu1, mu2, mu3, tau, use_tv, mode, av, aux, auy, aw, l1=0.0,
-                          rhs=None):
+                          rhs=None, iso=False):
     """ADMM z- and dual updates of Eq. 4.5 / App. A.3 in 2D, fused, in q-form.
 
     For each split with G x = g (v: M x, u: Psi x as forward differences, w: x),
     keeping only q = z - a (a = scaled dual) between iterations:
     a_new = g - q_old; z_new = prox(g + a_new); q_new = z_new - a_new, where the
     proxes are v: (w b + mu1 t) / (w^2 + mu1) (w, b zero-padded off the sensor);
-    u: soft threshold tau/mu2; w: max(t - l1/mu3, 0) (non-negativity, and the l1
+    u: soft threshold tau/mu2 (with ``iso``: the group soft threshold of each
+    pixel's difference vector, isotropic TV); w: max(t - l1/mu3, 0) (non-negativity, and the l1
     weight ``l1`` when > 0: on x >= 0, l1 ||x||_1 is linear). This is the textbook
     scaled-dual ADMM with the dual step of iteration k fused into the z-step of k+1.
 
@@ -191,8 +222,9 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
     Returns
     -------
     out : ndarray, shape (14,), float64
-        [||w C M x - b||^2, TV(x), r_v^2, s_v^2, r_u^2, s_u^2, r_w^2, s_w^2, then per
-        split (v, u, w) sum max(|G x|^2, |z|^2) and ||a||^2] (the last 11 in mode 2).
+        [||w C M x - b||^2, TV(x) (isotropic with ``iso``), r_v^2, s_v^2, r_u^2, s_u^2,
+        r_w^2, s_w^2, then per split (v, u, w) sum max(|G x|^2, |z|^2) and ||a||^2] (the
+        last 11 in mode 2).
     """
     n0, n1 = x.shape
     thr = np.float32(tau / mu2 if use_tv else 0.0)
@@ -210,13 +242,13 @@ def admm_split_updates_2d(x, mx, qv, qux, quy, qw, bp, wp,
             # at 1200 x 1600; specialised, 2.2-3.5 ms). Same arithmetic, same results.
             if mode == 0:
                 acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 0,
-                                av, aux, auy, aw, l1thr)
+                                av, aux, auy, aw, l1thr, iso)
             elif mode == 1:
                 acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 1,
-                                av, aux, auy, aw, l1thr)
+                                av, aux, auy, aw, l1thr, iso)
             else:
                 acc = _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, 2,
-                                av, aux, auy, aw, l1thr)
+                                av, aux, auy, aw, l1thr, iso)
             for k in range(14):
                 rows[i, k] = acc[k]
             if rhs is not None and i > start:
@@ -238,7 +270,7 @@ _ROW_BLOCKS = 16
 
 @njit(inline="always")
 def _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, mode, av, aux, auy, aw,
-              l1thr):
+              l1thr, iso):
     """Row ``i`` of :func:`admm_split_updates_2d`; returns its 14 reduction sums."""
     n0, n1 = x.shape
     ip = i + 1 if i < n0 - 1 else 0
@@ -247,7 +279,7 @@ def _admm_row(x, mx, qv, qux, quy, qw, bp, wp, i, mu1, thr, use_tv, mode, av, au
     for j in range(n1):
         jp = j + 1 if j < n1 - 1 else 0
         c = _admm_px(x, mx, qv, qux, quy, qw, bp, wp, i, j, ip, jp, mu1, thr, use_tv, mode,
-                     av, aux, auy, aw, l1thr)
+                     av, aux, auy, aw, l1thr, iso)
         acc = _add14(acc, c)
     return acc
 

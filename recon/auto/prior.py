@@ -58,7 +58,9 @@ def prior_plan_of(prior, like):
     -------
     callable or None
         None for TV on NumPy (:func:`~recon.auto.weight.admm_auto` then takes the
-        fused plan, :meth:`recon.solvers.admm.AdmmPlan.of`); else ``op -> plan``
+        fused plan, :meth:`recon.solvers.admm.AdmmPlan.of`), the fused plan's
+        :meth:`~recon.solvers.admm.AdmmPlan.isotropic_view` for isotropic TV on NumPy;
+        else ``op -> plan``
         making the generic plans (``recon.solvers.xp_admm.XpAdmmPlan``) with the
         prior.
 
@@ -75,6 +77,8 @@ def prior_plan_of(prior, like):
     p = prior_of(prior)
     if p.name == "tv" and isinstance(like, np.ndarray):
         return None
+    if p.name == "tv-iso" and isinstance(like, np.ndarray):  # the fused passes too
+        return lambda op: AdmmPlan.of(op).isotropic_view()
     return XpAdmmPlan.maker(like, AdmmPlan.of, prior=p)
 
 

@@ -20,7 +20,10 @@ class IsotropicTV(TotalVariation):
     (one split array per axis, the same x-update; a subclass of it that changes the
     shrinkage and the value); the prox of ``(weight / mu2)
     ||.||_{2,1}`` is the group soft threshold t max(1 - thr / |t|, 0) of each pixel's
-    difference vector, thr = weight / mu2: one fused numba pass on two NumPy arrays
+    difference vector, thr = weight / mu2. On NumPy the ADMM runs it inside the fused
+    split pass of anisotropic TV (``recon._kernels.admm_split_updates_2d`` with
+    ``iso``, the plan's :meth:`~recon.solvers.admm.AdmmPlan.isotropic_view`); this
+    prox serves the generic kernel set: one numba pass on two NumPy arrays
     (``recon.priors._kernels.group_shrink_2``), whole-array operations otherwise.
     Unlike anisotropic TV it does not favour edges along the grid's axes.
 

@@ -14,6 +14,7 @@ array-API backends get the generic kernel set of ``recon.solvers.xp_admm``.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import ClassVar
@@ -72,6 +73,9 @@ class AdmmPlan(AdmmPlanBase):
         |F P h|^2, the PSF's power spectrum.
     d_pow : ndarray, float32, shape (P0, P1 // 2 + 1)
         |F Psi|^2 summed over the axes (finite differences).
+    isotropic : bool (class attribute; True on :meth:`isotropic_view`'s copy)
+        The u split's prior is isotropic TV (``--prior tv-iso``): the fused pass
+        group-soft-thresholds each pixel's difference vector.
     rhs_in_split : bool (class attribute)
         Whether the kernel set (:class:`NumbaKernels2D`) has the split pass write the
         x-update's right-hand side (``state.stacked[1]``) and calls :meth:`x_update`
@@ -80,6 +84,7 @@ class AdmmPlan(AdmmPlanBase):
     """
 
     rhs_in_split: ClassVar[bool] = True
+    isotropic: ClassVar[bool] = False
     hint: ClassVar[str] = "try --method fista or a smaller TV weight"
 
     op: ConvolutionOperator
@@ -105,6 +110,12 @@ class AdmmPlan(AdmmPlanBase):
         spec = op.spectrum
         return cls(op, op.padded_shape, wp, (spec.real**2 + spec.imag**2).astype(np.float32),
                    difference_power(op.padded_shape))
+
+    def isotropic_view(self) -> AdmmPlan:
+        """This plan (its arrays shared) with isotropic TV as the u split's prior."""
+        plan = copy.copy(self)
+        plan.isotropic = True
+        return plan
 
     # -- the interface of the automatic weight (recon.auto.weight.admm_auto), shared
     # with recon.volume.VolumeAdmmPlan --------------------------------------------
@@ -145,8 +156,13 @@ class AdmmPlan(AdmmPlanBase):
 
     def objective(self, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
                   b_norm: float) -> tuple[float, float]:
-        """:func:`objective_of` with this plan's operator."""
-        return objective_of(self.op, b, x, tv=tv, l1=l1, b_norm=b_norm)
+        """:func:`objective_of` with this plan's operator (isotropic TV's term on
+        :meth:`isotropic_view`)."""
+        if not self.isotropic:
+            return objective_of(self.op, b, x, tv=tv, l1=l1, b_norm=b_norm)
+        objective, relative = objective_of(self.op, b, x, tv=0.0, l1=l1, b_norm=b_norm)
+        g = [np.roll(x, -1, axis=ax) - x for ax in (1, 0)]
+        return objective + tv * float(np.hypot(*g).sum(dtype=np.float64)), relative
 
     def x_update(self, state: AdmmState, x: np.ndarray, mx: np.ndarray, mu, *,
                  rhs_ready: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -336,7 +352,8 @@ class NumbaKernels2D:
         rhs = st.stacked[1] if plan.rhs_in_split and mode != 2 else None
         s = _kernels.admm_split_updates_2d(st.x, st.mx, st.stacked[0], st.qux, st.quy, st.qw,
                                            self.bp, plan.wp, mu1, mu2, mu3, self.tv,
-                                           st.use_tv, mode, *st.scratch, self.l1, rhs)
+                                           st.use_tv, mode, *st.scratch, self.l1, rhs,
+                                           plan.isotropic)
         self._rhs_ready = rhs is not None
         l1_x = (self.l1 * float(np.maximum(st.x, 0).sum(dtype=np.float64)) if self.l1 > 0
                 else 0.0)
@@ -426,8 +443,8 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
         x-update serves other forward models (:class:`recon.spatial.SpatialAdmmPlan`:
         the local convolution model, ``op`` a ``SpatialConvolutionOperator``).
     prior : str or Prior, optional
-        The u split's prior (:mod:`recon.priors`): ``"tv"`` (default, the fused numba
-        passes on NumPy), ``"wavelet"`` or ``"dncnn"`` (or a
+        The u split's prior (:mod:`recon.priors`): ``"tv"`` (default) and ``"tv-iso"``
+        (the fused numba passes on NumPy), ``"tgv"``, ``"wavelet"`` or ``"dncnn"`` (or a
         :class:`~recon.priors.Prior`), which run the generic kernel set
         (``recon.solvers.xp_admm.XpAdmmPlan``) on any backend with u = x; ``tv`` is
         then that prior's weight (the wavelet's l1 weight; the denoiser's noise level
@@ -476,10 +493,12 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
     l1 = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
     prior = prior_of(prior)
-    if prior.name != "tv" or not isinstance(b, np.ndarray):  # the generic kernel set
+    if prior.name not in ("tv", "tv-iso") or not isinstance(b, np.ndarray):  # generic set
         from .xp_admm import XpAdmmPlan
 
         plan = XpAdmmPlan(plan, b, prior=prior)
+    elif prior.name == "tv-iso":  # the fused numba passes, isotropic
+        plan = plan.isotropic_view()
     res = run_admm(plan, b, plan.zeros(penalty.initial(), tv > 0), iterations=iterations,
                    tv=tv, l1=l1, penalty=penalty, stop=stop)
     if prior.name != "tv":
