@@ -18,12 +18,11 @@
 * :func:`record` / :func:`batch_reconstruct` - a video recording
   (:func:`instrument.video.record_video`, in the bench process) and the batch
   reconstruction of a run (:func:`instrument.batch.reconstruct_run`, options as
-  ``recon-run`` takes them, in a process of its own).
+  ``recon-run`` takes them, :func:`batch_options`, in a process of its own).
 """
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
 from pathlib import Path
 from typing import Any
@@ -31,7 +30,7 @@ from typing import Any
 # the bodies the bench process runs, re-exported for the panels and the tests
 from calibration_routines.bench_jobs import ALIGNMENT_STEPS, build_plan, section_summary
 
-__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_reconstruct", "build_live",
+__all__ = ["ALIGNMENT_STEPS", "ROUTINES", "batch_options", "batch_reconstruct", "build_live",
            "build_plan", "check_values", "default_run_path", "record", "resume_plan",
            "routine_options", "run_alignment", "run_plan", "section_summary",
            "stack_depths"]
@@ -45,9 +44,8 @@ LIVE_IN_PROCESS = True
 #: Calibration routines, as ``calibrate`` names them.
 ROUTINES = ("dark", "psf-sweep", "psf-grid", "angular-response", "slm-lut")
 
-def build_live(session, psf_path: str, *, depth_mm: float | None = None,
-               method: str = "wiener", iterations: int = 5, dark: str = "",
-               threads: int | None = 1, device: str = "cpu"):
+def build_live(session, psf_path: str, *, depth_mm: float | None = None, live=None,
+               options=None, threads: int | None = 1):
     """A live reconstruction for the session's camera (not started).
 
     Parameters
@@ -58,20 +56,21 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
         PSF image, PSF stack or calibration run.
     depth_mm : float, optional
         Depth of the stack's plane.
-    method, iterations
-        ``"wiener"`` or ``"admm"`` with ``iterations`` warm-started iterations per frame.
-    dark : str
-        The frames' dark level, as ``--dark`` (one meaning,
-        :func:`instrument.reconstruct_files.resolve_dark`): ``""`` for auto (a plain
-        PSF image: its dark corner; a calibration run's PSF: the simulated camera's
-        offset on the virtual bench, else refused), ``none``, a number in DN, or a
-        ``calibrate dark`` run or dark image.
+    live : recon.options.LiveOptions, optional
+        The method (``"wiener"`` or ``"admm"``) and its warm-started iterations per
+        frame (default: the declared ones).
+    options : recon.options.ReconOptions, optional
+        ``capture live``'s reconstruction options (default: the declared ones): the
+        frames' dark level, as ``--dark`` (one meaning,
+        :func:`instrument.reconstruct_files.resolve_dark`: auto for a plain PSF image its
+        dark corner, for a calibration run's PSF the simulated camera's offset on the
+        virtual bench, else refused; ``none``; a level in DN; a ``calibrate dark`` run or
+        dark image), the binning and the device where the solves run
+        (:class:`recon.live.LiveReconstructor`'s; the reconstructor's
+        ``backend.label`` says which).
     threads : int, optional
         Threads of the reconstruction (default 1, leaving a core to the GUI and a
         recorder).
-    device : {"cpu", "cuda", "auto"}
-        Where the solves run (:class:`recon.live.LiveReconstructor`'s ``device``; the
-        reconstructor's ``backend.label`` says which).
 
     Returns
     -------
@@ -99,9 +98,12 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
     from instrument.stacks import dark_subtracted
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
+    from recon.options import LiveOptions, ReconOptions
 
     from .workers import BACKGROUND_NICE, InputError
 
+    live = live or LiveOptions.from_defaults()
+    options = options or ReconOptions.from_defaults()
     if not psf_path.strip():
         raise InputError("give the PSF: an image, a PSF stack or a calibration run (PSF "
                          "sweep); Browse... picks one")
@@ -112,22 +114,18 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None,
             f"the PSF {psf_path} is {psf.shape[0]}x{psf.shape[1]} but the camera delivers "
             f"{cam.image_shape[0]}x{cam.image_shape[1]} frames; calibrate the PSF with the "
             "camera's current ROI and binning")
-    from recon.options import ReconOptions
-
-    psf, level = resolve_dark(  # one meaning of an empty (auto) dark field, as the CLI's
-        dark.strip() or ReconOptions.defaults()["dark"], psf,
-        calibrated=dark_subtracted(psf_path), recorded=cam.dark_offset_dn,
-        what=psf_path)
+    psf, level = resolve_dark(  # one meaning of the dark level, as the CLI's
+        options.dark, psf, calibrated=dark_subtracted(psf_path),
+        recorded=cam.dark_offset_dn, what=psf_path)
+    reconstructor = {"dark": level, "device": options.device,
+                     "bin_factor": options.bin_factor}
     if not LIVE_IN_PROCESS:
-        live = LiveReconstruction(LiveReconstructor(psf, dark=level, device=device),
-                                  method=method, iterations=iterations, threads=threads,
-                                  nice=BACKGROUND_NICE)
-        return live, depth
-    live = LiveReconstructionProcess(psf, reconstructor_options={"dark": level,
-                                                                 "device": device},
-                                     method=method, iterations=iterations, threads=threads,
-                                     nice=BACKGROUND_NICE)
-    return live, depth
+        return LiveReconstruction(LiveReconstructor(psf, **reconstructor),
+                                  method=live.method, iterations=live.iterations,
+                                  threads=threads, nice=BACKGROUND_NICE), depth
+    return LiveReconstructionProcess(psf, reconstructor_options=reconstructor,
+                                     method=live.method, iterations=live.iterations,
+                                     threads=threads, nice=BACKGROUND_NICE), depth
 
 
 def stack_depths(psf_path: str) -> list[float]:
@@ -277,12 +275,18 @@ def record(job, session, out: str, stop, *, frames: int | None, seconds: float |
     return result
 
 
-def _recon_run_args(run: str, options: dict[str, str]) -> argparse.Namespace:
-    """``recon-run``'s options from the form's ``{flag: text}``: each converted and
+def batch_options(texts: dict[str, str]):
+    """``recon-run``'s options from a form's ``{flag: text}``: each converted and
     checked by its one declaration (:class:`recon.options.ReconOptions` for the
     reconstruction, :class:`instrument.cli.recon_run.RunOptions` for the run's own:
-    type, choices, limits, default), no command line assembled; an empty text takes
-    the declared default.
+    type, choices, limits, default, the checks between fields such as workers against
+    a scheduler), no command line assembled; an empty text takes the declared default.
+
+    Returns
+    -------
+    recon : recon.options.ReconOptions
+        Only ``recon-run``'s fields set; the others at their defaults.
+    own : instrument.cli.recon_run.RunOptions
 
     Raises
     ------
@@ -300,55 +304,59 @@ def _recon_run_args(run: str, options: dict[str, str]) -> argparse.Namespace:
     taken = (*COMMAND_FIELDS["recon-run"], *GRID_FIELDS["recon-run"])
     recon_flags = {s.flag for s in ReconOptions.specs() if s.dest in taken}
     run_flags = {s.flag for s in RunOptions.specs()}
-    for flag in options:
+    for flag in texts:
         if flag not in recon_flags | run_flags:
             raise InputError(f"recon-run has no option {flag}")
-    given = {f for f, v in options.items() if str(v if v is not None else "").strip()}
-    if {"--workers", "--scheduler"} <= given:
-        raise InputError("--workers: not allowed with --scheduler")
     try:
-        rec = ReconOptions.from_text({f: v for f, v in options.items() if f in recon_flags})
-        own = RunOptions.from_text({f: v for f, v in options.items() if f in run_flags})
+        rec = ReconOptions.from_text({f: v for f, v in texts.items() if f in recon_flags})
+        own = RunOptions.from_text({f: v for f, v in texts.items() if f in run_flags})
     except diffuserlab.errors.InputError as exc:
         raise InputError(str(exc)) from None
-    values = {k: v for k, v in rec.model_dump().items() if k in taken}
-    return argparse.Namespace(command="recon-run", run=run, **values, **own.model_dump())
+    return rec, own
 
 
-def batch_reconstruct(job, run: str, options: dict[str, str]) -> dict:
+def batch_reconstruct(job, run: str, recon, own) -> dict:
     """Reconstruct a recorded run with dask (:func:`instrument.batch.reconstruct_run`),
-    its options those of ``recon-run`` (``{flag: text}``), cancelled by the job.
+    with ``recon-run``'s options (:func:`batch_options`), cancelled by the job.
 
     The batch runs in a child process
     (:func:`instrument.batch_process.reconstruct_run_in_process`): dask's scheduler and
     client never live in the GUI's process, whose references, memory and interpreter
     lock each batch would otherwise take a share of for the rest of the session.
 
+    Parameters
+    ----------
+    job : gui.workers.Job
+    run : str
+        The run store.
+    recon : recon.options.ReconOptions
+        The reconstruction's options (validated).
+    own : instrument.cli.recon_run.RunOptions
+        The run's own (PSF, depth, frames, workers, ...; validated).
+
     Raises
     ------
     gui.workers.InputError
-        No PSF, or an option ``recon-run`` refuses (the message names it).
+        No PSF.
     instrument.runstore.RunStoreError, recon.errors.ReconInputError
         From the run, the PSF or a frame's reconstruction (frames done are kept).
     """
     from instrument.batch import batch_psf, parse_frames
     from instrument.batch_process import reconstruct_run_in_process
     from instrument.runstore import RunStore
-    from recon.options import ReconOptions
 
     from .workers import InputError
 
-    if not str(options.get("--psf") or "").strip():
+    if not str(own.psf or "").strip():
         raise InputError("give the PSF to reconstruct with: an image, a PSF stack or a "
                          "calibration run (PSF sweep)")
-    args = _recon_run_args(run, options)
-    store = RunStore.open(args.run)
-    frames = parse_frames(args.frames, store.n_frames)
-    job.report({"kind": "start", "total": len(frames), "run": args.run})
-    psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
-                                  psf_product=args.psf_product, dark=args.dark)
+    store = RunStore.open(run)
+    frames = parse_frames(own.frames, store.n_frames)
+    job.report({"kind": "start", "total": len(frames), "run": run})
+    psf, dark, source = batch_psf(own.psf, store.attrs, depth_mm=own.depth_mm,
+                                  psf_product=own.psf_product, dark=recon.dark)
     return reconstruct_run_in_process(
-        args.run, psf, ReconOptions.from_namespace(args), dark=dark, frames=frames,
-        product=args.product, workers=args.workers, scheduler=args.scheduler,
-        dff_percentile=args.dff, overwrite=args.overwrite, psf_source=source,
-        on_progress=job.report, cancel=job.cancel_event)
+        run, psf, recon, dark=dark, frames=frames, product=own.product,
+        workers=own.workers, scheduler=own.scheduler, dff_percentile=own.dff,
+        overwrite=own.overwrite, psf_source=source, on_progress=job.report,
+        cancel=job.cancel_event)

@@ -255,7 +255,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         live.stop_reconstruction()
         s.stop_stream()
         rec.batch_fields["--method"].setCurrentText("admm")
-        rec.batch_fields["--iterations"].setText("10")
+        rec.batch_fields["--iterations"].setValue(10)
         rec.batch_fields["--frames"].setText("0:4")
         rec.batch_fields["--workers"].setText("1")
         job = rec.start_batch()

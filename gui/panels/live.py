@@ -23,21 +23,21 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import (
-    QComboBox,
     QFileDialog,
     QGridLayout,
     QHBoxLayout,
     QLabel,
     QLineEdit,
     QPushButton,
-    QSpinBox,
     QVBoxLayout,
     QWidget,
 )
 
+from instrument.cli.recon_flags import COMMAND_FIELDS
 from recon.options import LiveOptions, ReconOptions
 
-from ..fields import remember, wheel_needs_focus
+from ..fields import remember
+from ..forms import OptionsForm
 from ..session import Session
 from ..workers import InputError, Job, readable_error
 from .common import FrameView, dark_hint, depth_field, error_label, offer_depths
@@ -99,47 +99,41 @@ class LivePanel(QWidget):
         controls.addWidget(QLabel("depth (mm):"), 1, 1)
         self.depth = remember(depth_field("live.depth"), "live/depth")
         controls.addWidget(self.depth, 1, 2)
-        controls.addWidget(QLabel("dark (DN or dark run):"), 1, 3)
-        self.dark = remember(QLineEdit(), "live/dark")
+        # the settings are generated from capture live's declarations (gui.forms)
+        self.live_form = OptionsForm(LiveOptions, tuple(s.dest for s in LiveOptions.specs()),
+                                     name="live.", remember_as="live")
+        self.recon_form = OptionsForm(ReconOptions, COMMAND_FIELDS["capture live"],
+                                      name="live.", remember_as="live")
+        for form in (self.live_form, self.recon_form):  # live.method, live.dark, ...
+            for field, widget in form.widgets.items():
+                widget.setObjectName(f"live.{field}")
+        self.method = self.live_form.widgets["method"]
+        self.method.currentTextChanged.connect(self._method_changed)
+        self.iterations = self.live_form.widgets["iterations"]
+        self.iterations.valueChanged.connect(self._method_changed)
+        self.dark = self.recon_form.widgets["dark"]
         self.dark.setPlaceholderText(dark_hint(session))
         self.dark.setToolTip("the frames' dark level: a number in DN or a dark run (calibrate "
                              "dark); empty on the virtual bench: its camera's offset, on a real "
                              "bench: estimated from a single PSF image's corner (a PSF sweep "
                              "needs it given)")
-        controls.addWidget(self.dark, 1, 4)
-        controls.addWidget(QLabel("method:"), 2, 1)
-        self.method = QComboBox()
-        self.method.addItems(LiveOptions.spec("method").choices)
-        self.method.setCurrentText(LiveOptions.defaults()["method"])
-        self.method.setObjectName("live.method")
-        wheel_needs_focus(self.method)
-        remember(self.method, "live/method")
-        self.method.currentTextChanged.connect(self._method_changed)
-        controls.addWidget(self.method, 2, 2)
-        controls.addWidget(QLabel("ADMM iterations per frame:"), 2, 3)
-        self.iterations = QSpinBox()
-        limits = LiveOptions.bounds("iterations")
-        self.iterations.setRange(limits["ge"], limits["le"])
-        self.iterations.setValue(LiveOptions.defaults()["iterations"])
-        self.iterations.setObjectName("live.iterations")
-        wheel_needs_focus(self.iterations)
-        remember(self.iterations, "live/iterations")
-        self.iterations.valueChanged.connect(self._method_changed)
-        controls.addWidget(self.iterations, 2, 4)
-        controls.addWidget(QLabel("device:"), 3, 1)
-        self.device = QComboBox()
-        self.device.addItems(list(ReconOptions.spec("device").choices))
-        self.device.setCurrentText(ReconOptions.defaults()["device"])
-        self.device.setObjectName("live.device")
+        self.device = self.recon_form.widgets["device"]
         self.device.setToolTip("where the reconstruction runs: cpu (NumPy), cuda (a GPU "
                                "through CuPy or PyTorch) or auto (the GPU when one is "
                                "usable); taken when the reconstruction starts")
-        wheel_needs_focus(self.device)
-        remember(self.device, "live/device")
-        controls.addWidget(self.device, 3, 2)
+        # dark beside the depth, then the method's and the reconstruction's settings
+        rows = (self.recon_form.rows(("dark",)) + self.live_form.rows()
+                + self.recon_form.rows(f for f in self.recon_form.widgets if f != "dark"))
+        for i, (label, widget) in enumerate(rows):
+            r, c = 1 + (i + 1) // 2, 1 + 2 * ((i + 1) % 2)
+            controls.addWidget(label, r, c)
+            controls.addWidget(widget, r, c + 1)
+        device_row = 1 + (len(rows) + 1) // 2
         self.device_used = QLabel("")
         self.device_used.setObjectName("live.device_used")
-        controls.addWidget(self.device_used, 3, 3, 1, 2)
+        controls.addWidget(self.device_used, device_row, 1, 1, 4)
+        for column in (2, 4):  # the two columns of fields share the width
+            controls.setColumnStretch(column, 1)
         self.recon_button = QPushButton("Start reconstruction")
         self.recon_button.setObjectName("live.reconstruct")
         self.recon_button.clicked.connect(self.toggle_reconstruction)
@@ -254,19 +248,27 @@ class LivePanel(QWidget):
         except InputError as exc:
             self.error.setText(str(exc))
             return None
-        psf, dark = self.psf.text().strip(), self.dark.text()
-        method, iterations = self.method.currentText(), self.iterations.value()
-        device = self.device.currentText()
+        psf = self.psf.text().strip()
+        try:
+            live_options, options = self.live_form.values(), self.recon_form.values()
+        except InputError as exc:
+            from ..messages import operator_text
+
+            self.error.setText(operator_text(str(exc), {**self.live_form.flag_labels(),
+                                                        **self.recon_form.flag_labels()}))
+            return None
         self.recon_button.setEnabled(False)
+
         def build(job):
-            live, depth_used = build_live(self.session, psf, depth_mm=depth, method=method,
-                                          iterations=iterations, dark=dark, device=device)
+            live, depth_used = build_live(self.session, psf, depth_mm=depth,
+                                          live=live_options, options=options)
             live.start()  # its process or thread started here (waits for a core)
             return live, depth_used
 
         self.job = Job(build, name="build-live", owner=self)
-        self._live_settings = {"psf": psf, "depth_requested_mm": depth, "dark": dark,
-                               "device_requested": device}
+        self._live_settings = {"psf": psf, "depth_requested_mm": depth,
+                               "dark": str(options.dark), "bin_factor": options.bin_factor,
+                               "device_requested": options.device}
         self.job.succeeded.connect(self._live_ready)
         self.job.failed.connect(self.error.setText)
         self.job.finished.connect(lambda: self.recon_button.setEnabled(True))

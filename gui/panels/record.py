@@ -21,7 +21,6 @@ from pathlib import Path
 from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QBoxLayout,
-    QComboBox,
     QGridLayout,
     QGroupBox,
     QLabel,
@@ -30,10 +29,13 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from instrument.cli.recon_flags import COMMAND_FIELDS
+from instrument.cli.recon_run import RunOptions
 from recon.options import ReconOptions
 
 from ..device_settings import parse_duration_s
-from ..fields import remember, wheel_needs_focus
+from ..fields import remember
+from ..forms import OptionsForm, lay_out
 from ..logpane import announce_job, job_ended
 from ..session import Session
 from ..workers import DEVICE_NICE, InputError, Job
@@ -41,11 +43,10 @@ from .common import JobProgress, dark_hint, depth_field, error_label, offer_dept
 
 __all__ = ["RecordPanel"]
 
-#: The batch fields' labels, for messages that name a ``recon-run`` option.
-BATCH_LABELS = {"--psf": "PSF", "--depth": "depth (mm)", "--method": "method",
-                "--iterations": "iterations", "--frames": "frames (A:B)",
-                "--workers": "dask workers", "--dark": "dark (DN or dark run)",
-                "--dff": "ΔF/F baseline percentile"}
+#: ``recon-run``'s own fields the batch form shows (its reconstruction fields are the
+#: command's, :data:`instrument.cli.recon_flags.COMMAND_FIELDS`): PSF and depth first,
+#: the frames, workers and ΔF/F last.
+BATCH_RUN_FIELDS = ("psf", "depth_mm", "frames", "workers", "dff")
 
 
 def _number(text: str, what: str, kind=float):
@@ -126,49 +127,33 @@ class RecordPanel(QWidget):
         self.run_path.setObjectName("batch.run")
         self.run_path.setPlaceholderText("RUN.zarr (default: the last recording)")
         b.addWidget(self.run_path, 0, 1, 1, 3)
-        self.batch_fields: dict[str, QWidget] = {}
-        # choices and defaults are the declarations' (recon-run's, recon.reconstruct's)
-        method = QComboBox()
-        method.addItems(ReconOptions.spec("method").choices)
-        method.setCurrentText(ReconOptions.defaults()["method"])
-        wheel_needs_focus(method)
-        prior = QComboBox()
-        prior.addItems(ReconOptions.spec("prior").choices)
-        prior.setCurrentText(ReconOptions.defaults()["prior"])
-        prior.setToolTip(ReconOptions.spec("prior").help)
-        wheel_needs_focus(prior)
-        psf = QLineEdit()
-        psf.editingFinished.connect(lambda: offer_depths(self.batch_fields["--depth"],
-                                                         psf.text()))
-        rows = (("--psf", "PSF (image, stack or run):", psf, ""),
-                ("--depth", "depth (mm):", depth_field("batch--depth"), ""),
-                ("--method", "method:", method, ""),
-                ("--prior", "prior:", prior, ""),
-                ("--iterations", "iterations:",
-                 QLineEdit(str(ReconOptions.defaults()["iterations"])), ""),
-                ("--frames", "frames (A:B):", QLineEdit(), "all"),
-                ("--workers", "dask workers:", QLineEdit(), "one per core"),
-                ("--dark", "dark (DN or dark run):", QLineEdit(), ReconOptions.defaults()["dark"]),
-                ("--dff", "ΔF/F baseline percentile:", QLineEdit(), "none (e.g. 20)"))
-        for i, (flag, label, widget, hint) in enumerate(rows):
-            if isinstance(widget, QLineEdit):
-                widget.setPlaceholderText(hint)
-            widget.setObjectName(f"batch{flag}")
-            remember(widget, f"batch/{flag[2:]}")
-            self.batch_fields[flag] = widget
-            b.addWidget(QLabel(label), 1 + i // 2, 2 * (i % 2))
-            b.addWidget(widget, 1 + i // 2, 2 * (i % 2) + 1)
+        # the fields are generated from recon-run's declarations (gui.forms)
+        depth = depth_field("batch--depth")
+        self.run_form = OptionsForm(RunOptions, BATCH_RUN_FIELDS, name="batch",
+                                    remember_as="batch", widgets={"depth_mm": depth})
+        self.recon_form = OptionsForm(ReconOptions, COMMAND_FIELDS["recon-run"],
+                                      name="batch", remember_as="batch")
+        psf = self.run_form.widgets["psf"]
+        psf.setPlaceholderText("image, PSF stack or calibration run")
+        psf.editingFinished.connect(lambda: offer_depths(depth, psf.text()))
+        #: ``{flag: widget}`` of the batch form (``"--iterations"``).
+        self.batch_fields: dict[str, QWidget] = {
+            form.specs[f].flag: w for form in (self.run_form, self.recon_form)
+            for f, w in form.widgets.items()}
+        rows = (self.run_form.rows(("psf", "depth_mm")) + self.recon_form.rows()
+                + self.run_form.rows(BATCH_RUN_FIELDS[2:]))
+        end = lay_out(b, rows, row=1, columns=2)
         self.batch_button = QPushButton("Reconstruct run")
         self.batch_button.setObjectName("batch.start")
         self.batch_button.clicked.connect(self.toggle_batch)
-        b.addWidget(self.batch_button, 6, 0)
+        b.addWidget(self.batch_button, end, 0)
         self.batch_progress = JobProgress("frames reconstructed")
-        b.addWidget(self.batch_progress, 6, 1, 1, 3)
+        b.addWidget(self.batch_progress, end, 1, 1, 3)
         self.batch_status = QLabel("")
         self.batch_status.setWordWrap(True)
-        b.addWidget(self.batch_status, 7, 0, 1, 4)
+        b.addWidget(self.batch_status, end + 1, 0, 1, 4)
         self.batch_error = error_label()
-        b.addWidget(self.batch_error, 8, 0, 1, 4)
+        b.addWidget(self.batch_error, end + 2, 0, 1, 4)
         layout.addWidget(batch)
         self._groups = (rec, batch)
         session.changed.connect(self._show_dark_hint)
@@ -318,7 +303,7 @@ class RecordPanel(QWidget):
 
     def start_batch(self) -> Job | None:
         """Reconstruct the frames of a run on a worker (:func:`gui.jobs.batch_reconstruct`)."""
-        from ..jobs import batch_reconstruct
+        from ..jobs import batch_options, batch_reconstruct
 
         self.batch_error.setText("")
         run = self.run_path.text().strip() or self.last_run
@@ -329,21 +314,28 @@ class RecordPanel(QWidget):
             self.batch_error.setText(f"the run {run} does not exist; record one or give the "
                                      "path of a recorded run")
             return None
-        options = {flag: w.currentText() if isinstance(w, QComboBox) else w.text().strip()
-                   for flag, w in self.batch_fields.items()}
+        texts = {**self.run_form.texts(flags=True), **self.recon_form.texts(flags=True)}
+        labels = {**self.run_form.flag_labels(), **self.recon_form.flag_labels()}
+        try:
+            recon, own = batch_options(texts)
+        except InputError as exc:
+            from ..messages import operator_text
+
+            self.batch_error.setText(operator_text(str(exc), labels))
+            return None
         self.batch_progress.start(0)
         self.batch_status.setText(f"reconstructing {run} ...")
         announce_job("batch reconstruction",
-                     f"{run} with {options.get('--method') or 'the default method'}")
+                     f"{run} with {recon.method}")
         self._rate_from = None
 
         def reconstruct(job: Job):
             try:
-                return batch_reconstruct(job, run, options)
+                return batch_reconstruct(job, run, recon, own)
             except InputError as exc:
                 from ..messages import operator_text
 
-                raise InputError(operator_text(str(exc), BATCH_LABELS)) from None
+                raise InputError(operator_text(str(exc), labels)) from None
 
         self.batch_job = Job(reconstruct, name="batch-recon")
         self.batch_job.progress.connect(self.on_batch_progress)

@@ -75,6 +75,24 @@ class RunOptions(Options):
     overwrite: bool = option(
         False, help="replace a product of that name made with other settings")
 
+    @classmethod
+    def check_together(cls, values, *, front: str = "cli") -> None:
+        """Local workers and a scheduler's address exclude each other (the command
+        line's mutually exclusive group; the GUI's forms take the check from here).
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            Both given (the message names both and the fix).
+        """
+        from diffuserlab.errors import InputError
+
+        if values.get("workers") is not None and values.get("scheduler") is not None:
+            workers, scheduler = cls.spec("workers"), cls.spec("scheduler")
+            raise InputError(
+                f"{workers.name(front)}: not allowed with {scheduler.name(front)}; give "
+                "local workers or a scheduler's address, not both")
+
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``recon-run`` to the ``diffuserlab`` subparsers (``handler=run``)."""

@@ -197,21 +197,22 @@ def test_align_mask_options_come_from_its_model():
 
 
 def test_the_guis_batch_options_are_recon_runs_declarations_without_argv():
-    from gui.jobs import _recon_run_args
+    from gui.jobs import batch_options
     from instrument.cli.recon_run import add_subcommands as add_recon_run
 
     parser = argparse.ArgumentParser(prog="diffuserlab")
     add_recon_run(parser.add_subparsers(dest="command"))
     cli = parser.parse_args(["recon-run", "v.zarr", "--psf", "p.npy", "--iterations", "7",
                              "--method", "fista", "--depth", "45", "--workers", "1"])
-    gui = _recon_run_args("v.zarr", {
+    recon, own = batch_options({
         "--psf": "p.npy", "--iterations": "7", "--method": "fista", "--depth": "45",
         "--workers": "1", "--frames": "", "--tv": ""})
-    for name, value in vars(gui).items():  # every option the form sets, as the flag would
+    gui = {**recon.model_dump(), **own.model_dump()}
+    for name, value in gui.items():  # every option the form sets, as the flag would
         if name in vars(cli) and not callable(value):
             assert value == vars(cli)[name], name
     for options, message in (({"--iterations": "many"}, r"iterations"),
                              ({"--method": "magic"}, r"magic"),
                              ({"--nope": "1"}, r"--nope")):
         with pytest.raises(InputError, match=message):
-            _recon_run_args("v.zarr", options)
+            batch_options(options)

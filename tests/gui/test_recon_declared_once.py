@@ -47,11 +47,11 @@ def forms(qapp, tmp_path_factory):
 
 def test_cli_gui_and_api_defaults_are_the_declared_objects(forms):
     import recon
-    from gui.jobs import _recon_run_args
+    from gui.jobs import batch_options
 
     declared = ReconOptions.defaults()
     api = inspect.signature(recon.reconstruct).parameters
-    gui = _recon_run_args("RUN.zarr", {"--psf": "p.npy"})  # the Batch form, left empty
+    gui, _ = batch_options({"--psf": "p.npy"})  # the Batch form, left empty
     for command, fields in COMMAND_FIELDS.items():
         args = build_parser().parse_args(ARGV[command])
         for name in fields:
@@ -72,8 +72,11 @@ def test_cli_gui_and_api_defaults_are_the_declared_objects(forms):
     assert [prior.itemText(i) for i in range(prior.count())] == list(
         ReconOptions.spec("prior").choices)
     assert prior.currentText() == declared["prior"]
-    assert _recon_run_args("RUN.zarr", {"--psf": "p.npy", "--prior": "dncnn"}).prior == "dncnn"
-    assert int(batch["--iterations"].text()) == declared["iterations"] == 200
+    assert batch_options({"--psf": "p.npy", "--prior": "dncnn"})[0].prior == "dncnn"
+    assert batch["--iterations"].value() == declared["iterations"] == 200
+    # a form left as built gives the declared defaults, the very objects
+    for name, value in record.recon_form.values().model_dump().items():
+        assert value is declared[name], name
     # the placeholder names the default and what it means on this bench ("auto: ...")
     assert batch["--dark"].placeholderText().split(":")[0] == declared["dark"]
     assert live.method.currentText() == LiveOptions.defaults()["method"]
@@ -84,15 +87,18 @@ def test_cli_gui_and_api_defaults_are_the_declared_objects(forms):
 
 
 def test_the_batch_form_refuses_what_the_flag_refuses(forms):
-    from gui.jobs import _recon_run_args
+    from gui.jobs import batch_options
     from gui.workers import InputError
 
     with pytest.raises(InputError, match=r"^--iterations 0 is outside its limits"):
-        _recon_run_args("RUN.zarr", {"--iterations": "0"})
+        batch_options({"--iterations": "0"})
     with pytest.raises(InputError, match=r"^--tv: 'x' is not a number or auto"):
-        _recon_run_args("RUN.zarr", {"--tv": "x"})
+        batch_options({"--tv": "x"})
     with pytest.raises(InputError, match="recon-run has no option --erase"):
-        _recon_run_args("RUN.zarr", {"--erase": "0.5"})  # a flag of recon, not recon-run
+        batch_options({"--erase": "0.5"})  # a flag of recon, not recon-run
+    # the workers/scheduler exclusion is the declaration's (RunOptions.check_together)
+    with pytest.raises(InputError, match=r"^--workers: not allowed with --scheduler"):
+        batch_options({"--workers": "2", "--scheduler": "tcp://h:8786"})
 
 
 class _WithNewParameter(ReconOptions):

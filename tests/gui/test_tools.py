@@ -220,7 +220,7 @@ def test_fields_are_remembered_across_sessions(qapp, tmp_path, monkeypatch):
     first.live.iterations.setValue(7)
     first.record.frames.setText("200")
     first.record.exposure.setText("15 ms")
-    first.record.batch_fields["--iterations"].setText("150")
+    first.record.batch_fields["--iterations"].setValue(150)
     first.record.batch_fields["--method"].setCurrentText("fista")
     first.calibration.fields["psf-sweep"]["--n-depths"].setText("9")
     first.alignment.frames.setValue(2)
@@ -232,7 +232,7 @@ def test_fields_are_remembered_across_sessions(qapp, tmp_path, monkeypatch):
         assert second.live.depth.currentText() == "45"
         assert second.live.method.currentText() == "admm" and second.live.iterations.value() == 7
         assert second.record.frames.text() == "200" and second.record.exposure.text() == "15 ms"
-        assert second.record.batch_fields["--iterations"].text() == "150"
+        assert second.record.batch_fields["--iterations"].value() == 150
         assert second.record.batch_fields["--method"].currentText() == "fista"
         assert second.calibration.fields["psf-sweep"]["--n-depths"].text() == "9"
         assert second.alignment.frames.value() == 2
