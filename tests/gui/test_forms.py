@@ -1,6 +1,6 @@
 """The GUI's reconstruction forms are generated from the declarations
-(:mod:`gui.forms`): the Record panel's batch form and the Live panel's settings show
-each declared field of their command with its default,
+(:mod:`gui.forms`): the Record panel's batch form, the Live panel's settings and the
+napari Reconstruct widget show each declared field of their command with its default,
 read back as the validated options object, and a new declared field appears in each."""
 
 from __future__ import annotations
@@ -36,10 +36,11 @@ def settings(tmp_path):
 @pytest.fixture
 def extended(monkeypatch, settings):
     """The declaration the forms read, with two new fields in every command's list."""
+    import gui.napari_plugin.widget
     import gui.panels.live
     import gui.panels.record
 
-    for module in (gui.panels.record, gui.panels.live):
+    for module in (gui.panels.record, gui.panels.live, gui.napari_plugin.widget):
         monkeypatch.setattr(module, "ReconOptions", _Extended)
     for command in ("recon-run", "capture live", "recon", "recon3d"):
         monkeypatch.setitem(COMMAND_FIELDS, command,
@@ -204,3 +205,41 @@ def test_the_live_reconstruction_takes_the_forms_options(qapp, settings, tmp_pat
     assert depth is None and recon.bin_factor == 2 and float(recon._dark) == 3.0
     assert live.stats()["method"] == "admm" and live.stats()["iterations"] == 9
 
+
+def test_a_new_option_appears_in_the_napari_widget_with_its_default(qapp, extended):
+    from gui.napari_plugin.widget import ReconstructWidget
+
+    viewer = type("Viewer", (), {"layers": []})()  # napari's: its layers, no window
+    widget = ReconstructWidget(viewer)
+    try:
+        _shows_the_new_fields(widget.form)
+        chosen = extended.validated({"method": "fista", "iterations": 3, "tv": 0.5,
+                                     "prior": "tv", "l1": 0.0, "bin_factor": 4,
+                                     "dark": ReconOptions.spec("dark").parse("7.5"),
+                                     "allow_mixed_ranges": True, "device": "cuda",
+                                     "halo_px": 64, "window": "hann"})
+        widget.form.set_values(chosen)
+        assert widget.form.values() == chosen
+    finally:
+        _close(widget)
+
+
+def test_the_napari_widget_takes_the_command_lines_options_and_defaults(qapp, settings):
+    """The widget's options are those ``recon`` and ``recon3d`` share, the dark level
+    included, each with the command line's default (the widget restated 100
+    iterations against the command line's 200)."""
+    from gui.napari_plugin.widget import ReconstructWidget, widget_fields
+    from instrument.cli import build_parser
+
+    cli = build_parser().parse_args(["recon3d", "--psf-stack", "s.zarr", "--raw", "r.npy"])
+    assert "dark" in widget_fields() and "iterations" in widget_fields()
+    assert set(widget_fields()) == set(COMMAND_FIELDS["recon"]) & set(COMMAND_FIELDS["recon3d"])
+    widget = ReconstructWidget(type("Viewer", (), {"layers": []})())
+    try:
+        assert list(widget.form.widgets) == list(widget_fields())
+        assert widget.form.widgets["iterations"].value() == cli.iterations == 200
+        values = widget.form.values()
+        for name in widget_fields():  # as built: the command line's defaults
+            assert getattr(values, name) == getattr(cli, name), name
+    finally:
+        _close(widget)

@@ -14,6 +14,7 @@ npe2 = pytest.importorskip("npe2")
 from gui.napari_plugin import MANIFEST  # noqa: E402
 from gui.napari_plugin.widget import reconstruct_layer  # noqa: E402
 from instrument.reconstruct_files import write_volume  # noqa: E402
+from recon.errors import ReconInputError  # noqa: E402
 from tests.instrument.test_ome import (  # noqa: E402
     FPS,
     PITCH_UM,
@@ -44,7 +45,8 @@ def _open(path, plugin):
 def test_manifest_validates_and_names_its_contributions():
     manifest = npe2.PluginManifest.from_file(MANIFEST)
     assert [r.command for r in manifest.contributions.readers] == ["diffuserlab.get_reader"]
-    assert manifest.contributions.widgets[0].autogenerate
+    widget = manifest.contributions.widgets[0]
+    assert widget.command == "diffuserlab.reconstruct_widget" and not widget.autogenerate
 
 
 def test_reader_on_a_sweep_frames_tags_and_products(tmp_path, plugin):
@@ -198,21 +200,24 @@ def test_widget_reconstructs_the_shown_frame_with_a_runs_psf(tmp_path, plugin):
             current_step = (1, 0, 0)
 
     data, kwargs, kind = reconstruct_layer(layer, store.path, method="admm",
-                                           iterations=30, viewer=Viewer)
+                                           iterations=30, dark="20", viewer=Viewer)
     assert kind == "image" and data.shape == (n, n)
     assert kwargs["scale"] == pytest.approx([3.45, 3.45])
     assert kwargs["metadata"]["depth_mm"] == 10.0
     inside, outside = data[scene > 0].mean(), data[scene == 0].mean()
     assert inside > 3 * outside  # the object is found, not the raw's blur
-    # napari's widget machinery builds the form from the manifest's function
-    widget = npe2.PluginManager.instance().get_manifest(plugin).contributions.widgets[0]
-    assert widget.get_callable() is not None
+    # the run's PSF is dark-subtracted: auto needs the frames' level, as the commands do
+    with pytest.raises(ReconInputError, match="dark"):
+        reconstruct_layer(layer, store.path, method="wiener", viewer=Viewer)
 
 
 def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
-    """The widget napari builds from the manifest (magicgui on the function; a canvas
-    needs OpenGL, which the offscreen platform lacks, so no viewer window)."""
-    from napari.layers import Image
+    """The widget napari docks from the manifest, its options generated from the
+    reconstruction's declaration with the command line's defaults (a canvas needs
+    OpenGL, which the offscreen platform lacks, so a viewer model, no window)."""
+    from napari.components import ViewerModel
+
+    from instrument.cli import build_parser
 
     rng = np.random.default_rng(2)
     n = 24
@@ -221,20 +226,35 @@ def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
     store = _sweep(tmp_path / "psf.zarr", n_points=1, shape=(n, n))
     store.write_product("psf_stack", psf[None], depths_mm=[10.0])
     contribution = npe2.PluginManager.instance().get_manifest(plugin).contributions.widgets[0]
-    widget = contribution.get_callable()()  # autogenerate: a magicgui factory
+    viewer = ViewerModel()
+    widget = contribution.get_callable()(napari_viewer=viewer)  # as napari docks it
     try:
-        assert list(widget.method.choices) == ["auto", "admm", "fista", "wiener"]
-        layer = Image(rng.random((n, n)).astype(np.float32) * 100 + 10, name="raw")
-        widget.layer.choices = [layer]  # (napari fills it with the viewer's image layers)
-        widget.layer.value = layer
-        widget.psf_run.value = store.path
-        widget.method.value = "wiener"
-        data, kwargs, kind = widget()
+        cli = build_parser().parse_args(["recon", "--psf", "p.npy", "--raw", "r.npy"])
+        fields = widget.form.widgets
+        assert fields["iterations"].value() == cli.iterations == 200  # not 100
+        method = fields["method"]
+        assert [method.itemText(i) for i in range(method.count())] == [
+            "auto", "wiener", "gd", "fista", "admm"]
+        assert method.currentText() == cli.method
+        assert fields["dark"].placeholderText() == cli.dark == "auto"
+        viewer.add_image(rng.random((n, n)).astype(np.float32) * 100 + 10, name="raw")
+        assert widget.layer.currentText() == "raw"  # the viewer's image layers, offered
+        widget.psf_run.setText(str(store.path))
+        method.setCurrentText("wiener")
+        assert widget.run() is None  # dark auto with a calibration run's PSF: refused
+        assert "dark" in widget.error.text() and "raw recon 10 mm" not in viewer.layers
+        fields["dark"].setText("10")
+        data, kwargs, kind = widget.run()
         assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
+        assert "raw recon 10 mm" in viewer.layers and widget.error.text() == ""
+        assert kwargs["metadata"]["dark"] == "10" and kwargs["metadata"]["method"] == "wiener"
+        fields["iterations"].setValue(fields["iterations"].minimum())
+        fields["tv"].setCurrentText("-1")
+        assert widget.run() is None and widget.error.text().startswith("--tv -1.0")
     finally:  # not left to the collector (see tests/gui/conftest.py): deleted by the
         # GUI thread's event loop
-        widget.native.close()
-        widget.native.deleteLater()
+        widget.close()
+        widget.deleteLater()
 
 
 def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
@@ -258,7 +278,7 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
         store = _sweep(tmp_path / f"psf{depths[-1]:g}.zarr", n_points=1, shape=(n, n))
         store.write_product("psf_stack", psfs, depths_mm=depths)
         data, kwargs, kind = reconstruct_layer(layer, store.path, method="admm",
-                                               iterations=5)
+                                               iterations=5, dark="20")
         assert kind == "image" and data.shape == (3, n, n) and data.dtype == np.float32
         assert kwargs["name"] == "raw volume"
         assert kwargs["axis_labels"] == [first[0], "y", "x"]
