@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_studies(args: argparse.Namespace) -> int:
     """Run the benchmarks and studies ``args`` ask for, printing each table; returns 0."""
-    from instrument.output_safety import check_outputs
+    from instrument.writer.guards import check_outputs
 
     def show(name: str, result: dict, seconds: float) -> None:
         print(format_result(name, result))

@@ -373,7 +373,7 @@ def plot_design(result: dict, path: Path) -> Path:
 def run_design_benchmark(args) -> int:
     """Run the design comparison ``args`` ask for (``out``, ``quick``, ``overwrite``),
     print its table and the ordering it found; returns 0."""
-    from instrument.output_safety import check_outputs
+    from instrument.writer.guards import check_outputs
 
     check_outputs([args.out / "design.json", args.out / "design.png"], None,
                   args.overwrite, directory=args.out)

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from instrument.output_safety import check_outputs
 from instrument.plan import PlanError
 from instrument.runner import Runner
+from instrument.writer.guards import check_outputs
 from recon.analysis import (
     axial_step_eq510_per_mm,
     inverse_depths,

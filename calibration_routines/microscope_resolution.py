@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from instrument.output_safety import check_outputs
+from instrument.atomic import write_json
 from instrument.reconstruct_grid import GRID_PRODUCT, load_psf_grid
 from instrument.runstore import RunStore
-from recon.io import write_json
+from instrument.writer.guards import check_outputs
 from recon.spatial import local_convolution_operator, ray_traced_pair, two_point_resolution
 
 __all__ = ["microscope_resolution", "resolution_table"]
@@ -67,7 +67,7 @@ def microscope_resolution(runs, *, bench=None, field_mm=None, separations_px=SEP
 
     Raises
     ------
-    instrument.output_safety.OutputError
+    instrument.writer.guards.OutputError
         ``out_json`` exists or lies inside a run store.
     recon.errors.ReconInputError
         A run that is not a finished psf-grid run, or positions off the object grid.

@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.atomic import missing_dirs, remove_empty_dirs
 from instrument.coords import coord_specs
 from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
 from instrument.runstore import RunStore, discard_partial_run
-from instrument.writer.atomic import missing_dirs, remove_empty_dirs
 from recon.analysis.psf_from_scenes import (
     PsfEstimate,
     check_pairs,

@@ -2,8 +2,8 @@
 
 Standard JSON has no NaN or infinity: :func:`json_text` turns them into null, so every
 metrics, report or benchmark file DiffuserLab writes (through
-:func:`recon.io.write_json`, which writes the text atomically and joins an
-:func:`recon.io.output_group`) can be read by any JSON parser.
+:func:`instrument.atomic.write_json`, which writes the text atomically and joins an
+:func:`instrument.atomic.output_group`) can be read by any JSON parser.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def jsonable(obj: Any, *, nonfinite_to_none: bool = False) -> Any:
         numpy scalars Python scalars; paths strings.
     nonfinite_to_none : bool
         Replace NaN and infinite floats by None, so the result is standard JSON
-        (:func:`recon.io.write_json` does); False (default) keeps them, for in-memory
+        (:func:`instrument.atomic.write_json` does); False (default) keeps them, for in-memory
         dictionaries (device status, store attributes) where they mean something.
 
     Returns
@@ -71,7 +71,7 @@ def json_text(data: Any, *, default=None) -> str:
     Returns
     -------
     str
-        The JSON document, ending with a newline (:func:`recon.io.write_json` writes
+        The JSON document, ending with a newline (:func:`instrument.atomic.write_json` writes
         it atomically).
 
     Raises

@@ -23,8 +23,8 @@ from instrument.acquisition import average_frames
 from instrument.runner import Runner
 from instrument.stacks import load_psf_stack
 from instrument.virtual_bench import PlanarScene, VirtualBench
+from instrument.writer.files import save_image
 from recon import reconstruct
-from recon.io import save_image
 from recon.metrics import psnr, register_truth
 
 

@@ -15,8 +15,9 @@ import os
 import sys
 from pathlib import Path
 
+from instrument.writer.files import save_image
 from recon import reconstruct
-from recon.io import load_image, save_image
+from recon.io import load_image
 
 
 def main(argv=None) -> int:

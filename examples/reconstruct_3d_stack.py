@@ -21,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.writer.files import save_image
 from recon import PsfStack, reconstruct
-from recon.io import load_image, save_image
+from recon.io import load_image
 
 
 def main(argv=None) -> int:

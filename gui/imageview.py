@@ -20,7 +20,6 @@ own at the end of the period (a timer), so the view never rests on stale levels.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -43,8 +42,7 @@ from PySide6.QtWidgets import (
 from .logpane import gui_log
 from .workers import Job
 
-__all__ = ["COLORMAPS", "LEVEL_MODES", "SNAPSHOT_FOLDER", "FrameView", "image_statistics",
-           "write_snapshot"]
+__all__ = ["COLORMAPS", "LEVEL_MODES", "SNAPSHOT_FOLDER", "FrameView", "image_statistics"]
 
 #: Where snapshots go unless the operator chose another folder (created when needed).
 SNAPSHOT_FOLDER = "out/snapshots"
@@ -78,55 +76,6 @@ def image_statistics(pixels: np.ndarray) -> dict[str, float]:
                 "max": float("nan"), "sum": 0.0, "pixels": 0}
     return {"mean": float(a.mean()), "std": float(a.std()), "min": float(a.min()),
             "max": float(a.max()), "sum": float(a.sum()), "pixels": int(a.size)}
-
-
-def write_snapshot(path: str | Path, image: np.ndarray, metadata: dict[str, Any]) -> Path:
-    """Write ``image`` as a TIFF with ``metadata`` as its JSON description.
-
-    Parameters
-    ----------
-    path : str or Path
-        ``.tif``/``.tiff`` file to create (an existing file is refused).
-    image : ndarray, (rows, cols)
-        Written in its own dtype (the data, not the colours shown).
-    metadata : dict
-        JSON-able; read back with ``tifffile.TiffFile(path).shaped_metadata[0]``.
-
-    Returns
-    -------
-    Path
-
-    Raises
-    ------
-    FileExistsError
-        ``path`` exists (a snapshot never replaces a file).
-    gui.workers.InputError
-        Not a TIFF name.
-    """
-    import tifffile
-
-    from .workers import InputError
-
-    path = Path(path)
-    if path.suffix.lower() not in (".tif", ".tiff"):
-        raise InputError(f"snapshot {path}: give a .tif or .tiff file name")
-    if path.exists():
-        raise FileExistsError(17, "a snapshot never replaces a file; choose another name",
-                              str(path))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    meta = json.loads(json.dumps(metadata, default=_jsonable))
-    tmp = path.with_name(f".{path.name}.part")
-    tifffile.imwrite(tmp, np.ascontiguousarray(image), metadata=meta)
-    tmp.replace(path)
-    return path
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)
 
 
 class FrameView(QWidget):
@@ -538,13 +487,16 @@ class FrameView(QWidget):
     def save_snapshot(self, path: str | Path,
                       taken: tuple[np.ndarray, dict[str, Any]] | None = None) -> Job | None:
         """Write the image shown and :meth:`snapshot_metadata` (or ``taken``: an image
-        and its metadata taken earlier) to ``path`` on a worker (:func:`write_snapshot`);
+        and its metadata taken earlier) to ``path`` on a worker
+        (:func:`instrument.writer.files.write_snapshot`);
         the result or the refusal shows under the image."""
         if taken is None:
             if self.image is None:
                 self.stats.setText("no image to save yet")
                 return None
             taken = (np.array(self.image, copy=True), self.snapshot_metadata())
+        from instrument.writer.files import write_snapshot
+
         image, meta = taken
         job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot",
                   owner=self)

@@ -27,13 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from recon import reconstruct
-from recon.io import DATA_ORIENTATION, save_image, scene_view, write_json
+from recon.io import DATA_ORIENTATION, scene_view
 from recon.metrics import psnr, register_truth, ssim
 from recon.spatial import PsfGrid
 from recon.spatial.brightness import correct_brightness, node_brightness
 
 from .acquisition import autoexpose, average_frames
+from .atomic import write_json
 from .virtual_bench import PlanarScene, VirtualBench
+from .writer.files import save_image
 
 log = logging.getLogger(__name__)
 

@@ -276,9 +276,9 @@ def set_dimension_names(array_dir: str | Path, names: Sequence[str]) -> bool:
     if meta.get("dimension_names") == names:
         return False
     meta["dimension_names"] = names
-    from recon.io import write_json
+    from .atomic import write_json
 
-    write_json(node, meta)  # whole or not at all (recon.io.atomic_path)
+    write_json(node, meta)  # whole or not at all (instrument.atomic.atomic_path)
     return True
 
 

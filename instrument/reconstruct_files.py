@@ -5,15 +5,14 @@ measurement; the PSF may be one depth of a run store's PSF stack or of a TIFF
 stack); :func:`run_recon3d` is ``diffuserlab recon3d`` (a volume from one image and
 a PSF stack, Kuo 2020, Ch. 4). The numerics are :func:`recon.reconstruct` (a PSF
 or a :class:`recon.PsfStack`); this module reads run stores and stacks
-(:mod:`instrument.stacks`) and writes the outputs. It logs, it never prints.
+(:mod:`instrument.stacks`) and has the outputs written by the one writer
+(:mod:`instrument.writer.products`). It logs, it never prints.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
-import os
 import time
 from pathlib import Path
 
@@ -21,50 +20,11 @@ import numpy as np
 
 from diffuserlab.errors import InputError
 from diffuserlab.jsonio import jsonable
-from recon.io import write_json
 
-__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "check_dark_frame", "dark_level", "load_psf",
-           "output_paths", "projections", "resolve_dark", "run_recon", "run_recon3d",
-           "volume_output_paths",
-           "write_json", "write_volume"]
+__all__ = ["check_dark_frame", "dark_level", "load_psf", "resolve_dark", "run_recon",
+           "run_recon3d"]
 
 log = logging.getLogger(__name__)
-
-_VOLUME_SUFFIXES = (".tif", ".tiff", ".zarr")
-
-
-#: The image extensions ``--out`` of ``recon`` may end with (any other dot is part of
-#: the name: ``take.2`` writes ``take.2.png`` and ``take.2.tif``).
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
-#: The file name ``recon`` writes inside a folder given as ``--out FOLDER/``.
-DEFAULT_STEM = "recon"
-
-
-def output_paths(out: str) -> tuple[Path, Path]:
-    """(png, tif) paths for ``--out``: a known image extension picks the stem, anything
-    else is the stem itself; a folder (a trailing ``/`` or an existing directory) gets
-    ``recon.png`` and ``recon.tif`` inside.
-
-    Only :data:`IMAGE_SUFFIXES` are extensions: ``take.2`` is a name, not ``take`` with
-    the extension ``.2`` (which would write ``take.png`` and replace another take).
-
-    Parameters
-    ----------
-    out : str
-        ``OUT``, ``OUT.png``, ``OUT.tif``, ``OUT.tiff`` or ``FOLDER/``.
-
-    Returns
-    -------
-    (Path, Path)
-        ``OUT.png`` and ``OUT.tif``.
-    """
-    text = os.fspath(out)
-    p = Path(text)
-    if text.endswith(("/", os.sep)) or p.is_dir():
-        p = p / DEFAULT_STEM
-    name = p.stem if p.suffix.lower() in IMAGE_SUFFIXES else p.name
-    return p.with_name(name + ".png"), p.with_name(name + ".tif")
-
 
 def load_psf(psf_path: str, depth_mm: float | None,
              product: str = "psf_stack") -> tuple[np.ndarray, float | None]:
@@ -253,7 +213,7 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
         of the command line, or ``ReconOptions.validated``); its one-PSF keywords go
         to :func:`recon.reconstruct`, its ``dark`` through :func:`resolve_dark`.
     out : str
-        Output stem (see :func:`output_paths`).
+        Output stem (see :func:`instrument.writer.products.output_paths`).
     metrics_json : str, optional
         Where to write the metrics.
     depth_mm, psf_product
@@ -274,10 +234,12 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
     """
     from recon import reconstruct
     from recon.fft import fft_pair_seconds
-    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image
+
+    from .stacks import dark_subtracted
+    from .writer.products import output_paths, write_image_products
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
-    from .stacks import dark_subtracted
 
     psf, dark = resolve_dark(options.dark, psf, calibrated=dark_subtracted(psf_path),
                              what=f"--psf {psf_path}")
@@ -291,11 +253,7 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
     png, tif = output_paths(out)
     metrics.update(output_png=str(png), output_tiff=str(tif),
                    orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})
-    with output_group():  # the PNG, the TIFF and the JSON: all of them or none
-        save_image(png, scene_view(result.image))
-        save_image(tif, result.image)
-        if metrics_json:
-            write_json(metrics_json, metrics)
+    write_image_products(result.image, png, tif, metrics_json, metrics)
     return metrics
 
 
@@ -309,105 +267,6 @@ def named_pair(psf_path, raw_path):
         yield
     except RawSignalError as exc:
         raise RawSignalError(f"--raw {raw_path} (PSF {psf_path}): {exc}") from None
-
-
-def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
-    """The volume path and the three projection PNG paths of ``--out``.
-
-    Raises
-    ------
-    ValueError
-        ``out`` does not end in ``.tif``, ``.tiff`` or ``.zarr``.
-    """
-    path = Path(out)
-    if path.suffix.lower() not in _VOLUME_SUFFIXES:
-        raise InputError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
-    stem = path.with_suffix("")
-    return path, {v: stem.parent / f"{stem.name}_mip_{v}.png" for v in ("xy", "xz", "yz")}
-
-
-def projections(volume: np.ndarray) -> dict[str, np.ndarray]:
-    """Maximum-intensity projections, each plane repeated so z is visible.
-
-    Parameters
-    ----------
-    volume : ndarray, shape (n_z, rows, cols)
-
-    Returns
-    -------
-    dict
-        ``xy`` is the maximum over z (rows, cols); ``xz`` over y (z, cols); ``yz``
-        over x (rows, z). Along z every plane is repeated
-        ``max(1, min(rows, cols) // (2 n_z))`` times (nearest neighbour, for viewing
-        only).
-    """
-    n_z, rows, cols = volume.shape
-    rep = max(1, min(rows, cols) // (2 * n_z))
-    return {"xy": volume.max(axis=0),
-            "xz": np.repeat(volume.max(axis=1), rep, axis=0),
-            "yz": np.repeat(volume.max(axis=2).T, rep, axis=1)}
-
-
-#: Marker in the ``zarr.json`` of a volume :func:`write_volume` wrote (the group's
-#: ``diffuserlab`` attribute): such a folder may be replaced by the next one.
-VOLUME_MARKER = "recon3d-volume"
-
-
-def write_volume(path: Path, volume: np.ndarray, attrs: dict,
-                 pitch_um: float | None = None) -> None:
-    """A float32 TIFF (JSON metadata, axes ZYX) or an OME-Zarr 0.5 image (Zarr v3).
-
-    The Zarr volume is a group holding the volume as its array ``0`` (z, y, x) with
-    ``attrs`` and an ``ome`` block (:func:`instrument.ome.image_attrs`): ``z`` in
-    micrometer when ``attrs["depths_mm"]`` are evenly spaced, else a ``plane`` axis
-    with the depths in the metadata (:func:`instrument.ome.volume_axes`); ``y``/``x``
-    in micrometer with ``pitch_um`` (the reconstruction grid's pitch: sensor pitch
-    times binning), unitless without.
-
-    Both are written under a temporary name in the same directory and renamed into
-    place (the TIFF with :func:`recon.io.atomic_path`, a Zarr array, a directory, with
-    :func:`recon.io.atomic_dir`: the old one moved aside and then removed; inside an
-    :func:`recon.io.output_group` when the group ends), so a failure never leaves a
-    partial volume under ``path``, nor its temporary folder, nor a folder made for it.
-
-    Raises
-    ------
-    InputError
-        ``path`` is an existing Zarr node that is no volume written here (e.g. a run
-        store).
-    """
-    import tifffile
-    import zarr
-
-    from recon.io import atomic_dir, atomic_path
-
-    if path.suffix.lower() != ".zarr":
-        with atomic_path(path) as tmp:
-            tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
-                             metadata={**attrs, "axes": "ZYX"})
-        return
-    from .ome import OmeAxis, image_attrs, volume_axes
-
-    node = path / "zarr.json"
-    if path.exists():
-        meta = json.loads(node.read_text()) if node.is_file() else {}
-        ours = meta.get("node_type") == "array" or (  # an array: written before OME-Zarr
-            meta.get("attributes", {}).get("diffuserlab") == VOLUME_MARKER)
-        if not ours:
-            raise InputError(f"--out {path} exists and is not a volume written by recon3d "
-                             "(a run store?); choose another name")
-    first, meta = volume_axes(attrs.get("depths_mm"), volume.shape[0])
-    space = [OmeAxis(a, "space", *(("micrometer", float(pitch_um)) if pitch_um else ()))
-             for a in ("y", "x")]
-    axes = [first, *space]
-    with atomic_dir(path) as tmp:  # never half a volume under the final name
-        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
-        arr = group.create_array("0", shape=volume.shape, dtype="float32",
-                                 chunks=(1, *volume.shape[1:]),
-                                 dimension_names=[a.name for a in axes])
-        arr[:] = volume
-        group.attrs.update({**attrs, "diffuserlab": VOLUME_MARKER,
-                            "ome": image_attrs([("volume", "0", axes, meta)])})
 
 
 def _grid_pitch_um(psf_stack: str, product: str, pitch_um: float | None,
@@ -480,7 +339,7 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
     overwrite : bool
         Replace existing outputs; False (``recon3d`` without ``--overwrite``): an
         output another process wrote meanwhile is kept and this call refused
-        (:func:`recon.io.output_group`).
+        (:func:`instrument.atomic.output_group`).
 
     Returns
     -------
@@ -504,11 +363,13 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
     """
     from recon import PsfStack, reconstruct
     from recon.auto import AUTO, parse_weight
-    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image
     from recon.options import l1_given
     from recon.volume.api import check_volume_parameters
 
+    from .atomic import output_group, write_json
     from .stacks import dark_subtracted, load_psf_stack
+    from .writer.products import volume_output_paths, write_volume_products
 
     kw = options.keywords("volume")
     if l1_given(kw["l1"]) is None:  # --l1 not given: a volume's own default is 0
@@ -547,11 +408,8 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
              "psf_stack": str(psf_stack), "raw": str(raw_path), "bin_factor": int(bin_factor),
              "orientation": DATA_ORIENTATION}
     grid_pitch = _grid_pitch_um(psf_stack, psf_product, pitch_um, bin_factor)
-    with output_group(replace=overwrite):  # the volume and its projections: all or none
-        write_volume(vol_path, rec.volume, attrs, pitch_um=grid_pitch)
-        # the projections are views: turned to scene orientation (rows and columns flipped)
-        for view, image in projections(scene_view(rec.volume, axes=(1, 2))).items():
-            save_image(mip_paths[view], image)
+    write_volume_products(rec.volume, vol_path, mip_paths, attrs, grid_pitch,
+                          replace=overwrite)
     solved = rec.metrics()
     solved["seconds_total"] = seconds_total
     files = {"psf_stack": str(psf_stack), "psf_product": psf_product,

@@ -92,7 +92,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
         Reconstruct a volume (``recon3d``) even from one grid.
     overwrite : bool
         Replace existing outputs; False: an output another process wrote meanwhile
-        is kept and this call refused (:func:`recon.io.output_group`).
+        is kept and this call refused (:func:`instrument.atomic.output_group`).
 
     Returns
     -------
@@ -101,14 +101,15 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
         output paths; with a background estimate also ``OUT_background.tif``.
     """
     from recon import reconstruct
-    from recon.io import DATA_ORIENTATION, load_image, output_group, save_image, scene_view
+    from recon.io import DATA_ORIENTATION, load_image
 
-    from .reconstruct_files import (
+    from .atomic import output_group, write_json
+    from .writer.files import save_image
+    from .writer.products import (
         output_paths,
-        projections,
         volume_output_paths,
-        write_json,
-        write_volume,
+        write_image_products,
+        write_volume_products,
     )
 
     grids = [load_psf_grid(p) for p in grid_paths]
@@ -121,17 +122,15 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
     with output_group(replace=overwrite):  # every output of the reconstruction, or none
         if rec.operator.volume:
             vol_path, mips = volume_output_paths(out)
-            write_volume(vol_path, rec.image, {"depths_mm": metrics["depths_mm"],
-                                               "model": rec.choice.label(),
-                                               "orientation": DATA_ORIENTATION})
-            for view, image in projections(scene_view(rec.image, axes=(1, 2))).items():
-                save_image(mips[view], image)
+            write_volume_products(rec.image, vol_path, mips,
+                                  {"depths_mm": metrics["depths_mm"],
+                                   "model": rec.choice.label(),
+                                   "orientation": DATA_ORIENTATION})
             metrics.update(output_volume=str(vol_path),
                            output_mips={k: str(v) for k, v in mips.items()})
         else:
             png, tif = output_paths(out)
-            save_image(png, scene_view(rec.image))
-            save_image(tif, rec.image)
+            write_image_products(rec.image, png, tif)
             metrics.update(output_png=str(png), output_tiff=str(tif))
         if rec.background is not None:
             bg = background_output(out, rec.operator.volume)
@@ -147,7 +146,7 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
 
 def background_output(out: str, volume: bool) -> Path:
     """Where :func:`run_recon_grid` writes the estimated background for ``--out``."""
-    from .reconstruct_files import output_paths, volume_output_paths
+    from .writer.products import output_paths, volume_output_paths
 
     path = volume_output_paths(out)[0] if volume else output_paths(out)[1]
     stem = path.with_name(path.stem)  # the known suffix only (take.2.tif -> take.2)

@@ -85,7 +85,8 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
                         claimed: bool = False, settle_s: float = 0.1,
                         timeout_s: float = 5.0) -> bool:
     """Remove a run store this process created and could not finish (whole or not at
-    all), and the folders ``made`` for it (:func:`recon.io.missing_dirs`) once empty.
+    all), and the folders ``made`` for it
+    (:func:`instrument.atomic.missing_dirs`) once empty.
 
     Only a run this process created is removed: its ``zarr.json`` must record
     ``token`` (:data:`CREATOR_ATTR`), which only the creating process holds. So a
@@ -93,7 +94,8 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
     removes the other's run. The run is first renamed to a hidden name beside it
     (atomic: ``path`` is free again at once, and the removal can never reach a run
     created there afterwards), after zarr's writes in flight have ended, then removed
-    (:func:`recon.io.remove_tree`: until zarr's writer threads stop adding to it).
+    (:func:`instrument.atomic.remove_tree`: until zarr's writer threads stop
+    adding to it).
 
     Parameters
     ----------
@@ -109,7 +111,7 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
         before the run recorded its creator: a directory recording no creator is
         then removed too (``RunStore.create`` cleaning up after itself).
     settle_s, timeout_s : float
-        As :func:`recon.io.remove_tree`, s.
+        As :func:`instrument.atomic.remove_tree`, s.
 
     Returns
     -------
@@ -118,8 +120,7 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
         process (nothing removed but empty folders of ``made``; a warning logged
         when ``token`` is given and another run is there).
     """
-    from recon.io import remove_empty_dirs, remove_tree
-    from recon.outputs import wait_for_zarr_writes
+    from .atomic import remove_empty_dirs, remove_tree, wait_for_zarr_writes
 
     path = Path(path)
     record = creator_of(path)

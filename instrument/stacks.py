@@ -18,8 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.io import missing_dirs, remove_empty_dirs
-
+from .atomic import missing_dirs, remove_empty_dirs
 from .coords import coord_specs
 from .runstore import RunStore, RunStoreError, discard_partial_run
 from .tiff_export import read_tiff_metadata
@@ -225,8 +224,7 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
         No such run or product, or no intact frame.
     """
 
-    from recon.io import atomic_path
-
+    from .atomic import atomic_path
     from .ome import frame_axis, frame_pitch_um, product_axes, space_axes
     from .tiff_export import tiff_format, write_tiff
 

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from drivers.camera import FrameRing
-from recon.io import missing_dirs, remove_empty_dirs
 
+from .atomic import missing_dirs, remove_empty_dirs
 from .coords import coord_specs
 from .recorder import VIDEO_COORDS, Recorder, record_from_ring
 from .runstore import RunStore, RunStoreError, discard_partial_run

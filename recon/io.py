@@ -1,9 +1,9 @@
-"""Image file input/output and Bayer demosaicing for the reconstruction layer.
+"""Image file input and Bayer demosaicing for the reconstruction layer.
 
 Readers return arrays in the file's native dtype with channels last, so the
 preprocessing step (:mod:`recon.preprocess`) sees exactly what the sensor
-recorded. Writers produce either the 32-bit float data product (TIFF), a
-viewing image (8-bit PNG) or a NumPy ``.npy`` file.
+recorded. The reconstruction layer writes no files: its arrays and records are
+written by :mod:`instrument.writer` (the float TIFF data product, the PNG view, JSON).
 
 Every refusal raises :class:`recon.errors.ReconInputError` with a one-line
 message that names the file, the problem and the fix.
@@ -11,7 +11,6 @@ message that names the file, the problem and the fix.
 
 from __future__ import annotations
 
-import errno
 import logging
 import os
 from pathlib import Path
@@ -21,15 +20,6 @@ import numpy as np
 import tifffile
 
 from recon.errors import ReconInputError
-from recon.outputs import (
-    atomic_dir,
-    atomic_path,
-    free_space_text,
-    missing_dirs,
-    output_group,
-    remove_empty_dirs,
-    remove_tree,
-)
 from recon.validate import as_array
 
 logger = logging.getLogger(__name__)
@@ -37,19 +27,9 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "BAYER_PATTERNS",
     "LOAD_EXTENSIONS",
-    "atomic_dir",
-    "atomic_path",
-    "free_space_text",
-    "missing_dirs",
-    "output_group",
-    "remove_empty_dirs",
-    "remove_tree",
-    "write_json",
-    "SAVE_EXTENSIONS",
     "demosaic_bayer",
     "DATA_ORIENTATION",
     "load_image",
-    "save_image",
     "scene_view",
 ]
 
@@ -59,8 +39,6 @@ _NPY_EXTENSIONS = (".npy",)
 
 #: File extensions :func:`load_image` accepts (lower case; matching is case-insensitive).
 LOAD_EXTENSIONS: tuple[str, ...] = _TIFF_EXTENSIONS + _CV2_EXTENSIONS + _NPY_EXTENSIONS
-#: File extensions :func:`save_image` accepts (lower case; matching is case-insensitive).
-SAVE_EXTENSIONS: tuple[str, ...] = _TIFF_EXTENSIONS + (".png",) + _NPY_EXTENSIONS
 
 #: Orientation of reconstructions in data files (TIFF, ``.npy``, Zarr) and in the
 #: arrays the solvers return: the object grid of the convolution model (Kuo 2020,
@@ -301,152 +279,6 @@ def scene_view(image: np.ndarray, axes: tuple[int, int] = (0, 1)) -> np.ndarray:
         raise ReconInputError(f"cannot flip axes {axes!r} of an image of shape {arr.shape}; "
                               "pass an (H, W) or (H, W, C) image, or a volume with "
                               "axes=(1, 2)") from None
-
-
-def _viewing_image(image: np.ndarray) -> np.ndarray:
-    """Scale to 8 bits: 0 -> 0, 99.9th percentile -> 255, negatives and non-finite -> 0."""
-    data = np.nan_to_num(image.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    np.clip(data, 0.0, None, out=data)
-    top = float(np.percentile(data, 99.9)) if data.size else 0.0
-    if top <= 0.0:
-        top = float(data.max()) if data.size else 0.0
-    if top <= 0.0:
-        return np.zeros(data.shape, dtype=np.uint8)
-    data *= 255.0 / top
-    np.clip(data, 0.0, 255.0, out=data)
-    return np.rint(data).astype(np.uint8)
-
-
-def write_json(path: str | os.PathLike, data, *, default=None) -> Path:
-    """Write ``data`` as indented, standard JSON (:func:`diffuserlab.jsonio.json_text`)
-    through :func:`atomic_path`: whole or not at all, and with the other outputs of an
-    :func:`output_group`.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        The JSON file (replaced if it exists: callers check for overwriting first).
-    data : object
-        Anything :func:`diffuserlab.jsonio.jsonable` converts; NaN and infinity
-        become null.
-    default : callable, optional
-        What to write for an object JSON has no type for (``str``); None (default)
-        raises TypeError.
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
-
-    Raises
-    ------
-    TypeError
-        ``data`` holds an object JSON cannot represent (nothing is written).
-    OSError
-        The file cannot be written (a full disk is named with its free space); an
-        existing file is left as it was.
-
-    Examples
-    --------
-    >>> import json, tempfile, pathlib
-    >>> p = write_json(pathlib.Path(tempfile.mkdtemp()) / "m.json", {"x": float("inf")})
-    >>> json.loads(p.read_text())
-    {'x': None}
-    """
-    from diffuserlab.jsonio import json_text
-
-    text = json_text(data, default=default)  # before the file: a TypeError leaves no trace
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-    return Path(path)
-
-
-def save_image(path: str | os.PathLike, image: np.ndarray) -> None:
-    """Save an image as a float32 TIFF data product, an 8-bit PNG view, or ``.npy``.
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        Destination; the format follows the (case-insensitive) extension.
-        Missing parent directories are created. The file is written under a
-        temporary name and renamed into place (:func:`atomic_path`): a failure
-        never leaves a partial file under ``path``.
-
-        * ``.tif``/``.tiff``: the 32-bit data product. The image is written as
-          float32 (values unchanged, no scaling) with :func:`tifffile.imwrite`;
-          3/4-channel images as contiguous RGB(A), others as min-is-black.
-        * ``.png``: a viewing image, not data. Values are scaled linearly so
-          that 0 maps to 0 and the 99.9th percentile (over all channels) maps to
-          255, clipped; negatives and NaN/inf become 0. RGB(A) is converted to
-          OpenCV's BGR(A) order before ``cv2.imwrite``.
-        * ``.npy``: :func:`numpy.save` of the array in its own dtype.
-    image : numpy.ndarray
-        Shape (H, W) or (H, W, C), channels last, any real numeric dtype.
-        PNG output needs C in {1, 3, 4}.
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    ReconInputError
-        If the extension is not supported, the array is not 2D/3D or not
-        numeric, a PNG is asked for with an unsupported channel count, or the
-        file cannot be written.
-    """
-    path = Path(path)
-    suffix = _suffix(path)
-    if suffix not in SAVE_EXTENSIONS:
-        raise ReconInputError(
-            f"{path}: cannot save with extension {suffix or '(none)'!r}; "
-            f"use one of {', '.join(SAVE_EXTENSIONS)}"
-        )
-    image = as_array(image, f"{path}: image")
-    if image.ndim not in (2, 3) or image.size == 0:
-        raise ReconInputError(
-            f"{path}: cannot save an array of shape {image.shape}; "
-            "pass a non-empty 2D (H, W) or 3D (H, W, C) image"
-        )
-    if image.dtype.kind not in "biuf":
-        raise ReconInputError(
-            f"{path}: cannot save dtype {image.dtype} as an image; pass real numeric data"
-        )
-    channels = 1 if image.ndim == 2 else image.shape[2]
-    if suffix == ".png" and channels not in (1, 3, 4):
-        raise ReconInputError(
-            f"{path}: a PNG needs 1, 3 or 4 channels, the image has {channels}; "
-            "save it as .tif or .npy instead"
-        )
-    try:
-        with atomic_path(path) as tmp:
-            if suffix in _TIFF_EXTENSIONS:
-                data = np.ascontiguousarray(image, dtype=np.float32)
-                photometric = "rgb" if channels in (3, 4) and image.ndim == 3 else "minisblack"
-                planar = "contig" if image.ndim == 3 else None
-                tifffile.imwrite(tmp, data, photometric=photometric, planarconfig=planar)
-            elif suffix == ".png":
-                view = _viewing_image(image)
-                if view.ndim == 3 and channels == 1:
-                    view = view[:, :, 0]
-                elif channels == 3:
-                    view = cv2.cvtColor(view, cv2.COLOR_RGB2BGR)
-                elif channels == 4:
-                    view = cv2.cvtColor(view, cv2.COLOR_RGBA2BGRA)
-                if not cv2.imwrite(str(tmp), view):
-                    raise ReconInputError(
-                        f"{path}: OpenCV failed to write the PNG; check the directory is "
-                        "writable")
-            else:
-                with open(tmp, "wb") as fh:  # np.save(name) would append .npy to the name
-                    np.save(fh, image, allow_pickle=False)
-    except OSError as exc:
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO):
-            raise  # the disk's problem, named with its path (and free space) already
-        raise ReconInputError(
-            f"{path}: cannot write file ({exc}); check the directory exists and is writable"
-        ) from exc
-    logger.debug("saved %s: shape %s, dtype %s", path, image.shape, image.dtype)
 
 
 def demosaic_bayer(raw: np.ndarray, pattern: str) -> np.ndarray:

@@ -1,5 +1,5 @@
 """One JSON writer: every JSON file the project writes goes through
-:func:`recon.io.write_json` (text from :func:`diffuserlab.jsonio.json_text`), every
+:func:`instrument.atomic.write_json` (text from :func:`diffuserlab.jsonio.json_text`), every
 conversion through :func:`diffuserlab.jsonio.jsonable`; no package defines its own."""
 
 import ast
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.jsonio import json_line, json_text, jsonable
-from recon.io import write_json
+from instrument.atomic import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("diffuserlab", "recon", "drivers", "instrument", "calibration_routines", "gui")

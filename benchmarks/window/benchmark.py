@@ -191,7 +191,7 @@ def soak(argv: list[str]) -> int:
     figures = summarise(report)
     print_summary(figures, report)
     if args.json:
-        from recon.io import write_json
+        from instrument.atomic import write_json
 
         write_json(args.json, {"figures": figures, "report": report}, default=str)
     return 0 if all(figures["goals_met"].values()) and not figures["failure"] else 1
@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{res['sweep_frames_during']} frames taken "
           f"({'still running' if res['sweep_still_running_at_end'] else 'ended'} at the end)")
     if args.json:
-        from recon.io import write_json
+        from instrument.atomic import write_json
 
         write_json(args.json, res)
     return 0

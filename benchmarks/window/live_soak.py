@@ -386,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
     if report.get("failure"):
         print(f"  failure: {report['failure']}")
     if args.json:
-        from recon.io import write_json
+        from instrument.atomic import write_json
 
         write_json(args.json, report, default=str)
     return 0 if all(report["figures"]["goals_met"].values()) else 1

@@ -37,7 +37,7 @@ from typing import Any
 from PySide6.QtCore import QPoint, QPointF, QTimer
 from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 
-from recon.io import write_json
+from instrument.atomic import write_json
 
 from .daymonitor import DayMonitor, HeapTracker, census
 from .driver import StepFailed, WindowDriver

@@ -83,10 +83,10 @@ def run(args: argparse.Namespace) -> int:
     from drivers.errors import DeviceError
     from instrument.cli.common import MissingBenchFile
     from instrument.config import BenchConfigError
-    from instrument.output_safety import check_outputs
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl
     from instrument.runstore import RunStoreError
+    from instrument.writer.guards import check_outputs
     from recon.errors import ReconInputError
     from recon.optics.holo_display import MaskModel
 

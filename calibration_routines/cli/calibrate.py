@@ -282,8 +282,8 @@ def _run_whole_or_nothing(runner, plan, out, **options):
     A run holding frames is kept (its data are the operator's; it resumes), and so is
     a run this process did not create (another process's, created at ``out``
     meanwhile: this one is refused)."""
+    from instrument.atomic import missing_dirs, remove_empty_dirs
     from instrument.runstore import RunStoreError, discard_partial_run
-    from recon.io import missing_dirs, remove_empty_dirs
 
     made = missing_dirs(out)
     try:
@@ -307,10 +307,10 @@ def run(args: argparse.Namespace) -> int:
     from calibration_routines import register_plans
     from diffuserlab.errors import InputError
     from instrument.cli.runs import format_summary
-    from instrument.output_safety import check_outputs
     from instrument.runner import Runner
     from instrument.runstore import RunStore, RunStoreError, is_run_store
     from instrument.runstore_records import video_cannot_continue
+    from instrument.writer.guards import check_outputs
 
     if not 0 <= args.reconnect_timeout_s < float("inf"):  # NaN fails; every wait ends
         raise InputError(f"--reconnect-timeout {args.reconnect_timeout_s}: give the seconds "

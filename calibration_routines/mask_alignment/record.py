@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.jsonio import json_line
+from instrument.atomic import atomic_path, write_json
 from instrument.plan import PlanError
-from recon.io import atomic_path, write_json
 
 __all__ = ["AlignmentRecord", "corrected_mask", "load_alignment", "section_bounds"]
 
@@ -140,7 +140,7 @@ class AlignmentRecord:
             raise
 
     def save(self) -> None:
-        """Write ``alignment.json`` atomically (:func:`recon.io.atomic_path`: no
+        """Write ``alignment.json`` atomically (:func:`instrument.atomic.atomic_path`: no
         temporary file is left when the write fails, e.g. on a full disk)."""
         write_json(self.path / "alignment.json", self.state)
 

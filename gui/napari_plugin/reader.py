@@ -33,8 +33,8 @@ def get_reader(path: str | Sequence[str]) -> Callable | None:
     anything else (napari then asks another reader)."""
     if not isinstance(path, str | Path):
         return None
-    from instrument.reconstruct_files import VOLUME_MARKER
     from instrument.runstore import is_run_store, product_location
+    from instrument.writer.products import VOLUME_MARKER
 
     if is_run_store(path):
         return read_run
@@ -177,7 +177,7 @@ def _product_layer(store, name: str) -> tuple | None:
 
 def read_volume(path: str) -> list[tuple]:
     """The layer of a recon3d volume (an OME-Zarr image written by
-    :func:`instrument.reconstruct_files.write_volume`), axes and units from its
+    :func:`instrument.writer.products.write_volume`), axes and units from its
     ``ome`` block.
 
     Returns

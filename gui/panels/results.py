@@ -9,7 +9,7 @@ its summary as recorded (:meth:`~instrument.runstore.RunStore.summary` without t
 check), and its checksums are verified once, on a worker, with progress. Each step
 of the frame slider asks for a frame; one reader reads the newest asked for (steps
 made while it reads are skipped, not queued). Projections are
-:func:`instrument.reconstruct_files.projections`.
+:func:`instrument.writer.products.projections`.
 """
 
 from __future__ import annotations
@@ -408,7 +408,7 @@ class ResultsPanel(QWidget):
             self.depth_slider.setRange(0, len(self.volume) - 1)
             self.depth_slider.setValue(0)
             self.show_slice(0)
-            from instrument.reconstruct_files import projections
+            from instrument.writer.products import projections
 
             for name, image in projections(self.volume).items():
                 self.mip_views[name].setImage(image, autoLevels=True)

@@ -22,10 +22,11 @@ import numpy as np
 from diffuserlab.jsonio import jsonable
 from recon.api import DEFAULT_TV, scaled_problem
 from recon.api import solve as api_solve
-from recon.io import write_json
 from recon.operators import ConvolutionOperator
 from recon.sample import DATA_ENV, data_dir, load_sample
 from recon.solvers import METHODS, SOLVERS, SolveResult
+
+from ..atomic import write_json
 
 __all__ = [
     "DATA_ENV",
@@ -98,7 +99,7 @@ def save_figure(fig, path: Path) -> Path:
     """Save a :class:`matplotlib.figure.Figure` (no pyplot state involved)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from recon.io import atomic_path
+    from ..atomic import atomic_path
 
     path = Path(path)
     FigureCanvasAgg(fig)

@@ -230,7 +230,7 @@ def _batch_chart(result: dict, path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from recon.io import atomic_path
+    from ..atomic import atomic_path
 
     names = ["loop\n(1 process,\nall cores)"] + [f"dask\n{w} worker{'s' * (w > 1)}"
                                                   for w in result["batch"]]

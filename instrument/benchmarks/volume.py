@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from recon.io import write_json
+from ..atomic import write_json
 
 GOAL = 2.5
 SIZES_FULL = ((256, 256, 16), (512, 512, 64))

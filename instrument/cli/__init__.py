@@ -142,7 +142,7 @@ def _one_line(exc: BaseException) -> str:
 def os_error_line(exc: OSError) -> str:
     """``REASON: PATH`` of an OSError (both paths of a rename); a disk that is full gets
     its free space."""
-    from ..output_safety import checked_outputs
+    from ..writer.guards import checked_outputs
 
     reason = exc.strerror or _one_line(exc) or type(exc).__name__
     paths = [p for p in (exc.filename, exc.filename2) if p is not None]
@@ -151,7 +151,7 @@ def os_error_line(exc: OSError) -> str:
         paths = checked_outputs()[-1:]
         line = f"{reason} while writing {', '.join(checked_outputs())}"
     if exc.errno in (errno.ENOSPC, errno.EDQUOT) and paths and "free" not in line:
-        from recon.io import free_space_text
+        from ..atomic import free_space_text
 
         line += f" ({free_space_text(paths[0])})"
     return line
@@ -212,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         :class:`diffuserlab.errors.InputError` (the project's input errors:
         :class:`recon.errors.ReconInputError`,
         :class:`instrument.runstore.RunStoreError`, :class:`instrument.plan.PlanError`,
-        :class:`instrument.output_safety.OutputError`,
+        :class:`instrument.writer.guards.OutputError`,
         :class:`instrument.cli.common.MissingBenchFile`, ...) and the errors a command
         lists in ``input_errors`` (no command turns every ValueError into bad input:
         an unexpected one is a bug); 2 and one line per problem on
@@ -276,7 +276,7 @@ def _console(args: argparse.Namespace) -> None:
     """Before a command: the exit hooks quiet
     (:func:`instrument.cli.interrupts.quiet_shutdown`), the console's log records (INFO,
     DEBUG with ``-v``; other libraries' only with ``-v``) and the outputs' record reset."""
-    from ..output_safety import checked_outputs
+    from ..writer.guards import checked_outputs
     from .interrupts import quiet_shutdown
 
     quiet_shutdown(args.debug)

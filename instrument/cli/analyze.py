@@ -513,9 +513,8 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
     ValueError
         Missing or invalid options.
     """
-    from recon.io import atomic_path, write_json
-
-    from ..output_safety import check_outputs
+    from ..atomic import atomic_path, write_json
+    from ..writer.guards import check_outputs
 
     _check_options(args)
     out = Path(args.out)

@@ -115,9 +115,9 @@ def run_design(args: argparse.Namespace) -> int:
     """Run ``analyze design``: write ``OUT/design.png`` and ``OUT/design.json``, print a
     line per depth; returns 0 (bad input: one line, exit 2, through the boundary)."""
     from recon.analysis.design import design_resolution
-    from recon.io import atomic_path, write_json
 
-    from ..output_safety import check_outputs
+    from ..atomic import atomic_path, write_json
+    from ..writer.guards import check_outputs
 
     design, depths = _checked(args)
     out = Path(args.out)

@@ -168,7 +168,7 @@ def run_recon_benchmarks(args: argparse.Namespace) -> int:
     """Run ``benchmark recon``; returns 0 (bad input exits 2 through the boundary)."""
     from instrument.benchmarks.run import format_result, run_benchmarks
 
-    from ..output_safety import check_outputs
+    from ..writer.guards import check_outputs
 
     # summary.json is written by every run: an --out holding one holds earlier results
     check_outputs([args.out / "summary.json"], None, args.overwrite, directory=args.out)
@@ -189,8 +189,8 @@ def run_gpu_benchmark(args: argparse.Namespace) -> int:
     from instrument.benchmarks.gpu import run_gpu_benchmark as run
     from recon.errors import ReconInputError
 
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import write_json
+    from ..atomic import write_json
+    from ..writer.guards import check_outputs
 
     if args.iterations is not None and args.iterations < 2:
         raise ReconInputError(f"--iterations {args.iterations}: give 2 or more (the first "
@@ -215,9 +215,9 @@ def run_live_benchmark(args: argparse.Namespace) -> int:
     from recon.errors import ReconInputError
     from recon.fft import check_threads
 
+    from ..atomic import write_json
     from ..benchmarks.live import run_live_benchmark as run
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import write_json
+    from ..writer.guards import check_outputs
 
     if not (0 < args.seconds <= 600 and 0 < args.fps and args.iterations >= 1):
         raise ReconInputError(f"--seconds {args.seconds}, --fps {args.fps}, --iterations "
@@ -242,12 +242,12 @@ def run_recording_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
+    from ..atomic import write_json
     from ..benchmarks.acquisition import recording_table
     from ..benchmarks.acquisition import run_recording_benchmark as run
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import write_json
     from ..runstore import FRAME_COMPRESSORS
     from ..video import DEFAULT_COMPRESSOR
+    from ..writer.guards import check_outputs
 
     seconds = 600.0 if args.long else args.seconds
     comps = (DEFAULT_COMPRESSOR,) if args.long else tuple(
@@ -274,9 +274,9 @@ def run_volume_scale_benchmark(args: argparse.Namespace) -> int:
     from drivers.base import jsonable
     from recon.errors import ReconInputError
 
+    from ..atomic import write_json
     from ..benchmarks.volume_scale import run_volume_scale, volume_scale_table
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import write_json
+    from ..writer.guards import check_outputs
 
     if args.bead_light is not None and not args.bead_light > 0:
         raise ReconInputError(f"--bead-light {args.bead_light}: give a positive light (pixels "
@@ -310,9 +310,9 @@ def run_memory_limit_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
+    from ..atomic import write_json
     from ..benchmarks.memory_limit import memory_limit_table, run_memory_limit
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import write_json
+    from ..writer.guards import check_outputs
 
     sizes = []
     for item in args.sizes.split(","):
@@ -339,10 +339,10 @@ def run_batch_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
+    from ..atomic import write_json
     from ..benchmarks.acquisition import batch_table
     from ..benchmarks.acquisition import run_batch_benchmark as run
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import write_json
+    from ..writer.guards import check_outputs
 
     if args.frames < 2 or args.iterations < 1:
         raise ReconInputError(f"--frames {args.frames}, --iterations {args.iterations}: give "

@@ -245,9 +245,10 @@ def _live(args: argparse.Namespace, cam, inputs: tuple):
 def run_live(args: argparse.Namespace) -> int:
     """Run ``capture live``; returns the exit status (module docstring)."""
     from drivers.camera import FrameRing
-    from recon.io import save_image, scene_view
+    from recon.io import scene_view
 
-    from ..output_safety import check_outputs
+    from ..writer.files import save_image
+    from ..writer.guards import check_outputs
     from .recon_flags import check_device
 
     _method(args.method)
@@ -322,12 +323,13 @@ def run_video(args: argparse.Namespace) -> int:
     """Run ``capture video``; returns the exit status (the parser's description)."""
     from drivers.errors import DeviceError, DeviceValueError
     from recon.errors import ReconInputError
-    from recon.io import save_image, scene_view
+    from recon.io import scene_view
 
-    from ..output_safety import check_outputs
     from ..recorder import index_ranges
     from ..runstore import FRAME_COMPRESSORS, RunStore, is_run_store
     from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES, record_video
+    from ..writer.files import save_image
+    from ..writer.guards import check_outputs
     from .recon_flags import check_device
 
     if args.method is not None:

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the demo (:func:`instrument.demo.run_demo`) or the real sample; returns 0."""
     from recon.errors import ReconInputError
 
-    from ..output_safety import check_outputs
+    from ..writer.guards import check_outputs
 
     if args.seed < 0:
         raise ReconInputError(f"--seed {args.seed}: give a seed >= 0")

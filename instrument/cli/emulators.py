@@ -43,7 +43,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Start the emulators, print their ports, serve until interrupted."""
     from ..emulated_bench import DEFAULT_DIR, EmulatedBench, EmulatorsRunningError
-    from ..output_safety import check_outputs
+    from ..writer.guards import check_outputs
 
     if not (args.time_scale > 0 and math.isfinite(args.time_scale)):
         error(f"--time-scale must be a finite number > 0, got {args.time_scale}")
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         for name, (link, tty) in bench.ports().items():
             print(f"  {name:<11} {link} -> {tty}")
         if args.bench_out:
-            from recon.io import atomic_path
+            from ..atomic import atomic_path
 
             with atomic_path(args.bench_out) as tmp:  # whole or not at all (a full disk)
                 tmp.write_text(bench.bench_text(), encoding="utf-8")

@@ -46,9 +46,9 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     """Run a ``--psf-grid`` reconstruction and print its summary line."""
     from recon.options import GRID_METHODS, ReconOptions
 
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import output_paths, volume_output_paths
     from ..reconstruct_grid import background_output, run_recon_grid
+    from ..writer.guards import check_outputs
+    from ..writer.products import output_paths, volume_output_paths
     from .recon_flags import dark_for_grid, grid_method
 
     method = grid_method(args.method, GRID_METHODS)

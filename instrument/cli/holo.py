@@ -1,8 +1,9 @@
 """``diffuserlab holo {evaluate,benchmark}``: the holographic display's evaluations.
 
-``holo evaluate`` reproduces Table 7.1 (:func:`recon.cgh.evaluate.run_evaluation`:
-``records.csv``, ``summary.json``, ``table.md``, ``psnr_vs_seconds.png`` under
-``--out``; prints the table); exit 1 with ``--strict`` when an acceptance rule
+``holo evaluate`` reproduces Table 7.1 (:func:`recon.cgh.evaluate.run_evaluation`,
+written by :func:`instrument.writer.evaluation.write_evaluation`: ``records.csv``,
+``summary.json``, ``table.md``, ``psnr_vs_seconds.png`` under ``--out``; prints the
+table); exit 1 with ``--strict`` when an acceptance rule
 fails. ``holo benchmark`` times one full-size hologram against the FFT floor
 (:func:`instrument.benchmarks.hologram.run_benchmark`) and prints the report. Both take
 ``--device cpu|cuda|auto`` (the optimiser on the CPU's NumPy path or a GPU's generic
@@ -15,10 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-__all__ = ["EVALUATION_FILES", "add_subcommands", "run_benchmark", "run_evaluate"]
-
-#: The files ``holo evaluate`` writes under ``--out``.
-EVALUATION_FILES = ("records.csv", "summary.json", "table.md", "psnr_vs_seconds.png")
+__all__ = ["add_subcommands", "run_benchmark", "run_evaluate"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
@@ -146,7 +144,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from recon.cgh.protocol import BUNDLED_IMAGES, load_bundled, load_folder
     from recon.errors import ReconInputError
 
-    from ..output_safety import check_outputs
+    from ..writer.evaluation import EVALUATION_FILES, write_evaluation
+    from ..writer.guards import check_outputs
     from .common import check_memory
 
     settings = _settings(args, {"--size": "size", "--factors": "factors", "--seeds": "seeds",
@@ -177,10 +176,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
               f"{rec['method']:>9}: {rec['psnr_full']:6.2f} dB {rec['ssim_full']:.3f} "
               f"({rec['seconds']:.2f} s)", file=sys.stderr, flush=True)
 
-    ev = run_evaluation(images, args.out, size=size, factors=factors, seeds=seeds,
+    ev = run_evaluation(images, size=size, factors=factors, seeds=seeds,
                         iterations=iters, methods=methods,
                         source=args.images or "skimage bundled (A10)", progress=progress,
                         device=args.device)
+    write_evaluation(ev, out)
     print(ev["table"])
     print(f"wrote {args.out}/records.csv, summary.json, table.md, psnr_vs_seconds.png "
           f"({ev['settings']['wall_seconds']:.0f} s)")
@@ -208,13 +208,13 @@ def run_benchmark(args: argparse.Namespace) -> int:
     check_memory(8 * 8 * args.factor * slm[0] * slm[1],
                  f"--slm {slm[0]} {slm[1]} at --factor {args.factor}")
     if args.json:
-        from ..output_safety import check_outputs
+        from ..writer.guards import check_outputs
 
         check_outputs([args.json], None, args.overwrite, option="--json")
     rep = time_hologram(slm, k, iters, args.loss, reps, backend)
     print(format_report(rep, args.factor, reps, iters))
     if args.json:
-        from recon.io import write_json
+        from ..atomic import write_json
 
         write_json(args.json, rep)
     return 0

@@ -66,8 +66,9 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import output_paths, run_recon
+    from ..reconstruct_files import run_recon
+    from ..writer.guards import check_outputs
+    from ..writer.products import output_paths
     from .recon_flags import check_device, check_recon_flags
 
     if (args.psf is None) == (args.psf_grid is None):

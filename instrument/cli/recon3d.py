@@ -94,9 +94,10 @@ def run(args: argparse.Namespace) -> int:
     """Run ``recon3d`` (:func:`instrument.reconstruct_files.run_recon3d`) and print its
     summary line; returns 0 (bad input exits 2 and divergence 3 through
     :func:`instrument.cli.main`)."""
-    from ..output_safety import check_outputs
-    from ..reconstruct_files import run_recon3d, volume_output_paths
+    from ..reconstruct_files import run_recon3d
     from ..volume_shards import slab_workers
+    from ..writer.guards import check_outputs
+    from ..writer.products import volume_output_paths
     from .recon_flags import check_device, check_recon_flags
 
     depths = None if args.depths is None else floats(args.depths, "--depths")

@@ -160,8 +160,8 @@ def verify(path: str) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run a ``runs`` subcommand; 0 on success (a RunStoreError or ValueError exits 2
     through :func:`instrument.cli.main`)."""
-    from ..output_safety import check_outputs
     from ..runstore import RunStore
+    from ..writer.guards import check_outputs
 
     if args.runs_command == "show":
         summary = RunStore.open(args.run).summary()

@@ -35,7 +35,7 @@ baselines
     :func:`one_step_hologram` (Eq. 7.11-7.13).
 protocol, evaluation, evaluate
     The pre-registered Table 7.1 protocol, its runner and acceptance rules, and
-    the files of ``diffuserlab holo evaluate`` (``evaluate.run_evaluation``).
+    what ``diffuserlab holo evaluate`` writes (``evaluate.run_evaluation``).
 benchmark
     Full-size speed benchmark (``diffuserlab holo benchmark``).
 

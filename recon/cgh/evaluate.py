@@ -1,10 +1,12 @@
-"""The evaluation reproducing Table 7.1, with its files (``diffuserlab holo evaluate``).
+"""The evaluation reproducing Table 7.1 (``diffuserlab holo evaluate``).
 
-:func:`run_evaluation` evaluates the images and writes ``records.csv`` (one row per
-image, factor, method, seed), ``summary.json`` (means, spreads, acceptance rules,
-settings), ``table.md`` (ours next to the dissertation's, :func:`format_table`) and
-``psnr_vs_seconds.png`` (:func:`plot_psnr_vs_seconds`). The command line (N = 480 is
-the benchmark, N = 240 the test-suite variant)::
+:func:`run_evaluation` evaluates the images and returns what the command writes
+(:func:`instrument.writer.evaluation.write_evaluation`): the records (``records.csv``,
+one row per image, factor, method, seed), the summary record (``summary.json``: means,
+spreads, acceptance rules, settings), the table (``table.md``, ours next to the
+dissertation's, :func:`format_table`) and the chart (``psnr_vs_seconds.png``,
+:func:`psnr_vs_seconds_figure`). The command line (N = 480 is the benchmark, N = 240
+the test-suite variant)::
 
     diffuserlab holo evaluate --size 480 --factors 4,16,36 --seeds 0,1,2 --out holo_eval
     diffuserlab holo evaluate --images my_photos/ --size 240 --out eval_mine
@@ -12,19 +14,16 @@ the benchmark, N = 240 the test-suite variant)::
 
 from __future__ import annotations
 
-import csv
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
 from ..backend import resolve_device
 from ..errors import ReconInputError
-from ..io import atomic_path, write_json
 from .evaluation import LABELS, METHODS, TABLE_7_1, acceptance, evaluate_images, summarise
 
-__all__ = ["HONESTY", "format_table", "plot_psnr_vs_seconds", "run_evaluation"]
+__all__ = ["HONESTY", "format_table", "psnr_vs_seconds_figure", "run_evaluation"]
 
 HONESTY = (
     "Notes: the images are scikit-image's bundled photographs, not the dissertation's 40; "
@@ -82,7 +81,7 @@ def format_table(summary: dict, rules: list[dict], settings: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_psnr_vs_seconds(records, path) -> None:
+def psnr_vs_seconds_figure(records):
     """Chart of mean full-FoV PSNR against mean seconds, one panel per factor.
 
     Iterative methods are drawn through their checkpoints (PSNR after 10, 25, 50,
@@ -92,8 +91,11 @@ def plot_psnr_vs_seconds(records, path) -> None:
     ----------
     records : list of dict
         From :func:`.evaluation.evaluate_images` (with ``curve``).
-    path : str or pathlib.Path
-        PNG file to write.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The chart (Agg backend); the caller saves and closes it.
     """
     import matplotlib
 
@@ -124,9 +126,7 @@ def plot_psnr_vs_seconds(records, path) -> None:
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 def _summary_record(summary, rules, settings) -> dict:
@@ -138,19 +138,17 @@ def _summary_record(summary, rules, settings) -> dict:
     return {"settings": settings, "cells": cells, "acceptance": rules}
 
 
-def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: int,
+def run_evaluation(images: list[tuple[str, object]], *, size: int,
                    factors: tuple[int, ...], seeds: tuple[int, ...], iterations: int,
                    methods: tuple[str, ...], source: str,
                    progress: Callable[[int, int, dict], None] | None = None,
                    device: str = "cpu") -> dict:
-    """Evaluate the images and write the four files of the module docstring to ``out``.
+    """Evaluate the images; return the records, summary, rules and table (no files).
 
     Parameters
     ----------
     images : list of (str, ndarray)
         Named images (:func:`.protocol.load_bundled` / :func:`.protocol.load_folder`).
-    out : str or Path
-        Output folder (created).
     size, factors, seeds, iterations, methods
         Passed to :func:`.evaluation.evaluate_images` (target grid N, expansion
         factors, mask seeds, optimiser iterations, methods).
@@ -166,7 +164,8 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
     -------
     dict
         ``records``, ``summary``, ``rules`` (acceptance), ``settings`` (with
-        ``wall_seconds``), ``table`` (the Markdown of ``table.md``) and ``files``.
+        ``wall_seconds``), ``table`` (the Markdown of ``table.md``) and ``record``
+        (the content of ``summary.json``).
 
     Raises
     ------
@@ -176,9 +175,7 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
     """
     if size < 8 or iterations < 1:
         raise ReconInputError("--size must be >= 8 and --iterations >= 1")
-    where = resolve_device(device).label  # an unusable device is refused before out is made
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    where = resolve_device(device).label  # an unusable device is refused before any work
     t0 = time.perf_counter()
     records = evaluate_images(images, size, factors, methods, seeds, iterations,
                               progress=progress, device=device)
@@ -189,17 +186,6 @@ def run_evaluation(images: list[tuple[str, object]], out: str | Path, *, size: i
                 "images": [n for n, _ in images], "n_images": len(images),
                 "source": source, "device": where,
                 "wall_seconds": time.perf_counter() - t0}
-    fields = [k for k in records[0] if k != "curve"]
-    with atomic_path(out / "records.csv") as tmp, open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=fields, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(records)
-    write_json(out / "summary.json", _summary_record(summary, rules, settings))
-    table = format_table(summary, rules, settings)
-    with atomic_path(out / "table.md") as tmp:
-        tmp.write_text(table)
-    plot_psnr_vs_seconds(records, out / "psnr_vs_seconds.png")
-    files = [out / n for n in ("records.csv", "summary.json", "table.md",
-                               "psnr_vs_seconds.png")]
     return {"records": records, "summary": summary, "rules": rules, "settings": settings,
-            "table": table, "files": files}
+            "table": format_table(summary, rules, settings),
+            "record": _summary_record(summary, rules, settings)}

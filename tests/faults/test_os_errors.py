@@ -229,9 +229,9 @@ def test_recon3d_zarr_on_a_full_disk_leaves_no_hidden_folder(d, capsys, monkeypa
     created their folders again after the temporary volume was removed (a hidden
     ``.v.zarr.XXXX.tmp`` left). Here the failing chunk fails at once and the others
     finish 0.5 s later, long after the error has reached the command and past the
-    0.1 s that :func:`recon.io.remove_tree` waits for the folder to stay gone: the
-    clean-up waits for zarr's writes in flight (:func:`recon.io.wait_for_zarr_writes`),
-    not for a fixed time."""
+    0.1 s that :func:`instrument.atomic.remove_tree` waits for the folder to stay
+    gone: the clean-up waits for zarr's writes in flight
+    (:func:`instrument.atomic.wait_for_zarr_writes`), not for a fixed time."""
     import asyncio
 
     from zarr.storage import LocalStore

@@ -65,7 +65,7 @@ def main():
     elif point == "lock":
         RunStore.lock = paused(RunStore.lock)
     elif point == "write_volume":
-        import instrument.reconstruct_files as files
+        import instrument.writer.products as files
         files.write_volume = paused(files.write_volume)
     from instrument.cli import main as diffuserlab
     return diffuserlab(argv)

@@ -13,7 +13,7 @@ npe2 = pytest.importorskip("npe2")
 
 from gui.napari_plugin import MANIFEST  # noqa: E402
 from gui.napari_plugin.widget import reconstruct_layer  # noqa: E402
-from instrument.reconstruct_files import write_volume  # noqa: E402
+from instrument.writer.products import write_volume  # noqa: E402
 from recon.errors import ReconInputError  # noqa: E402
 from tests.instrument.test_ome import (  # noqa: E402
     FPS,

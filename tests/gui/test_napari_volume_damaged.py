@@ -13,7 +13,7 @@ import pytest
 
 from diffuserlab.errors import InputError
 from gui.napari_plugin.reader import get_reader, read_volume
-from instrument.reconstruct_files import write_volume
+from instrument.writer.products import write_volume
 
 
 def _volume(path: Path) -> Path:

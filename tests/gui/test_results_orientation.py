@@ -77,7 +77,7 @@ def test_a_recon3d_volume_and_an_exported_stack_are_read_with_their_depths(tmp_p
     import zarr
 
     from gui.panels.results import read_result
-    from instrument.reconstruct_files import write_volume
+    from instrument.writer.products import write_volume
 
     volume = np.stack([_asymmetric(), 2 * _asymmetric()])
     write_volume(tmp_path / "v.zarr", volume, {"depths_mm": [1.0, 2.0],

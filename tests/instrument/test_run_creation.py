@@ -1,6 +1,6 @@
 """A new run's directory is claimed atomically, and a process removes only the runs it
 created itself (:func:`instrument.run_paths.discard_partial_run`, the creator's token);
-outputs of a group take only free names (:func:`recon.io.output_group`).
+outputs of a group take only free names (:func:`instrument.atomic.output_group`).
 
 The races between two real processes are in ``tests/faults/test_output_races.py``.
 """
@@ -14,10 +14,11 @@ import pytest
 import zarr
 
 import instrument.runstore as runstore
+from instrument.atomic import atomic_dir, output_group
 from instrument.run_paths import CREATOR_ATTR, creator_of, discard_partial_run
 from instrument.runstore import RunStore, RunStoreError, is_run_store
+from instrument.writer.files import save_image
 from recon.errors import ReconInputError
-from recon.io import atomic_dir, output_group, save_image
 
 
 def _create(path, **kw):

@@ -1,6 +1,6 @@
-"""instrument.reconstruct_files.write_volume and write_json write atomically: a failure
-while writing leaves no partial file (or Zarr directory) under the final name, keeps an
-earlier output, and leaves no temporary file behind."""
+"""instrument.writer.products.write_volume and instrument.atomic.write_json write
+atomically: a failure while writing leaves no partial file (or Zarr directory) under the
+final name, keeps an earlier output, and leaves no temporary file behind."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import pytest
 import tifffile
 import zarr
 
-from instrument.reconstruct_files import write_json, write_volume
+from instrument.atomic import write_json
+from instrument.writer.products import write_volume
 
 VOLUME = np.arange(2 * 4 * 5, dtype=np.float32).reshape(2, 4, 5)
 

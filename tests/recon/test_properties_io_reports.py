@@ -1,4 +1,5 @@
-"""Properties of the array entry points of :mod:`recon.io` (save/load round trips,
+"""Properties of the array entry points of :mod:`recon.io` (round trips through
+:func:`instrument.writer.files.save_image`,
 demosaicing, the viewing flip) and :mod:`recon.analysis.reports` (the numbers of
 ``diffuserlab analyze``): documented shapes and values for valid random arrays, and a
 one-line :class:`~recon.errors.ReconInputError` naming the argument for invalid ones."""
@@ -12,9 +13,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from instrument.writer.files import save_image
 from recon.analysis import reports
 from recon.errors import ReconInputError
-from recon.io import BAYER_PATTERNS, demosaic_bayer, load_image, save_image, scene_view
+from recon.io import BAYER_PATTERNS, demosaic_bayer, load_image, scene_view
 
 from .test_properties_common import (
     DTYPES,

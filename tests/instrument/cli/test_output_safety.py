@@ -17,7 +17,7 @@ import tifffile
 
 import instrument.cli.recon
 from instrument.cli import main
-from instrument.output_safety import OutputError, check_outputs
+from instrument.writer.guards import OutputError, check_outputs
 from tests.faults.helpers import assert_refused
 
 

@@ -1,11 +1,13 @@
 """Outputs written whole or not at all: files, folders (Zarr) and groups of them.
 
-Every writer of the reconstruction layer goes through these (:mod:`recon.io` re-exports
-them): a temporary name beside the output, renamed into place on success
-(:func:`atomic_path`, :func:`atomic_dir`), several outputs together
-(:func:`output_group`), what a failed write left removed (:func:`remove_tree`, after
-zarr's writes in flight, :func:`wait_for_zarr_writes`), and a full disk named with its
-free space (:func:`free_space_text`).
+Every writer of the project goes through these (the product writer,
+:mod:`instrument.writer`, and the run stores): a temporary name beside the output,
+renamed into place on success (:func:`atomic_path`, :func:`atomic_dir`), several
+outputs together (:func:`output_group`), what a failed write left removed
+(:func:`remove_tree`, after zarr's writes in flight, :func:`wait_for_zarr_writes`), a
+full disk named with its free space (:func:`free_space_text`), and every JSON file
+(:func:`write_json`). It imports nothing else of ``instrument``, so the run stores
+below the product writer use it too.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "free_space_text", "missing_dirs", "output_group",
-           "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes"]
+           "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes", "write_json"]
 
 
 def _size_text(n: float) -> str:
@@ -114,9 +116,10 @@ def remove_empty_dirs(dirs) -> None:
 def output_group(replace: bool = True) -> Iterator[None]:
     """Several outputs written whole or not at all, together.
 
-    Inside the block, every :func:`atomic_path` (so :func:`save_image` too) and
-    :func:`atomic_dir` keeps its finished temporary output instead of renaming it;
-    when the block ends normally all of them are renamed into place, when it raises
+    Inside the block, every :func:`atomic_path` (so
+    :func:`instrument.writer.files.save_image` too) and :func:`atomic_dir` keeps its
+    finished temporary output instead of renaming it; when the block ends normally all
+    of them are renamed into place, when it raises
     (or a rename fails) those not yet in place are removed. So a command that writes
     ``OUT.png``, ``OUT.tif`` and a JSON never leaves the PNG alone when the TIFF fails
     (a full disk), which would block its retry ("exists"). Groups do not nest (an
@@ -180,7 +183,7 @@ def _put_all_new(pending: list[tuple[Path, Path]]) -> None:
     every name is claimed first (:func:`_claim_new`); when one is taken, the claims
     made are released (each only if still this process's: its inode) and nothing is
     put in place, else the outputs replace their claims."""
-    from .errors import ReconInputError
+    from recon.errors import ReconInputError
 
     claimed: list[tuple[Path, Path, str, int]] = []
     for tmp, final in pending:
@@ -377,3 +380,47 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         if full is not None:
             raise full from exc
         raise
+
+
+def write_json(path: str | os.PathLike, data, *, default=None) -> Path:
+    """Write ``data`` as indented, standard JSON (:func:`diffuserlab.jsonio.json_text`)
+    through :func:`atomic_path`: whole or not at all, and with
+    the other outputs of an :func:`output_group`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The JSON file (replaced if it exists: callers check for overwriting first).
+    data : object
+        Anything :func:`diffuserlab.jsonio.jsonable` converts; NaN and infinity
+        become null.
+    default : callable, optional
+        What to write for an object JSON has no type for (``str``); None (default)
+        raises TypeError.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    TypeError
+        ``data`` holds an object JSON cannot represent (nothing is written).
+    OSError
+        The file cannot be written (a full disk is named with its free space); an
+        existing file is left as it was.
+
+    Examples
+    --------
+    >>> import json, tempfile, pathlib
+    >>> p = write_json(pathlib.Path(tempfile.mkdtemp()) / "m.json", {"x": float("inf")})
+    >>> json.loads(p.read_text())
+    {'x': None}
+    """
+    from diffuserlab.jsonio import json_text
+
+    text = json_text(data, default=default)  # before the file: a TypeError leaves no trace
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+    return Path(path)

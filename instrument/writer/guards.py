@@ -29,7 +29,7 @@ _CHECKED: list[str] = []
 
 
 def checked_outputs(reset: bool = False) -> list[str]:
-    """The outputs checked so far (see :data:`_CHECKED`); ``reset`` forgets them (the
+    """The outputs checked so far (see ``_CHECKED``); ``reset`` forgets them (the
     command line does at the start of each command)."""
     if reset:
         _CHECKED.clear()
@@ -51,8 +51,9 @@ def _inside(path: Path, folder: Path) -> bool:
 def _check_writable(folder: Path, label: str) -> None:
     """Refuse ``folder`` unless it is, or can be created as, a writable directory.
 
-    Nothing is created: the writers make their directories (``recon.io.atomic_path``,
-    Zarr), so a command refused later, on its inputs, leaves no empty folder behind.
+    Nothing is created: the writers make their directories
+    (:func:`instrument.atomic.atomic_path`, Zarr), so a command refused later,
+    on its inputs, leaves no empty folder behind.
     The nearest existing ancestor must be a directory in which a probe file (removed
     at once) can be written.
     """
@@ -120,7 +121,7 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
                               "directory name")
         folders[d] = f"{option} {directory}"
     seen: dict[Path, str] = {}
-    from .runstore import is_run_store  # zarr: not loaded by the command line's start
+    from ..runstore import is_run_store  # zarr: not loaded by the command line's start
 
     for out in outputs:
         target = _resolved(out)

@@ -1,0 +1,29 @@
+"""The one writer of the project's products: every file a command, recon-run, the GUI or
+the demo writes goes through these modules (the napari widget shows layers and writes
+nothing; its reader recognises the volumes written here).
+
+- :mod:`instrument.writer.guards`: the check every command runs on its outputs before
+  any work (never an input, never an existing file without ``--overwrite``, writable;
+  :func:`~instrument.writer.guards.check_outputs`).
+- :mod:`instrument.writer.files`: the float32 TIFF data product, the 8-bit PNG view,
+  ``.npy`` (:func:`~instrument.writer.files.save_image`) and the GUI's snapshot TIFF
+  (:func:`~instrument.writer.files.write_snapshot`).
+- :mod:`instrument.writer.products`: a reconstruction's products, named from
+  ``--out`` and written from its arrays: the image, its view and its metrics JSON; the
+  volume (float TIFF or OME-Zarr) and its projections.
+- :mod:`instrument.writer.evaluation`: the files of ``holo evaluate``.
+
+All of them write through :mod:`instrument.atomic`: outputs whole or not at all (a
+temporary name renamed into place, :func:`~instrument.atomic.atomic_path` and
+:func:`~instrument.atomic.atomic_dir`), several outputs together
+(:func:`~instrument.atomic.output_group`, replacing or taking only free names), a
+failed Zarr output removed after zarr's writes in flight, a full disk named with its
+free space, and every JSON file (:func:`~instrument.atomic.write_json`). That module
+imports nothing else of ``instrument``, so the run stores, which this package reads
+(:mod:`instrument.ome` for the volume's OME block, run stores for the guards), write
+through it too without an import cycle.
+
+The reconstruction layer (``recon``) writes no files: it returns arrays and records,
+and reads its inputs (:mod:`recon.io`). The submodules are imported where they are used
+(the command line's start loads none of the image libraries).
+"""

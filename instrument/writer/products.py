@@ -1,0 +1,230 @@
+"""The products of a reconstruction: their names, and the files written from its arrays.
+
+``recon`` writes ``OUT.png`` (the view, turned upright) and ``OUT.tif`` (the float32
+data product, the model grid) with its metrics JSON (:func:`write_image_products`);
+``recon3d`` and the PSF-grid solve write the volume (a float32 TIFF or an OME-Zarr
+image, :func:`write_volume`) and its three maximum-intensity projections
+(:func:`write_volume_products`). Each command's outputs are one
+:func:`~instrument.atomic.output_group`: all of them or none. The arrays come
+from :func:`recon.reconstruct`, which writes nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from diffuserlab.errors import InputError
+from recon.io import scene_view
+
+from ..atomic import atomic_dir, atomic_path, output_group, write_json
+from .files import save_image
+
+__all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "VOLUME_MARKER", "output_paths", "projections",
+           "volume_output_paths", "write_image_products", "write_volume",
+           "write_volume_products"]
+
+_VOLUME_SUFFIXES = (".tif", ".tiff", ".zarr")
+
+#: The image extensions ``--out`` of ``recon`` may end with (any other dot is part of
+#: the name: ``take.2`` writes ``take.2.png`` and ``take.2.tif``).
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+#: The file name ``recon`` writes inside a folder given as ``--out FOLDER/``.
+DEFAULT_STEM = "recon"
+
+
+def output_paths(out: str) -> tuple[Path, Path]:
+    """(png, tif) paths for ``--out``: a known image extension picks the stem, anything
+    else is the stem itself; a folder (a trailing ``/`` or an existing directory) gets
+    ``recon.png`` and ``recon.tif`` inside.
+
+    Only :data:`IMAGE_SUFFIXES` are extensions: ``take.2`` is a name, not ``take`` with
+    the extension ``.2`` (which would write ``take.png`` and replace another take).
+
+    Parameters
+    ----------
+    out : str
+        ``OUT``, ``OUT.png``, ``OUT.tif``, ``OUT.tiff`` or ``FOLDER/``.
+
+    Returns
+    -------
+    (Path, Path)
+        ``OUT.png`` and ``OUT.tif``.
+    """
+    text = os.fspath(out)
+    p = Path(text)
+    if text.endswith(("/", os.sep)) or p.is_dir():
+        p = p / DEFAULT_STEM
+    name = p.stem if p.suffix.lower() in IMAGE_SUFFIXES else p.name
+    return p.with_name(name + ".png"), p.with_name(name + ".tif")
+
+
+def write_image_products(image: np.ndarray, png: Path, tif: Path,
+                         metrics_json: str | os.PathLike | None = None,
+                         metrics: dict | None = None) -> None:
+    """Write a 2D reconstruction's view, data product and metrics: all of them or none.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        The reconstruction, shape (H, W) or (H, W, C), in the model grid
+        (:data:`recon.io.DATA_ORIENTATION`).
+    png, tif : pathlib.Path
+        The 8-bit view, turned upright (:func:`recon.io.scene_view`), and the float32
+        TIFF of ``image`` as it is (:func:`output_paths`).
+    metrics_json : path, optional
+        Where ``metrics`` go (:func:`~instrument.atomic.write_json`).
+    metrics : dict, optional
+        The record written to ``metrics_json``.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        An image :func:`~instrument.writer.files.save_image` cannot write.
+    OSError
+        A write failed (a full disk named with its free space); nothing is in place.
+    """
+    with output_group():  # the PNG, the TIFF and the JSON: all of them or none
+        save_image(png, scene_view(image))
+        save_image(tif, image)
+        if metrics_json:
+            write_json(metrics_json, metrics)
+
+
+def volume_output_paths(out: str) -> tuple[Path, dict[str, Path]]:
+    """The volume path and the three projection PNG paths of ``--out``.
+
+    Raises
+    ------
+    ValueError
+        ``out`` does not end in ``.tif``, ``.tiff`` or ``.zarr``.
+    """
+    path = Path(out)
+    if path.suffix.lower() not in _VOLUME_SUFFIXES:
+        raise InputError(f"--out {out}: use a .tif/.tiff or .zarr name for the volume")
+    stem = path.with_suffix("")
+    return path, {v: stem.parent / f"{stem.name}_mip_{v}.png" for v in ("xy", "xz", "yz")}
+
+
+def projections(volume: np.ndarray) -> dict[str, np.ndarray]:
+    """Maximum-intensity projections, each plane repeated so z is visible.
+
+    Parameters
+    ----------
+    volume : ndarray, shape (n_z, rows, cols)
+
+    Returns
+    -------
+    dict
+        ``xy`` is the maximum over z (rows, cols); ``xz`` over y (z, cols); ``yz``
+        over x (rows, z). Along z every plane is repeated
+        ``max(1, min(rows, cols) // (2 n_z))`` times (nearest neighbour, for viewing
+        only).
+    """
+    n_z, rows, cols = volume.shape
+    rep = max(1, min(rows, cols) // (2 * n_z))
+    return {"xy": volume.max(axis=0),
+            "xz": np.repeat(volume.max(axis=1), rep, axis=0),
+            "yz": np.repeat(volume.max(axis=2).T, rep, axis=1)}
+
+
+#: Marker in the ``zarr.json`` of a volume :func:`write_volume` wrote (the group's
+#: ``diffuserlab`` attribute): such a folder may be replaced by the next one.
+VOLUME_MARKER = "recon3d-volume"
+
+
+def write_volume(path: Path, volume: np.ndarray, attrs: dict,
+                 pitch_um: float | None = None) -> None:
+    """A float32 TIFF (JSON metadata, axes ZYX) or an OME-Zarr 0.5 image (Zarr v3).
+
+    The Zarr volume is a group holding the volume as its array ``0`` (z, y, x) with
+    ``attrs`` and an ``ome`` block (:func:`instrument.ome.image_attrs`): ``z`` in
+    micrometer when ``attrs["depths_mm"]`` are evenly spaced, else a ``plane`` axis
+    with the depths in the metadata (:func:`instrument.ome.volume_axes`); ``y``/``x``
+    in micrometer with ``pitch_um`` (the reconstruction grid's pitch: sensor pitch
+    times binning), unitless without.
+
+    Both are written under a temporary name in the same directory and renamed into
+    place (the TIFF with :func:`~instrument.atomic.atomic_path`, a Zarr array, a
+    directory, with :func:`~instrument.atomic.atomic_dir`: the old one moved aside
+    and then removed; inside an :func:`~instrument.atomic.output_group` when the
+    group ends), so a failure never leaves a
+    partial volume under ``path``, nor its temporary folder, nor a folder made for it.
+
+    Raises
+    ------
+    InputError
+        ``path`` is an existing Zarr node that is no volume written here (e.g. a run
+        store).
+    """
+    import tifffile
+    import zarr
+
+    if path.suffix.lower() != ".zarr":
+        with atomic_path(path) as tmp:
+            tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
+                             metadata={**attrs, "axes": "ZYX"})
+        return
+    from ..ome import OmeAxis, image_attrs, volume_axes
+
+    node = path / "zarr.json"
+    if path.exists():
+        meta = json.loads(node.read_text()) if node.is_file() else {}
+        ours = meta.get("node_type") == "array" or (  # an array: written before OME-Zarr
+            meta.get("attributes", {}).get("diffuserlab") == VOLUME_MARKER)
+        if not ours:
+            raise InputError(f"--out {path} exists and is not a volume written by recon3d "
+                             "(a run store?); choose another name")
+    first, meta = volume_axes(attrs.get("depths_mm"), volume.shape[0])
+    space = [OmeAxis(a, "space", *(("micrometer", float(pitch_um)) if pitch_um else ()))
+             for a in ("y", "x")]
+    axes = [first, *space]
+    with atomic_dir(path) as tmp:  # never half a volume under the final name
+        group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+        arr = group.create_array("0", shape=volume.shape, dtype="float32",
+                                 chunks=(1, *volume.shape[1:]),
+                                 dimension_names=[a.name for a in axes])
+        arr[:] = volume
+        group.attrs.update({**attrs, "diffuserlab": VOLUME_MARKER,
+                            "ome": image_attrs([("volume", "0", axes, meta)])})
+
+
+def write_volume_products(volume: np.ndarray, path: Path, mip_paths: dict[str, Path],
+                          attrs: dict, pitch_um: float | None = None, *,
+                          replace: bool = True) -> None:
+    """Write a volume (:func:`write_volume`) and its three projection views, all or none.
+
+    Parameters
+    ----------
+    volume : numpy.ndarray
+        Shape (n_z, rows, cols), the model grid (:data:`recon.io.DATA_ORIENTATION`).
+    path : pathlib.Path
+        ``OUT.tif``/``OUT.tiff`` or ``OUT.zarr``.
+    mip_paths : dict of str to pathlib.Path
+        The ``xy``, ``xz`` and ``yz`` PNGs (:func:`volume_output_paths`): maximum
+        projections (:func:`projections`) of the volume turned upright (rows and
+        columns flipped, :func:`recon.io.scene_view`).
+    attrs : dict
+        The volume's metadata (:func:`write_volume`).
+    pitch_um : float, optional
+        The grid's lateral pitch, um.
+    replace : bool
+        Replace existing outputs; False: an output another process wrote meanwhile is
+        kept and this call refused (:func:`~instrument.atomic.output_group`).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        ``replace`` is False and an output's name was taken meanwhile.
+    diffuserlab.errors.InputError
+        ``path`` is an existing Zarr node that is no volume written here.
+    OSError
+        A write failed; nothing is in place.
+    """
+    with output_group(replace=replace):  # the volume and its projections: all or none
+        write_volume(path, volume, attrs, pitch_um=pitch_um)
+        for view, image in projections(scene_view(volume, axes=(1, 2))).items():
+            save_image(mip_paths[view], image)
