@@ -155,7 +155,7 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
 
     Parameters
     ----------
-    problem : ChannelProblem
+    problem : recon.auto.ChannelProblem
         The scaled forward model and measurement, and the raw channel they came from.
     options : recon.options.ReconOptions
         The reconstruction's options (:meth:`ReconOptions.from_defaults
