@@ -29,6 +29,7 @@ import numpy as np
 from recon import reconstruct
 from recon.io import DATA_ORIENTATION, scene_view
 from recon.metrics import psnr, register_truth, ssim
+from recon.options import ReconOptions
 from recon.spatial import PsfGrid
 from recon.spatial.brightness import correct_brightness, node_brightness
 
@@ -39,6 +40,9 @@ from .writer.files import save_image
 
 log = logging.getLogger(__name__)
 
+#: The declared defaults of the method and iterations (:class:`recon.options.ReconOptions`).
+_D = ReconOptions.defaults()
+
 
 #: The files :func:`run_demo` writes in its directory.
 OUTPUT_FILES = ("psf.tif", "psf_grid.tif", "dark.tif", "scene_raw.tif", "reconstruction.png",
@@ -46,7 +50,7 @@ OUTPUT_FILES = ("psf.tif", "psf_grid.tif", "dark.tif", "scene_raw.tif", "reconst
 
 
 def run_demo(out_dir: str | Path = "out/demo", *, seed: int = 0, z_mm: float = 40.0,
-             method: str = "auto", iterations: int = 200, frames: int = 4,
+             method: str = _D["method"], iterations: int = _D["iterations"], frames: int = 4,
              progress: Callable[[str], None] = print) -> dict:
     """Run the demo session on the simulated bench and write its outputs.
 

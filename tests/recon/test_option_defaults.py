@@ -2,13 +2,13 @@
 
 :class:`recon.options.ReconOptions` (and :class:`recon.options.LiveOptions` for the
 live reconstructor) declare every parameter's default; the layers below the front
-door (the kinds' paths, the automatic choices, the solvers, the live reconstructor and
-the live workers of ``instrument``) take theirs from there. This scan finds every
-function and method of those layers with a parameter named after a declared option and
-checks that its default *is* the declared one (by value), and for the counts and
-choices that had drifted (``iterations`` 200 at the front door, 100 in the solvers, 5
-restated in four live signatures) that the default names the declaration instead of
-restating a literal.
+door (the kinds' paths, the automatic choices, the solvers, the live reconstructor,
+and in ``instrument`` the live workers and the demo session) take theirs from there.
+This scan finds every function and method of those layers with a parameter named
+after a declared option and checks that its default *is* the declared one (by value),
+and for the counts and choices that had drifted (``iterations`` 200 at the front door,
+100 in the solvers, 5 restated in four live signatures) that the default names the
+declaration instead of restating a literal.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ NAMED = ("iterations", "method", "device")
 
 def _modules():
     names = [m.name for m in pkgutil.walk_packages(recon.__path__, "recon.")]
-    names += ["instrument.live", "instrument.live_process"]
+    names += ["instrument.live", "instrument.live_process", "instrument.demo"]
     for name in sorted(names):
         if name.startswith(NOT_RECONSTRUCTION) or name.rsplit(".", 1)[-1].startswith("_"):
             continue
@@ -147,7 +147,8 @@ def test_the_scan_sees_the_layers_it_guards():
                  "recon.volume.fista.fista3d", "recon.planar.reconstruct_image",
                  "recon.live.LiveReconstructor.admm",
                  "instrument.live.LiveReconstruction.__init__",
-                 "instrument.live_process.LiveReconstructionProcess.__init__"):
+                 "instrument.live_process.LiveReconstructionProcess.__init__",
+                 "instrument.demo.run_demo"):
         assert name in seen, name
 
 
