@@ -90,8 +90,7 @@ class OptionsForm:
         The fields shown, in order (a command's, e.g.
         :data:`instrument.cli.recon_flags.COMMAND_FIELDS`).
     name : str
-        Prefix of the widgets' object names (``batch`` -> ``batch--iterations``) and,
-        with ``remember_as``, nothing else.
+        Prefix of the widgets' object names (``batch`` -> ``batch--iterations``).
     remember_as : str, optional
         Settings group under which each value is remembered between sessions
         (:func:`gui.fields.remember`; ``batch`` -> ``batch/iterations``).
