@@ -58,7 +58,7 @@ log = logging.getLogger(__name__)
 
 #: The interpreter's thread switch interval in the GUI process, s (Python's default is
 #: 5 ms): the GUI thread takes the GIL back from busy workers (live reconstruction,
-#: the virtual bench's rendering) sooner; measured with ``python -m benchmarks.window.benchmark``.
+#: the virtual bench's rendering) sooner; measured with ``python -m soak.benchmark``.
 SWITCH_INTERVAL_S = 0.0005
 
 #: Dock titles, in tab order.

@@ -110,7 +110,7 @@ def configure_allocator(mmap_threshold_bytes: int | None = None,
     are mapped on their own and given back when freed (the heap trim threshold is
     twice that), whether :mod:`recon.fft` is imported before or after. Measured on
     the 2-core machine: with 128 KiB the live ADMM view (5 iterations a frame,
-    ``python -m benchmarks.window.benchmark --method admm:5``) ran at 12 fps instead of 20-21, and
+    ``python -m soak.benchmark --method admm:5``) ran at 12 fps instead of 20-21, and
     an hour's operator day held 705-796 MB at its pass starts with 7 MB free in the
     heaps, against 812-913 MB and 117-207 MB free with the solvers' thresholds.
 

@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 #: Nice increment of the GUI's worker threads (jobs, the live reconstruction): on a
 #: machine whose cores the solvers fill, the event loop's thread still gets the CPU
 #: when a timer or an input is due (Linux; :func:`instrument.live.lower_thread_priority`).
-#: ``python -m benchmarks.window.benchmark`` with ADMM x5 live and a PSF sweep: p99 lateness 51 ms
+#: ``python -m soak.benchmark`` with ADMM x5 live and a PSF sweep: p99 lateness 51 ms
 #: at +5, 29-35 ms at +10.
 BACKGROUND_NICE = 10
 #: Nice increment of the jobs that wait on hardware with a timeout (opening and closing

@@ -16,8 +16,8 @@ PACKAGES = ("diffuserlab", "recon", "drivers", "instrument", "calibration_routin
 SKIP_MODULE_PREFIXES = ("drivers.emulators.",)
 #: Optional modules whose imports need a display or a library not installed here, and
 #: the operator's-day driver (a test harness: its StepFailed is a failed test step).
-OPTIONAL = ("drivers.slm_window_app", "drivers.aravis_support", "benchmarks.window.operator_day",
-            "benchmarks.window.driver")
+OPTIONAL = ("drivers.slm_window_app", "drivers.aravis_support", "soak.operator_day",
+            "soak.driver")
 
 
 def _our_exceptions():

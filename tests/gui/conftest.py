@@ -36,9 +36,9 @@ def _qt_garbage_dies_on_the_gui_thread():
 def window(qapp, tmp_path_factory):
     """A connected :class:`gui.app.MainWindow` on the virtual bench (no scene)."""
     os.environ["DIFFUSERLAB_GUI_SETTINGS"] = str(tmp_path_factory.mktemp("qt") / "gui.ini")
-    from benchmarks.window.device_jobs import JOBS
     from gui.app import MainWindow
     from gui.session import BENCH_JOBS, Session
+    from soak.device_jobs import JOBS
 
     BENCH_JOBS.update(JOBS)
 

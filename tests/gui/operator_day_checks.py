@@ -9,7 +9,7 @@ COMMON_STEPS = ("connect", "stream", "stage", "leds", "calibration with pause, a
                 "unplug and Reconnect", "shortcuts", "quit asked while recording")
 #: A freeze, not a speed goal (the goals are the soak benchmark's): the Results panel
 #: used to hold the event loop 5-50 s per slider step. Judged on each stall's
-#: ``ours_ms`` (:func:`benchmarks.window.kernelstats.stall_time`): the stall less the
+#: ``ours_ms`` (:func:`soak.kernelstats.stall_time`): the stall less the
 #: time the GUI thread, or the thread it waited for, spent waiting for a core, so the
 #: verdict does not depend on the machine's load (beside two busy loops the event loop
 #: waited 18.5 s for a core with no freeze of ours), nor on its host (a virtual machine

@@ -19,8 +19,8 @@ def _held_up_in_a_slot(seconds: float) -> None:
 def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     from PySide6.QtCore import QTimer
 
-    from benchmarks.window.daymonitor import DayMonitor
-    from benchmarks.window.soak import summarise
+    from soak.daymonitor import DayMonitor
+    from soak.soak import summarise
 
     monitor = DayMonitor(sample_s=0.2)
     monitor.start()
@@ -58,7 +58,7 @@ def test_watchdog_keeps_no_frame_of_a_stall(qapp, wait):
 
     from PySide6.QtCore import QTimer
 
-    from benchmarks.window.daymonitor import DayMonitor
+    from soak.daymonitor import DayMonitor
     from tests.refcycles import assert_freed_without_the_collector
 
     probe: list = []
@@ -105,7 +105,7 @@ def _day(leak_per_pass: int, shown_per_s: int) -> dict:
 def test_drift_is_measured_from_pass_to_pass_not_within_a_pass():
     """Data a pass puts on display is not a leak: the drift is taken at the passes'
     starts (the same state each time), and a real leak per pass still shows."""
-    from benchmarks.window.soak import GOALS, summarise
+    from soak.soak import GOALS, summarise
 
     shown = summarise(_day(leak_per_pass=0, shown_per_s=100))
     assert shown["drift_basis"] == "the starts of passes 2-5"
@@ -120,7 +120,7 @@ def test_the_summary_splits_each_pass_starts_memory_by_the_allocators_heaps(caps
     """The allocator's figures sampled by the monitor reach the summary per pass, so a
     long day's growth reads as memory in use (kept) or free in the heaps (not given
     back)."""
-    from benchmarks.window.soak import print_summary, summarise
+    from soak.soak import print_summary, summarise
 
     day = _day(leak_per_pass=0, shown_per_s=0)
     for s in day["samples"]:
@@ -134,7 +134,7 @@ def test_the_summary_splits_each_pass_starts_memory_by_the_allocators_heaps(caps
 def test_the_summary_names_the_array_holders_that_grew_between_censuses(capsys):
     """With DIFFUSERLAB_DAY_CENSUS set, each pass's census of live arrays reaches the
     summary, and the holders that changed most from the second census to the last."""
-    from benchmarks.window.soak import print_summary, summarise
+    from soak.soak import print_summary, summarise
 
     day = _day(leak_per_pass=0, shown_per_s=0)
     day["notes"] = {"census": [
@@ -149,8 +149,8 @@ def test_the_summary_names_the_array_holders_that_grew_between_censuses(capsys):
 
 
 def test_the_monitor_samples_the_allocators_heaps(qapp):
-    from benchmarks.window.daymonitor import DayMonitor
     from gui.memory import heap_mb
+    from soak.daymonitor import DayMonitor
 
     s = DayMonitor().sample()
     assert s["py_blocks"] > 0
@@ -165,7 +165,7 @@ def test_heap_tracker_names_where_the_heap_grew_between_passes(monkeypatch):
 
     import numpy as np
 
-    from benchmarks.window.daymonitor import HeapTracker
+    from soak.daymonitor import HeapTracker
 
     monkeypatch.delenv("DIFFUSERLAB_TRACEMALLOC", raising=False)
     off = HeapTracker()
@@ -190,7 +190,7 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
     frozen_garbage() says how much the freezes kept, and frees it."""
     import gc
 
-    from benchmarks.window.daymonitor import frozen_garbage
+    from soak.daymonitor import frozen_garbage
 
     class Node:
         pass
@@ -222,7 +222,7 @@ def test_frozen_garbage_finds_cycles_a_freeze_kept():
 
 
 def test_census_counts_live_objects_and_names_the_biggest_containers():
-    from benchmarks.window.daymonitor import census
+    from soak.daymonitor import census
 
     class Marker:
         pass
@@ -240,7 +240,7 @@ def test_census_counts_the_frozen_objects_and_their_arrays_too():
     leaves it frozen."""
     import gc
 
-    from benchmarks.window.daymonitor import census
+    from soak.daymonitor import census
 
     class FrozenHolder:
         pass
@@ -266,7 +266,7 @@ def test_census_counts_the_frozen_objects_and_their_arrays_too():
 def test_array_holders_name_the_attribute_container_or_thread_holding_each_buffer():
     import threading
 
-    from benchmarks.window.daymonitor import array_holders
+    from soak.daymonitor import array_holders
 
     class PsfCache:
         def __init__(self):
@@ -327,7 +327,7 @@ def test_array_holders_survive_other_threads_changing_what_they_walk():
     'dictionary changed size during iteration' from the census)."""
     import threading
 
-    from benchmarks.window.daymonitor import _items, array_holders
+    from soak.daymonitor import _items, array_holders
 
     class Flaky(dict):
         calls = 0
@@ -376,11 +376,11 @@ def test_the_monitor_keeps_a_firing_in_a_few_bytes(qapp, monkeypatch):
     Python floats took 32 bytes a firing: ~11 MB an hour)."""
     import tracemalloc
 
-    import benchmarks.window.daymonitor
-    from benchmarks.window.daymonitor import DayMonitor
+    import soak.daymonitor
+    from soak.daymonitor import DayMonitor
 
     # every firing late: a new float
-    monkeypatch.setattr(benchmarks.window.daymonitor, "TIMER_MS", 0)
+    monkeypatch.setattr(soak.daymonitor, "TIMER_MS", 0)
     m = DayMonitor()
     m.clock.start()
     m.set_phase("stream")
@@ -400,7 +400,7 @@ def test_the_monitor_keeps_a_firing_in_a_few_bytes(qapp, monkeypatch):
 def test_array_holders_name_the_function_of_a_kept_frame():
     """A frame kept by a traceback (an error stored with its traceback) is named by its
     function, the place to look for the cycle."""
-    from benchmarks.window.daymonitor import array_holders
+    from soak.daymonitor import array_holders
 
     def solve():
         scratch = np.zeros(2**20, np.uint8)  # 1 MiB, a local of the failing frame
@@ -426,7 +426,7 @@ def _spin(cpu_s: float) -> None:
 def test_a_stall_on_a_core_is_ours(qapp, wait):
     from PySide6.QtCore import QTimer
 
-    from benchmarks.window.daymonitor import DayMonitor
+    from soak.daymonitor import DayMonitor
 
     monitor = DayMonitor(sample_s=0.2)
     monitor.start()
@@ -443,7 +443,7 @@ def test_a_stall_on_a_core_is_ours(qapp, wait):
 
 
 def test_where_a_stalls_time_went():
-    from benchmarks.window.kernelstats import stall_time
+    from soak.kernelstats import stall_time
 
     ms = 1e6  # ns per ms
     # the GUI thread waited 900 of 1000 ms for a core: the machine's, 100 ms ours
@@ -479,7 +479,7 @@ def test_a_long_stall_is_looked_at_again_each_second(qapp, wait, monkeypatch):
     threads are (this process stands in for the X server)."""
     from PySide6.QtCore import QTimer
 
-    from benchmarks.window import daymonitor, kernelstats
+    from soak import daymonitor, kernelstats
 
     monkeypatch.setenv(kernelstats.PEERS_ENV, str(os.getpid()))
     monitor = daymonitor.DayMonitor(sample_s=1.0)
@@ -501,7 +501,7 @@ def test_a_blocked_thread_is_seen_in_its_system_call():
     stall's record says the GUI thread was doing)."""
     import select
 
-    from benchmarks.window.kernelstats import kernel_state, thread_name
+    from soak.kernelstats import kernel_state, thread_name
 
     lock, ready = threading.Lock(), threading.Event()
     lock.acquire()
@@ -547,7 +547,7 @@ def test_a_blocked_thread_is_seen_in_its_system_call():
 def test_the_cpus_are_accounted_as_the_wall_clock_runs():
     """The machine's accounted CPU time (every state, per CPU) grows with the wall clock
     while it runs, busy or idle, so a shortfall is time it did not run."""
-    from benchmarks.window.kernelstats import accounted_s
+    from soak.kernelstats import accounted_s
 
     ratios = []
     for _ in range(5):  # one window that ran is enough (a host may pause another)
@@ -567,7 +567,7 @@ def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
     import sys
     import threading
 
-    from benchmarks.window.daymonitor import DayMonitor
+    from soak.daymonitor import DayMonitor
 
     if not hasattr(os, "sched_setaffinity") or os.geteuid() != 0:
         pytest.skip("needs Linux and root (a process above normal priority)")

@@ -35,7 +35,7 @@ def test_the_device_choice_is_remembered_across_sessions(qapp, tmp_path, monkeyp
 @pytest.fixture(scope="module")
 def psf_file(window, tmp_path_factory):
     """The bench's on-axis PSF as its camera would record it (with the dark offset)."""
-    from benchmarks.window.device_jobs import twin_psf
+    from soak.device_jobs import twin_psf
 
     h, dark = twin_psf(window.session, (0.0, 0.0, 40.0))
     path = tmp_path_factory.mktemp("live-device") / "psf.npy"

@@ -1,10 +1,10 @@
-"""Live ADMM in a real window, measured from outside (:mod:`benchmarks.window.live_soak`):
+"""Live ADMM in a real window, measured from outside (:mod:`soak.live_soak`):
 Xvfb with the xcb platform, openbox, the real ``diffuserlab gui`` with its live
 reconstruction in a process of its own, and a key and a click sent through the X
 server every few seconds whose effect this test's process sees on the screen.
 
 The lateness and delay goals are the hour-long soak's (``python -m
-benchmarks.window.live_soak``, figures in the operator guide); here a crash, a live
+soak.live_soak``, figures in the operator guide); here a crash, a live
 reconstruction in the window's process, an error, a key or a click that never shows,
 or a window that hangs fail the test. The delays are printed, not judged: they depend
 on the machine's load."""
@@ -20,7 +20,7 @@ from tests.gui.conftest import HANG_FACTOR
 
 def test_live_admm_in_a_real_window_answers_keys_and_clicks(tmp_path, monkeypatch):
     monkeypatch.delenv("QT_QPA_PLATFORM", raising=False)
-    from benchmarks.window.live_soak import print_figures, run_live_soak
+    from soak.live_soak import print_figures, run_live_soak
 
     report = run_live_soak(minutes=2.0, probe_s=5.0, work=str(tmp_path / "soak"))
     f = report["figures"]
@@ -40,7 +40,7 @@ def test_live_admm_in_a_real_window_answers_keys_and_clicks(tmp_path, monkeypatc
 
 
 def test_the_figures_judge_each_goal():
-    from benchmarks.window.live_soak import GOALS, figures
+    from soak.live_soak import GOALS, figures
 
     probe = {"key_ms": 12.0, "backspace_ms": 9.0, "click_ms": 20.0, "escape_ms": 8.0,
              "load_1min": 2.5}
@@ -65,7 +65,7 @@ def test_the_figures_judge_each_goal():
 
 @pytest.mark.parametrize("missing", ["phases", "probes"])
 def test_a_soak_without_measurements_meets_no_goal(missing):
-    from benchmarks.window.live_soak import figures
+    from soak.live_soak import figures
 
     report = {"phases": {"soak": {"seconds": 60.0, "firings": 5000, "p50_ms": 0.2,
                                   "p99_ms": 30.0, "max_ms": 120.0}},

@@ -10,7 +10,7 @@ from tests.gui.operator_day_checks import check_day
 
 def test_operator_day_on_the_emulated_bench(tmp_path, monkeypatch):
     monkeypatch.delenv("QT_QPA_PLATFORM", raising=False)
-    from benchmarks.window.soak import print_summary, run_day, summarise
+    from soak.soak import print_summary, run_day, summarise
 
     report = run_day(emulated=True, minutes=5.0, alignment_s=20.0, work=str(tmp_path / "day"))
     figures = summarise(report)

@@ -1,7 +1,7 @@
 """Screenshots of every panel and tool in a real window (Xvfb, the xcb platform, openbox).
 
-Runs ``python -m benchmarks.window.screenshots`` on an Xvfb display with a window manager
-(:func:`benchmarks.window.soak.x_display`; scripts/system-deps.sh installs them). The PNGs go to a
+Runs ``python -m soak.screenshots`` on an Xvfb display with a window manager
+(:func:`soak.soak.x_display`; scripts/system-deps.sh installs them). The PNGs go to a
 temporary folder; ``DIFFUSERLAB_SCREENSHOT_DIR=docs/images`` writes the documentation's, and
 ``DIFFUSERLAB_ALIGNMENT_RECORD`` shows a finished alignment record (``diffuserlab align
 mask --simulate --out DIR``) in the alignment panel.
@@ -26,10 +26,10 @@ DETAILS = ("presets", "positions", "shortcuts")
 def test_every_panel_renders_in_a_real_window(tmp_path):
     import cv2
 
-    from benchmarks.window.soak import x_display
+    from soak.soak import x_display
 
     out = Path(os.environ.get("DIFFUSERLAB_SCREENSHOT_DIR") or tmp_path / "shots").resolve()
-    cmd = [sys.executable, "-m", "benchmarks.window.screenshots", str(out)]
+    cmd = [sys.executable, "-m", "soak.screenshots", str(out)]
     if os.environ.get("DIFFUSERLAB_ALIGNMENT_RECORD"):
         cmd += ["--alignment-record", os.environ["DIFFUSERLAB_ALIGNMENT_RECORD"]]
     with x_display() as (display, _):

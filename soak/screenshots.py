@@ -1,6 +1,6 @@
 """Screenshots of every panel, driven on the virtual bench (docs/images/ holds them).
 
-``python -m benchmarks.window.screenshots OUT_DIR [--alignment-record DIR]`` (under an X display,
+``python -m soak.screenshots OUT_DIR [--alignment-record DIR]`` (under an X display,
 e.g. ``xvfb-run -a``; the screenshot test runs it so) opens the window on the
 built-in simulated bench, drives each panel into a state worth showing and saves
 ``gui-<panel>.png`` of each dock:
@@ -279,7 +279,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.window.screenshots",
+    p = argparse.ArgumentParser(prog="python -m soak.screenshots",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("out_dir", help="folder for the PNG files (e.g. docs/images)")
     p.add_argument("--alignment-record", default=None,

@@ -1,16 +1,16 @@
 """An hour of live view with live ADMM in a real window, and what an operator sees of it.
 
-``python -m benchmarks.window.live_soak [--minutes 60] [--probe-s 30] [--json OUT]``
-starts Xvfb and a window manager (:func:`benchmarks.window.soak.x_display`) and runs
+``python -m soak.live_soak [--minutes 60] [--probe-s 30] [--json OUT]``
+starts Xvfb and a window manager (:func:`soak.soak.x_display`) and runs
 the real ``diffuserlab gui`` on the simulated bench (beads flowing, the xcb platform).
-Inside the GUI process an :class:`~benchmarks.window.operator_day.Operator` whose day is
+Inside the GUI process an :class:`~soak.operator_day.Operator` whose day is
 :meth:`LiveSoak.day` presses F5, starts the live ADMM reconstruction (5 iterations per
 frame) with the bench's PSF through the Live panel, and then leaves the window alone
-while :class:`~benchmarks.window.daymonitor.DayMonitor` measures the GUI thread's
+while :class:`~soak.daymonitor.DayMonitor` measures the GUI thread's
 lateness (a 10 ms timer) and its watchdog records what ran during stalls.
 
 From *outside* the GUI process, every ``--probe-s`` seconds a probing process of its
-own (``python -m benchmarks.window.live_soak probe``) sends a key and a click through
+own (``python -m soak.live_soak probe``) sends a key and a click through
 the X server (xdotool) and times when the screen shows them: it
 types a character into the Live panel's dark field (then BackSpace) and clicks the
 method box open (then Esc), grabbing the field's or box's pixels from the X server
@@ -120,7 +120,7 @@ def inside(argv: list[str]) -> int:
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QApplication
 
-    p = argparse.ArgumentParser(prog="python -m benchmarks.window.live_soak inside")
+    p = argparse.ArgumentParser(prog="python -m soak.live_soak inside")
     p.add_argument("--minutes", type=float, required=True)
     p.add_argument("--work", required=True)
     p.add_argument("--report", required=True)
@@ -218,7 +218,7 @@ def probe_main(argv: list[str]) -> int:
     """The probing process: waits for the window's targets, then every ``--every`` s a
     round of :meth:`ScreenProbe.probe`, each a JSON line of ``--out`` (with its start
     and end times), until the window says it is done."""
-    p = argparse.ArgumentParser(prog="python -m benchmarks.window.live_soak probe")
+    p = argparse.ArgumentParser(prog="python -m soak.live_soak probe")
     p.add_argument("--target", required=True)
     p.add_argument("--out", required=True)
     p.add_argument("--every", type=float, required=True)
@@ -261,11 +261,11 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
     work_dir = Path(work or tempfile.mkdtemp(prefix="live-soak-"))
     work_dir.mkdir(parents=True, exist_ok=True)
     report_path, probe_path = work_dir / "report.json", work_dir / "probe.json"
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[1]  # the checkout (soak is not installed)
     env = {**os.environ, "QT_QPA_PLATFORM": "xcb",
            "DIFFUSERLAB_GUI_SETTINGS": str(work_dir / "gui.ini"),
            "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "benchmarks.window.live_soak", "inside", "--minutes",
+    cmd = [sys.executable, "-m", "soak.live_soak", "inside", "--minutes",
            str(minutes), "--work", str(work_dir / "runs"), "--report", str(report_path),
            "--probe", str(probe_path)]
     probes_path = work_dir / "probes.jsonl"
@@ -280,7 +280,7 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
             # the probe is a process of its own: a display connection of ours would
             # outlive the X server (Qt ends a process whose X connection breaks)
             prober = subprocess.Popen(
-                [sys.executable, "-m", "benchmarks.window.live_soak", "probe", "--target",
+                [sys.executable, "-m", "soak.live_soak", "probe", "--target",
                  str(probe_path), "--out", str(probes_path), "--every", str(probe_s)],
                 env=env, cwd=work_dir, stdout=subprocess.DEVNULL, stderr=probe_err)
             try:
@@ -374,7 +374,7 @@ def main(argv: list[str] | None = None) -> int:
         return inside(argv[1:])
     if argv[:1] == ["probe"]:
         return probe_main(argv[1:])
-    p = argparse.ArgumentParser(prog="python -m benchmarks.window.live_soak",
+    p = argparse.ArgumentParser(prog="python -m soak.live_soak",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--minutes", type=float, default=60.0, help="length of the day")
     p.add_argument("--probe-s", type=float, default=30.0, help="seconds between probes")

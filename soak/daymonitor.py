@@ -10,7 +10,7 @@
   event loop" when none of ours: the process waited for a core or for the GIL held
   by a worker), and once the timer fires again where the GUI thread's time went from
   the kernel's per-thread figures (on a core, waiting for one, blocked;
-  :func:`benchmarks.window.kernelstats.stall_time`), so a slow firing can be told
+  :func:`soak.kernelstats.stall_time`), so a slow firing can be told
   from the machine's load (and from a machine that did not run at all: a virtual
   machine its host paused, time the kernel's CPU counters never saw);
 * every few seconds, ``sys.getrefcount(None)`` and ``sys.getrefcount(True)`` (a
@@ -451,7 +451,7 @@ class DayMonitor(QObject):
     def _resample(self, record: dict | None, into_s: float, gui_tid: int,
                   peers: tuple[str, ...]) -> None:
         """Add to a long stall's record, once a second (at most
-        :data:`~benchmarks.window.kernelstats.LATER_SAMPLES`),
+        :data:`~soak.kernelstats.LATER_SAMPLES`),
         where the GUI thread is then (its system call and innermost frame) and where
         each peer process's main thread is (the X server's)."""
         later = None if record is None else record.get("later")

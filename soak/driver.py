@@ -1,9 +1,9 @@
 """Driving the real window from its own event loop: a generator of steps stepped by
 Qt timers, never blocking the loop, and the widget helpers an operator's hands need
 (find a widget by name, scroll it into view, click it, type into it, pick from a
-combo box) through the X server (:mod:`benchmarks.window.xinput`, xdotool).
+combo box) through the X server (:mod:`soak.xinput`, xdotool).
 
-:class:`WindowDriver` is the base of :class:`benchmarks.window.operator_day.Operator`
+:class:`WindowDriver` is the base of :class:`soak.operator_day.Operator`
 (the operator's day) and of the live soak's day.
 """
 

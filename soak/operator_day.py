@@ -1,11 +1,11 @@
 """An operator's day, driven through the real ``diffuserlab gui`` in a real X window.
 
-``python -m benchmarks.window.operator_day --report OUT.json [--bench FILE | --simulate]
+``python -m soak.operator_day --report OUT.json [--bench FILE | --simulate]
 [--minutes M]`` runs the ``diffuserlab gui`` command itself (:func:`instrument.cli.main`, the window
 and event loop as an operator gets them) with an :class:`Operator` on its event loop.
-The operator clicks, types and presses keys through the X server (:mod:`benchmarks.window.xinput`,
+The operator clicks, types and presses keys through the X server (:mod:`soak.xinput`,
 xdotool), finds what to click by the widgets' names, and waits for what the window
-shows, never blocking the event loop (:class:`benchmarks.window.driver.WindowDriver`). The day:
+shows, never blocking the event loop (:class:`soak.driver.WindowDriver`). The day:
 
 connect; stream (F5); stage jogs, go-to with Enter, a stored position recalled; LEDs;
 dark and PSF sweep (paused, continued, aborted, resumed); live Wiener then ADMM with
@@ -15,9 +15,9 @@ image tools and a snapshot; an LED array unplugged and reconnected; Esc during a
 move and Snap (F6); then, when the day's minutes are not used up, the day's middle
 again; at the end Ctrl+Q during a recording, answered Yes.
 
-:class:`benchmarks.window.daymonitor.DayMonitor` measures the GUI thread's lateness per phase, the
+:class:`soak.daymonitor.DayMonitor` measures the GUI thread's lateness per phase, the
 reference counts of None and True and the memory; the report (JSON) is written before
-the window closes. ``benchmarks.window.soak`` starts Xvfb, a window manager and the emulators, runs
+the window closes. ``soak.soak`` starts Xvfb, a window manager and the emulators, runs
 this, and checks how the process ended.
 """
 
@@ -577,7 +577,7 @@ class _Control:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.window.operator_day",
+    p = argparse.ArgumentParser(prog="python -m soak.operator_day",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--bench", default=None, help="bench file (default: --simulate)")
     p.add_argument("--simulate", action="store_true", help="the built-in simulated bench")

@@ -4,7 +4,7 @@ emulators, the GUI process, and how it ended.
 :func:`run_day` starts Xvfb (unless told to use a display) and a window manager
 (openbox, else fluxbox), and for the emulated bench the protocol emulators
 (:class:`instrument.emulated_bench.EmulatedBench`, as ``diffuserlab emulators start``
-runs them) with their bench file; then it runs ``python -m benchmarks.window.operator_day`` (the
+runs them) with their bench file; then it runs ``python -m soak.operator_day`` (the
 real ``diffuserlab gui`` on the xcb platform, driven through xdotool), unplugs and
 plugs back an emulated device when the operator asks, and waits for the process to
 end. It returns the operator's report with what only the outside sees: the exit
@@ -51,7 +51,7 @@ X_SERVER_PIDS: dict[str, int] = {}
 
 def peer_env(display: str) -> dict[str, str]:
     """The environment that tells the day's monitor which X server its GUI waits on."""
-    from benchmarks.window.kernelstats import PEERS_ENV
+    from soak.kernelstats import PEERS_ENV
 
     pid = X_SERVER_PIDS.get(display)
     return {PEERS_ENV: str(pid)} if pid else {}
@@ -146,7 +146,7 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
     Returns
     -------
     dict
-        The operator's report (:mod:`benchmarks.window.operator_day`) plus ``returncode``,
+        The operator's report (:mod:`soak.operator_day`) plus ``returncode``,
         ``crashed`` (bool), ``stderr_tail``, ``window_manager``, ``quit_run`` (the
         recording's run status and lock after Ctrl+Q) and ``load_avg``.
     """
@@ -156,11 +156,11 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
     work_dir.mkdir(parents=True, exist_ok=True)
     report_path = work_dir / "report.json"
     timeout_s = timeout_s or minutes * 60 + 600
-    root = Path(__file__).resolve().parents[2]  # the checkout (benchmarks is not installed)
+    root = Path(__file__).resolve().parents[1]  # the checkout (soak is not installed)
     env = {**os.environ, "QT_QPA_PLATFORM": "xcb",
            "DIFFUSERLAB_GUI_SETTINGS": str(work_dir / "gui.ini"),
            "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "benchmarks.window.operator_day",
+    cmd = [sys.executable, "-m", "soak.operator_day",
            "--work", str(work_dir / "runs"), "--report", str(report_path),
            "--minutes", str(minutes), "--alignment-s", str(alignment_s)]
     bench = None
@@ -222,7 +222,7 @@ def _run_state(path: str) -> dict:
 
 def _print_array_census(taken: list[dict]) -> None:
     """The NumPy arrays alive at each pass's stream phase (``DIFFUSERLAB_DAY_CENSUS``
-    set: :func:`benchmarks.window.daymonitor.array_holders`), and the holders that changed most
+    set: :func:`soak.daymonitor.array_holders`), and the holders that changed most
     between the second census and the last."""
     taken = [c["arrays"] for c in taken if "arrays" in c]
     if len(taken) < 2:

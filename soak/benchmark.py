@@ -1,8 +1,8 @@
 """Responsiveness benchmark of the GUI: the Qt event loop's latency under load.
 
-``python -m benchmarks.window.benchmark [--seconds 20] [--method admm:5] [--json OUT.json]``
-(``python -m benchmarks.window.benchmark soak [--minutes 60] [--emulated]``: the operator's day in a
-real window, :mod:`benchmarks.window.soak`)
+``python -m soak.benchmark [--seconds 20] [--method admm:5] [--json OUT.json]``
+(``python -m soak.benchmark soak [--minutes 60] [--emulated]``: the operator's day in a
+real window, :mod:`soak.soak`)
 
 Measures how late a 10 ms timer fires on the GUI thread (its lateness: the interval
 between two firings minus 10 ms), first with the window idle (the reference), then
@@ -169,12 +169,12 @@ def run_benchmark(seconds: float = 20.0, method: str = "wiener", iterations: int
 
 
 def soak(argv: list[str]) -> int:
-    """``python -m benchmarks.window.benchmark soak [--minutes 60] [--emulated] [--json OUT]``: the
-    operator's day in a real window for ``--minutes`` (:func:`benchmarks.window.soak.run_day`), its
-    figures against the goals (:func:`benchmarks.window.soak.summarise`)."""
+    """``python -m soak.benchmark soak [--minutes 60] [--emulated] [--json OUT]``: the
+    operator's day in a real window for ``--minutes`` (:func:`soak.soak.run_day`), its
+    figures against the goals (:func:`soak.soak.summarise`)."""
     from .soak import print_summary, run_day, summarise
 
-    p = argparse.ArgumentParser(prog="python -m benchmarks.window.benchmark soak",
+    p = argparse.ArgumentParser(prog="python -m soak.benchmark soak",
                                 description=soak.__doc__.split("\n\n")[0])
     p.add_argument("--minutes", type=float, default=60.0, help="length of the day")
     p.add_argument("--emulated", action="store_true",
@@ -202,8 +202,8 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["soak"]:
         return soak(argv[1:])
     p = argparse.ArgumentParser(
-        prog="python -m benchmarks.window.benchmark", description=__doc__.split("\n\n")[0],
-        epilog="python -m benchmarks.window.benchmark soak --help: the operator's day in a "
+        prog="python -m soak.benchmark", description=__doc__.split("\n\n")[0],
+        epilog="python -m soak.benchmark soak --help: the operator's day in a "
         "real window (60 minutes by default)")
     p.add_argument("--seconds", type=float, default=20.0, help="length of each phase, s")
     p.add_argument("--method", default="wiener", help="wiener or admm:K")
