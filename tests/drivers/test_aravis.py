@@ -120,11 +120,6 @@ class _RestoringTimeout:
 
     _restore = None
 
-    def _stream_period_s(self, device, frames=4):
-        # the fake cameras stamp frames with the host's time when their thread wakes up,
-        # which jitters by milliseconds on a loaded machine: a median over more frames
-        return super()._stream_period_s(device, max(frames, 9))
-
     def blocking_call(self, device):
         try:
             return device.snap(timeout_s=1.0)
