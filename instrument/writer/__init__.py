@@ -1,6 +1,8 @@
-"""The one writer of the project's products: every file a command, recon-run, the GUI or
-the demo writes goes through these modules (the napari widget shows layers and writes
-nothing; its reader recognises the volumes written here).
+"""The one writer of the project's product files: every file a command, the GUI or the
+demo writes goes through these modules (the napari widget shows layers and writes
+nothing; its reader recognises the volumes written here). Products inside a run
+(``recon-run``'s, the calibrations') are the run store's arrays
+(``instrument.run_products``).
 
 - :mod:`instrument.writer.guards`: the check every command runs on its outputs before
   any work (never an input, never an existing file without ``--overwrite``, writable;
