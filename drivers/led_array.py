@@ -327,7 +327,7 @@ class SerialLedArray(LedArray):
     """An LED array board on a serial port whose settings are kept on the host.
 
     For the drivers of real boards: the subclass opens ``self._link`` and fills
-    ``self._hw`` (the pattern defaults) at open, and implements :meth:`_clear`.
+    ``self._hw`` (the pattern defaults) at open, and implements ``_clear``.
     Closing clears the board (a board that went away is only logged) and closes the
     port; a port whose other end hung up is a disconnected array.
     """
