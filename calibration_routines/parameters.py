@@ -17,7 +17,6 @@ from collections.abc import Callable
 from typing import ClassVar, Literal
 
 from instrument.options import Options, option
-from recon.scenes import BUNDLED
 
 __all__ = ["PARAMETERS", "AlignMaskParams", "AngularResponseParams", "DarkParams", "PsfBlindParams",
            "PsfFromScenesParams", "PsfGridParams", "PsfSweepParams", "RoutineParams",
@@ -227,8 +226,10 @@ class PsfFromScenesParams(RoutineParams):
 
     z_mm: float = option(..., gt=0, help="distance of the scenes (the display) from the "
                          "diffuser", unit="mm")
-    images: int = option(4, ge=2, le=len(BUNDLED), help="scenes shown: scikit-image's "
-                         "bundled photographs, in order")
+    # the upper bound (the number of bundled photographs, recon.scenes.BUNDLED) is checked
+    # by the plan: importing recon.scenes here would load numpy into every --help
+    images: int = option(4, ge=2, help="scenes shown: scikit-image's bundled photographs, "
+                         "in order (at most as many as scikit-image ships)")
     display: str = option("slm", help="the display's device id or role (an SLM or the "
                           "full-screen monitor driver)")
     iterations: int = option(20, ge=1, help="ADMM iterations of the estimate")
