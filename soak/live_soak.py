@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .device_jobs import twin_psf
-from .operator_day import Operator, StepFailed
+from .operator_day import Operator, StepFailed, start_when_shown
 
 __all__ = ["GOALS", "LiveSoak", "ScreenProbe", "run_live_soak"]
 
@@ -117,9 +117,6 @@ def _rect(widget) -> list[int]:
 
 def inside(argv: list[str]) -> int:
     """The GUI process: ``diffuserlab gui`` with :class:`LiveSoak` on its event loop."""
-    from PySide6.QtCore import QTimer
-    from PySide6.QtWidgets import QApplication
-
     p = argparse.ArgumentParser(prog="python -m soak.live_soak inside")
     p.add_argument("--minutes", type=float, required=True)
     p.add_argument("--work", required=True)
@@ -127,18 +124,7 @@ def inside(argv: list[str]) -> int:
     p.add_argument("--probe", required=True)
     args = p.parse_args(argv)
     args.simulate, args.alignment_s = True, 0.0
-    app = QApplication.instance() or QApplication(sys.argv[:1])
-    def begin() -> None:
-        from gui.app import MainWindow
-
-        windows = [w for w in app.topLevelWidgets() if isinstance(w, MainWindow)]
-        if not windows:
-            QTimer.singleShot(100, begin)
-            return
-        app._operator = LiveSoak(windows[0], args)
-        app._operator.start()
-
-    QTimer.singleShot(0, begin)
+    start_when_shown(lambda window: LiveSoak(window, args))
     from instrument.cli import main as diffuserlab
 
     return diffuserlab(["gui", "--scene", "beads-flow", "--simulate"])

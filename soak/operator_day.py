@@ -30,7 +30,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +42,7 @@ from instrument.atomic import write_json
 from .daymonitor import DayMonitor, HeapTracker, census
 from .driver import StepFailed, WindowDriver
 
-__all__ = ["Operator", "StepFailed", "main"]
+__all__ = ["Operator", "StepFailed", "main", "start_when_shown"]
 
 log = logging.getLogger(__name__)
 
@@ -576,6 +576,35 @@ class _Control:
         return self._answer.is_set()
 
 
+def start_when_shown(make: Callable[[Any], Any]) -> None:
+    """Start an operator on the window ``diffuserlab gui`` is about to show.
+
+    Creates the QApplication if there is none, then, on its event loop, waits (every
+    100 ms) for the :class:`gui.app.MainWindow` and calls ``make(window).start()``; the
+    operator is kept alive with the application (``app._operator``). Call it before
+    handing the process to ``diffuserlab gui``.
+
+    Parameters
+    ----------
+    make : callable
+        ``make(window)`` returns the operator (an object with ``start()``).
+    """
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+
+    def begin() -> None:
+        from gui.app import MainWindow
+
+        windows = [w for w in app.topLevelWidgets() if isinstance(w, MainWindow)]
+        if not windows:
+            QTimer.singleShot(100, begin)
+            return
+        operator = make(windows[0])
+        app._operator = operator  # kept alive with the application
+        operator.start()
+
+    QTimer.singleShot(0, begin)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m soak.operator_day",
                                 description=__doc__.split("\n\n")[0])
@@ -589,20 +618,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     args.simulate = args.simulate or args.bench is None
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    app = QApplication.instance() or QApplication(sys.argv[:1])
-
-    def begin() -> None:
-        from gui.app import MainWindow
-
-        windows = [w for w in app.topLevelWidgets() if isinstance(w, MainWindow)]
-        if not windows:
-            QTimer.singleShot(100, begin)
-            return
-        operator = Operator(windows[0], args)
-        app._operator = operator  # kept alive with the application
-        operator.start()
-
-    QTimer.singleShot(0, begin)
+    start_when_shown(lambda window: Operator(window, args))
     from gui.session import BENCH_JOBS
     from instrument.cli import main as diffuserlab
 
