@@ -27,7 +27,7 @@ class TgvPrior(Prior):
     "A first-order primal-dual algorithm for convex problems with applications to
     imaging", J. Math. Imaging Vis. 40, Algorithm 1, as in Bredies et al. 2010 Sec. 5;
     steps tau = sigma = 1 / sqrt(12)), each two fused numba passes over the plane
-    (:mod:`recon.priors._kernels`). Each step continues from the primal-dual state
+    (``recon.priors._kernels``). Each step continues from the primal-dual state
     (z, w and the duals) the last step left on a plane of that shape: the inner
     solver warm-started at the previous ADMM iterate's, as inexact ADMM's inner
     solvers are (Eckstein & Bertsekas 1992), so successive steps converge to the exact

@@ -18,9 +18,9 @@ class IsotropicTV(TotalVariation):
 
     G_u is the plan's finite differences, as for :class:`~recon.priors.TotalVariation`
     (one split array per axis, the same x-update; a subclass of it that changes the
-    shrinkage and the value); the prox of ``(weight / mu2)
-    ||.||_{2,1}`` is the group soft threshold t max(1 - thr / |t|, 0) of each pixel's
-    difference vector, thr = weight / mu2. On NumPy the ADMM runs it inside the fused
+    shrinkage and the value); the prox of ``(weight / mu2) ||.||_{2,1}`` is the group
+    soft threshold ``t max(1 - thr / |t|, 0)`` of each pixel's difference vector t,
+    thr = weight / mu2. On NumPy the ADMM runs it inside the fused
     split pass of anisotropic TV (``recon._kernels.admm_split_updates_2d`` with
     ``iso``, the plan's :meth:`~recon.solvers.admm.AdmmPlan.isotropic_view`); this
     prox serves the generic kernel set: one numba pass on two NumPy arrays

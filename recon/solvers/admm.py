@@ -73,9 +73,10 @@ class AdmmPlan(AdmmPlanBase):
         |F P h|^2, the PSF's power spectrum.
     d_pow : ndarray, float32, shape (P0, P1 // 2 + 1)
         |F Psi|^2 summed over the axes (finite differences).
-    isotropic : bool (class attribute; True on :meth:`isotropic_view`'s copy)
+    isotropic : bool (class attribute)
         The u split's prior is isotropic TV (``--prior tv-iso``): the fused pass
-        group-soft-thresholds each pixel's difference vector.
+        group-soft-thresholds each pixel's difference vector. True on the copy
+        :meth:`~recon.solvers.admm.AdmmPlan.isotropic_view` makes.
     rhs_in_split : bool (class attribute)
         Whether the kernel set (:class:`NumbaKernels2D`) has the split pass write the
         x-update's right-hand side (``state.stacked[1]``) and calls :meth:`x_update`
@@ -157,7 +158,7 @@ class AdmmPlan(AdmmPlanBase):
     def objective(self, b: np.ndarray, x: np.ndarray, *, tv: float, l1: float,
                   b_norm: float) -> tuple[float, float]:
         """:func:`objective_of` with this plan's operator (isotropic TV's term on
-        :meth:`isotropic_view`)."""
+        the copy :meth:`~recon.solvers.admm.AdmmPlan.isotropic_view` makes)."""
         if not self.isotropic:
             return objective_of(self.op, b, x, tv=tv, l1=l1, b_norm=b_norm)
         objective, relative = objective_of(self.op, b, x, tv=0.0, l1=l1, b_norm=b_norm)
