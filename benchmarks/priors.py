@@ -33,7 +33,7 @@ from recon.auto.prior import choose_prior
 from recon.errors import DivergenceError
 from recon.metrics import psnr, ssim
 from recon.options import ReconOptions
-from recon.priors import PRIORS
+from recon.priors import AUTO_PRIORS
 from recon.solvers import admm
 
 from .auto import SUITE, setup_record, timed
@@ -139,7 +139,7 @@ def run_priors(quick: bool = False, out: Path | None = None) -> dict:
         "chosen_is_best": sum(c["auto"]["prior"] == c["best_prior"] for c in cases),
         "time_ratio_median": {p: float(np.median([c["priors"][p]["auto"]["time_ratio"]
                                                   for c in cases if p in c["priors"]]))
-                              for p in PRIORS},
+                              for p in AUTO_PRIORS},
         "auto_time_ratio_median": float(np.median([c["auto"]["time_ratio"] for c in cases]))}
     result = {"quick": quick, "setup": setup_record(cfg) | {
         "goals": {"mean_gain_db": GOAL_GAIN_DB, "worst_db": -GOAL_WORST_DB}},
@@ -192,14 +192,14 @@ def priors_table(result: dict) -> str:
     for c in result["cases"]:
         pr = c["priors"]
         cells = [c["scene"]]
-        for p in PRIORS:
+        for p in AUTO_PRIORS:
             o, a = (pr.get(p, {}).get("oracle") or {}), pr.get(p, {}).get("auto", {})
             cells += [fmt(o.get("psnr")), fmt(a.get("psnr")), fmt(a.get("time_ratio"), ".1f")]
         cells += [c["auto"]["prior"], fmt(c["auto"]["psnr"]), fmt(c["auto"]["ssim"], ".3f"),
                   fmt(c["gain_over_tv_oracle_db"]), fmt(c["auto"]["time_ratio"], ".1f"),
                   c["best_prior"]]
         rows.append(cells)
-    head = ["scene"] + [f"{p} {k}" for p in PRIORS for k in ("oracle", "auto", "time x")] + [
+    head = ["scene"] + [f"{p} {k}" for p in AUTO_PRIORS for k in ("oracle", "auto", "time x")] + [
         "chosen", "PSNR", "SSIM", "vs TV oracle", "time x", "best"]
     s = result["summary"]
     return "\n".join([
