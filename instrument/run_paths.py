@@ -34,7 +34,7 @@ def claim_run_dir(path: str | Path) -> dict:
     Returns
     -------
     dict
-        ``{"pid", "host", "token"}`` (:data:`CREATOR_ATTR`), the token random.
+        ``{"pid", "host", "token"}`` (the ``created_by`` attribute), the token random.
 
     Raises
     ------
@@ -89,7 +89,7 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
     (:func:`instrument.atomic.missing_dirs`) once empty.
 
     Only a run this process created is removed: its ``zarr.json`` must record
-    ``token`` (:data:`CREATOR_ATTR`), which only the creating process holds. So a
+    ``token`` (the ``created_by`` attribute), which only the creating process holds. So a
     process refused because another one created the same path meanwhile never
     removes the other's run. The run is first renamed to a hidden name beside it
     (atomic: ``path`` is free again at once, and the removal can never reach a run

@@ -84,7 +84,7 @@ class LeaveOneOut:
     residuals : ndarray, float64, (n_pairs, channels)
         Pair ``k``'s relative residual under the PSF estimated from the other pairs.
     psfs : list of ndarray
-        The PSF estimated without pair ``k``, per ``k`` (as :attr:`PsfEstimate.psf`).
+        The PSF estimated without pair ``k``, per ``k`` (as ``PsfEstimate.psf``).
     """
 
     residuals: np.ndarray
@@ -336,7 +336,7 @@ def relative_residuals(psf, scenes, measurements) -> np.ndarray:
     Parameters
     ----------
     psf : array_like, (rows, cols) or (rows, cols, channels)
-        Centred PSF (as :attr:`PsfEstimate.psf`), of at most the sensor's shape.
+        Centred PSF (as ``PsfEstimate.psf``), of at most the sensor's shape.
     scenes, measurements
         As for :func:`estimate_psf_from_scenes`.
 
