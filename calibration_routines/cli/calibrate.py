@@ -113,27 +113,38 @@ def plan_from_args(args, bench):
     return PARAMETERS[args.routine].from_namespace(args).plan(bench, seed=args.seed)
 
 
+def _routine_params(args, routine: str) -> dict | None:
+    """The parameters of ``routine`` as given on the command line (an argparse
+    namespace) or, for ``resume``, as the run being resumed recorded them; None for
+    another routine or an unreadable run (the resume itself reports that)."""
+    from instrument.runstore import RunStore, RunStoreError
+
+    if args.routine == routine:
+        return vars(args)
+    if args.routine != "resume":
+        return None
+    try:
+        plan = RunStore.open(args.run).attrs["plan"]
+    except (RunStoreError, OSError):
+        return None
+    return plan["params"] if plan.get("name") == routine else None
+
+
 def _bead_slide(bench, args) -> None:
     """The virtual bench's bead slide for ``psf-blind --simulate`` (and for resuming a
     psf-blind run on it): 8 beads (seeded by ``--seed``) over the node grid's field,
     carried by the source stage. Nothing for the other routines."""
     import numpy as np
 
-    from instrument.runstore import RunStore, RunStoreError
     from instrument.virtual_bench import BeadScene
 
-    if args.routine == "psf-blind":
-        spacing, grid = args.node_spacing_mm, args.grid
-    elif args.routine == "resume":
-        try:
-            plan = RunStore.open(args.run).attrs["plan"]
-        except (RunStoreError, OSError):
-            return  # the resume itself reports an unreadable run
-        if plan.get("name") != "psf-blind":
-            return
-        spacing, grid = plan["params"]["node_spacing_mm"], plan["params"]["grid_shape"][0]
-    else:
+    params = _routine_params(args, "psf-blind")
+    if params is None:
         return
+    if args.routine == "psf-blind":
+        spacing, grid = params["node_spacing_mm"], params["grid"]
+    else:
+        spacing, grid = params["node_spacing_mm"], params["grid_shape"][0]
     rng = np.random.default_rng([args.seed, 0x51])
     half = spacing * (grid - 1) / 2
     xy = rng.uniform(-half, half, (8, 2))
@@ -145,22 +156,11 @@ def _display_scene(bench, args) -> None:
     """The virtual bench's display facing the camera at ``--z-mm`` for
     ``psf-from-scenes --simulate`` (and for resuming such a run): what the display
     device shows is the scene. Nothing for the other routines."""
-    from instrument.runstore import RunStore, RunStoreError
     from instrument.virtual_bench import DisplayScene
 
-    if args.routine == "psf-from-scenes":
-        z_mm, display = args.z_mm, args.display
-    elif args.routine == "resume":
-        try:
-            plan = RunStore.open(args.run).attrs["plan"]
-        except (RunStoreError, OSError):
-            return  # the resume itself reports an unreadable run
-        if plan.get("name") != "psf-from-scenes":
-            return
-        z_mm, display = plan["params"]["z_mm"], plan["params"]["display"]
-    else:
-        return
-    bench.set_scene(DisplayScene(z_mm, display))
+    params = _routine_params(args, "psf-from-scenes")
+    if params is not None:
+        bench.set_scene(DisplayScene(params["z_mm"], params["display"]))
 
 
 def _falloff_sigma_deg(path: str) -> float:
