@@ -33,6 +33,7 @@ import sys
 import time
 
 from .common import bench_config
+from .startup_signals import SignalSeen
 
 __all__ = ["add_subcommands", "run_live"]
 
@@ -271,9 +272,10 @@ def run_live(args: argparse.Namespace) -> int:
         ring = FrameRing(64)
         cam.start_stream(ring)
         t0 = last_print = last_png = time.monotonic()
+        seen = SignalSeen()  # Ctrl-C stops it even where a library swallowed the interrupt
         try:
             live.start(ring=ring)
-            while (now := time.monotonic()) - t0 < args.seconds:
+            while (now := time.monotonic()) - t0 < args.seconds and not seen.is_set():
                 time.sleep(min(0.1, max(0.0, args.seconds - (now - t0))))
                 now = time.monotonic()
                 if now - last_print >= 1.0:
@@ -284,6 +286,8 @@ def run_live(args: argparse.Namespace) -> int:
                         now - last_png >= args.preview_every_s:
                     save_image(args.preview_png, scene_view(latest.image))
                     last_png = now
+            if seen.is_set():
+                raise KeyboardInterrupt
         except KeyboardInterrupt:
             print("stopped (Ctrl-C)", flush=True)
         finally:
@@ -358,6 +362,7 @@ def run_video(args: argparse.Namespace) -> int:
         check_outputs([args.preview_png], {**inputs, "--out": args.out}, args.overwrite,
                       option="--preview-png")
     live_inputs = _live_inputs(args) if args.method is not None else None
+    seen = SignalSeen()  # stops the recording even where a library swallowed the interrupt
     config = bench_config(args.bench, simulate=args.simulate, command="capture video")
     bench = _open(args, config)
     try:
@@ -380,7 +385,7 @@ def run_video(args: argparse.Namespace) -> int:
                 compressor=args.compressor or DEFAULT_COMPRESSOR,
                 queue_frames=args.queue_frames,
                 on_progress=lambda p: print(_video_line(p), flush=True), live=live,
-                overwrite=args.overwrite, note=args.note, **extra)
+                overwrite=args.overwrite, note=args.note, stop=seen, **extra)
         except DeviceError as exc:
             if isinstance(exc, DeviceValueError):  # a refused setting: nothing recorded
                 raise

@@ -18,8 +18,8 @@ import os
 import signal
 import sys
 
-__all__ = ["HANDLED", "Terminated", "count", "install", "is_command_process", "received",
-           "record"]
+__all__ = ["HANDLED", "SignalSeen", "Terminated", "count", "install", "is_command_process",
+           "received", "record"]
 
 #: The signals besides SIGINT that stop a command like Ctrl-C (SIGHUP where it exists).
 HANDLED = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
@@ -86,3 +86,30 @@ def received(since: int = 0) -> int | None:
 def count() -> int:
     """How many signals the handler has seen (a mark for :func:`received`)."""
     return len(_RECEIVED)
+
+
+class SignalSeen:
+    """A stop flag for a command's long loop that does not depend on its interrupt
+    reaching the loop: true once a signal was recorded (:func:`record`) after it was made.
+
+    A handler raises its KeyboardInterrupt wherever the main thread happens to be; a
+    library that catches it there (``except BaseException`` around a wait, a finalizer)
+    lets the loop run on, so a Ctrl-C as a recording starts was once lost: every frame
+    recorded, exit 0. A loop that also polls this flag (as
+    :func:`instrument.recorder.record_from_ring` polls its ``stop``) ends at its next
+    step whatever happened to the interrupt. It reads a list (no lock), so the handler
+    never waits on it.
+
+    Examples
+    --------
+    >>> seen = SignalSeen()
+    >>> seen.is_set()
+    False
+    """
+
+    def __init__(self) -> None:
+        self._mark = len(_RECEIVED)
+
+    def is_set(self) -> bool:
+        """Whether a signal came since this flag was made."""
+        return len(_RECEIVED) > self._mark

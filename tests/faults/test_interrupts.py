@@ -242,12 +242,30 @@ if __name__ == "__main__":
 """
 
 
-def _launch(argv: list[str], cwd: Path) -> subprocess.Popen:
+#: The console script with a camera ring that swallows every interrupt raised while it
+#: waits for a frame, as a library's ``except BaseException`` (or a finalizer) may
+SWALLOWING_LAUNCHER = """import sys
+from drivers.camera import FrameRing
+_take = FrameRing._take
+def _take_swallowing(self, timeout_s, latest):
+    while True:
+        try:
+            return _take(self, timeout_s, latest)
+        except KeyboardInterrupt:
+            pass
+FrameRing._take = _take_swallowing
+from instrument.cli import main
+if __name__ == "__main__":
+    sys.exit(main())
+"""
+
+
+def _launch(argv: list[str], cwd: Path, launcher: str = LAUNCHER) -> subprocess.Popen:
     """``diffuserlab ARGV`` through a console script (the process handles its signals
     from its first line of project code), returned once it has taken them."""
     script = cwd / "bin" / "diffuserlab"
     script.parent.mkdir(exist_ok=True)
-    script.write_text(LAUNCHER)
+    script.write_text(launcher)
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen([sys.executable, str(script), *map(str, argv)], cwd=cwd, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -400,6 +418,23 @@ def test_a_signal_while_recording_is_one_line(tmp_path, sig, after_s):
     time.sleep(after_s)
     proc.send_signal(sig)
     _assert_kept_what_it_recorded(run, _assert_stopped_in_one_line(proc, sig, run))
+
+
+@needs_proc
+@pytest.mark.parametrize("sig", _SIGNALS, ids=["SIGINT", "SIGTERM"])
+def test_a_recording_stops_when_a_library_swallows_the_interrupt(tmp_path, sig):
+    """The interrupt raised inside the camera ring's wait and caught there (as a
+    library may): the recording still stops at its next frame, 128 + the signal, its
+    frames kept. Before, a Ctrl-C lost this way recorded all 300 frames and exited 0
+    (once in CI)."""
+    run = tmp_path / "v.zarr"
+    proc = _launch([*_VIDEO, run], tmp_path, SWALLOWING_LAUNCHER)
+    # the first progress line: frames flow, the main thread waits in the ring
+    _wait_for(lambda: " fps, " in proc.stdout.readline(), "a progress line", proc)
+    proc.send_signal(sig)
+    out = _assert_stopped_in_one_line(proc, sig, run)
+    _assert_kept_what_it_recorded(run, out)
+    assert not re.search(r"^stopped: 300 frames", out, re.MULTILINE), out
 
 
 #: The sweep's delays after the process has taken its signals (s); each is taken REPEATS times with
