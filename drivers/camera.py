@@ -35,7 +35,7 @@ import numpy as np
 from diffuserlab.errors import kept_error
 from drivers.base import Device
 from drivers.errors import CameraTimeoutError, DeviceError, DeviceStateError, DeviceValueError
-from drivers.settings import Setting, info
+from drivers.settings import Setting, info, setting_property
 
 __all__ = ["EXTRA_FORMATS", "PIXEL_FORMATS", "TRIGGER_MODES", "Camera", "Frame", "FrameRing",
            "format_bits"]
@@ -336,25 +336,17 @@ class Camera(Device):
         return float(self._info["pixel_pitch_um"])
 
     # ----------------------------------------------------------- settings
-    @property
-    def exposure_s(self) -> float:
-        """Exposure time in seconds (> 0, within the driver's range)."""
-        return self._get("exposure_s")
+    exposure_s = setting_property(
+        "exposure_s",
+        "Exposure time in seconds (> 0, within the driver's range).",
+    )
 
-    @exposure_s.setter
-    def exposure_s(self, value: float) -> None:
-        self._set("exposure_s", value)
-
-    @property
-    def frame_rate_hz(self) -> float:
-        """Requested free-run frame rate in Hz (> 0, within the driver's
-        ``frame_rate_range_hz``); read back from the driver. The camera runs at
-        :attr:`resulting_frame_rate_hz`, which a long exposure lowers."""
-        return self._get("frame_rate_hz")
-
-    @frame_rate_hz.setter
-    def frame_rate_hz(self, value: float) -> None:
-        self._set("frame_rate_hz", value)
+    frame_rate_hz = setting_property(
+        "frame_rate_hz",
+        "Requested free-run frame rate in Hz (> 0, within the driver's "
+        "``frame_rate_range_hz``); read back from the driver. The camera runs at "
+        ":attr:`resulting_frame_rate_hz`, which a long exposure lowers.",
+    )
 
     @property
     def resulting_frame_rate_hz(self) -> float:
@@ -365,24 +357,13 @@ class Camera(Device):
         with self._io():
             return float(self._do_resulting_frame_rate_hz())
 
-    @property
-    def gain(self) -> float:
-        """Analog gain in dB (>= 0)."""
-        return self._get("gain")
+    gain = setting_property("gain", "Analog gain in dB (>= 0).")
 
-    @gain.setter
-    def gain(self, value: float) -> None:
-        self._set("gain", value)
-
-    @property
-    def pixel_format(self) -> str:
-        """"mono8", "mono12", "mono16", or one of the driver's extra formats (see the
-        module notes)."""
-        return self._get("pixel_format")
-
-    @pixel_format.setter
-    def pixel_format(self, value: str) -> None:
-        self._set("pixel_format", value)
+    pixel_format = setting_property(
+        "pixel_format",
+        '"mono8", "mono12", "mono16", or one of the driver\'s extra formats (see the '
+        "module notes).",
+    )
 
     @property
     def bit_depth(self) -> int:
@@ -394,32 +375,17 @@ class Camera(Device):
         """Image dtype: uint8 for 8-bit formats, uint16 otherwise."""
         return np.dtype(np.uint8 if self.bit_depth == 8 else np.uint16)
 
-    @property
-    def roi(self) -> tuple[int, int, int, int]:
-        """``(x, y, width, height)`` in unbinned sensor pixels; None sets the full sensor."""
-        return self._get("roi")
+    roi = setting_property(
+        "roi",
+        "``(x, y, width, height)`` in unbinned sensor pixels; None sets the full sensor.",
+    )
 
-    @roi.setter
-    def roi(self, value: Sequence[int] | None) -> None:
-        self._set("roi", value)
+    binning = setting_property("binning", "Binning factor (>= 1), the same along rows and columns.")
 
-    @property
-    def binning(self) -> int:
-        """Binning factor (>= 1), the same along rows and columns."""
-        return self._get("binning")
-
-    @binning.setter
-    def binning(self, value: int) -> None:
-        self._set("binning", value)
-
-    @property
-    def trigger_mode(self) -> str:
-        """"free_run", "software" or "hardware"."""
-        return self._get("trigger_mode")
-
-    @trigger_mode.setter
-    def trigger_mode(self, value: str) -> None:
-        self._set("trigger_mode", value)
+    trigger_mode = setting_property(
+        "trigger_mode",
+        '"free_run", "software" or "hardware".',
+    )
 
     @property
     def image_shape(self) -> tuple[int, ...]:

@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 
 from drivers.base import Device
 from drivers.errors import DeviceStateError, DeviceValueError, DmdTimeoutError
-from drivers.settings import Setting
+from drivers.settings import Setting, setting_property
 
 __all__ = ["Dmd", "PatternEntry"]
 
@@ -99,23 +99,9 @@ class Dmd(Device):
         return dict(self._info["colours"])
 
     # ----------------------------------------------------------- settings
-    @property
-    def exposure_s(self) -> float:
-        """Time each pattern is shown, s."""
-        return self._get("exposure_s")
+    exposure_s = setting_property("exposure_s", "Time each pattern is shown, s.")
 
-    @exposure_s.setter
-    def exposure_s(self, value: float) -> None:
-        self._set("exposure_s", value)
-
-    @property
-    def period_s(self) -> float:
-        """Time between patterns, s (>= exposure_s)."""
-        return self._get("period_s")
-
-    @period_s.setter
-    def period_s(self, value: float) -> None:
-        self._set("period_s", value)
+    period_s = setting_property("period_s", "Time between patterns, s (>= exposure_s).")
 
     @property
     def led_currents(self) -> dict[str, float]:

@@ -30,7 +30,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["FromInfo", "Setting", "info", "settings_markdown", "settings_model",
+__all__ = ["FromInfo", "Setting", "info", "setting_property", "settings_markdown", "settings_model",
            "with_settings"]
 
 _FIELD = re.compile(r"\{([^{}]+)\}")
@@ -289,6 +289,33 @@ class Setting:
             "positive": self.positive, "choices": value(self.choices),
             "limits": self.limits_text(info_), "tags": sorted(self.tags),
         }
+
+
+def setting_property(name: str, doc: str) -> property:
+    """A read-write property for the setting ``name`` of a device kind.
+
+    Reading returns the device's current value (``Device._get``: the device must be
+    open); writing validates and applies it (``Device._set``, through
+    :meth:`~drivers.base.Device.apply_settings`).
+
+    Parameters
+    ----------
+    name : str
+        The setting's name in the kind's ``SETTINGS``.
+    doc : str
+        The property's docstring (meaning, unit, range).
+
+    Returns
+    -------
+    property
+    """
+    def fget(self: Any) -> Any:
+        return self._get(name)
+
+    def fset(self: Any, value: Any) -> None:
+        self._set(name, value)
+
+    return property(fget, fset, doc=doc)
 
 
 def with_settings(base: tuple[Setting, ...], *changes: Setting,

@@ -9,8 +9,15 @@ import pytest
 
 from drivers.base import Device
 from drivers.camera import Camera
-from drivers.errors import DeviceValueError
-from drivers.settings import Setting, info, settings_markdown, with_settings
+from drivers.dmd import Dmd
+from drivers.errors import DeviceStateError, DeviceValueError
+from drivers.settings import (
+    Setting,
+    info,
+    setting_property,
+    settings_markdown,
+    with_settings,
+)
 from drivers.settings_doc import DEFAULT_PAGE, KINDS, main, page
 from drivers.simulated import SimulatedCamera, SimulatedDmd, SimulatedLedArray, SimulatedStage
 
@@ -59,6 +66,34 @@ def test_specs_of_an_open_device_carry_its_limits():
         assert spec["high"] == 1.0 and spec["limits"] == "red 0 to 1; green 0 to 1; blue 0 to 1"
     with SimulatedLedArray("leds") as leds:
         assert leds.setting_specs(leds.info)[1]["limits"].startswith("one of red, green")
+
+
+@pytest.mark.parametrize(("cls", "name"), [
+    (Camera, "exposure_s"), (Camera, "frame_rate_hz"), (Camera, "gain"),
+    (Camera, "pixel_format"), (Camera, "roi"), (Camera, "binning"),
+    (Camera, "trigger_mode"), (Dmd, "exposure_s"), (Dmd, "period_s")])
+def test_setting_properties_are_made_once_and_documented(cls, name):
+    attr = vars(cls)[name]
+    made = setting_property(name, "doc")
+    assert attr.fget.__code__ is made.fget.__code__ and attr.fset.__code__ is made.fset.__code__
+    assert attr.__doc__ and attr.__doc__ != "doc"
+
+
+def test_a_setting_property_reads_open_and_writes_through_validation():
+    cam = SimulatedCamera("cam0")
+    with pytest.raises(DeviceStateError):
+        _ = cam.exposure_s
+    with cam:
+        cam.exposure_s = 0.02
+        assert cam.exposure_s == 0.02 and cam.settings()["exposure_s"] == 0.02
+        with pytest.raises(DeviceValueError):
+            cam.exposure_s = -1.0
+        assert cam.exposure_s == 0.02
+    with SimulatedDmd("dmd") as dmd:
+        dmd.period_s = 0.5
+        with pytest.raises(DeviceValueError):
+            dmd.exposure_s = 0.6
+        assert dmd.period_s == 0.5
 
 
 class _CappedGain(SimulatedCamera):
