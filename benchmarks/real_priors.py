@@ -38,7 +38,7 @@ import numpy as np
 
 from benchmarks.psf_from_scenes import NAMES, load_pairs
 
-__all__ = ["gain_fit", "load_psfs", "main", "run_study", "score"]
+__all__ = ["add_pair_options", "gain_fit", "load_psfs", "main", "run_study", "score"]
 
 #: The priors compared (names of :data:`recon.priors.PRIORS`).
 PRIORS = ("tv", "tv-iso", "tgv")
@@ -173,16 +173,25 @@ def run_simulated(out: Path, priors=PRIORS, log=print) -> dict:
     return {"rows": rows}
 
 
+def add_pair_options(parser: argparse.ArgumentParser, out: Path) -> None:
+    """The real pairs' options shared by the benchmarks on them: ``--data``,
+    ``--psf-dir``, ``--out`` (default ``out``) and ``--pairs``."""
+    parser.add_argument("--data", type=Path, default=None, help="the pairs' directory "
+                        "(default shared/data/mirflickr-real next to the repository)")
+    parser.add_argument("--psf-dir", type=Path,
+                        default=Path("out/benchmark/psf_leave_one_out"),
+                        help="leave-one-out PSFs psf_admm_{pair}_{c}.npy (computed when "
+                        "absent)")
+    parser.add_argument("--out", type=Path, default=out)
+    parser.add_argument("--pairs", type=int, default=len(NAMES),
+                        choices=range(2, len(NAMES) + 1))
+
+
 def main(argv=None) -> int:
     """The command line (module docstring)."""
     p = argparse.ArgumentParser(prog="python -m benchmarks.real_priors",
                                 description=__doc__.splitlines()[0])
-    p.add_argument("--data", type=Path, default=None, help="the pairs' directory (default "
-                   "shared/data/mirflickr-real next to the repository)")
-    p.add_argument("--psf-dir", type=Path, default=Path("out/benchmark/psf_leave_one_out"),
-                   help="leave-one-out PSFs psf_admm_{pair}_{c}.npy (computed when absent)")
-    p.add_argument("--out", type=Path, default=Path("out/benchmark/real_priors"))
-    p.add_argument("--pairs", type=int, default=len(NAMES), choices=range(2, len(NAMES) + 1))
+    add_pair_options(p, Path("out/benchmark/real_priors"))
     p.add_argument("--priors", default=",".join(PRIORS), help="comma-separated prior names")
     p.add_argument("--weights", default="", help="comma-separated fixed weights besides auto")
     p.add_argument("--simulated", action="store_true", help="the simulated scenes instead")

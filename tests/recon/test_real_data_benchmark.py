@@ -1,0 +1,113 @@
+"""The real-data benchmark (benchmarks.real_data) on two of the shared mirflickr pairs,
+binned 6 x 6 (45 x 80), few iterations: it runs, writes its JSON with every column, the
+contact sheet and the chart; LenslessPiCam's column is optional. Skipped only where the
+shared data directory is absent; a missing pair there fails loudly."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+import pytest
+
+from benchmarks import real_data
+from benchmarks.psf_from_scenes import default_data_dir
+
+_KEYS = {"pair", "method", "weight", "psnr_db", "ssim", "seconds", "time_ratio"}
+
+if not default_data_dir().parent.is_dir():
+    pytest.skip(f"no shared data directory ({default_data_dir().parent})",
+                allow_module_level=True)
+
+_FAKE_LENSLESS = '''
+import numpy as np
+
+
+class ADMM:
+    """Stands in for LenslessPiCam's ADMM: returns the measurement as it came."""
+
+    def __init__(self, psf):
+        self.psf = psf
+
+    def set_data(self, data):
+        self.data = data
+
+    def apply(self, n_iter=None, disp_iter=None, plot=False):
+        self.n_iter = n_iter
+        return self.data
+'''
+
+
+@pytest.fixture
+def isolated_lensless(monkeypatch):
+    """No ``lensless`` imported or on the path beyond what the test puts there."""
+    monkeypatch.delitem(sys.modules, "lensless", raising=False)
+    monkeypatch.delenv(real_data.LENSLESS_ENV, raising=False)
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if "lensless" not in p])
+    yield
+    sys.modules.pop("lensless", None)
+
+
+def _run(tmp_path, methods, **kw):
+    args = dict(pairs=2, bin_factor=6, iterations=5, weights=(1e-4, 1e-3), log=lambda s: None)
+    return real_data.run_benchmark(tmp_path, methods=methods, **{**args, **kw})
+
+
+def test_every_column_on_two_binned_pairs(tmp_path, isolated_lensless, monkeypatch):
+    """Each method of METHODS and one added entry: a row per pair (and weight of an
+    oracle), finite scores, the time ratio over the same run's FFT floor, the oracle's
+    weight the best mean of its grid; the JSON holds exactly what was returned."""
+    pkg = tmp_path / "site" / "lensless"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text(_FAKE_LENSLESS)
+    monkeypatch.setenv(real_data.LENSLESS_ENV, str(tmp_path / "site"))
+    extra = real_data.Method("measurement", "the measurement itself",
+                             lambda psf, raw, weight, iterations: raw)
+    out = tmp_path / "out"
+    result = _run(out, [*real_data.METHODS, extra])
+    saved = json.loads((out / "real_data.json").read_text())
+    assert saved == json.loads(json.dumps(result))
+    names = [m.name for m in real_data.METHODS] + ["measurement"]
+    assert [m["name"] for m in saved["methods"]] == names
+    assert all("skipped" not in m for m in saved["methods"])
+    assert [m["method"] for m in saved["means"]] == names
+    floor = saved["fft_floor_seconds"]
+    assert floor > 0 and saved["setup"]["shape"] == [45, 80]
+    for m in real_data.METHODS + [extra]:
+        rows = [r for r in saved["rows"] if r["method"] == m.name]
+        weights = [1e-4, 1e-3] if m.oracle else [None]
+        assert sorted((r["pair"], str(r["weight"])) for r in rows) == sorted(
+            (p, str(w)) for p in ("im43", "im157") for w in weights)
+        for r in rows:
+            assert set(r) == _KEYS
+            assert np.isfinite([r["psnr_db"], r["ssim"], r["seconds"]]).all()
+            assert r["time_ratio"] == pytest.approx(r["seconds"] / floor)
+        by_w = {w: np.mean([r["psnr_db"] for r in rows if r["weight"] == w]) for w in weights}
+        chosen = next(x for x in saved["methods"] if x["name"] == m.name)["weight"]
+        assert by_w[chosen] == max(by_w.values())
+    assert (out / "contact.png").stat().st_size > 0
+    assert (out / "speed_accuracy.png").stat().st_size > 0
+
+
+def test_lensless_column_left_out_with_one_line_when_not_importable(tmp_path,
+                                                                   isolated_lensless):
+    lines = []
+    lensless = [m for m in real_data.METHODS if m.name == "lensless-admm"]
+    result = real_data.run_benchmark(tmp_path, pairs=2, bin_factor=6, iterations=3,
+                                     methods=lensless, log=lines.append)
+    assert result["methods"] == [{"name": "lensless-admm", "label": lensless[0].label,
+                                  "skipped": real_data.LENSLESS_HINT}]
+    assert result["rows"] == [] and result["means"] == []
+    assert real_data.LENSLESS_HINT in lines and "\n" not in real_data.LENSLESS_HINT
+    assert json.loads((tmp_path / "real_data.json").read_text())["methods"][0]["skipped"]
+
+
+@pytest.mark.parametrize("argv, word", [(["--weights", "a,b"], "--weights"),
+                                        (["--methods", "nope"], "--methods"),
+                                        (["--iterations", "0"], "--iterations")])
+def test_bad_options_one_line_exit_2(tmp_path, capsys, argv, word):
+    assert real_data.main([*argv, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert word in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
