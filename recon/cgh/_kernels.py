@@ -43,8 +43,8 @@ def bin_conj_multiply(x, mask, k, out):  # pragma: no cover - jitted
 
 
 @njit(**PARALLEL)
-def combine_residual(a, za, b, zb, z, target, sigma, out):  # pragma: no cover - jitted
-    """``z = a za + b zb`` and :func:`residual` of it, in one pass; same returns."""
+def _residual_pass(a, za, b, zb, z, target, sigma, out, combine):  # pragma: no cover - jitted
+    """One pass of :func:`residual` (``combine`` false) or :func:`combine_residual`."""
     gy, gx = out.shape
     rr = 0.0
     ri = 0.0
@@ -52,8 +52,11 @@ def combine_residual(a, za, b, zb, z, target, sigma, out):  # pragma: no cover -
         acc_rr = 0.0
         acc_ri = 0.0
         for j in range(gx):
-            v = a * za[i, j] + b * zb[i, j]
-            z[i, j] = v
+            if combine:
+                v = a * za[i, j] + b * zb[i, j]
+                z[i, j] = v
+            else:
+                v = z[i, j]
             inten = v.real * v.real + v.imag * v.imag
             r = sigma * inten - target[i, j]
             out[i, j] = r
@@ -64,29 +67,17 @@ def combine_residual(a, za, b, zb, z, target, sigma, out):  # pragma: no cover -
     return rr, ri
 
 
-@njit(**PARALLEL)
-def residual(z, target, sigma, out):  # pragma: no cover - jitted
+def combine_residual(a, za, b, zb, z, target, sigma, out):
+    """``z = a za + b zb`` and :func:`residual` of it, in one pass; same returns."""
+    return _residual_pass(a, za, b, zb, z, target, sigma, out, True)
+
+
+def residual(z, target, sigma, out):
     """``out = sigma |z|^2 - target``; returns ``(sum out^2, sum out * |z|^2)``.
 
     ``sigma`` must have the targets' precision (float32 keeps the pass in float32).
     """
-    gy, gx = out.shape
-    s = sigma
-    rr = 0.0
-    ri = 0.0
-    for i in prange(gy):
-        acc_rr = 0.0
-        acc_ri = 0.0
-        for j in range(gx):
-            v = z[i, j]
-            inten = v.real * v.real + v.imag * v.imag
-            r = s * inten - target[i, j]
-            out[i, j] = r
-            acc_rr += r * r
-            acc_ri += r * inten
-        rr += acc_rr
-        ri += acc_ri
-    return rr, ri
+    return _residual_pass(sigma, z, sigma, z, z, target, sigma, out, False)
 
 
 @njit(**PARALLEL)
