@@ -55,11 +55,11 @@ from drivers.errors import (
     DeviceError,
     DeviceValueError,
 )
-from drivers.grab_thread import GrabThread, report_stream_error
+from drivers.grab_thread import GrabStream
 
 __all__ = ["AravisCamera"]
 
-class AravisCamera(Camera):
+class AravisCamera(GrabStream, Camera):
     """A GenICam camera driven through Aravis.
 
     Parameters
@@ -158,7 +158,6 @@ class AravisCamera(Camera):
         self._hw: dict[str, Any] = {}
         self._lost = threading.Event()
         self._lost_handler: Any = None
-        self._grab: GrabThread | None = None
         self._index = 0
         self._stats: dict[str, int] = {}
         self._gige_ip: str | None = None
@@ -597,14 +596,7 @@ class AravisCamera(Camera):
         stream = self._ensure_stream()
         self._call(self._cam.set_acquisition_mode, self._arv.AcquisitionMode.CONTINUOUS)
         self._call(self._cam.start_acquisition, what="starting the acquisition")
-        self._grab = GrabThread(lambda stop: self._grab_loop(stream, ring, stop),
-                                f"{self.device_id}-aravis", 5.0,
-                                lambda exc: report_stream_error(self, ring, exc)).start()
-
-    def _stop_grab(self) -> None:
-        grab, self._grab = self._grab, None
-        if grab is not None:
-            grab.stop()
+        self._start_grab(ring, lambda stop: self._grab_loop(stream, ring, stop), "aravis", 5.0)
 
     def _do_stop_stream(self) -> None:
         self._stop_grab()

@@ -1,4 +1,5 @@
-"""The acquisition thread of a streaming camera driver: :class:`GrabThread`."""
+"""The acquisition thread of a streaming camera driver: :class:`GrabThread`, and
+:class:`GrabStream`, the start and stop of it that the drivers share."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from typing import Any
 
 from drivers.errors import DeviceDisconnectedError
 
-__all__ = ["GrabThread", "report_stream_error"]
+__all__ = ["GrabStream", "GrabThread", "report_stream_error"]
 
 
 def report_stream_error(device: Any, ring: Any, exc: BaseException) -> None:
@@ -71,3 +72,28 @@ class GrabThread:
         self._stop.set()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout=self._join_timeout_s)
+
+
+class GrabStream:
+    """Mixin of a camera driver whose stream a :class:`GrabThread` reads: it holds the
+    thread in ``_grab`` (None while not streaming) and starts and stops it.
+
+    The class it is mixed into is a :class:`drivers.camera.Camera` (``device_id`` and
+    the logger :func:`report_stream_error` uses).
+    """
+
+    _grab: GrabThread | None = None
+
+    def _start_grab(self, ring: Any, loop: Callable[[threading.Event], None], name: str,
+                    join_timeout_s: float) -> None:
+        """Start ``loop(stop)`` on a thread named ``<device_id>-<name>``; an error it
+        raises ends the stream through :func:`report_stream_error` on ``ring``."""
+        self._grab = GrabThread(loop, f"{self.device_id}-{name}", join_timeout_s,
+                                lambda exc: report_stream_error(self, ring, exc)).start()
+
+    def _stop_grab(self) -> None:
+        """Stop the thread and wait for it (see :meth:`GrabThread.stop`); no-op when none
+        runs."""
+        grab, self._grab = self._grab, None
+        if grab is not None:
+            grab.stop()

@@ -47,7 +47,7 @@ from drivers.errors import (
     DeviceValueError,
     MissingDependencyError,
 )
-from drivers.grab_thread import GrabThread, report_stream_error
+from drivers.grab_thread import GrabStream
 from drivers.settings import with_settings
 
 __all__ = ["BY_ID_DIR", "V4l2Camera"]
@@ -81,7 +81,7 @@ def _open_cv2_v4l2(path: str) -> Any:
     return cv2.VideoCapture(path, cv2.CAP_V4L2)
 
 
-class V4l2Camera(Camera):
+class V4l2Camera(GrabStream, Camera):
     """A V4L2 camera driven through OpenCV's V4L2 backend.
 
     Parameters
@@ -179,7 +179,6 @@ class V4l2Camera(Camera):
         self._fresh_margin = 0.0
         self._index = 0
         self._trigger_times: list[float] = []
-        self._grab: GrabThread | None = None
         self._lock = threading.RLock()  # the capture object and the trigger times
         self._state = threading.Lock()  # settings vs. the labels of frames
 
@@ -438,14 +437,8 @@ class V4l2Camera(Camera):
 
     def _do_start_stream(self, ring: FrameRing) -> None:
         self._trigger_times = []
-        self._grab = GrabThread(lambda stop: self._grab_loop(ring, stop),
-                                f"{self.device_id}-v4l2", self._read_timeout + 2.0,
-                                lambda exc: report_stream_error(self, ring, exc)).start()
-
-    def _stop_grab(self) -> None:
-        grab, self._grab = self._grab, None
-        if grab is not None:
-            grab.stop()
+        self._start_grab(ring, lambda stop: self._grab_loop(ring, stop), "v4l2",
+                         self._read_timeout + 2.0)
 
     def _do_stop_stream(self) -> None:
         # a trigger sent before the stop gets its frame (the camera was exposing it):
