@@ -39,7 +39,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from PySide6.QtCore import QObject, Signal
+from PySide6.QtCore import QObject, QTimer, Signal
 
 from calibration_routines.bench_jobs import JOBS as CALIBRATION_JOBS
 
@@ -54,6 +54,10 @@ RATE_WINDOW_S = 2.0
 
 #: Moving scenes the virtual bench can put in front of the camera (``--simulate``).
 SCENES = ("beads-flow", "neurons", "none")
+
+#: How often the window looks whether the bench process still runs, ms (a look reaps
+#: a process that ended: no zombie is left).
+BENCH_WATCH_MS = 500
 
 #: Run the bench host in the window's process (False: in a process of its own).
 BENCH_IN_PROCESS = False
@@ -89,12 +93,16 @@ class Session(QObject):
         real bench; the GUI answers with ``reply(bool)``.
     device_event(object)
         A :class:`~instrument.bench_service.BenchEvent` the bench process pushed.
+    bench_lost(str)
+        The bench process ended without being asked (killed, crashed): the operator's
+        message, also in :attr:`lost`; ``changed`` follows (not connected).
     """
 
     changed = Signal()
     message = Signal(str)
     prompt = Signal(str, str, object)
     device_event = Signal(object)
+    bench_lost = Signal(str)
     _resume = Signal()
     _stream_ended = Signal()
 
@@ -127,6 +135,12 @@ class Session(QObject):
         self.frames_seen = 0
         self._rate: deque[tuple[float, int]] = deque()
         self.job: Job | None = None
+        #: Why the bench process ended without being asked (None: it did not): the
+        #: operator's message, until the bench is connected again.
+        self.lost: str | None = None
+        self._watch = QTimer(self)
+        self._watch.setInterval(BENCH_WATCH_MS)
+        self._watch.timeout.connect(self._check_bench)
         self._resume.connect(self._resume_stream)
         self.device_event.connect(self._note_event)
         self._stream_ended.connect(self.changed.emit)
@@ -192,6 +206,8 @@ class Session(QObject):
 
     def _opened(self, opened) -> None:
         self.service, self.devices, self._virtual = opened
+        self.lost = None
+        self._watch.start()
         where = "built-in simulated bench" if self.bench_path is None else self.bench_path
         self.message.emit(f"connected: {where}{' (simulated)' if self.simulate else ''}, "
                           f"devices {', '.join(self.devices)}")
@@ -203,6 +219,12 @@ class Session(QObject):
         once they are closed."""
         if self.service is None:
             return None
+        return self._drop_bench("disconnected", then)
+
+    def _drop_bench(self, said: str, then: Callable[[], None] | None = None) -> Job:
+        """Forget the bench (``changed`` at once) and close its client on a worker;
+        ``said`` once closed."""
+        self._watch.stop()
         client, self.service, self.devices = self.service, None, {}
         self.device_states = {}
         self.camera_user = None
@@ -213,12 +235,28 @@ class Session(QObject):
             client.close()
 
         job = Job(close, name="close-bench", nice=DEVICE_NICE)
-        job.succeeded.connect(lambda _: self.message.emit("disconnected"))
+        job.succeeded.connect(lambda _: self.message.emit(said) if said else None)
         job.failed.connect(lambda text: self.message.emit(f"disconnect: {text}"))
         if then is not None:
             job.finished.connect(then)
         self.job = job
         return job.start()
+
+    def _check_bench(self) -> None:
+        """Timer slot: when the bench process ended unasked, say how (:attr:`lost`,
+        ``bench_lost`` and a message) and close what is left of its client."""
+        service = self.service
+        if service is None or service.alive():
+            return
+        from .messages import how_it_ended
+
+        self.lost = (f"The bench process stopped: {how_it_ended(service.exit_status())}. "
+                     "Its devices cannot be reached and the live stream ended. Press "
+                     "Restart bench to start it again and reopen the devices.")
+        log.warning("%s", self.lost)
+        self.message.emit(self.lost)
+        self._drop_bench("")
+        self.bench_lost.emit(self.lost)
 
     def _note_event(self, event) -> None:
         if event.kind == "status":

@@ -91,7 +91,8 @@ def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> 
         A bench file's problems one per line; the message of one of the project's own
         errors (device, plan, run store, input, ...: it names the fix) or of an
         ordinary OS error (no such file, permission denied, disk full: with the path)
-        in the GUI's terms; for anything else, the error's type and text marked as a
+        in the GUI's terms; a connection to the bench process refused or cut: that it
+        stopped and what to press; for anything else, the error's type and text marked as a
         bug (the traceback goes to the log).
     """
     from instrument.config import BenchConfigError
@@ -106,6 +107,9 @@ def readable_error(exc: BaseException, labels: dict[str, str] | None = None) -> 
         return f"{reason}: {' -> '.join(paths)}" if paths else reason
     if isinstance(exc, _input_errors()):
         return operator_text(str(exc) or type(exc).__name__, labels)
+    if isinstance(exc, ConnectionError | EOFError):  # the bench process is gone
+        return ("the bench process does not answer (it stopped); press Restart bench on "
+                "the Devices panel")
     log.error("unexpected error in a GUI job", exc_info=exc)
     return (f"unexpected error ({type(exc).__name__}: {exc}); this is a bug - the log has "
             "the traceback to report")

@@ -240,6 +240,13 @@ class DeviceBox(QGroupBox):
         if self.stage is not None and isinstance(status.get("positions"), dict):
             self.stage.show_positions(status["positions"])
 
+    def bench_down(self) -> None:
+        """The bench process ended: the box shows so and takes no command (Reconnect
+        included) until the bench is restarted."""
+        self.state.setText(f'<b style="color:{STATE_COLOURS["closed"]}">'
+                           "bench process stopped</b>")
+        self.setEnabled(False)
+
     # -- presets ---------------------------------------------------------------------------
     @property
     def _preset_key(self) -> str:
@@ -451,6 +458,8 @@ class DevicePanel(QWidget):
         self.state.setObjectName("device-count")
         bar.addWidget(self.state)
         outer.addLayout(bar)
+        self.lost_box = self._lost_controls()
+        outer.addWidget(self.lost_box)
         keys = QHBoxLayout()
         keys.addWidget(QLabel("arrow keys move:"))
         self.arrow_stage = QComboBox()
@@ -476,6 +485,41 @@ class DevicePanel(QWidget):
     @property
     def bench_key(self) -> str:
         return bench_key(self.session.bench_path, self.session.simulate)
+
+    def _lost_controls(self) -> QWidget:
+        """What shows when the bench process ended unasked: why, and Restart bench."""
+        box = QWidget()
+        box.setObjectName("bench-lost")
+        row = QHBoxLayout(box)
+        row.setContentsMargins(0, 0, 0, 0)
+        self.lost_label = QLabel("")
+        self.lost_label.setObjectName("bench-lost.text")
+        self.lost_label.setWordWrap(True)
+        self.lost_label.setStyleSheet("color: #c00020; font-weight: bold;")
+        row.addWidget(self.lost_label, 1)
+        self.restart_button = QPushButton("Restart bench")
+        self.restart_button.setObjectName("restart-bench")
+        self.restart_button.setToolTip("start a new bench process and open the bench "
+                                       "file's devices again")
+        self.restart_button.clicked.connect(self.restart_bench)
+        row.addWidget(self.restart_button, 0, Qt.AlignmentFlag.AlignTop)
+        box.setVisible(False)
+        return box
+
+    def restart_bench(self) -> Job:
+        """Start a new bench process and open the devices again (after the bench
+        process ended unasked)."""
+        self.error.setText("")
+        self.restart_button.setEnabled(False)
+        self.restart_button.setText("restarting ...")
+
+        def failed(text: str) -> None:
+            self.error.setText(text)
+            self.restart_button.setEnabled(True)
+            self.restart_button.setText("Restart bench")
+
+        self._opening = self.session.connect_bench(on_error=failed)
+        return self._opening
 
     def toggle_connection(self) -> None:
         self.error.setText("")
@@ -504,7 +548,20 @@ class DevicePanel(QWidget):
             self.session.set_scene(self.scene.currentText(), on_error=self.error.setText)
 
     def rebuild(self) -> None:
-        """One box per device when the set of open devices changed."""
+        """One box per device when the set of open devices changed; while the bench
+        process is down (:attr:`gui.session.Session.lost`) the boxes stay, disabled
+        (their Reconnect included), and Restart bench is the one action offered."""
+        lost = self.session.lost
+        self.lost_box.setVisible(lost is not None)
+        self.connect_button.setVisible(lost is None)
+        if lost is not None:
+            self.lost_label.setText(lost)
+            for box in self.boxes.values():
+                box.bench_down()
+            self.state.setText("bench process stopped")
+            return
+        self.restart_button.setEnabled(True)
+        self.restart_button.setText("Restart bench")
         devices = dict(self.session.devices)
         self.connect_button.setText("Disconnect" if devices else "Connect")
         if devices:
@@ -560,7 +617,7 @@ class DevicePanel(QWidget):
         """Show what the bench process pushed (a
         :class:`~instrument.bench_service.BenchEvent`) in the device's box."""
         box = self.boxes.get(event.device)
-        if box is None:
+        if box is None or self.session.lost is not None:
             return
         if event.kind == "status":
             data = event.data
