@@ -365,6 +365,17 @@ class BenchClient:
         process = getattr(self._manager, "_process", None)
         return process is not None and process.is_alive()
 
+    def exit_status(self) -> int | None:
+        """How the bench process this client started ended: its exit code, or minus
+        the number of the signal that ended it (``-9``: SIGKILL); the process is reaped
+        (no zombie is left). None while it runs, and for a host in this process or a
+        client connected by ``address``."""
+        process = None if self.in_process or self.attached else getattr(
+            self._manager, "_process", None)
+        if process is None or process.is_alive():
+            return None
+        return process.exitcode
+
     # -- jobs ------------------------------------------------------------------------
     def run_job(self, name: str, kwargs: dict | None = None, *,
                 report: Callable[[Any], None] | None = None, control=None,
