@@ -28,7 +28,9 @@ What crosses between the processes:
   and those given to :meth:`BenchHost.register_jobs`) as ``function(ctx, **kwargs)`` on
   a thread of the host with a :class:`JobContext` (the bench, progress, pause/abort,
   stop and cancel events); :meth:`BenchHost.job_control` pauses, resumes, aborts, stops
-  or cancels it.
+  or cancels it, whichever client asks. Every job's progress and end is also logged in
+  :attr:`BenchHost.job_registry` for any client to follow
+  (:class:`~instrument.bench_job_handle.JobHandle`).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from .bench_job_handle import OWNER_JOBS, JobInfo, JobRegistry
 from .bench_service import BenchService, BenchServiceError, EventLog
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
@@ -69,8 +72,8 @@ class JobContext:
     ``cancel`` (``threading.Event``), ``publish(frame)`` (show a frame the job
     took in the window, as the stream does) and ``host`` (its :class:`BenchHost`)."""
 
-    def __init__(self, host: BenchHost, job_id: int) -> None:
-        self.host, self.job_id = host, job_id
+    def __init__(self, host: BenchHost, job_id: int, piped: bool = True) -> None:
+        self.host, self.job_id, self.piped = host, job_id, piped
         self.control = RunControl()
         self.stop = threading.Event()
         self.cancel = threading.Event()
@@ -81,7 +84,9 @@ class JobContext:
         return self.host.bench
 
     def report(self, value: Any) -> None:
-        self.host.events.put(("job", self.job_id, "progress", value))
+        if self.piped:
+            self.host.events.put(("job", self.job_id, "progress", value))
+        self.host.job_registry.report(self.job_id, value)
 
     def publish(self, frame) -> None:
         self.host.publish(frame)
@@ -147,6 +152,9 @@ class BenchHost(BenchService):
 
         self.register_jobs(JOBS)
         self.device_events = EventLog()
+        #: Every job's events and outcome, for any client
+        #: (:class:`~instrument.bench_job_handle.JobHandle`).
+        self.job_registry = JobRegistry(self.device_events)
         self._watcher: tuple[threading.Thread, threading.Event] | None = None
 
     def describe(self) -> dict | None:
@@ -257,23 +265,43 @@ class BenchHost(BenchService):
         """Add ``{name: function(ctx, **kwargs)}`` to the jobs :meth:`start_job` runs."""
         self.jobs.update(jobs)
 
-    def start_job(self, name: str, kwargs: dict | None = None) -> int:
+    def start_job(self, name: str, kwargs: dict | None = None, *, piped: bool = True,
+                  owner: bool = True) -> int:
         """Run job ``name`` as ``function(ctx, **kwargs)`` on a thread; returns the job's
-        id. Its end is an event ``("job", id, "done", result)`` or ``("job", id,
+        id. Its progress and end go to :attr:`job_registry` (every client's
+        :class:`~instrument.bench_job_handle.JobHandle`) and, ``piped``, down the event
+        pipe of the client that started the bench process too: ``("job", id,
+        "progress", value)``, then ``("job", id, "done", result)`` or ``("job", id,
         "failed", error)``.
+
+        Parameters
+        ----------
+        name : str
+        kwargs : dict, optional
+        piped : bool
+            Send its events down the pipe (the starting client's
+            :meth:`~instrument.bench_process.BenchClient.run_job`).
+        owner : bool
+            Asked by the client that started the bench process (a second client may
+            not run :data:`~instrument.bench_job_handle.OWNER_JOBS`).
 
         Raises
         ------
         BenchHostError
-            No job of that name.
+            No job of that name, or a second client asks to open or close the bench.
         """
         fn = self.jobs.get(name)
         if fn is None:
             raise BenchHostError(f"the bench process has no job {name!r}; its jobs are "
                                  f"{', '.join(sorted(self.jobs))}")
+        if not owner and name in OWNER_JOBS:
+            raise BenchHostError(f"{name} runs from the client that started the bench "
+                                 "process (the window); use the window's Connect and "
+                                 "Disconnect")
         job_id = next(self._ids)
-        ctx = JobContext(self, job_id)
+        ctx = JobContext(self, job_id, piped)
         self._jobs[job_id] = ctx
+        self.job_registry.started(job_id, name, kwargs or {})
 
         def run() -> None:
             from .batch_process import _portable
@@ -281,15 +309,33 @@ class BenchHost(BenchService):
             try:
                 result = fn(ctx, **(kwargs or {}))
             except BaseException as exc:  # noqa: BLE001 (every failure goes back)
-                self.events.put(("job", job_id, "failed", _portable(exc, "the bench process")))
+                self._job_ended(ctx, "failed", _portable(exc, "the bench process"))
             else:
-                self.events.put(("job", job_id, "done", result))
-            finally:
-                self._jobs.pop(job_id, None)
+                self._job_ended(ctx, "done", result)
 
         ctx.thread = threading.Thread(target=run, name=f"bench-job-{name}", daemon=True)
         ctx.thread.start()
         return job_id
+
+    def _job_ended(self, ctx: JobContext, state: str, value: Any) -> None:
+        self._jobs.pop(ctx.job_id, None)
+        try:
+            if ctx.piped:
+                self.events.put(("job", ctx.job_id, state, value))
+        finally:
+            self.job_registry.ended(ctx.job_id, state, value)
+
+    def job_info(self, job_id: int) -> JobInfo:
+        """:meth:`~instrument.bench_job_handle.JobRegistry.info`."""
+        return self.job_registry.info(job_id)
+
+    def job_infos(self) -> list[JobInfo]:
+        """:meth:`~instrument.bench_job_handle.JobRegistry.infos`."""
+        return self.job_registry.infos()
+
+    def job_events_after(self, job_id: int, seq: int, timeout_s: float = 1.0) -> tuple:
+        """:meth:`~instrument.bench_job_handle.JobRegistry.events_after`."""
+        return self.job_registry.events_after(job_id, seq, timeout_s)
 
     def job_control(self, job_id: int, action: str, reason: str = "") -> None:
         """``pause``, ``resume``, ``abort`` (with ``reason``), ``stop`` or ``cancel`` job

@@ -19,6 +19,10 @@ same either way:
   :class:`~instrument.bench_host.JobContext`), its progress handed to
   ``report``; a :class:`~instrument.runner.RunControl`, a stop and a cancel event of the
   caller are forwarded while it runs; returns its result or raises its error.
+* :meth:`BenchClient.start_job` - the same job started without waiting: a
+  :class:`~instrument.bench_job_handle.JobHandle` to wait on its events and result and
+  to stop it, from any client; :meth:`BenchClient.job` holds a job another client
+  started, by its id.
 * frames: ``on_frame(frame, counters)`` on a reader thread for every frame the host
   publishes (newest only: a reader that falls behind skips, the counters say so).
 * ``on_message(text)`` and ``on_prompt(action, message, reply)`` for the host's other
@@ -45,6 +49,7 @@ from multiprocessing.managers import BaseManager
 from typing import Any
 
 from .bench_host import FRAME_META, BenchHost, BenchHostError, EventChannel, FrameWaker
+from .bench_job_handle import JobHandle, JobInfo
 from .bench_service import BenchEvent, CameraFormat, DeviceInfo
 from .shared_slot import SharedImageSlot
 
@@ -152,7 +157,8 @@ class _PooledHost:
         call.__name__ = name
         return call
 
-    def close(self) -> None:
+    def close_connections(self) -> None:
+        """Close the pool's connections (not the host: its ``close`` is a call)."""
         with self._lock:
             free, self._free = self._free, []
         for conn in free:
@@ -189,9 +195,11 @@ class BenchClient:
         thread of this client.
     address, authkey : optional
         Connect to the bench process another client started (its :attr:`address` and
-        :attr:`authkey`) instead of starting one: the devices' commands, the events
-        and the stream's start and stop; the jobs and the frames stay with the client
-        that started it, and closing this client leaves the bench open.
+        :attr:`authkey`) instead of starting one: the devices' commands, the events,
+        the stream's start and stop and the jobs (:meth:`start_job`, :meth:`run_job`)
+        but opening and closing the bench; the frames stay with the client that
+        started it, and closing this client leaves the bench open and its jobs
+        running.
 
     Raises
     ------
@@ -391,8 +399,8 @@ class BenchClient:
             The host process ended while the job ran.
         """
         if self.attached:
-            raise BenchHostError("jobs run from the client that started the bench process "
-                                 "(the window); run this one there")
+            return self._run_held(self.start_job(name, kwargs), report, control, stop,
+                                  cancel, poll_s)
         events: queue.SimpleQueue = queue.SimpleQueue()
         job_id = self.host.start_job(name, kwargs or {})
         with self._lock:
@@ -420,6 +428,55 @@ class BenchClient:
         finally:
             with self._lock:
                 self._jobs.pop(job_id, None)
+
+    def _run_held(self, job: JobHandle, report, control, stop, cancel, poll_s: float) -> Any:
+        """:meth:`run_job` of a second client: follow ``job`` by its handle, forward
+        the caller's control, stop and cancel."""
+        sent = {"paused": False, "abort": None, "stop": False, "cancel": False}
+        while True:
+            self._forward(job.id, sent, control, stop, cancel)
+            for event in job.next_events(poll_s):
+                if event.kind == "progress":
+                    if report is not None:
+                        report(event.data)
+                else:
+                    return job.result()
+
+    def start_job(self, name: str, params: dict | None = None) -> JobHandle:
+        """Start job ``name`` with ``params`` in the bench process and return at once
+        (from any client: the window, a notebook).
+
+        Returns
+        -------
+        JobHandle
+            Its id, its events (progress, then its result or error) to wait on, and
+            ``stop()``; see :mod:`instrument.bench_job_handle` for what happens to it
+            when this client disconnects (it runs on).
+
+        Raises
+        ------
+        instrument.bench_host.BenchHostError
+            No job of that name, or a second client asks for ``open_bench`` or
+            ``close_bench`` (the window's).
+        """
+        job_id = self.host.start_job(name, dict(params or {}), piped=False,
+                                     owner=not self.attached)
+        return JobHandle(self.host, self.host.job_info(job_id))
+
+    def job(self, job_id: int) -> JobHandle:
+        """A handle on job ``job_id``, whichever client started it (from its first
+        event kept).
+
+        Raises
+        ------
+        instrument.bench_service.BenchServiceError
+            No such job, running or among the last ended.
+        """
+        return JobHandle(self.host, self.host.job_info(int(job_id)))
+
+    def jobs(self) -> list[JobInfo]:
+        """The bench process's jobs, running and recently ended, oldest first."""
+        return self.host.job_infos()
 
     def _forward(self, job_id: int, sent: dict, control, stop, cancel) -> None:
         """Send the host the changes of the caller's control, stop and cancel."""
@@ -506,17 +563,17 @@ class BenchClient:
             self._closed.set()
             for t in self._threads:
                 t.join(timeout_s)
-            self.host.close()
+            self.host.close_connections()
             return
         try:
             if self.in_process or self.alive():
-                self.host.close()
+                self.host.close()  # BenchHost.close, in the bench process
         finally:
             self._closed.set()
             for t in self._threads:
                 t.join(timeout_s)
             if self._manager is not None:
-                self.host.close()
+                self.host.close_connections()
                 self._manager.shutdown()
             if self._slot is not None:
                 self._slot.close()

@@ -8,7 +8,7 @@ device object crosses to the client, as pymmcore-plus's ``CMMCorePlus`` and PyMo
 module interface keep theirs on the far side of a fixed set of commands.
 
 What changes on the bench is pushed as :class:`BenchEvent` (``status``, ``settings``,
-``positions``, ``bench``) into an :class:`EventLog`, which every client reads with a
+``positions``, ``bench``, ``job``) into an :class:`EventLog`, which every client reads with a
 long poll (:meth:`BenchService.events_after` returns as soon as an event is logged):
 each command that changes a device logs its new settings or positions at once, and a
 watcher thread of the bench process reads every device's status once a second there
@@ -138,7 +138,9 @@ class BenchEvent:
         dict or None}``, what the device box shows), ``settings`` (``data``: the
         device's :meth:`~drivers.base.Device.setting_values`), ``positions``
         (``data``: a stage's ``{axis: position}``), ``bench`` (``device`` None,
-        ``data``: ``{"open": bool, "devices": [ids]}``).
+        ``data``: ``{"open": bool, "devices": [ids]}``), ``job`` (``device`` None,
+        ``data``: ``{"id", "name", "state"}``, a job started, ``running``, or ended,
+        ``done`` or ``failed``: :mod:`instrument.bench_job_handle`).
     device : str or None
     data : object
     """

@@ -1,0 +1,304 @@
+"""A job of the bench process that any client holds by its id: its events, stop, result.
+
+The bench process (:class:`~instrument.bench_host.BenchHost`) keeps a
+:class:`JobRegistry`: for every job it runs, whichever client started it, a log of the
+job's events (``progress`` with the value the job reported, then ``done`` with its
+result or ``failed`` with its error, as :class:`~instrument.bench_service.BenchEvent`
+s, ``device`` None) that every client reads with a long poll, as it reads the bench's
+events; and the job's start and end as a ``job`` event in the bench's own
+:class:`~instrument.bench_service.EventLog` (``data``: :meth:`JobInfo.as_event`), so a
+window sees the job a notebook started.
+
+A client holds a job as a :class:`JobHandle`
+(:meth:`instrument.bench_process.BenchClient.start_job` or
+:meth:`~instrument.bench_process.BenchClient.job` by id): it waits on the job's events,
+stops, pauses or aborts it, and takes its result or error. Any client may stop any
+job.
+
+A job belongs to the bench process, not to a client: a client that disconnects (a
+notebook closed, its kernel restarted) leaves the jobs it started running to their
+end; a recording records its frames or seconds and closes its run ``complete``, and its
+result waits in the registry (the last :data:`ENDED_JOBS_KEPT` ended jobs) for any
+client that asks by id. The bench closing (the window closing, the bench process
+ending) ends every job as :meth:`~instrument.bench_host.BenchHost.close` does (a
+recording stopped, its run closed ``stopped``, its lock released).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from .bench_service import BenchEvent, BenchServiceError, EventLog
+
+__all__ = ["ENDED_JOBS_KEPT", "JOB_EVENTS_KEPT", "OWNER_JOBS", "JobHandle", "JobInfo",
+           "JobRegistry"]
+
+#: Events kept per job (a reader that fell further behind gets the newest; the job's
+#: end is always the last kept).
+JOB_EVENTS_KEPT = 64
+
+#: Ended jobs whose events and result the bench process keeps for a client to collect.
+ENDED_JOBS_KEPT = 32
+
+#: Jobs only the client that started the bench process (the window) runs: opening and
+#: closing the bench under it is the window's to do.
+OWNER_JOBS = frozenset({"open_bench", "close_bench"})
+
+#: Longest single wait, s, of a long poll in the bench process.
+_POLL_CAP_S = 5.0
+
+
+@dataclasses.dataclass(frozen=True)
+class JobInfo:
+    """A job of the bench process, as plain data.
+
+    Attributes
+    ----------
+    id : int
+        Its id (unique while the bench process runs).
+    name : str
+        The job's name (``record``, ``run_plan``, ...).
+    params : dict
+        The keyword parameters it was started with.
+    state : str
+        ``running``, ``done`` or ``failed``.
+    """
+
+    id: int
+    name: str
+    params: dict
+    state: str
+
+    def as_event(self) -> dict:
+        """``{"id", "name", "state"}``: the ``data`` of the bench's ``job`` event."""
+        return {"id": self.id, "name": self.name, "state": self.state}
+
+
+class _Job:
+    def __init__(self, info: JobInfo) -> None:
+        self.info = info
+        self.log = EventLog(JOB_EVENTS_KEPT)
+
+
+class JobRegistry:
+    """The bench process's jobs: their events, state and outcome (host side).
+
+    Parameters
+    ----------
+    bench_events : EventLog
+        The bench's log, where each job's start and end is logged as a ``job`` event.
+    """
+
+    def __init__(self, bench_events: EventLog) -> None:
+        self.bench_events = bench_events
+        self._jobs: OrderedDict[int, _Job] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def started(self, job_id: int, name: str, params: dict) -> None:
+        """Log job ``job_id`` as running."""
+        job = _Job(JobInfo(job_id, name, dict(params), "running"))
+        with self._lock:
+            self._jobs[job_id] = job
+        self.bench_events.put("job", None, job.info.as_event())
+
+    def report(self, job_id: int, value: Any) -> None:
+        """Log the job's progress ``value``."""
+        job = self._jobs.get(job_id)
+        if job is not None:
+            job.log.put("progress", None, value)
+
+    def ended(self, job_id: int, state: str, value: Any) -> None:
+        """Log the job's end: ``state`` ``done`` (``value`` its result) or ``failed``
+        (``value`` its error); forget the oldest ended jobs past
+        :data:`ENDED_JOBS_KEPT`."""
+        with self._lock:
+            job = self._jobs[job_id]
+            job.info = dataclasses.replace(job.info, state=state)
+            ended = [i for i, j in self._jobs.items() if j.info.state != "running"]
+            for old in ended[:max(0, len(ended) - ENDED_JOBS_KEPT)]:
+                del self._jobs[old]
+        job.log.put(state, None, value)
+        self.bench_events.put("job", None, job.info.as_event())
+
+    def _job(self, job_id: int) -> _Job:
+        job = self._jobs.get(int(job_id))
+        if job is None:
+            raise BenchServiceError(f"the bench process has no job {job_id} (running or "
+                                    f"among the last {ENDED_JOBS_KEPT} ended); list them "
+                                    "with jobs()")
+        return job
+
+    def info(self, job_id: int) -> JobInfo:
+        """The job's :class:`JobInfo`.
+
+        Raises
+        ------
+        instrument.bench_service.BenchServiceError
+            No such job (never started, or ended long ago).
+        """
+        return self._job(job_id).info
+
+    def infos(self) -> list[JobInfo]:
+        """Every job kept (running and recently ended), oldest first."""
+        with self._lock:
+            return [j.info for j in self._jobs.values()]
+
+    def events_after(self, job_id: int, seq: int,
+                     timeout_s: float = 1.0) -> tuple[int, list[BenchEvent]]:
+        """The job's events after ``seq`` (0: from the first kept), waiting up to
+        ``timeout_s`` (at most 5 s) for one; see :meth:`EventLog.after
+        <instrument.bench_service.EventLog.after>`."""
+        return self._job(job_id).log.after(int(seq), min(float(timeout_s), _POLL_CAP_S))
+
+
+class JobHandle:
+    """A job of the bench process, held by a client (see the module docstring).
+
+    Parameters
+    ----------
+    host : object
+        The client's way to the bench process (its ``job_events_after``,
+        ``job_info`` and ``job_control``).
+    info : JobInfo
+        The job as it was when the handle was made.
+    """
+
+    def __init__(self, host, info: JobInfo) -> None:
+        self._host = host
+        self.id, self.name, self.params = info.id, info.name, info.params
+        self._seq = 0
+        self._end: BenchEvent | None = None
+
+    def __repr__(self) -> str:
+        return f"JobHandle(id={self.id}, name={self.name!r})"
+
+    @property
+    def state(self) -> str:
+        """``running``, ``done`` or ``failed``, as the bench process has it now."""
+        if self._end is not None:
+            return self._end.kind
+        return self._call("job_info", self.id).state
+
+    @property
+    def ended(self) -> bool:
+        """Whether this handle has read the job's end."""
+        return self._end is not None
+
+    def _call(self, method: str, *args):
+        try:
+            return getattr(self._host, method)(*args)
+        except (OSError, EOFError) as exc:
+            raise BenchServiceError(f"the bench process is gone ({type(exc).__name__}); "
+                                    f"job {self.id} ({self.name}) ended with it") from None
+
+    # -- events ------------------------------------------------------------------------
+    def next_events(self, timeout_s: float = 1.0) -> list[BenchEvent]:
+        """The job's events this handle has not read yet, waiting up to ``timeout_s``
+        for one (a long poll: it returns as soon as one is logged); empty: none came,
+        or the job's end was read already.
+
+        Returns
+        -------
+        list of BenchEvent
+            ``progress`` (``data``: what the job reported), then ``done`` (``data``: its
+            result) or ``failed`` (``data``: its error).
+        """
+        if self._end is not None:
+            return []
+        deadline = time.monotonic() + max(0.0, float(timeout_s))
+        while True:
+            left = deadline - time.monotonic()
+            _, events = self._call("job_events_after", self.id, self._seq,
+                                   min(max(left, 0.0), _POLL_CAP_S))
+            if events or left <= 0:
+                break
+        if events:
+            self._seq = events[-1].seq
+            if events[-1].kind in ("done", "failed"):
+                self._end = events[-1]
+        return events
+
+    def events(self, timeout_s: float = 60.0) -> Iterator[BenchEvent]:
+        """Each event of the job as it comes, up to its end (included).
+
+        Raises
+        ------
+        TimeoutError
+            No event came within ``timeout_s`` (the job is still running).
+        """
+        while self._end is None:
+            got = self.next_events(timeout_s)
+            if not got:
+                raise TimeoutError(f"job {self.id} ({self.name}) logged nothing in "
+                                   f"{timeout_s:g} s; it is still running")
+            yield from got
+
+    def wait_for(self, test: Callable[[BenchEvent], bool],
+                 timeout_s: float = 60.0) -> BenchEvent:
+        """The first unread event of the job for which ``test(event)`` is true.
+
+        Raises
+        ------
+        TimeoutError
+            No event came within ``timeout_s`` of the one before.
+        LookupError
+            The job ended without such an event.
+        """
+        for event in self.events(timeout_s):
+            if test(event):
+                return event
+        raise LookupError(f"job {self.id} ({self.name}) ended ({self._end.kind}) without "
+                          "the event waited for")
+
+    def result(self, timeout_s: float | None = None) -> Any:
+        """Wait for the job's end; its result.
+
+        Parameters
+        ----------
+        timeout_s : float, optional
+            Longest wait, s (None: as long as the job runs).
+
+        Raises
+        ------
+        BaseException
+            The job's error (its type kept when it could be pickled).
+        TimeoutError
+            The job is still running after ``timeout_s``.
+        """
+        deadline = None if timeout_s is None else time.monotonic() + float(timeout_s)
+        while self._end is None:
+            left = _POLL_CAP_S if deadline is None else deadline - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"job {self.id} ({self.name}) still runs after "
+                                   f"{timeout_s:g} s")
+            self.next_events(min(left, _POLL_CAP_S))
+        if self._end.kind == "failed":
+            raise self._end.data
+        return self._end.data
+
+    # -- control -----------------------------------------------------------------------
+    def stop(self) -> None:
+        """Stop the job as the window's stop button does (a recording keeps what it
+        recorded, its run ``stopped``)."""
+        self._call("job_control", self.id, "stop")
+
+    def cancel(self) -> None:
+        """Cancel the job (an opening bench stops homing)."""
+        self._call("job_control", self.id, "cancel")
+
+    def pause(self) -> None:
+        """Pause a calibration run after its current point."""
+        self._call("job_control", self.id, "pause")
+
+    def resume(self) -> None:
+        """Resume a paused calibration run."""
+        self._call("job_control", self.id, "resume")
+
+    def abort(self, reason: str = "aborted from a client") -> None:
+        """Abort a calibration run to the safe state."""
+        self._call("job_control", self.id, "abort", reason)

@@ -1,0 +1,121 @@
+"""Jobs of the bench process held from any client: a notebook starts a recording, the
+window follows and stops it, a client that disconnects leaves its job running."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from instrument.bench_host import BenchHostError
+from instrument.bench_process import BenchClient
+from instrument.bench_service import BenchServiceError
+from instrument.runstore import RunStore
+
+from .test_bench_process import OPEN, opened_bench
+from .test_bench_service import HANG_S, Events
+
+
+def fails(ctx, *, message: str) -> None:
+    """A job that reports once and fails."""
+    ctx.report({"step": "about to fail"})
+    raise ValueError(message)
+
+
+def recording(out, frames: int = 5000) -> dict:
+    """The ``record`` job's parameters (a long recording, ended by a stop)."""
+    return {"out": str(out), "frames": frames, "seconds": None, "options": {},
+            "simulated": None}
+
+
+def recorded(event) -> bool:
+    return event.kind == "progress" and event.data["recorded"] > 0
+
+
+@pytest.fixture
+def window():
+    """The window's client: it started the bench process and opened the simulated
+    bench; its ``events`` are what it was pushed."""
+    events = Events()
+    with opened_bench(jobs={"fails": fails}, on_event=events) as client:
+        client.events = events
+        yield client
+
+
+def test_a_recording_a_notebook_started_is_followed_and_stopped_by_the_window(
+        window, tmp_path):
+    notebook = BenchClient(address=window.address, authkey=window.authkey)
+    try:
+        out = tmp_path / "v.zarr"
+        job = notebook.start_job("record", recording(out))
+        assert job.name == "record" and job.params["frames"] == 5000
+        # the window is told a job started, and holds it by its id
+        told = window.events.wait(lambda e: e.kind == "job" and e.data["id"] == job.id,
+                                  "of the notebook's job starting")
+        assert told.data == {"id": job.id, "name": "record", "state": "running"}
+        held = window.job(job.id)
+        assert [i.state for i in window.jobs() if i.id == job.id] == ["running"]
+        # both clients see the recording's progress
+        for handle in (job, held):
+            assert handle.wait_for(recorded, HANG_S).data["recorded"] > 0
+        held.stop()  # the window stops what the notebook started
+        summary = job.result(HANG_S)
+        assert held.result(HANG_S) == summary
+        assert summary["status"] == "stopped" and Path(summary["path"]) == out
+        assert job.state == held.state == "done"
+        window.events.wait(lambda e: e.kind == "job" and e.data["id"] == job.id
+                           and e.data["state"] == "done", "of the notebook's job ending")
+    finally:
+        notebook.close()
+    # the bench process closed the run properly: stopped, every frame readable, unlocked
+    store = RunStore.open(out)
+    assert store.status == "stopped" and store.lock_owner() is None
+    assert store.done().sum() == summary["recorded"] > 0 and store.verify() == []
+
+
+def test_a_job_runs_on_when_the_client_that_started_it_disconnects(window, tmp_path):
+    out = tmp_path / "v.zarr"
+    notebook = BenchClient(address=window.address, authkey=window.authkey)
+    job = notebook.start_job("record", recording(out))
+    last = job.wait_for(recorded, HANG_S).data["recorded"]
+    notebook.close()
+    # still recording after the notebook left: the window sees frames it could not
+    held = window.job(job.id)
+    later = held.wait_for(lambda e: recorded(e) and e.data["recorded"] > last, HANG_S)
+    assert held.state == "running" and later.data["recorded"] > last
+    # the window closes: the bench process ends the recording and closes its run
+    window.close()
+    store = RunStore.open(out)
+    assert store.status == "stopped" and store.lock_owner() is None
+    assert store.done().sum() > last and store.verify() == []
+
+
+@pytest.mark.parametrize("in_process", [False, True], ids=["child-process", "in-process"])
+def test_a_failed_job_raises_its_error_for_every_client(in_process):
+    with opened_bench(in_process=in_process, jobs={"fails": fails}) as client:
+        job = client.start_job("fails", {"message": "the fault"})
+        first = job.wait_for(lambda e: True, HANG_S)
+        assert first.kind == "progress" and first.data == {"step": "about to fail"}
+        with pytest.raises(ValueError, match="the fault"):
+            job.result(HANG_S)
+        assert job.ended and job.state == "failed"
+        # a handle taken after the end reads the job from its first event kept
+        late = client.job(job.id)
+        assert [e.kind for e in late.events(HANG_S)] == ["progress", "failed"]
+        with pytest.raises(BenchHostError, match="no job 'nope'"):
+            client.start_job("nope")
+        with pytest.raises(BenchServiceError, match="no job 12345"):
+            client.job(12345)
+
+
+def test_a_second_client_runs_a_job_to_its_end_but_not_the_bench_s_opening(window):
+    notebook = BenchClient(address=window.address, authkey=window.authkey)
+    try:
+        with pytest.raises(ValueError, match="the fault"):
+            notebook.run_job("fails", {"message": "the fault"})
+        for name in ("open_bench", "close_bench"):
+            with pytest.raises(BenchHostError, match="client that started the bench"):
+                notebook.start_job(name, OPEN if name == "open_bench" else {})
+        assert window.devices()  # the bench is still open
+    finally:
+        notebook.close()
