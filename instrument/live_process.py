@@ -332,6 +332,15 @@ class LiveReconstructionProcess:
         child = self._child
         return child is not None and child.is_alive() and not self._stopping.is_set()
 
+    def exit_status(self) -> int | None:
+        """How the child ended: its exit code, or minus the signal that ended it
+        (``-9``: SIGKILL), the child reaped; None while it runs, before it started
+        and after :meth:`stop`."""
+        child = self._child
+        if child is None or child.is_alive():
+            return None
+        return child.exitcode
+
     def set_method(self, method: str, iterations: int | None = None) -> None:
         """Switch between the Wiener preview and ADMM: every frame offered after this call
         is solved with the new settings (they travel with the frame, so a frame never

@@ -383,6 +383,7 @@ class LivePanel(QWidget):
                                        f"{frame.index}; {sat}")
         if self.live is not None:
             self._show_live_stats()
+        if self.live is not None:  # (its process may have just been found ended)
             latest = self.live.latest()
             if latest is not None and latest.frame_index != self._shown_recon:
                 self._shown_recon = latest.frame_index
@@ -390,6 +391,9 @@ class LivePanel(QWidget):
 
     def _show_live_stats(self) -> None:
         s = self.live.stats()
+        if not s.get("running", True):
+            self._live_ended()
+            return
         now = time.monotonic()
         if s["reconstructed"] != self._recon_count[0]:
             self._recon_count = (s["reconstructed"], now)
@@ -406,5 +410,18 @@ class LivePanel(QWidget):
             rate = f"{s['fps']:.1f} fps, latency {lat} ms"
         self.recon_stats.setText(
             f"reconstruction ({method}): {rate}, reconstructed {s['reconstructed']}, "
-            f"skipped {s['skipped']}, errors {s['errors']}"
-            + (f" - {s['last_error']}" if s["last_error"] else ""))
+            f"skipped {s['skipped']}, errors {s['errors']}")
+        if s["last_error"]:  # wrapped above the views (and logged), not under the image
+            self.error.setText(f"live reconstruction: {s['last_error']}")
+
+    def _live_ended(self) -> None:
+        """The live reconstruction's process ended unasked: say how above the views
+        (wrapped, and in the log) and put the controls back to start it again."""
+        from ..messages import how_it_ended
+
+        ended = getattr(self.live, "exit_status", lambda: None)()
+        self.stop_reconstruction()
+        self.error.setText(f"the live reconstruction stopped: {how_it_ended(ended)}. The "
+                           "camera stream goes on; press Start reconstruction to start it "
+                           "again")
+        self.recon_stats.setText("reconstruction: stopped (the message above says why)")
