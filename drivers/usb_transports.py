@@ -77,8 +77,9 @@ def _holders(node: str | None) -> str:
 
 class _ReportLink:
     """What :class:`HidLink` and :class:`UsbLink` share: the ids, the open handle, and
-    the errors of a link that is closed, lost or silent (a subclass defines ``open``,
-    ``close``, ``write`` and ``read``)."""
+    the errors of a link that is closed, lost or silent, and ``write`` and ``read`` (a
+    subclass defines ``open``, ``close`` and the transfers ``_write``, ``_read`` and
+    the errors ``_io_errors`` that mean the device is lost)."""
 
     #: The transport, as the error messages name it.
     kind = "USB"
@@ -129,6 +130,55 @@ class _ReportLink:
             self.device_id, f"{self.kind} I/O failed: {exc}",
             "check the USB cable and power, then call reconnect()",
         ) from exc
+
+    #: What a silent device's timeout error suggests.
+    silent_hint = "check that the device is powered"
+
+    def write(self, report: bytes) -> None:
+        """Write one report (padded with zeros to ``report_size`` bytes).
+
+        Raises
+        ------
+        DeviceDisconnectedError
+            The link is not open, or the write failed (unplugged).
+        """
+        dev = self._require()
+        data = bytes(report).ljust(self.report_size, b"\0")
+        try:
+            self._write(dev, data)
+        except self._io_errors() as exc:
+            self._lost(exc)
+
+    def read(self, timeout_s: float) -> bytes:
+        """Read one report within ``timeout_s`` seconds.
+
+        Raises
+        ------
+        DeviceTimeoutError
+            The link's ``timeout_error``: nothing within the timeout.
+        DeviceDisconnectedError
+            The link is not open, or the read failed (unplugged).
+        """
+        dev = self._require()
+        try:
+            data = self._read(dev, max(1, int(round(timeout_s * 1000))))
+        except self._io_errors() as exc:
+            self._lost(exc)
+        if not data:
+            raise self._silent(timeout_s, self.silent_hint)
+        return bytes(data)
+
+    def _io_errors(self) -> type[BaseException] | tuple[type[BaseException], ...]:
+        """The exceptions of a failed transfer (the device is then lost)."""
+        raise NotImplementedError
+
+    def _write(self, dev: Any, data: bytes) -> None:
+        """Send ``data`` (``report_size`` bytes) on the open handle ``dev``."""
+        raise NotImplementedError
+
+    def _read(self, dev: Any, timeout_ms: int) -> bytes:
+        """One report from ``dev`` within ``timeout_ms``; empty when none came."""
+        raise NotImplementedError
 
 
 class HidLink(_ReportLink):
@@ -246,42 +296,18 @@ class HidLink(_ReportLink):
                 log.debug("%s: close: %s", self.device_id, exc)
         self._drop_lock()
 
-    def write(self, report: bytes) -> None:
-        """Write one report (``report_size`` bytes, padded with zeros; report id 0 added).
+    silent_hint = "check that the device is powered and not in a firmware-update mode"
 
-        Raises
-        ------
-        DeviceDisconnectedError
-            The write failed (unplugged).
-        """
-        dev = self._require()
-        data = bytes(report).ljust(self.report_size, b"\0")
-        try:
-            n = dev.write(b"\0" + data)
-        except (OSError, ValueError) as exc:
-            self._lost(exc)
+    def _io_errors(self) -> tuple[type[BaseException], ...]:
+        return (OSError, ValueError)  # hidapi raises IOError after an unplug
+
+    def _write(self, dev: Any, data: bytes) -> None:
+        n = dev.write(b"\0" + data)  # report id 0 first
         if n is None or n < 0:
-            self._lost(OSError("hid write returned -1"))
+            raise OSError("hid write returned -1")
 
-    def read(self, timeout_s: float) -> bytes:
-        """Read one report within ``timeout_s`` seconds.
-
-        Raises
-        ------
-        DeviceTimeoutError
-            The link's ``timeout_error``: nothing within the timeout.
-        DeviceDisconnectedError
-            The read failed (hidapi raises ``IOError`` after an unplug).
-        """
-        dev = self._require()
-        try:
-            data = dev.read(self.report_size, max(1, int(round(timeout_s * 1000))))
-        except (OSError, ValueError) as exc:
-            self._lost(exc)
-        if not data:
-            raise self._silent(timeout_s, "check that the device is powered and not in a "
-                               "firmware-update mode")
-        return bytes(data)
+    def _read(self, dev: Any, timeout_ms: int) -> bytes:
+        return dev.read(self.report_size, timeout_ms)
 
 
 class UsbLink(_ReportLink):
@@ -403,37 +429,14 @@ class UsbLink(_ReportLink):
                 log.debug("%s: close: %s", self.device_id, exc)
         self._drop_lock()
 
-    def write(self, report: bytes) -> None:
-        """Write one report (padded to ``report_size``) to ``ep_out``.
+    def _io_errors(self) -> type[BaseException]:
+        return self._usb.core.USBError
 
-        Raises
-        ------
-        DeviceDisconnectedError
-            The transfer failed (unplugged).
-        """
-        dev = self._require()
+    def _write(self, dev: Any, data: bytes) -> None:
+        dev.write(self.ep_out, data, 1000)
+
+    def _read(self, dev: Any, timeout_ms: int) -> bytes:
         try:
-            dev.write(self.ep_out, bytes(report).ljust(self.report_size, b"\0"), 1000)
-        except self._usb.core.USBError as exc:
-            self._lost(exc)
-
-    def read(self, timeout_s: float) -> bytes:
-        """Read one report from ``ep_in`` within ``timeout_s`` seconds.
-
-        Raises
-        ------
-        DeviceTimeoutError
-            The link's ``timeout_error``: nothing within the timeout.
-        DeviceDisconnectedError
-            The transfer failed (unplugged).
-        """
-        dev = self._require()
-        try:
-            data = dev.read(self.ep_in, self.report_size, max(1, int(round(timeout_s * 1000))))
+            return dev.read(self.ep_in, self.report_size, timeout_ms)
         except self._usb.core.USBTimeoutError:
-            data = b""
-        except self._usb.core.USBError as exc:
-            self._lost(exc)
-        if not data:
-            raise self._silent(timeout_s, "check that the device is powered")
-        return bytes(data)
+            return b""
