@@ -117,15 +117,12 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None, live=No
     psf, level = resolve_dark(  # one meaning of the dark level, as the CLI's
         options.dark, psf, calibrated=dark_subtracted(psf_path),
         recorded=cam.dark_offset_dn, what=psf_path)
-    reconstructor = {"dark": level, "device": options.device,
-                     "bin_factor": options.bin_factor}
+    options = options.replace(dark=level)  # the level resolved here
     if not LIVE_IN_PROCESS:
-        return LiveReconstruction(LiveReconstructor(psf, **reconstructor),
-                                  method=live.method, iterations=live.iterations,
-                                  threads=threads, nice=BACKGROUND_NICE), depth
-    return LiveReconstructionProcess(psf, reconstructor_options=reconstructor,
-                                     method=live.method, iterations=live.iterations,
-                                     threads=threads, nice=BACKGROUND_NICE), depth
+        return LiveReconstruction(LiveReconstructor(psf, options), live, threads=threads,
+                                  nice=BACKGROUND_NICE), depth
+    return LiveReconstructionProcess(psf, live, options=options, threads=threads,
+                                     nice=BACKGROUND_NICE), depth
 
 
 def stack_depths(psf_path: str) -> list[float]:

@@ -41,10 +41,6 @@ __all__ = ["LatestFrameSlot", "LivePreview", "LiveReconstruction", "LiveReconstr
 
 log = logging.getLogger(__name__)
 
-#: The declared defaults of the live worker's method and iterations per frame
-#: (:class:`recon.options.LiveOptions`, stated there once).
-_LIVE = LiveOptions.defaults()
-
 #: Methods of the worker: the Wiener preview, or ADMM iterations per frame.
 LIVE_METHODS = ("wiener", "admm")
 
@@ -191,7 +187,13 @@ class LivePreview:
     warm: bool
 
 
-def _method(method: str, iterations) -> tuple[str, int]:
+def _method(live: LiveOptions | None) -> tuple[str, int]:
+    """The checked method and iterations per frame of ``live`` (None: the declared)."""
+    live = LiveOptions.from_defaults() if live is None else live
+    return _checked(live.method, live.iterations)
+
+
+def _checked(method: str, iterations) -> tuple[str, int]:
     if method not in LIVE_METHODS:
         raise ReconInputError(f"live method {method!r} is unknown; use one of "
                               f"{', '.join(LIVE_METHODS)}")
@@ -207,10 +209,9 @@ class LiveReconstruction:
         Per-PSF reconstructor (anything with its ``wiener(raw)`` and
         ``admm(raw, iterations, warm_start)`` methods returning a
         :class:`recon.live.LiveResult`).
-    method : {"wiener", "admm"}
-        Wiener preview (default) or ``iterations`` ADMM iterations per frame.
-    iterations : int
-        ADMM iterations per frame (>= 1).
+    live : recon.options.LiveOptions, optional
+        The method (``"wiener"``: the preview, or ``"admm"``: ``iterations`` ADMM
+        iterations per frame, >= 1); default the declared ones.
     warm_start : bool
         ADMM from the previous frame's state (default) or from zero on every frame.
     window_s : float
@@ -236,13 +237,12 @@ class LiveReconstruction:
         outside 1..os.cpu_count().
     """
 
-    def __init__(self, reconstructor, *, method: str = _LIVE["method"],
-                 iterations: int = _LIVE["iterations"],
+    def __init__(self, reconstructor, live: LiveOptions | None = None, *,
                  warm_start: bool = True, window_s: float = 2.0, threads: int | None = None,
                  nice: int = 0, on_result=None, on_error=None):
         self.reconstructor = reconstructor
         self.on_result, self.on_error = on_result, on_error
-        self._method, self._iterations = _method(method, iterations)
+        self._method, self._iterations = _method(live)
         self.warm_start = bool(warm_start)
         self.window_s = positive(window_s, "window_s")
         self.threads = None if threads is None else check_threads(threads)
@@ -354,7 +354,7 @@ class LiveReconstruction:
         ReconInputError
             Unknown method or iterations < 1.
         """
-        m, k = _method(method, self._iterations if iterations is None else iterations)
+        m, k = _checked(method, self._iterations if iterations is None else iterations)
         with self._lock:
             if m != self._method and hasattr(self.reconstructor, "reset"):
                 self.reconstructor.reset()

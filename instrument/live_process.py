@@ -37,7 +37,7 @@ import numpy as np
 from diffuserlab.errors import kept_error
 from drivers.camera import Frame, FrameRing
 from recon.fft import check_threads
-from recon.options import LiveOptions
+from recon.options import LiveOptions, ReconOptions
 from recon.validate import as_int, positive
 
 from .batch_process import _portable
@@ -46,6 +46,7 @@ from .live import (
     LivePreview,
     LiveReconstruction,
     LiveReconstructionError,
+    _checked,
     _method,
     drain_ring,
     note_result,
@@ -58,13 +59,9 @@ __all__ = ["LiveReconstructionProcess"]
 
 log = logging.getLogger(__name__)
 
-#: The declared defaults of the method and iterations per frame
-#: (:class:`recon.options.LiveOptions`).
-_LIVE = LiveOptions.defaults()
 
-
-def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str, int, int],
-           nice: int) -> None:
+def _child(conn, wake, psf, options: ReconOptions, settings: dict,
+           slots: tuple[str, str, int, int], nice: int) -> None:
     """The child: build the reconstructor, feed it from the input slot, publish results."""
     from recon.live import LiveReconstructor
 
@@ -77,9 +74,8 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
         try:
             frames = SharedImageSlot(slots[2], name=slots[0])
             results = SharedImageSlot(slots[3], name=slots[1])
-            recon = LiveReconstructor(psf, **options)
-            live = LiveReconstruction(recon, method=settings["method"],
-                                      iterations=settings["iterations"],
+            recon = LiveReconstructor(psf, options)
+            live = LiveReconstruction(recon, settings["live"],
                                       warm_start=settings["warm_start"],
                                       threads=settings["threads"])
         except BaseException as exc:  # every failure goes back to the caller
@@ -108,7 +104,7 @@ def _child(conn, wake, psf, options: dict, settings: dict, slots: tuple[str, str
         stop = threading.Event()
 
         def feed() -> None:
-            seen, applied = 0, (settings["method"], settings["iterations"])
+            seen, applied = 0, (settings["live"].method, settings["live"].iterations)
             while not stop.is_set():
                 if not wake.acquire(timeout=0.1):
                     continue
@@ -158,11 +154,14 @@ class LiveReconstructionProcess:
     ----------
     psf : ndarray, (rows, cols)
         The PSF, the shape of the camera's frames (as :class:`recon.live.LiveReconstructor`).
-    reconstructor_options : dict, optional
-        Keywords of :class:`recon.live.LiveReconstructor` (``dark``, ``device``,
-        ``bin_factor``, ``tv``, ``regularization``); the reconstructor is built in the
-        child, so a GPU's arrays live there.
-    method, iterations, warm_start, window_s, threads
+    live : recon.options.LiveOptions, optional
+        The method and iterations per frame, as
+        :class:`~instrument.live.LiveReconstruction`'s (default: the declared ones).
+    options : recon.options.ReconOptions, optional
+        The reconstructor's options (its dark level, binning and device, as
+        :class:`recon.live.LiveReconstructor`'s; default: the declared ones); the
+        reconstructor is built in the child, so a GPU's arrays live there.
+    warm_start, window_s, threads
         As :class:`~instrument.live.LiveReconstruction`'s (``threads``: the child's
         FFT and kernel threads).
     nice : int
@@ -176,13 +175,12 @@ class LiveReconstructionProcess:
         :meth:`start`).
     """
 
-    def __init__(self, psf: np.ndarray, *, reconstructor_options: dict | None = None,
-                 method: str = _LIVE["method"], iterations: int = _LIVE["iterations"],
-                 warm_start: bool = True,
+    def __init__(self, psf: np.ndarray, live: LiveOptions | None = None, *,
+                 options: ReconOptions | None = None, warm_start: bool = True,
                  window_s: float = 2.0, threads: int | None = 1, nice: int = 0):
         self.psf = np.asarray(psf)
-        self.reconstructor_options = dict(reconstructor_options or {})
-        self._method, self._iterations = _method(method, iterations)
+        self.options = ReconOptions.from_defaults() if options is None else options
+        self._method, self._iterations = _method(live)
         self.warm_start = bool(warm_start)
         self.window_s = positive(window_s, "window_s")
         self.threads = None if threads is None else check_threads(threads)
@@ -243,11 +241,12 @@ class LiveReconstructionProcess:
         self._wake = context.Semaphore(0)
         self._conn, child_conn = context.Pipe()
         nice = min(19, os.getpriority(os.PRIO_PROCESS, os.getpid()) + self.nice)
-        settings = {"method": self._method, "iterations": self._iterations,
+        settings = {"live": LiveOptions.from_defaults(method=self._method,
+                                                      iterations=self._iterations),
                     "warm_start": self.warm_start, "threads": self.threads}
         self._child = context.Process(
             target=_child, name="diffuserlab-live",
-            args=(child_conn, self._wake, self.psf, self.reconstructor_options, settings,
+            args=(child_conn, self._wake, self.psf, self.options, settings,
                   (self._frames.name, self._results.name, self._frames.capacity,
                    self._results.capacity), nice), daemon=True)
         self._child.start()
@@ -351,7 +350,7 @@ class LiveReconstructionProcess:
         ReconInputError
             Unknown method or iterations < 1.
         """
-        self._method, self._iterations = _method(
+        self._method, self._iterations = _checked(
             method, self._iterations if iterations is None else iterations)
 
     # -- producer side -------------------------------------------------------------

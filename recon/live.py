@@ -14,9 +14,10 @@ scaling of :func:`recon.api.scaled_problem` and one solve:
 A cold single frame equals :func:`recon.reconstruct` with the same method, iterations
 and weights exactly (tests/recon/test_live.py).
 
-``device="cuda"`` (or ``"auto"`` with a usable GPU) keeps the PSF spectrum, the Wiener
-filter and the warm-start ADMM state on the GPU (``recon.xp_live.DeviceLive``, the
-array-API path); frames still come in and images go out as NumPy arrays.
+The options' ``device="cuda"`` (or ``"auto"`` with a usable GPU) keeps the PSF
+spectrum, the Wiener filter and the warm-start ADMM state on the GPU
+(``recon.xp_live.DeviceLive``, the array-API path); frames still come in and images go
+out as NumPy arrays.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 
 from .backend import Backend, resolve_device, to_numpy
 from .errors import ReconInputError
-from .options import LiveOptions, ReconOptions
+from .options import ReconOptions
 from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
 from .preprocess.dark import DEFAULT_DARK_REGION, front_door_dark, resolve_dark
@@ -38,11 +39,6 @@ from .solvers.admm import AdmmPlan, AdmmState, run_admm
 from .solvers.penalty import AdmmPenalty, check_penalty_settings
 from .solvers.wiener import auto_regularization
 from .validate import as_int, nonneg_weight, positive
-
-#: The declared defaults: the live reconstructor's own (:class:`recon.options.LiveOptions`:
-#: method, iterations per frame) and the reconstruction's it shares
-#: (:class:`recon.options.ReconOptions`: binning, dark level, device).
-_LIVE, _D = LiveOptions.defaults(), ReconOptions.defaults()
 
 __all__ = ["LiveReconstructor", "LiveResult"]
 
@@ -107,13 +103,24 @@ class LiveReconstructor:
     ----------
     psf : ndarray, (rows, cols), any real dtype
         Calibration PSF in sensor counts, same shape as the frames (grayscale only).
-    bin_factor : int
-        Box binning of PSF and frames (4 turns 1200 x 1600 into 300 x 400).
-    dark : "auto", "none", None, float or ndarray
-        As :func:`recon.reconstruct`'s: ``"auto"`` (default) estimates the dark level
-        from the PSF's corner and subtracts it from the PSF and every frame; ``"none"``
-        or None subtracts nothing (both are dark-subtracted already); a level in DN or a
-        dark frame (rows, cols) is subtracted from both.
+    options : recon.options.ReconOptions, optional
+        The reconstruction's options (default: the declared ones); the live
+        reconstructor reads three of them:
+
+        - ``bin_factor``: box binning of PSF and frames (4 turns 1200 x 1600 into
+          300 x 400).
+        - ``dark``: as :func:`recon.reconstruct`'s: ``"auto"`` estimates the dark level
+          from the PSF's corner and subtracts it from the PSF and every frame; ``"none"``
+          or None subtracts nothing (both are dark-subtracted already); a level in DN or
+          a dark frame (rows, cols) is subtracted from both.
+        - ``device``: where the solves run (:func:`recon.backend.resolve_device`):
+          ``cpu`` the NumPy path (numba); ``cuda`` a GPU through the array-API path
+          (``recon.xp_live.DeviceLive``), with the PSF spectrum and the ADMM state kept
+          there between frames. A :class:`~recon.backend.Backend` is used as given
+          (PyTorch's CPU backend in benchmarks and tests). ``backend`` says which.
+
+        Values a caller resolved (a dark level, a backend) go in with
+        ``ReconOptions.from_defaults(dark=..., device=...)``.
     tv : float, optional
         ADMM TV weight in the scaled problem; default ``recon.api.DEFAULT_TV["admm"]``.
     penalty : AdmmPenalty, optional
@@ -126,12 +133,6 @@ class LiveReconstructor:
         :meth:`wiener` sees (:func:`recon.solvers.wiener.auto_regularization`, a
         wavelet noise estimate too slow for every frame) and kept afterwards
         (``regularization``).
-    device : {"cpu", "cuda", "auto"} or Backend
-        Where the solves run (:func:`recon.backend.resolve_device`): ``cpu`` the NumPy
-        path (numba); ``cuda`` a GPU through the array-API path
-        (``recon.xp_live.DeviceLive``), with the PSF spectrum and the ADMM state
-        kept there between frames. A :class:`~recon.backend.Backend` is used as given
-        (PyTorch's CPU backend in benchmarks and tests). ``backend`` says which.
 
     Raises
     ------
@@ -161,7 +162,8 @@ class LiveReconstructor:
     >>> psf = 100.0 * (rng.random((48, 64)) > 0.97)  # a sparse caustic-like PSF
     >>> scene = np.zeros((96, 128), np.float32); scene[40:56, 50:70] = 1.0
     >>> frame = ConvolutionOperator(psf).forward(scene)  # one video frame
-    >>> live = LiveReconstructor(psf, dark=0.0)
+    >>> from recon.options import ReconOptions
+    >>> live = LiveReconstructor(psf, ReconOptions.from_defaults(dark=0.0))
     >>> live.wiener(frame).image.shape
     (48, 64)
     >>> first = live.admm(frame, iterations=5)        # cold start
@@ -170,17 +172,18 @@ class LiveReconstructor:
     dtype('float32')
     """
 
-    def __init__(self, psf: np.ndarray, *, bin_factor: int = _D["bin_factor"], dark=_D["dark"],
+    def __init__(self, psf: np.ndarray, options: ReconOptions | None = None, *,
                  tv: float | None = None, penalty: AdmmPenalty | None = None,
-                 regularization: float | None = None, device: str | Backend = _D["device"]):
+                 regularization: float | None = None):
+        o = ReconOptions.from_defaults() if options is None else options
         psf = as_array(psf, "PSF")
         validate_psf(psf)
         if psf.ndim != 2:
             raise ReconInputError(f"live reconstruction takes a 2D (grayscale) PSF, got shape "
                                   f"{psf.shape}; pass one channel")
-        self.bin_factor = check_bin_factor(bin_factor)
+        self.bin_factor = check_bin_factor(o.bin_factor)
         self.raw_shape = psf.shape
-        self._dark_mode, self._dark = resolve_dark(front_door_dark(dark), psf,
+        self._dark_mode, self._dark = resolve_dark(front_door_dark(o.dark), psf,
                                                    DEFAULT_DARK_REGION, None)
         p = np.maximum(self._convert(psf), 0.0)  # the PSF clip of prepare_pair
         self.tv = DEFAULT_TV["admm"] if tv is None else nonneg_weight(tv, "tv")
@@ -192,7 +195,7 @@ class LiveReconstructor:
         self.plan = AdmmPlan.of(self.operator)
         self._state: AdmmState | None = None
         self._state_scale = 1.0
-        self.backend = _backend(device)
+        self.backend = _backend(o.device)
         self._device = None
         if not self.backend.is_numpy:
             from .xp_live import DeviceLive
@@ -287,16 +290,15 @@ class LiveReconstructor:
                if self._device is None else self._device.wiener(b, self.regularization))
         return self._result(res, "wiener", 1, False, scale, t0)
 
-    def admm(self, raw: np.ndarray, iterations: int = _LIVE["iterations"],
-             warm_start: bool = True) -> LiveResult:
+    def admm(self, raw: np.ndarray, iterations: int, warm_start: bool = True) -> LiveResult:
         """``iterations`` ADMM iterations on one frame, warm-started by default.
 
         Parameters
         ----------
         raw : ndarray, ``raw_shape``, any real dtype
         iterations : int
-            >= 1 (default the declared per-frame count,
-            :class:`recon.options.LiveOptions`' ``iterations``).
+            >= 1 (a live worker passes its :class:`recon.options.LiveOptions`'
+            ``iterations``).
         warm_start : bool
             Start from the state left by the previous :meth:`admm` call (see the class
             notes); False, or no previous call, starts cold (x_0 = 0, the initial

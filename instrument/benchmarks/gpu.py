@@ -167,10 +167,12 @@ def _live(backend: Backend, shape, frames: int) -> tuple[float, float]:
     new frame each time (raw conversion on the host, the frame moved to the device and
     the sensor image back included), and the 2D floor."""
     from recon.live import LiveReconstructor
+    from recon.options import ReconOptions
 
     rng = np.random.default_rng(1)
     psf = _psf(shape, rng)
-    live = LiveReconstructor(psf, dark="none", tv=1e-3, device=backend)
+    live = LiveReconstructor(psf, ReconOptions.from_defaults(dark="none", device=backend),
+                             tv=1e-3)
     op = live.operator
     truth = rng.random(op.padded_shape, dtype=np.float32)
     frame_b = [op.forward(np.roll(truth, k, axis=1)) for k in range(2)]

@@ -23,6 +23,7 @@ import numpy as np
 from drivers.camera import FrameRing
 from recon.live import LiveReconstructor
 from recon.metrics import psnr
+from recon.options import LiveOptions, ReconOptions
 from recon.preprocess import box_bin
 from recon.scenes import load_scene
 from recon.simulate import Simulation, simulate_measurement
@@ -114,7 +115,7 @@ def warm_vs_cold(psf_fine: np.ndarray, sims: list[Simulation], max_iterations: i
            "frames": len(sims), "shape": list(psf.shape)}
     for k in out["iterations"]:
         for key, warm in (("cold_db", False), ("warm_db", True)):
-            live = LiveReconstructor(psf, dark="none", tv=tv)
+            live = LiveReconstructor(psf, ReconOptions.from_defaults(dark="none"), tv=tv)
             scores = []
             for sim in sims:
                 res = live.admm(sim.b, iterations=k, warm_start=warm)
@@ -201,8 +202,10 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
         for mode in ("wiener", f"admm:{admm_iterations}"):
             method, _, k = mode.partition(":")
             live = LiveReconstruction(
-                LiveReconstructor(psf, dark=cam.dark_offset_dn, regularization=1e-2),
-                method=method, iterations=int(k or 1), window_s=seconds, threads=threads)
+                LiveReconstructor(psf, ReconOptions.from_defaults(dark=cam.dark_offset_dn),
+                                  regularization=1e-2),
+                LiveOptions.from_defaults(method=method, iterations=int(k or 1)),
+                window_s=seconds, threads=threads)
             ring = FrameRing(64)
             cam.start_stream(ring)
             live.start(ring=ring)

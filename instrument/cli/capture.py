@@ -219,6 +219,7 @@ def _live(args: argparse.Namespace, cam, inputs: tuple):
     the banner."""
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
+    from recon.options import LiveOptions, ReconOptions
 
     from ..live import LiveReconstruction
     from ..reconstruct_files import resolve_dark
@@ -235,8 +236,10 @@ def _live(args: argparse.Namespace, cam, inputs: tuple):
         dark, psf, calibrated=dark_subtracted(args.psf),
         recorded=float(cam.dark_offset_dn) if args.simulate else None,
         what=f"--psf {args.psf}")
-    recon = LiveReconstructor(psf, bin_factor=args.bin_factor, dark=dark, device=args.device)
-    live = LiveReconstruction(recon, method=method, iterations=iterations,
+    recon = LiveReconstructor(psf, ReconOptions.from_defaults(
+        bin_factor=args.bin_factor, dark=dark, device=args.device))
+    live = LiveReconstruction(recon, LiveOptions.from_defaults(method=method,
+                                                               iterations=iterations),
                               threads=args.threads)
     label = (f"{method}{'' if method == 'wiener' else f' x{iterations}'}, PSF {args.psf}"
              f"{'' if depth is None else f' at {depth:g} mm'}, on {recon.backend.label}")

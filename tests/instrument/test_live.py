@@ -20,6 +20,7 @@ from instrument.live import (
 )
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor, LiveResult
+from recon.options import ReconOptions
 from tests.refcycles import assert_freed_without_the_collector
 
 SHAPE = (32, 40)
@@ -147,7 +148,8 @@ def test_worker_on_a_ring_with_the_real_reconstructor():
     psf[14:18, 18:22] = 3000
     psf[8, 30] = 1500
     ring = FrameRing(8)
-    live = LiveReconstruction(LiveReconstructor(psf, dark=100.0, regularization=1e-2))
+    live = LiveReconstruction(LiveReconstructor(psf, ReconOptions.from_defaults(dark=100.0),
+                                                regularization=1e-2))
     live.start(ring=ring)
     for i in range(5):
         ring.put(_frame(i, value=i))

@@ -22,6 +22,7 @@ from instrument.shared_slot import META_FIELDS, SharedImageSlot
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor
 from recon.operators import ConvolutionOperator
+from recon.options import LiveOptions, ReconOptions
 
 # -- the slot ---------------------------------------------------------------------------
 
@@ -137,6 +138,8 @@ def _index(live) -> int:
 #: a speed check (the child starts, imports and solves at nice +10, which beside busy
 #: processes gets about 1 % of a core); a wait ends as soon as its condition holds.
 HANG_S = 600.0
+#: The reconstruction's options of these tests: frames and PSF without a dark level.
+DARK_0 = ReconOptions.from_defaults(dark=0.0)
 
 
 def _until(condition, what, timeout_s=HANG_S):
@@ -149,10 +152,10 @@ def _until(condition, what, timeout_s=HANG_S):
 
 def test_the_child_gives_what_the_thread_gives():
     psf, image = _problem()
-    thread = LiveReconstruction(LiveReconstructor(psf, dark=0.0), method="admm", iterations=4)
+    admm4 = LiveOptions.from_defaults(method="admm", iterations=4)
+    thread = LiveReconstruction(LiveReconstructor(psf, DARK_0), admm4)
     thread.start(timeout_s=HANG_S)
-    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0},
-                                     method="admm", iterations=4)
+    proc = LiveReconstructionProcess(psf, admm4, options=DARK_0)
     proc.start(timeout_s=HANG_S)
     try:
         assert proc.backend_label == "cpu (numpy)" and proc.sensor_shape == (48, 64)
@@ -182,8 +185,8 @@ def test_the_child_gives_what_the_thread_gives():
 def test_a_switch_applies_to_the_very_next_frame():
     # the settings travel with the frame: a switch is never overtaken by the frame after it
     psf, image = _problem()
-    with LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0},
-                                   method="admm", iterations=2) as proc:
+    with LiveReconstructionProcess(psf, LiveOptions.from_defaults(method="admm", iterations=2),
+                                   options=DARK_0) as proc:
         proc.start(timeout_s=HANG_S)
         for k in range(8):
             method = ("wiener", "admm")[k % 2]
@@ -197,8 +200,7 @@ def test_a_switch_applies_to_the_very_next_frame():
 
 def test_the_childs_build_error_comes_back_with_its_type():
     psf, _ = _problem()
-    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0,
-                                                                 "bin_factor": 0})
+    proc = LiveReconstructionProcess(psf, options=DARK_0.replace(bin_factor=0))
     with pytest.raises(ReconInputError, match="bin"):
         proc.start(timeout_s=HANG_S)
     assert not proc.running
@@ -207,7 +209,7 @@ def test_the_childs_build_error_comes_back_with_its_type():
 
 def test_a_killed_child_is_reported_and_the_caller_goes_on():
     psf, image = _problem()
-    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0})
+    proc = LiveReconstructionProcess(psf, options=DARK_0)
     proc.start(timeout_s=HANG_S)
     pid = proc.child_info["pid"]
     proc.offer(_frame(image, 0))
@@ -225,7 +227,7 @@ def test_a_killed_child_is_reported_and_the_caller_goes_on():
 
 def test_the_child_runs_below_the_callers_priority():
     psf, _ = _problem()
-    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0}, nice=5)
+    proc = LiveReconstructionProcess(psf, options=DARK_0, nice=5)
     proc.start(timeout_s=HANG_S)
     try:
         process = os.getpriority(os.PRIO_PROCESS, os.getpid())
@@ -236,7 +238,7 @@ def test_the_child_runs_below_the_callers_priority():
 
 def test_a_frame_of_another_shape_is_an_error_not_a_crash():
     psf, image = _problem()
-    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0})
+    proc = LiveReconstructionProcess(psf, options=DARK_0)
     proc.start(timeout_s=HANG_S)
     try:
         proc.offer(_frame(np.zeros((480, 640), np.float64), 0))  # larger than the slot
@@ -260,7 +262,7 @@ def test_the_child_is_fed_from_a_camera_ring():
 
     psf, image = _problem()
     ring = FrameRing(8)
-    proc = LiveReconstructionProcess(psf, reconstructor_options={"dark": 0.0})
+    proc = LiveReconstructionProcess(psf, options=DARK_0)
     proc.start(ring=ring, timeout_s=HANG_S)
     try:
         ring.put(_frame(image, 3))

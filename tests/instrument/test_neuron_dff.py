@@ -11,6 +11,7 @@ from instrument.video_scenes import NeuronFieldScene, frame_time_s
 from instrument.virtual_bench import VirtualBench
 from recon.analysis import delta_f_over_f
 from recon.live import LiveReconstructor
+from recon.options import ReconOptions
 
 
 def test_recovered_dff_traces_correlate_with_the_truth():
@@ -24,11 +25,11 @@ def test_recovered_dff_traces_correlate_with_the_truth():
         on_axis = vb.psf((0.0, 0.0, scene.z_mm))
         cell_psfs = [vb.psf(tuple(p)) for p in scene.positions_mm]
     offset, scale = cam.dark_offset_dn, 4000.0 / on_axis.max()
-    video = LiveReconstructor(on_axis * scale + offset, dark=offset)
+    video = LiveReconstructor(on_axis * scale + offset, ReconOptions.from_defaults(dark=offset))
     movie = np.stack([video.admm(f.image, iterations=30, warm_start=True).image
                       for f in frames])
     # where each cell lands in the reconstruction: reconstruct its own PSF
-    single = LiveReconstructor(on_axis * scale + offset, dark=offset)
+    single = LiveReconstructor(on_axis * scale + offset, ReconOptions.from_defaults(dark=offset))
     spots = [np.unravel_index(np.argmax(single.admm(h * scale + offset, iterations=30,
                                                       warm_start=False).image), movie.shape[1:])
              for h in cell_psfs]

@@ -17,6 +17,7 @@ import recon.xp_live
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor
 from recon.operators import ConvolutionOperator
+from recon.options import ReconOptions
 from recon.solvers import AdmmPenalty
 from recon.solvers.xp_admm import XpAdmmState
 from recon.xp_live import live_memory_bytes
@@ -50,8 +51,9 @@ def _close(got, ref) -> None:
 def test_wiener_and_warm_admm_match_the_numpy_path(name):
     backend = _backend(name)
     psf, frames = _video()
-    ref = LiveReconstructor(psf, bin_factor=1, tv=1e-3, penalty=PENALTY)
-    dev = LiveReconstructor(psf, bin_factor=1, tv=1e-3, penalty=PENALTY, device=backend)
+    ref = LiveReconstructor(psf, ReconOptions.from_defaults(bin_factor=1), tv=1e-3, penalty=PENALTY)
+    dev = LiveReconstructor(psf, ReconOptions.from_defaults(bin_factor=1, device=backend), tv=1e-3,
+                            penalty=PENALTY)
     assert dev.backend is backend and ref.backend.is_numpy
     kind = type(dev._device.xop.spectrum)
     assert not issubclass(kind, np.ndarray)  # the PSF spectrum lives on the backend
@@ -87,7 +89,7 @@ def test_the_warm_start_is_what_the_device_carries(name):
     comparison above checks the carried state; reset() starts cold again."""
     backend = _backend(name)
     psf, frames = _video()
-    dev = LiveReconstructor(psf, tv=1e-3, device=backend)
+    dev = LiveReconstructor(psf, ReconOptions.from_defaults(device=backend), tv=1e-3)
     cold = LiveReconstructor(psf, tv=1e-3)
     dev.admm(frames[0], iterations=5)
     warm = dev.admm(frames[1], iterations=5)
@@ -118,7 +120,7 @@ def test_a_live_view_too_large_for_the_device_is_refused_before_anything_moves(
     needed = live_memory_bytes((1200, 1600))
     assert needed > 30 * 4 * 1200 * 1600  # the ADMM solve's planes and the live state's
     with pytest.raises(ReconInputError) as info:
-        LiveReconstructor(psf, device=backend)
+        LiveReconstructor(psf, ReconOptions.from_defaults(device=backend))
     text = str(info.value)
     assert (f"live reconstruction at 600 x 800 (binned) needs {needed / 2**30:.2f} GiB on "
             f"{backend.label}, 0.00 GiB are free") in text
@@ -126,17 +128,18 @@ def test_a_live_view_too_large_for_the_device_is_refused_before_anything_moves(
     # what fits is accepted
     monkeypatch.undo()
     monkeypatch.setattr(recon.xp_live, "free_device_bytes", lambda b: needed)
-    assert LiveReconstructor(psf, bin_factor=2, device=backend).sensor_shape == (300, 400)
+    binned = LiveReconstructor(psf, ReconOptions.from_defaults(bin_factor=2, device=backend))
+    assert binned.sensor_shape == (300, 400)
 
 
 @no_gpu
 def test_cuda_without_a_gpu_is_refused_and_auto_is_the_numpy_path():
     psf, frames = _video()
     with pytest.raises(ReconInputError, match="cuda requested but"):
-        LiveReconstructor(psf, device="cuda")
-    auto = LiveReconstructor(psf, device="auto")
+        LiveReconstructor(psf, ReconOptions.from_defaults(device="cuda"))
+    auto = LiveReconstructor(psf, ReconOptions.from_defaults(device="auto"))
     assert auto.backend.is_numpy and auto._device is None
     np.testing.assert_array_equal(auto.admm(frames[0], 3).image,
                                   LiveReconstructor(psf).admm(frames[0], 3).image)
     with pytest.raises(ReconInputError, match="not one of cpu, cuda, auto"):
-        LiveReconstructor(psf, device="tpu")
+        LiveReconstructor(psf, ReconOptions.from_defaults(device="tpu"))

@@ -9,6 +9,7 @@ import recon
 from instrument.benchmarks.live import moving_scene, warm_vs_cold
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor
+from recon.options import ReconOptions
 from recon.solvers import AdmmPenalty
 
 
@@ -24,7 +25,8 @@ def _raw_pair(shape=(64, 80), seed=1):
 def test_cold_admm_equals_reconstruct_exactly(bin_factor):
     psf, raw = _raw_pair()
     penalty = AdmmPenalty(mu=(1e-3, 2e-3, 3e-3))
-    live = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, penalty=penalty)
+    options = ReconOptions.from_defaults(bin_factor=bin_factor)
+    live = LiveReconstructor(psf, options, tv=1e-3, penalty=penalty)
     got = live.admm(raw, iterations=12, warm_start=False)
     ref = recon.reconstruct(psf, raw, "admm", iterations=12, bin_factor=bin_factor, tv=1e-3,
                             auto_stop=False, penalty=penalty)
@@ -33,7 +35,7 @@ def test_cold_admm_equals_reconstruct_exactly(bin_factor):
     assert got.solve.history.objective == ref.results[0].history.objective
     assert not got.warm and got.image.shape == live.sensor_shape
     # the first call has no state to start from: warm_start=True is cold too
-    again = LiveReconstructor(psf, bin_factor=bin_factor, tv=1e-3, penalty=penalty)
+    again = LiveReconstructor(psf, options, tv=1e-3, penalty=penalty)
     first = again.admm(raw, iterations=12)
     assert not first.warm
     np.testing.assert_array_equal(first.image, ref.image)
@@ -41,7 +43,7 @@ def test_cold_admm_equals_reconstruct_exactly(bin_factor):
 
 def test_wiener_equals_reconstruct_exactly():
     psf, raw = _raw_pair()
-    auto = LiveReconstructor(psf, bin_factor=2)
+    auto = LiveReconstructor(psf, ReconOptions.from_defaults(bin_factor=2))
     got = auto.wiener(raw)
     ref = recon.reconstruct(psf, raw, "wiener", bin_factor=2)
     np.testing.assert_array_equal(got.image, ref.image)
@@ -51,7 +53,8 @@ def test_wiener_equals_reconstruct_exactly():
     np.testing.assert_array_equal(
         auto.wiener(other).image,
         recon.reconstruct(psf, other, "wiener", bin_factor=2, regularization=lam).image)
-    fixed = LiveReconstructor(psf, dark="none", regularization=0.05).wiener(raw)
+    fixed = LiveReconstructor(psf, ReconOptions.from_defaults(dark="none"),
+                              regularization=0.05).wiener(raw)
     np.testing.assert_array_equal(
         fixed.image, recon.reconstruct(psf, raw, "wiener", dark="none",
                                        regularization=0.05).image)
@@ -62,7 +65,8 @@ def test_dark_means_what_it_means_at_the_front_door(dark):
     """One dark vocabulary: ``"auto"`` estimates from the PSF's corner, None and
     ``"none"`` subtract nothing, a level is subtracted; as :func:`recon.reconstruct`."""
     psf, raw = _raw_pair()
-    got = LiveReconstructor(psf, dark=dark, regularization=0.05).wiener(raw)
+    got = LiveReconstructor(psf, ReconOptions.from_defaults(dark=dark),
+                            regularization=0.05).wiener(raw)
     ref = recon.reconstruct(psf, raw, "wiener", dark=dark, regularization=0.05)
     np.testing.assert_array_equal(got.image, ref.image)
 
@@ -92,7 +96,8 @@ def test_frames_of_the_wrong_shape_or_colour_are_refused():
     with pytest.raises(ReconInputError, match="shape"):
         live.wiener(raw[:, :-1])
     with pytest.raises(ReconInputError, match="zero after dark"):
-        LiveReconstructor(psf, dark="none").admm(np.zeros_like(raw))
+        LiveReconstructor(psf, ReconOptions.from_defaults(dark="none")).admm(
+            np.zeros_like(raw), iterations=5)
     with pytest.raises(ReconInputError, match="iterations"):
         live.admm(raw, iterations=0)
     with pytest.raises(ReconInputError, match="2D"):

@@ -186,3 +186,41 @@ def test_the_automatic_weight_takes_its_tuning_as_one_object():
 
     params = inspect.signature(admm_auto).parameters
     assert "tuning" in params and len(params) <= 11, list(params)
+
+
+#: The live layers' constructors and the options object each takes: the method and
+#: iterations per frame are LiveOptions', the binning, dark level and device the
+#: reconstructor's ReconOptions; their other parameters are no declared option (the
+#: PSF, the reconstructor, worker settings), save the live solve's fixed TV weight.
+LIVE_TAKERS = {"recon.live.LiveReconstructor": ("options", {"tv"}),
+               "instrument.live.LiveReconstruction": ("live", set()),
+               "instrument.live_process.LiveReconstructionProcess": ("live", set())}
+
+
+def test_the_live_layers_take_the_options_objects():
+    """The live reconstructor and both live workers take the options objects (one
+    declaration of method, iterations, binning, dark level and device with their
+    defaults) instead of restating them as keywords."""
+    declared = set(ReconOptions.defaults()) | set(LiveOptions.defaults())
+    for dotted, (taker, own) in LIVE_TAKERS.items():
+        module, name = dotted.rsplit(".", 1)
+        params = inspect.signature(getattr(importlib.import_module(module), name)).parameters
+        loose = sorted(set(params) & declared - own)
+        assert not loose, f"{dotted} takes {loose} loose; read them from its options"
+        assert params[taker].default is None, (dotted, taker)
+
+
+def test_no_live_signature_restates_a_live_default():
+    """No function or method of the live layers defaults a parameter named after a
+    LiveOptions field (``iterations=5`` per frame, ``method="wiener"``), by literal or
+    by name: the declaration is the one place (``set_method``'s None keeps the current
+    count)."""
+    live = set(LiveOptions.defaults())
+    restated = []
+    for module in (importlib.import_module(m) for m in LIVE_MODULES):
+        for qualname, func in _functions(module):
+            for name, param in inspect.signature(func).parameters.items():
+                if (name in live and param.default is not inspect.Parameter.empty
+                        and param.default is not None):
+                    restated.append(f"{module.__name__}.{qualname}({name}={param.default!r})")
+    assert not restated, "\n".join(restated)
