@@ -12,6 +12,7 @@ display call waits ``settle_s`` for the liquid crystal to settle.
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from typing import Any, ClassVar
 
 import numpy as np
@@ -160,7 +161,7 @@ class Slm(Device):
         Returns
         -------
         int
-            The new pattern id.
+            The new pattern id (:attr:`pattern_id`).
 
         Raises
         ------
@@ -169,17 +170,19 @@ class Slm(Device):
         SlmTimeoutError
             The image did not reach the panel in time.
         """
-        self._require_open()
-        timeout_s = self._check_timeout(timeout_s)
-        phase = np.asarray(phase_rad)
-        if phase.shape != self.resolution or not np.issubdtype(phase.dtype, np.number) or (
-            np.iscomplexobj(phase) or not np.all(np.isfinite(phase))
-        ):
-            raise self._error(
-                DeviceValueError, f"phase of shape {phase.shape} dtype {phase.dtype} is invalid",
-                f"pass finite real phases of shape {self.resolution} in radians",
-            )
-        return self._display(self.phase_to_gray(phase), timeout_s)
+        def gray() -> np.ndarray:
+            phase = np.asarray(phase_rad)
+            if phase.shape != self.resolution or not np.issubdtype(phase.dtype, np.number) or (
+                np.iscomplexobj(phase) or not np.all(np.isfinite(phase))
+            ):
+                raise self._error(
+                    DeviceValueError,
+                    f"phase of shape {phase.shape} dtype {phase.dtype} is invalid",
+                    f"pass finite real phases of shape {self.resolution} in radians",
+                )
+            return self.phase_to_gray(phase)
+
+        return self._show(gray, timeout_s)
 
     def show_image(self, gray: np.ndarray, timeout_s: float = 1.0) -> int:
         """Display a ``(rows, cols)`` uint8 gray image as is.
@@ -196,15 +199,24 @@ class Slm(Device):
         SlmTimeoutError
             The image did not reach the panel in time.
         """
+        def checked() -> np.ndarray:
+            image = np.asarray(gray)
+            if image.dtype != np.uint8 or image.shape != self.resolution:
+                raise self._error(
+                    DeviceValueError,
+                    f"image of shape {image.shape} dtype {image.dtype} is invalid",
+                    f"pass a uint8 array of shape {self.resolution}",
+                )
+            return image
+
+        return self._show(checked, timeout_s)
+
+    def _show(self, gray: Callable[[], np.ndarray], timeout_s: float) -> int:
+        """Display ``gray()`` (checked by it) once the device is open and ``timeout_s``
+        valid; returns the new pattern id."""
         self._require_open()
         timeout_s = self._check_timeout(timeout_s)
-        gray = np.asarray(gray)
-        if gray.dtype != np.uint8 or gray.shape != self.resolution:
-            raise self._error(
-                DeviceValueError, f"image of shape {gray.shape} dtype {gray.dtype} is invalid",
-                f"pass a uint8 array of shape {self.resolution}",
-            )
-        return self._display(gray, timeout_s)
+        return self._display(gray(), timeout_s)
 
     def current_image(self) -> np.ndarray:
         """The displayed gray image (a copy)."""
