@@ -66,6 +66,12 @@ PANELS = ("Devices", "Live view", "Calibration", "Alignment", "Record", "Results
 #: Version of the stored dock layout (a layout stored by an older window is not
 #: restored: the default layout is shown instead).
 LAYOUT_VERSION = 2
+#: The window's size at its first start (no stored geometry), px, on a screen with room
+#: for it and its frame (:data:`FRAME_ROOM_PX`); on a smaller screen it opens maximized:
+#: at the screen's available geometry, inside it.
+FIRST_SIZE_PX = (1500, 950)
+#: Room left around :data:`FIRST_SIZE_PX` for the window manager's frame and title, px.
+FRAME_ROOM_PX = 40
 #: Longest wait for the jobs to finish when the window closes, s.
 CLOSE_TIMEOUT_S = 120.0
 #: Arrow keys and the (axis, direction) they jog.
@@ -154,7 +160,6 @@ class MainWindow(QMainWindow):
         self.devices.statuses.connect(self._show_statuses)
         self.arrows = _ArrowJog(self)
         QApplication.instance().installEventFilter(self.arrows)
-        self.resize(1500, 950)
         self.restore()
 
     def _title(self) -> str:
@@ -369,10 +374,30 @@ class MainWindow(QMainWindow):
         in front of the window once it shows)."""
         s = settings()
         geometry, state = s.value("window/geometry"), s.value("window/state")
-        if geometry is not None:
-            self.restoreGeometry(geometry)
+        if geometry is None or not self.restoreGeometry(geometry):
+            self.first_geometry()
         if state is not None:
             self.restoreState(state, LAYOUT_VERSION)
+
+    def first_geometry(self) -> None:
+        """The first start's size: :data:`FIRST_SIZE_PX`, centred in the screen's
+        available geometry (the screen less its panels), or maximized (that geometry)
+        when the screen is smaller: a 1366x768 laptop shows the whole window. (The
+        offscreen platform, which draws for no screen, keeps :data:`FIRST_SIZE_PX`.)"""
+        screen = self.screen() or QApplication.primaryScreen()
+        width, height = FIRST_SIZE_PX
+        if screen is None or QApplication.platformName() == "offscreen":
+            self.resize(width, height)  # no screen anyone sees: the tests' drawing size
+            return
+        room = screen.availableGeometry()
+        if (room.width() < width + FRAME_ROOM_PX
+                or room.height() < height + FRAME_ROOM_PX):
+            self.resize(min(width, room.width()), min(height, room.height()))
+            self.move(room.topLeft())
+            self.setWindowState(self.windowState() | Qt.WindowState.WindowMaximized)
+            return
+        self.resize(width, height)
+        self.move(room.center() - self.rect().center())
 
     def showEvent(self, event) -> None:  # noqa: N802 (Qt's name)
         super().showEvent(event)
