@@ -69,40 +69,29 @@ shapes and meaning; schema 2).
 
 from __future__ import annotations
 
-import datetime as _dt
 import logging
 import os
 import socket
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from diffuserlab.jsonio import jsonable
-
-from .ome import describe_run, run_dims
-from .run_description import record_description
+from .ome import describe_run
+from .run_creation import FRAME_COMPRESSORS, SCHEMA_VERSION, create_run, software_version, utc_now
 from .run_integrity import (
     LOCK_NAME,
     DamagedFrameError,
     RunStoreError,
-    frame_crc,
     lock_problem,
     read_lock,
     write_lock,
 )
-from .run_layout import RUN_ARRAYS, layout_problems, record_layout
-from .run_paths import (
-    CREATOR_ATTR,
-    claim_run_dir,
-    discard_partial_run,
-    is_run_store,
-    product_location,
-    remove_replaced_run,
-)
+from .run_layout import RUN_ARRAYS, layout_problems
+from .run_paths import discard_partial_run, is_run_store, product_location
 from .run_products import ProductsMixin
 from .run_reading import FrameRecord, RunReadingMixin
+from .run_writing import RunWritingMixin
 
 __all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "FrameRecord", "RunStore",
            "RunStoreError", "discard_partial_run", "is_run_store", "product_location",
@@ -110,27 +99,8 @@ __all__ = ["FRAME_COMPRESSORS", "SCHEMA_VERSION", "DamagedFrameError", "FrameRec
 
 log = logging.getLogger(__name__)
 
-#: Version of the layout above; bumped on any incompatible change.
-SCHEMA_VERSION = 2
 #: Schema versions this diffuserlab reads (1: no checksums).
 READABLE_SCHEMAS = (1, 2)
-#: Frame compressors a sharded run may use: "default" is zarr's own (zstd level 0,
-#: what unsharded runs use), "none" stores raw bytes, "zstd1" is zstd level 1,
-#: "blosc-lz4" is blosc lz4 with bit shuffle (all lossless).
-FRAME_COMPRESSORS = ("default", "none", "zstd1", "blosc-lz4")
-
-
-def _frame_compressors(name: str):
-    """The zarr ``compressors`` argument for one of :data:`FRAME_COMPRESSORS`."""
-    from zarr.codecs import BloscCodec, ZstdCodec
-
-    choices = {"default": "auto", "none": None, "zstd1": ZstdCodec(level=1),
-               "blosc-lz4": BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")}
-    if name not in choices:
-        raise RunStoreError(f"unknown frame compressor {name!r}; use one of "
-                            f"{list(FRAME_COMPRESSORS)}")
-    return choices[name]
-
 
 #: Attributes every run's zarr.json holds (a store lacking one is damaged).
 REQUIRED_ATTRS = ("schema_version", "software_version", "status", "plan", "tags",
@@ -138,29 +108,7 @@ REQUIRED_ATTRS = ("schema_version", "software_version", "status", "plan", "tags"
 REQUIRED_PLAN_ATTRS = ("name", "params", "points", "frames_per_point")
 
 
-def software_version() -> str:
-    """The installed diffuserlab version (``"unknown"`` when not installed)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("diffuserlab")
-    except PackageNotFoundError:
-        return "unknown"
-
-
-def utc_now() -> str:
-    """Current UTC time, ISO 8601."""
-    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
-
-
-def _exists_text(path: Path, meanwhile: bool = False) -> str:
-    """The refusal of a new run at an existing ``path`` (one line)."""
-    how = " (another process created it meanwhile)" if meanwhile else ""
-    return (f"{path} already exists{how}; choose another --out or pass --overwrite to "
-            "replace it")
-
-
-class RunStore(ProductsMixin, RunReadingMixin):
+class RunStore(ProductsMixin, RunReadingMixin, RunWritingMixin):
     """A run's Zarr v3 store: create, write frames, read (also while being written).
 
     Use :meth:`create` for a new run and :meth:`open` for an existing one.
@@ -224,151 +172,8 @@ class RunStore(ProductsMixin, RunReadingMixin):
         self.has_checksums = (self.path / "crc32" / "zarr.json").is_file()
 
     # ------------------------------------------------------------------ create / open
-    @classmethod
-    def create(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[str, Any],
-               points: Sequence[Mapping[str, Any]], frame_tags: Sequence[Sequence[str]],
-               frame_shape: tuple[int, int], frame_dtype, coord_names: Sequence[str],
-               bench_config: Mapping[str, Any] | None = None,
-               device_settings: Mapping[str, Any] | None = None, note: str = "",
-               overwrite: bool = False, shard_frames: int | None = None,
-               compressor: str = "default",
-               coord_specs: Mapping[str, Mapping[str, str]] | None = None) -> RunStore:
-        """Create the store of a new run with its whole layout.
-
-        Parameters
-        ----------
-        path : str or Path
-            Directory to create (conventionally ``NAME.zarr``).
-        plan_name : str
-        plan_params : Mapping
-            JSON-able parameters that rebuild the plan (stored for resume).
-        points : sequence of Mapping
-            One JSON-able description per plan point (e.g. ``{"z_mm": 20.0}``).
-        frame_tags : sequence of sequence of str
-            Per point, the tag of each frame it captures, in order (its length is
-            the point's frame count).
-        frame_shape : (rows, cols)
-        frame_dtype : numpy dtype
-            The camera's frame dtype.
-        coord_names : sequence of str
-            Names of the per-frame coordinates.
-        bench_config, device_settings : Mapping, optional
-            Snapshots stored with the run.
-        note : str
-            The operator's note.
-        overwrite : bool
-            Replace an existing run store at ``path`` (recognised by the schema
-            marker in its ``zarr.json``; nothing else is deleted).
-
-            The run's directory is created atomically (:func:`instrument.run_paths.claim_run_dir`):
-            of processes creating the same path at once one succeeds, the others are
-            refused and touch nothing. A failure while the layout is written removes
-            the run again (only this call's own).
-        shard_frames : int, optional
-            Store ``k`` frames per shard file (video runs; see "Sharded runs" in
-            the module notes). None (default): one frame per file, as before.
-        compressor : str
-            One of :data:`FRAME_COMPRESSORS`, for a sharded run's frames
-            (unsharded runs always use "default").
-        coord_specs : Mapping, optional
-            ``{name: {"unit": str, "dim": str}}`` for every coordinate
-            (:func:`instrument.coords.coord_specs`), stored in the ``coords`` array's
-            attributes ``units`` and ``dims`` (:meth:`coord_info` reads them back).
-
-        Raises
-        ------
-        RunStoreError
-            ``path`` exists (and ``overwrite`` is False) or was created by another
-            process meanwhile, ``path`` exists and is not
-            a run store (a file or another directory: never replaced), the run at
-            ``path`` is locked by a writer, the layout is empty, ``shard_frames``
-            is not a positive integer or ``compressor`` is unknown, ``coord_specs``
-            lacks a coordinate.
-        """
-        import zarr
-
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise RunStoreError(_exists_text(path))
-        if path.exists() and not is_run_store(path):
-            raise RunStoreError(
-                f"not replacing {path}: it is not a diffuserlab run store (only a run's "
-                "directory is ever deleted); choose another name or remove it yourself")
-        if (path / LOCK_NAME).exists():
-            raise RunStoreError(f"not replacing {path}: {lock_problem(path)}")
-        k = 1 if shard_frames is None else shard_frames
-        if not isinstance(k, int | np.integer) or isinstance(k, bool) or k < 1:
-            raise RunStoreError(f"shard_frames={shard_frames!r} is invalid; use an integer "
-                                ">= 1 or None")
-        compressors = _frame_compressors(compressor)
-        if shard_frames is None and compressor != "default":
-            raise RunStoreError(f"compressor {compressor!r} needs shard_frames (a sharded "
-                                "video run); unsharded runs use the default")
-        missing = [n for n in coord_names if coord_specs is not None and n not in coord_specs]
-        if missing:
-            raise RunStoreError(f"coord_specs lacks the unit of {missing}")
-        if len(points) != len(frame_tags) or not points:
-            raise RunStoreError("a run needs at least one point and one tag list per point "
-                                "(an empty list for a point without frames)")
-        tags = sorted({t for per in frame_tags for t in per})
-        point_of = np.concatenate([np.full(len(per), i, np.int32)
-                                   for i, per in enumerate(frame_tags)]).astype(np.int32)
-        tag_of = np.array([tags.index(t) for per in frame_tags for t in per], np.int16)
-        n = int(point_of.size)
-        rows, cols = (int(v) for v in frame_shape)
-        if overwrite and path.exists():  # the run checked above: renamed aside, removed
-            remove_replaced_run(path)
-        try:
-            creator = claim_run_dir(path)
-        except FileExistsError:  # another process created it since the check above
-            raise RunStoreError(_exists_text(path, meanwhile=True)) from None
-        try:  # the layout; a failure removes this call's own half-made run
-            group = zarr.open_group(str(path), mode="w-", zarr_format=3)
-            k = int(min(k, max(n, 1)))
-            sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
-                                                        "compressors": compressors}
-            dims = run_dims({"plan": {"name": plan_name, "points": list(points)}})
-            group.create_array("frames", shape=(n, rows, cols), chunks=(1, rows, cols),
-                               dtype=np.dtype(frame_dtype), fill_value=0,
-                               dimension_names=dims["frames"], **sharding)
-            coords = group.create_array("coords", shape=(n, len(coord_names)),
-                                        chunks=(k, len(coord_names)), dtype="float64",
-                                        fill_value=np.nan, dimension_names=dims["coords"])
-            coords.attrs["names"] = list(coord_names)
-            if coord_specs is not None:
-                coords.attrs["units"] = {n: str(coord_specs[n]["unit"]) for n in coord_names}
-                coords.attrs["dims"] = {n: str(coord_specs[n]["dim"]) for n in coord_names}
-            group.create_array("crc32", shape=(n,), chunks=(k,), dtype="uint32", fill_value=0,
-                               dimension_names=dims["crc32"])
-            group.create_array("done", shape=(n,), chunks=(k,), dtype="uint8", fill_value=0,
-                               dimension_names=dims["done"])
-            group.create_array("point", shape=(n,), chunks=(max(n, 1),), dtype="int32",
-                               dimension_names=dims["point"])[:] = point_of
-            group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16",
-                               dimension_names=dims["tag"])[:] = tag_of
-            group.create_group("products")
-            group.attrs.update(jsonable({
-                "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
-                "software_version": software_version(), "created_utc": utc_now(),
-                "started_utc": None, "ended_utc": None, "status": "created",
-                "plan": {"name": plan_name, "params": dict(plan_params), "points": list(points),
-                         "frames_per_point": [len(per) for per in frame_tags]},
-                "tags": tags, "bench_config": dict(bench_config or {}),
-                "device_settings": dict(device_settings or {}), "note": note,
-                "resumes": [], "warnings": [], "error": None, "summary": {},
-                CREATOR_ATTR: creator,
-            }))
-            if shard_frames is not None:
-                group.attrs["storage"] = {"shard_frames": k, "compressor": compressor}
-            describe_run(group)
-            record_layout(group, path, RUN_ARRAYS)  # what every later open compares with
-            record_description(group, path, RUN_ARRAYS)  # what runs verify compares with
-            store = cls(path, group, writable=True)
-        except BaseException:
-            discard_partial_run(path, token=creator["token"], claimed=True)
-            raise
-        store.creation_token = creator["token"]
-        return store
+    # a new run's store with its whole layout (instrument.run_creation, documented there)
+    create = classmethod(create_run)
 
     @classmethod
     def open(cls, path: str | Path, mode: str = "r") -> RunStore:
@@ -594,161 +399,3 @@ class RunStore(ProductsMixin, RunReadingMixin):
         """Index of the first point not fully written, None if all are."""
         missing = np.flatnonzero(~self.points_done())
         return int(missing[0]) if missing.size else None
-
-    # ------------------------------------------------------------------ writing
-    def _require_writable(self) -> None:
-        if not self.writable:
-            raise RunStoreError(f"{self.path} is open read-only; open it with mode='r+'")
-
-    def write_frame(self, index: int, image: np.ndarray, coords: Mapping[str, float]) -> None:
-        """Store frame ``index``: image, then coordinates, then its done flag.
-
-        Raises
-        ------
-        RunStoreError
-            Read-only store, index out of range, wrong image shape, unknown coordinate,
-            or values the run's dtype cannot hold exactly (an integer run refuses
-            NaN/inf, non-integer floats and values outside its range instead of
-            wrapping or rounding them).
-        """
-        self._require_writable()
-        if not 0 <= index < self.n_frames:
-            raise RunStoreError(f"frame {index} is outside the run's 0..{self.n_frames - 1}")
-        image = np.asarray(image)
-        if image.shape != self.frame_shape:
-            raise RunStoreError(f"frame shape {image.shape} differs from the run's "
-                                f"{self.frame_shape}; keep the camera ROI/binning fixed")
-        unknown = sorted(set(coords) - set(self._coord_names))
-        if unknown:
-            raise RunStoreError(f"unknown coordinates {unknown}; the run has "
-                                f"{self._coord_names}")
-        image = self._exact(index, image)
-        row = np.array([float(coords.get(n, np.nan)) for n in self._coord_names])
-        self._group["frames"][index] = image
-        self._group["coords"][index] = row
-        if self.has_checksums:
-            self._group["crc32"][index] = frame_crc(image, row)
-        self._group["done"][index] = 1
-
-    def write_frames(self, start: int, images: np.ndarray, coord_rows: np.ndarray) -> None:
-        """Store frames ``start .. start + len(images) - 1`` as one block: images, then
-        coordinates, then checksums, then done flags (each a single write).
-
-        Meant for sharded runs, written a whole shard at a time (``start`` a multiple
-        of :attr:`shard_frames`, ``len(images)`` equal to it except at the end of a
-        recording); any block is stored correctly, a partial shard just costs a
-        rewrite of that shard.
-
-        Parameters
-        ----------
-        start : int
-        images : ndarray, (m, rows, cols)
-            Cast exactly to the run's dtype (as :meth:`write_frame`).
-        coord_rows : ndarray, (m, n_coords) float64
-            Coordinates in ``coord_names`` order (NaN where unknown).
-
-        Raises
-        ------
-        RunStoreError
-            Read-only store, block outside the run, wrong image or coordinate shape,
-            or values the run's dtype cannot hold exactly.
-        """
-        self._require_writable()
-        images = np.asarray(images)
-        rows = np.asarray(coord_rows, np.float64)
-        m = images.shape[0] if images.ndim == 3 else -1
-        if images.ndim != 3 or images.shape[1:] != self.frame_shape:
-            raise RunStoreError(f"frame block shape {images.shape} is not (m, "
-                                f"{self.frame_shape[0]}, {self.frame_shape[1]}); keep the "
-                                "camera ROI/binning fixed")
-        if rows.shape != (m, len(self._coord_names)):
-            raise RunStoreError(f"coordinate block shape {rows.shape} is not ({m}, "
-                                f"{len(self._coord_names)}) for {self._coord_names}")
-        if not (0 <= start and start + m <= self.n_frames) or m == 0:
-            raise RunStoreError(f"frames {start}..{start + m - 1} are outside the run's "
-                                f"0..{self.n_frames - 1}")
-        images = np.stack([self._exact(start + j, im) for j, im in enumerate(images)])
-        stop = start + m
-        self._group["frames"][start:stop] = images
-        self._group["coords"][start:stop] = rows
-        if self.has_checksums:
-            self._group["crc32"][start:stop] = np.array(
-                [frame_crc(im, row) for im, row in zip(images, rows, strict=True)], np.uint32)
-        self._group["done"][start:stop] = 1
-
-    def _exact(self, index: int, image: np.ndarray) -> np.ndarray:
-        """``image`` cast to the run's dtype, or RunStoreError if that would change a value."""
-        dtype = self.frame_dtype
-        if image.dtype == dtype:
-            return image
-        kind = image.dtype.kind
-        if kind not in "biuf":
-            raise RunStoreError(f"frame {index}: {image.dtype} data cannot be stored in the "
-                                f"run's {dtype}; pass a real-valued image")
-        if dtype.kind == "f" or np.can_cast(image.dtype, dtype, casting="safe"):
-            return image.astype(dtype)
-        info = np.iinfo(dtype)
-        if kind == "f":
-            bad = ~np.isfinite(image)
-            if bad.any():
-                raise RunStoreError(
-                    f"frame {index}: {int(bad.sum())} NaN/inf pixels cannot be stored in the "
-                    f"run's {dtype}; fix the source or pass a finite image")
-            frac = image[image != np.round(image)]
-            if frac.size:
-                raise RunStoreError(
-                    f"frame {index}: non-integer values (e.g. {frac.flat[0]:g}) cannot be "
-                    f"stored exactly in the run's {dtype}; round them "
-                    "first or pass the camera's integer frame")
-        lo, hi = image.min(), image.max()
-        if lo < info.min or hi > info.max:
-            raise RunStoreError(
-                f"frame {index}: values {lo:g}..{hi:g} are outside the run's {dtype} range "
-                f"{info.min}..{info.max} (they would wrap); clip or rescale them first")
-        return image.astype(dtype)
-
-    def clear_point(self, point: int) -> None:
-        """Mark a point's frames not done (before it is captured again)."""
-        self._require_writable()
-        r = self.frame_range(point)
-        self._group["done"][r.start:r.stop] = 0
-
-    def truncate(self, n_frames: int) -> None:
-        """Cut a one-point run (a video) to its first ``n_frames`` frame slots, which
-        must all be done: a recording that ended early or lost frames keeps no empty
-        slots.
-
-        Raises
-        ------
-        RunStoreError
-            Read-only, a run of several points, or a slot below ``n_frames`` not done.
-        """
-        self._require_writable()
-        n = int(n_frames)
-        if self.n_points != 1 or not 0 <= n <= self.n_frames:
-            raise RunStoreError(f"cannot cut {self.path} to {n_frames} frames: only a "
-                                f"one-point run of at least that many frames can be cut")
-        if not self.done(range(0, n)).all():
-            raise RunStoreError(f"cannot cut {self.path} to {n} frames: not all are stored")
-        for name in RUN_ARRAYS:
-            arr = self._group[name]
-            arr.resize((n, *arr.shape[1:]))
-        record_layout(self._group, self.path, RUN_ARRAYS)
-        self.attrs = dict(self._group.attrs)
-        self._point, self._tag = self._point[:n], self._tag[:n]
-        plan = dict(self.attrs["plan"], frames_per_point=[n])
-        self.update_attrs(plan=plan)
-
-    def update_attrs(self, **values: Any) -> None:
-        """Set run attributes (status, times, summary, ...)."""
-        self._require_writable()
-        values = jsonable(values)
-        self._group.attrs.update(values)
-        self.attrs.update(values)
-        if {"camera", "device_settings"} & set(values):  # the pitch or frame interval
-            describe_run(self._group)
-            self.attrs = dict(self._group.attrs)
-
-    def add_warning(self, text: str) -> None:
-        """Append a warning to the run's ``warnings`` attribute."""
-        self.update_attrs(warnings=[*self.attrs.get("warnings", []), text])

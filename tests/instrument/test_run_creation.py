@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zarr
 
-import instrument.runstore as runstore
+import instrument.run_creation as run_creation
 from instrument.atomic import atomic_dir, output_group
 from instrument.run_paths import CREATOR_ATTR, creator_of, discard_partial_run
 from instrument.runstore import RunStore, RunStoreError, is_run_store
@@ -56,14 +56,14 @@ def test_create_refuses_a_path_another_process_claimed_meanwhile(tmp_path, monke
     """The directory appears between create's existence check and its own claim: the
     claim (os.mkdir) fails, create is refused in one line, the other's files stay."""
     path = tmp_path / "r.zarr"
-    claim = runstore.claim_run_dir
+    claim = run_creation.claim_run_dir
 
     def another_first(p):
         p.mkdir()
         (p / "theirs.txt").write_text("another process's run")
         return claim(p)
 
-    monkeypatch.setattr(runstore, "claim_run_dir", another_first)
+    monkeypatch.setattr(run_creation, "claim_run_dir", another_first)
     with pytest.raises(RunStoreError, match="already exists .another process created it "
                        "meanwhile.; choose another --out or pass --overwrite") as exc:
         _create(path)
@@ -75,7 +75,7 @@ def test_create_removes_its_own_half_made_run(tmp_path, monkeypatch):
     def full_disk(group):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(runstore, "describe_run", full_disk)
+    monkeypatch.setattr(run_creation, "describe_run", full_disk)
     with pytest.raises(OSError, match="No space"):
         _create(tmp_path / "o" / "r.zarr")
     assert _names(tmp_path) == ["o"] and _names(tmp_path / "o") == []
