@@ -4,12 +4,13 @@ A run store (:mod:`instrument.runstore`) is a Zarr v3 hierarchy; this module add
 the field's tools (ome-zarr-py, napari, xarray, Fiji through OME-Zarr readers) need to
 show it with named axes and physical units, without touching a data chunk:
 
-- ``dimension_names`` on every array (Zarr v3 array metadata): the frames are
-  (``FRAME_AXIS``, ``y``, ``x``) where the first axis is ``t`` for a video and, for a
-  sweep, named for what its points vary (``z_mm`` for a PSF z-sweep, ``point`` when
-  several things vary); the per-frame arrays (``coords``, ``crc32``, ``done``,
-  ``point``, ``tag``) share that first axis; products name theirs by kind
-  (:func:`product_dims`);
+- ``dimension_names`` on every array (Zarr v3 array metadata), the OME axes' names:
+  one letter of ``t``, ``c``, ``z``, ``y``, ``x`` for every image axis (bioio refuses
+  longer names, and OME-Zarr 0.5 wants the array's names to be the axes'). The frames
+  are (``t``, ``y``, ``x``): ``t`` in seconds for a video, the frame's index in the
+  order it was acquired for a sweep (its plan point is in ``point``/``coords``, its
+  kind in ``tag``); the per-frame arrays (``coords``, ``crc32``, ``done``, ``point``,
+  ``tag``) share that first axis; products name theirs by kind (:func:`product_dims`);
 - an ``ome`` block (OME-Zarr 0.5 ``multiscales``, built and validated with
   `ome-zarr-models <https://ome-zarr-models-py.readthedocs.io>`_) on the run's root
   group (the frames) and on each image product's own group ``products/NAME`` (its
@@ -17,14 +18,21 @@ show it with named axes and physical units, without touching a data chunk:
   types and standard unit names (``second``, ``micrometer``) and one scale per axis
   from the bench: the camera's pixel pitch times its binning (times a product's own
   ``bin_factor``), the frame interval ``1 / frame_rate_hz`` of a video, the plane
-  spacing of a volume whose depths are evenly spaced. (A run written before the
+  spacing of a volume, and a ``translation`` giving the first plane's depth (the
+  z origin). The micrometres of ``y``, ``x`` are the sensor's (its pixel grid), not
+  the scene's: the multiscale's metadata says so (:data:`YX_SCALE`). (A run written before the
   image groups kept its products as arrays of ``products/``, described by one block
   there listing each; ``runs upgrade`` moves them into their groups.)
 
 OME-Zarr 0.5 has one scale per axis, so a stack whose depths are not evenly spaced
-(a PSF sweep on a 1/z grid) keeps its first axis as a ``plane`` axis (no unit) and
-lists the depths in the multiscale's ``metadata`` (``depths_mm``), as the product's
-attributes do.
+(a PSF sweep on a 1/z grid) states a ``z`` axis whose scale is the mean spacing
+(first to last depth over the planes between) and whose translation is the first
+depth, so the first and last planes sit where they are, and lists every plane's
+depth in the multiscale's ``metadata`` (``depths_mm``), as the product's attributes
+do. Binning is a scale, not a name: a reconstruction binned by ``b`` has ``y``,
+``x`` of ``b`` times the pitch and ``bin_factor`` in its metadata. A run written
+before these names (``z_mm``, ``plane``, ``node``, ``y_bin2``, ``y_flat``) keeps
+them: every reader takes the names from the stored arrays.
 
 :func:`describe_run` writes all of it (what ``RunStore.create`` calls, and what
 ``runs upgrade`` runs on a store written before); :func:`describe_products` the
@@ -35,20 +43,20 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .product_nodes import IMAGE_ARRAY, array_keys, product_array, product_arrays
+from .product_nodes import IMAGE_ARRAY, product_array, product_arrays
 from .run_description import SELF, as_recorded, record_description
 
-__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "OmeAxis", "describe_products",
-           "describe_run", "dim_sizes", "frame_axis", "frame_pitch_um", "image_attrs",
-           "product_axes", "product_dim_sizes", "product_dims", "run_dims",
-           "set_dimension_names", "space_axes", "stored_axes", "unique_dims", "volume_axes",
-           "with_source"]
+__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "SWEEP_T", "UNEVEN_Z", "YX_SCALE",
+           "OmeAxis", "describe_products", "describe_run", "frame_axis",
+           "frame_meta", "frame_pitch_um", "image_attrs", "product_axes",
+           "product_dims", "run_dims", "set_dimension_names",
+           "space_axes", "stored_axes", "volume_axes", "with_source"]
 
 #: Arrays of the run's root group that hold one element (or row) per frame.
 FRAME_ARRAYS = ("crc32", "done", "point", "tag")
@@ -58,19 +66,30 @@ OME_UNITS = {"s": "second", "ms": "millisecond", "us": "microsecond", "um": "mic
 _UNIT_SUFFIXES = tuple(f"_{u}" for u in OME_UNITS)
 #: Relative tolerance under which depths count as evenly spaced.
 _EVEN_RTOL = 1e-6
+#: What the micrometres of ``y``, ``x`` measure (the multiscale metadata ``yx_scale``).
+YX_SCALE = ("sensor grid: the camera's pixel pitch times the binning, micrometres on "
+            "the sensor, not in the scene")
+#: What the ``t`` axis of a sweep's frames counts (multiscale metadata ``t``).
+SWEEP_T = ("frame index in acquisition order, no unit (each frame's plan point is in "
+           "the arrays point and coords, its kind, psf or dark, in tag)")
+#: What the ``z`` scale of unevenly spaced depths is (multiscale metadata ``z_scale``).
+UNEVEN_Z = ("mean spacing of unevenly spaced depths (translation: the first depth); "
+            "each plane's depth is in depths_mm")
 
 
 @dataclass(frozen=True)
 class OmeAxis:
     """One axis of an OME-Zarr image: ``name`` (also the array's dimension name),
     ``type`` (``"space"``, ``"time"``, ``"channel"`` or None for a custom axis),
-    ``unit`` (an OME unit name or None) and ``scale`` (the spacing of its samples in
-    that unit; 1.0 where there is no unit)."""
+    ``unit`` (an OME unit name or None), ``scale`` (the spacing of its samples in
+    that unit; 1.0 where there is no unit) and ``origin`` (the position of the first
+    sample in that unit: the OME ``translation``)."""
 
     name: str
     type: str | None = None
     unit: str | None = None
     scale: float = 1.0
+    origin: float = 0.0
 
 
 # ---------------------------------------------------------------------- what a run holds
@@ -92,11 +111,11 @@ def frame_pitch_um(attrs: Mapping[str, Any]) -> float | None:
 def frame_axis(attrs: Mapping[str, Any]) -> OmeAxis:
     """The first axis of a run's frames.
 
-    A video (plan ``video``) has ``t`` (time, second, the frame interval
-    ``1 / camera.frame_rate_hz``; scale 1 without unit if the rate is not recorded).
-    A sweep's axis is named for what its points vary: the one point key that varies
-    (``z_mm``), else ``point`` (several vary), else ``frame``; a custom axis (its
-    frames are several per point, not evenly spaced in anything).
+    Always ``t`` (time). A video (plan ``video``) has it in seconds, the frame
+    interval ``1 / camera.frame_rate_hz`` (scale 1 without unit if the rate is not
+    recorded). A sweep's (a calibration's) has no unit: its frames are several per
+    plan point (a PSF and a dark frame), not evenly spaced in anything, so the axis
+    counts frames in the order they were acquired (:data:`SWEEP_T`).
     """
     from .runstore_records import VIDEO_PLAN
 
@@ -105,38 +124,69 @@ def frame_axis(attrs: Mapping[str, Any]) -> OmeAxis:
         rate = (attrs.get("camera") or {}).get("frame_rate_hz")
         if isinstance(rate, int | float) and rate > 0:
             return OmeAxis("t", "time", "second", 1.0 / float(rate))
-        return OmeAxis("t", "time")
-    points = [p for p in plan.get("points") or [] if isinstance(p, Mapping)]
-    keys = sorted({k for p in points for k in p})
-    varying = [k for k in keys if len({json.dumps(p.get(k)) for p in points}) > 1]
-    name = varying[0] if len(varying) == 1 else "point" if varying else "frame"
-    return OmeAxis(name if name not in ("y", "x") else f"{name}_point")
+    return OmeAxis("t", "time")
+
+
+def frame_meta(attrs: Mapping[str, Any]) -> dict:
+    """The multiscale metadata of a run's frames: what a sweep's ``t`` counts."""
+    from .runstore_records import VIDEO_PLAN
+
+    return {} if (attrs.get("plan") or {}).get("name") == VIDEO_PLAN else {"t": SWEEP_T}
 
 
 def volume_axes(depths_mm: Sequence[float] | None, n_planes: int) -> tuple[OmeAxis, dict]:
     """The first axis of a stack of planes at ``depths_mm`` and the multiscale
     metadata that goes with it.
 
-    Evenly spaced depths give ``z`` (space, micrometer, the spacing); any other
-    stack a ``plane`` axis (custom, no unit: OME-Zarr 0.5 has one scale per axis)
-    with the depths in the metadata (``{"depths_mm": [...]}``).
+    Always ``z`` (space). With one depth per plane it is in micrometer, its origin
+    (the OME translation) the first depth and its scale the spacing: exact for
+    evenly spaced depths, else the mean spacing ``(last - first) / (n - 1)`` (OME-Zarr
+    0.5 has one scale per axis; :data:`UNEVEN_Z` in the metadata ``z_scale``), with
+    every plane's depth in the metadata (``{"depths_mm": [...]}``). Without depths
+    (or a stack whose depths all coincide) the axis has no unit.
     """
     depths = [] if depths_mm is None else [float(z) for z in np.atleast_1d(depths_mm)]
-    meta = {"depths_mm": depths} if depths else {}
-    if len(depths) == n_planes >= 2:
-        steps = np.diff(depths)
-        if steps[0] != 0 and np.allclose(steps, steps[0], rtol=_EVEN_RTOL, atol=0):
-            return OmeAxis("z", "space", "micrometer", abs(float(steps[0])) * 1000.0), meta
-    return OmeAxis("plane"), meta
+    meta: dict = {"depths_mm": depths} if depths else {}
+    if len(depths) != n_planes or not depths:
+        return OmeAxis("z", "space"), meta
+    origin = depths[0] * 1000.0
+    if n_planes == 1:
+        return OmeAxis("z", "space", "micrometer", 1.0, origin), meta
+    steps = np.diff(depths)
+    step = abs(depths[-1] - depths[0]) / (n_planes - 1)
+    if step == 0:
+        return OmeAxis("z", "space"), meta
+    if not np.allclose(steps, steps[0], rtol=_EVEN_RTOL, atol=0):
+        meta["z_scale"] = UNEVEN_Z
+    return OmeAxis("z", "space", "micrometer", step * 1000.0, origin), meta
 
 
 def space_axes(pitch_um: float | None, bin_factor: int = 1) -> list[OmeAxis]:
-    """The ``y``, ``x`` axes of a plane of pixels ``pitch_um`` apart (micrometer; no
-    unit when None), named ``y_binb``, ``x_binb`` for a plane binned by ``b > 1``."""
-    names = ("y", "x") if bin_factor == 1 else (f"y_bin{bin_factor}", f"x_bin{bin_factor}")
+    """The ``y``, ``x`` axes of a plane of pixels binned by ``bin_factor`` from a
+    grid of pixels ``pitch_um`` apart: the scale of every image and volume DiffuserLab
+    writes or shows (a run's frames and products, ``recon3d`` volumes, the napari
+    plugin's layers).
+
+    Parameters
+    ----------
+    pitch_um : float or None
+        The unbinned grid's pitch, micrometres on the sensor (the camera's pixel
+        pitch times its own binning); None when not known.
+    bin_factor : int
+        The plane's binning of that grid (a reconstruction's ``bin_factor``).
+
+    Returns
+    -------
+    list of OmeAxis
+        ``y``, ``x`` (the names whatever the binning: it is a scale, not a name), in
+        micrometer at ``pitch_um * bin_factor``; without a pitch, no unit and a scale
+        of ``bin_factor`` (one per unbinned sensor pixel), so a binned plane lines up
+        with the frames it came from.
+    """
     if pitch_um is None:
-        return [OmeAxis(a, "space") for a in names]
-    return [OmeAxis(a, "space", "micrometer", float(pitch_um)) for a in names]
+        return [OmeAxis(a, "space", None, float(bin_factor)) for a in ("y", "x")]
+    return [OmeAxis(a, "space", "micrometer", float(pitch_um) * bin_factor)
+            for a in ("y", "x")]
 
 
 def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
@@ -145,12 +195,12 @@ def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
     product that is no image (a table with ``columns``, a 1-D array, 4-D and up).
 
     2-D: (``y``, ``x``); 3-D: a per-frame product's first axis (or one with
-    ``frame_indices``: ΔF/F) is the run's (:func:`frame_axis`), a product with
-    ``depths_mm`` has :func:`volume_axes`, a grid of PSFs (a name with ``grid``)
-    ``node``, anything else ``plane``. ``y``/``x`` are scaled by the frame pitch
-    (:func:`frame_pitch_um`) times the product's ``bin_factor`` ``b`` (its ``source``'s
-    for a ΔF/F), and named ``y_binb``/``x_binb`` when ``b > 1`` (their size differs
-    from the frames').
+    ``frame_indices``: ΔF/F) is the run's (:func:`frame_axis`, ``t``), a product with
+    ``depths_mm`` has :func:`volume_axes` (``z``), a grid of PSFs (a name with
+    ``grid``) ``c`` (channel: one PSF per grid node; bioio drops any axis not among
+    t, c, z, y, x), anything else ``z`` without unit (planes). ``y``/``x`` are scaled
+    by the frame pitch (:func:`frame_pitch_um`) times the product's ``bin_factor``
+    ``b`` (its ``source``'s for a ΔF/F), which the metadata states when ``b > 1``.
     """
     shape = tuple(int(v) for v in shape)
     if "columns" in attrs or len(shape) not in (2, 3):
@@ -158,20 +208,19 @@ def product_axes(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
     pitch = frame_pitch_um(run_attrs)
     b = attrs.get("bin_factor", 1)
     b = int(b) if isinstance(b, int | float) and b >= 1 and b == int(b) else 1
-    if pitch is not None:
-        pitch *= b
-    meta: dict = {}
+    binned = {"bin_factor": b} if b > 1 else {}
     if len(shape) == 2:
-        return space_axes(pitch, b), meta
+        return space_axes(pitch, b), binned
+    meta: dict = {}
     if attrs.get("per_frame") or "frame_indices" in attrs:
-        first = frame_axis(run_attrs)
+        first, meta = frame_axis(run_attrs), frame_meta(run_attrs)
     elif attrs.get("depths_mm") is not None:
         first, meta = volume_axes(attrs["depths_mm"], shape[0])
     elif "grid" in name:
-        first = OmeAxis("node")
+        first = OmeAxis("c", "channel")
     else:
-        first = OmeAxis("plane")
-    return [first, *space_axes(pitch, b)], meta
+        first = OmeAxis("z", "space")
+    return [first, *space_axes(pitch, b)], {**meta, **binned}
 
 
 def product_dims(name: str, shape: Sequence[int], attrs: Mapping[str, Any],
@@ -202,16 +251,6 @@ def with_source(attrs: Mapping[str, Any], products) -> dict:
     return attrs
 
 
-def unique_dims(dims: Sequence[str], shape: Sequence[int], taken: Mapping[str, int],
-                suffix: str) -> tuple[str, ...]:
-    """``dims`` with ``_suffix`` added to each name that ``taken`` ({name: size} of
-    the group's other arrays and of its parent's) already uses with another size: a
-    group's arrays, and a group and its parent, must agree on the size of a
-    dimension for xarray to open the run as one tree."""
-    return tuple(d if taken.get(d, n) == n else f"{d}_{suffix}"
-                 for d, n in zip(dims, shape, strict=True))
-
-
 # ---------------------------------------------------------------------- OME attributes
 def image_attrs(images: Sequence[tuple[str, str, Sequence[OmeAxis], Mapping]]) -> dict:
     """The ``ome`` attribute (OME-Zarr 0.5) of a group holding the given images.
@@ -220,7 +259,10 @@ def image_attrs(images: Sequence[tuple[str, str, Sequence[OmeAxis], Mapping]]) -
     ----------
     images : sequence of (name, path, axes, metadata)
         One multiscale entry per image: its name, the path of its array in the
-        group, its axes and free metadata (depths of a ``plane`` axis, ...).
+        group, its axes and free metadata (each plane's depth, the binning, ...);
+        the metadata ``yx_scale`` (:data:`YX_SCALE`) is added where ``y``, ``x``
+        have a unit. Each dataset has a scale and a translation (the axes'
+        ``origin``).
 
     Returns
     -------
@@ -240,11 +282,14 @@ def image_attrs(images: Sequence[tuple[str, str, Sequence[OmeAxis], Mapping]]) -
 
     multiscales = []
     for name, path, axes, meta in images:
+        meta = dict(meta)
+        if any(a.type == "space" and a.unit is not None for a in axes[-2:]):
+            meta["yx_scale"] = YX_SCALE
         multiscales.append(Multiscale(
-            name=name, metadata=dict(meta) or None,
+            name=name, metadata=meta or None,
             axes=[Axis(name=a.name, type=a.type, unit=a.unit) for a in axes],
             datasets=[Dataset.build(path=path, scale=[a.scale for a in axes],
-                                    translation=None)]))
+                                    translation=[a.origin for a in axes])]))
     attrs = ImageAttrs(version="0.5", multiscales=multiscales)
     return attrs.model_dump(mode="json", exclude_none=True)
 
@@ -318,13 +363,10 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
         record_description(group, path, changed)
         record_description(group, path, ROOT_ARRAYS, missing_only=True)
         products = group["products"]
-        taken = dim_sizes(group, ROOT_ARRAYS)
         plan: dict[str, tuple[str, ...]] = {}
         for name, (key, arr) in product_arrays(products).items():
-            dims = tuple(arr.metadata.dimension_names or ()) or unique_dims(
-                product_dims(name, arr.shape, with_source(arr.attrs, products), attrs),
-                arr.shape, taken, name)
-            taken.update(zip(dims, arr.shape, strict=True))
+            dims = tuple(arr.metadata.dimension_names or ()) or product_dims(
+                name, arr.shape, with_source(arr.attrs, products), attrs)
             plan[key] = dims
             for hidden in ("__done", "__crc32"):
                 if name + hidden in products:
@@ -338,8 +380,8 @@ def describe_run(group, *, arrays: bool = False) -> list[str]:
     dims = frames.metadata.dimension_names
     if dims is not None:  # (a store written before: runs upgrade names them first)
         found = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))][-frames.ndim:]
-        axes = [OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found, strict=True)]
-        group.attrs["ome"] = image_attrs([("frames", "frames", axes, {})])
+        axes = [replace(a, name=d) for d, a in zip(dims, found, strict=True)]
+        group.attrs["ome"] = image_attrs([("frames", "frames", axes, frame_meta(attrs))])
         if path is not None and as_recorded(group, path, "frames"):
             record_description(group, path, [SELF])
     describe_products(group["products"], attrs)
@@ -354,24 +396,6 @@ def _folder(group) -> Path | None:
 
 #: The arrays of a run's root group.
 ROOT_ARRAYS = ("frames", "coords", *FRAME_ARRAYS)
-
-
-def dim_sizes(group, names: Sequence[str] | None = None) -> dict[str, int]:
-    """``{dimension name: size}`` over the arrays ``names`` of one group (paths in it,
-    such as ``NAME/0``; None: its own arrays; a run's root is not listed, zarr would
-    warn about its ``.lock``)."""
-    out: dict[str, int] = {}
-    for name in group.array_keys() if names is None else names:
-        dims = group[name].metadata.dimension_names
-        if dims is not None:
-            out.update(zip(dims, group[name].shape, strict=True))
-    return out
-
-
-def product_dim_sizes(products) -> dict[str, int]:
-    """:func:`dim_sizes` over every array of a run's ``products/`` group, both layouts
-    (:func:`instrument.product_nodes.array_keys`)."""
-    return dim_sizes(products, array_keys(products))
 
 
 #: Dimension names a run's ``coords`` had before the frames' axis was named.
@@ -407,16 +431,15 @@ def stored_axes(name: str, arr, products, run_attrs: Mapping[str, Any],
     -------
     (list of OmeAxis, dict) or None
         :func:`product_axes` with each axis renamed to the array's dimension name
-        (a name suffixed where it clashed, :func:`unique_dims`; the computed names
-        for an array without dimension names, a run written before them), and the
+        (the names a run written before stored, such as ``plane`` or ``y_bin2``; the
+        computed names for an array without dimension names), and the
         multiscale metadata; None for a product that is no image.
     """
     found = product_axes(name, arr.shape, with_source(arr.attrs, products), run_attrs)
     if found is None:
         return None
     dims = arr.metadata.dimension_names or [a.name for a in found[0]]
-    return ([OmeAxis(d, a.type, a.unit, a.scale) for d, a in zip(dims, found[0], strict=True)],
-            found[1])
+    return [replace(a, name=d) for d, a in zip(dims, found[0], strict=True)], found[1]
 
 
 def describe_products(products, run_attrs: Mapping[str, Any],

@@ -29,13 +29,9 @@ import numpy as np
 from diffuserlab.jsonio import jsonable
 
 from .ome import (
-    ROOT_ARRAYS,
     describe_products,
-    dim_sizes,
     product_axes,
-    product_dim_sizes,
     product_dims,
-    unique_dims,
     with_source,
 )
 from .product_nodes import (
@@ -292,18 +288,15 @@ class ProductsMixin:
 
     # ------------------------------------------------------------------ helpers
     def _product_dims(self, name: str, shape, attrs, image: bool) -> tuple[str, ...]:
-        """Dimension names of a new product (:func:`instrument.ome.product_dims`), a
-        name suffixed with the product's where an array it must agree with uses it
-        with another size: xarray opens the run as one tree, whose every node must
-        agree with its ancestors' arrays. An image (its own group) agrees with the
-        frames and the arrays of ``products/``; an array of ``products/`` (a table, a
-        LUT) with those and every image group below it. The product is deleted
-        before, so its old names do not count."""
-        products = self._group["products"]
-        taken = {**dim_sizes(self._group, ROOT_ARRAYS),
-                 **(dim_sizes(products) if image else product_dim_sizes(products))}
-        attrs = with_source(attrs, products)
-        return unique_dims(product_dims(name, shape, attrs, self.attrs), shape, taken, name)
+        """Dimension names of a new product (:func:`instrument.ome.product_dims`): an
+        image's are its OME axes' one-letter names (``t``, ``c``, ``z``, ``y``,
+        ``x``), whatever the sizes of the frames' (a reconstruction binned by 2 has
+        ``y``, ``x`` of half the frames'), so xarray opens each image group on its
+        own (``group="products/NAME"``); a whole-run tree opens where the sizes
+        agree."""
+        del image  # (the names are the product's own, image or not)
+        attrs = with_source(attrs, self._group["products"])
+        return product_dims(name, shape, attrs, self.attrs)
 
     def _product_array(self, name: str, check: bool = True):
         """The product's array, wherever it is (:func:`instrument.product_nodes.

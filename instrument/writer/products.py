@@ -142,10 +142,12 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
 
     The Zarr volume is a group holding the volume as its array ``0`` (z, y, x) with
     ``attrs`` and an ``ome`` block (:func:`instrument.ome.image_attrs`): ``z`` in
-    micrometer when ``attrs["depths_mm"]`` are evenly spaced, else a ``plane`` axis
-    with the depths in the metadata (:func:`instrument.ome.volume_axes`); ``y``/``x``
-    in micrometer with ``pitch_um`` (the reconstruction grid's pitch: sensor pitch
-    times binning), unitless without.
+    micrometer from ``attrs["depths_mm"]``, its translation the first depth (the mean
+    spacing for uneven depths, each in the metadata: :func:`instrument.ome.volume_axes`);
+    ``y``/``x`` in micrometer with ``pitch_um`` (the reconstruction grid's pitch:
+    sensor pitch times binning), without it unitless at ``attrs["bin_factor"]`` per
+    pixel (one per sensor pixel, :func:`instrument.ome.space_axes`, as the napari
+    plugin scales a reconstruction).
 
     Both are written under a temporary name in the same directory and renamed into
     place (the TIFF with :func:`~instrument.atomic.atomic_path`, a Zarr array, a
@@ -168,7 +170,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
             tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
                              metadata={**attrs, "axes": "ZYX"})
         return
-    from ..ome import OmeAxis, image_attrs, volume_axes
+    from ..ome import image_attrs, space_axes, volume_axes
 
     node = path / "zarr.json"
     if path.exists():
@@ -179,9 +181,9 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
             raise InputError(f"--out {path} exists and is not a volume written by recon3d "
                              "(a run store?); choose another name")
     first, meta = volume_axes(attrs.get("depths_mm"), volume.shape[0])
-    space = [OmeAxis(a, "space", *(("micrometer", float(pitch_um)) if pitch_um else ()))
-             for a in ("y", "x")]
-    axes = [first, *space]
+    b = attrs.get("bin_factor", 1)
+    axes = [first, *(space_axes(float(pitch_um), 1) if pitch_um else space_axes(
+        None, int(b) if isinstance(b, int) and b >= 1 else 1))]
     with atomic_dir(path) as tmp:  # never half a volume under the final name
         group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
         arr = group.create_array("0", shape=volume.shape, dtype="float32",

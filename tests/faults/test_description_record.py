@@ -115,16 +115,16 @@ CASES = {
     "frames' image: axes reversed": (
         "sweep", _edit(".", _reverse_axes),
         ["the run's root group", "ome.multiscales[0] changed",
-         'ome.multiscales[0].axes[0].name "x", recorded "z_mm"']),
+         'ome.multiscales[0].axes[0].name "x", recorded "t"']),
     "frames' image: ome block deleted": (
         "video", _edit(".", _delete_ome),
         ["the run's root group", "ome is gone", "runs upgrade"]),
     "frames: dimension names deleted": (
         "sweep", _edit("frames", _delete_dims),
-        ["'frames'", 'dimension_names is gone (recorded ["z_mm","y","x"])', "runs upgrade"]),
+        ["'frames'", 'dimension_names is gone (recorded ["t","y","x"])', "runs upgrade"]),
     "frames: dimension name edited": (
         "sweep", _edit("frames", _rename_dim),
-        ["'frames'", 'dimension_names ["z_mm","y","col"], recorded ["z_mm","y","x"]',
+        ["'frames'", 'dimension_names ["t","y","col"], recorded ["t","y","x"]',
          "put the recorded values back", "backup copy"]),
     "frames: dimension names reversed": (
         "video", _edit("frames", _reverse_dims),

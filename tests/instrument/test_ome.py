@@ -17,7 +17,7 @@ from ome_zarr_models import open_ome_zarr
 from ome_zarr_models.v05.image import Image
 
 from instrument.cli import main
-from instrument.ome import describe_products, volume_axes
+from instrument.ome import SWEEP_T, UNEVEN_Z, YX_SCALE, describe_products, volume_axes
 from instrument.runstore import RunStore, RunStoreError
 from instrument.runstore_records import VIDEO_PLAN
 
@@ -74,6 +74,10 @@ def _scale(ms):
     return list(ms.datasets[0].coordinateTransformations[0].scale)
 
 
+def _origin(ms):
+    return list(ms.datasets[0].coordinateTransformations[1].translation)
+
+
 def _every_product_kind(store):
     """Every kind of product a run holds (images of each axis kind, a table, a LUT,
     a per-frame reconstruction) written to ``store``; the image products' names."""
@@ -100,12 +104,14 @@ def test_sweep_frames_and_every_product_kind_validate(tmp_path):
     group = zarr.open_group(store.path, mode="r")
     frames = _multiscale(group, "frames")
     pitch = PITCH_UM * BINNING
-    # the sweep's axis is named for what its points vary (z_mm, not the fixed x_mm)
-    assert _axes(frames) == [("z_mm", None, None), ("y", "space", "micrometer"),
+    # one-letter axes (bioio takes no other): a sweep's frames counted in time order,
+    # without a unit (a PSF and a dark frame per point), as its metadata says
+    assert _axes(frames) == [("t", "time", None), ("y", "space", "micrometer"),
                              ("x", "space", "micrometer")]
     assert _scale(frames) == pytest.approx([1.0, pitch, pitch])
+    assert frames.metadata == {"t": SWEEP_T, "yx_scale": YX_SCALE}
     for name in ("coords", "crc32", "done", "point", "tag"):
-        assert group[name].metadata.dimension_names[0] == "z_mm"
+        assert group[name].metadata.dimension_names[0] == "t"
     # each image product is its own OME-Zarr image: products/NAME with its array at 0
     products = group["products"]
     assert sorted(products.group_keys()) == images
@@ -117,33 +123,42 @@ def test_sweep_frames_and_every_product_kind_validate(tmp_path):
     even = _product_image(store.path, "psf_stack")
     assert _axes(even)[0] == ("z", "space", "micrometer")
     assert _scale(even) == pytest.approx([1000.0, pitch, pitch])
-    uneven = _product_image(store.path, "psf_stack_raw")  # one scale per axis
-    assert _axes(uneven)[0] == ("plane", None, None)
-    assert uneven.metadata == {"depths_mm": [10.0, 12.0, 20.0]}
+    assert _origin(even) == pytest.approx([10000.0, 0.0, 0.0])  # the first plane's depth
+    uneven = _product_image(store.path, "psf_stack_raw")  # one scale per axis: the mean
+    assert _axes(uneven)[0] == ("z", "space", "micrometer")
+    assert _scale(uneven)[0] == pytest.approx(5000.0) and _origin(uneven)[0] == 10000.0
+    assert uneven.metadata == {"depths_mm": [10.0, 12.0, 20.0], "z_scale": UNEVEN_Z,
+                               "yx_scale": YX_SCALE}
     assert _axes(_product_image(store.path, "dark_mean"))[0][1:] == ("space", "micrometer")
-    assert _axes(_product_image(store.path, "psf_grid_registered"))[0][0] == "node"
+    assert _axes(_product_image(store.path, "psf_grid_registered"))[0] == (
+        "c", "channel", None)  # one PSF per grid node
     beads = _product_image(store.path, "bead_images")  # 3-D without depths: planes
-    assert _axes(beads) == [("plane", None, None), ("y", "space", "micrometer"),
+    assert _axes(beads) == [("z", "space", None), ("y", "space", "micrometer"),
                             ("x", "space", "micrometer")]
     assert _scale(beads) == pytest.approx([1.0, pitch, pitch])
-    recon = _product_image(store.path, "recon_admm")
-    assert _axes(recon)[0][0] == "z_mm" and _scale(recon)[1] == pytest.approx(2 * pitch)
+    recon = _product_image(store.path, "recon_admm")  # binning is a scale, not a name
+    assert _axes(recon) == [("t", "time", None), ("y", "space", "micrometer"),
+                            ("x", "space", "micrometer")]
+    assert _scale(recon)[1] == pytest.approx(2 * pitch)
+    assert recon.metadata["bin_factor"] == 2
     # tables and LUTs are no images: arrays of products/, as the per-frame bookkeeping
     assert sorted(products.array_keys()) == ["angular_response", "recon_admm__crc32",
                                              "recon_admm__done", "slm_lut"]
     assert products["angular_response"].metadata.dimension_names == ("row", "column")
     assert products["slm_lut"].metadata.dimension_names == ("entry",)
-    assert products["recon_admm__done"].metadata.dimension_names == ("z_mm",)
+    assert products["recon_admm__done"].metadata.dimension_names == ("t",)
     assert sorted(store.products()) == sorted([*images, "angular_response", "slm_lut"])
     assert store.verify() == []
     assert store.product("bead_images")[0].shape == (4, 16, 20)
     assert store.product_frame("recon_admm", 0)[0, 0] == 1.0
-    # xarray: one node per image; siblings need not agree (4 bead planes, 3 PSF planes)
+    # xarray: each image group opens on its own, its depths in the array's attributes
     xr = pytest.importorskip("xarray")
-    tree = xr.open_datatree(store.path, engine="zarr", consolidated=False)
-    assert tree["products/bead_images"].to_dataset()["0"].sizes == {
-        "plane": 4, "y": 16, "x": 20}
-    assert tree["products/psf_stack_raw"].to_dataset()["0"].sizes["plane"] == 3
+    beads = xr.open_dataset(store.path, engine="zarr", group="products/bead_images",
+                            consolidated=False)["0"]
+    assert beads.sizes == {"z": 4, "y": 16, "x": 20}
+    raw = xr.open_dataset(store.path, engine="zarr", group="products/psf_stack_raw",
+                          consolidated=False)["0"]
+    assert raw.dims == ("z", "y", "x") and raw.attrs["depths_mm"] == [10.0, 12.0, 20.0]
 
 
 def test_video_time_axis_in_seconds(tmp_path):
@@ -155,45 +170,63 @@ def test_video_time_axis_in_seconds(tmp_path):
 
 def test_volume_axes_even_and_uneven():
     axis, meta = volume_axes([2.0, 2.5, 3.0], 3)
-    assert (axis.name, axis.unit, axis.scale) == ("z", "micrometer", 500.0)
-    axis, meta = volume_axes([1.0, 2.0, 4.0], 3)
-    assert axis.name == "plane" and axis.unit is None and meta["depths_mm"] == [1, 2, 4]
+    assert (axis.name, axis.unit, axis.scale, axis.origin) == ("z", "micrometer", 500.0,
+                                                               2000.0)
+    assert "z_scale" not in meta
+    axis, meta = volume_axes([1.0, 2.0, 4.0], 3)  # uneven: the mean spacing, stated
+    assert (axis.name, axis.unit, axis.scale, axis.origin) == ("z", "micrometer", 1500.0,
+                                                               1000.0)
+    assert meta == {"depths_mm": [1, 2, 4], "z_scale": UNEVEN_Z}
+    axis, _ = volume_axes([5.0], 1)  # one plane: its depth as the origin
+    assert (axis.unit, axis.origin) == ("micrometer", 5000.0)
+    axis, _ = volume_axes(None, 4)  # no depths: planes without a unit
+    assert (axis.name, axis.unit, axis.origin) == ("z", None, 0.0)
 
 
-def test_xarray_opens_a_run_as_a_tree(tmp_path):
+def test_xarray_opens_each_image_of_a_run(tmp_path):
+    """One-letter dimension names in every group: xarray opens the root (the frames),
+    ``products/`` and each image group on its own with those names; the whole run as
+    one tree where the groups' sizes agree (a tree wants one size per name)."""
     xr = pytest.importorskip("xarray")
     store = _video(tmp_path / "v.zarr")
     store.create_frame_product("recon_wiener", store.n_frames, (6, 8), bin_factor=2)
-    # a ΔF/F of 4 of the 6 frames, binned as its source (the names say so)
+    # a ΔF/F of 4 of the 6 frames, binned as its source (its scale says so)
     store.write_product("recon_wiener_dff", np.ones((4, 6, 8), np.float32),
                         frame_indices=[0, 1, 2, 3], source="recon_wiener")
     store.write_product("recon_wiener_dff_baseline", np.ones((6, 8), np.float32),
                         source="recon_wiener")
-    store.write_product("flat", np.ones((5, 5), np.float32))  # another size: own names
+    store.write_product("flat", np.ones((5, 5), np.float32))
     store.write_product("lut", np.arange(7.0))  # no image: an array of products/
-    tree = xr.open_datatree(store.path, engine="zarr", consolidated=False)
-    root = tree.to_dataset()
+
+    def group(path=None):
+        return xr.open_dataset(store.path, engine="zarr", group=path, consolidated=False)
+
+    root = group()
     assert root["frames"].dims == ("t", "y", "x") and root["coords"].dims == ("t", "coord")
     assert root["done"].dims == ("t",) and root.sizes["t"] == 6
-    products = tree["products"].to_dataset()
+    products = group("products")
     assert products["recon_wiener__done"].dims == ("t",)
     assert products["lut"].dims == ("entry",)
 
-    def image(name):  # each image product: a node of its own, its array "0"
-        return tree[f"products/{name}"].to_dataset()["0"]
+    def image(name):  # each image product: a group of its own, its array "0"
+        return group(f"products/{name}")["0"]
 
-    assert image("recon_wiener").dims == ("t", "y_bin2", "x_bin2")
+    assert image("recon_wiener").dims == ("t", "y", "x")
     assert image("recon_wiener").shape == (6, 6, 8)
     assert image("recon_wiener").attrs["per_frame"] is True
-    assert image("recon_wiener_dff").dims == ("t_recon_wiener_dff", "y_bin2", "x_bin2")
-    assert image("recon_wiener_dff_baseline").dims == ("y_bin2", "x_bin2")
-    assert image("flat").dims == ("y_flat", "x_flat")
-    assert tree["products/flat"].attrs["ome"]["multiscales"][0]["name"] == "flat"
+    assert image("recon_wiener_dff").dims == ("t", "y", "x")
+    assert image("recon_wiener_dff_baseline").dims == ("y", "x")
+    assert image("flat").dims == ("y", "x")
+    assert group("products/flat").attrs["ome"]["multiscales"][0]["name"] == "flat"
     dff = _product_image(store.path, "recon_wiener_dff")
-    assert _axes(dff)[0] == ("t_recon_wiener_dff", "time", "second")
+    assert _axes(dff)[0] == ("t", "time", "second")
     assert _scale(dff) == pytest.approx([1 / FPS, 2 * PITCH_UM, 2 * PITCH_UM])
     np.testing.assert_array_equal(root["frames"].values, store._group["frames"][:])
     np.testing.assert_array_equal(image("flat").values, np.ones((5, 5)))
+    same = _video(tmp_path / "same.zarr")  # products of the frames' size: one tree
+    same.create_frame_product("recon_wiener", same.n_frames, (12, 16), bin_factor=1)
+    tree = xr.open_datatree(same.path, engine="zarr", consolidated=False)
+    assert tree["products/recon_wiener"].to_dataset()["0"].dims == ("t", "y", "x")
 
 
 def _strip_to_legacy(path: Path) -> None:
@@ -289,12 +322,12 @@ def test_upgrade_adds_the_description_without_touching_a_chunk(tmp_path, capsys)
     # every chunk file byte for byte, the same file (renamed with its folder)
     assert _chunks(store.path) == _moved(before, images)
     group = zarr.open_group(store.path, mode="r")
-    assert _axes(_multiscale(group, "frames"))[0][0] == "z_mm"
-    assert group["coords"].metadata.dimension_names == ("z_mm", "coord")
+    assert _axes(_multiscale(group, "frames"))[0][0] == "t"
+    assert group["coords"].metadata.dimension_names == ("t", "coord")
     assert "ome" not in group["products"].attrs
     assert _axes(_product_image(store.path, "psf_stack"))[0][0] == "z"
-    assert _axes(_product_image(store.path, "recon_admm"))[0][0] == "z_mm"
-    assert _axes(_product_image(store.path, "bead_images"))[0][0] == "plane"
+    assert _axes(_product_image(store.path, "recon_admm"))[0][0] == "t"
+    assert _axes(_product_image(store.path, "bead_images"))[0][0] == "z"
     assert sorted(group["products"].array_keys()) == ["recon_admm__crc32",
                                                       "recon_admm__done", "slm_lut"]
     again = RunStore.open(store.path, "r+")
@@ -329,8 +362,10 @@ def test_a_run_of_the_layout_before_opens_resumes_and_upgrades(tmp_path, capsys)
     assert old.product("recon_wiener")[0][:, 0, 0].tolist() == [0, 1, 2, 3, 4, 5]
     old.write_product("recon_wiener_dff", np.ones((4, 6, 8), np.float32),
                       frame_indices=[0, 1, 2, 3], source="recon_wiener")
-    assert _axes(_product_image(old.path, "recon_wiener_dff"))[1] == (
-        "y_bin2", "space", "micrometer")  # the source's binning, found in either layout
+    dff = _product_image(old.path, "recon_wiener_dff")
+    assert _axes(dff)[1] == ("y", "space", "micrometer")
+    assert _scale(dff)[1] == pytest.approx(2 * PITCH_UM)  # the source's binning, found
+    # in either layout
     old.write_product("flat", np.full((5, 5), 2, np.float32))  # replaced: a group now
     _product_image(old.path, "flat")
     assert [m.name for m in Image.from_zarr(old._group["products"]).ome_attributes

@@ -20,9 +20,10 @@ def _image(path) -> tuple[list[str], tuple, list[float]]:
     assert nodes, f"ome-zarr-py found no image at {path}"
     node = nodes[0]
     assert any(type(s).__name__ == "Multiscales" for s in node.specs), node.specs
-    (transform,) = node.metadata["coordinateTransformations"][0]
+    transforms = {t["type"]: t for t in node.metadata["coordinateTransformations"][0]}
+    assert set(transforms) == {"scale", "translation"}  # every image says its origin
     return ([a["name"] for a in node.metadata["axes"]], tuple(node.data[0].shape),
-            transform["scale"])
+            transforms["scale"]["scale"])
 
 
 def test_ome_zarr_py_opens_the_run_and_each_image_product(tmp_path):
@@ -30,14 +31,14 @@ def test_ome_zarr_py_opens_the_run_and_each_image_product(tmp_path):
     images = _every_product_kind(store)
     group = zarr.open_group(store.path, mode="r")
     pitch = PITCH_UM * BINNING
-    axes, shape, scale = _image(store.path)  # the frames, on the sweep's axis
-    assert axes == ["z_mm", "y", "x"] and shape == group["frames"].shape
+    axes, shape, scale = _image(store.path)  # the frames, counted in time order
+    assert axes == ["t", "y", "x"] and shape == group["frames"].shape
     assert scale[1:] == [pitch, pitch]
     for name in images:  # every product its own image (before: none but the frames)
         axes, shape, scale = _image(store.path / "products" / name)
         assert shape == group[f"products/{name}/0"].shape, name
-        # y and x (y_bin2, x_bin2 for a binned product: other sizes than the frames')
-        assert [a[0] for a in axes[-2:]] == ["y", "x"] and len(axes) == len(shape), (
-            name, axes)
+        # one letter each, y and x last (a binned product too: binning is its scale)
+        assert axes[-2:] == ["y", "x"] and len(axes) == len(shape), (name, axes)
+        assert all(a in "tczyx" and len(a) == 1 for a in axes), (name, axes)
     axes, _, scale = _image(store.path / "products" / "psf_stack")
     assert axes[0] == "z" and scale[0] == 1000.0  # evenly spaced depths in micrometres

@@ -77,10 +77,16 @@ def test_zarr_volume_is_an_ome_zarr_image(tmp_path):
         ("z", "space", "micrometer"), ("y", "space", "micrometer"),
         ("x", "space", "micrometer")]
     assert list(ms.datasets[0].coordinateTransformations[0].scale) == [500.0, 6.9, 6.9]
-    write_volume(path, np.ones((3, 4, 5), np.float32), {"depths_mm": [1.0, 3.0, 4.0]})
+    # the first plane where it is: the z origin
+    assert list(ms.datasets[0].coordinateTransformations[1].translation) == [1000.0, 0, 0]
+    write_volume(path, np.ones((3, 4, 5), np.float32), {"depths_mm": [1.0, 3.0, 4.0],
+                                                        "bin_factor": 2})
     ms = Image.from_zarr(zarr.open_group(str(path), mode="r")).ome_attributes.multiscales[0]
-    assert ms.axes[0].name == "plane"  # uneven depths: OME-Zarr has one scale per axis
-    assert ms.metadata == {"depths_mm": [1.0, 3.0, 4.0]}
+    # uneven depths: OME-Zarr has one scale per axis, the mean spacing, stated
+    assert (ms.axes[0].name, ms.axes[0].unit) == ("z", "micrometer")
+    assert list(ms.datasets[0].coordinateTransformations[0].scale) == [1500.0, 2.0, 2.0]
+    assert ms.metadata["depths_mm"] == [1.0, 3.0, 4.0] and "z_scale" in ms.metadata
+    # no pitch: one unit per sensor pixel, the binning as the scale (as napari shows it)
     assert ms.axes[1].unit is None
 
 
