@@ -84,8 +84,9 @@ def test_every_column_on_two_binned_pairs(tmp_path, isolated_lensless, monkeypat
             assert np.isfinite([r["psnr_db"], r["ssim"], r["seconds"]]).all()
             assert r["time_ratio"] == pytest.approx(r["seconds"] / floor)
         by_w = {w: np.mean([r["psnr_db"] for r in rows if r["weight"] == w]) for w in weights}
-        chosen = next(x for x in saved["methods"] if x["name"] == m.name)["weight"]
-        assert by_w[chosen] == max(by_w.values())
+        entry = next(x for x in saved["methods"] if x["name"] == m.name)
+        assert by_w[entry["weight"]] == max(by_w.values())
+        assert entry["weight_at_grid_edge"] is m.oracle  # a grid of two: both are edges
     assert (out / "contact.png").stat().st_size > 0
     assert (out / "speed_accuracy.png").stat().st_size > 0
 
