@@ -2,12 +2,12 @@
 
 The bench process (:class:`~instrument.bench_host.BenchHost`) keeps a
 :class:`JobRegistry`: for every job it runs, whichever client started it, a log of the
-job's events (``progress`` with the value the job reported, then ``done`` with its
-result or ``failed`` with its error, as :class:`~instrument.bench_service.BenchEvent`
-s, ``device`` None) that every client reads with a long poll, as it reads the bench's
-events; and the job's start and end as a ``job`` event in the bench's own
-:class:`~instrument.bench_service.EventLog` (``data``: :meth:`JobInfo.as_event`), so a
-window sees the job a notebook started.
+job's events (``progress`` with the value the job reported, its arrays left out
+(:func:`without_arrays`), then ``done`` with its result or ``failed`` with its error,
+as :class:`~instrument.bench_service.BenchEvent` s, ``device`` None) that every client
+reads with a long poll, as it reads the bench's events; and the job's start and end
+as a ``job`` event in the bench's own :class:`~instrument.bench_service.EventLog`
+(``data``: :meth:`JobInfo.as_event`), so a window sees the job a notebook started.
 
 A client holds a job as a :class:`JobHandle`
 (:meth:`instrument.bench_process.BenchClient.start_job` or
@@ -26,6 +26,7 @@ recording stopped, its run closed ``stopped``, its lock released).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import threading
 import time
@@ -33,10 +34,12 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from typing import Any
 
+import numpy as np
+
 from .bench_service import BenchEvent, BenchServiceError, EventLog
 
 __all__ = ["ENDED_JOBS_KEPT", "JOB_EVENTS_KEPT", "OWNER_JOBS", "JobHandle", "JobInfo",
-           "JobRegistry"]
+           "JobRegistry", "without_arrays"]
 
 #: Events kept per job (a reader that fell further behind gets the newest; the job's
 #: end is always the last kept).
@@ -79,6 +82,27 @@ class JobInfo:
         return {"id": self.id, "name": self.name, "state": self.state}
 
 
+def without_arrays(value: Any) -> Any:
+    """``value`` with its NumPy arrays left out: a dict without those items, a
+    dataclass (a copy) with those fields None, anything else as it is.
+
+    A calibration run's progress carries each frame it took (its ``last_frame``) for
+    the window's display, which gets it down its own pipe; kept in every job's log, a
+    run's frames would pile up in the bench process (tens of megabytes each on a
+    large sensor). A notebook takes frames with ``snap()`` or from the run.
+    """
+    if isinstance(value, dict):
+        return {k: v for k, v in value.items() if not isinstance(v, np.ndarray)}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        arrays = [f.name for f in dataclasses.fields(value)
+                  if isinstance(getattr(value, f.name, None), np.ndarray)]
+        if arrays:
+            value = copy.copy(value)  # keeps attributes set besides the fields
+            for name in arrays:
+                object.__setattr__(value, name, None)
+    return value
+
+
 class _Job:
     def __init__(self, info: JobInfo) -> None:
         self.info = info
@@ -107,10 +131,10 @@ class JobRegistry:
         self.bench_events.put("job", None, job.info.as_event())
 
     def report(self, job_id: int, value: Any) -> None:
-        """Log the job's progress ``value``."""
+        """Log the job's progress ``value``, less its arrays (:func:`without_arrays`)."""
         job = self._jobs.get(job_id)
         if job is not None:
-            job.log.put("progress", None, value)
+            job.log.put("progress", None, without_arrays(value))
 
     def ended(self, job_id: int, state: str, value: Any) -> None:
         """Log the job's end: ``state`` ``done`` (``value`` its result) or ``failed``

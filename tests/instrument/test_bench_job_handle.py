@@ -5,9 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from instrument.bench_host import BenchHostError
+from instrument.bench_job_handle import without_arrays
 from instrument.bench_process import BenchClient
 from instrument.bench_service import BenchServiceError
 from instrument.runstore import RunStore
@@ -17,8 +19,8 @@ from .test_bench_service import HANG_S, Events
 
 
 def fails(ctx, *, message: str) -> None:
-    """A job that reports once and fails."""
-    ctx.report({"step": "about to fail"})
+    """A job that reports once (with a frame, as a calibration run does) and fails."""
+    ctx.report({"step": "about to fail", "frame": np.zeros((4, 4))})
     raise ValueError(message)
 
 
@@ -94,7 +96,7 @@ def test_a_job_runs_on_when_the_client_that_started_it_disconnects(window, tmp_p
 def test_a_failed_job_raises_its_error_for_every_client(in_process):
     with opened_bench(in_process=in_process, jobs={"fails": fails}) as client:
         job = client.start_job("fails", {"message": "the fault"})
-        first = job.wait_for(lambda e: True, HANG_S)
+        first = job.wait_for(lambda e: True, HANG_S)  # its frame not kept in the log
         assert first.kind == "progress" and first.data == {"step": "about to fail"}
         with pytest.raises(ValueError, match="the fault"):
             job.result(HANG_S)
@@ -119,3 +121,44 @@ def test_a_second_client_runs_a_job_to_its_end_but_not_the_bench_s_opening(windo
         assert window.devices()  # the bench is still open
     finally:
         notebook.close()
+
+
+def test_a_job_the_window_runs_is_stopped_by_a_notebook(window, tmp_path):
+    import threading
+
+    seen = Events()
+    notebook = BenchClient(address=window.address, authkey=window.authkey, on_event=seen)
+    try:
+        ran: dict = {}
+        progress: list = []
+
+        def run() -> None:  # the window's blocking run, as gui.jobs records
+            ran["summary"] = window.run_job("record", recording(tmp_path / "v.zarr"),
+                                            report=progress.append)
+
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        told = seen.wait(lambda e: e.kind == "job" and e.data["name"] == "record",
+                         "of the window's recording starting")
+        job = notebook.job(told.data["id"])
+        job.wait_for(recorded, HANG_S)
+        job.stop()
+        thread.join(HANG_S)
+        assert not thread.is_alive()
+        assert ran["summary"]["status"] == "stopped" and progress
+        assert job.result(HANG_S) == ran["summary"]
+    finally:
+        notebook.close()
+
+
+def test_progress_in_the_log_leaves_arrays_out():
+    from instrument.runner import RunEvent
+
+    event = RunEvent("frame", "run.zarr", 0, 1, 2, 1, 2, 0.5, None,
+                     last_frame=np.ones((2, 2)))
+    event.tag = "psf"  # set by the calibration job: kept
+    kept = without_arrays(event)
+    assert kept.last_frame is None and kept.tag == "psf" and kept.frames_done == 1
+    assert event.last_frame is not None  # the window's own is not touched
+    assert without_arrays({"n": 1, "image": np.ones(3)}) == {"n": 1}
+    assert without_arrays("text") == "text"
