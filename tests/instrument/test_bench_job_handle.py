@@ -113,8 +113,10 @@ def test_a_failed_job_raises_its_error_for_every_client(in_process):
 def test_a_second_client_runs_a_job_to_its_end_but_not_the_bench_s_opening(window):
     notebook = BenchClient(address=window.address, authkey=window.authkey)
     try:
+        reported: list = []
         with pytest.raises(ValueError, match="the fault"):
-            notebook.run_job("fails", {"message": "the fault"})
+            notebook.run_job("fails", {"message": "the fault"}, report=reported.append)
+        assert reported == [{"step": "about to fail"}]
         for name in ("open_bench", "close_bench"):
             with pytest.raises(BenchHostError, match="client that started the bench"):
                 notebook.start_job(name, OPEN if name == "open_bench" else {})
