@@ -39,7 +39,11 @@ import numpy as np
 
 from recon.options import ReconOptions
 
-from .batch_grid import GridBatchModel, open_run, reconstruct_stored_frame_grid
+from .batch_grid import (
+    GridBatchModel,
+    reconstruct_run_frame,
+    reconstruct_stored_frame_grid,
+)
 from .runstore import DamagedFrameError, RunStore, RunStoreError
 
 __all__ = ["batch_psf", "check_dark_level", "check_scheduler", "check_workers", "parse_frames",
@@ -158,14 +162,7 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     recon.errors.ReconInputError, recon.errors.DivergenceError
         From :func:`recon.reconstruct`.
     """
-    from contextlib import nullcontext
-
-    from recon import reconstruct
-    from recon.fft import limited_threads
-
-    raw = open_run(str(run_path)).frame(int(index)).image
-    with limited_threads(threads) if threads else nullcontext():
-        result = reconstruct(psf, raw, **options)
+    result = reconstruct_run_frame(run_path, index, psf, threads, **options)
     return int(index), np.asarray(result.image, np.float32)
 
 

@@ -33,6 +33,48 @@ def open_run(path: str):
     return RunStore.open(path)
 
 
+def reconstruct_run_frame(run_path: str, index: int, model: Any, threads: int | None,
+                          raw_dtype: Any = None, **keywords: Any) -> Any:
+    """:func:`recon.reconstruct` of frame ``index`` of a run: the body of every batch
+    task (this module's and :func:`instrument.batch.reconstruct_stored_frame`).
+
+    Parameters
+    ----------
+    run_path : str
+        The run store (:func:`open_run`).
+    index : int
+        Frame slot.
+    model : ndarray or recon.spatial.PsfGrid
+        The PSF or PSF grid.
+    threads : int or None
+        FFT and numba threads of the task (:func:`recon.fft.limited_threads`); None
+        or 0 leaves the process's defaults.
+    raw_dtype : dtype, optional
+        The frame converted to this dtype first; None passes it as stored.
+    **keywords
+        Of :func:`recon.reconstruct`.
+
+    Returns
+    -------
+    recon.result.Reconstruction
+
+    Raises
+    ------
+    RunStoreError
+        The frame is not stored or is damaged.
+    recon.errors.ReconInputError, recon.errors.DivergenceError
+        From :func:`recon.reconstruct`.
+    """
+    from recon import reconstruct
+    from recon.fft import limited_threads
+
+    raw = open_run(str(run_path)).frame(int(index)).image
+    if raw_dtype is not None:
+        raw = np.asarray(raw, raw_dtype)
+    with limited_threads(threads) if threads else nullcontext():
+        return reconstruct(model, raw, **keywords)
+
+
 @dataclass
 class GridBatchModel:
     """A PSF grid with its forward model chosen and built, for every frame of a batch.
@@ -126,9 +168,9 @@ def reconstruct_stored_frame_grid(run_path: str, index: int, prepared: GridBatch
     Parameters
     ----------
     run_path : str
-        The run store (opened read-only once per worker process).
+        The run store (read-only; :func:`open_run` opens it once per worker process).
     index : int
-        Frame slot.
+        The frame's slot in the run.
     prepared : GridBatchModel
         From :func:`prepare_grid_batch` (sent to each worker once).
     options : dict
@@ -153,17 +195,14 @@ def reconstruct_stored_frame_grid(run_path: str, index: int, prepared: GridBatch
     recon.errors.ReconInputError
         From :func:`recon.reconstruct`.
     """
-    from recon import reconstruct
-    from recon.fft import limited_threads
-
-    raw = np.asarray(open_run(str(run_path)).frame(int(index)).image, np.float64)
     dark = options.get("dark")
-    with limited_threads(threads) if threads else nullcontext():
-        rec = reconstruct(prepared.grid, raw, "fista", background=options["background"],
-                          l1=options["l1"], iterations=options["iterations"],
-                          bin_factor=prepared.bin_factor,
-                          dark="none" if dark is None else dark,
-                          prepared=(prepared.choice, prepared.operator),
-                          device=options.get("device", "cpu"))
+    rec = reconstruct_run_frame(run_path, index, prepared.grid, threads, np.float64,
+                                method="fista",
+                                background=options["background"], l1=options["l1"],
+                                iterations=options["iterations"],
+                                bin_factor=prepared.bin_factor,
+                                dark="none" if dark is None else dark,
+                                prepared=(prepared.choice, prepared.operator),
+                                device=options.get("device", "cpu"))
     background = None if rec.background is None else np.asarray(rec.background, np.float32)
     return int(index), np.asarray(rec.image, np.float32), background
