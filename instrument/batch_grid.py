@@ -61,9 +61,9 @@ def reconstruct_run_frame(run_path: str, index: int, model: Any, threads: int | 
     Raises
     ------
     RunStoreError
-        The frame is not stored or is damaged.
+        A damaged frame.
     recon.errors.ReconInputError, recon.errors.DivergenceError
-        From :func:`recon.reconstruct`.
+        Options :func:`recon.reconstruct` refuses, or a solve that diverged.
     """
     from recon import reconstruct
     from recon.fft import limited_threads
