@@ -418,10 +418,9 @@ def depth_of_field_mm(
         Shape (rows, cols), background-removed on-axis PSF centred on the array.
     z_mm : float or array_like
         Depths (object-to-diffuser, mm, > 0) at which to evaluate the DoF.
-    d_mm : float
-        Diffuser-to-sensor distance in mm (> 0).
-    psf_z_mm : float
-        Depth at which `psf` was measured, mm (> 0).
+    d_mm, psf_z_mm : float
+        Diffuser-to-sensor distance, and the depth at which `psf` was measured, in mm
+        (> 0), as in :func:`hyperfocal_distance_mm`.
     threshold : float, optional
         Inner-product threshold of distinguishability, in (0, 1). Default 0.8.
     side : {"far", "near"}, optional
