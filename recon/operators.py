@@ -113,6 +113,8 @@ class LinearOperator(ABC):
         Returns
         -------
         float
+            ``1.02`` times the power-iteration estimate of the largest eigenvalue
+            (0 where A^T A maps the iterate to 0).
 
         Raises
         ------
