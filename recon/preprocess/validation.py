@@ -151,10 +151,6 @@ def validate_psf(psf: np.ndarray) -> None:
         shape (H, W) or (H, W, C), integer or float dtype, in sensor counts or
         arbitrary intensity units.
 
-    Returns
-    -------
-    None
-
     Raises
     ------
     ReconInputError
@@ -183,10 +179,6 @@ def validate_measurement(raw: np.ndarray) -> None:
     raw : numpy.ndarray
         Raw sensor image of the scene, shape (H, W) or (H, W, C), integer or
         float dtype, in sensor counts.
-
-    Returns
-    -------
-    None
 
     Raises
     ------
