@@ -119,8 +119,8 @@ def fista3d(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITER
     lipschitz : float, optional
         Known L (skips the power iteration, :meth:`LinearOperator.lipschitz`).
     stop : callable, optional
-        ``stop(history) -> bool`` after every iteration (automatic stopping);
-        ``iterations`` stays the maximum.
+        ``stop(history) -> bool`` after every iteration (automatic stopping), as for
+        the 2D FISTA; ``iterations`` stays the maximum.
 
     Returns
     -------
