@@ -164,7 +164,7 @@ def caustic_grid(grid: PsfGrid) -> PsfGrid:
     Parameters
     ----------
     grid : PsfGrid
-        Registered PSFs of one depth (background-free, same exposure scale).
+        As for :func:`node_brightness`.
 
     Returns
     -------
