@@ -32,14 +32,15 @@ from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
     QDoubleSpinBox,
+    QFileDialog,
     QGraphicsView,
     QLineEdit,
     QSpinBox,
     QWidget,
 )
 
-__all__ = ["WRITE_DELAY_S", "bench_key", "flush", "load_json", "read", "remember",
-           "settings", "store", "store_json", "wheel_needs_focus"]
+__all__ = ["WRITE_DELAY_S", "bench_key", "choose_psf_path", "flush", "load_json", "read",
+           "remember", "settings", "store", "store_json", "wheel_needs_focus"]
 
 #: Seconds after the last change when the settings writer writes the file.
 WRITE_DELAY_S = 0.5
@@ -181,6 +182,13 @@ def remember(widget: QWidget, key: str) -> QWidget:
     else:
         raise TypeError(f"cannot remember a {type(widget).__name__}")
     return widget
+
+
+def choose_psf_path(parent: QWidget, file_title: str = "PSF image or stack") -> str:
+    """Ask for a PSF: a run store's folder, else (cancelled) a file titled
+    ``file_title``; the path chosen, or ``""`` when both dialogs were cancelled."""
+    return QFileDialog.getExistingDirectory(parent, "PSF run store") or \
+        QFileDialog.getOpenFileName(parent, file_title)[0]
 
 
 def bench_key(bench_path: str | None, simulate: bool) -> str:

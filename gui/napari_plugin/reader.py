@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -54,10 +55,33 @@ def _attrs(path: Path) -> dict:
         return {}
 
 
-def _layer_kwargs(name: str, axes, metadata: dict) -> dict[str, Any]:
-    return {"name": name, "scale": [a.scale for a in axes],
-            "axis_labels": [a.name for a in axes],
-            "units": [a.unit or "pixel" for a in axes], "metadata": metadata}
+#: The depth axis a layer with a time axis and none of depth gets after ``t``: one plane,
+#: in the unit of a volume's ``z`` (:func:`instrument.ome.volume_axes`). A camera frame
+#: has no depth of its own; its plane is given 1 mm (1000 micrometer, the order of a PSF
+#: sweep's spacing) because napari's z slider steps by the smallest z scale of its
+#: layers: 1 micrometer would give a volume's 2 mm thousands of empty steps.
+SINGLE_PLANE_Z = ("z", "space", "micrometer", 1000.0)
+
+
+def _layer(data, name: str, axes, metadata: dict) -> tuple:
+    """The napari layer-data tuple of ``data`` with ``axes`` (OME axes, old names or
+    new). napari aligns layers by their last axes, so a video's ``t`` and a volume's
+    ``z`` would share a slider and mix units (napari then drops units: "Inconsistent
+    units across layers"): a layer whose first axis is ``t`` and that has no ``z``
+    gets a ``z`` axis of one plane after ``t`` (:data:`SINGLE_PLANE_Z`), so that
+    ``t, z, y, x`` stay apart for any mix of videos, sweeps and volumes."""
+    from instrument.ome import OmeAxis
+
+    axes = list(axes)
+    if len(axes) == data.ndim >= 3 and axes[0].name == "t" and not any(
+            a.name == "z" for a in axes):
+        data = data[:, None]
+        axes = [axes[0], OmeAxis(*SINGLE_PLANE_Z), *axes[1:]]
+    kwargs = {"name": name, "scale": [a.scale for a in axes],
+              "translate": [float(getattr(a, "origin", 0.0)) for a in axes],
+              "axis_labels": [a.name for a in axes],
+              "units": [a.unit or "pixel" for a in axes], "metadata": metadata}
+    return data, kwargs, "image"
 
 
 def _lazy(read: Callable[[int], np.ndarray], n: int, plane_shape, dtype):
@@ -78,7 +102,8 @@ def read_run(path: str) -> list[tuple]:
     Returns
     -------
     list of (data, kwargs, "image")
-        napari layer-data tuples: the frames first, then each image product.
+        napari layer-data tuples: the frames first, then each image product; none for
+        an empty array (the frames of a run made by ``runs import-psf``).
 
     Raises
     ------
@@ -109,13 +134,13 @@ def read_run(path: str) -> list[tuple]:
             "done": done.tolist(), "coords": coords, "coord_units": store.coord_info(),
             "plan": attrs["plan"]["name"]}
     axes = [frame_axis(attrs), *space_axes(frame_pitch_um(attrs))]
-    layers = [(_lazy(frame, store.n_frames, shape, dtype),
-               _layer_kwargs(f"{run} frames", axes, meta), "image")]
+    layers = [_layer(_lazy(frame, store.n_frames, shape, dtype), f"{run} frames", axes,
+                     meta)]
     for name in store.products():
-        layer = _product_layer(store, name)
-        if layer is not None:
-            layers.append(layer)
-    return layers
+        layers.append(_product_layer(store, name))
+    # no layer for an empty array (a run of no frames: ``runs import-psf``'s holds
+    # only its PSF stack), which napari cannot show (its contrast limits fail)
+    return [layer for layer in layers if layer is not None and 0 not in layer[0].shape]
 
 
 def read_product(path: str) -> list[tuple]:
@@ -126,7 +151,8 @@ def read_product(path: str) -> list[tuple]:
     Returns
     -------
     list of (data, kwargs, "image")
-        One layer; none for a table or LUT, or a damaged product (named in the log).
+        One layer; none for a table or LUT, an empty product, or a damaged product
+        (named in the log).
 
     Raises
     ------
@@ -140,7 +166,7 @@ def read_product(path: str) -> list[tuple]:
         raise RunStoreError(f"{path} is no product folder of a run (RUN.zarr/products/NAME)")
     store = RunStore.open(where[0])
     layer = _product_layer(store, where[1])
-    return [] if layer is None else [layer]
+    return [] if layer is None or 0 in layer[0].shape else [layer]
 
 
 def _product_layer(store, name: str) -> tuple | None:
@@ -172,7 +198,7 @@ def _product_layer(store, name: str) -> tuple | None:
     except RunStoreError as exc:  # a damaged product: named, the others still shown
         log.warning("%s", exc)
         return None
-    return data, _layer_kwargs(f"{Path(store.path).name} {name}", p_axes, meta), "image"
+    return _layer(data, f"{Path(store.path).name} {name}", p_axes, meta)
 
 
 def read_volume(path: str) -> list[tuple]:
@@ -199,7 +225,7 @@ def read_volume(path: str) -> list[tuple]:
     key, axes = _volume_layout(Path(path), attrs, group)
     meta = {k: v for k, v in attrs.items() if k != "ome"}
     data = np.asarray(group[key][...])
-    return [(data, _layer_kwargs(Path(path).name, axes, meta), "image")]
+    return [_layer(data, Path(path).name, axes, meta)]
 
 
 def _volume_layout(path: Path, attrs: dict, group) -> tuple[str, list]:
@@ -216,8 +242,11 @@ def _volume_layout(path: Path, attrs: dict, group) -> tuple[str, list]:
         ms = attrs["ome"]["multiscales"][0]
         dataset = ms["datasets"][0]
         key = str(dataset["path"])
-        scale = [float(s) for s in next(t["scale"] for t in dataset["coordinateTransformations"]
+        transforms = dataset["coordinateTransformations"]
+        scale = [float(s) for s in next(t["scale"] for t in transforms
                                          if t.get("type") == "scale")]
+        origin = [float(v) for v in next((t["translation"] for t in transforms
+                                          if t.get("type") == "translation"), scale)]
         named = [(str(a["name"]), a.get("type"), a.get("unit")) for a in ms["axes"]]
     except (KeyError, IndexError, TypeError, ValueError, AttributeError, StopIteration) as exc:
         what = {KeyError: f"lacks {exc}", IndexError: "has an empty list",
@@ -229,4 +258,11 @@ def _volume_layout(path: Path, attrs: dict, group) -> tuple[str, list]:
     if not len(named) == len(scale) == ndim:
         raise refuse(f"has {len(named)} axes and {len(scale)} scales for an array of {ndim} "
                      "dimensions")
-    return key, [OmeAxis(*a, s) for a, s in zip(named, scale, strict=True)]
+    if "translation" not in [t.get("type") for t in transforms]:
+        origin = [0.0] * ndim
+    if len(origin) != ndim:
+        raise refuse(f"has {len(origin)} translations for an array of {ndim} dimensions")
+    axes = [OmeAxis(*a, s) for a, s in zip(named, scale, strict=True)]
+    # the first plane's position (OME translation), carried beside the axis
+    return key, [SimpleNamespace(**vars(a), origin=o) if not hasattr(a, "origin")
+                 else replace(a, origin=o) for a, o in zip(axes, origin, strict=True)]

@@ -6,26 +6,31 @@ command line is generated from (:class:`recon.options.ReconOptions`, the fields 
 ``recon`` and ``recon3d`` share, :func:`widget_fields`) by the GUI's form builder
 (:class:`gui.forms.OptionsForm`), with the command line's defaults, the dark level
 included. :func:`reconstruct_layer` does the work: it takes the plane napari shows of
-the chosen layer (a frame of a run's frames, or a 2-D image), loads the PSF stack of a
-run (or a TIFF/.npy stack, :func:`instrument.stacks.load_psf_stack`), resolves the dark
-level as the commands do (:func:`instrument.reconstruct_files.resolve_dark`) and runs
+the chosen layer (a frame of a run's frames, or a 2-D image), loads the PSF: the stack
+of a run, a TIFF/.npy stack (:func:`instrument.stacks.load_psf_stack`), a plain 2-D
+PSF image (a TIFF/.npy file, or a 2-D layer of the viewer) without depths; resolves
+the dark level as the commands do (:func:`instrument.reconstruct_files.resolve_dark`,
+with the level recorded with a run's frames, as ``recon-run`` takes it) and runs
 :func:`recon.reconstruct`: with one depth (``depth_mm``, or a stack of one plane) an
-image, else the whole stack as a volume. The result comes back as a new layer, on the
+image, else the whole stack as a volume. The widget runs it on a worker thread
+(napari's :func:`~napari.qt.threading.create_worker`), so the viewer stays responsive,
+and shows a refusal in its own words (a command-line flag named by its field,
+:func:`gui.messages.operator_text`). The result comes back as a new layer, on the
 model grid (:data:`recon.io.DATA_ORIENTATION`), scaled by the layer's pixel size
 times the binning; a volume's first axis is that of a stored volume
-(:func:`instrument.ome.volume_axes`: ``z`` in micrometer for evenly spaced depths,
-else ``plane``).
+(:func:`instrument.ome.volume_axes`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from PySide6.QtCore import Signal
 from PySide6.QtWidgets import (
     QComboBox,
     QDoubleSpinBox,
-    QFileDialog,
     QGridLayout,
     QHBoxLayout,
     QLabel,
@@ -37,6 +42,7 @@ from PySide6.QtWidgets import (
 from instrument.cli.recon_flags import COMMAND_FIELDS
 from recon.options import ReconOptions
 
+from ..fields import choose_psf_path
 from ..forms import OptionsForm, lay_out
 
 __all__ = ["ReconstructWidget", "reconstruct_layer", "widget_fields"]
@@ -49,22 +55,63 @@ def widget_fields() -> tuple[str, ...]:
     return tuple(f for f in COMMAND_FIELDS["recon3d"] if f in COMMAND_FIELDS["recon"])
 
 
-def _plane(layer, viewer) -> np.ndarray:
-    """The 2-D plane of ``layer`` that ``viewer`` shows (its leading axes at the
-    viewer's current step)."""
+def _plane(layer, step: Sequence[int] | None) -> np.ndarray:
+    """The 2-D plane of ``layer`` at the viewer's ``step`` (its leading axes; None:
+    the first plane)."""
     data = layer.data
     lead = data.ndim - 2
     if lead <= 0:
         return np.asarray(data)
-    step = viewer.dims.current_step if viewer is not None else (0,) * data.ndim
+    step = tuple(step) if step is not None else (0,) * data.ndim
     index = tuple(min(int(s), n - 1) for s, n in zip(step[-data.ndim:][:lead],
                                                       data.shape[:lead], strict=True))
     return np.asarray(data[index])
 
 
-def reconstruct_layer(layer, psf_run: Path, product: str = "psf_stack",
+def _load_psf(psf, product: str) -> tuple[np.ndarray, list, bool, str]:
+    """``(stack (n, rows, cols), depths_mm, calibrated, source)`` of a PSF given as a
+    run store or a TIFF/.npy stack (:func:`instrument.stacks.load_psf_stack`), a plain
+    2-D image file or array (one plane, no depth)."""
+    from instrument.runstore import RunStoreError
+    from instrument.stacks import dark_subtracted, load_psf_stack
+    from recon.io import load_image
+
+    if isinstance(psf, np.ndarray):
+        if psf.ndim != 2:
+            raise RunStoreError(f"the PSF layer has {psf.ndim} dimensions: choose a 2-D "
+                                "image, or give a PSF run or stack file")
+        return psf[None].astype(np.float32), [None], False, "a layer"
+    path = Path(psf)
+    try:
+        stack, depths, _ = load_psf_stack(path, product=product)
+    except RunStoreError:
+        if path.is_dir() or not path.is_file():
+            raise
+        image = load_image(path)  # a plain PSF image: one plane, no depth
+        if image.ndim != 2:
+            raise
+        return image[None].astype(np.float32), [None], False, str(path)
+    return stack, list(depths), dark_subtracted(path), str(path)
+
+
+def _recorded_dark(layer) -> float | None:
+    """The dark level (DN) recorded with the run whose frames ``layer`` shows (a
+    simulated camera's offset, as ``recon-run`` takes it); None if none."""
+    from instrument.runstore import RunStore, RunStoreError
+
+    run = (getattr(layer, "metadata", None) or {}).get("run")
+    if not run:
+        return None
+    try:
+        level = (RunStore.open(run).attrs.get("simulated") or {}).get("dark_offset_dn")
+    except (RunStoreError, OSError):
+        return None
+    return None if level is None else float(level)
+
+
+def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_stack",
                       depth_mm: float = 0.0, *, options: ReconOptions | None = None,
-                      viewer=None, **values) -> tuple:
+                      viewer=None, step: Sequence[int] | None = None, **values) -> tuple:
     """Reconstruct the plane of ``layer`` that napari shows with a run's PSF.
 
     Parameters
@@ -72,9 +119,10 @@ def reconstruct_layer(layer, psf_run: Path, product: str = "psf_stack",
     layer : napari.layers.Image
         A raw measurement: a run's frames (the frame shown) or a 2-D image, the
         size of one PSF plane.
-    psf_run : Path
-        A run store with a PSF stack product, or a TIFF/.npy stack recording its
-        depths.
+    psf_run : Path or ndarray
+        A run store with a PSF stack product, a TIFF/.npy stack recording its
+        depths, or a plain PSF image (a TIFF/.npy file or an array (rows, cols)),
+        reconstructed as one plane of no depth.
     product : str
         The run's product (default ``psf_stack``).
     depth_mm : float
@@ -85,6 +133,8 @@ def reconstruct_layer(layer, psf_run: Path, product: str = "psf_stack",
         validated, the others at the declared defaults.
     viewer : napari.Viewer, optional
         Given by napari: which plane it shows.
+    step : sequence of int, optional
+        The viewer's current step, read on the GUI thread (instead of ``viewer``).
     **values
         :class:`~recon.options.ReconOptions` fields (``method="admm"``,
         ``iterations=30``, ``dark="none"``) when no ``options`` is given.
@@ -103,11 +153,12 @@ def reconstruct_layer(layer, psf_run: Path, product: str = "psf_stack",
         No PSF stack at ``psf_run`` or no plane near ``depth_mm``.
     recon.errors.ReconInputError
         A measurement that does not fit the PSF, a calibration run's PSF with the dark
-        level ``auto`` (give the frames' level; napari shows the message).
+        level ``auto`` and no level recorded with the layer's run (give the frames'
+        level; the widget shows the message), a PSF file that cannot be read.
     """
     from instrument.ome import volume_axes
     from instrument.reconstruct_files import resolve_dark
-    from instrument.stacks import dark_subtracted, load_psf_stack, pick_depth
+    from instrument.stacks import pick_depth
     from recon import PsfStack, reconstruct
     from recon.io import DATA_ORIENTATION
 
@@ -116,16 +167,24 @@ def reconstruct_layer(layer, psf_run: Path, product: str = "psf_stack",
         if isinstance(dark, str):  # as the form and the command line parse it
             values["dark"] = ReconOptions.spec("dark").parse(dark)
         options = ReconOptions.validated(values, front="python")
-    raw = _plane(layer, viewer).astype(np.float32)
-    stack, depths, _ = load_psf_stack(psf_run, product=product)
-    stack, dark = resolve_dark(options.dark, stack, calibrated=dark_subtracted(psf_run),
-                               what=str(psf_run))
+    if step is None and viewer is not None:
+        step = viewer.dims.current_step
+    raw = _plane(layer, step).astype(np.float32)
+    stack, depths, calibrated, source = _load_psf(psf_run, product)
+    stack, dark = resolve_dark(options.dark, stack, calibrated=calibrated,
+                               recorded=_recorded_dark(layer), what=source)
     bin_factor = options.bin_factor
     pitch = [float(s) * bin_factor for s in layer.scale[-2:]]
     units = [str(u) for u in layer.units[-2:]] if hasattr(layer, "units") else ["pixel"] * 2
-    meta = {"psf": str(psf_run), "product": product, "method": options.method,
+    meta = {"psf": source, "product": product, "method": options.method,
             "dark": str(options.dark), "source_layer": layer.name,
             "orientation": DATA_ORIENTATION}
+    if depths == [None]:  # a plain PSF image: its one plane, no depth
+        rec = reconstruct(stack[0], raw, **{**options.keywords("image"), "dark": dark})
+        meta.update(method_used=rec.info.method)
+        return (np.asarray(rec.image, np.float32),
+                {"name": f"{layer.name} recon", "scale": pitch, "axis_labels": ["y", "x"],
+                 "units": units, "metadata": meta}, "image")
     if depth_mm > 0 or len(stack) == 1:
         psf, depth = pick_depth(stack, depths, depth_mm if depth_mm > 0 else None)
         rec = reconstruct(psf, raw, **{**options.keywords("image"), "dark": dark})
@@ -142,13 +201,14 @@ def reconstruct_layer(layer, psf_run: Path, product: str = "psf_stack",
     meta.update(depths_mm=list(rec.depths_mm), method_used=rec.info.method)
     return (volume,
             {"name": f"{layer.name} volume", "scale": [first.scale, *pitch],
+             "translate": [getattr(first, "origin", 0.0), 0.0, 0.0],
              "axis_labels": [first.name, "y", "x"], "units": [first.unit or "pixel", *units],
              "metadata": meta}, "image")
 
 
 class ReconstructWidget(QWidget):
-    """The dock widget: the layer, the PSF run, its product and depth, the
-    reconstruction options (:func:`widget_fields`, generated) and Reconstruct.
+    """The dock widget: the layer, the PSF, its product and depth, the reconstruction
+    options (:func:`widget_fields`, generated) and Reconstruct.
 
     Parameters
     ----------
@@ -161,16 +221,24 @@ class ReconstructWidget(QWidget):
         The reconstruction options' widgets.
     error : QLabel
         A refused value or input, in words.
+    done : Signal(object)
+        Emitted on the GUI thread when a reconstruction ends: its layer data
+        (:func:`reconstruct_layer`), added to the viewer, or None when it was refused
+        (:attr:`error` says why).
     """
+
+    done = Signal(object)
 
     def __init__(self, napari_viewer, parent=None) -> None:
         super().__init__(parent)
         self.viewer = napari_viewer
+        self.worker = None
         grid = QGridLayout(self)
         self.layer = QComboBox()
         self.layer.setToolTip("the raw measurement: the plane the viewer shows of it")
         self.psf_run = QLineEdit()
-        self.psf_run.setPlaceholderText("PSF run (RUN.zarr) or TIFF/.npy stack")
+        self.psf_run.setPlaceholderText("PSF run (RUN.zarr), TIFF/.npy stack or image, "
+                                        "or a 2-D layer's name")
         browse = QPushButton("Browse...")
         browse.clicked.connect(self._browse)
         psf = QWidget()
@@ -206,8 +274,7 @@ class ReconstructWidget(QWidget):
         self.refresh_layers()
 
     def _browse(self) -> None:
-        path = QFileDialog.getExistingDirectory(self, "PSF run store") or \
-            QFileDialog.getOpenFileName(self, "PSF stack (TIFF, .npy)")[0]
+        path = choose_psf_path(self, "PSF stack or image (TIFF, .npy)")
         if path:
             self.psf_run.setText(path)
 
@@ -224,18 +291,26 @@ class ReconstructWidget(QWidget):
         if current:
             self.layer.setCurrentText(current)
 
+    def _refuse(self, exc: BaseException) -> None:
+        """Show why ``exc`` stopped the reconstruction, in the widget's words (a flag
+        named by its field); :attr:`done` gives None."""
+        from ..workers import readable_error
+
+        self.error.setText(readable_error(exc, self.form.flag_labels()))
+        self.button.setEnabled(True)
+        self.done.emit(None)
+
     def run(self):
-        """Reconstruct with the form's values and add the result to the viewer.
+        """Reconstruct with the form's values on a worker thread; the result is added to
+        the viewer when it is done (:attr:`done`).
 
         Returns
         -------
-        tuple or None
-            :func:`reconstruct_layer`'s layer data; None when an input was refused
-            (:attr:`error` says why).
+        napari.qt.threading.FunctionWorker or None
+            The started worker; None when an input was refused at once (:attr:`error`
+            says why, :attr:`done` gives None).
         """
         from diffuserlab.errors import InputError
-        from instrument.runstore import RunStoreError
-        from recon.errors import ReconInputError
 
         self.error.setText("")
         layers = {layer.name: layer for layer in self.image_layers()}
@@ -243,17 +318,29 @@ class ReconstructWidget(QWidget):
             layer = layers.get(self.layer.currentText())
             if layer is None:
                 raise InputError("choose the image layer to reconstruct")
-            if not self.psf_run.text().strip():
-                raise InputError("give the PSF: a run store with a PSF stack, or a "
-                                 "TIFF/.npy stack")
-            data = reconstruct_layer(layer, Path(self.psf_run.text().strip()),
-                                     self.product.text().strip() or "psf_stack",
-                                     self.depth.value(), options=self.form.values(),
-                                     viewer=self.viewer)
-        except (InputError, RunStoreError, ReconInputError) as exc:
-            self.error.setText(str(exc))
+            text = self.psf_run.text().strip()
+            if not text:
+                raise InputError("give the PSF: a run store with a PSF stack, a TIFF/.npy "
+                                 "stack or image, or a 2-D image layer")
+            psf = np.asarray(layers[text].data) if text in layers else Path(text)
+            options = self.form.values()
+        except InputError as exc:
+            self._refuse(exc)
             return None
+        from napari.qt.threading import create_worker
+
+        step = tuple(self.viewer.dims.current_step)  # read here, on the GUI thread
+        self.worker = create_worker(
+            reconstruct_layer, layer, psf, self.product.text().strip() or "psf_stack",
+            self.depth.value(), options=options, step=step, _start_thread=False,
+            _connect={"returned": self._add, "errored": self._refuse})
+        self.button.setEnabled(False)
+        self.worker.start()
+        return self.worker
+
+    def _add(self, data: tuple) -> None:
         from napari.layers import Layer
 
         self.viewer.add_layer(Layer.create(*data))
-        return data
+        self.button.setEnabled(True)
+        self.done.emit(data)

@@ -23,7 +23,6 @@ import numpy as np
 import pyqtgraph as pg
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import (
-    QFileDialog,
     QGridLayout,
     QHBoxLayout,
     QLabel,
@@ -36,7 +35,7 @@ from PySide6.QtWidgets import (
 from instrument.cli.recon_flags import COMMAND_FIELDS
 from recon.options import LiveOptions, ReconOptions
 
-from ..fields import remember
+from ..fields import choose_psf_path, remember
 from ..forms import OptionsForm
 from ..session import Session
 from ..workers import InputError, Job, readable_error
@@ -173,8 +172,7 @@ class LivePanel(QWidget):
 
     # -- controls ------------------------------------------------------------------------
     def _browse(self) -> None:
-        path = QFileDialog.getExistingDirectory(self, "PSF run store") or \
-            QFileDialog.getOpenFileName(self, "PSF image or stack")[0]
+        path = choose_psf_path(self)
         if path:
             self.psf.setText(path)
             self.offer_depths()

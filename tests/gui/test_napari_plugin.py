@@ -58,10 +58,12 @@ def test_reader_on_a_sweep_frames_tags_and_products(tmp_path, plugin):
     _, layers = _open(store.path, plugin)
     assert sorted(layers) == ["s.zarr dark_mean", "s.zarr frames", "s.zarr psf_stack"]
     frames = layers["s.zarr frames"]
-    assert frames.data.shape == (6, 16, 20)
-    assert int(np.asarray(frames.data[3])[0, 0]) == 3  # read lazily, verified
+    # the frames' axis: named for what the sweep varies, or (OME axes t, c, z, y, x)
+    # ``t``, with a z of one plane after it (kept apart from a volume's z)
+    assert list(frames.axis_labels) in (["z_mm", "y", "x"], ["t", "z", "y", "x"])
+    assert frames.data.shape in ((6, 16, 20), (6, 1, 16, 20))
+    assert int(np.asarray(frames.data[3]).ravel()[0]) == 3  # read lazily, verified
     assert frames.metadata["tags"] == ["psf", "dark"] * 3
-    assert list(frames.axis_labels) == ["z_mm", "y", "x"]
     assert str(frames.units[-1]) == "micrometer"
     assert list(frames.scale[-2:]) == pytest.approx([2 * PITCH_UM] * 2)
     psf = layers["s.zarr psf_stack"]
@@ -75,12 +77,27 @@ def test_reader_on_a_video_with_its_time_axis(tmp_path, plugin):
     store.write_product_frame("recon_admm", 0, np.full((6, 8), 7.0))
     _, layers = _open(store.path, plugin)
     frames = layers["v.zarr frames"]
-    assert list(frames.axis_labels)[0] == "t" and str(frames.units[0]) == "second"
+    # t, then a z of one plane (a volume's z stays apart from t in the viewer)
+    assert list(frames.axis_labels)[:2] == ["t", "z"] and frames.data.shape == (6, 1, 12, 16)
+    assert [str(u) for u in frames.units] == ["second", "micrometer"] + ["micrometer"] * 2
     assert frames.scale[0] == pytest.approx(1 / FPS)
     recon = layers["v.zarr recon_admm"]
-    assert recon.data.shape == (6, 6, 8) and recon.scale[-1] == pytest.approx(2 * PITCH_UM)
-    assert float(np.asarray(recon.data[0])[0, 0]) == 7.0
+    assert recon.data.shape == (6, 1, 6, 8) and recon.scale[-1] == pytest.approx(2 * PITCH_UM)
+    assert float(np.asarray(recon.data[0])[0, 0, 0]) == 7.0
     assert float(np.asarray(recon.data[1]).max()) == 0.0  # not computed yet
+
+
+def test_reader_on_an_imported_psf_stack_shows_the_stack(tmp_path, plugin):
+    """A run made by ``runs import-psf`` has no frames: no empty frames layer (napari
+    cannot show one), its PSF stack shown."""
+    from instrument.stacks import import_psf_stack
+
+    np.save(tmp_path / "psf.npy", np.full((3, 16, 20), 2, np.float32))
+    store = import_psf_stack(tmp_path / "psf.npy", tmp_path / "imp.zarr",
+                             depths_mm=[10.0, 10.5, 11.0])
+    _, layers = _open(store.path, plugin)
+    assert sorted(layers) == ["imp.zarr psf_stack"]
+    assert layers["imp.zarr psf_stack"].data.shape == (3, 16, 20)
 
 
 def test_reader_on_a_products_own_folder(tmp_path, plugin):
@@ -93,10 +110,12 @@ def test_reader_on_a_products_own_folder(tmp_path, plugin):
     for folder in ("products/recon_admm", "products/recon_admm/0"):
         _, layers = _open(store.path / folder, plugin)
         (layer,) = layers.values()
-        assert layer.name == "v.zarr recon_admm" and layer.data.shape == (6, 6, 8)
-        assert list(layer.axis_labels) == ["t", "y_bin2", "x_bin2"]
+        assert layer.name == "v.zarr recon_admm" and layer.data.shape == (6, 1, 6, 8)
+        # binned axes named y_bin2, x_bin2, or (OME axes t, c, z, y, x) y, x
+        assert list(layer.axis_labels) in (["t", "z", "y_bin2", "x_bin2"],
+                                           ["t", "z", "y", "x"])
         assert str(layer.units[0]) == "second" and layer.scale[0] == pytest.approx(1 / FPS)
-        assert float(np.asarray(layer.data[2])[0, 0]) == 5.0
+        assert float(np.asarray(layer.data[2])[0, 0, 0]) == 5.0
     from gui.napari_plugin.reader import get_reader, read_product
 
     assert get_reader(str(store.path / "products/lut")) is read_product
@@ -167,7 +186,9 @@ def test_reader_on_a_recon3d_volume(tmp_path, plugin):
                  pitch_um=6.9)
     _, layers = _open(path, plugin)
     (layer,) = layers.values()
-    assert layer.data.shape == (3, 8, 10) and list(layer.axis_labels) == ["plane", "y", "x"]
+    # uneven depths: a ``plane`` axis, or (OME axes t, c, z, y, x) z from the first depth
+    assert layer.data.shape == (3, 8, 10) and list(layer.axis_labels)[1:] == ["y", "x"]
+    assert (layer.axis_labels[0], layer.translate[0]) in (("plane", 0.0), ("z", 1000.0))
     assert layer.metadata["depths_mm"] == [1.0, 2.0, 4.0]
     assert layer.scale[-1] == pytest.approx(6.9)
 
@@ -211,7 +232,18 @@ def test_widget_reconstructs_the_shown_frame_with_a_runs_psf(tmp_path, plugin):
         reconstruct_layer(layer, store.path, method="wiener", viewer=Viewer)
 
 
-def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
+def _solve(widget, wait):
+    """Press Reconstruct and wait for its end (the widget's ``done``): the layer data,
+    or None when refused."""
+    ends = []
+    widget.done.connect(ends.append)
+    widget.run()
+    wait(lambda: ends, 120.0, "the widget's reconstruction")
+    widget.done.disconnect(ends.append)
+    return ends[0]
+
+
+def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, wait):
     """The widget napari docks from the manifest, its options generated from the
     reconstruction's declaration with the command line's defaults (a canvas needs
     OpenGL, which the offscreen platform lacks, so a viewer model, no window)."""
@@ -241,16 +273,18 @@ def test_widget_form_from_the_manifest_reconstructs(tmp_path, plugin, qapp):
         assert widget.layer.currentText() == "raw"  # the viewer's image layers, offered
         widget.psf_run.setText(str(store.path))
         method.setCurrentText("wiener")
-        assert widget.run() is None  # dark auto with a calibration run's PSF: refused
-        assert "dark" in widget.error.text() and "raw recon 10 mm" not in viewer.layers
+        # dark auto with a calibration run's PSF and a layer of no run: refused, the
+        # message naming the widget's field, not the command line's flag
+        assert _solve(widget, wait) is None and "raw recon 10 mm" not in viewer.layers
+        assert "'dark level'" in widget.error.text() and "--dark" not in widget.error.text()
         fields["dark"].setText("10")
-        data, kwargs, kind = widget.run()
+        data, kwargs, kind = _solve(widget, wait)
         assert kind == "image" and data.shape == (n, n) and kwargs["name"] == "raw recon 10 mm"
         assert "raw recon 10 mm" in viewer.layers and widget.error.text() == ""
         assert kwargs["metadata"]["dark"] == "10" and kwargs["metadata"]["method"] == "wiener"
         fields["iterations"].setValue(fields["iterations"].minimum())
         fields["tv"].setCurrentText("-1")
-        assert widget.run() is None and widget.error.text().startswith("--tv -1.0")
+        assert _solve(widget, wait) is None and widget.error.text().startswith("'TV weight")
     finally:  # not left to the collector (see tests/gui/conftest.py): deleted by the
         # GUI thread's event loop
         widget.close()
@@ -264,6 +298,8 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
     from napari.layers import Image
     from scipy.signal import fftconvolve
 
+    from instrument.ome import volume_axes
+
     rng = np.random.default_rng(3)
     n, pitch = 32, 3.45
     psfs = np.zeros((3, n, n), np.float32)
@@ -273,8 +309,12 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
     scene[1, 12:18, 10:14] = 1.0
     raw = sum(fftconvolve(scene[k], psfs[k], mode="same") for k in range(3)) * 500 + 20
     layer = Image(raw.astype(np.float32), name="raw", scale=(pitch, pitch))
+    # uneven depths: ``plane`` (no unit), or, with the OME axes t, c, z, y, x, ``z`` at
+    # their mean spacing from the first depth (instrument.ome.volume_axes: either)
+    uneven = ("plane", 1.0, "pixel") if volume_axes([10.0, 11.0, 13.0], 3)[0].name == \
+        "plane" else ("z", 1500.0, "micrometer")
     for depths, first in (([10.0, 10.5, 11.0], ("z", 500.0, "micrometer")),
-                          ([10.0, 11.0, 13.0], ("plane", 1.0, "pixel"))):
+                          ([10.0, 11.0, 13.0], uneven)):
         store = _sweep(tmp_path / f"psf{depths[-1]:g}.zarr", n_points=1, shape=(n, n))
         store.write_product("psf_stack", psfs, depths_mm=depths)
         data, kwargs, kind = reconstruct_layer(layer, store.path, method="admm",
@@ -287,3 +327,154 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
         assert kwargs["metadata"]["depths_mm"] == depths
         volume = Image(data, **{k: kwargs[k] for k in ("scale", "axis_labels", "units")})
         assert list(volume.axis_labels) == [first[0], "y", "x"]
+
+
+def _scene_and_psf(n, seed):
+    from scipy.signal import fftconvolve
+
+    rng = np.random.default_rng(seed)
+    psf = np.zeros((n, n), np.float32)
+    psf[rng.integers(4, n - 4, 12), rng.integers(4, n - 4, 12)] = 1.0
+    scene = np.zeros((n, n), np.float32)
+    scene[12:18, 10:14] = 1.0
+    return scene, psf, fftconvolve(scene, psf, mode="same") * 500
+
+
+def _docked(plugin, viewer):
+    contribution = npe2.PluginManager.instance().get_manifest(plugin).contributions.widgets[0]
+    return contribution.get_callable()(napari_viewer=viewer)
+
+
+def test_widget_on_a_recorded_runs_frames_with_a_calibration_runs_psf(tmp_path, plugin,
+                                                                      wait):
+    """The documented case: a recorded run's frames (opened with the reader) and one
+    depth of a calibration run, every option at the command line's default (dark
+    auto): the level recorded with the frames is used, as ``recon-run`` uses it."""
+    from napari.components import ViewerModel
+
+    from instrument.runstore import RunStore
+    from instrument.runstore_records import VIDEO_PLAN
+
+    n, offset = 32, 20
+    scene, psf, blurred = _scene_and_psf(n, 4)
+    raw = np.clip(blurred + offset, 0, 255).astype(np.uint8)
+    video = RunStore.create(tmp_path / "video.zarr", plan_name=VIDEO_PLAN,
+                            plan_params={"frames": 2}, points=[{}],
+                            frame_tags=[["video"] * 2], frame_shape=(n, n),
+                            frame_dtype=np.uint8, coord_names=["exposure_s"])
+    video.update_attrs(camera={"id": "cam", "pixel_pitch_um": PITCH_UM,
+                               "frame_rate_hz": FPS},
+                       simulated={"dark_offset_dn": float(offset)})
+    video.write_frames(0, np.stack([raw, raw]), np.full((2, 1), 0.01))
+    calibration = _sweep(tmp_path / "psf.zarr", n_points=3, shape=(n, n))
+    calibration.write_product("psf_stack", np.stack([psf * 0, psf, psf * 0]),
+                              depths_mm=[10.0, 11.0, 12.0])
+    viewer = ViewerModel()
+    viewer.open(str(video.path), plugin=plugin)
+    widget = _docked(plugin, viewer)
+    try:
+        widget.layer.setCurrentText("video.zarr frames")
+        widget.psf_run.setText(str(calibration.path))
+        widget.depth.setValue(11.0)
+        data, kwargs, _ = _solve(widget, wait)
+        assert widget.error.text() == "" and kwargs["metadata"]["depth_mm"] == 11.0
+        assert kwargs["metadata"]["dark"] == "auto"
+        assert data[scene > 0].mean() > 3 * data[scene == 0].mean()
+    finally:
+        widget.close()
+        widget.deleteLater()
+
+
+def test_widget_takes_a_plain_psf_image_file_or_layer(tmp_path, plugin, wait):
+    """A 2-D PSF without depths, as a .npy or TIFF file or as a 2-D layer of the viewer:
+    its one plane, the dark level at its default (auto: the PSF's dark corner)."""
+    import tifffile
+    from napari.components import ViewerModel
+
+    n = 32
+    scene, psf, blurred = _scene_and_psf(n, 5)
+    np.save(tmp_path / "psf.npy", psf + 20)
+    tifffile.imwrite(tmp_path / "psf.tif", psf + 20)
+    viewer = ViewerModel()
+    viewer.add_image((blurred + 20).astype(np.float32), name="raw")
+    viewer.add_image(psf + 20, name="psf layer")
+    widget = _docked(plugin, viewer)
+    try:
+        widget.layer.setCurrentText("raw")
+        for given in (str(tmp_path / "psf.npy"), str(tmp_path / "psf.tif"), "psf layer"):
+            widget.psf_run.setText(given)
+            data, kwargs, _ = _solve(widget, wait)
+            assert widget.error.text() == "", given
+            assert kwargs["name"] == "raw recon" and data.shape == (n, n)
+            assert data[scene > 0].mean() > 3 * data[scene == 0].mean(), given
+            viewer.layers.remove("raw recon")
+    finally:
+        widget.close()
+        widget.deleteLater()
+
+
+def test_widget_solves_on_a_worker_thread(tmp_path, plugin, wait, monkeypatch):
+    """The solve runs on a worker: while it is held, the GUI thread's event loop runs
+    (a queued call is delivered) and nothing is added; released, the layer comes."""
+    import threading
+
+    from napari.components import ViewerModel
+    from PySide6.QtCore import QTimer
+
+    import gui.napari_plugin.widget as module
+
+    n = 32
+    _, psf, blurred = _scene_and_psf(n, 6)
+    np.save(tmp_path / "psf.npy", psf + 20)
+    release, solving, real = threading.Event(), threading.Event(), module.reconstruct_layer
+
+    def held(*args, **kwargs):
+        solving.set()
+        release.wait(120.0)  # hang guard: the test sets it
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, "reconstruct_layer", held)
+    viewer = ViewerModel()
+    viewer.add_image((blurred + 20).astype(np.float32), name="raw")
+    widget = _docked(plugin, viewer)
+    ends, ticks = [], []
+    widget.done.connect(ends.append)
+    try:
+        widget.psf_run.setText(str(tmp_path / "psf.npy"))
+        widget.run()
+        wait(solving.is_set, 60.0, "the worker's solve to start")
+        QTimer.singleShot(0, lambda: ticks.append(1))
+        wait(lambda: ticks, 60.0, "the event loop while the solve is held")
+        assert not ends and "raw recon" not in viewer.layers
+        assert not widget.button.isEnabled()  # one solve at a time
+        release.set()
+        wait(lambda: ends, 120.0, "the reconstruction")
+        assert ends[0][1]["name"] == "raw recon" and "raw recon" in viewer.layers
+        assert widget.button.isEnabled()
+    finally:
+        release.set()
+        widget.close()
+        widget.deleteLater()
+
+
+def test_a_volume_and_a_video_in_one_viewer_keep_their_units(tmp_path, plugin):
+    """A recon3d volume's z (micrometer) and a video's t (second) on separate viewer
+    axes: the layers' units agree axis by axis, so napari keeps them (with a clash it
+    drops them: "Inconsistent units across layers", when the layer list's units are
+    None)."""
+    from napari.components import ViewerModel
+
+    video = _video(tmp_path / "v.zarr")
+    path = tmp_path / "vol.zarr"
+    write_volume(path, np.ones((3, 12, 16), np.float32), {"depths_mm": [1.0, 1.5, 2.0]},
+                 pitch_um=PITCH_UM)
+    viewer = ViewerModel()
+    viewer.open(str(video.path), plugin=plugin)
+    viewer.open(str(path), plugin=plugin)
+    units = viewer.layers.extent.units
+    assert units is not None  # napari's condition for its unit warning
+    assert [str(u) for u in units] == ["second", "micrometer", "micrometer", "micrometer"]
+    assert tuple(viewer.dims.axis_labels) == ("t", "z", "y", "x")  # t and z apart
+    # t: the video's frames; z: the volume's planes (from 0, or from its first depth
+    # where the volume records it), at the volume's spacing, not in micrometre steps
+    assert viewer.dims.nsteps[0] == 6 and viewer.dims.nsteps[1] in (3, 5)
