@@ -191,7 +191,7 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     stop : threading.Event, optional
         Ends the recording early (Ctrl-C, the GUI's stop button); what was recorded is
         kept and the run is marked ``stopped``. Any object with ``is_set()`` serves
-        (the command line's :class:`instrument.cli.startup_signals.SignalSeen`).
+        (the command line's ``instrument.cli.startup_signals.SignalSeen``).
     on_progress : callable, optional
         Called every ``progress_every_s`` with the counters (``delivered``,
         ``recorded``, ``acquired``, ``dropped_by_camera``, ``skipped_by_ring``,
