@@ -16,8 +16,8 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Row", "label_of", "limits_text", "parse_duration_s", "parse_value", "rows",
-           "value_text"]
+__all__ = ["LIST_SHOWN_MAX", "Row", "label_of", "limits_text", "parse_duration_s",
+           "parse_value", "rows", "summarized", "value_text"]
 
 #: Name endings that repeat the unit (``exposure_s``: "exposure", unit s).
 _UNIT_SUFFIX = re.compile(r"_(s|hz|db|mm|um|nm|rad|deg|px)$")
@@ -125,13 +125,26 @@ def _number_text(value: Any) -> str:
     return f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
+#: A list of more numbers than this (an SLM's 256-phase lookup table) is shown as a
+#: summary, its count and range, not typed in the panel (:func:`summarized`).
+LIST_SHOWN_MAX = 8
+
+
+def summarized(value: Any) -> bool:
+    """Whether :func:`value_text` shows ``value`` as a summary (a long list of
+    numbers), which the panel shows read-only."""
+    return (isinstance(value, list | tuple) and len(value) > LIST_SHOWN_MAX
+            and all(isinstance(v, int | float) for v in value))
+
+
 def value_text(value: Any, name: str | None = None, spec=None) -> str:
     """A setting's value as the panel's text field shows it.
 
     A time below a second in ms, with its unit; a per-axis (per-key) setting as the
     operator types it, each key with its value and unit (``"x 0.1 mm, y 0 mm,
     rotation 0 deg"``; a pair as ``"x -25 to 25 mm"``: :func:`parse_value` reads it
-    back); other mappings and lists as JSON.
+    back); a long list of numbers as its count and range (``"256 values, 0 to 6.26
+    rad"``: :func:`summarized`); other mappings and lists as JSON.
 
     Parameters
     ----------
@@ -151,6 +164,9 @@ def value_text(value: Any, name: str | None = None, spec=None) -> str:
                       if isinstance(v, list | tuple) else _number_text(v))
             parts.append(f"{key} {number} {unit}".rstrip())
         return ", ".join(parts)
+    if summarized(value):
+        unit = spec.unit_of() if spec is not None and spec.per is None else ""
+        return f"{len(value)} values, {min(value):.3g} to {max(value):.3g} {unit}".rstrip()
     if isinstance(value, dict | list | tuple):
         return json.dumps(value)
     if isinstance(value, float):

@@ -60,8 +60,16 @@ def status_fields(kind: str, status: dict[str, Any],
         :meth:`drivers.base.Device.status`.
     settings : dict, optional
         The device's cached settings (the camera's exposure and frame rate).
+
+    Returns
+    -------
+    list of tuple
+        Texts in the operator's words (a driver's message such as "call reconnect()"
+        read by :func:`gui.messages.operator_text`).
     """
     from drivers.stage import AXIS_UNITS
+
+    from .messages import operator_text
 
     out = [("state", device_state(status))]
     if kind == "camera":
@@ -92,7 +100,10 @@ def status_fields(kind: str, status: dict[str, Any],
                 value = ", ".join(f"{k} {_number(v)}" for k, v in value.items())
         elif isinstance(value, list | tuple):
             value = ", ".join(_number(v) for v in value)
-        out.append((key.replace("_", " "), _number(value)))
+        text = _number(value)
+        if isinstance(value, str):  # a driver's message: in the GUI's words
+            text = operator_text(text)
+        out.append((key.replace("_", " "), text))
     return out
 
 

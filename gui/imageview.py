@@ -53,6 +53,9 @@ LEVEL_MODES = {"min/max": (0.0, 100.0), "0.1-99.9 %": (0.1, 99.9), "1-99 %": (1.
                "5-95 %": (5.0, 95.0)}
 #: The ROI statistics refresh at most this often on video, Hz.
 ROI_HZ = 4.0
+#: How long a note such as "snapshot saved" stays under the image (and in the window's
+#: status bar), ms; the log pane keeps it.
+NOTE_MS = 8000
 
 
 def image_statistics(pixels: np.ndarray) -> dict[str, float]:
@@ -484,6 +487,18 @@ class FrameView(QWidget):
         store("snapshots/folder", str(Path(path).parent))
         return self.save_snapshot(path, taken=taken)
 
+    def note(self, text: str, timeout_ms: int | None = None) -> None:
+        """Show ``text`` under the image and in the window's status bar for
+        ``timeout_ms`` (default :data:`NOTE_MS`), then clear it (unless something else
+        was shown meanwhile)."""
+        timeout_ms = NOTE_MS if timeout_ms is None else int(timeout_ms)
+        self.stats.setText(text)
+        bar = getattr(self.window(), "statusBar", None)
+        if callable(bar):
+            bar().showMessage(text, timeout_ms)
+        QTimer.singleShot(timeout_ms, self, lambda: self.stats.text() == text
+                          and self.stats.setText(""))
+
     def save_snapshot(self, path: str | Path,
                       taken: tuple[np.ndarray, dict[str, Any]] | None = None) -> Job | None:
         """Write the image shown and :meth:`snapshot_metadata` (or ``taken``: an image
@@ -500,7 +515,7 @@ class FrameView(QWidget):
         image, meta = taken
         job = Job(lambda job: write_snapshot(path, image, meta), name="snapshot",
                   owner=self)
-        job.succeeded.connect(lambda p: (self.stats.setText(f"snapshot saved: {p}"),
+        job.succeeded.connect(lambda p: (self.note(f"snapshot saved: {p}"),
                                          gui_log.info("snapshot of %s saved: %s",
                                                       self._title, p),
                                          self.snapshot_saved.emit(str(p))))

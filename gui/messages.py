@@ -28,6 +28,7 @@ _CALLS = (
     (re.compile(r"call open\(\) first or use the device as a context manager"),
      "press Connect on the Devices panel"),
     (re.compile(r"\bresume\(\)"), "Resume"),
+    (re.compile(r"\[Errno \d+\] "), ""),  # the OS's number: the reason's words stay
 )
 _NUMBER = r"[-+]?[0-9][0-9.e+-]*"
 _RANGES = (

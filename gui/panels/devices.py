@@ -36,7 +36,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from ..device_settings import parse_value, rows, value_text
+from ..device_settings import parse_value, rows, summarized, value_text
 from ..device_status import STATE_COLOURS, device_state, status_fields
 from ..fields import bench_key, load_json, store_json, wheel_needs_focus
 from ..session import SCENES, Session
@@ -116,6 +116,9 @@ class DeviceBox(QGroupBox):
             edit.setToolTip(spec.tooltip)
             row = QHBoxLayout()
             row.addWidget(edit, 1)
+            if summarized(values.get(name)):  # a lookup table: shown as a summary
+                edit.setToolTip(f"{spec.tooltip}; shown as its count and range: its "
+                                "calibration sets it, or type the whole list to replace it")
             if spec.read_only:
                 edit.setReadOnly(True)
             else:
@@ -454,10 +457,11 @@ class DevicePanel(QWidget):
         bar.addWidget(self.scene_label)
         bar.addWidget(self.scene)
         bar.addStretch(1)
-        self.state = QLabel("not connected")
-        self.state.setObjectName("device-count")
-        bar.addWidget(self.state)
         outer.addLayout(bar)
+        self.state = QLabel("not connected")  # a line of its own, wrapped: never clipped
+        self.state.setObjectName("device-count")
+        self.state.setWordWrap(True)
+        outer.addWidget(self.state)
         self.lost_box = self._lost_controls()
         outer.addWidget(self.lost_box)
         keys = QHBoxLayout()
