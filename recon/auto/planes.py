@@ -2,7 +2,7 @@
 Eq. 4.4: the measurement is the sum of the planes' predictions).
 
 A plane is tested on the pixels no fit saw (the held-out blocks of
-:func:`recon.auto.weight.holdout_split`). Its prediction there, ``p_k = w C (h_k * x_k)``,
+:func:`recon.auto.holdout.holdout_split`). Its prediction there, ``p_k = w C (h_k * x_k)``,
 is one regressor of the held-out data ``b_h`` beside the other planes' summed
 prediction and a constant, ``b_h ~ c + g sum_{j != k} p_j + a_k p_k``, fitted by
 weighted least squares (weights 1 / var from the frame's fitted Poisson-Gaussian

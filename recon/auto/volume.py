@@ -26,9 +26,10 @@ import numpy as np
 
 from ..backend import to_device, to_numpy
 from ..errors import ReconInputError
+from .holdout import HOLDOUT, holdout_split
 from .noise import NoiseModel
 from .planes import plane_tests, planes_record
-from .weight import HOLDOUT, PathRule, PathTuning, admm_auto, holdout_split
+from .weight import PathRule, PathTuning, admm_auto
 
 __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume", "weighted_variance"]
 
@@ -45,7 +46,7 @@ __all__ = ["EMPTY_PLANES", "VOLUME_RULES", "auto_volume", "weighted_variance"]
 #: choice off the flat blocks of the largest. l1: the same over the span of the 3D
 #: accuracy benchmark's l1 grid (1e-5 .. 1e-3), one decade wider on each side; not
 #: measured. Held-out blocks of 8 x 8 pixels, as measured (the 2D path's 32 x 32,
-#: :data:`recon.auto.weight.BLOCK`, were measured on 2D scenes only).
+#: :data:`recon.auto.holdout.BLOCK`, were measured on 2D scenes only).
 VOLUME_RULES = {"tv": PathRule(start=1e-3, end=1e-6, block=8),
                 "l1": PathRule(start=1e-2, end=1e-6, block=8)}
 #: What :func:`auto_volume` may do with planes that hold no signal.

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft as sfft
 
-from ..auto.weight import coverage_ratio
+from ..auto.holdout import coverage_ratio
 from ..errors import ReconInputError
 from ..fft import fft_workers, irfftn, rfftn
 from ..operators import checked_sensor_weights, padded_grid
@@ -195,7 +195,7 @@ class VolumeSlab:
     def coverage(self, weights: np.ndarray, fit_weights: np.ndarray | None = None,
                  peak: float | None = None) -> float:
         """How well ``fit_weights`` still see the slab's object pixels, against
-        ``weights`` (:func:`recon.auto.weight.holdout_coverage`, plane by plane).
+        ``weights`` (:func:`recon.auto.holdout.holdout_coverage`, plane by plane).
 
         Parameters
         ----------
@@ -211,7 +211,7 @@ class VolumeSlab:
         float
             Without ``peak``: the largest ``A^T w`` over the slab's planes within the
             sensor's field of view; with it: the smallest ratio ``A^T (w keep) / A^T
-            w`` over those seen (:func:`recon.auto.weight.coverage_ratio`; ``inf``
+            w`` over those seen (:func:`recon.auto.holdout.coverage_ratio`; ``inf``
             when none is).
         """
         out = -np.inf if peak is None else np.inf

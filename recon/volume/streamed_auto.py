@@ -30,7 +30,7 @@ then the chosen weight run on from its own state), drives streamed 3D FISTA
 
 The result is the chosen weight's kept estimate on the fit pixels, as in memory (the
 held-out blocks hide no object pixel of a lensless PSF; where they would,
-:func:`recon.auto.weight.holdout_coverage` below one half, the chosen weight is
+:func:`recon.auto.holdout.holdout_coverage` below one half, the chosen weight is
 solved again on every pixel, :func:`~recon.auto.weight.admm_auto`). Unlike
 :func:`~recon.auto.volume.auto_volume`, the planes are not tested for signal: that
 test needs every plane's own prediction, a volume of sensor images; every plane is
@@ -247,7 +247,7 @@ class SlabModel:
         return SlabModel(self.path, np.ascontiguousarray(sensor_weights, np.float32))
 
     def coverage(self, keep: np.ndarray) -> float:
-        """:func:`recon.auto.weight.holdout_coverage` computed plane by plane in the slabs
+        """:func:`recon.auto.holdout.holdout_coverage` computed plane by plane in the slabs
         (two passes: the largest ``A^T w``, then the smallest ratio).
 
         Parameters
@@ -350,7 +350,7 @@ def auto_streamed(group, b: np.ndarray, *, noise: NoiseModel, iterations: int,
         The weight to choose; ``other`` is the fixed value of the other one.
     other : float
     seed : int
-        Seed of the held-out blocks (:func:`recon.auto.weight.holdout_split`).
+        Seed of the held-out blocks (:func:`recon.auto.holdout.holdout_split`).
     sensor_weights : ndarray, sensor shape, optional
         Default all ones.
 

@@ -220,7 +220,7 @@ def test_final_solve_stops_where_the_held_out_pixels_say_the_noise_starts():
 
 
 def test_a_compact_psf_s_final_solve_uses_every_pixel():
-    from recon.auto.weight import holdout_coverage, holdout_mask
+    from recon.auto.holdout import holdout_coverage, holdout_mask
 
     delta = np.zeros((48, 48), np.float32)
     delta[24, 24] = 1.0
@@ -310,8 +310,9 @@ def test_held_out_blocks_are_32_pixels_wide_and_shrink_on_a_small_sensor():
     """Blocks wider than the spatially varying model's correlated error (on the demo,
     8 x 8 blocks chose TV 7.2e-5, 19.1 dB, against 1.9e-4, 21.4 dB, fixed); smaller
     blocks where the sensor holds too few of them; the volume keeps 8 x 8."""
+    from recon.auto.holdout import BLOCK, holdout_split
     from recon.auto.volume import VOLUME_RULES
-    from recon.auto.weight import BLOCK, PATH_RULES, holdout_split
+    from recon.auto.weight import PATH_RULES
 
     assert BLOCK == 32 and PATH_RULES["tv"].block == 32 and VOLUME_RULES["tv"].block == 8
 
