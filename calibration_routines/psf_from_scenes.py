@@ -22,6 +22,10 @@ Both write a run holding ``psf_stack``: (1, rows, cols), or (1, rows, cols, chan
 with its ``channels`` recorded, at ``depths_mm = [z_mm]``, which ``recon --psf RUN``
 and ``recon-run --psf RUN`` take (a dark-subtracted PSF: give the frames' dark level
 with ``--dark``); the run's summary records each pair's held-out relative residual.
+With two pairs or more the run also holds ``early_stop.json``
+(:mod:`recon.analysis.early_stop`): the iteration count of a prior-free non-negative
+FISTA fitted on the pairs, each reconstructed with the PSF estimated without it, tied
+to this PSF (``recon --psf RUN --early-stop RUN``).
 """
 
 from __future__ import annotations
@@ -35,7 +39,10 @@ from instrument.atomic import missing_dirs, remove_empty_dirs
 from instrument.coords import coord_specs
 from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
 from instrument.runstore import RunStore, discard_partial_run
+from recon.analysis.early_stop import FILE as EARLY_STOP_NAME
+from recon.analysis.early_stop import EarlyStop, fit_early_stop
 from recon.analysis.psf_from_scenes import (
+    LeaveOneOut,
     PsfEstimate,
     check_pairs,
     estimate_psf_from_scenes,
@@ -48,12 +55,14 @@ from recon.scenes import BUNDLED, load_scene
 from ._common import CALIBRATION_EXPOSURE, sensor_geometry, signal_minus_dark
 
 __all__ = ["FILES_PLAN", "PsfFromScenesPlan", "display_gray", "match_pairs",
-           "psf_run_from_files", "write_psf"]
+           "early_stop_for", "psf_run_from_files", "write_psf"]
 
 #: The plan name of a run made from files (no frames; nothing to resume).
 FILES_PLAN = "psf-from-scene-files"
 #: Image files the file source reads.
 SUFFIXES = (".npy", ".tif", ".tiff", ".png")
+#: The early-stop calibration's file in the run (:mod:`recon.analysis.early_stop`).
+EARLY_STOP_FILE = EARLY_STOP_NAME
 
 
 def display_gray(name: str, shape: tuple[int, int]) -> np.ndarray:
@@ -62,7 +71,8 @@ def display_gray(name: str, shape: tuple[int, int]) -> np.ndarray:
 
 
 def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | None,
-              names: Sequence[str], z_mm: float, units: str) -> dict:
+              names: Sequence[str], z_mm: float, units: str,
+              early_stop: EarlyStop | None = None) -> dict:
     """Write ``psf_stack`` and return the run's summary (module docstring).
 
     Parameters
@@ -78,11 +88,15 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         Depth of the scenes, mm.
     units : str
         The PSF's unit.
+    early_stop : EarlyStop, optional
+        The iteration count fitted for this PSF (:func:`early_stop_for`): written as
+        ``early_stop.json`` in the run and summarised.
 
     Returns
     -------
     dict
-        JSON-able: per pair the training and held-out residuals, their mean, the method.
+        JSON-able: per pair the training and held-out residuals, their mean, the method
+        (and the early-stop count).
     """
     psf = estimate.psf
     attrs = {"depths_mm": [float(z_mm)], "units": units, "method": estimate.method,
@@ -98,7 +112,18 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         summary["held_out_residual"] = {n: [round(float(v), 4) for v in held_out[k]]
                                         for k, n in enumerate(names)}
         summary["held_out_mean"] = round(float(np.mean(held_out)), 4)
+    if early_stop is not None:
+        early_stop.save(Path(store.path) / EARLY_STOP_FILE, overwrite=True)
+        summary["early_stop"] = {"file": EARLY_STOP_FILE, "iterations": early_stop.iterations,
+                                 "method": early_stop.method}
     return summary
+
+
+def early_stop_for(scenes, measurements, loo: LeaveOneOut, estimate: PsfEstimate,
+                   names: Sequence[str]) -> EarlyStop:
+    """The early-stop count fitted on the pairs for ``estimate``'s PSF
+    (:func:`recon.analysis.early_stop.fit_early_stop`, with ``loo``'s held-out PSFs)."""
+    return fit_early_stop(scenes, measurements, loo.psfs, estimate.psf, names=names)
 
 
 def _files(spec: Sequence[str], what: str) -> dict[str, Path]:
@@ -175,7 +200,8 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
     Returns
     -------
     RunStore
-        Complete, with ``psf_stack`` and the summary of :func:`write_psf`.
+        Complete, with ``psf_stack``, the summary of :func:`write_psf` and, from two
+        pairs, ``early_stop.json``.
 
     Raises
     ------
@@ -194,7 +220,9 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
     bs = [load_image(b) for _, _, b in pairs]
     check_pairs(xs, bs)
     estimate = estimate_psf_from_scenes(xs, bs, **options)
-    held = leave_one_out(xs, bs, **options).residuals if len(xs) > 1 else None
+    loo = leave_one_out(xs, bs, **options) if len(xs) > 1 else None
+    held = None if loo is None else loo.residuals
+    early = None if loo is None else early_stop_for(xs, bs, loo, estimate, names)
     if on_pair is not None:
         for k, n in enumerate(names):
             on_pair(n, estimate.residuals[k], None if held is None else held[k])
@@ -210,7 +238,7 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
             coord_names=["exposure_s"], coord_specs=coord_specs(["exposure_s"]), note=note,
             overwrite=overwrite)
         summary = write_psf(store, estimate, held, names, z_mm,
-                            "measurement units per scene unit")
+                            "measurement units per scene unit", early)
         store.update_attrs(status="complete", summary=summary)
     except BaseException:  # never a run another process created at ``out`` meanwhile
         if store is not None:
@@ -326,6 +354,7 @@ class PsfFromScenesPlan(Plan):
                             f"display ({p['display']}) in front of the camera, facing it")
         options = {"iterations": p["iterations"]}
         estimate = estimate_psf_from_scenes(scenes, measurements, **options)
-        held = leave_one_out(scenes, measurements, **options).residuals
-        return write_psf(store, estimate, held, names, p["z_mm"],
-                         "DN/s per unit display radiance")
+        loo = leave_one_out(scenes, measurements, **options)
+        return write_psf(store, estimate, loo.residuals, names, p["z_mm"],
+                         "DN/s per unit display radiance",
+                         early_stop_for(scenes, measurements, loo, estimate, names))

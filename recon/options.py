@@ -226,6 +226,13 @@ class ReconOptions(Options):
     seconds: float | None = option(
         None, help="time budget of the solve for method auto (Wiener if too short)",
         unit="s", gt=0, kinds=("image",), default_text="none", label="time budget")
+    early_stop: str | None = option(
+        None, help="an early-stop calibration: a `calibrate psf-from-scenes` run (or its "
+        "early_stop.json); solves by non-negative FISTA without a prior for the iteration "
+        "count fitted on the calibration pairs (recon.analysis.early_stop), in place of "
+        "--method, --iterations, --tv and --l1; refused with another PSF than the run's",
+        kinds=("image",), default_text="none", metavar="RUN|JSON",
+        label="early-stop calibration")
     erase: float = option(
         0.0, help="fraction of raw pixels erased at random (compressed sensing; at least "
         "1 % must stay measured, recon.preprocess.signal.MIN_MEASURED_FRACTION)", ge=0,

@@ -245,6 +245,8 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
         The solver diverged (history and last good estimate attached).
     """
     o = ReconOptions.from_defaults() if options is None else options
+    if o.early_stop is not None:  # the fitted count replaces method, iterations, weights
+        o, auto_stop = early_stopped_options(o, psf), False
     method, tv, bin_factor, dark = o.method, o.tv, o.bin_factor, o.dark
     full_scale = o.full_scale
     l1 = l1_given(o.l1)
@@ -351,6 +353,22 @@ _DARK_SOURCES = {"psf_region": "the PSF's dark corner (recon.preprocess.DEFAULT_
                  "none": "none: the inputs are dark-subtracted",
                  "scalar": "the dark value given", "vector": "the per-channel values given",
                  "frame": "the dark frame given, pixel by pixel"}
+
+
+def early_stopped_options(options: ReconOptions, psf) -> ReconOptions:
+    """``options`` with the early-stop calibration they name applied: non-negative FISTA,
+    no TV or l1, the fitted iteration count (:mod:`recon.analysis.early_stop`).
+
+    Raises
+    ------
+    ReconInputError
+        The calibration cannot be read, or was fitted for another PSF than ``psf``.
+    """
+    from .analysis.early_stop import EarlyStop
+
+    fit = EarlyStop.load(options.early_stop)
+    fit.check_psf(psf)
+    return options.replace(method="fista", iterations=fit.iterations, tv=0.0, l1=0.0)
 
 
 def _is(value, word: str) -> bool:

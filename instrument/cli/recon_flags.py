@@ -30,7 +30,7 @@ __all__ = ["COMMAND_FIELDS", "DeprecatedAlias", "add_deprecated", "add_device_op
 #: :class:`recon.options.LiveOptions` of ``capture live``.
 COMMAND_FIELDS = {
     "recon": ("method", "iterations", "seconds", "bin_factor", "tv", "prior", "l1", "erase",
-              "seed", "full_scale", "dark", "allow_mixed_ranges", "device"),
+              "seed", "full_scale", "dark", "allow_mixed_ranges", "device", "early_stop"),
     "recon3d": ("method", "iterations", "tv", "prior", "empty_planes", "l1", "bin_factor",
                 "dark", "allow_mixed_ranges", "device"),
     "recon-run": ("method", "iterations", "tv", "prior", "l1", "bin_factor", "dark", "device"),

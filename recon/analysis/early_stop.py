@@ -36,11 +36,13 @@ import numpy as np
 from ..errors import ReconInputError
 from .psf_from_scenes import check_pairs
 
-__all__ = ["CANDIDATES", "EarlyStop", "fit_early_stop", "gain_fitted_error", "psf_identity",
+__all__ = ["CANDIDATES", "FILE", "EarlyStop", "fit_early_stop", "gain_fitted_error", "psf_identity",
            "reconstruct_early_stopped"]
 
 #: Candidate iteration counts of :func:`fit_early_stop` (each a separate solve).
 CANDIDATES = (30, 50, 70, 100, 140, 200)
+#: The file name of the fit in a PSF-from-scenes calibration run.
+FILE = "early_stop.json"
 #: The solve the fitted count belongs to, in words (records).
 SOLVE = "non-negative FISTA without a prior (recon.reconstruct method='fista', tv=0, l1=0)"
 
@@ -125,16 +127,23 @@ class EarlyStop:
             raise ReconInputError(f"early-stop calibration incomplete ({exc!r}); give the "
                                   "file a PSF-from-scenes calibration wrote") from None
 
-    def save(self, path) -> Path:
-        """Write :meth:`to_dict` as JSON to ``path`` (refused if it exists).
+    def save(self, path, overwrite: bool = False) -> Path:
+        """Write :meth:`to_dict` as JSON to ``path``.
+
+        Parameters
+        ----------
+        path : str or Path
+        overwrite : bool
+            Replace an existing file (a calibration run rewriting its own product);
+            by default an existing file is refused.
 
         Raises
         ------
         ReconInputError
-            ``path`` exists.
+            ``path`` exists (without ``overwrite``).
         """
         path = Path(path)
-        if path.exists():
+        if path.exists() and not overwrite:
             raise ReconInputError(f"{path} exists; choose a new file name (an earlier fit is "
                                   "never overwritten)")
         path.write_text(json.dumps(self.to_dict(), indent=1))
@@ -142,15 +151,18 @@ class EarlyStop:
 
     @classmethod
     def load(cls, path) -> EarlyStop:
-        """Read a file :meth:`save` wrote.
+        """Read a file :meth:`save` wrote, or a calibration run's (a directory holding
+        ``early_stop.json``).
 
         Raises
         ------
         ReconInputError
             Missing or unreadable file, or not an early-stop calibration.
         """
+        path = Path(path)
+        path = path / FILE if path.is_dir() else path
         try:
-            d = json.loads(Path(path).read_text())
+            d = json.loads(path.read_text())
         except (OSError, ValueError) as exc:
             raise ReconInputError(f"cannot read the early-stop calibration {path}: "
                                   f"{exc.__class__.__name__}; give the JSON file a "

@@ -1,0 +1,74 @@
+"""calibrate psf-from-scenes writes an early-stop calibration that recon --early-stop uses,
+and refuses with another PSF (recon.analysis.early_stop)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from instrument.cli import main
+from instrument.runstore import RunStore
+from recon.analysis.early_stop import CANDIDATES, EarlyStop, psf_identity
+from recon.operators import ConvolutionOperator
+
+ROWS, COLS = 24, 32
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """Four synthetic pairs as .npy files, calibrated by the command; a fifth raw."""
+    tmp = tmp_path_factory.mktemp("early_stop_run")
+    rng = np.random.default_rng(5)
+    h = np.zeros((ROWS, COLS), np.float32)
+    for _ in range(12):
+        h[rng.integers(2, ROWS - 2), rng.integers(2, COLS - 2)] = rng.random() + 0.5
+    padded = np.pad(gaussian_filter(h, 0.7), ((ROWS // 2, ROWS // 2), (COLS // 2, COLS // 2)))
+    (tmp / "scenes").mkdir()
+    (tmp / "raw").mkdir()
+    for i in range(5):
+        x = (np.clip(gaussian_filter(rng.random((ROWS, COLS)), 1.5) * 4 - 1.5, 0, None)
+             + 0.05).astype(np.float32)
+        b = ConvolutionOperator(x).forward(padded)
+        b = (b + 0.03 * b.std() * rng.standard_normal(b.shape)).astype(np.float32)
+        where = "held" if i == 4 else "raw"
+        np.save(tmp / ("held_scene.npy" if i == 4 else f"scenes/p{i}.npy"), x)
+        np.save(tmp / (f"{where}.npy" if i == 4 else f"raw/p{i}.npy"), b)
+    run = tmp / "cal.zarr"
+    code = main(["calibrate", "psf-from-scenes", "--scenes", str(tmp / "scenes"),
+                 "--measurements", str(tmp / "raw"), "--z-mm", "20", "--out", str(run)])
+    assert code == 0
+    return tmp, run
+
+
+def test_the_calibration_run_holds_the_fit_for_its_psf(calibrated):
+    _, run = calibrated
+    fit = EarlyStop.load(run)
+    psf = RunStore.open(run).product("psf_stack")[0][0]
+    assert fit.psf_sha256 == psf_identity(psf)
+    assert fit.iterations in CANDIDATES and fit.errors.shape == (len(CANDIDATES), 4)
+    assert fit.pairs == ("p0", "p1", "p2", "p3")
+    summary = RunStore.open(run).attrs["summary"]
+    assert summary["early_stop"]["iterations"] == fit.iterations
+
+
+def test_recon_runs_the_fitted_count_and_refuses_another_psf(calibrated, capsys):
+    tmp, run = calibrated
+    fit = EarlyStop.load(run / "early_stop.json")
+    metrics = tmp / "m.json"
+    assert main(["recon", "--psf", str(run), "--depth", "20", "--raw", str(tmp / "held.npy"),
+                 "--dark", "none", "--early-stop", str(run), "--out", str(tmp / "rec.png"),
+                 "--metrics-json", str(metrics)]) == 0
+    m = json.loads(metrics.read_text())
+    assert (m["method"], m["iterations_used"], m["tv"]) == ("fista", fit.iterations, 0.0)
+    other = RunStore.open(run).product("psf_stack")[0][0][::-1].copy()
+    np.save(tmp / "other_psf.npy", other)
+    capsys.readouterr()
+    assert main(["recon", "--psf", str(tmp / "other_psf.npy"), "--raw", str(tmp / "held.npy"),
+                 "--dark", "none", "--early-stop", str(run),
+                 "--out", str(tmp / "rec2.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "fitted for another PSF" in err and "Traceback" not in err
+    assert not (tmp / "rec2.png").exists()
