@@ -107,9 +107,9 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
         The creation token this process got (``RunStore.creation_token``); None:
         nothing is removed (the run was not created here).
     claimed : bool
-        The caller made ``path`` itself (:func:`claim_run_dir`) and may have failed
-        before the run recorded its creator: a directory recording no creator is
-        then removed too (``RunStore.create`` cleaning up after itself).
+        The caller made ``path`` itself (:func:`~instrument.run_paths.claim_run_dir`)
+        and may have failed before the run recorded its creator: a directory recording
+        no creator is then removed too (``RunStore.create`` cleaning up after itself).
     settle_s, timeout_s : float
         As :func:`instrument.atomic.remove_tree`, s.
 
