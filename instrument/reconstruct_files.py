@@ -198,11 +198,14 @@ def check_dark_frame(dark, shape, frames: str) -> None:
 
 def run_recon(psf_path: str, raw_path: str, options, *, out: str,
               metrics_json: str | None = None, depth_mm: float | None = None,
-              psf_product: str = "psf_stack") -> dict:
-    """Load, reconstruct, write PNG + float32 TIFF (+ metrics JSON); return metrics.
+              psf_product: str = "psf_stack", pitch_um: float | None = None) -> dict:
+    """Load, reconstruct, write PNG + float32 OME-TIFF (+ metrics JSON); return metrics.
 
     The PNG is a view turned upright (:func:`recon.io.scene_view`); the TIFF keeps
-    the model grid (:data:`recon.io.DATA_ORIENTATION`).
+    the model grid (:data:`recon.io.DATA_ORIENTATION`), its pixel size the grid's
+    pitch (``pitch_um``, or a PSF run's frame pitch, times the binning) and the
+    metrics record in its description
+    (:func:`instrument.writer.products.write_recon_tiff`).
 
     Parameters
     ----------
@@ -218,12 +221,16 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
         Where to write the metrics.
     depth_mm, psf_product
         Plane and product of a PSF stack (see :func:`load_psf`).
+    pitch_um : float, optional
+        The sensor's pixel pitch, micrometres, unbinned (``--pitch-um``); None: the
+        PSF run's, or no pixel size.
 
     Returns
     -------
     dict
         :meth:`recon.Reconstruction.metrics` (FFT floor: median of three timings)
-        plus the input paths, seed, PSF depth and output paths.
+        plus the input paths, seed, PSF depth, the grid's pitch (``pixel_size_um``,
+        None when unknown) and output paths.
 
     Raises
     ------
@@ -248,12 +255,14 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
         result = reconstruct(psf, raw, **{**options.keywords("image"), "dark": dark})
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
+    grid_pitch = _grid_pitch_um(psf_path, psf_product, pitch_um,
+                                options.keywords("image")["bin_factor"])
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=options.seed,
-                   psf_depth_mm=depth)
+                   psf_depth_mm=depth, pixel_size_um=grid_pitch)
     png, tif = output_paths(out)
     metrics.update(output_png=str(png), output_tiff=str(tif),
                    orientation={"png": "scene, upright", "tiff": DATA_ORIENTATION})
-    write_image_products(result.image, png, tif, metrics_json, metrics)
+    write_image_products(result.image, png, tif, metrics_json, metrics, grid_pitch)
     return metrics
 
 

@@ -265,11 +265,15 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
 
 def import_psf_stack(source: str | Path, out: str | Path, *,
                      depths_mm: Sequence[float] | None = None, note: str = "",
-                     overwrite: bool = False) -> RunStore:
+                     overwrite: bool = False, pitch_um: float | None = None) -> RunStore:
     """Store a PSF stack from a TIFF or .npy file (with its depths) as a run.
 
     The run has no frames, only the ``psf_stack`` product with ``depths_mm``
-    ascending, and ``source`` in its attributes.
+    ascending, and ``source`` in its attributes. With ``pitch_um`` (the sensor's
+    pixel pitch, micrometres, of the stack's pixels) the run records it as its
+    camera's (``camera.pixel_pitch_um``), so its OME-Zarr description, ``recon`` and
+    ``recon3d`` give the stack and what is reconstructed from it a pixel size in
+    micrometres; without it, ``y``, ``x`` have no unit.
 
     Raises
     ------
@@ -290,6 +294,8 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
                                 frame_dtype=np.float32, coord_names=["exposure_s"],
                                 coord_specs=coord_specs(["exposure_s"]), note=note,
                                 overwrite=overwrite)
+        if pitch_um is not None:  # before the product: its description reads it
+            store.update_attrs(camera={"id": None, "pixel_pitch_um": float(pitch_um)})
         store.write_product("psf_stack", stack, depths_mm=depths, source=str(source),
                             units=attrs.get("units", "as imported"))
         store.update_attrs(status="complete",

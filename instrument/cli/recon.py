@@ -31,6 +31,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--out", default="out/recon.png",
                     help="output image; writes OUT.png (viewing) and OUT.tif (float32)")
     rp.add_argument("--metrics-json", default=None, help="write the metrics JSON here")
+    rp.add_argument("--pitch-um", type=float, default=None,
+                    help="sensor pixel pitch, um, unbinned: OUT.tif's pixel size (times "
+                    "--bin); default: the PSF run's, else none")
     rp.add_argument("--overwrite", action="store_true",
                     help="replace existing output files (never an input)")
     from .grid_options import add_grid_options
@@ -66,6 +69,8 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
+    from diffuserlab.errors import InputError
+
     from ..reconstruct_files import run_recon
     from ..writer.guards import check_outputs
     from ..writer.products import output_paths
@@ -77,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
     options = check_recon_flags(args)
+    if args.pitch_um is not None and not args.pitch_um > 0:
+        raise InputError(f"--pitch-um {args.pitch_um:g}: give the sensor's pixel pitch in "
+                         "micrometres, > 0 (e.g. --pitch-um 3.45)")
     check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid
@@ -85,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     outputs = [*output_paths(args.out), *([args.metrics_json] if args.metrics_json else [])]
     check_outputs(outputs, {"--psf": args.psf, "--raw": args.raw}, args.overwrite)
     m = run_recon(args.psf, args.raw, options, out=args.out, metrics_json=args.metrics_json,
-                  depth_mm=args.depth_mm, psf_product=args.psf_product)
+                  depth_mm=args.depth_mm, psf_product=args.psf_product,
+                  pitch_um=args.pitch_um)
     for line in choice_lines(m):
         print(line)
     print(summary_line(m))

@@ -51,6 +51,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ip.add_argument("--depths", default=None,
                     help="comma-separated depths in mm, one per plane (unless recorded)")
     ip.add_argument("--out", required=True, help="run store to create (RUN.zarr)")
+    ip.add_argument("--pitch-um", type=float, default=None,
+                    help="the stack's pixel pitch on the sensor, um (camera pitch times "
+                    "binning): its pixel size in the run; default none (no unit)")
     ip.add_argument("--note", default="")
     ip.add_argument("--overwrite", action="store_true")
     rp.set_defaults(handler=run)
@@ -193,9 +196,12 @@ def run(args: argparse.Namespace) -> int:
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")
+        if args.pitch_um is not None and not args.pitch_um > 0:
+            raise InputError(f"--pitch-um {args.pitch_um:g}: give the pixel pitch in "
+                             "micrometres, > 0 (e.g. --pitch-um 3.45)")
         from ..stacks import import_psf_stack
 
         store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
-                                 overwrite=args.overwrite)
+                                 overwrite=args.overwrite, pitch_um=args.pitch_um)
         print(f"stored {store.n_points} depths in {store.path}")
     return 0

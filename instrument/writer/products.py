@@ -1,7 +1,8 @@
 """The products of a reconstruction: their names, and the files written from its arrays.
 
 ``recon`` writes ``OUT.png`` (the view, turned upright) and ``OUT.tif`` (the float32
-data product, the model grid) with its metrics JSON (:func:`write_image_products`);
+data product, the model grid: an OME-TIFF with axes y, x (and c), its pixel size and
+its record, :func:`write_recon_tiff`) with its metrics JSON (:func:`write_image_products`);
 ``recon3d`` and the PSF-grid solve write the volume (a float32 TIFF or an OME-Zarr
 image, :func:`write_volume`) and its three maximum-intensity projections
 (:func:`write_volume_products`). Each command's outputs are one
@@ -24,8 +25,8 @@ from ..atomic import atomic_dir, atomic_path, output_group, write_json
 from .files import save_image
 
 __all__ = ["DEFAULT_STEM", "IMAGE_SUFFIXES", "VOLUME_MARKER", "output_paths", "projections",
-           "volume_output_paths", "write_image_products", "write_volume",
-           "write_volume_products"]
+           "volume_output_paths", "write_image_products", "write_recon_tiff",
+           "write_volume", "write_volume_products"]
 
 _VOLUME_SUFFIXES = (".tif", ".tiff", ".zarr")
 
@@ -62,9 +63,56 @@ def output_paths(out: str) -> tuple[Path, Path]:
     return p.with_name(name + ".png"), p.with_name(name + ".tif")
 
 
+def write_recon_tiff(path: Path, image: np.ndarray, pitch_um: float | None = None,
+                     record: dict | None = None) -> None:
+    """Write a 2D reconstruction as a float32 OME-TIFF (tifffile), under a temporary
+    name renamed into place.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The ``.tif`` to write.
+    image : numpy.ndarray
+        Shape (H, W) or (H, W, C): axes ``YX`` or ``YXS`` (OME ``SizeC`` = C, the
+        channels interleaved), values unchanged as float32.
+    pitch_um : float, optional
+        The reconstruction grid's pitch, micrometres on the sensor (pixel pitch times
+        binning): ``PhysicalSizeX``/``PhysicalSizeY`` in µm; none without it.
+    record : dict, optional
+        JSON-able record (the reconstruction's parameters and metrics) stored as the
+        image's OME ``Description`` (read back by
+        :func:`instrument.tiff_export.read_tiff_metadata`).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        An array that is not (H, W) or (H, W, C) of real numbers.
+    """
+    import tifffile
+
+    from recon.errors import ReconInputError
+
+    data = np.asarray(image)
+    if data.ndim not in (2, 3) or data.size == 0 or data.dtype.kind not in "biuf":
+        raise ReconInputError(f"{path}: cannot write an image of shape {data.shape} and "
+                              f"dtype {data.dtype}; pass a 2D (H, W) or (H, W, C) image")
+    data = np.ascontiguousarray(data, dtype=np.float32)
+    meta: dict = {"axes": "YX" if data.ndim == 2 else "YXS", "Name": "reconstruction",
+                  "Description": json.dumps(record or {}, default=str)}
+    if pitch_um:
+        for a in "XY":
+            meta[f"PhysicalSize{a}"], meta[f"PhysicalSize{a}Unit"] = float(pitch_um), "µm"
+    rgb = data.ndim == 3 and data.shape[2] in (3, 4)
+    with atomic_path(path) as tmp:
+        tifffile.imwrite(tmp, data, ome=True, metadata=meta,
+                         photometric="rgb" if rgb else "minisblack",
+                         planarconfig="contig" if data.ndim == 3 else None)
+
+
 def write_image_products(image: np.ndarray, png: Path, tif: Path,
                          metrics_json: str | os.PathLike | None = None,
-                         metrics: dict | None = None) -> None:
+                         metrics: dict | None = None,
+                         pitch_um: float | None = None) -> None:
     """Write a 2D reconstruction's view, data product and metrics: all of them or none.
 
     Parameters
@@ -74,11 +122,14 @@ def write_image_products(image: np.ndarray, png: Path, tif: Path,
         (:data:`recon.io.DATA_ORIENTATION`).
     png, tif : pathlib.Path
         The 8-bit view, turned upright (:func:`recon.io.scene_view`), and the float32
-        TIFF of ``image`` as it is (:func:`output_paths`).
+        OME-TIFF of ``image`` as it is (:func:`output_paths`, :func:`write_recon_tiff`).
     metrics_json : path, optional
         Where ``metrics`` go (:func:`~instrument.atomic.write_json`).
     metrics : dict, optional
-        The record written to ``metrics_json``.
+        The record written to ``metrics_json`` and into the TIFF's description.
+    pitch_um : float, optional
+        The reconstruction grid's pitch, micrometres on the sensor (the TIFF's pixel
+        size; none without it).
 
     Raises
     ------
@@ -89,7 +140,7 @@ def write_image_products(image: np.ndarray, png: Path, tif: Path,
     """
     with output_group():  # the PNG, the TIFF and the JSON: all of them or none
         save_image(png, scene_view(image))
-        save_image(tif, image)
+        write_recon_tiff(tif, image, pitch_um, metrics)
         if metrics_json:
             write_json(metrics_json, metrics)
 
