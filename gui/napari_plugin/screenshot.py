@@ -6,12 +6,15 @@
 Registers the plugin's manifest with npe2 (so it works from a checkout that is not
 installed), opens ``RUN.zarr`` through napari's reader API, shows the frames and the
 products side by side (napari's grid) with the scale bar in the run's units, and saves
-the whole window.
+the whole window. ``--also V.zarr`` opens more (a recon3d volume: every layer kept),
+``--widget`` docks the Reconstruct widget.
 """
 
 from __future__ import annotations
 
 import argparse
+
+import numpy as np
 
 __all__ = ["main"]
 
@@ -24,6 +27,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frame", type=int, default=0, help="the frame shown")
     parser.add_argument("--layers", default="frames,recon_admm,recon_admm_dff",
                         help="comma-separated layer name endings to show")
+    parser.add_argument("--also", action="append", default=[],
+                        help="another run or recon3d volume to open (all its layers)")
+    parser.add_argument("--widget", action="store_true", help="dock the Reconstruct widget")
+    parser.add_argument("--ndisplay", type=int, choices=(2, 3), default=2,
+                        help="3: the last three axes rendered (a video's frame and a "
+                             "volume's planes at their depths), no grid")
     args = parser.parse_args(argv)
     import napari
     import npe2
@@ -43,8 +52,19 @@ def main(argv: list[str] | None = None) -> int:
     for layer in viewer.layers:
         layer.contrast_limits = [float(v) for v in (layer.data[args.frame].min(),
                                                     layer.data[args.frame].max())]
+    for path in args.also:
+        for layer in viewer.open(path, plugin=manifest.name):
+            data = np.asarray(layer.data)
+            layer.contrast_limits = [float(np.percentile(data, 50)),
+                                     float(np.percentile(data, 99.9))]
+            layer.colormap, layer.blending = "magma", "additive"
+    if args.widget:
+        from .widget import ReconstructWidget
+
+        viewer.window.add_dock_widget(ReconstructWidget(viewer), name="Reconstruct")
     viewer.dims.set_current_step(0, args.frame)
-    viewer.canvas.grid.enabled = True
+    viewer.canvas.grid.enabled = args.ndisplay == 2
+    viewer.dims.ndisplay = args.ndisplay
     viewer.canvas.overlays.scale_bar.visible = True
     viewer.layers.selection.active = viewer.layers[0]
     viewer.window.resize(1400, 800)
