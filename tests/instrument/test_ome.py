@@ -458,3 +458,43 @@ def test_export_video_frames_with_their_interval(tmp_path):
         pixels = tifffile.xml2dict(tif.ome_metadata)["OME"]["Image"]["Pixels"]
         assert pixels["TimeIncrement"] == pytest.approx(1 / FPS)
         assert pixels["SizeT"] == 6 and pixels["TimeIncrementUnit"] == "s"
+
+
+def test_a_run_written_with_the_names_before_keeps_them(tmp_path, capsys):
+    """A run written before the one-letter names (``z_mm`` frames, a ``plane`` stack,
+    a reconstruction on ``y_bin2``/``x_bin2``) is read by its stored names: described,
+    verified and exported as it is, its scales and origins the new ones."""
+    from instrument.ome import describe_run, set_dimension_names
+
+    store = _sweep(tmp_path / "s.zarr")
+    store.write_product("psf_stack_raw", np.ones((3, 16, 20), np.float32),
+                        depths_mm=[10.0, 12.0, 20.0])
+    store.create_frame_product("recon_admm", store.n_frames, (8, 10), bin_factor=2)
+    store.write_product_frame("recon_admm", 0, np.ones((8, 10)))
+    old = {"frames": ["z_mm", "y", "x"], "coords": ["z_mm", "coord"],
+           **{n: ["z_mm"] for n in ("crc32", "done", "point", "tag")},
+           "products/psf_stack_raw/0": ["plane", "y", "x"],
+           "products/recon_admm/0": ["z_mm", "y_bin2", "x_bin2"],
+           "products/recon_admm__done": ["z_mm"], "products/recon_admm__crc32": ["z_mm"]}
+    for name, dims in old.items():
+        set_dimension_names(store.path / name, dims)
+    group = zarr.open_group(store.path, mode="r+")
+    for node in (group, group["products"]):
+        del node.attrs["described"]  # (a run of then recorded no description)
+    describe_run(group)
+    frames = _multiscale(zarr.open_group(store.path, mode="r"), "frames")
+    assert [a[0] for a in _axes(frames)] == ["z_mm", "y", "x"]
+    raw = _product_image(store.path, "psf_stack_raw")
+    assert _axes(raw)[0] == ("plane", "space", "micrometer")
+    assert _origin(raw)[0] == 10000.0
+    recon = _product_image(store.path, "recon_admm")
+    assert [a[0] for a in _axes(recon)] == ["z_mm", "y_bin2", "x_bin2"]
+    assert _scale(recon)[1] == pytest.approx(2 * PITCH_UM * BINNING)
+    again = RunStore.open(store.path)
+    assert again.verify() == []
+    assert [a.name for a in again.product_axes("recon_admm")[0]] == ["z_mm", "y_bin2",
+                                                                     "x_bin2"]
+    assert main(["runs", "export", str(store.path), "--product", "psf_stack_raw",
+                 "--out", str(tmp_path / "raw.tif")]) == 0
+    assert main(["runs", "verify", str(store.path)]) == 0
+    assert "intact" in capsys.readouterr().out
