@@ -19,8 +19,9 @@ relative error wins (:func:`fit_early_stop`). The fit ships with the PSF it was
 made for (:class:`EarlyStop`, identified by a SHA-256 of the PSF's values) and
 :func:`reconstruct_early_stopped` refuses another PSF.
 
-On the five real DiffuserCam pairs (docs/reconstruction.md) the count fitted this way
-is about 100 iterations.
+:func:`fit_held_out` makes the fit a pair may be scored with (a benchmark's
+leave-one-out entry); docs/reconstruction.md has the counts and scores on the five real
+DiffuserCam pairs.
 """
 
 from __future__ import annotations
@@ -36,8 +37,8 @@ import numpy as np
 from ..errors import ReconInputError
 from .psf_from_scenes import check_pairs
 
-__all__ = ["CANDIDATES", "FILE", "EarlyStop", "fit_early_stop", "gain_fitted_error", "psf_identity",
-           "reconstruct_early_stopped"]
+__all__ = ["CANDIDATES", "FILE", "EarlyStop", "fit_early_stop", "fit_held_out",
+           "gain_fitted_error", "psf_identity", "reconstruct_early_stopped"]
 
 #: Candidate iteration counts of :func:`fit_early_stop` (each a separate solve).
 CANDIDATES = (30, 50, 70, 100, 140, 200)
@@ -273,6 +274,54 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
             on_candidate(k_iter, errors[i])
     best = cands[int(np.argmin(errors.mean(axis=1)))]
     return EarlyStop(best, tuple(cands), errors, psf_identity(psf), tuple(names))
+
+
+def fit_held_out(scenes, measurements, k: int, *, psf=None,
+                 candidates: Sequence[int] = CANDIDATES, **psf_options) -> EarlyStop:
+    """The early-stop fit that pair ``k`` may be scored with: fitted on the other pairs
+    only (a benchmark's leave-one-out entry).
+
+    The PSF is estimated from the other pairs (or ``psf``, that estimate, given);
+    each of those pairs is reconstructed with the PSF estimated from the rest of them
+    (:func:`recon.analysis.psf_from_scenes.leave_one_out` on the other pairs), so pair
+    ``k`` touches neither the PSF nor the count.
+
+    Parameters
+    ----------
+    scenes, measurements
+        Every pair, as for :func:`fit_early_stop` (at least three).
+    k : int
+        The held-out pair's index.
+    psf : ndarray, optional
+        The PSF estimated from every pair but ``k`` (computed when not given).
+    candidates : sequence of int
+        As for :func:`fit_early_stop`.
+    **psf_options
+        Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
+
+    Returns
+    -------
+    EarlyStop
+        Tied to that PSF; reconstruct pair ``k`` with :func:`reconstruct_early_stopped`.
+
+    Raises
+    ------
+    ReconInputError
+        Fewer than three pairs, ``k`` out of range, or what :func:`fit_early_stop`
+        refuses.
+    """
+    from .psf_from_scenes import estimate_psf_from_scenes, leave_one_out
+
+    scenes, measurements = list(scenes), list(measurements)
+    if len(scenes) < 3 or not 0 <= int(k) < len(scenes):
+        raise ReconInputError(f"pair {k} of {len(scenes)}: give at least three pairs and "
+                              "the index of one of them")
+    xs = [x for i, x in enumerate(scenes) if i != k]
+    bs = [b for i, b in enumerate(measurements) if i != k]
+    if psf is None:
+        psf = estimate_psf_from_scenes(xs, bs, **psf_options).psf
+    return fit_early_stop(xs, bs, leave_one_out(xs, bs, **psf_options).psfs, psf,
+                          candidates=candidates)
 
 
 def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):

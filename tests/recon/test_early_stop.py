@@ -14,6 +14,7 @@ from scipy.ndimage import gaussian_filter
 from recon.analysis.early_stop import (
     EarlyStop,
     fit_early_stop,
+    fit_held_out,
     gain_fitted_error,
     psf_identity,
     reconstruct_early_stopped,
@@ -44,17 +45,17 @@ def camera():
     psf = estimate_psf_from_scenes(calib_x, calib_b).psf
     fit = fit_early_stop(calib_x, calib_b, leave_one_out(calib_x, calib_b).psfs, psf,
                          candidates=COUNTS, names=["a", "b", "c", "d"])
-    return psf, fit, scenes[4], measurements[4]
+    return psf, fit, scenes[4], measurements[4], scenes, measurements
 
 
 def _held_out_error(camera, iterations):
-    psf, _, scene, raw = camera
+    psf, _, scene, raw, *_ = camera
     fit = EarlyStop(iterations, (iterations,), np.zeros((1, 4)), psf_identity(psf))
     return gain_fitted_error(reconstruct_early_stopped(psf, raw, fit, dark="none").image, scene)
 
 
 def test_fitted_count_is_interior_and_generalises(camera):
-    psf, fit, _, _ = camera
+    psf, fit, *_ = camera
     assert fit.errors.shape == (len(COUNTS), 4)
     assert fit.iterations in (10, 30, 100)  # neither under- nor over-fitted extreme
     assert fit.psf_sha256 == psf_identity(psf)
@@ -63,7 +64,7 @@ def test_fitted_count_is_interior_and_generalises(camera):
 
 
 def test_reconstruction_runs_exactly_the_fitted_count(camera):
-    psf, fit, _, raw = camera
+    psf, fit, _, raw, *_ = camera
     rec = reconstruct_early_stopped(psf, raw, fit, dark="none")
     assert rec.info.method == "fista"
     assert rec.info.iterations_used == fit.iterations
@@ -71,7 +72,7 @@ def test_reconstruction_runs_exactly_the_fitted_count(camera):
 
 
 def test_another_psf_is_refused_in_one_line(camera):
-    psf, fit, _, raw = camera
+    psf, fit, _, raw, *_ = camera
     other = np.roll(psf, 1, axis=0)
     with pytest.raises(ReconInputError, match="fitted for another PSF") as err:
         reconstruct_early_stopped(other, raw, fit, dark="none")
@@ -81,7 +82,7 @@ def test_another_psf_is_refused_in_one_line(camera):
 
 
 def test_saved_fit_reads_back_and_is_never_overwritten(camera, tmp_path):
-    _, fit, _, _ = camera
+    _, fit, *_ = camera
     path = fit.save(tmp_path / "early_stop.json")
     back = EarlyStop.load(path)
     assert (back.iterations, back.candidates, back.psf_sha256, back.pairs) == (
@@ -99,3 +100,16 @@ def test_gain_fitted_error_ignores_scale():
     s = rng.random((8, 9, 3))
     assert gain_fitted_error(5.0 * s, s) == pytest.approx(0.0, abs=1e-7)
     assert gain_fitted_error(np.zeros_like(s), s) == 1.0
+
+
+def test_held_out_fit_never_sees_the_held_out_pair(camera):
+    psf, fit, _, _, scenes, measurements = camera
+    # pair 4 held out: the same fit as from the first four pairs alone, whatever pair 4 is
+    held = fit_held_out(scenes, measurements, 4, candidates=COUNTS)
+    assert held.psf_sha256 == psf_identity(psf) and held.iterations == fit.iterations
+    np.testing.assert_allclose(held.errors, fit.errors, rtol=1e-6)
+    spoiled = [*measurements[:4], measurements[4][::-1].copy()]
+    again = fit_held_out(scenes, spoiled, 4, psf=psf, candidates=COUNTS)
+    np.testing.assert_allclose(again.errors, fit.errors, rtol=1e-6)
+    with pytest.raises(ReconInputError, match="at least three pairs"):
+        fit_held_out(scenes[:2], measurements[:2], 0)
