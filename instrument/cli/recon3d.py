@@ -52,7 +52,8 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                    "planes nearest those that Nyquist-sample the measured axial "
                    "resolution (Sec. 4.4, as `analyze grid`; needs --pitch-um and --d-mm)")
     p.add_argument("--pitch-um", type=float, default=None,
-                   help="sensor pixel pitch, um, unbinned (for --planes auto)")
+                   help="sensor pixel pitch, um, unbinned: the volume's pixel size "
+                   "(times --bin; default the PSF run's) and for --planes auto")
     p.add_argument("--d-mm", type=float, default=None,
                    help="diffuser-to-sensor distance, mm (for --planes auto)")
     p.add_argument("--scene-range", default=None,
