@@ -10,7 +10,10 @@ OME-Zarr image group) gives that product's layer, read through its run (verified
 A recon3d volume (``recon3d --out V.zarr``) gives one layer. Axis names, units and
 scales are those of the run's OME-Zarr description (:mod:`instrument.ome`), computed
 the same way for a run written before it; products are found in either layout of
-``products/`` (:mod:`instrument.product_nodes`).
+``products/`` (:mod:`instrument.product_nodes`). A layer whose first axis is ``t``
+gets a ``z`` of one plane after it (:func:`_layer`), so a video and a volume opened
+together keep ``t`` and ``z`` on separate viewer axes; an empty array (the frames of
+a run made by ``runs import-psf``) gives no layer.
 """
 
 from __future__ import annotations
