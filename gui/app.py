@@ -443,7 +443,9 @@ class MainWindow(QMainWindow):
 
         self.statusBar().showMessage("closing the devices ...")
         if self.session.disconnect_bench(then=closed) is None:
-            closed()
+            # no bench: closed on the next pass (a close() inside the close being
+            # refused here is ignored by Qt, and the window stayed open)
+            QTimer.singleShot(0, closed)
 
     def shutdown(self) -> None:
         """Stop the jobs that hold the bench and close it, waiting here (scripts and
