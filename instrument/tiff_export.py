@@ -6,13 +6,15 @@
   pixel size, z spacing or frame interval and unit; the run's metadata as JSON in
   the ``Info`` property, one slice label per plane), or
 - an OME-TIFF (``format="ome"``: OME-XML with ``PhysicalSizeX/Y/Z`` in µm and
-  ``TimeIncrement`` in s; the run's metadata as JSON in the image's
+  ``TimeIncrement`` in s, each plane's depth as its ``PositionZ`` in µm where the
+  array records ``depths_mm``; the run's metadata as JSON in the image's
   ``Description``),
 
 with the axes of the run's OME-Zarr description (:mod:`instrument.ome`): ``t`` (time)
-becomes T with its interval, an evenly spaced ``z`` Z with its spacing, any other
-first axis (a sweep's point axis, a ``plane`` or ``node`` axis) a Z (a product) or a T
-(frames) without spacing, its values in the metadata. An array that is no image (a
+becomes T with its interval, ``z`` with a unit Z with its spacing (the mean spacing
+for unevenly spaced depths, each depth in the metadata), any other first axis (a
+sweep's frames, a ``c`` or unitless ``z`` axis, a run's names from before) a Z (a
+product) or a T (frames) without spacing, its values in the metadata. An array that is no image (a
 table, a 1-D LUT) is written as a plain TIFF with tifffile's JSON metadata.
 :func:`read_tiff_metadata` reads the JSON back from any of the three.
 """
@@ -117,6 +119,10 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
             om[f"PhysicalSize{a}"], om[f"PhysicalSize{a}Unit"] = pitch, "µm"
     if first is not None and first.type == "space" and first.unit == "micrometer":
         om["PhysicalSizeZ"], om["PhysicalSizeZUnit"] = first.scale, "µm"
+        depths = meta.get("depths_mm")
+        if isinstance(depths, list) and len(depths) == array.shape[0]:  # each plane's
+            om["Plane"] = {"PositionZ": [float(z) * 1000.0 for z in depths],
+                           "PositionZUnit": ["µm"] * len(depths)}
     if first is not None and first.type == "time" and first.unit == "second":
         om["TimeIncrement"], om["TimeIncrementUnit"] = first.scale, "s"
     tifffile.imwrite(path, array, ome=True, metadata=om, photometric="minisblack")

@@ -114,6 +114,12 @@ def test_import_psf_pitch_and_uneven_depths_open_with_their_origin(tmp_path, cap
     with tifffile.TiffFile(out) as tif:
         assert tif.imagej_metadata["spacing"] == pytest.approx(10000.0)
         assert json.loads(tif.imagej_metadata["Info"])["depths_mm"] == [20, 25, 40]
+    ome = tmp_path / "psf.ome.tif"  # an OME-TIFF: each plane's depth as its PositionZ
+    assert main(["runs", "export", str(run), "--out", str(ome)]) == 0
+    seen = bioio.BioImage(str(ome), reader=bioio_ome_tiff.Reader)
+    planes = seen.ome_metadata.images[0].pixels.planes
+    assert [pl.position_z for pl in planes] == [20000.0, 25000.0, 40000.0]
+    assert seen.physical_pixel_sizes.Z == pytest.approx(10000.0)
     capsys.readouterr()
     assert main(["runs", "import-psf", str(tmp_path / "s.npy"), "--depths", "20,25,40",
                  "--pitch-um", "-1", "--out", str(tmp_path / "bad.zarr")]) == 2
