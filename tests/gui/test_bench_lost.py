@@ -9,6 +9,8 @@ import signal
 
 import pytest
 
+from tests.gui.test_live_killed import psf_file  # noqa: F401 (the fixture)
+
 pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs SIGKILL")
 
 
@@ -21,14 +23,22 @@ def _zombie_or_running(pid: int) -> bool:
         return False
 
 
-def test_bench_killed_is_said_reaped_and_restarted(window, wait, qtbot):
+def test_bench_killed_is_said_reaped_and_restarted(window, wait, qtbot,
+                                                   psf_file):  # noqa: F811 (the fixture)
     from PySide6.QtCore import Qt
 
     from gui.messages import how_it_ended
 
-    session, devices = window.session, window.devices
-    window.live.toggle_stream()
-    wait(lambda: session.streaming and session.frames_seen > 0, 60.0, "the stream's frames")
+    session, devices, live = window.session, window.devices, window.live
+    live.psf.setText(psf_file)
+    live.depth.setEditText("")
+    live.dark.setText("")
+    live.method.setCurrentText("wiener")
+    live.device.setCurrentText("cpu")
+    job = live.start_reconstruction()  # the stream starts with it
+    wait(lambda: job.done and live._shown_recon >= 0, 120.0, "the live reconstruction")
+    assert session.streaming and live.live is not None, live.error.text()
+    recon_pid = live.live._child.pid
     pid = session.service._manager._process.pid
     assert not devices.lost_box.isVisible()
 
@@ -50,7 +60,11 @@ def test_bench_killed_is_said_reaped_and_restarted(window, wait, qtbot):
     for box in devices.boxes.values():
         assert not box.reconnect_button.isEnabled()
         assert "bench process stopped" in box.state.text()
-    assert not window.live.start_button.isEnabled()
+    assert not live.start_button.isEnabled()
+    # the live reconstruction is stopped with the bench, its process ended (and reaped)
+    assert live.live is None and live.recon_button.text() == "Start reconstruction"
+    wait(lambda: not _zombie_or_running(recon_pid), 60.0,
+         "the live reconstruction's process to end")
 
     qtbot.mouseClick(devices.restart_button, Qt.MouseButton.LeftButton)
     wait(lambda: session.connected and not devices.lost_box.isVisible(), 120.0,
