@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import logging
 import os
 import platform
 import sys
@@ -188,10 +189,15 @@ def _run_one(method, psf, raw, truth, weight, iterations, floor_s):
 def _warm_up(method, psf, raw, weight):
     """One untimed solve on a small centre crop, 2 iterations: imports, plans, caches."""
     r, c = psf.shape[0] // 4, psf.shape[1] // 4
-    with warnings.catch_warnings():  # two iterations do not settle; not news
-        warnings.simplefilter("ignore")
-        method.solve(psf[r:-r or None, c:-c or None], raw[r:-r or None, c:-c or None],
-                     weight, 2)
+    before = logging.root.manager.disable
+    logging.disable(logging.WARNING)  # two iterations do not settle: not news
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            method.solve(psf[r:-r or None, c:-c or None], raw[r:-r or None, c:-c or None],
+                         weight, 2)
+    finally:
+        logging.disable(before)
 
 
 def _mean(rows, key):
