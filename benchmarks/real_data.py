@@ -2,7 +2,7 @@
 
 Run with ``python -m benchmarks.real_data [--data DIR] [--psf-dir DIR] [--out DIR]
 [--pairs N] [--bin B] [--iterations N] [--weights W,...] [--methods M,...]
-[--lensless-path DIR]``.
+[--lensless-path DIR] [--overwrite]``.
 
 Data: the five DiffuserCam pairs of ``shared/data/mirflickr-real`` (a photograph on a
 monitor, captured by the lensless camera and, registered, by a lensed one). Each pair
@@ -37,7 +37,8 @@ Writes in ``--out`` (default ``out/benchmark/real_data``): ``real_data.json`` (t
 machine, the FFT floor, every pair and method: PSNR, SSIM, seconds, time ratio; the
 means and each oracle's weight), ``contact.png`` (one row per pair: the lensed truth,
 then each method, gain-fitted) and ``speed_accuracy.png`` (PSNR against the time
-ratio, each pair and the means).
+ratio, each pair and the means); an ``--out`` holding them is refused (one line, exit
+status 2) unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -72,6 +73,8 @@ LENSLESS_HINT = ("LenslessPiCam is not importable: install it with `pip install 
                  "--target DIR lensless==1.0.8` and give --lensless-path DIR (or "
                  f"{LENSLESS_ENV}=DIR); running without its column")
 LENSLESS_ITERATIONS = 100
+#: What a run writes in ``--out`` (refused when there, unless ``--overwrite``).
+OUTPUTS = ("real_data.json", "contact.png", "speed_accuracy.png")
 
 
 @dataclass(frozen=True)
@@ -344,6 +347,8 @@ def main(argv=None) -> int:
                    help="the oracle entries' weight grid, comma-separated")
     p.add_argument("--methods", default=None, help="comma-separated names of the columns "
                    f"(default all: {', '.join(m.name for m in METHODS)})")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the results of an earlier run in --out")
     p.add_argument("--lensless-path", default=None,
                    help=f"directory holding the lensless package (or {LENSLESS_ENV})")
     args = p.parse_args(argv)
@@ -367,6 +372,14 @@ def main(argv=None) -> int:
                   f"{', '.join(known)}", file=sys.stderr)
             return 2
         methods = [known[s] for s in picked]
+    from instrument.writer.guards import OutputError, check_outputs
+
+    try:
+        check_outputs([args.out / f for f in OUTPUTS], {"--data": args.data},
+                      args.overwrite, directory=args.out)
+    except OutputError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     if args.lensless_path:
         os.environ[LENSLESS_ENV] = str(args.lensless_path)
     try:

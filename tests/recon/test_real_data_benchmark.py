@@ -112,3 +112,18 @@ def test_bad_options_one_line_exit_2(tmp_path, capsys, argv, word):
     err = capsys.readouterr().err.strip()
     assert word in err and len(err.splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_an_earlier_run_is_not_overwritten_unless_asked(tmp_path, capsys):
+    """An --out holding real_data.json is refused before any work, the file unchanged."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "real_data.json").write_text("earlier")
+    argv = ["--pairs", "2", "--bin", "6", "--iterations", "2", "--weights", "1e-3",
+            "--methods", "admm-tv-oracle", "--out", str(out)]
+    assert real_data.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "real_data.json" in err and len(err.splitlines()) == 1
+    assert (out / "real_data.json").read_text() == "earlier"
+    assert real_data.main([*argv, "--overwrite"]) == 0
+    assert json.loads((out / "real_data.json").read_text())["means"][0]["weight"] == 1e-3
