@@ -39,8 +39,7 @@ from instrument.atomic import missing_dirs, remove_empty_dirs
 from instrument.coords import coord_specs
 from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
 from instrument.runstore import RunStore, discard_partial_run
-from recon.analysis.early_stop import FILE as EARLY_STOP_NAME
-from recon.analysis.early_stop import EarlyStop, fit_early_stop
+from recon.analysis.early_stop import fit_early_stop
 from recon.analysis.psf_from_scenes import (
     LeaveOneOut,
     PsfEstimate,
@@ -48,6 +47,8 @@ from recon.analysis.psf_from_scenes import (
     estimate_psf_from_scenes,
     leave_one_out,
 )
+from recon.early_stop import FILE as EARLY_STOP_NAME
+from recon.early_stop import EarlyStop
 from recon.io import load_image
 from recon.optics.lensless import plane_on_object_grid
 from recon.scenes import BUNDLED, load_scene

@@ -357,14 +357,14 @@ _DARK_SOURCES = {"psf_region": "the PSF's dark corner (recon.preprocess.DEFAULT_
 
 def early_stopped_options(options: ReconOptions, psf) -> ReconOptions:
     """``options`` with the early-stop calibration they name applied: non-negative FISTA,
-    no TV or l1, the fitted iteration count (:mod:`recon.analysis.early_stop`).
+    no TV or l1, the fitted iteration count (:mod:`recon.early_stop`).
 
     Raises
     ------
     ReconInputError
         The calibration cannot be read, or was fitted for another PSF than ``psf``.
     """
-    from .analysis.early_stop import EarlyStop
+    from .early_stop import EarlyStop
 
     fit = EarlyStop.load(options.early_stop)
     fit.check_psf(psf)

@@ -16,7 +16,8 @@ it (:func:`recon.analysis.psf_from_scenes.leave_one_out`'s PSFs), for each candi
 count, and scored against its known scene after a per-channel least-squares gain
 (the scene's scale is not the reconstruction's); the count with the least mean
 relative error wins (:func:`fit_early_stop`). The fit ships with the PSF it was
-made for (:class:`EarlyStop`, identified by a SHA-256 of the PSF's values) and
+made for (:class:`recon.early_stop.EarlyStop`, identified by a SHA-256 of the PSF's
+values) and
 :func:`reconstruct_early_stopped` refuses another PSF.
 
 :func:`fit_held_out` makes the fit a pair may be scored with (a benchmark's
@@ -26,163 +27,19 @@ DiffuserCam pairs.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from ..early_stop import EarlyStop, psf_identity
 from ..errors import ReconInputError
 from .psf_from_scenes import check_pairs
 
-__all__ = ["CANDIDATES", "FILE", "EarlyStop", "fit_early_stop", "fit_held_out",
-           "gain_fitted_error", "psf_identity", "reconstruct_early_stopped"]
+__all__ = ["CANDIDATES", "fit_early_stop", "fit_held_out", "gain_fitted_error",
+           "reconstruct_early_stopped"]
 
 #: Candidate iteration counts of :func:`fit_early_stop` (each a separate solve).
 CANDIDATES = (30, 50, 70, 100, 140, 200)
-#: The file name of the fit in a PSF-from-scenes calibration run.
-FILE = "early_stop.json"
-#: The solve the fitted count belongs to, in words (records).
-SOLVE = "non-negative FISTA without a prior (recon.reconstruct method='fista', tv=0, l1=0)"
-
-
-def psf_identity(psf) -> str:
-    """SHA-256 (hex) of a PSF's shape and float32 values: what an :class:`EarlyStop`
-    is tied to.
-
-    Parameters
-    ----------
-    psf : array_like, (rows, cols) or (rows, cols, channels)
-
-    Returns
-    -------
-    str
-        64 hex digits; equal for equal float32 values and shape.
-    """
-    a = np.ascontiguousarray(np.asarray(psf, np.float32))
-    digest = hashlib.sha256(repr(a.shape).encode())
-    digest.update(a.tobytes())
-    return digest.hexdigest()
-
-
-@dataclass(frozen=True)
-class EarlyStop:
-    """A fitted iteration count, tied to one PSF (module docstring).
-
-    Attributes
-    ----------
-    iterations : int
-        The count fitted (one of ``candidates``).
-    candidates : tuple of int
-        The counts tried.
-    errors : ndarray, float64, (n_candidates, n_pairs)
-        Each calibration pair's gain-fitted relative error (:func:`gain_fitted_error`,
-        mean over channels) at each count, the pair reconstructed with the PSF
-        estimated without it.
-    psf_sha256 : str
-        :func:`psf_identity` of the PSF the count is for (the one estimated from every
-        calibration pair).
-    pairs : tuple of str
-        The calibration pairs' names.
-    """
-
-    iterations: int
-    candidates: tuple
-    errors: np.ndarray
-    psf_sha256: str
-    pairs: tuple = field(default=())
-
-    @property
-    def method(self) -> str:
-        """The calibration product in words, for records."""
-        return (f"{SOLVE}, {self.iterations} iterations: the count of {list(self.candidates)} "
-                f"with the least gain-fitted error on {len(self.pairs) or 'the'} calibration "
-                "pairs, each reconstructed with the PSF estimated without it")
-
-    def to_dict(self) -> dict:
-        """JSON-able form (:meth:`from_dict` reads it back)."""
-        return {"kind": "early-stop", "solve": SOLVE, "iterations": int(self.iterations),
-                "candidates": [int(c) for c in self.candidates],
-                "errors": np.asarray(self.errors, float).round(6).tolist(),
-                "psf_sha256": self.psf_sha256, "pairs": list(self.pairs)}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> EarlyStop:
-        """An :class:`EarlyStop` from :meth:`to_dict`'s form.
-
-        Raises
-        ------
-        ReconInputError
-            Not such a record (another kind, or a field missing).
-        """
-        if not isinstance(d, dict) or d.get("kind") != "early-stop":
-            raise ReconInputError("not an early-stop calibration (no kind 'early-stop'); give "
-                                  "the file a PSF-from-scenes calibration wrote")
-        try:
-            return cls(int(d["iterations"]), tuple(int(c) for c in d["candidates"]),
-                       np.asarray(d["errors"], float), str(d["psf_sha256"]),
-                       tuple(d.get("pairs", ())))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ReconInputError(f"early-stop calibration incomplete ({exc!r}); give the "
-                                  "file a PSF-from-scenes calibration wrote") from None
-
-    def save(self, path, overwrite: bool = False) -> Path:
-        """Write :meth:`to_dict` as JSON to ``path``.
-
-        Parameters
-        ----------
-        path : str or Path
-        overwrite : bool
-            Replace an existing file (a calibration run rewriting its own product);
-            by default an existing file is refused.
-
-        Raises
-        ------
-        ReconInputError
-            ``path`` exists (without ``overwrite``).
-        """
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise ReconInputError(f"{path} exists; choose a new file name (an earlier fit is "
-                                  "never overwritten)")
-        path.write_text(json.dumps(self.to_dict(), indent=1))
-        return path
-
-    @classmethod
-    def load(cls, path) -> EarlyStop:
-        """Read a file :meth:`save` wrote, or a calibration run's (a directory holding
-        ``early_stop.json``).
-
-        Raises
-        ------
-        ReconInputError
-            Missing or unreadable file, or not an early-stop calibration.
-        """
-        path = Path(path)
-        path = path / FILE if path.is_dir() else path
-        try:
-            d = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise ReconInputError(f"cannot read the early-stop calibration {path}: "
-                                  f"{exc.__class__.__name__}; give the JSON file a "
-                                  "PSF-from-scenes calibration wrote") from None
-        return cls.from_dict(d)
-
-    def check_psf(self, psf) -> None:
-        """Refuse a PSF other than the one this count was fitted for.
-
-        Raises
-        ------
-        ReconInputError
-            ``psf`` is not that PSF (one line: the count belongs to its calibration).
-        """
-        if psf_identity(psf) != self.psf_sha256:
-            raise ReconInputError(
-                "the early-stop calibration was fitted for another PSF (its SHA-256 "
-                f"{self.psf_sha256[:12]}... differs); use it with the PSF of the same "
-                "PSF-from-scenes calibration, or fit one for this camera")
 
 
 def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
@@ -212,12 +69,20 @@ def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
     return float(np.mean(out))
 
 
-def _solve(psf: np.ndarray, raw: np.ndarray, iterations: int, **options) -> np.ndarray:
-    from ..api import reconstruct
+def _solve(psf, raw, iterations: int, **options):
+    """:func:`recon.planar.reconstruct_image` with the early-stop solve's options (the
+    image path of :func:`recon.reconstruct`; the front door itself would close an
+    import cycle: it reaches the spatial models, which use this package)."""
+    from ..options import ReconOptions
+    from ..planar import reconstruct_image
 
-    res = reconstruct(psf, raw, method="fista", tv=0.0, l1=0.0, iterations=iterations,
-                      auto_stop=False, **options)
-    return np.asarray(res.image)
+    unknown = sorted(set(options) - {s.dest for s in ReconOptions.specs()})
+    if unknown:
+        raise ReconInputError(f"no reconstruction option {', '.join(unknown)}; give "
+                              "options of recon.reconstruct such as dark or bin_factor")
+    chosen = ReconOptions.from_defaults(method="fista", iterations=iterations, tv=0.0, l1=0.0,
+                                        **options)
+    return reconstruct_image(psf, raw, chosen, auto_stop=False)
 
 
 def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
@@ -269,7 +134,8 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     for i, k_iter in enumerate(cands):
         for k, (x, b) in enumerate(zip(xs, bs, strict=True)):
             errors[i, k] = gain_fitted_error(
-                _solve(np.asarray(held_out_psfs[k], np.float32), b, k_iter, dark="none"), x)
+                _solve(np.asarray(held_out_psfs[k], np.float32), b, k_iter,
+                       dark="none").image, x)
         if on_candidate is not None:
             on_candidate(k_iter, errors[i])
     best = cands[int(np.argmin(errors.mean(axis=1)))]
@@ -334,8 +200,9 @@ def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):
         As for :func:`recon.reconstruct` (one PSF).
     fit : EarlyStop
     **options
-        Further options of :func:`recon.reconstruct` (``dark``, ``bin_factor``,
-        ``device``, ...), not the method, iterations or weights.
+        Further options of :func:`recon.reconstruct` (``dark``: ``"auto"``, ``"none"``
+        or a level; ``bin_factor``, ``device``, ...), not the method, iterations or
+        weights.
 
     Returns
     -------
@@ -344,15 +211,12 @@ def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):
     Raises
     ------
     ReconInputError
-        ``psf`` is not the fit's PSF, an option that the fit fixes, or what
-        :func:`recon.reconstruct` refuses.
+        ``psf`` is not the fit's PSF, an option that the fit fixes or an unknown one,
+        or what :func:`recon.reconstruct` refuses.
     """
     fixed = sorted({"method", "iterations", "tv", "l1", "auto_stop"} & set(options))
     if fixed:
         raise ReconInputError(f"{', '.join(fixed)}: fixed by the early-stop calibration; "
                               "leave them out")
     fit.check_psf(psf)
-    from ..api import reconstruct
-
-    return reconstruct(psf, raw, method="fista", tv=0.0, l1=0.0, iterations=fit.iterations,
-                       auto_stop=False, **options)
+    return _solve(psf, raw, fit.iterations, **options)

@@ -11,7 +11,8 @@ from scipy.ndimage import gaussian_filter
 
 from instrument.cli import main
 from instrument.runstore import RunStore
-from recon.analysis.early_stop import CANDIDATES, EarlyStop, psf_identity
+from recon.analysis.early_stop import CANDIDATES
+from recon.early_stop import EarlyStop, psf_identity
 from recon.operators import ConvolutionOperator
 
 ROWS, COLS = 24, 32

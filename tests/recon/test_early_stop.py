@@ -12,14 +12,13 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from recon.analysis.early_stop import (
-    EarlyStop,
     fit_early_stop,
     fit_held_out,
     gain_fitted_error,
-    psf_identity,
     reconstruct_early_stopped,
 )
 from recon.analysis.psf_from_scenes import estimate_psf_from_scenes, leave_one_out
+from recon.early_stop import EarlyStop, psf_identity
 from recon.errors import ReconInputError
 from recon.operators import ConvolutionOperator
 
