@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from instrument.atomic import missing_dirs, remove_empty_dirs
+from instrument.atomic import missing_dirs, remove_empty_dirs, write_json
 from instrument.coords import coord_specs
 from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
 from instrument.runstore import RunStore, discard_partial_run
@@ -114,7 +114,7 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
                                         for k, n in enumerate(names)}
         summary["held_out_mean"] = round(float(np.mean(held_out)), 4)
     if early_stop is not None:
-        early_stop.save(Path(store.path) / EARLY_STOP_FILE, overwrite=True)
+        write_json(Path(store.path) / EARLY_STOP_FILE, early_stop.to_dict())
         summary["early_stop"] = {"file": EARLY_STOP_FILE, "iterations": early_stop.iterations,
                                  "method": early_stop.method}
     return summary

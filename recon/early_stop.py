@@ -108,32 +108,11 @@ class EarlyStop:
             raise ReconInputError(f"early-stop calibration incomplete ({exc!r}); give the "
                                   "file a PSF-from-scenes calibration wrote") from None
 
-    def save(self, path, overwrite: bool = False) -> Path:
-        """Write :meth:`to_dict` as JSON to ``path``.
-
-        Parameters
-        ----------
-        path : str or Path
-        overwrite : bool
-            Replace an existing file (a calibration run rewriting its own product);
-            by default an existing file is refused.
-
-        Raises
-        ------
-        ReconInputError
-            ``path`` exists (without ``overwrite``).
-        """
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise ReconInputError(f"{path} exists; choose a new file name (an earlier fit is "
-                                  "never overwritten)")
-        path.write_text(json.dumps(self.to_dict(), indent=1))
-        return path
-
     @classmethod
     def load(cls, path) -> EarlyStop:
-        """Read a file :meth:`save` wrote, or a calibration run's (a directory holding
-        ``early_stop.json``).
+        """Read :meth:`to_dict`'s JSON (written by the calibration routine,
+        ``calibrate psf-from-scenes``), or a calibration run's
+        (a directory holding ``early_stop.json``).
 
         Raises
         ------

@@ -7,6 +7,8 @@ error. The fit must pick a count in the valley, and that count must generalise t
 pair it never saw.
 """
 
+import json
+
 import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
@@ -80,18 +82,20 @@ def test_another_psf_is_refused_in_one_line(camera):
         reconstruct_early_stopped(psf, raw, fit, dark="none", iterations=5)
 
 
-def test_saved_fit_reads_back_and_is_never_overwritten(camera, tmp_path):
+def test_fit_reads_back_from_its_json(camera, tmp_path):
     _, fit, *_ = camera
-    path = fit.save(tmp_path / "early_stop.json")
-    back = EarlyStop.load(path)
-    assert (back.iterations, back.candidates, back.psf_sha256, back.pairs) == (
-        fit.iterations, fit.candidates, fit.psf_sha256, fit.pairs)
-    np.testing.assert_allclose(back.errors, fit.errors, atol=1e-6)
-    with pytest.raises(ReconInputError, match="exists"):
-        fit.save(path)
+    path = tmp_path / "early_stop.json"
+    path.write_text(json.dumps(fit.to_dict()))
+    for where in (path, tmp_path):  # the file, or the run directory holding it
+        back = EarlyStop.load(where)
+        assert (back.iterations, back.candidates, back.psf_sha256, back.pairs) == (
+            fit.iterations, fit.candidates, fit.psf_sha256, fit.pairs)
+        np.testing.assert_allclose(back.errors, fit.errors, atol=1e-6)
     (tmp_path / "other.json").write_text('{"kind": "psf"}')
     with pytest.raises(ReconInputError, match="not an early-stop calibration"):
         EarlyStop.load(tmp_path / "other.json")
+    with pytest.raises(ReconInputError, match="cannot read"):
+        EarlyStop.load(tmp_path / "missing.json")
 
 
 def test_gain_fitted_error_ignores_scale():
