@@ -3,8 +3,9 @@
 :func:`write_tiff` writes one array of a run (its frames or a product) as
 
 - an ImageJ hyperstack (``format="imagej"``, what Fiji opens as a stack with its
-  pixel size, z spacing or frame interval and unit; the run's metadata as JSON in
-  the ``Info`` property, one slice label per plane), or
+  pixel size, z spacing and origin (``zorigin``, in slices: the first plane at its
+  depth) or frame interval and unit; the run's metadata as JSON in the ``Info``
+  property, one slice label per plane), or
 - an OME-TIFF (``format="ome"``: OME-XML with ``PhysicalSizeX/Y/Z`` in µm and
   ``TimeIncrement`` in s, each plane's depth as its ``PositionZ`` in µm where the
   array records ``depths_mm``; the run's metadata as JSON in the image's
@@ -105,6 +106,8 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
             ij["finterval"] = first.scale
         if first is not None and first.type == "space" and first.unit == "micrometer":
             ij["spacing"] = first.scale
+            if first.origin and first.scale:  # ImageJ: z = (slice - zorigin) * spacing
+                ij["zorigin"] = -first.origin / first.scale
         if labels is not None and array.ndim == 3:
             ij["Labels"] = list(labels)
         res = None if pitch is None else (1.0 / pitch, 1.0 / pitch)

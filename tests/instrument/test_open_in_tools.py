@@ -108,11 +108,15 @@ def test_import_psf_pitch_and_uneven_depths_open_with_their_origin(tmp_path, cap
     assert ds["0"].dims == ("z", "y", "x") and ds["0"].attrs["depths_mm"] == [20, 25, 40]
     seen = _bioio_zarr(run / "products/psf_stack")
     assert seen.dims.Z == 3 and seen.physical_pixel_sizes.X == 2.5
-    # its ImageJ export has a z spacing now (the mean), every depth in its Info
+    # its ImageJ export has a z spacing (the mean) and origin, every depth in its Info
     out = tmp_path / "psf.tif"
     assert main(["runs", "export", str(run), "--out", str(out)]) == 0
     with tifffile.TiffFile(out) as tif:
-        assert tif.imagej_metadata["spacing"] == pytest.approx(10000.0)
+        ij = tif.imagej_metadata
+        assert ij["spacing"] == pytest.approx(10000.0) and ij["unit"] == "um"
+        # ImageJ's calibration: z = (slice - zorigin) * spacing; slice 0 at 20 mm
+        assert (0 - ij["zorigin"]) * ij["spacing"] == pytest.approx(20000.0)
+        assert "zorigin=-2.0" in tif.pages[0].description.splitlines()
         assert json.loads(tif.imagej_metadata["Info"])["depths_mm"] == [20, 25, 40]
     ome = tmp_path / "psf.ome.tif"  # an OME-TIFF: each plane's depth as its PositionZ
     assert main(["runs", "export", str(run), "--out", str(ome)]) == 0
