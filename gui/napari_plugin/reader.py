@@ -10,10 +10,12 @@ OME-Zarr image group) gives that product's layer, read through its run (verified
 A recon3d volume (``recon3d --out V.zarr``) gives one layer. Axis names, units and
 scales are those of the run's OME-Zarr description (:mod:`instrument.ome`), computed
 the same way for a run written before it; products are found in either layout of
-``products/`` (:mod:`instrument.product_nodes`). A layer whose first axis is ``t``
-gets a ``z`` of one plane after it (:func:`_layer`), so a video and a volume opened
-together keep ``t`` and ``z`` on separate viewer axes; an empty array (the frames of
-a run made by ``runs import-psf``) gives no layer.
+``products/`` (:mod:`instrument.product_nodes`). Every layer of planes ends in
+``t`` (second), ``z`` (micrometer), ``y``, ``x`` (:func:`_layer`: a video gets a ``z``
+of one plane, a sweep's frames, in acquisition order, are labelled ``frame`` and put
+in front of a ``t`` of one frame and such a ``z``, as a grid's ``c`` is), so any mix of
+runs and volumes in one viewer keeps its units and its time apart from its depth; an
+empty array (the frames of a run made by ``runs import-psf``) gives no layer.
 """
 
 from __future__ import annotations
@@ -64,19 +66,41 @@ def _attrs(path: Path) -> dict:
 #: sweep's spacing) because napari's z slider steps by the smallest z scale of its
 #: layers: 1 micrometer would give a volume's 2 mm thousands of empty steps.
 SINGLE_PLANE_Z = ("z", "space", "micrometer", 1000.0)
+#: The time axis a layer whose first axis has no physical unit gets in front of its
+#: ``z`` of one plane: one frame, in the unit of a video's ``t``; 1 s, as napari's t
+#: slider steps by the smallest t scale (a video's frame interval is smaller).
+SINGLE_FRAME_T = ("t", "time", "second", 1.0)
+#: napari's label for a unitless first axis whose OME name is one of the physical
+#: axes': a sweep's frames in acquisition order (OME ``t``) and planes of unknown
+#: depth (OME ``z``), so they are not taken for a video's time or a volume's depth.
+INDEX_LABELS = {"t": "frame", "z": "plane"}
+
+
+def _has_unit(axis) -> bool:
+    return axis.type in ("time", "space") and axis.unit not in (None, "pixel")
 
 
 def _layer(data, name: str, axes, metadata: dict) -> tuple:
     """The napari layer-data tuple of ``data`` with ``axes`` (OME axes, old names or
-    new). napari aligns layers by their last axes, so a video's ``t`` and a volume's
-    ``z`` would share a slider and mix units (napari then drops units: "Inconsistent
-    units across layers"): a layer whose first axis is ``t`` and that has no ``z``
-    gets a ``z`` axis of one plane after ``t`` (:data:`SINGLE_PLANE_Z`), so that
-    ``t, z, y, x`` stay apart for any mix of videos, sweeps and volumes."""
+    new). napari aligns layers by their last axes and drops every unit when two
+    layers put units of different kinds on one axis ("Inconsistent units across
+    layers"), so every layer of planes ends in ``t`` (second), ``z`` (micrometer),
+    ``y``, ``x``: a ``t`` first axis with no ``z`` gets a ``z`` of one plane after it
+    (:data:`SINGLE_PLANE_Z`), and a first axis without a physical unit (a sweep's
+    frame order, a grid's ``c``, planes of unknown depth) is put in front of a ``t`` of
+    one frame (:data:`SINGLE_FRAME_T`) and such a ``z``, labelled by
+    :data:`INDEX_LABELS`. Any mix of sweeps, videos, grids and volumes then keeps
+    its units."""
     from instrument.ome import OmeAxis
 
     axes = list(axes)
-    if len(axes) == data.ndim >= 3 and axes[0].name == "t" and not any(
+    if len(axes) == data.ndim == 3 and not _has_unit(axes[0]):
+        first = axes[0]
+        index = OmeAxis(INDEX_LABELS.get(first.name, first.name), first.type, first.unit,
+                        first.scale, float(getattr(first, "origin", 0.0)))
+        data = data[:, None, None]
+        axes = [index, OmeAxis(*SINGLE_FRAME_T), OmeAxis(*SINGLE_PLANE_Z), *axes[1:]]
+    elif len(axes) == data.ndim >= 3 and axes[0].name == "t" and not any(
             a.name == "z" for a in axes):
         data = data[:, None]
         axes = [axes[0], OmeAxis(*SINGLE_PLANE_Z), *axes[1:]]

@@ -58,10 +58,11 @@ def test_reader_on_a_sweep_frames_tags_and_products(tmp_path, plugin):
     _, layers = _open(store.path, plugin)
     assert sorted(layers) == ["s.zarr dark_mean", "s.zarr frames", "s.zarr psf_stack"]
     frames = layers["s.zarr frames"]
-    # the frames' axis: named for what the sweep varies, or (OME axes t, c, z, y, x)
-    # ``t``, with a z of one plane after it (kept apart from a volume's z)
-    assert list(frames.axis_labels) in (["z_mm", "y", "x"], ["t", "z", "y", "x"])
-    assert frames.data.shape in ((6, 16, 20), (6, 1, 16, 20))
+    # the frames' axis (OME ``t``, unitless: the acquisition order) is napari's
+    # ``frame``, in front of a t of one frame and a z of one plane (kept apart from a
+    # video's t and a volume's z)
+    assert list(frames.axis_labels) == ["frame", "t", "z", "y", "x"]
+    assert frames.data.shape == (6, 1, 1, 16, 20)
     assert int(np.asarray(frames.data[3]).ravel()[0]) == 3  # read lazily, verified
     assert frames.metadata["tags"] == ["psf", "dark"] * 3
     assert str(frames.units[-1]) == "micrometer"
@@ -478,3 +479,33 @@ def test_a_volume_and_a_video_in_one_viewer_keep_their_units(tmp_path, plugin):
     # t: the video's frames; z: the volume's planes (from 0, or from its first depth
     # where the volume records it), at the volume's spacing, not in micrometre steps
     assert viewer.dims.nsteps[0] == 6 and viewer.dims.nsteps[1] in (3, 5)
+
+
+def test_a_calibration_run_and_a_video_in_one_viewer_keep_their_units(tmp_path, plugin):
+    """A sweep's frames (unitless order), a grid's ``c`` and planes of unknown depth
+    beside a video's t (second) and a stack's z (micrometer): each on its own viewer
+    axis, so the units agree axis by axis (they clashed: napari's "Inconsistent units
+    across layers" for the frames with a video, and for a grid run alone)."""
+    from napari.components import ViewerModel
+
+    store = _sweep(tmp_path / "s.zarr")
+    store.write_product("psf_stack", np.ones((3, 16, 20), np.float32),
+                        depths_mm=[10.0, 10.5, 11.0])
+    store.write_product("psf_grid_registered", np.ones((4, 16, 20), np.float32))
+    store.write_product("bead_images", np.ones((4, 16, 20), np.float32), bin_factor=1)
+    video = _video(tmp_path / "v.zarr")
+    viewer = ViewerModel()
+    viewer.open(str(store.path), plugin=plugin)
+    assert viewer.layers.extent.units is not None  # the calibration run alone
+    viewer.open(str(video.path), plugin=plugin)
+    units = viewer.layers.extent.units
+    assert units is not None  # napari's condition for its unit warning
+    assert [str(u) for u in units] == ["pixel", "second"] + ["micrometer"] * 3
+    # the unitless axes share the first viewer axis (its label one layer's)
+    assert tuple(viewer.dims.axis_labels)[1:] == ("t", "z", "y", "x")
+    layers = {layer.name: layer for layer in viewer.layers}
+    assert list(layers["s.zarr psf_grid_registered"].axis_labels)[:3] == ["c", "t", "z"]
+    assert list(layers["s.zarr bead_images"].axis_labels)[0] == "plane"
+    # the sweep's 6 frames, the video's 6 frames at its interval, the stack's 3 planes
+    assert viewer.dims.nsteps[0] == 6 and viewer.dims.nsteps[1] == 6
+    assert layers["s.zarr psf_stack"].translate[0] == pytest.approx(10000.0)
