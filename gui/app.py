@@ -268,7 +268,12 @@ class MainWindow(QMainWindow):
         def answered(code: int) -> None:
             ok = code == QMessageBox.StandardButton.Ok
             gui_log.info("operator answered %s: %s", "Done" if ok else "Stop the run", action)
-            reply(ok)
+            try:
+                reply(ok)
+            except OSError as exc:  # the bench process is gone (disconnected, ended): its
+                # run ended with it, there is no one left to answer
+                gui_log.warning("the answer to '%s' was not delivered: the bench process is "
+                                "gone (%s)", message, type(exc).__name__)
 
         box.finished.connect(answered)
         box.open()
@@ -380,10 +385,12 @@ class MainWindow(QMainWindow):
             self.restoreState(state, LAYOUT_VERSION)
 
     def first_geometry(self) -> None:
-        """The first start's size: :data:`FIRST_SIZE_PX`, centred in the screen's
-        available geometry (the screen less its panels), or maximized (that geometry)
-        when the screen is smaller: a 1366x768 laptop shows the whole window. (The
-        offscreen platform, which draws for no screen, keeps :data:`FIRST_SIZE_PX`.)"""
+        """The first start's size: :data:`FIRST_SIZE_PX`, placed by the window manager
+        (centring it by hand put the bottom of a 1500x950 window and its title bar
+        under a 1000 px screen's edge), or maximized (the screen's available geometry,
+        the screen less its panels) when the screen is smaller: a 1366x768 laptop shows
+        the whole window. (The offscreen platform, which draws for no screen, keeps
+        :data:`FIRST_SIZE_PX`.)"""
         screen = self.screen() or QApplication.primaryScreen()
         width, height = FIRST_SIZE_PX
         if screen is None or QApplication.platformName() == "offscreen":
@@ -396,8 +403,7 @@ class MainWindow(QMainWindow):
             self.move(room.topLeft())
             self.setWindowState(self.windowState() | Qt.WindowState.WindowMaximized)
             return
-        self.resize(width, height)
-        self.move(room.center() - self.rect().center())
+        self.resize(width, height)  # placed by the window manager, as it places any window
 
     def showEvent(self, event) -> None:  # noqa: N802 (Qt's name)
         super().showEvent(event)

@@ -409,6 +409,14 @@ def test_log_pane_shows_warnings_once_per_job_and_prompts(window):
     dialog = [w for w in window.findChildren(QMessageBox) if w.isVisible()][-1]
     dialog.button(QMessageBox.StandardButton.Ok).click()
     assert answers == [True] and "operator answered Done" in pane.lines[-1]
+
+    def gone(ok):  # the bench process ended while the box was open (its socket removed)
+        raise FileNotFoundError(2, "No such file or directory")
+
+    window.ask("cap", "Put the cap on again", gone)  # answered: no traceback, a log line
+    dialog = [w for w in window.findChildren(QMessageBox) if w.isVisible()][-1]
+    dialog.button(QMessageBox.StandardButton.Abort).click()
+    assert "was not delivered: the bench process is gone" in pane.lines[-1]
     window.devices.error.setText("a refusal the operator saw")
     assert "a refusal the operator saw" in pane.lines[-1]
 
