@@ -200,7 +200,6 @@ class JobProgress(QWidget):
         self._done, self._total = 0, int(total)
         self.note = note
         self.bar.setRange(0, max(int(total), 0))
-        self._fit_bar()
         self.bar.setValue(0)
         self.timer.start(1000)
         self.tick()
@@ -213,21 +212,12 @@ class JobProgress(QWidget):
         if total is not None:
             self._total = int(total)
             self.bar.setMaximum(max(int(total), 0))
-            self._fit_bar()
         self._done = int(done)
         self.bar.setValue(min(self._done, self.bar.maximum()))
         self._eta = None if eta_s is None else (float(eta_s), time.monotonic())
         if note is not None:
             self.note = note
         self.tick()
-
-    def _fit_bar(self) -> None:
-        """The bar at least as wide as its longest text (``total / total unit (100
-        %)``): a narrow dock scrolls the panel instead of clipping the count."""
-        most = max(self.bar.maximum(), 0)
-        text = self.bar.format().replace("%v", str(most)).replace("%m", str(most)) \
-            .replace("%p", "100")
-        self.bar.setMinimumWidth(self.bar.fontMetrics().horizontalAdvance(text) + 32)
 
     def eta_s(self) -> float | None:
         """The time left, s (None while unknown)."""
