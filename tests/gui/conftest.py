@@ -85,3 +85,17 @@ def wait(qapp):
     """``wait(condition, timeout_s, what)`` processing Qt events meanwhile."""
     return lambda condition, timeout_s=30.0, what="the GUI": wait_for(qapp, condition,
                                                                       timeout_s, what)
+
+
+@pytest.fixture(scope="module")
+def psf_file(window, tmp_path_factory):
+    """The window's bench's on-axis PSF at 40 mm as its camera would record it (with
+    the dark offset), a ``.npy`` path for the Live panel's PSF field."""
+    import numpy as np
+
+    from soak.device_jobs import twin_psf
+
+    h, dark = twin_psf(window.session, (0.0, 0.0, 40.0))
+    path = tmp_path_factory.mktemp("live-psf") / "psf.npy"
+    np.save(path, (h / h.max() * 4000.0 + dark).astype(np.float32))
+    return str(path)

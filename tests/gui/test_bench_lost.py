@@ -9,8 +9,6 @@ import signal
 
 import pytest
 
-from tests.gui.test_live_killed import psf_file  # noqa: F401 (the fixture)
-
 pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs SIGKILL")
 
 
@@ -24,7 +22,7 @@ def _zombie_or_running(pid: int) -> bool:
 
 
 def test_bench_killed_is_said_reaped_and_restarted(window, wait, qtbot,
-                                                   psf_file):  # noqa: F811 (the fixture)
+                                                   psf_file):
     from PySide6.QtCore import Qt
 
     from gui.messages import how_it_ended

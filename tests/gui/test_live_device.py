@@ -4,7 +4,6 @@ operator's message while the raw stream goes on."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 import recon.live
@@ -30,17 +29,6 @@ def test_the_device_choice_is_remembered_across_sessions(qapp, tmp_path, monkeyp
     finally:
         second.shutdown()
         second.deleteLater()
-
-
-@pytest.fixture(scope="module")
-def psf_file(window, tmp_path_factory):
-    """The bench's on-axis PSF as its camera would record it (with the dark offset)."""
-    from soak.device_jobs import twin_psf
-
-    h, dark = twin_psf(window.session, (0.0, 0.0, 40.0))
-    path = tmp_path_factory.mktemp("live-device") / "psf.npy"
-    np.save(path, (h / h.max() * 4000.0 + dark).astype(np.float32))
-    return str(path)
 
 
 def _raw_frames_advance(window, wait) -> None:

@@ -7,21 +7,9 @@ from __future__ import annotations
 import os
 import signal
 
-import numpy as np
 import pytest
 
 pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs SIGKILL")
-
-
-@pytest.fixture(scope="module")
-def psf_file(window, tmp_path_factory):
-    """The bench's on-axis PSF as its camera would record it (with the dark offset)."""
-    from soak.device_jobs import twin_psf
-
-    h, dark = twin_psf(window.session, (0.0, 0.0, 40.0))
-    path = tmp_path_factory.mktemp("live-killed") / "psf.npy"
-    np.save(path, (h / h.max() * 4000.0 + dark).astype(np.float32))
-    return str(path)
 
 
 def test_a_killed_live_reconstruction_is_said_and_reset(window, wait, psf_file):
