@@ -50,11 +50,12 @@ SIM_GRID = (3.16e-5, 1e-4, 3.16e-4, 1e-3)
 def gain_fit(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
     """``estimate`` (H, W, 3) times each channel's least-squares gain against
     ``truth`` (same shape), clipped to [0, 1]; float32."""
+    from recon.metrics import fit_gain
+
     out = np.empty(truth.shape, np.float32)
     for c in range(truth.shape[-1]):
-        e, r = estimate[..., c].astype(np.float64), truth[..., c].astype(np.float64)
-        g = float((e * r).sum() / max((e * e).sum(), 1e-12))
-        out[..., c] = np.clip(g * e, 0, 1)
+        e = estimate[..., c].astype(np.float64)
+        out[..., c] = np.clip(fit_gain(e, truth[..., c]) * e, 0, 1)
     return out
 
 

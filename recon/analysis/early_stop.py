@@ -33,6 +33,7 @@ import numpy as np
 
 from ..early_stop import EarlyStop, psf_identity
 from ..errors import ReconInputError
+from ..metrics import fit_gain
 from .psf_from_scenes import check_pairs
 
 __all__ = ["CANDIDATES", "fit_early_stop", "fit_held_out", "gain_fitted_error",
@@ -46,7 +47,8 @@ def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
     """Relative error of ``estimate`` against ``scene`` after a per-channel
     least-squares gain, averaged over channels.
 
-    Per channel ``min_g ||g e - s|| / ||s|| = sqrt(1 - <e, s>^2 / (|e|^2 |s|^2))``.
+    Per channel ``min_g ||g e - s|| / ||s||``, the gain by
+    :func:`recon.metrics.fit_gain`.
 
     Parameters
     ----------
@@ -57,15 +59,14 @@ def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
     float
         In [0, 1]; 1 for an all-zero estimate.
     """
-    e = np.asarray(estimate, np.float64)
-    s = np.asarray(scene, np.float64)
-    e, s = (e[..., None], s[..., None]) if e.ndim == 2 else (e, s)
+    e = np.atleast_3d(np.asarray(estimate, np.float64))  # (rows, cols, channels)
+    s = np.atleast_3d(np.asarray(scene, np.float64))
     out = []
     for c in range(s.shape[-1]):
-        ee, ss, es = (float(np.vdot(e[..., c], e[..., c])), float(np.vdot(s[..., c], s[..., c])),
-                      float(np.vdot(e[..., c], s[..., c])))
-        cos2 = es * es / (ee * ss) if ee > 0 and ss > 0 else 0.0
-        out.append(np.sqrt(max(1.0 - cos2, 0.0)))
+        ec, sc = e[..., c], s[..., c]
+        norm = float(np.linalg.norm(sc))
+        out.append(float(np.linalg.norm(fit_gain(ec, sc) * ec - sc)) / norm if norm > 0
+                   else 1.0)
     return float(np.mean(out))
 
 
