@@ -23,9 +23,10 @@ with its ``channels`` recorded, at ``depths_mm = [z_mm]``, which ``recon --psf R
 and ``recon-run --psf RUN`` take (a dark-subtracted PSF: give the frames' dark level
 with ``--dark``); the run's summary records each pair's held-out relative residual.
 With two pairs or more the run also holds ``early_stop.json``
-(:mod:`recon.analysis.early_stop`): the iteration count of a prior-free non-negative
-FISTA fitted on the pairs, each reconstructed with the PSF estimated without it, tied
-to this PSF (``recon --psf RUN --early-stop RUN``).
+(:mod:`recon.analysis.early_stop`): the reconstruction recipe fitted on the pairs, each
+reconstructed with the PSF estimated without it (PSF threshold, iteration count of a
+prior-free non-negative FISTA, TV denoising weight), tied to this PSF; ``recon --psf
+RUN`` uses it by default (``--early-stop off`` declines it).
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ __all__ = ["FILES_PLAN", "PsfFromScenesPlan", "display_gray", "match_pairs",
 FILES_PLAN = "psf-from-scene-files"
 #: Image files the file source reads.
 SUFFIXES = (".npy", ".tif", ".tiff", ".png")
-#: The early-stop calibration's file in the run (:mod:`recon.analysis.early_stop`).
+#: The reconstruction recipe's file in the run (:mod:`recon.analysis.early_stop`).
 EARLY_STOP_FILE = EARLY_STOP_NAME
 
 
@@ -90,7 +91,7 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
     units : str
         The PSF's unit.
     early_stop : EarlyStop, optional
-        The iteration count fitted for this PSF (:func:`early_stop_for`): written as
+        The reconstruction recipe fitted for this PSF (:func:`early_stop_for`): written as
         ``early_stop.json`` in the run and summarised.
 
     Returns
@@ -115,14 +116,13 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         summary["held_out_mean"] = round(float(np.mean(held_out)), 4)
     if early_stop is not None:
         write_json(Path(store.path) / EARLY_STOP_FILE, early_stop.to_dict())
-        summary["early_stop"] = {"file": EARLY_STOP_FILE, "iterations": early_stop.iterations,
-                                 "method": early_stop.method}
+        summary["early_stop"] = {"file": EARLY_STOP_FILE, **early_stop.record()}
     return summary
 
 
 def early_stop_for(scenes, measurements, loo: LeaveOneOut, estimate: PsfEstimate,
                    names: Sequence[str]) -> EarlyStop:
-    """The early-stop count fitted on the pairs for ``estimate``'s PSF
+    """The reconstruction recipe fitted on the pairs for ``estimate``'s PSF
     (:func:`recon.analysis.early_stop.fit_early_stop`, with ``loo``'s held-out PSFs)."""
     return fit_early_stop(scenes, measurements, loo.psfs, estimate.psf, names=names)
 

@@ -21,8 +21,8 @@ import numpy as np
 from diffuserlab.errors import InputError
 from diffuserlab.jsonio import jsonable
 
-__all__ = ["check_dark_frame", "dark_level", "load_psf", "resolve_dark", "run_recon",
-           "run_recon3d"]
+__all__ = ["RECIPE_FIXES", "check_dark_frame", "dark_level", "load_psf", "resolve_dark",
+           "run_recon", "run_recon3d", "scene_recipe_default"]
 
 log = logging.getLogger(__name__)
 
@@ -196,16 +196,55 @@ def check_dark_frame(dark, shape, frames: str) -> None:
             "(ROI and binning), or a level in DN with --dark DN")
 
 
+#: The options that a scene calibration's recipe fixes; any of them given turns it off.
+RECIPE_FIXES = ("method", "iterations", "tv", "l1", "prior")
+
+
+def scene_recipe_default(psf_path, options):
+    """``options`` with a scene calibration's recipe applied by default.
+
+    When ``psf_path`` is a ``calibrate psf-from-scenes`` run holding its recipe
+    (``early_stop.json``, :mod:`recon.early_stop`: fitted on that camera's own
+    calibration pairs), and neither ``--early-stop`` nor any of the options the recipe
+    fixes (:data:`RECIPE_FIXES`) departs from its default, the recipe is used:
+    on real measurements it is the best of the methods measured (docs/real-data.md).
+    ``--early-stop off`` declines it.
+
+    Parameters
+    ----------
+    psf_path : str or Path
+    options : recon.options.ReconOptions
+
+    Returns
+    -------
+    recon.options.ReconOptions
+        ``options``, or ``options`` naming the run's recipe.
+    """
+    from recon.early_stop import FILE
+    from recon.options import ReconOptions
+
+    recipe = Path(psf_path) / FILE
+    if options.early_stop is not None or not recipe.is_file():
+        return options
+    defaults = ReconOptions.from_defaults()
+    if any(getattr(options, f) != getattr(defaults, f) for f in RECIPE_FIXES):
+        return options
+    log.info("%s holds its scene calibration's recipe (%s): "
+             "reconstructing with it (--early-stop off declines)", psf_path, FILE)
+    return options.replace(early_stop=str(recipe))
+
+
 def run_recon(psf_path: str, raw_path: str, options, *, out: str,
               metrics_json: str | None = None, depth_mm: float | None = None,
               psf_product: str = "psf_stack", pitch_um: float | None = None) -> dict:
     """Load, reconstruct, write PNG + float32 OME-TIFF (+ metrics JSON); return metrics.
 
-    The PNG is a view turned upright (:func:`recon.io.scene_view`); the TIFF keeps
-    the model grid (:data:`recon.io.DATA_ORIENTATION`), its pixel size the grid's
-    pitch (``pitch_um``, or a PSF run's frame pitch, times the binning) and the
-    metrics record in its description
-    (:func:`instrument.writer.products.write_recon_tiff`).
+    With a scene-calibrated PSF run, its recipe is the default
+    (:func:`scene_recipe_default`). The PNG is a view turned upright
+    (:func:`recon.io.scene_view`); the TIFF keeps the model grid
+    (:data:`recon.io.DATA_ORIENTATION`), its pixel size the grid's pitch
+    (``pitch_um``, or a PSF run's frame pitch, times the binning) and the metrics
+    record in its description (:func:`instrument.writer.products.write_recon_tiff`).
 
     Parameters
     ----------
@@ -247,7 +286,7 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
     from .writer.products import output_paths, write_image_products
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
-
+    options = scene_recipe_default(psf_path, options)
     psf, dark = resolve_dark(options.dark, psf, calibrated=dark_subtracted(psf_path),
                              what=f"--psf {psf_path}")
     raw = load_image(raw_path)

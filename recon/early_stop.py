@@ -1,11 +1,23 @@
-"""An early-stop calibration: the iteration count fitted for one PSF, as a product.
+"""A scene calibration's reconstruction recipe, fitted for one PSF, as a product.
 
 :class:`EarlyStop` is what ``calibrate psf-from-scenes`` writes into its run
-(``early_stop.json``) and what ``recon --early-stop`` and
-:func:`recon.analysis.early_stop.reconstruct_early_stopped` read: the iteration count
-of a prior-free non-negative FISTA fitted on the calibration pairs
-(:func:`recon.analysis.early_stop.fit_early_stop`), tied to the PSF it was fitted for
-by a SHA-256 of the PSF's values (:func:`psf_identity`) and refused with another.
+(``early_stop.json``) and what ``recon`` (by default with such a run's PSF, or with
+``--early-stop``) and :func:`recon.analysis.early_stop.reconstruct_early_stopped`
+read. Three numbers, each fitted on the calibration pairs
+(:func:`recon.analysis.early_stop.fit_early_stop`):
+
+1. ``psf_threshold``: the PSF estimated from a few scenes carries a floor of
+   estimation noise spread over the whole sensor; it is soft-thresholded at this
+   fraction of each channel's maximum (:func:`clean_psf`; a sparsity prior on the PSF,
+   the caustic pattern of a diffuser being sparse, Kuo 2020 Sec. 2.2);
+2. ``iterations``: the count of a prior-free non-negative FISTA (Eq. 2.5 without TV),
+   stopped early (semi-convergence is the regulariser);
+3. ``denoise_weight``: an isotropic TV denoising of the result (Chambolle 2004,
+   :func:`denoise_tv`; round outlines, no axis-aligned blocks), 0 for none.
+
+The recipe is tied to the PSF it was fitted for by a SHA-256 of the PSF's values
+(:func:`psf_identity`) and refused with another. A file of the earlier form (a count
+only) reads as threshold 0 and no denoising.
 """
 
 from __future__ import annotations
@@ -13,18 +25,23 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
+from dataclasses import replace as _replace
 from pathlib import Path
 
 import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["FILE", "SOLVE", "EarlyStop", "psf_identity"]
+__all__ = ["FILE", "OFF", "SOLVE", "EarlyStop", "clean_psf", "denoise_tv", "psf_identity"]
 
 #: The file name of the fit in a PSF-from-scenes calibration run.
 FILE = "early_stop.json"
+#: ``--early-stop off``: reconstruct a scene-calibrated run's PSF without its recipe.
+OFF = "off"
 #: The solve the fitted count belongs to, in words (records).
 SOLVE = "non-negative FISTA without a prior (recon.reconstruct method='fista', tv=0, l1=0)"
+#: The percentile of the image that :func:`denoise_tv` scales to 1 before denoising.
+DENOISE_PERCENTILE = 99.5
 
 
 def psf_identity(psf) -> str:
@@ -46,26 +63,107 @@ def psf_identity(psf) -> str:
     return digest.hexdigest()
 
 
+def clean_psf(psf, threshold: float) -> np.ndarray:
+    """Soft-threshold a PSF at ``threshold`` times each channel's maximum.
+
+    ``h <- max(h - threshold * max(h), 0)`` per channel: the estimation noise that a
+    PSF calibrated from a few scenes spreads over the whole sensor goes, the caustics
+    stay (their peaks lowered by the same amount).
+
+    Parameters
+    ----------
+    psf : array_like, (rows, cols) or (rows, cols, channels), real
+    threshold : float
+        Fraction of the maximum, in [0, 1); 0 returns the PSF as float32.
+
+    Returns
+    -------
+    ndarray, float32, the PSF's shape
+
+    Raises
+    ------
+    ReconInputError
+        ``threshold`` outside [0, 1).
+
+    Examples
+    --------
+    >>> clean_psf(np.array([[0.0, 0.1], [0.5, 1.0]]), 0.2).tolist()
+    [[0.0, 0.0], [0.30000001192092896, 0.800000011920929]]
+    """
+    t = float(threshold)
+    if not 0.0 <= t < 1.0:
+        raise ReconInputError(f"PSF threshold {threshold}: give a fraction of the maximum "
+                              "in [0, 1)")
+    h = np.asarray(psf, np.float32)
+    if t == 0.0:
+        return h.copy()
+    peak = h.max(axis=(0, 1), keepdims=True)
+    return np.maximum(h - np.float32(t) * peak, 0.0).astype(np.float32)
+
+
+def denoise_tv(image, weight: float) -> np.ndarray:
+    """Isotropic TV denoising of a reconstruction (Chambolle 2004, by
+    :func:`skimage.restoration.denoise_tv_chambolle`), scale-free.
+
+    The image is divided by its 99.5th percentile (:data:`DENOISE_PERCENTILE`), so that
+    ``weight`` means the same for any exposure, denoised (colour channels jointly), and
+    scaled back.
+
+    Parameters
+    ----------
+    image : array_like, (rows, cols) or (rows, cols, channels), real
+    weight : float
+        >= 0; 0 returns the image as float32.
+
+    Returns
+    -------
+    ndarray, float32, the image's shape
+
+    Raises
+    ------
+    ReconInputError
+        A negative or non-finite weight.
+    """
+    w = float(weight)
+    if not (np.isfinite(w) and w >= 0):
+        raise ReconInputError(f"denoising weight {weight}: give a number >= 0")
+    x = np.asarray(image, np.float32)
+    scale = float(np.percentile(x, DENOISE_PERCENTILE))
+    if w == 0.0 or not scale > 0:
+        return x.copy()
+    from skimage.restoration import denoise_tv_chambolle
+
+    out = denoise_tv_chambolle(x / scale, weight=w, channel_axis=-1 if x.ndim == 3 else None)
+    return (out * scale).astype(np.float32)
+
+
 @dataclass(frozen=True)
 class EarlyStop:
-    """A fitted iteration count, tied to one PSF (:mod:`recon.analysis.early_stop`).
+    """A fitted reconstruction recipe, tied to one PSF (module docstring;
+    :mod:`recon.analysis.early_stop` fits it).
 
     Attributes
     ----------
     iterations : int
-        The count fitted (one of ``candidates``).
+        The FISTA iteration count fitted (one of ``candidates``).
     candidates : tuple of int
         The counts tried.
-    errors : ndarray, float64, (n_candidates, n_pairs)
+    errors : ndarray, float64, (n_thresholds, n_candidates, n_weights, n_pairs)
         Each calibration pair's gain-fitted relative error
-        (:func:`recon.analysis.early_stop.gain_fitted_error`, mean over channels) at
-        each count, the pair reconstructed with the PSF
-        estimated without it.
+        (:func:`recon.analysis.early_stop.gain_fitted_error`, mean over channels) for
+        each PSF threshold, count and denoising weight, the pair reconstructed with
+        the PSF estimated without it.
     psf_sha256 : str
-        :func:`psf_identity` of the PSF the count is for (the one estimated from every
-        calibration pair).
+        :func:`psf_identity` of the PSF the recipe is for (the one estimated from every
+        calibration pair, before thresholding).
     pairs : tuple of str
         The calibration pairs' names.
+    psf_threshold : float
+        The fitted PSF threshold (:func:`clean_psf`), one of ``thresholds``.
+    denoise_weight : float
+        The fitted weight of :func:`denoise_tv` (0: none), one of ``weights``.
+    thresholds, weights : tuple of float
+        The thresholds and denoising weights tried.
     """
 
     iterations: int
@@ -73,20 +171,75 @@ class EarlyStop:
     errors: np.ndarray
     psf_sha256: str
     pairs: tuple = field(default=())
+    psf_threshold: float = 0.0
+    denoise_weight: float = 0.0
+    thresholds: tuple = (0.0,)
+    weights: tuple = (0.0,)
+
+    def __post_init__(self):
+        e = np.asarray(self.errors, float)
+        if e.ndim == 2:  # the earlier form: counts x pairs
+            e = e[None, :, None, :]
+        object.__setattr__(self, "errors", e)
+
+    def clean_psf(self, psf) -> np.ndarray:
+        """``psf`` thresholded at :attr:`psf_threshold` (:func:`clean_psf`), after
+        :meth:`check_psf`.
+
+        Raises
+        ------
+        ReconInputError
+            ``psf`` is not the recipe's PSF.
+        """
+        self.check_psf(psf)
+        return clean_psf(psf, self.psf_threshold)
+
+    def finish(self, rec):
+        """The reconstruction ``rec`` of the recipe's solve with its image denoised
+        (:func:`denoise_tv` at :attr:`denoise_weight`) and the recipe recorded in
+        ``info.extra["calibration"]``.
+
+        Parameters
+        ----------
+        rec : recon.result.Reconstruction
+            From the thresholded PSF, ``iterations`` FISTA iterations.
+
+        Returns
+        -------
+        recon.result.Reconstruction
+            A new one (``estimate`` is the solver's, not denoised).
+        """
+        rec.info.extra["calibration"] = self.record()
+        return _replace(rec, image=denoise_tv(rec.image, self.denoise_weight))
+
+    def record(self) -> dict:
+        """The recipe in a reconstruction's record (method, numbers, PSF hash)."""
+        return {"method": self.method, "psf_threshold": self.psf_threshold,
+                "iterations": int(self.iterations), "denoise_weight": self.denoise_weight,
+                "psf_sha256": self.psf_sha256}
 
     @property
     def method(self) -> str:
         """The calibration product in words, for records."""
-        return (f"{SOLVE}, {self.iterations} iterations: the count of {list(self.candidates)} "
-                f"with the least gain-fitted error on {len(self.pairs) or 'the'} calibration "
-                "pairs, each reconstructed with the PSF estimated without it")
+        post = (f", then isotropic TV denoising at weight {self.denoise_weight:g}"
+                if self.denoise_weight else "")
+        return (f"PSF soft-thresholded at {self.psf_threshold:g} of its maximum, {SOLVE}, "
+                f"{self.iterations} iterations{post}: the least mean gain-fitted error (dB) "
+                f"on {len(self.pairs) or 'the'} calibration pairs, each reconstructed with "
+                "the PSF estimated without it")
 
     def to_dict(self) -> dict:
         """JSON-able form (:meth:`from_dict` reads it back)."""
         return {"kind": "early-stop", "solve": SOLVE, "iterations": int(self.iterations),
+                "psf_threshold": float(self.psf_threshold),
+                "denoise_weight": float(self.denoise_weight),
                 "candidates": [int(c) for c in self.candidates],
+                "thresholds": [float(t) for t in self.thresholds],
+                "weights": [float(w) for w in self.weights],
+                "errors_axes": ["threshold", "iterations", "denoise_weight", "pair"],
                 "errors": np.asarray(self.errors, float).round(6).tolist(),
-                "psf_sha256": self.psf_sha256, "pairs": list(self.pairs)}
+                "psf_sha256": self.psf_sha256, "pairs": list(self.pairs),
+                "method": self.method}
 
     @classmethod
     def from_dict(cls, d: dict) -> EarlyStop:
@@ -103,7 +256,10 @@ class EarlyStop:
         try:
             return cls(int(d["iterations"]), tuple(int(c) for c in d["candidates"]),
                        np.asarray(d["errors"], float), str(d["psf_sha256"]),
-                       tuple(d.get("pairs", ())))
+                       tuple(d.get("pairs", ())), float(d.get("psf_threshold", 0.0)),
+                       float(d.get("denoise_weight", 0.0)),
+                       tuple(float(t) for t in d.get("thresholds", (0.0,))),
+                       tuple(float(w) for w in d.get("weights", (0.0,))))
         except (KeyError, TypeError, ValueError) as exc:
             raise ReconInputError(f"early-stop calibration incomplete ({exc!r}); give the "
                                   "file a PSF-from-scenes calibration wrote") from None
@@ -130,7 +286,7 @@ class EarlyStop:
         return cls.from_dict(d)
 
     def check_psf(self, psf) -> None:
-        """Refuse a PSF other than the one this count was fitted for.
+        """Refuse a PSF other than the one this recipe was fitted for.
 
         Raises
         ------

@@ -227,10 +227,12 @@ class ReconOptions(Options):
         None, help="time budget of the solve for method auto (Wiener if too short)",
         unit="s", gt=0, kinds=("image",), default_text="none", label="time budget")
     early_stop: str | None = option(
-        None, help="an early-stop calibration: a `calibrate psf-from-scenes` run (or its "
-        "early_stop.json); solves by non-negative FISTA without a prior for the iteration "
-        "count fitted on the calibration pairs (recon.analysis.early_stop), in place of "
-        "--method, --iterations, --tv and --l1; refused with another PSF than the run's",
+        None, help="a scene calibration's recipe: a `calibrate psf-from-scenes` run (or its "
+        "early_stop.json); thresholds the PSF, solves by non-negative FISTA without a prior "
+        "for the iteration count and denoises with the TV weight fitted on the calibration "
+        "pairs (recon.analysis.early_stop), in place of --method, --iterations, --tv and "
+        "--l1; refused with another PSF than the run's. The default with such a run's PSF "
+        "when none of those is given; 'off' declines it",
         kinds=("image",), default_text="none", metavar="RUN|JSON",
         label="early-stop calibration")
     erase: float = option(

@@ -17,6 +17,7 @@ from diffuserlab.jsonio import jsonable
 
 from .auto import AUTO, ChannelProblem, parse_weight, solve_channel
 from .backend import resolve_device
+from .early_stop import OFF, EarlyStop
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
@@ -83,6 +84,8 @@ def image_metrics(rec: Reconstruction, fft_pair_s: float | None = None) -> dict:
         # raw has no dark region: its floor only bounds its dark level from above)
         "dark": {"mode": info.dark_mode, "level": info.dark_level,
                  "region": info.get("dark_region"), "raw_levels": info.get("raw_levels")},
+        # a scene calibration's recipe (recon.early_stop), when it made the image
+        "calibration": info.get("calibration"),
     }
 
 
@@ -245,8 +248,12 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
         The solver diverged (history and last good estimate attached).
     """
     o = ReconOptions.from_defaults() if options is None else options
-    if o.early_stop is not None:  # the fitted count replaces method, iterations, weights
-        o, auto_stop = early_stopped_options(o, psf), False
+    if o.early_stop is not None and o.early_stop != OFF:  # the recipe fixes the solve
+        fit = EarlyStop.load(o.early_stop)
+        rec = reconstruct_image(fit.clean_psf(psf), raw, early_stopped_options(o, fit),
+                                auto_stop=False, bayer=bayer, erasure_mask=erasure_mask,
+                                preprocess=preprocess, **solver_options)
+        return fit.finish(rec)
     method, tv, bin_factor, dark = o.method, o.tv, o.bin_factor, o.dark
     full_scale = o.full_scale
     l1 = l1_given(o.l1)
@@ -355,20 +362,21 @@ _DARK_SOURCES = {"psf_region": "the PSF's dark corner (recon.preprocess.DEFAULT_
                  "frame": "the dark frame given, pixel by pixel"}
 
 
-def early_stopped_options(options: ReconOptions, psf) -> ReconOptions:
-    """``options`` with the early-stop calibration they name applied: non-negative FISTA,
-    no TV or l1, the fitted iteration count (:mod:`recon.early_stop`).
+def early_stopped_options(options: ReconOptions, fit) -> ReconOptions:
+    """``options`` for the solve of a scene calibration's recipe (:mod:`recon.early_stop`):
+    non-negative FISTA, no TV or l1, the fitted iteration count, no recipe named.
 
-    Raises
-    ------
-    ReconInputError
-        The calibration cannot be read, or was fitted for another PSF than ``psf``.
+    Parameters
+    ----------
+    options : ReconOptions
+    fit : recon.early_stop.EarlyStop
+
+    Returns
+    -------
+    ReconOptions
     """
-    from .early_stop import EarlyStop
-
-    fit = EarlyStop.load(options.early_stop)
-    fit.check_psf(psf)
-    return options.replace(method="fista", iterations=fit.iterations, tv=0.0, l1=0.0)
+    return options.replace(method="fista", iterations=fit.iterations, tv=0.0, l1=0.0,
+                           early_stop=None)
 
 
 def _is(value, word: str) -> bool:

@@ -46,6 +46,11 @@ def choice_lines(m: dict) -> list[str]:
     """What the automatic choices chose and why (first channel), for the terminal."""
     rec = (m.get("auto") or [{}])[0]
     lines = [f"method {m['method']}: {r}" for r in rec.get("method", {}).get("reasons", [])]
+    if m.get("calibration"):  # a scene calibration's recipe (recon.early_stop)
+        c = m["calibration"]
+        lines.append(f"the PSF's scene-calibration recipe: PSF threshold {c['psf_threshold']:g}"
+                     f" of its maximum, {c['iterations']} FISTA iterations, TV denoising "
+                     f"{c['denoise_weight']:g} (--early-stop off declines it)")
     w = rec.get("weight")
     if w:
         lines.append(f"{w['regulariser']} weight {w['weight']:.3g}: {w['reason']}")

@@ -1,4 +1,4 @@
-"""Early stopping fitted on calibration pairs: the iteration count of a prior-free solve.
+"""The reconstruction recipe of a scene-calibrated camera, fitted on its calibration pairs.
 
 With a PSF calibrated from a few known scenes (:mod:`recon.analysis.psf_from_scenes`),
 the model's error, not the sensor's noise, limits a reconstruction: the PSF carries
@@ -7,21 +7,25 @@ convolution. A non-negative FISTA without any prior (Eq. 2.5 with no TV term, Ku
 Sec. 2.3) first fits the scene's structure and then, iteration after iteration, the
 model error, amplified by the ill-conditioned inverse: stopping it early is the
 regularisation (semi-convergence; Landweber's iteration count as the regularisation
-parameter, Engl, Hanke & Neubauer 1996, Ch. 6). It has no block tiling, unlike TV at
-the weight that the held-out pixels choose on such data.
+parameter, Engl, Hanke & Neubauer 1996, Ch. 6). It has no block tiling, unlike
+anisotropic TV at the weight that the held-out pixels choose on such data. Two more
+numbers complete the recipe (:class:`recon.early_stop.EarlyStop`): a soft threshold
+of the PSF (:func:`recon.early_stop.clean_psf`: the estimate's noise floor) and the
+weight of an isotropic TV denoising of the result (:func:`recon.early_stop.denoise_tv`).
 
-The iteration count is the one hyperparameter, and it is fitted on calibration data
-only: each calibration pair ``k`` is reconstructed with the PSF estimated *without*
-it (:func:`recon.analysis.psf_from_scenes.leave_one_out`'s PSFs), for each candidate
-count, and scored against its known scene after a per-channel least-squares gain
-(the scene's scale is not the reconstruction's); the count with the least mean
-relative error wins (:func:`fit_early_stop`). The fit ships with the PSF it was
-made for (:class:`recon.early_stop.EarlyStop`, identified by a SHA-256 of the PSF's
-values) and
-:func:`reconstruct_early_stopped` refuses another PSF.
+All three are fitted on calibration data only: each calibration pair ``k`` is
+reconstructed with the PSF estimated *without* it
+(:func:`recon.analysis.psf_from_scenes.leave_one_out`'s PSFs), thresholded at each
+candidate, by one FISTA solve observed at every candidate count (the iterate at count
+``n`` is what a solve of ``n`` iterations returns), each denoised at every candidate
+weight, and scored against its known scene after a per-channel least-squares gain
+(the scene's scale is not the reconstruction's). The triple with the least mean error
+in dB over the pairs (the geometric mean of the relative errors) wins
+(:func:`fit_early_stop`). The recipe ships with the PSF it was made for (SHA-256 of
+its values) and :func:`reconstruct_early_stopped` refuses another PSF.
 
 :func:`fit_held_out` makes the fit a pair may be scored with (a benchmark's
-leave-one-out entry); docs/reconstruction.md has the counts and scores on the five real
+leave-one-out entry); docs/real-data.md has the recipes and scores on the five real
 DiffuserCam pairs.
 """
 
@@ -31,16 +35,20 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..early_stop import EarlyStop, psf_identity
+from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity
 from ..errors import ReconInputError
 from ..metrics import fit_gain
 from .psf_from_scenes import check_pairs
 
-__all__ = ["CANDIDATES", "fit_early_stop", "fit_held_out", "gain_fitted_error",
-           "reconstruct_early_stopped"]
+__all__ = ["CANDIDATES", "THRESHOLDS", "WEIGHTS", "fit_early_stop", "fit_held_out",
+           "gain_fitted_error", "reconstruct_early_stopped", "solve_checkpoints"]
 
-#: Candidate iteration counts of :func:`fit_early_stop` (each a separate solve).
-CANDIDATES = (30, 50, 70, 100, 140, 200)
+#: Candidate iteration counts of :func:`fit_early_stop` (checkpoints of one solve).
+CANDIDATES = tuple(range(10, 201, 10))
+#: Candidate PSF thresholds (fractions of the maximum, :func:`recon.early_stop.clean_psf`).
+THRESHOLDS = (0.0, 0.05, 0.1)
+#: Candidate weights of the final isotropic TV denoising (:func:`recon.early_stop.denoise_tv`).
+WEIGHTS = (0.0, 0.05, 0.1, 0.2)
 
 
 def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
@@ -70,7 +78,7 @@ def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
     return float(np.mean(out))
 
 
-def _solve(psf, raw, iterations: int, **options):
+def _solve(psf, raw, iterations: int, observe=None, **options):
     """:func:`recon.planar.reconstruct_image` with the early-stop solve's options (the
     image path of :func:`recon.reconstruct`; the front door itself would close an
     import cycle: it reaches the spatial models, which use this package)."""
@@ -83,13 +91,51 @@ def _solve(psf, raw, iterations: int, **options):
                               "options of recon.reconstruct such as dark or bin_factor")
     chosen = ReconOptions.from_defaults(method="fista", iterations=iterations, tv=0.0, l1=0.0,
                                         **options)
-    return reconstruct_image(psf, raw, chosen, auto_stop=False)
+    extra = {} if observe is None else {"observe": observe}
+    return reconstruct_image(psf, raw, chosen, auto_stop=False, **extra)
+
+
+def solve_checkpoints(psf, raw, counts: Sequence[int]) -> dict[int, np.ndarray]:
+    """One prior-free non-negative FISTA solve of ``max(counts)`` iterations, observed
+    at each of ``counts``: what a solve of that many iterations returns.
+
+    Parameters
+    ----------
+    psf, raw : ndarray, (rows, cols) or (rows, cols, channels), float
+        Dark-subtracted (``dark="none"``), as for :func:`recon.reconstruct`.
+    counts : sequence of int
+        Iteration counts, each >= 1.
+
+    Returns
+    -------
+    dict of int to ndarray
+        Per count, the sensor-grid estimate, float32, ``raw``'s shape, in the solver's
+        scale (the reconstruction's image divided by ``info.raw_scale``).
+
+    Raises
+    ------
+    ReconInputError
+        What :func:`recon.reconstruct` refuses.
+    """
+    kept: dict[int, list] = {n: [] for n in counts}
+
+    def observe(k, x):  # the channels are solved one after the other
+        if k in kept:
+            kept[k].append(np.array(x, np.float32))
+
+    rec = _solve(psf, raw, max(counts), observe=observe, dark="none")
+    crop = rec.operator.crop
+    return {n: (xs[0][crop] if len(xs) == 1 else np.stack([x[crop] for x in xs], axis=-1))
+            for n, xs in kept.items()}
 
 
 def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
-                   candidates: Sequence[int] = CANDIDATES, names: Sequence[str] = (),
+                   candidates: Sequence[int] = CANDIDATES,
+                   thresholds: Sequence[float] = THRESHOLDS,
+                   weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
                    on_candidate=None) -> EarlyStop:
-    """Fit the iteration count on calibration pairs (module docstring).
+    """Fit the recipe (PSF threshold, iteration count, denoising weight) on
+    calibration pairs (module docstring).
 
     Parameters
     ----------
@@ -101,13 +147,19 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         Pair ``k``'s PSF estimated without it (``leave_one_out(...).psfs``), each of
         the measurements' shape.
     psf : ndarray
-        The PSF estimated from every pair: the one the count ships with.
+        The PSF estimated from every pair: the one the recipe ships with.
     candidates : sequence of int
-        Iteration counts to try (each >= 1; default :data:`CANDIDATES`).
+        Iteration counts to try (each >= 1; default :data:`CANDIDATES`); one solve of
+        the largest per pair and threshold, observed at each.
+    thresholds : sequence of float
+        PSF thresholds to try (each in [0, 1); default :data:`THRESHOLDS`).
+    weights : sequence of float
+        Denoising weights to try (each >= 0, 0 for none; default :data:`WEIGHTS`).
     names : sequence of str
         The pairs' names, for the record.
     on_candidate : callable, optional
-        ``on_candidate(iterations, errors_per_pair)`` after each count (progress).
+        ``on_candidate(threshold, errors)`` after each threshold (progress), with
+        ``errors`` (n_candidates, n_weights, n_pairs).
 
     Returns
     -------
@@ -117,7 +169,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     ------
     ReconInputError
         Fewer than two pairs, one held-out PSF per pair missing, a PSF of another
-        shape, or a candidate count < 1.
+        shape, a candidate count < 1, a threshold outside [0, 1) or a negative weight.
     """
     xs, bs = check_pairs(scenes, measurements)
     if len(xs) < 2 or len(held_out_psfs) != len(xs):
@@ -127,24 +179,34 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     cands = sorted({int(c) for c in candidates})
     if not cands or cands[0] < 1:
         raise ReconInputError(f"candidate iteration counts {list(candidates)}: give counts >= 1")
+    ts = sorted({float(t) for t in thresholds})
+    ws = sorted({float(w) for w in weights})
+    if not ts or not ws or not (0 <= ts[0] and ts[-1] < 1) or ws[0] < 0:
+        raise ReconInputError(f"thresholds {list(thresholds)} and weights {list(weights)}: "
+                              "give thresholds in [0, 1) and weights >= 0")
     for h in (*held_out_psfs, psf):
         if np.shape(h)[:2] != xs[0].shape[:2]:
             raise ReconInputError(f"PSF of shape {np.shape(h)} for pairs of shape "
                                   f"{xs[0].shape}: give PSFs of the measurements' shape")
-    errors = np.zeros((len(cands), len(xs)))
-    for i, k_iter in enumerate(cands):
+    errors = np.zeros((len(ts), len(cands), len(ws), len(xs)))
+    for i, t in enumerate(ts):
         for k, (x, b) in enumerate(zip(xs, bs, strict=True)):
-            errors[i, k] = gain_fitted_error(
-                _solve(np.asarray(held_out_psfs[k], np.float32), b, k_iter,
-                       dark="none").image, x)
+            images = solve_checkpoints(clean_psf(held_out_psfs[k], t), b, cands)
+            for j, n in enumerate(cands):
+                for m, w in enumerate(ws):
+                    errors[i, j, m, k] = gain_fitted_error(denoise_tv(images[n], w), x)
         if on_candidate is not None:
-            on_candidate(k_iter, errors[i])
-    best = cands[int(np.argmin(errors.mean(axis=1)))]
-    return EarlyStop(best, tuple(cands), errors, psf_identity(psf), tuple(names))
+            on_candidate(t, errors[i])
+    score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
+    i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
+    return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
+                     ts[i], ws[m], tuple(ts), tuple(ws))
 
 
 def fit_held_out(scenes, measurements, k: int, *, psf=None,
-                 candidates: Sequence[int] = CANDIDATES, **psf_options) -> EarlyStop:
+                 candidates: Sequence[int] = CANDIDATES,
+                 thresholds: Sequence[float] = THRESHOLDS,
+                 weights: Sequence[float] = WEIGHTS, **psf_options) -> EarlyStop:
     """The early-stop fit that pair ``k`` may be scored with: fitted on the other pairs
     only (a benchmark's leave-one-out entry).
 
@@ -161,7 +223,7 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
         The held-out pair's index.
     psf : ndarray, optional
         The PSF estimated from every pair but ``k`` (computed when not given).
-    candidates : sequence of int
+    candidates, thresholds, weights
         As for :func:`fit_early_stop`.
     **psf_options
         Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
@@ -188,12 +250,14 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
     if psf is None:
         psf = estimate_psf_from_scenes(xs, bs, **psf_options).psf
     return fit_early_stop(xs, bs, leave_one_out(xs, bs, **psf_options).psfs, psf,
-                          candidates=candidates)
+                          candidates=candidates, thresholds=thresholds, weights=weights)
 
 
 def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):
-    """Reconstruct with a fitted count: non-negative FISTA, no prior, ``fit.iterations``
-    iterations exactly, after checking that ``psf`` is the fit's PSF.
+    """Reconstruct with a fitted recipe, after checking that ``psf`` is the recipe's
+    PSF: the PSF thresholded, non-negative FISTA without a prior for
+    ``fit.iterations`` iterations exactly, the image denoised
+    (:meth:`recon.early_stop.EarlyStop.finish`).
 
     Parameters
     ----------
@@ -208,6 +272,7 @@ def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):
     Returns
     -------
     recon.result.Reconstruction
+        ``info.extra["calibration"]`` holds the recipe.
 
     Raises
     ------
@@ -219,5 +284,4 @@ def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):
     if fixed:
         raise ReconInputError(f"{', '.join(fixed)}: fixed by the early-stop calibration; "
                               "leave them out")
-    fit.check_psf(psf)
-    return _solve(psf, raw, fit.iterations, **options)
+    return fit.finish(_solve(fit.clean_psf(psf), raw, fit.iterations, **options))

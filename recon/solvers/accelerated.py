@@ -34,7 +34,8 @@ def accelerated_loop(x: np.ndarray, *, iterations: int,
                      prox_step: Callable[..., tuple[float, float]], monitor: Monitor,
                      momentum: float | None = None, restart: bool = True,
                      stop: Callable[[History], bool] | None = None, hint: str = "",
-                     y: np.ndarray | None = None, snapshot: np.ndarray | None = None
+                     y: np.ndarray | None = None, snapshot: np.ndarray | None = None,
+                     observe: Callable[[int, np.ndarray], None] | None = None
                      ) -> tuple[int, list[int]]:
     """Run accelerated proximal-gradient iterations on ``x`` (updated in place).
 
@@ -84,6 +85,11 @@ def accelerated_loop(x: np.ndarray, *, iterations: int,
         What the monitor keeps as the last good estimate (default ``x``); a view of
         ``x`` when ``x`` joins several unknowns (the object part of object and
         background).
+    observe : callable, optional
+        ``observe(k, estimate)`` after iteration ``k`` (1-based), with the estimate
+        x_k (``snapshot``; the live array: copy what you keep). A run observed at
+        ``k`` holds what a run of ``k`` iterations returns (checkpoints of one solve,
+        e.g. an early-stop fit, :mod:`recon.analysis.early_stop`).
 
     Returns
     -------
@@ -123,6 +129,8 @@ def accelerated_loop(x: np.ndarray, *, iterations: int,
             t = t_next
         y, y_next = y_next, y
         monitor.record(loss + penalty, 2.0 * loss, x=snapshot, hint=hint)
+        if observe is not None:
+            observe(k + 1, snapshot)
         if stop is not None and stop(monitor.history):
             return k + 1, restarts
     return iterations, restarts

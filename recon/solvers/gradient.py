@@ -39,7 +39,7 @@ def prox_threshold(step: float, tau: float, ndim: int) -> float:
 def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
                  nonneg: bool, step_scale: float, momentum, restart: bool,
                  method: str, lipschitz: float | None = None, l1: float = 0.0,
-                 stop=None, x0: np.ndarray | None = None) -> SolveResult:
+                 stop=None, x0: np.ndarray | None = None, observe=None) -> SolveResult:
     iterations = as_int(iterations, "iterations", 1)
     tv = nonneg_weight(tv, "TV")
     l1 = nonneg_weight(l1, "l1")
@@ -51,6 +51,9 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
     if lipschitz is not None:
         lipschitz = positive(lipschitz, "lipschitz")
     if not isinstance(b, np.ndarray):  # another backend: the array-API path
+        if observe is not None:
+            raise ReconInputError("observe takes NumPy solves only; run on the CPU "
+                                  "(device='cpu') to observe the iterations")
         from .xp_fista import accelerated_xp
 
         return accelerated_xp(op, b, iterations=iterations, tv=tv, nonneg=nonneg,
@@ -88,7 +91,7 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
 
     used, restarts = accelerated_loop(x, iterations=iterations, data_term=data_term,
                                       prox_step=prox_step, monitor=mon, momentum=momentum,
-                                      restart=restart, stop=stop, hint=hint)
+                                      restart=restart, stop=stop, hint=hint, observe=observe)
     r = op.forward(x) - b
     data_sq = float(np.vdot(r, r))
     final = 0.5 * data_sq + tv * anisotropic_tv(x) + l1 * float(x.sum(dtype=np.float64))
@@ -102,7 +105,7 @@ def _accelerated(op: LinearOperator, b: np.ndarray, iterations: int, tv: float,
 def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERATIONS,
           tv: float = 0.0, nonneg: bool = True, step_scale: float = 1.0, restart: bool = True,
           lipschitz: float | None = None, l1: float = 0.0, stop=None,
-          x0: np.ndarray | None = None) -> SolveResult:
+          x0: np.ndarray | None = None, observe=None) -> SolveResult:
     """FISTA (Kuo 2020, Algorithm 1; Beck & Teboulle 2009) with non-negativity and TV.
 
     Each iteration: grad = A^T (A y_k - b) (4 FFTs, fused crop); x_{k+1} = prox(y_k -
@@ -138,6 +141,10 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERAT
         ``stop(history) -> bool`` after every iteration (automatic stopping).
     x0 : ndarray, shape ``op.shape_in``, optional
         Starting point (warm start; default zero), momentum restarted.
+    observe : callable, optional
+        ``observe(k, x)`` after iteration ``k`` (1-based) with the iterate x_k (float32,
+        ``op.shape_in``, the solver's own array: copy what you keep); what a solve of
+        ``k`` iterations would return (without ``stop``). NumPy arrays only.
 
     Returns
     -------
@@ -168,7 +175,7 @@ def fista(op: LinearOperator, b: np.ndarray, *, iterations: int = DEFAULT_ITERAT
     True
     """
     return _accelerated(op, b, iterations, tv, nonneg, step_scale, None, restart, "FISTA",
-                        lipschitz, l1, stop, x0)
+                        lipschitz, l1, stop, x0, observe)
 
 
 def gradient_descent(op: LinearOperator, b: np.ndarray, *,

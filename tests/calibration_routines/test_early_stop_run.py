@@ -1,5 +1,6 @@
-"""calibrate psf-from-scenes writes an early-stop calibration that recon --early-stop uses,
-and refuses with another PSF (recon.analysis.early_stop)."""
+"""calibrate psf-from-scenes writes a reconstruction recipe that recon uses by default with
+the run's PSF (or named by --early-stop), and refuses with another PSF
+(recon.analysis.early_stop)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from scipy.ndimage import gaussian_filter
 
 from instrument.cli import main
 from instrument.runstore import RunStore
-from recon.analysis.early_stop import CANDIDATES
+from recon.analysis.early_stop import CANDIDATES, THRESHOLDS, WEIGHTS
 from recon.early_stop import EarlyStop, psf_identity
 from recon.operators import ConvolutionOperator
 
@@ -49,10 +50,13 @@ def test_the_calibration_run_holds_the_fit_for_its_psf(calibrated):
     fit = EarlyStop.load(run)
     psf = RunStore.open(run).product("psf_stack")[0][0]
     assert fit.psf_sha256 == psf_identity(psf)
-    assert fit.iterations in CANDIDATES and fit.errors.shape == (len(CANDIDATES), 4)
+    assert fit.iterations in CANDIDATES and fit.errors.shape == (
+        len(THRESHOLDS), len(CANDIDATES), len(WEIGHTS), 4)
+    assert fit.psf_threshold in THRESHOLDS and fit.denoise_weight in WEIGHTS
     assert fit.pairs == ("p0", "p1", "p2", "p3")
     summary = RunStore.open(run).attrs["summary"]
     assert summary["early_stop"]["iterations"] == fit.iterations
+    assert summary["early_stop"]["psf_threshold"] == fit.psf_threshold
 
 
 def test_recon_runs_the_fitted_count_and_refuses_another_psf(calibrated, capsys):
@@ -73,3 +77,27 @@ def test_recon_runs_the_fitted_count_and_refuses_another_psf(calibrated, capsys)
     err = capsys.readouterr().err.strip()
     assert "fitted for another PSF" in err and "Traceback" not in err
     assert not (tmp / "rec2.png").exists()
+
+
+def _recon(tmp, run, name, *extra):
+    metrics = tmp / f"{name}.json"
+    assert main(["recon", "--psf", str(run), "--depth", "20", "--raw", str(tmp / "held.npy"),
+                 "--dark", "none", *extra, "--out", str(tmp / f"{name}.png"),
+                 "--metrics-json", str(metrics)]) == 0
+    return json.loads(metrics.read_text())
+
+
+def test_the_runs_recipe_is_the_default_unless_declined_or_a_method_is_named(calibrated,
+                                                                          capsys):
+    tmp, run = calibrated
+    fit = EarlyStop.load(run)
+    capsys.readouterr()
+    plain = _recon(tmp, run, "plain")
+    assert "scene-calibration recipe" in capsys.readouterr().out
+    assert (plain["method"], plain["iterations_used"]) == ("fista", fit.iterations)
+    assert plain["calibration"]["psf_sha256"] == fit.psf_sha256
+    assert plain["calibration"]["denoise_weight"] == fit.denoise_weight
+    off = _recon(tmp, run, "off", "--early-stop", "off")
+    named = _recon(tmp, run, "named", "--method", "admm")
+    for m in (off, named):
+        assert m["method"] == "admm" and m["calibration"] is None

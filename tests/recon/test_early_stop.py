@@ -1,4 +1,4 @@
-"""Early stopping fitted on calibration pairs (recon.analysis.early_stop).
+"""The recipe fitted on calibration pairs (recon.analysis.early_stop, recon.early_stop).
 
 Small synthetic camera: a sparse blurred PSF, smooth non-negative scenes, measurements
 with 3 % noise, so that a prior-free non-negative FISTA semi-converges: its error
@@ -13,19 +13,23 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
+import recon
 from recon.analysis.early_stop import (
+    _solve,
     fit_early_stop,
     fit_held_out,
     gain_fitted_error,
     reconstruct_early_stopped,
+    solve_checkpoints,
 )
 from recon.analysis.psf_from_scenes import estimate_psf_from_scenes, leave_one_out
-from recon.early_stop import EarlyStop, psf_identity
+from recon.early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity
 from recon.errors import ReconInputError
 from recon.operators import ConvolutionOperator
 
 ROWS, COLS = 24, 32
 COUNTS = (1, 3, 10, 30, 100, 300, 1000)
+COUNT_ONLY = {"thresholds": (0.0,), "weights": (0.0,)}
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +49,7 @@ def camera():
     calib_x, calib_b = scenes[:4], measurements[:4]
     psf = estimate_psf_from_scenes(calib_x, calib_b).psf
     fit = fit_early_stop(calib_x, calib_b, leave_one_out(calib_x, calib_b).psfs, psf,
-                         candidates=COUNTS, names=["a", "b", "c", "d"])
+                         candidates=COUNTS, names=["a", "b", "c", "d"], **COUNT_ONLY)
     return psf, fit, scenes[4], measurements[4], scenes, measurements
 
 
@@ -57,7 +61,7 @@ def _held_out_error(camera, iterations):
 
 def test_fitted_count_is_interior_and_generalises(camera):
     psf, fit, *_ = camera
-    assert fit.errors.shape == (len(COUNTS), 4)
+    assert fit.errors.shape == (1, len(COUNTS), 1, 4)
     assert fit.iterations in (10, 30, 100)  # neither under- nor over-fitted extreme
     assert fit.psf_sha256 == psf_identity(psf)
     best = _held_out_error(camera, fit.iterations)
@@ -108,11 +112,90 @@ def test_gain_fitted_error_ignores_scale():
 def test_held_out_fit_never_sees_the_held_out_pair(camera):
     psf, fit, _, _, scenes, measurements = camera
     # pair 4 held out: the same fit as from the first four pairs alone, whatever pair 4 is
-    held = fit_held_out(scenes, measurements, 4, candidates=COUNTS)
+    held = fit_held_out(scenes, measurements, 4, candidates=COUNTS, **COUNT_ONLY)
     assert held.psf_sha256 == psf_identity(psf) and held.iterations == fit.iterations
     np.testing.assert_allclose(held.errors, fit.errors, rtol=1e-6)
     spoiled = [*measurements[:4], measurements[4][::-1].copy()]
-    again = fit_held_out(scenes, spoiled, 4, psf=psf, candidates=COUNTS)
+    again = fit_held_out(scenes, spoiled, 4, psf=psf, candidates=COUNTS, **COUNT_ONLY)
     np.testing.assert_allclose(again.errors, fit.errors, rtol=1e-6)
     with pytest.raises(ReconInputError, match="at least three pairs"):
         fit_held_out(scenes[:2], measurements[:2], 0)
+
+
+def test_each_checkpoint_is_what_a_solve_of_that_many_iterations_returns(camera):
+    psf, _, _, raw, *_ = camera
+    seen = solve_checkpoints(psf, raw, (7, 40))
+    for n in (7, 40):
+        rec = _solve(psf, raw, n, dark="none")
+        np.testing.assert_allclose(seen[n] * rec.info.raw_scale, rec.image, rtol=1e-5,
+                                   atol=1e-6 * float(rec.image.max()))
+
+
+@pytest.fixture(scope="module")
+def recipe(camera):
+    psf, _, _, _, scenes, measurements = camera
+    xs, bs = scenes[:4], measurements[:4]
+    return fit_early_stop(xs, bs, leave_one_out(xs, bs).psfs, psf, candidates=(3, 10, 30, 100),
+                          thresholds=(0.0, 0.05, 0.2), weights=(0.0, 0.1, 0.5))
+
+
+def test_the_recipe_is_the_least_mean_error_of_its_grid(camera, recipe):
+    psf, _, _, _, scenes, measurements = camera
+    assert recipe.errors.shape == (3, 4, 3, 4)
+    score = np.log10(recipe.errors).mean(axis=-1)
+    i, j, m = np.unravel_index(np.argmin(score), score.shape)
+    assert (recipe.psf_threshold, recipe.iterations, recipe.denoise_weight) == (
+        recipe.thresholds[i], recipe.candidates[j], recipe.weights[m])
+    # one entry recomputed from scratch: pair 1, threshold 0.2, 30 iterations, weight 0.5
+    xs, bs = scenes[:4], measurements[:4]
+    held = leave_one_out(xs, bs).psfs[1]
+    direct = denoise_tv(_solve(clean_psf(held, 0.2), bs[1], 30, dark="none").image, 0.5)
+    assert recipe.errors[2, 2, 2, 1] == pytest.approx(gain_fitted_error(direct, xs[1]),
+                                                      rel=1e-4)
+
+
+def test_reconstruction_thresholds_solves_and_denoises(camera, tmp_path):
+    psf, _, _, raw, *_ = camera
+    fit = EarlyStop(30, (30,), np.zeros((1, 1, 1, 4)), psf_identity(psf), (), 0.05, 0.3,
+                    (0.05,), (0.3,))
+    rec = reconstruct_early_stopped(psf, raw, fit, dark="none")
+    plain = _solve(clean_psf(psf, 0.05), raw, 30, dark="none")
+    np.testing.assert_allclose(rec.image, denoise_tv(plain.image, 0.3), rtol=1e-6)
+    np.testing.assert_array_equal(rec.estimate, plain.estimate)  # the solver's, kept
+    assert not np.allclose(rec.image, plain.image)  # the denoising did something
+    assert rec.info.extra["calibration"]["psf_threshold"] == 0.05
+    # the front door with the recipe's file does the same; "off" declines it
+    (tmp_path / "early_stop.json").write_text(json.dumps(fit.to_dict()))
+    front = recon.reconstruct(psf, raw, early_stop=str(tmp_path), dark="none")
+    np.testing.assert_allclose(front.image, rec.image, rtol=1e-6)
+    off = recon.reconstruct(psf, raw, early_stop="off", dark="none", method="fista",
+                            iterations=30, tv=0.0, l1=0.0, auto_stop=False)
+    np.testing.assert_allclose(off.image, _solve(psf, raw, 30, dark="none").image, rtol=1e-6)
+    assert off.info.get("calibration") is None
+
+
+def test_psf_threshold_and_denoising():
+    h = np.array([[0.0, 0.1], [0.5, 1.0]], np.float32)[..., None] * np.array([1.0, 2.0])
+    out = clean_psf(h, 0.2)
+    np.testing.assert_allclose(out[..., 0], [[0, 0], [0.3, 0.8]], atol=1e-6)
+    np.testing.assert_allclose(out[..., 1], 2 * out[..., 0], atol=1e-6)  # per channel
+    np.testing.assert_array_equal(clean_psf(h, 0.0), h)
+    with pytest.raises(ReconInputError, match=r"\[0, 1\)"):
+        clean_psf(h, 1.0)
+    rng = np.random.default_rng(1)
+    img = rng.random((20, 24, 3)).astype(np.float32)
+    np.testing.assert_allclose(denoise_tv(7.0 * img, 0.2), 7.0 * denoise_tv(img, 0.2),
+                               rtol=1e-4, atol=1e-5)  # scale-free
+    assert denoise_tv(img, 0.2).std() < img.std()
+    np.testing.assert_array_equal(denoise_tv(img, 0.0), img)
+    with pytest.raises(ReconInputError, match=">= 0"):
+        denoise_tv(img, -1.0)
+
+
+def test_a_count_only_file_of_the_earlier_form_reads(tmp_path):
+    old = {"kind": "early-stop", "iterations": 70, "candidates": [30, 70],
+           "errors": [[0.5, 0.6], [0.4, 0.45]], "psf_sha256": "ab" * 32, "pairs": ["a", "b"]}
+    (tmp_path / "early_stop.json").write_text(json.dumps(old))
+    fit = EarlyStop.load(tmp_path)
+    assert (fit.iterations, fit.psf_threshold, fit.denoise_weight) == (70, 0.0, 0.0)
+    assert fit.errors.shape == (1, 2, 1, 2)
