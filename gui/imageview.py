@@ -15,6 +15,13 @@ For video, and for a run's frames stepped through with a slider, the view is lig
 :meth:`FrameView.setImage` swaps the image and recomputes levels, histogram and ROI
 statistics at most ``histogram_hz`` times a second; the last image of a burst gets its
 own at the end of the period (a timer), so the view never rests on stale levels.
+
+An image larger than the view on screen is drawn from every ``step``-th pixel of every
+``step``-th row (:mod:`gui.display_grid`: image pixels per screen pixel, rounded down;
+redrawn when the operator zooms or the view is resized), so a large sensor's frame costs
+what the screen shows. :attr:`FrameView.image` stays the full-resolution array: the
+pixel readout, the ROI statistics, the line profile, the levels and the snapshot read
+it, through :attr:`FrameView.pixels`, the full-resolution pixel grid in the plot.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from typing import Any
 
 import numpy as np
 import pyqtgraph as pg
-from PySide6.QtCore import QTimer, Signal
+from PySide6.QtCore import QRectF, QTimer, Signal
 from PySide6.QtWidgets import (
     QComboBox,
     QFileDialog,
@@ -39,6 +46,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from .display_grid import block_any, display_step
 from .logpane import gui_log
 from .workers import Job
 
@@ -98,8 +106,16 @@ class FrameView(QWidget):
     Attributes
     ----------
     image : ndarray or None
-        The image shown.
+        The image shown, at full resolution.
     item : pyqtgraph.ImageItem
+        What is drawn: :attr:`image`, or every ``display_step``-th pixel of it.
+    display_step : int
+        The stride :attr:`item` is drawn at (1: every pixel).
+    pixels : pyqtgraph.ImageItem
+        :attr:`image`'s full-resolution pixel grid in the plot (never drawn): the ROI
+        and the profile map to :attr:`image` through it.
+    mask_item : pyqtgraph.ImageItem
+        The overlay :meth:`mark` draws (the live view's saturated pixels).
     plot : pyqtgraph.PlotItem
     histogram : pyqtgraph.HistogramLUTItem
     roi : pyqtgraph.RectROI
@@ -154,6 +170,17 @@ class FrameView(QWidget):
         self.plot.invertY(True)
         self.item = pg.ImageItem(axisOrder="row-major")
         self.plot.addItem(self.item)
+        self.display_step = 1
+        self.pixels = pg.ImageItem(axisOrder="row-major")
+        self.pixels.setVisible(False)  # a coordinate grid only (left out of auto range)
+        self.plot.addItem(self.pixels)
+        self.mask_item = pg.ImageItem(axisOrder="row-major")
+        self.mask_item.setZValue(10)
+        self.plot.addItem(self.mask_item)
+        self._mask: tuple[np.ndarray, tuple[int, int, int, int]] | None = None
+        self._drawing = False
+        self.plot.vb.sigRangeChanged.connect(self._view_changed)
+        self.plot.vb.sigResized.connect(self._view_changed)
         self.histogram = pg.HistogramLUTItem()
         self.histogram.setImageItem(self.item)
         self.item.sigImageChanged.disconnect(self.histogram.imageChanged)
@@ -236,7 +263,8 @@ class FrameView(QWidget):
 
     def _levels_of(self, image: np.ndarray) -> tuple[float, float]:
         lo_p, hi_p = LEVEL_MODES[self.level_mode.currentText()]
-        sample = image[::4, ::4] if image.size > 65536 else image
+        step = max(1, int(np.ceil(np.sqrt(image.size / 65536))))  # at most ~65536 pixels
+        sample = image[::step, ::step]
         finite = sample[np.isfinite(sample)] if sample.dtype.kind == "f" else sample
         if not np.size(finite):
             return 0.0, 1.0
@@ -288,6 +316,7 @@ class FrameView(QWidget):
         """Show nothing."""
         self._catch_up.stop()
         self.item.clear()
+        self.mark(None)
         self.image = None
 
     def setImage(self, image, autoLevels: bool = True) -> None:  # noqa: N802, N803
@@ -297,17 +326,27 @@ class FrameView(QWidget):
         unless they are locked. In video mode (``histogram_hz``) levels, histogram and
         ROI statistics follow at most that often: between, the image is swapped alone
         and the newest one gets them when the period ends. The view is re-ranged only
-        when the image's shape changes.
+        when the image's shape changes. An image larger than the view on screen is drawn
+        at a stride (:attr:`display_step`); :attr:`image` keeps it whole.
         """
         now = time.monotonic()
         due = now - self._last_histogram >= self._period_s
         reshaped = self.image is None or np.shape(self.image) != np.shape(image)
         self.image = image
         self._follow = autoLevels and not self.levels_locked
-        self.item.setImage(image, autoLevels=False)  # the levels follow before the paint
         if reshaped:
-            self.plot.vb.autoRange(padding=0.02)
-            self.plot.vb.disableAutoRange()
+            rows, cols = np.shape(image)[:2]
+            pad = 1.04  # autoRange's padding of 0.02 each side
+            self._draw(display_step((pad * cols, pad * rows), self._view_px()))
+            self._drawing = True
+            try:
+                self.plot.vb.autoRange(padding=0.02)
+                self.plot.vb.disableAutoRange()
+            finally:
+                self._drawing = False
+            self._view_changed()
+        else:
+            self._draw(self.display_step)
         if due or reshaped:
             self._catch_up.stop()
             self._refresh_levels()
@@ -318,6 +357,66 @@ class FrameView(QWidget):
                 self._catch_up.start(max(1, int(np.ceil(1e3 * wait_s))))
         if self.profile_action.isChecked():
             self._update_profile()
+
+    def _view_px(self) -> tuple[float, float]:
+        ratio = self.glw.devicePixelRatioF()
+        return self.plot.vb.width() * ratio, self.plot.vb.height() * ratio
+
+    def _step_now(self) -> int:
+        (x0, x1), (y0, y1) = self.plot.vb.viewRange()
+        return display_step((x1 - x0, y1 - y0), self._view_px())
+
+    def _draw(self, step: int) -> None:
+        """Hand pyqtgraph :attr:`image` at ``step`` (the levels follow before the paint),
+        placed over the full-resolution grid, with the mark's overlay."""
+        self._drawing = True
+        try:
+            self.display_step = step
+            shown = self.image if step == 1 else self.image[::step, ::step]
+            self.item.setImage(shown, autoLevels=False)
+            rows, cols = shown.shape[:2]
+            self.item.setRect(QRectF(0, 0, cols * step, rows * step))
+            if self._mask is not None:
+                self._draw_mask()
+        finally:
+            self._drawing = False
+
+    def _view_changed(self, *_) -> None:
+        """Zoomed, panned or resized: draw again when the stride changes."""
+        if self._drawing or self.image is None:
+            return
+        step = self._step_now()
+        if step != self.display_step:
+            self._draw(step)
+
+    def mark(self, mask: np.ndarray | None, rgba: tuple[int, int, int, int] = (255, 0, 0,
+                                                                                255)) -> None:
+        """Colour the pixels of :attr:`image` where ``mask`` is set (an overlay on the
+        grid the image is drawn at: a block is coloured when any of its pixels is);
+        None or an empty mask removes the overlay.
+
+        Parameters
+        ----------
+        mask : ndarray of bool, (rows, cols), or None
+            :attr:`image`'s shape.
+        rgba : tuple of 4 int
+            The colour, 0-255.
+        """
+        if mask is None or not mask.any():
+            if self._mask is not None:
+                self.mask_item.clear()
+            self._mask = None
+            return
+        self._mask = (mask, tuple(rgba))
+        self._draw_mask()
+
+    def _draw_mask(self) -> None:
+        mask, rgba = self._mask
+        on_grid = block_any(mask, self.display_step)
+        overlay = np.zeros(on_grid.shape + (4,), np.uint8)
+        overlay[on_grid] = rgba
+        self.mask_item.setImage(overlay, autoLevels=False)
+        self.mask_item.setTransform(self.item.transform())
 
     def _refresh_levels(self) -> None:
         """Levels (unless locked or not asked for), histogram and ROI statistics of the
@@ -344,7 +443,7 @@ class FrameView(QWidget):
         if self.image is None or not self.plot.sceneBoundingRect().contains(pos):
             self.readout.setText("")
             return
-        p = self.item.mapFromScene(pos)
+        p = self.plot.vb.mapSceneToView(pos)  # image pixels, whatever the drawn stride
         self.readout.setText(self.pixel_text(p.x(), p.y()))
 
     def pixel_text(self, x: float, y: float) -> str:
@@ -384,7 +483,7 @@ class FrameView(QWidget):
         (``x``, ``y``, ``width``, ``height`` in px); None when the ROI is off."""
         if not self.roi_action.isChecked() or self.image is None or self.roi.scene() is None:
             return None
-        pixels = self.roi.getArrayRegion(self.image, self.item, order=0)
+        pixels = self.roi.getArrayRegion(self.image, self.pixels, order=0)
         out = image_statistics(pixels)
         (x, y), (w, h) = self.roi.pos(), self.roi.size()
         out.update(x=float(x), y=float(y), width=float(w), height=float(h))
@@ -426,7 +525,7 @@ class FrameView(QWidget):
             return None
         # LineSegmentROI maps (x, y) to the data's axes itself: x is the column axis of
         # a row-major image (pyqtgraph swaps them only for the rectangular ROIs)
-        values = np.asarray(self.line.getArrayRegion(self.image, self.item, axes=(1, 0),
+        values = np.asarray(self.line.getArrayRegion(self.image, self.pixels, axes=(1, 0),
                                                      order=1), np.float64)
         return np.arange(values.size, dtype=np.float64), values  # samples 1 px apart
 
