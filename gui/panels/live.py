@@ -6,21 +6,22 @@ process of its own (:class:`instrument.live_process.LiveReconstructionProcess`: 
 and results through shared memory, so the window shares its interpreter lock with no
 solver; Wiener preview or warm-started ADMM with a few iterations per frame; PSF from a file
 or a run store, :func:`gui.jobs.build_live`); a 20 Hz timer shows the newest frame
-and the newest reconstruction and the counters. Nothing here waits on the camera or
-the solver. The PSF, depth, dark level, method, iterations and device (cpu, cuda or
-auto: where the solves run, :class:`recon.live.LiveReconstructor`) are remembered
-between sessions; the depth offers the stack's planes and shows the plane used; the PSF
-and depth in use are handed to the batch reconstruction (``psf_chosen``). A device that
-cannot be used (no GPU, no CuPy / PyTorch, too little GPU memory) is refused with the
-message in the panel; the raw stream goes on.
+and the newest reconstruction and the counters, fewer times a second while the window
+falls behind (:class:`gui.pacing.DisplayPacer`: the frames not shown are counted under
+the raw frame). Nothing here waits on the camera or the solver. The PSF, depth, dark
+level, method, iterations and device (cpu, cuda or auto: where the solves run,
+:class:`recon.live.LiveReconstructor`) are remembered between sessions; the depth offers
+the stack's planes and shows the plane used; the PSF and depth in use are handed to the
+batch reconstruction (``psf_chosen``). A device that cannot be used (no GPU, no CuPy /
+PyTorch, too little GPU memory) is refused with the message in the panel; the raw
+stream goes on.
 """
 
 from __future__ import annotations
 
 import time
+from collections import deque
 
-import numpy as np
-import pyqtgraph as pg
 from PySide6.QtCore import QTimer, Signal
 from PySide6.QtWidgets import (
     QGridLayout,
@@ -37,6 +38,7 @@ from recon.options import LiveOptions, ReconOptions
 
 from ..fields import choose_psf_path, remember
 from ..forms import OptionsForm
+from ..pacing import DisplayPacer
 from ..session import Session
 from ..workers import InputError, Job, readable_error
 from .common import FrameView, dark_hint, depth_field, error_label, offer_depths
@@ -47,6 +49,8 @@ __all__ = ["LivePanel", "STALE_S"]
 CONSUMER = "live-reconstruction"
 #: A reconstruction rate older than this (s) is shown as stale, not as a rate.
 STALE_S = 2.0
+#: The display timer's interval, ms (20 images a second at most).
+TICK_MS = 50
 
 
 class LivePanel(QWidget):
@@ -70,8 +74,14 @@ class LivePanel(QWidget):
         self.depth_job: Job | None = None
         self.depth_used: float | None = None
         self._shown_raw = -1
+        #: Raw frames shown, and the frames the window received but did not show
+        #: (newer ones came first, or the pacer showed fewer while the window was busy).
+        self.frames_shown = 0
+        self.frames_not_shown = 0
+        self._seen_at_shown: int | None = None
+        self._shown_times: deque[float] = deque(maxlen=64)
+        self.pacer = DisplayPacer(TICK_MS / 1000.0)
         self._shown_recon = -1
-        self._saturation_shown = False
         self._recon_count = (-1, time.monotonic())
         self._live_settings: dict = {}
         layout = QVBoxLayout(self)
@@ -147,9 +157,6 @@ class LivePanel(QWidget):
         left, right = QVBoxLayout(), QVBoxLayout()
         self.raw_view = FrameView("raw frame (DN)", histogram_hz=2.0, name="raw")
         self.raw_view.metadata = self._raw_metadata
-        self.saturation = pg.ImageItem()
-        self.raw_view.plot.addItem(self.saturation)
-        self.saturation.setZValue(10)
         left.addWidget(self.raw_view, 1)
         self.raw_stats = QLabel("camera: not streaming")
         self.raw_stats.setWordWrap(True)
@@ -165,8 +172,8 @@ class LivePanel(QWidget):
         views.addLayout(right, 1)
         layout.addLayout(views, 1)
         self.timer = QTimer(self)
-        self.timer.timeout.connect(self.refresh)
-        self.timer.start(50)
+        self.timer.timeout.connect(self._tick)
+        self.timer.start(TICK_MS)
         session.changed.connect(self._session_changed)
         self._session_changed()
 
@@ -345,6 +352,11 @@ class LivePanel(QWidget):
         return out
 
     # -- display -------------------------------------------------------------------------
+    def _tick(self) -> None:
+        """The timer's slot: :meth:`refresh` when the pacer says this tick shows."""
+        if self.isVisible() and self.pacer.tick(time.monotonic()):
+            self.refresh()
+
     def refresh(self) -> None:
         """Show the newest frame and reconstruction and the counters (timer slot; does
         nothing while the panel is hidden)."""
@@ -356,15 +368,13 @@ class LivePanel(QWidget):
         if frame is not None and frame.index != self._shown_raw:
             first = self._shown_raw < 0
             self._shown_raw = frame.index
+            self._count_shown()
             image = frame.image
             self.raw_view.setImage(image, autoLevels=first or not self.raw_view.levels_locked)
-            if self.session.connected:
-                sat = image >= 2 ** self.session.frame_bit_depth() - 1
-                if sat.any() or self._saturation_shown:
-                    overlay = np.zeros(image.shape + (4,), np.uint8)
-                    overlay[sat] = (255, 0, 0, 255)
-                    self.saturation.setImage(overlay, autoLevels=False)
-                    self._saturation_shown = bool(sat.any())
+            if self.session.connected:  # saturated pixels in red (at the drawn stride)
+                full_scale = 2 ** self.session.frame_bit_depth() - 1
+                saturated = image.size and image.max() >= full_scale  # no mask when none
+                self.raw_view.mark(image >= full_scale if saturated else None)
         if frame is not None:
             sat = f"saturated {int(frame.saturated_pixels)} px (red)"
             if self.session.streaming:
@@ -372,7 +382,7 @@ class LivePanel(QWidget):
                 self.raw_stats.setText(
                     f"camera: {c['fps']:.1f} fps (last 2 s), frame {frame.index}, acquired "
                     f"{c['acquired']}, dropped {c['dropped']}, skipped by the ring "
-                    f"{c['skipped']}; {sat}")
+                    f"{c['skipped']}; {self._shown_text()}; {sat}")
             elif self.session.camera_user is not None:
                 self.raw_stats.setText(f"camera busy with {self.session.camera_user}: frame "
                                        f"{frame.index}; {sat}")
@@ -386,6 +396,24 @@ class LivePanel(QWidget):
             if latest is not None and latest.frame_index != self._shown_recon:
                 self._shown_recon = latest.frame_index
                 self.recon_view.setImage(scene_view(latest.image), autoLevels=True)
+
+    def _count_shown(self) -> None:
+        seen = self.session.frames_seen
+        if self._seen_at_shown is not None:
+            self.frames_not_shown += max(seen - self._seen_at_shown - 1, 0)
+        self._seen_at_shown = seen
+        self.frames_shown += 1
+        self._shown_times.append(time.monotonic())
+
+    def _shown_text(self) -> str:
+        """``"shown 20.0 fps, not shown 412"`` (the rate over the last 2 s), and why
+        fewer while the pacer holds the rate down."""
+        times = [t for t in self._shown_times if self._shown_times[-1] - t <= 2.0]
+        span = times[-1] - times[0] if times else 0.0
+        rate = (len(times) - 1) / span if span > 0.2 else 0.0
+        slowed = (f" (at most {self.pacer.rate_hz:.0f} a second while the window catches "
+                  "up)" if self.pacer.period_s > self.pacer.tick_s else "")
+        return f"shown {rate:.1f} fps{slowed}, not shown {self.frames_not_shown}"
 
     def _show_live_stats(self) -> None:
         s = self.live.stats()
