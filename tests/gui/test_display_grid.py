@@ -111,3 +111,13 @@ def test_display_step_and_block_any():
     on_grid = block_any(mask, 3)
     assert on_grid.shape == (3, 2) and on_grid[1, 1] and on_grid.sum() == 1
     assert block_any(mask, 1) is mask
+
+
+def test_the_benchmark_phase_of_large_frames_reports_its_figures(qapp):
+    """``python -m soak.benchmark --large-frame``: the phase shows frames and reports
+    the lateness and the GUI thread's CPU time per frame (values not judged)."""
+    from soak.benchmark import large_frame_lateness
+
+    out = large_frame_lateness((600, 800), seconds=1.0)
+    assert out["shape"] == [600, 800] and out["frames_shown"] > 0 and out["firings"] > 0
+    assert out["cpu_ms_per_frame"] > 0 and out["max_ms"] >= out["p99_ms"] >= 0

@@ -78,3 +78,38 @@ def test_a_soak_without_measurements_meets_no_goal(missing):
         assert not met["max_ms"] and not met["p99_ms"]
     else:
         assert not met["visible_ms"] and not met["load"]
+
+
+def test_beside_busy_loops_the_goal_is_a_stall_under_a_second():
+    from soak.live_soak import GOALS, figures
+
+    report = {"phases": {"soak": {"seconds": 60.0, "firings": 5000, "p50_ms": 0.4,
+                                  "p99_ms": 80.0, "max_ms": 900.0}},
+              "probes": [{"key_ms": 150.0, "backspace_ms": 9.0, "click_ms": 20.0,
+                          "escape_ms": 8.0, "load_1min": 6.5}],
+              "crashed": False, "busy_processes": 3}
+    f = figures(report)
+    assert f["busy_processes"] == 3
+    assert f["goals_met"] == {"max_ms_beside_busy": True, "no_crash": True}
+    report["phases"]["soak"]["max_ms"] = GOALS["busy_max_ms"]
+    assert figures(report)["goals_met"]["max_ms_beside_busy"] is False
+
+
+def test_busy_loops_spin_until_the_block_ends():
+    import os
+    import time
+
+    from soak.live_soak import busy_loops
+
+    def cpu_s(pid: int) -> float:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    with busy_loops(2) as pids:
+        assert len(pids) == 2
+        deadline = time.monotonic() + 120.0  # hang guard: each has used some CPU
+        while not all(cpu_s(p) > 0.05 for p in pids):
+            assert time.monotonic() < deadline, "the busy loops never ran"
+            time.sleep(0.05)
+    for pid in pids:  # killed and reaped
+        assert not os.path.exists(f"/proc/{pid}")
