@@ -497,10 +497,14 @@ def plane_on_object_grid(scene, z_mm: float, width_mm: float, d_mm: float,
     """A planar scene on the object grid of Eq. 3.3, cropped to the sensor's shape.
 
     The object grid samples the plane at ``pitch z / d`` with the image inverted
-    (u = -m x); the scene, centred on the axis, is area-resampled onto it
-    (anti-aliased), flipped and centred in the sensor's field of view: the object a
-    reconstruction with the on-axis PSF shows, and the known scene of a PSF
-    calibrated from displayed images (:mod:`recon.analysis.psf_from_scenes`).
+    (u = -m x): cell ``(i, j)`` is centred on the lateral position
+    ``-((i - rows // 2), (j - cols // 2)) pitch z / d``, so the axis is the centre of
+    cell ``(rows // 2, cols // 2)``, the point that images to the on-axis PSF as the
+    convolution model centres it. Each cell holds the scene's mean radiance over it
+    (exact area overlap of the scene's pixels, as :meth:`LenslessModel.render` resamples
+    the scene onto its finer grid; no rounding of the scene's extent to whole cells):
+    the object a reconstruction with the on-axis PSF shows, and the known scene of a
+    PSF calibrated from displayed images (:mod:`recon.analysis.psf_from_scenes`).
 
     Parameters
     ----------
@@ -519,27 +523,26 @@ def plane_on_object_grid(scene, z_mm: float, width_mm: float, d_mm: float,
     Returns
     -------
     ndarray, float64, ``sensor_shape``
+        Zero outside the scene, partial at its edges.
 
     Raises
     ------
     ReconInputError
-        A depth, width, distance or pitch that is not a finite number > 0.
+        A depth, width, distance or pitch that is not a finite number > 0, or a
+        scene that is not a 2D image.
     """
-    from skimage.transform import resize
-
     rows, cols = sensor_shape
     z = positive_number(z_mm, "scene depth z_mm", "30.0")
     width = positive_number(width_mm, "scene width_mm", "10.0")
     d = positive_number(d_mm, "diffuser-sensor distance d_mm", "8.9")
-    spacing_mm = positive_number(sensor_pitch_um, "sensor pitch", "13.0") * 1e-3 * z / d
+    q = positive_number(sensor_pitch_um, "sensor pitch", "13.0") * 1e-3 * z / d
     img = np.asarray(scene, float)
-    h_mm = width * img.shape[0] / img.shape[1]
-    shape = (max(1, round(h_mm / spacing_mm)), max(1, round(width / spacing_mm)))
-    small = resize(img, shape, anti_aliasing=True)[::-1, ::-1]
-    out = np.zeros((rows, cols))
-    # the axis at pixel (rows // 2, cols // 2): where the convolution model's PSF is centred
-    r0, c0 = rows // 2 - shape[0] // 2, cols // 2 - shape[1] // 2
-    rs = slice(max(r0, 0), min(r0 + shape[0], rows))
-    cs = slice(max(c0, 0), min(c0 + shape[1], cols))
-    out[rs, cs] = small[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
-    return out
+    if img.ndim != 2 or min(img.shape) < 1:
+        raise ReconInputError(f"scene must be a 2D image (rows, cols), got shape {img.shape}")
+    height = width * img.shape[0] / img.shape[1]
+    # cell centres, inverted (u = -m x); the axis at the centre of (rows // 2, cols // 2)
+    pos_y = -(np.arange(rows) - rows // 2) * q
+    pos_x = -(np.arange(cols) - cols // 2) * q
+    ry = cell_overlap(np.linspace(-height / 2, height / 2, img.shape[0] + 1), pos_y, q)
+    rx = cell_overlap(np.linspace(-width / 2, width / 2, img.shape[1] + 1), pos_x, q)
+    return ry @ img @ rx.T / (q * q)
