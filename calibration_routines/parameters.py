@@ -226,10 +226,14 @@ class PsfFromScenesParams(RoutineParams):
 
     z_mm: float = option(..., gt=0, help="distance of the scenes (the display) from the "
                          "diffuser", unit="mm")
-    # the upper bound (the number of bundled photographs, recon.scenes.BUNDLED) is checked
-    # by the plan: importing recon.scenes here would load numpy into every --help
-    images: int = option(4, ge=2, help="scenes shown: scikit-image's bundled photographs, "
-                         "in order (at most as many as scikit-image ships)")
+    # the upper bound (256 patterns, or the number of bundled photographs,
+    # recon.scenes.BUNDLED) is checked by the plan: importing recon.scenes here would load
+    # numpy into every --help
+    images: int = option(12, ge=2, help="scenes shown (at most 256 patterns, or as many "
+                         "photographs as scikit-image ships)")
+    patterns: Literal["random", "photographs"] = option(
+        "random", help="random binary patterns in blocks of about one sensor pixel (a flat "
+        "spectrum, gamma-free), or scikit-image's bundled photographs in order")
     display: str = option("slm", help="the display's device id or role (an SLM or the "
                           "full-screen monitor driver)")
     iterations: int = option(20, ge=1, help="ADMM iterations of the estimate")
@@ -238,8 +242,8 @@ class PsfFromScenesParams(RoutineParams):
         from .psf_from_scenes import PsfFromScenesPlan
 
         return PsfFromScenesPlan.for_bench(bench, images=self.images, z_mm=self.z_mm,
-                                           display=self.display, iterations=self.iterations,
-                                           **self._frames())
+                                           display=self.display, patterns=self.patterns,
+                                           iterations=self.iterations, **self._frames())
 
 
 #: ``{routine: model}`` in the order ``calibrate`` lists them.

@@ -10,13 +10,17 @@ channel, with each pair's held-out residual). Two sources of pairs:
 * the bench (:class:`PsfFromScenesPlan`): the display device (an SLM or monitor
   driven by :class:`drivers.slm.Slm`, e.g. the full-screen window of
   :class:`drivers.slm_window.FullscreenSlm`) at depth ``z_mm`` in front of the camera
-  shows each scene, scikit-image's bundled photographs (:data:`recon.scenes.BUNDLED`,
-  no download) at the panel's resolution, auto-exposed, then a black frame at the
-  same exposure as its dark. The known scene on the sensor grid is the displayed
-  image inverted and scaled by the magnification ``d / z`` about the axis
+  shows each scene at the panel's resolution, auto-exposed, then a black frame at the
+  same exposure as its dark. The scenes are random binary patterns by default
+  (:func:`random_pattern`: black and white blocks about one object-grid cell wide, a
+  flat spectrum up to the sensor's sampling, and two gray levels only, so the
+  monitor's gamma does not matter), or scikit-image's bundled photographs
+  (:data:`recon.scenes.BUNDLED`, no download), whose ~1/f^2 spectrum leaves the
+  PSF's finest detail under the noise. The known scene on the sensor grid is the
+  displayed image inverted and scaled by the magnification ``d / z`` about the axis
   (:func:`recon.optics.lensless.plane_on_object_grid`), the display centred on the
-  camera's axis; its radiance is taken as linear in the gray level (set the
-  monitor's gamma to 1, or calibrate it).
+  camera's axis; its radiance is taken as linear in the gray level (for photographs,
+  set the monitor's gamma to 1, or calibrate it).
 
 Both write a run holding ``psf_stack``: (1, rows, cols), or (1, rows, cols, channels)
 with its ``channels`` recorded, at ``depths_mm = [z_mm]``, which ``recon --psf RUN``
@@ -56,8 +60,9 @@ from recon.scenes import BUNDLED, load_scene
 
 from ._common import CALIBRATION_EXPOSURE, sensor_geometry, signal_minus_dark
 
-__all__ = ["FILES_PLAN", "PsfFromScenesPlan", "display_gray", "match_pairs",
-           "early_stop_for", "psf_run_from_files", "write_psf"]
+__all__ = ["FILES_PLAN", "MAX_RANDOM", "PATTERNS", "PsfFromScenesPlan", "display_gray",
+           "early_stop_for", "match_pairs", "pattern_block_px", "psf_run_from_files",
+           "random_pattern", "write_psf"]
 
 #: The plan name of a run made from files (no frames; nothing to resume).
 FILES_PLAN = "psf-from-scene-files"
@@ -65,11 +70,64 @@ FILES_PLAN = "psf-from-scene-files"
 SUFFIXES = (".npy", ".tif", ".tiff", ".png")
 #: The reconstruction recipe's file in the run (:mod:`recon.analysis.early_stop`).
 EARLY_STOP_FILE = EARLY_STOP_NAME
+#: The kinds of scene the bench shows: generated random binary patterns, or photographs.
+PATTERNS = ("random", "photographs")
+#: Name of the random pattern of seed ``k``: ``RANDOM_PREFIX + str(k)``.
+RANDOM_PREFIX = "random-"
+#: The most random patterns a plan shows.
+MAX_RANDOM = 256
 
 
-def display_gray(name: str, shape: tuple[int, int]) -> np.ndarray:
-    """Bundled photograph ``name`` as the display shows it: uint8 gray, ``shape``."""
+def random_pattern(seed: int, shape: tuple[int, int], block_px: int) -> np.ndarray:
+    """Random binary pattern ``seed``: blocks of ``block_px`` display pixels, each black
+    (0) or white (255) with probability 1/2.
+
+    Parameters
+    ----------
+    seed : int
+        >= 0; the same seed gives the same pattern.
+    shape : (rows, cols)
+        The display's resolution.
+    block_px : int
+        Side of the blocks, display pixels (>= 1; :func:`pattern_block_px`).
+
+    Returns
+    -------
+    ndarray, uint8, ``shape``
+    """
+    rows, cols = shape
+    rng = np.random.default_rng([int(seed), 0x5C])
+    cells = rng.integers(0, 2, (-(-rows // block_px), -(-cols // block_px)), dtype=np.uint8)
+    return (np.kron(cells, np.ones((block_px, block_px), np.uint8))[:rows, :cols] * 255
+            ).astype(np.uint8)
+
+
+def pattern_block_px(z_mm: float, d_mm: float, pitch_mm: float,
+                     display_pitch_um: float) -> int:
+    """Block side of the random patterns: one cell of the object grid (the sensor pitch
+    scaled by ``z / d`` onto the display) in display pixels, rounded, at least 1.
+
+    Finer blocks add detail within a cell, which the known scene (each cell's mean)
+    does not hold; coarser ones leave the PSF's finest detail unmeasured.
+    """
+    return max(1, round(pitch_mm * z_mm / d_mm / (display_pitch_um * 1e-3)))
+
+
+def display_gray(name: str, shape: tuple[int, int], block_px: int = 1) -> np.ndarray:
+    """Scene ``name`` as the display shows it: uint8 gray, ``shape``.
+
+    ``random-<k>`` is :func:`random_pattern` ``k`` with blocks of ``block_px`` display
+    pixels; any other name is a bundled photograph (:data:`recon.scenes.BUNDLED`).
+    """
+    if name.startswith(RANDOM_PREFIX):
+        return random_pattern(int(name[len(RANDOM_PREFIX):]), shape, block_px)
     return np.round(load_scene(name, shape) * 255.0).astype(np.uint8)
+
+
+def _scene_name_ok(name: str) -> bool:
+    tail = name[len(RANDOM_PREFIX):]
+    return name in BUNDLED or (name.startswith(RANDOM_PREFIX) and tail.isdigit()
+                               and str(int(tail)) == tail)
 
 
 def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | None,
@@ -258,7 +316,9 @@ class PsfFromScenesPlan(Plan):
     Parameters
     ----------
     scene_names : list of str
-        Photographs of :data:`recon.scenes.BUNDLED`, shown in order (at least 2).
+        Shown in order (at least 2): ``random-<k>`` (:func:`random_pattern` of seed
+        ``k``, blocks of :func:`pattern_block_px`) or photographs of
+        :data:`recon.scenes.BUNDLED`.
     z_mm : float
         Distance of the display from the diffuser, mm.
     display : str
@@ -281,9 +341,10 @@ class PsfFromScenesPlan(Plan):
                  display_pitch_um: float, d_mm: float, pitch_mm: float,
                  frames_per_point: int = 4, iterations: int = 20) -> None:
         names = [str(n) for n in scene_names]
-        unknown = [n for n in names if n not in BUNDLED]
+        unknown = [n for n in names if not _scene_name_ok(n)]
         if len(names) < 2 or unknown:
-            raise PlanError(f"scenes {names}: give at least 2 of {', '.join(BUNDLED)}")
+            raise PlanError(f"scenes {names}: give at least 2, each random-<k> (k = 0, 1, "
+                            f"...) or one of {', '.join(BUNDLED)}")
         if not (z_mm > 0 and display_pitch_um > 0 and frames_per_point >= 1):
             raise PlanError("z_mm and display_pitch_um must be > 0, frames_per_point >= 1")
         super().__init__(scene_names=names, z_mm=float(z_mm), display=str(display),
@@ -293,19 +354,25 @@ class PsfFromScenesPlan(Plan):
                          iterations=int(iterations))
 
     @classmethod
-    def for_bench(cls, bench, *, images: int = 4, z_mm: float, display: str = "slm",
-                  **params) -> PsfFromScenesPlan:
-        """``images`` bundled photographs on the bench's ``display`` at ``z_mm``.
+    def for_bench(cls, bench, *, images: int = 12, z_mm: float, display: str = "slm",
+                  patterns: str = "random", **params) -> PsfFromScenesPlan:
+        """``images`` scenes on the bench's ``display`` at ``z_mm``: random binary
+        patterns ``random-0``, ``random-1``, ... (``patterns="random"``) or the first
+        bundled photographs (``"photographs"``).
 
         Raises
         ------
         PlanError
-            Fewer than 2 or more than the bundled images, or a display that is not
-            an SLM/monitor of the bench.
+            Fewer than 2 images, more than :data:`MAX_RANDOM` patterns or the bundled
+            photographs, another kind of pattern, or a display that is not an
+            SLM/monitor of the bench.
         """
-        if not isinstance(images, int) or not 2 <= images <= len(BUNDLED):
-            raise PlanError(f"--images {images!r}: give a whole number from 2 to "
-                            f"{len(BUNDLED)}")
+        if patterns not in PATTERNS:
+            raise PlanError(f"--patterns {patterns!r}: give one of {', '.join(PATTERNS)}")
+        most = MAX_RANDOM if patterns == "random" else len(BUNDLED)
+        if isinstance(images, bool) or not isinstance(images, int) or not 2 <= images <= most:
+            raise PlanError(f"--images {images!r}: give a whole number from 2 to {most} "
+                            f"(--patterns {patterns})")
         try:
             panel = bench.device(display)
             shape, pitch = panel.resolution, panel.pixel_pitch_um
@@ -314,7 +381,9 @@ class PsfFromScenesPlan(Plan):
                             "role; give an SLM or monitor device of the bench file") from None
         d_mm, pitch_mm, _ = sensor_geometry(bench.config)
         params.setdefault("frames_per_point", bench.config.calibration.frames_per_point)
-        return cls(scene_names=list(BUNDLED[:images]), z_mm=z_mm, display=display,
+        names = ([f"{RANDOM_PREFIX}{k}" for k in range(images)] if patterns == "random"
+                 else list(BUNDLED[:images]))
+        return cls(scene_names=names, z_mm=z_mm, display=display,
                    display_shape=shape, display_pitch_um=pitch, d_mm=d_mm, pitch_mm=pitch_mm,
                    **params)
 
@@ -323,10 +392,16 @@ class PsfFromScenesPlan(Plan):
         return [PlanPoint({"scene": name}, ("scene",) * n + ("dark",) * n)
                 for name in self.params["scene_names"]]
 
+    def block_px(self) -> int:
+        """Block side of this plan's random patterns, display pixels
+        (:func:`pattern_block_px`)."""
+        p = self.params
+        return pattern_block_px(p["z_mm"], p["d_mm"], p["pitch_mm"], p["display_pitch_um"])
+
     def steps(self, index, point):
         p = self.params
         name = point.coords["scene"]
-        gray = display_gray(name, tuple(p["display_shape"]))
+        gray = display_gray(name, tuple(p["display_shape"]), self.block_px())
         yield ShowSlm(gray=gray, label=name, device=p["display"])
         yield Expose(auto=CALIBRATION_EXPOSURE)
         yield Capture(p["frames_per_point"], "scene")
@@ -336,7 +411,7 @@ class PsfFromScenesPlan(Plan):
     def known_scene(self, name: str, sensor_shape: tuple[int, int]) -> np.ndarray:
         """Scene ``name`` as displayed, on the sensor grid (radiance 1 at gray 255)."""
         p = self.params
-        gray = display_gray(name, tuple(p["display_shape"])) / 255.0
+        gray = display_gray(name, tuple(p["display_shape"]), self.block_px()) / 255.0
         width_mm = p["display_shape"][1] * p["display_pitch_um"] * 1e-3
         return plane_on_object_grid(gray, p["z_mm"], width_mm, p["d_mm"],
                                     p["pitch_mm"] * 1e3, sensor_shape)

@@ -29,8 +29,8 @@ HISTORIC = {
                          "--n-angles": None, "--beta-deg": None},
     "slm-lut": {"--frames": None, "--levels": None, "--period-px": None,
                 "--no-nd-filter": False},
-    "psf-from-scenes": {"--frames": None, "--z-mm": ..., "--images": 4, "--display": "slm",
-                        "--iterations": 20},
+    "psf-from-scenes": {"--frames": None, "--z-mm": ..., "--images": 12, "--patterns": "random",
+                        "--display": "slm", "--iterations": 20},
 }
 
 
