@@ -60,6 +60,7 @@ import numpy as np
 
 from benchmarks.psf_from_scenes import NAMES, load_pairs
 from benchmarks.real_priors import add_pair_options, contact_sheet, gain_fit, load_psfs, score
+from benchmarks.real_recipe import calibrate_recipe, family_oracle, solve_recipe
 
 __all__ = ["METHODS", "Method", "ORACLE_PRIORS", "import_lensless", "main", "plot_speed_accuracy",
            "run_benchmark", "summary_lines"]
@@ -99,6 +100,12 @@ class Method:
     available : callable or None
         ``available() -> str | None``: None when the method can run, else the one
         line that says how to get it (the column is then left out).
+    calibrate : callable or None
+        ``calibrate(k, scenes, measurements, psf) -> dict``: a calibration fitted on
+        the pairs other than ``k`` before pair ``k`` is solved (untimed; its
+        ``calibration_seconds`` is recorded); the dict's items are passed to
+        ``solve`` as keywords. Such a method also gets its family's per-pair oracle
+        (:func:`benchmarks.real_recipe.family_oracle`).
     """
 
     name: str
@@ -106,6 +113,7 @@ class Method:
     solve: Callable = field(repr=False)
     oracle: bool = False
     available: Callable | None = field(default=None, repr=False)
+    calibrate: Callable | None = field(default=None, repr=False)
 
 
 def _default(psf, raw, weight, iterations):
@@ -154,7 +162,9 @@ def _lensless_admm(psf, raw, weight, iterations):
 
 #: The benchmark's columns, in order (append a :class:`Method` to add one).
 METHODS: list[Method] = [
-    Method("default", "default (recon --dark none)", _default),
+    Method("scene-recipe", "default, scene-calibrated (recon --psf RUN)", solve_recipe,
+           calibrate=calibrate_recipe),
+    Method("default", "point-source default (recon --dark none)", _default),
     *[Method(f"admm-{p}-oracle", f"ADMM {p}, oracle weight", _admm(p), oracle=True)
       for p in ORACLE_PRIORS],
     Method("lensless-admm", "LenslessPiCam ADMM (100 it.)", _lensless_admm,
@@ -179,9 +189,9 @@ def _psfs(data_dir, psf_dir, names, bin_factor, scenes, measurements):
     return [np.asarray(p, np.float32) for p in leave_one_out(scenes, measurements).psfs]
 
 
-def _run_one(method, psf, raw, truth, weight, iterations, floor_s):
+def _run_one(method, psf, raw, truth, weight, iterations, floor_s, context=None):
     t0 = time.perf_counter()
-    image = method.solve(psf, raw, weight, iterations)
+    image = method.solve(psf, raw, weight, iterations, **(context or {}))
     seconds = time.perf_counter() - t0
     est = gain_fit(np.asarray(image, np.float32), truth)
     psnr, ssim = score(est, truth)
@@ -271,12 +281,22 @@ def run_benchmark(out: Path, data_dir: Path | None = None, psf_dir: Path | None 
             result["methods"].append({"name": m.name, "label": m.label, "skipped": why})
             continue
         grid = [float(w) for w in weights] if m.oracle else [None]
-        _warm_up(m, psfs[0], measurements[0], grid[0])
+        contexts = [None] * len(names)
+        if m.calibrate is not None:  # fitted per pair on the others; also warms up
+            contexts = [m.calibrate(k, scenes, measurements, psfs[k], log=log)
+                        for k in range(len(names))]
+        else:
+            _warm_up(m, psfs[0], measurements[0], grid[0])
         mine, images = [], {}
         for w in grid:
             for k, n in enumerate(names):
                 est, r = _run_one(m, psfs[k], measurements[k], scenes[k], w, iterations,
-                                  floor_s)
+                                  floor_s, contexts[k])
+                if contexts[k] is not None:
+                    recipe = contexts[k]["recipe"]
+                    r.update(calibration_seconds=contexts[k]["calibration_seconds"],
+                             recipe=recipe.record(), family_oracle=family_oracle(
+                                 psfs[k], measurements[k], scenes[k], recipe))
                 mine.append({"pair": n, "method": m.name, "weight": w, **r})
                 images[(w, k)] = est
                 log(f"{m.name:18s} {w!s:8s} {n:6s} {r['psnr_db']:6.2f} dB {r['ssim']:.3f} "
