@@ -276,6 +276,9 @@ def run_benchmark(out: Path, data_dir: Path | None = None, psf_dir: Path | None 
     sheet, titles = [[s] for s in scenes], ["lensed (truth)"]
     for m in methods:
         why = m.available() if m.available is not None else None
+        if m.calibrate is not None and len(names) < 3:
+            why = (f"{m.name} needs at least three pairs (each calibration leaves one out "
+                   f"of the others); give --pairs 3 or more")
         if why:
             log(why)
             result["methods"].append({"name": m.name, "label": m.label, "skipped": why})

@@ -50,11 +50,11 @@ def isolated_lensless(monkeypatch):
 
 
 def _run(tmp_path, methods, **kw):
-    args = dict(pairs=2, bin_factor=6, iterations=5, weights=(1e-4, 1e-3), log=lambda s: None)
+    args = dict(pairs=3, bin_factor=6, iterations=5, weights=(1e-4, 1e-3), log=lambda s: None)
     return real_data.run_benchmark(tmp_path, methods=methods, **{**args, **kw})
 
 
-def test_every_column_on_two_binned_pairs(tmp_path, isolated_lensless, monkeypatch):
+def test_every_column_on_three_binned_pairs(tmp_path, isolated_lensless, monkeypatch):
     """Each method of METHODS and one added entry: a row per pair (and weight of an
     oracle), finite scores, the time ratio over the same run's FFT floor, the oracle's
     weight the best mean of its grid; the JSON holds exactly what was returned."""
@@ -78,9 +78,16 @@ def test_every_column_on_two_binned_pairs(tmp_path, isolated_lensless, monkeypat
         rows = [r for r in saved["rows"] if r["method"] == m.name]
         weights = [1e-4, 1e-3] if m.oracle else [None]
         assert sorted((r["pair"], str(r["weight"])) for r in rows) == sorted(
-            (p, str(w)) for p in ("im43", "im157") for w in weights)
+            (p, str(w)) for p in ("im43", "im157", "im189") for w in weights)
         for r in rows:
-            assert set(r) == _KEYS
+            calibrated = {"calibration_seconds", "recipe", "family_oracle"}
+            assert set(r) == (_KEYS | calibrated if m.calibrate else _KEYS)
+            if m.calibrate:  # fitted on the other pairs; its grid's best bounds it
+                assert r["calibration_seconds"] > 0 and r["recipe"]["iterations"] >= 10
+                assert r["family_oracle"]["best"]["psnr_db"] >= r["family_oracle"][
+                    "fitted"]["psnr_db"]
+                assert r["family_oracle"]["fitted"]["psnr_db"] == pytest.approx(
+                    r["psnr_db"], abs=0.05)
             assert np.isfinite([r["psnr_db"], r["ssim"], r["seconds"]]).all()
             assert r["time_ratio"] == pytest.approx(r["seconds"] / floor)
         by_w = {w: np.mean([r["psnr_db"] for r in rows if r["weight"] == w]) for w in weights}
@@ -89,6 +96,15 @@ def test_every_column_on_two_binned_pairs(tmp_path, isolated_lensless, monkeypat
         assert entry["weight_at_grid_edge"] is m.oracle  # a grid of two: both are edges
     assert (out / "contact.png").stat().st_size > 0
     assert (out / "speed_accuracy.png").stat().st_size > 0
+
+
+def test_scene_recipe_needs_three_pairs_one_line(tmp_path):
+    lines = []
+    recipe = [m for m in real_data.METHODS if m.calibrate is not None]
+    result = real_data.run_benchmark(tmp_path, pairs=2, bin_factor=6, methods=recipe,
+                                     log=lines.append)
+    assert "three pairs" in result["methods"][0]["skipped"]
+    assert any("three pairs" in line for line in lines) and result["rows"] == []
 
 
 def test_lensless_column_left_out_with_one_line_when_not_importable(tmp_path,
