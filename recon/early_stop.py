@@ -105,7 +105,7 @@ def denoise_tv(image, weight: float) -> np.ndarray:
     """Isotropic TV denoising of a reconstruction (Chambolle 2004, by
     :func:`skimage.restoration.denoise_tv_chambolle`), scale-free.
 
-    The image is divided by its 99.5th percentile (:data:`DENOISE_PERCENTILE`), so that
+    The image is divided by its 99.5th percentile (``DENOISE_PERCENTILE``), so that
     ``weight`` means the same for any exposure, denoised (colour channels jointly), and
     scaled back.
 
@@ -183,7 +183,7 @@ class EarlyStop:
         object.__setattr__(self, "errors", e)
 
     def clean_psf(self, psf) -> np.ndarray:
-        """``psf`` thresholded at :attr:`psf_threshold` (:func:`clean_psf`), after
+        """``psf`` thresholded at ``psf_threshold`` (:func:`clean_psf`), after
         :meth:`check_psf`.
 
         Raises
@@ -196,7 +196,7 @@ class EarlyStop:
 
     def finish(self, rec):
         """The reconstruction ``rec`` of the recipe's solve with its image denoised
-        (:func:`denoise_tv` at :attr:`denoise_weight`) and the recipe recorded in
+        (:func:`denoise_tv` at ``denoise_weight``) and the recipe recorded in
         ``info.extra["calibration"]``.
 
         Parameters
