@@ -237,12 +237,18 @@ class PsfFromScenesParams(RoutineParams):
     display: str = option("slm", help="the display's device id or role (an SLM or the "
                           "full-screen monitor driver)")
     iterations: int = option(20, ge=1, help="ADMM iterations of the estimate")
+    recipe_images: int | None = option(
+        None, ge=0, help="photographs shown after the scenes to fit the reconstruction "
+        "recipe on (0, or 2 and more); default 4 after random patterns, 0 after photographs "
+        "(the recipe is then fitted on them, each left out of its PSF)",
+        default_text="4 or 0")
 
     def plan(self, bench, *, seed: int = 0, say: Callable[[str], None] = print):
         from .psf_from_scenes import PsfFromScenesPlan
 
         return PsfFromScenesPlan.for_bench(bench, images=self.images, z_mm=self.z_mm,
                                            display=self.display, patterns=self.patterns,
+                                           recipe_images=self.recipe_images,
                                            iterations=self.iterations, **self._frames())
 
 

@@ -28,7 +28,10 @@ and ``recon-run --psf RUN`` take (a dark-subtracted PSF: give the frames' dark l
 with ``--dark``); the run's summary records each pair's held-out relative residual.
 With two pairs or more the run also holds ``early_stop.json``
 (:mod:`recon.analysis.early_stop`): the reconstruction recipe fitted on the pairs, each
-reconstructed with the PSF estimated without it (PSF threshold, iteration count of a
+reconstructed with the PSF estimated without it (on the bench with random patterns, on
+photographs shown after them for the recipe alone, ``recipe_scenes``: a recipe is fitted
+on scenes like those it will reconstruct, and the PSF from every pattern has not seen
+them) (PSF threshold, iteration count of a
 prior-free non-negative FISTA, TV denoising weight), tied to this PSF; ``recon --psf
 RUN`` uses it by default (``--early-stop off`` declines it).
 """
@@ -60,7 +63,8 @@ from recon.scenes import BUNDLED, load_scene
 
 from ._common import CALIBRATION_EXPOSURE, sensor_geometry, signal_minus_dark
 
-__all__ = ["FILES_PLAN", "MAX_RANDOM", "PATTERNS", "PsfFromScenesPlan", "display_gray",
+__all__ = ["FILES_PLAN", "MAX_RANDOM", "PATTERNS", "RECIPE_IMAGES", "PsfFromScenesPlan",
+           "display_gray",
            "early_stop_for", "match_pairs", "pattern_block_px", "psf_run_from_files",
            "random_pattern", "write_psf"]
 
@@ -76,6 +80,8 @@ PATTERNS = ("random", "photographs")
 RANDOM_PREFIX = "random-"
 #: The most random patterns a plan shows.
 MAX_RANDOM = 256
+#: Photographs shown after random patterns to fit the reconstruction recipe on.
+RECIPE_IMAGES = 4
 
 
 def random_pattern(seed: int, shape: tuple[int, int], block_px: int) -> np.ndarray:
@@ -333,39 +339,54 @@ class PsfFromScenesPlan(Plan):
         Frames averaged per scene (and as many darks).
     iterations : int
         ADMM iterations of the estimate.
+    recipe_scenes : list of str
+        Photographs of :data:`recon.scenes.BUNDLED` shown after ``scene_names`` for the
+        reconstruction recipe alone (none, or at least 2): it is fitted on them with
+        the PSF of every scene of ``scene_names``; without them, on ``scene_names``,
+        each left out of the PSF it is reconstructed with.
     """
 
     name = "psf-from-scenes"
 
     def __init__(self, *, scene_names, z_mm: float, display: str = "slm", display_shape,
                  display_pitch_um: float, d_mm: float, pitch_mm: float,
-                 frames_per_point: int = 4, iterations: int = 20) -> None:
+                 frames_per_point: int = 4, iterations: int = 20,
+                 recipe_scenes=()) -> None:
         names = [str(n) for n in scene_names]
         unknown = [n for n in names if not _scene_name_ok(n)]
         if len(names) < 2 or unknown:
             raise PlanError(f"scenes {names}: give at least 2, each random-<k> (k = 0, 1, "
                             f"...) or one of {', '.join(BUNDLED)}")
+        recipe = [str(n) for n in recipe_scenes]
+        if len(recipe) == 1 or any(n not in BUNDLED or n in names for n in recipe):
+            raise PlanError(f"recipe scenes {recipe}: give none or at least 2 photographs of "
+                            f"{', '.join(BUNDLED)} that the PSF's scenes do not include")
         if not (z_mm > 0 and display_pitch_um > 0 and frames_per_point >= 1):
             raise PlanError("z_mm and display_pitch_um must be > 0, frames_per_point >= 1")
         super().__init__(scene_names=names, z_mm=float(z_mm), display=str(display),
                          display_shape=[int(v) for v in display_shape],
                          display_pitch_um=float(display_pitch_um), d_mm=float(d_mm),
                          pitch_mm=float(pitch_mm), frames_per_point=int(frames_per_point),
-                         iterations=int(iterations))
+                         iterations=int(iterations), recipe_scenes=recipe)
 
     @classmethod
     def for_bench(cls, bench, *, images: int = 12, z_mm: float, display: str = "slm",
-                  patterns: str = "random", **params) -> PsfFromScenesPlan:
+                  patterns: str = "random", recipe_images: int | None = None,
+                  **params) -> PsfFromScenesPlan:
         """``images`` scenes on the bench's ``display`` at ``z_mm``: random binary
         patterns ``random-0``, ``random-1``, ... (``patterns="random"``) or the first
-        bundled photographs (``"photographs"``).
+        bundled photographs (``"photographs"``); then ``recipe_images`` photographs
+        for the reconstruction recipe alone (default :data:`RECIPE_IMAGES` after
+        random patterns, 0 after photographs: the recipe is then fitted on the
+        photographs themselves, each left out of its PSF), the bundled ones the PSF's
+        scenes do not include, in order.
 
         Raises
         ------
         PlanError
             Fewer than 2 images, more than :data:`MAX_RANDOM` patterns or the bundled
-            photographs, another kind of pattern, or a display that is not an
-            SLM/monitor of the bench.
+            photographs, another kind of pattern, 1 or more recipe images than the
+            photographs left, or a display that is not an SLM/monitor of the bench.
         """
         if patterns not in PATTERNS:
             raise PlanError(f"--patterns {patterns!r}: give one of {', '.join(PATTERNS)}")
@@ -383,14 +404,24 @@ class PsfFromScenesPlan(Plan):
         params.setdefault("frames_per_point", bench.config.calibration.frames_per_point)
         names = ([f"{RANDOM_PREFIX}{k}" for k in range(images)] if patterns == "random"
                  else list(BUNDLED[:images]))
+        left = [n for n in BUNDLED if n not in names]
+        if recipe_images is None:
+            recipe_images = RECIPE_IMAGES if patterns == "random" else 0
+        if (isinstance(recipe_images, bool) or not isinstance(recipe_images, int)
+                or recipe_images == 1 or not 0 <= recipe_images <= len(left)):
+            raise PlanError(f"--recipe-images {recipe_images!r}: give 0 or a whole number "
+                            f"from 2 to {len(left)} (the photographs the scenes leave)")
         return cls(scene_names=names, z_mm=z_mm, display=display,
                    display_shape=shape, display_pitch_um=pitch, d_mm=d_mm, pitch_mm=pitch_mm,
-                   **params)
+                   recipe_scenes=left[:recipe_images], **params)
 
     def points(self) -> list[PlanPoint]:
         n = self.params["frames_per_point"]
         return [PlanPoint({"scene": name}, ("scene",) * n + ("dark",) * n)
-                for name in self.params["scene_names"]]
+                for name in [*self.params["scene_names"], *self._recipe_scenes()]]
+
+    def _recipe_scenes(self) -> list[str]:
+        return list(self.params.get("recipe_scenes") or ())  # none in older runs
 
     def block_px(self) -> int:
         """Block side of this plan's random patterns, display pixels
@@ -420,10 +451,11 @@ class PsfFromScenesPlan(Plan):
         """Estimate the PSF from the scenes and their dark-subtracted measurements
         (DN/s); write ``psf_stack`` and return the summary of :func:`write_psf`."""
         p = self.params
-        names = p["scene_names"]
-        measurements = [signal_minus_dark(store, i, "scene", "dark")[0].astype(np.float32)
-                        for i in range(store.n_points)]
-        shape = measurements[0].shape
+        names, recipe = p["scene_names"], self._recipe_scenes()
+        every = [signal_minus_dark(store, i, "scene", "dark")[0].astype(np.float32)
+                 for i in range(store.n_points)]
+        shape = every[0].shape
+        measurements, recipe_b = every[:len(names)], every[len(names):]
         scenes = [self.known_scene(n, shape).astype(np.float32) for n in names]
         if max(float(np.abs(b).max()) for b in measurements) == 0.0:
             raise PlanError("the displayed scenes left no signal on the camera; put the "
@@ -431,6 +463,11 @@ class PsfFromScenesPlan(Plan):
         options = {"iterations": p["iterations"]}
         estimate = estimate_psf_from_scenes(scenes, measurements, **options)
         loo = leave_one_out(scenes, measurements, **options)
+        if recipe:  # photographs the PSF has not seen: its estimate is held out from them
+            recipe_x = [self.known_scene(n, shape).astype(np.float32) for n in recipe]
+            fit = fit_early_stop(recipe_x, recipe_b, [estimate.psf] * len(recipe),
+                                 estimate.psf, names=recipe)
+        else:
+            fit = early_stop_for(scenes, measurements, loo, estimate, names)
         return write_psf(store, estimate, loo.residuals, names, p["z_mm"],
-                         "DN/s per unit display radiance",
-                         early_stop_for(scenes, measurements, loo, estimate, names))
+                         "DN/s per unit display radiance", fit)

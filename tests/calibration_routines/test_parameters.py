@@ -30,7 +30,7 @@ HISTORIC = {
     "slm-lut": {"--frames": None, "--levels": None, "--period-px": None,
                 "--no-nd-filter": False},
     "psf-from-scenes": {"--frames": None, "--z-mm": ..., "--images": 12, "--patterns": "random",
-                        "--display": "slm", "--iterations": 20},
+                        "--display": "slm", "--iterations": 20, "--recipe-images": None},
 }
 
 

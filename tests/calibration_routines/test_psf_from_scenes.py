@@ -12,6 +12,7 @@ from scipy import ndimage
 
 from calibration_routines.psf_from_scenes import (
     MAX_RANDOM,
+    RECIPE_IMAGES,
     PsfFromScenesPlan,
     display_gray,
     pattern_block_px,
@@ -22,7 +23,8 @@ from instrument.plan import PlanError
 from instrument.runstore import RunStore
 from instrument.virtual_bench import DisplayScene, VirtualBench
 from recon.analysis import normalized_correlation
-from recon.scenes import load_scene
+from recon.early_stop import EarlyStop, psf_identity
+from recon.scenes import BUNDLED, load_scene
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bench-simulated.toml"
 
@@ -78,6 +80,10 @@ def test_calibrate_on_the_simulated_bench_recovers_its_psf(tmp_path, capsys):
         assert normalized_correlation(psf[0], moved) < correlation - 0.05
     summary = RunStore.open(out).attrs["summary"]
     assert set(summary["held_out_residual"]) == {f"random-{k}" for k in range(12)}
+    # the recipe is fitted on photographs shown after the patterns, not on the patterns
+    recipe = EarlyStop.load(out)
+    assert recipe.pairs == tuple(BUNDLED[:RECIPE_IMAGES])
+    assert recipe.psf_sha256 == psf_identity(psf[0]) and recipe.errors.shape[-1] == 4
     capsys.readouterr()
     assert main(["runs", "verify", str(out)]) == 0
     assert "intact" in capsys.readouterr().out
@@ -91,12 +97,18 @@ def test_the_patterns_are_binary_blocks_of_about_one_sensor_pixel(tmp_path):
         plan = PsfFromScenesPlan.for_bench(vb, z_mm=20.0)
         photos = PsfFromScenesPlan.for_bench(vb, z_mm=20.0, images=3, patterns="photographs")
         for kwargs, words in [({"images": MAX_RANDOM + 1}, "from 2 to 256"),
+                              ({"recipe_images": 1}, "--recipe-images 1"),
+                              ({"images": 9, "patterns": "photographs", "recipe_images": 4},
+                               "from 2 to 3"),
                               ({"images": 13, "patterns": "photographs"}, "from 2 to 12"),
                               ({"patterns": "stripes"}, "--patterns 'stripes'")]:
             with pytest.raises(PlanError, match=re.escape(words)):
                 PsfFromScenesPlan.for_bench(vb, z_mm=20.0, **kwargs)
     assert plan.params["scene_names"] == [f"random-{k}" for k in range(12)]
     assert photos.params["scene_names"] == ["camera", "astronaut", "coffee"]
+    assert plan.params["recipe_scenes"] == list(BUNDLED[:RECIPE_IMAGES])
+    assert photos.params["recipe_scenes"] == []  # fitted on the photographs themselves
+    assert len(plan.points()) == 12 + RECIPE_IMAGES
     assert plan.block_px() == pattern_block_px(20.0, 8.9, 0.039, 40.0) == 2
     gray = display_gray("random-5", (96, 120), 2)
     assert gray.dtype == np.uint8 and set(np.unique(gray)) == {0, 255}
