@@ -129,6 +129,26 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
     return psf, level, f"{psf_path}" + ("" if depth is None else f" at {depth:g} mm")
 
 
+def recipe_record(early_stop, psf, dark=None) -> dict | None:
+    """The record of the scene calibration's recipe ``early_stop`` names
+    (:mod:`recon.early_stop`), checked against ``psf`` (carrying the dark level
+    ``dark``, as :func:`batch_psf` returns it) before any frame is done; None when none
+    is named (or ``"off"``).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        The recipe cannot be read, or was fitted for another PSF.
+    """
+    from recon.early_stop import OFF, EarlyStop
+
+    if early_stop is None or early_stop == OFF:
+        return None
+    fit = EarlyStop.load(early_stop)
+    fit.check_psf(psf, None if dark is None or isinstance(dark, str) else dark)
+    return fit.record()
+
+
 def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
                              options: dict[str, Any], threads: int | None = None
                              ) -> tuple[int, np.ndarray]:
@@ -490,6 +510,13 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
             settings = {"method": method, "tv": tv, "l1": l1, "prior": options.prior,
                         "psf": psf_source, "orientation": DATA_ORIENTATION}
             name, task = product or f"recon_{method}", reconstruct_stored_frame
+            recipe = recipe_record(options.early_stop, psf, dark)
+            if recipe is not None:  # a scene calibration's recipe fixes the solve
+                task_options = {k: v for k, v in task_options.items()
+                                if k not in ("method", "iterations", "tv", "l1", "prior")}
+                task_options["early_stop"] = options.early_stop
+                settings.update(method="fista", tv=0.0, l1=0.0, calibration=recipe)
+                name, iterations = product or "recon_recipe", recipe["iterations"]
         else:
             bin_factor = grid.bin_factor
             task_options = {"background": background, "l1": grid_l1, "iterations": iterations,

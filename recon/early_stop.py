@@ -32,7 +32,8 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["FILE", "OFF", "SOLVE", "EarlyStop", "clean_psf", "denoise_tv", "psf_identity"]
+__all__ = ["FILE", "OFF", "SOLVE", "EarlyStop", "clean_psf", "denoise_tv", "psf_identity",
+           "psf_signature"]
 
 #: The file name of the fit in a PSF-from-scenes calibration run.
 FILE = "early_stop.json"
@@ -61,6 +62,37 @@ def psf_identity(psf) -> str:
     digest = hashlib.sha256(repr(a.shape).encode())
     digest.update(a.tobytes())
     return digest.hexdigest()
+
+
+def psf_signature(psf) -> tuple:
+    """A PSF's shape and the means of an 8 x 8 grid of blocks per channel: what an
+    :class:`EarlyStop` compares a PSF with, to a relative 1e-4, when its SHA-256 differs
+    only by float rounding (a dark level added to the PSF and subtracted again).
+
+    Parameters
+    ----------
+    psf : array_like, (rows, cols) or (rows, cols, channels)
+
+    Returns
+    -------
+    tuple of float
+        ``(rows, cols, channels, block means...)``.
+    """
+    a = np.atleast_3d(np.asarray(psf, np.float64))
+    rows, cols, channels = a.shape
+    br, bc = max(rows // 8, 1), max(cols // 8, 1)
+    a = a[:rows - rows % br, :cols - cols % bc]
+    blocks = a.reshape(a.shape[0] // br, br, a.shape[1] // bc, bc, channels).mean(axis=(1, 3))
+    return (float(rows), float(cols), float(channels), *blocks.ravel().tolist())
+
+
+def _signature_matches(psf, stored) -> bool:
+    mine = np.asarray(psf_signature(psf))
+    ref = np.asarray(stored, float)
+    if mine.shape != ref.shape or not np.array_equal(mine[:3], ref[:3]):
+        return False
+    scale = float(np.abs(ref[3:]).max()) or 1.0
+    return bool(np.allclose(mine[3:], ref[3:], rtol=1e-4, atol=1e-6 * scale))
 
 
 def clean_psf(psf, threshold: float) -> np.ndarray:
@@ -164,6 +196,8 @@ class EarlyStop:
         The fitted weight of :func:`denoise_tv` (0: none), one of ``weights``.
     thresholds, weights : tuple of float
         The thresholds and denoising weights tried.
+    psf_block_means : tuple of float
+        :func:`psf_signature` of that PSF (empty in files of the earlier form).
     """
 
     iterations: int
@@ -175,6 +209,7 @@ class EarlyStop:
     denoise_weight: float = 0.0
     thresholds: tuple = (0.0,)
     weights: tuple = (0.0,)
+    psf_block_means: tuple = ()
 
     def __post_init__(self):
         e = np.asarray(self.errors, float)
@@ -182,17 +217,27 @@ class EarlyStop:
             e = e[None, :, None, :]
         object.__setattr__(self, "errors", e)
 
-    def clean_psf(self, psf) -> np.ndarray:
+    def clean_psf(self, psf, dark=None) -> np.ndarray:
         """``psf`` thresholded at ``psf_threshold`` (:func:`clean_psf`), after
         :meth:`check_psf`.
+
+        Parameters
+        ----------
+        psf : ndarray
+        dark : float or ndarray, optional
+            A dark level that ``psf`` carries on top of the recipe's dark-subtracted
+            PSF (a calibration run's PSF given with ``--dark``: the reconstruction
+            subtracts it again); the threshold applies below it and it is added back.
 
         Raises
         ------
         ReconInputError
             ``psf`` is not the recipe's PSF.
         """
-        self.check_psf(psf)
-        return clean_psf(psf, self.psf_threshold)
+        base = self.check_psf(psf, dark)
+        cleaned = clean_psf(base, self.psf_threshold)
+        return cleaned if dark is None else (cleaned + np.asarray(dark, np.float32)).astype(
+            np.float32)
 
     def finish(self, rec):
         """The reconstruction ``rec`` of the recipe's solve with its image denoised
@@ -239,6 +284,7 @@ class EarlyStop:
                 "errors_axes": ["threshold", "iterations", "denoise_weight", "pair"],
                 "errors": np.asarray(self.errors, float).round(6).tolist(),
                 "psf_sha256": self.psf_sha256, "pairs": list(self.pairs),
+                "psf_block_means": [float(v) for v in self.psf_block_means],
                 "method": self.method}
 
     @classmethod
@@ -259,7 +305,8 @@ class EarlyStop:
                        tuple(d.get("pairs", ())), float(d.get("psf_threshold", 0.0)),
                        float(d.get("denoise_weight", 0.0)),
                        tuple(float(t) for t in d.get("thresholds", (0.0,))),
-                       tuple(float(w) for w in d.get("weights", (0.0,))))
+                       tuple(float(w) for w in d.get("weights", (0.0,))),
+                       tuple(float(v) for v in d.get("psf_block_means", ())))
         except (KeyError, TypeError, ValueError) as exc:
             raise ReconInputError(f"early-stop calibration incomplete ({exc!r}); give the "
                                   "file a PSF-from-scenes calibration wrote") from None
@@ -285,16 +332,34 @@ class EarlyStop:
                                   "PSF-from-scenes calibration wrote") from None
         return cls.from_dict(d)
 
-    def check_psf(self, psf) -> None:
+    def check_psf(self, psf, dark=None) -> np.ndarray:
         """Refuse a PSF other than the one this recipe was fitted for.
+
+        The same float32 values (SHA-256), or, less a ``dark`` level the PSF carries,
+        the same :func:`psf_signature` to a relative 1e-4.
+
+        Parameters
+        ----------
+        psf : ndarray
+        dark : float or ndarray, optional
+            A dark level added to the recipe's PSF (see :meth:`clean_psf`).
+
+        Returns
+        -------
+        ndarray, float32
+            The recipe's PSF (``psf`` less ``dark``).
 
         Raises
         ------
         ReconInputError
-            ``psf`` is not that PSF (one line: the count belongs to its calibration).
+            ``psf`` is not that PSF (one line: the recipe belongs to its calibration).
         """
-        if psf_identity(psf) != self.psf_sha256:
-            raise ReconInputError(
-                "the early-stop calibration was fitted for another PSF (its SHA-256 "
-                f"{self.psf_sha256[:12]}... differs); use it with the PSF of the same "
-                "PSF-from-scenes calibration, or fit one for this camera")
+        a = np.asarray(psf, np.float32)
+        base = a if dark is None else (a - np.asarray(dark, np.float32)).astype(np.float32)
+        if psf_identity(base) == self.psf_sha256 or (
+                self.psf_block_means and _signature_matches(base, self.psf_block_means)):
+            return base
+        raise ReconInputError(
+            "the early-stop calibration was fitted for another PSF (its SHA-256 "
+            f"{self.psf_sha256[:12]}... differs); use it with the PSF of the same "
+            "PSF-from-scenes calibration, or fit one for this camera")

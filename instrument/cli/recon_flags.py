@@ -33,7 +33,8 @@ COMMAND_FIELDS = {
               "seed", "full_scale", "dark", "allow_mixed_ranges", "device", "early_stop"),
     "recon3d": ("method", "iterations", "tv", "prior", "empty_planes", "l1", "bin_factor",
                 "dark", "allow_mixed_ranges", "device"),
-    "recon-run": ("method", "iterations", "tv", "prior", "l1", "bin_factor", "dark", "device"),
+    "recon-run": ("method", "iterations", "tv", "prior", "l1", "bin_factor", "dark", "device",
+                  "early_stop"),
     "capture live": ("dark", "device", "bin_factor"),
 }
 #: The ``--psf-grid`` fields of each command (:func:`instrument.cli.grid_options.add_grid_options`).

@@ -123,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
 
     from recon.errors import ReconInputError
 
-    from ..batch import batch_psf, parse_frames, reconstruct_run
+    from ..batch import batch_psf, parse_frames, recipe_record, reconstruct_run
+    from ..reconstruct_files import scene_recipe_default
     from ..runstore import RunStore, RunStoreError
     from .recon_flags import check_device, check_recon_flags
 
@@ -140,13 +141,20 @@ def run(args: argparse.Namespace) -> int:
     check_device(args.device)  # before the run is opened
     store = RunStore.open(args.run)
     frames = None if args.frames is None else parse_frames(args.frames, store.n_frames)
+    recipe = None
     if args.psf_grid:
         psf, dark, source, how = _grid(args, store)
     else:
         psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                       psf_product=args.psf_product, dark=args.dark)
-        how = f"{args.method} x{args.iterations}"
-    name = args.product or (psf.product_name if args.psf_grid else f"recon_{args.method}")
+        options = scene_recipe_default(args.psf, options)
+        recipe = recipe_record(options.early_stop, psf, dark)
+        how = (f"{args.method} x{args.iterations}" if recipe is None else
+               f"the PSF's scene-calibration recipe (threshold {recipe['psf_threshold']:g}, "
+               f"FISTA x{recipe['iterations']}, TV denoising {recipe['denoise_weight']:g}; "
+               "--early-stop off declines it)")
+    name = args.product or (psf.product_name if args.psf_grid else
+                            "recon_recipe" if recipe is not None else f"recon_{args.method}")
     which = ("the stored frames" if frames is None
              else f"frames {frames.start}:{frames.stop}")
     print(f"{args.run}: {which} of {store.n_frames}, "

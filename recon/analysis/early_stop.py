@@ -35,7 +35,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity
+from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_signature
 from ..errors import ReconInputError
 from ..metrics import fit_gain
 from .psf_from_scenes import check_pairs
@@ -200,7 +200,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
     i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
-                     ts[i], ws[m], tuple(ts), tuple(ws))
+                     ts[i], ws[m], tuple(ts), tuple(ws), psf_signature(psf))
 
 
 def fit_held_out(scenes, measurements, k: int, *, psf=None,

@@ -101,3 +101,38 @@ def test_the_runs_recipe_is_the_default_unless_declined_or_a_method_is_named(cal
     named = _recon(tmp, run, "named", "--method", "admm")
     for m in (off, named):
         assert m["method"] == "admm" and m["calibration"] is None
+
+
+def test_recon_run_uses_the_recipe_on_every_frame(calibrated, capsys):
+    """recon-run --psf RUN reconstructs a run's frames with the run's recipe (product
+    recon_recipe, the recipe recorded), each frame as recon would; --early-stop off
+    declines it."""
+    import recon
+    from instrument.reconstruct_files import resolve_dark
+    from instrument.recorder import VIDEO_COORDS
+
+    tmp, cal = calibrated
+    held = np.load(tmp / "held.npy")
+    frames = np.stack([held * s for s in (800.0, 1000.0, 1200.0)])
+    video = tmp / "video.zarr"
+    store = RunStore.create(video, plan_name="video", plan_params={"frames": 3}, points=[{}],
+                            frame_tags=[["video"] * 3], frame_shape=frames.shape[1:],
+                            frame_dtype=np.uint16, coord_names=list(VIDEO_COORDS))
+    rows = np.zeros((3, len(VIDEO_COORDS)))
+    rows[:, 0] = np.arange(3)
+    store.write_frames(0, np.round(frames + 10).astype(np.uint16), rows)
+    capsys.readouterr()
+    assert main(["recon-run", str(video), "--psf", str(cal), "--depth", "20", "--dark", "10",
+                 "--workers", "1"]) == 0
+    assert "scene-calibration recipe" in capsys.readouterr().out
+    images, attrs = RunStore.open(video).product("recon_recipe")
+    fit = EarlyStop.load(cal)
+    assert attrs["calibration"]["psf_sha256"] == fit.psf_sha256
+    psf = RunStore.open(cal).product("psf_stack")[0][0]
+    with_level, level = resolve_dark("10", psf, calibrated=True)  # as the commands do
+    one = recon.reconstruct(with_level, np.round(frames[1] + 10).astype(np.uint16),
+                            early_stop=str(cal), dark=level)
+    np.testing.assert_allclose(images[1], one.image, rtol=1e-4, atol=1e-5 * one.image.max())
+    assert main(["recon-run", str(video), "--psf", str(cal), "--depth", "20", "--dark", "10",
+                 "--workers", "1", "--early-stop", "off", "--method", "wiener"]) == 0
+    assert "calibration" not in RunStore.open(video).product("recon_wiener")[1]

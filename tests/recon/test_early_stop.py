@@ -199,3 +199,17 @@ def test_a_count_only_file_of_the_earlier_form_reads(tmp_path):
     fit = EarlyStop.load(tmp_path)
     assert (fit.iterations, fit.psf_threshold, fit.denoise_weight) == (70, 0.0, 0.0)
     assert fit.errors.shape == (1, 2, 1, 2)
+
+
+def test_a_psf_carrying_a_dark_level_is_the_recipes_to_float_rounding(camera, recipe):
+    """A calibration run's PSF given with --dark LEVEL reaches the reconstruction as
+    PSF + LEVEL (subtracted again there): accepted, its threshold below the level; the
+    same for a shifted PSF is refused."""
+    psf, *_ = camera
+    lifted = (np.asarray(psf, np.float32) + np.float32(10.0)).astype(np.float32)
+    assert psf_identity(lifted - np.float32(10.0)) != psf_identity(psf)  # rounding
+    cleaned = recipe.clean_psf(lifted, 10.0)
+    np.testing.assert_allclose(cleaned - 10.0, clean_psf(psf, recipe.psf_threshold),
+                               atol=1e-5)
+    with pytest.raises(ReconInputError, match="fitted for another PSF"):
+        recipe.check_psf(np.roll(lifted, 1, axis=0), 10.0)
