@@ -51,6 +51,9 @@ CONSUMER = "live-reconstruction"
 STALE_S = 2.0
 #: The display timer's interval, ms (20 images a second at most).
 TICK_MS = 50
+#: The counters under the views are rewritten at most this often on the timer, s (a
+#: rewrite lays the panel out again: about 2 ms of the GUI thread).
+COUNTERS_S = 0.25
 
 
 class LivePanel(QWidget):
@@ -81,6 +84,7 @@ class LivePanel(QWidget):
         self._seen_at_shown: int | None = None
         self._shown_times: deque[float] = deque(maxlen=64)
         self.pacer = DisplayPacer(TICK_MS / 1000.0)
+        self._counters_at = -1e18
         self._shown_recon = -1
         self._recon_count = (-1, time.monotonic())
         self._live_settings: dict = {}
@@ -353,13 +357,18 @@ class LivePanel(QWidget):
 
     # -- display -------------------------------------------------------------------------
     def _tick(self) -> None:
-        """The timer's slot: :meth:`refresh` when the pacer says this tick shows."""
-        if self.isVisible() and self.pacer.tick(time.monotonic()):
-            self.refresh()
+        """The timer's slot: :meth:`refresh` when the pacer says this tick shows, the
+        counters at most every :data:`COUNTERS_S`."""
+        now = time.monotonic()
+        if self.isVisible() and self.pacer.tick(now):
+            counters = now - self._counters_at >= COUNTERS_S
+            if counters:
+                self._counters_at = now
+            self.refresh(counters=counters)
 
-    def refresh(self) -> None:
-        """Show the newest frame and reconstruction and the counters (timer slot; does
-        nothing while the panel is hidden)."""
+    def refresh(self, counters: bool = True) -> None:
+        """Show the newest frame and reconstruction and, with ``counters``, the
+        counters (does nothing while the panel is hidden)."""
         from recon.io import scene_view
 
         if not self.isVisible():
@@ -375,7 +384,7 @@ class LivePanel(QWidget):
                 full_scale = 2 ** self.session.frame_bit_depth() - 1
                 saturated = image.size and image.max() >= full_scale  # no mask when none
                 self.raw_view.mark(image >= full_scale if saturated else None)
-        if frame is not None:
+        if frame is not None and counters:
             sat = f"saturated {int(frame.saturated_pixels)} px (red)"
             if self.session.streaming:
                 c = self.session.stream_counters()
@@ -389,7 +398,7 @@ class LivePanel(QWidget):
             else:
                 self.raw_stats.setText(f"camera: not streaming (Start stream or F5); frame "
                                        f"{frame.index}; {sat}")
-        if self.live is not None:
+        if self.live is not None and counters:
             self._show_live_stats()
         if self.live is not None:  # (its process may have just been found ended)
             latest = self.live.latest()

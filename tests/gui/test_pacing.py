@@ -4,6 +4,7 @@ machine's load)."""
 
 from __future__ import annotations
 
+import time
 import types
 
 import numpy as np
@@ -78,6 +79,45 @@ def test_the_live_view_counts_the_frames_it_did_not_show(window, monkeypatch):
         text = live._shown_text()
         assert "at most 10 a second while the window catches up" in text
         assert f"not shown {live.frames_not_shown}" in text
+    finally:
+        live.pacer = DisplayPacer(live_module.TICK_MS / 1000.0)
+        live.timer.start(live_module.TICK_MS)
+
+
+def test_the_counters_are_rewritten_four_times_a_second(window, monkeypatch):
+    """Each rewrite of the counters lays the panel out again: on the timer they follow
+    at most every COUNTERS_S while the images follow every tick (refresh() called
+    directly rewrites them at once)."""
+    from drivers.camera import Frame
+    from gui.panels import live as live_module
+
+    live = window.live
+    assert live.isVisible()
+    t0 = time.monotonic() + 1000.0  # after every real tick so far
+    clock = [t0]
+    monkeypatch.setattr(live_module, "time", types.SimpleNamespace(monotonic=lambda: clock[0]))
+    live.timer.stop()
+    try:
+        live.pacer = DisplayPacer(live_module.TICK_MS / 1000.0)
+
+        def tick(t: float, index: int) -> None:
+            image = np.full((32, 40), index, np.uint16)
+            window.session.show_frame(Frame(image, index, 0.0, 0.0, 0.01, 0.0, 0))
+            clock[0] = t
+            live._tick()
+
+        tick(t0, 9101)
+        assert "frame 9101" in live.raw_stats.text()
+        tick(t0 + 0.05, 9102)  # the image follows, the counters wait
+        assert live.raw_view.image[0, 0] == 9102 and "frame 9101" in live.raw_stats.text()
+        tick(t0 + 0.10, 9103)
+        assert "frame 9101" in live.raw_stats.text()
+        tick(t0 + 0.05 + live_module.COUNTERS_S, 9104)
+        assert "frame 9104" in live.raw_stats.text()
+        window.session.show_frame(Frame(np.zeros((32, 40), np.uint16), 9105, 0.0, 0.0,
+                                        0.01, 0.0, 0))
+        live.refresh()
+        assert "frame 9105" in live.raw_stats.text()
     finally:
         live.pacer = DisplayPacer(live_module.TICK_MS / 1000.0)
         live.timer.start(live_module.TICK_MS)
