@@ -128,13 +128,21 @@ def _view_counts(live) -> dict:
 
 
 @contextmanager
-def busy_loops(n: int) -> Iterator[list[int]]:
+def busy_loops(n: int, own_session: bool = True) -> Iterator[list[int]]:
     """``n`` processes spinning a core each at normal priority (``python -c "while True:
-    pass"``), ended (killed and reaped) when the block ends; yields their pids."""
+    pass"``), ended (killed and reaped) when the block ends; yields their pids.
+
+    With ``own_session`` (default) each is started in a session of its own, as another
+    program of the desktop is (a terminal's job, another application): with the
+    kernel's automatic process groups (``/proc/sys/kernel/sched_autogroup_enabled``) the
+    scheduler then shares the cores between sessions first. Without it they share the
+    soak's session with the window, as jobs started by the window's own program would.
+    """
     procs: list[subprocess.Popen] = []
     try:
         for _ in range(int(n)):
-            procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"]))
+            procs.append(subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                                          start_new_session=bool(own_session)))
         yield [p.pid for p in procs]
     finally:
         for p in procs:
@@ -264,7 +272,8 @@ def probe_main(argv: list[str]) -> int:
 
 
 def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
-                  work: str | None = None, busy: int = 0) -> dict:
+                  work: str | None = None, busy: int = 0,
+                  busy_own_session: bool = True) -> dict:
     """Run the soak (module docstring); returns the report and its figures.
 
     Parameters
@@ -278,6 +287,8 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
     busy : int
         Busy loops beside the window from the soak's start, once the live ADMM runs
         (:func:`busy_loops`).
+    busy_own_session : bool
+        Each busy loop in a session of its own (default), or in the window's.
     """
     from .soak import peer_env, x_display
 
@@ -310,7 +321,7 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
                 if busy:  # from the soak's start (the window wrote the probes' targets)
                     while proc.poll() is None and not probe_path.exists():
                         time.sleep(0.5)
-                    beside.enter_context(busy_loops(busy))
+                    beside.enter_context(busy_loops(busy, busy_own_session))
                 rc = proc.wait(60.0 * minutes + 900)
             except BaseException:
                 proc.kill()
@@ -331,7 +342,7 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
         "failure": "no report written (the GUI process ended first)"}
     stderr = (work_dir / "gui-stderr.log").read_text(errors="replace")
     report.update(returncode=rc, window_manager=wm, probes=probes, work=str(work_dir),
-                  busy_processes=int(busy),
+                  busy_processes=int(busy), busy_own_session=bool(busy_own_session),
                   crashed=rc != 0 or "Fatal Python error" in stderr,
                   stderr_tail=stderr[-3000:], load_1min=loads,
                   probe_stderr_tail=(work_dir / "probe-stderr.log").read_text(
@@ -427,9 +438,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--work", default=None, help="folder for the report and the GUI's log")
     p.add_argument("--busy", type=int, default=0,
                    help="busy loops beside the window (normal priority; ended after)")
+    p.add_argument("--busy-in-session", action="store_true",
+                   help="start the busy loops in the window's session (default: each in a "
+                   "session of its own, as other programs are)")
     p.add_argument("--json", default=None, help="also write the report and figures here")
     args = p.parse_args(argv)
-    report = run_live_soak(args.minutes, args.probe_s, args.work, args.busy)
+    report = run_live_soak(args.minutes, args.probe_s, args.work, args.busy,
+                           not args.busy_in_session)
     print_figures(report["figures"])
     if report.get("failure"):
         print(f"  failure: {report['failure']}")

@@ -107,9 +107,20 @@ def test_busy_loops_spin_until_the_block_ends():
 
     with busy_loops(2) as pids:
         assert len(pids) == 2
+        # each in a session of its own (another program's), unless asked for the soak's
+        assert all(os.getsid(p) == p for p in pids)
         deadline = time.monotonic() + 120.0  # hang guard: each has used some CPU
         while not all(cpu_s(p) > 0.05 for p in pids):
             assert time.monotonic() < deadline, "the busy loops never ran"
             time.sleep(0.05)
     for pid in pids:  # killed and reaped
         assert not os.path.exists(f"/proc/{pid}")
+
+
+def test_busy_loops_in_the_soaks_session_on_request():
+    import os
+
+    from soak.live_soak import busy_loops
+
+    with busy_loops(1, own_session=False) as pids:
+        assert os.getsid(pids[0]) == os.getsid(0)
