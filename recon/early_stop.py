@@ -217,14 +217,14 @@ class EarlyStop:
             e = e[None, :, None, :]
         object.__setattr__(self, "errors", e)
 
-    def clean_psf(self, psf, dark=None) -> np.ndarray:
+    def clean_psf(self, psf, dark_level=None) -> np.ndarray:
         """``psf`` thresholded at ``psf_threshold`` (:func:`clean_psf`), after
         :meth:`check_psf`.
 
         Parameters
         ----------
         psf : ndarray
-        dark : float or ndarray, optional
+        dark_level : float or ndarray, optional
             A dark level that ``psf`` carries on top of the recipe's dark-subtracted
             PSF (a calibration run's PSF given with ``--dark``: the reconstruction
             subtracts it again); the threshold applies below it and it is added back.
@@ -234,10 +234,10 @@ class EarlyStop:
         ReconInputError
             ``psf`` is not the recipe's PSF.
         """
-        base = self.check_psf(psf, dark)
+        base = self.check_psf(psf, dark_level)
         cleaned = clean_psf(base, self.psf_threshold)
-        return cleaned if dark is None else (cleaned + np.asarray(dark, np.float32)).astype(
-            np.float32)
+        return cleaned if dark_level is None else (
+            cleaned + np.asarray(dark_level, np.float32)).astype(np.float32)
 
     def finish(self, rec):
         """The reconstruction ``rec`` of the recipe's solve with its image denoised
@@ -332,22 +332,22 @@ class EarlyStop:
                                   "PSF-from-scenes calibration wrote") from None
         return cls.from_dict(d)
 
-    def check_psf(self, psf, dark=None) -> np.ndarray:
+    def check_psf(self, psf, dark_level=None) -> np.ndarray:
         """Refuse a PSF other than the one this recipe was fitted for.
 
-        The same float32 values (SHA-256), or, less a ``dark`` level the PSF carries,
+        The same float32 values (SHA-256), or, less a ``dark_level`` the PSF carries,
         the same :func:`psf_signature` to a relative 1e-4.
 
         Parameters
         ----------
         psf : ndarray
-        dark : float or ndarray, optional
+        dark_level : float or ndarray, optional
             A dark level added to the recipe's PSF (see :meth:`clean_psf`).
 
         Returns
         -------
         ndarray, float32
-            The recipe's PSF (``psf`` less ``dark``).
+            The recipe's PSF (``psf`` less ``dark_level``).
 
         Raises
         ------
@@ -355,7 +355,8 @@ class EarlyStop:
             ``psf`` is not that PSF (one line: the recipe belongs to its calibration).
         """
         a = np.asarray(psf, np.float32)
-        base = a if dark is None else (a - np.asarray(dark, np.float32)).astype(np.float32)
+        base = a if dark_level is None else (
+            a - np.asarray(dark_level, np.float32)).astype(np.float32)
         if psf_identity(base) == self.psf_sha256 or (
                 self.psf_block_means and _signature_matches(base, self.psf_block_means)):
             return base
