@@ -42,8 +42,7 @@ def calibrate_recipe(k: int, scenes, measurements, psf, log=print) -> dict:
     Returns
     -------
     dict
-        ``{"recipe": EarlyStop, "calibration_seconds": float}`` (keywords of
-        :func:`solve_recipe`, and the fit's wall time).
+        ``{"recipe": EarlyStop}``: the keywords of :func:`solve_recipe`.
     """
     from recon.analysis.early_stop import fit_held_out
 
@@ -52,10 +51,10 @@ def calibrate_recipe(k: int, scenes, measurements, psf, log=print) -> dict:
     seconds = time.perf_counter() - t0
     log(f"recipe for pair {k}: PSF threshold {recipe.psf_threshold:g}, {recipe.iterations} "
         f"iterations, denoising {recipe.denoise_weight:g} (fitted in {seconds:.0f} s)")
-    return {"recipe": recipe, "calibration_seconds": seconds}
+    return {"recipe": recipe}
 
 
-def solve_recipe(psf, raw, weight, iterations, recipe=None, calibration_seconds=None):
+def solve_recipe(psf, raw, weight, iterations, recipe=None):
     """:func:`recon.analysis.early_stop.reconstruct_early_stopped` with ``recipe``:
     what ``recon --psf RUN`` runs for a scene-calibrated run (``weight`` and
     ``iterations`` are the recipe's own, the arguments unused).

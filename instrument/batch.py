@@ -135,6 +135,20 @@ def recipe_record(early_stop, psf, dark=None) -> dict | None:
     ``dark``, as :func:`batch_psf` returns it) before any frame is done; None when none
     is named (or ``"off"``).
 
+    Parameters
+    ----------
+    early_stop : str or None
+        The recipe: a calibration run or its ``early_stop.json``, ``"off"`` or None.
+    psf : ndarray, (rows, cols) float
+        The PSF the frames will be reconstructed with.
+    dark : float, ndarray or None
+        The dark level ``psf`` carries (:func:`batch_psf`'s), DN; None for none.
+
+    Returns
+    -------
+    dict or None
+        :meth:`recon.early_stop.EarlyStop.record`.
+
     Raises
     ------
     recon.errors.ReconInputError
@@ -145,7 +159,7 @@ def recipe_record(early_stop, psf, dark=None) -> dict | None:
     if early_stop is None or early_stop == OFF:
         return None
     fit = EarlyStop.load(early_stop)
-    fit.check_psf(psf, None if dark is None or isinstance(dark, str) else dark)
+    fit.check_psf(psf, dark)
     return fit.record()
 
 

@@ -224,10 +224,11 @@ class EarlyStop:
         Parameters
         ----------
         psf : ndarray
-        dark_level : float or ndarray, optional
+        dark_level : float, ndarray or str, optional
             A dark level that ``psf`` carries on top of the recipe's dark-subtracted
             PSF (a calibration run's PSF given with ``--dark``: the reconstruction
             subtracts it again); the threshold applies below it and it is added back.
+            A word (``"auto"``, ``"none"``) or None: no level.
 
         Raises
         ------
@@ -236,7 +237,7 @@ class EarlyStop:
         """
         base = self.check_psf(psf, dark_level)
         cleaned = clean_psf(base, self.psf_threshold)
-        return cleaned if dark_level is None else (
+        return cleaned if dark_level is None or isinstance(dark_level, str) else (
             cleaned + np.asarray(dark_level, np.float32)).astype(np.float32)
 
     def finish(self, rec):
@@ -341,8 +342,9 @@ class EarlyStop:
         Parameters
         ----------
         psf : ndarray
-        dark_level : float or ndarray, optional
-            A dark level added to the recipe's PSF (see :meth:`clean_psf`).
+        dark_level : float, ndarray or str, optional
+            A dark level added to the recipe's PSF (see :meth:`clean_psf`); a word
+            (``"auto"``, ``"none"``: the ``dark`` option's) or None: no level.
 
         Returns
         -------
@@ -355,6 +357,8 @@ class EarlyStop:
             ``psf`` is not that PSF (one line: the recipe belongs to its calibration).
         """
         a = np.asarray(psf, np.float32)
+        if isinstance(dark_level, str):  # "auto", "none": no level on the PSF
+            dark_level = None
         base = a if dark_level is None else (
             a - np.asarray(dark_level, np.float32)).astype(np.float32)
         if psf_identity(base) == self.psf_sha256 or (

@@ -251,8 +251,8 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
     if o.early_stop is not None and o.early_stop != OFF:  # the recipe fixes the solve
         fit = EarlyStop.load(o.early_stop)
         # a numeric dark (level, per channel or frame) is on the recipe's PSF as well
-        level = o.dark if preprocess and not isinstance(o.dark, str) else None
-        rec = reconstruct_image(fit.clean_psf(psf, level), raw, early_stopped_options(o, fit),
+        recipe_psf = fit.clean_psf(psf, o.dark if preprocess else None)
+        rec = reconstruct_image(recipe_psf, raw, early_stopped_options(o, fit),
                                 auto_stop=False, bayer=bayer, erasure_mask=erasure_mask,
                                 preprocess=preprocess, **solver_options)
         return fit.finish(rec)
