@@ -278,6 +278,10 @@ def batch_options(texts: dict[str, str]):
     reconstruction, :class:`instrument.cli.recon_run.RunOptions` for the run's own:
     type, choices, limits, default, the checks between fields such as workers against
     a scheduler), no command line assembled; an empty text takes the declared default.
+    As ``recon-run --psf RUN``, a scene-calibrated PSF run's recipe is the default
+    (:func:`instrument.reconstruct_files.scene_recipe_default`): ``recon.early_stop``
+    then names it, unless the form declines it (``off``) or names a method, count or
+    prior.
 
     Returns
     -------
@@ -309,6 +313,10 @@ def batch_options(texts: dict[str, str]):
         own = RunOptions.from_text({f: v for f, v in texts.items() if f in run_flags})
     except diffuserlab.errors.InputError as exc:
         raise InputError(str(exc)) from None
+    if str(own.psf or "").strip():
+        from instrument.reconstruct_files import scene_recipe_default
+
+        rec = scene_recipe_default(own.psf, rec)
     return rec, own
 
 

@@ -122,7 +122,9 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     psf_run : Path or ndarray
         A run store with a PSF stack product, a TIFF/.npy stack recording its
         depths, or a plain PSF image (a TIFF/.npy file or an array (rows, cols)),
-        reconstructed as one plane of no depth.
+        reconstructed as one plane of no depth. A ``calibrate psf-from-scenes`` run
+        reconstructs with its recipe unless the options name a method, count or prior
+        (:func:`instrument.reconstruct_files.scene_recipe_default`, as ``recon``).
     product : str
         The run's product (default ``psf_stack``).
     depth_mm : float
@@ -157,7 +159,7 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
         level; the widget shows the message), a PSF file that cannot be read.
     """
     from instrument.ome import volume_axes
-    from instrument.reconstruct_files import resolve_dark
+    from instrument.reconstruct_files import resolve_dark, scene_recipe_default
     from instrument.stacks import pick_depth
     from recon import PsfStack, reconstruct
     from recon.io import DATA_ORIENTATION
@@ -167,6 +169,8 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
         if isinstance(dark, str):  # as the form and the command line parse it
             values["dark"] = ReconOptions.spec("dark").parse(dark)
         options = ReconOptions.validated(values, front="python")
+    if not isinstance(psf_run, np.ndarray):  # a scene-calibrated run: its recipe, as recon's
+        options = scene_recipe_default(psf_run, options)
     if step is None and viewer is not None:
         step = viewer.dims.current_step
     raw = _plane(layer, step).astype(np.float32)
@@ -179,6 +183,8 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     meta = {"psf": source, "product": product, "method": options.method,
             "dark": str(options.dark), "source_layer": layer.name,
             "orientation": DATA_ORIENTATION}
+    if options.early_stop not in (None, "off"):
+        meta["early_stop"] = options.early_stop
     if depths == [None]:  # a plain PSF image: its one plane, no depth
         rec = reconstruct(stack[0], raw, **{**options.keywords("image"), "dark": dark})
         meta.update(method_used=rec.info.method)

@@ -325,8 +325,9 @@ class RecordPanel(QWidget):
             return None
         self.batch_progress.start(0)
         self.batch_status.setText(f"reconstructing {run} ...")
-        announce_job("batch reconstruction",
-                     f"{run} with {recon.method}")
+        how = (recon.method if recon.early_stop in (None, "off") else
+               "the PSF's scene-calibration recipe (early-stop calibration: off declines it)")
+        announce_job("batch reconstruction", f"{run} with {how}")
         self._rate_from = None
 
         def reconstruct(job: Job):

@@ -138,6 +138,10 @@ def run(args: argparse.Namespace) -> int:
     if (args.psf is None) == (args.psf_grid is None):
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
+    if args.psf_grid and getattr(args, "early_stop", None) not in (None, "off"):
+        raise ReconInputError("--early-stop names a scene calibration's recipe for one PSF; "
+                              "a --psf-grid run has none: give --psf RUN with it, or leave "
+                              "--early-stop out")
     check_device(args.device)  # before the run is opened
     store = RunStore.open(args.run)
     frames = None if args.frames is None else parse_frames(args.frames, store.n_frames)

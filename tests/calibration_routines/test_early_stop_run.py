@@ -136,3 +136,41 @@ def test_recon_run_uses_the_recipe_on_every_frame(calibrated, capsys):
     assert main(["recon-run", str(video), "--psf", str(cal), "--depth", "20", "--dark", "10",
                  "--workers", "1", "--early-stop", "off", "--method", "wiener"]) == 0
     assert "calibration" not in RunStore.open(video).product("recon_wiener")[1]
+
+
+def test_the_windows_batch_form_takes_the_recipe_as_recon_run_does(calibrated):
+    """The Batch form (gui.jobs.batch_options) gives recon-run's default: a scene-
+    calibrated PSF run's recipe, unless the form declines it or names a method."""
+    pytest.importorskip("PySide6")
+    from gui.jobs import batch_options
+
+    tmp, cal = calibrated
+    form = {"--psf": str(cal), "--depth": "20", "--dark": "10", "--workers": "1"}
+    recon, own = batch_options(form)
+    assert recon.early_stop == str(cal / "early_stop.json") and own.psf == str(cal)
+    assert batch_options({**form, "--early-stop": "off"})[0].early_stop == "off"
+    assert batch_options({**form, "--method": "admm"})[0].early_stop is None
+    np.save(tmp / "plain_psf.npy", RunStore.open(cal).product("psf_stack")[0][0])
+    assert batch_options({**form, "--psf": str(tmp / "plain_psf.npy")})[0].early_stop is None
+
+
+def test_the_napari_widget_takes_the_recipe_as_recon_does(calibrated):
+    """napari's Reconstruct widget with a scene-calibrated run: the run's recipe, the
+    image recon gives; a method named declines it."""
+    pytest.importorskip("napari")
+    from napari.layers import Image
+
+    import recon
+    from gui.napari_plugin.widget import reconstruct_layer
+
+    tmp, cal = calibrated
+    held = np.load(tmp / "held.npy")
+    layer = Image(held, name="held")
+    data, kwargs, _ = reconstruct_layer(layer, cal, depth_mm=20, dark="none")
+    assert kwargs["metadata"]["early_stop"] == str(cal / "early_stop.json")
+    psf = RunStore.open(cal).product("psf_stack")[0][0]
+    one = recon.reconstruct(psf, held, early_stop=str(cal), dark=None)
+    np.testing.assert_allclose(data, one.image, rtol=1e-4, atol=1e-5 * one.image.max())
+    _, named, _ = reconstruct_layer(layer, cal, depth_mm=20, dark="none", method="admm",
+                                    iterations=20)
+    assert "early_stop" not in named["metadata"] and named["metadata"]["method"] == "admm"

@@ -194,6 +194,7 @@ def test_batch_grid_frames_equal_recon_psf_grid_of_each_frame(synthetic, schedul
     (["--psf-grid", "{run}"], "not a psf-grid run"),
     (["--psf-grid", "{grid}", "--pca-k", "2"], "--pca-k 2 goes with --model pca"),
     (["--psf-grid", "{grid}", "--depth", "2"], "drop --depth"),
+    (["--psf-grid", "{grid}", "--early-stop", "{grid}"], "a --psf-grid run has none"),
 ])
 def test_recon_run_psf_grid_refusals_in_one_line(synthetic, capsys, extra, words):
     d = synthetic
