@@ -11,8 +11,9 @@ of their fields.
 from __future__ import annotations
 
 import re
-import signal
 from collections.abc import Mapping
+
+from diffuserlab.processes import how_it_ended
 
 __all__ = ["how_it_ended", "operator_text"]
 
@@ -76,33 +77,3 @@ def operator_text(text: str, labels: Mapping[str, str] | None = None) -> str:
 
     out = _FLAG.sub(flag, out)
     return _COMMAND.sub("the command line", out)
-
-
-def how_it_ended(exit_status: int | None) -> str:
-    """How a process ended, in an operator's words.
-
-    Parameters
-    ----------
-    exit_status : int or None
-        Its exit code, or minus the signal that ended it (as
-        :attr:`multiprocessing.Process.exitcode`); None: not known.
-
-    Returns
-    -------
-    str
-        ``"it was killed (signal 9, SIGKILL)"``, ``"it exited with status 1"``, ...
-    """
-    if exit_status is None:
-        return "it stopped answering"
-    if exit_status < 0:
-        try:
-            name = f", {signal.Signals(-exit_status).name}"
-        except ValueError:
-            name = ""
-        return f"it was killed (signal {-exit_status}{name})"
-    if exit_status > 128:
-        try:
-            return f"it ended on {signal.Signals(exit_status - 128).name}"
-        except ValueError:
-            pass
-    return f"it exited with status {exit_status}"

@@ -36,6 +36,7 @@ from collections.abc import Callable
 from typing import Any
 
 from diffuserlab.errors import DiffuserLabError, InputError
+from diffuserlab.processes import how_it_ended
 
 __all__ = ["BATCH_NICE", "BatchProcessError", "batch_nice", "reconstruct_run_in_process"]
 
@@ -183,7 +184,7 @@ def _last_word(messages, child) -> tuple[str, Any]:
         if kind != "progress":
             return kind, value
     return "error", BatchProcessError(
-        f"the batch process ended with exit status {child.exitcode} before finishing "
+        f"the batch process ended before finishing: {how_it_ended(child.exitcode)} "
         "(killed, or out of memory); the frames it finished are stored in the run: start "
         "the batch again to reconstruct the rest")
 

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from diffuserlab.errors import kept_error
+from diffuserlab.processes import how_it_ended
 from drivers.camera import Frame, FrameRing
 from recon.fft import check_threads
 from recon.options import LiveOptions, ReconOptions
@@ -58,6 +59,10 @@ from .shared_slot import SharedImageSlot
 __all__ = ["LiveReconstructionProcess"]
 
 log = logging.getLogger(__name__)
+
+#: How long the reader waits for an ended child to be reaped so its exit status is
+#: known (its pipe closes a moment before), s.
+REAP_S = 2.0
 
 
 def _child(conn, wake, psf, options: ReconOptions, settings: dict,
@@ -258,9 +263,10 @@ class LiveReconstructionProcess:
                     "the machine is overloaded")
             kind, value = self._conn.recv()
         except (EOFError, OSError):
+            self._child.join(REAP_S)  # its pipe closes before it is reaped
             kind, value = "failed", LiveReconstructionError(
-                f"the live reconstruction process ended while starting (exit status "
-                f"{self._child.exitcode})")
+                "the live reconstruction process ended while starting: "
+                f"{how_it_ended(self._child.exitcode)}")
         except BaseException:
             self._end_child(1.0)
             raise
@@ -385,9 +391,12 @@ class LiveReconstructionProcess:
             except (EOFError, OSError):
                 if not self._stopping.is_set():
                     child = self._child
+                    if child is not None:  # its pipe closes before it is reaped
+                        child.join(REAP_S)
                     code = None if child is None else child.exitcode
-                    self._record_error(f"the live reconstruction process ended (exit "
-                                       f"status {code}); start the reconstruction again")
+                    self._record_error(f"the live reconstruction process ended: "
+                                       f"{how_it_ended(code)}; start the reconstruction "
+                                       "again")
                 return
             if kind == "result":
                 meta, taken = value

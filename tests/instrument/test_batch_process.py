@@ -128,7 +128,7 @@ def test_a_child_that_dies_without_a_result_is_named_so():
     child.join(60)
     kind, error = _last_word(messages, child)
     assert kind == "error" and isinstance(error, BatchProcessError)
-    assert "exit status 9" in str(error) and "start the batch again" in str(error)
+    assert "it exited with status 9" in str(error) and "start the batch again" in str(error)
 
 
 def test_batches_in_a_child_leave_the_callers_references_alone(video, run):  # noqa: F811

@@ -220,6 +220,8 @@ def test_a_killed_child_is_reported_and_the_caller_goes_on():
     s = proc.stats()
     assert "process ended" in s["last_error"] and "start the reconstruction again" in (
         s["last_error"])
+    # how it ended, in words (the exit status is read after the child is reaped)
+    assert "killed (signal 9, SIGKILL)" in s["last_error"], s["last_error"]
     assert s["errors"] == 1 and proc.latest().frame_index == 0  # the last result stays
     proc.offer(_frame(image, 1))  # the stream's consumer is not hurt
     proc.stop(timeout_s=HANG_S)
