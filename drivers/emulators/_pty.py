@@ -73,6 +73,7 @@ class PtyEmulator:
         self.tick_s = float(tick_s)
         self.lock = threading.RLock()
         self.received = bytearray()  # everything the driver wrote, for byte-exact tests
+        self._got = threading.Condition(self.lock)  # notified as bytes are received
         self.sent = bytearray()      # everything the emulator wrote
         self._sending = threading.Lock()  # one writer of the pty and of ``sent`` at a time
         self._master: int | None = None
@@ -197,6 +198,25 @@ class PtyEmulator:
         if view:
             log.debug("%s: %d bytes lost (nobody reads)", type(self).__name__, len(view))
 
+    def wait_received(self, data: bytes, timeout_s: float = 10.0) -> bool:
+        """Wait until the bytes ``data`` are among :attr:`received` (the driver's writes
+        reach the emulator's thread a moment after the write returns; a message with no
+        reply, such as a stop, is only there once that thread has read it).
+
+        Parameters
+        ----------
+        data : bytes
+        timeout_s : float
+            The longest wait, s (a hang guard: the wait ends as the bytes arrive).
+
+        Returns
+        -------
+        bool
+            Whether they arrived within ``timeout_s``.
+        """
+        with self._got:
+            return self._got.wait_for(lambda: bytes(data) in self.received, timeout_s)
+
     def drop_replies(self, n: int = 1) -> None:
         """Lose the replies to the next ``n`` commands (the driver's reads time out)."""
         with self.lock:
@@ -274,6 +294,7 @@ class PtyEmulator:
             with self.lock:
                 if data:
                     self.received += data
+                    self._got.notify_all()
                     try:
                         self.on_bytes(data)
                     except Exception:  # a model bug must not kill the device

@@ -40,3 +40,25 @@ def test_a_reply_is_recorded_before_the_driver_can_read_it(monkeypatch):
                 got += byte
                 assert bytes(emulator.sent).startswith(got)  # recorded already
             assert got == b"OK\r\n"
+
+
+def test_bytes_with_no_reply_are_waited_for_not_slept_for(monkeypatch):
+    """A write with no reply reaches ``received`` when the emulator's thread reads it:
+    ``wait_received`` waits for that (a fixed sleep failed in a loaded full run)."""
+    import threading
+
+    real_select = _pty.select.select
+    release = threading.Event()
+
+    def late_select(*args):  # the emulator's thread gets no core until released
+        if threading.current_thread().name == "_Echo":
+            release.wait(10.0)
+        return real_select(*args)
+
+    monkeypatch.setattr(_pty.select, "select", late_select)
+    with _Echo() as emulator, serial.Serial(emulator.tty, timeout=5.0) as port:
+        port.write(b"STOP")  # no newline: no reply
+        assert b"STOP" not in emulator.received  # not read yet
+        assert not emulator.wait_received(b"STOP", timeout_s=0.05)
+        release.set()
+        assert emulator.wait_received(b"STOP")

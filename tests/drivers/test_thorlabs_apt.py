@@ -75,10 +75,9 @@ def test_byte_exact_messages(emulator, tmp_path):
         assert bytes.fromhex("11 04 01 00 50 01") in sent  # REQ_POSCOUNTER
         assert bytes.fromhex("53 04 06 00 D0 01 01 00 CE 45 05 00") in sent  # 345550 counts
         emulator.received.clear()
-        stage.stop()
-        time.sleep(0.05)
-        assert bytes.fromhex("65 04 01 02 50 01") in bytes(emulator.received)  # profiled
-    assert bytes.fromhex("12 00 00 00 50 01") in bytes(emulator.received)  # updates off
+        stage.stop()  # no reply: waited for as the emulator reads it (not a sleep)
+        assert emulator.wait_received(bytes.fromhex("65 04 01 02 50 01"))  # profiled
+    assert emulator.wait_received(bytes.fromhex("12 00 00 00 50 01"))  # updates off
 
 
 def test_framer_by_length_resync_and_interleaving():
