@@ -114,13 +114,26 @@ def _pty_link():
     return master, slave, link
 
 
+def _until_readable(fd: int, n: int, hang_guard_s: float = 10.0) -> None:
+    """Wait until ``n`` bytes can be read at ``fd``: a pty hands a write to its other
+    side a moment later (a kernel worker), later still on a loaded machine."""
+    import fcntl
+    import struct
+    import termios
+
+    deadline = time.monotonic() + hang_guard_s
+    while struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4))[0] < n:
+        assert time.monotonic() < deadline, f"{n} bytes never reached the pty's other side"
+        time.sleep(0.002)
+
+
 def test_a_reader_late_past_its_deadline_takes_what_came_meanwhile():
     # a thread descheduled past its deadline (a loaded machine) must not call a device
     # silent whose reply is waiting in the port: it looks once more before the timeout
     master, slave, link = _pty_link()
     try:
         os.write(master, b"ok\nabcd")
-        time.sleep(0.1)  # both replies arrived; the deadline (0 s) has passed
+        _until_readable(slave, 7)  # both replies arrived; the deadline (0 s) has passed
         assert link.read_until(b"\n", 0.0) == b"ok\n"
         assert link.read_exactly(4, 0.0) == b"abcd"
         with pytest.raises(LedArrayTimeoutError, match="within 0 s"):
