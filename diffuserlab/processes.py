@@ -1,6 +1,6 @@
 """How a child process ended, in people's words: one wording for the window's
-messages (:mod:`gui.messages`) and the processes' own logs
-(:mod:`instrument.live_process`, :mod:`instrument.bench_process`)."""
+messages (``gui.messages``) and the processes' own logs
+(:mod:`instrument.live_process`, :mod:`instrument.batch_process`)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def how_it_ended(exit_status: int | None) -> str:
     ----------
     exit_status : int or None
         Its exit code, or minus the signal that ended it (as
-        :attr:`multiprocessing.Process.exitcode`); None: not known.
+        ``multiprocessing.Process.exitcode``); None: not known.
 
     Returns
     -------
