@@ -1,6 +1,6 @@
 """How a child process ended, in people's words: one wording for the window's
 messages (``gui.messages``) and the processes' own logs
-(:mod:`instrument.live_process`, :mod:`instrument.batch_process`)."""
+(:mod:`instrument.live_process`, ``instrument.batch_process``)."""
 
 from __future__ import annotations
 
