@@ -154,9 +154,9 @@ def recipe_record(early_stop, psf, dark=None) -> dict | None:
     recon.errors.ReconInputError
         The recipe cannot be read, or was fitted for another PSF.
     """
-    from recon.early_stop import OFF, EarlyStop
+    from recon.early_stop import EarlyStop, named
 
-    if early_stop is None or early_stop == OFF:
+    if not named(early_stop):
         return None
     fit = EarlyStop.load(early_stop)
     fit.check_psf(psf, dark)
@@ -510,7 +510,7 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
         if shape != (rows, cols):
             raise RunStoreError(f"the PSF is {shape} but the run's frames are {rows}x{cols}; "
                                 "use a PSF calibrated at the camera's frame shape")
-        from .reconstruct_files import check_dark_frame
+        from .reconstruct_files import RECIPE_FIXES, check_dark_frame
 
         check_dark_frame(dark, (rows, cols), "the run's frames")  # before any frame is done
         if grid is None:  # a level above the signal fails every frame: refused now
@@ -527,7 +527,7 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
             recipe = recipe_record(options.early_stop, psf, dark)
             if recipe is not None:  # a scene calibration's recipe fixes the solve
                 task_options = {k: v for k, v in task_options.items()
-                                if k not in ("method", "iterations", "tv", "l1", "prior")}
+                                if k not in RECIPE_FIXES}
                 task_options["early_stop"] = options.early_stop
                 settings.update(method="fista", tv=0.0, l1=0.0, calibration=recipe)
                 name, iterations = product or "recon_recipe", recipe["iterations"]

@@ -263,10 +263,8 @@ class LiveReconstructionProcess:
                     "the machine is overloaded")
             kind, value = self._conn.recv()
         except (EOFError, OSError):
-            self._child.join(REAP_S)  # its pipe closes before it is reaped
             kind, value = "failed", LiveReconstructionError(
-                "the live reconstruction process ended while starting: "
-                f"{how_it_ended(self._child.exitcode)}")
+                f"the live reconstruction process ended while starting: {self._how_ended()}")
         except BaseException:
             self._end_child(1.0)
             raise
@@ -337,6 +335,14 @@ class LiveReconstructionProcess:
         child = self._child
         return child is not None and child.is_alive() and not self._stopping.is_set()
 
+    def _how_ended(self) -> str:
+        """How the child ended, in words, once it is reaped (its pipe closes a moment
+        before: waited for up to :data:`REAP_S`)."""
+        child = self._child
+        if child is not None:
+            child.join(REAP_S)
+        return how_it_ended(None if child is None else child.exitcode)
+
     def exit_status(self) -> int | None:
         """How the child ended: its exit code, or minus the signal that ended it
         (``-9``: SIGKILL), the child reaped; None while it runs, before it started
@@ -390,12 +396,8 @@ class LiveReconstructionProcess:
                 kind, *value = conn.recv()
             except (EOFError, OSError):
                 if not self._stopping.is_set():
-                    child = self._child
-                    if child is not None:  # its pipe closes before it is reaped
-                        child.join(REAP_S)
-                    code = None if child is None else child.exitcode
                     self._record_error(f"the live reconstruction process ended: "
-                                       f"{how_it_ended(code)}; start the reconstruction "
+                                       f"{self._how_ended()}; start the reconstruction "
                                        "again")
                 return
             if kind == "result":

@@ -32,13 +32,27 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["FILE", "OFF", "SOLVE", "EarlyStop", "clean_psf", "denoise_tv", "psf_identity",
-           "psf_signature"]
+__all__ = ["FILE", "OFF", "SOLVE", "EarlyStop", "clean_psf", "denoise_tv", "named",
+           "psf_identity", "psf_signature"]
 
 #: The file name of the fit in a PSF-from-scenes calibration run.
 FILE = "early_stop.json"
 #: ``--early-stop off``: reconstruct a scene-calibrated run's PSF without its recipe.
 OFF = "off"
+
+
+def named(early_stop) -> bool:
+    """Whether the ``early_stop`` option names a recipe (neither None nor :data:`OFF`).
+
+    Parameters
+    ----------
+    early_stop : str or None
+        The option's value: a calibration run or its ``early_stop.json``, ``"off"`` or
+        None.
+    """
+    return early_stop is not None and early_stop != OFF
+
+
 #: The solve the fitted count belongs to, in words (records).
 SOLVE = "non-negative FISTA without a prior (recon.reconstruct method='fista', tv=0, l1=0)"
 #: The percentile of the image that :func:`denoise_tv` scales to 1 before denoising.

@@ -17,7 +17,7 @@ from diffuserlab.jsonio import jsonable
 
 from .auto import AUTO, ChannelProblem, parse_weight, solve_channel
 from .backend import resolve_device
-from .early_stop import OFF, EarlyStop
+from .early_stop import EarlyStop, named
 from .errors import ReconInputError
 from .fft import fft_pair_seconds
 from .operators import ConvolutionOperator, PixelErasure
@@ -248,7 +248,7 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
         The solver diverged (history and last good estimate attached).
     """
     o = ReconOptions.from_defaults() if options is None else options
-    if o.early_stop is not None and o.early_stop != OFF:  # the recipe fixes the solve
+    if named(o.early_stop):  # the recipe fixes the solve
         fit = EarlyStop.load(o.early_stop)
         # a numeric dark (level, per channel or frame) is on the recipe's PSF as well
         recipe_psf = fit.clean_psf(psf, o.dark if preprocess else None)

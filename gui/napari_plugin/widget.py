@@ -162,6 +162,7 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     from instrument.reconstruct_files import resolve_dark, scene_recipe_default
     from instrument.stacks import pick_depth
     from recon import PsfStack, reconstruct
+    from recon.early_stop import named
     from recon.io import DATA_ORIENTATION
 
     if options is None:
@@ -183,7 +184,7 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     meta = {"psf": source, "product": product, "method": options.method,
             "dark": str(options.dark), "source_layer": layer.name,
             "orientation": DATA_ORIENTATION}
-    if options.early_stop not in (None, "off"):
+    if named(options.early_stop):
         meta["early_stop"] = options.early_stop
     if depths == [None]:  # a plain PSF image: its one plane, no depth
         rec = reconstruct(stack[0], raw, **{**options.keywords("image"), "dark": dark})

@@ -325,8 +325,10 @@ class RecordPanel(QWidget):
             return None
         self.batch_progress.start(0)
         self.batch_status.setText(f"reconstructing {run} ...")
-        how = (recon.method if recon.early_stop in (None, "off") else
-               "the PSF's scene-calibration recipe (early-stop calibration: off declines it)")
+        from recon.early_stop import named
+
+        how = ("the PSF's scene-calibration recipe (early-stop calibration: off declines it)"
+               if named(recon.early_stop) else recon.method)
         announce_job("batch reconstruction", f"{run} with {how}")
         self._rate_from = None
 

@@ -121,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``recon-run``; returns the exit status (module docstring)."""
     from tqdm import tqdm
 
+    from recon.early_stop import named
     from recon.errors import ReconInputError
 
     from ..batch import batch_psf, parse_frames, recipe_record, reconstruct_run
@@ -138,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.psf is None) == (args.psf_grid is None):
         raise ReconInputError("recon-run needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
-    if args.psf_grid and getattr(args, "early_stop", None) not in (None, "off"):
+    if args.psf_grid and named(getattr(args, "early_stop", None)):
         raise ReconInputError("--early-stop names a scene calibration's recipe for one PSF; "
                               "a --psf-grid run has none: give --psf RUN with it, or leave "
                               "--early-stop out")
