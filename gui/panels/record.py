@@ -31,6 +31,9 @@ from PySide6.QtWidgets import (
 
 from instrument.cli.recon_flags import COMMAND_FIELDS
 from instrument.cli.recon_run import RunOptions
+from instrument.reconstruct_files import RECIPE_FIXES
+from recon.early_stop import FILE as RECIPE_FILE
+from recon.early_stop import OFF, named
 from recon.options import ReconOptions
 
 from ..device_settings import parse_duration_s
@@ -143,6 +146,33 @@ class RecordPanel(QWidget):
         rows = (self.run_form.rows(("psf", "depth_mm")) + self.recon_form.rows()
                 + self.run_form.rows(BATCH_RUN_FIELDS[2:]))
         end = lay_out(b, rows, row=1, columns=2)
+        # a scene-calibrated PSF run's recipe: the fields show it, a line says so
+        self.recipe_line = QLabel("")
+        self.recipe_line.setObjectName("batch.recipe")
+        self.recipe_line.setWordWrap(True)
+        self.recipe_line.hide()
+        self.recipe_button = QPushButton("Use the PSF run's recipe")
+        self.recipe_button.setObjectName("batch.use-recipe")
+        self.recipe_button.setToolTip("show and run the reconstruction recipe the PSF's "
+                                      "scene calibration fitted")
+        self.recipe_button.clicked.connect(self.use_recipe)
+        self.recipe_button.hide()
+        b.addWidget(self.recipe_line, end, 0, 1, 3)
+        b.addWidget(self.recipe_button, end, 3)
+        end += 1
+        self._recipe = None  # the PSF run's recipe (recon.early_stop.EarlyStop) or None
+        self._recipe_shown = False  # the fixed fields show it, and it will run
+        self._before_recipe: dict[str, str] = {}  # their texts before they showed it
+        self._edited: set[str] = set()  # the fields the operator edited since
+        for field in RECIPE_FIXES:
+            widget = self.recon_form.widgets.get(field)
+            if widget is not None:
+                signal = (widget.valueChanged if hasattr(widget, "valueChanged")
+                          else widget.currentTextChanged)
+                signal.connect(lambda _=None, f=field: self._recipe_edited(f))
+        self.batch_fields["--early-stop"].textChanged.connect(
+            lambda _=None: self._recipe_edited("early_stop"))
+        psf.editingFinished.connect(self.show_recipe)
         self.batch_button = QPushButton("Reconstruct run")
         self.batch_button.setObjectName("batch.start")
         self.batch_button.clicked.connect(self.toggle_batch)
@@ -158,6 +188,7 @@ class RecordPanel(QWidget):
         self._groups = (rec, batch)
         session.changed.connect(self._show_dark_hint)
         self._show_dark_hint()
+        self.show_recipe()
         layout.setAlignment(Qt.AlignmentFlag.AlignTop)
 
     def _show_dark_hint(self) -> None:
@@ -179,6 +210,167 @@ class RecordPanel(QWidget):
         if self._columns.direction() != direction:
             self._columns.setDirection(direction)
 
+    # -- the PSF run's recipe ------------------------------------------------------------
+    def _fixed_widgets(self) -> dict:
+        """``{field: widget}`` of the recipe's fixed fields the form shows."""
+        return {f: self.recon_form.widgets[f] for f in RECIPE_FIXES
+                if f in self.recon_form.widgets}
+
+    def _set_quietly(self, widget, text: str) -> None:
+        """Show ``text`` in a field without storing it (:func:`gui.fields.remember`) and
+        without counting it as the operator's edit."""
+        from PySide6.QtWidgets import QComboBox, QSpinBox
+
+        widget.blockSignals(True)
+        try:
+            if isinstance(widget, QSpinBox):
+                widget.setValue(int(text))
+            elif isinstance(widget, QComboBox) and not widget.isEditable() and not text:
+                widget.setCurrentIndex(-1)
+            elif isinstance(widget, QComboBox):
+                widget.setCurrentText(text)
+            else:
+                widget.setText(text)
+        finally:
+            widget.blockSignals(False)
+
+    def _recipe_texts(self, recipe) -> dict[str, str]:
+        """What the fixed fields show for ``recipe``: its solve (FISTA, its count, no TV,
+        no l1; the prior left blank: FISTA without TV has none)."""
+        return {"method": "fista", "iterations": str(int(recipe.iterations)), "tv": "0",
+                "l1": "0", "prior": ""}
+
+    def show_recipe(self) -> None:
+        """Show what will run with the PSF field's run.
+
+        A ``calibrate psf-from-scenes`` run holding its recipe (``early_stop.json``)
+        is reconstructed with that recipe by default, as ``recon-run --psf RUN``
+        (:func:`instrument.reconstruct_files.scene_recipe_default`): the solver,
+        iteration, TV and l1 fields then show the recipe's solve, the prior field is
+        blank and disabled, and a line says the recipe's PSF threshold and denoising.
+        Fields the operator already set (or ``--early-stop``) decline it, and the
+        line says so. Another PSF: the fields return to what they held.
+        """
+        from recon.early_stop import EarlyStop
+        from recon.errors import ReconInputError
+
+        path = self.batch_fields["--psf"].text().strip()
+        recipe, unreadable = None, ""
+        if path and (Path(path) / RECIPE_FILE).is_file():
+            try:
+                recipe = EarlyStop.load(path)
+            except ReconInputError as exc:
+                unreadable = str(exc)
+        if recipe is None:
+            self._restore_fields()
+            self._recipe = None
+            self.recipe_button.hide()
+            self.recipe_line.setText(unreadable)
+            self.recipe_line.setVisible(bool(unreadable))
+            return
+        self._recipe = recipe
+        given = self.recon_form.texts()
+        if self._recipe_shown or not (set(given) & {*RECIPE_FIXES, "early_stop"}):
+            self._apply_recipe()
+        else:
+            self._say_declined(", ".join(
+                self.recon_form.labels[f].text().rstrip(":") for f in given
+                if f in (*RECIPE_FIXES, "early_stop")) + " set in the form")
+
+    def use_recipe(self) -> None:
+        """Show and run the PSF run's recipe again (the *Use the PSF run's recipe*
+        button): the early-stop field emptied, the fixed fields showing the recipe."""
+        if self._recipe is None:
+            return
+        self._set_quietly(self.batch_fields["--early-stop"], "")
+        self._apply_recipe()
+
+    def _apply_recipe(self) -> None:
+        r = self._recipe
+        widgets = self._fixed_widgets()
+        if not self._before_recipe:
+            self._before_recipe = {f: str(OptionsForm.widget_text(w))
+                                   for f, w in widgets.items()}
+        self._edited.clear()
+        for field, text in self._recipe_texts(r).items():
+            if field in widgets:
+                self._set_quietly(widgets[field], text)
+        if "prior" in widgets:
+            widgets["prior"].setEnabled(False)
+            widgets["prior"].setToolTip("the recipe's FISTA has no prior")
+        self.batch_fields["--early-stop"].setPlaceholderText(
+            "the PSF run's recipe (off declines)")
+        self._recipe_shown = True
+        denoise = (f"isotropic TV denoising at weight {r.denoise_weight:g}"
+                   if r.denoise_weight else "no denoising")
+        self.recipe_line.setText(
+            f"will run the PSF run's scene-calibration recipe: PSF soft-thresholded at "
+            f"{r.psf_threshold:g} of its maximum, FISTA without a prior, {r.iterations} "
+            f"iterations, then {denoise}. Editing solver, iterations, TV, l1 or "
+            "early-stop declines the recipe.")
+        self.recipe_line.setStyleSheet("")
+        self.recipe_line.show()
+        self.recipe_button.hide()
+
+    def _restore_fields(self) -> None:
+        """The fixed fields back to what they held before they showed a recipe (those
+        the operator edited since are kept)."""
+        widgets = self._fixed_widgets()
+        for field, text in self._before_recipe.items():
+            if field not in self._edited:
+                self._set_quietly(widgets[field], text)
+        self._release_prior()
+        self.batch_fields["--early-stop"].setPlaceholderText("none")
+        self._recipe_shown = False
+        self._before_recipe = {}
+        self._edited.clear()
+
+    def _release_prior(self) -> None:
+        prior = self._fixed_widgets().get("prior")
+        if prior is not None and not prior.isEnabled():
+            prior.setEnabled(True)
+            prior.setToolTip(self.recon_form.specs["prior"].help)
+            if prior.currentIndex() < 0:
+                self._set_quietly(prior, self._before_recipe.get("prior", "tv"))
+
+    def _recipe_edited(self, field: str) -> None:
+        """An operator's edit of a fixed field (or the early-stop field) while the
+        recipe is shown declines it; the line says so."""
+        self._edited.add(field)
+        if not self._recipe_shown:
+            return
+        if field == "early_stop" and not self.batch_fields["--early-stop"].text().strip():
+            return
+        self._recipe_shown = False
+        self._release_prior()
+        self.batch_fields["--early-stop"].setPlaceholderText("none")
+        label = self.recon_form.labels[field].text().rstrip(":")
+        self._say_declined(f"'{label}' edited")
+
+    def _say_declined(self, why: str) -> None:
+        self.recipe_line.setText(
+            f"the PSF run's scene-calibration recipe is declined ({why}): the batch runs "
+            "the form's values as shown, without the recipe's PSF threshold and "
+            "denoising. 'Use the PSF run's recipe' takes it again.")
+        self.recipe_line.setStyleSheet("color: #8a5a00;")
+        self.recipe_line.show()
+        self.recipe_button.show()
+
+    def batch_texts(self) -> dict[str, str]:
+        """The batch form's ``{flag: text}`` as :func:`gui.jobs.batch_options` takes
+        them: while the fields show the PSF run's recipe, its fixed fields are left out
+        (the recipe is the default, :func:`~instrument.reconstruct_files.scene_recipe_default`);
+        a recipe declined is declined explicitly (``--early-stop off``), whatever
+        the fields hold."""
+        texts = {**self.run_form.texts(flags=True), **self.recon_form.texts(flags=True)}
+        if self._recipe is None:
+            return texts
+        if self._recipe_shown:
+            fixed = {self.recon_form.specs[f].flag for f in RECIPE_FIXES}
+            return {f: v for f, v in texts.items() if f not in fixed}
+        texts.setdefault("--early-stop", OFF)
+        return texts
+
     # -- state ---------------------------------------------------------------------------
     @property
     def recording(self) -> bool:
@@ -196,6 +388,7 @@ class RecordPanel(QWidget):
         if psf_field.text().strip() in ("", self._carried[0]):
             psf_field.setText(psf)
             offer_depths(depth_box, psf)
+            self.show_recipe()
         if depth_box.currentText().strip() in ("", self._carried[1]):
             depth_box.setEditText(depth)
         self._carried = (psf, depth)
@@ -314,7 +507,8 @@ class RecordPanel(QWidget):
             self.batch_error.setText(f"the run {run} does not exist; record one or give the "
                                      "path of a recorded run")
             return None
-        texts = {**self.run_form.texts(flags=True), **self.recon_form.texts(flags=True)}
+        self.show_recipe()  # the PSF field may have changed without leaving it
+        texts = self.batch_texts()
         labels = {**self.run_form.flag_labels(), **self.recon_form.flag_labels()}
         try:
             recon, own = batch_options(texts)
@@ -325,10 +519,11 @@ class RecordPanel(QWidget):
             return None
         self.batch_progress.start(0)
         self.batch_status.setText(f"reconstructing {run} ...")
-        from recon.early_stop import named
-
         how = ("the PSF's scene-calibration recipe (early-stop calibration: off declines it)"
-               if named(recon.early_stop) else recon.method)
+               if named(recon.early_stop) else
+               f"{recon.method}, {recon.iterations} iterations, TV weight {recon.tv}, "
+               f"prior {recon.prior}" + (" (the PSF run's recipe declined)"
+                                         if self._recipe is not None else ""))
         announce_job("batch reconstruction", f"{run} with {how}")
         self._rate_from = None
 
