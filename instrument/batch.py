@@ -46,8 +46,9 @@ from .batch_grid import (
 )
 from .runstore import DamagedFrameError, RunStore, RunStoreError
 
-__all__ = ["batch_psf", "check_dark_level", "check_scheduler", "check_workers", "parse_frames",
-           "reconstruct_run", "reconstruct_stored_frame"]
+__all__ = ["batch_psf", "check_dark_level", "check_scheduler", "check_workers",
+           "checked_recipe", "parse_frames", "reconstruct_run", "reconstruct_stored_frame",
+           "recipe_record"]
 
 log = logging.getLogger(__name__)
 
@@ -129,16 +130,19 @@ def batch_psf(psf_path: str, run_attrs: dict, *, depth_mm: float | None = None,
     return psf, level, f"{psf_path}" + ("" if depth is None else f" at {depth:g} mm")
 
 
-def recipe_record(early_stop, psf, dark=None) -> dict | None:
-    """The record of the scene calibration's recipe ``early_stop`` names
-    (:mod:`recon.early_stop`), checked against ``psf`` (carrying the dark level
-    ``dark``, as :func:`batch_psf` returns it) before any frame is done; None when none
-    is named (or ``"off"``).
+def checked_recipe(early_stop, psf, dark=None):
+    """The scene calibration's recipe ``early_stop`` names (:mod:`recon.early_stop`),
+    read once (:func:`instrument.run_recipe.load_recipe`: checked against its run's
+    record) and checked against ``psf`` (carrying the dark level ``dark``, as
+    :func:`batch_psf` returns it) before any frame is done; None when none is named
+    (or ``"off"``). A batch hands this one object to every frame's solve and records
+    it in the product, so an edit of the file meanwhile changes neither.
 
     Parameters
     ----------
-    early_stop : str or None
-        The recipe: a calibration run or its ``early_stop.json``, ``"off"`` or None.
+    early_stop : str, recon.early_stop.EarlyStop or None
+        The recipe: a calibration run or its ``early_stop.json`` (or one read
+        already), ``"off"`` or None.
     psf : ndarray, (rows, cols) float
         The PSF the frames will be reconstructed with.
     dark : float, ndarray or None
@@ -146,21 +150,30 @@ def recipe_record(early_stop, psf, dark=None) -> dict | None:
 
     Returns
     -------
-    dict or None
-        :meth:`recon.early_stop.EarlyStop.record`.
+    recon.early_stop.EarlyStop or None
 
     Raises
     ------
     recon.errors.ReconInputError
-        The recipe cannot be read, or was fitted for another PSF.
+        The recipe cannot be read, is not its run's own, is out of range, or was
+        fitted for another PSF.
     """
-    from recon.early_stop import EarlyStop, named
+    from recon.early_stop import named
+
+    from .run_recipe import load_recipe
 
     if not named(early_stop):
         return None
-    fit = EarlyStop.load(early_stop)
+    fit = load_recipe(early_stop)
     fit.check_psf(psf, dark)
-    return fit.record()
+    return fit
+
+
+def recipe_record(early_stop, psf, dark=None) -> dict | None:
+    """:meth:`recon.early_stop.EarlyStop.record` of :func:`checked_recipe` (None when no
+    recipe is named); raises as it does."""
+    fit = checked_recipe(early_stop, psf, dark)
+    return None if fit is None else fit.record()
 
 
 def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
@@ -198,6 +211,36 @@ def reconstruct_stored_frame(run_path: str, index: int, psf: np.ndarray,
     """
     result = reconstruct_run_frame(run_path, index, psf, threads, **options)
     return int(index), np.asarray(result.image, np.float32)
+
+
+class FrameRefused:
+    """A frame's refusal, returned by :func:`refusals_returned` instead of raised: a
+    task that raises is logged by each dask worker with its traceback ("Compute
+    Failed"), which reads as a crash for what is the frame's own data."""
+
+    def __init__(self, error: BaseException) -> None:
+        self.kind = type(error).__name__
+        self.message = " ".join(str(error).split())
+
+
+def refusals_returned(task, *args):
+    """``task(*args)``, with a refusal of the frame's data (ReconInputError,
+    DivergenceError) returned as a :class:`FrameRefused` (the batch lists it as
+    ``failed``) rather than raised on the worker.
+
+    Parameters
+    ----------
+    task : callable
+        :func:`reconstruct_stored_frame` or the grid's task.
+    *args
+        Its arguments.
+    """
+    from recon.errors import DivergenceError, ReconInputError
+
+    try:
+        return task(*args)
+    except (ReconInputError, DivergenceError) as exc:
+        return FrameRefused(exc)
 
 
 def check_dark_level(store: RunStore, index: int, psf: np.ndarray, dark,
@@ -524,11 +567,12 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
             settings = {"method": method, "tv": tv, "l1": l1, "prior": options.prior,
                         "psf": psf_source, "orientation": DATA_ORIENTATION}
             name, task = product or f"recon_{method}", reconstruct_stored_frame
-            recipe = recipe_record(options.early_stop, psf, dark)
-            if recipe is not None:  # a scene calibration's recipe fixes the solve
+            fit = checked_recipe(options.early_stop, psf, dark)  # read once per product
+            if fit is not None:  # a scene calibration's recipe fixes the solve
+                recipe = fit.record()
                 task_options = {k: v for k, v in task_options.items()
                                 if k not in RECIPE_FIXES}
-                task_options["early_stop"] = options.early_stop
+                task_options["early_stop"] = fit  # the recipe read, not its file
                 settings.update(method="fista", tv=0.0, l1=0.0, calibration=recipe)
                 name, iterations = product or "recon_recipe", recipe["iterations"]
         else:
@@ -564,21 +608,25 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
             # reductions depend on it, and the results must equal `recon`'s (to float32
             # rounding: dask's workers run one BLAS thread)
             psf_future = client.scatter(grid or np.asarray(psf), broadcast=True)
-            futures = [client.submit(task, str(store.path), i, psf_future, task_options,
-                                     thread_count(), pure=False) for i in todo]
+            futures = [client.submit(refusals_returned, task, str(store.path), i,
+                                     psf_future, task_options, thread_count(), pure=False)
+                       for i in todo]
             index_of = dict(zip(futures, todo, strict=True))
             try:
                 for fut in as_completed(futures):
                     try:
-                        index, image, *bg = fut.result()
+                        done = fut.result()
                     except DamagedFrameError as exc:  # left out, as runs verify says
                         damaged.append(str(exc))
                         continue
                     except (ReconInputError, DivergenceError) as exc:  # this frame's data
+                        done = FrameRefused(exc)
+                    if isinstance(done, FrameRefused):
                         i = index_of[fut]
                         failed.append(f"frame {i} (point {store.point_of(i)}): "
-                                      f"{' '.join(str(exc).split())}")
+                                      f"{done.message}")
                         continue
+                    index, image, *bg = done
                     if bg_name:
                         store.write_product_frame(bg_name, index, bg[0])
                     store.write_product_frame(name, index, image)
