@@ -335,16 +335,7 @@ class FrameView(QWidget):
         self.image = image
         self._follow = autoLevels and not self.levels_locked
         if reshaped:
-            rows, cols = np.shape(image)[:2]
-            pad = 1.04  # autoRange's padding of 0.02 each side
-            self._draw(display_step((pad * cols, pad * rows), self._view_px()))
-            self._drawing = True
-            try:
-                self.plot.vb.autoRange(padding=0.02)
-                self.plot.vb.disableAutoRange()
-            finally:
-                self._drawing = False
-            self._view_changed()
+            self.view_all()
         else:
             self._draw(self.display_step)
         if due or reshaped:
@@ -357,6 +348,22 @@ class FrameView(QWidget):
                 self._catch_up.start(max(1, int(np.ceil(1e3 * wait_s))))
         if self.profile_action.isChecked():
             self._update_profile()
+
+    def view_all(self) -> None:
+        """Range the view on the whole image (*View All*): a new result is shown whole,
+        not at the last one's zoom."""
+        if self.image is None:
+            return
+        rows, cols = np.shape(self.image)[:2]
+        pad = 1.04  # autoRange's padding of 0.02 each side
+        self._draw(display_step((pad * cols, pad * rows), self._view_px()))
+        self._drawing = True
+        try:
+            self.plot.vb.autoRange(padding=0.02)
+            self.plot.vb.disableAutoRange()
+        finally:
+            self._drawing = False
+        self._view_changed()
 
     def _view_px(self) -> tuple[float, float]:
         ratio = self.glw.devicePixelRatioF()

@@ -39,7 +39,7 @@ from recon.options import ReconOptions
 from ..device_settings import parse_duration_s
 from ..fields import remember
 from ..forms import OptionsForm, lay_out
-from ..logpane import announce_job, job_ended
+from ..logpane import announce_job, gui_log, job_ended
 from ..session import Session
 from ..workers import DEVICE_NICE, InputError, Job
 from .common import JobProgress, dark_hint, depth_field, error_label, offer_depths
@@ -50,6 +50,42 @@ __all__ = ["RecordPanel"]
 #: command's, :data:`instrument.cli.recon_flags.COMMAND_FIELDS`): PSF and depth first,
 #: the frames, workers and ΔF/F last.
 BATCH_RUN_FIELDS = ("psf", "depth_mm", "frames", "workers", "dff")
+
+
+def refusal_text(failed: list[str], total: int) -> str:
+    """One operator-level line for the frames a batch refused (its ``failed`` lines,
+    ``"frame I (point P): REASON"``): the frames grouped by the reason's first clause,
+    each group with its frames and the first frame's whole reason.
+
+    Parameters
+    ----------
+    failed : list of str
+        :func:`instrument.batch.reconstruct_run`'s ``failed``.
+    total : int
+        The frames the batch was asked for.
+
+    Returns
+    -------
+    str
+        E.g. ``"4 of 4 frames refused, none reconstructed: frames 0-3: the data carry
+        no signal: ... (each frame's reason is in the log)"``.
+    """
+    from instrument.runstore_records import ranges_text
+
+    groups: dict[str, tuple[list[int], str]] = {}
+    for line in failed:
+        head, _, reason = line.partition(": ")
+        try:
+            index = int(head.split()[1])
+        except (IndexError, ValueError):
+            index = -1
+        frames, _ = groups.setdefault(reason.split(":")[0], ([], reason))
+        frames.append(index)
+    none = " none reconstructed:" if len(failed) >= total else ""
+    parts = [f"frame{'s' if len(f) > 1 else ''} {ranges_text(sorted(f))}: {reason}"
+             for f, reason in groups.values()]
+    return (f"{len(failed)} of {total} frames refused,{none or ':'} " + "; ".join(parts)
+            + " (each frame's reason is in the log)").replace(",:", ":")
 
 
 def _number(text: str, what: str, kind=float):
@@ -575,12 +611,29 @@ class RecordPanel(QWidget):
             job_ended("batch reconstruction", self.batch_status.text() + f" (run {run})",
                       ok=False)
             return
+        failed = list(result.get("failed") or [])
+        total = int(result["reconstructed"]) + int(result["skipped"]) + len(failed)
+        for line in failed:  # each frame's reason, in the log pane
+            gui_log.warning("batch reconstruction refused %s", line)
+        if failed:
+            self.batch_error.setText(refusal_text(failed, total))
+        if not int(result["reconstructed"]) + int(result["skipped"]):
+            self.batch_status.setText(
+                f"no frame reconstructed: the batch refused every frame of {run} "
+                "(the reason is above)" if failed else
+                f"no frame reconstructed: {run} has no stored frame in the selection")
+            job_ended("batch reconstruction", f"ended with no frame reconstructed ({run})",
+                      ok=False)
+            return
         self.batch_status.setText(
             f"{result['product']}: {result['reconstructed']} frames reconstructed, "
-            f"{result['skipped']} already done, {result['seconds']:.1f} s "
+            f"{result['skipped']} already done"
+            + (f", {len(failed)} refused" if failed else "")
+            + f", {result['seconds']:.1f} s "
             f"({result['fps']:.2f} frames/s, {result['workers'] or 0} workers)")
         job_ended("batch reconstruction", f"finished: product {result['product']} of {run}, "
-                  f"{result['reconstructed']} frames in {result['seconds']:.1f} s")
+                  f"{result['reconstructed']} frames in {result['seconds']:.1f} s"
+                  + (f", {len(failed)} refused" if failed else ""), ok=not failed)
         self.result_ready.emit(run, result["product"])
 
     def on_batch_failed(self, text: str) -> None:

@@ -136,7 +136,13 @@ def _product(store, name: str) -> dict:
         # a per-frame product still being made (or cut short): the frames it holds
         done = np.flatnonzero(store.product_frames_done(name))
         if not done.size:
-            raise ValueError(f"product {name!r} of {store.path} holds no frame yet")
+            from ..workers import InputError
+
+            raise InputError(
+                f"product {name!r} of {store.path} holds no reconstructed frame: the "
+                "batch refused every frame it reached (the Record panel and the log say "
+                "why) or has not stored one yet; choose another product or reconstruct "
+                "the run again")
         array = np.stack([store.product_frame(name, int(i)) for i in done])
         text = (f"{name}: frames {', '.join(str(int(i)) for i in done)} of "
                 f"{info['shape'][0]} reconstructed\n{json.dumps(info, indent=1)}")
@@ -315,8 +321,13 @@ class ResultsPanel(QWidget):
             if product is not None:
                 self.show_product(product)
 
+        def failed(text: str) -> None:
+            if job is self.job:
+                self.clear_image()
+                self.error.setText(text)
+
         job.succeeded.connect(show)
-        job.failed.connect(self.error.setText)
+        job.failed.connect(failed)
         return job.start()
 
     def show_result(self, result: dict) -> None:
@@ -412,6 +423,7 @@ class ResultsPanel(QWidget):
 
             for name, image in projections(self.volume).items():
                 self.mip_views[name].setImage(image, autoLevels=True)
+                self.mip_views[name].view_all()
         else:
             self.volume = None
             self._mode(kind)
@@ -419,6 +431,7 @@ class ResultsPanel(QWidget):
             units = result.get("units")
             self.view.setTitle("image" + (f" ({units})" if units else "")
                                + (UPRIGHT if result.get("upright") else ""))
+        self.view.view_all()  # a new result: the whole of it, not the last one's zoom
 
     def show_slice(self, index: int) -> None:
         """Show plane ``index`` of the volume (in memory: no file is read)."""
@@ -498,9 +511,24 @@ class ResultsPanel(QWidget):
                 self.products.setCurrentText(name)
             self._show_array(result, "run")
 
+        def failed(text: str) -> None:
+            if store is not self.store:
+                return
+            self.clear_image()  # not the previous product's image under this one's name
+            self.error.setText(text)
+
         job.succeeded.connect(show)
-        job.failed.connect(self.error.setText)
+        job.failed.connect(failed)
         return job.start()
+
+    def clear_image(self) -> None:
+        """Show no image (nor a volume, its projections or its text): what was shown
+        is not what the panel now names."""
+        self.volume = None
+        self._mode("run" if self.store is not None else None)
+        self.view.clear()
+        self.view.setTitle("image")
+        self.text.setPlainText(self.summary_text if self.store is not None else "")
 
 
 class _Cancelled(Exception):

@@ -99,3 +99,17 @@ def psf_file(window, tmp_path_factory):
     path = tmp_path_factory.mktemp("live-psf") / "psf.npy"
     np.save(path, (h / h.max() * 4000.0 + dark).astype(np.float32))
     return str(path)
+
+
+@pytest.fixture
+def record_panel(qapp, tmp_path):
+    """A :class:`gui.panels.record.RecordPanel` on an unconnected simulated session,
+    with settings of its own."""
+    os.environ["DIFFUSERLAB_GUI_SETTINGS"] = str(tmp_path / "gui.ini")
+    from gui.panels.record import RecordPanel
+    from gui.session import Session
+
+    panel = RecordPanel(Session(None, simulate=True, scene="none"))
+    yield panel
+    panel.close()
+    panel.deleteLater()

@@ -17,15 +17,8 @@ os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 
 
 @pytest.fixture
-def panel(qapp, tmp_path):
-    os.environ["DIFFUSERLAB_GUI_SETTINGS"] = str(tmp_path / "gui.ini")
-    from gui.panels.record import RecordPanel
-    from gui.session import Session
-
-    record = RecordPanel(Session(None, simulate=True, scene="none"))
-    yield record
-    record.close()
-    record.deleteLater()
+def panel(record_panel):
+    return record_panel
 
 
 @pytest.fixture
