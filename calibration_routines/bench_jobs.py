@@ -6,7 +6,9 @@ its resumption and the mask alignment
 (:class:`calibration_routines.mask_alignment.MaskAligner`). The client that starts
 the bench process hands them over by name (:data:`JOBS`, ``BenchClient(jobs=JOBS)``;
 the window's ``gui.session.Session`` does), since the instrument layer does not
-import this package.
+import this package. Each holds every device of the bench while it runs
+(:func:`instrument.bench_jobs.holding`): another client's job that needs one is
+refused, and the live view yields the camera to it.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from instrument.bench_jobs import kept
+from instrument.bench_jobs import holding, kept
 
 __all__ = ["ALIGNMENT_STEPS", "JOBS", "build_plan", "resume_plan", "run_alignment",
            "run_plan", "section_summary"]
@@ -70,6 +72,7 @@ def _tagged(report, tags_of_point):
     return on_event
 
 
+@holding("*")
 def run_plan(ctx, *, routine: str, values: dict[str, Any], path: str,
              overwrite: bool = False):
     """Build ``routine``'s plan from the form's ``values`` and run it into a new store
@@ -94,6 +97,7 @@ def run_plan(ctx, *, routine: str, values: dict[str, Any], path: str,
         return runner.run(plan, path, overwrite=overwrite)
 
 
+@holding("*")
 def resume_plan(ctx, *, path: str, accept_differences: bool = False):
     """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
     from instrument.runner import Runner
@@ -113,6 +117,7 @@ def resume_plan(ctx, *, path: str, accept_differences: bool = False):
         return runner.resume(path, accept_differences=accept_differences)
 
 
+@holding("*")
 def run_alignment(ctx, *, out: str, mask_seed: str = "", frames: int = 3,
                   focus: bool = True) -> dict:
     """The mask alignment (:class:`calibration_routines.mask_alignment.MaskAligner`) on

@@ -43,7 +43,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from .bench_job_handle import OWNER_JOBS, JobInfo, JobRegistry
+from .bench_job_handle import OWNER_JOBS, JobInfo, JobRegistry, check_params
 from .bench_service import BenchService, BenchServiceError, EventLog
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
@@ -144,6 +144,15 @@ class BenchHost(BenchService):
         self._stream: tuple[Any, threading.Thread, threading.Event] | None = None
         self._stream_lock = threading.RLock()
         self._jobs: dict[int, JobContext] = {}
+        #: {device id: job id} of the devices the running jobs hold.
+        self._holds: dict[str, int] = {}
+        self._holds_lock = threading.RLock()
+        self._stream_owner = ""
+        self._stream_frames = 64
+        #: True while :meth:`close` ends the jobs (the live view is not started again).
+        self._ending = False
+        #: (ring frames, client) of a live stream to start when the camera is free.
+        self._resume: tuple[int, str] | None = None
         self._ids = itertools.count(1)
         self._prompts: dict[int, tuple[threading.Event, dict]] = {}
         #: The jobs :meth:`start_job` runs, by name.
@@ -209,8 +218,12 @@ class BenchHost(BenchService):
         stream = self._stream
         return stream is not None and stream[1].is_alive()
 
-    def start_stream(self, ring_frames: int = 64) -> None:
+    def start_stream(self, ring_frames: int = 64, client: str = "") -> None:
         """Start the camera's free-run stream and the thread that publishes its frames.
+
+        The stream holds the camera for ``client`` (the live view): a job that needs the
+        camera takes it and gives it back (:meth:`start_job`). While a job holds the
+        camera, the stream starts when that job ends (a message says so).
 
         Raises
         ------
@@ -221,20 +234,36 @@ class BenchHost(BenchService):
         """
         from drivers.camera import FrameRing
 
-        with self._stream_lock:
+        with self._holds_lock, self._stream_lock:
             if self.streaming:
                 return
             cam = self._camera()
+            holder = self._holds.get(self._camera_id())
+            if holder is not None:
+                self._resume = (int(ring_frames), client or "an unnamed client")
+                self._say(f"live view: the camera is held by "
+                          f"{self.job_registry.info(holder).describe()}; the live view "
+                          "starts when it ends")
+                return
             ring = FrameRing(ring_frames)
             cam.start_stream(ring)
             stop = threading.Event()
             pump = threading.Thread(target=self._pump, args=(ring, stop),
                                     name="bench-stream", daemon=True)
             self._stream = (ring, pump, stop)
+            self._stream_frames = int(ring_frames)
+            self._stream_owner = client or "an unnamed client"
             pump.start()
 
     def stop_stream(self, timeout_s: float = 2.0) -> None:
-        """Stop the stream (idempotent); waits for the camera's grab thread."""
+        """Stop the stream (idempotent); waits for the camera's grab thread. A stream
+        that yielded the camera to a job is not started again; the job's camera is
+        left alone."""
+        with self._holds_lock:
+            self._resume = None
+            self._stop_stream_now(timeout_s)
+
+    def _stop_stream_now(self, timeout_s: float = 2.0) -> None:
         with self._stream_lock:
             if self._stream is None:
                 return
@@ -266,7 +295,7 @@ class BenchHost(BenchService):
         self.jobs.update(jobs)
 
     def start_job(self, name: str, kwargs: dict | None = None, *, piped: bool = True,
-                  owner: bool = True) -> int:
+                  owner: bool = True, client: str = "") -> int:
         """Run job ``name`` as ``function(ctx, **kwargs)`` on a thread; returns the job's
         id. Its progress and end go to :attr:`job_registry` (every client's
         :class:`~instrument.bench_job_handle.JobHandle`) and, ``piped``, down the event
@@ -274,21 +303,32 @@ class BenchHost(BenchService):
         "progress", value)``, then ``("job", id, "done", result)`` or ``("job", id,
         "failed", error)``.
 
+        The devices the job declares (:func:`instrument.bench_jobs.holding`) are
+        checked first and held for it until it ends: a device another job holds
+        refuses the job before anything touches it. The live stream yields the camera
+        (stopped, a message saying who took it, started again when the job ends).
+
         Parameters
         ----------
         name : str
         kwargs : dict, optional
+            The job's parameters; a job that declares its accepted ones
+            (:func:`instrument.bench_jobs.accepting`) refuses any other.
         piped : bool
             Send its events down the pipe (the starting client's
             :meth:`~instrument.bench_process.BenchClient.run_job`).
         owner : bool
             Asked by the client that started the bench process (a second client may
             not run :data:`~instrument.bench_job_handle.OWNER_JOBS`).
+        client : str
+            The asking client's name (the job's owner, as refusals name it).
 
         Raises
         ------
         BenchHostError
-            No job of that name, or a second client asks to open or close the bench.
+            No job of that name, a second client asks to open or close the bench, a
+            parameter the job does not accept, or a device it needs is held by another
+            job (the message names that job and its owner).
         """
         fn = self.jobs.get(name)
         if fn is None:
@@ -298,16 +338,38 @@ class BenchHost(BenchService):
             raise BenchHostError(f"{name} runs from the client that started the bench "
                                  "process (the window); use the window's Connect and "
                                  "Disconnect")
-        job_id = next(self._ids)
-        ctx = JobContext(self, job_id, piped)
-        self._jobs[job_id] = ctx
-        self.job_registry.started(job_id, name, kwargs or {})
+        kwargs = dict(kwargs or {})
+        check_params(name, fn, kwargs)
+        if getattr(fn, "holds", ()) and self.bench is None:
+            raise BenchHostError(f"{name}: no bench is open; open the bench first (the "
+                                 "window's Connect, the open_bench job, or `diffuserlab "
+                                 "bench serve`)")
+        client = client or "an unnamed client"
+        with self._holds_lock:
+            holds = self._needs(name, fn)
+            for device in holds:
+                holder = self._holds.get(device)
+                if holder is not None:
+                    raise BenchHostError(
+                        f"{name}: {device} is held by {self.job_registry.info(holder).describe()}"
+                        "; wait for it to end, or stop it (BenchClient.jobs() lists the "
+                        "jobs)")
+            job_id = next(self._ids)
+            ctx = JobContext(self, job_id, piped)
+            self._jobs[job_id] = ctx
+            self.job_registry.started(job_id, name, kwargs, client, holds)
+            for device in holds:
+                self._holds[device] = job_id
+            camera = self._camera_id()
+            yielded = camera in holds and self._stream is not None
+            if yielded:
+                self._yield_stream(job_id)
 
         def run() -> None:
             from .batch_process import _portable
 
             try:
-                result = fn(ctx, **(kwargs or {}))
+                result = fn(ctx, **kwargs)
             except BaseException as exc:  # noqa: BLE001 (every failure goes back)
                 self._job_ended(ctx, "failed", _portable(exc, "the bench process"))
             else:
@@ -317,9 +379,69 @@ class BenchHost(BenchService):
         ctx.thread.start()
         return job_id
 
+    def _needs(self, name: str, fn: Callable) -> tuple[str, ...]:
+        """The ids of the devices job ``fn`` declares it holds, on the open bench."""
+        declared = getattr(fn, "holds", ())
+        bench = self.bench
+        if not declared or bench is None:
+            return ()
+        if "*" in declared:
+            return tuple(bench.devices)
+        ids = []
+        for role in declared:
+            dev = bench.camera if role == "camera" else bench.devices.get(role)
+            found = [i for i, d in bench.devices.items() if d is dev]
+            ids += [i for i in found if i not in ids]
+        return tuple(ids)
+
+    def _camera_id(self) -> str | None:
+        bench = self.bench
+        if bench is None:
+            return None
+        return next((i for i, d in bench.devices.items() if d is bench.camera), None)
+
+    def holders(self) -> dict[str, dict]:
+        """``{device id: {"job", "name", "owner"}}`` of the devices jobs hold now, and
+        the live stream's camera (``"job"`` None, ``"name"`` ``live stream``)."""
+        with self._holds_lock:
+            out = {d: {"job": i, "name": self.job_registry.info(i).name,
+                       "owner": self.job_registry.info(i).owner}
+                   for d, i in self._holds.items()}
+            camera = self._camera_id()
+            if self._stream is not None and camera is not None and camera not in out:
+                out[camera] = {"job": None, "name": "live stream", "owner": self._stream_owner}
+        return out
+
+    def _say(self, text: str) -> None:
+        log.info("bench process: %s", text)
+        self.events.put(("message", text))
+        self.device_events.put("message", None, text)
+
+    def _yield_stream(self, job_id: int) -> None:
+        """The live stream gives the camera to job ``job_id`` (held lock: _holds_lock)."""
+        self._resume = (self._stream_frames, self._stream_owner)
+        self._stop_stream_now()
+        self._say(f"live view: the camera was taken by "
+                  f"{self.job_registry.info(job_id).describe()}; the live view comes back "
+                  "when it ends")
+
     def _job_ended(self, ctx: JobContext, state: str, value: Any) -> None:
         self._jobs.pop(ctx.job_id, None)
+        with self._holds_lock:
+            for device in [d for d, i in self._holds.items() if i == ctx.job_id]:
+                del self._holds[device]
+            back = (self._resume is not None and self._camera_id() not in self._holds
+                    and not self.closing and not self._ending and self.bench is not None)
+            resume, self._resume = (self._resume, None) if back else (None, self._resume)
         try:
+            if resume is not None:
+                try:
+                    self.start_stream(resume[0], client=resume[1])
+                    self._say(f"live view: the camera is back from job {ctx.job_id}")
+                except Exception as exc:  # noqa: BLE001 (said; the job's end still goes out)
+                    self._say(f"live view: could not start again after job {ctx.job_id}: "
+                              f"{exc}")
+                    self.events.put(("stream_ended", f"camera stream stopped: {exc}"))
             if ctx.piped:
                 self.events.put(("job", ctx.job_id, state, value))
         finally:
@@ -385,6 +507,8 @@ class BenchHost(BenchService):
         under it).
         """
         current = threading.current_thread()
+        self._ending = True
+        self._resume = None
         jobs = [ctx for ctx in list(self._jobs.values()) if ctx.thread is not current]
         for ctx in jobs:
             ctx.control.abort("the bench is closing")
@@ -411,3 +535,4 @@ class BenchHost(BenchService):
                 if self._slot is not None:
                     self._slot.close()
                     self._slot = None
+            self._ending = False

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import inspect
 import threading
 import time
 from collections import OrderedDict
@@ -36,10 +37,10 @@ from typing import Any
 
 import numpy as np
 
-from .bench_service import BenchEvent, BenchServiceError, EventLog
+from .bench_service import BenchEvent, BenchGoneError, BenchServiceError, EventLog
 
 __all__ = ["ENDED_JOBS_KEPT", "JOB_EVENTS_KEPT", "OWNER_JOBS", "JobHandle", "JobInfo",
-           "JobRegistry", "without_arrays"]
+           "JobRegistry", "check_params", "without_arrays"]
 
 #: Events kept per job (a reader that fell further behind gets the newest; the job's
 #: end is always the last kept).
@@ -70,16 +71,33 @@ class JobInfo:
         The keyword parameters it was started with.
     state : str
         ``running``, ``done`` or ``failed``.
+    owner : str
+        The client that started it (its name: ``BenchClient(name=...)``, by default
+        ``pid N``), as refusals and confirmations name it.
+    holds : tuple of str
+        The ids of the devices it holds while it runs (its declaration,
+        :func:`instrument.bench_jobs.holding`); no other job may use them.
+    progress : object
+        The last progress it reported, its arrays left out (None before the first).
     """
 
     id: int
     name: str
     params: dict
     state: str
+    owner: str = ""
+    holds: tuple = ()
+    progress: Any = None
 
     def as_event(self) -> dict:
-        """``{"id", "name", "state"}``: the ``data`` of the bench's ``job`` event."""
-        return {"id": self.id, "name": self.name, "state": self.state}
+        """``{"id", "name", "state", "owner", "holds"}``: the ``data`` of the bench's
+        ``job`` event."""
+        return {"id": self.id, "name": self.name, "state": self.state,
+                "owner": self.owner, "holds": list(self.holds)}
+
+    def describe(self) -> str:
+        """``job 3 (record) of the window``: how a refusal or a confirmation names it."""
+        return f"job {self.id} ({self.name}) of {self.owner or 'an unnamed client'}"
 
 
 def without_arrays(value: Any) -> Any:
@@ -103,6 +121,31 @@ def without_arrays(value: Any) -> Any:
     return value
 
 
+def check_params(name: str, fn: Callable, params: dict) -> None:
+    """Refuse parameters job ``fn`` (``function(ctx, **params)``) does not take, before
+    it starts: each keyword its signature does not name (unless it takes ``**kwargs``),
+    then the job's own ``fn.check(params)`` (a nested dict of options, e.g.
+    :func:`instrument.bench_jobs.record`'s ``options``).
+
+    Raises
+    ------
+    instrument.bench_service.BenchServiceError
+        One line naming the first unknown key and the accepted ones.
+    """
+    sig = inspect.signature(fn)
+    kinds = {p.kind for p in sig.parameters.values()}
+    if inspect.Parameter.VAR_KEYWORD not in kinds:
+        accepted = [p.name for p in list(sig.parameters.values())[1:]
+                    if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        for key in params:
+            if key not in accepted:
+                raise BenchServiceError(f"{name}: unknown parameter {key!r}; it accepts "
+                                        f"{', '.join(accepted) or 'none'}")
+    check = getattr(fn, "check", None)
+    if check is not None:
+        check(params)
+
+
 class _Job:
     def __init__(self, info: JobInfo) -> None:
         self.info = info
@@ -123,9 +166,11 @@ class JobRegistry:
         self._jobs: OrderedDict[int, _Job] = OrderedDict()
         self._lock = threading.Lock()
 
-    def started(self, job_id: int, name: str, params: dict) -> None:
-        """Log job ``job_id`` as running."""
-        job = _Job(JobInfo(job_id, name, dict(params), "running"))
+    def started(self, job_id: int, name: str, params: dict, owner: str = "",
+                holds: tuple = ()) -> None:
+        """Log job ``job_id`` as running, started by client ``owner``, holding the
+        devices ``holds``."""
+        job = _Job(JobInfo(job_id, name, dict(params), "running", owner, tuple(holds)))
         with self._lock:
             self._jobs[job_id] = job
         self.bench_events.put("job", None, job.info.as_event())
@@ -134,7 +179,10 @@ class JobRegistry:
         """Log the job's progress ``value``, less its arrays (:func:`without_arrays`)."""
         job = self._jobs.get(job_id)
         if job is not None:
-            job.log.put("progress", None, without_arrays(value))
+            value = without_arrays(value)
+            with self._lock:
+                job.info = dataclasses.replace(job.info, progress=value)
+            job.log.put("progress", None, value)
 
     def ended(self, job_id: int, state: str, value: Any) -> None:
         """Log the job's end: ``state`` ``done`` (``value`` its result) or ``failed``
@@ -216,9 +264,10 @@ class JobHandle:
     def _call(self, method: str, *args):
         try:
             return getattr(self._host, method)(*args)
-        except (OSError, EOFError) as exc:
-            raise BenchServiceError(f"the bench process is gone ({type(exc).__name__}); "
-                                    f"job {self.id} ({self.name}) ended with it") from None
+        except (OSError, EOFError, BenchGoneError) as exc:
+            why = getattr(exc, "cause", type(exc).__name__)
+            raise BenchGoneError(f"the bench process is gone ({why}); "
+                                 f"job {self.id} ({self.name}) ended with it") from None
 
     # -- events ------------------------------------------------------------------------
     def next_events(self, timeout_s: float = 1.0) -> list[BenchEvent]:

@@ -20,8 +20,33 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from contextlib import contextmanager
+from typing import Any
 
-__all__ = ["JOBS", "close_bench", "kept", "open_bench", "record", "set_scene", "show_scene"]
+__all__ = ["JOBS", "RECORD_OPTIONS", "close_bench", "holding", "kept", "open_bench", "record",
+           "set_scene", "show_scene"]
+
+
+def holding(*devices: str, check: Callable[[dict], None] | None = None):
+    """Declare what a job holds while it runs: ``devices``, device ids or roles
+    (``"camera"``; ``"*"``: every device of the bench). The bench process refuses a job
+    whose devices another job holds, before anything touches them, and the live stream
+    yields the camera to it (:meth:`instrument.bench_host.BenchHost.start_job`); a job
+    that declares nothing holds nothing. ``check(params)``, if given, refuses bad
+    parameters before the job starts (raising
+    :class:`~instrument.bench_service.BenchServiceError`).
+
+    Returns
+    -------
+    callable
+        A decorator that sets ``fn.holds`` (and ``fn.check``) and returns ``fn``.
+    """
+    def mark(fn: Callable) -> Callable:
+        fn.holds = tuple(devices)
+        if check is not None:
+            fn.check = check
+        return fn
+
+    return mark
 
 
 def open_bench(ctx, *, bench_path: str | None, simulate: bool, seed: int,
@@ -143,12 +168,37 @@ class _Publisher:
         return None
 
 
-def record(ctx, *, out: str, frames: int | None, seconds: float | None,
-           options: dict[str, float], simulated: dict | None = None) -> dict:
+#: The ``options`` the :func:`record` job passes on to
+#: :func:`instrument.video.record_video` (any other key is refused).
+RECORD_OPTIONS = ("fps", "exposure_s", "shard_frames", "compressor", "queue_frames",
+                  "ring_frames", "frame_timeout_s", "note", "overwrite")
+
+
+def _check_record(params: dict) -> None:
+    from .bench_service import BenchServiceError
+
+    options = params.get("options") or {}
+    if not isinstance(options, dict):
+        raise BenchServiceError(f"record: options must be a dict of "
+                                f"{', '.join(RECORD_OPTIONS)}, not {type(options).__name__}")
+    for key in options:
+        if key not in RECORD_OPTIONS:
+            raise BenchServiceError(f"record: unknown option {key!r}; the options are "
+                                    f"{', '.join(RECORD_OPTIONS)}")
+
+
+@holding("camera", check=_check_record)
+def record(ctx, *, out: str, frames: int | None = None, seconds: float | None = None,
+           options: dict[str, Any] | None = None, simulated: dict | None = None) -> dict:
     """Record a video run (:func:`instrument.video.record_video`), the bench given back
-    after (the sample stays); ``simulated``: the virtual bench's scene and seed, with
-    the camera's dark offset added here, as ``capture video --simulate`` records."""
+    after (the sample stays); ``options``: :data:`RECORD_OPTIONS` (any other key is
+    refused before the job starts); ``simulated``: the virtual bench's scene and seed,
+    with the camera's dark offset added here, as ``capture video --simulate`` records.
+    Holds the camera while it runs (:func:`holding`).
+
+    """
     from .video import record_video
+
 
     attrs = {}
     if simulated is not None:
@@ -157,7 +207,8 @@ def record(ctx, *, out: str, frames: int | None, seconds: float | None,
     with kept(ctx, sample_out=False):
         return record_video(ctx.bench, out, frames=frames, seconds=seconds, stop=ctx.stop,
                             on_progress=ctx.report, progress_every_s=0.25,
-                            live=_Publisher(ctx), **options, **attrs)
+                            live=_Publisher(ctx), **(options or {}), **attrs)
+
 
 
 #: The instrument's jobs by name (:meth:`instrument.bench_host.BenchHost.start_job`).

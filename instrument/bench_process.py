@@ -50,7 +50,7 @@ from typing import Any
 
 from .bench_host import FRAME_META, BenchHost, BenchHostError, EventChannel, FrameWaker
 from .bench_job_handle import JobHandle, JobInfo
-from .bench_service import BenchEvent, CameraFormat, DeviceInfo
+from .bench_service import BenchEvent, BenchGoneError, CameraFormat, DeviceInfo
 from .shared_slot import SharedImageSlot
 
 __all__ = ["ENDING_SIGNALS", "BenchClient"]
@@ -107,6 +107,16 @@ class _Manager(BaseManager):
     pass
 
 
+def gone(address: Any, exc: BaseException) -> BenchGoneError:
+    """The clear error for a bench process that cannot be reached at ``address``
+    (``exc``: the connection's own error, e.g. ``ConnectionRefusedError``)."""
+    error = BenchGoneError(f"the bench process at {address} is gone or not running "
+                           f"({type(exc).__name__}); start it again (the window's Restart "
+                           "bench, or `diffuserlab bench serve`) and connect anew")
+    error.cause = type(exc).__name__
+    return error
+
+
 class _PooledHost:
     """The host's methods called over a pool of connections, in the manager's own
     protocol (``(id, method, args, kwargs)`` -> ``(kind, result)``).
@@ -141,10 +151,16 @@ class _PooledHost:
             raise AttributeError(name)
 
         def call(*args, **kwargs):
-            conn = self._take()
+            try:
+                conn = self._take()
+            except (OSError, EOFError) as exc:
+                raise gone(self._token.address, exc) from None
             try:
                 conn.send((self._token.id, name, args, kwargs))
                 kind, result = conn.recv()
+            except (OSError, EOFError) as exc:
+                conn.close()
+                raise gone(self._token.address, exc) from None
             except BaseException:
                 conn.close()
                 raise
@@ -199,13 +215,19 @@ class BenchClient:
         the stream's start and stop and the jobs (:meth:`start_job`, :meth:`run_job`)
         but opening and closing the bench; the frames stay with the client that
         started it, and closing this client leaves the bench open and its jobs
-        running.
+        running. :meth:`connect` reads both from the bench process's connection file.
+    name : str, optional
+        How the bench process names this client as the owner of its jobs and stream
+        (``"the window"``); ``pid N`` is added (default: ``pid N`` alone).
+
+    Once the bench process is gone (killed, ended), every call raises
+    :class:`~instrument.bench_service.BenchGoneError`, saying so.
 
     Raises
     ------
     EOFError
         The host process ended while starting.
-    ConnectionRefusedError
+    instrument.bench_service.BenchGoneError
         No bench process at ``address``.
     multiprocessing.AuthenticationError
         ``authkey`` is not that bench process's.
@@ -217,8 +239,11 @@ class BenchClient:
                  on_prompt: Callable[[str, str, Callable[[bool], None]], None] | None = None,
                  on_stream_ended: Callable[[], None] | None = None,
                  on_event: Callable[[BenchEvent], None] | None = None,
-                 address: Any = None, authkey: bytes | None = None) -> None:
+                 address: Any = None, authkey: bytes | None = None,
+                 name: str | None = None) -> None:
         self.in_process = bool(in_process)
+        #: How the bench process names this client (the owner of its jobs and stream).
+        self.name = f"{name} (pid {os.getpid()})" if name else f"pid {os.getpid()}"
         self.attached = address is not None
         self.on_frame, self.on_message, self.on_prompt = on_frame, on_message, on_prompt
         self.on_stream_ended, self.on_event = on_stream_ended, on_event
@@ -229,7 +254,10 @@ class BenchClient:
         self._events = self._wake = None
         if self.attached:
             self._manager = _Manager(address=address, authkey=authkey)
-            self._manager.connect()
+            try:
+                self._manager.connect()
+            except (OSError, EOFError) as exc:
+                raise gone(address, exc) from None
             self.host = _PooledHost(self._manager.BenchHost())
         else:
             # pipes, not queues or semaphores: nothing for the resource tracker to find
@@ -331,8 +359,9 @@ class BenchClient:
 
     def start_stream(self, ring_frames: int = 64) -> None:
         """:meth:`~instrument.bench_host.BenchHost.start_stream` (frames: to the client
-        that started the bench process)."""
-        self.host.start_stream(ring_frames)
+        that started the bench process); the stream holds the camera for this client,
+        and yields it to a job that needs it."""
+        self.host.start_stream(ring_frames, client=self.name)
 
     def stop_stream(self, timeout_s: float = 2.0) -> None:
         """:meth:`~instrument.bench_host.BenchHost.stop_stream`."""
@@ -367,7 +396,7 @@ class BenchClient:
         if self.attached:
             try:
                 self.host.events_after(None)
-            except (OSError, EOFError):
+            except (OSError, EOFError, BenchGoneError):
                 return False
             return True
         process = getattr(self._manager, "_process", None)
@@ -402,7 +431,7 @@ class BenchClient:
             return self._run_held(self.start_job(name, kwargs), report, control, stop,
                                   cancel, poll_s)
         events: queue.SimpleQueue = queue.SimpleQueue()
-        job_id = self.host.start_job(name, kwargs or {})
+        job_id = self.host.start_job(name, kwargs or {}, client=self.name)
         with self._lock:
             self._jobs[job_id] = events
             for msg in self._early.pop(job_id, []):
@@ -457,10 +486,16 @@ class BenchClient:
         ------
         instrument.bench_host.BenchHostError
             No job of that name, or a second client asks for ``open_bench`` or
-            ``close_bench`` (the window's).
+            ``close_bench`` (the window's), a parameter the job does not take (one
+            line naming it and the accepted ones), no bench open for a job that needs
+            its devices ("open the bench first"), or a device the job needs is held by
+            another job (the line names that job and its owner; the holder's device is
+            not touched).
+        instrument.bench_service.BenchGoneError
+            The bench process is gone.
         """
         job_id = self.host.start_job(name, dict(params or {}), piped=False,
-                                     owner=not self.attached)
+                                     owner=not self.attached, client=self.name)
         return JobHandle(self.host, self.host.job_info(job_id))
 
     def job(self, job_id: int) -> JobHandle:
@@ -475,8 +510,14 @@ class BenchClient:
         return JobHandle(self.host, self.host.job_info(int(job_id)))
 
     def jobs(self) -> list[JobInfo]:
-        """The bench process's jobs, running and recently ended, oldest first."""
+        """The bench process's jobs, running and recently ended, oldest first, whichever
+        client started them (their ``owner``, ``state``, last ``progress`` and the
+        devices they hold)."""
         return self.host.job_infos()
+
+    def holders(self) -> dict[str, dict]:
+        """:meth:`~instrument.bench_host.BenchHost.holders`: who holds which device."""
+        return self.host.holders()
 
     def _forward(self, job_id: int, sent: dict, control, stop, cancel) -> None:
         """Send the host the changes of the caller's control, stop and cancel."""

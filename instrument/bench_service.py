@@ -34,7 +34,7 @@ import numpy as np
 
 from diffuserlab.errors import DiffuserLabError
 
-__all__ = ["WATCH_PERIOD_S", "BenchEvent", "BenchService", "BenchServiceError",
+__all__ = ["WATCH_PERIOD_S", "BenchEvent", "BenchGoneError", "BenchService", "BenchServiceError",
            "CameraFormat", "DeviceInfo", "EventLog", "device_info", "same_value"]
 
 log = logging.getLogger(__name__)
@@ -46,6 +46,11 @@ WATCH_PERIOD_S = 1.0
 class BenchServiceError(DiffuserLabError, RuntimeError):
     """A command the bench cannot serve: no bench open, an unknown device, a device of
     another kind than the command needs."""
+
+
+class BenchGoneError(BenchServiceError):
+    """The bench process cannot be reached: it ended (killed, crashed, closed) or never
+    ran at the address given."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

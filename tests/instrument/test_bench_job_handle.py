@@ -41,6 +41,7 @@ def window():
     events = Events()
     with opened_bench(jobs={"fails": fails}, on_event=events) as client:
         client.events = events
+        client.camera_id = next(d.name for d in client.devices() if d.kind == "camera")
         yield client
 
 
@@ -54,7 +55,8 @@ def test_a_recording_a_notebook_started_is_followed_and_stopped_by_the_window(
         # the window is told a job started, and holds it by its id
         told = window.events.wait(lambda e: e.kind == "job" and e.data["id"] == job.id,
                                   "of the notebook's job starting")
-        assert told.data == {"id": job.id, "name": "record", "state": "running"}
+        assert told.data == {"id": job.id, "name": "record", "state": "running",
+                             "owner": notebook.name, "holds": [window.camera_id]}
         held = window.job(job.id)
         assert [i.state for i in window.jobs() if i.id == job.id] == ["running"]
         # both clients see the recording's progress
