@@ -245,7 +245,7 @@ class CalibrationPanel(RunControls, QWidget):
         """A run ended: complete, aborted or failed (data kept, how to resume)."""
         self.result = result
         self._set_running(False)
-        self.progress.finish()
+        self.progress.finish(ok=result.status == "complete")
         if result.status == "complete":
             self._say(f"calibration run complete: {result.path}; the camera, stages and LEDs "
                       "are as before the run")

@@ -240,13 +240,30 @@ class JobProgress(QWidget):
         text = f"{_clock(self.elapsed_s())} elapsed, {eta_text(self.eta_s())}"
         self.label.setText(f"{self.note}{'; ' if self.note else ''}{text}")
 
-    def finish(self, text: str = "") -> None:
-        """The job ended: the clock stops (the last figures stay)."""
-        self.tick()
+    def finish(self, text: str | None = None, *, ok: bool | None = None) -> None:
+        """The job ended: the clock stops and the ETA goes.
+
+        Parameters
+        ----------
+        text : str, optional
+            What the label then says. None (``finish()``): the job completed, the label
+            says how long it took and the bar keeps its count; a text (``""`` too):
+            the job failed or stopped, the bar is emptied (no count, no percentage)
+            and the label shows ``text``.
+        ok : bool, optional
+            Whether the job completed (default: ``text is None``).
+        """
+        ok = text is None if ok is None else ok
+        took = self.elapsed_s()
         self.timer.stop()
-        self._t0 = None
-        if text:
-            self.label.setText(text)
+        self._t0, self._eta = None, None
+        self.note = ""
+        if ok:
+            self.label.setText(text or f"finished in {_clock(took)}")
+            return
+        self.bar.setRange(0, 1)
+        self.bar.reset()  # no value: the bar shows no text
+        self.label.setText(text or "")
 
 
 class RunControls:

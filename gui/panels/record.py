@@ -603,7 +603,8 @@ class RecordPanel(QWidget):
     def on_batch_done(self, run: str, result: dict) -> None:
         self.batch_result = result
         self.batch_button.setText("Reconstruct run")
-        self.batch_progress.finish()
+        self.batch_progress.finish(ok=not result.get("cancelled") and bool(
+            int(result["reconstructed"]) + int(result["skipped"])))
         if result.get("cancelled"):
             self.batch_status.setText(
                 f"cancelled: {result['reconstructed']} frames reconstructed and kept in "
