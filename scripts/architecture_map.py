@@ -5,17 +5,29 @@ Everything drawn is measured from the checkout when the script runs (``ast`` for
 imports and lines, ``sys.setprofile`` for the walk), so the picture cannot drift from
 the code. Used for docs/images/architecture.png (docs/architecture.md)::
 
-    python scripts/architecture_map.py docs/images/architecture.png
+    python scripts/architecture_map.py docs/images/architecture.png --docs docs/architecture.md
+
+Beside the PNG it writes the numbers drawn, ``architecture.json`` (lines per part and
+package, import statements between packages, the walk), and the PNG carries that
+summary's SHA-256 (its ``Description`` text); ``--docs`` rewrites the table of
+docs/architecture.md between its ``architecture-map`` markers from the same numbers.
+tests/docs/test_architecture_map.py re-measures the checkout and fails when the
+committed figures have drifted from it. The output is deterministic: the same checkout
+gives the same JSON and the same PNG bytes.
 
 The walk needs the tutorial sample (``../shared/data/diffusercam-tutorial`` beside the
 repository, or ``--sample DIR`` with ``psf_sample.tif`` and ``rawdata_hand_sample.tif``);
-without it the walk panel says so and the map is drawn alone.
+without it the walk panel says so and the map is drawn alone. ``--keep-walk`` takes the
+walk from the JSON already beside the PNG instead of profiling a reconstruction again
+(minutes on a loaded machine), for a redraw after lines and imports alone have moved.
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import hashlib
+import json
 import sys
 import tempfile
 from collections import Counter
@@ -83,24 +95,34 @@ def walk(sample: Path) -> list[str]:
 
     seen: list[str] = []
     handler = str(REPO / "instrument" / "cli" / "recon.py")
+    part_of_file: dict[str, str | None] = {}  # a file's part, or None: not ours
+
+    def file_part(path: str) -> str | None:
+        try:
+            rel = Path(path).resolve().relative_to(REPO)
+        except ValueError:
+            return None
+        if rel.parts[0] not in PACKAGES or rel.parts[0] == "diffuserlab":
+            return None
+        return part_of(module_name(REPO / rel))
 
     def profile(frame, event, arg):
         if event != "call":
             return
-        path = frame.f_code.co_filename
+        code = frame.f_code
+        path = code.co_filename
         if not seen:  # from the command's handler on (the parser's building left out)
-            if path != handler or frame.f_code.co_name != "run":
+            if path != handler or code.co_name != "run":
                 return
-        try:
-            rel = Path(path).resolve().relative_to(REPO)
-        except ValueError:
+        if code.co_name == "<module>":  # an import, not the work
             return
-        if rel.parts[0] not in PACKAGES or rel.parts[0] == "diffuserlab" \
-                or frame.f_code.co_name == "<module>":  # an import, not the work
+        if path not in part_of_file:
+            part_of_file[path] = file_part(path)
+        part = part_of_file[path]
+        if part is None:
             return
-        part = part_of(module_name(REPO / rel))
         # a step is a change of package, named by the part it enters
-        if not seen or seen[-1].split(".")[0] != rel.parts[0]:
+        if not seen or seen[-1].split(".")[0] != part.split(".")[0]:
             seen.append(part)
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -117,7 +139,120 @@ def walk(sample: Path) -> list[str]:
     return seen
 
 
-def draw(out: Path, lines: Counter, edges: Counter, steps: list[str] | None) -> None:
+def summary(lines: Counter, edges: Counter, steps: list[str] | None) -> dict:
+    """The numbers the map draws, as plain JSON types in a fixed order.
+
+    Returns
+    -------
+    dict
+        ``packages`` (lines per top-level package), ``parts`` (lines per part),
+        ``imports`` (``"a -> b"``: import statements of package a naming package b),
+        ``imports_total``, ``upward`` (of those, the statements to the same or a
+        higher layer) and ``walk`` (the parts one ``diffuserlab recon`` enters, in
+        order; None without the sample).
+    """
+    packages = {pkg: sum(n for p, n in lines.items() if p.split(".")[0] == pkg)
+                for pkg in PACKAGES}
+    upward = sum(n for (a, b), n in edges.items() if LAYER_OF[b] <= LAYER_OF[a])
+    return {"packages": packages,
+            "parts": {p: lines[p] for p in sorted(lines)},
+            "imports": {f"{a} -> {b}": edges[(a, b)] for a, b in sorted(edges)},
+            "imports_total": sum(edges.values()),
+            "upward": upward,
+            "walk": steps}
+
+
+def summary_json(data: dict) -> str:
+    """The summary's text as committed (sorted keys, one line per number)."""
+    return json.dumps(data, indent=1, sort_keys=True) + "\n"
+
+
+def digest(data: dict) -> str:
+    """SHA-256 of the summary's text: the PNG's ``Description``, so a PNG and a JSON
+    drawn apart are told apart."""
+    return hashlib.sha256(summary_json(data).encode()).hexdigest()
+
+
+#: How far a committed number may lag the checkout before the map counts as stale:
+#: a fraction of the measured number, with a floor for small ones.
+LINES_SLACK = (0.05, 30)
+IMPORTS_SLACK = (0.05, 3)
+TOTAL_IMPORTS_SLACK = 0.03
+
+
+def drift(committed: dict, measured: dict) -> list[str]:
+    """What of the committed summary no longer holds for the measured one.
+
+    Parameters
+    ----------
+    committed, measured : dict
+        :func:`summary` of the committed map and of the checkout (walks not compared:
+        profiling one takes minutes).
+
+    Returns
+    -------
+    list of str
+        One line per difference: a part or an import direction that appeared or went,
+        a line count off by more than :data:`LINES_SLACK`, an import count by more
+        than :data:`IMPORTS_SLACK`, the total of imports by more than
+        :data:`TOTAL_IMPORTS_SLACK`, or a different number of upward imports.
+        Empty when the map is still true.
+    """
+    found = []
+
+    def near(what, old, new, slack):
+        frac, floor = slack
+        if abs(old - new) > max(frac * new, floor):
+            found.append(f"{what}: drawn {old}, now {new}")
+
+    for key, slack in (("packages", LINES_SLACK), ("parts", LINES_SLACK),
+                       ("imports", IMPORTS_SLACK)):
+        old, new = committed[key], measured[key]
+        for name in sorted(set(old) ^ set(new)):
+            found.append(f"{key[:-1]} {name}: " + ("gone" if name in old else "new"))
+        for name in sorted(set(old) & set(new)):
+            near(f"{key[:-1]} {name}", old[name], new[name], slack)
+    near("imports in all", committed["imports_total"], measured["imports_total"],
+         (TOTAL_IMPORTS_SLACK, 0))
+    if committed["upward"] != measured["upward"]:
+        found.append(f"upward imports: drawn {committed['upward']}, now {measured['upward']}")
+    return found
+
+
+#: The markers around the generated table in docs/architecture.md.
+DOCS_START = "<!-- architecture-map:start (scripts/architecture_map.py --docs) -->"
+DOCS_END = "<!-- architecture-map:end -->"
+
+
+def docs_table(data: dict) -> str:
+    """The Markdown table of each package's lines and its import statements naming
+    other packages (out) and naming it (in)."""
+    pairs = [(k.split(" -> "), n) for k, n in data["imports"].items()]
+    rows = ["| package | lines | import statements naming another package | "
+            "import statements naming it |", "|---|---:|---:|---:|"]
+    for pkg in PACKAGES:
+        out = sum(n for (a, _), n in pairs if a == pkg)
+        into = sum(n for (_, b), n in pairs if b == pkg)
+        rows.append(f"| `{pkg}` | {data['packages'][pkg]:,} | {out:,} | {into:,} |")
+    rows.append(f"| all | {sum(data['packages'].values()):,} | {data['imports_total']:,} "
+                f"(upward or sideways: {data['upward']}) | |")
+    return "\n".join(rows)
+
+
+def rewrite_docs(page: Path, data: dict) -> None:
+    """Replace the table between the markers of ``page`` (the markers must be there)."""
+    text = page.read_text(encoding="utf-8")
+    if DOCS_START not in text or DOCS_END not in text:
+        raise SystemExit(f"{page}: no {DOCS_START!r} ... {DOCS_END!r} markers; add them "
+                         "where the table goes")
+    head, rest = text.split(DOCS_START, 1)
+    _, tail = rest.split(DOCS_END, 1)
+    page.write_text(f"{head}{DOCS_START}\n{docs_table(data)}\n{DOCS_END}{tail}",
+                    encoding="utf-8")
+
+
+def draw(out: Path, lines: Counter, edges: Counter, steps: list[str] | None,
+         description: str = "") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -160,7 +295,7 @@ def draw(out: Path, lines: Counter, edges: Counter, steps: list[str] | None) -> 
                 px += w
             x += w_pkg + 2.0
     upward = 0
-    for (a, b), n in sorted(edges.items(), key=lambda e: e[1]):
+    for (a, b), n in sorted(edges.items(), key=lambda e: (e[1], e[0])):
         (xa, ya), (xb, yb) = centre[a], centre[b]
         up = LAYER_OF[b] < LAYER_OF[a] or (LAYER_OF[a] == LAYER_OF[b])
         upward += n if up else 0
@@ -196,18 +331,35 @@ def draw(out: Path, lines: Counter, edges: Counter, steps: list[str] | None) -> 
                      fontsize=7.6, va="center",
                      bbox={"facecolor": colours[part.split('.')[0]], "edgecolor": "none",
                            "pad": 2})
-    fig.savefig(out, dpi=110)
+    # no Software (matplotlib's version): the same numbers give the same bytes
+    fig.savefig(out, dpi=110, metadata={"Software": None, "Description": description})
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("out", type=Path, help="the PNG to write")
+    parser.add_argument("out", type=Path, help="the PNG to write (its summary: OUT.json)")
     parser.add_argument("--sample", type=Path,
                         default=REPO.parent / "shared" / "data" / "diffusercam-tutorial")
+    parser.add_argument("--keep-walk", action="store_true",
+                        help="take the walk from OUT.json instead of profiling one recon")
+    parser.add_argument("--docs", type=Path, default=None,
+                        help="also rewrite the table between this page's markers")
     args = parser.parse_args(argv)
     lines, edges = measure()
-    steps = walk(args.sample) if (args.sample / "psf_sample.tif").exists() else None
-    draw(args.out, lines, edges, steps)
+    beside = args.out.with_suffix(".json")
+    if args.keep_walk:
+        if not beside.exists():
+            raise SystemExit(f"--keep-walk: {beside} does not exist; run without it once")
+        steps = json.loads(beside.read_text(encoding="utf-8"))["walk"]
+    elif (args.sample / "psf_sample.tif").exists():
+        steps = walk(args.sample)
+    else:
+        steps = None
+    data = summary(lines, edges, steps)
+    draw(args.out, lines, edges, steps, description=digest(data))
+    beside.write_text(summary_json(data), encoding="utf-8")
+    if args.docs is not None:
+        rewrite_docs(args.docs, data)
     for (a, b), n in sorted(edges.items()):
         print(f"{a} -> {b}: {n}")
     if steps is not None:
