@@ -51,8 +51,8 @@ def _common(p: argparse.ArgumentParser, *, resume: bool = False) -> None:
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
     """Add ``calibrate`` and its routines to the ``diffuserlab`` subparsers."""
-    cp = sub.add_parser("calibrate", help="calibration routines (dark/flat, PSF sweep, SLM LUT, "
-                        "PSF grid, angular response) and resuming them")
+    cp = sub.add_parser("calibrate", help=f"calibration routines ({', '.join(PARAMETERS)}) "
+                        "and resuming them")
     csub = cp.add_subparsers(dest="routine", required=True)
     for name, model in PARAMETERS.items():
         rp = csub.add_parser(name, help=model.summary)
