@@ -121,3 +121,31 @@ def test_the_benchmark_phase_of_large_frames_reports_its_figures(qapp):
     out = large_frame_lateness((600, 800), seconds=1.0)
     assert out["shape"] == [600, 800] and out["frames_shown"] > 0 and out["firings"] > 0
     assert out["cpu_ms_per_frame"] > 0 and out["max_ms"] >= out["p99_ms"] >= 0
+
+
+def test_a_phase_without_a_sample_says_so_instead_of_crashing():
+    """A phase in which the timer fired fewer than twice (the GUI thread held off a core
+    for the whole phase) reports "no sample" (np.percentile of an empty sample raised)."""
+    import numpy as np
+
+    from soak.benchmark import _line, _summary
+
+    out = _summary(np.array([]), 0.5, 1.0)
+    assert out["firings"] == 0 and out["p99_ms"] is None and "no sample" in out["sample"]
+    assert "no sample" in _line("idle", out)
+
+
+def test_a_phase_waits_for_its_firings_when_the_gui_thread_is_held(qapp):
+    """The GUI thread held past the whole phase: the phase goes on until the timer has
+    fired (it waits on the firings, not on the clock alone)."""
+    import threading
+
+    from PySide6.QtCore import QTimer
+
+    from soak.benchmark import measure_lateness
+
+    released = threading.Event()
+    # hold the event loop for longer than the phase: no firing within its 0.1 s
+    QTimer.singleShot(0, lambda: released.wait(0.5))
+    lateness = measure_lateness(qapp, 0.1, until=lambda firings: firings >= 3)
+    assert lateness.size >= 2
