@@ -83,24 +83,38 @@ def test_a_read_that_races_the_writer_on_its_buffer_is_discarded():
         slot.close()
 
 
-def _write_uniform(name: str, capacity: int, n: int) -> None:
+def _write_uniform(name: str, capacity: int, n: int, reads, wrote) -> None:
+    """Write images ``1, 2, ...`` (every pixel and the metadata the image's number) as
+    fast as it can: at least ``n``, and on until the reader has read ``MIN_READS`` of
+    them while it wrote (a hang guard: ``MAX_WRITES``); ``wrote`` is the last number."""
     slot = SharedImageSlot(capacity, name=name)
-    for k in range(1, n + 1):
+    k = 0
+    while k < MAX_WRITES and (k < n or reads.value < MIN_READS):
+        k += 1
         slot.write(np.full((256, 256), k, np.float32), meta=[k])
+    wrote.value = k
     slot.close()
 
 
+#: Images the reader must have read while the writer wrote, and the writer's most.
+MIN_READS, MAX_WRITES = 50, 2_000_000
+
+
 def test_no_torn_image_while_another_process_writes():
-    """Every image read while a child writes 3000 of them as fast as it can is one
-    whole image: all its pixels and its metadata carry the same number."""
+    """Every image read while a child writes images as fast as it can (at least 3000,
+    and until the reader has read 50 of them however the machine shares its cores) is
+    one whole image: all its pixels and its metadata carry the same number."""
     slot = SharedImageSlot(256 * 256 * 4)
-    writer = multiprocessing.get_context("spawn").Process(
-        target=_write_uniform, args=(slot.name, slot.capacity, 3000))
+    ctx = multiprocessing.get_context("spawn")
+    reads_shared, wrote = ctx.Value("q", 0), ctx.Value("q", 0)
+    writer = ctx.Process(target=_write_uniform,
+                         args=(slot.name, slot.capacity, 3000, reads_shared, wrote))
     try:
         writer.start()
         reads, last = 0, 0
         deadline = time.monotonic() + HANG_S
-        while (writer.is_alive() or last < 3000) and time.monotonic() < deadline:
+        while (writer.is_alive() or last < max(wrote.value, 1)) and (
+                time.monotonic() < deadline):
             got = slot.read(after=last)
             if got is None:
                 continue
@@ -108,7 +122,9 @@ def test_no_torn_image_while_another_process_writes():
             assert got.image.min() == got.image.max() == k, "a torn image"
             assert got.sequence >= last and k == got.sequence
             last, reads = got.sequence, reads + 1
-        assert last == 3000 and reads > 10
+            reads_shared.value = reads
+        writer.join(30)
+        assert last == wrote.value >= 3000 and reads >= MIN_READS, (last, wrote.value, reads)
     finally:
         writer.join(30)
         slot.close()
