@@ -28,6 +28,13 @@ _CALLS = (
      "press Continue to go on or Abort to stop"),
     (re.compile(r"call open\(\) first or use the device as a context manager"),
      "press Connect on the Devices panel"),
+    (re.compile(r"resume with `diffuserlab calibrate resume [^`]*` or "
+                r"Runner\(bench\)\.resume\('[^']*'\)"),
+     "press Resume run on the Calibration panel to go on from there"),
+    (re.compile(r" or Runner\(bench\)\.resume\('[^']*'\)"), ""),
+    (re.compile(r"\bcall stop_stream\(\) (?:first|before a new stream)"),
+     "stop the live stream first (Stop stream on the Live panel)"),
+    (re.compile(r"\bsnap\(\) while streaming"), "a snapshot while the camera streams"),
     (re.compile(r"\bresume\(\)"), "Resume"),
     (re.compile(r"\[Errno \d+\] "), ""),  # the OS's number: the reason's words stay
 )

@@ -439,9 +439,11 @@ class Runner:
         pending = [] if status == "complete" else [
             s.message for s in plan.teardown() if isinstance(s, Prompt)]
         result = RunResult(status, store.path, done, len(points), error, summary, pending)
-        if status != "complete":
-            log.warning("run %s %s at point %d/%d: %s; %s", store.path, status, done,
-                        len(points), error, result.resume_hint)
+        if status != "complete":  # the point numbered as the window numbers it (from 1)
+            where = (f"at point {done + 1} of {len(points)}" if done < len(points)
+                     else f"after all {len(points)} points")
+            log.warning("run %s %s %s: %s; %s", store.path, status, where, error,
+                        result.resume_hint)
         return result
 
     def _run_point(self, plan: Plan, store: RunStore, index: int, point) -> None:
