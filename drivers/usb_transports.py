@@ -304,7 +304,7 @@ class HidLink(_ReportLink):
     def _write(self, dev: Any, data: bytes) -> None:
         n = dev.write(b"\0" + data)  # report id 0 first
         if n is None or n < 0:
-            raise OSError("hid write returned -1")
+            raise OSError("hidapi's write returned -1 (the report was not sent)")
 
     def _read(self, dev: Any, timeout_ms: int) -> bytes:
         return dev.read(self.report_size, timeout_ms)

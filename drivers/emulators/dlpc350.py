@@ -11,8 +11,12 @@ and refuses bytes they would not send.
   which the DLPC350 (no numbered reports) takes as 0 and hidapi does not send, while a
   non-zero first byte is sent as data; what is sent reaches the controller as reports
   of at most 64 bytes (the interrupt OUT packets), a shorter one as it is, so a write
-  without its report id loses a leading 0 byte; ``read(size, timeout_ms)`` returns a
-  list of ints, empty on timeout, and raises ``OSError`` after an unplug, like hidapi.
+  without its report id loses a leading 0 byte; like cython-hidapi, ``write`` returns
+  -1 (it does not raise) once the device is unplugged, ``read(max_length, timeout_ms)``
+  takes whole milliseconds (a float is truncated, as Cython's ``int`` parameter does:
+  0.5 becomes 0), returns a list of ints, empty on timeout, blocks until a report comes
+  when ``timeout_ms`` is 0 or less (``hid_read``), and raises ``OSError`` after an
+  unplug; both raise ``ValueError("not open")`` on a handle not open.
   As the wheel's ``hid`` module (libusb, the default ``backend``), an open detaches
   the usbhid driver and claims the interface (``usbhid_bound`` false, ``claimed`` set
   until closed) and a second open while it is claimed fails with ``OSError("open
@@ -23,6 +27,9 @@ and refuses bytes they would not send.
   its interrupt endpoints 0x01 / 0x81 (``USBError`` with errno 19 after an unplug,
   ``USBTimeoutError`` on timeout, the kernel driver attached until detached; like
   pyusb, a read or write claims the interface itself once no kernel driver holds it);
+  as libusb, a timeout is whole milliseconds (a float raises ``TypeError``, as ctypes
+  does; 0 waits for ever) and a read buffer shorter than the 64-byte packet raises
+  ``USBError("Overflow")`` (errno 75) and loses the packet;
 - a message is ``flags, sequence, length (u16 LE), CMD3, CMD2, payload``, continued
   in further 64-byte reports when longer (reassembled by the length field); a reply
   comes only when the flags ask for one (bit 6) or for a read (bit 7): ``flags | 0x20``
@@ -164,7 +171,8 @@ class Dlpc350Emulator:
 
     def next_reply(self, deadline: float) -> bytes | None:
         """Wait (holding :attr:`cond`) for the oldest reply until ``deadline``
-        (``time.monotonic()``); None on timeout. Raises OSError once unplugged."""
+        (``time.monotonic()``; ``math.inf``: no timeout); None on timeout. Raises
+        OSError once unplugged."""
         while True:
             if not self.plugged:
                 raise OSError("the device is unplugged")
@@ -176,7 +184,7 @@ class Dlpc350Emulator:
                 return None
             if self.replies:
                 left = min(left, self.replies[0][0] - now)
-            self.cond.wait(left)
+            self.cond.wait(None if left == math.inf else left)  # inf: hid_read blocks
 
     # ------------------------------------------------------------------ transport
     def feed(self, report: bytes) -> None:
@@ -424,10 +432,10 @@ class _FakeDevice:
     def write(self, data) -> int:
         data = bytes(data)
         with self.emu.lock:
-            if not (self.opened and self.emu.plugged):
-                raise OSError("write error")
-            if not data:
-                return -1  # hidapi: "Zero buffer/length"
+            if not self.opened:
+                raise ValueError("not open")  # cython-hidapi's words
+            if not (data and self.emu.plugged):
+                return -1  # hid_write's failure (an unplug, "Zero buffer/length"): no raise
             # hid_write: data[0] is the report id; 0 (no numbered reports) is not sent,
             # anything else is (hidapi strips only a 0)
             wire = data[1:] if data[0] == 0 else data
@@ -435,16 +443,19 @@ class _FakeDevice:
                 self.emu.feed(wire[k:k + REPORT_SIZE])
         return len(data)
 
-    def read(self, size: int, timeout_ms: int = 0) -> list[int]:
-        deadline = time.monotonic() + timeout_ms / 1000
+    def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+        # cython-hidapi's ``int`` parameters: a float is truncated (0.5 -> 0); a timeout
+        # of 0 or less is hid_read, which blocks until a report comes (or an unplug)
+        max_length, timeout_ms = int(max_length), int(timeout_ms)
+        deadline = time.monotonic() + timeout_ms / 1000 if timeout_ms > 0 else math.inf
         with self.emu.cond:
             if not self.opened:
-                raise OSError("read error")
+                raise ValueError("not open")
             try:
                 report = self.emu.next_reply(deadline)
             except OSError:
                 raise OSError("read error") from None
-            return [] if report is None else list(report[:size])
+            return [] if report is None else list(report[:max_length])  # hid_read truncates
 
     def close(self) -> None:
         with self.emu.lock:
@@ -535,7 +546,20 @@ class _FakeUsbDevice:
         """Like ``usb.core.Device.reset``: the interface is released."""
         self.claimed = False
 
+    @staticmethod
+    def _timeout_s(timeout: int | None) -> float:
+        """Seconds of pyusb's ``timeout`` in ms (None: its default 1000 ms) as libusb
+        takes it: a C unsigned int (a float is refused, as ctypes refuses it), 0 = no
+        timeout (inf)."""
+        if timeout is None:
+            return 1.0
+        if not isinstance(timeout, int) or isinstance(timeout, bool) or timeout < 0:
+            raise TypeError(f"timeout {timeout!r}: libusb takes whole milliseconds "
+                            "(ctypes.ArgumentError: wrong type)")
+        return math.inf if timeout == 0 else timeout / 1000
+
     def write(self, endpoint: int, data, timeout: int | None = None) -> int:
+        self._timeout_s(timeout)
         self._auto_claim()
         with self.emu.lock:
             if not (self.claimed and self.emu.plugged) or endpoint != 0x01:
@@ -545,7 +569,7 @@ class _FakeUsbDevice:
 
     def read(self, endpoint: int, size: int, timeout: int | None = None) -> bytes:
         self._auto_claim()
-        deadline = time.monotonic() + (1000 if timeout is None else timeout) / 1000
+        deadline = time.monotonic() + self._timeout_s(timeout)
         with self.emu.cond:
             if not self.claimed or endpoint != 0x81:
                 raise _UsbError("No such device (it may have been disconnected)", errno=19)
@@ -556,4 +580,6 @@ class _FakeUsbDevice:
                                 errno=19) from None
             if report is None:
                 raise _UsbTimeoutError("Operation timed out", errno=110)
-            return report[:size]
+            if len(report) > size:  # libusb: a packet larger than the buffer is lost
+                raise _UsbError("Overflow", error_code=-8, errno=75)  # EOVERFLOW
+            return report

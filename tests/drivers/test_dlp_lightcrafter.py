@@ -295,3 +295,14 @@ def test_pyusb_unplug_and_serial_selection():
         dmd.reconnect()
         assert usb.emulator.led_currents[1] == 0  # full current: PWM byte 0 on the EVM
         assert usb.emulator.led_fractions()[1] == 1.0
+
+
+@pytest.mark.parametrize("transport", ["hidapi", "pyusb"])
+def test_opens_with_replies_a_few_ms_late(transport):
+    """A controller answering 20 ms after each request (hidapi and libusb take ms: a
+    timeout handed on in seconds gave up after 1-2 ms and the open blamed the power)."""
+    emu = Dlpc350Emulator(reply_latency_s=0.02)
+    backend = {"hid_backend": FakeHid(emu)} if transport == "hidapi" else {
+        "usb_backend": FakeUsb(emu)}
+    with LightCrafter4500("dmd", transport=transport, reply_timeout_s=2.0, **backend) as dmd:
+        assert dmd.version and dmd.status()["main_status"] == emu.running * 2
