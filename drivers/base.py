@@ -366,7 +366,9 @@ class Device(abc.ABC):
             when open, the driver's details (counters, motion state, ...). The
             connection is checked first, as before every call (a serial port whose
             other end hung up): a device gone since the last call is reported
-            ``disconnected`` with the ``error``, whether or not it was talked to.
+            ``disconnected`` with the ``error``, whether or not it was talked to, and
+            so is one lost while its status is read (a LightCrafter unplugged: the
+            status read's transfer fails); it does not raise.
         """
         out: dict[str, Any] = {
             "device_id": self.device_id,
@@ -376,14 +378,12 @@ class Device(abc.ABC):
             "disconnected": self._disconnected,
         }
         if self._is_open and not self._disconnected:
-            try:  # every device's connection checked as before each call
-                with self._io():
+            try:  # every device's connection checked as before each call; a device
+                with self._io():  # lost while its status is read is reported too
                     self._do_check_connection()
+                    out.update(self._do_status())
             except DeviceDisconnectedError as exc:
                 out.update(disconnected=True, error=str(exc))
-                return jsonable(out)
-            with self._io():
-                out.update(self._do_status())
         return jsonable(out)
 
     # ------------------------------------------------------------------ helpers

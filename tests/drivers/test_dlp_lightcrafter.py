@@ -237,8 +237,11 @@ def test_unplug_then_reconnect(hid):
         seq = dmd.load_sequence([PatternEntry(1, b) for b in range(4)])
         dmd.start()
         emu.unplug()
-        with pytest.raises(DeviceDisconnectedError):
-            dmd.status()
+        status = dmd.status()  # Device.status: reported, not raised
+        assert status["disconnected"] and "I/O failed" in status["error"]
+        assert not dmd._link.is_open
+        with pytest.raises(DeviceDisconnectedError, match="stopped answering"):
+            dmd.led_currents = {"blue": 0.25}
         with pytest.raises(DeviceDisconnectedError, match="0451:6401"):
             dmd.reconnect()
         emu.replug()
@@ -289,8 +292,8 @@ def test_pyusb_unplug_and_serial_selection():
                           reply_timeout_s=1.0) as dmd:
         dmd.led_currents = {"green": 1.0}
         usb.emulator.unplug()
-        with pytest.raises(DeviceDisconnectedError, match="USB I/O failed"):
-            dmd.status()
+        status = dmd.status()
+        assert status["disconnected"] and "USB I/O failed" in status["error"]
         usb.emulator.replug()
         dmd.reconnect()
         assert usb.emulator.led_currents[1] == 0  # full current: PWM byte 0 on the EVM
