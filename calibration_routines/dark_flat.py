@@ -11,8 +11,12 @@ Two points:
    auto-exposure (:data:`FLAT_EXPOSURE`), ``n_frames`` flat frames, LEDs off,
    ``n_frames`` dark frames at the flat's exposure (``flat_dark``).
 
-The teardown installs the pinhole and the diffuser again and sets the camera back
-to the dark's exposure (the operator's, when built with :meth:`~DarkFlatPlan.for_bench`).
+The teardown uncaps the camera, installs the pinhole and the diffuser again and sets
+the camera back to the dark's exposure (the operator's, when built with
+:meth:`~DarkFlatPlan.for_bench`). The runner puts back what the run changed on every
+exit path (:meth:`instrument.plan.Plan.teardown`): a run that fails or is aborted
+after the dark point has the camera uncapped; one that ends in the flat point has the
+pinhole and diffuser put back.
 
 Products (:meth:`DarkFlatPlan.reduce`), all ``(rows, cols)``:
 
@@ -188,6 +192,7 @@ class DarkFlatPlan(Plan):
         yield Capture(n, "flat_dark")
 
     def teardown(self):
+        yield Prompt("uncap_camera", "Uncap the camera")
         yield Prompt("install_pinhole", "Install the pinhole again")
         yield Prompt("install_diffuser", "Install the diffuser and its aperture again")
         yield Expose(exposure_s=self.params["exposure_s"])

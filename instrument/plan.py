@@ -34,9 +34,9 @@ import numpy as np
 from diffuserlab.errors import DiffuserLabError, InputError
 
 __all__ = [
-    "PLAN_TYPES", "AutoExposure", "Capture", "Check", "CheckFailed", "Expose", "Light", "Move",
-    "Plan", "PlanError", "PlanPoint", "Prompt", "ShowSlm", "Step", "plan_from_record",
-    "register_plan",
+    "PLAN_TYPES", "RESTORES", "AutoExposure", "Capture", "Check", "CheckFailed", "Expose",
+    "Light", "Move", "Plan", "PlanError", "PlanPoint", "Prompt", "ShowSlm", "Step",
+    "plan_from_record", "register_plan",
 ]
 
 
@@ -157,6 +157,18 @@ class Prompt:
 
 Step = Move | Light | ShowSlm | Expose | Capture | Check | Prompt
 
+#: The operator actions that take the bench out of its working state, each with the
+#: action that puts it back (and the words the runner asks with when the plan's
+#: teardown does not say it). The runner records each one a run carried out and not
+#: yet put back (the store's ``bench_changes``), and puts it back on every exit path:
+#: done, failed, aborted (:meth:`Plan.teardown`).
+RESTORES: dict[str, tuple[str, str]] = {
+    "cap_camera": ("uncap_camera", "Uncap the camera"),
+    "remove_diffuser": ("install_diffuser", "Install the diffuser and its aperture again"),
+    "remove_pinhole": ("install_pinhole", "Install the pinhole again"),
+    "insert_nd_filter": ("remove_nd_filter", "Remove the ND filter"),
+}
+
 
 @dataclass(frozen=True)
 class PlanPoint:
@@ -237,8 +249,17 @@ class Plan(abc.ABC):
         return contextlib.nullcontext()
 
     def teardown(self) -> Iterator[Step]:
-        """Steps after the last point (not after an abort: the bench then goes to its
-        safe state and the store is kept for resuming)."""
+        """Steps after the last point, and the plan's declaration of how it puts the
+        bench back.
+
+        After a complete run every step runs (a :class:`Prompt` that puts back a
+        change of :data:`RESTORES` the run did not make, or made and put back
+        already, is skipped). On every exit path (done, failed, aborted) the runner
+        then carries out, newest first, the putting back of each change of
+        :data:`RESTORES` still outstanding, in this teardown's words where it has a
+        :class:`Prompt` of that action (a dark run aborted with the camera capped is
+        uncapped); the bench then goes to its safe state and the store is kept for
+        resuming."""
         return iter(())
 
     def checked_steps(self, points: Sequence[PlanPoint], indices: Sequence[int]

@@ -4,6 +4,10 @@
   ETA, the last frame), and on start, pause, resume, reconnect, abort and end.
 * Control: a :class:`RunControl` (thread-safe) pauses, resumes or aborts between
   steps; Ctrl-C (KeyboardInterrupt) aborts too.
+* Teardown: on every exit path (done, failed, aborted) each operator change the run
+  made and did not put back (the camera capped, the diffuser out:
+  :data:`instrument.plan.RESTORES`, recorded in the store as ``bench_changes``) is
+  put back, in the words of the plan's teardown (:meth:`instrument.plan.Plan.teardown`).
 * Safety: on abort or error the bench goes to its safe state (LEDs off, stages
   stopped, streams stopped) and the store keeps everything captured, marked
   ``aborted`` / ``failed`` with the reason; :meth:`Runner.resume` continues with
@@ -40,6 +44,7 @@ from .acquisition import ExposureError, autoexpose
 from .bench import Bench, PromptRefused
 from .coords import coord_specs
 from .plan import (
+    RESTORES,
     Capture,
     Check,
     CheckFailed,
@@ -138,9 +143,10 @@ class RunEvent:
 @dataclass
 class RunResult:
     """How a run ended: ``status`` (complete, aborted, failed), the store path, points
-    done, the error text (if any), the plan's summary (complete runs) and, for a run
-    that did not complete, the operator actions its teardown would have asked for
-    (e.g. "put the diffuser back") - needed unless the run is resumed."""
+    done, the error text (if any), the plan's summary (complete runs) and the operator
+    actions that put the bench back (e.g. "put the diffuser back") which the runner
+    asked for on its way out and were not carried out (refused, no operator) -
+    needed unless the run is resumed."""
 
     status: str
     path: Path
@@ -276,7 +282,8 @@ class Runner:
         try:
             store.update_attrs(camera={"id": cam.device_id, "bit_depth": cam.bit_depth,
                                        "full_scale_dn": 2 ** int(cam.bit_depth) - 1,
-                                       "pixel_pitch_um": cam.pixel_pitch_um})
+                                       "pixel_pitch_um": cam.pixel_pitch_um},
+                               bench_changes=[])
             return self._execute(plan, store, points, start=0)
         finally:
             store.unlock()
@@ -402,6 +409,10 @@ class Runner:
         self._t0 = time.monotonic()
         self._session_frames = 0
         self._frames_done = int(store.done().sum())
+        # the operator changes (RESTORES) made and not put back; a store of an older
+        # version does not know them: its teardown then runs whole
+        self._changes_known = "bench_changes" in store.attrs
+        self._changes = list(store.attrs.get("bench_changes") or [])
         store.update_attrs(status="running", error=None,
                            started_utc=store.attrs.get("started_utc") or utc_now())
         self._emit("started", None, f"{plan.name}: point {start + 1} of {len(points)}")
@@ -416,7 +427,8 @@ class Runner:
                     self._run_point(plan, store, index, points[index])
                     self._emit("point_done", index)
                 for step in plan.teardown():
-                    self._do_step(step, None)
+                    if self._needed(step):
+                        self._do_step(step, None)
             summary = plan.reduce(store) or {}
         except (RunAborted, KeyboardInterrupt) as exc:
             status = "aborted"
@@ -429,6 +441,7 @@ class Runner:
                                ended_utc=utc_now())
             raise
         finally:
+            pending = self._put_back(plan)
             problems = self.bench.safe_state()
             if problems:
                 store.add_warning(f"could not make safe: {problems}")
@@ -436,8 +449,6 @@ class Runner:
                            summary=summary)
         self._emit({"complete": "completed"}.get(status, status), None, error or "")
         done = int(store.points_done().sum())
-        pending = [] if status == "complete" else [
-            s.message for s in plan.teardown() if isinstance(s, Prompt)]
         result = RunResult(status, store.path, done, len(points), error, summary, pending)
         if status != "complete":  # the point numbered as the window numbers it (from 1)
             where = (f"at point {done + 1} of {len(points)}" if done < len(points)
@@ -445,6 +456,50 @@ class Runner:
             log.warning("run %s %s %s: %s; %s", store.path, status, where, error,
                         result.resume_hint)
         return result
+
+    def _needed(self, step) -> bool:
+        """Whether a teardown step is needed: a :class:`~instrument.plan.Prompt` that
+        puts back a change (:data:`~instrument.plan.RESTORES`) this run did not leave
+        outstanding is not (unless the store does not know its changes)."""
+        if not isinstance(step, Prompt) or not self._changes_known:
+            return True
+        undoes = [c for c, (back, _) in RESTORES.items() if back == step.action]
+        return not undoes or any(c in self._changes for c in undoes)
+
+    def _carried_out(self, action: str) -> None:
+        """Note operator ``action`` done: a change of :data:`~instrument.plan.RESTORES`
+        outstanding, or one put back; kept in the store (``bench_changes``)."""
+        changes = [c for c in self._changes if RESTORES[c][0] != action]
+        if action in RESTORES and action not in changes:
+            changes.append(action)
+        if changes != self._changes:
+            self._changes = changes
+            self._store.update_attrs(bench_changes=changes)
+
+    def _put_back(self, plan: Plan) -> list[str]:
+        """Put back every change still outstanding, newest first, in the words of the
+        plan's teardown where it has them (on every exit path: done, failed,
+        aborted); returns the words of those that could not be (the operator's to do
+        unless the run is resumed)."""
+        try:
+            words = {s.action: s.message for s in plan.teardown() if isinstance(s, Prompt)}
+        except Exception:  # noqa: BLE001 (a broken teardown: the defaults say it)
+            log.exception("%s: its teardown could not be read", plan.name)
+            words = {}
+        pending = []
+        for change in reversed(list(self._changes)):
+            back, default = RESTORES[change]
+            message = words.get(back, default)
+            try:
+                self.bench.prompt(back, message)
+            except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 (said; left to do)
+                log.warning("%s: could not %s (%s); the operator must", plan.name,
+                            message.lower(), exc)
+                pending.append(message)
+                continue
+            self._carried_out(back)
+            self._emit("step", None, message, step="prompt")
+        return pending
 
     def _run_point(self, plan: Plan, store: RunStore, index: int, point) -> None:
         retries = 0
@@ -531,6 +586,7 @@ class Runner:
             step.func(bench, self._store, index)
         elif isinstance(step, Prompt):
             bench.prompt(step.action, step.message)
+            self._carried_out(step.action)
         else:
             raise PlanError(f"unknown step {step!r}")
         self._emit("step", index, getattr(step, "label", ""), step=name)

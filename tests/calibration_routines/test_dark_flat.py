@@ -139,3 +139,86 @@ def test_hot_pixel_rule_is_robust_and_has_a_floor():
     flat[0, 0] += 0.1
     hot, _, sigma = hot_pixels(flat, 8.0, 4)
     assert not hot.any() and sigma == pytest.approx(1 / np.sqrt(48))
+
+
+#: The virtual bench's optics as an operator leaves them to work: nothing capped or out.
+WORKING = {"camera_capped": False, "diffuser_installed": True, "pinhole_installed": True}
+
+
+def _working(state: dict) -> dict:
+    return {k: state[k] for k in WORKING}
+
+
+@pytest.mark.parametrize("where", ["dark", "flat"])
+def test_an_aborted_run_puts_back_what_it_changed(tmp_path, where):
+    """Aborted in the dark point (camera capped) or in the flat point (diffuser and
+    pinhole out): the runner uncaps, or puts them back, and nothing is left to do."""
+    from instrument.runner import RunControl
+
+    control = RunControl()
+    changed = {"dark": "camera_capped", "flat": "pinhole_installed"}[where]
+    with VirtualBench(_config(), seed=2) as vb:
+        assert _working(vb.state) == WORKING
+
+        def on_event(event) -> None:  # abort once the point's change was made
+            if event.kind == "frame" and vb.state[changed] != WORKING[changed]:
+                control.abort(f"operator aborted in the {where} point")
+
+        result = Runner(vb, on_event=on_event, control=control).run(
+            DarkFlatPlan.for_bench(vb, n_frames=2), tmp_path / "df.zarr")
+        assert result.status == "aborted" and where in result.error
+        assert _working(vb.state) == WORKING
+    assert result.pending_actions == []
+    assert RunStore.open(tmp_path / "df.zarr").attrs["bench_changes"] == []
+
+
+def test_a_failed_run_uncaps_the_camera(tmp_path, monkeypatch):
+    from drivers.errors import DeviceError
+
+    with VirtualBench(_config(), seed=2) as vb:
+        calls = {"n": 0}
+        all_off = vb.led_array.all_off
+
+        def fails_once() -> None:  # the dark point's Light(()), after the cap
+            calls["n"] += 1
+            if calls["n"] == 1:
+                raise DeviceError(vb.led_array.device_id, "the LED array stopped answering",
+                                  "check its cable")
+            all_off()
+
+        monkeypatch.setattr(vb.led_array, "all_off", fails_once)
+        result = Runner(vb).run(DarkFlatPlan.for_bench(vb, n_frames=2), tmp_path / "df.zarr")
+        assert result.status == "failed" and "stopped answering" in result.error
+        assert vb.state["camera_capped"] is False
+    assert result.pending_actions == []
+
+
+def test_an_abort_the_operator_cannot_put_back_lists_uncap(tmp_path):
+    """A real bench whose operator refuses the put-back: "Uncap the camera" is left
+    to do, in the plan's teardown's words, and the store still says capped."""
+    from instrument.bench import Bench
+    from instrument.runner import RunControl
+
+    control = RunControl()
+    with VirtualBench(_config(), seed=2) as vb:
+        answered: list = []
+
+        def operator(action: str, message: str) -> bool:
+            answered.append(action)
+            if control.abort_reason is not None:
+                return False  # gone home after pressing abort
+            vb.prompt(action, message)
+            return True
+
+        bench = Bench(vb.devices, config=vb.config, on_prompt=operator)
+
+        def on_event(event) -> None:
+            if event.kind == "frame":
+                control.abort("operator pressed abort")
+
+        result = Runner(bench, on_event=on_event, control=control).run(
+            DarkFlatPlan.for_bench(bench, n_frames=2), tmp_path / "df.zarr")
+    assert result.status == "aborted"
+    assert answered == ["cap_camera", "uncap_camera"]
+    assert result.pending_actions == ["Uncap the camera"]
+    assert RunStore.open(tmp_path / "df.zarr").attrs["bench_changes"] == ["cap_camera"]

@@ -213,8 +213,14 @@ def test_timeout_redoes_the_point(tmp_path, reference):
 
 def test_prompts_go_to_the_operator_or_fail_the_run(tmp_path):
     with VirtualBench(seed=3) as vb:
-        Runner(vb).run(ZStepPlan(depths=(30.0,), prompt="remove_diffuser"), tmp_path / "v.zarr")
-        assert vb.state["diffuser_installed"] is False
+        during = []
+        Runner(vb, on_event=lambda e: during.append(vb.state["diffuser_installed"])
+               if e.kind == "frame" else None).run(
+            ZStepPlan(depths=(30.0,), prompt="remove_diffuser"), tmp_path / "v.zarr")
+        assert during and not any(during)  # the frames were taken without the diffuser
+        # ... and the runner put it back at the end (instrument.plan.RESTORES)
+        assert vb.state["diffuser_installed"] is True
+        assert RunStore.open(tmp_path / "v.zarr").attrs["bench_changes"] == []
         plain = Bench(vb.devices, config=vb.config)  # no operator callback
         result = Runner(plain).run(ZStepPlan(depths=(30.0,), prompt="remove_diffuser"),
                                    tmp_path / "n.zarr")
