@@ -294,12 +294,12 @@ def nearest_branch(m: np.ndarray, guess: np.ndarray) -> np.ndarray:
 
 
 def combine_passes(gray: np.ndarray, m1: np.ndarray, m2: np.ndarray | None = None,
-                   ref_index: int | None = None, iterations: int = 3
+                   ref_index: int | None = None, refinements: int = 3
                    ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Phase of each gray level from pass 1 (``phi(g) - phi(0)``, folded ``m1``) and
     optionally pass 2 (``phi(g) - phi(g_ref)``, folded ``m2``, ``g_ref = gray[ref_index]``).
 
-    Pass 1 is unfolded by :func:`unfold_monotone`; then, ``iterations`` times, each
+    Pass 1 is unfolded by :func:`unfold_monotone`; then, ``refinements`` times, each
     pass's branch is re-picked nearest to the current estimate and the weighted least
     squares problem ``phi_i ~ x1_i`` (weights ``sin^2 m1 + floor``), ``phi_i -
     phi_ref ~ x2_i`` (weights ``sin^2 m2 + floor``), ``phi_0 = 0`` is solved.
@@ -312,7 +312,9 @@ def combine_passes(gray: np.ndarray, m1: np.ndarray, m2: np.ndarray | None = Non
         Folded phases per level, radians in [0, pi] (``m1[0]`` is ignored).
     ref_index : int, optional
         Index of pass 2's reference level in ``gray``.
-    iterations : int
+    refinements : int
+        How many times the branches are re-picked and the least squares solved again
+        (default 3).
 
     Returns
     -------
@@ -336,7 +338,7 @@ def combine_passes(gray: np.ndarray, m1: np.ndarray, m2: np.ndarray | None = Non
     m2 = np.asarray(m2, float)
     w2 = np.sin(m2) ** 2 + WEIGHT_FLOOR
     w2[ref_index] = 0.0  # phi_ref - phi_ref = 0 says nothing
-    for _ in range(iterations):
+    for _ in range(refinements):
         x1 = nearest_branch(m1, phase)
         x1[0] = 0.0
         x2 = nearest_branch(m2, phase - phase[ref_index])

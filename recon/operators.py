@@ -99,14 +99,14 @@ class LinearOperator(ABC):
         r = self.forward(x) - b
         return 0.5 * float(np.vdot(r, r)), self.adjoint(r)
 
-    def lipschitz(self, iterations: int = 30, seed: int = 0) -> float:
+    def lipschitz(self, power_iterations: int = 30, seed: int = 0) -> float:
         """Largest eigenvalue of A^T A by power iteration (Lipschitz constant of the
         data-term gradient), with a 2 % safety margin.
 
         Parameters
         ----------
-        iterations : int
-            Power iterations (>= 1).
+        power_iterations : int
+            Power iterations (>= 1; not a solve's iterations).
         seed : int
             Seed of the random start (>= 0).
 
@@ -119,14 +119,14 @@ class LinearOperator(ABC):
         Raises
         ------
         ReconInputError
-            ``iterations`` or ``seed`` not an integer in range.
+            ``power_iterations`` or ``seed`` not an integer in range.
         """
-        iterations = as_int(iterations, "iterations", 1)
+        power_iterations = as_int(power_iterations, "power_iterations", 1)
         rng = np.random.default_rng(as_int(seed, "seed", 0))
         x = rng.standard_normal(self.shape_in).astype(np.float32)
         x /= np.linalg.norm(x)
         lam = 0.0
-        for _ in range(iterations):
+        for _ in range(power_iterations):
             y = self.normal(x)
             lam = float(np.linalg.norm(y))
             if lam == 0.0 or not np.isfinite(lam):

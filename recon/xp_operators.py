@@ -49,7 +49,7 @@ class _XpCropped:
                                   f"{tuple(shape)}")
         return a
 
-    def lipschitz(self, iterations: int = 30, seed: int = 0) -> float:
+    def lipschitz(self, power_iterations: int = 30, seed: int = 0) -> float:
         """:meth:`recon.operators.LinearOperator.lipschitz` on the device, from the
         same random start (drawn by NumPy)."""
         xp = self.xp
@@ -57,7 +57,7 @@ class _XpCropped:
         x0 = rng.standard_normal(self.shape_in).astype(np.float32)
         x = self.asarray(x0 / np.linalg.norm(x0))
         lam = 0.0
-        for _ in range(iterations):
+        for _ in range(power_iterations):
             y = self.normal(x)
             lam = total(xp, y * y) ** 0.5
             if lam == 0.0 or not np.isfinite(lam):

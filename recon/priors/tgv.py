@@ -46,13 +46,14 @@ class TgvPrior(Prior):
     ratio : float
         a0 / a1 (default 2, the value of Bredies et al. 2010's and Knoll et al. 2011's
         experiments); > 0.
-    iterations : int
-        Primal-dual iterations of each prox step (default 20); >= 1.
+    inner_iterations : int
+        Primal-dual iterations of each prox step (default 20; the inner loop, not the
+        ADMM's iterations); >= 1.
 
     Raises
     ------
     ReconInputError
-        ``ratio`` not a positive finite number or ``iterations`` < 1.
+        ``ratio`` not a positive finite number or ``inner_iterations`` < 1.
 
     Examples
     --------
@@ -60,7 +61,7 @@ class TgvPrior(Prior):
     >>> rng = np.random.default_rng(0)
     >>> ramp = np.tile(np.linspace(0, 1, 64, dtype=np.float32), (32, 1))
     >>> noisy = ramp + 0.05 * rng.standard_normal(ramp.shape).astype(np.float32)
-    >>> (z,) = TgvPrior(iterations=200).prox(np, (noisy,), 0.05, 1.0)
+    >>> (z,) = TgvPrior(inner_iterations=200).prox(np, (noisy,), 0.05, 1.0)
     >>> bool(np.abs(z - ramp)[:, 4:-4].mean() < 0.5 * np.abs(noisy - ramp).mean())
     True
     """
@@ -68,11 +69,11 @@ class TgvPrior(Prior):
     name = "tgv"
     identity_split = True
 
-    def __init__(self, ratio: float = 2.0, iterations: int = 20):
-        if not (math.isfinite(ratio) and ratio > 0) or int(iterations) < 1:
-            raise ReconInputError(f"TGV ratio {ratio} / iterations {iterations}: the ratio "
-                                  "a0/a1 > 0 (e.g. 2), iterations >= 1")
-        self.ratio, self.iterations = float(ratio), int(iterations)
+    def __init__(self, ratio: float = 2.0, inner_iterations: int = 20):
+        if not (math.isfinite(ratio) and ratio > 0) or int(inner_iterations) < 1:
+            raise ReconInputError(f"TGV ratio {ratio} / inner_iterations {inner_iterations}: "
+                                  "the ratio a0/a1 > 0 (e.g. 2), inner_iterations >= 1")
+        self.ratio, self.inner_iterations = float(ratio), int(inner_iterations)
         self._state: dict = {}  # array shape -> per plane the primal-dual state
 
     def reset(self) -> None:
@@ -105,7 +106,7 @@ class TgvPrior(Prior):
         x, w1, w2, xb, w1b, w2b, p1, p2, q11, q22, q12 = state
         step = f32(1.0 / math.sqrt(k.TGV_NORM_SQ))
         r1, r0 = f32(lam), f32(lam * self.ratio)
-        for _ in range(self.iterations):
+        for _ in range(self.inner_iterations):
             k.tgv_dual_step(xb, w1b, w2b, p1, p2, q11, q22, q12, step, r1, r0)
             k.tgv_primal_step(x, w1, w2, xb, w1b, w2b, p1, p2, q11, q22, q12, t, step)
         return state
@@ -136,7 +137,8 @@ class TgvPrior(Prior):
         return float(total)
 
     def record(self) -> dict:
-        return {"prior": self.name, "ratio": self.ratio, "iterations": self.iterations}
+        # the record's key stays "iterations" (records already written say so)
+        return {"prior": self.name, "ratio": self.ratio, "iterations": self.inner_iterations}
 
     def __repr__(self) -> str:
-        return f"TgvPrior(ratio={self.ratio:g}, iterations={self.iterations})"
+        return f"TgvPrior(ratio={self.ratio:g}, inner_iterations={self.inner_iterations})"

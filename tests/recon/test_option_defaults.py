@@ -32,7 +32,6 @@ LIVE_MODULES = ("recon.live", "recon.xp_live", "instrument.live", "instrument.li
 
 #: (function's qualified name, parameter): why its default is not the declared one.
 OWN_DEFAULTS = {
-    ("lipschitz", "iterations"): "power iterations of ||A||^2, not a solve's",
     ("measure_models", "iterations"): "the model choice's own scoring solve (a study)",
     ("measure_models", "l1"): "the model choice's own scoring solve (a study)",
     ("blind_calibration", "l1"): "the blind calibration's sparse scene, not the image's",
@@ -224,3 +223,24 @@ def test_no_live_signature_restates_a_live_default():
                         and param.default is not None):
                     restated.append(f"{module.__name__}.{qualname}({name}={param.default!r})")
     assert not restated, "\n".join(restated)
+
+
+#: Quantities that only shared the name ``iterations`` with the declared option, and
+#: the names of their own they have now (issue 66's house bar): (module, qualified
+#: name) -> the parameter's name.
+OWN_NAMES = {("recon.operators", "LinearOperator.lipschitz"): "power_iterations",
+             ("recon.xp_operators", "_XpCropped.lipschitz"): "power_iterations",
+             ("recon.spatial.blind", "_PsfModel.lipschitz"): "power_iterations",
+             ("recon.priors.tgv", "TgvPrior.__init__"): "inner_iterations",
+             ("calibration_routines.slm_lut_analysis", "combine_passes"): "refinements"}
+
+
+def test_other_quantities_are_not_called_iterations():
+    """Power iterations, TGV's inner loop and the LUT fit's refinements are no solve's
+    iterations: a parameter of their own name, none called ``iterations``."""
+    for (module, qualname), own in OWN_NAMES.items():
+        obj = importlib.import_module(module)
+        for bit in qualname.split("."):
+            obj = getattr(obj, bit)
+        params = inspect.signature(obj).parameters
+        assert own in params and "iterations" not in params, (module, qualname, list(params))

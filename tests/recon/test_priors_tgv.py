@@ -109,7 +109,7 @@ def test_tgv_prox_minimises_its_objective():
     yy, xx = np.mgrid[:24, :32].astype(np.float32)
     t = (0.02 * xx + (yy > 11) * 0.5 + 0.05 * rng.standard_normal(xx.shape)).astype(np.float32)
     lam = 0.08
-    prior = TgvPrior(iterations=3000)
+    prior = TgvPrior(inner_iterations=3000)
     z, w1, w2 = prior.denoise(t, lam)[:3]
     best = _tgv_objective(z, w1, w2, t, lam, 2.0)
     assert best == pytest.approx(0.5 * ((z - t) ** 2).sum(dtype=np.float64)
@@ -159,7 +159,7 @@ def test_tgv_denoises_a_ramp_without_the_staircase():
         return x
 
     best_tv = max(psnr(tv_denoise(lam)) for lam in (0.01, 0.02, 0.04, 0.08))
-    best_tgv = max(psnr(TgvPrior(iterations=1000).prox(np, (noisy,), lam, 1.0)[0])
+    best_tgv = max(psnr(TgvPrior(inner_iterations=1000).prox(np, (noisy,), lam, 1.0)[0])
                    for lam in (0.01, 0.02, 0.04, 0.08))
     assert best_tgv > best_tv + 1.0, (best_tgv, best_tv)
 

@@ -177,7 +177,7 @@ def test_random_erasure_refuses_bad_arguments(data, argument):
     assert_refused(info, name)
 
 
-@pytest.mark.parametrize(("which", "minimum"), [("iterations", 1), ("seed", 0)])
+@pytest.mark.parametrize(("which", "minimum"), [("power_iterations", 1), ("seed", 0)])
 @FAST
 @given(data=st.data())
 def test_lipschitz_refuses_bad_counts(which, minimum, data):
