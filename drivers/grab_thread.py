@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -68,10 +69,17 @@ class GrabThread:
         return self
 
     def stop(self) -> None:
-        """Ask the thread to end and wait for it (not when called from the thread itself)."""
+        """Ask the thread to end and wait for it (not when called from the thread itself),
+        at most ``join_timeout_s``; a thread still running then is logged at warning
+        level."""
         self._stop.set()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout=self._join_timeout_s)
+            if self._thread.is_alive():  # a driver call stuck in the thread
+                logging.getLogger("drivers").warning(
+                    "%s: the grab thread did not end within %g s of its stop; a frame "
+                    "it holds may still reach the ring", self._thread.name,
+                    self._join_timeout_s)
 
 
 class GrabStream:

@@ -62,3 +62,19 @@ def test_a_lost_camera_ends_the_stream_through_the_ring():
     drv._start_grab(ring, loop, "test", 60.0)
     assert ring.failed.wait(120.0) and ring.exc is lost and drv._disconnected
     drv._stop_grab()
+
+
+def test_a_thread_outliving_its_join_is_logged(caplog):
+    drv, ring = _Driver(), _Ring()
+    running, release = threading.Event(), threading.Event()
+
+    def loop(stop):
+        running.set()
+        release.wait(120.0)  # stuck in a driver call: deaf to its stop
+
+    drv._start_grab(ring, loop, "stuck", 0.01)
+    assert running.wait(120.0)
+    with caplog.at_level(logging.WARNING, logger="drivers"):
+        drv._stop_grab()
+    release.set()
+    assert "cam9-stuck: the grab thread did not end" in caplog.text
