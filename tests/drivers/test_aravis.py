@@ -13,6 +13,7 @@ import os
 import shutil
 import signal
 import subprocess
+import threading
 import time
 
 import numpy as np
@@ -436,3 +437,87 @@ def test_automatic_gain_left_on_is_switched_off_at_open(gv_process):
     with AravisCamera("gige", camera_name=GV_ADDRESS, n_buffers=4, **FAKE) as cam:
         assert _raw(cam).get_string("GainAuto") == "Off"
         assert cam.info["automatic_off"] == ["GainAuto"]  # the fake has no ExposureAuto
+
+
+class _GatedRing(FrameRing):
+    """A ring whose ``put`` waits at a gate once it is closed: the grab thread is then
+    caught with a frame in hand (``holding`` set) until the gate opens."""
+
+    def __init__(self, capacity):
+        super().__init__(capacity)
+        self.gate, self.holding = threading.Event(), threading.Event()
+        self.gate.set()
+
+    def put(self, frame):
+        if not self.gate.is_set():
+            self.holding.set()
+            self.gate.wait(60.0)  # a hang guard only
+        super().put(frame)
+
+
+def test_stop_stream_waits_for_the_grab_thread():
+    """stop_stream returns only once the grab thread has ended, so no frame lands in the
+    ring afterwards. The thread is held with a frame in hand; the gate opens when
+    stop_stream joins the thread (a stop without the join returns while it still holds
+    the frame). Events only: no sleep decides the outcome."""
+    with AravisCamera("fake", camera_name="Fake_1", fake_interface=True, **FAKE) as cam:
+        cam.apply_settings(BASELINE)
+        ring = _GatedRing(8)
+        ring.gate.clear()
+        cam.start_stream(ring)
+        grab = cam._grab
+        thread = grab._thread
+        try:
+            assert ring.holding.wait(30.0)  # a hang guard only
+            join = thread.join
+
+            def join_opening_the_gate(*args, **kwargs):
+                ring.gate.set()
+                return join(*args, **kwargs)
+
+            thread.join = join_opening_the_gate
+            cam.stop_stream()
+            alive_at_return, acquired_at_return = thread.is_alive(), ring.acquired
+        finally:
+            ring.gate.set()
+        join(30.0)
+        assert not alive_at_return
+        assert ring.acquired == acquired_at_return >= 1
+
+
+@pytest.fixture
+def gain_raw_from_4(tmp_path_factory):
+    """libaravis's fake camera with its GainRaw range 4..14 instead of 0..10 (a camera
+    whose raw gain starts above 0, as many do): the camera's own GenICam XML, edited."""
+    Aravis, _ = import_aravis("gain-test")
+    Aravis.enable_interface("Fake")
+    probe = Aravis.Camera.new("Fake_1")
+    xml = probe.get_device().get_genicam_xml()[0]
+    del probe
+    gc.collect()
+    xml = xml if isinstance(xml, str) else bytes(xml).decode()
+    old = "<pValue>GainRawRegister</pValue>\n\t\t<Min>0</Min>\n\t\t<Max>10</Max>"
+    assert xml.count(old) == 1
+    folder = tmp_path_factory.mktemp("fake-genicam")
+    path, original = folder / "gain-from-4.xml", folder / "original.xml"
+    path.write_text(xml.replace(old, old.replace(">0<", ">4<").replace(">10<", ">14<")))
+    original.write_text(xml)  # libaravis takes no None: the camera's own XML again,
+    Aravis.set_fake_camera_genicam_filename(str(path))  # in a file kept for the session
+    try:
+        yield
+    finally:
+        Aravis.set_fake_camera_genicam_filename(str(original))
+
+
+def test_gain_on_a_camera_whose_raw_gain_starts_above_zero(gain_raw_from_4):
+    """0 dB is the range's minimum, GainRaw 4; 3 dB at 1 dB a step is GainRaw 7 (an
+    offset subtracted instead of added wrote 4 - 3 = 1, below the range: refused)."""
+    with AravisCamera("fake", camera_name="Fake_1", fake_interface=True, **FAKE) as cam:
+        assert cam._cam.get_integer_bounds("GainRaw").min == 4
+        assert tuple(cam.info["gain_range_db"]) == (0.0, 10.0)
+        cam.gain = 3.0
+        assert _raw(cam).get_integer("GainRaw") == 7 and cam.gain == 3.0
+        cam.gain = 0.0
+        assert _raw(cam).get_integer("GainRaw") == 4 and cam.gain == 0.0
+        cam.gain = 10.0
+        assert _raw(cam).get_integer("GainRaw") == 14 and cam.gain == 10.0
