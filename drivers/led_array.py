@@ -328,8 +328,9 @@ class SerialLedArray(LedArray):
 
     For the drivers of real boards: the subclass opens ``self._link`` and fills
     ``self._hw`` (the pattern defaults) at open, and implements ``_clear``.
-    Closing clears the board (a board that went away is only logged) and closes the
-    port; a port whose other end hung up is a disconnected array.
+    Closing clears the board, then closes the port (a clear that fails, a board that
+    went away, is logged at warning level: the LEDs may still be lit); a port whose
+    other end hung up is a disconnected array.
     """
 
     _link: SerialLink
@@ -342,9 +343,10 @@ class SerialLedArray(LedArray):
     def _do_close(self) -> None:
         if self._link.is_open:
             try:
-                self._clear()
-            except Exception as exc:  # closing a vanished array is fine
-                self._log.debug("%s: clear on close: %s", self.device_id, exc)
+                self._clear()  # before the port closes: the clear needs it
+            except Exception as exc:  # the port is closed all the same
+                self._log.warning("%s: the LEDs could not be cleared on close, they may "
+                                  "still be lit: %s", self.device_id, exc)
         self._link.close()
 
     def _do_check_connection(self) -> None:

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.arduino_led import ArduinoLedArray
 from drivers.errors import DeviceDisconnectedError, DeviceProtocolError, LedArrayTimeoutError
-from tests.drivers.conformance import LedArrayConformance
+from tests.drivers.conformance import SerialLedArrayConformance
 from tests.mocks import ArduinoLedEmulator
 
 
@@ -26,7 +26,7 @@ def make_array(emu, **kw):
     return ArduinoLedArray("leds", port=emu.port, pitch_mm=3.0, distance_mm=40.0, **kw)
 
 
-class TestArduinoConformance(LedArrayConformance):
+class TestArduinoConformance(SerialLedArrayConformance):
     @pytest.fixture
     def device(self, emulator):
         self.emu = emulator
@@ -35,6 +35,9 @@ class TestArduinoConformance(LedArrayConformance):
 
     def provoke_timeout(self, device):
         self.emu.drop_replies(1)
+
+    def leds_emitting(self, device):
+        return int(self.emu.output().any(axis=1).sum())
 
 
 def test_byte_exact_session(emulator):

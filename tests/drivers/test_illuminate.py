@@ -9,7 +9,7 @@ import pytest
 
 from drivers.errors import DeviceDisconnectedError, DeviceProtocolError, DeviceValueError
 from drivers.illuminate import IlluminateLedArray
-from tests.drivers.conformance import LedArrayConformance
+from tests.drivers.conformance import SerialLedArrayConformance
 from tests.mocks import IlluminateEmulator
 
 
@@ -27,7 +27,7 @@ def make_array(emu, **kw):
     return IlluminateLedArray("leds", port=emu.port, shape=(8, 8), **kw)
 
 
-class TestIlluminateConformance(LedArrayConformance):
+class TestIlluminateConformance(SerialLedArrayConformance):
     @pytest.fixture
     def device(self, emulator):
         self.emu = emulator
@@ -36,6 +36,9 @@ class TestIlluminateConformance(LedArrayConformance):
 
     def provoke_timeout(self, device):
         self.emu.drop_replies(1)
+
+    def leds_emitting(self, device):
+        return len(self.emu.lit())
 
 
 def test_open_sequence_and_geometry(emulator):

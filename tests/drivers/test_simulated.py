@@ -79,6 +79,9 @@ class TestSimulatedLedArray(_Sim, LedArrayConformance):
         with SimulatedLedArray("led0") as leds:
             yield leds
 
+    def leds_emitting(self, device):
+        return len(device.emitting)
+
 
 class TestSimulatedSlm(_Sim, SlmConformance):
     @pytest.fixture

@@ -23,7 +23,7 @@ Example::
 from .base import DeviceConformance
 from .camera import CameraConformance
 from .dmd import DmdConformance
-from .led_array import LedArrayConformance
+from .led_array import LedArrayConformance, SerialLedArrayConformance
 from .slm import SlmConformance
 from .stage import StageConformance, unplug_mid_move
 
@@ -32,6 +32,7 @@ __all__ = [
     "DeviceConformance",
     "DmdConformance",
     "LedArrayConformance",
+    "SerialLedArrayConformance",
     "SlmConformance",
     "StageConformance",
     "unplug_mid_move",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -22,6 +24,19 @@ class LedArrayConformance(DeviceConformance):
 
     def use(self, device):
         return device.lit()
+
+    def leds_emitting(self, device) -> int:
+        """How many LEDs the board itself (the emulator, the simulated array) lights now:
+        what a camera would see, not what the driver remembers."""
+        raise NotImplementedError
+
+    def test_close_turns_every_led_off(self, device):
+        """The board is cleared before its port closes: an array left lit after close
+        lights the next experiment."""
+        device.set_pattern("brightfield", timeout_s=5.0)
+        assert self.leds_emitting(device) > 0
+        device.close()
+        assert self.leds_emitting(device) == 0
 
     def blocking_call(self, device):
         device.set_pattern("brightfield", timeout_s=1.0)
@@ -120,3 +135,16 @@ class LedArrayConformance(DeviceConformance):
         device.reconnect()
         assert set(device.lit()) == set(idx.tolist())
         assert device.pattern == "dpc_top"
+
+
+class SerialLedArrayConformance(LedArrayConformance):
+    """An LED array board on a serial port, served by a pty emulator (``self.emu``)."""
+
+    def test_a_failed_clear_at_close_is_a_warning(self, device, caplog):
+        device.set_pattern("brightfield", timeout_s=5.0)
+        self.emu.drop_replies(1)  # the clear's reply lost: the LEDs may still be lit
+        with caplog.at_level(logging.WARNING, logger="drivers"):
+            device.close()
+        assert not device.is_open
+        assert [r for r in caplog.records if r.levelno == logging.WARNING
+                and "could not be cleared on close" in r.getMessage()]
