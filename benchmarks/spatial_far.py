@@ -136,7 +136,7 @@ def _convergence(grid, raw, truth, admm_its, fista_its,
     from recon.spatial import spatial_admm
     from recon.spatial.api import grid_model
 
-    _, op = grid_model(grid, model="local", two_part=True)
+    _, op = grid_model(grid, model="local", bin_factor=1, two_part=True)
     scale = float(np.max(raw))
     b = (raw / scale).astype(np.float32)
 

@@ -244,7 +244,7 @@ def refusals_returned(task, *args):
 
 
 def check_dark_level(store: RunStore, index: int, psf: np.ndarray, dark,
-                     bin_factor: int = 1) -> None:
+                     bin_factor: int) -> None:
     """Refuse, before any frame is reconstructed, a dark level with which no frame can
     be: one that leaves the PSF without signal (:func:`recon.preprocess.check_psf_signal`)
     or that frame ``index`` lies below (:class:`recon.preprocess.RawBelowDarkError`: a

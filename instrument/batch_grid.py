@@ -115,7 +115,7 @@ class GridBatchModel:
 
 
 def prepare_grid_batch(psf_grid: str, frame_shape, *, model: str = "auto",
-                       k: int | None = None, bin_factor: int = 1) -> GridBatchModel:
+                       k: int | None = None, bin_factor: int) -> GridBatchModel:
     """Load a psf-grid run and choose and build its forward model for a run's frames.
 
     Parameters

@@ -17,7 +17,7 @@ __all__ = ["select_planes"]
 
 
 def select_planes(stack: np.ndarray, depths_mm, raw: np.ndarray, *, pitch_um: float | None,
-                  d_mm: float | None, bin_factor: int = 1, dark="auto",
+                  d_mm: float | None, bin_factor: int, dark="auto",
                   scene_depth_range_mm=None) -> tuple[np.ndarray, dict]:
     """Indices of the calibrated planes nearest the recommended reconstruction planes.
 

@@ -88,7 +88,7 @@ def _fraction(value, name: str) -> float:
     return finite_float(value, name, lo=0.0, hi=1.0, lo_open=True)
 
 
-def prepare_stack(stack: np.ndarray, depths_mm, *, bin_factor: int = 1,
+def prepare_stack(stack: np.ndarray, depths_mm, *, bin_factor: int,
                   remove_background: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """A PSF stack sorted by depth, binned and with its background removed if asked.
 

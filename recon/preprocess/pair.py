@@ -238,7 +238,7 @@ def prepare_pair(
 def check_psf_signal(
     psf: np.ndarray,
     *,
-    bin_factor: int = 1,
+    bin_factor: int,
     dark: None | str | float | np.ndarray = None,
     dark_region: tuple[slice, slice] = DEFAULT_DARK_REGION,
     bayer: str | None = None,

@@ -129,7 +129,7 @@ def bin_grid(grid: PsfGrid, factor: int) -> PsfGrid:
 
 
 def grid_model(grids, *, model: str = "auto", k: int | None = None, depths_mm=None,
-               bin_factor: int = 1, support=None, tolerance: float | None = None,
+               bin_factor: int, support=None, tolerance: float | None = None,
                two_part: bool = False) -> tuple[ModelChoice, object]:
     """Choose the forward model of a calibrated grid and build it, once for many frames.
 

@@ -178,8 +178,8 @@ def depth_profile(volume: np.ndarray, depths_mm) -> dict:
                               "peak_plane": int(np.argmax(energy))}}
 
 
-def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark="auto",
-                           bin_factor: int = 1, allow_mixed_ranges: bool = False
+def prepare_volume_problem(stack: np.ndarray, raw: np.ndarray, dark, bin_factor: int,
+                           allow_mixed_ranges: bool = False
                            ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Dark subtraction, binning and clipping with the :mod:`recon.preprocess` steps.
 

@@ -169,7 +169,7 @@ def plan_estimates(method: str, auto, sensor_shape: tuple[int, int], n_z: int, *
 
 def memory_plan(method: str, auto, sensor_shape: tuple[int, int], n_z: int,
                 memory_limit_bytes: int | None = None, *, baseline_bytes: int = 0,
-                stack_bytes: int = 0, bin_factor: int = 1, sharded: bool = False,
+                stack_bytes: int = 0, bin_factor: int, sharded: bool = False,
                 streamable: bool = True) -> dict:
     """The plan of a 3D solve that fits the memory it may use, and why.
 

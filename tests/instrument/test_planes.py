@@ -31,13 +31,14 @@ def test_select_planes_keeps_the_nearest_calibrated_plane_to_each_recommended_on
     stack, z = dense_stack
     raw = stack.sum(axis=0)
     keep, record = select_planes(stack, z, raw, pitch_um=PITCH_MM * 1e3, d_mm=D_MM,
-                                 dark="none")
+                                 bin_factor=1, dark="none")
     recommended = np.asarray(record["recommendation"]["depths_mm"])
     assert 2 <= len(keep) < len(z) and np.all(np.diff(keep) > 0)
     for depth in recommended:  # each recommended plane's nearest (in 1/z) is kept
         assert int(np.argmin(np.abs(1 / z - 1 / depth))) in keep
     assert record["kept_planes"] == len(keep) and "Nyquist" in record["reason"]
-    near, _ = select_planes(stack, z, raw, pitch_um=PITCH_MM * 1e3, d_mm=D_MM, dark="none",
+    near, _ = select_planes(stack, z, raw, pitch_um=PITCH_MM * 1e3, d_mm=D_MM, bin_factor=1,
+                            dark="none",
                             scene_depth_range_mm=(20.0, 30.0))
     assert len(near) < len(keep) and np.all(z[near] <= 31.0)
 
@@ -45,7 +46,7 @@ def test_select_planes_keeps_the_nearest_calibrated_plane_to_each_recommended_on
 def test_select_planes_needs_the_geometry(dense_stack):
     stack, z = dense_stack
     with pytest.raises(ReconInputError, match="--pitch-um.*--d-mm"):
-        select_planes(stack, z, stack[0], pitch_um=None, d_mm=D_MM)
+        select_planes(stack, z, stack[0], pitch_um=None, d_mm=D_MM, bin_factor=1)
 
 
 def test_recon3d_planes_auto_reconstructs_only_the_kept_planes(tmp_path, dense_stack):

@@ -47,7 +47,7 @@ def test_stored_frames_of_a_psf_and_a_grid_agree_with_the_front_door(tmp_path, s
     options = ReconOptions.validated({"method": "fista", "tv": 0.0, "iterations": 150},
                                      front="python")
     reconstruct_run(run, psf_dn, options, dark=DARK, scheduler=scheduler, product="single")
-    choice, op = grid_model(grid, model="local")
+    choice, op = grid_model(grid, model="local", bin_factor=1)
     model = GridBatchModel(grid, choice, op, "grid", "local", 1)
     options = ReconOptions.validated({"iterations": 150, "background": "none", "l1": 0.0},
                                      front="python")

@@ -244,3 +244,22 @@ def test_other_quantities_are_not_called_iterations():
             obj = getattr(obj, bit)
         params = inspect.signature(obj).parameters
         assert own in params and "iterations" not in params, (module, qualname, list(params))
+
+
+#: Helpers that every caller gives a binning: the declared default (1) is not restated
+#: in their signatures (issue 66's house bar), so a caller that forgot it is refused.
+BINNING_GIVEN = (("recon.preprocess.pair", "check_psf_signal"),
+                 ("recon.volume.api", "prepare_volume_problem"),
+                 ("recon.volume.memory_plan", "memory_plan"),
+                 ("recon.spatial.api", "grid_model"),
+                 ("recon.analysis.reports", "prepare_stack"),
+                 ("instrument.batch", "check_dark_level"),
+                 ("instrument.batch_grid", "prepare_grid_batch"),
+                 ("instrument.planes", "select_planes"))
+
+
+def test_helpers_given_a_binning_restate_no_default():
+    for module, name in BINNING_GIVEN:
+        param = inspect.signature(getattr(importlib.import_module(module), name)
+                                  ).parameters["bin_factor"]
+        assert param.default is inspect.Parameter.empty, (module, name, param.default)

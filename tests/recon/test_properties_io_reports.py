@@ -139,7 +139,7 @@ def test_stack_reports_refuse_bad_stacks_and_depths(function, name, depths):
     if depths != "ok":
         stack = STACK  # one problem at a time: the depths
     call = {
-        "prepare_stack": lambda: reports.prepare_stack(stack, z),
+        "prepare_stack": lambda: reports.prepare_stack(stack, z, bin_factor=1),
         "resolution_per_depth": lambda: reports.resolution_per_depth(stack, z, pitch_mm=0.01,
                                                                       d_mm=1.0),
         "axial_condition": lambda: reports.axial_condition(stack, z, [1], 2),
@@ -153,7 +153,7 @@ def test_stack_reports_refuse_bad_stacks_and_depths(function, name, depths):
 
 @pytest.mark.parametrize(("call", "name", "values"), [
     (lambda v: reports.prepare_stack(STACK, DEPTHS, bin_factor=v), "--bin", not_counts(1)),
-    (lambda v: reports.prepare_stack(STACK, DEPTHS, remove_background=v),
+    (lambda v: reports.prepare_stack(STACK, DEPTHS, bin_factor=1, remove_background=v),
      "--remove-background", not_counts(0)),
     (lambda v: reports.resolution_per_depth(STACK, DEPTHS, pitch_mm=v, d_mm=1.0), "pitch_mm",
      NOT_POSITIVE),

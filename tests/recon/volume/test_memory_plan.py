@@ -150,7 +150,7 @@ def test_every_limit_runs_a_plan_within_it_or_is_refused():
     edges = sorted(p["estimate_bytes"] for p in plans)
     for limit in [edges[0] - 1, *edges, *(e + 1 for e in edges), 10 * edges[-1]]:
         try:
-            plan = memory_plan("admm", "tv", (1024, 1024), 32, limit,
+            plan = memory_plan("admm", "tv", (1024, 1024), 32, limit, bin_factor=1,
                                baseline_bytes=600_000_000, stack_bytes=134_217_728)
         except ReconInputError:
             assert limit < edges[0]
@@ -165,7 +165,7 @@ def test_the_refusal_names_the_most_planes_that_fit():
     """The issue's case: 32 planes of 1024 x 1024, automatic weight, 1.5 GB."""
     kw = {"baseline_bytes": 600_000_000, "stack_bytes": 134_217_728}
     with pytest.raises(ReconInputError) as err:
-        memory_plan("admm", "tv", (1024, 1024), 32, 1_500_000_000, **kw)
+        memory_plan("admm", "tv", (1024, 1024), 32, 1_500_000_000, bin_factor=1, **kw)
     msg = str(err.value)
     most = int(msg.split("at most ")[1].split(" of the 32 planes")[0])
 
@@ -180,27 +180,27 @@ def test_the_refusal_names_the_most_planes_that_fit():
 
 def test_what_is_available_chooses_but_never_refuses(monkeypatch):
     monkeypatch.setattr(memory_plan_module, "available_memory_bytes", lambda: 1_000)
-    plan = memory_plan("admm", True, (64, 64), 5, None, baseline_bytes=BASELINE)
+    plan = memory_plan("admm", True, (64, 64), 5, None, bin_factor=1, baseline_bytes=BASELINE)
     assert plan["limit_source"] == "available" and not plan["fits"]
     assert plan["plan"] == PLANS[2] and "no plan fits what is available" in plan["reason"]
     monkeypatch.setattr(memory_plan_module, "available_memory_bytes", lambda: 10**12)
-    plan = memory_plan("fista", False, (64, 64), 5, None, baseline_bytes=BASELINE)
+    plan = memory_plan("fista", False, (64, 64), 5, None, bin_factor=1, baseline_bytes=BASELINE)
     assert plan["plan"] == PLANS[0] and plan["fits"] and "less than the" in plan["reason"]
 
 
 def test_sharded_slabs_are_never_refused_here():
-    plan = memory_plan("admm", "tv", (1024, 1024), 32, 1_000_000, baseline_bytes=BASELINE,
-                       sharded=True)
+    plan = memory_plan("admm", "tv", (1024, 1024), 32, 1_000_000, bin_factor=1,
+                       baseline_bytes=BASELINE, sharded=True)
     assert plan["streamed"] and "sharded over the dask workers" in plan["reason"]
 
 
 def test_a_prior_other_than_tv_has_only_the_in_memory_plan():
     with pytest.raises(ReconInputError) as err:
-        memory_plan("admm", None, (64, 64), 5, BASELINE + 1, baseline_bytes=BASELINE,
+        memory_plan("admm", None, (64, 64), 5, BASELINE + 1, bin_factor=1, baseline_bytes=BASELINE,
                     streamable=False)
     assert "the smallest, the in-memory 3D ADMM" in str(err.value)
 
 
 def test_a_bad_limit_is_refused():
     with pytest.raises(ReconInputError, match="--memory-limit 16GB"):
-        memory_plan("fista", False, (64, 64), 5, 0)
+        memory_plan("fista", False, (64, 64), 5, 0, bin_factor=1)

@@ -252,15 +252,15 @@ def test_bad_slabs_are_refused(problem):
 
 
 def test_memory_plan_says_what_fits():
-    small = memory_plan("fista", False, (64, 64), 5, None)
+    small = memory_plan("fista", False, (64, 64), 5, None, bin_factor=1)
     assert not small["streamed"] and small["limit_source"] == "available"
     streamed = small["plans"][1]["estimate_bytes"] - small["baseline_bytes"]
-    tight = memory_plan("admm", True, (64, 64), 5, BASELINE + streamed,
+    tight = memory_plan("admm", True, (64, 64), 5, BASELINE + streamed, bin_factor=1,
                         baseline_bytes=BASELINE)
     assert tight["streamed"] and "--memory-limit" in tight["reason"]
     assert "streamed 3D FISTA" in tight["reason"]
     with pytest.raises(ReconInputError, match="--memory-limit 16GB"):
-        memory_plan("fista", False, (64, 64), 5, 0)
+        memory_plan("fista", False, (64, 64), 5, 0, bin_factor=1)
 
 
 def _found(volume: np.ndarray) -> set:
