@@ -304,6 +304,7 @@ class MainWindow(QMainWindow):
             out.append("the mask alignment")
         if self.record.batch_running:
             out.append("a batch reconstruction")
+        out += self.devices.bench_jobs.others()  # a notebook's recording, named with its owner
         return out
 
     def confirm(self, title: str, text: str) -> bool:

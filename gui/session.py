@@ -188,7 +188,7 @@ class Session(QObject):
     def _open(self, job: Job):
         from instrument.bench_process import BenchClient
 
-        client = BenchClient(in_process=BENCH_IN_PROCESS, jobs=BENCH_JOBS,
+        client = BenchClient(in_process=BENCH_IN_PROCESS, jobs=BENCH_JOBS, name="the window",
                              on_frame=self._on_frame,
                              on_message=self.message.emit, on_prompt=self.prompt.emit,
                              on_stream_ended=self._on_stream_ended,

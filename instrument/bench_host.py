@@ -165,6 +165,42 @@ class BenchHost(BenchService):
         #: (:class:`~instrument.bench_job_handle.JobHandle`).
         self.job_registry = JobRegistry(self.device_events)
         self._watcher: tuple[threading.Thread, threading.Event] | None = None
+        #: This bench process's connection file (None: none written).
+        self.connection_file: str | None = None
+        self._connection: tuple[Any, bytes] | None = None
+
+    def write_connection_file(self, address: Any, authkey: bytes) -> str:
+        """Write this bench process's connection file
+        (:func:`instrument.bench_connection.write_connection_file`), removed when the
+        process ends; its path."""
+        import atexit
+
+        from .bench_connection import write_connection_file
+
+        self._connection = (address, authkey)
+        path = write_connection_file(address, authkey, bench=self._serving())
+        if self.connection_file is None:
+            atexit.register(self.remove_connection_file)
+        self.connection_file = str(path)
+        return self.connection_file
+
+    def _serving(self) -> str | None:
+        bench = self.bench
+        if bench is None:
+            return None
+        if self.is_virtual():
+            return "simulated"
+        config = getattr(bench, "config", None)
+        return getattr(config, "name", None)
+
+    def remove_connection_file(self) -> None:
+        """Remove the connection file (the process ends: nobody to connect to)."""
+        path, self.connection_file = self.connection_file, None
+        if path is not None:
+            try:
+                os.unlink(path)
+            except OSError:
+                pass
 
     def describe(self) -> dict | None:
         """``{"devices": [ids], "virtual": bool}`` of the open bench (None: none)."""
@@ -486,6 +522,8 @@ class BenchHost(BenchService):
         watcher = threading.Thread(target=self._watch, args=(stop,), name="bench-watch",
                                    daemon=True)
         self._watcher = (watcher, stop)
+        if self._connection is not None:  # say what it serves now
+            self.write_connection_file(*self._connection)
         self.device_events.put("bench", None, {"open": True, "devices": list(bench.devices)})
         watcher.start()
 

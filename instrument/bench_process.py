@@ -91,6 +91,8 @@ def _serve_init(events, wake, parent_pid: int, jobs: Mapping[str, Callable]) -> 
                 host.set_closing(True)  # nobody to give the bench back to
                 host.close()
         finally:
+            if host is not None:
+                host.remove_connection_file()
             os._exit(128 + ended[0] if ended else 0)
 
     threading.Thread(target=watch, name="bench-parent-watch", daemon=True).start()
@@ -249,6 +251,9 @@ class BenchClient:
         self.on_stream_ended, self.on_event = on_stream_ended, on_event
         #: Where a second client connects (None in process) and the key it needs.
         self.address, self.authkey = address, authkey
+        #: The connection file the bench process this client started wrote
+        #: (:mod:`instrument.bench_connection`; None in process or when attached).
+        self.connection_file: str | None = None
         ctx = multiprocessing.get_context("spawn")
         self._manager = None
         self._events = self._wake = None
@@ -275,6 +280,7 @@ class BenchClient:
             events.close()
             wake.close()
             self.host = _PooledHost(self._manager.BenchHost())
+            self.connection_file = self.host.write_connection_file(self.address, self.authkey)
         self._lock = threading.Lock()
         self._jobs: dict[int, queue.SimpleQueue] = {}
         self._early: dict[int, list] = {}
@@ -294,6 +300,29 @@ class BenchClient:
                                                   name="bench-device-events", daemon=True))
         for t in self._threads:
             t.start()
+
+    @classmethod
+    def connect(cls, path: str | os.PathLike | None = None, **options) -> BenchClient:
+        """Attach to a running bench process by its connection file
+        (:mod:`instrument.bench_connection`): ``path``, or the newest of this user's
+        that still runs (the window's, or ``diffuserlab bench serve``'s).
+
+        Parameters
+        ----------
+        path : str or path, optional
+        **options
+            The other :class:`BenchClient` options (``on_event``, ``name``).
+
+        Raises
+        ------
+        instrument.bench_service.BenchGoneError
+            No bench process runs (or the file's has ended), or the file is not a
+            connection file.
+        """
+        from .bench_connection import find_connection_file, read_connection_file
+
+        info = read_connection_file(find_connection_file() if path is None else path)
+        return cls(address=info["address"], authkey=info["authkey"], **options)
 
     # -- the typed commands (instrument.bench_service.BenchService) ------------------
     def devices(self) -> list[DeviceInfo]:
@@ -616,6 +645,11 @@ class BenchClient:
             if self._manager is not None:
                 self.host.close_connections()
                 self._manager.shutdown()
+                if self.connection_file is not None:  # the process ended without removing it
+                    try:
+                        os.unlink(self.connection_file)
+                    except OSError:
+                        pass
             if self._slot is not None:
                 self._slot.close()
                 self._slot = None

@@ -464,6 +464,10 @@ class DevicePanel(QWidget):
         outer.addWidget(self.state)
         self.lost_box = self._lost_controls()
         outer.addWidget(self.lost_box)
+        from .bench_jobs import BenchJobs
+
+        self.bench_jobs = BenchJobs(session)  # the bench's address and every client's jobs
+        outer.addWidget(self.bench_jobs)
         keys = QHBoxLayout()
         keys.addWidget(QLabel("arrow keys move:"))
         self.arrow_stage = QComboBox()

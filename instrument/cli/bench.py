@@ -1,4 +1,5 @@
-"""The bench subcommands of ``diffuserlab``: ``validate`` and ``devices``.
+"""The bench subcommands of ``diffuserlab``: ``validate``, ``devices`` and ``bench serve``
+(:mod:`instrument.cli.bench_serve`).
 
 ``diffuserlab validate [BENCH.toml] [--simulate]``
     Check a bench file (with ``--simulate`` and no file: the built-in simulated
@@ -42,7 +43,10 @@ _PLURAL = {"camera": "cameras", "stage": "stages", "led_array": "led_arrays", "s
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:
-    """Add ``validate`` and ``devices`` to the ``diffuserlab`` subparsers."""
+    """Add ``validate``, ``devices`` and ``bench serve``
+    (:mod:`instrument.cli.bench_serve`) to the ``diffuserlab`` subparsers."""
+    from .bench_serve import add_serve
+
     vp = sub.add_parser(
         "validate",
         help="check a bench TOML file (every problem with its location and fix)",
@@ -81,6 +85,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
                     help="print one JSON document (status, settings, their declarations "
                     "and a JSON schema per device) instead of text")
     dp.set_defaults(handler=run_devices)
+    add_serve(sub)
 
 
 def run_validate(args: argparse.Namespace) -> int:

@@ -15,9 +15,10 @@ from instrument.bench_process import BenchClient
 HANG_S = 90.0
 
 
-def _serve(address, authkey, name: str, calls, replies) -> None:
+def _serve(address, authkey, name: str, calls, replies, connect: bool = False) -> None:
     try:
-        client = BenchClient(address=address, authkey=authkey, name=name)
+        client = (BenchClient.connect(name=name) if connect else
+                  BenchClient(address=address, authkey=authkey, name=name))
     except Exception as exc:  # noqa: BLE001 (the test reads it)
         replies.put(("error", f"{type(exc).__name__}: {exc}"))
         return
@@ -40,15 +41,17 @@ def _serve(address, authkey, name: str, calls, replies) -> None:
 class OtherClient:
     """A :class:`BenchClient` connected to ``address`` from a spawned process.
 
+    ``connect``: by the connection file (:meth:`BenchClient.connect`) instead.
     ``call(fn, *args)`` runs ``fn(client, handles, *args)`` there (``handles``: a dict
     kept between calls) and returns ``("ok", value)`` or ``("error", "Type: text")``.
     """
 
-    def __init__(self, address, authkey, name: str = "the notebook") -> None:
+    def __init__(self, address, authkey, name: str = "the notebook", *,
+                 connect: bool = False) -> None:
         ctx = multiprocessing.get_context("spawn")
         self.calls, self.replies = ctx.Queue(), ctx.Queue()
         self.process = ctx.Process(target=_serve, args=(address, authkey, name, self.calls,
-                                                        self.replies), daemon=True)
+                                                        self.replies, connect), daemon=True)
         self.process.start()
         kind, self.name = self._reply()
         assert kind == "ok", self.name
