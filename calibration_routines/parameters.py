@@ -236,7 +236,8 @@ class PsfFromScenesParams(RoutineParams):
         "spectrum, gamma-free), or scikit-image's bundled photographs in order")
     display: str = option("slm", help="the display's device id or role (an SLM or the "
                           "full-screen monitor driver)")
-    iterations: int = option(20, ge=1, help="ADMM iterations of the estimate")
+    iterations: int = option(100, ge=1, help="the most ADMM iterations of the estimate "
+                             "(it stops once an iteration changes the PSF by under 1/100)")
     recipe_images: int | None = option(
         None, ge=0, help="photographs shown after the scenes to fit the reconstruction "
         "recipe on (0, or 2 and more); default 4 after random patterns, 0 after photographs "

@@ -47,7 +47,7 @@ from instrument.atomic import missing_dirs, remove_empty_dirs, write_json
 from instrument.coords import coord_specs
 from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
 from instrument.runstore import RunStore, discard_partial_run
-from recon.analysis.early_stop import fit_early_stop
+from recon.analysis.early_stop import THRESHOLDS, fit_early_stop, reference_db
 from recon.analysis.psf_from_scenes import (
     LeaveOneOut,
     PsfEstimate,
@@ -138,7 +138,8 @@ def _scene_name_ok(name: str) -> bool:
 
 def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | None,
               names: Sequence[str], z_mm: float, units: str,
-              early_stop: EarlyStop | None = None) -> dict:
+              early_stop: EarlyStop | None = None, quality_db=None,
+              quality_names: Sequence[str] | None = None) -> dict:
     """Write ``psf_stack`` and return the run's summary (module docstring).
 
     Parameters
@@ -158,11 +159,18 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         The reconstruction recipe fitted for this PSF (:func:`early_stop_for`): written as
         ``early_stop.json`` in the run and summarised.
 
+    quality_db : sequence of float, optional
+        The PSF's quality figure: per held-out scene, the fixed reference
+        reconstruction's gain-fitted error in dB (:func:`recon.analysis.early_stop.reference_db`,
+        higher is better), recorded as ``held_out_reference_db`` and its mean.
+    quality_names : sequence of str, optional
+        The scenes of ``quality_db`` (default ``names``).
+
     Returns
     -------
     dict
         JSON-able: per pair the training and held-out residuals, their mean, the method
-        (and the early-stop count).
+        (and the early-stop count, the quality figure).
     """
     psf = estimate.psf
     attrs = {"depths_mm": [float(z_mm)], "units": units, "method": estimate.method,
@@ -178,6 +186,11 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         summary["held_out_residual"] = {n: [round(float(v), 4) for v in held_out[k]]
                                         for k, n in enumerate(names)}
         summary["held_out_mean"] = round(float(np.mean(held_out)), 4)
+    if quality_db is not None:
+        summary["held_out_reference_db"] = {
+            n: round(float(v), 2) for n, v in zip(quality_names or names, quality_db,
+                                                  strict=True)}
+        summary["held_out_reference_db_mean"] = round(float(np.mean(quality_db)), 2)
     if early_stop is not None:
         write_json(Path(store.path) / EARLY_STOP_FILE, early_stop.to_dict())
         summary["early_stop"] = {"file": EARLY_STOP_FILE, **early_stop.record()}
@@ -185,10 +198,38 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
 
 
 def early_stop_for(scenes, measurements, loo: LeaveOneOut, estimate: PsfEstimate,
-                   names: Sequence[str]) -> EarlyStop:
+                   names: Sequence[str], on_solve=None) -> EarlyStop:
     """The reconstruction recipe fitted on the pairs for ``estimate``'s PSF
-    (:func:`recon.analysis.early_stop.fit_early_stop`, with ``loo``'s held-out PSFs)."""
-    return fit_early_stop(scenes, measurements, loo.psfs, estimate.psf, names=names)
+    (:func:`recon.analysis.early_stop.fit_early_stop`, with ``loo``'s held-out PSFs;
+    ``on_solve(done, total)`` after each of its solves)."""
+    return fit_early_stop(scenes, measurements, loo.psfs, estimate.psf, names=names,
+                          on_solve=on_solve)
+
+
+def _calibrate(scenes, measurements, names, options, on_progress):
+    """The PSF from every pair, each pair's PSF without it, the recipe and the quality
+    figure, reporting ``on_progress(done, total, what)`` after each step."""
+    n = len(scenes)
+    total = 1 + (n + len(THRESHOLDS) * n if n > 1 else 0)
+    done = 0
+
+    def report(what):
+        nonlocal done
+        done += 1
+        if on_progress is not None:
+            on_progress(done, total, what)
+
+    estimate = estimate_psf_from_scenes(scenes, measurements, **options)
+    report(f"PSF from {n} pair(s): {estimate.iterations_run} iterations")
+    if n == 1:
+        return estimate, None, None, None
+    loo = leave_one_out(scenes, measurements,
+                        on_estimate=lambda k: report(f"PSF without {names[k]}"), **options)
+
+    def solved(i, _total):
+        report(f"recipe: solve {i} of {_total}")
+    fit = early_stop_for(scenes, measurements, loo, estimate, names, solved)
+    return estimate, loo, fit, reference_db(scenes, measurements, loo.psfs, fit)
 
 
 def _files(spec: Sequence[str], what: str) -> dict[str, Path]:
@@ -242,7 +283,7 @@ def match_pairs(scenes: Sequence[str], measurements: Sequence[str]
 
 def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, *,
                        z_mm: float, note: str = "", overwrite: bool = False,
-                       on_pair=None, **options) -> RunStore:
+                       on_pair=None, on_progress=None, **options) -> RunStore:
     """Estimate the PSF from scene and measurement files and store it as a run.
 
     Parameters
@@ -259,6 +300,10 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
     on_pair : callable, optional
         Called ``on_pair(name, fit_residuals, held_out_residuals)`` per pair (rows of
         channels; held-out None for a single pair).
+    on_progress : callable, optional
+        Called ``on_progress(done, total, what)`` after each step of the calibration
+        (the PSF, each pair's held-out PSF, each of the recipe's solves), for progress
+        lines.
     **options
         Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
 
@@ -284,10 +329,8 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
     xs = [load_image(x) for _, x, _ in pairs]
     bs = [load_image(b) for _, _, b in pairs]
     check_pairs(xs, bs)
-    estimate = estimate_psf_from_scenes(xs, bs, **options)
-    loo = leave_one_out(xs, bs, **options) if len(xs) > 1 else None
+    estimate, loo, early, quality = _calibrate(xs, bs, names, options, on_progress)
     held = None if loo is None else loo.residuals
-    early = None if loo is None else early_stop_for(xs, bs, loo, estimate, names)
     if on_pair is not None:
         for k, n in enumerate(names):
             on_pair(n, estimate.residuals[k], None if held is None else held[k])
@@ -303,7 +346,7 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
             coord_names=["exposure_s"], coord_specs=coord_specs(["exposure_s"]), note=note,
             overwrite=overwrite)
         summary = write_psf(store, estimate, held, names, z_mm,
-                            "measurement units per scene unit", early)
+                            "measurement units per scene unit", early, quality)
         store.update_attrs(status="complete", summary=summary)
     except BaseException:  # never a run another process created at ``out`` meanwhile
         if store is not None:
@@ -338,7 +381,7 @@ class PsfFromScenesPlan(Plan):
     frames_per_point : int
         Frames averaged per scene (and as many darks).
     iterations : int
-        ADMM iterations of the estimate.
+        The most ADMM iterations of the estimate (it stops once converged).
     recipe_scenes : list of str
         Photographs of :data:`recon.scenes.BUNDLED` shown after ``scene_names`` for the
         reconstruction recipe alone (none, or at least 2): it is fitted on them with
@@ -350,7 +393,7 @@ class PsfFromScenesPlan(Plan):
 
     def __init__(self, *, scene_names, z_mm: float, display: str = "slm", display_shape,
                  display_pitch_um: float, d_mm: float, pitch_mm: float,
-                 frames_per_point: int = 4, iterations: int = 20,
+                 frames_per_point: int = 4, iterations: int = 100,
                  recipe_scenes=()) -> None:
         names = [str(n) for n in scene_names]
         unknown = [n for n in names if not _scene_name_ok(n)]
@@ -467,7 +510,9 @@ class PsfFromScenesPlan(Plan):
             recipe_x = [self.known_scene(n, shape).astype(np.float32) for n in recipe]
             fit = fit_early_stop(recipe_x, recipe_b, [estimate.psf] * len(recipe),
                                  estimate.psf, names=recipe)
+            quality = reference_db(recipe_x, recipe_b, [estimate.psf] * len(recipe), fit)
         else:
             fit = early_stop_for(scenes, measurements, loo, estimate, names)
+            quality = reference_db(scenes, measurements, loo.psfs, fit)
         return write_psf(store, estimate, loo.residuals, names, p["z_mm"],
-                         "DN/s per unit display radiance", fit)
+                         "DN/s per unit display radiance", fit, quality, recipe or names)

@@ -25,6 +25,7 @@ import argparse
 import datetime as _dt
 import logging
 import sys
+import time
 from pathlib import Path
 
 from ..parameters import PARAMETERS
@@ -243,7 +244,9 @@ def _apply_lut(bench, plan, path) -> bool:
 
 
 def _psf_from_files(args, check_outputs) -> int:
-    """``calibrate psf-from-scenes --scenes ... --measurements ...``: no bench; one line
+    """``calibrate psf-from-scenes --scenes ... --measurements ...``: no bench; a line per
+    step as it ends (``[done/total] what (seconds)``: the PSF, each pair's held-out PSF,
+    each solve of the recipe's fit), one line
     per pair (its fit and held-out residuals per channel), then the run's summary
     (``check_outputs``: the outputs' guard of :func:`run`)."""
     from diffuserlab.errors import InputError
@@ -269,9 +272,14 @@ def _psf_from_files(args, check_outputs) -> int:
                      "  held-out " + " ".join(f"{v:.3f}" for v in held))
         print(f"{name}: fit {' '.join(f'{v:.3f}' for v in fit)}{held_text}")
 
+    started = time.monotonic()
+
+    def on_progress(done, total, what) -> None:  # one line a step: the fit takes minutes
+        print(f"[{done}/{total}] {what} ({time.monotonic() - started:.0f} s)", flush=True)
+
     store = psf_run_from_files(args.scenes, args.measurements, out, z_mm=params.z_mm,
                                note=args.note, overwrite=args.overwrite, on_pair=on_pair,
-                               iterations=params.iterations)
+                               on_progress=on_progress, iterations=params.iterations)
     print(format_summary(store.summary()))
     return 0
 

@@ -40,8 +40,9 @@ from ..errors import ReconInputError
 from ..metrics import fit_gain
 from .psf_from_scenes import check_pairs
 
-__all__ = ["CANDIDATES", "THRESHOLDS", "WEIGHTS", "fit_early_stop", "fit_held_out",
-           "gain_fitted_error", "reconstruct_early_stopped", "solve_checkpoints"]
+__all__ = ["CANDIDATES", "REFERENCE_ITERATIONS", "THRESHOLDS", "WEIGHTS", "fit_early_stop",
+           "fit_held_out", "gain_fitted_error", "reconstruct_early_stopped",
+           "reference_db", "solve_checkpoints"]
 
 #: Candidate iteration counts of :func:`fit_early_stop` (checkpoints of one solve).
 CANDIDATES = tuple(range(10, 201, 10))
@@ -49,6 +50,8 @@ CANDIDATES = tuple(range(10, 201, 10))
 THRESHOLDS = (0.0, 0.05, 0.1)
 #: Candidate weights of the final isotropic TV denoising (:func:`recon.early_stop.denoise_tv`).
 WEIGHTS = (0.0, 0.05, 0.1, 0.2)
+#: Iterations of the fixed reference solve that scores a PSF (:func:`reference_db`).
+REFERENCE_ITERATIONS = 50
 
 
 def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
@@ -133,7 +136,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
                    candidates: Sequence[int] = CANDIDATES,
                    thresholds: Sequence[float] = THRESHOLDS,
                    weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
-                   on_candidate=None) -> EarlyStop:
+                   on_candidate=None, on_solve=None) -> EarlyStop:
     """Fit the recipe (PSF threshold, iteration count, denoising weight) on
     calibration pairs (module docstring).
 
@@ -160,6 +163,9 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     on_candidate : callable, optional
         ``on_candidate(threshold, errors)`` after each threshold (progress), with
         ``errors`` (n_candidates, n_weights, n_pairs).
+    on_solve : callable, optional
+        ``on_solve(done, total)`` after each observed solve (one per threshold and
+        pair: ``total`` of them), for progress lines.
 
     Returns
     -------
@@ -195,12 +201,60 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
             for j, n in enumerate(cands):
                 for m, w in enumerate(ws):
                     errors[i, j, m, k] = gain_fitted_error(denoise_tv(images[n], w), x)
+            if on_solve is not None:
+                on_solve(i * len(xs) + k + 1, len(ts) * len(xs))
         if on_candidate is not None:
             on_candidate(t, errors[i])
     score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
     i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
                      ts[i], ws[m], tuple(ts), tuple(ws), psf_signature(psf))
+
+
+def reference_db(scenes, measurements, held_out_psfs: Sequence, fit: EarlyStop | None = None
+                 ) -> np.ndarray:
+    """What each held-out PSF buys: a fixed reference reconstruction's error, in dB.
+
+    Pair ``k`` is reconstructed with the PSF estimated without it by the prior-free
+    non-negative FISTA of :data:`REFERENCE_ITERATIONS` iterations (the PSF as
+    estimated: no threshold, no denoising) and scored against its scene:
+    ``-20 log10`` of :func:`gain_fitted_error`. Higher is better; unlike the
+    measurement residual it says how well the PSF reconstructs scenes (a calibration's
+    quality figure, docs/real-data.md). Read from ``fit``'s errors when its grid holds
+    that setting (threshold 0, the count, weight 0), else solved.
+
+    Parameters
+    ----------
+    scenes, measurements, held_out_psfs
+        As for :func:`fit_early_stop`.
+    fit : EarlyStop, optional
+        A fit on the same pairs and held-out PSFs.
+
+    Returns
+    -------
+    ndarray, float64, (n_pairs,)
+
+    Raises
+    ------
+    ReconInputError
+        Pairs refused by :func:`recon.analysis.psf_from_scenes.check_pairs`, or not one
+        PSF per pair.
+    """
+    xs, bs = check_pairs(scenes, measurements)
+    if len(held_out_psfs) != len(xs):
+        raise ReconInputError(f"{len(xs)} pairs and {len(held_out_psfs)} held-out PSFs: "
+                              "give each pair's PSF estimated without it")
+    n = REFERENCE_ITERATIONS
+    if (fit is not None and fit.errors is not None and 0.0 in fit.thresholds
+            and n in fit.candidates and 0.0 in fit.weights
+            and np.shape(fit.errors)[-1] == len(xs)):
+        errors = np.asarray(fit.errors)[list(fit.thresholds).index(0.0),
+                                        list(fit.candidates).index(n),
+                                        list(fit.weights).index(0.0)]
+    else:
+        errors = np.array([gain_fitted_error(solve_checkpoints(h, b, [n])[n], x)
+                           for h, x, b in zip(held_out_psfs, xs, bs, strict=True)])
+    return -20.0 * np.log10(np.maximum(errors, 1e-12))
 
 
 def fit_held_out(scenes, measurements, k: int, *, psf=None,

@@ -1,0 +1,37 @@
+"""calibrate psf-from-scenes from files reports each step as it ends and records the
+PSF's quality figure (what the held-out PSFs buy a fixed reference reconstruction)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from instrument.cli import main
+from instrument.runstore import RunStore
+from recon.analysis.early_stop import THRESHOLDS
+from tests.recon.test_psf_quality import synthetic_pairs
+
+
+def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
+    scenes, measurements, _ = synthetic_pairs(3, 9)
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "raw").mkdir()
+    for i, (x, b) in enumerate(zip(scenes, measurements, strict=True)):
+        np.save(tmp_path / f"scenes/p{i}.npy", x)
+        np.save(tmp_path / f"raw/p{i}.npy", b)
+    run = tmp_path / "cal.zarr"
+    assert main(["calibrate", "psf-from-scenes", "--scenes", str(tmp_path / "scenes"),
+                 "--measurements", str(tmp_path / "raw"), "--z-mm", "20",
+                 "--out", str(run)]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[")]
+    total = 1 + 3 + len(THRESHOLDS) * 3
+    assert len(lines) == total
+    for i, line in enumerate(lines, 1):
+        assert re.fullmatch(rf"\[{i}/{total}\] .+ \(\d+ s\)", line), line
+    assert "PSF from 3 pair(s)" in lines[0] and "PSF without p0" in lines[1]
+    assert lines[-1].startswith(f"[{total}/{total}] recipe: solve 9 of 9")
+    summary = RunStore.open(run).attrs["summary"]
+    quality = summary["held_out_reference_db"]
+    assert sorted(quality) == ["p0", "p1", "p2"] and all(v > 5 for v in quality.values())
+    assert abs(summary["held_out_reference_db_mean"] - np.mean(list(quality.values()))) <= 0.01
