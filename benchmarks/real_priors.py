@@ -7,7 +7,7 @@ Data: the five DiffuserCam pairs of ``shared/data/mirflickr-real`` (a photograph
 monitor captured by the lensless camera and, registered, by a lensed one). Each pair is
 reconstructed with the PSF estimated from the *other* four pairs
 (:func:`recon.analysis.psf_from_scenes.leave_one_out`, non-negative; read from
-``--psf-dir`` as ``psf_admm_{pair}_{channel}.npy`` when there, else computed and saved
+``--psf-dir`` as ``psf_tied_{pair}_{channel}.npy`` when there, else computed and saved
 there), by :func:`recon.reconstruct` (ADMM, ``dark="none"``, no binning) with each
 prior at the automatic weight and at each fixed weight of ``--weights``. The estimate
 is scored against the lensed image after a per-channel least-squares gain (the two
@@ -70,9 +70,9 @@ def score(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
 
 def load_psfs(psf_dir: Path, names, scenes, measurements) -> list[np.ndarray]:
     """Each pair's leave-one-out PSF (H, W, 3) float32: read from ``psf_dir``
-    (``psf_admm_{pair}_{c}.npy``), or estimated from the other pairs of ``scenes`` /
+    (``psf_tied_{pair}_{c}.npy``), or estimated from the other pairs of ``scenes`` /
     ``measurements`` and saved there."""
-    files = [[psf_dir / f"psf_admm_{n}_{c}.npy" for c in range(3)] for n in names]
+    files = [[psf_dir / f"psf_tied_{n}_{c}.npy" for c in range(3)] for n in names]
     if all(f.is_file() for row in files for f in row):
         return [np.stack([np.load(f) for f in row], -1).astype(np.float32) for row in files]
     from recon.analysis.psf_from_scenes import leave_one_out
@@ -181,7 +181,7 @@ def add_pair_options(parser: argparse.ArgumentParser, out: Path) -> None:
                         "(default shared/data/mirflickr-real next to the repository)")
     parser.add_argument("--psf-dir", type=Path,
                         default=Path("out/benchmark/psf_leave_one_out"),
-                        help="leave-one-out PSFs psf_admm_{pair}_{c}.npy (computed when "
+                        help="leave-one-out PSFs psf_tied_{pair}_{c}.npy (computed when "
                         "absent)")
     parser.add_argument("--out", type=Path, default=out)
     parser.add_argument("--pairs", type=int, default=len(NAMES),
