@@ -344,10 +344,11 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
             points=[{"pair": n} for n in names], frame_tags=[[] for _ in names],
             frame_shape=xs[0].shape[:2], frame_dtype=np.float32,
             coord_names=["exposure_s"], coord_specs=coord_specs(["exposure_s"]), note=note,
-            overwrite=overwrite)
+            overwrite=overwrite, keep_lock=True)
         summary = write_psf(store, estimate, held, names, z_mm,
                             "measurement units per scene unit", early, quality)
         store.update_attrs(status="complete", summary=summary)
+        store.unlock()  # locked from its creation until written
     except BaseException:  # never a run another process created at ``out`` meanwhile
         if store is not None:
             discard_partial_run(out, made, token=store.creation_token)

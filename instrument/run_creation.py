@@ -11,6 +11,8 @@ declared here.
 from __future__ import annotations
 
 import datetime as _dt
+import os
+import socket
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,7 +23,7 @@ from diffuserlab.jsonio import jsonable
 
 from .ome import describe_run, run_dims
 from .run_description import record_description
-from .run_integrity import LOCK_NAME, RunStoreError, lock_problem
+from .run_integrity import LOCK_NAME, RunStoreError, lock_problem, write_lock
 from .run_layout import RUN_ARRAYS, record_layout
 from .run_paths import (
     CREATOR_ATTR,
@@ -83,7 +85,8 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
                device_settings: Mapping[str, Any] | None = None, note: str = "",
                overwrite: bool = False, shard_frames: int | None = None,
                compressor: str = "default",
-               coord_specs: Mapping[str, Mapping[str, str]] | None = None):
+               coord_specs: Mapping[str, Mapping[str, str]] | None = None,
+               keep_lock: bool | None = None):
     """Create the store of a new run with its whole layout
     (:meth:`RunStore.create <instrument.runstore.RunStore.create>` is this function
     bound to its class).
@@ -114,7 +117,12 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
         The operator's note.
     overwrite : bool
         Replace an existing run store at ``path`` (recognised by the schema
-        marker in its ``zarr.json``; nothing else is deleted).
+        marker in its ``zarr.json``; nothing else is deleted). The lock comes first:
+        the run replaced is locked by this call (refused, naming the holder, when
+        another process holds it) before it is moved aside and removed, and the new
+        run is locked from the moment its directory exists, so of two processes
+        replacing one run at once the second is refused and never removes the
+        first one's new run.
 
         The run's directory is created atomically (:func:`instrument.run_paths.claim_run_dir`):
         of processes creating the same path at once one succeeds, the others are
@@ -132,6 +140,14 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
         attributes ``units`` and ``dims``
         (:meth:`RunStore.coord_info <instrument.runstore.RunStore.coord_info>` reads them
         back).
+    keep_lock : bool, optional
+        Return the store holding the run's writer lock (``RUN.zarr/.lock``, taken when
+        the directory was created; :meth:`RunStore.lock
+        <instrument.runstore.RunStore.lock>` is then a no-op and
+        :meth:`~instrument.runstore.RunStore.unlock` releases it). Default: with
+        ``overwrite`` (a replaced run's writer keeps it, so no other process replaces
+        the new run before it is written); without it the lock is released once the
+        layout is written.
 
     Returns
     -------
@@ -145,7 +161,8 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
         ``path`` exists (and ``overwrite`` is False) or was created by another
         process meanwhile, ``path`` exists and is not
         a run store (a file or another directory: never replaced), the run at
-        ``path`` is locked by a writer, the layout is empty, ``shard_frames``
+        ``path`` is locked by a writer (named) or being created by another process,
+        the layout is empty, ``shard_frames``
         is not a positive integer or ``compressor`` is unknown, ``coord_specs``
         lacks a coordinate.
     """
@@ -180,14 +197,19 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
     tag_of = np.array([tags.index(t) for per in frame_tags for t in per], np.int16)
     n = int(point_of.size)
     rows, cols = (int(v) for v in frame_shape)
-    if overwrite and path.exists():  # the run checked above: renamed aside, removed
-        remove_replaced_run(path)
+    lock = {"pid": os.getpid(), "host": socket.gethostname(), "started_utc": utc_now()}
+    if overwrite and path.exists():  # locked first, then renamed aside and removed
+        _replace_locked(path, lock)
     try:
         creator = claim_run_dir(path)
     except FileExistsError:  # another process created it since the check above
         raise RunStoreError(exists_text(path, meanwhile=True)) from None
+    if not write_lock(path, lock):  # another replacer locked the empty folder first
+        problem = lock_problem(path)
+        discard_partial_run(path, token=creator["token"], claimed=True)
+        raise RunStoreError(f"not creating {path}: {problem}")
     try:  # the layout; a failure removes this call's own half-made run
-        group = zarr.open_group(str(path), mode="w-", zarr_format=3)
+        group = zarr.create_group(str(path), zarr_format=3)  # beside its .lock
         k = int(min(k, max(n, 1)))
         sharding = {} if shard_frames is None else {"shards": (k, rows, cols),
                                                     "compressors": compressors}
@@ -232,4 +254,25 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
         discard_partial_run(path, token=creator["token"], claimed=True)
         raise
     store.creation_token = creator["token"]
+    if keep_lock if keep_lock is not None else overwrite:
+        store._locked = True
+    else:
+        (path / LOCK_NAME).unlink(missing_ok=True)
     return store
+
+
+def _replace_locked(path: Path, lock: dict) -> None:
+    """Remove the run at ``path`` for a new one, holding its writer lock first: refused
+    (naming the holder) when another process writes it, replaces it, or is creating a
+    run there; nothing when it is gone already (the new run's claim decides)."""
+    try:
+        locked = write_lock(path, lock)
+    except (FileNotFoundError, NotADirectoryError):  # moved aside meanwhile
+        return
+    if not locked:
+        raise RunStoreError(f"not replacing {path}: {lock_problem(path)}")
+    if not is_run_store(path):  # a folder another process is filling: not ours to touch
+        (path / LOCK_NAME).unlink(missing_ok=True)
+        raise RunStoreError(f"not replacing {path}: another process is creating a run "
+                            "there; choose another --out, or wait for it and try again")
+    remove_replaced_run(path)

@@ -218,7 +218,8 @@ class RunStore(ProductsMixin, RunReadingMixin, RunWritingMixin):
 
     # ------------------------------------------------------------------ writer lock
     def lock(self) -> None:
-        """Claim the run for this process: create ``RUN.zarr/.lock`` atomically.
+        """Claim the run for this process: create ``RUN.zarr/.lock`` atomically (nothing
+        when this store holds it already: a run created with ``keep_lock``).
 
         Raises
         ------
@@ -227,6 +228,8 @@ class RunStore(ProductsMixin, RunReadingMixin, RunWritingMixin):
             is left by a process that is gone (never broken silently: remove it
             after checking no one writes the run).
         """
+        if getattr(self, "_locked", False):  # held already (RunStore.create keep_lock)
+            return
         self._require_writable()
         self.require_layout(*RUN_ARRAYS)  # never write into arrays described otherwise
         record = {"pid": os.getpid(), "host": socket.gethostname(), "started_utc": utc_now()}

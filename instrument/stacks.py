@@ -293,13 +293,14 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
                                 frame_tags=[[] for _ in depths], frame_shape=stack.shape[1:],
                                 frame_dtype=np.float32, coord_names=["exposure_s"],
                                 coord_specs=coord_specs(["exposure_s"]), note=note,
-                                overwrite=overwrite)
+                                overwrite=overwrite, keep_lock=True)
         if pitch_um is not None:  # before the product: its description reads it
             store.update_attrs(camera={"id": None, "pixel_pitch_um": float(pitch_um)})
         store.write_product("psf_stack", stack, depths_mm=depths, source=str(source),
                             units=attrs.get("units", "as imported"))
         store.update_attrs(status="complete",
                            summary={"depths_mm": depths, "source": str(source)})
+        store.unlock()  # locked from its creation until written
     except BaseException:  # never a run another process created at ``out`` meanwhile
         if store is not None:
             discard_partial_run(out, made, token=store.creation_token)

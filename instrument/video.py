@@ -121,7 +121,9 @@ def create_video_run(path: str | Path, camera, n_frames: int, *,
     Returns
     -------
     RunStore
-        Writable, not yet locked.
+        Writable, holding the run's writer lock from its creation (no other process
+        replaces it meanwhile; the recorder's :meth:`~instrument.runstore.RunStore.lock`
+        finds it held and its close releases it).
 
     Raises
     ------
@@ -135,7 +137,7 @@ def create_video_run(path: str | Path, camera, n_frames: int, *,
         coord_specs=coord_specs(VIDEO_COORDS, {camera.device_id: camera}),
         bench_config=bench_config,
         device_settings=device_settings, note=note, overwrite=overwrite,
-        shard_frames=int(shard_frames), compressor=compressor)
+        shard_frames=int(shard_frames), compressor=compressor, keep_lock=True)
     try:
         store.update_attrs(camera={"id": camera.device_id, "bit_depth": camera.bit_depth,
                                    "full_scale_dn": 2 ** int(camera.bit_depth) - 1,

@@ -30,7 +30,8 @@ from .conftest import REPO
 #: ``python DRIVER FLAGS ROLE POINT ARGV...``: ``diffuserlab ARGV`` with a pause at
 #: ``POINT``; ROLE ``loser`` waits for ``loser-go`` before the call (after writing
 #: ``loser-ready``), ``winner`` for ``winner-go`` after it (after ``winner-created``),
-#: ``plain`` runs unchanged
+#: ``plain`` runs unchanged; ARGV ``api RUN.zarr``: the Python API creating RUN.zarr with
+#: ``overwrite=True`` and writing two frames
 DRIVER = '''import sys, time
 from pathlib import Path
 
@@ -57,7 +58,21 @@ def main():
             return result
         return call
 
-    from instrument.runstore import RunStore
+    from instrument.runstore import RunStore, RunStoreError
+    if argv[:1] == ["api"]:  # the Python API: RunStore.create(overwrite=True), 2 frames
+        import numpy as np
+        create = paused(RunStore.create) if point == "create" else RunStore.create
+        try:
+            store = create(argv[1], plan_name="p", plan_params={}, points=[{}],
+                           frame_tags=[["f", "f"]], frame_shape=(4, 6),
+                           frame_dtype="uint16", coord_names=["exposure_s"],
+                           overwrite=True)
+        except RunStoreError as exc:
+            sys.exit(print(f"diffuserlab: error: {exc}", file=sys.stderr) or 2)
+        store.write_frames(0, np.ones((2, 4, 6), np.uint16), np.zeros((2, 1)))
+        store.update_attrs(status="complete")
+        store.unlock()
+        return 0
     if role == "plain":
         pass
     elif point == "create":
@@ -233,3 +248,40 @@ def test_a_second_recon_run_keeps_the_first_ones_product(race):
     assert code == 0, (out, err)
     assert RunStore.open(run).product_frames_done("recon_wiener").all()
     _verify(run)
+
+
+@pytest.mark.parametrize("command", [
+    ["capture", "video", "--simulate", "--frames", "4"],
+    ["calibrate", "psf-sweep", "--simulate", "--frames", "1", "--n-depths", "2"],
+    ["runs", "import-psf", "stack.tif"],
+    ["api"],
+], ids=["capture-video", "calibrate-psf-sweep", "import-psf", "python-api"])
+def test_two_overwrite_writers_the_second_is_refused_naming_the_first(race, command):
+    """Two writers replacing one run at once (--overwrite, RunStore.create(overwrite=
+    True)): the first locks the old run, replaces it and holds its new run's lock; the
+    second, let go after its checks once the first created its run, is refused in one
+    line naming the holder and never removes the first one's new run (before: it
+    deleted it, both failed with internal errors, leaving a damaged husk)."""
+    out = race.dir / "r.zarr"
+    argv = ([*command, out] if command == ["api"] else
+            [*command, "--out", out, "--overwrite"])
+    made = _finish(race("plain", "-", argv))  # the run both replace
+    assert made[0] == 0 and out.is_dir(), made
+    loser = race("loser", "create", argv)
+    _wait_flag(race, "loser-ready", [loser])
+    old = (out / "zarr.json").read_bytes()
+    winner = race("winner", "create", argv)
+    _wait_flag(race, "winner-created", [loser, winner])
+    token = (out / "zarr.json").read_bytes()
+    assert token != old  # the winner's new run, not finished yet
+    _flag(race, "loser-go").touch()
+    refused = _finish(loser)
+    assert out.is_dir() and (out / "zarr.json").read_bytes() == token, refused
+    _assert_refused(refused, [f"not replacing {out}", f"process {winner.pid}",
+                              "is writing it"])
+    _flag(race, "winner-go").touch()
+    code, stdout, err = _finish(winner)
+    assert code == 0, (stdout, err)
+    _verify(out)
+    assert not (out / ".lock").exists()
+    assert not [p for p in race.dir.iterdir() if p.name.startswith(f".{out.name}")]
