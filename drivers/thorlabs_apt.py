@@ -454,7 +454,9 @@ class ThorlabsAptStage(HostTableStage):
 
     def _send_velocity(self, axis: str, velocity: float) -> float:
         """Send one axis's velocity and read it back; return the velocity the controller
-        took (its quantisation accepted within 1 %)."""
+        took (its quantisation accepted within 1 %). A controller that took less (the
+        stage's speed limit) gets the velocity before back and a DeviceValueError naming
+        the limit is raised."""
         info = self._axes[axis]
         ctrl, dest = self._ctrl[info["key"]], info["dest"]
         vel, acc = self._velocity_units(axis, velocity, self._accel)
@@ -462,6 +464,17 @@ class ThorlabsAptStage(HostTableStage):
         back = ctrl.request(MSG["MOT_REQ_VELPARAMS"], MSG["MOT_GET_VELPARAMS"], dest,
                             param1=1, timeout_s=self._reply_timeout)
         got = struct.unpack_from("<Hiii", back.data or bytes(14))
+        if got[2] == acc and 0 < got[3] < vel * (1 - _VELOCITY_QUANTUM):
+            took = velocity * got[3] / vel
+            unit = "deg/s" if AXIS_UNITS[axis] == "deg" else "mm/s"
+            before = (getattr(self, "_hw", None) or {}).get("velocity", {}).get(axis)
+            if before is not None and before < took:  # the setting stays in effect
+                self._send_velocity(axis, before)
+            raise self._error(DeviceValueError,
+                              f"axis {axis}: the controller took {took:.4g} {unit} of the "
+                              f"{velocity:g} {unit} sent: the stage's speed limit",
+                              f"set a velocity of at most {took:.4g} {unit} (and max_velocity "
+                              "in the bench file to the stage's limit)")
         if not all(abs(g - w) <= max(1, _VELOCITY_QUANTUM * abs(w))
                    for g, w in ((got[2], acc), (got[3], vel))):
             raise self._error(DeviceProtocolError,

@@ -26,6 +26,11 @@ hardware-protocols.md, section 1a, and its emulator spec:
 - HW_GET_INFO carries the model string (``model`` overrides the profile's, e.g. a
   legacy "BSC103") and, for a KDC101, the stage id in bytes 76-77 (``stage_id``);
   ``velocity_quantum`` rounds stored velocities as a controller may;
+- speed limit: a SET_VELPARAMS (or jog parameters) whose maximum velocity exceeds the
+  stage's limit (``max_velocity`` units/s, default the profile's: 2.6 mm/s for a
+  KDC101 with its Z8 actuator, 5 for the steppers) is clamped to it, as Thorlabs
+  controllers keep a stage within its limit (the value read back shows it; a real unit
+  should confirm clamping against ignoring);
 - faults: :meth:`drop_replies`, :meth:`stall`, :meth:`set_limit_switch`,
   :meth:`rich_response`, :meth:`garbage`, :meth:`unplug` / :meth:`replug`.
 
@@ -56,11 +61,11 @@ _T_DC = 2048 / 6e6  # DC servo velocity time unit, s
 #: Controller profiles: model string, serial prefix, stepper or DC, channel endpoints.
 PROFILES: dict[str, dict] = {
     "kdc101": {"model": "KDC101", "serial": 27000001, "stepper": False, "hw_type": 16,
-               "enabled": True, "acks": True},
+               "enabled": True, "acks": True, "max_velocity": 2.6},
     "kst101": {"model": "KST101", "serial": 26000001, "stepper": True, "hw_type": 16,
-               "enabled": True, "acks": True},
+               "enabled": True, "acks": True, "max_velocity": 5.0},
     "bsc20x": {"model": "BSC203", "serial": 70000001, "stepper": True, "hw_type": 44,
-               "enabled": False, "acks": False},
+               "enabled": False, "acks": False, "max_velocity": 5.0},
 }
 
 # status bits
@@ -113,7 +118,8 @@ class AptEmulator(PtyEmulator):
     travel_counts : (int, int)
         Travel of every channel in counts.
     counts_per_unit : float
-        Only used to pick plausible power-up velocities (2 units/s, 1.5 units/s²).
+        Only used to pick plausible power-up velocities (2 units/s, 1.5 units/s²) and
+        the speed limit (``max_velocity``) in counts.
     update_period_s : float
         Period of the status updates, real seconds (100 ms on the hardware).
     model : str, optional
@@ -122,6 +128,9 @@ class AptEmulator(PtyEmulator):
         Stage id a KDC101 reports in HW_GET_INFO bytes 76-77 (6 = PRM1-Z8, 0 none).
     velocity_quantum : int
         Stored velocities are rounded to a multiple of this (controller units).
+    max_velocity : float, optional
+        The stage's speed limit, units/s (with ``counts_per_unit``); a larger maximum
+        velocity sent is clamped to it. Default: the profile's (2.6 KDC101, 5 steppers).
     link, time_scale : see :class:`PtyEmulator`.
     """
 
@@ -129,7 +138,8 @@ class AptEmulator(PtyEmulator):
         self, profile: str = "kdc101", *, serial_number: int | None = None, channels: int = 1,
         travel_counts: tuple[int, int] = (0, 863874), counts_per_unit: float = 34554.96,
         update_period_s: float = 0.1, model: str | None = None, stage_id: int = 0,
-        velocity_quantum: int = 1, link: str | Path | None = None, time_scale: float = 1.0,
+        velocity_quantum: int = 1, max_velocity: float | None = None,
+        link: str | Path | None = None, time_scale: float = 1.0,
     ) -> None:
         super().__init__(link=link, time_scale=time_scale)
         if profile not in PROFILES:
@@ -141,6 +151,10 @@ class AptEmulator(PtyEmulator):
         self.stage_id = int(stage_id)
         self.velocity_quantum = max(1, int(velocity_quantum))
         self.stepper = self.spec["stepper"]
+        self.max_velocity = float(max_velocity or self.spec["max_velocity"])
+        #: The speed limit in device units (the largest maximum velocity stored).
+        self.max_velocity_units = self.velocity_units(self.max_velocity * counts_per_unit,
+                                                      1.0)[0]
         self.update_period_s = float(update_period_s)
         bay = profile == "bsc20x"
         addresses = [0x21 + i for i in range(channels)] if bay else [USB_UNIT]
@@ -322,6 +336,7 @@ class AptEmulator(PtyEmulator):
         elif msg_id == 0x0413 and data is not None and len(data) >= 14:
             _, vmin, acc, vmax = struct.unpack_from("<Hiii", data)
             q = self.velocity_quantum
+            vmax = min(vmax, self.max_velocity_units)  # the stage's limit
             ch.velocity = (vmin, acc, max(q, round(vmax / q) * q))
         elif msg_id == 0x0414:
             self.reply(self._data_msg(0x0415, struct.pack("<Hiii", 1, *ch.velocity), src))
@@ -357,7 +372,8 @@ class AptEmulator(PtyEmulator):
         elif msg_id == 0x0480 and self.stepper:
             self.reply(self._status_update(ch))
         elif msg_id == 0x0416 and data is not None and len(data) >= 22:
-            ch.jog = struct.unpack_from("<HiiiiH", data, 2)
+            jog = struct.unpack_from("<HiiiiH", data, 2)
+            ch.jog = (*jog[:4], min(jog[4], self.max_velocity_units), jog[5])  # the limit
         elif msg_id == 0x0417:
             self.reply(self._data_msg(0x0418, struct.pack("<HHiiiiH", 1, *ch.jog), src))
         elif msg_id == 0x046A:  # MOVE_JOG: p2 1 forward, 2 reverse

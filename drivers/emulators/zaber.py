@@ -14,6 +14,11 @@ section 1b, and its emulator spec:
   running one raises ``NI``; ``!dd a IDLE --`` alerts when ``comm.alert`` is 1;
 - rejections: BADCOMMAND (unknown command or setting), BADDATA (out of range,
   not a number, bad checksum), BADAXIS (no such axis);
+- speed limit: ``set maxspeed`` and ``move vel`` above the axis's limit are rejected
+  (BADDATA), as the template's emulator refuses a ``VEL`` above its limit; the limit is
+  the range Zaber's ASCII manual gives ``maxspeed`` (1 .. resolution x 16384, 1 048 576
+  at the default 64 microsteps a step) unless the device's ``speed_limit`` sets a
+  stage's own;
 - faults: :meth:`stall` (``FS``), :meth:`set_limit_switch` (an unexpected limit:
   ``WL``), :meth:`silence` (a device that no longer answers), :meth:`drop_replies`,
   :meth:`unplug` / :meth:`replug`.
@@ -51,6 +56,12 @@ class ZaberAxis:
     flags: set[str] = field(default_factory=lambda: {"WR"})
     motion: Motion | None = None
     limit_switch: int | None = None
+    speed_limit: int | None = None  # data units; None: resolution x 16384
+
+    @property
+    def max_speed(self) -> int:
+        """The largest ``maxspeed`` (and ``move vel`` speed) accepted, data units."""
+        return self.resolution * 16384 if self.speed_limit is None else self.speed_limit
 
 
 class ZaberEmulator(PtyEmulator):
@@ -60,7 +71,8 @@ class ZaberEmulator(PtyEmulator):
     ----------
     devices : Mapping[int, int] or Mapping[int, Mapping]
         ``{address: number of axes}`` or ``{address: {"axes": n, "limit_max": ...,
-        "device_id": ..., "serial": ...}}``; default one single-axis device at 1.
+        "speed_limit": ..., "device_id": ..., "serial": ...}}``; default one single-axis
+        device at 1 (``speed_limit``: the largest ``maxspeed``, data units).
     link, time_scale : see :class:`PtyEmulator`.
     """
 
@@ -70,7 +82,8 @@ class ZaberEmulator(PtyEmulator):
         self.devices: dict[int, dict] = {}
         for addr, spec in (devices or {1: 1}).items():
             spec = {"axes": spec} if isinstance(spec, int) else dict(spec)
-            axis_kw = {k: spec[k] for k in ("limit_min", "limit_max", "maxspeed") if k in spec}
+            axis_kw = {k: spec[k] for k in ("limit_min", "limit_max", "maxspeed", "speed_limit")
+                       if k in spec}
             self.devices[int(addr)] = {
                 "axes": [ZaberAxis(**axis_kw) for _ in range(int(spec.get("axes", 1)))],
                 "device_id": int(spec.get("device_id", 50081)),
@@ -209,7 +222,7 @@ class ZaberEmulator(PtyEmulator):
             ax = self.axis(addr, a)
             if mode == "vel" and len(args) == 2 and re.fullmatch(r"-?\d+", args[1]):
                 speed = int(args[1])
-                if abs(speed) > ax.maxspeed:
+                if abs(speed) > min(ax.maxspeed, ax.max_speed):
                     return "RJ", "BADDATA"
                 if speed == 0:
                     if ax.motion is not None:
@@ -273,6 +286,8 @@ class ZaberEmulator(PtyEmulator):
             return "RJ", "BADCOMMAND"
         if name in ("maxspeed", "accel", "resolution") and v <= 0:
             return "RJ", "BADDATA"
+        if name == "maxspeed" and any(v > self.axis(addr, a).max_speed for a in axes):
+            return "RJ", "BADDATA"  # above the stage's speed limit
         for a in axes:
             setattr(self.axis(addr, a), attr, float(v) if attr == "position" else v)
         return "OK", "0"

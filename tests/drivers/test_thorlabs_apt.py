@@ -172,7 +172,7 @@ def test_unplug_mid_move_then_reconnect_restores_settings(emulator, tmp_path):
 
 def test_bsc20x_bays_on_one_port(tmp_path):
     emu = AptEmulator("bsc20x", channels=2, travel_counts=(0, 50 * 409600), time_scale=500.0,
-                      update_period_s=0.01)
+                      update_period_s=0.01, counts_per_unit=409600)
     with emu:
         assert not emu.channels[0x21].enabled  # powers up disabled, "stuck" velocities
         stage = ThorlabsAptStage("rack", axes=["x", "y"], port=emu.port, bays={"x": 0, "y": 1},
@@ -219,6 +219,7 @@ def test_kst101_stepper_profile(tmp_path):
     28-byte GET_STATUSUPDATE framed by its length while the keepalive runs."""
     emu = AptEmulator("kst101", serial_number=26000042, time_scale=200.0,
                       travel_counts=(0, round(25 * 2008645.63)), update_period_s=0.01,
+                      counts_per_unit=2008645.63,
                       link=tmp_path / "usb-Thorlabs_Stepper_Motor_Controller_26000042-if00-port0")
     with emu:
         stage = ThorlabsAptStage("stage", axes=["x"], serial_numbers={"x": "26000042"},
@@ -339,3 +340,16 @@ def test_homing_at_open_waits_for_home_timeout_when_the_open_has_no_timeout(tmp_
         with pytest.raises(StageTimeoutError, match="home_timeout_s = 0.2 s"):
             short.open(timeout_s=5.0)
         assert not short.is_open
+
+
+def test_a_velocity_above_the_stages_limit_is_refused_naming_it(emulator, tmp_path):
+    """The emulator keeps a KDC101's Z8 within 2.6 mm/s as the controller does (the
+    template's emulator refuses a VEL above its limit): a bench file allowing 10 mm/s
+    learns the limit from the value read back, in one line, and the setting stays."""
+    with make_stage(emulator, tmp_path, max_velocity=10.0) as stage:
+        with pytest.raises(DeviceValueError, match=r"took 2\.6 mm/s of the 5 mm/s sent"):
+            stage.velocity = {"z": 5.0}
+        assert stage.velocity["z"] == 2.0  # the setting stays, on the controller too
+        assert emulator.channels[0x50].velocity[2] == round(2.0 * Z8 * 2048 / 6e6 * 65536)
+        stage.velocity = {"z": 2.5}
+        assert stage.velocity["z"] == pytest.approx(2.5, rel=0.01)

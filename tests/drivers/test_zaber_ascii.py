@@ -204,3 +204,18 @@ def test_homing_at_open_is_bounded_by_the_callers_timeout_and_cancel():
         with pytest.raises(StageTimeoutError, match="home_timeout_s = 0.2 s"):
             short.open(timeout_s=5.0)
         assert not short.is_open
+
+
+def test_a_speed_above_the_stages_limit_is_rejected_by_the_device(tmp_path):
+    """The emulator enforces a stage's speed limit as the template's does (Zaber: ``set
+    maxspeed`` above it is rejected BADDATA): a bench file allowing 20 mm/s on a 10 mm/s
+    stage gets the device's rejection, in one line, and the setting stays."""
+    limit = round(10.0 / STEP * 1.6384)
+    with ZaberEmulator({1: {"axes": 1, "speed_limit": limit}}, time_scale=100.0) as emu:
+        with make_stage(emu, axes=["x"], device_numbers={"x": 1}, axis_numbers={}) as stage:
+            with pytest.raises(DeviceProtocolError, match=r"rejected 'set maxspeed \d+': BADDATA"):
+                stage.velocity = {"x": 15.0}
+            assert stage.velocity == {"x": 5.0}
+            assert emu.axis(1).maxspeed == round(5.0 / STEP * 1.6384)
+            stage.velocity = {"x": 9.5}
+            assert emu.axis(1).maxspeed == round(9.5 / STEP * 1.6384)

@@ -85,7 +85,7 @@ def test_kst101_stepper_units():
     """pylablib's stepper scaling (microsteps/s x 53.68, /s² x 53.68 x 204.94e-6) read
     against the emulator's: a ZST actuator at 2008645.63 microsteps/mm."""
     emu = AptEmulator("kst101", time_scale=50.0, update_period_s=0.01,
-                      travel_counts=(0, round(25 * 2008645.63)))
+                      travel_counts=(0, round(25 * 2008645.63)), counts_per_unit=2008645.63)
     with emu:
         dev = motor(emu, scale="ZST")
         try:
@@ -136,7 +136,7 @@ def test_stepper_velocity_and_acceleration_read_by_pylablib(profile, scale, cpu,
     are what pylablib reads through its own stepper scaling (microsteps/s x 53.68,
     microsteps/s² x 53.68 x 204.94e-6): a 10x error in either is caught here."""
     emu = AptEmulator(profile, time_scale=200.0, update_period_s=0.01,
-                      travel_counts=(0, round(25 * cpu)))
+                      travel_counts=(0, round(25 * cpu)), counts_per_unit=cpu)
     params = {"bays": {"x": 0}} if rack else {}
     with emu:
         stage = ThorlabsAptStage("stage", axes=["x"], port=emu.port, limits_mm={"x": [0, 25]},
