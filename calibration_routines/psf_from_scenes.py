@@ -43,9 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-from instrument.atomic import missing_dirs, remove_empty_dirs, write_json
+from instrument.atomic import missing_dirs, remove_empty_dirs
 from instrument.coords import coord_specs
 from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
+from instrument.run_recipe import write_run_recipe
 from instrument.runstore import RunStore, discard_partial_run
 from recon.analysis.early_stop import THRESHOLDS, fit_early_stop, reference_db
 from recon.analysis.psf_from_scenes import (
@@ -157,7 +158,9 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         The PSF's unit.
     early_stop : EarlyStop, optional
         The reconstruction recipe fitted for this PSF (:func:`early_stop_for`): written as
-        ``early_stop.json`` in the run and summarised.
+        ``early_stop.json`` in the run and summarised with its SHA-256 and held-out
+        residual (:func:`instrument.run_recipe.write_run_recipe`: not trusted as a
+        default above :data:`recon.early_stop.TRUSTED_RESIDUAL`).
 
     quality_db : sequence of float, optional
         The PSF's quality figure: per held-out scene, the fixed reference
@@ -191,9 +194,9 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
             n: round(float(v), 2) for n, v in zip(quality_names or names, quality_db,
                                                   strict=True)}
         summary["held_out_reference_db_mean"] = round(float(np.mean(quality_db)), 2)
-    if early_stop is not None:
-        write_json(Path(store.path) / EARLY_STOP_FILE, early_stop.to_dict())
-        summary["early_stop"] = {"file": EARLY_STOP_FILE, **early_stop.record()}
+    if early_stop is not None:  # its SHA-256 and trust recorded (instrument.run_recipe)
+        summary["early_stop"] = write_run_recipe(
+            store, early_stop, None if held_out is None else float(np.mean(held_out)))
     return summary
 
 

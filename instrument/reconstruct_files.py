@@ -21,8 +21,8 @@ import numpy as np
 from diffuserlab.errors import InputError
 from diffuserlab.jsonio import jsonable
 
-__all__ = ["RECIPE_FIXES", "check_dark_frame", "dark_level", "load_psf", "resolve_dark",
-           "run_recon", "run_recon3d", "scene_recipe_default"]
+__all__ = ["RECIPE_FIXES", "check_dark_frame", "dark_level", "load_psf", "read_recipe_once",
+           "resolve_dark", "run_recon", "run_recon3d", "scene_recipe_default"]
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ def load_psf(psf_path: str, depth_mm: float | None,
 
 
 def resolve_dark(dark, psf: np.ndarray, *, calibrated: bool, recorded: float | None = None,
-                 what: str = "the PSF"):
+                 what: str = "the PSF", stack: bool = False):
     """``--dark`` with one meaning for every reconstruction command (docs/cli.md).
 
     ``auto``: a plain PSF (an image, a TIFF or ``.npy`` stack) carries its dark level in
@@ -94,6 +94,8 @@ def resolve_dark(dark, psf: np.ndarray, *, calibrated: bool, recorded: float | N
         The frames' dark level, DN, recorded with them.
     what : str
         The PSF as the message names it (``"--psf RUN.zarr"``).
+    stack : bool
+        ``psf`` is a stack (n_z, rows, cols); else (rows, cols) or (rows, cols, C).
 
     Returns
     -------
@@ -105,8 +107,9 @@ def resolve_dark(dark, psf: np.ndarray, *, calibrated: bool, recorded: float | N
     Raises
     ------
     recon.errors.ReconInputError
-        ``auto`` with a calibrated PSF and no recorded level (names the fix), or a bad
-        ``dark`` (:func:`dark_level`).
+        ``auto`` with a calibrated PSF and no recorded level (names the fix), a bad
+        ``dark`` (:func:`dark_level`), or a dark frame of another shape than the PSF's
+        frames (:func:`check_dark_frame`, before it is added to a calibrated PSF).
     """
     from recon.errors import ReconInputError
 
@@ -127,6 +130,8 @@ def resolve_dark(dark, psf: np.ndarray, *, calibrated: bool, recorded: float | N
                 "with --dark DN or --dark DARK_RUN.zarr (diffuserlab calibrate dark)")
         else:
             return psf, "auto"
+    frame = np.shape(psf)[1:3] if stack else np.shape(psf)[:2]
+    check_dark_frame(level, frame, f"the frames of {what}")  # before any arithmetic
     if calibrated:  # subtracted from both below: the calibrated PSF stays as it was
         psf = psf + level
     return psf, level
@@ -208,7 +213,9 @@ def scene_recipe_default(psf_path, options):
     calibration pairs), and neither ``--early-stop`` nor any of the options the recipe
     fixes (:data:`RECIPE_FIXES`) departs from its default, the recipe is used:
     on real measurements it is the best of the methods measured (docs/real-data.md).
-    ``--early-stop off`` declines it.
+    ``--early-stop off`` declines it. A recipe recorded as not trusted (its PSF
+    explained little of the calibration scenes, :data:`recon.early_stop.TRUSTED_RESIDUAL`)
+    is not the default: a warning says why and that ``--early-stop RUN`` forces it.
 
     Parameters
     ----------
@@ -218,20 +225,66 @@ def scene_recipe_default(psf_path, options):
     Returns
     -------
     recon.options.ReconOptions
-        ``options``, or ``options`` naming the run's recipe.
+        ``options``, or ``options`` naming the run's recipe (its ``early_stop.json``).
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        The run recorded a recipe that is missing, changed or not its own
+        (:func:`instrument.run_recipe.load_run_recipe`; the message names
+        ``--early-stop off``), or a recipe out of range.
     """
-    from recon.early_stop import FILE
+    from recon.early_stop import FILE, TRUSTED_RESIDUAL
     from recon.options import ReconOptions
 
+    from .run_recipe import load_run_recipe, recorded_recipe
+
     recipe = Path(psf_path) / FILE
-    if options.early_stop is not None or not recipe.is_file():
+    if options.early_stop is not None or not (recipe.is_file()
+                                              or recorded_recipe(psf_path) is not None):
         return options
     defaults = ReconOptions.from_defaults()
     if any(getattr(options, f) != getattr(defaults, f) for f in RECIPE_FIXES):
         return options
+    fit = load_run_recipe(psf_path)  # a deleted or changed recipe is refused here
+    if not fit.trusted:
+        log.warning("%s's scene-calibration recipe is not trusted (held-out residual %.2f > "
+                    "%.2f: the PSF explains little of its calibration scenes): "
+                    "reconstructing without it; --early-stop %s uses it anyway",
+                    psf_path, fit.held_out_residual, TRUSTED_RESIDUAL, psf_path)
+        return options
     log.info("%s holds its scene calibration's recipe (%s): "
              "reconstructing with it (--early-stop off declines)", psf_path, FILE)
     return options.replace(early_stop=str(recipe))
+
+
+def read_recipe_once(options):
+    """``options`` with the recipe its ``early_stop`` names read (and checked against its
+    run's record, :func:`instrument.run_recipe.load_recipe`) once: the solve uses, and
+    the record names, exactly that recipe, whatever happens to the file meanwhile.
+
+    Parameters
+    ----------
+    options : recon.options.ReconOptions
+
+    Returns
+    -------
+    recon.options.ReconOptions
+        ``options``, its ``early_stop`` a :class:`recon.early_stop.EarlyStop` when it
+        named one.
+
+    Raises
+    ------
+    recon.errors.ReconInputError
+        As :func:`instrument.run_recipe.load_recipe`.
+    """
+    from recon.early_stop import named
+
+    from .run_recipe import load_recipe
+
+    if not named(options.early_stop):
+        return options
+    return options.replace(early_stop=load_recipe(options.early_stop))
 
 
 def run_recon(psf_path: str, raw_path: str, options, *, out: str,
@@ -286,7 +339,7 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
     from .writer.products import output_paths, write_image_products
 
     psf, depth = load_psf(psf_path, depth_mm, psf_product)
-    options = scene_recipe_default(psf_path, options)
+    options = read_recipe_once(scene_recipe_default(psf_path, options))
     psf, dark = resolve_dark(options.dark, psf, calibrated=dark_subtracted(psf_path),
                              what=f"--psf {psf_path}")
     raw = load_image(raw_path)
@@ -432,7 +485,7 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
     t_start = time.perf_counter()
     stack, depths, _ = load_psf_stack(psf_stack, depths_mm, product=psf_product)
     stack, dark = resolve_dark(options.dark, stack, calibrated=dark_subtracted(psf_stack),
-                               what=f"--psf-stack {psf_stack}")
+                               what=f"--psf-stack {psf_stack}", stack=True)
     stack_shape_in = list(stack.shape)
     raw = load_image(raw_path)
     raw_shape_in = list(raw.shape)

@@ -23,6 +23,7 @@ from .run_integrity import (
     lock_problem,
 )
 from .run_layout import FRAME_ARRAYS
+from .run_recipe import recipe_problems
 from .runstore_records import VIDEO_PLAN, record_problems
 
 __all__ = ["FrameRecord", "RunReadingMixin"]
@@ -158,7 +159,8 @@ class RunReadingMixin:
         itself (:func:`instrument.runstore_records.record_problems`: done flags of a
         finished run, frame counts, products written, keys doubled in ``zarr.json``;
         :func:`instrument.run_description.description_problems`: the ``ome`` blocks and
-        dimension names other tools read).
+        dimension names other tools read; :func:`instrument.run_recipe.recipe_problems`:
+        a scene calibration's ``early_stop.json`` against the SHA-256 it recorded).
 
         Parameters
         ----------
@@ -181,7 +183,8 @@ class RunReadingMixin:
                 problems += record_problems(self)
             except RunStoreError as exc:  # its done flags cannot be read
                 problems.append(str(exc))
-        return problems + self.damaged_products() + description_problems(self.path)
+        return (problems + self.damaged_products() + description_problems(self.path)
+                + recipe_problems(self.path))
 
     def done_or_none(self) -> np.ndarray:
         """:meth:`~instrument.runstore.RunStore.done`, or no frame done where the flags

@@ -32,8 +32,8 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["FILE", "OFF", "SOLVE", "EarlyStop", "clean_psf", "denoise_tv", "named",
-           "psf_identity", "psf_signature"]
+__all__ = ["FILE", "MAX_ITERATIONS", "OFF", "SOLVE", "TRUSTED_RESIDUAL", "EarlyStop",
+           "clean_psf", "denoise_tv", "named", "psf_identity", "psf_signature"]
 
 #: The file name of the fit in a PSF-from-scenes calibration run.
 FILE = "early_stop.json"
@@ -57,6 +57,17 @@ def named(early_stop) -> bool:
 SOLVE = "non-negative FISTA without a prior (recon.reconstruct method='fista', tv=0, l1=0)"
 #: The percentile of the image that :func:`denoise_tv` scales to 1 before denoising.
 DENOISE_PERCENTILE = 99.5
+#: The most iterations a recipe may name (its candidates are checkpoints of one solve:
+#: the calibration tries 10 to 200).
+MAX_ITERATIONS = 10_000
+#: The quality bar of a recipe: the mean held-out relative residual of its
+#: calibration's leave-one-out PSFs (each pair predicted by the PSF estimated without
+#: it, ``summary["held_out_mean"]``) above which the PSF explains too little of the
+#: scenes for its recipe to be anyone's default (docs/reconstruction.md, "Scene
+#: calibration"): the real pairs give ~0.08, PSFs that explain nothing (swapped names,
+#: all-negative scenes) 1.06-1.20, the simulated bench's default run 0.30 (its dim
+#: scenes); a recipe above it is recorded as not trusted (:attr:`EarlyStop.trusted`).
+TRUSTED_RESIDUAL = 0.2
 
 
 def psf_identity(psf) -> str:
@@ -212,6 +223,9 @@ class EarlyStop:
         The thresholds and denoising weights tried.
     psf_block_means : tuple of float
         :func:`psf_signature` of that PSF (empty in files of the earlier form).
+    held_out_residual : float or None
+        The calibration's mean held-out relative residual (:data:`TRUSTED_RESIDUAL`);
+        None in files written before it was recorded.
     """
 
     iterations: int
@@ -224,6 +238,15 @@ class EarlyStop:
     thresholds: tuple = (0.0,)
     weights: tuple = (0.0,)
     psf_block_means: tuple = ()
+    held_out_residual: float | None = None
+
+    @property
+    def trusted(self) -> bool:
+        """Whether the calibration's PSF explained its scenes well enough for the recipe
+        to be a default: its held-out residual at most :data:`TRUSTED_RESIDUAL` (a file
+        that records none: True)."""
+        r = self.held_out_residual
+        return r is None or r <= TRUSTED_RESIDUAL
 
     def __post_init__(self):
         e = np.asarray(self.errors, float)
@@ -300,28 +323,50 @@ class EarlyStop:
                 "errors": np.asarray(self.errors, float).round(6).tolist(),
                 "psf_sha256": self.psf_sha256, "pairs": list(self.pairs),
                 "psf_block_means": [float(v) for v in self.psf_block_means],
-                "method": self.method}
+                "method": self.method,
+                **({} if self.held_out_residual is None else
+                   {"held_out_residual": float(self.held_out_residual),
+                    "trusted": self.trusted})}
 
     @classmethod
     def from_dict(cls, d: dict) -> EarlyStop:
-        """An :class:`EarlyStop` from :meth:`to_dict`'s form.
+        """An :class:`EarlyStop` from :meth:`to_dict`'s form, validated: the fitted values
+        must be among the candidates the file lists (the fit chooses among them), the
+        counts whole numbers in [1, :data:`MAX_ITERATIONS`], the thresholds in [0, 1),
+        the weights finite and >= 0, the errors and the held-out residual finite.
 
         Raises
         ------
         ReconInputError
-            Not such a record (another kind, or a field missing).
+            Not such a record (another kind, or a field missing), or a value outside
+            what a calibration writes (one line naming the field, the value and the
+            values allowed).
         """
         if not isinstance(d, dict) or d.get("kind") != "early-stop":
             raise ReconInputError("not an early-stop calibration (no kind 'early-stop'); give "
                                   "the file a PSF-from-scenes calibration wrote")
         try:
-            return cls(int(d["iterations"]), tuple(int(c) for c in d["candidates"]),
-                       np.asarray(d["errors"], float), str(d["psf_sha256"]),
-                       tuple(d.get("pairs", ())), float(d.get("psf_threshold", 0.0)),
-                       float(d.get("denoise_weight", 0.0)),
-                       tuple(float(t) for t in d.get("thresholds", (0.0,))),
-                       tuple(float(w) for w in d.get("weights", (0.0,))),
-                       tuple(float(v) for v in d.get("psf_block_means", ())))
+            candidates = tuple(_count(c, "candidates") for c in d["candidates"])
+            thresholds = tuple(_number(t, "thresholds", 0.0, 1.0)
+                               for t in d.get("thresholds", (0.0,)))
+            weights = tuple(_number(w, "weights", 0.0) for w in d.get("weights", (0.0,)))
+            iterations = _among(_count(d["iterations"], "iterations"), candidates,
+                                "iterations", "candidates")
+            threshold = _among(_number(d.get("psf_threshold", 0.0), "psf_threshold", 0.0, 1.0),
+                               thresholds, "psf_threshold", "thresholds")
+            weight = _among(_number(d.get("denoise_weight", 0.0), "denoise_weight", 0.0),
+                            weights, "denoise_weight", "weights")
+            errors = np.asarray(d["errors"], float)
+            if not np.all(np.isfinite(errors)):
+                raise _bad("errors", "a non-finite value", "finite numbers")
+            residual = d.get("held_out_residual")
+            residual = None if residual is None else _number(residual, "held_out_residual",
+                                                             0.0)
+            return cls(iterations, candidates, errors, str(d["psf_sha256"]),
+                       tuple(d.get("pairs", ())), threshold, weight, thresholds, weights,
+                       tuple(float(v) for v in d.get("psf_block_means", ())), residual)
+        except ReconInputError:
+            raise
         except (KeyError, TypeError, ValueError) as exc:
             raise ReconInputError(f"early-stop calibration incomplete ({exc!r}); give the "
                                   "file a PSF-from-scenes calibration wrote") from None
@@ -330,13 +375,18 @@ class EarlyStop:
     def load(cls, path) -> EarlyStop:
         """Read :meth:`to_dict`'s JSON (written by the calibration routine,
         ``calibrate psf-from-scenes``), or a calibration run's
-        (a directory holding ``early_stop.json``).
+        (a directory holding ``early_stop.json``); an :class:`EarlyStop` read already
+        is returned as it is (a batch reads its recipe once and hands it to every
+        frame's solve).
 
         Raises
         ------
         ReconInputError
-            Missing or unreadable file, or not an early-stop calibration.
+            Missing or unreadable file, or not an early-stop calibration
+            (:meth:`from_dict`).
         """
+        if isinstance(path, EarlyStop):
+            return path
         path = Path(path)
         path = path / FILE if path.is_dir() else path
         try:
@@ -345,7 +395,10 @@ class EarlyStop:
             raise ReconInputError(f"cannot read the early-stop calibration {path}: "
                                   f"{exc.__class__.__name__}; give the JSON file a "
                                   "PSF-from-scenes calibration wrote") from None
-        return cls.from_dict(d)
+        try:
+            return cls.from_dict(d)
+        except ReconInputError as exc:
+            raise ReconInputError(f"{path}: {exc}") from None
 
     def check_psf(self, psf, dark_level=None) -> np.ndarray:
         """Refuse a PSF other than the one this recipe was fitted for.
@@ -375,10 +428,53 @@ class EarlyStop:
             dark_level = None
         base = a if dark_level is None else (
             a - np.asarray(dark_level, np.float32)).astype(np.float32)
-        if psf_identity(base) == self.psf_sha256 or (
-                self.psf_block_means and _signature_matches(base, self.psf_block_means)):
+        if self._is_mine(base):
             return base
+        if dark_level is not None and self._is_mine(a):
+            level = (f"{float(dark_level):g} DN" if np.ndim(dark_level) == 0
+                     else "the dark frame")
+            raise ReconInputError(
+                f"the PSF is the early-stop calibration's own PSF, already dark-subtracted, "
+                f"but the dark level ({level}) would be subtracted from it again: give the "
+                "calibration run itself as --psf (its PSF takes the frames' dark level), or "
+                "--dark none for a raw that is dark-subtracted too")
         raise ReconInputError(
             "the early-stop calibration was fitted for another PSF (its SHA-256 "
             f"{self.psf_sha256[:12]}... differs); use it with the PSF of the same "
             "PSF-from-scenes calibration, or fit one for this camera")
+
+    def _is_mine(self, psf) -> bool:
+        return psf_identity(psf) == self.psf_sha256 or bool(
+            self.psf_block_means and _signature_matches(psf, self.psf_block_means))
+
+
+def _bad(field_name: str, value, allowed: str) -> ReconInputError:
+    return ReconInputError(f"early-stop calibration: {field_name} {value!r} is not allowed; "
+                           f"allowed: {allowed} (give the file a PSF-from-scenes "
+                           "calibration wrote, or calibrate again)")
+
+
+def _count(value, field_name: str) -> int:
+    """A whole iteration count in [1, MAX_ITERATIONS] (2.7 and 1e9 refused)."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not (
+            np.isfinite(value) and float(value) == int(value)
+            and 1 <= value <= MAX_ITERATIONS):
+        raise _bad(field_name, value, f"whole numbers from 1 to {MAX_ITERATIONS}")
+    return int(value)
+
+
+def _number(value, field_name: str, low: float, high: float | None = None) -> float:
+    """A finite number >= low (and < high)."""
+    ok = (not isinstance(value, bool) and isinstance(value, int | float)
+          and np.isfinite(value) and value >= low and (high is None or value < high))
+    if not ok:
+        raise _bad(field_name, value, f"finite numbers >= {low:g}" + (
+            "" if high is None else f" and < {high:g}"))
+    return float(value)
+
+
+def _among(value, allowed: tuple, field_name: str, listed: str):
+    """``value`` if it is one of ``allowed`` (the file's own candidate list)."""
+    if value not in allowed:
+        raise _bad(field_name, value, f"one of its {listed} {list(allowed)}")
+    return value

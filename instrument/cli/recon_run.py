@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from recon.errors import ReconInputError
 
     from ..batch import batch_psf, parse_frames, recipe_record, reconstruct_run
-    from ..reconstruct_files import scene_recipe_default
+    from ..reconstruct_files import read_recipe_once, scene_recipe_default
     from ..runstore import RunStore, RunStoreError
     from .recon_flags import check_device, check_recon_flags
 
@@ -152,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         psf, dark, source = batch_psf(args.psf, store.attrs, depth_mm=args.depth_mm,
                                       psf_product=args.psf_product, dark=args.dark)
-        options = scene_recipe_default(args.psf, options)
+        # the recipe read once: every frame is solved with it and the product records it
+        options = read_recipe_once(scene_recipe_default(args.psf, options))
         recipe = recipe_record(options.early_stop, psf, dark)
         how = (f"{args.method} x{args.iterations}" if recipe is None else
                f"the PSF's scene-calibration recipe (threshold {recipe['psf_threshold']:g}, "

@@ -256,7 +256,7 @@ def test_recon_run_refuses_a_dark_frame_of_another_shape_before_any_work(video, 
                  str(tmp_path / "dark.npy"), "--workers", "1", "--method", "wiener"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("diffuserlab: error:") and "\n" not in err, err
-    assert "dark frame is 32x40 but the run's frames are 256x320" in err
+    assert "dark frame is 32x40 but the frames of --psf" in err and "are 256x320" in err
     assert tree(tmp_path) == before
 
 
