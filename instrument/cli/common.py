@@ -13,7 +13,7 @@ import sys
 from diffuserlab.errors import InputError
 
 __all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "bench_config",
-           "bench_label", "check_memory", "error", "floats"]
+           "bench_label", "check_memory", "check_pitch_um", "error", "floats", "size_bytes"]
 
 #: How messages name the built-in simulated bench.
 BUILT_IN_BENCH = "built-in simulated bench"
@@ -89,6 +89,64 @@ def floats(text: str, option: str) -> list[float]:
         raise InputError(f"{option} {text!r} needs finite numbers")
     return values
 
+
+def check_pitch_um(pitch_um: float | None, option: str = "--pitch-um") -> float | None:
+    """The sensor pixel pitch an option gives, um, checked: the one check of ``recon``,
+    ``recon3d`` and ``runs import-psf`` (it becomes an OME pixel size).
+
+    Parameters
+    ----------
+    pitch_um : float or None
+        As parsed (``type=float``: ``inf``, ``1e400`` and ``nan`` parse); None: not
+        given (no pixel size, or the PSF run's).
+    option : str
+        The option, for the message.
+
+    Returns
+    -------
+    float or None
+        ``pitch_um``.
+
+    Raises
+    ------
+    diffuserlab.errors.InputError
+        Not a finite number > 0 (0 names leaving the option out for no pixel size).
+    """
+    if pitch_um is None:
+        return None
+    if pitch_um == 0:
+        raise InputError(f"{option} 0: a pixel pitch is > 0; leave {option} out for no "
+                         "pixel size (or the PSF run's)")
+    if not (math.isfinite(pitch_um) and pitch_um > 0):
+        raise InputError(f"{option} {pitch_um:g}: give the sensor's pixel pitch in "
+                         f"micrometres, a finite number > 0 (e.g. {option} 3.45)")
+    return float(pitch_um)
+
+
+def size_bytes(text: str, option: str = "--memory-limit") -> int:
+    """A size option as bytes (``16GB``, ``500MB``, ``2GiB``, ``1.5e9``, a number of bytes):
+    a number (with its digits: ``.GB``, ``GB`` and ``''`` are none, though dask reads
+    them as 1 GB, 1 GB and 1 B) and an optional unit.
+
+    Raises
+    ------
+    diffuserlab.errors.InputError
+        No number, an unknown unit, or a size that is not > 0.
+    """
+    import re
+
+    from dask.utils import parse_bytes
+
+    t = str(text).strip()
+    n = 0
+    if re.fullmatch(r"(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*[A-Za-z]*", t):
+        try:
+            n = parse_bytes(t)
+        except (ValueError, TypeError):
+            n = 0
+    if not n > 0:
+        raise InputError(f"{option} {text!r}: give a positive size such as 16GB or 500MB")
+    return int(n)
 
 
 def check_memory(need_bytes: float, what: str) -> None:

@@ -74,11 +74,10 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
-    from diffuserlab.errors import InputError
-
     from ..reconstruct_files import run_recon
     from ..writer.guards import check_outputs
     from ..writer.products import output_paths
+    from .common import check_pitch_um
     from .recon_flags import check_device, check_recon_flags
 
     if (args.psf is None) == (args.psf_grid is None):
@@ -87,9 +86,7 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError("recon needs --psf (a PSF) or --psf-grid (a psf-grid run), "
                               "not both")
     options = check_recon_flags(args)
-    if args.pitch_um is not None and not args.pitch_um > 0:
-        raise InputError(f"--pitch-um {args.pitch_um:g}: give the sensor's pixel pitch in "
-                         "micrometres, > 0 (e.g. --pitch-um 3.45)")
+    check_pitch_um(args.pitch_um)
     check_device(args.device)
     if args.psf_grid:
         from .grid_options import run_grid

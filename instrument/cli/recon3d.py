@@ -18,7 +18,7 @@ import argparse
 
 from diffuserlab.errors import InputError
 
-from .common import floats
+from .common import check_pitch_um, floats, size_bytes
 
 __all__ = ["add_subcommands", "run", "summary_line"]
 
@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("recon3d needs --psf-stack or --psf-grid (psf-grid runs), not both")
     options = check_recon_flags(args)
     check_device(args.device)
-    memory_limit = None if args.memory_limit is None else _size(args.memory_limit)
+    check_pitch_um(args.pitch_um)
+    memory_limit = None if args.memory_limit is None else size_bytes(args.memory_limit)
     if args.psf_grid:
         from .grid_options import run_grid
 
@@ -135,19 +136,3 @@ def run(args: argparse.Namespace) -> int:
               f"{mem['estimate_bytes'] / 1e9:.2f} GB estimated "
               f"({100 * (mem['peak_over_estimate'] - 1):+.0f} %)")
     return 0
-
-
-def _size(text: str) -> int:
-    """``--memory-limit`` as bytes (``16GB``, ``500MB``, ``2GiB``, a number of bytes);
-    a size starts with its number (dask reads ``''`` and ``GB`` alone as 1 B and 1 GB)."""
-    from dask.utils import parse_bytes
-
-    lead = str(text).strip()[:1]
-    try:
-        n = parse_bytes(text) if lead.isdigit() or lead == "." else 0
-    except (ValueError, TypeError):
-        n = 0
-    if not n > 0:
-        raise InputError(f"--memory-limit {text!r}: give a positive size such as 16GB or "
-                         "500MB")
-    return int(n)

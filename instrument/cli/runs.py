@@ -9,7 +9,7 @@ from pathlib import Path
 
 from diffuserlab.errors import InputError
 
-from .common import floats
+from .common import check_pitch_um, floats
 
 __all__ = ["add_subcommands", "format_summary", "run", "verify"]
 
@@ -196,9 +196,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.runs_command == "import-psf":
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")
-        if args.pitch_um is not None and not args.pitch_um > 0:
-            raise InputError(f"--pitch-um {args.pitch_um:g}: give the pixel pitch in "
-                             "micrometres, > 0 (e.g. --pitch-um 3.45)")
+        check_pitch_um(args.pitch_um)
         from ..stacks import import_psf_stack
 
         store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
