@@ -10,7 +10,9 @@ OME-Zarr image group) gives that product's layer, read through its run (verified
 A recon3d volume (``recon3d --out V.zarr``) gives one layer. Axis names, units and
 scales are those of the run's OME-Zarr description (:mod:`instrument.ome`), computed
 the same way for a run written before it; products are found in either layout of
-``products/`` (:mod:`instrument.product_nodes`). Every layer of planes ends in
+``products/`` (:mod:`instrument.product_nodes`). A colour product (``channels``
+recorded, the last axis: a ``calibrate psf-from-scenes`` run's PSF) gives one layer
+per channel in its colour. Every layer of planes ends in
 ``t`` (second), ``z`` (micrometer), ``y``, ``x`` (:func:`_layer`: a video gets a ``z``
 of one plane, a sweep's frames, in acquisition order, are labelled ``frame`` and put
 in front of a ``t`` of one frame and such a ``z``, as a grid's ``c`` is), so any mix of
@@ -164,7 +166,7 @@ def read_run(path: str) -> list[tuple]:
     layers = [_layer(_lazy(frame, store.n_frames, shape, dtype), f"{run} frames", axes,
                      meta)]
     for name in store.products():
-        layers.append(_product_layer(store, name))
+        layers.extend(_product_layers(store, name))
     # no layer for an empty array (a run of no frames: ``runs import-psf``'s holds
     # only its PSF stack), which napari cannot show (its contrast limits fail)
     return [layer for layer in layers if layer is not None and 0 not in layer[0].shape]
@@ -192,8 +194,45 @@ def read_product(path: str) -> list[tuple]:
     if where is None:
         raise RunStoreError(f"{path} is no product folder of a run (RUN.zarr/products/NAME)")
     store = RunStore.open(where[0])
-    layer = _product_layer(store, where[1])
-    return [] if layer is None or 0 in layer[0].shape else [layer]
+    return [layer for layer in _product_layers(store, where[1]) if 0 not in layer[0].shape]
+
+
+#: The colour map of each named channel of a colour product's layers.
+CHANNEL_COLORMAPS = {"R": "red", "G": "green", "B": "blue"}
+
+
+def _product_layers(store, name: str) -> list[tuple]:
+    """The layers of product ``name`` of an open run: one image layer (a per-frame
+    one lazily, plane by plane), one per channel of a colour product (``channels``
+    recorded, the last axis: a ``calibrate psf-from-scenes`` run's ``psf_stack``,
+    ``(planes, rows, cols, channels)``: each channel in its colour, blended
+    additively), none for a table or LUT or a damaged product (logged)."""
+    from instrument.ome import product_axes
+    from instrument.runstore import RunStoreError
+
+    pattrs = store.product_attrs(name)
+    channels = pattrs.get("channels")
+    info = store.product_info(name)
+    if (isinstance(channels, list) and len(info["shape"]) == 4
+            and info["shape"][-1] == len(channels)):
+        found = product_axes(name, info["shape"][:3], pattrs, store.attrs)
+        try:
+            data = np.asarray(store.product(name)[0])
+        except RunStoreError as exc:  # a damaged product: named, the others still shown
+            log.warning("%s", exc)
+            return []
+        layers = []
+        for k, channel in enumerate(channels):
+            meta = {**{k2: v for k2, v in pattrs.items() if k2 != "crc32"}, **found[1],
+                    "run": str(store.path), "product": name, "channel": channel}
+            layer = _layer(data[..., k], f"{Path(store.path).name} {name} {channel}",
+                           found[0], meta)
+            layer[1].update(colormap=CHANNEL_COLORMAPS.get(str(channel), "gray"),
+                            blending="additive")
+            layers.append(layer)
+        return layers
+    layer = _product_layer(store, name)
+    return [] if layer is None else [layer]
 
 
 def _product_layer(store, name: str) -> tuple | None:

@@ -12,9 +12,10 @@ PSF image (a TIFF/.npy file, or a 2-D layer of the viewer) without depths; resol
 the dark level as the commands do (:func:`instrument.reconstruct_files.resolve_dark`,
 with the level recorded with a run's frames, as ``recon-run`` takes it) and runs
 :func:`recon.reconstruct`: with one depth (``depth_mm``, or a stack of one plane) an
-image, else the whole stack as a volume. The widget runs it on a worker thread
-(napari's :func:`~napari.qt.threading.create_worker`), so the viewer stays responsive,
-and shows a refusal in its own words (a command-line flag named by its field,
+image, else the whole stack as a volume. The widget runs it from a worker thread
+(napari's :func:`~napari.qt.threading.create_worker`) in a process of its own
+(:func:`solve_in_process`), so the viewer stays responsive, and shows a refusal in its
+own words (a command-line flag named by its field,
 :func:`gui.messages.operator_text`). The result comes back as a new layer, on the
 model grid (:data:`recon.io.DATA_ORIENTATION`), scaled by the layer's pixel size
 times the binning; a volume's first axis is that of a stored volume
@@ -23,8 +24,12 @@ times the binning; a volume's first axis is that of a stored volume
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+import threading
 from collections.abc import Sequence
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from PySide6.QtCore import Signal
@@ -68,13 +73,21 @@ def _plane(layer, step: Sequence[int] | None) -> np.ndarray:
     return np.asarray(data[index])
 
 
-def _load_psf(psf, product: str) -> tuple[np.ndarray, list, bool, str]:
+def _load_psf(psf, product: str, depths_mm: Sequence[float] | None = None
+              ) -> tuple[np.ndarray, list, bool, str]:
     """``(stack (n, rows, cols), depths_mm, calibrated, source)`` of a PSF given as a
-    run store or a TIFF/.npy stack (:func:`instrument.stacks.load_psf_stack`), a plain
-    2-D image file or array (one plane, no depth)."""
+    run store or a TIFF/.npy stack (:func:`instrument.stacks.load_psf_stack`; a stack
+    that records no depths takes ``depths_mm``, one per plane), a plain 2-D image file
+    or array (one plane, no depth).
+
+    Raises
+    ------
+    instrument.runstore.RunStoreError
+        A stack of several planes whose depths are missing (neither recorded nor
+        given: the message says so and names the widget's depths field), or no PSF.
+    """
     from instrument.runstore import RunStoreError
     from instrument.stacks import dark_subtracted, load_psf_stack
-    from recon.io import load_image
 
     if isinstance(psf, np.ndarray):
         if psf.ndim != 2:
@@ -83,15 +96,47 @@ def _load_psf(psf, product: str) -> tuple[np.ndarray, list, bool, str]:
         return psf[None].astype(np.float32), [None], False, "a layer"
     path = Path(psf)
     try:
-        stack, depths, _ = load_psf_stack(path, product=product)
+        stack, depths, _ = load_psf_stack(path, depths_mm=depths_mm or None,
+                                          product=product)
     except RunStoreError:
         if path.is_dir() or not path.is_file():
             raise
-        image = load_image(path)  # a plain PSF image: one plane, no depth
-        if image.ndim != 2:
-            raise
-        return image[None].astype(np.float32), [None], False, str(path)
+        image = _plain_image(path)
+        if image.ndim == 2:  # a plain PSF image: one plane, no depth
+            return image[None].astype(np.float32), [None], False, str(path)
+        raise RunStoreError(
+            f"the depths are missing: {path} holds a stack of {image.shape[0]} planes "
+            "and records no depth for them; give one depth per plane (mm) in the "
+            "'depths (mm)' field (e.g. 20, 25, 40), or import the stack with its depths "
+            "(diffuserlab runs import-psf --depths)") from None
     return stack, list(depths), dark_subtracted(path), str(path)
+
+
+def _plain_image(path: Path) -> np.ndarray:
+    """The array of an image file, of whatever dimensions (a stack is not refused
+    here: :func:`_load_psf` says what it lacks)."""
+    if path.suffix.lower() == ".npy":
+        return np.load(path, allow_pickle=False)
+    from recon.errors import ReconInputError
+    from recon.io import load_image
+
+    try:
+        return load_image(path)
+    except ReconInputError:
+        import tifffile
+
+        return tifffile.imread(path)
+
+
+def _psf_pitch_um(psf, product: str, bin_factor: int) -> float | None:
+    """The reconstruction grid's pitch (um) a PSF run records (its frames' pitch times
+    the product's binning and ``bin_factor``, as ``recon`` and ``recon3d`` scale their
+    outputs); None for a file, a layer or a run that records none."""
+    if isinstance(psf, np.ndarray):
+        return None
+    from instrument.reconstruct_files import _grid_pitch_um
+
+    return _grid_pitch_um(str(psf), product, None, bin_factor)
 
 
 def _recorded_dark(layer) -> float | None:
@@ -111,7 +156,8 @@ def _recorded_dark(layer) -> float | None:
 
 def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_stack",
                       depth_mm: float = 0.0, *, options: ReconOptions | None = None,
-                      viewer=None, step: Sequence[int] | None = None, **values) -> tuple:
+                      viewer=None, step: Sequence[int] | None = None,
+                      depths_mm: Sequence[float] | None = None, **values) -> tuple:
     """Reconstruct the plane of ``layer`` that napari shows with a run's PSF.
 
     Parameters
@@ -137,6 +183,8 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
         Given by napari: which plane it shows.
     step : sequence of int, optional
         The viewer's current step, read on the GUI thread (instead of ``viewer``).
+    depths_mm : sequence of float, optional
+        One depth per plane (mm) of a TIFF/.npy stack that records none.
     **values
         :class:`~recon.options.ReconOptions` fields (``method="admm"``,
         ``iterations=30``, ``dark="none"``) when no ``options`` is given.
@@ -145,7 +193,9 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     -------
     tuple
         ``(image or volume float32, {"name", "scale", "axis_labels", "units",
-        "metadata"}, "image")``.
+        "metadata"}, "image")``; ``y``, ``x`` in micrometres at the PSF run's pitch
+        times the binning when the run records one (as ``recon3d`` scales its
+        volume), else the layer's scale times the binning.
 
     Raises
     ------
@@ -175,12 +225,17 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     if step is None and viewer is not None:
         step = viewer.dims.current_step
     raw = _plane(layer, step).astype(np.float32)
-    stack, depths, calibrated, source = _load_psf(psf_run, product)
+    stack, depths, calibrated, source = _load_psf(psf_run, product, depths_mm)
     stack, dark = resolve_dark(options.dark, stack, calibrated=calibrated,
                                recorded=_recorded_dark(layer), what=source)
     bin_factor = options.bin_factor
-    pitch = [float(s) * bin_factor for s in layer.scale[-2:]]
-    units = [str(u) for u in layer.units[-2:]] if hasattr(layer, "units") else ["pixel"] * 2
+    run_pitch = _psf_pitch_um(psf_run, product, bin_factor)
+    if run_pitch is not None:  # the PSF run's pitch, as recon3d's volume is scaled
+        pitch, units = [run_pitch] * 2, ["micrometer"] * 2
+    else:
+        pitch = [float(s) * bin_factor for s in layer.scale[-2:]]
+        units = ([str(u) for u in layer.units[-2:]] if hasattr(layer, "units")
+                 else ["pixel"] * 2)
     meta = {"psf": source, "product": product, "method": options.method,
             "dark": str(options.dark), "source_layer": layer.name,
             "orientation": DATA_ORIENTATION}
@@ -211,6 +266,60 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
              "translate": [getattr(first, "origin", 0.0), 0.0, 0.0],
              "axis_labels": [first.name, "y", "x"], "units": [first.unit or "pixel", *units],
              "metadata": meta}, "image")
+
+
+def layer_view(layer, step: Sequence[int] | None) -> SimpleNamespace:
+    """What :func:`reconstruct_layer` reads of ``layer``, picklable: the plane shown at
+    ``step`` (read here: a run's frame is read from its store), its scale, units, name
+    and the run it came from (its recorded dark level)."""
+    meta = getattr(layer, "metadata", None) or {}
+    return SimpleNamespace(
+        data=_plane(layer, step), scale=tuple(float(v) for v in layer.scale[-2:]),
+        units=tuple(str(u) for u in getattr(layer, "units", ("pixel",) * 2)[-2:]),
+        name=str(layer.name), metadata={"run": meta.get("run")} if meta.get("run") else {})
+
+
+#: The solving process's scheduling priority (``nice``): below the viewer's, so on a
+#: busy machine napari's GUI thread gets a core first (as the window's batch process).
+SOLVER_NICE = 10
+#: The process the widget's solves run in (started at the first solve, kept for the
+#: next: its imports and compilations are done once), and the lock that makes it.
+_SOLVER: list = []
+_SOLVER_LOCK = threading.Lock()
+
+
+def solve_in_process(view: SimpleNamespace, psf, product: str, depth_mm: float,
+                     **keywords) -> tuple:
+    """:func:`reconstruct_layer` of a :func:`layer_view` in a process of its own.
+
+    The solver's compiled kernels hold Python's interpreter lock while they run (up to
+    0.9 s per call measured at load 12: ``python -m soak.napari_widget_benchmark``);
+    on a thread of napari's process that froze the viewer. In a child process at
+    :data:`SOLVER_NICE` the viewer's GUI thread never waits for it, and on a busy
+    machine gets a core before it. Called on the widget's worker thread.
+
+    Raises
+    ------
+    The errors of :func:`reconstruct_layer`, as raised in the child.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    with _SOLVER_LOCK:
+        if not _SOLVER:
+            ctx = multiprocessing.get_context("spawn")
+            _SOLVER.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx,
+                                               initializer=os.nice, initargs=(SOLVER_NICE,)))
+        pool = _SOLVER[0]
+    try:
+        return pool.submit(reconstruct_layer, view, psf, product, depth_mm,
+                           **keywords).result()
+    except BrokenProcessPool:  # the child died (killed, out of memory): a new one next
+        with _SOLVER_LOCK:
+            if _SOLVER and _SOLVER[0] is pool:
+                _SOLVER.clear()
+        raise RuntimeError("the reconstruction's process ended before it finished (killed "
+                           "or out of memory); press Reconstruct again") from None
 
 
 class ReconstructWidget(QWidget):
@@ -260,10 +369,14 @@ class ReconstructWidget(QWidget):
         self.depth.setSpecialValueText("only or every plane")
         self.depth.setToolTip("the PSF's depth for a 2-D image (mm); 0: the stack's only "
                               "plane, or every plane as a volume")
+        self.depths = QLineEdit()
+        self.depths.setPlaceholderText("recorded with the stack")
+        self.depths.setToolTip("one depth per plane (mm, e.g. 20, 25, 40) of a TIFF/.npy "
+                               "stack that records none")
         self.form = OptionsForm(ReconOptions, widget_fields(), name="napari")
         rows = [(QLabel("layer:"), self.layer), (QLabel("PSF:"), psf),
                 (QLabel("product:"), self.product), (QLabel("depth (mm):"), self.depth),
-                *self.form.rows()]
+                (QLabel("depths (mm):"), self.depths), *self.form.rows()]
         end = lay_out(grid, rows)
         self.button = QPushButton("Reconstruct")
         self.button.clicked.connect(self.run)
@@ -331,19 +444,42 @@ class ReconstructWidget(QWidget):
                                  "stack or image, or a 2-D image layer")
             psf = np.asarray(layers[text].data) if text in layers else Path(text)
             options = self.form.values()
+            depths = self.depths_mm()
         except InputError as exc:
             self._refuse(exc)
             return None
         from napari.qt.threading import create_worker
 
         step = tuple(self.viewer.dims.current_step)  # read here, on the GUI thread
+
+        def solve(layer, psf, product, depth_mm, **keywords):  # on the worker thread
+            return solve_in_process(layer_view(layer, step), psf, product, depth_mm,
+                                    **keywords)
+
         self.worker = create_worker(
-            reconstruct_layer, layer, psf, self.product.text().strip() or "psf_stack",
-            self.depth.value(), options=options, step=step, _start_thread=False,
+            solve, layer, psf, self.product.text().strip() or "psf_stack",
+            self.depth.value(), options=options, depths_mm=depths, _start_thread=False,
             _connect={"returned": self._add, "errored": self._refuse})
         self.button.setEnabled(False)
         self.worker.start()
         return self.worker
+
+    def depths_mm(self) -> list[float] | None:
+        """The depths field's values (mm; None when empty).
+
+        Raises
+        ------
+        diffuserlab.errors.InputError
+            A value that is not a number.
+        """
+        from diffuserlab.errors import InputError
+
+        text = self.depths.text().replace(",", " ").split()
+        try:
+            return [float(v) for v in text] or None
+        except ValueError:
+            raise InputError(f"'depths (mm)' {self.depths.text()!r}: give one number per "
+                             "plane, e.g. 20, 25, 40") from None
 
     def _add(self, data: tuple) -> None:
         from napari.layers import Layer

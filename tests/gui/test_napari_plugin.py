@@ -16,6 +16,7 @@ from gui.napari_plugin.widget import reconstruct_layer  # noqa: E402
 from instrument.writer.products import write_volume  # noqa: E402
 from recon.errors import ReconInputError  # noqa: E402
 from tests.instrument.test_ome import (  # noqa: E402
+    BINNING,
     FPS,
     PITCH_UM,
     _strip_to_legacy,
@@ -224,7 +225,9 @@ def test_widget_reconstructs_the_shown_frame_with_a_runs_psf(tmp_path, plugin):
     data, kwargs, kind = reconstruct_layer(layer, store.path, method="admm",
                                            iterations=30, dark="20", viewer=Viewer)
     assert kind == "image" and data.shape == (n, n)
-    assert kwargs["scale"] == pytest.approx([3.45, 3.45])
+    # the PSF run's pitch (its camera's 3.45 um binned by 2), as recon3d scales it
+    assert kwargs["scale"] == pytest.approx([PITCH_UM * BINNING] * 2)
+    assert kwargs["units"] == ["micrometer"] * 2
     assert kwargs["metadata"]["depth_mm"] == 10.0
     inside, outside = data[scene > 0].mean(), data[scene == 0].mean()
     assert inside > 3 * outside  # the object is found, not the raw's blur
@@ -323,7 +326,8 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
         assert kind == "image" and data.shape == (3, n, n) and data.dtype == np.float32
         assert kwargs["name"] == "raw volume"
         assert kwargs["axis_labels"] == [first[0], "y", "x"]
-        assert kwargs["scale"] == pytest.approx([first[1], pitch, pitch])
+        run_pitch = PITCH_UM * BINNING  # the PSF run's, not the layer's, as recon3d's
+        assert kwargs["scale"] == pytest.approx([first[1], run_pitch, run_pitch])
         assert kwargs["units"][0] == first[2]
         assert kwargs["metadata"]["depths_mm"] == depths
         volume = Image(data, **{k: kwargs[k] for k in ("scale", "axis_labels", "units")})
@@ -427,14 +431,16 @@ def test_widget_solves_on_a_worker_thread(tmp_path, plugin, wait, monkeypatch):
     n = 32
     _, psf, blurred = _scene_and_psf(n, 6)
     np.save(tmp_path / "psf.npy", psf + 20)
-    release, solving, real = threading.Event(), threading.Event(), module.reconstruct_layer
+    release, solving, real = threading.Event(), threading.Event(), module.solve_in_process
+    threads = []
 
     def held(*args, **kwargs):
+        threads.append(threading.current_thread())
         solving.set()
         release.wait(120.0)  # hang guard: the test sets it
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(module, "reconstruct_layer", held)
+    monkeypatch.setattr(module, "solve_in_process", held)
     viewer = ViewerModel()
     viewer.add_image((blurred + 20).astype(np.float32), name="raw")
     widget = _docked(plugin, viewer)
@@ -452,6 +458,7 @@ def test_widget_solves_on_a_worker_thread(tmp_path, plugin, wait, monkeypatch):
         wait(lambda: ends, 120.0, "the reconstruction")
         assert ends[0][1]["name"] == "raw recon" and "raw recon" in viewer.layers
         assert widget.button.isEnabled()
+        assert threads and threads[0] is not threading.main_thread()  # off the GUI thread
     finally:
         release.set()
         widget.close()
