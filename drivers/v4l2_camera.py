@@ -44,6 +44,7 @@ from drivers.camera_image import frame_image
 from drivers.errors import (
     DeviceDisconnectedError,
     DeviceError,
+    DeviceStateError,
     DeviceValueError,
     MissingDependencyError,
 )
@@ -273,12 +274,16 @@ class V4l2Camera(GrabStream, Camera):
 
     def _do_close(self) -> None:
         self._stop_grab()
-        cap, self._cap = self._cap, None
-        if cap is not None:
-            try:
-                cap.release()
-            except Exception as exc:  # noqa: BLE001 -- a vanished camera must close
-                self._log.warning("%s: release failed: %s", self.device_id, exc)
+        # under the lock every read takes: a grab thread still in a read after its join
+        # timed out (a stuck camera) finishes it first (OpenCV's release during a read
+        # may deadlock), and finds the capture gone after
+        with self._lock:
+            cap, self._cap = self._cap, None
+            if cap is not None:
+                try:
+                    cap.release()
+                except Exception as exc:  # noqa: BLE001 -- a vanished camera must close
+                    self._log.warning("%s: release failed: %s", self.device_id, exc)
 
     def _do_check_connection(self) -> None:
         if not os.path.exists(self._resolved):
@@ -387,6 +392,9 @@ class V4l2Camera(GrabStream, Camera):
         """The next frame from the camera and its buffer timestamp (s, CLOCK_MONOTONIC)."""
         while True:
             with self._lock:
+                if self._cap is None:  # released by close while this thread waited
+                    raise self._error(DeviceStateError, "the capture was released",
+                                      "open the camera again")
                 ok, image = self._cap.read()
                 stamp = float(self._cap.get(POS_MSEC)) * 1e-3
             if ok and image is not None:

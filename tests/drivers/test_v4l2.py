@@ -6,8 +6,10 @@ units, silent clamping, a queue of stale buffers, FOURCC/size restarts, unplug).
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
+import threading
 import time
 
 import cv2
@@ -105,7 +107,13 @@ class TestV4l2Camera(CameraConformance):
         cam.close()
 
     def provoke_timeout(self, device):
-        self.bench.fake.stall(1.1)  # no frame for longer than the call's 1 s
+        self.bench.fake.stall(math.inf)  # no frame until the call has timed out
+
+    def blocking_call(self, device):
+        try:
+            return device.snap(timeout_s=1.0)
+        finally:
+            self.bench.fake.resume()  # whenever the call ran (a loaded host: late)
 
     def test_trigger_hardware_is_refused(self, device):
         with pytest.raises(DeviceValueError, match="no trigger input"):
@@ -347,3 +355,53 @@ def test_real_opencv_backend_refuses_a_path_that_is_no_camera(by_id):
     with pytest.raises(DeviceDisconnectedError, match="cannot open .* as a V4L2 camera"):
         cam.open()
     assert not cam.is_open
+
+
+class _SignallingLock:
+    """The driver's lock, signalling ``wanted`` when the thread ``who`` asks for it."""
+
+    def __init__(self, lock, wanted):
+        self._inner, self.wanted, self.who = lock, wanted, None
+
+    def __enter__(self):
+        if threading.current_thread() is self.who:
+            self.wanted.set()
+        return self._inner.__enter__()
+
+    def __exit__(self, *exc):
+        return self._inner.__exit__(*exc)
+
+
+def test_close_releases_the_capture_only_after_a_stuck_read(recording, by_id):
+    """A grab thread stuck in ``read()`` past its join (a camera that stopped): close
+    releases the capture under the lock the read holds, so after the read (OpenCV's
+    release during a read may deadlock; the fake records and refuses it). The read is
+    let go once close has asked for the lock, or has called release: events only."""
+    cam, bench = make(recording, by_id)
+    cam.open()
+    ring = FrameRing(4)
+    cam.start_stream(ring)
+    fake = bench.fake
+    fake.gate.clear()
+    assert fake.reading.wait(30.0)  # the grab thread is held inside read()
+    asked = threading.Event()
+    lock = cam._lock = _SignallingLock(cam._lock, asked)
+    release = fake.release
+
+    def release_and_signal():
+        try:
+            release()
+        finally:
+            asked.set()
+
+    fake.release = release_and_signal
+    closer = threading.Thread(target=cam.close)
+    lock.who = closer
+    closer.start()
+    try:
+        assert asked.wait(60.0)  # after the join timed out (read_timeout_s + 2 s)
+    finally:
+        fake.gate.set()
+    closer.join(60.0)
+    assert not closer.is_alive() and not cam.is_open
+    assert not fake.released_during_read and not fake.opened

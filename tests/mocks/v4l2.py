@@ -18,7 +18,12 @@
   sizes (width and height as a pair); FOURCC, size and buffer count restart the stream;
 - the property ids are OpenCV's (``cv2.CAP_PROP_*``), and :meth:`FakeV4l2Capture.control`
   reads exposure, auto-exposure and gain by the kernel's V4L2 control ids, through the
-  property each maps to in OpenCV's V4L2 backend (:data:`V4L2_CONTROL`).
+  property each maps to in OpenCV's V4L2 backend (:data:`V4L2_CONTROL`);
+- ``release()`` while another thread is inside ``read()`` (undefined in OpenCV: a
+  possible deadlock or a use after free) is recorded (``released_during_read``) and
+  raises; ``gate`` (a ``threading.Event``, set) holds every ``read()`` while cleared,
+  ``reading`` is set once one is held; :meth:`stall` (``math.inf``: until
+  :meth:`resume`) stops the frames.
 """
 
 from __future__ import annotations
@@ -90,6 +95,10 @@ class FakeV4l2Capture:
         #: every frame exposed: (start, end, exposure in 100 us units), lost ones too
         self.produced: list[tuple[float, float, int]] = []
         self._lock = threading.RLock()  # the test thread may look while the driver reads
+        self.gate, self.reading = threading.Event(), threading.Event()
+        self.gate.set()
+        self._readers = 0
+        self.released_during_read = False
         self._stall_until = 0.0
         self._history: list[tuple[float, dict[int, float]]] = []
         self._queue: collections.deque[tuple[float, np.ndarray]] = collections.deque()
@@ -154,6 +163,18 @@ class FakeV4l2Capture:
         return self.opened
 
     def read(self) -> tuple[bool, Any]:
+        with self._lock:
+            self._readers += 1
+        try:
+            if not self.gate.is_set():
+                self.reading.set()
+                self.gate.wait(60.0)  # a hang guard only
+            return self._read()
+        finally:
+            with self._lock:
+                self._readers -= 1
+
+    def _read(self) -> tuple[bool, Any]:
         deadline = time.monotonic() + self.read_timeout_s
         while self.opened and not self.unplugged:
             now = time.monotonic()
@@ -228,15 +249,26 @@ class FakeV4l2Capture:
         return int(self.props[prop])
 
     def release(self) -> None:
-        self.opened = False
+        with self._lock:
+            if self._readers:
+                self.released_during_read = True
+                raise RuntimeError("release() while another thread reads (OpenCV: "
+                                   "undefined, a possible deadlock)")
+            self.opened = False
         self._source.release()
 
     def stall(self, seconds: float) -> None:
-        """The camera stops sending for ``seconds`` (e.g. a USB bandwidth stall)."""
+        """The camera stops sending for ``seconds`` (e.g. a USB bandwidth stall;
+        ``math.inf``: until :meth:`resume`)."""
         with self._lock:
             now = time.monotonic()
             self._produce(now)
             self._stall_until = now + seconds
+
+    def resume(self) -> None:
+        """End a stall now: frames are exposed again from now on."""
+        with self._lock:
+            self._stall_until = min(self._stall_until, time.monotonic())
 
     def unplug(self) -> None:
         """The camera disappears: reads fail from now on."""
