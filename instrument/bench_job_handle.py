@@ -90,10 +90,14 @@ class JobInfo:
     progress: Any = None
 
     def as_event(self) -> dict:
-        """``{"id", "name", "state", "owner", "holds"}``: the ``data`` of the bench's
-        ``job`` event."""
+        """``{"id", "name", "state", "owner", "holds", "run"}``: the ``data`` of the
+        bench's ``job`` event (``run``: the run it writes,
+        :func:`instrument.bench_recovery.run_path_of`, or None)."""
+        from .bench_recovery import run_path_of
+
         return {"id": self.id, "name": self.name, "state": self.state,
-                "owner": self.owner, "holds": list(self.holds)}
+                "owner": self.owner, "holds": list(self.holds),
+                "run": run_path_of(self.params)}
 
     def describe(self) -> str:
         """``job 3 (record) of the window``: how a refusal or a confirmation names it."""

@@ -294,7 +294,11 @@ class BenchClient:
                                                daemon=True),
                               threading.Thread(target=self._read_frames, name="bench-frames",
                                                daemon=True)]
-        if on_event is not None:
+        #: {job id: run path} of the runs this client's bench process writes now (from
+        #: the ``job`` events): closed here if that process is killed
+        #: (:meth:`close_orphaned_runs`).
+        self.writing: dict[int, str] = {}
+        if on_event is not None or not (self.attached or self.in_process):
             first = self.host.events_after(None)[0] if self.attached else 0
             self._threads.append(threading.Thread(target=self._listen, args=(first,),
                                                   name="bench-device-events", daemon=True))
@@ -412,6 +416,13 @@ class BenchClient:
                 self._closed.wait(0.5)
                 continue
             for event in events:
+                if event.kind == "job" and event.data.get("run"):
+                    if event.data["state"] == "running":
+                        self.writing[event.data["id"]] = event.data["run"]
+                    else:
+                        self.writing.pop(event.data["id"], None)
+                if self.on_event is None:
+                    continue
                 try:
                     self.on_event(event)
                 except Exception:  # noqa: BLE001 (a subscriber's fault: logged, not fatal)
@@ -430,6 +441,39 @@ class BenchClient:
             return True
         process = getattr(self._manager, "_process", None)
         return process is not None and process.is_alive()
+
+    def close_orphaned_runs(self) -> list[str]:
+        """Close the runs the bench process this client started was writing when it
+        ended unasked (killed): each still locked by that process is marked
+        ``interrupted``, ``closed_by`` this client with why, its lock removed and its
+        frames kept (:func:`instrument.bench_recovery.close_orphaned_run`). Nothing
+        while it runs, nor for a client in process or attached.
+
+        Returns
+        -------
+        list of str
+            The runs closed.
+        """
+        process = None if self.in_process or self.attached else getattr(
+            self._manager, "_process", None)
+        if process is None or process.is_alive():
+            return []
+        from diffuserlab.processes import how_it_ended
+
+        from .bench_recovery import close_orphaned_run
+
+        why = (f"the bench process (pid {process.pid}) that wrote it ended: "
+               f"{how_it_ended(process.exitcode)}")
+        closed = []
+        for path in sorted(set(self.writing.values())):
+            try:
+                if close_orphaned_run(path, writer_pid=process.pid, closed_by=self.name,
+                                      why=why):
+                    closed.append(path)
+                    log.warning("closed %s: %s", path, why)
+            except Exception:  # noqa: BLE001 (one run's damage: logged, the others closed)
+                log.exception("could not close %s after the bench process ended", path)
+        return closed
 
     def exit_status(self) -> int | None:
         """How the bench process this client started ended: its exit code, or minus
@@ -473,8 +517,11 @@ class BenchClient:
                     kind, value = events.get(timeout=poll_s)
                 except queue.Empty:
                     if not self.alive():
-                        raise BenchHostError("the bench process ended while the job ran; "
-                                             "connect again") from None
+                        closed = self.close_orphaned_runs()
+                        kept = (f"; its run {', '.join(closed)} is closed (interrupted), "
+                                "the frames it stored kept" if closed else "")
+                        raise BenchHostError(f"the bench process ended while the job ran"
+                                             f"{kept}; start the bench again") from None
                     continue
                 if kind == "progress":
                     if report is not None:
@@ -638,6 +685,8 @@ class BenchClient:
         try:
             if self.in_process or self.alive():
                 self.host.close()  # BenchHost.close, in the bench process
+            else:
+                self.close_orphaned_runs()
         finally:
             self._closed.set()
             for t in self._threads:

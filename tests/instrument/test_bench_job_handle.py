@@ -56,7 +56,8 @@ def test_a_recording_a_notebook_started_is_followed_and_stopped_by_the_window(
         told = window.events.wait(lambda e: e.kind == "job" and e.data["id"] == job.id,
                                   "of the notebook's job starting")
         assert told.data == {"id": job.id, "name": "record", "state": "running",
-                             "owner": notebook.name, "holds": [window.camera_id]}
+                             "owner": notebook.name, "holds": [window.camera_id],
+                             "run": str(out)}
         held = window.job(job.id)
         assert [i.state for i in window.jobs() if i.id == job.id] == ["running"]
         # both clients see the recording's progress

@@ -152,3 +152,69 @@ def test_every_client_sees_every_job_with_its_owner_and_stops_it(window, tmp_pat
     assert info.progress["recorded"] > 0 and info.describe().endswith(window.name)
     window.notebook.value(other.stop_by_id, job.id)
     assert job.result(HANG_S)["status"] == "stopped"
+
+
+def test_a_killed_bench_process_s_recording_is_closed_by_the_client_that_started_it(
+        tmp_path):
+    """SIGKILL under a notebook's recording: the window (which started the bench
+    process) closes the run, interrupted, saying who and why, its frames kept and its
+    lock gone; the window's own recording says so, naming no Connect button."""
+    import os
+    import signal
+
+    events = Events()
+    window = opened_bench(name="the window", on_event=events)
+    client = window.__enter__()
+    notebook = OtherClient(client.address, client.authkey)
+    try:
+        theirs = tmp_path / "notebook.zarr"
+        job_id = notebook.value(other.start, "record", recording(theirs))
+        notebook.value(other.wait_recorded, job_id, 2)
+        process = client._manager._process
+        bench_pid = process.pid
+        assert RunStore.open(theirs).lock_owner()["pid"] == bench_pid
+        # the window knows what the bench process writes (noted before it is told)
+        events.wait(lambda e: e.kind == "job" and e.data["run"] == str(theirs),
+                    "of the notebook's recording")
+        assert str(theirs) in client.writing.values()
+        os.kill(bench_pid, signal.SIGKILL)
+        process.join(HANG_S)
+    finally:
+        window.__exit__(None, None, None)  # the window notices and closes its client
+        notebook.close()
+    store = RunStore.open(theirs)
+    assert store.status == "interrupted" and store.lock_owner() is None
+    closed = store.attrs["closed_by"]
+    assert closed["by"] == client.name and f"pid {bench_pid}" in closed["why"]
+    assert "SIGKILL" in closed["why"] and closed["frames_kept"] == store.done().sum() > 0
+
+
+def test_the_window_s_own_recording_says_its_run_is_closed_when_the_bench_is_killed(
+        tmp_path):
+    import os
+    import signal
+    import threading
+
+    events = Events()
+    with opened_bench(name="the window", on_event=events) as client:
+        out = tmp_path / "window.zarr"
+        outcome: dict = {}
+        progress = threading.Event()
+
+        def run() -> None:
+            try:
+                client.run_job("record", recording(out), report=lambda p: progress.set())
+            except Exception as exc:  # noqa: BLE001 (read below)
+                outcome["error"] = str(exc)
+
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        assert progress.wait(HANG_S)
+        events.wait(lambda e: e.kind == "job" and e.data["run"] == str(out),
+                    "of the window's recording")
+        os.kill(client._manager._process.pid, signal.SIGKILL)
+        thread.join(HANG_S)
+    said = outcome["error"]
+    assert f"its run {out} is closed (interrupted)" in said and "kept" in said
+    assert "connect" not in said.lower()
+    assert RunStore.open(out).status == "interrupted"
