@@ -184,7 +184,10 @@ class Device(abc.ABC):
         DeviceDisconnectedError
             The device is absent.
         DeviceTimeoutError
-            The kind's timeout error: the device did not answer in time.
+            The kind's timeout error: the device did not answer in time; a reply
+            wait that ran out at the end of ``timeout_s`` (cut to it) is reported as
+            the open not finishing "within the open's timeout_s", not as a silent
+            device.
         DeviceCancelledError
             ``cancel`` was set before the open finished; the device is closed.
         """
@@ -192,7 +195,8 @@ class Device(abc.ABC):
         timeout_s = self._check_timeout(5.0 if timeout_s is None else timeout_s)
         if self._is_open:
             return
-        self._open_bounds = (time.monotonic() + timeout_s if bounded else None, cancel)
+        deadline = time.monotonic() + timeout_s if bounded else None
+        self._open_bounds = (deadline, cancel)
         try:
             self._check_cancel("before opening")
             with self._io():
@@ -205,6 +209,17 @@ class Device(abc.ABC):
                     with contextlib.suppress(DeviceError):
                         self._do_close()
                     raise
+        except DeviceTimeoutError as exc:
+            if (deadline is None or "the open's timeout_s" in exc.problem
+                    or time.monotonic() < deadline - self._LAST_WAIT_S):
+                raise
+            # a reply wait cut short by the open's deadline ran out: the open's timeout
+            # ended it, not a silent device (a loaded host answers late)
+            raise self._timeout(
+                f"the open did not finish within the open's timeout_s = {timeout_s:g} s "
+                f"(its last wait: {exc.problem})",
+                "open again with a longer timeout_s; if it keeps failing, " + exc.fix,
+            ) from exc
         finally:
             self._open_bounds = (None, None)
         self._is_open = True

@@ -35,7 +35,7 @@ def make_stage(emu, **kw):
     kw.setdefault("device_numbers", {"x": 1, "y": 2, "z": 2})
     kw.setdefault("axis_numbers", {"z": 2})
     kw.setdefault("speed_mm_s", 5.0)
-    kw.setdefault("reply_timeout_s", 1.0)
+    kw.setdefault("reply_timeout_s", 30.0)  # a hang guard: a loaded host answers late
     return ZaberAsciiStage("mask", port=emu.port, **kw)
 
 
@@ -50,8 +50,20 @@ class TestZaberConformance(StageConformance):
         yield stage
         stage.close()
 
+    _restore = None
+
     def provoke_timeout(self, device):
-        self.emu.drop_replies(1)
+        self.emu.drop_replies(1)  # the lost reply is waited for 1 s, not the fixture's 30
+        before, device._reply_timeout = device._reply_timeout, 1.0
+        self._restore = lambda: setattr(device, "_reply_timeout", before)
+
+    def blocking_call(self, device):
+        try:
+            return super().blocking_call(device)
+        finally:
+            restore, self._restore = self._restore, None
+            if restore is not None:
+                restore()
 
 
 def test_checksum_example():
@@ -117,7 +129,7 @@ def test_limit_stall_and_interruption_flags(emulator):
 
 
 def test_silent_device_times_out_with_kind_error(emulator):
-    with make_stage(emulator, home_on_open=True) as stage:
+    with make_stage(emulator, home_on_open=True, reply_timeout_s=1.0) as stage:
         emulator.silence(2)
         t0 = time.monotonic()
         with pytest.raises(stage.timeout_error, match="reply to '/2 1"):
@@ -219,3 +231,16 @@ def test_a_speed_above_the_stages_limit_is_rejected_by_the_device(tmp_path):
             assert emu.axis(1).maxspeed == round(5.0 / STEP * 1.6384)
             stage.velocity = {"x": 9.5}
             assert emu.axis(1).maxspeed == round(9.5 / STEP * 1.6384)
+
+
+def test_a_reply_wait_cut_by_the_opens_deadline_names_the_opens_timeout():
+    """Replies later than what is left of the open's timeout_s (a loaded host): the
+    last reply wait, cut to the open's deadline, runs out there. The user reads that
+    the open did not finish within its timeout_s, not that the device may be off."""
+    with ZaberEmulator({1: 1}, time_scale=1.0) as emu:
+        emu.delay_replies(0.3, n=1000)  # every reply 0.3 s late: the open needs several
+        stage = ZaberAsciiStage("mask", axes=["x"], device_numbers={"x": 1}, port=emu.port,
+                                speed_mm_s=1.0, reply_timeout_s=30.0)
+        with pytest.raises(StageTimeoutError, match="within the open's timeout_s = 1 s") as e:
+            stage.open(timeout_s=1.0)
+        assert "powered" not in e.value.problem and not stage.is_open
