@@ -20,7 +20,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_dir", "atomic_path", "free_space_text", "missing_dirs", "output_group",
-           "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes", "write_json"]
+           "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes", "write_json",
+           "write_text"]
 
 
 def _size_text(n: float) -> str:
@@ -421,6 +422,24 @@ def write_json(path: str | os.PathLike, data, *, default=None) -> Path:
     from diffuserlab.jsonio import json_text
 
     text = json_text(data, default=default)  # before the file: a TypeError leaves no trace
+    return write_text(path, text)
+
+
+def write_text(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` (UTF-8) through :func:`atomic_path`: whole or not at all.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (replaced if it exists: callers check for overwriting first; its
+        folder is made).
+    text : str
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``; an ``OSError`` as :func:`write_json`'s (nothing replaced).
+    """
     with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
     return Path(path)

@@ -8,7 +8,8 @@
   property, one slice label per plane), or
 - an OME-TIFF (``format="ome"``: OME-XML with ``PhysicalSizeX/Y/Z`` in µm and
   ``TimeIncrement`` in s, each plane's depth as its ``PositionZ`` in µm where the
-  array records ``depths_mm``; the run's metadata as JSON in the image's
+  array records ``depths_mm``, each plane's time as its ``DeltaT`` in s where the
+  frames' timestamps are recorded; the run's metadata as JSON in the image's
   ``Description``),
 
 with the axes of the run's OME-Zarr description (:mod:`instrument.ome`): ``t`` (time)
@@ -59,13 +60,15 @@ def _first_letter(axis: OmeAxis, frames: bool) -> str:
 
 def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | None,
                meta: Mapping[str, Any], *, fmt: str = "imagej", frames: bool = False,
-               labels: Sequence[str] | None = None) -> None:
+               labels: Sequence[str] | None = None,
+               delta_t_s: Sequence[float] | None = None) -> None:
     """Write ``array`` as an ImageJ hyperstack or an OME-TIFF (module notes).
 
     Parameters
     ----------
     path : str or Path
-        The file to write (the caller makes it atomic).
+        The file to write (the caller makes it atomic), written by
+        :func:`instrument.writer.files.write_tiff_file`.
     array : ndarray, (planes, rows, cols) or (rows, cols)
     axes : sequence of OmeAxis or None
         The array's axes (:func:`instrument.ome.product_axes`); None: no image, a
@@ -77,17 +80,21 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
         The array is a run's frames (a custom first axis is then T, not Z).
     labels : sequence of str, optional
         One label per plane (ImageJ slice labels).
+    delta_t_s : sequence of float, optional
+        Each plane's time, s from the first (its recorded timestamp): an OME-TIFF's
+        per-plane ``DeltaT`` (bioio's ``time_interval`` and Bio-Formats read it),
+        written for a time axis (``T``).
 
     Raises
     ------
     ValueError
         ``axes`` that do not match the array's rank, or an unknown format.
     """
-    import tifffile
+    from .writer.files import write_tiff_file
 
     meta = dict(meta)
     if axes is None or array.ndim not in (2, 3):
-        tifffile.imwrite(path, array, metadata=meta, photometric="minisblack")
+        write_tiff_file(path, array, metadata=meta, photometric="minisblack")
         return
     if len(axes) != array.ndim:
         raise ValueError(f"{len(axes)} axes for a {array.ndim}-D array")
@@ -111,7 +118,7 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
         if labels is not None and array.ndim == 3:
             ij["Labels"] = list(labels)
         res = None if pitch is None else (1.0 / pitch, 1.0 / pitch)
-        tifffile.imwrite(path, array, imagej=True, resolution=res, metadata=ij)
+        write_tiff_file(path, array, imagej=True, resolution=res, metadata=ij)
         return
     if fmt != "ome":
         raise ValueError(f"format {fmt!r}: use 'imagej' or 'ome'")
@@ -128,7 +135,11 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
                            "PositionZUnit": ["µm"] * len(depths)}
     if first is not None and first.type == "time" and first.unit == "second":
         om["TimeIncrement"], om["TimeIncrementUnit"] = first.scale, "s"
-    tifffile.imwrite(path, array, ome=True, metadata=om, photometric="minisblack")
+    if (first is not None and letters[0] == "T" and delta_t_s is not None
+            and len(delta_t_s) == array.shape[0]):  # each plane's recorded time
+        om["Plane"] = {"DeltaT": [float(t) for t in delta_t_s],
+                       "DeltaTUnit": ["s"] * array.shape[0]}
+    write_tiff_file(path, array, ome=True, metadata=om, photometric="minisblack")
 
 
 def read_tiff_metadata(tif) -> dict:

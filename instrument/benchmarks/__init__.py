@@ -99,13 +99,10 @@ def save_figure(fig, path: Path) -> Path:
     """Save a :class:`matplotlib.figure.Figure` (no pyplot state involved)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from ..atomic import atomic_path
+    from ..writer.figures import save_figure as write_figure
 
-    path = Path(path)
     FigureCanvasAgg(fig)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    return path
+    return write_figure(fig, path, dpi=110, bbox_inches="tight")
 
 
 def log_x_axis(ax) -> None:

@@ -230,7 +230,7 @@ def _batch_chart(result: dict, path: str | Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..atomic import atomic_path
+    from ..writer.figures import save_figure
 
     names = ["loop\n(1 process,\nall cores)"] + [f"dask\n{w} worker{'s' * (w > 1)}"
                                                   for w in result["batch"]]
@@ -250,8 +250,7 @@ def _batch_chart(result: dict, path: str | Path) -> None:
                  f"{result['frames']} frames")
     ax.legend()
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
+    save_figure(fig, path, format="png")
     plt.close(fig)
 
 

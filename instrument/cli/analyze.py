@@ -513,7 +513,8 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
     ValueError
         Missing or invalid options.
     """
-    from ..atomic import atomic_path, write_json
+    from ..atomic import write_json
+    from ..writer.figures import save_figure
     from ..writer.guards import check_outputs
 
     _check_options(args)
@@ -523,8 +524,7 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
                   getattr(args, "overwrite", False), directory=out)
     stack, z, header = _load(args)
     result, fig, lines = _RUNNERS[args.analysis](args, stack, z, header)
-    with atomic_path(png) as tmp:
-        fig.savefig(tmp, dpi=100)
+    save_figure(fig, png, dpi=100)
     result = jsonable({**result, "output_png": str(png), "output_json": str(js)},
                       nonfinite_to_none=True)
     write_json(js, result)

@@ -116,7 +116,8 @@ def run_design(args: argparse.Namespace) -> int:
     line per depth; returns 0 (bad input: one line, exit 2, through the boundary)."""
     from recon.analysis.design import design_resolution
 
-    from ..atomic import atomic_path, write_json
+    from ..atomic import write_json
+    from ..writer.figures import save_figure
     from ..writer.guards import check_outputs
 
     design, depths = _checked(args)
@@ -125,8 +126,7 @@ def run_design(args: argparse.Namespace) -> int:
     check_outputs([png, js], None, args.overwrite, directory=out)
     result = design_resolution(design, depths, threshold=args.threshold)
     fig = _plot(design, result)
-    with atomic_path(png) as tmp:
-        fig.savefig(tmp, dpi=100)
+    save_figure(fig, png, dpi=100)
     record = {"analysis": "design", "layout": args.layout, "lenslet_um": args.lenslet_um,
               "focal_mm": args.focal_mm, "distance_mm": args.distance_mm,
               "pitch_um": args.pitch_um, "sensor_px": args.sensor_px,

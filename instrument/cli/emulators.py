@@ -70,10 +70,9 @@ def run(args: argparse.Namespace) -> int:
         for name, (link, tty) in bench.ports().items():
             print(f"  {name:<11} {link} -> {tty}")
         if args.bench_out:
-            from ..atomic import atomic_path
+            from ..atomic import write_text
 
-            with atomic_path(args.bench_out) as tmp:  # whole or not at all (a full disk)
-                tmp.write_text(bench.bench_text(), encoding="utf-8")
+            write_text(args.bench_out, bench.bench_text())  # whole or not at all
             print(f"bench file: {args.bench_out}")
         else:
             print("bench file: examples/bench-emulated.toml" + (

@@ -14,6 +14,14 @@ nothing; its reader recognises the volumes written here). Products inside a run
   ``--out`` and written from its arrays: the image, its view and its metrics JSON; the
   volume (float TIFF or OME-Zarr) and its projections.
 - :mod:`instrument.writer.evaluation`: the files of ``holo evaluate``.
+- :mod:`instrument.writer.figures`: the figures of ``analyze`` and the benchmarks
+  (:func:`~instrument.writer.figures.save_figure`).
+
+The ``runs export`` TIFFs are written by
+:func:`~instrument.writer.files.write_tiff_file` with the tags
+:func:`instrument.tiff_export.write_tiff` builds; text files other than JSON by
+:func:`instrument.atomic.write_text`. ``tests/test_one_writer.py`` lists the modules
+that still write files themselves.
 
 All of them write through :mod:`instrument.atomic`: outputs whole or not at all (a
 temporary name renamed into place, :func:`~instrument.atomic.atomic_path` and

@@ -22,6 +22,7 @@ import numpy as np
 import tifffile
 
 from diffuserlab.errors import InputError
+from diffuserlab.jsonio import jsonable
 from recon.errors import ReconInputError
 from recon.validate import as_array
 
@@ -29,7 +30,7 @@ from ..atomic import atomic_path
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SAVE_EXTENSIONS", "save_image", "write_snapshot"]
+__all__ = ["SAVE_EXTENSIONS", "save_image", "write_snapshot", "write_tiff_file"]
 
 _TIFF_EXTENSIONS = (".tif", ".tiff")
 
@@ -169,15 +170,32 @@ def write_snapshot(path: str | Path, image: np.ndarray, metadata: dict[str, Any]
     if path.exists():
         raise FileExistsError(17, "a snapshot never replaces a file; choose another name",
                               str(path))
-    meta = json.loads(json.dumps(metadata, default=_jsonable))
+    meta = json.loads(json.dumps(jsonable(metadata), default=str))
     with atomic_path(path) as tmp:  # its folder is made; never half a file under path
         tifffile.imwrite(tmp, np.ascontiguousarray(image), metadata=meta)
     return path
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)
+def write_tiff_file(path: str | os.PathLike, array: np.ndarray, **tags: Any) -> Path:
+    """Write ``array`` as a TIFF with the tags another module built
+    (:func:`instrument.tiff_export.write_tiff`'s ImageJ hyperstack or OME-TIFF): the
+    one place outside the products above where a TIFF is written.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file: an :func:`instrument.atomic.atomic_path` temporary (the caller makes
+        the output whole or not at all).
+    array : numpy.ndarray
+        Any shape and dtype ``tifffile`` writes.
+    **tags
+        Passed to :func:`tifffile.imwrite` (``imagej``, ``ome``, ``metadata``,
+        ``resolution``, ``photometric``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path`` (an ``OSError`` when it cannot be written).
+    """
+    tifffile.imwrite(path, array, **tags)
+    return Path(path)
