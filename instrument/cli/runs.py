@@ -1,5 +1,5 @@
-"""``diffuserlab runs {show,verify,export,upgrade,import-psf}``: look into, check and convert run
-stores."""
+"""``diffuserlab runs {show,verify,export,upgrade,import-psf,list}``: look into, check and
+convert run stores (``list``: :mod:`instrument.cli.runs_list`)."""
 
 from __future__ import annotations
 
@@ -57,6 +57,9 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
     ip.add_argument("--note", default="")
     ip.add_argument("--overwrite", action="store_true")
     rp.set_defaults(handler=run)
+    from .runs_list import add_list
+
+    add_list(rsub)  # its own handler
 
 
 def format_summary(s: dict) -> str:
