@@ -218,3 +218,40 @@ def test_the_window_s_own_recording_says_its_run_is_closed_when_the_bench_is_kil
     assert f"its run {out} is closed (interrupted)" in said and "kept" in said
     assert "connect" not in said.lower()
     assert RunStore.open(out).status == "interrupted"
+
+
+def optics(ctx) -> dict:
+    """The virtual bench's optics: the camera capped, the diffuser and pinhole in."""
+    return {k: ctx.bench.state[k]
+            for k in ("camera_capped", "diffuser_installed", "pinhole_installed")}
+
+
+def test_a_notebook_s_dark_run_aborted_from_the_window_uncaps_the_camera(tmp_path):
+    from calibration_routines.bench_jobs import JOBS as CALIBRATION
+
+    working = {"camera_capped": False, "diffuser_installed": True,
+               "pinhole_installed": True}
+    with opened_bench(name="the window", jobs={**CALIBRATION, "optics": optics}) as window:
+        notebook = OtherClient(window.address, window.authkey)
+        try:
+            # long dark frames: the abort lands while the camera is capped
+            job_id = notebook.value(other.start, "run_plan", {
+                "routine": "dark", "values": {"--frames": "3", "--exposure-s": "1.0"},
+                "path": str(tmp_path / "dark.zarr")})
+            held = window.job(job_id)
+            first = held.wait_for(lambda e: e.kind == "progress"
+                                  and getattr(e.data, "kind", None) == "frame", HANG_S)
+            assert first.data.point == 0 and window.run_job("optics")["camera_capped"]
+            # the window's record is refused meanwhile: the run holds every device
+            with pytest.raises(BenchHostError, match=rf"held by job {job_id} \(run_plan\)"):
+                window.start_job("record", recording(tmp_path / "v.zarr"))
+            held.abort("aborted from the window")
+            put_back = held.wait_for(lambda e: e.kind == "progress"
+                                     and getattr(e.data, "message", "") == "Uncap the camera",
+                                     HANG_S)
+            assert put_back.data.point is None  # the runner's put-back, not the flat point
+            result = notebook.value(other.result, job_id)
+            assert result.status == "aborted" and result.pending_actions == []
+            assert window.run_job("optics") == working
+        finally:
+            notebook.close()
