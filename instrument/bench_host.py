@@ -28,7 +28,11 @@ What crosses between the processes:
   and those given to :meth:`BenchHost.register_jobs`) as ``function(ctx, **kwargs)`` on
   a thread of the host with a :class:`JobContext` (the bench, progress, pause/abort,
   stop and cancel events); :meth:`BenchHost.job_control` pauses, resumes, aborts, stops
-  or cancels it, whichever client asks. Every job's progress and end is also logged in
+  or cancels it, whichever client asks. A job holds the devices it declares
+  (:func:`instrument.bench_jobs.holding`) and the live stream holds the camera: a job
+  needing a held device is refused before anything touches it, naming the holder and
+  its owner (:meth:`BenchHost.holders`), and the stream yields the camera to a job and
+  starts again when it ends. Every job's progress and end is also logged in
   :attr:`BenchHost.job_registry` for any client to follow
   (:class:`~instrument.bench_job_handle.JobHandle`).
 """

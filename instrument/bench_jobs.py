@@ -14,6 +14,8 @@ interpreter lock.
 
 A job that changes the bench to take its measurement gives it back as it was
 (:func:`kept`, :mod:`instrument.bench_state`), except the state it exists to produce.
+A job declares the devices it holds while it runs (:func:`holding`) and takes only the
+parameters its signature names (:func:`instrument.bench_job_handle.check_params`).
 """
 
 from __future__ import annotations

@@ -144,8 +144,11 @@ class BenchEvent:
         device's :meth:`~drivers.base.Device.setting_values`), ``positions``
         (``data``: a stage's ``{axis: position}``), ``bench`` (``device`` None,
         ``data``: ``{"open": bool, "devices": [ids]}``), ``job`` (``device`` None,
-        ``data``: ``{"id", "name", "state"}``, a job started, ``running``, or ended,
-        ``done`` or ``failed``: :mod:`instrument.bench_job_handle`).
+        ``data``: ``{"id", "name", "state", "owner", "holds", "run"}``, a job started,
+        ``running``, or ended, ``done`` or ``failed``:
+        :meth:`instrument.bench_job_handle.JobInfo.as_event`), ``message`` (``device``
+        None, ``data``: a line for the operator, e.g. which job took the live view's
+        camera).
     device : str or None
     data : object
     """
