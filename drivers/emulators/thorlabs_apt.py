@@ -173,6 +173,7 @@ class AptEmulator(PtyEmulator):
         self._updates_started = 0.0
         self._next_update = 0.0
         self.acks = 0
+        self.updates_sent = 0  # periodic status updates sent (of every channel at once)
         self.resyncs = 0
         self.unknown: list[int] = []
 
@@ -487,6 +488,7 @@ class AptEmulator(PtyEmulator):
         for ch in self.channels.values():
             self.emit(self._status_update(ch))
         self._updates_since_ack += 1
+        self.updates_sent += 1
 
     @staticmethod
     def counts(value: float, counts_per_unit: float) -> int:

@@ -134,11 +134,19 @@ def test_controller_error_report_and_garbage(emulator, tmp_path):
 
 
 def test_keepalive_keeps_updates_flowing(emulator, tmp_path):
+    """The controller goes silent after 50 updates without an ACK: with the keepalive
+    it sends more than 50, however slowly a loaded host runs either side (waited for,
+    a 60 s hang guard; without the ACKs they stop at 50 and the guard fails it)."""
     with make_stage(emulator, tmp_path, keepalive_s=0.2):
-        time.sleep(1.5)  # 150 update periods of 10 ms: silent after 50 without the ACK
+        hang_guard = time.monotonic() + 60.0
+        while time.monotonic() < hang_guard:
+            with emulator.lock:
+                if emulator.acks >= 5 and emulator.updates_sent >= 80:
+                    break
+            time.sleep(0.01)
         with emulator.lock:
-            assert emulator.acks >= 5 and emulator.updates_on
-            assert emulator._updates_since_ack < 50
+            assert emulator.acks >= 5 and emulator.updates_sent >= 80
+            assert emulator.updates_on
         assert bytes.fromhex("92 04 00 00 50 01") in bytes(emulator.received)
 
 
