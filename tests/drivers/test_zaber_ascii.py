@@ -201,7 +201,13 @@ def test_homing_at_open_is_bounded_by_the_callers_timeout_and_cancel():
 
         far_from_home()
         cancel = threading.Event()
-        threading.Timer(0.3, cancel.set).start()
+        wait = stage._wait_homing_at_open
+
+        def cancelled_once_homing(home_timeout_s):  # the cancel comes during the homing
+            cancel.set()  # (a timer could fire before the open, on a loaded host)
+            return wait(home_timeout_s)
+
+        stage._wait_homing_at_open = cancelled_once_homing
         with pytest.raises(DeviceCancelledError, match="cancelled while homing"):
             stage.open(timeout_s=60.0, cancel=cancel)
         assert not stage.is_open
