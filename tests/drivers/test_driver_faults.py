@@ -209,7 +209,13 @@ def test_apt_home_on_open_within_the_opens_timeout_and_cancel(apt, tmp_path):
     with apt.lock:
         apt.channels[0x50].motion = None
     cancel = threading.Event()
-    threading.Timer(0.3, cancel.set).start()
+    wait = stage._wait_homing_at_open
+
+    def cancelled_once_homing(home_timeout_s):  # not a timer: on a loaded host it
+        cancel.set()  # could fire before the homing, even before the open
+        return wait(home_timeout_s)
+
+    stage._wait_homing_at_open = cancelled_once_homing
     with pytest.raises(DeviceCancelledError, match="cancelled while homing"):
         stage.open(timeout_s=60.0, cancel=cancel)
     assert not stage.is_open
