@@ -352,8 +352,9 @@ class BenchHost(BenchService):
         ----------
         name : str
         kwargs : dict, optional
-            The job's parameters; a job that declares its accepted ones
-            (:func:`instrument.bench_jobs.accepting`) refuses any other.
+            The job's parameters: a key its signature does not name, or one its own
+            check refuses, is refused
+            (:func:`instrument.bench_job_handle.check_params`).
         piped : bool
             Send its events down the pipe (the starting client's
             :meth:`~instrument.bench_process.BenchClient.run_job`).

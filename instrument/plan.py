@@ -252,14 +252,14 @@ class Plan(abc.ABC):
         """Steps after the last point, and the plan's declaration of how it puts the
         bench back.
 
-        After a complete run every step runs (a :class:`Prompt` that puts back a
-        change of :data:`RESTORES` the run did not make, or made and put back
-        already, is skipped). On every exit path (done, failed, aborted) the runner
-        then carries out, newest first, the putting back of each change of
-        :data:`RESTORES` still outstanding, in this teardown's words where it has a
-        :class:`Prompt` of that action (a dark run aborted with the camera capped is
-        uncapped); the bench then goes to its safe state and the store is kept for
-        resuming."""
+        After a complete run every step runs (a :class:`~instrument.plan.Prompt`
+        that puts back a change of :data:`~instrument.plan.RESTORES` the run did not
+        make, or made and put back already, is skipped). On every exit path (done,
+        failed, aborted) the runner then carries out, newest first, the putting back
+        of each change of :data:`~instrument.plan.RESTORES` still outstanding, in
+        this teardown's words where it has a :class:`~instrument.plan.Prompt` of that
+        action (a dark run aborted with the camera capped is uncapped); the bench
+        then goes to its safe state and the store is kept for resuming."""
         return iter(())
 
     def checked_steps(self, points: Sequence[PlanPoint], indices: Sequence[int]
