@@ -231,13 +231,16 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
     fmt = tiff_format(out, fmt)
     store = RunStore.open(run)
     out = Path(out)  # its folder is made by atomic_path once the data is read
-    labels = None
+    labels = delta_t = None
     if product is not None:
         array, attrs = store.product(product)
         meta = {**attrs, "run": str(store.path), "product": product}
         found = product_axes(product, array.shape, store.product_attrs(product),
                              store.attrs)
         axes = None if found is None else found[0]
+        if attrs.get("per_frame") or "frame_indices" in attrs:  # a plane per frame
+            delta_t = _frame_times_s(store, attrs.get("frame_indices")
+                                     or range(array.shape[0]))
     skipped: list[str] = []
     if product is None:
         from .runstore_records import ranges_text
@@ -258,9 +261,27 @@ def export_tiff(run: str | Path, out: str | Path, *, product: str | None = "psf_
                 "coords": {k: v[keep].tolist() for k, v in coords.items()}}
         axes = [frame_axis(store.attrs), *space_axes(frame_pitch_um(store.attrs))]
         labels = [f"frame {r.index} {r.tag} point {r.point}" for r in records]
+        delta_t = _frame_times_s(store, keep)
     with atomic_path(out) as tmp:
-        write_tiff(tmp, array, axes, meta, fmt=fmt, frames=product is None, labels=labels)
+        write_tiff(tmp, array, axes, meta, fmt=fmt, frames=product is None, labels=labels,
+                   delta_t_s=delta_t)
     return out, skipped
+
+
+def _frame_times_s(store: RunStore, indices) -> list[float] | None:
+    """The recorded times of frames ``indices``, s from the first of them: the
+    camera's timestamps (``device_timestamp_s``), else the host's; None when neither
+    is recorded for every one of them."""
+    coords = store.coords_table()
+    indices = [int(i) for i in indices]
+    for name in ("device_timestamp_s", "host_timestamp_s"):
+        values = coords.get(name)
+        if values is None or not indices or max(indices) >= len(values):
+            continue
+        times = np.asarray(values, np.float64)[indices]
+        if np.all(np.isfinite(times)):
+            return (times - times[0]).tolist()
+    return None
 
 
 def import_psf_stack(source: str | Path, out: str | Path, *,
