@@ -137,7 +137,7 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
         om["TimeIncrement"], om["TimeIncrementUnit"] = first.scale, "s"
     if (first is not None and letters[0] == "T" and delta_t_s is not None
             and len(delta_t_s) == array.shape[0]):  # each plane's recorded time
-        om["Plane"] = {"DeltaT": [float(t) for t in delta_t_s],
+        om["Plane"] = {"DeltaT": [round(float(t), 9) for t in delta_t_s],
                        "DeltaTUnit": ["s"] * array.shape[0]}
     write_tiff_file(path, array, ome=True, metadata=om, photometric="minisblack")
 
