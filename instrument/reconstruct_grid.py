@@ -114,8 +114,8 @@ def run_recon_grid(grid_paths: list[str], raw_path: str, options, *, out: str,
 
     grids = [load_psf_grid(p) for p in grid_paths]
     raw = load_image(raw_path)
-    rec = reconstruct(grids if (volume or len(grids) > 1) else grids[0], raw,
-                      depths_mm=depths_mm, **options.keywords("grid"))
+    rec = reconstruct(grids if (volume or len(grids) > 1) else grids[0], raw, options,
+                      depths_mm=depths_mm)
     metrics = rec.metrics()
     metrics.update(psf_grid=[str(p) for p in grid_paths], raw=str(raw_path),
                    grid_depths_mm=[g.z_mm for g in grids])

@@ -118,12 +118,19 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
         ``"auto"``, ``"convolution"``, ``"local"``, ``"pca"``).
     raw : ndarray, (rows, cols) or (rows, cols, C)
         The measurement (sensor counts, DN); colour only with one PSF.
-    method : str
+    method : str or ReconOptions
         ``"auto"`` (default): one PSF chooses by :mod:`recon.auto.choice` (ADMM, or
         Wiener for a short time budget), a stack takes 3D ADMM, a grid FISTA on
         Eq. 6.2; ``info.method_reason`` says why. Otherwise one of ``"wiener"``,
         ``"gd"``, ``"fista"``, ``"admm"`` (one PSF), ``"admm"``, ``"fista"`` (stack,
-        grid).
+        grid). Or a :class:`recon.options.ReconOptions` holding every declared option
+        (``reconstruct(model, raw, options)``, what the command line and the GUI
+        pass): its fields for the model's kind (:meth:`ReconOptions.keywords
+        <recon.options.ReconOptions.keywords>`) are the keywords, the same call as
+        ``reconstruct(model, raw, **options.keywords(kind))``; a keyword given
+        beside it replaces its field where it differs from the declared default (a
+        dark frame the caller resolved), and the kind's own objects (``bayer``,
+        ``depths_mm``, ...) are given beside it as keywords.
     iterations : int
         Maximum iterations (>= 1); the iterative solves stop earlier when the fit
         changes by less than the noise explains (``info.iterations_used``).
@@ -223,6 +230,11 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
     ('grid', 'fista', (24, 32))
     """
     kind = model_kind(model)
+    if isinstance(method, ReconOptions):  # reconstruct(model, raw, options)
+        beside = {k: v for k, v in (("iterations", iterations), ("tv", tv), ("l1", l1),
+                                    ("bin_factor", bin_factor), ("dark", dark),
+                                    ("device", device)) if _given(v, _D[k])}
+        return reconstruct(model, raw, **{**method.keywords(kind), **beside, **options})
     allowed = KIND_OPTIONS[kind]
     extra = [k for k in options if k not in allowed]
     if kind == "image":  # solver options by name (checked against the method there)
@@ -254,6 +266,13 @@ def reconstruct(model, raw: np.ndarray, /, method: str = _D["method"], *,
 
     grids = model if not isinstance(model, tuple) else list(model)
     return reconstruct_psf_grid(grids, raw, chosen, **own)
+
+
+def _given(value, default) -> bool:
+    """Whether a keyword of :func:`reconstruct` was given other than its declared
+    default (``l1=0.0`` is given: the default is the unset
+    :data:`recon.options.L1_DEFAULT`)."""
+    return not (value is default or (type(value) is type(default) and value == default))
 
 
 def check_values(**values) -> None:
