@@ -341,7 +341,9 @@ class DeviceBox(QGroupBox):
         wheel_needs_focus(self.led_plot)
         self.led_points = pg.ScatterPlotItem(pos[:, 0], pos[:, 1], size=9,
                                              data=np.arange(len(pos)))
-        self.led_points.sigClicked.connect(self._led_clicked)
+        # a click anywhere on the map lights the nearest LED (the circles are ~8 px
+        # with ~4 px between them: a click between two did nothing)
+        self.led_plot.scene().sigMouseClicked.connect(self._map_clicked)
         self.led_plot.addItem(self.led_points)
         layout.addWidget(self.led_plot)
         row = QHBoxLayout()
@@ -363,9 +365,42 @@ class DeviceBox(QGroupBox):
         self.show_lit()
         return box
 
-    def _led_clicked(self, _item, points, *_) -> None:
-        if len(points):
-            self.light_led(int(points[0].data()))
+    def _map_clicked(self, event) -> None:
+        """A left click on the LED map: the nearest LED lit (:meth:`nearest_led`), or
+        a line saying the click was off the array."""
+        from PySide6.QtCore import Qt
+
+        view = self.led_plot.getPlotItem().vb
+        if (event.button() != Qt.MouseButton.LeftButton
+                or not view.sceneBoundingRect().contains(event.scenePos())):
+            return
+        where = view.mapSceneToView(event.scenePos())
+        index = self.nearest_led(where.x(), where.y())
+        if index is None:
+            self.error.setText(f"no LED near x {where.x():.1f}, y {where.y():.1f} mm: "
+                               "click on or between the LEDs of the map")
+            return
+        self.light_led(index)
+
+    def nearest_led(self, x_mm: float, y_mm: float) -> int | None:
+        """The index of the LED nearest ``(x_mm, y_mm)`` on the map, or None when it
+        lies farther than the array's LED spacing from every LED (off the array)."""
+        pos = np.asarray(self.device.led_positions_mm, float)
+        distance = np.hypot(pos[:, 0] - x_mm, pos[:, 1] - y_mm)
+        index = int(np.argmin(distance))
+        return index if distance[index] <= self._led_spacing_mm() else None
+
+    def _led_spacing_mm(self) -> float:
+        """The median distance from each LED to its nearest neighbour, mm."""
+        if not hasattr(self, "_spacing_mm"):
+            pos = np.asarray(self.device.led_positions_mm, float)
+            if len(pos) < 2:
+                self._spacing_mm = float("inf")
+            else:
+                d = np.hypot(*(pos[:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
+                np.fill_diagonal(d, np.inf)
+                self._spacing_mm = float(np.median(d.min(axis=1)))
+        return self._spacing_mm
 
     def light_led(self, index: int) -> Job:
         """Light LED ``index`` alone at the array's brightness and colour settings."""

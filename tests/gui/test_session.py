@@ -82,6 +82,44 @@ def test_led_picker_lights_the_clicked_led(window, wait):
     assert brushes[centre].color().name() == "#ffb000"
 
 
+def test_a_click_between_two_leds_lights_the_nearest(window, wait, qapp):
+    """The map's circles are ~8 px with ~4 px between them: a click between two did
+    nothing. A click a third of the way from one LED to its neighbour lights that LED;
+    a click far off the array says so."""
+    from PySide6.QtCore import QPoint, QPointF, Qt
+    from PySide6.QtTest import QTest
+
+    box = window.devices.boxes["led_array"]
+    window.devices.area.ensureWidgetVisible(box.led_plot, 0, 0)
+    for _ in range(20):
+        qapp.processEvents()
+    pos = np.asarray(window.session.devices["led_array"].led_positions_mm, float)
+    centre = int(np.argmin(np.hypot(*pos.T)))
+    d = np.hypot(*(pos - pos[centre]).T)
+    d[centre] = np.inf
+    neighbour = int(np.argmin(d))
+    between = pos[centre] + (pos[neighbour] - pos[centre]) / 3  # off both circles
+    view = box.led_plot.getPlotItem().vb
+
+    def click(x_mm: float, y_mm: float) -> None:
+        scene = view.mapViewToScene(QPointF(x_mm, y_mm))
+        at = box.led_plot.mapFromScene(scene)
+        QTest.mouseClick(box.led_plot.viewport(), Qt.MouseButton.LeftButton,
+                         Qt.KeyboardModifier.NoModifier, QPoint(at.x(), at.y()))
+
+    assert box.nearest_led(*between) == centre
+    click(*between)
+    wait(lambda: list(window.session.service.lit("led_array")) == [centre], 10,
+         "the nearest LED lit")
+    far = pos.max(axis=0) + 10 * (pos.max(axis=0) - pos.min(axis=0) + 1)
+    assert box.nearest_led(*far) is None
+    view.setRange(xRange=(far[0] - 1, far[0] + 1), yRange=(far[1] - 1, far[1] + 1))
+    click(*far)
+    wait(lambda: "no LED near" in box.error.text(), 10, "the line that says why")
+    view.autoRange()
+    box.error.setText("")
+
+
 def _frame(window, wait, after: int):
     wait(lambda: window.live._shown_raw > after, 10, "a new frame")
     return window.live._shown_raw, window.live.raw_view.image.astype(float)
