@@ -8,11 +8,13 @@ Needs the Debian packages gir1.2-aravis-0.8 and aravis-tools and PyGObject<3.51
 
 from __future__ import annotations
 
+import fcntl
 import gc
 import os
 import shutil
 import signal
 import subprocess
+import tempfile
 import threading
 import time
 
@@ -90,12 +92,29 @@ class FakeGvCamera:
 
 @pytest.fixture(scope="module")
 def gv_process():
+    """The fake GigE camera, held for this module's tests of one test process. Only one
+    can serve 127.0.0.1 (GVCP port 3956) on the machine: another pytest worker (``-n``
+    without ``--dist loadfile``) or session waits for it on a file lock (a hang guard
+    of 20 minutes)."""
     if shutil.which(GV_BINARY) is None:
         pytest.fail(f"{GV_BINARY} is missing: apt-get install aravis-tools (see .ci/run)")
-    gv = FakeGvCamera()
-    gv.start()
-    yield gv
-    gv.stop()
+    path = os.path.join(tempfile.gettempdir(), "diffuserlab-arv-fake-gv-3956.lock")
+    with open(path, "w") as lock:
+        hang_guard = time.monotonic() + 1200.0
+        while True:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > hang_guard:
+                    pytest.fail(f"another process held {path} for 20 minutes")
+                time.sleep(0.1)
+        gv = FakeGvCamera()
+        try:
+            gv.start()
+            yield gv
+        finally:
+            gv.stop()
 
 
 @pytest.fixture
