@@ -246,7 +246,7 @@ def compare_frames(captured, simulated, region) -> dict:
 
 def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
                    camera_map: CameraMapping, relay: RelayModel, *, target=None,
-                   iterations: int = 60, seed: int = 0) -> dict:
+                   steps: int = 60, seed: int = 0) -> dict:
     """Show a test hologram for the corrected mask and compare its capture with simulation.
 
     Verification of the mask alignment (Kuo 2020, Sec. 7.4; docs/protocols.md,
@@ -287,8 +287,10 @@ def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
     target : numpy.ndarray, optional
         2-D test image (intensities >= 0, any size; placed and resized by
         :func:`place_target`); default the ``camera`` photograph.
-    iterations : int
-        Hologram optimiser iterations (>= 1); 60 take about 0.8 s for 384 x 480.
+    steps : int
+        Hologram optimiser steps (its iterations, >= 1;
+        :func:`recon.cgh.optimize_hologram`'s ``steps``); 60 take about 0.8 s for
+        384 x 480.
     seed : int
         Seed of the optimiser's one-step start.
 
@@ -340,7 +342,7 @@ def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
     placed, rect = place_target(image, camera_map, grid)
     region = target_region(camera_map, grid, rect)
     try:
-        holo = optimize_hologram(display, placed, iterations=iterations, seed=seed)
+        holo = optimize_hologram(display, placed, steps=steps, seed=seed)
     except ReconInputError as exc:
         raise PlanError(f"test hologram: {exc}") from None
     pattern = meter.show(holo.phase)

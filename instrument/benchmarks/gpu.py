@@ -193,7 +193,7 @@ def _hologram(backend: Backend, shape, iterations: int) -> tuple[float, float]:
     from instrument.benchmarks.hologram import run_benchmark
 
     rows, cols, k = shape
-    rep = run_benchmark(slm_shape=(rows, cols), k=k, iterations=iterations, fft_repeats=5,
+    rep = run_benchmark(slm_shape=(rows, cols), k=k, steps=iterations, fft_repeats=5,
                         backend=backend)
     return rep["median_seconds_per_iteration"], rep["fft_seconds"]
 

@@ -77,7 +77,7 @@ def fft_seconds(grid, backend: Backend = NUMPY, repeats: int = 9) -> float:
     return float(np.median(timeit.repeat(once, number=1, repeat=repeats)))
 
 
-def run_benchmark(slm_shape=(540, 960), k: int = 4, iterations: int = 200,
+def run_benchmark(slm_shape=(540, 960), k: int = 4, steps: int = 200,
                   loss: str = "frequency", fft_repeats: int = 9,
                   backend: Backend = NUMPY) -> dict:
     """Time one hologram and the FFT floor in the same process, on one backend.
@@ -88,8 +88,9 @@ def run_benchmark(slm_shape=(540, 960), k: int = 4, iterations: int = 200,
         SLM pixels (rows, cols).
     k : int
         Mask pixels per SLM pixel (expansion ``k^2``).
-    iterations : int
-        Optimiser iterations.
+    steps : int
+        Optimiser steps (its iterations; :func:`recon.cgh.optimize_hologram`'s
+        ``steps``).
     loss : {"frequency", "l2", "spatial"}
         Loss of the timed hologram.
     fft_repeats : int
@@ -120,7 +121,7 @@ def run_benchmark(slm_shape=(540, 960), k: int = 4, iterations: int = 200,
     tracemalloc.start()
     t0 = time.perf_counter()
     display = ScatteringDisplay(slm_shape, k, mask_seed=0)
-    res = optimize_hologram(display, to_device(target, backend), lf, iterations, seed=1)
+    res = optimize_hologram(display, to_device(target, backend), lf, steps, seed=1)
     total = time.perf_counter() - t0
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()

@@ -177,7 +177,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
               f"({rec['seconds']:.2f} s)", file=sys.stderr, flush=True)
 
     ev = run_evaluation(images, size=size, factors=factors, seeds=seeds,
-                        iterations=iters, methods=methods,
+                        steps=iters, methods=methods,
                         source=args.images or "skimage bundled (A10)", progress=progress,
                         device=args.device)
     write_evaluation(ev, out)

@@ -139,7 +139,7 @@ def _summary_record(summary, rules, settings) -> dict:
 
 
 def run_evaluation(images: list[tuple[str, object]], *, size: int,
-                   factors: tuple[int, ...], seeds: tuple[int, ...], iterations: int,
+                   factors: tuple[int, ...], seeds: tuple[int, ...], steps: int,
                    methods: tuple[str, ...], source: str,
                    progress: Callable[[int, int, dict], None] | None = None,
                    device: str = "cpu") -> dict:
@@ -149,9 +149,10 @@ def run_evaluation(images: list[tuple[str, object]], *, size: int,
     ----------
     images : list of (str, ndarray)
         Named images (:func:`.protocol.load_bundled` / :func:`.protocol.load_folder`).
-    size, factors, seeds, iterations, methods
+    size, factors, seeds, steps, methods
         Passed to :func:`.evaluation.evaluate_images` (target grid N, expansion
-        factors, mask seeds, optimiser iterations, methods).
+        factors, mask seeds, optimiser steps, methods); ``steps`` is recorded in the
+        settings as ``iterations`` (``holo evaluate --iterations``).
     source : str
         Where the images came from, recorded in the settings.
     progress : callable, optional
@@ -170,19 +171,19 @@ def run_evaluation(images: list[tuple[str, object]], *, size: int,
     Raises
     ------
     ReconInputError
-        ``size < 8``, ``iterations < 1``, a grid the factors do not divide, or an
+        ``size < 8``, ``steps < 1``, a grid the factors do not divide, or an
         unusable ``device``.
     """
-    if size < 8 or iterations < 1:
+    if size < 8 or steps < 1:
         raise ReconInputError("--size must be >= 8 and --iterations >= 1")
     where = resolve_device(device).label  # an unusable device is refused before any work
     t0 = time.perf_counter()
-    records = evaluate_images(images, size, factors, methods, seeds, iterations,
+    records = evaluate_images(images, size, factors, methods, seeds, steps,
                               progress=progress, device=device)
     summary = summarise(records)
     rules = acceptance(summary, records)
     settings = {"size": size, "factors": list(factors), "seeds": list(seeds),
-                "iterations": iterations, "methods": list(methods),
+                "iterations": steps, "methods": list(methods),
                 "images": [n for n, _ in images], "n_images": len(images),
                 "source": source, "device": where,
                 "wall_seconds": time.perf_counter() - t0}

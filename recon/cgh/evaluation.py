@@ -91,7 +91,7 @@ def _curve(display, target, result) -> list:
 
 
 def evaluate_images(images, size: int, factors=(4, 16, 36), methods=METHODS, seeds=(0,),
-                    iterations: int = 200, checkpoints=(10, 25, 50, 100),
+                    steps: int = 200, checkpoints=(10, 25, 50, 100),
                     progress=None, device: str = "cpu") -> list[dict]:
     """Run every method on every image, factor and mask seed; one record per run.
 
@@ -109,8 +109,9 @@ def evaluate_images(images, size: int, factors=(4, 16, 36), methods=METHODS, see
         From :data:`METHODS` and ``"no-mask"``.
     seeds : iterable of int
         Mask seeds; the one-step target phase uses ``seed + PHASE_SEED_OFFSET``.
-    iterations : int
-        Iterations of the optimiser.
+    steps : int
+        Most gradient steps (iterations) of the optimiser
+        (:func:`recon.cgh.optimize_hologram`'s ``steps``).
     checkpoints : iterable of int
         Iterations at which the PSNR curve (for the PSNR-vs-seconds chart) is sampled.
     progress : callable, optional
@@ -139,7 +140,7 @@ def evaluate_images(images, size: int, factors=(4, 16, 36), methods=METHODS, see
         raise ReconInputError("no images to evaluate")
     targets = [(name, prepare_target(img, size)) for name, img in images]
     raw = dict(images)
-    marks = tuple(c for c in checkpoints if c < iterations) + (iterations,)
+    marks = tuple(c for c in checkpoints if c < steps) + (steps,)
     total = len(targets) * len(ks) * len(tuple(seeds)) * len(methods)
     records = []
     for f, k in ks.items():
@@ -155,7 +156,7 @@ def evaluate_images(images, size: int, factors=(4, 16, 36), methods=METHODS, see
                         native = prepare_target(raw[name], size // k)
                         nd = ScatteringDisplay.no_mask(native.shape)
                         res = optimize_hologram(nd, native, IntensityLoss.frequency(),
-                                                iterations, seed=phase_seed, checkpoints=marks,
+                                                steps, seed=phase_seed, checkpoints=marks,
                                                 device=device)
                         rec.update(image_metrics(nd.intensity(res.field), native, n_slm))
                         rec["curve"] = _curve(nd, native, res)
@@ -164,7 +165,7 @@ def evaluate_images(images, size: int, factors=(4, 16, 36), methods=METHODS, see
                             res = one_step_hologram(display, target, seed=phase_seed)
                         else:
                             res = optimize_hologram(display, target, _LOSSES[method](),
-                                                    iterations, seed=phase_seed,
+                                                    steps, seed=phase_seed,
                                                     checkpoints=marks, device=device)
                         rec.update(image_metrics(display.intensity(res.field), target, n_slm))
                         rec["curve"] = (_curve(display, target, res) if res.iterations else

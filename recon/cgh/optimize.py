@@ -356,7 +356,7 @@ def _choose_backend(target, device: str):
 
 
 def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | None = None,
-                      iterations: int = 200, *, init="one-step", seed: int = 0,
+                      steps: int = 200, *, init="one-step", seed: int = 0,
                       slm: str = "phase", step_scale: float = 4.0, step_growth: float = 1.0,
                       max_backtracks: int = 30, checkpoints=(), callback=None,
                       device: str = "cpu") -> HologramResult:
@@ -371,8 +371,10 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
         centred frame (zero order in the middle), >= 0; its scale is irrelevant.
     loss : IntensityLoss, optional
         Default :meth:`IntensityLoss.frequency` (Eq. 7.17).
-    iterations : int
-        Number of iterations (an integer >= 1, numpy integers too); 200 by default.
+    steps : int
+        Most gradient steps of the optimiser, its iterations (an integer >= 1, numpy
+        integers too); 200 by default. The result's ``iterations`` counts those taken
+        (fewer when ``callback`` stops it).
     init : {"one-step", "random"} or numpy.ndarray
         Start: the one-step baseline (default), a random phase, a phase map (real)
         or a complex field (projected).
@@ -422,7 +424,7 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
     if not isinstance(loss, IntensityLoss):
         raise ReconInputError(f"loss must be an IntensityLoss, got {type(loss).__name__}")
     check_slm_kind(slm)
-    iterations = as_int(iterations, "iterations", 1)
+    steps = as_int(steps, "steps", 1)
     seed = as_int(seed, "seed", 0)
     step_scale = positive(step_scale, "step_scale")
     step_growth = finite_float(step_growth, "step_growth", lo=1.0)
@@ -444,10 +446,10 @@ def optimize_hologram(display: ScatteringDisplay, target, loss: IntensityLoss | 
         eng = XpEngine(display, targets, loss, backend)
         s = initial_field_xp(eng, targets, init if isinstance(init, str) else
                              _initial_field(display, targets, _host(init), slm, seed), slm, seed)
-    result = iterate(eng, s, iterations, slm=slm, mu=step_scale / (display.k ** 2),
+    result = iterate(eng, s, steps, slm=slm, mu=step_scale / (display.k ** 2),
                       step_growth=step_growth, max_backtracks=max_backtracks, marks=marks,
                       callback=callback, t_start=t_start)
-    result.params = {"loss": loss.name, "iterations": iterations, "init": init if isinstance(
+    result.params = {"loss": loss.name, "iterations": steps, "init": init if isinstance(
         init, str) else "array", "seed": seed, "slm": slm, "step_scale": step_scale,
         "step_growth": step_growth, "final_step": result.params["final_step"], "k": display.k,
         "planes_mm": display.planes_mm, "device": backend.label}

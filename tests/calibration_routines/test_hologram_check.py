@@ -118,7 +118,7 @@ def test_far_field_orientation_matches_the_camera_map():
     # the target is off-centre here (the offset camera sees an off-centre window)
     assert abs((i0 + i1) / 2 - grid[0] // 2) > 10 and abs((j0 + j1) / 2 - grid[1] // 2) > 10
     mask = random_binary_mask(slm, k, seed=2)
-    phase = optimize_hologram(ScatteringDisplay(slm, k, mask=mask), target, iterations=30).phase
+    phase = optimize_hologram(ScatteringDisplay(slm, k, mask=mask), target, steps=30).phase
     sim_mask = MaskModel(slm, 16.0, k, q=2, margin=0, bits=mask)
     frame = HolographicDisplayModel(sim_mask, camera=cam).render_phase(phase)
 
@@ -200,8 +200,8 @@ def test_bad_inputs_raise_clear_errors(rig):
         hologram_check(nm, model, (mask < 0).astype(np.float32), cam, relay)  # 0/1 floats
     with pytest.raises(PlanError, match="2-D grey image"):
         hologram_check(nm, model, mask, cam, relay, target=np.ones((8, 8, 3)))
-    with pytest.raises(PlanError, match="iterations"):
-        hologram_check(nm, model, mask, cam, relay, iterations=0)
+    with pytest.raises(PlanError, match="steps"):
+        hologram_check(nm, model, mask, cam, relay, steps=0)
     with pytest.raises(PlanError, match="relay must be a RelayModel"):
         hologram_check(nm, model, mask, cam, None)
     with pytest.raises(PlanError, match="meter must be a SpotMeter"):
@@ -212,4 +212,4 @@ def test_bad_inputs_raise_clear_errors(rig):
     # a mapping measured for another ROI: found once the frame arrives
     with pytest.raises(PlanError, match=r"camera frame \(256, 320\) differs"):
         hologram_check(meter, model, mask, CameraMapping(shape=(200, 320)), relay,
-                       iterations=2)
+                       steps=2)

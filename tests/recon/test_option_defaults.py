@@ -232,12 +232,18 @@ OWN_NAMES = {("recon.operators", "LinearOperator.lipschitz"): "power_iterations"
              ("recon.xp_operators", "_XpCropped.lipschitz"): "power_iterations",
              ("recon.spatial.blind", "_PsfModel.lipschitz"): "power_iterations",
              ("recon.priors.tgv", "TgvPrior.__init__"): "inner_iterations",
-             ("calibration_routines.slm_lut_analysis", "combine_passes"): "refinements"}
+             ("calibration_routines.slm_lut_analysis", "combine_passes"): "refinements",
+             ("recon.cgh.optimize", "optimize_hologram"): "steps",
+             ("recon.cgh.evaluation", "evaluate_images"): "steps",
+             ("recon.cgh.evaluate", "run_evaluation"): "steps",
+             ("instrument.benchmarks.hologram", "run_benchmark"): "steps",
+             ("calibration_routines.mask_alignment.hologram_check", "hologram_check"): "steps"}
 
 
 def test_other_quantities_are_not_called_iterations():
-    """Power iterations, TGV's inner loop and the LUT fit's refinements are no solve's
-    iterations: a parameter of their own name, none called ``iterations``."""
+    """Power iterations, TGV's inner loop, the LUT fit's refinements and the hologram
+    optimiser's steps are no reconstruction's iterations: a parameter of their own name,
+    none called ``iterations``."""
     for (module, qualname), own in OWN_NAMES.items():
         obj = importlib.import_module(module)
         for bit in qualname.split("."):

@@ -38,7 +38,7 @@ def test_optimiser_gives_feasible_field(ny, nx, k, numpy_ints, slm, init, iterat
     cast = np.int64 if numpy_ints else int
     d = ScatteringDisplay((cast(ny), cast(nx)), cast(k), mask_seed=seed)
     target = np.random.default_rng(seed).random(d.grid_shape) + 0.01
-    res = optimize_hologram(d, target, iterations=cast(iterations), init=init, slm=slm,
+    res = optimize_hologram(d, target, steps=cast(iterations), init=init, slm=slm,
                             seed=cast(seed))
     assert res.field.shape == (ny, nx) and res.field.dtype == np.complex64
     assert np.all(np.isfinite(res.field)) and math.isfinite(res.loss)
@@ -84,7 +84,7 @@ def test_check_slm_refuses_bad_fields(name):
 
 
 @pytest.mark.parametrize(("argument", "values"), [
-    ("iterations", not_counts(1)),
+    ("steps", not_counts(1)),
     ("seed", not_counts(0)),
     ("step_scale", NOT_POSITIVE),
     ("step_growth", st.one_of(st.floats(max_value=1 - 1e-9),
@@ -95,7 +95,7 @@ def test_check_slm_refuses_bad_fields(name):
 @FAST
 @given(data=st.data())
 def test_optimiser_refuses_bad_numbers(argument, values, data):
-    kwargs = {"iterations": 2, argument: data.draw(values)}
+    kwargs = {"steps": 2, argument: data.draw(values)}
     with pytest.raises(ReconInputError) as info:
         optimize_hologram(DISPLAY, TARGET, **kwargs)
     assert_refused(info, argument.rstrip("s") if argument == "checkpoints" else argument)
@@ -119,5 +119,5 @@ def test_optimiser_refuses_bad_arrays(where, name):
         bad = bad[:, :3]  # complex is a valid start; the wrong shape is not
     kwargs = {"target": TARGET, where: bad}
     with pytest.raises(ReconInputError) as info:
-        optimize_hologram(DISPLAY, iterations=2, **kwargs)
+        optimize_hologram(DISPLAY, steps=2, **kwargs)
     assert_refused(info, where)

@@ -132,7 +132,7 @@ def a10():
 
 @pytest.fixture(scope="module")
 def table_240(a10):
-    records = evaluate_images(a10, 240, FACTORS, METHODS, seeds=(0,), iterations=200)
+    records = evaluate_images(a10, 240, FACTORS, METHODS, seeds=(0,), steps=200)
     return records, summarise(records)
 
 
@@ -176,7 +176,7 @@ def test_table_7_1_n240_ssim_within_0_07_of_every_cell(table_240):
 def test_table_7_1_n240_stable_across_three_mask_seeds(a10, table_240):
     records0, _ = table_240
     methods = ("one-step", "l2", "frequency")
-    more = evaluate_images(a10, 240, FACTORS, methods, seeds=(1, 2), iterations=200)
+    more = evaluate_images(a10, 240, FACTORS, methods, seeds=(1, 2), steps=200)
     records = [r for r in records0 if r["method"] in methods] + more
     summary = summarise(records)
     rules = _rules(summary, records)

@@ -148,7 +148,7 @@ def test_two_planes_show_two_images():
 
 def test_no_mask_reference_at_native_etendue(camera96):
     native = prepare_target(load_bundled("camera"), 24)
-    d, res = no_mask_hologram(native, IntensityLoss.frequency(), iterations=60)
+    d, res = no_mask_hologram(native, IntensityLoss.frequency(), steps=60)
     assert d.k == 1 and d.grid_shape == (24, 24)
     m = image_metrics(d.intensity(res.field), native, 24 * 24)
     assert m["psnr_full"] > 20.0
@@ -181,7 +181,7 @@ def test_projection():
 
 
 @pytest.mark.parametrize("kwargs,msg", [
-    (dict(iterations=0), "iterations"),
+    (dict(steps=0), "steps"),
     (dict(step_scale=-1.0), "step_scale"),
     (dict(step_growth=0.5), "step_growth"),
     (dict(slm="amplitude"), "slm"),
