@@ -11,6 +11,11 @@ from collections.abc import Callable
 __all__ = ["SimClock"]
 
 
+#: Real-time mode: the longest simulated step an advance sleeps through before it
+#: looks again for timers (one subscribed meanwhile by another thread), s.
+REALTIME_STEP_S = 0.02
+
+
 class SimClock:
     """Simulated time in seconds, advanced by device operations, never by itself.
 
@@ -63,6 +68,11 @@ class SimClock:
         self._timers: dict[int, tuple[Callable[[], float | None], Callable[[float], None]]] = {}
         self._tokens = itertools.count()
         self._lock = threading.RLock()
+        #: Guards ``_timers`` alone: a timer is added or removed while another thread
+        #: advances the clock (which, in real time, holds ``_lock`` for as long as the
+        #: advance lasts: a stage's 70 s move once kept a stream that started meanwhile
+        #: from subscribing its camera's timer, and so from any frame, until it ended).
+        self._timers_lock = threading.Lock()
         self._firing = False
 
     @property
@@ -91,17 +101,27 @@ class SimClock:
                 raise ValueError(f"SimClock: cannot go back from {self._now} to {t_s} s")
             while True:
                 due = []
-                for token, (next_event, _) in list(self._timers.items()):
+                with self._timers_lock:
+                    timers = list(self._timers.items())
+                for token, (next_event, _) in timers:
                     t = next_event()
                     if t is not None and t <= t_s:
                         due.append((t, token))
                 if not due:
+                    if self.realtime and t_s - self._now > REALTIME_STEP_S:
+                        # in steps: a timer subscribed meanwhile fires in time
+                        self._step(self._now + REALTIME_STEP_S)
+                        continue
                     break
                 t, token = min(due)
                 self._step(max(t, self._now))
+                with self._timers_lock:
+                    timer = self._timers.get(token)
+                if timer is None:  # unsubscribed meanwhile
+                    continue
                 self._firing = True
                 try:
-                    self._timers[token][1](self._now)
+                    timer[1](self._now)
                 finally:
                     self._firing = False
             self._step(t_s)
@@ -136,14 +156,14 @@ class SimClock:
         ``next_event()`` returns the time of the timer's next event (None: none
         pending); ``fire(t)`` handles it and must move ``next_event()`` later.
         """
-        with self._lock:
+        with self._timers_lock:  # not ``_lock``: another thread may be advancing
             token = next(self._tokens)
             self._timers[token] = (next_event, fire)
             return token
 
     def unsubscribe(self, token: int) -> None:
         """Remove a timer (unknown tokens are ignored)."""
-        with self._lock:
+        with self._timers_lock:
             self._timers.pop(token, None)
 
     def _sync(self) -> None:
