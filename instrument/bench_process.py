@@ -11,7 +11,9 @@ same either way:
 * the bench's typed commands (:class:`~instrument.bench_service.BenchService`:
   :meth:`BenchClient.devices`, :meth:`BenchClient.apply_settings`,
   :meth:`BenchClient.move`, ...), by device id with plain data; no device object comes
-  here.
+  here. The client is a proxy of the service (:data:`PROXIED`): each public command of
+  :class:`~instrument.bench_service.BenchService` is a method here, with its
+  signature, that calls it in the bench process.
 * ``on_event(event)`` for each :class:`~instrument.bench_service.BenchEvent` (settings,
   positions, statuses, the bench opened or closed), long-polled from the host.
 * :meth:`BenchClient.run_job` - a job run by the host by its name
@@ -37,6 +39,7 @@ held) and exits.
 
 from __future__ import annotations
 
+import inspect
 import logging
 import multiprocessing
 import os
@@ -50,10 +53,10 @@ from typing import Any
 
 from .bench_host import FRAME_META, BenchHost, BenchHostError, EventChannel, FrameWaker
 from .bench_job_handle import JobHandle, JobInfo
-from .bench_service import BenchEvent, BenchGoneError, CameraFormat, DeviceInfo
+from .bench_service import BenchEvent, BenchGoneError, BenchService
 from .shared_slot import SharedImageSlot
 
-__all__ = ["ENDING_SIGNALS", "BenchClient"]
+__all__ = ["ENDING_SIGNALS", "PROXIED", "BenchClient"]
 
 log = logging.getLogger(__name__)
 
@@ -328,68 +331,7 @@ class BenchClient:
         info = read_connection_file(find_connection_file() if path is None else path)
         return cls(address=info["address"], authkey=info["authkey"], **options)
 
-    # -- the typed commands (instrument.bench_service.BenchService) ------------------
-    def devices(self) -> list[DeviceInfo]:
-        """:meth:`~instrument.bench_service.BenchService.devices`."""
-        return self.host.devices()
-
-    def is_virtual(self) -> bool:
-        """:meth:`~instrument.bench_service.BenchService.is_virtual`."""
-        return self.host.is_virtual()
-
-    def status(self, device: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.status`."""
-        return self.host.status(device)
-
-    def settings(self, device: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.settings`."""
-        return self.host.settings(device)
-
-    def setting_values(self, device: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.setting_values`."""
-        return self.host.setting_values(device)
-
-    def settings_snapshot(self) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.settings_snapshot`."""
-        return self.host.settings_snapshot()
-
-    def apply_settings(self, device: str, values: Mapping[str, Any]) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.apply_settings`."""
-        return self.host.apply_settings(device, dict(values))
-
-    def reconnect(self, device: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.reconnect`."""
-        return self.host.reconnect(device)
-
-    def positions(self, stage: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.positions`."""
-        return self.host.positions(stage)
-
-    def move(self, stage: str, targets: Mapping[str, float], *, relative: bool = False,
-             timeout_s: float = 30.0) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.move`."""
-        return self.host.move(stage, dict(targets), relative=relative, timeout_s=timeout_s)
-
-    def stop_motion(self, stage: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.stop_motion`."""
-        return self.host.stop_motion(stage)
-
-    def show(self, device: str, pattern: Any) -> Any:
-        """:meth:`~instrument.bench_service.BenchService.show`."""
-        return self.host.show(device, pattern)
-
-    def lit(self, led_array: str) -> dict:
-        """:meth:`~instrument.bench_service.BenchService.lit`."""
-        return self.host.lit(led_array)
-
-    def camera_format(self) -> CameraFormat:
-        """:meth:`~instrument.bench_service.BenchService.camera_format`."""
-        return self.host.camera_format()
-
-    def snap(self):
-        """:meth:`~instrument.bench_service.BenchService.snap`."""
-        return self.host.snap()
-
+    # -- the typed commands: BenchService's, proxied (see _proxy below) --------------
     def start_stream(self, ring_frames: int = 64) -> None:
         """:meth:`~instrument.bench_host.BenchHost.start_stream` (frames: to the client
         that started the bench process); the stream holds the camera for this client,
@@ -707,3 +649,28 @@ class BenchClient:
                 self.host.wake.conn.close()
             self._events.close()
             self._wake.close()
+
+
+def _proxy(name: str) -> Callable:
+    """``BenchClient.name``: :class:`~instrument.bench_service.BenchService`'s command
+    ``name`` called in the bench process, with its signature."""
+    target = getattr(BenchService, name)
+
+    def call(self, *args, **kwargs):
+        return getattr(self.host, name)(*args, **kwargs)
+
+    call.__name__, call.__qualname__ = name, f"BenchClient.{name}"
+    call.__module__ = __name__
+    call.__signature__ = inspect.signature(target)
+    call.__doc__ = (f":meth:`~instrument.bench_service.BenchService.{name}`, called in the "
+                    "bench process (plain data in and out).")
+    return call
+
+
+#: BenchService's commands, each a method of :class:`BenchClient` that calls it in the
+#: bench process (as pymmcore-plus's RemoteMMCore proxies CMMCorePlus): one written
+#: command, no hand-written forwarder; a command added to the service is the client's.
+PROXIED = tuple(name for name, _ in inspect.getmembers(BenchService, inspect.isfunction)
+                if not name.startswith("_") and name not in vars(BenchClient))
+for _name in PROXIED:
+    setattr(BenchClient, _name, _proxy(_name))

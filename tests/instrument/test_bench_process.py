@@ -227,3 +227,22 @@ def test_calls_from_many_threads_leave_nothing_behind(client):
     polls(200)
     gc.collect()
     assert sys.getrefcount(None) - before < 50
+
+
+def test_the_client_is_a_proxy_of_every_command_of_the_service(client):
+    """Each public command of BenchService is the client's, with its signature, and
+    calls the service in the bench process (none written twice)."""
+    import inspect
+
+    from instrument.bench_process import PROXIED
+    from instrument.bench_service import BenchService
+
+    public = {n for n, _ in inspect.getmembers(BenchService, inspect.isfunction)
+              if not n.startswith("_")}
+    assert set(PROXIED) == public
+    for name in public:
+        assert (inspect.signature(getattr(client, name))
+                == inspect.signature(getattr(BenchService(), name))), name
+    seq, events = client.events_after(None)  # a command the old client did not forward
+    assert seq >= 1 and events == []
+    assert client.camera_format().bit_depth == client.host.camera_format().bit_depth
