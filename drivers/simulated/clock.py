@@ -134,9 +134,12 @@ class SimClock:
                 self.advance_to(t_s)
 
     def resync(self) -> None:
-        """Real-time mode: take the current simulated time as due now (forget any lag)."""
-        with self._lock:
-            self._anchor = (time.monotonic(), self._now)
+        """Real-time mode: take the current simulated time as due now (forget any lag).
+
+        Not under the lock an advance holds (a camera's stream resyncs as it starts,
+        perhaps while a stage's move advances the clock): the anchor is one tuple,
+        replaced at once, and an advance under way paces its next step from it."""
+        self._anchor = (time.monotonic(), self._now)
 
     def wall_time_until(self, t_s: float) -> float:
         """Wall-clock seconds until simulated time ``t_s`` is due (0 when not

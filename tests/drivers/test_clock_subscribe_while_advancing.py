@@ -29,8 +29,9 @@ def test_a_timer_subscribed_during_a_real_time_advance_fires_within_it():
         events.clear()
         fired.set()
 
-    def subscribe():
+    def subscribe():  # as a camera's stream starts: its timer, then a resync
         clock.subscribe(lambda: events[0] if events else None, fire)
+        clock.resync()
         subscribed.set()
 
     threading.Thread(target=subscribe, daemon=True).start()
