@@ -127,7 +127,8 @@ def resolve_dark(dark, psf: np.ndarray, *, calibrated: bool, recorded: float | N
         elif calibrated:
             raise ReconInputError(
                 f"{what} is a calibrated (dark-subtracted) PSF: give the frames' dark level "
-                "with --dark DN or --dark DARK_RUN.zarr (diffuserlab calibrate dark)")
+                "with --dark DN or --dark DARK_RUN.zarr (diffuserlab calibrate dark), or "
+                "--dark none if the raw is dark-subtracted too")
         else:
             return psf, "auto"
     frame = np.shape(psf)[1:3] if stack else np.shape(psf)[:2]
