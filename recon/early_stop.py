@@ -65,8 +65,9 @@ MAX_ITERATIONS = 10_000
 #: it, ``summary["held_out_mean"]``) above which the PSF explains too little of the
 #: scenes for its recipe to be anyone's default (docs/reconstruction.md, "Scene
 #: calibration"): the real pairs give ~0.08, PSFs that explain nothing (swapped names,
-#: all-negative scenes) 1.06-1.20, the simulated bench's default run 0.30 (its dim
-#: scenes); a recipe above it is recorded as not trusted (:attr:`EarlyStop.trusted`).
+#: all-negative scenes) 1.06-1.20, the simulated bench's run of dim photographs 0.30
+#: (its run of random patterns 0.058); a recipe above it is recorded as not trusted
+#: (:attr:`EarlyStop.trusted`).
 TRUSTED_RESIDUAL = 0.2
 
 
