@@ -6,7 +6,11 @@ channel, with each pair's held-out residual). Two sources of pairs:
 
 * files (:func:`psf_run_from_files`): scene images on the sensor grid and their
   measurements, matched by name, e.g. photographs shown on a monitor and captured by
-  the lensless camera and, registered, by a lensed one;
+  the lensless camera and, registered, by a lensed one. The scenes are on the model
+  grid, as the bench's known scenes are: the scene rotated by 180 degrees (Kuo 2020
+  Eq. 3.3, u = -m x; :data:`recon.io.DATA_ORIENTATION`), which a lensed camera's frame
+  registered to the lensless one is; give them as registered, not turned upright
+  (a reconstruction's PNG is turned upright, :func:`recon.io.scene_view`);
 * the bench (:class:`PsfFromScenesPlan`): the display device (an SLM or monitor
   driven by :class:`drivers.slm.Slm`, e.g. the full-screen window of
   :class:`drivers.slm_window.FullscreenSlm`) at depth ``z_mm`` in front of the camera
