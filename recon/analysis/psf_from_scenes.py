@@ -318,7 +318,7 @@ def estimate_psf_from_scenes(scenes, measurements, *, psf_shape=None, iterations
         ADMM penalty relative to ``max_f sum_i |X_i(f)|^2`` (> 0).
     tie_channels : bool
         One pattern for every colour channel, scaled by a gain per channel (each
-        channel's light over its scenes' light, :func:`_channel_gains`): every
+        channel's light over its scenes' light, ``_channel_gains``): every
         (pair, channel) is one equation of the same pattern, three times the data of
         a channel alone (module docstring). False: each channel on its own.
     tol : float
