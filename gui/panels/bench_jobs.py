@@ -6,7 +6,8 @@ process's running jobs, whichever client started them (a notebook's recording, t
 window's own calibration run): id, name, owner, progress and the devices each holds
 (:meth:`instrument.bench_process.BenchClient.jobs`). *Stop job* stops the selected one
 after a confirmation that names its owner. The list follows the bench's ``job``
-events, and its progress is read again once a second while a job runs.
+events, and its progress is read again once a second while a job runs, on a worker
+(a bench process that hangs never holds up the window).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from PySide6.QtWidgets import (
 )
 
 from ..session import Session
+from ..workers import DEVICE_NICE, Job
 
 __all__ = ["BenchJobs", "progress_text"]
 
@@ -57,6 +59,10 @@ class BenchJobs(QWidget):
         self.session = session
         #: The running jobs listed, by row (:class:`~instrument.bench_job_handle.JobInfo`).
         self.infos: list = []
+        #: Every job the last read returned (running and recently ended).
+        self.all_infos: list = []
+        self._reading: Job | None = None
+        self._again = False
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         self.where = QLabel("")
@@ -89,21 +95,38 @@ class BenchJobs(QWidget):
             self.refresh()
 
     def refresh(self) -> None:
-        """Read the bench process's address and running jobs again."""
+        """Read the bench process's address, and its jobs on a worker (a bench process
+        that hangs never holds up the window); the list follows when they come."""
         service = self.session.service
-        jobs: list = []
-        if service is not None and self.session.lost is None:
-            where = getattr(service, "address", None)
-            path = getattr(service, "connection_file", None)
-            self.where.setText(f"bench process: {where}" + (f"; connection file {path}"
-                                                             if path else "")
-                               if where is not None else "bench process: in this process")
-            try:
-                jobs = [i for i in service.jobs() if i.state == "running"]
-            except Exception:  # noqa: BLE001 (the bench process is going: the window says so)
-                jobs = []
-        else:
+        self.setVisible(service is not None)
+        if service is None or self.session.lost is not None:
             self.where.setText("")
+            self._show([])
+            return
+        where = getattr(service, "address", None)
+        path = getattr(service, "connection_file", None)
+        self.where.setText(("bench process: in this process" if where is None else
+                            f"bench process: {where}")
+                           + (f"; connection file {path}" if path else ""))
+        if self._reading is not None and self._reading.running:
+            self._again = True  # read once more when this read ends
+            return
+        self._again = False
+        job = Job(lambda job: service.jobs(), name="bench-jobs", owner=self, nice=DEVICE_NICE)
+        job.succeeded.connect(lambda infos: self._show(infos, service))
+        job.finished.connect(self._read_again)
+        self._reading = job
+        job.start()
+
+    def _read_again(self) -> None:
+        if self._again:
+            self.refresh()
+
+    def _show(self, infos: list, service=None) -> None:
+        if service is not None and service is not self.session.service:
+            return  # the bench was closed or restarted meanwhile
+        self.all_infos = list(infos)
+        jobs = [i for i in infos if i.state == "running"]
         selected = self.selected()
         self.infos = jobs
         self.list.clear()
@@ -114,7 +137,6 @@ class BenchJobs(QWidget):
             if selected is not None and info.id == selected.id:
                 self.list.setCurrentRow(self.list.count() - 1)
         self.stop_button.setEnabled(bool(jobs))
-        self.setVisible(service is not None)
         if jobs and not self.timer.isActive():
             self.timer.start()
         elif not jobs:
@@ -130,16 +152,14 @@ class BenchJobs(QWidget):
 
     def others(self) -> list[str]:
         """The running jobs other clients started, named (``job 4 (record) of the
-        notebook (pid 812)``), as a close of the window would end them."""
+        notebook (pid 812)``), as a close of the window would end them: from the list
+        last read (no call to the bench process: asking never waits on it)."""
         service = self.session.service
         if service is None or self.session.lost is not None:
             return []
-        try:
-            infos = service.jobs()
-        except Exception:  # noqa: BLE001 (the bench process is gone: nothing to end)
-            return []
         mine = getattr(service, "name", None)
-        return [i.describe() for i in infos if i.state == "running" and i.owner != mine]
+        return [i.describe() for i in self.all_infos
+                if i.state == "running" and i.owner != mine]
 
     def confirm(self, title: str, text: str) -> bool:
         """Ask the operator (Yes / No); tests replace this."""
