@@ -25,7 +25,7 @@ def hid():
 
 
 def make(hid, **kw):
-    kw.setdefault("reply_timeout_s", 1.0)
+    kw.setdefault("reply_timeout_s", 30.0)  # a hang guard: a loaded host answers late
     return LightCrafter4500("dmd", hid_backend=hid, **kw)
 
 
@@ -38,6 +38,7 @@ class TestLightCrafterConformance(DmdConformance):
 
     def provoke_timeout(self, device):
         self.emu.drop_replies(1)
+        self.wait_lost_reply(device)
 
 
 def test_byte_exact_reports(hid):
@@ -282,6 +283,7 @@ class TestLightCrafterOverPyusb(DmdConformance):
 
     def provoke_timeout(self, device):
         self.emu.drop_replies(1)
+        self.wait_lost_reply(device)
 
 
 def test_pyusb_unplug_and_serial_selection():

@@ -39,7 +39,7 @@ def make_stage(emu, tmp_path, **kw):
     kw.setdefault("serial_numbers", {"z": "27000001"})
     kw.setdefault("limits_mm", {"z": [0.0, 25.0]})
     kw.setdefault("speed_mm_s", 2.0)
-    kw.setdefault("reply_timeout_s", 1.0)
+    kw.setdefault("reply_timeout_s", 30.0)  # a hang guard: a loaded host answers late
     return ThorlabsAptStage("stage", search_dirs=[str(tmp_path)], **kw)
 
 
@@ -56,6 +56,7 @@ class TestAptConformance(StageConformance):
 
     def provoke_timeout(self, device):
         self.emu.drop_replies(1)
+        self.wait_lost_reply(device)
 
 
 def test_byte_exact_messages(emulator, tmp_path):

@@ -79,7 +79,7 @@ def test_read_deadline_and_unplug():
         t0 = time.monotonic()
         with pytest.raises(LedArrayTimeoutError, match="within 0.2 s"):
             link.read_until(b"-==-\n", 0.2)
-        assert time.monotonic() - t0 < 1.0
+        assert 0.2 <= time.monotonic() - t0 < 30.0  # waited its 0.2 s; 30 s: a hang guard
         emu.unplug()
         with pytest.raises(DeviceDisconnectedError, match="reconnect"):
             link.read_until(b"-==-\n", 5.0)

@@ -53,20 +53,9 @@ class TestZaberConformance(StageConformance):
         yield stage
         stage.close()
 
-    _restore = None
-
     def provoke_timeout(self, device):
-        self.emu.drop_replies(1)  # the lost reply is waited for 1 s, not the fixture's 30
-        before, device._reply_timeout = device._reply_timeout, 1.0
-        self._restore = lambda: setattr(device, "_reply_timeout", before)
-
-    def blocking_call(self, device):
-        try:
-            return super().blocking_call(device)
-        finally:
-            restore, self._restore = self._restore, None
-            if restore is not None:
-                restore()
+        self.emu.drop_replies(1)
+        self.wait_lost_reply(device)  # 1 s, not the fixture's 30
 
 
 def test_checksum_example():

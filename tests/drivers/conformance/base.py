@@ -30,6 +30,20 @@ class DeviceConformance:
     def advance_time(self, device, seconds: float) -> None:
         time.sleep(seconds)
 
+    #: Undoes :meth:`wait_lost_reply`, once the call meant to time out has run.
+    _undo_lost_reply_wait = None
+
+    def wait_lost_reply(self, device, seconds: float = 1.0) -> None:
+        """Wait ``seconds`` for the reply that ``provoke_timeout`` drops.
+
+        The fixtures' reply timeouts are hang guards (30 s: a loaded host answers
+        seconds late), too long to wait for a reply that never comes; the driver's
+        own timeout is put back after the call that times out.
+        """
+        before = device._reply_timeout
+        device._reply_timeout = seconds
+        self._undo_lost_reply_wait = lambda: setattr(device, "_reply_timeout", before)
+
     # ------------------------------------------------------------- kind hooks
     def use(self, device) -> Any:
         """A public call that needs an open device."""
@@ -147,8 +161,13 @@ class DeviceConformance:
 
     def test_timeout_raises_kind_error(self, device):
         self.provoke_timeout(device)
-        with pytest.raises(self.timeout_error) as info:
-            self.blocking_call(device)
+        try:
+            with pytest.raises(self.timeout_error) as info:
+                self.blocking_call(device)
+        finally:
+            undo, self._undo_lost_reply_wait = self._undo_lost_reply_wait, None
+            if undo is not None:
+                undo()
         exc = info.value
         assert isinstance(exc, DeviceTimeoutError) and isinstance(exc, TimeoutError)
         assert isinstance(exc, DeviceError) and exc.device_id == device.device_id

@@ -28,8 +28,10 @@ def unplug_mid_move(stage, emulator, axis: str, target: float, velocity: float) 
     emulator.unplug()
     t0 = time.monotonic()
     with pytest.raises(DeviceDisconnectedError, match="reconnect"):
-        stage.wait_until_idle(timeout_s=30.0)
-    assert time.monotonic() - t0 < 2.0  # a clear error, never a hang
+        stage.wait_until_idle(timeout_s=120.0)
+    # a hang guard, not a speed check (a loaded host runs late): a wait that ran out its
+    # 120 s, or the move's end, fails it
+    assert time.monotonic() - t0 < 30.0
     with pytest.raises(DeviceDisconnectedError):
         stage.positions()
 
