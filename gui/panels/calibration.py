@@ -71,6 +71,9 @@ class CalibrationPanel(RunControls, QWidget):
         left.addLayout(top)
         self.forms = QStackedWidget()
         self.fields: dict[str, dict[str, QWidget]] = {}
+        #: Each field's help under it: shown when the parameter box is tall enough
+        #: (:meth:`_fit_hints`; always in the field's tooltip).
+        self._hints: list[QLabel] = []
         for routine in ROUTINES:
             page = QWidget()
             form = QFormLayout(page)
@@ -101,6 +104,7 @@ class CalibrationPanel(RunControls, QWidget):
                 box.addWidget(w)
                 if opt.help:
                     box.addWidget(hint)
+                    self._hints.append(hint)
                 form.addRow(label, box)
                 fields[opt.flag] = w
             self.fields[routine] = fields
@@ -108,10 +112,11 @@ class CalibrationPanel(RunControls, QWidget):
         self.routine.currentIndexChanged.connect(self.forms.setCurrentIndex)
         remember(self.routine, "calibrate/routine")
         self.forms.setCurrentIndex(self.routine.currentIndex())
-        scroll = QScrollArea()
+        scroll = self.params = QScrollArea()
         scroll.setWidgetResizable(True)
         scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         scroll.setWidget(self.forms)
+        scroll.viewport().installEventFilter(self)
         left.addWidget(scroll, 1)
         out = QHBoxLayout()
         out.addWidget(QLabel("run store:"))
@@ -141,6 +146,27 @@ class CalibrationPanel(RunControls, QWidget):
         self.view.metadata = self._frame_metadata
         layout.addWidget(self.view, 3)
         self._set_running(False)
+
+    #: The parameter box's least height (px) at which each field's help shows under
+    #: it: below (a 1366x768 screen's dock is about 95 px), one field and a half
+    #: showed at a time; without the help lines, three or more do.
+    HINTS_MIN_HEIGHT_PX = 240
+
+    def eventFilter(self, obj, event) -> bool:  # noqa: N802 (Qt's name)
+        """The parameter box resized: :meth:`_fit_hints`."""
+        from PySide6.QtCore import QEvent
+
+        if obj is self.params.viewport() and event.type() == QEvent.Type.Resize:
+            self._fit_hints(event.size().height())
+        return super().eventFilter(obj, event)
+
+    def _fit_hints(self, height_px: int) -> None:
+        """Show each field's help line under it only when the parameter box is at least
+        :data:`HINTS_MIN_HEIGHT_PX` tall (the help stays in each field's tooltip)."""
+        show = height_px >= self.HINTS_MIN_HEIGHT_PX
+        if self._hints and self._hints[0].isHidden() == show:
+            for hint in self._hints:
+                hint.setVisible(show)
 
     # -- state ---------------------------------------------------------------------------
     @property

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections import deque
 
-from PySide6.QtCore import QTimer, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QGridLayout,
     QHBoxLayout,
@@ -164,6 +164,7 @@ class LivePanel(QWidget):
         left.addWidget(self.raw_view, 1)
         self.raw_stats = QLabel("camera: not streaming")
         self.raw_stats.setWordWrap(True)
+        self._stats_below(self.raw_stats)
         left.addWidget(self.raw_stats)
         self.recon_view = FrameView("live reconstruction (upright)", histogram_hz=2.0,
                                     name="reconstruction")
@@ -171,6 +172,7 @@ class LivePanel(QWidget):
         right.addWidget(self.recon_view, 1)
         self.recon_stats = QLabel("reconstruction: off")
         self.recon_stats.setWordWrap(True)
+        self._stats_below(self.recon_stats)
         right.addWidget(self.recon_stats)
         views.addLayout(left, 1)
         views.addLayout(right, 1)
@@ -192,6 +194,18 @@ class LivePanel(QWidget):
         """Offer the PSF stack's depths in the depth field (read on a worker)."""
         self.depth_job = offer_depths(self.depth, self.psf.text())
         return self.depth_job
+
+    #: Lines of text the counters under a view have room for (the camera's wrap to
+    #: three on a 1366x768 screen).
+    STATS_LINES = 3
+
+    @classmethod
+    def _stats_below(cls, label: QLabel) -> None:
+        """A view's counters: top-aligned, with room for :data:`STATS_LINES` lines, so
+        a longer text is never drawn over the view's axis title (a wrapped label
+        given two lines' height centred three, its first over the view)."""
+        label.setAlignment(Qt.AlignmentFlag.AlignTop | Qt.AlignmentFlag.AlignLeft)
+        label.setMinimumHeight(cls.STATS_LINES * label.fontMetrics().lineSpacing() + 4)
 
     def _session_changed(self) -> None:
         streaming = self.session.streaming
