@@ -243,8 +243,13 @@ def test_capture_path_delivers_the_recorded_frames(recording, by_id):
                             "roi": [5, 7, 100, 80]})
         ring = FrameRing(16)
         cam.start_stream(ring)
-        try:
-            got = [ring.get(timeout_s=2.0) for _ in range(6)]
+        got = []
+        try:  # until 5 frames came one period after the one before (a loaded host's late
+            while len(got) < 200:  # grab thread loses frames in between: counted, below)
+                got.append(ring.get(timeout_s=30.0))  # a hang guard
+                steps = np.diff([f.device_timestamp_s for f in got]) / 0.02
+                if np.sum(np.abs(steps - 1) < 0.05) >= 5:
+                    break
         finally:
             cam.stop_stream()
     crops = [f[7:87, 5:105] for f in frames]
@@ -253,9 +258,12 @@ def test_capture_path_delivers_the_recorded_frames(recording, by_id):
         hits = [k for k, c in enumerate(crops) if np.array_equal(frame.image, c)]
         assert len(hits) == 1, "a delivered frame is not exactly one recorded frame"
         matched.append(hits[0])
-    assert all((b - a) % N_FRAMES == 1 for a, b in zip(matched, matched[1:], strict=False))
-    stamps = [f.device_timestamp_s for f in got]
-    assert np.median(np.diff(stamps)) == pytest.approx(0.02, rel=0.05)
+    periods = np.rint(steps).astype(int)
+    assert np.allclose(steps, periods, atol=0.05) and np.sum(periods == 1) >= 5  # at 50 Hz
+    # each frame is the recording's next one, or (frames lost between) at most as many
+    # further as periods passed
+    for a, b, p in zip(matched, matched[1:], periods, strict=False):
+        assert 1 <= (b - a) % N_FRAMES <= p or p >= N_FRAMES, (a, b, p)
 
 
 def test_stale_frames_after_a_change_are_flushed(recording, by_id):
@@ -274,10 +282,13 @@ def test_stale_frames_after_a_change_are_flushed(recording, by_id):
         ring = FrameRing(64)
         cam.start_stream(ring)
         try:
-            ring.get(timeout_s=1.0)
+            ring.get(timeout_s=30.0)  # a hang guard
             time.sleep(0.1)
             cam.exposure_s = 0.009
-            time.sleep(0.3)
+            after_change = ring.acquired + 4  # frames begun after the change among them
+            hang_guard = time.monotonic() + 30.0
+            while ring.acquired < after_change and time.monotonic() < hang_guard:
+                time.sleep(0.01)
         finally:
             cam.stop_stream()
         fake = bench.fake
@@ -305,13 +316,23 @@ def test_stream_that_stops_times_out_then_resumes(recording, by_id):
         ring = FrameRing(8)
         cam.start_stream(ring)
         try:
-            ring.get(timeout_s=1.0)
-            bench.fake.stall(0.8)
-            time.sleep(0.05)
+            ring.get(timeout_s=30.0)  # a hang guard
+            fake = bench.fake
+            fake.stall(math.inf)  # until resumed: not a stall a loaded host could outlast
+            fake.reading.clear()
+            fake.gate.clear()
+            with fake._lock:
+                fake._queue.clear()  # frames of before the stall, not yet read: lost in it
+            # the grab thread's next read is held: whatever it read before is in the ring
+            assert fake.reading.wait(30.0)
             ring.clear()
+            fake.gate.set()
+            t0 = time.monotonic()
             with pytest.raises(CameraTimeoutError, match="no frame within 0.3 s"):
                 ring.get(timeout_s=0.3)
-            assert ring.get(timeout_s=2.0).image.shape == cam.image_shape
+            assert time.monotonic() - t0 >= 0.3
+            fake.resume()
+            assert ring.get(timeout_s=30.0).image.shape == cam.image_shape
         finally:
             cam.stop_stream()
 
@@ -324,14 +345,14 @@ def test_unplug_mid_stream_then_reconnect_restores_settings(recording, by_id):
         before = cam.settings()
         ring = FrameRing(8)
         cam.start_stream(ring)
-        ring.get(timeout_s=1.0)
+        ring.get(timeout_s=30.0)  # a hang guard
         (by_id / LINK).unlink()  # udev removes the link, the device node goes away
         bench.fake.unplug()
         t0 = time.monotonic()
         with pytest.raises(DeviceDisconnectedError, match="reconnect"):
             while True:
-                ring.get(timeout_s=5.0)
-        assert time.monotonic() - t0 < 3.0
+                ring.get(timeout_s=5.0)  # an unnoticed unplug: CameraTimeoutError
+        assert time.monotonic() - t0 < 30.0  # a hang guard
         cam.stop_stream()
         with pytest.raises(DeviceDisconnectedError):
             cam.settings()
