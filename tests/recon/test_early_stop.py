@@ -65,7 +65,9 @@ def test_fitted_count_is_interior_and_generalises(camera):
     assert fit.iterations in (10, 30, 100)  # neither under- nor over-fitted extreme
     assert fit.psf_sha256 == psf_identity(psf)
     best = _held_out_error(camera, fit.iterations)
-    assert best < min(_held_out_error(camera, 1), _held_out_error(camera, 1000)) - 0.05
+    # 0.334 against 0.382 (1000 iterations) with the converged, tied PSF estimate of
+    # issue 65 (0.05 apart with the 20-iteration estimate, whose noise 1000 amplified more)
+    assert best < min(_held_out_error(camera, 1), _held_out_error(camera, 1000)) - 0.03
 
 
 def test_reconstruction_runs_exactly_the_fitted_count(camera):
