@@ -186,7 +186,7 @@ def test_bsc20x_bays_on_one_port(tmp_path):
         assert not emu.channels[0x21].enabled  # powers up disabled, "stuck" velocities
         stage = ThorlabsAptStage("rack", axes=["x", "y"], port=emu.port, bays={"x": 0, "y": 1},
                                  limits_mm={"x": [0, 50], "y": [0, 50]}, speed_mm_s=2.0,
-                                 home_on_open=True, reply_timeout_s=1.0)
+                                 home_on_open=True, reply_timeout_s=30.0)
         with stage:
             assert emu.channels[0x21].enabled and emu.channels[0x22].enabled
             stage.move_to({"x": 3.0, "y": 4.5})
@@ -233,14 +233,16 @@ def test_kst101_stepper_profile(tmp_path):
     with emu:
         stage = ThorlabsAptStage("stage", axes=["x"], serial_numbers={"x": "26000042"},
                                  limits_mm={"x": [0, 25]}, speed_mm_s=1.0, home_on_open=True,
-                                 keepalive_s=0.2, reply_timeout_s=1.0,
+                                 keepalive_s=0.2, reply_timeout_s=30.0,
                                  search_dirs=[str(tmp_path)])
         with stage:
             vel = emu.channels[0x50].velocity[2]
             assert vel == round(2008645.63 * 1.0 * 53.68)  # microsteps/s x 53.68
             stage.move_to({"x": 12.5})
             assert emu.position() == round(12.5 * 2008645.63)
-            time.sleep(0.6)
+            hang_guard = time.monotonic() + 30.0  # keepalives every 0.2 s, ACKed
+            while emu.acks < 1 and time.monotonic() < hang_guard:
+                time.sleep(0.01)
             info = stage.status()["controllers"]["sn:26000042"]
             assert info["model"] == "KST101" and info["resyncs"] == 0
             assert b"\x81\x04\x1c\x00\x81\x50" in bytes(emu.sent)  # 28-byte updates were sent
@@ -252,21 +254,21 @@ def test_profile_comes_from_the_model_the_controller_reports(tmp_path):
     """Serial prefix 70 is a BSC203 or a legacy BSC103: HW_GET_INFO's model decides."""
     with AptEmulator("bsc20x", model="BSC103", channels=1, time_scale=200.0) as emu:
         stage = ThorlabsAptStage("rack", axes=["x"], port=emu.port, bays={"x": 0},
-                                 limits_mm={"x": [0, 2]}, reply_timeout_s=1.0)
+                                 limits_mm={"x": [0, 2]}, reply_timeout_s=30.0)
         with pytest.raises(DeviceValueError, match="BSC103.*legacy stepper"):
             stage.open()
     with AptEmulator("kdc101", time_scale=200.0) as emu:
         stage = ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
-                                 profile="kst101", reply_timeout_s=1.0)
+                                 profile="kst101", reply_timeout_s=30.0)
         with pytest.raises(DeviceValueError, match="contradicts.*KDC101"):
             stage.open()
     with AptEmulator("kdc101", model="XYZ999", time_scale=200.0) as emu:
         stage = ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
-                                 reply_timeout_s=1.0)
+                                 reply_timeout_s=30.0)
         with pytest.raises(DeviceValueError, match="'XYZ999'.*set profile"):
             stage.open()
         stage = ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
-                                 profile="kdc101", reply_timeout_s=1.0)
+                                 profile="kdc101", reply_timeout_s=30.0)
         with stage:  # an explicit profile for an unknown model: used, with a warning
             assert stage.status()["axes_setup"]["z"]["profile"] == "kdc101"
 
@@ -274,7 +276,7 @@ def test_profile_comes_from_the_model_the_controller_reports(tmp_path):
 def test_rotation_axis_needs_its_counts_per_degree(tmp_path):
     with AptEmulator("kdc101", time_scale=200.0) as emu:
         kw = dict(axes=["rotation"], port=emu.port, limits_deg={"rotation": [0, 360]},
-                  reply_timeout_s=1.0)
+                  reply_timeout_s=30.0)
         with pytest.raises(DeviceValueError, match="rotation axis.*PRM1-Z8"):
             ThorlabsAptStage("r", **kw).open()
         with ThorlabsAptStage("r", stages={"rotation": "PRM1-Z8"}, **kw) as stage:
@@ -319,7 +321,7 @@ def test_position_tolerance_per_stage(emulator, tmp_path):
 def test_velocity_quantisation_is_accepted(tmp_path):
     with AptEmulator("kdc101", velocity_quantum=64, time_scale=200.0) as emu:
         with ThorlabsAptStage("s", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
-                              speed_mm_s=1.0, reply_timeout_s=1.0) as stage:
+                              speed_mm_s=1.0, reply_timeout_s=30.0) as stage:
             sent = round(Z8 * 2048 / 6e6 * 65536)
             took = emu.channels[0x50].velocity[2]
             assert took % 64 == 0 and took != sent
@@ -337,7 +339,7 @@ def test_homing_at_open_waits_for_home_timeout_when_the_open_has_no_timeout(tmp_
     with emu:
         emu.channels[0x50].position = 1.2 * Z8  # 1.2 mm from home, homed at 1 mm/s
         stage = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
-                                 home_velocity=1.0, home_on_open=True, reply_timeout_s=1.0)
+                                 home_velocity=1.0, home_on_open=True, reply_timeout_s=30.0)
         stage.open()  # the homing takes about 1.2 s
         try:
             assert stage.status()["homed"] == {"z": True}
