@@ -379,33 +379,46 @@ def test_enter_in_a_go_to_field_moves(window, wait):
 # -- 8. numbers that follow what happens now --------------------------------------------------
 
 
-def test_camera_fps_follows_a_change_of_rate_within_seconds(window, wait):
+def test_camera_fps_follows_a_change_of_rate_within_seconds(monkeypatch):
     """The rate shown is the last 2 s's (a rate since the stream started showed 11 fps
-    while the camera delivered 30). Each rate is compared with the frames that arrived
-    in the last 2 s, so a loaded machine that delivers fewer than the 30 asked for
-    (6 fps measured in a loaded full-suite run) is judged by what it delivered."""
+    while the camera delivered 30). The clock is the test's: frames arrive at 30 fps
+    for 4 s, then at 3 fps for 3 s, and the GUI's 10 Hz poll reads the rate; a host's
+    load cannot change what is delivered when (it did: 6 fps where 30 were asked)."""
+    import gui.session as gui_session
+
+    now = [1000.0]
+    monkeypatch.setattr(gui_session.time, "monotonic", lambda: now[0])
+    session = gui_session.Session(None, simulate=True, scene="none")
+    session._streaming = True  # what start_stream sets; the frames are the test's
+
+    def deliver(fps: float, seconds: float) -> float:
+        shown, due = 0.0, 0.0
+        for _ in range(round(seconds * 10)):  # the GUI's 100 ms poll
+            now[0] += 0.1
+            due += fps * 0.1
+            while due >= 1.0:
+                session.frames_seen += 1
+                due -= 1.0
+            shown = session.stream_counters()["fps"]
+        return shown
+
+    fast = deliver(30.0, 4.0)
+    slow = deliver(3.0, 3.0)
+    assert fast == pytest.approx(30.0, rel=0.1), (fast, slow)
+    assert slow == pytest.approx(3.0, rel=0.2), (fast, slow)  # since the start: 18
+
+
+def test_camera_fps_is_shown_while_streaming(window, wait):
+    """The streaming window shows the rate of the frames it received (waited for: a
+    loaded host delivers fewer and later frames than asked)."""
     session = window.session
-
-    def shown_and_delivered() -> tuple[float, float]:
-        n0, t0 = session.frames_seen, time.monotonic()
-        QTest.qWait(2000)
-        delivered = (session.frames_seen - n0) / (time.monotonic() - t0)
-        return session.stream_counters()["fps"], delivered
-
     session.start_stream()
     try:
-        QTest.qWait(1000)
-        fast, fast_delivered = shown_and_delivered()
-        session.service.apply_settings("camera", {"frame_rate_hz": 3.0})
-        QTest.qWait(3000)
-        slow, slow_delivered = shown_and_delivered()
+        wait(lambda: session.frames_seen >= 3 and session.stream_counters()["fps"] > 0,
+             60, "a rate shown for the frames received")
     finally:
-        session.service.apply_settings("camera", {"frame_rate_hz": 30.0})
         session.stop_stream()
-    rates = (fast, fast_delivered, slow, slow_delivered)
-    assert fast == pytest.approx(fast_delivered, rel=0.35, abs=0.5), rates
-    assert slow == pytest.approx(slow_delivered, rel=0.35, abs=0.5), rates
-    assert slow < 0.6 * fast, rates
+    assert session.stream_counters().get("fps", 0.0) == 0.0  # stopped: no rate
 
 
 def test_job_progress_ticks_between_reports():
