@@ -26,8 +26,11 @@ def whose_process(ctx) -> dict:
 
 
 def counting(ctx, *, n: int) -> int:
-    """Report 0..n-1, waiting for pause/abort between; returns n."""
+    """Report 0..n-1, waiting for pause/abort between (a pause seen is reported as
+    ``("paused", i)`` before the wait); returns n."""
     for i in range(n):
+        if ctx.control.paused:
+            ctx.report(("paused", i))
         ctx.control.wait_while_paused()
         ctx.report(i)
         time.sleep(0.05)
@@ -129,21 +132,32 @@ def test_a_job_reports_pauses_and_aborts(client):
     control, seen = RunControl(), []
 
     def pause_then_abort() -> None:
-        while not seen:
+        """Pause after the first step; once the job reports the pause (waited for up
+        to a 60 s hang guard: a loaded host passes it on late), hold it at least
+        0.5 s, then abort."""
+        for _ in range(6000):
+            if seen:
+                break
             time.sleep(0.01)
         control.pause()
-        time.sleep(0.5)
-        paused_at = len(seen)
+        for _ in range(6000):
+            if any(isinstance(s, tuple) for s in seen):
+                break
+            time.sleep(0.01)
+        time.sleep(0.5)  # a lower bound: the paused job makes no step meanwhile
         control.abort("stop here")
-        seen.append(("paused at", paused_at))
 
     helper = threading.Thread(target=pause_then_abort)
     helper.start()
     with pytest.raises(RunAborted, match="stop here"):
-        client.run_job("counting", {"n": 200}, report=seen.append,
+        client.run_job("counting", {"n": 100_000}, report=seen.append,
                        control=control)
     helper.join()
-    assert len([s for s in seen if isinstance(s, int)]) < 20  # paused within a step or two
+    paused = [s for s in seen if isinstance(s, tuple)]
+    assert len(paused) == 1, seen  # it paused (and an abort, not a resume, ended it)
+    after = seen[seen.index(paused[0]) + 1:]
+    assert after == [], seen  # no step while paused
+    assert paused[0][1] == seen[seen.index(paused[0]) - 1] + 1  # between two steps
 
 
 def test_stop_and_cancel_reach_the_job(client):
