@@ -174,15 +174,20 @@ def test_realtime_bench_streams_a_prerendered_scene_on_the_wall_clock():
         vb.led_array.all_off()
         vb.set_scene(BeadFlowScene(seed=2, time_step_s=0.5, **BEADS))  # 4 states
         assert vb.prerender() == 4
-        cam.apply_settings({"exposure_s": 0.005, "frame_rate_hz": 25.0})
+        # 4 fps: well below the 10-25 fps a host renders these frames unpaced
+        cam.apply_settings({"exposure_s": 0.005, "frame_rate_hz": 4.0})
         ring = FrameRing(64)
         t0 = time.monotonic()
         cam.start_stream(ring)
-        time.sleep(0.4)
+        deadline = t0 + 60.0  # a hang guard: 4 frames take 1 s on an idle host
+        while len(ring) < 4 and time.monotonic() < deadline:
+            time.sleep(0.01)
         cam.stop_stream()
         elapsed = time.monotonic() - t0
         frames = [ring.get(0) for _ in range(len(ring))]
-    assert 5 <= len(frames) <= 25 * elapsed + 1  # ~10 frames: paced by the wall clock
+    # paced by the wall clock: at least 4 came, none faster than 4 fps (a loaded host
+    # only makes them later)
+    assert 4 <= len(frames) <= 4 * elapsed + 1, (len(frames), elapsed)
     assert [f.index for f in frames] == list(range(frames[0].index,
                                                    frames[0].index + len(frames)))
     assert ring.skipped == 0 and ring.dropped == 0
