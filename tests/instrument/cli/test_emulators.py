@@ -98,17 +98,22 @@ def test_psf_sweep_survives_an_unplugged_stage_controller(tmp_path, capsys):
         bench = tmp_path / "bench.toml"
         bench.write_text(emulated.bench_text())
         z = emulated.emulators["apt-z"]
+        started = threading.Event()
+        start = z._start
+
+        def start_and_tell(ch, now, target, kind):  # the sweep's first move, as it starts
+            start(ch, now, target, kind)
+            if kind == "move" and abs(target - 20.0 * 34554.96) < 2:  # to z-min, 20 mm
+                started.set()
+
+        z._start = start_and_tell
 
         def yank():
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                with z.lock:
-                    moving = any(ch.motion is not None for ch in z.channels.values())
-                if moving and z.plug_count == 1:
-                    break
-                time.sleep(0.005)
+            # waits on the move's start (60 s hang guard): polling for a motion under
+            # way could miss a short one on a loaded host
+            assert started.wait(60), "the sweep's move to z-min did not start"
             z.unplug()
-            time.sleep(0.5)
+            time.sleep(0.5)  # a lower bound: unplugged at least this long
             z.replug()
 
         thread = threading.Thread(target=yank, daemon=True)
@@ -117,11 +122,24 @@ def test_psf_sweep_survives_an_unplugged_stage_controller(tmp_path, capsys):
         code = main(["calibrate", "psf-sweep", str(bench), "--n-depths", "2", "--z-min", "20",
                      "--z-max", "40", "--spacing", "uniform", "--out", str(run),
                      "--reconnect-timeout", "20"])
-        thread.join(5)
+        thread.join(60)
         assert code == 0
         assert z.plug_count == 2  # it really was unplugged and plugged back
         assert RunStore.open(run).summary()["status"] == "complete"
         assert z.position() == round(40.0 * 34554.96)
+
+
+def _wait_for_late_replies(emulators, guard_s: float = 60.0) -> None:
+    """Wait until the late replies of ``emulators`` were sent: none is still due (each
+    is a timer thread calling the emulator's ``emit``), up to a hang guard."""
+    deadline = time.monotonic() + guard_s
+    while time.monotonic() < deadline:
+        if not any(isinstance(t, threading.Timer) and t.is_alive()
+                   and getattr(t.function, "__self__", None) in emulators
+                   for t in threading.enumerate()):
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"late replies still due after {guard_s:g} s")
 
 
 def test_the_emulated_bench_opens_though_its_emulators_answer_late(tmp_path):
@@ -144,7 +162,7 @@ def test_the_emulated_bench_opens_though_its_emulators_answer_late(tmp_path):
 
         strict = tmp_path / "strict.toml"
         strict.write_text(text.replace("reply_timeout_s = 5.0\n", ""))
-        time.sleep(2.5)  # the late replies of the last open have come and gone
+        _wait_for_late_replies([emulated.emulators[name] for name in late])
         emulated.emulators["zaber"].delay_replies(2.0)
         with pytest.raises(BenchOpenError, match="mask_stage.*no reply to"):
             open_bench(load_bench(strict))
