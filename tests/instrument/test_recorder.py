@@ -68,13 +68,13 @@ def test_slowed_sink_loses_frames_counted_by_index(tmp_path):
 
     def slow_sink(start, images, rows):
         entered.set()
-        gate.wait(5.0)  # the disk stalls until every frame was offered
+        gate.wait(60.0)  # the disk stalls until every frame was offered (a hang guard)
         store.write_frames(start, images, rows)
 
     rec = Recorder(store, queue_frames=6, sink=slow_sink)
     rec.start()
     accepted = [rec.offer(_frame(i)) for i in range(4)]
-    assert entered.wait(5.0)
+    assert entered.wait(60.0)  # a hang guard: the writer takes the shard at once
     accepted += [rec.offer(_frame(i)) for i in range(4, 20)]
     gate.set()
     summary = rec.close()
