@@ -425,21 +425,35 @@ def test_laser_drift_is_a_slow_reproducible_walk():
 
 
 def test_render_speed(display, spot):
+    """Speed as a ratio to the FFT floor at the fine grid's shape, measured around each
+    timing (a loaded host slows both; fixed bounds of 1 s and 5 s were the host's): a
+    render costs a few FFT pairs (1.7-2.0 measured at load 6, ~0.06 s), a new pose's
+    direct path as much (1.7; the grid's rebuild takes minutes, thousands of pairs)."""
+    from recon.fft import fft_pair_seconds
+
+    def floor() -> float:
+        return fft_pair_seconds(display.mask.fine_shape, repeats=3)
+
     gray = phase_to_gray(spot)
     display.render(gray)  # warm up (jit and caches)
-    t = []
+    ratios = []
     for _ in range(3):
+        before = floor()
         t0 = time.perf_counter()
         display.render(gray)
-        t.append(time.perf_counter() - t0)
-    assert min(t) < 1.0  # ~0.06 s measured on 2 cores for the 1536 x 1920 fine grid
+        took = time.perf_counter() - t0
+        ratios.append(took / ((before + floor()) / 2))
+    assert min(ratios) < 30, ratios
     m = display.mask
     saved = m.truth
     try:
         m.truth = MaskTransform(translation=(0.25, 0.0))  # new pose: uncached direct path
+        before = floor()
         t0 = time.perf_counter()
         display.spot_power(gray, U0)
-        assert time.perf_counter() - t0 < 5.0  # not the grid rebuild (minutes); 0.03 s measured
+        took = time.perf_counter() - t0
+        ratio = took / ((before + floor()) / 2)
+        assert ratio < 300, ratio  # not the grid's rebuild
     finally:
         m.truth = saved
 
