@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from calibration_routines._common import CALIBRATION_EXPOSURE, signal_minus_dark
 from calibration_routines.psf_from_scenes import (
     MAX_RANDOM,
     RECIPE_IMAGES,
@@ -17,6 +18,7 @@ from calibration_routines.psf_from_scenes import (
     display_gray,
     pattern_block_px,
 )
+from instrument.acquisition import autoexpose
 from instrument.bench_setup import load_bench
 from instrument.cli import main
 from instrument.plan import PlanError
@@ -121,3 +123,36 @@ def test_the_patterns_are_binary_blocks_of_about_one_sensor_pixel(tmp_path):
         PsfFromScenesPlan(scene_names=["random-1", "random-x"], z_mm=20.0,
                           display_shape=(96, 120), display_pitch_um=40.0, d_mm=8.9,
                           pitch_mm=0.039)
+
+
+def test_the_built_in_display_at_100_mm_is_bright_enough_to_auto_expose():
+    """The built-in bench's display (a 0.96 mm SLM) at 100 mm showing a random
+    pattern reaches the calibration's auto-exposure target (40-80 % of full scale)
+    well inside the bench file's exposure cap of 1 s. Before, at the radiance of a lit
+    scene, its peak was 2-3 % of full scale at the 1 s cap (ExposureError)."""
+    with VirtualBench(load_bench(EXAMPLE)) as vb:
+        vb.set_scene(DisplayScene(100.0, "slm"))
+        plan = PsfFromScenesPlan.for_bench(vb, z_mm=100.0, images=2, recipe_images=0)
+        vb.slm.show_image(display_gray("random-0", vb.slm.resolution, plan.block_px()))
+        a, bounds = CALIBRATION_EXPOSURE, vb.config.calibration.exposure_bounds_s
+        result = autoexpose(vb.camera, target=a.target, tolerance=a.tolerance,
+                            bounds_s=tuple(bounds))
+    assert bounds[1] == 1.0 and result.exposure_s <= 0.5 * bounds[1]
+    assert abs(result.peak_fraction - a.target) <= a.tolerance
+
+
+def test_calibrate_at_100_mm_exposes_each_scene_brightly_without_a_cap_warning(
+        tmp_path, capsys):
+    """The simulated calibration at 100 mm (2 patterns, 1 frame, the small bench):
+    no exposure warning in the run and each scene's dark-subtracted peak at 40 % of
+    full scale or more, exposed under half the 1 s cap (before: 0.43 at the cap)."""
+    out = tmp_path / "far.zarr"
+    code = main(["calibrate", "psf-from-scenes", str(_small_bench(tmp_path)), "--simulate",
+                 "--z-mm", "100", "--images", "2", "--recipe-images", "0", "--frames", "1",
+                 "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    store = RunStore.open(out)
+    assert not store.attrs.get("warnings")
+    for point in range(store.n_points):
+        _, exposure_s, peak = signal_minus_dark(store, point, "scene", "dark")
+        assert peak >= 0.4 and exposure_s <= 0.5
