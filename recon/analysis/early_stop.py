@@ -37,7 +37,6 @@ import numpy as np
 
 from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_signature
 from ..errors import ReconInputError
-from ..metrics import fit_gain
 from .psf_from_scenes import check_pairs
 
 __all__ = ["CANDIDATES", "REFERENCE_ITERATIONS", "THRESHOLDS", "WEIGHTS", "fit_early_stop",
@@ -58,8 +57,9 @@ def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
     """Relative error of ``estimate`` against ``scene`` after a per-channel
     least-squares gain, averaged over channels.
 
-    Per channel ``min_g ||g e - s|| / ||s||``, the gain by
-    :func:`recon.metrics.fit_gain`.
+    Per channel ``min_g ||g e - s|| / ||s||``, the gain of
+    :func:`recon.metrics.fit_gain` (``<e, s> / <e, e>``, 0 for an all-zero ``e``), the
+    sums in float64.
 
     Parameters
     ----------
@@ -69,19 +69,38 @@ def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
     -------
     float
         In [0, 1]; 1 for an all-zero estimate.
+
+    Raises
+    ------
+    ReconInputError
+        ``estimate`` and ``scene`` of different shapes.
     """
-    e = np.atleast_3d(np.asarray(estimate, np.float64))  # (rows, cols, channels)
-    s = np.atleast_3d(np.asarray(scene, np.float64))
-    # channels first and contiguous: the per-channel dot products of fit_gain on
-    # strided views cost more than the solve that made the estimate
-    e = np.ascontiguousarray(np.moveaxis(e, -1, 0))
-    s = np.ascontiguousarray(np.moveaxis(s, -1, 0))
-    out = []
-    for ec, sc in zip(e, s, strict=True):
-        norm = float(np.linalg.norm(sc))
-        out.append(float(np.linalg.norm(fit_gain(ec, sc) * ec - sc)) / norm if norm > 0
-                   else 1.0)
-    return float(np.mean(out))
+    return _scorer(scene)(estimate)
+
+
+def _scorer(scene):
+    """:func:`gain_fitted_error` against ``scene`` as a function of the estimate, the
+    scene's channel planes and norms made once (the fit scores each pair's scene
+    ``n_thresholds x n_candidates x n_weights`` times)."""
+    # channels first and contiguous, and the sums by NumPy's own loops: BLAS (fit_gain's
+    # vdot, norm) spun its threads on these 130 000-pixel planes under load, and the
+    # scoring cost as much CPU as the solves that made the estimates
+    s = np.ascontiguousarray(np.moveaxis(np.atleast_3d(np.asarray(scene, np.float64)), -1, 0))
+    ss = np.einsum("cij,cij->c", s, s)
+
+    def error(estimate) -> float:
+        e = np.atleast_3d(np.asarray(estimate, np.float64))  # (rows, cols, channels)
+        e = np.ascontiguousarray(np.moveaxis(e, -1, 0))
+        if e.shape != s.shape:
+            raise ReconInputError(f"estimate shape {np.shape(estimate)} differs from the "
+                                  f"scene's {np.shape(scene)}")
+        ee, es = np.einsum("cij,cij->c", e, e), np.einsum("cij,cij->c", e, s)
+        gain = np.divide(es, ee, out=np.zeros_like(es), where=ee > 0)  # fit_gain's
+        r = gain[:, None, None] * e - s
+        out = np.where(ss > 0, np.sqrt(np.einsum("cij,cij->c", r, r) / np.where(ss > 0, ss, 1)),
+                       1.0)
+        return float(np.mean(out))
+    return error
 
 
 def _solve(psf, raw, iterations: int, observe=None, **options):
@@ -198,12 +217,14 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
             raise ReconInputError(f"PSF of shape {np.shape(h)} for pairs of shape "
                                   f"{xs[0].shape}: give PSFs of the measurements' shape")
     errors = np.zeros((len(ts), len(cands), len(ws), len(xs)))
+    scorers = [_scorer(x) for x in xs]
     for i, t in enumerate(ts):
-        for k, (x, b) in enumerate(zip(xs, bs, strict=True)):
+        for k, b in enumerate(bs):
             images = solve_checkpoints(clean_psf(held_out_psfs[k], t), b, cands)
             for j, n in enumerate(cands):
-                for m, w in enumerate(ws):
-                    errors[i, j, m, k] = gain_fitted_error(denoise_tv(images[n], w), x)
+                for m, w in enumerate(ws):  # weight 0: denoise_tv's copy, not made
+                    errors[i, j, m, k] = scorers[k](denoise_tv(images[n], w) if w > 0
+                                                    else images[n])
             if on_solve is not None:
                 on_solve(i * len(xs) + k + 1, len(ts) * len(xs))
         if on_candidate is not None:

@@ -215,3 +215,31 @@ def test_a_psf_carrying_a_dark_level_is_the_recipes_to_float_rounding(camera, re
                                atol=1e-5)
     with pytest.raises(ReconInputError, match="fitted for another PSF"):
         recipe.check_psf(np.roll(lifted, 1, axis=0), 10.0)
+
+
+def test_the_fit_denoises_only_at_nonzero_weights_and_solves_once_per_pair(camera,
+                                                                          monkeypatch):
+    """The work of a fit, counted: one observed solve per (threshold, pair) and one TV
+    denoising per (threshold, count, nonzero weight, pair); weight 0 is scored on the
+    checkpoint itself (the old fit denoised at weight 0 too: 2 x 2 x 3 x 2 = 24 calls,
+    not 16), with the same errors."""
+    import recon.analysis.early_stop as fit_module
+
+    psf, _, _, _, scenes, measurements = camera
+    xs, bs = scenes[:2], measurements[:2]
+    held = [psf, psf]
+    denoised, solved = [], []
+    real_denoise, real_solve = fit_module.denoise_tv, fit_module.solve_checkpoints
+    monkeypatch.setattr(fit_module, "denoise_tv",
+                        lambda image, w: denoised.append(w) or real_denoise(image, w))
+    monkeypatch.setattr(fit_module, "solve_checkpoints",
+                        lambda *a: solved.append(a[2]) or real_solve(*a))
+    fit = fit_early_stop(xs, bs, held, psf, candidates=(3, 10), thresholds=(0.0, 0.05),
+                         weights=(0.0, 0.1, 0.5))
+    assert len(solved) == 2 * 2 and sorted(denoised) == [0.1] * 8 + [0.5] * 8
+    for i, t in enumerate((0.0, 0.05)):  # the errors are those of a fit from scratch
+        for j, n in enumerate((3, 10)):
+            for m, w in enumerate((0.0, 0.1, 0.5)):
+                image = real_solve(clean_psf(psf, t), bs[1], [n])[n]
+                assert fit.errors[i, j, m, 1] == pytest.approx(
+                    gain_fitted_error(real_denoise(image, w), xs[1]), rel=1e-9)
