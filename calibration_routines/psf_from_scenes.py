@@ -69,7 +69,7 @@ from recon.scenes import BUNDLED, load_scene
 from ._common import CALIBRATION_EXPOSURE, sensor_geometry, signal_minus_dark
 
 __all__ = ["FILES_PLAN", "MAX_RANDOM", "PATTERNS", "RECIPE_IMAGES", "PsfFromScenesPlan",
-           "display_gray", "estimates",
+           "display_gray",
            "early_stop_for", "match_pairs", "pattern_block_px", "psf_run_from_files",
            "random_pattern", "write_psf"]
 
@@ -213,46 +213,6 @@ def early_stop_for(scenes, measurements, loo: LeaveOneOut, estimate: PsfEstimate
                           on_solve=on_solve)
 
 
-def estimates(scenes, measurements, options, on_estimate=None
-              ) -> tuple[PsfEstimate, LeaveOneOut]:
-    """The PSF from every pair and each pair's PSF without it
-    (:func:`recon.analysis.psf_from_scenes.leave_one_out`), the held-out ones first.
-
-    The PSF from every pair starts from the mean of the held-out PSFs (``initial``):
-    it may see every pair, and it starts near its answer, so it converges in a few
-    ADMM iterations rather than the 25 to 30 of a start from zero (docs/calibration.md).
-    A held-out PSF never starts from a PSF that saw its pair.
-
-    Parameters
-    ----------
-    scenes, measurements
-        At least two pairs, as for
-        :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
-    options : dict
-        Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`; an
-        ``initial`` given there starts every estimate.
-    on_estimate : callable, optional
-        ``on_estimate(k)`` after pair ``k``'s held-out PSF.
-
-    Returns
-    -------
-    estimate : PsfEstimate
-    loo : LeaveOneOut
-
-    Raises
-    ------
-    recon.errors.ReconInputError
-        What :func:`recon.analysis.psf_from_scenes.leave_one_out` refuses.
-    """
-    loo = leave_one_out(scenes, measurements, on_estimate=on_estimate, **options)
-    start = options.get("initial")
-    if start is None:
-        start = np.mean(np.stack(loo.psfs), axis=0)
-    estimate = estimate_psf_from_scenes(scenes, measurements,
-                                        **{**options, "initial": start})
-    return estimate, loo
-
-
 def _calibrate(scenes, measurements, names, options, on_progress):
     """The PSF from every pair, each pair's PSF without it, the recipe and the quality
     figure, reporting ``on_progress(done, total, what)`` after each step."""
@@ -266,13 +226,12 @@ def _calibrate(scenes, measurements, names, options, on_progress):
         if on_progress is not None:
             on_progress(done, total, what)
 
-    if n == 1:
-        estimate = estimate_psf_from_scenes(scenes, measurements, **options)
-        report(f"PSF from {n} pair(s): {estimate.iterations_run} iterations")
-        return estimate, None, None, None
-    estimate, loo = estimates(scenes, measurements, options,
-                              on_estimate=lambda k: report(f"PSF without {names[k]}"))
+    estimate = estimate_psf_from_scenes(scenes, measurements, **options)
     report(f"PSF from {n} pair(s): {estimate.iterations_run} iterations")
+    if n == 1:
+        return estimate, None, None, None
+    loo = leave_one_out(scenes, measurements,
+                        on_estimate=lambda k: report(f"PSF without {names[k]}"), **options)
 
     def solved(i, _total):
         report(f"recipe: solve {i} of {_total}")
@@ -553,7 +512,8 @@ class PsfFromScenesPlan(Plan):
             raise PlanError("the displayed scenes left no signal on the camera; put the "
                             f"display ({p['display']}) in front of the camera, facing it")
         options = {"iterations": p["iterations"]}
-        estimate, loo = estimates(scenes, measurements, options)
+        estimate = estimate_psf_from_scenes(scenes, measurements, **options)
+        loo = leave_one_out(scenes, measurements, **options)
         if recipe:  # photographs the PSF has not seen: its estimate is held out from them
             recipe_x = [self.known_scene(n, shape).astype(np.float32) for n in recipe]
             fit = fit_early_stop(recipe_x, recipe_b, [estimate.psf] * len(recipe),
