@@ -622,7 +622,7 @@ VIDEO = [
     case(f"{RR} --psf psf.npy --dff 120", "number", "dff 120", "--dff 120"),
     # before: each frame failed in its worker (exit 1) and the product was made
     case(f"{RR} --psf frame_psf.npy --dark rgb_dark.npy", "shape", "colour dark frame",
-         "x3 but the run's frames are"),
+         "dark frame is|x3 but the frames of --psf frame_psf.npy are"),
     case(f"{RR} --psf frame_psf.npy --dark 1e6", "no-signal", "dark level above the psf",
          "PSF has no signal above the dark level|1000000"),
     case(f"{RR} --psf frame_psf.npy --dark 500", "no-signal", "dark level above the frames",
@@ -636,6 +636,7 @@ VIDEO = [
          "trunc_meta.zarr"),
     case("recon-run locked.zarr --psf psf.npy", "locked-store", "locked run", "locked.zarr"),
     case("gui nope.toml", "missing", "bench file", "nope.toml"),
+    case("bench serve nope.toml", "missing", "bench file", "nope.toml"),
     case("gui foreign.toml --simulate", "foreign-bench", "not a bench", "foreign.toml"),
     case("emulators start --time-scale 0 --duration-s 0.1", "number", "time scale 0",
          "--time-scale"),
