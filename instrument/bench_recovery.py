@@ -15,12 +15,18 @@ process's, on this host.
 from __future__ import annotations
 
 import socket
+import threading
 from pathlib import Path
 
 __all__ = ["OPEN_STATUSES", "close_orphaned_run", "run_path_of"]
 
 #: Statuses of a run whose writer is at work.
 OPEN_STATUSES = ("recording", "running", "created")
+
+#: One closer at a time in this process: the window closes a run from the job that was
+#: following it and from its close of the ended bench's client, on two threads; the
+#: first closes it (check, write, lock removed), the second then finds it closed.
+_closing = threading.Lock()
 
 
 def run_path_of(params: dict) -> str | None:
@@ -55,10 +61,16 @@ def close_orphaned_run(path: str | Path, *, writer_pid: int, closed_by: str,
         run not open, or its lock not that process's (another writer, released,
         another host) or that process still alive.
     """
+    path = Path(path)
+    with _closing:
+        return _close(path, writer_pid, closed_by, why)
+
+
+def _close(path: Path, writer_pid: int, closed_by: str, why: str) -> bool:
+    """:func:`close_orphaned_run`, under :data:`_closing`."""
     from .run_integrity import LOCK_NAME, pid_alive, read_lock
     from .runstore import RunStore, RunStoreError, utc_now
 
-    path = Path(path)
     lock = read_lock(path) if path.is_dir() else None
     if (not lock or lock.get("pid") != int(writer_pid)
             or lock.get("host") != socket.gethostname() or pid_alive(int(writer_pid))):
@@ -70,6 +82,7 @@ def close_orphaned_run(path: str | Path, *, writer_pid: int, closed_by: str,
     if store.status not in OPEN_STATUSES:
         return False
     frames = int(store.done().sum())
+    # one write of zarr.json (RunStore.update_attrs): status never without closed_by
     store.update_attrs(status="interrupted", error=f"interrupted: {why}", ended_utc=utc_now(),
                        closed_by={"by": closed_by, "why": why, "utc": utc_now(),
                                   "frames_kept": frames})

@@ -233,7 +233,7 @@ def create_run(cls, path: str | Path, *, plan_name: str, plan_params: Mapping[st
         group.create_array("tag", shape=(n,), chunks=(max(n, 1),), dtype="int16",
                            dimension_names=dims["tag"])[:] = tag_of
         group.create_group("products")
-        group.attrs.update(jsonable({
+        group.update_attributes(jsonable({  # one write: never a half-written record
             "schema": "diffuserlab-run", "schema_version": SCHEMA_VERSION,
             "software_version": software_version(), "created_utc": utc_now(),
             "started_utc": None, "ended_utc": None, "status": "created",

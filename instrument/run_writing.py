@@ -169,10 +169,16 @@ class RunWritingMixin:
         self.update_attrs(plan=plan)
 
     def update_attrs(self, **values: Any) -> None:
-        """Set run attributes (status, times, summary, ...)."""
+        """Set run attributes (status, times, summary, ...), all of them in one write of
+        ``zarr.json`` (replaced atomically): a reader sees all or none of them.
+
+        (Not ``group.attrs.update``: zarr's ``Attributes`` is a ``MutableMapping`` whose
+        ``update`` sets one key at a time, each a write of the whole document, so a reader
+        could see ``status="interrupted"`` before the ``closed_by`` set with it.)
+        """
         self._require_writable()
         values = jsonable(values)
-        self._group.attrs.update(values)
+        self._group.update_attributes(values)
         self.attrs.update(values)
         if {"camera", "device_settings"} & set(values):  # the pitch or frame interval
             describe_run(self._group)
