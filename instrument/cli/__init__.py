@@ -33,7 +33,9 @@ try:
 
     from . import startup_signals as _startup_signals
 
-    _startup_signals.install()  # the command process: every signal from here on is one line
+    # the command process: every signal from here on is one line (the first raises
+    # here; one after it, or after the imports, is held for main)
+    _startup_signals.install(starting=True)
     import argparse
     import errno
     import logging
@@ -54,6 +56,9 @@ try:
         recon_run,
         runs,
     )
+
+    # below, up to main's boundary, an interrupt would escape with a traceback: held
+    _startup_signals.hold()
 except KeyboardInterrupt as _exc:  # one line and 128 + the signal; nothing has run yet
     # (nothing imported here: the interrupt may have come in any module's import)
     import sys
@@ -242,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     chosen: list[int] = []  # the command's status, once chosen
     try:
         try:  # up to the command's error boundary, nothing is done
+            _startup_signals.release()  # a signal held since the imports is raised here
             args = build_parser().parse_args(argv)
             swallowed = _startup_signals.received(mark)  # an import caught the interrupt
             if swallowed is None:

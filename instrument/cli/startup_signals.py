@@ -10,6 +10,16 @@ SIGHUP raise :class:`Terminated` (a KeyboardInterrupt) and records each
 imported here, so the window before it is as short as can be. Only the command
 process is changed (:func:`is_command_process`): the tests and the GUI, which import
 the command line, keep their own handlers.
+
+A KeyboardInterrupt is only caught where something waits for it: the package's
+guarded imports (``instrument.cli``'s first lines) and :func:`instrument.cli.main`'s
+boundary. Between them (the package's module body after its imports, the console
+script calling ``main``, ``main``'s own first lines) one raised would escape with a
+traceback, so the package's start (``install(starting=True)``) raises only the first
+signal, and :func:`hold` (the last of the guarded imports) makes the handler record
+the signals without raising until :func:`release` (``main``'s first step inside its
+boundary), which raises the first one held there: one line, 128 + the signal,
+nothing done.
 """
 
 from __future__ import annotations
@@ -18,8 +28,8 @@ import os
 import signal
 import sys
 
-__all__ = ["HANDLED", "SignalSeen", "Terminated", "count", "install", "is_command_process",
-           "received", "record"]
+__all__ = ["HANDLED", "SignalSeen", "Terminated", "count", "hold", "install",
+           "is_command_process", "received", "record", "release"]
 
 #: The signals besides SIGINT that stop a command like Ctrl-C (SIGHUP where it exists).
 HANDLED = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
@@ -27,6 +37,16 @@ HANDLED = tuple(s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "S
 
 #: The signals :func:`install`'s handler saw, in order.
 _RECEIVED: list[int] = []
+
+#: Non-empty while the handler only records (:func:`hold` to :func:`release`).
+_HOLD: list[bool] = []
+
+#: The signals recorded while held, for :func:`release` to raise.
+_HELD: list[int] = []
+
+#: Non-empty while the package imports (``install(starting=True)``): after the first
+#: signal's interrupt, the next ones are held (one line, whatever the except runs into).
+_STARTING: list[bool] = []
 
 
 class Terminated(KeyboardInterrupt):
@@ -59,16 +79,33 @@ def record(signum: int) -> None:
     _RECEIVED.append(int(signum))
 
 
+def _interrupt(signum: int) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
 def _handler(signum, frame):
     record(signum)
-    if signum == signal.SIGINT:
-        raise KeyboardInterrupt
-    raise Terminated(signum)
+    if _HOLD:  # nothing would catch an interrupt here: release() raises it
+        _HELD.append(int(signum))
+        return
+    if _STARTING:  # the package's guard handles this one; a second is held
+        _HOLD.append(True)
+    raise _interrupt(signum)
 
 
-def install() -> None:
+def install(starting: bool = False) -> None:
     """In the command process, SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt /
-    :class:`Terminated` and are recorded from now on; elsewhere nothing changes."""
+    :class:`Terminated` and are recorded from now on; elsewhere nothing changes.
+
+    Parameters
+    ----------
+    starting : bool
+        The package's start (its guarded imports): the first signal raises, the next
+        ones are held (:func:`hold`) until :func:`release`.
+    """
+    _HOLD.clear()
+    _HELD.clear()
+    _STARTING[:] = [True] if starting else []
     if not is_command_process():
         return
     for s in (signal.SIGINT, *HANDLED):
@@ -76,6 +113,24 @@ def install() -> None:
             signal.signal(s, _handler)
         except ValueError:  # not the main thread: its signals are not ours
             return
+
+
+def hold() -> None:
+    """From now on the handler records a signal without raising it (:func:`release`
+    raises it): the package's last guarded step, where no interrupt could be caught
+    until :func:`instrument.cli.main` enters its boundary."""
+    _HOLD.append(True)
+
+
+def release() -> None:
+    """The handler raises again; a signal held since :func:`hold` is raised now (the
+    first one), where the caller's boundary catches it (``main``'s first step)."""
+    _STARTING.clear()
+    _HOLD.clear()
+    if _HELD:
+        signum = _HELD[0]
+        _HELD.clear()
+        raise _interrupt(signum)
 
 
 def received(since: int = 0) -> int | None:

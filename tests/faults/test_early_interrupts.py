@@ -4,7 +4,10 @@ A ``diffuserlab`` console script (as pip writes it, named ``diffuserlab``, so th
 is the command process) is started with a pause at one named moment: an import
 (``instrument.cli.startup_signals``: before the signal handlers exist, where Python's
 own KeyboardInterrupt lands; ``instrument.cli.recon_run``: a command module loading)
-or a call (``logging.basicConfig``: between argument parsing and the command;
+or a call made by the package's module body after its guarded imports
+(``logging.getLogger``) or by the command (``startup_signals.is_command_process``:
+``main``'s first lines, before its boundary; ``logging.basicConfig``: between
+argument parsing and the command;
 ``instrument.cli.interrupts.terminate_like_ctrl_c``: as the command's error boundary
 is entered). The paused process prints ``at NAME`` and waits; the test sends the
 signal once that line is read, so the signal lands exactly there, whatever the
@@ -40,7 +43,9 @@ if __name__ == "__main__":
         sys.stdout.write(f"at {name}\\n")
         sys.stdout.flush()
         deadline = time.monotonic() + 600  # a hang guard: the test's signal ends it
-        while time.monotonic() < deadline:
+        # (raised here, or recorded and held for main: then the command goes on to it)
+        handlers = sys.modules.get("instrument.cli.startup_signals")
+        while time.monotonic() < deadline and not (handlers and handlers.count()):
             time.sleep(0.01)
 
     if where == "import":
@@ -52,6 +57,22 @@ if __name__ == "__main__":
                 return None
 
         sys.meta_path.insert(0, Pause())
+    if where == "module":  # a call of the package's own module body (after its imports)
+        import importlib
+
+        module, _, attr = name.rpartition(".")
+        owner = importlib.import_module(module)
+        original = getattr(owner, attr)
+
+        def paused_in_module(*args, **kwargs):
+            caller = sys._getframe(1)
+            if (caller.f_code.co_name == "<module>"
+                    and caller.f_globals.get("__name__") == "instrument.cli"):
+                setattr(owner, attr, original)
+                pause()
+            return original(*args, **kwargs)
+
+        setattr(owner, attr, paused_in_module)
     from instrument.cli import main
 
     if where == "call":
@@ -75,6 +96,12 @@ MOMENTS = {
                            "while starting; nothing was done"),
     "command modules loading": ("import", "instrument.cli.recon_run",
                                 "while starting; nothing was done"),
+    # the package's module body after its guarded imports (its 'log = logging.getLogger')
+    "package body after its imports": ("module", "logging.getLogger",
+                                       "while starting; nothing was done"),
+    # main's first lines, before its boundary (its 'mark = ...is_command_process()')
+    "main before its boundary": ("call", "instrument.cli.startup_signals.is_command_process",
+                                 "while starting; nothing was done"),
     "between parsing and the command": ("call", "logging.basicConfig",
                                         "while starting; nothing was done"),
     "entering the error boundary": ("call", "instrument.cli.interrupts.terminate_like_ctrl_c",
@@ -130,7 +157,9 @@ def _assert_one_line(proc: subprocess.Popen, sig: int, end: str) -> None:
 #: (moment, signal): SIGINT at each; SIGTERM, handled like Ctrl-C, in the gaps around
 #: the command (before its handlers exist a SIGTERM is the system's: the process ends)
 CASES = [*[(m, signal.SIGINT) for m in MOMENTS],
-         *[(m, signal.SIGTERM) for m in ("between parsing and the command",
+         *[(m, signal.SIGTERM) for m in ("package body after its imports",
+                                         "main before its boundary",
+                                         "between parsing and the command",
                                          "entering the error boundary")]]
 
 
@@ -138,7 +167,10 @@ CASES = [*[(m, signal.SIGINT) for m in MOMENTS],
                          ids=[f"{m}-{signal.Signals(s).name}" for m, s in CASES])
 def test_a_signal_at_each_early_moment_of_recon_run_is_one_line(recorded, moment, sig):
     """Before: a KeyboardInterrupt traceback at the handlers' import, between parsing and
-    the command (1 of 20 delays of the sweep) and as the error boundary was entered."""
+    the command (1 of 20 delays of the sweep) and as the error boundary was entered;
+    later, in the package's module body after its guarded imports (a SIGINT 0.05 s
+    into capture video under load: 'instrument/cli/__init__.py, in <module>') and in
+    main's first lines, where no except was waiting for the interrupt."""
     how, name, end = MOMENTS[moment]
     before = tree(recorded / "r.zarr")
     proc = _paused(recorded, how, name, ["recon-run", "r.zarr", "--psf", "psf.npy",
@@ -155,4 +187,18 @@ def test_ctrl_c_while_capture_video_imports_its_handlers_is_one_line(tmp_path):
                    ["capture", "video", "--simulate", "--frames", "300", "--out", "v.zarr"])
     proc.send_signal(signal.SIGINT)
     _assert_one_line(proc, signal.SIGINT, "while starting; nothing was done")
+    assert not (tmp_path / "v.zarr").exists()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("moment", ["package body after its imports", "main before its boundary"])
+def test_a_signal_after_capture_video_imports_its_modules_is_one_line(tmp_path, moment, sig):
+    """Before: 'a SIGINT 0.05 s into capture video' (under load) landed in the package's
+    module body after its guarded imports, and its KeyboardInterrupt escaped from the
+    console script's 'from instrument.cli import main' with a traceback."""
+    how, name, end = MOMENTS[moment]
+    proc = _paused(tmp_path, how, name,
+                   ["capture", "video", "--simulate", "--frames", "300", "--out", "v.zarr"])
+    proc.send_signal(sig)
+    _assert_one_line(proc, sig, end)
     assert not (tmp_path / "v.zarr").exists()
