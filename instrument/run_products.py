@@ -73,7 +73,7 @@ class ProductsMixin:
         key, arr = self._create_product_array(name, array.shape, attrs, chunks=chunks,
                                               dtype=array.dtype)
         arr[...] = array
-        arr.attrs.update(jsonable({**attrs, "crc32": product_crcs(array)}))
+        arr.update_attributes(jsonable({**attrs, "crc32": product_crcs(array)}))
         self._note_product(name, [key])
         describe_products(self._group["products"], self.attrs, [name])  # (attrs re-read)
 
@@ -230,7 +230,7 @@ class ProductsMixin:
                               fill_value=0, dimension_names=dims[:1])
         products.create_array(name + _DONE, shape=shape[:1], chunks=(1,), dtype="uint8",
                               fill_value=0, dimension_names=dims[:1])
-        arr.attrs.update(want)
+        arr.update_attributes(want)
         self._note_product(name, [key, name + _CRC, name + _DONE])
         describe_products(self._group["products"], self.attrs, [name])  # (attrs re-read)
 

@@ -241,8 +241,8 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
                                  chunks=(1, *volume.shape[1:]),
                                  dimension_names=[a.name for a in axes])
         arr[:] = volume
-        group.attrs.update({**attrs, "diffuserlab": VOLUME_MARKER,
-                            "ome": image_attrs([("volume", "0", axes, meta)])})
+        group.update_attributes({**attrs, "diffuserlab": VOLUME_MARKER,
+                                 "ome": image_attrs([("volume", "0", axes, meta)])})
 
 
 def write_volume_products(volume: np.ndarray, path: Path, mip_paths: dict[str, Path],

@@ -93,3 +93,27 @@ def test_a_closed_run_is_never_seen_interrupted_without_closed_by(tmp_path, docu
     closed = RunStore.open(path)
     assert closed.status == "interrupted" and closed.attrs["closed_by"]["by"] in ("job", "close")
     assert not (path / LOCK_NAME).exists()
+
+
+def test_a_product_is_never_seen_without_its_checksum(tmp_path, monkeypatch):
+    """A product's attributes (its checksum among them) are one write of its
+    ``zarr.json``: attribute by attribute, a reader could see a product without its
+    ``crc32`` and take it for damaged."""
+    from zarr.storage import _local
+
+    store = _run(tmp_path / "r.zarr")
+    written: list[dict] = []
+    put = _local._put
+
+    def recording_put(path, value, exclusive=False):
+        n = put(path, value, exclusive=exclusive)
+        if path.name == "zarr.json" and "products" in path.parts:
+            written.append(json.loads(bytes(value.as_buffer_like())).get("attributes", {}))
+        return n
+
+    monkeypatch.setattr(_local, "_put", recording_put)
+    store.write_product("recon", np.ones((4, 4), np.float32), method="fista", iterations=3)
+    with_attributes = [doc for doc in written if "method" in doc or "crc32" in doc]
+    assert with_attributes, "the product's attributes were never written"
+    assert all("crc32" in doc for doc in with_attributes), with_attributes
+    assert with_attributes[-1]["method"] == "fista"
