@@ -8,17 +8,9 @@ from __future__ import annotations
 
 import argparse
 
+from instrument.cli.common import add_bench_arguments
+
 __all__ = ["add_bench_arguments", "ask", "make_bench"]
-
-
-def add_bench_arguments(p: argparse.ArgumentParser) -> None:
-    """Add the optional ``bench`` positional, ``--simulate`` and ``--seed`` to ``p``."""
-    p.add_argument("bench", nargs="?", default=None,
-                   help="bench TOML file (e.g. examples/bench-simulated.toml); with "
-                   "--simulate and no file: the built-in simulated bench")
-    p.add_argument("--simulate", action="store_true",
-                   help="run on the virtual bench built from the file (no hardware)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
 
 
 def ask(action: str, message: str) -> bool:

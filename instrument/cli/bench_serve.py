@@ -17,7 +17,7 @@ import os
 import sys
 import threading
 
-from .common import bench_config, bench_label
+from .common import add_bench_arguments, bench_config, bench_label
 
 __all__ = ["add_serve", "run_serve"]
 
@@ -30,12 +30,7 @@ def add_serve(sub: argparse._SubParsersAction) -> None:
         "serve", help="open the bench in a bench process and serve it until Ctrl-C",
         description="Open the bench in a bench process of its own, write its connection "
         "file and serve it to notebooks (BenchClient.connect()) until Ctrl-C.")
-    sp.add_argument("bench", nargs="?", default=None,
-                    help="bench TOML file (with --simulate default: the built-in "
-                    "simulated bench)")
-    sp.add_argument("--simulate", action="store_true",
-                    help="the real-time virtual bench: every device's simulated twin")
-    sp.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
+    add_bench_arguments(sp)
     sp.set_defaults(handler=run_serve)
 
 

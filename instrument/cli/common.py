@@ -7,6 +7,7 @@ back to the built-in simulated bench (:func:`instrument.config.default_bench`, w
 
 from __future__ import annotations
 
+import argparse
 import math
 import sys
 
@@ -175,3 +176,13 @@ def check_memory(need_bytes: float, what: str) -> None:
     if need_bytes > total:
         raise ReconInputError(f"{what} needs about {need_bytes / 2 ** 30:.3g} GiB of memory, "
                               f"this machine has {total / 2 ** 30:.3g} GiB; give smaller sizes")
+
+
+def add_bench_arguments(p: argparse.ArgumentParser) -> None:
+    """Add the optional ``bench`` positional, ``--simulate`` and ``--seed`` to ``p``."""
+    p.add_argument("bench", nargs="?", default=None,
+                   help="bench TOML file (e.g. examples/bench-simulated.toml); with "
+                   "--simulate and no file: the built-in simulated bench")
+    p.add_argument("--simulate", action="store_true",
+                   help="run on the virtual bench built from the file (no hardware)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the virtual bench")
