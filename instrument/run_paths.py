@@ -11,6 +11,8 @@ import socket
 import uuid
 from pathlib import Path
 
+from .writer.guards import is_run_store
+
 __all__ = ["CREATOR_ATTR", "claim_run_dir", "creator_of", "discard_partial_run",
            "is_run_store", "product_location", "remove_replaced_run"]
 
@@ -142,19 +144,6 @@ def discard_partial_run(path: str | Path, made=(), *, token: str | None,
     remove_tree(aside, settle_s, timeout_s)
     remove_empty_dirs(made)
     return True
-
-
-def is_run_store(path: str | Path) -> bool:
-    """True if ``path`` is a directory whose ``zarr.json`` attributes mark a diffuserlab
-    run (``schema = "diffuserlab-run"``, any schema version); False for anything else,
-    missing or unreadable (never raises)."""
-    try:
-        meta = json.loads((Path(path) / "zarr.json").read_text())
-    except (OSError, ValueError):
-        return False
-    attrs = meta.get("attributes") if isinstance(meta, dict) else None
-    return Path(path).is_dir() and isinstance(attrs, dict) and \
-        attrs.get("schema") == "diffuserlab-run"
 
 
 def product_location(path: str | Path) -> tuple[Path, str] | None:

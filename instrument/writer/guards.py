@@ -11,6 +11,7 @@ creates nothing: a command refused afterwards leaves no trace.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import tempfile
@@ -38,6 +39,23 @@ def checked_outputs(reset: bool = False) -> list[str]:
 
 class OutputError(InputError):
     """An output path the command refuses (exit status 2 through the CLI boundary)."""
+
+
+def is_run_store(path: str | Path) -> bool:
+    """True if ``path`` is a directory whose ``zarr.json`` attributes mark a diffuserlab
+    run (``schema = "diffuserlab-run"``, any schema version); False for anything else,
+    missing or unreadable (never raises).
+
+    Defined here, with the rule that needs it (no output inside a run store), so that
+    the writer depends on nothing of the run stores; :mod:`instrument.runstore`
+    offers it to its users."""
+    try:
+        meta = json.loads((Path(path) / "zarr.json").read_text())
+    except (OSError, ValueError):
+        return False
+    attrs = meta.get("attributes") if isinstance(meta, dict) else None
+    return Path(path).is_dir() and isinstance(attrs, dict) and \
+        attrs.get("schema") == "diffuserlab-run"
 
 
 def _resolved(path: str | os.PathLike) -> Path:
@@ -121,8 +139,6 @@ def check_outputs(outputs: Iterable[str | os.PathLike],
                               "directory name")
         folders[d] = f"{option} {directory}"
     seen: dict[Path, str] = {}
-    from ..runstore import is_run_store  # zarr: not loaded by the command line's start
-
     for out in outputs:
         target = _resolved(out)
         if target in seen:

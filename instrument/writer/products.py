@@ -221,7 +221,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
             tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
                              metadata={**attrs, "axes": "ZYX"})
         return
-    from ..ome import image_attrs, space_axes, volume_axes
+    from .ome_axes import image_attrs, space_axes, volume_axes
 
     node = path / "zarr.json"
     if path.exists():
