@@ -1,12 +1,60 @@
-"""How a child process ended, in people's words: one wording for the window's
-messages (``gui.messages``) and the processes' own logs
-(:mod:`instrument.live_process`, ``instrument.batch_process``)."""
+"""What every child process shares: how it ended, in people's words (one wording for
+the window's messages, ``gui.messages``, and the processes' own logs), and how its
+error crosses to the parent (:func:`portable_error`: the batch, live and bench
+processes, :mod:`instrument.batch_process`, :mod:`instrument.live_process`,
+:mod:`instrument.bench_host`)."""
 
 from __future__ import annotations
 
+import pickle
 import signal
+import traceback
 
-__all__ = ["how_it_ended"]
+from .errors import DiffuserLabError, InputError
+
+__all__ = ["ChildProcessFailure", "how_it_ended", "portable_error"]
+
+
+class ChildProcessFailure(DiffuserLabError, RuntimeError):
+    """An error raised in a child process that could not reach its parent as itself
+    (its type does not survive pickling and is none of the project's): its message,
+    with the child's traceback as a note."""
+
+
+def portable_error(exc: BaseException, where: str,
+                   fallback: type[BaseException] = ChildProcessFailure) -> BaseException:
+    """``exc`` made fit to send to the parent process (a pipe or queue pickles it).
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception the child caught.
+    where : str
+        Which process it was raised in (``"the bench process"``), for the note.
+    fallback : type
+        The type that carries the message of an exception that does not survive
+        pickling and is none of the project's (:class:`ChildProcessFailure`, or the
+        process's own, ``instrument.batch_process.BatchProcessError``).
+
+    Returns
+    -------
+    BaseException
+        ``exc`` itself (a copy through pickle) if it survives pickling, else the
+        nearest of :class:`~diffuserlab.errors.InputError`,
+        :class:`~diffuserlab.errors.DiffuserLabError` and ``fallback`` with its
+        message (its type's name if it has none); either way with the child's
+        traceback as a note headed "in ``where``:" (the parent's log shows it for a
+        bug).
+    """
+    try:
+        portable = pickle.loads(pickle.dumps(exc))
+    except Exception:  # an exception type whose arguments do not round-trip
+        kind = (InputError if isinstance(exc, InputError) else
+                DiffuserLabError if isinstance(exc, DiffuserLabError) else fallback)
+        portable = kind(str(exc) or type(exc).__name__)
+    portable.add_note(f"in {where}:\n" + "".join(
+        traceback.format_exception(type(exc), exc, exc.__traceback__)))
+    return portable
 
 
 def how_it_ended(exit_status: int | None) -> str:

@@ -27,16 +27,13 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
-import pickle
 import queue as queue_module
 import threading
 import time
-import traceback
 from collections.abc import Callable
 from typing import Any
 
-from diffuserlab.errors import DiffuserLabError, InputError
-from diffuserlab.processes import how_it_ended
+from diffuserlab.processes import ChildProcessFailure, how_it_ended, portable_error
 
 __all__ = ["BATCH_NICE", "BatchProcessError", "batch_nice", "reconstruct_run_in_process"]
 
@@ -47,24 +44,15 @@ log = logging.getLogger(__name__)
 BATCH_NICE = 10
 
 
-class BatchProcessError(DiffuserLabError, RuntimeError):
+class BatchProcessError(ChildProcessFailure):
     """The batch process ended without a result (killed, or it crashed): the frames it
     finished are stored in the run; starting the batch again does the rest."""
 
 
 def _portable(exc: BaseException, where: str = "the batch process") -> BaseException:
-    """``exc`` if it survives pickling, else the nearest of the project's error types
-    (or :class:`BatchProcessError`) with its message, and the child's traceback as a
-    note either way, headed "in ``where``" (the caller's log shows it for a bug)."""
-    try:
-        portable = pickle.loads(pickle.dumps(exc))
-    except Exception:  # an exception type whose arguments do not round-trip
-        kind = (InputError if isinstance(exc, InputError) else
-                DiffuserLabError if isinstance(exc, DiffuserLabError) else BatchProcessError)
-        portable = kind(str(exc) or type(exc).__name__)
-    portable.add_note(f"in {where}:\n" + "".join(
-        traceback.format_exception(type(exc), exc, exc.__traceback__)))
-    return portable
+    """:func:`diffuserlab.processes.portable_error` with the batch's fallback,
+    :class:`BatchProcessError`."""
+    return portable_error(exc, where, BatchProcessError)
 
 
 def batch_nice() -> int:

@@ -407,12 +407,12 @@ class BenchHost(BenchService):
                 self._yield_stream(job_id)
 
         def run() -> None:
-            from .batch_process import _portable
+            from diffuserlab.processes import portable_error
 
             try:
                 result = fn(ctx, **kwargs)
             except BaseException as exc:  # noqa: BLE001 (every failure goes back)
-                self._job_ended(ctx, "failed", _portable(exc, "the bench process"))
+                self._job_ended(ctx, "failed", portable_error(exc, "the bench process"))
             else:
                 self._job_ended(ctx, "done", result)
 

@@ -35,13 +35,12 @@ from typing import Any
 import numpy as np
 
 from diffuserlab.errors import kept_error
-from diffuserlab.processes import how_it_ended
+from diffuserlab.processes import how_it_ended, portable_error
 from drivers.camera import Frame, FrameRing
 from recon.fft import check_threads
 from recon.options import LiveOptions, ReconOptions
 from recon.validate import as_int, positive
 
-from .batch_process import _portable
 from .live import (
     LIVE_METHODS,
     LivePreview,
@@ -84,7 +83,7 @@ def _child(conn, wake, psf, options: ReconOptions, settings: dict,
                                       warm_start=settings["warm_start"],
                                       threads=settings["threads"])
         except BaseException as exc:  # every failure goes back to the caller
-            conn.send(("failed", _portable(exc, "the live reconstruction process")))
+            conn.send(("failed", portable_error(exc, "the live reconstruction process")))
             return
         send_lock = threading.Lock()
 
