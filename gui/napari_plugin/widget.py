@@ -44,7 +44,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from instrument.cli.recon_flags import COMMAND_FIELDS
+from instrument.options import COMMAND_FIELDS
 from recon.options import ReconOptions
 
 from ..fields import choose_psf_path
@@ -56,7 +56,7 @@ __all__ = ["ReconstructWidget", "reconstruct_layer", "widget_fields"]
 def widget_fields() -> tuple[str, ...]:
     """The reconstruction options the widget offers: the fields of ``recon3d`` that
     ``recon`` offers too (both an image and a volume take them), in ``recon3d``'s
-    order (:data:`instrument.cli.recon_flags.COMMAND_FIELDS`)."""
+    order (:data:`instrument.options.COMMAND_FIELDS`)."""
     return tuple(f for f in COMMAND_FIELDS["recon3d"] if f in COMMAND_FIELDS["recon"])
 
 

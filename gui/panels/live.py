@@ -33,7 +33,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from instrument.cli.recon_flags import COMMAND_FIELDS
+from instrument.options import COMMAND_FIELDS
 from recon.options import LiveOptions, ReconOptions
 
 from ..fields import choose_psf_path, remember
