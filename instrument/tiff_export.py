@@ -82,8 +82,8 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
         One label per plane (ImageJ slice labels).
     delta_t_s : sequence of float, optional
         Each plane's time, s from the first (its recorded timestamp): an OME-TIFF's
-        per-plane ``DeltaT`` (bioio's ``time_interval`` and Bio-Formats read it),
-        written for a time axis (``T``).
+        per-plane ``DeltaT`` (Bio-Formats reads it, bioio its standard metadata's
+        ``timelapse_interval``), written for a time axis (``T``).
 
     Raises
     ------
@@ -91,6 +91,7 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
         ``axes`` that do not match the array's rank, or an unknown format.
     """
     from .writer.files import write_tiff_file
+    from .writer.products import tiff_resolution
 
     meta = dict(meta)
     if axes is None or array.ndim not in (2, 3):
@@ -139,7 +140,8 @@ def write_tiff(path: str | Path, array: np.ndarray, axes: Sequence[OmeAxis] | No
             and len(delta_t_s) == array.shape[0]):  # each plane's recorded time
         om["Plane"] = {"DeltaT": [round(float(t), 9) for t in delta_t_s],
                        "DeltaTUnit": ["s"] * array.shape[0]}
-    write_tiff_file(path, array, ome=True, metadata=om, photometric="minisblack")
+    write_tiff_file(path, array, ome=True, metadata=om, photometric="minisblack",
+                    **tiff_resolution(pitch))
 
 
 def read_tiff_metadata(tif) -> dict:
