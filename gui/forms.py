@@ -4,7 +4,7 @@ One builder makes the GUI's forms of the reconstruction's parameters (the Record
 panel's batch form, the Live panel's settings, the napari Reconstruct widget) from the
 declarations the command line is generated from (:class:`recon.options.ReconOptions`,
 :class:`recon.options.LiveOptions`, ``recon-run``'s
-:class:`instrument.cli.recon_run.RunOptions`), as a settings collection makes its
+:class:`instrument.options.RunOptions`), as a settings collection makes its
 widgets: a new declared field appears in each form that takes its command's fields.
 
 Each field becomes one widget, by its declared type and choices:
@@ -88,7 +88,7 @@ class OptionsForm:
         The declaration (``ReconOptions``).
     fields : iterable of str
         The fields shown, in order (a command's, e.g.
-        :data:`instrument.cli.recon_flags.COMMAND_FIELDS`).
+        :data:`instrument.options.COMMAND_FIELDS`).
     name : str
         Prefix of the widgets' object names (``batch`` -> ``batch--iterations``).
     remember_as : str, optional

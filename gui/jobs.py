@@ -275,7 +275,7 @@ def record(job, session, out: str, stop, *, frames: int | None, seconds: float |
 def batch_options(texts: dict[str, str]):
     """``recon-run``'s options from a form's ``{flag: text}``: each converted and
     checked by its one declaration (:class:`recon.options.ReconOptions` for the
-    reconstruction, :class:`instrument.cli.recon_run.RunOptions` for the run's own:
+    reconstruction, :class:`instrument.options.RunOptions` for the run's own:
     type, choices, limits, default, the checks between fields such as workers against
     a scheduler), no command line assembled; an empty text takes the declared default.
     As ``recon-run --psf RUN``, a scene-calibrated PSF run's recipe is the default
@@ -287,7 +287,7 @@ def batch_options(texts: dict[str, str]):
     -------
     recon : recon.options.ReconOptions
         Only ``recon-run``'s fields set; the others at their defaults.
-    own : instrument.cli.recon_run.RunOptions
+    own : instrument.options.RunOptions
 
     Raises
     ------
@@ -296,8 +296,7 @@ def batch_options(texts: dict[str, str]):
         exclude each other (the message names the option).
     """
     import diffuserlab.errors
-    from instrument.cli.recon_flags import COMMAND_FIELDS, GRID_FIELDS
-    from instrument.cli.recon_run import RunOptions
+    from instrument.options import COMMAND_FIELDS, GRID_FIELDS, RunOptions
     from recon.options import ReconOptions
 
     from .workers import InputError
@@ -336,7 +335,7 @@ def batch_reconstruct(job, run: str, recon, own) -> dict:
         The run store.
     recon : recon.options.ReconOptions
         The reconstruction's options (validated).
-    own : instrument.cli.recon_run.RunOptions
+    own : instrument.options.RunOptions
         The run's own (PSF, depth, frames, workers, ...; validated).
 
     Raises

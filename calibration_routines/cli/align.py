@@ -81,7 +81,7 @@ def _load_pattern(path: str):
 def run(args: argparse.Namespace) -> int:
     """Run ``align mask``; returns the exit status."""
     from drivers.errors import DeviceError
-    from instrument.cli.common import MissingBenchFile
+    from instrument.bench_file import MissingBenchFile
     from instrument.config import BenchConfigError
     from instrument.plan import PlanError
     from instrument.runner import RunAborted, RunControl

@@ -1,7 +1,7 @@
 """What ``calibrate`` and ``align`` share: bench arguments, opening the bench, prompts.
 
 With ``--simulate`` and no bench file both use the built-in simulated bench
-(:func:`instrument.cli.common.bench_config`, as ``diffuserlab devices`` does).
+(:func:`instrument.bench_file.bench_config`, as ``diffuserlab devices`` does).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def make_bench(args: argparse.Namespace, command: str):
 
     Raises
     ------
-    instrument.cli.common.MissingBenchFile
+    instrument.bench_file.MissingBenchFile
         No bench file and no ``--simulate``.
     instrument.config.BenchConfigError
         The bench file has problems.
@@ -56,7 +56,7 @@ def make_bench(args: argparse.Namespace, command: str):
         A real device failed to open.
     """
     from instrument.bench import Bench
-    from instrument.cli.common import bench_config
+    from instrument.bench_file import bench_config
     from instrument.virtual_bench import VirtualBench
 
     config = bench_config(args.bench, simulate=args.simulate, command=command)

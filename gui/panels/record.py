@@ -29,8 +29,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from instrument.cli.recon_flags import COMMAND_FIELDS
-from instrument.cli.recon_run import RunOptions
+from instrument.options import COMMAND_FIELDS, RunOptions
 from instrument.reconstruct_files import RECIPE_FIXES
 from recon.early_stop import FILE as RECIPE_FILE
 from recon.early_stop import OFF, named
@@ -47,7 +46,7 @@ from .common import JobProgress, dark_hint, depth_field, error_label, offer_dept
 __all__ = ["RecordPanel"]
 
 #: ``recon-run``'s own fields the batch form shows (its reconstruction fields are the
-#: command's, :data:`instrument.cli.recon_flags.COMMAND_FIELDS`): PSF and depth first,
+#: command's, :data:`instrument.options.COMMAND_FIELDS`): PSF and depth first,
 #: the frames, workers and ΔF/F last.
 BATCH_RUN_FIELDS = ("psf", "depth_mm", "frames", "workers", "dff")
 

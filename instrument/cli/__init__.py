@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
         :class:`recon.errors.ReconInputError`,
         :class:`instrument.runstore.RunStoreError`, :class:`instrument.plan.PlanError`,
         :class:`instrument.writer.guards.OutputError`,
-        :class:`instrument.cli.common.MissingBenchFile`, ...) and the errors a command
+        :class:`instrument.bench_file.MissingBenchFile`, ...) and the errors a command
         lists in ``input_errors`` (no command turns every ValueError into bad input:
         an unexpected one is a bug); 2 and one line per problem on
         :class:`instrument.config.BenchConfigError`; 3 when a solver diverged

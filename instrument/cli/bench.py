@@ -32,7 +32,8 @@ import math
 from collections import Counter
 from typing import TYPE_CHECKING, Any
 
-from .common import bench_config, bench_label, error
+from ..bench_file import bench_config, bench_label
+from .common import error
 
 if TYPE_CHECKING:  # pragma: no cover  (the bench models load pydantic: not for --help)
     from ..config import BenchConfig, BenchConfigError

@@ -17,7 +17,8 @@ import os
 import sys
 import threading
 
-from .common import add_bench_arguments, bench_config, bench_label
+from ..bench_file import bench_config, bench_label
+from .common import add_bench_arguments
 
 __all__ = ["add_serve", "run_serve"]
 

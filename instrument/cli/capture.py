@@ -32,7 +32,7 @@ import argparse
 import sys
 import time
 
-from .common import bench_config
+from ..bench_file import bench_config
 from .startup_signals import SignalSeen
 
 __all__ = ["add_subcommands", "run_live"]

@@ -1,8 +1,7 @@
 """Helpers shared by the ``diffuserlab`` command modules (and the layer-4 commands).
 
-:func:`bench_config` is the one place where a command that takes a bench file falls
-back to the built-in simulated bench (:func:`instrument.config.default_bench`, what
-``examples/bench-simulated.toml`` holds) when it is given ``--simulate`` and no file.
+Which bench a command's ``BENCH.toml`` argument opens is :mod:`instrument.bench_file`'s
+(:func:`~instrument.bench_file.bench_config`), which the GUI shares.
 """
 
 from __future__ import annotations
@@ -13,61 +12,7 @@ import sys
 
 from diffuserlab.errors import InputError
 
-__all__ = ["BUILT_IN_BENCH", "MissingBenchFile", "bench_config",
-           "bench_label", "check_memory", "check_pitch_um", "error", "floats", "size_bytes"]
-
-#: How messages name the built-in simulated bench.
-BUILT_IN_BENCH = "built-in simulated bench"
-
-
-class MissingBenchFile(InputError):
-    """A command that needs a bench file got neither a file nor ``--simulate``."""
-
-
-def bench_config(path: str | None, *, simulate: bool, command: str = "this command",
-                 **load_options):
-    """The bench configuration of a command's ``BENCH.toml`` argument.
-
-    Parameters
-    ----------
-    path : str or None
-        The bench file, or None when the command line gave none.
-    simulate : bool
-        ``--simulate``: the file's devices are swapped for their simulated twins; with
-        no file, the built-in simulated bench is used.
-    command : str
-        The command's name, for the error message.
-    **load_options
-        Passed to :func:`instrument.bench_setup.load_bench` (``construct``,
-        ``check_drivers``).
-
-    Returns
-    -------
-    instrument.config.BenchConfig
-
-    Raises
-    ------
-    MissingBenchFile
-        No file and no ``--simulate``.
-    instrument.config.BenchConfigError
-        The file has problems (every one listed).
-    """
-    from ..config import default_bench
-
-    if path is None:
-        if not simulate:
-            raise MissingBenchFile(f"{command} needs a bench file (BENCH.toml), or --simulate "
-                                   f"for the {BUILT_IN_BENCH}")
-        return default_bench()
-    from ..bench_setup import load_bench
-
-    return load_bench(path, simulate=simulate, **load_options)
-
-
-def bench_label(path: str | None) -> str:
-    """The bench file's path, or :data:`BUILT_IN_BENCH` without one."""
-    return BUILT_IN_BENCH if path is None else str(path)
-
+__all__ = ["check_memory", "check_pitch_um", "error", "floats", "size_bytes"]
 
 def error(line: str) -> None:
     """Print ``diffuserlab: error: LINE`` on stderr."""

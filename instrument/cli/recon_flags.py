@@ -20,27 +20,12 @@ import sys
 
 from diffuserlab.errors import InputError
 
-__all__ = ["COMMAND_FIELDS", "DeprecatedAlias", "add_deprecated", "add_device_option",
+from ..options import COMMAND_FIELDS, GRID_FIELDS
+
+__all__ = ["DeprecatedAlias", "add_deprecated", "add_device_option",
            "add_recon_flags", "check_device", "check_recon_flags", "dark_for_grid",
            "flags_table", "grid_method"]
 
-#: The :class:`recon.options.ReconOptions` fields each command offers as flags, in
-#: ``--help`` order (the ``--psf-grid`` group's model, pca-k, background and two-part
-#: are added by :func:`instrument.cli.grid_options.add_grid_options`), and the
-#: :class:`recon.options.LiveOptions` of ``capture live``.
-COMMAND_FIELDS = {
-    "recon": ("method", "iterations", "seconds", "bin_factor", "tv", "prior", "l1", "erase",
-              "seed", "full_scale", "dark", "allow_mixed_ranges", "device", "early_stop"),
-    "recon3d": ("method", "iterations", "tv", "prior", "empty_planes", "l1", "bin_factor",
-                "dark", "allow_mixed_ranges", "device"),
-    "recon-run": ("method", "iterations", "tv", "prior", "l1", "bin_factor", "dark", "device",
-                  "early_stop"),
-    "capture live": ("dark", "device", "bin_factor"),
-}
-#: The ``--psf-grid`` fields of each command (:func:`instrument.cli.grid_options.add_grid_options`).
-GRID_FIELDS = {"recon": ("model", "k", "background", "two_part"),
-               "recon3d": ("model", "k", "background"),
-               "recon-run": ("model", "k", "background")}
 #: What a command shows more narrowly than the declaration (the default stays):
 #: recon3d checks its method itself (``unknown method 'gd'; choose admm or fista``).
 _NARROWER = {"recon3d": {"method": {"choices": None, "metavar": "{auto,admm,fista}"}}}

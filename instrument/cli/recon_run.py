@@ -36,62 +36,9 @@ import argparse
 import sys
 import threading
 
-from diffuserlab.options import Options, option
+from ..options import RunOptions
 
-__all__ = ["RunOptions", "add_subcommands", "run"]
-
-
-class RunOptions(Options):
-    """``recon-run``'s own options (the run's PSF, frames, workers, products); its
-    reconstruction flags are :class:`recon.options.ReconOptions`'. The command's parser
-    and the GUI's Batch form (:func:`gui.jobs.batch_reconstruct`) are generated from
-    both."""
-
-    command = "recon-run"
-
-    psf: str | None = option(
-        None, help="PSF image, or a PSF stack (a run store or TIFF stack) with --depth (or "
-        "--psf-grid instead)", default_text="none", label="PSF")
-    depth_mm: float | None = option(
-        None, help="depth of the stack's PSF to use (nearest plane within 5 %)", unit="mm",
-        flag="--depth", default_text="a plain PSF image", label="depth")
-    psf_product: str = option(
-        "psf_stack", help="which stack of a calibration run: psf_stack or psf_stack_raw",
-        label="PSF product")
-    frames: str | None = option(
-        None, help="frames A:B to reconstruct (a damaged frame is left out and listed)",
-        default_text="every stored frame", label="frames")
-    workers: int | None = option(
-        None, help="local dask worker processes (at most the machine's cores, and one per "
-        "frame)", default_text="one per core", label="workers")
-    scheduler: str | None = option(
-        None, help="address of a dask.distributed scheduler (tcp://host:8786); its workers "
-        "must see the run's path", default_text="local workers", label="scheduler")
-    dff: float | None = option(
-        None, help="also store ΔF/F against this per-pixel percentile baseline (e.g. 20)",
-        metavar="PERCENTILE", default_text="none", label="ΔF/F percentile")
-    product: str | None = option(
-        None, help="name of the product", default_text="recon_<method>", label="product")
-    overwrite: bool = option(
-        False, help="replace a product of that name made with other settings")
-
-    @classmethod
-    def check_together(cls, values, *, front: str = "cli") -> None:
-        """Local workers and a scheduler's address exclude each other (the command
-        line's mutually exclusive group; the GUI's forms take the check from here).
-
-        Raises
-        ------
-        diffuserlab.errors.InputError
-            Both given (the message names both and the fix).
-        """
-        from diffuserlab.errors import InputError
-
-        if values.get("workers") is not None and values.get("scheduler") is not None:
-            workers, scheduler = cls.spec("workers"), cls.spec("scheduler")
-            raise InputError(
-                f"{workers.name(front)}: not allowed with {scheduler.name(front)}; give "
-                "local workers or a scheduler's address, not both")
+__all__ = ["add_subcommands", "run"]
 
 
 def add_subcommands(sub: argparse._SubParsersAction) -> None:

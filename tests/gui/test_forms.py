@@ -12,8 +12,7 @@ import pytest
 
 from diffuserlab.errors import InputError
 from diffuserlab.options import option
-from instrument.cli.recon_flags import COMMAND_FIELDS
-from instrument.cli.recon_run import RunOptions
+from instrument.options import COMMAND_FIELDS, RunOptions
 from recon.options import LiveOptions, ReconOptions
 
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
