@@ -20,9 +20,10 @@ show it with named axes and physical units, without touching a data chunk:
   ``bin_factor``), the frame interval ``1 / frame_rate_hz`` of a video, the plane
   spacing of a volume, and a ``translation`` giving the first plane's depth (the
   z origin). The micrometres of ``y``, ``x`` are the sensor's (its pixel grid), not
-  the scene's: the multiscale's metadata says so (:data:`YX_SCALE`). (A run written before the
-  image groups kept its products as arrays of ``products/``, described by one block
-  there listing each; ``runs upgrade`` moves them into their groups.)
+  the scene's: the multiscale's metadata says so
+  (:data:`~instrument.writer.ome_axes.YX_SCALE`). (A run written before the image
+  groups kept its products as arrays of ``products/``, described by one block there
+  listing each; ``runs upgrade`` moves them into their groups.)
 
 OME-Zarr 0.5 has one scale per axis, so a stack whose depths are not evenly spaced
 (a PSF sweep on a 1/z grid) states a ``z`` axis whose scale is the mean spacing
@@ -39,8 +40,8 @@ them: every reader takes the names from the stored arrays.
 products' blocks (what the product writers call).
 
 The vocabulary itself (:class:`OmeAxis`, :func:`volume_axes`, :func:`space_axes`,
-:func:`image_attrs` and their constants) is defined in :mod:`instrument.writer.ome_axes`,
-which the writer's volumes use too, and documented here.
+:func:`image_attrs` and their constants) is :mod:`instrument.writer.ome_axes`'s, which
+the writer's volumes use too; this module imports it.
 """
 
 from __future__ import annotations
@@ -53,21 +54,11 @@ from typing import Any
 
 from .product_nodes import IMAGE_ARRAY, product_array, product_arrays
 from .run_description import SELF, as_recorded, record_description
-from .writer.ome_axes import (
-    OME_UNITS,
-    UNEVEN_Z,
-    YX_SCALE,
-    OmeAxis,
-    image_attrs,
-    space_axes,
-    volume_axes,
-)
+from .writer.ome_axes import OmeAxis, image_attrs, space_axes, volume_axes
 
-__all__ = ["FRAME_ARRAYS", "OME_UNITS", "ROOT_ARRAYS", "SWEEP_T", "UNEVEN_Z", "YX_SCALE",
-           "OmeAxis", "describe_products", "describe_run", "frame_axis",
-           "frame_meta", "frame_pitch_um", "image_attrs", "product_axes",
-           "product_dims", "run_dims", "set_dimension_names",
-           "space_axes", "stored_axes", "volume_axes", "with_source"]
+__all__ = ["FRAME_ARRAYS", "ROOT_ARRAYS", "SWEEP_T", "describe_products", "describe_run",
+           "frame_axis", "frame_meta", "frame_pitch_um", "product_axes", "product_dims",
+           "run_dims", "set_dimension_names", "stored_axes", "with_source"]
 
 #: Arrays of the run's root group that hold one element (or row) per frame.
 FRAME_ARRAYS = ("crc32", "done", "point", "tag")

@@ -4,9 +4,8 @@ plane of pixels, and the ``ome`` block of a group of images.
 
 Plain values, no store: the writer describes the volumes it writes with them
 (:func:`instrument.writer.products.write_volume`) and the run stores their frames and
-products (:mod:`instrument.ome`, which documents these names and builds the run's
-description on them). Kept under the writer so that the writer needs nothing of the
-run stores.
+products (:mod:`instrument.ome`, which builds the run's description on them). Kept
+under the writer so that the writer needs nothing of the run stores.
 """
 
 from __future__ import annotations

@@ -17,9 +17,10 @@ from ome_zarr_models import open_ome_zarr
 from ome_zarr_models.v05.image import Image
 
 from instrument.cli import main
-from instrument.ome import SWEEP_T, UNEVEN_Z, YX_SCALE, describe_products, volume_axes
+from instrument.ome import SWEEP_T, describe_products, volume_axes
 from instrument.runstore import RunStore, RunStoreError
 from instrument.runstore_records import VIDEO_PLAN
+from instrument.writer.ome_axes import UNEVEN_Z, YX_SCALE
 
 PITCH_UM, BINNING, FPS = 3.45, 2, 25.0
 
