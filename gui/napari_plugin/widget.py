@@ -14,7 +14,9 @@ with the level recorded with a run's frames, as ``recon-run`` takes it) and runs
 :func:`recon.reconstruct`: with one depth (``depth_mm``, or a stack of one plane) an
 image, else the whole stack as a volume. The widget runs it from a worker thread
 (napari's :func:`~napari.qt.threading.create_worker`) in a process of its own
-(:func:`solve_in_process`), so the viewer stays responsive, and shows a refusal in its
+(:func:`solve_in_process`, started when the widget is made: :func:`prestart_solver`),
+whose result comes back through shared memory with its contrast limits, so that
+napari's GUI thread only adds the layer; the viewer stays responsive. It shows a refusal in its
 own words (a command-line flag named by its field,
 :func:`gui.messages.operator_text`). The result comes back as a new layer, on the
 model grid (:data:`recon.io.DATA_ORIENTATION`), scaled by the layer's pixel size
@@ -241,23 +243,23 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
             "orientation": DATA_ORIENTATION}
     if named(options.early_stop):
         meta["early_stop"] = options.early_stop
+    options = options.replace(dark=dark)  # the level resolved as the commands resolve it
     if depths == [None]:  # a plain PSF image: its one plane, no depth
-        rec = reconstruct(stack[0], raw, **{**options.keywords("image"), "dark": dark})
+        rec = reconstruct(stack[0], raw, options)
         meta.update(method_used=rec.info.method)
         return (np.asarray(rec.image, np.float32),
                 {"name": f"{layer.name} recon", "scale": pitch, "axis_labels": ["y", "x"],
                  "units": units, "metadata": meta}, "image")
     if depth_mm > 0 or len(stack) == 1:
         psf, depth = pick_depth(stack, depths, depth_mm if depth_mm > 0 else None)
-        rec = reconstruct(psf, raw, **{**options.keywords("image"), "dark": dark})
+        rec = reconstruct(psf, raw, options)
         meta.update(depth_mm=depth, method_used=rec.info.method)
         return (np.asarray(rec.image, np.float32),
                 {"name": f"{layer.name} recon {depth:g} mm", "scale": pitch,
                  "axis_labels": ["y", "x"], "units": units, "metadata": meta}, "image")
-    keywords = {**options.keywords("volume"), "dark": dark}
-    if keywords["method"] == "wiener":  # a stack has no Wiener solve: its ADMM
-        keywords["method"] = "admm"
-    rec = reconstruct(PsfStack(stack, depths), raw, **keywords)
+    if options.method == "wiener":  # a stack has no Wiener solve: its ADMM
+        options = options.replace(method="admm")
+    rec = reconstruct(PsfStack(stack, depths), raw, options)
     volume = np.asarray(rec.volume, np.float32)
     first, _ = volume_axes(rec.depths_mm, volume.shape[0])  # as a stored volume's
     meta.update(depths_mm=list(rec.depths_mm), method_used=rec.info.method)
@@ -288,38 +290,140 @@ _SOLVER: list = []
 _SOLVER_LOCK = threading.Lock()
 
 
-def solve_in_process(view: SimpleNamespace, psf, product: str, depth_mm: float,
-                     **keywords) -> tuple:
-    """:func:`reconstruct_layer` of a :func:`layer_view` in a process of its own.
+def contrast_limits(data: np.ndarray) -> list[float]:
+    """The contrast limits napari would compute for a layer of ``data`` (its range,
+    as :func:`napari.layers.utils.layer_utils.calc_data_range` gives it for an array
+    of this size; a constant or empty array widened to include 0 and 1, non-finite
+    values left out), computed where the solve runs, so the viewer's GUI thread never
+    scans the result."""
+    good = np.isfinite(data)
+    finite = data if good.all() else data[good]
+    if finite.size == 0:
+        return [0.0, 1.0]
+    low, high = float(finite.min()), float(finite.max())
+    if low == high:
+        low, high = min(low, 0.0), max(high, 1.0)
+    return [low, high]
 
-    The solver's compiled kernels hold Python's interpreter lock while they run (up to
-    0.9 s per call measured at load 12: ``python -m soak.napari_widget_benchmark``);
-    on a thread of napari's process that froze the viewer. In a child process at
-    :data:`SOLVER_NICE` the viewer's GUI thread never waits for it, and on a busy
-    machine gets a core before it. Called on the widget's worker thread.
 
-    Raises
-    ------
-    The errors of :func:`reconstruct_layer`, as raised in the child.
+def _solve_shared(view: SimpleNamespace, psf, product: str, depth_mm: float,
+                  **keywords) -> tuple:
+    """In the solver's process: :func:`reconstruct_layer`, its array put in a shared
+    memory block and its contrast limits (:func:`contrast_limits`) and
+    ``multiscale=False`` added to the layer's keywords, so that what crosses the pipe
+    is a few hundred bytes, not the array (unpickling a 25 x 512 x 512 volume held
+    napari's interpreter lock for ~70 ms).
+
+    Returns
+    -------
+    tuple
+        ``((block name, shape, dtype), layer keywords, layer type)``: the block is
+        the caller's to copy, close and unlink (:func:`_take_shared`).
     """
+    from multiprocessing import resource_tracker, shared_memory
+
+    data, kwargs, kind = reconstruct_layer(view, psf, product, depth_mm, **keywords)
+    data = np.ascontiguousarray(data)
+    kwargs = {**kwargs, "contrast_limits": contrast_limits(data), "multiscale": False}
+    block = shared_memory.SharedMemory(create=True, size=max(data.nbytes, 1))
+    try:
+        np.ndarray(data.shape, data.dtype, buffer=block.buf)[...] = data
+    except BaseException:
+        block.close()
+        block.unlink()
+        raise
+    block.close()  # the caller unlinks it: this process no longer tracks it
+    resource_tracker.unregister(block._name, "shared_memory")  # noqa: SLF001
+    return (block.name, data.shape, data.dtype.str), kwargs, kind
+
+
+def _take_shared(handle: tuple) -> np.ndarray:
+    """The array of a :func:`_solve_shared` block, copied into this process's memory
+    (NumPy's copy releases the interpreter lock), the block closed and unlinked."""
+    from multiprocessing import shared_memory
+
+    name, shape, dtype = handle
+    block = shared_memory.SharedMemory(name=name)
+    try:
+        out = np.empty(shape, dtype)
+        np.copyto(out, np.ndarray(shape, dtype, buffer=block.buf))
+    finally:
+        block.close()
+        block.unlink()
+    return out
+
+
+def _solver_pool():
+    """The solver's process pool (one process at :data:`SOLVER_NICE`), made at the first
+    call and kept."""
     from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
 
     with _SOLVER_LOCK:
         if not _SOLVER:
             ctx = multiprocessing.get_context("spawn")
             _SOLVER.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx,
                                                initializer=os.nice, initargs=(SOLVER_NICE,)))
-        pool = _SOLVER[0]
+        return _SOLVER[0]
+
+
+def _warm() -> None:
+    """In the solver's process: import what a solve needs, before the first solve."""
+    import instrument.reconstruct_files  # noqa: F401
+    import instrument.stacks  # noqa: F401
+    import recon.volume.api  # noqa: F401
+
+
+def prestart_solver() -> None:
+    """Start the solver's process and its imports now (from a thread of its own), so the
+    first Reconstruct does not wait for them; a failure here is left to the first solve
+    to report."""
+    def start() -> None:
+        try:
+            _solver_pool().submit(_warm).result()
+        except Exception:  # noqa: BLE001 (the first solve starts a new one and says why)
+            with _SOLVER_LOCK:
+                _SOLVER.clear()
+
+    threading.Thread(target=start, name="napari-solver-start", daemon=True).start()
+
+
+def solve_in_process(view: SimpleNamespace, psf, product: str, depth_mm: float,
+                     **keywords) -> tuple:
+    """:func:`reconstruct_layer` of a :func:`layer_view` in a process of its own, its
+    result ready for napari.
+
+    The solver's compiled kernels hold Python's interpreter lock while they run (up to
+    0.9 s per call measured at load 12: ``python -m soak.napari_widget_benchmark``);
+    on a thread of napari's process that froze the viewer. In a child process at
+    :data:`SOLVER_NICE` the viewer's GUI thread never waits for it, and on a busy
+    machine gets a core before it. The array comes back through shared memory
+    (:func:`_solve_shared`) and is copied on the calling thread, and the layer's
+    keywords carry its contrast limits and ``multiscale=False``: what is left for the
+    GUI thread is napari's ``add_layer``. Called on the widget's worker thread.
+
+    Returns
+    -------
+    tuple
+        ``(array, layer keywords, layer type)`` as :func:`reconstruct_layer`'s, the
+        keywords with ``contrast_limits`` and ``multiscale``.
+
+    Raises
+    ------
+    The errors of :func:`reconstruct_layer`, as raised in the child.
+    """
+    from concurrent.futures.process import BrokenProcessPool
+
+    pool = _solver_pool()
     try:
-        return pool.submit(reconstruct_layer, view, psf, product, depth_mm,
-                           **keywords).result()
+        handle, kwargs, kind = pool.submit(_solve_shared, view, psf, product, depth_mm,
+                                           **keywords).result()
     except BrokenProcessPool:  # the child died (killed, out of memory): a new one next
         with _SOLVER_LOCK:
             if _SOLVER and _SOLVER[0] is pool:
                 _SOLVER.clear()
         raise RuntimeError("the reconstruction's process ended before it finished (killed "
                            "or out of memory); press Reconstruct again") from None
+    return _take_shared(handle), kwargs, kind
 
 
 class ReconstructWidget(QWidget):
@@ -387,6 +491,7 @@ class ReconstructWidget(QWidget):
         grid.addWidget(self.error, end + 1, 0, 1, 2)
         grid.setRowStretch(end + 2, 1)
         grid.setColumnStretch(1, 1)
+        prestart_solver()
         events = getattr(getattr(napari_viewer, "layers", None), "events", None)
         for name in ("inserted", "removed"):
             if events is not None and hasattr(events, name):

@@ -1,0 +1,112 @@
+"""napari's Reconstruct widget, issue 67: what runs on napari's GUI thread when a
+solve's result arrives. Checked by structure, not by timing (the machine's load must
+not decide a test): the result crosses the pipe from the solver's process without its
+array (no large unpickling under napari's interpreter lock), and the GUI thread's
+handling computes no contrast limits and guesses no multiscale on the result."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+napari = pytest.importorskip("napari")
+
+#: Bytes a result may take on the pipe: its layer keywords, not its array.
+_SMALL = 16 * 1024
+
+
+def _problem(n: int):
+    from scipy.signal import fftconvolve
+
+    rng = np.random.default_rng(3)
+    psf = np.zeros((n, n), np.float32)
+    psf[rng.integers(4, n - 4, 20), rng.integers(4, n - 4, 20)] = 1.0
+    scene = np.zeros((n, n), np.float32)
+    scene[n // 3:n // 2, n // 4:n // 3] = 1.0
+    return psf, (fftconvolve(scene, psf, mode="same") * 500 + 20).astype(np.float32)
+
+
+def test_a_result_reaches_the_gui_thread_ready_to_add(tmp_path, qapp, wait, monkeypatch):
+    """A 128 x 128 result (64 KiB): every message received from the solver's process is
+    under 16 KiB, and while the layer is added on the GUI thread napari neither scans
+    the data for contrast limits nor guesses whether it is multiscale (the keywords
+    carry both); the layer shows the result with the limits of its data."""
+    from multiprocessing import connection
+
+    from napari.components import ViewerModel
+    from napari.layers._scalar_field import scalar_field
+    from napari.layers.image import image as image_module
+
+    from gui.napari_plugin.widget import ReconstructWidget
+
+    received: list[int] = []
+    real_loads = connection._ForkingPickler.loads
+
+    def loads(buf, *args, **kwargs):  # what the executor's reader thread unpickles
+        received.append(len(memoryview(buf).cast("B")))
+        return real_loads(buf, *args, **kwargs)
+
+    monkeypatch.setattr(connection._ForkingPickler, "loads", loads)
+    on_gui: list[str] = []
+
+    def noting(name, real):
+        def call(*args, **kwargs):
+            if threading.current_thread() is threading.main_thread():
+                on_gui.append(name)
+            return real(*args, **kwargs)
+        return call
+
+    monkeypatch.setattr(image_module, "calc_data_range",
+                        noting("calc_data_range", image_module.calc_data_range))
+    monkeypatch.setattr(scalar_field, "guess_multiscale",
+                        noting("guess_multiscale", scalar_field.guess_multiscale))
+
+    n = 128
+    psf, raw = _problem(n)
+    np.save(tmp_path / "psf.npy", psf + 20)
+    viewer = ViewerModel()
+    viewer.add_image(raw, name="raw", contrast_limits=[0, 1], multiscale=False)
+    widget = ReconstructWidget(viewer)
+    ends: list = []
+    widget.done.connect(ends.append)
+    try:
+        widget.psf_run.setText(str(tmp_path / "psf.npy"))
+        widget.form.widgets["method"].setCurrentText("admm")
+        widget.form.widgets["iterations"].setValue(5)
+        widget.form.widgets["tv"].setCurrentText("0.001")
+        on_gui.clear()
+        received.clear()
+        widget.run()
+        wait(lambda: ends, 300.0, "the widget's reconstruction")
+        assert ends[0] is not None, widget.error.text()
+        data, kwargs, _ = ends[0]
+        assert data.shape == (n, n) and data.nbytes == 4 * n * n >= 4 * _SMALL
+        assert received and max(received) < _SMALL, received
+        assert on_gui == [], on_gui
+        layer = viewer.layers["raw recon"]
+        assert layer.multiscale is False
+        assert list(layer.contrast_limits) == pytest.approx(
+            [float(data.min()), float(data.max())])
+        assert kwargs["contrast_limits"] == pytest.approx(list(layer.contrast_limits))
+    finally:
+        widget.close()
+        widget.deleteLater()
+
+
+def test_contrast_limits_are_those_napari_computes():
+    """The limits the solver's process sends are napari's own for the same array
+    (finite range; a constant array widened to 0..1)."""
+    from napari.layers.utils.layer_utils import calc_data_range
+
+    from gui.napari_plugin.widget import contrast_limits
+
+    rng = np.random.default_rng(0)
+    for data in (rng.random((4, 16, 16), dtype=np.float32) * 7 - 2,
+                 np.full((8, 8), 3.5, np.float32), np.zeros((8, 8), np.float32)):
+        assert contrast_limits(data) == pytest.approx(list(calc_data_range(data)))
+    with_nan = rng.random((8, 8)).astype(np.float32)
+    with_nan[0, 0] = np.nan
+    assert contrast_limits(with_nan) == pytest.approx(
+        [float(np.nanmin(with_nan)), float(np.nanmax(with_nan))])
