@@ -130,6 +130,9 @@ class Session(QObject):
         self._latest = None
         self._counters: dict[str, float] = {}
         self._streaming = False
+        #: Why the live stream ended unasked (the bench's line), until it starts again
+        #: or is stopped; None: it did not.
+        self.stream_end_reason: str | None = None
         self._lock = threading.Lock()
         self._stream_lock = threading.RLock()  # one start or stop at a time
         self.frames_seen = 0
@@ -261,6 +264,9 @@ class Session(QObject):
     def _note_event(self, event) -> None:
         if event.kind == "status":
             self.device_states[event.device] = event.data
+        elif event.kind == "stream" and event.data.get("state") == "ended":
+            self.stream_end_reason = event.data.get("reason") or "the stream ended"
+            self.changed.emit()
 
     def run_on_bench(self, target: str, kwargs: dict | None = None, **channels) -> Any:
         """Run job ``target`` (by name: :data:`instrument.bench_jobs.JOBS`,
@@ -386,6 +392,7 @@ class Session(QObject):
             if self._streaming:
                 return
             self.frames_seen = 0
+            self.stream_end_reason = None
             self._counters = {}
             self._rate.clear()
             service.start_stream(ring_frames)
@@ -399,6 +406,7 @@ class Session(QObject):
             service = self.service
             if not self._streaming:
                 return
+            self.stream_end_reason = None
             try:
                 if service is not None:
                     service.stop_stream(timeout_s)

@@ -23,7 +23,9 @@ What crosses between the processes:
 * events: ``(kind, ...)`` tuples down a pipe (:class:`EventChannel`): a job's progress,
   result or error (``("job", id, "progress" | "done" | "failed", value)``), a prompt
   for the operator (``("prompt", id, action, message)``), a new frame slot (``("slot", name,
-  capacity)``), the stream's end on an error (``("stream_ended", text)``).
+  capacity)``), the stream's end unasked (``("stream_ended", text)``: the camera's
+  error, no frame for :meth:`BenchHost.stream_silence_s`, a frame that could not be
+  published; every client's events also get ``stream`` ``{"state": "ended", ...}``).
 * jobs: :meth:`BenchHost.start_job` runs a job by its name (:data:`instrument.bench_jobs.JOBS`
   and those given to :meth:`BenchHost.register_jobs`) as ``function(ctx, **kwargs)`` on
   a thread of the host with a :class:`JobContext` (the bench, progress, pause/abort,
@@ -52,8 +54,9 @@ from .bench_service import BenchService, BenchServiceError, EventLog
 from .runner import RunControl
 from .shared_slot import SharedImageSlot
 
-__all__ = ["FRAME_META", "JOBS_CLOSE_TIMEOUT_S", "BenchHost", "BenchHostError",
-           "EventChannel", "FrameWaker", "JobContext"]
+__all__ = ["FRAME_META", "JOBS_CLOSE_TIMEOUT_S", "STREAM_SILENCE_FLOOR_S",
+           "STREAM_SILENCE_PERIODS", "BenchHost", "BenchHostError", "EventChannel",
+           "FrameWaker", "JobContext"]
 
 log = logging.getLogger(__name__)
 
@@ -61,9 +64,25 @@ log = logging.getLogger(__name__)
 FRAME_META = ("index", "device_timestamp_s", "host_timestamp_s", "exposure_s", "gain",
               "saturated_pixels", "acquired", "read", "skipped", "dropped", "bit_depth")
 
+#: The shortest silence, s, after which a free-run stream with no frame ends as a
+#: stream that died (:meth:`BenchHost.stream_silence_s`): longer than the stalls a
+#: loaded machine gives the camera's threads (seconds at a load of 15 on 2 cores).
+STREAM_SILENCE_FLOOR_S = 10.0
+#: A free-run stream also waits this many frame periods (a long exposure's).
+STREAM_SILENCE_PERIODS = 10
+
 #: Longest wait, s, for the jobs to end when the bench closes (a recording writes what
 #: it has queued and closes its run first).
 JOBS_CLOSE_TIMEOUT_S = 60.0
+
+
+def _silence_text(silent_s: float, bound_s: float, lost: int) -> str:
+    """The operator's line for a stream that sent no frame for ``silent_s`` (of a
+    bound of ``bound_s``), ``lost`` frames dropped on the way meanwhile."""
+    why = (f"; {lost} frames were lost on the way" if lost > 0 else "")
+    return (f"camera stream stopped: no frame from the camera for {silent_s:.3g} s (the "
+            f"stream waits {bound_s:.3g} s{why}); check the camera's cable and power, then "
+            "start the stream again (Start stream)")
 
 
 class BenchHostError(BenchServiceError):
@@ -153,6 +172,8 @@ class BenchHost(BenchService):
         self._holds_lock = threading.RLock()
         self._stream_owner = ""
         self._stream_frames = 64
+        #: The floor of :meth:`stream_silence_s`, s (a test makes it short).
+        self.stream_silence_floor_s = STREAM_SILENCE_FLOOR_S
         #: True while :meth:`close` ends the jobs (the live view is not started again).
         self._ending = False
         #: (ring frames, client) of a live stream to start when the camera is free.
@@ -316,18 +337,79 @@ class BenchHost(BenchService):
                 pump.join(timeout_s)
                 self._stream = None
 
+    def stream_silence_s(self) -> float:
+        """How long, s, the stream waits for a frame before it ends as a stream that
+        died: ``max(stream_silence_floor_s, STREAM_SILENCE_PERIODS x the camera's frame
+        period)`` in free-run (the period from its resulting frame rate, which a long
+        exposure lowers); infinite in a triggered mode (a camera waiting for its
+        trigger is silent by design)."""
+        floor = float(self.stream_silence_floor_s)
+        cam = getattr(self.bench, "camera", None)
+        if cam is None:
+            return floor
+        try:
+            if cam.trigger_mode != "free_run":
+                return float("inf")
+            period_s = 1.0 / float(cam.resulting_frame_rate_hz)
+        except Exception:  # noqa: BLE001 (a camera that cannot say: the floor)
+            return floor
+        return max(floor, STREAM_SILENCE_PERIODS * period_s)
+
     def _pump(self, ring, stop: threading.Event) -> None:
+        """Publish the stream's frames until ``stop``; a stream that ends otherwise (the
+        camera's error, no frame for :meth:`stream_silence_s`, a frame that cannot be
+        published) ends as a stream that died (:meth:`_stream_died`)."""
         from drivers.errors import CameraTimeoutError
 
-        while not stop.is_set():
-            try:
-                frame = ring.get(timeout_s=0.05)
-            except CameraTimeoutError:
-                continue
-            except Exception as exc:  # noqa: BLE001 (a producer error, reported once)
-                self.events.put(("stream_ended", f"camera stream stopped: {exc}"))
+        last, dropped = time.monotonic(), ring.dropped
+        try:
+            while not stop.is_set():
+                try:
+                    frame = ring.get(timeout_s=0.05)
+                except CameraTimeoutError:
+                    silent_s = time.monotonic() - last
+                    if silent_s > self.stream_silence_floor_s:
+                        bound_s = self.stream_silence_s()
+                        if silent_s > bound_s:
+                            self._stream_died(stop, _silence_text(
+                                silent_s, bound_s, ring.dropped - dropped))
+                            return
+                    continue
+                last, dropped = time.monotonic(), ring.dropped
+                self.publish(frame, ring)
+        except Exception as exc:  # noqa: BLE001 (the camera's or the frame channel's)
+            self._stream_died(stop, f"camera stream stopped: {exc}")
+
+    def _tell_stream_ended(self, text: str) -> None:
+        """Tell every client the live stream ended unasked, saying why in ``text``."""
+        log.info("bench process: %s", text)  # the window's log shows it once, as told
+        self.events.put(("stream_ended", text))
+        self.device_events.put("stream", None, {"state": "ended", "reason": text,
+                                                "owner": self._stream_owner})
+
+    def _stream_died(self, stop: threading.Event, text: str) -> None:
+        """The stream whose stop event is ``stop`` ended unasked (on its pump thread):
+        the camera's stream is stopped, then the client that started the bench process is
+        sent ``("stream_ended", text)`` and every client's events get a ``stream``
+        event (``{"state": "ended", "reason": text, "owner": ...}``). Nothing if the
+        stream was stopped meanwhile."""
+        while not self._stream_lock.acquire(timeout=0.05):
+            if stop.is_set():  # being stopped: its stopper waits for this thread
                 return
-            self.publish(frame, ring)
+        try:
+            if self._stream is None or self._stream[2] is not stop or stop.is_set():
+                return
+            stop.set()
+            self._stream = None
+            cam = getattr(self.bench, "camera", None)
+            if cam is not None:  # first: a client told may snap at once
+                try:
+                    cam.stop_stream()
+                except Exception as exc:  # noqa: BLE001 (it died already; logged)
+                    log.warning("bench process: the camera's stream did not stop: %s", exc)
+            self._tell_stream_ended(text)
+        finally:
+            self._stream_lock.release()
 
     # -- jobs ------------------------------------------------------------------------
     def register_jobs(self, jobs: Mapping[str, Callable]) -> None:
@@ -482,7 +564,7 @@ class BenchHost(BenchService):
                 except Exception as exc:  # noqa: BLE001 (said; the job's end still goes out)
                     self._say(f"live view: could not start again after job {ctx.job_id}: "
                               f"{exc}")
-                    self.events.put(("stream_ended", f"camera stream stopped: {exc}"))
+                    self._tell_stream_ended(f"camera stream stopped: {exc}")
             if ctx.piped:
                 self.events.put(("job", ctx.job_id, state, value))
         finally:

@@ -410,8 +410,10 @@ class LivePanel(QWidget):
                 self.raw_stats.setText(f"camera busy with {self.session.camera_user}: frame "
                                        f"{frame.index}; {sat}")
             else:
-                self.raw_stats.setText(f"camera: not streaming (Start stream or F5); frame "
-                                       f"{frame.index}; {sat}")
+                self.raw_stats.setText(f"{self._stopped_text()}; frame {frame.index} (the "
+                                       f"last); {sat}")
+        elif frame is None and counters and not self.session.streaming:
+            self.raw_stats.setText(self._stopped_text())
         if self.live is not None and counters:
             self._show_live_stats()
         if self.live is not None:  # (its process may have just been found ended)
@@ -419,6 +421,14 @@ class LivePanel(QWidget):
             if latest is not None and latest.frame_index != self._shown_recon:
                 self._shown_recon = latest.frame_index
                 self.recon_view.setImage(scene_view(latest.image), autoLevels=True)
+
+    def _stopped_text(self) -> str:
+        """The raw view's line while the stream is stopped: why, when it ended
+        unasked (the bench's line), and how to start it."""
+        reason = self.session.stream_end_reason
+        if reason:
+            return f"camera: {reason.removeprefix('camera ')}"
+        return "camera: not streaming (Start stream or F5)"
 
     def _count_shown(self) -> None:
         seen = self.session.frames_seen

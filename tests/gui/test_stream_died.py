@@ -1,0 +1,81 @@
+"""A live stream whose camera goes silent (no error, no frame) ends as a stream that
+died, in the real window (issue 67: *Stop stream* stayed shown after the stream died):
+one operator's line in the log, the button back to *Start stream*, the raw view's line
+saying the stream stopped and why; then it starts again. Waits on the window, not on
+the clock: the silence bound is made short once the frames flow."""
+
+from __future__ import annotations
+
+import pytest
+
+
+# -- jobs the bench process runs in this test (imported there by name) -------------------
+def silence_camera(ctx, *, floor_s: float) -> None:
+    """The camera delivers nothing from now on (every frame lost, no error), and the
+    stream's silence floor is ``floor_s``."""
+    ctx.bench.camera.faults.drop_frames(probability=1.0)
+    ctx.host.stream_silence_floor_s = floor_s
+
+
+def camera_back(ctx) -> None:
+    """The camera delivers again; the silence floor is the default."""
+    from instrument.bench_host import STREAM_SILENCE_FLOOR_S
+
+    ctx.bench.camera.faults.clear()
+    ctx.host.stream_silence_floor_s = STREAM_SILENCE_FLOOR_S
+
+
+JOBS = {"silence_camera": silence_camera, "camera_back": camera_back}
+
+
+@pytest.fixture(scope="module")
+def jobs_registered():
+    """This module's jobs among those the window's bench process runs (before the
+    window starts it)."""
+    from gui.session import BENCH_JOBS
+
+    BENCH_JOBS.update(JOBS)
+    yield
+    for name in JOBS:
+        BENCH_JOBS.pop(name, None)
+
+
+def test_a_silent_camera_puts_the_button_back_and_says_why(jobs_registered, window, wait,
+                                                          qtbot):
+    from PySide6.QtCore import Qt
+
+    session, live = window.session, window.live
+    window.docks["Live view"].raise_()
+    qtbot.mouseClick(live.start_button, Qt.MouseButton.LeftButton)
+    wait(lambda: live._shown_raw >= 0 and live.start_button.text() == "Stop stream", 60.0,
+         "frames in the live view")
+    assert session.streaming
+    lines_before = window.log_pane.text.toPlainText().count("camera stream stopped")
+
+    session.run_on_bench("silence_camera", {"floor_s": 0.2})
+    wait(lambda: live.start_button.text() == "Start stream", 60.0,
+         "the button to go back to Start stream")
+    assert not session.streaming
+    wait(lambda: "stream stopped" in live.raw_stats.text(), 10.0,
+         "the raw view's line to say the stream stopped")
+    shown = live.raw_stats.text()
+    assert shown.startswith("camera: stream stopped: no frame from the camera for "), shown
+    assert "(the last)" in shown
+    wait(lambda: "camera stream stopped" in window.log_pane.text.toPlainText(), 10.0,
+         "the log's line")
+    log_text = window.log_pane.text.toPlainText()
+    assert log_text.count("camera stream stopped") == lines_before + 1  # one line
+    line = next(t for t in log_text.splitlines() if "camera stream stopped" in t)
+    assert "check the camera's cable and power" in line and "()" not in line
+    assert "Traceback" not in log_text
+
+    session.run_on_bench("camera_back")
+    qtbot.mouseClick(live.start_button, Qt.MouseButton.LeftButton)
+    shown_at = live._shown_raw
+    wait(lambda: live._shown_raw > shown_at and live.start_button.text() == "Stop stream",
+         60.0, "frames again after Start stream")
+    assert session.streaming
+    wait(lambda: not live.raw_stats.text().startswith("camera: stream stopped"), 10.0,
+         "the raw view's line to show the stream again")
+    job = live.toggle_stream()
+    wait(lambda: job.done and not session.streaming, 60.0, "the stream to stop")

@@ -1,0 +1,124 @@
+"""A live stream that ends unasked is told to every client (issue 67: *Stop stream* stayed
+shown after the stream died): a camera that goes silent without an error, a frame that
+cannot be published. Nothing here waits on the clock but the hang guards: the silence
+bound is made short after the first frames, and each test waits for the event."""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+import pytest
+
+from instrument.bench_host import STREAM_SILENCE_FLOOR_S, STREAM_SILENCE_PERIODS, BenchHost
+from instrument.bench_process import BenchClient
+
+OPEN = {"bench_path": None, "simulate": True, "seed": 0, "scene": "none"}
+#: A hang guard, s: what the tests wait for comes within a second on an idle machine.
+HANG_S = 120.0
+
+
+# -- jobs the host runs in these tests (imported there by name) ---------------------------
+def silence_camera(ctx, *, floor_s: float) -> float:
+    """The camera delivers nothing from now on (every frame lost, no error) and the
+    stream's silence floor is ``floor_s``; returns the bound the stream now waits."""
+    ctx.bench.camera.faults.drop_frames(probability=1.0)
+    ctx.host.stream_silence_floor_s = floor_s
+    return ctx.host.stream_silence_s()
+
+
+def camera_streaming(ctx) -> bool:
+    return bool(ctx.bench.camera.is_streaming)
+
+
+JOBS = {"silence_camera": silence_camera, "camera_streaming": camera_streaming}
+
+
+@pytest.fixture(params=[False, True], ids=["child-process", "in-process"])
+def streamed(request):
+    """A client with the simulated bench open, its stream running, and a second client
+    attached (a notebook beside the window) whose events are collected."""
+    frames: queue.SimpleQueue = queue.SimpleQueue()
+    ended, messages = threading.Event(), []
+    c = BenchClient(in_process=request.param, jobs=JOBS,
+                    on_frame=lambda f, m: frames.put(f), on_message=messages.append,
+                    on_stream_ended=ended.set)
+    other = None
+    try:
+        c.run_job("open_bench", OPEN)
+        seen: queue.SimpleQueue = queue.SimpleQueue()
+        if not c.in_process:
+            other = BenchClient(address=c.address, authkey=c.authkey, name="a notebook",
+                                on_event=seen.put)
+        c.start_stream(16)
+        for _ in range(3):
+            frames.get(timeout=HANG_S)
+        c.ended, c.messages, c.seen, c.other = ended, messages, seen, other
+        yield c
+    finally:
+        if other is not None:
+            other.close()
+        c.close()
+
+
+def _stream_event(seen: queue.SimpleQueue) -> dict:
+    while True:
+        event = seen.get(timeout=HANG_S)
+        if event.kind == "stream":
+            return event.data
+
+
+def test_a_silent_camera_ends_the_stream_for_every_client(streamed):
+    bound_s = streamed.run_job("silence_camera", {"floor_s": 0.2})
+    assert bound_s == pytest.approx(max(0.2, STREAM_SILENCE_PERIODS / 30.0))
+    assert streamed.ended.wait(HANG_S), "the window was never told the stream died"
+    line = streamed.messages[-1]
+    assert line.startswith("camera stream stopped: no frame from the camera for ")
+    assert "check the camera's cable and power" in line and "()" not in line
+    assert "frames were lost on the way" in line  # the simulated camera drops them
+    assert not streamed.run_job("camera_streaming")  # the camera's stream stopped too
+    if streamed.other is not None:  # the notebook beside the window sees the same end
+        data = _stream_event(streamed.seen)
+        assert data["state"] == "ended" and data["reason"] == line
+        assert data["owner"].startswith("pid ")
+    streamed.start_stream(16)  # starts again: the dead stream left nothing held
+    assert streamed.run_job("camera_streaming")
+    streamed.stop_stream(2.0)
+
+
+def test_the_silence_bound_is_the_floor_or_ten_frame_periods_and_none_when_triggered():
+    class Cam:
+        trigger_mode, resulting_frame_rate_hz = "free_run", 0.25  # a 4 s exposure
+
+    class Bench:
+        camera = Cam()
+
+    host = BenchHost(events=None, wake=None)
+    assert host.stream_silence_s() == STREAM_SILENCE_FLOOR_S  # no bench: the floor
+    host.bench = Bench()
+    assert host.stream_silence_s() == STREAM_SILENCE_PERIODS * 4.0
+    Cam.resulting_frame_rate_hz = 30.0
+    assert host.stream_silence_s() == STREAM_SILENCE_FLOOR_S
+    Cam.trigger_mode = "hardware"  # waiting for its trigger is not a silence
+    assert host.stream_silence_s() == float("inf")
+
+
+def test_a_frame_that_cannot_be_published_ends_the_stream_and_says_why():
+    ended, messages = threading.Event(), []
+    c = BenchClient(in_process=True, on_message=messages.append, on_stream_ended=ended.set)
+    try:
+        c.run_job("open_bench", OPEN)
+        host, published = c.host, threading.Event()
+
+        def full(frame, ring=None):
+            published.set()
+            raise OSError(28, "No space left on device")
+
+        host.publish = full
+        c.start_stream(16)
+        assert ended.wait(HANG_S), "the window was never told the stream died"
+        assert published.is_set()
+        assert messages[-1] == "camera stream stopped: [Errno 28] No space left on device"
+        assert not host.streaming and not host.bench.camera.is_streaming
+    finally:
+        c.close()
