@@ -1,6 +1,7 @@
 """An hour of live view with live ADMM in a real window, and what an operator sees of it.
 
-``python -m soak.live_soak [--minutes 60] [--probe-s 30] [--busy N] [--json OUT]``
+``python -m soak.live_soak [--minutes 60] [--soak-minutes M] [--admm-start-s S]
+[--probe-s 30] [--busy N] [--json OUT]``
 starts Xvfb and a window manager (:func:`soak.soak.x_display`) and runs
 the real ``diffuserlab gui`` on the simulated bench (beads flowing, the xcb platform).
 Inside the GUI process an :class:`~soak.operator_day.Operator` whose day is
@@ -38,7 +39,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
@@ -47,13 +48,16 @@ import numpy as np
 from .device_jobs import twin_psf
 from .operator_day import Operator, StepFailed, start_when_shown
 
-__all__ = ["GOALS", "LiveSoak", "ScreenProbe", "busy_loops", "run_live_soak"]
+__all__ = ["GOALS", "LiveSoak", "ScreenProbe", "busy_loops", "progressing", "run_live_soak",
+           "soak_end"]
 
 #: Goals of the soak (lateness of the GUI thread, delay of what an operator sees).
 GOALS = {"max_ms": 250.0, "p99_ms": 50.0, "visible_ms": 100.0, "load": 4.0,
          "busy_max_ms": 1000.0}
 #: Seconds of live ADMM before the soak's measurement starts (numba compiled, caches).
 SETTLE_S = 30.0
+#: Seconds without a new live ADMM reconstruction after which the set-up fails.
+STALL_S = 300.0
 
 
 class LiveSoak(Operator):
@@ -86,7 +90,12 @@ class LiveSoak(Operator):
                          "the live reconstruction")
         if live.live is None:
             raise StepFailed(f"live reconstruction: {live.error.text()}")
-        yield self.until(lambda: live.live.stats()["reconstructed"] > 10, 300,
+        # on a loaded machine its process (nice +10) may take many minutes for its
+        # first ten: it fails only when none comes for STALL_S; with --admm-start-s the
+        # soak starts after that long however many there are (counted in the report)
+        started = progressing(lambda: live.live.stats()["reconstructed"], 10, STALL_S)
+        give_up = time.monotonic() + (getattr(self.o, "admm_start_s", None) or float("inf"))
+        yield self.until(lambda: time.monotonic() > give_up or started(), float("inf"),
                          "ADMM reconstructions")
         yield SETTLE_S
         self.done("live ADMM started")
@@ -97,7 +106,8 @@ class LiveSoak(Operator):
         self.phase("soak")
         start = {"frames": w.session.frames_seen, **live.live.stats(),
                  "view": _view_counts(live)}
-        t_end = self.t0 + 60.0 * self.o.minutes
+        t_end = soak_end(self.t0, time.monotonic(), self.o.minutes,
+                         getattr(self.o, "soak_minutes", None))
         while time.monotonic() < t_end:
             yield 5.0
         end = live.live.stats()
@@ -115,6 +125,50 @@ class LiveSoak(Operator):
         self.phase("end")
         Path(self.o.probe).write_text(json.dumps({"done": True}))
         self._finish()
+
+
+def progressing(count: Callable[[], int], target: int, stall_s: float,
+                clock: Callable[[], float] = time.monotonic) -> Callable[[], bool]:
+    """A condition to wait on: true once ``count()`` exceeds ``target``; it raises
+    :class:`~soak.operator_day.StepFailed` when ``count()`` has not grown for
+    ``stall_s`` (a hang guard that a slow, loaded machine still passes).
+
+    Parameters
+    ----------
+    count : callable
+        ``count() -> int``, non-decreasing.
+    target : int
+    stall_s : float
+        Seconds without growth after which the wait fails.
+    clock : callable
+        Seconds, monotonic.
+    """
+    seen = {"n": None, "at": clock()}
+
+    def condition() -> bool:
+        n = count()
+        if n > target:
+            return True
+        now = clock()
+        if n != seen["n"]:
+            seen["n"], seen["at"] = n, now
+        elif now - seen["at"] > stall_s:
+            raise StepFailed(f"no progress for {stall_s:g} s (at {n} of more than "
+                             f"{target})")
+        return False
+
+    return condition
+
+
+def soak_end(t0: float, soak_start: float, minutes: float,
+             soak_minutes: float | None) -> float:
+    """When the soak ends, on ``t0``'s clock: ``minutes`` after the day's start ``t0``
+    or, with ``soak_minutes``, that long after the soak's start (whichever is later),
+    so a set-up slowed by a loaded machine does not shorten the soak."""
+    end = t0 + 60.0 * minutes
+    if soak_minutes is not None:
+        end = max(end, soak_start + 60.0 * soak_minutes)
+    return end
 
 
 def _view_counts(live) -> dict:
@@ -161,6 +215,8 @@ def inside(argv: list[str]) -> int:
     """The GUI process: ``diffuserlab gui`` with :class:`LiveSoak` on its event loop."""
     p = argparse.ArgumentParser(prog="python -m soak.live_soak inside")
     p.add_argument("--minutes", type=float, required=True)
+    p.add_argument("--soak-minutes", type=float, default=None)
+    p.add_argument("--admm-start-s", type=float, default=None)
     p.add_argument("--work", required=True)
     p.add_argument("--report", required=True)
     p.add_argument("--probe", required=True)
@@ -273,7 +329,9 @@ def probe_main(argv: list[str]) -> int:
 
 def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
                   work: str | None = None, busy: int = 0,
-                  busy_own_session: bool = True) -> dict:
+                  busy_own_session: bool = True,
+                  soak_minutes: float | None = None,
+                  admm_start_s: float | None = None) -> dict:
     """Run the soak (module docstring); returns the report and its figures.
 
     Parameters
@@ -289,6 +347,13 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
         (:func:`busy_loops`).
     busy_own_session : bool
         Each busy loop in a session of its own (default), or in the window's.
+    soak_minutes : float, optional
+        The soak lasts at least this long from its start, however long the set-up
+        took (:func:`soak_end`).
+    admm_start_s : float, optional
+        Start the soak after this long of live ADMM even if it has not made its first
+        ten reconstructions (on a loaded machine its process at nice +10 may make none
+        for minutes); default: wait for them (failing after :data:`STALL_S` without one).
     """
     from .soak import peer_env, x_display
 
@@ -302,6 +367,10 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
     cmd = [sys.executable, "-m", "soak.live_soak", "inside", "--minutes",
            str(minutes), "--work", str(work_dir / "runs"), "--report", str(report_path),
            "--probe", str(probe_path)]
+    if soak_minutes is not None:
+        cmd += ["--soak-minutes", str(soak_minutes)]
+    if admm_start_s is not None:
+        cmd += ["--admm-start-s", str(admm_start_s)]
     probes_path = work_dir / "probes.jsonl"
     t0 = time.time()
     with x_display() as (display, wm), ExitStack() as beside:
@@ -322,7 +391,8 @@ def run_live_soak(minutes: float = 60.0, probe_s: float = 30.0,
                     while proc.poll() is None and not probe_path.exists():
                         time.sleep(0.5)
                     beside.enter_context(busy_loops(busy, busy_own_session))
-                rc = proc.wait(60.0 * minutes + 900)
+                # the set-up's own guard (STALL_S without progress) ends a stuck one
+                rc = proc.wait(60.0 * (minutes + (soak_minutes or 0.0)) + 7200)
             except BaseException:
                 proc.kill()
                 proc.wait()
@@ -435,6 +505,12 @@ def main(argv: list[str] | None = None) -> int:
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--minutes", type=float, default=60.0, help="length of the day")
     p.add_argument("--probe-s", type=float, default=30.0, help="seconds between probes")
+    p.add_argument("--soak-minutes", type=float, default=None,
+                   help="the soak lasts at least this long from its start, however long "
+                   "the set-up took on a loaded machine")
+    p.add_argument("--admm-start-s", type=float, default=None,
+                   help="start the soak after this long of live ADMM even without its "
+                   "first ten reconstructions (a loaded machine; counted in the report)")
     p.add_argument("--work", default=None, help="folder for the report and the GUI's log")
     p.add_argument("--busy", type=int, default=0,
                    help="busy loops beside the window (normal priority; ended after)")
@@ -444,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="also write the report and figures here")
     args = p.parse_args(argv)
     report = run_live_soak(args.minutes, args.probe_s, args.work, args.busy,
-                           not args.busy_in_session)
+                           not args.busy_in_session, args.soak_minutes, args.admm_start_s)
     print_figures(report["figures"])
     if report.get("failure"):
         print(f"  failure: {report['failure']}")

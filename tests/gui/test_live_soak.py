@@ -129,3 +129,31 @@ def test_busy_loops_in_the_soaks_session_on_request():
 
     with busy_loops(1, own_session=False) as pids:
         assert os.getsid(pids[0]) == os.getsid(0)
+
+
+def test_the_admm_wait_fails_only_without_progress():
+    from soak.live_soak import progressing
+    from soak.operator_day import StepFailed
+
+    now, count = [0.0], [0]
+    ready = progressing(lambda: count[0], 10, 300.0, clock=lambda: now[0])
+    for step in range(1, 11):  # one reconstruction every 200 s: slow, never stalled
+        now[0], count[0] = 200.0 * step, step
+        assert not ready()
+    count[0] = 11
+    assert ready()
+    stalled = progressing(lambda: 3, 10, 300.0, clock=lambda: now[0])
+    assert not stalled()
+    now[0] += 300.0
+    assert not stalled()  # exactly the bound: not yet
+    now[0] += 1.0
+    with pytest.raises(StepFailed, match="no progress for 300 s"):
+        stalled()
+
+
+def test_the_soak_lasts_its_own_minutes_after_a_slow_set_up():
+    from soak.live_soak import soak_end
+
+    assert soak_end(100.0, 160.0, 10.0, None) == 700.0  # the day's minutes, as before
+    assert soak_end(100.0, 160.0, 10.0, 10.0) == 760.0  # ten minutes of soak
+    assert soak_end(100.0, 160.0, 30.0, 10.0) == 1900.0  # the longer of the two
