@@ -316,13 +316,18 @@ class BenchHost(BenchService):
             self._stream_owner = client or "an unnamed client"
             pump.start()
 
-    def stop_stream(self, timeout_s: float = 2.0) -> None:
+    def stop_stream(self, timeout_s: float = 2.0, client: str = "") -> None:
         """Stop the stream (idempotent); waits for the camera's grab thread. A stream
         that yielded the camera to a job is not started again; the job's camera is
-        left alone."""
+        left alone. Stopped by a ``client`` other than the one it runs for, it ends
+        for that one as a stream that ended unasked (told who stopped it)."""
         with self._holds_lock:
+            owner = (self._stream_owner if self._stream is not None
+                     else self._resume[1] if self._resume is not None else None)
             self._resume = None
             self._stop_stream_now(timeout_s)
+        if owner is not None and client and client != owner:
+            self._tell_stream_ended(f"live stream stopped by {client}")
 
     def _stop_stream_now(self, timeout_s: float = 2.0) -> None:
         with self._stream_lock:

@@ -339,8 +339,9 @@ class BenchClient:
         self.host.start_stream(ring_frames, client=self.name)
 
     def stop_stream(self, timeout_s: float = 2.0) -> None:
-        """:meth:`~instrument.bench_host.BenchHost.stop_stream`."""
-        self.host.stop_stream(timeout_s)
+        """:meth:`~instrument.bench_host.BenchHost.stop_stream` (by this client: a
+        stream another client started ends for it, told so)."""
+        self.host.stop_stream(timeout_s, client=self.name)
 
     def set_closing(self, closing: bool) -> None:
         """Tell the bench the window closes (jobs then leave the bench as it is)."""

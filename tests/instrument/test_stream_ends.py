@@ -122,3 +122,18 @@ def test_a_frame_that_cannot_be_published_ends_the_stream_and_says_why():
         assert not host.streaming and not host.bench.camera.is_streaming
     finally:
         c.close()
+
+
+def test_a_stream_stopped_by_another_client_ends_for_the_one_it_ran_for(streamed):
+    if streamed.other is None:
+        pytest.skip("a second client attaches to a bench process of its own")
+    streamed.other.stop_stream(2.0)
+    assert streamed.ended.wait(HANG_S), "the window was never told its stream stopped"
+    assert streamed.messages[-1] == f"live stream stopped by {streamed.other.name}"
+    data = _stream_event(streamed.seen)
+    assert data["state"] == "ended" and data["reason"] == streamed.messages[-1]
+    streamed.ended.clear()
+    streamed.start_stream(16)
+    streamed.stop_stream(2.0)  # its own stop: nothing to tell
+    assert streamed.run_job("camera_streaming") is False
+    assert not streamed.ended.is_set()
