@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from calibration_routines.parameters import PARAMETERS, AlignMaskParams
-from diffuserlab.docpage import page_main
+from instrument.writer.docpage import page_main
 
 __all__ = ["DEFAULT_PAGE", "main", "page"]
 

@@ -15,7 +15,7 @@ attribute ``SETTINGS`` of :class:`~drivers.base.Device`, in the order
 - a pydantic model of a settings table (:func:`settings_model`), hence a JSON
   schema for files that hold settings;
 - the settings tables of the driver documentation (:func:`settings_markdown`,
-  written to docs/drivers/settings.md by ``python -m drivers.settings_doc``).
+  written to docs/drivers/settings.md by ``python -m instrument.writer.docpage``).
 
 A driver extends or narrows its kind's table with :func:`with_settings`.
 Constraints between settings (a DMD's exposure within its period) stay in the
@@ -361,7 +361,7 @@ def settings_markdown(kinds: Mapping[str, type], drivers: tuple[type, ...] = ())
     """
     lines = ["# Device settings", "",
              "Generated from the declarations in `drivers/` (`Device.SETTINGS`) by "
-             "`python -m drivers.settings_doc`; do not edit by hand. `info.*` limits are "
+             "`python -m instrument.writer.docpage`; do not edit by hand. `info.*` limits are "
              "read from the open device (`Device.info`); a mapping setting takes a "
              "partial `{key: value}` and keeps the other keys.", ""]
     for title, cls in kinds.items():

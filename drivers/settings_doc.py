@@ -1,15 +1,14 @@
-"""Write docs/drivers/settings.md from the settings declared by each device kind.
+"""The text of docs/drivers/settings.md, from the settings declared by each device kind.
 
-``python -m drivers.settings_doc`` rewrites the page; ``--check`` exits 1 when the
-page differs from the declarations (``tests/drivers/test_settings.py`` checks it).
+``python -m instrument.writer.docpage`` rewrites the page (the drivers write no files);
+``--check`` exits 1 when the page differs from the declarations
+(``tests/drivers/test_settings.py`` checks it).
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-from diffuserlab.docpage import page_main
 from drivers.aravis_camera import AravisCamera
 from drivers.arduino_led import ArduinoLedArray
 from drivers.camera import Camera
@@ -33,7 +32,7 @@ from drivers.thorlabs_apt import ThorlabsAptStage
 from drivers.v4l2_camera import V4l2Camera
 from drivers.zaber_ascii import ZaberAsciiStage
 
-__all__ = ["DEFAULT_PAGE", "DRIVERS", "KINDS", "main", "page"]
+__all__ = ["DEFAULT_PAGE", "DRIVERS", "KINDS", "page"]
 
 #: The device kinds, in the order of the page.
 KINDS = {"camera": Camera, "stage": Stage, "led_array": LedArray, "slm": Slm, "dmd": Dmd}
@@ -49,11 +48,3 @@ def page() -> str:
     """The page's text, generated from the declarations of :data:`KINDS`."""
     return settings_markdown(KINDS, DRIVERS)
 
-
-def main(argv: list[str] | None = None) -> int:
-    """Write (or with ``--check`` compare) the page; returns the exit status."""
-    return page_main("drivers.settings_doc", __doc__.splitlines()[0], DEFAULT_PAGE, page, argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

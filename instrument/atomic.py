@@ -6,7 +6,8 @@ renamed into place on success (:func:`atomic_path`, :func:`atomic_dir`), several
 outputs together (:func:`output_group`), what a failed write left removed
 (:func:`remove_tree`, after zarr's writes in flight, :func:`wait_for_zarr_writes`), a
 full disk named with its free space (:func:`free_space_text`), and every JSON file
-(:func:`write_json`). It imports nothing else of ``instrument``, so the run stores
+(:func:`write_json`), and an append-only log whose lines are written whole or not at all
+(:class:`AppendLog`). It imports nothing else of ``instrument``, so the run stores
 below the product writer use it too.
 """
 
@@ -19,9 +20,9 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_dir", "atomic_path", "free_space_text", "missing_dirs", "output_group",
-           "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes", "write_json",
-           "write_text"]
+__all__ = ["AppendLog", "atomic_dir", "atomic_path", "free_space_text", "missing_dirs",
+           "output_group", "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes",
+           "write_json", "write_text"]
 
 
 def _size_text(n: float) -> str:
@@ -443,3 +444,43 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+class AppendLog:
+    """An append-only log of lines, each written through to the file whole or not at
+    all (the mask alignment's ``captures.jsonl``: a crash loses nothing already
+    appended).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file, opened for appending (made if missing; its folder must exist).
+
+    Raises
+    ------
+    OSError
+        The file cannot be opened.
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._fh = open(self.path, "ab", buffering=0)  # noqa: SIM115 (closed by close())
+
+    def append(self, line: bytes) -> None:
+        """Append ``line`` (bytes, its newline included), unbuffered: a write the system
+        refuses midway (a full disk, a file-size limit) is cut back to the previous
+        line and the ``OSError`` propagates, naming the file."""
+        end = self._fh.seek(0, os.SEEK_END)
+        try:
+            written = 0
+            while written < len(line):  # an unbuffered write may take part of it
+                written += self._fh.write(line[written:])
+        except OSError as exc:
+            self._fh.truncate(end)
+            if exc.filename is None:  # a raw write names no file: name it
+                exc.filename = str(self.path)
+            raise
+
+    def close(self) -> None:
+        """Close the file (appending after this raises ``ValueError``)."""
+        self._fh.close()

@@ -1,9 +1,9 @@
 """One writer of files: outside :mod:`instrument.writer`, :mod:`instrument.atomic` and
 the run store, no module of the installed packages calls a file-writing API itself
 (``open(..., "w")``, ``write_text``, ``write_bytes``, ``np.save``, ``tifffile.imwrite``,
-``savefig``, ``json.dump``, a zarr store opened for writing, ...). The modules that
-still do are listed here with the reason; the list only shrinks: a new module that
-writes a file fails, and so does an entry that no longer writes (take it off).
+``savefig``, ``json.dump``, a zarr store opened for writing, ...): a module that
+writes a file itself fails (issue 66: the allow-list of modules that still did is
+empty; none may be added).
 """
 
 import ast
@@ -14,17 +14,6 @@ PACKAGES = ("diffuserlab", "recon", "drivers", "instrument", "calibration_routin
 #: Where files are written: the writer, the atomic outputs under it, the run store.
 WRITERS = ("instrument/writer/", "instrument/atomic.py", "instrument/runstore.py",
            "instrument/run_writing.py", "instrument/run_creation.py")
-#: Modules that still write files themselves, and why (issue 66: make it shrink).
-STILL_WRITING = {
-    "diffuserlab/docpage.py": "a generated docs page (the bottom layer imports no instrument)",
-    "instrument/benchmarks/memory_limit.py": "the benchmark's synthetic problem as .npy in "
-                                             "its temporary folder",
-    "calibration_routines/mask_alignment/record.py": "the mask alignment's record: an "
-                                                     "appended log and its arrays",
-    "instrument/benchmarks/volume_scale_scenes.py": "the benchmark's generated PSF stack, "
-                                                    "a zarr array in its temporary folder",
-}
-
 #: Methods that write a file on any object (``path.write_text``, ``fig.savefig``).
 _METHODS = {"write_text", "write_bytes", "savefig", "tofile", "to_zarr", "imwrite"}
 #: Functions of a module that write a file: (module's name or "" for a bare name).
@@ -88,14 +77,8 @@ def _writing_modules() -> dict[str, list[str]]:
 
 def test_only_the_writer_writes_files():
     writing = _writing_modules()
-    new = {m: c for m, c in writing.items() if m not in STILL_WRITING}
-    assert not new, ("these modules write files themselves; write through "
-                     "instrument.writer or instrument.atomic instead: " + repr(new))
-
-
-def test_the_list_of_modules_still_writing_only_shrinks():
-    gone = sorted(set(STILL_WRITING) - set(_writing_modules()))
-    assert not gone, f"no longer writing files: take {gone} off STILL_WRITING"
+    assert not writing, ("these modules write files themselves; write through "
+                         "instrument.writer or instrument.atomic instead: " + repr(writing))
 
 
 def test_the_scan_sees_each_way_of_writing():

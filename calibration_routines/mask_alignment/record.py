@@ -18,14 +18,13 @@ A record is a directory (``*.align``):
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
 from diffuserlab.jsonio import json_line
-from instrument.atomic import atomic_path, write_json
+from instrument.atomic import AppendLog, write_json
 from instrument.plan import PlanError
 
 __all__ = ["AlignmentRecord", "corrected_mask", "load_alignment", "section_bounds"]
@@ -118,7 +117,7 @@ class AlignmentRecord:
         if self.path.exists() and any(self.path.iterdir()):
             raise PlanError(f"{self.path} already exists and is not empty; choose a new --out")
         self.path.mkdir(parents=True, exist_ok=True)
-        self._log = open(self.path / "captures.jsonl", "ab", buffering=0)  # noqa: SIM115
+        self._log = AppendLog(self.path / "captures.jsonl")
         self.state: dict = {"schema": "diffuserlab.mask-alignment/1", "status": "running",
                             "started_host_s": time.time(), "steps": {}}
         self.save()
@@ -127,17 +126,7 @@ class AlignmentRecord:
         """Append one capture entry, written through to the file, whole or not at all:
         a write the system refuses midway (a full disk, a file-size limit) is cut back
         to the previous line, and the ``OSError`` propagates."""
-        line = json_line(entry).encode("utf-8")
-        end = self._log.seek(0, os.SEEK_END)
-        try:
-            written = 0
-            while written < len(line):  # an unbuffered write may take part of it
-                written += self._log.write(line[written:])
-        except OSError as exc:
-            self._log.truncate(end)
-            if exc.filename is None:  # a raw write names no file: name it
-                exc.filename = self._log.name
-            raise
+        self._log.append(json_line(entry).encode("utf-8"))
 
     def save(self) -> None:
         """Write ``alignment.json`` atomically (:func:`instrument.atomic.atomic_path`: no
@@ -145,10 +134,12 @@ class AlignmentRecord:
         write_json(self.path / "alignment.json", self.state)
 
     def save_mask(self, mask: np.ndarray, seam_weight: np.ndarray) -> None:
-        """Write the corrected mask and its seam weight, each whole or not at all."""
+        """Write the corrected mask and its seam weight (float32 ``.npy``), each whole or
+        not at all (:func:`instrument.writer.files.save_image`)."""
+        from instrument.writer.files import save_image
+
         for name, array in (("corrected_mask.npy", mask), ("seam_weight.npy", seam_weight)):
-            with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
-                np.save(fh, array.astype(np.float32))
+            save_image(self.path / name, array.astype(np.float32))
 
     def close(self, status: str, **extra) -> None:
         """Final status (``completed``, ``aborted``, ``failed``) and save."""

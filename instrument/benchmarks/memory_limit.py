@@ -111,11 +111,12 @@ def _limit_runs(tmp: Path, inputs: dict, tv: str, iterations: int, announce) -> 
 def _write_problem(tmp: Path, side: int, planes: int) -> dict:
     """The synthetic stack (float32, normalised) and raw (scaled to 1000) as ``.npy``."""
     from instrument.benchmarks.volume import synthetic_problem
+    from instrument.writer.files import save_image
 
     op, b = synthetic_problem(side, side, planes)
     stack, raw = tmp / f"stack_{side}_{planes}.npy", tmp / f"raw_{side}_{planes}.npy"
-    np.save(stack, op.psf_stack)
-    np.save(raw, (1000.0 * b).astype(np.float32))
+    save_image(stack, op.psf_stack)
+    save_image(raw, (1000.0 * b).astype(np.float32))
     depths = ",".join(f"{20.0 + k:g}" for k in range(planes))
     return {"stack": str(stack), "raw": str(raw), "depths": depths, "side": side,
             "planes": planes, "tag": f"{side}_{planes}"}

@@ -115,16 +115,19 @@ def write_psf_store(path: str, psf: np.ndarray, n: int, n_z: int) -> tuple[float
         ``sqrt(sum_z (sum h_z)^2)`` (:func:`recon.volume.normalize_psf_stack`'s divisor).
     depths_mm : list of float
     """
-    import zarr
+    from instrument.writer.files import write_planes_zarr
 
     base = _base_psf(psf, n)
-    store = zarr.create_array(path, shape=(n_z, n, n), chunks=(1, n, n), dtype="float32")
     z = stack_depths_mm(n, n_z)
     sums = []
-    for k, zk in enumerate(z):
-        plane = depth_plane(base, zk, z[0]).astype(np.float32)
-        store[k] = plane
-        sums.append(float(plane.sum(dtype=np.float64)))
+
+    def planes():
+        for zk in z:
+            plane = depth_plane(base, zk, z[0]).astype(np.float32)
+            sums.append(float(plane.sum(dtype=np.float64)))
+            yield plane
+
+    write_planes_zarr(path, planes(), (n_z, n, n))
     return float(np.sqrt(np.sum(np.square(sums)))), [float(v) for v in z]
 
 

@@ -20,8 +20,10 @@ nothing; its reader recognises the volumes written here). Products inside a run
 The ``runs export`` TIFFs are written by
 :func:`~instrument.writer.files.write_tiff_file` with the tags
 :func:`instrument.tiff_export.write_tiff` builds; text files other than JSON by
-:func:`instrument.atomic.write_text`. ``tests/test_one_writer.py`` lists the modules
-that still write files themselves.
+:func:`instrument.atomic.write_text`; an append-only log by
+:class:`instrument.atomic.AppendLog`; generated docs pages by
+``instrument.writer.docpage``. ``tests/test_one_writer.py`` fails when a module
+outside these and the run store writes a file itself.
 
 All of them write through :mod:`instrument.atomic`: outputs whole or not at all (a
 temporary name renamed into place, :func:`~instrument.atomic.atomic_path` and

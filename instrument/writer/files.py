@@ -1,7 +1,8 @@
 """Image files written whole or not at all: the project's image products.
 
 :func:`save_image` writes the 32-bit float TIFF data product, the 8-bit PNG view or a
-NumPy ``.npy`` file; :func:`write_snapshot` the GUI's snapshot of an image view (the
+NumPy ``.npy`` file; :func:`write_planes_zarr` a stack too large to hold, one plane at a
+time, as a Zarr array; :func:`write_snapshot` the GUI's snapshot of an image view (the
 data shown, its metadata as the TIFF's JSON description). JSON files are written by
 :func:`instrument.atomic.write_json`. All write through
 :func:`instrument.atomic.atomic_path`, so they join an
@@ -14,6 +15,7 @@ import errno
 import json
 import logging
 import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +28,12 @@ from diffuserlab.jsonio import jsonable
 from recon.errors import ReconInputError
 from recon.validate import as_array
 
-from ..atomic import atomic_path
+from ..atomic import atomic_dir, atomic_path
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SAVE_EXTENSIONS", "save_image", "write_snapshot", "write_tiff_file"]
+__all__ = ["SAVE_EXTENSIONS", "save_image", "write_planes_zarr", "write_snapshot",
+           "write_tiff_file"]
 
 _TIFF_EXTENSIONS = (".tif", ".tiff")
 
@@ -198,4 +201,51 @@ def write_tiff_file(path: str | os.PathLike, array: np.ndarray, **tags: Any) -> 
         ``path`` (an ``OSError`` when it cannot be written).
     """
     tifffile.imwrite(path, array, **tags)
+    return Path(path)
+
+
+def write_planes_zarr(path: str | os.PathLike, planes: Iterable[np.ndarray],
+                      shape: tuple[int, int, int], dtype: str = "float32") -> Path:
+    """Write a stack one plane at a time as a Zarr v3 array (chunks of one plane), so
+    only one plane is held in memory; whole or not at all
+    (:func:`~instrument.atomic.atomic_dir`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The new Zarr store (a folder; replaced if it exists).
+    planes : iterable of numpy.ndarray
+        ``shape[0]`` planes of shape ``shape[1:]``, in order (a generator: each is
+        computed when it is written).
+    shape : tuple of int
+        ``(planes, height, width)``.
+    dtype : str
+        The array's dtype (default float32); each plane is cast to it.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        ``planes`` gives more or fewer than ``shape[0]`` planes (nothing is left under
+        ``path``).
+    OSError
+        The store cannot be written (nothing is left under ``path``).
+    """
+    import zarr
+
+    n = int(shape[0])
+    with atomic_dir(path) as tmp:
+        store = zarr.create_array(str(tmp), shape=tuple(shape), chunks=(1, *shape[1:]),
+                                  dtype=dtype, zarr_format=3)
+        k = -1
+        for k, plane in enumerate(planes):
+            if k >= n:
+                raise ValueError(f"more than the {n} planes of {path}")
+            store[k] = np.asarray(plane, dtype=dtype)
+        if k + 1 != n:
+            raise ValueError(f"{k + 1} planes given for the {n} of {path}")
     return Path(path)

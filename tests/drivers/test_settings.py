@@ -18,13 +18,14 @@ from drivers.settings import (
     settings_markdown,
     with_settings,
 )
-from drivers.settings_doc import DEFAULT_PAGE, KINDS, main, page
+from drivers.settings_doc import DEFAULT_PAGE, KINDS, page
+from instrument.writer.docpage import main
 from drivers.simulated import SimulatedCamera, SimulatedDmd, SimulatedLedArray, SimulatedStage
 
 
 def test_settings_page_matches_the_declarations(tmp_path):
     assert DEFAULT_PAGE.read_text(encoding="utf-8") == page(), (
-        "docs/drivers/settings.md is out of date: run python -m drivers.settings_doc")
+        "docs/drivers/settings.md is out of date: run python -m instrument.writer.docpage")
     assert main(["--check"]) == 0
     stale = tmp_path / "settings.md"
     stale.write_text(page().replace("exposure time", "exposure"), encoding="utf-8")
