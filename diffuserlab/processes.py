@@ -1,7 +1,7 @@
 """What every child process shares: how it ended, in people's words (one wording for
 the window's messages, ``gui.messages``, and the processes' own logs), and how its
 error crosses to the parent (:func:`portable_error`: the batch, live and bench
-processes, :mod:`instrument.batch_process`, :mod:`instrument.live_process`,
+processes, ``instrument.batch_process``, :mod:`instrument.live_process`,
 :mod:`instrument.bench_host`)."""
 
 from __future__ import annotations
