@@ -10,14 +10,17 @@ line's start imports this module).
 - :data:`COMMAND_FIELDS` and :data:`GRID_FIELDS`: the reconstruction fields each
   command offers (its flags, ``instrument.cli.recon_flags``) and each GUI form shows;
 - :class:`RunOptions`: ``recon-run``'s own options, the command's and the GUI's Batch
-  form's.
+  form's;
+- :func:`check_pitch_um`: the one check of a sensor pixel pitch, the commands' and
+  :func:`instrument.stacks.import_psf_stack`'s.
 """
 
 from __future__ import annotations
 
 from diffuserlab.options import Options, OptionSpec, option
 
-__all__ = ["COMMAND_FIELDS", "GRID_FIELDS", "OptionSpec", "Options", "RunOptions", "option"]
+__all__ = ["COMMAND_FIELDS", "GRID_FIELDS", "OptionSpec", "Options", "RunOptions",
+           "check_pitch_um", "option"]
 
 #: The :class:`recon.options.ReconOptions` fields each command offers as flags, in
 #: ``--help`` order (the ``--psf-grid`` group's model, pca-k, background and two-part
@@ -89,3 +92,47 @@ class RunOptions(Options):
             raise InputError(
                 f"{workers.name(front)}: not allowed with {scheduler.name(front)}; give "
                 "local workers or a scheduler's address, not both")
+
+
+def check_pitch_um(pitch_um: float | None, option: str = "--pitch-um") -> float | None:
+    """The sensor pixel pitch an option gives, um, checked: the one check of ``recon``,
+    ``recon3d``, ``analyze``, ``runs import-psf`` and
+    :func:`instrument.stacks.import_psf_stack` (it becomes an OME pixel size).
+
+    Parameters
+    ----------
+    pitch_um : float or None
+        As parsed (``type=float``: ``inf``, ``1e400`` and ``nan`` parse) or given;
+        None: not given (no pixel size, or the PSF run's).
+    option : str
+        The option, for the message: a flag (``--pitch-um``, shown ``--pitch-um inf``)
+        or a Python keyword (``pitch_um``, shown ``pitch_um=inf``).
+
+    Returns
+    -------
+    float or None
+        ``pitch_um``.
+
+    Raises
+    ------
+    diffuserlab.errors.InputError
+        Not a finite number > 0 (0 names leaving the option out for no pixel size).
+    """
+    import math
+    import numbers
+
+    from diffuserlab.errors import InputError
+
+    if pitch_um is None:
+        return None
+    sep = " " if option.startswith("-") else "="
+    if isinstance(pitch_um, bool) or not isinstance(pitch_um, numbers.Real):
+        raise InputError(f"{option}{sep}{pitch_um!r}: give the sensor's pixel pitch in "
+                         f"micrometres, a finite number > 0 (e.g. {option}{sep}3.45)")
+    if pitch_um == 0:
+        raise InputError(f"{option}{sep}0: a pixel pitch is > 0; leave {option} out for no "
+                         "pixel size (or the PSF run's)")
+    if not (math.isfinite(pitch_um) and pitch_um > 0):
+        raise InputError(f"{option}{sep}{pitch_um:g}: give the sensor's pixel pitch in "
+                         f"micrometres, a finite number > 0 (e.g. {option}{sep}3.45)")
+    return float(pitch_um)

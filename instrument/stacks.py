@@ -298,11 +298,17 @@ def import_psf_stack(source: str | Path, out: str | Path, *,
 
     Raises
     ------
+    diffuserlab.errors.InputError
+        ``pitch_um`` is not a finite number > 0
+        (:func:`instrument.options.check_pitch_um`), before anything is read.
     RunStoreError
         Unreadable file, missing depths, or ``out`` exists.
     OSError
         The store cannot be written (a full disk: the partial run is removed).
     """
+    from .options import check_pitch_um
+
+    pitch_um = check_pitch_um(pitch_um, "pitch_um")
     stack, depths, attrs = load_psf_stack(source, depths_mm)
     order = np.argsort(depths)
     stack, depths = stack[order], [depths[i] for i in order]

@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING
 from diffuserlab.errors import InputError
 from diffuserlab.jsonio import jsonable
 
+from ..options import check_pitch_um
 from .common import floats
 
 if TYPE_CHECKING:  # pragma: no cover  (numpy is imported where the analyses run)
@@ -170,6 +171,7 @@ def _check_options(args: argparse.Namespace) -> None:
     """Refuse option values no analysis can use, before any file is read or written."""
     if args.bin_factor < 1:
         raise InputError(f"--bin must be >= 1, got {args.bin_factor}")
+    check_pitch_um(args.pitch_um)
     if args.remove_background < 0:
         raise InputError(f"--remove-background must be >= 0 (0: off), got "
                          f"{args.remove_background}")

@@ -12,7 +12,7 @@ import sys
 
 from diffuserlab.errors import InputError
 
-__all__ = ["check_memory", "check_pitch_um", "error", "floats", "size_bytes"]
+__all__ = ["check_memory", "error", "floats", "size_bytes"]
 
 def error(line: str) -> None:
     """Print ``diffuserlab: error: LINE`` on stderr."""
@@ -34,39 +34,6 @@ def floats(text: str, option: str) -> list[float]:
     if not values or not all(math.isfinite(v) for v in values):
         raise InputError(f"{option} {text!r} needs finite numbers")
     return values
-
-
-def check_pitch_um(pitch_um: float | None, option: str = "--pitch-um") -> float | None:
-    """The sensor pixel pitch an option gives, um, checked: the one check of ``recon``,
-    ``recon3d`` and ``runs import-psf`` (it becomes an OME pixel size).
-
-    Parameters
-    ----------
-    pitch_um : float or None
-        As parsed (``type=float``: ``inf``, ``1e400`` and ``nan`` parse); None: not
-        given (no pixel size, or the PSF run's).
-    option : str
-        The option, for the message.
-
-    Returns
-    -------
-    float or None
-        ``pitch_um``.
-
-    Raises
-    ------
-    diffuserlab.errors.InputError
-        Not a finite number > 0 (0 names leaving the option out for no pixel size).
-    """
-    if pitch_um is None:
-        return None
-    if pitch_um == 0:
-        raise InputError(f"{option} 0: a pixel pitch is > 0; leave {option} out for no "
-                         "pixel size (or the PSF run's)")
-    if not (math.isfinite(pitch_um) and pitch_um > 0):
-        raise InputError(f"{option} {pitch_um:g}: give the sensor's pixel pitch in "
-                         f"micrometres, a finite number > 0 (e.g. {option} 3.45)")
-    return float(pitch_um)
 
 
 def size_bytes(text: str, option: str = "--memory-limit") -> int:

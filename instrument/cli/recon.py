@@ -74,10 +74,10 @@ def summary_line(m: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
+    from ..options import check_pitch_um
     from ..reconstruct_files import run_recon
     from ..writer.guards import check_outputs
     from ..writer.products import output_paths
-    from .common import check_pitch_um
     from .recon_flags import check_device, check_recon_flags
 
     if (args.psf is None) == (args.psf_grid is None):

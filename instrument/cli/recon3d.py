@@ -18,7 +18,8 @@ import argparse
 
 from diffuserlab.errors import InputError
 
-from .common import check_pitch_um, floats, size_bytes
+from ..options import check_pitch_um
+from .common import floats, size_bytes
 
 __all__ = ["add_subcommands", "run", "summary_line"]
 

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from diffuserlab.errors import InputError
 
-from .common import check_pitch_um, floats
+from ..options import check_pitch_um
+from .common import floats
 
 __all__ = ["add_subcommands", "format_summary", "run", "verify"]
 

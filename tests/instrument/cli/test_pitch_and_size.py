@@ -1,6 +1,6 @@
 """--pitch-um and --memory-limit: one check each, shared by the commands that take them
-(instrument.cli.common.check_pitch_um, size_bytes); what is no pitch or no size is
-refused in one line, exit 2, before any work (issue 64: recon wrote
+(instrument.options.check_pitch_um, instrument.cli.common.size_bytes); what is no pitch or
+no size is refused in one line, exit 2, before any work (issue 64: recon wrote
 PhysicalSizeX="inf", recon3d checked nothing, 0 was silently no pitch, .GB read as
 1 GB)."""
 
@@ -32,6 +32,8 @@ COMMANDS = {
     "recon3d": ["recon3d", "--psf-stack", "stack.tif", "--raw", "raw.npy",
                 "--out", "out/v.tif"],
     "runs import-psf": ["runs", "import-psf", "stack.tif", "--out", "out/i.zarr"],
+    "analyze": ["analyze", "grid", "--psf-stack", "stack.tif", "--d-mm", "1",
+                "--out", "out/a"],
 }
 
 
@@ -72,3 +74,22 @@ def test_a_good_pitch_is_the_tiffs_pixel_size(files):
     assert main([*COMMANDS["recon"], "--pitch-um", "3.45", "--iterations", "2"]) == 0
     with tifffile.TiffFile(files / "out" / "r.tif") as tif:
         assert 'PhysicalSizeX="3.45"' in tif.pages[0].description
+
+
+@pytest.mark.parametrize("value", [float("inf"), float("nan"), -1.0, 0, "3.45", True])
+def test_import_psf_stack_from_python_checks_its_pitch(files, value):
+    """The Python function takes the commands' check (issue 64 left it unchecked: a run
+    recorded ``pixel_pitch_um`` inf), naming its keyword, before anything is written."""
+    from diffuserlab.errors import InputError
+    from instrument.stacks import import_psf_stack
+
+    with pytest.raises(InputError) as info:
+        import_psf_stack(files / "stack.tif", files / "out" / "i.zarr", pitch_um=value)
+    message = str(info.value)
+    assert message.startswith("pitch_um=") and "\n" not in message, message
+    assert ("leave pitch_um out" in message if value == 0
+            else "a finite number > 0 (e.g. pitch_um=3.45)" in message), message
+    assert not (files / "out").exists()
+    store = import_psf_stack(files / "stack.tif", files / "out" / "i.zarr",
+                             pitch_um=np.float32(3.45))
+    assert store.attrs["camera"]["pixel_pitch_um"] == pytest.approx(3.45)
