@@ -193,14 +193,17 @@ class ReconOptions(Options):
         f"FISTA {GRID_L1:g} (Eq. 6.2)", unit="unitless", parse=weight_arg, metavar="L1|auto",
         ge=0, allow_inf_nan=False, label="l1 weight")
     prior: Literal["tv", "tv-iso", "tgv", "wavelet", "dncnn", "auto"] = option(
-        "tv", help="image prior of ADMM, weighted by --tv: tv (total variation), tv-iso "
-        "(isotropic TV), tgv (second-order total generalised variation), wavelet (l1 "
-        "of symlet-4 wavelet details, cycle-spun), dncnn (plug-and-play: the shipped "
-        "DnCNN denoiser, --tv its noise level relative to the image's scale; slower on a "
-        "CPU), or auto (the weight paths of tv, wavelet and dncnn, then the simplest that "
-        "predicts held-out pixels within one standard error of the best; 2D only); a "
-        "volume takes tv, or another prior (tgv, wavelet, dncnn on each plane) with a "
-        "fixed --tv", kinds=("image", "volume"),
+        "tv-iso", help="image prior of ADMM, weighted by --tv: tv-iso (isotropic TV, "
+        "the default: no block tiling), tv (anisotropic TV: favours edges along the pixel "
+        "axes, block mosaics on real measurements), tgv (second-order total generalised "
+        "variation), wavelet (l1 of symlet-4 wavelet details, cycle-spun), dncnn "
+        "(plug-and-play: the shipped DnCNN denoiser, --tv its noise level relative to the "
+        "image's scale; slower on a CPU), or auto (the weight paths of tv, wavelet and "
+        "dncnn, then the simplest that predicts held-out pixels within one standard error "
+        "of the best; 2D only); FISTA and GD run their own (anisotropic) TV under the "
+        "default; a volume takes 3D TV (tv, or tv-iso), or another prior (tgv, wavelet, "
+        "dncnn on each plane) with a fixed "
+        "--tv", kinds=("image", "volume"),
         methods=("auto", "admm"), label="prior")
     bin_factor: int = option(
         1, help="box binning of PSF and raw, pixels per side (4: 1200x1600 -> 300x400)",
@@ -272,7 +275,9 @@ class ReconOptions(Options):
         """A prior other than TV with a method that takes none (Wiener, GD, FISTA: the
         priors run in ADMM, the ``prior`` declaration's ``methods``) is refused, for the
         command line, the GUI's forms and :func:`recon.reconstruct` alike; the prior
-        would be ignored or fail only after the data are read.
+        would be ignored or fail only after the data are read. The declared default
+        (isotropic TV) is ADMM's: under it the others keep their own TV (FISTA's and
+        GD's anisotropic, Wiener none), as they do with ``tv`` named.
 
         Raises
         ------
@@ -283,7 +288,10 @@ class ReconOptions(Options):
         prior = values.get("prior", spec.default)
         prior = prior if isinstance(prior, str) else getattr(prior, "name", spec.default)
         method = values.get("method", method_spec.default)
-        if prior == spec.default or not isinstance(method, str) or method in spec.methods:
+        # the declared default (isotropic TV, ADMM's) and TV itself: the other methods'
+        # own TV (FISTA, GD) or none (Wiener), as recon.auto.solve_channel runs them
+        if prior in (spec.default, "tv") or not isinstance(method, str) \
+                or method in spec.methods:
             return
 
         def given(s, value) -> str:
@@ -292,7 +300,7 @@ class ReconOptions(Options):
         takers = " or ".join(given(method_spec, m) for m in reversed(spec.methods))
         raise InputError(f"{given(spec, prior)}: {given(method_spec, method)} takes no image "
                          f"prior (the priors run in ADMM); use {takers}, or "
-                         f"{given(spec, spec.default)} with this method")
+                         f"{given(spec, 'tv')} with this method")
 
     def keywords(self, kind: str) -> dict:
         """The keywords of :func:`recon.reconstruct` for a model of ``kind`` (``"image"``,

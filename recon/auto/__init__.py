@@ -35,6 +35,9 @@ __all__ = ["AUTO", "AutoWeight", "ChannelProblem", "NoSignalError", "NoiseModel"
 
 #: The value that asks for an automatic choice (``method``, ``tv``, ``l1``).
 AUTO = "auto"
+#: The declared default prior (:class:`recon.options.ReconOptions`): isotropic TV, the
+#: prior of ADMM; a method without it (FISTA, GD, Wiener) keeps its own TV under it.
+DEFAULT_PRIOR = ReconOptions.spec("prior").default
 
 
 def parse_weight(value, name: str):
@@ -166,12 +169,14 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
         fixed along the way; with ``l1="auto"`` an automatic ``tv`` is 0, one weight
         is chosen at a time; ``tv`` None is ``"auto"``, ``l1`` not given is 0),
         ``seconds`` (time budget, ``method="auto"`` only) and ``prior``
-        (``"tv"``, ``"wavelet"``, ``"dncnn"``, ``"auto"`` or a
-        :class:`recon.priors.Prior`: the image prior of ADMM, ``tv`` its weight; another
-        prior than TV needs ADMM, a method that resolves to Wiener ignores it and the
-        record says so; ``"auto"`` runs every prior's weight path and keeps the
-        simplest that predicts the held-out pixels within one standard error of the
-        best, :func:`recon.auto.prior.choose_prior`, ``tv`` then ``"auto"``).
+        (``"tv-iso"``, the declared default, ``"tv"``, ``"tgv"``, ``"wavelet"``,
+        ``"dncnn"``, ``"auto"`` or a :class:`recon.priors.Prior`: the image prior of
+        ADMM, ``tv`` its weight; FISTA and GD keep their own anisotropic TV under the
+        default; another prior than TV named needs ADMM, a method that resolves to
+        Wiener ignores it and the record says so; ``"auto"`` runs every prior's
+        weight path and keeps the simplest that predicts the held-out pixels within
+        one standard error of the best, :func:`recon.auto.prior.choose_prior`,
+        ``tv`` then ``"auto"``).
     fft_pair_s : float, optional
         Measured FFT floor (needed with ``seconds``).
     auto_stop : bool
@@ -244,6 +249,10 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
         raise ReconInputError(f"method {method!r} does not serve this forward model; use one "
                               f"of {', '.join(solvers)}")
     spec = solvers[method]
+    if method != "admm" and prior_name == DEFAULT_PRIOR:
+        # the declared default (isotropic TV) is ADMM's prior; the other methods keep
+        # their own TV (FISTA and GD: anisotropic; Wiener: none), as before it was
+        prior, prior_name = "tv", "tv"
     if not spec.iterative:
         res = spec.solve(op, b, **options)
         record.update(tv=0.0, l1=0.0, iterations_used=1)

@@ -312,7 +312,8 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, options: ReconOptions | None = 
         # on a GPU the automatic weight's path runs on the CPU, the chosen weight's
         # ADMM on the GPU (as for one PSF, recon.planar)
         problem = ChannelProblem(op, (b / scale).astype(np.float32), b, scale)
-        chosen = ReconOptions.from_defaults(method=AUTO, iterations=iterations, tv=tv, l1=l1)
+        chosen = ReconOptions.from_defaults(method=AUTO, iterations=iterations, tv=tv, l1=l1,
+                                            prior="tv")  # the grid's plans are TV's
         res, record = solve_channel(problem, chosen,
                                     solvers=device_grid_solvers(backend, GRID_SOLVERS),
                                     plan_of=SpatialAdmmPlan.of,

@@ -330,7 +330,8 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray,
         ``recon.volume.xp_fista3d.fista3d_xp``, an automatic weight's held-out path
         and final solve there too, its plane tests on the host, or the GPU when one is
         usable; ``info["device"]`` says which ran) and ``prior`` (the prior of 3D ADMM,
-        :mod:`recon.priors`: 3D TV, or ``"wavelet"`` or ``"dncnn"`` on each plane,
+        :mod:`recon.priors`: 3D TV (``"tv"``, and ``"tv-iso"``, the declared default of
+        the 2D image), or ``"wavelet"`` or ``"dncnn"`` on each plane,
         ``tv`` its fixed weight; in memory, on the CPU or a device).
     memory_limit_bytes : int, optional
         The most this process's resident set may reach during a CPU solve (default:
@@ -497,13 +498,13 @@ def _volume_prior(prior, method: str, tv, l1, slab_group) -> str | None:
     ReconInputError
         An unknown prior, ``"auto"``, FISTA, an automatic weight or a sharded solve.
     """
-    if prior == "tv" or prior is None:
+    if prior in ("tv", "tv-iso") or prior is None:  # tv-iso, the 2D default: 3D TV here
         return None
     if prior == AUTO:
         raise ReconInputError("prior auto chooses among priors for a 2D image; a volume takes "
                               "one named prior (--prior tv|wavelet|dncnn)")
     name = prior_of(prior).name
-    if name == "tv":
+    if name in ("tv", "tv-iso"):
         return None
     if method != "admm":
         raise ReconInputError(f"the {name} prior runs in 3D ADMM; use --method admm or "

@@ -62,7 +62,7 @@ def test_cli_gui_and_api_defaults_are_the_declared_objects(forms):
     for name in ("method", "iterations", "tv", "l1", "bin_factor", "dark", "device"):
         assert api[name].default is declared[name], name
         assert getattr(gui, name) is declared[name], name  # an empty field: the default
-    assert gui.prior == declared["prior"] == "tv"
+    assert gui.prior == declared["prior"] == "tv-iso"
     record, live = forms
     batch = record.batch_fields
     assert batch["--method"].currentText() is declared["method"] or (

@@ -13,8 +13,10 @@ import pytest
 
 from benchmarks import real_data
 from benchmarks.psf_from_scenes import default_data_dir
+from recon.preprocess.binning import box_bin
 
-_KEYS = {"pair", "method", "weight", "psnr_db", "ssim", "seconds", "time_ratio"}
+_KEYS = {"pair", "method", "weight", "psnr_db", "ssim", "seconds", "time_ratio", "tiling",
+         "tiling_truth"}
 
 if not default_data_dir().parent.is_dir():
     pytest.skip(f"no shared data directory ({default_data_dir().parent})",
@@ -90,6 +92,9 @@ def test_every_column_on_three_binned_pairs(tmp_path, isolated_lensless, monkeyp
                     r["psnr_db"], abs=0.05)
             assert np.isfinite([r["psnr_db"], r["ssim"], r["seconds"]]).all()
             assert r["time_ratio"] == pytest.approx(r["seconds"] / floor)
+            truth = box_bin(np.load(default_data_dir() / "lensed" / f"{r['pair']}.npy"), 6)
+            assert r["tiling_truth"] == pytest.approx(real_data.tiling_score(truth))
+            assert 0 <= r["tiling"] <= 1
         by_w = {w: np.mean([r["psnr_db"] for r in rows if r["weight"] == w]) for w in weights}
         entry = next(x for x in saved["methods"] if x["name"] == m.name)
         assert by_w[entry["weight"]] == max(by_w.values())
