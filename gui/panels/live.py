@@ -86,7 +86,7 @@ class LivePanel(QWidget):
         self.pacer = DisplayPacer(TICK_MS / 1000.0)
         self._counters_at = -1e18
         self._shown_recon = -1
-        self._recon_count = (-1, time.monotonic())
+        self._recon_count = (-1, time.monotonic(), 0)  # (results, when, frames seen)
         self._live_settings: dict = {}
         layout = QVBoxLayout(self)
         controls = QGridLayout()
@@ -454,13 +454,18 @@ class LivePanel(QWidget):
             self._live_ended()
             return
         now = time.monotonic()
+        frames = self.session.frames_seen
         if s["reconstructed"] != self._recon_count[0]:
-            self._recon_count = (s["reconstructed"], now)
+            self._recon_count = (s["reconstructed"], now, frames)
         idle = now - self._recon_count[1]
+        offered = frames - self._recon_count[2]
         method = s["method"] + ("" if s["method"] == "wiener" else f" x{s['iterations']}")
         if idle > STALE_S:
             why = ("the camera is busy" if self.session.camera_user is not None
                    else "the stream is stopped" if not self.session.streaming
+                   else f"none of the {offered} frames since has finished: the "
+                   "reconstruction is slower than the camera, or gets little time on a "
+                   "busy machine" if offered > 0
                    else "waiting for frames")
             rate = f"no new result for {idle:.0f} s ({why})"
         else:

@@ -79,3 +79,35 @@ def test_a_silent_camera_puts_the_button_back_and_says_why(jobs_registered, wind
          "the raw view's line to show the stream again")
     job = live.toggle_stream()
     wait(lambda: job.done and not session.streaming, 60.0, "the stream to stop")
+
+
+class _NoResult:
+    """A live reconstruction that finishes no frame (its process starved)."""
+
+    def stats(self) -> dict:
+        return {"running": True, "reconstructed": 0, "skipped": 40, "errors": 0,
+                "method": "admm", "iterations": 5, "fps": 0.0, "latency_median_s": None,
+                "last_error": ""}
+
+    def latest(self):
+        return None
+
+
+def test_a_reconstruction_finishing_no_frame_is_not_said_to_wait_for_frames(window, wait):
+    """Seen in the soak at load 34: 'no new result for 512 s (waiting for frames)' while
+    the camera's frames arrived and the reconstruction's process got no time."""
+    session, live = window.session, window.live
+    window.docks["Live view"].raise_()
+    job = live.toggle_stream()
+    wait(lambda: job.done and session.streaming, 60.0, "the stream to start")
+    live.live = _NoResult()
+    try:
+        wait(lambda: "frames since has finished" in live.recon_stats.text(), 60.0,
+             "the reconstruction's line to say the frames since found no result")
+        text = live.recon_stats.text()
+        assert "no new result for" in text and "busy machine" in text, text
+        assert "waiting for frames" not in text, text
+    finally:
+        live.live = None
+        job = live.toggle_stream()
+        wait(lambda: job.done and not session.streaming, 60.0, "the stream to stop")
