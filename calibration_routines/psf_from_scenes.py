@@ -54,6 +54,7 @@ from instrument.run_recipe import write_run_recipe
 from instrument.runstore import RunStore, discard_partial_run
 from recon.analysis.early_stop import THRESHOLDS, fit_early_stop, reference_db
 from recon.analysis.psf_from_scenes import (
+    ESTIMATE_ITERATIONS,
     LeaveOneOut,
     PsfEstimate,
     check_pairs,
@@ -401,7 +402,8 @@ class PsfFromScenesPlan(Plan):
 
     def __init__(self, *, scene_names, z_mm: float, display: str = "slm", display_shape,
                  display_pitch_um: float, d_mm: float, pitch_mm: float,
-                 frames_per_point: int = 4, iterations: int = 100,
+                 frames_per_point: int = 4,
+                 iterations: int = ESTIMATE_ITERATIONS,
                  recipe_scenes=()) -> None:
         names = [str(n) for n in scene_names]
         unknown = [n for n in names if not _scene_name_ok(n)]

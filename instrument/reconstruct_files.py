@@ -345,11 +345,11 @@ def run_recon(psf_path: str, raw_path: str, options, *, out: str,
                              what=f"--psf {psf_path}")
     raw = load_image(raw_path)
     with named_pair(psf_path, raw_path):
-        result = reconstruct(psf, raw, **{**options.keywords("image"), "dark": dark})
+        result = reconstruct(psf, raw, options, dark=dark)
     floor = float(np.median([fft_pair_seconds(result.operator.padded_shape) for _ in range(3)]))
     metrics = result.metrics(floor)
     grid_pitch = _grid_pitch_um(psf_path, psf_product, pitch_um,
-                                options.keywords("image")["bin_factor"])
+                                options.bin_factor)
     metrics.update(psf=str(psf_path), raw=str(raw_path), seed=options.seed,
                    psf_depth_mm=depth, pixel_size_um=grid_pitch)
     png, tif = output_paths(out)
@@ -499,8 +499,7 @@ def run_recon3d(psf_stack: str, raw_path: str, options, *, out: str,
                                            scene_depth_range_mm=scene_range_mm)
         stack, depths = stack[keep], [depths[i] for i in keep]
     with named_pair(psf_stack, raw_path):
-        rec = reconstruct(PsfStack(stack, depths), raw,
-                          **{**kw, "tv": tv, "l1": l1, "dark": dark},
+        rec = reconstruct(PsfStack(stack, depths), raw, options, dark=dark,
                           memory_limit_bytes=memory_limit_bytes,
                           slab_group=slab_group, announce=announce)
     seconds_total = time.perf_counter() - t_start

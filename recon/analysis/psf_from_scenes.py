@@ -47,8 +47,13 @@ from ..fft import irfftn, rfftn
 from ..operators import ConvolutionOperator, real32
 from ..validate import as_int, as_shape2, finite_float
 
-__all__ = ["LeaveOneOut", "PsfEstimate", "check_pairs", "estimate_psf_from_scenes",
-           "leave_one_out", "relative_residuals"]
+__all__ = ["ESTIMATE_ITERATIONS", "LeaveOneOut", "PsfEstimate", "check_pairs",
+           "estimate_psf_from_scenes", "leave_one_out", "relative_residuals"]
+
+#: The estimate's cap on ADMM iterations (it stops earlier once converged): its own
+#: quantity, not a reconstruction's ``iterations``; ``calibrate psf-from-scenes
+#: --iterations`` defaults to it.
+ESTIMATE_ITERATIONS = 100
 
 
 @dataclass(frozen=True)
@@ -289,9 +294,10 @@ def _options(psf_shape, sensor_shape, iterations, cg_iterations, rho_rel):
     return psf_shape, iterations, cg_iterations, rho_rel
 
 
-def estimate_psf_from_scenes(scenes, measurements, *, psf_shape=None, iterations: int = 100,
-                             cg_iterations: int = 5, rho_rel: float = 1e-4,
-                             tie_channels: bool = True, tol: float = 1e-2, initial=None,
+def estimate_psf_from_scenes(scenes, measurements, *, psf_shape=None,
+                             iterations: int = ESTIMATE_ITERATIONS, cg_iterations: int = 5,
+                             rho_rel: float = 1e-4, tie_channels: bool = True,
+                             tol: float = 1e-2, initial=None,
                              on_iteration=None) -> PsfEstimate:
     """The PSF per colour channel from known scenes and their measurements.
 
@@ -311,7 +317,7 @@ def estimate_psf_from_scenes(scenes, measurements, *, psf_shape=None, iterations
         Support of the PSF, centred on the sensor's centre; default the sensor's
         shape.
     iterations : int
-        The most ADMM iterations (>= 1).
+        The most ADMM iterations (>= 1; :data:`ESTIMATE_ITERATIONS` by default).
     cg_iterations : int
         Conjugate-gradient iterations per h-update (>= 1).
     rho_rel : float
