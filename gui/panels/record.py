@@ -366,7 +366,8 @@ class RecordPanel(QWidget):
             prior.setEnabled(True)
             prior.setToolTip(self.recon_form.specs["prior"].help)
             if prior.currentIndex() < 0:
-                self._set_quietly(prior, self._before_recipe.get("prior", "tv"))
+                self._set_quietly(prior, self._before_recipe.get(
+                    "prior", self.recon_form.specs["prior"].default))
 
     def _recipe_edited(self, field: str) -> None:
         """An operator's edit of a fixed field (or the early-stop field) while the

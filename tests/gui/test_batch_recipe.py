@@ -42,7 +42,7 @@ def _shows(record) -> tuple:
 def test_the_batch_form_shows_the_recipe_and_says_when_an_edit_declines_it(panel,
                                                                           calibration):
     f = panel.batch_fields
-    assert _shows(panel) == ("auto", 200, "auto", "tv", "none")
+    assert _shows(panel) == ("auto", 200, "auto", "tv-iso", "none")
     f["--psf"].setText(str(calibration))
     f["--psf"].editingFinished.emit()
     method, iterations, tv, prior, early = _shows(panel)
@@ -64,7 +64,7 @@ def test_the_batch_form_shows_the_recipe_and_says_when_an_edit_declines_it(panel
     assert _shows(panel)[:4] == ("fista", 90, "0", "")
     f["--psf"].setText(str(calibration.parent / "plain.npy"))
     f["--psf"].editingFinished.emit()
-    assert _shows(panel) == ("auto", 200, "auto", "tv", "none")
+    assert _shows(panel) == ("auto", 200, "auto", "tv-iso", "none")
     assert panel.recipe_line.isHidden()
 
 
