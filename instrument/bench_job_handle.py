@@ -5,7 +5,8 @@ The bench process (:class:`~instrument.bench_host.BenchHost`) keeps a
 job's events (``progress`` with the value the job reported, its arrays left out
 (:func:`without_arrays`), then ``done`` with its result or ``failed`` with its error,
 as :class:`~instrument.bench_service.BenchEvent` s, ``device`` None) that every client
-reads with a long poll, as it reads the bench's events; and the job's start and end
+reads with a long poll, as it reads the bench's events (the client that started it
+too: one route, the same sequence numbers for every client); and the job's start and end
 as a ``job`` event in the bench's own :class:`~instrument.bench_service.EventLog`
 (``data``: :meth:`JobInfo.as_event`), so a window sees the job a notebook started.
 
@@ -109,9 +110,12 @@ def without_arrays(value: Any) -> Any:
     dataclass (a copy) with those fields None, anything else as it is.
 
     A calibration run's progress carries each frame it took (its ``last_frame``) for
-    the window's display, which gets it down its own pipe; kept in every job's log, a
-    run's frames would pile up in the bench process (tens of megabytes each on a
-    large sensor). A notebook takes frames with ``snap()`` or from the run.
+    the window's display; kept in every job's log, a run's frames would pile up in the
+    bench process (tens of megabytes each on a large sensor), so only the newest
+    progress keeps its arrays, for a reader that asks for them
+    (:meth:`JobRegistry.events_after` with ``arrays``: the window's
+    :meth:`~instrument.bench_process.BenchClient.run_job`). A notebook takes frames
+    with ``snap()`` or from the run.
     """
     if isinstance(value, dict):
         return {k: v for k, v in value.items() if not isinstance(v, np.ndarray)}
@@ -154,6 +158,9 @@ class _Job:
     def __init__(self, info: JobInfo) -> None:
         self.info = info
         self.log = EventLog(JOB_EVENTS_KEPT)
+        #: The newest progress event's sequence number and value with its arrays (a
+        #: calibration's ``last_frame``), for a reader that asks for them; one per job.
+        self.arrays: tuple[int, Any] | None = None
 
 
 class JobRegistry:
@@ -180,13 +187,18 @@ class JobRegistry:
         self.bench_events.put("job", None, job.info.as_event())
 
     def report(self, job_id: int, value: Any) -> None:
-        """Log the job's progress ``value``, less its arrays (:func:`without_arrays`)."""
+        """Log the job's progress ``value``, less its arrays (:func:`without_arrays`);
+        the newest value with its arrays is kept beside it for a reader that asks for
+        them (:meth:`events_after` with ``arrays``)."""
         job = self._jobs.get(job_id)
         if job is not None:
-            value = without_arrays(value)
+            plain = without_arrays(value)
             with self._lock:
-                job.info = dataclasses.replace(job.info, progress=value)
-            job.log.put("progress", None, value)
+                job.info = dataclasses.replace(job.info, progress=plain)
+                event = job.log.put("progress", None, plain)
+                arrays = plain is not value and not (isinstance(value, dict)
+                                                      and len(plain) == len(value))
+                job.arrays = (event.seq, value) if arrays else None
 
     def ended(self, job_id: int, state: str, value: Any) -> None:
         """Log the job's end: ``state`` ``done`` (``value`` its result) or ``failed``
@@ -195,6 +207,7 @@ class JobRegistry:
         with self._lock:
             job = self._jobs[job_id]
             job.info = dataclasses.replace(job.info, state=state)
+            job.arrays = None
             ended = [i for i, j in self._jobs.items() if j.info.state != "running"]
             for old in ended[:max(0, len(ended) - ENDED_JOBS_KEPT)]:
                 del self._jobs[old]
@@ -224,12 +237,25 @@ class JobRegistry:
         with self._lock:
             return [j.info for j in self._jobs.values()]
 
-    def events_after(self, job_id: int, seq: int,
-                     timeout_s: float = 1.0) -> tuple[int, list[BenchEvent]]:
+    def events_after(self, job_id: int, seq: int, timeout_s: float = 1.0,
+                     arrays: bool = False) -> tuple[int, list[BenchEvent]]:
         """The job's events after ``seq`` (0: from the first kept), waiting up to
         ``timeout_s`` (at most 5 s) for one; see :meth:`EventLog.after
-        <instrument.bench_service.EventLog.after>`."""
-        return self._job(job_id).log.after(int(seq), min(float(timeout_s), _POLL_CAP_S))
+        <instrument.bench_service.EventLog.after>`. Every client reads a job's events
+        here, by the same sequence numbers.
+
+        ``arrays``: the newest progress event among them carries its arrays (a
+        calibration's ``last_frame``, for the window's display); older ones, and every
+        event without ``arrays``, carry :func:`without_arrays`' value.
+        """
+        job = self._job(job_id)
+        last, events = job.log.after(int(seq), min(float(timeout_s), _POLL_CAP_S))
+        with self._lock:
+            kept = job.arrays if arrays else None
+        if kept is not None:
+            events = [dataclasses.replace(e, data=kept[1]) if e.seq == kept[0] else e
+                      for e in events]
+        return last, events
 
 
 class JobHandle:
@@ -242,10 +268,15 @@ class JobHandle:
         ``job_info`` and ``job_control``).
     info : JobInfo
         The job as it was when the handle was made.
+    arrays : bool
+        Read the newest progress event with its arrays (:meth:`JobRegistry.events_after`;
+        :meth:`~instrument.bench_process.BenchClient.run_job`'s ``report``); False
+        (default) leaves them out.
     """
 
-    def __init__(self, host, info: JobInfo) -> None:
+    def __init__(self, host, info: JobInfo, arrays: bool = False) -> None:
         self._host = host
+        self._arrays = bool(arrays)
         self.id, self.name, self.params = info.id, info.name, info.params
         self._seq = 0
         self._end: BenchEvent | None = None
@@ -291,7 +322,7 @@ class JobHandle:
         while True:
             left = deadline - time.monotonic()
             _, events = self._call("job_events_after", self.id, self._seq,
-                                   min(max(left, 0.0), _POLL_CAP_S))
+                                   min(max(left, 0.0), _POLL_CAP_S), self._arrays)
             if events or left <= 0:
                 break
         if events:

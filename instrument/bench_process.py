@@ -20,7 +20,11 @@ same either way:
   (:data:`instrument.bench_jobs.JOBS` and the ``jobs`` given to the client,
   :class:`~instrument.bench_host.JobContext`), its progress handed to
   ``report``; a :class:`~instrument.runner.RunControl`, a stop and a cancel event of the
-  caller are forwarded while it runs; returns its result or raises its error.
+  caller are forwarded while it runs; returns its result or raises its error. It follows
+  the job by a :class:`~instrument.bench_job_handle.JobHandle`, the route by which
+  every client reads a job's events (the same sequence numbers for all); the client
+  that started the bench process (the window) asks for the newest progress event's
+  arrays (a calibration's ``last_frame``, for its display).
 * :meth:`BenchClient.start_job` - the same job started without waiting: a
   :class:`~instrument.bench_job_handle.JobHandle` to wait on its events and result and
   to stop it, from any client; :meth:`BenchClient.job` holds a job another client
@@ -43,7 +47,6 @@ import inspect
 import logging
 import multiprocessing
 import os
-import queue
 import select
 import signal
 import threading
@@ -61,6 +64,9 @@ __all__ = ["ENDING_SIGNALS", "PROXIED", "BenchClient"]
 log = logging.getLogger(__name__)
 
 _SERVER: dict[str, Any] = {}
+
+#: Longest wait, s, for a bench process whose connection broke to end (a hang guard).
+_ENDING_S = 10.0
 
 
 #: The signals that end the host process as its parent's death does (SIGINT is
@@ -285,8 +291,6 @@ class BenchClient:
             self.host = _PooledHost(self._manager.BenchHost())
             self.connection_file = self.host.write_connection_file(self.address, self.authkey)
         self._lock = threading.Lock()
-        self._jobs: dict[int, queue.SimpleQueue] = {}
-        self._early: dict[int, list] = {}
         self._slot: SharedImageSlot | None = None
         self._next_slot: tuple[str, int] | None = None
         self._seen = 0
@@ -443,43 +447,27 @@ class BenchClient:
         instrument.bench_host.BenchHostError
             The host process ended while the job ran.
         """
-        if self.attached:
-            return self._run_held(self.start_job(name, kwargs), report, control, stop,
-                                  cancel, poll_s)
-        events: queue.SimpleQueue = queue.SimpleQueue()
-        job_id = self.host.start_job(name, kwargs or {}, client=self.name)
-        with self._lock:
-            self._jobs[job_id] = events
-            for msg in self._early.pop(job_id, []):
-                events.put(msg)
-        sent = {"paused": False, "abort": None, "stop": False, "cancel": False}
+        job = self.start_job(name, kwargs, arrays=not self.attached)
         try:
-            while True:
-                self._forward(job_id, sent, control, stop, cancel)
-                try:
-                    kind, value = events.get(timeout=poll_s)
-                except queue.Empty:
-                    if not self.alive():
-                        closed = self.close_orphaned_runs()
-                        kept = (f"; its run {', '.join(closed)} is closed (interrupted), "
-                                "the frames it stored kept" if closed else "")
-                        raise BenchHostError(f"the bench process ended while the job ran"
-                                             f"{kept}; start the bench again") from None
-                    continue
-                if kind == "progress":
-                    if report is not None:
-                        report(value)
-                elif kind == "done":
-                    return value
-                else:
-                    raise value
-        finally:
-            with self._lock:
-                self._jobs.pop(job_id, None)
+            return self._run_held(job, report, control, stop, cancel, poll_s)
+        except BenchGoneError:
+            if self.attached or self.in_process:
+                raise
+            # its connection breaks while the killed process is ending: wait for its end
+            # (reaped), so that close() finds it gone
+            self._manager._process.join(_ENDING_S)
+            if self.alive():
+                raise
+            closed = self.close_orphaned_runs()
+            kept = (f"; its run {', '.join(closed)} is closed (interrupted), "
+                    "the frames it stored kept" if closed else "")
+            raise BenchHostError(f"the bench process ended while the job ran"
+                                 f"{kept}; start the bench again") from None
 
     def _run_held(self, job: JobHandle, report, control, stop, cancel, poll_s: float) -> Any:
-        """:meth:`run_job` of a second client: follow ``job`` by its handle, forward
-        the caller's control, stop and cancel."""
+        """Follow ``job`` by its handle (the route every client reads a job's events
+        by), handing its progress to ``report`` and forwarding the caller's control,
+        stop and cancel."""
         sent = {"paused": False, "abort": None, "stop": False, "cancel": False}
         while True:
             self._forward(job.id, sent, control, stop, cancel)
@@ -490,9 +478,21 @@ class BenchClient:
                 else:
                     return job.result()
 
-    def start_job(self, name: str, params: dict | None = None) -> JobHandle:
+    def start_job(self, name: str, params: dict | None = None, *,
+                  arrays: bool = False) -> JobHandle:
         """Start job ``name`` with ``params`` in the bench process and return at once
         (from any client: the window, a notebook).
+
+        Parameters
+        ----------
+        name : str
+            The job's name (:data:`instrument.bench_jobs.JOBS` and those registered).
+        params : dict, optional
+            Its keyword parameters.
+        arrays : bool
+            The handle reads the newest progress event with its arrays
+            (:meth:`~instrument.bench_job_handle.JobRegistry.events_after`); False
+            (default) leaves them out, as a notebook wants.
 
         Returns
         -------
@@ -513,9 +513,9 @@ class BenchClient:
         instrument.bench_service.BenchGoneError
             The bench process is gone.
         """
-        job_id = self.host.start_job(name, dict(params or {}), piped=False,
-                                     owner=not self.attached, client=self.name)
-        return JobHandle(self.host, self.host.job_info(job_id))
+        job_id = self.host.start_job(name, dict(params or {}), owner=not self.attached,
+                                     client=self.name)
+        return JobHandle(self.host, self.host.job_info(job_id), arrays)
 
     def job(self, job_id: int) -> JobHandle:
         """A handle on job ``job_id``, whichever client started it (from its first
@@ -562,15 +562,7 @@ class BenchClient:
             except (EOFError, OSError):
                 return
             kind = msg[0]
-            if kind == "job":
-                _, job_id, what, value = msg
-                with self._lock:
-                    events = self._jobs.get(job_id)
-                    if events is None:
-                        self._early.setdefault(job_id, []).append((what, value))
-                        continue
-                events.put((what, value))
-            elif kind == "slot":
+            if kind == "slot":
                 with self._lock:
                     self._next_slot = (msg[1], msg[2])
             elif kind == "stream_ended":

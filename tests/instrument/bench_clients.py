@@ -116,3 +116,9 @@ def jobs(client, handles) -> list[dict]:
 def stop_by_id(client, handles, job_id: int) -> None:
     """Stop a job this client did not start, by its id."""
     client.job(job_id).stop()
+
+
+def follow(client, handles, job_id: int) -> list[tuple]:
+    """Every event of job ``job_id`` (started by another client), from the first kept
+    to its end: ``(seq, kind, data)``."""
+    return [(e.seq, e.kind, e.data) for e in client.job(job_id).events(HANG_S)]

@@ -24,6 +24,15 @@ def fails(ctx, *, message: str) -> None:
     raise ValueError(message)
 
 
+def reports(ctx, *, n: int) -> int:
+    """A job that reports ``n`` progress values, each with a frame (as a calibration
+    run does), then waits to be stopped; returns ``n``."""
+    for k in range(n):
+        ctx.report({"k": k, "frame": np.full((4, 4), k, dtype=np.float32)})
+    ctx.stop.wait()
+    return n
+
+
 def recording(out, frames: int = 5000) -> dict:
     """The ``record`` job's parameters (a long recording, ended by a stop)."""
     return {"out": str(out), "frames": frames, "seconds": None, "options": {},
@@ -39,7 +48,7 @@ def window():
     """The window's client: it started the bench process and opened the simulated
     bench; its ``events`` are what it was pushed."""
     events = Events()
-    with opened_bench(jobs={"fails": fails}, on_event=events) as client:
+    with opened_bench(jobs={"fails": fails, "reports": reports}, on_event=events) as client:
         client.events = events
         client.camera_id = next(d.name for d in client.devices() if d.kind == "camera")
         yield client
@@ -167,3 +176,51 @@ def test_progress_in_the_log_leaves_arrays_out():
     assert event.last_frame is not None  # the window's own is not touched
     assert without_arrays({"n": 1, "image": np.ones(3)}) == {"n": 1}
     assert without_arrays("text") == "text"
+
+
+def test_every_client_reads_a_job_s_events_by_one_route(window):
+    """The window (the client that started the bench process) follows the job it runs
+    by the job's log, as a notebook in another process does: the same events by the
+    same sequence numbers, in the same order (issue 66: the window's came down its own
+    pipe, a second route). Only the window asks for the frames: the newest progress
+    it read carries its frame, the notebook's none."""
+    import threading
+
+    from .bench_clients import OtherClient, follow, stop_by_id
+
+    read: list = []  # the job's events as the window's client read them
+    host_read = window.host.job_events_after
+
+    def spy(*args):
+        got = host_read(*args)
+        read.extend(got[1])
+        return got
+
+    window.host.job_events_after = spy
+    notebook = OtherClient(window.address, window.authkey)
+    try:
+        progress = Events()
+        got: list = []
+
+        def report(value) -> None:
+            got.append(value)
+            progress(value)
+
+        ran: dict = {}
+        thread = threading.Thread(target=lambda: ran.update(
+            n=window.run_job("reports", {"n": 5}, report=report)), daemon=True)
+        thread.start()
+        progress.wait(lambda v: v["k"] == 4, "of the job's last progress")
+        job_id = next(j.id for j in window.jobs() if j.name == "reports")
+        notebook.value(stop_by_id, job_id)
+        thread.join(HANG_S)
+        assert not thread.is_alive() and ran["n"] == 5
+        seen = notebook.value(follow, job_id)
+        assert [(e.seq, e.kind, without_arrays(e.data)) for e in read] == seen
+        assert [v["k"] for v in got] == [0, 1, 2, 3, 4] == [
+            d["k"] for _, kind, d in seen if kind == "progress"]
+        assert seen[-1][1:] == ("done", 5)
+        assert np.array_equal(got[-1]["frame"], np.full((4, 4), 4, dtype=np.float32))
+        assert not any("frame" in d for _, kind, d in seen if kind == "progress")
+    finally:
+        notebook.close()
