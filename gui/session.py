@@ -133,6 +133,9 @@ class Session(QObject):
         #: Why the live stream ended unasked (the bench's line), until it starts again
         #: or is stopped; None: it did not.
         self.stream_end_reason: str | None = None
+        #: The job of the bench (``job 4 (record) of a notebook``) that took the live
+        #: stream's camera, until it gives it back; None: none.
+        self.stream_taken_by: str | None = None
         self._lock = threading.Lock()
         self._stream_lock = threading.RLock()  # one start or stop at a time
         self.frames_seen = 0
@@ -264,8 +267,11 @@ class Session(QObject):
     def _note_event(self, event) -> None:
         if event.kind == "status":
             self.device_states[event.device] = event.data
-        elif event.kind == "stream" and event.data.get("state") == "ended":
-            self.stream_end_reason = event.data.get("reason") or "the stream ended"
+        elif event.kind == "stream":
+            state = event.data.get("state")
+            if state == "ended":
+                self.stream_end_reason = event.data.get("reason") or "the stream ended"
+            self.stream_taken_by = event.data.get("to") if state == "yielded" else None
             self.changed.emit()
 
     def run_on_bench(self, target: str, kwargs: dict | None = None, **channels) -> Any:
@@ -392,7 +398,7 @@ class Session(QObject):
             if self._streaming:
                 return
             self.frames_seen = 0
-            self.stream_end_reason = None
+            self.stream_end_reason = self.stream_taken_by = None
             self._counters = {}
             self._rate.clear()
             service.start_stream(ring_frames)
@@ -406,7 +412,7 @@ class Session(QObject):
             service = self.service
             if not self._streaming:
                 return
-            self.stream_end_reason = None
+            self.stream_end_reason = self.stream_taken_by = None
             try:
                 if service is not None:
                     service.stop_stream(timeout_s)

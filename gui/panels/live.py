@@ -400,7 +400,11 @@ class LivePanel(QWidget):
                 self.raw_view.mark(image >= full_scale if saturated else None)
         if frame is not None and counters:
             sat = f"saturated {int(frame.saturated_pixels)} px (red)"
-            if self.session.streaming:
+            if self.session.streaming and self.session.stream_taken_by:
+                self.raw_stats.setText(f"camera taken by {self.session.stream_taken_by}: "
+                                       "the live view comes back when it ends (Stop stream "
+                                       f"keeps it off); frame {frame.index} (the last); {sat}")
+            elif self.session.streaming:
                 c = self.session.stream_counters()
                 self.raw_stats.setText(
                     f"camera: {c['fps']:.1f} fps (last 2 s), frame {frame.index}, acquired "

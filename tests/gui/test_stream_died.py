@@ -111,3 +111,44 @@ def test_a_reconstruction_finishing_no_frame_is_not_said_to_wait_for_frames(wind
         live.live = None
         job = live.toggle_stream()
         wait(lambda: job.done and not session.streaming, 60.0, "the stream to stop")
+
+
+def hold_camera(ctx) -> str:
+    """Hold the camera until stopped (a hang guard of 10 minutes)."""
+    import time
+
+    deadline = time.monotonic() + 600.0
+    while not ctx.stop.is_set() and time.monotonic() < deadline:
+        ctx.stop.wait(0.05)
+    return "stopped" if ctx.stop.is_set() else "timed out"
+
+
+def _holding_camera():
+    from instrument.bench_jobs import holding
+
+    return holding("camera")(hold_camera)
+
+
+JOBS["hold_camera"] = _holding_camera()
+
+
+def test_a_job_holding_the_camera_is_shown_on_the_live_view_until_it_gives_it_back(
+        jobs_registered, window, wait):
+    session, live = window.session, window.live
+    window.docks["Live view"].raise_()
+    job = live.toggle_stream()
+    wait(lambda: job.done and session.streaming and live.start_button.text() == "Stop stream",
+         60.0, "the stream to start")
+    handle = session.service.start_job("hold_camera")
+    wait(lambda: live.raw_stats.text().startswith("camera taken by job "), 60.0,
+         "the raw view's line to say a job took the camera")
+    shown = live.raw_stats.text()
+    assert "(hold_camera) of the window" in shown and "comes back when it ends" in shown
+    assert live.start_button.text() == "Stop stream"  # the live view comes back by itself
+    shown_at = live._shown_raw
+    handle.stop()
+    assert handle.result(timeout_s=600.0) == "stopped"
+    wait(lambda: live._shown_raw > shown_at and live.raw_stats.text().startswith("camera: "),
+         60.0, "the live view back with new frames")
+    job = live.toggle_stream()
+    wait(lambda: job.done and not session.streaming, 60.0, "the stream to stop")

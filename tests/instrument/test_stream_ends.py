@@ -31,7 +31,20 @@ def camera_streaming(ctx) -> bool:
     return bool(ctx.bench.camera.is_streaming)
 
 
-JOBS = {"silence_camera": silence_camera, "camera_streaming": camera_streaming}
+def hold_camera(ctx) -> str:
+    """Hold the camera until stopped (a hang guard of 10 minutes)."""
+    ctx.stop.wait(600.0)
+    return "stopped" if ctx.stop.is_set() else "timed out"
+
+
+def _declared(fn):
+    from instrument.bench_jobs import holding
+
+    return holding("camera")(fn)
+
+
+JOBS = {"silence_camera": silence_camera, "camera_streaming": camera_streaming,
+        "hold_camera": _declared(hold_camera)}
 
 
 @pytest.fixture(params=[False, True], ids=["child-process", "in-process"])
@@ -136,4 +149,17 @@ def test_a_stream_stopped_by_another_client_ends_for_the_one_it_ran_for(streamed
     streamed.start_stream(16)
     streamed.stop_stream(2.0)  # its own stop: nothing to tell
     assert streamed.run_job("camera_streaming") is False
+    assert not streamed.ended.is_set()
+
+
+def test_every_client_sees_a_job_take_the_stream_s_camera_and_give_it_back(streamed):
+    if streamed.other is None:
+        pytest.skip("a second client attaches to a bench process of its own")
+    handle = streamed.other.start_job("hold_camera")
+    data = _stream_event(streamed.seen)
+    assert data["state"] == "yielded" and data["owner"] == streamed.name
+    assert data["to"].startswith(f"job {handle.id} (hold_camera) of ")
+    handle.stop()
+    assert handle.result(timeout_s=HANG_S) == "stopped"
+    assert _stream_event(streamed.seen) == {"state": "resumed", "owner": streamed.name}
     assert not streamed.ended.is_set()
