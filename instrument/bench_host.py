@@ -20,8 +20,7 @@ What crosses between the processes:
   :class:`~instrument.shared_slot.SharedImageSlot` (newest only) and a byte down a pipe
   wakes the reader (:class:`FrameWaker`); each carries its metadata and the ring's
   counters (:data:`FRAME_META`).
-* events: ``(kind, ...)`` tuples down a pipe (:class:`EventChannel`): a job's progress,
-  result or error (``("job", id, "progress" | "done" | "failed", value)``), a prompt
+* events: ``(kind, ...)`` tuples down a pipe (:class:`EventChannel`): a prompt
   for the operator (``("prompt", id, action, message)``), a new frame slot (``("slot", name,
   capacity)``), the stream's end unasked (``("stream_ended", text)``: the camera's
   error, no frame for :meth:`BenchHost.stream_silence_s`, a frame that could not be
@@ -36,9 +35,9 @@ What crosses between the processes:
   (:func:`instrument.bench_jobs.holding`) and the live stream holds the camera: a job
   needing a held device is refused before anything touches it, naming the holder and
   its owner (:meth:`BenchHost.holders`), and the stream yields the camera to a job and
-  starts again when it ends. Every job's progress and end is also logged in
-  :attr:`BenchHost.job_registry` for any client to follow
-  (:class:`~instrument.bench_job_handle.JobHandle`).
+  starts again when it ends. Every job's progress and end is logged in
+  :attr:`BenchHost.job_registry`, the one route by which every client follows it, the
+  one that started it too (:class:`~instrument.bench_job_handle.JobHandle`).
 """
 
 from __future__ import annotations
@@ -97,8 +96,8 @@ class JobContext:
     ``cancel`` (``threading.Event``), ``publish(frame)`` (show a frame the job
     took in the window, as the stream does) and ``host`` (its :class:`BenchHost`)."""
 
-    def __init__(self, host: BenchHost, job_id: int, piped: bool = True) -> None:
-        self.host, self.job_id, self.piped = host, job_id, piped
+    def __init__(self, host: BenchHost, job_id: int) -> None:
+        self.host, self.job_id = host, job_id
         self.control = RunControl()
         self.stop = threading.Event()
         self.cancel = threading.Event()
@@ -109,8 +108,6 @@ class JobContext:
         return self.host.bench
 
     def report(self, value: Any) -> None:
-        if self.piped:
-            self.host.events.put(("job", self.job_id, "progress", value))
         self.host.job_registry.report(self.job_id, value)
 
     def publish(self, frame) -> None:
@@ -425,14 +422,12 @@ class BenchHost(BenchService):
         """Add ``{name: function(ctx, **kwargs)}`` to the jobs :meth:`start_job` runs."""
         self.jobs.update(jobs)
 
-    def start_job(self, name: str, kwargs: dict | None = None, *, piped: bool = True,
-                  owner: bool = True, client: str = "") -> int:
+    def start_job(self, name: str, kwargs: dict | None = None, *, owner: bool = True,
+                  client: str = "") -> int:
         """Run job ``name`` as ``function(ctx, **kwargs)`` on a thread; returns the job's
-        id. Its progress and end go to :attr:`job_registry` (every client's
-        :class:`~instrument.bench_job_handle.JobHandle`) and, ``piped``, down the event
-        pipe of the client that started the bench process too: ``("job", id,
-        "progress", value)``, then ``("job", id, "done", result)`` or ``("job", id,
-        "failed", error)``.
+        id. Its progress and end go to :attr:`job_registry`, where every client reads
+        them by its :class:`~instrument.bench_job_handle.JobHandle` (the one that
+        started it too: one route, the same sequence numbers for all).
 
         The devices the job declares (:func:`instrument.bench_jobs.holding`) are
         checked first and held for it until it ends: a device another job holds
@@ -446,9 +441,6 @@ class BenchHost(BenchService):
             The job's parameters: a key its signature does not name, or one its own
             check refuses, is refused
             (:func:`instrument.bench_job_handle.check_params`).
-        piped : bool
-            Send its events down the pipe (the starting client's
-            :meth:`~instrument.bench_process.BenchClient.run_job`).
         owner : bool
             Asked by the client that started the bench process (a second client may
             not run :data:`~instrument.bench_job_handle.OWNER_JOBS`).
@@ -487,7 +479,7 @@ class BenchHost(BenchService):
                         "; wait for it to end, or stop it (BenchClient.jobs() lists the "
                         "jobs)")
             job_id = next(self._ids)
-            ctx = JobContext(self, job_id, piped)
+            ctx = JobContext(self, job_id)
             self._jobs[job_id] = ctx
             self.job_registry.started(job_id, name, kwargs, client, holds)
             for device in holds:
@@ -578,8 +570,6 @@ class BenchHost(BenchService):
                     self._say(f"live view: could not start again after job {ctx.job_id}: "
                               f"{exc}")
                     self._tell_stream_ended(f"camera stream stopped: {exc}")
-            if ctx.piped:
-                self.events.put(("job", ctx.job_id, state, value))
         finally:
             self.job_registry.ended(ctx.job_id, state, value)
 
@@ -591,9 +581,10 @@ class BenchHost(BenchService):
         """:meth:`~instrument.bench_job_handle.JobRegistry.infos`."""
         return self.job_registry.infos()
 
-    def job_events_after(self, job_id: int, seq: int, timeout_s: float = 1.0) -> tuple:
+    def job_events_after(self, job_id: int, seq: int, timeout_s: float = 1.0,
+                         arrays: bool = False) -> tuple:
         """:meth:`~instrument.bench_job_handle.JobRegistry.events_after`."""
-        return self.job_registry.events_after(job_id, seq, timeout_s)
+        return self.job_registry.events_after(job_id, seq, timeout_s, arrays)
 
     def job_control(self, job_id: int, action: str, reason: str = "") -> None:
         """``pause``, ``resume``, ``abort`` (with ``reason``), ``stop`` or ``cancel`` job
