@@ -45,6 +45,7 @@ from .product_nodes import (
 from .run_description import forget_description, record_description
 from .run_integrity import RunStoreError, product_crcs
 from .run_layout import forget_layout, record_layout
+from .writer.ome_axes import write_depth_coordinate
 
 __all__ = ["ProductsMixin"]
 
@@ -54,6 +55,8 @@ _DONE, _CRC = "__done", "__crc32"
 _WRITTEN = "written"
 #: Attribute of a per-frame product: the command that finishes it (names the run's path).
 _HINT = "resume_hint"
+#: The name of a stack's depth coordinate array in its image group (its first axis).
+DEPTH_AXIS = "z"
 
 
 class ProductsMixin:
@@ -64,7 +67,11 @@ class ProductsMixin:
     def write_product(self, name: str, array: np.ndarray, **attrs: Any) -> None:
         """Store a derived array as product ``name`` (replacing it) with attributes: an
         image as the group ``products/name`` holding the array ``0`` and its ``ome``
-        block, a table or LUT as the array ``products/name``."""
+        block, a table or LUT as the array ``products/name``. A stack with one depth
+        per plane (``depths_mm``) also gets the coordinate array ``products/name/z``
+        (the planes' true depths in mm,
+        :func:`instrument.writer.ome_axes.write_depth_coordinate`), recorded with the
+        product and checked against ``depths_mm`` when it is read (:meth:`product`)."""
         self._require_writable()
         _check_name(name)
         array = np.asarray(array)
@@ -74,7 +81,13 @@ class ProductsMixin:
                                               dtype=array.dtype)
         arr[...] = array
         arr.update_attributes(jsonable({**attrs, "crc32": product_crcs(array)}))
-        self._note_product(name, [key])
+        keys = [key]
+        if key != name and array.ndim == 3 and \
+                arr.metadata.dimension_names[0] == DEPTH_AXIS:  # a stack: its true depths
+            if write_depth_coordinate(self._group["products"][name], DEPTH_AXIS,
+                                      attrs.get("depths_mm"), array.shape[0]):
+                keys.append(f"{name}/{DEPTH_AXIS}")
+        self._note_product(name, keys)
         describe_products(self._group["products"], self.attrs, [name])  # (attrs re-read)
 
     def _create_product_array(self, name: str, shape, attrs, **kwargs) -> tuple[str, Any]:
@@ -150,6 +163,7 @@ class ProductsMixin:
         except Exception as exc:  # a corrupt chunk fails to decode
             raise RunStoreError(f"product {name!r} of {self.path} is damaged: its chunks "
                                 f"cannot be read ({exc}); {fix}") from exc
+        self._check_depths(name, attrs, fix)
         recorded = attrs.pop("crc32", None)
         if recorded is not None:
             actual = product_crcs(data)
@@ -160,6 +174,35 @@ class ProductsMixin:
                                     "differs from the checksum recorded when it was "
                                     f"written (a chunk file deleted or altered); {fix}")
         return data, attrs
+
+    def _check_depths(self, name: str, attrs: dict, fix: str) -> None:
+        """Refuse a stack whose depth coordinate (``products/NAME/z``, where written)
+        disagrees with its ``depths_mm``: a reader of the coordinate (xarray) would
+        place its planes elsewhere than DiffuserLab does.
+
+        Raises
+        ------
+        RunStoreError
+            The coordinate cannot be read or holds other depths (names both).
+        """
+        import zarr
+
+        node = self._group["products"].get(name)
+        if not isinstance(node, zarr.Group) or DEPTH_AXIS not in node \
+                or attrs.get("depths_mm") is None:
+            return  # an array of products/ (a table, a run written before), no coordinate
+        want = np.asarray(attrs["depths_mm"], np.float64)
+        try:
+            have = np.asarray(node[DEPTH_AXIS][...], np.float64)
+        except Exception as exc:  # a corrupt chunk fails to decode
+            raise RunStoreError(f"product {name!r} of {self.path} is damaged: its depth "
+                                f"coordinate {DEPTH_AXIS}/ cannot be read ({exc}); "
+                                f"{fix}") from exc
+        if have.shape != want.shape or not np.array_equal(have, want):
+            raise RunStoreError(
+                f"product {name!r} of {self.path} is damaged: its depth coordinate "
+                f"{DEPTH_AXIS}/ holds {have.tolist()} mm but the product records the "
+                f"depths {want.tolist()} mm; {fix}")
 
     def damaged_products(self) -> list[str]:
         """One line per damaged product or written plane of a per-frame product (the
@@ -360,7 +403,8 @@ class ProductsMixin:
         for key in (name, name + _CRC, name + _DONE, name + MOVING):
             if key in products:
                 del products[key]
-        keys = (name, f"{name}/{IMAGE_ARRAY}", name + _CRC, name + _DONE)
+        keys = (name, f"{name}/{IMAGE_ARRAY}", f"{name}/{DEPTH_AXIS}", name + _CRC,
+                name + _DONE)
         forget_layout(products, keys)
         forget_description(products, keys)
         for key in keys:  # replaced: its old record is gone

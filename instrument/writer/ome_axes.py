@@ -15,8 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["OME_UNITS", "UNEVEN_Z", "YX_SCALE", "OmeAxis", "image_attrs", "space_axes",
-           "volume_axes"]
+__all__ = ["DEPTH_ATTRS", "OME_UNITS", "UNEVEN_Z", "YX_SCALE", "OmeAxis", "depth_coordinate",
+           "image_attrs", "space_axes", "volume_axes", "write_depth_coordinate"]
 
 #: Unit names of the OME-Zarr specification for the units the project stores.
 OME_UNITS = {"s": "second", "ms": "millisecond", "us": "microsecond", "um": "micrometer",
@@ -29,6 +29,11 @@ YX_SCALE = ("sensor grid: the camera's pixel pitch times the binning, micrometre
 #: What the ``z`` scale of unevenly spaced depths is (multiscale metadata ``z_scale``).
 UNEVEN_Z = ("mean spacing of unevenly spaced depths (translation: the first depth); "
             "each plane's depth is in depths_mm")
+
+
+#: The attributes of a stack's depth coordinate array (:func:`write_depth_coordinate`).
+DEPTH_ATTRS = {"units": "mm", "long_name": "depth of each plane",
+               "standard_name": "depth"}
 
 
 @dataclass(frozen=True)
@@ -141,3 +146,51 @@ def image_attrs(images: Sequence[tuple[str, str, Sequence[OmeAxis], Mapping]]) -
                                     translation=[a.origin for a in axes])]))
     attrs = ImageAttrs(version="0.5", multiscales=multiscales)
     return attrs.model_dump(mode="json", exclude_none=True)
+
+
+def depth_coordinate(depths_mm: Sequence[float] | None, n_planes: int) -> np.ndarray | None:
+    """The depths of a stack's planes as a coordinate array: float64, mm, one per plane;
+    None without one finite depth per plane (no coordinate is written then)."""
+    if depths_mm is None:
+        return None
+    depths = np.asarray(np.atleast_1d(depths_mm), np.float64)
+    if depths.ndim != 1 or depths.size != n_planes or not np.isfinite(depths).all():
+        return None
+    return depths
+
+
+def write_depth_coordinate(group, axis: str, depths_mm: Sequence[float] | None,
+                           n_planes: int) -> str | None:
+    """Write the true depths of a stack beside its image array: the 1-D array ``axis``
+    (the stack's first dimension name, ``z``) in ``group``, its ``dimension_names``
+    ``[axis]``, float64 in mm with :data:`DEPTH_ATTRS`.
+
+    OME-Zarr 0.5 gives an axis one scale, so unevenly spaced depths are written at
+    their mean spacing (:func:`volume_axes`); xarray takes an array named as its one
+    dimension for that dimension's coordinate, so ``xr.open_dataset(...,
+    group=GROUP)`` gives ``z`` holding every plane's true depth. OME-Zarr readers
+    read only the multiscale's datasets (the array ``0``) and leave it alone.
+
+    Parameters
+    ----------
+    group : zarr.Group
+        The image group (Zarr v3), writable.
+    axis : str
+        The stack's first dimension name.
+    depths_mm : sequence of float or None
+        One depth per plane, mm.
+    n_planes : int
+
+    Returns
+    -------
+    str or None
+        The array's name, None when no coordinate was written (no depth per plane).
+    """
+    depths = depth_coordinate(depths_mm, n_planes)
+    if depths is None:
+        return None
+    arr = group.create_array(axis, shape=depths.shape, dtype="float64",
+                             chunks=depths.shape, dimension_names=[axis])
+    arr[:] = depths
+    arr.update_attributes(dict(DEPTH_ATTRS))
+    return axis

@@ -216,7 +216,9 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
     The Zarr volume is a group holding the volume as its array ``0`` (z, y, x) with
     ``attrs`` and an ``ome`` block (:func:`instrument.ome.image_attrs`): ``z`` in
     micrometer from ``attrs["depths_mm"]``, its translation the first depth (the mean
-    spacing for uneven depths, each in the metadata: :func:`instrument.ome.volume_axes`);
+    spacing for uneven depths, each in the metadata: :func:`instrument.ome.volume_axes`),
+    and every plane's true depth as the coordinate array ``z`` beside it (mm,
+    :func:`~instrument.writer.ome_axes.write_depth_coordinate`: xarray's ``z``);
     ``y``/``x`` in micrometer with ``pitch_um`` (the reconstruction grid's pitch:
     sensor pitch times binning), without it unitless at ``attrs["bin_factor"]`` per
     pixel (one per sensor pixel, :func:`instrument.ome.space_axes`, as the napari
@@ -243,7 +245,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
             tifffile.imwrite(tmp, volume.astype(np.float32), photometric="minisblack",
                              metadata={**attrs, "axes": "ZYX"})
         return
-    from .ome_axes import image_attrs, space_axes, volume_axes
+    from .ome_axes import image_attrs, space_axes, volume_axes, write_depth_coordinate
 
     node = path / "zarr.json"
     if path.exists():
@@ -263,6 +265,7 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
                                  chunks=(1, *volume.shape[1:]),
                                  dimension_names=[a.name for a in axes])
         arr[:] = volume
+        write_depth_coordinate(group, first.name, attrs.get("depths_mm"), volume.shape[0])
         group.update_attributes({**attrs, "diffuserlab": VOLUME_MARKER,
                                  "ome": image_attrs([("volume", "0", axes, meta)])})
 
