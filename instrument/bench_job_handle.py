@@ -112,7 +112,7 @@ def without_arrays(value: Any) -> Any:
     A calibration run's progress carries each frame it took (its ``last_frame``) for
     the window's display; kept in every job's log, a run's frames would pile up in the
     bench process (tens of megabytes each on a large sensor), so only the newest
-    progress keeps its arrays, for a reader that asks for them
+    progress that had arrays keeps them, for a reader that asks for them
     (:meth:`JobRegistry.events_after` with ``arrays``: the window's
     :meth:`~instrument.bench_process.BenchClient.run_job`). A notebook takes frames
     with ``snap()`` or from the run.
@@ -158,8 +158,9 @@ class _Job:
     def __init__(self, info: JobInfo) -> None:
         self.info = info
         self.log = EventLog(JOB_EVENTS_KEPT)
-        #: The newest progress event's sequence number and value with its arrays (a
-        #: calibration's ``last_frame``), for a reader that asks for them; one per job.
+        #: The sequence number and value of the newest progress event that had arrays
+        #: (a calibration's ``last_frame``), for a reader that asks for them; one per
+        #: job, dropped when it ends.
         self.arrays: tuple[int, Any] | None = None
 
 
@@ -196,9 +197,9 @@ class JobRegistry:
             with self._lock:
                 job.info = dataclasses.replace(job.info, progress=plain)
                 event = job.log.put("progress", None, plain)
-                arrays = plain is not value and not (isinstance(value, dict)
-                                                      and len(plain) == len(value))
-                job.arrays = (event.seq, value) if arrays else None
+                if plain is not value and not (isinstance(value, dict)
+                                               and len(plain) == len(value)):
+                    job.arrays = (event.seq, value)  # kept past events without arrays
 
     def ended(self, job_id: int, state: str, value: Any) -> None:
         """Log the job's end: ``state`` ``done`` (``value`` its result) or ``failed``
@@ -244,9 +245,10 @@ class JobRegistry:
         <instrument.bench_service.EventLog.after>`. Every client reads a job's events
         here, by the same sequence numbers.
 
-        ``arrays``: the newest progress event among them carries its arrays (a
-        calibration's ``last_frame``, for the window's display); older ones, and every
-        event without ``arrays``, carry :func:`without_arrays`' value.
+        ``arrays``: of the events returned, the newest that had arrays carries them (a
+        calibration's ``last_frame``, for the window's display; not after the job's
+        end); the others, and every event without ``arrays``, carry
+        :func:`without_arrays`' value.
         """
         job = self._job(job_id)
         last, events = job.log.after(int(seq), min(float(timeout_s), _POLL_CAP_S))

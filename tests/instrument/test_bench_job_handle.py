@@ -26,9 +26,11 @@ def fails(ctx, *, message: str) -> None:
 
 def reports(ctx, *, n: int) -> int:
     """A job that reports ``n`` progress values, each with a frame (as a calibration
-    run does), then waits to be stopped; returns ``n``."""
+    run's frame events), then one without (as its point events), then waits to be
+    stopped; returns ``n``."""
     for k in range(n):
         ctx.report({"k": k, "frame": np.full((4, 4), k, dtype=np.float32)})
+    ctx.report({"k": n})
     ctx.stop.wait()
     return n
 
@@ -183,7 +185,8 @@ def test_every_client_reads_a_job_s_events_by_one_route(window):
     by the job's log, as a notebook in another process does: the same events by the
     same sequence numbers, in the same order (issue 66: the window's came down its own
     pipe, a second route). Only the window asks for the frames: the newest progress
-    it read carries its frame, the notebook's none."""
+    with a frame it read carries it (also when a progress without one came after), the
+    notebook's none."""
     import threading
 
     from .bench_clients import OtherClient, follow, stop_by_id
@@ -210,17 +213,19 @@ def test_every_client_reads_a_job_s_events_by_one_route(window):
         thread = threading.Thread(target=lambda: ran.update(
             n=window.run_job("reports", {"n": 5}, report=report)), daemon=True)
         thread.start()
-        progress.wait(lambda v: v["k"] == 4, "of the job's last progress")
+        progress.wait(lambda v: v["k"] == 5, "of the job's last progress")
         job_id = next(j.id for j in window.jobs() if j.name == "reports")
         notebook.value(stop_by_id, job_id)
         thread.join(HANG_S)
         assert not thread.is_alive() and ran["n"] == 5
         seen = notebook.value(follow, job_id)
         assert [(e.seq, e.kind, without_arrays(e.data)) for e in read] == seen
-        assert [v["k"] for v in got] == [0, 1, 2, 3, 4] == [
+        assert [v["k"] for v in got] == [0, 1, 2, 3, 4, 5] == [
             d["k"] for _, kind, d in seen if kind == "progress"]
         assert seen[-1][1:] == ("done", 5)
-        assert np.array_equal(got[-1]["frame"], np.full((4, 4), 4, dtype=np.float32))
+        framed = [v for v in got if "frame" in v]
+        assert framed and framed[-1]["k"] == 4, got
+        assert np.array_equal(framed[-1]["frame"], np.full((4, 4), 4, dtype=np.float32))
         assert not any("frame" in d for _, kind, d in seen if kind == "progress")
     finally:
         notebook.close()
