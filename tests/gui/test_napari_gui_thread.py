@@ -110,3 +110,35 @@ def test_contrast_limits_are_those_napari_computes():
     with_nan[0, 0] = np.nan
     assert contrast_limits(with_nan) == pytest.approx(
         [float(np.nanmin(with_nan)), float(np.nanmax(with_nan))])
+
+
+def test_the_widget_calls_reconstruct_with_its_options_object(tmp_path, monkeypatch):
+    """``reconstruct(model, raw, options)``: the form's ReconOptions are passed whole
+    (the dark level resolved as the commands resolve it, a stack's Wiener as ADMM), not
+    unpacked into keywords."""
+    from napari.layers import Image
+
+    import recon
+    from gui.napari_plugin.widget import reconstruct_layer
+    from recon.options import ReconOptions
+
+    calls: list = []
+    real = recon.reconstruct
+
+    def recording(model, raw, *args, **kwargs):
+        calls.append((args, kwargs))
+        return real(model, raw, *args, **kwargs)
+
+    monkeypatch.setattr(recon, "reconstruct", recording)
+    psf, raw = _problem(32)
+    np.save(tmp_path / "psf.npy", psf + 20)
+    np.save(tmp_path / "stack.npy", np.stack([psf, psf.T]) + 20)
+    layer = Image(raw, name="raw")
+    reconstruct_layer(layer, tmp_path / "psf.npy", method="admm", iterations=3,
+                      tv=0.001, dark="20")
+    reconstruct_layer(layer, tmp_path / "stack.npy", method="wiener", iterations=3,
+                      tv=0.001, dark="20", depths_mm=[10.0, 12.0])
+    assert len(calls) == 2
+    for (args, kwargs), method in zip(calls, ("admm", "admm"), strict=True):
+        assert kwargs == {} and len(args) == 1 and isinstance(args[0], ReconOptions)
+        assert args[0].method == method and float(args[0].dark) == 20.0
