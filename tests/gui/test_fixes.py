@@ -455,10 +455,10 @@ def test_reconstruction_stats_say_when_no_result_arrives(window, wait):
     live = window.live
     live.live = _FrozenLive()
     try:
-        live._recon_count = (-1, time.monotonic())
+        live._recon_count = (-1, time.monotonic(), live.session.frames_seen)
         live._show_live_stats()
         assert "fps" in live.recon_stats.text()
-        live._recon_count = (5, time.monotonic() - 10)
+        live._recon_count = (5, time.monotonic() - 10, live.session.frames_seen)
         live._show_live_stats()
         assert "no new result for 10 s" in live.recon_stats.text()
     finally:
