@@ -71,7 +71,7 @@ class ProductsMixin:
         per plane (``depths_mm``) also gets the coordinate array ``products/name/z``
         (the planes' true depths in mm,
         :func:`instrument.writer.ome_axes.write_depth_coordinate`), recorded with the
-        product and checked against ``depths_mm`` when it is read (:meth:`product`)."""
+        product and checked against ``depths_mm`` when it is read (``product``)."""
         self._require_writable()
         _check_name(name)
         array = np.asarray(array)
