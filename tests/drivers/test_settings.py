@@ -19,8 +19,8 @@ from drivers.settings import (
     with_settings,
 )
 from drivers.settings_doc import DEFAULT_PAGE, KINDS, page
-from instrument.writer.docpage import main
 from drivers.simulated import SimulatedCamera, SimulatedDmd, SimulatedLedArray, SimulatedStage
+from instrument.writer.docpage import main
 
 
 def test_settings_page_matches_the_declarations(tmp_path):
