@@ -4,7 +4,7 @@ May import ``instrument`` and ``recon`` (see docs/architecture.md). The names be
 imported on first use (PEP 562), so that the ``calibrate`` and ``align`` commands'
 parsers (:mod:`calibration_routines.cli`) load neither scipy nor the plans.
 :func:`register_plans` imports every plan module, which registers every plan
-(:func:`instrument.plan.register_plan`), so a stored run can be resumed from its
+(:func:`instrument.acquisition.plan.register_plan`), so a stored run can be resumed from its
 recorded plan name.
 """
 
@@ -41,7 +41,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 def register_plans() -> None:
     """Import every plan module, registering its plan for
-    :func:`instrument.plan.plan_from_record` (what resuming a stored run needs)."""
+    :func:`instrument.acquisition.plan.plan_from_record` (what resuming a stored run needs)."""
     import importlib
 
     for module in PLAN_MODULES:

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from instrument.plan import AutoExposure, Capture, Expose, Light, PlanError
-from instrument.runstore import RunStore
+from instrument.acquisition.plan import AutoExposure, Capture, Expose, Light, PlanError
+from instrument.runs.runstore import RunStore
 
 #: Auto-exposure of every calibration point: the peak between 40 % and 80 % of full
 #: scale (never saturated), so PSFs are bright yet comparable via their exposure.

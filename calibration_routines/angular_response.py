@@ -49,7 +49,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from instrument.plan import Move, Plan, PlanError, PlanPoint, Prompt, register_plan
+from instrument.acquisition.plan import Move, Plan, PlanError, PlanPoint, Prompt, register_plan
 from recon.analysis import fit_gaussian_falloff, fov_half_angle_deg
 from recon.errors import ReconInputError
 

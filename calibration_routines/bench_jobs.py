@@ -1,13 +1,14 @@
 """The calibration runs and the mask alignment as the bench process runs them (no Qt).
 
-Jobs of :class:`instrument.bench_host.BenchHost` (``function(ctx, **params)``, see
-:mod:`instrument.bench_jobs`): a calibration run (:class:`instrument.runner.Runner`),
+Jobs of :class:`instrument.bench.bench_host.BenchHost` (``function(ctx, **params)``, see
+:mod:`instrument.bench.bench_jobs`): a calibration run
+(:class:`instrument.acquisition.runner.Runner`),
 its resumption and the mask alignment
 (:class:`calibration_routines.mask_alignment.MaskAligner`). The client that starts
 the bench process hands them over by name (:data:`JOBS`, ``BenchClient(jobs=JOBS)``;
 the window's ``gui.session.Session`` does), since the instrument layer does not
 import this package. Each holds every device of the bench while it runs
-(:func:`instrument.bench_jobs.holding`): another client's job that needs one is
+(:func:`instrument.bench.bench_jobs.holding`): another client's job that needs one is
 refused, and the live view yields the camera to it.
 """
 
@@ -16,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from instrument.bench_jobs import holding, kept
+from instrument.bench.bench_jobs import holding, kept
 
 __all__ = ["ALIGNMENT_STEPS", "JOBS", "build_plan", "resume_plan", "run_alignment",
            "run_plan", "section_summary"]
@@ -32,7 +33,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
 
     Parameters
     ----------
-    bench : instrument.bench.Bench
+    bench : instrument.devices.bench.Bench
         Open.
     routine : str
         One of ``gui.jobs.ROUTINES``.
@@ -45,7 +46,7 @@ def build_plan(bench, routine: str, values: dict[str, Any]):
     diffuserlab.errors.InputError
         A value the option does not accept (the message names the option and its
         limits).
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         Parameters the plan refuses.
     """
     from .parameters import PARAMETERS
@@ -81,9 +82,9 @@ def run_plan(ctx, *, routine: str, values: dict[str, Any], path: str,
 
     Returns
     -------
-    instrument.runner.RunResult
+    instrument.acquisition.runner.RunResult
     """
-    from instrument.runner import Runner
+    from instrument.acquisition.runner import Runner
     from instrument.writer.guards import check_outputs
 
     plan = build_plan(ctx.bench, routine, values)
@@ -99,9 +100,9 @@ def run_plan(ctx, *, routine: str, values: dict[str, Any], path: str,
 
 @holding("*")
 def resume_plan(ctx, *, path: str, accept_differences: bool = False):
-    """Resume the run at ``path`` (:meth:`instrument.runner.Runner.resume`)."""
-    from instrument.runner import Runner
-    from instrument.runstore import RunStore
+    """Resume the run at ``path`` (:meth:`instrument.acquisition.runner.Runner.resume`)."""
+    from instrument.acquisition.runner import Runner
+    from instrument.runs.runstore import RunStore
 
     from . import register_plans
 
@@ -124,7 +125,7 @@ def run_alignment(ctx, *, out: str, mask_seed: str = "", frames: int = 3,
     the host's bench, recorded in ``out``; progress: ``{"kind": "event", ...}`` per
     step message and ``{"kind": "reading", ...}`` per spot reading. See
     ``gui.jobs.run_alignment``."""
-    from instrument.plan import PlanError
+    from instrument.acquisition.plan import PlanError
     from recon.optics.holo_display import MaskModel
 
     from . import mask_alignment
@@ -188,6 +189,6 @@ def section_summary(steps: dict) -> dict:
     return out
 
 
-#: The jobs of this module by name (:meth:`instrument.bench_host.BenchHost.start_job`).
+#: The jobs of this module by name (:meth:`instrument.bench.bench_host.BenchHost.start_job`).
 JOBS: dict[str, Callable] = {"run_plan": run_plan, "resume_plan": resume_plan,
                              "run_alignment": run_alignment}

@@ -14,7 +14,7 @@ Two points:
 The teardown uncaps the camera, installs the pinhole and the diffuser again and sets
 the camera back to the dark's exposure (the operator's, when built with
 :meth:`~DarkFlatPlan.for_bench`). The runner puts back what the run changed on every
-exit path (:meth:`instrument.plan.Plan.teardown`): a run that fails or is aborted
+exit path (:meth:`instrument.acquisition.plan.Plan.teardown`): a run that fails or is aborted
 after the dark point has the camera uncapped; one that ends in the flat point has the
 pinhole and diffuser put back.
 
@@ -45,7 +45,7 @@ import math
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from instrument.plan import (
+from instrument.acquisition.plan import (
     AutoExposure,
     Capture,
     Expose,

@@ -34,9 +34,9 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from drivers.errors import DeviceError
-from instrument.bench import BenchRoleError, PromptRefused
-from instrument.plan import PlanError
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.plan import PlanError
+from instrument.devices.bench import BenchRoleError, PromptRefused
+from instrument.devices.virtual_bench import VirtualBench
 
 __all__ = ["Retraction", "far_field_setup", "holography_branch", "retract_distance_mm",
            "retracted_mask"]
@@ -107,7 +107,7 @@ def retracted_mask(bench, *, axis: str = "x", distance_mm: float | None = None,
 
     Parameters
     ----------
-    bench : instrument.bench.Bench
+    bench : instrument.devices.bench.Bench
         Open bench with an SLM and a mask stage.
     axis : {"x", "y"}
         Lateral axis to retract along.
@@ -175,7 +175,7 @@ def retracted_mask(bench, *, axis: str = "x", distance_mm: float | None = None,
 
 @contextlib.contextmanager
 def holography_branch(bench) -> Iterator[None]:
-    """Context manager: on a :class:`~instrument.virtual_bench.VirtualBench`, the
+    """Context manager: on a :class:`~instrument.devices.virtual_bench.VirtualBench`, the
     camera sees the holography path inside the block and the previous branch
     afterwards; on a real bench it does nothing (the camera looks where it is set up
     to look)."""
@@ -204,7 +204,7 @@ def far_field_setup(bench, *, attenuate: bool = True, **retract) -> Iterator[Ret
 
     Raises
     ------
-    instrument.bench.PromptRefused
+    instrument.devices.bench.PromptRefused
         The operator did not insert the ND filter.
     PlanError, drivers.errors.DeviceError
         As :func:`retracted_mask`.

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from instrument.plan import PlanError
-from instrument.runner import Runner
+from instrument.acquisition.plan import PlanError
+from instrument.acquisition.runner import Runner
 from instrument.writer.guards import check_outputs
 from recon.analysis import (
     axial_step_eq510_per_mm,
@@ -118,7 +118,7 @@ def calibrate_microscope(bench, out_dir: str | Path, *, on_event=None,
     Parameters
     ----------
     bench : Bench
-        An opened bench (real, or :class:`instrument.virtual_bench.VirtualBench`).
+        An opened bench (real, or :class:`instrument.devices.virtual_bench.VirtualBench`).
     out_dir : str or Path
         Folder for the run stores (created).
     on_event : callable, optional

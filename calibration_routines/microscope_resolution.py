@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from instrument.atomic import write_json
-from instrument.reconstruct_grid import GRID_PRODUCT, load_psf_grid
-from instrument.runstore import RunStore
+from instrument.processing.reconstruct_grid import GRID_PRODUCT, load_psf_grid
+from instrument.runs.runstore import RunStore
 from instrument.writer.guards import check_outputs
 from recon.spatial import local_convolution_operator, ray_traced_pair, two_point_resolution
 
@@ -43,7 +43,7 @@ def microscope_resolution(runs, *, bench=None, field_mm=None, separations_px=SEP
     runs : list of str or Path
         Finished psf-grid runs (e.g. what :func:`calibrate_microscope` returned).
     bench : Bench, optional
-        The bench; a :class:`instrument.virtual_bench.VirtualBench` supplies its ray
+        The bench; a :class:`instrument.devices.virtual_bench.VirtualBench` supplies its ray
         tracer (``bench.model``) for the measurements, otherwise the model images
         the pairs.
     field_mm : array_like, (M, 2), optional

@@ -43,7 +43,7 @@ class RoutineParams(Options, ABC):
 
         Parameters
         ----------
-        bench : instrument.bench.Bench or instrument.virtual_bench.VirtualBench
+        bench : instrument.devices.bench.Bench or instrument.devices.virtual_bench.VirtualBench
             Open (plans read its devices, geometry and calibration defaults).
         seed : int
             Seed of the routine's random choices (psf-blind's slide offsets).
@@ -53,11 +53,11 @@ class RoutineParams(Options, ABC):
 
         Returns
         -------
-        instrument.plan.Plan
+        instrument.acquisition.plan.Plan
 
         Raises
         ------
-        instrument.plan.PlanError, recon.errors.ReconInputError
+        instrument.acquisition.plan.PlanError, recon.errors.ReconInputError
             Parameters the plan refuses on this bench.
         """
 

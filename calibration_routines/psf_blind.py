@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from instrument.plan import (
+from instrument.acquisition.plan import (
     Capture,
     Expose,
     Move,

@@ -47,11 +47,19 @@ from pathlib import Path
 
 import numpy as np
 
+from instrument.acquisition.plan import (
+    Capture,
+    Expose,
+    Plan,
+    PlanError,
+    PlanPoint,
+    ShowSlm,
+    register_plan,
+)
 from instrument.atomic import missing_dirs, remove_empty_dirs
-from instrument.coords import coord_specs
-from instrument.plan import Capture, Expose, Plan, PlanError, PlanPoint, ShowSlm, register_plan
-from instrument.run_recipe import write_run_recipe
-from instrument.runstore import RunStore, discard_partial_run
+from instrument.runs.coords import coord_specs
+from instrument.runs.run_recipe import write_run_recipe
+from instrument.runs.runstore import RunStore, discard_partial_run
 from recon.analysis.early_stop import THRESHOLDS, fit_early_stop, reference_db
 from recon.analysis.psf_from_scenes import (
     ESTIMATE_ITERATIONS,
@@ -164,7 +172,7 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
     early_stop : EarlyStop, optional
         The reconstruction recipe fitted for this PSF (:func:`early_stop_for`): written as
         ``early_stop.json`` in the run and summarised with its SHA-256 and held-out
-        residual (:func:`instrument.run_recipe.write_run_recipe`: not trusted as a
+        residual (:func:`instrument.runs.run_recipe.write_run_recipe`: not trusted as a
         default above :data:`recon.early_stop.TRUSTED_RESIDUAL`).
 
     quality_db : sequence of float, optional
@@ -199,7 +207,7 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
             n: round(float(v), 2) for n, v in zip(quality_names or names, quality_db,
                                                   strict=True)}
         summary["held_out_reference_db_mean"] = round(float(np.mean(quality_db)), 2)
-    if early_stop is not None:  # its SHA-256 and trust recorded (instrument.run_recipe)
+    if early_stop is not None:  # its SHA-256 and trust recorded (instrument.runs.run_recipe)
         summary["early_stop"] = write_run_recipe(
             store, early_stop, None if held_out is None else float(np.mean(held_out)))
     return summary
@@ -327,7 +335,7 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
         Files that cannot be matched, or a depth that is not > 0.
     recon.errors.ReconInputError
         Unreadable images, or pairs the estimate refuses (shapes).
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         ``out`` exists (without ``overwrite``).
     """
     if not (np.isfinite(z_mm) and z_mm > 0):

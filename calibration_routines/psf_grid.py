@@ -30,7 +30,15 @@ import math
 
 import numpy as np
 
-from instrument.plan import Light, Move, Plan, PlanError, PlanPoint, Prompt, register_plan
+from instrument.acquisition.plan import (
+    Light,
+    Move,
+    Plan,
+    PlanError,
+    PlanPoint,
+    Prompt,
+    register_plan,
+)
 from recon.analysis import lateral_calibration_spacing_mm, remove_background_dct
 from recon.spatial import register_psfs
 

@@ -26,8 +26,8 @@ import math
 
 import numpy as np
 
-from instrument.acquisition import autoexpose, average_frames
-from instrument.plan import Move, Plan, PlanError, PlanPoint, register_plan
+from instrument.acquisition.exposure import autoexpose, average_frames
+from instrument.acquisition.plan import Move, Plan, PlanError, PlanPoint, register_plan
 from recon.analysis import (
     border_energy_fraction,
     inverse_depth_step_per_mm,

@@ -39,7 +39,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from instrument.plan import (
+from instrument.acquisition.plan import (
     AutoExposure,
     Capture,
     Check,
@@ -59,7 +59,7 @@ from .slm_lut_io import reduce_run, reference_level
 __all__ = ["SLM_EXPOSURE", "SlmLutPlan"]
 
 #: Auto-exposure of every point: no saturated pixel, brightest spot backed off to
-#: about half of full scale (see :class:`instrument.plan.AutoExposure`).
+#: about half of full scale (see :class:`instrument.acquisition.plan.AutoExposure`).
 SLM_EXPOSURE = AutoExposure(target=0.6, tolerance=0.2, required=False, headroom=0.5)
 
 
@@ -154,7 +154,7 @@ class SlmLutPlan(Plan):
         Raises
         ------
         PlanError
-            Bad parameters; instrument.bench.BenchRoleError: no SLM.
+            Bad parameters; instrument.devices.bench.BenchRoleError: no SLM.
         """
         slm = bench.slm
         params.setdefault("slm_shape", list(slm.resolution))

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.optimize import isotonic_regression
 
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 from recon.optics.holo_display import efficiency
 
 __all__ = ["WEIGHT_FLOOR", "binary_grating", "branch_values", "combine_passes",

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.errors import InputError
-from instrument.acquisition import autoexpose, average_frames
-from instrument.plan import CheckFailed, PlanError
-from instrument.runstore import RunStore
+from instrument.acquisition.exposure import autoexpose, average_frames
+from instrument.acquisition.plan import CheckFailed, PlanError
+from instrument.runs.runstore import RunStore
 
 from . import slm_lut_analysis as ana
 
@@ -59,7 +59,7 @@ def analyze(plan, store, passes: int = 2) -> dict:
     Parameters
     ----------
     plan : calibration_routines.slm_lut.SlmLutPlan
-    store : instrument.runstore.RunStore
+    store : instrument.runs.runstore.RunStore
         Holding at least the points the passes need.
     passes : {1, 2}
 
@@ -130,7 +130,7 @@ def reference_level(plan, store) -> int:
     Parameters
     ----------
     plan : calibration_routines.slm_lut.SlmLutPlan
-    store : instrument.runstore.RunStore
+    store : instrument.runs.runstore.RunStore
         Holding at least the pass-1 points.
 
     Returns
@@ -140,7 +140,7 @@ def reference_level(plan, store) -> int:
 
     Raises
     ------
-    instrument.plan.CheckFailed
+    instrument.acquisition.plan.CheckFailed
         The response never reaches pi/2 (or the pass-1 data cannot be analysed).
     """
     try:
@@ -213,12 +213,12 @@ def load_lut(source) -> SlmLut:
 
     Parameters
     ----------
-    source : str, pathlib.Path or instrument.runstore.RunStore
+    source : str, pathlib.Path or instrument.runs.runstore.RunStore
         The run store (``RUN.zarr``).
 
     Raises
     ------
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         No run there, or the run has no ``slm_lut`` product (incomplete: resume it).
     """
     store = source if isinstance(source, RunStore) else RunStore.open(Path(source))

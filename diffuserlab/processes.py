@@ -1,8 +1,8 @@
 """What every child process shares: how it ended, in people's words (one wording for
 the window's messages, ``gui.messages``, and the processes' own logs), and how its
 error crosses to the parent (:func:`portable_error`: the batch, live and bench
-processes, ``instrument.batch_process``, :mod:`instrument.live_process`,
-:mod:`instrument.bench_host`)."""
+processes, ``instrument.processing.batch_process``, :mod:`instrument.acquisition.live_process`,
+:mod:`instrument.bench.bench_host`)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def portable_error(exc: BaseException, where: str,
     fallback : type
         The type that carries the message of an exception that does not survive
         pickling and is none of the project's (:class:`ChildProcessFailure`, or the
-        process's own, ``instrument.batch_process.BatchProcessError``).
+        process's own, ``instrument.processing.batch_process.BatchProcessError``).
 
     Returns
     -------

@@ -19,10 +19,10 @@ import numpy as np
 from skimage import data
 
 from calibration_routines.psf_sweep import PsfSweepPlan
-from instrument.acquisition import average_frames
-from instrument.runner import Runner
-from instrument.stacks import load_psf_stack
-from instrument.virtual_bench import PlanarScene, VirtualBench
+from instrument.acquisition.exposure import average_frames
+from instrument.acquisition.runner import Runner
+from instrument.devices.virtual_bench import PlanarScene, VirtualBench
+from instrument.runs.stacks import load_psf_stack
 from instrument.writer.files import save_image
 from recon import reconstruct
 from recon.metrics import psnr, register_truth

@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     file is the usual one-line error (every problem listed) before any window opens.
     """
     if args.bench is not None:
-        from instrument.bench_file import bench_config
+        from instrument.devices.bench_file import bench_config
 
         bench_config(args.bench, simulate=args.simulate, command="gui")
     try:

@@ -1,7 +1,7 @@
 """What the device panel shows about each setting, generated from the declarations.
 
 Each row of a device's box is one :class:`~drivers.settings.Setting` its class
-declares (:attr:`instrument.bench_service.DeviceInfo.settings_declared`, in the order
+declares (:attr:`instrument.bench.bench_service.DeviceInfo.settings_declared`, in the order
 they apply): its label comes from the name, its unit, limits (numbers read from the open
 device's :attr:`~drivers.base.Device.info`), description and read-only flag from the
 declaration, so a new device kind or setting needs no edit here. Whether a value is
@@ -75,7 +75,7 @@ def rows(device) -> list[Row]:
 
     Parameters
     ----------
-    device : instrument.bench_service.DeviceInfo
+    device : instrument.bench.bench_service.DeviceInfo
         An open device (its info gives the limits' numbers).
 
     Returns
@@ -104,7 +104,7 @@ def rows(device) -> list[Row]:
 
 def limits_text(device, name: str) -> str:
     """The limits of setting ``name`` of an open ``device`` (a
-    :class:`~instrument.bench_service.DeviceInfo`), as the panel shows them (from its
+    :class:`~instrument.bench.bench_service.DeviceInfo`), as the panel shows them (from its
     declaration, :meth:`drivers.settings.Setting.limits_text`).
 
     Returns

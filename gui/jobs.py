@@ -1,23 +1,23 @@
 """What the panels run on their workers: thin calls into the library.
 
 * :func:`build_live` - a live reconstruction for the session's camera, in a process of
-  its own (:class:`instrument.live_process.LiveReconstructionProcess`), and a PSF from a
-  file or run store (:func:`instrument.reconstruct_files.load_psf`), with the frames'
+  its own (:class:`instrument.acquisition.live_process.LiveReconstructionProcess`), and a PSF from a
+  file or run store (:func:`instrument.processing.reconstruct_files.load_psf`), with the frames'
   dark level as ``capture live`` takes it.
 * :func:`routine_options` / :func:`check_values` - a calibration routine's parameters
   are its typed model (:mod:`calibration_routines.parameters`), from which the
   ``calibrate`` command's options are generated too; the form's texts become the
   model, and the model builds the plan (:func:`calibration_routines.bench_jobs.build_plan`, in the
   bench process).
-* :func:`run_plan` / :func:`resume_plan` - :class:`instrument.runner.Runner` with the
-  job's progress and a :class:`~instrument.runner.RunControl`, run in the bench
-  process (:mod:`calibration_routines.bench_jobs`, :mod:`instrument.bench_jobs`) with
+* :func:`run_plan` / :func:`resume_plan` - :class:`instrument.acquisition.runner.Runner` with the
+  job's progress and a :class:`~instrument.acquisition.runner.RunControl`, run in the bench
+  process (:mod:`calibration_routines.bench_jobs`, :mod:`instrument.bench.bench_jobs`) with
   the camera claimed.
 * :func:`run_alignment` - the mask alignment as ``align mask`` runs it (in the bench
   process).
 * :func:`record` / :func:`batch_reconstruct` - a video recording
-  (:func:`instrument.video.record_video`, in the bench process) and the batch
-  reconstruction of a run (:func:`instrument.batch.reconstruct_run`, options as
+  (:func:`instrument.acquisition.video.record_video`, in the bench process) and the batch
+  reconstruction of a run (:func:`instrument.processing.batch.reconstruct_run`, options as
   ``recon-run`` takes them, :func:`batch_options`, in a process of its own).
 """
 
@@ -62,7 +62,7 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None, live=No
     options : recon.options.ReconOptions, optional
         ``capture live``'s reconstruction options (default: the declared ones): the
         frames' dark level, as ``--dark`` (one meaning,
-        :func:`instrument.reconstruct_files.resolve_dark`: auto for a plain PSF image its
+        :func:`instrument.processing.reconstruct_files.resolve_dark`: auto for a plain PSF image its
         dark corner, for a calibration run's PSF the simulated camera's offset on the
         virtual bench, else refused; ``none``; a level in DN; a ``calibrate dark`` run or
         dark image), the binning and the device where the solves run
@@ -74,10 +74,10 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None, live=No
 
     Returns
     -------
-    live : instrument.live_process.LiveReconstructionProcess
+    live : instrument.acquisition.live_process.LiveReconstructionProcess
         Not started: its ``start()`` builds the reconstructor in the child and raises
         what building raised. With :data:`LIVE_IN_PROCESS` False an
-        :class:`instrument.live.LiveReconstruction` built here.
+        :class:`instrument.acquisition.live.LiveReconstruction` built here.
     depth_mm : float or None
         The depth of the stack's plane used (the nearest to ``depth_mm``); None for a
         single PSF image.
@@ -92,10 +92,10 @@ def build_live(session, psf_path: str, *, depth_mm: float | None = None, live=No
         missing, or a GPU without the memory the live reconstruction needs: from the
         process's ``start()``).
     """
-    from instrument.live import LiveReconstruction
-    from instrument.live_process import LiveReconstructionProcess
-    from instrument.reconstruct_files import load_psf, resolve_dark
-    from instrument.stacks import dark_subtracted
+    from instrument.acquisition.live import LiveReconstruction
+    from instrument.acquisition.live_process import LiveReconstructionProcess
+    from instrument.processing.reconstruct_files import load_psf, resolve_dark
+    from instrument.runs.stacks import dark_subtracted
     from recon.errors import ReconInputError
     from recon.live import LiveReconstructor
     from recon.options import LiveOptions, ReconOptions
@@ -129,8 +129,8 @@ def stack_depths(psf_path: str) -> list[float]:
     """The depths (mm) of the planes of a PSF stack or calibration run; ``[]`` for a
     single PSF image or a path that is not a stack (offered as the depth field's
     choices, read on a worker)."""
-    from instrument.runstore import RunStoreError
-    from instrument.stacks import load_psf_stack
+    from instrument.runs.runstore import RunStoreError
+    from instrument.runs.stacks import load_psf_stack
     from recon.errors import ReconInputError
 
     path = Path(psf_path.strip()) if psf_path.strip() else None
@@ -182,11 +182,11 @@ def run_plan(job, session, routine: str, values: dict[str, Any], path: str, cont
 
     Returns
     -------
-    instrument.runner.RunResult
+    instrument.acquisition.runner.RunResult
 
     Raises
     ------
-    instrument.plan.PlanError, diffuserlab.errors.InputError
+    instrument.acquisition.plan.PlanError, diffuserlab.errors.InputError
         Parameters the plan refuses; a store at ``path`` already.
     """
     with session.camera_claimed("the calibration run"):
@@ -198,7 +198,7 @@ def run_plan(job, session, routine: str, values: dict[str, Any], path: str, cont
 
 def resume_plan(job, session, path: str, control, *, accept_differences: bool = False):
     """Resume the run at ``path`` in the bench process
-    (:meth:`instrument.runner.Runner.resume`,
+    (:meth:`instrument.acquisition.runner.Runner.resume`,
     :func:`calibration_routines.bench_jobs.resume_plan`)."""
     with session.camera_claimed("the calibration run"):
         return session.run_on_bench(
@@ -231,10 +231,10 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
     ------
     diffuserlab.errors.InputError
         A mask seed that is not a whole number, fewer than 1 frame.
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         No mask pattern on a real bench, an existing record, a bench without the
         holography devices.
-    instrument.runner.RunAborted
+    instrument.acquisition.runner.RunAborted
         Aborted (the record keeps every reading).
     """
     with session.camera_claimed("the mask alignment"):
@@ -246,8 +246,8 @@ def run_alignment(job, session, out: str, control, *, mask_seed: str = "", frame
 
 def record(job, session, out: str, stop, *, frames: int | None, seconds: float | None,
            fps: float | None, exposure_s: float | None, live=None) -> dict:
-    """Record a video run (:func:`instrument.video.record_video`) in the bench process
-    (:func:`instrument.bench_jobs.record`) with the camera claimed (its settings put back and
+    """Record a video run (:func:`instrument.acquisition.video.record_video`) in the bench process
+    (:func:`instrument.bench.bench_jobs.record`) with the camera claimed (its settings put back and
     the live stream resumed afterwards). Its frames come to the window as the stream's
     do (the display and the live reconstruction, if running, take them); ``live``: that
     reconstruction, whose statistics each progress report carries as ``live``. On the
@@ -279,7 +279,7 @@ def batch_options(texts: dict[str, str]):
     type, choices, limits, default, the checks between fields such as workers against
     a scheduler), no command line assembled; an empty text takes the declared default.
     As ``recon-run --psf RUN``, a scene-calibrated PSF run's recipe is the default
-    (:func:`instrument.reconstruct_files.scene_recipe_default`): ``recon.early_stop``
+    (:func:`instrument.processing.reconstruct_files.scene_recipe_default`): ``recon.early_stop``
     then names it, unless the form declines it (``off``) or names a method, count or
     prior.
 
@@ -313,18 +313,18 @@ def batch_options(texts: dict[str, str]):
     except diffuserlab.errors.InputError as exc:
         raise InputError(str(exc)) from None
     if str(own.psf or "").strip():
-        from instrument.reconstruct_files import scene_recipe_default
+        from instrument.processing.reconstruct_files import scene_recipe_default
 
         rec = scene_recipe_default(own.psf, rec)
     return rec, own
 
 
 def batch_reconstruct(job, run: str, recon, own) -> dict:
-    """Reconstruct a recorded run with dask (:func:`instrument.batch.reconstruct_run`),
+    """Reconstruct a recorded run with dask (:func:`instrument.processing.batch.reconstruct_run`),
     with ``recon-run``'s options (:func:`batch_options`), cancelled by the job.
 
     The batch runs in a child process
-    (:func:`instrument.batch_process.reconstruct_run_in_process`): dask's scheduler and
+    (:func:`instrument.processing.batch_process.reconstruct_run_in_process`): dask's scheduler and
     client never live in the GUI's process, whose references, memory and interpreter
     lock each batch would otherwise take a share of for the rest of the session.
 
@@ -342,12 +342,12 @@ def batch_reconstruct(job, run: str, recon, own) -> dict:
     ------
     gui.workers.InputError
         No PSF.
-    instrument.runstore.RunStoreError, recon.errors.ReconInputError
+    instrument.runs.runstore.RunStoreError, recon.errors.ReconInputError
         From the run, the PSF or a frame's reconstruction (frames done are kept).
     """
-    from instrument.batch import batch_psf, parse_frames
-    from instrument.batch_process import reconstruct_run_in_process
-    from instrument.runstore import RunStore
+    from instrument.processing.batch import batch_psf, parse_frames
+    from instrument.processing.batch_process import reconstruct_run_in_process
+    from instrument.runs.runstore import RunStore
 
     from .workers import InputError
 

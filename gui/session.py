@@ -1,14 +1,14 @@
 """The GUI's bench session: the open bench, the camera stream and who uses the camera.
 
 One :class:`Session` per window. The bench lives in a process of its own (a
-:class:`instrument.bench_host.BenchHost` served to the window by
-:class:`instrument.bench_process.BenchClient`): the devices, the camera's stream and
+:class:`instrument.bench.bench_host.BenchHost` served to the window by
+:class:`instrument.bench.bench_process.BenchClient`): the devices, the camera's stream and
 the jobs that use them (calibration runs, the mask alignment, recordings; bodies in
-:mod:`instrument.bench_jobs` and :mod:`calibration_routines.bench_jobs`) run there, so
+:mod:`instrument.bench.bench_jobs` and :mod:`calibration_routines.bench_jobs`) run there, so
 their compute and device waits never take this process's interpreter lock.
 ``session.service`` is that bench's typed service
-(:class:`~instrument.bench_service.BenchService` commands by device id, with plain
-data), ``session.devices`` its devices (:class:`~instrument.bench_service.DeviceInfo`),
+(:class:`~instrument.bench.bench_service.BenchService` commands by device id, with plain
+data), ``session.devices`` its devices (:class:`~instrument.bench.bench_service.DeviceInfo`),
 and the changes the bench process pushes (settings, positions, statuses) come as the
 ``device_event`` signal. The bench file's bench is opened,
 or with ``simulate`` the virtual bench streaming in real time, as ``capture live
@@ -16,7 +16,7 @@ or with ``simulate`` the virtual bench streaming in real time, as ``capture live
 
 The stream's frames come through shared memory to a reader thread here, which keeps
 the newest for the displays and hands each frame to the consumers (the live
-reconstruction's :meth:`~instrument.live_process.LiveReconstructionProcess.offer`),
+reconstruction's :meth:`~instrument.acquisition.live_process.LiveReconstructionProcess.offer`),
 which never block.
 
 A camera cannot stream and snap at once, so jobs that take frames themselves (a
@@ -62,7 +62,7 @@ BENCH_WATCH_MS = 500
 #: Run the bench host in the window's process (False: in a process of its own).
 BENCH_IN_PROCESS = False
 
-#: The jobs the bench process may run besides :data:`instrument.bench_jobs.JOBS`, by
+#: The jobs the bench process may run besides :data:`instrument.bench.bench_jobs.JOBS`, by
 #: name (tests add theirs before the bench opens).
 BENCH_JOBS: dict[str, Callable] = dict(CALIBRATION_JOBS)
 
@@ -92,7 +92,7 @@ class Session(QObject):
         ``(action, message, reply)``: a plan asks the operator to do something on a
         real bench; the GUI answers with ``reply(bool)``.
     device_event(object)
-        A :class:`~instrument.bench_service.BenchEvent` the bench process pushed.
+        A :class:`~instrument.bench.bench_service.BenchEvent` the bench process pushed.
     bench_lost(str)
         The bench process ended without being asked (killed, crashed): the operator's
         message, also in :attr:`lost`; ``changed`` follows (not connected).
@@ -113,7 +113,7 @@ class Session(QObject):
         self.simulate = bool(simulate)
         self.seed = int(seed)
         #: The open bench's typed service, a
-        #: :class:`~instrument.bench_process.BenchClient` (None: not connected).
+        #: :class:`~instrument.bench.bench_process.BenchClient` (None: not connected).
         self.service = None
         #: ``{device id: DeviceInfo}`` of the open bench (empty: not connected).
         self.devices: dict = {}
@@ -192,7 +192,7 @@ class Session(QObject):
         return job.start()
 
     def _open(self, job: Job):
-        from instrument.bench_process import BenchClient
+        from instrument.bench.bench_process import BenchClient
 
         client = BenchClient(in_process=BENCH_IN_PROCESS, jobs=BENCH_JOBS, name="the window",
                              on_frame=self._on_frame,
@@ -275,9 +275,9 @@ class Session(QObject):
             self.changed.emit()
 
     def run_on_bench(self, target: str, kwargs: dict | None = None, **channels) -> Any:
-        """Run job ``target`` (by name: :data:`instrument.bench_jobs.JOBS`,
+        """Run job ``target`` (by name: :data:`instrument.bench.bench_jobs.JOBS`,
         :data:`calibration_routines.bench_jobs.JOBS`) in the bench process and
-        wait for it (:meth:`instrument.bench_process.BenchClient.run_job`; ``report``,
+        wait for it (:meth:`instrument.bench.bench_process.BenchClient.run_job`; ``report``,
         ``control``, ``stop``, ``cancel``). Call it on a worker.
 
         Raises

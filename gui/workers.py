@@ -37,7 +37,8 @@ log = logging.getLogger(__name__)
 
 #: Nice increment of the GUI's worker threads (jobs, the live reconstruction): on a
 #: machine whose cores the solvers fill, the event loop's thread still gets the CPU
-#: when a timer or an input is due (Linux; :func:`instrument.live.lower_thread_priority`).
+#: when a timer or an input is due (Linux;
+# :func:`instrument.acquisition.live.lower_thread_priority`).
 #: ``python -m soak.benchmark`` with ADMM x5 live and a PSF sweep: p99 lateness 51 ms
 #: at +5, 29-35 ms at +10.
 BACKGROUND_NICE = 10
@@ -312,7 +313,7 @@ class Job(QObject):
         return True
 
     def _run(self) -> None:
-        from instrument.live import lower_thread_priority
+        from instrument.acquisition.live import lower_thread_priority
 
         lower_thread_priority(self.nice)
         try:

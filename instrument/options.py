@@ -12,7 +12,7 @@ line's start imports this module).
 - :class:`RunOptions`: ``recon-run``'s own options, the command's and the GUI's Batch
   form's;
 - :func:`check_pitch_um`: the one check of a sensor pixel pitch, the commands' and
-  :func:`instrument.stacks.import_psf_stack`'s.
+  :func:`instrument.runs.stacks.import_psf_stack`'s.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ class RunOptions(Options):
 def check_pitch_um(pitch_um: float | None, option: str = "--pitch-um") -> float | None:
     """The sensor pixel pitch an option gives, um, checked: the one check of ``recon``,
     ``recon3d``, ``analyze``, ``runs import-psf`` and
-    :func:`instrument.stacks.import_psf_stack` (it becomes an OME pixel size).
+    :func:`instrument.runs.stacks.import_psf_stack` (it becomes an OME pixel size).
 
     Parameters
     ----------

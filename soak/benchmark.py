@@ -13,7 +13,7 @@ while, in the same process,
   saturation overlay, beside the live reconstruction (Wiener, or warm-started ADMM
   with a few iterations per frame, on a worker thread) of the newest frame, and
 * a calibration panel runs a PSF sweep (:class:`calibration_routines.psf_sweep.PsfSweepPlan`
-  through :class:`instrument.runner.Runner` on a worker, every frame shown as it is
+  through :class:`instrument.acquisition.runner.Runner` on a worker, every frame shown as it is
   taken) on a second virtual bench: one camera cannot stream and snap at once, so
   the sweep has its own simulated camera, as a second camera of the same bench would.
 

@@ -26,7 +26,7 @@ def twin_psf(session, xyz_mm) -> tuple:
     """The on-bench PSF at ``xyz_mm`` of a window's built-in simulated bench, from its
     twin here (the same configuration and seed), and its camera's dark offset, DN."""
     from instrument.config import default_bench
-    from instrument.virtual_bench import VirtualBench
+    from instrument.devices.virtual_bench import VirtualBench
 
     psf = VirtualBench(default_bench(), seed=session.seed).psf(tuple(xyz_mm))
     return psf, float(session.service.camera_format().dark_offset_dn)

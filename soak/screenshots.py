@@ -142,7 +142,7 @@ def take_screenshots(out_dir: str | Path, *, alignment_record: str | None = None
         centre = int(np.argmin(np.hypot(*s.devices["led_array"].led_positions_mm.T)))
         job = box.light_led(centre)
         wait_until(app, lambda: job.done, 10, "the LED")
-        from instrument.runstore import RunStore
+        from instrument.runs.runstore import RunStore
 
         depths = RunStore.open(sweep).product("psf_stack")[1]["depths_mm"]
         depth = depths[len(depths) // 2]

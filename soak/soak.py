@@ -3,7 +3,7 @@ emulators, the GUI process, and how it ended.
 
 :func:`run_day` starts Xvfb (unless told to use a display) and a window manager
 (openbox, else fluxbox), and for the emulated bench the protocol emulators
-(:class:`instrument.emulated_bench.EmulatedBench`, as ``diffuserlab emulators start``
+(:class:`instrument.devices.emulated_bench.EmulatedBench`, as ``diffuserlab emulators start``
 runs them) with their bench file; then it runs ``python -m soak.operator_day`` (the
 real ``diffuserlab gui`` on the xcb platform, driven through xdotool), unplugs and
 plugs back an emulated device when the operator asks, and waits for the process to
@@ -150,7 +150,7 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
         ``crashed`` (bool), ``stderr_tail``, ``window_manager``, ``quit_run`` (the
         recording's run status and lock after Ctrl+Q) and ``load_avg``.
     """
-    from instrument.emulated_bench import EmulatedBench
+    from instrument.devices.emulated_bench import EmulatedBench
 
     work_dir = Path(work or tempfile.mkdtemp(prefix="operator-day-"))
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -209,7 +209,7 @@ def run_day(*, emulated: bool = False, minutes: float = 5.0, alignment_s: float 
 
 
 def _run_state(path: str) -> dict:
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runs.runstore import RunStore, RunStoreError
 
     try:
         store = RunStore.open(path)

@@ -9,7 +9,7 @@ import pytest
 #: Modules whose docstrings carry Examples (keep in step with the API reference).
 MODULES = ("diffuserlab.jsonio", "instrument.atomic", "recon.operators",
            "recon.metrics", "recon.live", "benchmarks.report", "recon.api", "recon.solvers.admm",
-           "recon.solvers.gradient", "instrument.shared_slot", "recon.priors.base",
+           "recon.solvers.gradient", "instrument.acquisition.shared_slot", "recon.priors.base",
            "recon.priors.wavelet", "recon.priors.dncnn", "recon.priors.tv_iso",
            "recon.priors.tgv")
 

@@ -60,8 +60,8 @@ def test_derives_from_the_root(name):
 
 @pytest.mark.parametrize("name", ["recon.errors.ReconInputError",
                                   "instrument.config.problems.BenchConfigError",
-                                  "instrument.plan.PlanError",
-                                  "instrument.run_integrity.RunStoreError"])
+                                  "instrument.acquisition.plan.PlanError",
+                                  "instrument.runs.run_integrity.RunStoreError"])
 def test_input_errors_are_input_errors(name):
     assert issubclass(EXCEPTIONS[name], InputError)
 

@@ -12,8 +12,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("diffuserlab", "recon", "drivers", "instrument", "calibration_routines", "gui")
 #: Where files are written: the writer, the atomic outputs under it, the run store.
-WRITERS = ("instrument/writer/", "instrument/atomic.py", "instrument/runstore.py",
-           "instrument/run_writing.py", "instrument/run_creation.py")
+WRITERS = ("instrument/writer/", "instrument/atomic.py", "instrument/runs/runstore.py",
+           "instrument/runs/run_writing.py", "instrument/runs/run_creation.py")
 #: Methods that write a file on any object (``path.write_text``, ``fig.savefig``).
 _METHODS = {"write_text", "write_bytes", "savefig", "tofile", "to_zarr", "imwrite"}
 #: Functions of a module that write a file: (module's name or "" for a bare name).

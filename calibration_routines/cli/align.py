@@ -69,7 +69,7 @@ def _load_pattern(path: str):
     name neither the file nor the option)."""
     import numpy as np
 
-    from instrument.plan import PlanError
+    from instrument.acquisition.plan import PlanError
 
     try:
         return np.load(path, allow_pickle=False)
@@ -81,11 +81,11 @@ def _load_pattern(path: str):
 def run(args: argparse.Namespace) -> int:
     """Run ``align mask``; returns the exit status."""
     from drivers.errors import DeviceError
-    from instrument.bench_file import MissingBenchFile
+    from instrument.acquisition.plan import PlanError
+    from instrument.acquisition.runner import RunAborted, RunControl
     from instrument.config import BenchConfigError
-    from instrument.plan import PlanError
-    from instrument.runner import RunAborted, RunControl
-    from instrument.runstore import RunStoreError
+    from instrument.devices.bench_file import MissingBenchFile
+    from instrument.runs.runstore import RunStoreError
     from instrument.writer.guards import check_outputs
     from recon.errors import ReconInputError
     from recon.optics.holo_display import MaskModel

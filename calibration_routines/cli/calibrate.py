@@ -97,18 +97,18 @@ def plan_from_args(args, bench):
     ----------
     args : argparse.Namespace
         The options of ``calibrate`` (``routine``, ``seed`` and the routine's own).
-    bench : instrument.bench.Bench or instrument.virtual_bench.VirtualBench
+    bench : instrument.devices.bench.Bench or instrument.devices.virtual_bench.VirtualBench
         The open bench (plans read its devices and geometry).
 
     Returns
     -------
-    instrument.plan.Plan
+    instrument.acquisition.plan.Plan
 
     Raises
     ------
     diffuserlab.errors.InputError
         A parameter outside its declared limits (the message names the option).
-    instrument.plan.PlanError, recon.errors.ReconInputError
+    instrument.acquisition.plan.PlanError, recon.errors.ReconInputError
         Options a plan refuses (the message names the option).
     """
     return PARAMETERS[args.routine].from_namespace(args).plan(bench, seed=args.seed)
@@ -118,7 +118,7 @@ def _routine_params(args, routine: str) -> dict | None:
     """The parameters of ``routine`` as given on the command line (an argparse
     namespace) or, for ``resume``, as the run being resumed recorded them; None for
     another routine or an unreadable run (the resume itself reports that)."""
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runs.runstore import RunStore, RunStoreError
 
     if args.routine == routine:
         return vars(args)
@@ -137,7 +137,7 @@ def _bead_slide(bench, args) -> None:
     carried by the source stage. Nothing for the other routines."""
     import numpy as np
 
-    from instrument.virtual_bench import BeadScene
+    from instrument.devices.virtual_bench import BeadScene
 
     params = _routine_params(args, "psf-blind")
     if params is None:
@@ -157,7 +157,7 @@ def _display_scene(bench, args) -> None:
     """The virtual bench's display facing the camera at ``--z-mm`` for
     ``psf-from-scenes --simulate`` (and for resuming such a run): what the display
     device shows is the scene. Nothing for the other routines."""
-    from instrument.virtual_bench import DisplayScene
+    from instrument.devices.virtual_bench import DisplayScene
 
     params = _routine_params(args, "psf-from-scenes")
     if params is not None:
@@ -172,8 +172,8 @@ def _falloff_sigma_deg(path: str) -> float:
     PlanError
         ``path`` is a run of another routine, or incomplete, or lacks the fit.
     """
-    from instrument.plan import PlanError
-    from instrument.runstore import RunStore
+    from instrument.acquisition.plan import PlanError
+    from instrument.runs.runstore import RunStore
 
     from ..angular_response import AngularResponsePlan
 
@@ -291,7 +291,7 @@ def _run_whole_or_nothing(runner, plan, out, **options):
     a run this process did not create (another process's, created at ``out``
     meanwhile: this one is refused)."""
     from instrument.atomic import missing_dirs, remove_empty_dirs
-    from instrument.runstore import RunStoreError, discard_partial_run
+    from instrument.runs.runstore import RunStoreError, discard_partial_run
 
     made = missing_dirs(out)
     try:
@@ -314,10 +314,10 @@ def run(args: argparse.Namespace) -> int:
     """Run ``calibrate ROUTINE``; returns the exit status (module docstring)."""
     from calibration_routines import register_plans
     from diffuserlab.errors import InputError
+    from instrument.acquisition.runner import Runner
     from instrument.cli.runs import format_summary
-    from instrument.runner import Runner
-    from instrument.runstore import RunStore, RunStoreError, is_run_store
-    from instrument.runstore_records import video_cannot_continue
+    from instrument.runs.runstore import RunStore, RunStoreError, is_run_store
+    from instrument.runs.runstore_records import video_cannot_continue
     from instrument.writer.guards import check_outputs
 
     if not 0 <= args.reconnect_timeout_s < float("inf"):  # NaN fails; every wait ends

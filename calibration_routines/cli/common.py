@@ -1,7 +1,7 @@
 """What ``calibrate`` and ``align`` share: bench arguments, opening the bench, prompts.
 
 With ``--simulate`` and no bench file both use the built-in simulated bench
-(:func:`instrument.bench_file.bench_config`, as ``diffuserlab devices`` does).
+(:func:`instrument.devices.bench_file.bench_config`, as ``diffuserlab devices`` does).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ __all__ = ["add_bench_arguments", "ask", "make_bench"]
 
 def ask(action: str, message: str) -> bool:
     """The operator prompt of a real bench (``on_prompt`` of
-    :meth:`instrument.bench.Bench.open`): shows ``message`` and waits.
+    :meth:`instrument.devices.bench.Bench.open`): shows ``message`` and waits.
 
     Returns
     -------
@@ -44,20 +44,20 @@ def make_bench(args: argparse.Namespace, command: str):
 
     Returns
     -------
-    instrument.virtual_bench.VirtualBench or instrument.bench.Bench
+    instrument.devices.virtual_bench.VirtualBench or instrument.devices.bench.Bench
 
     Raises
     ------
-    instrument.bench_file.MissingBenchFile
+    instrument.devices.bench_file.MissingBenchFile
         No bench file and no ``--simulate``.
     instrument.config.BenchConfigError
         The bench file has problems.
     drivers.errors.DeviceError
         A real device failed to open.
     """
-    from instrument.bench import Bench
-    from instrument.bench_file import bench_config
-    from instrument.virtual_bench import VirtualBench
+    from instrument.devices.bench import Bench
+    from instrument.devices.bench_file import bench_config
+    from instrument.devices.virtual_bench import VirtualBench
 
     config = bench_config(args.bench, simulate=args.simulate, command=command)
     if args.simulate:

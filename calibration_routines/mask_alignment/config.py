@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 
 __all__ = ["AlignmentConfig"]
 

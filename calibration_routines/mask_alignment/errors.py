@@ -6,7 +6,7 @@ without importing the other.
 
 from __future__ import annotations
 
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 
 __all__ = ["AlignmentFailed", "MaskNotFound"]
 

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.special import ndtr
 
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 
 __all__ = ["ParabolaFit", "PlaneFit", "SimilarityFit", "TriangleFit", "best_subpixel_offset",
            "fit_parabola", "fit_plane", "fit_similarity", "fit_triangle", "smoothed_triangle",
@@ -123,7 +123,7 @@ def fit_triangle(shifts, eta, k: float, rounded: bool = True) -> TriangleFit:
 
     Raises
     ------
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         Mismatched, non-finite or too few samples, or ``k <= 0``.
     """
     s, e = _samples(shifts, eta, "fit_triangle")
@@ -218,7 +218,7 @@ def fit_similarity(centres, offsets, offset_sigma: float | None = None) -> Simil
 
     Raises
     ------
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         Shapes differ, fewer than 3 patches, or the centres coincide.
     """
     c = np.asarray(centres, np.float64)
@@ -343,7 +343,7 @@ def fit_parabola(z, values, floor: float = 0.5) -> ParabolaFit:
 
     Raises
     ------
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         Mismatched or non-finite samples, fewer than 3 distinct positions, or
         ``floor`` outside [0, 1).
     """
@@ -441,7 +441,7 @@ def fit_plane(xy, z, sigma=None) -> PlaneFit:
 
     Raises
     ------
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         Shapes differ, fewer than 3 points, the points are collinear, or a sigma is
         not positive.
     """

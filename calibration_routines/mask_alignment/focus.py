@@ -38,7 +38,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 from recon.optics.holo_display import MaskModel, RelayModel
 
 from .config import AlignmentConfig
@@ -218,7 +218,7 @@ class FocusStep:
             A sweep would leave the stage's z travel (the message names the fix).
         drivers.errors.DeviceError
             A stage move fails (e.g. a tilt correction beyond the stage's limits).
-        instrument.runner.RunAborted
+        instrument.acquisition.runner.RunAborted
             The operator aborted between readings.
         """
         cfg, st = self.cfg, self.stage

@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 from recon.cgh import ScatteringDisplay, optimize_hologram
 from recon.errors import ReconInputError
 from recon.optics.holo_display import (
@@ -313,7 +313,7 @@ def hologram_check(meter, mask_model: MaskModel, corrected_mask: np.ndarray,
         A meter without ``show``/``frame``, wrong model types, a corrected mask of
         the wrong shape or not +1/-1, a bad target, a camera frame whose shape is not
         ``camera_map.shape``, or a camera that sees too little of the far field.
-    instrument.acquisition.ExposureError
+    instrument.acquisition.exposure.ExposureError
         From the meter: the hologram saturates at the shortest exposure.
     """
     if not (callable(getattr(meter, "show", None)) and callable(getattr(meter, "frame", None))):

@@ -44,8 +44,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from instrument.plan import PlanError
-from instrument.runner import RunAborted, RunControl
+from instrument.acquisition.plan import PlanError
+from instrument.acquisition.runner import RunAborted, RunControl
 from recon.optics.holo_display import (
     CameraMapping,
     HolographicDisplayModel,
@@ -71,7 +71,7 @@ class MaskAligner:
 
     Parameters
     ----------
-    bench : instrument.bench.Bench
+    bench : instrument.devices.bench.Bench
         Open bench with ``camera``, ``slm`` and ``mask_stage`` (axes x, y in mm;
         rotation, tip, tilt in deg; z in mm), the holography branch in the beam.
     mask_model : recon.optics.holo_display.MaskModel
@@ -79,7 +79,7 @@ class MaskAligner:
     config : AlignmentConfig
     record : AlignmentRecord, optional
         Where captures and results go (default: kept in memory only).
-    control : instrument.runner.RunControl, optional
+    control : instrument.acquisition.runner.RunControl, optional
         Pause / abort between readings (abort raises ``RunAborted``).
     on_event : callable, optional
         ``on_event(step: str, message: str, data: dict)`` for progress.

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from diffuserlab.jsonio import json_line
+from instrument.acquisition.plan import PlanError
 from instrument.atomic import AppendLog, write_json
-from instrument.plan import PlanError
 
 __all__ = ["AlignmentRecord", "corrected_mask", "load_alignment", "section_bounds"]
 
@@ -72,7 +72,7 @@ def corrected_mask(mask_model, shifts, sections, radius: int = 2) -> tuple[np.nd
 
     Raises
     ------
-    instrument.plan.PlanError
+    instrument.acquisition.plan.PlanError
         Wrong number of shifts, or a shift beyond the modelled margin.
     """
     k, m = mask_model.k, mask_model.margin

@@ -17,8 +17,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from instrument.acquisition import ExposureError, average_frames, full_scale
-from instrument.plan import PlanError
+from instrument.acquisition.exposure import ExposureError, average_frames, full_scale
+from instrument.acquisition.plan import PlanError
 from recon.optics.holo_display import efficiency
 
 __all__ = ["SpotMeter", "SpotReading", "blazed_phase"]
@@ -92,7 +92,7 @@ class SpotMeter:
 
     Parameters
     ----------
-    bench : instrument.bench.Bench
+    bench : instrument.devices.bench.Bench
         Open bench with a camera and an SLM.
     frames : int
         Frames averaged per reading (after auto-exposure; >= 1).
@@ -187,7 +187,7 @@ class SpotMeter:
 
         Raises
         ------
-        instrument.acquisition.ExposureError
+        instrument.acquisition.exposure.ExposureError
             Saturated at the shortest exposure (too bright: lower the laser power or add
             an ND filter), or the budget ran out.
         """

@@ -8,9 +8,9 @@ named in the log) with each frame's tag, plan point and coordinates in the layer
 plane, like the frames). A product's own folder (``RUN.zarr/products/NAME``, an
 OME-Zarr image group) gives that product's layer, read through its run (verified).
 A recon3d volume (``recon3d --out V.zarr``) gives one layer. Axis names, units and
-scales are those of the run's OME-Zarr description (:mod:`instrument.ome`), computed
+scales are those of the run's OME-Zarr description (:mod:`instrument.runs.ome`), computed
 the same way for a run written before it; products are found in either layout of
-``products/`` (:mod:`instrument.product_nodes`). A colour product (``channels``
+``products/`` (:mod:`instrument.runs.product_nodes`). A colour product (``channels``
 recorded, the last axis: a ``calibrate psf-from-scenes`` run's PSF) gives one layer
 per channel in its colour. Every layer of planes ends in
 ``t`` (second), ``z`` (micrometer), ``y``, ``x`` (:func:`_layer`: a video gets a ``z``
@@ -41,7 +41,7 @@ def get_reader(path: str | Sequence[str]) -> Callable | None:
     anything else (napari then asks another reader)."""
     if not isinstance(path, str | Path):
         return None
-    from instrument.runstore import is_run_store, product_location
+    from instrument.runs.runstore import is_run_store, product_location
     from instrument.writer.products import VOLUME_MARKER
 
     if is_run_store(path):
@@ -63,7 +63,7 @@ def _attrs(path: Path) -> dict:
 
 
 #: The depth axis a layer with a time axis and none of depth gets after ``t``: one plane,
-#: in the unit of a volume's ``z`` (:func:`instrument.ome.volume_axes`). A camera frame
+#: in the unit of a volume's ``z`` (:func:`instrument.runs.ome.volume_axes`). A camera frame
 #: has no depth of its own; its plane is given 1 mm (1000 micrometer, the order of a PSF
 #: sweep's spacing) because napari's z slider steps by the smallest z scale of its
 #: layers: 1 micrometer would give a volume's 2 mm thousands of empty steps.
@@ -93,7 +93,7 @@ def _layer(data, name: str, axes, metadata: dict) -> tuple:
     one frame (:data:`SINGLE_FRAME_T`) and such a ``z``, labelled by
     :data:`INDEX_LABELS`. Any mix of sweeps, videos, grids and volumes then keeps
     its units."""
-    from instrument.ome import OmeAxis
+    from instrument.runs.ome import OmeAxis
 
     axes = list(axes)
     if len(axes) == data.ndim == 3 and not _has_unit(axes[0]):
@@ -136,12 +136,12 @@ def read_run(path: str) -> list[tuple]:
 
     Raises
     ------
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         No readable run at ``path``.
     """
-    from instrument.ome import frame_axis, frame_pitch_um, space_axes
-    from instrument.run_integrity import DamagedFrameError
-    from instrument.runstore import RunStore
+    from instrument.runs.ome import frame_axis, frame_pitch_um, space_axes
+    from instrument.runs.run_integrity import DamagedFrameError
+    from instrument.runs.runstore import RunStore
 
     store = RunStore.open(path)
     attrs, done = store.attrs, store.done()
@@ -174,7 +174,7 @@ def read_run(path: str) -> list[tuple]:
 
 def read_product(path: str) -> list[tuple]:
     """The layer of one product, given its folder ``RUN.zarr/products/NAME``
-    (:func:`instrument.runstore.product_location`), read through its run as
+    (:func:`instrument.runs.runstore.product_location`), read through its run as
     :func:`read_run` reads it.
 
     Returns
@@ -185,10 +185,10 @@ def read_product(path: str) -> list[tuple]:
 
     Raises
     ------
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         ``path`` is no product folder of a readable run.
     """
-    from instrument.runstore import RunStore, RunStoreError, product_location
+    from instrument.runs.runstore import RunStore, RunStoreError, product_location
 
     where = product_location(path)
     if where is None:
@@ -207,8 +207,8 @@ def _product_layers(store, name: str) -> list[tuple]:
     recorded, the last axis: a ``calibrate psf-from-scenes`` run's ``psf_stack``,
     ``(planes, rows, cols, channels)``: each channel in its colour, blended
     additively), none for a table or LUT or a damaged product (logged)."""
-    from instrument.ome import product_axes
-    from instrument.runstore import RunStoreError
+    from instrument.runs.ome import product_axes
+    from instrument.runs.runstore import RunStoreError
 
     pattrs = store.product_attrs(name)
     channels = pattrs.get("channels")
@@ -238,7 +238,7 @@ def _product_layers(store, name: str) -> list[tuple]:
 def _product_layer(store, name: str) -> tuple | None:
     """The image layer of product ``name`` of an open run (a per-frame one lazily,
     plane by plane); None for a table or LUT, or a damaged product (logged)."""
-    from instrument.runstore import RunStoreError
+    from instrument.runs.runstore import RunStoreError
 
     found = store.product_axes(name)
     if found is None:  # a table or a LUT: no image
@@ -298,7 +298,7 @@ def _volume_layout(path: Path, attrs: dict, group) -> tuple[str, list]:
     """The array key and the axes a volume's ``ome`` block describes (checked against
     the stored array); InputError as :func:`read_volume`."""
     from diffuserlab.errors import InputError
-    from instrument.ome import OmeAxis
+    from instrument.runs.ome import OmeAxis
 
     def refuse(what: str) -> InputError:
         return InputError(f"{path}: the volume's OME description {what}; write the volume "

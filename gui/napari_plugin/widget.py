@@ -7,9 +7,9 @@ command line is generated from (:class:`recon.options.ReconOptions`, the fields 
 (:class:`gui.forms.OptionsForm`), with the command line's defaults, the dark level
 included. :func:`reconstruct_layer` does the work: it takes the plane napari shows of
 the chosen layer (a frame of a run's frames, or a 2-D image), loads the PSF: the stack
-of a run, a TIFF/.npy stack (:func:`instrument.stacks.load_psf_stack`), a plain 2-D
+of a run, a TIFF/.npy stack (:func:`instrument.runs.stacks.load_psf_stack`), a plain 2-D
 PSF image (a TIFF/.npy file, or a 2-D layer of the viewer) without depths; resolves
-the dark level as the commands do (:func:`instrument.reconstruct_files.resolve_dark`,
+the dark level as the commands do (:func:`instrument.processing.reconstruct_files.resolve_dark`,
 with the level recorded with a run's frames, as ``recon-run`` takes it) and runs
 :func:`recon.reconstruct`: with one depth (``depth_mm``, or a stack of one plane) an
 image, else the whole stack as a volume. The widget runs it from a worker thread
@@ -21,7 +21,7 @@ own words (a command-line flag named by its field,
 :func:`gui.messages.operator_text`). The result comes back as a new layer, on the
 model grid (:data:`recon.io.DATA_ORIENTATION`), scaled by the layer's pixel size
 times the binning; a volume's first axis is that of a stored volume
-(:func:`instrument.ome.volume_axes`).
+(:func:`instrument.runs.ome.volume_axes`).
 """
 
 from __future__ import annotations
@@ -78,18 +78,18 @@ def _plane(layer, step: Sequence[int] | None) -> np.ndarray:
 def _load_psf(psf, product: str, depths_mm: Sequence[float] | None = None
               ) -> tuple[np.ndarray, list, bool, str]:
     """``(stack (n, rows, cols), depths_mm, calibrated, source)`` of a PSF given as a
-    run store or a TIFF/.npy stack (:func:`instrument.stacks.load_psf_stack`; a stack
+    run store or a TIFF/.npy stack (:func:`instrument.runs.stacks.load_psf_stack`; a stack
     that records no depths takes ``depths_mm``, one per plane), a plain 2-D image file
     or array (one plane, no depth).
 
     Raises
     ------
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         A stack of several planes whose depths are missing (neither recorded nor
         given: the message says so and names the widget's depths field), or no PSF.
     """
-    from instrument.runstore import RunStoreError
-    from instrument.stacks import dark_subtracted, load_psf_stack
+    from instrument.runs.runstore import RunStoreError
+    from instrument.runs.stacks import dark_subtracted, load_psf_stack
 
     if isinstance(psf, np.ndarray):
         if psf.ndim != 2:
@@ -136,7 +136,7 @@ def _psf_pitch_um(psf, product: str, bin_factor: int) -> float | None:
     outputs); None for a file, a layer or a run that records none."""
     if isinstance(psf, np.ndarray):
         return None
-    from instrument.reconstruct_files import _grid_pitch_um
+    from instrument.processing.reconstruct_files import _grid_pitch_um
 
     return _grid_pitch_um(str(psf), product, None, bin_factor)
 
@@ -144,7 +144,7 @@ def _psf_pitch_um(psf, product: str, bin_factor: int) -> float | None:
 def _recorded_dark(layer) -> float | None:
     """The dark level (DN) recorded with the run whose frames ``layer`` shows (a
     simulated camera's offset, as ``recon-run`` takes it); None if none."""
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runs.runstore import RunStore, RunStoreError
 
     run = (getattr(layer, "metadata", None) or {}).get("run")
     if not run:
@@ -172,7 +172,7 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
         depths, or a plain PSF image (a TIFF/.npy file or an array (rows, cols)),
         reconstructed as one plane of no depth. A ``calibrate psf-from-scenes`` run
         reconstructs with its recipe unless the options name a method, count or prior
-        (:func:`instrument.reconstruct_files.scene_recipe_default`, as ``recon``).
+        (:func:`instrument.processing.reconstruct_files.scene_recipe_default`, as ``recon``).
     product : str
         The run's product (default ``psf_stack``).
     depth_mm : float
@@ -203,16 +203,16 @@ def reconstruct_layer(layer, psf_run: Path | np.ndarray, product: str = "psf_sta
     ------
     diffuserlab.errors.InputError
         A value of ``values`` the declaration refuses (names the keyword).
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         No PSF stack at ``psf_run`` or no plane near ``depth_mm``.
     recon.errors.ReconInputError
         A measurement that does not fit the PSF, a calibration run's PSF with the dark
         level ``auto`` and no level recorded with the layer's run (give the frames'
         level; the widget shows the message), a PSF file that cannot be read.
     """
-    from instrument.ome import volume_axes
-    from instrument.reconstruct_files import resolve_dark, scene_recipe_default
-    from instrument.stacks import pick_depth
+    from instrument.processing.reconstruct_files import resolve_dark, scene_recipe_default
+    from instrument.runs.ome import volume_axes
+    from instrument.runs.stacks import pick_depth
     from recon import PsfStack, reconstruct
     from recon.early_stop import named
     from recon.io import DATA_ORIENTATION
@@ -368,8 +368,8 @@ def _solver_pool():
 
 def _warm() -> None:
     """In the solver's process: import what a solve needs, before the first solve."""
-    import instrument.reconstruct_files  # noqa: F401
-    import instrument.stacks  # noqa: F401
+    import instrument.processing.reconstruct_files  # noqa: F401
+    import instrument.runs.stacks  # noqa: F401
     import recon.volume.api  # noqa: F401
 
 

@@ -6,7 +6,7 @@ the SLM's sections (and, after the verify step, each section's efficiency agains
 the aligned simulation) and each step's state. The procedure is
 :class:`calibration_routines.mask_alignment.MaskAligner` on a worker
 (:func:`gui.jobs.run_alignment`), paused and aborted through its
-:class:`~instrument.runner.RunControl`; a finished record can be opened too
+:class:`~instrument.acquisition.runner.RunControl`; a finished record can be opened too
 (:func:`calibration_routines.mask_alignment.load_alignment`).
 """
 

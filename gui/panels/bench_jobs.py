@@ -1,10 +1,10 @@
 """The bench process's address and jobs, in the Devices panel: every client's jobs.
 
 :class:`BenchJobs` shows where a notebook attaches (the bench process's address and
-its connection file, :mod:`instrument.bench_connection`) and lists the bench
+its connection file, :mod:`instrument.bench.bench_connection`) and lists the bench
 process's running jobs, whichever client started them (a notebook's recording, the
 window's own calibration run): id, name, owner, progress and the devices each holds
-(:meth:`instrument.bench_process.BenchClient.jobs`). *Stop job* stops the selected one
+(:meth:`instrument.bench.bench_process.BenchClient.jobs`). *Stop job* stops the selected one
 after a confirmation that names its owner. The list follows the bench's ``job``
 events, and its progress is read again once a second while a job runs, on a worker
 (a bench process that hangs never holds up the window).
@@ -57,7 +57,7 @@ class BenchJobs(QWidget):
     def __init__(self, session: Session, parent=None) -> None:
         super().__init__(parent)
         self.session = session
-        #: The running jobs listed, by row (:class:`~instrument.bench_job_handle.JobInfo`).
+        #: The running jobs listed, by row (:class:`~instrument.bench.bench_job_handle.JobInfo`).
         self.infos: list = []
         #: Every job the last read returned (running and recently ended).
         self.all_infos: list = []
@@ -143,7 +143,7 @@ class BenchJobs(QWidget):
             self.timer.stop()
 
     def selected(self):
-        """The selected job's :class:`~instrument.bench_job_handle.JobInfo` (None:
+        """The selected job's :class:`~instrument.bench.bench_job_handle.JobInfo` (None:
         none; the only one when one runs)."""
         row = self.list.currentRow()
         if 0 <= row < len(self.infos):

@@ -6,8 +6,8 @@ The parameters are the routine's typed model, from which the ``calibrate`` comma
 options are generated too (:func:`gui.jobs.routine_options`, remembered between
 sessions); the form's texts become the model, which builds the plan
 (:func:`calibration_routines.bench_jobs.build_plan`), and the run is
-:class:`instrument.runner.Runner` in the bench process, controlled through a
-:class:`~instrument.runner.RunControl`. The bench is given back as it was (camera
+:class:`instrument.acquisition.runner.Runner` in the bench process, controlled through a
+:class:`~instrument.acquisition.runner.RunControl`. The bench is given back as it was (camera
 settings, stage positions, LEDs, the live stream). A run that ends aborted or failed
 keeps its data and says how to resume it.
 """
@@ -231,7 +231,7 @@ class CalibrationPanel(RunControls, QWidget):
                             detail=f"{routine} into {path}")
 
     def resume(self) -> Job | None:
-        """Resume the last run (:meth:`instrument.runner.Runner.resume`)."""
+        """Resume the last run (:meth:`instrument.acquisition.runner.Runner.resume`)."""
         path = self.last_path
         if path is None:
             return None
@@ -248,7 +248,7 @@ class CalibrationPanel(RunControls, QWidget):
         (gui_log.warning if error else gui_log.info)("%s", text)
 
     def on_event(self, e) -> None:
-        """Show a :class:`instrument.runner.RunEvent` (or the plan's size, first)."""
+        """Show a :class:`instrument.acquisition.runner.RunEvent` (or the plan's size, first)."""
         if isinstance(e, dict) and e.get("kind") == "planned":
             self.light_frames = bool(e["light_frames"])
             self.progress.start(int(e["total"]))

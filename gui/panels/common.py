@@ -268,11 +268,11 @@ class JobProgress(QWidget):
 
 class RunControls:
     """Start / Pause / Abort buttons of a panel running a procedure under a
-    :class:`instrument.runner.RunControl` (``self.control``), which pauses and aborts it
+    :class:`instrument.acquisition.runner.RunControl` (``self.control``), which pauses and aborts it
     between steps. Mixed into the panel's class."""
 
     def _make_controls(self, start_text: str, start) -> list[QPushButton]:
-        from instrument.runner import RunControl
+        from instrument.acquisition.runner import RunControl
 
         self.control = RunControl()
         self.start_button = QPushButton(start_text)
@@ -284,7 +284,7 @@ class RunControls:
         return [self.start_button, self.pause_button, self.abort_button]
 
     def _new_control(self):
-        from instrument.runner import RunControl
+        from instrument.acquisition.runner import RunControl
 
         self.control = RunControl()
         return self.control

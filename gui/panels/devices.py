@@ -2,13 +2,13 @@
 Reconnect, stage jog, go-to and stored positions, the LED picker on the array's
 geometry, the SLM pattern picker.
 
-Each box holds a device's id and its :class:`~instrument.bench_service.DeviceInfo`;
+Each box holds a device's id and its :class:`~instrument.bench.bench_service.DeviceInfo`;
 every command goes to the bench's typed service (``session.service``,
-:class:`~instrument.bench_service.BenchService`) in a :class:`~gui.workers.Job`; values
+:class:`~instrument.bench.bench_service.BenchService`) in a :class:`~gui.workers.Job`; values
 are validated by the device interfaces (:meth:`drivers.base.Device.apply_settings`),
 whose message shows under the device when one is refused. Statuses, settings and
 positions are pushed by the bench process when they change
-(:class:`~instrument.bench_service.BenchEvent`, read there once a second; no poll from
+(:class:`~instrument.bench.bench_service.BenchEvent`, read there once a second; no poll from
 here) and shown as named fields (:mod:`gui.device_status`); the ``statuses`` signal
 hands them to the window's status area. Presets (a device's
 settings under a name) and stored stage positions belong to the bench file and are
@@ -74,8 +74,8 @@ class DeviceBox(QGroupBox):
 
     Parameters
     ----------
-    device : instrument.bench_service.DeviceInfo
-    service : instrument.bench_process.BenchClient
+    device : instrument.bench.bench_service.DeviceInfo
+    service : instrument.bench.bench_process.BenchClient
         The bench's typed service (the commands go there by the device's id).
     bench : str
         The bench's settings group (:func:`gui.fields.bench_key`).
@@ -208,7 +208,7 @@ class DeviceBox(QGroupBox):
         shown: its state says so); ``values``: its ``setting_values()`` as the bench
         process pushed or returned them, else read here."""
         from drivers.errors import DeviceError
-        from instrument.bench_service import BenchServiceError
+        from instrument.bench.bench_service import BenchServiceError
 
         if values is None:
             try:
@@ -658,7 +658,7 @@ class DevicePanel(QWidget):
 
     def on_event(self, event) -> None:
         """Show what the bench process pushed (a
-        :class:`~instrument.bench_service.BenchEvent`) in the device's box."""
+        :class:`~instrument.bench.bench_service.BenchEvent`) in the device's box."""
         box = self.boxes.get(event.device)
         if box is None or self.session.lost is not None:
             return

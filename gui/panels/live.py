@@ -2,7 +2,7 @@
 reconstruction (its own fps, latency, skipped and error counters), Snap.
 
 The session's stream hands every frame to the live reconstruction, which runs in a
-process of its own (:class:`instrument.live_process.LiveReconstructionProcess`: frames
+process of its own (:class:`instrument.acquisition.live_process.LiveReconstructionProcess`: frames
 and results through shared memory, so the window shares its interpreter lock with no
 solver; Wiener preview or warm-started ADMM with a few iterations per frame; PSF from a file
 or a run store, :func:`gui.jobs.build_live`); a 20 Hz timer shows the newest frame

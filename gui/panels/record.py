@@ -1,11 +1,11 @@
 """Record panel: start / stop a video recording (frames written, MB/s, dropped, ETA),
 and batch reconstruction of a recorded run (progress, ETA, cancel).
 
-Recording is :func:`instrument.video.record_video` on a worker (the camera streams
+Recording is :func:`instrument.acquisition.video.record_video` on a worker (the camera streams
 into a ring, every frame goes to the recorder; the live view keeps showing the newest
 frame and, if it runs, the live reconstruction); Stop sets its ``stop`` event, and
 the run keeps what was recorded. Batch reconstruction is
-:func:`instrument.batch.reconstruct_run` on a worker (dask), cancelled through its
+:func:`instrument.processing.batch.reconstruct_run` on a worker (dask), cancelled through its
 ``cancel`` event; its results are a product of the run, shown in the Results panel.
 Every field is remembered between sessions; the live reconstruction's PSF and depth
 are carried into the batch fields (:meth:`RecordPanel.take_psf`).
@@ -30,7 +30,7 @@ from PySide6.QtWidgets import (
 )
 
 from instrument.options import COMMAND_FIELDS, RunOptions
-from instrument.reconstruct_files import RECIPE_FIXES
+from instrument.processing.reconstruct_files import RECIPE_FIXES
 from recon.early_stop import FILE as RECIPE_FILE
 from recon.early_stop import OFF, named
 from recon.options import ReconOptions
@@ -59,7 +59,7 @@ def refusal_text(failed: list[str], total: int) -> str:
     Parameters
     ----------
     failed : list of str
-        :func:`instrument.batch.reconstruct_run`'s ``failed``.
+        :func:`instrument.processing.batch.reconstruct_run`'s ``failed``.
     total : int
         The frames the batch was asked for.
 
@@ -69,7 +69,7 @@ def refusal_text(failed: list[str], total: int) -> str:
         E.g. ``"4 of 4 frames refused, none reconstructed: frames 0-3: the data carry
         no signal: ... (each frame's reason is in the log)"``.
     """
-    from instrument.runstore_records import ranges_text
+    from instrument.runs.runstore_records import ranges_text
 
     groups: dict[str, tuple[list[int], str]] = {}
     for line in failed:
@@ -280,7 +280,7 @@ class RecordPanel(QWidget):
 
         A ``calibrate psf-from-scenes`` run holding its recipe (``early_stop.json``)
         is reconstructed with that recipe by default, as ``recon-run --psf RUN``
-        (:func:`instrument.reconstruct_files.scene_recipe_default`): the solver,
+        (:func:`instrument.processing.reconstruct_files.scene_recipe_default`): the solver,
         iteration, TV and l1 fields then show the recipe's solve, the prior field is
         blank and disabled, and a line says the recipe's PSF threshold and denoising.
         Fields the operator already set (or ``--early-stop``) decline it, and the
@@ -395,7 +395,8 @@ class RecordPanel(QWidget):
     def batch_texts(self) -> dict[str, str]:
         """The batch form's ``{flag: text}`` as :func:`gui.jobs.batch_options` takes
         them: while the fields show the PSF run's recipe, its fixed fields are left out
-        (the recipe is the default, :func:`~instrument.reconstruct_files.scene_recipe_default`);
+        (the recipe is the default,
+        :func:`~instrument.processing.reconstruct_files.scene_recipe_default`);
         a recipe declined is declined explicitly (``--early-stop off``), whatever
         the fields hold."""
         texts = {**self.run_form.texts(flags=True), **self.recon_form.texts(flags=True)}
@@ -508,7 +509,7 @@ class RecordPanel(QWidget):
         job_ended("recording", self.counters.text(), ok=not lost)
 
     def on_record_failed(self, text: str, out: str = "") -> None:
-        from instrument.runstore import is_run_store
+        from instrument.runs.runstore import is_run_store
 
         self.record_button.setText("Start recording")
         self.record_progress.finish("")

@@ -4,8 +4,8 @@ projections), a run store's frames and products (a product's own folder
 
 Nothing that reads a file or a store runs on the GUI thread: files are read on a
 worker through the library's readers (:func:`recon.io.load_image`,
-:class:`instrument.runstore.RunStore`, tifffile / zarr for volumes); a run opens with
-its summary as recorded (:meth:`~instrument.runstore.RunStore.summary` without the
+:class:`instrument.runs.runstore.RunStore`, tifffile / zarr for volumes); a run opens with
+its summary as recorded (:meth:`~instrument.runs.runstore.RunStore.summary` without the
 check), and its checksums are verified once, on a worker, with progress. Each step
 of the frame slider asks for a frame; one reader reads the newest asked for (steps
 made while it reads are skipped, not queued). Projections are
@@ -59,11 +59,11 @@ def read_result(path: str) -> dict:
 
     Raises
     ------
-    OSError, ValueError, instrument.runstore.RunStoreError
+    OSError, ValueError, instrument.runs.runstore.RunStoreError
         Missing or unreadable file (the message names it).
     """
-    from instrument.runstore import RunStore, is_run_store, product_location
-    from instrument.tiff_export import read_tiff_metadata
+    from instrument.runs.runstore import RunStore, is_run_store, product_location
+    from instrument.runs.tiff_export import read_tiff_metadata
     from recon.io import load_image
 
     p = Path(path)

@@ -1,7 +1,7 @@
 """A stage's controls: jog, go-to, stop, and named positions recalled with one click.
 
 Every move goes through the stage's :class:`MotionQueue`, which asks the bench's
-service to move the stage by its id (:meth:`instrument.bench_service.BenchService.move`):
+service to move the stage by its id (:meth:`instrument.bench.bench_service.BenchService.move`):
 one worker moves the stage at a time, in the order asked. Jogs add to the *target* of
 the jogs before them, not to wherever the stage happens to be while it moves: three
 quick +1 mm clicks end 3 mm from where the first started. Stop empties the queue and
@@ -39,7 +39,7 @@ class MotionQueue(QObject):
 
     Parameters
     ----------
-    service : instrument.bench_process.BenchClient
+    service : instrument.bench.bench_process.BenchClient
         The bench's typed service.
     stage : str
         The stage's device id.
@@ -147,7 +147,7 @@ class StageControls(QWidget):
 
     Parameters
     ----------
-    stage : instrument.bench_service.DeviceInfo
+    stage : instrument.bench.bench_service.DeviceInfo
         An open stage (its axes, their units and travel).
     queue : MotionQueue
     bench_key : str

@@ -46,8 +46,8 @@ def _cpu_s() -> float:
 def _bench(sensor_shape: tuple[int, int], realtime: bool, seed: int = 1):
     """A virtual bench with a ``sensor_shape`` camera and a flowing-bead scene."""
     from instrument.config import default_bench
-    from instrument.video_scenes import BeadFlowScene
-    from instrument.virtual_bench import VirtualBench
+    from instrument.devices.video_scenes import BeadFlowScene
+    from instrument.devices.virtual_bench import VirtualBench
 
     cfg = default_bench()
     geo = cfg.geometry.model_copy(update={"sensor_shape_px": tuple(sensor_shape)})
@@ -76,9 +76,9 @@ def run_recording_benchmark(seconds: float = 120.0, fps: float = 20.0,
     sensor_shape : (rows, cols)
         Simulated sensor (uint16 frames, 12-bit data).
     compressors : tuple of str
-        :data:`instrument.runstore.FRAME_COMPRESSORS` to compare.
+        :data:`instrument.runs.runstore.FRAME_COMPRESSORS` to compare.
     shard_frames : int, optional
-        Frames per shard (default :data:`instrument.video.DEFAULT_SHARD_FRAMES`).
+        Frames per shard (default :data:`instrument.acquisition.video.DEFAULT_SHARD_FRAMES`).
     directory : path, optional
         Where the runs are written (default a temporary directory, removed after).
 
@@ -93,7 +93,7 @@ def run_recording_benchmark(seconds: float = 120.0, fps: float = 20.0,
         whole process while recording),
         ``recorder_thread_cpu_s``, ``files_per_1000_frames``.
     """
-    from ..video import DEFAULT_SHARD_FRAMES, record_video
+    from ..acquisition.video import DEFAULT_SHARD_FRAMES, record_video
 
     shard = shard_frames or DEFAULT_SHARD_FRAMES
     tmp = Path(directory) if directory is not None else Path(tempfile.mkdtemp(prefix="rec"))
@@ -159,7 +159,7 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
     A ``frames``-frame bead video is recorded from the virtual bench (simulated clock)
     at ``sensor_shape``; the PSF is the bench's on-axis PSF as recorded. The reference
     is a loop of :func:`recon.reconstruct` over the frames in this process (all
-    cores); each batch is :func:`instrument.batch.reconstruct_run` with a fresh local
+    cores); each batch is :func:`instrument.processing.batch.reconstruct_run` with a fresh local
     cluster of ``w`` worker processes (one frame at a time each, with the caller's
     thread count). Rates are in steady state (from the
     first stored frame to the last) and overall (including the cluster's start).
@@ -176,9 +176,9 @@ def run_batch_benchmark(frames: int = 16, iterations: int = 100,
     import recon
     from recon.options import ReconOptions
 
-    from ..batch import reconstruct_run
-    from ..runstore import RunStore
-    from ..video import record_video
+    from ..acquisition.video import record_video
+    from ..processing.batch import reconstruct_run
+    from ..runs.runstore import RunStore
 
     tmp = Path(tempfile.mkdtemp(prefix="batch"))
     try:

@@ -10,7 +10,7 @@ frame's ADMM state). PSNR is against each frame's own truth
 (:func:`recon.metrics.psnr`, gain fitted), on the sensor field of view.
 
 :func:`run_live_benchmark` (``diffuserlab benchmark live``) measures the throughput and
-latency of the live worker (:class:`instrument.live.LiveReconstruction`) on the
+latency of the live worker (:class:`instrument.acquisition.live.LiveReconstruction`) on the
 real-time simulated camera's stream, and calls :func:`warm_vs_cold` for its PSNR part.
 """
 
@@ -29,7 +29,7 @@ from recon.scenes import load_scene
 from recon.simulate import Simulation, simulate_measurement
 from recon.validate import as_int
 
-from ..live import LiveReconstruction
+from ..acquisition.live import LiveReconstruction
 from . import load_sample
 
 __all__ = ["live_benchmark_table", "moving_scene", "run_live_benchmark", "warm_vs_cold",
@@ -147,9 +147,9 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
     """Live throughput, latency and drops on the real-time simulated camera, and
     the PSNR warm start buys (``diffuserlab benchmark live``).
 
-    A :class:`~instrument.virtual_bench.VirtualBench` with ``realtime=True`` and a
+    A :class:`~instrument.devices.virtual_bench.VirtualBench` with ``realtime=True`` and a
     ``sensor_shape`` sensor streams a prerendered bead-flow scene at ``fps`` into a
-    ring; :meth:`LiveReconstruction.start() <instrument.live.LiveReconstruction.start>`
+    ring; :meth:`LiveReconstruction.start() <instrument.acquisition.live.LiveReconstruction.start>`
     with ``ring=`` feeds the worker. The PSF is
     the bench's ray-traced on-axis PSF at the scene depth, as the camera would record it
     (scaled to 4000 DN above the dark offset); frames and PSF have the camera's dark
@@ -171,7 +171,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
     psnr_frames : int
         Frames of the warm/cold PSNR comparison (>= 2).
     threads : int, optional
-        Thread cap of the live worker (:class:`~instrument.live.LiveReconstruction`);
+        Thread cap of the live worker (:class:`~instrument.acquisition.live.LiveReconstruction`);
         None: all cores.
 
     Returns
@@ -182,8 +182,8 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
         and ``camera_fps``; ``psnr``: the warm/cold table.
     """
     from instrument.config import default_bench
-    from instrument.video_scenes import BeadFlowScene
-    from instrument.virtual_bench import VirtualBench
+    from instrument.devices.video_scenes import BeadFlowScene
+    from instrument.devices.virtual_bench import VirtualBench
 
     cfg = default_bench()
     geo = cfg.geometry.model_copy(update={"sensor_shape_px": tuple(sensor_shape)})

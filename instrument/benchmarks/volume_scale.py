@@ -6,7 +6,7 @@ directory, a scene of beads and extended objects, its noisy measurement), measur
 the streamed FFT floor (:func:`recon.volume.streamed.streamed_fft_floor_seconds`) in
 the same process, and solves with streamed 3D FISTA in this process
 (``workers=0``) or sharded over a LocalCluster of worker processes
-(:mod:`instrument.volume_shards`). Reports the peak resident set against the
+(:mod:`instrument.processing.volume_shards`). Reports the peak resident set against the
 estimate printed before the solve, seconds per iteration against the floor,
 CPU seconds per iteration, the bytes each worker moved per iteration, and which
 objects sit at their depth (within one plane, and within one axial resolution,
@@ -180,7 +180,7 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
              worker_memory, announce, cpu, take, plan_slabs, streamed_memory_bytes,
              peak_rss_bytes) -> dict:
     """The LocalCluster half of :func:`run_volume_scale`."""
-    from ..volume_shards import local_cluster, sharded_fista3d
+    from ..processing.volume_shards import local_cluster, sharded_fista3d
 
     client, cluster = local_cluster(workers, worker_memory)
     try:

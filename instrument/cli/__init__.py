@@ -216,9 +216,10 @@ def main(argv: list[str] | None = None) -> int:
         The handler's status; 2 (one line on stderr) on
         :class:`diffuserlab.errors.InputError` (the project's input errors:
         :class:`recon.errors.ReconInputError`,
-        :class:`instrument.runstore.RunStoreError`, :class:`instrument.plan.PlanError`,
+        :class:`instrument.runs.runstore.RunStoreError`,
+        :class:`instrument.acquisition.plan.PlanError`,
         :class:`instrument.writer.guards.OutputError`,
-        :class:`instrument.bench_file.MissingBenchFile`, ...) and the errors a command
+        :class:`instrument.devices.bench_file.MissingBenchFile`, ...) and the errors a command
         lists in ``input_errors`` (no command turns every ValueError into bad input:
         an unexpected one is a bug); 2 and one line per problem on
         :class:`instrument.config.BenchConfigError`; 3 when a solver diverged
@@ -227,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
         :class:`~drivers.errors.MissingDependencyError`) and 1 (one line) on any other
         device error (a timeout, a disconnect: the bench failed, not the input); 2 (one
         line naming the device) when a device cannot be opened
-        (:class:`instrument.bench_setup.BenchOpenError`); 2 (one line naming the path)
+        (:class:`instrument.devices.bench_setup.BenchOpenError`); 2 (one line naming the path)
         on every OS error (permission denied, no such file, no space left with the free
         space, read-only file system, I/O error, ...), 2 on a MemoryError (what failed
         to allocate, the machine's memory) and an OverflowError; 130 on Ctrl-C, 143 on
@@ -350,7 +351,7 @@ def _dispatch(args: argparse.Namespace, input_errors: tuple, mark: int = 0) -> i
     except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP not handled by the command
         print(f"diffuserlab: interrupted ({str(exc) or 'Ctrl-C'})", file=sys.stderr)
         return exit_status(exc)
-    except _raised_class("instrument.bench_setup", "BenchOpenError") as exc:  # a device
+    except _raised_class("instrument.devices.bench_setup", "BenchOpenError") as exc:  # a device
         # missing or unplugged: the bench, not a bug
         fix = ("fix that value in the bench file (diffuserlab validate BENCH.toml lists every "
                "problem)" if isinstance(exc.__cause__, DeviceValueError) else

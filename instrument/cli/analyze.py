@@ -189,7 +189,7 @@ def _load(args: argparse.Namespace) -> tuple[np.ndarray, np.ndarray, dict]:
     """The stack sorted by depth (binned, background removed if asked), depths, header."""
     from recon.analysis import prepare_stack
 
-    from ..stacks import load_psf_stack
+    from ..runs.stacks import load_psf_stack
 
     depths = None if args.depths is None else floats(args.depths, "--depths")
     stack, z, _ = load_psf_stack(args.psf_stack, depths, product=args.psf_product)
@@ -318,7 +318,7 @@ def _similarity(args, stack, z, header):
 
 def _psf_at(args, stack, z) -> tuple[np.ndarray, float]:
     """The PSF at ``--depth`` (nearest within 5 %) or the middle plane, and its depth."""
-    from ..stacks import pick_depth
+    from ..runs.stacks import pick_depth
 
     if args.depth_mm is None:
         k = len(z) // 2
@@ -510,7 +510,7 @@ def run_analysis(args: argparse.Namespace) -> tuple[dict, list[str]]:
     ------
     recon.errors.ReconInputError
         The analysis refuses the stack or a parameter.
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         Unreadable stack, missing or mismatched depths, no plane at ``--depth``.
     ValueError
         Missing or invalid options.

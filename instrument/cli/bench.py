@@ -32,7 +32,7 @@ import math
 from collections import Counter
 from typing import TYPE_CHECKING, Any
 
-from ..bench_file import bench_config, bench_label
+from ..devices.bench_file import bench_config, bench_label
 from .common import error
 
 if TYPE_CHECKING:  # pragma: no cover  (the bench models load pydantic: not for --help)
@@ -121,7 +121,7 @@ def _summary(config: BenchConfig) -> str:
 def _load(path: str | None, simulate: bool,
           command: str) -> tuple[BenchConfig, BenchConfig]:
     """(as written, as it will be driven); raises BenchConfigError or MissingBenchFile."""
-    from ..bench_setup import load_bench
+    from ..devices.bench_setup import load_bench
 
     driven = bench_config(path, simulate=simulate, command=command, construct=True)
     written = load_bench(path, check_drivers=False) if simulate and path else driven
@@ -129,8 +129,8 @@ def _load(path: str | None, simulate: bool,
 
 
 def _validate(path: str | None, *, simulate: bool) -> int:
-    from ..bench_setup import simulated_twin
     from ..config import BenchConfigError
+    from ..devices.bench_setup import simulated_twin
 
     try:
         config, driven = _load(path, simulate, "validate")
@@ -163,9 +163,9 @@ def _status_text(status: dict[str, Any]) -> str:
 
 def _devices(path: str | None, *, simulate: bool, timeout_s: float, settings: bool = False,
              as_json: bool = False) -> int:
-    from ..bench_setup import BenchOpenError, open_bench
     from ..config import BenchConfigError
-    from ..registry import RegistryError
+    from ..devices.bench_setup import BenchOpenError, open_bench
+    from ..devices.registry import RegistryError
 
     if not (0 < timeout_s < math.inf):  # NaN fails too; every wait on a device ends
         error(f"--timeout must be a finite number of seconds > 0, got {timeout_s}")

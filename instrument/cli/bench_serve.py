@@ -2,8 +2,8 @@
 
 Opens the bench (``--simulate``: every device swapped for its simulated twin; no file
 and ``--simulate``: the built-in simulated bench) in a bench process
-(:class:`instrument.bench_process.BenchClient`), prints its address and connection
-file (:mod:`instrument.bench_connection`) and serves until Ctrl-C or SIGTERM, then
+(:class:`instrument.bench.bench_process.BenchClient`), prints its address and connection
+file (:mod:`instrument.bench.bench_connection`) and serves until Ctrl-C or SIGTERM, then
 ends its jobs (a recording stopped, its run closed) and closes the devices. A
 notebook attaches with ``BenchClient.connect()``. A real bench's prompts (homing,
 an operator action) are asked here on the terminal. Exit 0 after Ctrl-C, 1 when the
@@ -17,7 +17,7 @@ import os
 import sys
 import threading
 
-from ..bench_file import bench_config, bench_label
+from ..devices.bench_file import bench_config, bench_label
 from .common import add_bench_arguments
 
 __all__ = ["add_serve", "run_serve"]
@@ -46,7 +46,7 @@ def _ask(action: str, message: str, reply) -> None:
 
 def run_serve(args: argparse.Namespace) -> int:
     """Run ``bench serve``; returns the exit status (module docstring)."""
-    from ..bench_process import BenchClient
+    from ..bench.bench_process import BenchClient
 
     bench_config(args.bench, simulate=args.simulate, command="bench serve")  # its problems
     path = None if args.bench is None else os.path.abspath(args.bench)
@@ -61,7 +61,7 @@ def run_serve(args: argparse.Namespace) -> int:
               f": {devices}", flush=True)
         print(f"address {client.address}\nconnection file {client.connection_file}",
               flush=True)
-        print("attach from a notebook: from instrument.bench_process import BenchClient; "
+        print("attach from a notebook: from instrument.bench.bench_process import BenchClient; "
               "bench = BenchClient.connect()\nCtrl-C ends it (its jobs and devices "
               "closed)", flush=True)
         while not ended.wait(0.5):

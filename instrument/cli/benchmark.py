@@ -242,11 +242,11 @@ def run_recording_benchmark(args: argparse.Namespace) -> int:
     from diffuserlab.jsonio import jsonable
     from recon.errors import ReconInputError
 
+    from ..acquisition.video import DEFAULT_COMPRESSOR
     from ..atomic import write_json
     from ..benchmarks.acquisition import recording_table
     from ..benchmarks.acquisition import run_recording_benchmark as run
-    from ..runstore import FRAME_COMPRESSORS
-    from ..video import DEFAULT_COMPRESSOR
+    from ..runs.runstore import FRAME_COMPRESSORS
     from ..writer.guards import check_outputs
 
     seconds = 600.0 if args.long else args.seconds

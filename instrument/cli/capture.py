@@ -3,7 +3,7 @@
 ``diffuserlab capture live [BENCH.toml] [--simulate] --psf PSF [--depth Z]
 [--method wiener|admm:K] [--device cpu|cuda|auto] [--seconds T] [--preview-png FILE]``
     Streams the bench's camera into a ring, reconstructs the newest frame on a worker
-    thread (:class:`instrument.live.LiveReconstruction`: Wiener preview by default,
+    thread (:class:`instrument.acquisition.live.LiveReconstruction`: Wiener preview by default,
     or K ADMM iterations per frame warm-started from the previous frame), prints the
     camera's and the reconstruction's rates, the latency and every counter once a
     second, and writes the latest reconstruction to ``--preview-png`` now and then
@@ -18,7 +18,7 @@
 [--fps F] [--scene ...] --out RUN.zarr [--live-recon wiener|admm:K --psf PSF
 [--device cpu|cuda|auto]]``
     Records at the camera's rate into a new sharded run store
-    (:func:`instrument.video.record_video`): every frame in order, none skipped; a
+    (:func:`instrument.acquisition.video.record_video`): every frame in order, none skipped; a
     frame the recorder cannot take is lost, counted and named by index. A progress
     line once a second; Ctrl-C stops and keeps what was recorded. With
     ``--live-recon`` a live reconstruction runs beside it on the newest frames.
@@ -32,7 +32,7 @@ import argparse
 import sys
 import time
 
-from ..bench_file import bench_config
+from ..devices.bench_file import bench_config
 from .startup_signals import SignalSeen
 
 __all__ = ["add_subcommands", "run_live"]
@@ -128,7 +128,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 
 def _defaults() -> tuple[int, str]:
-    from ..video_defaults import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES
+    from ..acquisition.video_defaults import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES
 
     return DEFAULT_SHARD_FRAMES, DEFAULT_COMPRESSOR
 
@@ -149,7 +149,7 @@ def _method(text: str) -> tuple[str, int]:
 
 
 #: Longest ``--seconds`` of a capture (a recording's frame count is bounded too, by
-#: :data:`instrument.video.MAX_FRAMES`, once the camera's rate is known).
+#: :data:`instrument.acquisition.video.MAX_FRAMES`, once the camera's rate is known).
 MAX_SECONDS = 1e7
 
 
@@ -175,9 +175,9 @@ def _check_numbers(args: argparse.Namespace) -> None:
 
 def _open(args: argparse.Namespace, config):
     """The bench: the real one, or the virtual bench streaming a video scene."""
-    from ..bench import Bench
-    from ..bench_scenes import show_video_scene
-    from ..virtual_bench import VirtualBench
+    from ..devices.bench import Bench
+    from ..devices.bench_scenes import show_video_scene
+    from ..devices.virtual_bench import VirtualBench
 
     if not args.simulate:
         return Bench.open(config)
@@ -192,8 +192,8 @@ def _live_inputs(args: argparse.Namespace) -> tuple:
     """The PSF, its depth and ``--dark`` read before the bench opens: a given level or
     frame is read and a frame checked against the PSF's shape, which the camera's frames
     must have; ``auto`` and ``none`` are passed on as they are
-    (:func:`instrument.reconstruct_files.resolve_dark` resolves them with the camera)."""
-    from ..reconstruct_files import check_dark_frame, dark_level, load_psf
+    (:func:`instrument.processing.reconstruct_files.resolve_dark` resolves them with the camera)."""
+    from ..processing.reconstruct_files import check_dark_frame, dark_level, load_psf
 
     psf, depth = load_psf(args.psf, args.depth_mm)
     dark = args.dark
@@ -221,9 +221,9 @@ def _live(args: argparse.Namespace, cam, inputs: tuple):
     from recon.live import LiveReconstructor
     from recon.options import LiveOptions, ReconOptions
 
-    from ..live import LiveReconstruction
-    from ..reconstruct_files import resolve_dark
-    from ..stacks import dark_subtracted
+    from ..acquisition.live import LiveReconstruction
+    from ..processing.reconstruct_files import resolve_dark
+    from ..runs.stacks import dark_subtracted
 
     method, iterations = _method(args.method)
     psf, depth, dark = inputs
@@ -312,7 +312,8 @@ def run_live(args: argparse.Namespace) -> int:
 
 
 def _video_line(p: dict) -> str:
-    """One progress line of ``capture video`` from :func:`instrument.video.record_video`'s
+    """One progress line of ``capture video`` from
+    :func:`instrument.acquisition.video.record_video`'s
     counters."""
     line = (f"{p['elapsed_s']:6.1f} s  {p['fps']:.1f} fps, {p['write_mb_s']:.1f} MB/s  "
             f"acquired {p['acquired']}, delivered {p['delivered']}, recorded "
@@ -332,9 +333,14 @@ def run_video(args: argparse.Namespace) -> int:
     from recon.errors import ReconInputError
     from recon.io import scene_view
 
-    from ..recorder import index_ranges
-    from ..runstore import FRAME_COMPRESSORS, RunStore, is_run_store
-    from ..video import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES, record_video
+    from ..acquisition.recorder import index_ranges
+    from ..acquisition.video import (
+        DEFAULT_COMPRESSOR,
+        DEFAULT_SHARD_FRAMES,
+        MAX_FRAMES,
+        record_video,
+    )
+    from ..runs.runstore import FRAME_COMPRESSORS, RunStore, is_run_store
     from ..writer.files import save_image
     from ..writer.guards import check_outputs
     from .recon_flags import check_device

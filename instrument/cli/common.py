@@ -1,7 +1,7 @@
 """Helpers shared by the ``diffuserlab`` command modules (and the layer-4 commands).
 
-Which bench a command's ``BENCH.toml`` argument opens is :mod:`instrument.bench_file`'s
-(:func:`~instrument.bench_file.bench_config`), which the GUI shares.
+Which bench a command's ``BENCH.toml`` argument opens is :mod:`instrument.devices.bench_file`'s
+(:func:`~instrument.devices.bench_file.bench_config`), which the GUI shares.
 """
 
 from __future__ import annotations

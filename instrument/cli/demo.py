@@ -29,7 +29,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo (:func:`instrument.demo.run_demo`) or the real sample; returns 0."""
+    """Run the demo (:func:`instrument.acquisition.demo.run_demo`) or the real sample; returns 0."""
     from recon.errors import ReconInputError
 
     from ..writer.guards import check_outputs
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         raise ReconInputError(f"--iterations {args.iterations}: give a count >= 1")
     out = Path(args.out)
     if not args.real_sample:
-        from ..demo import OUTPUT_FILES, run_demo
+        from ..acquisition.demo import OUTPUT_FILES, run_demo
 
         check_outputs([out / name for name in OUTPUT_FILES], None, args.overwrite,
                       directory=out)
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from recon.options import ReconOptions
     from recon.sample import data_dir
 
-    from ..reconstruct_files import run_recon
+    from ..processing.reconstruct_files import run_recon
     from .recon import summary_line
 
     data = data_dir()

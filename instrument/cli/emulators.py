@@ -2,7 +2,7 @@
 
 The emulators (Thorlabs APT x3, Zaber chain, illuminate LED array; optionally a
 LEDMX array) run on pseudo-terminals until Ctrl-C or SIGTERM, with links to their
-ptys in ``--dir`` (default :data:`instrument.emulated_bench.DEFAULT_DIR`, the one
+ptys in ``--dir`` (default :data:`instrument.devices.emulated_bench.DEFAULT_DIR`, the one
 ``examples/bench-emulated.toml`` names). ``--bench-out`` writes the bench file for
 that directory. The last line printed is ``ready`` once every emulator serves.
 """
@@ -42,7 +42,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Start the emulators, print their ports, serve until interrupted."""
-    from ..emulated_bench import DEFAULT_DIR, EmulatedBench, EmulatorsRunningError
+    from ..devices.emulated_bench import DEFAULT_DIR, EmulatedBench, EmulatorsRunningError
     from ..writer.guards import check_outputs
 
     if not (args.time_scale > 0 and math.isfinite(args.time_scale)):

@@ -7,7 +7,7 @@ weight and the frame's dark level are the commands' own ``--method``, ``--l1`` a
 ``--dark`` (:mod:`instrument.cli.recon_flags`), whose former twins ``--grid-method``,
 ``--grid-l1`` and ``--grid-dark`` remain as hidden deprecated aliases.
 :func:`run_grid` checks the outputs and runs
-:func:`instrument.reconstruct_grid.run_recon_grid`, printing one summary line.
+:func:`instrument.processing.reconstruct_grid.run_recon_grid`, printing one summary line.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def run_grid(args: argparse.Namespace, *, volume: bool, depths=None) -> int:
     """Run a ``--psf-grid`` reconstruction and print its summary line."""
     from recon.options import GRID_METHODS, ReconOptions
 
-    from ..reconstruct_grid import background_output, run_recon_grid
+    from ..processing.reconstruct_grid import background_output, run_recon_grid
     from ..writer.guards import check_outputs
     from ..writer.products import output_paths, volume_output_paths
     from .recon_flags import dark_for_grid, grid_method

@@ -1,6 +1,6 @@
 """``diffuserlab recon``: one image from a PSF and a raw measurement (files in, files out).
 
-The work is :func:`instrument.reconstruct_files.run_recon`; this module parses the
+The work is :func:`instrument.processing.reconstruct_files.run_recon`; this module parses the
 options and prints the one-line summary.
 """
 
@@ -75,7 +75,7 @@ def summary_line(m: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     """Run ``recon`` and print its summary line; returns 0 (errors go to the boundary)."""
     from ..options import check_pitch_um
-    from ..reconstruct_files import run_recon
+    from ..processing.reconstruct_files import run_recon
     from ..writer.guards import check_outputs
     from ..writer.products import output_paths
     from .recon_flags import check_device, check_recon_flags

@@ -7,7 +7,7 @@ lateral binning, the scaling of the 2D API, the 3D forward model of Eq. 4.4, 3D
 FISTA or 3D ADMM). Writes the sensor field of view of every plane as a float32
 volume (TIFF or Zarr v3, depths attached), the three maximum-intensity projections
 as PNG and, if asked, the metrics JSON (the 2D record plus depths and the 3D FFT
-floor); see :func:`instrument.reconstruct_files.run_recon3d`.
+floor); see :func:`instrument.processing.reconstruct_files.run_recon3d`.
 
 Bad input exits with status 2 and one line; a diverging solver with status 3.
 """
@@ -93,11 +93,11 @@ def summary_line(m: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``recon3d`` (:func:`instrument.reconstruct_files.run_recon3d`) and print its
+    """Run ``recon3d`` (:func:`instrument.processing.reconstruct_files.run_recon3d`) and print its
     summary line; returns 0 (bad input exits 2 and divergence 3 through
     :func:`instrument.cli.main`)."""
-    from ..reconstruct_files import run_recon3d
-    from ..volume_shards import slab_workers
+    from ..processing.reconstruct_files import run_recon3d
+    from ..processing.volume_shards import slab_workers
     from ..writer.guards import check_outputs
     from ..writer.products import volume_output_paths
     from .recon_flags import check_device, check_recon_flags

@@ -6,7 +6,7 @@ one meaning each, generated from their one declaration,
 ``--dark`` takes the same forms everywhere (:func:`recon.options.dark_arg`): ``auto``
 (default), ``none``, a level in DN, or a ``calibrate dark`` run or a dark image,
 subtracted pixel by pixel, with one meaning of ``auto`` in every command
-(:func:`instrument.reconstruct_files.resolve_dark`); :func:`dark_for_grid` refuses
+(:func:`instrument.processing.reconstruct_files.resolve_dark`); :func:`dark_for_grid` refuses
 what a PSF grid cannot use (a frame). The spatially
 varying path (``--psf-grid``) uses the plain ``--method``, ``--l1`` and ``--dark``;
 its former twins ``--grid-method``, ``--grid-l1`` and ``--grid-dark`` remain as hidden
@@ -56,7 +56,7 @@ def check_recon_flags(args):
     Returns
     -------
     recon.options.ReconOptions
-        What the runners take (:func:`instrument.reconstruct_files.run_recon`, ...).
+        What the runners take (:func:`instrument.processing.reconstruct_files.run_recon`, ...).
 
     Raises
     ------

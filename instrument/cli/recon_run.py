@@ -3,7 +3,7 @@
 ``diffuserlab recon-run RUN.zarr --psf PSF|SWEEP.zarr [--depth Z] --method M
 --iterations N [--frames A:B] [--scheduler ADDRESS | --workers K] [--dff PERCENTILE]
 [--device cpu|cuda|auto]``
-    Reconstructs the selected frames with dask (:func:`instrument.batch.reconstruct_run`:
+    Reconstructs the selected frames with dask (:func:`instrument.processing.batch.reconstruct_run`:
     local worker processes, or a dask.distributed cluster given its scheduler's
     address), shows a progress bar, stores the images in the run as the per-frame
     product ``recon_<method>`` next to the raw frames, and resumes where it stopped
@@ -21,7 +21,7 @@
 ``diffuserlab recon-run RUN.zarr --psf-grid GRID.zarr [--model auto|convolution|local|pca]
 [--background estimate|none] ...``
     The same with a spatially varying model (Ch. 5): the ``calibrate psf-grid`` run's
-    model is chosen once for the batch (:mod:`instrument.batch_grid`; ``--model``,
+    model is chosen once for the batch (:mod:`instrument.processing.batch_grid`; ``--model``,
     ``--pca-k``, ``--background``, ``--l1`` as for ``recon --psf-grid``; FISTA), every
     frame reconstructed with its own background estimate (Eq. 6.2); the product is
     ``recon_grid_<model>`` (``local``, ``convolution``, ``pcaK``) with the backgrounds
@@ -71,14 +71,14 @@ def run(args: argparse.Namespace) -> int:
     from recon.early_stop import named
     from recon.errors import ReconInputError
 
-    from ..batch import batch_psf, parse_frames, recipe_record, reconstruct_run
-    from ..reconstruct_files import read_recipe_once, scene_recipe_default
-    from ..runstore import RunStore, RunStoreError
+    from ..processing.batch import batch_psf, parse_frames, recipe_record, reconstruct_run
+    from ..processing.reconstruct_files import read_recipe_once, scene_recipe_default
+    from ..runs.runstore import RunStore, RunStoreError
     from .recon_flags import check_device, check_recon_flags
 
     options = check_recon_flags(args)  # --iterations, --bin, --tv, --l1 against their limits
     if args.workers is not None:
-        from ..batch import check_workers
+        from ..processing.batch import check_workers
 
         check_workers(args.workers, 1)  # the machine's bound, before any work
     if args.dff is not None and not 0 <= args.dff <= 100:
@@ -173,7 +173,7 @@ def _grid(args: argparse.Namespace, store):
     the source and the model's description."""
     from recon.errors import ReconInputError
 
-    from ..batch_grid import prepare_grid_batch
+    from ..processing.batch_grid import prepare_grid_batch
     from .recon_flags import dark_for_grid, grid_method
 
     if len(args.psf_grid) > 1:

@@ -65,7 +65,7 @@ def add_subcommands(sub: argparse._SubParsersAction) -> None:
 
 def format_summary(s: dict) -> str:
     """Human-readable lines of :meth:`RunStore.summary`."""
-    from ..runstore_records import VIDEO_PLAN
+    from ..runs.runstore_records import VIDEO_PLAN
 
     problems = s.get("problems", [])
     state = f"{s['status']}, DAMAGED" if problems else s["status"]
@@ -137,12 +137,12 @@ def verify(path: str) -> int:
 
     Raises
     ------
-    instrument.runstore.RunStoreError
+    instrument.runs.runstore.RunStoreError
         No readable run at ``path`` (exit 2 through :func:`instrument.cli.main`).
     """
-    from ..run_description import description_note
-    from ..run_layout import layout_note
-    from ..runstore import RunStore
+    from ..runs.run_description import description_note
+    from ..runs.run_layout import layout_note
+    from ..runs.runstore import RunStore
 
     store = RunStore.open(path)
     problems = store.verify()
@@ -167,7 +167,7 @@ def verify(path: str) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run a ``runs`` subcommand; 0 on success (a RunStoreError or ValueError exits 2
     through :func:`instrument.cli.main`)."""
-    from ..runstore import RunStore
+    from ..runs.runstore import RunStore
     from ..writer.guards import check_outputs
 
     if args.runs_command == "show":
@@ -180,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
         if Path(args.out).suffix.lower() not in (".tif", ".tiff"):
             raise InputError(f"--out {args.out}: runs export writes a TIFF; give a .tif or "
                              ".tiff name")
-        from ..stacks import export_tiff
+        from ..runs.stacks import export_tiff
 
         out, skipped = export_tiff(args.run, args.out,
                                    product=None if args.frames else args.product,
@@ -201,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
         check_outputs([args.out], {"stack": args.stack}, True)  # existing: the store decides
         depths = None if args.depths is None else floats(args.depths, "--depths")
         check_pitch_um(args.pitch_um)
-        from ..stacks import import_psf_stack
+        from ..runs.stacks import import_psf_stack
 
         store = import_psf_stack(args.stack, args.out, depths_mm=depths, note=args.note,
                                  overwrite=args.overwrite, pitch_um=args.pitch_um)

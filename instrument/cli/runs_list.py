@@ -44,7 +44,7 @@ def _runs_under(folder: Path):
 
 
 def _lock_text(path: Path) -> str:
-    from ..run_integrity import pid_alive, read_lock
+    from ..runs.run_integrity import pid_alive, read_lock
 
     record = read_lock(path)
     if record is None:
@@ -59,7 +59,7 @@ def _lock_text(path: Path) -> str:
 
 def run_line(path: Path) -> str:
     """The line of run ``path`` (module docstring)."""
-    from ..runstore import RunStore, RunStoreError
+    from ..runs.runstore import RunStore, RunStoreError
 
     try:
         store = RunStore.open(path)

@@ -151,7 +151,7 @@ class SignalSeen:
     library that catches it there (``except BaseException`` around a wait, a finalizer)
     lets the loop run on, so a Ctrl-C as a recording starts was once lost: every frame
     recorded, exit 0. A loop that also polls this flag (as
-    :func:`instrument.recorder.record_from_ring` polls its ``stop``) ends at its next
+    :func:`instrument.acquisition.recorder.record_from_ring` polls its ``stop``) ends at its next
     step whatever happened to the interrupt. It reads a list (no lock), so the handler
     never waits on it.
 

@@ -1,7 +1,7 @@
 """Bench configuration: a TOML file validated into pydantic models.
 
 A bench file describes the devices (each with an id, a kind, a driver name looked up
-in :mod:`instrument.registry`, and driver parameters), the optical geometry and the
+in :mod:`instrument.devices.registry`, and driver parameters), the optical geometry and the
 calibration defaults::
 
     name = "lab-1"
@@ -34,7 +34,7 @@ Bench rules (checked across fields):
   ``{x = [low, high], ...}`` (mm for x, y, z; degrees for tip, tilt, rotation) or an
   array of names, names from :data:`STAGE_AXES`;
 * every driver is known to the registry, drives the device's kind and takes the
-  parameters given (checked by :func:`instrument.bench_setup.load_bench` unless
+  parameters given (checked by :func:`instrument.devices.bench_setup.load_bench` unless
   ``check_drivers=False``; ``construct=True`` also constructs each device, unopened,
   to check the values).
 
@@ -44,8 +44,8 @@ its location (dotted path, TOML line where known) and a fix.
 This package needs no driver: :func:`validate_bench_text` checks the models and the
 bench rules. Loading a bench file with the driver checks (``load_bench``,
 ``parse_bench``) and the simulated twins (``simulated_twin``,
-``with_simulated_drivers``) are in :mod:`instrument.bench_setup`, above both this
-package and :mod:`instrument.registry`.
+``with_simulated_drivers``) are in :mod:`instrument.devices.bench_setup`, above both this
+package and :mod:`instrument.devices.registry`.
 """
 
 

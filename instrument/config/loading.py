@@ -1,8 +1,8 @@
 """Reading bench files and validating them into BenchConfig (every problem at once).
 
 Part of :mod:`instrument.config` (see its docstring). These are the checks that need
-no driver; :func:`instrument.bench_setup.parse_bench` and
-:func:`instrument.bench_setup.load_bench` add the driver checks and simulated twins.
+no driver; :func:`instrument.devices.bench_setup.parse_bench` and
+:func:`instrument.devices.bench_setup.load_bench` add the driver checks and simulated twins.
 """
 
 from __future__ import annotations

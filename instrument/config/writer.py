@@ -89,7 +89,7 @@ def _toml_table(model: Section, data: dict[str, Any], *, comments: bool) -> list
 
 
 def to_toml(config: BenchConfig, *, comments: bool = True) -> str:
-    """The bench as TOML text that :func:`instrument.bench_setup.parse_bench` reads back to
+    """The bench as TOML text that :func:`instrument.devices.bench_setup.parse_bench` reads back to
     an equal config.
 
     Written by a small serializer (no dependency): top-level keys, ``[geometry]``,

@@ -2,7 +2,7 @@
 demo writes goes through these modules (the napari widget shows layers and writes
 nothing; its reader recognises the volumes written here). Products inside a run
 (``recon-run``'s, the calibrations') are the run store's arrays
-(``instrument.run_products``).
+(``instrument.runs.run_products``).
 
 - :mod:`instrument.writer.guards`: the check every command runs on its outputs before
   any work (never an input, never an existing file without ``--overwrite``, writable;
@@ -19,7 +19,7 @@ nothing; its reader recognises the volumes written here). Products inside a run
 
 The ``runs export`` TIFFs are written by
 :func:`~instrument.writer.files.write_tiff_file` with the tags
-:func:`instrument.tiff_export.write_tiff` builds; text files other than JSON by
+:func:`instrument.runs.tiff_export.write_tiff` builds; text files other than JSON by
 :func:`instrument.atomic.write_text`; an append-only log by
 :class:`instrument.atomic.AppendLog`; generated docs pages by
 ``instrument.writer.docpage``. ``tests/test_one_writer.py`` fails when a module
@@ -32,7 +32,7 @@ temporary name renamed into place, :func:`~instrument.atomic.atomic_path` and
 failed Zarr output removed after zarr's writes in flight, a full disk named with its
 free space, and every JSON file (:func:`~instrument.atomic.write_json`). That module
 imports nothing else of ``instrument``, so the run stores, which this package reads
-(:mod:`instrument.ome` for the volume's OME block, run stores for the guards), write
+(:mod:`instrument.runs.ome` for the volume's OME block, run stores for the guards), write
 through it too without an import cycle.
 
 The reconstruction layer (``recon``) writes no files: it returns arrays and records,

@@ -181,7 +181,7 @@ def write_snapshot(path: str | Path, image: np.ndarray, metadata: dict[str, Any]
 
 def write_tiff_file(path: str | os.PathLike, array: np.ndarray, **tags: Any) -> Path:
     """Write ``array`` as a TIFF with the tags another module built
-    (:func:`instrument.tiff_export.write_tiff`'s ImageJ hyperstack or OME-TIFF): the
+    (:func:`instrument.runs.tiff_export.write_tiff`'s ImageJ hyperstack or OME-TIFF): the
     one place outside the products above where a TIFF is written.
 
     Parameters

@@ -47,7 +47,7 @@ def is_run_store(path: str | Path) -> bool:
     missing or unreadable (never raises).
 
     Defined here, with the rule that needs it (no output inside a run store), so that
-    the writer depends on nothing of the run stores; :mod:`instrument.runstore`
+    the writer depends on nothing of the run stores; :mod:`instrument.runs.runstore`
     offers it to its users."""
     try:
         meta = json.loads((Path(path) / "zarr.json").read_text())

@@ -4,7 +4,7 @@ plane of pixels, and the ``ome`` block of a group of images.
 
 Plain values, no store: the writer describes the volumes it writes with them
 (:func:`instrument.writer.products.write_volume`) and the run stores their frames and
-products (:mod:`instrument.ome`, which builds the run's description on them). Kept
+products (:mod:`instrument.runs.ome`, which builds the run's description on them). Kept
 under the writer so that the writer needs nothing of the run stores.
 """
 

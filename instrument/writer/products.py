@@ -81,7 +81,7 @@ def write_recon_tiff(path: Path, image: np.ndarray, pitch_um: float | None = Non
     record : dict, optional
         JSON-able record (the reconstruction's parameters and metrics) stored as the
         image's OME ``Description`` (read back by
-        :func:`instrument.tiff_export.read_tiff_metadata`).
+        :func:`instrument.runs.tiff_export.read_tiff_metadata`).
 
     Raises
     ------
@@ -214,14 +214,14 @@ def write_volume(path: Path, volume: np.ndarray, attrs: dict,
     """A float32 TIFF (JSON metadata, axes ZYX) or an OME-Zarr 0.5 image (Zarr v3).
 
     The Zarr volume is a group holding the volume as its array ``0`` (z, y, x) with
-    ``attrs`` and an ``ome`` block (:func:`instrument.ome.image_attrs`): ``z`` in
+    ``attrs`` and an ``ome`` block (:func:`instrument.runs.ome.image_attrs`): ``z`` in
     micrometer from ``attrs["depths_mm"]``, its translation the first depth (the mean
-    spacing for uneven depths, each in the metadata: :func:`instrument.ome.volume_axes`),
+    spacing for uneven depths, each in the metadata: :func:`instrument.runs.ome.volume_axes`),
     and every plane's true depth as the coordinate array ``z`` beside it (mm,
     :func:`~instrument.writer.ome_axes.write_depth_coordinate`: xarray's ``z``);
     ``y``/``x`` in micrometer with ``pitch_um`` (the reconstruction grid's pitch:
     sensor pitch times binning), without it unitless at ``attrs["bin_factor"]`` per
-    pixel (one per sensor pixel, :func:`instrument.ome.space_axes`, as the napari
+    pixel (one per sensor pixel, :func:`instrument.runs.ome.space_axes`, as the napari
     plugin scales a reconstruction).
 
     Both are written under a temporary name in the same directory and renamed into

@@ -1,7 +1,7 @@
 """A calibrated PSF grid: what :func:`recon.reconstruct` runs for a :class:`PsfGrid`.
 
 :func:`reconstruct_psf_grid` is what ``diffuserlab recon --psf-grid`` and ``recon3d
---psf-grid`` run (through ``instrument.reconstruct_grid``): bin the grid and the
+--psf-grid`` run (through ``instrument.processing.reconstruct_grid``): bin the grid and the
 raw frame alike, pick the forward model (``auto``: :func:`recon.spatial.choose_model`),
 scale as the other solvers expect (central PSF of unit sum, measurement divided by
 its maximum) and solve Eq. 6.2 with :func:`recon.spatial.fista_background`

@@ -347,7 +347,7 @@ def reconstruct_stack(psf_stack: np.ndarray, depths_mm, raw: np.ndarray,
         ``info.extra["memory"]`` holds the estimate and the measured peak.
     slab_group : callable, optional
         ``slab_group(h, psf_scale) -> group``: run streamed 3D FISTA with the plane
-        slabs elsewhere (dask workers, :class:`instrument.volume_shards.ShardedSlabs`),
+        slabs elsewhere (dask workers, :class:`instrument.processing.volume_shards.ShardedSlabs`),
         whatever the memory plan says.
     announce : callable, optional
         ``announce(line)``: the memory plan and the streamed solve's estimate,

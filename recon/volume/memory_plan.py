@@ -370,7 +370,7 @@ def solve_streamed(held: list, b: np.ndarray, *, iterations: int, tv: float, l1:
     depths : list of float, optional
     slab_group : callable, optional
         ``slab_group(h, psf_scale) -> group``: slabs elsewhere (dask workers,
-        :func:`instrument.volume_shards.ShardedSlabs`); default one slab here.
+        :func:`instrument.processing.volume_shards.ShardedSlabs`); default one slab here.
     announce : callable, optional
         ``announce(line)``: the estimate, before the solve (e.g. ``print``).
     auto : dict, optional

@@ -10,7 +10,7 @@ one plane on each side. :class:`VolumeSlab` holds its planes' PSF spectra
 one place the model's spectra are made) and its planes of the FISTA iterates
 ``x``, ``y`` and ``v = y - step grad``; :func:`recon.volume.streamed.slab_fista`
 drives one or several slabs, in one process or as dask actors
-(:mod:`instrument.volume_shards`).
+(:mod:`instrument.processing.volume_shards`).
 
 Each plane is padded to the FFT grid and transformed on the fly, one chunk of
 planes at a time, so nothing of the padded volume's size is ever held unless the

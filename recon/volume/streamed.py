@@ -11,7 +11,7 @@ instead of FISTA's 5 on the padded grid: ``y`` is updated in place), and per
 iteration only sensor-sized images cross between the slabs and the loop: each
 slab's partial image up, the weighted residual down, and three boundary planes for
 the 3D TV. The slabs may live in this process (:class:`LocalSlabs`) or in dask
-workers (:mod:`instrument.volume_shards`); the arithmetic is the same.
+workers (:mod:`instrument.processing.volume_shards`); the arithmetic is the same.
 
 Peak memory of one process holding every slab is :func:`streamed_memory_bytes`
 (printed before a solve by ``recon3d``, checked against the measured peak resident
@@ -201,7 +201,7 @@ class LocalSlabs:
     ----------
     bytes_moved : list of int
         Per slab, bytes sent to or received from it (always 0 here; the dask group,
-        :class:`instrument.volume_shards.ShardedSlabs`, counts its messages).
+        :class:`instrument.processing.volume_shards.ShardedSlabs`, counts its messages).
     """
 
     def __init__(self, slabs: list[VolumeSlab]):
@@ -247,7 +247,7 @@ def slab_fista(group, b: np.ndarray, *, sensor_weights=None, iterations: int = D
 
     Parameters
     ----------
-    group : LocalSlabs or instrument.volume_shards.ShardedSlabs
+    group : LocalSlabs or instrument.processing.volume_shards.ShardedSlabs
         The slabs, contiguous in depth order, ``call(method, args)`` per slab.
     b : ndarray, float32, sensor shape
         The scaled measurement (pre-weighted, as for :func:`~recon.volume.fista3d`).
@@ -394,7 +394,7 @@ def final_objective(group, b: np.ndarray, w: np.ndarray, tv_w: float, l1_w: floa
 
     Parameters
     ----------
-    group : LocalSlabs or instrument.volume_shards.ShardedSlabs
+    group : LocalSlabs or instrument.processing.volume_shards.ShardedSlabs
     b : ndarray, float32, sensor shape
         The measurement the estimate was fitted to.
     w : ndarray, float32, sensor shape

@@ -90,7 +90,7 @@ class SlabPath:
 
     Parameters
     ----------
-    group : recon.volume.streamed.LocalSlabs or instrument.volume_shards.ShardedSlabs
+    group : recon.volume.streamed.LocalSlabs or instrument.processing.volume_shards.ShardedSlabs
         The slabs, in depth order.
 
     Attributes
@@ -337,7 +337,7 @@ def auto_streamed(group, b: np.ndarray, *, noise: NoiseModel, iterations: int,
 
     Parameters
     ----------
-    group : recon.volume.streamed.LocalSlabs or instrument.volume_shards.ShardedSlabs
+    group : recon.volume.streamed.LocalSlabs or instrument.processing.volume_shards.ShardedSlabs
         The slabs (normalised stack), fresh: their iterates zero.
     b : ndarray, float32, sensor shape
         Scaled measurement (pre-weighted).

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.virtual_bench import VirtualBench
 
 
 @pytest.fixture

@@ -22,10 +22,10 @@ from calibration_routines.angular_response import (
     AngularResponsePlan,
     reachable_range_mm,
 )
-from instrument.plan import PLAN_TYPES, PlanError, plan_from_record
-from instrument.runner import Runner
-from instrument.runstore import RunStore
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.plan import PLAN_TYPES, PlanError, plan_from_record
+from instrument.acquisition.runner import Runner
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore
 from recon.analysis import fov_half_angle_deg
 
 CUTOFF_FACTOR = math.sqrt(2.0 * math.log(5.0))

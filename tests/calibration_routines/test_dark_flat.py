@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from calibration_routines.dark_flat import DarkFlatPlan, hot_pixels
+from instrument.acquisition.plan import PLAN_TYPES, PlanError, plan_from_record
+from instrument.acquisition.runner import Runner
 from instrument.config import default_bench
-from instrument.plan import PLAN_TYPES, PlanError, plan_from_record
-from instrument.runner import Runner
-from instrument.runstore import RunStore
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore
 
 N = 8
 
@@ -153,7 +153,7 @@ def _working(state: dict) -> dict:
 def test_an_aborted_run_puts_back_what_it_changed(tmp_path, where):
     """Aborted in the dark point (camera capped) or in the flat point (diffuser and
     pinhole out): the runner uncaps, or puts them back, and nothing is left to do."""
-    from instrument.runner import RunControl
+    from instrument.acquisition.runner import RunControl
 
     control = RunControl()
     changed = {"dark": "camera_capped", "flat": "pinhole_installed"}[where]
@@ -196,8 +196,8 @@ def test_a_failed_run_uncaps_the_camera(tmp_path, monkeypatch):
 def test_an_abort_the_operator_cannot_put_back_lists_uncap(tmp_path):
     """A real bench whose operator refuses the put-back: "Uncap the camera" is left
     to do, in the plan's teardown's words, and the store still says capped."""
-    from instrument.bench import Bench
-    from instrument.runner import RunControl
+    from instrument.acquisition.runner import RunControl
+    from instrument.devices.bench import Bench
 
     control = RunControl()
     with VirtualBench(_config(), seed=2) as vb:

@@ -11,7 +11,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 from recon.analysis.early_stop import CANDIDATES, THRESHOLDS, WEIGHTS
 from recon.early_stop import EarlyStop, psf_identity
 from recon.operators import ConvolutionOperator
@@ -108,8 +108,8 @@ def test_recon_run_uses_the_recipe_on_every_frame(calibrated, capsys):
     recon_recipe, the recipe recorded), each frame as recon would; --early-stop off
     declines it."""
     import recon
-    from instrument.reconstruct_files import resolve_dark
-    from instrument.recorder import VIDEO_COORDS
+    from instrument.acquisition.recorder import VIDEO_COORDS
+    from instrument.processing.reconstruct_files import resolve_dark
 
     tmp, cal = calibrated
     held = np.load(tmp / "held.npy")

@@ -13,8 +13,8 @@ from calibration_routines.holo_bench import (
     retracted_mask,
 )
 from drivers.errors import StageTimeoutError
-from instrument.bench import Bench
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
+from instrument.devices.bench import Bench
 
 POSE = {"x": 0.02, "y": -0.01, "z": 0.05, "tip": 0.1, "tilt": -0.1, "rotation": 0.5}
 

@@ -22,8 +22,8 @@ from calibration_routines.mask_alignment.hologram_check import (
 )
 from calibration_routines.mask_alignment.record import corrected_mask
 from calibration_routines.mask_alignment.spotmeter import SpotMeter
-from instrument.plan import PlanError
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.plan import PlanError
+from instrument.devices.virtual_bench import VirtualBench
 from recon.cgh import ScatteringDisplay, optimize_hologram, random_binary_mask
 from recon.optics.holo_display import (
     CameraMapping,

@@ -18,8 +18,8 @@ from calibration_routines.mask_alignment import (
     load_alignment,
 )
 from drivers.errors import DeviceError
-from instrument.runner import RunAborted, RunControl
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.runner import RunAborted, RunControl
+from instrument.devices.virtual_bench import VirtualBench
 from recon.optics.holo_display import MaskModel, MaskTransform, efficiency, spot_phase
 
 

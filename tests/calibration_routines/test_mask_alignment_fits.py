@@ -15,7 +15,7 @@ from calibration_routines.mask_alignment import (
     section_bounds,
 )
 from calibration_routines.mask_alignment.fitting import fit_parabola, fit_plane, triangle
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 from recon.optics.holo_display import MaskModel
 
 

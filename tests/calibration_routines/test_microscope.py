@@ -11,8 +11,8 @@ from calibration_routines.microscope import (
     microscope_depths,
     microscope_grid_plans,
 )
-from instrument.bench_setup import load_bench
-from instrument.virtual_bench import BeadScene, VirtualBench
+from instrument.devices.bench_setup import load_bench
+from instrument.devices.virtual_bench import BeadScene, VirtualBench
 from recon.analysis import lateral_calibration_spacing_mm
 
 BENCH = Path(__file__).resolve().parents[2] / "examples" / "bench-microscope.toml"
@@ -58,7 +58,7 @@ def test_microscope_end_to_end_beads_at_their_depths(tmp_path):
     beads at three depths over the excitation background, reconstruct the volume with
     the local convolution model and the background estimate: every bead is found in
     its plane (about 3 minutes on 2 cores)."""
-    from instrument.reconstruct_grid import load_psf_grid
+    from instrument.processing.reconstruct_grid import load_psf_grid
     from recon import reconstruct_grid
     from recon.volume.localize import detect_peaks, match_peaks
 

@@ -7,8 +7,8 @@ import pytest
 
 from calibration_routines.microscope import calibrate_microscope
 from calibration_routines.microscope_resolution import resolution_table
-from instrument.bench_setup import load_bench
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.bench_setup import load_bench
+from instrument.devices.virtual_bench import VirtualBench
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bench-microscope.toml"
 

@@ -119,7 +119,7 @@ def test_models_are_typed_and_frozen():
 
 def test_the_guis_plan_is_the_commands_plan_without_argv():
     from gui.jobs import build_plan, routine_options
-    from instrument.virtual_bench import VirtualBench
+    from instrument.devices.virtual_bench import VirtualBench
 
     assert [o.flag for o in routine_options("psf-grid")] == list(HISTORIC["psf-grid"])
     parser = argparse.ArgumentParser(prog="diffuserlab")

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from calibration_routines import PsfBlindPlan
-from instrument.bench_setup import load_bench
 from instrument.cli import main
-from instrument.reconstruct_grid import load_psf_grid
-from instrument.runstore import RunStore
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.bench_setup import load_bench
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.processing.reconstruct_grid import load_psf_grid
+from instrument.runs.runstore import RunStore
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "bench-microscope.toml"
 

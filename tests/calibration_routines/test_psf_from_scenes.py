@@ -18,12 +18,12 @@ from calibration_routines.psf_from_scenes import (
     display_gray,
     pattern_block_px,
 )
-from instrument.acquisition import autoexpose
-from instrument.bench_setup import load_bench
+from instrument.acquisition.exposure import autoexpose
+from instrument.acquisition.plan import PlanError
 from instrument.cli import main
-from instrument.plan import PlanError
-from instrument.runstore import RunStore
-from instrument.virtual_bench import DisplayScene, VirtualBench
+from instrument.devices.bench_setup import load_bench
+from instrument.devices.virtual_bench import DisplayScene, VirtualBench
+from instrument.runs.runstore import RunStore
 from recon.analysis import normalized_correlation
 from recon.early_stop import EarlyStop, psf_identity
 from recon.scenes import BUNDLED, load_scene

@@ -8,7 +8,7 @@ import re
 import numpy as np
 
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 from recon.analysis.early_stop import THRESHOLDS
 from tests.recon.test_psf_quality import synthetic_pairs
 

@@ -7,9 +7,9 @@ import pytest
 from scipy import ndimage
 
 from calibration_routines.psf_grid import PsfGridPlan
-from instrument.plan import PlanError
-from instrument.runner import Runner
-from instrument.runstore import RunStore
+from instrument.acquisition.plan import PlanError
+from instrument.acquisition.runner import Runner
+from instrument.runs.runstore import RunStore
 from recon.analysis import normalized_correlation
 
 

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from calibration_routines.psf_sweep import PsfSweepPlan, probe_inverse_depth_step, sweep_depths
-from instrument.plan import PlanError
-from instrument.runner import Runner
-from instrument.runstore import RunStore, RunStoreError
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.plan import PlanError
+from instrument.acquisition.runner import Runner
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore, RunStoreError
 from recon.analysis import normalized_correlation, remove_background_dct
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -105,8 +105,8 @@ _SCRIPT = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {root!r})
     from calibration_routines.psf_sweep import PsfSweepPlan
-    from instrument.runner import Runner
-    from instrument.virtual_bench import VirtualBench
+    from instrument.acquisition.runner import Runner
+    from instrument.devices.virtual_bench import VirtualBench
 
     def slow(event):  # give the test time to read and to kill mid-run
         if event.kind == "frame":

@@ -1,6 +1,6 @@
 """A scene calibration's recipe (early_stop.json) is read once per product, is part of its
 run's integrity record, is validated when read, and is no default when its PSF explains
-little (issue 64, "Data"; instrument.run_recipe, recon.early_stop)."""
+little (issue 64, "Data"; instrument.runs.run_recipe, recon.early_stop)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 from recon.early_stop import FILE, TRUSTED_RESIDUAL, EarlyStop
 
 from .test_early_stop_run import calibrated  # noqa: F401  (the module's fixture)
@@ -34,7 +34,7 @@ def _edit(run, **changes):
 
 
 def _video(tmp, out, n=6):
-    from instrument.recorder import VIDEO_COORDS
+    from instrument.acquisition.recorder import VIDEO_COORDS
 
     held = np.load(tmp / "held.npy")
     frames = np.stack([held * (800.0 + 50 * i) for i in range(n)])
@@ -56,9 +56,9 @@ def test_a_recipe_edited_while_recon_run_works_changes_no_frame(cal_copy, tmp_pa
     the recipe read at the start, and the product records that one."""
     from dask.distributed import LocalCluster
 
-    import instrument.batch as batch
+    import instrument.processing.batch as batch
     import recon
-    from instrument.reconstruct_files import resolve_dark
+    from instrument.processing.reconstruct_files import resolve_dark
     from recon.options import ReconOptions
 
     tmp, cal = cal_copy
@@ -186,7 +186,7 @@ def test_an_untrusted_recipe_is_recorded_and_is_no_default(cal_copy, tmp_path, c
     """A calibration whose held-out residual is above the bar records its recipe as not
     trusted (with a warning); recon --psf RUN then does not use it (one line: why and
     how to force it), --early-stop RUN still does."""
-    from instrument.run_recipe import write_run_recipe
+    from instrument.runs.run_recipe import write_run_recipe
 
     tmp, cal = cal_copy
     store = RunStore.open(cal, "r+")

@@ -10,10 +10,10 @@ import pytest
 import tifffile
 
 from calibration_routines import PsfSweepPlan
-from instrument.acquisition import autoexpose, average_frames
+from instrument.acquisition.exposure import autoexpose, average_frames
+from instrument.acquisition.runner import Runner
 from instrument.cli import main
-from instrument.runner import Runner
-from instrument.virtual_bench import BeadScene, VirtualBench
+from instrument.devices.virtual_bench import BeadScene, VirtualBench
 
 DEPTHS = [30.0, 40.0, 60.0]
 

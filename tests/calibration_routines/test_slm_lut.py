@@ -21,12 +21,12 @@ from calibration_routines.slm_lut_io import (
     blazed_efficiency,
     load_lut,
 )
+from instrument.acquisition.plan import PlanError
+from instrument.acquisition.runner import RunControl, Runner
 from instrument.cli import main
 from instrument.config import default_bench
-from instrument.plan import PlanError
-from instrument.runner import RunControl, Runner
-from instrument.runstore import RunStore
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore
 
 BENCH = str(Path(__file__).resolve().parents[2] / "examples" / "bench-simulated.toml")
 POSE = {"x": 0.02, "y": -0.01, "z": 0.0, "tip": 0.0, "tilt": 0.0, "rotation": 0.3}

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from calibration_routines import slm_lut_analysis as ana
-from instrument.plan import PlanError
+from instrument.acquisition.plan import PlanError
 
 GRAY = np.round(np.linspace(0, 255, 32))
 TRUTH = 2.3 * np.pi * ((GRAY / 255) ** 1.5 * 0.7 + 0.3 * GRAY / 255)

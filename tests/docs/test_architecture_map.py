@@ -53,18 +53,18 @@ def test_drift_names_what_the_review_found_stale():
     """The map of 84 commits before: 599 import statements where 626 were measured and
     the run store's part at 734 lines where it had 401; and a part, an import direction
     that appeared, and numbers inside the slack that are no drift."""
-    now = {"packages": {"instrument": 23_700}, "parts": {"instrument.runstore": 401},
+    now = {"packages": {"instrument": 23_700}, "parts": {"instrument.runs.runstore": 401},
            "imports": {"instrument -> recon": 196}, "imports_total": 626, "upward": 0}
     drawn = json.loads(json.dumps(now))
     assert amap.drift(drawn, now) == []
     drawn["packages"]["instrument"] = 23_000  # 3 %: still true
     drawn["imports"]["instrument -> recon"] = 190
     assert amap.drift(drawn, now) == []
-    drawn["imports_total"], drawn["parts"]["instrument.runstore"] = 599, 734
-    assert amap.drift(drawn, now) == ["part instrument.runstore: drawn 734, now 401",
+    drawn["imports_total"], drawn["parts"]["instrument.runs.runstore"] = 599, 734
+    assert amap.drift(drawn, now) == ["part instrument.runs.runstore: drawn 734, now 401",
                                       "imports in all: drawn 599, now 626"]
     now["imports"]["gui -> recon"] = 20
-    drawn["parts"]["instrument.runstore"], drawn["imports_total"] = 401, 626
+    drawn["parts"]["instrument.runs.runstore"], drawn["imports_total"] = 401, 626
     drawn["upward"] = 1
     assert amap.drift(drawn, now) == ["import gui -> recon: new", "upward imports: drawn 1, now 0"]
 

@@ -185,7 +185,7 @@ def _colour(d: Path) -> None:
 def _frame_psf(d: Path) -> None:
     """frame_psf.npy: a PSF at the simulated camera's frame shape (dark.zarr's frames);
     rgb_dark.npy: a colour dark image of that region (not the monochrome frames')."""
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     rows, cols = RunStore.open(d / "dark.zarr").frame_shape
     rng = np.random.default_rng(5)

@@ -1,5 +1,5 @@
 """What other tools read of a run (its ``ome`` blocks, its arrays' dimension names)
-against what the run recorded when it wrote them (instrument.run_description).
+against what the run recorded when it wrote them (instrument.runs.run_description).
 
 Each case edits one ``zarr.json`` of a copy of a run the project's own commands made
 (a simulated PSF sweep with its ``psf_stack``; a simulated video with the per-frame

@@ -114,7 +114,7 @@ def recorded(tmp_path_factory) -> Path:
     """A directory with a recorded run ``r.zarr`` (4 frames) and a PSF ``psf.npy`` at its
     frame shape: what ``recon-run`` would reconstruct if the signal were lost."""
     from instrument.cli import main
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     d = tmp_path_factory.mktemp("early_interrupts")
     assert main(["capture", "video", "--simulate", "--frames", "4", "--out",

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import pytest
 
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 from .conftest import REPO
 
@@ -176,7 +176,7 @@ def _psf_of(store: RunStore, path: Path) -> None:
     """A PSF of the run's frame shape: the simulated camera's view of a point source."""
     import numpy as np
 
-    from instrument.virtual_bench import VirtualBench
+    from instrument.devices.virtual_bench import VirtualBench
 
     with VirtualBench(seed=0) as vb:
         h = vb.psf((0.0, 0.0, 30.0))

@@ -193,12 +193,12 @@ def test_a_device_that_cannot_be_opened_is_named(d, capsys):
 
 def test_ctrl_c_while_capture_starts_leaves_no_run(d, capsys, monkeypatch):
     """Ctrl-C after the run store is created, before the recorder holds it."""
-    import instrument.video
+    import instrument.acquisition.video
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(instrument.video.Recorder, "start", interrupted)
+    monkeypatch.setattr(instrument.acquisition.video.Recorder, "start", interrupted)
     _interrupted(["capture", "video", "--simulate", "--frames", "4", "--out", "o/v.zarr"], d,
                  capsys)
 

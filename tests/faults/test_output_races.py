@@ -58,7 +58,7 @@ def main():
             return result
         return call
 
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runs.runstore import RunStore, RunStoreError
     if argv[:1] == ["api"]:  # the Python API: RunStore.create(overwrite=True), 2 frames
         import numpy as np
         create = paused(RunStore.create) if point == "create" else RunStore.create
@@ -184,7 +184,7 @@ def _assert_refused(result: tuple[int, str, str], words: list[str]) -> None:
 
 def _verify(run: Path) -> None:
     """What ``runs verify`` checks (in this process: one start less), and finished."""
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     store = RunStore.open(run)
     assert store.verify() == [] and store.status == "complete", store.attrs
@@ -256,7 +256,7 @@ def test_a_second_recon_run_keeps_the_first_ones_product(race):
                           "--simulate", "--frames", "3", "--out", str(run)], cwd=race.dir,
                          env=race.env, capture_output=True, text=True, timeout=300)
     assert rec.returncode == 0, rec.stderr
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     np.save(race.dir / "psf.npy", RunStore.open(run).frame(0).image.astype(np.float32))
     argv = ["recon-run", run, "--psf", "psf.npy", "--method", "wiener", "--workers", "1"]

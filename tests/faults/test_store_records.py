@@ -234,7 +234,7 @@ def test_damage_against_the_record_is_named(runs, tmp_path, capsys, name):
     if "export" in command and status == 0:
         import tifffile
 
-        from instrument.tiff_export import read_tiff_metadata
+        from instrument.runs.tiff_export import read_tiff_metadata
 
         with tifffile.TiffFile(tmp_path / "out" / "e.tif") as tif:
             frames = tif.asarray()
@@ -285,7 +285,7 @@ def test_a_path_inside_a_store_names_the_run(runs, capsys):
 
 def test_a_damaged_layout_is_never_written(runs, tmp_path):
     """A writer (a resume, recon-run) refuses a run whose arrays are described otherwise."""
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runs.runstore import RunStore, RunStoreError
 
     run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
     _float16(run)
@@ -299,8 +299,8 @@ def test_a_damaged_layout_is_never_written(runs, tmp_path):
 
 def test_the_api_never_continues_a_recording(runs, tmp_path):
     """Runner.resume refuses a video before it locks or touches the run."""
-    from instrument.runner import Runner
-    from instrument.runstore import RunStoreError
+    from instrument.acquisition.runner import Runner
+    from instrument.runs.runstore import RunStoreError
 
     run = Path(shutil.copytree(runs / "video.zarr", tmp_path / "video.zarr"))
     before = tree(tmp_path)

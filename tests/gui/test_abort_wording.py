@@ -6,8 +6,8 @@ from __future__ import annotations
 import logging
 
 from gui.messages import operator_text
-from instrument.runner import RunControl, Runner
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.runner import RunControl, Runner
+from instrument.devices.virtual_bench import VirtualBench
 from tests.instrument.test_runner import ZStepPlan
 
 
@@ -18,7 +18,7 @@ def test_the_abort_is_numbered_alike_and_read_in_operator_words(tmp_path, caplog
         if e.kind == "point_done":
             control.abort("stop after the first point")
 
-    with caplog.at_level(logging.WARNING, logger="instrument.runner"), \
+    with caplog.at_level(logging.WARNING, logger="instrument.acquisition.runner"), \
             VirtualBench(seed=3) as vb:
         result = Runner(vb, on_event=on_event, control=control).run(ZStepPlan(),
                                                                      tmp_path / "r.zarr")

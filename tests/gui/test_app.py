@@ -38,9 +38,9 @@ def test_gui_command_is_registered():
 
 def test_errors_read_as_the_library_wrote_them():
     from gui.workers import readable_error
-    from instrument.bench_setup import parse_bench
+    from instrument.acquisition.runner import RunAborted
     from instrument.config import BenchConfigError
-    from instrument.runner import RunAborted
+    from instrument.devices.bench_setup import parse_bench
 
     with pytest.raises(BenchConfigError) as bad:
         parse_bench("[[devices]]\nid = 3\n")

@@ -22,7 +22,7 @@ NO_SIGNAL = ("the data carry no signal: the frame's energy is {:.2f}x what its n
 def _run(path, n=3):
     """A run with a product holding every frame (``recon_old``) and one holding none
     (``recon_auto``: every frame refused)."""
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     store = RunStore.create(path, plan_name="video", plan_params={},
                             points=[{"t": float(k)} for k in range(n)],

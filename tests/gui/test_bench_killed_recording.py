@@ -13,7 +13,7 @@ pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs SI
 
 
 def test_a_recording_under_a_killed_bench_is_closed_by_the_window(window, wait, tmp_path):
-    from instrument.runstore import RunStore, RunStoreError
+    from instrument.runs.runstore import RunStore, RunStoreError
 
     session, devices, panel = window.session, window.devices, window.record
     out = str(tmp_path / "video.zarr")

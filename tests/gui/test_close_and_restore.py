@@ -27,7 +27,7 @@ def own_window(qapp, tmp_path, monkeypatch):
 
 
 def test_closing_mid_recording_asks_then_finishes_the_run(own_window, wait, tmp_path):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     w = own_window
     asked: list[str] = []

@@ -7,9 +7,9 @@ from __future__ import annotations
 import time
 
 from drivers.base import Device
-from instrument import registry
 from instrument.config import default_bench
 from instrument.config.writer import to_toml
+from instrument.devices import registry
 
 OPENED: list[Device] = []
 

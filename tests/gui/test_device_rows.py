@@ -31,7 +31,7 @@ def _box(device):
     from types import SimpleNamespace
 
     from gui.panels.devices import DeviceBox
-    from instrument.bench_service import BenchService, EventLog, device_info
+    from instrument.bench.bench_service import BenchService, EventLog, device_info
 
     service = BenchService()
     service.bench = SimpleNamespace(devices={device.device_id: device})

@@ -34,8 +34,8 @@ class _FakeAligner:
 
 @pytest.fixture
 def emulators(tmp_path):
-    """The running emulators (:class:`instrument.emulated_bench.EmulatedBench`)."""
-    from instrument.emulated_bench import EmulatedBench
+    """The running emulators (:class:`instrument.devices.emulated_bench.EmulatedBench`)."""
+    from instrument.devices.emulated_bench import EmulatedBench
 
     with EmulatedBench(tmp_path / "ports", time_scale=50.0) as bench:
         yield bench
@@ -106,7 +106,7 @@ def test_a_completed_alignment_keeps_the_mask_at_the_aligned_pose(qapp, wait, em
 def test_an_aborted_alignment_puts_the_mask_back(qapp, wait, emulated, tmp_path, monkeypatch):
     """A half-done alignment is no pose to keep: the stage goes back where it was."""
     import calibration_routines.mask_alignment as mask_alignment
-    from instrument.runner import RunAborted
+    from instrument.acquisition.runner import RunAborted
 
     class _Aborted(_FakeAligner):
         def run(self) -> dict:

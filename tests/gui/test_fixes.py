@@ -20,7 +20,7 @@ from PySide6.QtTest import QTest
 
 def test_a_keyerror_is_a_bug_with_its_traceback_in_the_log(caplog):
     from gui.workers import InputError, readable_error
-    from instrument.plan import PlanError
+    from instrument.acquisition.plan import PlanError
 
     with caplog.at_level(logging.ERROR, logger="gui.workers"):
         text = readable_error(KeyError((1066, 80)))
@@ -93,7 +93,7 @@ def test_exposure_fields_take_units():
 
 
 def _video_run(path, n=40, image=lambda i: np.full((64, 80), i, np.uint16)):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     store = RunStore.create(path, plan_name="video", plan_params={},
                             points=[{"t": float(k)} for k in range(n)],
@@ -108,7 +108,7 @@ def _video_run(path, n=40, image=lambda i: np.full((64, 80), i, np.uint16)):
 def test_results_reads_the_store_on_workers_and_verifies_once(qapp, wait, tmp_path,
                                                              monkeypatch):
     from gui.panels.results import ResultsPanel
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     _video_run(tmp_path / "v.zarr")
     calls: list[tuple[str, str]] = []
@@ -188,13 +188,13 @@ def test_batch_runs_in_a_child_process_not_in_the_guis(window, wait, tmp_path, m
     """dask's scheduler and client never live in the GUI's process (each batch there kept
     ~230 references to None and threads): the batch runs in a child process, so the
     GUI's own ``reconstruct_run`` is never called, and the frames are stored."""
-    import instrument.batch
-    from instrument.runstore import RunStore
+    import instrument.processing.batch
+    from instrument.runs.runstore import RunStore
 
     def in_the_gui(*args, **kwargs):
         raise AssertionError("the batch ran in the GUI's process")
 
-    monkeypatch.setattr(instrument.batch, "reconstruct_run", in_the_gui)
+    monkeypatch.setattr(instrument.processing.batch, "reconstruct_run", in_the_gui)
     rng = np.random.default_rng(0)  # frames with structure (a constant frame is refused)
     _video_run(tmp_path / "v.zarr", n=2,
                image=lambda i: rng.integers(100, 4000, (64, 80)).astype(np.uint16))
@@ -269,11 +269,11 @@ def test_jobs_that_wait_on_hardware_run_at_the_process_priority(window, wait, mo
     open the bench: a Zaber reply past the 1 s timeout)."""
     import os
 
-    import instrument.live
+    import instrument.acquisition.live
     from gui.workers import BACKGROUND_NICE, Job
 
     ran: dict[str, int] = {}
-    lower = instrument.live.lower_thread_priority
+    lower = instrument.acquisition.live.lower_thread_priority
 
     def recording(increment):
         changed = lower(increment)
@@ -281,7 +281,7 @@ def test_jobs_that_wait_on_hardware_run_at_the_process_priority(window, wait, mo
                                                               threading.get_native_id())
         return changed
 
-    monkeypatch.setattr(instrument.live, "lower_thread_priority", recording)
+    monkeypatch.setattr(instrument.acquisition.live, "lower_thread_priority", recording)
     process = os.getpriority(os.PRIO_PROCESS, os.getpid())
     box = window.devices.boxes["source_stage"]
     box.stage.jog_steps["x"].setValue(0.5)

@@ -11,7 +11,7 @@ napari = pytest.importorskip("napari")
 
 from gui.napari_plugin.reader import read_product, read_run  # noqa: E402
 from gui.napari_plugin.widget import reconstruct_layer  # noqa: E402
-from instrument.runstore import RunStore, RunStoreError  # noqa: E402
+from instrument.runs.runstore import RunStore, RunStoreError  # noqa: E402
 
 
 def test_a_colour_psf_from_scenes_run_opens_one_layer_per_channel(tmp_path):

@@ -92,7 +92,7 @@ def test_reader_on_a_video_with_its_time_axis(tmp_path, plugin):
 def test_reader_on_an_imported_psf_stack_shows_the_stack(tmp_path, plugin):
     """A run made by ``runs import-psf`` has no frames: no empty frames layer (napari
     cannot show one), its PSF stack shown."""
-    from instrument.stacks import import_psf_stack
+    from instrument.runs.stacks import import_psf_stack
 
     np.save(tmp_path / "psf.npy", np.full((3, 16, 20), 2, np.float32))
     store = import_psf_stack(tmp_path / "psf.npy", tmp_path / "imp.zarr",
@@ -175,7 +175,7 @@ def test_reader_on_a_run_of_the_layout_before(tmp_path, plugin):
     assert sorted(old) == ["s.zarr dark_mean", "s.zarr frames", "s.zarr psf_stack"]
     assert list(old["s.zarr psf_stack"].axis_labels) == ["z", "y", "x"]
     assert float(np.asarray(old["s.zarr psf_stack"].data)[1, 0, 0]) == 2.0
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     RunStore.open(store.path, "r+").upgrade()
     _, new = _open(store.path, plugin)
@@ -305,7 +305,7 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
     from napari.layers import Image
     from scipy.signal import fftconvolve
 
-    from instrument.ome import volume_axes
+    from instrument.runs.ome import volume_axes
 
     rng = np.random.default_rng(3)
     n, pitch = 32, 3.45
@@ -317,7 +317,7 @@ def test_widget_reconstructs_a_volume_with_a_psf_stack(tmp_path, plugin):
     raw = sum(fftconvolve(scene[k], psfs[k], mode="same") for k in range(3)) * 500 + 20
     layer = Image(raw.astype(np.float32), name="raw", scale=(pitch, pitch))
     # uneven depths: ``plane`` (no unit), or, with the OME axes t, c, z, y, x, ``z`` at
-    # their mean spacing from the first depth (instrument.ome.volume_axes: either)
+    # their mean spacing from the first depth (instrument.runs.ome.volume_axes: either)
     uneven = ("plane", 1.0, "pixel") if volume_axes([10.0, 11.0, 13.0], 3)[0].name == \
         "plane" else ("z", 1500.0, "micrometer")
     for depths, first in (([10.0, 10.5, 11.0], ("z", 500.0, "micrometer")),
@@ -360,8 +360,8 @@ def test_widget_on_a_recorded_runs_frames_with_a_calibration_runs_psf(tmp_path, 
     auto): the level recorded with the frames is used, as ``recon-run`` uses it."""
     from napari.components import ViewerModel
 
-    from instrument.runstore import RunStore
-    from instrument.runstore_records import VIDEO_PLAN
+    from instrument.runs.runstore import RunStore
+    from instrument.runs.runstore_records import VIDEO_PLAN
 
     n, offset = 32, 20
     scene, psf, blurred = _scene_and_psf(n, 4)

@@ -1,5 +1,5 @@
 """The operator's day on the emulated bench (the real drivers on protocol emulators,
-:class:`instrument.emulated_bench.EmulatedBench`), in a real window for 5 minutes: the
+:class:`instrument.devices.emulated_bench.EmulatedBench`), in a real window for 5 minutes: the
 PSF sweep from the GUI while the Devices panel polls the APT stage, an LED array
 unplugged at its emulator and reconnected."""
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from instrument.runstore import RunStoreError
+from instrument.runs.runstore import RunStoreError
 from recon.io import DATA_ORIENTATION
 
 
@@ -18,7 +18,7 @@ def _asymmetric(shape=(12, 16)) -> np.ndarray:
 
 
 def _run(path):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     n = 2
     store = RunStore.create(path, plan_name="video", plan_params={},

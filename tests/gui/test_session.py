@@ -159,7 +159,7 @@ def sweep(window, tmp_path_factory, qapp):
     path = str(tmp_path_factory.mktemp("runs") / "sweep.zarr")
     panel.out.setText(path)
     record = {"path": path, "runners_here": []}
-    from instrument.runner import Runner
+    from instrument.acquisition.runner import Runner
 
     init = Runner.__init__
 
@@ -184,7 +184,7 @@ def sweep(window, tmp_path_factory, qapp):
     record["aborted"] = panel.result
     record["abort_message"] = panel.status.text()
     # the frames stored when the abort ended it (the bar is emptied once it ends)
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     record["progress_after_pause"] = int(RunStore.open(panel.result.path).done().sum())
     job = panel.resume()
@@ -214,7 +214,7 @@ def test_the_devices_the_stream_and_the_runs_live_in_the_bench_process(window, w
 
 
 def test_psf_sweep_pause_abort_resume(sweep):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     assert sweep["frames_shown"]
     assert sweep["progress_after_pause"] == sweep["paused_at"]  # paused: nothing taken
@@ -228,7 +228,7 @@ def test_psf_sweep_pause_abort_resume(sweep):
 
 
 def test_live_reconstruction_with_the_sweeps_psf(window, wait, sweep):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     depths = RunStore.open(sweep["path"]).product("psf_stack")[1]["depths_mm"]
     live = window.live
@@ -297,7 +297,7 @@ def video(window, tmp_path_factory, qapp):
 
 
 def test_record_a_short_video(window, video):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     assert video["summary"] is not None, video["error"]
     assert video["summary"]["recorded"] == 12 and video["summary"]["status"] == "complete"
@@ -307,7 +307,7 @@ def test_record_a_short_video(window, video):
 
 
 def test_batch_reconstruct_the_video_and_view_it(window, wait, video, sweep):
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     depths = RunStore.open(sweep["path"]).product("psf_stack")[1]["depths_mm"]
     panel = window.record
@@ -355,8 +355,8 @@ def test_alignment_shows_readings_pose_and_steps_then_aborts(window, wait, tmp_p
 @pytest.mark.parametrize("name", ["beads-flow", "neurons", "none"])
 def test_every_scene_of_the_gui_shows_on_the_virtual_bench(name):
     """The GUI's scenes are `capture --simulate --scene`'s (neurons failed to prerender)."""
-    from instrument.bench_jobs import show_scene
-    from instrument.virtual_bench import VirtualBench
+    from instrument.bench.bench_jobs import show_scene
+    from instrument.devices.virtual_bench import VirtualBench
 
     vb = VirtualBench(seed=0, realtime=True).open()
     try:

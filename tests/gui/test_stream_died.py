@@ -19,7 +19,7 @@ def silence_camera(ctx, *, floor_s: float) -> None:
 
 def camera_back(ctx) -> None:
     """The camera delivers again; the silence floor is the default."""
-    from instrument.bench_host import STREAM_SILENCE_FLOOR_S
+    from instrument.bench.bench_host import STREAM_SILENCE_FLOOR_S
 
     ctx.bench.camera.faults.clear()
     ctx.host.stream_silence_floor_s = STREAM_SILENCE_FLOOR_S
@@ -124,7 +124,7 @@ def hold_camera(ctx) -> str:
 
 
 def _holding_camera():
-    from instrument.bench_jobs import holding
+    from instrument.bench.bench_jobs import holding
 
     return holding("camera")(hold_camera)
 

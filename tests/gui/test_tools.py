@@ -257,7 +257,7 @@ def test_live_psf_and_depth_are_carried_to_batch_unless_typed_there(window):
 
 
 def test_depth_offers_the_stacks_depths(window, wait, tmp_path):
-    from instrument.stacks import import_psf_stack
+    from instrument.runs.stacks import import_psf_stack
 
     stack = np.random.default_rng(0).random((3, 16, 20)).astype(np.float32)
     np.save(tmp_path / "stack.npy", stack)

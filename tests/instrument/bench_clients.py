@@ -1,6 +1,6 @@
 """A second client of a bench process in a process of its own (a notebook beside the
 window), driven from a test through queues: each call runs a function of this module
-there with that process's :class:`~instrument.bench_process.BenchClient` and returns
+there with that process's :class:`~instrument.bench.bench_process.BenchClient` and returns
 what it returned, or the text of what it raised. Nothing waits on the clock but the
 hang guard."""
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 import multiprocessing
 import queue
 
-from instrument.bench_process import BenchClient
+from instrument.bench.bench_process import BenchClient
 
 #: Longest wait, s, for the other process to answer (a hang guard, not a pace).
 HANG_S = 90.0

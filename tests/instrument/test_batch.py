@@ -1,4 +1,4 @@
-"""Batch reconstruction of a recorded run on dask (instrument.batch, recon-run): each
+"""Batch reconstruction of a recorded run on dask (instrument.processing.batch, recon-run): each
 frame equals recon.reconstruct of that frame exactly, an interrupted batch keeps its
 frames and the next call does only the rest, a scheduler address works, ΔF/F of the
 simulated neurons follows the truth, and bad input is one line."""
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 import recon
-from instrument.batch import check_workers, parse_frames, reconstruct_run
+from instrument.acquisition.video import record_video
 from instrument.cli import main
-from instrument.runstore import RunStore, RunStoreError
-from instrument.video import record_video
-from instrument.video_scenes import BeadFlowScene, NeuronFieldScene
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.video_scenes import BeadFlowScene, NeuronFieldScene
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.processing.batch import check_workers, parse_frames, reconstruct_run
+from instrument.runs.runstore import RunStore, RunStoreError
 from recon.io import load_image
 from recon.options import ReconOptions
 
@@ -205,7 +205,8 @@ def test_dff_of_recorded_neurons_follows_the_truth(cluster, tmp_path):
                                                           method="admm", iterations=30,
                                                           dark=offset).image), movie.shape[1:])
              for h in cells]
-    table = store.coords_table()  # mid-exposure times (instrument.video_scenes.frame_time_s)
+    # mid-exposure times (instrument.devices.video_scenes.frame_time_s)
+    table = store.coords_table()
     truth = scene.dff_traces(list(table["device_timestamp_s"] + 0.5 * table["exposure_s"]))
     traces = np.stack([movie[:, r - 1:r + 2, c - 1:c + 2].mean(axis=(1, 2)) for r, c in spots],
                       axis=1)

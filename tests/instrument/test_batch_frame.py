@@ -1,4 +1,4 @@
-"""One batch task body (instrument.batch_grid.reconstruct_run_frame): a stored frame
+"""One batch task body (instrument.processing.batch_grid.reconstruct_run_frame): a stored frame
 reconstructed as recon.reconstruct makes it, for the PSF batch and the PSF-grid batch."""
 
 from __future__ import annotations
@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import instrument.batch as batch
+import instrument.processing.batch as batch
 import recon
-from instrument.batch_grid import reconstruct_run_frame
+from instrument.processing.batch_grid import reconstruct_run_frame
 
 from .test_batch_grid import _video_run
 
@@ -24,7 +24,7 @@ def run(tmp_path_factory):
 
 def test_a_stored_frame_is_reconstructed_as_recon_makes_it(run):
     path, psf = run
-    from instrument.runstore import RunStore
+    from instrument.runs.runstore import RunStore
 
     raw = RunStore.open(path).frame(1).image
     want = recon.reconstruct(psf, raw, method="admm", iterations=4, tv=0.01).image

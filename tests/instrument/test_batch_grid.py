@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from calibration_routines import PsfGridPlan
-from instrument.bench_scenes import scene_depth_and_scale, video_scene_for_bench
-from instrument.bench_setup import load_bench
+from instrument.acquisition.runner import Runner
+from instrument.acquisition.video import record_video
 from instrument.cli import main
-from instrument.runner import Runner
-from instrument.runstore import RunStore
-from instrument.video import record_video
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.bench_scenes import scene_depth_and_scale, video_scene_for_bench
+from instrument.devices.bench_setup import load_bench
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore
 from recon.analysis import delta_f_over_f
 from recon.io import load_image
 
@@ -125,7 +125,7 @@ def test_capture_video_records_the_neurons_on_the_microscope_twin(tmp_path, caps
 
 def _video_run(path, frames, dark=10.0):
     """A run store holding ``frames`` (n, rows, cols) plus a dark level, as recorded."""
-    from instrument.recorder import VIDEO_COORDS
+    from instrument.acquisition.recorder import VIDEO_COORDS
 
     n = len(frames)
     store = RunStore.create(path, plan_name="video", plan_params={"frames": n}, points=[{}],

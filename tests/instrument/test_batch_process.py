@@ -1,4 +1,4 @@
-"""A batch reconstruction in a child process (instrument.batch_process), as the GUI runs
+"""A batch reconstruction in a child process (instrument.processing.batch_process), as the GUI runs
 it: the same frames as in the caller's process, progress and cancel across the process
 boundary, the child's errors back with their type and traceback, a killed child named
 as such, and the caller's process left without dask's references."""
@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 
 import recon
-from instrument.batch_process import (
+from instrument.processing.batch_process import (
     BATCH_NICE,
     BatchProcessError,
     _last_word,
     _portable,
     reconstruct_run_in_process,
 )
-from instrument.runstore import RunStore, RunStoreError
+from instrument.runs.runstore import RunStore, RunStoreError
 from recon.options import ReconOptions
 from tests.instrument.test_batch import video  # noqa: F401 (the fixture)
 
@@ -58,7 +58,7 @@ def test_the_child_stores_what_the_caller_would_and_reports_progress(video, run)
 def test_a_child_started_from_a_lowered_thread_is_lowered_from_the_process(video, run):  # noqa: F811
     """The GUI starts the batch from a job thread already at nice 10: the child runs
     ``BATCH_NICE`` above the process, not above that thread (it ran at 19, starved)."""
-    from instrument.live import lower_thread_priority
+    from instrument.acquisition.live import lower_thread_priority
 
     process_nice = os.getpriority(os.PRIO_PROCESS, os.getpid())
     out = {}

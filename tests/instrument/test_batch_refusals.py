@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 
 def test_refused_frames_are_listed_without_a_workers_traceback(tmp_path, capfd):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from drivers.errors import DeviceError
-from instrument.acquisition import autoexpose
-from instrument.bench import Bench, BenchRoleError, PromptRefused
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.exposure import autoexpose
+from instrument.devices.bench import Bench, BenchRoleError, PromptRefused
+from instrument.devices.virtual_bench import VirtualBench
 
 
 @pytest.fixture

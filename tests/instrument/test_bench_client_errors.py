@@ -9,10 +9,10 @@ import signal
 
 import pytest
 
-from instrument.bench_host import BenchHostError
-from instrument.bench_jobs import RECORD_OPTIONS
-from instrument.bench_process import BenchClient
-from instrument.bench_service import BenchGoneError, BenchServiceError
+from instrument.bench.bench_host import BenchHostError
+from instrument.bench.bench_jobs import RECORD_OPTIONS
+from instrument.bench.bench_process import BenchClient
+from instrument.bench.bench_service import BenchGoneError, BenchServiceError
 
 from .test_bench_job_handle import recording
 from .test_bench_process import opened_bench

@@ -14,9 +14,9 @@ import threading
 
 import pytest
 
-from instrument.bench_connection import connection_files, runtime_dir
-from instrument.bench_process import BenchClient
-from instrument.bench_service import BenchGoneError
+from instrument.bench.bench_connection import connection_files, runtime_dir
+from instrument.bench.bench_process import BenchClient
+from instrument.bench.bench_service import BenchGoneError
 
 from . import bench_clients as other
 from .bench_clients import OtherClient

@@ -1,5 +1,6 @@
-"""Property-based tests of the bench-file parser (:func:`instrument.bench_setup.parse_bench`,
-:func:`instrument.bench_setup.load_bench`, the writer :func:`instrument.config.to_toml`).
+"""Property-based tests of the bench-file parser
+(:func:`instrument.devices.bench_setup.parse_bench`,
+:func:`instrument.devices.bench_setup.load_bench`, the writer :func:`instrument.config.to_toml`).
 
 * whatever the input (any bytes, any text, the example files with any line mangled),
   the parser returns a bench or raises :class:`BenchConfigError`, never anything else;
@@ -25,7 +26,6 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from instrument.bench_setup import load_bench, parse_bench
 from instrument.config import (
     BenchConfig,
     BenchConfigError,
@@ -36,6 +36,7 @@ from instrument.config import (
 )
 from instrument.config.base import Ordered, Range
 from instrument.config.rules import MIN_LENGTH_MM
+from instrument.devices.bench_setup import load_bench, parse_bench
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 SIM_TEXT = (EXAMPLES / "bench-simulated.toml").read_text()

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from instrument.bench_host import BenchHostError
-from instrument.bench_job_handle import without_arrays
-from instrument.bench_process import BenchClient
-from instrument.bench_service import BenchServiceError
-from instrument.runstore import RunStore
+from instrument.bench.bench_host import BenchHostError
+from instrument.bench.bench_job_handle import without_arrays
+from instrument.bench.bench_process import BenchClient
+from instrument.bench.bench_service import BenchServiceError
+from instrument.runs.runstore import RunStore
 
 from .test_bench_process import OPEN, opened_bench
 from .test_bench_service import HANG_S, Events
@@ -168,7 +168,7 @@ def test_a_job_the_window_runs_is_stopped_by_a_notebook(window, tmp_path):
 
 
 def test_progress_in_the_log_leaves_arrays_out():
-    from instrument.runner import RunEvent
+    from instrument.acquisition.runner import RunEvent
 
     event = RunEvent("frame", "run.zarr", 0, 1, 2, 1, 2, 0.5, None,
                      last_frame=np.ones((2, 2)))

@@ -11,8 +11,8 @@ import re
 
 import pytest
 
-from instrument.bench_host import BenchHostError
-from instrument.runstore import RunStore
+from instrument.bench.bench_host import BenchHostError
+from instrument.runs.runstore import RunStore
 
 from . import bench_clients as other
 from .bench_clients import OtherClient

@@ -13,8 +13,8 @@ from contextlib import contextmanager
 
 import pytest
 
-from instrument.bench_process import BenchClient
-from instrument.runner import RunAborted, RunControl
+from instrument.acquisition.runner import RunAborted, RunControl
+from instrument.bench.bench_process import BenchClient
 
 OPEN = {"bench_path": None, "simulate": True, "seed": 0, "scene": "none"}
 
@@ -95,7 +95,7 @@ def test_no_device_object_comes_to_the_client(client):
 
 def test_a_device_error_comes_back_with_its_type(client):
     from drivers.errors import StageLimitError
-    from instrument.bench_service import BenchServiceError
+    from instrument.bench.bench_service import BenchServiceError
 
     with pytest.raises(StageLimitError):
         client.move("source_stage", {"x": 1e6})
@@ -180,7 +180,7 @@ def test_the_bench_process_closes_the_bench_when_its_parent_dies(tmp_path):
     script = textwrap.dedent(f"""
         import sys, time
         sys.path[:0] = {sys.path!r}
-        from instrument.bench_process import BenchClient
+        from instrument.bench.bench_process import BenchClient
         if __name__ == "__main__":
             c = BenchClient()
             c.run_job("open_bench", {OPEN!r})
@@ -248,8 +248,8 @@ def test_the_client_is_a_proxy_of_every_command_of_the_service(client):
     calls the service in the bench process (none written twice)."""
     import inspect
 
-    from instrument.bench_process import PROXIED
-    from instrument.bench_service import BenchService
+    from instrument.bench.bench_process import PROXIED
+    from instrument.bench.bench_service import BenchService
 
     public = {n for n, _ in inspect.getmembers(BenchService, inspect.isfunction)
               if not n.startswith("_")}

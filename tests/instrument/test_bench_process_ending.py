@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 from .test_bench_process import _zombie
 
@@ -39,7 +39,7 @@ def _window_script(tmp_path) -> str:
     script = textwrap.dedent(f"""
         import json, sys, time
         sys.path[:0] = {sys.path!r}
-        from instrument.bench_process import BenchClient
+        from instrument.bench.bench_process import BenchClient
         if __name__ == "__main__":
             c = BenchClient()
             c.run_job("open_bench", {OPEN!r})

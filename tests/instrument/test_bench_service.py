@@ -13,8 +13,8 @@ import time
 import numpy as np
 import pytest
 
-from instrument.bench_process import BenchClient
-from instrument.bench_service import BenchServiceError, DeviceInfo
+from instrument.bench.bench_process import BenchClient
+from instrument.bench.bench_service import BenchServiceError, DeviceInfo
 
 from .test_bench_process import OPEN, opened_bench
 
@@ -145,8 +145,8 @@ def _notebook(tmp_path) -> str:
     script = textwrap.dedent(f"""
         import json, sys
         sys.path[:0] = {sys.path!r}
-        from instrument.bench_process import BenchClient
-        from instrument.bench_service import BenchServiceError
+        from instrument.bench.bench_process import BenchClient
+        from instrument.bench.bench_service import BenchServiceError
         if __name__ == "__main__":
             address, key = json.loads(sys.stdin.readline())
             nb = BenchClient(address=address, authkey=bytes.fromhex(key))

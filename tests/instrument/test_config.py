@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from instrument.bench_setup import load_bench, parse_bench, simulated_twin, with_simulated_drivers
 from instrument.config import (
     SIMULATED_DRIVERS,
     BenchConfig,
@@ -18,6 +17,12 @@ from instrument.config import (
     Problem,
     default_bench,
     to_toml,
+)
+from instrument.devices.bench_setup import (
+    load_bench,
+    parse_bench,
+    simulated_twin,
+    with_simulated_drivers,
 )
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -457,7 +462,7 @@ def test_values_refused_by_a_driver_are_found_whatever_else_is_wrong():
 
 def test_a_missing_required_parameter_is_not_reported_again_by_the_driver(monkeypatch):
     from drivers.simulated import SimulatedStage
-    from instrument import registry
+    from instrument.devices import registry
 
     class NeedsAxes(SimulatedStage):
         def __init__(self, device_id, *, axes, **params):

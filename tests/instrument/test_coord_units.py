@@ -1,5 +1,5 @@
 """Stored coordinates carry their units and dimension names, from the device
-declarations (instrument/coords.py): a run on the simulated bench writes them, the API
+declarations (instrument/runs/coords.py): a run on the simulated bench writes them, the API
 and ``runs show`` read them back, and a unit changed in a declaration changes the
 stored one."""
 
@@ -10,14 +10,14 @@ import pytest
 from drivers.camera import Camera
 from drivers.settings import with_settings
 from drivers.stage import Stage
-from instrument.coords import FRAME_COORDS, CoordError, coord_specs
-from instrument.runstore import RunStore
+from instrument.runs.coords import FRAME_COORDS, CoordError, coord_specs
+from instrument.runs.runstore import RunStore
 
 
 def _sweep(tmp_path, name="sweep.zarr"):
     from calibration_routines.psf_sweep import PsfSweepPlan
-    from instrument.runner import Runner
-    from instrument.virtual_bench import VirtualBench
+    from instrument.acquisition.runner import Runner
+    from instrument.devices.virtual_bench import VirtualBench
 
     with VirtualBench(seed=3) as bench:
         plan = PsfSweepPlan.for_bench(bench, z_min_mm=40.0, z_max_mm=60.0, n_depths=2,
@@ -81,7 +81,7 @@ def test_every_device_kind_has_declared_coordinates():
         SimulatedSlm,
         SimulatedStage,
     )
-    from instrument.runner import coord_names
+    from instrument.acquisition.runner import coord_names
 
     devices = {"cam": SimulatedCamera("cam"), "st": SimulatedStage("st"),
                "leds": SimulatedLedArray("leds"), "slm": SimulatedSlm("slm"),

@@ -9,8 +9,8 @@ import tifffile
 from skimage import data
 from skimage.transform import resize
 
+from instrument.acquisition.demo import run_demo
 from instrument.cli import main
-from instrument.demo import run_demo
 from recon.io import load_image
 
 #: PSNR (gain-fitted, after a +-2 px registration) of the reconstruction against the

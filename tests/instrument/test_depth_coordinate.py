@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from instrument.runstore import RunStore, RunStoreError
+from instrument.runs.runstore import RunStore, RunStoreError
 
 xr = pytest.importorskip("xarray")
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from instrument.bench_setup import parse_bench
 from instrument.cli import main
 from instrument.config import BenchConfigError, default_bench, to_toml
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.bench_setup import parse_bench
+from instrument.devices.virtual_bench import VirtualBench
 
 DMD = '''
 [[devices]]

@@ -1,4 +1,4 @@
-"""instrument.live: the live reconstruction worker takes the newest frame, counts skips,
+"""instrument.acquisition.live: the live reconstruction worker takes the newest frame, counts skips,
 reports fps, latency and errors, and stops in time."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from drivers.camera import Frame, FrameRing
-from instrument.live import (
+from instrument.acquisition.live import (
     LatestFrameSlot,
     LiveReconstruction,
     LiveReconstructionError,

@@ -1,5 +1,5 @@
-"""The live reconstruction in a process of its own (instrument.live_process) and the
-shared-memory slot its frames and results go through (instrument.shared_slot): the
+"""The live reconstruction in a process of its own (instrument.acquisition.live_process) and the
+shared-memory slot its frames and results go through (instrument.acquisition.shared_slot): the
 same results as on a thread, the child's errors back with their type, a killed child
 reported while the caller goes on, its priority below the caller's, and a slot that
 never hands out a half-written image while another process writes it."""
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from drivers.camera import Frame
-from instrument.live import LiveReconstruction, LiveReconstructionError
-from instrument.live_process import LiveReconstructionProcess
-from instrument.shared_slot import META_FIELDS, SharedImageSlot
+from instrument.acquisition.live import LiveReconstruction, LiveReconstructionError
+from instrument.acquisition.live_process import LiveReconstructionProcess
+from instrument.acquisition.shared_slot import META_FIELDS, SharedImageSlot
 from recon.errors import ReconInputError
 from recon.live import LiveReconstructor
 from recon.operators import ConvolutionOperator

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from instrument.video_scenes import NeuronFieldScene, frame_time_s
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.video_scenes import NeuronFieldScene, frame_time_s
+from instrument.devices.virtual_bench import VirtualBench
 from recon.analysis import delta_f_over_f
 from recon.live import LiveReconstructor
 from recon.options import ReconOptions

@@ -17,9 +17,9 @@ from ome_zarr_models import open_ome_zarr
 from ome_zarr_models.v05.image import Image
 
 from instrument.cli import main
-from instrument.ome import SWEEP_T, describe_products, volume_axes
-from instrument.runstore import RunStore, RunStoreError
-from instrument.runstore_records import VIDEO_PLAN
+from instrument.runs.ome import SWEEP_T, describe_products, volume_axes
+from instrument.runs.runstore import RunStore, RunStoreError
+from instrument.runs.runstore_records import VIDEO_PLAN
 from instrument.writer.ome_axes import UNEVEN_Z, YX_SCALE
 
 PITCH_UM, BINNING, FPS = 3.45, 2, 25.0
@@ -424,7 +424,7 @@ def _export(run, out, *extra):
 
 
 def test_export_imagej_hyperstacks_and_ome_tiff(tmp_path):
-    from instrument.stacks import load_psf_stack
+    from instrument.runs.stacks import load_psf_stack
 
     store = _sweep(tmp_path / "s.zarr")
     depths = [10.0, 10.5, 11.0]
@@ -470,7 +470,7 @@ def test_a_run_written_with_the_names_before_keeps_them(tmp_path, capsys):
     """A run written before the one-letter names (``z_mm`` frames, a ``plane`` stack,
     a reconstruction on ``y_bin2``/``x_bin2``) is read by its stored names: described,
     verified and exported as it is, its scales and origins the new ones."""
-    from instrument.ome import describe_run, set_dimension_names
+    from instrument.runs.ome import describe_run, set_dimension_names
 
     store = _sweep(tmp_path / "s.zarr")
     store.write_product("psf_stack_raw", np.ones((3, 16, 20), np.float32),

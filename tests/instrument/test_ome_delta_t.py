@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import tifffile
 
-from instrument.runstore import RunStore
-from instrument.runstore_records import VIDEO_PLAN
-from instrument.stacks import export_tiff
+from instrument.runs.runstore import RunStore
+from instrument.runs.runstore_records import VIDEO_PLAN
+from instrument.runs.stacks import export_tiff
 
 bioio = pytest.importorskip("bioio")
 bioio_ome_tiff = pytest.importorskip("bioio_ome_tiff")

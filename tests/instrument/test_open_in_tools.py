@@ -14,7 +14,7 @@ import tifffile
 import zarr
 
 from instrument.cli import main
-from instrument.tiff_export import read_tiff_metadata
+from instrument.runs.tiff_export import read_tiff_metadata
 from instrument.writer.products import write_volume
 from tests.drivers.interop.clients import client
 

@@ -8,7 +8,7 @@ import contextlib
 import numpy as np
 import pytest
 
-from instrument.plan import (
+from instrument.acquisition.plan import (
     AutoExposure,
     Capture,
     Check,
@@ -22,9 +22,9 @@ from instrument.plan import (
     ShowSlm,
     register_plan,
 )
-from instrument.runner import RunControl, Runner
-from instrument.runstore import RunStore
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.runner import RunControl, Runner
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore
 
 
 @register_plan

@@ -9,7 +9,7 @@ import pytest
 import tifffile
 
 from instrument.cli import main
-from instrument.planes import select_planes
+from instrument.processing.planes import select_planes
 from recon.errors import ReconInputError
 from tests.recon.analysis.test_grid import D_MM, PITCH_MM, caustic_psf
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 import recon
-from instrument.batch import reconstruct_run
-from instrument.batch_grid import GridBatchModel
-from instrument.runstore import RunStore
+from instrument.processing.batch import reconstruct_run
+from instrument.processing.batch_grid import GridBatchModel
+from instrument.runs.runstore import RunStore
 from recon.io import DATA_ORIENTATION
 from recon.options import ReconOptions
 from recon.spatial.api import grid_model

@@ -7,8 +7,8 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from instrument.cli import main
-from instrument.reconstruct_grid import load_psf_grid
-from instrument.runstore import RunStore
+from instrument.processing.reconstruct_grid import load_psf_grid
+from instrument.runs.runstore import RunStore
 
 SENSOR = (40, 48)
 STEP_PX = 8  # node spacing on the sensor

@@ -15,8 +15,8 @@ import pytest
 
 from drivers.camera import Frame, FrameRing
 from drivers.simulated import SimulatedCamera
-from instrument.recorder import VIDEO_COORDS, Recorder, index_ranges, record_from_ring
-from instrument.runstore import RunStore, RunStoreError
+from instrument.acquisition.recorder import VIDEO_COORDS, Recorder, index_ranges, record_from_ring
+from instrument.runs.runstore import RunStore, RunStoreError
 from tests.refcycles import assert_freed_without_the_collector
 
 SHAPE = (24, 32)
@@ -106,7 +106,7 @@ def test_sigkill_keeps_completed_shards_all_verifying(tmp_path):
         import sys, time
         sys.path.insert(0, {os.getcwd()!r})
         from tests.instrument.test_recorder import _frame, _video_store
-        from instrument.recorder import Recorder
+        from instrument.acquisition.recorder import Recorder
         store = _video_store({str(path)!r}, 2000, shard=5)
         rec = Recorder(store)
         rec.start()

@@ -16,10 +16,10 @@ import pytest
 
 from drivers.base import Device
 from drivers.errors import DeviceValueError
-from instrument import registry
-from instrument.bench_setup import BenchOpenError, open_bench
 from instrument.config import DeviceConfig, default_bench
-from instrument.registry import (
+from instrument.devices import registry
+from instrument.devices.bench_setup import BenchOpenError, open_bench
+from instrument.devices.registry import (
     ENTRY_POINT_GROUP,
     DriverKindError,
     DriverLoadError,
@@ -484,7 +484,7 @@ def test_open_bench_opens_devices_on_one_clock_one_after_another(fakes):
 
 
 def test_independent_groups_share_connections():
-    from instrument.bench_setup import independent_groups
+    from instrument.devices.bench_setup import independent_groups
 
     devices = [_dev("a", port="/dev/ttyUSB0"), _dev("b"), _dev("c", serial_numbers={"x": "7"}),
                _dev("d", port="/dev/ttyUSB0"), _dev("e", serial_number="7"), _dev("f")]

@@ -17,9 +17,9 @@ import threading
 import numpy as np
 import pytest
 
-from instrument.bench_recovery import close_orphaned_run
-from instrument.run_integrity import LOCK_NAME, write_lock
-from instrument.runstore import RunStore
+from instrument.bench.bench_recovery import close_orphaned_run
+from instrument.runs.run_integrity import LOCK_NAME, write_lock
+from instrument.runs.runstore import RunStore
 
 
 @pytest.fixture

@@ -1,5 +1,5 @@
 """A new run's directory is claimed atomically, and a process removes only the runs it
-created itself (:func:`instrument.run_paths.discard_partial_run`, the creator's token);
+created itself (:func:`instrument.runs.run_paths.discard_partial_run`, the creator's token);
 outputs of a group take only free names (:func:`instrument.atomic.output_group`).
 
 The races between two real processes are in ``tests/faults/test_output_races.py``.
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 import zarr
 
-import instrument.run_creation as run_creation
+import instrument.runs.run_creation as run_creation
 from instrument.atomic import atomic_dir, output_group
-from instrument.run_paths import CREATOR_ATTR, creator_of, discard_partial_run
-from instrument.runstore import RunStore, RunStoreError, is_run_store
+from instrument.runs.run_paths import CREATOR_ATTR, creator_of, discard_partial_run
+from instrument.runs.runstore import RunStore, RunStoreError, is_run_store
 from instrument.writer.files import save_image
 from recon.errors import ReconInputError
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from instrument.recorder import VIDEO_COORDS
-from instrument.runstore import RunStore, RunStoreError
+from instrument.acquisition.recorder import VIDEO_COORDS
+from instrument.runs.runstore import RunStore, RunStoreError
 
 SHAPE = (12, 16)
 

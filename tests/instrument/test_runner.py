@@ -8,8 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from instrument.bench import Bench
-from instrument.plan import (
+from instrument.acquisition.plan import (
     Capture,
     Expose,
     Light,
@@ -20,9 +19,10 @@ from instrument.plan import (
     Prompt,
     register_plan,
 )
-from instrument.runner import RunControl, Runner
-from instrument.runstore import RunStore, RunStoreError
-from instrument.virtual_bench import VirtualBench
+from instrument.acquisition.runner import RunControl, Runner
+from instrument.devices.bench import Bench
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore, RunStoreError
 
 
 @register_plan
@@ -218,7 +218,7 @@ def test_prompts_go_to_the_operator_or_fail_the_run(tmp_path):
                if e.kind == "frame" else None).run(
             ZStepPlan(depths=(30.0,), prompt="remove_diffuser"), tmp_path / "v.zarr")
         assert during and not any(during)  # the frames were taken without the diffuser
-        # ... and the runner put it back at the end (instrument.plan.RESTORES)
+        # ... and the runner put it back at the end (instrument.acquisition.plan.RESTORES)
         assert vb.state["diffuser_installed"] is True
         assert RunStore.open(tmp_path / "v.zarr").attrs["bench_changes"] == []
         plain = Bench(vb.devices, config=vb.config)  # no operator callback

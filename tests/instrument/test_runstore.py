@@ -7,7 +7,7 @@ import threading
 import numpy as np
 import pytest
 
-from instrument.runstore import SCHEMA_VERSION, RunStore, RunStoreError
+from instrument.runs.runstore import SCHEMA_VERSION, RunStore, RunStoreError
 
 
 def _create(path, **kw):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zarr
 
-from instrument.runstore import RunStore, RunStoreError
+from instrument.runs.runstore import RunStore, RunStoreError
 
 
 def _run(path):
@@ -116,8 +116,8 @@ def test_stale_lock_is_reported_not_broken(tmp_path):
 
 
 def test_runner_refuses_a_locked_run_and_releases_its_own(tmp_path):
-    from instrument.runner import Runner
-    from instrument.virtual_bench import VirtualBench
+    from instrument.acquisition.runner import Runner
+    from instrument.devices.virtual_bench import VirtualBench
 
     store = _run(tmp_path / "r.zarr")
     store.lock()

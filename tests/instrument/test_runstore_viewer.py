@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 
 def _run(path, n=6):
@@ -49,7 +49,7 @@ def test_a_block_check_of_a_sharded_video_finds_the_altered_frame(tmp_path, monk
     progress of every done frame."""
     import zarr
 
-    import instrument.run_integrity as integrity
+    import instrument.runs.run_integrity as integrity
 
     monkeypatch.setattr(integrity, "VERIFY_BLOCK_BYTES", block_bytes)
     n = 10

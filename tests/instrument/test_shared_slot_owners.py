@@ -1,5 +1,5 @@
 """Shared slots name the process that made them, and the next slot made removes those a
-killed process left in /dev/shm (instrument.shared_slot.reclaim_orphaned_slots)."""
+killed process left in /dev/shm (instrument.acquisition.shared_slot.reclaim_orphaned_slots)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from instrument.shared_slot import SHM_DIR, SharedImageSlot, slot_owner
+from instrument.acquisition.shared_slot import SHM_DIR, SharedImageSlot, slot_owner
 
 pytestmark = pytest.mark.skipif(not (os.path.isdir(SHM_DIR) and os.path.isdir("/proc")),
                                 reason="POSIX shared memory listed in /dev/shm (Linux)")
@@ -30,7 +30,7 @@ def _maker(tmp_path, **popen) -> tuple[subprocess.Popen, str]:
         import sys
         sys.path[:0] = {sys.path!r}
         import numpy as np
-        from instrument.shared_slot import SharedImageSlot
+        from instrument.acquisition.shared_slot import SharedImageSlot
         slot = SharedImageSlot(64)
         slot.write(np.zeros((2, 3), np.uint16))
         print(slot.name, flush=True)

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from drivers.slm import linear_lut
-from instrument.slm_response import SlmPhaseResponse
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.slm_response import SlmPhaseResponse
+from instrument.devices.virtual_bench import VirtualBench
 
 
 def test_default_response_is_smooth_monotone_nonlinear_and_scales_with_wavelength():

@@ -10,8 +10,8 @@ import threading
 
 import pytest
 
-from instrument.bench_host import STREAM_SILENCE_FLOOR_S, STREAM_SILENCE_PERIODS, BenchHost
-from instrument.bench_process import BenchClient
+from instrument.bench.bench_host import STREAM_SILENCE_FLOOR_S, STREAM_SILENCE_PERIODS, BenchHost
+from instrument.bench.bench_process import BenchClient
 
 OPEN = {"bench_path": None, "simulate": True, "seed": 0, "scene": "none"}
 #: A hang guard, s: what the tests wait for comes within a second on an idle machine.
@@ -38,7 +38,7 @@ def hold_camera(ctx) -> str:
 
 
 def _declared(fn):
-    from instrument.bench_jobs import holding
+    from instrument.bench.bench_jobs import holding
 
     return holding("camera")(fn)
 

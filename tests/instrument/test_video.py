@@ -1,4 +1,4 @@
-"""Video recording on the bench (instrument.video) and ``diffuserlab capture video``:
+"""Video recording on the bench (instrument.acquisition.video) and ``diffuserlab capture video``:
 every frame the camera delivers is stored in order with no index gap, a recording
 stopped early keeps what it has (and no empty slots), a forced loss is exit 1 with
 the indices, and bad options are one line."""
@@ -10,11 +10,11 @@ import threading
 import numpy as np
 import pytest
 
+from instrument.acquisition.video import record_video, video_frame_count
 from instrument.cli import main
-from instrument.runstore import RunStore, RunStoreError
-from instrument.video import record_video, video_frame_count
-from instrument.video_scenes import BeadFlowScene
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.video_scenes import BeadFlowScene
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.runstore import RunStore, RunStoreError
 
 
 @pytest.fixture

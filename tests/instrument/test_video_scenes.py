@@ -7,8 +7,8 @@ import pytest
 
 from drivers.camera import FrameRing
 from instrument.config import default_bench
-from instrument.video_scenes import BeadFlowScene, NeuronFieldScene, frame_time_s
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.video_scenes import BeadFlowScene, NeuronFieldScene, frame_time_s
+from instrument.devices.virtual_bench import VirtualBench
 from recon.errors import ReconInputError
 
 BEADS = {"n_beads": 4, "channel_length_mm": 0.6, "channel_width_mm": 0.16,

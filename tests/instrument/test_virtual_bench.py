@@ -7,8 +7,8 @@ import pytest
 from scipy.ndimage import zoom
 from scipy.signal import fftconvolve
 
-from instrument.acquisition import ExposureError, autoexpose, average_frames
-from instrument.virtual_bench import PlanarScene, VirtualBench
+from instrument.acquisition.exposure import ExposureError, autoexpose, average_frames
+from instrument.devices.virtual_bench import PlanarScene, VirtualBench
 from recon.errors import ReconInputError
 
 
@@ -46,7 +46,7 @@ def test_psf_cache_keeps_the_positions_used_last(bench):
     """The ray-traced PSFs are cached per position, the least recently used dropped
     first, at most PSF_CACHE_SIZE of them (a long session's stage positions are ever
     new: the cache must not grow with them)."""
-    from instrument.virtual_bench import PSF_CACHE_SIZE
+    from instrument.devices.virtual_bench import PSF_CACHE_SIZE
 
     home = bench.psf((0.0, 0.0, 60.0))
     assert bench.psf((0.0, 0.0, 60.00001)) is home  # same position to 0.1 um: cached
@@ -155,7 +155,7 @@ def test_holography_branch_misaligned_mask_lowers_the_spot(relay_na, bounds):
 
 def test_scenes_reach_the_camera(bench):
     """Beads in 3D and a tilted target both light the sensor; nothing without a scene."""
-    from instrument.virtual_bench import BeadScene, TiltedTargetScene
+    from instrument.devices.virtual_bench import BeadScene, TiltedTargetScene
 
     assert not np.any(bench.irradiance(bench.camera))
     bench.set_scene(BeadScene(np.array([[0.0, 0.0, 40.0], [1.0, -0.5, 60.0]]),

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.camera import FrameRing
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.virtual_bench import VirtualBench
 
 
 def test_camera_streams_on_while_the_led_array_is_unplugged():

@@ -1,4 +1,4 @@
-"""3D FISTA sharded by plane slabs over dask workers (instrument.volume_shards).
+"""3D FISTA sharded by plane slabs over dask workers (instrument.processing.volume_shards).
 
 On a LocalCluster of two worker processes the sharded solve must equal the
 in-memory 3D FISTA (relative 1e-5), count the bytes each worker moves (only
@@ -20,7 +20,12 @@ import pytest
 
 import recon
 from instrument.cli import main
-from instrument.volume_shards import ShardedSlabs, ShardLostError, local_cluster, sharded_fista3d
+from instrument.processing.volume_shards import (
+    ShardedSlabs,
+    ShardLostError,
+    local_cluster,
+    sharded_fista3d,
+)
 from recon.auto.noise import NoiseModel
 from recon.volume import fista3d
 from recon.volume.slab import VolumeSlab

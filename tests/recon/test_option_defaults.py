@@ -28,7 +28,8 @@ from recon.options import LiveOptions, ReconOptions
 NOT_RECONSTRUCTION = ("recon.cgh", "recon.optics", "recon.analysis", "recon.simulate",
                       "recon.scenes", "recon.sample", "recon.priors")
 #: The live layers: their method and iterations per frame are LiveOptions'.
-LIVE_MODULES = ("recon.live", "recon.xp_live", "instrument.live", "instrument.live_process")
+LIVE_MODULES = ("recon.live", "recon.xp_live", "instrument.acquisition.live",
+                "instrument.acquisition.live_process")
 
 #: (function's qualified name, parameter): why its default is not the declared one.
 OWN_DEFAULTS = {
@@ -53,7 +54,8 @@ NAMED = ("iterations", "method", "device")
 
 def _modules():
     names = [m.name for m in pkgutil.walk_packages(recon.__path__, "recon.")]
-    names += ["instrument.live", "instrument.live_process", "instrument.demo"]
+    names += ["instrument.acquisition.live", "instrument.acquisition.live_process",
+              "instrument.acquisition.demo"]
     for name in sorted(names):
         if name.startswith(NOT_RECONSTRUCTION) or name.rsplit(".", 1)[-1].startswith("_"):
             continue
@@ -145,9 +147,9 @@ def test_the_scan_sees_the_layers_it_guards():
     for name in ("recon.solvers.gradient.fista", "recon.solvers.admm.admm",
                  "recon.volume.fista.fista3d", "recon.planar.reconstruct_image",
                  "recon.live.LiveReconstructor.admm",
-                 "instrument.live.LiveReconstruction.__init__",
-                 "instrument.live_process.LiveReconstructionProcess.__init__",
-                 "instrument.demo.run_demo"):
+                 "instrument.acquisition.live.LiveReconstruction.__init__",
+                 "instrument.acquisition.live_process.LiveReconstructionProcess.__init__",
+                 "instrument.acquisition.demo.run_demo"):
         assert name in seen, name
 
 
@@ -192,8 +194,8 @@ def test_the_automatic_weight_takes_its_tuning_as_one_object():
 #: reconstructor's ReconOptions; their other parameters are no declared option (the
 #: PSF, the reconstructor, worker settings), save the live solve's fixed TV weight.
 LIVE_TAKERS = {"recon.live.LiveReconstructor": ("options", {"tv"}),
-               "instrument.live.LiveReconstruction": ("live", set()),
-               "instrument.live_process.LiveReconstructionProcess": ("live", set())}
+               "instrument.acquisition.live.LiveReconstruction": ("live", set()),
+               "instrument.acquisition.live_process.LiveReconstructionProcess": ("live", set())}
 
 
 def test_the_live_layers_take_the_options_objects():
@@ -259,9 +261,9 @@ BINNING_GIVEN = (("recon.preprocess.pair", "check_psf_signal"),
                  ("recon.volume.memory_plan", "memory_plan"),
                  ("recon.spatial.api", "grid_model"),
                  ("recon.analysis.reports", "prepare_stack"),
-                 ("instrument.batch", "check_dark_level"),
-                 ("instrument.batch_grid", "prepare_grid_batch"),
-                 ("instrument.planes", "select_planes"))
+                 ("instrument.processing.batch", "check_dark_level"),
+                 ("instrument.processing.batch_grid", "prepare_grid_batch"),
+                 ("instrument.processing.planes", "select_planes"))
 
 
 def test_helpers_given_a_binning_restate_no_default():

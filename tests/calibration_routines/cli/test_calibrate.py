@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from instrument.cli import main
-from instrument.runstore import RunStore
-from instrument.stacks import load_psf_stack
-from instrument.virtual_bench import PlanarScene, VirtualBench
+from instrument.devices.virtual_bench import PlanarScene, VirtualBench
+from instrument.runs.runstore import RunStore
+from instrument.runs.stacks import load_psf_stack
 
 ROOT = Path(__file__).resolve().parents[3]
 BENCH = str(ROOT / "examples" / "bench-simulated.toml")

@@ -10,8 +10,8 @@ import pytest
 
 from instrument.cli import main
 from instrument.config import default_bench
-from instrument.run_identity import bench_differences, resume_differences
-from instrument.runstore import RunStore
+from instrument.runs.run_identity import bench_differences, resume_differences
+from instrument.runs.runstore import RunStore
 
 ROOT = Path(__file__).resolve().parents[3]
 BENCH = ROOT / "examples" / "bench-simulated.toml"

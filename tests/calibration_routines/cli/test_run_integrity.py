@@ -10,7 +10,7 @@ import pytest
 import zarr
 
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 ROOT = Path(__file__).resolve().parents[3]
 BENCH = str(ROOT / "examples" / "bench-simulated.toml")
@@ -45,7 +45,7 @@ def test_damaged_frame_is_named_and_redo_repairs_it(sweep, tmp_path, capsys, dam
     assert f"frame {index} (point 1)" in said and "--redo 1" in said
     import tifffile
 
-    from instrument.tiff_export import read_tiff_metadata
+    from instrument.runs.tiff_export import read_tiff_metadata
 
     with tifffile.TiffFile(tmp_path / "f.tif") as tif:
         assert index not in read_tiff_metadata(tif)["frame_indices"]

@@ -8,7 +8,7 @@ import pytest
 
 from instrument.cli import main
 from instrument.config import default_bench
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 
 def test_calibrate_psf_sweep_simulate_without_a_file(tmp_path, capsys):

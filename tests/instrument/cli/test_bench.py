@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from instrument import registry
 from instrument.cli import build_parser, main
 from instrument.config import default_bench, to_toml
+from instrument.devices import registry
 from tests.instrument.test_registry import EVENTS, OPENED, use_fakes
 
 EXAMPLES = Path(__file__).resolve().parents[3] / "examples"

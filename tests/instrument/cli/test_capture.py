@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from instrument.cli import main
-from instrument.video_scenes import BeadFlowScene
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.video_scenes import BeadFlowScene
+from instrument.devices.virtual_bench import VirtualBench
 from recon.io import load_image
 
 

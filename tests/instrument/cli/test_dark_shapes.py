@@ -2,7 +2,7 @@
 command with every PSF source (file, run, stack, grid) and every dark form: exit 2 and
 one line naming the problem and the fix, never "internal error (a bug)" (issue 64: a
 calibration run's PSF had the dark added before the shape check, in
-instrument.reconstruct_files.resolve_dark)."""
+instrument.processing.reconstruct_files.resolve_dark)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 import tifffile
 
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 
 SMALL = (32, 40)  # the dark frame's shape; the simulated camera's frames are 256x320
 

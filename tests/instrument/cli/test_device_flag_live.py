@@ -8,13 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import instrument.batch
 import instrument.cli.capture as capture_cli
+import instrument.processing.batch
 import recon
 import recon.backend
 import recon.live
 from instrument.cli import main
-from instrument.runstore import RunStore
+from instrument.runs.runstore import RunStore
 from recon.operators import ConvolutionOperator
 from tests.instrument.cli.test_capture import psf_path  # noqa: F401 (the fixture)
 from tests.recon.test_device import _stand_in, no_gpu
@@ -87,7 +87,7 @@ def test_recon_run_reconstructs_a_psf_grid_on_the_device(monkeypatch, tmp_path, 
 
     monkeypatch.setattr(grid_device, "solve_grid_on", spy)
     monkeypatch.setattr(recon.spatial.api, "solve_grid_on", spy)
-    monkeypatch.setattr(instrument.batch, "_client", in_process)
+    monkeypatch.setattr(instrument.processing.batch, "_client", in_process)
     argv = ["recon-run", str(tmp_path / "v.zarr"), "--psf-grid", str(tmp_path / "grid.zarr"),
             "--model", "local", "--iterations", "20"]
     assert main([*argv, "--device", "cuda"]) == 0
@@ -162,7 +162,7 @@ def test_recon_run_solves_on_the_device_in_one_worker(monkeypatch, tmp_path, cap
         solves.append(backend.label)
         return solve_on(backend, *args, **kwargs)
 
-    monkeypatch.setattr(instrument.batch, "_client", in_process)
+    monkeypatch.setattr(instrument.processing.batch, "_client", in_process)
     monkeypatch.setattr(device_mod, "solve_on", spy)
     options = {"method": "admm", "iterations": 8, "tv": 1e-3}
     assert main(["recon-run", str(tmp_path / "v.zarr"), "--psf", str(tmp_path / "psf.npy"),

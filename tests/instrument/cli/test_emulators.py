@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from instrument.cli import main
-from instrument.emulated_bench import BENCH_TEMPLATE, DEFAULT_DIR, EmulatedBench
-from instrument.runstore import RunStore
+from instrument.devices.emulated_bench import BENCH_TEMPLATE, DEFAULT_DIR, EmulatedBench
+from instrument.runs.runstore import RunStore
 
 EXAMPLE = Path(__file__).resolve().parents[3] / "examples" / "bench-emulated.toml"
 
@@ -147,7 +147,7 @@ def test_the_emulated_bench_opens_though_its_emulators_answer_late(tmp_path):
     (a bench open failed so, at load 5, on the Zaber's 1 s reply timeout). The bench file
     waits up to 5 s for a reply from each serial device: the bench opens with the first
     reply of every serial controller 2 s late, where the drivers' defaults time out."""
-    from instrument.bench_setup import BenchOpenError, load_bench, open_bench
+    from instrument.devices.bench_setup import BenchOpenError, load_bench, open_bench
 
     late = ("apt-z", "zaber", "illuminate")
     with EmulatedBench(tmp_path / "links", time_scale=50.0) as emulated:

@@ -86,7 +86,7 @@ def test_the_option_module_imports_only_the_standard_library():
 def test_the_calibration_package_loads_its_plans_on_demand():
     code = ("import sys, calibration_routines as c; first = sorted({m.split('.')[0] for m in "
             "sys.modules} & {'scipy', 'numpy', 'zarr'}); c.register_plans(); "
-            "from instrument.plan import PLAN_TYPES; print(first, sorted(PLAN_TYPES), "
+            "from instrument.acquisition.plan import PLAN_TYPES; print(first, sorted(PLAN_TYPES), "
             "c.DarkFlatPlan.name)")
     assert _run(code).strip() == ("[] ['angular-response', 'dark-flat', 'psf-blind', "
                                   "'psf-grid', 'psf-sweep', 'slm-lut'] dark-flat")

@@ -172,9 +172,9 @@ def test_import_psf_overwrite_replaces_a_store_without_the_zarr_suffix(files):
 def test_error_boundary_takes_project_errors_raised_anywhere(monkeypatch, capsys):
     """A bench-file error is one line per problem, a plan error one line, both exit 2
     (not a bug line), whichever command raises them."""
+    from instrument.acquisition.plan import PlanError
     from instrument.config import BenchConfigError
     from instrument.config.problems import Problem
-    from instrument.plan import PlanError
 
     problems = [Problem("geometry", "missing", "add it"), Problem("name", "empty", "name it")]
     for exc, lines in ((BenchConfigError(problems, "b.toml"), 2),

@@ -81,7 +81,7 @@ def test_import_psf_stack_from_python_checks_its_pitch(files, value):
     """The Python function takes the commands' check (issue 64 left it unchecked: a run
     recorded ``pixel_pitch_um`` inf), naming its keyword, before anything is written."""
     from diffuserlab.errors import InputError
-    from instrument.stacks import import_psf_stack
+    from instrument.runs.stacks import import_psf_stack
 
     with pytest.raises(InputError) as info:
         import_psf_stack(files / "stack.tif", files / "out" / "i.zarr", pitch_um=value)

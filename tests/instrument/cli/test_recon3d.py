@@ -178,7 +178,7 @@ def test_recon3d_npy_with_depths_to_zarr_with_binning_and_dark(problem, tmp_path
 
 
 def test_recon3d_reads_a_run_store(problem, tmp_path):
-    from instrument.stacks import import_psf_stack
+    from instrument.runs.stacks import import_psf_stack
 
     run = tmp_path / "RUN.zarr"
     import_psf_stack(problem / "stack.npy", run, depths_mm=DEPTHS)

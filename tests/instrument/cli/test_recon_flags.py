@@ -14,7 +14,7 @@ import tifffile
 from diffuserlab.errors import InputError
 from instrument.cli import build_parser, main
 from instrument.cli.recon_flags import dark_for_grid, grid_method
-from instrument.reconstruct_files import resolve_dark
+from instrument.processing.reconstruct_files import resolve_dark
 from recon.options import dark_arg, l1_given
 
 #: Each command's argv without --dark (the parser only: nothing runs).

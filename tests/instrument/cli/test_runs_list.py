@@ -10,12 +10,12 @@ import socket
 
 import pytest
 
-from instrument.bench_recovery import close_orphaned_run
+from instrument.acquisition.video import record_video
+from instrument.bench.bench_recovery import close_orphaned_run
 from instrument.cli import main
-from instrument.run_integrity import LOCK_NAME
-from instrument.runstore import RunStore
-from instrument.video import record_video
-from instrument.virtual_bench import VirtualBench
+from instrument.devices.virtual_bench import VirtualBench
+from instrument.runs.run_integrity import LOCK_NAME
+from instrument.runs.runstore import RunStore
 
 
 def _dead_pid() -> int:
