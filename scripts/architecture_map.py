@@ -86,6 +86,12 @@ def measure() -> tuple[Counter, Counter]:
     return lines, edges
 
 
+#: Code that runs for an import, not for the work: a module's body and the import
+#: protocol's methods (instrument/__init__.py's finder of the old import paths is asked
+#: about every module the path finder does not find, the optional imports included).
+IMPORT_CALLS = frozenset({"<module>", "find_spec", "create_module", "exec_module"})
+
+
 def walk(sample: Path) -> list[str]:
     """The packages one ``diffuserlab recon`` moves between, in order, each step named by
     the part it enters (a profile of every Python call made in our packages, imports
@@ -114,7 +120,7 @@ def walk(sample: Path) -> list[str]:
         if not seen:  # from the command's handler on (the parser's building left out)
             if path != handler or code.co_name != "run":
                 return
-        if code.co_name == "<module>":  # an import, not the work
+        if code.co_name in IMPORT_CALLS:  # an import, not the work
             return
         if path not in part_of_file:
             part_of_file[path] = file_part(path)
