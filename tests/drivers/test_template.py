@@ -71,7 +71,11 @@ def test_protocol_table_with_a_plain_serial_client(emulator):
         assert ask("TRAVEL? 2") == "0 50"
         assert ask("VEL 1 2.34567") == "OK"
         assert ask("VEL? 1") == "2.346"
-        assert ask("MOVE 1 1.5") == "OK"
+        # slow enough that the move outlasts any stall of a loaded machine: 40 mm at
+        # 0.001 mm/s is 400 s of emulated time even at time_scale 100 (a move of 1.5 mm at
+        # 2.346 mm/s ended in 6 ms, before "MOVING?" was asked at load 30)
+        assert ask("VEL 1 0.001") == "OK"
+        assert ask("MOVE 1 40") == "OK"
         assert ask("MOVING?") == "1"
         assert ask("STOP") == "OK"
         assert ask("MOVING?") == "0"

@@ -154,12 +154,14 @@ def test_fake_usb_overflows_as_libusb_on_a_short_buffer():
 
 
 def test_fake_hid_takes_whole_milliseconds_and_blocks_without_a_timeout():
-    emu = Dlpc350Emulator(reply_latency_s=0.02)
+    # the reply comes 3 s late: a 1 ms read right after the write cannot see it even on a
+    # loaded machine (with 20 ms, a stall between write and read at load 30 let it through)
+    emu = Dlpc350Emulator(reply_latency_s=3.0)
     fake = FakeHid(emu)
     dev = fake.device()
     dev.open_path(fake.enumerate()[0]["path"])
     dev.write(b"\0" + VERSION_READ)
-    assert dev.read(64, 1.0) == []  # 1.0 is 1 ms: the reply is 20 ms late
+    assert dev.read(64, 1.0) == []  # 1.0 is 1 ms: the reply is 3 s late
     assert len(_guarded(emu, lambda: dev.read(64))) == 64  # no timeout: waits for it
     emu.drop_replies(1)
     dev.write(b"\0" + VERSION_READ)
