@@ -34,6 +34,7 @@ from .planar import DEFAULT_TV, scaled_problem
 from .preprocess import box_bin, subtract_dark, validate_measurement, validate_psf
 from .preprocess.dark import DEFAULT_DARK_REGION, front_door_dark, resolve_dark
 from .preprocess.validation import as_array, check_bin_factor
+from .priors import Prior, prior_of
 from .solvers import SolveResult, wiener
 from .solvers.admm import AdmmPlan, AdmmState, run_admm
 from .solvers.penalty import AdmmPenalty, check_penalty_settings
@@ -105,7 +106,7 @@ class LiveReconstructor:
         Calibration PSF in sensor counts, same shape as the frames (grayscale only).
     options : recon.options.ReconOptions, optional
         The reconstruction's options (default: the declared ones); the live
-        reconstructor reads three of them:
+        reconstructor reads four of them:
 
         - ``bin_factor``: box binning of PSF and frames (4 turns 1200 x 1600 into
           300 x 400).
@@ -113,6 +114,9 @@ class LiveReconstructor:
           from the PSF's corner and subtracts it from the PSF and every frame; ``"none"``
           or None subtracts nothing (both are dark-subtracted already); a level in DN or
           a dark frame (rows, cols) is subtracted from both.
+        - ``prior``: ADMM's image prior, as :func:`recon.reconstruct`'s (default
+          isotropic TV, ``"tv-iso"``); ``"auto"``, which chooses per image by
+          hold-out cross-validation, is refused (a live stream keeps one prior).
         - ``device``: where the solves run (:func:`recon.backend.resolve_device`):
           ``cpu`` the NumPy path (numba); ``cuda`` a GPU through the array-API path
           (``recon.xp_live.DeviceLive``), with the PSF spectrum and the ADMM state kept
@@ -140,7 +144,8 @@ class LiveReconstructor:
         A PSF that is not 2D, not finite, without signal above the dark level, or
         invalid weights / binning / dark; an unusable ``device`` (names what is
         missing), or a problem that does not fit in the GPU's free memory (says how
-        much it needs; checked before anything is put on the device).
+        much it needs; checked before anything is put on the device); an options prior of
+        ``"auto"`` (a live stream keeps one prior; name one).
 
     Notes
     -----
@@ -192,6 +197,7 @@ class LiveReconstructor:
                                else positive(regularization, "regularization"))
         # scaled_problem normalises the PSF to unit sum; its measurement half is unused
         self.operator, _ = scaled_problem(p, p)
+        self.prior = _live_prior(o.prior)
         self.plan = AdmmPlan.of(self.operator)
         self._state: AdmmState | None = None
         self._state_scale = 1.0
@@ -200,7 +206,13 @@ class LiveReconstructor:
         if not self.backend.is_numpy:
             from .xp_live import DeviceLive
 
-            self._device = DeviceLive(self.backend, self.plan)
+            self._device = DeviceLive(self.backend, self.plan, self.prior)
+        elif self.prior.name == "tv-iso":  # the fused numba passes, as recon.admm's
+            self.plan = self.plan.isotropic_view()
+        elif self.prior.name != "tv":  # the generic kernel set, as recon.admm's
+            from .solvers.xp_admm import XpAdmmPlan
+
+            self.plan = XpAdmmPlan(self.plan, np.zeros(1, np.float32), prior=self.prior)
 
     @property
     def state(self):
@@ -255,6 +267,8 @@ class LiveReconstructor:
 
     def _result(self, res: SolveResult, method: str, iterations: int, warm: bool,
                 scale: float, t0: float) -> LiveResult:
+        if method == "admm" and self.prior.name != "tv":  # recorded as recon.admm does
+            res.params["prior"] = self.prior.record()
         if self._device is not None:
             image, estimate = self._device.images(res.x, scale, self.operator.crop)
             return _DeviceResult(image, estimate, res, method, iterations, warm, scale,
@@ -324,8 +338,7 @@ class LiveReconstructor:
         if warm:
             self._state.scale(self._state_scale / scale)
         elif self._device is None:
-            self._state = AdmmState.zeros(self.plan, self.penalty.initial(),
-                                          self.tv > 0)
+            self._state = self.plan.zeros(self.penalty.initial(), self.tv > 0)
         else:
             self._state = self._device.zeros(self.penalty.initial(), self.tv > 0)
         self._state_scale = scale
@@ -344,6 +357,22 @@ class LiveReconstructor:
     def reset(self) -> None:
         """Forget the ADMM state: the next :meth:`admm` call starts cold."""
         self._state = None
+
+
+def _live_prior(name) -> Prior:
+    """The fixed prior of a live stream: ``ReconOptions.prior`` but ``"auto"``.
+
+    Raises
+    ------
+    ReconInputError
+        ``"auto"`` (a choice per image by hold-out cross-validation, too slow for
+        every frame and not one prior across frames), or an unknown name.
+    """
+    if name == "auto":
+        raise ReconInputError("live reconstruction keeps one prior for the whole stream; "
+                              "prior 'auto' chooses one per image: name one (tv-iso, the "
+                              "default, tv, tgv, wavelet or dncnn)")
+    return prior_of(name)
 
 
 def _backend(device) -> Backend:

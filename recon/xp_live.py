@@ -76,6 +76,9 @@ class DeviceLive:
     plan : AdmmPlan
         The host plan of the live reconstructor (operator, spectra); copied to the
         device once, here.
+    prior : Prior or str, optional
+        ADMM's image prior (:mod:`recon.priors`; default anisotropic TV, the
+        generic kernel set's); the live reconstructor passes its options' prior.
 
     Raises
     ------
@@ -85,7 +88,7 @@ class DeviceLive:
         is allocated on the device then).
     """
 
-    def __init__(self, backend: Backend, plan):
+    def __init__(self, backend: Backend, plan, prior=None):
         op = plan.op
         rows, cols = op.sensor_shape
         check_memory(live_memory_bytes(op.padded_shape), free_device_bytes(backend),
@@ -94,7 +97,7 @@ class DeviceLive:
         self.backend = backend
         self.plan = plan
         like = to_device(np.zeros(1, np.float32), backend)
-        self.xplan = XpAdmmPlan(plan, like)
+        self.xplan = XpAdmmPlan(plan, like, prior=prior)
         self.xop = self.xplan.xop
         self.xp = self.xop.xp
         self._filter: tuple[float, object] | None = None

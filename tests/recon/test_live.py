@@ -21,6 +21,30 @@ def _raw_pair(shape=(64, 80), seed=1):
     return psf, raw
 
 
+@pytest.mark.parametrize("prior", ["tv", "wavelet"])
+def test_live_runs_the_prior_of_its_options(prior):
+    """The live stream runs the options' prior, not a TV of its own (the default,
+    tv-iso, is the test below): cold, it equals recon.reconstruct with that prior."""
+    psf, raw = _raw_pair()
+    options = ReconOptions.from_defaults(prior=prior)
+    live = LiveReconstructor(psf, options, tv=1e-3)
+    got = live.admm(raw, iterations=8, warm_start=False)
+    ref = recon.reconstruct(psf, raw, "admm", iterations=8, tv=1e-3, prior=prior,
+                            auto_stop=False)
+    np.testing.assert_array_equal(got.image, ref.image)
+    other = "tv-iso"
+    differs = recon.reconstruct(psf, raw, "admm", iterations=8, tv=1e-3, prior=other,
+                                auto_stop=False)
+    assert not np.array_equal(got.image, differs.image)
+    assert live.admm(raw, iterations=3).warm  # its state carries on frame to frame
+
+
+def test_live_refuses_the_automatic_prior():
+    psf, _ = _raw_pair()
+    with pytest.raises(ReconInputError, match="one prior for the whole stream"):
+        LiveReconstructor(psf, ReconOptions.from_defaults(prior="auto"))
+
+
 @pytest.mark.parametrize("bin_factor", [1, 2])
 def test_cold_admm_equals_reconstruct_exactly(bin_factor):
     psf, raw = _raw_pair()
