@@ -71,12 +71,19 @@ def test_stage_jog_go_to_and_a_target_beyond_the_limits(window, wait):
     assert _position(window, "z") == pytest.approx(30)
 
 
-def test_led_picker_lights_the_clicked_led(window, wait):
+def _light_centre_led(window, wait) -> int:
+    """Light the LED nearest the axis through the LED map's panel; its index."""
     box = window.devices.boxes["led_array"]
     positions_mm = window.session.devices["led_array"].led_positions_mm
     centre = int(np.argmin(np.hypot(*positions_mm.T)))
     job = box.light_led(centre)
     wait(lambda: job.done, 10, "the LED")
+    return centre
+
+
+def test_led_picker_lights_the_clicked_led(window, wait):
+    box = window.devices.boxes["led_array"]
+    centre = _light_centre_led(window, wait)
     assert list(window.session.service.lit("led_array")) == [centre]
     brushes = box.led_points.data["brush"]
     assert brushes[centre].color().name() == "#ffb000"
@@ -126,7 +133,12 @@ def _frame(window, wait, after: int):
 
 
 def test_live_view_shows_frames_that_change(window, wait):
-    """With the LED behind the pinhole lit, moving the stage moves the PSF on the frames."""
+    """With the LED behind the pinhole lit, moving the stage moves the PSF on the frames.
+    The test sets its own bench (it passed only after the tests above): the source
+    30 mm in front of the diffuser (at z = 0 the simulated camera refuses to render
+    and the stream stops) and the centre LED lit."""
+    window.session.service.move("source_stage", {"z": 30.0})
+    _light_centre_led(window, wait)
     window.live.toggle_stream()
     wait(lambda: window.session.streaming, 5, "the stream")
     i1, a = _frame(window, wait, -1)
