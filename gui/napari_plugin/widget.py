@@ -320,12 +320,37 @@ def _solve_shared(view: SimpleNamespace, psf, product: str, depth_mm: float,
         ``((block name, shape, dtype), layer keywords, layer type)``: the block is
         the caller's to copy, close and unlink (:func:`_take_shared`).
     """
-    from multiprocessing import resource_tracker, shared_memory
-
     data, kwargs, kind = reconstruct_layer(view, psf, product, depth_mm, **keywords)
     data = np.ascontiguousarray(data)
     kwargs = {**kwargs, "contrast_limits": contrast_limits(data), "multiscale": False}
-    block = shared_memory.SharedMemory(create=True, size=max(data.nbytes, 1))
+    return share_array(data), kwargs, kind
+
+
+def share_array(data: np.ndarray) -> tuple:
+    """``data`` copied into a new shared memory block for another process to take.
+
+    The block is named after this process
+    (:func:`instrument.acquisition.shared_slot.owned_block_name`), so that if the
+    taker never takes it (napari closed or killed mid-solve) it is removed once this
+    process has ended, at the next start of the widget's solver
+    (:func:`instrument.acquisition.shared_slot.reclaim_orphaned_slots`), never while
+    it runs.
+
+    Parameters
+    ----------
+    data : ndarray, C-contiguous, any shape and dtype
+
+    Returns
+    -------
+    tuple
+        ``(block name, shape, dtype string)``, for :func:`_take_shared`.
+    """
+    from multiprocessing import resource_tracker, shared_memory
+
+    from instrument.acquisition.shared_slot import owned_block_name
+
+    block = shared_memory.SharedMemory(name=owned_block_name(), create=True,
+                                       size=max(data.nbytes, 1))
     try:
         np.ndarray(data.shape, data.dtype, buffer=block.buf)[...] = data
     except BaseException:
@@ -334,7 +359,7 @@ def _solve_shared(view: SimpleNamespace, psf, product: str, depth_mm: float,
         raise
     block.close()  # the caller unlinks it: this process no longer tracks it
     resource_tracker.unregister(block._name, "shared_memory")  # noqa: SLF001
-    return (block.name, data.shape, data.dtype.str), kwargs, kind
+    return block.name, data.shape, data.dtype.str
 
 
 def _take_shared(handle: tuple) -> np.ndarray:
@@ -343,7 +368,11 @@ def _take_shared(handle: tuple) -> np.ndarray:
     from multiprocessing import shared_memory
 
     name, shape, dtype = handle
-    block = shared_memory.SharedMemory(name=name)
+    try:
+        block = shared_memory.SharedMemory(name=name)
+    except FileNotFoundError:  # its maker ended and another process reclaimed it
+        raise RuntimeError("the reconstruction's process ended before its result was "
+                           "read; press Reconstruct again") from None
     try:
         out = np.empty(shape, dtype)
         np.copyto(out, np.ndarray(shape, dtype, buffer=block.buf))
@@ -355,11 +384,15 @@ def _take_shared(handle: tuple) -> np.ndarray:
 
 def _solver_pool():
     """The solver's process pool (one process at :data:`SOLVER_NICE`), made at the first
-    call and kept."""
+    call and kept; before it is made, the result blocks that ended solvers left
+    untaken (napari killed mid-solve) are removed."""
     from concurrent.futures import ProcessPoolExecutor
 
     with _SOLVER_LOCK:
         if not _SOLVER:
+            from instrument.acquisition.shared_slot import reclaim_orphaned_slots
+
+            reclaim_orphaned_slots()  # result blocks of solvers that ended untaken
             ctx = multiprocessing.get_context("spawn")
             _SOLVER.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx,
                                                initializer=os.nice, initargs=(SOLVER_NICE,)))

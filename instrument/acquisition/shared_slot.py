@@ -37,8 +37,8 @@ from multiprocessing import resource_tracker, shared_memory
 
 import numpy as np
 
-__all__ = ["META_FIELDS", "SHM_DIR", "SharedImageSlot", "SlotImage", "reclaim_orphaned_slots",
-           "slot_owner"]
+__all__ = ["META_FIELDS", "SHM_DIR", "SharedImageSlot", "SlotImage", "owned_block_name",
+           "reclaim_orphaned_slots", "slot_owner"]
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +66,17 @@ def _process_start(pid: int) -> tuple[int, str] | None:
     return int(fields[19]), fields[0].decode()  # fields 22 and 3 of proc(5)
 
 
-def _new_name() -> str:
+def owned_block_name() -> str:
+    """A new shared memory name that says this process made it
+    (``dlab-<pid>-<start>-<token>``, the module docstring), for a block of its own
+    that :func:`reclaim_orphaned_slots` removes once this process has ended (a
+    :class:`SharedImageSlot`'s, or a result block handed to another process).
+
+    Returns
+    -------
+    str
+        Unique (a random 32-bit token); no leading slash.
+    """
     pid = os.getpid()
     start = _process_start(pid)
     return f"dlab-{pid}-{start[0] if start else 0}-{secrets.token_hex(4)}"
@@ -194,7 +204,7 @@ class SharedImageSlot:
         self._owner = name is None
         if self._owner:
             reclaim_orphaned_slots()
-            name = _new_name()
+            name = owned_block_name()
             self._shm = shared_memory.SharedMemory(name=name, create=True, size=size)
         else:
             self._shm = shared_memory.SharedMemory(name=name)

@@ -142,3 +142,51 @@ def test_the_widget_calls_reconstruct_with_its_options_object(tmp_path, monkeypa
     for (args, kwargs), method in zip(calls, ("admm", "admm"), strict=True):
         assert kwargs == {} and len(args) == 1 and isinstance(args[0], ReconOptions)
         assert args[0].method == method and float(args[0].dark) == 20.0
+
+
+def _share_and_exit(queue) -> None:
+    """In a child process: a result block made and left untaken, as when napari is
+    killed while its solver finishes; the child then ends."""
+    from gui.napari_plugin.widget import share_array
+
+    queue.put(share_array(np.arange(12, dtype=np.float32).reshape(3, 4)))
+
+
+def test_a_result_block_left_untaken_is_removed_when_its_maker_has_ended():
+    """A solver's result that napari never took (killed mid-solve) stays in /dev/shm
+    only while the solver that made it runs: the next start of the widget's solver
+    removes it. A block whose maker still runs is never removed."""
+    import multiprocessing
+    import os
+
+    from gui.napari_plugin import widget
+    from instrument.acquisition.shared_slot import SHM_DIR, reclaim_orphaned_slots
+
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_share_and_exit, args=(queue,))
+    child.start()
+    name, shape, dtype = queue.get(timeout=120)
+    child.join(timeout=120)
+    assert child.exitcode == 0
+    path = os.path.join(SHM_DIR, name)
+    assert os.path.exists(path)  # left behind by a maker that has ended
+    alive = widget.share_array(np.ones(3, np.float32))  # this process's: kept
+    try:
+        with widget._SOLVER_LOCK:
+            held, widget._SOLVER[:] = list(widget._SOLVER), []
+        try:
+            pool = widget._solver_pool()  # a new solver: reclaims first
+            pool.shutdown()
+        finally:
+            with widget._SOLVER_LOCK:
+                widget._SOLVER[:] = held
+        assert not os.path.exists(path)
+        assert os.path.exists(os.path.join(SHM_DIR, alive[0]))
+        np.testing.assert_array_equal(widget._take_shared(alive), np.ones(3, np.float32))
+    finally:
+        if os.path.exists(path):
+            os.unlink(path)
+        reclaim_orphaned_slots()
+    with pytest.raises(RuntimeError, match="press Reconstruct again"):
+        widget._take_shared((name, shape, dtype))  # reclaimed: said so, not a traceback
