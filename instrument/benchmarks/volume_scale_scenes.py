@@ -159,7 +159,9 @@ def axial_resolution_planes(store, depths_mm, samples: int = 3,
     Returns
     -------
     dict
-        ``planes`` (float list, per plane: planes per resolvable step), ``measured``
+        ``planes`` (float list, per plane: planes per resolvable step; inf for the
+        planes of a small sensor's stack that repeat one depth, where
+        :func:`stack_depths_mm` reaches its 0.4 size floor), ``measured``
         (the sampled planes' index, depth in mm and ``c`` in 1/mm), ``threshold``.
     """
     from recon.analysis.sampling import inverse_depth_step_per_mm
@@ -169,7 +171,8 @@ def axial_resolution_planes(store, depths_mm, samples: int = 3,
     c = np.array([inverse_depth_step_per_mm(np.asarray(store[k], np.float64), D_MM,
                                             float(z[k]), threshold) for k in idx])
     spacing = np.abs(np.gradient(1.0 / z)) if z.size > 1 else np.ones(1)
-    per_plane = np.interp(np.arange(z.size), idx, c) / spacing
+    with np.errstate(divide="ignore"):  # planes at one depth: inf (the clamped stack)
+        per_plane = np.interp(np.arange(z.size), idx, c) / spacing
     return {"planes": [float(v) for v in per_plane], "threshold": threshold,
             "measured": [{"plane": int(k), "depth_mm": float(z[k]), "step_per_mm": float(v)}
                          for k, v in zip(idx, c, strict=True)]}

@@ -120,6 +120,7 @@ def test_one_axial_resolution_spans_more_planes_on_a_finer_stack(tmp_path):
     assert spans[1] > 1.3 * spans[0]
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # a stack with repeated depths is said
 def test_single_and_sharded_runs_agree(tmp_path):
     one = run_volume_scale(sensor=64, planes=8, iterations=3, workers=0,
                            save_estimate=str(tmp_path / "x.npy"), announce=lambda s: None)
