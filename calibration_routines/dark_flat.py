@@ -63,6 +63,14 @@ __all__ = ["FLAT_EXPOSURE", "MAD_TO_SIGMA", "DarkFlatPlan", "hot_pixels"]
 #: field: well exposed, so its shot noise is low, but far from saturation).
 FLAT_EXPOSURE = AutoExposure(target=0.7, tolerance=0.1, required=False)
 
+#: The flat's mean signal above its darks must exceed this many times their temporal
+#: noise (the median per-pixel std of the flat's dark frames, at least the 8-bit
+#: quantisation floor 1/sqrt(12) DN): below it the flat received no light worth the
+#: name and its pixel-gain map would be noise (libaravis's fake camera, whose ramp
+#: pattern the LEDs do not change, gave a flat 0.002 DN above its darks, with a noise
+#: of 0.71 DN, and a PRNU of 28 000).
+FLAT_MIN_SNR = 5.0
+
 #: MAD of a normal distribution times this is its standard deviation.
 MAD_TO_SIGMA = 1.4826
 
@@ -216,7 +224,8 @@ class DarkFlatPlan(Plan):
         Raises
         ------
         PlanError
-            A series mixes exposures, or the flat received no light.
+            A series mixes exposures, or the flat received no light (its mean above
+            its darks not over :data:`FLAT_MIN_SNR` times their temporal noise).
         """
         p = self.params
         n = p["n_frames"]
@@ -232,13 +241,16 @@ class DarkFlatPlan(Plan):
             raise PlanError(f"the flat ({flat_exposure} s) and its darks ({fd_exposure} s) "
                             "have different exposures; rerun the flat point")
         signal = flat.mean(axis=0) - flat_dark.mean(axis=0)
-        noise_var = (flat.var(axis=0, ddof=1) + flat_dark.var(axis=0, ddof=1)) / n
+        dark_var = flat_dark.var(axis=0, ddof=1)
+        noise_var = (flat.var(axis=0, ddof=1) + dark_var) / n
         del flat, flat_dark
         level = float(signal.mean())
-        if not level > 0:
-            raise PlanError("the flat received no light (mean flat minus dark <= 0); check "
-                            "that the LEDs light, the camera is uncapped and the pinhole "
-                            "and diffuser are out")
+        noise = max(float(np.median(np.sqrt(dark_var))), 1.0 / math.sqrt(12.0))
+        if not level > FLAT_MIN_SNR * noise:
+            raise PlanError(f"the flat received no light: its mean is {level:.3g} DN above "
+                            f"its dark frames, under {FLAT_MIN_SNR:g} times their noise "
+                            f"({noise:.3g} DN); check that the LEDs light, the camera is "
+                            "uncapped and the pinhole and diffuser are out")
         flat_field = signal / level
         smooth = gaussian_filter(flat_field, p["smooth_sigma_px"], mode="nearest")
         pixel_gain = flat_field / np.where(smooth > 0, smooth, np.inf)

@@ -222,3 +222,41 @@ def test_an_abort_the_operator_cannot_put_back_lists_uncap(tmp_path):
     assert answered == ["cap_camera", "uncap_camera"]
     assert result.pending_actions == ["Uncap the camera"]
     assert RunStore.open(tmp_path / "df.zarr").attrs["bench_changes"] == ["cap_camera"]
+
+
+class _Series:
+    """The frames of a dark/flat run by tag, as a run store gives them (one exposure)."""
+
+    def __init__(self, series: dict[str, np.ndarray]) -> None:
+        self.series = series
+
+    def point_frames(self, point: int, tag: str):
+        frames = self.series[tag]
+        return frames, [{"exposure_s": 0.01, "gain": 0.0, "saturated_pixels": 0.0}] * len(frames)
+
+
+def _ramp(frame_id: int, side: int = 512) -> np.ndarray:
+    """libaravis's fake camera: a diagonal ramp that moves one step a frame (mod 255)."""
+    y, x = np.mgrid[:side, :side]
+    return ((x + y + frame_id) % 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("case", ["fake camera", "dim light"])
+def test_a_flat_without_light_above_its_noise_is_refused(case):
+    """A flat must rise above its darks by more than their noise. The fake camera's
+    flat lies 0.002 DN above its darks (the ramp's mean drifts with the frame number):
+    the former check (mean above 0) took it, and its PRNU map was noise (28 000); which
+    way the drift went depended on which frames a loaded machine delivered, so the
+    emulated operator day passed or failed by the clock. A real flat 1 DN above darks
+    with 2 DN of read noise is refused too."""
+    if case == "fake camera":
+        series = {tag: np.stack([_ramp(i) for i in ids]) for tag, ids in
+                  (("dark", (0, 1)), ("flat", (4, 5)), ("flat_dark", (2, 3)))}
+        assert series["flat"].mean() > series["flat_dark"].mean()  # the old check passed
+    else:
+        rng = np.random.default_rng(0)
+        series = {tag: 64 + offset + rng.normal(0, 2.0, (4, 64, 64)) for tag, offset in
+                  (("dark", 0.0), ("flat", 1.0), ("flat_dark", 0.0))}
+    plan = DarkFlatPlan(exposure_s=0.01, n_frames=len(series["dark"]))
+    with pytest.raises(PlanError, match=r"no light: its mean is .* under 5 times their noise"):
+        plan.reduce(_Series(series))
