@@ -16,6 +16,7 @@ completed shard (see :mod:`instrument.acquisition.recorder`).
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import threading
@@ -38,6 +39,7 @@ from .video_defaults import DEFAULT_COMPRESSOR, DEFAULT_SHARD_FRAMES, MAX_FRAMES
 __all__ = ["DEFAULT_COMPRESSOR", "DEFAULT_SHARD_FRAMES", "MAX_FRAMES", "VIDEO_PLAN",
            "check_disk_space", "create_video_run", "record_video", "video_frame_count"]
 
+log = logging.getLogger(__name__)
 
 
 def video_frame_count(*, frames: int | None, seconds: float | None, rate_hz: float) -> int:
@@ -162,6 +164,25 @@ def _progress(t0: float, rec: Recorder, ring: FrameRing, live) -> dict[str, Any]
     return out
 
 
+def _stop_live(live) -> str | None:
+    """Stop the live reconstruction beside a recording; what went wrong, or None.
+
+    A live view that does not stop in time (its thread ends with its frame: a daemon)
+    must not keep the recording from closing its run, so the error is returned for the
+    summary and the log, not raised.
+    """
+    if live is None:
+        return None
+    from .live import LiveReconstructionError
+
+    try:
+        live.stop()
+    except LiveReconstructionError as exc:
+        log.warning("recording closed; the live reconstruction did not stop: %s", exc)
+        return str(exc)
+    return None
+
+
 def record_video(bench, out: str | Path, *, frames: int | None = None,
                  seconds: float | None = None, fps: float | None = None,
                  exposure_s: float | None = None, shard_frames: int = DEFAULT_SHARD_FRAMES,
@@ -214,7 +235,9 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     -------
     dict
         The recording summary (:meth:`Recorder.close` plus ``path``, ``status``,
-        ``frames_requested``, ``fps``, ``write_mb_s`` and ``live``).
+        ``frames_requested``, ``fps``, ``write_mb_s`` and ``live``; ``live_error``
+        when the live reconstruction did not stop in time: the run is closed all the
+        same).
 
     Raises
     ------
@@ -278,10 +301,11 @@ def record_video(bench, out: str | Path, *, frames: int | None = None,
     finally:
         if cam.is_streaming:
             cam.stop_stream()
-        if live is not None:
-            live.stop(timeout_s=5.0)
+        live_error = _stop_live(live)
     final = _progress(t0, rec, ring, live)
-    summary = rec.close(ring=ring, status=status, trim=True)
+    summary = rec.close(ring=ring, status=status, trim=True)  # whatever the live view did
+    if live_error is not None:
+        summary["live_error"] = live_error
     if error is not None:
         store.update_attrs(error=f"recording stopped by {type(error).__name__}: {error}")
         raise error

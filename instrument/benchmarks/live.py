@@ -213,7 +213,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
             time.sleep(seconds)
             cam.stop_stream()
             elapsed = time.monotonic() - t0
-            live.stop(timeout_s=5.0)
+            live.stop()  # waits for its frame (a hang guard)
             counters = ring.counters()
             result["runs"][mode] = {"stats": live.stats(), "latency": live.latency_summary(),
                                     "ring": counters,

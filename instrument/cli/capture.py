@@ -295,7 +295,7 @@ def run_live(args: argparse.Namespace) -> int:
             print("stopped (Ctrl-C)", flush=True)
         finally:
             cam.stop_stream()
-            live.stop(timeout_s=5.0)
+            live.stop()  # waits for its frame (a hang guard)
         latest = live.latest()
         if args.preview_png and latest is not None:
             save_image(args.preview_png, scene_view(latest.image))

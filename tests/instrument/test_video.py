@@ -50,6 +50,40 @@ def test_record_video_stores_every_frame_in_order(bench, tmp_path):
     assert np.abs(c - a).mean() > 1.5 * np.abs(b - a).mean()
 
 
+class _LiveThatWillNotStop:
+    """A live reconstruction whose frame outlasts the stop's wait (a loaded machine)."""
+
+    def __init__(self) -> None:
+        self.offered = 0
+
+    def start(self) -> None:
+        pass
+
+    def offer(self, frame) -> None:
+        self.offered += 1
+
+    def stats(self) -> dict:
+        return {"offered": self.offered}
+
+    def stop(self, timeout_s: float = 60.0) -> None:
+        from instrument.acquisition.live import LiveReconstructionError
+
+        raise LiveReconstructionError("live reconstruction thread(s) live-recon still "
+                                      f"running after {timeout_s:g} s")
+
+
+def test_a_live_view_that_does_not_stop_still_lets_the_recording_close(bench, tmp_path):
+    """A live view stopped beside a recording waits for its frame; when it outlasts the
+    wait, the recording is closed all the same (it was left open, its summary unwritten,
+    and the error rose as a bug) and the summary says why the live view lingered."""
+    live = _LiveThatWillNotStop()
+    summary = record_video(bench, tmp_path / "v.zarr", frames=6, fps=20.0, live=live)
+    assert summary["status"] == "complete" and summary["recorded"] == 6
+    assert "still running" in summary["live_error"] and live.offered == 6
+    store = RunStore.open(tmp_path / "v.zarr")
+    assert store.done().all() and store.attrs["summary"]["recording"]["recorded"] == 6
+
+
 def test_stopped_recording_keeps_its_frames_and_no_empty_slot(bench, tmp_path):
     stop = threading.Event()
     seen = []
