@@ -225,7 +225,7 @@ class DarkFlatPlan(Plan):
         ------
         PlanError
             A series mixes exposures, or the flat received no light (its mean above
-            its darks not over :data:`FLAT_MIN_SNR` times their temporal noise).
+            its darks not over ``FLAT_MIN_SNR`` times their temporal noise).
         """
         p = self.params
         n = p["n_frames"]
