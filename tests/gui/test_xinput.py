@@ -1,4 +1,5 @@
-"""soak.xinput: the xdotool commands an operator's clicks become."""
+"""soak.xinput and soak.driver: the xdotool commands an operator's clicks become, and the
+waits of the operator's day."""
 
 from __future__ import annotations
 
@@ -31,3 +32,18 @@ def test_a_click_where_the_pointer_is_does_not_wait_for_it_to_move(monkeypatch):
                     ("mousemove", "402", "323"),
                     ("mousemove", "--sync", "10", "20"),
                     ("mousemove", "--sync", "402", "323", "click", "1")]
+
+
+def test_a_step_waits_as_a_hang_guard_not_a_deadline():
+    """The operator day's waits are an idle machine's needs stretched tenfold (at most
+    10 min): at load 16-22 a snapshot outlasted its 30 s and failed the emulated day.
+    A wait ends when its condition holds, so only a hang costs the longer wait."""
+    import time
+
+    from soak.driver import HANG_S, WindowDriver
+
+    start = time.monotonic()
+    wait = WindowDriver.until(lambda: False, 30, "the snapshot file")
+    assert wait.timeout_s == 300 and wait.deadline >= start + 300
+    assert WindowDriver.until(lambda: False, 120, "x").timeout_s == HANG_S
+    assert WindowDriver.until(lambda: False, 0.5, "x").timeout_s == 5
