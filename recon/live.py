@@ -36,7 +36,7 @@ from .preprocess.dark import DEFAULT_DARK_REGION, front_door_dark, resolve_dark
 from .preprocess.validation import as_array, check_bin_factor
 from .priors import Prior, prior_of
 from .solvers import SolveResult, wiener
-from .solvers.admm import AdmmPlan, AdmmState, run_admm
+from .solvers.admm import AdmmPlan, AdmmState, plan_for_prior, record_prior, run_admm
 from .solvers.penalty import AdmmPenalty, check_penalty_settings
 from .solvers.wiener import auto_regularization
 from .validate import as_int, nonneg_weight, positive
@@ -207,12 +207,8 @@ class LiveReconstructor:
             from .xp_live import DeviceLive
 
             self._device = DeviceLive(self.backend, self.plan, self.prior)
-        elif self.prior.name == "tv-iso":  # the fused numba passes, as recon.admm's
-            self.plan = self.plan.isotropic_view()
-        elif self.prior.name != "tv":  # the generic kernel set, as recon.admm's
-            from .solvers.xp_admm import XpAdmmPlan
-
-            self.plan = XpAdmmPlan(self.plan, np.zeros(1, np.float32), prior=self.prior)
+        else:  # as recon.admm's: TV, the fused isotropic passes or the generic set
+            self.plan = plan_for_prior(self.plan, np.zeros(1, np.float32), self.prior)
 
     @property
     def state(self):
@@ -267,8 +263,8 @@ class LiveReconstructor:
 
     def _result(self, res: SolveResult, method: str, iterations: int, warm: bool,
                 scale: float, t0: float) -> LiveResult:
-        if method == "admm" and self.prior.name != "tv":  # recorded as recon.admm does
-            res.params["prior"] = self.prior.record()
+        if method == "admm":  # recorded as recon.admm does
+            record_prior(res, self.prior)
         if self._device is not None:
             image, estimate = self._device.images(res.x, scale, self.operator.crop)
             return _DeviceResult(image, estimate, res, method, iterations, warm, scale,

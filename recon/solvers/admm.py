@@ -44,8 +44,8 @@ from .penalty import (
 # the balancing steps live in .penalty; named here too for the 3D ADMM's imports
 __all__ = ["MU_RANGE", "AdmmPenalty", "AdmmPlan", "AdmmState", "NumbaKernels2D", "admm",
            "balance_mode", "balanced_penalty", "check_balancing", "check_penalties",
-           "check_penalty_settings", "difference_power", "objective_of", "rescale_duals",
-           "run_admm", "tie_nonneg_penalty"]
+           "check_penalty_settings", "difference_power", "objective_of", "plan_for_prior",
+           "record_prior", "rescale_duals", "run_admm", "tie_nonneg_penalty"]
 
 
 def difference_power(shape: tuple[int, int]) -> np.ndarray:
@@ -494,14 +494,43 @@ def admm(op: ConvolutionOperator, b: np.ndarray, *, iterations: int = DEFAULT_IT
     l1 = nonneg_weight(l1, "l1")
     penalty = check_penalty_settings(penalty)
     prior = prior_of(prior)
-    if prior.name not in ("tv", "tv-iso") or not isinstance(b, np.ndarray):  # generic set
-        from .xp_admm import XpAdmmPlan
-
-        plan = XpAdmmPlan(plan, b, prior=prior)
-    elif prior.name == "tv-iso":  # the fused numba passes, isotropic
-        plan = plan.isotropic_view()
+    plan = plan_for_prior(plan, b, prior)
     res = run_admm(plan, b, plan.zeros(penalty.initial(), tv > 0), iterations=iterations,
                    tv=tv, l1=l1, penalty=penalty, stop=stop)
+    return record_prior(res, prior)
+
+
+def plan_for_prior(plan: AdmmPlan, like, prior):
+    """The plan that runs ``prior``'s u split on the arrays of ``like``.
+
+    Parameters
+    ----------
+    plan : AdmmPlan
+        The host plan of the operator (spectra, the anisotropic-TV kernels).
+    like : array
+        An array of the backend the solve runs on (the measurement, or any array of
+        that library and device).
+    prior : Prior
+        :func:`recon.priors.prior_of`'s.
+
+    Returns
+    -------
+    AdmmPlan or XpAdmmPlan
+        ``plan`` itself for TV on NumPy; its :meth:`AdmmPlan.isotropic_view` (the
+        fused numba passes) for isotropic TV on NumPy; otherwise the generic kernel
+        set (``recon.solvers.xp_admm.XpAdmmPlan``) with the prior, on ``like``'s
+        backend. One choice for :func:`admm` and the live reconstructor.
+    """
+    if prior.name not in ("tv", "tv-iso") or not isinstance(like, np.ndarray):
+        from .xp_admm import XpAdmmPlan
+
+        return XpAdmmPlan(plan, like, prior=prior)
+    return plan.isotropic_view() if prior.name == "tv-iso" else plan
+
+
+def record_prior(res: SolveResult, prior) -> SolveResult:
+    """``res`` with ``params["prior"]`` set to ``prior.record()`` for a prior other
+    than anisotropic TV (whose record is its absence, as before priors existed)."""
     if prior.name != "tv":
         res.params["prior"] = prior.record()
     return res
