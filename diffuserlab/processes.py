@@ -6,13 +6,14 @@ processes, ``instrument.processing.batch_process``, :mod:`instrument.acquisition
 
 from __future__ import annotations
 
+import os
 import pickle
 import signal
 import traceback
 
 from .errors import DiffuserLabError, InputError
 
-__all__ = ["ChildProcessFailure", "how_it_ended", "portable_error"]
+__all__ = ["ChildProcessFailure", "how_it_ended", "portable_error", "yield_to_parent"]
 
 
 class ChildProcessFailure(DiffuserLabError, RuntimeError):
@@ -85,3 +86,45 @@ def how_it_ended(exit_status: int | None) -> str:
         except ValueError:
             pass
     return f"it exited with status {exit_status}"
+
+
+def yield_to_parent(nice: int) -> dict:
+    """Put the calling (child) process below its parent in the scheduler, so on a busy
+    machine a window's GUI thread gets a core before the child's work.
+
+    Two steps. The process leaves its parent's session (``setsid``): with the kernel's
+    automatic process groups (``/proc/sys/kernel/sched_autogroup_enabled``, on by
+    default) each session is one scheduling group, and a busy child in the window's
+    group used up that group's share, so the GUI thread, waking for a timer or an input,
+    queued behind every other busy group (``python -m soak.napari_widget_benchmark``: a
+    viewer blocked 231-459 ms at load 8-13 while its widget's solver ran; see
+    docs/open-data.md). In a group of its own the child gets a
+    program's share, as before, and the window's group, mostly asleep, is served first
+    when it wakes. Then ``nice`` is added to the process's own nice value (which orders
+    it below the window where both share a group: no autogroup, or one control group
+    for the user's programs). The group's own nice is left at 0: raising it starves the
+    child beside other busy programs (the napari benchmark's four solves, about 2 min
+    otherwise, had not ended after 6 min with the group at nice 10, beside three busy
+    loops and two test suites).
+    A step that the platform refuses (``setsid`` of a session leader; no nice) is skipped.
+
+    Parameters
+    ----------
+    nice : int
+        How far below the parent, 0-19 (``nice(1)``'s scale).
+
+    Returns
+    -------
+    dict
+        ``{"session": bool, "nice": int}``: whether the process now leads a session of
+        its own, and its nice value.
+    """
+    try:
+        os.setsid()
+    except OSError:  # already a session leader, or not permitted
+        pass
+    try:  # from the value inherited from the parent
+        os.nice(int(nice))
+    except OSError:  # a platform without nice
+        pass
+    return {"session": os.getsid(0) == os.getpid(), "nice": os.nice(0)}

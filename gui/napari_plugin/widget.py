@@ -27,7 +27,6 @@ times the binning; a volume's first axis is that of a stored volume
 from __future__ import annotations
 
 import multiprocessing
-import os
 import threading
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,6 +45,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from diffuserlab.processes import yield_to_parent
 from instrument.options import COMMAND_FIELDS
 from recon.options import ReconOptions
 
@@ -281,8 +281,9 @@ def layer_view(layer, step: Sequence[int] | None) -> SimpleNamespace:
         name=str(layer.name), metadata={"run": meta.get("run")} if meta.get("run") else {})
 
 
-#: The solving process's scheduling priority (``nice``): below the viewer's, so on a
-#: busy machine napari's GUI thread gets a core first (as the window's batch process).
+#: The solving process's scheduling priority (``nice``), in a scheduling group of its own
+#: (:func:`diffuserlab.processes.yield_to_parent`): below the viewer's, so on a busy
+#: machine napari's GUI thread gets a core first.
 SOLVER_NICE = 10
 #: The process the widget's solves run in (started at the first solve, kept for the
 #: next: its imports and compilations are done once), and the lock that makes it.
@@ -395,7 +396,8 @@ def _solver_pool():
             reclaim_orphaned_slots()  # result blocks of solvers that ended untaken
             ctx = multiprocessing.get_context("spawn")
             _SOLVER.append(ProcessPoolExecutor(max_workers=1, mp_context=ctx,
-                                               initializer=os.nice, initargs=(SOLVER_NICE,)))
+                                               initializer=yield_to_parent,
+                                               initargs=(SOLVER_NICE,)))
         return _SOLVER[0]
 
 

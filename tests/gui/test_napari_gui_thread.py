@@ -190,3 +190,50 @@ def test_a_result_block_left_untaken_is_removed_when_its_maker_has_ended():
         reclaim_orphaned_slots()
     with pytest.raises(RuntimeError, match="press Reconstruct again"):
         widget._take_shared((name, shape, dtype))  # reclaimed: said so, not a traceback
+
+
+def _place() -> tuple[int, int, int]:
+    """In the solver's process: its session, its pid and its nice value."""
+    import os
+
+    return os.getsid(0), os.getpid(), os.nice(0)
+
+
+def test_the_solver_runs_in_a_scheduling_group_of_its_own_below_the_viewer():
+    """The widget's solver leads a session of its own (under the kernel's autogroup, a
+    scheduling group apart from napari's, so its work does not use up the viewer's
+    group's share) at SOLVER_NICE below this process. On the old code it shared
+    napari's session."""
+    import os
+
+    from gui.napari_plugin import widget
+
+    with widget._SOLVER_LOCK:
+        held, widget._SOLVER[:] = list(widget._SOLVER), []
+    try:
+        pool = widget._solver_pool()
+        try:
+            session, pid, nice = pool.submit(_place).result(timeout=600)
+        finally:
+            pool.shutdown()
+    finally:
+        with widget._SOLVER_LOCK:
+            widget._SOLVER[:] = held
+    assert session == pid != os.getsid(0)
+    assert nice == min(19, os.nice(0) + widget.SOLVER_NICE)
+
+
+def test_yield_to_parent_in_a_child_that_already_leads_a_session():
+    """A child started in a session of its own (setsid refused: it leads one already)
+    still takes the nice value and says it leads its session."""
+    import subprocess
+    import sys
+
+    code = ("from diffuserlab.processes import yield_to_parent as y; import json;"
+            "print(json.dumps(y(7)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=300, start_new_session=True, check=True)
+    import json
+    import os
+
+    assert json.loads(out.stdout) == {"session": True, "nice": min(19, os.nice(0) + 7)}
