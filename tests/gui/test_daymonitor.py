@@ -39,6 +39,10 @@ def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     monitor = DayMonitor(sample_s=0.2)
     monitor.start()
     monitor.set_phase("busy")
+    # the timer's lateness is measured between firings: the slot must come after its
+    # first (on a loaded machine the slot's timer fired first, and the hold had no
+    # firing before it to be late against)
+    wait(lambda: len(monitor.lateness.get("busy", ())) >= 1, 30, "a firing in the phase")
     QTimer.singleShot(100, lambda: _held_up_in_a_slot(0.4))
     ours = _ended_stall(monitor, "_held_up_in_a_slot")
     wait(ours, 30, "the stall recorded")
@@ -52,11 +56,13 @@ def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     stall = ours()
     assert stall["phase"] == "busy"
     assert any("_held_up_in_a_slot" in f for f in stall["gui_stack"]), stall
-    # blocked in a call on the GUI thread: ours, whatever the load
-    assert 300 < stall["ms"] < 3000 and stall["ours_ms"] > 250, stall
+    # blocked in a call on the GUI thread: ours, whatever the load (a loaded machine
+    # can only lengthen the stall)
+    assert stall["ms"] > 300 and stall["ours_ms"] > 250, stall
     figures = summarise({**report, "crashed": False, "records": []})
-    assert figures["stalls"][0][0].startswith("busy: ")
-    assert "_held_up_in_a_slot" in figures["stalls"][0][0]
+    # among the causes (the load's own stalls may be more frequent)
+    assert [n for what, n in figures["stalls"]
+            if what.startswith("busy: ") and "_held_up_in_a_slot" in what] == [1]
     assert not figures["goals_met"]["max_ms"]
 
 
