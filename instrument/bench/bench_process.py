@@ -591,8 +591,12 @@ class BenchClient:
             with self._lock:
                 attach, self._next_slot = self._next_slot, None
             if attach is not None:  # the host made a larger slot: only this thread reads
-                old, self._slot, self._seen = self._slot, SharedImageSlot(attach[1],
-                                                                           name=attach[0]), 0
+                try:
+                    new = SharedImageSlot(attach[1], name=attach[0])
+                except FileNotFoundError:  # already gone: a newer slot's event follows,
+                    new = None             # or the bench closed (the thread then ends)
+                    log.debug("frame slot %s was gone before it was attached", attach[0])
+                old, self._slot, self._seen = self._slot, new, 0
                 if old is not None:
                     old.close()
             got = self._slot.read(after=self._seen) if self._slot is not None else None

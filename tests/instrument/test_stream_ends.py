@@ -163,3 +163,30 @@ def test_every_client_sees_a_job_take_the_stream_s_camera_and_give_it_back(strea
     assert handle.result(timeout_s=HANG_S) == "stopped"
     assert _stream_event(streamed.seen) == {"state": "resumed", "owner": streamed.name}
     assert not streamed.ended.is_set()
+
+
+def test_a_frame_slot_gone_before_it_is_attached_leaves_the_reader_reading():
+    """The host told the client of a new frame slot that was gone (unlinked) before the
+    client's reader attached it (a bench closing, or a newer slot; seen as a
+    FileNotFoundError that ended the 'bench-frames' thread under load): the reader goes
+    on, and the stream's frames still arrive. On the old code the thread died and no
+    frame came again."""
+    import time
+
+    frames: queue.SimpleQueue = queue.SimpleQueue()
+    c = BenchClient(in_process=True, on_frame=lambda f, m: frames.put(f))
+    try:
+        c.run_job("open_bench", OPEN)
+        with c._lock:
+            c._next_slot = ("dlab-0-0-gone0000", 1 << 16)  # no such block
+        c.host.wake.release()
+        deadline = time.monotonic() + HANG_S
+        while c._next_slot is not None and time.monotonic() < deadline:
+            time.sleep(0.01)  # until the reader took the event
+        assert c._next_slot is None, "the reader never looked"
+        c.start_stream(16)
+        frames.get(timeout=HANG_S)
+        reader = [t for t in c._threads if t.name == "bench-frames"]
+        assert reader and reader[0].is_alive()
+    finally:
+        c.close()
