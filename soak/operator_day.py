@@ -502,7 +502,7 @@ class Operator(WindowDriver):
         out = self.monitor.report()
         out.update(completed=self.completed, failure=self.failure, records=self.records,
                    notes=self.notes, loops=self.loops, day_s=time.monotonic() - self.t0,
-                   xinput_errors=self.x.errors, xinput_sent=self.x.sent,
+                   xinput_errors=self.x.errors, xinput_sent=self.x.sent, retyped=self.retyped,
                    log_errors=[ln for ln in self.w.log_pane.lines if " error: " in ln][-20:],
                    platform=QApplication.instance().platformName(),
                    simulate=bool(self.o.simulate), heap_growth=self.heap.report())

@@ -357,6 +357,8 @@ def print_summary(s: dict, report: dict) -> None:
           + (f"; FAILED: {s['failure']}" if s.get("failure") else ""))
     print(f"  crashes {s['crashes']} (exit status {report.get('returncode')}), tracebacks "
           f"{report.get('tracebacks')}, lost frames {s['lost_frames']}")
+    if report.get("retyped"):  # keys the X server repeated under load, typed again
+        print(f"  fields typed again: {len(report['retyped'])} ({'; '.join(report['retyped'])})")
     print("  GUI-thread lateness of a 10 ms timer, per phase:")
     for name, p in s["phases"].items():
         flag = "" if p["p99_ms"] < GOALS["p99_ms"] and p["max_ms"] < GOALS["max_ms"] else \

@@ -47,3 +47,84 @@ def test_a_step_waits_as_a_hang_guard_not_a_deadline():
     assert wait.timeout_s == 300 and wait.deadline >= start + 300
     assert WindowDriver.until(lambda: False, 120, "x").timeout_s == HANG_S
     assert WindowDriver.until(lambda: False, 0.5, "x").timeout_s == 5
+
+
+class _RepeatingKeyboard:
+    """Stands for the X server and the keyboard: ``type`` puts the text into the focused
+    line edit, repeating one key in the first ``repeats`` calls (as the X server's
+    autorepeat does when a key's release comes late under load); ``Return`` records
+    what the field held."""
+
+    def __init__(self, edit, repeats: int) -> None:
+        self.edit, self.repeats, self.entered = edit, repeats, []
+
+    def idle(self) -> bool:
+        return True
+
+    def click_at(self, point) -> None:
+        pass
+
+    def key(self, *keys: str) -> None:
+        for k in keys:
+            if k == "BackSpace":
+                self.edit.clear()
+            elif k == "Return":
+                self.entered.append(self.edit.text())
+
+    def type(self, text: str) -> None:  # noqa: A003
+        if self.repeats > 0:
+            self.repeats -= 1
+            k = text.index("1")
+            text = text[:k] + "1" + text[k:]  # pytest-416 -> pytest-4116
+        self.edit.setText(self.edit.text() + text)
+
+
+def _fill(qapp, monkeypatch, repeats: int, enter: bool):
+    """Run ``WindowDriver.fill`` on a line edit with a keyboard that repeats a key in
+    its first ``repeats`` typings; returns (the keyboard, the driver, the last wait
+    that did not hold or None)."""
+    from PySide6.QtWidgets import QLineEdit
+
+    from soak import driver as drv
+
+    edit = QLineEdit("/old/path")
+    edit.setObjectName("live.psf")
+    driver = drv.WindowDriver(edit)
+    keyboard = _RepeatingKeyboard(edit, repeats)
+    driver.x = keyboard
+
+    def click(widget, times=1):
+        return iter(())
+
+    monkeypatch.setattr(driver, "click", click)
+    monkeypatch.setattr(drv.WindowDriver, "_focused", staticmethod(lambda w: True))
+    steps = driver.fill(edit, "/tmp/pytest-416/sweep-0.zarr", enter=enter)
+    for item in steps:  # the keyboard is synchronous: every wait holds at once, or never
+        if isinstance(item, drv._Wait) and not item.condition():
+            return keyboard, driver, item
+    return keyboard, driver, None
+
+
+@pytest.mark.parametrize("enter", [True, False])
+def test_a_repeated_key_is_typed_again_before_enter(qapp, monkeypatch, enter):
+    """The emulated operator day, beside busy processes, typed ``pytest-4116`` for
+    ``pytest-416`` (a key's release came late and the X server repeated it) and pressed
+    Enter: the Live panel was sent to a PSF that is not there. ``fill`` now looks at
+    the field before Enter and types it again."""
+    keyboard, driver, stuck = _fill(qapp, monkeypatch, repeats=1, enter=enter)
+    assert stuck is None
+    assert keyboard.edit.text() == "/tmp/pytest-416/sweep-0.zarr"
+    assert keyboard.entered == (["/tmp/pytest-416/sweep-0.zarr"] if enter else [])
+    assert driver.retyped == ["live.psf: '/tmp/pytest-4116/sweep-0.zarr' for "
+                              "'/tmp/pytest-416/sweep-0.zarr'"]
+
+
+def test_a_field_that_never_takes_the_text_fails_the_step_and_is_not_entered(qapp,
+                                                                              monkeypatch):
+    """Typed wrong three times: the step waits for the right text (and fails at its
+    limit, naming the field and what it holds); Enter is never pressed."""
+    from soak.driver import RETYPES
+
+    keyboard, driver, stuck = _fill(qapp, monkeypatch, repeats=RETYPES + 1, enter=True)
+    assert stuck is not None and "live.psf to hold" in stuck.what
+    assert keyboard.entered == [] and len(driver.retyped) == RETYPES
