@@ -17,8 +17,10 @@ from tests.mocks import AptEmulator
 tad = client("thorlabs_apt_device", "thorlabs-apt-device")
 
 
-def until(predicate, timeout_s: float = 5.0, what: str = "condition") -> None:
-    """Wait for the client's asynchronous state (its reader runs on its own loop)."""
+def until(predicate, timeout_s: float = 120.0, what: str = "condition") -> None:
+    """Wait for the client's asynchronous state (its reader runs on its own loop). The
+    limit is a hang guard, not a deadline: the wait ends as soon as the state holds (it
+    was 5 s, and beside busy processes, load 12-20, "moving at velocity" took longer)."""
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if time.monotonic() > deadline:
