@@ -192,16 +192,17 @@ class WindowDriver:
         yield self.until(lambda: self._focused(widget), 5,
                          f"the field {widget.objectName() or widget} to take the focus")
         name = widget.objectName() or type(widget).__name__
-        held = getattr(widget, "text", lambda: None)()  # before: not yet a typo
+        readable = hasattr(widget, "text")  # a line edit: what it holds can be checked
+        held = widget.text() if readable else None  # before typing: not yet a typo
         for attempt in range(RETYPES + 1):
             self.x.key("ctrl+a", "BackSpace")
             if text:
                 self.x.type(text)
             yield self.typed()
-            if not hasattr(widget, "text"):
+            if not readable:
                 break
             last = attempt == RETYPES  # then only the text itself ends the wait
-            yield self.until(lambda last=last, held=held: widget.text() == text or (
+            yield self.until(lambda last=last: widget.text() == text or (
                 not last and widget.text() != held and len(widget.text()) >= len(text)), 10,
                 f"{name} to hold {text!r} (it holds {widget.text()!r}, the focus is on "
                 f"{QApplication.focusWidget()})")
