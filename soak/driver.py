@@ -176,9 +176,14 @@ class WindowDriver:
 
     @staticmethod
     def _focused(widget) -> bool:
+        """Whether keys typed now reach ``widget``: it, or a widget inside it (a spin
+        box's editor), has the focus, or the widget that forwards its keys to it (an
+        editable combo box is its line edit's focus proxy). A panel's scroll area that
+        merely holds the field does not count: run K's operator typed a path into the
+        Record panel's scroll area, and the field stayed empty."""
         focus = QApplication.focusWidget()
         return focus is not None and (focus is widget or widget.isAncestorOf(focus)
-                                      or focus.isAncestorOf(widget))
+                                      or widget.focusProxy() is focus)
 
     def fill(self, widget, text: str, enter: bool = False) -> Iterator:
         """Click ``field``, check it took the focus, type ``text`` over what it held and,
@@ -187,7 +192,8 @@ class WindowDriver:
         again, up to :data:`RETYPES` times (each counted in :attr:`retyped`). Under load
         the X server repeats a key whose release comes late (its autorepeat), so a typed
         path gained a character (``pytest-4116`` for ``pytest-416``) and Enter sent
-        the operator to a file that is not there."""
+        the operator to a file that is not there. A field that lost the focus before
+        it held the text is clicked again and typed again (counted the same way)."""
         yield from self.click(widget)
         yield self.until(lambda: self._focused(widget), 5,
                          f"the field {widget.objectName() or widget} to take the focus")
@@ -195,6 +201,10 @@ class WindowDriver:
         readable = hasattr(widget, "text")  # a line edit: what it holds can be checked
         held = widget.text() if readable else None  # before typing: not yet a typo
         for attempt in range(RETYPES + 1):
+            if attempt and not self._focused(widget):  # the focus went elsewhere: click back
+                yield from self.click(widget)
+                yield self.until(lambda: self._focused(widget), 5,
+                                 f"the field {name} to take the focus again")
             self.x.key("ctrl+a", "BackSpace")
             if text:
                 self.x.type(text)
@@ -202,8 +212,9 @@ class WindowDriver:
             if not readable:
                 break
             last = attempt == RETYPES  # then only the text itself ends the wait
-            yield self.until(lambda last=last: widget.text() == text or (
-                not last and widget.text() != held and len(widget.text()) >= len(text)), 10,
+            yield self.until(lambda last=last: widget.text() == text or (not last and (
+                (widget.text() != held and len(widget.text()) >= len(text))
+                or not self._focused(widget))), 10,
                 f"{name} to hold {text!r} (it holds {widget.text()!r}, the focus is on "
                 f"{QApplication.focusWidget()})")
             if widget.text() == text:

@@ -128,3 +128,114 @@ def test_a_field_that_never_takes_the_text_fails_the_step_and_is_not_entered(qap
     keyboard, driver, stuck = _fill(qapp, monkeypatch, repeats=RETYPES + 1, enter=True)
     assert stuck is not None and "live.psf to hold" in stuck.what
     assert keyboard.entered == [] and len(driver.retyped) == RETYPES
+
+
+def _panel(qapp):
+    """A shown, active window like a dock's panel: a scroll area holding a line edit,
+    and an editable combo box."""
+    from PySide6.QtWidgets import QComboBox, QLineEdit, QScrollArea, QVBoxLayout, QWidget
+
+    scroll = QScrollArea()
+    inner = QWidget()
+    layout = QVBoxLayout(inner)
+    edit, combo = QLineEdit(), QComboBox()
+    edit.setObjectName("record.out")
+    combo.setEditable(True)
+    layout.addWidget(edit)
+    layout.addWidget(combo)
+    scroll.setWidget(inner)
+    scroll.setWidgetResizable(True)
+    scroll.show()
+    scroll.activateWindow()
+    qapp.processEvents()
+    return scroll, edit, combo
+
+
+def _focus(qapp, widget) -> None:
+    from PySide6.QtWidgets import QApplication
+
+    widget.setFocus()
+    qapp.processEvents()
+    assert QApplication.focusWidget() is widget, QApplication.focusWidget()
+
+
+def test_a_scroll_area_around_the_field_does_not_count_as_its_focus(qapp):
+    """Run K's operator typed a path while the Record panel's scroll area held the
+    focus: the old check took any ancestor of the field for the field, so the keys went
+    nowhere and the step waited 100 s for ``record.out``. An editable combo box, the
+    focus proxy of its line edit, still counts for the line edit."""
+    from soak.driver import WindowDriver
+
+    scroll, edit, combo = _panel(qapp)
+    try:
+        _focus(qapp, scroll)
+        assert not WindowDriver._focused(edit)
+        _focus(qapp, edit)
+        assert WindowDriver._focused(edit)
+        _focus(qapp, combo)
+        assert WindowDriver._focused(combo.lineEdit()) and WindowDriver._focused(combo)
+        assert not WindowDriver._focused(edit)
+    finally:
+        scroll.close()
+
+
+class _FocusKeyboard:
+    """Types into the widget that has the focus, as the X server does; on its first
+    typing the panel takes the focus away first (as a panel that relays itself out
+    while the operator types)."""
+
+    def __init__(self, qapp, edit, thief) -> None:
+        self.qapp, self.edit, self.thief, self.stolen = qapp, edit, thief, False
+
+    def idle(self) -> bool:
+        return True
+
+    def click_at(self, point) -> None:
+        pass
+
+    def _target(self):
+        from PySide6.QtWidgets import QApplication, QLineEdit
+
+        focus = QApplication.focusWidget()
+        return focus if isinstance(focus, QLineEdit) else None
+
+    def key(self, *keys: str) -> None:
+        if not self.stolen:
+            self.stolen = True
+            self.thief.setFocus()
+            self.qapp.processEvents()
+        if "BackSpace" in keys and self._target() is not None:
+            self._target().clear()
+
+    def type(self, text: str) -> None:  # noqa: A003
+        if self._target() is not None:
+            self._target().insert(text)
+
+
+def test_a_field_that_loses_the_focus_is_clicked_and_typed_again(qapp, monkeypatch):
+    """The focus went to the panel between the click and the typing: the step no
+    longer waits for text that went nowhere; it clicks the field again, types again
+    and counts it in ``retyped``."""
+    from soak import driver as drv
+
+    scroll, edit, _ = _panel(qapp)
+    try:
+        driver = drv.WindowDriver(scroll)
+        driver.x = _FocusKeyboard(qapp, edit, scroll)
+        clicks = []
+
+        def click(widget, times=1):
+            clicks.append(widget)
+            widget.setFocus()
+            qapp.processEvents()
+            return iter(())
+
+        monkeypatch.setattr(driver, "click", click)
+        for item in driver.fill(edit, "/tmp/video-0.zarr"):
+            if isinstance(item, drv._Wait):
+                assert item.condition(), item.what
+        assert edit.text() == "/tmp/video-0.zarr"
+        assert clicks == [edit, edit]
+        assert driver.retyped == ["record.out: '' for '/tmp/video-0.zarr'"]
+    finally:
+        scroll.close()
