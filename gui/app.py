@@ -46,6 +46,7 @@ from .binding import BindingLeakError, check_binding
 from .colorleak import install as install_color_fix
 from .device_status import STATE_COLOURS, device_state, status_line
 from .fields import flush, settings
+from .gcthread import pin_to_gui_thread
 from .logpane import LogPane, gui_log
 from .memory import configure_allocator
 from .panels.common import PanelScroll
@@ -503,6 +504,7 @@ def main(bench: str | None = None, *, simulate: bool = False, seed: int = 0,
     configure_allocator()  # before Qt and the workers start their threads (their heaps)
     faulthandler.enable()  # a crash in Qt or a C extension prints every thread's stack
     app = QApplication.instance() or QApplication(sys.argv[:1])
+    app._collector = pin_to_gui_thread(app)  # Qt objects in cycles die on the GUI thread
     app.setOrganizationName("DiffuserLab")
     app.setApplicationName("gui")
     try:

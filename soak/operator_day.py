@@ -24,6 +24,7 @@ this, and checks how the process ended.
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import os
 import socket
@@ -500,12 +501,15 @@ class Operator(WindowDriver):
     # -- the end ------------------------------------------------------------------------------
     def report(self) -> dict:
         out = self.monitor.report()
+        collector = getattr(QApplication.instance(), "_collector", None)  # gui.gcthread
         out.update(completed=self.completed, failure=self.failure, records=self.records,
                    notes=self.notes, loops=self.loops, day_s=time.monotonic() - self.t0,
                    xinput_errors=self.x.errors, xinput_sent=self.x.sent, retyped=self.retyped,
                    log_errors=[ln for ln in self.w.log_pane.lines if " error: " in ln][-20:],
                    platform=QApplication.instance().platformName(),
-                   simulate=bool(self.o.simulate), heap_growth=self.heap.report())
+                   simulate=bool(self.o.simulate), heap_growth=self.heap.report(),
+                   gc_automatic=gc.isenabled(),  # False: collected on the GUI thread only
+                   gc_collections=None if collector is None else list(collector.collections))
         return out
 
     def _finish(self, quit: bool = False) -> None:

@@ -30,6 +30,8 @@ def check_day(report: dict, figures: dict, extra_steps: tuple[str, ...] = ()) ->
     assert not report["crashed"], (report["returncode"], report["stderr_tail"][-3000:])
     assert report["tracebacks"] == 0, report["stderr_tail"][-3000:]
     assert report.get("platform") == "xcb", report.get("platform")
+    # Python's collector ran on the GUI thread only (gui.gcthread), and it did run
+    assert report["gc_automatic"] is False and sum(report["gc_collections"]) > 0, report
     assert figures["failure"] is None, (figures["failure"], report["work"])
     missing = [s for s in (*COMMON_STEPS, *extra_steps) if s not in figures["completed"]]
     assert not missing, missing
