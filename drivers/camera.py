@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import abc
 import collections
+import contextlib
 import copy
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -37,8 +38,8 @@ from drivers.base import Device
 from drivers.errors import CameraTimeoutError, DeviceError, DeviceStateError, DeviceValueError
 from drivers.settings import Setting, info, setting_property
 
-__all__ = ["EXTRA_FORMATS", "PIXEL_FORMATS", "TRIGGER_MODES", "Camera", "Frame", "FrameRing",
-           "format_bits"]
+__all__ = ["EXTRA_FORMATS", "PIXEL_FORMATS", "PRODUCING_HANG_S", "TRIGGER_MODES", "Camera",
+           "Frame", "FrameRing", "format_bits"]
 
 #: Pixel formats every camera driver offers, and their bit depth.
 PIXEL_FORMATS: dict[str, int] = {"mono8": 8, "mono12": 12, "mono16": 16}
@@ -102,8 +103,19 @@ def _to_raise(error: BaseException) -> BaseException:
     return fresh
 
 
+#: Longest a reader's wait is extended while the camera is producing a frame
+#: (:meth:`FrameRing.producing`), s: a render slower than this is a hang.
+PRODUCING_HANG_S = 120.0
+
+
 class FrameRing:
     """Bounded, thread-safe frame buffer with loss counters (never drops silently).
+
+    A reader's wait (:meth:`get`, :meth:`get_latest`) runs out at its ``timeout_s``,
+    unless the producer has said a frame is on its way (:meth:`producing`: a simulated
+    camera rendering it on the CPU, which on a busy machine took more than a 30 fps
+    recording's 5.3 s wait); the wait then goes on until that frame is in, for at most
+    :data:`PRODUCING_HANG_S` more.
 
     Parameters
     ----------
@@ -139,6 +151,7 @@ class FrameRing:
         self.dropped = 0
         self._pump: Callable[[float], float] | None = None
         self._error: BaseException | None = None
+        self._producing = 0
 
     @property
     def capacity(self) -> int:
@@ -166,6 +179,22 @@ class FrameRing:
                 self.skipped += 1
             self._buf.append(frame)
             self._cond.notify_all()
+
+    @contextlib.contextmanager
+    def producing(self) -> Iterator[None]:
+        """Producer side: a frame is being made (rendered) in this block; a reader whose
+        ``timeout_s`` runs out meanwhile waits for the block to end (at most
+        :data:`PRODUCING_HANG_S` more), then takes the frame or times out as before.
+        A camera whose frame takes CPU time the machine may not give it at once (the
+        simulated camera) wraps each frame's making in it; a hardware camera does not."""
+        with self._cond:
+            self._producing += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._producing -= 1
+                self._cond.notify_all()
 
     def mark_dropped(self, n: int = 1) -> None:
         """Count ``n`` frames the camera produced but lost before delivery."""
@@ -217,10 +246,17 @@ class FrameRing:
         if not budget >= 0:
             raise DeviceValueError(self.device_id, f"timeout_s={timeout_s!r}", "use >= 0")
         deadline = time.monotonic() + budget
+        extended = False
         with self._cond:
             while not self._buf:
                 if self._error is not None:
                     raise _to_raise(self._error)
+                if budget <= 0 and self._producing and not extended:
+                    # a frame is on its way: wait for it, not the clock (a hang guard)
+                    extended = True
+                    self._cond.wait_for(lambda: self._buf or self._error is not None
+                                        or not self._producing, PRODUCING_HANG_S)
+                    continue
                 if budget <= 0:
                     raise CameraTimeoutError(
                         self.device_id,

@@ -347,9 +347,10 @@ class SimulatedCamera(SimulatedMixin, Camera):
             self._next_start = end
         else:
             self._triggers.popleft()
-        frame = self._produce(start, end)
-        if frame is not None:
-            self._stream_ring.put(frame)
+        with self._stream_ring.producing():  # rendering takes CPU time, not a dead camera
+            frame = self._produce(start, end)
+            if frame is not None:
+                self._stream_ring.put(frame)
 
     def _pump(self, budget_s: float) -> float:
         """Ring wait on simulated time: run the clock to the next frame or the budget."""
