@@ -40,6 +40,7 @@ from gui.memory import rss_mb
 from .kernelstats import (
     LATER_SAMPLES,
     accounted_s,
+    descendant_pids,
     kernel_state,
     peer_pids,
     schedstat,
@@ -51,6 +52,9 @@ from .kernelstats import (
 __all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage"]
 
 TIMER_MS = 10
+#: How often the watchdog looks for this process's children (its stall figures count
+#: their threads' waits for a core as the machine's, as the X server's), s.
+PEERS_EVERY_S = 1.0
 #: Innermost functions of a thread that waits (left out of a stall's busy threads).
 _WAITING = frozenset({"wait", "get", "sleep", "select", "_wait_for_tstate_lock", "acquire",
                       "accept", "recv", "readline", "poll", "join", "_worker",
@@ -354,6 +358,9 @@ class DayMonitor(QObject):
         self._gc_t0: float | None = None
         #: What the GUI thread ran during stalls (:meth:`_watch`), in time order.
         self.stalls: list[dict] = []
+        #: The processes whose threads the stall figures look at besides this one's:
+        #: the X server and this process's children (refreshed each PEERS_EVERY_S).
+        self.peers: tuple[str, ...] = ()
         self._gui_thread = threading.get_ident()
         self._gui_tid = threading.get_native_id()
         self._last_fired = time.monotonic()
@@ -394,7 +401,8 @@ class DayMonitor(QObject):
         the GUI thread's time went (:func:`stall_time`), also for a stall the watchdog
         could not see live (it waits for the GIL too: a GUI thread descheduled holding
         it holds the watchdog)."""
-        gui_tid, own_tid, peers = self._gui_tid, threading.get_native_id(), peer_pids()
+        gui_tid, own_tid, servers = self._gui_tid, threading.get_native_id(), peer_pids()
+        peers, peers_at = servers, -1.0  # the X server, and this process's children
         quiet: deque = deque(maxlen=16)  # ticks between stalls: (time, GUI schedstat,
         # others' (on a core, waiting), accounted CPU seconds)
         seen: dict[float, dict] = {}  # the records opened live, by the firing before them
@@ -405,6 +413,9 @@ class DayMonitor(QObject):
             while self._gaps:
                 gaps.append(self._gaps.popleft())
             now, last = time.monotonic(), self._last_fired
+            if now - peers_at >= PEERS_EVERY_S:  # the bench host, live and batch processes
+                peers, peers_at = servers + descendant_pids(), now
+                self.peers = peers
             tick = (now, schedstat(gui_tid), thread_times({gui_tid, own_tid}, peers),
                     accounted_s())
             for t0, t1 in gaps:
@@ -426,7 +437,7 @@ class DayMonitor(QObject):
                 quiet.append(tick)
                 continue
             if sampled_for == last:  # the same stall: where things are, once a second
-                self._resample(seen.get(last), now - last, gui_tid, peers)
+                self._resample(seen.get(last), now - last, gui_tid, servers)
                 continue
             sampled_for = last
             stacks = _thread_stacks()

@@ -11,8 +11,8 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["LATER_SAMPLES", "PEERS_ENV", "accounted_s", "kernel_state", "peer_pids",
-           "schedstat", "stall_time", "thread_name", "thread_times"]
+__all__ = ["LATER_SAMPLES", "PEERS_ENV", "accounted_s", "descendant_pids", "kernel_state",
+           "peer_pids", "schedstat", "stall_time", "thread_name", "thread_times"]
 
 
 #: Processes whose threads the GUI thread may wait on (the X server: a round trip to a
@@ -98,6 +98,31 @@ def peer_pids() -> tuple[str, ...]:
     return tuple(p for p in os.environ.get(PEERS_ENV, "").split(",") if p.strip().isdigit())
 
 
+def descendant_pids(pid: int | None = None) -> tuple[str, ...]:
+    """The pids of every process below ``pid`` (default this one): its children, theirs,
+    and so on, from each process's parent in ``/proc/PID/stat``. The window's bench
+    host, live and batch processes are such children, and the GUI thread waits on the
+    bench host's replies: a host kept from a core makes that wait the machine's too."""
+    root = os.getpid() if pid is None else int(pid)
+    parent: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat", "rb") as f:
+                stat = f.read()
+            parent[int(entry)] = int(stat[stat.rindex(b")") + 2:].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue  # ended meanwhile
+    found, todo = [], [root]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parent.items() if pp == p]
+        found += kids
+        todo += kids
+    return tuple(str(c) for c in sorted(found))
+
+
 def accounted_s() -> float | None:
     """Seconds each CPU has been accounted for so far (every state of ``/proc/stat``'s
     ``cpu`` line, idle and steal included, over the CPUs); None where there is none.
@@ -118,20 +143,20 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
                paused_ms: float = 0.0, names: Callable[[Any], str] | None = None) -> dict:
     """Where a stall's time went, from the kernel's figures at its start and end.
 
-    ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's); ``gui_runqueue_ms``:
-    runnable, waiting for a core (the machine); the rest it was blocked (a lock, the GIL,
-    a call). ``others_runqueue_ms``: the longest any other thread of the process (or
-    of a peer such as the X server) waited for a core meanwhile (a GIL holder, or a
-    server the GUI thread waits on, descheduled makes the GUI thread's block the
-    machine's too). ``busiest``: the other thread that was on a core longest meanwhile
-    and for how long (``names(key)`` names it; the likeliest holder of what the GUI
-    thread waited for). ``paused_ms``: the time the machine did not run at all (its
-    CPUs unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall
-    less the machine's share, what a freeze of ours would show whatever the load, and
-    never more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the
-    kernel gives no per-thread figures. ``gui0``/``gui1`` are the GUI thread's
-    :func:`schedstat`, ``others0``/``others1`` :func:`thread_times` (ns on a core, ns
-    waiting for one, by thread), at the stall's start and end.
+    ``gui_cpu_ms``: the GUI thread on a core (our code, Python or Qt's);
+    ``gui_runqueue_ms``: runnable, waiting for a core (the machine); the rest it was blocked
+    (a lock, the GIL, a call). ``others_runqueue_ms``: the longest any other thread of the
+    process (or of a peer: the X server, the window's bench host) waited for a core
+    meanwhile (a GIL holder, or a server the GUI thread waits on, descheduled makes the GUI
+    thread's block the machine's too). ``busiest``: the other thread that was on a core
+    longest meanwhile and for how long (``names(key)`` names it; the likeliest holder of
+    what the GUI thread waited for). ``paused_ms``: the time the machine did not run at all
+    (its CPUs unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall
+    less the machine's share, what a freeze of ours would show whatever the load, and never
+    more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the kernel
+    gives no per-thread figures. ``gui0``/``gui1`` are the GUI thread's :func:`schedstat`,
+    ``others0``/``others1`` :func:`thread_times` (ns on a core, ns waiting for one, by
+    thread), at the stall's start and end.
     """
     out = {"ms": round(ms, 1)}
     paused = min(max(0.0, paused_ms), ms)
