@@ -1,0 +1,72 @@
+"""The day watchdog's peers: the window's child processes (the bench host) and the
+processes below them (soak.kernelstats.descendant_pids)."""
+
+from __future__ import annotations
+
+from tests.gui.test_daymonitor import _ended_stall
+
+_CHILD = """
+import ctypes, sys, time
+ctypes.CDLL(None).prctl(15, b"daychild", 0, 0, 0)  # PR_SET_NAME: its thread's name
+sys.stdout.write("ready\\n"); sys.stdout.flush()
+sys.stdin.readline()  # "go": the GUI thread now waits for the reply
+t = time.process_time()
+while time.process_time() - t < 0.4:  # a host's work on a core
+    pass
+sys.stdout.write("done\\n"); sys.stdout.flush()
+sys.stdin.readline()  # alive until the test is done (its figures stay readable)
+"""
+
+
+def test_a_wait_on_a_child_process_counts_the_childs_threads(qapp, wait):
+    """The GUI thread waits on the bench host's replies (a call to another process): the
+    watchdog's figures include this process's children, so a host kept from a core is
+    the machine's share of the stall and not a freeze of ours (run L's operator day
+    failed on a live-ADMM stall at load 20). Here the slot waits on a child that works
+    0.4 s on a core: the stall names the child's thread as the busiest."""
+    import subprocess
+    import sys
+
+    from PySide6.QtCore import QTimer
+
+    from soak import daymonitor
+
+    child = subprocess.Popen([sys.executable, "-c", _CHILD], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline() == "ready\n"
+        monitor = daymonitor.DayMonitor(sample_s=1.0)
+        monitor.start()
+        wait(lambda: str(child.pid) in monitor.peers, 30, "the child among the peers")
+
+        def _waits_on_the_child() -> None:
+            child.stdin.write("go\n")
+            child.stdin.flush()
+            assert child.stdout.readline() == "done\n"
+
+        QTimer.singleShot(50, _waits_on_the_child)
+        held = _ended_stall(monitor, "_waits_on_the_child", min_ms=100)
+        wait(held, 60, "the stall on the child")
+        monitor.stop()
+        assert held()["busiest"].startswith("daychild/daychild "), held()
+    finally:
+        child.stdin.close()
+        child.wait(60)
+
+
+def test_descendants_are_found_below_children():
+    import subprocess
+
+    from soak.kernelstats import descendant_pids
+
+    sh = subprocess.Popen(["sh", "-c", "sleep 60 & echo $!; wait"], stdout=subprocess.PIPE,
+                          text=True)
+    try:
+        grandchild = sh.stdout.readline().strip()
+        found = descendant_pids()
+        assert str(sh.pid) in found and grandchild in found
+        assert str(sh.pid) in descendant_pids(1)  # init's descendants: every process
+        assert descendant_pids(int(grandchild)) == ()
+    finally:
+        subprocess.run(["kill", grandchild])
+        sh.wait(60)
