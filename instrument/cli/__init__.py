@@ -250,10 +250,10 @@ def main(argv: list[str] | None = None) -> int:
         try:  # up to the command's error boundary, nothing is done
             _startup_signals.release()  # a signal held since the imports is raised here
             args = build_parser().parse_args(argv)
-            swallowed = _startup_signals.received(mark)  # an import caught the interrupt
-            if swallowed is None:
-                _console(args)
-                input_errors = (InputError, *getattr(args, "input_errors", ()))
+            _console(args)  # from here a swallowed interrupt is sent again (quiet_shutdown)
+            # an import caught the interrupt, or a finalizer did (startup_signals, quiet)
+            swallowed = _startup_signals.received(mark)
+            input_errors = (InputError, *getattr(args, "input_errors", ()))
         except KeyboardInterrupt as exc:  # Ctrl-C (SIGTERM, SIGHUP) while the modules load
             # or the console is set up
             swallowed = getattr(exc, "signum", None) or _startup_signals.received(mark) \

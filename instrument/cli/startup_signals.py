@@ -80,7 +80,24 @@ def record(signum: int) -> None:
 
 
 def _interrupt(signum: int) -> KeyboardInterrupt:
-    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+    exc = KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+    exc.from_startup_handler = True  # for _unraisable: recorded already
+    return exc
+
+
+def _unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` while the command starts: the handler's interrupt raised
+    where Python cannot raise it (a weakref callback, ``__del__``: importlib's module
+    locks are freed by one) is recorded already, and :func:`instrument.cli.main` stops
+    the command for it ("while starting; nothing was done"), so it is not printed;
+    anything else goes to the hook that was there."""
+    if getattr(unraisable.exc_value, "from_startup_handler", False):
+        return
+    _PREVIOUS_HOOK[0](unraisable)
+
+
+#: The unraisable hook :func:`install` replaced.
+_PREVIOUS_HOOK = [sys.unraisablehook]
 
 
 def _handler(signum, frame):
@@ -108,6 +125,9 @@ def install(starting: bool = False) -> None:
     _STARTING[:] = [True] if starting else []
     if not is_command_process():
         return
+    if sys.unraisablehook is not _unraisable:
+        _PREVIOUS_HOOK[0] = sys.unraisablehook
+        sys.unraisablehook = _unraisable
     for s in (signal.SIGINT, *HANDLED):
         try:
             signal.signal(s, _handler)

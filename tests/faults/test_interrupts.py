@@ -357,6 +357,51 @@ def test_an_interrupt_raised_in_a_finalizer_still_stops_the_command(tmp_path, si
     assert "Traceback" not in done.stderr, done.stderr
 
 
+#: The console script with a finalizer (a weakref callback, as importlib's module locks
+#: have) that runs as the package imports argparse, its first import after it takes its
+#: signals, and sends the signal while it runs: the handler's interrupt is raised where
+#: Python can only report it ("Exception ignored in ...") and run on
+FINALIZER_AT_START = """import builtins, os, sys, weakref
+class Lock:
+    pass
+def callback(ref):
+    os.kill(os.getpid(), int(os.environ["SIGNAL"]))
+    for _ in range(10000):  # the handler runs here, in the callback
+        pass
+held = [Lock()]
+ref = weakref.ref(held[0], callback)
+_import = builtins.__import__
+def importing(name, *args, **kwargs):
+    if name == "argparse" and held:
+        held.clear()  # the callback runs now
+    return _import(name, *args, **kwargs)
+builtins.__import__ = importing
+from instrument.cli import main
+builtins.__import__ = _import
+if __name__ == "__main__":
+    sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_interrupt_lost_in_a_finalizer_while_starting_is_one_line(tmp_path, sig):
+    """Before, in CI: SIGTERM while the command imported, its handler run in importlib's
+    module-lock callback, printed "Exception ignored ... Traceback" above the one line.
+    The interrupt is recorded, and the command stops for it before doing anything."""
+    script = tmp_path / "bin" / "diffuserlab"
+    script.parent.mkdir()
+    script.write_text(FINALIZER_AT_START)
+    env = {**os.environ, "PYTHONPATH": str(REPO), "SIGNAL": str(int(sig))}
+    done = subprocess.run([sys.executable, str(script), *_VIDEO, tmp_path / "v.zarr"],
+                          cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=HANG_S)
+    assert done.returncode == 128 + sig, (done.returncode, done.stderr)
+    assert done.stderr.splitlines() == [
+        f"diffuserlab: interrupted ({'Ctrl-C' if sig == signal.SIGINT else 'stopped by SIGTERM'})"
+        " while starting; nothing was done"], done.stderr
+    assert not (tmp_path / "v.zarr").exists()
+
+
 _VIDEO = ["capture", "video", "--simulate", "--frames", "300", "--out"]
 _SIGNALS = [signal.SIGINT, signal.SIGTERM]
 
