@@ -180,6 +180,7 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
              worker_memory, announce, cpu, take, plan_slabs, streamed_memory_bytes,
              peak_rss_bytes) -> dict:
     """The LocalCluster half of :func:`run_volume_scale`."""
+    from ..processing.cluster_close import close_local_cluster
     from ..processing.volume_shards import local_cluster, sharded_fista3d
 
     client, cluster = local_cluster(workers, worker_memory)
@@ -206,8 +207,7 @@ def _sharded(store_path, b, psf_scale, planes, sensor, iterations, tv, workers,
         cpu.extend(np.diff(marks))
         peaks = client.run(peak_rss_bytes)
     finally:
-        client.close()
-        cluster.close()
+        close_local_cluster(client, cluster)
     worst = max(peaks, key=lambda w: peaks[w] / estimate[w])
     return {"result": result, "worker_memory_limit": worker_memory,
             "memory_estimate_bytes_per_worker": estimate, "peak_rss_bytes_per_worker": peaks,

@@ -45,6 +45,7 @@ from .batch_grid import (
     reconstruct_run_frame,
     reconstruct_stored_frame_grid,
 )
+from .cluster_close import close_local_cluster
 
 __all__ = ["batch_psf", "check_dark_level", "check_scheduler", "check_workers",
            "checked_recipe", "parse_frames", "reconstruct_run", "reconstruct_stored_frame",
@@ -667,8 +668,7 @@ def reconstruct_run(run: str | Path, psf, options: ReconOptions | None = None, *
             out["dff_product"] = f"{name}_dff"
         return out
     finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
-        store.unlock()
+        try:
+            close_local_cluster(client, cluster)
+        finally:
+            store.unlock()
