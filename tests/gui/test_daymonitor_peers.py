@@ -70,3 +70,21 @@ def test_descendants_are_found_below_children():
     finally:
         subprocess.run(["kill", grandchild])
         sh.wait(60)
+
+
+def test_a_stall_before_the_watchdogs_first_look_is_measured_from_the_start(qapp, wait):
+    """Run R's simulated day failed on a 5.4 s "freeze" as the window opened: the GUI
+    thread compiled modules holding the interpreter lock, so the watchdog had no look
+    before the stall and measured it from its end to its end (0 ms on a core, 0 ms
+    waiting for one: all of it counted as ours, at load 14). Now the watchdog's first
+    figures are taken by ``start`` on the GUI thread. Here the GUI thread holds the
+    lock in one C call (``sum``) right after ``start``: the stall shows its time on a core."""
+    from soak import daymonitor
+
+    monitor = daymonitor.DayMonitor(sample_s=1.0)
+    monitor.start()
+    sum(range(30_000_000))  # one C call: the watchdog cannot look until it returns
+    held = _ended_stall(monitor, min_ms=100)
+    wait(held, 60, "the stall at the start")
+    monitor.stop()
+    assert held()["gui_cpu_ms"] > 50, held()
