@@ -240,7 +240,12 @@ class Operator(WindowDriver):
         yield from self.fill(cal.fields["dark"]["--frames"], "2")
         dark = self.work / f"dark-{self.loops}.zarr"
         yield from self.fill(cal.out, str(dark))
+        before = cal.job
         yield from self.click(cal.start_button)
+        # the click carried out by xdotool is not yet the window's: under load Qt reads it
+        # later, and a run that has not started is also "not running" (run R's day
+        # failed here with an empty status: the run began a moment after)
+        yield self.until(lambda: cal.job is not before, 60, "the dark run to start")
         yield self.until(lambda: cal.result is not None or not cal.running, 300, "the dark run")
         if not self.o.simulate and cal.result is not None and cal.result.status == "failed" \
                 and "no light" in cal.status.text():
@@ -356,8 +361,9 @@ class Operator(WindowDriver):
         yield from self.fill(rec.out, str(video))
         yield from self.fill(rec.frames, "200")
         yield from self.fill(rec.seconds, "")
+        before = rec.record_job  # the last loop's, done: the new one must be waited for
         yield from self.click(rec.record_button)
-        yield self.until(lambda: rec.record_job is not None and rec.record_job.done, 300,
+        yield self.until(lambda: rec.record_job is not before and rec.record_job.done, 300,
                          "the 200-frame recording")
         s = rec.summary
         if s is None or s.get("path") != str(video):
@@ -375,8 +381,9 @@ class Operator(WindowDriver):
         yield from self.fill(fields["--workers"], "1")
         if not self.o.simulate:
             yield from self.fill(fields["--dark"], self.notes.get("dark", "0"))
+        before = rec.batch_job
         yield from self.click(rec.batch_button)
-        yield self.until(lambda: rec.batch_job is not None and rec.batch_job.done, 600,
+        yield self.until(lambda: rec.batch_job is not before and rec.batch_job.done, 600,
                          "the batch reconstruction")
         if rec.batch_result is None or rec.batch_result.get("reconstructed", 0) < 1:
             raise StepFailed(f"batch: {rec.batch_error.text()}")
@@ -492,8 +499,10 @@ class Operator(WindowDriver):
         video = self.work / "last-video.zarr"
         yield from self.fill(rec.out, str(video))
         yield from self.fill(rec.frames, "100000")
+        before = rec.record_job
         yield from self.click(rec.record_button)
-        yield self.until(lambda: rec.record_progress.value() >= 10, 120, "frames recorded")
+        yield self.until(lambda: rec.record_job is not before
+                         and rec.record_progress.value() >= 10, 120, "frames recorded")
         self.notes["quit_recording"] = str(video)
         self.done("quit asked while recording")
         self._finish(quit=True)
