@@ -67,6 +67,12 @@ class ArduinoLedEmulator(PtyEmulator):
         self._rx.clear()
         self._frame = None
 
+    @property
+    def booted_at(self) -> float:
+        """``time.monotonic()`` at which the board answers again (its last start or
+        replug plus ``boot_s``): nothing sent before it is read."""
+        return self._booted_at
+
     def output(self) -> np.ndarray:
         """``(rows * cols, channels)`` uint8 light output now (brightness applied)."""
         with self.lock:
