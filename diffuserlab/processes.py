@@ -116,7 +116,7 @@ def has_ended(process, wait_s: float = 0.0) -> bool:
     Parameters
     ----------
     process : multiprocessing.Process
-        A started child of this process.
+        A child of this process (one not started has not ended).
     wait_s : float
         Seconds to wait for its end (0: only look).
 
@@ -129,6 +129,8 @@ def has_ended(process, wait_s: float = 0.0) -> bool:
     """
     from multiprocessing.connection import wait
 
+    if process.pid is None:  # not started: nothing has ended
+        return False
     if not wait([process.sentinel], max(0.0, float(wait_s))):
         return False
     with _REAPING:

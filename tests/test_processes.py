@@ -101,3 +101,11 @@ def test_a_killed_child_is_ended_for_every_thread_that_asks():
         assert not has_ended(child)
         assert _two_threads_see_the_kill(child) == [True, True]
         assert child.exitcode == -9  # reaped: its status is known, no zombie left
+
+
+def test_a_child_not_yet_started_has_not_ended():
+    import multiprocessing
+    import time
+
+    child = multiprocessing.get_context("fork").Process(target=time.sleep, args=(0,))
+    assert not has_ended(child)

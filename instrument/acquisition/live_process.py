@@ -249,12 +249,13 @@ class LiveReconstructionProcess:
         settings = {"live": LiveOptions.from_defaults(method=self._method,
                                                       iterations=self._iterations),
                     "warm_start": self.warm_start, "threads": self.threads}
-        self._child = context.Process(
+        child = context.Process(
             target=_child, name="diffuserlab-live",
             args=(child_conn, self._wake, self.psf, self.options, settings,
                   (self._frames.name, self._results.name, self._frames.capacity,
                    self._results.capacity), nice), daemon=True)
-        self._child.start()
+        child.start()
+        self._child = child  # started: other threads read its state (running)
         child_conn.close()
         try:
             if not self._conn.poll(timeout_s):
