@@ -19,7 +19,11 @@ traceback, so the package's start (``install(starting=True)``) raises only the f
 signal, and :func:`hold` (the last of the guarded imports) makes the handler record
 the signals without raising until :func:`release` (``main``'s first step inside its
 boundary), which raises the first one held there: one line, 128 + the signal,
-nothing done.
+nothing done. A handler that runs inside a finalizer (a weakref callback: importlib
+frees its module locks in one) raises where Python can only print the interrupt as
+"Exception ignored" and run on; the command process's ``sys.unraisablehook``
+(:func:`install`) keeps those of this handler quiet, since they are recorded and
+``main`` stops the command for them.
 """
 
 from __future__ import annotations
