@@ -54,7 +54,7 @@ from collections.abc import Callable, Mapping
 from multiprocessing.managers import BaseManager
 from typing import Any
 
-from diffuserlab.processes import has_ended
+from diffuserlab.processes import has_ended, how_it_ended
 
 from ..acquisition.shared_slot import SharedImageSlot
 from .bench_host import FRAME_META, BenchHost, BenchHostError, EventChannel, FrameWaker
@@ -407,8 +407,6 @@ class BenchClient:
             self._manager, "_process", None)
         if process is None or not has_ended(process):
             return []
-        from diffuserlab.processes import how_it_ended
-
         from .bench_recovery import close_orphaned_run
 
         why = (f"the bench process (pid {process.pid}) that wrote it ended: "
