@@ -26,6 +26,7 @@ times the binning; a volume's first axis is that of a stored volume
 
 from __future__ import annotations
 
+import atexit
 import multiprocessing
 import threading
 from collections.abc import Sequence
@@ -289,6 +290,23 @@ SOLVER_NICE = 10
 #: next: its imports and compilations are done once), and the lock that makes it.
 _SOLVER: list = []
 _SOLVER_LOCK = threading.Lock()
+
+
+def _release_solver() -> None:
+    """At interpreter exit (:mod:`atexit`): shut the solver's pool down and drop it.
+
+    Kept in a module global to its end, the pool would be collected during the
+    interpreter's teardown, when :mod:`concurrent.futures`' collection callback finds
+    its modules already cleared and prints "Exception ignored in ... weakref_cb ...
+    'NoneType' object has no attribute 'util'" (seen after CI's last test). atexit runs
+    before that teardown (and after the pool's manager thread was joined)."""
+    with _SOLVER_LOCK:
+        pools, _SOLVER[:] = list(_SOLVER), []
+    for pool in pools:
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+atexit.register(_release_solver)
 
 
 def contrast_limits(data: np.ndarray) -> list[float]:

@@ -237,3 +237,29 @@ def test_yield_to_parent_in_a_child_that_already_leads_a_session():
     import os
 
     assert json.loads(out.stdout) == {"session": True, "nice": min(19, os.nice(0) + 7)}
+
+
+def test_the_solver_is_shut_down_before_the_interpreter_s_teardown(tmp_path):
+    """At exit the widget's solver pool is shut down and dropped by an atexit hook, so
+    it is not collected during the interpreter's teardown (where concurrent.futures'
+    callback printed "Exception ignored ... 'NoneType' object has no attribute
+    'util'" after CI's last test). A hook registered before the widget's runs after
+    it: on the old code the pool is still held there."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "solver_at_exit.py"
+    script.write_text(
+        "import atexit\n"
+        "def check():\n"
+        "    from gui.napari_plugin import widget\n"
+        "    print('held at exit:', len(widget._SOLVER), flush=True)\n"
+        "if __name__ == '__main__':  # not in the spawned solver, which imports this\n"
+        "    atexit.register(check)\n"
+        "    from gui.napari_plugin import widget\n"
+        "    widget._solver_pool().submit(int).result(timeout=600)\n")
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=600, check=True)
+    assert out.stdout.count("held at exit:") == 1, out.stdout + out.stderr
+    assert "held at exit: 0" in out.stdout, out.stdout + out.stderr
+    assert "Exception ignored" not in out.stderr, out.stderr
