@@ -39,14 +39,12 @@ from gui.memory import rss_mb
 
 from .kernelstats import (
     LATER_SAMPLES,
-    accounted_s,
     descendant_pids,
     kernel_state,
+    look,
     peer_pids,
-    schedstat,
     stall_time,
     thread_name,
-    thread_times,
 )
 
 __all__ = ["DayMonitor", "HeapTracker", "array_holders", "census", "frozen_garbage"]
@@ -392,8 +390,8 @@ class DayMonitor(QObject):
         # (the GUI thread importing, holding the GIL, as the window opens) is measured
         # from here, not as 0 ms on a core and 0 ms waiting for one (all "ours")
         self._last_fired = time.monotonic()
-        self._start_tick = (self._last_fired, schedstat(self._gui_tid),
-                            thread_times({self._gui_tid}, peer_pids()), accounted_s())
+        self._start_tick = look(self._gui_tid, {self._gui_tid}, peer_pids(),
+                                at=self._last_fired)
         self.timer.start()
         self.sampler.start()
         self.sample()
@@ -419,12 +417,11 @@ class DayMonitor(QObject):
             gaps = []
             while self._gaps:
                 gaps.append(self._gaps.popleft())
-            now, last = time.monotonic(), self._last_fired
-            if now - peers_at >= PEERS_EVERY_S:  # the bench host, live and batch processes
-                peers, peers_at = servers + descendant_pids(), now
+            if time.monotonic() - peers_at >= PEERS_EVERY_S:  # the bench host, live, batch
+                peers, peers_at = servers + descendant_pids(), time.monotonic()
                 self.peers = peers
-            tick = (now, schedstat(gui_tid), thread_times({gui_tid, own_tid}, peers),
-                    accounted_s())
+            tick = look(gui_tid, {gui_tid, own_tid}, peers)
+            now, last = tick[0], self._last_fired
             for t0, t1 in gaps:
                 record = seen.pop(t0, None)
                 if record is None and len(self.stalls) < 2000:
@@ -435,8 +432,9 @@ class DayMonitor(QObject):
                     base = [q for q in quiet if q[0] <= t0] or list(quiet)[:1] or [tick]
                     before = base[-1]
                     paused = 0.0  # wall time between the ticks the CPUs were not accounted
-                    if before[3] is not None and tick[3] is not None:
-                        paused = 1e3 * ((tick[0] - before[0]) - (tick[3] - before[3]))
+                    if before[3] is not None and tick[3] is not None:  # less the readings'
+                        paused = 1e3 * ((tick[4] - before[4]) - (tick[3] - before[3])  # doubt
+                                        - (tick[5] + before[5]))
                     record.update(stall_time(1e3 * (t1 - t0), before[1], tick[1],
                                              before[2], tick[2], paused_ms=paused,
                                              names=lambda key: thread_name(*key)))

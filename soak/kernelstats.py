@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
-__all__ = ["LATER_SAMPLES", "PEERS_ENV", "accounted_s", "descendant_pids", "kernel_state",
+__all__ = ["LATER_SAMPLES", "PEERS_ENV", "accounted_s", "descendant_pids", "kernel_state", "look",
            "peer_pids", "schedstat", "stall_time", "thread_name", "thread_times"]
 
 
@@ -139,6 +140,33 @@ def accounted_s() -> float | None:
         return None
 
 
+def look(gui_tid: int, skip: set[int], peers: tuple[str, ...] = (),
+         at: float | None = None) -> tuple:
+    """One look at the kernel's figures, for :func:`stall_time` between two looks.
+
+    Returns
+    -------
+    tuple
+        ``(when, gui, others, accounted, accounted_at, doubt_s)``: ``when`` the
+        monotonic time by which every figure had been read (``at`` when given: a look
+        taken on the GUI thread itself, which did nothing between ``at`` and it);
+        ``gui`` the GUI thread's :func:`schedstat`; ``others`` :func:`thread_times`
+        of every thread but ``skip`` (and of ``peers``); ``accounted`` :func:`accounted_s`
+        and ``accounted_at`` the monotonic time of that reading, within ``doubt_s``
+        (half the time the reading took: a reader kept from a core between the clock
+        and ``/proc/stat`` must not read as a paused machine). A stall's first look is
+        one whose ``when`` is at or before the stall began; its last one is taken after
+        it ended.
+    """
+    gui = schedstat(gui_tid)
+    others = thread_times(skip, peers)
+    t_a = time.monotonic()
+    accounted = accounted_s()
+    t_b = time.monotonic()
+    return (t_b if at is None else at, gui, others, accounted, 0.5 * (t_a + t_b),
+            0.5 * (t_b - t_a))
+
+
 def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
                paused_ms: float = 0.0, names: Callable[[Any], str] | None = None) -> dict:
     """Where a stall's time went, from the kernel's figures at its start and end.
@@ -152,8 +180,9 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
     longest meanwhile and for how long (``names(key)`` names it; the likeliest holder of
     what the GUI thread waited for). ``paused_ms``: the time the machine did not run at all
     (its CPUs unaccounted, :func:`accounted_s`), at most the stall. ``ours_ms``: the stall
-    less the machine's share, what a freeze of ours would show whatever the load, and never
-    more than the time the machine ran. Only ``ms`` (and ``paused_ms``) where the kernel
+    less the machine's share, what a freeze of ours would show whatever the load, never
+    less than the GUI thread's own time on a core in it, and never more than the time the
+    machine ran. Only ``ms`` (and ``paused_ms``) where the kernel
     gives no per-thread figures. ``gui0``/``gui1`` are the GUI thread's :func:`schedstat`,
     ``others0``/``others1`` :func:`thread_times` (ns on a core, ns waiting for one, by
     thread), at the stall's start and end.
@@ -169,10 +198,14 @@ def stall_time(ms: float, gui0, gui1, others0: dict, others1: dict,
               for t, v in others0.items() if t in others1}
     others = max((d[1] for d in deltas.values()), default=0) / 1e6
     blocked = max(0.0, ms - cpu - queue)
+    # the figures span from the look before the stall to the look after it, a little
+    # more than the stall: the GUI thread's wait for a core in that margin must not
+    # take the stall's own CPU time off what is ours (measured: 1652.7 ms, 402.6 on a
+    # core and 1263.7 queued read as 389.0 ours)
+    mine = max(min(cpu, ms), ms - queue - min(blocked, others))
     out.update(gui_cpu_ms=round(cpu, 1), gui_runqueue_ms=round(queue, 1),
                others_runqueue_ms=round(others, 1),
-               ours_ms=round(max(0.0, min(ms - queue - min(blocked, others),
-                                          ms - paused)), 1))
+               ours_ms=round(max(0.0, min(mine, ms - paused)), 1))
     if deltas:
         key = max(deltas, key=lambda t: deltas[t][0])
         if deltas[key][0] > 0:
