@@ -59,6 +59,31 @@ def test_colour_channels_independent(real_pair):
     assert per_channel.image.shape == rgb.image.shape
 
 
+def test_an_rgb_image_takes_the_green_channel_s_automatic_weight(real_pair):
+    """With an automatic weight an RGB image's weight is chosen once, by the green
+    channel's hold-out path, and every channel solves at it on all pixels (a path per
+    channel before: each chose and kept its own)."""
+    from recon.planar import LEAD_CHANNEL
+
+    psf, raw = real_pair
+    rgb_raw = np.stack([raw, raw // 2, raw // 3], axis=-1)
+    rec = recon.reconstruct(psf, rgb_raw, bin_factor=8, iterations=40)
+    records = rec.info.auto
+    lead = records[LEAD_CHANNEL]["weight"]
+    assert lead["criterion"] == "holdout" and lead["chosen_by"].startswith("ADMM path")
+    for c in (0, 2):
+        shared = records[c]["weight"]
+        assert shared["criterion"] == "shared" and shared["lead_channel"] == LEAD_CHANNEL
+        assert shared["weight"] == lead["weight"] == records[c]["tv"]
+        assert "path_iterations" not in shared  # no path of its own
+        assert f"channel {LEAD_CHANNEL}" in shared["reason"]
+    # a fixed weight, and a grey image, are as before: nothing shared
+    fixed = recon.reconstruct(psf, rgb_raw, "admm", tv=1e-3, bin_factor=8, iterations=10)
+    assert all("weight" not in r for r in fixed.info.auto)
+    grey = recon.reconstruct(psf, raw, bin_factor=8, iterations=40)
+    assert grey.info.auto[0]["weight"]["criterion"] == "holdout"
+
+
 def test_erasure_mask_folds_into_model(real_pair):
     psf, raw = real_pair
     result = recon.reconstruct(psf, raw, "admm", iterations=30, bin_factor=8, erase=0.8, seed=3)
