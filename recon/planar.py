@@ -229,7 +229,19 @@ def shares_weight(channels: int, options: ReconOptions) -> bool:
 def shared_weight_record(chosen: dict) -> dict:
     """The ``weight`` record of a channel that took :data:`LEAD_CHANNEL`'s automatic
     weight: the lead's regulariser and weight, ``criterion`` ``"shared"``, and a
-    ``reason`` that says whose path chose it and why (the lead's own reason)."""
+    ``reason`` that says whose path chose it and why (the lead's own reason).
+
+    Parameters
+    ----------
+    chosen : dict
+        The lead channel's ``weight`` record (:meth:`recon.auto.weight.AutoWeight.as_dict`).
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``regulariser``, ``weight`` (float, scaled problem), ``criterion``,
+        ``lead_channel``, ``reason``.
+    """
     return {"regulariser": chosen.get("regulariser", "tv"), "weight": chosen["weight"],
             "criterion": "shared", "lead_channel": LEAD_CHANNEL,
             "reason": f"chosen for every channel by channel {LEAD_CHANNEL}'s (green's) "
@@ -377,18 +389,18 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
                                     **solver_options, **keywords)
         return op, res, record
 
-    shared = None
+    others, shared_record = solved, None
     if shares_weight(channels, solved):  # the lead channel's path chooses for all
         solves[LEAD_CHANNEL] = solve_one(LEAD_CHANNEL, solved, weight_path_solves=False)
-        chosen_weight = solves[LEAD_CHANNEL][2].get("weight")
-        if chosen_weight is not None:  # its method had a weight to choose (not Wiener)
-            shared = (solved.replace(tv=solves[LEAD_CHANNEL][2]["tv"]),
-                      shared_weight_record(chosen_weight))
+        lead = solves[LEAD_CHANNEL][2]
+        if lead.get("weight") is not None:  # its method had a weight to choose (not Wiener)
+            others = solved.replace(tv=lead["tv"])
+            shared_record = shared_weight_record(lead["weight"])
     for c in range(channels):
         if c not in solves:
-            solves[c] = solve_one(c, solved if shared is None else shared[0])
-            if shared is not None:
-                solves[c][2]["weight"] = dict(shared[1])
+            solves[c] = solve_one(c, others)
+            if shared_record is not None:
+                solves[c][2]["weight"] = dict(shared_record)
     results, estimates, op0, records = [], [], None, []
     for c in range(channels):
         op, res, record = solves[c]
