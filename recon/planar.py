@@ -234,7 +234,7 @@ def shared_weight_record(chosen: dict) -> dict:
     Parameters
     ----------
     chosen : dict
-        The lead channel's ``weight`` record (:meth:`recon.auto.weight.AutoWeight.as_dict`).
+        The lead channel's ``weight`` record (``recon.auto.weight.AutoWeight.as_dict``).
 
     Returns
     -------
