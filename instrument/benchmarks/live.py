@@ -32,6 +32,9 @@ from recon.validate import as_int
 from ..acquisition.live import LiveReconstruction
 from . import load_sample
 
+#: Longest wait, s, past the run's length for the worker's first frame (a hang guard).
+FIRST_FRAME_TIMEOUT_S = 60.0
+
 __all__ = ["live_benchmark_table", "moving_scene", "run_live_benchmark", "warm_vs_cold",
            "warm_vs_cold_table"]
 
@@ -154,7 +157,8 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
     the bench's ray-traced on-axis PSF at the scene depth, as the camera would record it
     (scaled to 4000 DN above the dark offset); frames and PSF have the camera's dark
     offset subtracted. One run per mode (Wiener preview; warm ADMM with
-    ``admm_iterations``) of ``seconds`` each. The PSNR part is
+    ``admm_iterations``) of ``seconds`` each, longer where the worker
+    has not yet received a frame (see :func:`_stream_for`). The PSNR part is
     :func:`warm_vs_cold` on the real DiffuserCam PSF (moving
     natural scene, ``psnr_frames`` frames, 300 x 400).
 
@@ -210,7 +214,7 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
             cam.start_stream(ring)
             live.start(ring=ring)
             t0 = time.monotonic()
-            time.sleep(seconds)
+            _stream_for(live, seconds)
             cam.stop_stream()
             elapsed = time.monotonic() - t0
             live.stop()  # waits for its frame (a hang guard)
@@ -223,6 +227,20 @@ def run_live_benchmark(seconds: float = 5.0, fps: float = 30.0,
                                   admm_iterations)
     result["text"] = live_benchmark_table(result) + "\n" + warm_vs_cold_table(result["psnr"])
     return result
+
+
+def _stream_for(live: LiveReconstruction, seconds: float, poll_s: float = 0.05) -> None:
+    """Let the stream run ``seconds`` and until the worker has received a frame.
+
+    A short run on a loaded machine can end before the camera thread's first frame
+    reaches the worker; a run with no frame measures nothing. The wait for the first
+    frame is bounded by :data:`FIRST_FRAME_TIMEOUT_S` (a hang guard, not a figure).
+    """
+    start = time.monotonic()
+    time.sleep(seconds)
+    while (live.stats()["received"] == 0
+           and time.monotonic() - start < seconds + FIRST_FRAME_TIMEOUT_S):
+        time.sleep(poll_s)
 
 
 def live_benchmark_table(result: dict) -> str:

@@ -225,3 +225,21 @@ def test_spatial_far_two_part_model_beats_the_on_axis_psf(quick_run):
     fista = {p["iterations"]: p["psnr_db"] for p in r["convergence"]["fista"]}
     assert admm[200] > fista[200] + 2.0
     assert r["render_patches"] == 5 and (out / "spatial_far.png").stat().st_size > 10_000
+
+
+def test_a_live_run_waits_past_its_length_for_the_worker_s_first_frame():
+    """A 0.5 s run on a loaded machine once ended before the camera's first frame reached
+    the worker (received 0); the run now lasts until one has."""
+    from instrument.benchmarks import live as live_benchmark
+
+    class SlowStart:
+        def __init__(self):
+            self.looks = 0
+
+        def stats(self):
+            self.looks += 1  # the first frame arrives on the fifth look
+            return {"received": int(self.looks >= 5)}
+
+    worker = SlowStart()
+    live_benchmark._stream_for(worker, 0.0, poll_s=0.0)
+    assert worker.looks == 5
