@@ -89,14 +89,14 @@ def test_error_replies_raise(emulator):
 
 def test_many_leds_are_split_into_commands(tmp_path):
     with IlluminateEmulator((32, 32)) as emu:
-        with IlluminateLedArray("leds", port=emu.port, reply_timeout_s=1.0) as arr:
+        with IlluminateLedArray("leds", port=emu.port, reply_timeout_s=30.0) as arr:
             arr.set_leds(np.arange(1024), "green", 1.0)
             assert len(emu.lit()) == 1024
             assert max(len(c) for c in emu.commands) < 1500
 
 
 def test_wrong_shape_is_a_clear_error(emulator):
-    arr = IlluminateLedArray("leds", port=emulator.port, shape=(32, 32), reply_timeout_s=1.0)
+    arr = IlluminateLedArray("leds", port=emulator.port, shape=(32, 32), reply_timeout_s=30.0)
     with pytest.raises(DeviceValueError, match="64 LEDs"):
         arr.open()
     assert not arr.is_open

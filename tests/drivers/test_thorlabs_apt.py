@@ -347,7 +347,8 @@ def test_homing_at_open_waits_for_home_timeout_when_the_open_has_no_timeout(tmp_
             stage.close()
         emu.channels[0x50].position, emu.channels[0x50].homed = 1.2 * Z8, False
         short = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
-                                 home_velocity=1.0, home_on_open=True, home_timeout_s=0.2)
+                                 home_velocity=1.0, home_on_open=True, home_timeout_s=0.2,
+                                 reply_timeout_s=30.0)
         with pytest.raises(StageTimeoutError, match="home_timeout_s = 0.2 s"):
             short.open(timeout_s=5.0)
         assert not short.is_open

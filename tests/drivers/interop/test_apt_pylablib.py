@@ -110,7 +110,7 @@ def test_our_driver_settings_read_by_pylablib(tmp_path):
             emu.channels[0x50].home_params = (1, 1, 12345, 678)
         stage = ThorlabsAptStage("stage", axes=["z"], port=emu.port, limits_mm={"z": [0, 25]},
                                  counts_per_unit=Z8_PYLABLIB, speed_mm_s=1.5,
-                                 home_on_open=True)
+                                 home_on_open=True, reply_timeout_s=30.0)
         with stage:
             stage.move_to({"z": 7.25})
         assert emu.channels[0x50].home_params == (1, 1, 12345, 678)  # untouched
@@ -141,7 +141,7 @@ def test_stepper_velocity_and_acceleration_read_by_pylablib(profile, scale, cpu,
     with emu:
         stage = ThorlabsAptStage("stage", axes=["x"], port=emu.port, limits_mm={"x": [0, 25]},
                                  counts_per_unit=cpu, speed_mm_s=1.25, acceleration=3.0,
-                                 home_on_open=True, reply_timeout_s=1.0, **params)
+                                 home_on_open=True, reply_timeout_s=30.0, **params)
         with stage:
             stage.move_to({"x": 2.5})
         dev = Thorlabs.KinesisMotor(("serial", emu.port), scale=scale, is_rack_system=rack)
