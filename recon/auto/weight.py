@@ -37,7 +37,8 @@ and stopped at two rises of unsettled errors: on a dense, full-field photograph
 (camera, bin 8, 3000 e-) it stopped at 1.4e-3, 13.7 dB against 22.8 dB at the best
 fixed weight, because small weights need hundreds of iterations and their early
 errors were transients. The chosen weight then runs on, with what the budget has left
-(at most a fixed run's iterations), from the state its own path solve ended in (a copy
+(at most a fixed run's iterations; not when the path only chooses, ``path_only``, whose
+caller solves afresh), from the state its own path solve ended in (a copy
 kept for the best weight): where the held-out error is flat the image still improves,
 so the iterate kept is the latest within half a standard error of the best
 (:class:`recon.auto.path.Convergence`). The record (:class:`AutoWeight`) lists every
@@ -511,7 +512,11 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     i_min, k, chosen = _choose(cands, rule)
     pick = cands[k]
     settle = 0
-    if used < total and (deadline is None or time.perf_counter() < deadline):
+    # a path that only chooses (``path_only``) ends here: the run-on below improves
+    # the kept iterate, which such a caller drops (the RGB lead channel ran on for
+    # 40-200 iterations it then threw away, 10-20 % of its CPU, docs/real-data.md)
+    if not path_only and used < total and (deadline is None
+                                           or time.perf_counter() < deadline):
         # run on at the chosen weight with what the budget has left (at most a fixed
         # run's iterations), from the state its path solve ended in (a restart from the
         # kept iterate with fresh duals lost 3 dB for 50 iterations; from the path's

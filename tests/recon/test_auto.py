@@ -332,3 +332,19 @@ def test_held_out_blocks_are_32_pixels_wide_and_shrink_on_a_small_sensor():
     # a 64 x 64 sensor holds four 32 x 32 blocks: 8 x 8 blocks instead
     held = split((64, 64))
     assert aligned(held, 8) and not aligned(held, 32)
+
+
+def test_a_path_that_only_chooses_does_not_run_on_at_its_weight(conv_problem):
+    """The run-on at the chosen weight improves the kept iterate, which a caller of
+    ``path_only`` (the RGB lead channel, FISTA at an automatic weight) drops: such a
+    path chooses the same weight and stops with the last candidate."""
+    p = conv_problem
+    bs = p.b_noisy / np.float32(np.abs(p.b_noisy).max())
+    kw = {"iterations": 200, "noise_energy": bs.size * 1e-4}
+    _, full = admm_auto(p.op, bs, **kw)
+    assert "ran on for" in full.stop_reason  # this problem's chosen weight runs on
+    none, chosen = admm_auto(p.op, bs, path_only=True, **kw)
+    assert none is None and chosen.weight == full.weight
+    assert "ran on" not in chosen.stop_reason
+    assert chosen.path_iterations == sum(c["iterations"] for c in chosen.path)
+    assert chosen.path_iterations < full.path_iterations
