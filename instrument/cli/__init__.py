@@ -65,6 +65,8 @@ except KeyboardInterrupt as _exc:  # one line and 128 + the signal; nothing has 
 
     sys.stderr.write(f"diffuserlab: interrupted ({str(_exc) or 'Ctrl-C'}) while starting; "
                      "nothing was done\n")  # a Terminated names its signal
+    if "_startup_signals" in globals():  # the status below, not exit -2 under python -m
+        _startup_signals.forget_unhandled_interrupt()
     raise SystemExit(128 + getattr(_exc, "signum", 2)) from None  # 2: SIGINT
 
 __all__ = ["build_parser", "main", "os_error_line", "run_handler"]

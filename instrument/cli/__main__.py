@@ -2,6 +2,8 @@
 
 import sys
 
-from . import main
+from . import main, startup_signals
 
-sys.exit(main())
+status = main()
+startup_signals.forget_unhandled_interrupt()  # the chosen status, not exit -2 (its docstring)
+sys.exit(status)

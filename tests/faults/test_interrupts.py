@@ -523,3 +523,40 @@ def test_an_earlier_signal_does_not_stop_the_next_command_in_process(tmp_path, c
     capsys.readouterr()
     assert main(["runs", "show", str(tmp_path / "missing.zarr")]) == 2
     assert "interrupted" not in capsys.readouterr().err
+
+
+#: A ``python -m`` module whose command catches a KeyboardInterrupt that ended code run
+#: from a string (as one landing in a dataclass's generated ``__init__`` while a
+#: command imports its modules) and chooses its status, 130.
+CAUGHT_IN_EXEC = """import runpy, sys
+import instrument.cli
+
+
+def interrupted_command():
+    try:
+        exec("raise KeyboardInterrupt")
+    except KeyboardInterrupt:
+        return 130
+
+
+{run}
+"""
+
+
+@pytest.mark.parametrize("run, status", [
+    # instrument.cli's __main__ with this command as its main
+    ("instrument.cli.main = interrupted_command\n"
+     "runpy.run_module('instrument.cli', run_name='__main__')", 130),
+    ("sys.exit(interrupted_command())", -signal.SIGINT),  # CPython's behaviour, undone above
+], ids=["the command", "plain python -m"])
+def test_an_interrupt_caught_in_a_string_exec_does_not_end_python_m_by_sigint(
+        tmp_path, run, status):
+    """Run B2 beside busy loops: a Ctrl-C while the command started printed its one line
+    and exited -2, not 130: CPython's flag of an interrupt that ended a string ``exec``
+    outlives the except that caught it, and ``python -m`` then exits by SIGINT.
+    ``instrument.cli``'s ``__main__`` clears it (``startup_signals``)."""
+    (tmp_path / "caught_in_exec.py").write_text(CAUGHT_IN_EXEC.format(run=run))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}
+    done = subprocess.run([sys.executable, "-m", "caught_in_exec"], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=HANG_S)
+    assert done.returncode == status, done.stderr
