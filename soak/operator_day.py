@@ -515,6 +515,9 @@ class Operator(WindowDriver):
                    notes=self.notes, loops=self.loops, day_s=time.monotonic() - self.t0,
                    xinput_errors=self.x.errors, xinput_sent=self.x.sent, retyped=self.retyped,
                    log_errors=[ln for ln in self.w.log_pane.lines if " error: " in ln][-20:],
+                   # what the window said before a failed step (a message such as "the
+                   # live stream could not start again: ..." has no " error: ")
+                   log_tail=self.w.log_pane.lines[-40:] if self.failure is not None else [],
                    platform=QApplication.instance().platformName(),
                    simulate=bool(self.o.simulate), heap_growth=self.heap.report(),
                    gc_automatic=gc.isenabled(),  # False: collected on the GUI thread only

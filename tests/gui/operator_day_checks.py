@@ -32,7 +32,8 @@ def check_day(report: dict, figures: dict, extra_steps: tuple[str, ...] = ()) ->
     assert report.get("platform") == "xcb", report.get("platform")
     # Python's collector ran on the GUI thread only (gui.gcthread), and it did run
     assert report["gc_automatic"] is False and sum(report["gc_collections"]) > 0, report
-    assert figures["failure"] is None, (figures["failure"], report["work"])
+    assert figures["failure"] is None, (figures["failure"], report["work"],
+                                        report.get("log_tail"))
     missing = [s for s in (*COMMON_STEPS, *extra_steps) if s not in figures["completed"]]
     assert not missing, missing
     assert figures["lost_frames"] == 0, report["records"]
