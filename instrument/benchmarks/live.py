@@ -236,10 +236,9 @@ def _stream_for(live: LiveReconstruction, seconds: float, poll_s: float = 0.05) 
     reaches the worker; a run with no frame measures nothing. The wait for the first
     frame is bounded by :data:`FIRST_FRAME_TIMEOUT_S` (a hang guard, not a figure).
     """
-    start = time.monotonic()
+    deadline = time.monotonic() + seconds + FIRST_FRAME_TIMEOUT_S
     time.sleep(seconds)
-    while (live.stats()["received"] == 0
-           and time.monotonic() - start < seconds + FIRST_FRAME_TIMEOUT_S):
+    while live.stats()["received"] == 0 and time.monotonic() < deadline:
         time.sleep(poll_s)
 
 

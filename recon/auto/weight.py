@@ -514,7 +514,8 @@ def admm_auto(op, b: np.ndarray, *, iterations: int, noise_energy: float,
     settle = 0
     # a path that only chooses (``path_only``) ends here: the run-on below improves
     # the kept iterate, which such a caller drops (the RGB lead channel ran on for
-    # 40-200 iterations it then threw away, 10-20 % of its CPU, docs/real-data.md)
+    # 40-200 iterations it then threw away, 4-19 % of the image's ADMM iterations on the
+    # real pairs, docs/real-data.md)
     if not path_only and used < total and (deadline is None
                                            or time.perf_counter() < deadline):
         # run on at the chosen weight with what the budget has left (at most a fixed
