@@ -130,6 +130,9 @@ class Session(QObject):
         self._latest = None
         self._counters: dict[str, float] = {}
         self._streaming = False
+        #: The live stream was asked back (a job gave the camera back) and has not
+        #: started yet: a job that takes the camera meanwhile gives it back the same way.
+        self._resume_pending = False
         #: Why the live stream ended unasked (the bench's line), until it starts again
         #: or is stopped; None: it did not.
         self.stream_end_reason: str | None = None
@@ -234,7 +237,7 @@ class Session(QObject):
         client, self.service, self.devices = self.service, None, {}
         self.device_states = {}
         self.camera_user = None
-        self._streaming = False
+        self._streaming = self._resume_pending = False
         self.changed.emit()
 
         def close(job: Job) -> None:
@@ -330,14 +333,16 @@ class Session(QObject):
             self.camera_user = None
             self.changed.emit()
             if resume_stream:
+                self._resume_pending = True
                 self._resume.emit()
 
     @contextmanager
     def camera_claimed(self, user: str) -> Iterator[None]:
         """:meth:`claim_camera` for the block, then :meth:`release_camera`, the live
-        stream started again if it ran (not when the window is closing). Call it on a
-        worker (stopping the stream waits for the camera)."""
-        was_streaming = self.streaming
+        stream started again if it ran or was being started again after the job before
+        (not when the window is closing). Call it on a worker (stopping the stream waits
+        for the camera)."""
+        was_streaming = self.streaming or self._resume_pending
         self.claim_camera(user)
         try:
             yield
@@ -345,10 +350,28 @@ class Session(QObject):
             self.release_camera(user, resume_stream=was_streaming and not self.closing)
 
     def _resume_stream(self) -> None:
-        if self.service is None or self.camera_user is not None or self.streaming:
+        if self.camera_user is not None:
+            return  # a job took the camera first: its end asks for the stream again
+        if self.service is None or self.streaming:
+            self._resume_pending = False
             return
-        self.stream_job(True, on_error=lambda text: self.message.emit(
-            f"the live stream could not start again: {text}"))
+
+        def resume(job: Job) -> None:
+            try:
+                self.start_stream()
+            except CameraBusy as exc:
+                if self.camera_user is None:
+                    raise
+                # a job took the camera before the stream started: its end starts it
+                log.info("live stream: %s", exc)
+
+        job = Job(resume, name="stream-on", nice=DEVICE_NICE)
+        job.failed.connect(self._resume_failed)
+        job.start()
+
+    def _resume_failed(self, text: str) -> None:
+        self._resume_pending = False
+        self.message.emit(f"the live stream could not start again: {text}")
 
     def stream_job(self, on: bool, then: Callable[[], Any] | None = None,
                    on_error: Callable[[str], None] | None = None,
@@ -403,6 +426,7 @@ class Session(QObject):
             self._rate.clear()
             service.start_stream(ring_frames)
             self._streaming = True
+            self._resume_pending = False
             self.changed.emit()
 
     def stop_stream(self, timeout_s: float = 2.0) -> None:

@@ -109,3 +109,38 @@ def test_runs_give_the_bench_back_and_the_stream_resumes(own_window, wait, tmp_p
     al.abort()
     wait(lambda: job.done, 120, "the alignment to stop")
     check("the alignment")
+
+
+def test_a_job_that_takes_the_camera_while_the_stream_comes_back_gives_it_back(own_window,
+                                                                                wait):
+    """A run that ends asks for the live stream back, and the next run (a Resume pressed
+    at once) takes the camera before the stream has started: that run still gives the
+    stream back when it ends. It used to read "not streaming" and leave the stream off
+    (run A2's operator day: "the stream to resume after the sweep" never came), with a
+    window message that the stream could not start because the camera was busy."""
+    import threading
+
+    session = own_window.session
+    said: list[str] = []
+    session.message.connect(said.append)
+    session.start_stream()
+    gate, tried = threading.Event(), threading.Event()
+    real_start = session.start_stream
+
+    def held_start(*args, **kwargs):
+        gate.wait(60)  # the resumed stream starts only once the next run holds the camera
+        try:
+            return real_start(*args, **kwargs)
+        finally:
+            tried.set()
+
+    session.start_stream = held_start
+    with session.camera_claimed("the first run"):
+        pass  # it ends: the stream is asked back (its start waits on the gate)
+    assert not session.streaming
+    with session.camera_claimed("the next run"):
+        gate.set()
+        wait(tried.is_set, 60, "the stream's start to be tried")
+        assert not session.streaming  # refused: the next run holds the camera
+    wait(lambda: session.streaming, 15, "the stream to come back after the next run")
+    assert not [s for s in said if "could not start again" in s], said
