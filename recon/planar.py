@@ -194,6 +194,13 @@ def solve(
 #: of every channel (:func:`shares_weight`): green, the middle of the visible band
 #: and of a Bayer sensor's samples.
 LEAD_CHANNEL = 1
+#: The share of ``iterations`` each channel's solve at the shared weight may run
+#: (:func:`shared_final_iterations`; the lead's path is sized by all of them). On the
+#: five real pairs of ``shared/data/mirflickr-real`` with file PSFs, finals capped at
+#: 100, 130 and 200 of 200 gave 15.83 / 0.397, 15.95 / 0.403 and 15.94 / 0.404 mean
+#: PSNR / SSIM, and the whole default at 100 took 0.95x LenslessPiCam's CPU time for its
+#: 100 iterations (1.27x at 200; docs/real-data.md): the issue's budget is that time.
+SHARED_FINAL_SHARE = 0.5
 
 
 def shares_weight(channels: int, options: ReconOptions) -> bool:
@@ -204,7 +211,8 @@ def shares_weight(channels: int, options: ReconOptions) -> bool:
     not automatic, one prior named, not ``"auto"``) does: the lead channel runs the
     hold-out path (:func:`recon.auto.weight.admm_auto`) to choose the weight only, then
     solves afresh on all pixels at it (``weight_path_solves=False``), and the other
-    channels solve at the same weight, as one colour image is one scene (LenslessPiCam
+    channels solve at the same weight (each solve, with method ``"auto"``, at most
+    :func:`shared_final_iterations`), as one colour image is one scene (LenslessPiCam
     and Kuo 2020, Sec. 3.1, give every channel one weight too). Measured on the five
     real pairs of ``shared/data/mirflickr-real`` with file PSFs (each pair's
     leave-one-out estimate), against a path per channel keeping its fit-pixel iterate:
@@ -226,6 +234,23 @@ def shares_weight(channels: int, options: ReconOptions) -> bool:
             and options.prior != AUTO)
 
 
+def shared_final_iterations(iterations: int) -> int:
+    """The most iterations of each channel's solve at the weight that
+    :data:`LEAD_CHANNEL`'s path chose (:func:`shares_weight`): :data:`SHARED_FINAL_SHARE`
+    of ``iterations``, which sizes the path (at least 1).
+
+    Parameters
+    ----------
+    iterations : int
+        The reconstruction's ``iterations`` (>= 1).
+
+    Returns
+    -------
+    int
+    """
+    return max(1, round(SHARED_FINAL_SHARE * int(iterations)))
+
+
 def shared_weight_record(chosen: dict) -> dict:
     """The ``weight`` record of a channel that took :data:`LEAD_CHANNEL`'s automatic
     weight: the lead's regulariser and weight, ``criterion`` ``"shared"``, and a
@@ -240,10 +265,12 @@ def shared_weight_record(chosen: dict) -> dict:
     -------
     dict
         JSON-ready: ``regulariser``, ``weight`` (float, scaled problem), ``criterion``,
-        ``lead_channel``, ``reason``.
+        ``lead_channel``, ``final_iterations`` (each channel's most, or None),
+        ``reason``.
     """
     return {"regulariser": chosen.get("regulariser", "tv"), "weight": chosen["weight"],
             "criterion": "shared", "lead_channel": LEAD_CHANNEL,
+            "final_iterations": chosen.get("final_iterations"),
             "reason": f"chosen for every channel by channel {LEAD_CHANNEL}'s (green's) "
                       f"path: {chosen.get('reason', '')}"}
 
@@ -391,10 +418,14 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
 
     others, shared_record = solved, None
     if shares_weight(channels, solved):  # the lead channel's path chooses for all
-        solves[LEAD_CHANNEL] = solve_one(LEAD_CHANNEL, solved, weight_path_solves=False)
+        # the default (method auto) takes the share; a method named keeps its count
+        final = shared_final_iterations(iterations) if method == AUTO else iterations
+        solves[LEAD_CHANNEL] = solve_one(LEAD_CHANNEL, solved, weight_path_solves=False,
+                                         final_iterations=final)
         lead = solves[LEAD_CHANNEL][2]
         if lead.get("weight") is not None:  # its method had a weight to choose (not Wiener)
-            others = solved.replace(tv=lead["tv"])
+            others = solved.replace(tv=lead["tv"], iterations=final)
+            lead["weight"]["final_iterations"] = final
             shared_record = shared_weight_record(lead["weight"])
     for c in range(channels):
         if c not in solves:

@@ -153,6 +153,7 @@ class ChannelProblem:
 def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
                   fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
                   plan_of=None, weight_path_solves: bool = True, backend=None,
+                  final_iterations: int | None = None,
                   **solver_options) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
@@ -199,6 +200,10 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
         device between its solves; the result's ``x`` comes back to the host); None
         or :data:`recon.backend.NUMPY`: the NumPy path. ``solvers`` should then be the
         same device's (``recon.solvers.device.device_solvers``).
+    final_iterations : int, optional
+        The most iterations of the solve that follows a path that only chose the
+        weight (``weight_path_solves=False`` or a method other than ADMM); the path
+        itself is sized by ``iterations``. Default: ``iterations``.
     **solver_options
         Passed to a fixed method's solver.
 
@@ -302,6 +307,8 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
                 tv, l1 = (0.0 if tv == AUTO else tv), chosen.weight
         stop = Stopping().hook(target, b_norm) if auto_stop else None
         extra = {"l1": l1} if l1 else {}
+        if auto_reg is not None and final_iterations is not None:
+            iterations = int(final_iterations)
         res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options,
                          **solve_kw)
     if named is not None:

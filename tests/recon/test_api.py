@@ -77,6 +77,10 @@ def test_an_rgb_image_takes_the_green_channel_s_automatic_weight(real_pair):
         assert shared["weight"] == lead["weight"] == records[c]["tv"]
         assert "path_iterations" not in shared  # no path of its own
         assert f"channel {LEAD_CHANNEL}" in shared["reason"]
+    # the path is sized by the 40 iterations, each channel's solve by half of them
+    assert lead["final_iterations"] == 20 == records[0]["weight"]["final_iterations"]
+    assert lead["path_iterations"] > 20
+    assert all(r["iterations_used"] <= 20 for r in records)
     # a fixed weight, and a grey image, are as before: nothing shared
     fixed = recon.reconstruct(psf, rgb_raw, "admm", tv=1e-3, bin_factor=8, iterations=10)
     assert all("weight" not in r for r in fixed.info.auto)
