@@ -210,7 +210,7 @@ def shares_weight(channels: int, options: ReconOptions) -> bool:
     An RGB image (3 channels) with an automatic TV weight (``tv`` ``"auto"``, ``l1``
     not automatic, one prior named, not ``"auto"``) does: the lead channel runs the
     hold-out path (:func:`recon.auto.weight.admm_auto`) to choose the weight only, then
-    solves afresh on all pixels at it (``weight_path_solves=False``), and the other
+    solves afresh on all pixels at it (``final_solve``), and the other
     channels solve at the same weight (each solve, with method ``"auto"``, at most
     :func:`shared_final_iterations`), as one colour image is one scene (LenslessPiCam
     and Kuo 2020, Sec. 3.1, give every channel one weight too). Measured on the five
@@ -420,8 +420,7 @@ def reconstruct_image(psf: np.ndarray, raw: np.ndarray, options: ReconOptions | 
     if shares_weight(channels, solved):  # the lead channel's path chooses for all
         # the default (method auto) takes the share; a method named keeps its count
         final = shared_final_iterations(iterations) if method == AUTO else iterations
-        solves[LEAD_CHANNEL] = solve_one(LEAD_CHANNEL, solved, weight_path_solves=False,
-                                         final_iterations=final)
+        solves[LEAD_CHANNEL] = solve_one(LEAD_CHANNEL, solved, final_solve=final)
         lead = solves[LEAD_CHANNEL][2]
         if lead.get("weight") is not None:  # its method had a weight to choose (not Wiener)
             others = solved.replace(tv=lead["tv"], iterations=final)

@@ -152,8 +152,7 @@ class ChannelProblem:
 
 def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
                   fft_pair_s: float | None = None, auto_stop: bool = True, solvers=None,
-                  plan_of=None, weight_path_solves: bool = True, backend=None,
-                  final_iterations: int | None = None,
+                  plan_of=None, final_solve: int | None = None, backend=None,
                   **solver_options) -> tuple[SolveResult, dict]:
     """Solve one channel with automatic choices where asked, fixed ones elsewhere.
 
@@ -190,20 +189,18 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
     plan_of : callable, optional
         The automatic weight's ADMM plan for ``op`` (see
         :func:`recon.auto.weight.admm_auto`).
-    weight_path_solves : bool
-        With an automatic weight and ADMM, the result is the weight path's own solve
-        (default); False: the path only chooses the weight and ``solvers``' ADMM then
-        solves.
+    final_solve : int, optional
+        None (default): with an automatic weight and ADMM, the result is the weight
+        path's own solve. A count: the path (sized by ``iterations``) only chooses the
+        weight, and ``solvers``' method then solves at it for at most this many
+        iterations (a method other than ADMM always solves after its path, for at most
+        this many or ``iterations``).
     backend : Backend, optional
         Where the automatic weight's path and final solve run
         (:func:`recon.auto.weight.admm_auto` on the generic ADMM, iterates kept on the
         device between its solves; the result's ``x`` comes back to the host); None
         or :data:`recon.backend.NUMPY`: the NumPy path. ``solvers`` should then be the
         same device's (``recon.solvers.device.device_solvers``).
-    final_iterations : int, optional
-        The most iterations of the solve that follows a path that only chose the
-        weight (``weight_path_solves=False`` or a method other than ADMM); the path
-        itself is sized by ``iterations``. Default: ``iterations``.
     **solver_options
         Passed to a fixed method's solver.
 
@@ -283,7 +280,7 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
             backend=backend, seconds=None if path_s is None else path_s / len(AUTO_PRIORS)))
         record.update(prior=pchoice.as_dict(), weight=chosen.as_dict())
         tv = chosen.weight
-    elif auto_reg is not None and method == "admm" and not options and weight_path_solves:
+    elif auto_reg is not None and method == "admm" and not options and final_solve is None:
         res, chosen = weight_path(backend, op, b, iterations=iterations,
                                   noise_energy=noise_energy, regulariser=auto_reg,
                                   fixed=fixed, seconds=path_s, **path_kw)
@@ -307,8 +304,8 @@ def solve_channel(problem: ChannelProblem, options: ReconOptions, *,
                 tv, l1 = (0.0 if tv == AUTO else tv), chosen.weight
         stop = Stopping().hook(target, b_norm) if auto_stop else None
         extra = {"l1": l1} if l1 else {}
-        if auto_reg is not None and final_iterations is not None:
-            iterations = int(final_iterations)
+        if auto_reg is not None and final_solve is not None:
+            iterations = int(final_solve)
         res = spec.solve(op, b, iterations=iterations, tv=tv, stop=stop, **extra, **options,
                          **solve_kw)
     if named is not None:

@@ -317,7 +317,7 @@ def reconstruct_psf_grid(grids, raw: np.ndarray, options: ReconOptions | None = 
         res, record = solve_channel(problem, chosen,
                                     solvers=device_grid_solvers(backend, GRID_SOLVERS),
                                     plan_of=SpatialAdmmPlan.of,
-                                    weight_path_solves=backend.is_numpy)
+                                    final_solve=None if backend.is_numpy else iterations)
         tv, l1, auto, used = record["tv"], record["l1"], [record], record["iterations_used"]
         g = None
     else:
