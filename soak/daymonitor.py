@@ -37,6 +37,7 @@ from PySide6.QtCore import QElapsedTimer, QObject, Qt, QTimer
 
 from gui.memory import rss_mb
 
+from .hiddenstall import HiddenStallLook
 from .kernelstats import (
     LATER_SAMPLES,
     descendant_pids,
@@ -395,6 +396,9 @@ class DayMonitor(QObject):
         self.timer.start()
         self.sampler.start()
         self.sample()
+        self._hidden = HiddenStallLook()  # faulthandler's look when the watchdog cannot run
+        #: Where faulthandler writes every thread's stack when the watchdog cannot run.
+        self.dump_path = self._hidden.path
         self._watching.set()
         threading.Thread(target=self._watch, name="day-watchdog", daemon=True).start()
 
@@ -404,16 +408,26 @@ class DayMonitor(QObject):
         too), in :attr:`stalls`; once it has fired again, the stall's length and where
         the GUI thread's time went (:func:`stall_time`), also for a stall the watchdog
         could not see live (it waits for the GIL too: a GUI thread descheduled holding
-        it holds the watchdog)."""
+        it holds the watchdog); such a stall's stacks are faulthandler's, taken without
+        the GIL (:mod:`soak.hiddenstall`)."""
         gui_tid, own_tid, servers = self._gui_tid, threading.get_native_id(), peer_pids()
-        peers, peers_at = servers, -1.0  # the X server, and this process's children
         # ticks between stalls: (time, GUI schedstat, others' (on a core, waiting),
         # accounted CPU seconds), the first taken by start() on the GUI thread
         quiet: deque = deque([self._start_tick], maxlen=16)
+        hidden = self._hidden
+        try:
+            self._watch_until_stopped(hidden, gui_tid, own_tid, servers, quiet)
+        finally:
+            hidden.close()
+
+    def _watch_until_stopped(self, hidden: HiddenStallLook, gui_tid: int, own_tid: int,
+                             servers: tuple[str, ...], quiet: deque) -> None:
+        peers, peers_at = servers, -1.0  # the X server, and this process's children
         seen: dict[float, dict] = {}  # the records opened live, by the firing before them
         sampled_for = None
         while self._watching.is_set():
             time.sleep(0.02)
+            hidden.tick()
             gaps = []
             while self._gaps:
                 gaps.append(self._gaps.popleft())
@@ -427,6 +441,7 @@ class DayMonitor(QObject):
                 if record is None and len(self.stalls) < 2000:
                     record = {"t_s": round(t0 - self.t0, 2), "phase": self.phase,
                               "gui_stack": [], "threads": [], "seen_live": False}
+                    self._hidden_look(record, hidden.claim(t0))
                     self.stalls.append(record)
                 if record is not None:
                     base = [q for q in quiet if q[0] <= t0] or list(quiet)[:1] or [tick]
@@ -461,8 +476,26 @@ class DayMonitor(QObject):
                 record = {"t_s": round(time.monotonic() - self.t0, 2),
                           "phase": self.phase, "gui_stack": where, "threads": busy,
                           "gui_kernel": kernel_state(gui_tid), "later": []}
+                # this thread waited for the GIL through the stall: what it sees now is
+                # after the block, faulthandler's look is from within it
+                self._hidden_look(record, hidden.claim(last))
                 self.stalls.append(record)
                 seen[last] = record
+
+    def _hidden_look(self, record: dict, stacks: dict | None) -> None:
+        """Fill a stall's record that the watchdog could not take live from
+        faulthandler's look (:mod:`soak.hiddenstall`): the GUI thread's innermost frames
+        and the other threads' that were not waiting, ``seen_by: "faulthandler"``."""
+        if not stacks:
+            return
+        names = {t.ident: t.name for t in threading.enumerate()}
+        fmt = [f"{_short_path(f)}:{n}:{fn}" for f, n, fn in stacks.get(self._gui_thread, [])]
+        busy = [f"{names.get(ident, ident)}@{_short_path(st[-1][0])}:{st[-1][1]}:{st[-1][2]}"
+                for ident, st in stacks.items()
+                if ident not in (self._gui_thread, threading.get_ident()) and st
+                and st[-1][2] not in _WAITING]
+        record.update(gui_stack=fmt[-6:], threads=busy, seen_by="faulthandler")
+        record.pop("gui_kernel", None)  # a live look's was taken after the block
 
     def _resample(self, record: dict | None, into_s: float, gui_tid: int,
                   peers: tuple[str, ...]) -> None:

@@ -340,6 +340,8 @@ def _stall_causes(stalls: list[dict]) -> list[tuple[str, int]]:
                 what += f"; running: {busy}"
         else:
             what = " <- ".join(reversed(stack[-3:]))
+        if stack and st.get("seen_by") == "faulthandler":
+            what += " (the GIL held: seen by faulthandler, not live)"
         causes[f"{st.get('phase')}: {what}"] += 1
     return causes.most_common()
 

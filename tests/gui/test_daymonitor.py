@@ -645,3 +645,56 @@ def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
     assert max(st["ms"] for st in stalls) > 400, stalls
     assert max(st["ours_ms"] for st in stalls) < 300, stalls
 
+
+
+def _blocked_holding_the_gil(fd: int) -> None:
+    """Stands for a call on the GUI thread that blocks keeping the GIL (a binding's call
+    that does not release it): ``read(2)`` through :class:`ctypes.PyDLL`, which keeps it."""
+    import ctypes
+
+    buf = ctypes.create_string_buffer(1)
+    ctypes.PyDLL(None).read(fd, buf, 1)
+
+
+def test_a_stall_holding_the_gil_is_seen_by_faulthandler(qapp, wait):
+    """The watchdog cannot run while the GUI thread blocks holding the GIL (run F3: a
+    4.0 s stall recorded with no stack); faulthandler's thread can. The block ends when
+    another process sees faulthandler's dump written (an event, not a time)."""
+    import subprocess
+    import sys
+
+    from PySide6.QtCore import QTimer
+
+    from soak.daymonitor import DayMonitor
+    from soak.hiddenstall import HIDDEN_AFTER_S, REARM_EVERY_S
+    from soak.soak import _stall_causes
+
+    monitor = DayMonitor(sample_s=1.0)
+    monitor.start()
+    r, w = os.pipe()
+    try:
+        path = monitor.dump_path
+        # writes a byte once the dump file is not empty (gives up after ~600 s)
+        watcher = subprocess.Popen(
+            [sys.executable, "-c", "import os, sys, time\n"
+             "for _ in range(12000):\n"
+             f"    if os.path.getsize({path!r}) > 0: break\n"
+             "    time.sleep(0.05)\n"
+             f"os.write({w}, b'x')\n"], pass_fds=(w,))
+        QTimer.singleShot(50, lambda: _blocked_holding_the_gil(r))
+        held = _ended_stall(monitor, "_blocked_holding_the_gil")
+        wait(held, 600, "the stall's end")
+        watcher.wait(60)
+    finally:
+        monitor.stop()
+        os.close(r)
+        os.close(w)
+    stall = held()
+    assert stall["seen_by"] == "faulthandler", stall
+    assert stall["gui_stack"][-1].endswith("_blocked_holding_the_gil"), stall
+    # faulthandler waited HIDDEN_AFTER_S from the watchdog's last arming (which may
+    # precede the last firing by up to REARM_EVERY_S) before it looked
+    assert stall["ms"] >= 1e3 * (HIDDEN_AFTER_S - REARM_EVERY_S), stall
+    (cause, n), = [c for c in _stall_causes([stall])]
+    assert "_blocked_holding_the_gil" in cause and "faulthandler" in cause, cause
+
