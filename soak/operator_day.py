@@ -42,6 +42,7 @@ from instrument.atomic import write_json
 
 from .daymonitor import DayMonitor, HeapTracker, census
 from .driver import StepFailed, WindowDriver
+from .xinput import centre
 
 __all__ = ["Operator", "StepFailed", "main", "start_when_shown"]
 
@@ -49,6 +50,9 @@ log = logging.getLogger(__name__)
 
 #: Environment variable naming the socket file descriptor to the emulators' process.
 CONTROL_ENV = "DIFFUSERLAB_DAY_CONTROL"
+#: Looks (0.5 s apart, on the window's event loop) at a prompt box still shown after its
+#: Done click was carried out before it is clicked again.
+RECLICK_LOOKS = 20
 
 
 class Operator(WindowDriver):
@@ -74,7 +78,9 @@ class Operator(WindowDriver):
         self.loops = 0
         self.heap = HeapTracker()
         self.t0 = time.monotonic()
-        self._answered: set = set()
+        #: Each prompt box seen: where its button was at the last look, and the looks
+        #: since it was clicked (None before), :meth:`_answer_prompts`.
+        self._prompted: dict = {}
         self._control = _Control.from_env()
 
     def start(self) -> None:
@@ -87,13 +93,35 @@ class Operator(WindowDriver):
 
     def _answer_prompts(self) -> None:
         """A run's operator prompt on a real bench (cap the camera, ...): done, as the
-        operator would, by clicking Done."""
+        operator would, by clicking Done, once the box shows its button at the same spot
+        at two looks 0.5 s apart (as :meth:`aim` does; a box is visible to Qt before the
+        window manager has placed it: a click sent at once was lost on 2026-11-28, most
+        likely so, and the day's second dark run waited 600 s for its answer). A box still shown :data:`RECLICK_LOOKS` looks
+        after its click was carried out (looks on this event loop, which has read the
+        click by then) is clicked again, counted in ``notes["prompt_reclicks"]``."""
+        seen, self._prompted = self._prompted, {}  # the boxes shown now only
         for box in self.w.findChildren(QMessageBox):
-            if box.isVisible() and box.windowTitle() == "operator action" and \
-                    box not in self._answered:
-                self._answered.add(box)
+            if not box.isVisible() or box.windowTitle() != "operator action":
+                continue
+            ok = box.button(QMessageBox.StandardButton.Ok)
+            point = centre(ok)
+            under = QApplication.widgetAt(point)
+            before, looks = seen.get(box, (None, None))
+            if looks is None and before is None:
                 self.notes.setdefault("prompts", []).append(box.text())
-                self.x.click(box.button(QMessageBox.StandardButton.Ok))
+            shown = under is not None and (under is ok or ok.isAncestorOf(under)) \
+                and point == before
+            if looks is not None:  # clicked: once X has carried it out, count the looks
+                looks += 1 if self.x.idle() else 0
+                if looks < RECLICK_LOOKS or not shown:
+                    self._prompted[box] = (point, looks)
+                    continue
+                self.notes["prompt_reclicks"] = self.notes.get("prompt_reclicks", 0) + 1
+            if shown:
+                self.x.click_at(point)
+                self._prompted[box] = (point, 0)
+            else:
+                self._prompted[box] = (point, looks)
 
     def phase(self, name: str) -> None:
         if name == "stream" and os.environ.get("DIFFUSERLAB_DAY_CENSUS"):
