@@ -355,19 +355,7 @@ class Session(QObject):
         if self.service is None or self.streaming:
             self._resume_pending = False
             return
-
-        def resume(job: Job) -> None:
-            try:
-                self.start_stream()
-            except CameraBusy as exc:
-                if self.camera_user is None:
-                    raise
-                # a job took the camera before the stream started: its end starts it
-                log.info("live stream: %s", exc)
-
-        job = Job(resume, name="stream-on", nice=DEVICE_NICE)
-        job.failed.connect(self._resume_failed)
-        job.start()
+        self.stream_job(True, on_error=self._resume_failed, yield_to_job=True)
 
     def _resume_failed(self, text: str) -> None:
         self._resume_pending = False
@@ -375,15 +363,23 @@ class Session(QObject):
 
     def stream_job(self, on: bool, then: Callable[[], Any] | None = None,
                    on_error: Callable[[str], None] | None = None,
-                   done: Callable[[Any], None] | None = None) -> Job:
+                   done: Callable[[Any], None] | None = None,
+                   yield_to_job: bool = False) -> Job:
         """Start (``on``) or stop the stream on a worker, then ``then()`` there too
         (stopping waits for the camera's grab thread in the bench process: never on
         the GUI thread); ``done(then's result)`` and ``on_error(text)`` on the GUI
-        thread. Returns the started job."""
+        thread. ``yield_to_job``: a start refused because a job took the camera
+        meanwhile is a log line, not an error (the stream coming back after a job: that
+        job's end starts it). Returns the started job."""
 
         def work(job: Job):
             if on:
-                self.start_stream()
+                try:
+                    self.start_stream()
+                except CameraBusy as exc:
+                    if not yield_to_job or self.camera_user is None:
+                        raise
+                    log.info("live stream: %s", exc)
             else:
                 self.stop_stream()
             return None if then is None else then()

@@ -112,7 +112,8 @@ def test_runs_give_the_bench_back_and_the_stream_resumes(own_window, wait, tmp_p
 
 
 def test_a_job_that_takes_the_camera_while_the_stream_comes_back_gives_it_back(own_window,
-                                                                                wait):
+                                                                                wait,
+                                                                                monkeypatch):
     """A run that ends asks for the live stream back, and the next run (a Resume pressed
     at once) takes the camera before the stream has started: that run still gives the
     stream back when it ends. It used to read "not streaming" and leave the stream off
@@ -120,10 +121,16 @@ def test_a_job_that_takes_the_camera_while_the_stream_comes_back_gives_it_back(o
     window message that the stream could not start because the camera was busy."""
     import threading
 
+    from gui import workers
+
     session = own_window.session
     said: list[str] = []
     session.message.connect(said.append)
     session.start_stream()
+    stream_jobs: list = []  # every stream start, to see each one's end
+    real_job_start = workers.Job.start
+    monkeypatch.setattr(workers.Job, "start", lambda job: (
+        stream_jobs.append(job) if job.name == "stream-on" else None, real_job_start(job))[1])
     gate, tried = threading.Event(), threading.Event()
     real_start = session.start_stream
 
@@ -143,4 +150,7 @@ def test_a_job_that_takes_the_camera_while_the_stream_comes_back_gives_it_back(o
         wait(tried.is_set, 60, "the stream's start to be tried")
         assert not session.streaming  # refused: the next run holds the camera
     wait(lambda: session.streaming, 15, "the stream to come back after the next run")
+    # the refused start's job has ended, its signals handled: it was not a failure
+    wait(lambda: len(stream_jobs) == 2 and all(j.done for j in stream_jobs), 15,
+         "both stream starts to end")
     assert not [s for s in said if "could not start again" in s], said
