@@ -441,7 +441,7 @@ class DayMonitor(QObject):
                 if record is None and len(self.stalls) < 2000:
                     record = {"t_s": round(t0 - self.t0, 2), "phase": self.phase,
                               "gui_stack": [], "threads": [], "seen_live": False}
-                    self._hidden_look(record, hidden.claim(t0))
+                    self._hidden_look(record, hidden.claim(t0, t1))
                     self.stalls.append(record)
                 if record is not None:
                     base = [q for q in quiet if q[0] <= t0] or list(quiet)[:1] or [tick]
@@ -478,7 +478,7 @@ class DayMonitor(QObject):
                           "gui_kernel": kernel_state(gui_tid), "later": []}
                 # this thread waited for the GIL through the stall: what it sees now is
                 # after the block, faulthandler's look is from within it
-                self._hidden_look(record, hidden.claim(last))
+                self._hidden_look(record, hidden.claim(last, now))
                 self.stalls.append(record)
                 seen[last] = record
 

@@ -79,7 +79,7 @@ class HiddenStallLook:
         self._read = 0
         self._text = ""  # the latest dump, as read so far (it may be read mid-write)
         self._armed_at = float("-inf")
-        self._look: tuple[float, dict] | None = None
+        self._look: tuple[tuple[float, float], dict] | None = None  # (written, read), stacks
 
     @property
     def path(self) -> str:
@@ -95,21 +95,30 @@ class HiddenStallLook:
             self._read = size
             self._text += text.decode("utf-8", "replace")
             start = self._text.rfind("Timeout (")
-            if start > 0 or self._look is None:  # a new dump: this is when it was read
-                self._text, began = self._text[max(start, 0):], now
+            if start > 0 or self._look is None:  # a new dump: written after the arming
+                # that ran out, read now
+                self._text, span = self._text[max(start, 0):], (
+                    self._armed_at + HIDDEN_AFTER_S, now)
             else:  # the rest of the dump read before
-                began = self._look[0]
-            self._look = (began, parse_dump(self._text))
-        elif self._look is not None and now - self._look[0] > KEEP_S:
+                span = self._look[0]
+            self._look = (span, parse_dump(self._text))
+        elif self._look is not None and now - self._look[0][1] > KEEP_S:
             self._look = None
         if now - self._armed_at >= REARM_EVERY_S:
             faulthandler.dump_traceback_later(HIDDEN_AFTER_S, repeat=False, file=self._file)
             self._armed_at = now
 
-    def claim(self, began: float) -> dict | None:
-        """The look taken during a stall that began at monotonic ``began`` (first read
-        after it began), once; None when there is none."""
-        if self._look is None or self._look[0] < began:
+    def claim(self, began: float, ended: float) -> dict | None:
+        """The look taken during a stall from monotonic ``began`` to ``ended``, once;
+        None when there is none. The look was written between its arming's end (the
+        arming plus :data:`HIDDEN_AFTER_S`) and its reading: a stall that ended before
+        that or began after it is another one (the watchdog, let run after a block,
+        handles an earlier stall's end and the block's in one turn: run H4 gave the
+        block's look to the stall before it)."""
+        if self._look is None:
+            return None
+        (written_after, read_at) = self._look[0]
+        if ended < written_after or began > read_at:
             return None
         stacks, self._look, self._text = self._look[1], None, ""
         return stacks

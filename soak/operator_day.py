@@ -96,9 +96,10 @@ class Operator(WindowDriver):
         operator would, by clicking Done, once the box shows its button at the same spot
         at two looks 0.5 s apart (as :meth:`aim` does; a box is visible to Qt before the
         window manager has placed it: a click sent at once was lost on 2026-11-28, most
-        likely so, and the day's second dark run waited 600 s for its answer). A box still shown :data:`RECLICK_LOOKS` looks
-        after its click was carried out (looks on this event loop, which has read the
-        click by then) is clicked again, counted in ``notes["prompt_reclicks"]``."""
+        likely so, and the day's second dark run waited 600 s for its answer). A box
+        still shown :data:`RECLICK_LOOKS` looks after its click was carried out (looks on
+        this event loop, which has read the click by then) is clicked again, counted in
+        ``notes["prompt_reclicks"]``."""
         seen, self._prompted = self._prompted, {}  # the boxes shown now only
         for box in self.w.findChildren(QMessageBox):
             if not box.isVisible() or box.windowTitle() != "operator action":

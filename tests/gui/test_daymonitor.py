@@ -698,3 +698,28 @@ def test_a_stall_holding_the_gil_is_seen_by_faulthandler(qapp, wait):
     (cause, n), = [c for c in _stall_causes([stall])]
     assert "_blocked_holding_the_gil" in cause and "faulthandler" in cause, cause
 
+
+
+def test_faulthandlers_look_goes_to_the_stall_it_was_taken_in():
+    """A look is written after its arming ran out and read later; a stall that ended
+    before that (the load's, handled in the same turn as the block's) does not get it."""
+    import time
+
+    from soak.hiddenstall import HIDDEN_AFTER_S, HiddenStallLook
+
+    look = HiddenStallLook()
+    try:
+        look.tick()  # armed now
+        armed = time.monotonic()
+        with open(look.path, "a") as dump:  # what faulthandler writes, as it writes it
+            dump.write(f'Timeout (0:00:01)!\nThread {threading.get_ident():#x} (most recent '
+                       'call first):\n  File "/x/gui/app.py", line 7 in held\n')
+        look.tick()
+        read = time.monotonic()
+        assert look.claim(armed - 5.0, armed - 4.0) is None  # ended before it was written
+        assert look.claim(read + 1.0, read + 2.0) is None  # began after it was read
+        stacks = look.claim(armed, armed + HIDDEN_AFTER_S + 0.01)
+        assert stacks == {threading.get_ident(): [("/x/gui/app.py", 7, "held")]}, stacks
+        assert look.claim(armed, read) is None  # once
+    finally:
+        look.close()
