@@ -14,6 +14,16 @@ pass of the event loop, and a sync calls ``fdatasync`` twice (its lock file and 
 file). In an hour of live view on the development machine (a virtual disk) the only
 two stalls of the GUI thread over 100 ms (130 and 257 ms) came as a key reached a
 remembered field. :func:`read` sees a stored value at once, written or not.
+
+The writer never syncs a ``QSettings`` on the disk: PySide6 keeps the interpreter's
+lock through ``QSettings.sync()``, so a sync that waits for a busy disk stops every
+Python thread, the GUI thread's slots included (measured beside two disk writers: a
+ticker thread stalled exactly as long as each sync, up to 93 ms, where ``os.fsync``
+stalled it 10-14 ms; in run H4's operator day a 4.4 s freeze, faulthandler's look
+showing the writer in ``sync``). It lets ``QSettings`` write the INI text to a staging
+copy in memory-backed ``/dev/shm`` (no disk wait), then puts that text in place with
+Python's I/O (``os.fsync`` and the rename release the lock), under an advisory lock
+file beside the settings file (one writer at a time, across processes).
 """
 
 from __future__ import annotations
@@ -56,6 +66,8 @@ class _Writer:
         self.lock = threading.Lock()
         self.flushing = threading.Lock()
         self.pending: dict[tuple[str | None, str], Any] = {}
+        #: Values this process wrote, as read() gives them (module docstring).
+        self.written: dict[tuple[str | None, str], Any] = {}
         self.wake = threading.Event()
         self.thread: threading.Thread | None = None
 
@@ -67,10 +79,6 @@ class _Writer:
                                                daemon=True)
                 self.thread.start()
         self.wake.set()
-
-    def get(self, path: str | None, key: str) -> Any:
-        with self.lock:
-            return self.pending.get((path, key), _MISSING)
 
     def _run(self) -> None:
         while True:
@@ -86,19 +94,71 @@ class _Writer:
                 items = dict(self.pending)
             if not items:
                 return
-            files: dict[str | None, QSettings] = {}
+            by_file: dict[str | None, dict[str, Any]] = {}
             for (path, key), value in items.items():
-                s = files.get(path)
-                if s is None:
-                    s = files[path] = (QSettings(path, QSettings.Format.IniFormat) if path
-                                       else QSettings("DiffuserLab", "gui"))
-                s.setValue(key, value)
-            for s in files.values():
-                s.sync()
+                by_file.setdefault(path, {})[key] = value
+            for path, values in by_file.items():
+                _write_settings(_file_name(path), values)
             with self.lock:
                 for k, value in items.items():
                     if self.pending.get(k, _MISSING) is value:
                         del self.pending[k]
+                        # read() keeps seeing it: the cached QSettings has not read the
+                        # file written behind its back (QSettings.sync re-reads it)
+                        self.written[k] = value
+
+    def get(self, path: str | None, key: str) -> Any:
+        with self.lock:
+            value = self.pending.get((path, key), _MISSING)
+            return self.written.get((path, key), _MISSING) if value is _MISSING else value
+
+
+def _file_name(path: str | None) -> str:
+    """The settings file's name: ``path``, else the GUI's default QSettings file."""
+    return path if path else QSettings("DiffuserLab", "gui").fileName()
+
+
+def _fsync(fd: int) -> None:
+    os.fsync(fd)  # releases the interpreter's lock while the disk works
+
+
+def _write_settings(file_name: str, values: dict[str, Any]) -> None:
+    """Set ``values`` in the INI settings file ``file_name``, the disk's waits outside
+    the interpreter's lock (module docstring)."""
+    import fcntl
+    import tempfile
+    import uuid
+    from pathlib import Path
+
+    from instrument.atomic import atomic_path
+
+    target = Path(file_name)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    shm = Path("/dev/shm")
+    staging = Path(shm if shm.is_dir() and os.access(shm, os.W_OK) else tempfile.gettempdir()
+                   ) / f"diffuserlab-settings-{uuid.uuid4().hex}.ini"
+    with open(f"{target}.writer-lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another window's writer: waits without the GIL
+        try:
+            if target.exists():
+                staging.write_bytes(target.read_bytes())
+            q = QSettings(str(staging), QSettings.Format.IniFormat)
+            for key, value in values.items():
+                q.setValue(key, value)
+            q.sync()  # in memory: no disk wait under the interpreter's lock
+            status = q.status()
+            del q
+            if status != QSettings.Status.NoError:
+                raise OSError(f"the settings could not be written to {staging} ({status})")
+            text = staging.read_bytes()
+            with atomic_path(target) as tmp, open(tmp, "wb") as f:
+                f.write(text)
+                f.flush()
+                _fsync(f.fileno())
+        finally:
+            for leftover in (staging, Path(f"{staging}.lock")):
+                leftover.unlink(missing_ok=True)
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 _writer = _Writer()

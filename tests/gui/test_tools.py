@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -206,6 +207,55 @@ def test_a_remembered_field_is_written_off_the_gui_thread(qapp, tmp_path, monkey
     ini.read(path)
     assert ini["fields"]["test\\dark"] == "65"
     assert fields.read("fields/test/dark") == "65"
+
+
+def test_the_settings_file_is_synced_by_python_not_by_qsettings(qapp, tmp_path, monkeypatch):
+    """PySide6 keeps the interpreter's lock through ``QSettings.sync()``: a sync of the
+    settings file that waited for a busy disk froze every Python thread (run H4's 4.4 s
+    operator-day freeze). The writer syncs ``QSettings`` only on a staging copy in
+    memory, and puts the file in place with Python's I/O (``os.fsync`` releases the
+    lock); the file holds the values, a second flush keeps the first one's, and what
+    another QSettings of the file set before survives."""
+    import configparser
+    import threading
+
+    import gui.fields as fields
+
+    path = tmp_path / "gui.ini"
+    monkeypatch.setenv("DIFFUSERLAB_GUI_SETTINGS", str(path))
+    other = fields.QSettings(str(path), fields.QSettings.Format.IniFormat)
+    other.setValue("window/kept", "yes")  # e.g. the window's geometry, saved before
+    other.sync()
+    del other
+    synced, fsynced, ran = [], [], []
+    real_sync, real_fsync = fields.QSettings.sync, getattr(fields, "_fsync", os.fsync)
+
+    def sync(self):
+        synced.append(self.fileName())
+        real_sync(self)
+
+    def fsync(fd):
+        ticker = threading.Thread(target=lambda: ran.append(True))  # another thread runs
+        ticker.start()
+        real_fsync(fd)
+        ticker.join(60)
+        fsynced.append(os.readlink(f"/proc/self/fd/{fd}"))
+
+    monkeypatch.setattr(fields.QSettings, "sync", sync)
+    monkeypatch.setattr(fields, "_fsync", fsync, raising=False)
+    fields.store("fields/test/a", "1")
+    fields.flush()
+    fields.store("fields/test/b", "2")
+    fields.flush()
+    assert synced and all(not name.startswith(str(tmp_path)) for name in synced), synced
+    assert len(fsynced) == 2 and all(p.startswith(str(tmp_path)) for p in fsynced), fsynced
+    assert ran == [True, True]
+    ini = configparser.ConfigParser()
+    ini.read(path)
+    assert (ini["fields"]["test\\a"], ini["fields"]["test\\b"]) == ("1", "2")
+    assert ini["window"]["kept"] == "yes"
+    assert fields.read("fields/test/a") == "1"
+    assert not list(tmp_path.glob(".gui.ini.*")), list(tmp_path.iterdir())  # no leftovers
 
 
 def test_fields_are_remembered_across_sessions(qapp, tmp_path, monkeypatch):
