@@ -460,41 +460,37 @@ class DayMonitor(QObject):
                 self._resample(seen.get(last), now - last, gui_tid, servers)
                 continue
             sampled_for = last
-            stacks = _thread_stacks()
-            where = [f"{_short_path(f.filename)}:{f.lineno}:{f.name}"
-                     for f in stacks.get(self._gui_thread, [])[-6:]]
-            names = {t.ident: t.name for t in threading.enumerate()}
-            busy = []
-            for ident, stack in stacks.items():
-                if ident in (self._gui_thread, threading.get_ident()) or not stack:
-                    continue
-                top = stack[-1]
-                if top.name not in _WAITING:
-                    busy.append(f"{names.get(ident, ident)}@{_short_path(top.filename)}:"
-                                f"{top.lineno}:{top.name}")
+            stacks = {ident: [(f.filename, f.lineno, f.name) for f in stack]
+                      for ident, stack in _thread_stacks().items()}
             if len(self.stalls) < 2000:
-                record = {"t_s": round(time.monotonic() - self.t0, 2),
-                          "phase": self.phase, "gui_stack": where, "threads": busy,
-                          "gui_kernel": kernel_state(gui_tid), "later": []}
+                record = {"t_s": round(time.monotonic() - self.t0, 2), "phase": self.phase,
+                          **self._where(stacks), "gui_kernel": kernel_state(gui_tid),
+                          "later": []}
                 # this thread waited for the GIL through the stall: what it sees now is
                 # after the block, faulthandler's look is from within it
                 self._hidden_look(record, hidden.claim(last, now))
                 self.stalls.append(record)
                 seen[last] = record
 
-    def _hidden_look(self, record: dict, stacks: dict | None) -> None:
-        """Fill a stall's record that the watchdog could not take live from
-        faulthandler's look (:mod:`soak.hiddenstall`): the GUI thread's innermost frames
-        and the other threads' that were not waiting, ``seen_by: "faulthandler"``."""
-        if not stacks:
-            return
+    def _where(self, stacks: dict[int, list[tuple[str, int, str]]]) -> dict:
+        """A stall record's ``gui_stack`` (the GUI thread's innermost frames) and
+        ``threads`` (the other threads whose innermost frame is not a wait), from every
+        thread's ``(file, line, function)`` frames, innermost last."""
         names = {t.ident: t.name for t in threading.enumerate()}
-        fmt = [f"{_short_path(f)}:{n}:{fn}" for f, n, fn in stacks.get(self._gui_thread, [])]
         busy = [f"{names.get(ident, ident)}@{_short_path(st[-1][0])}:{st[-1][1]}:{st[-1][2]}"
                 for ident, st in stacks.items()
                 if ident not in (self._gui_thread, threading.get_ident()) and st
                 and st[-1][2] not in _WAITING]
-        record.update(gui_stack=fmt[-6:], threads=busy, seen_by="faulthandler")
+        return {"gui_stack": [f"{_short_path(f)}:{n}:{fn}"
+                              for f, n, fn in stacks.get(self._gui_thread, [])[-6:]],
+                "threads": busy}
+
+    def _hidden_look(self, record: dict, stacks: dict | None) -> None:
+        """Fill a stall's record that the watchdog could not take live from
+        faulthandler's look (:mod:`soak.hiddenstall`), ``seen_by: "faulthandler"``."""
+        if not stacks:
+            return
+        record.update(self._where(stacks), seen_by="faulthandler")
         record.pop("gui_kernel", None)  # a live look's was taken after the block
 
     def _resample(self, record: dict | None, into_s: float, gui_tid: int,

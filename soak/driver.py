@@ -15,7 +15,7 @@ import traceback
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from PySide6.QtCore import QTimer
+from PySide6.QtCore import QPoint, QTimer
 from PySide6.QtWidgets import QApplication, QToolButton
 
 from .xinput import XInput, centre
@@ -34,6 +34,18 @@ HANG_S = 600.0
 #: How many times :meth:`WindowDriver.fill` types a field again that came out wrong.
 RETYPES = 2
 
+
+
+def shown_at(widget, before: QPoint | None) -> tuple[QPoint, bool]:
+    """``(point, shown)``: ``widget``'s centre on the screen now, and whether the window
+    shows the widget there, nothing covering it, at the same spot as ``before`` (the
+    last look's point): a panel that re-lays itself out when its dock is raised (the
+    Record panel's columns) moves its fields after the first look, and a dialog is
+    visible to Qt before the window manager has placed it."""
+    point = centre(widget)
+    under = QApplication.widgetAt(point)
+    return point, (under is not None and (under is widget or widget.isAncestorOf(under))
+                   and point == before)
 
 class StepFailed(RuntimeError):
     """A step of the day did not show what it should have (the message says what)."""
@@ -154,12 +166,8 @@ class WindowDriver:
                 yield self.until(widget.isVisible, 5, "the tool bar's overflow to open")
         before = None
         for _ in range(40):
-            point = centre(widget)
-            under = QApplication.widgetAt(point)
-            # where it was a moment ago too: a panel that re-lays itself out when its dock
-            # is raised (the Record panel's columns) moves its fields after the first look
-            if under is not None and (under is widget or widget.isAncestorOf(under)) \
-                    and point == before:
+            point, shown = shown_at(widget, before)
+            if shown:
                 self.target = point
                 return
             before = point

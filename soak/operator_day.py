@@ -41,8 +41,7 @@ from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox
 from instrument.atomic import write_json
 
 from .daymonitor import DayMonitor, HeapTracker, census
-from .driver import StepFailed, WindowDriver
-from .xinput import centre
+from .driver import StepFailed, WindowDriver, shown_at
 
 __all__ = ["Operator", "StepFailed", "main", "start_when_shown"]
 
@@ -104,14 +103,10 @@ class Operator(WindowDriver):
         for box in self.w.findChildren(QMessageBox):
             if not box.isVisible() or box.windowTitle() != "operator action":
                 continue
-            ok = box.button(QMessageBox.StandardButton.Ok)
-            point = centre(ok)
-            under = QApplication.widgetAt(point)
             before, looks = seen.get(box, (None, None))
             if looks is None and before is None:
                 self.notes.setdefault("prompts", []).append(box.text())
-            shown = under is not None and (under is ok or ok.isAncestorOf(under)) \
-                and point == before
+            point, shown = shown_at(box.button(QMessageBox.StandardButton.Ok), before)
             if looks is not None:  # clicked: once X has carried it out, count the looks
                 looks += 1 if self.x.idle() else 0
                 if looks < RECLICK_LOOKS or not shown:
