@@ -554,3 +554,29 @@ def test_snapshot_saves_the_frame_on_screen_at_the_click(view, wait, tmp_path, m
     assert np.array_equal(tifffile.imread(tmp_path / "clicked.tif"), image)
     folder = tmp_path / "out" / "snapshots"
     assert folder.is_dir() and offered[0].startswith(str(Path("out") / "snapshots"))
+
+
+def test_two_processes_writing_one_settings_file_keep_every_value(tmp_path):
+    """Two windows' settings writers on one file at once (two real processes): each
+    write reads the file, sets its keys and puts it in place under the writer's lock
+    file, so neither loses the other's values."""
+    import configparser
+    import subprocess
+    import sys
+
+    path = tmp_path / "gui.ini"
+    script = ("import os, sys\n"
+              "import gui.fields as fields\n"
+              "n = sys.argv[1]\n"
+              "for i in range(40):\n"
+              "    fields.store(f'fields/p{n}/k{i}', str(i))\n"
+              "    fields.flush()\n")
+    env = {**os.environ, "DIFFUSERLAB_GUI_SETTINGS": str(path), "QT_QPA_PLATFORM": "offscreen"}
+    procs = [subprocess.Popen([sys.executable, "-c", script, str(n)], env=env)
+             for n in (1, 2)]
+    assert [p.wait(600) for p in procs] == [0, 0]
+    ini = configparser.ConfigParser()
+    ini.read(path)
+    missing = [f"p{n}\\k{i}" for n in (1, 2) for i in range(40)
+               if ini["fields"].get(f"p{n}\\k{i}") != str(i)]
+    assert not missing, missing
