@@ -118,47 +118,23 @@ def _file_name(path: str | None) -> str:
     return path if path else QSettings("DiffuserLab", "gui").fileName()
 
 
-def _fsync(fd: int) -> None:
-    os.fsync(fd)  # releases the interpreter's lock while the disk works
-
-
 def _write_settings(file_name: str, values: dict[str, Any]) -> None:
-    """Set ``values`` in the INI settings file ``file_name``, the disk's waits outside
-    the interpreter's lock (module docstring)."""
-    import fcntl
-    import tempfile
-    import uuid
-    from pathlib import Path
+    """Set ``values`` in the INI settings file ``file_name``: ``QSettings`` edits a
+    copy in memory, :func:`instrument.atomic.update_file` puts it in place under the
+    file's lock (module docstring)."""
+    from instrument.atomic import update_file
 
-    from instrument.atomic import atomic_path
+    def edit(scratch) -> None:
+        q = QSettings(str(scratch), QSettings.Format.IniFormat)
+        for key, value in values.items():
+            q.setValue(key, value)
+        q.sync()  # in memory: no disk wait under the interpreter's lock
+        status = q.status()
+        del q
+        if status != QSettings.Status.NoError:
+            raise OSError(f"the settings could not be written to {scratch} ({status})")
 
-    target = Path(file_name)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    shm = Path("/dev/shm")
-    staging = Path(shm if shm.is_dir() and os.access(shm, os.W_OK) else tempfile.gettempdir()
-                   ) / f"diffuserlab-settings-{uuid.uuid4().hex}.ini"
-    with open(f"{target}.writer-lock", "a") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # another window's writer: waits without the GIL
-        try:
-            if target.exists():
-                staging.write_bytes(target.read_bytes())
-            q = QSettings(str(staging), QSettings.Format.IniFormat)
-            for key, value in values.items():
-                q.setValue(key, value)
-            q.sync()  # in memory: no disk wait under the interpreter's lock
-            status = q.status()
-            del q
-            if status != QSettings.Status.NoError:
-                raise OSError(f"the settings could not be written to {staging} ({status})")
-            text = staging.read_bytes()
-            with atomic_path(target) as tmp, open(tmp, "wb") as f:
-                f.write(text)
-                f.flush()
-                _fsync(f.fileno())
-        finally:
-            for leftover in (staging, Path(f"{staging}.lock")):
-                leftover.unlink(missing_ok=True)
-            fcntl.flock(lock, fcntl.LOCK_UN)
+    update_file(file_name, edit)
 
 
 _writer = _Writer()

@@ -7,8 +7,9 @@ outputs together (:func:`output_group`), what a failed write left removed
 (:func:`remove_tree`, after zarr's writes in flight, :func:`wait_for_zarr_writes`), a
 full disk named with its free space (:func:`free_space_text`), and every JSON file
 (:func:`write_json`), and an append-only log whose lines are written whole or not at all
-(:class:`AppendLog`). It imports nothing else of ``instrument``, so the run stores
-below the product writer use it too.
+(:class:`AppendLog`), and a file other processes update too, edited on a scratch copy
+in memory and put in place under a lock file (:func:`update_file`). It imports nothing
+else of ``instrument``, so the run stores below the product writer use it too.
 """
 
 from __future__ import annotations
@@ -17,12 +18,12 @@ import contextlib
 import os
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 __all__ = ["AppendLog", "atomic_dir", "atomic_path", "free_space_text", "missing_dirs",
-           "output_group", "remove_empty_dirs", "remove_tree", "wait_for_zarr_writes",
-           "write_json", "write_text"]
+           "output_group", "remove_empty_dirs", "remove_tree", "update_file",
+           "wait_for_zarr_writes", "write_json", "write_text"]
 
 
 def _size_text(n: float) -> str:
@@ -444,6 +445,73 @@ def write_text(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def _scratch_root() -> str:
+    """Memory-backed ``/dev/shm`` where it is writable, else the system's temp folder."""
+    shm = "/dev/shm"
+    return shm if os.path.isdir(shm) and os.access(shm, os.W_OK) else tempfile.gettempdir()
+
+
+def update_file(path: str | os.PathLike, edit: Callable[[Path], None]) -> Path:
+    """Update ``path`` by ``edit`` on a scratch copy in memory, then put the result in
+    place whole, synced to the disk, under an exclusive lock file beside it.
+
+    For a file several processes update (the GUI's settings file: two windows, a
+    window and a notebook): ``fcntl.flock`` on ``PATH.writer-lock`` makes the read,
+    the edit and the write one step, so no process's values are lost to another's
+    write. The edit works on a copy in ``/dev/shm``, so an editor that keeps the
+    interpreter's lock while it writes (PySide6's ``QSettings.sync()``) never waits
+    for the disk; the disk's waits (``os.fsync``, the rename, the lock) are Python's
+    and release the interpreter's lock, so other threads run meanwhile.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (may not exist yet: ``edit`` then gets no file; its folder is made).
+    edit : callable
+        ``edit(scratch)`` with ``scratch`` a :class:`pathlib.Path` holding a copy of
+        ``path`` (absent if ``path`` is); what it leaves there replaces ``path``.
+        Other files it makes beside ``scratch`` (a lock file) are removed.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, updated (its lock file ``PATH.writer-lock`` stays beside it).
+
+    Raises
+    ------
+    OSError
+        The file, its lock or the scratch copy cannot be written, or ``edit`` left no
+        file (``path`` is then left as it was); what ``edit`` raises propagates, and
+        ``path`` is left as it was.
+    """
+    import fcntl
+    import shutil
+
+    target, _ = _make_parent(path)
+    scratch_dir = Path(tempfile.mkdtemp(prefix="diffuserlab-update-", dir=_scratch_root()))
+    scratch = scratch_dir / target.name
+    try:
+        with open(f"{target}.writer-lock", "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # another process's update: waits, GIL free
+            try:
+                if target.exists():
+                    shutil.copyfile(target, scratch)
+                edit(scratch)
+                if not scratch.is_file():
+                    raise OSError(f"the update of {target} left no file; {target} is "
+                                  "left as it was")
+                with atomic_path(target) as tmp, open(tmp, "wb") as out, \
+                        open(scratch, "rb") as src:
+                    shutil.copyfileobj(src, out)
+                    out.flush()
+                    os.fsync(out.fileno())  # the interpreter's lock is released here
+            finally:
+                fcntl.flock(lock, fcntl.LOCK_UN)
+    finally:
+        shutil.rmtree(scratch_dir, ignore_errors=True)
+    return target
 
 
 class AppendLog:

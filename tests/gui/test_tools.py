@@ -228,21 +228,25 @@ def test_the_settings_file_is_synced_by_python_not_by_qsettings(qapp, tmp_path, 
     other.sync()
     del other
     synced, fsynced, ran = [], [], []
-    real_sync, real_fsync = fields.QSettings.sync, getattr(fields, "_fsync", os.fsync)
+    real_sync, real_fsync = fields.QSettings.sync, os.fsync
 
     def sync(self):
         synced.append(self.fileName())
         real_sync(self)
 
     def fsync(fd):
-        ticker = threading.Thread(target=lambda: ran.append(True))  # another thread runs
+        ticked = []
+        ticker = threading.Thread(target=lambda: ticked.append(True))  # another thread runs
         ticker.start()
         real_fsync(fd)
         ticker.join(60)
-        fsynced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        name = os.readlink(f"/proc/self/fd/{fd}")
+        if name.startswith(str(tmp_path)):  # the settings file's, not another test's
+            fsynced.append(name)
+            ran.extend(ticked)
 
     monkeypatch.setattr(fields.QSettings, "sync", sync)
-    monkeypatch.setattr(fields, "_fsync", fsync, raising=False)
+    monkeypatch.setattr(os, "fsync", fsync)
     fields.store("fields/test/a", "1")
     fields.flush()
     fields.store("fields/test/b", "2")
