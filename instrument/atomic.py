@@ -470,7 +470,7 @@ def update_file(path: str | os.PathLike, edit: Callable[[Path], None]) -> Path:
     path : str or os.PathLike
         The file (may not exist yet: ``edit`` then gets no file; its folder is made).
     edit : callable
-        ``edit(scratch)`` with ``scratch`` a :class:`pathlib.Path` holding a copy of
+        ``edit(scratch)`` with ``scratch`` a ``pathlib.Path`` holding a copy of
         ``path`` (absent if ``path`` is); what it leaves there replaces ``path``.
         Other files it makes beside ``scratch`` (a lock file) are removed.
 
