@@ -60,10 +60,9 @@ from instrument.atomic import missing_dirs, remove_empty_dirs
 from instrument.runs.coords import coord_specs
 from instrument.runs.run_recipe import write_run_recipe
 from instrument.runs.runstore import RunStore, discard_partial_run
-from recon.analysis.early_stop import THRESHOLDS, fit_early_stop, reference_db
+from recon.analysis.early_stop import THRESHOLDS, fit_early_stop, fit_recipe, reference_db
 from recon.analysis.psf_from_scenes import (
     ESTIMATE_ITERATIONS,
-    LeaveOneOut,
     PsfEstimate,
     check_pairs,
     estimate_psf_from_scenes,
@@ -78,8 +77,7 @@ from recon.scenes import BUNDLED, load_scene
 from ._common import CALIBRATION_EXPOSURE, sensor_geometry, signal_minus_dark
 
 __all__ = ["FILES_PLAN", "MAX_RANDOM", "PATTERNS", "RECIPE_IMAGES", "PsfFromScenesPlan",
-           "display_gray",
-           "early_stop_for", "match_pairs", "pattern_block_px", "psf_run_from_files",
+           "display_gray", "match_pairs", "pattern_block_px", "psf_run_from_files",
            "random_pattern", "write_psf"]
 
 #: The plan name of a run made from files (no frames; nothing to resume).
@@ -170,10 +168,12 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
     units : str
         The PSF's unit.
     early_stop : EarlyStop, optional
-        The reconstruction recipe fitted for this PSF (:func:`early_stop_for`): written as
-        ``early_stop.json`` in the run and summarised with its SHA-256 and held-out
-        residual (:func:`instrument.runs.run_recipe.write_run_recipe`: not trusted as a
-        default above :data:`recon.early_stop.TRUSTED_RESIDUAL`).
+        The reconstruction recipe fitted for this PSF
+        (:func:`recon.analysis.early_stop.fit_recipe`): written as ``early_stop.json``
+        in the run and summarised with its SHA-256 and held-out residual
+        (:func:`instrument.runs.run_recipe.write_run_recipe`: not trusted as a default
+        above :data:`recon.early_stop.TRUSTED_RESIDUAL`); the held-out figures are of
+        the pairs binned as the recipe was fitted (``held_out_bin_factor``).
 
     quality_db : sequence of float, optional
         The PSF's quality figure: per held-out scene, the fixed reference
@@ -208,18 +208,11 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
                                                   strict=True)}
         summary["held_out_reference_db_mean"] = round(float(np.mean(quality_db)), 2)
     if early_stop is not None:  # its SHA-256 and trust recorded (instrument.runs.run_recipe)
+        if held_out is not None:
+            summary["held_out_bin_factor"] = int(early_stop.fit_bin_factor)
         summary["early_stop"] = write_run_recipe(
             store, early_stop, None if held_out is None else float(np.mean(held_out)))
     return summary
-
-
-def early_stop_for(scenes, measurements, loo: LeaveOneOut, estimate: PsfEstimate,
-                   names: Sequence[str], on_solve=None) -> EarlyStop:
-    """The reconstruction recipe fitted on the pairs for ``estimate``'s PSF
-    (:func:`recon.analysis.early_stop.fit_early_stop`, with ``loo``'s held-out PSFs;
-    ``on_solve(done, total)`` after each of its solves)."""
-    return fit_early_stop(scenes, measurements, loo.psfs, estimate.psf, names=names,
-                          on_solve=on_solve)
 
 
 def _calibrate(scenes, measurements, names, options, on_progress):
@@ -239,13 +232,10 @@ def _calibrate(scenes, measurements, names, options, on_progress):
     report(f"PSF from {n} pair(s): {estimate.iterations_run} iterations")
     if n == 1:
         return estimate, None, None, None
-    loo = leave_one_out(scenes, measurements,
-                        on_estimate=lambda k: report(f"PSF without {names[k]}"), **options)
-
-    def solved(i, _total):
-        report(f"recipe: solve {i} of {_total}")
-    fit = early_stop_for(scenes, measurements, loo, estimate, names, solved)
-    return estimate, loo, fit, reference_db(scenes, measurements, loo.psfs, fit)
+    recipe = fit_recipe(scenes, measurements, estimate.psf, names=names,
+                        on_estimate=lambda k: report(f"PSF without {names[k]}"),
+                        on_solve=lambda i, t: report(f"recipe: solve {i} of {t}"), **options)
+    return estimate, recipe.held_out, recipe.fit, recipe.reference_db
 
 
 def _files(spec: Sequence[str], what: str) -> dict[str, Path]:
@@ -523,14 +513,15 @@ class PsfFromScenesPlan(Plan):
                             f"display ({p['display']}) in front of the camera, facing it")
         options = {"iterations": p["iterations"]}
         estimate = estimate_psf_from_scenes(scenes, measurements, **options)
-        loo = leave_one_out(scenes, measurements, **options)
         if recipe:  # photographs the PSF has not seen: its estimate is held out from them
             recipe_x = [self.known_scene(n, shape).astype(np.float32) for n in recipe]
             fit = fit_early_stop(recipe_x, recipe_b, [estimate.psf] * len(recipe),
                                  estimate.psf, names=recipe)
             quality = reference_db(recipe_x, recipe_b, [estimate.psf] * len(recipe), fit)
+            loo = leave_one_out(scenes, measurements, **options)
         else:
-            fit = early_stop_for(scenes, measurements, loo, estimate, names)
-            quality = reference_db(scenes, measurements, loo.psfs, fit)
+            recipe_fit = fit_recipe(scenes, measurements, estimate.psf, names=names,
+                                    **options)
+            fit, loo, quality = recipe_fit.fit, recipe_fit.held_out, recipe_fit.reference_db
         return write_psf(store, estimate, loo.residuals, names, p["z_mm"],
                          "DN/s per unit display radiance", fit, quality, recipe or names)

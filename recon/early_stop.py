@@ -227,6 +227,10 @@ class EarlyStop:
     held_out_residual : float or None
         The calibration's mean held-out relative residual (:data:`TRUSTED_RESIDUAL`);
         None in files written before it was recorded.
+    fit_bin_factor : int
+        The binning the recipe was fitted at (its pairs and held-out PSFs averaged in
+        ``fit_bin_factor`` x ``fit_bin_factor`` blocks; 1 in files of the earlier form);
+        the recipe is applied at the PSF's own size.
     """
 
     iterations: int
@@ -240,6 +244,7 @@ class EarlyStop:
     weights: tuple = (0.0,)
     psf_block_means: tuple = ()
     held_out_residual: float | None = None
+    fit_bin_factor: int = 1
 
     @property
     def trusted(self) -> bool:
@@ -310,7 +315,9 @@ class EarlyStop:
         return (f"PSF soft-thresholded at {self.psf_threshold:g} of its maximum, {SOLVE}, "
                 f"{self.iterations} iterations{post}: the least mean gain-fitted error (dB) "
                 f"on {len(self.pairs) or 'the'} calibration pairs, each reconstructed with "
-                "the PSF estimated without it")
+                "the PSF estimated without it" + (
+                    f" (binned {self.fit_bin_factor} x {self.fit_bin_factor})"
+                    if self.fit_bin_factor > 1 else ""))
 
     def to_dict(self) -> dict:
         """JSON-able form (:meth:`from_dict` reads it back)."""
@@ -324,7 +331,7 @@ class EarlyStop:
                 "errors": np.asarray(self.errors, float).round(6).tolist(),
                 "psf_sha256": self.psf_sha256, "pairs": list(self.pairs),
                 "psf_block_means": [float(v) for v in self.psf_block_means],
-                "method": self.method,
+                "fit_bin_factor": int(self.fit_bin_factor), "method": self.method,
                 **({} if self.held_out_residual is None else
                    {"held_out_residual": float(self.held_out_residual),
                     "trusted": self.trusted})}
@@ -365,7 +372,8 @@ class EarlyStop:
                                                              0.0)
             return cls(iterations, candidates, errors, str(d["psf_sha256"]),
                        tuple(d.get("pairs", ())), threshold, weight, thresholds, weights,
-                       tuple(float(v) for v in d.get("psf_block_means", ())), residual)
+                       tuple(float(v) for v in d.get("psf_block_means", ())), residual,
+                       _count(d.get("fit_bin_factor", 1), "fit_bin_factor"))
         except ReconInputError:
             raise
         except (KeyError, TypeError, ValueError) as exc:

@@ -21,7 +21,16 @@ candidate, by one FISTA solve observed at every candidate count (the iterate at 
 weight, and scored against its known scene after a per-channel least-squares gain
 (the scene's scale is not the reconstruction's). The triple with the least mean error
 in dB over the pairs (the geometric mean of the relative errors) wins
-(:func:`fit_early_stop`). The recipe ships with the PSF it was made for (SHA-256 of
+(:func:`fit_early_stop`).
+
+:func:`fit_recipe` runs the whole fit: the held-out PSFs and the recipe, on the pairs
+binned 2 x 2 (:data:`FIT_BIN`) where each side keeps at least :data:`FIT_MIN_PX`
+pixels. Binning cuts the fit's cost about four-fold (FFTs and denoisings of a quarter
+of the pixels) and does not move the recipe: on the five shared real pairs (270 x 480
+RGB) the fit at bin 2 chose what the full-size fit chose (90 iterations, threshold 0,
+weight 0.05; docs/real-data.md). The count is a property of the solve's spectrum,
+which binning keeps below the binned grid's Nyquist frequency. The recipe is applied
+at the PSF's own size. The recipe ships with the PSF it was made for (SHA-256 of
 its values) and :func:`reconstruct_early_stopped` refuses another PSF.
 
 :func:`fit_held_out` makes the fit a pair may be scored with (a benchmark's
@@ -32,25 +41,36 @@ DiffuserCam pairs.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_signature
 from ..errors import ReconInputError
-from .psf_from_scenes import check_pairs
+from ..validate import as_int
+from .psf_from_scenes import LeaveOneOut, check_pairs
 
-__all__ = ["CANDIDATES", "REFERENCE_ITERATIONS", "THRESHOLDS", "WEIGHTS", "fit_early_stop",
-           "fit_held_out", "gain_fitted_error", "reconstruct_early_stopped",
-           "reference_db", "solve_checkpoints"]
+__all__ = ["CANDIDATES", "FIT_BIN", "FIT_MIN_PX", "REFERENCE_ITERATIONS", "THRESHOLDS",
+           "WEIGHTS", "RecipeFit", "fit_bin_factor", "fit_early_stop", "fit_held_out",
+           "fit_recipe", "gain_fitted_error", "reconstruct_early_stopped", "reference_db",
+           "solve_checkpoints"]
 
 #: Candidate iteration counts of :func:`fit_early_stop` (checkpoints of one solve).
 CANDIDATES = tuple(range(10, 201, 10))
-#: Candidate PSF thresholds (fractions of the maximum, :func:`recon.early_stop.clean_psf`).
-THRESHOLDS = (0.0, 0.05, 0.1)
+#: Candidate PSF thresholds (fractions of the maximum, :func:`recon.early_stop.clean_psf`):
+#: none by default. With the converged, channel-tied PSF estimate, 0 won every full-size
+#: fit on the shared real pairs (0.1 lost on every pair, by 1.2-4.2 dB), and binning
+#: changes what a threshold removes (it lowers the PSF's peak against its floor): at
+#: bin 2 one fold chose 0.05 and lost 0.70 dB on its held-out pair (docs/real-data.md).
+THRESHOLDS = (0.0,)
 #: Candidate weights of the final isotropic TV denoising (:func:`recon.early_stop.denoise_tv`).
 WEIGHTS = (0.0, 0.05, 0.1, 0.2)
 #: Iterations of the fixed reference solve that scores a PSF (:func:`reference_db`).
 REFERENCE_ITERATIONS = 50
+#: The binning :func:`fit_recipe` fits at (module docstring).
+FIT_BIN = 2
+#: The fewest pixels a side keeps once binned; smaller pairs are fitted unbinned.
+FIT_MIN_PX = 96
 
 
 def gain_fitted_error(estimate: np.ndarray, scene: np.ndarray) -> float:
@@ -158,7 +178,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
                    candidates: Sequence[int] = CANDIDATES,
                    thresholds: Sequence[float] = THRESHOLDS,
                    weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
-                   on_candidate=None, on_solve=None) -> EarlyStop:
+                   on_candidate=None, on_solve=None, bin_factor: int = 1) -> EarlyStop:
     """Fit the recipe (PSF threshold, iteration count, denoising weight) on
     calibration pairs (module docstring).
 
@@ -172,7 +192,8 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         Pair ``k``'s PSF estimated without it (``leave_one_out(...).psfs``), each of
         the measurements' shape.
     psf : ndarray
-        The PSF estimated from every pair: the one the recipe ships with.
+        The PSF estimated from every pair: the one the recipe ships with, at its own
+        size (``bin_factor`` times the pairs' shape, remainders cropped by binning).
     candidates : sequence of int
         Iteration counts to try (each >= 1; default :data:`CANDIDATES`); one solve of
         the largest per pair and threshold, observed at each.
@@ -188,6 +209,9 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     on_solve : callable, optional
         ``on_solve(done, total)`` after each observed solve (one per threshold and
         pair: ``total`` of them), for progress lines.
+    bin_factor : int
+        The binning of the pairs and held-out PSFs against ``psf`` (>= 1; recorded as
+        the recipe's ``fit_bin_factor``).
 
     Returns
     -------
@@ -197,7 +221,8 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     ------
     ReconInputError
         Fewer than two pairs, one held-out PSF per pair missing, a PSF of another
-        shape, a candidate count < 1, a threshold outside [0, 1) or a negative weight.
+        shape, a candidate count < 1, a threshold outside [0, 1), a negative weight or
+        a bin factor < 1.
     """
     xs, bs = check_pairs(scenes, measurements)
     if len(xs) < 2 or len(held_out_psfs) != len(xs):
@@ -212,10 +237,12 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     if not ts or not ws or not (0 <= ts[0] and ts[-1] < 1) or ws[0] < 0:
         raise ReconInputError(f"thresholds {list(thresholds)} and weights {list(weights)}: "
                               "give thresholds in [0, 1) and weights >= 0")
-    for h in (*held_out_psfs, psf):
-        if np.shape(h)[:2] != xs[0].shape[:2]:
+    binning = as_int(bin_factor, "bin_factor", 1)
+    for h, factor in [*((h, 1) for h in held_out_psfs), (psf, binning)]:
+        if tuple(n // factor for n in np.shape(h)[:2]) != xs[0].shape[:2]:
             raise ReconInputError(f"PSF of shape {np.shape(h)} for pairs of shape "
-                                  f"{xs[0].shape}: give PSFs of the measurements' shape")
+                                  f"{xs[0].shape} binned {factor} x {factor}: give PSFs "
+                                  "of the measurements' shape")
     errors = np.zeros((len(ts), len(cands), len(ws), len(xs)))
     scorers = [_scorer(x) for x in xs]
     for i, t in enumerate(ts):
@@ -232,7 +259,96 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
     i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
-                     ts[i], ws[m], tuple(ts), tuple(ws), psf_signature(psf))
+                     ts[i], ws[m], tuple(ts), tuple(ws), psf_signature(psf),
+                     fit_bin_factor=binning)
+
+
+def fit_bin_factor(shape) -> int:
+    """The binning :func:`fit_recipe` fits pairs of ``shape`` (rows, cols[, channels])
+    at: :data:`FIT_BIN` when each binned side keeps :data:`FIT_MIN_PX` pixels, else 1."""
+    return FIT_BIN if min(shape[:2]) // FIT_BIN >= FIT_MIN_PX else 1
+
+
+@dataclass(frozen=True)
+class RecipeFit:
+    """What :func:`fit_recipe` made, every figure at its binning.
+
+    Attributes
+    ----------
+    fit : EarlyStop
+        The recipe, for the PSF from every pair.
+    held_out : recon.analysis.psf_from_scenes.LeaveOneOut
+        Each pair's held-out residual and PSF, of the binned pairs.
+    reference_db : ndarray, float64, (n_pairs,)
+        :func:`reference_db` of the held-out PSFs on the binned pairs.
+    bin_factor : int
+        The binning (1: none).
+    """
+
+    fit: EarlyStop
+    held_out: LeaveOneOut
+    reference_db: np.ndarray
+    bin_factor: int
+
+
+def fit_recipe(scenes, measurements, psf, *, bin_factor: int | None = None,
+               candidates: Sequence[int] = CANDIDATES,
+               thresholds: Sequence[float] = THRESHOLDS,
+               weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
+               on_estimate=None, on_solve=None, **psf_options) -> RecipeFit:
+    """The recipe for ``psf`` fitted on its calibration pairs: each pair's PSF
+    estimated without it (:func:`recon.analysis.psf_from_scenes.leave_one_out`), then
+    :func:`fit_early_stop` and :func:`reference_db`, on the pairs binned by
+    ``bin_factor`` (module docstring).
+
+    Parameters
+    ----------
+    scenes, measurements
+        The calibration pairs, as for :func:`fit_early_stop` (at least two).
+    psf : ndarray
+        The PSF estimated from every pair, at the pairs' size.
+    bin_factor : int, optional
+        Block size of the binning (>= 1); default :func:`fit_bin_factor` of the pairs.
+    candidates, thresholds, weights, names, on_solve
+        As for :func:`fit_early_stop`.
+    on_estimate : callable, optional
+        ``on_estimate(k)`` after pair ``k``'s held-out PSF (progress).
+    **psf_options
+        Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`; a
+        ``psf_shape`` is binned with the pairs.
+
+    Returns
+    -------
+    RecipeFit
+
+    Raises
+    ------
+    ReconInputError
+        What :func:`fit_early_stop` or the estimate refuses, or a bin factor < 1 or
+        larger than the pairs.
+    """
+    from ..preprocess.binning import box_bin
+    from .psf_from_scenes import leave_one_out
+
+    shape = check_pairs(scenes, measurements)[0][0].shape
+    xs, bs = list(scenes), list(measurements)  # 2D stays 2D (check_pairs adds a channel)
+    b = fit_bin_factor(shape) if bin_factor is None else as_int(bin_factor, "bin_factor", 1)
+    if b > 1:
+        if b > min(shape[:2]) // 2:
+            raise ReconInputError(f"bin_factor {b} for pairs of shape {shape}: give "
+                                  "a factor that leaves at least 2 pixels a side")
+        xs, bs = [box_bin(np.asarray(x), b) for x in xs], [box_bin(np.asarray(m), b)
+                                                            for m in bs]
+        if psf_options.get("psf_shape") is not None:
+            psf_options = {**psf_options, "psf_shape": tuple(
+                max(2, int(n) // b) for n in psf_options["psf_shape"])}
+    if tuple(n // b for n in np.shape(psf)[:2]) != np.shape(xs[0])[:2]:  # before the work
+        raise ReconInputError(f"PSF of shape {np.shape(psf)} for pairs of shape {shape} "
+                              f"binned {b} x {b}: give the PSF estimated from the pairs")
+    loo = leave_one_out(xs, bs, on_estimate=on_estimate, **psf_options)
+    fit = fit_early_stop(xs, bs, loo.psfs, psf, candidates=candidates, thresholds=thresholds,
+                         weights=weights, names=names, on_solve=on_solve, bin_factor=b)
+    return RecipeFit(fit, loo, reference_db(xs, bs, loo.psfs, fit), b)
 
 
 def reference_db(scenes, measurements, held_out_psfs: Sequence, fit: EarlyStop | None = None
@@ -284,7 +400,8 @@ def reference_db(scenes, measurements, held_out_psfs: Sequence, fit: EarlyStop |
 def fit_held_out(scenes, measurements, k: int, *, psf=None,
                  candidates: Sequence[int] = CANDIDATES,
                  thresholds: Sequence[float] = THRESHOLDS,
-                 weights: Sequence[float] = WEIGHTS, **psf_options) -> EarlyStop:
+                 weights: Sequence[float] = WEIGHTS, bin_factor: int | None = None,
+                 **psf_options) -> EarlyStop:
     """The early-stop fit that pair ``k`` may be scored with: fitted on the other pairs
     only (a benchmark's leave-one-out entry).
 
@@ -301,8 +418,8 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
         The held-out pair's index.
     psf : ndarray, optional
         The PSF estimated from every pair but ``k`` (computed when not given).
-    candidates, thresholds, weights
-        As for :func:`fit_early_stop`.
+    candidates, thresholds, weights, bin_factor
+        As for :func:`fit_recipe` (the calibration's own fit).
     **psf_options
         Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
 
@@ -317,7 +434,7 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
         Fewer than three pairs, ``k`` out of range, or what :func:`fit_early_stop`
         refuses.
     """
-    from .psf_from_scenes import estimate_psf_from_scenes, leave_one_out
+    from .psf_from_scenes import estimate_psf_from_scenes
 
     scenes, measurements = list(scenes), list(measurements)
     if len(scenes) < 3 or not 0 <= int(k) < len(scenes):
@@ -327,8 +444,8 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
     bs = [b for i, b in enumerate(measurements) if i != k]
     if psf is None:
         psf = estimate_psf_from_scenes(xs, bs, **psf_options).psf
-    return fit_early_stop(xs, bs, leave_one_out(xs, bs, **psf_options).psfs, psf,
-                          candidates=candidates, thresholds=thresholds, weights=weights)
+    return fit_recipe(xs, bs, psf, bin_factor=bin_factor, candidates=candidates,
+                      thresholds=thresholds, weights=weights, **psf_options).fit
 
 
 def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):

@@ -30,7 +30,8 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     for i, line in enumerate(lines, 1):
         assert re.fullmatch(rf"\[{i}/{total}\] .+ \(\d+ s\)", line), line
     assert "PSF from 3 pair(s)" in lines[0] and "PSF without p0" in lines[1]
-    assert lines[-1].startswith(f"[{total}/{total}] recipe: solve 9 of 9")
+    solves = len(THRESHOLDS) * 3
+    assert lines[-1].startswith(f"[{total}/{total}] recipe: solve {solves} of {solves}")
     summary = RunStore.open(run).attrs["summary"]
     quality = summary["held_out_reference_db"]
     assert sorted(quality) == ["p0", "p1", "p2"] and all(v > 5 for v in quality.values())

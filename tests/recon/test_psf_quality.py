@@ -77,7 +77,7 @@ def test_the_fit_observes_one_solve_per_pair_and_threshold(pairs, monkeypatch):
         solves.append(iterations)
         return real(psf, raw, iterations, observe=observe, **options)
     monkeypatch.setattr(early_stop, "_solve", counting)
-    fit_early_stop(xs, bs, loo, loo[0], on_solve=lambda done, total: progress.append(
-        (done, total)))
+    fit_early_stop(xs, bs, loo, loo[0], thresholds=(0.0, 0.05, 0.1),
+                   on_solve=lambda done, total: progress.append((done, total)))
     assert solves == [max(early_stop.CANDIDATES)] * 12
     assert progress == [(i, 12) for i in range(1, 13)]
