@@ -487,6 +487,11 @@ def test_where_a_stalls_time_went():
     # blocked 900 ms with every other thread on a core or asleep: ours
     t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: (0, 0)}, {7: (0, 0)})
     assert t["ours_ms"] == 1000.0
+    # the GIL's holder was born in the stall (a launcher thread forking): absent from
+    # the first look, all its 850 ms wait for a core fell in the stall
+    t = stall_time(1000.0, (0, 0), (100 * ms, 0), {7: (0, 0)},
+                   {7: (0, 0), 9: (40 * ms, 850 * ms)})
+    assert (t["others_runqueue_ms"], t["ours_ms"]) == (850.0, 150.0)
     # no kernel figures: the length only
     assert stall_time(120.0, None, None, {}, {}) == {"ms": 120.0}
     # the machine itself did not run for 700 of the 1000 ms (a paused virtual machine):
@@ -608,7 +613,8 @@ def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
     if len(mask) < 2:
         pytest.skip("needs two cores: the watchdog must run while the GUI thread cannot")
     core, gui_tid = min(mask), threading.get_native_id()
-    spin = ("import os, sys, time\ntry:\n"
+    spin = ("import os, sys, time\n"
+            f"os.sched_setaffinity(0, {{{core}}})\ntry:\n"
             "    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))\n"
             "except PermissionError:\n    sys.exit(3)\n"
             "t = time.monotonic()\nwhile time.monotonic() - t < 0.6: pass")  # real-time
@@ -621,11 +627,11 @@ def test_a_gui_thread_kept_from_its_core_is_not_a_freeze(qapp, wait):
         wait(lambda: time.monotonic() - t0 > 0.3, 5, "the monitor's start")
         # ...and a hog above it there, started from another thread: the GUI thread must
         # not be the one blocked in fork/exec (under load that wait, charged to the GUI
-        # thread as "blocked", made 345 ms of a stall look like ours)
+        # thread as "blocked", made 345 ms of a stall look like ours); the hog pins
+        # itself: a preexec_fn makes the launcher fork holding the GIL (run J5)
         started: list = []
         launcher = threading.Thread(target=lambda: started.append(subprocess.Popen(
-            [sys.executable, "-c", spin],
-            preexec_fn=lambda: os.sched_setaffinity(0, {core}))))
+            [sys.executable, "-c", spin])))
         launcher.start()
         wait(lambda: bool(started), 20, "the hog's start")
         hog = started[0]

@@ -28,7 +28,6 @@ def test_a_stall_holding_the_gil_is_seen_by_faulthandler(qapp, wait):
     from PySide6.QtCore import QTimer
 
     from soak.daymonitor import DayMonitor
-    from soak.hiddenstall import HIDDEN_AFTER_S, REARM_EVERY_S
     from soak.soak import _stall_causes
 
     monitor = DayMonitor(sample_s=1.0)
@@ -54,9 +53,8 @@ def test_a_stall_holding_the_gil_is_seen_by_faulthandler(qapp, wait):
     stall = held()
     assert stall["seen_by"] == "faulthandler", stall
     assert stall["gui_stack"][-1].endswith("_blocked_holding_the_gil"), stall
-    # faulthandler waited HIDDEN_AFTER_S from the watchdog's last arming (which may
-    # precede the last firing by up to REARM_EVERY_S) before it looked
-    assert stall["ms"] >= 1e3 * (HIDDEN_AFTER_S - REARM_EVERY_S), stall
+    # no bound on its length from HIDDEN_AFTER_S: a loaded host can run the watchdog's
+    # last arming well before the block began (run J5: 701.9 ms, armed earlier)
     (cause, n), = [c for c in _stall_causes([stall])]
     assert "_blocked_holding_the_gil" in cause and "faulthandler" in cause, cause
 
