@@ -178,7 +178,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
                    candidates: Sequence[int] = CANDIDATES,
                    thresholds: Sequence[float] = THRESHOLDS,
                    weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
-                   on_candidate=None, on_solve=None, bin_factor: int = 1) -> EarlyStop:
+                   on_candidate=None, on_solve=None, binned_by: int = 1) -> EarlyStop:
     """Fit the recipe (PSF threshold, iteration count, denoising weight) on
     calibration pairs (module docstring).
 
@@ -209,7 +209,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     on_solve : callable, optional
         ``on_solve(done, total)`` after each observed solve (one per threshold and
         pair: ``total`` of them), for progress lines.
-    bin_factor : int
+    binned_by : int
         The binning of the pairs and held-out PSFs against ``psf`` (>= 1; recorded as
         the recipe's ``fit_bin_factor``).
 
@@ -237,7 +237,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     if not ts or not ws or not (0 <= ts[0] and ts[-1] < 1) or ws[0] < 0:
         raise ReconInputError(f"thresholds {list(thresholds)} and weights {list(weights)}: "
                               "give thresholds in [0, 1) and weights >= 0")
-    binning = as_int(bin_factor, "bin_factor", 1)
+    binning = as_int(binned_by, "binned_by", 1)
     for h, factor in [*((h, 1) for h in held_out_psfs), (psf, binning)]:
         if tuple(n // factor for n in np.shape(h)[:2]) != xs[0].shape[:2]:
             raise ReconInputError(f"PSF of shape {np.shape(h)} for pairs of shape "
@@ -347,7 +347,7 @@ def fit_recipe(scenes, measurements, psf, *, bin_factor: int | None = None,
                               f"binned {b} x {b}: give the PSF estimated from the pairs")
     loo = leave_one_out(xs, bs, on_estimate=on_estimate, **psf_options)
     fit = fit_early_stop(xs, bs, loo.psfs, psf, candidates=candidates, thresholds=thresholds,
-                         weights=weights, names=names, on_solve=on_solve, bin_factor=b)
+                         weights=weights, names=names, on_solve=on_solve, binned_by=b)
     return RecipeFit(fit, loo, reference_db(xs, bs, loo.psfs, fit), b)
 
 
