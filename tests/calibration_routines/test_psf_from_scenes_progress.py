@@ -13,8 +13,9 @@ from recon.analysis.early_stop import THRESHOLDS
 from tests.recon.test_psf_quality import synthetic_pairs
 
 
-def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
-    scenes, measurements, _ = synthetic_pairs(3, 9)
+def calibrate_files(tmp_path, scenes, measurements):
+    """The pairs saved as ``p{i}.npy`` in ``scenes/`` and ``raw/`` under ``tmp_path``,
+    calibrated by the command (which must succeed); returns the run's path."""
     (tmp_path / "scenes").mkdir()
     (tmp_path / "raw").mkdir()
     for i, (x, b) in enumerate(zip(scenes, measurements, strict=True)):
@@ -24,6 +25,12 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     assert main(["calibrate", "psf-from-scenes", "--scenes", str(tmp_path / "scenes"),
                  "--measurements", str(tmp_path / "raw"), "--z-mm", "20",
                  "--out", str(run)]) == 0
+    return run
+
+
+def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
+    scenes, measurements, _ = synthetic_pairs(3, 9)
+    run = calibrate_files(tmp_path, scenes, measurements)
     lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[")]
     total = 1 + 3 + len(THRESHOLDS) * 3
     assert len(lines) == total

@@ -85,19 +85,11 @@ def test_a_psf_of_another_size_or_a_bin_too_large_is_refused(pairs):
 
 
 def test_the_calibration_run_records_the_binning_of_its_held_out_figures(pairs, tmp_path):
-    from instrument.cli import main
     from instrument.runs.runstore import RunStore
+    from tests.calibration_routines.test_psf_from_scenes_progress import calibrate_files
 
     scenes, measurements, _ = pairs
-    for d in ("scenes", "raw"):
-        (tmp_path / d).mkdir()
-    for i, (x, b) in enumerate(zip(scenes[:3], measurements[:3], strict=True)):
-        np.save(tmp_path / f"scenes/p{i}.npy", x)
-        np.save(tmp_path / f"raw/p{i}.npy", b)
-    run = tmp_path / "cal.zarr"
-    assert main(["calibrate", "psf-from-scenes", "--scenes", str(tmp_path / "scenes"),
-                 "--measurements", str(tmp_path / "raw"), "--z-mm", "20",
-                 "--out", str(run)]) == 0
+    run = calibrate_files(tmp_path, scenes[:3], measurements[:3])
     summary = RunStore.open(run).attrs["summary"]
     assert summary["held_out_bin_factor"] == 2
     assert EarlyStop.load(run).fit_bin_factor == 2
