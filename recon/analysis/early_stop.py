@@ -47,6 +47,7 @@ import numpy as np
 
 from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_signature
 from ..errors import ReconInputError
+from ..fft import map_jobs
 from ..validate import as_int
 from .psf_from_scenes import LeaveOneOut, check_pairs
 
@@ -208,7 +209,9 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         ``errors`` (n_candidates, n_weights, n_pairs).
     on_solve : callable, optional
         ``on_solve(done, total)`` after each observed solve (one per threshold and
-        pair: ``total`` of them), for progress lines.
+        pair: ``total`` of them), for progress lines. The solves run as
+        :func:`recon.fft.map_jobs` (each on one FFT thread, as many at once as the
+        caller's FFT workers).
     binned_by : int
         The binning of the pairs and held-out PSFs against ``psf`` (>= 1; recorded as
         the recipe's ``fit_bin_factor``).
@@ -245,17 +248,26 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
                                   "of the measurements' shape")
     errors = np.zeros((len(ts), len(cands), len(ws), len(xs)))
     scorers = [_scorer(x) for x in xs]
-    for i, t in enumerate(ts):
-        for k, b in enumerate(bs):
-            images = solve_checkpoints(clean_psf(held_out_psfs[k], t), b, cands)
-            for j, n in enumerate(cands):
-                for m, w in enumerate(ws):  # weight 0: denoise_tv's copy, not made
-                    errors[i, j, m, k] = scorers[k](denoise_tv(images[n], w) if w > 0
-                                                    else images[n])
-            if on_solve is not None:
-                on_solve(i * len(xs) + k + 1, len(ts) * len(xs))
-        if on_candidate is not None:
-            on_candidate(t, errors[i])
+
+    def observed(job):  # one solve, scored at every count and weight
+        i, k = job
+        images = solve_checkpoints(clean_psf(held_out_psfs[k], ts[i]), bs[k], cands)
+        return [[scorers[k](denoise_tv(images[n], w) if w > 0 else images[n])
+                 for w in ws] for n in cands]  # weight 0: denoise_tv's copy, not made
+
+    jobs = [(i, k) for i in range(len(ts)) for k in range(len(xs))]
+    left = {i: len(xs) for i in range(len(ts))}  # each threshold's solves to come
+
+    def done(index, scored):  # in this thread, as each solve ends
+        i, k = jobs[index]
+        errors[i, :, :, k] = scored
+        left[i] -= 1
+        if on_solve is not None:
+            on_solve(len(jobs) - sum(left.values()), len(jobs))
+        if left[i] == 0 and on_candidate is not None:
+            on_candidate(ts[i], errors[i])
+
+    map_jobs(observed, jobs, on_done=done)
     score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
     i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ReconInputError
-from ..fft import irfftn, rfftn
+from ..fft import irfftn, map_jobs, rfftn
 from ..operators import ConvolutionOperator, real32
 from ..validate import as_int, as_shape2, finite_float
 
@@ -464,7 +464,9 @@ def leave_one_out(scenes, measurements, *, on_estimate=None, **options) -> Leave
     scenes, measurements
         As for :func:`estimate_psf_from_scenes`, at least two pairs.
     on_estimate : callable, optional
-        ``on_estimate(k)`` after pair ``k``'s held-out PSF is estimated (progress).
+        ``on_estimate(k)`` after pair ``k``'s held-out PSF is estimated (progress; the
+        estimates run as :func:`recon.fft.map_jobs`, so ``k`` comes in the order they
+        end).
     **options
         Of :func:`estimate_psf_from_scenes` (``psf_shape``, ``iterations``,
         ``tie_channels``, ...).
@@ -483,13 +485,13 @@ def leave_one_out(scenes, measurements, *, on_estimate=None, **options) -> Leave
     if len(scenes) < 2:
         raise ReconInputError("leave-one-out needs at least two pairs (one to estimate "
                               "the PSF from, one to score it on); give more pairs")
-    rows, psfs = [], []
-    for k in range(len(scenes)):
+
+    def held_out(k):
         train = [i for i in range(len(scenes)) if i != k]
         est = estimate_psf_from_scenes([scenes[i] for i in train],
                                        [measurements[i] for i in train], **options)
-        psfs.append(est.psf)
-        rows.append(relative_residuals(est.psf, [scenes[k]], [measurements[k]])[0])
-        if on_estimate is not None:
-            on_estimate(k)
-    return LeaveOneOut(np.array(rows), psfs)
+        return est.psf, relative_residuals(est.psf, [scenes[k]], [measurements[k]])[0]
+
+    done = None if on_estimate is None else (lambda k, _: on_estimate(k))
+    out = map_jobs(held_out, range(len(scenes)), on_done=done)
+    return LeaveOneOut(np.array([r for _, r in out]), [h for h, _ in out])
