@@ -122,3 +122,28 @@ def test_held_out_psfs_and_recipe_errors_equal_those_run_one_by_one(pairs, two_w
     np.testing.assert_allclose(fa.errors, fb.errors, rtol=1e-6)
     assert ((fa.iterations, fa.psf_threshold, fa.denoise_weight)
             == (fb.iterations, fb.psf_threshold, fb.denoise_weight))
+
+
+def test_the_recipe_estimates_the_psf_from_every_pair_beside_the_held_out_ones(pairs,
+                                                                              two_workers):
+    from recon.analysis.early_stop import fit_recipe
+    from recon.analysis.psf_from_scenes import estimate_psf_from_scenes
+    from recon.early_stop import psf_identity
+
+    _, scenes, measurements = pairs
+    options = dict(iterations=30, candidates=(5, 20), weights=(0.0, 0.1))
+    given = estimate_psf_from_scenes(scenes, measurements, iterations=30)
+    a = fit_recipe(scenes, measurements, given.psf, **options)
+    lines = []
+    b = fit_recipe(scenes, measurements, on_psf=lambda e: lines.append(("psf", e)),
+                   on_estimate=lambda k: lines.append(("without", k)), **options)
+    assert a.estimate is None
+    assert np.array_equal(b.estimate.psf, given.psf)
+    assert b.estimate.iterations_run == given.iterations_run
+    assert [w for w, _ in lines].count("psf") == 1 and lines[[w for w, _ in lines].index(
+        "psf")][1] is b.estimate
+    assert sorted(k for w, k in lines if w == "without") == [0, 1, 2, 3]
+    assert all(np.array_equal(p, q) for p, q in zip(a.held_out.psfs, b.held_out.psfs,
+                                                    strict=True))
+    np.testing.assert_allclose(a.fit.errors, b.fit.errors, rtol=1e-6)
+    assert a.fit.psf_sha256 == b.fit.psf_sha256 == psf_identity(given.psf)
