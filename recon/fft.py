@@ -109,7 +109,7 @@ def map_jobs(fn: Callable[[T], R], items: Sequence[T], *,
         The first job's error, once the jobs already running have ended (those not
         started are cancelled).
     """
-    from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
     items = list(items)
     threads = min(fft_workers(), len(items))
@@ -129,7 +129,7 @@ def map_jobs(fn: Callable[[T], R], items: Sequence[T], *,
         index = {pool.submit(job, item): i for i, item in enumerate(items)}
         pending = set(index)
         while pending:
-            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in sorted(done, key=index.get):
                 if future.exception() is not None:
                     for other in pending:

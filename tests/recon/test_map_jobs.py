@@ -44,6 +44,16 @@ def test_jobs_run_at_once_each_on_one_fft_thread_results_in_order(two_workers):
     assert seen == [2]  # the caller's own count is left as it was
 
 
+def test_each_job_is_reported_as_it_ends_not_with_the_last(two_workers):
+    release = threading.Event()  # set by the report of job 0, awaited by job 1
+
+    def job(x):
+        return release.wait(HANG_GUARD_S) if x == 1 else True
+
+    out = map_jobs(job, [0, 1], on_done=lambda i, _: release.set() if i == 0 else None)
+    assert out == [True, True]
+
+
 def test_a_thread_capped_at_one_worker_runs_its_jobs_itself(two_workers):
     caller = threading.get_ident()
     with limited_threads(1):
