@@ -508,7 +508,7 @@ def held_out_estimate(scenes, measurements, k: int, **options
     Returns
     -------
     psf : ndarray, float32
-        As :attr:`PsfEstimate.psf`.
+        As ``PsfEstimate.psf``.
     residual : ndarray, float64, (channels,)
 
     Raises
