@@ -228,14 +228,17 @@ def _calibrate(scenes, measurements, names, options, on_progress):
         if on_progress is not None:
             on_progress(done, total, what)
 
-    estimate = estimate_psf_from_scenes(scenes, measurements, **options)
-    report(f"PSF from {n} pair(s): {estimate.iterations_run} iterations")
+    def psf_line(estimate):
+        report(f"PSF from {n} pair(s): {estimate.iterations_run} iterations")
+
     if n == 1:
+        estimate = estimate_psf_from_scenes(scenes, measurements, **options)
+        psf_line(estimate)
         return estimate, None, None, None
-    recipe = fit_recipe(scenes, measurements, estimate.psf, names=names,
-                        on_estimate=lambda k: report(f"PSF without {names[k]}"),
+    recipe = fit_recipe(scenes, measurements, names=names, on_psf=psf_line,  # beside the
+                        on_estimate=lambda k: report(f"PSF without {names[k]}"),  # held-out
                         on_solve=lambda i, t: report(f"recipe: solve {i} of {t}"), **options)
-    return estimate, recipe.held_out, recipe.fit, recipe.reference_db
+    return recipe.estimate, recipe.held_out, recipe.fit, recipe.reference_db
 
 
 def _files(spec: Sequence[str], what: str) -> dict[str, Path]:
@@ -512,16 +515,16 @@ class PsfFromScenesPlan(Plan):
             raise PlanError("the displayed scenes left no signal on the camera; put the "
                             f"display ({p['display']}) in front of the camera, facing it")
         options = {"iterations": p["iterations"]}
-        estimate = estimate_psf_from_scenes(scenes, measurements, **options)
         if recipe:  # photographs the PSF has not seen: its estimate is held out from them
+            estimate = estimate_psf_from_scenes(scenes, measurements, **options)
             recipe_x = [self.known_scene(n, shape).astype(np.float32) for n in recipe]
             fit = fit_early_stop(recipe_x, recipe_b, [estimate.psf] * len(recipe),
                                  estimate.psf, names=recipe)
             quality = reference_db(recipe_x, recipe_b, [estimate.psf] * len(recipe), fit)
             loo = leave_one_out(scenes, measurements, **options)
         else:
-            recipe_fit = fit_recipe(scenes, measurements, estimate.psf, names=names,
-                                    **options)
-            fit, loo, quality = recipe_fit.fit, recipe_fit.held_out, recipe_fit.reference_db
+            recipe_fit = fit_recipe(scenes, measurements, names=names, **options)
+            estimate, fit = recipe_fit.estimate, recipe_fit.fit
+            loo, quality = recipe_fit.held_out, recipe_fit.reference_db
         return write_psf(store, estimate, loo.residuals, names, p["z_mm"],
                          "DN/s per unit display radiance", fit, quality, recipe or names)

@@ -47,8 +47,9 @@ import numpy as np
 
 from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_signature
 from ..errors import ReconInputError
+from ..fft import map_jobs
 from ..validate import as_int
-from .psf_from_scenes import LeaveOneOut, check_pairs
+from .psf_from_scenes import LeaveOneOut, PsfEstimate, check_pairs
 
 __all__ = ["CANDIDATES", "FIT_BIN", "FIT_MIN_PX", "REFERENCE_ITERATIONS", "THRESHOLDS",
            "WEIGHTS", "RecipeFit", "fit_bin_factor", "fit_early_stop", "fit_held_out",
@@ -208,7 +209,9 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         ``errors`` (n_candidates, n_weights, n_pairs).
     on_solve : callable, optional
         ``on_solve(done, total)`` after each observed solve (one per threshold and
-        pair: ``total`` of them), for progress lines.
+        pair: ``total`` of them), for progress lines. The solves run as
+        :func:`recon.fft.map_jobs` (each on one FFT thread, as many at once as the
+        caller's FFT workers).
     binned_by : int
         The binning of the pairs and held-out PSFs against ``psf`` (>= 1; recorded as
         the recipe's ``fit_bin_factor``).
@@ -245,17 +248,26 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
                                   "of the measurements' shape")
     errors = np.zeros((len(ts), len(cands), len(ws), len(xs)))
     scorers = [_scorer(x) for x in xs]
-    for i, t in enumerate(ts):
-        for k, b in enumerate(bs):
-            images = solve_checkpoints(clean_psf(held_out_psfs[k], t), b, cands)
-            for j, n in enumerate(cands):
-                for m, w in enumerate(ws):  # weight 0: denoise_tv's copy, not made
-                    errors[i, j, m, k] = scorers[k](denoise_tv(images[n], w) if w > 0
-                                                    else images[n])
-            if on_solve is not None:
-                on_solve(i * len(xs) + k + 1, len(ts) * len(xs))
-        if on_candidate is not None:
-            on_candidate(t, errors[i])
+
+    def observed(job):  # one solve, scored at every count and weight
+        i, k = job
+        images = solve_checkpoints(clean_psf(held_out_psfs[k], ts[i]), bs[k], cands)
+        return [[scorers[k](denoise_tv(images[n], w) if w > 0 else images[n])
+                 for w in ws] for n in cands]  # weight 0: denoise_tv's copy, not made
+
+    jobs = [(i, k) for i in range(len(ts)) for k in range(len(xs))]
+    left = {i: len(xs) for i in range(len(ts))}  # each threshold's solves to come
+
+    def done(index, scored):  # in this thread, as each solve ends
+        i, k = jobs[index]
+        errors[i, :, :, k] = scored
+        left[i] -= 1
+        if on_solve is not None:
+            on_solve(len(jobs) - sum(left.values()), len(jobs))
+        if left[i] == 0 and on_candidate is not None:
+            on_candidate(ts[i], errors[i])
+
+    map_jobs(observed, jobs, on_done=done)
     score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
     i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
@@ -283,36 +295,48 @@ class RecipeFit:
         :func:`reference_db` of the held-out PSFs on the binned pairs.
     bin_factor : int
         The binning (1: none).
+    estimate : recon.analysis.psf_from_scenes.PsfEstimate or None
+        The PSF from every pair, full size, when :func:`fit_recipe` estimated it.
     """
 
     fit: EarlyStop
     held_out: LeaveOneOut
     reference_db: np.ndarray
     bin_factor: int
+    estimate: PsfEstimate | None = None
 
 
-def fit_recipe(scenes, measurements, psf, *, bin_factor: int | None = None,
+def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
                candidates: Sequence[int] = CANDIDATES,
                thresholds: Sequence[float] = THRESHOLDS,
                weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
-               on_estimate=None, on_solve=None, **psf_options) -> RecipeFit:
+               on_psf=None, on_estimate=None, on_solve=None, **psf_options) -> RecipeFit:
     """The recipe for ``psf`` fitted on its calibration pairs: each pair's PSF
     estimated without it (:func:`recon.analysis.psf_from_scenes.leave_one_out`), then
     :func:`fit_early_stop` and :func:`reference_db`, on the pairs binned by
     ``bin_factor`` (module docstring).
 
+    The estimates (``psf``'s when not given, and the held-out ones) and then the
+    recipe's solves run as :func:`recon.fft.map_jobs`: each on one FFT thread, as
+    many at once as the caller's FFT workers.
+
     Parameters
     ----------
     scenes, measurements
         The calibration pairs, as for :func:`fit_early_stop` (at least two).
-    psf : ndarray
-        The PSF estimated from every pair, at the pairs' size.
+    psf : ndarray, optional
+        The PSF estimated from every pair, at the pairs' size; default: estimated here
+        (:func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes` with
+        ``psf_options``, at full size) beside the held-out PSFs.
     bin_factor : int, optional
         Block size of the binning (>= 1); default :func:`fit_bin_factor` of the pairs.
     candidates, thresholds, weights, names, on_solve
         As for :func:`fit_early_stop`.
+    on_psf : callable, optional
+        ``on_psf(estimate)`` once the PSF from every pair is estimated here (progress).
     on_estimate : callable, optional
-        ``on_estimate(k)`` after pair ``k``'s held-out PSF (progress).
+        ``on_estimate(k)`` after pair ``k``'s held-out PSF (progress; in the order the
+        estimates end).
     **psf_options
         Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`; a
         ``psf_shape`` is binned with the pairs.
@@ -328,10 +352,14 @@ def fit_recipe(scenes, measurements, psf, *, bin_factor: int | None = None,
         larger than the pairs.
     """
     from ..preprocess.binning import box_bin
-    from .psf_from_scenes import leave_one_out
+    from .psf_from_scenes import estimate_psf_from_scenes, held_out_estimate
 
     shape = check_pairs(scenes, measurements)[0][0].shape
+    if len(scenes) < 2:
+        raise ReconInputError("a recipe needs at least two pairs (each scored with the "
+                              "PSF of the others); give more pairs")
     xs, bs = list(scenes), list(measurements)  # 2D stays 2D (check_pairs adds a channel)
+    full_options = dict(psf_options)
     b = fit_bin_factor(shape) if bin_factor is None else as_int(bin_factor, "bin_factor", 1)
     if b > 1:
         if b > min(shape[:2]) // 2:
@@ -342,13 +370,32 @@ def fit_recipe(scenes, measurements, psf, *, bin_factor: int | None = None,
         if psf_options.get("psf_shape") is not None:
             psf_options = {**psf_options, "psf_shape": tuple(
                 max(2, int(n) // b) for n in psf_options["psf_shape"])}
-    if tuple(n // b for n in np.shape(psf)[:2]) != np.shape(xs[0])[:2]:  # before the work
+    if psf is not None and tuple(n // b for n in np.shape(psf)[:2]) != np.shape(xs[0])[:2]:
         raise ReconInputError(f"PSF of shape {np.shape(psf)} for pairs of shape {shape} "
                               f"binned {b} x {b}: give the PSF estimated from the pairs")
-    loo = leave_one_out(xs, bs, on_estimate=on_estimate, **psf_options)
+
+    def estimate(k):  # None: the PSF from every pair, full size (the largest job: first)
+        if k is None:
+            return estimate_psf_from_scenes(scenes, measurements, **full_options)
+        return held_out_estimate(xs, bs, k, **psf_options)
+
+    here = psf is None
+    jobs = ([None] if here else []) + list(range(len(xs)))
+
+    def done(index, result):  # in this thread, as each estimate ends (progress)
+        if jobs[index] is None:
+            if on_psf is not None:
+                on_psf(result)
+        elif on_estimate is not None:
+            on_estimate(jobs[index])
+
+    out = map_jobs(estimate, jobs, on_done=done)
+    whole = out.pop(0) if here else None
+    loo = LeaveOneOut(np.array([r for _, r in out]), [h for h, _ in out])
+    psf = whole.psf if here else psf
     fit = fit_early_stop(xs, bs, loo.psfs, psf, candidates=candidates, thresholds=thresholds,
                          weights=weights, names=names, on_solve=on_solve, binned_by=b)
-    return RecipeFit(fit, loo, reference_db(xs, bs, loo.psfs, fit), b)
+    return RecipeFit(fit, loo, reference_db(xs, bs, loo.psfs, fit), b, whole)
 
 
 def reference_db(scenes, measurements, held_out_psfs: Sequence, fit: EarlyStop | None = None

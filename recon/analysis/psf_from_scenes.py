@@ -43,12 +43,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ReconInputError
-from ..fft import irfftn, rfftn
+from ..fft import irfftn, map_jobs, rfftn
 from ..operators import ConvolutionOperator, real32
 from ..validate import as_int, as_shape2, finite_float
 
 __all__ = ["ESTIMATE_ITERATIONS", "LeaveOneOut", "PsfEstimate", "check_pairs",
-           "estimate_psf_from_scenes", "leave_one_out", "relative_residuals"]
+           "estimate_psf_from_scenes", "held_out_estimate", "leave_one_out", "relative_residuals"]
 
 #: The estimate's cap on ADMM iterations (it stops earlier once converged): its own
 #: quantity, not a reconstruction's ``iterations``; ``calibrate psf-from-scenes
@@ -464,7 +464,9 @@ def leave_one_out(scenes, measurements, *, on_estimate=None, **options) -> Leave
     scenes, measurements
         As for :func:`estimate_psf_from_scenes`, at least two pairs.
     on_estimate : callable, optional
-        ``on_estimate(k)`` after pair ``k``'s held-out PSF is estimated (progress).
+        ``on_estimate(k)`` after pair ``k``'s held-out PSF is estimated (progress; the
+        estimates run as :func:`recon.fft.map_jobs`, so ``k`` comes in the order they
+        end).
     **options
         Of :func:`estimate_psf_from_scenes` (``psf_shape``, ``iterations``,
         ``tie_channels``, ...).
@@ -483,13 +485,38 @@ def leave_one_out(scenes, measurements, *, on_estimate=None, **options) -> Leave
     if len(scenes) < 2:
         raise ReconInputError("leave-one-out needs at least two pairs (one to estimate "
                               "the PSF from, one to score it on); give more pairs")
-    rows, psfs = [], []
-    for k in range(len(scenes)):
-        train = [i for i in range(len(scenes)) if i != k]
-        est = estimate_psf_from_scenes([scenes[i] for i in train],
-                                       [measurements[i] for i in train], **options)
-        psfs.append(est.psf)
-        rows.append(relative_residuals(est.psf, [scenes[k]], [measurements[k]])[0])
-        if on_estimate is not None:
-            on_estimate(k)
-    return LeaveOneOut(np.array(rows), psfs)
+    done = None if on_estimate is None else (lambda k, _: on_estimate(k))
+    out = map_jobs(lambda k: held_out_estimate(scenes, measurements, k, **options),
+                   range(len(scenes)), on_done=done)
+    return LeaveOneOut(np.array([r for _, r in out]), [h for h, _ in out])
+
+
+def held_out_estimate(scenes, measurements, k: int, **options
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Pair ``k``'s entry of :func:`leave_one_out`: the PSF estimated from the other
+    pairs and pair ``k``'s relative residual under it.
+
+    Parameters
+    ----------
+    scenes, measurements
+        As for :func:`leave_one_out` (checked there).
+    k : int
+        The pair held out.
+    **options
+        Of :func:`estimate_psf_from_scenes`.
+
+    Returns
+    -------
+    psf : ndarray, float32
+        As ``PsfEstimate.psf``.
+    residual : ndarray, float64, (channels,)
+
+    Raises
+    ------
+    ReconInputError
+        What :func:`estimate_psf_from_scenes` refuses.
+    """
+    train = [i for i in range(len(scenes)) if i != k]
+    est = estimate_psf_from_scenes([scenes[i] for i in train],
+                                   [measurements[i] for i in train], **options)
+    return est.psf, relative_residuals(est.psf, [scenes[k]], [measurements[k]])[0]
