@@ -30,7 +30,10 @@ The methods are the entries of :data:`METHODS` (:class:`Method`), in order:
   parameters, 100 iterations), when the package imports (it pins an old NumPy, so it
   is no dependency of the project: install it with ``pip install --no-deps
   --target DIR lensless`` and give ``--lensless-path DIR`` or
-  ``DIFFUSERLAB_LENSLESS_PATH``); otherwise one line says so and its column is left out.
+  ``DIFFUSERLAB_LENSLESS_PATH``); otherwise one line says so and its column is left out;
+- ``lensless-admm-field``: the same, its image multiplied by the field response of the
+  scene-calibrated recipe fitted without the pair (:mod:`recon.field_response`): the
+  peer given what our calibration learns besides the PSF.
 
 Another method is one more :class:`Method` in :data:`METHODS` (or passed to
 :func:`run_benchmark`): a name, a label and ``solve(psf, raw, weight, iterations)``
@@ -109,7 +112,11 @@ class Method:
         the pairs other than ``k`` before pair ``k`` is solved (timed apart, as
         ``calibration_seconds``); the dict's items are passed to
         ``solve`` as keywords. Such a method also gets its family's per-pair oracle
-        (:func:`benchmarks.real_recipe.family_oracle`).
+        (:func:`benchmarks.real_recipe.family_oracle`), unless ``scores_family`` is
+        False.
+    scores_family : bool
+        With ``calibrate``: also score the recipe's grid on the pair (its family's
+        oracle); False for a column whose solve is not the recipe's.
     """
 
     name: str
@@ -118,6 +125,7 @@ class Method:
     oracle: bool = False
     available: Callable | None = field(default=None, repr=False)
     calibrate: Callable | None = field(default=None, repr=False)
+    scores_family: bool = True
 
 
 def _automatic(prior: str | None):
@@ -210,6 +218,16 @@ def _lensless_admm(psf, raw, weight, iterations):
     return est.reshape(raw.shape)
 
 
+def _lensless_admm_field(psf, raw, weight, iterations, recipe=None):
+    """LenslessPiCam's ADMM, its image multiplied by the field response of the
+    scene-calibrated recipe fitted for the pair (what the calibration's field response,
+    not the solver, buys; none when the recipe kept none)."""
+    from recon.field_response import apply_field_response
+
+    return apply_field_response(_lensless_admm(psf, raw, weight, iterations),
+                                recipe.field_response)
+
+
 #: The benchmark's columns, in order (append a :class:`Method` to add one).
 METHODS: list[Method] = [
     Method("scene-recipe", "default, scene-calibrated (recon --psf RUN)", solve_recipe,
@@ -221,6 +239,9 @@ METHODS: list[Method] = [
       for p in ORACLE_PRIORS],
     Method("lensless-admm", "LenslessPiCam ADMM (100 it.)", _lensless_admm,
            available=_lensless_available),
+    Method("lensless-admm-field", "LenslessPiCam ADMM x the recipe's field response",
+           _lensless_admm_field, available=_lensless_available, calibrate=calibrate_recipe,
+           scores_family=False),
 ]
 
 
@@ -353,9 +374,10 @@ def run_benchmark(out: Path, data_dir: Path | None = None, psf_dir: Path | None 
                                   floor_s, contexts[k])
                 if contexts[k] is not None:
                     recipe = contexts[k]["recipe"]
-                    r.update(calibration_seconds=calibration_s[k],
-                             recipe=recipe.record(), family_oracle=family_oracle(
-                                 psfs[k], measurements[k], scenes[k], recipe))
+                    r.update(calibration_seconds=calibration_s[k], recipe=recipe.record())
+                    if m.scores_family:
+                        r["family_oracle"] = family_oracle(psfs[k], measurements[k],
+                                                           scenes[k], recipe)
                 mine.append({"pair": n, "method": m.name, "weight": w, **r})
                 images[(w, k)] = est
                 log(f"{m.name:18s} {w!s:8s} {n:6s} {r['psnr_db']:6.2f} dB {r['ssim']:.3f} "

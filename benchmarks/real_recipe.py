@@ -49,8 +49,12 @@ def calibrate_recipe(k: int, scenes, measurements, psf, log=print) -> dict:
     t0 = time.perf_counter()
     recipe = fit_held_out(scenes, measurements, k, psf=psf)
     seconds = time.perf_counter() - t0
+    field = ("none fitted" if recipe.field_gain_db is None else
+             f"{'kept' if recipe.field_response is not None else 'not kept'}, "
+             f"{recipe.field_gain_db:+.2f} dB held out")
     log(f"recipe for pair {k}: PSF threshold {recipe.psf_threshold:g}, {recipe.iterations} "
-        f"iterations, denoising {recipe.denoise_weight:g} (fitted in {seconds:.0f} s)")
+        f"iterations, denoising {recipe.denoise_weight:g}, field response {field} (fitted "
+        f"in {seconds:.0f} s)")
     return {"recipe": recipe}
 
 
@@ -69,7 +73,8 @@ def solve_recipe(psf, raw, weight, iterations, recipe=None):
 
 
 def family_oracle(psf, raw, truth, recipe) -> dict:
-    """PSNR and SSIM of the scored pair at every setting of ``recipe``'s grid.
+    """PSNR and SSIM of the scored pair at every setting of ``recipe``'s grid, each
+    with the recipe's field response (if it has one) as its reconstruction applies it.
 
     Parameters
     ----------
@@ -87,13 +92,15 @@ def family_oracle(psf, raw, truth, recipe) -> dict:
     """
     from recon.analysis.early_stop import solve_checkpoints
     from recon.early_stop import clean_psf, denoise_tv
+    from recon.field_response import apply_field_response
 
     best, fitted = None, None
     for t in recipe.thresholds:
         images = solve_checkpoints(clean_psf(psf, t), raw, recipe.candidates)
         for n in recipe.candidates:
             for w in recipe.weights:
-                psnr, ssim = score(gain_fit(denoise_tv(images[n], w), truth), truth)
+                image = apply_field_response(denoise_tv(images[n], w), recipe.field_response)
+                psnr, ssim = score(gain_fit(image, truth), truth)
                 row = {"psf_threshold": t, "iterations": n, "denoise_weight": w,
                        "psnr_db": psnr, "ssim": ssim}
                 if best is None or psnr > best["psnr_db"]:

@@ -13,7 +13,10 @@ read. Three numbers, each fitted on the calibration pairs
 2. ``iterations``: the count of a prior-free non-negative FISTA (Eq. 2.5 without TV),
    stopped early (semi-convergence is the regulariser);
 3. ``denoise_weight``: an isotropic TV denoising of the result (Chambolle 2004,
-   :func:`denoise_tv`; round outlines, no axis-aligned blocks), 0 for none.
+   :func:`denoise_tv`; round outlines, no axis-aligned blocks), 0 for none;
+
+and, where it paid on held-out pairs, a ``field_response``: a smooth gain over the
+field of view that multiplies the result (:mod:`recon.field_response`).
 
 The recipe is tied to the PSF it was fitted for by a SHA-256 of the PSF's values
 (:func:`psf_identity`) and refused with another. A file of the earlier form (a count
@@ -31,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ReconInputError
+from .field_response import apply_field_response, check_field_response
 
 __all__ = ["FILE", "MAX_ITERATIONS", "OFF", "SOLVE", "TRUSTED_RESIDUAL", "EarlyStop",
            "clean_psf", "denoise_tv", "named", "psf_identity", "psf_signature"]
@@ -231,6 +235,14 @@ class EarlyStop:
         The binning the recipe was fitted at (its pairs and held-out PSFs averaged in
         ``fit_bin_factor`` x ``fit_bin_factor`` blocks; 1 in files of the earlier form);
         the recipe is applied at the PSF's own size.
+    field_response : ndarray, float64, (n_rows, n_cols), or None
+        The gain over the field that multiplies the denoised image
+        (:mod:`recon.field_response`), or None: none (it did not pay on held-out
+        pairs, or a file of the earlier form).
+    field_gain_db : float or None
+        What the field response bought the calibration pairs held out from its fit
+        (mean dB, :func:`recon.analysis.field_response.held_out_field_gain_db`),
+        recorded also when it did not pay; None when not fitted.
     """
 
     iterations: int
@@ -245,6 +257,8 @@ class EarlyStop:
     psf_block_means: tuple = ()
     held_out_residual: float | None = None
     fit_bin_factor: int = 1
+    field_response: np.ndarray | None = None
+    field_gain_db: float | None = None
 
     @property
     def trusted(self) -> bool:
@@ -285,8 +299,9 @@ class EarlyStop:
 
     def finish(self, rec):
         """The reconstruction ``rec`` of the recipe's solve with its image denoised
-        (:func:`denoise_tv` at ``denoise_weight``) and the recipe recorded in
-        ``info.extra["calibration"]``.
+        (:func:`denoise_tv` at ``denoise_weight``), multiplied by the field response
+        if the recipe has one (:func:`recon.field_response.apply_field_response`), and
+        the recipe recorded in ``info.extra["calibration"]``.
 
         Parameters
         ----------
@@ -299,19 +314,23 @@ class EarlyStop:
             A new one (``estimate`` is the solver's, not denoised).
         """
         rec.info.extra["calibration"] = self.record()
-        return _replace(rec, image=denoise_tv(rec.image, self.denoise_weight))
+        return _replace(rec, image=apply_field_response(
+            denoise_tv(rec.image, self.denoise_weight), self.field_response))
 
     def record(self) -> dict:
         """The recipe in a reconstruction's record (method, numbers, PSF hash)."""
         return {"method": self.method, "psf_threshold": self.psf_threshold,
                 "iterations": int(self.iterations), "denoise_weight": self.denoise_weight,
-                "psf_sha256": self.psf_sha256}
+                "field_response": self.field_response is not None,
+                "field_gain_db": self.field_gain_db, "psf_sha256": self.psf_sha256}
 
     @property
     def method(self) -> str:
         """The calibration product in words, for records."""
         post = (f", then isotropic TV denoising at weight {self.denoise_weight:g}"
-                if self.denoise_weight else "")
+                if self.denoise_weight else "") + (
+            f", then the field response (+{self.field_gain_db:.2f} dB on held-out pairs)"
+            if self.field_response is not None else "")
         return (f"PSF soft-thresholded at {self.psf_threshold:g} of its maximum, {SOLVE}, "
                 f"{self.iterations} iterations{post}: the least mean gain-fitted error (dB) "
                 f"on {len(self.pairs) or 'the'} calibration pairs, each reconstructed with "
@@ -332,6 +351,10 @@ class EarlyStop:
                 "psf_sha256": self.psf_sha256, "pairs": list(self.pairs),
                 "psf_block_means": [float(v) for v in self.psf_block_means],
                 "fit_bin_factor": int(self.fit_bin_factor), "method": self.method,
+                "field_response": (None if self.field_response is None else
+                                   np.asarray(self.field_response).round(4).tolist()),
+                **({} if self.field_gain_db is None else
+                   {"field_gain_db": round(float(self.field_gain_db), 4)}),
                 **({} if self.held_out_residual is None else
                    {"held_out_residual": float(self.held_out_residual),
                     "trusted": self.trusted})}
@@ -370,10 +393,18 @@ class EarlyStop:
             residual = d.get("held_out_residual")
             residual = None if residual is None else _number(residual, "held_out_residual",
                                                              0.0)
+            field_grid = d.get("field_response")
+            field_grid = None if field_grid is None else check_field_response(field_grid)
+            field_db = d.get("field_gain_db")
+            if field_db is not None and not (
+                    isinstance(field_db, int | float) and not isinstance(field_db, bool)
+                    and np.isfinite(field_db)):
+                raise _bad("field_gain_db", field_db, "a finite number")
             return cls(iterations, candidates, errors, str(d["psf_sha256"]),
                        tuple(d.get("pairs", ())), threshold, weight, thresholds, weights,
                        tuple(float(v) for v in d.get("psf_block_means", ())), residual,
-                       _count(d.get("fit_bin_factor", 1), "fit_bin_factor"))
+                       _count(d.get("fit_bin_factor", 1), "fit_bin_factor"), field_grid,
+                       None if field_db is None else float(field_db))
         except ReconInputError:
             raise
         except (KeyError, TypeError, ValueError) as exc:

@@ -280,8 +280,24 @@ def _psf_from_files(args, check_outputs) -> int:
     store = psf_run_from_files(args.scenes, args.measurements, out, z_mm=params.z_mm,
                                note=args.note, overwrite=args.overwrite, on_pair=on_pair,
                                on_progress=on_progress, iterations=params.iterations)
+    recipe = store.attrs.get("summary", {}).get("early_stop")
+    if recipe:
+        print(recipe_line(recipe))
     print(format_summary(store.summary()))
     return 0
+
+
+def recipe_line(recipe: dict) -> str:
+    """One line on a calibration's recipe (its summary record, ``early_stop``): what
+    ``recon --psf RUN`` will run, and whether the field response was kept."""
+    gain = recipe.get("field_gain_db")
+    field = ("" if gain is None else
+             f", field response {'kept' if recipe.get('field_response') else 'not kept'} "
+             f"({gain:+.2f} dB on held-out pairs)")
+    denoise = (f"TV denoising {recipe['denoise_weight']:g}" if recipe["denoise_weight"]
+               else "no denoising")
+    trusted = "" if recipe.get("trusted", True) else " (not trusted: no default)"
+    return (f"recipe{trusted}: FISTA {recipe['iterations']} iterations, {denoise}{field}")
 
 
 def _run_whole_or_nothing(runner, plan, out, **options):

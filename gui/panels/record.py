@@ -192,9 +192,9 @@ class RecordPanel(QWidget):
                                       "scene calibration fitted")
         self.recipe_button.clicked.connect(self.use_recipe)
         self.recipe_button.hide()
-        b.addWidget(self.recipe_line, end, 0, 1, 3)
-        b.addWidget(self.recipe_button, end, 3)
-        end += 1
+        b.addWidget(self.recipe_line, end, 0, 1, 4)  # the whole width: up to 6 lines
+        b.addWidget(self.recipe_button, end + 1, 3)
+        end += 2
         self._recipe = None  # the PSF run's recipe (recon.early_stop.EarlyStop) or None
         self._recipe_shown = False  # the fixed fields show it, and it will run
         self._before_recipe: dict[str, str] = {}  # their texts before they showed it
@@ -338,10 +338,13 @@ class RecordPanel(QWidget):
         self._recipe_shown = True
         denoise = (f"isotropic TV denoising at weight {r.denoise_weight:g}"
                    if r.denoise_weight else "no denoising")
+        field = ("" if r.field_response is None else
+                 ", then its field response (a gain over the field fitted on the "
+                 "calibration scenes: dark where they were dark)")
         self.recipe_line.setText(
             f"will run the PSF run's scene-calibration recipe: PSF soft-thresholded at "
             f"{r.psf_threshold:g} of its maximum, FISTA without a prior, {r.iterations} "
-            f"iterations, then {denoise}. Editing solver, iterations, TV, l1 or "
+            f"iterations, then {denoise}{field}. Editing solver, iterations, TV, l1 or "
             "early-stop declines the recipe.")
         self.recipe_line.setStyleSheet("")
         self.recipe_line.show()

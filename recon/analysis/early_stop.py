@@ -21,7 +21,10 @@ candidate, by one FISTA solve observed at every candidate count (the iterate at 
 weight, and scored against its known scene after a per-channel least-squares gain
 (the scene's scale is not the reconstruction's). The triple with the least mean error
 in dB over the pairs (the geometric mean of the relative errors) wins
-(:func:`fit_early_stop`).
+(:func:`fit_early_stop`). The pairs' held-out reconstructions with that triple then
+give the recipe's field response (:mod:`recon.analysis.field_response`: a smooth gain
+over the field, for the camera's falloff and the light the model spreads where the
+scenes had none), kept only if it lowered the error of pairs it was not fitted on.
 
 :func:`fit_recipe` runs the whole fit: the held-out PSFs and the recipe, on the pairs
 binned 2 x 2 (:data:`FIT_BIN`) where each side keeps at least :data:`FIT_MIN_PX`
@@ -49,6 +52,7 @@ from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_sig
 from ..errors import ReconInputError
 from ..fft import map_jobs
 from ..validate import as_int
+from .field_response import fit_field_response, held_out_field_gain_db
 from .psf_from_scenes import LeaveOneOut, PsfEstimate, check_pairs
 
 __all__ = ["CANDIDATES", "FIT_BIN", "FIT_MIN_PX", "REFERENCE_ITERATIONS", "THRESHOLDS",
@@ -179,7 +183,8 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
                    candidates: Sequence[int] = CANDIDATES,
                    thresholds: Sequence[float] = THRESHOLDS,
                    weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
-                   on_candidate=None, on_solve=None, binned_by: int = 1) -> EarlyStop:
+                   on_candidate=None, on_solve=None, binned_by: int = 1,
+                   field: bool = True) -> EarlyStop:
     """Fit the recipe (PSF threshold, iteration count, denoising weight) on
     calibration pairs (module docstring).
 
@@ -215,6 +220,11 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     binned_by : int
         The binning of the pairs and held-out PSFs against ``psf`` (>= 1; recorded as
         the recipe's ``fit_bin_factor``).
+    field : bool
+        Fit a field response (:mod:`recon.analysis.field_response`) on the pairs'
+        held-out reconstructions with the recipe chosen (their solves' checkpoints,
+        kept until the choice: one image per candidate count and pair), and keep it if
+        its mean held-out gain is above 0 dB (recorded either way).
 
     Returns
     -------
@@ -253,14 +263,16 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         i, k = job
         images = solve_checkpoints(clean_psf(held_out_psfs[k], ts[i]), bs[k], cands)
         return [[scorers[k](denoise_tv(images[n], w) if w > 0 else images[n])
-                 for w in ws] for n in cands]  # weight 0: denoise_tv's copy, not made
+                 for w in ws] for n in cands], (images if field else None)
+        # weight 0: denoise_tv's copy, not made; the checkpoints kept for the field
 
     jobs = [(i, k) for i in range(len(ts)) for k in range(len(xs))]
     left = {i: len(xs) for i in range(len(ts))}  # each threshold's solves to come
+    checkpoints = {}  # (threshold, pair): the solve's images at every count (field)
 
-    def done(index, scored):  # in this thread, as each solve ends
+    def done(index, result):  # in this thread, as each solve ends
         i, k = jobs[index]
-        errors[i, :, :, k] = scored
+        errors[i, :, :, k], checkpoints[i, k] = result
         left[i] -= 1
         if on_solve is not None:
             on_solve(len(jobs) - sum(left.values()), len(jobs))
@@ -270,9 +282,16 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     map_jobs(observed, jobs, on_done=done)
     score = np.log10(np.maximum(errors, 1e-12)).mean(axis=-1)  # mean error in dB / 20
     i, j, m = np.unravel_index(int(np.argmin(score)), score.shape)
+    grid = gain_db = None
+    if field:  # each pair's held-out reconstruction with the recipe chosen
+        images = [checkpoints[i, k][cands[j]] for k in range(len(xs))]
+        images = [denoise_tv(x, ws[m]) if ws[m] > 0 else x for x in images]
+        checkpoints.clear()
+        gain_db = float(np.mean(held_out_field_gain_db(images, xs, scorers, binning)))
+        grid = fit_field_response(images, xs, binning) if gain_db > 0 else None
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
                      ts[i], ws[m], tuple(ts), tuple(ws), psf_signature(psf),
-                     fit_bin_factor=binning)
+                     fit_bin_factor=binning, field_response=grid, field_gain_db=gain_db)
 
 
 def fit_bin_factor(shape) -> int:

@@ -31,7 +31,8 @@ def calibrate_files(tmp_path, scenes, measurements):
 def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     scenes, measurements, _ = synthetic_pairs(3, 9)
     run = calibrate_files(tmp_path, scenes, measurements)
-    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[")]
+    out = capsys.readouterr().out.splitlines()
+    lines = [ln for ln in out if ln.startswith("[")]
     total = 1 + 3 + len(THRESHOLDS) * 3
     assert len(lines) == total
     for i, line in enumerate(lines, 1):
@@ -45,6 +46,12 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     for k, line in enumerate(lines[4:], 1):
         assert line.startswith(f"[{4 + k}/{total}] recipe: solve {k} of {solves}"), line
     summary = RunStore.open(run).attrs["summary"]
+    recipe = summary["early_stop"]  # and one line on what recon --psf RUN will run
+    kept = "kept" if recipe["field_response"] else "not kept"
+    said = [ln for ln in out if ln.startswith("recipe")]
+    assert len(said) == 1, out
+    assert said[0].startswith(f"recipe: FISTA {recipe['iterations']} iterations"), said
+    assert f"field response {kept} ({recipe['field_gain_db']:+.2f} dB" in said[0], said
     quality = summary["held_out_reference_db"]
     assert sorted(quality) == ["p0", "p1", "p2"] and all(v > 5 for v in quality.values())
     assert abs(summary["held_out_reference_db_mean"] - np.mean(list(quality.values()))) <= 0.01

@@ -51,6 +51,7 @@ def test_the_batch_form_shows_the_recipe_and_says_when_an_edit_declines_it(panel
     line = panel.recipe_line.text()
     assert not panel.recipe_line.isHidden()
     assert "0.05" in line and "90 iterations" in line and "0.1" in line, line
+    assert "field response" not in line  # this recipe has none
     recon, _ = batch_options(panel.batch_texts())
     assert recon.early_stop == str(calibration / FILE)
     # an edit declines the recipe, visibly; the form's values then run as shown
@@ -76,3 +77,17 @@ def test_a_form_that_already_departs_says_the_recipe_is_declined(panel, calibrat
     assert _shows(panel)[0] == "admm"
     assert "declined" in panel.recipe_line.text() and "solver" in panel.recipe_line.text()
     assert batch_options(panel.batch_texts())[0].early_stop == "off"
+
+
+def test_the_line_names_the_recipes_field_response(panel, tmp_path):
+    """A recipe with a field response says so: its image is dark where the calibration
+    scenes were."""
+    run = tmp_path / "field.zarr"
+    run.mkdir()
+    fit = EarlyStop(90, (90,), np.zeros((1, 1, 1, 3)), "0" * 64, ("p0", "p1", "p2"),
+                    field_response=np.ones((3, 4)), field_gain_db=0.3)
+    (run / FILE).write_text(json.dumps(fit.to_dict()))
+    panel.batch_fields["--psf"].setText(str(run))
+    panel.batch_fields["--psf"].editingFinished.emit()
+    line = panel.recipe_line.text()
+    assert "field response" in line and "dark where they were dark" in line, line

@@ -22,6 +22,7 @@ from recon.analysis.early_stop import (
     reconstruct_early_stopped,
     solve_checkpoints,
 )
+from recon.analysis.field_response import held_out_field_gain_db
 from recon.analysis.psf_from_scenes import estimate_psf_from_scenes, leave_one_out
 from recon.early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity
 from recon.errors import ReconInputError
@@ -235,8 +236,21 @@ def test_the_fit_denoises_only_at_nonzero_weights_and_solves_once_per_pair(camer
     monkeypatch.setattr(fit_module, "solve_checkpoints",
                         lambda *a: solved.append(a[2]) or real_solve(*a))
     fit = fit_early_stop(xs, bs, held, psf, candidates=(3, 10), thresholds=(0.0, 0.05),
-                         weights=(0.0, 0.1, 0.5))
+                         weights=(0.0, 0.1, 0.5), field=False)
     assert len(solved) == 2 * 2 and sorted(denoised) == [0.1] * 8 + [0.5] * 8
+    assert fit.field_response is None and fit.field_gain_db is None
+    solved.clear()
+    denoised.clear()
+    with_field = fit_early_stop(xs, bs, held, psf, candidates=(3, 10),
+                                thresholds=(0.0, 0.05), weights=(0.0, 0.1, 0.5))
+    # the field response is fitted on the solves' checkpoints: no solve more
+    assert len(solved) == 4 and sorted(denoised) == sorted([0.1] * 8 + [0.5] * 8 + (
+        [with_field.denoise_weight] * 2 if with_field.denoise_weight else []))
+    images = [real_denoise(real_solve(clean_psf(h, with_field.psf_threshold), b,
+                                      [with_field.iterations])[with_field.iterations],
+                           with_field.denoise_weight) for h, b in zip(held, bs, strict=True)]
+    assert with_field.field_gain_db == pytest.approx(np.mean(held_out_field_gain_db(
+        images, xs, [lambda e, s=s: gain_fitted_error(e, s) for s in xs])), rel=1e-6)
     for i, t in enumerate((0.0, 0.05)):  # the errors are those of a fit from scratch
         for j, n in enumerate((3, 10)):
             for m, w in enumerate((0.0, 0.1, 0.5)):

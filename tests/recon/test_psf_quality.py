@@ -79,5 +79,5 @@ def test_the_fit_observes_one_solve_per_pair_and_threshold(pairs, monkeypatch):
     monkeypatch.setattr(early_stop, "_solve", counting)
     fit_early_stop(xs, bs, loo, loo[0], thresholds=(0.0, 0.05, 0.1),
                    on_solve=lambda done, total: progress.append((done, total)))
-    assert solves == [max(early_stop.CANDIDATES)] * 12
+    assert solves == [max(early_stop.CANDIDATES)] * 12  # the field response: none more
     assert progress == [(i, 12) for i in range(1, 13)]

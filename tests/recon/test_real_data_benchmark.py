@@ -82,10 +82,12 @@ def test_every_column_on_three_binned_pairs(tmp_path, isolated_lensless, monkeyp
         assert sorted((r["pair"], str(r["weight"])) for r in rows) == sorted(
             (p, str(w)) for p in ("im43", "im157", "im189") for w in weights)
         for r in rows:
-            calibrated = {"calibration_seconds", "recipe", "family_oracle"}
+            calibrated = {"calibration_seconds", "recipe"} | (
+                {"family_oracle"} if m.scores_family else set())
             assert set(r) == (_KEYS | calibrated if m.calibrate else _KEYS)
-            if m.calibrate:  # fitted on the other pairs; its grid's best bounds it
+            if m.calibrate:
                 assert r["calibration_seconds"] > 0 and r["recipe"]["iterations"] >= 10
+            if m.calibrate and m.scores_family:  # its grid's best bounds it
                 assert r["family_oracle"]["best"]["psnr_db"] >= r["family_oracle"][
                     "fitted"]["psnr_db"]
                 assert r["family_oracle"]["fitted"]["psnr_db"] == pytest.approx(
@@ -148,3 +150,29 @@ def test_an_earlier_run_is_not_overwritten_unless_asked(tmp_path, capsys):
     assert (out / "real_data.json").read_text() == "earlier"
     assert real_data.main([*argv, "--overwrite"]) == 0
     assert json.loads((out / "real_data.json").read_text())["means"][0]["weight"] == 1e-3
+
+
+def test_the_peer_with_the_field_response_is_its_image_times_the_recipes(
+        tmp_path, isolated_lensless, monkeypatch):
+    """``lensless-admm-field`` multiplies LenslessPiCam's image (here the fake's: the
+    measurement) by the field response of the pair's recipe, and by nothing when the
+    recipe kept none."""
+    from recon.early_stop import EarlyStop
+    from recon.field_response import apply_field_response
+
+    pkg = tmp_path / "site" / "lensless"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text(_FAKE_LENSLESS)
+    monkeypatch.setenv(real_data.LENSLESS_ENV, str(tmp_path / "site"))
+    column = next(m for m in real_data.METHODS if m.name == "lensless-admm-field")
+    assert column.calibrate is not None and not column.scores_family
+    raw = np.random.default_rng(0).random((12, 16, 3)).astype(np.float32)
+    psf = np.ones_like(raw)
+    grid = np.array([[0.0, 1.0], [2.0, 3.0]])
+    recipe = EarlyStop(10, (10,), np.zeros((1, 1, 1, 2)), "0" * 64, field_response=grid,
+                       field_gain_db=1.0)
+    out = column.solve(psf, raw, None, 3, recipe=recipe)
+    assert np.allclose(out, apply_field_response(raw, grid))
+    plain = column.solve(psf, raw, None, 3, recipe=EarlyStop(10, (10,), np.zeros((1, 1, 1, 2)),
+                                                             "0" * 64))
+    assert np.allclose(plain, raw)
