@@ -78,7 +78,8 @@ def limited_threads(n: int) -> Iterator[None]:
 def map_jobs(fn: Callable[[T], R], items: Sequence[T], *,
              on_done: Callable[[int, R], None] | None = None) -> list[R]:
     """``fn(item)`` for every item, as many at once as the calling thread's FFT workers
-    (:func:`fft_workers`), each job's FFTs and numba kernels on one thread.
+    (:func:`fft_workers`), each job's FFTs and numba kernels on one thread, and BLAS
+    on one thread in the whole process while they run (threadpoolctl; restored after).
 
     Independent jobs of small transforms share the cores better than the threads of
     one transform do: on the shared 2-core machine, the calibration's binned PSF
@@ -111,6 +112,8 @@ def map_jobs(fn: Callable[[T], R], items: Sequence[T], *,
     """
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
+    from threadpoolctl import threadpool_limits
+
     items = list(items)
     threads = min(fft_workers(), len(items))
     results: list = [None] * len(items)
@@ -125,7 +128,11 @@ def map_jobs(fn: Callable[[T], R], items: Sequence[T], *,
         with limited_threads(1):
             return fn(item)
 
-    with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="recon-job") as pool:
+    # BLAS (OpenBLAS: one thread count for the whole process) on one thread while the
+    # jobs run: its idle threads spin, and in the calibration's PSF estimates they
+    # doubled the CPU time for the same wall time (docs/real-data.md)
+    with threadpool_limits(limits=1, user_api="blas"), ThreadPoolExecutor(
+            max_workers=threads, thread_name_prefix="recon-job") as pool:
         index = {pool.submit(job, item): i for i, item in enumerate(items)}
         pending = set(index)
         while pending:
