@@ -50,7 +50,10 @@ def choice_lines(m: dict) -> list[str]:
         c = m["calibration"]
         lines.append(f"the PSF's scene-calibration recipe: PSF threshold {c['psf_threshold']:g}"
                      f" of its maximum, {c['iterations']} FISTA iterations, TV denoising "
-                     f"{c['denoise_weight']:g} (--early-stop off declines it)")
+                     f"{c['denoise_weight']:g}"
+                     + (", then its field response (dark where the calibration scenes were "
+                        "dark)" if c.get("field_response") else "")
+                     + " (--early-stop off declines it)")
     w = rec.get("weight")
     if w:
         lines.append(f"{w['regulariser']} weight {w['weight']:.3g}: {w['reason']}")

@@ -211,3 +211,17 @@ def test_benchmark_recon_runs_the_3d_benchmarks(tmp_path, capsys):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert set(summary["volume_speed_ratio"]["64x64x4"]) == {"fista3d", "admm3d"}
     assert "3D speed 64x64x4" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("field", [True, False])
+def test_the_recipe_line_says_whether_the_recipe_has_a_field_response(field):
+    """The terminal says what ran: a recipe with a field response darkens the field its
+    calibration scenes left dark, and its line says so."""
+    from instrument.cli.recon import choice_lines
+
+    lines = choice_lines({"method": "fista", "calibration": {
+        "psf_threshold": 0.0, "iterations": 90, "denoise_weight": 0.05,
+        "field_response": field}})
+    said = [ln for ln in lines if "scene-calibration recipe" in ln]
+    assert len(said) == 1 and "90 FISTA iterations" in said[0]
+    assert ("field response" in said[0]) is field, said
