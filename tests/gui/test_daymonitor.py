@@ -55,8 +55,13 @@ def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     # first (on a loaded machine the slot's timer fired first, and the hold had no
     # firing before it to be late against)
     wait(lambda: len(monitor.lateness.get("busy", ())) >= 1, 30, "a firing in the phase")
-    QTimer.singleShot(100, lambda: _held_up_in_a_slot(0.4))
     ours = _ended_stall(monitor, "_held_up_in_a_slot")
+
+    def hold():  # again until the watchdog has recorded one: at load 10-20 its thread
+        if ours() is None:  # can miss a single 0.4 s hold (run R9, 2026-11-29)
+            _held_up_in_a_slot(0.4)
+            QTimer.singleShot(300, hold)
+    QTimer.singleShot(100, hold)
     wait(ours, 30, "the stall recorded")
     monitor.set_phase("idle")
     t0 = time.monotonic()
@@ -72,9 +77,13 @@ def test_watchdog_names_what_held_the_gui_thread(qapp, wait):
     # can only lengthen the stall)
     assert stall["ms"] > 300 and stall["ours_ms"] > 250, stall
     figures = summarise({**report, "crashed": False, "records": []})
-    # among the causes (the load's own stalls may be more frequent)
-    assert [n for what, n in figures["stalls"]
-            if what.startswith("busy: ") and "_held_up_in_a_slot" in what] == [1]
+    # among the causes (the load's own stalls may be more frequent), counted as often
+    # as the watchdog recorded a hold
+    held = [st for st in report["stalls"] if st["phase"] == "busy"
+            and any("_held_up_in_a_slot" in f for f in st["gui_stack"])]
+    assert held and [n for what, n in figures["stalls"]
+                     if what.startswith("busy: ") and "_held_up_in_a_slot" in what] == [
+        len(held)]
     assert not figures["goals_met"]["max_ms"]
 
 
