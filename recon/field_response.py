@@ -24,11 +24,37 @@ import numpy as np
 
 from .errors import ReconInputError
 
-__all__ = ["STEP_PX", "apply_field_response", "check_field_response", "field_gain"]
+__all__ = ["STEP_PX", "apply_field_response", "check_field_response", "field_gain",
+           "resample_evenly"]
 
 #: Pixels of the full-size PSF per node of the field response's grid; the gain is
 #: smoothed over about this scale (a Gaussian of 0.8 of it) before it is sampled.
 STEP_PX = 10
+
+
+def resample_evenly(values, shape) -> np.ndarray:
+    """A 2D array bilinearly resampled onto ``shape``, both grids covering the same
+    field evenly (sample ``i`` of ``n`` at the centre of the ``i``-th of ``n`` equal
+    strips): a grid's nodes from an image, or an image from a grid's nodes.
+
+    Parameters
+    ----------
+    values : array_like, (rows, cols), real
+    shape : tuple of int
+        ``(rows, cols, ...)`` of the result (only the first two are used).
+
+    Returns
+    -------
+    ndarray, float64, (shape[0], shape[1])
+        Bilinear between samples, the nearest sample's value beyond the outer ones.
+    """
+    from scipy.ndimage import map_coordinates
+
+    v = np.asarray(values, np.float64)
+    r, c = ((np.arange(n) + 0.5) * side / n - 0.5
+            for n, side in zip((int(shape[0]), int(shape[1])), v.shape, strict=True))
+    rr, cc = np.meshgrid(r, c, indexing="ij")
+    return map_coordinates(v, [rr, cc], order=1, mode="nearest")
 
 
 def field_gain(grid, shape) -> np.ndarray:
@@ -49,14 +75,7 @@ def field_gain(grid, shape) -> np.ndarray:
     ndarray, float32, (rows, cols)
         Bilinear between nodes, the nearest node's value beyond the outer ones.
     """
-    from scipy.ndimage import map_coordinates
-
-    g = np.asarray(grid, np.float64)
-    rows, cols = int(shape[0]), int(shape[1])
-    r = (np.arange(rows) + 0.5) * g.shape[0] / rows - 0.5
-    c = (np.arange(cols) + 0.5) * g.shape[1] / cols - 0.5
-    rr, cc = np.meshgrid(r, c, indexing="ij")
-    return map_coordinates(g, [rr, cc], order=1, mode="nearest").astype(np.float32)
+    return resample_evenly(grid, shape).astype(np.float32)
 
 
 def apply_field_response(image, grid) -> np.ndarray:

@@ -262,9 +262,9 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
     def observed(job):  # one solve, scored at every count and weight
         i, k = job
         images = solve_checkpoints(clean_psf(held_out_psfs[k], ts[i]), bs[k], cands)
+        # weight 0: denoise_tv's copy, not made; the checkpoints kept for the field
         return [[scorers[k](denoise_tv(images[n], w) if w > 0 else images[n])
                  for w in ws] for n in cands], (images if field else None)
-        # weight 0: denoise_tv's copy, not made; the checkpoints kept for the field
 
     jobs = [(i, k) for i in range(len(ts)) for k in range(len(xs))]
     left = {i: len(xs) for i in range(len(ts))}  # each threshold's solves to come

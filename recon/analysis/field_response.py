@@ -20,7 +20,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ReconInputError
-from ..field_response import STEP_PX, apply_field_response
+from ..field_response import STEP_PX, apply_field_response, resample_evenly
+from ..metrics import fit_gain
 
 __all__ = ["SIGMA_STEPS", "fit_field_response", "held_out_field_gain_db"]
 
@@ -40,8 +41,7 @@ def _sums(images, scenes, binned_by):
         if r.shape != s.shape:
             raise ReconInputError(f"reconstruction of shape {r.shape} for a scene of shape "
                                   f"{s.shape}: give each pair's image on its scene's grid")
-        ee, es = np.einsum("ijc,ijc->c", r, r), np.einsum("ijc,ijc->c", r, s)
-        r = r * np.divide(es, ee, out=np.zeros_like(es), where=ee > 0)
+        r = r * np.array([fit_gain(r[..., c], s[..., c]) for c in range(r.shape[-1])])
         rs = rs + (r * s).sum(-1)
         rr = rr + (r * r).sum(-1)
     sigma = SIGMA_STEPS * STEP_PX / binned_by
@@ -71,19 +71,13 @@ def fit_field_response(images: Sequence[np.ndarray], scenes: Sequence[np.ndarray
     ReconInputError
         No pair, or an image of another shape than its scene.
     """
-    from scipy.ndimage import map_coordinates
-
     if not len(images):
         raise ReconInputError("no calibration pair to fit a field response on; give at "
                               "least one")
     rs, rr = _sums(images, scenes, binned_by)
     g = np.divide(rs, rr, out=np.zeros_like(rs), where=rr > 1e-12 * rr.max())
-    rows, cols = g.shape
-    n = [max(1, round(side * binned_by / STEP_PX)) for side in (rows, cols)]
-    r = (np.arange(n[0]) + 0.5) * rows / n[0] - 0.5
-    c = (np.arange(n[1]) + 0.5) * cols / n[1] - 0.5
-    rr_, cc_ = np.meshgrid(r, c, indexing="ij")
-    return np.maximum(map_coordinates(g, [rr_, cc_], order=1, mode="nearest"), 0.0)
+    nodes = [max(1, round(side * binned_by / STEP_PX)) for side in g.shape]
+    return np.maximum(resample_evenly(g, nodes), 0.0)
 
 
 def held_out_field_gain_db(images: Sequence[np.ndarray], scenes: Sequence[np.ndarray],
