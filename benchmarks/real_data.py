@@ -6,12 +6,16 @@ Run with ``python -m benchmarks.real_data [--data DIR] [--psf-dir DIR] [--out DI
 
 Data: the five DiffuserCam pairs of ``shared/data/mirflickr-real`` (a photograph on a
 monitor, captured by the lensless camera and, registered, by a lensed one). Each pair
-is reconstructed with the PSF estimated from the *other* pairs (non-negative, by
-:func:`benchmarks.real_priors.load_psfs`: read from ``--psf-dir`` when there, else
-computed and saved there; with ``--bin`` above 1 or fewer ``--pairs`` they are always
-computed, in memory). The estimate is scored against the lensed image after a
-per-channel least-squares gain, clipped to [0, 1] (:func:`benchmarks.real_priors.score`:
-PSNR and SSIM by scikit-image); each reconstruction is timed (wall clock), and the
+is reconstructed with the PSF estimated from the *other* pairs as the scene calibration
+makes it: with the sensor response fitted on those pairs
+(:func:`benchmarks.real_priors.load_sensor_psfs`; ``--without-sensor-response``: the
+PSF alone, :func:`benchmarks.real_priors.load_psfs`), read from ``--psf-dir`` when
+there, else computed and saved there (with ``--bin`` above 1 or fewer ``--pairs``
+always computed, in memory). Every method gets that PSF and the measurement as
+captured (the response is a nuisance of the PSF's estimate).
+The estimate is scored against the lensed image after a per-channel least-squares
+gain, clipped to [0, 1] (:func:`benchmarks.real_priors.score`: PSNR and SSIM by
+scikit-image); each reconstruction is timed (wall clock), and the
 time is also stated over the FFT floor (:func:`recon.fft.fft_pair_seconds`: one rfft2 +
 irfft2 pair at the padded grid, float32) measured in the same run, so that runs on
 machines under different load compare.
@@ -66,7 +70,14 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.psf_from_scenes import NAMES, load_pairs
-from benchmarks.real_priors import add_pair_options, contact_sheet, gain_fit, load_psfs, score
+from benchmarks.real_priors import (
+    add_pair_options,
+    contact_sheet,
+    gain_fit,
+    load_psfs,
+    load_sensor_psfs,
+    score,
+)
 from benchmarks.real_recipe import calibrate_recipe, family_oracle, solve_recipe
 
 __all__ = ["AXIS_TOLERANCE_DEG", "METHODS", "Method", "ORACLE_PRIORS", "import_lensless", "main",
@@ -254,8 +265,13 @@ def machine() -> dict:
             "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime())}
 
 
-def _psfs(data_dir, psf_dir, names, bin_factor, scenes, measurements):
-    if bin_factor == 1 and len(names) == len(NAMES) and psf_dir is not None:
+def _psfs(psf_dir, names, bin_factor, scenes, measurements, sensor: bool):
+    """Each pair's leave-one-out PSF (with the sensor response, or without)."""
+    kept = bin_factor == 1 and len(names) == len(NAMES) and psf_dir is not None
+    if sensor:
+        return load_sensor_psfs(Path(psf_dir) if kept else None, names, scenes,
+                                measurements)[0]
+    if kept:
         return load_psfs(Path(psf_dir), names, scenes, measurements)
     from recon.analysis.psf_from_scenes import leave_one_out
 
@@ -294,7 +310,7 @@ def _mean(rows, key):
 def run_benchmark(out: Path, data_dir: Path | None = None, psf_dir: Path | None = None,
                   pairs: int = len(NAMES), bin_factor: int = 1,
                   iterations: int | None = None, weights=WEIGHTS, methods=None,
-                  log=print) -> dict:
+                  log=print, sensor_response: bool = True) -> dict:
     """Every method of ``methods`` (default :data:`METHODS`) on the first ``pairs`` pairs.
 
     Parameters
@@ -338,13 +354,14 @@ def run_benchmark(out: Path, data_dir: Path | None = None, psf_dir: Path | None 
     methods = list(METHODS if methods is None else methods)
     names = NAMES[:pairs]
     scenes, measurements = load_pairs(data_dir, names, bin_factor)
-    psfs = _psfs(data_dir, psf_dir, names, bin_factor, scenes, measurements)
+    psfs = _psfs(psf_dir, names, bin_factor, scenes, measurements, sensor_response)
     rows_px, cols_px = scenes[0].shape[:2]
     floor_s = fft_pair_seconds((2 * rows_px, 2 * cols_px))
     result = {"machine": machine(),
               "setup": {"pairs": list(names), "bin_factor": bin_factor,
                         "shape": [rows_px, cols_px], "iterations": iterations,
-                        "weights": [float(w) for w in weights]},
+                        "weights": [float(w) for w in weights],
+                        "sensor_response": bool(sensor_response)},
               "fft_floor_seconds": floor_s, "methods": [], "rows": [], "means": []}
     log(f"FFT floor {floor_s * 1e3:.2f} ms at {2 * rows_px} x {2 * cols_px}")
     sheet, titles = [[s] for s in scenes], ["lensed (truth)"]
@@ -452,6 +469,10 @@ def main(argv=None) -> int:
                    f"(default all: {', '.join(m.name for m in METHODS)})")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the results of an earlier run in --out")
+    p.add_argument("--without-sensor-response", action="store_false",
+                   dest="sensor_response",
+                   help="estimate each pair's PSF without the sensor response (as before "
+                   "2026-11-29)")
     p.add_argument("--lensless-path", default=None,
                    help=f"directory holding the lensless package (or {LENSLESS_ENV})")
     args = p.parse_args(argv)
@@ -487,7 +508,8 @@ def main(argv=None) -> int:
         os.environ[LENSLESS_ENV] = str(args.lensless_path)
     try:
         r = run_benchmark(args.out, args.data, args.psf_dir, args.pairs, args.bin_factor,
-                          args.iterations, weights, methods)
+                          args.iterations, weights, methods,
+                          sensor_response=args.sensor_response)
     except FileNotFoundError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -38,7 +38,8 @@ import numpy as np
 
 from benchmarks.psf_from_scenes import NAMES, load_pairs
 
-__all__ = ["add_pair_options", "gain_fit", "load_psfs", "main", "run_study", "score"]
+__all__ = ["add_pair_options", "gain_fit", "load_psfs", "load_sensor_psfs", "main", "run_study",
+           "score"]
 
 #: The priors compared (names of :data:`recon.priors.PRIORS`).
 PRIORS = ("tv", "tv-iso", "tgv")
@@ -83,6 +84,38 @@ def load_psfs(psf_dir: Path, names, scenes, measurements) -> list[np.ndarray]:
         for c, f in enumerate(row):
             np.save(f, np.asarray(psf[..., c], np.float32))
     return [np.asarray(p, np.float32) for p in psfs]
+
+
+def load_sensor_psfs(psf_dir: Path | None, names, scenes, measurements
+                     ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each pair's leave-one-out PSF and sensor response, as the scene calibration
+    makes them (:func:`recon.analysis.sensor_response.fit_sensor_response` on the
+    other pairs, then their PSF from the measurements divided by it): PSFs (H, W, 3)
+    float32 and response grids (n_rows, n_cols) float64. Read from ``psf_dir``
+    (``psf_sensor_{pair}.npy``, ``sensor_{pair}.npy``) when there, else estimated and,
+    with a ``psf_dir``, saved there."""
+    from recon.analysis.psf_from_scenes import estimate_psf_from_scenes
+    from recon.analysis.sensor_response import fit_sensor_response, remove_sensor_response
+
+    psfs, grids = [], []
+    for k, n in enumerate(names):
+        files = (None if psf_dir is None else
+                 (Path(psf_dir) / f"psf_sensor_{n}.npy", Path(psf_dir) / f"sensor_{n}.npy"))
+        if files is not None and all(f.is_file() for f in files):
+            psfs.append(np.load(files[0]).astype(np.float32))
+            grids.append(np.load(files[1]))
+            continue
+        xs = [x for i, x in enumerate(scenes) if i != k]
+        bs = [b for i, b in enumerate(measurements) if i != k]
+        grid = fit_sensor_response(xs, bs)
+        psf = estimate_psf_from_scenes(xs, [remove_sensor_response(b, grid) for b in bs]).psf
+        psfs.append(np.asarray(psf, np.float32))
+        grids.append(grid)
+        if files is not None:
+            files[0].parent.mkdir(parents=True, exist_ok=True)
+            np.save(files[0], psfs[-1])
+            np.save(files[1], grid)
+    return psfs, grids
 
 
 def _reconstruct(psf, raw, prior: str, weight):

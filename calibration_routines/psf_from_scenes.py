@@ -68,6 +68,7 @@ from recon.analysis.psf_from_scenes import (
     estimate_psf_from_scenes,
     leave_one_out,
 )
+from recon.analysis.sensor_response import ROUNDS as SENSOR_ROUNDS
 from recon.early_stop import FILE as EARLY_STOP_NAME
 from recon.early_stop import EarlyStop
 from recon.io import load_image
@@ -151,7 +152,7 @@ def _scene_name_ok(name: str) -> bool:
 def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | None,
               names: Sequence[str], z_mm: float, units: str,
               early_stop: EarlyStop | None = None, quality_db=None,
-              quality_names: Sequence[str] | None = None) -> dict:
+              quality_names: Sequence[str] | None = None, sensor_response=None) -> dict:
     """Write ``psf_stack`` and return the run's summary (module docstring).
 
     Parameters
@@ -181,6 +182,10 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
         higher is better), recorded as ``held_out_reference_db`` and its mean.
     quality_names : sequence of str, optional
         The scenes of ``quality_db`` (default ``names``).
+    sensor_response : ndarray, (n_rows, n_cols), optional
+        The sensor response the PSF was estimated with
+        (:mod:`recon.analysis.sensor_response`): recorded as ``sensor_response`` (its
+        grid's shape, least and greatest gain).
 
     Returns
     -------
@@ -207,6 +212,11 @@ def write_psf(store: RunStore, estimate: PsfEstimate, held_out: np.ndarray | Non
             n: round(float(v), 2) for n, v in zip(quality_names or names, quality_db,
                                                   strict=True)}
         summary["held_out_reference_db_mean"] = round(float(np.mean(quality_db)), 2)
+    if sensor_response is not None:  # a nuisance of the estimate: its extent recorded
+        g = np.asarray(sensor_response)
+        summary["sensor_response"] = {"grid_shape": list(g.shape),
+                                      "min": round(float(g.min()), 3),
+                                      "max": round(float(g.max()), 3)}
     if early_stop is not None:  # its SHA-256 and trust recorded (instrument.runs.run_recipe)
         if held_out is not None:
             summary["held_out_bin_factor"] = int(early_stop.fit_bin_factor)
@@ -219,7 +229,7 @@ def _calibrate(scenes, measurements, names, options, on_progress):
     """The PSF from every pair, each pair's PSF without it, the recipe and the quality
     figure, reporting ``on_progress(done, total, what)`` after each step."""
     n = len(scenes)
-    total = 1 + (n + len(THRESHOLDS) * n if n > 1 else 0)
+    total = 1 + (SENSOR_ROUNDS + n + len(THRESHOLDS) * n if n > 1 else 0)
     done = 0
 
     def report(what):
@@ -234,11 +244,14 @@ def _calibrate(scenes, measurements, names, options, on_progress):
     if n == 1:
         estimate = estimate_psf_from_scenes(scenes, measurements, **options)
         psf_line(estimate)
-        return estimate, None, None, None
+        return estimate, None, None, None, None
     recipe = fit_recipe(scenes, measurements, names=names, on_psf=psf_line,  # beside the
                         on_estimate=lambda k: report(f"PSF without {names[k]}"),  # held-out
-                        on_solve=lambda i, t: report(f"recipe: solve {i} of {t}"), **options)
-    return recipe.estimate, recipe.held_out, recipe.fit, recipe.reference_db
+                        on_solve=lambda i, t: report(f"recipe: solve {i} of {t}"),
+                        on_sensor=lambda r, _: report(
+                            f"sensor response: round {r} of {SENSOR_ROUNDS}"), **options)
+    return (recipe.estimate, recipe.held_out, recipe.fit, recipe.reference_db,
+            recipe.sensor_response)
 
 
 def _files(spec: Sequence[str], what: str) -> dict[str, Path]:
@@ -338,7 +351,7 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
     xs = [load_image(x) for _, x, _ in pairs]
     bs = [load_image(b) for _, _, b in pairs]
     check_pairs(xs, bs)
-    estimate, loo, early, quality = _calibrate(xs, bs, names, options, on_progress)
+    estimate, loo, early, quality, sensor = _calibrate(xs, bs, names, options, on_progress)
     held = None if loo is None else loo.residuals
     if on_pair is not None:
         for k, n in enumerate(names):
@@ -355,7 +368,8 @@ def psf_run_from_files(scenes: Sequence[str], measurements: Sequence[str], out, 
             coord_names=["exposure_s"], coord_specs=coord_specs(["exposure_s"]), note=note,
             overwrite=overwrite, keep_lock=True)
         summary = write_psf(store, estimate, held, names, z_mm,
-                            "measurement units per scene unit", early, quality)
+                            "measurement units per scene unit", early, quality,
+                            sensor_response=sensor)
         store.update_attrs(status="complete", summary=summary)
         store.unlock()  # locked from its creation until written
     except BaseException:  # never a run another process created at ``out`` meanwhile
@@ -526,5 +540,7 @@ class PsfFromScenesPlan(Plan):
             recipe_fit = fit_recipe(scenes, measurements, names=names, **options)
             estimate, fit = recipe_fit.estimate, recipe_fit.fit
             loo, quality = recipe_fit.held_out, recipe_fit.reference_db
+            sensor = recipe_fit.sensor_response
         return write_psf(store, estimate, loo.residuals, names, p["z_mm"],
-                         "DN/s per unit display radiance", fit, quality, recipe or names)
+                         "DN/s per unit display radiance", fit, quality, recipe or names,
+                         sensor_response=None if recipe else sensor)

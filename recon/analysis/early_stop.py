@@ -316,6 +316,9 @@ class RecipeFit:
         The binning (1: none).
     estimate : recon.analysis.psf_from_scenes.PsfEstimate or None
         The PSF from every pair, full size, when :func:`fit_recipe` estimated it.
+    sensor_response : ndarray, float64, (n_rows, n_cols), or None
+        The sensor response that PSF was estimated with
+        (:func:`recon.analysis.sensor_response.fit_sensor_response`), or None.
     """
 
     fit: EarlyStop
@@ -323,17 +326,24 @@ class RecipeFit:
     reference_db: np.ndarray
     bin_factor: int
     estimate: PsfEstimate | None = None
+    sensor_response: np.ndarray | None = None
 
 
 def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
                candidates: Sequence[int] = CANDIDATES,
                thresholds: Sequence[float] = THRESHOLDS,
                weights: Sequence[float] = WEIGHTS, names: Sequence[str] = (),
-               on_psf=None, on_estimate=None, on_solve=None, **psf_options) -> RecipeFit:
+               on_psf=None, on_estimate=None, on_solve=None, fit_sensor: bool = True,
+               on_sensor=None, **psf_options) -> RecipeFit:
     """The recipe for ``psf`` fitted on its calibration pairs: each pair's PSF
     estimated without it (:func:`recon.analysis.psf_from_scenes.leave_one_out`), then
     :func:`fit_early_stop` and :func:`reference_db`, on the pairs binned by
-    ``bin_factor`` (module docstring).
+    ``bin_factor`` (module docstring). When the PSF from every pair is estimated
+    here, it is estimated with the sensor's shading as a nuisance
+    (:func:`recon.analysis.sensor_response.fit_sensor_response` on the binned pairs,
+    then the PSF from the measurements divided by it): a better PSF for the measurement
+    as captured. The held-out PSFs and the recipe's solves use the measurements as
+    captured, as the reconstruction does (docs/real-data.md).
 
     The estimates (``psf``'s when not given, and the held-out ones) and then the
     recipe's solves run as :func:`recon.fft.map_jobs`: each on one FFT thread, as
@@ -356,6 +366,12 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
     on_estimate : callable, optional
         ``on_estimate(k)`` after pair ``k``'s held-out PSF (progress; in the order the
         estimates end).
+    fit_sensor : bool
+        Estimate the PSF from every pair with the sensor response (default); False:
+        without (before 2026-11-29).
+    on_sensor : callable, optional
+        ``on_sensor(round, estimate)`` after each round of the sensor response's fit
+        (progress).
     **psf_options
         Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`; a
         ``psf_shape`` is binned with the pairs.
@@ -372,6 +388,7 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
     """
     from ..preprocess.binning import box_bin
     from .psf_from_scenes import estimate_psf_from_scenes, held_out_estimate
+    from .sensor_response import fit_sensor_response, remove_sensor_response
 
     shape = check_pairs(scenes, measurements)[0][0].shape
     if len(scenes) < 2:
@@ -393,9 +410,15 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
         raise ReconInputError(f"PSF of shape {np.shape(psf)} for pairs of shape {shape} "
                               f"binned {b} x {b}: give the PSF estimated from the pairs")
 
+    sensor = None
+    if psf is None and fit_sensor:  # on the binned pairs: it is smooth
+        sensor = fit_sensor_response(xs, bs, binned_by=b, on_round=on_sensor, **psf_options)
+
     def estimate(k):  # None: the PSF from every pair, full size (the largest job: first)
         if k is None:
-            return estimate_psf_from_scenes(scenes, measurements, **full_options)
+            return estimate_psf_from_scenes(
+                scenes, [remove_sensor_response(m, sensor) for m in measurements],
+                **full_options)
         return held_out_estimate(xs, bs, k, **psf_options)
 
     here = psf is None
@@ -414,7 +437,7 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
     psf = whole.psf if here else psf
     fit = fit_early_stop(xs, bs, loo.psfs, psf, candidates=candidates, thresholds=thresholds,
                          weights=weights, names=names, on_solve=on_solve, binned_by=b)
-    return RecipeFit(fit, loo, reference_db(xs, bs, loo.psfs, fit), b, whole)
+    return RecipeFit(fit, loo, reference_db(xs, bs, loo.psfs, fit), b, whole, sensor)
 
 
 def reference_db(scenes, measurements, held_out_psfs: Sequence, fit: EarlyStop | None = None
@@ -467,11 +490,13 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
                  candidates: Sequence[int] = CANDIDATES,
                  thresholds: Sequence[float] = THRESHOLDS,
                  weights: Sequence[float] = WEIGHTS, bin_factor: int | None = None,
-                 **psf_options) -> EarlyStop:
+                 fit_sensor: bool = True, **psf_options) -> EarlyStop:
     """The early-stop fit that pair ``k`` may be scored with: fitted on the other pairs
     only (a benchmark's leave-one-out entry).
 
-    The PSF is estimated from the other pairs (or ``psf``, that estimate, given);
+    The PSF is estimated from the other pairs as the calibration does (:func:`fit_recipe`,
+    with the sensor response unless ``fit_sensor`` is False), or ``psf``, that
+    estimate, given;
     each of those pairs is reconstructed with the PSF estimated from the rest of them
     (:func:`recon.analysis.psf_from_scenes.leave_one_out` on the other pairs), so pair
     ``k`` touches neither the PSF nor the count.
@@ -484,7 +509,7 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
         The held-out pair's index.
     psf : ndarray, optional
         The PSF estimated from every pair but ``k`` (computed when not given).
-    candidates, thresholds, weights, bin_factor
+    candidates, thresholds, weights, bin_factor, fit_sensor
         As for :func:`fit_recipe` (the calibration's own fit).
     **psf_options
         Of :func:`recon.analysis.psf_from_scenes.estimate_psf_from_scenes`.
@@ -500,18 +525,15 @@ def fit_held_out(scenes, measurements, k: int, *, psf=None,
         Fewer than three pairs, ``k`` out of range, or what :func:`fit_early_stop`
         refuses.
     """
-    from .psf_from_scenes import estimate_psf_from_scenes
-
     scenes, measurements = list(scenes), list(measurements)
     if len(scenes) < 3 or not 0 <= int(k) < len(scenes):
         raise ReconInputError(f"pair {k} of {len(scenes)}: give at least three pairs and "
                               "the index of one of them")
     xs = [x for i, x in enumerate(scenes) if i != k]
     bs = [b for i, b in enumerate(measurements) if i != k]
-    if psf is None:
-        psf = estimate_psf_from_scenes(xs, bs, **psf_options).psf
     return fit_recipe(xs, bs, psf, bin_factor=bin_factor, candidates=candidates,
-                      thresholds=thresholds, weights=weights, **psf_options).fit
+                      thresholds=thresholds, weights=weights, fit_sensor=fit_sensor,
+                      **psf_options).fit
 
 
 def reconstruct_early_stopped(psf, raw, fit: EarlyStop, **options):

@@ -48,7 +48,8 @@ from ..operators import ConvolutionOperator, real32
 from ..validate import as_int, as_shape2, finite_float
 
 __all__ = ["ESTIMATE_ITERATIONS", "LeaveOneOut", "PsfEstimate", "check_pairs",
-           "estimate_psf_from_scenes", "held_out_estimate", "leave_one_out", "relative_residuals"]
+           "estimate_psf_from_scenes", "held_out_estimate", "leave_one_out",
+           "predict_measurements", "relative_residuals"]
 
 #: The estimate's cap on ADMM iterations (it stops earlier once converged): its own
 #: quantity, not a reconstruction's ``iterations``; ``calibrate psf-from-scenes
@@ -420,6 +421,42 @@ def _relative(prediction: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(prediction.astype(np.float64) - b)) / norm
 
 
+def predict_measurements(psf, scenes) -> list[np.ndarray]:
+    """Each scene's predicted measurement ``C (x_i * P h)`` under ``psf``.
+
+    Parameters
+    ----------
+    psf : array_like, (rows, cols) or (rows, cols, channels)
+        Centred PSF (as ``PsfEstimate.psf``), of at most the sensor's shape.
+    scenes : sequence of array_like, (rows, cols) or (rows, cols, channels)
+        As for :func:`estimate_psf_from_scenes`.
+
+    Returns
+    -------
+    list of ndarray, float32, (rows, cols, channels)
+        One per scene (a channel axis also for 2D scenes).
+
+    Raises
+    ------
+    ReconInputError
+        Scenes refused by :func:`check_pairs`, or a PSF with other channels or larger
+        than the sensor.
+    """
+    xs, _ = check_pairs(scenes, scenes)
+    h = _channels(real32(psf, "PSF"))
+    if h.ndim != 3 or h.shape[2] != xs[0].shape[2]:
+        raise ReconInputError(f"PSF of shape {np.shape(psf)} for scenes of shape "
+                              f"{np.shape(scenes[0])}: give one PSF channel per "
+                              "measurement channel")
+    _options(h.shape[:2], xs[0].shape[:2], 1, 1, 1.0)
+    out = [np.zeros(x.shape, np.float32) for x in xs]
+    for c in range(h.shape[2]):
+        problem = _Problem([x[..., c] for x in xs], h.shape[:2])
+        for k, o in enumerate(out):
+            o[..., c] = problem.forward(h[..., c], k)
+    return out
+
+
 def relative_residuals(psf, scenes, measurements) -> np.ndarray:
     """Each pair's relative residual ``||C (x_i * P h) - b_i|| / ||b_i||`` under ``psf``.
 
@@ -441,18 +478,9 @@ def relative_residuals(psf, scenes, measurements) -> np.ndarray:
         the sensor, or an all-zero measurement.
     """
     xs, bs = check_pairs(scenes, measurements)
-    h = _channels(real32(psf, "PSF"))
-    if h.ndim != 3 or h.shape[2] != xs[0].shape[2]:
-        raise ReconInputError(f"PSF of shape {np.shape(psf)} for measurements of shape "
-                              f"{np.shape(measurements[0])}: give one PSF channel per "
-                              "measurement channel")
-    _options(h.shape[:2], xs[0].shape[:2], 1, 1, 1.0)
-    out = np.zeros((len(xs), h.shape[2]))
-    for c in range(h.shape[2]):
-        problem = _Problem([x[..., c] for x in xs], h.shape[:2])
-        out[:, c] = [_relative(problem.forward(h[..., c], k), bs[k][..., c])
-                     for k in range(len(xs))]
-    return out
+    predictions = predict_measurements(psf, xs)
+    return np.array([[_relative(p[..., c], b[..., c]) for c in range(b.shape[2])]
+                     for p, b in zip(predictions, bs, strict=True)])
 
 
 def leave_one_out(scenes, measurements, *, on_estimate=None, **options) -> LeaveOneOut:

@@ -10,6 +10,7 @@ import numpy as np
 from instrument.cli import main
 from instrument.runs.runstore import RunStore
 from recon.analysis.early_stop import THRESHOLDS
+from recon.analysis.sensor_response import ROUNDS as SENSOR_ROUNDS
 from tests.recon.test_psf_quality import synthetic_pairs
 
 
@@ -33,18 +34,24 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     run = calibrate_files(tmp_path, scenes, measurements)
     out = capsys.readouterr().out.splitlines()
     lines = [ln for ln in out if ln.startswith("[")]
-    total = 1 + 3 + len(THRESHOLDS) * 3
+    total = SENSOR_ROUNDS + 1 + 3 + len(THRESHOLDS) * 3
     assert len(lines) == total
     for i, line in enumerate(lines, 1):
         assert re.fullmatch(rf"\[{i}/{total}\] .+ \(\d+ s\)", line), line
-    # The four estimates run as parallel jobs and are reported as each ends, in any
-    # order; the recipe's solves follow them, counted as they end.
+    # First the sensor response's rounds, one after the other; then the four estimates
+    # run as parallel jobs and are reported as each ends, in any order; the recipe's
+    # solves follow them, counted as they end.
+    for r in range(1, SENSOR_ROUNDS + 1):
+        assert lines[r - 1].startswith(f"[{r}/{total}] sensor response: round {r} of "
+                                       f"{SENSOR_ROUNDS}"), lines
+    lines = lines[SENSOR_ROUNDS:]
     steps = [re.sub(r"^\[\d+/\d+\] | \(\d+ s\)$", "", ln) for ln in lines]
     assert sorted(s.split(":")[0] for s in steps[:4]) == [
         "PSF from 3 pair(s)", "PSF without p0", "PSF without p1", "PSF without p2"], steps
     solves = len(THRESHOLDS) * 3
     for k, line in enumerate(lines[4:], 1):
-        assert line.startswith(f"[{4 + k}/{total}] recipe: solve {k} of {solves}"), line
+        assert line.startswith(f"[{SENSOR_ROUNDS + 4 + k}/{total}] recipe: solve {k} of "
+                               f"{solves}"), line
     summary = RunStore.open(run).attrs["summary"]
     recipe = summary["early_stop"]  # and one line on what recon --psf RUN will run
     kept = "kept" if recipe["field_response"] else "not kept"
@@ -52,6 +59,8 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     assert len(said) == 1, out
     assert said[0].startswith(f"recipe: FISTA {recipe['iterations']} iterations"), said
     assert f"field response {kept} ({recipe['field_gain_db']:+.2f} dB" in said[0], said
+    # the PSF was estimated with the sensor's shading (recon.analysis.sensor_response)
+    assert summary["sensor_response"]["min"] > 0 and summary["sensor_response"]["grid_shape"]
     quality = summary["held_out_reference_db"]
     assert sorted(quality) == ["p0", "p1", "p2"] and all(v > 5 for v in quality.values())
     assert abs(summary["held_out_reference_db_mean"] - np.mean(list(quality.values()))) <= 0.01

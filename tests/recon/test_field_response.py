@@ -153,3 +153,18 @@ def test_the_recipes_reconstruction_is_multiplied_by_its_field_response():
     b = reconstruct_early_stopped(psf, raw, shaped, dark="none")
     assert np.allclose(b.image, apply_field_response(a, grid), rtol=1e-5, atol=1e-7)
     assert b.info.extra["calibration"]["field_response"] is True
+
+
+def test_a_gain_where_the_images_hold_no_light_is_bounded():
+    """Where every reconstruction is near zero but the scenes are lit, the gain is the
+    ratio of two near-empty sums; it is capped at MAX_GAIN (it reached 268 on real
+    pairs whose PSF was estimated with a sensor response)."""
+    from recon.analysis.field_response import MAX_GAIN
+
+    scenes = _scenes(3, 7, support=False)
+    images = [s.copy() for s in scenes]
+    for im in images:
+        im[:, :90] *= 1e-4  # a band the reconstructions left dark
+    grid = fit_field_response(images, scenes)
+    assert grid.max() == pytest.approx(MAX_GAIN)
+    assert np.median(field_gain(grid, scenes[0].shape)[:, 130:]) == pytest.approx(1.0, abs=0.05)
