@@ -89,13 +89,12 @@ def load_psfs(psf_dir: Path, names, scenes, measurements) -> list[np.ndarray]:
 def load_sensor_psfs(psf_dir: Path | None, names, scenes, measurements
                      ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Each pair's leave-one-out PSF and sensor response, as the scene calibration
-    makes them (:func:`recon.analysis.sensor_response.fit_sensor_response` on the
-    other pairs, then their PSF from the measurements divided by it): PSFs (H, W, 3)
+    makes them (:func:`recon.analysis.sensor_response.estimate_with_sensor_response`
+    on the other pairs): PSFs (H, W, 3)
     float32 and response grids (n_rows, n_cols) float64. Read from ``psf_dir``
     (``psf_sensor_{pair}.npy``, ``sensor_{pair}.npy``) when there, else estimated and,
     with a ``psf_dir``, saved there."""
-    from recon.analysis.psf_from_scenes import estimate_psf_from_scenes
-    from recon.analysis.sensor_response import fit_sensor_response, remove_sensor_response
+    from recon.analysis.sensor_response import estimate_with_sensor_response
 
     psfs, grids = [], []
     for k, n in enumerate(names):
@@ -107,9 +106,8 @@ def load_sensor_psfs(psf_dir: Path | None, names, scenes, measurements
             continue
         xs = [x for i, x in enumerate(scenes) if i != k]
         bs = [b for i, b in enumerate(measurements) if i != k]
-        grid = fit_sensor_response(xs, bs)
-        psf = estimate_psf_from_scenes(xs, [remove_sensor_response(b, grid) for b in bs]).psf
-        psfs.append(np.asarray(psf, np.float32))
+        estimate, grid = estimate_with_sensor_response(xs, bs)
+        psfs.append(np.asarray(estimate.psf, np.float32))
         grids.append(grid)
         if files is not None:
             files[0].parent.mkdir(parents=True, exist_ok=True)

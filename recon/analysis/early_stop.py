@@ -338,12 +338,12 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
     """The recipe for ``psf`` fitted on its calibration pairs: each pair's PSF
     estimated without it (:func:`recon.analysis.psf_from_scenes.leave_one_out`), then
     :func:`fit_early_stop` and :func:`reference_db`, on the pairs binned by
-    ``bin_factor`` (module docstring). When the PSF from every pair is estimated
-    here, it is estimated with the sensor's shading as a nuisance
-    (:func:`recon.analysis.sensor_response.fit_sensor_response` on the binned pairs,
-    then the PSF from the measurements divided by it): a better PSF for the measurement
-    as captured. The held-out PSFs and the recipe's solves use the measurements as
-    captured, as the reconstruction does (docs/real-data.md).
+    ``bin_factor`` (module docstring). The PSFs are estimated with the sensor's shading
+    as a nuisance (:mod:`recon.analysis.sensor_response`; ``fit_sensor``): the PSF
+    from every pair, when estimated here, with the response of every pair (fitted on
+    the binned pairs), each held-out PSF with the response of its own pairs (the held-
+    out pair unseen). The recipe's solves, like every reconstruction, take the
+    measurements as captured (docs/real-data.md).
 
     The estimates (``psf``'s when not given, and the held-out ones) and then the
     recipe's solves run as :func:`recon.fft.map_jobs`: each on one FFT thread, as
@@ -367,8 +367,8 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
         ``on_estimate(k)`` after pair ``k``'s held-out PSF (progress; in the order the
         estimates end).
     fit_sensor : bool
-        Estimate the PSF from every pair with the sensor response (default); False:
-        without (before 2026-11-29).
+        Estimate the PSFs with the sensor response (default); False: without (as before
+        2026-11-29). A ``psf`` given should have been estimated the same way.
     on_sensor : callable, optional
         ``on_sensor(round, estimate)`` after each round of the sensor response's fit
         (progress).
@@ -387,8 +387,12 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
         larger than the pairs.
     """
     from ..preprocess.binning import box_bin
-    from .psf_from_scenes import estimate_psf_from_scenes, held_out_estimate
-    from .sensor_response import fit_sensor_response, remove_sensor_response
+    from .psf_from_scenes import estimate_psf_from_scenes, held_out_estimate, relative_residuals
+    from .sensor_response import (
+        estimate_with_sensor_response,
+        fit_sensor_response,
+        remove_sensor_response,
+    )
 
     shape = check_pairs(scenes, measurements)[0][0].shape
     if len(scenes) < 2:
@@ -419,7 +423,13 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
             return estimate_psf_from_scenes(
                 scenes, [remove_sensor_response(m, sensor) for m in measurements],
                 **full_options)
-        return held_out_estimate(xs, bs, k, **psf_options)
+        if not fit_sensor:
+            return held_out_estimate(xs, bs, k, **psf_options)
+        # as the PSF it stands for: with the response of its own pairs (pair k unseen)
+        train = [i for i in range(len(xs)) if i != k]
+        h = estimate_with_sensor_response([xs[i] for i in train], [bs[i] for i in train],
+                                          binned_by=b, **psf_options)[0].psf
+        return h, relative_residuals(h, [xs[k]], [bs[k]])[0]
 
     here = psf is None
     jobs = ([None] if here else []) + list(range(len(xs)))

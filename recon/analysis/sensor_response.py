@@ -19,17 +19,18 @@ predicted and the measured light of every pair and channel, smoothed by a Gaussi
 :data:`SENSOR_BIN` pixels a sample (the response is smooth; its PSF estimates cost a
 sixteenth of full size's).
 
-It is a nuisance of the PSF's estimate, not part of the reconstruction: the shipped
-PSF is estimated from the measurements divided by it (:func:`remove_sensor_response`),
-and reconstructions take the measurement as captured (dividing it there too did not
-pay once the recipe's field response, :mod:`recon.field_response`, was fitted:
-docs/real-data.md). On the five shared real pairs (docs/real-data.md) the held-out
-measurement residual fell from 0.069 to 0.055 with two rounds; the response is
-brighter at the bottom centre of the sensor and darker at its top right (0.88 to
-1.20; the same pattern, correlation 0.89 to 0.99, from any four of the pairs); and in
-the strictly nested leave-one-out the PSF estimated with it gave LenslessPiCam +0.35
-dB, the point-source default +0.34 dB and the scene-calibrated default +0.28 dB on
-the measurements as captured.
+It is a nuisance of the PSF's estimate, not part of the reconstruction: a
+calibration's PSFs (the one it ships and each held-out one its recipe is fitted with,
+:func:`recon.analysis.early_stop.fit_recipe`) are estimated from the measurements
+divided by the response of their own pairs (:func:`estimate_with_sensor_response`),
+and every reconstruction takes the measurement as captured (dividing it there too did
+not pay once the recipe's field response, :mod:`recon.field_response`, was fitted). On
+the five shared real pairs (docs/real-data.md) the fit residual fell from 0.069 to
+0.055 with two rounds; the response is brighter at the bottom centre of the sensor and
+darker at its top right (0.87 to 1.17; the same pattern, correlation 0.89 to 0.99, from
+any four of the pairs); and in the strictly nested leave-one-out the PSFs estimated
+with it bought LenslessPiCam and the point-source default +0.35 dB each and the
+scene-calibrated default more (docs/real-data.md).
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ from ..field_response import STEP_PX, field_gain, resample_evenly
 from ..validate import as_int
 from .psf_from_scenes import check_pairs, estimate_psf_from_scenes, predict_measurements
 
-__all__ = ["MIN_GAIN", "MIN_SIDE_PX", "ROUNDS", "SENSOR_BIN", "SIGMA_PX", "fit_sensor_response",
-           "grid_shape", "remove_sensor_response"]
+__all__ = ["MIN_GAIN", "MIN_SIDE_PX", "ROUNDS", "SENSOR_BIN", "SIGMA_PX",
+           "estimate_with_sensor_response", "fit_sensor_response", "grid_shape",
+           "remove_sensor_response"]
 
 #: Smoothing of the response, a Gaussian's standard deviation in full-size pixels.
 SIGMA_PX = 15.0
@@ -90,6 +92,36 @@ def remove_sensor_response(measurement, grid) -> np.ndarray:
     return (b / (g[..., None] if b.ndim == 3 else g)).astype(np.float32)
 
 
+def estimate_with_sensor_response(scenes, measurements, *, binned_by: int = 1,
+                                  on_round=None, **psf_options):
+    """The PSF of a calibration estimated with the sensor's shading as a nuisance: the
+    response (:func:`fit_sensor_response`), then the PSF from the measurements
+    divided by it (module docstring).
+
+    Parameters
+    ----------
+    scenes, measurements, binned_by, on_round, **psf_options
+        As for :func:`fit_sensor_response`.
+
+    Returns
+    -------
+    estimate : recon.analysis.psf_from_scenes.PsfEstimate
+        The PSF, at the pairs' size.
+    grid : ndarray, float64, (n_rows, n_cols)
+        The response it was estimated with.
+
+    Raises
+    ------
+    ReconInputError
+        What :func:`fit_sensor_response` or the estimate refuses.
+    """
+    grid = fit_sensor_response(scenes, measurements, binned_by=binned_by, on_round=on_round,
+                               **psf_options)
+    estimate = estimate_psf_from_scenes(
+        scenes, [remove_sensor_response(m, grid) for m in measurements], **psf_options)
+    return estimate, grid
+
+
 def _binning(shape, binned_by: int) -> int:
     """The further binning of pairs of ``shape`` already binned by ``binned_by``."""
     factor = max(1, SENSOR_BIN // binned_by)
@@ -124,7 +156,7 @@ def fit_sensor_response(scenes, measurements, *, binned_by: int = 1, rounds: int
     -------
     ndarray, float64, :func:`grid_shape` of the full-size sensor
         The response, > 0, median about 1; divide it out of a measurement with
-        :func:`recon.field_response.remove_sensor_response`.
+        :func:`remove_sensor_response`.
 
     Raises
     ------
