@@ -24,7 +24,8 @@ in dB over the pairs (the geometric mean of the relative errors) wins
 (:func:`fit_early_stop`). The pairs' held-out reconstructions with that triple then
 give the recipe's field response (:mod:`recon.analysis.field_response`: a smooth gain
 over the field, for the camera's falloff and the light the model spreads where the
-scenes had none), kept only if it lowered the error of pairs it was not fitted on.
+scenes had none), kept only if it lowered the error of pairs it was not fitted on by
+at least :data:`recon.analysis.field_response.KEEP_DB`.
 
 :func:`fit_recipe` runs the whole fit: the held-out PSFs and the recipe, on the pairs
 binned 2 x 2 (:data:`FIT_BIN`) where each side keeps at least :data:`FIT_MIN_PX`
@@ -52,7 +53,7 @@ from ..early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity, psf_sig
 from ..errors import ReconInputError
 from ..fft import map_jobs
 from ..validate import as_int
-from .field_response import fit_field_response, held_out_field_gain_db
+from .field_response import KEEP_DB, fit_field_response, held_out_field_gain_db
 from .psf_from_scenes import LeaveOneOut, PsfEstimate, check_pairs
 
 __all__ = ["CANDIDATES", "FIT_BIN", "FIT_MIN_PX", "REFERENCE_ITERATIONS", "THRESHOLDS",
@@ -224,7 +225,8 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         Fit a field response (:mod:`recon.analysis.field_response`) on the pairs'
         held-out reconstructions with the recipe chosen (their solves' checkpoints,
         kept until the choice: one image per candidate count and pair), and keep it if
-        its mean held-out gain is above 0 dB (recorded either way).
+        its mean held-out gain is at least
+        :data:`recon.analysis.field_response.KEEP_DB` (recorded either way).
 
     Returns
     -------
@@ -288,7 +290,7 @@ def fit_early_stop(scenes, measurements, held_out_psfs: Sequence, psf, *,
         images = [denoise_tv(x, ws[m]) if ws[m] > 0 else x for x in images]
         checkpoints.clear()
         gain_db = float(np.mean(held_out_field_gain_db(images, xs, scorers, binning)))
-        grid = fit_field_response(images, xs, binning) if gain_db > 0 else None
+        grid = fit_field_response(images, xs, binning) if gain_db >= KEEP_DB else None
     return EarlyStop(cands[j], tuple(cands), errors, psf_identity(psf), tuple(names),
                      ts[i], ws[m], tuple(ts), tuple(ws), psf_signature(psf),
                      fit_bin_factor=binning, field_response=grid, field_gain_db=gain_db)

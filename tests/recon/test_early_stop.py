@@ -266,3 +266,22 @@ def test_the_fit_denoises_only_at_nonzero_weights_and_solves_once_per_pair(camer
                 image = real_solve(clean_psf(psf, t), bs[1], [n])[n]
                 assert fit.errors[i, j, m, 1] == pytest.approx(
                     gain_fitted_error(real_denoise(image, w), xs[1]), rel=1e-9)
+
+
+@pytest.mark.parametrize("gains, kept", [((0.01, 0.02), False), ((0.04, 0.08), True),
+                                         ((-0.3, 0.2), False)])
+def test_a_field_response_is_kept_only_where_it_clearly_pays(camera, monkeypatch, gains,
+                                                            kept):
+    """The held-out gain must reach KEEP_DB (0.05 dB): the simulated bench's +0.0003 dB
+    would black out half the field for nothing. Recorded either way."""
+    import recon.analysis.early_stop as fit_module
+    from recon.analysis.field_response import KEEP_DB
+
+    psf, _, _, _, scenes, measurements = camera
+    monkeypatch.setattr(fit_module, "held_out_field_gain_db",
+                        lambda *a, **k: np.array(gains, float))
+    fit = fit_early_stop(scenes[:2], measurements[:2], [psf, psf], psf, candidates=(3, 10),
+                         **COUNT_ONLY)
+    assert fit.field_gain_db == pytest.approx(np.mean(gains))
+    assert (fit.field_response is not None) is kept
+    assert kept == bool(np.mean(gains) >= KEEP_DB)
