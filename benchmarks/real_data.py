@@ -269,8 +269,7 @@ def _psfs(psf_dir, names, bin_factor, scenes, measurements, sensor: bool):
     """Each pair's leave-one-out PSF (with the sensor response, or without)."""
     kept = bin_factor == 1 and len(names) == len(NAMES) and psf_dir is not None
     if sensor:
-        return load_sensor_psfs(Path(psf_dir) if kept else None, names, scenes,
-                                measurements)[0]
+        return load_sensor_psfs(Path(psf_dir) if kept else None, names, scenes, measurements)
     if kept:
         return load_psfs(Path(psf_dir), names, scenes, measurements)
     from recon.analysis.psf_from_scenes import leave_one_out

@@ -86,34 +86,26 @@ def load_psfs(psf_dir: Path, names, scenes, measurements) -> list[np.ndarray]:
     return [np.asarray(p, np.float32) for p in psfs]
 
 
-def load_sensor_psfs(psf_dir: Path | None, names, scenes, measurements
-                     ) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Each pair's leave-one-out PSF and sensor response, as the scene calibration
-    makes them (:func:`recon.analysis.sensor_response.estimate_with_sensor_response`
-    on the other pairs): PSFs (H, W, 3)
-    float32 and response grids (n_rows, n_cols) float64. Read from ``psf_dir``
-    (``psf_sensor_{pair}.npy``, ``sensor_{pair}.npy``) when there, else estimated and,
-    with a ``psf_dir``, saved there."""
+def load_sensor_psfs(psf_dir: Path | None, names, scenes, measurements) -> list[np.ndarray]:
+    """Each pair's leave-one-out PSF (H, W, 3) float32 as the scene calibration makes
+    it (:func:`recon.analysis.sensor_response.estimate_with_sensor_response` on the
+    other pairs): read from ``psf_dir`` (``psf_sensor_{pair}.npy``) when there, else
+    estimated and, with a ``psf_dir``, saved there."""
     from recon.analysis.sensor_response import estimate_with_sensor_response
 
-    psfs, grids = [], []
+    psfs = []
     for k, n in enumerate(names):
-        files = (None if psf_dir is None else
-                 (Path(psf_dir) / f"psf_sensor_{n}.npy", Path(psf_dir) / f"sensor_{n}.npy"))
-        if files is not None and all(f.is_file() for f in files):
-            psfs.append(np.load(files[0]).astype(np.float32))
-            grids.append(np.load(files[1]))
+        path = None if psf_dir is None else Path(psf_dir) / f"psf_sensor_{n}.npy"
+        if path is not None and path.is_file():
+            psfs.append(np.load(path).astype(np.float32))
             continue
         xs = [x for i, x in enumerate(scenes) if i != k]
         bs = [b for i, b in enumerate(measurements) if i != k]
-        estimate, grid = estimate_with_sensor_response(xs, bs)
-        psfs.append(np.asarray(estimate.psf, np.float32))
-        grids.append(grid)
-        if files is not None:
-            files[0].parent.mkdir(parents=True, exist_ok=True)
-            np.save(files[0], psfs[-1])
-            np.save(files[1], grid)
-    return psfs, grids
+        psfs.append(np.asarray(estimate_with_sensor_response(xs, bs)[0].psf, np.float32))
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            np.save(path, psfs[-1])
+    return psfs
 
 
 def _reconstruct(psf, raw, prior: str, weight):

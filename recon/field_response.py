@@ -25,7 +25,7 @@ import numpy as np
 from .errors import ReconInputError
 
 __all__ = ["STEP_PX", "apply_field_response", "check_field_response", "field_gain",
-           "resample_evenly"]
+           "field_gain_like", "resample_evenly"]
 
 #: Pixels of the full-size PSF per node of the field response's grid; the gain is
 #: smoothed over about this scale (a Gaussian of 0.8 of it) before it is sampled.
@@ -78,6 +78,23 @@ def field_gain(grid, shape) -> np.ndarray:
     return resample_evenly(grid, shape).astype(np.float32)
 
 
+def field_gain_like(grid, image) -> np.ndarray:
+    """:func:`field_gain` of ``grid`` for ``image``, shaped to broadcast against it
+    (every colour channel alike).
+
+    Parameters
+    ----------
+    grid : array_like, (n_rows, n_cols), float
+    image : ndarray, (rows, cols) or (rows, cols, channels)
+
+    Returns
+    -------
+    ndarray, float32, (rows, cols) or (rows, cols, 1)
+    """
+    g = field_gain(grid, image.shape)
+    return g[..., None] if image.ndim == 3 else g
+
+
 def apply_field_response(image, grid) -> np.ndarray:
     """``image`` multiplied by the field response ``grid`` (every channel alike).
 
@@ -94,8 +111,7 @@ def apply_field_response(image, grid) -> np.ndarray:
     x = np.asarray(image, np.float32)
     if grid is None:
         return x.copy()
-    g = field_gain(grid, x.shape)
-    return (x * (g[..., None] if x.ndim == 3 else g)).astype(np.float32)
+    return (x * field_gain_like(grid, x)).astype(np.float32)
 
 
 def check_field_response(value) -> np.ndarray:

@@ -389,7 +389,7 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
         larger than the pairs.
     """
     from ..preprocess.binning import box_bin
-    from .psf_from_scenes import estimate_psf_from_scenes, held_out_estimate, relative_residuals
+    from .psf_from_scenes import binned_psf_options, estimate_psf_from_scenes, held_out_estimate
     from .sensor_response import (
         estimate_with_sensor_response,
         fit_sensor_response,
@@ -409,9 +409,7 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
                                   "a factor that leaves at least 2 pixels a side")
         xs, bs = [box_bin(np.asarray(x), b) for x in xs], [box_bin(np.asarray(m), b)
                                                             for m in bs]
-        if psf_options.get("psf_shape") is not None:
-            psf_options = {**psf_options, "psf_shape": tuple(
-                max(2, int(n) // b) for n in psf_options["psf_shape"])}
+        psf_options = binned_psf_options(psf_options, b)
     if psf is not None and tuple(n // b for n in np.shape(psf)[:2]) != np.shape(xs[0])[:2]:
         raise ReconInputError(f"PSF of shape {np.shape(psf)} for pairs of shape {shape} "
                               f"binned {b} x {b}: give the PSF estimated from the pairs")
@@ -420,18 +418,18 @@ def fit_recipe(scenes, measurements, psf=None, *, bin_factor: int | None = None,
     if psf is None and fit_sensor:  # on the binned pairs: it is smooth
         sensor = fit_sensor_response(xs, bs, binned_by=b, on_round=on_sensor, **psf_options)
 
+    def with_sensor(scenes_, measurements_, **options):
+        return estimate_with_sensor_response(scenes_, measurements_, binned_by=b,
+                                             **options)[0]
+
     def estimate(k):  # None: the PSF from every pair, full size (the largest job: first)
         if k is None:
             return estimate_psf_from_scenes(
                 scenes, [remove_sensor_response(m, sensor) for m in measurements],
                 **full_options)
-        if not fit_sensor:
-            return held_out_estimate(xs, bs, k, **psf_options)
         # as the PSF it stands for: with the response of its own pairs (pair k unseen)
-        train = [i for i in range(len(xs)) if i != k]
-        h = estimate_with_sensor_response([xs[i] for i in train], [bs[i] for i in train],
-                                          binned_by=b, **psf_options)[0].psf
-        return h, relative_residuals(h, [xs[k]], [bs[k]])[0]
+        return held_out_estimate(xs, bs, k, estimate=with_sensor if fit_sensor else None,
+                                 **psf_options)
 
     here = psf is None
     jobs = ([None] if here else []) + list(range(len(xs)))

@@ -47,7 +47,7 @@ from ..fft import irfftn, map_jobs, rfftn
 from ..operators import ConvolutionOperator, real32
 from ..validate import as_int, as_shape2, finite_float
 
-__all__ = ["ESTIMATE_ITERATIONS", "LeaveOneOut", "PsfEstimate", "check_pairs",
+__all__ = ["ESTIMATE_ITERATIONS", "LeaveOneOut", "PsfEstimate", "binned_psf_options", "check_pairs",
            "estimate_psf_from_scenes", "held_out_estimate", "leave_one_out",
            "predict_measurements", "relative_residuals"]
 
@@ -519,7 +519,28 @@ def leave_one_out(scenes, measurements, *, on_estimate=None, **options) -> Leave
     return LeaveOneOut(np.array([r for _, r in out]), [h for h, _ in out])
 
 
-def held_out_estimate(scenes, measurements, k: int, **options
+def binned_psf_options(options: dict, factor: int) -> dict:
+    """``options`` of :func:`estimate_psf_from_scenes` for the pairs binned by
+    ``factor``: a ``psf_shape`` divided by it (at least 2 pixels a side).
+
+    Parameters
+    ----------
+    options : dict
+    factor : int
+        The binning (>= 1).
+
+    Returns
+    -------
+    dict
+        ``options`` itself when it names no ``psf_shape``, else a copy.
+    """
+    if options.get("psf_shape") is None:
+        return options
+    return {**options, "psf_shape": tuple(max(2, int(n) // factor)
+                                          for n in options["psf_shape"])}
+
+
+def held_out_estimate(scenes, measurements, k: int, *, estimate=None, **options
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Pair ``k``'s entry of :func:`leave_one_out`: the PSF estimated from the other
     pairs and pair ``k``'s relative residual under it.
@@ -530,6 +551,10 @@ def held_out_estimate(scenes, measurements, k: int, **options
         As for :func:`leave_one_out` (checked there).
     k : int
         The pair held out.
+    estimate : callable, optional
+        ``estimate(scenes, measurements, **options) -> PsfEstimate`` in place of
+        :func:`estimate_psf_from_scenes` (e.g. with a sensor response,
+        :func:`recon.analysis.sensor_response.estimate_with_sensor_response`).
     **options
         Of :func:`estimate_psf_from_scenes`.
 
@@ -545,6 +570,6 @@ def held_out_estimate(scenes, measurements, k: int, **options
         What :func:`estimate_psf_from_scenes` refuses.
     """
     train = [i for i in range(len(scenes)) if i != k]
-    est = estimate_psf_from_scenes([scenes[i] for i in train],
-                                   [measurements[i] for i in train], **options)
+    est = (estimate or estimate_psf_from_scenes)([scenes[i] for i in train],
+                                                 [measurements[i] for i in train], **options)
     return est.psf, relative_residuals(est.psf, [scenes[k]], [measurements[k]])[0]

@@ -39,9 +39,14 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from ..errors import ReconInputError
-from ..field_response import STEP_PX, field_gain, resample_evenly
+from ..field_response import STEP_PX, field_gain_like, resample_evenly
 from ..validate import as_int
-from .psf_from_scenes import check_pairs, estimate_psf_from_scenes, predict_measurements
+from .psf_from_scenes import (
+    binned_psf_options,
+    check_pairs,
+    estimate_psf_from_scenes,
+    predict_measurements,
+)
 
 __all__ = ["MIN_GAIN", "MIN_SIDE_PX", "ROUNDS", "SENSOR_BIN", "SIGMA_PX",
            "estimate_with_sensor_response", "fit_sensor_response", "grid_shape",
@@ -77,7 +82,7 @@ def remove_sensor_response(measurement, grid) -> np.ndarray:
     measurement : array_like, (rows, cols) or (rows, cols, channels), real
         Dark-subtracted (the response multiplies light, not the dark level), at any
         binning: the grid covers the sensor evenly
-        (:func:`recon.field_response.field_gain`).
+        (:func:`recon.field_response.field_gain_like`).
     grid : array_like, (n_rows, n_cols), > 0, or None
         None: the measurement unchanged (as float32).
 
@@ -88,8 +93,7 @@ def remove_sensor_response(measurement, grid) -> np.ndarray:
     b = np.asarray(measurement, np.float32)
     if grid is None:
         return b.copy()
-    g = field_gain(grid, b.shape)
-    return (b / (g[..., None] if b.ndim == 3 else g)).astype(np.float32)
+    return (b / field_gain_like(grid, b)).astype(np.float32)
 
 
 def estimate_with_sensor_response(scenes, measurements, *, binned_by: int = 1,
@@ -161,7 +165,8 @@ def fit_sensor_response(scenes, measurements, *, binned_by: int = 1, rounds: int
     Raises
     ------
     ReconInputError
-        What the PSF estimate refuses, or ``binned_by`` or ``rounds`` < 1.
+        What the PSF estimate refuses, ``binned_by`` or ``rounds`` < 1, or a response
+        whose median is not positive (a measurement with negative light).
     """
     from ..preprocess.binning import box_bin
 
@@ -173,9 +178,7 @@ def fit_sensor_response(scenes, measurements, *, binned_by: int = 1, rounds: int
     if factor > 1:  # the last rows and columns short of a block left out (it is smooth)
         rows, cols = (n - n % factor for n in xs[0].shape[:2])
         xs, bs = ([box_bin(a[:rows, :cols], factor) for a in group] for group in (xs, bs))
-        if psf_options.get("psf_shape") is not None:
-            psf_options = {**psf_options, "psf_shape": tuple(
-                max(2, int(n) // factor) for n in psf_options["psf_shape"])}
+        psf_options = binned_psf_options(psf_options, factor)
     sigma = SIGMA_PX / (binned_by * factor)
     grid = None
     for r in range(1, rounds + 1):
@@ -184,11 +187,9 @@ def fit_sensor_response(scenes, measurements, *, binned_by: int = 1, rounds: int
         if on_round is not None:
             on_round(r, est)
         gain = _gain(est.psf, xs, bs, sigma)
-        # the grid of the full-size sensor: the binned pairs cover it evenly
-        grid = resample_evenly(gain, grid_shape(full)).round(4)  # as the recipe stores it
-    if not np.all(np.isfinite(grid)) or grid.min() <= 0:
-        raise ReconInputError("the sensor response came out non-positive or not finite: "
-                              "check the pairs (a measurement with negative light?)")
+        # the grid of the full-size sensor: the binned pairs cover it evenly; each gain
+        # >= MIN_GAIN, so the grid too (bilinear)
+        grid = resample_evenly(gain, grid_shape(full)).round(4)
     return grid
 
 
