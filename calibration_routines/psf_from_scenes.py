@@ -229,7 +229,9 @@ def _calibrate(scenes, measurements, names, options, on_progress):
     """The PSF from every pair, each pair's PSF without it, the recipe and the quality
     figure, reporting ``on_progress(done, total, what)`` after each step."""
     n = len(scenes)
-    total = 1 + (SENSOR_ROUNDS + n + len(THRESHOLDS) * n if n > 1 else 0)
+    # the recipe solves each pair twice per threshold: with its held-out PSF and with the
+    # PSF from every pair (recon.analysis.early_stop.fit_recipe's in_sample)
+    total = 1 + (SENSOR_ROUNDS + n + 2 * len(THRESHOLDS) * n if n > 1 else 0)
     done = 0
 
     def report(what):

@@ -243,6 +243,13 @@ class EarlyStop:
         What the field response bought the calibration pairs held out from its fit
         (mean dB, :func:`recon.analysis.field_response.held_out_field_gain_db`),
         recorded also when it did not pay; None when not fitted.
+    lead_errors : ndarray, float64, (2, n_thresholds, n_candidates, n_pairs), or None
+        The lead (green) channel's errors undenoised, each pair reconstructed with its
+        held-out PSF (``[0]``) and with the PSF the recipe is for, estimated from every
+        pair, itself included (``[1]``): the fit moved the held-out errors at each
+        count halfway towards the in-sample ones by their gap
+        (:func:`recon.analysis.early_stop.fit_early_stop`'s ``in_sample``); None: the
+        held-out errors alone chose (and files of the earlier form).
     """
 
     iterations: int
@@ -259,6 +266,7 @@ class EarlyStop:
     fit_bin_factor: int = 1
     field_response: np.ndarray | None = None
     field_gain_db: float | None = None
+    lead_errors: np.ndarray | None = None
 
     @property
     def trusted(self) -> bool:
@@ -273,6 +281,13 @@ class EarlyStop:
         if e.ndim == 2:  # the earlier form: counts x pairs
             e = e[None, :, None, :]
         object.__setattr__(self, "errors", e)
+        if self.lead_errors is not None:
+            lead = np.asarray(self.lead_errors, float)
+            if lead.shape != (2,) + e.shape[:2] + e.shape[3:]:
+                raise ReconInputError(f"lead-channel errors of shape {lead.shape} for errors "
+                                      f"of shape {e.shape}: give two (held out, in-sample) "
+                                      "per threshold, count and pair")
+            object.__setattr__(self, "lead_errors", lead)
 
     def clean_psf(self, psf, dark_level=None) -> np.ndarray:
         """``psf`` thresholded at ``psf_threshold`` (:func:`clean_psf`), after
@@ -335,6 +350,8 @@ class EarlyStop:
                 f"{self.iterations} iterations{post}: the least mean gain-fitted error (dB) "
                 f"on {len(self.pairs) or 'the'} calibration pairs, each reconstructed with "
                 "the PSF estimated without it" + (
+                    ", moved halfway at each count towards the errors with the PSF "
+                    "from every pair" if self.lead_errors is not None else "") + (
                     f" (binned {self.fit_bin_factor} x {self.fit_bin_factor})"
                     if self.fit_bin_factor > 1 else ""))
 
@@ -348,6 +365,10 @@ class EarlyStop:
                 "weights": [float(w) for w in self.weights],
                 "errors_axes": ["threshold", "iterations", "denoise_weight", "pair"],
                 "errors": np.asarray(self.errors, float).round(6).tolist(),
+                **({} if self.lead_errors is None else
+                   {"lead_errors_axes": ["psf (held out, from every pair)", "threshold",
+                                         "iterations", "pair"],
+                    "lead_errors": np.asarray(self.lead_errors, float).round(6).tolist()}),
                 "psf_sha256": self.psf_sha256, "pairs": list(self.pairs),
                 "psf_block_means": [float(v) for v in self.psf_block_means],
                 "fit_bin_factor": int(self.fit_bin_factor), "method": self.method,
@@ -364,7 +385,8 @@ class EarlyStop:
         """An :class:`EarlyStop` from :meth:`to_dict`'s form, validated: the fitted values
         must be among the candidates the file lists (the fit chooses among them), the
         counts whole numbers in [1, :data:`MAX_ITERATIONS`], the thresholds in [0, 1),
-        the weights finite and >= 0, the errors and the held-out residual finite.
+        the weights finite and >= 0, the errors (the lead channel's too) and the held-out
+        residual finite.
 
         Raises
         ------
@@ -390,6 +412,11 @@ class EarlyStop:
             errors = np.asarray(d["errors"], float)
             if not np.all(np.isfinite(errors)):
                 raise _bad("errors", "a non-finite value", "finite numbers")
+            lead = d.get("lead_errors")
+            if lead is not None:
+                lead = np.asarray(lead, float)
+                if not np.all(np.isfinite(lead)):
+                    raise _bad("lead_errors", "a non-finite value", "finite numbers")
             residual = d.get("held_out_residual")
             residual = None if residual is None else _number(residual, "held_out_residual",
                                                              0.0)
@@ -404,7 +431,7 @@ class EarlyStop:
                        tuple(d.get("pairs", ())), threshold, weight, thresholds, weights,
                        tuple(float(v) for v in d.get("psf_block_means", ())), residual,
                        _count(d.get("fit_bin_factor", 1), "fit_bin_factor"), field_grid,
-                       None if field_db is None else float(field_db))
+                       None if field_db is None else float(field_db), lead)
         except ReconInputError:
             raise
         except (KeyError, TypeError, ValueError) as exc:

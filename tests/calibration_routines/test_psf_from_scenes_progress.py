@@ -34,7 +34,8 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     run = calibrate_files(tmp_path, scenes, measurements)
     out = capsys.readouterr().out.splitlines()
     lines = [ln for ln in out if ln.startswith("[")]
-    total = SENSOR_ROUNDS + 1 + 3 + len(THRESHOLDS) * 3
+    solves = 2 * len(THRESHOLDS) * 3  # each pair with its held-out PSF and the shipped one
+    total = SENSOR_ROUNDS + 1 + 3 + solves
     assert len(lines) == total
     for i, line in enumerate(lines, 1):
         assert re.fullmatch(rf"\[{i}/{total}\] .+ \(\d+ s\)", line), line
@@ -48,7 +49,6 @@ def test_progress_lines_and_the_quality_figure(tmp_path, capsys):
     steps = [re.sub(r"^\[\d+/\d+\] | \(\d+ s\)$", "", ln) for ln in lines]
     assert sorted(s.split(":")[0] for s in steps[:4]) == [
         "PSF from 3 pair(s)", "PSF without p0", "PSF without p1", "PSF without p2"], steps
-    solves = len(THRESHOLDS) * 3
     for k, line in enumerate(lines[4:], 1):
         assert line.startswith(f"[{SENSOR_ROUNDS + 4 + k}/{total}] recipe: solve {k} of "
                                f"{solves}"), line

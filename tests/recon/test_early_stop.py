@@ -11,7 +11,6 @@ import json
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter
 
 import recon
 from recon.analysis.early_stop import (
@@ -26,7 +25,8 @@ from recon.analysis.field_response import held_out_field_gain_db
 from recon.analysis.psf_from_scenes import estimate_psf_from_scenes, leave_one_out
 from recon.early_stop import EarlyStop, clean_psf, denoise_tv, psf_identity
 from recon.errors import ReconInputError
-from recon.operators import ConvolutionOperator
+
+from .synthetic_camera import semiconvergent_pairs
 
 ROWS, COLS = 24, 32
 COUNTS = (1, 3, 10, 30, 100, 300, 1000)
@@ -35,18 +35,7 @@ COUNT_ONLY = {"thresholds": (0.0,), "weights": (0.0,)}
 
 @pytest.fixture(scope="module")
 def camera():
-    rng = np.random.default_rng(3)
-    h = np.zeros((ROWS, COLS), np.float32)
-    for _ in range(12):
-        h[rng.integers(2, ROWS - 2), rng.integers(2, COLS - 2)] = rng.random() + 0.5
-    h = gaussian_filter(h, 0.7)
-    padded = np.pad(h, ((ROWS // 2, ROWS // 2), (COLS // 2, COLS // 2)))
-    scenes, measurements = [], []
-    for _ in range(5):
-        x = np.clip(gaussian_filter(rng.random((ROWS, COLS)), 1.5) * 4 - 1.5, 0, None) + 0.05
-        b = ConvolutionOperator(x.astype(np.float32)).forward(padded)
-        scenes.append(x.astype(np.float32))
-        measurements.append((b + 0.03 * b.std() * rng.standard_normal(b.shape)).astype(np.float32))
+    scenes, measurements = semiconvergent_pairs(ROWS, COLS, 5)
     calib_x, calib_b = scenes[:4], measurements[:4]
     psf = estimate_psf_from_scenes(calib_x, calib_b).psf
     fit = fit_early_stop(calib_x, calib_b, leave_one_out(calib_x, calib_b).psfs, psf,
