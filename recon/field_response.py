@@ -95,14 +95,18 @@ def field_gain_like(grid, image) -> np.ndarray:
     return g[..., None] if image.ndim == 3 else g
 
 
-def apply_field_response(image, grid) -> np.ndarray:
-    """``image`` multiplied by the field response ``grid`` (every channel alike).
+def apply_field_response(image, grid, *, divide: bool = False) -> np.ndarray:
+    """``image`` multiplied by the field response ``grid`` (every channel alike), or
+    divided by it.
 
     Parameters
     ----------
     image : array_like, (rows, cols) or (rows, cols, channels), real
     grid : array_like, (n_rows, n_cols), or None
         None: the image unchanged (as float32).
+    divide : bool
+        Divide by the gain instead: a response to take out of a measurement
+        (:func:`recon.analysis.sensor_response.remove_sensor_response`; every gain > 0).
 
     Returns
     -------
@@ -111,7 +115,8 @@ def apply_field_response(image, grid) -> np.ndarray:
     x = np.asarray(image, np.float32)
     if grid is None:
         return x.copy()
-    return (x * field_gain_like(grid, x)).astype(np.float32)
+    gain = field_gain_like(grid, x)
+    return (x / gain if divide else x * gain).astype(np.float32)
 
 
 def check_field_response(value) -> np.ndarray:

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter
 
 from ..errors import ReconInputError
-from ..field_response import STEP_PX, field_gain_like, resample_evenly
+from ..field_response import STEP_PX, apply_field_response, resample_evenly
 from ..validate import as_int
 from .psf_from_scenes import (
     binned_psf_options,
@@ -90,10 +90,7 @@ def remove_sensor_response(measurement, grid) -> np.ndarray:
     -------
     ndarray, float32, the measurement's shape
     """
-    b = np.asarray(measurement, np.float32)
-    if grid is None:
-        return b.copy()
-    return (b / field_gain_like(grid, b)).astype(np.float32)
+    return apply_field_response(measurement, grid, divide=True)
 
 
 def estimate_with_sensor_response(scenes, measurements, *, binned_by: int = 1,

@@ -11,13 +11,13 @@ import json
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter
 
 from recon.analysis.early_stop import FIT_MIN_PX, fit_bin_factor, fit_held_out, fit_recipe
 from recon.analysis.psf_from_scenes import estimate_psf_from_scenes
 from recon.early_stop import EarlyStop
 from recon.errors import ReconInputError
-from recon.operators import ConvolutionOperator
+
+from .synthetic_camera import measure, smooth_scene, sparse_psf
 
 ROWS, COLS = 2 * FIT_MIN_PX, 2 * FIT_MIN_PX + 32
 COUNTS = (3, 10, 30, 100, 300)
@@ -27,18 +27,12 @@ ONE = {"thresholds": (0.0,), "weights": (0.0,)}
 @pytest.fixture(scope="module")
 def pairs():
     rng = np.random.default_rng(7)
-    h = np.zeros((ROWS, COLS), np.float32)
-    for _ in range(40):
-        h[rng.integers(8, ROWS - 8), rng.integers(8, COLS - 8)] = rng.random() + 0.5
-    h = gaussian_filter(h, 1.5)
+    h = sparse_psf(rng, ROWS, COLS, points=40, margin=8, sigma_px=1.5)
     scenes, measurements = [], []
     for _ in range(4):
-        x = np.clip(gaussian_filter(rng.random((ROWS, COLS)), 4.0) * 8 - 3.5, 0, None) + 0.05
-        op = ConvolutionOperator(x.astype(np.float32))  # the scene in the PSF's role
-        padded = np.zeros(op.padded_shape, np.float32)
-        padded[op.crop] = h
-        b = op.forward(padded)
-        scenes.append(x.astype(np.float32))
+        x = smooth_scene(rng, ROWS, COLS, sigma_px=4.0, gain=8, floor=3.5)
+        b = measure(x, h)
+        scenes.append(x)
         measurements.append((b + 0.03 * b.std() * rng.standard_normal(b.shape)).astype(
             np.float32))
     return scenes, measurements, estimate_psf_from_scenes(scenes, measurements).psf

@@ -9,7 +9,6 @@ and a PSF estimated with it must predict a pair it never saw better than one wit
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter
 
 from recon.analysis.early_stop import fit_recipe
 from recon.analysis.psf_from_scenes import estimate_psf_from_scenes, predict_measurements
@@ -21,7 +20,8 @@ from recon.analysis.sensor_response import (
     remove_sensor_response,
 )
 from recon.field_response import field_gain
-from recon.operators import ConvolutionOperator
+
+from .synthetic_camera import measure, smooth_scene, sparse_psf
 
 ROWS, COLS = 64, 96
 
@@ -38,18 +38,14 @@ def _shading(rows=ROWS, cols=COLS):
 @pytest.fixture(scope="module")
 def camera():
     rng = np.random.default_rng(5)
-    h = np.zeros((ROWS, COLS), np.float32)
-    for _ in range(40):
-        h[rng.integers(4, ROWS - 4), rng.integers(4, COLS - 4)] = rng.random() + 0.5
-    h = gaussian_filter(h, 0.8)
-    padded = np.pad(h, ((ROWS // 2, ROWS // 2), (COLS // 2, COLS // 2)))
+    h = sparse_psf(rng, ROWS, COLS, points=40, margin=4, sigma_px=0.8)
     v = _shading()
     scenes, shaded, flat = [], [], []
     for _ in range(6):
-        x = np.clip(gaussian_filter(rng.random((ROWS, COLS)), 2.0) * 4 - 1.5, 0, None) + 0.05
-        b = ConvolutionOperator(x.astype(np.float32)).forward(padded)
+        x = smooth_scene(rng, ROWS, COLS, sigma_px=2.0)
+        b = measure(x, h)
         noise = 0.01 * b.std() * rng.standard_normal(b.shape)
-        scenes.append(x.astype(np.float32))
+        scenes.append(x)
         shaded.append((v * b + noise).astype(np.float32))
         flat.append((b + noise).astype(np.float32))
     return scenes, shaded, flat, v
